@@ -1,0 +1,1 @@
+"""captures: reserved package of mcp-conform (see DESIGN.md); not implemented yet."""

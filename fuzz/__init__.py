@@ -1,0 +1,1 @@
+"""fuzz: reserved package of mcp-conform (see DESIGN.md); not implemented yet."""

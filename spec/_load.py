@@ -1,0 +1,255 @@
+"""Load and check ``spec/mcp.yaml``: the single source of truth of mcp-conform.
+
+``load()`` validates the YAML against ``mcp.schema.json`` and then checks what a schema
+cannot (struct strings agree with their field lists and sizes, the preamble agrees with the
+header constants, rule IDs are unique, every D-/E- reference exists, observation entries
+match the rule's roles). Any problem raises :class:`SpecError` whose message names the bad
+key, e.g. ``spec/mcp.yaml: rules[3].level: 'MAY' is not one of ['MUST', 'SHOULD', 'INFO']``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+SPEC_PATH = Path(__file__).with_name("mcp.yaml")
+SCHEMA_PATH = Path(__file__).with_name("mcp.schema.json")
+
+ROLES = ("drone", "manager")
+LEVELS = ("MUST", "SHOULD", "INFO")
+
+
+class SpecError(ValueError):
+    """The spec file is broken; the message names the offending key."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    """How a black-box runner observes a rule on a node of one role."""
+
+    observable: str  # "mcp" | "vehicle" | "none"
+    side: str  # "sender" | "receiver"
+    reason: str | None = None
+
+
+@dataclass(frozen=True)
+class Rule:
+    """One normative requirement of the catalogue, with its stable ID."""
+
+    id: str
+    group: str
+    level: str
+    roles: tuple[str, ...]
+    text: str
+    source: str
+    depends_on: tuple[str, ...]
+    observe: Mapping[str, Observation]
+    status: str = "active"
+
+    def applies_to(self, role: str) -> bool:
+        """True when the rule binds a node of ``role`` (``drone`` or ``manager``)."""
+        return role in self.observe
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    code: int
+    name: str
+    wire_name: str
+    sent_by: str
+    delivery: str
+    payload: str
+    payload_kind: str
+    on_wire: bool
+    doc: str
+
+
+@dataclass(frozen=True)
+class Note:
+    """An erratum (E-n) or a decision (D-n)."""
+
+    id: str
+    title: str
+    text: str
+    parameter: str | None = None
+
+
+@dataclass(frozen=True)
+class Spec:
+    """The loaded, checked spec. ``raw`` keeps the YAML tree for derived artefacts."""
+
+    raw: Mapping[str, Any]
+    sha256: str
+    path: Path
+    rules: tuple[Rule, ...]
+    actions: tuple[ActionSpec, ...]
+    errata: tuple[Note, ...]
+    decisions: tuple[Note, ...]
+    params: Mapping[str, float]
+    rules_by_id: Mapping[str, Rule] = field(repr=False)
+
+    # -- convenience views -------------------------------------------------------------
+    @property
+    def protocol(self) -> Mapping[str, Any]:
+        return self.raw["protocol"]
+
+    @property
+    def header(self) -> Mapping[str, Any]:
+        return self.raw["header"]
+
+    @property
+    def mission_item(self) -> Mapping[str, Any]:
+        return self.raw["mission_item"]
+
+    @property
+    def payloads(self) -> Mapping[str, Any]:
+        return self.raw["payloads"]
+
+    @property
+    def groups(self) -> Mapping[str, str]:
+        return self.raw["groups"]
+
+    @property
+    def version(self) -> str:
+        return str(self.protocol["document_version"])
+
+    @property
+    def preamble(self) -> bytes:
+        return bytes.fromhex(self.header["preamble_hex"])
+
+    def rule(self, rule_id: str) -> Rule:
+        return self.rules_by_id[rule_id]
+
+    def rules_for(self, role: str) -> tuple[Rule, ...]:
+        return tuple(r for r in self.rules if r.applies_to(role))
+
+
+def _where(path: Any) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _fail(where: str, msg: str, source: Path) -> SpecError:
+    return SpecError(f"{source}: {where}: {msg}")
+
+
+def _check_struct(where: str, fmt: str, fields: list[dict[str, Any]], size: int, src: Path) -> None:
+    try:
+        calc = struct.calcsize(fmt)
+    except struct.error as exc:
+        raise _fail(where + ".struct", f"bad struct string {fmt!r}: {exc}", src) from None
+    if calc != size:
+        raise _fail(where + ".size", f"{size} but struct {fmt!r} packs {calc} bytes", src)
+    joined = fmt[0] + "".join(f["code"] for f in fields)
+    if struct.calcsize(joined) != calc or _norm(joined) != _norm(fmt):
+        raise _fail(where + ".fields", f"field codes {joined!r} do not spell struct {fmt!r}", src)
+
+
+def _norm(fmt: str) -> str:
+    """Expand repeat counts ('2B' -> 'BB') so two struct strings compare field by field."""
+    out, num = fmt[0] if fmt[0] in "@=<>!" else "", ""
+    for ch in fmt[1:] if out else fmt:
+        if ch.isdigit():
+            num += ch
+        elif ch in "sp":
+            out += (num or "1") + ch
+            num = ""
+        else:
+            out += ch * int(num or "1")
+            num = ""
+    return out
+
+
+def load(path: str | Path | None = None) -> Spec:
+    """Load, validate and check the spec file (default: the packaged ``mcp.yaml``)."""
+    src = Path(path) if path is not None else SPEC_PATH
+    try:
+        text = src.read_bytes()
+    except OSError as exc:
+        raise SpecError(f"{src}: cannot read spec: {exc.strerror}") from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SpecError(f"{src}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    schema = json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(raw), key=lambda e: list(e.absolute_path))
+    if errors:
+        err = errors[0]
+        raise _fail(_where(err.absolute_path), err.message, src)
+    return _build(raw, hashlib.sha256(text).hexdigest(), src)
+
+
+def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
+    hdr = raw["header"]
+    _check_struct("header", hdr["struct"], hdr["fields"], hdr["size"], src)
+    consts = b""
+    for f in hdr["fields"]:
+        if "const" in f:
+            c = f["const"]
+            consts += c.encode("ascii") if isinstance(c, str) else bytes([c])
+    if consts != bytes.fromhex(hdr["preamble_hex"]):
+        raise _fail("header.preamble_hex", f"{hdr['preamble_hex']} disagrees with the field constants {consts.hex().upper()}", src)
+    item = raw["mission_item"]
+    _check_struct("mission_item", item["struct"], item["fields"], item["size"], src)
+
+    payloads = raw["payloads"]
+    actions = []
+    seen_codes: set[int] = set()
+    for i, a in enumerate(raw["actions"]):
+        if a["code"] in seen_codes:
+            raise _fail(f"actions[{i}].code", f"duplicate action code {a['code']}", src)
+        seen_codes.add(a["code"])
+        if a["payload"] not in payloads:
+            raise _fail(f"actions[{i}].payload", f"unknown payload layout {a['payload']!r}", src)
+        actions.append(ActionSpec(
+            code=a["code"], name=a["name"], wire_name=a["wire_name"], sent_by=a["sent_by"],
+            delivery=a["delivery"], payload=a["payload"], payload_kind=payloads[a["payload"]]["kind"],
+            on_wire=a.get("on_wire", True), doc=a["doc"]))
+    wire = sorted(a.code for a in actions if a.on_wire)
+    if wire != list(range(len(wire))):
+        raise _fail("actions", f"on-wire action codes must be 0..N without gaps, got {wire}", src)
+
+    errata = tuple(Note(**n) for n in raw["errata"])
+    decisions = tuple(Note(**n) for n in raw["decisions"])
+    note_ids = {n.id for n in errata + decisions}
+    params = {k: v["default"] for k, v in raw["parameters"].items()}
+    for i, n in enumerate(decisions):
+        if n.parameter is not None and n.parameter not in params and n.parameter not in raw["protocol"]:
+            raise _fail(f"decisions[{i}].parameter", f"names no parameter: {n.parameter!r}", src)
+
+    rules: list[Rule] = []
+    by_id: dict[str, Rule] = {}
+    for i, r in enumerate(raw["rules"]):
+        where = f"rules[{i}]"
+        group = r["id"].split("-")[1]
+        if group not in raw["groups"]:
+            raise _fail(where + ".id", f"{r['id']}: group {group!r} is not declared in groups", src)
+        if r["id"] in by_id:
+            raise _fail(where + ".id", f"duplicate rule ID {r['id']}", src)
+        for dep in r.get("depends_on", []):
+            if dep not in note_ids:
+                raise _fail(where + ".depends_on", f"{r['id']}: unknown erratum/decision {dep}", src)
+        roles = tuple(r["roles"])
+        expected = set(ROLES) if "any" in roles else set(roles)
+        if set(r["observe"]) != expected:
+            raise _fail(where + ".observe", f"{r['id']}: observation roles {sorted(r['observe'])} do not match roles {list(roles)}", src)
+        rule = Rule(
+            id=r["id"], group=group, level=r["level"], roles=roles, text=" ".join(r["text"].split()),
+            source=r["source"], depends_on=tuple(r.get("depends_on", [])),
+            observe={k: Observation(**v) for k, v in r["observe"].items()},
+            status=r.get("status", "active"))
+        rules.append(rule)
+        by_id[rule.id] = rule
+    return Spec(raw=raw, sha256=sha, path=src, rules=tuple(rules), actions=tuple(actions),
+                errata=errata, decisions=decisions, params=params, rules_by_id=by_id)

@@ -1,0 +1,268 @@
+"""The MCP wire codec, derived from ``spec/mcp.yaml`` at import.
+
+``encode(Message) -> bytes`` and ``decode(bytes) -> Message``. The header and mission-item
+``struct.Struct`` tables are compiled from the spec's struct strings; each action code's
+payload codec is chosen by the payload *kind* the spec gives it, so no message type has
+hand-written packing. ``decode`` raises only :class:`DecodeError`, whose ``rule`` is the
+violated rule ID (MCP-ROB-1/2/3/4, MCP-PAY-6); ``encode`` raises
+:class:`LocalProtocolError` when our own caller builds a message the spec does not allow.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import namedtuple
+from collections.abc import Callable
+from enum import IntEnum
+from typing import Any, NamedTuple
+
+from spec import SPEC
+from spec.mavframe import FrameError, parse_frame
+
+__all__ = [
+    "Action",
+    "BROADCAST_ID",
+    "DecodeError",
+    "HEADER",
+    "HEADER_SIZE",
+    "ITEM",
+    "ITEM_SIZE",
+    "LocalProtocolError",
+    "MANAGER_ID",
+    "MAX_DATAGRAM",
+    "Message",
+    "MissionItem",
+    "PREAMBLE",
+    "Payload",
+    "build_datagram",
+    "decode",
+    "encode",
+    "encode_payload",
+    "peek_header",
+]
+
+# ---------------------------------------------------------------- derived constants
+HEADER = struct.Struct(SPEC.header["struct"])
+HEADER_SIZE: int = HEADER.size
+PREAMBLE: bytes = SPEC.preamble
+_PREAMBLE_CONSTS = tuple(
+    (f["const"].encode("ascii") if isinstance(f["const"], str) else f["const"])
+    for f in SPEC.header["fields"] if "const" in f
+)
+_HEADER_FIELDS = tuple(f["name"] for f in SPEC.header["fields"] if "const" not in f)
+ITEM = struct.Struct(SPEC.mission_item["struct"])
+ITEM_SIZE: int = ITEM.size
+MANAGER_ID: int = SPEC.protocol["manager_id"]
+BROADCAST_ID: int = SPEC.protocol["broadcast_id"]
+MAX_DATAGRAM: int = SPEC.protocol["max_datagram"]
+
+#: Action codes, from the spec's action table (MISSION_READY = 0 ... MAV_PASSTHROUGH = 8,
+#: and ANY = 9, an API filter that never goes on the wire, MCP-HDR-3).
+Action = IntEnum("Action", [(a.name, a.code) for a in SPEC.actions])  # type: ignore[misc]
+Action.__doc__ = "MCP action codes, derived from spec/mcp.yaml."
+Action.__module__ = __name__
+
+#: One mission item: the MAVLink v1 MISSION_ITEM payload (MCP-PAY-4, E-1, E-2).
+MissionItem = namedtuple("MissionItem", [f["name"] for f in SPEC.mission_item["fields"]])  # type: ignore[misc]
+MissionItem.__doc__ = "A mission item (MAVLink MISSION_ITEM payload, 37 bytes), fields from spec/mcp.yaml."
+MissionItem.__module__ = __name__
+
+Payload = Any  # None | int | MissionItem | tuple[MissionItem, ...] | bytes
+
+
+class Message(NamedTuple):
+    """One MCP message. ``payload`` is typed by ``action``:
+
+    - Mission_Ready: ``None`` or the drone's ID (int, D-3)
+    - Start_Mission, End_Mission, WP_Off: ``None``
+    - WP_List, Obstacles_List: ``tuple[MissionItem, ...]``
+    - WP_On: one ``MissionItem``
+    - ACK: the acknowledged sequence number (int)
+    - Mav_Passthrough: the raw MAVLink frame (bytes)
+    """
+
+    dst: int
+    src: int
+    seq: int
+    action: Action
+    payload: Payload = None
+
+
+if Message._fields[:-1] != _HEADER_FIELDS:  # the record follows the spec's header table
+    raise ImportError(f"spec header fields {_HEADER_FIELDS} do not match Message {Message._fields}")
+
+
+class DecodeError(ValueError):
+    """A datagram is not a well-formed MCP message; ``rule`` names the violated rule."""
+
+    def __init__(self, rule: str, reason: str) -> None:
+        super().__init__(f"{rule}: {reason}")
+        self.rule = rule
+        self.reason = reason
+
+
+class LocalProtocolError(ValueError):
+    """Our own caller asked to encode something the spec does not allow."""
+
+
+# ---------------------------------------------------------------- payload codecs by kind
+_U16 = struct.Struct("!H")
+_ACTIONS: tuple[Action, ...] = tuple(sorted((a for a in Action if SPEC.actions[a].on_wire), key=int))
+_make_item = MissionItem._make
+_iter_items = ITEM.iter_unpack
+
+
+def _dec_empty(data: bytes, n: int, src: int) -> None:
+    if n != HEADER_SIZE:
+        raise DecodeError("MCP-ROB-4", f"payload of {n - HEADER_SIZE} bytes where this action has none")
+
+
+def _dec_optional_id(data: bytes, n: int, src: int) -> int | None:
+    if n == HEADER_SIZE:
+        return None
+    if n != HEADER_SIZE + 2:
+        raise DecodeError("MCP-ROB-4", f"Mission_Ready payload of {n - HEADER_SIZE} bytes (0 or 2 allowed, D-3)")
+    (ident,) = _U16.unpack_from(data, HEADER_SIZE)
+    if ident != src:
+        raise DecodeError("MCP-ROB-4", f"Mission_Ready carries ID {ident} but src is {src} (D-3)")
+    return ident
+
+
+def _dec_seq(data: bytes, n: int, src: int) -> int:
+    if n != HEADER_SIZE + 2:
+        raise DecodeError("MCP-ROB-4", f"ACK payload of {n - HEADER_SIZE} bytes (exactly 2 required)")
+    return _U16.unpack_from(data, HEADER_SIZE)[0]
+
+
+def _dec_items(data: bytes, n: int, src: int) -> tuple[Any, ...]:
+    if n < HEADER_SIZE + 2:
+        raise DecodeError("MCP-ROB-4", f"list payload of {n - HEADER_SIZE} bytes has no 2-byte count")
+    (count,) = _U16.unpack_from(data, HEADER_SIZE)
+    want = HEADER_SIZE + 2 + ITEM_SIZE * count
+    if n != want:
+        raise DecodeError("MCP-ROB-4", f"count {count} needs {want} bytes, datagram has {n}")
+    return tuple(map(_make_item, _iter_items(memoryview(data)[HEADER_SIZE + 2:])))
+
+
+def _dec_item(data: bytes, n: int, src: int) -> Any:
+    if n != HEADER_SIZE + ITEM_SIZE:
+        raise DecodeError("MCP-ROB-4", f"WP_On payload of {n - HEADER_SIZE} bytes (exactly {ITEM_SIZE} required)")
+    return _make_item(ITEM.unpack_from(data, HEADER_SIZE))
+
+
+def _dec_frame(data: bytes, n: int, src: int) -> bytes:
+    frame = bytes(data[HEADER_SIZE:])
+    try:
+        parse_frame(frame)
+    except FrameError as exc:
+        raise DecodeError("MCP-PAY-6", str(exc)) from None
+    return frame
+
+
+def _enc_empty(payload: Any) -> bytes:
+    if payload is not None and payload != b"":
+        raise LocalProtocolError(f"this action carries no payload, got {payload!r}")
+    return b""
+
+
+def _enc_optional_id(payload: Any) -> bytes:
+    return b"" if payload is None else _enc_seq(payload)
+
+
+def _enc_seq(payload: Any) -> bytes:
+    if not isinstance(payload, int) or not 0 <= payload <= 0xFFFF:
+        raise LocalProtocolError(f"expected a u16, got {payload!r}")
+    return _U16.pack(payload)
+
+
+def _pack_item(item: Any) -> bytes:
+    try:
+        return ITEM.pack(*item)
+    except (struct.error, TypeError) as exc:
+        raise LocalProtocolError(f"bad mission item {item!r}: {exc}") from None
+
+
+def _enc_items(payload: Any) -> bytes:
+    items = tuple(payload)
+    if len(items) > 0xFFFF:
+        raise LocalProtocolError(f"{len(items)} items do not fit a u16 count")
+    return _U16.pack(len(items)) + b"".join(map(_pack_item, items))
+
+
+def _enc_item(payload: Any) -> bytes:
+    return _pack_item(payload)
+
+
+def _enc_frame(payload: Any) -> bytes:
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise LocalProtocolError(f"Mav_Passthrough payload must be frame bytes, got {type(payload).__name__}")
+    return bytes(payload)
+
+
+_KINDS: dict[str, tuple[Callable[..., Any], Callable[[Any], bytes]]] = {
+    "empty": (_dec_empty, _enc_empty),
+    "optional_id": (_dec_optional_id, _enc_optional_id),
+    "seq": (_dec_seq, _enc_seq),
+    "counted_items": (_dec_items, _enc_items),
+    "single_item": (_dec_item, _enc_item),
+    "mavlink_frame": (_dec_frame, _enc_frame),
+}
+_DECODERS = tuple(_KINDS[SPEC.actions[a].payload_kind][0] for a in _ACTIONS)
+_ENCODERS = tuple(_KINDS[SPEC.actions[a].payload_kind][1] for a in _ACTIONS)
+_N_ACTIONS = len(_ACTIONS)
+_unpack_header = HEADER.unpack_from
+_pack_header = HEADER.pack
+_P0, _P1, _P2 = _PREAMBLE_CONSTS
+_PRE_LEN = len(PREAMBLE)
+
+
+# ---------------------------------------------------------------- public API
+def decode(data: bytes) -> Message:
+    """Decode one datagram. Raises only :class:`DecodeError` (with ``.rule``)."""
+    try:
+        n = len(data)
+    except TypeError:
+        raise DecodeError("MCP-ROB-1", f"not a datagram: {type(data).__name__}") from None
+    if n < HEADER_SIZE:
+        raise DecodeError("MCP-ROB-1", f"datagram of {n} bytes is shorter than the {HEADER_SIZE}-byte header")
+    if data[:_PRE_LEN] != PREAMBLE:
+        raise DecodeError("MCP-ROB-2", f"preamble {bytes(data[:_PRE_LEN]).hex(' ')} is not {PREAMBLE.hex(' ')}")
+    _, _, _, dst, src, seq, action = _unpack_header(data)
+    if action >= _N_ACTIONS:
+        raise DecodeError("MCP-ROB-3", f"action code {action} is not 0-{_N_ACTIONS - 1}")
+    return Message(dst, src, seq, _ACTIONS[action], _DECODERS[action](data, n, src))
+
+
+def encode_payload(action: int, payload: Any) -> bytes:
+    """The payload bytes of ``payload`` for ``action`` (validated like :func:`encode`)."""
+    if not 0 <= action < _N_ACTIONS:
+        raise LocalProtocolError(f"action {action!r} cannot go on the wire (MCP-HDR-3)")
+    return _ENCODERS[action](payload)
+
+
+def encode(msg: Message) -> bytes:
+    """Encode one message. Raises :class:`LocalProtocolError` on a message the spec forbids."""
+    dst, src, seq, action, payload = msg
+    if not 0 <= action < _N_ACTIONS:
+        raise LocalProtocolError(f"action {action!r} cannot go on the wire (MCP-HDR-3)")
+    try:
+        head = _pack_header(_P0, _P1, _P2, dst, src, seq, action)
+    except struct.error as exc:
+        raise LocalProtocolError(f"header field out of range in {msg!r}: {exc}") from None
+    return head + _ENCODERS[action](payload)
+
+
+def build_datagram(dst: int, src: int, seq: int, action: int, payload: bytes = b"",
+                   preamble: bytes = PREAMBLE) -> bytes:
+    """Raw datagram with no validation of the payload: for crafting malformed input."""
+    return preamble + struct.pack("!4H", dst & 0xFFFF, src & 0xFFFF, seq & 0xFFFF, action & 0xFFFF) + payload
+
+
+def peek_header(data: bytes) -> tuple[int, int, int, int] | None:
+    """(dst, src, seq, action) of anything with a whole header and the right preamble, else None.
+
+    For observers that must attribute a reply even when its payload is malformed.
+    """
+    if len(data) < HEADER_SIZE or data[:_PRE_LEN] != PREAMBLE:
+        return None
+    return tuple(_unpack_header(data)[3:])  # type: ignore[return-value]

@@ -1,0 +1,74 @@
+"""MAVLink frames carried by Mav_Passthrough, checked through pymavlink (MCP-PAY-6).
+
+"Mav_Passthrough: ... The payload consists of a single embedded MAVLink message."
+A payload is valid when pymavlink's ardupilotmega parser (v2 module, which reads v1 and
+v2 frames) finds exactly one complete frame with a good CRC and no byte left over.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+DIALECT = "ardupilotmega"
+_BAD = mavlink2.MAVLink_bad_data
+
+
+class FrameError(ValueError):
+    """The bytes are not exactly one valid MAVLink frame; ``str()`` says why."""
+
+
+def parse_frame(data: bytes) -> Any:
+    """Return the one pymavlink message in ``data``; raise :class:`FrameError` otherwise."""
+    if not data:
+        raise FrameError("empty: no MAVLink frame")
+    if data[0] not in (mavlink2.PROTOCOL_MARKER_V1, mavlink2.PROTOCOL_MARKER_V2):
+        raise FrameError(f"starts with 0x{data[0]:02X}, not a MAVLink v1 (0xFE) or v2 (0xFD) marker")
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    try:
+        msgs = parser.parse_buffer(data) or []
+    except Exception as exc:  # pymavlink raises assorted errors on odd input
+        raise FrameError(f"unparseable MAVLink frame: {exc}") from None
+    left = len(parser.buf) - parser.buf_index
+    if left:
+        raise FrameError(f"incomplete MAVLink frame: {left} byte(s) without a whole frame")
+    bad = [m for m in msgs if isinstance(m, _BAD)]
+    if bad:
+        raise FrameError(f"bad MAVLink frame: {bad[0].reason}")
+    if len(msgs) != 1:
+        raise FrameError(f"{len(msgs)} MAVLink frames where exactly one is allowed")
+    return msgs[0]
+
+
+def is_frame(data: bytes) -> bool:
+    try:
+        parse_frame(data)
+    except FrameError:
+        return False
+    return True
+
+
+def pack_message(msg: Any, *, src_system: int = 255, src_component: int = 190,
+                 seq: int = 0, version: int = 2) -> bytes:
+    """Pack a pymavlink message object into one frame (v1 or v2) with a valid CRC."""
+    if version == 1:
+        from pymavlink.dialects.v10 import ardupilotmega as mavlink1
+
+        mav: Any = mavlink1.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+    else:
+        mav = mavlink2.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+    mav.seq = seq & 0xFF
+    return bytes(msg.pack(mav))
+
+
+def heartbeat_frame(version: int = 2, **kw: Any) -> bytes:
+    """A GCS HEARTBEAT frame: a small, always-valid example payload for Mav_Passthrough."""
+    if version == 1:
+        from pymavlink.dialects.v10 import ardupilotmega as mavlink1
+
+        msg: Any = mavlink1.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3)
+    else:
+        msg = mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3)
+    return pack_message(msg, version=version, **kw)
