@@ -1,0 +1,33 @@
+"""Simulated MAVLink autopilot (ArduCopter as a companion computer sees it).
+
+Used by the reference drone as its default autopilot and by the conformance runner as its
+observation point on a drone's MAVLink link. All timestamps are ``time.monotonic()``.
+
+>>> from vehicle import SimVehicle, make_probe
+>>> with SimVehicle(gps_fix_delay=0.0) as v:      # doctest: +SKIP
+...     url = v.url                               # "tcp:127.0.0.1:PORT" for pymavlink
+...     v.wait_for(lambda: v.armed, timeout=5)
+"""
+
+from .codec import Decoder, Encoder
+from .model import VehicleConfig, VehicleModel
+from .probe import PROBE_PREFIX, make_probe, probe_token
+from .records import COPTER_MODE_NAMES, COPTER_MODES, EVENT_KINDS, Event, Frame, mode_name
+from .server import SimVehicle
+
+__all__ = [
+    "COPTER_MODES",
+    "COPTER_MODE_NAMES",
+    "EVENT_KINDS",
+    "PROBE_PREFIX",
+    "Decoder",
+    "Encoder",
+    "Event",
+    "Frame",
+    "SimVehicle",
+    "VehicleConfig",
+    "VehicleModel",
+    "make_probe",
+    "mode_name",
+    "probe_token",
+]

@@ -1,0 +1,5 @@
+"""``python -m vehicle``: serve the simulated vehicle until Ctrl-C."""
+
+from .cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,350 @@
+"""``SimVehicle``: the vehicle model served over TCP the way ArduPilot SITL serves it.
+
+The vehicle listens; a node connects with ``mavutil.mavlink_connection("tcp:HOST:PORT")``.
+Either side may speak first: the vehicle sends a heartbeat and a telemetry snapshot as soon
+as a client connects, then streams telemetry to every connected client. Clients may come
+late, go away and come back (a restarted node), and several may be connected at once; each
+has its own parser and sequence numbers. Garbage bytes are counted, never fatal.
+
+Threads (all daemon): one accepting, one ticking telemetry, one reading per client. All
+access to the model goes through one re-entrant lock, so every public method and property
+is thread-safe. Timestamps are ``time.monotonic()`` seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import select
+import socket
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from .codec import Decoder, Encoder, MAVLinkMessage
+from .model import VehicleConfig, VehicleModel
+from .records import Event, Frame
+
+#: Seconds a blocked send may take before the client is considered dead.
+SEND_TIMEOUT = 2.0
+#: Poll interval of the accepting and reading threads (bounds ``close()`` latency).
+POLL = 0.05
+
+FrameTap = Callable[[float, str, int, bytes], None]
+
+
+class _Client:
+    """One TCP connection: socket, decoder, encoder and a lock for sending."""
+
+    def __init__(self, number: int, sock: socket.socket, peer: Any, sysid: int, compid: int):
+        self.number = number
+        self.sock = sock
+        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        self.decoder = Decoder()
+        self.encoder = Encoder(sysid, compid)
+        self.send_lock = threading.Lock()
+        self.alive = True
+        self.thread: threading.Thread | None = None
+
+
+class SimVehicle:
+    """A simulated ArduCopter on TCP with a thread-safe observer API.
+
+    ``SimVehicle(sysid=1, gps_fix_delay=0.0, climb_rate=20.0, fix_withheld=False)``: keyword
+    settings are ``VehicleConfig`` fields (applied on top of ``config`` if one is given).
+    ``on_event(event)`` is called for every recorded event and ``on_frame(t, direction,
+    conn, raw)`` for every frame sent ("tx") or received ("rx"); both run on a vehicle
+    thread with the vehicle's lock held, so they must be quick and must not wait for
+    other vehicle threads (reading the vehicle's properties is fine).
+    """
+
+    def __init__(
+        self,
+        config: VehicleConfig | None = None,
+        *,
+        on_event: Callable[[Event], None] | None = None,
+        on_frame: FrameTap | None = None,
+        **settings: Any,
+    ) -> None:
+        cfg = dataclasses.replace(config or VehicleConfig(), **settings)
+        self._cond = threading.Condition(threading.RLock())
+        self._model = VehicleModel(cfg, now=time.monotonic())
+        self._model.listener = on_event
+        self._on_frame = on_frame
+        self._stop = threading.Event()
+        self._listener: socket.socket | None = None
+        self._threads: list[threading.Thread] = []
+        self._clients: dict[int, _Client] = {}
+        self._connections = 0
+        self._host = "127.0.0.1"
+        self._port: int | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Listen on ``host:port`` (0 picks a free port), start the threads, return the port.
+
+        ``gps_fix_delay`` counts from here. Raises ``OSError`` if the port is taken and
+        ``RuntimeError`` if already started.
+        """
+        if self._listener is not None:
+            raise RuntimeError("vehicle already started")
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+            sock.listen(8)
+        except OSError:
+            sock.close()
+            raise
+        self._listener = sock
+        self._host = "127.0.0.1" if host in ("", "0.0.0.0") else host
+        self._port = sock.getsockname()[1]
+        with self._cond:
+            now = time.monotonic()
+            self._model.restart_fix_clock(now)
+        for target, name in ((self._accept_loop, "accept"), (self._tick_loop, "tick")):
+            thread = threading.Thread(target=target, name=f"vehicle-{name}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self._port
+
+    def close(self) -> None:
+        """Stop serving: close every socket and join the threads (about ``POLL`` s)."""
+        self._stop.set()
+        if self._listener is not None:
+            with contextlib.suppress(OSError):
+                self._listener.close()
+        with self._cond:
+            clients = list(self._clients.values())
+        for client in clients:
+            self._drop(client)
+        deadline = time.monotonic() + 1.0
+        for thread in self._threads + [c.thread for c in clients if c.thread]:
+            if thread is not threading.current_thread():
+                thread.join(max(0.0, deadline - time.monotonic()))
+        with self._cond:
+            self._cond.notify_all()
+
+    def __enter__(self) -> SimVehicle:
+        if self._listener is None:
+            self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ addresses
+    @property
+    def port(self) -> int | None:
+        """The bound TCP port (``None`` before ``start``)."""
+        return self._port
+
+    @property
+    def url(self) -> str:
+        """pymavlink connection string for a client, e.g. ``"tcp:127.0.0.1:5760"``."""
+        if self._port is None:
+            raise RuntimeError("vehicle not started")
+        return f"tcp:{self._host}:{self._port}"
+
+    # ------------------------------------------------------------------ control
+    def withhold_fix(self, duration: float | None = None) -> None:
+        """Report no GPS fix: until ``give_fix()``, or for ``duration`` seconds."""
+        with self._cond:
+            self._model.withhold_fix(time.monotonic(), duration)
+            self._cond.notify_all()
+
+    def give_fix(self) -> None:
+        """Report a 3D fix from now on."""
+        with self._cond:
+            self._model.give_fix(time.monotonic())
+            self._cond.notify_all()
+
+    def reset_observations(self) -> None:
+        """Forget recorded events, frames, probe counts and ``rtl_commanded``."""
+        with self._cond:
+            self._model.reset_observations()
+
+    # ------------------------------------------------------------------ observation
+    def _read(self, fn: Callable[[VehicleModel], Any]) -> Any:
+        with self._cond:
+            return fn(self._model)
+
+    @property
+    def has_fix(self) -> bool:
+        """Whether the vehicle currently reports a 3D fix."""
+        return bool(self._read(lambda m: m.has_fix(time.monotonic())))
+
+    @property
+    def armed(self) -> bool:
+        return bool(self._read(lambda m: m.armed))
+
+    @property
+    def mode(self) -> str:
+        """The ArduCopter mode name, e.g. ``"GUIDED"``."""
+        return str(self._read(lambda m: m.mode))
+
+    @property
+    def custom_mode(self) -> int:
+        return int(self._read(lambda m: m.custom_mode))
+
+    @property
+    def altitude(self) -> float:
+        """Metres above home (as last simulated)."""
+        return float(self._read(lambda m: m.altitude))
+
+    @property
+    def rtl_commanded(self) -> bool:
+        """True once RTL was requested (RTL mode or NAV_RETURN_TO_LAUNCH), even if refused."""
+        return bool(self._read(lambda m: m.rtl_commanded))
+
+    @property
+    def mission(self) -> list[dict[str, Any]]:
+        """The last uploaded mission (decoded MISSION_ITEM[_INT] fields)."""
+        return list(self._read(lambda m: [dict(i) for i in m.mission]))
+
+    @property
+    def connected(self) -> bool:
+        """Whether at least one client is connected now."""
+        return bool(self._read(lambda m: bool(self._clients)))
+
+    @property
+    def connections(self) -> int:
+        """How many clients have connected so far."""
+        return int(self._read(lambda m: self._connections))
+
+    def events(self, kind: str | None = None) -> list[Event]:
+        """Recorded events in order (optionally only ``kind``)."""
+        return list(self._read(lambda m: m.events(kind)))
+
+    def frames(self, msg_type: str | None = None) -> list[Frame]:
+        """Received frames in order (optionally only ``msg_type``, e.g. "COMMAND_LONG")."""
+        return list(self._read(lambda m: m.frames(msg_type)))
+
+    def first_time(self, kind: str) -> float | None:
+        """``time.monotonic()`` of the first ``kind`` event since the last reset."""
+        return self._read(lambda m: m.first_time(kind))
+
+    def probe_count(self, token: str) -> int:
+        """How many probe frames (``vehicle.make_probe(token)``) arrived."""
+        return int(self._read(lambda m: m.probe_count(token)))
+
+    def probe_tokens(self) -> dict[str, int]:
+        """Every probe token seen, with its count."""
+        return dict(self._read(lambda m: m.probe_tokens()))
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        """Wait until ``predicate()`` is true (re-checked on every change and every 50 ms).
+
+        Returns its last value; never waits longer than ``timeout`` seconds.
+        """
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                if predicate():
+                    return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._stop.is_set():
+                    return bool(predicate())
+                self._cond.wait(min(remaining, POLL))
+
+    # ------------------------------------------------------------------ threads
+    def _accept_loop(self) -> None:
+        listener = self._listener
+        assert listener is not None
+        while not self._stop.is_set():
+            try:
+                readable, _, _ = select.select([listener], [], [], POLL)
+                if not readable:
+                    continue
+                sock, peer = listener.accept()
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                time.sleep(POLL)
+                continue
+            self._serve(sock, peer)
+
+    def _serve(self, sock: socket.socket, peer: Any) -> None:
+        sock.settimeout(SEND_TIMEOUT)
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        with self._cond:
+            self._connections += 1
+            cfg = self._model.config
+            client = _Client(self._connections, sock, peer, cfg.sysid, cfg.compid)
+            self._clients[client.number] = client
+            now = time.monotonic()
+            self._model.record(now, "connect", conn=client.number, peer=client.peer)
+            self._send(client, self._model.snapshot(now))
+            self._cond.notify_all()
+        client.thread = threading.Thread(
+            target=self._read_loop, args=(client,), name=f"vehicle-conn{client.number}",
+            daemon=True,
+        )
+        client.thread.start()
+
+    def _read_loop(self, client: _Client) -> None:
+        sock = client.sock
+        while client.alive and not self._stop.is_set():
+            try:
+                readable, _, _ = select.select([sock], [], [], POLL)
+                if not readable:
+                    continue
+                data = sock.recv(65536)
+            except (OSError, ValueError):
+                break
+            if not data:
+                break
+            msgs, bad, reason = client.decoder.feed(data)
+            with self._cond:
+                now = time.monotonic()
+                if bad:
+                    self._model.record_bad_data(now, bad, reason, client.number)
+                for msg in msgs:
+                    raw = bytes(msg.get_msgbuf())
+                    if self._on_frame is not None:
+                        self._on_frame(now, "rx", client.number, raw)
+                    replies = self._model.handle(msg, now, raw=raw, conn=client.number)
+                    self._send(client, replies)
+                self._cond.notify_all()
+        self._drop(client)
+
+    def _tick_loop(self) -> None:
+        while not self._stop.is_set():
+            with self._cond:
+                msgs = self._model.tick(time.monotonic())
+                for client in list(self._clients.values()):
+                    self._send(client, msgs)
+                self._cond.notify_all()
+                delay = self._model.next_deadline() - time.monotonic()
+            self._stop.wait(min(max(delay, 0.001), POLL))
+
+    def _send(self, client: _Client, msgs: list[MAVLinkMessage]) -> None:
+        """Encode and send ``msgs`` to ``client`` (called with the lock held)."""
+        if not msgs or not client.alive:
+            return
+        with client.send_lock:
+            frames = [client.encoder.encode(m) for m in msgs]
+            try:
+                client.sock.sendall(b"".join(frames))
+            except OSError:
+                client.alive = False
+                return
+        if self._on_frame is not None:
+            now = time.monotonic()
+            for raw in frames:
+                self._on_frame(now, "tx", client.number, raw)
+
+    def _drop(self, client: _Client) -> None:
+        """Close a client's socket and forget it (idempotent)."""
+        client.alive = False
+        with contextlib.suppress(OSError):
+            client.sock.shutdown(socket.SHUT_RDWR)
+        with contextlib.suppress(OSError):
+            client.sock.close()
+        with self._cond:
+            if self._clients.pop(client.number, None) is not None:
+                self._model.record(time.monotonic(), "disconnect", conn=client.number,
+                                   peer=client.peer)
+            self._cond.notify_all()
