@@ -11,7 +11,6 @@ violated rule ID (MCP-ROB-1/2/3/4, MCP-PAY-6); ``encode`` raises
 from __future__ import annotations
 
 import struct
-from collections import namedtuple
 from collections.abc import Callable
 from enum import IntEnum
 from typing import Any, NamedTuple
@@ -56,16 +55,50 @@ MANAGER_ID: int = SPEC.protocol["manager_id"]
 BROADCAST_ID: int = SPEC.protocol["broadcast_id"]
 MAX_DATAGRAM: int = SPEC.protocol["max_datagram"]
 
-#: Action codes, from the spec's action table (MISSION_READY = 0 ... MAV_PASSTHROUGH = 8,
-#: and ANY = 9, an API filter that never goes on the wire, MCP-HDR-3).
-Action = IntEnum("Action", [(a.name, a.code) for a in SPEC.actions])  # type: ignore[misc]
-Action.__doc__ = "MCP action codes, derived from spec/mcp.yaml."
-Action.__module__ = __name__
+class Action(IntEnum):
+    """MCP action codes (MISSION_READY = 0 ... MAV_PASSTHROUGH = 8, and ANY = 9, an API
+    filter that never goes on the wire, MCP-HDR-3). Declared for type checkers and checked
+    against the spec's action table at import: the spec stays the source of truth."""
 
-#: One mission item: the MAVLink v1 MISSION_ITEM payload (MCP-PAY-4, E-1, E-2).
-MissionItem = namedtuple("MissionItem", [f["name"] for f in SPEC.mission_item["fields"]])  # type: ignore[misc]
-MissionItem.__doc__ = "A mission item (MAVLink MISSION_ITEM payload, 37 bytes), fields from spec/mcp.yaml."
-MissionItem.__module__ = __name__
+    MISSION_READY = 0
+    START_MISSION = 1
+    END_MISSION = 2
+    WP_LIST = 3
+    WP_ON = 4
+    WP_OFF = 5
+    OBSTACLES_LIST = 6
+    ACK = 7
+    MAV_PASSTHROUGH = 8
+    ANY = 9
+
+
+if [(a.name, int(a)) for a in Action] != [(a.name, a.code) for a in SPEC.actions]:
+    raise ImportError(f"spec action table {[(a.name, a.code) for a in SPEC.actions]} does not match Action")
+
+
+class MissionItem(NamedTuple):
+    """A mission item: the MAVLink v1 MISSION_ITEM payload, 37 bytes (MCP-PAY-4, E-1, E-2).
+
+    Fields follow spec/mcp.yaml's mission_item table (checked at import)."""
+
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+    x: float  # latitude (E-2)
+    y: float  # longitude (E-2)
+    z: float  # altitude
+    seq: int
+    command: int  # MAV_CMD
+    target_system: int
+    target_component: int
+    frame: int  # MAV_FRAME
+    current: int
+    autocontinue: int
+
+
+if MissionItem._fields != tuple(f["name"] for f in SPEC.mission_item["fields"]):
+    raise ImportError(f"spec mission_item fields do not match MissionItem {MissionItem._fields}")
 
 Payload = Any  # None | int | MissionItem | tuple[MissionItem, ...] | bytes
 

@@ -1,0 +1,198 @@
+"""Generate the human-readable spec page, ``docs/spec.md``, from ``spec/mcp.yaml``.
+
+The page is derived, never edited: header table (MCP-HDR-1/2), action codes with direction
+and payload layout (MCP-HDR-3/5), payload layouts (MCP-PAY-1..6, D-2, D-3), the mission
+item (MCP-PAY-4, E-1, E-2), parameters, errata and decisions, and the full rule table with
+levels, roles, the decisions each rule rests on and how a black-box runner observes it per
+role. ``python -m spec docs`` writes it and ``python -m spec docs --check`` fails when the
+committed page is stale.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from spec._load import ROLES, Spec
+
+__all__ = ["DEFAULT_OUTPUT", "check", "default_output", "render", "write"]
+
+#: Where the page lives, relative to the repository root.
+DEFAULT_OUTPUT = Path("docs") / "spec.md"
+
+
+def default_output() -> Path:
+    """``docs/spec.md`` of the source tree this package sits in, else of the working directory."""
+    root = Path(__file__).resolve().parents[1]
+    if (root / "pyproject.toml").is_file():
+        return root / DEFAULT_OUTPUT
+    return DEFAULT_OUTPUT
+
+
+def _cell(value: Any) -> str:
+    text = " ".join(str(value).split())
+    return text.replace("|", "\\|") if text else "—"
+
+
+def _table(head: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    out = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    out += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return out + [""]
+
+
+def _layout_rows(layout: Mapping[str, Any]) -> list[tuple[Any, ...]]:
+    """(offset, field, struct code, bytes, value or meaning) for a struct layout."""
+    order = layout["struct"][0] if layout["struct"][0] in "@=<>!" else "@"
+    rows, offset = [], 0
+    for f in layout["fields"]:
+        size = struct.calcsize(order + f["code"])
+        if "const" in f:
+            const = f["const"]
+            meaning = f"constant {const!r}" if isinstance(const, str) else f"constant {const}"
+            meaning += f" ({f['doc']})" if f.get("doc") else ""
+        else:
+            meaning = f.get("doc", "")
+        rows.append((offset, f"`{f['name']}`", f"`{f['code']}`", size, meaning))
+        offset += size
+    return rows
+
+
+def _payload_layout(spec: Spec, name: str) -> str:
+    p = spec.payloads[name]
+    kind = p["kind"]
+    item = spec.mission_item["size"]
+    if kind == "empty":
+        return "none (17-byte datagram)"
+    if kind == "optional_id":
+        return f"empty, or drone ID `{p['struct']}`"
+    if kind == "seq":
+        return f"acknowledged seq `{p['struct']}`"
+    if kind == "counted_items":
+        return f"count `{p['count_struct']}` + count × {item}-byte mission item"
+    if kind == "single_item":
+        return f"one {item}-byte mission item"
+    if kind == "mavlink_frame":
+        return f"one MAVLink v1/v2 frame ({p.get('dialect', '')})"
+    return kind
+
+
+def _observe(rule: Any, role: str) -> str:
+    obs = rule.observe.get(role)
+    if obs is None:
+        return "n/a"
+    text = f"{obs.observable} ({obs.side})"
+    return text + (f": {obs.reason}" if obs.reason else "")
+
+
+def render(spec: Spec) -> str:
+    """The whole page as Markdown, a pure function of the spec."""
+    proto = spec.protocol
+    hdr = spec.header
+    item = spec.mission_item
+    lines = [
+        f"# {proto['name']} ({proto['short_name']}) — specification",
+        "",
+        "<!-- Generated from spec/mcp.yaml by `python -m spec docs`. Do not edit by hand:",
+        "     edit spec/mcp.yaml and regenerate; a test fails when this page is stale. -->",
+        "",
+        f"Source document: {proto['document']}, version {proto['document_version']} "
+        f"({proto['document_date']}). Spec file format version {spec.raw['spec_version']}.",
+        "",
+        "## Protocol",
+        "",
+    ]
+    ports = ", ".join(f"{role} {port}" for role, port in proto["ports"].items())
+    lines += _table(("property", "value"), [
+        ("transport", str(proto["transport"]).upper()),
+        ("conventional ports", ports),
+        ("manager ID", proto["manager_id"]),
+        ("broadcast ID (D-1)", f"0x{proto['broadcast_id']:04X}"),
+        ("local broadcast address", proto["broadcast_address"]),
+        ("largest datagram", f"{proto['max_datagram']} bytes"),
+    ])
+    lines += [
+        "## Header",
+        "",
+        f"{hdr['size']} bytes, struct `{hdr['struct']}` ({hdr['byte_order']} byte order); "
+        f"preamble `{' '.join(spec.preamble.hex(' ').upper().split())}`.",
+        "",
+    ]
+    lines += _table(("offset", "field", "code", "bytes", "value / meaning"), _layout_rows(hdr))
+    lines += ["## Action codes", ""]
+    lines += _table(
+        ("code", "name", "sent by", "delivery", "payload", "meaning"),
+        [(a.code, f"`{a.wire_name}`" + ("" if a.on_wire else " (never on the wire)"),
+          a.sent_by, a.delivery, _payload_layout(spec, a.payload) if a.on_wire else "—", a.doc)
+         for a in spec.actions])
+    lines += ["## Payload layouts", ""]
+    users: dict[str, list[str]] = {}
+    for a in spec.actions:
+        if a.on_wire:
+            users.setdefault(a.payload, []).append(a.wire_name)
+    lines += _table(
+        ("layout", "kind", "struct", "used by", "description"),
+        [(f"`{name}`", p["kind"], f"`{p.get('struct') or p.get('count_struct') or ''}`"
+          if (p.get("struct") or p.get("count_struct")) else "—",
+          ", ".join(users.get(name, [])), p.get("doc", ""))
+         for name, p in spec.payloads.items()])
+    lines += [
+        "## Mission item",
+        "",
+        f"{item['size']} bytes, struct `{item['struct']}` (little-endian): the MAVLink v1 "
+        f"{item['mavlink_message']} payload (message id {item['mavlink_msgid']}). Waypoint "
+        f"files are `{item['waypoint_file']}`.",
+        "",
+    ]
+    lines += _table(("offset", "field", "code", "bytes", "meaning"), _layout_rows(item))
+    lines += ["## Parameters", ""]
+    lines += _table(("parameter", "default", "meaning"),
+                    [(f"`{k}`", v["default"], v.get("doc", ""))
+                     for k, v in spec.raw["parameters"].items()])
+    lines += ["## Errata and decisions", ""]
+    for note in spec.errata + spec.decisions:
+        param = f" (parameter `{note.parameter}`)" if note.parameter else ""
+        lines += [f"- **{note.id} {note.title}**{param}. {' '.join(note.text.split())}"]
+    lines += [""]
+    counts: dict[str, int] = {}
+    for r in spec.rules:
+        counts[r.level] = counts.get(r.level, 0) + 1
+    summary = ", ".join(f"{n} {lvl}" for lvl, n in counts.items())
+    lines += [
+        "## Rules",
+        "",
+        f"{len(spec.rules)} rules ({summary}). Observability per role: `mcp` (the node's MCP "
+        "messages), `vehicle` (its MAVLink link), `none`; and the side of an exchange the rule "
+        "binds.",
+        "",
+    ]
+    for group, title in spec.groups.items():
+        rules = [r for r in spec.rules if r.group == group]
+        if not rules:
+            continue
+        lines += [f"### {group} — {title}", ""]
+        lines += _table(
+            ("ID", "level", "roles", "requirement", "depends on", *(f"observe ({r})" for r in ROLES)),
+            [(f"{r.id}" + (f" ({r.status})" if r.status != "active" else ""), r.level,
+              ", ".join(r.roles), r.text, ", ".join(r.depends_on),
+              *(_observe(r, role) for role in ROLES))
+             for r in rules])
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def write(spec: Spec, path: str | Path | None = None) -> Path:
+    """Write the page; returns its path."""
+    out = Path(path) if path is not None else default_output()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(render(spec), encoding="utf-8")
+    return out
+
+
+def check(spec: Spec, path: str | Path | None = None) -> bool:
+    """True when the page at ``path`` is exactly what :func:`render` gives."""
+    out = Path(path) if path is not None else default_output()
+    try:
+        return out.read_text(encoding="utf-8") == render(spec)
+    except OSError:
+        return False
