@@ -1,0 +1,395 @@
+"""The per-case context (the ``node`` fixture): sends, and the verify helpers.
+
+A case sends, then calls ONE verify helper (h2spec's shape). The helper owns the waiting,
+treats a timeout as an observation, and raises ``CaseFailure(rule, expected, actual,
+evidence)`` or ``Inconclusive(reason)``; the plugin maps those onto outcomes. "No reply"
+is judged over the ACK window, never the 100 ms ACK deadline (D-6); "a reply" is awaited
+across the runner's own retransmissions, every --rto, as a manager would (MCP-ACK-1).
+"""
+
+from __future__ import annotations
+
+import socket
+import statistics
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from conformance.driver import Datagram, Exchange, Sent, read_header
+from conformance.errors import CaseFailure, Inconclusive
+from spec import SPEC
+from spec.codec import Action
+
+if TYPE_CHECKING:
+    from conformance.session import Session
+
+MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A Mav_Passthrough message carrying a vehicle-recognisable frame (a token)."""
+
+    token: str
+    frame: bytes
+
+
+@dataclass
+class Delivery:
+    """A probe sent and what the vehicle counted of its token before and after."""
+
+    probe: Probe
+    exchange: Exchange
+    before: int
+    after: int = -1
+
+    @property
+    def delivered(self) -> int:
+        return self.after - self.before
+
+
+@dataclass
+class Attempt:
+    """One malformed or unexpected input and the liveness probe that followed it."""
+
+    label: str
+    input: Sent
+    probe: Exchange | None
+    died: bool = False
+
+
+def _hex(data: bytes, limit: int = 48) -> str:
+    h = data[:limit].hex(" ")
+    return h + (f" ... ({len(data)} bytes)" if len(data) > limit else f" ({len(data)} bytes)")
+
+
+class CaseContext:
+    """What a case sees of the node under test."""
+
+    def __init__(self, session: Session, case_id: str, rules: tuple[str, ...]) -> None:
+        assert session.driver is not None
+        self.session = session
+        self.driver = session.driver
+        self.case_id = case_id
+        self.rules = rules
+        self.start_ns = time.time_ns()
+        self.end_ns: int | None = None
+        self.notes: list[str] = []
+        self.node_silent = False
+        self.mark = self.driver.mark()
+        self._probe_n = 0
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def role(self) -> str:
+        return self.session.cfg.role
+
+    @property
+    def target_id(self) -> int:
+        return self.session.target_id if self.session.target_id is not None else 1
+
+    @property
+    def broadcast_id(self) -> int:
+        return self.session.cfg.broadcast_id
+
+    @property
+    def rto(self) -> float:
+        return self.session.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.session.ack_window
+
+    @property
+    def vehicle(self) -> Any:
+        return self.session.vehicle
+
+    @property
+    def startup(self) -> Any:
+        return self.session.startup
+
+    def other_id(self) -> int:
+        """An MCP ID that is neither the node's, the manager's nor the broadcast ID."""
+        for cand in (self.target_id + 1, self.target_id + 2, 0x0ABC):
+            cand &= 0xFFFF
+            if cand not in (0, self.target_id, self.broadcast_id):
+                return cand
+        return 0x0ABD
+
+    def info(self, text: str) -> None:
+        """Record an observation (INFO rules; shown in every report)."""
+        self.notes.append(text)
+
+    # ------------------------------------------------------------------ skips
+    def require_observable(self, rule: str) -> None:
+        """SKIP with the spec's reason when ``rule`` cannot be observed for this role."""
+        obs = SPEC.rule(rule).observe.get(self.role)
+        if obs is None:
+            raise Inconclusive(f"{rule} does not apply to a {self.role} node")
+        if obs.observable == "none":
+            raise Inconclusive(f"{rule} is not observable on a {self.role} node: {obs.reason}")
+        if obs.observable == "vehicle":
+            self.require_vehicle(rule)
+
+    def require_vehicle(self, rule: str) -> None:
+        if self.vehicle is None:
+            mode = self.session.cfg.mode
+            why = ("attach mode has no view of the node's autopilot" if mode == "attach"
+                   else "the run has no simulated vehicle (use --mavlink)")
+            raise Inconclusive(f"{rule} is observed on the node's MAVLink link: {why}")
+        if not self.vehicle.connections:
+            raise Inconclusive(f"{rule}: the node never connected to the simulated vehicle "
+                               "(does its command line use {mavlink}?)")
+
+    def require_startup(self, rule: str) -> Any:
+        st = self.startup
+        if not st.observed:
+            raise Inconclusive(f"{rule} is judged on the node's startup: {st.reason or 'not observed'}")
+        return st
+
+    def require_passthrough(self, rule: str) -> None:
+        """SKIP unless the node forwards Mav_Passthrough frames to its autopilot (learnt once)."""
+        self.require_vehicle(rule)
+        if self.session.passthrough_forwarded is None:
+            d = self.deliver(self.probe())
+            self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
+            if not d.exchange.acked:
+                self.session.passthrough_forwarded = None
+                raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
+        if not self.session.passthrough_forwarded:
+            raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
+                               "so delivery to its application is unobservable")
+
+    # ------------------------------------------------------------------ sending
+    def send(self, action: Action, payload: Any = None, dst: int | None = None, **kw: Any) -> Sent:
+        return self.driver.send(action, payload, self.target_id if dst is None else dst, **kw)
+
+    def send_raw(self, data: bytes) -> Sent:
+        return self.driver.send_raw(data)
+
+    def resend(self, sent: Sent) -> Sent:
+        return self.driver.resend(sent)
+
+    def await_ack(self, sent: Sent, copies: int = MAX_ACK_COPIES) -> Exchange:
+        """Await the ACK of ``sent``, retransmitting it every --rto (a manager's behaviour)."""
+        return self.driver.exchange(sent, rto=self.rto, copies=copies)
+
+    def command(self, action: Action, payload: Any = None, dst: int | None = None, **kw: Any) -> Exchange:
+        return self.await_ack(self.send(action, payload, dst, **kw))
+
+    def probe(self) -> Probe:
+        from vehicle import make_probe
+
+        self._probe_n += 1
+        token = f"{self.case_id[-24:]}-{self._probe_n}-{self.driver.peek_seq()}"
+        token = "".join(c if 33 <= ord(c) <= 126 else "_" for c in token)[-41:]
+        return Probe(token, make_probe(token))
+
+    def deliver(self, probe: Probe, *, seq: int | None = None, src: int | None = None,
+                dst: int | None = None, wait_delivery: bool = True) -> Delivery:
+        """Send ``probe`` in a Mav_Passthrough command, await its ACK and the vehicle's count."""
+        before = self.vehicle.probe_count(probe.token)
+        ex = self.command(Action.MAV_PASSTHROUGH, probe.frame, dst, seq=seq, src=src)
+        d = Delivery(probe, ex, before)
+        if wait_delivery:
+            self.settle(d)
+        return d
+
+    def settle(self, *deliveries: Delivery, expect_more: bool = False) -> None:
+        """Let the vehicle's counts settle: until each probe arrived (or the window ends);
+        with ``expect_more`` the whole window is watched (to see a count that must not grow)."""
+        v = self.vehicle
+        window = max(self.ack_window, 0.5)
+        if not expect_more:
+            v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries), window)
+        time.sleep(min(0.2, window) if not expect_more else window)
+        for d in deliveries:
+            d.after = v.probe_count(d.probe.token)
+
+    def redeliver(self, d: Delivery, sent: Sent) -> Delivery:
+        """Send a copy of ``sent`` (same bytes, same seq) and await its ACK and the count."""
+        before = self.vehicle.probe_count(d.probe.token)
+        ex = self.await_ack(self.resend(sent))
+        out = Delivery(d.probe, ex, before)
+        self.settle(out, expect_more=True)
+        return out
+
+    def liveness(self) -> Exchange:
+        """A fresh WP_Off to the node, awaited across retransmissions (MCP-ROB-5)."""
+        return self.command(Action.WP_OFF)
+
+    def try_inputs(self, inputs: Iterable[tuple[str, bytes]]) -> list[Attempt]:
+        """Send each raw input, each followed by a liveness probe; stop at the first death
+        or silence (the node is then restarted or lost, and later inputs are moot)."""
+        out = []
+        for label, data in inputs:
+            sent = self.send_raw(data)
+            if not self.session.alive():
+                out.append(Attempt(label, sent, None, died=True))
+                break
+            probe = self.liveness()
+            died = not self.session.alive()
+            out.append(Attempt(label, sent, probe, died))
+            if died or not probe.acked:
+                self.node_silent = not died
+                break
+        return out
+
+    # ------------------------------------------------------------------ verify helpers
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        ev = list(evidence)
+        if self.session.node is not None and (not self.session.alive() or self.node_silent):
+            ev += self.session.node_evidence()
+        return CaseFailure(rule, expected, actual, ev)
+
+    def expect_acked(self, exchanges: Sequence[tuple[str, Exchange]], rule: str = "MCP-ACK-1") -> None:
+        """Each command was ACKed (within MAX_ACK_COPIES copies, one every --rto)."""
+        missing = [(label, ex) for label, ex in exchanges if not ex.acked]
+        if missing:
+            label, ex = missing[0]
+            if not self.session.alive():
+                self.node_silent = False
+            raise self.fail(rule, f"an ACK naming seq {ex.seq} for {label}",
+                            f"no ACK after {len(ex.copies)} copies sent {self.rto:g} s apart",
+                            [f"{lbl}: seq {e.seq}, {len(e.copies)} copies, unanswered" for lbl, e in missing])
+
+    def expect_ack_format(self, exchanges: Sequence[Exchange], rule: str) -> None:
+        """ACK form: MCP-ACK-2 payload = 2-byte big-endian seq; MCP-ACK-3 dst/src."""
+        acked = [ex for ex in exchanges if ex.ack is not None]
+        if not acked:
+            raise Inconclusive(f"{rule}: the node ACKed none of the commands, so no ACK could be judged")
+        for ex in acked:
+            d = ex.ack
+            assert d is not None and d.header is not None
+            dst, src, _, _ = d.header
+            if rule == "MCP-ACK-2":
+                payload = d.data[17:]
+                if len(payload) != 2 or int.from_bytes(payload, "big") != ex.seq:
+                    raise self.fail(rule, f"payload {ex.seq.to_bytes(2, 'big').hex(' ')} (seq {ex.seq}, big-endian, 2 bytes)",
+                                    f"payload {payload.hex(' ') or '(empty)'} ({len(payload)} bytes)", [d.describe()])
+            elif rule == "MCP-ACK-3":
+                if dst != ex.first.src or src != self.target_id:
+                    raise self.fail(rule, f"dst={ex.first.src} (the acknowledged message's src), src={self.target_id} (the node)",
+                                    f"dst={dst}, src={src}", [d.describe()])
+
+    def expect_silence(self, sents: Sequence[Sent], rule: str, *, also_not_delivered: Sequence[Probe] = (),
+                       within: float | None = None) -> None:
+        """No ACK names any of ``sents`` over the ACK window (D-6); probes not forwarded."""
+        window = self.ack_window if within is None else within
+        since = min(self.driver.mark_before(s) for s in sents)
+        before = {p.token: self.vehicle.probe_count(p.token) for p in also_not_delivered} if also_not_delivered else {}
+        time.sleep(max(0.0, sents[-1].t + window - time.monotonic()))
+        replies = self.driver.replies_to(sents, since)
+        if replies:
+            d = replies[0]
+            which = next(s for s in sents if d.names_seq(s.seq))
+            raise self.fail(rule, f"no ACK of seq {which.seq} within {window:g} s",
+                            f"ACK received {d.t - which.t:.3f} s after it", [f"sent: {_hex(which.data)}", f"reply: {d.describe()}"])
+        for p in also_not_delivered:
+            if self.vehicle.probe_count(p.token) > before[p.token]:
+                raise self.fail(rule, f"the frame of probe {p.token} not forwarded to the autopilot",
+                                "the node forwarded it", [f"token {p.token}"])
+
+    def expect_each_copy_acked(self, first: Exchange, copies: Sequence[Exchange], rule: str = "MCP-ACK-1") -> None:
+        if not first.acked:
+            raise self.fail(rule, f"an ACK of seq {first.seq}", "no ACK of the first copy")
+        for n, ex in enumerate(copies, start=2):
+            if not ex.acked:
+                raise self.fail(rule, f"copy #{n} of seq {ex.seq} (same bytes) ACKed again",
+                                f"no ACK after it ({len(ex.copies)} copies, {self.rto:g} s apart)")
+
+    def expect_discarded(self, attempts: Sequence[Attempt], rule: str, *, died_rule: str | None = None,
+                         live_rule: str = "MCP-ROB-5", silent: bool = True) -> None:
+        """Every input was dropped silently (no ACK naming its seq) and the node stayed live;
+        with ``silent=False`` only survival is judged."""
+        if not attempts:
+            raise Inconclusive(f"{rule}: no input was sent")
+        last = attempts[-1]
+        if last.died:
+            raise self.fail(died_rule or rule, f"the node survives input {last.label!r}",
+                            f"the node exited after it (code {self.session.node.returncode if self.session.node else '?'})",
+                            [f"input: {_hex(last.input.data)}"])
+        if last.probe is not None and not last.probe.acked:
+            raise self.fail(live_rule, f"an ACK of the next valid unicast after input {last.label!r}",
+                            f"no ACK of seq {last.probe.seq} after {len(last.probe.copies)} copies",
+                            [f"input: {_hex(last.input.data)}"])
+        if not silent:
+            return
+        since = self.driver.mark_before(attempts[0].input)
+        time.sleep(max(0.0, attempts[-1].input.t + self.ack_window - time.monotonic()))
+        for a in attempts:
+            hdr = read_header(a.input.data)
+            if hdr is None:
+                continue
+            dst, src, seq, _ = hdr
+            probe_seqs = {x.probe.seq for x in attempts if x.probe is not None}
+            if seq in probe_seqs:
+                continue
+            replies = [d for d in self.driver.received(since) if d.names_seq(seq) and d.header is not None
+                       and d.header[0] == src]
+            if replies:
+                raise self.fail(rule, f"input {a.label!r} (seq {seq}) discarded without ACK",
+                                "the node ACKed it", [f"input: {_hex(a.input.data)}", f"reply: {replies[0].describe()}"])
+
+    def expect_delivered(self, deliveries: Sequence[tuple[Delivery, int]], rule: str) -> None:
+        """Each probe reached the autopilot the expected number of times (0: not delivered)."""
+        for d, want in deliveries:
+            if not d.exchange.acked:
+                raise Inconclusive(f"{rule}: probe {d.probe.token} (seq {d.exchange.seq}) was not ACKed, "
+                                   "so its delivery cannot be judged")
+            got = d.delivered
+            ok = (got == want) if want >= 0 else got > 0
+            if not ok:
+                what = {0: "not delivered again (a duplicate)", 1: "delivered once"}.get(want, f"delivered {want} times")
+                raise self.fail(rule, f"probe {d.probe.token} (src {d.exchange.first.src}, seq {d.exchange.seq}) {what}",
+                                f"the vehicle received its frame {got} more time(s)")
+
+    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
+        """The generic verify for judgements over recorded observations."""
+        if not ok:
+            raise self.fail(rule, expected, actual, evidence)
+
+    def expect_all(self, datagrams: Sequence[Datagram], check: Callable[[Datagram], str | None],
+                   rule: str, expected: str) -> None:
+        """Every datagram passes ``check`` (which returns a problem or None)."""
+        if not datagrams:
+            raise Inconclusive(f"{rule}: the node sent nothing to judge")
+        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
+        if bad:
+            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
+                            [d.describe() for d, _ in bad[:3]])
+
+    def expect_median_latency(self, samples: Sequence[float], limit: float, rule: str) -> None:
+        if len(samples) < int(SPEC.params["ack_latency_samples"]):
+            raise Inconclusive(f"{rule}: only {len(samples)} unambiguous ACK latency samples")
+        med = statistics.median(samples)
+        if med > limit:
+            raise self.fail(rule, f"median ACK latency <= {limit * 1000:.0f} ms",
+                            f"median {med * 1000:.1f} ms over {len(samples)} samples",
+                            [f"samples (ms): {', '.join(f'{s * 1000:.1f}' for s in samples)}"])
+
+    # ------------------------------------------------------------------ other paths
+    def command_from(self, sock: socket.socket, action: Action, payload: Any = None) -> tuple[Sent, Datagram | None]:
+        """Send a command from another socket (another source port, MCP-TRN-2) and await an
+        ACK arriving at either socket, retransmitting every --rto."""
+        first = self.driver.send(action, payload, self.target_id, sock=sock)
+        match = self.driver.ack_for(first)
+        for n in range(MAX_ACK_COPIES):
+            deadline = time.monotonic() + self.rto
+            since = self.driver.mark_before(first)
+            while time.monotonic() < deadline:
+                got = self.driver.wait_for(lambda d: d.t >= first.t and match(d), 0.02, since)
+                if got is not None:
+                    return first, got
+                try:
+                    data, addr = sock.recvfrom(65535)
+                except (TimeoutError, BlockingIOError):
+                    continue
+                hdr = read_header(data)
+                if hdr is not None and hdr[3] == int(Action.ACK) and len(data) >= 19 and \
+                        int.from_bytes(data[17:19], "big") == first.seq:
+                    return first, Datagram(-1, time.monotonic(), time.time_ns(), data, addr, None, None, hdr)
+            if n < MAX_ACK_COPIES - 1:
+                self.driver.resend(first, sock=sock)
+        return first, None

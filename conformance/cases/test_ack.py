@@ -1,0 +1,88 @@
+"""ACK — acknowledgement.
+
+"Unicast MCP messages should be replied to with an MCP acknowledgement message." —
+"An ACK is sent by the drone application or Mission Manager for every unicast message
+received." — "if the message is destined for itself, ACK, otherwise no ACKing."
+"""
+
+from __future__ import annotations
+
+import time
+
+from conformance.marks import rules
+from spec import SPEC
+from spec.codec import Action, MissionItem
+from spec.mavframe import heartbeat_frame
+
+_ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
+_COMMANDS = (
+    ("WP_List", Action.WP_LIST, (_ITEM, _ITEM._replace(seq=2))),
+    ("WP_On", Action.WP_ON, _ITEM),
+    ("WP_Off", Action.WP_OFF, None),
+    ("Obstacles_List", Action.OBSTACLES_LIST, (_ITEM,)),
+    ("Mav_Passthrough", Action.MAV_PASSTHROUGH, heartbeat_frame()),
+)
+
+
+@rules("MCP-ACK-1")
+def test_every_command_type_is_acked(node):
+    """Commands of every type a manager sends, waited for by the application or not."""
+    exchanges = [(label, node.command(action, payload)) for label, action, payload in _COMMANDS]
+    node.expect_acked(exchanges)
+
+
+@rules("MCP-ACK-1")
+def test_every_retransmitted_copy_is_acked(node):
+    """A copy with the same seq and bytes (a retransmission) is ACKed again."""
+    first = node.command(Action.WP_OFF)
+    copies = [node.await_ack(node.resend(first.first)) for _ in range(2)]
+    node.expect_each_copy_acked(first, copies)
+
+
+@rules("MCP-ACK-2")
+def test_ack_payload_is_the_big_endian_seq(node):
+    exchanges = [node.command(Action.WP_OFF) for _ in range(2)]
+    node.expect_ack_format(exchanges, "MCP-ACK-2")
+
+
+@rules("MCP-ACK-3")
+def test_ack_is_addressed_back_to_the_sender(node):
+    exchanges = [node.command(Action.WP_OFF) for _ in range(2)]
+    node.expect_ack_format(exchanges, "MCP-ACK-3")
+
+
+@rules("MCP-ACK-4")
+def test_broadcast_is_not_acked(node):
+    sent = [node.send(Action.WP_OFF, dst=node.broadcast_id),
+            node.send(Action.WP_ON, _ITEM, dst=node.broadcast_id)]
+    node.expect_silence(sent, "MCP-ACK-4")
+
+
+@rules("MCP-ACK-5")
+def test_message_to_another_id_is_neither_acked_nor_acted_on(node):
+    other = node.other_id()
+    probes = []
+    sent = [node.send(Action.WP_OFF, dst=other)]
+    if node.vehicle is not None and node.vehicle.connections:
+        p = node.probe()
+        probes.append(p)
+        sent.append(node.send(Action.MAV_PASSTHROUGH, p.frame, dst=other))
+    node.expect_silence(sent, "MCP-ACK-5", also_not_delivered=probes)
+
+
+@rules("MCP-ACK-6")
+def test_an_ack_is_never_acked(node):
+    unknown = (node.driver.peek_seq() + 0x4000) & 0xFFFF  # names nothing we sent
+    node.expect_silence([node.send(Action.ACK, unknown)], "MCP-ACK-6")
+
+
+@rules("MCP-ACK-7")
+def test_ack_leaves_within_the_deadline(node):
+    """Judged on the median of several samples, each a fresh command."""
+    samples = []
+    for _ in range(max(5, int(SPEC.params["ack_latency_samples"]))):
+        lat = node.command(Action.WP_OFF).latency()
+        if lat is not None:
+            samples.append(lat)
+        time.sleep(0.02)
+    node.expect_median_latency(samples, float(SPEC.params["ack_deadline_s"]), "MCP-ACK-7")

@@ -1,0 +1,55 @@
+"""DUP — duplicate discard, observed through the simulated vehicle: each delivered
+Mav_Passthrough probe reaches the autopilot, so a duplicate delivery shows as a count.
+
+"The receiver discards duplicates received for a message, if any."
+"""
+
+from __future__ import annotations
+
+from conformance.errors import Inconclusive
+from conformance.marks import rules
+
+
+@rules("MCP-DUP-1")
+def test_same_seq_twice_is_delivered_once(node):
+    node.require_passthrough("MCP-DUP-1")
+    first = node.deliver(node.probe())
+    again = node.redeliver(first, first.exchange.first)
+    node.expect_delivered([(first, 1), (again, 0)], "MCP-DUP-1")
+
+
+@rules("MCP-DUP-2")
+def test_new_seq_with_the_same_bytes_is_delivered(node):
+    node.require_passthrough("MCP-DUP-2")
+    probe = node.probe()
+    first = node.deliver(probe)
+    second = node.deliver(probe)  # same payload, next seq
+    node.expect_delivered([(first, 1), (second, 1)], "MCP-DUP-2")
+
+
+@rules("MCP-DUP-3")
+def test_same_seq_from_another_src_is_not_a_duplicate(node):
+    node.require_passthrough("MCP-DUP-3")
+    other = node.other_id()
+    drv = node.driver
+    drv.set_seq((drv.peek_seq() + 0x2000) & 0xFFFF, src=other)
+    accepted = node.deliver(node.probe(), src=other)
+    if not accepted.exchange.acked or accepted.delivered <= 0:
+        node.session.other_src_accepted = False
+        raise Inconclusive(f"MCP-DUP-3: the node does not accept commands from src {other} "
+                           "(not ACKed or not delivered), so per-source detection is unobservable")
+    from_manager = node.deliver(node.probe())
+    same_seq = node.deliver(node.probe(), src=other, seq=from_manager.exchange.seq)
+    node.expect_delivered([(from_manager, 1), (same_seq, 1)], "MCP-DUP-3")
+
+
+@rules("MCP-DUP-4")
+def test_late_copy_of_an_older_message(node):
+    """Not specified: A (seq s), B (seq s+1), then A's copy again; report what happened."""
+    node.require_passthrough("MCP-DUP-4")
+    a = node.deliver(node.probe())
+    node.deliver(node.probe())
+    late = node.redeliver(a, a.exchange.first)
+    node.info(f"a late copy of an older message (seq {a.exchange.seq}) was "
+              f"{'ACKed' if late.exchange.acked else 'not ACKed'} and "
+              f"{'delivered again' if late.delivered > 0 else 'not delivered again'}")

@@ -1,0 +1,119 @@
+"""ROB — robustness to bad input.
+
+Every malformed input comes from a fixed, seeded corpus drawn from the spec's strategies
+(``spec.strategies.malformed_corpus``) plus explicit edge cases, so every run sends the
+same bytes. Each input is followed by a liveness probe (a fresh WP_Off awaited across
+retransmissions, MCP-ROB-5); "no ACK" is judged over the ACK window (D-6).
+"""
+
+from __future__ import annotations
+
+import random
+import time
+
+from conformance.case import Attempt
+from conformance.driver import Sent
+from conformance.marks import rules
+from spec import SPEC
+from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
+from spec.strategies import malformed_corpus
+
+PER_KIND = 6
+
+
+def _corpus(node, *kinds: str) -> list[tuple[str, bytes]]:
+    """Seeded entries addressed to the node, with seqs reserved from the runner's counter."""
+    drv = node.driver
+    first = drv.peek_seq()
+    entries = malformed_corpus(node.session.cfg.seed, PER_KIND, dst=node.target_id, src=drv.our_id,
+                               first_seq=first, kinds=list(kinds))
+    drv.set_seq(first + len(entries) + 1)
+    return [(f"{kind} #{i}", data) for i, (kind, data) in enumerate(entries)]
+
+
+@rules("MCP-ROB-1", "MCP-ROB-5")
+def test_short_datagrams_are_discarded(node):
+    inputs = [("empty datagram", b""), ("preamble only", PREAMBLE),
+              ("16 bytes", build_datagram(node.target_id, 0, 1, int(Action.WP_OFF))[:HEADER_SIZE - 1])]
+    attempts = node.try_inputs(inputs + _corpus(node, "short"))
+    node.expect_discarded(attempts, "MCP-ROB-1", died_rule="MCP-ROB-1")
+
+
+@rules("MCP-ROB-2", "MCP-ROB-5")
+def test_bad_preamble_is_discarded(node):
+    attempts = node.try_inputs(_corpus(node, "bad_preamble"))
+    node.expect_discarded(attempts, "MCP-ROB-2")
+
+
+@rules("MCP-ROB-3", "MCP-ROB-5")
+def test_unknown_action_code_is_discarded(node):
+    drv = node.driver
+    edge = [(f"action {a}", build_datagram(node.target_id, drv.our_id, drv.next_seq(), a))
+            for a in (int(Action.ANY), 10, 0xFFFF)]
+    attempts = node.try_inputs(edge + _corpus(node, "unknown_action"))
+    node.expect_discarded(attempts, "MCP-ROB-3")
+
+
+@rules("MCP-ROB-4", "MCP-ROB-5")
+def test_payload_that_does_not_fit_is_not_acked(node):
+    attempts = node.try_inputs(_corpus(node, "wrong_payload_length", "count_mismatch", "bad_mavlink_crc"))
+    node.expect_discarded(attempts, "MCP-ROB-4")
+
+
+@rules("MCP-ROB-5")
+def test_unexpected_messages_are_survived(node):
+    """Well-formed but unexpected input: a second Start_Mission, a Mission_Ready sent to a
+    drone, an ACK of nothing, WP_Off with no active waypoint, empty lists."""
+    drv = node.driver
+    t = node.target_id
+
+    def msg(action, payload=None):
+        from spec.codec import Message, encode
+        return encode(Message(t, drv.our_id, drv.next_seq(), action, payload))
+    inputs = [("Start_Mission again", msg(Action.START_MISSION)),
+              ("Mission_Ready to a drone", msg(Action.MISSION_READY)),
+              ("ACK of nothing", msg(Action.ACK, (drv.peek_seq() + 0x3000) & 0xFFFF)),
+              ("WP_Off twice", msg(Action.WP_OFF)), ("WP_Off twice (2)", msg(Action.WP_OFF)),
+              ("empty WP_List", msg(Action.WP_LIST, ())), ("empty Obstacles_List", msg(Action.OBSTACLES_LIST, ()))]
+    node.expect_discarded(node.try_inputs(inputs), "MCP-ROB-5", silent=False)
+
+
+@rules("MCP-ROB-6")
+def test_datagrams_of_0_and_65507_bytes_are_survived(node):
+    drv = node.driver
+    rnd = random.Random(node.session.cfg.seed)
+    head = build_datagram(node.target_id, drv.our_id, drv.next_seq(), int(Action.WP_LIST), b"\x00\x01")
+    big = head + bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM - len(head)))
+    junk = bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM))
+    attempts = node.try_inputs([("0 bytes", b""), (f"{len(big)}-byte WP_List", big),
+                                (f"{len(junk)} random bytes", junk)])
+    node.expect_discarded(attempts, "MCP-ROB-6", died_rule="MCP-ROB-6", live_rule="MCP-ROB-6", silent=False)
+
+
+@rules("MCP-ROB-7", phase="late")
+def test_flood_of_malformed_datagrams(node):
+    """10 000 malformed datagrams as fast as loopback takes them, then a liveness probe
+    (retried across retransmissions before it is judged)."""
+    corpus = [data for _, data in _corpus(node, "short", "bad_preamble", "unknown_action", "count_mismatch")]
+    count = int(SPEC.params["flood_count"])
+    sock = node.driver.open_side_socket()
+    deadline = time.monotonic() + 30.0
+    sent = 0
+    try:
+        while sent < count and time.monotonic() < deadline:
+            try:
+                sock.sendto(corpus[sent % len(corpus)], node.driver.target)
+                sent += 1
+            except BlockingIOError:
+                time.sleep(0.001)
+            except OSError:
+                time.sleep(0.001)
+    finally:
+        sock.close()
+    node.info(f"flooded {sent} malformed datagrams")
+    probe = node.liveness()
+    flood = Sent(time.monotonic(), time.time_ns(), corpus[0], node.driver.target, -1, -1, -1, -1)
+    attempts = [Attempt(f"flood of {sent} malformed datagrams", flood, probe, not node.session.alive())]
+    if not probe.acked:
+        node.node_silent = node.session.alive()
+    node.expect_discarded(attempts, "MCP-ROB-7", died_rule="MCP-ROB-7", live_rule="MCP-ROB-7", silent=False)

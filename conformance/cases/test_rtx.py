@@ -1,0 +1,60 @@
+"""RTX — retransmission by the node, observed on its Mission_Ready while the runner
+withholds the ACK (the startup phase).
+
+"This allows a sender to guarantee delivery of a unicast messages by retransmitting the
+message until an acknowledgement is received."
+"""
+
+from __future__ import annotations
+
+import statistics
+
+from conformance.errors import Inconclusive
+from conformance.marks import rules
+from spec import SPEC
+
+MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+
+
+@rules("MCP-RTX-1", "MCP-FLOW-1", phase="startup")
+def test_mission_ready_is_retransmitted_until_acked(node):
+    st = node.require_startup("MCP-RTX-1")
+    n = len(st.copies)
+    node.expect_true(n >= MIN_COPIES and not st.copies_after_right_ack, "MCP-RTX-1",
+                     f"at least {MIN_COPIES} copies while the ACK is withheld, none after the right ACK",
+                     f"{n} cop{'y' if n == 1 else 'ies'} while withheld" if n < MIN_COPIES else
+                     f"{len(st.copies_after_right_ack)} copies after the right ACK "
+                     f"(watched {st.stop_watch:.2f} s)",
+                     [d.describe() for d in (st.copies_after_right_ack or st.copies)[:3]])
+
+
+@rules("MCP-RTX-2", phase="startup")
+def test_only_the_right_ack_ends_retransmission(node):
+    st = node.require_startup("MCP-RTX-2")
+    if len(st.copies) < 2:
+        raise Inconclusive("MCP-RTX-2: the node did not retransmit at all (see MCP-RTX-1)")
+    node.expect_true(st.copy_after_wrong_acks is not None, "MCP-RTX-2",
+                     "retransmission goes on after an ACK with the wrong seq and one from the wrong src",
+                     f"no copy within {st.wrong_ack_wait:.2f} s after them",
+                     [f"wrong ACK: {s.data.hex(' ')}" for s in st.wrong_acks])
+
+
+@rules("MCP-RTX-3", phase="startup")
+def test_copies_are_evenly_spaced(node):
+    st = node.require_startup("MCP-RTX-3")
+    gaps = st.gaps()
+    if len(gaps) < 2:
+        raise Inconclusive(f"MCP-RTX-3: {len(gaps) + 1} copies are too few to judge spacing")
+    med = statistics.median(gaps)
+    tol = float(SPEC.params["rtx_spacing_tolerance"])
+    floor = float(SPEC.params["rtx_min_gap_s"])
+    bad = [g for g in gaps if abs(g - med) > tol * med or g < floor]
+    node.expect_true(not bad, "MCP-RTX-3",
+                     f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
+                     f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
+                     [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"])
+
+
+@rules("MCP-RTX-4")
+def test_broadcasts_are_not_retransmitted(node):
+    node.require_observable("MCP-RTX-4")

@@ -1,0 +1,57 @@
+"""SEQ — sequence numbers.
+
+"Each sender of MCP messages ... starts with an arbitrary initial sequence number value,
+and then increments it for successive messages. Retransmissions of the same message are
+identified by repeating sequence number."
+"""
+
+from __future__ import annotations
+
+from conformance.marks import rules
+
+
+@rules("MCP-SEQ-1")
+def test_successive_messages_take_successive_numbers(node):
+    node.require_observable("MCP-SEQ-1")  # a drone sends one new non-ACK message per mission
+    st = node.require_startup("MCP-SEQ-1")
+    node.expect_true(bool(st.copies), "MCP-SEQ-1", "Mission_Ready", "none")
+
+
+@rules("MCP-SEQ-2", phase="startup")
+def test_retransmission_repeats_seq_and_bytes(node):
+    """Mission_Ready copies sent while the runner withholds the ACK."""
+    st = node.require_startup("MCP-SEQ-2")
+    first = st.copies[0]
+    bad = [d for d in st.copies[1:] if d.data != first.data]
+    node.expect_true(len(st.copies) > 1 and not bad, "MCP-SEQ-2",
+                     f"every copy of Mission_Ready repeats seq {first.header[2] if first.header else '?'} "
+                     "and its bytes exactly",
+                     "no retransmission to compare" if len(st.copies) < 2 else
+                     f"{len(bad)} of {len(st.copies) - 1} copies differ",
+                     [f"first: {first.data.hex(' ')}"] + [f"copy:  {d.data.hex(' ')}" for d in bad[:3]])
+
+
+@rules("MCP-SEQ-3")
+def test_zero_after_65535_is_new(node):
+    """Hop the runner's seq up to 65535 in steps under half the space (so a node using
+    serial-number arithmetic sees each as newer), then send 0: it must be delivered."""
+    node.require_passthrough("MCP-SEQ-3")
+    drv = node.driver
+    seq = drv.peek_seq()
+    while (65535 - seq) & 0xFFFF > 16000:
+        seq = (seq + 16000) & 0xFFFF
+        drv.set_seq(seq)
+        node.deliver(node.probe(), wait_delivery=False)
+        seq = drv.peek_seq()
+    drv.set_seq(65535)
+    top = node.deliver(node.probe())
+    zero = node.deliver(node.probe())  # the driver's counter wrapped: seq 0
+    assert zero.exchange.seq == 0
+    node.expect_delivered([(top, 1), (zero, 1)], "MCP-SEQ-3")
+
+
+@rules("MCP-SEQ-4", phase="startup")
+def test_initial_sequence_number_is_recorded(node):
+    st = node.require_startup("MCP-SEQ-4")
+    d = st.copies[0]
+    node.info(f"initial sequence number of the node (its Mission_Ready): {d.header[2] if d.header else '?'}")

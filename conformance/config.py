@@ -1,0 +1,67 @@
+"""The runner's parameters (DESIGN.md, "The runner's contract"), shared by CLI and plugin."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from spec import SPEC
+
+DEFAULT_SEED = 20140307  # the description's date: every run sends the same bytes by default
+
+
+def parse_hostport(text: str, what: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    """'HOST:PORT' or ':PORT' or 'PORT' -> (host, port); ValueError names ``what``."""
+    host, sep, port_s = text.rpartition(":")
+    if not sep:
+        host, port_s = "", text
+    try:
+        port = int(port_s)
+    except ValueError:
+        raise ValueError(f"{what}: {text!r} is not HOST:PORT") from None
+    if not 0 <= port <= 65535:
+        raise ValueError(f"{what}: port {port} is out of range 0-65535")
+    return (host or default_host), port
+
+
+@dataclass
+class RunConfig:
+    """Everything a run needs to know; defaults are the description's (spec) values."""
+
+    role: str = "drone"
+    target: tuple[str, int] | None = None
+    listen: tuple[str, int] | None = None  # None: all addresses, the role's convention port
+    target_id: int | None = None
+    spawn: str | None = None
+    mavlink: bool = False
+    embedded: bool = False  # no --target and no --spawn: the reference node
+    strict: bool = False
+    rto: float = float(SPEC.params["timeout_s"])
+    ack_window: float = float(SPEC.params["ack_window_s"])
+    broadcast_id: int = int(SPEC.protocol["broadcast_id"])
+    timeout: float = float(SPEC.params["run_timeout_s"])
+    seed: int = DEFAULT_SEED
+    capture: str | None = None
+    json_path: str | None = None
+    junit_path: str | None = None
+    case_timeout: float | None = None  # None: derived from rto and ack_window
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def mode(self) -> str:
+        return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
+
+    def per_case_limit(self) -> float:
+        """A bound on one case's wall time: generous against the node's own timeouts."""
+        if self.case_timeout is not None:
+            return self.case_timeout
+        return max(30.0, 12 * self.rto + 6 * self.ack_window)
+
+    def parameters(self) -> dict[str, Any]:
+        """The parameters block of the JSON report."""
+        d = asdict(self)
+        out = {k: d[k] for k in ("role", "target_id", "spawn", "mavlink", "strict", "rto",
+                                 "ack_window", "broadcast_id", "timeout", "seed")}
+        out["mode"] = self.mode
+        out["listen"] = f"{self.listen[0]}:{self.listen[1]}" if self.listen else None
+        return out

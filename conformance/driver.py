@@ -1,0 +1,381 @@
+"""The target driver: the runner's one UDP socket, a background receiver, sends and waits.
+
+Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
+arrives; replies are matched to requests by sequence number; the runner sends from the
+socket it listens on, so a node that replies to the datagram's source reaches it too.
+The driver knows nothing of cases or rules: the conformance session and, later, the
+fuzzer build on it. Recording hooks (``add_observer``) feed captures.
+
+While the session allows it, the receiver answers the node as a correct Mission Manager
+would: it ACKs every well-formed unicast non-ACK message addressed to the runner's ID
+(MCP-ACK-1), so a node never retransmits forever because of the runner.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from spec.codec import (
+    HEADER_SIZE,
+    PREAMBLE,
+    Action,
+    DecodeError,
+    Message,
+    build_datagram,
+    decode,
+    encode,
+    peek_header,
+)
+
+Address = tuple[str, int]
+Observer = Callable[[str, bytes, Address, int], None]  # (direction "tx"|"rx", data, addr, t_ns)
+_ACK = int(Action.ACK)
+PREAMBLE_LEN = len(PREAMBLE)
+_FIELDS = struct.Struct("!4H")
+
+
+def read_header(data: bytes) -> tuple[int, int, int, int] | None:
+    """(dst, src, seq, action) of any datagram of 17+ bytes, whatever its preamble: the
+    runner must recognise a node's Mission_Ready or ACK even when its framing is wrong, so
+    that the framing rule (MCP-HDR-1) fails and not every case after it."""
+    if len(data) < HEADER_SIZE:
+        return None
+    return _FIELDS.unpack_from(data, PREAMBLE_LEN)  # type: ignore[return-value]
+_U16BE = struct.Struct("!H")
+_U16LE = struct.Struct("<H")
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """One datagram the runner received, as it arrived."""
+
+    index: int
+    t: float  # time.monotonic() at arrival
+    t_ns: int  # time.time_ns() at arrival: the run clock of captures and reports
+    data: bytes
+    addr: Address
+    msg: Message | None  # decoded, when well-formed
+    error: DecodeError | None  # why it is not, otherwise
+    header: tuple[int, int, int, int] | None  # (dst, src, seq, action) when 17+ bytes long
+    preamble_ok: bool = True  # the first 9 bytes are the preamble (MCP-HDR-1)
+
+    @property
+    def action(self) -> int | None:
+        return self.header[3] if self.header else None
+
+    @property
+    def is_ack_like(self) -> bool:
+        """Has a whole header whose action code is ACK (well-formed or not)."""
+        return self.header is not None and self.header[3] == _ACK
+
+    def acked_seq(self) -> int | None:
+        """The seq a (possibly malformed) ACK names: its first two payload bytes, big-endian."""
+        if not self.is_ack_like or len(self.data) < 19:
+            return None
+        return _U16BE.unpack_from(self.data, 17)[0]
+
+    def names_seq(self, seq: int) -> bool:
+        """Lenient attribution: an ACK-like datagram whose payload names ``seq`` in any byte
+        order. Used so a malformed ACK is judged by MCP-ACK-2, not taken for silence."""
+        if not self.is_ack_like or len(self.data) < 19:
+            return False
+        return seq in (_U16BE.unpack_from(self.data, 17)[0], _U16LE.unpack_from(self.data, 17)[0])
+
+    def describe(self) -> str:
+        if self.msg is not None:
+            m = self.msg
+            return f"{Action(m.action).name} dst={m.dst} src={m.src} seq={m.seq} payload={m.payload!r} ({len(self.data)} B)"
+        if self.header is not None:
+            dst, src, seq, action = self.header
+            return f"malformed action={action} dst={dst} src={src} seq={seq} ({len(self.data)} B): {self.error}"
+        return f"malformed {len(self.data)} B: {self.error} [{self.data[:24].hex()}]"
+
+
+@dataclass(frozen=True)
+class Sent:
+    """One datagram the runner sent."""
+
+    t: float
+    t_ns: int
+    data: bytes
+    addr: Address
+    dst: int
+    src: int
+    seq: int
+    action: int
+
+
+@dataclass
+class Exchange:
+    """A unicast command sent as a manager would: retransmitted every ``rto`` until ACKed."""
+
+    copies: list[Sent] = field(default_factory=list)
+    ack: Datagram | None = None  # the first reply naming the seq (possibly malformed)
+
+    @property
+    def seq(self) -> int:
+        return self.copies[0].seq
+
+    @property
+    def first(self) -> Sent:
+        return self.copies[0]
+
+    @property
+    def acked(self) -> bool:
+        return self.ack is not None
+
+    def latency(self) -> float | None:
+        """ACK arrival minus the send time of the copy it answers; only when unambiguous
+        (the ACK came before any retransmission)."""
+        if self.ack is None:
+            return None
+        later = [c for c in self.copies[1:] if c.t <= self.ack.t]
+        return None if later else self.ack.t - self.copies[0].t
+
+
+class TargetDriver:
+    """UDP endpoint of the runner facing one node under test."""
+
+    def __init__(self, target: Address, listen: Address, *, our_id: int = 0,
+                 rcvbuf: int = 8 * 1024 * 1024) -> None:
+        self.target = target
+        self.listen = listen
+        self.our_id = our_id
+        self._rcvbuf = rcvbuf
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._rx: list[Datagram] = []
+        self._tx: list[Sent] = []
+        self._observers: list[Observer] = []
+        self._seq: dict[int, int] = {}
+        self.auto_ack: Callable[[Datagram], bool] = lambda d: True
+        self.alive: Callable[[], bool] = lambda: True
+
+    # ------------------------------------------------------------------ lifecycle
+    def open(self) -> Address:
+        """Bind the listen address (all addresses when its host is empty); return it."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
+        except OSError:
+            pass
+        try:
+            sock.bind(self.listen)
+        except OSError as exc:
+            sock.close()
+            host = self.listen[0] or "*"
+            raise OSError(f"cannot listen on {host}:{self.listen[1]}: {exc.strerror}") from None
+        sock.settimeout(0.05)
+        self._sock = sock
+        self.listen = (self.listen[0], sock.getsockname()[1])
+        self._thread = threading.Thread(target=self._receive_loop, name="mcp-conform-rx", daemon=True)
+        self._thread.start()
+        return self.listen
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def add_observer(self, observer: Observer) -> None:
+        """Called for every datagram sent ("tx") and received ("rx"), from any thread."""
+        self._observers.append(observer)
+
+    # ------------------------------------------------------------------ receiving
+    def _receive_loop(self) -> None:
+        assert self._sock is not None
+        sock = self._sock
+        while not self._stop.is_set():
+            try:
+                data, addr = sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            except OSError:
+                if self._stop.is_set():
+                    return
+                time.sleep(0.01)
+                continue
+            t, t_ns = time.monotonic(), time.time_ns()
+            try:
+                msg: Message | None = decode(data)
+                err = None
+            except DecodeError as exc:
+                msg, err = None, exc
+            with self._cond:
+                d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
+                             data[:PREAMBLE_LEN] == PREAMBLE)
+                self._rx.append(d)
+                self._cond.notify_all()
+            self._notify("rx", data, addr, t_ns)
+            if (msg is not None and msg.action != Action.ACK and msg.dst == self.our_id
+                    and self.auto_ack(d)):
+                self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
+
+    def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int) -> None:
+        for obs in self._observers:
+            try:
+                obs(direction, data, addr, t_ns)
+            except Exception:  # a broken recorder must not stop the run
+                pass
+
+    def mark(self) -> int:
+        """Index of the next datagram to arrive: 'from now on'."""
+        with self._cond:
+            return len(self._rx)
+
+    def received(self, since: int = 0, until: int | None = None) -> list[Datagram]:
+        with self._cond:
+            return self._rx[since:until]
+
+    def sent(self) -> list[Sent]:
+        with self._cond:
+            return list(self._tx)
+
+    def wait_for(self, predicate: Callable[[Datagram], bool], timeout: float,
+                 since: int = 0) -> Datagram | None:
+        """First datagram at index >= ``since`` matching ``predicate``, waiting up to
+        ``timeout`` seconds. None is an observation (nothing came), not an error."""
+        deadline = time.monotonic() + max(0.0, timeout)
+        i = since
+        with self._cond:
+            while True:
+                while i < len(self._rx):
+                    if predicate(self._rx[i]):
+                        return self._rx[i]
+                    i += 1
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(min(left, 0.05))
+                if not self.alive():
+                    # give the last datagrams a moment, then stop waiting for a dead node
+                    self._cond.wait(0.05)
+                    while i < len(self._rx):
+                        if predicate(self._rx[i]):
+                            return self._rx[i]
+                        i += 1
+                    return None
+
+    def quiet(self, gap: float = 0.05, limit: float = 1.0) -> int:
+        """Wait until nothing has arrived for ``gap`` s (at most ``limit`` s); return a mark."""
+        deadline = time.monotonic() + limit
+        while time.monotonic() < deadline:
+            with self._cond:
+                last = self._rx[-1].t if self._rx else 0.0
+            if time.monotonic() - last >= gap:
+                break
+            time.sleep(gap / 2)
+        return self.mark()
+
+    # ------------------------------------------------------------------ sending
+    def next_seq(self, src: int | None = None) -> int:
+        src = self.our_id if src is None else src
+        seq = self._seq.get(src, 0)
+        self._seq[src] = (seq + 1) & 0xFFFF
+        return seq
+
+    def peek_seq(self, src: int | None = None) -> int:
+        return self._seq.get(self.our_id if src is None else src, 0)
+
+    def set_seq(self, value: int, src: int | None = None) -> None:
+        self._seq[self.our_id if src is None else src] = value & 0xFFFF
+
+    def send_raw(self, data: bytes, addr: Address | None = None, *, dst: int = -1, src: int = -1,
+                 seq: int = -1, action: int = -1, sock: socket.socket | None = None) -> Sent:
+        assert self._sock is not None, "driver not open"
+        addr = addr or self.target
+        (sock or self._sock).sendto(data, addr)
+        t, t_ns = time.monotonic(), time.time_ns()
+        hdr = peek_header(data)
+        if hdr is not None and dst == -1:
+            dst, src, seq, action = hdr
+        s = Sent(t, t_ns, data, addr, dst, src, seq, action)
+        with self._cond:
+            self._tx.append(s)
+        self._notify("tx", data, addr, t_ns)
+        return s
+
+    def send(self, action: Action, payload: Any = None, dst: int | None = None, *,
+             src: int | None = None, seq: int | None = None, addr: Address | None = None,
+             sock: socket.socket | None = None) -> Sent:
+        """Encode and send one new message (a fresh seq unless ``seq`` is given)."""
+        src = self.our_id if src is None else src
+        seq = self.next_seq(src) if seq is None else seq
+        dst = 0 if dst is None else dst
+        data = encode(Message(dst, src, seq, action, payload))
+        return self.send_raw(data, addr, dst=dst, src=src, seq=seq, action=int(action), sock=sock)
+
+    def send_datagram(self, dst: int, seq: int, action: int, payload: bytes, *,
+                      src: int | None = None, addr: Address | None = None) -> Sent:
+        """Send raw header fields + payload bytes (for malformed input)."""
+        src = self.our_id if src is None else src
+        return self.send_raw(build_datagram(dst, src, seq, action, payload), addr,
+                             dst=dst, src=src, seq=seq, action=action)
+
+    def send_ack(self, seq: int, *, dst: int, src: int | None = None, addr: Address | None = None) -> Sent:
+        return self.send(Action.ACK, seq, dst, src=src, addr=addr)
+
+    def resend(self, sent: Sent, sock: socket.socket | None = None) -> Sent:
+        """A retransmission: the same bytes (and so the same seq) again."""
+        return self.send_raw(sent.data, sent.addr, dst=sent.dst, src=sent.src, seq=sent.seq,
+                             action=sent.action, sock=sock)
+
+    def ack_for(self, sent: Sent) -> Callable[[Datagram], bool]:
+        """Predicate: a reply naming ``sent``'s seq (lenient about the ACK's own form)."""
+        seq, src = sent.seq, sent.src
+
+        def match(d: Datagram) -> bool:
+            if not d.names_seq(seq):
+                return False
+            assert d.header is not None
+            return d.header[0] == src or src == self.our_id
+        return match
+
+    def exchange(self, first: Sent, *, rto: float, copies: int, tail: float | None = None) -> Exchange:
+        """Await an ACK of ``first``, retransmitting it every ``rto`` up to ``copies`` copies
+        in all (MCP-ACK-1 as observed by a manager, D-6); after the last copy wait ``tail``."""
+        ex = Exchange([first])
+        since = self.mark_before(first)
+        match = self.ack_for(first)
+        for n in range(copies):
+            wait = rto if n < copies - 1 else (rto if tail is None else tail)
+            got = self.wait_for(lambda d: d.t >= first.t and match(d), wait, since)
+            if got is not None:
+                ex.ack = got
+                return ex
+            if not self.alive() or n == copies - 1:
+                return ex
+            ex.copies.append(self.resend(first))
+        return ex
+
+    def mark_before(self, sent: Sent) -> int:
+        """Index of the first datagram that arrived after ``sent`` left."""
+        with self._cond:
+            i = len(self._rx)
+            while i > 0 and self._rx[i - 1].t >= sent.t:
+                i -= 1
+            return i
+
+    def replies_to(self, sents: Iterable[Sent], since: int) -> list[Datagram]:
+        """ACK-like datagrams at index >= since naming the seq of any of ``sents``."""
+        preds = [self.ack_for(s) for s in sents]
+        return [d for d in self.received(since) if any(p(d) for p in preds)]
+
+    def open_side_socket(self, host: str = "127.0.0.1") -> socket.socket:
+        """A second socket on another source port (MCP-TRN-2). Caller closes it."""
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind((host, 0))
+        s.settimeout(0.05)
+        return s

@@ -1,0 +1,450 @@
+"""The node under test over a whole run: attach, spawn or the embedded reference node.
+
+A ``Session`` owns the target driver, the simulated vehicle (``--mavlink``), the spawned
+process, and the startup phase (DESIGN.md "Startup rules"): the vehicle withholds the GPS
+fix, then gives it; the runner withholds the ACK of Mission_Ready for a few copies, sends a
+wrong-sequence and a wrong-source ACK, then the right one. What it saw is kept in
+``Session.startup`` for the startup-phase cases to judge. Then it starts the mission
+(Start_Mission, MCP-BLK-4) so commands are sent only between the node's Mission_Ready and
+its End_Mission (D-6).
+
+Setup errors (the node never answers, a port is taken, spawn fails) raise ``SetupError``.
+A node that dies or goes silent after an input fails that case; in spawn mode it is
+restarted for the next case, in attach mode the remaining cases are errors.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from conformance.config import RunConfig
+from conformance.driver import Datagram, Exchange, Sent, TargetDriver
+from conformance.errors import SetupError, TargetLost
+from spec import SPEC
+from spec.codec import Action
+
+MANAGER_ID = int(SPEC.protocol["manager_id"])
+DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
+MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
+BROADCAST_ADDRESS = str(SPEC.protocol["broadcast_address"])
+MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])  # the original + 3 retransmissions
+EMBEDDED_RTO = 0.2
+EMBEDDED_ACK_WINDOW = 0.25
+_READY = int(Action.MISSION_READY)
+
+
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def embedded_command() -> str:
+    """The reference drone, as the runner spawns it for the embedded default."""
+    return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} "
+            "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
+            "--mavlink {mavlink} --rto " + str(EMBEDDED_RTO))
+
+
+class _Placeholders(dict[str, str]):
+    def __missing__(self, key: str) -> str:  # unknown braces are left alone
+        return "{" + key + "}"
+
+
+def fill_placeholders(command: str, values: dict[str, str]) -> list[str]:
+    """Split ``command`` like a shell and replace known ``{placeholders}`` in each word."""
+    try:
+        words = shlex.split(command)
+    except ValueError as exc:
+        raise SetupError(f"--spawn: cannot split command: {exc}") from None
+    if not words:
+        raise SetupError("--spawn: empty command")
+    mapping = _Placeholders(values)
+    out = []
+    for w in words:
+        try:
+            out.append(w.format_map(mapping))
+        except (ValueError, IndexError, KeyError, AttributeError):
+            out.append(w)  # braces that are not placeholders stay as they are
+    return out
+
+
+class SpawnedNode:
+    """The node process: its own process group, stderr kept as evidence."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.argv = argv
+        self._log = tempfile.TemporaryFile(prefix="mcp-node-")
+        try:
+            self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=self._log,
+                                         stderr=self._log, start_new_session=True)
+        except OSError as exc:
+            self._log.close()
+            raise SetupError(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}") from None
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        return self.proc.poll()
+
+    def output_tail(self, lines: int = 12) -> str:
+        try:
+            self._log.flush()
+            self._log.seek(0)
+            text = self._log.read().decode("utf-8", "replace")
+        except (OSError, ValueError):
+            return ""
+        return "\n".join(text.rstrip().splitlines()[-lines:])
+
+    def stop(self) -> None:
+        if self.alive():
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.proc.pid, signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=2.0)
+            except subprocess.TimeoutExpired:
+                pass
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, signal.SIGKILL)  # the whole group, stragglers included
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(timeout=2.0)
+
+    def close(self) -> None:
+        self.stop()
+        self._log.close()
+
+
+@dataclass
+class Startup:
+    """What the startup phase observed (judged by the startup-phase cases)."""
+
+    observed: bool = False  # False: no Mission_Ready was seen (attach mode, node already past it)
+    reason: str = ""  # why it was not observed
+    vehicle: bool = False  # the fix was withheld by our vehicle
+    node_connected_to_vehicle: bool = False
+    fix_given_at: float | None = None
+    ready_before_fix: list[Datagram] = field(default_factory=list)
+    copies: list[Datagram] = field(default_factory=list)  # Mission_Ready copies, ACK withheld
+    others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
+    wrong_acks: list[Sent] = field(default_factory=list)
+    copy_after_wrong_acks: Datagram | None = None
+    wrong_ack_wait: float = 0.0
+    right_ack: Sent | None = None
+    copies_after_right_ack: list[Datagram] = field(default_factory=list)
+    stop_watch: float = 0.0
+
+    def gaps(self) -> list[float]:
+        ts = [d.t for d in self.copies]
+        return [b - a for a, b in zip(ts, ts[1:])]
+
+
+class Session:
+    """One run against one node (see the module docstring)."""
+
+    def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
+        self.cfg = cfg
+        self.recorder = recorder
+        if cfg.embedded:
+            cfg.spawn = cfg.spawn or embedded_command()
+            cfg.mavlink = True
+        self.driver: TargetDriver | None = None
+        self.vehicle: Any = None
+        self.node: SpawnedNode | None = None
+        self.argv: list[str] = []
+        self.target_id: int | None = cfg.target_id
+        self.target_desc = ""
+        self.startup = Startup()
+        self.start_mission: Exchange | None = None
+        self.end_mission: Exchange | None = None
+        self.ended = False
+        self.lost: str | None = None
+        self.needs_restart = False
+        self.restarts = 0
+        self.passthrough_forwarded: bool | None = None  # learnt by the first probe
+        self.other_src_accepted: bool | None = None
+        self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
+        self._mavlink_seen = 0
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def spawned(self) -> bool:
+        return self.cfg.spawn is not None
+
+    @property
+    def rto(self) -> float:
+        return self.cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.cfg.ack_window
+
+    def to_ns(self, t_monotonic: float) -> int:
+        return self._t0_ns + int(t_monotonic * 1e9)
+
+    def alive(self) -> bool:
+        return self.node.alive() if self.node is not None else True
+
+    # ------------------------------------------------------------------ start / stop
+    def start(self) -> None:
+        cfg = self.cfg
+        if cfg.role != "drone":
+            raise SetupError(f"{cfg.role} role conformance is not available yet")
+        if self.spawned:
+            listen = cfg.listen or ("", 0)
+            target = cfg.target or ("127.0.0.1", free_udp_port())
+            if self.target_id is None:
+                self.target_id = 1
+        else:
+            if cfg.target is None:
+                raise SetupError("no --target and no --spawn")
+            listen = cfg.listen or ("", MANAGER_PORT)
+            target = cfg.target
+        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
+        try:
+            self.driver.open()
+        except OSError as exc:
+            raise SetupError(str(exc)) from None
+        self.driver.alive = self.alive
+        if self.recorder is not None:
+            self.driver.add_observer(self.recorder.datagram)
+        # runner seq: fixed by the seed, low enough that no case wraps by accident
+        self.driver.set_seq(1000 + cfg.seed % 5000)
+        self.target_desc = f"{target[0]}:{target[1]}"
+        if cfg.mavlink and self.spawned:
+            self._start_vehicle()
+        if self.spawned:
+            self._spawn()
+        self._startup_phase(first=True)
+
+    def close(self) -> None:
+        if self.node is not None:
+            self.node.close()
+            self.node = None
+        if self.vehicle is not None:
+            self.flush_vehicle_frames()
+            with contextlib.suppress(Exception):
+                self.vehicle.close()
+            self.vehicle = None
+        if self.driver is not None:
+            self.driver.close()
+            self.driver = None
+
+    def _start_vehicle(self) -> None:
+        from vehicle import SimVehicle
+
+        self.vehicle = SimVehicle(fix_withheld=True)
+        try:
+            self.vehicle.start("127.0.0.1", 0)
+        except OSError as exc:
+            raise SetupError(f"cannot start the simulated vehicle: {exc.strerror}") from None
+
+    def _placeholders(self) -> dict[str, str]:
+        assert self.driver is not None
+        lhost = self.driver.listen[0] or "127.0.0.1"
+        if lhost == "0.0.0.0":
+            lhost = "127.0.0.1"
+        return {
+            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
+            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
+            "broadcast": BROADCAST_ADDRESS, "id": str(self.target_id),
+            "mavlink": self.vehicle.url if self.vehicle is not None else "",
+        }
+
+    def _spawn(self) -> None:
+        assert self.cfg.spawn is not None
+        self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
+        self.node = SpawnedNode(self.argv)
+
+    def restart(self) -> None:
+        """Spawn mode: a fresh node for the next case (quick startup, nothing judged)."""
+        if self.node is not None:
+            self.node.close()
+        self.restarts += 1
+        self.ended = False
+        self.needs_restart = False
+        self._spawn()
+        self._startup_phase(first=False)
+
+    def node_evidence(self) -> list[str]:
+        """What the process said, for a failure's evidence."""
+        if self.node is None:
+            return []
+        ev = []
+        if not self.node.alive():
+            ev.append(f"node process exited with code {self.node.returncode}")
+        tail = self.node.output_tail()
+        if tail:
+            ev.append("node output (last lines):\n    " + tail.replace("\n", "\n    "))
+        return ev
+
+    # ------------------------------------------------------------------ startup phase
+    def _fail_setup(self, why: str) -> SetupError:
+        ev = self.node_evidence()
+        extra = ("; " + ev[0]) if ev else ""
+        return SetupError(why + extra)
+
+    def _startup_phase(self, first: bool) -> None:
+        drv = self.driver
+        assert drv is not None
+        st = Startup(vehicle=self.vehicle is not None)
+        mark = drv.mark()
+        withhold = first
+        drv.auto_ack = lambda d: not (withhold and d.action == _READY)
+        ready_limit = max(20.0, 4 * self.rto + 5.0)
+
+        def is_ready(d: Datagram) -> bool:
+            return d.action == _READY
+
+        if self.vehicle is not None and first:
+            v = self.vehicle
+            st.node_connected_to_vehicle = v.wait_for(lambda: v.connected, timeout=ready_limit)
+            if not self.alive():
+                raise self._fail_setup("the node exited during startup")
+            if st.node_connected_to_vehicle:
+                # hold the fix while a node that ignores it would already speak (MCP-BLK-5)
+                hold = max(self.ack_window, 1.0)
+                drv.wait_for(is_ready, hold, mark)
+            st.ready_before_fix = [d for d in drv.received(mark) if is_ready(d)]
+            st.fix_given_at = time.monotonic()
+            v.give_fix()
+        elif self.vehicle is not None:
+            self.vehicle.give_fix()
+        wait = ready_limit if self.spawned else 2.5 * self.rto + 1.0
+        first_ready = drv.wait_for(is_ready, wait, mark)
+        if first_ready is None:
+            withhold = False
+            self.startup = st
+            if not self.alive():
+                raise self._fail_setup("the node exited before sending Mission_Ready")
+            if self.spawned and first:
+                raise self._fail_setup(f"the node sent no Mission_Ready within {wait:.1f} s")
+            probe = self._probe_alive()
+            if not probe.acked:
+                raise self._fail_setup(
+                    f"target never answered: no Mission_Ready within {wait:.1f} s and no ACK of a "
+                    f"WP_Off probe to ID {self.target_id if self.target_id is not None else 1}")
+            st.reason = "no Mission_Ready was seen: the node was already past its startup phase"
+            if first:
+                self.startup = st
+            return
+        if self.target_id is None and first_ready.header is not None:
+            self.target_id = first_ready.header[1]
+        if first:
+            self._observe_retransmissions(st, first_ready, mark)
+        withhold = False
+        if not first:
+            return
+        self.startup = st
+        self._start_mission()
+
+    def _observe_retransmissions(self, st: Startup, first_ready: Datagram, mark: int) -> None:
+        """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""
+        drv = self.driver
+        assert drv is not None
+        st.observed = True
+        # ACKs go to the node's configured ID (its Mission_Ready's src when none was given)
+        ready_src = self.target_id if self.target_id is not None else (
+            first_ready.header[1] if first_ready.header else 1)
+        deadline = first_ready.t + MIN_COPIES * self.rto * 1.5 + 1.0
+        i = first_ready.index
+        while True:
+            copies = [d for d in drv.received(i) if d.action == _READY]
+            if len(copies) >= MIN_COPIES or time.monotonic() >= deadline or not self.alive():
+                break
+            drv.wait_for(lambda d: d.action == _READY, 0.05, drv.mark())
+        st.copies = [d for d in drv.received(i) if d.action == _READY]
+        gaps = st.gaps()
+        gap = sorted(gaps)[len(gaps) // 2] if gaps else self.rto
+        # an ACK with the wrong seq, and the right seq from the wrong source (MCP-RTX-2)
+        last = st.copies[-1]
+        seq = last.header[2] if last.header else 0
+        wrong_src = (ready_src + 0x100) & 0xFFFF or 0x7777
+        if wrong_src in (MANAGER_ID, self.cfg.broadcast_id, ready_src):
+            wrong_src = 0x7777
+        st.wrong_acks = [drv.send_ack((seq + 0x8000) & 0xFFFF, dst=ready_src),
+                         drv.send_ack(seq, dst=ready_src, src=wrong_src)]
+        after = drv.mark()
+        st.wrong_ack_wait = max(2.5 * gap, 0.3) + 0.2
+        st.copy_after_wrong_acks = drv.wait_for(lambda d: d.action == _READY, st.wrong_ack_wait, after)
+        latest = [d for d in drv.received(i) if d.action == _READY][-1]
+        rseq = latest.header[2] if latest.header else seq
+        st.right_ack = drv.send_ack(rseq, dst=ready_src)
+        st.stop_watch = max(self.ack_window, 2.5 * gap)
+        time.sleep(st.stop_watch)
+        grace = 0.05
+        st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
+                                     and d.t > st.right_ack.t + grace]
+        st.others_while_waiting = [d for d in drv.received(mark, drv.mark_before(st.right_ack))
+                                   if d.action not in (_READY, int(Action.ACK))]
+
+    def _start_mission(self) -> None:
+        drv = self.driver
+        assert drv is not None
+        sent = drv.send(Action.START_MISSION, None, self.target_id)
+        self.start_mission = drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]))
+        if not self.start_mission.acked and not self.alive():
+            raise self._fail_setup("the node exited after Start_Mission")
+
+    def _probe_alive(self) -> Exchange:
+        drv = self.driver
+        assert drv is not None
+        sent = drv.send(Action.WP_OFF, None, self.target_id if self.target_id is not None else 1)
+        return drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]))
+
+    # ------------------------------------------------------------------ per case
+    def before_case(self) -> None:
+        """Make sure a live, started node is there (restart in spawn mode)."""
+        if self.lost is not None:
+            raise TargetLost(self.lost)
+        if self.spawned and (self.needs_restart or self.ended or not self.alive()):
+            self.restart()
+        elif self.ended:
+            raise TargetLost("the node's mission has ended (End_Mission was sent)")
+        assert self.driver is not None
+        self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
+
+    def after_case(self, node_silent: bool) -> None:
+        died = self.node is not None and not self.node.alive()
+        if self.spawned and (died or node_silent):
+            self.needs_restart = True
+        elif not self.spawned and node_silent:
+            self.lost = "the node went silent after an earlier case's input"
+        self.flush_vehicle_frames()
+
+    def flush_vehicle_frames(self) -> None:
+        """Copy the vehicle's newly received frames into the capture (/mavlink)."""
+        if self.recorder is None or self.vehicle is None:
+            return
+        frames = self.vehicle.frames()
+        for f in frames[self._mavlink_seen:]:
+            with contextlib.suppress(Exception):
+                self.recorder.mavlink("rx", f.raw, self.to_ns(f.t), msg_type=f.msg_type)
+        self._mavlink_seen = len(frames)
+
+    # ------------------------------------------------------------------ case API
+    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
+        from conformance.case import CaseContext
+
+        self.before_case()
+        ctx = CaseContext(self, case_id, rules)
+        if self.recorder is not None:
+            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        return ctx
+
+    def end_case(self, ctx: Any, outcome: str) -> None:
+        ctx.end_ns = time.time_ns()
+        self.after_case(ctx.node_silent)
+        if self.recorder is not None:
+            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
