@@ -1,0 +1,253 @@
+"""``mcp-node``: run the reference drone or Mission Manager (``python -m reference_impl`` too).
+
+::
+
+    mcp-node drone --id N [BROADCAST LOCAL_PORT REMOTE_PORT] [options]
+    mcp-node manager --challenge N --drones 1,2,3 --waypoints FILE [--obstacles FILE]
+                     [BROADCAST LOCAL_PORT REMOTE_PORT] [options]
+
+The three optional positionals keep the description's invocation shape
+(``./mission_manager.py 2 127.255.255.255 7889 7890``,
+``./mcp_mission_controller.py 127.255.255.255 7890 7889``); their defaults come from the
+spec (broadcast 127.255.255.255; a drone listens on 7890 and sends to 7889, the manager the
+other way round, MCP-TRN-1). ``--bind HOST:PORT`` and ``--send-to HOST:PORT`` override them,
+which is how the conformance runner spawns a node against its own sockets and vehicle::
+
+    python -m reference_impl drone --id 1 --bind 127.0.0.1:40001 --send-to 127.0.0.1:40002 \\
+        --mavlink tcp:127.0.0.1:5760 --rto 0.2
+
+Progress goes to stderr, one line per protocol event; a JSON summary of what the node
+received and sent goes to stdout on exit (and to ``--record FILE``). Exit status: 0 after
+End_Mission or on Ctrl-C/SIGTERM; 1 when the mission failed (a message never ACKed);
+2 on a usage or setup error (bad argument, port or autopilot unreachable), reported in
+one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import sys
+from collections.abc import Sequence
+from typing import Any, NoReturn
+
+from reference_impl.drone import Drone, DroneConfig, RoleError
+from reference_impl.manager import CHALLENGES, Manager, ManagerConfig
+from spec import SPEC
+
+__all__ = ["build_parser", "main"]
+
+PROG = "mcp-node"
+_PORTS = SPEC.protocol["ports"]
+_BROADCAST = str(SPEC.protocol["broadcast_address"])
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a usage error on one line and exits with status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{PROG}: error: {message}\n")
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be 0..65535: {value}")
+    return value
+
+
+def _hostport(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (or ``:PORT``/``PORT`` for the wildcard)."""
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "", text
+    return host.strip("[]"), _port(port)
+
+
+def _number(low: float, inclusive: bool) -> Any:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(value) or value < low or (value == low and not inclusive):
+            raise argparse.ArgumentTypeError(f"must be {'>=' if inclusive else '>'} {low:g}: {text}")
+        return value
+    return parse
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {value}")
+    return value
+
+
+def _ident(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an MCP ID: {text!r}") from None
+
+
+def _id_list(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated drone IDs like 1,2,3: {text!r}") from None
+
+
+def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
+    p.add_argument("broadcast", nargs="?", default=None, metavar="BROADCAST",
+                   help=f"address to send to ({_BROADCAST})")
+    p.add_argument("local_port", nargs="?", type=_port, default=None, metavar="LOCAL_PORT",
+                   help=f"UDP port to listen on ({local})")
+    p.add_argument("remote_port", nargs="?", type=_port, default=None, metavar="REMOTE_PORT",
+                   help=f"UDP port to send to ({remote})")
+    p.add_argument("--bind", type=_hostport, metavar="HOST:PORT",
+                   help="where to listen (overrides LOCAL_PORT; default: all addresses)")
+    p.add_argument("--send-to", type=_hostport, metavar="HOST:PORT",
+                   help="where to send (overrides BROADCAST and REMOTE_PORT)")
+    p.add_argument("--rto", type=_number(0.0, False), metavar="S",
+                   help=f"retransmission timeout in seconds ({SPEC.params['timeout_s']:g})")
+    p.add_argument("--retries", type=_count, metavar="N",
+                   help=f"retransmissions before giving up ({SPEC.params['retries']})")
+    p.add_argument("--reply-to-source", action="store_true",
+                   help="send ACKs to the source address of the acknowledged datagram")
+    p.add_argument("--record", metavar="FILE", help="write a JSON record of the run to FILE")
+    verbosity = p.add_mutually_exclusive_group()
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="debug output")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.")
+    sub = p.add_subparsers(dest="role", required=True, metavar="{drone,manager}",
+                           parser_class=_OneLineParser)
+    d = sub.add_parser("drone", help="a drone application (MCP + MAVLink to its autopilot)",
+                       description="A drone application: Mission_Ready after a GPS fix, arm on "
+                                   "Start_Mission, RTL after End_Mission.")
+    d.add_argument("--id", type=_ident, required=True, metavar="N", help="this drone's MCP ID (1..65534)")
+    _common(d, _PORTS["drone"], _PORTS["manager"])
+    d.add_argument("--mavlink", metavar="URL",
+                   help="autopilot connection (tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyUSB0); "
+                        "default: a built-in simulated vehicle")
+    d.add_argument("--gps-fix-delay", type=_number(0.0, True), default=0.0, metavar="S",
+                   help="seconds before the built-in vehicle reports a GPS fix (0)")
+    d.add_argument("--takeoff-alt", type=_number(0.0, False), default=10.0, metavar="M",
+                   help="altitude to climb to after Start_Mission (10)")
+    m = sub.add_parser("manager", help="the Mission Manager (ID 0)",
+                       description="The Mission Manager: waits for every drone's Mission_Ready, "
+                                   "then runs a challenge and ends the mission.")
+    m.add_argument("--challenge", type=int, required=True, choices=sorted(CHALLENGES),
+                   help="1: WP_List, 2: WP_On/WP_Off, 3: Obstacles_List")
+    m.add_argument("--drones", type=_id_list, required=True, metavar="1,2,3", help="the drones' MCP IDs")
+    m.add_argument("--waypoints", required=True, metavar="FILE", help="QGC WPL 110 waypoint file")
+    m.add_argument("--obstacles", metavar="FILE", help="QGC WPL 110 file of obstacles (challenge 3)")
+    m.add_argument("--dwell", type=_number(0.0, True), default=0.0, metavar="S",
+                   help="seconds between a WP_On and its WP_Off (challenge 2; 0)")
+    m.add_argument("--ready-timeout", type=_number(0.0, False), metavar="S",
+                   help="give up when not every drone is ready after S seconds (default: wait)")
+    _common(m, _PORTS["manager"], _PORTS["drone"])
+    return p
+
+
+def _addresses(args: argparse.Namespace, local: int, remote: int) -> tuple[str, int, str, int]:
+    bind_host, bind_port = args.bind if args.bind else ("", local if args.local_port is None else args.local_port)
+    if args.send_to:
+        remote_host, remote_port = args.send_to
+    else:
+        remote_host = args.broadcast or _BROADCAST
+        remote_port = remote if args.remote_port is None else args.remote_port
+    if not remote_host:
+        raise RoleError("--send-to needs a host: HOST:PORT")
+    if remote_port == 0:
+        raise RoleError("the port to send to cannot be 0")
+    return bind_host, bind_port, remote_host, remote_port
+
+
+def _setup_logging(args: argparse.Namespace) -> tuple[list[logging.Handler], int]:
+    """Log to stderr at the chosen level; returns the root logger's previous (handlers, level)."""
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s.%(msecs)03d %(name)s: %(message)s", "%H:%M:%S"))
+    root = logging.getLogger()
+    previous = (list(root.handlers), root.level)
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+    return previous
+
+
+def _make_role(args: argparse.Namespace) -> Drone | Manager:
+    if args.role == "drone":
+        bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["drone"], _PORTS["manager"])
+        cfg = DroneConfig(drone_id=args.id, bind_host=bind_host, local_port=bind_port, remote_host=remote_host,
+                          remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
+                          retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
+                          reply_to_source=args.reply_to_source, record_path=args.record)
+        drone = Drone(cfg)
+        if args.mavlink and args.gps_fix_delay:
+            drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
+        return drone
+    from spec.mission import load_waypoints
+
+    bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["manager"], _PORTS["drone"])
+    try:
+        waypoints = load_waypoints(args.waypoints)
+        obstacles = load_waypoints(args.obstacles) if args.obstacles else ()
+    except ValueError as exc:  # WaypointFileError names the file and line
+        raise RoleError(str(exc)) from None
+    mcfg = ManagerConfig(challenge=args.challenge, drones=args.drones, waypoints=waypoints,
+                         obstacles=obstacles, bind_host=bind_host, local_port=bind_port,
+                         remote_host=remote_host, remote_port=remote_port, rto=args.rto,
+                         retries=args.retries, reply_to_source=args.reply_to_source,
+                         record_path=args.record, dwell=args.dwell, ready_timeout=args.ready_timeout)
+    return Manager(mcfg)
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``mcp-node``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    saved_handlers, saved_level = _setup_logging(args)
+    role: Drone | Manager | None = None
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        role = _make_role(args)
+        code = role.run()
+    except RoleError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        if role is not None:
+            role.stop()
+            role.close()
+        logging.getLogger(PROG).info("interrupted")
+        code = 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        root = logging.getLogger()  # as it was: main() may run in-process (tests, embedding)
+        root.handlers[:] = saved_handlers
+        root.setLevel(saved_level)
+    if role is not None:
+        try:
+            print(json.dumps(role.record(), sort_keys=True), flush=True)
+        except (BrokenPipeError, ValueError):  # stdout gone: the record file still has it
+            pass
+    return code
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,187 @@
+"""``mcp-node``: arguments, one-line errors (exit 2), clean exits, and the command line the
+conformance runner spawns (``--bind/--send-to/--mavlink/--rto``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from reference_impl.cli import _addresses, build_parser, main
+from spec import SPEC
+from spec.codec import MANAGER_ID, Action
+from tests.reference_impl.test_drone import FakePeer
+from vehicle import SimVehicle, make_probe
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).parent / "data"
+PORTS = SPEC.protocol["ports"]
+BROADCAST = SPEC.protocol["broadcast_address"]
+
+
+def spawn(*args: str, **kw: Any) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "reference_impl", *args], cwd=ROOT, text=True,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
+
+
+def finish(proc: subprocess.Popen[str], timeout: float = 20.0) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return proc.returncode, out, err
+
+
+def test_help() -> None:
+    code, out, err = finish(spawn("--help"))
+    assert code == 0 and "drone" in out and "manager" in out
+    code, out, _ = finish(spawn("drone", "--help"))
+    for opt in ("--bind", "--send-to", "--mavlink", "--rto", "--retries", "--gps-fix-delay",
+                "--takeoff-alt", "--reply-to-source", "--record", "BROADCAST", "LOCAL_PORT"):
+        assert opt in out
+    code, out, _ = finish(spawn("manager", "--help"))
+    assert code == 0 and "--challenge" in out and "--waypoints" in out and "--obstacles" in out
+
+
+@pytest.mark.parametrize("argv", [
+    [],
+    ["fly"],
+    ["drone"],
+    ["drone", "--id", "x"],
+    ["drone", "--id", "0"],
+    ["drone", "--id", "1", "--rto", "0"],
+    ["drone", "--id", "1", "--rto", "nan"],
+    ["drone", "--id", "1", "--retries", "-1"],
+    ["drone", "--id", "1", "--bind", "127.0.0.1:99999"],
+    ["drone", "--id", "1", "--send-to", "127.0.0.1:0"],
+    ["drone", "--id", "1", "127.255.255.255", "port"],
+    ["drone", "--id", "1", "--takeoff-alt", "-3"],
+    ["drone", "--id", "1", "-v", "-q"],
+    ["manager", "--drones", "1", "--waypoints", "x"],
+    ["manager", "--challenge", "4", "--drones", "1", "--waypoints", "x"],
+    ["manager", "--challenge", "1", "--drones", "a,b", "--waypoints", "x"],
+    ["manager", "--challenge", "1", "--drones", "1,1", "--waypoints", str(DATA / "challenge.waypoints")],
+    ["manager", "--challenge", "1", "--drones", "1", "--waypoints", "/nonexistent.waypoints"],
+    ["manager", "--challenge", "3", "--drones", "1", "--waypoints", str(DATA / "challenge.waypoints")],
+    ["manager", "--challenge", "1", "--drones", "1", "--waypoints", str(Path(__file__))],
+])
+def test_bad_arguments_exit_2_with_one_line(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mcp-node: error: "), err
+    assert "Traceback" not in err
+
+
+def addresses(*argv: str) -> tuple[str, int, str, int]:
+    args = build_parser().parse_args(list(argv))
+    own, other = ("drone", "manager") if args.role == "drone" else ("manager", "drone")
+    return _addresses(args, PORTS[own], PORTS[other])
+
+
+def test_address_defaults_follow_the_description() -> None:
+    wp = str(DATA / "challenge.waypoints")
+    assert addresses("drone", "--id", "1") == ("", PORTS["drone"], BROADCAST, PORTS["manager"])
+    assert addresses("manager", "--challenge", "2", "--drones", "1", "--waypoints", wp) == (
+        "", PORTS["manager"], BROADCAST, PORTS["drone"])
+    # ./mission_manager.py 2 127.255.255.255 7889 7890 and the drone's mirror image
+    assert addresses("manager", "--challenge", "2", "--drones", "1", "--waypoints", wp,
+                     "127.255.255.255", "17889", "17890") == ("", 17889, "127.255.255.255", 17890)
+    assert addresses("drone", "--id", "1", "127.0.0.255", "17890", "17889") == ("", 17890, "127.0.0.255", 17889)
+    assert addresses("drone", "--id", "1", "127.0.0.255", "17890", "17889", "--bind", "127.0.0.1:5",
+                     "--send-to", "127.0.0.2:6") == ("127.0.0.1", 5, "127.0.0.2", 6)
+    assert addresses("drone", "--id", "1", "--bind", "7") == ("", 7, BROADCAST, PORTS["manager"])
+
+
+def test_unreachable_autopilot_exits_2_in_one_line() -> None:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code, out, err = finish(spawn("drone", "--id", "1", "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9",
+                                  "--mavlink", f"tcp:127.0.0.1:{port}"))
+    assert code == 2
+    assert [ln for ln in err.splitlines() if ln.startswith("mcp-node: error: ")] != []
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path: Path) -> None:
+    rec = tmp_path / "rec.json"
+    proc = spawn("drone", "--id", "1", "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9",
+                 "--gps-fix-delay", "1000", "--record", str(rec))
+    try:
+        deadline = time.monotonic() + 20
+        assert proc.stderr is not None
+        line = ""
+        while time.monotonic() < deadline and "waiting for a 3D GPS fix" not in line:
+            line = proc.stderr.readline()
+            if not line:
+                break
+        assert "waiting for a 3D GPS fix" in line
+        proc.send_signal(sig)
+        code, out, err = finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert json.loads(out.splitlines()[-1])["outcome"] == "stopped"
+    assert json.loads(rec.read_text())["received"] == {}
+
+
+def test_the_runner_spawn_command(tmp_path: Path) -> None:
+    """``drone --id {id} --bind {target} --send-to {listen} --mavlink {mavlink} --rto 0.2``, with the
+    fix withheld for a while and the first copies of Mission_Ready left unACKed."""
+    runner = FakePeer()
+    v = SimVehicle(fix_withheld=True)
+    v.start()
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        target = s.getsockname()[1]
+    proc = spawn("drone", "--id", "4", "--bind", f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{runner.port}",
+                 "--mavlink", v.url, "--rto", "0.2")
+    try:
+        runner.to = ("127.0.0.1", target)
+        assert v.wait_for(lambda: v.connected, 20)
+        assert runner.expect(Action.MISSION_READY, 1.0) is None  # no fix: no Mission_Ready (MCP-BLK-5)
+        v.give_fix()
+        copies = [runner.expect(Action.MISSION_READY, 10) for _ in range(4)]  # 3 left unACKed
+        assert all(c is not None for c in copies)
+        assert {c[0].seq for c in copies if c} == {copies[0][0].seq} and copies[0][0].dst == MANAGER_ID
+        runner.ack(copies[-1][0], copies[-1][1])
+        runner.src = MANAGER_ID
+        runner.command(Action.MAV_PASSTHROUGH, make_probe("spawned"), dst=4)
+        assert v.wait_for(lambda: v.probe_count("spawned") == 1, 10)
+        assert not v.events("arm")
+        runner.command(Action.START_MISSION, dst=4)
+        assert v.wait_for(lambda: v.armed, 10)
+        runner.command(Action.END_MISSION, dst=4)
+        assert v.wait_for(lambda: v.rtl_commanded, 10)
+        code, out, err = finish(proc)
+        assert code == 0, err
+        rec = json.loads(out.splitlines()[-1])
+        assert rec["received"] == {"Mav_Passthrough": 1, "Start_Mission": 1, "End_Mission": 1}
+        assert "Traceback" not in err
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.communicate()
+        v.close()
+        runner.close()

@@ -1,0 +1,98 @@
+"""End to end on loopback: one manager and three drones as separate processes on one host,
+the drones sharing one UDP port and the manager reaching them by IP broadcast
+(127.255.255.255, MCP-TRN-1), for challenges 1, 2 and 3 (MCP-FLOW-1..6).
+
+Each drone's application must receive each command exactly once (MCP-DUP-1), and every
+process must exit 0 after End_Mission. Ports are picked free; every process is killed in a
+``finally``.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from spec import SPEC
+from spec.mission import load_waypoints
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).parent / "data"
+WAYPOINTS = DATA / "challenge.waypoints"
+OBSTACLES = DATA / "obstacles.waypoints"
+BROADCAST = SPEC.protocol["broadcast_address"]
+DRONES = (1, 2, 3)
+RTO = "0.3"
+DEADLINE = 40.0  # seconds for the whole mission; a hang fails instead of blocking CI
+
+pytestmark = pytest.mark.slow
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        return int(s.getsockname()[1])
+
+
+def node(*args: str, log: Path) -> subprocess.Popen[bytes]:
+    with open(log, "wb") as err:
+        return subprocess.Popen([sys.executable, "-m", "reference_impl", *args], cwd=ROOT,
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
+
+
+def expected(challenge: int) -> dict[str, int]:
+    n_wp = len(load_waypoints(WAYPOINTS))
+    middle = {1: {"WP_List": 1}, 2: {"WP_On": n_wp, "WP_Off": n_wp}, 3: {"Obstacles_List": 1}}[challenge]
+    return {"Start_Mission": 1, **middle, "End_Mission": 1}
+
+
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_manager_and_three_drones(challenge: int, tmp_path: Path) -> None:
+    drone_port, manager_port = free_port(), free_port()
+    while manager_port == drone_port:
+        manager_port = free_port()
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    try:
+        for i in DRONES:
+            procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
+                                      "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
+                                      log=tmp_path / f"drone{i}.log")
+        procs["manager"] = node("manager", "--challenge", str(challenge), "--drones", ",".join(map(str, DRONES)),
+                                "--waypoints", str(WAYPOINTS), "--obstacles", str(OBSTACLES),
+                                BROADCAST, str(manager_port), str(drone_port), "--rto", RTO,
+                                "--record", str(tmp_path / "manager.json"), log=tmp_path / "manager.log")
+        deadline = time.monotonic() + DEADLINE
+        codes = {}
+        for name, proc in procs.items():
+            try:
+                codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                codes[name] = None
+        logs = {name: (tmp_path / f"{name}.log").read_text(errors="replace")[-1500:] for name in procs}
+        assert codes == {name: 0 for name in procs}, logs
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
+
+    manager = json.loads((tmp_path / "manager.json").read_text())
+    assert manager["outcome"] == "end_mission" and sorted(manager["ready"]) == list(DRONES)
+    assert manager["failed"] == []
+    want = expected(challenge)
+    for i in DRONES:
+        rec = json.loads((tmp_path / f"drone{i}.json").read_text())
+        assert rec["outcome"] == "end_mission"
+        assert rec["received"] == want, f"drone {i}"  # each command exactly once
+        seqs = [seq for _, _, seq in rec["deliveries"]]
+        assert len(seqs) == len(set(seqs)) == sum(want.values())
+        assert all(src == 0 for _, src, _ in rec["deliveries"])
+        assert rec["deliveries"][0][0] == "Start_Mission" and rec["deliveries"][-1][0] == "End_Mission"
+        assert rec["armed"] and rec["rtl"]
+        sent_to_i = [a for a, d in manager["sent"] if d == i]
+        assert sent_to_i == [a for a, _, _ in rec["deliveries"]]
