@@ -25,6 +25,8 @@ if TYPE_CHECKING:
     from conformance.session import Session
 
 MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])
+DELIVERED = -1  # expect_delivered: reached the autopilot at least once (a node may forward twice: PAY-8's business)
+NOT_AGAIN = 0  # expect_delivered: not delivered (again)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,7 @@ class CaseContext:
         self.end_ns: int | None = None
         self.notes: list[str] = []
         self.node_silent = False
+        self.restart_if_failed = False
         self.mark = self.driver.mark()
         self._probe_n = 0
 
@@ -116,6 +119,11 @@ class CaseContext:
             if cand not in (0, self.target_id, self.broadcast_id):
                 return cand
         return 0x0ABD
+
+    def fresh_node_after(self) -> None:
+        """This case leaves the node in a state later cases must not inherit (spawn mode
+        restarts it; attach mode cannot)."""
+        self.restart_if_failed = True
 
     def info(self, text: str) -> None:
         """Record an observation (INFO rules; shown in every report)."""
@@ -173,7 +181,7 @@ class CaseContext:
 
     def await_ack(self, sent: Sent, copies: int = MAX_ACK_COPIES) -> Exchange:
         """Await the ACK of ``sent``, retransmitting it every --rto (a manager's behaviour)."""
-        return self.driver.exchange(sent, rto=self.rto, copies=copies)
+        return self.driver.exchange(sent, rto=self.rto, copies=copies, tail=self.ack_window)
 
     def command(self, action: Action, payload: Any = None, dst: int | None = None, **kw: Any) -> Exchange:
         return self.await_ack(self.send(action, payload, dst, **kw))
@@ -203,7 +211,8 @@ class CaseContext:
         window = max(self.ack_window, 0.5)
         if not expect_more:
             v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries), window)
-        time.sleep(min(0.2, window) if not expect_more else window)
+        if expect_more:
+            time.sleep(window)
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
 
@@ -278,7 +287,6 @@ class CaseContext:
         """No ACK names any of ``sents`` over the ACK window (D-6); probes not forwarded."""
         window = self.ack_window if within is None else within
         since = min(self.driver.mark_before(s) for s in sents)
-        before = {p.token: self.vehicle.probe_count(p.token) for p in also_not_delivered} if also_not_delivered else {}
         time.sleep(max(0.0, sents[-1].t + window - time.monotonic()))
         replies = self.driver.replies_to(sents, since)
         if replies:
@@ -287,7 +295,7 @@ class CaseContext:
             raise self.fail(rule, f"no ACK of seq {which.seq} within {window:g} s",
                             f"ACK received {d.t - which.t:.3f} s after it", [f"sent: {_hex(which.data)}", f"reply: {d.describe()}"])
         for p in also_not_delivered:
-            if self.vehicle.probe_count(p.token) > before[p.token]:
+            if self.vehicle.probe_count(p.token) > 0:  # tokens are fresh: any arrival is a delivery
                 raise self.fail(rule, f"the frame of probe {p.token} not forwarded to the autopilot",
                                 "the node forwarded it", [f"token {p.token}"])
 
@@ -341,7 +349,8 @@ class CaseContext:
             got = d.delivered
             ok = (got == want) if want >= 0 else got > 0
             if not ok:
-                what = {0: "not delivered again (a duplicate)", 1: "delivered once"}.get(want, f"delivered {want} times")
+                what = {NOT_AGAIN: "not delivered (again)", DELIVERED: "delivered",
+                    1: "delivered exactly once"}.get(want, f"delivered {want} times")
                 raise self.fail(rule, f"probe {d.probe.token} (src {d.exchange.first.src}, seq {d.exchange.seq}) {what}",
                                 f"the vehicle received its frame {got} more time(s)")
 
@@ -364,6 +373,8 @@ class CaseContext:
         if len(samples) < int(SPEC.params["ack_latency_samples"]):
             raise Inconclusive(f"{rule}: only {len(samples)} unambiguous ACK latency samples")
         med = statistics.median(samples)
+        self.info(f"ACK latency: median {med * 1000:.2f} ms over {len(samples)} samples "
+                  f"(max {max(samples) * 1000:.2f} ms)")
         if med > limit:
             raise self.fail(rule, f"median ACK latency <= {limit * 1000:.0f} ms",
                             f"median {med * 1000:.1f} ms over {len(samples)} samples",
@@ -386,10 +397,10 @@ class CaseContext:
                     data, addr = sock.recvfrom(65535)
                 except (TimeoutError, BlockingIOError):
                     continue
-                hdr = read_header(data)
-                if hdr is not None and hdr[3] == int(Action.ACK) and len(data) >= 19 and \
-                        int.from_bytes(data[17:19], "big") == first.seq:
-                    return first, Datagram(-1, time.monotonic(), time.time_ns(), data, addr, None, None, hdr)
+                read_header(data)
+                d = Datagram(-1, time.monotonic(), time.time_ns(), data, addr, None, None, read_header(data))
+                if d.names_seq(first.seq):
+                    return first, d
             if n < MAX_ACK_COPIES - 1:
                 self.driver.resend(first, sock=sock)
         return first, None

@@ -350,7 +350,7 @@ class TargetDriver:
         since = self.mark_before(first)
         match = self.ack_for(first)
         for n in range(copies):
-            wait = rto if n < copies - 1 else (rto if tail is None else tail)
+            wait = rto if n < copies - 1 else (rto if tail is None else max(rto, tail))
             got = self.wait_for(lambda d: d.t >= first.t and match(d), wait, since)
             if got is not None:
                 ex.ack = got

@@ -147,7 +147,7 @@ class Startup:
 
     def gaps(self) -> list[float]:
         ts = [d.t for d in self.copies]
-        return [b - a for a, b in zip(ts, ts[1:])]
+        return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
 
 class Session:
@@ -314,7 +314,7 @@ class Session:
                 raise self._fail_setup("the node exited during startup")
             if st.node_connected_to_vehicle:
                 # hold the fix while a node that ignores it would already speak (MCP-BLK-5)
-                hold = max(self.ack_window, 1.0)
+                hold = max(2 * self.ack_window, 0.5)
                 drv.wait_for(is_ready, hold, mark)
             st.ready_before_fix = [d for d in drv.received(mark) if is_ready(d)]
             st.fix_given_at = time.monotonic()
@@ -338,16 +338,16 @@ class Session:
             st.reason = "no Mission_Ready was seen: the node was already past its startup phase"
             if first:
                 self.startup = st
+            self._start_mission(first)
             return
         if self.target_id is None and first_ready.header is not None:
             self.target_id = first_ready.header[1]
         if first:
             self._observe_retransmissions(st, first_ready, mark)
         withhold = False
-        if not first:
-            return
-        self.startup = st
-        self._start_mission()
+        if first:
+            self.startup = st
+        self._start_mission(first)
 
     def _observe_retransmissions(self, st: Startup, first_ready: Datagram, mark: int) -> None:
         """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""
@@ -381,7 +381,7 @@ class Session:
         latest = [d for d in drv.received(i) if d.action == _READY][-1]
         rseq = latest.header[2] if latest.header else seq
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
-        st.stop_watch = max(self.ack_window, 2.5 * gap)
+        st.stop_watch = max(self.ack_window, 1.5 * gap)
         time.sleep(st.stop_watch)
         grace = 0.05
         st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
@@ -389,12 +389,14 @@ class Session:
         st.others_while_waiting = [d for d in drv.received(mark, drv.mark_before(st.right_ack))
                                    if d.action not in (_READY, int(Action.ACK))]
 
-    def _start_mission(self) -> None:
+    def _start_mission(self, first: bool) -> None:
         drv = self.driver
         assert drv is not None
         sent = drv.send(Action.START_MISSION, None, self.target_id)
-        self.start_mission = drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]))
-        if not self.start_mission.acked and not self.alive():
+        ex = drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]), tail=self.ack_window)
+        if first:
+            self.start_mission = ex  # judged by MCP-BLK-4; restarts do not replace it
+        if not ex.acked and not self.alive():
             raise self._fail_setup("the node exited after Start_Mission")
 
     def _probe_alive(self) -> Exchange:
@@ -445,6 +447,8 @@ class Session:
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
+        if ctx.restart_if_failed and outcome in ("failed", "warned", "error") and self.spawned:
+            self.needs_restart = True
         self.after_case(ctx.node_silent)
         if self.recorder is not None:
             self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)

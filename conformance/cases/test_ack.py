@@ -80,9 +80,12 @@ def test_an_ack_is_never_acked(node):
 def test_ack_leaves_within_the_deadline(node):
     """Judged on the median of several samples, each a fresh command."""
     samples = []
+    patience = max(node.rto, 1.0)  # no retransmission before a slow ACK can arrive
     for _ in range(max(5, int(SPEC.params["ack_latency_samples"]))):
-        lat = node.command(Action.WP_OFF).latency()
+        lat = node.driver.exchange(node.send(Action.WP_OFF), rto=patience, copies=2).latency()
         if lat is not None:
             samples.append(lat)
+        else:
+            node.info("one sample was ambiguous (retransmitted before its ACK) and is left out")
         time.sleep(0.02)
     node.expect_median_latency(samples, float(SPEC.params["ack_deadline_s"]), "MCP-ACK-7")

@@ -6,6 +6,7 @@ Mav_Passthrough probe reaches the autopilot, so a duplicate delivery shows as a 
 
 from __future__ import annotations
 
+from conformance.case import DELIVERED, NOT_AGAIN
 from conformance.errors import Inconclusive
 from conformance.marks import rules
 
@@ -15,7 +16,7 @@ def test_same_seq_twice_is_delivered_once(node):
     node.require_passthrough("MCP-DUP-1")
     first = node.deliver(node.probe())
     again = node.redeliver(first, first.exchange.first)
-    node.expect_delivered([(first, 1), (again, 0)], "MCP-DUP-1")
+    node.expect_delivered([(first, DELIVERED), (again, NOT_AGAIN)], "MCP-DUP-1")
 
 
 @rules("MCP-DUP-2")
@@ -24,7 +25,7 @@ def test_new_seq_with_the_same_bytes_is_delivered(node):
     probe = node.probe()
     first = node.deliver(probe)
     second = node.deliver(probe)  # same payload, next seq
-    node.expect_delivered([(first, 1), (second, 1)], "MCP-DUP-2")
+    node.expect_delivered([(first, DELIVERED), (second, DELIVERED)], "MCP-DUP-2")
 
 
 @rules("MCP-DUP-3")
@@ -40,7 +41,7 @@ def test_same_seq_from_another_src_is_not_a_duplicate(node):
                            "(not ACKed or not delivered), so per-source detection is unobservable")
     from_manager = node.deliver(node.probe())
     same_seq = node.deliver(node.probe(), src=other, seq=from_manager.exchange.seq)
-    node.expect_delivered([(from_manager, 1), (same_seq, 1)], "MCP-DUP-3")
+    node.expect_delivered([(from_manager, DELIVERED), (same_seq, DELIVERED)], "MCP-DUP-3")
 
 
 @rules("MCP-DUP-4")
