@@ -21,8 +21,10 @@ Receiving (identical whatever we are sending):
   ACK (ACK-6) or a malformed datagram (ROB-1..4, D-4: "discarded without ACK and without
   delivery").
 - MCP-DUP-1: "A message with the same (src, seq) as the one last delivered from that src
-  is a duplicate: ACKed again but not delivered to the application again"; any other seq
-  is new (DUP-2), per source (DUP-3), so 0 after 65535 is new (SEQ-3).
+  is a duplicate: ACKed again but not delivered to the application again"; a late copy of
+  one of the few seqs delivered just before it is discarded too (our answer to the open
+  MCP-DUP-4, so a reordering link never delivers twice); any seq ahead of the last is new
+  (DUP-2), per source (DUP-3), so 0 after 65535 is new (SEQ-3).
 
 Sending:
 
@@ -80,6 +82,7 @@ __all__ = ["Endpoint", "State"]
 
 _ACK = int(Action.ACK)
 _SEQ_MOD = 0x10000
+_SERIAL_HALF = 0x8000  # serial-number arithmetic: "behind" means less than half the space back
 #: The header after the preamble (dst, src, seq, action), from the spec's header table.
 _HEAD = struct.Struct(SPEC.header["struct"][0] + "".join(
     f["code"] for f in SPEC.header["fields"] if "const" not in f))
@@ -115,12 +118,15 @@ class Endpoint:
     ``timeout`` (seconds between copies) and ``retries`` (retransmissions after the first
     copy) default to the spec's parameters and may be overridden per :meth:`send`.
     ``initial_seq`` is the sequence number of the first message (arbitrary by default,
-    MCP-SEQ-4), drawn from ``rng`` (a ``random.Random``) when not given.
+    MCP-SEQ-4), drawn from ``rng`` (a ``random.Random``) when not given. ``dup_window``:
+    how many recently delivered seqs per source are remembered for duplicate discard
+    (1 = only the last, exactly MCP-DUP-1; see ``_deliver``).
     """
 
     def __init__(self, node_id: int, *, timeout: float = SPEC.params["timeout_s"],
                  retries: int = int(SPEC.params["retries"]), broadcast_id: int = BROADCAST_ID,
-                 initial_seq: int | None = None, rng: random.Random | None = None) -> None:
+                 initial_seq: int | None = None, rng: random.Random | None = None,
+                 dup_window: int = 64) -> None:
         self.node_id = _u16("node_id", node_id)
         self.broadcast_id = _u16("broadcast_id", broadcast_id)
         if node_id == broadcast_id:
@@ -134,7 +140,9 @@ class Endpoint:
         self._in_flight: _Unicast | None = None
         self._queue: deque[_Unicast] = deque()
         self._next_handle = 1
-        self._last_delivered: dict[int, int] = {}  # src -> seq last delivered (MCP-DUP-1)
+        self.dup_window = max(1, int(dup_window))
+        # src -> the last ``dup_window`` seqs delivered from it, the last one last (MCP-DUP-1)
+        self._recent: dict[int, deque[int]] = {}
         self._events: deque[Event] = deque()
         self._outgoing: list[tuple[bytes, Address | None]] = []
         self._table: dict[tuple[State, Input], tuple[Callable[..., None], State]] = {
@@ -294,11 +302,28 @@ class Endpoint:
         self._deliver(msg, addr)
 
     def _deliver(self, msg: Message, addr: Address) -> None:
-        last = self._last_delivered
-        if last.get(msg.src) == msg.seq:
-            self._events.append(DuplicateDiscarded(msg, addr))
-            return
-        last[msg.src] = msg.seq
+        """Deliver ``msg`` unless it is a copy of one recently delivered from its src.
+
+        MCP-DUP-1: the seq last delivered from that src is a duplicate. MCP-DUP-4 leaves a
+        late copy of an older seq open; we also discard a copy of any of the last
+        ``dup_window`` seqs delivered from that src if it lies *behind* the last one in
+        serial arithmetic (a delayed retransmission overtaken by a newer message, or one
+        interleaved with broadcasts). A seq ahead of the last is always new, so 0 after
+        65535 is new (MCP-SEQ-3), and so is any other seq (DUP-2, per src: DUP-3).
+        """
+        src, seq = msg.src, msg.seq
+        recent = self._recent.get(src)
+        if recent is None:
+            recent = self._recent[src] = deque(maxlen=self.dup_window)
+        elif recent:
+            last = recent[-1]
+            if seq == last:
+                self._events.append(DuplicateDiscarded(msg, addr))
+                return
+            if 0 < ((last - seq) & 0xFFFF) < _SERIAL_HALF and seq in recent:
+                self._events.append(DuplicateDiscarded(msg, addr, "MCP-DUP-4"))
+                return
+        recent.append(seq)
         self._events.append(MessageDelivered(msg, addr))
 
     def _on_ignore_other_id(self, msg: Message, addr: Address, now: float, arg: Any) -> None:
