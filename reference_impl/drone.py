@@ -57,7 +57,7 @@ from reference_impl.handler import MissionMessageHandlerBase
 from spec import SPEC
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
 
-__all__ = ["AutopilotLink", "DroneApp", "DroneConfig", "Drone", "EventLogger", "RoleError"]
+__all__ = ["AutopilotLink", "Drone", "DroneApp", "DroneConfig", "EventLogger", "LinkClosed", "RoleError"]
 
 _PORTS = SPEC.protocol["ports"]
 _MAV = mavutil.mavlink
@@ -166,6 +166,14 @@ def connect_autopilot(url: str, *, attempts: int = 3, delay: float = 0.5) -> Any
     raise RoleError(f"cannot connect to the autopilot at {url!r}: {reason}")
 
 
+class LinkClosed(Exception):
+    """The autopilot closed the connection (TCP EOF or reset)."""
+
+
+def _link_closed(*_args: Any) -> None:
+    raise LinkClosed("the autopilot closed the connection")
+
+
 class AutopilotLink:
     """The MAVLink side: one worker thread owns the pymavlink connection.
 
@@ -178,6 +186,13 @@ class AutopilotLink:
                  settle_timeout: float = 2.0) -> None:
         self.conn = conn
         self.log = log
+        # pymavlink's TCP link prints "EOF on TCP socket" to stdout and retries at once,
+        # forever, when the peer goes away: turn that into one exception, handled below.
+        for hook in ("handle_eof", "handle_disconnect"):
+            if hasattr(conn, hook):
+                setattr(conn, hook, _link_closed)
+        #: True once the autopilot went away; the node stays live for MCP (MCP-ROB-5).
+        self.lost = False
         self.step_timeout = step_timeout
         self.settle_timeout = settle_timeout
         self.heartbeat = threading.Event()
@@ -219,12 +234,16 @@ class AutopilotLink:
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                kind, arg, done = self._jobs.get_nowait()
+                kind, arg, done = self._jobs.get(timeout=0.2) if self.lost else self._jobs.get_nowait()
             except queue.Empty:
-                self._pump(0.05)
+                if not self.lost:
+                    self._pump(0.05)
                 continue
             try:
-                getattr(self, "_job_" + kind)(arg)
+                if self.lost and kind != "noop":
+                    self.log.warning("autopilot link lost: %s not done", kind)
+                else:
+                    getattr(self, "_job_" + kind)(arg)
             except Exception as exc:  # noqa: BLE001 - a MAVLink failure must not stop the node
                 self.log.warning("autopilot job %s failed: %s", kind, exc)
             finally:
@@ -236,11 +255,17 @@ class AutopilotLink:
                 break
 
     def _pump(self, wait: float) -> None:
+        if self.lost:
+            self._stop.wait(wait)
+            return
         try:
             msg = self.conn.recv_match(blocking=True, timeout=wait)
             while msg is not None:
                 self._observe(msg)
                 msg = self.conn.recv_match(blocking=False)
+        except LinkClosed as exc:
+            self.lost = True
+            self.log.warning("autopilot link lost: %s", exc)
         except Exception as exc:  # noqa: BLE001 - socket/serial errors: report once, keep going
             text = str(exc) or type(exc).__name__
             if text != self._link_error:

@@ -144,6 +144,23 @@ def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path:
     assert json.loads(rec.read_text())["received"] == {}
 
 
+def test_sigterm_while_the_manager_waits_exits_0(tmp_path: Path) -> None:
+    proc = spawn("manager", "--challenge", "1", "--drones", "1,2", "--waypoints", str(DATA / "challenge.waypoints"),
+                 "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9", "--record", str(tmp_path / "m.json"))
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert "manager listening" in line, line
+        proc.send_signal(signal.SIGTERM)
+        code, out, err = finish(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 0 and "Traceback" not in err, err
+    rec = json.loads((tmp_path / "m.json").read_text())
+    assert rec["outcome"] == "stopped" and rec["sent"] == []
+
+
 def test_the_runner_spawn_command(tmp_path: Path) -> None:
     """``drone --id {id} --bind {target} --send-to {listen} --mavlink {mavlink} --rto 0.2``, with the
     fix withheld for a while and the first copies of Mission_Ready left unACKed."""

@@ -253,6 +253,25 @@ def test_builtin_vehicle_and_record_file(manager: FakePeer, drone_factory: Any, 
     assert rec["received"] == {"WP_List": 1, "End_Mission": 1} and rec["waypoints"] == 2
 
 
+def test_survives_losing_the_autopilot(manager: FakePeer, drone_factory: Any) -> None:
+    v = SimVehicle()
+    v.start()
+    try:
+        run = drone_factory(v.url)
+        ready(manager)
+    finally:
+        v.close()
+    assert run.drone.link is not None
+    deadline = time.monotonic() + 10
+    while not run.drone.link.lost and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert run.drone.link.lost
+    manager.command(Action.MAV_PASSTHROUGH, make_probe("lost"))  # still ACKed (MCP-ROB-5)
+    manager.command(Action.END_MISSION)
+    assert run.join() == 0
+    assert run.drone.record()["forwarded"] == 0
+
+
 def test_stop_while_waiting_for_the_fix(vehicle: SimVehicle, manager: FakePeer, drone_factory: Any) -> None:
     run = drone_factory(vehicle.url)
     assert vehicle.wait_for(lambda: vehicle.connected, 10)
