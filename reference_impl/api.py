@@ -95,6 +95,8 @@ class Mcp:
         self._inbox_cond = threading.Condition()
         self._handler_queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._closed = False
+        #: messages dropped because nobody called recv_message and the queue was full
+        self.dropped = 0
         self._close_lock = threading.Lock()
         self._proto: McpDatagramProtocol | None = None
         self._loop = asyncio.new_event_loop()
@@ -273,7 +275,10 @@ class Mcp:
                 log.exception("handler failed on %r", msg)
             with self._inbox_cond:
                 if len(self._inbox) == self._inbox.maxlen:
-                    log.warning("recv_message queue full (%d): dropping the oldest message", self._inbox.maxlen)
+                    self.dropped += 1
+                    if self.dropped % 1000 == 1:  # the first, then every 1000th: no log flood
+                        log.warning("recv_message queue full (%d): dropped the oldest message "
+                                    "(%d so far)", self._inbox.maxlen, self.dropped)
                 self._inbox.append(msg)
                 self._inbox_cond.notify_all()
 

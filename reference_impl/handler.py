@@ -77,7 +77,7 @@ class MissionMessageHandlerBase:
         """ACKs are consumed by the protocol and never delivered; kept "for the sake of completion"."""
 
 
-def dispatch(handler: Any, msg: Message, _cache: dict[Any, bool] | None = None) -> bool:
+def dispatch(handler: Any, msg: Message, _cache: dict[Any, int] | None = None) -> bool:
     """Call ``handler``'s method for ``msg.action`` with ``(buffer[, msg])``.
 
     Returns False when ``handler`` has no such method (nothing is called). Handlers written
