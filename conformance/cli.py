@@ -1,0 +1,192 @@
+"""``mcp-conform``: the black-box conformance runner's command line (DESIGN.md).
+
+    mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
+                [--spawn CMD] [--mavlink] [--strict] [--select PREFIX ...] [--list]
+                [--json FILE] [--junit FILE] [--capture FILE.mcap]
+                [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--seed N]
+
+A thin front end over pytest and the ``conformance.plugin``: it checks the arguments (a bad
+value is a one-line error naming the option, exit 2, with the JSON report still written),
+then runs the installed cases (``--pyargs conformance.cases``) without pytest's cache,
+random ordering, configuration files or terminal output (the plugin's rich report is the
+output), and returns the contract's exit code: 0 no MUST failed (and no SHOULD under
+``--strict``), 1 a case failed or errored, 2 a usage or setup error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from conformance.config import RunConfig
+from conformance.plugin import ConfigError, make_config
+from conformance.report import RunRecord, tool_version, write_json
+from spec import SPEC
+
+__all__ = ["build_parser", "main", "pytest_args"]
+
+PROG = "mcp-conform"
+CASES_PACKAGE = "conformance.cases"
+PLUGIN_MODULE = "conformance.plugin"
+MANAGER_NOT_AVAILABLE = "--role manager: manager role conformance is not available yet"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of printing usage and exiting."""
+
+    def error(self, message: str) -> NoReturn:
+        raise ConfigError(message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="Black-box conformance runner for CentMesh MCP nodes.",
+                epilog="No --target and no --spawn: test the embedded reference drone.")
+    p.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
+    p.add_argument("--listen", metavar="HOST:PORT", help="where the runner receives (default: all addresses, 7890 for a drone under test)")
+    p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
+    p.add_argument("--role", metavar="drone|manager", default="drone", help="the role of the node under test (default drone)")
+    p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
+    p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
+    p.add_argument("--strict", action="store_true", help="a failed SHOULD is a failure")
+    p.add_argument("--select", metavar="PREFIX", nargs="+", action="extend", default=[], help="run only cases whose rule ID or case ID starts with PREFIX")
+    p.add_argument("--list", action="store_true", help="print the cases with their rule IDs and run nothing")
+    p.add_argument("--json", metavar="FILE", help="write the JSON report (always, errors included)")
+    p.add_argument("--junit", metavar="FILE", help="write a JUnit XML report")
+    p.add_argument("--capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
+    p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
+    p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
+    p.add_argument("--timeout", metavar="S", help="deadline for the whole run (default 600)")
+    p.add_argument("--seed", metavar="N", help="seed of the malformed corpus (default: fixed)")
+    p.add_argument("--version", action="store_true", help="print the version and exit")
+    return p
+
+
+def _json_path(argv: Sequence[str]) -> str | None:
+    """--json FILE from raw arguments, for reports of errors argparse itself refused."""
+    path = None
+    for i, a in enumerate(argv):
+        if a == "--json" and i + 1 < len(argv):
+            path = argv[i + 1]
+        elif a.startswith("--json="):
+            path = a.split("=", 1)[1]
+    return path
+
+
+def _values(ns: argparse.Namespace) -> dict[str, Any]:
+    return {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id, "role": ns.role,
+            "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
+            "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
+            "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit}
+
+
+def _check_writable(path: str | None, option: str) -> None:
+    if path is None:
+        return
+    if not path:
+        raise ConfigError(f"{option}: empty file name")
+    parent = Path(path).expanduser().resolve().parent
+    if not parent.is_dir():
+        raise ConfigError(f"{option}: directory {str(parent)!r} does not exist")
+    if Path(path).is_dir():
+        raise ConfigError(f"{option}: {path!r} is a directory")
+
+
+def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> int:
+    """Print the one-line error, write the JSON report if asked, return 2."""
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    if json_path:
+        cfg = cfg or RunConfig()
+        target = f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None
+        run = RunRecord(role=cfg.role if cfg.role in ("drone", "manager") else "drone", target=target,
+                        parameters=cfg.parameters(), seed=cfg.seed, strict=cfg.strict, error=message)
+        run.finished = run.started
+        try:
+            write_json(json_path, run)
+        except OSError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _plugin_is_installed() -> bool:
+    """True when pytest will load our plugin through its ``pytest11`` entry point."""
+    if os.environ.get("PYTEST_DISABLE_PLUGIN_AUTOLOAD"):
+        return False
+    try:
+        from importlib.metadata import entry_points
+
+        return any(ep.value.strip() == PLUGIN_MODULE for ep in entry_points(group="pytest11"))
+    except Exception:  # noqa: BLE001 - a broken metadata install: load it explicitly
+        return False
+
+
+def pytest_args(ns: argparse.Namespace) -> list[str]:
+    """The pytest command line for these arguments."""
+    import conformance.cases
+
+    cases_dir = str(Path(conformance.cases.__file__).resolve().parent)
+    args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
+            "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
+            "-W", "ignore::pytest.PytestAssertRewriteWarning", "-W", "ignore::pytest.PytestConfigWarning"]
+    if not _plugin_is_installed():
+        args += ["-p", PLUGIN_MODULE]
+    args += ["--mcp-frontend", "--mcp-role", ns.role]
+    for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "rto",
+                 "ack_window", "broadcast_id", "timeout", "seed"):
+        value = getattr(ns, name)
+        if value is not None:
+            args.append(f"--mcp-{name.replace('_', '-')}={value}")
+    for flag in ("mavlink", "strict", "list"):
+        if getattr(ns, flag):
+            args.append(f"--mcp-{flag}")
+    for prefix in ns.select:
+        args.append(f"--mcp-select={prefix}")
+    args += ["--pyargs", CASES_PACKAGE]
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the suite; return the contract's exit code (0, 1 or 2)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    json_path = _json_path(argv)
+    parser = build_parser()
+    try:
+        ns = parser.parse_args(argv)
+    except ConfigError as exc:
+        return _fail(str(exc), json_path)
+    if ns.version:
+        print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})")
+        return 0
+    try:
+        cfg = make_config(_values(ns), lambda n: "--" + n.replace("_", "-"))
+        _check_writable(ns.json, "--json")
+        _check_writable(ns.junit, "--junit")
+        _check_writable(ns.capture, "--capture")
+    except ConfigError as exc:
+        return _fail(str(exc), json_path)
+    if cfg.role == "manager":
+        return _fail(MANAGER_NOT_AVAILABLE, ns.json, cfg)
+    if ns.list and ns.capture:
+        ns.capture = None  # nothing runs: no capture file
+    import pytest
+
+    if ns.json:
+        Path(ns.json).unlink(missing_ok=True)  # rewritten below; its absence shows a pytest failure
+    rc = int(pytest.main(pytest_args(ns)))
+    if rc in (0, 1, 2) and (not ns.json or Path(ns.json).exists()):
+        return rc
+    why = {3: "internal error in the runner (see the traceback above)",
+           4: "pytest refused the arguments (see above)",
+           5: "no conformance cases were collected"}.get(rc, f"the run ended with pytest exit code {rc}")
+    if ns.json and Path(ns.json).exists():
+        print(f"{PROG}: error: {why}", file=sys.stderr)
+        return 2
+    return _fail(why, ns.json, cfg)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,688 @@
+"""The mcp-conform pytest plugin (entry point ``pytest11``: ``mcp_conform``).
+
+It holds the ``--mcp-*`` options, the fixtures (``mcp_config``, ``mcp_session``, ``node``),
+the MUST / SHOULD / INFO outcome mapping, per-case and per-run time limits, and the
+reports (terminal, ``--mcp-json``, ``--mcp-junit``). ``mcp-conform`` is a thin front end
+that runs ``conformance.cases`` through it; ``pytest --mcp-target HOST:PORT`` runs the same
+suite, and users can write their own cases::
+
+    from conformance.marks import rules
+
+    @rules("MCP-ACK-1")
+    def test_my_command_is_acked(node):
+        node.expect_acked([("WP_Off", node.command(Action.WP_OFF))])
+
+The plugin is inert for any run that collects no case marked with ``rules(...)``: it is
+installed for every pytest run in the environment. The session under test is made by the
+``pytest_mcp_make_session`` hook (firstresult), so a conftest can substitute its own.
+
+Outcomes: a pass is ``passed`` (``info`` when every rule of the case is INFO); a
+``CaseFailure`` takes the level of the rule it names: MUST -> failed, SHOULD -> warned
+(the pytest report becomes a pass) unless ``--mcp-strict``, INFO -> info; ``Inconclusive``
+-> skipped with its reason; ``TargetLost``, a time limit and any other exception -> error.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Generator, Mapping
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from conformance.config import DEFAULT_SEED, RunConfig, parse_hostport
+from conformance.errors import CaseFailure, Inconclusive, SetupError, TargetLost
+from conformance.marks import (
+    PHASES,
+    case_id,
+    case_phase,
+    case_rules,
+    is_case,
+    rule_level,
+    strongest_level,
+)
+from conformance.report import CaseRecord, RunRecord, TerminalReport, write_json, write_junit
+from spec import SPEC
+
+__all__ = ["ConfigError", "McpState", "STATE_KEY", "make_config", "matches_select"]
+
+
+class ConfigError(ValueError):
+    """A bad option value; the message names the option."""
+
+
+class CaseTimeLimit(Exception):
+    """Raised by the SIGALRM handler: the case (or the run) ran out of time."""
+
+
+class _HookSpecs:
+    @pytest.hookspec(firstresult=True)
+    def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
+        """Return the session for the run (see ``conformance.session.Session``)."""
+
+
+STATE_KEY = pytest.StashKey["McpState"]()
+
+
+# ---------------------------------------------------------------------- configuration
+def _float(value: Any, name: str, minimum: float = 0.0) -> float:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}: {value!r} is not a number of seconds") from None
+    if not f > minimum or f != f or f == float("inf"):
+        raise ConfigError(f"{name}: {value!r} must be a positive number of seconds")
+    return f
+
+
+def _int(value: Any, name: str, lo: int, hi: int) -> int:
+    try:
+        i = int(str(value), 0)
+    except ValueError:
+        raise ConfigError(f"{name}: {value!r} is not an integer") from None
+    if not lo <= i <= hi:
+        raise ConfigError(f"{name}: {i} is out of range {lo}-{hi}")
+    return i
+
+
+def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n: "--mcp-" + n.replace("_", "-")) -> RunConfig:
+    """A checked ``RunConfig`` from option values (keys: target, listen, target_id, role,
+    spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, seed, capture, json,
+    junit); ``opt(name)`` spells an option in error messages."""
+    cfg = RunConfig()
+    v = {k: x for k, x in values.items() if x is not None}
+    role = v.get("role", "drone")
+    if role not in ("drone", "manager"):
+        raise ConfigError(f"{opt('role')}: {role!r} is not one of drone, manager")
+    cfg.role = role
+    try:
+        if "target" in v:
+            cfg.target = parse_hostport(str(v["target"]), opt("target"))
+        if "listen" in v:
+            cfg.listen = parse_hostport(str(v["listen"]), opt("listen"), default_host="")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if "target_id" in v:
+        cfg.target_id = _int(v["target_id"], opt("target_id"), 0, 0xFFFF)
+    if "spawn" in v:
+        if not str(v["spawn"]).strip():
+            raise ConfigError(f"{opt('spawn')}: the command is empty")
+        cfg.spawn = str(v["spawn"])
+    cfg.mavlink = bool(v.get("mavlink", False))
+    cfg.strict = bool(v.get("strict", False))
+    if "rto" in v:
+        cfg.rto = _float(v["rto"], opt("rto"))
+    if "ack_window" in v:
+        cfg.ack_window = _float(v["ack_window"], opt("ack_window"))
+    if "broadcast_id" in v:
+        cfg.broadcast_id = _int(v["broadcast_id"], opt("broadcast_id"), 0, 0xFFFF)
+    if "timeout" in v:
+        cfg.timeout = _float(v["timeout"], opt("timeout"))
+    cfg.seed = _int(v["seed"], opt("seed"), 0, 2**63 - 1) if "seed" in v else DEFAULT_SEED
+    cfg.capture = v.get("capture")
+    cfg.json_path = v.get("json")
+    cfg.junit_path = v.get("junit")
+    cfg.embedded = cfg.target is None and cfg.spawn is None
+    cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
+    return cfg
+
+
+def apply_embedded_defaults(cfg: RunConfig) -> None:
+    """The embedded default runs the reference node with short timeouts: assume them too
+    (unless --rto / --ack-window were given)."""
+    if not cfg.embedded:
+        return
+    from conformance import session as session_module
+
+    explicit = cfg.extra.get("explicit", ())
+    if "rto" not in explicit:
+        cfg.rto = float(getattr(session_module, "EMBEDDED_RTO", cfg.rto))
+    if "ack_window" not in explicit:
+        cfg.ack_window = float(getattr(session_module, "EMBEDDED_ACK_WINDOW", cfg.ack_window))
+
+
+def matches_select(prefixes: list[str], cid: str, rule_ids: tuple[str, ...]) -> bool:
+    """A case is selected when a prefix starts its case ID or one of its rule IDs
+    (case-insensitive; ``MCP-ACK-1`` does not select ``MCP-ACK-10``)."""
+    if not prefixes:
+        return True
+    names = [cid.upper(), *(r.upper() for r in rule_ids)]
+    for p in (x.strip().upper() for x in prefixes):
+        for name in names:
+            if name == p or (name.startswith(p) and p and not (p[-1].isdigit() and name[len(p)].isdigit())):
+                return True
+    return False
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+# ---------------------------------------------------------------------- options
+def pytest_addoption(parser: pytest.Parser) -> None:
+    g = parser.getgroup("mcp-conform", "MCP conformance (mcp-conform)")
+    g.addoption("--mcp-target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
+    g.addoption("--mcp-listen", metavar="HOST:PORT", help="where the runner receives (default: all addresses, the role's port)")
+    g.addoption("--mcp-target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
+    g.addoption("--mcp-role", metavar="drone|manager", default="drone", help="the role of the node under test")
+    g.addoption("--mcp-spawn", metavar="CMD", help="start the node under test with CMD ({target_port} ... placeholders)")
+    g.addoption("--mcp-mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
+    g.addoption("--mcp-strict", action="store_true", help="a failed SHOULD is a failure")
+    g.addoption("--mcp-select", metavar="PREFIX", action="append", default=[], help="run cases whose rule ID or case ID starts with PREFIX (repeatable)")
+    g.addoption("--mcp-json", metavar="FILE", help="write the JSON report")
+    g.addoption("--mcp-junit", metavar="FILE", help="write a JUnit XML report")
+    g.addoption("--mcp-capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    g.addoption("--mcp-rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
+    g.addoption("--mcp-ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
+    g.addoption("--mcp-broadcast-id", metavar="N", help="the broadcast MCP ID (default 0xFFFF)")
+    g.addoption("--mcp-timeout", metavar="S", help="deadline for the whole run (default 600)")
+    g.addoption("--mcp-seed", metavar="N", help="seed of the malformed corpus")
+    g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
+    g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
+
+
+def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:
+    pluginmanager.add_hookspecs(_HookSpecs)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
+    from conformance.session import Session
+
+    return Session(cfg, recorder=recorder)
+
+
+_KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
+         "broadcast_id", "timeout", "seed", "capture", "json", "junit")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "mcp_rules(*ids): the MCP rule IDs a conformance case verifies")
+    config.addinivalue_line("markers", "mcp_phase(phase): startup, main, late or end")
+    frontend = bool(config.getoption("mcp_frontend"))
+    values = {k: config.getoption("mcp_" + k) for k in _KEYS}
+    opt = (lambda n: "--" + n.replace("_", "-")) if frontend else (lambda n: "--mcp-" + n.replace("_", "-"))
+    try:
+        cfg = make_config(values, opt)
+    except ConfigError as exc:
+        raise pytest.UsageError(str(exc)) from None
+    config.stash[STATE_KEY] = McpState(config, cfg, frontend)
+
+
+def _state(config: pytest.Config) -> McpState | None:
+    return config.stash.get(STATE_KEY, None)
+
+
+# ---------------------------------------------------------------------- run state
+class McpState:
+    """Everything the plugin keeps for one pytest run."""
+
+    def __init__(self, config: pytest.Config, cfg: RunConfig, frontend: bool) -> None:
+        self.config = config
+        self.cfg = cfg
+        self.frontend = frontend
+        self.active = False
+        self.list_mode = bool(config.getoption("mcp_list"))
+        self.select: list[str] = list(config.getoption("mcp_select") or [])
+        self.run = RunRecord(role=cfg.role, target=self._target_guess(), parameters=cfg.parameters(),
+                             seed=cfg.seed, strict=cfg.strict)
+        self.session: Any = None
+        self.recorder: Any = None
+        self.items: list[pytest.Item] = []
+        self.meta: dict[str, tuple[str, tuple[str, ...], str, str]] = {}  # nodeid -> id, rules, level, phase
+        self.records: dict[str, CaseRecord] = {}
+        self.done: set[str] = set()
+        self.ctx: dict[str, Any] = {}
+        self.collect_errors: list[str] = []
+        self.run_deadline: float | None = None
+        self.case_deadline: float | None = None
+        self.deadline_hit = False
+        self.interrupted: str | None = None
+        self._old_alarm: Any = None
+        self._old_term: Any = None
+        self._terminal: TerminalReport | None = None
+
+    def _target_guess(self) -> str | None:
+        if self.cfg.target is not None:
+            return f"{self.cfg.target[0]}:{self.cfg.target[1]}"
+        return None
+
+    @property
+    def terminal(self) -> TerminalReport:
+        if self._terminal is None:
+            tr = self.config.pluginmanager.get_plugin("terminalreporter")
+            before = None
+            if tr is not None:
+                def before() -> None:  # end pytest's progress line before ours
+                    tw = getattr(tr, "_tw", None)
+                    if tw is not None and getattr(tw, "width_of_current_line", False):
+                        tw.line()
+            self._terminal = TerminalReport(Console(highlight=False), before_line=before)
+        return self._terminal
+
+    # ------------------------------------------------------------------ session
+    def start_session(self) -> Any:
+        if self.session is not None:
+            return self.session
+        if self.run.error is not None:
+            pytest.exit(self.run.error, returncode=2)
+        try:
+            apply_embedded_defaults(self.cfg)
+            self.run.parameters = self.cfg.parameters()
+            if self.cfg.capture:
+                from captures.recorder import McapRecorder, RecorderError
+
+                try:
+                    self.recorder = McapRecorder(self.cfg.capture)
+                except RecorderError as exc:
+                    raise SetupError(str(exc)) from None
+            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=self.recorder,
+                                                               config=self.config)
+            self.session = session
+            atexit.register(self.close_session)
+            session.start()
+        except SetupError as exc:
+            self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
+            self.close_session()
+            pytest.exit(self.run.error, returncode=2)
+        self.run.target = getattr(session, "target_desc", None) or self.run.target
+        return session
+
+    def close_session(self) -> None:
+        session, self.session = self.session, None
+        if session is not None:
+            with contextlib.suppress(Exception):
+                session.close()
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            with contextlib.suppress(Exception):
+                recorder.close()
+
+    # ------------------------------------------------------------------ records
+    def record(self, item: pytest.Item) -> CaseRecord:
+        rec = self.records.get(item.nodeid)
+        if rec is None:
+            cid, ids, level, _ = self.meta.get(item.nodeid) or _meta(item)
+            rec = self.records[item.nodeid] = CaseRecord(id=cid, rules=ids, level=level)
+            rec.duration_s = 0.0
+        return rec
+
+    def finish(self, item: pytest.Item, rec: CaseRecord) -> None:
+        if item.nodeid in self.done:
+            return
+        self.done.add(item.nodeid)
+        ctx = self.ctx.pop(item.nodeid, None)
+        if ctx is not None:
+            rec.notes = list(getattr(ctx, "notes", []) or [])
+            rec.start_ns = getattr(ctx, "start_ns", None)
+            rec.end_ns = getattr(ctx, "end_ns", None)
+            if rec.start_ns is not None and rec.end_ns is not None:
+                rec.duration_s = max(0.0, (rec.end_ns - rec.start_ns) / 1e9)
+        if rec.notes and rec.actual is None and rec.outcome in ("passed", "info"):
+            rec.actual = "; ".join(rec.notes)
+        self.run.cases.append(rec)
+        self.terminal.case(rec)
+
+    # ------------------------------------------------------------------ time limits
+    def arm(self) -> None:
+        """Arm SIGALRM for the rest of the case (or the run, whichever ends first)."""
+        if not _can_alarm():
+            return
+        now = time.monotonic()
+        ends = [d for d in (self.case_deadline, self.run_deadline) if d is not None]
+        if not ends:
+            return
+        if self._old_alarm is None:
+            self._old_alarm = signal.signal(signal.SIGALRM, self._on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, max(min(ends) - now, 0.001))
+
+    def disarm(self) -> None:
+        if not _can_alarm():
+            return
+        signal.setitimer(signal.ITIMER_REAL, 0)
+
+    def restore_alarm(self) -> None:
+        if _can_alarm() and self._old_alarm is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, self._old_alarm)
+            self._old_alarm = None
+
+    def _on_alarm(self, signum: int, frame: Any) -> None:
+        now = time.monotonic()
+        if self.run_deadline is not None and now >= self.run_deadline - 0.002:
+            self.deadline_hit = True
+            raise CaseTimeLimit("run deadline exceeded")
+        raise CaseTimeLimit(f"case exceeded its time limit of {self.cfg.per_case_limit():g} s")
+
+    def _on_term(self, signum: int, frame: Any) -> None:
+        self.interrupted = "interrupted by SIGTERM"
+        raise KeyboardInterrupt("SIGTERM")
+
+    def install_term(self) -> None:
+        if threading.current_thread() is threading.main_thread() and hasattr(signal, "SIGTERM"):
+            self._old_term = signal.signal(signal.SIGTERM, self._on_term)
+
+    def restore_term(self) -> None:
+        if self._old_term is not None:
+            with contextlib.suppress(ValueError):
+                signal.signal(signal.SIGTERM, self._old_term)
+            self._old_term = None
+
+
+def _can_alarm() -> bool:
+    return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+
+
+def _meta(item: pytest.Item) -> tuple[str, tuple[str, ...], str, str]:
+    ids = case_rules(item)
+    return case_id(item), ids, strongest_level(ids), case_phase(item)
+
+
+# ---------------------------------------------------------------------- collection
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Generator[None, pytest.CollectReport, pytest.CollectReport]:
+    report = yield
+    state = _state(collector.config)
+    if state is not None and report.failed:
+        text = report.longreprtext or ""
+        lines = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("E ")]
+        msg = lines[-1] if lines else (text.strip().splitlines() or ["collection failed"])[-1]
+        state.collect_errors.append(f"collection error in {report.nodeid or 'the cases'}: {msg}")
+    return report
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    state = _state(config)
+    if state is None:
+        return
+    cases = [i for i in items if is_case(i)]
+    state.active = bool(cases) or state.frontend or bool(state.cfg.json_path or state.cfg.junit_path)
+    if not cases:
+        return
+    for item in cases:
+        cid, ids, level, phase = _meta(item)
+        unknown = [r for r in ids if r not in SPEC.rules_by_id]
+        if unknown:
+            state.collect_errors.append(f"unknown rule ID {unknown[0]!r} in {cid}")
+        state.meta[item.nodeid] = (cid, ids, level, phase)
+    if state.collect_errors:
+        return
+    keep: list[pytest.Item] = []
+    drop: list[pytest.Item] = []
+    for item in items:
+        m = state.meta.get(item.nodeid)
+        (keep if m is None or matches_select(state.select, m[0], m[1]) else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+    if state.select and not any(i.nodeid in state.meta for i in keep):
+        opt = "--select" if state.frontend else "--mcp-select"
+        state.run.error = f"{opt}: no case matches {', '.join(state.select)}"
+    order = {p: n for n, p in enumerate(PHASES)}
+    keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
+    items[:] = keep
+    state.items = [i for i in keep if i.nodeid in state.meta]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session: pytest.Session) -> bool | None:
+    state = _state(session.config)
+    if state is None or not state.active:
+        return None
+    if state.collect_errors and state.run.error is None:
+        state.run.error = state.collect_errors[0]
+    if state.run.error is not None:
+        raise session.Interrupted(state.run.error)
+    if session.config.option.collectonly:
+        return None
+    if state.list_mode:
+        state.terminal.listing([state.meta[i.nodeid] for i in state.items])
+        return True
+    if not state.items:
+        return None
+    mode = state.cfg.mode
+    state.terminal.header(state.run, mode)
+    state.run_deadline = time.monotonic() + state.cfg.timeout
+    state.install_term()
+    return None
+
+
+# ---------------------------------------------------------------------- running a case
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> bool | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    if state.deadline_hit or (state.run_deadline is not None and time.monotonic() >= state.run_deadline):
+        state.deadline_hit = True
+        rec = state.record(item)
+        rec.outcome, rec.reason = "error", "run deadline exceeded"
+        state.finish(item, rec)
+        item.session.shouldstop = "run deadline exceeded"
+        return True
+    state.case_deadline = time.monotonic() + state.cfg.per_case_limit()
+    return None
+
+
+def _phase_wrapper(item: pytest.Item) -> McpState | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    return state
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+    state = _phase_wrapper(item)
+    if state is None:
+        return (yield)
+    state.arm()
+    try:
+        return (yield)
+    finally:
+        state.disarm()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    state = _phase_wrapper(item)
+    if state is None:
+        return (yield)
+    state.arm()
+    try:
+        return (yield)
+    finally:
+        state.disarm()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    state = _phase_wrapper(item)
+    if state is None:
+        return (yield)
+    state.arm()
+    try:
+        return (yield)
+    finally:
+        state.disarm()
+
+
+def _skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
+    path, lineno, _ = item.reportinfo()
+    return (str(path), (lineno or 0) + 1, f"Skipped: {reason}")
+
+
+def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: BaseException,
+                     rep: pytest.TestReport) -> None:
+    if isinstance(exc, CaseFailure):
+        if exc.rule not in SPEC.rules_by_id:
+            rec.outcome, rec.reason = "error", f"the case reported unknown rule {exc.rule!r}"
+            return
+        rule = SPEC.rule(exc.rule)
+        level = rule_level(exc.rule)
+        rec.failed_rule, rec.expected, rec.actual = exc.rule, exc.expected, exc.actual
+        rec.evidence = [str(e) for e in exc.evidence]
+        rec.reason = f"{exc.rule}: {rule.text}"
+        if level == "MUST" or (level == "SHOULD" and state.cfg.strict):
+            rec.outcome = "failed"
+            rep.longrepr = exc.describe()
+        else:
+            rec.outcome = "warned" if level == "SHOULD" else "info"
+            rep.outcome, rep.longrepr = "passed", None
+            rep.sections.append((f"mcp-conform {rec.outcome}", exc.describe()))
+        return
+    if isinstance(exc, Inconclusive):
+        rec.outcome, rec.reason = "skipped", (str(exc).strip() or "inconclusive")
+        rep.outcome, rep.longrepr = "skipped", _skip_longrepr(item, rec.reason)
+        return
+    rec.outcome = "error"
+    if isinstance(exc, CaseTimeLimit):
+        rec.reason = str(exc)
+    elif isinstance(exc, TargetLost):
+        rec.reason = f"target lost: {str(exc).strip() or 'the node is gone'}"
+    else:
+        rec.reason = _one_line(exc)
+        tb = exc.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        if tb is not None:
+            rec.evidence = [f"raised at {tb.tb_frame.f_code.co_filename}:{tb.tb_lineno} "
+                            f"in {tb.tb_frame.f_code.co_name}"]
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    rep = yield
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return rep
+    rec = state.record(item)
+    if call.when in ("setup", "call"):
+        rec.duration_s += rep.duration
+    if call.when == "setup" or call.when == "call":
+        if call.excinfo is not None and rec.outcome not in ("error",):
+            exc = call.excinfo.value
+            if rep.skipped and not isinstance(exc, Inconclusive):
+                rec.outcome = "skipped"
+                lr = rep.longrepr
+                rec.reason = str(lr[2]).removeprefix("Skipped: ") if isinstance(lr, tuple) else str(exc)
+            elif call.when == "setup" and isinstance(exc, CaseFailure):
+                rec.outcome, rec.reason = "error", f"setup: {_one_line(exc)}"
+            else:
+                _judge_exception(state, item, rec, exc, rep)
+        elif call.when == "call" and call.excinfo is None:
+            rec.outcome = "info" if all(rule_level(r) == "INFO" for r in rec.rules) else "passed"
+    elif call.when == "teardown":
+        if rep.failed and rec.outcome not in ("error", "failed"):
+            texc = call.excinfo.value if call.excinfo is not None else None
+            rec.outcome = "error"
+            rec.reason = (str(texc) if isinstance(texc, CaseTimeLimit) else
+                          f"teardown: {_one_line(texc) if texc is not None else 'failed'}")
+        state.finish(item, rec)
+    return rep
+
+
+# ---------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="session")
+def mcp_config(pytestconfig: pytest.Config) -> RunConfig:
+    """The run's parameters (``conformance.config.RunConfig``)."""
+    state = _state(pytestconfig)
+    assert state is not None
+    return state.cfg
+
+
+@pytest.fixture(scope="session")
+def mcp_session(pytestconfig: pytest.Config) -> Generator[Any, None, None]:
+    """The node under test over the whole run; started on first use (SetupError: exit 2)."""
+    state = _state(pytestconfig)
+    assert state is not None
+    # the node's startup is bounded by the run deadline, not by the first case's limit
+    saved, state.case_deadline = state.case_deadline, None
+    state.arm()
+    try:
+        session = state.start_session()
+    finally:
+        if saved is not None:
+            state.case_deadline = time.monotonic() + state.cfg.per_case_limit()
+        state.arm()
+    yield session
+    state.close_session()
+
+
+@pytest.fixture
+def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, None, None]:
+    """The per-case context: ``session.begin_case(case id, rules)``, then ``end_case``."""
+    item = request.node
+    state = _state(request.config)
+    assert state is not None
+    if item.nodeid not in state.meta:
+        state.meta[item.nodeid] = _meta(item)
+    rec = state.record(item)
+    ctx = mcp_session.begin_case(rec.id, rec.rules)
+    state.ctx[item.nodeid] = ctx
+    try:
+        yield ctx
+    finally:
+        outcome = rec.outcome
+        mcp_session.end_case(ctx, outcome)
+
+
+# ---------------------------------------------------------------------- the end
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    state = _state(session.config)
+    if state is None or not state.active:
+        return
+    state.restore_alarm()
+    state.restore_term()
+    state.close_session()
+    run = state.run
+    run.finished = time.monotonic()
+    if state.deadline_hit:
+        for item in state.items:
+            if item.nodeid not in state.done:
+                rec = state.record(item)
+                rec.outcome, rec.reason = "error", "run deadline exceeded"
+                state.finish(item, rec)
+    if run.error is None and state.collect_errors:
+        run.error = state.collect_errors[0]
+    if run.error is None and exitstatus == pytest.ExitCode.INTERRUPTED and not state.deadline_hit:
+        run.error = state.interrupted or "interrupted"
+    if run.error is None and exitstatus == pytest.ExitCode.INTERNAL_ERROR:
+        run.error = "internal error (see the traceback above)"
+    if state.list_mode and run.error is None:
+        code = 0
+    else:
+        code = run.exit_code()
+        if code == 0 and exitstatus == pytest.ExitCode.TESTS_FAILED:
+            code = 1  # other (unmarked) tests of the run failed
+    problems = []
+    for path, writer in ((state.cfg.json_path, write_json), (state.cfg.junit_path, write_junit)):
+        if path and not (writer is write_junit and state.list_mode):
+            try:
+                writer(path, run)
+            except OSError as exc:
+                problems.append(str(exc))
+    if problems:
+        run.error = run.error or problems[0]
+        code = 2
+    if session.config.pluginmanager.get_plugin("terminalreporter") is None and not state.list_mode:
+        state.terminal.summary(run)
+    elif run.error is not None and (state.list_mode or state.frontend):
+        state.terminal.error(run.error)
+    for p in problems:
+        print(f"error: {p}", file=sys.stderr)
+    session.exitstatus = code
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    state = _state(config)
+    if state is None or not state.active or state.list_mode:
+        return
+    state.terminal.summary(state.run)

@@ -1,0 +1,354 @@
+"""The runner's reports: the live terminal report (rich), the JSON report and JUnit XML.
+
+Everything here works on :class:`CaseRecord` and :class:`RunRecord`, filled in by the
+plugin as cases finish; nothing here knows about pytest. The JSON report follows
+DESIGN.md ("The runner's contract") and is validated against ``report.schema.json``,
+shipped beside this module (draft 2020-12, ``schema_version`` "1.0").
+
+Per-rule outcomes: a ``CaseFailure`` contributes its outcome to the rule it names only; a
+pass contributes ``passed`` (``info`` for an INFO rule) to every rule of the case; a skip
+(and an error: the rule was not judged) contributes ``skipped``. They aggregate worst-first
+(failed > warned > passed > info > skipped); a rule no case touched is ``skipped``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+from rich.text import Text
+
+from spec import SPEC
+
+__all__ = [
+    "OUTCOMES",
+    "SCHEMA_VERSION",
+    "CaseRecord",
+    "RunRecord",
+    "TerminalReport",
+    "build_json",
+    "junit_xml",
+    "load_schema",
+    "rule_outcomes",
+    "tool_version",
+    "validate_json",
+    "write_json",
+    "write_junit",
+]
+
+SCHEMA_VERSION = "1.0"
+TOOL_NAME = "mcp-conform"
+OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error")
+RULE_RANK = {"failed": 4, "warned": 3, "passed": 2, "info": 1, "skipped": 0}
+STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
+          "info": "cyan", "error": "bold magenta"}
+
+
+def tool_version() -> str:
+    """The installed distribution's version, else the source checkout's pyproject.toml."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            return version(TOOL_NAME)
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover
+        pass
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    try:
+        m = re.search(r'^version\s*=\s*"([^"]+)"', pyproject.read_text(), re.MULTILINE)
+    except OSError:
+        m = None
+    return m.group(1) if m else "0+unknown"
+
+
+@dataclass
+class CaseRecord:
+    """One case as the reports show it."""
+
+    id: str
+    rules: tuple[str, ...]
+    level: str
+    outcome: str = "passed"
+    reason: str | None = None
+    expected: str | None = None
+    actual: str | None = None
+    duration_s: float = 0.0
+    start_ns: int | None = None
+    end_ns: int | None = None
+    failed_rule: str | None = None  # the rule a CaseFailure named
+    evidence: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def group(self) -> str:
+        return self.id.split("/", 1)[0] if "/" in self.id else "CASE"
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "id": self.id, "rules": list(self.rules), "level": self.level, "outcome": self.outcome,
+            "reason": self.reason, "expected": self.expected, "actual": self.actual,
+            "duration_s": round(max(self.duration_s, 0.0), 6),
+            "capture": {"start_ns": self.start_ns, "end_ns": self.end_ns},
+        }
+
+
+@dataclass
+class RunRecord:
+    """The whole run: parameters, cases so far, and the error that stopped it, if any."""
+
+    role: str = "drone"
+    target: str | None = None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    seed: int | None = None
+    strict: bool = False
+    error: str | None = None
+    cases: list[CaseRecord] = field(default_factory=list)
+    started: float = field(default_factory=time.monotonic)
+    finished: float | None = None
+
+    @property
+    def duration_s(self) -> float:
+        end = self.finished if self.finished is not None else time.monotonic()
+        return max(0.0, end - self.started)
+
+    def counts(self) -> dict[str, int]:
+        out = dict.fromkeys(OUTCOMES, 0)
+        for c in self.cases:
+            out[c.outcome] = out.get(c.outcome, 0) + 1
+        return out
+
+    def exit_code(self) -> int:
+        """The contract: 2 usage/setup error, 1 a case failed or errored, else 0."""
+        if self.error is not None:
+            return 2
+        counts = self.counts()
+        return 1 if counts["failed"] or counts["error"] else 0
+
+
+# ---------------------------------------------------------------------- JSON
+def _rule_ids_for(role: str) -> list[str]:
+    try:
+        return [r.id for r in SPEC.rules_for(role)]
+    except Exception:  # noqa: BLE001 - an unknown role: no rules to list
+        return []
+
+
+def rule_outcomes(cases: list[CaseRecord], role: str) -> dict[str, str]:
+    """Every rule of the role (plus any rule a case named) -> its aggregate outcome."""
+    result: dict[str, str] = dict.fromkeys(_rule_ids_for(role), "skipped")
+
+    def contribute(rule: str, outcome: str) -> None:
+        old = result.get(rule, "skipped")
+        if RULE_RANK[outcome] >= RULE_RANK[old]:
+            result[rule] = outcome
+
+    for c in cases:
+        if c.outcome in ("failed", "warned") or (c.outcome == "info" and c.failed_rule):
+            contribute(c.failed_rule or (c.rules[0] if c.rules else "?"), c.outcome)
+        elif c.outcome in ("passed", "info"):
+            for r in c.rules:
+                rule = SPEC.rules_by_id.get(r)
+                contribute(r, "info" if rule is not None and rule.level == "INFO" else "passed")
+        else:  # skipped, error: not judged
+            for r in c.rules:
+                contribute(r, "skipped")
+    return result
+
+
+def build_json(run: RunRecord) -> dict[str, Any]:
+    """The report document (see DESIGN.md and report.schema.json)."""
+    counts = run.counts()
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "tool": {"name": TOOL_NAME, "version": tool_version()},
+        "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
+        "target": run.target,
+        "role": run.role,
+        "parameters": dict(run.parameters),
+        "seed": run.seed,
+        "error": run.error,
+        "cases": [c.to_json() for c in run.cases],
+        "rules": rule_outcomes(run.cases, run.role),
+        "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
+    }
+
+
+def load_schema() -> dict[str, Any]:
+    """The shipped JSON Schema of the report."""
+    text = resources.files("conformance").joinpath("report.schema.json").read_text("utf-8")
+    return dict(json.loads(text))
+
+
+def validate_json(doc: dict[str, Any]) -> None:
+    """Raise ``jsonschema.ValidationError`` if ``doc`` does not follow the schema."""
+    import jsonschema
+
+    jsonschema.Draft202012Validator(load_schema()).validate(doc)
+
+
+def write_json(path: str | Path, run: RunRecord) -> None:
+    """Write the JSON report (an OSError names the file)."""
+    doc = build_json(run)
+    try:
+        Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise OSError(f"--json: cannot write {str(path)!r}: {exc.strerror}") from None
+
+
+# ---------------------------------------------------------------------- JUnit
+def _finding(c: CaseRecord) -> str:
+    """What a case found, as text: the rule, expected, actual, evidence and notes."""
+    lines = []
+    if c.failed_rule:
+        rule = SPEC.rules_by_id.get(c.failed_rule)
+        lines.append(f"{c.failed_rule}: {rule.text if rule else ''}".rstrip())
+        if c.expected is not None:
+            lines.append(f"expected: {c.expected}")
+        if c.actual is not None:
+            lines.append(f"actual:   {c.actual}")
+        lines += [f"evidence: {e}" for e in c.evidence]
+        lines += [f"note: {n}" for n in c.notes if c.actual is None or n not in c.actual]
+    else:
+        if c.reason:
+            lines.append(c.reason)
+        lines += [f"evidence: {e}" for e in c.evidence]
+        lines += [f"note: {n}" for n in c.notes]
+    return "\n".join(lines)
+
+
+def junit_xml(run: RunRecord) -> str:
+    """JUnit XML: failed -> <failure>, error -> <error>, skipped -> <skipped message=reason>,
+    warned and info pass with the finding in <system-out>."""
+    counts = run.counts()
+    suite = ET.Element("testsuite", {
+        "name": TOOL_NAME, "tests": str(len(run.cases)), "failures": str(counts["failed"]),
+        "errors": str(counts["error"]), "skipped": str(counts["skipped"]),
+        "time": f"{run.duration_s:.3f}",
+    })
+    props = ET.SubElement(suite, "properties")
+    for key, value in (("target", run.target), ("role", run.role), ("seed", run.seed),
+                       ("spec_version", SPEC.version), ("strict", run.strict)):
+        ET.SubElement(props, "property", {"name": key, "value": "" if value is None else str(value)})
+    if run.error is not None:
+        ET.SubElement(props, "property", {"name": "error", "value": run.error})
+    for c in run.cases:
+        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.{c.group}", "name": c.id,
+                                               "time": f"{c.duration_s:.3f}"})
+        finding = _finding(c)
+        message = (c.reason or "").splitlines()[0] if c.reason else c.outcome
+        if c.outcome == "failed":
+            ET.SubElement(tc, "failure", {"message": message, "type": c.failed_rule or "failure"}).text = finding
+        elif c.outcome == "error":
+            ET.SubElement(tc, "error", {"message": message, "type": "error"}).text = finding
+        elif c.outcome == "skipped":
+            ET.SubElement(tc, "skipped", {"message": c.reason or "skipped"})
+        elif finding:  # warned, info, or a pass with notes
+            ET.SubElement(tc, "system-out").text = f"{c.outcome.upper()}: {finding}"
+    root = ET.Element("testsuites")
+    root.append(suite)
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def write_junit(path: str | Path, run: RunRecord) -> None:
+    try:
+        Path(path).write_text(junit_xml(run), encoding="utf-8")
+    except OSError as exc:
+        raise OSError(f"--junit: cannot write {str(path)!r}: {exc.strerror}") from None
+
+
+# ---------------------------------------------------------------------- terminal
+class TerminalReport:
+    """The live report: one line per case, details on failures, a per-rule table at the end."""
+
+    def __init__(self, console: Console | None = None, before_line: Any = None) -> None:
+        self.console = console or Console(highlight=False)
+        self._before_line = before_line  # e.g. pytest's terminal reporter's ensure_newline
+
+    def _print(self, *objs: Any, **kw: Any) -> None:
+        if self._before_line is not None:
+            self._before_line()
+        self.console.print(*objs, highlight=False, **kw)
+
+    def header(self, run: RunRecord, mode: str | None = None) -> None:
+        what = f"{run.role} at {run.target}" if run.target else run.role
+        extra = f" ({mode})" if mode else ""
+        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · MCP spec {SPEC.version} · "
+                    f"testing {escape(what)}{escape(extra)}", soft_wrap=True)
+
+    def case(self, c: CaseRecord) -> None:
+        style = STYLES.get(c.outcome, "")
+        line = Text()
+        line.append(f"{c.outcome.upper():<8}", style=style)
+        line.append(f" {c.id}  ")
+        line.append(" ".join(c.rules), style="dim")
+        line.append(f"  {c.duration_s:.2f} s", style="dim")
+        self._print(line, soft_wrap=True)
+        if c.failed_rule:
+            rule = SPEC.rules_by_id.get(c.failed_rule)
+            self._detail(f"{c.failed_rule} ({rule.level if rule else '?'}): {rule.text if rule else ''}")
+            if c.expected is not None:
+                self._detail(f"expected: {c.expected}")
+            if c.actual is not None:
+                self._detail(f"actual:   {c.actual}")
+            for e in c.evidence:
+                self._detail(f"evidence: {e}")
+            notes = [n for n in c.notes if c.actual is None or n not in c.actual]
+        else:
+            if c.reason and c.outcome in ("skipped", "error"):
+                self._detail(c.reason)
+            for e in c.evidence:
+                self._detail(f"evidence: {e}")
+            notes = c.notes
+        for n in notes:
+            self._detail(f"note: {n}")
+
+    def _detail(self, text: str) -> None:
+        self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
+
+    def error(self, message: str) -> None:
+        self._print(Text(f"error: {message}", style="bold red"), soft_wrap=True)
+
+    def listing(self, entries: list[tuple[str, tuple[str, ...], str, str]]) -> None:
+        """``--list``: (case id, rules, level, phase) per case."""
+        for cid, ids, level, phase in entries:
+            phase_s = f"  ({phase})" if phase != "main" else ""
+            self._print(f"{escape(cid)}  {' '.join(ids)}  {level}{phase_s}", soft_wrap=True)
+        self._print(f"{len(entries)} cases", soft_wrap=True)
+
+    def summary(self, run: RunRecord) -> None:
+        outcomes = rule_outcomes(run.cases, run.role)
+        if run.cases:
+            table = Table(title="per-rule outcome", show_lines=False, box=None, pad_edge=False)
+            table.add_column("rule")
+            table.add_column("level")
+            table.add_column("outcome")
+            touched = {r for c in run.cases for r in c.rules} | {c.failed_rule for c in run.cases}
+            untouched = [rid for rid in outcomes if rid not in touched]
+            for rid, outcome in outcomes.items():
+                if rid in untouched:
+                    continue
+                rule = SPEC.rules_by_id.get(rid)
+                table.add_row(rid, rule.level if rule else "?", Text(outcome, style=STYLES.get(outcome, "")))
+            self._print(table)
+            if untouched:
+                self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
+                                 f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
+        counts = run.counts()
+        parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES]
+        line = Text(", ").join(parts)
+        self._print(line, soft_wrap=True)
+        if run.error is not None:
+            self.error(run.error)
+        self._print(f"suite finished in {run.duration_s:.1f} s", soft_wrap=True)

@@ -1,0 +1,173 @@
+"""mcp-conform's front end: argument errors, --role manager, --list, --version, exit codes."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conformance.cli import build_parser, main, pytest_args
+from conformance.report import validate_json
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def conform(*args: str, cwd: Path = ROOT, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
+    return subprocess.run([sys.executable, "-m", "conformance", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def report(path: Path) -> dict:
+    doc = json.loads(path.read_text())
+    validate_json(doc)
+    return doc
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--rto", "abc"], "--rto: 'abc' is not a number of seconds"),
+    (["--ack-window", "-1"], "--ack-window"),
+    (["--timeout", "0"], "--timeout"),
+    (["--target", "localhost"], "--target"),
+    (["--target", "127.0.0.1:70000"], "--target: port 70000 is out of range"),
+    (["--listen", "x:y"], "--listen"),
+    (["--target-id", "65536"], "--target-id: 65536 is out of range"),
+    (["--broadcast-id", "many"], "--broadcast-id"),
+    (["--seed", "1.5"], "--seed"),
+    (["--role", "pilot"], "--role: 'pilot' is not one of drone, manager"),
+    (["--spawn", "  "], "--spawn: the command is empty"),
+    (["--bogus"], "unrecognized arguments: --bogus"),
+    (["--rto"], "argument --rto: expected one argument"),
+    (["--capture", "/nonexistent-dir/x.mcap"], "--capture: directory"),
+])
+def test_bad_arguments_exit_2_with_one_line_and_json(tmp_path, args, needle):
+    path = tmp_path / "r.json"
+    proc = conform(*args, "--json", str(path))
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mcp-conform: error: ") and needle in lines[0], proc.stderr
+    assert "Traceback" not in proc.stdout + proc.stderr
+    doc = report(path)
+    assert needle in doc["error"] and doc["cases"] == []
+
+
+def test_json_path_with_equals_sign_is_honoured_on_argparse_errors(tmp_path):
+    path = tmp_path / "r.json"
+    proc = conform("--nope", f"--json={path}")
+    assert proc.returncode == 2 and report(path)["error"].startswith("unrecognized arguments")
+
+
+def test_manager_role_is_not_available_yet(tmp_path):
+    path = tmp_path / "r.json"
+    proc = conform("--role", "manager", "--json", str(path))
+    assert proc.returncode == 2
+    assert "manager role conformance is not available yet" in proc.stderr
+    doc = report(path)
+    assert doc["role"] == "manager" and "not available yet" in doc["error"]
+
+
+def test_list_touches_nothing(tmp_path):
+    marker = tmp_path / "spawned"
+    spawn = f"{shlex.quote(sys.executable)} -c 'open({str(marker)!r}, \"w\")'"
+    path = tmp_path / "r.json"
+    proc = conform("--list", "--spawn", spawn, "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = proc.stdout
+    assert "ACK/test_broadcast_is_not_acked  MCP-ACK-4  MUST" in out
+    assert "cases" in out.splitlines()[-1]
+    assert not marker.exists()  # no node was started
+    assert report(path)["cases"] == []
+    assert "pytest" not in out.lower() and "passed" not in out  # one tool, not pytest's chatter
+    assert not (tmp_path / ".pytest_cache").exists()
+
+
+def test_list_with_select(tmp_path):
+    proc = conform("--list", "--select", "MCP-HDR", "ACK/test_broadcast", cwd=tmp_path)
+    assert proc.returncode == 0
+    ids = [ln.split()[0] for ln in proc.stdout.splitlines()[:-1]]
+    assert ids and all(i.startswith(("HDR/", "ACK/test_broadcast")) for i in ids)
+    assert "ACK/test_broadcast_is_not_acked" in ids
+
+
+def test_select_matching_nothing_is_exit_2(tmp_path):
+    path = tmp_path / "r.json"
+    proc = conform("--select", "MCP-NOPE", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2
+    assert report(path)["error"] == "--select: no case matches MCP-NOPE"
+    assert "--select: no case matches MCP-NOPE" in proc.stdout + proc.stderr
+
+
+def test_target_that_never_answers_is_a_setup_error(tmp_path):
+    path = tmp_path / "r.json"
+    proc = conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{free_port()}",
+                   "--rto", "0.1", "--ack-window", "0.1", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    doc = report(path)
+    assert doc["error"] and "answer" in doc["error"]
+    assert doc["error"] in proc.stdout
+    assert "Traceback" not in proc.stdout + proc.stderr
+
+
+def test_version():
+    proc = conform("--version")
+    assert proc.returncode == 0 and proc.stdout.startswith("mcp-conform ")
+
+
+def test_main_in_process_returns_2_for_bad_args(capsys):
+    assert main(["--strict", "--rto", "x"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_pytest_args_are_a_quiet_isolated_run():
+    ns = build_parser().parse_args(["--target", "127.0.0.1:7890", "--select", "ACK", "HDR", "--strict",
+                                    "--rto", "0.5"])
+    args = pytest_args(ns)
+    assert args[-2:] == ["--pyargs", "conformance.cases"]
+    for pair in (["-p", "no:cacheprovider"], ["-p", "no:randomly"], ["-p", "no:terminal"]):
+        assert any(args[i:i + 2] == pair for i in range(len(args)))
+    assert "--mcp-target=127.0.0.1:7890" in args and "--mcp-strict" in args and "--mcp-rto=0.5" in args
+    assert args.count("--mcp-select=ACK") == 1 and "--mcp-select=HDR" in args
+    assert "--mcp-frontend" in args
+
+
+def test_sigterm_leaves_valid_reports(tmp_path):
+    """An interrupted run still writes its JSON (exit 2) and a readable capture."""
+    import signal
+
+    from mcap.reader import make_reader
+
+    js, cap = tmp_path / "r.json", tmp_path / "run.mcap"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1", PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "conformance", "--json", str(js), "--capture", str(cap)],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert proc.stdout is not None
+        seen = []
+        for line in proc.stdout:
+            seen.append(line)
+            if line.startswith(("PASSED", "FAILED", "INFO", "SKIPPED", "WARNED", "ERROR")):
+                break
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, "".join(seen) + rest
+    doc = report(js)
+    assert doc["error"] == "interrupted by SIGTERM" and doc["cases"]
+    with open(cap, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        topics = [ch.topic for _, ch, _ in reader.iter_messages()]
+    assert "/conformance/case" in topics and "/mcp/rx" in topics
