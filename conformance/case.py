@@ -208,11 +208,11 @@ class CaseContext:
         """Let the vehicle's counts settle: until each probe arrived (or the window ends);
         with ``expect_more`` the whole window is watched (to see a count that must not grow)."""
         v = self.vehicle
-        window = max(self.ack_window, 0.5)
-        if not expect_more:
-            v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries), window)
-        if expect_more:
-            time.sleep(window)
+        if expect_more:  # a count that must not grow: watched over the ACK window (D-6)
+            time.sleep(self.ack_window)
+        else:  # a count that must grow: returns as soon as it did
+            v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries),
+                       max(self.ack_window, 0.5))
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from conformance.errors import Inconclusive
 from conformance.marks import rules
-from spec import SPEC
 from spec.codec import Action
 
 
@@ -62,12 +61,3 @@ def test_end_mission_then_rtl(node):
     rtl = v.wait_for(lambda: v.rtl_commanded, wait)
     node.expect_true(rtl, "MCP-BLK-7", f"an RTL on the autopilot within {wait:g} s of End_Mission",
                      f"none (mode {v.mode})")
-
-
-@rules("MCP-BLK-2", "MCP-BLK-3", "MCP-BLK-6")
-def test_manager_ordering_rules(node):
-    """Manager-role rules: not judged on a drone."""
-    for rule in ("MCP-BLK-2", "MCP-BLK-3", "MCP-BLK-6"):
-        if SPEC.rule(rule).applies_to(node.role):
-            raise Inconclusive(f"{rule}: manager-role conformance is not available yet")
-    raise Inconclusive("MCP-BLK-2/3/6 bind the Mission Manager, not a drone")

@@ -1,0 +1,75 @@
+"""Run ``mcp-conform`` as a user would (a subprocess) and read its JSON report."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import socket
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE_NODE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
+FAST = ["--rto", "0.2", "--ack-window", "0.25"]
+
+
+@dataclass
+class RunResult:
+    rc: int
+    report: dict[str, Any]
+    output: str
+
+    @property
+    def rules(self) -> dict[str, str]:
+        return self.report.get("rules", {})
+
+    def rules_with(self, *outcomes: str) -> dict[str, str]:
+        return {r: o for r, o in self.rules.items() if o in outcomes}
+
+    def cases_with(self, *outcomes: str) -> list[dict[str, Any]]:
+        return [c for c in self.report.get("cases", []) if c["outcome"] in outcomes]
+
+    def explain(self) -> str:
+        bad = self.cases_with("failed", "warned", "error")
+        lines = [f"exit {self.rc}; error={self.report.get('error')!r}"]
+        for c in bad:
+            lines.append(f"{c['outcome']}: {c['id']} {c['rules']}: {c.get('reason') or ''} "
+                         f"expected={c.get('expected')!r} actual={c.get('actual')!r}")
+        lines.append("--- output tail ---")
+        lines.append("\n".join(self.output.splitlines()[-40:]))
+        return "\n".join(lines)
+
+
+def run_conform(*args: str, timeout: float = 240.0) -> RunResult:
+    """``python -m conformance ARGS --json FILE`` from the repository root."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "report.json"
+        cmd = [sys.executable, "-m", "conformance", *args, "--json", str(path)]
+        env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+        report = json.loads(path.read_text()) if path.exists() else {}
+    return RunResult(proc.returncode, report, proc.stdout + proc.stderr)
+
+
+def sample_node_command(*extra: str, rto: float = 0.2) -> str:
+    """The independent test node, with the runner's placeholders."""
+    words = [sys.executable, str(SAMPLE_NODE), "--id", "{id}", "--bind", "{target_host}:{target_port}",
+             "--send-to", "{listen_host}:{listen_port}", "--mavlink", "{mavlink}", "--rto", str(rto), *extra]
+    return " ".join(shlex.quote(w) if "{" not in w else w for w in words)
+
+
+def reference_node_command(rto: float = 0.2) -> str:
+    return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} --bind "
+            f"{{target_host}}:{{target_port}} --send-to {{listen_host}}:{{listen_port}} "
+            f"--mavlink {{mavlink}} --rto {rto}")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

@@ -1,0 +1,83 @@
+"""mcp-conform end to end: the reference drone passes in every mode; setup errors exit 2.
+
+These run the runner as a user does (``python -m conformance``, a subprocess) and read the
+JSON report it writes. Timing figures are printed by the runner, never asserted here.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from spec import SPEC
+
+from .runner_helpers import (
+    FAST,
+    ROOT,
+    free_port,
+    reference_node_command,
+    run_conform,
+)
+
+pytestmark = pytest.mark.slow
+
+
+def _assert_clean_pass(res):
+    assert res.rc == 0, res.explain()
+    assert res.report["error"] is None, res.explain()
+    assert not res.cases_with("failed", "warned", "error"), res.explain()
+    must = {r.id for r in SPEC.rules_for("drone") if r.level == "MUST"}
+    assert not {r for r in must if res.rules.get(r) == "failed"}, res.explain()
+
+
+def test_embedded_default_passes_every_must_and_should():
+    res = run_conform()
+    _assert_clean_pass(res)
+    # the suite observed, not just skipped: the vehicle and startup rules were judged
+    for rule in ("MCP-ACK-1", "MCP-RTX-1", "MCP-RTX-3", "MCP-BLK-4", "MCP-BLK-5", "MCP-BLK-7",
+                 "MCP-DUP-1", "MCP-DUP-3", "MCP-SEQ-3", "MCP-PAY-8", "MCP-ROB-7"):
+        assert res.rules[rule] == "passed", (rule, res.explain())
+    assert res.report["parameters"]["mode"] == "embedded"
+
+
+def test_spawn_mode_reference_node_passes():
+    res = run_conform("--spawn", reference_node_command(), "--mavlink", *FAST)
+    _assert_clean_pass(res)
+    assert res.rules["MCP-BLK-5"] == "passed", res.explain()
+
+
+def test_attach_mode_reference_node_passes_and_skips_vehicle_rules():
+    port, listen = free_port(), free_port()
+    node = subprocess.Popen(
+        [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind", f"127.0.0.1:{port}",
+         "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(0.3)
+        res = run_conform("--target", f"127.0.0.1:{port}", "--listen", f"127.0.0.1:{listen}", *FAST)
+    finally:
+        node.kill()
+        node.wait(timeout=5)
+    _assert_clean_pass(res)
+    assert res.report["cases"], res.explain()
+    for rule in ("MCP-BLK-4", "MCP-BLK-5", "MCP-DUP-1", "MCP-PAY-8"):
+        assert res.rules[rule] == "skipped", (rule, res.explain())
+    assert res.rules["MCP-ACK-1"] == "passed"
+    assert res.rules["MCP-RTX-1"] == "passed", res.explain()  # Mission_Ready copies still seen
+
+
+def test_target_that_never_answers_is_a_setup_error():
+    res = run_conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{free_port()}", *FAST,
+                      timeout=60)
+    assert res.rc == 2, res.explain()
+    assert res.report["error"], res.explain()
+    assert "never answered" in res.report["error"]
+
+
+def test_spawn_command_that_fails_is_a_setup_error():
+    res = run_conform("--spawn", f"{sys.executable} -c 'import sys; sys.exit(3)'", *FAST, timeout=60)
+    assert res.rc == 2, res.explain()
+    assert "exited" in (res.report["error"] or ""), res.explain()
