@@ -59,6 +59,7 @@ class Attempt:
     input: Sent
     probe: Exchange | None
     died: bool = False
+    rule: str | None = None  # the rule a death on this input breaks, when not the case's
 
 
 def _hex(data: bytes, limit: int = 48) -> str:
@@ -228,18 +229,19 @@ class CaseContext:
         """A fresh WP_Off to the node, awaited across retransmissions (MCP-ROB-5)."""
         return self.command(Action.WP_OFF)
 
-    def try_inputs(self, inputs: Iterable[tuple[str, bytes]]) -> list[Attempt]:
+    def try_inputs(self, inputs: Iterable[tuple[str, bytes] | tuple[str, bytes, str]]) -> list[Attempt]:
         """Send each raw input, each followed by a liveness probe; stop at the first death
-        or silence (the node is then restarted or lost, and later inputs are moot)."""
+        or silence (the node is then restarted or lost, and later inputs are moot). An input
+        may name the rule a death on it breaks (label, data, rule)."""
         out = []
-        for label, data in inputs:
+        for label, data, *rule in inputs:
             sent = self.send_raw(data)
             if not self.session.alive():
-                out.append(Attempt(label, sent, None, died=True))
+                out.append(Attempt(label, sent, None, died=True, rule=rule[0] if rule else None))
                 break
             probe = self.liveness()
             died = not self.session.alive()
-            out.append(Attempt(label, sent, probe, died))
+            out.append(Attempt(label, sent, probe, died, rule[0] if rule else None))
             if died or not probe.acked:
                 self.node_silent = not died
                 break
@@ -315,7 +317,7 @@ class CaseContext:
             raise Inconclusive(f"{rule}: no input was sent")
         last = attempts[-1]
         if last.died:
-            raise self.fail(died_rule or rule, f"the node survives input {last.label!r}",
+            raise self.fail(last.rule or died_rule or rule, f"the node survives input {last.label!r}",
                             f"the node exited after it (code {self.session.node.returncode if self.session.node else '?'})",
                             [f"input: {_hex(last.input.data)}"])
         if last.probe is not None and not last.probe.acked:

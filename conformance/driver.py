@@ -296,8 +296,9 @@ class TargetDriver:
                  seq: int = -1, action: int = -1, sock: socket.socket | None = None) -> Sent:
         assert self._sock is not None, "driver not open"
         addr = addr or self.target
-        (sock or self._sock).sendto(data, addr)
+        # stamped before it leaves: a reply within the same tick must not look older than it
         t, t_ns = time.monotonic(), time.time_ns()
+        (sock or self._sock).sendto(data, addr)
         hdr = peek_header(data)
         if hdr is not None and dst == -1:
             dst, src, seq, action = hdr

@@ -1,0 +1,93 @@
+"""The runner against deliberately faulty nodes: one fault each, every rule group.
+
+Each mutant of the independent sample node (tests/conformance/nodes/sample_node.py, which
+does not share the reference implementation's code) breaks exactly one rule. The runner
+must catch it with that rule ID (failed for a MUST, warned for a SHOULD) and nothing else
+may fail or warn. Then nodes that are correct but differ from ours: none may have a MUST
+failure (a false alarm is as bad as a missed fault).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from spec import SPEC
+
+from .runner_helpers import FAST, run_conform, sample_node_command
+
+pytestmark = pytest.mark.slow
+
+MUTANTS = [
+    ("bad-preamble", "MCP-HDR-1"),
+    ("send-action-9", "MCP-HDR-3"),
+    ("mission-ready-wrong-src", "MCP-HDR-4"),
+    ("send-wp-list", "MCP-HDR-5"),
+    ("ack-first-copy-only", "MCP-ACK-1"),
+    ("ack-little-endian", "MCP-ACK-2"),
+    ("ack-wrong-dst", "MCP-ACK-3"),
+    ("ack-broadcast", "MCP-ACK-4"),
+    ("ack-other-id", "MCP-ACK-5"),
+    ("ack-ack", "MCP-ACK-6"),
+    ("slow-ack", "MCP-ACK-7"),
+    ("rtx-new-seq", "MCP-SEQ-2"),
+    ("seq-no-wrap", "MCP-SEQ-3"),
+    ("no-dup-discard", "MCP-DUP-1"),
+    ("dup-by-content", "MCP-DUP-2"),
+    ("dup-ignores-src", "MCP-DUP-3"),
+    ("rtx-none", "MCP-RTX-1"),
+    ("rtx-stop-on-any-ack", "MCP-RTX-2"),
+    ("rtx-storm", "MCP-RTX-3"),
+    ("arm-early", "MCP-BLK-4"),
+    ("ready-without-fix", "MCP-BLK-5"),
+    ("no-rtl", "MCP-BLK-7"),
+    ("ready-bad-payload", "MCP-PAY-2"),
+    ("passthrough-twice", "MCP-PAY-8"),
+    ("crash-on-short", "MCP-ROB-1"),
+    ("ack-bad-preamble", "MCP-ROB-2"),
+    ("ack-unknown-action", "MCP-ROB-3"),
+    ("ack-bad-length", "MCP-ROB-4"),
+    ("crash-on-big", "MCP-ROB-6"),
+    ("flood-hang", "MCP-ROB-7"),
+    ("ready-to-wrong-id", "MCP-FLOW-1"),
+    ("source-port-filter", "MCP-TRN-2"),
+]
+
+
+def test_mutants_cover_every_rule_group():
+    groups = {rule.split("-")[1] for _, rule in MUTANTS}
+    assert groups == set(SPEC.groups), set(SPEC.groups) - groups
+    assert len(MUTANTS) >= 15
+
+
+@pytest.mark.parametrize("fault,rule", MUTANTS, ids=[f for f, _ in MUTANTS])
+def test_mutant_is_caught_with_its_rule(fault, rule):
+    res = run_conform("--spawn", sample_node_command("--fault", fault), "--mavlink", *FAST)
+    want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
+    assert res.rules.get(rule) == want, res.explain()
+    others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}
+    assert not others, f"other rules flagged: {others}\n{res.explain()}"
+    assert not res.cases_with("error"), res.explain()
+    assert res.rc == (1 if want == "failed" else 0), res.explain()
+
+
+CORRECT_VARIANTS = [
+    ("acks-only-in-receive-loop", ("--ack-mode", "recv-loop")),
+    ("replies-to-datagram-source", ("--reply-to-source",)),
+    ("forwards-no-passthrough", ("--no-passthrough",)),
+]
+
+
+@pytest.mark.parametrize("label,extra", CORRECT_VARIANTS, ids=[v[0] for v in CORRECT_VARIANTS])
+def test_no_false_alarm_on_a_correct_node_unlike_ours(label, extra):
+    res = run_conform("--spawn", sample_node_command(*extra), "--mavlink", *FAST)
+    assert res.rc == 0, res.explain()
+    assert not res.rules_with("failed"), res.explain()
+    assert not res.cases_with("failed", "error"), res.explain()
+
+
+def test_no_false_alarm_with_the_descriptions_5_s_timeout():
+    """The node and the runner both at the description's defaults (5 s timeout, 2 s window)."""
+    res = run_conform("--spawn", sample_node_command(rto=5.0), "--mavlink", timeout=400)
+    assert res.rc == 0, res.explain()
+    assert not res.rules_with("failed"), res.explain()
+    assert not res.cases_with("failed", "error"), res.explain()
