@@ -477,8 +477,8 @@ def _phase_wrapper(item: pytest.Item) -> McpState | None:
     return state
 
 
-@pytest.hookimpl(wrapper=True)
-def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+def _armed(item: pytest.Item) -> Generator[None, None, None]:
+    """Run one phase (setup, call, teardown) of a case under the per-case time limit."""
     state = _phase_wrapper(item)
     if state is None:
         return (yield)
@@ -487,30 +487,21 @@ def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
         return (yield)
     finally:
         state.disarm()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+    return (yield from _armed(item))
 
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
-    state = _phase_wrapper(item)
-    if state is None:
-        return (yield)
-    state.arm()
-    try:
-        return (yield)
-    finally:
-        state.disarm()
+    return (yield from _armed(item))
 
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
-    state = _phase_wrapper(item)
-    if state is None:
-        return (yield)
-    state.arm()
-    try:
-        return (yield)
-    finally:
-        state.disarm()
+    return (yield from _armed(item))
 
 
 def _skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
