@@ -22,9 +22,10 @@ Receiving (identical whatever we are sending):
   delivery").
 - MCP-DUP-1: "A message with the same (src, seq) as the one last delivered from that src
   is a duplicate: ACKed again but not delivered to the application again"; a late copy of
-  one of the few seqs delivered just before it is discarded too (our answer to the open
-  MCP-DUP-4, so a reordering link never delivers twice); any seq ahead of the last is new
-  (DUP-2), per source (DUP-3), so 0 after 65535 is new (SEQ-3).
+  one of the last ``dup_window`` seqs delivered from that src is discarded too when it is
+  not ahead of the *highest* seq delivered from it (our answer to the open MCP-DUP-4, so a
+  reordering link never delivers twice); any seq ahead of the highest is new (DUP-2), per
+  source (DUP-3), so 0 after 65535 is new (SEQ-3).
 
 Sending:
 
@@ -143,6 +144,8 @@ class Endpoint:
         self.dup_window = max(1, int(dup_window))
         # src -> the last ``dup_window`` seqs delivered from it, the last one last (MCP-DUP-1)
         self._recent: dict[int, deque[int]] = {}
+        # src -> the highest seq delivered from it, in serial arithmetic (see ``_deliver``)
+        self._highest: dict[int, int] = {}
         self._events: deque[Event] = deque()
         self._outgoing: list[tuple[bytes, Address | None]] = []
         self._table: dict[tuple[State, Input], tuple[Callable[..., None], State]] = {
@@ -306,23 +309,36 @@ class Endpoint:
 
         MCP-DUP-1: the seq last delivered from that src is a duplicate. MCP-DUP-4 leaves a
         late copy of an older seq open; we also discard a copy of any of the last
-        ``dup_window`` seqs delivered from that src if it lies *behind* the last one in
-        serial arithmetic (a delayed retransmission overtaken by a newer message, or one
-        interleaved with broadcasts). A seq ahead of the last is always new, so 0 after
-        65535 is new (MCP-SEQ-3), and so is any other seq (DUP-2, per src: DUP-3).
+        ``dup_window`` seqs delivered from that src unless it lies *ahead of the highest*
+        seq delivered from it (serial arithmetic): a delayed retransmission overtaken by a
+        newer message, or a copy interleaved with broadcasts (same seq space).
+
+        The reference is the highest seq, not the last delivered one: on a reordering link
+        the last delivered may be a *late* message (3 after 4), and a copy of 4 arriving
+        next is "ahead of the last" yet already delivered. A seq ahead of the highest is
+        always new, so 0 after 65535 is new (MCP-SEQ-3), and so is any seq never delivered
+        (DUP-2, per src: DUP-3). When the highest moves, remembered seqs half the space or
+        more behind it are forgotten, so an old 0 can never shadow the 0 after 65535.
         """
         src, seq = msg.src, msg.seq
         recent = self._recent.get(src)
         if recent is None:
             recent = self._recent[src] = deque(maxlen=self.dup_window)
-        elif recent:
-            last = recent[-1]
-            if seq == last:
+        highest = self._highest.get(src)
+        if recent:
+            if seq == recent[-1]:
                 self._events.append(DuplicateDiscarded(msg, addr))
                 return
-            if 0 < ((last - seq) & 0xFFFF) < _SERIAL_HALF and seq in recent:
+            assert highest is not None
+            if ((highest - seq) & 0xFFFF) < _SERIAL_HALF and seq in recent:
                 self._events.append(DuplicateDiscarded(msg, addr, "MCP-DUP-4"))
                 return
+        if highest is None or 0 < ((seq - highest) & 0xFFFF) < _SERIAL_HALF:
+            self._highest[src] = seq
+            if any(((seq - s) & 0xFFFF) >= _SERIAL_HALF for s in recent):
+                kept = [s for s in recent if ((seq - s) & 0xFFFF) < _SERIAL_HALF]
+                recent.clear()
+                recent.extend(kept)
         recent.append(seq)
         self._events.append(MessageDelivered(msg, addr))
 

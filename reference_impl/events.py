@@ -61,10 +61,13 @@ class MessageDelivered(Event):
 
 @dataclass(frozen=True, slots=True)
 class DuplicateDiscarded(Event):
-    """A copy of the last message delivered from ``msg.src``: ACKed again if unicast, not delivered.
+    """A copy of a message already delivered from ``msg.src``: ACKed again if unicast, not delivered.
 
-    MCP-DUP-1: "A message with the same (src, seq) as the one last delivered from that src
-    is a duplicate: ACKed again (MCP-ACK-1) but not delivered to the application again."
+    ``rule`` MCP-DUP-1: "A message with the same (src, seq) as the one last delivered from
+    that src is a duplicate: ACKed again (MCP-ACK-1) but not delivered to the application
+    again." ``rule`` MCP-DUP-4: a late copy of an older seq, one of the endpoint's
+    ``dup_window`` most recent from that src and not ahead of the highest delivered (the
+    catalogue leaves this case open; the endpoint discards it).
     """
 
     msg: Message

@@ -97,13 +97,50 @@ def test_duplicate_detection_is_per_source():
 
 
 def test_wraparound_zero_after_65535_is_new():
-    """MCP-SEQ-3: 0 after 65535 is new, even with an old 0 remembered."""
+    """MCP-SEQ-3: 0 after 65535 is new, even with an old 0 remembered.
+
+    The sender's seq climbs from 0 to 65535 in steps under half the space, as the runner's
+    MCP-SEQ-3 case does (conformance/cases/test_seq.py): only so is 65535 "after" the old 0
+    in serial arithmetic. (65534 straight after 0 is two *behind* it, which on a reordering
+    link is a late message, not a wrap; see the test below.) Few deliveries in between, so
+    the old 0 is still within the duplicate window when the new 0 arrives.
+    """
     ep = drone()
+    seqs = (0, 16000, 32000, 48000, 64000, 65534, 65535, 0, 1)
     delivered = 0
-    for seq in (0, 65534, 65535, 0, 1):
+    for seq in seqs:
         _, evs = feed(ep, Message(1, 0, seq, Action.WP_OFF, None))
         delivered += sum(isinstance(e, MessageDelivered) for e in evs)
-    assert delivered == 5
+    assert delivered == len(seqs)
+
+
+def test_copy_of_the_highest_after_a_late_older_message_is_not_delivered_again():
+    """Root cause of the stateful test's double deliveries (MCP-DUP-4, our answer).
+
+    Reordering link: broadcasts 0, 1, 2, 4 arrive, then 3 late, then a duplicated copy of 4.
+    4 is not the *last* delivered (3 is), so a check of "behind the last" took the copy of
+    4 for new. Duplicate discard must be relative to the highest seq delivered from the src;
+    the same goes for a unicast's retransmission overtaken by a late broadcast (shared seq
+    space) and for a window straddling the wrap.
+    """
+    for base in (0, 65533):
+        ep = drone()
+        order = [(base + k) & 0xFFFF for k in (0, 1, 2, 4, 3, 4, 3, 2)]
+        delivered = []
+        for seq in order:
+            _, evs = feed(ep, Message(BROADCAST_ID, 0, seq, Action.START_MISSION, None))
+            delivered += [e.msg.seq for e in evs if isinstance(e, MessageDelivered)]
+        assert delivered == order[:5], base
+
+    ep = drone()
+    feed(ep, Message(1, 0, 17, Action.WP_OFF, None))  # unicast 17, delivered and ACKed
+    feed(ep, Message(BROADCAST_ID, 0, 16, Action.WP_OFF, None))  # a late broadcast
+    out, evs = feed(ep, Message(1, 0, 17, Action.WP_OFF, None))  # 17's retransmission
+    assert decode(out[0][0]).payload == 17  # still ACKed (MCP-ACK-1)
+    assert not any(isinstance(e, MessageDelivered) for e in evs)
+    assert [e.rule for e in evs if isinstance(e, DuplicateDiscarded)] == ["MCP-DUP-4"]
+    _, evs = feed(ep, Message(1, 0, 18, Action.WP_OFF, None))  # the next one is new
+    assert any(isinstance(e, MessageDelivered) for e in evs)
 
 
 def test_late_copy_of_an_older_message_is_not_delivered_again():

@@ -3,7 +3,11 @@
 Hypothesis drives a manager (ID 0) and a drone (ID 1) with unicasts, broadcasts, garbage
 and the passing of (virtual) time, and checks after every step:
 
-- no message is delivered to an application twice (MCP-DUP-1);
+- no message is delivered to an application twice: MCP-DUP-1 requires this only for a copy
+  of the *last* seq delivered from a src and MCP-DUP-4 leaves older ones open; the endpoint
+  answers DUP-4 by also discarding copies of its last ``dup_window`` (64) seqs that are not
+  ahead of the highest delivered. The link holds a datagram back by at most 0.8 RTO, so
+  every copy arrives while its seq is in that window: twice is always an endpoint bug;
 - every retransmission repeats the original's sequence number and bytes (MCP-SEQ-2);
 - nothing but ACKs, broadcasts and copies of the in-flight message leaves a node while one
   of its unicasts awaits its ACK (MCP-BLK-1);
@@ -11,16 +15,24 @@ and the passing of (virtual) time, and checks after every step:
 
 and at the end, once the link is quiet: every unicast was either confirmed and delivered
 exactly once, or reported failed (MCP-RTX-1) and delivered at most once.
-Deterministic (derandomized) and bounded: 100 programs of at most 30 steps.
+Deterministic (derandomized) and bounded: 300 programs of at most 30 steps, and the same
+programs whichever other modules share the process (see ``_pinned_constants``).
 """
 
 from __future__ import annotations
 
 from collections import Counter
 
+import pytest
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
-from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
+from hypothesis.stateful import (
+    RuleBasedStateMachine,
+    initialize,
+    invariant,
+    rule,
+    run_state_machine_as_test,
+)
 
 from reference_impl import (
     DeliveryConfirmed,
@@ -142,7 +154,77 @@ class TwoEndpointsOverLossyLink(RuleBasedStateMachine):
                     assert n <= 1
 
 
-TwoEndpointsOverLossyLink.TestCase.settings = settings(
-    max_examples=100, stateful_step_count=30, derandomize=True, deadline=None,
+#: Everything pinned here, on the built-in default profile, so that no profile loaded or
+#: registered by another module can change what runs. derandomize=True: the programs are a
+#: function of this class's source; it implies database=None (no replay of failures saved
+#: by earlier runs, which would make the outcome depend on history).
+SETTINGS = settings(
+    settings.get_profile("default"),
+    max_examples=300, stateful_step_count=30, derandomize=True, database=None,
+    deadline=None, report_multiple_bugs=True,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
-test_two_endpoints_over_lossy_link = TwoEndpointsOverLossyLink.TestCase
+
+
+@pytest.fixture
+def _pinned_constants(monkeypatch):
+    """Hide the literals of other loaded modules from Hypothesis' generator.
+
+    Why the outcome depended on the other test modules in the process (``-n 2`` over
+    tests/reference_impl and tests/spec failed, this file alone passed): Hypothesis >= 6.131
+    sometimes (p = 0.05 per draw) draws one of the constants found in the source of every
+    *local, non-test* module in ``sys.modules`` (hypothesis.internal.conjecture.providers.
+    _get_local_constants). Collecting tests/spec and tests/reference_impl imports spec.*,
+    conformance.*, captures.*, ... and so changes that pool, and with it the programs a
+    derandomized run generates, though every setting is the same. Here the pool is pinned
+    to empty (and the per-constraint cache emptied) for this test. Private API: if a
+    Hypothesis release moves it, the test still runs, only without this pinning.
+    """
+    try:
+        from hypothesis.internal.conjecture import providers
+        from hypothesis.internal.constants_ast import Constants
+        cache = providers.CONSTANTS_CACHE.cache
+        providers._get_local_constants  # noqa: B018 - probe that the private API exists
+    except (ImportError, AttributeError):  # pragma: no cover - another Hypothesis version
+        yield
+        return
+    empty = Constants()
+    monkeypatch.setattr(providers, "_get_local_constants", lambda: empty)
+    cache.clear()
+    yield
+    cache.clear()  # entries computed from the empty pool must not serve later tests
+
+
+def test_two_endpoints_over_lossy_link(_pinned_constants):
+    run_state_machine_as_test(TwoEndpointsOverLossyLink, settings=SETTINGS)
+
+
+# Programs Hypothesis once found when other modules' constants reached its generator (the
+# endpoint then judged duplicates against the *last* delivered seq, so a copy of seq n
+# arriving after a late n-1 was delivered again). "B": the manager broadcasts
+# START_MISSION; "U": it unicasts START_MISSION to the drone; a float: time passes.
+REGRESSIONS = [
+    (dict(seed=3141, drop=0.3, duplicate=0.2, reorder=0.3), ["B"] * 11 + ["U"] * 2 + [2.0] + ["B"] * 7),
+    (dict(seed=16777215, drop=0.1, duplicate=0.0, reorder=0.3), ["B"] * 17 + ["U"]),
+    (dict(seed=1, drop=0.3, duplicate=0.0, reorder=0.3), ["B"] * 10 + ["U"] * 2 + [3.0]),
+    (dict(seed=0, drop=0.3, duplicate=0.0, reorder=0.3), ["B"] * 10 + ["U"] * 2 + [2.0]),
+    (dict(seed=19210, drop=0.0, duplicate=0.2, reorder=0.3), ["B"] * 5 + [1.0]),
+]
+
+
+@pytest.mark.parametrize(("link", "steps"), REGRESSIONS, ids=[str(r[0]["seed"]) for r in REGRESSIONS])
+def test_regression_programs(link, steps):
+    """Replay each program step by step, checking every invariant after each step."""
+    machine = TwoEndpointsOverLossyLink()
+    invariants = [machine.no_duplicate_delivery, machine.retransmissions_repeat_seq_and_bytes,
+                  machine.stop_and_wait, machine.at_most_one_outcome]
+    machine.setup(seq0=0, seq1=0, **link)
+    for step in steps:
+        if step == "B":
+            machine.manager_broadcasts(action=Action.START_MISSION)
+        elif step == "U":
+            machine.send_unicast(sender=0, action=Action.START_MISSION, retries=None)
+        else:
+            machine.time_passes(dt=step)
+        for check in invariants:
+            check()
+    machine.teardown()
