@@ -26,11 +26,14 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import glob
+import json
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Generator, Mapping
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -47,7 +50,15 @@ from conformance.marks import (
     rule_level,
     strongest_level,
 )
-from conformance.report import CaseRecord, RunRecord, TerminalReport, write_json, write_junit
+from conformance.report import (
+    CaseRecord,
+    RunRecord,
+    TerminalReport,
+    merge_json,
+    worker_path,
+    write_json,
+    write_junit,
+)
 from spec import SPEC
 
 __all__ = ["ConfigError", "McpState", "STATE_KEY", "make_config", "matches_select"]
@@ -213,7 +224,33 @@ def pytest_configure(config: pytest.Config) -> None:
         cfg = make_config(values, opt)
     except ConfigError as exc:
         raise pytest.UsageError(str(exc)) from None
+    worker = getattr(config, "workerinput", {}).get("workerid")
+    if worker:  # a pytest-xdist worker: its own node, its own part of each report file
+        cfg.json_path = cfg.json_path and worker_path(cfg.json_path, worker)
+        cfg.junit_path = cfg.junit_path and worker_path(cfg.junit_path, worker)
+        cfg.capture = cfg.capture and worker_path(cfg.capture, worker)
     config.stash[STATE_KEY] = McpState(config, cfg, frontend)
+
+
+def _xdist_controller(config: pytest.Config) -> bool:
+    return (not hasattr(config, "workerinput") and config.pluginmanager.hasplugin("xdist")
+            and bool(getattr(config.option, "numprocesses", None)))
+
+
+def _merge_worker_reports(config: pytest.Config) -> None:
+    """Under pytest-xdist the controller joins the workers' JSON parts into --mcp-json
+    (JUnit and captures stay one file per worker: FILE.gw0, FILE.gw1, ...)."""
+    state = _state(config)
+    if state is None or not state.cfg.json_path:
+        return
+    target = Path(state.cfg.json_path)
+    parts = sorted(target.parent.glob(glob.escape(target.name) + ".gw*"))
+    if not parts:
+        return
+    docs = [json.loads(p.read_text(encoding="utf-8")) for p in parts]
+    target.write_text(json.dumps(merge_json(docs), indent=2) + "\n", encoding="utf-8")
+    for p in parts:
+        p.unlink()
 
 
 def _state(config: pytest.Config) -> McpState | None:
@@ -627,6 +664,9 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
 # ---------------------------------------------------------------------- the end
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if _xdist_controller(session.config):
+        _merge_worker_reports(session.config)
+        return
     state = _state(session.config)
     if state is None or not state.active:
         return

@@ -206,6 +206,34 @@ def write_json(path: str | Path, run: RunRecord) -> None:
         raise OSError(f"--json: cannot write {str(path)!r}: {exc.strerror}") from None
 
 
+def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One report from the reports of several pytest-xdist workers (each ran some cases
+    against its own spawned node): cases concatenated, rule outcomes worst-first, counts
+    summed, the longest duration, the first error."""
+    if not docs:
+        raise ValueError("no worker reports to merge")
+    out = dict(docs[0])
+    out["cases"] = [c for d in docs for c in d.get("cases", [])]
+    rules: dict[str, str] = {}
+    for d in docs:
+        for rule, outcome in d.get("rules", {}).items():
+            if rule not in rules or RULE_RANK[outcome] > RULE_RANK[rules[rule]]:
+                rules[rule] = outcome
+    out["rules"] = rules
+    out["error"] = next((d["error"] for d in docs if d.get("error")), None)
+    summary = dict.fromkeys(OUTCOMES, 0)
+    for c in out["cases"]:
+        summary[c["outcome"]] += 1
+    out["summary"] = {**summary, "duration_s": max(d["summary"]["duration_s"] for d in docs)}
+    out["target"] = ", ".join(sorted({str(d.get("target")) for d in docs}))
+    return out
+
+
+def worker_path(path: str, worker: str) -> str:
+    """Where an xdist worker writes its part of the report FILE: FILE.<worker>."""
+    return f"{path}.{worker}"
+
+
 # ---------------------------------------------------------------------- JUnit
 def _finding(c: CaseRecord) -> str:
     """What a case found, as text: the rule, expected, actual, evidence and notes."""

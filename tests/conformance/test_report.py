@@ -168,3 +168,19 @@ def test_terminal_listing():
         [("ACK/test_a", ("MCP-ACK-1",), "MUST", "main"), ("RTX/test_b", ("MCP-RTX-1",), "MUST", "startup")])
     text = buf.getvalue()
     assert "ACK/test_a  MCP-ACK-1  MUST" in text and "(startup)" in text and "2 cases" in text
+
+
+def test_merge_json_of_xdist_workers_keeps_the_worst_outcome():
+    from conformance.report import merge_json
+
+    def doc(rules, cases, error=None, dur=1.0, target="a"):
+        return {"schema_version": "1.0", "target": target, "error": error, "rules": rules,
+                "cases": cases, "summary": {"duration_s": dur}}
+    a = doc({"MCP-ACK-1": "passed", "MCP-ACK-2": "skipped"}, [{"id": "x", "outcome": "passed"}])
+    b = doc({"MCP-ACK-1": "failed", "MCP-ACK-2": "passed"}, [{"id": "y", "outcome": "failed"}], dur=2.5,
+            target="b")
+    m = merge_json([a, b])
+    assert m["rules"] == {"MCP-ACK-1": "failed", "MCP-ACK-2": "passed"}
+    assert [c["id"] for c in m["cases"]] == ["x", "y"]
+    assert m["summary"]["passed"] == 1 and m["summary"]["failed"] == 1 and m["summary"]["duration_s"] == 2.5
+    assert m["target"] == "a, b" and m["error"] is None

@@ -81,3 +81,25 @@ def test_spawn_command_that_fails_is_a_setup_error():
     res = run_conform("--spawn", f"{sys.executable} -c 'import sys; sys.exit(3)'", *FAST, timeout=60)
     assert res.rc == 2, res.explain()
     assert "exited" in (res.report["error"] or ""), res.explain()
+
+
+def test_pytest_xdist_runs_spawned_targets_in_parallel_and_merges_the_json(tmp_path):
+    """`pytest --pyargs conformance.cases -n 2 --mcp-spawn ...`: each worker its own node."""
+    out = tmp_path / "report.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+         "-n", "2", "--mcp-spawn", reference_node_command(), "--mcp-mavlink", "--mcp-rto", "0.2", "--mcp-ack-window", "0.25",
+         "--mcp-json", str(out)],
+        cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    import json
+
+    from conformance.report import validate_json
+
+    doc = json.loads(out.read_text())
+    validate_json(doc)
+    assert len(doc["target"].split(", ")) == 2, doc["target"]  # two nodes were spawned
+    ids = [c["id"] for c in doc["cases"]]
+    assert len(ids) == len(set(ids)) and len(ids) >= 40
+    assert doc["rules"]["MCP-ACK-1"] == "passed"
+    assert not list(tmp_path.glob("report.json.gw*"))
