@@ -343,13 +343,13 @@ class Session:
         if self.target_id is None and first_ready.header is not None:
             self.target_id = first_ready.header[1]
         if first:
-            self._observe_retransmissions(st, first_ready, mark)
+            self._observe_retransmissions(st, first_ready)
         withhold = False
         if first:
             self.startup = st
         self._start_mission(first)
 
-    def _observe_retransmissions(self, st: Startup, first_ready: Datagram, mark: int) -> None:
+    def _observe_retransmissions(self, st: Startup, first_ready: Datagram) -> None:
         """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""
         drv = self.driver
         assert drv is not None
@@ -386,8 +386,10 @@ class Session:
         grace = 0.05
         st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
                                      and d.t > st.right_ack.t + grace]
-        st.others_while_waiting = [d for d in drv.received(mark, drv.mark_before(st.right_ack))
-                                   if d.action not in (_READY, int(Action.ACK))]
+        # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
+        st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
+                                   if d.header is not None and d.action not in (_READY, int(Action.ACK))
+                                   and d.header[0] != self.cfg.broadcast_id]
 
     def _start_mission(self, first: bool) -> None:
         drv = self.driver
