@@ -513,23 +513,13 @@ class DroneConfig:
         return float(SPEC.params["timeout_s"]) if self.rto is None else self.rto
 
 
-class Drone:
-    """One drone node: ``Drone(cfg).run()`` returns the exit code (0 after End_Mission).
+class RoleNode:
+    """What both roles share: the MCP endpoint, the ``listening`` event, the outcome, and a
+    thread-safe ``stop()`` (also what Ctrl-C/SIGTERM do in the CLI)."""
 
-    ``stop()`` (from another thread) ends ``run`` early, also returning 0. ``listening``
-    is set once the MCP socket is bound (``port`` is then the bound port); ``record()`` is
-    what the application received.
-    """
-
-    def __init__(self, cfg: DroneConfig, log: logging.Logger | None = None) -> None:
-        self.cfg = cfg
-        self.log = log or logging.getLogger(f"drone-{cfg.drone_id}")
-        self.vehicle: Any = None
-        self.link: AutopilotLink | None = None
-        self.app: DroneApp | None = None
+    def __init__(self) -> None:
         self.mcp: Mcp | None = None
         self.listening = threading.Event()
-        self.ready_acked = threading.Event()
         self.outcome = "running"
         self._stop = threading.Event()
 
@@ -538,14 +528,36 @@ class Drone:
         assert self.mcp is not None
         return self.mcp.local_port
 
+    def _on_stop(self) -> None:
+        """Wake whatever the role waits on (before the endpoint closes)."""
+
     def stop(self) -> None:
-        """End ``run`` early (thread-safe; also what Ctrl-C/SIGTERM do in the CLI)."""
+        """End ``run`` early; a blocked unicast send then raises McpException."""
         self._stop.set()
         if self.outcome == "running":
             self.outcome = "stopped"
+        self._on_stop()
         mcp = self.mcp
         if mcp is not None:
-            mcp.close()  # a blocked Mission_Ready send raises McpException
+            mcp.close()
+
+
+class Drone(RoleNode):
+    """One drone node: ``Drone(cfg).run()`` returns the exit code (0 after End_Mission).
+
+    ``stop()`` (from another thread) ends ``run`` early, also returning 0. ``listening``
+    is set once the MCP socket is bound (``port`` is then the bound port); ``record()`` is
+    what the application received.
+    """
+
+    def __init__(self, cfg: DroneConfig, log: logging.Logger | None = None) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.log = log or logging.getLogger(f"drone-{cfg.drone_id}")
+        self.vehicle: Any = None
+        self.link: AutopilotLink | None = None
+        self.app: DroneApp | None = None
+        self.ready_acked = threading.Event()
 
     def run(self) -> int:
         try:

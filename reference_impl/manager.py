@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from reference_impl.api import Mcp, McpException
-from reference_impl.drone import EventLogger, RoleError, action_name, write_record
+from reference_impl.drone import EventLogger, RoleError, RoleNode, action_name, write_record
 from reference_impl.handler import MissionMessageHandlerBase
 from spec import SPEC
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
@@ -111,7 +111,7 @@ class ManagerHandler(MissionMessageHandlerBase):
             return set(self.ready) >= set(self.drones)
 
 
-class Manager:
+class Manager(RoleNode):
     """The Mission Manager node: ``Manager(cfg).run()`` returns the exit code.
 
     0 when every drone ACKed every command through End_Mission (or ``stop()`` was called),
@@ -119,30 +119,16 @@ class Manager:
     """
 
     def __init__(self, cfg: ManagerConfig, log: logging.Logger | None = None) -> None:
+        super().__init__()
         self.cfg = cfg
         self.log = log or logging.getLogger("manager")
         self.handler = ManagerHandler(cfg.drones, self.log)
-        self.mcp: Mcp | None = None
-        self.listening = threading.Event()
         self.sent: list[tuple[str, int]] = []
         self.failed: list[int] = []
-        self.outcome = "running"
-        self._stop = threading.Event()
 
-    @property
-    def port(self) -> int:
-        assert self.mcp is not None
-        return self.mcp.local_port
-
-    def stop(self) -> None:
-        """End ``run`` early (thread-safe; also what Ctrl-C/SIGTERM do in the CLI)."""
-        self._stop.set()
-        if self.outcome == "running":
-            self.outcome = "stopped"
+    def _on_stop(self) -> None:
         with self.handler.cond:
             self.handler.cond.notify_all()
-        if self.mcp is not None:
-            self.mcp.close()
 
     def run(self) -> int:
         try:
