@@ -211,9 +211,10 @@ class CaseContext:
         v = self.vehicle
         if expect_more:  # a count that must not grow: watched over the ACK window (D-6)
             time.sleep(self.ack_window)
-        else:  # a count that must grow: returns as soon as it did
+        else:  # a count that must grow: returns as soon as it did; patient, since a node may
+            # queue the forward behind slow autopilot work (arming, takeoff) after its ACK
             v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries),
-                       max(self.ack_window, 0.5))
+                       max(2 * self.ack_window, 1.0, self.rto))
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
 
