@@ -80,9 +80,16 @@ def rules(*ids: str, phase: str = "main") -> Callable[[F], F]:
         where = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', '?')}"
         checked = check_rule_ids(ids, where)
         fn = pytest.mark.mcp_rules(*checked)(fn)
+        for rid in checked:  # one marker per rule, for `pytest -m mcp_ack_1`
+            fn = getattr(pytest.mark, rule_marker(rid))(fn)
         return pytest.mark.mcp_phase(phase)(fn)
 
     return decorate
+
+
+def rule_marker(rule_id: str) -> str:
+    """The pytest marker name of a rule: MCP-ACK-1 -> mcp_ack_1 (select with ``-m``)."""
+    return rule_id.lower().replace("-", "_")
 
 
 # ---------------------------------------------------------------------- reading marks back

@@ -48,6 +48,7 @@ from conformance.marks import (
     case_rules,
     is_case,
     rule_level,
+    rule_marker,
     strongest_level,
 )
 from conformance.report import (
@@ -217,6 +218,8 @@ _KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "mcp_rules(*ids): the MCP rule IDs a conformance case verifies")
     config.addinivalue_line("markers", "mcp_phase(phase): startup, main, late or end")
+    for rule in SPEC.rules:
+        config.addinivalue_line("markers", f"{rule_marker(rule.id)}: cases verifying {rule.id} ({rule.level})")
     frontend = bool(config.getoption("mcp_frontend"))
     values = {k: config.getoption("mcp_" + k) for k in _KEYS}
     opt = (lambda n: "--" + n.replace("_", "-")) if frontend else (lambda n: "--mcp-" + n.replace("_", "-"))
