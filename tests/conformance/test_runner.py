@@ -103,3 +103,17 @@ def test_pytest_xdist_runs_spawned_targets_in_parallel_and_merges_the_json(tmp_p
     assert len(ids) == len(set(ids)) and len(ids) >= 40
     assert doc["rules"]["MCP-ACK-1"] == "passed"
     assert not list(tmp_path.glob("report.json.gw*"))
+
+
+def test_selection_by_rule_marker(tmp_path):
+    out = tmp_path / "report.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+         "-m", "mcp_ack_4 or mcp_ack_6", "--mcp-json", str(out)],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    import json
+
+    doc = json.loads(out.read_text())
+    assert sorted(r for c in doc["cases"] for r in c["rules"]) == ["MCP-ACK-4", "MCP-ACK-6"]
+    assert doc["rules"]["MCP-ACK-4"] == doc["rules"]["MCP-ACK-6"] == "passed"
