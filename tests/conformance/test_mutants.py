@@ -91,3 +91,30 @@ def test_no_false_alarm_with_the_descriptions_5_s_timeout():
     assert res.rc == 0, res.explain()
     assert not res.rules_with("failed"), res.explain()
     assert not res.cases_with("failed", "error"), res.explain()
+
+
+def test_capture_stays_valid_when_the_node_dies(tmp_path):
+    """--capture against a node that crashes on input: the MCAP file reads back with CRCs
+    checked, has every channel, and a start and end mark for every case of the JSON."""
+    import json
+
+    from mcap.reader import make_reader
+
+    cap = tmp_path / "run.mcap"
+    res = run_conform("--spawn", sample_node_command("--fault", "crash-on-short"), "--mavlink", *FAST,
+                      "--select", "ROB/", "--select", "MCP-DUP-1", "--capture", str(cap))
+    assert res.rules.get("MCP-ROB-1") == "failed", res.explain()
+    topics: dict[str, int] = {}
+    marks = []
+    with cap.open("rb") as f:
+        for _, channel, message in make_reader(f, validate_crcs=True).iter_messages():
+            topics[channel.topic] = topics.get(channel.topic, 0) + 1
+            if channel.topic == "/conformance/case":
+                marks.append(json.loads(message.data))
+    assert {"/mcp/tx", "/mcp/rx", "/mavlink", "/conformance/case"} <= set(topics), topics
+    ids = {c["id"] for c in res.report["cases"]}
+    assert {m["case"] for m in marks if m["event"] == "start"} == ids
+    ends = {m["case"]: m["outcome"] for m in marks if m["event"] == "end"}
+    assert ends == {c["id"]: c["outcome"] for c in res.report["cases"]}, (ends, res.explain())
+    for case in res.report["cases"]:
+        assert case["capture"]["start_ns"] <= case["capture"]["end_ns"]
