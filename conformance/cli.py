@@ -46,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Black-box conformance runner for CentMesh MCP nodes.",
                 epilog="No --target and no --spawn: test the embedded reference drone.")
     p.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
-    p.add_argument("--listen", metavar="HOST:PORT", help="where the runner receives (default: all addresses, 7890 for a drone under test)")
+    p.add_argument("--listen", metavar="HOST:PORT", help=(f"where the runner receives and sends from (default: all addresses, port "
+                         f"{SPEC.protocol['ports']['manager']} for a drone under test; a free port when spawning)"))
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
     p.add_argument("--role", metavar="drone|manager", default="drone", help="the role of the node under test (default drone)")
     p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
