@@ -48,7 +48,10 @@ def test_copies_are_evenly_spaced(node):
     med = statistics.median(gaps)
     tol = float(SPEC.params["rtx_spacing_tolerance"])
     floor = float(SPEC.params["rtx_min_gap_s"])
-    bad = [g for g in gaps if abs(g - med) > tol * med or g < floor]
+    # ±20 % of the median, widened by the runner's own timestamp jitter (matters only for
+    # sub-second timeouts; at the description's 5 s it is 0.3 % of the allowance)
+    allowance = tol * med + float(SPEC.params["timing_jitter_s"])
+    bad = [g for g in gaps if abs(g - med) > allowance or g < floor]
     node.expect_true(not bad, "MCP-RTX-3",
                      f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
                      f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
