@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from spec.codec import (
-    HEADER_SIZE,
     PREAMBLE,
     Action,
     DecodeError,
@@ -37,18 +36,13 @@ Address = tuple[str, int]
 Observer = Callable[[str, bytes, Address, int], None]  # (direction "tx"|"rx", data, addr, t_ns)
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
-_FIELDS = struct.Struct("!4H")
+_U16BE = struct.Struct("!H")
+_U16LE = struct.Struct("<H")
 
 
 def read_header(data: bytes) -> tuple[int, int, int, int] | None:
-    """(dst, src, seq, action) of any datagram of 17+ bytes, whatever its preamble: the
-    runner must recognise a node's Mission_Ready or ACK even when its framing is wrong, so
-    that the framing rule (MCP-HDR-1) fails and not every case after it."""
-    if len(data) < HEADER_SIZE:
-        return None
-    return _FIELDS.unpack_from(data, PREAMBLE_LEN)  # type: ignore[return-value]
-_U16BE = struct.Struct("!H")
-_U16LE = struct.Struct("<H")
+    """The header fields of any datagram of 17+ bytes, whatever its preamble."""
+    return peek_header(data, require_preamble=False)
 
 
 @dataclass(frozen=True)

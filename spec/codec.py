@@ -291,11 +291,14 @@ def build_datagram(dst: int, src: int, seq: int, action: int, payload: bytes = b
     return preamble + struct.pack("!4H", dst & 0xFFFF, src & 0xFFFF, seq & 0xFFFF, action & 0xFFFF) + payload
 
 
-def peek_header(data: bytes) -> tuple[int, int, int, int] | None:
-    """(dst, src, seq, action) of anything with a whole header and the right preamble, else None.
+def peek_header(data: bytes, *, require_preamble: bool = True) -> tuple[int, int, int, int] | None:
+    """(dst, src, seq, action) of anything with a whole header (and, unless
+    ``require_preamble=False``, the right preamble), else None.
 
-    For observers that must attribute a reply even when its payload is malformed.
+    For observers that must attribute a reply even when its payload is malformed; a runner
+    passes ``require_preamble=False`` to recognise a node's Mission_Ready or ACK whose framing
+    is wrong, so that MCP-HDR-1 fails and not every case after it.
     """
-    if len(data) < HEADER_SIZE or data[:_PRE_LEN] != PREAMBLE:
+    if len(data) < HEADER_SIZE or (require_preamble and data[:_PRE_LEN] != PREAMBLE):
         return None
     return tuple(_unpack_header(data)[3:])  # type: ignore[return-value]
