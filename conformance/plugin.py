@@ -327,7 +327,13 @@ class McpState:
                                                                config=self.config)
             self.session = session
             atexit.register(self.close_session)
+            # the startup phase is bounded by its own waits and the run deadline, not by the
+            # time limit of the case that happens to start it
+            self.case_deadline = None
+            self.arm()
             session.start()
+            self.case_deadline = time.monotonic() + self.cfg.per_case_limit()
+            self.arm()
         except SetupError as exc:
             self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
             self.close_session()
@@ -378,6 +384,7 @@ class McpState:
         now = time.monotonic()
         ends = [d for d in (self.case_deadline, self.run_deadline) if d is not None]
         if not ends:
+            signal.setitimer(signal.ITIMER_REAL, 0)
             return
         if self._old_alarm is None:
             self._old_alarm = signal.signal(signal.SIGALRM, self._on_alarm)
