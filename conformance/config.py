@@ -52,10 +52,12 @@ class RunConfig:
         return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
 
     def per_case_limit(self) -> float:
-        """A bound on one case's wall time: generous against the node's own timeouts."""
+        """A bound on one case's wall time, generous against the node's own timeouts: a case
+        may await several commands, each across up to 5 copies one --rto apart, from a node
+        that is deaf while busy (D-6), plus its observation windows."""
         if self.case_timeout is not None:
             return self.case_timeout
-        return max(30.0, 12 * self.rto + 6 * self.ack_window)
+        return max(60.0, 30 * self.rto + 10 * self.ack_window)
 
     def parameters(self) -> dict[str, Any]:
         """The parameters block of the JSON report."""
