@@ -218,9 +218,28 @@ class CaseContext:
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
 
+    def quiet_count(self, token: str) -> int:
+        """The vehicle's count of ``token`` once it has not changed for half the ACK window
+        (at most one ACK window in all)."""
+        v = self.vehicle
+        stable = max(self.ack_window / 2, 0.1)
+        deadline = time.monotonic() + max(self.ack_window, 2 * stable)
+        count, since = v.probe_count(token), time.monotonic()
+        while time.monotonic() < deadline:
+            time.sleep(0.02)
+            now_count = v.probe_count(token)
+            if now_count != count:
+                count, since = now_count, time.monotonic()
+            elif time.monotonic() - since >= stable:
+                break
+        return count
+
     def redeliver(self, d: Delivery, sent: Sent) -> Delivery:
-        """Send a copy of ``sent`` (same bytes, same seq) and await its ACK and the count."""
-        before = self.vehicle.probe_count(d.probe.token)
+        """Send a copy of ``sent`` (same bytes, same seq) and await its ACK and the count.
+        The baseline is taken once the earlier delivery's count has stopped moving, so a node
+        that forwards each frame twice (MCP-PAY-8's business) is not taken for one that
+        delivers the copy again (MCP-DUP-1)."""
+        before = self.quiet_count(d.probe.token)
         ex = self.await_ack(self.resend(sent))
         out = Delivery(d.probe, ex, before)
         self.settle(out, expect_more=True)
