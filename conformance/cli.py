@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from conformance.baseline import BaselineError, load_baseline
 from conformance.config import RunConfig
 from conformance.plugin import ConfigError, make_config
 from conformance.report import RunRecord, tool_version, write_json
@@ -54,9 +55,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
     p.add_argument("--strict", action="store_true", help="a failed SHOULD is a failure")
     p.add_argument("--select", metavar="PREFIX", nargs="+", action="extend", default=[], help="run only cases whose rule ID or case ID starts with PREFIX")
+    p.add_argument("--exclude", metavar="PREFIX", nargs="+", action="extend", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX")
     p.add_argument("--list", action="store_true", help="print the cases with their rule IDs and run nothing")
     p.add_argument("--json", metavar="FILE", help="write the JSON report (always, errors included)")
     p.add_argument("--junit", metavar="FILE", help="write a JUnit XML report")
+    p.add_argument("--junit-family", metavar="xunit2|xunit1", choices=("xunit2", "xunit1"), help="xunit2 (default): valid against the Jenkins junit-10 schema; xunit1: rule IDs also as properties in each testcase")
+    p.add_argument("--baseline", metavar="FILE", help="expected failures (YAML or JSON, case or rule IDs with a reason): listed failures are xfailed (exit 0), listed cases that pass are xpassed (exit 1 under --strict)")
+    p.add_argument("--write-baseline", metavar="FILE", help="write this run's failed and warned cases as a baseline")
     p.add_argument("--capture", metavar="FILE.mcap", help="record the run to an MCAP file")
     p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
@@ -137,7 +142,8 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
         args += ["-p", PLUGIN_MODULE]
     args += ["--mcp-frontend", "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "rto",
-                 "ack_window", "broadcast_id", "timeout", "seed"):
+                 "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
+                 "junit_family"):
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")
@@ -146,6 +152,8 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
             args.append(f"--mcp-{flag}")
     for prefix in ns.select:
         args.append(f"--mcp-select={prefix}")
+    for prefix in ns.exclude:
+        args.append(f"--mcp-exclude={prefix}")
     args += ["--pyargs", CASES_PACKAGE]
     return args
 
@@ -167,7 +175,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         _check_writable(ns.json, "--json")
         _check_writable(ns.junit, "--junit")
         _check_writable(ns.capture, "--capture")
-    except ConfigError as exc:
+        _check_writable(ns.write_baseline, "--write-baseline")
+        if ns.baseline:
+            load_baseline(ns.baseline)
+    except (ConfigError, BaselineError) as exc:
         return _fail(str(exc), json_path)
     if cfg.role == "manager":
         return _fail(MANAGER_NOT_AVAILABLE, ns.json, cfg)

@@ -39,6 +39,7 @@ from typing import Any
 import pytest
 from rich.console import Console
 
+from conformance.baseline import Baseline, BaselineError, load_baseline, write_baseline
 from conformance.config import DEFAULT_SEED, RunConfig, parse_hostport
 from conformance.errors import CaseFailure, Inconclusive, SetupError, TargetLost
 from conformance.marks import (
@@ -196,6 +197,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-broadcast-id", metavar="N", help="the broadcast MCP ID (default 0xFFFF)")
     g.addoption("--mcp-timeout", metavar="S", help="deadline for the whole run (default 600)")
     g.addoption("--mcp-seed", metavar="N", help="seed of the malformed corpus")
+    g.addoption("--mcp-exclude", metavar="PREFIX", action="append", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX (repeatable)")
+    g.addoption("--mcp-baseline", metavar="FILE", help="expected failures (YAML or JSON): listed failures are xfailed, listed passes xpassed")
+    g.addoption("--mcp-write-baseline", metavar="FILE", help="write this run's failures as a baseline")
+    g.addoption("--mcp-junit-family", metavar="xunit2|xunit1", default="xunit2", help="xunit2 (default): valid against the Jenkins junit-10 schema; xunit1: also properties in each testcase")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
 
@@ -232,7 +237,19 @@ def pytest_configure(config: pytest.Config) -> None:
         cfg.json_path = cfg.json_path and worker_path(cfg.json_path, worker)
         cfg.junit_path = cfg.junit_path and worker_path(cfg.junit_path, worker)
         cfg.capture = cfg.capture and worker_path(cfg.capture, worker)
-    config.stash[STATE_KEY] = McpState(config, cfg, frontend)
+    family = config.getoption("mcp_junit_family") or "xunit2"
+    if family not in ("xunit2", "xunit1"):
+        raise pytest.UsageError(f"{opt('junit_family')}: {family!r} is not one of xunit2, xunit1")
+    baseline = None
+    if config.getoption("mcp_baseline"):
+        try:
+            baseline = load_baseline(config.getoption("mcp_baseline"), opt("baseline"))
+        except BaselineError as exc:
+            raise pytest.UsageError(str(exc)) from None
+    state = config.stash[STATE_KEY] = McpState(config, cfg, frontend)
+    state.baseline, state.junit_family = baseline, family
+    state.write_baseline_path = config.getoption("mcp_write_baseline")
+    state.exclude = list(config.getoption("mcp_exclude") or [])
 
 
 def _xdist_controller(config: pytest.Config) -> bool:
@@ -271,6 +288,10 @@ class McpState:
         self.active = False
         self.list_mode = bool(config.getoption("mcp_list"))
         self.select: list[str] = list(config.getoption("mcp_select") or [])
+        self.exclude: list[str] = []
+        self.baseline: Baseline | None = None
+        self.junit_family = "xunit2"
+        self.write_baseline_path: str | None = None
         self.run = RunRecord(role=cfg.role, target=self._target_guess(), parameters=cfg.parameters(),
                              seed=cfg.seed, strict=cfg.strict)
         self.session: Any = None
@@ -465,12 +486,17 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     drop: list[pytest.Item] = []
     for item in items:
         m = state.meta.get(item.nodeid)
-        (keep if m is None or matches_select(state.select, m[0], m[1]) else drop).append(item)
+        wanted = m is None or (matches_select(state.select, m[0], m[1])
+                               and not (state.exclude and matches_select(state.exclude, m[0], m[1])))
+        (keep if wanted else drop).append(item)
     if drop:
         config.hook.pytest_deselected(items=drop)
-    if state.select and not any(i.nodeid in state.meta for i in keep):
+    if (state.select or state.exclude) and not any(i.nodeid in state.meta for i in keep):
         opt = "--select" if state.frontend else "--mcp-select"
-        state.run.error = f"{opt}: no case matches {', '.join(state.select)}"
+        what = ", ".join(state.select) if state.select else "(all)"
+        if state.exclude:
+            what += f" once {', '.join(state.exclude)} are excluded"
+        state.run.error = f"{opt}: no case matches {what}"
     order = {p: n for n, p in enumerate(PHASES)}
     keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
     items[:] = keep
@@ -594,6 +620,28 @@ def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: B
                             f"in {tb.tb_frame.f_code.co_name}"]
 
 
+def _apply_baseline(state: McpState, rec: CaseRecord, rep: pytest.TestReport) -> None:
+    """An expected failure (``--baseline``) that failed or warned is ``xfailed``; one that
+    passed is ``xpassed`` (a failure under --strict), as pytest reports xfail / xpass."""
+    assert state.baseline is not None
+    if rec.outcome not in ("failed", "warned", "passed"):
+        return
+    entry = state.baseline.match(rec.id, rec.rules, rec.failed_rule if rec.outcome != "passed" else None)
+    if entry is None:
+        return
+    rec.baseline = entry.reason
+    if rec.outcome in ("failed", "warned"):
+        rec.outcome = "xfailed"
+        rep.outcome, rep.longrepr = "skipped", None
+        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
+    elif state.cfg.strict:
+        rec.outcome = "xpassed"
+        rep.outcome, rep.longrepr = "failed", f"[XPASS(strict)] {rec.id} is on the baseline ({entry.reason}) but passed"
+    else:
+        rec.outcome = "xpassed"
+        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, pytest.TestReport, pytest.TestReport]:
     rep = yield
@@ -616,6 +664,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
                 _judge_exception(state, item, rec, exc, rep)
         elif call.when == "call" and call.excinfo is None:
             rec.outcome = "info" if all(rule_level(r) == "INFO" for r in rec.rules) else "passed"
+        if call.when == "call" and state.baseline is not None:
+            _apply_baseline(state, rec, rep)
     elif call.when == "teardown":
         if rep.failed and rec.outcome not in ("error", "failed"):
             texc = call.excinfo.value if call.excinfo is not None else None
@@ -704,10 +754,16 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         if code == 0 and exitstatus == pytest.ExitCode.TESTS_FAILED:
             code = 1  # other (unmarked) tests of the run failed
     problems = []
-    for path, writer in ((state.cfg.json_path, write_json), (state.cfg.junit_path, write_junit)):
-        if path and not (writer is write_junit and state.list_mode):
+    writers: list[tuple[str | None, Callable[[str], Any]]] = [
+        (state.cfg.json_path, lambda p: write_json(p, run)),
+        (None if state.list_mode else state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
+        (None if state.list_mode or run.error else state.write_baseline_path,
+         lambda p: write_baseline(p, run.cases, run.target)),
+    ]
+    for path, write in writers:
+        if path:
             try:
-                writer(path, run)
+                write(path)
             except OSError as exc:
                 problems.append(str(exc))
     if problems:

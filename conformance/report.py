@@ -3,18 +3,28 @@
 Everything here works on :class:`CaseRecord` and :class:`RunRecord`, filled in by the
 plugin as cases finish; nothing here knows about pytest. The JSON report follows
 DESIGN.md ("The runner's contract") and is validated against ``report.schema.json``,
-shipped beside this module (draft 2020-12, ``schema_version`` "1.0").
+shipped beside this module (draft 2020-12, ``schema_version`` "1.1": 1.0 plus each case's
+``failed_rule``, ``evidence``, ``notes`` and ``baseline``, and the ``xfailed`` / ``xpassed``
+outcomes of an expected-failures baseline, ``conformance.baseline``).
 
 Per-rule outcomes: a ``CaseFailure`` contributes its outcome to the rule it names only; a
 pass contributes ``passed`` (``info`` for an INFO rule) to every rule of the case; a skip
 (and an error: the rule was not judged) contributes ``skipped``. They aggregate worst-first
-(failed > warned > passed > info > skipped); a rule no case touched is ``skipped``.
+(failed > warned > xfailed > passed = xpassed > info > skipped); a rule no case touched is
+``skipped``.
+
+JUnit (``junit_xml``) comes in two families, as pytest's: ``xunit2`` (default) is valid
+against the Jenkins xunit plugin's JUnit schema (junit-10), which allows no ``<properties>``
+inside a ``<testcase>``: each case's rule IDs, level and outcome are then testsuite
+properties named after the case; ``xunit1`` also puts them in each testcase, as pytest's
+``record_property`` does (Jenkins' JUnit plugin, GitLab and junitparser read both).
 """
 
 from __future__ import annotations
 
 import json
 import re
+import socket
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -45,12 +55,14 @@ __all__ = [
     "write_junit",
 ]
 
-SCHEMA_VERSION = "1.0"
-TOOL_NAME = "mcp-conform"
-OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error")
-RULE_RANK = {"failed": 4, "warned": 3, "passed": 2, "info": 1, "skipped": 0}
+SCHEMA_VERSION = "1.1"
+TOOL_NAME = "mcp-conform"  # the command's name, in reports
+DIST_NAME = "centmesh-mcp-conform"  # the distribution's name (mcp-conform is taken on PyPI)
+OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
+RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
-          "info": "cyan", "error": "bold magenta"}
+          "info": "cyan", "error": "bold magenta", "xfailed": "dim yellow", "xpassed": "bold yellow"}
+JUNIT_FAMILIES = ("xunit2", "xunit1")
 
 
 def tool_version() -> str:
@@ -59,7 +71,7 @@ def tool_version() -> str:
         from importlib.metadata import PackageNotFoundError, version
 
         try:
-            return version(TOOL_NAME)
+            return version(DIST_NAME)
         except PackageNotFoundError:
             pass
     except ImportError:  # pragma: no cover
@@ -89,6 +101,7 @@ class CaseRecord:
     failed_rule: str | None = None  # the rule a CaseFailure named
     evidence: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    baseline: str | None = None  # the baseline entry's reason, for xfailed / xpassed
 
     @property
     def group(self) -> str:
@@ -100,6 +113,8 @@ class CaseRecord:
             "reason": self.reason, "expected": self.expected, "actual": self.actual,
             "duration_s": round(max(self.duration_s, 0.0), 6),
             "capture": {"start_ns": self.start_ns, "end_ns": self.end_ns},
+            "failed_rule": self.failed_rule, "evidence": list(self.evidence),
+            "notes": list(self.notes), "baseline": self.baseline,
         }
 
 
@@ -115,6 +130,7 @@ class RunRecord:
     error: str | None = None
     cases: list[CaseRecord] = field(default_factory=list)
     started: float = field(default_factory=time.monotonic)
+    started_wall: float = field(default_factory=time.time)
     finished: float | None = None
 
     @property
@@ -129,11 +145,12 @@ class RunRecord:
         return out
 
     def exit_code(self) -> int:
-        """The contract: 2 usage/setup error, 1 a case failed or errored, else 0."""
+        """The contract: 2 usage/setup error, 1 a case failed or errored (or, under
+        --strict, a baseline's expected failure now passes), else 0."""
         if self.error is not None:
             return 2
         counts = self.counts()
-        return 1 if counts["failed"] or counts["error"] else 0
+        return 1 if counts["failed"] or counts["error"] or (self.strict and counts["xpassed"]) else 0
 
 
 # ---------------------------------------------------------------------- JSON
@@ -154,8 +171,11 @@ def rule_outcomes(cases: list[CaseRecord], role: str) -> dict[str, str]:
             result[rule] = outcome
 
     for c in cases:
-        if c.outcome in ("failed", "warned") or (c.outcome == "info" and c.failed_rule):
+        if c.outcome in ("failed", "warned", "xfailed") or (c.outcome == "info" and c.failed_rule):
             contribute(c.failed_rule or (c.rules[0] if c.rules else "?"), c.outcome)
+        elif c.outcome == "xpassed":
+            for r in c.rules:
+                contribute(r, "xpassed")
         elif c.outcome in ("passed", "info"):
             for r in c.rules:
                 rule = SPEC.rules_by_id.get(r)
@@ -255,43 +275,104 @@ def _finding(c: CaseRecord) -> str:
     return "\n".join(lines)
 
 
-def junit_xml(run: RunRecord) -> str:
-    """JUnit XML: failed -> <failure>, error -> <error>, skipped -> <skipped message=reason>,
-    warned and info pass with the finding in <system-out>."""
+def _iso(wall: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(wall))
+
+
+def _case_properties(c: CaseRecord) -> list[tuple[str, str]]:
+    props = [("rule", r) for r in c.rules]
+    props += [("level", c.level), ("outcome", c.outcome)]
+    if c.failed_rule:
+        props.append(("failed_rule", c.failed_rule))
+    if c.baseline:
+        props.append(("baseline", c.baseline))
+    return props
+
+
+def _run_error_case(run: RunRecord) -> tuple[str, str]:
+    """The name of the testcase that carries a run's error, and its type."""
+    if run.error and run.error.startswith("interrupted"):
+        return "run interrupted", "interrupted"
+    if run.error and run.error.startswith("run deadline"):
+        return "run deadline", "deadline"
+    return ("setup" if not run.cases else "run"), "setup-error" if not run.cases else "run-error"
+
+
+def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
+    """JUnit XML that CI systems show truthfully.
+
+    failed -> ``<failure type=RULE>``; error -> ``<error>``; skipped -> ``<skipped>`` with
+    the reason; warned passes (a failure under --strict, where it is already ``failed``)
+    but its name ends in `` [warned]`` and the finding is in ``<system-out>``; info passes
+    with the finding in ``<system-out>``; xfailed (a baseline's expected failure) is
+    ``<skipped type="xfailed">``, like pytest's xfail; xpassed passes with `` [xpassed]``,
+    or fails under --strict. A setup error or an interrupted run is an ``<error>``
+    testcase of its own, so no CI shows "no tests" or green for it.
+    """
+    if family not in JUNIT_FAMILIES:
+        raise ValueError(f"unknown JUnit family {family!r}")
     counts = run.counts()
+    failures = counts["failed"] + (counts["xpassed"] if run.strict else 0)
+    errors = counts["error"] + (1 if run.error is not None else 0)
     suite = ET.Element("testsuite", {
-        "name": TOOL_NAME, "tests": str(len(run.cases)), "failures": str(counts["failed"]),
-        "errors": str(counts["error"]), "skipped": str(counts["skipped"]),
-        "time": f"{run.duration_s:.3f}",
+        "name": TOOL_NAME, "tests": str(len(run.cases) + (1 if run.error is not None else 0)),
+        "failures": str(failures), "errors": str(errors),
+        "skipped": str(counts["skipped"] + counts["xfailed"]),
+        "time": f"{run.duration_s:.3f}", "timestamp": _iso(run.started_wall),
+        "hostname": socket.gethostname(),
     })
     props = ET.SubElement(suite, "properties")
+
+    def prop(parent: ET.Element, key: str, value: Any) -> None:
+        ET.SubElement(parent, "property", {"name": key, "value": "" if value is None else str(value)})
+
     for key, value in (("target", run.target), ("role", run.role), ("seed", run.seed),
                        ("spec_version", SPEC.version), ("strict", run.strict)):
-        ET.SubElement(props, "property", {"name": key, "value": "" if value is None else str(value)})
+        prop(props, key, value)
     if run.error is not None:
-        ET.SubElement(props, "property", {"name": "error", "value": run.error})
+        prop(props, "error", run.error)
+    if family == "xunit2":  # junit-10 has no testcase properties: name them after the case
+        for c in run.cases:
+            for key, value in _case_properties(c):
+                prop(props, f"{c.id}.{key}", value)
+    if run.error is not None:
+        name, kind = _run_error_case(run)
+        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.run", "name": name, "time": "0.000"})
+        ET.SubElement(tc, "error", {"message": run.error, "type": kind}).text = run.error
     for c in run.cases:
-        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.{c.group}", "name": c.id,
+        name = c.id + (f" [{c.outcome}]" if c.outcome in ("warned", "xpassed") else "")
+        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.{c.group}", "name": name,
                                                "time": f"{c.duration_s:.3f}"})
+        if family == "xunit1":
+            tprops = ET.SubElement(tc, "properties")
+            for key, value in _case_properties(c):
+                prop(tprops, key, value)
         finding = _finding(c)
         message = (c.reason or "").splitlines()[0] if c.reason else c.outcome
-        if c.outcome == "failed":
-            ET.SubElement(tc, "failure", {"message": message, "type": c.failed_rule or "failure"}).text = finding
+        if c.outcome == "failed" or (c.outcome == "xpassed" and run.strict):
+            if c.outcome == "xpassed":
+                message = f"expected to fail ({c.baseline}) but passed: take it off the baseline"
+            ET.SubElement(tc, "failure", {"message": message, "type": c.failed_rule or c.outcome}).text = finding
         elif c.outcome == "error":
             ET.SubElement(tc, "error", {"message": message, "type": "error"}).text = finding
         elif c.outcome == "skipped":
             ET.SubElement(tc, "skipped", {"message": c.reason or "skipped"})
-        elif finding:  # warned, info, or a pass with notes
-            ET.SubElement(tc, "system-out").text = f"{c.outcome.upper()}: {finding}"
-    root = ET.Element("testsuites")
+        elif c.outcome == "xfailed":
+            ET.SubElement(tc, "skipped", {"message": f"xfailed: {c.baseline}", "type": "xfailed"}).text = finding
+        elif finding or c.outcome == "xpassed":
+            extra = f" (baseline: {c.baseline})" if c.outcome == "xpassed" else ""
+            ET.SubElement(tc, "system-out").text = f"{c.outcome.upper()}{extra}: {finding}"
+    root = ET.Element("testsuites", {"name": TOOL_NAME, "tests": suite.get("tests", "0"),
+                                     "failures": str(failures), "errors": str(errors),
+                                     "time": f"{run.duration_s:.3f}"})
     root.append(suite)
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
-def write_junit(path: str | Path, run: RunRecord) -> None:
+def write_junit(path: str | Path, run: RunRecord, family: str = "xunit2") -> None:
     try:
-        Path(path).write_text(junit_xml(run), encoding="utf-8")
+        Path(path).write_text(junit_xml(run, family), encoding="utf-8")
     except OSError as exc:
         raise OSError(f"--junit: cannot write {str(path)!r}: {exc.strerror}") from None
 
@@ -341,6 +422,9 @@ class TerminalReport:
             notes = c.notes
         for n in notes:
             self._detail(f"note: {n}")
+        if c.baseline:
+            self._detail(f"baseline: {c.baseline}" + ("  (now passes: take it off the baseline)"
+                                                      if c.outcome == "xpassed" else ""))
 
     def _detail(self, text: str) -> None:
         self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
@@ -374,7 +458,8 @@ class TerminalReport:
                 self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
                                  f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
         counts = run.counts()
-        parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES]
+        parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
+                 if counts[k] or k not in ("xfailed", "xpassed")]
         line = Text(", ").join(parts)
         self._print(line, soft_wrap=True)
         if run.error is not None:

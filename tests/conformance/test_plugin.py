@@ -303,8 +303,10 @@ def test_junit_report(pytester):
     run(pytester, "--mcp-junit", "junit.xml")
     suite = ET.parse(pytester.path / "junit.xml").getroot().find("testsuite")
     assert suite is not None
-    cases = {tc.get("name"): tc for tc in suite.iter("testcase")}
+    cases = {tc.get("name").removesuffix(" [warned]"): tc for tc in suite.iter("testcase")}
     assert set(cases) == set(ALL_IDS)
+    assert [tc.get("name") for tc in suite.iter("testcase") if tc.get("name").endswith(" [warned]")] == [
+        "ACK/test_should_fails [warned]"]  # a SHOULD failure is visible in every CI UI
     assert cases["ACK/test_must_fails"].find("failure") is not None
     assert cases["ROB/test_crash"].find("error") is not None
     assert cases["BLK/test_inconclusive"].find("skipped").get("message") == "MCP-BLK-2 binds the manager"

@@ -80,14 +80,17 @@ def test_json_follows_the_design_and_the_schema():
     validate_json(doc)
     assert list(doc) == ["schema_version", "tool", "spec", "target", "role", "parameters", "seed",
                          "error", "cases", "rules", "summary"]
-    assert doc["schema_version"] == "1.0" and doc["tool"]["name"] == "mcp-conform"
+    assert doc["schema_version"] == "1.1" and doc["tool"]["name"] == "mcp-conform"
     assert doc["spec"] == {"version": SPEC.version, "sha256": SPEC.sha256}
     assert doc["summary"] == {"passed": 1, "failed": 1, "warned": 1, "skipped": 1, "info": 1,
-                              "error": 1, "duration_s": 1.25}
+                              "error": 1, "xfailed": 0, "xpassed": 0, "duration_s": 1.25}
     first = doc["cases"][0]
     assert first["capture"] == {"start_ns": 10, "end_ns": 20} and first["duration_s"] == 0.5
-    assert set(first) == {"id", "rules", "level", "outcome", "reason", "expected", "actual",
-                          "duration_s", "capture"}
+    assert set(first) >= {"id", "rules", "level", "outcome", "reason", "expected", "actual",
+                          "duration_s", "capture", "failed_rule", "evidence", "notes", "baseline"}
+    failed = doc["cases"][1]  # schema 1.1: the evidence and the failed rule the terminal shows
+    assert failed["failed_rule"] == "MCP-ACK-4" and failed["evidence"] == ["seq 3"]
+    assert doc["cases"][4]["notes"] == ["initial seq 5"]
 
 
 def test_schema_rejects_what_the_design_does_not_allow():
@@ -127,7 +130,8 @@ def test_junit_mapping():
     suite = root.find("testsuite")
     assert suite is not None
     assert (suite.get("tests"), suite.get("failures"), suite.get("errors"), suite.get("skipped")) == ("6", "1", "1", "1")
-    cases = {tc.get("name"): tc for tc in suite.iter("testcase")}
+    assert suite.get("timestamp") and suite.get("hostname")
+    cases = {tc.get("name").removesuffix(" [warned]"): tc for tc in suite.iter("testcase")}
     assert cases["ACK/test_a"].get("classname") == "mcp-conform.ACK"
     assert list(cases["ACK/test_a"]) == []
     failure = cases["ACK/test_b"].find("failure")
