@@ -1,1 +1,2 @@
-"""captures: reserved package of mcp-conform (see DESIGN.md); not implemented yet."""
+"""captures: MCAP recording of runs (``captures.recorder``), one reader for MCAP, pcap and
+pcapng captures (``captures.reader``), and the ``mcp-capture`` tool (``captures.cli``)."""

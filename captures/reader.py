@@ -1,0 +1,586 @@
+"""One reader for every capture ``mcp-capture`` takes: our MCAP files, pcap and pcapng.
+
+``open_capture(path)`` returns a :class:`Capture`; iterating it yields, in file order, one
+stream of typed records:
+
+- :class:`Datagram` — one UDP datagram that is (or may be) MCP: ``index`` (0, 1, 2, ... over
+  the datagrams of the capture, the index the monitor's evidence uses), ``t_ns``, ``src_addr``
+  and ``dst_addr`` (``(host, port)`` or ``None`` where the capture does not say), ``data``,
+  ``direction`` (``"tx"`` sent by the recording host, ``"rx"`` received by it, ``None``
+  unknown) and ``recorder`` (the MCAP writer's library, the pcapng interface name, or None);
+- :class:`MavlinkFrame` — a frame on the autopilot link (our MCAP ``/mavlink``);
+- :class:`CaseMark` — a conformance case's start or end (``/conformance/case``);
+- :class:`Metadata` — an MCAP metadata record (tool and spec versions, target, seed);
+- :class:`Truncated` — last, and only when the file ends early (a run killed by SIGKILL, a
+  full disk, a copy cut short) or holds garbage after its last whole record: the records
+  before it are all there is. ``Capture.truncated`` holds the same reason after iteration.
+
+Formats:
+
+- MCAP as ``captures.recorder`` writes it, read sequentially with ``mcap``'s StreamReader
+  (CRCs validated), so a file without its summary and footer is read up to its last whole
+  chunk.
+- pcap (micro- and nanosecond, either byte order, gzip'd too) and pcapng, through scapy's
+  raw readers (bytes and metadata, no dissection). Link types: Ethernet (802.1Q tags too),
+  Linux cooked SLL and SLL2, raw IP, BSD loopback (null) and OpenBSD loop. IPv4 UDP only;
+  IP fragments are reassembled (``Capture.notes`` says how many, and how many stayed
+  incomplete). A datagram is MCP when it starts with the spec's 9-byte preamble, on any
+  port; a datagram without it is kept too (for MCP-ROB-*) when it goes to or comes from an
+  address that has carried MCP, or to one of the spec's conventional ports (MCP-TRN-1).
+  Datagrams cut by the capture's snap length are dropped and counted.
+
+Unreadable input raises :class:`CaptureError` with a one-line reason naming the file.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import logging
+import socket
+import struct
+import zlib
+from binascii import a2b_base64
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any, NamedTuple
+
+from scapy.error import Scapy_Exception
+from scapy.utils import RawPcapNgReader, RawPcapReader
+
+from spec import SPEC
+from spec.codec import PREAMBLE
+
+__all__ = [
+    "Capture",
+    "CaptureError",
+    "CaseMark",
+    "Datagram",
+    "MavlinkFrame",
+    "Metadata",
+    "Record",
+    "Truncated",
+    "open_capture",
+]
+
+
+class Datagram(NamedTuple):
+    index: int
+    t_ns: int
+    src_addr: tuple[str, int] | None
+    dst_addr: tuple[str, int] | None
+    data: bytes
+    direction: str | None = None  # "tx" | "rx" | None, seen from the recording host
+    recorder: str | None = None
+
+
+class MavlinkFrame(NamedTuple):
+    index: int  # 0, 1, 2, ... over the capture's MAVLink frames
+    t_ns: int
+    direction: str | None  # as recorded: "rx" = received by the vehicle
+    msg_type: str | None
+    data: bytes
+
+
+class CaseMark(NamedTuple):
+    t_ns: int
+    case: str
+    event: str  # "start" | "end"
+    outcome: str | None
+    rules: tuple[str, ...]
+
+
+class Metadata(NamedTuple):
+    name: str
+    data: dict[str, str]
+
+
+class Truncated(NamedTuple):
+    reason: str
+
+
+Record = Datagram | MavlinkFrame | CaseMark | Metadata | Truncated
+
+
+class CaptureError(Exception):
+    """The file cannot be read as a capture (one line, names the file)."""
+
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+_PCAP_MAGICS = {b"\xa1\xb2\xc3\xd4", b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\x3c\x4d", b"\x4d\x3c\xb2\xa1"}
+_GZIP_MAGIC = b"\x1f\x8b"
+MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
+_MAX_RECORD = 1 << 20  # scapy's per-read cap on a packet record: bigger than any IP datagram
+
+
+def open_capture(path: str | Path) -> Capture:
+    """Open ``path`` (MCAP, pcap or pcapng); raises :class:`CaptureError`."""
+    return Capture(path)
+
+
+class Capture:
+    """An opened capture; iterate it once for its records (see the module docstring).
+
+    After iteration: ``truncated`` (the reason, or None), ``notes`` (what was skipped or
+    reassembled, one line each), ``counts`` (records by kind and skips by reason).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.truncated: str | None = None
+        self.counts: Counter[str] = Counter()
+        self.linktypes: set[int] = set()
+        self._fragments_open = 0
+        name = str(self.path)
+        try:
+            with open(self.path, "rb") as f:
+                head = f.read(8)
+        except OSError as exc:
+            raise CaptureError(f"{name}: cannot read: {exc.strerror or exc}") from None
+        if not head:
+            raise CaptureError(f"{name}: empty file, not a capture")
+        if head.startswith(_GZIP_MAGIC):
+            try:
+                with gzip.open(self.path, "rb") as g:
+                    inner = g.read(4)
+            except (OSError, EOFError, zlib.error) as exc:
+                raise CaptureError(f"{name}: broken gzip stream: {exc}") from None
+            kind = "pcapng" if inner == _PCAPNG_MAGIC else "pcap" if inner in _PCAP_MAGICS else None
+            if kind is None:
+                raise CaptureError(f"{name}: gzip'd file is not a pcap or pcapng capture")
+            self.format = kind + ".gz"
+        elif head == _MCAP_MAGIC:
+            self.format = "mcap"
+        elif _MCAP_MAGIC.startswith(head) and len(head) < 8:
+            raise CaptureError(f"{name}: MCAP file cut inside its magic ({len(head)} bytes)")
+        elif head[:4] == _PCAPNG_MAGIC:
+            self.format = "pcapng"
+        elif head[:4] in _PCAP_MAGICS:
+            self.format = "pcap"
+        else:
+            raise CaptureError(f"{name}: not a capture (starts {head[:4].hex(' ')}); "
+                               "mcp-capture reads MCAP, pcap and pcapng")
+        self._reader: Any = None
+        if self.format != "mcap":
+            self._reader = self._open_packets()
+
+    # ------------------------------------------------------------------ public
+    @property
+    def notes(self) -> list[str]:
+        c = self.counts
+        out = []
+        if c["fragments_reassembled"]:
+            out.append(f"{c['fragments_reassembled']} IP-fragmented datagram(s) reassembled")
+        if self._fragments_open:
+            out.append(f"{self._fragments_open} IP-fragmented datagram(s) incomplete at the end "
+                       "of the capture, dropped")
+        for key, text in (("snaplen_cut", "UDP datagram(s) cut by the snap length, dropped"),
+                          ("fragments_evicted", "IP fragment group(s) never completed, dropped"),
+                          ("ipv6", "IPv6 packet(s) skipped (MCP travels on IPv4)"),
+                          ("not_udp", "non-UDP or non-IP packet(s) skipped"),
+                          ("udp_other", "UDP datagram(s) of other protocols skipped"),
+                          ("bad_ip", "malformed IP/UDP header(s) skipped"),
+                          ("trailing_bytes", "byte(s) after the MCAP footer ignored"),
+                          ("mcap_bad_message", "MCAP message(s) not readable as our records, skipped"),
+                          ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)")):
+            if c[key]:
+                out.append(f"{c[key]} {text}")
+        for lt in sorted(self.linktypes - set(_LINKS)):
+            out.append(f"link type {lt} is not one mcp-capture reads; its packets were skipped")
+        return out
+
+    def __iter__(self) -> Iterator[Record]:
+        logger = logging.getLogger("scapy.runtime")
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # scapy warns on the truncation we report ourselves
+        try:
+            if self.format == "mcap":
+                yield from self._mcap()
+            else:
+                yield from self._packets()
+        finally:
+            logger.setLevel(level)
+            if self._reader is not None:
+                self._reader.close()
+        if self.truncated is not None:
+            yield Truncated(self.truncated)
+
+    def datagrams(self) -> Iterator[Datagram]:
+        """Only the datagrams."""
+        for rec in self:
+            if type(rec) is Datagram:
+                yield rec
+
+    # ------------------------------------------------------------------ MCAP
+    def _mcap(self) -> Iterator[Record]:
+        from mcap.records import Channel, Header, Message
+        from mcap.records import Metadata as McapMetadata
+        from mcap.stream_reader import StreamReader
+
+        size = self.path.stat().st_size
+        topics: dict[int, str] = {}
+        library: str | None = None
+        n_dgram = n_mav = 0
+        b64 = a2b_base64
+        loads = json.loads
+        with open(self.path, "rb") as f:
+            reader = StreamReader(f, validate_crcs=True, record_size_limit=max(size, 64))
+            records = reader.records
+            while True:
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    rest = size - f.tell()
+                    if rest > 0:
+                        self.counts["trailing_bytes"] += rest
+                    break
+                except Exception as exc:  # noqa: BLE001 - any failure past the magic is a cut or corrupt tail
+                    self.truncated = _mcap_reason(exc, f.tell(), size)
+                    break
+                kind = type(rec)
+                if kind is Message:
+                    topic = topics.get(rec.channel_id)
+                    try:
+                        body = loads(rec.data)
+                        if topic == "/mcp/tx" or topic == "/mcp/rx":
+                            peer = _parse_peer(body.get("peer"))
+                            tx = topic == "/mcp/tx"
+                            yield Datagram(n_dgram, rec.log_time, None if tx else peer, peer if tx else None,
+                                           b64(body["raw_base64"]), "tx" if tx else "rx", library)
+                            n_dgram += 1
+                        elif topic == "/mavlink":
+                            yield MavlinkFrame(n_mav, rec.log_time, body.get("direction"),
+                                               body.get("msg_type"), b64(body["raw_base64"]))
+                            n_mav += 1
+                        elif topic == "/conformance/case":
+                            yield CaseMark(rec.log_time, str(body["case"]), str(body["event"]),
+                                           body.get("outcome"), tuple(body.get("rules") or ()))
+                        else:
+                            self.counts["mcap_other_topic"] += 1
+                            continue
+                    except (ValueError, KeyError, TypeError, AttributeError):
+                        self.counts["mcap_bad_message"] += 1
+                        continue
+                elif kind is Channel:
+                    topics[rec.id] = rec.topic
+                elif kind is Header:
+                    library = rec.library or None
+                elif kind is McapMetadata:
+                    yield Metadata(rec.name, dict(rec.metadata))
+
+    # ------------------------------------------------------------------ pcap / pcapng
+    def _open_packets(self) -> Any:
+        name = str(self.path)
+        try:
+            fd: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
+            if self.format.endswith(".gz"):
+                fd = gzip.GzipFile(fileobj=fd)  # type: ignore[assignment]
+            magic = fd.read(4)
+            cls = _NgReader if magic == _PCAPNG_MAGIC else _PcapReader
+            reader = object.__new__(cls)
+            reader.__init__(name, fd, magic)
+        except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
+            raise CaptureError(f"{name}: {self.format} file header unreadable "
+                               f"(cut short or corrupt): {exc}") from None
+        return reader
+
+    def _packets(self) -> Iterator[Datagram]:
+        reader = self._reader
+        ng = isinstance(reader, _NgReader)
+        recorder: str | None = None
+        read = reader._read_packet
+        counts = self.counts
+        links = _LINKS
+        pcap_link = None if ng else reader.linktype
+        nano = 1 if getattr(reader, "nano", False) else 1000
+        frag = _Reassembly(counts)
+        known: set[tuple[str, int]] = set()
+        mcp_ports = MCP_PORTS
+        preamble = PREAMBLE
+        pre_len = len(preamble)
+        index = 0
+        offset = 24  # pcap: where the next record starts
+        n_packet = 0
+        while True:
+            try:
+                data, meta = read(_MAX_RECORD)
+            except EOFError:
+                self.truncated = reader.cut_reason(offset)
+                break
+            except (OSError, struct.error, zlib.error, Scapy_Exception, ValueError) as exc:
+                self.truncated = f"corrupt record after packet {n_packet}: {exc}"
+                break
+            n_packet += 1
+            if ng:
+                linktype = meta.linktype
+                ts = (meta.tshigh << 32 | meta.tslow) if meta.tshigh is not None else 0
+                tsresol = meta.tsresol
+                t_ns = ts * (1_000_000_000 // tsresol) if 1_000_000_000 % tsresol == 0 \
+                    else ts * 1_000_000_000 // tsresol
+                recorder = meta.ifname.decode("utf-8", "replace") if meta.ifname else None
+                direction = _EPB_DIRECTION.get(meta.direction)
+            else:
+                caplen = meta.caplen
+                if len(data) < caplen:
+                    self.truncated = (f"record {n_packet} at byte {offset} is cut short or garbage "
+                                      f"(caplen {caplen}, {len(data)} bytes present)")
+                    break
+                offset += 16 + caplen
+                linktype = pcap_link
+                t_ns = meta.sec * 1_000_000_000 + meta.usec * nano
+                direction = None
+            parse = links.get(linktype)
+            if parse is None:
+                self.linktypes.add(linktype)
+                counts["not_udp"] += 1
+                continue
+            self.linktypes.add(linktype)
+            got = parse(data, counts)
+            if got is None:
+                continue
+            if got[0] is _FRAGMENT:
+                got = frag.add(got[1], got[2], t_ns)
+                if got is None:
+                    continue
+            src, dst, payload, link_dir = got
+            if link_dir is not None:
+                direction = link_dir
+            if payload[:pre_len] == preamble:
+                known.add(src)
+                known.add(dst)
+            elif not (src in known or dst in known or dst[1] in mcp_ports):
+                counts["udp_other"] += 1
+                continue
+            yield Datagram(index, t_ns, src, dst, payload, direction, recorder)
+            index += 1
+        self._fragments_open = frag.open_groups()
+
+
+def _mcap_reason(exc: Exception, pos: int, size: int) -> str:
+    from mcap.exceptions import EndOfFile
+
+    if isinstance(exc, EndOfFile) or pos >= size:
+        return f"file ends inside a record at byte {size} (no summary/footer): read up to the last whole chunk"
+    return f"corrupt record near byte {pos} of {size}: {type(exc).__name__}: {exc}"
+
+
+def _parse_peer(peer: Any) -> tuple[str, int] | None:
+    if not isinstance(peer, str) or ":" not in peer:
+        return None
+    host, _, port = peer.rpartition(":")
+    try:
+        return (host.strip("[]"), int(port))
+    except ValueError:
+        return None
+
+
+# ---------------------------------------------------------------- scapy's raw readers
+class _PcapReader(RawPcapReader):
+    def cut_reason(self, offset: int) -> str | None:
+        pos = self.f.tell()
+        if pos > offset:
+            return f"{pos - offset} byte(s) after the last whole record (at byte {offset}): cut short or garbage"
+        return None
+
+
+class _NgReader(RawPcapNgReader):
+    _good_end = 0
+
+    def _read_block(self, size: int = _MAX_RECORD) -> Any:
+        res = super()._read_block(size)
+        self._good_end = self.f.tell()
+        return res
+
+    def cut_reason(self, offset: int) -> str | None:
+        pos = self.f.tell()
+        if pos > self._good_end:
+            return (f"{pos - self._good_end} byte(s) after the last whole block "
+                    f"(at byte {self._good_end}): cut short or garbage")
+        return None
+
+
+# ---------------------------------------------------------------- link, IP and UDP headers
+# This is the hot path of `mcp-capture check` on a big pcap (1,000,000 datagrams end to end):
+# precompiled struct unpacking of the few header fields we need runs at about a million
+# packets a second, where dissecting each packet with scapy (Ether()/IP()/UDP()) manages
+# ~15k/s (DESIGN.md). scapy stays the file-format reader (RawPcap*Reader, bytes only).
+_ETHERTYPE_AT = struct.Struct("!H").unpack_from
+_IP4 = struct.Struct("!BxHHHxBxx4s4s")  # ver_ihl, total_len, id, flags_frag, proto, src, dst
+_ip4 = _IP4.unpack_from
+_UDP = struct.Struct("!HHH")  # sport, dport, length
+_udp = _UDP.unpack_from
+_NULL_INET = (b"\x02\x00\x00\x00", b"\x00\x00\x00\x02")
+_ETH_IPV4, _ETH_IPV6, _ETH_VLAN = 0x0800, 0x86DD, (0x8100, 0x88A8, 0x9100)
+_ARPHRD_LOOPBACK = 772
+_SLL_DIRECTION = {0: "rx", 1: "rx", 2: "rx", 3: "rx", 4: "tx"}
+_EPB_DIRECTION = {1: "rx", 2: "tx"}
+_FRAGMENT = object()
+_ADDR: dict[bytes, str] = {}
+
+
+def _host(raw: bytes) -> str:
+    host = _ADDR.get(raw)
+    if host is None:
+        host = _ADDR[raw] = socket.inet_ntoa(raw)
+    return host
+
+
+def _ipv4(data: bytes, off: int, counts: Counter[str], link_dir: str | None) -> Any:
+    """(src, dst, payload, direction) of a UDP datagram in the IPv4 packet at ``off``."""
+    try:
+        ver_ihl, total, ident, frag, proto, src, dst = _ip4(data, off)
+    except struct.error:
+        counts["bad_ip"] += 1
+        return None
+    if ver_ihl >> 4 != 4:
+        if ver_ihl >> 4 == 6:
+            counts["ipv6"] += 1
+        else:
+            counts["bad_ip"] += 1
+        return None
+    if proto != 17:
+        counts["not_udp"] += 1
+        return None
+    ihl = (ver_ihl & 15) * 4
+    end = off + total  # the IP length, not the frame's: Ethernet pads short frames
+    if ihl < 20 or total < ihl:
+        counts["bad_ip"] += 1
+        return None
+    if end > len(data):
+        counts["snaplen_cut"] += 1
+        return None
+    if frag & 0x3FFF:  # more fragments, or a non-zero offset
+        return (_FRAGMENT, (src, dst, ident, link_dir), (frag & 0x1FFF, frag & 0x2000, data[off + ihl:end]))
+    return _udp_of(data, off + ihl, end, src, dst, counts, link_dir)
+
+
+def _udp_of(data: bytes, u: int, end: int, src: bytes, dst: bytes, counts: Counter[str],
+            link_dir: str | None) -> Any:
+    try:
+        sport, dport, ulen = _udp(data, u)
+    except struct.error:
+        counts["bad_ip"] += 1
+        return None
+    if ulen < 8 or u + ulen > end:
+        counts["bad_ip"] += 1
+        return None
+    return (_host(src), sport), (_host(dst), dport), data[u + 8:u + ulen], link_dir
+
+
+def _ether(data: bytes, counts: Counter[str]) -> Any:
+    try:
+        etype = _ETHERTYPE_AT(data, 12)[0]
+        off = 14
+        while etype in _ETH_VLAN:
+            etype = _ETHERTYPE_AT(data, off + 2)[0]
+            off += 4
+    except struct.error:
+        counts["not_udp"] += 1
+        return None
+    if etype != _ETH_IPV4:
+        counts["ipv6" if etype == _ETH_IPV6 else "not_udp"] += 1
+        return None
+    return _ipv4(data, off, counts, None)
+
+
+def _cooked(layout: str, ip_off: int, sll1: bool) -> Any:
+    """A parser for a Linux cooked header: ``layout`` unpacks (pkttype, hatype, protocol) for
+    SLL, (protocol, hatype, pkttype) for SLL2."""
+    unpack = struct.Struct(layout).unpack_from
+
+    def parse(data: bytes, counts: Counter[str]) -> Any:
+        try:
+            etype, hatype, pkttype = unpack(data, 0)
+        except struct.error:
+            counts["not_udp"] += 1
+            return None
+        if sll1:
+            etype, pkttype = pkttype, etype
+        if etype != _ETH_IPV4:
+            counts["ipv6" if etype == _ETH_IPV6 else "not_udp"] += 1
+            return None
+        if hatype == _ARPHRD_LOOPBACK:
+            if pkttype == 4:  # on "any", some kernels show a loopback packet going out, then in
+                counts["loopback_copy"] += 1
+                return None
+            return _ipv4(data, ip_off, counts, None)
+        return _ipv4(data, ip_off, counts, _SLL_DIRECTION.get(pkttype))
+
+    return parse
+
+
+# SLL: pkttype u16, hatype u16, addr len, 8-byte addr, protocol u16 (16 bytes); SLL2:
+# protocol u16, reserved, ifindex u32, hatype u16, pkttype u8, addr len, 8-byte addr (20).
+_sll = _cooked("!HH10xH", 16, sll1=True)
+_sll2 = _cooked("!H6xHB", 20, sll1=False)
+
+
+def _raw_ip(data: bytes, counts: Counter[str]) -> Any:
+    return _ipv4(data, 0, counts, None)
+
+
+def _null(data: bytes, counts: Counter[str]) -> Any:
+    family = data[:4]
+    if family not in _NULL_INET:  # host byte order of the machine that wrote it
+        counts["not_udp"] += 1
+        return None
+    return _ipv4(data, 4, counts, None)
+
+
+#: link type -> header parser (LINKTYPE_* numbers of pcap/pcapng)
+_LINKS = {
+    1: _ether,      # ETHERNET (tcpdump -i lo on Linux too)
+    113: _sll,      # LINUX_SLL (tcpdump -i any, libpcap < 1.10)
+    276: _sll2,     # LINUX_SLL2 (tcpdump -i any, libpcap >= 1.10)
+    101: _raw_ip,   # RAW
+    228: _raw_ip,   # IPV4
+    12: _raw_ip,    # DLT_RAW as some BSDs write it in pcap headers
+    14: _raw_ip,    # DLT_RAW (OpenBSD)
+    0: _null,       # NULL (BSD loopback)
+    108: _null,     # LOOP (OpenBSD loopback; family in network order)
+}
+
+
+class _Reassembly:
+    """IPv4 fragments of UDP datagrams, by (src, dst, id); bounded, oldest groups evicted."""
+
+    LIMIT = 4096
+
+    def __init__(self, counts: Counter[str]) -> None:
+        self.groups: dict[tuple[Any, ...], list[Any]] = {}
+        self.counts = counts
+
+    def add(self, key: tuple[Any, ...], piece: tuple[int, int, bytes], t_ns: int) -> Any:
+        units, more, body = piece
+        group = self.groups.get(key)
+        if group is None:
+            if len(self.groups) >= self.LIMIT:
+                self.groups.pop(next(iter(self.groups)))
+                self.counts["fragments_evicted"] += 1
+            group = self.groups[key] = [None, {}]  # [total length or None, {offset: bytes}]
+        group[1][units * 8] = body
+        if not more:
+            group[0] = units * 8 + len(body)
+        total = group[0]
+        if total is None:
+            return None
+        have = 0
+        for off in sorted(group[1]):
+            if off > have:
+                return None
+            have = max(have, off + len(group[1][off]))
+        if have < total:
+            return None
+        del self.groups[key]
+        whole = bytearray(total)
+        for off in sorted(group[1]):
+            chunk = group[1][off]
+            whole[off:off + len(chunk)] = chunk
+        self.counts["fragments_reassembled"] += 1
+        src, dst, _ident, link_dir = key
+        return _udp_of(bytes(whole), 0, total, src, dst, self.counts, link_dir)
+
+    def open_groups(self) -> int:
+        return len(self.groups)
