@@ -67,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
     p.add_argument("--timeout", metavar="S", help="deadline for the whole run (default 600)")
+    p.add_argument("--case-timeout", metavar="S", help="time limit of one case (default: from --rto and --ack-window)")
     p.add_argument("--seed", metavar="N", help="seed of the malformed corpus (default: fixed)")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
@@ -87,7 +88,8 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
     return {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id, "role": ns.role,
             "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
-            "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit}
+            "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
+            "case_timeout": ns.case_timeout}
 
 
 def _check_writable(path: str | None, option: str) -> None:
@@ -143,7 +145,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     args += ["--mcp-frontend", "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
-                 "junit_family"):
+                 "junit_family", "case_timeout"):
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")

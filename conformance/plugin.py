@@ -28,6 +28,7 @@ import atexit
 import contextlib
 import glob
 import json
+import os
 import signal
 import sys
 import threading
@@ -137,6 +138,8 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         cfg.broadcast_id = _int(v["broadcast_id"], opt("broadcast_id"), 0, 0xFFFF)
     if "timeout" in v:
         cfg.timeout = _float(v["timeout"], opt("timeout"))
+    if "case_timeout" in v:
+        cfg.case_timeout = _float(v["case_timeout"], opt("case_timeout"))
     cfg.seed = _int(v["seed"], opt("seed"), 0, 2**63 - 1) if "seed" in v else DEFAULT_SEED
     cfg.capture = v.get("capture")
     cfg.json_path = v.get("json")
@@ -196,6 +199,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     g.addoption("--mcp-broadcast-id", metavar="N", help="the broadcast MCP ID (default 0xFFFF)")
     g.addoption("--mcp-timeout", metavar="S", help="deadline for the whole run (default 600)")
+    g.addoption("--mcp-case-timeout", metavar="S", help="time limit of one case (default: from --mcp-rto and --mcp-ack-window); pytest-timeout's --timeout applies too where it is shorter")
     g.addoption("--mcp-seed", metavar="N", help="seed of the malformed corpus")
     g.addoption("--mcp-exclude", metavar="PREFIX", action="append", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX (repeatable)")
     g.addoption("--mcp-baseline", metavar="FILE", help="expected failures (YAML or JSON): listed failures are xfailed, listed passes xpassed")
@@ -203,6 +207,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-junit-family", metavar="xunit2|xunit1", default="xunit2", help="xunit2 (default): valid against the Jenkins junit-10 schema; xunit1: also properties in each testcase")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
+    for key in _KEYS:
+        parser.addini("mcp_" + key, f"default for --mcp-{key.replace('_', '-')} (environment: {env_name(key)})",
+                      type="bool" if key in _FLAGS else "string", default=False if key in _FLAGS else None)
 
 
 def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:
@@ -217,7 +224,37 @@ def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config
 
 
 _KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
-         "broadcast_id", "timeout", "seed", "capture", "json", "junit")
+         "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout")
+_FLAGS = ("mavlink", "strict")
+
+
+def env_name(key: str) -> str:
+    """The environment variable that sets option ``key`` (``MCP_CONFORM_TARGET``, ...)."""
+    return "MCP_CONFORM_" + key.upper()
+
+
+def option_values(config: pytest.Config) -> dict[str, Any]:
+    """Each option from, in order of precedence, the command line, the ini file
+    (``mcp_target = ...`` under ``[pytest]``/``[tool.pytest.ini_options]``) and the
+    environment (``MCP_CONFORM_TARGET``), as pytest plugins conventionally offer them."""
+    out: dict[str, Any] = {}
+    for key in _KEYS:
+        value = config.getoption("mcp_" + key)
+        if key == "role" and value == "drone":
+            value = None  # the default: let the ini file or the environment speak
+        if value in (None, False):
+            ini = config.getini("mcp_" + key)
+            value = ini if ini not in ("", None, False, []) else None
+        if value in (None, False):
+            env = os.environ.get(env_name(key))
+            if env is not None and env != "":
+                value = env.strip().lower() in ("1", "true", "yes", "on") if key in _FLAGS else env
+        if key in _FLAGS and isinstance(value, str):
+            value = value.strip().lower() in ("1", "true", "yes", "on")
+        out[key] = value
+    if out["role"] is None:
+        out["role"] = "drone"
+    return out
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -226,12 +263,18 @@ def pytest_configure(config: pytest.Config) -> None:
     for rule in SPEC.rules:
         config.addinivalue_line("markers", f"{rule_marker(rule.id)}: cases verifying {rule.id} ({rule.level})")
     frontend = bool(config.getoption("mcp_frontend"))
-    values = {k: config.getoption("mcp_" + k) for k in _KEYS}
+    values = option_values(config)
     opt = (lambda n: "--" + n.replace("_", "-")) if frontend else (lambda n: "--mcp-" + n.replace("_", "-"))
     try:
         cfg = make_config(values, opt)
     except ConfigError as exc:
         raise pytest.UsageError(str(exc)) from None
+    if cfg.target is not None and int(getattr(config.option, "numprocesses", 0) or 0) > 1 \
+            and not hasattr(config, "workerinput"):
+        raise pytest.UsageError(
+            f"{opt('target')}: attach mode cannot be split across pytest-xdist workers (one node "
+            "under test, one runner at a time); run it without -n, or let each worker start its own "
+            "node with --mcp-spawn")
     worker = getattr(config, "workerinput", {}).get("workerid")
     if worker:  # a pytest-xdist worker: its own node, its own part of each report file
         cfg.json_path = cfg.json_path and worker_path(cfg.json_path, worker)
@@ -289,6 +332,9 @@ class McpState:
         self.list_mode = bool(config.getoption("mcp_list"))
         self.select: list[str] = list(config.getoption("mcp_select") or [])
         self.exclude: list[str] = []
+        self.user_timeouts: dict[str, float] = {}  # nodeid -> pytest-timeout's --timeout
+        self.case_user_timeout: float | None = None  # of the case in progress
+        self.case_limit_text = ""
         self.baseline: Baseline | None = None
         self.junit_family = "xunit2"
         self.write_baseline_path: str | None = None
@@ -353,7 +399,7 @@ class McpState:
             self.case_deadline = None
             self.arm()
             session.start()
-            self.case_deadline = time.monotonic() + self.cfg.per_case_limit()
+            self.case_deadline = time.monotonic() + self.current_limit()
             self.arm()
         except SetupError as exc:
             self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
@@ -398,6 +444,16 @@ class McpState:
         self.terminal.case(rec)
 
     # ------------------------------------------------------------------ time limits
+    def current_limit(self) -> float:
+        """The case in progress's time limit: the runner's own, or the user's pytest-timeout
+        ``--timeout`` where that is shorter (and says so when it strikes)."""
+        limit = self.cfg.per_case_limit()
+        self.case_limit_text = f"its time limit of {limit:g} s"
+        user = self.case_user_timeout
+        if user is not None and user < limit:
+            limit, self.case_limit_text = user, f"the --timeout of {user:g} s (pytest-timeout)"
+        return limit
+
     def arm(self) -> None:
         """Arm SIGALRM for the rest of the case (or the run, whichever ends first)."""
         if not _can_alarm():
@@ -427,7 +483,7 @@ class McpState:
         if self.run_deadline is not None and now >= self.run_deadline - 0.002:
             self.deadline_hit = True
             raise CaseTimeLimit("run deadline exceeded")
-        raise CaseTimeLimit(f"case exceeded its time limit of {self.cfg.per_case_limit():g} s")
+        raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
 
     def _on_term(self, signum: int, frame: Any) -> None:
         self.interrupted = "interrupted by SIGTERM"
@@ -539,8 +595,31 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         state.finish(item, rec)
         item.session.shouldstop = "run deadline exceeded"
         return True
-    state.case_deadline = time.monotonic() + state.cfg.per_case_limit()
+    state.case_user_timeout = state.user_timeouts.pop(item.nodeid, None)
+    state.case_deadline = time.monotonic() + state.current_limit()
     return None
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_timeout_set_timer(item: pytest.Item, settings: Any) -> bool | None:
+    """pytest-timeout's hook for plugins that manage their own timer: for a conformance
+    case the runner's SIGALRM limit becomes the shorter of its own and the user's
+    ``--timeout``, and the case ends as ``error`` instead of the process being killed."""
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    timeout = getattr(settings, "timeout", None)
+    if timeout and timeout > 0:
+        state.user_timeouts[item.nodeid] = float(timeout)
+    return True
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_timeout_cancel_timer(item: pytest.Item) -> bool | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    return True  # the runner's own timer is disarmed after each phase
 
 
 def _phase_wrapper(item: pytest.Item) -> McpState | None:
@@ -697,7 +776,7 @@ def mcp_session(pytestconfig: pytest.Config) -> Generator[Any, None, None]:
         session = state.start_session()
     finally:
         if saved is not None:
-            state.case_deadline = time.monotonic() + state.cfg.per_case_limit()
+            state.case_deadline = time.monotonic() + state.current_limit()
         state.arm()
     yield session
     state.close_session()

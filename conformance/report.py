@@ -430,7 +430,11 @@ class TerminalReport:
         self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
 
     def error(self, message: str) -> None:
-        self._print(Text(f"error: {message}", style="bold red"), soft_wrap=True)
+        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report)."""
+        err = Console(stderr=True, highlight=False, no_color=self.console.no_color)
+        if self._before_line is not None:
+            self._before_line()
+        err.print(Text(f"error: {message}", style="bold red"), soft_wrap=True, highlight=False)
 
     def listing(self, entries: list[tuple[str, tuple[str, ...], str, str]]) -> None:
         """``--list``: (case id, rules, level, phase) per case."""

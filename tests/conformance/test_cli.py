@@ -106,7 +106,7 @@ def test_select_matching_nothing_is_exit_2(tmp_path):
     proc = conform("--select", "MCP-NOPE", "--json", str(path), cwd=tmp_path)
     assert proc.returncode == 2
     assert report(path)["error"] == "--select: no case matches MCP-NOPE"
-    assert "--select: no case matches MCP-NOPE" in proc.stdout + proc.stderr
+    assert "--select: no case matches MCP-NOPE" in proc.stderr
 
 
 def test_target_that_never_answers_is_a_setup_error(tmp_path):
@@ -116,7 +116,7 @@ def test_target_that_never_answers_is_a_setup_error(tmp_path):
     assert proc.returncode == 2, proc.stdout + proc.stderr
     doc = report(path)
     assert doc["error"] and "answer" in doc["error"]
-    assert doc["error"] in proc.stdout
+    assert doc["error"] in proc.stderr and doc["error"] not in proc.stdout  # errors go to stderr
     assert "Traceback" not in proc.stdout + proc.stderr
 
 

@@ -1,0 +1,90 @@
+"""The plugin as a CI citizen (issue 13), through pytester and a fake session: beside
+pytest-timeout the user's shorter ``--timeout`` wins and nothing is killed; options come
+from the command line, the ini file or the environment; attach mode refuses xdist."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import pytest
+
+from .test_plugin import PLUGIN, log, outcomes, run, setup_files
+
+pytest_plugins = ("pytester",)
+
+SLOW_CASES = """
+import time
+from conformance.marks import rules
+
+@rules("MCP-ACK-1")
+def test_slow_a(node):
+    time.sleep(6)
+
+@rules("MCP-ACK-2")
+def test_slow_b(node):
+    time.sleep(6)
+
+@rules("MCP-ACK-3")
+def test_quick(node):
+    pass
+"""
+
+
+def test_user_timeout_wins_where_shorter_and_nothing_is_killed(pytester):
+    pytest.importorskip("pytest_timeout")
+    setup_files(pytester, SLOW_CASES)
+    pytester.makeini("[pytest]\n")  # no ini timeout of our own
+    result, doc = run(pytester, "-p", "timeout", "--timeout", "1", "--mcp-junit", "j.xml")
+    assert result.ret == 1, result.stdout.str()  # two errors: a failed run, not a killed one
+    assert outcomes(doc) == {"ACK/test_slow_a": "error", "ACK/test_slow_b": "error", "ACK/test_quick": "passed"}
+    reasons = {c["id"]: c["reason"] for c in doc["cases"]}
+    assert "--timeout of 1 s (pytest-timeout)" in reasons["ACK/test_slow_a"]
+    assert (pytester.path / "j.xml").exists()  # pytest survived to write its reports
+    assert doc["summary"]["duration_s"] < 5.5
+
+
+def test_our_case_limit_applies_where_shorter_than_the_users(pytester):
+    pytest.importorskip("pytest_timeout")
+    setup_files(pytester, SLOW_CASES)
+    result, doc = run(pytester, "-p", "timeout", "--timeout", "30", "--mcp-case-timeout", "0.5",
+                      "--mcp-select", "ACK/test_slow_a")
+    assert outcomes(doc) == {"ACK/test_slow_a": "error"}
+    assert "time limit of 0.5 s" in doc["cases"][0]["reason"]
+
+
+def test_options_from_the_ini_file_and_the_environment(pytester, monkeypatch):
+    setup_files(pytester)
+    pytester.makeini(textwrap.dedent("""\
+        [pytest]
+        mcp_target = 127.0.0.1:9
+        mcp_rto = 0.7
+        mcp_strict = true
+        """))
+    monkeypatch.setenv("MCP_CONFORM_ACK_WINDOW", "0.3")
+    monkeypatch.setenv("MCP_CONFORM_RTO", "0.9")  # the ini file comes first
+    result, doc = run(pytester, "--mcp-select", "ACK/test_pass")
+    start = log(pytester)[0]
+    assert start["embedded"] is False and start["rto"] == 0.7 and start["strict"] is True
+    assert doc["parameters"]["ack_window"] == 0.3
+    result, doc = run(pytester, "--mcp-select", "ACK/test_pass", "--mcp-rto", "0.4")  # the command line first
+    assert [e for e in log(pytester) if e["event"] == "start"][-1]["rto"] == 0.4
+
+
+def test_a_bad_environment_value_is_a_usage_error_naming_the_option(pytester, monkeypatch):
+    setup_files(pytester)
+    monkeypatch.setenv("MCP_CONFORM_RTO", "fast")
+    result = pytester.runpytest(*PLUGIN, "-p", "no:cacheprovider")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    assert "--mcp-rto: 'fast' is not a number of seconds" in result.stderr.str()
+
+
+def test_attach_mode_refuses_to_be_split_across_xdist_workers(pytester):
+    pytest.importorskip("xdist")
+    setup_files(pytester)
+    result = pytester.runpytest(*PLUGIN, "-p", "no:cacheprovider", "-n", "2", "--mcp-target", "127.0.0.1:9")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    err = result.stderr.str()
+    assert "attach mode cannot be split across pytest-xdist workers" in err
+    assert "keyboard" not in (result.stdout.str() + err).lower()
+    assert json.dumps  # (the report of a refused run is the usage error itself)
