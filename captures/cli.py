@@ -1,14 +1,96 @@
-"""``mcp-capture``: reserved entry point; golden diff, replay and pcap export arrive later.
+"""``mcp-capture``: tools for MCP captures (our MCAP runs, pcap/pcapng from tcpdump or Wireshark).
 
-Recording a run is available now through ``mcp-conform --capture FILE.mcap``.
+    mcp-capture check FILE [--rto S] [--ack-window S] [--challenge N] [--drones 1,2,...]
+                           [--waypoints FILE] [--select PREFIX] [--strict] [--json OUT] [--html OUT]
+    mcp-capture show FILE [--from S] [--to S] [--case ID] [--svg OUT] [monitor options]
+
+Each subcommand lives in its own module, which this one only registers: the module has
+``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``
+returns the exit code. To add one, append its module to :data:`SUBCOMMANDS`.
+
+Exit codes are the subcommand's (``check``: 0 no MUST violated, 1 violations); a bad
+argument or an unreadable file is a one-line error naming what was wrong, exit 2.
 """
 
+from __future__ import annotations
+
+import argparse
+import importlib
 import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable", "main", "write_output"]
+
+PROG = "mcp-capture"
+#: The modules that register a subcommand, in the order ``--help`` lists them.
+SUBCOMMANDS: list[str] = ["captures.check", "captures.show"]
 
 
-def main(argv: list[str] | None = None) -> int:
-    print("mcp-capture: not implemented in this version (record with mcp-conform --capture)", file=sys.stderr)
+class UsageError(Exception):
+    """A bad command line (one line)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of printing its usage and exiting."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def check_writable(path: str | None, option: str) -> None:
+    """Refuse, before any work, an output path that cannot be a file."""
+    if path is None:
+        return
+    target = Path(path)
+    if not path or target.is_dir():
+        raise UsageError(f"{option}: {path!r} is not a file name")
+    if not target.expanduser().resolve().parent.is_dir():
+        raise UsageError(f"{option}: directory of {path!r} does not exist")
+
+
+def write_output(path: str, text: str, option: str) -> None:
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise UsageError(f"{option}: cannot write {path!r}: {exc.strerror or exc}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="Read, judge and chart MCP captures: our MCAP files "
+                "(mcp-conform --capture) and pcap/pcapng as tcpdump and Wireshark write them.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in SUBCOMMANDS:
+        importlib.import_module(name).register(sub)
+    return p
+
+
+def _error(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from captures.reader import CaptureError
+
+    parser = build_parser()
+    try:
+        ns = parser.parse_args(argv)
+    except UsageError as exc:
+        return _error(str(exc))
+    if getattr(ns, "run", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(ns.run(ns))
+    except (CaptureError, UsageError) as exc:
+        return _error(str(exc))
+    except BrokenPipeError:  # `mcp-capture show big.pcap | head`
+        sys.stderr.close()
+        return 0
+    except KeyboardInterrupt:
+        return _error("interrupted")
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ Unreadable input raises :class:`CaptureError` with a one-line reason naming the 
 from __future__ import annotations
 
 import gzip
+import heapq
 import json
 import logging
 import socket
@@ -112,7 +113,9 @@ _PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 _PCAP_MAGICS = {b"\xa1\xb2\xc3\xd4", b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\x3c\x4d", b"\x4d\x3c\xb2\xa1"}
 _GZIP_MAGIC = b"\x1f\x8b"
 MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
-_MAX_RECORD = 1 << 20  # scapy's per-read cap on a packet record: bigger than any IP datagram
+_MAX_RECORD = 1 << 20
+#: How far (ns) an MCAP record may be written after a later one and still come out in order.
+REORDER_NS = 1_000_000_000  # scapy's per-read cap on a packet record: bigger than any IP datagram
 
 
 def open_capture(path: str | Path) -> Capture:
@@ -215,6 +218,35 @@ class Capture:
 
     # ------------------------------------------------------------------ MCAP
     def _mcap(self) -> Iterator[Record]:
+        """Records in log_time order: the recorder's threads may write a datagram a little
+        after a later one (an ACK received while its command's record is being written), so
+        records wait in a heap until the file has moved :data:`REORDER_NS` past them."""
+        order: list[tuple[int, int, str, Any]] = []  # (log_time, file position, kind, fields)
+        n = {"d": 0, "m": 0}
+        newest = 0
+        for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
+            if kind == "meta":
+                yield Metadata(*fields)
+                continue
+            heapq.heappush(order, (t, pos, kind, fields))
+            newest = max(newest, t)
+            while order and order[0][0] < newest - REORDER_NS:
+                yield self._mcap_record(heapq.heappop(order), n)
+        while order:
+            yield self._mcap_record(heapq.heappop(order), n)
+
+    @staticmethod
+    def _mcap_record(item: tuple[int, int, str, Any], n: dict[str, int]) -> Record:
+        t, _pos, kind, fields = item
+        if kind == "d":
+            n["d"] += 1
+            return Datagram(n["d"] - 1, t, *fields)
+        if kind == "m":
+            n["m"] += 1
+            return MavlinkFrame(n["m"] - 1, t, *fields)
+        return CaseMark(t, *fields)
+
+    def _mcap_raw(self) -> Iterator[tuple[int, str, Any]]:
         from mcap.records import Channel, Header, Message
         from mcap.records import Metadata as McapMetadata
         from mcap.stream_reader import StreamReader
@@ -222,7 +254,6 @@ class Capture:
         size = self.path.stat().st_size
         topics: dict[int, str] = {}
         library: str | None = None
-        n_dgram = n_mav = 0
         b64 = a2b_base64
         loads = json.loads
         with open(self.path, "rb") as f:
@@ -247,28 +278,24 @@ class Capture:
                         if topic == "/mcp/tx" or topic == "/mcp/rx":
                             peer = _parse_peer(body.get("peer"))
                             tx = topic == "/mcp/tx"
-                            yield Datagram(n_dgram, rec.log_time, None if tx else peer, peer if tx else None,
-                                           b64(body["raw_base64"]), "tx" if tx else "rx", library)
-                            n_dgram += 1
+                            yield rec.log_time, "d", (None if tx else peer, peer if tx else None,
+                                                      b64(body["raw_base64"]), "tx" if tx else "rx", library)
                         elif topic == "/mavlink":
-                            yield MavlinkFrame(n_mav, rec.log_time, body.get("direction"),
-                                               body.get("msg_type"), b64(body["raw_base64"]))
-                            n_mav += 1
+                            yield rec.log_time, "m", (body.get("direction"), body.get("msg_type"),
+                                                      b64(body["raw_base64"]))
                         elif topic == "/conformance/case":
-                            yield CaseMark(rec.log_time, str(body["case"]), str(body["event"]),
-                                           body.get("outcome"), tuple(body.get("rules") or ()))
+                            yield rec.log_time, "c", (str(body["case"]), str(body["event"]),
+                                                      body.get("outcome"), tuple(body.get("rules") or ()))
                         else:
                             self.counts["mcap_other_topic"] += 1
-                            continue
                     except (ValueError, KeyError, TypeError, AttributeError):
                         self.counts["mcap_bad_message"] += 1
-                        continue
                 elif kind is Channel:
                     topics[rec.id] = rec.topic
                 elif kind is Header:
                     library = rec.library or None
                 elif kind is McapMetadata:
-                    yield Metadata(rec.name, dict(rec.metadata))
+                    yield 0, "meta", (rec.name, dict(rec.metadata))
 
     # ------------------------------------------------------------------ pcap / pcapng
     def _open_packets(self) -> Any:

@@ -214,8 +214,8 @@ def write_mcap(path, n=12):
     with McapRecorder(path) as rec:
         rec.case_mark("ACK/test_x", "start", 1_000, rules=("MCP-ACK-1",))
         for i in range(n):
-            rec.datagram("tx", START, ("127.0.0.1", 7890), 2_000 + i)
-            rec.datagram("rx", ACK, ("127.0.0.1", 40000), 2_500 + i)
+            rec.datagram("tx", START, ("127.0.0.1", 7890), 2_000 + 10 * i)
+            rec.datagram("rx", ACK, ("127.0.0.1", 40000), 2_005 + 10 * i)
         rec.mavlink("rx", b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00", 3_000, msg_type="HEARTBEAT")
         rec.case_mark("ACK/test_x", "end", 4_000, outcome="passed", rules=("MCP-ACK-1",))
     return path
@@ -227,7 +227,7 @@ def test_mcap_records(tmp_path):
     assert got == [
         CaseMark(1_000, "ACK/test_x", "start", None, ("MCP-ACK-1",)),
         Datagram(0, 2_000, None, ("127.0.0.1", 7890), START, "tx", "mcp-conform"),
-        Datagram(1, 2_500, ("127.0.0.1", 40000), None, ACK, "rx", "mcp-conform"),
+        Datagram(1, 2_005, ("127.0.0.1", 40000), None, ACK, "rx", "mcp-conform"),
         MavlinkFrame(0, 3_000, "rx", "HEARTBEAT", b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00"),
         CaseMark(4_000, "ACK/test_x", "end", "passed", ("MCP-ACK-1",)),
     ]
@@ -257,3 +257,17 @@ def test_mcap_cut_at_every_byte(tmp_path, monkeypatch, stride):
     got, cap = records(cut)
     assert got == full and cap.truncated is None
     assert "7 byte(s) after the MCAP footer ignored" in cap.notes
+
+
+def test_mcap_records_come_out_in_time_order(tmp_path):
+    """The recorder's receiver thread may write an ACK before the command it answers."""
+    path = tmp_path / "o.mcap"
+    with McapRecorder(path) as rec:
+        rec.datagram("rx", ACK, ("127.0.0.1", 40000), 5_000_300)
+        rec.datagram("tx", START, ("127.0.0.1", 7890), 5_000_100)
+        rec.case_mark("X/y", "end", 5_000_200, outcome="passed")
+        rec.datagram("tx", START, ("127.0.0.1", 7890), 9_000_000_000)  # far later: flushes the rest
+    got, _ = records(path)
+    assert [(type(r).__name__, r.t_ns) for r in got] == [
+        ("Datagram", 5_000_100), ("CaseMark", 5_000_200), ("Datagram", 5_000_300), ("Datagram", 9_000_000_000)]
+    assert [r.index for r in got if type(r) is Datagram] == [0, 1, 2]

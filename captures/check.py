@@ -1,0 +1,227 @@
+"""``mcp-capture check FILE``: judge a capture with the trace monitor.
+
+Prints the nodes found (MCP ID, role, addresses, datagrams sent and received), every
+violation grouped by rule with the rule's text, expected, actual and the evidence datagrams,
+and a per-rule table of the monitor's verdicts per node. ``--json OUT`` writes the result
+(``check.schema.json``, beside this module); ``--html OUT`` one self-contained page with the
+sequence chart of each violation's traffic. Exit 0: no MUST violated (and no SHOULD under
+``--strict``); 1: violations; 2: unreadable input or a bad option, with a one-line reason. A
+truncated file is judged up to its last whole record, and the output says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from importlib import resources
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from captures.cli import check_writable, write_output
+from captures.judging import (
+    Judgement,
+    add_monitor_options,
+    fetch,
+    judge,
+    params_from_args,
+    selected,
+)
+from captures.reader import Datagram
+from captures.trace import evidence_indexes
+from spec import SPEC
+
+__all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
+
+SCHEMA_VERSION = "1.0"
+VERDICT_STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "info": "cyan",
+                  "not_observed": "dim"}
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("check", help="judge a capture with the trace monitor",
+                       description="Judge every MCP rule the traffic of a capture can show (MCAP, pcap, "
+                       "pcapng). Exit 0: no MUST violated (no SHOULD either under --strict); 1: "
+                       "violations; 2: unreadable input.")
+    p.add_argument("file", metavar="FILE", help="the capture (MCAP, pcap, pcapng; .gz too)")
+    add_monitor_options(p)
+    p.add_argument("--json", metavar="OUT", help="write the result as JSON (check.schema.json)")
+    p.add_argument("--html", metavar="OUT", help="write a self-contained HTML report with sequence charts")
+    p.set_defaults(run=run)
+
+
+def run(ns: argparse.Namespace) -> int:
+    params = params_from_args(ns)
+    check_writable(ns.json, "--json")
+    check_writable(ns.html, "--html")
+    j = judge(ns.file, params, keep=bool(ns.html))
+    wanted = {i for v in j.shown_violations for i in evidence_indexes(v)}
+    evidence = {d.index: d for d in j.kept if d.index in wanted} if j.kept is not None else fetch(ns.file, wanted)
+    print_report(j, evidence)
+    if ns.json:
+        doc = to_json(j, evidence)
+        write_output(ns.json, json.dumps(doc, indent=2) + "\n", "--json")
+    if ns.html:
+        from captures.html import render_check
+
+        write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
+    return j.exit_code()
+
+
+# ---------------------------------------------------------------- shared descriptions
+def _addr(addr: Any) -> str:
+    return f"{addr[0]}:{addr[1]}" if addr else "?"
+
+
+def describe_datagram(d: Datagram, first_ns: int | None) -> str:
+    """One line: ``#12 +1.234567s 0 (127.0.0.1:7889) → 2 (127.0.0.1:7890) WP_Off #4``."""
+    from captures.trace import action_name
+    from spec.codec import peek_header
+
+    t = (d.t_ns - (first_ns or d.t_ns)) / 1e9
+    h = peek_header(d.data, require_preamble=False)
+    if h is None:
+        return f"#{d.index} +{t:.6f}s {_addr(d.src_addr)} → {_addr(d.dst_addr)}: {len(d.data)} bytes, no MCP header"
+    dst, src, seq, action = h
+    return (f"#{d.index} +{t:.6f}s {src} ({_addr(d.src_addr)}) → {dst} ({_addr(d.dst_addr)}) "
+            f"{action_name(action)} seq {seq}, {len(d.data)} bytes")
+
+
+def _rule_text(rule: str) -> str:
+    r = SPEC.rules_by_id.get(rule)
+    return r.text if r else ""
+
+
+def _level(v: Any) -> str:
+    level = getattr(v, "level", None)
+    if level:
+        return str(level).upper()
+    r = SPEC.rules_by_id.get(v.rule)
+    return r.level if r else "?"
+
+
+# ---------------------------------------------------------------- JSON
+def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
+    from conformance.report import tool_version
+
+    def ev(v: Any) -> list[dict[str, Any]]:
+        idx = evidence_indexes(v)
+        if not idx and getattr(v, "evidence", None):
+            return [{"index": None, "t": None, "summary": str(x)} for x in v.evidence]
+        return [{"index": i, "t": round(j.rel(evidence[i].t_ns), 9) if i in evidence else None,
+                 "summary": describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"}
+                for i in idx]
+
+    violations = [{"rule": v.rule, "level": _level(v), "node": v.node, "t": round(j.rel(v.t_ns), 9),
+                   "t_ns": v.t_ns, "text": _rule_text(v.rule), "expected": _str(v.expected),
+                   "actual": _str(v.actual), "evidence": ev(v)} for v in j.shown_violations]
+    rules = {str(node): {r: verdict for r, verdict in sorted(by_rule.items()) if selected(r, j.params.select)}
+             for node, by_rule in sorted(j.verdicts.items())}
+    counts: dict[str, int] = {}
+    for by_rule in rules.values():
+        for verdict in by_rule.values():
+            counts[verdict] = counts.get(verdict, 0) + 1
+    levels = [x["level"] for x in violations]
+    duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "tool": {"name": "mcp-capture", "version": tool_version()},
+        "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
+        "file": {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": list(j.notes),
+                 "datagrams": j.datagrams, "unattributed": j.unattributed, "duration_s": round(duration, 9)},
+        "parameters": j.params.to_json(),
+        "nodes": [n.to_json() for n in j.nodes.values()],
+        "violations": violations,
+        "rules": rules,
+        "summary": {"violations": len(violations), "must": levels.count("MUST"),
+                    "should": levels.count("SHOULD"), "info": levels.count("INFO"),
+                    "failing": len(j.failing()), "verdicts": counts, "exit_code": j.exit_code()},
+    }
+
+
+def _str(value: Any) -> str | None:
+    return None if value is None else str(value)
+
+
+def load_schema() -> dict[str, Any]:
+    return json.loads(resources.files("captures").joinpath("check.schema.json").read_text())
+
+
+def validate_json(doc: dict[str, Any]) -> None:
+    """Raises ``jsonschema.ValidationError`` when ``doc`` does not follow the schema."""
+    import jsonschema
+
+    jsonschema.validate(doc, load_schema())
+
+
+# ---------------------------------------------------------------- terminal
+def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console | None = None) -> None:
+    con = console or Console(highlight=False)
+    span = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
+    con.print(f"[bold]mcp-capture check[/bold] {escape(j.path)} · {j.format} · {j.datagrams} datagram(s) "
+              f"over {span:.3f} s · MCP spec {SPEC.version}", soft_wrap=True)
+    if j.truncated:
+        con.print(f"[yellow]truncated:[/yellow] {escape(j.truncated)}; judged what was read", soft_wrap=True)
+    for note in j.notes:
+        con.print(f"[dim]note: {escape(note)}[/dim]", soft_wrap=True)
+    if j.params.challenge_note:
+        con.print(escape(j.params.challenge_note), soft_wrap=True)
+    nodes = Table(title="Nodes", title_justify="left", show_edge=False)
+    for col in ("ID", "role", "addresses", "sent", "received"):
+        nodes.add_column(col, justify="right" if col in ("ID", "sent", "received") else "left")
+    for n in j.nodes.values():
+        nodes.add_row(str(n.id), n.role, n.address_text(), str(n.sent), str(n.received))
+    if j.unattributed:
+        nodes.add_row("-", "no MCP header", "", str(j.unattributed), "")
+    con.print(nodes)
+    shown = j.shown_violations
+    con.print(f"\n[bold]Violations[/bold] ({len(shown)})" if shown else "\n[green]No violations.[/green]")
+    rule = None
+    for v in shown:
+        if v.rule != rule:
+            rule = v.rule
+            con.print(f"[bold red]{v.rule}[/bold red] ({_level(v)}): {escape(_rule_text(v.rule))}", soft_wrap=True)
+        con.print(f"  node {v.node} at +{j.rel(v.t_ns):.6f} s", soft_wrap=True)
+        if v.expected is not None:
+            con.print(f"    expected: {escape(str(v.expected))}", soft_wrap=True)
+        if v.actual is not None:
+            con.print(f"    actual:   {escape(str(v.actual))}", soft_wrap=True)
+        for i in evidence_indexes(v):
+            text = describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"
+            con.print(f"    evidence: {escape(text)}", soft_wrap=True)
+    con.print(rules_table(j))
+    failing = j.failing()
+    verdict = "[bold red]FAILED[/bold red]" if failing else "[bold green]OK[/bold green]"
+    con.print(f"{verdict}: {len(shown)} violation(s), {len(failing)} counting against the exit code"
+              f"{' (--strict)' if j.params.strict else ''}", soft_wrap=True)
+
+
+def rules_table(j: Judgement) -> Table:
+    nodes = sorted(j.verdicts)
+    t = Table(title="Rules", title_justify="left", show_edge=False)
+    t.add_column("rule")
+    t.add_column("level")
+    for n in nodes:
+        t.add_column(f"node {n}")
+    t.add_column("violations", justify="right")
+    counts: dict[str, int] = {}
+    for v in j.shown_violations:
+        counts[v.rule] = counts.get(v.rule, 0) + 1
+    for rule in rule_order(j):
+        r = SPEC.rules_by_id.get(rule)
+        cells = []
+        for n in nodes:
+            verdict = j.verdicts[n].get(rule)
+            cells.append(f"[{VERDICT_STYLES.get(verdict, '')}]{verdict}[/]" if verdict else "")
+        t.add_row(rule, r.level if r else "?", *cells, str(counts.get(rule, 0) or ""))
+    return t
+
+
+def rule_order(j: Judgement) -> list[str]:
+    """The selected rules the monitor gave a verdict on, in the spec's order."""
+    seen = {r for by_rule in j.verdicts.values() for r in by_rule} | {v.rule for v in j.violations}
+    order = [r.id for r in SPEC.rules if r.id in seen]
+    order += sorted(seen - set(order))
+    return [r for r in order if selected(r, j.params.select)]

@@ -1,0 +1,278 @@
+"""A capture judged by the trace monitor: what ``mcp-capture check`` and ``show`` share.
+
+``judge(path, params)`` reads the capture (``captures.reader``), feeds every datagram to
+``conformance.monitor.Monitor`` in capture order, closes the trace at its last record, and
+returns a :class:`Judgement`: the nodes found (MCP ID, role, addresses, datagrams sent and
+received), the violations, the monitor's per-node, per-rule verdicts, and what the capture
+itself said (format, truncated, notes). Without a challenge it infers one from the manager's
+commands (WP_List: challenge 1, WP_On / WP_Off: 2, Obstacles_List: 3, MCP-FLOW-4/5/6) and
+says which datagram decided, or why none could be inferred.
+
+The options (``add_monitor_options``) are shared by ``check`` and ``show``; bad values are
+:class:`UsageError` (one line, exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from captures.cli import UsageError
+from captures.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
+from captures.trace import Node, action_name, node_role
+from spec.codec import BROADCAST_ID, MANAGER_ID, Action, peek_header
+
+__all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options", "infer_challenge",
+           "fetch", "judge", "params_from_args", "selected", "CaptureError"]
+
+#: The challenge each challenge-specific command implies (MCP-FLOW-4/5/6).
+CHALLENGE_OF = {int(Action.WP_LIST): 1, int(Action.WP_ON): 2, int(Action.WP_OFF): 2,
+                int(Action.OBSTACLES_LIST): 3}
+
+
+@dataclass
+class Params:
+    rto: float = 5.0
+    ack_window: float = 2.0
+    broadcast_id: int = BROADCAST_ID
+    drones: tuple[int, ...] | None = None
+    challenge: int | None = None
+    challenge_source: str = "given"  # given | inferred | unknown
+    challenge_note: str = ""
+    waypoints: tuple[Any, ...] | None = None
+    waypoints_file: str | None = None
+    select: tuple[str, ...] = ()
+    strict: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {"rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
+                "drones": list(self.drones) if self.drones is not None else None,
+                "challenge": self.challenge, "challenge_source": self.challenge_source,
+                "challenge_note": self.challenge_note or None, "waypoints": self.waypoints_file,
+                "select": list(self.select), "strict": self.strict}
+
+
+def add_monitor_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rto", metavar="S", help="the nodes' retransmission timeout (default 5)")
+    p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
+    p.add_argument("--challenge", metavar="N", help="the mission's challenge, 1-3 (default: inferred "
+                   "from the manager's commands)")
+    p.add_argument("--drones", metavar="1,2,...", help="the drones of the mission (default: those seen)")
+    p.add_argument("--waypoints", metavar="FILE", help="what the mission should carry (QGC WPL 110), "
+                   "for MCP-FLOW-4/5/6 and MCP-PAY")
+    p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535, D-1)")
+    p.add_argument("--select", metavar="PREFIX", action="append", default=[],
+                   help="report only rules starting with PREFIX (MCP-ACK, ACK-1, ...); repeatable")
+    p.add_argument("--strict", action="store_true", help="a violated SHOULD is a failure")
+
+
+def _positive(name: str, text: str | None, default: float) -> float:
+    if text is None:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{name}: not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise UsageError(f"{name}: must be a positive number of seconds: {text!r}")
+    return value
+
+
+def _int(name: str, text: str, lo: int, hi: int) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise UsageError(f"{name}: not an integer: {text!r}") from None
+    if not lo <= value <= hi:
+        raise UsageError(f"{name}: {value} is outside {lo}-{hi}")
+    return value
+
+
+def params_from_args(ns: argparse.Namespace) -> Params:
+    p = Params(rto=_positive("--rto", ns.rto, 5.0), ack_window=_positive("--ack-window", ns.ack_window, 2.0),
+               strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()))
+    if getattr(ns, "broadcast_id", None) is not None:
+        p.broadcast_id = _int("--broadcast-id", ns.broadcast_id, 1, 0xFFFF)
+    if ns.challenge is not None:
+        p.challenge = _int("--challenge", ns.challenge, 1, 3)
+    if ns.drones is not None:
+        words = [w for w in ns.drones.replace(" ", "").split(",") if w]
+        if not words:
+            raise UsageError(f"--drones: no drone IDs in {ns.drones!r}")
+        ids = tuple(_int("--drones", w, 1, 0xFFFE) for w in words)
+        if MANAGER_ID in ids or p.broadcast_id in ids or len(set(ids)) != len(ids):
+            raise UsageError(f"--drones: IDs must be distinct drone IDs (not 0 or the broadcast ID): {ns.drones!r}")
+        p.drones = ids
+    if ns.waypoints is not None:
+        from spec.mission import WaypointFileError, load_waypoints
+
+        try:
+            p.waypoints = tuple(load_waypoints(ns.waypoints))
+        except (WaypointFileError, OSError, ValueError) as exc:
+            raise UsageError(f"--waypoints: {_one_line(exc)}") from None
+        p.waypoints_file = str(ns.waypoints)
+    return p
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def selected(rule: str, select: tuple[str, ...]) -> bool:
+    """Whether ``rule`` (MCP-ACK-1) matches one of the prefixes (MCP-ACK, ACK-1, ACK)."""
+    if not select:
+        return True
+    short = rule[4:] if rule.startswith("MCP-") else rule
+    return any(rule.startswith(s) or short.startswith(s) for s in select)
+
+
+@dataclass
+class Judgement:
+    path: str
+    format: str
+    params: Params
+    nodes: dict[int, Node]
+    violations: list[Any]
+    verdicts: dict[int, dict[str, str]]
+    datagrams: int
+    first_ns: int | None
+    last_ns: int | None
+    truncated: str | None
+    notes: list[str]
+    unattributed: int = 0  # datagrams without an MCP header
+    kept: list[Datagram] | None = None  # every datagram, when asked for (charts)
+    cases: list[CaseMark] = field(default_factory=list)
+    metadata: list[Metadata] = field(default_factory=list)
+
+    @property
+    def shown_violations(self) -> list[Any]:
+        return [v for v in self.violations if selected(v.rule, self.params.select)]
+
+    def failing(self) -> list[Any]:
+        """Violations that make the exit code 1: MUSTs, and SHOULDs under --strict."""
+        bad = {"MUST", "SHOULD"} if self.params.strict else {"MUST"}
+        return [v for v in self.shown_violations if str(v.level).upper() in bad]
+
+    def exit_code(self) -> int:
+        return 1 if self.failing() else 0
+
+    def rel(self, t_ns: int) -> float:
+        return (t_ns - (self.first_ns or 0)) / 1e9
+
+
+def infer_challenge(path: str | Path) -> tuple[int | None, str]:
+    """(challenge, why) from the first challenge-specific command the manager sent."""
+    for d in open_capture(path).datagrams():
+        h = peek_header(d.data)
+        if h is None or h[1] != MANAGER_ID:
+            continue
+        challenge = CHALLENGE_OF.get(h[3])
+        if challenge is not None:
+            return challenge, (f"challenge {challenge} inferred from the manager's "
+                               f"{action_name(h[3])} (datagram #{d.index}); give --challenge to override")
+    return None, ("challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or Obstacles_List; "
+                  "MCP-FLOW-4/5/6 are not judged (give --challenge)")
+
+
+class MonitorUnavailable(UsageError):
+    """This installation has no trace monitor (``conformance.monitor``)."""
+
+
+def _make_monitor(params: Params) -> Any:
+    try:
+        from conformance.monitor import Monitor
+    except ImportError as exc:
+        raise MonitorUnavailable(f"the trace monitor (conformance.monitor) is not available: {exc}") from None
+
+    return Monitor(rto=params.rto, ack_window=params.ack_window, broadcast_id=params.broadcast_id,
+                   drones=list(params.drones) if params.drones is not None else None,
+                   challenge=params.challenge, waypoints=params.waypoints)
+
+
+class NoJudge:
+    """Reads a trace without judging it (``show`` where the monitor is unavailable)."""
+
+    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes) -> list[Any]:
+        return []
+
+    def finish(self, t_ns: int) -> list[Any]:
+        return []
+
+    def verdicts(self) -> dict[int, dict[str, str]]:
+        return {}
+
+
+def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
+    """Read ``path`` and judge it; raises :class:`captures.reader.CaptureError`."""
+    cap = open_capture(path)  # unreadable files fail here, before any inference
+    if params.challenge is None:
+        params.challenge, params.challenge_note = infer_challenge(path)
+        params.challenge_source = "inferred" if params.challenge is not None else "unknown"
+    mon = monitor if monitor is not None else _make_monitor(params)
+    nodes: dict[int, Node] = {}
+    violations: list[Any] = []
+    kept: list[Datagram] | None = [] if keep else None
+    cases: list[CaseMark] = []
+    meta: list[Metadata] = []
+    first = last = None
+    n = unattributed = 0
+    bcast = params.broadcast_id
+    feed = mon.datagram
+    for rec in cap:
+        kind = type(rec)
+        if kind is Datagram:
+            t = rec.t_ns
+            if first is None:
+                first = t
+            last = t
+            n += 1
+            violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data))
+            if kept is not None:
+                kept.append(rec)
+            h = peek_header(rec.data, require_preamble=False)
+            if h is None:
+                unattributed += 1
+                continue
+            dst, src = h[0], h[1]
+            node = nodes.get(src)
+            if node is None:
+                node = nodes[src] = Node(src, node_role(src, bcast))
+            node.sent += 1
+            if rec.src_addr is not None:
+                node.addresses.add(rec.src_addr)
+            if dst != bcast:
+                node = nodes.get(dst)
+                if node is None:
+                    node = nodes[dst] = Node(dst, node_role(dst, bcast))
+                node.received += 1
+        elif kind is CaseMark:
+            cases.append(rec)
+            last = max(last or rec.t_ns, rec.t_ns)
+        elif kind is MavlinkFrame:
+            last = max(last or rec.t_ns, rec.t_ns)
+        elif kind is Metadata:
+            meta.append(rec)
+    if last is not None:
+        violations.extend(mon.finish(last))
+    violations.sort(key=lambda v: (v.rule, v.t_ns))
+    return Judgement(str(path), cap.format, params, dict(sorted(nodes.items())), violations,
+                     mon.verdicts(), n, first, last, cap.truncated, cap.notes, unattributed,
+                     kept, cases, meta)
+
+
+
+def fetch(path: str | Path, indexes: set[int]) -> dict[int, Datagram]:
+    """The datagrams of ``indexes`` (a second, targeted pass: evidence for the report)."""
+    out: dict[int, Datagram] = {}
+    if not indexes:
+        return out
+    top = max(indexes)
+    for d in open_capture(path).datagrams():
+        if d.index in indexes:
+            out[d.index] = d
+        if d.index >= top:
+            break
+    return out

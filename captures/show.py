@@ -1,0 +1,159 @@
+"""``mcp-capture show FILE``: a capture as a readable listing, and as a sequence chart.
+
+One line per datagram: its index, the time since the first datagram, src → dst by MCP ID
+and address, seq, action, the decoded payload, and the marks a reader looks for —
+``↻k of #i`` (the k-th retransmission of datagram i), ``ACK #j +Δ`` (answered by j after
+Δ), ``no ACK`` (a unicast copy nothing answered), ``answers #i`` (an ACK), ``✗ RULE`` (a
+violation the monitor found, on the datagrams of its evidence), and the codec's reason for
+a datagram that does not decode. ``--from S`` / ``--to S`` (seconds since the first
+datagram) or ``--case ID`` (an MCAP capture's case marks) cut a window; ``--svg OUT``
+writes the window's message-sequence chart (``captures.chart``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from rich.console import Console
+from rich.text import Text
+
+from captures.chart import trace_svg
+from captures.cli import UsageError, check_writable, write_output
+from captures.judging import (
+    Judgement,
+    MonitorUnavailable,
+    NoJudge,
+    add_monitor_options,
+    judge,
+    params_from_args,
+)
+from captures.trace import Entry, Trace, describe_payload
+
+__all__ = ["case_window", "entry_line", "register", "run"]
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("show", help="list a capture's datagrams; --svg: a sequence chart",
+                       description="List a capture's MCP datagrams with retransmissions, ACK pairing "
+                       "and the monitor's violations marked; --svg writes a message-sequence chart.")
+    p.add_argument("file", metavar="FILE", help="the capture (MCAP, pcap, pcapng)")
+    p.add_argument("--from", dest="t_from", metavar="S", help="start at S seconds after the first datagram")
+    p.add_argument("--to", dest="t_to", metavar="S", help="stop at S seconds after the first datagram")
+    p.add_argument("--case", metavar="ID", help="only the traffic of this conformance case (MCAP captures)")
+    p.add_argument("--svg", metavar="OUT", help="write the window's message-sequence chart as SVG")
+    p.add_argument("--max-rows", metavar="N", default="400", help="rows of the chart at most (default 400)")
+    add_monitor_options(p)
+    p.set_defaults(run=run)
+
+
+def _seconds(option: str, text: str | None) -> float | None:
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{option}: not a number of seconds: {text!r}") from None
+    if value < 0 or value != value:
+        raise UsageError(f"{option}: must be 0 or more seconds: {text!r}")
+    return value
+
+
+def case_window(j: Judgement, case_id: str) -> tuple[int, int]:
+    """(start_ns, end_ns) of a case from the capture's case marks; exact ID, else a unique prefix."""
+    ids = list(dict.fromkeys(m.case for m in j.cases))
+    if not ids:
+        raise UsageError(f"--case: {j.path} has no case marks (only mcp-conform's MCAP captures have them)")
+    match = [c for c in ids if c == case_id] or [c for c in ids if c.startswith(case_id)]
+    if len(match) != 1:
+        some = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
+        what = "matches several cases" if match else "is not a case of this capture"
+        raise UsageError(f"--case: {case_id!r} {what} ({len(ids)} cases: {some})")
+    marks = [m for m in j.cases if m.case == match[0]]
+    start = min(m.t_ns for m in marks)
+    ends = [m.t_ns for m in marks if m.event == "end"]
+    return start, max(ends) if ends else (j.last_ns or start)
+
+
+def run(ns: argparse.Namespace) -> int:
+    params = params_from_args(ns)
+    t_from, t_to = _seconds("--from", ns.t_from), _seconds("--to", ns.t_to)
+    if ns.case is not None and (t_from is not None or t_to is not None):
+        raise UsageError("--case cannot be combined with --from/--to")
+    try:
+        max_rows = int(ns.max_rows)
+        if max_rows < 1:
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--max-rows: not a positive integer: {ns.max_rows!r}") from None
+    check_writable(ns.svg, "--svg")
+    unjudged = None
+    try:
+        j = judge(ns.file, params, keep=True)
+    except MonitorUnavailable as exc:
+        unjudged = f"violations not marked: {exc}"
+        j = judge(ns.file, params, keep=True, monitor=NoJudge())
+    trace = Trace(j.kept or (), params.broadcast_id)
+    trace.mark(j.shown_violations)
+    if ns.case is not None:
+        start, end = case_window(j, ns.case)
+    else:
+        base = j.first_ns or 0
+        start = None if t_from is None else base + int(t_from * 1e9)
+        end = None if t_to is None else base + int(t_to * 1e9)
+    entries = trace.window(start, end)
+    con = Console(highlight=False, soft_wrap=True)
+    con.print(Text(f"{j.path} · {j.format} · {len(entries)} of {j.datagrams} datagram(s) shown"
+                   + (f" · case {ns.case}" if ns.case else ""), style="bold"))
+    if j.truncated:
+        con.print(Text(f"truncated: {j.truncated}", style="yellow"))
+    for note in [*j.notes, *([unjudged] if unjudged else [])]:
+        con.print(Text(f"note: {note}", style="dim"))
+    for e in entries:
+        con.print(entry_line(e, trace, j.first_ns or 0))
+    if ns.svg:
+        title = f"{j.path}" + (f" · case {ns.case}" if ns.case else "")
+        write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows), "--svg")
+        con.print(Text(f"chart: {ns.svg}", style="dim"))
+    return 0
+
+
+def _addr(addr: Any) -> str:
+    return f"{addr[0]}:{addr[1]}" if addr else ""
+
+
+def _end(node: str, addr: Any) -> str:
+    a = _addr(addr)
+    return f"{node} {a}" if a and a != node else node
+
+
+def entry_line(e: Entry, trace: Trace, first_ns: int) -> Text:
+    d = e.dgram
+    line = Text()
+    line.append(f"#{d.index:<6}", style="dim")
+    line.append(f"+{(d.t_ns - first_ns) / 1e9:11.6f}s  ")
+    line.append(f"{_end(e.src, d.src_addr)} → {_end(e.dst, d.dst_addr)}")
+    if e.header is not None:
+        line.append(f"  seq {e.header[2]:<5} ")
+        line.append(e.label.rsplit(" #", 1)[0], style="bold" if e.msg is not None else "bold red")
+        if e.msg is not None:
+            desc = describe_payload(e.msg)
+            if desc:
+                line.append(f"  {desc}")
+    else:
+        line.append(f"  {len(d.data)} bytes, no MCP header", style="red")
+    if e.error:
+        line.append(f"  [{e.error}]", style="red")
+    if e.first is not None:
+        line.append(f"  ↻{e.copy} of #{e.first}", style="yellow")
+    if e.acked_by is not None:
+        ack = trace.by_index.get(e.acked_by)
+        dt = f" +{(ack.dgram.t_ns - d.t_ns) / 1e6:.1f} ms" if ack is not None else ""
+        line.append(f"  ACK #{e.acked_by}{dt}", style="green")
+    elif e.unanswered:
+        line.append("  no ACK", style="yellow")
+    if e.ack_of is not None:
+        line.append(f"  answers #{e.ack_of}", style="green")
+    for rule in dict.fromkeys(v.rule for v in e.violations):
+        line.append(f"  ✗ {rule}", style="bold red")
+    return line

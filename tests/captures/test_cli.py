@@ -1,0 +1,69 @@
+"""mcp-capture's command line: subcommands registered by their modules, one-line errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from captures.cli import SUBCOMMANDS, build_parser, main
+
+
+def test_help_exits_zero_and_lists_every_subcommand():
+    proc = subprocess.run([sys.executable, "-m", "captures.cli", "--help"], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    for module in SUBCOMMANDS:
+        assert module.rsplit(".", 1)[1] in proc.stdout
+
+
+@pytest.mark.parametrize("command", [m.rsplit(".", 1)[1] for m in SUBCOMMANDS])
+def test_subcommand_help(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args([command, "--help"])
+    assert exc.value.code == 0
+    assert "FILE" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv,words", [
+    ([], "usage:"),
+    (["frobnicate"], "invalid choice"),
+    (["check"], "required: FILE"),
+    (["check", "x.pcap", "--bogus"], "unrecognized arguments"),
+])
+def test_usage_errors_exit_2(argv, words, capsys):
+    assert main(argv) == 2
+    assert words in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("content,words", [
+    (b"", "empty file"),
+    (b"not a capture at all", "not a capture"),
+])
+def test_unreadable_input_exit_2_one_line(tmp_path, capsys, content, words):
+    path = tmp_path / "bad.pcap"
+    path.write_bytes(content)
+    for command in ("check", "show"):
+        assert main([command, str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mcp-capture: error: ") and words in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("option,value,words", [
+    ("--rto", "0", "--rto: must be a positive"),
+    ("--ack-window", "abc", "--ack-window: not a number"),
+    ("--challenge", "4", "--challenge: 4 is outside 1-3"),
+    ("--drones", "1,0", "--drones"),
+    ("--drones", "1,1", "--drones"),
+    ("--waypoints", "/nonexistent.waypoints", "--waypoints"),
+    ("--json", "/nonexistent/dir/out.json", "--json: directory"),
+])
+def test_bad_option_values_exit_2(tmp_path, capsys, option, value, words):
+    from scapy.utils import wrpcap
+
+    path = tmp_path / "empty.pcap"
+    wrpcap(str(path), [])
+    assert main(["check", str(path), option, value]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
