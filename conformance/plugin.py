@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import glob
 import json
 import os
 import signal
@@ -57,7 +56,10 @@ from conformance.report import (
     CaseRecord,
     RunRecord,
     TerminalReport,
+    build_json,
+    case_from_json,
     merge_json,
+    run_from_json,
     worker_path,
     write_json,
     write_junit,
@@ -276,9 +278,7 @@ def pytest_configure(config: pytest.Config) -> None:
             "under test, one runner at a time); run it without -n, or let each worker start its own "
             "node with --mcp-spawn")
     worker = getattr(config, "workerinput", {}).get("workerid")
-    if worker:  # a pytest-xdist worker: its own node, its own part of each report file
-        cfg.json_path = cfg.json_path and worker_path(cfg.json_path, worker)
-        cfg.junit_path = cfg.junit_path and worker_path(cfg.junit_path, worker)
+    if worker:  # a pytest-xdist worker: its own node; its report goes to the controller
         cfg.capture = cfg.capture and worker_path(cfg.capture, worker)
     family = config.getoption("mcp_junit_family") or "xunit2"
     if family not in ("xunit2", "xunit1"):
@@ -293,6 +293,7 @@ def pytest_configure(config: pytest.Config) -> None:
     state.baseline, state.junit_family = baseline, family
     state.write_baseline_path = config.getoption("mcp_write_baseline")
     state.exclude = list(config.getoption("mcp_exclude") or [])
+    state.worker = worker
 
 
 def _xdist_controller(config: pytest.Config) -> bool:
@@ -300,20 +301,51 @@ def _xdist_controller(config: pytest.Config) -> bool:
             and bool(getattr(config.option, "numprocesses", None)))
 
 
-def _merge_worker_reports(config: pytest.Config) -> None:
-    """Under pytest-xdist the controller joins the workers' JSON parts into --mcp-json
-    (JUnit and captures stay one file per worker: FILE.gw0, FILE.gw1, ...)."""
-    state = _state(config)
-    if state is None or not state.cfg.json_path:
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    """pytest-xdist: a worker finished; keep its report and its capture part (the
+    ``workeroutput`` channel pytest-cov uses for its data)."""
+    state = _state(node.config)
+    out = getattr(node, "workeroutput", None) or {}
+    if state is None:
         return
-    target = Path(state.cfg.json_path)
-    parts = sorted(target.parent.glob(glob.escape(target.name) + ".gw*"))
-    if not parts:
+    if "mcp_report" in out:
+        state.worker_docs.append(out["mcp_report"])
+    if out.get("mcp_capture_part"):
+        state.capture_parts.append(out["mcp_capture_part"])
+
+
+def _merge_worker_reports(session: pytest.Session) -> None:
+    """Under pytest-xdist the controller writes ONE JSON report, ONE JUnit file and ONE
+    capture from what the workers sent, prints the mcp summary once, and exits as a run
+    without workers would."""
+    state = _state(session.config)
+    if state is None or not state.worker_docs:
         return
-    docs = [json.loads(p.read_text(encoding="utf-8")) for p in parts]
-    target.write_text(json.dumps(merge_json(docs), indent=2) + "\n", encoding="utf-8")
-    for p in parts:
-        p.unlink()
+    doc = merge_json(state.worker_docs)
+    run = state.merged_run = run_from_json(doc)
+    problems = []
+    writers: list[tuple[str | None, Callable[[str], Any]]] = [
+        (state.cfg.json_path, lambda p: Path(p).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")),
+        (state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
+        (None if run.error else state.write_baseline_path, lambda p: write_baseline(p, run.cases, run.target)),
+    ]
+    if state.cfg.capture and state.capture_parts:
+        from captures.merge import merge_captures
+
+        writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
+    for path, write in writers:
+        if path:
+            try:
+                write(path)
+            except OSError as exc:
+                problems.append(str(exc))
+    code = 2 if problems else run.exit_code()
+    if code == 0 and session.exitstatus == pytest.ExitCode.TESTS_FAILED:
+        code = 1
+    for p in problems:
+        print(f"error: {p}", file=sys.stderr)
+    session.exitstatus = code
 
 
 def _state(config: pytest.Config) -> McpState | None:
@@ -338,6 +370,10 @@ class McpState:
         self.baseline: Baseline | None = None
         self.junit_family = "xunit2"
         self.write_baseline_path: str | None = None
+        self.worker: str | None = None  # the pytest-xdist worker id, on a worker
+        self.worker_docs: list[dict[str, Any]] = []  # on the xdist controller
+        self.capture_parts: list[str] = []
+        self.merged_run: RunRecord | None = None
         self.run = RunRecord(role=cfg.role, target=self._target_guess(), parameters=cfg.parameters(),
                              seed=cfg.seed, strict=cfg.strict)
         self.session: Any = None
@@ -752,6 +788,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
             rec.reason = (str(texc) if isinstance(texc, CaseTimeLimit) else
                           f"teardown: {_one_line(texc) if texc is not None else 'failed'}")
         state.finish(item, rec)
+        if state.worker:
+            rep.mcp_case = rec.to_json()  # type: ignore[attr-defined]  # for the controller's live lines
     return rep
 
 
@@ -804,7 +842,7 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if _xdist_controller(session.config):
-        _merge_worker_reports(session.config)
+        _merge_worker_reports(session)
         return
     state = _state(session.config)
     if state is None or not state.active:
@@ -832,6 +870,13 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         code = run.exit_code()
         if code == 0 and exitstatus == pytest.ExitCode.TESTS_FAILED:
             code = 1  # other (unmarked) tests of the run failed
+    if state.worker:  # the controller writes the reports (see _merge_worker_reports)
+        wo = session.config.workeroutput  # type: ignore[attr-defined]
+        wo["mcp_report"] = build_json(run)
+        if state.cfg.capture:
+            wo["mcp_capture_part"] = state.cfg.capture
+        session.exitstatus = code
+        return
     problems = []
     writers: list[tuple[str | None, Callable[[str], Any]]] = [
         (state.cfg.json_path, lambda p: write_json(p, run)),
@@ -859,6 +904,28 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
 
 def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
     state = _state(config)
+    if state is not None and state.merged_run is not None:  # the xdist controller: once
+        state.terminal.summary(state.merged_run)
+        return
     if state is None or not state.active or state.list_mode:
         return
     state.terminal.summary(state.run)
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """The xdist controller prints each case's line as its worker reports it."""
+    case = getattr(report, "mcp_case", None)
+    if case is None or report.when != "teardown":
+        return
+    config = getattr(report, "config", None) or _CONTROLLER.get("config")
+    state = _state(config) if config is not None else None
+    if state is not None and state.worker is None:
+        state.terminal.case(case_from_json(case))
+
+
+_CONTROLLER: dict[str, pytest.Config] = {}
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if _xdist_controller(session.config):
+        _CONTROLLER["config"] = session.config

@@ -46,9 +46,11 @@ __all__ = [
     "RunRecord",
     "TerminalReport",
     "build_json",
+    "case_from_json",
     "junit_xml",
     "load_schema",
     "rule_outcomes",
+    "run_from_json",
     "tool_version",
     "validate_json",
     "write_json",
@@ -250,8 +252,34 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def worker_path(path: str, worker: str) -> str:
-    """Where an xdist worker writes its part of the report FILE: FILE.<worker>."""
-    return f"{path}.{worker}"
+    """Where an xdist worker records its part of FILE: ``run.mcap`` -> ``run.gw0.mcap``
+    (the extension kept, so every tool still opens the part)."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}.{worker}{p.suffix}")) if p.suffix else f"{path}.{worker}"
+
+
+def case_from_json(d: dict[str, Any]) -> CaseRecord:
+    """A ``CaseRecord`` from its JSON form (a worker's report, a report file)."""
+    cap = d.get("capture") or {}
+    return CaseRecord(
+        id=d["id"], rules=tuple(d.get("rules", ())), level=d.get("level", "MUST"),
+        outcome=d.get("outcome", "error"), reason=d.get("reason"), expected=d.get("expected"),
+        actual=d.get("actual"), duration_s=float(d.get("duration_s") or 0.0),
+        start_ns=cap.get("start_ns"), end_ns=cap.get("end_ns"), failed_rule=d.get("failed_rule"),
+        evidence=list(d.get("evidence") or []), notes=list(d.get("notes") or []),
+        baseline=d.get("baseline"),
+    )
+
+
+def run_from_json(doc: dict[str, Any]) -> RunRecord:
+    """A ``RunRecord`` from a report document (e.g. the merge of xdist workers' reports),
+    so the JUnit and the terminal summary are made from it as from a live run."""
+    params = dict(doc.get("parameters") or {})
+    run = RunRecord(role=doc.get("role", "drone"), target=doc.get("target"), parameters=params,
+                    seed=doc.get("seed"), strict=bool(params.get("strict", False)), error=doc.get("error"))
+    run.cases = [case_from_json(c) for c in doc.get("cases", [])]
+    run.finished = run.started + float((doc.get("summary") or {}).get("duration_s") or 0.0)
+    return run
 
 
 # ---------------------------------------------------------------------- JUnit

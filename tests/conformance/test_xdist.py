@@ -1,0 +1,44 @@
+"""Under pytest-xdist the run still leaves ONE JSON report, ONE JUnit file and ONE valid
+MCAP capture, merged by the controller from its workers, and prints the mcp summary once
+(issue 13)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from mcap.reader import make_reader
+
+from conformance.report import validate_json
+
+from .runner_helpers import FAST, ROOT, reference_node_command
+
+pytestmark = pytest.mark.slow
+
+
+def test_spawn_mode_under_xdist_leaves_one_report_of_each_kind(tmp_path):
+    pytest.importorskip("xdist")
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+           "-n", "2", "-m", "mcp_ack_1 or mcp_ack_4 or mcp_hdr_1 or mcp_seq_2",
+           "--mcp-spawn", reference_node_command(), "--mcp-mavlink",
+           "--mcp-rto", FAST[1], "--mcp-ack-window", FAST[3],
+           "--mcp-json", "r.json", "--mcp-junit", "j.xml", "--mcp-capture", "c.mcap"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=240,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.mcap", "j.xml", "r.json"], out
+    doc = json.loads((tmp_path / "r.json").read_text())
+    validate_json(doc)
+    assert doc["summary"]["passed"] >= 5 and doc["summary"]["failed"] == 0
+    junit = (tmp_path / "j.xml").read_text()
+    assert junit.count("<testcase ") == len(doc["cases"])
+    with open(tmp_path / "c.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        topics = {ch.topic for _, ch, _ in reader.iter_messages()}
+    assert {"/mcp/tx", "/mcp/rx", "/conformance/case"} <= topics
+    assert out.count("suite finished in") == 1 and out.count("per-rule outcome") == 1
+    assert "PASSED   ACK/" in out  # the controller prints each case's line
