@@ -1,0 +1,269 @@
+"""Records, constants and per-node state of the trace monitor (``conformance.monitor``).
+
+Everything here is plain data: the public records (:class:`Violation`, :class:`NodeFacts`,
+:class:`VehicleEvent`), the spec-derived constants the rules use (never re-typed: levels,
+texts and parameters come from ``spec/mcp.yaml``), and the small mutable state objects the
+rule mixins share (:class:`_Node`, :class:`_Exchange`). Times are integer nanoseconds on
+whatever clock the trace was taken with; evidence names datagrams by their index in the
+order they were fed to the monitor.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+from spec import SPEC
+from spec.codec import HEADER, HEADER_SIZE, ITEM, MANAGER_ID, PREAMBLE, Action
+
+__all__ = [
+    "NodeFacts",
+    "TESTER",
+    "VehicleEvent",
+    "Violation",
+]
+
+# ---------------------------------------------------------------- spec-derived constants
+NS = 1_000_000_000
+PARAMS = SPEC.params
+MIN_COPIES = 1 + int(PARAMS["min_retransmissions"])  # the original + 3 retransmissions (MCP-RTX-1)
+MAX_ACK_COPIES = int(PARAMS["max_ack_copies"])  # copies a command may go unACKed (MCP-ACK-1)
+RTX_TOLERANCE = float(PARAMS["rtx_spacing_tolerance"])  # ±20 % of the median gap (MCP-RTX-3)
+RTX_MIN_GAP_NS = int(float(PARAMS["rtx_min_gap_s"]) * NS)  # no storm (MCP-RTX-3)
+JITTER_NS = int(float(PARAMS["timing_jitter_s"]) * NS)  # timestamping allowance (MCP-RTX-3)
+ACK_DEADLINE_NS = int(float(PARAMS["ack_deadline_s"]) * NS)  # MCP-ACK-7
+ACK_SAMPLES = int(PARAMS["ack_latency_samples"])  # MCP-ACK-7: median of at least this many
+LEVEL = {r.id: r.level for r in SPEC.rules}
+VERDICT_OF_LEVEL = {"MUST": "failed", "SHOULD": "warned", "INFO": "info"}
+
+HDR = HEADER_SIZE
+PRE = PREAMBLE
+PRE_LEN = len(PREAMBLE)
+unpack_header = HEADER.unpack_from
+pack_item = ITEM.pack
+MANAGER = MANAGER_ID
+MR = int(Action.MISSION_READY)
+START = int(Action.START_MISSION)
+END = int(Action.END_MISSION)
+WP_LIST = int(Action.WP_LIST)
+WP_ON = int(Action.WP_ON)
+WP_OFF = int(Action.WP_OFF)
+OBSTACLES = int(Action.OBSTACLES_LIST)
+ACK = int(Action.ACK)
+PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
+N_ACTIONS = sum(1 for a in SPEC.actions if a.on_wire)  # 9: codes 0-8 (MCP-HDR-3)
+ACTION_NAME = {a.code: a.wire_name for a in SPEC.actions}
+DRONE_SENDS = frozenset(a.code for a in SPEC.actions if a.on_wire and a.sent_by in ("drone", "any"))
+MANAGER_SENDS = frozenset(a.code for a in SPEC.actions if a.on_wire and a.sent_by in ("manager", "any"))
+
+#: The sender-side rule a payload that does not fit its action breaks, by action code. The
+#: receiver-side rule of the same datagram is MCP-ROB-4 (D-4).
+PAYLOAD_RULE = {MR: "MCP-PAY-2", START: "MCP-PAY-1", END: "MCP-PAY-1", WP_OFF: "MCP-PAY-1",
+                WP_LIST: "MCP-PAY-3", OBSTACLES: "MCP-PAY-3", WP_ON: "MCP-PAY-5",
+                ACK: "MCP-ACK-2", PASSTHROUGH: "MCP-PAY-6"}
+
+
+def action_name(code: int) -> str:
+    return ACTION_NAME.get(code, f"action {code}")
+
+
+def role_of(node: int) -> str:
+    return "manager" if node == MANAGER else "drone"
+
+
+class _Tester:
+    """The sentinel ``origin`` of datagrams the test harness sent on purpose."""
+
+    _instance: _Tester | None = None
+
+    def __new__(cls) -> _Tester:
+        if cls._instance is None:
+            cls._instance = super().__new__(cls)
+        return cls._instance
+
+    def __repr__(self) -> str:
+        return "TESTER"
+
+
+#: ``Monitor.datagram(..., origin=TESTER)``: the harness's own datagram (possibly faulty on
+#: purpose). It is judged only as input to the other nodes; its sender is never blamed.
+TESTER = _Tester()
+
+
+# ---------------------------------------------------------------- public records
+Evidence = tuple[tuple[int, int], ...]  # ((datagram index, t_ns), ...)
+
+
+class Violation(NamedTuple):
+    """One rule a node broke, as soon as the trace proves it.
+
+    ``node`` is the MCP ID blamed; ``evidence`` the datagrams involved as ``(index, t_ns)``
+    pairs (index = position in the monitor's input). ``level`` and :attr:`text` come from
+    spec/mcp.yaml.
+    """
+
+    rule: str
+    level: str
+    node: int
+    t_ns: int
+    expected: str
+    actual: str
+    evidence: Evidence
+
+    @property
+    def text(self) -> str:
+        """The rule's text, from the spec."""
+        return SPEC.rule(self.rule).text
+
+
+class NodeFacts(NamedTuple):
+    """What the trace showed of one MCP node (for listings such as ``mcp-capture check``)."""
+
+    id: int
+    role: str  # "manager" (ID 0) or "drone"
+    addresses: tuple[tuple[str, int], ...]  # source addresses it sent from
+    datagrams: int  # datagrams attributed to it (sent)
+    received: int  # datagrams addressed to its ID
+
+
+class VehicleEvent(NamedTuple):
+    """One observation on a drone's autopilot link (MAVLink), fed with ``Monitor.vehicle``.
+
+    ``kind`` is one of :data:`VEHICLE_KINDS`:
+
+    - ``link``: the drone's link to its autopilot is observed from here on (until a ``fix``
+      the autopilot reports no GPS fix);
+    - ``fix`` / ``fix_lost``: the autopilot started / stopped reporting a GPS fix;
+    - ``arm``: the drone asked the autopilot to ARM (``ok``: whether it was accepted);
+    - ``disarm``, ``takeoff``: likewise;
+    - ``mode``: a mode change was requested (``mode``: its ArduCopter name);
+    - ``rtl``: RTL was commanded (RTL mode or MAV_CMD_NAV_RETURN_TO_LAUNCH);
+    - ``frame``: the drone wrote a MAVLink frame to its autopilot (``frame``: its bytes;
+      ``token``: the passthrough-probe token when it is one).
+    """
+
+    kind: str
+    ok: bool | None = None
+    mode: str | None = None
+    frame: bytes | None = None
+    token: str | None = None
+    detail: str = ""
+
+
+VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", "rtl", "frame")
+
+
+# ---------------------------------------------------------------- shared state
+class _Exchange:
+    """One message (src, dst, seq) and its copies, with the ACKs naming it."""
+
+    __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
+                 "tester", "bcast", "flags", "deliveries")
+
+    def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
+                 i: int, t: int, tester: bool, bcast: bool) -> None:
+        self.src = src
+        self.dst = dst
+        self.seq = seq
+        self.action = action
+        self.data = data
+        self.payload = payload
+        self.copies: list[tuple[int, int]] = [(i, t)]
+        self.acks: list[tuple[int, int]] = []
+        self.wrong_ack: tuple[int, int] | None = None
+        self.tester = tester
+        self.bcast = bcast
+        self.flags = 0  # bits: rules already reported on this exchange
+        self.deliveries: list[tuple[int, int]] = []  # (t_ns, copies seen by then) per forward
+
+    @property
+    def first(self) -> tuple[int, int]:
+        return self.copies[0]
+
+    @property
+    def last_t(self) -> int:
+        return self.copies[-1][1]
+
+    def copies_before(self, t: int) -> list[tuple[int, int]]:
+        return [c for c in self.copies if c[1] <= t]
+
+    def describe(self) -> str:
+        to = "broadcast" if self.bcast else f"ID {self.dst}"
+        return f"{action_name(self.action)} seq {self.seq} from ID {self.src} to {to}"
+
+
+class _Node:
+    """What the monitor knows of one MCP ID (as a sender and as a receiver)."""
+
+    __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
+                 "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
+                 "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t")
+
+    def __init__(self, node_id: int) -> None:
+        self.id = node_id
+        self.sent = 0
+        self.received = 0
+        self.addresses: dict[tuple[str, int], None] = {}
+        self.real = False  # sent at least one datagram that was not the harness's
+        self.last_new: _Exchange | None = None  # its latest new non-ACK message (MCP-SEQ-1)
+        self.acks_since = 0  # ACKs (D-5) and malformed datagrams it sent since then
+        self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
+        self.first_seq: int | None = None  # MCP-SEQ-4
+        # as a drone, the mission as the trace shows it
+        self.ready: tuple[int, int] | None = None  # its Mission_Ready (first copy) this mission
+        self.ready_ex: _Exchange | None = None
+        self.start: _Exchange | None = None  # Start_Mission sent to it
+        self.end: _Exchange | None = None  # End_Mission sent to it
+        self.end_acked: int | None = None
+        self.last_command_t = 0  # first copy of the latest command to it other than End_Mission
+        self.lists: dict[int, _Exchange] = {}  # WP_List / Obstacles_List sent to it, by action
+        self.wp_active: _Exchange | None = None  # challenge 2: the WP_On not yet followed by WP_Off
+        # as a drone with an observed autopilot link
+        self.vehicle = False
+        self.fix: bool | None = None
+        self.forwards: list[tuple[int, Any]] = []  # (t_ns, key) frames written to the autopilot
+        # as the manager
+        self.first_command: tuple[int, int] | None = None  # its first command to any drone
+
+    @property
+    def role(self) -> str:
+        return role_of(self.id)
+
+
+class _Timers:
+    """Deadlines: (t_ns, order, callback, args); callbacks run when time reaches them."""
+
+    def __init__(self) -> None:
+        self.heap: list[tuple[int, int, Callable[..., None], tuple[Any, ...]]] = []
+        self._order = itertools.count()
+
+    def at(self, t_ns: int, fn: Callable[..., None], *args: Any) -> None:
+        heapq.heappush(self.heap, (t_ns, next(self._order), fn, args))
+
+    def due(self, now: int) -> list[tuple[Callable[..., None], tuple[Any, ...]]]:
+        out = []
+        heap = self.heap
+        while heap and heap[0][0] <= now:
+            _, _, fn, args = heapq.heappop(heap)
+            out.append((fn, args))
+        return out
+
+
+def median(values: list[int]) -> int:
+    s = sorted(values)
+    n = len(s)
+    return s[n // 2] if n % 2 else (s[n // 2 - 1] + s[n // 2]) // 2
+
+
+def gaps(copies: list[tuple[int, int]]) -> list[int]:
+    return [b[1] - a[1] for a, b in zip(copies, copies[1:], strict=False)]
+
+
+def fmt_s(ns: int) -> str:
+    return f"{ns / NS:.3f} s"
+
+
+def fmt_ms(ns: int) -> str:
+    return f"{ns / 1e6:.1f} ms"

@@ -1,0 +1,223 @@
+"""Receiver-side rules of the trace monitor: what a node did with what it received, as its
+ACKs show it.
+
+An ACK names a sequence number and goes to a node ID; the monitor looks up what that node
+sent with that number (``_by_seq``) and so learns what the ACK answers:
+
+- a well-formed unicast to the ACKing node: the right answer (MCP-ACK-1, -3, -7);
+- a broadcast (MCP-ACK-4), a message to another ID (MCP-ACK-5), an ACK (MCP-ACK-6, on a
+  complete trace only, since D-5 lets ACKs share numbers), a datagram with a bad preamble
+  (MCP-ROB-2), an unknown action (MCP-ROB-3) or a payload that does not fit (MCP-ROB-4):
+  an ACK that must not exist. A sender's numbers do not repeat within a window, so even a
+  lossy trace proves these;
+- nothing: the message may simply be missing from the trace, unless the number is the
+  byte swap of a message the node did get (MCP-ACK-2, little-endian) or, on a complete
+  trace, another node's message to it has that number (MCP-ACK-3).
+
+Missing ACKs (MCP-ACK-1) are judged only on a complete trace, while the node is receiving
+(a drone between its Mission_Ready and the ACK of its End_Mission, D-6), once a command
+went unanswered through ``max_ack_copies`` copies, or a copy after the ACK was not ACKed
+again within the ACK window.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from conformance._monitor_base import (
+    ACK_DEADLINE_NS,
+    ACK_SAMPLES,
+    END,
+    JITTER_NS,
+    MANAGER,
+    MAX_ACK_COPIES,
+    MR,
+    PASSTHROUGH,
+    _Exchange,
+    _Node,
+    fmt_ms,
+    gaps,
+    median,
+)
+from conformance._monitor_sender import F_ACK1
+
+_ROB_EXPECTED = {
+    "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
+    "MCP-ROB-3": "a datagram with an action code above 8 is discarded silently",
+    "MCP-ROB-4": "a payload that does not fit its action is discarded without ACK (D-4)",
+}
+
+
+class ReceiverRules:
+    """Mixin of :class:`conformance.monitor.Monitor`: receiver-side judgement."""
+
+    def _ack(self, i: int, t: int, src: int, dst: int, own_seq: int, named: int, tester: bool) -> None:
+        """A well-formed ACK from ``src`` to ``dst`` naming ``named``."""
+        if not tester:
+            self._nodes[src].acks_since += 1
+            self._observe(src, "MCP-ACK-2")
+        self._remember(src, own_seq, ("ack", dst, i, t, 0))
+        self._acks_to.add(dst)
+        if dst == self.broadcast_id:
+            if not tester:
+                self._emit("MCP-ACK-3", src, t, "an ACK's dst is the src of the acknowledged message",
+                           f"ACK of seq {named} sent to the broadcast ID", [(i, t)])
+            return
+        horizon = 2 * self.window_ns + self.rto_ns
+        match = other = None
+        for e in reversed(self._by_seq.get((dst, named), ())):
+            if isinstance(e, _Exchange):
+                if t - e.last_t > horizon:
+                    continue
+                if e.dst == src and not e.bcast:
+                    match = e
+                    break
+            elif t - e[3] > horizon:
+                continue
+            if other is None:
+                other = e
+        if match is not None:
+            self._acked(match, src, i, t, tester)
+            return
+        self._maybe_wrong_ack(dst, src, named, i, t)
+        if tester:
+            return
+        if other is not None:
+            self._ack_of_what_is_not_acked(src, other, named, i, t)
+            return
+        swapped = ((named & 0xFF) << 8) | (named >> 8)
+        ex = self._ex.get((dst, src, swapped)) if swapped != named else None
+        if ex is not None and t - ex.last_t <= horizon:
+            self._emit("MCP-ACK-2", src, t, f"ACK payload {ex.seq} as 2 bytes big-endian (D-2)",
+                       f"ACK names {named}: {ex.seq} byte-swapped", [ex.copies[-1], (i, t)])
+            return
+        if not self.complete:
+            return  # the ACK may answer a message the capture missed
+        for ex in self._to_seq.get((src, named), ()):
+            if ex.src != dst and not ex.acks and t - ex.last_t <= horizon:
+                self._emit("MCP-ACK-3", src, t, f"the ACK goes to ID {ex.src}, the message's src",
+                           f"ACK of seq {named} sent to ID {dst} ({ex.describe()})",
+                           [ex.copies[-1], (i, t)])
+                return
+
+    def _ack_of_what_is_not_acked(self, node: int, other: Any, named: int, i: int, t: int) -> None:
+        if isinstance(other, _Exchange):
+            if other.bcast:
+                self._emit("MCP-ACK-4", node, t, "a broadcast message is not ACKed",
+                           f"ACK of {other.describe()}", [other.copies[-1], (i, t)])
+            else:
+                self._emit("MCP-ACK-5", node, t, "no ACK of a message addressed to another ID",
+                           f"ACK of {other.describe()}", [other.copies[-1], (i, t)])
+            return
+        kind, dst, j, tj, action = other
+        if kind == "ack":
+            if dst == node and self.complete:
+                self._emit("MCP-ACK-6", node, t, "an ACK is never ACKed",
+                           f"ACK of the ACK with seq {named} (datagram #{j})", [(j, tj), (i, t)])
+        elif dst == node:
+            self._emit(kind, node, t, _ROB_EXPECTED[kind],
+                       f"ACK of malformed datagram #{j} (seq {named})", [(j, tj), (i, t)])
+
+    def _acked(self, ex: _Exchange, node: int, i: int, t: int, tester: bool) -> None:
+        """``node`` ACKed ``ex`` (the right answer)."""
+        first = not ex.acks
+        ex.acks.append((i, t))
+        if not first:
+            return
+        acker = self._node(node)
+        if ex.action == END:
+            acker.end_acked = t
+            self._end_acked(ex, acker, t)
+        elif ex.action == PASSTHROUGH:
+            self._passthrough_acked(ex, acker, t)
+        before = ex.copies_before(t)
+        if self.complete and not ex.tester and len(before) >= 3:
+            self._judge_spacing(ex, before, t)
+        if tester:
+            return
+        self._observe(node, "MCP-ACK-1")
+        self._observe(node, "MCP-ACK-3")
+        if self.complete and len(before) == 1:
+            self._latency.setdefault(node, []).append((t - before[0][1], before[0], (i, t)))
+
+    def _maybe_wrong_ack(self, dst: int, src: int, named: int, i: int, t: int) -> None:
+        """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
+        message's destination, or its seq from another node (input of MCP-RTX-2)."""
+        node = self._nodes.get(dst)
+        pending = node.last_unicast if node is not None else None
+        if pending is None or pending.acks or pending.tester:
+            return
+        if (pending.dst == src) == (pending.seq == named):
+            return
+        pending.wrong_ack = (i, t)
+        if self.complete:
+            g = gaps(pending.copies)
+            est = median(g) if g else self.rto_ns
+            self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._wrong_ack_deadline, pending, (i, t))
+
+    # ------------------------------------------------------------------ missing ACKs
+    def _copy_received(self, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-ACK-1 deadlines for a copy (complete trace only)."""
+        if not self.complete or ex.bcast:
+            return
+        if not ex.acks:
+            if len(ex.copies) == MAX_ACK_COPIES:
+                self._timers.at(t + self.window_ns, self._ack_deadline, ex, None)
+        elif ex.action != END:
+            self._timers.at(t + self.window_ns, self._ack_deadline, ex, (i, t))
+
+    def _receiving(self, node: _Node, ex: _Exchange) -> bool:
+        """D-6: a drone receives between its Mission_Ready and the ACK of its End_Mission and
+        is judged on the manager's commands; the manager on the drones' messages."""
+        if node.id == MANAGER:
+            return ex.src != MANAGER
+        if ex.src != MANAGER or node.ready is None or ex.first[1] < node.ready[1]:
+            return False
+        return node.end_acked is None or ex.first[1] < node.end_acked
+
+    def _ack_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int] | None) -> None:
+        node = self._nodes.get(ex.dst)
+        if node is None or not node.real:
+            if ex.dst not in self._tester_ids:  # judged once it shows it is a node, not the harness
+                self._on_real.setdefault(ex.dst, []).append((self._ack_deadline, (ex, copy)))
+            return
+        if ex.flags & F_ACK1 or not self._receiving(node, ex):
+            return
+        if copy is None:
+            if ex.acks:
+                return
+            ex.flags |= F_ACK1
+            rule = "MCP-FLOW-2" if node.id == MANAGER and ex.action == MR else "MCP-ACK-1"
+            self._emit(rule, node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
+                       f"no ACK of {len(ex.copies)} copies", ex.copies[:MAX_ACK_COPIES])
+            return
+        if any(a[1] >= copy[1] for a in ex.acks):
+            return
+        ex.flags |= F_ACK1
+        self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
+                   f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
+
+    def _finish_receiver(self, end: int) -> None:
+        """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
+        for node in self._nodes.values():
+            if not node.real:
+                continue
+            nid = node.id
+            if any(s != nid for s in self._bcast_srcs):
+                self._observe(nid, "MCP-ACK-4")
+            if self._unicast_dsts - {nid}:
+                self._observe(nid, "MCP-ACK-5")
+            if nid in self._acks_to:
+                self._observe(nid, "MCP-ACK-6")
+            for rule, dsts in self._rob_dsts.items():
+                if nid in dsts:
+                    self._observe(nid, rule)
+            samples = self._latency.get(nid, [])
+            if len(samples) >= ACK_SAMPLES:
+                self._observe(nid, "MCP-ACK-7")
+                med = median([s[0] for s in samples])
+                if med > ACK_DEADLINE_NS:
+                    slow = sorted(samples, key=lambda s: -s[0])[:3]
+                    self._emit("MCP-ACK-7", nid, end, f"median ACK latency within {fmt_ms(ACK_DEADLINE_NS)}",
+                               f"median {fmt_ms(med)} over {len(samples)} ACKs",
+                               [x for s in slow for x in (s[1], s[2])])

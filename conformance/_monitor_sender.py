@@ -1,0 +1,487 @@
+"""Sender-side rules of the trace monitor: what a node *sent* breaks the rule.
+
+HDR-3/4/5 and the PAY rules judge one datagram; SEQ-1/2, RTX-1..4 and BLK-1 judge a
+sender's messages against each other; BLK-2/3/6 and FLOW-1..6 judge the manager's commands
+against the mission. A rule that needs an absence (no retransmission, a command never
+sent) is judged only on a complete trace (``Monitor(complete=True)``) and only when its
+deadline falls inside the trace.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from conformance._monitor_base import (
+    DRONE_SENDS,
+    END,
+    HDR,
+    JITTER_NS,
+    MANAGER,
+    MANAGER_SENDS,
+    MIN_COPIES,
+    MR,
+    NS,
+    OBSTACLES,
+    PASSTHROUGH,
+    PAYLOAD_RULE,
+    RTX_MIN_GAP_NS,
+    RTX_TOLERANCE,
+    START,
+    WP_LIST,
+    WP_OFF,
+    WP_ON,
+    _Exchange,
+    _Node,
+    action_name,
+    fmt_ms,
+    fmt_s,
+    gaps,
+    median,
+    pack_item,
+)
+from spec.mission import sane_item
+
+# bits of _Exchange.flags: a rule already reported on that exchange
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2 = (1 << k for k in range(7))
+_LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
+_CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
+_ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
+
+
+def _items(ex: _Exchange) -> tuple[Any, ...]:
+    return ex.payload if ex.action != WP_ON else (ex.payload,)
+
+
+class SenderRules:
+    """Mixin of :class:`conformance.monitor.Monitor`: sender-side judgement."""
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _remember(self, src: int, seq: int, entry: Any) -> None:
+        """What ``src`` sent with ``seq`` (an exchange, or a tuple for malformed datagrams and
+        ACKs): the receiver side looks here to learn what an ACK answers."""
+        key = (src, seq)
+        lst = self._by_seq.get(key)
+        if lst is None:
+            self._by_seq[key] = [entry]
+            return
+        old = self.last_t - self.horizon_ns
+        if _entry_t(lst[0]) < old:
+            lst[:] = [e for e in lst if _entry_t(e) >= old]
+        lst.append(entry)
+
+    def _message(self, i: int, t: int, src: int, dst: int, seq: int, action: int, data: bytes,
+                 payload: Any, tester: bool) -> None:
+        """A well-formed non-ACK message: a copy of a known one, or a new message."""
+        key = (src, dst, seq)
+        ex = self._ex.get(key)
+        if ex is not None and t - ex.last_t <= self.horizon_ns:
+            self._copy(ex, i, t, data, tester)
+            return
+        bcast = dst == self.broadcast_id
+        ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
+        self._ex[key] = ex
+        self._remember(src, seq, ex)
+        if bcast:
+            self._bcast_srcs.add(src)
+        else:
+            self._unicast_dsts.add(dst)
+            lst = self._to_seq.get((dst, seq))
+            if lst is None:
+                self._to_seq[(dst, seq)] = [ex]
+            else:
+                lst.append(ex)
+                if len(lst) > 8:
+                    del lst[:-8]
+        if action == PASSTHROUGH:
+            self._track_passthrough(ex)
+        if not tester:
+            self._judge_new(ex, i, t)
+        self._track_mission(ex)
+
+    def _copy(self, ex: _Exchange, i: int, t: int, data: bytes, tester: bool) -> None:
+        """Another datagram with the same (src, dst, seq): a retransmission (MCP-SEQ-2)."""
+        src = ex.src
+        if data != ex.data:
+            if not tester:
+                rule = "MCP-SEQ-1" if ex.acks else "MCP-SEQ-2"
+                expected = ("a new message takes a new sequence number" if ex.acks else
+                            "a retransmission repeats the original's bytes exactly")
+                self._emit(rule, src, t, expected,
+                           f"{ex.describe()} sent again with different bytes", [ex.first, (i, t)])
+            return
+        prev_t = ex.last_t
+        ex.copies.append((i, t))
+        self._copy_received(ex, i, t)
+        if tester:
+            return
+        self._observe(src, "MCP-SEQ-2")
+        if ex.bcast:
+            if not ex.flags & F_RTX4:
+                ex.flags |= F_RTX4
+                self._emit("MCP-RTX-4", src, t, "a broadcast message is sent once",
+                           f"{ex.describe()} sent again", [ex.first, (i, t)])
+            return
+        if t - prev_t < RTX_MIN_GAP_NS and not ex.flags & (F_STORM | F_RTX3):
+            ex.flags |= F_STORM
+            self._emit("MCP-RTX-3", src, t, f"no gap between copies under {fmt_ms(RTX_MIN_GAP_NS)}",
+                       f"copies of {ex.describe()} {fmt_ms(t - prev_t)} apart", ex.copies[-2:])
+        node = self._nodes[src]
+        newer = node.last_unicast
+        if (newer is not None and newer is not ex and not ex.acks and newer.first[1] > prev_t
+                and not ex.flags & F_INTERLEAVE):
+            ex.flags |= F_INTERLEAVE
+            self._stop_and_wait(ex, newer, t, [ex.copies[-2], newer.first, (i, t)],
+                                "while it still retransmitted")
+
+    # ------------------------------------------------------------------ new messages
+    def _judge_new(self, ex: _Exchange, i: int, t: int) -> None:
+        src, action = ex.src, ex.action
+        node: _Node = self._nodes[src]
+        for rule in ("MCP-HDR-1", "MCP-HDR-2", "MCP-HDR-3", "MCP-HDR-5"):
+            self._observe(src, rule)
+        if self.drones is not None and (src == MANAGER or src in self.drones):
+            self._observe(src, "MCP-HDR-4")
+        if node.first_seq is None:
+            node.first_seq = ex.seq
+            self._observe(src, "MCP-SEQ-4")
+        allowed = MANAGER_SENDS if src == MANAGER else DRONE_SENDS
+        if action not in allowed:
+            self._emit("MCP-HDR-5", src, t,
+                       "the manager never sends Mission_Ready" if src == MANAGER else
+                       "a drone sends only Mission_Ready and ACK",
+                       f"{ex.describe()}", [(i, t)])
+            return
+        self._check_seq(node, ex, i, t)
+        if action == MR:
+            self._observe(src, "MCP-PAY-2")
+            self._judge_ready(node, ex, i, t)
+        else:
+            self._judge_command(node, ex, i, t)
+        if not ex.bcast:
+            self._check_stop_and_wait(node, ex, i, t)
+            node.last_unicast = ex
+            if self.complete:
+                self._timers.at(t + MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns,
+                                self._rtx_deadline, ex)
+
+    def _check_seq(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-SEQ-1: between two new non-ACK messages the number advances by at least 1 and
+        at most 1 + the ACKs sent in between (D-5). On a lossy trace only a repeat is proof."""
+        prev = node.last_new
+        node.last_new = ex
+        acks, node.acks_since = node.acks_since, 0
+        if prev is None:
+            return
+        self._observe(node.id, "MCP-SEQ-1")
+        adv = (ex.seq - prev.seq) & 0xFFFF
+        if adv == 0 or (self.complete and adv > 1 + acks):
+            self._emit("MCP-SEQ-1", node.id, t,
+                       f"seq {(prev.seq + 1) & 0xFFFF}..{(prev.seq + 1 + acks) & 0xFFFF} "
+                       f"(previous message {prev.seq}, {acks} ACK(s) since)",
+                       f"{ex.describe()}", [prev.first, (i, t)])
+
+    def _check_stop_and_wait(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
+        awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
+        copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
+        prev = node.last_unicast
+        if prev is None:
+            return
+        self._observe(node.id, "MCP-BLK-1")
+        if prev.acks or not self.complete:
+            return
+        g = gaps(prev.copies)
+        est = median(g) if g else self.rto_ns
+        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
+            return  # it may have given up (retry limit)
+        if prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]:
+            prev.flags |= F_SEQ2
+            ex.flags |= F_SEQ2
+            self._emit("MCP-SEQ-2", node.id, t, "a retransmission repeats the original's sequence number",
+                       f"{ex.describe()} repeats unACKed seq {prev.seq} with a new number",
+                       [prev.copies[-1], (i, t)])
+            return
+        self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
+
+    def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
+                       how: str) -> None:
+        if pending.flags & F_SEQ2:
+            return
+        if pending.action == START and pending.dst == newer.dst and pending.src == MANAGER:
+            self._emit("MCP-BLK-3", MANAGER, t, "no further command to that drone until Start_Mission is ACKed",
+                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
+        else:
+            self._emit("MCP-BLK-1", pending.src, t,
+                       "no new unicast message while one awaits its ACK (stop-and-wait)",
+                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
+
+    def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
+        """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
+        its retransmissions were due."""
+        if ex.acks or len(ex.copies) >= MIN_COPIES:
+            self._observe(ex.src, "MCP-RTX-1")
+            return
+        g = gaps(ex.copies)
+        est = median(g) if g else self.rto_ns
+        due = ex.last_t + 3 * est // 2 + self.window_ns
+        if now < due:
+            self._timers.at(due, self._rtx_deadline, ex)
+            return
+        if ex.wrong_ack is not None and ex.wrong_ack[1] >= ex.last_t:
+            return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
+        n = len(ex.copies)
+        self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
+                   f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, "
+                   f"none for {fmt_s(now - ex.last_t)}", ex.copies[:MIN_COPIES])
+
+    def _wrong_ack_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int]) -> None:
+        """MCP-RTX-2 (complete trace): retransmission goes on after an ACK that names the
+        wrong seq or comes from the wrong node."""
+        later = [c for c in ex.copies if c[1] > wrong[1]]
+        right = [a for a in ex.acks if a[1] > wrong[1]]
+        if later:
+            self._observe(ex.src, "MCP-RTX-2")
+            return
+        if right or ex.flags & F_RTX2:
+            return  # the right ACK came before the next copy was due: inconclusive
+        ex.flags |= F_RTX2
+        self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
+                   f"{ex.describe()} not retransmitted for {fmt_s(now - wrong[1])} after a wrong ACK",
+                   [ex.copies[-1], wrong])
+
+    def _finish_sender(self, end: int) -> None:
+        if self.complete:
+            self._finish_blk2(end)
+            self._finish_flow3(end)
+            for ex in self._ex.values():
+                if not ex.tester and not ex.bcast and not ex.acks and len(ex.copies) >= 3:
+                    self._judge_spacing(ex, ex.copies, end)
+
+    def _judge_spacing(self, ex: _Exchange, copies: list[tuple[int, int]], t: int) -> None:
+        """MCP-RTX-3 (complete trace): every gap within ±20 % of the median (plus the spec's
+        timestamp jitter) and none under 50 ms."""
+        g = gaps(copies)
+        if len(g) < 2 or ex.flags & (F_RTX3 | F_STORM):
+            return
+        self._observe(ex.src, "MCP-RTX-3")
+        med = median(g)
+        allowance = RTX_TOLERANCE * med + JITTER_NS
+        bad = [x for x in g if abs(x - med) > allowance or x < RTX_MIN_GAP_NS]
+        if bad:
+            ex.flags |= F_RTX3
+            self._emit("MCP-RTX-3", ex.src, t,
+                       f"every gap within ±{RTX_TOLERANCE:.0%} of the median gap and none under "
+                       f"{fmt_ms(RTX_MIN_GAP_NS)}",
+                       f"{ex.describe()}: median {fmt_ms(med)}, outliers "
+                       + ", ".join(fmt_ms(x) for x in bad), copies)
+
+    # ------------------------------------------------------------------ malformed
+    def _malformed(self, i: int, t: int, src: int, dst: int, seq: int, action: int, rule: str,
+                   tester: bool, why: str) -> None:
+        """A framed datagram that is not a valid message. As input, ``rule`` (MCP-ROB-3/4) is
+        the receiver's; as output, the sender broke MCP-HDR-3 or its payload rule."""
+        self._remember(src, seq, (rule, dst, i, t, action))
+        self._rob_dsts[rule].add(dst)
+        if tester:
+            return
+        self._nodes[src].acks_since += 1  # it took a number (MCP-SEQ-1 allows for it)
+        if rule == "MCP-ROB-3":
+            self._observe(src, "MCP-HDR-3")
+            self._emit("MCP-HDR-3", src, t, "action codes 0-8 only (9 'Any' is API-only)",
+                       f"datagram #{i} with {why}", [(i, t)])
+            return
+        allowed = MANAGER_SENDS if src == MANAGER else DRONE_SENDS
+        if action not in allowed:
+            self._emit("MCP-HDR-5", src, t, "a drone sends only Mission_Ready and ACK"
+                       if src != MANAGER else "the manager never sends Mission_Ready",
+                       f"malformed {action_name(action)} seq {seq}", [(i, t)])
+            return
+        prule = PAYLOAD_RULE[action]
+        self._observe(src, prule)
+        self._emit(prule, src, t, f"a {action_name(action)} payload as the spec lays it out",
+                   f"{action_name(action)} seq {seq} to ID {dst}: {why}", [(i, t)])
+
+    # ------------------------------------------------------------------ the mission
+    def _judge_ready(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-FLOW-1 / MCP-PAY-2: Mission_Ready is unicast to ID 0; MCP-BLK-5 (vehicle)."""
+        self._observe(node.id, "MCP-FLOW-1")
+        if ex.dst != MANAGER:
+            self._emit("MCP-FLOW-1", node.id, t, f"Mission_Ready unicast to ID {MANAGER}",
+                       f"{ex.describe()}", [(i, t)])
+        self._check_ready_fix(node, i, t)
+
+    def _judge_command(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+        """The manager's commands against the mission: PAY-1/3..7, FLOW-2..6, BLK-6."""
+        action = ex.action
+        if action in (START, END, WP_OFF):
+            self._observe(MANAGER, "MCP-PAY-1")
+        elif action == PASSTHROUGH:
+            self._observe(MANAGER, "MCP-PAY-6")
+        elif action in _ITEM_ACTIONS:
+            self._observe(MANAGER, "MCP-PAY-5" if action == WP_ON else "MCP-PAY-3")
+            self._observe(MANAGER, "MCP-PAY-4")
+            self._observe(MANAGER, "MCP-PAY-7")
+            for item in _items(ex):
+                problems = sane_item(item)
+                if problems:
+                    self._emit("MCP-PAY-7", MANAGER, t, "sane mission items",
+                               f"{ex.describe()}: item {item.seq}: {'; '.join(problems)}", [(i, t)])
+                    break
+        if self.inferred_challenge is None and action in _CHALLENGE_OF:
+            self.inferred_challenge = _CHALLENGE_OF[action]
+        if node.first_command is None:
+            node.first_command = (i, t)
+        targets = [self._node(ex.dst)] if not ex.bcast else [
+            n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]
+        for d in targets:
+            self._judge_for_drone(d, ex, i, t)
+
+    def _judge_for_drone(self, d: _Node, ex: _Exchange, i: int, t: int) -> None:
+        action = ex.action
+        ev = [(i, t)]
+        if action == START:
+            self._observe(MANAGER, "MCP-FLOW-2")
+            if ex.bcast:
+                self._emit("MCP-FLOW-2", MANAGER, t, "Start_Mission unicast to each drone",
+                           f"{ex.describe()}", ev)
+                return
+        elif self.complete and d.start is None and d.ready is not None and not ex.bcast:
+            self._emit("MCP-FLOW-2", MANAGER, t, f"Start_Mission is the first command drone {d.id} gets",
+                       f"{ex.describe()} before any Start_Mission", [d.ready, (i, t)])
+        if d.end is not None and not ex.bcast:
+            self._observe(MANAGER, "MCP-BLK-6")
+            self._emit("MCP-BLK-6", MANAGER, t, f"no command to drone {d.id} after its End_Mission",
+                       f"{ex.describe()}", [d.end.first, (i, t)])
+            return
+        challenge = self.challenge or self.inferred_challenge
+        if action in _LIST_FLOW:
+            rule, number = _LIST_FLOW[action]
+            if challenge == number:
+                self._observe(MANAGER, rule)
+                earlier = d.lists.get(action)
+                if earlier is not None and earlier is not ex:
+                    self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(action)}",
+                               f"a second {action_name(action)} to drone {d.id}", [earlier.first, (i, t)])
+                elif not self._carries_waypoints(ex):
+                    self._emit(rule, MANAGER, t, f"{action_name(action)} carries the mission's "
+                               f"{len(self.waypoints or ())} items",
+                               f"{ex.describe()} carries {len(ex.payload)} other item(s)", ev)
+        elif action == WP_ON and challenge == 2:
+            self._observe(MANAGER, "MCP-FLOW-5")
+            if not self._carries_waypoints(ex):
+                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
+                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", ev)
+        elif action == WP_OFF and challenge == 2:
+            self._observe(MANAGER, "MCP-FLOW-5")
+            if d.wp_active is None and self.complete and d.start is not None:
+                self._emit("MCP-FLOW-5", MANAGER, t, "WP_Off follows a WP_On",
+                           f"{ex.describe()} with no WP_On active for drone {d.id}", ev)
+        elif action == END and self.complete and self.challenge in (1, 3):
+            want = WP_LIST if self.challenge == 1 else OBSTACLES
+            rule = _LIST_FLOW[want][0]
+            self._observe(MANAGER, rule)
+            if want not in d.lists and d.start is not None:
+                self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(want)}",
+                           f"End_Mission to drone {d.id} without any {action_name(want)}",
+                           [d.start.first, (i, t)])
+
+    def _carries_waypoints(self, ex: _Exchange) -> bool:
+        if self.waypoints is None:
+            return True
+        want = {pack_item(*w) for w in self.waypoints}
+        got = [pack_item(*it) for it in _items(ex)]
+        if ex.action == WP_ON:
+            return got[0] in want
+        return sorted(got) == sorted(pack_item(*w) for w in self.waypoints)
+
+    def _track_mission(self, ex: _Exchange) -> None:
+        """The mission as the trace shows it (whoever sent the commands)."""
+        action = ex.action
+        if action == MR and ex.src != MANAGER:
+            node = self._nodes[ex.src] if ex.src in self._nodes else self._node(ex.src)
+            prev = node.ready_ex
+            if prev is None or prev.acks or not self.complete:
+                _new_mission(node)
+                node.ready = ex.first
+                node.ready_ex = ex
+            return
+        if ex.src != MANAGER or ex.bcast:
+            if ex.bcast and action in (WP_ON, WP_OFF):
+                for d in self._nodes.values():
+                    if d.id != MANAGER and d.ready is not None:
+                        d.wp_active = ex if action == WP_ON else None
+            return
+        d = self._node(ex.dst)
+        if action != END:
+            d.last_command_t = ex.first[1]
+        if action == START and d.start is None:
+            d.start = ex
+        elif action == END and d.end is None:
+            d.end = ex
+        elif action in _LIST_FLOW:
+            d.lists.setdefault(action, ex)
+        elif action == WP_ON:
+            d.wp_active = ex
+        elif action == WP_OFF:
+            d.wp_active = None
+
+    def _finish_blk2(self, end: int) -> None:
+        """MCP-BLK-2 (complete trace): the manager's first command came after the
+        Mission_Ready of every drone that took part (declared, or sent Start_Mission)."""
+        mgr = self._nodes.get(MANAGER)
+        if mgr is None or not mgr.real or mgr.first_command is None:
+            return
+        first = mgr.first_command
+        drones = [n for n in self._nodes.values() if n.id != MANAGER
+                  and (n.start is not None or (self.drones is not None and n.id in self.drones))]
+        self._observe(MANAGER, "MCP-BLK-2")
+        late = [n for n in drones if n.ready is None or n.ready[1] > first[1]]
+        if late and all(n.ready is not None or n.start is not None for n in late):
+            n = late[0]
+            self._emit("MCP-BLK-2", MANAGER, first[1],
+                       "no command before every drone of the mission sent Mission_Ready",
+                       f"first command at datagram #{first[0]}; drone {n.id}'s Mission_Ready "
+                       + ("came later" if n.ready is not None else "never came"),
+                       [first] + ([n.ready] if n.ready is not None else []))
+
+    def _finish_flow3(self, end: int) -> None:
+        """MCP-FLOW-3 (complete trace): once the manager has ended the mission of some drones,
+        every drone it started gets End_Mission (unless its last command was never ACKed)."""
+        mgr = self._nodes.get(MANAGER)
+        if mgr is None or not mgr.real:
+            return
+        drones = [n for n in self._nodes.values() if n.id != MANAGER and n.start is not None
+                  and not n.start.tester]
+        ended = [n.end for n in drones if n.end is not None and n.end.acks]
+        if not ended:
+            return
+        self._observe(MANAGER, "MCP-FLOW-3")
+        last = max(e.acks[0][1] for e in ended)
+        if end - last < 2 * max(self.rto_ns, self.window_ns, NS):
+            return  # the trace may end while the manager is still ending missions
+        for n in drones:
+            if n.end is None and self._last_command_acked(n):
+                self._emit("MCP-FLOW-3", MANAGER, end, f"End_Mission as the last command to drone {n.id}",
+                           f"drone {n.id} never got End_Mission (other drones did)",
+                           [n.start.first] + [e.first for e in ended[:1]])
+
+    def _last_command_acked(self, d: _Node) -> bool:
+        last = None
+        for ex in self._ex.values():
+            if ex.src == MANAGER and ex.dst == d.id and ex.action != MR:
+                if last is None or ex.first[1] > last.first[1]:
+                    last = ex
+        return last is not None and bool(last.acks)
+
+
+def _entry_t(entry: Any) -> int:
+    return entry.last_t if isinstance(entry, _Exchange) else entry[3]
+
+
+def _new_mission(node: _Node) -> None:
+    """A drone's new Mission_Ready (a restart): its mission starts afresh."""
+    node.start = node.end = None
+    node.end_acked = None
+    node.lists = {}
+    node.wp_active = None
+    node.last_new = None

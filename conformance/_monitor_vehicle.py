@@ -1,0 +1,259 @@
+"""Autopilot-link rules of the trace monitor, and the conversions that feed them.
+
+A drone's MAVLink link shows what MCP cannot: when it arms (MCP-BLK-4), whether its
+autopilot had a GPS fix when it said Mission_Ready (MCP-BLK-5), whether it commanded RTL
+after End_Mission (MCP-BLK-7), and which Mav_Passthrough frames it delivered (written to
+the autopilot): once per delivered message (MCP-PAY-8), not again for a duplicate
+(MCP-DUP-1), again for a new number with the same bytes (MCP-DUP-2), per source
+(MCP-DUP-3), across the wrap (MCP-SEQ-3), and never for a message to another ID
+(MCP-ACK-5, "neither ACKs nor acts on").
+
+Feed it :class:`VehicleEvent` records: :func:`events_from_mavlink` turns one raw MAVLink
+frame (as a capture's ``/mavlink`` channel or the simulated vehicle's frame tap holds it)
+into them; :func:`events_from_vehicle` turns the simulated vehicle's own event records.
+The link is taken as complete for a drone once any event was fed for it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from conformance._monitor_base import (
+    MANAGER,
+    NS,
+    PASSTHROUGH,
+    VehicleEvent,
+    _Exchange,
+    _Node,
+    fmt_s,
+)
+from spec.mavframe import FrameError, parse_frame
+from vehicle.probe import probe_token
+from vehicle.records import COPTER_MODE_NAMES, RTL, mode_name
+
+_ARM_DISARM = 400  # MAV_CMD_COMPONENT_ARM_DISARM
+_DO_SET_MODE = 176  # MAV_CMD_DO_SET_MODE
+_RETURN_TO_LAUNCH = 20  # MAV_CMD_NAV_RETURN_TO_LAUNCH
+_TAKEOFF = 22  # MAV_CMD_NAV_TAKEOFF
+_FIX_MIN = 2  # GPS_RAW_INT fix_type below 2: no fix (MCP-BLK-5)
+_RTL_NAME = COPTER_MODE_NAMES[RTL]
+
+
+def _key(frame: bytes) -> Any:
+    """How a forwarded frame is recognised: its probe token (a drone may re-encode a probe
+    as MAVLink v1), else its exact bytes."""
+    try:
+        msg = parse_frame(frame)
+    except FrameError:
+        return frame
+    if msg.get_type() == "STATUSTEXT":
+        token = probe_token(msg.text)
+        if token is not None:
+            return token
+    return frame
+
+
+def events_from_mavlink(raw: bytes, direction: str = "rx") -> list[VehicleEvent]:
+    """The events one MAVLink frame shows. ``direction`` is ``"rx"`` for a frame the drone
+    wrote to its autopilot, ``"tx"`` for one the autopilot sent to the drone."""
+    try:
+        msg = parse_frame(bytes(raw))
+    except FrameError:
+        return []
+    kind = msg.get_type()
+    if direction == "tx":
+        if kind == "GPS_RAW_INT":
+            return [VehicleEvent("fix" if msg.fix_type >= _FIX_MIN else "fix_lost",
+                                 detail=f"fix_type {msg.fix_type}")]
+        return []
+    token = probe_token(msg.text) if kind == "STATUSTEXT" else None
+    out = [VehicleEvent("frame", frame=bytes(raw), token=token, detail=kind)]
+    if kind in ("COMMAND_LONG", "COMMAND_INT"):
+        cmd = int(msg.command)
+        if cmd == _ARM_DISARM:
+            out.append(VehicleEvent("arm" if msg.param1 == 1 else "disarm", detail=kind))
+        elif cmd == _DO_SET_MODE:
+            out.extend(_mode(int(msg.param2), kind))
+        elif cmd == _RETURN_TO_LAUNCH:
+            out.append(VehicleEvent("rtl", detail="MAV_CMD_NAV_RETURN_TO_LAUNCH"))
+        elif cmd == _TAKEOFF:
+            out.append(VehicleEvent("takeoff", detail=kind))
+    elif kind == "SET_MODE":
+        out.extend(_mode(int(msg.custom_mode), kind))
+    return out
+
+
+def _mode(custom: int, via: str) -> list[VehicleEvent]:
+    name = mode_name(custom)
+    out = [VehicleEvent("mode", mode=name, detail=via)]
+    if name == _RTL_NAME:
+        out.append(VehicleEvent("rtl", mode=name, detail=via))
+    return out
+
+
+def events_from_vehicle(event: Any) -> list[VehicleEvent]:
+    """The monitor's events for one ``vehicle.records.Event`` of the simulated vehicle
+    (requests with their results; frames come through :func:`events_from_mavlink`)."""
+    kind, d = event.kind, event.detail
+    if kind == "connect":
+        return [VehicleEvent("link", detail=str(d.get("peer", "")))]
+    if kind in ("fix", "fix_lost"):
+        return [VehicleEvent(kind)]
+    if kind == "command":
+        cmd, params, ok = d.get("command"), d.get("params") or (0.0,) * 7, d.get("result") == 0
+        if cmd == _ARM_DISARM:
+            return [VehicleEvent("arm" if params[0] == 1 else "disarm", ok=ok, detail=str(d.get("name")))]
+        if cmd == _TAKEOFF:
+            return [VehicleEvent("takeoff", ok=ok)]
+        return []
+    if kind == "rtl":
+        return [VehicleEvent("rtl", ok=bool(d.get("accepted")), detail=str(d.get("via", "")))]
+    if kind == "mode":
+        return [VehicleEvent("mode", mode=str(d.get("mode")), detail=str(d.get("via", "")))]
+    return []
+
+
+class VehicleRules:
+    """Mixin of :class:`conformance.monitor.Monitor`: autopilot-link judgement."""
+
+    def _delivery_wait(self) -> int:
+        """How long a delivered frame may take to reach the autopilot (a node may queue it
+        behind slow work such as a takeoff)."""
+        return max(3 * self.window_ns, 2 * self.rto_ns, 3 * NS)
+
+    def _vehicle_event(self, t: int, drone: int, ev: VehicleEvent) -> None:
+        node = self._node(drone)
+        node.vehicle = True
+        kind = ev.kind
+        if kind == "link":
+            if node.fix is None:
+                node.fix = False
+        elif kind == "fix":
+            node.fix = True
+        elif kind == "fix_lost":
+            node.fix = False
+        elif kind == "arm":
+            self._judge_arm(node, t, ev)
+        elif kind == "rtl" or (kind == "mode" and ev.mode == _RTL_NAME):
+            node.forwards.append((t, "RTL"))
+        elif kind == "frame" and ev.frame is not None:
+            self._judge_forward(node, t, ev.token if ev.token is not None else ev.frame)
+
+    def _check_ready_fix(self, node: _Node, i: int, t: int) -> None:
+        """MCP-BLK-5: no Mission_Ready while the autopilot reports no GPS fix."""
+        if not node.vehicle or node.fix is None:
+            return
+        self._observe(node.id, "MCP-BLK-5")
+        if node.fix is False:
+            self._emit("MCP-BLK-5", node.id, t, "no Mission_Ready while the autopilot reports no GPS fix",
+                       f"Mission_Ready (datagram #{i}) while the autopilot reports no fix", [(i, t)])
+
+    def _judge_arm(self, node: _Node, t: int, ev: VehicleEvent) -> None:
+        """MCP-BLK-4 (complete trace): no ARM before Start_Mission reached the drone."""
+        if not self.complete or node.id == MANAGER:
+            return
+        self._observe(node.id, "MCP-BLK-4")
+        start = node.start
+        if start is None or start.first[1] > t:
+            res = "" if ev.ok is None else (" (accepted)" if ev.ok else " (refused)")
+            self._emit("MCP-BLK-4", node.id, t, "no ARM on the autopilot before Start_Mission",
+                       f"ARM requested{res} before any Start_Mission to drone {node.id}",
+                       [node.ready] if node.ready is not None else [])
+
+    # ------------------------------------------------------------------ passthrough
+    def _passthrough_key(self, ex: _Exchange) -> Any:
+        return _key(ex.payload)
+
+    def _judge_forward(self, node: _Node, t: int, key: Any) -> None:
+        """A frame the drone wrote to its autopilot: which message it delivers."""
+        if not self.complete:
+            return  # a lossy trace may miss another message with the same frame
+        cands = [ex for ex in self._pt.get(key, ()) if ex.first[1] <= t]
+        mine = [ex for ex in cands if ex.dst == node.id]
+        if not mine:
+            others = [ex for ex in cands if not ex.bcast and ex.dst != node.id
+                      and t - ex.last_t <= self._delivery_wait()]
+            if others:
+                ex = others[-1]
+                self._emit("MCP-ACK-5", node.id, t, "a message addressed to another ID is not acted on",
+                           f"the frame of {ex.describe()} reached drone {node.id}'s autopilot",
+                           [ex.copies[-1]])
+            return
+        waiting = [ex for ex in mine if not ex.deliveries]  # frames are forwarded in order
+        ex = waiting[0] if waiting else mine[-1]
+        seen = sum(1 for c in ex.copies if c[1] <= t)
+        self._node_delivers.add(node.id)
+        ex.deliveries.append((t, seen))
+        self._observe(node.id, "MCP-PAY-8")
+        if len(ex.deliveries) < 2:
+            return
+        prev_seen = ex.deliveries[-2][1]
+        if seen > prev_seen:
+            self._emit("MCP-DUP-1", node.id, t, "a duplicate is ACKed but not delivered again",
+                       f"{ex.describe()} delivered again after copy {seen}", ex.copies[:seen])
+        else:
+            self._emit("MCP-PAY-8", node.id, t, "each delivered frame forwarded exactly once",
+                       f"the frame of {ex.describe()} written {len(ex.deliveries)} times "
+                       f"for {seen} cop{'y' if seen == 1 else 'ies'}", ex.copies[:seen])
+
+    def _passthrough_acked(self, ex: _Exchange, node: _Node, t: int) -> None:
+        """A Mav_Passthrough the drone ACKed: it must show on the link, unless a duplicate."""
+        if node.vehicle and ex.action == PASSTHROUGH and self.complete:
+            self._timers.at(t + self._delivery_wait(), self._delivery_deadline, ex, node)
+
+    def _delivery_deadline(self, now: int, ex: _Exchange, node: _Node) -> None:
+        due = ex.acks[-1][1] + self._delivery_wait()
+        if now < due:  # ACKed again since: it may have been received late
+            self._timers.at(due, self._delivery_deadline, ex, node)
+            return
+        if ex.deliveries or node.id not in self._node_delivers:
+            return  # delivered, or a drone that does not forward passthrough at all
+        prior = [p for p in self._pt_to.get(node.id, ()) if p is not ex and p.first[1] < ex.first[1]
+                 and p.deliveries]
+        if not prior:
+            return
+        last = prior[-1]
+        same_src = [p for p in prior if p.src == ex.src]
+        other_src = [p for p in prior if p.src != ex.src and p.seq == ex.seq]
+        if other_src:
+            rule, why = "MCP-DUP-3", f"same seq as {other_src[-1].describe()}, another src"
+            ev = other_src[-1]
+        elif same_src and same_src[-1].data[17:] == ex.data[17:]:
+            rule, why = "MCP-DUP-2", "a new seq with the same bytes as the previous message"
+            ev = same_src[-1]
+        elif same_src and same_src[-1].seq > ex.seq:
+            rule, why = "MCP-SEQ-3", f"after seq {same_src[-1].seq}: the numbers wrapped"
+            ev = same_src[-1]
+        else:
+            rule, why, ev = "MCP-PAY-8", "a delivered frame", last
+        self._observe(node.id, rule)
+        self._emit(rule, node.id, now, "a new message is delivered (its frame reaches the autopilot)",
+                   f"{ex.describe()} ACKed but not delivered within {fmt_s(self._delivery_wait())} ({why})",
+                   [ev.first, ex.first] + ex.acks[:1])
+
+    def _track_passthrough(self, ex: _Exchange) -> None:
+        key = self._passthrough_key(ex)
+        self._pt.setdefault(key, []).append(ex)
+        if not ex.bcast:
+            self._pt_to.setdefault(ex.dst, []).append(ex)
+
+    def _end_acked(self, ex: _Exchange, node: _Node, t: int) -> None:
+        """MCP-BLK-7: after End_Mission the drone commands RTL."""
+        if node.vehicle and node.id != MANAGER:
+            self._timers.at(t + self._rtl_wait(), self._rtl_deadline, ex, node)
+
+    def _rtl_wait(self) -> int:
+        return max(3 * NS, 3 * self.window_ns, 2 * self.rto_ns)
+
+    def _rtl_deadline(self, now: int, ex: _Exchange, node: _Node) -> None:
+        due = ex.acks[-1][1] + self._rtl_wait()
+        if now < due:  # ACKed again since: it may have been received late
+            self._timers.at(due, self._rtl_deadline, ex, node)
+            return
+        self._observe(node.id, "MCP-BLK-7")
+        since = ex.first[1] if self.complete else node.last_command_t
+        if any(k == "RTL" and ft >= since for ft, k in node.forwards):
+            return
+        self._emit("MCP-BLK-7", node.id, now, "an RTL on the autopilot after End_Mission",
+                   f"no RTL within {fmt_s(now - ex.acks[0][1])} of End_Mission's ACK",
+                   [ex.first, ex.acks[0]])

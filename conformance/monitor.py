@@ -1,0 +1,385 @@
+"""The trace monitor: the protocol's rules as one incremental judge of MCP traffic.
+
+Sans-I/O and deterministic (no sockets, no clocks): fed every datagram seen on the wire,
+optionally the drones' autopilot-link events and the passing of time, it returns
+violations as soon as the trace *proves* them. Shared by every consumer: the runner (both
+roles), the fuzzer, ``mcp-capture check`` and golden replay.
+
+>>> m = Monitor(rto=5.0, ack_window=2.0)
+>>> for t_ns, src, dst, data in trace:                    # doctest: +SKIP
+...     for v in m.datagram(t_ns, src, dst, data):
+...         print(v.rule, v.node, v.actual)
+>>> m.finish(end_ns)                                      # doctest: +SKIP
+>>> m.verdicts()[1]["MCP-ACK-1"]                          # doctest: +SKIP
+'passed'
+
+Nodes are MCP IDs (the manager is 0), never addresses: the sender of a datagram is the
+header's src when the header parses. A malformed datagram (short, bad preamble) is tied
+to a node only through its source address, when that address has been seen with exactly
+one ID (the evidence says so), or through ``origin`` when the observer knows who sent it.
+Datagrams fed with ``origin=TESTER`` are the test harness's own (often faulty on purpose):
+they are input to the other nodes and never blamed.
+
+What the trace proves and nothing more. A capture point misses datagrams, so by default
+(``complete=False``) the monitor judges only what was *seen*: a datagram that breaks a
+sender rule, an ACK that must not exist, copies that interleave with a newer message, a
+retransmission storm. The absence of something (an ACK, a retransmission, a delivery) is
+evidence only when the trace holds every datagram the nodes exchanged (``complete=True``:
+the runner's own socket, a capture on the one host where every node runs), and even then
+a deadline that falls after the end of the trace judges nothing. Autopilot-link events are
+taken as complete for a drone once any was fed for it.
+
+Rules judged (spec/mcp.yaml): HDR-1..5, ACK-1..7, SEQ-1..4, RTX-1..4, BLK-1..7, PAY-1..8,
+ROB-2..4, FLOW-1..6, DUP-1..3. ROB-1/5/6/7 (liveness after bad input) and TRN need a live
+node and are the runner's; they stay ``not_observed`` here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from conformance._monitor_base import (
+    ACK,
+    HDR,
+    LEVEL,
+    N_ACTIONS,
+    NS,
+    PASSTHROUGH,
+    PRE,
+    PRE_LEN,
+    TESTER,
+    VEHICLE_KINDS,
+    VERDICT_OF_LEVEL,
+    NodeFacts,
+    VehicleEvent,
+    Violation,
+    _Node,
+    _Timers,
+    action_name,
+    role_of,
+    unpack_header,
+)
+from conformance._monitor_receiver import ReceiverRules
+from conformance._monitor_sender import SenderRules
+from conformance._monitor_vehicle import VehicleRules, events_from_mavlink, events_from_vehicle
+from spec import SPEC
+from spec.codec import BROADCAST_ID, DecodeError, decode
+
+__all__ = [
+    "MONITORED_RULES",
+    "Monitor",
+    "NodeFacts",
+    "TESTER",
+    "VEHICLE_KINDS",
+    "VehicleEvent",
+    "Violation",
+    "events_from_mavlink",
+    "events_from_vehicle",
+]
+
+#: Rules the monitor can judge from traffic (and the autopilot link); every other rule of a
+#: node's role is reported ``not_observed``.
+MONITORED_RULES: frozenset[str] = frozenset(
+    f"MCP-{r}" for r in (
+        "HDR-1 HDR-2 HDR-3 HDR-4 HDR-5 ACK-1 ACK-2 ACK-3 ACK-4 ACK-5 ACK-6 ACK-7 SEQ-1 SEQ-2 SEQ-3 "
+        "SEQ-4 RTX-1 RTX-2 RTX-3 RTX-4 BLK-1 BLK-2 BLK-3 BLK-4 BLK-5 BLK-6 BLK-7 PAY-1 PAY-2 PAY-3 "
+        "PAY-4 PAY-5 PAY-6 PAY-7 PAY-8 ROB-2 ROB-3 ROB-4 FLOW-1 FLOW-2 FLOW-3 FLOW-4 FLOW-5 FLOW-6 "
+        "DUP-1 DUP-2 DUP-3").split())
+
+_ACK_LEN = HDR + 2
+_KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
+_EMPTY = frozenset(a for a in range(N_ACTIONS) if _KINDS[a] == "empty")
+
+
+class Monitor(SenderRules, ReceiverRules, VehicleRules):
+    """Judge MCP traffic incrementally (see the module docstring).
+
+    ``rto``: the nodes' retransmission timeout as assumed (s); ``ack_window``: how long "no
+    reply" is watched (D-6); ``broadcast_id`` (D-1); ``drones``: the mission's drone IDs when
+    known (MCP-BLK-2, MCP-HDR-4); ``challenge`` (1-3) and ``waypoints`` (the mission items
+    the manager should send: waypoints for challenges 1-2, obstacles for 3) for MCP-FLOW-4..6;
+    ``complete``: the trace holds every datagram the nodes exchanged (absences are evidence).
+    """
+
+    def __init__(self, rto: float = 5.0, ack_window: float = 2.0, broadcast_id: int = BROADCAST_ID,
+                 drones: Iterable[int] | None = None, challenge: int | None = None,
+                 waypoints: Iterable[Any] | None = None, *, complete: bool = False) -> None:
+        self.rto_ns = int(rto * NS)
+        self.window_ns = int(ack_window * NS)
+        self.broadcast_id = broadcast_id
+        self.drones = tuple(drones) if drones is not None else None
+        self._declared = frozenset((0, *self.drones)) if self.drones is not None else None
+        self.challenge = challenge
+        self.waypoints = tuple(waypoints) if waypoints is not None else None
+        self.complete = complete
+        #: How long a (src, dst, seq) stays the same message: copies closer than this are
+        #: retransmissions, a later one is a new message after the numbers wrapped.
+        self.horizon_ns = max(60 * NS, 20 * self.rto_ns)
+        self.count = 0  # datagrams fed
+        self.last_t = 0
+        self.violations: list[Violation] = []
+        self._out: list[Violation] = []
+        self._nodes: dict[int, _Node] = {}
+        self._tester_ids: set[int] = set()
+        self._addr_ids: dict[Any, set[int]] = {}
+        self._orphans: list[tuple[int, int, Any, str, str]] = []  # malformed, sender unknown yet
+        self._ex: dict[tuple[int, int, int], Any] = {}
+        self._by_seq: dict[tuple[int, int], list[Any]] = {}  # (src, seq) -> what src sent with it
+        self._to_seq: dict[tuple[int, int], list[Any]] = {}  # (dst, seq) -> exchanges to dst
+        self._timers = _Timers()
+        self._violated: set[tuple[int, str]] = set()
+        self._observed: set[tuple[int, str]] = set()
+        self._frame_ok: dict[bytes, str | None] = {}
+        self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
+        self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
+        self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
+        self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
+        self._rob_dsts: dict[str, set[int]] = {r: set() for r in ("MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4")}
+        self._latency: dict[int, list[Any]] = {}  # MCP-ACK-7 samples per ACKing node
+        self._pt: dict[Any, list[Any]] = {}  # Mav_Passthrough messages by frame key
+        self._pt_to: dict[int, list[Any]] = {}  # ... by destination
+        self._node_delivers: set[int] = set()  # drones seen forwarding passthrough frames
+        self.inferred_challenge: int | None = None
+        self.finished = False
+        for d in self.drones or ():
+            self._node(d)
+
+    # ------------------------------------------------------------------ input
+    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes,
+                 origin: Any = None) -> list[Violation]:
+        """Judge one datagram seen on the wire (any direction). ``src_addr``/``dst_addr`` are
+        ``(host, port)`` or None; ``origin`` is :data:`TESTER` for the harness's own
+        datagrams, an MCP ID when the observer knows the sender, else None."""
+        i = self.count
+        self.count = i + 1
+        self.last_t = t_ns
+        out: list[Violation] = []
+        self._out = out
+        heap = self._timers.heap
+        if heap and heap[0][0] <= t_ns:
+            self._run_timers(t_ns)
+        n = len(data)
+        tester = origin is TESTER
+        if n < HDR or not data.startswith(PRE):
+            self._unframed(i, t_ns, src_addr, data, n, tester, origin)
+            return out
+        dst, src, seq, action = unpack_header(data)[3:]
+        nodes = self._nodes
+        if origin is not None and not tester and origin != src:
+            self._wrong_src(i, t_ns, origin, src, action)
+            tester = True  # its src is not its sender's: judged as input only
+        elif self._declared is not None and not tester and src not in self._declared:
+            # MCP-HDR-4: an ID outside the mission; its sender is named by address at the end
+            self._orphans.append((i, t_ns, src_addr, "MCP-HDR-4", f"has src {src}"))
+            tester = True
+        if tester:
+            self._tester_ids.add(src)
+        else:
+            node = nodes.get(src) or self._node(src)
+            node.sent += 1
+            if not node.real:
+                node.real = True
+                for fn, args in self._on_real.pop(src, ()):
+                    fn(t_ns, *args)
+            if src_addr is not None and action < N_ACTIONS:
+                if src_addr not in node.addresses:
+                    node.addresses[src_addr] = None
+                    self._addr_ids.setdefault(src_addr, set()).add(src)
+        receiver = nodes.get(dst)
+        if receiver is not None:
+            receiver.received += 1
+        if action == ACK:
+            if n == _ACK_LEN:
+                self._ack(i, t_ns, src, dst, seq, (data[HDR] << 8) | data[HDR + 1], tester)
+            else:
+                self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester,
+                                f"ACK payload of {n - HDR} bytes (exactly 2 required)")
+            return out
+        if action >= N_ACTIONS:
+            self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-3", tester,
+                            f"action code {action} is not 0-{N_ACTIONS - 1}")
+            return out
+        if action in _EMPTY:
+            if n != HDR:
+                self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester,
+                                f"payload of {n - HDR} bytes where {action_name(action)} has none")
+                return out
+            payload = None
+        elif action == PASSTHROUGH:
+            frame = data[HDR:]
+            why = self._frame_ok.get(frame, False)
+            if why is False:
+                try:
+                    decode(data)
+                    why = None
+                except DecodeError as exc:
+                    why = exc.reason
+                if len(self._frame_ok) < 4096:
+                    self._frame_ok[frame] = why
+            if why is not None:
+                self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester, why)
+                return out
+            payload = frame
+        else:
+            try:
+                payload = decode(data).payload
+            except DecodeError as exc:
+                self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester, exc.reason)
+                return out
+        self._message(i, t_ns, src, dst, seq, action, data, payload, tester)
+        return out
+
+    def vehicle(self, t_ns: int, drone_id: int, event: VehicleEvent) -> list[Violation]:
+        """An observation on drone ``drone_id``'s autopilot link (see :class:`VehicleEvent`)."""
+        out: list[Violation] = []
+        self._out = out
+        self.last_t = max(self.last_t, t_ns)
+        heap = self._timers.heap
+        if heap and heap[0][0] <= t_ns:
+            self._run_timers(t_ns)
+        self._vehicle_event(t_ns, drone_id, event)
+        return out
+
+    def advance(self, t_ns: int) -> list[Violation]:
+        """Time has passed: deadlines up to ``t_ns`` fall due."""
+        out: list[Violation] = []
+        self._out = out
+        self.last_t = max(self.last_t, t_ns)
+        self._run_timers(t_ns)
+        return out
+
+    def finish(self, t_ns: int | None = None) -> list[Violation]:
+        """The trace ends at ``t_ns`` (default: the last time seen). Deadlines after it judge
+        nothing; what needs the whole trace (medians, the mission's end) is judged now."""
+        out: list[Violation] = []
+        self._out = out
+        if self.finished:
+            return out
+        end = self.last_t if t_ns is None else max(t_ns, self.last_t)
+        self.last_t = end
+        self._run_timers(end)
+        self._finish_sender(end)
+        self._finish_receiver(end)
+        self._finish_orphans()
+        self.finished = True
+        return out
+
+    # ------------------------------------------------------------------ output
+    def verdicts(self) -> dict[int, dict[str, str]]:
+        """``{node_id: {rule_id: verdict}}`` for every node seen, over the rules of its role:
+        failed / warned / info where a MUST / SHOULD / INFO rule was violated, passed where
+        the rule was observed and never violated, info for an observed INFO rule, else
+        not_observed."""
+        out: dict[int, dict[str, str]] = {}
+        for node in sorted(self._nodes.values(), key=lambda n: n.id):
+            if not self._reported(node):
+                continue
+            role = node.role
+            table = {}
+            for rule in SPEC.rules:
+                if rule.status != "active" or not rule.applies_to(role):
+                    continue
+                key = (node.id, rule.id)
+                if key in self._violated:
+                    table[rule.id] = VERDICT_OF_LEVEL[rule.level]
+                elif key in self._observed:
+                    table[rule.id] = "info" if rule.level == "INFO" else "passed"
+                else:
+                    table[rule.id] = "not_observed"
+            out[node.id] = table
+        return out
+
+    def nodes(self) -> list[NodeFacts]:
+        """The nodes the trace showed (not the harness's own IDs), by ID."""
+        return [NodeFacts(n.id, n.role, tuple(n.addresses), n.sent, n.received)
+                for n in sorted(self._nodes.values(), key=lambda n: n.id) if self._reported(n)]
+
+    def _reported(self, node: _Node) -> bool:
+        return node.real or (self.drones is not None and node.id in self.drones)
+
+    # ------------------------------------------------------------------ shared helpers
+    def _node(self, node_id: int) -> _Node:
+        node = self._nodes.get(node_id)
+        if node is None:
+            node = self._nodes[node_id] = _Node(node_id)
+        return node
+
+    def _run_timers(self, now: int) -> None:
+        for fn, args in self._timers.due(now):
+            fn(now, *args)
+
+    def _judged(self, node: int, rule: str) -> bool:
+        """Whether ``rule`` binds ``node`` (its role) and ``node`` is not the harness."""
+        n = self._nodes.get(node)
+        return n is not None and n.real and SPEC.rule(rule).applies_to(role_of(node))
+
+    def _observe(self, node: int, rule: str) -> None:
+        self._observed.add((node, rule))
+
+    def _emit(self, rule: str, node: int, t_ns: int, expected: str, actual: str,
+              evidence: Iterable[tuple[int, int]]) -> None:
+        if not self._judged(node, rule):
+            return
+        v = Violation(rule, LEVEL[rule], node, t_ns, expected, actual, tuple(evidence))
+        self._violated.add((node, rule))
+        self._observed.add((node, rule))
+        self.violations.append(v)
+        self._out.append(v)
+
+    # ------------------------------------------------------------------ unframed datagrams
+    def _unframed(self, i: int, t: int, src_addr: Any, data: bytes, n: int, tester: bool,
+                  origin: Any) -> None:
+        """Short (< 17 bytes) or bad preamble: MCP-HDR-2 / MCP-HDR-1 on its sender when it can
+        be named; as input to others, a bad preamble with a whole header is MCP-ROB-2's."""
+        k = min(n, PRE_LEN)
+        rule = "MCP-HDR-1" if data[:k] != PRE[:k] else "MCP-HDR-2"
+        what = (f"starts {bytes(data[:PRE_LEN]).hex(' ')}" if rule == "MCP-HDR-1"
+                else f"{n} bytes long")
+        if n >= HDR:
+            dst, src, seq, action = unpack_header(data)[3:]
+            self._remember(src, seq, ("MCP-ROB-2", dst, i, t, action))
+            self._rob_dsts["MCP-ROB-2"].add(dst)
+        if tester:
+            return
+        if isinstance(origin, int):
+            node = self._node(origin)
+            node.real = True
+            node.sent += 1
+            self._blame_unframed(origin, i, t, rule, what, "")
+        else:
+            self._orphans.append((i, t, src_addr, rule, what))
+
+    def _blame_unframed(self, node: int, i: int, t: int, rule: str, what: str, how: str) -> None:
+        expected = ("every datagram starts with the preamble " + PRE.hex(" ") if rule == "MCP-HDR-1"
+                    else f"at least the {HDR}-byte header")
+        self._emit(rule, node, t, expected, f"datagram #{i} {what}{how}", [(i, t)])
+
+    def _finish_orphans(self) -> None:
+        """Datagrams whose sender the header cannot name (malformed, or an ID outside the
+        declared mission): blamed on the one ID their source address was seen with, if
+        exactly one (a mission ID for MCP-HDR-4); otherwise on nobody."""
+        for i, t, addr, rule, what in self._orphans:
+            ids = self._addr_ids.get(addr) if addr is not None else None
+            if ids is not None and rule == "MCP-HDR-4":
+                ids = ids & self._declared
+            if ids is not None and len(ids) == 1:
+                (node,) = ids
+                host, port = addr
+                how = f" (sender by source address {host}:{port}, seen only with ID {node})"
+                if rule == "MCP-HDR-4":
+                    self._observe(node, rule)
+                    self._emit(rule, node, t, f"src = {node}, the node's configured ID",
+                               f"datagram #{i} {what}{how}", [(i, t)])
+                else:
+                    self._blame_unframed(node, i, t, rule, what, how)
+        self._orphans.clear()
+
+    def _wrong_src(self, i: int, t: int, origin: int, src: int, action: int) -> None:
+        """MCP-HDR-4: the observer knows the sender is ``origin`` but the header says ``src``."""
+        node = self._node(origin)
+        node.real = True
+        node.sent += 1
+        self._observe(origin, "MCP-HDR-4")
+        self._emit("MCP-HDR-4", origin, t, f"src = {origin}, the node's configured ID",
+                   f"{action_name(action)} with src {src}", [(i, t)])

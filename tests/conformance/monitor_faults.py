@@ -1,0 +1,533 @@
+"""Faulty conversations for the trace monitor: each breaks exactly one rule, once.
+
+``FAULTY[name]`` is a :class:`Fault`: the rule the conversation must raise (and no other),
+whether the monitor judges it as a complete trace, and ``build()`` returning the
+:class:`~tests.conformance.monitor_scripts.Script`. Every conversation is a whole mission
+(or the part of one the fault allows) of the manager and two drones, built from the
+script's clean phases with one step changed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+from conformance.monitor import TESTER
+from spec.codec import PREAMBLE, Action, Message, MissionItem, build_datagram, encode
+from spec.mavframe import heartbeat_frame
+from tests.conformance.monitor_scripts import Script
+
+__all__ = ["FAULTY", "Fault"]
+
+
+class Fault(NamedTuple):
+    rule: str
+    build: Callable[[], Script]
+    complete: bool = True
+
+
+def _started(challenge: int = 1, **kw: object) -> Script:
+    s = Script((1, 2), challenge=challenge, **kw)
+    for d in s.drones:
+        s.ready(d)
+    for d in s.drones:
+        s.start(d)
+    return s
+
+
+def _finish(s: Script, *, steps: bool = True) -> Script:
+    if steps:
+        s.challenge_steps()
+    for d in s.drones:
+        s.end(d)
+    return s
+
+
+# ---------------------------------------------------------------- HDR
+def hdr1() -> Script:
+    s = _started()
+    s.tick(0.05)
+    s.raw(1, PREAMBLE[:-1] + b"\x02" + bytes(10))  # drone 1's address, a wrong last preamble byte
+    return _finish(s)
+
+
+def hdr2() -> Script:
+    s = _started()
+    s.raw(2, PREAMBLE + b"\x00\x00")  # 11 bytes, the preamble and half a header
+    return _finish(s)
+
+
+def hdr3() -> Script:
+    s = _started()
+    s.raw(1, build_datagram(0, 1, s.next_seq(1), 9))  # "Any" on the wire
+    return _finish(s)
+
+
+def hdr4() -> Script:
+    s = _started()
+    seq = s.exchange(0, 2, Action.WP_OFF)
+    s.ack(2, 0, seq, hdr_src=9)  # a second ACK, with a src that is not drone 2's ID
+    return _finish(s)
+
+
+def hdr5() -> Script:
+    s = _started()
+    s.exchange(1, 0, Action.WP_LIST, ())  # a drone sends a manager's command (ACKed)
+    return _finish(s)
+
+
+# ---------------------------------------------------------------- ACK
+def ack1() -> Script:
+    s = _started()
+    s.exchange(0, 1, Action.WP_OFF, deaf=6)  # unanswered through 6 copies
+    return _finish(s)
+
+
+def ack2() -> Script:
+    s = _started()
+
+    def little(k: int, seq: int, data: bytes) -> bool:
+        s.ack(1, 0, seq, little=k == 0)
+        return k > 0
+    s.exchange(0, 1, Action.WP_OFF, ack_hook=little)
+    return _finish(s)
+
+
+def ack3() -> Script:
+    s = _started()
+
+    def wrong_dst(k: int, seq: int, data: bytes) -> bool:
+        s.ack(1, 0, seq, hdr_dst=0x0FFF if k == 0 else None)
+        return k > 0
+    s.exchange(0, 1, Action.WP_OFF, ack_hook=wrong_dst)
+    return _finish(s)
+
+
+def ack4() -> Script:
+    s = _started(challenge=2)
+    seq, _ = s.send(0, 0xFFFF, Action.WP_ON, s.items[0])
+    s.tick(0.004)
+    s.ack(1, 0, seq)  # drone 1 ACKs a broadcast
+    s.tick(0.1)
+    s.send(0, 0xFFFF, Action.WP_OFF)
+    s.tick(0.1)
+    return _finish(s)
+
+
+def ack5() -> Script:
+    s = _started()
+    seq = s.exchange(0, 2, Action.WP_OFF)
+    s.ack(1, 0, seq)  # drone 1 ACKs what was addressed to drone 2
+    return _finish(s)
+
+
+def ack6() -> Script:
+    s = _started()
+    s.tick(0.05)
+    own = s.seq[0]
+    s.ack(0, 1, 4242)  # the manager ACKs something (its own number is ``own``)
+    s.tick(0.004)
+    s.ack(1, 0, own)  # drone 1 ACKs that ACK
+    return _finish(s)
+
+
+def ack7() -> Script:
+    s = Script((1, 2), rto=1.0, ack_window=0.5)
+    for d in s.drones:
+        s.ready(d)
+    for d in s.drones:
+        s.start(d, ack_delay=0.3 if d == 1 else None)
+    s.challenge_steps()
+    for d in s.drones:
+        s.end(d, ack_delay=0.3 if d == 1 else None)
+    return s
+
+
+# ---------------------------------------------------------------- SEQ
+def seq1() -> Script:
+    s = _started()
+    s.seq[0] = (s.seq[0] + 5) & 0xFFFF  # the manager skips five numbers
+    return _finish(s)
+
+
+def seq2() -> Script:
+    s = _started()
+    seq = s.next_seq(0)
+    first = encode(Message(1, 0, seq, Action.WP_LIST, tuple(reversed(s.items))))
+    s.raw(0, first, to=1)
+    s.tick(s.rto)  # unACKed: a retransmission with other bytes
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items), seq=seq)
+    s.tick(0.01)
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items))
+    return _finish(s, steps=False)
+
+
+# ---------------------------------------------------------------- RTX
+def rtx1() -> Script:
+    s = _started()
+    s.raw(0, encode(Message(1, 0, s.next_seq(0), Action.WP_OFF)), to=1)  # sent once, unACKed
+    s.tick(s.rto)  # ... and given up at once
+    return _finish(s)
+
+
+def rtx2() -> Script:
+    """The harness plays the manager: a wrong-seq ACK, after which drone 1 stops."""
+    s = Script((1,), vehicle=False)
+    seq, data = s.send(1, 0, Action.MISSION_READY)
+    for _ in range(3):
+        s.tick(s.rto)
+        s.raw(1, data)
+    s.tick(0.01)
+    s.ack(0, 1, (seq + 0x8000) & 0xFFFF, origin=TESTER)
+    s.tick(2.0)  # no copy for 2 s
+    s.ack(0, 1, seq, origin=TESTER)
+    return s
+
+
+def rtx3() -> Script:
+    s = _started()
+    s.exchange(0, 1, Action.WP_OFF, deaf=3, gaps=[0.2, 0.2, 0.5])  # one gap 2.5x the others
+    return _finish(s)
+
+
+def rtx3_storm() -> Script:
+    s = _started()
+    s.exchange(0, 1, Action.WP_OFF, deaf=2, gaps=[0.01, 0.01])  # 10 ms apart
+    return _finish(s)
+
+
+def rtx4() -> Script:
+    s = _started(challenge=2)
+    seq, data = s.send(0, 0xFFFF, Action.WP_ON, s.items[0])
+    s.tick(0.2)
+    s.raw(0, data, to=0xFFFF)  # a broadcast sent twice
+    s.tick(0.1)
+    s.send(0, 0xFFFF, Action.WP_OFF)
+    s.tick(0.1)
+    return _finish(s)
+
+
+# ---------------------------------------------------------------- BLK
+def blk1() -> Script:
+    s = _started()
+    seq, data = s.send(0, 1, Action.WP_LIST, tuple(s.items))
+    s.tick(0.05)  # drone 1 has not ACKed yet: a new unicast to drone 2
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items))
+    s.tick(s.rto - 0.05)
+    s.raw(0, data, to=1)
+    s.tick(0.004)
+    s.ack(1, 0, seq)
+    return _finish(s, steps=False)
+
+
+def blk2() -> Script:
+    s = Script((1, 2))
+    s.ready(1)
+    s.start(1)  # before drone 2 said Mission_Ready
+    s.ready(2)
+    s.start(2)
+    return _finish(s)
+
+
+def blk3() -> Script:
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    s.tick(0.05)  # not ACKed yet
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items))
+    s.tick(s.rto - 0.05)
+    s.raw(0, data, to=1)
+    s.tick(0.004)
+    s.ack(1, 0, seq)
+    s.vehicle(1, "arm", ok=True)
+    s.start(2)
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items))
+    return _finish(s, steps=False)
+
+
+def blk4() -> Script:
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    s.vehicle(1, "arm", ok=True)  # before Start_Mission
+    for d in s.drones:
+        s.exchange(0, d, Action.START_MISSION)
+    s.vehicle(2, "arm", ok=True)
+    return _finish(s)
+
+
+def blk5() -> Script:
+    s = Script((1, 2))
+    s.vehicle(1, "link")  # no fix yet
+    s.exchange(1, 0, Action.MISSION_READY)
+    s.vehicle(1, "fix")
+    s.ready(2)
+    for d in s.drones:
+        s.start(d)
+    return _finish(s)
+
+
+def blk6() -> Script:
+    s = _started()
+    s.challenge_steps()
+    s.end(1)
+    s.exchange(0, 1, Action.WP_OFF)  # after drone 1's End_Mission
+    s.end(2)
+    return s
+
+
+def blk7() -> Script:
+    s = _started()
+    s.challenge_steps()
+    s.exchange(0, 1, Action.END_MISSION)  # drone 1 never commands RTL
+    s.end(2)
+    return s
+
+
+# ---------------------------------------------------------------- PAY
+def _bad_command(s: Script, action: Action, payload: bytes, *, origin: object = None) -> None:
+    s.raw(0, build_datagram(1, 0, s.next_seq(0), int(action), payload), to=1, origin=origin)
+    s.tick(s.rto)  # not ACKed (D-4); the manager moves on
+
+
+def pay1() -> Script:
+    s = _started()
+    _bad_command(s, Action.WP_OFF, b"\x00\x01")
+    return _finish(s)
+
+
+def pay2() -> Script:
+    s = Script((1, 2))
+    bad = build_datagram(0, 1, s.next_seq(1), int(Action.MISSION_READY), b"\x00\x01\x00\x00")
+    s.vehicle(1, "link")
+    s.vehicle(1, "fix")
+    s.raw(1, bad)  # not ACKed (D-4)
+    s.tick(s.rto)
+    s.raw(1, bad)
+    s.tick(0.1)
+    s.exchange(1, 0, Action.MISSION_READY)
+    s.ready(2)
+    for d in s.drones:
+        s.start(d)
+    return _finish(s)
+
+
+def pay3() -> Script:
+    s = _started()
+    from spec.codec import ITEM
+    _bad_command(s, Action.WP_LIST, (2).to_bytes(2, "big") + ITEM.pack(*s.items[0]))
+    return _finish(s)
+
+
+def pay5() -> Script:
+    s = _started(challenge=2)
+    from spec.codec import ITEM
+    _bad_command(s, Action.WP_ON, ITEM.pack(*s.items[0])[:-1])
+    return _finish(s)
+
+
+def pay6() -> Script:
+    s = _started()
+    frame = bytearray(heartbeat_frame())
+    frame[-1] ^= 0xFF  # a bad CRC
+    _bad_command(s, Action.MAV_PASSTHROUGH, bytes(frame))
+    return _finish(s)
+
+
+def pay7() -> Script:
+    insane = MissionItem(0.0, 0.0, 0.0, 0.0, 135.0, -78.6, 3.0, 9, 16, 1, 1, 0, 0, 1)  # latitude 135
+    s = Script((1, 2), challenge=1, waypoints=(insane,))
+    for d in s.drones:
+        s.ready(d)
+    for d in s.drones:
+        s.start(d)
+    return _finish(s)
+
+
+def pay8() -> Script:
+    s = _started()
+    s.challenge_steps()
+    s.passthrough(1)
+    s.vehicle(1, "frame", frame=heartbeat_frame())  # written a second time
+    s.passthrough(2)
+    for d in s.drones:
+        s.end(d)
+    return s
+
+
+# ---------------------------------------------------------------- ROB
+def rob2() -> Script:
+    s = _started()
+    seq = s.next_seq(0)
+    bad = PREAMBLE[:-1] + b"\x02" + build_datagram(1, 0, seq, int(Action.WP_OFF))[9:]
+    s.raw(0, bad, to=1, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, seq)  # drone 1 ACKs a datagram with a bad preamble
+    return _finish(s)
+
+
+def rob3() -> Script:
+    s = _started()
+    seq = s.next_seq(0)
+    s.raw(0, build_datagram(1, 0, seq, 12), to=1, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, seq)
+    return _finish(s)
+
+
+def rob4() -> Script:
+    s = _started()
+    seq = s.next_seq(0)
+    s.raw(0, build_datagram(1, 0, seq, int(Action.WP_OFF), b"\x01"), to=1, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, seq)
+    return _finish(s)
+
+
+# ---------------------------------------------------------------- FLOW
+def flow1() -> Script:
+    s = Script((1, 2), vehicle=False)
+    s.ready(2)
+    seq, data = s.send(1, 5, Action.MISSION_READY)  # to ID 5, not the manager
+    for _ in range(4):
+        s.tick(s.rto)
+        s.raw(1, data)
+    s.start(2)
+    s.challenge_steps(drones=(2,))
+    s.end(2)
+    return s
+
+
+def flow2() -> Script:
+    s = Script((1, 2))
+    s.ready(1, deaf=8)  # the manager ignores drone 1's Mission_Ready for 8 copies
+    s.ready(2)
+    for d in s.drones:
+        s.start(d)
+    return _finish(s)
+
+
+def flow3() -> Script:
+    s = _started()
+    s.challenge_steps()
+    s.end(1)  # and never drone 2
+    return s
+
+
+def flow4() -> Script:
+    s = _started()
+    s.challenge_steps()
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items))  # a second WP_List
+    return _finish(s, steps=False)
+
+
+def flow5() -> Script:
+    s = _started(challenge=2)
+    s.exchange(0, 1, Action.WP_OFF)  # no WP_On before it
+    return _finish(s)
+
+
+def flow6() -> Script:
+    s = _started(challenge=3)
+    for d in s.drones:
+        s.exchange(0, d, Action.OBSTACLES_LIST, tuple(s.items[:1]))  # not the mission's obstacles
+    return _finish(s, steps=False)
+
+
+# ---------------------------------------------------------------- DUP, SEQ-3 (autopilot link)
+def dup1() -> Script:
+    s = _started()
+    s.passthrough(2)
+    frame = heartbeat_frame()
+
+    def again(k: int, seq: int, data: bytes) -> bool:
+        s.ack(1, 0, seq)
+        s.tick(0.01)
+        s.vehicle(1, "frame", frame=frame)  # each copy written to the autopilot
+        s.tick(-0.01)
+        return k > 0
+    s.exchange(0, 1, Action.MAV_PASSTHROUGH, frame, ack_hook=again)
+    return _finish(s)
+
+
+def dup2() -> Script:
+    s = _started()
+    s.passthrough(1)
+    s.passthrough(2)
+    s.exchange(0, 1, Action.MAV_PASSTHROUGH, heartbeat_frame())  # the same bytes: not delivered
+    s.tick(0.05)
+    return _finish(s)
+
+
+def dup3() -> Script:
+    s = _started()
+    s.passthrough(2)
+    frame = heartbeat_frame()
+    seq = s.passthrough(1)
+    other = heartbeat_frame(seq=7)
+    s.tick(0.05)
+    s.exchange(5, 1, Action.MAV_PASSTHROUGH, other, seq=seq, origin=TESTER)  # not delivered
+    del frame
+    return _finish(s)
+
+
+def seq3() -> Script:
+    s = _started(seqs={0: 65530})
+    s.passthrough(2)
+    while s.seq[0] != 65535:
+        s.passthrough(1, heartbeat_frame(seq=s.seq[0] & 0xFF))
+    s.passthrough(1, heartbeat_frame(seq=200))  # seq 65535
+    s.exchange(0, 1, Action.MAV_PASSTHROUGH, heartbeat_frame(seq=201))  # seq 0: not delivered
+    s.tick(0.05)
+    return _finish(s)
+
+
+FAULTY: dict[str, Fault] = {
+    "hdr1-bad-preamble": Fault("MCP-HDR-1", hdr1),
+    "hdr2-short": Fault("MCP-HDR-2", hdr2),
+    "hdr3-action-9": Fault("MCP-HDR-3", hdr3),
+    "hdr4-wrong-src": Fault("MCP-HDR-4", hdr4),
+    "hdr5-drone-sends-wp-list": Fault("MCP-HDR-5", hdr5),
+    "ack1-unanswered": Fault("MCP-ACK-1", ack1),
+    "ack2-little-endian": Fault("MCP-ACK-2", ack2, complete=False),
+    "ack3-wrong-dst": Fault("MCP-ACK-3", ack3),
+    "ack4-acks-broadcast": Fault("MCP-ACK-4", ack4, complete=False),
+    "ack5-acks-other-id": Fault("MCP-ACK-5", ack5, complete=False),
+    "ack6-acks-ack": Fault("MCP-ACK-6", ack6),
+    "ack7-slow": Fault("MCP-ACK-7", ack7),
+    "seq1-skips": Fault("MCP-SEQ-1", seq1),
+    "seq2-copy-differs": Fault("MCP-SEQ-2", seq2, complete=False),
+    "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
+    "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
+    "rtx3-uneven": Fault("MCP-RTX-3", rtx3),
+    "rtx3-storm": Fault("MCP-RTX-3", rtx3_storm, complete=False),
+    "rtx4-broadcast-twice": Fault("MCP-RTX-4", rtx4, complete=False),
+    "blk1-no-stop-and-wait": Fault("MCP-BLK-1", blk1, complete=False),
+    "blk2-start-before-all-ready": Fault("MCP-BLK-2", blk2),
+    "blk3-command-before-start-acked": Fault("MCP-BLK-3", blk3),
+    "blk4-arms-early": Fault("MCP-BLK-4", blk4),
+    "blk5-ready-without-fix": Fault("MCP-BLK-5", blk5),
+    "blk6-command-after-end": Fault("MCP-BLK-6", blk6, complete=False),
+    "blk7-no-rtl": Fault("MCP-BLK-7", blk7),
+    "pay1-payload-on-wp-off": Fault("MCP-PAY-1", pay1),
+    "pay2-ready-payload": Fault("MCP-PAY-2", pay2),
+    "pay3-count-mismatch": Fault("MCP-PAY-3", pay3),
+    "pay5-short-item": Fault("MCP-PAY-5", pay5),
+    "pay6-bad-crc": Fault("MCP-PAY-6", pay6),
+    "pay7-insane-item": Fault("MCP-PAY-7", pay7),
+    "pay8-forwarded-twice": Fault("MCP-PAY-8", pay8),
+    "rob2-acks-bad-preamble": Fault("MCP-ROB-2", rob2, complete=False),
+    "rob3-acks-unknown-action": Fault("MCP-ROB-3", rob3, complete=False),
+    "rob4-acks-bad-length": Fault("MCP-ROB-4", rob4, complete=False),
+    "flow1-ready-to-wrong-id": Fault("MCP-FLOW-1", flow1),
+    "flow2-ready-not-acked": Fault("MCP-FLOW-2", flow2),
+    "flow3-no-end-mission": Fault("MCP-FLOW-3", flow3),
+    "flow4-two-wp-lists": Fault("MCP-FLOW-4", flow4, complete=False),
+    "flow5-wp-off-without-wp-on": Fault("MCP-FLOW-5", flow5),
+    "flow6-wrong-obstacles": Fault("MCP-FLOW-6", flow6, complete=False),
+    "dup1-duplicate-delivered": Fault("MCP-DUP-1", dup1),
+    "dup2-same-bytes-dropped": Fault("MCP-DUP-2", dup2),
+    "dup3-other-src-dropped": Fault("MCP-DUP-3", dup3),
+    "seq3-no-wrap": Fault("MCP-SEQ-3", seq3),
+}

@@ -1,0 +1,178 @@
+"""The trace monitor on scripted whole missions: clean ones raise nothing, each faulty one
+raises exactly its rule (tests/conformance/monitor_faults.py), on complete and lossy traces.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from conformance.monitor import MONITORED_RULES, TESTER, Monitor, Violation
+from spec import SPEC
+from spec.codec import Action, DecodeError, Message, decode, encode
+from tests.conformance.monitor_faults import FAULTY
+from tests.conformance.monitor_scripts import Script, clean_script
+
+
+def _rules(violations: list[Violation]) -> list[tuple[str, int, str]]:
+    return [(v.rule, v.node, v.actual) for v in violations]
+
+
+# ---------------------------------------------------------------- clean missions
+@pytest.mark.parametrize("complete", [True, False], ids=["complete", "lossy"])
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+@pytest.mark.parametrize("drones", [(1, 2), (1, 2, 3), (7, 300, 4242)])
+def test_a_clean_mission_raises_nothing(challenge, drones, complete):
+    s = clean_script(challenge, drones=drones, seed=challenge * 10 + len(drones))
+    assert _rules(s.judge(complete=complete)) == []
+    verdicts = s.last_monitor.verdicts()
+    assert set(verdicts) == {0, *drones}
+    for node, table in verdicts.items():
+        assert not {r: v for r, v in table.items() if v in ("failed", "warned")}, node
+
+
+@pytest.mark.parametrize("complete", [True, False], ids=["complete", "lossy"])
+@pytest.mark.parametrize("kw", [
+    {"lost_acks": 1},  # every command's first ACK lost: a retransmission after an ACK
+    {"deaf": 2},  # every command's receiver misses two copies
+    {"deaf": 1, "lost_acks": 2},
+], ids=["lost-acks", "deaf", "both"])
+def test_retransmissions_and_lost_acks_are_normal(kw, complete):
+    for challenge in (1, 2, 3):
+        s = Script((1, 2), challenge=challenge, seed=challenge)
+        s.mission(**kw)
+        assert _rules(s.judge(complete=complete)) == [], challenge
+
+
+@pytest.mark.parametrize("ack_numbers", [True, False], ids=["acks-numbered", "acks-unnumbered"])
+def test_sequence_numbers_wrap_and_start_anywhere(ack_numbers):
+    for start in (65530, 65535, 0, 12345):
+        s = Script((1, 2), challenge=2, seqs={0: start, 1: 65535, 2: start ^ 0x5555},
+                   ack_numbers=ack_numbers)
+        s.mission()
+        assert _rules(s.judge()) == [], start
+        assert s.last_monitor.verdicts()[0]["MCP-SEQ-1"] == "passed"
+
+
+def test_a_clean_mission_is_observed_rule_by_rule():
+    s = Script((1, 2, 3), challenge=1)
+    s.mission(lost_acks=1)
+    s.judge()
+    v = s.last_monitor.verdicts()
+    for rule in ("MCP-HDR-1", "MCP-HDR-5", "MCP-SEQ-1", "MCP-SEQ-2", "MCP-BLK-1", "MCP-BLK-2",
+                 "MCP-RTX-1", "MCP-PAY-1", "MCP-PAY-3", "MCP-PAY-6", "MCP-PAY-7", "MCP-FLOW-2",
+                 "MCP-FLOW-3", "MCP-FLOW-4", "MCP-ACK-1", "MCP-ACK-5"):
+        if SPEC.rule(rule).applies_to("manager"):
+            assert v[0][rule] == "passed", rule
+    for rule in ("MCP-ACK-1", "MCP-ACK-2", "MCP-ACK-3", "MCP-ACK-7", "MCP-FLOW-1", "MCP-PAY-2",
+                 "MCP-BLK-4", "MCP-BLK-5", "MCP-BLK-7", "MCP-PAY-8"):
+        assert v[2][rule] == "passed", rule
+    assert v[1]["MCP-SEQ-4"] == "info"
+    assert v[1]["MCP-ROB-7"] == "not_observed"  # liveness is the runner's
+    assert "MCP-PAY-3" not in v[1] and "MCP-BLK-4" not in v[0]
+
+
+# ---------------------------------------------------------------- faulty missions
+@pytest.mark.parametrize("name", sorted(FAULTY))
+def test_a_faulty_mission_raises_exactly_its_rule(name):
+    fault = FAULTY[name]
+    s = fault.build()
+    violations = s.judge(complete=fault.complete)
+    assert {v.rule for v in violations} == {fault.rule}, _rules(violations)
+    for v in violations:
+        rule = SPEC.rule(v.rule)
+        assert v.level == rule.level and v.text == rule.text
+        assert v.evidence and all(0 <= i < s.last_monitor.count for i, _ in v.evidence)
+        assert s.last_monitor.verdicts()[v.node][v.rule] == {"MUST": "failed", "SHOULD": "warned"}[v.level]
+
+
+def test_faulty_missions_cover_every_rule_group():
+    groups = {FAULTY[n].rule.split("-")[1] for n in FAULTY}
+    assert groups >= {"HDR", "ACK", "SEQ", "RTX", "BLK", "PAY", "ROB", "FLOW", "DUP"}
+    assert len(FAULTY) >= 15
+    assert {f.rule for f in FAULTY.values()} <= MONITORED_RULES
+
+
+# ---------------------------------------------------------------- what the trace proves
+def test_an_unanswered_command_at_the_end_is_not_a_violation():
+    s = Script((1,), challenge=1)
+    s.ready(1)
+    s.start(1)
+    s.send(0, 1, Action.WP_LIST, tuple(s.items))  # the trace ends before any ACK
+    assert _rules(s.judge(tail=0.0)) == []
+
+
+def test_absences_are_not_judged_on_a_lossy_trace():
+    for name in ("ack1-unanswered", "rtx1-gives-up", "flow3-no-end-mission", "ack6-acks-ack"):
+        assert FAULTY[name].build().judge(complete=False) == [], name
+
+
+def test_a_malformed_datagram_from_an_unknown_sender_blames_nobody():
+    s = clean_script(1)
+    s.records.append(s.records[-1]._replace(src_addr=("127.0.0.99", 9), data=b"XXXXXXXXX" + bytes(8)))
+    assert _rules(s.judge()) == []
+
+
+def test_an_address_shared_by_two_ids_names_no_sender():
+    s = Script((1, 2))
+    s.mission()
+    shared = s.addr(1)
+    s.records = [r._replace(src_addr=shared) if r.src_addr == s.addr(2) else r for r in s.records]
+    s.raw(1, b"\x00" * 20)
+    assert _rules(s.judge()) == []
+
+
+def test_the_harness_is_never_blamed():
+    s = Script((1,), vehicle=False)
+    s.exchange(1, 0, Action.MISSION_READY, acker_origin=TESTER)
+    for data in (b"", b"\x01", b"NCSU-CM\x01\x02" + bytes(8), b"NCSU-CM\x01\x01" + bytes(6) + b"\x00\x0c"):
+        s.raw(0, data, to=1, origin=TESTER)
+    s.ack(0, 1, 4321, origin=TESTER, hdr_src=0x101)
+    s.send(0, 0xFFFF, Action.START_MISSION, origin=TESTER)
+    s.send(0, 1, Action.WP_OFF, origin=TESTER)
+    assert _rules(s.judge()) == []
+    assert [n.id for n in s.last_monitor.nodes()] == [1]
+
+
+def test_origin_names_the_sender_of_a_wrong_src():
+    m = Monitor(complete=True)
+    out = m.datagram(1, ("127.0.0.1", 9), None, encode(Message(0, 2, 5, Action.MISSION_READY)), origin=1)
+    assert [(v.rule, v.node) for v in out] == [("MCP-HDR-4", 1)]
+
+
+# ---------------------------------------------------------------- bytes
+EDGE = {
+    "empty": b"",
+    "short": b"NCSU-CM\x01\x01\x00\x01\x00",
+    "bad-preamble": b"NCSU-CX\x01\x01\x00\x00\x00\x01\x00\x05\x00\x07\x00\x05",
+    "unknown-action": b"NCSU-CM\x01\x01\x00\x00\x00\x01\x00\x05\x00\x0a",
+    "wrong-length": b"NCSU-CM\x01\x01\x00\x00\x00\x01\x00\x05\x00\x00\x00\x01\x02",
+    "huge": b"NCSU-CM\x01\x01\x00\x00\x00\x01\x00\x05\x00\x08" + bytes(65507 - 17),
+}
+SENDER_RULE = {"short": "MCP-HDR-2", "bad-preamble": "MCP-HDR-1", "unknown-action": "MCP-HDR-3",
+               "wrong-length": "MCP-PAY-2", "huge": "MCP-HDR-5", "empty": "MCP-HDR-2"}
+
+
+@pytest.mark.parametrize("name", sorted(EDGE))
+def test_byte_level_edge_cases_blame_the_sender_by_its_rule(name):
+    s = Script((1,), vehicle=False)
+    s.exchange(1, 0, Action.MISSION_READY)  # address 127.0.0.11 is drone 1's
+    s.raw(1, EDGE[name])
+    assert {v.rule for v in s.judge()} == {SENDER_RULE[name]}
+
+
+def test_every_prefix_and_trailing_garbage():
+    """Cut anywhere, with or without garbage after: a framed datagram blames its header's
+    src by the rule it breaks (as the codec classifies it); an unframed one from no known
+    address blames nobody."""
+    whole = encode(Message(0, 1, 77, Action.MISSION_READY, 1))
+    sender_rule = {"MCP-ROB-3": {"MCP-HDR-3"}, "MCP-ROB-4": {"MCP-PAY-2"}}
+    for cut in range(len(whole) + 1):
+        for data in (whole[:cut], whole[:cut] + b"\xff" * 3):
+            try:
+                decode(data)
+                want: set[str] = set()
+            except DecodeError as exc:
+                want = sender_rule.get(exc.rule, set())
+            m = Monitor()
+            got = {v.rule for v in m.datagram(1, None, None, data) + m.finish(10)}
+            assert got == want, (cut, data.hex(), got)
