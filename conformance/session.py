@@ -197,7 +197,10 @@ class Session:
         return self.node.alive() if self.node is not None else True
 
     # ------------------------------------------------------------------ start / stop
-    def start(self) -> None:
+    def start(self, observe_startup: bool = True) -> None:
+        """Open the driver, start the vehicle and the node, run the startup phase (observed
+        for the startup-phase cases unless ``observe_startup`` is False: then it is the quick
+        one of a restart, as the fuzzer wants it)."""
         cfg = self.cfg
         if cfg.role != "drone":
             raise SetupError(f"{cfg.role} role conformance is not available yet")
@@ -226,7 +229,7 @@ class Session:
             self._start_vehicle()
         if self.spawned:
             self._spawn()
-        self._startup_phase(first=True)
+        self._startup_phase(first=observe_startup)
 
     def close(self) -> None:
         if self.node is not None:

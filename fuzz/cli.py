@@ -1,12 +1,186 @@
-"""``mcp-fuzz``: reserved entry point; fuzz campaigns arrive in a later release."""
+"""``mcp-fuzz``: fuzz campaigns judged by the spec (DESIGN.md "mcp-fuzz", issue 11).
 
+    mcp-fuzz [--target HOST:PORT | --spawn CMD] [--listen HOST:PORT] [--target-id N]
+             [--mavlink] [--seed N] [--max-cases N] [--duration S]
+             [--engine stateless|stateful|both] [--jobs N] [--db DIR|redis://HOST:PORT/N]
+             [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N]
+    mcp-fuzz --replay finding-N [--target HOST:PORT | --spawn CMD] [--mavlink]
+
+Without --target and --spawn it fuzzes the reference drone (embedded default). Exit 0:
+nothing found; 1: findings (for --replay: the finding reproduced); 2: usage or setup error,
+with a one-line reason. Live progress (rich) on a terminal; otherwise only the summary line.
+"""
+
+from __future__ import annotations
+
+import argparse
 import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from conformance.config import DEFAULT_SEED, parse_hostport
+from conformance.errors import SetupError
+from fuzz.config import ENGINES, FuzzConfig
+
+__all__ = ["build_parser", "main"]
+
+PROG = "mcp-fuzz"
 
 
-def main(argv: list[str] | None = None) -> int:
-    print("mcp-fuzz: fuzz campaigns are not implemented in this version", file=sys.stderr)
-    return 2
+class UsageError(Exception):
+    pass
 
 
-if __name__ == "__main__":
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="Fuzz an MCP node; every exchange judged by the spec's rules.",
+                epilog="No --target and no --spawn: fuzz the embedded reference drone.")
+    t = p.add_mutually_exclusive_group()
+    t.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
+    t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "
+                   "{listen_host} {listen_port} {broadcast} {id} {mavlink}")
+    p.add_argument("--listen", metavar="HOST:PORT", help="where the fuzzer receives and sends from")
+    p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
+    p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
+    p.add_argument("--seed", metavar="N", help=f"campaign seed (default {DEFAULT_SEED})")
+    p.add_argument("--max-cases", metavar="N", help="stop after N cases")
+    p.add_argument("--duration", metavar="S", help="stop after S seconds (default 60 unless --max-cases)")
+    p.add_argument("--engine", metavar="|".join(ENGINES), default="stateless", help="engine(s) to run (default stateless)")
+    p.add_argument("--jobs", metavar="N", default="1", help="parallel workers, each with its own spawned node")
+    p.add_argument("--db", metavar="DIR|redis://HOST:PORT/N", help="hypothesis example database shared by workers")
+    p.add_argument("--seeds", metavar="DIR", help="MCAP captures whose datagrams seed the mutations")
+    p.add_argument("--out", metavar="DIR", help="write summary.json and finding-N/ here")
+    p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5; 0.2 embedded)")
+    p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2; 0.25 embedded)")
+    p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
+    p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
+    return p
+
+
+def _int(v: str | None, name: str, lo: int, hi: int) -> int | None:
+    if v is None:
+        return None
+    try:
+        n = int(v, 0)
+    except ValueError:
+        raise UsageError(f"{name}: {v!r} is not an integer") from None
+    if not lo <= n <= hi:
+        raise UsageError(f"{name}: {n} is out of range {lo}-{hi}")
+    return n
+
+
+def _float(v: str | None, name: str) -> float | None:
+    if v is None:
+        return None
+    try:
+        x = float(v)
+    except ValueError:
+        raise UsageError(f"{name}: {v!r} is not a number") from None
+    if not x > 0 or x != x or x == float("inf"):
+        raise UsageError(f"{name}: must be a positive number, not {v!r}")
+    return x
+
+
+def make_config(ns: argparse.Namespace) -> FuzzConfig:
+    cfg = FuzzConfig()
+    try:
+        if ns.target:
+            cfg.target = parse_hostport(ns.target, "--target")
+        if ns.listen:
+            cfg.listen = parse_hostport(ns.listen, "--listen", default_host="")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if ns.spawn is not None:
+        if not ns.spawn.strip():
+            raise UsageError("--spawn: the command is empty")
+        cfg.spawn = ns.spawn
+    cfg.target_id = _int(ns.target_id, "--target-id", 0, 0xFFFF)
+    cfg.mavlink = ns.mavlink
+    seed = _int(ns.seed, "--seed", 0, 2**63 - 1)
+    cfg.seed = DEFAULT_SEED if seed is None else seed
+    cfg.max_cases = _int(ns.max_cases, "--max-cases", 1, 10**12)
+    cfg.duration = _float(ns.duration, "--duration")
+    if ns.engine not in ENGINES:
+        raise UsageError(f"--engine: {ns.engine!r} is not one of {', '.join(ENGINES)}")
+    cfg.engine = ns.engine
+    cfg.jobs = _int(ns.jobs, "--jobs", 1, 256) or 1
+    if cfg.jobs > 1 and cfg.target is not None:
+        raise UsageError("--jobs: each worker needs its own node; use --spawn (or the embedded default), not --target")
+    cfg.db = ns.db
+    if cfg.db is not None:
+        from fuzz.engine_stateful import check_database
+
+        try:
+            check_database(cfg.db)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    cfg.seeds_dir = ns.seeds
+    cfg.out = ns.out
+    if cfg.out is not None:
+        out = Path(cfg.out)
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out: {cfg.out!r} is not a directory")
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--out: cannot create {cfg.out!r}: {exc.strerror}") from None
+    cfg.rto = _float(ns.rto, "--rto")
+    cfg.ack_window = _float(ns.ack_window, "--ack-window")
+    cfg.broadcast_id = _int(ns.broadcast_id, "--broadcast-id", 0, 0xFFFF)
+    return cfg
+
+
+def replay_args(cfg: FuzzConfig) -> list[str]:
+    """The target options a finding's replay command repeats."""
+    out: list[str] = []
+    if cfg.target:
+        out += ["--target", f"{cfg.target[0]}:{cfg.target[1]}"]
+    if cfg.spawn:
+        out += ["--spawn", cfg.spawn]
+    if cfg.mavlink:
+        out.append("--mavlink")
+    for opt, v in (("--target-id", cfg.target_id), ("--rto", cfg.rto), ("--ack-window", cfg.ack_window),
+                   ("--broadcast-id", cfg.broadcast_id)):
+        if v is not None:
+            out += [opt, str(v)]
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        ns = build_parser().parse_args(argv)
+        cfg = make_config(ns)
+    except UsageError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    if ns.replay:
+        from fuzz.replay_cli import replay_finding
+
+        return replay_finding(ns.replay, cfg)
+    from fuzz.campaign import run_campaign
+    from fuzz.findings import FindingStore
+    from fuzz.progress import LiveProgress
+
+    store = FindingStore(cfg.out, replay_args(cfg))
+    live = LiveProgress(cfg)
+    try:
+        with live:
+            summary = run_campaign(cfg, store, live.update)
+    except SetupError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 2
+    live.final(summary, store)
+    return 1 if len(store) else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -48,6 +48,9 @@ __all__ = [
     "malformed_datagrams",
     "messages",
     "mission_items",
+    "random_malformed",
+    "random_mavlink_frame",
+    "random_message",
 ]
 
 T = TypeVar("T")
@@ -333,6 +336,27 @@ def malformed_datagrams(kind: str | None = None) -> st.SearchStrategy[bytes]:
         return _BUILDERS[k](c, c.integer(0, 0xFFFF), c.integer(0, 0xFFFF), c.integer(0, 0xFFFF), True)
 
     return build()
+
+
+def random_message(rng: random.Random, action: Action | int | None = None, *,
+                   dst: int | None = None, src: int | None = None, seq: int | None = None,
+                   actions: Sequence[Action] = WIRE_ACTIONS) -> Message:
+    """One valid message drawn from :func:`messages`' space by a seeded ``random.Random``
+    (the fuzzer's fast path: no hypothesis engine per draw)."""
+    act = None if action is None else Action(action)
+    return _message(_RandomChooser(rng), act, dst, src, seq, actions)
+
+
+def random_mavlink_frame(rng: random.Random) -> bytes:
+    """One MAVLink v1 or v2 frame with a good CRC, as :func:`messages` draws for Mav_Passthrough."""
+    return _mavlink_frame(_RandomChooser(rng))
+
+
+def random_malformed(rng: random.Random, kind: str, *, dst: int, src: int, seq: int) -> bytes:
+    """One datagram of malformed ``kind`` (see :data:`MALFORMED_KINDS`) from a seeded ``rng``."""
+    if kind not in MALFORMED_KINDS:
+        raise ValueError(f"unknown malformed kind {kind!r}; known: {', '.join(MALFORMED_KINDS)}")
+    return _BUILDERS[kind](_RandomChooser(rng), dst, src, seq, False)
 
 
 def malformed_corpus(seed: int, per_kind: int, *, dst: int = 1, src: int = 0,

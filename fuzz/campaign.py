@@ -1,0 +1,288 @@
+"""A campaign: one or more workers, each with its own target, running the chosen engines
+within the budget (``--duration``, ``--max-cases``), findings gathered in one store and
+``summary.json`` written at the end, whatever happened.
+
+``--jobs N`` starts N worker processes, each with its own spawned node on its own ports and
+its own seed stream (``seed``, worker index); the stateful engine's workers share
+hypothesis's example database (``--db``), so a failure one worker found is replayed first by
+the others. Findings come back to the parent, which groups them across workers and writes
+``finding-N/``.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import queue
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from conformance.errors import SetupError
+from fuzz.config import FuzzConfig
+from fuzz.engine_stateless import EngineStats, StatelessEngine
+from fuzz.findings import Finding, FindingStore, write_summary
+from fuzz.target import start_target
+from fuzz.triage import Triage
+from spec import SPEC
+
+__all__ = ["Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
+
+DEFAULT_DURATION = 60.0  # s, when neither --duration nor --max-cases is given
+
+
+@dataclass
+class Progress:
+    """What the live display shows (summed over workers)."""
+
+    cases: int = 0
+    findings: int = 0
+    restarts: int = 0
+    fuzz_seconds: float = 0.0
+    started: float = field(default_factory=time.monotonic)
+    engine: str = ""
+
+    @property
+    def elapsed(self) -> float:
+        return time.monotonic() - self.started
+
+    @property
+    def judged_rate(self) -> float:
+        """Judged cases per second of fuzzing (triage's replays excluded)."""
+        return self.cases / self.fuzz_seconds if self.fuzz_seconds > 0 else 0.0
+
+
+@dataclass
+class WorkerResult:
+    worker: int
+    cases: int = 0
+    fuzz_seconds: float = 0.0
+    restarts: int = 0
+    replays: int = 0
+    unconfirmed: int = 0
+    engines: dict[str, dict[str, Any]] = field(default_factory=dict)
+    findings: list[tuple[dict[str, Any], list[Any]]] = field(default_factory=list)
+    error: str | None = None
+    monitor: bool = False
+
+
+def load_seeds(directory: str | None) -> list[bytes]:
+    """The datagrams the manager side sent in the MCAP captures of ``directory`` (``--seeds``)."""
+    if directory is None:
+        return []
+    from captures.reader import CaptureError, Datagram, open_capture
+
+    d = Path(directory)
+    if not d.is_dir():
+        raise SetupError(f"--seeds: {directory!r} is not a directory")
+    out: list[bytes] = []
+    for p in sorted(d.rglob("*.mcap")):
+        try:
+            for rec in open_capture(p):
+                if isinstance(rec, Datagram) and rec.direction in ("tx", None) and rec.data:
+                    out.append(bytes(rec.data))
+        except CaptureError as exc:
+            raise SetupError(f"--seeds: {exc}") from None
+    if not out:
+        raise SetupError(f"--seeds: no datagrams in the MCAP files of {directory!r}")
+    return out
+
+
+class _LocalStore(FindingStore):
+    """A worker's store when findings go back to the parent: keeps the traffic with them."""
+
+    def __init__(self) -> None:
+        super().__init__(None)
+        self.traffic: dict[tuple[str, str], list[Any]] = {}
+
+    def add(self, finding: Finding, traffic: list[Any] | None = None) -> Path | None:
+        if finding.key not in self.groups:
+            self.traffic[finding.key] = list(traffic or [])
+        return super().add(finding, traffic)
+
+
+def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
+               seeds: list[bytes] | None = None) -> WorkerResult:
+    """One worker: start its target, run the engines, close the target."""
+    res = WorkerResult(cfg.worker)
+    target = start_target(cfg)
+    prog = Progress()
+    try:
+        engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
+        duration = cfg.duration if cfg.duration is not None else (
+            None if cfg.max_cases is not None else DEFAULT_DURATION)
+        start = time.monotonic()
+        done_cases = 0
+        done_seconds = 0.0
+        for k, name in enumerate(engines):
+            left_engines = len(engines) - k
+            if duration is not None:
+                deadline = start + duration * (k + 1) / len(engines)
+            else:
+                deadline = float("inf")
+            budget = None
+            if cfg.max_cases is not None:
+                budget = max(0, (cfg.max_cases - done_cases) // left_engines)
+            triage = Triage(target, store, name, cfg.seed, cfg.worker)
+            prog.engine = name
+
+            def on_tick(st: EngineStats, base_c: int = done_cases, base_s: float = done_seconds) -> None:
+                prog.cases = base_c + st.cases
+                prog.fuzz_seconds = base_s + st.seconds
+                prog.findings = len(store)
+                prog.restarts = target.restarts
+                if tick is not None:
+                    tick(prog)
+
+            if name == "stateless":
+                eng = StatelessEngine(target, triage, cfg.seed, worker=cfg.worker, seeds=seeds)
+                res.monitor = eng.monitor.available
+                st = eng.run(deadline, budget, on_tick)
+            else:
+                from fuzz.engine_stateful import StatefulEngine
+
+                seng = StatefulEngine(target, triage, cfg)
+                st = seng.run(deadline, budget, on_tick)
+            done_cases += st.cases
+            done_seconds += st.seconds
+            res.engines[name] = {"cases": st.cases, "fuzz_seconds": round(st.seconds, 3),
+                                 "judged_cases_per_s": round(st.cases / st.seconds, 1) if st.seconds else 0.0,
+                                 "batches": st.batches, "flaws_seen": st.flaws,
+                                 "replays": triage.replays, "unconfirmed": triage.unconfirmed,
+                                 "triage_seconds": round(triage.seconds, 3)}
+            res.replays += triage.replays
+            res.unconfirmed += triage.unconfirmed
+        res.cases, res.fuzz_seconds = done_cases, done_seconds
+        res.restarts = target.restarts
+    finally:
+        target.close()
+    return res
+
+
+def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any) -> None:
+    """A ``--jobs`` worker process: its result (and findings) go back on ``q``."""
+    store = _LocalStore()
+    last = [0.0]
+
+    def tick(p: Progress) -> None:
+        now = time.monotonic()
+        if now - last[0] >= 0.25:
+            last[0] = now
+            q.put(("progress", cfg.worker, (p.cases, p.fuzz_seconds, p.findings, p.restarts)))
+
+    try:
+        res = run_worker(cfg, store, tick, seeds)
+        res.findings = [(f.to_json(), store.traffic.get(f.key, [])) for f in store.order]
+    except SetupError as exc:
+        res = WorkerResult(cfg.worker, error=str(exc))
+    except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
+        res = WorkerResult(cfg.worker, error=f"worker {cfg.worker} failed: {type(exc).__name__}: {exc}")
+    q.put(("done", cfg.worker, asdict(res)))
+
+
+def _finding_from_json(d: dict[str, Any]) -> Finding:
+    return Finding(**{k: d[k] for k in Finding.__dataclass_fields__ if k in d})
+
+
+def run_campaign(cfg: FuzzConfig, store: FindingStore,
+                 tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+    """Run the campaign; the summary (also written to ``--out``/summary.json)."""
+    t0 = time.monotonic()
+    seeds = load_seeds(cfg.seeds_dir)
+    results: list[WorkerResult] = []
+    error: str | None = None
+    try:
+        if cfg.jobs <= 1:
+            results.append(run_worker(cfg.for_worker(0), store, tick, seeds))
+        else:
+            results, error = _run_jobs(cfg, store, seeds, tick)
+    except SetupError as exc:
+        error = str(exc)
+        raise
+    finally:
+        summary = make_summary(cfg, store, results, time.monotonic() - t0, error)
+        if cfg.out is not None:
+            write_summary(Path(cfg.out) / "summary.json", summary)
+    return summary
+
+
+def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
+              tick: Callable[[Progress], None] | None) -> tuple[list[WorkerResult], str | None]:
+    ctx = multiprocessing.get_context("spawn")
+    q = ctx.Queue()
+    procs = [ctx.Process(target=_worker_process, args=(cfg.for_worker(i), seeds, q), daemon=True)
+             for i in range(cfg.jobs)]
+    for p in procs:
+        p.start()
+    prog = Progress()
+    per: dict[int, tuple[int, float, int, int]] = {}
+    results: dict[int, WorkerResult] = {}
+    budget = (cfg.duration or DEFAULT_DURATION) + 120.0
+    deadline = time.monotonic() + budget
+    while len(results) < len(procs) and time.monotonic() < deadline:
+        try:
+            kind, worker, body = q.get(timeout=0.5)
+        except queue.Empty:
+            if all(not p.is_alive() for p in procs) and q.empty():
+                break
+            continue
+        if kind == "progress":
+            per[worker] = body
+        else:
+            findings = body.pop("findings", [])
+            res = WorkerResult(**body)
+            results[worker] = res
+            per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
+            for fj, traffic in findings:
+                store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
+        prog.cases = sum(v[0] for v in per.values())
+        prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
+        prog.findings = len(store)
+        prog.restarts = sum(v[3] for v in per.values())
+        if tick is not None:
+            tick(prog)
+    for p in procs:
+        p.join(timeout=5)
+        if p.is_alive():
+            p.kill()
+    errors = [r.error for r in results.values() if r.error]
+    missing = [i for i in range(len(procs)) if i not in results]
+    if missing:
+        errors.append(f"worker(s) {', '.join(map(str, missing))} gave no result")
+    if errors and not any(r.cases for r in results.values()):
+        raise SetupError(errors[0])
+    return [results[i] for i in sorted(results)], ("; ".join(errors) or None)
+
+
+def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult],
+                 duration: float, error: str | None) -> dict[str, Any]:
+    """``summary.json``: cases, judged cases/s, findings by rule, seed, duration."""
+    from conformance.report import tool_version
+
+    cases = sum(r.cases for r in results)
+    fuzz_s = max((r.fuzz_seconds for r in results), default=0.0)
+    store.rewrite()
+    return {
+        "schema_version": 1,
+        "tool": {"name": "mcp-fuzz", "version": tool_version()},
+        "spec": {"version": SPEC.version},
+        "target": {"mode": cfg.mode, "target": f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
+                   "spawn": cfg.spawn, "mavlink": cfg.mavlink},
+        "engine": cfg.engine,
+        "seed": cfg.seed,
+        "jobs": cfg.jobs,
+        "cases": cases,
+        "duration_s": round(duration, 3),
+        "cases_per_s": round(cases / duration, 1) if duration > 0 else 0.0,
+        "judged_cases_per_s": round(cases / fuzz_s, 1) if fuzz_s > 0 else 0.0,
+        "findings": len(store),
+        "findings_by_rule": store.by_rule(),
+        "restarts": sum(r.restarts for r in results),
+        "replays": sum(r.replays for r in results),
+        "unconfirmed": sum(r.unconfirmed for r in results),
+        "monitor": any(r.monitor for r in results),
+        "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error}
+                    for r in results],
+        "error": error,
+    }

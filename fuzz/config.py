@@ -1,0 +1,86 @@
+"""A fuzz campaign's parameters (DESIGN.md "mcp-fuzz"), checked once by the command line.
+
+The target options mean what they mean to ``mcp-conform`` (the runner's ``RunConfig`` is
+built from them, so placeholders, listen semantics and the embedded default are the
+runner's own); the rest belong to the campaign.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from conformance.config import DEFAULT_SEED, RunConfig
+
+ENGINES = ("stateless", "stateful", "both")
+
+
+@dataclass
+class FuzzConfig:
+    """Everything one campaign (or one of its ``--jobs`` workers) needs."""
+
+    target: tuple[str, int] | None = None
+    spawn: str | None = None
+    listen: tuple[str, int] | None = None
+    target_id: int | None = None
+    mavlink: bool = False
+    seed: int = DEFAULT_SEED
+    max_cases: int | None = None
+    duration: float | None = None
+    engine: str = "stateless"
+    jobs: int = 1
+    db: str | None = None  # a directory, or redis://HOST:PORT/N
+    seeds_dir: str | None = None
+    out: str | None = None
+    rto: float | None = None  # None: the runner's default (the embedded default's short one)
+    ack_window: float | None = None
+    broadcast_id: int | None = None
+    worker: int = 0  # which of the --jobs workers this is
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def embedded(self) -> bool:
+        return self.target is None and self.spawn is None
+
+    @property
+    def mode(self) -> str:
+        return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
+
+    def for_worker(self, worker: int) -> FuzzConfig:
+        """The configuration of worker ``worker``: its own seed stream and its own ports."""
+        cfg = replace(self, worker=worker, jobs=1, extra=dict(self.extra))
+        if worker:
+            cfg.listen = None if self.listen is None else (self.listen[0], 0)
+        return cfg
+
+    def run_config(self) -> RunConfig:
+        """The runner's configuration of the same target (its session drives the node)."""
+        from conformance import session as session_module
+
+        cfg = RunConfig(role="drone", target=self.target, listen=self.listen,
+                        target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
+                        seed=self.seed)
+        if self.embedded:
+            # the reference drone, with or without the simulated vehicle as asked
+            cfg.spawn = embedded_command(self.mavlink)
+            cfg.rto = float(session_module.EMBEDDED_RTO)
+            cfg.ack_window = float(session_module.EMBEDDED_ACK_WINDOW)
+        if self.rto is not None:
+            cfg.rto = self.rto
+        if self.ack_window is not None:
+            cfg.ack_window = self.ack_window
+        if self.broadcast_id is not None:
+            cfg.broadcast_id = self.broadcast_id
+        return cfg
+
+
+def embedded_command(mavlink: bool) -> str:
+    """The reference drone as the fuzzer spawns it: the runner's embedded command, quiet
+    (its per-datagram log lines would cost more than the fuzzing itself), and without the
+    runner's vehicle unless ``--mavlink`` (the drone then flies its built-in one)."""
+    from conformance.session import embedded_command as runner_command
+
+    cmd = runner_command()
+    if not mavlink:
+        cmd = cmd.replace(" --mavlink {mavlink}", "")
+    return cmd + " --quiet"

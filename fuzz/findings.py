@@ -1,0 +1,191 @@
+"""Findings: confirmed, minimal, grouped, and written where a user can replay them.
+
+A finding is kept only once it has been confirmed by a replay (fresh node when spawned, the
+same one when attached) and shrunk to a minimal datagram sequence (``fuzz.replay``). Findings
+of the same rule and shape (what kind of input, what the node did) are one group: the first
+is written, the others are counted. Under ``--out DIR`` each group is ``finding-N/``:
+
+- ``finding.json``: rule, level, rule text, expected, actual, evidence, the datagrams in
+  hex, pace, seed, engine, worker, occurrences, the program (stateful engine);
+- ``repro.mcap``: the minimal sequence and the node's answers in the project's capture format;
+- ``replay.txt``: the one-line command that replays it (``mcp-fuzz --replay DIR``).
+
+``summary.json`` (:func:`write_summary`) is written at the end of every campaign.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import threading
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fuzz.oracles import Flaw, rule_level
+from spec import SPEC
+
+__all__ = ["Finding", "FindingStore", "load_finding", "write_summary"]
+
+FINDING_SCHEMA = 1
+
+
+@dataclass
+class Finding:
+    """One confirmed, minimised finding (the representative of its group)."""
+
+    rule: str
+    expected: str
+    actual: str
+    datagrams: list[str]  # hex, in sending order
+    shape: str
+    engine: str
+    seed: int
+    pace: str = "batch"
+    level: str = ""
+    evidence: list[str] = field(default_factory=list)
+    worker: int = 0
+    occurrences: int = 1
+    program: str | None = None  # the stateful engine's shortest program, as hypothesis printed it
+    source: str = ""
+    target: dict[str, Any] = field(default_factory=dict)  # how the campaign reached the node
+
+    def __post_init__(self) -> None:
+        self.level = self.level or rule_level(self.rule)
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return (self.rule, self.shape)
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["schema_version"] = FINDING_SCHEMA
+        d["rule_text"] = SPEC.rule(self.rule).text if self.rule in SPEC.rules_by_id else ""
+        return d
+
+    @classmethod
+    def from_flaw(cls, flaw: Flaw, datagrams: list[bytes], shape: str, engine: str, seed: int,
+                  pace: str, **kw: Any) -> Finding:
+        return cls(flaw.rule, flaw.expected, flaw.actual, [d.hex() for d in datagrams], shape,
+                   engine, seed, pace, evidence=list(flaw.evidence), source=flaw.source, **kw)
+
+    def describe(self) -> str:
+        return (f"{self.rule} ({self.level}) [{self.engine}, {len(self.datagrams)} datagram(s), "
+                f"x{self.occurrences}]: {self.actual}")
+
+
+def load_finding(path: str | Path) -> Finding:
+    """A finding from ``finding-N/`` or its ``finding.json``; ValueError says what is wrong."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "finding.json"
+    try:
+        d = json.loads(p.read_text())
+    except OSError as exc:
+        raise ValueError(f"--replay: cannot read {str(p)!r}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--replay: {str(p)!r} is not JSON: {exc.msg}") from None
+    try:
+        fields = {k: d[k] for k in Finding.__dataclass_fields__ if k in d}
+        f = Finding(**fields)
+        [bytes.fromhex(x) for x in f.datagrams]
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ValueError(f"--replay: {str(p)!r} is not a finding: {exc}") from None
+    return f
+
+
+class FindingStore:
+    """The campaign's findings, grouped by (rule, shape); thread-safe."""
+
+    def __init__(self, out: str | Path | None, replay_args: list[str] | None = None) -> None:
+        self.out = Path(out) if out is not None else None
+        self.replay_args = replay_args or []
+        self._lock = threading.Lock()
+        self.groups: dict[tuple[str, str], Finding] = {}
+        self.order: list[Finding] = []
+        self.unconfirmed: Counter[str] = Counter()
+
+    def known(self, rule: str, shape: str) -> bool:
+        with self._lock:
+            return (rule, shape) in self.groups
+
+    def count(self, rule: str, shape: str) -> None:
+        """Another occurrence of a known group."""
+        with self._lock:
+            f = self.groups.get((rule, shape))
+            if f is not None:
+                f.occurrences += 1
+
+    def add(self, finding: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None = None,
+            ) -> Path | None:
+        """Keep a confirmed finding (or count it in its group); write it under --out."""
+        with self._lock:
+            prev = self.groups.get(finding.key)
+            if prev is not None:
+                prev.occurrences += finding.occurrences
+                return None
+            self.groups[finding.key] = finding
+            self.order.append(finding)
+            n = len(self.order)
+        if self.out is None:
+            return None
+        d = self.out / f"finding-{n}"
+        d.mkdir(parents=True, exist_ok=True)
+        self._write(d, finding, traffic)
+        return d
+
+    def rewrite(self) -> None:
+        """Occurrence counts change after a finding is first written: write them again."""
+        if self.out is None:
+            return
+        for n, f in enumerate(self.order, 1):
+            p = self.out / f"finding-{n}" / "finding.json"
+            if p.parent.is_dir():
+                p.write_text(json.dumps(f.to_json(), indent=2) + "\n")
+
+    def _write(self, d: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
+               ) -> None:
+        (d / "finding.json").write_text(json.dumps(f.to_json(), indent=2) + "\n")
+        cmd = ["mcp-fuzz", "--replay", str(d.resolve())] + self.replay_args
+        (d / "replay.txt").write_text(shlex.join(cmd) + "\n")
+        write_repro(d / "repro.mcap", f, traffic)
+
+    def by_rule(self) -> dict[str, int]:
+        with self._lock:
+            c: Counter[str] = Counter()
+            for f in self.order:
+                c[f.rule] += f.occurrences
+            return dict(sorted(c.items()))
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self.order)
+
+
+def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
+                ) -> None:
+    """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
+    import time
+
+    from captures.recorder import McapRecorder
+
+    with McapRecorder(path, library="mcp-fuzz") as rec:
+        t0 = time.time_ns()
+        rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
+        if traffic:
+            for direction, t_ns, data, addr in traffic:
+                rec.datagram(direction, data, addr, t_ns)
+            t_end = max(t for _, t, _, _ in traffic) + 1
+        else:
+            for i, h in enumerate(f.datagrams):
+                rec.datagram("tx", bytes.fromhex(h), ("127.0.0.1", 0), t0 + i * 1000)
+            t_end = t0 + len(f.datagrams) * 1000
+        rec.case_mark(f"finding:{f.rule}", "end", t_end, outcome="failed", rules=(f.rule,))
+
+
+def write_summary(path: Path, summary: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(summary, indent=2) + "\n")
+    tmp.replace(path)

@@ -1,0 +1,158 @@
+"""Replaying a sequence of datagrams against a node and judging what it did: the one path
+behind confirmation, shrinking and ``mcp-fuzz --replay`` (so a reproducer replays exactly as
+its finding was confirmed).
+
+A sequence is sent in one of two paces: ``batch`` (back to back, as the stateless engine
+sends) or ``paced`` (each well-formed unicast to the node awaits its ACK before the next is
+sent, as the stateful engine plays the manager). A liveness probe follows; with the vehicle,
+a sentinel passthrough frame after it shows when every earlier forward has arrived.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_liveness, judge_replies
+from fuzz.target import FuzzTarget
+from spec.codec import Action
+from vehicle.probe import make_probe, probe_token
+
+__all__ = ["Outcome", "confirm", "frame_token", "run_sequence", "shrink"]
+
+_ACK = int(Action.ACK)
+SENTINEL_WAIT = 2.0  # s: how long the sentinel frame may take to reach the vehicle
+
+
+def frame_token(data: bytes) -> str | None:
+    """The probe token of a Mav_Passthrough datagram's frame, if it carries one."""
+    from spec.codec import HEADER_SIZE
+    from spec.mavframe import FrameError, parse_frame
+
+    if len(data) <= HEADER_SIZE:
+        return None
+    try:
+        msg = parse_frame(data[HEADER_SIZE:])
+    except (FrameError, Exception):  # noqa: BLE001 - pymavlink raises anything on garbage
+        return None
+    if msg.get_type() != "STATUSTEXT":
+        return None
+    return probe_token(msg.text)
+
+
+@dataclass
+class Outcome:
+    """What one replay showed."""
+
+    flaws: list[Flaw] = field(default_factory=list)
+    probe_acked: bool = True
+    restarted: bool = False
+    traffic: list = field(default_factory=list)  # the TrafficRecords of this replay
+
+    def rules(self) -> set[str]:
+        return {f.rule for f in self.flaws}
+
+
+def vehicle_counts(target: FuzzTarget) -> dict[str, int]:
+    v = target.vehicle
+    return dict(v.probe_tokens()) if v is not None else {}
+
+
+def settle_vehicle(target: FuzzTarget, ledger: DeliveryLedger | None, tag: str) -> bool:
+    """Send a sentinel passthrough and wait for it to reach the vehicle: every frame sent
+    before it has then arrived (a node forwards in order). False when it never came."""
+    v = target.vehicle
+    if v is None:
+        return False
+    token = f"sent{tag}{time.monotonic_ns() % 10**9}"
+    drv = target.driver
+    sent = drv.send(Action.MAV_PASSTHROUGH, make_probe(token), target.node_id)
+    if ledger is not None:
+        ledger.sent(-1, Input.of(sent.data), None)
+    drv.exchange(sent, rto=max(target.rto, 0.5), copies=3)
+    return bool(v.wait_for(lambda: v.probe_count(token) >= 1, SENTINEL_WAIT))
+
+
+def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = "batch",
+                 fresh: bool = True, monitor: bool = True) -> Outcome:
+    """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``), then judge."""
+    out = Outcome()
+    if fresh and target.spawned:
+        target.restart()
+        out.restarted = True
+    elif not target.alive():
+        return Outcome([Flaw("MCP-ROB-5", "a live node", "the node is not running")], False)
+    drv = target.driver
+    target.wait_quiet(gap=0.05, limit=0.5)
+    target.traffic.drain()
+    mon = MonitorOracle(target.node_id, target.rto, target.ack_window, target.broadcast_id,
+                        drv.listen) if monitor else None
+    ledger = DeliveryLedger(target.node_id, target.broadcast_id)
+    inputs = [Input.of(d) for d in datagrams]
+    before = vehicle_counts(target)  # the vehicle outlives restarts: count only this replay's
+    mark = drv.mark()
+    for i, (data, inp) in enumerate(zip(datagrams, inputs, strict=True)):
+        sent = drv.send_raw(data)
+        ledger.sent(i, inp, frame_token(data) if inp.header and inp.header[3] == Action.MAV_PASSTHROUGH else None)
+        m = inp.msg
+        if pace == "paced" and m is not None and m.action != _ACK and m.dst == target.node_id:
+            drv.wait_for(drv.ack_for(sent), max(target.rto, 0.5), mark)
+    probe = target.probe()
+    ledger.sent(len(inputs), Input.of(probe.sent.data), None)
+    out.probe_acked = probe.acked
+    replies = drv.received(mark)
+    out.flaws += judge_replies(inputs, replies, target.node_id, target.broadcast_id, probe.acked,
+                               ignore_seqs=[(drv.our_id, probe.sent.seq)])
+    dead = judge_liveness(inputs, probe.acked, target.fate())
+    if dead is not None:
+        out.flaws.append(dead)
+    elif target.vehicle is not None and ledger.expected:
+        settled = settle_vehicle(target, ledger, "r")
+        after = vehicle_counts(target)
+        out.flaws += ledger.judge({k: n - before.get(k, 0) for k, n in after.items()}, settled=settled)
+    out.traffic = target.traffic.drain()
+    if mon is not None:
+        out.flaws += mon.feed(out.traffic)
+        out.flaws += mon.advance(time.time_ns())
+    return out
+
+
+def confirm(target: FuzzTarget, datagrams: Sequence[bytes], rule: str, pace: str,
+            tries: int = 2) -> bool:
+    """The sequence shows ``rule`` again (on a fresh node where one can be spawned)."""
+    return any(rule in run_sequence(target, datagrams, pace=pace).rules() for _ in range(tries))
+
+
+def shrink(datagrams: list[bytes], still_fails: Callable[[list[bytes]], bool],
+           budget: int = 40) -> list[bytes]:
+    """The shortest subsequence that still fails, by delta debugging (Zeller's ddmin), within
+    ``budget`` replays: single datagrams first, the usual minimal reproducer."""
+    seq = list(datagrams)
+    calls = 0
+    if len(seq) > 1:
+        for d in reversed(seq):  # the last ones are the likeliest culprits
+            if calls >= min(budget // 2, 8):
+                break
+            calls += 1
+            if still_fails([d]):
+                return [d]
+    n = 2
+    while len(seq) >= 2 and calls < budget:
+        chunk = max(1, len(seq) // n)
+        parts = [seq[i:i + chunk] for i in range(0, len(seq), chunk)]
+        reduced = False
+        for i in range(len(parts)):
+            if calls >= budget:
+                break
+            complement = [d for j, p in enumerate(parts) if j != i for d in p]
+            calls += 1
+            if complement and still_fails(complement):
+                seq, n, reduced = complement, max(n - 1, 2), True
+                break
+        if not reduced:
+            if n >= len(seq):
+                break
+            n = min(len(seq), 2 * n)
+    return seq
+

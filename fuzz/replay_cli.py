@@ -1,0 +1,50 @@
+"""``mcp-fuzz --replay finding-N``: replay a finding's minimal sequence and say whether it
+reproduces (exit 1, the finding is there) or not (exit 0); 2 on a bad finding or target.
+
+The target is the one given on the command line, else the one the campaign recorded in the
+finding (its spawn command, or the embedded default).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from conformance.errors import SetupError
+from fuzz.config import FuzzConfig
+from fuzz.findings import load_finding
+from fuzz.replay import run_sequence
+from fuzz.target import start_target
+
+__all__ = ["replay_finding"]
+
+PROG = "mcp-fuzz"
+
+
+def replay_finding(path: str, cfg: FuzzConfig) -> int:
+    try:
+        f = load_finding(path)
+    except ValueError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    if cfg.embedded:
+        # the campaign's own target unless told otherwise
+        if f.target.get("mode") == "spawn" and f.target.get("spawn"):
+            cfg.spawn = f.target["spawn"]
+        cfg.mavlink = cfg.mavlink or bool(f.target.get("mavlink"))
+    datagrams = [bytes.fromhex(h) for h in f.datagrams]
+    try:
+        target = start_target(cfg)
+    except SetupError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        outcome = run_sequence(target, datagrams, pace=f.pace)
+    finally:
+        target.close()
+    same = [x for x in outcome.flaws if x.rule == f.rule]
+    if same:
+        print(f"{PROG}: reproduced {f.rule} ({f.level}) with {len(datagrams)} datagram(s): {same[0].actual}")
+        return 1
+    others = sorted(outcome.rules())
+    print(f"{PROG}: {f.rule} did not reproduce" + (f" (seen instead: {', '.join(others)})" if others else ""))
+    return 0

@@ -1,0 +1,177 @@
+"""The node under fuzz: the runner's session (spawn, restart, vehicle, embedded default) and
+driver, plus what a fuzzer needs on top: a record of all traffic for the oracles, the
+liveness probe, and the spawned process's fate.
+
+Silence by design costs no timeout (issue 11, boofuzz#533): a valid probe, a WP_Off unicast
+to the node, goes right behind a batch of inputs; its ACK proves the node is live and, since
+a node handles its datagrams in order, that whatever it was going to say about the batch has
+been said.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from dataclasses import dataclass
+
+from conformance.driver import Datagram, Sent, TargetDriver
+from conformance.errors import SetupError
+from conformance.session import Session
+from fuzz.config import FuzzConfig
+from spec.codec import Action
+
+__all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord"]
+
+PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
+PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
+
+
+@dataclass(frozen=True)
+class TrafficRecord:
+    """One datagram the fuzzer sent (``tx``) or received (``rx``)."""
+
+    direction: str
+    t_ns: int
+    data: bytes
+    addr: tuple[str, int]
+
+
+class Traffic:
+    """Every datagram in and out, in arrival order, for the monitor (thread-safe append)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pending: list[TrafficRecord] = []
+
+    def __call__(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+        with self._lock:
+            self._pending.append(TrafficRecord(direction, t_ns, data, addr))
+
+    def drain(self) -> list[TrafficRecord]:
+        """What came since the last drain, in time order."""
+        with self._lock:
+            out, self._pending = self._pending, []
+        out.sort(key=lambda r: r.t_ns)
+        return out
+
+
+@dataclass(frozen=True)
+class Probe:
+    """The outcome of one liveness probe."""
+
+    acked: bool
+    sent: Sent
+    copies: int
+    ack: Datagram | None
+
+
+class FuzzTarget:
+    """One node under fuzz (one per ``--jobs`` worker)."""
+
+    def __init__(self, cfg: FuzzConfig) -> None:
+        self.cfg = cfg
+        self.run_cfg = cfg.run_config()
+        self.session = Session(self.run_cfg)
+        self.traffic = Traffic()
+        self.restarts = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Start (or attach to) the node; SetupError with a one-line reason otherwise."""
+        self.session.start(observe_startup=False)
+        assert self.session.driver is not None
+        self.session.driver.add_observer(self.traffic)
+        if self.session.target_id is None:
+            self.session.target_id = 1
+
+    def close(self) -> None:
+        self.session.close()
+
+    def restart(self) -> None:
+        """A fresh node (spawn mode); in attach mode the same node is all there is."""
+        if not self.spawned:
+            return
+        self.session.restart()
+        self.restarts += 1
+
+    @property
+    def spawned(self) -> bool:
+        return self.session.spawned
+
+    @property
+    def driver(self) -> TargetDriver:
+        assert self.session.driver is not None, "target not started"
+        return self.session.driver
+
+    @property
+    def node_id(self) -> int:
+        assert self.session.target_id is not None
+        return self.session.target_id
+
+    @property
+    def vehicle(self):  # noqa: ANN201 - vehicle.SimVehicle or None
+        return self.session.vehicle
+
+    @property
+    def rto(self) -> float:
+        return self.run_cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.run_cfg.ack_window
+
+    @property
+    def broadcast_id(self) -> int:
+        return self.run_cfg.broadcast_id
+
+    def alive(self) -> bool:
+        return self.session.alive()
+
+    @property
+    def ended(self) -> bool:
+        return self.session.ended
+
+    # ------------------------------------------------------------------ probing
+    def probe(self, copies: int = PROBE_COPIES) -> Probe:
+        """A WP_Off unicast to the node, retransmitted every --rto, until ACKed."""
+        drv = self.driver
+        sent = drv.send(Action.WP_OFF, None, self.node_id)
+        ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
+        return Probe(ex.acked, sent, len(ex.copies), ex.ack)
+
+    # ------------------------------------------------------------------ process fate
+    def fate(self) -> dict[str, object]:
+        """What the spawned process did: exit code, signal, its last stderr lines."""
+        node = self.session.node
+        if node is None:
+            return {"spawned": False}
+        rc = node.returncode
+        out: dict[str, object] = {"spawned": True, "alive": rc is None, "exit_code": rc}
+        if rc is not None and rc < 0:
+            try:
+                out["signal"] = signal.Signals(-rc).name
+            except ValueError:
+                out["signal"] = str(-rc)
+        out["stderr_tail"] = node.output_tail(8)
+        return out
+
+    def wait_quiet(self, gap: float = 0.05, limit: float = 1.0) -> None:
+        self.driver.quiet(gap=gap, limit=limit)
+
+    def settle(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds))
+
+
+def start_target(cfg: FuzzConfig) -> FuzzTarget:
+    """A started target, or SetupError (its resources released)."""
+    t = FuzzTarget(cfg)
+    try:
+        t.start()
+    except SetupError:
+        t.close()
+        raise
+    except OSError as exc:
+        t.close()
+        raise SetupError(str(exc)) from None
+    return t

@@ -1,0 +1,146 @@
+"""From a flaw seen in a campaign to a finding: group, confirm, shrink, keep.
+
+A flaw whose (rule, shape) group already has a confirmed finding is only counted. Otherwise
+the datagrams that led to it are replayed (``fuzz.replay``) on a fresh node when spawned, on
+the same node when attached: not reproduced, it is dropped (counted as unconfirmed in the
+summary, never reported); reproduced, it is shrunk to the minimal sequence that still shows
+the same rule, and that sequence is confirmed once more before it is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+from fuzz.findings import Finding, FindingStore
+from fuzz.oracles import OVERSIZE, Flaw, Input
+from fuzz.replay import run_sequence, shrink
+from fuzz.target import FuzzTarget
+from spec.codec import HEADER_SIZE, Action
+
+__all__ = ["Triage", "shape_of"]
+
+_DEATH = ("liveness", "process")  # flaws of a node that died or hung: one family
+MAX_GROUPS = 32  # a node broken everywhere: stop confirming new groups after this many
+SHRINK_BUDGET = 24  # replays per finding
+SUSPECTS = 6  # single inputs tried alone before delta debugging
+
+
+def _size_class(n: int) -> str:
+    return "short" if n < HEADER_SIZE else ("oversized" if n > OVERSIZE else "sized")
+
+
+def shape_of(flaw: Flaw, inputs: Sequence[Input]) -> str:
+    """What kind of input and what kind of answer: the grouping key beside the rule."""
+    if flaw.source in _DEATH:
+        last = _size_class(len(inputs[-1].data)) if inputs else "no input"
+        return f"{flaw.source}: {flaw.actual.split(' after ')[0]}, {last}"
+    if flaw.culprit is not None and 0 <= flaw.culprit < len(inputs):
+        inp = inputs[flaw.culprit]
+        if inp.msg is not None:
+            # the rule says what was wrong with ACKing it (broadcast, other ID, an ACK);
+            # for a missing ACK the action code is the shape
+            what = f"valid {Action(inp.msg.action).name}" if flaw.rule == "MCP-ACK-1" else "valid message"
+        else:
+            assert inp.error is not None
+            what = f"rejected {inp.error.rule} {_size_class(len(inp.data))}"
+    else:
+        what = "sequence"
+    return f"{flaw.source}: {what}"
+
+
+class Triage:
+    """Turns flaws into findings for one worker's target."""
+
+    def __init__(self, target: FuzzTarget, store: FindingStore, engine: str, seed: int,
+                 worker: int = 0) -> None:
+        self.target = target
+        self.store = store
+        self.engine = engine
+        self.seed = seed
+        self.worker = worker
+        self.unconfirmed = 0
+        self.replays = 0
+        self.seconds = 0.0
+        # a death is blamed on its input only once shrinking found it: (rule, shape) as first
+        # seen -> the group it ended in
+        self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
+
+    def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
+                 program: str | None = None) -> Finding | None:
+        """Handle one flaw seen after ``inputs``; the new finding, if one was kept."""
+        shape = shape_of(flaw, inputs)
+        key = self.aliases.get((flaw.rule, shape), (flaw.rule, shape))
+        if self.store.known(*key):
+            self.store.count(*key)
+            return None
+        if len(self.store) >= MAX_GROUPS:
+            return None
+        t0 = time.monotonic()
+        try:
+            return self._confirm_and_shrink(flaw, inputs, shape, pace, program)
+        finally:
+            self.seconds += time.monotonic() - t0
+
+    def _still(self, flaw: Flaw, pace: str):  # noqa: ANN202
+        """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
+        def still_fails(seq: list[bytes]) -> bool:
+            self.replays += 1
+            out = run_sequence(self.target, seq, pace=pace)
+            if flaw.source in _DEATH:
+                return any(f.source in _DEATH for f in out.flaws)
+            return flaw.rule in out.rules()
+        return still_fails
+
+    @staticmethod
+    def _suspects(flaw: Flaw, inputs: Sequence[Input]) -> list[bytes]:
+        """Single inputs worth replaying alone first: the culprit, and for a death the short
+        and oversized inputs (the usual killers), last ones first."""
+        out = []
+        if flaw.culprit is not None and flaw.source not in _DEATH:
+            out.append(inputs[flaw.culprit].data)
+        if flaw.source in _DEATH:
+            for inp in reversed(inputs):
+                if _size_class(len(inp.data)) != "sized" and inp.data not in out:
+                    out.append(inp.data)
+            if inputs and inputs[-1].data not in out:
+                out.append(inputs[-1].data)
+        return out[:SUSPECTS]
+
+    def _confirm_and_shrink(self, flaw: Flaw, inputs: Sequence[Input], shape: str, pace: str,
+                            program: str | None) -> Finding | None:
+        end = flaw.culprit + 1 if flaw.culprit is not None and flaw.source not in _DEATH else len(inputs)
+        candidate = [i.data for i in inputs[:end]]
+        still = self._still(flaw, pace)
+        minimal = next(([d] for d in self._suspects(flaw, inputs) if still([d])), None)
+        if minimal is None:
+            if not still(candidate):
+                self.unconfirmed += 1
+                return None
+            minimal = shrink(candidate, still, budget=SHRINK_BUDGET)
+        # the minimal sequence once more (confirmation), recording the node's answers
+        seen: Flaw | None = None
+        outcome = None
+        for _ in range(2):
+            outcome = run_sequence(self.target, minimal, pace=pace)
+            self.replays += 1
+            seen = next((f for f in outcome.flaws if f.rule == flaw.rule
+                         or (flaw.source in _DEATH and f.source in _DEATH)), None)
+            if seen is not None:
+                break
+        if seen is None or outcome is None:
+            self.unconfirmed += 1
+            return None
+        final_shape = shape_of(seen, [Input.of(d) for d in minimal]) if flaw.source in _DEATH else shape
+        self.aliases[(flaw.rule, shape)] = (seen.rule, final_shape)
+        if self.store.known(seen.rule, final_shape):
+            self.store.count(seen.rule, final_shape)
+            return None
+        traffic = [(r.direction, r.t_ns, r.data, r.addr) for r in outcome.traffic]
+        finding = Finding.from_flaw(seen, minimal, final_shape, self.engine, self.seed, pace,
+                                    worker=self.worker, program=program,
+                                    target={"mode": self.target.cfg.mode,
+                                            "spawn": self.target.run_cfg.spawn,
+                                            "mavlink": self.target.cfg.mavlink})
+        self.store.add(finding, traffic)
+        return finding

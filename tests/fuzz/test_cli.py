@@ -1,0 +1,63 @@
+"""mcp-fuzz's command line: help, one-line usage errors (exit 2), findings round trip."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fuzz.cli import main
+from fuzz.findings import Finding, FindingStore, load_finding
+from fuzz.replay import shrink
+
+
+def test_help_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    assert "--engine" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--jobs", "x"], "--jobs"),
+    (["--engine", "fast"], "--engine"),
+    (["--duration", "-1"], "--duration"),
+    (["--target", "nohost:port"], "--target"),
+    (["--target", "127.0.0.1:9", "--jobs", "2"], "--jobs"),
+    (["--db", "ftp://x"], "--db"),
+    (["--target", "127.0.0.1:9", "--spawn", "x"], "not allowed"),
+    (["--replay", "/nonexistent/finding-1"], "--replay"),
+])
+def test_bad_arguments_are_one_line_errors(argv: list[str], words: str,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err and "Traceback" not in err
+
+
+def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noqa: ANN001
+    from captures.reader import Datagram, open_capture
+
+    store = FindingStore(tmp_path, ["--mavlink"])
+    f = Finding("MCP-ACK-4", "no ACK", "an ACK", ["4e4353552d434d0101ffff000000010005"], "replies: valid",
+                "stateless", 5)
+    d = store.add(f)
+    assert d is not None and (d / "replay.txt").read_text().startswith("mcp-fuzz --replay ")
+    assert load_finding(d).datagrams == f.datagrams
+    body = json.loads((d / "finding.json").read_text())
+    assert body["rule"] == "MCP-ACK-4" and body["level"] == "MUST" and body["seed"] == 5
+    recs = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Datagram)]
+    assert [r.data.hex() for r in recs] == f.datagrams
+    store.add(Finding("MCP-ACK-4", "no ACK", "an ACK", ["00"], "replies: valid", "stateless", 5))
+    assert len(store) == 1 and store.by_rule() == {"MCP-ACK-4": 2}
+
+
+def test_shrink_finds_the_minimal_pair() -> None:
+    seq = [bytes([i]) for i in range(40)]
+    calls = []
+
+    def fails(s: list[bytes]) -> bool:
+        calls.append(1)
+        return b"\x07" in s and b"\x21" in s
+
+    assert sorted(shrink(seq, fails, budget=200)) == [b"\x07", b"\x21"]

@@ -1,0 +1,98 @@
+"""fuzz.oracles: each ACK attributed to the input it names, each verdict naming its rule."""
+
+from __future__ import annotations
+
+import time
+
+from conformance.driver import Datagram, read_header
+from fuzz.oracles import DeliveryLedger, Input, judge_liveness, judge_replies
+from spec.codec import BROADCAST_ID, Action, Message, build_datagram, decode, encode
+
+NODE = 1
+
+
+def _ack(seq: int, dst: int = 0) -> Datagram:
+    data = encode(Message(dst, NODE, 500, Action.ACK, seq))
+    return Datagram(0, time.monotonic(), time.time_ns(), data, ("127.0.0.1", 1), decode(data), None,
+                    read_header(data))
+
+
+def _msg(seq: int, dst: int = NODE, action: Action = Action.WP_OFF, src: int = 0) -> Input:
+    return Input.of(encode(Message(dst, src, seq, action, 7 if action == Action.ACK else None)))
+
+
+def test_ack_of_broadcast_other_id_and_ack_name_their_rules() -> None:
+    inputs = [_msg(1, BROADCAST_ID), _msg(2, NODE + 1), _msg(3, action=Action.ACK)]
+    flaws = judge_replies(inputs, [_ack(1), _ack(2), _ack(3)], NODE, BROADCAST_ID, True)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-4", 0), ("MCP-ACK-5", 1), ("MCP-ACK-6", 2)]
+
+
+def test_ack_of_malformed_input_cites_the_codecs_rule() -> None:
+    bad_preamble = Input.of(b"X" + encode(Message(NODE, 0, 5, Action.WP_OFF, None))[1:])
+    unknown = Input.of(build_datagram(NODE, 0, 6, 12))
+    wrong_len = Input.of(build_datagram(NODE, 0, 7, int(Action.WP_OFF), b"\x00"))
+    flaws = judge_replies([bad_preamble, unknown, wrong_len], [_ack(5), _ack(6), _ack(7)], NODE,
+                          BROADCAST_ID, True)
+    assert [f.rule for f in flaws] == ["MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4"]
+
+
+def test_missing_ack_is_ack1_only_when_the_probe_was_acked() -> None:
+    inputs = [_msg(10), _msg(11)]
+    assert [f.rule for f in judge_replies(inputs, [_ack(10)], NODE, BROADCAST_ID, True)] == ["MCP-ACK-1"]
+    assert judge_replies(inputs, [_ack(10)], NODE, BROADCAST_ID, False) == []
+
+
+def test_correct_answers_are_no_flaws() -> None:
+    inputs = [_msg(1), _msg(2, BROADCAST_ID), Input.of(b"\x00" * 5)]
+    assert judge_replies(inputs, [_ack(1)], NODE, BROADCAST_ID, True) == []
+
+
+def test_ambiguous_ack_and_probe_collision_prove_nothing() -> None:
+    # a broadcast and a message to another ID share (src, seq): the ACK cannot be pinned
+    inputs = [_msg(4, BROADCAST_ID), _msg(4, NODE + 1)]
+    assert judge_replies(inputs, [_ack(4)], NODE, BROADCAST_ID, True) == []
+    # the probe took the seq of an input: its ACK answers both
+    assert judge_replies([_msg(9)], [_ack(9)], NODE, BROADCAST_ID, True, ignore_seqs=[(0, 9)]) == []
+
+
+def test_messages_bearing_the_nodes_own_src_are_not_judged() -> None:
+    assert judge_replies([_msg(3, src=NODE)], [], NODE, BROADCAST_ID, True) == []
+
+
+def test_liveness_blames_short_oversized_and_other_inputs() -> None:
+    dead = {"alive": False, "exit_code": 3, "stderr_tail": "boom"}
+    assert judge_liveness([Input.of(b"abc")], True, dead).rule == "MCP-ROB-1"
+    assert judge_liveness([Input.of(bytes(9000))], False, {"alive": True}).rule == "MCP-ROB-6"
+    assert judge_liveness([_msg(1)], False, {"alive": True}).rule == "MCP-ROB-5"
+    assert judge_liveness([_msg(1)], True, {"alive": True}) is None
+
+
+def _pt(seq: int, dst: int = NODE, src: int = 0) -> Input:
+    from vehicle.probe import make_probe
+
+    return Input.of(encode(Message(dst, src, seq, Action.MAV_PASSTHROUGH, make_probe(f"t{seq}"))))
+
+
+def test_ledger_duplicate_delivered_twice_is_dup1() -> None:
+    led = DeliveryLedger(NODE, BROADCAST_ID)
+    led.sent(0, _pt(5), "t5")
+    led.sent(1, _pt(5), "t5")
+    assert [f.rule for f in led.judge({"t5": 2}, settled=True)] == ["MCP-DUP-1"]
+    assert led.judge({"t5": 1}, settled=True) == []
+
+
+def test_ledger_wrap_not_delivered_is_seq3_and_double_forward_is_pay8() -> None:
+    led = DeliveryLedger(NODE, BROADCAST_ID)
+    led.sent(0, _pt(0xFFFF), "t65535")
+    led.sent(1, _pt(0), "t0")
+    assert [f.rule for f in led.judge({"t65535": 1, "t0": 0}, settled=True)] == ["MCP-SEQ-3"]
+    assert led.judge({"t65535": 1, "t0": 0}, settled=False) == []  # not settled: under-delivery waits
+    assert [f.rule for f in led.judge({"t65535": 2, "t0": 1}, settled=False)] == ["MCP-PAY-8"]
+
+
+def test_ledger_other_id_and_malformed_must_not_reach_the_vehicle() -> None:
+    led = DeliveryLedger(NODE, BROADCAST_ID)
+    led.sent(0, _pt(1, dst=NODE + 1), "t1")
+    bad = Input.of(_pt(2).data[:-1])
+    led.sent(1, bad, "t2")
+    assert sorted(f.rule for f in led.judge({"t1": 1, "t2": 1}, settled=True)) == ["MCP-ACK-5", "MCP-ROB-4"]
