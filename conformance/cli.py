@@ -33,7 +33,7 @@ __all__ = ["build_parser", "main", "pytest_args"]
 PROG = "mcp-conform"
 CASES_PACKAGE = "conformance.cases"
 PLUGIN_MODULE = "conformance.plugin"
-MANAGER_NOT_AVAILABLE = "--role manager: manager role conformance is not available yet"
+MANAGER_CASES_PACKAGE = "conformance.cases_manager"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -69,6 +69,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", metavar="S", help="deadline for the whole run (default 600)")
     p.add_argument("--case-timeout", metavar="S", help="time limit of one case (default: from --rto and --ack-window)")
     p.add_argument("--seed", metavar="N", help="seed of the malformed corpus (default: fixed)")
+    p.add_argument("--drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays (default 1,2,3)")
+    p.add_argument("--challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs (default 1)")
+    p.add_argument("--waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed "
+                                                       "(default: one the runner writes, {waypoints})")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
 
@@ -89,7 +93,8 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
             "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
             "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
-            "case_timeout": ns.case_timeout}
+            "case_timeout": ns.case_timeout,
+            "drones": ns.drones, "challenge": ns.challenge, "waypoints": ns.waypoints}
 
 
 def _check_writable(path: str | None, option: str) -> None:
@@ -134,9 +139,10 @@ def _plugin_is_installed() -> bool:
 
 def pytest_args(ns: argparse.Namespace) -> list[str]:
     """The pytest command line for these arguments."""
-    import conformance.cases
+    import importlib
 
-    cases_dir = str(Path(conformance.cases.__file__).resolve().parent)
+    package = MANAGER_CASES_PACKAGE if ns.role == "manager" else CASES_PACKAGE
+    cases_dir = str(Path(importlib.import_module(package).__file__ or "").resolve().parent)
     args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
             "-W", "ignore::pytest.PytestAssertRewriteWarning", "-W", "ignore::pytest.PytestConfigWarning"]
@@ -145,7 +151,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     args += ["--mcp-frontend", "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
-                 "junit_family", "case_timeout"):
+                 "junit_family", "case_timeout", "drones", "challenge", "waypoints"):
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")
@@ -156,7 +162,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
         args.append(f"--mcp-select={prefix}")
     for prefix in ns.exclude:
         args.append(f"--mcp-exclude={prefix}")
-    args += ["--pyargs", CASES_PACKAGE]
+    args += ["--pyargs", package]
     return args
 
 
@@ -182,8 +188,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
         return _fail(str(exc), json_path)
-    if cfg.role == "manager":
-        return _fail(MANAGER_NOT_AVAILABLE, ns.json, cfg)
     if ns.list and ns.capture:
         ns.capture = None  # nothing runs: no capture file
     import pytest

@@ -45,6 +45,10 @@ class RunConfig:
     json_path: str | None = None
     junit_path: str | None = None
     case_timeout: float | None = None  # None: derived from rto and ack_window
+    # --role manager: the drones the runner plays, the challenge, the waypoint file handed over
+    drones: tuple[int, ...] = (1, 2, 3)
+    challenge: int = 1
+    waypoints: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -65,5 +69,7 @@ class RunConfig:
         out = {k: d[k] for k in ("role", "target_id", "spawn", "mavlink", "strict", "rto",
                                  "ack_window", "broadcast_id", "timeout", "seed")}
         out["mode"] = self.mode
+        if self.role == "manager":
+            out.update(drones=list(self.drones), challenge=self.challenge, waypoints=self.waypoints)
         out["listen"] = f"{self.listen[0]}:{self.listen[1]}" if self.listen else None
         return out

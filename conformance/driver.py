@@ -152,6 +152,9 @@ class TargetDriver:
         self._seq: dict[int, int] = {}
         self.auto_ack: Callable[[Datagram], bool] = lambda d: True
         self.alive: Callable[[], bool] = lambda: True
+        #: called in the receiver thread for every datagram, after it is recorded (the
+        #: manager role's drone players answer from here)
+        self.on_datagram: Callable[[Datagram], None] | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Address:
@@ -213,6 +216,8 @@ class TargetDriver:
                 self._rx.append(d)
                 self._cond.notify_all()
             self._notify("rx", data, addr, t_ns)
+            if self.on_datagram is not None:
+                self.on_datagram(d)
             if (msg is not None and msg.action != Action.ACK and msg.dst == self.our_id
                     and self.auto_ack(d)):
                 self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)

@@ -147,8 +147,29 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
     cfg.json_path = v.get("json")
     cfg.junit_path = v.get("junit")
     cfg.embedded = cfg.target is None and cfg.spawn is None
+    _manager_options(cfg, v, opt)
     cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
     return cfg
+
+
+def _manager_options(cfg: RunConfig, v: Mapping[str, Any], opt: Callable[[str], str]) -> None:
+    """--drones, --challenge, --waypoints (the manager role's)."""
+    if "drones" in v:
+        try:
+            ids = tuple(int(x, 0) for x in str(v["drones"]).split(",") if x.strip())
+        except ValueError:
+            raise ConfigError(f"{opt('drones')}: {v['drones']!r} is not a comma-separated list of IDs") from None
+        bad = [i for i in ids if not 0 < i < cfg.broadcast_id or i > 0xFFFF]
+        if not ids or bad or len(set(ids)) != len(ids):
+            raise ConfigError(f"{opt('drones')}: {v['drones']!r}: drone IDs are distinct, 1..{cfg.broadcast_id - 1}")
+        cfg.drones = ids
+    if "challenge" in v:
+        cfg.challenge = _int(v["challenge"], opt("challenge"), 1, 3)
+    if "waypoints" in v:
+        path = Path(str(v["waypoints"]))
+        if not path.is_file():
+            raise ConfigError(f"{opt('waypoints')}: {str(path)!r} is not a file")
+        cfg.waypoints = str(path)
 
 
 def apply_embedded_defaults(cfg: RunConfig) -> None:
@@ -207,6 +228,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-baseline", metavar="FILE", help="expected failures (YAML or JSON): listed failures are xfailed, listed passes xpassed")
     g.addoption("--mcp-write-baseline", metavar="FILE", help="write this run's failures as a baseline")
     g.addoption("--mcp-junit-family", metavar="xunit2|xunit1", default="xunit2", help="xunit2 (default): valid against the Jenkins junit-10 schema; xunit1: also properties in each testcase")
+    g.addoption("--mcp-drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays")
+    g.addoption("--mcp-challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs")
+    g.addoption("--mcp-waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
     for key in _KEYS:
@@ -220,13 +244,18 @@ def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:
 
 @pytest.hookimpl(trylast=True)
 def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
+    if cfg.role == "manager":
+        from conformance.manager_session import ManagerSession
+
+        return ManagerSession(cfg, recorder=recorder)
     from conformance.session import Session
 
     return Session(cfg, recorder=recorder)
 
 
 _KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
-         "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout")
+         "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
+         "drones", "challenge", "waypoints")
 _FLAGS = ("mavlink", "strict")
 
 

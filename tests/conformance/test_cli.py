@@ -69,13 +69,24 @@ def test_json_path_with_equals_sign_is_honoured_on_argparse_errors(tmp_path):
     assert proc.returncode == 2 and report(path)["error"].startswith("unrecognized arguments")
 
 
-def test_manager_role_is_not_available_yet(tmp_path):
+@pytest.mark.parametrize("args,needle", [
+    (("--drones", "1,x"), "--drones"), (("--drones", "1,1"), "--drones"), (("--drones", "0"), "--drones"),
+    (("--challenge", "4"), "--challenge"), (("--waypoints", "/nonexistent/wp.txt"), "--waypoints"),
+])
+def test_manager_role_options_are_checked(tmp_path, args, needle):
     path = tmp_path / "r.json"
-    proc = conform("--role", "manager", "--json", str(path))
-    assert proc.returncode == 2
-    assert "manager role conformance is not available yet" in proc.stderr
+    proc = conform("--role", "manager", *args, "--json", str(path))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith(f"mcp-conform: error: {needle}"), proc.stderr
     doc = report(path)
-    assert doc["role"] == "manager" and "not available yet" in doc["error"]
+    assert doc["role"] == "manager" and needle in doc["error"]
+
+
+def test_manager_role_lists_its_own_cases(tmp_path):
+    proc = conform("--role", "manager", "--list", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "BLK/test_nothing_before_every_mission_ready  MCP-BLK-2  MUST" in proc.stdout
+    assert "test_mission_ready_is_unicast_to_the_manager" not in proc.stdout  # a drone case
 
 
 def test_list_touches_nothing(tmp_path):

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_summary_lists_header_actions_and_rule_counts(capsys: pytest.CaptureFixture[str]) -> None:
     assert main([]) == 0
     out = capsys.readouterr().out
-    for word in ("!7s2B4H", "Mission_Ready", "Mav_Passthrough", "MUST", "SHOULD", "INFO", "54"):
+    for word in ("!7s2B4H", "Mission_Ready", "Mav_Passthrough", "MUST", "SHOULD", "INFO", "55"):
         assert word in out
 
 

@@ -1,0 +1,77 @@
+"""RTX — the manager's retransmission, observed on the first Start_Mission while the
+drone withholds its ACK; then a wrong-seq ACK and a right-seq ACK from another drone; then
+the right one.
+
+"This allows a sender to guarantee delivery of a unicast messages by retransmitting the
+message until an acknowledgement is received."
+"""
+
+from __future__ import annotations
+
+import statistics
+
+from conformance.errors import Inconclusive
+from conformance.manager_case import messages
+from conformance.marks import rules
+from spec import SPEC
+
+MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+
+
+def _withheld(node, rule):
+    w = node.mission().withheld
+    if w.drone is None:
+        raise Inconclusive(f"{rule}: the manager sent no Start_Mission (see MCP-FLOW-2)")
+    return w
+
+
+@rules("MCP-RTX-1")
+def test_start_mission_is_retransmitted_until_acked(node):
+    w = _withheld(node, "MCP-RTX-1")
+    n = len(w.copies)
+    node.expect_true(n >= MIN_COPIES and not w.copies_after_right_ack, "MCP-RTX-1",
+                     f"at least {MIN_COPIES} copies of Start_Mission while its ACK is withheld, none after the right ACK",
+                     f"{n} cop{'y' if n == 1 else 'ies'} while withheld" if n < MIN_COPIES else
+                     f"{len(w.copies_after_right_ack)} copies after the right ACK (watched {w.stop_watch:.2f} s)",
+                     [d.describe() for d in (w.copies_after_right_ack or w.copies)[:3]])
+
+
+@rules("MCP-RTX-2")
+def test_only_the_right_ack_ends_retransmission(node):
+    w = _withheld(node, "MCP-RTX-2")
+    if len(w.copies) < MIN_COPIES:
+        raise Inconclusive("MCP-RTX-2: the manager had stopped retransmitting before the wrong ACKs "
+                           "were sent (see MCP-RTX-1)")
+    node.expect_true(w.copy_after_wrong_acks is not None, "MCP-RTX-2",
+                     "retransmission goes on after an ACK with the wrong seq and one from another drone",
+                     f"no copy within {w.wrong_ack_wait:.2f} s after them",
+                     [f"wrong ACK: {s.data.hex(' ')}" for s in w.wrong_acks])
+
+
+@rules("MCP-RTX-3")
+def test_copies_are_evenly_spaced(node):
+    w = _withheld(node, "MCP-RTX-3")
+    gaps = w.gaps()
+    if len(gaps) < 2:
+        raise Inconclusive(f"MCP-RTX-3: {len(gaps) + 1} copies are too few to judge spacing")
+    med = statistics.median(gaps)
+    tol = float(SPEC.params["rtx_spacing_tolerance"])
+    floor = float(SPEC.params["rtx_min_gap_s"])
+    allowance = tol * med + float(SPEC.params["timing_jitter_s"])
+    bad = [g for g in gaps if abs(g - med) > allowance or g < floor]
+    node.expect_true(not bad, "MCP-RTX-3",
+                     f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
+                     f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
+                     [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"])
+
+
+@rules("MCP-RTX-4")
+def test_broadcasts_are_sent_once(node):
+    m = node.mission()
+    bcast = [x for x in messages(m) if x.dst == node.broadcast_id]
+    if not bcast:
+        raise Inconclusive("MCP-RTX-4: the manager sent no broadcast message")
+    bad = [x for x in bcast if len(x.copies) > 1]
+    node.expect_true(not bad, "MCP-RTX-4", "each broadcast sent once",
+                     f"seq {bad[0].seq} sent {len(bad[0].copies)} times" if bad else "",
+                     [bad[0].first.describe()] if bad else [])

@@ -1,0 +1,69 @@
+"""SEQ — the manager's sequence numbers.
+
+"Sequence number is incremented during every send." "The retransmitted message carries
+the same sequence number as the original."
+"""
+
+from __future__ import annotations
+
+from conformance.errors import Inconclusive
+from conformance.manager_case import messages
+from conformance.marks import rules
+from spec.codec import Action
+
+
+class _New:
+    def __init__(self, d):
+        self.first, self.seq = d, d.header[2]
+
+
+@rules("MCP-SEQ-1")
+def test_each_new_message_takes_the_next_seq(node):
+    """Between two successive new messages the seq advances by 1 to 1 + the ACKs the
+    manager sent in between (D-5: an ACK may or may not take a number)."""
+    m = node.mission()
+    msgs, seen = [], set()
+    for d in m.commands():  # each seq once: a copy with the same seq is not a new message
+        if d.header[2] not in seen:
+            seen.add(d.header[2])
+            msgs.append(_New(d))
+    if len(msgs) < 2:
+        raise Inconclusive("MCP-SEQ-1: fewer than two messages from the manager")
+    acks = [d.t for d in m.from_manager() if d.is_ack_like]
+    for a, b in zip(msgs, msgs[1:], strict=False):
+        between = sum(1 for t in acks if a.first.t < t < b.first.t)
+        step = (b.seq - a.seq) & 0xFFFF
+        node.expect_true(1 <= step <= 1 + between, "MCP-SEQ-1",
+                         f"seq {(a.seq + 1) & 0xFFFF}..{(a.seq + 1 + between) & 0xFFFF} after seq {a.seq} "
+                         f"({between} ACKs in between)", f"seq {b.seq}", [a.first.describe(), b.first.describe()])
+
+
+@rules("MCP-SEQ-2")
+def test_retransmission_repeats_seq_and_bytes(node):
+    m = node.mission()
+    w = m.withheld
+    if len(w.copies) < 2:
+        raise Inconclusive("MCP-SEQ-2: the manager did not retransmit Start_Mission (see MCP-RTX-1)")
+    first = w.copies[0]
+    bad = [d for d in w.copies[1:] if d.data != first.data]
+    node.expect_true(not bad, "MCP-SEQ-2", f"every copy of Start_Mission to drone {w.drone} repeats seq "
+                     f"{first.header[2]} and its bytes", f"{len(bad)} of {len(w.copies) - 1} copies differ"
+                     + (f" (seq {bad[0].header[2]})" if bad and bad[0].header else ""),
+                     [first.describe()] + [d.describe() for d in bad[:2]])
+
+
+@rules("MCP-SEQ-3")
+def test_wrap_as_receiver(node):
+    node.require_observable("MCP-SEQ-3")
+
+
+@rules("MCP-SEQ-4")
+def test_initial_seq_is_recorded(node):
+    m = node.mission()
+    msgs = [d for d in m.from_manager() if d.header is not None]
+    if not msgs:
+        raise Inconclusive("MCP-SEQ-4: the manager sent nothing")
+    first_cmd = next((x for x in messages(m)), None)
+    node.info(f"the manager's first datagram carries seq {msgs[0].header[2]} "
+              f"({Action(msgs[0].header[3]).name if msgs[0].header[3] <= 9 else msgs[0].header[3]})"
+              + (f"; its first command seq {first_cmd.seq}" if first_cmd else ""))

@@ -1,0 +1,290 @@
+"""The per-case context for ``--role manager`` (the ``node`` fixture), and the judgements
+over a recorded mission that several rule groups share.
+
+A case asks for the record of a scenario (``node.mission()``: the main one, run at start;
+``node.mission("silent")``: run on first use), then calls one verify helper. The helpers
+raise ``CaseFailure(rule, expected, actual, evidence)`` or ``Inconclusive(reason)`` as the
+drone role's do (``conformance.case``).
+
+Conventions (one fault, one rule):
+- A message *awaits its ACK* from its first copy until the runner's first ACK of it (the
+  right one, or a deliberately wrong one of MCP-RTX-2: taking a wrong ACK for the ACK is
+  RTX-2's fault) — or, when the manager stopped retransmitting it before any ACK (it gave
+  up, MCP-RTX-1's business), until its last copy.
+- A copy is a datagram to the same drone with the same action and payload as a message
+  awaiting its ACK; whether it repeats the seq and bytes is MCP-SEQ-2's business.
+- A drone the manager gave up on (a command whose retransmission stopped unACKed) is
+  excused from the rest of the mission's flow rules.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import struct
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from conformance.driver import Datagram, read_header
+from conformance.errors import CaseFailure, Inconclusive
+from conformance.manager_mission import Input, Mission
+from spec import SPEC
+from spec.codec import HEADER_SIZE, ITEM, Action
+
+if TYPE_CHECKING:
+    from conformance.manager_session import ManagerSession
+
+_ACK = int(Action.ACK)
+_START = int(Action.START_MISSION)
+_END = int(Action.END_MISSION)
+_LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
+_WP_ON = int(Action.WP_ON)
+_WP_OFF = int(Action.WP_OFF)
+#: Fields a QGC WPL 110 line holds (target_system/component are not in the file).
+FILE_FIELDS = ("seq", "current", "frame", "command", "param1", "param2", "param3", "param4",
+               "x", "y", "z", "autocontinue")
+
+
+def _hex(data: bytes, limit: int = 40) -> str:
+    h = data[:limit].hex(" ")
+    return h + (f" ... ({len(data)} bytes)" if len(data) > limit else f" ({len(data)} bytes)")
+
+
+def f32(x: float) -> float:
+    return float(struct.unpack("<f", struct.pack("<f", x))[0])
+
+
+def item_differences(got: Any, want: Any) -> list[str]:
+    """Fields of the file's item that the sent item does not carry (floats as float32)."""
+    out = []
+    for name in FILE_FIELDS:
+        g, w = getattr(got, name), getattr(want, name)
+        if isinstance(w, float):
+            w = f32(w)
+            same = g == w or (math.isnan(g) and math.isnan(w))
+        else:
+            same = g == w
+        if not same:
+            out.append(f"{name}={g!r} (file: {w!r})")
+    return out
+
+
+@dataclass
+class Message:
+    """One message of the manager (a new one) with its copies."""
+
+    first: Datagram
+    copies: list[Datagram] = field(default_factory=list)  # the first included
+
+    @property
+    def dst(self) -> int:
+        assert self.first.header is not None
+        return self.first.header[0]
+
+    @property
+    def seq(self) -> int:
+        assert self.first.header is not None
+        return self.first.header[2]
+
+    @property
+    def action(self) -> int:
+        assert self.first.header is not None
+        return self.first.header[3]
+
+    @property
+    def last(self) -> Datagram:
+        return self.copies[-1]
+
+
+def messages(m: Mission) -> list[Message]:
+    """The manager's non-ACK messages in order of first arrival, copies grouped with the
+    message they repeat: same (dst, seq), or same (dst, action, payload) while the earlier
+    one has not been ACKed (a retransmission with a new seq, MCP-SEQ-2's business)."""
+    out: list[Message] = []
+    by_key: dict[tuple[int, int], Message] = {}
+    for d in m.commands():
+        h = d.header
+        assert h is not None
+        msg = by_key.get((h[0], h[2]))
+        if msg is None:
+            for cand in reversed(out):
+                if (cand.dst == h[0] and cand.action == h[3] and cand.first.data[HEADER_SIZE:] == d.data[HEADER_SIZE:]
+                        and not _acked_before(m, cand, d.t)):
+                    msg = cand
+                    break
+        if msg is None:
+            msg = Message(d)
+            out.append(msg)
+        msg.copies.append(d)
+        by_key[(h[0], h[2])] = msg
+    return out
+
+
+def runner_ack_time(m: Mission, msg: Message) -> float | None:
+    """When the runner first answered ``msg`` (any copy's seq, or a deliberate wrong ACK)."""
+    times = [m.acks[(msg.dst, c.header[2])].t for c in msg.copies
+             if c.header is not None and (msg.dst, c.header[2]) in m.acks]
+    w = m.withheld
+    if w.drone == msg.dst and msg.action == _START and w.wrong_acks and w.copies and \
+            any(c in msg.copies for c in w.copies):
+        times.append(w.wrong_acks[0].t)
+    return min(times) if times else None
+
+
+def _acked_before(m: Mission, msg: Message, t: float) -> bool:
+    at = runner_ack_time(m, msg)
+    return at is not None and at < t
+
+
+def gave_up(m: Mission, msg: Message, rto: float) -> bool:
+    """The manager stopped retransmitting ``msg`` well before any ACK of it (a retry limit,
+    MCP-RTX-1's business) — not merely because the mission record ends."""
+    acked = runner_ack_time(m, msg)
+    gaps = [b.t - a.t for a, b in zip(msg.copies, msg.copies[1:], strict=False)]
+    slack = 1.5 * (statistics.median(gaps) if gaps else rto) + 0.05
+    if acked is None:
+        return m.t_end - msg.last.t > slack
+    return acked > msg.last.t + slack
+
+
+def awaiting_until(m: Mission, msg: Message, rto: float) -> float:
+    """The end of the time ``msg`` awaited its ACK (see the module docstring)."""
+    acked = runner_ack_time(m, msg)
+    if acked is None or gave_up(m, msg, rto):
+        return msg.last.t
+    return acked
+
+
+def abandoned(m: Mission, rto: float) -> set[int]:
+    """Drones with a command whose retransmission stopped before any ACK of it."""
+    return {msg.dst for msg in messages(m) if msg.dst in m.drones and gave_up(m, msg, rto)}
+
+
+def decode_items(d: Datagram) -> tuple[Any, ...] | None:
+    """The items of a WP_List/Obstacles_List/WP_On as the spec lays them out, or None when
+    the payload does not fit (MCP-PAY-3/5's business)."""
+    if d.msg is not None:
+        p = d.msg.payload
+        return (p,) if d.action == _WP_ON else tuple(p)
+    return None
+
+
+def unpack_items(region: bytes) -> list[Any]:
+    from spec.codec import MissionItem
+
+    return [MissionItem._make(t) for t in ITEM.iter_unpack(region)]
+
+
+class ManagerCaseContext:
+    """What a manager-role case sees (see the module docstring)."""
+
+    def __init__(self, session: ManagerSession, case_id: str, rules: tuple[str, ...]) -> None:
+        self.session = session
+        self.case_id = case_id
+        self.rules = rules
+        self.start_ns = time.time_ns()
+        self.end_ns: int | None = None
+        self.notes: list[str] = []
+        self.node_silent = False
+        self.restart_if_failed = False
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def role(self) -> str:
+        return "manager"
+
+    @property
+    def rto(self) -> float:
+        return self.session.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.session.ack_window
+
+    @property
+    def broadcast_id(self) -> int:
+        return self.session.cfg.broadcast_id
+
+    @property
+    def challenge(self) -> int:
+        return self.session.cfg.challenge
+
+    def mission(self, kind: str = "main") -> Mission:
+        return self.session.mission(kind)
+
+    def info(self, text: str) -> None:
+        self.notes.append(text)
+
+    def require_observable(self, rule: str) -> None:
+        obs = SPEC.rule(rule).observe.get("manager")
+        if obs is None:
+            raise Inconclusive(f"{rule} does not apply to a Mission Manager")
+        if obs.observable != "mcp":
+            raise Inconclusive(f"{rule} is not observable on a Mission Manager: {obs.reason}")
+
+    def require_challenge(self, rule: str, challenge: int) -> None:
+        if self.challenge != challenge:
+            raise Inconclusive(f"{rule} applies to challenge {challenge}; this run is challenge "
+                               f"{self.challenge} (--challenge)")
+
+    # ------------------------------------------------------------------ verify helpers
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        ev = list(evidence)
+        m = self.session.missions.get("main")
+        if m is not None and m.exit_code not in (None, 0) and m.output:
+            ev.append(f"manager exited with code {m.exit_code}; output (last lines):\n    "
+                      + "\n    ".join(m.output.splitlines()[-8:]))
+        return CaseFailure(rule, expected, actual, ev)
+
+    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
+        if not ok:
+            raise self.fail(rule, expected, actual, evidence)
+
+    def expect_all(self, datagrams: Sequence[Datagram], check: Any, rule: str, expected: str) -> None:
+        """Every datagram passes ``check`` (which returns a problem or None)."""
+        if not datagrams:
+            raise Inconclusive(f"{rule}: the manager sent nothing to judge")
+        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
+        if bad:
+            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
+                            [d.describe() for d, _ in bad[:3]])
+
+    def inputs(self, rule: str, m: Mission | None = None) -> list[Input]:
+        m = m or self.mission()
+        got = [i for i in m.inputs if i.rule == rule]
+        if not got:
+            died = next((i for i in m.inputs if i.died or (i.probe is not None and not i.probe.acked)), None)
+            why = f" (the inputs stopped after {died.label!r})" if died is not None else ""
+            raise Inconclusive(f"{rule}: no input of this rule was sent{why}")
+        return got
+
+    def expect_survived(self, inputs: Sequence[Input], rule: str, *, live_rule: str = "MCP-ROB-5") -> None:
+        """The manager stayed alive through each input and ACKed the probe after it."""
+        for i in inputs:
+            if i.died:
+                death_rule = "MCP-ROB-1" if len(i.sent.data) < HEADER_SIZE else rule
+                raise self.fail(death_rule, f"the manager survives input {i.label!r}", "the manager exited after it",
+                                [f"input: {_hex(i.sent.data)}"] + self.session.node_evidence())
+            if i.probe is not None and not i.probe.acked:
+                raise self.fail(live_rule, f"an ACK of the next Mission_Ready after input {i.label!r}",
+                                f"no ACK of seq {i.probe.seq} after {len(i.probe.copies)} copies "
+                                f"{self.rto:g} s apart", [f"input: {_hex(i.sent.data)}"])
+
+    def expect_not_acked(self, inputs: Sequence[Input], rule: str) -> None:
+        """No ACK names any input's seq (big-endian, to its src) within the ACK window (D-6)."""
+        m = self.mission()
+        for i in inputs:
+            hdr = read_header(i.sent.data)
+            if hdr is None:
+                continue
+            _, src, seq, _ = hdr
+            replies = [d for d in m.from_manager() if d.is_ack_like and d.acked_seq() == seq
+                       and d.header is not None and d.header[0] == src
+                       and i.sent.t <= d.t <= i.sent.t + self.ack_window]
+            if replies:
+                d = replies[0]
+                raise self.fail(rule, f"input {i.label!r} (seq {seq}) not ACKed within {self.ack_window:g} s",
+                                f"ACKed {d.t - i.sent.t:.3f} s after it",
+                                [f"input: {_hex(i.sent.data)}", f"reply: {d.describe()}"])

@@ -1,0 +1,285 @@
+"""The Mission Manager under test over a whole run (``--role manager``): attach, spawn, or
+the embedded reference manager.
+
+The runner listens where drones listen (default: all addresses, port 7890, so the manager's
+IP broadcasts reach it) and plays every drone of ``--drones`` from that one socket
+(:mod:`conformance.manager_mission`). It hands the manager a QGC WPL 110 waypoint file of
+its own (``{waypoints}``; varied from the seed: several items, non-trivial coordinates,
+altitudes, commands and frames) unless ``--waypoints FILE`` names one, and for challenge 3
+an obstacles file (``{obstacles}``).
+
+A manager runs one mission and is done, so every scenario that needs a fresh mission
+starts a fresh manager (spawn mode and the embedded default). The main scenario runs at
+start (a manager that never ACKs the first Mission_Ready is a setup error, exit 2); others
+run when the first case that needs them does. In attach mode the manager is already
+running and only its one mission can be observed: the other scenarios are SKIPPED.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import random
+import shlex
+import struct
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from conformance.config import RunConfig
+from conformance.driver import TargetDriver
+from conformance.errors import Inconclusive, SetupError, TargetLost
+from conformance.manager_mission import DronePlayers, Mission, MissionScript
+from conformance.session import (
+    BROADCAST_ADDRESS,
+    MANAGER_ID,
+    SpawnedNode,
+    fill_placeholders,
+    free_udp_port,
+)
+from spec import SPEC
+from spec.codec import MissionItem
+
+DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
+MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
+#: The embedded reference manager's retry limit: enough for the copies the main scenario
+#: withholds, few enough that the silent drone's scenario ends quickly.
+EMBEDDED_RETRIES = 12
+
+# MAV_CMDs and MAV_FRAMEs the generated missions draw from (all defined by MAVLink)
+_COMMANDS = (16, 17, 19, 21, 22, 178, 82)  # WAYPOINT, LOITER_UNLIM, LOITER_TIME, LAND, TAKEOFF, DO_CHANGE_SPEED, SPLINE
+_FRAMES = (0, 3, 10)  # GLOBAL, GLOBAL_RELATIVE_ALT, GLOBAL_TERRAIN_ALT
+
+
+def embedded_command() -> str:
+    """The reference manager, as the runner spawns it for the embedded default."""
+    from conformance.session import EMBEDDED_RTO
+
+    return (f"{shlex.quote(sys.executable)} -m reference_impl manager --challenge {{challenge}} "
+            "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
+            "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
+            f"--rto {EMBEDDED_RTO} --retries {EMBEDDED_RETRIES}")
+
+
+def _f32(x: float) -> float:
+    return float(struct.unpack("<f", struct.pack("<f", x))[0])
+
+
+def make_mission_items(seed: int, count: int | None = None) -> tuple[Any, ...]:
+    """Waypoints varied by ``seed``: 3-6 items somewhere on Earth, varied commands, frames,
+    altitudes and parameters (each value exact in float32 after 6 decimals)."""
+    rnd = random.Random(seed)
+    n = count if count is not None else rnd.randint(3, 6)
+    lat0, lon0 = rnd.uniform(-70, 70), rnd.uniform(-170, 170)
+    items = []
+    for i in range(n):
+        cmd = rnd.choice(_COMMANDS)
+        params = [round(rnd.uniform(0, 30), 2) if rnd.random() < 0.6 else 0.0 for _ in range(4)]
+        items.append(MissionItem(
+            param1=params[0], param2=params[1], param3=params[2], param4=params[3],
+            x=round(lat0 + rnd.uniform(-0.02, 0.02), 6), y=round(lon0 + rnd.uniform(-0.02, 0.02), 6),
+            z=round(rnd.uniform(5, 120), 2), seq=i, command=cmd, target_system=0, target_component=0,
+            frame=rnd.choice(_FRAMES), current=1 if i == 0 else 0, autocontinue=1))
+    return tuple(items)
+
+
+class ManagerSession:
+    """One run against one Mission Manager (see the module docstring)."""
+
+    def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
+        self.cfg = cfg
+        self.recorder = recorder
+        if cfg.embedded:
+            cfg.spawn = cfg.spawn or embedded_command()
+        self.driver: TargetDriver | None = None
+        self.players: DronePlayers | None = None
+        self.node: SpawnedNode | None = None
+        self.vehicle = None
+        self.argv: list[str] = []
+        self.target_id = MANAGER_ID
+        self.target_desc = ""
+        self.missions: dict[str, Mission] = {}
+        self.unavailable: dict[str, str] = {}
+        self.lost: str | None = None
+        self.restarts = 0
+        self._tmp = tempfile.TemporaryDirectory(prefix="mcp-conform-manager-")
+        self.waypoints_path = ""
+        self.obstacles_path = ""
+        self.waypoints: tuple[Any, ...] | None = None
+        self.obstacles: tuple[Any, ...] | None = None
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def spawned(self) -> bool:
+        return self.cfg.spawn is not None
+
+    @property
+    def rto(self) -> float:
+        return self.cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.cfg.ack_window
+
+    @property
+    def startup(self) -> Any:
+        return None
+
+    def alive(self) -> bool:
+        return self.node.alive() if self.node is not None else True
+
+    # ------------------------------------------------------------------ start / stop
+    def start(self) -> None:
+        cfg = self.cfg
+        if self.spawned:
+            listen = cfg.listen or ("", 0)
+            target = cfg.target or ("127.0.0.1", free_udp_port())
+        else:
+            if cfg.target is None:
+                raise SetupError("no --target and no --spawn")
+            listen = cfg.listen or ("", DRONE_PORT)
+            target = cfg.target
+        self._mission_files()
+        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
+        self.driver.auto_ack = lambda d: False  # the drone players answer (DronePlayers)
+        try:
+            self.driver.open()
+        except OSError as exc:
+            raise SetupError(str(exc)) from None
+        self.driver.alive = self.alive
+        if self.recorder is not None:
+            self.driver.add_observer(self.recorder.datagram)
+        self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
+        self.driver.on_datagram = self.players.on_datagram
+        self.target_desc = f"{target[0]}:{target[1]}"
+        self.mission("main")
+        if "main" not in self.missions:
+            raise SetupError(self.unavailable.get("main", "the manager never answered"))
+
+    def _mission_files(self) -> None:
+        from spec.mission import WaypointFileError, load_waypoints, save_waypoints
+
+        tmp = Path(self._tmp.name)
+        cfg = self.cfg
+        if cfg.waypoints:
+            self.waypoints_path = cfg.waypoints
+        else:
+            self.waypoints_path = str(tmp / "mission.waypoints")
+            save_waypoints(self.waypoints_path, make_mission_items(cfg.seed))
+        self.obstacles_path = str(tmp / "obstacles.waypoints")
+        save_waypoints(self.obstacles_path, make_mission_items(cfg.seed + 1))
+        try:
+            self.waypoints = load_waypoints(self.waypoints_path)
+            obstacles = load_waypoints(self.obstacles_path)
+        except WaypointFileError as exc:
+            raise SetupError(f"--waypoints: {exc}") from None
+        spawn = cfg.spawn or ""
+        if "{obstacles}" in spawn:
+            self.obstacles = obstacles
+        elif "{waypoints}" in spawn or (not self.spawned and cfg.waypoints):
+            self.obstacles = self.waypoints  # one file handed over: its items are the obstacles
+        if not self.spawned and not cfg.waypoints:
+            self.waypoints = None  # attach mode without --waypoints: the mission is unknown
+
+    def close(self) -> None:
+        if self.node is not None:
+            self.node.close()
+            self.node = None
+        if self.driver is not None:
+            self.driver.close()
+            self.driver = None
+        with contextlib.suppress(OSError):
+            self._tmp.cleanup()
+
+    def _placeholders(self) -> dict[str, str]:
+        assert self.driver is not None
+        lhost = self.driver.listen[0] or "127.0.0.1"
+        if lhost == "0.0.0.0":
+            lhost = "127.0.0.1"
+        return {
+            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
+            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
+            "broadcast": BROADCAST_ADDRESS, "id": str(MANAGER_ID), "mavlink": "",
+            "drones": ",".join(map(str, self.cfg.drones)), "challenge": str(self.cfg.challenge),
+            "waypoints": self.waypoints_path, "obstacles": self.obstacles_path,
+        }
+
+    def _spawn(self) -> None:
+        assert self.cfg.spawn is not None
+        if self.node is not None:
+            self.node.close()
+            self.restarts += 1
+        self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
+        self.node = SpawnedNode(self.argv)
+
+    def node_evidence(self) -> list[str]:
+        if self.node is None:
+            return []
+        ev = []
+        if not self.node.alive():
+            ev.append(f"manager process exited with code {self.node.returncode}")
+        tail = self.node.output_tail()
+        if tail:
+            ev.append("manager output (last lines):\n    " + tail.replace("\n", "\n    "))
+        return ev
+
+    # ------------------------------------------------------------------ scenarios
+    def mission(self, kind: str) -> Mission:
+        """The record of scenario ``kind`` (``main`` or ``silent``), run on first use."""
+        if kind in self.missions:
+            return self.missions[kind]
+        if kind in self.unavailable:
+            raise Inconclusive(self.unavailable[kind])
+        if self.missions and not self.spawned:
+            why = (f"the {kind} scenario needs a fresh mission, and in attach mode the manager runs "
+                   "one mission only (use --spawn to let the runner restart it)")
+            self.unavailable[kind] = why
+            raise Inconclusive(why)
+        if kind == "silent" and len(self.cfg.drones) < 2:
+            why = "a silent drone's effect on the others needs at least two drones (--drones)"
+            self.unavailable[kind] = why
+            raise Inconclusive(why)
+        assert self.driver is not None and self.players is not None
+        if self.spawned:
+            self._spawn()
+        m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
+        self.players.reset(m)
+        if kind == "main":
+            self.players.withhold_first_start = True
+        self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
+        ready_limit = max(20.0, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
+        script = MissionScript(self.driver, self.players, m, rto=self.rto, ack_window=self.ack_window,
+                               broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed, alive=self.alive,
+                               ready_limit=ready_limit)
+        ok = script.run_main() if kind == "main" else script.run_silent()
+        if self.node is not None:
+            m.exit_code = self.node.returncode
+            m.output = self.node.output_tail(40)
+            self.node.stop()
+            if m.exit_code is None:
+                m.notes.append("the manager was still running at the end of the scenario (stopped)")
+        if not ok:
+            ev = self.node_evidence()
+            why = (f"the manager never ACKed a drone's Mission_Ready within {ready_limit:.1f} s"
+                   + (f"; {ev[0]}" if ev else ""))
+            self.unavailable[kind] = why
+            raise Inconclusive(why) if kind != "main" else SetupError(why)
+        self.missions[kind] = m
+        return m
+
+    # ------------------------------------------------------------------ case API
+    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
+        from conformance.manager_case import ManagerCaseContext
+
+        if self.lost is not None:
+            raise TargetLost(self.lost)
+        ctx = ManagerCaseContext(self, case_id, rules)
+        if self.recorder is not None:
+            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        return ctx
+
+    def end_case(self, ctx: Any, outcome: str) -> None:
+        ctx.end_ns = time.time_ns()
+        if self.recorder is not None:
+            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
