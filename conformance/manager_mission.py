@@ -298,7 +298,7 @@ class MissionScript:
             if not warm.acked:
                 return False
         self._receiver_inputs(probe_src)
-        hold = max(2 * self.ack_window, 2 * self.rto, 0.5)
+        hold = max(2 * self.ack_window, 0.5)
         time.sleep(max(0.0, hold_from + hold - time.monotonic()))
         last = self.players.send(Action.MISSION_READY, None, drones[-1])
         m.all_ready_t = last.t

@@ -91,7 +91,9 @@ def test_challenge_2_wp_off_follows_wp_on(node):
     want = m.waypoints
     msgs = messages(m)
     for d in m.drones:
-        seq = [x for x in msgs if x.dst == d and x.action in (_WP_ON, _WP_OFF)]
+        end = next((x.first.t for x in msgs if x.dst == d and x.action == _END), None)
+        seq = [x for x in msgs if x.dst == d and x.action in (_WP_ON, _WP_OFF)
+               and (end is None or x.first.t < end)]  # after End_Mission: MCP-BLK-6's
         if not seq and d in gone:
             continue
         on = False

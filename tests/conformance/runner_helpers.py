@@ -73,3 +73,15 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+SAMPLE_MANAGER = ROOT / "tests" / "conformance" / "nodes" / "sample_manager.py"
+
+
+def sample_manager_command(*extra: str, rto: float = 0.2, retries: int = 12,
+                           send_to: str = "{listen_host}:{listen_port}") -> str:
+    """The independent test manager, with the runner's manager-role placeholders."""
+    words = [sys.executable, str(SAMPLE_MANAGER), "--challenge", "{challenge}", "--drones", "{drones}",
+             "--waypoints", "{waypoints}", "--obstacles", "{obstacles}", "--bind", "{target_host}:{target_port}",
+             "--send-to", send_to, "--rto", str(rto), "--retries", str(retries), *extra]
+    return " ".join(shlex.quote(w) if "{" not in w else w for w in words)

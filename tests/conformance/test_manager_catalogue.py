@@ -1,0 +1,52 @@
+"""The manager-role case catalogue against the spec: every MUST rule a Mission Manager can
+be held to (roles manager and any) has a manager-role case; every rule ID a case names
+exists; one module per rule group. (A case that can only skip, for a rule not observable
+on a manager, counts: it reports the spec's reason.)"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+import conformance.cases_manager
+from spec import SPEC
+
+
+def _cases() -> dict[str, tuple[str, ...]]:
+    out = {}
+    for info in pkgutil.iter_modules(conformance.cases_manager.__path__):
+        if not info.name.startswith("test_"):
+            continue
+        mod = importlib.import_module(f"conformance.cases_manager.{info.name}")
+        for name, fn in vars(mod).items():
+            if name.startswith("test_") and callable(fn):
+                marks = [m for m in getattr(fn, "pytestmark", []) if m.name == "mcp_rules"]
+                assert marks, f"{info.name}.{name} names no rule"
+                out[f"{info.name}.{name}"] = tuple(r for m in marks for r in m.args)
+    return out
+
+
+def test_every_named_rule_exists_and_applies_to_a_manager():
+    for case, ids in _cases().items():
+        for rid in ids:
+            assert rid in SPEC.rules_by_id, f"{case} names unknown rule {rid}"
+            assert SPEC.rule(rid).applies_to("manager"), f"{case} names drone-only rule {rid}"
+
+
+def test_every_manager_must_rule_has_a_case():
+    named = {r for ids in _cases().values() for r in ids}
+    must = {r.id for r in SPEC.rules_for("manager") if r.level == "MUST"}
+    assert must and must - named == set()
+
+
+def test_every_manager_rule_has_a_case():
+    named = {r for ids in _cases().values() for r in ids}
+    assert {r.id for r in SPEC.rules_for("manager")} - named == set()
+
+
+def test_one_module_per_rule_group():
+    for case, ids in _cases().items():
+        module_group = case.split(".")[0].removeprefix("test_").upper()
+        assert module_group in SPEC.groups, case
+        assert any(r.split("-")[1] == module_group for r in ids), f"{case} is in the wrong module"
+

@@ -1,0 +1,82 @@
+"""``mcp-conform --role manager`` against managers: the reference manager for every
+challenge, deliberately faulty ones (the independent sample manager,
+tests/conformance/nodes/sample_manager.py, one fault each: caught with exactly its rule and
+nothing else failed or warned), and correct managers unlike ours (no false alarm)."""
+
+from __future__ import annotations
+
+import pytest
+
+from spec import SPEC
+
+from .runner_helpers import FAST, run_conform, sample_manager_command
+
+pytestmark = pytest.mark.slow
+
+# fault -> (rule, challenge)
+MANAGER_FAULTS = [
+    ("start-early", "MCP-BLK-2", 1),
+    ("count-duplicates", "MCP-BLK-2", 1),
+    ("no-wait-start-ack", "MCP-BLK-3", 1),
+    ("wrong-seq-ack", "MCP-RTX-2", 1),
+    ("rtx-new-seq", "MCP-SEQ-2", 1),
+    ("give-up-after-two", "MCP-RTX-1", 1),
+    ("wrong-count", "MCP-PAY-3", 1),
+    ("le-count", "MCP-PAY-3", 3),
+    ("out-of-order", "MCP-FLOW-4", 1),
+    ("field-changed", "MCP-FLOW-4", 1),
+    ("wp-off-first", "MCP-FLOW-5", 2),
+    ("after-end", "MCP-BLK-6", 2),
+    ("ack-ack", "MCP-ACK-6", 1),
+]
+
+
+def _no_other_findings(res, rule=None):
+    others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}
+    assert not others, f"other rules flagged: {others}\n{res.explain()}"
+    assert not res.cases_with("error"), res.explain()
+
+
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_reference_manager_passes_every_must_and_should(challenge):
+    res = run_conform("--role", "manager", "--challenge", str(challenge))
+    assert res.rc == 0, res.explain()
+    _no_other_findings(res)
+    assert res.rules["MCP-BLK-2"] == "passed" and res.rules["MCP-RTX-2"] == "passed", res.explain()
+    flow = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}[challenge]
+    assert res.rules[flow] == "passed", res.explain()
+    print(f"challenge {challenge}: suite {res.report['summary']['duration_s']:.1f} s")
+
+
+@pytest.mark.parametrize("fault,rule,challenge", MANAGER_FAULTS, ids=[f for f, _, _ in MANAGER_FAULTS])
+def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge):
+    res = run_conform("--role", "manager", "--spawn", sample_manager_command("--fault", fault),
+                      "--challenge", str(challenge), *FAST)
+    want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
+    assert res.rules.get(rule) == want, res.explain()
+    _no_other_findings(res, rule)
+    assert res.rc == 1, res.explain()
+
+
+CORRECT_MANAGERS = [
+    ("unicasts-to-the-broadcast-address", {"send_to": "{broadcast}:{listen_port}"}, ()),
+    ("acks-from-another-socket", {}, ("--ack-socket", "other")),
+]
+
+
+@pytest.mark.parametrize("label,kw,extra", CORRECT_MANAGERS, ids=[c[0] for c in CORRECT_MANAGERS])
+def test_no_false_alarm_on_a_correct_manager_unlike_ours(label, kw, extra):
+    res = run_conform("--role", "manager", "--spawn", sample_manager_command(*extra, **kw), *FAST)
+    assert res.rc == 0, res.explain()
+    _no_other_findings(res)
+    assert res.rules["MCP-FLOW-4"] == "passed", res.explain()
+
+
+def test_no_false_alarm_with_the_descriptions_5_s_timeout():
+    """The manager and the runner at the description's defaults (5 s timeout, 2 s window);
+    a small retry limit so the silent drone's scenario ends within the run."""
+    res = run_conform("--role", "manager", "--spawn", sample_manager_command(rto=5.0, retries=6),
+                      "--challenge", "2", timeout=400)
+    assert res.rc == 0, res.explain()
+    _no_other_findings(res)
+    assert res.rules["MCP-RTX-1"] == "passed" and res.rules["MCP-FLOW-5"] == "passed", res.explain()
