@@ -187,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if ns.baseline:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
-        return _fail(str(exc), json_path)
+        return _fail(str(exc), json_path, RunConfig(role=ns.role if ns.role in ("drone", "manager") else "drone"))
     if ns.list and ns.capture:
         ns.capture = None  # nothing runs: no capture file
     import pytest
