@@ -73,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs (default 1)")
     p.add_argument("--waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed "
                                                        "(default: one the runner writes, {waypoints})")
+    p.add_argument("-v", "--verbose", action="store_true", help="print every datagram sent and received, live, to stderr")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
 
@@ -145,6 +146,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     cases_dir = str(Path(importlib.import_module(package).__file__ or "").resolve().parent)
     args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
+            "--capture=no",  # the runner's own live output (progress, -v traffic) reaches the terminal
             "-W", "ignore::pytest.PytestAssertRewriteWarning", "-W", "ignore::pytest.PytestConfigWarning"]
     if not _plugin_is_installed():
         args += ["-p", PLUGIN_MODULE]
@@ -158,6 +160,8 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     for flag in ("mavlink", "strict", "list"):
         if getattr(ns, flag):
             args.append(f"--mcp-{flag}")
+    if ns.verbose:
+        args.append("--mcp-verbose-traffic")
     for prefix in ns.select:
         args.append(f"--mcp-select={prefix}")
     for prefix in ns.exclude:

@@ -231,6 +231,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays")
     g.addoption("--mcp-challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs")
     g.addoption("--mcp-waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed")
+    g.addoption("--mcp-verbose-traffic", action="store_true", help="print every datagram sent and received, live, to stderr")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
     for key in _KEYS:
@@ -420,6 +421,7 @@ class McpState:
         self._old_alarm: Any = None
         self._old_term: Any = None
         self._terminal: TerminalReport | None = None
+        self._wait_status: Any = None
 
     def _target_guess(self) -> str | None:
         if self.cfg.target is not None:
@@ -455,15 +457,33 @@ class McpState:
                     self.recorder = McapRecorder(self.cfg.capture)
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
-            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=self.recorder,
+            recorder = self.recorder
+            if self.config.getoption("mcp_verbose_traffic"):
+                from conformance.live import Tee, TrafficPrinter
+
+                capman = self.config.pluginmanager.getplugin("capturemanager")
+                recorder = Tee(self.recorder, TrafficPrinter(
+                    uncaptured=capman.global_and_fixture_disabled if capman is not None else None))
+            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
                                                                config=self.config)
             self.session = session
+            self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
+            resume = self.wait_status.current
+            if self.frontend:
+                self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
+                                   f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")
+                self.wait_status.begin("startup phase: watching Mission_Ready and its retransmissions")
             atexit.register(self.close_session)
             # the startup phase is bounded by its own waits and the run deadline, not by the
             # time limit of the case that happens to start it
             self.case_deadline = None
             self.arm()
-            session.start()
+            try:
+                session.start()
+            finally:
+                self.wait_status.end()
+                if resume:
+                    self.wait_status.begin(resume)  # the first case, which started the node
             self.case_deadline = time.monotonic() + self.current_limit()
             self.arm()
         except SetupError as exc:
@@ -492,9 +512,20 @@ class McpState:
             rec.duration_s = 0.0
         return rec
 
+    @property
+    def wait_status(self) -> Any:
+        """The progress line (frontend on a terminal only; pytest shows its own progress)."""
+        if self._wait_status is None:
+            from conformance.live import WaitStatus
+
+            self._wait_status = WaitStatus(self.terminal.console)
+            self._wait_status.enabled = self._wait_status.enabled and self.frontend
+        return self._wait_status
+
     def finish(self, item: pytest.Item, rec: CaseRecord) -> None:
         if item.nodeid in self.done:
             return
+        self.wait_status.end()
         self.done.add(item.nodeid)
         ctx = self.ctx.pop(item.nodeid, None)
         if ctx is not None:
@@ -662,6 +693,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         return True
     state.case_user_timeout = state.user_timeouts.pop(item.nodeid, None)
     state.case_deadline = time.monotonic() + state.current_limit()
+    state.wait_status.begin(state.meta[item.nodeid][0])
     return None
 
 
@@ -876,6 +908,8 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     state = _state(session.config)
     if state is None or not state.active:
         return
+    if state._wait_status is not None:
+        state._wait_status.close()
     state.restore_alarm()
     state.restore_term()
     state.close_session()

@@ -457,6 +457,10 @@ class TerminalReport:
     def _detail(self, text: str) -> None:
         self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
 
+    def note(self, text: str) -> None:
+        """A dim line of what the runner is doing (e.g. before a long startup phase)."""
+        self._print(Text(text, style="dim"), soft_wrap=True)
+
     def error(self, message: str) -> None:
         """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report)."""
         err = Console(stderr=True, highlight=False, no_color=self.console.no_color)

@@ -129,8 +129,19 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
     verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
 
 
+def _version() -> str:
+    """The installed distribution's version (the reference node ships with mcp-conform)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("centmesh-mcp-conform")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.")
+    p.add_argument("--version", action="version", version=f"{PROG} {_version()} (MCP spec {SPEC.version})")
     sub = p.add_subparsers(dest="role", required=True, metavar="{drone,manager}",
                            parser_class=_OneLineParser)
     d = sub.add_parser("drone", help="a drone application (MCP + MAVLink to its autopilot)",

@@ -88,3 +88,31 @@ def test_attach_mode_refuses_to_be_split_across_xdist_workers(pytester):
     assert "attach mode cannot be split across pytest-xdist workers" in err
     assert "keyboard" not in (result.stdout.str() + err).lower()
     assert json.dumps  # (the report of a refused run is the usage error itself)
+
+
+@pytest.mark.slow
+def test_verbose_prints_live_traffic_to_stderr_and_embedded_reports_the_vehicle(tmp_path):
+    import subprocess
+    import sys
+
+    from .runner_helpers import ROOT
+
+    js = tmp_path / "r.json"
+    proc = subprocess.run([sys.executable, "-m", "conformance", "-v", "--select", "MCP-ACK-4", "--json", str(js)],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                          env={**__import__("os").environ, "PYTHONPATH": str(ROOT), "NO_COLOR": "1"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stderr.splitlines()
+    assert any(" rx ← " in ln and "MISSION_READY" in ln for ln in lines), proc.stderr
+    assert any(" tx → " in ln and " ACK " in ln for ln in lines), proc.stderr
+    assert "startup phase" in proc.stdout and "MISSION_READY" not in proc.stdout
+    doc = json.loads(js.read_text())
+    assert doc["parameters"]["mavlink"] is True and doc["parameters"]["mode"] == "embedded"
+
+
+def test_mcp_node_version():
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "reference_impl", "--version"], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.startswith("mcp-node ") and "MCP spec" in proc.stdout

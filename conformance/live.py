@@ -1,0 +1,145 @@
+"""What the runner shows while it works: ``-v`` traffic lines and the progress line.
+
+- ``TrafficPrinter`` (``mcp-conform -v``, ``--mcp-verbose-traffic``): every datagram the
+  runner sends or receives, as it happens, on stderr: time since the run began, direction,
+  peer address, and the decoded header and payload (or the rule a malformed datagram
+  breaks, as ``spec.codec`` names it).
+- ``Tee``: hands each capture event to the MCAP recorder and to the printer, so the session
+  sees one recorder whatever is switched on.
+- ``WaitStatus``: a rich status line for the startup phase and for any wait longer than
+  2 s (a node with the description's 5 s timeout keeps the runner waiting for half a
+  minute at startup); on a terminal only, so CI logs stay clean.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+
+from spec.codec import Action, DecodeError, MissionItem, decode
+
+__all__ = ["TrafficPrinter", "Tee", "WaitStatus"]
+
+SHOW_AFTER_S = 2.0
+
+
+def _describe(data: bytes) -> str:
+    try:
+        msg = decode(data)
+    except DecodeError as exc:
+        return f"malformed ({exc.rule}: {exc}) {len(data)} bytes"
+    try:
+        name = Action(msg.action).name
+    except ValueError:
+        name = f"action {msg.action}"
+    payload = msg.payload
+    if isinstance(payload, MissionItem):
+        shown = f" item cmd={payload.command} lat={payload.x:.6f} lon={payload.y:.6f} alt={payload.z:g}"
+    elif isinstance(payload, (list, tuple)):
+        shown = f" [{len(payload)} item(s)]"
+    elif isinstance(payload, bytes):
+        shown = f" {payload[:16].hex()}{'…' if len(payload) > 16 else ''}" if payload else ""
+    elif payload is None or payload == b"":
+        shown = ""
+    else:
+        shown = f" {payload}"
+    return f"dst={msg.dst} src={msg.src} seq={msg.seq} {name}{shown}"
+
+
+class TrafficPrinter:
+    """An observer of the target driver (``direction, data, addr, t_ns``) printing live."""
+
+    def __init__(self, console: Console | None = None, t0_ns: int | None = None,
+                 uncaptured: Any = None) -> None:
+        self.console = console or Console(stderr=True, highlight=False)
+        self.t0_ns = t0_ns if t0_ns is not None else time.time_ns()
+        self._lock = threading.Lock()
+        # pytest's capture manager swallows what a test prints; live lines go around it
+        self._uncaptured = uncaptured or contextlib.nullcontext
+
+    def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
+        t = ((t_ns if t_ns is not None else time.time_ns()) - self.t0_ns) / 1e9
+        arrow = "→" if direction == "tx" else "←"
+        peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) and len(addr) >= 2 else str(addr)
+        line = f"{t:9.3f} s  {direction} {arrow} {peer:<21} {_describe(data)}"
+        with self._lock, self._uncaptured():
+            self.console.print(escape(line), soft_wrap=True, style="dim" if direction == "tx" else None)
+
+
+class Tee:
+    """A recorder for the session that feeds the MCAP recorder (if any) and the printer."""
+
+    def __init__(self, recorder: Any, printer: TrafficPrinter | None) -> None:
+        self._recorder = recorder
+        self._printer = printer
+
+    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
+        if self._recorder is not None:
+            self._recorder.datagram(direction, data, addr, t_ns)
+        if self._printer is not None:
+            self._printer(direction, data, addr, t_ns)
+
+    def __getattr__(self, name: str) -> Any:
+        if self._recorder is not None:
+            return getattr(self._recorder, name)
+        return lambda *a, **kw: None  # nothing records: every other recording call is a no-op
+
+
+class WaitStatus:
+    """A spinner with what the runner waits for, shown once a wait passes 2 s."""
+
+    def __init__(self, console: Console) -> None:
+        self.console = console
+        self.enabled = console.is_terminal
+        self._text: str | None = None
+        self._since = 0.0
+        self._status: Any = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def current(self) -> str | None:
+        return self._text
+
+    def begin(self, text: str) -> None:
+        if not self.enabled:
+            return
+        with self._lock:
+            self._text, self._since = text, time.monotonic()
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._tick, name="mcp-conform-status", daemon=True)
+            self._thread.start()
+
+    def end(self) -> None:
+        """Stop showing (call before printing a result line)."""
+        with self._lock:
+            self._text = None
+            status, self._status = self._status, None
+        if status is not None:
+            status.stop()
+
+    def close(self) -> None:
+        self.end()
+        self._stop.set()
+
+    def _tick(self) -> None:
+        while not self._stop.wait(0.25):
+            with self._lock:
+                text, since = self._text, self._since
+                if text is None:
+                    continue
+                waited = time.monotonic() - since
+                if waited < SHOW_AFTER_S:
+                    continue
+                label = f"{escape(text)} [dim]({waited:.0f} s)[/dim]"
+                if self._status is None:
+                    self._status = self.console.status(label)
+                    self._status.start()
+                else:
+                    self._status.update(label)
