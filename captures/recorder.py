@@ -1,18 +1,31 @@
-"""MCAP recording of a run (DESIGN.md "Captures").
+"""MCAP recording of a run (DESIGN.md "Captures"): the one capture format of mcp-conform.
 
-One file per run, four channels, every message JSON (schema encoding ``jsonschema``):
+Every producer writes it (the runner's ``--capture``, ``mcp-node --capture``, ``mcp-fuzz``)
+and every ``mcp-capture`` command reads it. One file per run, five channels, every message
+JSON (schema encoding ``jsonschema``, raw bytes with ``"contentEncoding": "base64"``):
 
-- ``/mcp/tx`` and ``/mcp/rx``: each datagram the runner sent or received, decoded through
-  ``spec.codec`` where it decodes (dst, src, seq, action name, a payload summary), else the
-  ``DecodeError``'s rule and reason (and the header, when a whole one is there), plus the
-  raw bytes as base64 and hex and the peer address;
-- ``/mavlink``: frames on the vehicle link (direction, message type, raw base64);
+- ``/mcp/tx`` and ``/mcp/rx``: each datagram the recording endpoint (the runner, or the
+  node) sent or received, decoded through ``spec.codec`` where it decodes (dst, src, seq,
+  action name, a payload summary), else the ``DecodeError``'s rule and reason (and the
+  header, when a whole one is there), plus the raw bytes as base64 and hex, the peer
+  address and the recording socket's own (``local``) address;
+- ``/mcp/burst``: a burst of datagrams sent too fast to record one by one (the flood of
+  MCP-ROB-7): how many, to whom, the first and last send times, and the distinct datagrams
+  in the order they were cycled (datagram ``i`` of the burst is ``cycle[i % len(cycle)]``);
+- ``/mavlink``: frames on the autopilot link, both directions, from the autopilot's point
+  of view (``rx``: the autopilot received it from the node; ``tx``: the autopilot sent it);
 - ``/conformance/case``: case start and end marks, the end with its outcome.
+
+An MCAP metadata record named ``mcp-conform`` (written first, so a truncated file keeps it)
+holds the tool and spec versions, who recorded (``recorder``: runner, mcp-node, mcp-fuzz),
+the target, role and seed where they apply.
 
 ``log_time`` is the run clock (``time.time_ns()``) given by the caller, so a case's
 ``capture`` range in the JSON report finds its traffic. The recorder is thread-safe (the
 driver's receiver thread calls it) and ``close()`` is idempotent; it is also called at
 interpreter exit, so a run interrupted by an exception or SIGTERM leaves a valid file.
+:class:`BackgroundRecorder` (same methods) hands the work to a writer process, for nodes
+where recording must cost the hot path almost nothing.
 """
 
 from __future__ import annotations
@@ -20,9 +33,11 @@ from __future__ import annotations
 import atexit
 import base64
 import json
+import platform
 import threading
 import time
 import weakref
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -30,21 +45,35 @@ from mcap.writer import CompressionType, Writer
 
 from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
 
-__all__ = ["CHANNELS", "McapRecorder", "RecorderError", "summarize_payload"]
+__all__ = [
+    "CHANNELS",
+    "METADATA_NAME",
+    "BackgroundRecorder",
+    "McapRecorder",
+    "RecorderError",
+    "datagram_record",
+    "mavlink_type",
+    "run_metadata",
+    "summarize_payload",
+]
 
 PROFILE = "mcp-conform"
+METADATA_NAME = "mcp-conform"
 _STR = {"type": "string"}
+_B64 = {"type": "string", "contentEncoding": "base64"}
+_ADDR = {"type": ["string", "null"], "description": "host:port"}
 _INT = {"type": "integer"}
 _NULLABLE_INT = {"type": ["integer", "null"]}
 
 _DATAGRAM_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "mcp.Datagram",
-    "description": "One MCP datagram as the runner sent or received it.",
+    "description": "One MCP datagram as the recording endpoint sent (tx) or received (rx) it.",
     "type": "object",
     "properties": {
         "direction": {"enum": ["tx", "rx"]},
         "peer": _STR,
+        "local": _ADDR,
         "length": _INT,
         "decoded": {"type": "boolean"},
         "dst": _NULLABLE_INT,
@@ -55,21 +84,40 @@ _DATAGRAM_SCHEMA: dict[str, Any] = {
         "payload": {},
         "error_rule": {"type": ["string", "null"]},
         "error_reason": {"type": ["string", "null"]},
-        "raw_base64": _STR,
+        "raw_base64": _B64,
         "raw_hex": _STR,
     },
     "required": ["direction", "peer", "length", "decoded", "raw_base64", "raw_hex"],
 }
+_BURST_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "mcp.Burst",
+    "description": "Datagrams sent as one burst (e.g. the MCP-ROB-7 flood), recorded as a count: "
+                   "datagram i of the burst is cycle[i % len(cycle)].",
+    "type": "object",
+    "properties": {
+        "direction": {"enum": ["tx", "rx"]},
+        "peer": _STR,
+        "local": _ADDR,
+        "count": _INT,
+        "first_t_ns": _INT,
+        "last_t_ns": _INT,
+        "cycle": {"type": "array", "items": _DATAGRAM_SCHEMA},
+    },
+    "required": ["direction", "peer", "count", "first_t_ns", "last_t_ns", "cycle"],
+}
 _MAVLINK_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "mcp.MavlinkFrame",
-    "description": "One MAVLink frame on the vehicle link.",
+    "description": "One MAVLink frame on the autopilot link; direction from the autopilot's "
+                   "point of view (rx: the autopilot received it, tx: the autopilot sent it).",
     "type": "object",
     "properties": {
-        "direction": _STR,
+        "direction": {"enum": ["tx", "rx"]},
         "msg_type": {"type": ["string", "null"]},
         "length": _INT,
-        "raw_base64": _STR,
+        "drone": _NULLABLE_INT,
+        "raw_base64": _B64,
     },
     "required": ["direction", "length", "raw_base64"],
 }
@@ -91,6 +139,7 @@ _CASE_SCHEMA: dict[str, Any] = {
 CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/mcp/tx": ("mcp.Datagram", _DATAGRAM_SCHEMA),
     "/mcp/rx": ("mcp.Datagram", _DATAGRAM_SCHEMA),
+    "/mcp/burst": ("mcp.Burst", _BURST_SCHEMA),
     "/mavlink": ("mcp.MavlinkFrame", _MAVLINK_SCHEMA),
     "/conformance/case": ("mcp.CaseMark", _CASE_SCHEMA),
 }
@@ -130,15 +179,16 @@ def _action_name(code: int | None) -> str | None:
 
 def _peer(addr: Any) -> str:
     if isinstance(addr, (tuple, list)) and len(addr) >= 2:
-        return f"{addr[0]}:{addr[1]}"
+        return f"{addr[0] or '0.0.0.0'}:{addr[1]}"
     return "" if addr is None else str(addr)
 
 
-def datagram_record(direction: str, data: bytes, addr: Any) -> dict[str, Any]:
-    """The JSON body of one ``/mcp/tx`` or ``/mcp/rx`` message."""
+def datagram_record(direction: str, data: bytes, addr: Any, local: Any = None) -> dict[str, Any]:
+    """The JSON body of one ``/mcp/tx`` or ``/mcp/rx`` message (``addr``: the peer)."""
     data = bytes(data)
     rec: dict[str, Any] = {
-        "direction": direction, "peer": _peer(addr), "length": len(data), "decoded": False,
+        "direction": direction, "peer": _peer(addr), "local": _peer(local) if local else None,
+        "length": len(data), "decoded": False,
         "dst": None, "src": None, "seq": None, "action": None, "action_name": None,
         "payload": None, "error_rule": None, "error_reason": None,
     }
@@ -160,11 +210,51 @@ def datagram_record(direction: str, data: bytes, addr: Any) -> dict[str, Any]:
     return rec
 
 
-class McapRecorder:
-    """Writes one MCAP file; every method may be called from any thread."""
+_MAV_NAMES: dict[int, str] | None = None
 
-    def __init__(self, path: str | Path, *, library: str = "mcp-conform") -> None:
+
+def mavlink_type(frame: bytes) -> str | None:
+    """The message name of a MAVLink v1/v2 frame from its msgid (ardupilotmega), else None."""
+    global _MAV_NAMES
+    if _MAV_NAMES is None:
+        from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+        _MAV_NAMES = {mid: cls.msgname for mid, cls in mavlink2.mavlink_map.items()}
+    if len(frame) >= 6 and frame[0] == 0xFE:
+        msgid = frame[5]
+    elif len(frame) >= 10 and frame[0] == 0xFD:
+        msgid = frame[7] | frame[8] << 8 | frame[9] << 16
+    else:
+        return None
+    return _MAV_NAMES.get(msgid)
+
+
+def run_metadata(recorder: str, **values: Any) -> dict[str, str]:
+    """The ``mcp-conform`` metadata record: tool and spec versions, who recorded, and
+    ``values`` (target, role, seed, ...; None values are left out), all as strings."""
+    from conformance.report import TOOL_NAME, tool_version
+    from spec import SPEC
+
+    meta = {"tool": TOOL_NAME, "tool_version": tool_version(), "spec_version": SPEC.version,
+            "spec_sha256": SPEC.sha256, "recorder": recorder, "host": platform.node(),
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    for key, value in values.items():
+        if value is not None:
+            meta[key] = value if isinstance(value, str) else json.dumps(value)
+    return meta
+
+
+class McapRecorder:
+    """Writes one MCAP file; every method may be called from any thread.
+
+    ``metadata``: the ``mcp-conform`` metadata record (see :func:`run_metadata`), written
+    first. ``local``: the recording socket's address, the default ``local`` of datagrams.
+    """
+
+    def __init__(self, path: str | Path, *, library: str = "mcp-conform",
+                 metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
         self.path = Path(path)
+        self.local = local
         self._lock = threading.Lock()
         self._closed = False
         self.counts: dict[str, int] = {topic: 0 for topic in CHANNELS}
@@ -179,6 +269,8 @@ class McapRecorder:
             compression = CompressionType.NONE
         self._writer = Writer(self._file, compression=compression, chunk_size=256 * 1024)
         self._writer.start(profile=PROFILE, library=library)
+        if metadata:
+            self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
         self._channels: dict[str, int] = {}
         schemas: dict[str, int] = {}
         for topic, (name, schema) in CHANNELS.items():
@@ -206,18 +298,35 @@ class McapRecorder:
                                      publish_time=t, sequence=self._seq)
             self.counts[topic] += 1
 
-    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
-        """One datagram: ``direction`` is ``tx`` (the runner sent it) or ``rx``."""
+    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
+                 local: Any = None) -> None:
+        """One datagram: ``direction`` is ``tx`` (the recording endpoint sent it) or ``rx``;
+        ``addr`` is the peer, ``local`` the recording socket (default: ``self.local``)."""
         if direction not in ("tx", "rx"):
             raise ValueError(f"datagram direction must be 'tx' or 'rx', not {direction!r}")
-        self._write(f"/mcp/{direction}", datagram_record(direction, data, addr), t_ns)
+        record = datagram_record(direction, data, addr, self.local if local is None else local)
+        self._write(f"/mcp/{direction}", record, t_ns)
+
+    def burst(self, direction: str, cycle: Iterable[bytes], count: int, addr: Any,
+              first_t_ns: int, last_t_ns: int, local: Any = None) -> None:
+        """``count`` datagrams sent (or received) as one burst, cycling through ``cycle``."""
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"burst direction must be 'tx' or 'rx', not {direction!r}")
+        local = self.local if local is None else local
+        datagrams = [datagram_record(direction, d, addr, local) for d in cycle]
+        body = {"direction": direction, "peer": _peer(addr), "local": _peer(local) if local else None,
+                "count": int(count), "first_t_ns": int(first_t_ns), "last_t_ns": int(last_t_ns),
+                "cycle": datagrams}
+        self._write("/mcp/burst", body, first_t_ns)
 
     def mavlink(self, direction: str, frame: bytes, t_ns: int | None = None,
-                msg_type: str | None = None) -> None:
-        """One frame on the vehicle link (``direction`` e.g. ``rx`` = received by the vehicle)."""
+                msg_type: str | None = None, drone: int | None = None) -> None:
+        """One frame on the autopilot link (``rx``: the autopilot received it, ``tx``: sent)."""
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"mavlink direction must be 'tx' or 'rx', not {direction!r}")
         raw = bytes(frame)
-        body = {"direction": direction, "msg_type": msg_type, "length": len(raw),
-                "raw_base64": base64.b64encode(raw).decode("ascii")}
+        body = {"direction": direction, "msg_type": msg_type or mavlink_type(raw), "length": len(raw),
+                "drone": drone, "raw_base64": base64.b64encode(raw).decode("ascii")}
         self._write("/mavlink", body, t_ns)
 
     def case_mark(self, case_id: str, event: str, t_ns: int | None = None,
@@ -227,6 +336,12 @@ class McapRecorder:
             raise ValueError(f"case_mark event must be 'start' or 'end', not {event!r}")
         body = {"case": case_id, "event": event, "outcome": outcome, "rules": list(rules)}
         self._write("/conformance/case", body, t_ns)
+
+    def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
+        """A further MCAP metadata record (string values)."""
+        with self._lock:
+            if not self._closed:
+                self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
 
     def close(self) -> None:
         """Write the summary and footer; safe to call more than once and from any thread."""
@@ -247,7 +362,7 @@ class McapRecorder:
         self.close()
 
 
-_LIVE: weakref.WeakSet[McapRecorder] = weakref.WeakSet()
+_LIVE: weakref.WeakSet[Any] = weakref.WeakSet()
 
 
 @atexit.register
@@ -258,3 +373,6 @@ def _close_all() -> None:
             rec.close()
         except Exception:  # noqa: BLE001 - best effort at exit
             pass
+
+
+from captures._background import BackgroundRecorder  # noqa: E402  (uses _LIVE, RecorderError)

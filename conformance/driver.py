@@ -34,6 +34,8 @@ from spec.codec import (
 
 Address = tuple[str, int]
 Observer = Callable[[str, bytes, Address, int], None]  # (direction "tx"|"rx", data, addr, t_ns)
+#: (direction, cycle of distinct datagrams, count, peer addr, first_t_ns, last_t_ns, local addr)
+BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], None]
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
 _U16BE = struct.Struct("!H")
@@ -149,6 +151,7 @@ class TargetDriver:
         self._rx: list[Datagram] = []
         self._tx: list[Sent] = []
         self._observers: list[Observer] = []
+        self._burst_observers: list[BurstObserver] = []
         self._seq: dict[int, int] = {}
         self.auto_ack: Callable[[Datagram], bool] = lambda d: True
         self.alive: Callable[[], bool] = lambda: True
@@ -189,6 +192,11 @@ class TargetDriver:
     def add_observer(self, observer: Observer) -> None:
         """Called for every datagram sent ("tx") and received ("rx"), from any thread."""
         self._observers.append(observer)
+
+    def add_burst_observer(self, observer: BurstObserver) -> None:
+        """Called once per :meth:`flood` with its count and distinct datagrams (a capture
+        records the flood as one summary instead of one record per datagram)."""
+        self._burst_observers.append(observer)
 
     # ------------------------------------------------------------------ receiving
     def _receive_loop(self) -> None:
@@ -372,6 +380,33 @@ class TargetDriver:
         """ACK-like datagrams at index >= since naming the seq of any of ``sents``."""
         preds = [self.ack_for(s) for s in sents]
         return [d for d in self.received(since) if any(p(d) for p in preds)]
+
+    def flood(self, datagrams: list[bytes], count: int, *, sock: socket.socket | None = None,
+              limit: float = 30.0) -> int:
+        """Send ``count`` datagrams as fast as the socket takes them, cycling through
+        ``datagrams``, for at most ``limit`` seconds; return how many left. Too fast to record
+        one by one: burst observers get one summary (MCP-ROB-7's flood)."""
+        assert self._sock is not None, "driver not open"
+        out = sock or self._sock
+        addr = self.target
+        deadline = time.monotonic() + limit
+        first_ns = time.time_ns()
+        sent = 0
+        n = len(datagrams)
+        while sent < count and n and time.monotonic() < deadline:
+            try:
+                out.sendto(datagrams[sent % n], addr)
+                sent += 1
+            except OSError:  # BlockingIOError included: the buffer is full, let it drain
+                time.sleep(0.001)
+        last_ns = time.time_ns()
+        local = out.getsockname()[:2]
+        for obs in self._burst_observers:
+            try:
+                obs("tx", list(datagrams), sent, addr, first_ns, last_ns, local)
+            except Exception:  # a broken recorder must not stop the run
+                pass
+        return sent
 
     def open_side_socket(self, host: str = "127.0.0.1") -> socket.socket:
         """A second socket on another source port (MCP-TRN-2). Caller closes it."""

@@ -451,10 +451,14 @@ class McpState:
             apply_embedded_defaults(self.cfg)
             self.run.parameters = self.cfg.parameters()
             if self.cfg.capture:
-                from captures.recorder import McapRecorder, RecorderError
+                from captures.recorder import McapRecorder, RecorderError, run_metadata
 
+                cfg = self.cfg
+                meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
+                                    target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
+                                    spawn=cfg.spawn, parameters=self.run.parameters)
                 try:
-                    self.recorder = McapRecorder(self.cfg.capture)
+                    self.recorder = McapRecorder(self.cfg.capture, metadata=meta)
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder

@@ -175,7 +175,6 @@ class Session:
         self.passthrough_forwarded: bool | None = None  # learnt by the first probe
         self.other_src_accepted: bool | None = None
         self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
-        self._mavlink_seen = 0
 
     # ------------------------------------------------------------------ properties
     @property
@@ -221,7 +220,9 @@ class Session:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
         if self.recorder is not None:
+            self.recorder.local = self.driver.listen
             self.driver.add_observer(self.recorder.datagram)
+            self.driver.add_burst_observer(self.recorder.burst)
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -247,7 +248,7 @@ class Session:
     def _start_vehicle(self) -> None:
         from vehicle import SimVehicle
 
-        self.vehicle = SimVehicle(fix_withheld=True)
+        self.vehicle = SimVehicle(fix_withheld=True, on_frame=self._vehicle_frame)
         try:
             self.vehicle.start("127.0.0.1", 0)
         except OSError as exc:
@@ -430,15 +431,15 @@ class Session:
             self.lost = "the node went silent after an earlier case's input"
         self.flush_vehicle_frames()
 
-    def flush_vehicle_frames(self) -> None:
-        """Copy the vehicle's newly received frames into the capture (/mavlink)."""
-        if self.recorder is None or self.vehicle is None:
-            return
-        frames = self.vehicle.frames()
-        for f in frames[self._mavlink_seen:]:
+    def _vehicle_frame(self, t: float, direction: str, conn: int, raw: bytes) -> None:
+        """The vehicle's frame tap: both directions of the autopilot link into the capture
+        (/mavlink; "rx" the vehicle received it from the node, "tx" it sent it)."""
+        if self.recorder is not None:
             with contextlib.suppress(Exception):
-                self.recorder.mavlink("rx", f.raw, self.to_ns(f.t), msg_type=f.msg_type)
-        self._mavlink_seen = len(frames)
+                self.recorder.mavlink(direction, raw, self.to_ns(t), drone=self.target_id)
+
+    def flush_vehicle_frames(self) -> None:
+        """Kept for callers: the vehicle's frames reach the capture as they pass (its tap)."""
 
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:

@@ -124,6 +124,9 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
     p.add_argument("--reply-to-source", action="store_true",
                    help="send ACKs to the source address of the acknowledged datagram")
     p.add_argument("--record", metavar="FILE", help="write a JSON record of the run to FILE")
+    p.add_argument("--capture", metavar="FILE.mcap",
+                   help="record the node's MCP traffic (and a drone's autopilot link) to an MCAP "
+                        "file, in the runner's format (mcp-capture show|check|diff FILE)")
     verbosity = p.add_mutually_exclusive_group()
     verbosity.add_argument("-v", "--verbose", action="store_true", help="debug output")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
@@ -204,7 +207,8 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
         cfg = DroneConfig(drone_id=args.id, bind_host=bind_host, local_port=bind_port, remote_host=remote_host,
                           remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
                           retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
-                          reply_to_source=args.reply_to_source, record_path=args.record)
+                          reply_to_source=args.reply_to_source, record_path=args.record,
+                          capture_path=args.capture)
         drone = Drone(cfg)
         if args.mavlink and args.gps_fix_delay:
             drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
@@ -221,7 +225,8 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                          obstacles=obstacles, bind_host=bind_host, local_port=bind_port,
                          remote_host=remote_host, remote_port=remote_port, rto=args.rto,
                          retries=args.retries, reply_to_source=args.reply_to_source,
-                         record_path=args.record, dwell=args.dwell, ready_timeout=args.ready_timeout)
+                         record_path=args.record, capture_path=args.capture, dwell=args.dwell,
+                         ready_timeout=args.ready_timeout)
     return Manager(mcfg)
 
 

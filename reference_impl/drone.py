@@ -32,6 +32,7 @@ import json
 import logging
 import math
 import queue
+import sys
 import threading
 import time
 from collections import Counter
@@ -183,9 +184,20 @@ class AutopilotLink:
     """
 
     def __init__(self, conn: Any, log: logging.Logger, *, step_timeout: float = 3.0,
-                 settle_timeout: float = 2.0) -> None:
+                 settle_timeout: float = 2.0, tap: Callable[[str, bytes], Any] | None = None) -> None:
         self.conn = conn
         self.log = log
+        #: ``tap(direction, frame)`` sees every frame on the link, from the autopilot's point
+        #: of view ("rx": written to the autopilot, "tx": read from it), for captures.
+        self.tap = tap
+        if tap is not None:
+            write = conn.write
+
+            def tapped_write(buf: Any) -> Any:
+                result = write(buf)
+                tap("rx", bytes(buf))
+                return result
+            conn.write = tapped_write
         # pymavlink's TCP link prints "EOF on TCP socket" to stdout and retries at once,
         # forever, when the peer goes away: turn that into one exception, handled below.
         for hook in ("handle_eof", "handle_disconnect"):
@@ -261,6 +273,8 @@ class AutopilotLink:
         try:
             msg = self.conn.recv_match(blocking=True, timeout=wait)
             while msg is not None:
+                if self.tap is not None and msg.get_type() != "BAD_DATA":
+                    self.tap("tx", bytes(msg.get_msgbuf()))
                 self._observe(msg)
                 msg = self.conn.recv_match(blocking=False)
         except LinkClosed as exc:
@@ -495,6 +509,8 @@ class DroneConfig:
     takeoff_alt: float = 10.0
     reply_to_source: bool = False
     record_path: str | None = None
+    #: MCAP capture of the node's MCP traffic and its autopilot link (``--capture``)
+    capture_path: str | None = None
     heartbeat_timeout: float = 30.0
     #: Seconds to keep ACKing after End_Mission; None = 2 x the retransmission timeout.
     linger: float | None = None
@@ -522,6 +538,30 @@ class RoleNode:
         self.listening = threading.Event()
         self.outcome = "running"
         self._stop = threading.Event()
+        self.capture: Any = None
+
+    def _open_capture(self, path: str | None, role: str, node_id: int, **meta: Any) -> Any:
+        """The node's MCAP capture (``--capture``), written off the hot path; None without."""
+        if not path:
+            return None
+        from captures.recorder import BackgroundRecorder, RecorderError, run_metadata
+
+        try:
+            self.capture = BackgroundRecorder(path, metadata=run_metadata(
+                "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), **meta))
+        except RecorderError as exc:
+            raise RoleError(str(exc)) from None
+        return self.capture
+
+    def _capture_bound(self) -> None:
+        """The MCP socket is bound: it is the capture's ``local`` address."""
+        if self.capture is not None and self.mcp is not None:
+            self.capture.local = self.mcp.local_address
+
+    def _close_capture(self) -> None:
+        capture, self.capture = self.capture, None
+        if capture is not None:
+            capture.close()
 
     @property
     def port(self) -> int:
@@ -586,16 +626,21 @@ class Drone(RoleNode):
             self.vehicle.start(host="127.0.0.1", port=0)
             url = self.vehicle.url
             self.log.info("built-in simulated vehicle on %s (GPS fix in %.1f s)", url, cfg.gps_fix_delay)
+        capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, mavlink=url,
+                                     target=f"{cfg.remote_host}:{cfg.remote_port}")
         self.log.info("connecting to the autopilot at %s", url)
-        self.link = AutopilotLink(connect_autopilot(url), self.log)
+        tap = None if capture is None else (lambda d, raw: capture.mavlink(d, raw, drone=cfg.drone_id))
+        self.link = AutopilotLink(connect_autopilot(url), self.log, tap=tap)
         self.app = DroneApp(self.link, self.log, cfg.takeoff_alt)
         try:
             self.mcp = Mcp(self.app, cfg.local_port, cfg.remote_port, cfg.remote_host, cfg.drone_id,
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
-                           on_event=EventLogger(self.log))
+                           on_event=EventLogger(self.log),
+                           tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None
+        self._capture_bound()
         host, port = self.mcp.local_address
         self.log.info("drone %d listening on %s:%d, sending to %s:%d", cfg.drone_id, host or "0.0.0.0",
                       port, cfg.remote_host, cfg.remote_port)
@@ -660,6 +705,7 @@ class Drone(RoleNode):
             self.link.close()
         if self.vehicle is not None:
             self.vehicle.close()
+        self._close_capture()
         if self.cfg.record_path:
             write_record(self.cfg.record_path, self.record(), self.log)
 

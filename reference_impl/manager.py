@@ -60,6 +60,8 @@ class ManagerConfig:
     retries: int | None = None
     reply_to_source: bool = False
     record_path: str | None = None
+    #: MCAP capture of the manager's MCP traffic (``--capture``)
+    capture_path: str | None = None
     #: Seconds a waypoint stays active between its WP_On and WP_Off (challenge 2).
     dwell: float = 0.0
     #: Longest wait for every Mission_Ready; None waits until stopped (the description's way).
@@ -142,13 +144,18 @@ class Manager(RoleNode):
 
     def _run(self) -> int:
         cfg = self.cfg
+        capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, challenge=cfg.challenge,
+                                     drones=",".join(map(str, cfg.drones)),
+                                     target=f"{cfg.remote_host}:{cfg.remote_port}")
         try:
             self.mcp = Mcp(self.handler, cfg.local_port, cfg.remote_port, cfg.remote_host, MANAGER_ID,
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
-                           on_event=EventLogger(self.log))
+                           on_event=EventLogger(self.log),
+                           tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None
+        self._capture_bound()
         host, port = self.mcp.local_address
         self.log.info("manager listening on %s:%d, sending to %s:%d; challenge %d (%s) for drones %s",
                       host or "0.0.0.0", port, cfg.remote_host, cfg.remote_port, cfg.challenge,
@@ -237,5 +244,6 @@ class Manager(RoleNode):
     def close(self) -> None:
         if self.mcp is not None:
             self.mcp.close()
+        self._close_capture()
         if self.cfg.record_path:
             write_record(self.cfg.record_path, self.record(), self.log)

@@ -34,6 +34,7 @@ from spec import SPEC
 
 __all__ = [
     "DEFAULT_RCVBUF",
+    "DatagramTap",
     "McpDatagramProtocol",
     "create_transport",
     "open_udp_socket",
@@ -46,6 +47,8 @@ DEFAULT_RCVBUF = 4 * 1024 * 1024
 
 Addr = tuple[str, int]
 EventCallback = Callable[[Event], Any]
+#: ``tap(direction, data, addr)``: every datagram received ("rx", from addr) and sent ("tx", to addr)
+DatagramTap = Callable[[str, bytes, Addr], Any]
 
 
 def open_udp_socket(bind_host: str, bind_port: int, *, broadcast: bool = True, reuse: bool = True,
@@ -86,13 +89,15 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
 
     ``remote``: where our messages go (and ACKs, unless ``reply_to_source``).
     ``on_event``: called in the loop thread for every endpoint event, in order; its
-    exceptions are logged, never propagated. Use :meth:`send` only from the loop thread
+    exceptions are logged, never propagated. ``tap``: called with every datagram received
+    and sent (a capture; it must be quick: ``captures.recorder.BackgroundRecorder.datagram``). Use :meth:`send` only from the loop thread
     (other threads: ``loop.call_soon_threadsafe``).
     """
 
     def __init__(self, endpoint: Endpoint, remote: Addr, *, reply_to_source: bool = False,
-                 on_event: EventCallback | None = None) -> None:
+                 on_event: EventCallback | None = None, tap: DatagramTap | None = None) -> None:
         self.endpoint = endpoint
+        self.tap = tap
         self.remote = remote
         self.reply_to_source = reply_to_source
         self.on_event = on_event
@@ -118,6 +123,8 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
         """Hot path: decode, ACK at once, then hand the events over."""
         ep = self.endpoint
         now = self._loop.time()  # type: ignore[union-attr]
+        if self.tap is not None:
+            self.tap("rx", data, addr)
         ep.receive_datagram(data, addr, now)
         self._flush()
         self._after(now)
@@ -144,12 +151,16 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
         tr = self.transport
         if tr is None:
             return
-        remote, to_source = self.remote, self.reply_to_source
+        remote, to_source, tap = self.remote, self.reply_to_source, self.tap
         for data, addr in out:
+            dest = addr if (to_source and addr is not None) else remote
             try:
-                tr.sendto(data, addr if (to_source and addr is not None) else remote)
+                tr.sendto(data, dest)
             except (OSError, ValueError, RuntimeError) as exc:  # closing, unreachable, ...
                 log.warning("sendto failed: %s", exc)
+                continue
+            if tap is not None:
+                tap("tx", data, dest)
 
     def _after(self, now: float) -> None:
         """Dispatch pending events and re-arm the retransmit timer."""
@@ -197,7 +208,8 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
 async def create_transport(endpoint: Endpoint, *, bind_host: str = "", bind_port: int = 0,
                            remote_host: str | None = None, remote_port: int = SPEC.protocol["ports"]["manager"],
                            reply_to_source: bool = False, on_event: EventCallback | None = None,
-                           sock: socket.socket | None = None) -> McpDatagramProtocol:
+                           sock: socket.socket | None = None, tap: DatagramTap | None = None,
+                           ) -> McpDatagramProtocol:
     """Open (or adopt ``sock``) and start a transport for ``endpoint`` in the running loop.
 
     ``remote_host`` defaults to the spec's broadcast address. Returns the protocol; its
@@ -207,6 +219,7 @@ async def create_transport(endpoint: Endpoint, *, bind_host: str = "", bind_port
     if sock is None:
         sock = open_udp_socket(bind_host, bind_port)
     remote = (remote_host if remote_host is not None else SPEC.protocol["broadcast_address"], remote_port)
-    proto = McpDatagramProtocol(endpoint, remote, reply_to_source=reply_to_source, on_event=on_event)
+    proto = McpDatagramProtocol(endpoint, remote, reply_to_source=reply_to_source, on_event=on_event,
+                                tap=tap)
     await loop.create_datagram_endpoint(lambda: proto, sock=sock)
     return proto

@@ -100,17 +100,8 @@ def test_flood_of_malformed_datagrams(node):
     corpus = [data for _, data in _corpus(node, "bad_preamble", "unknown_action", "count_mismatch")]
     count = int(SPEC.params["flood_count"])
     sock = node.driver.open_side_socket()
-    deadline = time.monotonic() + 30.0
-    sent = 0
     try:
-        while sent < count and time.monotonic() < deadline:
-            try:
-                sock.sendto(corpus[sent % len(corpus)], node.driver.target)
-                sent += 1
-            except BlockingIOError:
-                time.sleep(0.001)
-            except OSError:
-                time.sleep(0.001)
+        sent = node.driver.flood(corpus, count, sock=sock, limit=30.0)
     finally:
         sock.close()
     node.info(f"flooded {sent} malformed datagrams")

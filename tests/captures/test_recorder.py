@@ -8,13 +8,24 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
 
-from captures.recorder import CHANNELS, McapRecorder, RecorderError, summarize_payload
+from captures.recorder import (
+    CHANNELS,
+    METADATA_NAME,
+    BackgroundRecorder,
+    McapRecorder,
+    RecorderError,
+    mavlink_type,
+    run_metadata,
+    summarize_payload,
+)
 from spec.codec import Action, Message, MissionItem, encode
+from spec.mavframe import heartbeat_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
@@ -46,16 +57,24 @@ def test_channels_schemas_and_counts(tmp_path):
         rec.mavlink("rx", b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00", 1_400, msg_type="HEARTBEAT")
         rec.case_mark("ACK/test_x", "end", 1_500, outcome="passed", rules=("MCP-ACK-1",))
     msgs, encodings = read_all(path)
-    assert set(encodings) == set(CHANNELS)
     assert set(encodings.values()) == {"jsonschema"}
+    assert set(encodings) == set(CHANNELS) - {"/mcp/burst"}
     assert {t: len(v) for t, v in msgs.items()} == {
         "/mcp/tx": 1, "/mcp/rx": 2, "/mavlink": 1, "/conformance/case": 2}
     with open(path, "rb") as f:
         summary = make_reader(f, validate_crcs=True).get_summary()
     assert summary is not None
-    assert {s.name for s in summary.schemas.values()} == {"mcp.Datagram", "mcp.MavlinkFrame", "mcp.CaseMark"}
+    assert {s.name for s in summary.schemas.values()} == {
+        "mcp.Datagram", "mcp.Burst", "mcp.MavlinkFrame", "mcp.CaseMark"}
+    assert {c.topic for c in summary.channels.values()} == set(CHANNELS)
     for schema in summary.schemas.values():
-        assert json.loads(schema.data)["type"] == "object"
+        body = json.loads(schema.data)
+        assert body["type"] == "object"
+        # Foxglove shows raw bytes when the schema says they are base64
+        if "raw_base64" in body["properties"]:
+            assert body["properties"]["raw_base64"]["contentEncoding"] == "base64"
+    burst = json.loads(next(s for s in summary.schemas.values() if s.name == "mcp.Burst").data)
+    assert burst["properties"]["cycle"]["items"]["properties"]["raw_base64"]["contentEncoding"] == "base64"
 
 
 def test_decoded_and_undecodable_datagrams(tmp_path):
@@ -93,6 +112,89 @@ def test_case_marks_and_mavlink_content(tmp_path):
     assert end["event"] == "end" and end["outcome"] == "failed"
     (_, mav), = msgs["/mavlink"]
     assert mav["msg_type"] is None and mav["length"] == 20 and base64.b64decode(mav["raw_base64"]) == frame
+
+
+def test_mavlink_type_from_the_frame():
+    assert mavlink_type(heartbeat_frame()) == "HEARTBEAT"
+    assert mavlink_type(heartbeat_frame(version=1)) == "HEARTBEAT"
+    assert mavlink_type(b"\xfd\x00") is None and mavlink_type(b"") is None
+
+
+def test_metadata_record_and_local_address(tmp_path):
+    path = tmp_path / "run.mcap"
+    meta = run_metadata("mcp-conform", target="127.0.0.1:7890", role="drone", seed=7, spawn=None)
+    with McapRecorder(path, metadata=meta, local=("", 7889)) as rec:
+        rec.datagram("tx", b"x" * 17, PEER, 1)
+        rec.datagram("rx", b"y" * 17, PEER, 2, local=("127.0.0.1", 5))
+    with open(path, "rb") as f:
+        (record,) = list(make_reader(f, validate_crcs=True).iter_metadata())
+    assert record.name == METADATA_NAME
+    m = record.metadata
+    assert m["recorder"] == "mcp-conform" and m["target"] == "127.0.0.1:7890" and m["seed"] == "7"
+    assert m["spec_version"] and len(m["spec_sha256"]) == 64 and m["tool_version"]
+    assert "spawn" not in m
+    msgs, _ = read_all(path)
+    assert msgs["/mcp/tx"][0][1]["local"] == "0.0.0.0:7889"
+    assert msgs["/mcp/rx"][0][1]["local"] == "127.0.0.1:5"
+
+
+def test_burst_is_one_summary_record(tmp_path):
+    path = tmp_path / "run.mcap"
+    cycle = [encode(Message(1, 0, s, Action.WP_OFF, None))[:-1] + b"\x00\x0b" for s in range(3)]
+    with McapRecorder(path, local=("127.0.0.1", 4000)) as rec:
+        rec.burst("tx", cycle, 10000, PEER, 100, 900)
+    msgs, _ = read_all(path)
+    ((t, body),) = msgs["/mcp/burst"]
+    assert t == 100 and body["count"] == 10000 and body["last_t_ns"] == 900
+    assert [base64.b64decode(d["raw_base64"]) for d in body["cycle"]] == cycle
+    assert body["peer"] == "127.0.0.1:7890" and body["local"] == "127.0.0.1:4000"
+
+
+def test_background_recorder_writes_the_same_file(tmp_path):
+    path = tmp_path / "bg.mcap"
+    wp_off = encode(Message(1, 0, 3, Action.WP_OFF, None))
+    with BackgroundRecorder(path, metadata={"recorder": "test"}, local=("127.0.0.1", 9)) as rec:
+        for i in range(1000):
+            rec.datagram("rx", wp_off, PEER, i)
+        rec.mavlink("rx", heartbeat_frame(), 5000, drone=1)
+        rec.burst("tx", [b"abc"], 5, PEER, 6000, 7000)
+        rec.case_mark("X/y", "start", 8000)
+        with pytest.raises(ValueError, match="direction"):
+            rec.datagram("up", b"", PEER)
+    msgs, _ = read_all(path)
+    assert len(msgs["/mcp/rx"]) == 1000 and msgs["/mcp/rx"][5][0] == 5
+    assert msgs["/mcp/rx"][0][1]["local"] == "127.0.0.1:9" and msgs["/mcp/rx"][0][1]["seq"] == 3
+    assert msgs["/mavlink"][0][1]["msg_type"] == "HEARTBEAT" and msgs["/mavlink"][0][1]["drone"] == 1
+    assert msgs["/mcp/burst"][0][1]["count"] == 5 and len(msgs["/conformance/case"]) == 1
+    with open(path, "rb") as f:
+        assert next(iter(make_reader(f).iter_metadata())).metadata == {"recorder": "test"}
+    with pytest.raises(RecorderError, match="cannot write"):
+        BackgroundRecorder(tmp_path / "no-dir" / "x.mcap")
+
+
+@pytest.mark.slow
+def test_background_writer_finishes_the_file_when_its_owner_is_killed(tmp_path):
+    """SIGKILL of the recording process: the writer sees the pipe close and writes the footer."""
+    path = tmp_path / "killed.mcap"
+    script = textwrap.dedent(f"""
+        import os, signal, time
+        from captures.recorder import BackgroundRecorder
+        rec = BackgroundRecorder({str(path)!r})
+        for i in range(500):
+            rec.datagram("tx", b"NCSU-CM\x01\x01" + bytes(8), ("127.0.0.1", 1), i)
+        rec.flush()
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, timeout=60)
+    assert proc.returncode == -9
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:  # the writer finishes on its own, shortly after
+        try:
+            msgs, _ = read_all(path)
+            break
+        except Exception:  # noqa: BLE001 - not finished yet
+            time.sleep(0.1)
+    assert len(msgs["/mcp/tx"]) == 500
 
 
 def test_close_is_idempotent_and_later_writes_are_dropped(tmp_path):

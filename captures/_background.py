@@ -1,0 +1,221 @@
+"""Recording off the hot path: :class:`BackgroundRecorder` and its writer process.
+
+A node records every datagram it sends and receives; decoding, JSON and MCAP cost about
+9 µs a record, several times a reference node's work per ACK. So a node does not record
+in-process: each call only timestamps the record and appends it to a deque (well under a
+microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
+``marshal``-ed batch, down a pipe to a writer process (``python -m captures._background
+FILE``) that runs :class:`~captures.recorder.McapRecorder` on another core.
+
+The writer runs in its own session, so a signal to the node's process group (Ctrl-C, the
+runner's ``killpg``) does not reach it; it finishes the file when the pipe closes, which
+happens when the node closes the recorder or dies in any way, SIGKILL included. So the file
+is valid whenever the node stops, with everything recorded up to ``FLUSH_S`` before a
+sudden death. ``close()`` waits for the writer to finish.
+"""
+
+from __future__ import annotations
+
+import marshal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from captures import recorder as _rec
+
+__all__ = ["BackgroundRecorder"]
+
+FLUSH_S = 0.05
+#: Records kept waiting for the writer before new ones are dropped (and counted).
+MAX_BACKLOG = 2_000_000
+_LEN = struct.Struct("<I")
+
+
+def _addr(addr: Any) -> Any:
+    if isinstance(addr, (tuple, list)):
+        return tuple(addr[:2])
+    return addr
+
+
+class BackgroundRecorder:
+    """:class:`~captures.recorder.McapRecorder`'s methods, written by a writer process."""
+
+    def __init__(self, path: str | Path, *, library: str = "mcp-conform",
+                 metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
+        self.path = Path(path)
+        #: the recording socket's address: the default ``local`` of datagrams (settable)
+        self.local = _addr(local)
+        self.dropped = 0
+        self._closed = False
+        self._queue: deque[tuple[str, tuple[Any, ...]]] = deque()
+        try:
+            open(self.path, "wb").close()  # noqa: SIM115 - one-line error now, not in the writer
+        except OSError as exc:
+            raise _rec.RecorderError(f"--capture: cannot write {str(self.path)!r}: {exc.strerror}") from None
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "captures._background", str(self.path)],
+                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
+        except OSError as exc:
+            raise _rec.RecorderError(f"--capture: cannot start the capture writer: {exc.strerror}") from None
+        self._lock = threading.Lock()  # one writer of the pipe at a time
+        self._wake = threading.Event()
+        self._queue.append(("__init__", (library, dict(metadata or {}), self.local)))
+        self._thread = threading.Thread(target=self._flush_loop, name="mcap-flusher", daemon=True)
+        self._thread.start()
+        _rec._LIVE.add(self)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # ------------------------------------------------------------------ recording
+    def _put(self, name: str, args: tuple[Any, ...]) -> None:
+        if self._closed:
+            return
+        if len(self._queue) >= MAX_BACKLOG:
+            self.dropped += 1
+            return
+        self._queue.append((name, args))
+
+    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
+                 local: Any = None) -> None:
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"datagram direction must be 'tx' or 'rx', not {direction!r}")
+        self._put("datagram", (direction, bytes(data), _addr(addr),
+                               time.time_ns() if t_ns is None else int(t_ns),
+                               self.local if local is None else _addr(local)))
+
+    def burst(self, direction: str, cycle: Iterable[bytes], count: int, addr: Any,
+              first_t_ns: int, last_t_ns: int, local: Any = None) -> None:
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"burst direction must be 'tx' or 'rx', not {direction!r}")
+        self._put("burst", (direction, [bytes(d) for d in cycle], int(count), _addr(addr),
+                            int(first_t_ns), int(last_t_ns), self.local if local is None else _addr(local)))
+
+    def mavlink(self, direction: str, frame: bytes, t_ns: int | None = None,
+                msg_type: str | None = None, drone: int | None = None) -> None:
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"mavlink direction must be 'tx' or 'rx', not {direction!r}")
+        self._put("mavlink", (direction, bytes(frame), time.time_ns() if t_ns is None else int(t_ns),
+                              msg_type, drone))
+
+    def case_mark(self, case_id: str, event: str, t_ns: int | None = None,
+                  outcome: str | None = None, rules: tuple[str, ...] | list[str] = ()) -> None:
+        if event not in ("start", "end"):
+            raise ValueError(f"case_mark event must be 'start' or 'end', not {event!r}")
+        self._put("case_mark", (case_id, event, time.time_ns() if t_ns is None else int(t_ns),
+                                outcome, list(rules)))
+
+    def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
+        self._put("add_metadata", (name, {str(k): str(v) for k, v in values.items()}))
+
+    # ------------------------------------------------------------------ shipping
+    def _ship(self) -> bool:
+        """Send what is queued; False when the writer is gone."""
+        queue = self._queue
+        n = len(queue)
+        if not n:
+            return True
+        batch = [queue.popleft() for _ in range(n)]
+        blob = marshal.dumps(batch)
+        stdin = self._proc.stdin
+        try:
+            with self._lock:
+                assert stdin is not None
+                stdin.write(_LEN.pack(len(blob)))
+                stdin.write(blob)
+                stdin.flush()
+        except (BrokenPipeError, OSError, ValueError):
+            return False
+        return True
+
+    def _flush_loop(self) -> None:
+        while not self._closed:
+            self._wake.wait(FLUSH_S)
+            if not self._ship():
+                return
+
+    def flush(self) -> None:
+        """Hand everything recorded so far to the writer (it may not be on disk yet)."""
+        self._ship()
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Ship the rest, close the pipe and wait for the writer to finish the file."""
+        if self._closed:
+            return
+        self._closed = True
+        self._wake.set()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
+        self._ship()
+        try:
+            if self._proc.stdin is not None:
+                self._proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self._proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:  # it finishes on its own; we do not wait longer
+            pass
+        _rec._LIVE.discard(self)
+
+    def __enter__(self) -> BackgroundRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _read_exact(stream: Any, n: int) -> bytes:
+    chunks = []
+    while n:
+        chunk = stream.read(n)
+        if not chunk:
+            break
+        chunks.append(chunk)
+        n -= len(chunk)
+    return b"".join(chunks)
+
+
+def writer_main(path: str) -> int:
+    """The writer process: apply batches from stdin to an McapRecorder until EOF."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_IGN)  # finish the file on EOF, whatever the node gets
+    stdin = sys.stdin.buffer
+    rec: _rec.McapRecorder | None = None
+    try:
+        while True:
+            head = _read_exact(stdin, _LEN.size)
+            if len(head) < _LEN.size:
+                break
+            blob = _read_exact(stdin, _LEN.unpack(head)[0])
+            try:
+                batch = marshal.loads(blob)
+            except (EOFError, ValueError, TypeError):
+                break  # the node died mid-batch: keep what came whole
+            for name, args in batch:
+                if name == "__init__":
+                    library, metadata, local = args
+                    rec = _rec.McapRecorder(path, library=library, metadata=metadata, local=local)
+                elif rec is not None:
+                    try:
+                        getattr(rec, name)(*args)
+                    except Exception as exc:  # noqa: BLE001 - one bad record must not lose the file
+                        print(f"mcp capture writer: {name}: {exc}", file=sys.stderr)
+    finally:
+        if rec is not None:
+            rec.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(writer_main(sys.argv[1]))
