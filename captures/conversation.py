@@ -1,0 +1,189 @@
+"""A capture as MCP conversations: what ``mcp-capture diff`` and ``replay`` compare.
+
+A *conversation* is the traffic between two MCP IDs (the manager 0 and a drone; a sender
+and the broadcast ID), whatever addresses and ports carried it. Each is a sequence of
+:class:`Entry` — one message as a protocol event: who sent it to whom, the action, the
+decoded payload — with its retransmissions folded into a copy count.
+
+Sequence numbers are normalised per sender: "initial values are arbitrary" (MCP-SEQ-4), so
+a message's ``nseq`` is its seq minus the first seq that sender used in the capture (mod
+2^16), and an ACK's payload is normalised with the numbering of the sender it acknowledges.
+Entries are aligned on their ``key``, which holds no sequence number at all: a message by
+its sender, receiver, action and decoded payload, an ACK by the action of the message it
+acknowledges (None: no message of the conversation has that seq). So two recordings with
+different initial seqs read the same, and one message more or less shifts nothing after it.
+Whether the numbers themselves follow the rules is the monitor's question (MCP-SEQ-*).
+
+Folding: a datagram that repeats the sender's latest entry in the conversation (same seq,
+action and payload: a retransmission, MCP-RTX-1, or the ACK of one) adds a copy to that
+entry instead of a new one. Malformed datagrams are entries too (action ``None``, their
+``DecodeError`` rule as the payload, the raw bytes compared), in the conversation their
+header names, or in ``(None, None)`` when they have no whole header.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any, NamedTuple
+
+from spec.codec import BROADCAST_ID, HEADER_SIZE, Action, DecodeError, MissionItem, decode, peek_header
+
+__all__ = ["Conversation", "Entry", "build_conversations", "describe", "entry_fields", "peers_of"]
+
+Addr = tuple[str, int] | None
+_ACK = Action.ACK
+_NAMES = {int(a): a.name for a in Action}
+
+
+class Entry(NamedTuple):
+    """One message of a conversation, retransmissions folded in."""
+
+    src: int | None
+    dst: int | None
+    action: int | None  # None: malformed
+    nseq: int | None  # seq minus the sender's first seq (mod 2^16)
+    payload: Any  # decoded payload; an ACK's normalised seq; a malformed datagram's rule
+    key: tuple[Any, ...]  # what alignment compares: sender, receiver, action, content (no seq)
+    copies: int
+    t_ns: int  # first copy
+    t_last_ns: int  # last copy
+    src_addr: Addr
+    dst_addr: Addr
+    index: int  # the first copy's datagram index in its capture
+    seq: int | None  # the wire seq, not normalised
+    data: bytes  # the first copy's bytes
+
+
+class Conversation(NamedTuple):
+    peers: tuple[Any, Any]  # (lower ID, higher ID); broadcast as BROADCAST_ID
+    entries: list[Entry]
+
+
+def peers_of(src: int | None, dst: int | None) -> tuple[Any, Any]:
+    if src is None or dst is None:
+        return (None, None)
+    return (src, dst) if src <= dst else (dst, src)
+
+
+def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any], Conversation], int]:
+    """Fold datagrams (objects with ``index``, ``t_ns``, ``src_addr``, ``dst_addr``,
+    ``data``) into conversations; also returns the first datagram's ``t_ns`` (0 if none)."""
+    convs: dict[tuple[Any, Any], Conversation] = {}
+    first_seq: dict[int, int] = {}
+    latest: dict[tuple[Any, Any], tuple[int, tuple[Any, ...]]] = {}  # (peers, sender) -> (pos, fold key)
+    by_seq: dict[tuple[Any, Any, int], int] = {}  # (peers, sender, seq) -> entry position
+    t0: int | None = None
+    _decode, _peek = decode, peek_header
+    for d in datagrams:
+        data = d.data
+        if t0 is None:
+            t0 = d.t_ns
+        try:
+            msg = _decode(data)
+        except DecodeError as exc:
+            header = _peek(data, require_preamble=False)
+            if header is None:
+                src = dst = seq = nseq = None
+                rest = data
+            else:
+                dst, src, seq, _action = header
+                nseq = (seq - first_seq.setdefault(src, seq)) & 0xFFFF
+                rest = data[:13] + data[15:]  # all but the seq field
+            action = None
+            payload = exc.rule
+            peers = peers_of(src, dst)
+            key: tuple[Any, ...] = (src, dst, None, payload, rest)
+            fold = key
+        else:
+            src, dst, seq, action = msg.src, msg.dst, msg.seq, int(msg.action)
+            nseq = (seq - first_seq.setdefault(src, seq)) & 0xFFFF
+            payload = msg.payload
+            peers = peers_of(src, dst)
+            if action == _ACK:
+                acked = payload
+                base = first_seq.get(dst)
+                payload = ("?", acked) if base is None else (acked - base) & 0xFFFF
+                pos = by_seq.get((peers, dst, acked))
+                conv = convs.get(peers)
+                what = conv.entries[pos].action if (pos is not None and conv is not None) else None
+                key = (src, dst, action, ("ack", what))
+                fold = (src, dst, action, acked)
+            else:
+                key = (src, dst, action, payload)
+                fold = (src, dst, action, seq, payload)
+        conv = convs.get(peers)
+        if conv is None:
+            conv = convs[peers] = Conversation(peers, [])
+        entries = conv.entries
+        last = latest.get((peers, src))
+        if last is not None and last[1] == fold:
+            e = entries[last[0]]
+            entries[last[0]] = e._replace(copies=e.copies + 1, t_last_ns=d.t_ns)
+            continue
+        pos = len(entries)
+        latest[(peers, src)] = (pos, fold)
+        if seq is not None:
+            by_seq[(peers, src, seq)] = pos
+        entries.append(Entry(src, dst, action, nseq, payload, key, 1, d.t_ns, d.t_ns,
+                             d.src_addr, d.dst_addr, d.index, seq, data))
+    return convs, (t0 or 0)
+
+
+def _name(action: int | None) -> str:
+    return "malformed" if action is None else _NAMES.get(action, str(action))
+
+
+def _item_text(item: MissionItem) -> str:
+    return f"#{item.seq} cmd {item.command} ({item.x:.6f}, {item.y:.6f}, {item.z:g})"
+
+
+def describe(e: Entry | None, broadcast_id: int = BROADCAST_ID) -> str:
+    """One line: ``0→1 WP_LIST seq+2 [3 items] ×2``."""
+    if e is None:
+        return "(nothing)"
+    dst = "*" if e.dst == broadcast_id else e.dst
+    head = f"{e.src}→{dst} {_name(e.action)}"
+    if e.nseq is not None and e.action != _ACK:
+        head += f" seq+{e.nseq}"
+    p = e.payload
+    if e.action is None:
+        body = f" {p} ({len(e.data)} B)"
+    elif e.action == _ACK:
+        what = e.key[3][1]
+        body = (f" of seq+{p}" if isinstance(p, int) else f" of seq {p[1]}") + \
+            (f" ({_name(what)})" if what is not None else " (no such message)")
+    elif isinstance(p, MissionItem):
+        body = f" {_item_text(p)}"
+    elif isinstance(p, tuple):
+        body = f" [{len(p)} items]"
+    elif isinstance(p, bytes):
+        body = f" [{len(p)}-byte MAVLink frame]"
+    elif p is not None:
+        body = f" {p}"
+    else:
+        body = ""
+    copies = f" ×{e.copies}" if e.copies > 1 else ""
+    return head + body + copies
+
+
+def entry_fields(e: Entry) -> dict[str, Any]:
+    """The comparable fields of an entry, flattened (``payload.items[2].x``)."""
+    out: dict[str, Any] = {"src": e.src, "dst": e.dst, "action": _name(e.action), "seq": e.nseq}
+    p = e.payload
+    if isinstance(p, MissionItem):
+        for k, v in p._asdict().items():
+            out[f"payload.{k}"] = v
+    elif isinstance(p, tuple) and p and isinstance(p[0], MissionItem):
+        out["payload.count"] = len(p)
+        for i, item in enumerate(p):
+            for k, v in item._asdict().items():
+                out[f"payload.items[{i}].{k}"] = v
+    elif isinstance(p, tuple) and not p:
+        out["payload.count"] = 0
+    elif isinstance(p, bytes):
+        out["payload"] = p.hex()
+    else:
+        out["payload"] = p if not isinstance(p, tuple) else list(p)
+    if e.action is None:
+        out["bytes"] = e.data[HEADER_SIZE:].hex() if len(e.data) >= HEADER_SIZE else e.data.hex()
+    return out

@@ -1,0 +1,493 @@
+"""``mcp-capture diff GOLDEN CANDIDATE``: two captures compared as MCP conversations.
+
+Not bytes: each capture is read (MCAP, pcap or pcapng, a truncated file up to its last
+whole chunk) and folded into conversations (:mod:`captures.conversation`): per pair of
+MCP IDs, the messages in order with who sent them, the action and the decoded payload,
+retransmissions folded into a copy count, sequence numbers normalised per sender
+(MCP-SEQ-4). Each conversation of the golden capture is aligned with the candidate's by
+``difflib.SequenceMatcher`` over the messages' keys, so a message dropped or added shows
+as that one message, not as everything after it. Then, on aligned pairs:
+
+- retransmission counts must agree within ``--copies-tolerance`` (default 1);
+- timing is ignored unless ``--time-tolerance S`` is given, but the largest drift (the
+  candidate's time since the conversation's first aligned message minus the golden's) is
+  always reported;
+- addresses and ports are ignored unless ``--addresses``.
+
+Divergence kinds: ``missing`` (in the golden capture, not the candidate), ``extra`` (the
+reverse), ``changed`` (an aligned pair whose content differs, field by field), ``reordered``
+(two messages in the opposite order), ``copies``, ``timing``, ``address``.
+
+The first divergence is printed with a few messages of context on each side and its
+field-by-field difference, then a summary of all. ``--json OUT``, ``--html OUT`` (both
+sides' sequence charts side by side). Exit 0 same, 1 different, 2 unreadable input.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import sys
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple, TextIO
+
+from captures.conversation import Conversation, Entry, build_conversations, describe, entry_fields
+
+__all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "diff_sides",
+           "load_side", "register", "run", "side_from_datagrams"]
+
+SCHEMA_VERSION = "1.0"
+KINDS = ("missing", "extra", "changed", "reordered", "copies", "timing", "address")
+
+
+@dataclass(frozen=True)
+class DiffOptions:
+    copies_tolerance: int = 1
+    time_tolerance: float | None = None  # seconds; None: timing ignored (drift reported)
+    addresses: bool = False
+    context: int = 3
+
+
+@dataclass
+class Side:
+    """One capture, read and folded."""
+
+    name: str
+    conversations: dict[tuple[Any, Any], Conversation]
+    t0_ns: int
+    datagrams: int
+    truncated: str | None = None
+    bursts: int = 0
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def messages(self) -> int:
+        return sum(len(c.entries) for c in self.conversations.values())
+
+
+class Divergence(NamedTuple):
+    kind: str
+    peers: tuple[Any, Any]
+    golden: Entry | None
+    candidate: Entry | None
+    golden_pos: int | None  # position in the golden conversation
+    candidate_pos: int | None
+    fields: tuple[tuple[str, Any, Any], ...]  # (field, golden value, candidate value)
+    note: str = ""
+
+
+@dataclass
+class DiffResult:
+    golden: Side
+    candidate: Side
+    options: DiffOptions
+    divergences: list[Divergence]
+    max_drift_ns: int = 0
+    max_drift_at: Divergence | None = None
+    aligned: dict[tuple[Any, Any], list[tuple[int | None, int | None]]] = field(default_factory=dict)
+
+    @property
+    def same(self) -> bool:
+        return not self.divergences
+
+    def summary(self) -> dict[str, int]:
+        c = Counter(d.kind for d in self.divergences)
+        return {k: c[k] for k in KINDS if c[k]}
+
+
+# ---------------------------------------------------------------- reading
+def side_from_datagrams(name: str, datagrams: Iterable[Any], *, truncated: str | None = None,
+                        metadata: dict[str, str] | None = None) -> Side:
+    """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``)."""
+    counted = _Counted(datagrams)
+    convs, t0 = build_conversations(counted)
+    return Side(name, convs, t0, counted.n, truncated, 0, metadata or {})
+
+
+class _Counted:
+    def __init__(self, it: Iterable[Any]) -> None:
+        self.it = it
+        self.n = 0
+
+    def __iter__(self) -> Any:
+        for d in self.it:
+            self.n += 1
+            yield d
+
+
+def load_side(path: str | Path) -> Side:
+    """Read a capture (raises ``captures.reader.CaptureError`` when it cannot)."""
+    from captures.reader import Datagram, Metadata, Truncated, open_capture
+
+    cap = open_capture(path)
+    meta: dict[str, str] = {}
+    truncated: list[str] = []
+
+    def datagrams() -> Iterable[Any]:
+        for rec in cap:
+            kind = type(rec)
+            if kind is Datagram:
+                yield rec
+            elif kind is Metadata:
+                meta.update(rec.data)
+            elif kind is Truncated:
+                truncated.append(rec.reason)
+
+    side = side_from_datagrams(str(path), datagrams())
+    side.truncated = truncated[0] if truncated else getattr(cap, "truncated", None)
+    side.metadata = meta
+    return side
+
+
+# ---------------------------------------------------------------- comparing
+def _fields_differ(g: Entry, c: Entry) -> tuple[tuple[str, Any, Any], ...]:
+    fg, fc = entry_fields(g), entry_fields(c)
+    out = []
+    for k in list(fg) + [k for k in fc if k not in fg]:
+        if k == "seq":
+            continue  # normalised seqs are shown, not compared (MCP-SEQ-* is the monitor's)
+        a, b = fg.get(k), fc.get(k)
+        if a != b:
+            out.append((k, a, b))
+    if g.key != c.key and not out:  # e.g. an ACK of a different message
+        out.append(("acknowledges", describe(g), describe(c)))
+    return tuple(out)
+
+
+def _content(e: Entry) -> tuple[Any, ...]:
+    return e.key
+
+
+def _align(g: list[Entry], c: list[Entry]) -> list[tuple[str, int, int, int, int]]:
+    """SequenceMatcher opcodes over the keys, with the common prefix and suffix trimmed
+    first (the usual case is two nearly equal conversations: linear time)."""
+    gk = [e.key for e in g]
+    ck = [e.key for e in c]
+    n, m = len(gk), len(ck)
+    lo = 0
+    while lo < n and lo < m and gk[lo] == ck[lo]:
+        lo += 1
+    hi = 0
+    while hi < n - lo and hi < m - lo and gk[n - 1 - hi] == ck[m - 1 - hi]:
+        hi += 1
+    ops: list[tuple[str, int, int, int, int]] = []
+    if lo:
+        ops.append(("equal", 0, lo, 0, lo))
+    if lo < n - hi or lo < m - hi:
+        sm = difflib.SequenceMatcher(None, gk[lo:n - hi], ck[lo:m - hi], autojunk=False)
+        for tag, i1, i2, j1, j2 in sm.get_opcodes():
+            ops.append((tag, i1 + lo, i2 + lo, j1 + lo, j2 + lo))
+    if hi:
+        ops.append(("equal", n - hi, n, m - hi, m))
+    return ops
+
+
+def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,
+             result: DiffResult) -> None:
+    divs = result.divergences
+    pairs: list[tuple[int | None, int | None]] = []
+    changed: list[tuple[int, int]] = []
+    ref: tuple[int, int] | None = None
+    tol_ns = None if opts.time_tolerance is None else int(opts.time_tolerance * 1e9)
+    for tag, i1, i2, j1, j2 in _align(g, c):
+        if tag == "equal":
+            for i, j in zip(range(i1, i2), range(j1, j2), strict=True):
+                pairs.append((i, j))
+                eg, ec = g[i], c[j]
+                if abs(eg.copies - ec.copies) > opts.copies_tolerance:
+                    divs.append(Divergence("copies", peers, eg, ec, i, j, (("copies", eg.copies, ec.copies),),
+                                           f"{eg.copies} copies in the golden capture, {ec.copies} in the "
+                                           f"candidate (tolerance {opts.copies_tolerance})"))
+                if ref is None:
+                    ref = (eg.t_ns, ec.t_ns)
+                drift = (ec.t_ns - ref[1]) - (eg.t_ns - ref[0])
+                if abs(drift) > abs(result.max_drift_ns):
+                    result.max_drift_ns = drift
+                    result.max_drift_at = Divergence("timing", peers, eg, ec, i, j, ())
+                if tol_ns is not None and abs(drift) > tol_ns:
+                    divs.append(Divergence("timing", peers, eg, ec, i, j, (("t", eg.t_ns - ref[0], ec.t_ns - ref[1]),),
+                                           f"{drift / 1e9:+.3f} s from the golden timing (tolerance "
+                                           f"{opts.time_tolerance:g} s)"))
+                if opts.addresses:
+                    for what in ("src_addr", "dst_addr"):
+                        a, b = getattr(eg, what), getattr(ec, what)
+                        if a is not None and b is not None and tuple(a) != tuple(b):
+                            divs.append(Divergence("address", peers, eg, ec, i, j, ((what, a, b),),
+                                                   f"{what} {a[0]}:{a[1]} vs {b[0]}:{b[1]}"))
+            continue
+        k = 0
+        if tag == "replace":
+            for k in range(min(i2 - i1, j2 - j1)):
+                pairs.append((i1 + k, j1 + k))
+                changed.append((i1 + k, j1 + k))
+            k = min(i2 - i1, j2 - j1)
+        for i in range(i1 + k, i2):
+            pairs.append((i, None))
+            divs.append(Divergence("missing", peers, g[i], None, i, None, (),
+                                   "in the golden capture, not in the candidate"))
+        for j in range(j1 + k, j2):
+            pairs.append((None, j))
+            divs.append(Divergence("extra", peers, None, c[j], None, j, (),
+                                   "in the candidate, not in the golden capture"))
+    # two changed pairs whose contents are each other's: a swap, one divergence
+    swapped: set[int] = set()
+    by_content: dict[tuple[Any, ...], list[int]] = {}
+    for n, (i, _j) in enumerate(changed):
+        by_content.setdefault(_content(g[i]), []).append(n)
+    for n, (i, j) in enumerate(changed):
+        if n in swapped:
+            continue
+        for other in by_content.get(_content(c[j]), []):
+            oi, oj = changed[other]
+            if other != n and other not in swapped and _content(c[oj]) == _content(g[i]):
+                swapped.update((n, other))
+                divs.append(Divergence("reordered", peers, g[i], c[j], i, j,
+                                       (("order", describe(g[i]), describe(g[oi])),),
+                                       f"{describe(g[i])} and {describe(g[oi])} came in the opposite order"))
+                break
+    for n, (i, j) in enumerate(changed):
+        if n not in swapped:
+            divs.append(Divergence("changed", peers, g[i], c[j], i, j, _fields_differ(g[i], c[j]),
+                                   "aligned messages differ"))
+    pairs.sort(key=lambda p: (p[0] if p[0] is not None else -1, p[1] if p[1] is not None else -1))
+    result.aligned[peers] = _merge_order(pairs)
+
+
+def _merge_order(pairs: list[tuple[int | None, int | None]]) -> list[tuple[int | None, int | None]]:
+    """Aligned rows in order: by golden position, an extra candidate row after its predecessor."""
+    def key(p: tuple[int | None, int | None]) -> tuple[float, float]:
+        i, j = p
+        return (i if i is not None else float("inf"), j if j is not None else -1.0)
+    with_g = sorted((p for p in pairs if p[0] is not None), key=key)
+    extras = sorted((p for p in pairs if p[0] is None), key=lambda p: p[1] or 0)
+    out: list[tuple[int | None, int | None]] = []
+    e = 0
+    for p in with_g:
+        while e < len(extras) and p[1] is not None and (extras[e][1] or 0) < p[1]:
+            out.append(extras[e])
+            e += 1
+        out.append(p)
+    out.extend(extras[e:])
+    return out
+
+
+def _order_key(peers: tuple[Any, Any]) -> tuple[int, int]:
+    return tuple(-1 if p is None else p for p in peers)  # type: ignore[return-value]
+
+
+def diff_sides(golden: Side, candidate: Side, opts: DiffOptions | None = None) -> DiffResult:
+    opts = opts or DiffOptions()
+    result = DiffResult(golden, candidate, opts, [])
+    for peers in sorted(set(golden.conversations) | set(candidate.conversations), key=_order_key):
+        g = golden.conversations.get(peers)
+        c = candidate.conversations.get(peers)
+        _compare(peers, g.entries if g else [], c.entries if c else [], opts, result)
+
+    def position(d: Divergence) -> tuple[int, int]:
+        e = d.golden or d.candidate
+        assert e is not None
+        return (e.t_ns - (golden.t0_ns if d.golden else candidate.t0_ns), e.index)
+    result.divergences.sort(key=position)
+    return result
+
+
+def diff_captures(golden: str | Path, candidate: str | Path, opts: DiffOptions | None = None) -> DiffResult:
+    return diff_sides(load_side(golden), load_side(candidate), opts)
+
+
+# ---------------------------------------------------------------- reporting
+def _peers_text(peers: tuple[Any, Any]) -> str:
+    from spec.codec import BROADCAST_ID
+
+    if peers == (None, None):
+        return "datagrams without an MCP header"
+    a, b = peers
+    return f"{a} ↔ {'broadcast' if b == BROADCAST_ID else b}"
+
+
+def _row(e: Entry | None, width: int) -> str:
+    text = describe(e) if e is not None else "(missing)"
+    return text[:width].ljust(width)
+
+
+def print_report(result: DiffResult, out: TextIO = sys.stdout) -> None:
+    g, c, opts = result.golden, result.candidate, result.options
+    for side, label in ((g, "golden"), (c, "candidate")):
+        trunc = f"; TRUNCATED: {side.truncated} (read up to its last whole chunk)" if side.truncated else ""
+        out.write(f"{label}: {side.name}: {side.datagrams} datagrams, {side.messages} messages in "
+                  f"{len(side.conversations)} conversations{trunc}\n")
+    drift = f"largest timing drift {result.max_drift_ns / 1e9:+.3f} s"
+    if result.max_drift_at is not None and result.max_drift_ns:
+        drift += f" (at {describe(result.max_drift_at.golden)})"
+    if opts.time_tolerance is None:
+        drift += "; timing not compared (--time-tolerance S to compare)"
+    out.write(drift + "\n")
+    if result.same:
+        out.write("same: every conversation matches\n")
+        return
+    first = result.divergences[0]
+    out.write(f"\nfirst divergence ({first.kind}) in conversation {_peers_text(first.peers)}: {first.note}\n")
+    rows = result.aligned.get(first.peers, [])
+    gconv = result.golden.conversations.get(first.peers)
+    cconv = result.candidate.conversations.get(first.peers)
+    at = next((n for n, p in enumerate(rows) if p == (first.golden_pos, first.candidate_pos)), 0)
+    width = 46
+    out.write(f"  {'golden'.ljust(width + 6)}  candidate\n")
+    for n in range(max(0, at - opts.context), min(len(rows), at + opts.context + 1)):
+        i, j = rows[n]
+        eg = gconv.entries[i] if (gconv and i is not None) else None
+        ec = cconv.entries[j] if (cconv and j is not None) else None
+        mark = ">" if n == at else " "
+        gi = f"#{i}" if i is not None else ""
+        cj = f"#{j}" if j is not None else ""
+        out.write(f"{mark} {gi:>5} {_row(eg, width)}  {cj:>5} {_row(ec, width)}\n")
+    for name, a, b in first.fields[:20]:
+        out.write(f"    {name}: {a!r} → {b!r}\n")
+    if len(first.fields) > 20:
+        out.write(f"    ... {len(first.fields) - 20} more fields\n")
+    out.write(f"\n{len(result.divergences)} divergence(s): " +
+              ", ".join(f"{n} {k}" for k, n in result.summary().items()) + "\n")
+    for d in result.divergences[:50]:
+        e = d.golden or d.candidate
+        where = f"golden #{d.golden_pos}" if d.golden_pos is not None else f"candidate #{d.candidate_pos}"
+        fields = "; ".join(f"{f}: {a!r} → {b!r}" for f, a, b in d.fields[:3])
+        out.write(f"  {d.kind:<9} {_peers_text(d.peers):<12} {where:<15} {describe(e)}"
+                  f"{' — ' + fields if fields else ''}\n")
+    if len(result.divergences) > 50:
+        out.write(f"  ... {len(result.divergences) - 50} more (--json for all)\n")
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, bytes):
+        return v.hex()
+    if isinstance(v, tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float) and v != v:  # NaN
+        return None
+    return v
+
+
+def _entry_json(e: Entry | None, t0: int) -> dict[str, Any] | None:
+    if e is None:
+        return None
+    return {"text": describe(e), "index": e.index, "t": (e.t_ns - t0) / 1e9, "copies": e.copies,
+            "seq": e.seq, "nseq": e.nseq,
+            "src_addr": ":".join(map(str, e.src_addr)) if e.src_addr else None,
+            "dst_addr": ":".join(map(str, e.dst_addr)) if e.dst_addr else None,
+            "fields": {k: _jsonable(v) for k, v in entry_fields(e).items()}}
+
+
+def build_json(result: DiffResult) -> dict[str, Any]:
+    from conformance.report import TOOL_NAME, tool_version
+    from spec import SPEC
+
+    g, c = result.golden, result.candidate
+
+    def side(s: Side) -> dict[str, Any]:
+        return {"file": s.name, "truncated": s.truncated, "datagrams": s.datagrams, "messages": s.messages,
+                "metadata": s.metadata}
+    convs = []
+    for peers in sorted(set(g.conversations) | set(c.conversations), key=_order_key):
+        convs.append({"peers": list(peers),
+                      "golden_messages": len(g.conversations[peers].entries) if peers in g.conversations else 0,
+                      "candidate_messages": len(c.conversations[peers].entries) if peers in c.conversations else 0,
+                      "divergences": sum(1 for d in result.divergences if d.peers == peers)})
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "tool": {"name": TOOL_NAME, "version": tool_version()},
+        "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
+        "golden": side(g), "candidate": side(c),
+        "parameters": {"copies_tolerance": result.options.copies_tolerance,
+                       "time_tolerance": result.options.time_tolerance,
+                       "addresses": result.options.addresses},
+        "same": result.same,
+        "max_drift_s": result.max_drift_ns / 1e9,
+        "conversations": convs,
+        "divergences": [{"kind": d.kind, "peers": list(d.peers), "note": d.note,
+                         "golden_pos": d.golden_pos, "candidate_pos": d.candidate_pos,
+                         "golden": _entry_json(d.golden, g.t0_ns),
+                         "candidate": _entry_json(d.candidate, c.t0_ns),
+                         "fields": [{"field": f, "golden": _jsonable(a), "candidate": _jsonable(b)}
+                                    for f, a, b in d.fields]}
+                        for d in result.divergences],
+        "summary": {"divergences": len(result.divergences), **result.summary()},
+    }
+
+
+# ---------------------------------------------------------------- command line
+def register(sub: Any) -> None:
+    """Add ``diff`` to ``mcp-capture``'s subparsers."""
+    p = sub.add_parser("diff", help="compare two captures as MCP conversations",
+                       description=__doc__.split("\n\n")[0] if __doc__ else None)
+    p.add_argument("golden", metavar="GOLDEN", help="the reference capture (MCAP, pcap, pcapng)")
+    p.add_argument("candidate", metavar="CANDIDATE", help="the capture to compare with it")
+    p.add_argument("--copies-tolerance", type=_nonneg_int, default=1, metavar="N",
+                   help="retransmission counts may differ by N (1)")
+    p.add_argument("--time-tolerance", type=_nonneg_float, default=None, metavar="S",
+                   help="compare timing: drift beyond S seconds diverges (default: not compared)")
+    p.add_argument("--addresses", action="store_true", help="compare addresses and ports too")
+    p.add_argument("--context", type=_nonneg_int, default=3, metavar="N",
+                   help="messages of context around the first divergence (3)")
+    p.add_argument("--json", metavar="OUT", help="write the comparison as JSON")
+    p.add_argument("--html", metavar="OUT", help="write both sides' sequence charts side by side")
+    p.set_defaults(func=run)
+
+
+def _nonneg_int(text: str) -> int:
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {v}")
+    return v
+
+
+def _nonneg_float(text: str) -> float:
+    import argparse
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0: {text}")
+    return v
+
+
+def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+    from captures.reader import CaptureError
+
+    opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
+    try:
+        result = diff_captures(args.golden, args.candidate, opts)
+    except CaptureError as exc:
+        err.write(f"mcp-capture diff: {exc}\n")
+        return 2
+    print_report(result, out)
+    try:
+        if args.json:
+            Path(args.json).write_text(json.dumps(build_json(result), indent=1) + "\n")
+        if args.html:
+            from captures.diff_html import write_html
+
+            write_html(result, args.html)
+    except OSError as exc:
+        err.write(f"mcp-capture diff: cannot write {exc.filename}: {exc.strerror}\n")
+        return 2
+    return 0 if result.same else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:  # pragma: no cover - via mcp-capture
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="mcp-capture")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return int(args.func(args))
