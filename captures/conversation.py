@@ -26,7 +26,15 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
-from spec.codec import BROADCAST_ID, HEADER_SIZE, Action, DecodeError, MissionItem, decode, peek_header
+from spec.codec import (
+    BROADCAST_ID,
+    HEADER_SIZE,
+    Action,
+    DecodeError,
+    MissionItem,
+    decode,
+    peek_header,
+)
 
 __all__ = ["Conversation", "Entry", "build_conversations", "describe", "entry_fields", "peers_of"]
 

@@ -29,12 +29,13 @@ import difflib
 import json
 import sys
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
 from captures.conversation import Conversation, Entry, build_conversations, describe, entry_fields
+from spec.codec import Action
 
 __all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "diff_sides",
            "load_side", "register", "run", "side_from_datagrams"]
@@ -101,21 +102,24 @@ class DiffResult:
 # ---------------------------------------------------------------- reading
 def side_from_datagrams(name: str, datagrams: Iterable[Any], *, truncated: str | None = None,
                         metadata: dict[str, str] | None = None) -> Side:
-    """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``)."""
-    counted = _Counted(datagrams)
-    convs, t0 = build_conversations(counted)
-    return Side(name, convs, t0, counted.n, truncated, 0, metadata or {})
+    """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``),
+    taken in time order (a recorder's threads may write a reply before the message it
+    answers: the message's time is stamped before it leaves)."""
+    records = in_time_order(datagrams)
+    convs, t0 = build_conversations(records)
+    return Side(name, convs, t0, len(records), truncated, 0, metadata or {})
 
 
-class _Counted:
-    def __init__(self, it: Iterable[Any]) -> None:
-        self.it = it
-        self.n = 0
-
-    def __iter__(self) -> Any:
-        for d in self.it:
-            self.n += 1
-            yield d
+def in_time_order(datagrams: Iterable[Any]) -> list[Any]:
+    """The records sorted by ``t_ns`` (stable), sorting only when they are not already."""
+    records = list(datagrams)
+    last = None
+    for r in records:
+        if last is not None and r.t_ns < last:
+            records.sort(key=lambda r: r.t_ns)
+            break
+        last = r.t_ns
+    return records
 
 
 def load_side(path: str | Path) -> Side:
@@ -185,53 +189,98 @@ def _align(g: list[Entry], c: list[Entry]) -> list[tuple[str, int, int, int, int
     return ops
 
 
+def _streams(g: list[Entry], c: list[Entry]) -> Iterable[tuple[str, list[int], list[int]]]:
+    """Alignment per sender: each sender's own order is the protocol's; how two senders'
+    datagrams interleave on the wire is a race (an ACK may leave before or after the
+    other side's next message). Yields (tag, golden positions, candidate positions)."""
+    senders = sorted({e.src for e in g} | {e.src for e in c}, key=lambda s: -1 if s is None else s)
+    for sender in senders:
+        gi = [n for n, e in enumerate(g) if e.src == sender]
+        ci = [n for n, e in enumerate(c) if e.src == sender]
+        for tag, i1, i2, j1, j2 in _align([g[i] for i in gi], [c[j] for j in ci]):
+            yield tag, gi[i1:i2], ci[j1:j2]
+
+
+def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any]) -> None:
+    """An ACK that moved because the message it acknowledges moved is that move's
+    consequence, not a second divergence (one fault, one report)."""
+    moved = {(d.golden.src, d.golden.nseq) for d in divs
+             if d.kind == "reordered" and d.peers == peers and d.golden is not None
+             and d.golden.action not in (None, Action.ACK)}
+    if not moved:
+        return
+    divs[:] = [d for d in divs if not (
+        d.kind == "reordered" and d.peers == peers and d.golden is not None
+        and d.golden.action == Action.ACK and (d.golden.dst, d.golden.payload) in moved)]
+
+
 def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,
              result: DiffResult) -> None:
     divs = result.divergences
     pairs: list[tuple[int | None, int | None]] = []
+    equal: list[tuple[int, int]] = []
     changed: list[tuple[int, int]] = []
-    ref: tuple[int, int] | None = None
-    tol_ns = None if opts.time_tolerance is None else int(opts.time_tolerance * 1e9)
-    for tag, i1, i2, j1, j2 in _align(g, c):
+    missing: list[int] = []
+    extra: list[int] = []
+    for tag, gs, cs in _streams(g, c):
         if tag == "equal":
-            for i, j in zip(range(i1, i2), range(j1, j2), strict=True):
-                pairs.append((i, j))
-                eg, ec = g[i], c[j]
-                if abs(eg.copies - ec.copies) > opts.copies_tolerance:
-                    divs.append(Divergence("copies", peers, eg, ec, i, j, (("copies", eg.copies, ec.copies),),
-                                           f"{eg.copies} copies in the golden capture, {ec.copies} in the "
-                                           f"candidate (tolerance {opts.copies_tolerance})"))
-                if ref is None:
-                    ref = (eg.t_ns, ec.t_ns)
-                drift = (ec.t_ns - ref[1]) - (eg.t_ns - ref[0])
-                if abs(drift) > abs(result.max_drift_ns):
-                    result.max_drift_ns = drift
-                    result.max_drift_at = Divergence("timing", peers, eg, ec, i, j, ())
-                if tol_ns is not None and abs(drift) > tol_ns:
-                    divs.append(Divergence("timing", peers, eg, ec, i, j, (("t", eg.t_ns - ref[0], ec.t_ns - ref[1]),),
-                                           f"{drift / 1e9:+.3f} s from the golden timing (tolerance "
-                                           f"{opts.time_tolerance:g} s)"))
-                if opts.addresses:
-                    for what in ("src_addr", "dst_addr"):
-                        a, b = getattr(eg, what), getattr(ec, what)
-                        if a is not None and b is not None and tuple(a) != tuple(b):
-                            divs.append(Divergence("address", peers, eg, ec, i, j, ((what, a, b),),
-                                                   f"{what} {a[0]}:{a[1]} vs {b[0]}:{b[1]}"))
+            equal.extend(zip(gs, cs, strict=True))
             continue
         k = 0
         if tag == "replace":
-            for k in range(min(i2 - i1, j2 - j1)):
-                pairs.append((i1 + k, j1 + k))
-                changed.append((i1 + k, j1 + k))
-            k = min(i2 - i1, j2 - j1)
-        for i in range(i1 + k, i2):
+            k = min(len(gs), len(cs))
+            changed.extend(zip(gs[:k], cs[:k], strict=True))
+        missing.extend(gs[k:])
+        extra.extend(cs[k:])
+    # a message missing here and extra there: moved (one divergence, "reordered")
+    extra_by_key: dict[tuple[Any, ...], list[int]] = {}
+    for j in extra:
+        extra_by_key.setdefault(c[j].key, []).append(j)
+    for i in missing:
+        js = extra_by_key.get(g[i].key)
+        if js:
+            j = js.pop(0)
+            pairs.append((i, j))
+            divs.append(Divergence("reordered", peers, g[i], c[j], i, j, (("position", i, j),),
+                                   f"{describe(g[i])} came at another place in the order "
+                                   f"(golden #{i}, candidate #{j})"))
+        else:
             pairs.append((i, None))
             divs.append(Divergence("missing", peers, g[i], None, i, None, (),
                                    "in the golden capture, not in the candidate"))
-        for j in range(j1 + k, j2):
+    for js in extra_by_key.values():
+        for j in js:
             pairs.append((None, j))
             divs.append(Divergence("extra", peers, None, c[j], None, j, (),
                                    "in the candidate, not in the golden capture"))
+    pairs.extend(equal)
+    pairs.extend(changed)
+    _drop_consequent_ack_moves(divs, peers)
+    equal.sort()
+    ref: tuple[int, int] | None = None
+    tol_ns = None if opts.time_tolerance is None else int(opts.time_tolerance * 1e9)
+    for i, j in equal:
+        eg, ec = g[i], c[j]
+        if abs(eg.copies - ec.copies) > opts.copies_tolerance:
+            divs.append(Divergence("copies", peers, eg, ec, i, j, (("copies", eg.copies, ec.copies),),
+                                   f"{eg.copies} copies in the golden capture, {ec.copies} in the "
+                                   f"candidate (tolerance {opts.copies_tolerance})"))
+        if ref is None:
+            ref = (eg.t_ns, ec.t_ns)
+        drift = (ec.t_ns - ref[1]) - (eg.t_ns - ref[0])
+        if abs(drift) > abs(result.max_drift_ns):
+            result.max_drift_ns = drift
+            result.max_drift_at = Divergence("timing", peers, eg, ec, i, j, ())
+        if tol_ns is not None and abs(drift) > tol_ns:
+            divs.append(Divergence("timing", peers, eg, ec, i, j, (("t", eg.t_ns - ref[0], ec.t_ns - ref[1]),),
+                                   f"{drift / 1e9:+.3f} s from the golden timing (tolerance "
+                                   f"{opts.time_tolerance:g} s)"))
+        if opts.addresses:
+            for what in ("src_addr", "dst_addr"):
+                a, b = getattr(eg, what), getattr(ec, what)
+                if a is not None and b is not None and tuple(a) != tuple(b):
+                    divs.append(Divergence("address", peers, eg, ec, i, j, ((what, a, b),),
+                                           f"{what} {a[0]}:{a[1]} vs {b[0]}:{b[1]}"))
     # two changed pairs whose contents are each other's: a swap, one divergence
     swapped: set[int] = set()
     by_content: dict[tuple[Any, ...], list[int]] = {}
@@ -433,7 +482,7 @@ def register(sub: Any) -> None:
                    help="messages of context around the first divergence (3)")
     p.add_argument("--json", metavar="OUT", help="write the comparison as JSON")
     p.add_argument("--html", metavar="OUT", help="write both sides' sequence charts side by side")
-    p.set_defaults(func=run)
+    p.set_defaults(run=run)
 
 
 def _nonneg_int(text: str) -> int:
@@ -482,12 +531,3 @@ def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
         err.write(f"mcp-capture diff: cannot write {exc.filename}: {exc.strerror}\n")
         return 2
     return 0 if result.same else 1
-
-
-def main(argv: Sequence[str] | None = None) -> int:  # pragma: no cover - via mcp-capture
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="mcp-capture")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    return int(args.func(args))

@@ -277,9 +277,21 @@ class Capture:
                         body = loads(rec.data)
                         if topic == "/mcp/tx" or topic == "/mcp/rx":
                             peer = _parse_peer(body.get("peer"))
+                            local = _parse_peer(body.get("local"))
                             tx = topic == "/mcp/tx"
-                            yield rec.log_time, "d", (None if tx else peer, peer if tx else None,
+                            yield rec.log_time, "d", (local if tx else peer, peer if tx else local,
                                                       b64(body["raw_base64"]), "tx" if tx else "rx", library)
+                        elif topic == "/mcp/burst":
+                            # a flood recorded as a count (captures.recorder): datagram i is
+                            # cycle[i % len(cycle)], times spread evenly over the burst
+                            peer, local = _parse_peer(body.get("peer")), _parse_peer(body.get("local"))
+                            tx = body.get("direction") == "tx"
+                            cycle = [b64(c["raw_base64"]) for c in body["cycle"]]
+                            count, t1, t2 = int(body["count"]), int(body["first_t_ns"]), int(body["last_t_ns"])
+                            src, dst = (local, peer) if tx else (peer, local)
+                            for i in range(count if cycle else 0):
+                                yield (t1 + (t2 - t1) * i // max(1, count - 1), "d",
+                                       (src, dst, cycle[i % len(cycle)], "tx" if tx else "rx", library))
                         elif topic == "/mavlink":
                             yield rec.log_time, "m", (body.get("direction"), body.get("msg_type"),
                                                       b64(body["raw_base64"]))

@@ -1,0 +1,92 @@
+"""``mcp-capture export CAPTURE --pcap OUT``: a capture as a pcap or pcapng file.
+
+Every datagram of the capture (a burst expanded datagram by datagram) becomes one
+Ethernet/IPv4/UDP packet with the capture's addresses, ports and timestamps, written by
+scapy's ``PcapNgWriter`` (OUT ending in ``.pcapng``) or ``PcapWriter`` (anything else).
+Where the capture does not name an address (a pcap of one side, a wildcard bind) the
+loopback address stands in, and a missing port is the spec's conventional port of the
+sender's role (MCP-TRN-1: the manager on 7889, drones on 7890). Open the result in
+Wireshark with ``mcp-capture dissector --install``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+from spec import SPEC
+from spec.codec import MANAGER_ID, peek_header
+
+__all__ = ["export_pcap", "register", "run"]
+
+_LOOPBACK = "127.0.0.1"
+_PORTS = SPEC.protocol["ports"]
+
+
+def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
+    host, port = (addr[0], addr[1]) if addr else (None, None)
+    if not host or host == "0.0.0.0":
+        host = _LOOPBACK
+    if not port:
+        port = int(_PORTS["manager"] if mcp_id == MANAGER_ID else _PORTS["drone"])
+    return str(host), int(port)
+
+
+def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+    """Write ``out``; return (packets written, the capture's truncation reason or None).
+    Raises ``captures.reader.CaptureError`` for unreadable input, OSError for ``out``."""
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import PcapNgWriter, PcapWriter
+
+    from captures.reader import Datagram, Truncated, open_capture
+
+    cap = open_capture(capture)
+    out = Path(out)
+    writer = PcapNgWriter(str(out)) if out.suffix.lower() == ".pcapng" else PcapWriter(str(out), sync=False)
+    n = 0
+    truncated: str | None = None
+    try:
+        for rec in cap:
+            if type(rec) is Truncated:
+                truncated = rec.reason
+                continue
+            if type(rec) is not Datagram:
+                continue
+            header = peek_header(rec.data, require_preamble=False)
+            dst_id, src_id = (header[0], header[1]) if header else (None, None)
+            src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
+            pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
+                   IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
+            pkt.time = rec.t_ns / 1e9
+            writer.write(pkt)
+            n += 1
+    finally:
+        writer.close()
+    return n, truncated or getattr(cap, "truncated", None)
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("export", help="write a capture as pcap or pcapng (for Wireshark, tshark)",
+                       description="Write every datagram of CAPTURE, with its addresses and "
+                                   "timestamps, as a pcapng (OUT.pcapng) or pcap file.")
+    p.add_argument("capture", metavar="CAPTURE", help="MCAP, pcap or pcapng capture")
+    p.add_argument("--pcap", required=True, metavar="OUT", help="the file to write (.pcapng: pcapng)")
+    p.set_defaults(run=run)
+
+
+def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+    from captures.reader import CaptureError
+
+    try:
+        n, truncated = export_pcap(args.capture, args.pcap)
+    except CaptureError as exc:
+        err.write(f"mcp-capture export: {exc}\n")
+        return 2
+    except OSError as exc:
+        err.write(f"mcp-capture export: cannot write {args.pcap}: {exc.strerror}\n")
+        return 2
+    note = f" (the capture is TRUNCATED: {truncated}; exported up to its last whole chunk)" if truncated else ""
+    out.write(f"wrote {n} datagrams to {args.pcap}{note}\n")
+    return 0

@@ -1,0 +1,190 @@
+"""mcp-capture diff: conversations compared after seq normalisation; injected changes named."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import random
+
+import pytest
+
+from captures.diff import DiffOptions, diff_sides, print_report, register, side_from_datagrams
+from captures.recorder import McapRecorder
+from spec.codec import Action, decode, encode
+from tests.captures.scenario import D, challenge2, reindex
+
+
+def _diff(golden: list[D], candidate: list[D], **opts):
+    return diff_sides(side_from_datagrams("golden", golden), side_from_datagrams("candidate", candidate),
+                      DiffOptions(**opts))
+
+
+def _report(result) -> str:
+    buf = io.StringIO()
+    print_report(result, buf)
+    return buf.getvalue()
+
+
+def _find(datagrams: list[D], action: Action, nth: int = 0) -> int:
+    hits = [i for i, d in enumerate(datagrams) if decode(d.data).action == action]
+    return hits[nth]
+
+
+def test_same_scenario_with_other_initial_seqs_and_ports_is_the_same():
+    result = _diff(challenge2(), challenge2(seq0=(65530, 1, 40000), port=50000))
+    assert result.same, _report(result)
+    assert "same: every conversation matches" in _report(result)
+    assert result.golden.messages == 36 and len(result.golden.conversations) == 2
+
+
+def test_addresses_compared_only_when_asked():
+    result = _diff(challenge2(), challenge2(port=50000), addresses=True)
+    assert {d.kind for d in result.divergences} == {"address"}
+    assert "vs 127.0.0.1:5000" in result.divergences[0].note
+
+
+def test_a_dropped_ack_is_named():
+    golden = challenge2()
+    i = _find(golden, Action.ACK, 5)
+    acked = decode(golden[i].data)
+    result = _diff(golden, reindex(golden[:i] + golden[i + 1:]))
+    assert [d.kind for d in result.divergences] == ["missing"]
+    d = result.divergences[0]
+    assert d.golden is not None and d.golden.action == Action.ACK and d.golden.src == acked.src
+    text = _report(result)
+    assert "first divergence (missing)" in text and "ACK" in text and "(missing)" in text
+
+
+def test_a_changed_waypoint_field_is_named_field_by_field():
+    golden = challenge2()
+    cand = list(golden)
+    i = _find(cand, Action.WP_ON, 2)
+    msg = decode(cand[i].data)
+    cand[i] = cand[i]._replace(data=encode(msg._replace(payload=msg.payload._replace(x=36.5))))
+    result = _diff(golden, cand)
+    assert [d.kind for d in result.divergences] == ["changed"]
+    (field, before, after), = result.divergences[0].fields
+    assert field == "payload.x" and before == pytest.approx(msg.payload.x, abs=1e-5) and after == pytest.approx(36.5)
+    assert "payload.x" in _report(result)
+
+
+def test_two_commands_swapped_are_one_reordering():
+    golden = challenge2()
+    cand = list(golden)
+    a, b = _find(cand, Action.WP_ON, 0), _find(cand, Action.WP_ON, 2)  # both to drone 1
+    ma, mb = decode(cand[a].data), decode(cand[b].data)
+    assert ma.dst == mb.dst
+    cand[a] = cand[a]._replace(data=encode(ma._replace(payload=mb.payload)))
+    cand[b] = cand[b]._replace(data=encode(mb._replace(payload=ma.payload)))
+    result = _diff(golden, cand)
+    # [a, WP_Off, b] against [b, WP_Off, a]: the shortest edit moves two of the three
+    assert {d.kind for d in result.divergences} == {"reordered"}, _report(result)
+    assert 1 <= len(result.divergences) <= 2
+    assert any(d.golden.action == Action.WP_ON for d in result.divergences)
+    assert "first divergence (reordered)" in _report(result)
+
+
+def test_two_adjacent_commands_swapped_are_one_reordering():
+    golden = challenge2()
+    i = _find(golden, Action.START_MISSION, 1)  # Start_Mission to drone 2, ACK, then WP_On to drone 1
+    j = _find(golden, Action.WP_ON, 0)
+    cand = reindex(golden[:i] + golden[j:j + 2] + golden[i:j] + golden[j + 2:])
+    result = _diff(golden, cand)
+    assert result.same  # they are in different conversations: no order between them to keep
+    k = _find(golden, Action.WP_ON, 0)
+    m = _find(golden, Action.WP_OFF, 0)  # to drone 1, after WP_On to drone 2 and its ACK
+    msg_on, msg_off = decode(golden[k].data), decode(golden[m].data)
+    assert msg_on.dst == msg_off.dst == 1
+    cand = list(golden)
+    cand[k] = cand[k]._replace(data=encode(msg_on._replace(action=Action.WP_OFF, payload=None)))
+    cand[m] = cand[m]._replace(data=encode(msg_off._replace(action=Action.WP_ON, payload=msg_on.payload)))
+    result = _diff(golden, cand)
+    assert [d.kind for d in result.divergences] == ["reordered"], _report(result)
+    assert "another place in the order" in result.divergences[0].note
+
+
+def _with_retransmissions(datagrams: list[D], action: Action, extra: int) -> list[D]:
+    i = _find(datagrams, action)
+    return reindex(datagrams[:i + 1] + [datagrams[i]] * extra + datagrams[i + 1:])
+
+
+def test_retransmissions_within_the_tolerance_pass_beyond_it_diverge():
+    golden = challenge2()
+    assert _diff(golden, _with_retransmissions(golden, Action.START_MISSION, 1)).same
+    result = _diff(golden, _with_retransmissions(golden, Action.START_MISSION, 2))
+    assert [d.kind for d in result.divergences] == ["copies"]
+    assert result.divergences[0].fields == (("copies", 1, 3),)
+    assert _diff(golden, _with_retransmissions(golden, Action.START_MISSION, 2), copies_tolerance=2).same
+
+
+def test_one_message_more_shifts_nothing_after_it():
+    golden = challenge2()
+    i = _find(golden, Action.WP_OFF, 1)
+    msg = decode(golden[i].data)
+    extra = golden[i]._replace(data=encode(msg._replace(action=Action.WP_OFF, seq=(msg.seq + 999) & 0xFFFF)))
+    result = _diff(golden, reindex(golden[:i] + [extra] + golden[i:]))
+    assert [d.kind for d in result.divergences] == ["extra"], _report(result)
+
+
+def test_timing_ignored_by_default_but_drift_reported():
+    golden = challenge2(step_ns=1_000_000)
+    slow = challenge2(step_ns=3_000_000)
+    result = _diff(golden, slow)
+    assert result.same and result.max_drift_ns == 2_000_000 * 33  # (0,2): from its first message to its last
+    assert "largest timing drift +0.066 s" in _report(result)
+    timed = _diff(golden, slow, time_tolerance=0.05)
+    assert timed.divergences and {d.kind for d in timed.divergences} == {"timing"}
+
+
+def _write_mcap(path, datagrams: list[D]) -> None:
+    """A manager-side capture: the manager's messages are tx, the drones' rx."""
+    with McapRecorder(path) as rec:
+        for d in datagrams:
+            tx = decode(d.data).src == 0
+            rec.datagram("tx" if tx else "rx", d.data, d.dst_addr if tx else d.src_addr, d.t_ns,
+                         local=d.src_addr if tx else d.dst_addr)
+
+
+def _cli(*argv: str) -> tuple[int, str, str]:
+    parser = argparse.ArgumentParser(prog="mcp-capture")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["diff", *argv])
+    out, err = io.StringIO(), io.StringIO()
+    return args.run(args, out, err), out.getvalue(), err.getvalue()
+
+
+def test_cli_on_mcap_files_exit_codes_and_json(tmp_path):
+    golden, cand = tmp_path / "golden.mcap", tmp_path / "cand.mcap"
+    _write_mcap(golden, challenge2())
+    _write_mcap(cand, challenge2(seq0=(1, 2, 3), port=41000))
+    code, out, _ = _cli(str(golden), str(cand), "--json", str(tmp_path / "d.json"))
+    assert code == 0, out
+    assert json.loads((tmp_path / "d.json").read_text())["same"] is True
+    dropped = [d for d in challenge2() if not (decode(d.data).action == Action.ACK and decode(d.data).src == 2)]
+    _write_mcap(cand, reindex(dropped))
+    code, out, _ = _cli(str(golden), str(cand), "--json", str(tmp_path / "d.json"))
+    report = json.loads((tmp_path / "d.json").read_text())
+    assert code == 1 and report["same"] is False and report["summary"]["missing"] == 8  # Start, 3 WP_On, 3 WP_Off, End
+    assert report["divergences"][0]["golden"]["text"].startswith("2→0 ACK")
+    code, _, err = _cli(str(golden), str(tmp_path / "nope.mcap"))
+    assert code == 2 and err.count("\n") == 1 and "nope.mcap" in err
+
+
+def test_truncated_captures_are_read_up_to_the_last_whole_chunk(tmp_path):
+    golden = tmp_path / "golden.mcap"
+    big = challenge2()
+    with McapRecorder(golden) as rec:  # several chunks: many datagrams
+        for n in range(60):
+            for d in big:
+                rec.datagram("tx", d.data, d.dst_addr, d.t_ns + n * 10**9, local=d.src_addr)
+    data = golden.read_bytes()
+    rnd = random.Random(7)
+    cuts = sorted({rnd.randrange(9, len(data)) for _ in range(12)} | {len(data) - 1, len(data) // 2})
+    for cut in cuts:
+        cand = tmp_path / f"cut{cut}.mcap"
+        cand.write_bytes(data[:cut])
+        code, out, err = _cli(str(golden), str(cand))
+        assert code in (0, 1), (cut, err)
+        assert "TRUNCATED" in out, (cut, out[:300])
+        assert "Traceback" not in out + err
