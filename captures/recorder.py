@@ -62,6 +62,8 @@ METADATA_NAME = "mcp-conform"
 _STR = {"type": "string"}
 _B64 = {"type": "string", "contentEncoding": "base64"}
 _ADDR = {"type": ["string", "null"], "description": "host:port"}
+#: datagrams longer than this keep only base64 (a 65507-byte one would triple the file)
+HEX_LIMIT = 4096
 _INT = {"type": "integer"}
 _NULLABLE_INT = {"type": ["integer", "null"]}
 
@@ -85,9 +87,10 @@ _DATAGRAM_SCHEMA: dict[str, Any] = {
         "error_rule": {"type": ["string", "null"]},
         "error_reason": {"type": ["string", "null"]},
         "raw_base64": _B64,
-        "raw_hex": _STR,
+        "raw_hex": {"type": "string", "description": f"the raw bytes in hex, up to {HEX_LIMIT} bytes "
+                                                     "(raw_base64 holds every datagram whole)"},
     },
-    "required": ["direction", "peer", "length", "decoded", "raw_base64", "raw_hex"],
+    "required": ["direction", "peer", "length", "decoded", "raw_base64"],
 }
 _BURST_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -206,7 +209,8 @@ def datagram_record(direction: str, data: bytes, addr: Any, local: Any = None) -
         rec.update(decoded=True, dst=msg.dst, src=msg.src, seq=msg.seq, action=int(msg.action),
                    action_name=_action_name(int(msg.action)), payload=summarize_payload(msg.payload))
     rec["raw_base64"] = base64.b64encode(data).decode("ascii")
-    rec["raw_hex"] = data.hex()
+    if len(data) <= HEX_LIMIT:
+        rec["raw_hex"] = data.hex()
     return rec
 
 

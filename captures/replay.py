@@ -219,7 +219,8 @@ def _as_records(datagrams: Iterable[Any]) -> list[Rec]:
 
 
 def _manager_placeholders(records: Sequence[Rec], node: int, tmp: Path) -> dict[str, str]:
-    """{drones}, {challenge}, {waypoints} for a manager under test, from the capture."""
+    """{drones}, {challenge}, {waypoints}, {obstacles} for a manager under test, from the
+    capture (QGC WPL 110 files of the lists and waypoints the recorded manager sent)."""
     from spec.codec import DecodeError, decode
     from spec.mission import save_waypoints
 
@@ -240,11 +241,13 @@ def _manager_placeholders(records: Sequence[Rec], node: int, tmp: Path) -> dict[
                 wps.append(m.payload)
     challenge = "1" if Action.WP_LIST in lists else "2" if Action.WP_ON in lists else \
         "3" if Action.OBSTACLES_LIST in lists else "1"
-    items = lists.get(int(Action.WP_LIST)) or lists.get(int(Action.WP_ON)) or \
-        lists.get(int(Action.OBSTACLES_LIST)) or []
-    wp = tmp / "replay.waypoints"
-    save_waypoints(wp, items)
-    return {"drones": ",".join(map(str, sorted(drones))), "challenge": challenge, "waypoints": str(wp)}
+    waypoints = lists.get(int(Action.WP_LIST)) or lists.get(int(Action.WP_ON)) or []
+    obstacles = lists.get(int(Action.OBSTACLES_LIST)) or []
+    wp, ob = tmp / "replay.waypoints", tmp / "replay-obstacles.waypoints"
+    save_waypoints(wp, waypoints or obstacles)  # a manager needs its waypoints file whatever the challenge
+    save_waypoints(ob, obstacles or waypoints)
+    return {"drones": ",".join(map(str, sorted(drones))), "challenge": challenge, "waypoints": str(wp),
+            "obstacles": str(ob)}
 
 
 def replay(datagrams: Iterable[Any], target: tuple[str, int] | None = None, **options: Any) -> ReplayResult:

@@ -1,0 +1,112 @@
+"""The golden captures: re-recorded and diffed against the committed files; replayed against
+the reference nodes (pass) and against a faulty node (fails, naming where)."""
+
+from __future__ import annotations
+
+import io
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from captures.diff import DiffOptions, diff_captures, print_report
+from captures.reader import Datagram, open_capture
+from captures.replay import replay
+from captures.scenarios import GOLDEN, record_challenge
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
+PY = shlex.quote(sys.executable)
+DRONE = (f"{PY} -m reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
+         "--send-to {listen_host}:{listen_port} --rto 0.5")
+MANAGER = (f"{PY} -m reference_impl manager --challenge {{challenge}} --drones {{drones}} "
+           "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
+           "--rto 0.5")
+pytestmark = pytest.mark.slow
+
+
+def _report(result) -> str:
+    buf = io.StringIO()
+    print_report(result, buf)
+    return buf.getvalue()
+
+
+def _records(path: Path) -> list[Datagram]:
+    return [r for r in open_capture(path) if type(r) is Datagram]
+
+
+def test_golden_files_are_small_and_whole():
+    files = sorted(GOLDEN.glob("*.mcap"))
+    assert [f.name for f in files] == ["challenge1.mcap", "challenge2.mcap", "challenge3.mcap", "drone-suite.mcap"]
+    for f in files:
+        assert f.stat().st_size < 300_000, f
+        cap = open_capture(f)
+        assert sum(1 for r in cap if type(r) is Datagram) > 0 and cap.truncated is None
+        assert f.name in (GOLDEN / "README.md").read_text()
+
+
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_challenge_rerecorded_matches_its_golden(tmp_path, challenge):
+    out = tmp_path / f"challenge{challenge}.mcap"
+    record_challenge(challenge, out)
+    result = diff_captures(GOLDEN / f"challenge{challenge}.mcap", out)
+    assert result.same, _report(result)
+    assert len(result.golden.conversations) == 2  # 0 <-> 1 and 0 <-> 2
+
+
+def test_drone_suite_rerecorded_matches_its_golden(tmp_path):
+    out = tmp_path / "drone-suite.mcap"
+    proc = subprocess.run([sys.executable, "-m", "conformance", "--capture", str(out)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    result = diff_captures(GOLDEN / "drone-suite.mcap", out, DiffOptions())
+    assert result.same, _report(result)
+
+
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_replay_golden_challenge_against_the_reference_drone_and_manager(challenge):
+    records = _records(GOLDEN / f"challenge{challenge}.mcap")
+    as_drone = replay(records, role="drone", spawn=DRONE, rto=0.5, ack_window=0.3)
+    assert as_drone.ok, _report(as_drone.diff)
+    assert as_drone.received >= 4 and len(as_drone.diff.candidate.conversations) == 1
+    as_manager = replay(records, role="manager", spawn=MANAGER, rto=0.5, ack_window=0.3)
+    assert as_manager.ok, _report(as_manager.diff) + as_manager.node_output
+    assert len(as_manager.diff.candidate.conversations) == 2
+
+
+def test_replay_golden_drone_suite_against_the_reference_drone():
+    records = _records(GOLDEN / "drone-suite.mcap")
+    spawn = (f"{PY} -m reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
+             "--send-to {listen_host}:{listen_port} --mavlink {mavlink} --rto 0.2")
+    result = replay(records, role="drone", spawn=spawn, mavlink=True, rto=0.2, ack_window=0.25)
+    assert result.ok, _report(result.diff) + result.node_output
+    assert result.sent > 10_000  # the MCP-ROB-7 flood, expanded from its burst record
+
+
+@pytest.mark.parametrize("fault, what", [
+    ("ack-little-endian", "payload"),  # MCP-ACK-2: every ACK names another seq
+    ("no-rtl", None),  # MCP-BLK-7 is on the autopilot link: the MCP conversation is the same
+])
+def test_replay_against_a_faulty_node_names_where(fault, what):
+    records = _records(GOLDEN / "challenge2.mcap")
+    spawn = (f"{PY} {SAMPLE} --id {{id}} --bind {{target_host}}:{{target_port}} "
+             f"--send-to {{listen_host}}:{{listen_port}} --rto 0.5 --fault {fault}")
+    result = replay(records, role="drone", spawn=spawn, rto=0.5, ack_window=0.3)
+    if what is None:
+        assert result.diff.same, _report(result.diff)
+        return
+    assert not result.ok and result.exit_code == 1
+    first = result.diff.divergences[0]
+    assert first.kind == "changed" and first.golden.action == 7  # the node's first ACK of a command
+    assert any(f == what for f, _, _ in first.fields)
+    assert "first divergence (changed) in conversation 0 ↔ 1" in _report(result.diff)
+
+
+def test_replay_against_the_correct_sample_node_passes():
+    records = _records(GOLDEN / "challenge1.mcap")
+    spawn = (f"{PY} {SAMPLE} --id {{id}} --bind {{target_host}}:{{target_port}} "
+             "--send-to {listen_host}:{listen_port} --rto 0.5")
+    result = replay(records, role="drone", spawn=spawn, rto=0.5, ack_window=0.3)
+    assert result.ok, _report(result.diff)
