@@ -3,12 +3,18 @@
     mcp-capture check FILE [--rto S] [--ack-window S] [--challenge N] [--drones 1,2,...]
                            [--waypoints FILE] [--select PREFIX] [--strict] [--json OUT] [--html OUT]
     mcp-capture show FILE [--from S] [--to S] [--case ID] [--svg OUT] [monitor options]
+    mcp-capture diff GOLDEN CANDIDATE [--copies-tolerance N] [--time-tolerance S] [--addresses]
+                     [--json OUT] [--html OUT]
+    mcp-capture replay CAPTURE --target HOST:PORT | --spawn CMD [--role drone|manager] [--listen ...]
+    mcp-capture export CAPTURE --pcap OUT.pcap|OUT.pcapng
+    mcp-capture dissector [--install | -o FILE]
 
 Each subcommand lives in its own module, which this one only registers: the module has
 ``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``
 returns the exit code. To add one, append its module to :data:`SUBCOMMANDS`.
 
-Exit codes are the subcommand's (``check``: 0 no MUST violated, 1 violations); a bad
+Exit codes are the subcommand's (``check``: 0 no MUST violated, 1 violations; ``diff`` and
+``replay``: 0 same, 1 different); a bad
 argument or an unreadable file is a one-line error naming what was wrong, exit 2.
 """
 
@@ -25,7 +31,8 @@ __all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable"
 
 PROG = "mcp-capture"
 #: The modules that register a subcommand, in the order ``--help`` lists them.
-SUBCOMMANDS: list[str] = ["captures.check", "captures.show"]
+SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "captures.replay",
+                           "captures.export", "captures.dissector"]
 
 
 class UsageError(Exception):

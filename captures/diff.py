@@ -510,9 +510,14 @@ def _nonneg_float(text: str) -> float:
     return v
 
 
-def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    from captures.cli import check_writable
     from captures.reader import CaptureError
 
+    out = out or sys.stdout
+    err = err or sys.stderr
+    check_writable(args.json, "--json")
+    check_writable(args.html, "--html")
     opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
     try:
         result = diff_captures(args.golden, args.candidate, opts)

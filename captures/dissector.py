@@ -248,7 +248,9 @@ def register(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    err = err or sys.stderr
     source = generate()
     target: Path | None = None
     if args.install:

@@ -76,9 +76,11 @@ def register(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.reader import CaptureError
 
+    out = out or sys.stdout
+    err = err or sys.stderr
     try:
         n, truncated = export_pcap(args.capture, args.pcap)
     except CaptureError as exc:

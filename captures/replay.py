@@ -382,7 +382,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
                                          side_from_datagrams("replay", live),
                                          DiffOptions(copies_tolerance=cfg.copies_tolerance)),
                               sent=len(driver.sent()), received=len(driver.received()), notes=notes)
-        result.violations, result.monitor = _monitor(cfg, live)
+        result.violations, result.monitor = _monitor(cfg, live, node)
         if proc is not None:
             result.node_output = proc.output_tail(20)
         return result
@@ -408,7 +408,9 @@ def _live_records(driver: Any, back: dict[int, int], knocks: set[int]) -> list[R
     return [Rec(n, t, src, dst, _remap(data, back)) for n, (t, src, dst, data) in enumerate(rows)]
 
 
-def _monitor(cfg: ReplayConfig, live: list[Rec]) -> tuple[list[Any], str]:
+def _monitor(cfg: ReplayConfig, live: list[Rec], node: int) -> tuple[list[Any], str]:
+    """The monitor over the replay's traffic; only the node's violations count (what the
+    played side sent is the capture's, deliberate breaches of a runner's cases included)."""
     try:
         from conformance.monitor import Monitor
     except ImportError:
@@ -420,7 +422,7 @@ def _monitor(cfg: ReplayConfig, live: list[Rec]) -> tuple[list[Any], str]:
         out += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
     if live:
         out += mon.finish(live[-1].t_ns)
-    return out, ""
+    return [v for v in out if v.node == node], ""
 
 
 # ---------------------------------------------------------------- command line
@@ -465,10 +467,14 @@ def register(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: Any, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    from captures.cli import check_writable
     from captures.diff import build_json
     from captures.reader import CaptureError, Datagram, open_capture
 
+    out = out or sys.stdout
+    err = err or sys.stderr
+    check_writable(args.json, "--json")
     try:
         records = [r for r in open_capture(args.capture) if type(r) is Datagram]
     except CaptureError as exc:

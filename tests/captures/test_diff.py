@@ -188,3 +188,26 @@ def test_truncated_captures_are_read_up_to_the_last_whole_chunk(tmp_path):
         assert code in (0, 1), (cut, err)
         assert "TRUNCATED" in out, (cut, out[:300])
         assert "Traceback" not in out + err
+
+
+def test_html_shows_both_sides_side_by_side(tmp_path):
+    golden, cand = tmp_path / "golden.mcap", tmp_path / "cand.mcap"
+    _write_mcap(golden, challenge2())
+    dropped = challenge2()
+    i = _find(dropped, Action.ACK, 5)
+    _write_mcap(cand, reindex(dropped[:i] + dropped[i + 1:]))
+    code, _, _ = _cli(str(golden), str(cand), "--html", str(tmp_path / "d.html"))
+    html = (tmp_path / "d.html").read_text()
+    assert code == 1 and html.startswith("<!DOCTYPE html>")
+    assert html.count("<svg") == 4  # two conversations, golden and candidate each
+    assert "class='pair'" in html and "1 missing" in html
+    assert 'class="arrow' in html and "missing" in html and "(not here)" in html
+
+
+def test_unwritable_outputs_are_refused_before_any_work(tmp_path):
+    from captures.cli import main
+
+    golden = tmp_path / "golden.mcap"
+    _write_mcap(golden, challenge2())
+    assert main(["diff", str(golden), str(golden), "--json", str(tmp_path / "no" / "d.json")]) == 2
+    assert main(["diff", str(golden), str(golden)]) == 0
