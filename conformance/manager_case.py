@@ -251,6 +251,17 @@ class ManagerCaseContext:
             raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
                             [d.describe() for d, _ in bad[:3]])
 
+    def expect_monitor_clean(self, rule: str) -> None:
+        """The trace monitor found no violation of ``rule`` by the manager in the main mission
+        (what is judged from traffic alone is the monitor's, DESIGN.md)."""
+        m = self.mission()
+        bad = [v for v in m.monitor if v.rule == rule]
+        if bad:
+            v = bad[0]
+            ev = [m.monitor_trace[i] for i, _ in v.evidence[:3] if 0 <= i < len(m.monitor_trace)]
+            raise self.fail(rule, f"(trace monitor) {v.expected}",
+                            f"{v.actual}" + (f" (+{len(bad) - 1} more)" if len(bad) > 1 else ""), ev)
+
     def inputs(self, rule: str, m: Mission | None = None) -> list[Input]:
         m = m or self.mission()
         got = [i for i in m.inputs if i.rule == rule]

@@ -111,6 +111,8 @@ class Mission:
     exit_code: int | None = None
     output: str = ""
     rx: list[Datagram] = field(default_factory=list)  # everything received during the mission
+    monitor: list[Any] = field(default_factory=list)  # the trace monitor's violations of the manager
+    monitor_trace: list[str] = field(default_factory=list)  # the trace as fed to it
     notes: list[str] = field(default_factory=list)
 
     def from_manager(self) -> list[Datagram]:

@@ -265,6 +265,12 @@ class ManagerSession:
                    + (f"; {ev[0]}" if ev else ""))
             self.unavailable[kind] = why
             raise Inconclusive(why) if kind != "main" else SetupError(why)
+        if kind == "main":
+            from conformance.manager_monitor import monitor_mission
+
+            m.monitor, _, m.monitor_trace = monitor_mission(
+                m, self.driver.sent(), self.driver.listen, rto=self.rto, ack_window=self.ack_window,
+                broadcast_id=self.cfg.broadcast_id)
         self.missions[kind] = m
         return m
 

@@ -21,6 +21,7 @@ def test_every_datagram_starts_with_the_preamble(node):
     node.expect_all(m.from_manager(), lambda d: None if d.data[:len(PREAMBLE)] == PREAMBLE
                     else f"starts {d.data[:len(PREAMBLE)].hex(' ')}", "MCP-HDR-1",
                     f"every datagram starts with {PREAMBLE.hex(' ')}")
+    node.expect_monitor_clean("MCP-HDR-1")
 
 
 @rules("MCP-HDR-2")
@@ -39,6 +40,7 @@ def test_header_is_17_bytes_in_network_order(node):
             return f"header reads dst={ldst} action={laction} only little-endian"
         return None
     node.expect_all(m.from_manager(), check, "MCP-HDR-2", "a 17-byte big-endian header (!7s2B4H)")
+    node.expect_monitor_clean("MCP-HDR-2")
 
 
 @rules("MCP-HDR-3")
@@ -47,6 +49,7 @@ def test_only_action_codes_0_to_8(node):
     node.expect_all([d for d in m.from_manager() if d.header is not None],
                     lambda d: None if d.header[3] <= 8 else f"action {d.header[3]}", "MCP-HDR-3",
                     "action codes 0-8 only")
+    node.expect_monitor_clean("MCP-HDR-3")
 
 
 @rules("MCP-HDR-4")
@@ -55,6 +58,7 @@ def test_src_is_the_managers_id(node):
     node.expect_all([d for d in m.from_manager() if d.header is not None],
                     lambda d: None if d.header[1] == MANAGER_ID else f"src {d.header[1]}", "MCP-HDR-4",
                     f"src {MANAGER_ID} (the Mission Manager) in every message")
+    node.expect_monitor_clean("MCP-HDR-4")
 
 
 @rules("MCP-HDR-5")
@@ -63,3 +67,4 @@ def test_manager_never_sends_mission_ready(node):
     node.expect_all([d for d in m.from_manager() if d.header is not None],
                     lambda d: "a Mission_Ready" if d.header[3] == int(Action.MISSION_READY) else None,
                     "MCP-HDR-5", "no Mission_Ready from the manager (a drone's message)")
+    node.expect_monitor_clean("MCP-HDR-5")

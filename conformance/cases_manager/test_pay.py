@@ -41,6 +41,7 @@ def test_commands_without_payload_are_17_bytes(node):
     m = node.mission()
     node.expect_all(_sent(m, _EMPTY), lambda d: None if len(d.data) == HEADER_SIZE else f"{len(d.data)} bytes",
                     "MCP-PAY-1", "Start_Mission, End_Mission and WP_Off of exactly 17 bytes")
+    node.expect_monitor_clean("MCP-PAY-1")
 
 
 @rules("MCP-PAY-3")
@@ -108,6 +109,7 @@ def test_passthrough_carries_one_valid_mavlink_frame(node):
             return str(exc)
         return None
     node.expect_all(frames, check, "MCP-PAY-6", "one complete MAVLink frame with a valid checksum")
+    node.expect_monitor_clean("MCP-PAY-6")
 
 
 @rules("MCP-PAY-7")

@@ -75,3 +75,4 @@ def test_broadcasts_are_sent_once(node):
     node.expect_true(not bad, "MCP-RTX-4", "each broadcast sent once",
                      f"seq {bad[0].seq} sent {len(bad[0].copies)} times" if bad else "",
                      [bad[0].first.describe()] if bad else [])
+    node.expect_monitor_clean("MCP-RTX-4")
