@@ -188,6 +188,7 @@ class Trace:
 
     def _pair(self) -> None:
         latest: dict[tuple[int, int, int], list[Entry]] = {}  # (src, dst, seq) -> its copies
+        broadcasts: dict[tuple[int, int], Entry] = {}  # (src, seq) -> the latest broadcast
         for e in self.entries:
             if e.header is None:  # no header: lifelines by address, or the owner of it
                 e.src = self._owner(e.dgram.src_addr) or lifeline_of(None, e.dgram.src_addr)
@@ -203,8 +204,11 @@ class Trace:
                     e.ack_of = target.index
                     if target.acked_by is None:
                         target.acked_by = e.index
+                elif (dst, e.msg.payload) in broadcasts:  # an ACK of a broadcast (MCP-ACK-4's)
+                    e.ack_of = broadcasts[(dst, e.msg.payload)].index
                 continue
             if dst == self.broadcast_id:
+                broadcasts[(src, seq)] = e
                 continue
             key = (src, dst, seq)
             copies = latest.get(key)

@@ -2,7 +2,7 @@
 
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
                 [--spawn CMD] [--mavlink] [--strict] [--select PREFIX ...] [--list]
-                [--json FILE] [--junit FILE] [--capture FILE.mcap]
+                [--json FILE] [--junit FILE] [--capture FILE.mcap] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--seed N]
 
 A thin front end over pytest and the ``conformance.plugin``: it checks the arguments (a bad
@@ -63,6 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baseline", metavar="FILE", help="expected failures (YAML or JSON, case or rule IDs with a reason): listed failures are xfailed (exit 0), listed cases that pass are xpassed (exit 1 under --strict)")
     p.add_argument("--write-baseline", metavar="FILE", help="write this run's failed and warned cases as a baseline")
     p.add_argument("--capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    p.add_argument("--html", metavar="FILE", help="write a self-contained HTML report (failed cases with their sequence charts)")
     p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
@@ -151,7 +152,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     if not _plugin_is_installed():
         args += ["-p", PLUGIN_MODULE]
     args += ["--mcp-frontend", "--mcp-role", ns.role]
-    for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "rto",
+    for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
                  "junit_family", "case_timeout", "drones", "challenge", "waypoints"):
         value = getattr(ns, name)
@@ -187,13 +188,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         _check_writable(ns.json, "--json")
         _check_writable(ns.junit, "--junit")
         _check_writable(ns.capture, "--capture")
+        _check_writable(ns.html, "--html")
         _check_writable(ns.write_baseline, "--write-baseline")
         if ns.baseline:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
         return _fail(str(exc), json_path, RunConfig(role=ns.role if ns.role in ("drone", "manager") else "drone"))
-    if ns.list and ns.capture:
-        ns.capture = None  # nothing runs: no capture file
+    if ns.list and (ns.capture or ns.html):
+        ns.capture = ns.html = None  # nothing runs: no capture file, no HTML report
     import pytest
 
     if ns.json:

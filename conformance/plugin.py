@@ -30,6 +30,7 @@ import json
 import os
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Generator, Mapping
@@ -218,6 +219,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-json", metavar="FILE", help="write the JSON report")
     g.addoption("--mcp-junit", metavar="FILE", help="write a JUnit XML report")
     g.addoption("--mcp-capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    g.addoption("--mcp-html", metavar="FILE", help="write a self-contained HTML report (failed cases with their sequence charts)")
     g.addoption("--mcp-rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
     g.addoption("--mcp-ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     g.addoption("--mcp-broadcast-id", metavar="N", help="the broadcast MCP ID (default 0xFFFF)")
@@ -324,6 +326,14 @@ def pytest_configure(config: pytest.Config) -> None:
     state.write_baseline_path = config.getoption("mcp_write_baseline")
     state.exclude = list(config.getoption("mcp_exclude") or [])
     state.worker = worker
+    state.html_path = config.getoption("mcp_html")  # under xdist the controller writes it
+
+
+def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
+    """--mcp-html: the report with each failed case's traffic charted (captures.html)."""
+    from captures.html import write_run
+
+    write_run(path, doc, capture)
 
 
 def _xdist_controller(config: pytest.Config) -> bool:
@@ -364,12 +374,23 @@ def _merge_worker_reports(session: pytest.Session) -> None:
         from captures.merge import merge_captures
 
         writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
+    elif state.html_path and state.capture_parts:  # the workers recorded for the HTML report only
+        from captures.merge import merge_captures
+
+        fd, state.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
+        os.close(fd)
+        writers.append((state.html_capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
+    writers.append((state.html_path, lambda p: write_run_html(p, doc, state.cfg.capture or state.html_capture)))
     for path, write in writers:
         if path:
             try:
                 write(path)
             except OSError as exc:
                 problems.append(str(exc))
+    if not state.cfg.capture:  # temporary recordings made only for the HTML report
+        for part in [*state.capture_parts, state.html_capture or ""]:
+            if part:
+                Path(part).unlink(missing_ok=True)
     code = 2 if problems else run.exit_code()
     if code == 0 and session.exitstatus == pytest.ExitCode.TESTS_FAILED:
         code = 1
@@ -408,6 +429,8 @@ class McpState:
                              seed=cfg.seed, strict=cfg.strict)
         self.session: Any = None
         self.recorder: Any = None
+        self.html_path: str | None = None
+        self.html_capture: str | None = None  # the run's recording for --mcp-html without --mcp-capture
         self.items: list[pytest.Item] = []
         self.meta: dict[str, tuple[str, tuple[str, ...], str, str]] = {}  # nodeid -> id, rules, level, phase
         self.records: dict[str, CaseRecord] = {}
@@ -450,7 +473,10 @@ class McpState:
         try:
             apply_embedded_defaults(self.cfg)
             self.run.parameters = self.cfg.parameters()
-            if self.cfg.capture:
+            if self.html_path and not self.cfg.capture:  # the HTML report's charts need the traffic
+                fd, self.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
+                os.close(fd)
+            if self.cfg.capture or self.html_capture:
                 from captures.recorder import McapRecorder, RecorderError, run_metadata
 
                 cfg = self.cfg
@@ -458,7 +484,7 @@ class McpState:
                                     target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
                                     spawn=cfg.spawn, parameters=self.run.parameters)
                 try:
-                    self.recorder = McapRecorder(self.cfg.capture, metadata=meta)
+                    self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder
@@ -940,8 +966,9 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if state.worker:  # the controller writes the reports (see _merge_worker_reports)
         wo = session.config.workeroutput  # type: ignore[attr-defined]
         wo["mcp_report"] = build_json(run)
-        if state.cfg.capture:
-            wo["mcp_capture_part"] = state.cfg.capture
+        if state.cfg.capture or state.html_capture:
+            wo["mcp_capture_part"] = state.cfg.capture or state.html_capture
+            wo["mcp_capture_temporary"] = not state.cfg.capture
         session.exitstatus = code
         return
     problems = []
@@ -950,6 +977,8 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         (None if state.list_mode else state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
         (None if state.list_mode or run.error else state.write_baseline_path,
          lambda p: write_baseline(p, run.cases, run.target)),
+        (None if state.list_mode else state.html_path, lambda p: write_run_html(
+            p, build_json(run), state.cfg.capture or state.html_capture)),
     ]
     for path, write in writers:
         if path:
@@ -957,6 +986,8 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
                 write(path)
             except OSError as exc:
                 problems.append(str(exc))
+    if state.html_capture:
+        Path(state.html_capture).unlink(missing_ok=True)
     if problems:
         run.error = run.error or problems[0]
         code = 2

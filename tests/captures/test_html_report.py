@@ -1,0 +1,92 @@
+"""The HTML reports (captures.html): self-contained, and shown by a real browser.
+
+The slow test runs ``mcp-conform --html`` against the independent sample node with one
+fault, opens the page from disk in headless chromium, and checks through the DOM that the
+failing rule, its text and the sequence chart of the case's traffic are shown; the
+screenshot is written under pytest's tmp_path as the test's artefact.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from captures.html import render_run
+from captures.reader import open_capture
+from captures.recorder import McapRecorder
+from spec import SPEC
+from spec.codec import Action, Message, encode
+from tests.conformance.runner_helpers import FAST, run_conform, sample_node_command
+
+from .browser import chromium
+
+
+def no_external_assets(html: str) -> None:
+    """Nothing to fetch: no src/href to a URL, no <link>, no <script src>, no @import."""
+    assert not re.search(r"""(src|href)\s*=\s*["'](https?:|//)""", html)
+    assert "<link" not in html and "@import" not in html and "<script" not in html
+
+
+def a_run(tmp_path: Path) -> tuple[dict, list]:
+    """A JSON report with one failed case and its capture window, and the capture."""
+    cap = tmp_path / "run.mcap"
+    bcast, ack = encode(Message(0xFFFF, 0, 7, Action.WP_OFF)), encode(Message(0, 1, 40, Action.ACK, 7))
+    with McapRecorder(cap) as rec:
+        rec.datagram("tx", bcast, ("127.255.255.255", 7890), 1_000_000)
+        rec.datagram("rx", ack, ("127.0.0.1", 40001), 2_000_000)
+        rec.datagram("tx", bcast, ("127.255.255.255", 7890), 9_000_000)  # outside the window
+    doc = {"role": "drone", "target": "127.0.0.1:40001", "tool": {"name": "mcp-conform", "version": "x"},
+           "spec": {"version": SPEC.version}, "summary": {"passed": 3, "failed": 1, "duration_s": 1.0},
+           "rules": {"MCP-ACK-4": "failed", "MCP-ACK-1": "passed"},
+           "cases": [{"id": "ACK/test_broadcast_is_not_acked", "rules": ["MCP-ACK-4"], "outcome": "failed",
+                      "failed_rule": "MCP-ACK-4", "expected": "no ACK of seq 7", "actual": "ACK <1 ms later",
+                      "evidence": ["reply: ACK seq 40"], "capture": {"start_ns": 500_000, "end_ns": 5_000_000}},
+                     {"id": "ACK/test_ok", "rules": ["MCP-ACK-1"], "outcome": "passed"}]}
+    return doc, list(open_capture(cap).datagrams())
+
+
+def test_run_page_is_self_contained_and_charts_the_case_window(tmp_path):
+    doc, datagrams = a_run(tmp_path)
+    html = render_run(doc, datagrams)
+    no_external_assets(html)
+    assert html.count('<section class="finding') == 1
+    assert 'data-rule="MCP-ACK-4"' in html and SPEC.rule("MCP-ACK-4").text in html
+    assert html.count('class="arrow') == 2  # the two datagrams of the case's window
+    assert "no ACK of seq 7" in html and "ACK/test_ok" not in html
+    assert "no capture of the run" in render_run(doc, None)
+
+
+@pytest.mark.slow
+def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
+    page = tmp_path / "report.html"
+    res = run_conform("--spawn", sample_node_command("--fault", "ack-broadcast"), "--mavlink", *FAST,
+                      "--html", str(page))
+    assert res.rc == 1, res.explain()
+    assert res.rules["MCP-ACK-4"] == "failed", res.explain()
+    html = page.read_text()
+    no_external_assets(html)
+    from selenium.webdriver.common.by import By
+
+    with chromium() as browser:
+        browser.get(page.as_uri())
+        findings = browser.find_elements(By.CSS_SELECTOR, "section.finding")
+        assert [f.get_attribute("data-rule") for f in findings] == ["MCP-ACK-4"]
+        finding = findings[0]
+        assert finding.is_displayed()
+        assert SPEC.rule("MCP-ACK-4").text in finding.text
+        assert "expected" in finding.text and "actual" in finding.text
+        chart = finding.find_element(By.CSS_SELECTOR, "svg.mcp-chart")
+        assert chart.size["width"] > 300 and chart.size["height"] > 100
+        arrows = chart.find_elements(By.CSS_SELECTOR, "g.arrow")
+        assert any("bcast" in a.get_attribute("class") for a in arrows)  # the broadcast it sent
+        assert any("ack" in a.get_attribute("class").split() for a in arrows)  # the ACK it should not have
+        heads = [h.text for h in chart.find_elements(By.CSS_SELECTOR, "g.head")]
+        assert any("broadcast" in h for h in heads) and any("drone 1" in h for h in heads)
+        row = browser.find_element(By.CSS_SELECTOR, 'table.rules tr[data-rule="MCP-ACK-4"]')
+        assert "failed" in row.text
+        shot = tmp_path / "mcp-conform-report.png"
+        finding.screenshot(str(shot))
+        assert shot.stat().st_size > 5_000
+    print(f"screenshot: {shot}")
