@@ -21,10 +21,10 @@ from typing import Any
 
 from captures.cli import UsageError
 from captures.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
-from captures.trace import Node, action_name, node_role
-from spec.codec import BROADCAST_ID, MANAGER_ID, Action, peek_header
+from captures.trace import Node, action_name
+from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 
-__all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options", "infer_challenge",
+__all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
            "fetch", "judge", "params_from_args", "selected", "CaptureError"]
 
 #: The challenge each challenge-specific command implies (MCP-FLOW-4/5/6).
@@ -45,13 +45,14 @@ class Params:
     waypoints_file: str | None = None
     select: tuple[str, ...] = ()
     strict: bool = False
+    complete: bool = False  # the trace holds every datagram the nodes exchanged
 
     def to_json(self) -> dict[str, Any]:
         return {"rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
                 "drones": list(self.drones) if self.drones is not None else None,
                 "challenge": self.challenge, "challenge_source": self.challenge_source,
                 "challenge_note": self.challenge_note or None, "waypoints": self.waypoints_file,
-                "select": list(self.select), "strict": self.strict}
+                "select": list(self.select), "strict": self.strict, "complete": self.complete}
 
 
 def add_monitor_options(p: argparse.ArgumentParser) -> None:
@@ -66,6 +67,9 @@ def add_monitor_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--select", metavar="PREFIX", action="append", default=[],
                    help="report only rules starting with PREFIX (MCP-ACK, ACK-1, ...); repeatable")
     p.add_argument("--strict", action="store_true", help="a violated SHOULD is a failure")
+    p.add_argument("--complete", action="store_true", help="the capture holds every datagram the nodes "
+                   "exchanged (taken on the one host where they all run): a missing ACK or retransmission "
+                   "is then evidence (our MCAP captures are complete by nature)")
 
 
 def _positive(name: str, text: str | None, default: float) -> float:
@@ -92,7 +96,8 @@ def _int(name: str, text: str, lo: int, hi: int) -> int:
 
 def params_from_args(ns: argparse.Namespace) -> Params:
     p = Params(rto=_positive("--rto", ns.rto, 5.0), ack_window=_positive("--ack-window", ns.ack_window, 2.0),
-               strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()))
+               strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()),
+               complete=bool(getattr(ns, "complete", False)))
     if getattr(ns, "broadcast_id", None) is not None:
         p.broadcast_id = _int("--broadcast-id", ns.broadcast_id, 1, 0xFFFF)
     if ns.challenge is not None:
@@ -146,6 +151,7 @@ class Judgement:
     kept: list[Datagram] | None = None  # every datagram, when asked for (charts)
     cases: list[CaseMark] = field(default_factory=list)
     metadata: list[Metadata] = field(default_factory=list)
+    vehicle_drone: int | None = None  # whose autopilot link was judged (our MCAP captures)
 
     @property
     def shown_violations(self) -> list[Any]:
@@ -163,20 +169,6 @@ class Judgement:
         return (t_ns - (self.first_ns or 0)) / 1e9
 
 
-def infer_challenge(path: str | Path) -> tuple[int | None, str]:
-    """(challenge, why) from the first challenge-specific command the manager sent."""
-    for d in open_capture(path).datagrams():
-        h = peek_header(d.data)
-        if h is None or h[1] != MANAGER_ID:
-            continue
-        challenge = CHALLENGE_OF.get(h[3])
-        if challenge is not None:
-            return challenge, (f"challenge {challenge} inferred from the manager's "
-                               f"{action_name(h[3])} (datagram #{d.index}); give --challenge to override")
-    return None, ("challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or Obstacles_List; "
-                  "MCP-FLOW-4/5/6 are not judged (give --challenge)")
-
-
 class MonitorUnavailable(UsageError):
     """This installation has no trace monitor (``conformance.monitor``)."""
 
@@ -189,13 +181,15 @@ def _make_monitor(params: Params) -> Any:
 
     return Monitor(rto=params.rto, ack_window=params.ack_window, broadcast_id=params.broadcast_id,
                    drones=list(params.drones) if params.drones is not None else None,
-                   challenge=params.challenge, waypoints=params.waypoints)
+                   challenge=params.challenge, waypoints=params.waypoints, complete=params.complete)
 
 
 class NoJudge:
     """Reads a trace without judging it (``show`` where the monitor is unavailable)."""
 
-    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes) -> list[Any]:
+    inferred_challenge = None
+
+    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes, origin: Any = None) -> list[Any]:
         return []
 
     def finish(self, t_ns: int) -> list[Any]:
@@ -205,63 +199,109 @@ class NoJudge:
         return {}
 
 
+MISSION_READY = int(Action.MISSION_READY)
+#: MCAP writers whose own datagrams (``/mcp/tx``) are the test harness's: input to the node
+#: under test, often faulty on purpose, never blamed (the monitor's ``TESTER`` origin).
+HARNESSES = frozenset({"mcp-conform", "mcp-fuzz", "mcp-capture"})
+
+
 def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
-    """Read ``path`` and judge it; raises :class:`captures.reader.CaptureError`."""
-    cap = open_capture(path)  # unreadable files fail here, before any inference
-    if params.challenge is None:
-        params.challenge, params.challenge_note = infer_challenge(path)
-        params.challenge_source = "inferred" if params.challenge is not None else "unknown"
+    """Read ``path`` and judge it; raises :class:`captures.reader.CaptureError`.
+
+    Our MCAP captures: the harness's own datagrams are fed as the monitor's ``TESTER``
+    origin, the trace is complete (the runner's socket saw every datagram it exchanged),
+    and the autopilot-link frames (``/mavlink``) are fed as vehicle events of the drone
+    under test (the sender of the first Mission_Ready the harness received). A pcap is
+    complete only with ``--complete``."""
+    cap = open_capture(path)  # unreadable files fail here, before any judging
+    harness = None
+    if cap.format == "mcap":
+        params.complete = True
     mon = monitor if monitor is not None else _make_monitor(params)
-    nodes: dict[int, Node] = {}
+    tester = _tester()
     violations: list[Any] = []
     kept: list[Datagram] | None = [] if keep else None
     cases: list[CaseMark] = []
     meta: list[Metadata] = []
+    frames: list[MavlinkFrame] = []  # autopilot-link frames before the drone under test is known
+    drone: int | None = None
     first = last = None
     n = unattributed = 0
-    bcast = params.broadcast_id
     feed = mon.datagram
+    pre = PREAMBLE
     for rec in cap:
         kind = type(rec)
         if kind is Datagram:
             t = rec.t_ns
             if first is None:
                 first = t
+                harness = rec.recorder in HARNESSES
             last = t
             n += 1
-            violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data))
+            if harness and rec.direction == "tx":
+                violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data, tester))
+            else:
+                violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data))
+                h = peek_header(rec.data) if harness and drone is None else None
+                if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test
+                    drone = h[1]
+                    for f in frames:
+                        violations.extend(_vehicle(mon, f, drone))
+                    frames.clear()
             if kept is not None:
                 kept.append(rec)
-            h = peek_header(rec.data, require_preamble=False)
-            if h is None:
+            if rec.data[:len(pre)] != pre or len(rec.data) < 17:
                 unattributed += 1
-                continue
-            dst, src = h[0], h[1]
-            node = nodes.get(src)
-            if node is None:
-                node = nodes[src] = Node(src, node_role(src, bcast))
-            node.sent += 1
-            if rec.src_addr is not None:
-                node.addresses.add(rec.src_addr)
-            if dst != bcast:
-                node = nodes.get(dst)
-                if node is None:
-                    node = nodes[dst] = Node(dst, node_role(dst, bcast))
-                node.received += 1
+        elif kind is MavlinkFrame:
+            last = max(last or rec.t_ns, rec.t_ns)
+            if drone is None:
+                frames.append(rec)
+            else:
+                violations.extend(_vehicle(mon, rec, drone))
         elif kind is CaseMark:
             cases.append(rec)
-            last = max(last or rec.t_ns, rec.t_ns)
-        elif kind is MavlinkFrame:
             last = max(last or rec.t_ns, rec.t_ns)
         elif kind is Metadata:
             meta.append(rec)
     if last is not None:
         violations.extend(mon.finish(last))
+    if params.challenge is None:
+        inferred = getattr(mon, "inferred_challenge", None)
+        params.challenge_source = "inferred" if inferred else "unknown"
+        params.challenge_note = (
+            f"challenge {inferred} inferred from the manager's commands "
+            f"({', '.join(a for a, c in _CHALLENGE_NAMES if c == inferred)}); give --challenge to override"
+            if inferred else "challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or "
+            "Obstacles_List; MCP-FLOW-4/5/6 were not judged (give --challenge)")
+        params.challenge = inferred
     violations.sort(key=lambda v: (v.rule, v.t_ns))
-    return Judgement(str(path), cap.format, params, dict(sorted(nodes.items())), violations,
-                     mon.verdicts(), n, first, last, cap.truncated, cap.notes, unattributed,
-                     kept, cases, meta)
+    nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
+    return Judgement(str(path), cap.format, params, nodes, violations, mon.verdicts(), n, first, last,
+                     cap.truncated, cap.notes, unattributed, kept, cases, meta, drone)
 
+
+_CHALLENGE_NAMES = tuple((action_name(a), c) for a, c in CHALLENGE_OF.items())
+
+
+def _tester() -> Any:
+    try:
+        from conformance.monitor import TESTER
+    except ImportError:
+        return None
+    return TESTER
+
+
+def _nodes(mon: Any) -> list[Any]:
+    return list(mon.nodes()) if hasattr(mon, "nodes") else []
+
+
+def _vehicle(mon: Any, frame: MavlinkFrame, drone: int) -> list[Any]:
+    from conformance.monitor import events_from_mavlink
+
+    out: list[Any] = []
+    for ev in events_from_mavlink(frame.data, frame.direction or "rx"):
+        out.extend(mon.vehicle(frame.t_ns, drone, ev))
+    return out
 
 
 def fetch(path: str | Path, indexes: set[int]) -> dict[int, Datagram]:
