@@ -108,6 +108,11 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
     prog = Progress()
+    stop_rule = cfg.extra.get("stop_on_rule")  # tests: stop once this rule is found
+
+    def stop() -> bool:
+        return stop_rule is not None and any(f.rule == stop_rule for f in store.order)
+
     try:
         engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
         duration = cfg.duration if cfg.duration is not None else (
@@ -138,12 +143,12 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
             if name == "stateless":
                 eng = StatelessEngine(target, triage, cfg.seed, worker=cfg.worker, seeds=seeds)
                 res.monitor = eng.monitor.available
-                st = eng.run(deadline, budget, on_tick)
+                st = eng.run(deadline, budget, on_tick, stop)
             else:
                 from fuzz.engine_stateful import StatefulEngine
 
                 seng = StatefulEngine(target, triage, cfg)
-                st = seng.run(deadline, budget, on_tick)
+                st = seng.run(deadline, budget, on_tick, stop)
             done_cases += st.cases
             done_seconds += st.seconds
             res.engines[name] = {"cases": st.cases, "fuzz_seconds": round(st.seconds, 3),

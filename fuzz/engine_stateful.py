@@ -55,6 +55,7 @@ __all__ = ["ManagerMachine", "StatefulEngine", "check_database", "open_database"
 COMMANDS = (Action.START_MISSION, Action.WP_LIST, Action.WP_ON, Action.WP_OFF,
             Action.OBSTACLES_LIST, Action.MAV_PASSTHROUGH)
 OTHER_SRC = 0x7777
+SEQ_GAP = 1000  # numbers skipped between programs
 STEPS = 24  # steps per program at most
 END_ODDS = 8  # one End_Mission move in this many ends the mission
 CHUNK = 10  # examples per hypothesis run (the budget is checked between runs)
@@ -66,7 +67,7 @@ class FlawFound(AssertionError):
     def __init__(self, flaw: Flaw, sent: list[bytes]) -> None:
         super().__init__(f"{flaw.rule}: expected {flaw.expected}; actual {flaw.actual}")
         if CTX is not None and len(CTX.raised) < 20:
-            CTX.raised.append(flaw)
+            CTX.raised.append((flaw, list(sent)))
         self.flaw = flaw
         self.sent = sent
 
@@ -115,7 +116,13 @@ class _Context:
         self.monitor = MonitorOracle(target.node_id, target.rto, target.ack_window,
                                      target.broadcast_id, target.driver.listen)
         self.restarts_seen = target.restarts
-        self.raised: list[Flaw] = []  # the first flaws steps raised (hypothesis may not keep them)
+        # the first flaws steps raised, with what the program had sent (hypothesis keeps only
+        # the failures it can replay; triage confirms the others by itself)
+        self.raised: list[tuple[Flaw, list[bytes]]] = []
+
+    def new_monitor(self) -> None:
+        t = self.target
+        self.monitor = MonitorOracle(t.node_id, t.rto, t.ack_window, t.broadcast_id, t.driver.listen)
 
     def fresh_node(self) -> None:
         """A node that has not ended its mission, with oracles that know it."""
@@ -146,6 +153,14 @@ class ManagerMachine(RuleBasedStateMachine):
         self.history: list[bytes] = []  # new unicast messages to the node, in order
         self.tokens = 0
         self.ended = False
+        self.wrapped = False
+        # each program numbers its messages afresh, away from the wrap, and is judged by a
+        # fresh monitor: one program's numbers never alias another's in the trace
+        drv = self.t.driver
+        for src in (drv.our_id, OTHER_SRC):  # forward only: a lower number is a wrap
+            drv.set_seq(drv.peek_seq(src) + SEQ_GAP, src)
+        self.t.traffic.drain()
+        self.ctx.new_monitor()
 
     # ------------------------------------------------------------------ helpers
     def _token(self) -> str:
@@ -209,12 +224,14 @@ class ManagerMachine(RuleBasedStateMachine):
         self.ctx.fresh_node()
 
     @precondition(lambda self: not self.ended)
-    @rule(action=st.sampled_from(COMMANDS), items=st.lists(mission_items(), max_size=2))
-    def command(self, action: Action, items: list[Any]) -> None:
-        """A new command to the node (MCP-ACK-1; delivered once, MCP-DUP-2)."""
+    @rule(action=st.sampled_from(COMMANDS), items=st.lists(mission_items(), max_size=2),
+          copies=st.integers(1, 3))
+    def command(self, action: Action, items: list[Any], copies: int) -> None:
+        """A new command to the node, sent ``copies`` times as a manager whose ACKs were lost
+        would (every copy ACKed, MCP-ACK-1; delivered once, MCP-DUP-1/2)."""
         data = self._message(action, self.t.node_id, self.t.driver.our_id, items)
         self.history.append(data)
-        self._step([data])
+        self._step([data] * copies)
 
     @precondition(lambda self: not self.ended and bool(self.history))
     @rule()
@@ -257,11 +274,13 @@ class ManagerMachine(RuleBasedStateMachine):
         drv = self.t.driver
         self._step([encode(Message(self.t.node_id, drv.our_id, drv.next_seq(), Action.ACK, seq))])
 
-    @precondition(lambda self: not self.ended)
+    @precondition(lambda self: not self.ended and not self.wrapped)
     @rule(before=st.integers(0, 2))
     def near_wrap(self, before: int) -> None:
         """The manager's sequence number jumps to just before 65535, so the next commands
-        wrap to 0 (MCP-SEQ-3: 0 after 65535 is new)."""
+        wrap to 0 (MCP-SEQ-3: 0 after 65535 is new); once per program, so no number is
+        reused for another message."""
+        self.wrapped = True
         self.t.driver.set_seq(0xFFFF - before)
 
     @precondition(lambda self: not self.ended)
@@ -306,6 +325,12 @@ class ManagerMachine(RuleBasedStateMachine):
         ctx, t = self.ctx, self.t
         if t.vehicle is None or self.ended or not t.alive() or not ctx.ledger.expected:
             return
+        if not any(e.expect_min > 0 for e in ctx.ledger.expected.values()):
+            flaws = ctx.ledger.judge(vehicle_counts(t), settled=False)
+            ctx.ledger.expected.clear()
+            if flaws:
+                raise FlawFound(self._absolute(flaws[0], 0), list(self.sent))
+            return
         settled = settle_vehicle(t, ctx.ledger, "t")
         flaws = ctx.ledger.judge(vehicle_counts(t), settled=settled)
         ctx.ledger.expected.clear()
@@ -335,14 +360,16 @@ class StatefulEngine:
                         suppress_health_check=list(HealthCheck), report_multiple_bugs=False)
 
     def run(self, deadline: float, max_cases: int | None,
-            tick: Callable[[EngineStats], None] | None = None) -> EngineStats:
+            tick: Callable[[EngineStats], None] | None = None,
+            stop: Callable[[], bool] = lambda: False) -> EngineStats:
         global CTX
         st = self.stats
         ctx = _Context(self.target, st)
         CTX = ctx
         chunk = 0
         try:
-            while time.monotonic() < deadline and (max_cases is None or st.cases < max_cases):
+            while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
+                   and not stop()):
                 t0 = time.monotonic()
                 report: list[str] = []
                 machine = hypothesis_seed(self.cfg.seed * 1000 + self.cfg.worker * 100 + chunk)(
@@ -353,13 +380,16 @@ class StatefulEngine:
                         run_state_machine_as_test(machine, settings=self._settings(chunk))
                 except FlawFound as exc:
                     failure = exc
-                except Flaky as exc:  # a program that failed once and not again: not reported
-                    failure = None
-                    self.triage.unconfirmed += 1
+                except Flaky as exc:
+                    # a program that failed once and not the same way again: hypothesis cannot
+                    # shrink it, triage may still confirm what was first seen
                     self.flaky.append(str(exc)[:500])
+                    if ctx.raised:
+                        failure = FlawFound(*ctx.raised[0])
                 st.seconds += time.monotonic() - t0
                 st.batches += 1
                 chunk += 1
+                ctx.raised.clear()
                 if failure is not None:
                     st.flaws += 1
                     if self.first_failure_example is None:

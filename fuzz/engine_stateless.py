@@ -68,10 +68,12 @@ class StatelessEngine:
         self.ledger = DeliveryLedger(self.target.node_id, self.target.broadcast_id)
 
     def run(self, deadline: float, max_cases: int | None,
-            tick: Callable[[EngineStats], None] | None = None) -> EngineStats:
+            tick: Callable[[EngineStats], None] | None = None,
+            stop: Callable[[], bool] = lambda: False) -> EngineStats:
         """Rounds until ``deadline`` (time.monotonic) or ``max_cases``."""
         st = self.stats
-        while time.monotonic() < deadline and (max_cases is None or st.cases < max_cases):
+        while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
+                   and not stop()):
             left = self.batch if max_cases is None else min(self.batch, max_cases - st.cases)
             t0 = time.monotonic()
             flaws, inputs = self.round(left)

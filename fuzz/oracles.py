@@ -237,6 +237,7 @@ class DeliveryLedger:
     broadcast_id: int
     last_delivered: dict[int, int] = field(default_factory=dict)  # src -> seq
     delivered_seqs: dict[int, set[int]] = field(default_factory=dict)
+    highest: dict[int, int] = field(default_factory=dict)  # src -> numerically highest delivered
     expected: dict[str, _Sent] = field(default_factory=dict)
     checked_under: set[str] = field(default_factory=set)
 
@@ -260,12 +261,15 @@ class DeliveryLedger:
             if token is not None:
                 self._expect(token, index, 0, 0, "MCP-DUP-1", "MCP-DUP-1", inp, add=True)
             return
-        older = m.seq in self.delivered_seqs.get(m.src, set())
+        seen = self.delivered_seqs.setdefault(m.src, set())
+        older = m.seq in seen
+        # a new number below one already delivered: the numbers have wrapped since (MCP-SEQ-3)
+        wrapped = not older and m.seq < self.highest.get(m.src, -1)
         self.last_delivered[m.src] = m.seq
-        self.delivered_seqs.setdefault(m.src, set()).add(m.seq)
+        seen.add(m.seq)
+        self.highest[m.src] = max(self.highest.get(m.src, -1), m.seq)
         if token is None or m.action != _PASSTHROUGH:
             return
-        wrapped = last == 0xFFFF and m.seq == 0
         if older:  # a late copy of an older seq: MCP-DUP-4 (INFO) leaves it open
             self._expect(token, index, 0, 1, "MCP-PAY-8", "MCP-DUP-4", inp, add=True)
         else:
@@ -319,11 +323,13 @@ class MonitorOracle:
         self.local = local_addr
         self.datagrams = 0
         try:
-            from conformance.monitor import Monitor
+            from conformance.monitor import TESTER, Monitor
         except ImportError:
             self.monitor: Any = None
+            self.tester: Any = None
         else:
             self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id)
+            self.tester = TESTER  # the fuzzer's own datagrams: input, never blamed
 
     @property
     def available(self) -> bool:
@@ -337,9 +343,9 @@ class MonitorOracle:
         for r in records:
             self.datagrams += 1
             if r.direction == "tx":
-                vs = self.monitor.datagram(r.t_ns, self.local, r.addr, r.data)
+                vs = self.monitor.datagram(r.t_ns, self.local, r.addr, r.data, origin=self.tester)
             else:
-                vs = self.monitor.datagram(r.t_ns, r.addr, self.local, r.data)
+                vs = self.monitor.datagram(r.t_ns, r.addr, self.local, r.data, origin=self.node_id)
             out.extend(self._mine(vs))
         return out
 

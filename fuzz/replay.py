@@ -22,7 +22,8 @@ from vehicle.probe import make_probe, probe_token
 __all__ = ["Outcome", "confirm", "frame_token", "run_sequence", "shrink"]
 
 _ACK = int(Action.ACK)
-SENTINEL_WAIT = 2.0  # s: how long the sentinel frame may take to reach the vehicle
+SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
+SENTINEL_SRC = 0x5E47  # the sentinel's own source ID
 
 
 def frame_token(data: bytes) -> str | None:
@@ -65,13 +66,17 @@ def settle_vehicle(target: FuzzTarget, ledger: DeliveryLedger | None, tag: str) 
     v = target.vehicle
     if v is None:
         return False
-    token = f"sent{tag}{time.monotonic_ns() % 10**9}"
     drv = target.driver
-    sent = drv.send(Action.MAV_PASSTHROUGH, make_probe(token), target.node_id)
-    if ledger is not None:
-        ledger.sent(-1, Input.of(sent.data), None)
-    drv.exchange(sent, rto=max(target.rto, 0.5), copies=3)
-    return bool(v.wait_for(lambda: v.probe_count(token) >= 1, SENTINEL_WAIT))
+    # from a source of its own first: the manager's numbering may be what the node gets wrong
+    for src, wait in ((SENTINEL_SRC, SENTINEL_WAIT / 2), (drv.our_id, SENTINEL_WAIT / 2)):
+        token = f"sent{tag}{time.monotonic_ns() % 10**9}"
+        sent = drv.send(Action.MAV_PASSTHROUGH, make_probe(token), target.node_id, src=src)
+        if ledger is not None:
+            ledger.sent(-1, Input.of(sent.data), None)
+        drv.exchange(sent, rto=max(target.rto, 0.5), copies=2)
+        if v.wait_for(lambda t=token: v.probe_count(t) >= 1, wait):
+            return True
+    return False
 
 
 def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = "batch",

@@ -84,6 +84,7 @@ FAULTS: dict[str, tuple[str, str]] = {
     "ack-unknown-action": ("MCP-ROB-3", "ACKs action codes above 8"),
     "ack-bad-length": ("MCP-ROB-4", "ACKs unicasts whose payload does not fit their action"),
     "crash-on-big": ("MCP-ROB-6", "exits with code 4 on a datagram larger than 8192 bytes"),
+    "hang-on-big": ("MCP-ROB-6", "stops receiving for 30 s after a datagram larger than 8192 bytes"),
     "flood-hang": ("MCP-ROB-7", "after 5000 malformed datagrams stops ACKing for 30 s"),
     "ready-to-wrong-id": ("MCP-FLOW-1", "Mission_Ready's dst is 5 instead of 0"),
     "source-port-filter": ("MCP-TRN-2", "drops datagrams whose source address is not --send-to"),
@@ -445,6 +446,10 @@ class Node:
         if "crash-on-big" in self.faults and n > CRASH_BIG_ABOVE:
             log(f"crashing on a {n}-byte datagram (fault crash-on-big)")
             os._exit(4)
+        if "hang-on-big" in self.faults and n > CRASH_BIG_ABOVE:
+            self.deaf_until = time.monotonic() + FLOOD_HANG_FOR
+            log(f"hanging for {FLOOD_HANG_FOR:.0f} s after a {n}-byte datagram (fault hang-on-big)")
+            return
         if self.deaf_until and time.monotonic() < self.deaf_until:
             return
         try:

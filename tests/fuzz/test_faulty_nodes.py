@@ -1,0 +1,70 @@
+"""Seeded campaigns of at most 20,000 cases find each fault of the sample node with the
+right rule, and each finding's written replay command reproduces it (issue 11, "Done when").
+
+The node is tests/conformance/nodes/sample_node.py (independent of reference_impl), one
+``--fault`` at a time. Each campaign stops as soon as the expected rule is found, so CI pays
+only for the search.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from pathlib import Path
+
+import pytest
+
+from fuzz.campaign import run_campaign
+from fuzz.cli import main as fuzz_main
+from fuzz.cli import replay_args
+from fuzz.config import FuzzConfig
+from fuzz.findings import FindingStore
+
+SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
+MAX_CASES = 20_000
+
+#: fault, engine, with the vehicle, the rule its finding must name
+FAULTS = [
+    ("crash-on-short", "stateless", False, "MCP-ROB-1"),
+    ("crash-on-big", "stateless", False, "MCP-ROB-6"),
+    ("hang-on-big", "stateless", False, "MCP-ROB-6"),
+    ("ack-broadcast", "stateless", False, "MCP-ACK-4"),
+    ("ack-ack", "stateless", False, "MCP-ACK-6"),
+    ("ack-other-id", "stateless", False, "MCP-ACK-5"),
+    ("ack-bad-preamble", "stateless", False, "MCP-ROB-2"),
+    ("ack-unknown-action", "stateless", False, "MCP-ROB-3"),
+    ("ack-bad-length", "stateless", False, "MCP-ROB-4"),
+    ("no-dup-discard", "stateful", True, "MCP-DUP-1"),
+    ("seq-no-wrap", "stateful", True, "MCP-SEQ-3"),
+]
+
+
+def spawn_command(fault: str, mavlink: bool) -> str:
+    cmd = (f"{shlex.quote(sys.executable)} {shlex.quote(str(SAMPLE))} --id {{id}} "
+           "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} --rto 0.2")
+    if mavlink:
+        cmd += " --mavlink {mavlink}"
+    return cmd + f" --fault {fault}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault, engine, mavlink, rule", FAULTS, ids=[f[0] for f in FAULTS])
+def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
+        tmp_path: Path, fault: str, engine: str, mavlink: bool, rule: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, engine=engine, seed=11,
+                     max_cases=MAX_CASES, duration=120.0, out=str(tmp_path), rto=0.2,
+                     ack_window=0.25, extra={"stop_on_rule": rule})
+    store = FindingStore(tmp_path, replay_args(cfg))
+    summary = run_campaign(cfg, store)
+    assert summary["cases"] <= MAX_CASES
+    found = [f for f in store.order if f.rule == rule]
+    assert found, f"{fault}: no {rule} finding in {summary['cases']} cases; found {store.by_rule()}"
+    n = store.order.index(found[0]) + 1
+    finding_dir = tmp_path / f"finding-{n}"
+    assert {"finding.json", "repro.mcap", "replay.txt"} <= {p.name for p in finding_dir.iterdir()}
+    command = shlex.split((finding_dir / "replay.txt").read_text())
+    assert command[:3] == ["mcp-fuzz", "--replay", str(finding_dir.resolve())]
+    capsys.readouterr()
+    assert fuzz_main(command[1:]) == 1
+    assert f"reproduced {rule}" in capsys.readouterr().out
