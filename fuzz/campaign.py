@@ -155,6 +155,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                                  "judged_cases_per_s": round(st.cases / st.seconds, 1) if st.seconds else 0.0,
                                  "batches": st.batches, "flaws_seen": st.flaws,
                                  "replays": triage.replays, "unconfirmed": triage.unconfirmed,
+                                 "unconfirmed_by_rule": dict(triage.unconfirmed_rules),
                                  "triage_seconds": round(triage.seconds, 3)}
             res.replays += triage.replays
             res.unconfirmed += triage.unconfirmed

@@ -117,7 +117,9 @@ class StatelessEngine:
         dead = judge_liveness(inputs, probe.acked, target.fate())
         if dead is not None:
             flaws.append(dead)
-        flaws += self.monitor.feed(target.traffic.drain())
+        index = {inp.data: i for i, inp in enumerate(inputs)}
+        flaws += [replace(f, culprit=index.get(f.datagram)) if f.datagram is not None else f
+                  for f in self.monitor.feed(target.traffic.drain())]
         if target.vehicle is not None and self.ledger.expected:
             # over-delivery is judged whenever it shows; a token is watched for a while
             for f in self.ledger.judge(vehicle_counts(target), settled=False):

@@ -19,8 +19,9 @@ reply it sent, the frame it forwarded, its death), never on a consequence one st
   duplicate rules say how often each may reach the autopilot (MCP-DUP-1/2/3, MCP-SEQ-3,
   MCP-PAY-8, MCP-ACK-5, MCP-ROB-4).
 - the trace monitor (:class:`MonitorOracle`, ``conformance.monitor``): every datagram in and
-  out, for the rules judged from traffic alone (HDR, ACK, SEQ, RTX ...). Only violations by
-  the node under test count: the fuzzer's own inputs break rules on purpose.
+  out, for the rules judged from traffic alone (HDR, ACK-2/3/7, SEQ, RTX, BLK, PAY ...). Only
+  violations by the node under test count (the fuzzer's datagrams are fed as the tester's:
+  they break rules on purpose), and the reply rules above stay judge_replies's.
 """
 
 from __future__ import annotations
@@ -50,6 +51,11 @@ _PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
 _U16 = struct.Struct("!H")
 #: Larger than one Ethernet frame's UDP payload (1500 - 20 - 8): "oversized" for MCP-ROB-6.
 OVERSIZE = 1472
+#: Rules judge_replies decides, attributing each ACK within the batch that provoked it (the
+#: fuzzer's mutations may reuse any sequence number, so an ACK matched across batches by the
+#: monitor could be another input's): the monitor's verdicts on these are left to it.
+REPLY_RULES = frozenset({"MCP-ACK-1", "MCP-ACK-4", "MCP-ACK-5", "MCP-ACK-6", "MCP-ROB-1",
+                         "MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4"})
 #: The rule a reply to a rejected datagram breaks, by the rule the codec's rejection cites.
 _REJECTED_REPLY_RULE = {"MCP-PAY-6": "MCP-ROB-4"}
 
@@ -170,9 +176,10 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
         for i, inp in enumerate(inputs):
             m = inp.msg
             # a message bearing the node's own ID as src may be taken for its own broadcast
-            # looped back (MCP-HDR-4): not judged
-            if (m is not None and m.action != _ACK and m.dst == node_id and m.src != node_id
-                    and i not in acked):
+            # looped back (MCP-HDR-4), one from the broadcast ID cannot be ACKed to a node
+            # (MCP-ACK-3): neither is judged
+            if (m is not None and m.action != _ACK and m.dst == node_id
+                    and m.src not in (node_id, broadcast_id) and i not in acked):
                 flaws.append(Flaw("MCP-ACK-1", f"an ACK naming seq {m.seq}",
                                   f"no ACK of {inp.describe()}, though the probe sent after it was ACKed",
                                   culprit=i, evidence=(f"input: {inp.data.hex()}",)))
@@ -248,7 +255,7 @@ class DeliveryLedger:
             if token is not None and m is None:
                 self._expect(token, index, 0, 0, "MCP-ROB-4", "MCP-ROB-4", inp)
             return
-        if m.src == self.node_id:  # possibly taken for the node's own echo: not judged
+        if m.src in (self.node_id, self.broadcast_id):  # no valid sender (see judge_replies)
             if token is not None:
                 self._expect(token, index, 0, 1, "MCP-PAY-8", "MCP-DUP-4", inp)
             return
@@ -322,6 +329,7 @@ class MonitorOracle:
         self.node_id = node_id
         self.local = local_addr
         self.datagrams = 0
+        self._sent_by_index: dict[int, bytes | None] = {}
         try:
             from conformance.monitor import TESTER, Monitor
         except ImportError:
@@ -341,6 +349,7 @@ class MonitorOracle:
             return []
         out: list[Flaw] = []
         for r in records:
+            self._sent_by_index[self.datagrams] = r.data if r.direction == "tx" else None
             self.datagrams += 1
             if r.direction == "tx":
                 vs = self.monitor.datagram(r.t_ns, self.local, r.addr, r.data, origin=self.tester)
@@ -356,6 +365,17 @@ class MonitorOracle:
         return [] if self.monitor is None else self._mine(self.monitor.finish(t_ns))
 
     def _mine(self, violations: Iterable[Any]) -> list[Flaw]:
-        return [Flaw(v.rule, str(v.expected), str(v.actual), evidence=tuple(str(e) for e in (v.evidence or ())),
-                     source="monitor")
-                for v in violations if v.node == self.node_id]
+        out = []
+        for v in violations:
+            if v.node != self.node_id or v.rule in REPLY_RULES:
+                continue
+            # the fuzzer's datagram the violation answers (the first of ours in its evidence)
+            ours = [self._sent_by_index.get(e[0]) for e in (v.evidence or ()) if isinstance(e, tuple) and e]
+            culprit = next((d for d in ours if d is not None), None)
+            out.append(Flaw(v.rule, str(v.expected), str(v.actual),
+                            evidence=tuple(str(e) for e in (v.evidence or ())), source="monitor",
+                            datagram=culprit))
+        if len(self._sent_by_index) > 4096:  # evidence names recent datagrams: keep a window
+            keep = sorted(self._sent_by_index)[-2048:]
+            self._sent_by_index = {k: self._sent_by_index[k] for k in keep}
+        return out

@@ -60,6 +60,7 @@ class Triage:
         self.seed = seed
         self.worker = worker
         self.unconfirmed = 0
+        self.unconfirmed_rules: dict[str, int] = {}  # flaws seen once and not again, by rule
         self.replays = 0
         self.seconds = 0.0
         # a death is blamed on its input only once shrinking found it: (rule, shape) as first
@@ -81,6 +82,10 @@ class Triage:
             return self._confirm_and_shrink(flaw, inputs, shape, pace, program)
         finally:
             self.seconds += time.monotonic() - t0
+
+    def _unconfirmed(self, flaw: Flaw) -> None:
+        self.unconfirmed += 1
+        self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
 
     def _still(self, flaw: Flaw, pace: str):  # noqa: ANN202
         """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
@@ -115,7 +120,7 @@ class Triage:
         minimal = next(([d] for d in self._suspects(flaw, inputs) if still([d])), None)
         if minimal is None:
             if not still(candidate):
-                self.unconfirmed += 1
+                self._unconfirmed(flaw)
                 return None
             minimal = shrink(candidate, still, budget=SHRINK_BUDGET)
         # the minimal sequence once more (confirmation), recording the node's answers
@@ -129,7 +134,7 @@ class Triage:
             if seen is not None:
                 break
         if seen is None or outcome is None:
-            self.unconfirmed += 1
+            self._unconfirmed(flaw)
             return None
         final_shape = shape_of(seen, [Input.of(d) for d in minimal]) if flaw.source in _DEATH else shape
         self.aliases[(flaw.rule, shape)] = (seen.rule, final_shape)

@@ -40,6 +40,7 @@ class Input(Enum):
     ACK_OTHER = "ack_other"              # any other ACK to our ID (MCP-RTX-2: does not count)
     NOT_FOR_ME = "not_for_me"            # dst is another ID (MCP-ACK-5)
     FROM_SELF = "from_self"              # src is our own ID: our broadcast looped back
+    FROM_BROADCAST_ID = "from_broadcast_id"  # src is the broadcast ID: no node has it (MCP-ACK-3)
     MALFORMED = "malformed"              # the codec raised DecodeError (MCP-ROB-1..4, PAY-6)
     RTO_RETRANSMIT = "rto_retransmit"    # retransmit timer expired, retries left (MCP-RTX-1)
     RTO_EXHAUSTED = "rto_exhausted"      # retransmit timer expired, retry limit reached
@@ -68,6 +69,8 @@ TRANSITIONS: dict[tuple[State, Input], Transition] = {
     (_A, Input.NOT_FOR_ME): Transition("ignore_other_id", _A),
     (_I, Input.FROM_SELF): Transition("ignore_own_echo", _I),
     (_A, Input.FROM_SELF): Transition("ignore_own_echo", _A),
+    (_I, Input.FROM_BROADCAST_ID): Transition("ignore_broadcast_src", _I),
+    (_A, Input.FROM_BROADCAST_ID): Transition("ignore_broadcast_src", _A),
     (_I, Input.MALFORMED): Transition("drop_malformed", _I),
     (_A, Input.MALFORMED): Transition("drop_malformed", _A),
     # ACKs: only the matching one ends the wait (MCP-RTX-2); others are reported

@@ -212,6 +212,8 @@ class Endpoint:
             return
         if msg.src == self.node_id:
             kind = Input.FROM_SELF
+        elif msg.src == self.broadcast_id:
+            kind = Input.FROM_BROADCAST_ID
         elif msg.action == _ACK:
             if msg.dst != self.node_id:
                 kind = Input.NOT_FOR_ME
@@ -350,6 +352,13 @@ class Endpoint:
     def _on_ignore_own_echo(self, msg: Message, addr: Address, now: float, arg: Any) -> None:
         self._events.append(Unexpected(
             msg, addr, "MCP-HDR-4", f"src is our own ID {self.node_id} (our broadcast looped back?); ignored"))
+
+    def _on_ignore_broadcast_src(self, msg: Message, addr: Address, now: float, arg: Any) -> None:
+        # its ACK would go to the broadcast ID, which MCP-ACK-3 ("an ACK's dst is the src of
+        # the acknowledged message") cannot mean: no node has that ID (D-1, MCP-HDR-4)
+        self._events.append(Unexpected(
+            msg, addr, "MCP-ACK-3", f"src is the broadcast ID {self.broadcast_id}: an ACK would be a "
+                                    "broadcast; neither ACKed nor acted on"))
 
     def _on_drop_malformed(self, msg: None, addr: Address, now: float, arg: Any) -> None:
         data, rule, reason = arg

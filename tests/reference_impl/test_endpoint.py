@@ -52,6 +52,16 @@ def feed(ep: Endpoint, msg: Message, now: float = 0.0, addr=ADDR):
 
 
 # ---------------------------------------------------------------- receiving: ACK-1..6
+def test_message_from_the_broadcast_id_is_neither_acked_nor_delivered():
+    """Found by mcp-fuzz: a unicast whose src is the broadcast ID was ACKed to the broadcast
+    ID (MCP-ACK-3 names no node there); it is ignored and reported instead."""
+    for action in (Action.MISSION_READY, Action.WP_OFF, Action.ACK):
+        ep = drone()
+        out, evs = feed(ep, Message(1, BROADCAST_ID, 4, action, 4 if action == Action.ACK else None))
+        assert out == [] and len(evs) == 1
+        assert isinstance(evs[0], Unexpected) and evs[0].rule == "MCP-ACK-3"
+
+
 def test_unicast_is_acked_with_the_right_fields_and_delivered():
     """MCP-ACK-1/2/3 and D-5: dst = msg.src, src = own ID, payload = acked seq, own next seq."""
     ep = drone(5, initial_seq=40)

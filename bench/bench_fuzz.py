@@ -1,0 +1,152 @@
+"""mcp-fuzz beside boofuzz against the same reference node, in one run: cases per second.
+
+    pip install -e '.[bench]'      # boofuzz
+    python bench/bench_fuzz.py [--cases N] [--seconds S]
+
+One reference drone (the embedded default, spawned once) is fuzzed three times in a row:
+
+- ``boofuzz default``: a boofuzz 0.4.2 Session as its documentation sets one up (web UI,
+  text logger, results database, receiving after each request), over UDP;
+- ``boofuzz tuned``: no web UI, no loggers, ``fuzz_db_keep_only_n_pass_cases=1``,
+  ``reuse_target_connection=True``, no receive: it sends blind and judges nothing;
+- ``mcp-fuzz stateless``: the stateless engine with every oracle on (replies, liveness
+  probe, process fate, trace monitor).
+
+boofuzz's request is the MCP header (preamble, dst, src, seq, action as big-endian words)
+and a payload blob, mutated by boofuzz's own primitives. Each runs ``--cases`` cases or
+``--seconds`` seconds, whichever comes first; the figures are printed side by side. Figures
+only: nothing here asserts a timing (DESIGN.md, "Performance targets").
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a source checkout
+
+from fuzz.config import FuzzConfig  # noqa: E402
+from fuzz.engine_stateless import StatelessEngine  # noqa: E402
+from fuzz.findings import FindingStore  # noqa: E402
+from fuzz.target import start_target  # noqa: E402
+from fuzz.triage import Triage  # noqa: E402
+from spec.codec import PREAMBLE, Action  # noqa: E402
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _request(boofuzz, node_id: int):  # noqa: ANN001, ANN202
+    """The MCP header and a payload, in boofuzz's block language."""
+    return boofuzz.Request("mcp", children=(
+        boofuzz.Static(name="preamble", default_value=PREAMBLE),
+        boofuzz.Word(name="dst", default_value=node_id, endian=">"),
+        boofuzz.Word(name="src", default_value=0, endian=">"),
+        boofuzz.Word(name="seq", default_value=1, endian=">"),
+        boofuzz.Word(name="action", default_value=int(Action.WP_OFF), endian=">"),
+        boofuzz.Bytes(name="payload", default_value=b"", max_len=64),
+    ))
+
+
+@contextlib.contextmanager
+def _quiet_stdout():  # noqa: ANN202
+    """boofuzz's text logger writes to the process's stdout: send fd 1 to /dev/null."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+def run_boofuzz(target: tuple[str, int], node_id: int, cases: int, seconds: float, tuned: bool) -> tuple[int, float]:
+    import boofuzz
+
+    conn = boofuzz.UDPSocketConnection(target[0], target[1])
+    kw: dict = {"target": boofuzz.Target(connection=conn), "index_end": cases, "sleep_time": 0.0}
+    if tuned:
+        kw.update(web_port=None, fuzz_loggers=[], fuzz_db_keep_only_n_pass_cases=1,
+                  reuse_target_connection=True, receive_data_after_each_request=False,
+                  receive_data_after_fuzz=False, check_data_received_each_request=False)
+    else:
+        # the default UI, on a port nobody else holds, not kept open waiting for ENTER at the end
+        kw.update(web_port=_free_tcp_port(), keep_web_open=False)
+    cwd = os.getcwd()
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chdir(tmp)  # boofuzz writes boofuzz-results/ where it runs
+        try:
+            with _quiet_stdout():
+                session = boofuzz.Session(**kw)
+                session.connect(_request(boofuzz, node_id))
+                done = threading.Event()
+                timer = threading.Timer(seconds, lambda: (done.set(), setattr(session, "_index_end", 0)))
+                timer.start()
+                t0 = time.monotonic()
+                try:
+                    session.fuzz()
+                finally:
+                    elapsed = time.monotonic() - t0
+                    timer.cancel()
+                n = session.num_cases_actually_fuzzed
+                if getattr(session, "web_interface_thread", None) is not None:
+                    with contextlib.suppress(Exception):
+                        session.web_interface_thread.stop()
+        finally:
+            os.chdir(cwd)
+    return int(n), elapsed
+
+
+def run_mcp_fuzz(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa: ANN001
+    eng = StatelessEngine(tgt, Triage(tgt, FindingStore(None), "stateless", 1), 1)
+    st = eng.run(time.monotonic() + seconds, cases)
+    return st.cases, st.seconds
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", type=int, default=20_000)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    args = ap.parse_args()
+    try:
+        import boofuzz  # noqa: F401
+    except ImportError:
+        print("bench_fuzz: boofuzz is not installed: pip install -e '.[bench]'", file=sys.stderr)
+        return 2
+    tgt = start_target(FuzzConfig())  # the reference drone, spawned once for all three
+    rows = []
+    try:
+        addr, node = tgt.driver.target, tgt.node_id
+        for label, fn in (("boofuzz default", lambda: run_boofuzz(addr, node, args.cases, args.seconds, False)),
+                          ("boofuzz tuned (blind)", lambda: run_boofuzz(addr, node, args.cases, args.seconds, True)),
+                          ("mcp-fuzz stateless, every oracle", lambda: run_mcp_fuzz(tgt, args.cases, args.seconds))):
+            n, s = fn()
+            probe = tgt.probe()
+            rows.append((label, n, s, probe.acked))
+            print(f"{label:34} {n:8d} cases in {s:6.2f} s  {n / s if s else 0:9,.0f} cases/s"
+                  f"  node live after: {probe.acked}", flush=True)
+    finally:
+        tgt.close()
+    print(f"machine: {os.cpu_count()} CPUs; Python {sys.version.split()[0]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
