@@ -7,7 +7,8 @@ microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
 ``marshal``-ed batch, down a pipe to a writer process (``python -m captures._background
 FILE``) that runs :class:`~captures.recorder.McapRecorder` on another core.
 
-The writer runs in its own session, so a signal to the node's process group (Ctrl-C, the
+The writer runs niced (10) in its own session, so the node under load gets the CPU first
+(the writer catches up from the pipe and its backlog), and a signal to the node's process group (Ctrl-C, the
 runner's ``killpg``) does not reach it; it finishes the file when the pipe closes, which
 happens when the node closes the recorder or dies in any way, SIGKILL included. So the file
 is valid whenever the node stops, with everything recorded up to ``FLUSH_S`` before a
@@ -16,7 +17,9 @@ sudden death. ``close()`` waits for the writer to finish.
 
 from __future__ import annotations
 
+import contextlib
 import marshal
+import os
 import struct
 import subprocess
 import sys
@@ -190,6 +193,8 @@ def writer_main(path: str) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)  # finish the file on EOF, whatever the node gets
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(10)  # a busy host runs the node first; the writer catches up when it can
     stdin = sys.stdin.buffer
     rec: _rec.McapRecorder | None = None
     try:
