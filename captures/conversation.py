@@ -57,7 +57,7 @@ class Entry(NamedTuple):
     t_last_ns: int  # last copy
     src_addr: Addr
     dst_addr: Addr
-    index: int  # the first copy's datagram index in its capture
+    index: int  # type: ignore[assignment]  # the first copy's datagram index in its capture
     seq: int | None  # the wire seq, not normalised
     data: bytes  # the first copy's bytes
 
@@ -81,6 +81,8 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
     latest: dict[tuple[Any, Any], tuple[int, tuple[Any, ...]]] = {}  # (peers, sender) -> (pos, fold key)
     by_seq: dict[tuple[Any, Any, int], int] = {}  # (peers, sender, seq) -> entry position
     t0: int | None = None
+    payload: Any
+    key: tuple[Any, ...]
     _decode, _peek = decode, peek_header
     for d in datagrams:
         data = d.data
@@ -100,8 +102,8 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
             action = None
             payload = exc.rule
             peers = peers_of(src, dst)
-            key: tuple[Any, ...] = (src, dst, None, payload, rest)
-            fold = key
+            key = (src, dst, None, payload, rest)
+            fold: tuple[Any, ...] = key
         else:
             src, dst, seq, action = msg.src, msg.dst, msg.seq, int(msg.action)
             nseq = (seq - first_seq.setdefault(src, seq)) & 0xFFFF

@@ -132,12 +132,11 @@ def load_side(path: str | Path) -> Side:
 
     def datagrams() -> Iterable[Any]:
         for rec in cap:
-            kind = type(rec)
-            if kind is Datagram:
+            if isinstance(rec, Datagram):
                 yield rec
-            elif kind is Metadata:
+            elif isinstance(rec, Metadata):
                 meta.update(rec.data)
-            elif kind is Truncated:
+            elif isinstance(rec, Truncated):
                 truncated.append(rec.reason)
 
     side = side_from_datagrams(str(path), datagrams())

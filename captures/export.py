@@ -59,7 +59,7 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
             src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
             pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
                    IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
-            pkt.time = rec.t_ns / 1e9
+            pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
             writer.write(pkt)
             n += 1
     finally:

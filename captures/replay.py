@@ -73,7 +73,7 @@ class Step(NamedTuple):
 
 
 class Rec(NamedTuple):
-    index: int
+    index: int  # type: ignore[assignment]
     t_ns: int
     src_addr: Any
     dst_addr: Any

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 __all__ = ["GOLDEN", "record_challenge"]
 
@@ -46,7 +47,7 @@ def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeo
                 "--waypoints", str(GOLDEN / "mission.waypoints"), "--obstacles", str(GOLDEN / "obstacles.waypoints"),
                 broadcast, str(manager_port), str(drone_port), "--rto", str(rto), "--capture", str(out)],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    drones: list[subprocess.Popen[str]] = []
+    drones: list[subprocess.Popen[bytes]] = []
     try:
         deadline = time.monotonic() + timeout
         for d in DRONES:  # a drone takes longer to start (its vehicle, the GPS fix) than the manager
@@ -61,7 +62,7 @@ def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeo
             raise RuntimeError(f"challenge {challenge}: the manager exited with {manager.returncode}: "
                                f"{(err or '').strip().splitlines()[-1:] }")
     finally:  # the capture is the manager's: the drones need not finish their RTL
-        procs = [manager, *drones]
+        procs: list[subprocess.Popen[Any]] = [manager, *drones]
         for p in procs:
             if p.poll() is None:
                 p.terminate()

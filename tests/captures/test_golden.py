@@ -110,3 +110,27 @@ def test_replay_against_the_correct_sample_node_passes():
              "--send-to {listen_host}:{listen_port} --rto 0.5")
     result = replay(records, role="drone", spawn=spawn, rto=0.5, ack_window=0.3)
     assert result.ok, _report(result.diff)
+
+
+def test_replay_command_line(tmp_path):
+    out = tmp_path / "replay.json"
+    rec = tmp_path / "replay.mcap"
+    proc = subprocess.run([sys.executable, "-m", "captures.cli", "replay", str(GOLDEN / "challenge1.mcap"),
+                           "--spawn", DRONE, "--rto", "0.5", "--ack-window", "0.3", "--json", str(out),
+                           "--capture-out", str(rec)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "same: every conversation matches" in proc.stdout and "monitor: 0 violation(s)" in proc.stdout
+    import json
+
+    body = json.loads(out.read_text())
+    assert body["ok"] is True and body["diff"]["same"] is True and body["sent"] >= 4
+    # the replay's own recording diffs equal to the golden conversation it played
+    assert diff_captures(GOLDEN / "challenge1.mcap", rec).summary() == {"missing": 8}  # 0 <-> 2 not played
+
+
+def test_replay_errors_are_one_line(tmp_path):
+    from captures.cli import main
+
+    assert main(["replay", str(tmp_path / "none.mcap"), "--target", "127.0.0.1:9"]) == 2
+    assert main(["replay", str(GOLDEN / "challenge1.mcap")]) == 2  # neither --target nor --spawn
+    assert main(["replay", str(GOLDEN / "challenge1.mcap"), "--target", "nohost:xx"]) == 2

@@ -116,3 +116,34 @@ def test_a_mission_end_to_end_is_captured_on_every_node(tmp_path):
     got = [b["action_name"] for _, b in d["/mcp/rx"] if b["action_name"] != "ACK"]
     assert got == sent
     assert {b["direction"] for _, b in d["/mavlink"]} == {"tx", "rx"}
+
+
+def test_the_runner_capture_is_complete(tmp_path):
+    """Issue 13 item 5: both directions of the autopilot link, the MCP-ROB-7 flood as one
+    counted record, base64 content encoding, a metadata record."""
+    import json
+
+    from mcap.reader import make_reader
+
+    from captures.reader import Datagram, open_capture
+
+    path = tmp_path / "run.mcap"
+    proc = subprocess.run([sys.executable, "-m", "conformance", "--select", "MCP-ROB-7", "--capture", str(path)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-1500:] + proc.stderr[-1500:]
+    msgs = read_all(path)[0]
+    (_, burst), = msgs["/mcp/burst"]
+    assert burst["count"] == 10000 and burst["direction"] == "tx" and len(burst["cycle"]) >= 3
+    assert burst["first_t_ns"] < burst["last_t_ns"] and burst["local"] != burst["peer"]
+    mav = {(b["direction"], b["msg_type"]) for _, b in msgs["/mavlink"]}
+    assert ("tx", "HEARTBEAT") in mav and ("tx", "GPS_RAW_INT") in mav  # the vehicle's telemetry
+    assert any(d == "rx" for d, _ in mav)  # what the node sent the vehicle
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        (meta,) = [m for m in reader.iter_metadata() if m.name == "mcp-conform"]
+        schemas = {s.name: json.loads(s.data) for s in reader.get_summary().schemas.values()}
+    assert meta.metadata["recorder"] == "mcp-conform" and meta.metadata["seed"] and meta.metadata["spec_version"]
+    assert schemas["mcp.Datagram"]["properties"]["raw_base64"]["contentEncoding"] == "base64"
+    # every reader sees the flood datagram by datagram
+    sent = [r for r in open_capture(path) if type(r) is Datagram and r.direction == "tx"]
+    assert len(sent) >= 10000 + len(msgs["/mcp/tx"])
