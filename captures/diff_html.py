@@ -29,9 +29,9 @@ table.divs td, table.divs th { border: 1px solid #cbd5e0; padding: 2px 8px; font
 .pair { display: flex; gap: 16px; align-items: flex-start; overflow-x: auto; }
 .pair > div { flex: 0 0 auto; }
 .mcp-chart .arrow.missing line, .mcp-chart .arrow.extra line, .mcp-chart .arrow.changed line,
-.mcp-chart .arrow.reordered line { stroke: #c53030; stroke-width: 3; }
+.mcp-chart .arrow.reordered line { stroke: #c53030 !important; stroke-width: 3 !important; }
 .mcp-chart .arrow.copies line, .mcp-chart .arrow.timing line, .mcp-chart .arrow.address line
-{ stroke: #d69e2e; stroke-width: 3; }
+{ stroke: #d69e2e !important; stroke-width: 3 !important; }
 .mcp-chart .arrow.gap text { fill: #a0aec0; font-style: italic; }
 """
 

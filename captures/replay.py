@@ -12,7 +12,11 @@ manager role). Replay plays every other sender of the capture — the manager an
 IDs a runner used, or all the drones — from one UDP socket, with the runner's attach, spawn
 and listen semantics and placeholders (it reuses ``conformance.session`` and
 ``conformance.driver``): ``--listen`` is where it receives and sends from (all addresses on
-the role's conventional port by default, an ephemeral one in spawn mode).
+the role's conventional port by default, an ephemeral one in spawn mode). For a manager
+under test ``--spawn`` also fills ``{drones}``, ``{challenge}``, ``{waypoints}`` and
+``{obstacles}`` from the capture (the drones it talked to, the challenge its commands show,
+and its lists written as QGC WPL 110 files); ``--mavlink`` starts the simulated vehicle
+(``{mavlink}``) for a drone.
 
 It does not replay timestamps blindly. Before each datagram the capture's played side sent,
 it waits until the live node has sent as many datagrams as the node had sent by that point
