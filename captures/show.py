@@ -28,7 +28,7 @@ from captures.judging import (
     judge,
     params_from_args,
 )
-from captures.trace import Entry, Trace, describe_payload
+from captures.trace import Entry, Trace, action_name, describe_payload
 
 __all__ = ["case_window", "entry_line", "register", "run"]
 
@@ -102,19 +102,19 @@ def run(ns: argparse.Namespace) -> int:
         start = None if t_from is None else base + int(t_from * 1e9)
         end = None if t_to is None else base + int(t_to * 1e9)
     entries = trace.window(start, end)
+    if ns.svg:  # before the listing: a reader that stops early (| head) still gets the chart
+        title = f"{j.path}" + (f" · case {ns.case}" if ns.case else "")
+        write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows), "--svg")
     con = Console(highlight=False, soft_wrap=True)
     con.print(Text(f"{j.path} · {j.format} · {len(entries)} of {j.datagrams} datagram(s) shown"
-                   + (f" · case {ns.case}" if ns.case else ""), style="bold"))
+                   + (f" · case {ns.case}" if ns.case else "") + (f" · chart: {ns.svg}" if ns.svg else ""),
+                   style="bold"))
     if j.truncated:
         con.print(Text(f"truncated: {j.truncated}", style="yellow"))
     for note in [*j.notes, *([unjudged] if unjudged else [])]:
         con.print(Text(f"note: {note}", style="dim"))
     for e in entries:
         con.print(entry_line(e, trace, j.first_ns or 0))
-    if ns.svg:
-        title = f"{j.path}" + (f" · case {ns.case}" if ns.case else "")
-        write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows), "--svg")
-        con.print(Text(f"chart: {ns.svg}", style="dim"))
     return 0
 
 
@@ -135,7 +135,7 @@ def entry_line(e: Entry, trace: Trace, first_ns: int) -> Text:
     line.append(f"{_end(e.src, d.src_addr)} → {_end(e.dst, d.dst_addr)}")
     if e.header is not None:
         line.append(f"  seq {e.header[2]:<5} ")
-        line.append(e.label.rsplit(" #", 1)[0], style="bold" if e.msg is not None else "bold red")
+        line.append(action_name(e.header[3]), style="bold" if e.msg is not None else "bold red")
         if e.msg is not None:
             desc = describe_payload(e.msg)
             if desc:

@@ -111,7 +111,10 @@ class Entry:
         """What a chart arrow says: action and seq."""
         if self.header is None:
             return f"{len(self.dgram.data)} bytes"
-        return f"{action_name(self.header[3])} #{self.header[2]}"
+        label = f"{action_name(self.header[3])} #{self.header[2]}"
+        if self.header[3] == _ACK and self.msg is not None:
+            label += f" of {self.msg.payload}"  # the seq it acknowledges
+        return label
 
 
 @dataclass

@@ -45,6 +45,18 @@ def node(*args: str, log: Path) -> subprocess.Popen[bytes]:
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
 
 
+def wait_all(procs: dict[str, subprocess.Popen[bytes]], seconds: float) -> dict[str, int | None]:
+    """Each process's exit code, None for one still running when ``seconds`` are up."""
+    deadline = time.monotonic() + seconds
+    codes: dict[str, int | None] = {}
+    for name, proc in procs.items():
+        try:
+            codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            codes[name] = None
+    return codes
+
+
 def expected(challenge: int) -> dict[str, int]:
     n_wp = len(load_waypoints(WAYPOINTS))
     middle = {1: {"WP_List": 1}, 2: {"WP_On": n_wp, "WP_Off": n_wp}, 3: {"Obstacles_List": 1}}[challenge]
@@ -66,13 +78,7 @@ def test_manager_and_three_drones(challenge: int, tmp_path: Path) -> None:
                                 "--waypoints", str(WAYPOINTS), "--obstacles", str(OBSTACLES),
                                 BROADCAST, str(manager_port), str(drone_port), "--rto", RTO,
                                 "--record", str(tmp_path / "manager.json"), log=tmp_path / "manager.log")
-        deadline = time.monotonic() + DEADLINE
-        codes = {}
-        for name, proc in procs.items():
-            try:
-                codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                codes[name] = None
+        codes = wait_all(procs, DEADLINE)
         logs = {name: (tmp_path / f"{name}.log").read_text(errors="replace")[-1500:] for name in procs}
         assert codes == {name: 0 for name in procs}, logs
     finally:
