@@ -102,6 +102,7 @@ class ManagerSession:
         self.missions: dict[str, Mission] = {}
         self.unavailable: dict[str, str] = {}
         self.lost: str | None = None
+        self.ended = False  # a manager's mission ends within a scenario, never between cases
         self.restarts = 0
         self._tmp = tempfile.TemporaryDirectory(prefix="mcp-conform-manager-")
         self.waypoints_path = ""
@@ -131,6 +132,15 @@ class ManagerSession:
 
     # ------------------------------------------------------------------ start / stop
     def start(self) -> None:
+        """Open the drones' socket and run the main scenario (a setup error when the manager
+        never ACKs the first Mission_Ready)."""
+        self.open()
+        self.mission("main")
+        if "main" not in self.missions:
+            raise SetupError(self.unavailable.get("main", "the manager never answered"))
+
+    def open(self) -> None:
+        """The drones' socket, the mission files and the drone players (nothing spawned)."""
         cfg = self.cfg
         if self.spawned:
             listen = cfg.listen or ("", 0)
@@ -153,9 +163,6 @@ class ManagerSession:
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"
-        self.mission("main")
-        if "main" not in self.missions:
-            raise SetupError(self.unavailable.get("main", "the manager never answered"))
 
     def _mission_files(self) -> None:
         from spec.mission import WaypointFileError, load_waypoints, save_waypoints
@@ -204,6 +211,10 @@ class ManagerSession:
             "drones": ",".join(map(str, self.cfg.drones)), "challenge": str(self.cfg.challenge),
             "waypoints": self.waypoints_path, "obstacles": self.obstacles_path,
         }
+
+    def spawn(self) -> None:
+        """A fresh manager process (spawn mode), the previous one stopped."""
+        self._spawn()
 
     def _spawn(self) -> None:
         assert self.cfg.spawn is not None

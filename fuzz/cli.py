@@ -1,12 +1,13 @@
 """``mcp-fuzz``: fuzz campaigns judged by the spec (DESIGN.md "mcp-fuzz", issue 11).
 
-    mcp-fuzz [--target HOST:PORT | --spawn CMD] [--listen HOST:PORT] [--target-id N]
+    mcp-fuzz [--target HOST:PORT | --spawn CMD] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
              [--mavlink] [--seed N] [--max-cases N] [--duration S]
              [--engine stateless|stateful|both] [--jobs N] [--db DIR|redis://HOST:PORT/N]
              [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N]
     mcp-fuzz --replay finding-N [--target HOST:PORT | --spawn CMD] [--mavlink]
 
-Without --target and --spawn it fuzzes the reference drone (embedded default). Exit 0:
+Without --target and --spawn it fuzzes the reference drone (embedded default); with
+``--role manager`` the reference manager, the fuzzer playing drones (fuzz.manager_target). Exit 0:
 nothing found; 1: findings (for --replay: the finding reproduced); 2: usage or setup error,
 with a one-line reason. Live progress (rich) on a terminal; otherwise only the summary line.
 """
@@ -45,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "
                    "{listen_host} {listen_port} {broadcast} {id} {mavlink}")
     p.add_argument("--listen", metavar="HOST:PORT", help="where the fuzzer receives and sends from")
+    p.add_argument("--role", metavar="drone|manager", default="drone",
+                   help="the role of the node under fuzz (manager: the fuzzer plays drones; stateless engine)")
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
     p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
     p.add_argument("--seed", metavar="N", help=f"campaign seed (default {DEFAULT_SEED})")
@@ -100,6 +103,9 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
             raise UsageError("--spawn: the command is empty")
         cfg.spawn = ns.spawn
     cfg.target_id = _int(ns.target_id, "--target-id", 0, 0xFFFF)
+    if ns.role not in ("drone", "manager"):
+        raise UsageError(f"--role: {ns.role!r} is not one of drone, manager")
+    cfg.role = ns.role
     cfg.mavlink = ns.mavlink
     seed = _int(ns.seed, "--seed", 0, 2**63 - 1)
     cfg.seed = DEFAULT_SEED if seed is None else seed
@@ -108,6 +114,9 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     if ns.engine not in ENGINES:
         raise UsageError(f"--engine: {ns.engine!r} is not one of {', '.join(ENGINES)}")
     cfg.engine = ns.engine
+    if cfg.role == "manager" and cfg.engine != "stateless":
+        raise UsageError("--engine: a manager is fuzzed by the stateless engine only "
+                         "(the stateful engine's programs are a manager's commands to a drone)")
     cfg.jobs = _int(ns.jobs, "--jobs", 1, 256) or 1
     if cfg.jobs > 1 and cfg.target is not None:
         raise UsageError("--jobs: each worker needs its own node; use --spawn (or the embedded default), not --target")
@@ -144,6 +153,8 @@ def replay_args(cfg: FuzzConfig) -> list[str]:
         out += ["--spawn", cfg.spawn]
     if cfg.mavlink:
         out.append("--mavlink")
+    if cfg.role != "drone":
+        out += ["--role", cfg.role]
     for opt, v in (("--target-id", cfg.target_id), ("--rto", cfg.rto), ("--ack-window", cfg.ack_window),
                    ("--broadcast-id", cfg.broadcast_id)):
         if v is not None:

@@ -36,6 +36,7 @@ class FuzzConfig:
     ack_window: float | None = None
     broadcast_id: int | None = None
     worker: int = 0  # which of the --jobs workers this is
+    role: str = "drone"  # the role of the node under fuzz (manager: the fuzzer plays drones)
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property

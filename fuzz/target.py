@@ -165,7 +165,13 @@ class FuzzTarget:
 
 def start_target(cfg: FuzzConfig) -> FuzzTarget:
     """A started target, or SetupError (its resources released)."""
-    t = FuzzTarget(cfg)
+    t: FuzzTarget
+    if cfg.role == "manager":
+        from fuzz.manager_target import ManagerFuzzTarget
+
+        t = ManagerFuzzTarget(cfg)
+    else:
+        t = FuzzTarget(cfg)
     try:
         t.start()
     except SetupError:

@@ -27,6 +27,8 @@ def test_help_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
     (["--db", "ftp://x"], "--db"),
     (["--target", "127.0.0.1:9", "--spawn", "x"], "not allowed"),
     (["--replay", "/nonexistent/finding-1"], "--replay"),
+    (["--role", "pilot"], "--role"),
+    (["--role", "manager", "--engine", "stateful"], "--engine"),
 ])
 def test_bad_arguments_are_one_line_errors(argv: list[str], words: str,
                                            capsys: pytest.CaptureFixture[str]) -> None:
