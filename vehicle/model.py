@@ -22,8 +22,9 @@ Behaviour (ArduCopter-like, simplified):
   as ArduPilot does.
 * After an accepted takeoff the vehicle climbs at ``climb_rate`` to the requested altitude;
   in RTL or LAND it descends at ``descent_rate`` and disarms on touching down.
-* A minimal mission protocol (MISSION_COUNT / MISSION_REQUEST_INT / MISSION_ITEM[_INT] /
-  MISSION_ACK, MISSION_CLEAR_ALL, download) and a small parameter table.
+* The mission protocol as ArduCopter 4.x answers it (``vehicle.mission``) and AUTO flying
+  the stored mission (``vehicle.flight``); every request (command, SET_MODE, mission
+  message) is recorded as a ``request`` event with the answer and why.
 * Every received frame is recorded (``frames()``), plus events (``events()``) and probe
   counts (see ``vehicle.probe``).
 """
@@ -39,6 +40,16 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from .codec import MAVLinkMessage, frame_version
+from .flight import AutoMission, move_towards
+from .mission import (
+    ACCEPTED,
+    Answer,
+    MissionProtocol,
+    check_item,
+    command_name,
+    convert_float_item,
+    result_name,
+)
 from .probe import probe_token
 from .records import (
     AUTO,
@@ -91,13 +102,17 @@ class VehicleConfig:
     heartbeat_hz: float = 1.0
     #: Frames and events kept (oldest dropped beyond this); probe counts are never dropped.
     max_records: int = 100_000
-    #: Ask for mission items with MISSION_REQUEST_INT (True) or MISSION_REQUEST (False).
-    mission_request_int: bool = True
+    #: Ask for mission items with MISSION_REQUEST_INT (True) or, as ArduCopter 4.x does,
+    #: MISSION_REQUEST (False); see ``vehicle.mission``.
+    mission_request_int: bool = False
+    #: Horizontal speed towards a waypoint or home, m/s (ArduCopter's WPNAV_SPEED is 5).
+    horizontal_speed: float = 50.0
 
     def __post_init__(self) -> None:
         if not (1 <= self.sysid <= 255 and 0 <= self.compid <= 255):
             raise ValueError("sysid must be 1..255 and compid 0..255")
-        for name in ("climb_rate", "descent_rate", "telemetry_hz", "heartbeat_hz"):
+        for name in ("climb_rate", "descent_rate", "telemetry_hz", "heartbeat_hz",
+                     "horizontal_speed"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number: {value}")
@@ -127,8 +142,15 @@ class VehicleModel:
         self._reported_fix: bool | None = None
         self._next_hb = now
         self._next_tel = now
-        self.mission: list[dict[str, Any]] = []
-        self._upload: dict[str, Any] | None = None
+        self.lat, self.lon = cfg.home_lat, cfg.home_lon
+        self._target_pos: tuple[float, float] | None = None
+        self.missions = MissionProtocol(
+            lambda: (cfg.home_lat, cfg.home_lon, cfg.home_alt),
+            lambda: self.armed and self.custom_mode == AUTO,
+            request_int=cfg.mission_request_int)
+        self._auto = AutoMission(self)
+        #: Messages due outside a reply: (conn, message), conn 0 meaning every peer.
+        self._outbox: list[tuple[int, MAVLinkMessage]] = []
         self.params: dict[str, float] = {
             "SYSID_THISMAV": float(cfg.sysid),
             "ARMING_CHECK": 1.0,
@@ -144,6 +166,8 @@ class VehicleModel:
         self.rtl_commanded = False
         #: Called with every recorded event (the server uses it for ``on_event``).
         self.listener: Callable[[Event], None] | None = None
+        self._why = ""  # the reason of the answer being built (see ``_why_of``)
+        self._conn = 0  # the connection of the message being handled
 
     # ------------------------------------------------------------------ observation
     @property
@@ -237,6 +261,13 @@ class VehicleModel:
         if now >= self._next_tel:
             out.extend(self._telemetry(now))
             self._next_tel = _reschedule(self._next_tel, 1.0 / self.config.telemetry_hz, now)
+        conn, due, why = self.missions.update(now)
+        for msg in due:
+            self.broadcast(msg, conn)
+        if why is not None:
+            self.record(now, "request", request="MISSION_COUNT", answer="MISSION_ACK "
+                        + result_name(mav.MAV_MISSION_OPERATION_CANCELLED), accepted=False,
+                        why=why, conn=conn)
         return out
 
     def snapshot(self, now: float) -> list[MAVLinkMessage]:
@@ -251,17 +282,57 @@ class VehicleModel:
         self._last = now
         if not self.armed:
             return
-        if self.custom_mode in (RTL, LAND):
-            self._target_alt = None
-            self.altitude = max(0.0, self.altitude - self.config.descent_rate * dt)
-            if self.altitude <= 0.0:
-                self.record(now, "landed", mode=self.mode)
-                self._disarm(now, "landed")
-        elif self._target_alt is not None:
-            self.altitude = min(self._target_alt, self.altitude + self.config.climb_rate * dt)
-            if self.altitude >= self._target_alt:
+        if self.custom_mode == AUTO:
+            self._auto.step(now, dt)
+        elif self.custom_mode == RTL:
+            cfg = self.config
+            if self.fly_to((cfg.home_lat, cfg.home_lon), dt):
+                self.descend(now, dt)
+        elif self.custom_mode == LAND:
+            self.descend(now, dt)
+        else:
+            if self._target_pos is not None and self.fly_to(self._target_pos, dt):
+                self._target_pos = None
+            if self._target_alt is not None and self.climb_to(now, self._target_alt, dt):
                 self.record(now, "reached", alt=self.altitude)
                 self._target_alt = None
+
+    # ------------------------------------------------------------------ motion
+    def fly_to(self, target: tuple[float, float], dt: float) -> bool:
+        """Move towards ``target`` (lat, lon) for ``dt`` s; True once there."""
+        self.lat, self.lon, arrived = move_towards(
+            self.lat, self.lon, target, self.config.horizontal_speed * dt)
+        return arrived
+
+    def climb_to(self, now: float, alt: float, dt: float) -> bool:
+        """Climb (or descend, without landing) towards ``alt`` m for ``dt`` s; True once there."""
+        if self.altitude < alt:
+            self.altitude = min(alt, self.altitude + self.config.climb_rate * dt)
+        elif self.altitude > alt:
+            self.altitude = max(alt, self.altitude - self.config.descent_rate * dt)
+        return self.altitude == alt
+
+    def descend(self, now: float, dt: float) -> bool:
+        """Descend for ``dt`` s; on touching down record ``landed`` and disarm (True)."""
+        self._target_alt = None
+        self.altitude = max(0.0, self.altitude - self.config.descent_rate * dt)
+        if self.altitude > 0.0:
+            return False
+        self.land_and_disarm(now, "landed")
+        return True
+
+    def land_and_disarm(self, now: float, reason: str) -> None:
+        self.record(now, "landed", mode=self.mode)
+        self._disarm(now, reason)
+
+    def broadcast(self, msg: MAVLinkMessage, conn: int = 0) -> None:
+        """Queue ``msg`` for every peer (``conn`` 0) or for one connection."""
+        self._outbox.append((conn, msg))
+
+    def take_outbox(self) -> list[tuple[int, MAVLinkMessage]]:
+        """Messages due outside replies and telemetry: (conn, msg), conn 0 = every peer."""
+        out, self._outbox = self._outbox, []
+        return out
 
     # ------------------------------------------------------------------ telemetry
     def _vertical_speed(self) -> float:
@@ -295,8 +366,8 @@ class VehicleModel:
                 self.record(now, "fix_lost", fix_type=0)
             self._reported_fix = fix
         boot_ms = int((now - self._t0) * 1000) & 0xFFFFFFFF
-        lat = int(round(cfg.home_lat * 1e7)) if fix else 0
-        lon = int(round(cfg.home_lon * 1e7)) if fix else 0
+        lat = int(round(self.lat * 1e7)) if fix else 0
+        lon = int(round(self.lon * 1e7)) if fix else 0
         amsl = cfg.home_alt + self.altitude
         vz = self._vertical_speed()
         health = _SENSORS if fix else _SENSORS & ~mav.MAV_SYS_STATUS_SENSOR_GPS
@@ -317,6 +388,7 @@ class VehicleModel:
                 0.0, 0.0, 0, 50 if self.armed and self.altitude > 0 else 0, amsl, vz,
             ),
             mav.MAVLink_attitude_message(boot_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+            self.missions.current_message(),
         ]
 
     # ------------------------------------------------------------------ input
@@ -335,6 +407,7 @@ class VehicleModel:
             version=frame_version(raw_bytes) or 2, conn=conn,
         )
         self._frames.append(frame)
+        self._conn = conn
         self.record(now, "frame", type=msg_type, msgid=frame.msgid, srcsys=frame.srcsys,
                     srccomp=frame.srccomp, version=frame.version, conn=conn)
         handler = getattr(self, "_on_" + msg_type.lower(), None)
@@ -362,6 +435,9 @@ class VehicleModel:
             result, notes = self._set_mode(int(f["custom_mode"]), now, "SET_MODE")
         else:
             result, notes = REFUSED, []
+            self._why = "base_mode without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED"
+        self._request(now, msg, result_text(result), result == mav.MAV_RESULT_ACCEPTED,
+                      self._why_of(result, notes), mode=mode_name(int(f["custom_mode"])))
         return [*notes, self._ack(msg, SET_MODE_ACK_COMMAND, result)]
 
     def _on_command_long(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
@@ -385,6 +461,7 @@ class VehicleModel:
                 result, out = self._set_mode(int(p[1]), now, "DO_SET_MODE")
             else:
                 result = REFUSED
+                self._why = "param1 without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED"
         elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             result, out = self._set_mode(RTL, now, "NAV_RETURN_TO_LAUNCH")
         elif cmd == mav.MAV_CMD_NAV_LAND:
@@ -393,13 +470,33 @@ class VehicleModel:
             result = self._takeoff(p[6], now)
         elif cmd == mav.MAV_CMD_MISSION_START:
             result, out = self._set_mode(AUTO, now, "MISSION_START")
+            if result == mav.MAV_RESULT_ACCEPTED and not self._auto.running:
+                self._auto.start_or_resume(now)
         elif cmd == mav.MAV_CMD_REQUEST_MESSAGE:
             wanted = int(p[0])
             out = [m for m in self.snapshot(now) if m.get_msgId() == wanted]
-        name = mav.enums["MAV_CMD"][cmd].name if cmd in mav.enums["MAV_CMD"] else str(cmd)
+        name = command_name(cmd)
         self.record(now, "command", command=cmd, name=name, params=p, result=result,
                     srcsys=msg.get_srcSystem())
+        self._request(now, msg, result_text(result), result == mav.MAV_RESULT_ACCEPTED,
+                      self._why_of(result, out), command=name, params=list(p))
         return [*out, self._ack(msg, cmd, result)]
+
+    def _why_of(self, result: int, out: list[MAVLinkMessage]) -> str:
+        """The reason of an answer: the refusal's STATUSTEXT, else what the model noted."""
+        why, self._why = self._why, ""
+        if result != mav.MAV_RESULT_ACCEPTED:
+            for m in out:
+                if m.get_type() == "STATUSTEXT":
+                    return str(m.text)
+        return why or ("accepted" if result == mav.MAV_RESULT_ACCEPTED else "refused")
+
+    def _request(self, now: float, msg: MAVLinkMessage, answer: str, accepted: bool,
+                 why: str, **detail: Any) -> Event:
+        """Record one request of the peer with the vehicle's answer (``request`` event)."""
+        return self.record(now, "request", request=msg.get_type(), answer=answer,
+                           accepted=accepted, why=why, srcsys=msg.get_srcSystem(),
+                           srccomp=msg.get_srcComponent(), conn=self._conn, **detail)
 
     def _arm_disarm(self, p1: float, p2: float, now: float) -> tuple[int, list[MAVLinkMessage]]:
         if p1 == 1.0:
@@ -418,25 +515,40 @@ class VehicleModel:
             if not self.armed:
                 return mav.MAV_RESULT_ACCEPTED, []
             if self.altitude > 0.0 and p2 != FORCE_DISARM_MAGIC:
+                self._why = "flying: disarm in flight needs param2 21196 (force)"
                 return REFUSED, []
             self._disarm(now, "command")
             return mav.MAV_RESULT_ACCEPTED, []
+        self._why = f"param1 {p1:g} is neither 0 (disarm) nor 1 (arm)"
         return REFUSED, []
 
     def _disarm(self, now: float, reason: str) -> None:
         self.armed = False
         self.altitude = 0.0
         self._target_alt = None
+        self._target_pos = None
         self.record(now, "disarm", reason=reason, mode=self.mode)
 
     def _set_mode(self, custom: int, now: float, via: str) -> tuple[int, list[MAVLinkMessage]]:
         known = custom in COPTER_MODE_NAMES
         ok = known and (custom not in POSITION_MODES or self.has_fix(now))
+        refusal = "Flight mode change failed"
+        if not known:
+            self._why = f"unknown mode {custom}"
+        elif not ok:
+            self._why = "no position estimate (no GPS fix)"
+        elif custom == AUTO and custom != self.custom_mode:
+            refusal = self._auto.refusal() or ""
+            ok = not refusal
         if custom == RTL:
             self.rtl_commanded = True
             self.record(now, "rtl", via=via, accepted=ok)
         if not ok:
-            return REFUSED, [_statustext(mav.MAV_SEVERITY_WARNING, "Flight mode change failed")]
+            return REFUSED, [_statustext(mav.MAV_SEVERITY_WARNING, refusal)]
+        if custom == AUTO and self.custom_mode != AUTO:
+            self._auto.start_or_resume(now)
+        elif custom != AUTO:
+            self._auto.stop()
         if custom != self.custom_mode:
             previous = self.mode
             self.custom_mode = custom
@@ -445,91 +557,107 @@ class VehicleModel:
         return mav.MAV_RESULT_ACCEPTED, []
 
     def _takeoff(self, alt: float, now: float) -> int:
-        ok = (
-            self.armed
-            and self.custom_mode == GUIDED
-            and self.altitude <= 0.0
-            and self._target_alt is None
-            and math.isfinite(alt)
-            and alt > 0
+        checks = (
+            (self.armed, "not armed"),
+            (self.custom_mode == GUIDED, f"mode {self.mode} is not GUIDED"),
+            (self.altitude <= 0.0 and self._target_alt is None, "already flying"),
+            (math.isfinite(alt) and alt > 0, f"altitude {alt:g} m is not above 0"),
         )
+        failed = [why for passed, why in checks if not passed]
+        ok = not failed
+        self._why = failed[0] if failed else f"climbing to {alt:g} m"
         self.record(now, "takeoff", alt=alt, accepted=ok)
         if ok:
             self._target_alt = alt
         return mav.MAV_RESULT_ACCEPTED if ok else REFUSED
 
     # ------------------------------------------------------------------ missions
+    @property
+    def mission(self) -> list[dict[str, Any]]:
+        """The stored mission (MISSION_ITEM_INT fields; item 0 as uploaded, home in downloads)."""
+        return self.missions.items
+
+    def _mission(self, msg: MAVLinkMessage, now: float, ans: Answer,
+                 **detail: Any) -> list[MAVLinkMessage]:
+        """Record a mission-protocol request with its answer; return the replies."""
+        if ans.result is not None:
+            answer = "MISSION_ACK " + result_name(ans.result)
+        else:
+            answer = ", ".join(_describe(m) for m in ans.replies if m.get_type() != "STATUSTEXT")
+        self._request(now, msg, answer, ans.result in (None, ACCEPTED), ans.why, **detail)
+        return ans.replies
+
+    def _src(self, msg: MAVLinkMessage) -> tuple[int, int]:
+        return msg.get_srcSystem(), msg.get_srcComponent()
+
     def _on_mission_count(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        count = int(f["count"])
-        if f.get("mission_type", 0) != mav.MAV_MISSION_TYPE_MISSION:
-            result = mav.MAV_MISSION_ACCEPTED if count == 0 else mav.MAV_MISSION_UNSUPPORTED
-            return [self._mission_ack(msg, result, f.get("mission_type", 0))]
-        if count == 0:
-            self.mission = []
-            self._upload = None
-            self.record(now, "mission", count=0)
-            return [self._mission_ack(msg, mav.MAV_MISSION_ACCEPTED)]
-        self._upload = {"count": count, "items": [], "src": msg.get_srcSystem()}
-        return [self._mission_request(msg, 0)]
+        ans = self.missions.count(f, self._src(msg), self._conn, now)
+        if ans.result == ACCEPTED:
+            self.record(now, "mission", count=len(self.missions.items))
+        return self._mission(msg, now, ans, count=int(f["count"]))
 
-    def _on_mission_item(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        up = self._upload
-        if up is None or f.get("mission_type", 0) != mav.MAV_MISSION_TYPE_MISSION:
-            return []
-        expected = len(up["items"])
-        if int(f["seq"]) != expected:
-            return [self._mission_request(msg, expected)]
+    def _on_mission_item_int(self, msg: MAVLinkMessage, f: dict[str, Any],
+                             now: float) -> Iterable:
+        seq, cmd = int(f["seq"]), command_name(int(f["command"]))
+        detail = {"seq": seq, "command": cmd, "frame": int(f["frame"]), "x": f["x"],
+                  "y": f["y"], "z": f["z"]}
+        if int(f.get("current", 0)) in (2, 3) and int(f.get("mission_type", 0) or 0) == 0:
+            return self._mission(msg, now, self._guided_item(msg, f), **detail)
+        ans = self.missions.item(msg.get_type(), f, self._src(msg), now)
+        if ans.result == ACCEPTED and self.missions.upload is None:
+            self.record(now, "mission", count=len(self.missions.items))
+        return self._mission(msg, now, ans, **detail)
+
+    _on_mission_item = _on_mission_item_int
+
+    def _guided_item(self, msg: MAVLinkMessage, f: dict[str, Any]) -> Answer:
+        """A MISSION_ITEM with current=2 (fly here in GUIDED) or 3 (change altitude)."""
         item = dict(f)
-        item["type"] = msg.get_type()
-        up["items"].append(item)
-        if len(up["items"]) < up["count"]:
-            return [self._mission_request(msg, expected + 1)]
-        self.mission = up["items"]
-        self._upload = None
-        self.record(now, "mission", count=len(self.mission))
-        return [self._mission_ack(msg, mav.MAV_MISSION_ACCEPTED)]
-
-    _on_mission_item_int = _on_mission_item
-
-    def _on_mission_clear_all(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        self.mission = []
-        self._upload = None
-        self.record(now, "mission", count=0)
-        return [self._mission_ack(msg, mav.MAV_MISSION_ACCEPTED)]
+        result, why = (convert_float_item(item) if msg.get_type() == "MISSION_ITEM"
+                       else (ACCEPTED, ""))
+        if result == ACCEPTED:
+            result, why = check_item(item)
+        if result == ACCEPTED and int(f["current"]) == 2 and self.custom_mode != GUIDED:
+            result, why = mav.MAV_MISSION_ERROR, f"guided waypoint while in {self.mode}"
+        if result == ACCEPTED:
+            if int(f["current"]) == 2:
+                self._target_pos = (int(item["x"]) * 1e-7, int(item["y"]) * 1e-7)
+            self._target_alt = max(float(item["z"]), 0.0) if self.armed else None
+            why = "guided target set"
+        src = self._src(msg)
+        return Answer([mav.MAVLink_mission_ack_message(src[0], src[1], result, 0)], result, why)
 
     def _on_mission_request_list(self, msg: MAVLinkMessage, f: dict[str, Any],
                                  now: float) -> Iterable:
-        count = len(self.mission) if f.get("mission_type", 0) == 0 else 0
-        return [mav.MAVLink_mission_count_message(msg.get_srcSystem(), msg.get_srcComponent(),
-                                                  count, f.get("mission_type", 0))]
+        return self._mission(msg, now, self.missions.request_list(f, self._src(msg)))
 
     def _on_mission_request_int(self, msg: MAVLinkMessage, f: dict[str, Any],
                                 now: float) -> Iterable:
-        seq = int(f["seq"])
-        if f.get("mission_type", 0) != 0 or not 0 <= seq < len(self.mission):
-            return [self._mission_ack(msg, mav.MAV_MISSION_INVALID_SEQUENCE)]
-        it = self.mission[seq]
-        x, y = it["x"], it["y"]
-        want_int = msg.get_type() == "MISSION_REQUEST_INT"
-        if want_int and it["type"] == "MISSION_ITEM":
-            x, y = int(round(x * 1e7)), int(round(y * 1e7))
-        elif not want_int and it["type"] == "MISSION_ITEM_INT":
-            x, y = x / 1e7, y / 1e7
-        cls = mav.MAVLink_mission_item_int_message if want_int else mav.MAVLink_mission_item_message
-        return [cls(msg.get_srcSystem(), msg.get_srcComponent(), seq, it["frame"], it["command"],
-                    it["current"], it["autocontinue"], it["param1"], it["param2"], it["param3"],
-                    it["param4"], x, y, it["z"], 0)]
+        ans = self.missions.request_item(msg.get_type(), f, self._src(msg))
+        return self._mission(msg, now, ans, seq=int(f["seq"]))
 
     _on_mission_request = _on_mission_request_int
 
-    def _mission_request(self, msg: MAVLinkMessage, seq: int) -> MAVLinkMessage:
-        cls = (mav.MAVLink_mission_request_int_message if self.config.mission_request_int
-               else mav.MAVLink_mission_request_message)
-        return cls(msg.get_srcSystem(), msg.get_srcComponent(), seq, 0)
+    def _on_mission_clear_all(self, msg: MAVLinkMessage, f: dict[str, Any],
+                              now: float) -> Iterable:
+        ans = self.missions.clear_all(f, self._src(msg))
+        if ans.result == ACCEPTED and int(f.get("mission_type", 0) or 0) == 0:
+            self._auto.started = False
+            self.record(now, "mission", count=0)
+        return self._mission(msg, now, ans)
 
-    def _mission_ack(self, msg: MAVLinkMessage, result: int, mission_type: int = 0) -> MAVLinkMessage:
-        return mav.MAVLink_mission_ack_message(msg.get_srcSystem(), msg.get_srcComponent(),
-                                               result, mission_type)
+    def _on_mission_set_current(self, msg: MAVLinkMessage, f: dict[str, Any],
+                                now: float) -> Iterable:
+        seq = int(f["seq"])
+        ok = 0 < seq < len(self.missions.items) or (seq == 0 and len(self.missions.items) > 1)
+        if ok:
+            self._auto.index = max(seq, 1)
+            self._auto.started, self._auto.complete = True, False
+            self.missions.current = self._auto.index
+        self._request(now, msg, "MISSION_CURRENT" if ok else "ignored", ok,
+                      f"current item {self.missions.current}" if ok else f"no item {seq}",
+                      seq=seq)
+        return [self.missions.current_message()] if ok else []
 
     # ------------------------------------------------------------------ parameters
     def _param_value(self, name: str) -> MAVLinkMessage:
@@ -559,6 +687,20 @@ class VehicleModel:
         self.params[name] = value
         return [self._param_value(name)]
 
+
+
+def result_text(result: int) -> str:
+    """``MAV_RESULT`` name of ``result`` (e.g. ``"MAV_RESULT_FAILED"``)."""
+    entry = mav.enums["MAV_RESULT"].get(result)
+    return entry.name if entry is not None else str(result)
+
+
+def _describe(msg: MAVLinkMessage) -> str:
+    """``MISSION_REQUEST seq=3``-style summary of a reply."""
+    seq = getattr(msg, "seq", None)
+    if msg.get_type() == "MISSION_COUNT":
+        return f"MISSION_COUNT count={msg.count}"
+    return msg.get_type() if seq is None else f"{msg.get_type()} seq={seq}"
 
 
 def _statustext(severity: int, text: str) -> MAVLinkMessage:

@@ -291,29 +291,6 @@ def test_make_probe_builds_one_valid_v2_frame() -> None:
 
 
 # ---------------------------------------------------------------- missions and params
-@pytest.mark.parametrize("use_int", [True, False])
-def test_mission_upload_and_download(use_int: bool) -> None:
-    model, gcs = make()
-    replies = gcs.send(mav.MAVLink_mission_count_message(1, 1, 2), 0.0)
-    assert by_type(replies, "MISSION_REQUEST_INT").seq == 0
-    for seq in range(2):
-        if use_int:
-            item = mav.MAVLink_mission_item_int_message(1, 1, seq, 3, 16, 0, 1, 0, 0, 0, 0,
-                                                        357713320 + seq, -786744210, 20.0)
-        else:
-            item = mav.MAVLink_mission_item_message(1, 1, seq, 3, 16, 0, 1, 0, 0, 0, 0,
-                                                    35.771332, -78.674421, 20.0)
-        replies = gcs.send(item, 0.1)
-    assert by_type(replies, "MISSION_ACK").type == mav.MAV_MISSION_ACCEPTED
-    assert len(model.mission) == 2 and model.events("mission")[0].detail["count"] == 2
-    assert by_type(gcs.send(mav.MAVLink_mission_request_list_message(1, 1), 0.2),
-                   "MISSION_COUNT").count == 2
-    got = by_type(gcs.send(mav.MAVLink_mission_request_int_message(1, 1, 0), 0.3),
-                  "MISSION_ITEM_INT")
-    assert abs(got.x - 357713320) <= 10  # MISSION_ITEM carries float32 degrees
-    assert got.z == 20.0
-
-
 def test_params_list_and_set() -> None:
     _, gcs = make(sysid=3)
     values = gcs.send(mav.MAVLink_param_request_list_message(3, 1), 0.0)
