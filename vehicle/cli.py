@@ -1,7 +1,10 @@
 """Command line: serve a simulated vehicle and print one line per recorded event.
 
 ``python -m vehicle --port 5760 --fix-delay 3`` listens like ArduPilot SITL on TCP until
-Ctrl-C (or SIGTERM). Received frames are printed only with ``--frames``.
+Ctrl-C (or SIGTERM); ``--udp-out 127.0.0.1:14550`` also sends telemetry there over UDP
+(SITL's ``--out``), ``--udp-in 127.0.0.1:14551`` listens on UDP; ``--record FILE`` writes
+one JSON line per request with the vehicle's answer. Received frames are printed only with
+``--frames``. ``--help`` lists where the vehicle differs from ArduCopter.
 """
 
 from __future__ import annotations
@@ -14,8 +17,36 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from .recordfile import RecordFile
 from .records import Event
 from .server import SimVehicle
+from .udp import parse_hostport
+
+DIFFERENCES = """\
+How it answers, as ArduCopter 4.x (ArduPilot's GCS_MAVLink and AP_Mission sources):
+  - mission upload: MISSION_COUNT, then the vehicle asks for each item with MISSION_REQUEST
+    (as ArduPilot does; --mission-request-int asks with MISSION_REQUEST_INT), accepts
+    MISSION_ITEM or MISSION_ITEM_INT, ends with MISSION_ACK. A MISSION_ITEM whose latitude
+    is not in degrees (a degE7 integer sent as degrees) gets MAV_MISSION_INVALID_PARAM5_X
+    and the same item is asked for again; a bad MISSION_ITEM_INT ends the upload with its
+    code; a wrong seq gets MAV_MISSION_INVALID_SEQUENCE; 1 s without the item: asked again;
+    8 s: MAV_MISSION_OPERATION_CANCELLED. Unrequested items are REFUSED (MISSION_ACK
+    MAV_MISSION_ERROR), as ArduCopter refuses them.
+  - download: MISSION_REQUEST_LIST / MISSION_REQUEST_INT / MISSION_REQUEST; item 0 is home.
+  - MAV_CMD_MISSION_START or mode AUTO flies the mission (needs a NAV_TAKEOFF first when
+    armed on the ground), with MISSION_CURRENT and MISSION_ITEM_REACHED.
+Where it differs from ArduCopter:
+  - arming needs only a 3D fix and a mode other than AUTO/RTL/LAND; no other pre-arm check.
+  - climb, descent and horizontal speeds are fast by default (20, 20, 50 m/s); RTL flies
+    home at the current altitude (no RTL_ALT climb) and lands.
+  - only the MISSION mission type is stored (fence and rally get MAV_MISSION_UNSUPPORTED);
+    CONDITION_* and NAV_DELAY items complete at once; at most 700 items.
+  - a peer that speaks only MAVLink 1 is answered in MAVLink 1 (ArduPilot sends what
+    SERIALn_PROTOCOL says); --mavlink1 starts every link in MAVLink 1.
+  - over UDP a peer is known once it has sent a frame (--udp-out destinations get
+    telemetry from the start); commands the model does not simulate are ACCEPTED.
+  - parameters are a small table (PARAM_SET stores anything).
+"""
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -39,11 +70,35 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _hostport(text: str) -> tuple[str, int]:
+    try:
+        return parse_hostport(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog="python -m vehicle",
-                       description="Simulated ArduCopter autopilot on TCP (like SITL).")
+                       description="Simulated ArduCopter autopilot on TCP and UDP (like SITL).",
+                       epilog=DIFFERENCES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1)")
     p.add_argument("--port", type=int, default=5760, help="TCP port, 0 picks one (5760)")
+    p.add_argument("--no-tcp", action="store_true", help="do not listen on TCP")
+    p.add_argument("--udp-out", action="append", default=[], type=_hostport,
+                   metavar="HOST:PORT",
+                   help="send telemetry there over UDP from one socket that answers whoever "
+                        "writes to it, as SITL's --out (repeatable); a ground station "
+                        "listens with udpin:HOST:PORT")
+    p.add_argument("--udp-in", type=_hostport, metavar="HOST:PORT",
+                   help="listen on UDP and answer each sender; a ground station sends with "
+                        "udpout:HOST:PORT")
+    p.add_argument("--record", metavar="FILE",
+                   help="write one JSON line per request (command, mode, mission item...) "
+                        "with the vehicle's answer and why")
+    p.add_argument("--mavlink1", action="store_true",
+                   help="speak MAVLink 1 on every link from the start")
+    p.add_argument("--mission-request-int", action="store_true",
+                   help="ask for mission items with MISSION_REQUEST_INT, not MISSION_REQUEST")
     p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (1)")
     p.add_argument("--fix-delay", type=_non_negative, default=0.0, metavar="S",
                    help="seconds before the GPS reports a fix (0)")
@@ -74,9 +129,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--home must be LAT,LON[,ALT]: {args.home}")
     if not 0 <= args.port <= 65535:
         parser.error(f"--port must be 0..65535: {args.port}")
+    if args.no_tcp and not (args.udp_out or args.udp_in):
+        parser.error("--no-tcp needs --udp-out or --udp-in")
     t0 = time.monotonic()
+    try:
+        record = open(args.record, "w", encoding="utf-8") if args.record else None  # noqa: SIM115
+    except OSError as exc:
+        print(f"{parser.prog}: error: cannot write --record {args.record}: {exc.strerror}",
+              file=sys.stderr)
+        return 2
+    writer = RecordFile(record, t0) if record is not None else None
 
     def show(event: Event) -> None:
+        if writer is not None:
+            writer(event)
         if event.kind != "frame" or args.frames:
             print(format_event(event, t0), flush=True)
 
@@ -86,12 +152,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             fix_withheld=args.no_fix, climb_rate=args.climb_rate,
             descent_rate=args.descent_rate, telemetry_hz=args.telemetry_hz,
             home_lat=parts[0], home_lon=parts[1], home_alt=parts[2] if len(parts) > 2 else 0.0,
+            mission_request_int=args.mission_request_int,
         )
-        vehicle.start(args.host, args.port)
+        vehicle.start(args.host, None if args.no_tcp else args.port, udp_out=args.udp_out,
+                      udp_in=args.udp_in, mavlink1=args.mavlink1)
     except (ValueError, OSError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        if record is not None:
+            record.close()
         return 2
-    print(f"vehicle sysid {args.sysid} listening on {vehicle.url}", flush=True)
+    where = [] if args.no_tcp else [vehicle.url]
+    if vehicle.udp_out_port is not None:
+        where += [f"udp-out {h}:{p} (from port {vehicle.udp_out_port})" for h, p in args.udp_out]
+    if args.udp_in is not None:
+        where.append(f"udp-in {vehicle.udp_in_url.removeprefix('udpout:')}")
+    print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
     done = threading.Event()
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda *_: done.set())
@@ -102,4 +177,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         vehicle.close()
+        if record is not None:
+            record.close()
     return 0

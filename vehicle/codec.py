@@ -1,12 +1,14 @@
-"""MAVLink framing for the vehicle, entirely through pymavlink (ardupilotmega, v2 out).
+"""MAVLink framing for the vehicle, entirely through pymavlink (ardupilotmega).
 
 ``Decoder`` turns a byte stream (v1 and v2 frames mixed with any garbage) into decoded
 messages plus a count of bytes that were not part of a valid frame; ``Encoder`` packs
-messages as MAVLink v2 frames with its own sequence counter (one per link).
+messages as MAVLink v2 frames (or v1, for a peer that speaks only MAVLink 1) with its own
+sequence counter (one per link).
 """
 
 from __future__ import annotations
 
+from pymavlink.dialects.v10 import ardupilotmega as mavlink1
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from pymavlink.dialects.v20.ardupilotmega import MAVLink_message as MAVLinkMessage
 
@@ -50,14 +52,27 @@ class Decoder:
 
 
 class Encoder:
-    """Packs messages as MAVLink v2 frames from ``sysid``/``compid`` (one per link)."""
+    """Packs messages from ``sysid``/``compid`` (one per link), MAVLink ``version`` 2 or 1.
 
-    def __init__(self, sysid: int, compid: int) -> None:
+    In MAVLink 1 a message is packed by its v1.0 definition (extension fields dropped, as
+    the C library does); a message with an id above 255 cannot be sent and is skipped.
+    """
+
+    def __init__(self, sysid: int, compid: int, version: int = 2) -> None:
         self._mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._mav1 = mavlink1.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.version = version
 
     def encode(self, msg: MAVLinkMessage) -> bytes:
-        """The complete frame for ``msg``; advances this link's sequence number."""
-        buf = msg.pack(self._mav)
+        """The complete frame for ``msg`` (b"" if v1 cannot carry it); advances the seq."""
+        if self.version == 1:
+            cls = getattr(mavlink1, type(msg).__name__, None)
+            if cls is None:
+                return b""
+            self._mav1.seq = self._mav.seq
+            buf = cls(*[getattr(msg, name) for name in cls.fieldnames]).pack(self._mav1)
+        else:
+            buf = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
         return bytes(buf)
 

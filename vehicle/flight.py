@@ -21,8 +21,6 @@ from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from .mission import is_nav
-
 if TYPE_CHECKING:
     from .model import VehicleModel
 
@@ -175,7 +173,7 @@ class AutoMission:
             if not m.fly_to(self._position(item), dt):
                 return False
             return m.descend(now, dt)
-        return not is_nav(cmd) or cmd not in (mav.MAV_CMD_NAV_DELAY,)
+        return True  # DO_/CONDITION_ commands and NAV_DELAY complete at once
 
     def _position(self, item: dict[str, Any]) -> tuple[float, float]:
         x, y = int(item["x"]), int(item["y"])

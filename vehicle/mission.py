@@ -363,11 +363,11 @@ def convert_float_item(item: dict[str, Any]) -> tuple[int, str]:
     x, y = float(item["x"]), float(item["y"])
     if not (math.isfinite(x) and abs(x) <= 90.0):
         return (mav.MAV_MISSION_INVALID_PARAM5_X,
-                f"latitude {x:g} is not in degrees (-90..90)"
+                f"latitude {x:.9g} is not in degrees (-90..90)"
                 + ("; a degE7 value sent as degrees?" if abs(x) > 1e6 else ""))
     if not (math.isfinite(y) and abs(y) <= 180.0):
         return (mav.MAV_MISSION_INVALID_PARAM6_Y,
-                f"longitude {y:g} is not in degrees (-180..180)"
+                f"longitude {y:.9g} is not in degrees (-180..180)"
                 + ("; a degE7 value sent as degrees?" if abs(y) > 1e6 else ""))
     item["x"], item["y"] = int(x * 1e7), int(y * 1e7)
     return ACCEPTED, ""

@@ -50,9 +50,15 @@ EVENT_KINDS: tuple[str, ...] = (
     "landed",  # a descent reached the ground (detail: mode)
     "fix",  # telemetry started reporting a 3D fix
     "fix_lost",  # telemetry stopped reporting a fix
-    "mission",  # a mission upload completed (detail: count)
+    "mission",  # a mission upload completed or was cleared (detail: count)
+    "request",  # a request of the peer and the vehicle's answer (detail: request, answer,
+    #             accepted, why, srcsys, srccomp, conn, and what it named: command, params,
+    #             mode, seq, x, y, z...); ``--record FILE`` writes these, one JSON line each
+    "item_reached",  # AUTO completed a mission command (detail: seq, command)
+    "mission_complete",  # AUTO ran past the last mission item (detail: items)
     "probe",  # a passthrough probe arrived (detail: token)
-    "connect",  # a TCP client connected (detail: conn, peer)
+    "connect",  # a TCP client connected, a UDP peer was first heard (detail: conn, peer,
+    #             transport)
     "disconnect",  # a TCP client went away (detail: conn, peer)
 )
 

@@ -1,14 +1,21 @@
-"""``SimVehicle``: the vehicle model served over TCP the way ArduPilot SITL serves it.
+"""``SimVehicle``: the vehicle model served over TCP and UDP the way ArduPilot SITL serves it.
 
-The vehicle listens; a node connects with ``mavutil.mavlink_connection("tcp:HOST:PORT")``.
+TCP: the vehicle listens; a node connects with ``mavutil.mavlink_connection("tcp:HOST:PORT")``.
 Either side may speak first: the vehicle sends a heartbeat and a telemetry snapshot as soon
 as a client connects, then streams telemetry to every connected client. Clients may come
 late, go away and come back (a restarted node), and several may be connected at once; each
 has its own parser and sequence numbers. Garbage bytes are counted, never fatal.
 
-Threads (all daemon): one accepting, one ticking telemetry, one reading per client. All
-access to the model goes through one re-entrant lock, so every public method and property
-is thread-safe. Timestamps are ``time.monotonic()`` seconds.
+UDP (``vehicle.udp``): ``udp_out`` destinations get the telemetry from one socket, which
+answers whoever writes to it; ``udp_in`` listens and serves every sender. A UDP peer counts
+as connected once a frame arrived from it (``connected``, ``connections``).
+
+Every peer is answered in MAVLink 2 unless it speaks only MAVLink 1 (then in MAVLink 1), or
+``mavlink1=True`` starts every link in MAVLink 1 (ArduPilot's SERIALn_PROTOCOL 1).
+
+Threads (all daemon): one accepting, one ticking telemetry, one reading per TCP client and
+one per UDP socket. All access to the model goes through one re-entrant lock, so every
+public method and property is thread-safe. Timestamps are ``time.monotonic()`` seconds.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from typing import Any
 from .codec import Decoder, Encoder, MAVLinkMessage
 from .model import VehicleConfig, VehicleModel
 from .records import Event, Frame
+from .udp import Address, UdpEndpoint
 
 #: Seconds a blocked send may take before the client is considered dead.
 SEND_TIMEOUT = 2.0
@@ -35,17 +43,33 @@ FrameTap = Callable[[float, str, int, bytes], None]
 
 
 class _Client:
-    """One TCP connection: socket, decoder, encoder and a lock for sending."""
+    """One link: a TCP connection or a UDP peer address; decoder, encoder, send lock."""
 
-    def __init__(self, number: int, sock: socket.socket, peer: Any, sysid: int, compid: int):
+    def __init__(self, number: int, sock: socket.socket | None, peer: Any, sysid: int,
+                 compid: int, *, version: int = 2, udp: UdpEndpoint | None = None):
         self.number = number
         self.sock = sock
+        self.udp = udp
+        self.addr: Address | None = peer if udp is not None else None
         self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
         self.decoder = Decoder()
-        self.encoder = Encoder(sysid, compid)
+        self.encoder = Encoder(sysid, compid, version)
         self.send_lock = threading.Lock()
         self.alive = True
+        #: A frame arrived from it (TCP clients count from the connection).
+        self.heard = udp is None
+        self.seen_v2 = False
         self.thread: threading.Thread | None = None
+
+    @property
+    def transport(self) -> str:
+        return "tcp" if self.udp is None else "udp"
+
+    def send_raw(self, data: bytes) -> None:
+        if self.udp is not None and self.addr is not None:
+            self.udp.sendto(data, self.addr)
+        elif self.sock is not None:
+            self.sock.sendall(data)
 
 
 class SimVehicle:
@@ -77,34 +101,65 @@ class SimVehicle:
         self._threads: list[threading.Thread] = []
         self._clients: dict[int, _Client] = {}
         self._connections = 0
+        self._numbers = 0
         self._host = "127.0.0.1"
         self._port: int | None = None
+        self._udp: list[UdpEndpoint] = []
+        self._udp_peers: dict[tuple[int, Address], _Client] = {}
+        self._started = False
+        self._version = 2
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Listen on ``host:port`` (0 picks a free port), start the threads, return the port.
+    def start(self, host: str = "127.0.0.1", port: int | None = 0, *,
+              udp_out: list[Address] | tuple[Address, ...] = (),
+              udp_in: Address | None = None, mavlink1: bool = False) -> int | None:
+        """Serve: TCP on ``host:port`` (0 picks a free port; ``None``: no TCP), UDP to each
+        ``udp_out`` destination from one socket, UDP listening on ``udp_in``; return the TCP
+        port. ``mavlink1`` starts every link in MAVLink 1.
 
-        ``gps_fix_delay`` counts from here. Raises ``OSError`` if the port is taken and
+        ``gps_fix_delay`` counts from here. Raises ``OSError`` if a port is taken and
         ``RuntimeError`` if already started.
         """
-        if self._listener is not None:
+        if self._started:
             raise RuntimeError("vehicle already started")
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._version = 1 if mavlink1 else 2
+        endpoints: list[UdpEndpoint] = []
+        sock = None
         try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            sock.bind((host, port))
-            sock.listen(8)
+            if port is not None:
+                sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                sock.bind((host, port))
+                sock.listen(8)
+            if udp_out:
+                endpoints.append(UdpEndpoint.open_out(list(udp_out)))
+            if udp_in is not None:
+                endpoints.append(UdpEndpoint.open_in(*udp_in))
         except OSError:
-            sock.close()
+            if sock is not None:
+                sock.close()
+            for ep in endpoints:
+                ep.close()
             raise
+        self._started = True
         self._listener = sock
+        self._udp = endpoints
         self._host = "127.0.0.1" if host in ("", "0.0.0.0") else host
-        self._port = sock.getsockname()[1]
+        self._port = sock.getsockname()[1] if sock is not None else None
         with self._cond:
             now = time.monotonic()
             self._model.restart_fix_clock(now)
-        for target, name in ((self._accept_loop, "accept"), (self._tick_loop, "tick")):
-            thread = threading.Thread(target=target, name=f"vehicle-{name}", daemon=True)
+            for ep in endpoints:
+                for dest in ep.destinations:
+                    self._udp_peer(ep, dest)
+        loops: list[tuple[Callable[..., None], tuple[Any, ...], str]] = [
+            (self._tick_loop, (), "tick")]
+        if sock is not None:
+            loops.append((self._accept_loop, (), "accept"))
+        loops += [(self._udp_loop, (ep,), f"udp-{ep.mode}") for ep in endpoints]
+        for target, args, name in loops:
+            thread = threading.Thread(target=target, args=args, name=f"vehicle-{name}",
+                                      daemon=True)
             thread.start()
             self._threads.append(thread)
         return self._port
@@ -115,6 +170,8 @@ class SimVehicle:
         if self._listener is not None:
             with contextlib.suppress(OSError):
                 self._listener.close()
+        for ep in self._udp:
+            ep.close()
         with self._cond:
             clients = list(self._clients.values())
         for client in clients:
@@ -127,7 +184,7 @@ class SimVehicle:
             self._cond.notify_all()
 
     def __enter__(self) -> SimVehicle:
-        if self._listener is None:
+        if not self._started:
             self.start()
         return self
 
@@ -144,8 +201,22 @@ class SimVehicle:
     def url(self) -> str:
         """pymavlink connection string for a client, e.g. ``"tcp:127.0.0.1:5760"``."""
         if self._port is None:
-            raise RuntimeError("vehicle not started")
+            raise RuntimeError("vehicle not started on TCP")
         return f"tcp:{self._host}:{self._port}"
+
+    @property
+    def udp_in_url(self) -> str:
+        """pymavlink connection string to reach the ``udp_in`` socket (``udpout:HOST:PORT``)."""
+        for ep in self._udp:
+            if ep.mode == "in":
+                host = ep.sock.getsockname()[0]
+                return f"udpout:{'127.0.0.1' if host == '0.0.0.0' else host}:{ep.port}"
+        raise RuntimeError("vehicle not started with udp_in")
+
+    @property
+    def udp_out_port(self) -> int | None:
+        """The local port the ``udp_out`` telemetry comes from (None without udp_out)."""
+        return next((ep.port for ep in self._udp if ep.mode == "out"), None)
 
     # ------------------------------------------------------------------ control
     def withhold_fix(self, duration: float | None = None) -> None:
@@ -205,12 +276,12 @@ class SimVehicle:
 
     @property
     def connected(self) -> bool:
-        """Whether at least one client is connected now."""
-        return bool(self._read(lambda m: bool(self._clients)))
+        """Whether a TCP client is connected now or a UDP peer has sent a frame."""
+        return bool(self._read(lambda m: any(c.heard for c in self._clients.values())))
 
     @property
     def connections(self) -> int:
-        """How many clients have connected so far."""
+        """How many clients have connected (TCP) or been heard from (UDP) so far."""
         return int(self._read(lambda m: self._connections))
 
     def events(self, kind: str | None = None) -> list[Event]:
@@ -271,11 +342,14 @@ class SimVehicle:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         with self._cond:
             self._connections += 1
+            self._numbers += 1
             cfg = self._model.config
-            client = _Client(self._connections, sock, peer, cfg.sysid, cfg.compid)
+            client = _Client(self._numbers, sock, peer, cfg.sysid, cfg.compid,
+                             version=self._version)
             self._clients[client.number] = client
             now = time.monotonic()
-            self._model.record(now, "connect", conn=client.number, peer=client.peer)
+            self._model.record(now, "connect", conn=client.number, peer=client.peer,
+                               transport="tcp")
             self._send(client, self._model.snapshot(now))
             self._cond.notify_all()
         client.thread = threading.Thread(
@@ -296,26 +370,73 @@ class SimVehicle:
                 break
             if not data:
                 break
-            msgs, bad, reason = client.decoder.feed(data)
-            with self._cond:
-                now = time.monotonic()
-                if bad:
-                    self._model.record_bad_data(now, bad, reason, client.number)
-                for msg in msgs:
-                    raw = bytes(msg.get_msgbuf())
-                    if self._on_frame is not None:
-                        self._on_frame(now, "rx", client.number, raw)
-                    replies = self._model.handle(msg, now, raw=raw, conn=client.number)
-                    self._send(client, replies)
-                self._cond.notify_all()
+            self._receive(client, data)
         self._drop(client)
+
+    def _receive(self, client: _Client, data: bytes) -> None:
+        """Decode bytes from ``client``, let the model answer, send the replies."""
+        msgs, bad, reason = client.decoder.feed(data)
+        with self._cond:
+            now = time.monotonic()
+            if bad:
+                self._model.record_bad_data(now, bad, reason, client.number)
+            for msg in msgs:
+                raw = bytes(msg.get_msgbuf())
+                if raw[:1] == b"\xfd":
+                    client.seen_v2 = True
+                    client.encoder.version = 2  # ArduPilot switches a link up to MAVLink 2
+                elif not client.seen_v2:
+                    client.encoder.version = 1  # a MAVLink 1 peer is answered in MAVLink 1
+                if not client.heard:
+                    client.heard = True
+                    self._connections += 1
+                    self._model.record(now, "connect", conn=client.number, peer=client.peer,
+                                       transport=client.transport)
+                if self._on_frame is not None:
+                    self._on_frame(now, "rx", client.number, raw)
+                replies = self._model.handle(msg, now, raw=raw, conn=client.number)
+                self._send(client, replies)
+            self._flush_outbox()
+            self._cond.notify_all()
+
+    def _flush_outbox(self) -> None:
+        for conn, msg in self._model.take_outbox():
+            targets = list(self._clients.values()) if conn == 0 else (
+                [self._clients[conn]] if conn in self._clients else [])
+            for client in targets:
+                self._send(client, [msg])
+
+    def _udp_peer(self, ep: UdpEndpoint, addr: Address) -> _Client:
+        """The link of ``addr`` on ``ep`` (created on first use; called with the lock held)."""
+        key = (id(ep), addr)
+        client = self._udp_peers.get(key)
+        if client is None:
+            self._numbers += 1
+            cfg = self._model.config
+            client = _Client(self._numbers, None, addr, cfg.sysid, cfg.compid,
+                             version=self._version, udp=ep)
+            self._udp_peers[key] = client
+            self._clients[client.number] = client
+        return client
+
+    def _udp_loop(self, ep: UdpEndpoint) -> None:
+        while not self._stop.is_set():
+            got = ep.receive(POLL)
+            if got is None:
+                continue
+            data, addr = got
+            with self._cond:
+                client = self._udp_peer(ep, addr)
+            self._receive(client, data)
 
     def _tick_loop(self) -> None:
         while not self._stop.is_set():
             with self._cond:
                 msgs = self._model.tick(time.monotonic())
                 for client in list(self._clients.values()):
-                    self._send(client, msgs)
+                    if client.heard or client.udp is None or client.udp.mode == "out":
+                        self._send(client, msgs)
+                self._flush_outbox()
                 self._cond.notify_all()
                 delay = self._model.next_deadline() - time.monotonic()
             self._stop.wait(min(max(delay, 0.001), POLL))
@@ -325,11 +446,12 @@ class SimVehicle:
         if not msgs or not client.alive:
             return
         with client.send_lock:
-            frames = [client.encoder.encode(m) for m in msgs]
+            frames = [f for f in (client.encoder.encode(m) for m in msgs) if f]
             try:
-                client.sock.sendall(b"".join(frames))
+                client.send_raw(b"".join(frames))
             except OSError:
-                client.alive = False
+                if client.udp is None:
+                    client.alive = False
                 return
         if self._on_frame is not None:
             now = time.monotonic()
@@ -339,10 +461,11 @@ class SimVehicle:
     def _drop(self, client: _Client) -> None:
         """Close a client's socket and forget it (idempotent)."""
         client.alive = False
-        with contextlib.suppress(OSError):
-            client.sock.shutdown(socket.SHUT_RDWR)
-        with contextlib.suppress(OSError):
-            client.sock.close()
+        if client.sock is not None:
+            with contextlib.suppress(OSError):
+                client.sock.shutdown(socket.SHUT_RDWR)
+            with contextlib.suppress(OSError):
+                client.sock.close()
         with self._cond:
             if self._clients.pop(client.number, None) is not None:
                 self._model.record(time.monotonic(), "disconnect", conn=client.number,

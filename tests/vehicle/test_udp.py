@@ -1,0 +1,120 @@
+"""The vehicle over UDP, as SITL serves it: pymavlink ground stations on udpin: and udpout:.
+
+Each runs a whole session (heartbeat both ways, fix, GUIDED, arm, mission upload with the
+handshake, RTL) and the vehicle's request records show each request with its answer."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+from pymavlink import mavutil
+
+from tests.vehicle.gcs import MAV, WAIT, recv, run_session, upload_mission
+from vehicle import SimVehicle
+
+pytestmark = pytest.mark.slow
+
+
+def check_records(v: SimVehicle) -> None:
+    reqs = [e.detail for e in v.events("request")]
+    kinds = [(r["request"], r.get("command") or r.get("mode") or r.get("seq")) for r in reqs]
+    assert ("SET_MODE", "GUIDED") in kinds
+    assert ("COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM") in kinds
+    assert ("COMMAND_LONG", "MAV_CMD_NAV_RETURN_TO_LAUNCH") in kinds
+    items = [r for r in reqs if r["request"] == "MISSION_ITEM_INT"]
+    assert [r["seq"] for r in items] == [0, 1, 2, 3] and all(r["accepted"] for r in items)
+    assert items[-1]["answer"] == "MISSION_ACK MAV_MISSION_ACCEPTED"
+    assert v.frames("HEARTBEAT"), "the ground station's heartbeat never arrived"
+    assert v.events("arm") and v.events("rtl") and v.mode == "RTL"
+
+
+def test_ground_station_on_udpin_gets_the_udp_out_telemetry() -> None:
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255)
+    try:
+        port = gcs.port.getsockname()[1]
+        v = SimVehicle(climb_rate=100.0)
+        v.start(port=None, udp_out=[("127.0.0.1", port)])
+        try:
+            seen = run_session(gcs)
+            assert seen["mode"] == seen["arm"] == seen["rtl"] == MAV.MAV_RESULT_ACCEPTED
+            assert seen["mission"] == MAV.MAV_MISSION_ACCEPTED
+            check_records(v)
+            assert v.connected and v.connections == 1
+            assert v.events("connect")[0].detail["transport"] == "udp"
+        finally:
+            v.close()
+    finally:
+        gcs.close()
+
+
+def test_ground_station_on_udpout_reaches_the_udp_in_socket() -> None:
+    v = SimVehicle(climb_rate=100.0)
+    v.start(port=None, udp_in=("127.0.0.1", 0))
+    gcs = mavutil.mavlink_connection(v.udp_in_url, source_system=255)
+    try:
+        assert not v.connected  # nobody has written yet
+        seen = run_session(gcs)
+        assert seen["mission"] == MAV.MAV_MISSION_ACCEPTED
+        check_records(v)
+    finally:
+        gcs.close()
+        v.close()
+
+
+def test_mavlink1_peer_is_answered_in_mavlink1() -> None:
+    v = SimVehicle()
+    v.start(port=None, udp_in=("127.0.0.1", 0))
+    gcs = mavutil.mavlink_connection(v.udp_in_url, source_system=255, dialect="ardupilotmega")
+    gcs.mav.WIRE_PROTOCOL_VERSION = "1.0"
+    try:
+        gcs.mav.heartbeat_send(MAV.MAV_TYPE_GCS, MAV.MAV_AUTOPILOT_INVALID, 0, 0, 0,
+                               force_mavlink1=True)
+        recv(gcs, ["HEARTBEAT"], "heartbeat", heartbeat=False)
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline:
+            m = gcs.recv_match(type="GPS_RAW_INT", blocking=True, timeout=0.5)
+            if m is not None:
+                assert m.get_msgbuf()[0] == 0xFE
+                return
+        raise AssertionError("no telemetry")
+    finally:
+        gcs.close()
+        v.close()
+
+
+def test_cli_udp_out_and_record_file(tmp_path) -> None:
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255)
+    port = gcs.port.getsockname()[1]
+    record = tmp_path / "requests.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vehicle", "--no-tcp", "--udp-out", f"127.0.0.1:{port}",
+         "--record", str(record)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        hb = recv(gcs, ["HEARTBEAT"], "vehicle heartbeat")
+        target = (hb.get_srcSystem(), hb.get_srcComponent())
+        bad = [(MAV.MAV_CMD_NAV_WAYPOINT, 357713320, -786744210, 0.0)]
+        gcs.mav.mission_count_send(*target, 1)
+        recv(gcs, ["MISSION_REQUEST"], "item request")
+        gcs.mav.mission_item_send(*target, 0, MAV.MAV_FRAME_GLOBAL, bad[0][0], 0, 1, 0, 0, 0, 0,
+                                  357713320.0, -786744210.0, 10.0)
+        ack = recv(gcs, ["MISSION_ACK"], "refusal")
+        assert ack.type == MAV.MAV_MISSION_INVALID_PARAM5_X
+        assert upload_mission(gcs, target, bad) == MAV.MAV_MISSION_ACCEPTED
+    finally:
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+        gcs.close()
+    assert proc.returncode == 0, err
+    assert "udp-out 127.0.0.1:" in out
+    lines = [json.loads(line) for line in record.read_text().splitlines()]
+    refused = [r for r in lines if r["request"] == "MISSION_ITEM"]
+    assert refused and refused[0]["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X"
+    assert "degE7" in refused[0]["why"] and abs(refused[0]["x"] - 357713320) < 64  # float32
+    assert [r["request"] for r in lines].count("MISSION_COUNT") == 2
