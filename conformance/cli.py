@@ -1,7 +1,7 @@
 """``mcp-conform``: the black-box conformance runner's command line (DESIGN.md).
 
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
-                [--spawn CMD] [--mavlink] [--strict] [--select PREFIX ...] [--list]
+                [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
                 [--json FILE] [--junit FILE] [--capture FILE.mcap] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--seed N]
 
@@ -52,7 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
     p.add_argument("--role", metavar="drone|manager", default="drone", help="the role of the node under test (default drone)")
     p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
-    p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
+    p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
+                   help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
+                        "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens)")
     p.add_argument("--strict", action="store_true", help="a failed SHOULD is a failure")
     p.add_argument("--select", metavar="PREFIX", nargs="+", action="extend", default=[], help="run only cases whose rule ID or case ID starts with PREFIX")
     p.add_argument("--exclude", metavar="PREFIX", nargs="+", action="extend", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX")
@@ -158,7 +160,9 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")
-    for flag in ("mavlink", "strict", "list"):
+    if ns.mavlink:
+        args.append(f"--mcp-mavlink={ns.mavlink}")
+    for flag in ("strict", "list"):
         if getattr(ns, flag):
             args.append(f"--mcp-{flag}")
     if ns.verbose:

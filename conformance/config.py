@@ -34,6 +34,8 @@ class RunConfig:
     target_id: int | None = None
     spawn: str | None = None
     mavlink: bool = False
+    #: How the node reaches the vehicle: tcp, udp/udpin (the node listens), udpout.
+    mavlink_transport: str = "tcp"
     embedded: bool = False  # no --target and no --spawn: the reference node
     strict: bool = False
     rto: float = float(SPEC.params["timeout_s"])

@@ -131,7 +131,14 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         if not str(v["spawn"]).strip():
             raise ConfigError(f"{opt('spawn')}: the command is empty")
         cfg.spawn = str(v["spawn"])
-    cfg.mavlink = bool(v.get("mavlink", False))
+    mavlink = v.get("mavlink", False)
+    cfg.mavlink = bool(mavlink)
+    if isinstance(mavlink, str):
+        from vehicle import TRANSPORTS
+
+        if mavlink not in TRANSPORTS:
+            raise ConfigError(f"{opt('mavlink')}: {mavlink!r} is not one of {', '.join(TRANSPORTS)}")
+        cfg.mavlink_transport = mavlink
     cfg.strict = bool(v.get("strict", False))
     if "rto" in v:
         cfg.rto = _float(v["rto"], opt("rto"))
@@ -213,7 +220,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
     g.addoption("--mcp-role", metavar="drone|manager", default="drone", help="the role of the node under test")
     g.addoption("--mcp-spawn", metavar="CMD", help="start the node under test with CMD ({target_port} ... placeholders)")
-    g.addoption("--mcp-mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
+    g.addoption("--mcp-mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
+                help="start the simulated vehicle and pass {mavlink} (a pymavlink URL of that transport; default tcp)")
     g.addoption("--mcp-strict", action="store_true", help="a failed SHOULD is a failure")
     g.addoption("--mcp-select", metavar="PREFIX", action="append", default=[], help="run cases whose rule ID or case ID starts with PREFIX (repeatable)")
     g.addoption("--mcp-json", metavar="FILE", help="write the JSON report")

@@ -161,6 +161,7 @@ class Session:
             cfg.mavlink = True
         self.driver: TargetDriver | None = None
         self.vehicle: Any = None
+        self.mavlink_url = ""  # {mavlink}: how the node reaches the vehicle
         self.node: SpawnedNode | None = None
         self.argv: list[str] = []
         self.target_id: int | None = cfg.target_id
@@ -246,11 +247,11 @@ class Session:
             self.driver = None
 
     def _start_vehicle(self) -> None:
-        from vehicle import SimVehicle
+        from vehicle import start_for_node
 
-        self.vehicle = SimVehicle(fix_withheld=True, on_frame=self._vehicle_frame)
         try:
-            self.vehicle.start("127.0.0.1", 0)
+            self.vehicle, self.mavlink_url = start_for_node(
+                self.cfg.mavlink_transport, fix_withheld=True, on_frame=self._vehicle_frame)
         except OSError as exc:
             raise SetupError(f"cannot start the simulated vehicle: {exc.strerror}") from None
 
@@ -263,7 +264,7 @@ class Session:
             "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
             "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
             "broadcast": BROADCAST_ADDRESS, "id": str(self.target_id),
-            "mavlink": self.vehicle.url if self.vehicle is not None else "",
+            "mavlink": self.mavlink_url if self.vehicle is not None else "",
         }
 
     def _spawn(self) -> None:

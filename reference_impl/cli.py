@@ -153,7 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--id", type=_ident, required=True, metavar="N", help="this drone's MCP ID (1..65534)")
     _common(d, _PORTS["drone"], _PORTS["manager"])
     d.add_argument("--mavlink", metavar="URL",
-                   help="autopilot connection (tcp:HOST:PORT, udpin:HOST:PORT, /dev/ttyUSB0); "
+                   help="autopilot connection, a pymavlink URL (tcp:HOST:PORT as SITL's port 5760; "
+                        "udp:HOST:PORT or udpin:HOST:PORT to listen for SITL's --out; udpout:HOST:PORT; "
+                        "/dev/ttyUSB0); "
                         "default: a built-in simulated vehicle")
     d.add_argument("--gps-fix-delay", type=_number(0.0, True), default=0.0, metavar="S",
                    help="seconds before the built-in vehicle reports a GPS fix (0)")

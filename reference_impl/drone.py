@@ -3,7 +3,8 @@
 It follows the description's "Main module" steps in order:
 
 1. connect to the autopilot with pymavlink (``mavutil.mavlink_connection(url)``: ``tcp:`` as
-   ArduPilot SITL serves it, ``udpin:``, a serial device); with no URL the built-in
+   ArduPilot SITL serves it, ``udp:``/``udpin:`` to receive SITL's ``--out``, ``udpout:``,
+   a serial device) and send it a HEARTBEAT each second; with no URL the built-in
    simulated vehicle (:class:`vehicle.SimVehicle`) is started in-process and used;
 2. create the ``Mcp`` node with the application's handler (:class:`DroneApp`), so ACKs flow
    from now on (MCP-ACK-1);
@@ -13,8 +14,9 @@ It follows the description's "Main module" steps in order:
    MCP-PAY-2: "Mission_Ready carries no payload ... it is unicast to ID 0");
 5. on Start_Mission set GUIDED, arm and take off ("ARM the UAV and station keep at 10
    metres"); never arm before it (MCP-BLK-4);
-6. keep WP_List, WP_On, WP_Off and Obstacles_List and log them; forward each delivered
-   Mav_Passthrough frame to the autopilot exactly once (MCP-PAY-8);
+6. keep WP_List, WP_On, WP_Off and Obstacles_List and log them, and upload WP_List's
+   waypoints as the autopilot's mission (the mission protocol's handshake, item 0 home);
+   forward each delivered Mav_Passthrough frame to the autopilot exactly once (MCP-PAY-8);
 7. on End_Mission finish the pending autopilot work, then command RTL (MCP-BLK-7), keep
    ACKing retransmitted copies for a linger period (2 x the timeout, so a lost ACK of
    End_Mission is recovered) and return 0.
@@ -35,7 +37,7 @@ import queue
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -62,6 +64,8 @@ __all__ = ["AutopilotLink", "Drone", "DroneApp", "DroneConfig", "EventLogger", "
 
 _PORTS = SPEC.protocol["ports"]
 _MAV = mavutil.mavlink
+#: Seconds between the drone's HEARTBEATs to its autopilot (MAVLink's 1 Hz).
+HEARTBEAT_PERIOD = 1.0
 #: ArduCopter custom modes, by pymavlink's table (RTL is 6, GUIDED 4).
 _GUIDED = {v: k for k, v in mavutil.mode_mapping_acm.items()}["GUIDED"]
 _RTL = {v: k for k, v in mavutil.mode_mapping_acm.items()}["RTL"]
@@ -218,6 +222,10 @@ class AutopilotLink:
         self.rtl_sent = False
         self.takeoff_sent = False
         self._acks: dict[int, int] = {}
+        self._next_heartbeat = 0.0
+        self._mission_msgs: deque[Any] = deque(maxlen=64)
+        self.position: tuple[int, int, float] = (0, 0, 0.0)  # home: lat, lon (degE7), alt (m)
+        self.mission_result: int | None = None
         self._sys = 1
         self._comp = 1
         self._jobs: queue.Queue[tuple[str, Any, threading.Event]] = queue.Queue()
@@ -271,6 +279,7 @@ class AutopilotLink:
             self._stop.wait(wait)
             return
         try:
+            self._heartbeat()
             msg = self.conn.recv_match(blocking=True, timeout=wait)
             while msg is not None:
                 if self.tap is not None and msg.get_type() != "BAD_DATA":
@@ -286,6 +295,16 @@ class AutopilotLink:
                 self.log.warning("autopilot link error: %s", text)
                 self._link_error = text
             self._stop.wait(0.2)
+
+    def _heartbeat(self) -> None:
+        """A HEARTBEAT to the autopilot each second, as companion computers send (over UDP
+        the autopilot learns where the drone is from it)."""
+        now = time.monotonic()
+        if now < self._next_heartbeat:
+            return
+        self._next_heartbeat = now + HEARTBEAT_PERIOD
+        self.conn.mav.heartbeat_send(_MAV.MAV_TYPE_ONBOARD_CONTROLLER, _MAV.MAV_AUTOPILOT_INVALID,
+                                     0, 0, _MAV.MAV_STATE_ACTIVE)
 
     def _observe(self, msg: Any) -> None:
         kind = msg.get_type()
@@ -307,9 +326,12 @@ class AutopilotLink:
                 self.fix.set()
         elif kind == "GLOBAL_POSITION_INT":
             self.rel_alt = msg.relative_alt / 1000.0
+            self.position = (msg.lat, msg.lon, msg.alt / 1000.0 - self.rel_alt)
             if self.target_alt is not None and self.rel_alt >= 0.95 * self.target_alt:
                 self.log.info("reached %.1f m", self.rel_alt)
                 self.target_alt = None
+        elif kind in ("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"):
+            self._mission_msgs.append(msg)
         elif kind == "COMMAND_ACK":
             self._acks[int(msg.command)] = int(msg.result)
         elif kind == "STATUSTEXT":
@@ -374,6 +396,45 @@ class AutopilotLink:
         if self._command(_MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt, label="TAKEOFF"):
             self.target_alt = alt
             self.log.info("taking off to %.1f m", alt)
+
+    def _mission_item(self, seq: int, wp: Any) -> None:
+        """Send waypoint ``wp`` (a MISSION_ITEM payload from WP_List) as item ``seq``:
+        MISSION_ITEM_INT when x/y are degrees, else as it came, for the autopilot to judge."""
+        if math.isfinite(wp.x) and math.isfinite(wp.y) and abs(wp.x) <= 90 and abs(wp.y) <= 180:
+            self.conn.mav.mission_item_int_send(
+                self._sys, self._comp, seq, wp.frame, wp.command, 0, 1, wp.param1, wp.param2,
+                wp.param3, wp.param4, int(round(wp.x * 1e7)), int(round(wp.y * 1e7)), wp.z)
+        else:
+            self.conn.mav.mission_item_send(
+                self._sys, self._comp, seq, wp.frame, wp.command, 0, 1, wp.param1, wp.param2,
+                wp.param3, wp.param4, wp.x, wp.y, wp.z)
+
+    def _job_mission(self, waypoints: tuple[Any, ...]) -> None:
+        """WP_List: upload the waypoints as the autopilot's mission (item 0 is home), with
+        the mission protocol's handshake: MISSION_COUNT, each requested item, MISSION_ACK."""
+        lat, lon, alt = self.position
+        self._mission_msgs.clear()
+        self.conn.mav.mission_count_send(self._sys, self._comp, len(waypoints) + 1)
+        while True:
+            if not self._wait(lambda: bool(self._mission_msgs), self.step_timeout):
+                self.log.warning("mission upload: the autopilot stopped asking for items")
+                return
+            m = self._mission_msgs.popleft()
+            if m.get_type() == "MISSION_ACK":
+                self.mission_result = int(m.type)
+                name = _MAV.enums["MAV_MISSION_RESULT"][m.type].name if m.type in _MAV.enums[
+                    "MAV_MISSION_RESULT"] else str(m.type)
+                if m.type == _MAV.MAV_MISSION_ACCEPTED:
+                    self.log.info("mission of %d waypoints uploaded", len(waypoints))
+                else:
+                    self.log.warning("mission upload refused by the autopilot: %s", name)
+                return
+            if m.seq == 0:
+                self.conn.mav.mission_item_int_send(
+                    self._sys, self._comp, 0, _MAV.MAV_FRAME_GLOBAL, _MAV.MAV_CMD_NAV_WAYPOINT,
+                    0, 1, 0, 0, 0, 0, lat, lon, alt)
+            elif m.seq <= len(waypoints):
+                self._mission_item(m.seq, waypoints[m.seq - 1])
 
     def _job_forward(self, frame: bytes) -> None:
         """Mav_Passthrough: write the frame's bytes to the autopilot once (MCP-PAY-8)."""
@@ -451,6 +512,8 @@ class DroneApp(MissionMessageHandlerBase):
             return
         self.waypoints = tuple(buffer or ())
         self.log.info("WP_List: %d waypoints %s", len(self.waypoints), _describe(self.waypoints))
+        if self.link is not None and self.waypoints:
+            self.link.submit("mission", self.waypoints)
 
     def handle_wp_on_message(self, buffer: Any = None, msg: Message | None = None) -> None:
         if not self._note(msg, Action.WP_ON):

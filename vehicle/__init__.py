@@ -10,6 +10,7 @@ observation point on a drone's MAVLink link. All timestamps are ``time.monotonic
 """
 
 from .codec import Decoder, Encoder
+from .links import TRANSPORTS, start_for_node
 from .model import VehicleConfig, VehicleModel
 from .probe import PROBE_PREFIX, make_probe, probe_token
 from .records import COPTER_MODE_NAMES, COPTER_MODES, EVENT_KINDS, Event, Frame, mode_name
@@ -25,9 +26,11 @@ __all__ = [
     "Event",
     "Frame",
     "SimVehicle",
+    "TRANSPORTS",
     "VehicleConfig",
     "VehicleModel",
     "make_probe",
     "mode_name",
     "probe_token",
+    "start_for_node",
 ]
