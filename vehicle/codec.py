@@ -70,7 +70,9 @@ class Encoder:
             if cls is None:
                 return b""
             self._mav1.seq = self._mav.seq
-            buf = cls(*[getattr(msg, name) for name in cls.fieldnames]).pack(self._mav1)
+            values = [getattr(msg, name) for name in cls.fieldnames]
+            values = [v.encode("latin-1", "replace") if isinstance(v, str) else v for v in values]
+            buf = cls(*values).pack(self._mav1)
         else:
             buf = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256

@@ -56,6 +56,7 @@ EVENT_KINDS: tuple[str, ...] = (
     #             mode, seq, x, y, z...); ``--record FILE`` writes these, one JSON line each
     "item_reached",  # AUTO completed a mission command (detail: seq, command)
     "mission_complete",  # AUTO ran past the last mission item (detail: items)
+    "error",  # the vehicle failed on a message (its own bug; detail: type, error, conn)
     "probe",  # a passthrough probe arrived (detail: token)
     "connect",  # a TCP client connected, a UDP peer was first heard (detail: conn, peer,
     #             transport)

@@ -394,8 +394,12 @@ class SimVehicle:
                                        transport=client.transport)
                 if self._on_frame is not None:
                     self._on_frame(now, "rx", client.number, raw)
-                replies = self._model.handle(msg, now, raw=raw, conn=client.number)
-                self._send(client, replies)
+                try:
+                    replies = self._model.handle(msg, now, raw=raw, conn=client.number)
+                    self._send(client, replies)
+                except Exception as exc:  # noqa: BLE001 - a vehicle bug must not stop the link
+                    self._model.record(now, "error", conn=client.number, type=msg.get_type(),
+                                       error=f"{type(exc).__name__}: {exc}")
             self._flush_outbox()
             self._cond.notify_all()
 

@@ -49,6 +49,15 @@ def test_spawn_mode_reference_node_passes():
     assert res.rules["MCP-BLK-5"] == "passed", res.explain()
 
 
+@pytest.mark.parametrize("transport", ["udp", "udpout"])
+def test_spawn_mode_reference_node_passes_with_the_vehicle_over_udp(transport):
+    """The drone-role suite over a UDP autopilot link, as with TCP: the same rules judged."""
+    res = run_conform("--spawn", reference_node_command(), "--mavlink", transport, *FAST)
+    _assert_clean_pass(res)
+    for rule in ("MCP-BLK-4", "MCP-BLK-5", "MCP-BLK-7", "MCP-DUP-1", "MCP-PAY-8"):
+        assert res.rules[rule] == "passed", (rule, res.explain())
+
+
 def test_attach_mode_reference_node_passes_and_skips_vehicle_rules():
     port, listen = free_port(), free_port()
     node = subprocess.Popen(

@@ -48,3 +48,21 @@ def test_probe_token_parsing() -> None:
     assert probe_token("MCPPROBE:") is None
     assert probe_token("hello") is None
     assert probe_token(None) is None
+
+
+def test_mavlink1_encoder_packs_every_reply_the_model_sends() -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from vehicle import Encoder, VehicleModel
+
+    model = VehicleModel(now=0.0)
+    msgs = [*model.snapshot(1.0), mav.MAVLink_statustext_message(2, b"PreArm: Need 3D Fix"),
+            mav.MAVLink_mission_request_message(255, 0, 3, 0),
+            mav.MAVLink_mission_ack_message(255, 0, 10, 0)]
+    enc = Encoder(1, 1, version=1)
+    for m in msgs:
+        raw = enc.encode(m)
+        assert raw[:1] == b"\xfe", m.get_type()
+        got, bad, _ = Decoder().feed(raw)
+        assert bad == 0 and got[0].get_type() == m.get_type()
+    assert got[0].type == 10  # the MISSION_ACK's result survives MAVLink 1
