@@ -253,7 +253,7 @@ class MissionProtocol:
             ans.replies[:0] = replies
             return ans
         up.last_request = now
-        return Answer([*replies, self._request(up)], ACCEPTED, f"item {seq} stored")
+        return Answer([*replies, self._request(up)], None, f"item {seq} stored")
 
     def _complete(self, src: tuple[int, int], why: str) -> Answer:
         self.upload = None

@@ -488,7 +488,7 @@ class VehicleModel:
         if result != mav.MAV_RESULT_ACCEPTED:
             for m in out:
                 if m.get_type() == "STATUSTEXT":
-                    return str(m.text)
+                    return f"{m.text}: {why}" if why and why != m.text else str(m.text)
         return why or ("accepted" if result == mav.MAV_RESULT_ACCEPTED else "refused")
 
     def _request(self, now: float, msg: MAVLinkMessage, answer: str, accepted: bool,
