@@ -82,15 +82,15 @@ class AutoMission:
         self._jumps: dict[int, int] = {}
 
     # ------------------------------------------------------------------ entry
-    def refusal(self) -> str | None:
-        """Why AUTO cannot be entered now (``ModeAuto::init``), or None."""
+    def refusal(self) -> tuple[str, str] | None:
+        """Why AUTO cannot be entered now (``ModeAuto::init``): (STATUSTEXT, detail), or None."""
         m = self.model
-        if len(m.missions.items) <= 1:
-            return "Flight mode change failed"  # no mission: init fails
+        if len(m.missions.items) <= 1:  # no mission: init fails
+            return "Flight mode change failed", "AUTO needs a mission (more than the home item)"
         if m.armed and m.altitude <= 0.0:
             first = m.missions.first_nav()
             if first is None or int(first["command"]) != mav.MAV_CMD_NAV_TAKEOFF:
-                return "Auto: Missing Takeoff Cmd"
+                return "Auto: Missing Takeoff Cmd", ""
         return None
 
     def start_or_resume(self, now: float, restart: bool = False) -> None:

@@ -52,8 +52,10 @@ from .mission import (
 )
 from .probe import probe_token
 from .records import (
+    ACCEPTED_RESULT,
     AUTO,
     COPTER_MODE_NAMES,
+    DENIED_RESULT,
     GUIDED,
     GUIDED_FLAG_MODES,
     LAND,
@@ -73,6 +75,15 @@ FORCE_DISARM_MAGIC = 21196.0
 SET_MODE_ACK_COMMAND = 11
 #: Result used where ArduCopter refuses a command (its checks failing give FAILED).
 REFUSED = mav.MAV_RESULT_FAILED
+#: Why a mode change without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is refused (ArduPilot maps
+#: only custom modes).
+NO_CUSTOM_FLAG = "base_mode lacks MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (only custom modes are accepted)"
+#: Commands that are mode changes: MAV_CMD -> (request name, the mode it enters).
+_MODE_COMMANDS: dict[int, tuple[str, int]] = {
+    mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: ("rtl", RTL),
+    mav.MAV_CMD_NAV_LAND: ("land", LAND),
+    mav.MAV_CMD_MISSION_START: ("mission_start", AUTO),
+}
 
 _SENSORS = (
     mav.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -264,10 +275,12 @@ class VehicleModel:
         conn, due, why = self.missions.update(now)
         for msg in due:
             self.broadcast(msg, conn)
-        if why is not None:
-            self.record(now, "request", request="MISSION_COUNT", answer="MISSION_ACK "
-                        + result_name(mav.MAV_MISSION_OPERATION_CANCELLED), accepted=False,
-                        why=why, conn=conn)
+        if why is not None:  # the upload's final answer: cancelled
+            code = mav.MAV_MISSION_OPERATION_CANCELLED
+            self.record(now, "request", request="mission_upload", result=DENIED_RESULT,
+                        reason=f"Mission upload timeout: {why}", via="timeout", command=None,
+                        name="MISSION_COUNT", mav_result=code,
+                        answer="MISSION_ACK " + result_name(code), conn=conn)
         return out
 
     def snapshot(self, now: float) -> list[MAVLinkMessage]:
@@ -431,13 +444,14 @@ class VehicleModel:
         return []
 
     def _on_set_mode(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
+        custom = int(f["custom_mode"])
         if f["base_mode"] & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            result, notes = self._set_mode(int(f["custom_mode"]), now, "SET_MODE")
+            result, notes = self._set_mode(custom, now, "SET_MODE")
         else:
             result, notes = REFUSED, []
-            self._why = "base_mode without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED"
-        self._request(now, msg, result_text(result), result == mav.MAV_RESULT_ACCEPTED,
-                      self._why_of(result, notes), mode=mode_name(int(f["custom_mode"])))
+            self._why = NO_CUSTOM_FLAG
+        self._command_request(now, msg, "mode", None, result, notes, mode=mode_name(custom),
+                              custom_mode=custom)
         return [*notes, self._ack(msg, SET_MODE_ACK_COMMAND, result)]
 
     def _on_command_long(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
@@ -454,49 +468,60 @@ class VehicleModel:
     ) -> list[MAVLinkMessage]:
         out: list[MAVLinkMessage] = []
         result = mav.MAV_RESULT_ACCEPTED
+        request, extra = "command", {"params": list(p)}
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             result, out = self._arm_disarm(p[0], p[1], now)
+            if p[0] in (0.0, 1.0):
+                request = "arm" if p[0] == 1.0 else "disarm"
+                extra = {"forced": p[1] == (FORCE_ARM_MAGIC if p[0] == 1.0 else FORCE_DISARM_MAGIC)}
         elif cmd == mav.MAV_CMD_DO_SET_MODE:
+            request, extra = "mode", {"mode": mode_name(int(p[1])), "custom_mode": int(p[1])}
             if int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 result, out = self._set_mode(int(p[1]), now, "DO_SET_MODE")
             else:
                 result = REFUSED
-                self._why = "param1 without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED"
-        elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            result, out = self._set_mode(RTL, now, "NAV_RETURN_TO_LAUNCH")
-        elif cmd == mav.MAV_CMD_NAV_LAND:
-            result, out = self._set_mode(LAND, now, "NAV_LAND")
-        elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
-            result = self._takeoff(p[6], now)
-        elif cmd == mav.MAV_CMD_MISSION_START:
-            result, out = self._set_mode(AUTO, now, "MISSION_START")
-            if result == mav.MAV_RESULT_ACCEPTED and not self._auto.running:
+                self._why = NO_CUSTOM_FLAG
+        elif cmd in _MODE_COMMANDS:
+            request, mode = _MODE_COMMANDS[cmd]
+            extra = {"mode": mode_name(mode), "custom_mode": mode}
+            result, out = self._set_mode(mode, now, command_name(cmd)[8:])
+            if cmd == mav.MAV_CMD_MISSION_START and result == mav.MAV_RESULT_ACCEPTED \
+                    and not self._auto.running:
                 self._auto.start_or_resume(now)
+        elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
+            request, extra = "takeoff", {"alt": p[6]}
+            result = self._takeoff(p[6], now)
         elif cmd == mav.MAV_CMD_REQUEST_MESSAGE:
             wanted = int(p[0])
             out = [m for m in self.snapshot(now) if m.get_msgId() == wanted]
-        name = command_name(cmd)
-        self.record(now, "command", command=cmd, name=name, params=p, result=result,
+        self._command_request(now, msg, request, cmd, result, out, **extra)
+        self.record(now, "command", command=cmd, name=command_name(cmd), params=p, result=result,
                     srcsys=msg.get_srcSystem())
-        self._request(now, msg, result_text(result), result == mav.MAV_RESULT_ACCEPTED,
-                      self._why_of(result, out), command=name, params=list(p))
         return [*out, self._ack(msg, cmd, result)]
 
-    def _why_of(self, result: int, out: list[MAVLinkMessage]) -> str:
-        """The reason of an answer: the refusal's STATUSTEXT, else what the model noted."""
+    def _command_request(self, now: float, msg: MAVLinkMessage, request: str,
+                         command: int | None, result: int, out: list[MAVLinkMessage],
+                         **extra: Any) -> Event:
+        """Record a command or SET_MODE with its MAV_RESULT; a refusal's reason is its
+        STATUSTEXT (as the autopilot says it) and what the model noted."""
         why, self._why = self._why, ""
-        if result != mav.MAV_RESULT_ACCEPTED:
-            for m in out:
-                if m.get_type() == "STATUSTEXT":
-                    return f"{m.text}: {why}" if why and why != m.text else str(m.text)
-        return why or ("accepted" if result == mav.MAV_RESULT_ACCEPTED else "refused")
+        accepted = result == mav.MAV_RESULT_ACCEPTED
+        if not accepted:
+            text = next((str(m.text) for m in out if m.get_type() == "STATUSTEXT"), "")
+            why = f"{text}: {why}" if text and why else (text or why)
+        return self._request(now, msg, request, accepted, why, result_text(result),
+                             command=command, mav_result=result, **extra)
 
-    def _request(self, now: float, msg: MAVLinkMessage, answer: str, accepted: bool,
-                 why: str, **detail: Any) -> Event:
-        """Record one request of the peer with the vehicle's answer (``request`` event)."""
-        return self.record(now, "request", request=msg.get_type(), answer=answer,
-                           accepted=accepted, why=why, srcsys=msg.get_srcSystem(),
-                           srccomp=msg.get_srcComponent(), conn=self._conn, **detail)
+    def _request(self, now: float, msg: MAVLinkMessage, request: str, accepted: bool,
+                 reason: str | None, answer: str, *, command: int | None = None,
+                 mav_result: int | None = None, **extra: Any) -> Event:
+        """Record what the peer asked for and the answer it got (``records.REQUESTS``)."""
+        return self.record(
+            now, "request", request=request, result=ACCEPTED_RESULT if accepted else DENIED_RESULT,
+            reason=None if accepted else (reason or answer), via=msg.get_type(), command=command,
+            name=command_name(command) if command is not None else msg.get_type(),
+            mav_result=mav_result, answer=answer, srcsys=msg.get_srcSystem(),
+            srccomp=msg.get_srcComponent(), conn=self._conn, **extra)
 
     def _arm_disarm(self, p1: float, p2: float, now: float) -> tuple[int, list[MAVLinkMessage]]:
         if p1 == 1.0:
@@ -515,11 +540,11 @@ class VehicleModel:
             if not self.armed:
                 return mav.MAV_RESULT_ACCEPTED, []
             if self.altitude > 0.0 and p2 != FORCE_DISARM_MAGIC:
-                self._why = "flying: disarm in flight needs param2 21196 (force)"
+                self._why = "Disarm: flying (needs the force value in param2)"
                 return REFUSED, []
             self._disarm(now, "command")
             return mav.MAV_RESULT_ACCEPTED, []
-        self._why = f"param1 {p1:g} is neither 0 (disarm) nor 1 (arm)"
+        self._why = f"param1 {p1:g} is neither 1 (arm) nor 0 (disarm)"
         return REFUSED, []
 
     def _disarm(self, now: float, reason: str) -> None:
@@ -536,9 +561,9 @@ class VehicleModel:
         if not known:
             self._why = f"unknown mode {custom}"
         elif not ok:
-            self._why = "no position estimate (no GPS fix)"
+            self._why = f"{mode_name(custom)} needs a position (no GPS fix)"
         elif custom == AUTO and custom != self.custom_mode:
-            refusal = self._auto.refusal() or ""
+            refusal, self._why = self._auto.refusal() or ("", "")
             ok = not refusal
         if custom == RTL:
             self.rtl_commanded = True
@@ -558,14 +583,14 @@ class VehicleModel:
 
     def _takeoff(self, alt: float, now: float) -> int:
         checks = (
-            (self.armed, "not armed"),
-            (self.custom_mode == GUIDED, f"mode {self.mode} is not GUIDED"),
-            (self.altitude <= 0.0 and self._target_alt is None, "already flying"),
-            (math.isfinite(alt) and alt > 0, f"altitude {alt:g} m is not above 0"),
+            (self.armed, "Takeoff: not armed"),
+            (self.custom_mode == GUIDED, f"Takeoff: mode {self.mode} is not GUIDED"),
+            (self.altitude <= 0.0 and self._target_alt is None, "Takeoff: already flying"),
+            (math.isfinite(alt) and alt > 0, f"Takeoff: bad altitude {alt}"),
         )
         failed = [why for passed, why in checks if not passed]
         ok = not failed
-        self._why = failed[0] if failed else f"climbing to {alt:g} m"
+        self._why = failed[0] if failed else ""
         self.record(now, "takeoff", alt=alt, accepted=ok)
         if ok:
             self._target_alt = alt
@@ -577,14 +602,15 @@ class VehicleModel:
         """The stored mission (MISSION_ITEM_INT fields; item 0 as uploaded, home in downloads)."""
         return self.missions.items
 
-    def _mission(self, msg: MAVLinkMessage, now: float, ans: Answer,
-                 **detail: Any) -> list[MAVLinkMessage]:
+    def _mission(self, msg: MAVLinkMessage, now: float, request: str, ans: Answer,
+                 command: int | None = None, **detail: Any) -> list[MAVLinkMessage]:
         """Record a mission-protocol request with its answer; return the replies."""
         if ans.result is not None:
             answer = "MISSION_ACK " + result_name(ans.result)
         else:
             answer = ", ".join(_describe(m) for m in ans.replies if m.get_type() != "STATUSTEXT")
-        self._request(now, msg, answer, ans.result in (None, ACCEPTED), ans.why, **detail)
+        self._request(now, msg, request, ans.result in (None, ACCEPTED), ans.why, answer,
+                      command=command, mav_result=ans.result, **detail)
         return ans.replies
 
     def _src(self, msg: MAVLinkMessage) -> tuple[int, int]:
@@ -594,19 +620,18 @@ class VehicleModel:
         ans = self.missions.count(f, self._src(msg), self._conn, now)
         if ans.result == ACCEPTED:
             self.record(now, "mission", count=len(self.missions.items))
-        return self._mission(msg, now, ans, count=int(f["count"]))
+        return self._mission(msg, now, "mission_upload", ans, count=int(f["count"]))
 
     def _on_mission_item_int(self, msg: MAVLinkMessage, f: dict[str, Any],
                              now: float) -> Iterable:
-        seq, cmd = int(f["seq"]), command_name(int(f["command"]))
-        detail = {"seq": seq, "command": cmd, "frame": int(f["frame"]), "x": f["x"],
-                  "y": f["y"], "z": f["z"]}
+        detail = {"command": int(f["command"]), "seq": int(f["seq"]), "frame": int(f["frame"]),
+                  "current": int(f["current"]), "x": f["x"], "y": f["y"], "z": f["z"]}
         if int(f.get("current", 0)) in (2, 3) and int(f.get("mission_type", 0) or 0) == 0:
-            return self._mission(msg, now, self._guided_item(msg, f), **detail)
+            return self._mission(msg, now, "guided_item", self._guided_item(msg, f), **detail)
         ans = self.missions.item(msg.get_type(), f, self._src(msg), now)
         if ans.result == ACCEPTED and self.missions.upload is None:
             self.record(now, "mission", count=len(self.missions.items))
-        return self._mission(msg, now, ans, **detail)
+        return self._mission(msg, now, "mission_item", ans, **detail)
 
     _on_mission_item = _on_mission_item_int
 
@@ -629,12 +654,13 @@ class VehicleModel:
 
     def _on_mission_request_list(self, msg: MAVLinkMessage, f: dict[str, Any],
                                  now: float) -> Iterable:
-        return self._mission(msg, now, self.missions.request_list(f, self._src(msg)))
+        return self._mission(msg, now, "mission_download",
+                             self.missions.request_list(f, self._src(msg)))
 
     def _on_mission_request_int(self, msg: MAVLinkMessage, f: dict[str, Any],
                                 now: float) -> Iterable:
         ans = self.missions.request_item(msg.get_type(), f, self._src(msg))
-        return self._mission(msg, now, ans, seq=int(f["seq"]))
+        return self._mission(msg, now, "mission_read", ans, seq=int(f["seq"]))
 
     _on_mission_request = _on_mission_request_int
 
@@ -644,7 +670,7 @@ class VehicleModel:
         if ans.result == ACCEPTED and int(f.get("mission_type", 0) or 0) == 0:
             self._auto.started = False
             self.record(now, "mission", count=0)
-        return self._mission(msg, now, ans)
+        return self._mission(msg, now, "mission_clear", ans)
 
     def _on_mission_set_current(self, msg: MAVLinkMessage, f: dict[str, Any],
                                 now: float) -> Iterable:
@@ -654,9 +680,8 @@ class VehicleModel:
             self._auto.index = max(seq, 1)
             self._auto.started, self._auto.complete = True, False
             self.missions.current = self._auto.index
-        self._request(now, msg, "MISSION_CURRENT" if ok else "ignored", ok,
-                      f"current item {self.missions.current}" if ok else f"no item {seq}",
-                      seq=seq)
+        self._request(now, msg, "mission_set_current", ok, f"no item {seq}",
+                      "MISSION_CURRENT" if ok else "ignored", seq=seq)
         return [self.missions.current_message()] if ok else []
 
     # ------------------------------------------------------------------ parameters

@@ -51,9 +51,8 @@ EVENT_KINDS: tuple[str, ...] = (
     "fix",  # telemetry started reporting a 3D fix
     "fix_lost",  # telemetry stopped reporting a fix
     "mission",  # a mission upload completed or was cleared (detail: count)
-    "request",  # a request of the peer and the vehicle's answer (detail: request, answer,
-    #             accepted, why, srcsys, srccomp, conn, and what it named: command, params,
-    #             mode, seq, x, y, z...); ``--record FILE`` writes these, one JSON line each
+    "request",  # the peer asked the autopilot for something, with the answer (see below);
+    #             ``--record FILE`` writes these, one JSON line each
     "item_reached",  # AUTO completed a mission command (detail: seq, command)
     "mission_complete",  # AUTO ran past the last mission item (detail: items)
     "error",  # the vehicle failed on a message (its own bug; detail: type, error, conn)
@@ -62,6 +61,51 @@ EVENT_KINDS: tuple[str, ...] = (
     #             transport)
     "disconnect",  # a TCP client went away (detail: conn, peer)
 )
+
+
+#: What a peer may ask of the autopilot (``Event.detail["request"]`` of a "request" event).
+#: The vehicle records EVERY such request with the answer it gave, accepted or not, so a
+#: checker judges what the node attempted, not only what the vehicle could do.
+REQUESTS: tuple[str, ...] = (
+    "arm",  # MAV_CMD_COMPONENT_ARM_DISARM param1 = 1 (forced: param2 = 2989)
+    "disarm",  # MAV_CMD_COMPONENT_ARM_DISARM param1 = 0 (forced: param2 = 21196)
+    "mode",  # SET_MODE or MAV_CMD_DO_SET_MODE (detail: mode, custom_mode = the mode asked for)
+    "rtl",  # MAV_CMD_NAV_RETURN_TO_LAUNCH
+    "land",  # MAV_CMD_NAV_LAND
+    "takeoff",  # MAV_CMD_NAV_TAKEOFF (detail: alt)
+    "mission_start",  # MAV_CMD_MISSION_START
+    "command",  # any other COMMAND_LONG / COMMAND_INT (detail: params)
+    # the mission protocol (vehicle.mission):
+    "mission_upload",  # MISSION_COUNT (detail: count); via "timeout" when it was cancelled
+    "mission_item",  # MISSION_ITEM / MISSION_ITEM_INT (detail: seq, frame, current, x, y, z;
+    #                  command is the item's MAV_CMD)
+    "guided_item",  # MISSION_ITEM[_INT] with current 2/3: fly there in GUIDED
+    "mission_download",  # MISSION_REQUEST_LIST
+    "mission_read",  # MISSION_REQUEST / MISSION_REQUEST_INT (detail: seq)
+    "mission_clear",  # MISSION_CLEAR_ALL
+    "mission_set_current",  # MISSION_SET_CURRENT (detail: seq)
+)
+#: The answers a request can get (``Event.detail["result"]``).
+ACCEPTED_RESULT = "accepted"
+DENIED_RESULT = "denied"
+
+# The detail of a "request" event (every key always present; JSON-serialisable values):
+#   request   one of REQUESTS
+#   result    "accepted" or "denied"
+#   reason    why it was denied, as the autopilot says it ("PreArm: Need 3D Fix",
+#             "Flight mode change failed: RTL needs a position (no GPS fix)", "latitude
+#             357713312 is not in degrees (-90..90); a degE7 value sent as degrees?"), else None
+#   via       the message that carried it: "COMMAND_LONG", "SET_MODE", "MISSION_ITEM", ...
+#   command   the MAV_CMD number (None for SET_MODE and mission messages other than items);
+#   name      its MAV_CMD_ name, else the message name
+#   mav_result  the MAV_RESULT of the COMMAND_ACK, or the MAV_MISSION_RESULT of the
+#             MISSION_ACK sent back (None when the answer was not an ACK)
+#   answer    what the vehicle sent back: "MAV_RESULT_FAILED", "MISSION_ACK
+#             MAV_MISSION_INVALID_PARAM5_X", "MISSION_REQUEST seq=2", "MISSION_COUNT count=3"
+#   srcsys, srccomp, conn  who asked: MAVLink system and component ids, link number
+# plus, by request: "arm"/"disarm": forced (bool); "mode"/"rtl"/"land"/"mission_start":
+# mode and custom_mode (the mode asked for, "MODE(n)" when unknown); "takeoff": alt;
+# "command": params (the 7 parameters); the mission requests as listed above.
 
 
 @dataclass(frozen=True)

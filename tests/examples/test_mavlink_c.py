@@ -129,16 +129,14 @@ def test_set_mode_arm_disarm_with_the_refusal_before_the_fix(build: Path, vehicl
     assert res.returncode == 0, res.stdout + res.stderr
     assert "autopilot says: Flight mode change failed" in res.stdout
     reqs = v.requests()
-    seen = [(r["request"], r.get("command", r.get("mode")), r["params"][0] if "params" in r else None,
-             r["answer"], r["why"]) for r in reqs]
-    refused = ("SET_MODE", "GUIDED", None, "MAV_RESULT_FAILED",
-               "Flight mode change failed: no position estimate (no GPS fix)")
+    seen = [(r["request"], r["via"], r["answer"], r["reason"]) for r in reqs]
+    refused = ("mode", "SET_MODE", "MAV_RESULT_FAILED",
+               "Flight mode change failed: GUIDED needs a position (no GPS fix)")
     n = seen.count(refused)
     assert n >= 1 and seen[:n] == [refused] * n, seen
-    arm = "MAV_CMD_COMPONENT_ARM_DISARM"
-    assert seen[n:] == [("SET_MODE", "GUIDED", None, "MAV_RESULT_ACCEPTED", "accepted"),
-                        ("COMMAND_LONG", arm, 1.0, "MAV_RESULT_ACCEPTED", "accepted"),
-                        ("COMMAND_LONG", arm, 0.0, "MAV_RESULT_ACCEPTED", "accepted")], seen
+    assert seen[n:] == [("mode", "SET_MODE", "MAV_RESULT_ACCEPTED", None),
+                        ("arm", "COMMAND_LONG", "MAV_RESULT_ACCEPTED", None),
+                        ("disarm", "COMMAND_LONG", "MAV_RESULT_ACCEPTED", None)], seen
     assert all(r["srcsys"] == 255 and r["srccomp"] == 190 for r in reqs)
 
 
@@ -151,17 +149,18 @@ def test_mission_upload_takeoff_and_the_dege7_bug(build: Path, vehicle_factory) 
     out = res.stdout
     assert "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X" in out and "reached item 4" in out
     reqs = v.requests()
-    bad = [r for r in reqs if r["request"] == "MISSION_ITEM"]
-    assert len(bad) == 1 and bad[0]["seq"] == 1
-    assert bad[0]["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X" and not bad[0]["accepted"]
-    assert "degE7" in bad[0]["why"]
-    items = [r for r in reqs if r["request"] == "MISSION_ITEM_INT"]
-    assert [r["seq"] for r in items] == [0, 1, 2, 3, 4] and all(r["accepted"] for r in items)
+    bad = [r for r in reqs if r["via"] == "MISSION_ITEM"]
+    assert len(bad) == 1 and (bad[0]["request"], bad[0]["seq"]) == ("mission_item", 1)
+    assert bad[0]["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X"
+    assert bad[0]["result"] == "denied" and "degE7" in bad[0]["reason"]
+    items = [r for r in reqs if r["via"] == "MISSION_ITEM_INT"]
+    assert [r["seq"] for r in items] == [0, 1, 2, 3, 4]
+    assert all(r["result"] == "accepted" for r in items)
     assert items[1]["answer"] == "MISSION_REQUEST seq=2"
     assert items[-1]["answer"] == "MISSION_ACK MAV_MISSION_ACCEPTED"
-    commands = [(r.get("command"), r["answer"]) for r in reqs if r["request"] == "COMMAND_LONG"]
-    assert ("MAV_CMD_NAV_TAKEOFF", "MAV_RESULT_ACCEPTED") in commands
-    assert ("MAV_CMD_MISSION_START", "MAV_RESULT_ACCEPTED") in commands
+    commands = [(r["request"], r["answer"]) for r in reqs if r["via"] == "COMMAND_LONG"]
+    assert ("takeoff", "MAV_RESULT_ACCEPTED") in commands
+    assert ("mission_start", "MAV_RESULT_ACCEPTED") in commands
     print(f"mission_takeoff run: {time.monotonic() - t0:.1f} s, {len(reqs)} requests recorded")
 
 

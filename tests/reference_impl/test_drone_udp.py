@@ -36,11 +36,10 @@ def test_session_over_each_transport(transport: str, manager: FakePeer, drone_fa
         assert run.join() == 0
         assert vehicle.frames("HEARTBEAT"), "no HEARTBEAT from the drone"
         reqs = [e.detail for e in vehicle.events("request")]
-        named = {(r["request"], r.get("command") or r.get("mode")): r for r in reqs}
-        assert named[("SET_MODE", "GUIDED")]["accepted"]
-        assert named[("COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM")]["accepted"]
-        assert named[("COMMAND_LONG", "MAV_CMD_NAV_RETURN_TO_LAUNCH")]["accepted"]
-        items = [r for r in reqs if r["request"] == "MISSION_ITEM_INT"]
+        named = {(r["request"], r.get("mode")): r["result"] for r in reqs}
+        assert named[("mode", "GUIDED")] == named[("arm", None)] == "accepted"
+        assert named[("rtl", "RTL")] == "accepted"
+        items = [r for r in reqs if r["request"] == "mission_item"]
         assert [r["seq"] for r in items] == [0, 1, 2]
         assert items[-1]["answer"] == "MISSION_ACK MAV_MISSION_ACCEPTED"
         assert run.drone.link.mission_result == 0

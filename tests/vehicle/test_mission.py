@@ -57,8 +57,10 @@ def test_upload_asks_with_mission_request_like_arducopter() -> None:
     assert "Flight plan received" in [m.text for m in replies if m.get_type() == "STATUSTEXT"]
     assert len(model.mission) == 3 and abs(model.mission[1]["x"] - LAT) <= 10  # float32 degrees
     assert model.events("mission")[-1].detail["count"] == 3
-    recs = requests(model, request="MISSION_ITEM_INT")
-    assert [r["seq"] for r in recs] == [0, 2] and all(r["accepted"] for r in recs)
+    recs = requests(model, request="mission_item", via="MISSION_ITEM_INT")
+    assert [r["seq"] for r in recs] == [0, 2] and all(r["result"] == "accepted" for r in recs)
+    assert [r["answer"] for r in recs] == ["MISSION_REQUEST seq=1", "MISSION_ACK MAV_MISSION_ACCEPTED"]
+    assert recs[1]["name"] == "MAV_CMD_NAV_TAKEOFF" and recs[1]["reason"] is None
 
 
 def test_request_int_option() -> None:
@@ -73,9 +75,11 @@ def test_dege7_latitude_sent_as_degrees_is_invalid_param5_x_and_upload_goes_on()
     gcs.send(item_int(0), 0.0)
     bad = gcs.send(item_float(1, x=357713320.0, y=-786744210.0), 0.1)
     assert ack(bad) == mav.MAV_MISSION_INVALID_PARAM5_X  # convert_MISSION_ITEM_to_..._INT
-    rec = requests(model, request="MISSION_ITEM", seq=1)[-1]
-    assert rec["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X" and not rec["accepted"]
-    assert "degE7" in rec["why"]
+    rec = requests(model, via="MISSION_ITEM", seq=1)[-1]
+    assert rec["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X"
+    assert (rec["request"], rec["result"], rec["mav_result"]) == (
+        "mission_item", "denied", mav.MAV_MISSION_INVALID_PARAM5_X)
+    assert "degE7" in rec["reason"]
     assert model.missions.upload is not None  # the transfer never saw it: still waiting
     assert ack(gcs.send(item_float(1), 0.2)) == mav.MAV_MISSION_ACCEPTED
 
@@ -99,7 +103,7 @@ def test_unrequested_item_is_refused_with_mission_error() -> None:
     model, gcs = make()
     assert ack(gcs.send(item_int(0), 0.0)) == mav.MAV_MISSION_ERROR
     assert model.mission == []
-    assert "unrequested" in requests(model, request="MISSION_ITEM_INT")[-1]["why"]
+    assert "unrequested" in requests(model, request="mission_item")[-1]["reason"]
 
 
 def test_wrong_seq_and_other_sender() -> None:
@@ -125,7 +129,8 @@ def test_partial_upload_is_re_requested_then_cancelled() -> None:
     assert by_type(out, "MISSION_ACK").type == mav.MAV_MISSION_OPERATION_CANCELLED
     assert "Mission upload timeout" in [m.text for m in out if m.get_type() == "STATUSTEXT"]
     assert model.missions.upload is None and len(model.mission) == 1  # kept, as ArduPilot
-    assert requests(model, answer="MISSION_ACK MAV_MISSION_OPERATION_CANCELLED")
+    cancel = requests(model, answer="MISSION_ACK MAV_MISSION_OPERATION_CANCELLED")
+    assert cancel[-1]["request"] == "mission_upload" and "timeout" in cancel[-1]["reason"]
 
 
 def test_download_item_zero_is_home_and_past_the_end_is_an_error() -> None:
@@ -187,8 +192,8 @@ def test_auto_needs_a_mission_and_a_takeoff_when_armed_on_the_ground() -> None:
     upload(gcs, [item_int(0), item_int(1)], 0.2)
     replies = gcs.command(mav.MAV_CMD_MISSION_START, now=0.3)
     assert by_type(replies, "COMMAND_ACK").result == mav.MAV_RESULT_FAILED
-    rec = requests(model, command="MAV_CMD_MISSION_START")[-1]
-    assert rec["why"] == "Auto: Missing Takeoff Cmd" and rec["answer"] == "MAV_RESULT_FAILED"
+    rec = requests(model, request="mission_start")[-1]
+    assert rec["reason"] == "Auto: Missing Takeoff Cmd" and rec["answer"] == "MAV_RESULT_FAILED"
 
 
 def test_mission_current_is_streamed() -> None:
@@ -198,11 +203,15 @@ def test_mission_current_is_streamed() -> None:
     assert cur.total == 1
 
 
-def test_command_requests_are_recorded_with_why() -> None:
+def test_command_requests_are_recorded_with_the_reason() -> None:
     model, gcs = make(fix_withheld=True)
     gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, now=0.0)
-    rec = requests(model, command="MAV_CMD_COMPONENT_ARM_DISARM")[-1]
-    assert (rec["answer"], rec["accepted"], rec["why"]) == (
-        "MAV_RESULT_FAILED", False, "PreArm: Need 3D Fix")
+    rec = requests(model, request="arm")[-1]
+    assert (rec["answer"], rec["result"], rec["reason"], rec["via"], rec["forced"]) == (
+        "MAV_RESULT_FAILED", "denied", "PreArm: Need 3D Fix", "COMMAND_LONG", False)
     gcs.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10, now=0.1)
-    assert requests(model, command="MAV_CMD_NAV_TAKEOFF")[-1]["why"] == "not armed"
+    assert requests(model, request="takeoff")[-1]["reason"] == "Takeoff: not armed"
+    gcs.send(mav.MAVLink_set_mode_message(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4), 0.2)
+    rec = requests(model, request="mode")[-1]
+    assert rec["reason"] == "Flight mode change failed: GUIDED needs a position (no GPS fix)"
+    assert (rec["mode"], rec["name"], rec["command"]) == ("GUIDED", "SET_MODE", None)

@@ -22,12 +22,13 @@ pytestmark = pytest.mark.slow
 
 def check_records(v: SimVehicle) -> None:
     reqs = [e.detail for e in v.events("request")]
-    kinds = [(r["request"], r.get("command") or r.get("mode") or r.get("seq")) for r in reqs]
-    assert ("SET_MODE", "GUIDED") in kinds
-    assert ("COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM") in kinds
-    assert ("COMMAND_LONG", "MAV_CMD_NAV_RETURN_TO_LAUNCH") in kinds
-    items = [r for r in reqs if r["request"] == "MISSION_ITEM_INT"]
-    assert [r["seq"] for r in items] == [0, 1, 2, 3] and all(r["accepted"] for r in items)
+    kinds = [(r["request"], r["via"], r["result"]) for r in reqs]
+    assert ("mode", "SET_MODE", "accepted") in kinds
+    assert ("arm", "COMMAND_LONG", "accepted") in kinds
+    assert ("rtl", "COMMAND_LONG", "accepted") in kinds
+    items = [r for r in reqs if r["request"] == "mission_item"]
+    assert [r["seq"] for r in items] == [0, 1, 2, 3]
+    assert all(r["result"] == "accepted" and r["via"] == "MISSION_ITEM_INT" for r in items)
     assert items[-1]["answer"] == "MISSION_ACK MAV_MISSION_ACCEPTED"
     assert v.frames("HEARTBEAT"), "the ground station's heartbeat never arrived"
     assert v.events("arm") and v.events("rtl") and v.mode == "RTL"
@@ -114,7 +115,8 @@ def test_cli_udp_out_and_record_file(tmp_path) -> None:
     assert proc.returncode == 0, err
     assert "udp-out 127.0.0.1:" in out
     lines = [json.loads(line) for line in record.read_text().splitlines()]
-    refused = [r for r in lines if r["request"] == "MISSION_ITEM"]
+    refused = [r for r in lines if r["via"] == "MISSION_ITEM"]
     assert refused and refused[0]["answer"] == "MISSION_ACK MAV_MISSION_INVALID_PARAM5_X"
-    assert "degE7" in refused[0]["why"] and abs(refused[0]["x"] - 357713320) < 64  # float32
-    assert [r["request"] for r in lines].count("MISSION_COUNT") == 2
+    assert refused[0]["result"] == "denied" and refused[0]["mav_result"] == 10
+    assert "degE7" in refused[0]["reason"] and abs(refused[0]["x"] - 357713320) < 64  # float32
+    assert [r["request"] for r in lines].count("mission_upload") == 2
