@@ -267,7 +267,17 @@ def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config
 _KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
          "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
          "drones", "challenge", "waypoints")
-_FLAGS = ("mavlink", "strict")
+_FLAGS = ("strict",)
+_TRUE = ("1", "true", "yes", "on")
+
+
+def _mavlink_value(text: str) -> Any:
+    """``--mcp-mavlink`` from the ini file or the environment: a transport (tcp, udp,
+    udpin, udpout), a yes (tcp) or a no (off)."""
+    word = text.strip().lower()
+    if word in _TRUE:
+        return "tcp"
+    return False if word in ("", "0", "false", "no", "off") else word
 
 
 def env_name(key: str) -> str:
@@ -292,7 +302,9 @@ def option_values(config: pytest.Config) -> dict[str, Any]:
             if env is not None and env != "":
                 value = env.strip().lower() in ("1", "true", "yes", "on") if key in _FLAGS else env
         if key in _FLAGS and isinstance(value, str):
-            value = value.strip().lower() in ("1", "true", "yes", "on")
+            value = value.strip().lower() in _TRUE
+        elif key == "mavlink" and isinstance(value, str):
+            value = _mavlink_value(value)
         out[key] = value
     if out["role"] is None:
         out["role"] = "drone"
