@@ -24,7 +24,7 @@ from captures.cli import check_writable, write_output
 from captures.judging import (
     Judgement,
     add_monitor_options,
-    fetch,
+    evidence_of,
     judge,
     params_from_args,
     selected,
@@ -58,7 +58,7 @@ def run(ns: argparse.Namespace) -> int:
     check_writable(ns.html, "--html")
     j = judge(ns.file, params, keep=bool(ns.html))
     wanted = {i for v in j.shown_violations for i in evidence_indexes(v)}
-    evidence = {d.index: d for d in j.kept if d.index in wanted} if j.kept is not None else fetch(ns.file, wanted)
+    evidence = evidence_of(j, wanted)
     print_report(j, evidence)
     if ns.json:
         doc = to_json(j, evidence)

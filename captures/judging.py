@@ -15,17 +15,18 @@ The options (``add_monitor_options``) are shared by ``check`` and ``show``; bad 
 from __future__ import annotations
 
 import argparse
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from captures.cli import UsageError
 from captures.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
-from captures.trace import Node, action_name
+from captures.trace import Node, action_name, evidence_indexes
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 
 __all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
-           "fetch", "judge", "params_from_args", "selected", "CaptureError"]
+           "evidence_of", "fetch", "judge", "params_from_args", "selected", "CaptureError"]
 
 #: The challenge each challenge-specific command implies (MCP-FLOW-4/5/6).
 CHALLENGE_OF = {int(Action.WP_LIST): 1, int(Action.WP_ON): 2, int(Action.WP_OFF): 2,
@@ -152,6 +153,7 @@ class Judgement:
     cases: list[CaseMark] = field(default_factory=list)
     metadata: list[Metadata] = field(default_factory=list)
     vehicle_drone: int | None = None  # whose autopilot link was judged (our MCAP captures)
+    evidence: dict[int, Datagram] = field(default_factory=dict)  # what judging kept of the evidence
 
     @property
     def shown_violations(self) -> list[Any]:
@@ -221,6 +223,8 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     tester = _tester()
     violations: list[Any] = []
     kept: list[Datagram] | None = [] if keep else None
+    recent: deque[Datagram] = deque(maxlen=RECENT)  # the evidence of a violation is mostly recent
+    evidence: dict[int, Datagram] = {}
     cases: list[CaseMark] = []
     meta: list[Metadata] = []
     frames: list[MavlinkFrame] = []  # autopilot-link frames before the drone under test is known
@@ -238,15 +242,21 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 harness = rec.recorder in HARNESSES
             last = t
             n += 1
+            recent.append(rec)
             if harness and rec.direction == "tx":
-                violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data, tester))
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, tester)
             else:
-                violations.extend(feed(t, rec.src_addr, rec.dst_addr, rec.data))
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
+            if found:
+                _collect(found, recent, evidence)
+                violations.extend(found)
                 h = peek_header(rec.data) if harness and drone is None else None
                 if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test
                     drone = h[1]
                     for f in frames:
-                        violations.extend(_vehicle(mon, f, drone))
+                        found = _vehicle(mon, f, drone)
+                        _collect(found, recent, evidence)
+                        violations.extend(found)
                     frames.clear()
             if kept is not None:
                 kept.append(rec)
@@ -257,14 +267,18 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
             if drone is None:
                 frames.append(rec)
             else:
-                violations.extend(_vehicle(mon, rec, drone))
+                found = _vehicle(mon, rec, drone)
+                _collect(found, recent, evidence)
+                violations.extend(found)
         elif kind is CaseMark:
             cases.append(rec)
             last = max(last or rec.t_ns, rec.t_ns)
         elif kind is Metadata:
             meta.append(rec)
     if last is not None:
-        violations.extend(mon.finish(last))
+        found = mon.finish(last)
+        _collect(found, recent, evidence)
+        violations.extend(found)
     if params.challenge is None:
         inferred = getattr(mon, "inferred_challenge", None)
         params.challenge_source = "inferred" if inferred else "unknown"
@@ -277,10 +291,24 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     violations.sort(key=lambda v: (v.rule, v.t_ns))
     nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
     return Judgement(str(path), cap.format, params, nodes, violations, mon.verdicts(), n, first, last,
-                     cap.truncated, cap.notes, unattributed, kept, cases, meta, drone)
+                     cap.truncated, cap.notes, unattributed, kept, cases, meta, drone, evidence)
 
 
 _CHALLENGE_NAMES = tuple((action_name(a), c) for a, c in CHALLENGE_OF.items())
+
+
+#: Datagrams kept while judging, to show a violation's evidence without reading the file again.
+RECENT = 4096
+
+
+def _collect(found: list[Any], recent: deque[Datagram], evidence: dict[int, Datagram]) -> None:
+    if not recent:
+        return
+    base = recent[0].index
+    for v in found:
+        for i in evidence_indexes(v):
+            if 0 <= i - base < len(recent):
+                evidence[i] = recent[i - base]
 
 
 def _tester() -> Any:
@@ -302,6 +330,15 @@ def _vehicle(mon: Any, frame: MavlinkFrame, drone: int) -> list[Any]:
     for ev in events_from_mavlink(frame.data, frame.direction or "rx"):
         out.extend(mon.vehicle(frame.t_ns, drone, ev))
     return out
+
+
+def evidence_of(j: Judgement, indexes: set[int]) -> dict[int, Datagram]:
+    """The datagrams of ``indexes``: from what judging kept, else from a second, targeted
+    pass over the file (evidence far older than the violation)."""
+    kept = {d.index: d for d in j.kept if d.index in indexes} if j.kept is not None else \
+        {i: j.evidence[i] for i in indexes if i in j.evidence}
+    missing = indexes - set(kept)
+    return {**kept, **fetch(j.path, missing)} if missing else kept
 
 
 def fetch(path: str | Path, indexes: set[int]) -> dict[int, Datagram]:

@@ -108,8 +108,8 @@ def test_faulty_missions_find_what_the_monitor_finds(tmp_path, name):
         level = SPEC.rule(fault.rule).level
         assert rc == (1 if level == "MUST" else 0)
         for v in doc["violations"]:
-            assert v["evidence"] and all(e["index"] is not None and e["summary"].startswith("#")
-                                         for e in v["evidence"])
+            assert v["evidence"] and all(e["index"] is not None and e["summary"].startswith(f"#{e['index']} +")
+                                         and " → " in e["summary"] for e in v["evidence"])
             assert v["text"] == SPEC.rule(fault.rule).text
         if level == "SHOULD":
             assert check(tmp_path, s, *args, "--strict")[0] == 1
