@@ -94,7 +94,8 @@ def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = 
                 keys.append(k)
                 lifelines = [*lifelines, Lifeline(k, k)]
     x_of = {k: LEFT + COL // 2 + n * COL for n, k in enumerate(keys)}
-    width = LEFT + COL * max(1, len(keys)) + 20
+    badges = max((7 * len(" ".join(a.rules)) + 30 for a in shown if a.rules), default=0)
+    width = LEFT + COL * max(1, len(keys)) + max(20, badges - COL // 2)
     top = HEAD + (22 if title else 0)
     height = top + ROW * (len(shown) + (1 if hidden else 0)) + ROW
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" class="mcp-chart" width="{width}" height="{height}" '
@@ -129,8 +130,9 @@ def _clip(text: str, n: int) -> str:
 def _defs() -> str:
     heads = {"m-msg": "#1a202c", "m-ack": "#2f855a", "m-bcast": "#2b6cb0", "m-copy": "#dd6b20",
              "m-malformed": "#c53030", "m-violation": "#e53e3e"}
-    marks = "".join(f'<marker id="{k}" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="7" markerHeight="7" '
-                    f'orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" fill="{c}"/></marker>'
+    marks = "".join(f'<marker id="{k}" viewBox="0 0 10 10" refX="9" refY="5" markerUnits="userSpaceOnUse" '
+                    f'markerWidth="9" markerHeight="9" orient="auto-start-reverse">'
+                    f'<path d="M0,0 L10,5 L0,10 z" fill="{c}"/></marker>'
                     for k, c in heads.items())
     return f"<defs>{marks}</defs>"
 
@@ -163,12 +165,12 @@ def _arrow(a: Arrow, x1: int, x2: int, y: int) -> str:
             cx = end - (10 if x2 > x1 else -10)
             parts.append(f'<path class="cross" d="M{cx - 4},{y - 4} l8,8 M{cx - 4},{y + 4} l8,-8"/>')
     parts.append(f'<text x="{tx}" y="{y - 5}" text-anchor="{anchor}">{_esc(label)}</text>')
-    if a.rules:
-        badge = " ".join(a.rules)
-        bx = min(x1, x2) + 4
-        w = 7 * len(badge) + 10
-        parts.append(f'<rect class="badge" x="{bx}" y="{y + 3}" width="{w}" height="13" rx="3"/>'
-                     f'<text class="badge-text" x="{bx + 5}" y="{y + 13}">{_esc(badge)}</text>')
+    if a.rules:  # beyond the arrow's far end, on its own row: never over a label
+        badge = "✗ " + " ".join(a.rules)
+        bx = max(x1, x2) + (50 if x1 == x2 else 10)
+        w = 7 * len(badge) + 6
+        parts.append(f'<rect class="badge" x="{bx}" y="{y - 7}" width="{w}" height="14" rx="3"/>'
+                     f'<text class="badge-text" x="{bx + 4}" y="{y + 4}">{_esc(badge)}</text>')
     parts.append("</g>")
     return "".join(parts)
 

@@ -90,3 +90,33 @@ def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
         finding.screenshot(str(shot))
         assert shot.stat().st_size > 5_000
     print(f"screenshot: {shot}")
+
+
+@pytest.mark.slow
+def test_mcp_capture_check_html_in_chromium(tmp_path):
+    """The check page of a faulty mission: the violation, its rule text, and the chart with
+    the violating arrow marked."""
+    from selenium.webdriver.common.by import By
+
+    from captures.cli import main
+    from spec.mission import save_waypoints
+    from tests.conformance.monitor_faults import FAULTY
+
+    s = FAULTY["ack4-acks-broadcast"].build()
+    pcap = s.write_pcap(tmp_path / "faulty.pcap")
+    save_waypoints(tmp_path / "m.waypoints", s.items)
+    page = tmp_path / "check.html"
+    assert main(["check", str(pcap), "--rto", str(s.rto), "--ack-window", str(s.ack_window), "--drones", "1,2",
+                 "--challenge", str(s.challenge), "--waypoints", str(tmp_path / "m.waypoints"),
+                 "--html", str(page)]) == 1
+    no_external_assets(page.read_text())
+    with chromium() as browser:
+        browser.get(page.as_uri())
+        (finding,) = browser.find_elements(By.CSS_SELECTOR, "section.finding")
+        assert finding.get_attribute("data-rule") == "MCP-ACK-4"
+        assert SPEC.rule("MCP-ACK-4").text in finding.text
+        marked = finding.find_elements(By.CSS_SELECTOR, 'svg.mcp-chart g.arrow.violation[data-rules~="MCP-ACK-4"]')
+        assert marked and all(m.is_displayed() for m in marked)
+        assert browser.find_element(By.CSS_SELECTOR, 'table.rules tr[data-rule="MCP-ACK-4"]').text.count("failed")
+        finding.screenshot(str(tmp_path / "mcp-capture-check.png"))
+    assert (tmp_path / "mcp-capture-check.png").stat().st_size > 5_000
