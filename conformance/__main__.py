@@ -2,6 +2,6 @@
 
 import sys
 
-from conformance.cli import main
+from conformance._entry import main
 
 sys.exit(main())

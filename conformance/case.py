@@ -17,7 +17,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from conformance.driver import Datagram, Exchange, Sent, read_header
-from conformance.errors import CaseFailure, Inconclusive
+from conformance.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven
+from conformance.liveness import NOT_LIVE
 from spec import SPEC
 from spec.codec import Action
 
@@ -210,11 +211,13 @@ class CaseContext:
         with ``expect_more`` the whole window is watched (to see a count that must not grow)."""
         v = self.vehicle
         if expect_more:  # a count that must not grow: watched over the ACK window (D-6)
-            time.sleep(self.ack_window)
+            self.driver.pause(self.ack_window)
         else:  # a count that must grow: returns as soon as it did; patient, since a node may
             # queue the forward behind slow autopilot work (arming, takeoff) after its ACK
-            v.wait_for(lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries),
-                       max(2 * self.ack_window, 1.0, self.rto))
+            deadline = time.monotonic() + max(2 * self.ack_window, 1.0, self.rto)
+            while (not all(v.probe_count(d.probe.token) > d.before for d in deliveries)
+                   and time.monotonic() < deadline):
+                self.driver.pause(0.02)  # a node lost meanwhile ends the wait at once
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
 
@@ -226,7 +229,7 @@ class CaseContext:
         deadline = time.monotonic() + max(self.ack_window, 2 * stable)
         count, since = v.probe_count(token), time.monotonic()
         while time.monotonic() < deadline:
-            time.sleep(0.02)
+            self.driver.pause(0.02)
             now_count = v.probe_count(token)
             if now_count != count:
                 count, since = now_count, time.monotonic()
@@ -249,21 +252,59 @@ class CaseContext:
         """A fresh WP_Off to the node, awaited across retransmissions (MCP-ROB-5)."""
         return self.command(Action.WP_OFF)
 
+    # ------------------------------------------------------------------ proof of life
+    def _not_live(self, ex: Exchange | None, exc: NodeLost | None) -> list[str]:
+        """Evidence that the node did not answer a proof-of-life probe; the session learns
+        the node is gone (attach: the remaining cases are errors; spawn: a restart)."""
+        self.session.declare_not_live("the node did not answer a liveness probe in an earlier case")
+        if exc is not None:
+            return list(exc.evidence)
+        ev = []
+        if ex is not None:
+            ev.append(f"liveness probe WP_Off seq {ex.seq}: {len(ex.copies)} copies "
+                      f"{self.rto:g} s apart, unanswered")
+        return ev + self.session.node_evidence()
+
+    def prove_live(self, why: str = NOT_LIVE) -> Exchange:
+        """Proof of life: a fresh WP_Off must be ACKed, or the case is an ``error`` (never a
+        verdict): right after a "no reply" window (silence from a dead node proves nothing),
+        before a verdict on a missing reply, before an input whose effect is judged."""
+        try:
+            ex = self.liveness()
+        except NodeLost as exc:
+            raise SilenceUnproven(why, self._not_live(None, exc)) from None
+        if not ex.acked:
+            raise SilenceUnproven(why, self._not_live(ex, None))
+        return ex
+
+    def probe_after_input(self) -> tuple[Exchange | None, bool]:
+        """The liveness probe that follows an input: (its exchange, the process died).
+        A loss declared meanwhile is the input's consequence here, not an error."""
+        try:
+            probe: Exchange | None = self.liveness()
+        except NodeLost as exc:
+            ex = exc.exchange
+            return (ex if isinstance(ex, Exchange) else None), (exc.process_exited or not self.session.alive())
+        return probe, not self.session.alive()
+
     def try_inputs(self, inputs: Iterable[tuple[str, bytes] | tuple[str, bytes, str]]) -> list[Attempt]:
         """Send each raw input, each followed by a liveness probe; stop at the first death
         or silence (the node is then restarted or lost, and later inputs are moot). An input
-        may name the rule a death on it breaks (label, data, rule)."""
-        out = []
+        may name the rule a death on it breaks (label, data, rule). The node is proven live
+        just before the first input, so a death is blamed on an input only when it follows it."""
+        out: list[Attempt] = []
+        self.prove_live("node not live before this case's first input: nothing to judge")
         for label, data, *rule in inputs:
             sent = self.send_raw(data)
             if not self.session.alive():
                 out.append(Attempt(label, sent, None, died=True, rule=rule[0] if rule else None))
                 break
-            probe = self.liveness()
-            died = not self.session.alive()
+            probe, died = self.probe_after_input()
             out.append(Attempt(label, sent, probe, died, rule[0] if rule else None))
-            if died or not probe.acked:
+            if died or probe is None or not probe.acked:
                 self.node_silent = not died
+                if probe is None and not died:
+                    out[-1].died = True  # lost before its probe could even be sent
                 break
         return out
 
@@ -278,6 +319,7 @@ class CaseContext:
         """Each command was ACKed (within MAX_ACK_COPIES copies, one every --rto)."""
         missing = [(label, ex) for label, ex in exchanges if not ex.acked]
         if missing:
+            self.prove_live("node lost during this case: it answers no liveness probe either")
             label, ex = missing[0]
             if not self.session.alive():
                 self.node_silent = False
@@ -309,7 +351,7 @@ class CaseContext:
         """No ACK names any of ``sents`` over the ACK window (D-6); probes not forwarded."""
         window = self.ack_window if within is None else within
         since = min(self.driver.mark_before(s) for s in sents)
-        time.sleep(max(0.0, sents[-1].t + window - time.monotonic()))
+        self.driver.pause(max(0.0, sents[-1].t + window - time.monotonic()))
         replies = self.driver.replies_to(sents, since)
         if replies:
             d = replies[0]
@@ -320,8 +362,11 @@ class CaseContext:
             if self.vehicle.probe_count(p.token) > 0:  # tokens are fresh: any arrival is a delivery
                 raise self.fail(rule, f"the frame of probe {p.token} not forwarded to the autopilot",
                                 "the node forwarded it", [f"token {p.token}"])
+        self.prove_live()  # silence is a verdict only from a node shown alive after the window
 
     def expect_each_copy_acked(self, first: Exchange, copies: Sequence[Exchange], rule: str = "MCP-ACK-1") -> None:
+        if not first.acked or not all(ex.acked for ex in copies):
+            self.prove_live("node lost during this case: it answers no liveness probe either")
         if not first.acked:
             raise self.fail(rule, f"an ACK of seq {first.seq}", "no ACK of the first copy")
         for n, ex in enumerate(copies, start=2):
@@ -347,7 +392,7 @@ class CaseContext:
         if not silent:
             return
         since = self.driver.mark_before(attempts[0].input)
-        time.sleep(max(0.0, attempts[-1].input.t + self.ack_window - time.monotonic()))
+        self.driver.pause(max(0.0, attempts[-1].input.t + self.ack_window - time.monotonic()))
         for a in attempts:
             hdr = read_header(a.input.data)
             if hdr is None:
@@ -361,6 +406,7 @@ class CaseContext:
             if replies:
                 raise self.fail(rule, f"input {a.label!r} (seq {seq}) discarded without ACK",
                                 "the node ACKed it", [f"input: {_hex(a.input.data)}", f"reply: {replies[0].describe()}"])
+        self.prove_live()  # "no ACK" is a verdict only from a node shown alive after the window
 
     def expect_delivered(self, deliveries: Sequence[tuple[Delivery, int]], rule: str) -> None:
         """Each probe reached the autopilot the expected number of times (0: not delivered)."""
@@ -375,6 +421,8 @@ class CaseContext:
                     1: "delivered exactly once"}.get(want, f"delivered {want} times")
                 raise self.fail(rule, f"probe {d.probe.token} (src {d.exchange.first.src}, seq {d.exchange.seq}) {what}",
                                 f"the vehicle received its frame {got} more time(s)")
+        if any(want == NOT_AGAIN for _, want in deliveries):
+            self.prove_live()  # "not delivered again" is silence: proven only by a live node
 
     def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
         """The generic verify for judgements over recorded observations."""

@@ -16,6 +16,7 @@ output), and returns the contract's exit code: 0 no MUST failed (and no SHOULD u
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from collections.abc import Sequence
@@ -24,6 +25,7 @@ from typing import Any, NoReturn
 
 from conformance.baseline import BaselineError, load_baseline
 from conformance.config import RunConfig
+from conformance.interrupts import INTERRUPTS
 from conformance.plugin import ConfigError, make_config
 from conformance.report import RunRecord, tool_version, write_json
 from spec import SPEC
@@ -176,8 +178,31 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the suite; return the contract's exit code (0, 1 or 2)."""
+    """Run the suite; return the contract's exit code (0, 1 or 2). SIGINT and SIGTERM are
+    taken first (``conformance.interrupts``): the first stops the run, the reports are
+    written whatever follows."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    installed = INTERRUPTS.install()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before pytest took over, or after it returned
+        return interrupted(argv)
+    finally:
+        if installed:
+            INTERRUPTS.restore()
+
+
+def interrupted(argv: Sequence[str]) -> int:
+    """A signal stopped the run outside pytest: the report says so (exit 2)."""
+    INTERRUPTS.stop_raising()
+    written = _json_path(argv)
+    if written and Path(written).exists():  # the run's own report: keep it
+        print(f"{PROG}: error: {INTERRUPTS.reason()}", file=sys.stderr)
+        return 2
+    return _fail(INTERRUPTS.reason(), written)
+
+
+def _main(argv: list[str]) -> int:
     json_path = _json_path(argv)
     parser = build_parser()
     try:
@@ -185,7 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         return _fail(str(exc), json_path)
     if ns.version:
-        print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})")
+        with contextlib.suppress(BrokenPipeError):
+            print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})", flush=True)
         return 0
     try:
         cfg = make_config(_values(ns), lambda n: "--" + n.replace("_", "-"))
@@ -205,8 +231,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ns.json:
         Path(ns.json).unlink(missing_ok=True)  # rewritten below; its absence shows a pytest failure
     rc = int(pytest.main(pytest_args(ns)))
+    INTERRUPTS.stop_raising()
     if rc in (0, 1, 2) and (not ns.json or Path(ns.json).exists()):
         return rc
+    if INTERRUPTS.interrupted:
+        return _fail(INTERRUPTS.reason(), ns.json, cfg)
     why = {3: "internal error in the runner (see the traceback above)",
            4: "pytest refused the arguments (see above)",
            5: "no conformance cases were collected"}.get(rc, f"the run ended with pytest exit code {rc}")

@@ -158,6 +158,12 @@ class TargetDriver:
         #: called in the receiver thread for every datagram, after it is recorded (the
         #: manager role's drone players answer from here)
         self.on_datagram: Callable[[Datagram], None] | None = None
+        # liveness (conformance.liveness): hooks on every datagram, and a check that raises
+        # NodeLost in the waiting thread once the node is declared lost
+        self.rx_hooks: list[Callable[[Datagram], None]] = []
+        self.tx_hooks: list[Callable[[Sent], None]] = []
+        self.check: Callable[[], None] = lambda: None
+        self._seq_lock = threading.Lock()
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Address:
@@ -222,6 +228,8 @@ class TargetDriver:
                 d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
                              data[:PREAMBLE_LEN] == PREAMBLE)
                 self._rx.append(d)
+                for hook in self.rx_hooks:
+                    hook(d)
                 self._cond.notify_all()
             self._notify("rx", data, addr, t_ns)
             if self.on_datagram is not None:
@@ -262,10 +270,12 @@ class TargetDriver:
                     if predicate(self._rx[i]):
                         return self._rx[i]
                     i += 1
+                self.check()
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None
                 self._cond.wait(min(left, 0.05))
+                self.check()
                 if not self.alive():
                     # give the last datagrams a moment, then stop waiting for a dead node
                     self._cond.wait(0.05)
@@ -274,6 +284,17 @@ class TargetDriver:
                             return self._rx[i]
                         i += 1
                     return None
+
+    def pause(self, seconds: float) -> None:
+        """Sleep ``seconds``, but raise at once (``check``) if the node is declared lost."""
+        deadline = time.monotonic() + max(0.0, seconds)
+        with self._cond:
+            while True:
+                self.check()
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._cond.wait(min(left, 0.05))
 
     def quiet(self, gap: float = 0.05, limit: float = 1.0) -> int:
         """Wait until nothing has arrived for ``gap`` s (at most ``limit`` s); return a mark."""
@@ -289,8 +310,9 @@ class TargetDriver:
     # ------------------------------------------------------------------ sending
     def next_seq(self, src: int | None = None) -> int:
         src = self.our_id if src is None else src
-        seq = self._seq.get(src, 0)
-        self._seq[src] = (seq + 1) & 0xFFFF
+        with self._seq_lock:  # the liveness watcher sends probes from its own thread
+            seq = self._seq.get(src, 0)
+            self._seq[src] = (seq + 1) & 0xFFFF
         return seq
 
     def peek_seq(self, src: int | None = None) -> int:
@@ -312,6 +334,8 @@ class TargetDriver:
         s = Sent(t, t_ns, data, addr, dst, src, seq, action)
         with self._cond:
             self._tx.append(s)
+            for hook in self.tx_hooks:
+                hook(s)
         self._notify("tx", data, addr, t_ns)
         return s
 
@@ -359,7 +383,12 @@ class TargetDriver:
         match = self.ack_for(first)
         for n in range(copies):
             wait = rto if n < copies - 1 else (rto if tail is None else max(rto, tail))
-            got = self.wait_for(lambda d: d.t >= first.t and match(d), wait, since)
+            try:
+                got = self.wait_for(lambda d: d.t >= first.t and match(d), wait, since)
+            except Exception as exc:  # NodeLost: say which exchange went unanswered
+                if hasattr(exc, "exchange"):
+                    exc.exchange = ex
+                raise
             if got is not None:
                 ex.ack = got
                 return ex

@@ -45,3 +45,36 @@ class SetupError(Exception):
 
 class TargetLost(Exception):
     """In attach mode the node died or went silent: the remaining cases are errors."""
+
+
+class NodeLost(TargetLost):
+    """The node stopped answering the runner's liveness probes (or its process exited)
+    while a case was running: the case is an ``error``, never a verdict on a rule.
+    ``evidence`` is the last exchange (what the node last said, what went unanswered);
+    ``exchange`` is the unanswered exchange in progress, when there was one."""
+
+    def __init__(self, reason: str, evidence: list[str] | None = None, *, process_exited: bool = False) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.evidence = list(evidence or [])
+        self.process_exited = process_exited
+        self.exchange: object | None = None
+
+
+class SilenceUnproven(TargetLost):
+    """A case that passes on "no reply" found the node not live right after its window:
+    silence from a node that cannot be shown alive proves nothing (an ``error``)."""
+
+    def __init__(self, reason: str, evidence: list[str] | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.evidence = list(evidence or [])
+
+
+class SpawnFailure(SetupError):
+    """The spawned node failed to start or exited during startup. ``node`` holds its own
+    words for the reports: ``command`` (as run), ``exit``, ``stdout`` and ``stderr`` tails."""
+
+    def __init__(self, message: str, node: dict[str, object]) -> None:
+        super().__init__(message)
+        self.node = node

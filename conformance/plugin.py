@@ -42,7 +42,15 @@ from rich.console import Console
 
 from conformance.baseline import Baseline, BaselineError, load_baseline, write_baseline
 from conformance.config import DEFAULT_SEED, RunConfig, parse_hostport
-from conformance.errors import CaseFailure, Inconclusive, SetupError, TargetLost
+from conformance.errors import (
+    CaseFailure,
+    Inconclusive,
+    NodeLost,
+    SetupError,
+    SilenceUnproven,
+    TargetLost,
+)
+from conformance.interrupts import INTERRUPTS
 from conformance.marks import (
     PHASES,
     case_id,
@@ -504,7 +512,8 @@ class McpState:
                                     target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
                                     spawn=cfg.spawn, parameters=self.run.parameters)
                 try:
-                    self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
+                    with INTERRUPTS.held():  # never a file cut off after its header
+                        self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder
@@ -530,6 +539,14 @@ class McpState:
             self.arm()
             try:
                 session.start()
+            except CaseTimeLimit:
+                # the run's deadline fell in the startup phase: the node never became ready
+                self.deadline_hit = False
+                timed_out = getattr(session, "startup_timed_out", None)
+                if timed_out is not None:
+                    raise timed_out(self.cfg.timeout) from None
+                raise SetupError(f"target never answered within the run's --timeout of "
+                                 f"{self.cfg.timeout:g} s") from None
             finally:
                 self.wait_status.end()
                 if resume:
@@ -537,10 +554,18 @@ class McpState:
             self.case_deadline = time.monotonic() + self.current_limit()
             self.arm()
         except SetupError as exc:
+            self.disarm()
             self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
+            self.run.node = getattr(exc, "node", None)
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
         self.run.target = getattr(session, "target_desc", None) or self.run.target
+        watch = getattr(getattr(session, "liveness", None), "loss_after", None)
+        if watch is not None:
+            self.run.parameters["loss_after_s"] = watch
+            self.terminal.note(f"liveness: the node is declared lost after {watch:g} s without an "
+                               "answer to the runner's probes" + (" (its process is watched too)"
+                                                                  if self.cfg.spawn else ""))
         return session
 
     def close_session(self) -> None:
@@ -631,18 +656,15 @@ class McpState:
             raise CaseTimeLimit("run deadline exceeded")
         raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
 
-    def _on_term(self, signum: int, frame: Any) -> None:
-        self.interrupted = "interrupted by SIGTERM"
-        raise KeyboardInterrupt("SIGTERM")
-
     def install_term(self) -> None:
-        if threading.current_thread() is threading.main_thread() and hasattr(signal, "SIGTERM"):
-            self._old_term = signal.signal(signal.SIGTERM, self._on_term)
+        """SIGINT / SIGTERM (``conformance.interrupts``): the first stops the run, later
+        ones hurry it; none can skip the reports. Installed here when plain pytest runs us
+        (``mcp-conform`` installs it before anything else)."""
+        self._old_term = INTERRUPTS.install()
 
     def restore_term(self) -> None:
-        if self._old_term is not None:
-            with contextlib.suppress(ValueError):
-                signal.signal(signal.SIGTERM, self._old_term)
+        if self._old_term:
+            INTERRUPTS.restore()
             self._old_term = None
 
 
@@ -734,6 +756,8 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     state = _state(item.config)
     if state is None or not state.active or item.nodeid not in state.meta:
         return None
+    if INTERRUPTS.interrupted:  # a swallowed KeyboardInterrupt must still stop the run
+        raise KeyboardInterrupt(INTERRUPTS.signals[0])
     if state.deadline_hit or (state.run_deadline is not None and time.monotonic() >= state.run_deadline):
         state.deadline_hit = True
         rec = state.record(item)
@@ -834,6 +858,11 @@ def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: B
     rec.outcome = "error"
     if isinstance(exc, CaseTimeLimit):
         rec.reason = str(exc)
+    elif isinstance(exc, NodeLost):
+        rec.reason = f"node lost during this case: {exc.reason}"
+        rec.evidence = list(exc.evidence)
+    elif isinstance(exc, SilenceUnproven):
+        rec.reason, rec.evidence = exc.reason, list(exc.evidence)
     elif isinstance(exc, TargetLost):
         rec.reason = f"target lost: {str(exc).strip() or 'the node is gone'}"
     else:
@@ -958,10 +987,10 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     state = _state(session.config)
     if state is None or not state.active:
         return
+    INTERRUPTS.stop_raising()  # from here on a signal only hurries: the reports get written
     if state._wait_status is not None:
         state._wait_status.close()
     state.restore_alarm()
-    state.restore_term()
     state.close_session()
     run = state.run
     run.finished = time.monotonic()
@@ -973,6 +1002,8 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
                 state.finish(item, rec)
     if run.error is None and state.collect_errors:
         run.error = state.collect_errors[0]
+    if run.error is None and INTERRUPTS.interrupted:
+        run.error = INTERRUPTS.reason()
     if run.error is None and exitstatus == pytest.ExitCode.INTERRUPTED and not state.deadline_hit:
         run.error = state.interrupted or "interrupted"
     if run.error is None and exitstatus == pytest.ExitCode.INTERNAL_ERROR:
@@ -1014,10 +1045,11 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if session.config.pluginmanager.get_plugin("terminalreporter") is None and not state.list_mode:
         state.terminal.summary(run)
     elif run.error is not None and (state.list_mode or state.frontend):
-        state.terminal.error(run.error)
+        state.terminal.error(run.error, run.node)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     session.exitstatus = code
+    state.restore_term()
 
 
 def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:

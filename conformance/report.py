@@ -22,9 +22,13 @@ properties named after the case; ``xunit1`` also puts them in each testcase, as 
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import os
 import re
 import socket
+import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -130,6 +134,7 @@ class RunRecord:
     seed: int | None = None
     strict: bool = False
     error: str | None = None
+    node: dict[str, Any] | None = None  # a spawn failure: the node's command, exit, stdout, stderr
     cases: list[CaseRecord] = field(default_factory=list)
     started: float = field(default_factory=time.monotonic)
     started_wall: float = field(default_factory=time.time)
@@ -191,7 +196,7 @@ def rule_outcomes(cases: list[CaseRecord], role: str) -> dict[str, str]:
 def build_json(run: RunRecord) -> dict[str, Any]:
     """The report document (see DESIGN.md and report.schema.json)."""
     counts = run.counts()
-    return {
+    doc = {
         "schema_version": SCHEMA_VERSION,
         "tool": {"name": TOOL_NAME, "version": tool_version()},
         "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
@@ -204,6 +209,9 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "rules": rule_outcomes(run.cases, run.role),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
     }
+    if run.node is not None:
+        doc["node"] = run.node
+    return doc
 
 
 def load_schema() -> dict[str, Any]:
@@ -222,8 +230,10 @@ def validate_json(doc: dict[str, Any]) -> None:
 def write_json(path: str | Path, run: RunRecord) -> None:
     """Write the JSON report (an OSError names the file)."""
     doc = build_json(run)
-    try:
-        Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    try:  # whole or not at all: written beside, then renamed over the old file
+        tmp = Path(f"{path}.tmp")
+        tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        tmp.replace(path)
     except OSError as exc:
         raise OSError(f"--json: cannot write {str(path)!r}: {exc.strerror}") from None
 
@@ -406,17 +416,53 @@ def write_junit(path: str | Path, run: RunRecord, family: str = "xunit2") -> Non
 
 
 # ---------------------------------------------------------------------- terminal
+def node_lines(node: dict[str, Any] | None) -> list[str]:
+    """A spawn failure's details as indented lines: command, exit, stdout, stderr."""
+    if not node:
+        return []
+    import shlex
+
+    lines = [f"    command: {shlex.join(str(w) for w in node.get('command') or [])}"]
+    if node.get("exit"):
+        lines.append(f"    the node {node['exit']}")
+    for stream in ("stdout", "stderr"):
+        tail = node.get(stream) or []
+        lines.append(f"    {stream}:" + ("" if tail else " (nothing)"))
+        lines += [f"      {ln}" for ln in tail]
+    return lines
+
+
 class TerminalReport:
     """The live report: one line per case, details on failures, a per-rule table at the end."""
 
     def __init__(self, console: Console | None = None, before_line: Any = None) -> None:
         self.console = console or Console(highlight=False)
         self._before_line = before_line  # e.g. pytest's terminal reporter's ensure_newline
+        self.closed = False  # stdout went away (``mcp-conform | head -3``): the run goes on
+        self.console.on_broken_pipe = self._stdout_closed  # type: ignore[method-assign]  # rich would exit
 
     def _print(self, *objs: Any, **kw: Any) -> None:
-        if self._before_line is not None:
-            self._before_line()
-        self.console.print(*objs, highlight=False, **kw)
+        if self.closed:
+            return
+        try:
+            if self._before_line is not None:
+                self._before_line()
+            self.console.print(*objs, highlight=False, **kw)
+        except (BrokenPipeError, ValueError):
+            self._stdout_closed()
+        except OSError as exc:
+            if exc.errno not in (errno.EPIPE, errno.EBADF):
+                raise
+            self._stdout_closed()
+
+    def _stdout_closed(self) -> None:
+        """The reader of stdout left: stay quiet from now on (the report files are still
+        written); stdout is pointed at /dev/null so nothing else fails on it at exit."""
+        self.closed = True
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
 
     def header(self, run: RunRecord, mode: str | None = None) -> None:
         what = f"{run.role} at {run.target}" if run.target else run.role
@@ -461,12 +507,16 @@ class TerminalReport:
         """A dim line of what the runner is doing (e.g. before a long startup phase)."""
         self._print(Text(text, style="dim"), soft_wrap=True)
 
-    def error(self, message: str) -> None:
-        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report)."""
+    def error(self, message: str, node: dict[str, Any] | None = None) -> None:
+        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report); a spawn
+        failure quotes the node's own words."""
         err = Console(stderr=True, highlight=False, no_color=self.console.no_color)
-        if self._before_line is not None:
-            self._before_line()
-        err.print(Text(f"error: {message}", style="bold red"), soft_wrap=True, highlight=False)
+        with contextlib.suppress(OSError, ValueError):
+            if self._before_line is not None:
+                self._before_line()
+            err.print(Text(f"error: {message}", style="bold red"), soft_wrap=True, highlight=False)
+            for line in node_lines(node):
+                err.print(Text(line, style="dim"), soft_wrap=True, highlight=False)
 
     def listing(self, entries: list[tuple[str, tuple[str, ...], str, str]]) -> None:
         """``--list``: (case id, rules, level, phase) per case."""
@@ -476,6 +526,9 @@ class TerminalReport:
         self._print(f"{len(entries)} cases", soft_wrap=True)
 
     def summary(self, run: RunRecord) -> None:
+        if run.error is not None and not run.cases:  # a usage or setup error: its one line
+            self.error(run.error, run.node)
+            return
         outcomes = rule_outcomes(run.cases, run.role)
         if run.cases:
             table = Table(title="per-rule outcome", show_lines=False, box=None, pad_edge=False)
@@ -499,5 +552,5 @@ class TerminalReport:
         line = Text(", ").join(parts)
         self._print(line, soft_wrap=True)
         if run.error is not None:
-            self.error(run.error)
+            self.error(run.error, run.node)
         self._print(f"suite finished in {run.duration_s:.1f} s", soft_wrap=True)

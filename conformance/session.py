@@ -16,20 +16,19 @@ restarted for the next case, in attach mode the remaining cases are errors.
 from __future__ import annotations
 
 import contextlib
-import os
 import shlex
-import signal
 import socket
-import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from conformance.config import RunConfig
 from conformance.driver import Datagram, Exchange, Sent, TargetDriver
-from conformance.errors import SetupError, TargetLost
+from conformance.errors import SetupError, SpawnFailure, TargetLost
+from conformance.interrupts import INTERRUPTS
+from conformance.liveness import Liveness, describe_exit
+from conformance.procs import ManagedProcess
 from spec import SPEC
 from spec.codec import Action
 
@@ -41,6 +40,34 @@ MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])  # the original + 3 ret
 EMBEDDED_RTO = 0.2
 EMBEDDED_ACK_WINDOW = 0.25
 _READY = int(Action.MISSION_READY)
+
+
+def _held(write: Any) -> Any:
+    """A capture writer that a signal cannot cut in half (``INTERRUPTS.held``)."""
+    def call(*args: Any, **kw: Any) -> Any:
+        with INTERRUPTS.held():
+            return write(*args, **kw)
+    return call
+
+
+def check_target(target: tuple[str, int]) -> tuple[str, int]:
+    """``--target`` as a usable address, or a one-line SetupError before any case runs:
+    an unresolvable host, port 0, an address this host cannot send to."""
+    host, port = target
+    if port == 0:
+        raise SetupError(f"--target {host}:{port}: port 0 is not a port a node can listen on")
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        why = exc.strerror if isinstance(exc, socket.gaierror) and exc.strerror else str(exc)
+        raise SetupError(f"--target {host}:{port}: cannot resolve host {host!r}: {why}") from None
+    addr = (str(infos[0][4][0]), port)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(addr)  # routes it without sending anything
+        except OSError as exc:
+            raise SetupError(f"--target {host}:{port}: cannot reach {addr[0]}: {exc.strerror}") from None
+    return addr
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
@@ -80,50 +107,53 @@ def fill_placeholders(command: str, values: dict[str, str]) -> list[str]:
 
 
 class SpawnedNode:
-    """The node process: its own process group, stderr kept as evidence."""
+    """The node process: its own process group, dies with the runner (``conformance.procs``),
+    its stdout and stderr kept (bounded) as evidence."""
 
     def __init__(self, argv: list[str]) -> None:
         self.argv = argv
-        self._log = tempfile.TemporaryFile(prefix="mcp-node-")
         try:
-            self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=self._log,
-                                         stderr=self._log, start_new_session=True)
+            self._p = ManagedProcess(argv)
         except OSError as exc:
-            self._log.close()
-            raise SetupError(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}") from None
+            raise SpawnFailure(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}",
+                               {"command": argv, "exit": None, "stdout": [], "stderr": []}) from None
+        self.proc = self._p.proc
 
     def alive(self) -> bool:
-        return self.proc.poll() is None
+        return self._p.alive()
 
     @property
     def returncode(self) -> int | None:
-        return self.proc.poll()
+        return self._p.returncode
 
     def output_tail(self, lines: int = 12) -> str:
-        try:
-            self._log.flush()
-            self._log.seek(0)
-            text = self._log.read().decode("utf-8", "replace")
-        except (OSError, ValueError):
-            return ""
-        return "\n".join(text.rstrip().splitlines()[-lines:])
+        out, err = self._p.output(lines)
+        return "\n".join(out + err)
+
+    def details(self, lines: int = 12) -> dict[str, Any]:
+        """The node's own words for a report: command as run, exit, stdout and stderr tails."""
+        out, err = self._p.output(lines)
+        rc = self.returncode
+        return {"command": list(self.argv), "exit": None if rc is None else describe_exit(rc),
+                "stdout": out, "stderr": err}
+
+    def evidence(self) -> list[str]:
+        d = self.details()
+        ev = [f"node command: {shlex.join(d['command'])}"]
+        if d["exit"]:
+            ev.append(f"node process {d['exit']}")
+        for stream in ("stdout", "stderr"):
+            if d[stream]:
+                ev.append(f"node {stream} (last lines):\n    " + "\n    ".join(d[stream]))
+            else:
+                ev.append(f"node {stream}: (nothing)")
+        return ev
 
     def stop(self) -> None:
-        if self.alive():
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(self.proc.pid, signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=2.0)
-            except subprocess.TimeoutExpired:
-                pass
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(self.proc.pid, signal.SIGKILL)  # the whole group, stragglers included
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            self.proc.wait(timeout=2.0)
+        self._p.stop(grace=0.0 if INTERRUPTS.hurry.is_set() else 2.0)
 
     def close(self) -> None:
         self.stop()
-        self._log.close()
 
 
 @dataclass
@@ -160,6 +190,7 @@ class Session:
             cfg.spawn = cfg.spawn or embedded_command()
             cfg.mavlink = True
         self.driver: TargetDriver | None = None
+        self.liveness: Liveness | None = None
         self.vehicle: Any = None
         self.mavlink_url = ""  # {mavlink}: how the node reaches the vehicle
         self.node: SpawnedNode | None = None
@@ -213,17 +244,19 @@ class Session:
             if cfg.target is None:
                 raise SetupError("no --target and no --spawn")
             listen = cfg.listen or ("", MANAGER_PORT)
-            target = cfg.target
+            target = check_target(cfg.target)
         self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
         try:
             self.driver.open()
         except OSError as exc:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
+        self.liveness = Liveness(self.driver, self.rto, lambda: self.target_id if self.target_id is not None else 1)
+        self.liveness.start()
         if self.recorder is not None:
             self.recorder.local = self.driver.listen
-            self.driver.add_observer(self.recorder.datagram)
-            self.driver.add_burst_observer(self.recorder.burst)
+            self.driver.add_observer(_held(self.recorder.datagram))
+            self.driver.add_burst_observer(_held(self.recorder.burst))
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -234,6 +267,8 @@ class Session:
         self._startup_phase(first=observe_startup)
 
     def close(self) -> None:
+        if self.liveness is not None:
+            self.liveness.close()
         if self.node is not None:
             self.node.close()
             self.node = None
@@ -271,6 +306,8 @@ class Session:
         assert self.cfg.spawn is not None
         self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
         self.node = SpawnedNode(self.argv)
+        if self.liveness is not None:
+            self.liveness.reset(self.node)
 
     def restart(self) -> None:
         """Spawn mode: a fresh node for the next case (quick startup, nothing judged)."""
@@ -283,22 +320,31 @@ class Session:
         self._startup_phase(first=False)
 
     def node_evidence(self) -> list[str]:
-        """What the process said, for a failure's evidence."""
-        if self.node is None:
-            return []
-        ev = []
-        if not self.node.alive():
-            ev.append(f"node process exited with code {self.node.returncode}")
-        tail = self.node.output_tail()
-        if tail:
-            ev.append("node output (last lines):\n    " + tail.replace("\n", "\n    "))
-        return ev
+        """What the process said (command, exit, stdout and stderr tails), for evidence."""
+        return self.node.evidence() if self.node is not None else []
 
     # ------------------------------------------------------------------ startup phase
     def _fail_setup(self, why: str) -> SetupError:
-        ev = self.node_evidence()
-        extra = ("; " + ev[0]) if ev else ""
-        return SetupError(why + extra)
+        """A setup error; in spawn mode it quotes the node (its exit, its own words)."""
+        if self.node is None:
+            return SetupError(why)
+        node = self.node
+        if node.alive():  # it may be on its way out: give it a moment to say why
+            with contextlib.suppress(Exception):
+                node.proc.wait(timeout=0.2)
+        details = node.details()
+        if details["exit"]:  # "the node exited during startup" -> "the node exited with code 3 ..."
+            head, _, rest = why.partition("the node exited")
+            why = (f"{head}the node {details['exit']}{rest}" if _ else
+                   f"{why} (the node {details['exit']})")
+        return SpawnFailure(why, details)
+
+    def startup_timed_out(self, timeout: float) -> SetupError:
+        """The run's --timeout fell in the startup phase: a setup error, never case errors."""
+        if self.spawned:
+            return self._fail_setup(f"the node sent no Mission_Ready within the run's --timeout of {timeout:g} s")
+        return SetupError(f"target never answered within the run's --timeout of {timeout:g} s "
+                          "(no Mission_Ready, no ACK of a probe)")
 
     def _startup_phase(self, first: bool) -> None:
         drv = self.driver
@@ -314,7 +360,8 @@ class Session:
 
         if self.vehicle is not None and first:
             v = self.vehicle
-            st.node_connected_to_vehicle = v.wait_for(lambda: v.connected, timeout=ready_limit)
+            st.node_connected_to_vehicle = v.wait_for(lambda: v.connected or not self.alive(),
+                                                      timeout=ready_limit) and bool(v.connected)
             if not self.alive():
                 raise self._fail_setup("the node exited during startup")
             if st.node_connected_to_vehicle:
@@ -405,6 +452,8 @@ class Session:
             self.start_mission = ex  # judged by MCP-BLK-4; restarts do not replace it
         if not ex.acked and not self.alive():
             raise self._fail_setup("the node exited after Start_Mission")
+        if self.liveness is not None:
+            self.liveness.enable()  # it receives from now on: watch it
 
     def _probe_alive(self) -> Exchange:
         drv = self.driver
@@ -415,6 +464,7 @@ class Session:
     # ------------------------------------------------------------------ per case
     def before_case(self) -> None:
         """Make sure a live, started node is there (restart in spawn mode)."""
+        self._note_loss()
         if self.lost is not None:
             raise TargetLost(self.lost)
         if self.spawned and (self.needs_restart or self.ended or not self.alive()):
@@ -428,9 +478,29 @@ class Session:
         died = self.node is not None and not self.node.alive()
         if self.spawned and (died or node_silent):
             self.needs_restart = True
-        elif not self.spawned and node_silent:
+        elif not self.spawned and node_silent and self.lost is None:
             self.lost = "the node went silent after an earlier case's input"
+        self._note_loss()
+        if self.ended and self.liveness is not None:
+            self.liveness.enabled = False  # after End_Mission a node may stop receiving
         self.flush_vehicle_frames()
+
+    def _note_loss(self) -> None:
+        """A loss the watcher declared: attach mode ends the run's cases, spawn restarts."""
+        lost = self.liveness.lost if self.liveness is not None else None
+        if lost is None:
+            return
+        if self.spawned:
+            self.needs_restart = True
+        elif self.lost is None:
+            self.lost = f"the node was lost during an earlier case ({lost.reason})"
+
+    def declare_not_live(self, why: str) -> None:
+        """A case found the node not live (no answer to a proof-of-life probe)."""
+        if self.spawned:
+            self.needs_restart = True
+        elif self.lost is None:
+            self.lost = why
 
     def _vehicle_frame(self, t: float, direction: str, conn: int, raw: bytes) -> None:
         """The vehicle's frame tap: both directions of the autopilot link into the capture
@@ -449,7 +519,8 @@ class Session:
         self.before_case()
         ctx = CaseContext(self, case_id, rules)
         if self.recorder is not None:
-            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+            with INTERRUPTS.held():
+                self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
@@ -458,4 +529,5 @@ class Session:
             self.needs_restart = True
         self.after_case(ctx.node_silent)
         if self.recorder is not None:
-            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+            with INTERRUPTS.held():
+                self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)

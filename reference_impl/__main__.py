@@ -2,7 +2,7 @@
 
 import sys
 
-from reference_impl.cli import main
+from reference_impl.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run())

@@ -69,7 +69,8 @@ class Mcp:
     default on the wildcard address, so loopback broadcasts reach us too. ``source_id``
     is our MCP ID. ``timeout``/``retries`` default to the spec's parameters. With
     ``reply_to_source`` an ACK goes back to the datagram's source address instead of the
-    remote. ``on_event`` is called in the network thread for every endpoint event (for
+    remote. With ``reuse_port`` other nodes may bind the same port (several drones on one
+    host); without it a port in use is an error. ``on_event`` is called in the network thread for every endpoint event (for
     logging); it must not block. ``max_queued`` bounds the messages waiting for
     ``recv_message`` (the oldest are dropped beyond it). ``tap(direction, data, addr)`` sees
     every datagram received and sent, in the network thread (a capture; it must be quick).
@@ -82,7 +83,8 @@ class Mcp:
                  timeout: float | None = None, retries: int | None = None,
                  reply_to_source: bool = False, broadcast_id: int = BROADCAST_ID,
                  initial_seq: int | None = None, on_event: Callable[[Event], Any] | None = None,
-                 max_queued: int = 10000, tap: DatagramTap | None = None) -> None:
+                 max_queued: int = 10000, tap: DatagramTap | None = None,
+                 reuse_port: bool = False) -> None:
         self.handler = handler
         self.source_id = source_id
         self.on_event = on_event
@@ -105,7 +107,7 @@ class Mcp:
         remote = remote_host if remote_host is not None else broadcast_address
         self._net_thread = threading.Thread(
             target=self._run_loop, name=f"mcp-net-{source_id}", daemon=True,
-            args=(started, bind_host, local_port, remote, remote_port, reply_to_source, tap))
+            args=(started, bind_host, local_port, remote, remote_port, reply_to_source, tap, reuse_port))
         self._net_thread.start()
         try:
             self._proto = started.result()
@@ -232,14 +234,14 @@ class Mcp:
     # ------------------------------------------------------------------ threads
     def _run_loop(self, started: concurrent.futures.Future[McpDatagramProtocol], bind_host: str,
                   bind_port: int, remote_host: str, remote_port: int, reply_to_source: bool,
-                  tap: DatagramTap | None) -> None:
+                  tap: DatagramTap | None, reuse_port: bool = False) -> None:
         loop = self._loop
         asyncio.set_event_loop(loop)
         try:
             proto = loop.run_until_complete(create_transport(
                 self._endpoint, bind_host=bind_host, bind_port=bind_port, remote_host=remote_host,
                 remote_port=remote_port, reply_to_source=reply_to_source, on_event=self._on_event,
-                tap=tap))
+                tap=tap, reuse_port=reuse_port))
         except BaseException as exc:  # noqa: BLE001 - reported to the constructor
             started.set_exception(exc)
             return

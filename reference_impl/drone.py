@@ -571,6 +571,7 @@ class DroneConfig:
     gps_fix_delay: float = 0.0
     takeoff_alt: float = 10.0
     reply_to_source: bool = False
+    reuse_port: bool = False  # share the port with other drones on this host (--reuse-port)
     record_path: str | None = None
     #: MCAP capture of the node's MCP traffic and its autopilot link (``--capture``)
     capture_path: str | None = None
@@ -699,7 +700,7 @@ class Drone(RoleNode):
             self.mcp = Mcp(self.app, cfg.local_port, cfg.remote_port, cfg.remote_host, cfg.drone_id,
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
-                           on_event=EventLogger(self.log),
+                           reuse_port=cfg.reuse_port, on_event=EventLogger(self.log),
                            tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None

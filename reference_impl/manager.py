@@ -59,6 +59,7 @@ class ManagerConfig:
     rto: float | None = None
     retries: int | None = None
     reply_to_source: bool = False
+    reuse_port: bool = False  # share the port with other nodes on this host (--reuse-port)
     record_path: str | None = None
     #: MCAP capture of the manager's MCP traffic (``--capture``)
     capture_path: str | None = None
@@ -151,7 +152,7 @@ class Manager(RoleNode):
             self.mcp = Mcp(self.handler, cfg.local_port, cfg.remote_port, cfg.remote_host, MANAGER_ID,
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
-                           on_event=EventLogger(self.log),
+                           reuse_port=cfg.reuse_port, on_event=EventLogger(self.log),
                            tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None

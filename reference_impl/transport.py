@@ -12,9 +12,11 @@ broadcasts", MCP-TRN-1); ACKs to ``remote`` too, unless ``reply_to_source`` is s
 case an ACK goes back to the source address of the datagram it acknowledges. Datagrams
 are accepted from any source address (MCP-TRN-2).
 
-Several nodes can share one host and one port: :func:`open_udp_socket` sets SO_REUSEADDR
-(and SO_REUSEPORT where the system has it) and SO_BROADCAST, and binds the wildcard by
-default so that loopback broadcasts to 127.255.255.255 reach every node on the port.
+Several nodes can share one host and one port when asked to (``reuse=True``, the CLI's
+``--reuse-port``): :func:`open_udp_socket` then sets SO_REUSEADDR (and SO_REUSEPORT where
+the system has it). It always sets SO_BROADCAST and binds the wildcard by default so that
+loopback broadcasts to 127.255.255.255 reach every node on the port. Unasked, a port in use
+is an error: a stale node left running must not silently take part of the traffic.
 
 An exception raised by an event callback is logged and swallowed: it never stops the
 transport (MCP-ROB-5: "After any malformed or unexpected input the node stays live").
@@ -51,7 +53,7 @@ EventCallback = Callable[[Event], Any]
 DatagramTap = Callable[[str, bytes, Addr], Any]
 
 
-def open_udp_socket(bind_host: str, bind_port: int, *, broadcast: bool = True, reuse: bool = True,
+def open_udp_socket(bind_host: str, bind_port: int, *, broadcast: bool = True, reuse: bool = False,
                     rcvbuf: int = DEFAULT_RCVBUF) -> socket.socket:
     """A non-blocking IPv4 UDP socket bound to ``(bind_host, bind_port)``.
 
@@ -209,15 +211,17 @@ async def create_transport(endpoint: Endpoint, *, bind_host: str = "", bind_port
                            remote_host: str | None = None, remote_port: int = SPEC.protocol["ports"]["manager"],
                            reply_to_source: bool = False, on_event: EventCallback | None = None,
                            sock: socket.socket | None = None, tap: DatagramTap | None = None,
+                           reuse_port: bool = False,
                            ) -> McpDatagramProtocol:
     """Open (or adopt ``sock``) and start a transport for ``endpoint`` in the running loop.
 
-    ``remote_host`` defaults to the spec's broadcast address. Returns the protocol; its
+    ``remote_host`` defaults to the spec's broadcast address; ``reuse_port`` lets other
+    nodes share the bound port (several drones on one host). Returns the protocol; its
     ``transport.get_extra_info("sockname")`` is the bound address.
     """
     loop = asyncio.get_running_loop()
     if sock is None:
-        sock = open_udp_socket(bind_host, bind_port)
+        sock = open_udp_socket(bind_host, bind_port, reuse=reuse_port)
     remote = (remote_host if remote_host is not None else SPEC.protocol["broadcast_address"], remote_port)
     proto = McpDatagramProtocol(endpoint, remote, reply_to_source=reply_to_source, on_event=on_event,
                                 tap=tap)

@@ -98,6 +98,7 @@ def test_flood_of_malformed_datagrams(node):
     (retried across retransmissions before it is judged)."""
     # short datagrams are MCP-ROB-1's (a node that dies on them is caught there)
     corpus = [data for _, data in _corpus(node, "bad_preamble", "unknown_action", "count_mismatch")]
+    node.prove_live("node not live before the flood: nothing to judge")
     count = int(SPEC.params["flood_count"])
     sock = node.driver.open_side_socket()
     try:
@@ -105,9 +106,9 @@ def test_flood_of_malformed_datagrams(node):
     finally:
         sock.close()
     node.info(f"flooded {sent} malformed datagrams")
-    probe = node.liveness()
+    probe, died = node.probe_after_input()
     flood = Sent(time.monotonic(), time.time_ns(), corpus[0], node.driver.target, -1, -1, -1, -1)
-    attempts = [Attempt(f"flood of {sent} malformed datagrams", flood, probe, not node.session.alive())]
-    if not probe.acked:
-        node.node_silent = node.session.alive()
+    attempts = [Attempt(f"flood of {sent} malformed datagrams", flood, probe, died or probe is None)]
+    if probe is None or not probe.acked:
+        node.node_silent = not died
     node.expect_discarded(attempts, "MCP-ROB-7", died_rule="MCP-ROB-7", live_rule="MCP-ROB-7", silent=False)

@@ -202,3 +202,71 @@ def test_the_runner_spawn_command(tmp_path: Path) -> None:
             proc.communicate()
         v.close()
         runner.close()
+
+
+def _until(proc: subprocess.Popen[str], text: str, timeout: float = 20.0) -> str:
+    """Read the node's stderr until a line containing ``text``."""
+    assert proc.stderr is not None
+    deadline = time.monotonic() + timeout
+    line = ""
+    while time.monotonic() < deadline and text not in line:
+        line = proc.stderr.readline()
+        if not line:
+            break
+    assert text in line, line
+    return line
+
+
+@pytest.mark.slow
+def test_a_port_is_shared_only_when_asked_and_sigterm_exits_promptly(tmp_path: Path) -> None:
+    """Issue 8: two drones bound one address without a word (a stale node silently taking
+    part of the traffic), and a drone took 1.7 s to exit on SIGTERM."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        port = s.getsockname()[1]
+    common = ["--bind", f"127.0.0.1:{port}", "--send-to", "127.0.0.1:9", "--rto", "0.2"]
+    first = spawn("drone", "--id", "1", *common)
+    procs = [first]
+    try:
+        _until(first, "listening on")
+        code, _, err = finish(spawn("drone", "--id", "2", *common))
+        assert code == 2 and "Traceback" not in err, err
+        errors = [ln for ln in err.splitlines() if ln.startswith("mcp-node: error: ")]
+        assert len(errors) == 1 and "in use" in errors[0], err
+        first.send_signal(signal.SIGTERM)
+        assert finish(first)[0] == 0
+        a = spawn("drone", "--id", "1", *common, "--reuse-port")
+        b = spawn("drone", "--id", "2", *common, "--reuse-port")
+        procs += [a, b]
+        for p in (a, b):
+            _until(p, "sending Mission_Ready")  # both bound, both past their startup
+        t0 = time.monotonic()
+        for p in (a, b):
+            p.send_signal(signal.SIGTERM)
+        results = [finish(p) for p in (a, b)]
+        took = time.monotonic() - t0
+        print(f"two drones exited {took * 1000:.0f} ms after SIGTERM")
+        assert [r[0] for r in results] == [0, 0], results
+        assert took < 1.0, f"{took:.2f} s to exit on SIGTERM (was 1.7 s)"
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+
+
+def test_the_waypoint_files_the_readme_names_are_shipped() -> None:
+    """Every ``*.waypoints`` file the README names exists and loads (QGC WPL 110 through
+    pymavlink, ``spec.mission``)."""
+    import re
+
+    from spec.mission import load_waypoints
+
+    names = set(re.findall(r"[\w./-]+\.waypoints", (ROOT / "README.md").read_text()))
+    assert names, "the README names no waypoint file"
+    for name in names:
+        path = ROOT / name
+        assert path.is_file(), f"README names {name}, not shipped"
+        assert load_waypoints(path), name

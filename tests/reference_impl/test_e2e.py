@@ -72,7 +72,7 @@ def test_manager_and_three_drones(challenge: int, tmp_path: Path) -> None:
     try:
         for i in DRONES:
             procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
-                                      "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
+                                      "--reuse-port", "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
                                       log=tmp_path / f"drone{i}.log")
         procs["manager"] = node("manager", "--challenge", str(challenge), "--drones", ",".join(map(str, DRONES)),
                                 "--waypoints", str(WAYPOINTS), "--obstacles", str(OBSTACLES),

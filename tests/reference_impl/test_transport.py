@@ -37,15 +37,28 @@ async def _wait_for(events: list, cls: type, n: int = 1, within: float = 2.0) ->
 
 
 def test_open_udp_socket_options_and_port_sharing():
-    a = open_udp_socket("", 0)
+    a = open_udp_socket("", 0, reuse=True)
     try:
         port = a.getsockname()[1]
         assert a.getsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR)
         assert a.getsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST)
         assert a.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= 200_000  # enlarged (ROB-7)
         assert a.gettimeout() == 0.0  # non-blocking
-        b = open_udp_socket("", port)  # a second node on the same port (several drones, one host)
+        b = open_udp_socket("", port, reuse=True)  # a second node on the same port (several drones, one host)
         b.close()
+    finally:
+        a.close()
+
+
+def test_a_port_in_use_is_refused_unless_sharing_is_asked_for():
+    """A stale node left running must not silently take part of the traffic (issue 8)."""
+    a = open_udp_socket("", 0)
+    try:
+        assert not a.getsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR)
+        with pytest.raises(OSError):
+            open_udp_socket("", a.getsockname()[1])
+        with pytest.raises(OSError):  # asking on one side only is not enough
+            open_udp_socket("", a.getsockname()[1], reuse=True)
     finally:
         a.close()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as blocker:
@@ -56,9 +69,9 @@ def test_open_udp_socket_options_and_port_sharing():
 
 def test_loopback_broadcast_reaches_every_node_sharing_a_port():
     """MCP-TRN-1: "At the IP level, they are local subnet IP broadcasts" (127.255.255.255)."""
-    a = open_udp_socket("", 0)
+    a = open_udp_socket("", 0, reuse=True)
     port = a.getsockname()[1]
-    b = open_udp_socket("", port)
+    b = open_udp_socket("", port, reuse=True)
     tx = open_udp_socket(LOOP, 0)
     try:
         tx.sendto(b"hello", ("127.255.255.255", port))

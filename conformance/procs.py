@@ -1,0 +1,210 @@
+"""Processes the runner starts (the node under test, the embedded reference node): they
+die with the runner, even when the runner is killed with SIGKILL, and what they said is
+kept, bounded, as evidence.
+
+- **Parent-death signal**: on Linux each spawned process gets ``PR_SET_PDEATHSIG`` =
+  SIGKILL (``prctl`` through ctypes, in ``preexec_fn``), so it is killed the moment the
+  runner dies, however it dies.
+- **Reaper**: a node's own children (``sh -c "python node.py; ..."``) do not inherit that
+  signal, so a tiny watchdog process (its own session, so a signal to the runner's group
+  does not take it too) holds the read end of a pipe; the runner writes each process
+  group it starts. When the pipe closes, the runner is gone: the reaper kills every group
+  it was told about, then exits. A runner that closes normally tells it first
+  (``forget``).
+- **Output**: stdout and stderr are read by two threads into bounded line buffers (the
+  last ``TAIL_LINES`` lines of each, lines cut at ``LINE_CHARS``), so a chatty node can
+  run for hours without filling a disk or the runner's memory.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import ctypes
+import ctypes.util
+import os
+import signal
+import subprocess
+import sys
+import threading
+from typing import IO, Any
+
+__all__ = ["Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
+
+TAIL_LINES = 40
+LINE_CHARS = 400
+_PR_SET_PDEATHSIG = 1
+
+_REAPER_CODE = r"""
+import os, signal, sys
+groups = set()
+buf = b""
+fd = int(sys.argv[1])
+while True:
+    try:
+        chunk = os.read(fd, 4096)
+    except InterruptedError:
+        continue
+    except OSError:
+        chunk = b""
+    if not chunk:
+        break
+    buf += chunk
+    *lines, buf = buf.split(b"\n")
+    for ln in lines:
+        op, _, pgid = ln.partition(b" ")
+        try:
+            (groups.add if op == b"+" else groups.discard)(int(pgid))
+        except ValueError:
+            pass
+for pgid in groups:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except OSError:
+        pass
+"""
+
+
+def _libc() -> Any:
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+    except OSError:
+        return None
+
+
+_LIBC = _libc()
+
+
+def pdeathsig_preexec(parent_pid: int) -> Any:
+    """A ``preexec_fn`` that asks the kernel to SIGKILL the child when the runner dies
+    (Linux); None elsewhere (the reaper still covers it)."""
+    if _LIBC is None:
+        return None
+    prctl = _LIBC.prctl
+
+    def preexec() -> None:
+        prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        if os.getppid() != parent_pid:  # the runner died between fork and prctl
+            os._exit(137)
+    return preexec
+
+
+class Reaper:
+    """The watchdog process (see the module docstring). One per runner process."""
+
+    def __init__(self) -> None:
+        self._w: int | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._lock = threading.Lock()
+
+    def _start(self) -> None:
+        r, w = os.pipe()
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-I", "-S", "-c", _REAPER_CODE, str(r)], pass_fds=(r,),
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                start_new_session=True)
+        except OSError:
+            os.close(w)
+            self._proc = None
+            return
+        finally:
+            os.close(r)
+        os.set_inheritable(w, False)
+        self._w = w
+
+    def _write(self, line: str) -> None:
+        with self._lock:
+            if self._w is None and self._proc is None:
+                self._start()
+            if self._w is None:
+                return
+            with contextlib.suppress(OSError):
+                os.write(self._w, line.encode())
+
+    def watch(self, pgid: int) -> None:
+        self._write(f"+ {pgid}\n")
+
+    def forget(self, pgid: int) -> None:
+        self._write(f"- {pgid}\n")
+
+
+_REAPER: Reaper | None = None
+
+
+def reaper() -> Reaper:
+    global _REAPER
+    if _REAPER is None:
+        _REAPER = Reaper()
+    return _REAPER
+
+
+class _Tail:
+    """The last lines a stream wrote, bounded."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self.lines: collections.deque[str] = collections.deque(maxlen=TAIL_LINES)
+        self.thread = threading.Thread(target=self._read, args=(stream,), daemon=True,
+                                       name="mcp-conform-node-output")
+        self.thread.start()
+
+    def _read(self, stream: IO[bytes]) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            for raw in iter(stream.readline, b""):
+                text = raw.decode("utf-8", "replace").rstrip("\r\n")
+                self.lines.append(text if len(text) <= LINE_CHARS else text[:LINE_CHARS] + " ...")
+        with contextlib.suppress(OSError):
+            stream.close()
+
+    def tail(self, n: int) -> list[str]:
+        return list(self.lines)[-n:]
+
+
+class ManagedProcess:
+    """A process of the run: own process group, parent-death signal, reaper, output kept."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.argv = argv
+        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, start_new_session=True,
+                                     preexec_fn=pdeathsig_preexec(os.getpid()))
+        reaper().watch(self.proc.pid)
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        self._out = _Tail(self.proc.stdout)
+        self._err = _Tail(self.proc.stderr)
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        return self.proc.poll()
+
+    def output(self, lines: int = 12) -> tuple[list[str], list[str]]:
+        """The last ``lines`` lines of stdout and of stderr (after the process ended, all of
+        what it wrote has been read)."""
+        if not self.alive():
+            for t in (self._out, self._err):
+                t.thread.join(timeout=0.5)
+        return self._out.tail(lines), self._err.tail(lines)
+
+    def stop(self, grace: float = 2.0) -> None:
+        """SIGTERM to the group, then SIGKILL to whatever is left of it; never raises."""
+        try:
+            if self.alive():
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(self.proc.pid, signal.SIGTERM)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self.proc.wait(timeout=grace)
+        finally:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.proc.pid, signal.SIGKILL)  # the whole group, stragglers included
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(timeout=2.0)
+            reaper().forget(self.proc.pid)
