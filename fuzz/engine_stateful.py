@@ -374,6 +374,8 @@ class StatefulEngine:
                         run_state_machine_as_test(machine, settings=self._settings(chunk))
                 except FlawFound as exc:
                     failure = exc
+                    # hypothesis attaches the shortest program to the exception it raises
+                    report.extend(getattr(exc, "__notes__", []))
                 except Flaky as exc:
                     # a program that failed once and not the same way again: hypothesis cannot
                     # shrink it, triage may still confirm what was first seen

@@ -13,6 +13,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 DIALECT = "ardupilotmega"
 _BAD = mavlink2.MAVLink_bad_data
+#: The longest single frame per start marker: v1 header 6 + payload 255 + CRC 2; v2 header 10
+#: + payload 255 + CRC 2 + signature 13. Anything longer holds more than one frame (or junk),
+#: decided without feeding pymavlink's byte-at-a-time parser 64 KB of it.
+_MAX_FRAME = {mavlink2.PROTOCOL_MARKER_V1: 6 + 255 + 2, mavlink2.PROTOCOL_MARKER_V2: 10 + 255 + 2 + 13}
 
 
 class FrameError(ValueError):
@@ -25,6 +29,9 @@ def parse_frame(data: bytes) -> Any:
         raise FrameError("empty: no MAVLink frame")
     if data[0] not in (mavlink2.PROTOCOL_MARKER_V1, mavlink2.PROTOCOL_MARKER_V2):
         raise FrameError(f"starts with 0x{data[0]:02X}, not a MAVLink v1 (0xFE) or v2 (0xFD) marker")
+    longest = _MAX_FRAME[data[0]]
+    if len(data) > longest:
+        raise FrameError(f"{len(data)} bytes: more than one MAVLink frame can hold ({longest})")
     parser = mavlink2.MAVLink(None)
     parser.robust_parsing = True
     try:

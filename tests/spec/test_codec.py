@@ -201,3 +201,17 @@ def test_action_and_mission_item_follow_the_spec() -> None:
 
     assert [(a.name, int(a)) for a in Action] == [(a.name, a.code) for a in SPEC.actions]
     assert MissionItem._fields == tuple(f["name"] for f in SPEC.mission_item["fields"])
+
+
+def test_passthrough_longer_than_any_frame_is_pay6_without_parsing_it_all():
+    """A Mav_Passthrough payload longer than one MAVLink frame can be (v1 263, v2 280 bytes)
+    is rejected as MCP-PAY-6 up front (the fuzzer sends them up to 65,507 bytes)."""
+    from spec.mavframe import heartbeat_frame
+
+    for version in (1, 2):
+        frame = heartbeat_frame(version)
+        for tail in (frame * 30, bytes(65_000)):
+            data = build_datagram(1, 0, 1, int(Action.MAV_PASSTHROUGH), frame + tail)
+            with pytest.raises(DecodeError) as exc:
+                decode(data)
+            assert exc.value.rule == "MCP-PAY-6"
