@@ -42,8 +42,16 @@ from hypothesis.stateful import (
 
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats
-from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_liveness, judge_replies
-from fuzz.replay import frame_token, settle_vehicle, vehicle_counts
+from fuzz.oracles import (
+    DeliveryLedger,
+    Flaw,
+    Input,
+    MonitorOracle,
+    judge_liveness,
+    judge_replies,
+    judge_withheld,
+)
+from fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
 from fuzz.target import FuzzTarget
 from fuzz.triage import Triage
 from spec.codec import Action, Message, encode
@@ -64,12 +72,13 @@ CHUNK = 10  # examples per hypothesis run (the budget is checked between runs)
 class FlawFound(AssertionError):
     """A step broke a rule: the flaw, and every datagram the program sent."""
 
-    def __init__(self, flaw: Flaw, sent: list[bytes]) -> None:
+    def __init__(self, flaw: Flaw, sent: list[bytes], scenario: str | None = None) -> None:
         super().__init__(f"{flaw.rule}: expected {flaw.expected}; actual {flaw.actual}")
         if CTX is not None and len(CTX.raised) < 20:
-            CTX.raised.append((flaw, list(sent)))
+            CTX.raised.append((flaw, list(sent), scenario))
         self.flaw = flaw
         self.sent = sent
+        self.scenario = scenario
 
 
 def check_database(spec: str) -> None:
@@ -154,6 +163,7 @@ class ManagerMachine(RuleBasedStateMachine):
         self.tokens = 0
         self.ended = False
         self.wrapped = False
+        self.scenario: str | None = None  # how the node was started, when not plainly
         # each program numbers its messages afresh, away from the wrap, and is judged by a
         # fresh monitor: one program's numbers never alias another's in the trace
         drv = self.t.driver
@@ -207,7 +217,8 @@ class ManagerMachine(RuleBasedStateMachine):
             flaws.append(dead)
         flaws += ctx.monitor.feed(t.traffic.drain())
         if flaws:
-            raise FlawFound(self._absolute(flaws[0], len(self.sent) - len(datagrams)), list(self.sent))
+            raise FlawFound(self._absolute(flaws[0], len(self.sent) - len(datagrams)), list(self.sent),
+                            self.scenario)
 
     def _absolute(self, f: Flaw, offset: int) -> Flaw:
         """The flaw's culprit as an index into everything this program sent."""
@@ -305,7 +316,27 @@ class ManagerMachine(RuleBasedStateMachine):
         t.session.ended = True
         if got is None and t.alive():
             raise FlawFound(Flaw("MCP-ACK-1", f"an ACK of End_Mission seq {sent.seq}",
-                                 "no ACK of End_Mission", culprit=len(self.sent) - 1), list(self.sent))
+                                 "no ACK of End_Mission", culprit=len(self.sent) - 1), list(self.sent),
+                            self.scenario)
+
+    @precondition(lambda self: not self.ended and self.t.spawned and len(self.history) >= 2)
+    @rule(copies=st.integers(1, 3), now=st.integers(0, END_ODDS - 1))
+    def restart_withholding_acks(self, copies: int, now: int) -> None:
+        """Now and then a fresh node whose Mission_Ready ACKs are withheld for a few copies,
+        then given out of order (the monitor judges the copies: MCP-RTX-1/2, MCP-SEQ-2)."""
+        if now != END_ODDS - 1:
+            return
+        t = self.t
+        w = t.restart_withholding(copies)
+        self.ctx.restarts_seen = t.restarts
+        self.ctx.ledger = DeliveryLedger(t.node_id, t.broadcast_id)  # a new node delivers afresh
+        self.history.clear()
+        self.sent.clear()  # what the new node was sent starts here
+        self.scenario = f"{WITHHOLD}{copies}"
+        flaw = judge_withheld(w.copies, w.after_wrong_ack, copies, t.alive())
+        if flaw is not None:
+            raise FlawFound(flaw, [], scenario=self.scenario)
+        self._step([])
 
     @precondition(lambda self: self.ended)
     @rule()
@@ -316,7 +347,8 @@ class ManagerMachine(RuleBasedStateMachine):
     def node_alive(self) -> None:
         if not self.ended and not self.t.alive():
             raise FlawFound(judge_liveness([Input.of(d) for d in self.sent[-1:]], False, self.t.fate())
-                            or Flaw("MCP-ROB-5", "a live node", "the node died"), list(self.sent))
+                            or Flaw("MCP-ROB-5", "a live node", "the node died"), list(self.sent),
+                            self.scenario)
 
     def teardown(self) -> None:
         """Once every forward has arrived (a sentinel frame behind them), the vehicle's record
@@ -329,7 +361,7 @@ class ManagerMachine(RuleBasedStateMachine):
         flaws = ctx.ledger.judge(vehicle_counts(t), settled=settled)
         ctx.ledger.expected.clear()
         if flaws:
-            raise FlawFound(self._absolute(flaws[0], 0), list(self.sent))
+            raise FlawFound(self._absolute(flaws[0], 0), list(self.sent), self.scenario)
 
 
 class StatefulEngine:
@@ -395,7 +427,7 @@ class StatefulEngine:
                         self.programs.append(program)
                     inputs = [Input.of(d) for d in failure.sent]
                     flaw = failure.flaw
-                    self.triage.consider(flaw, inputs, "paced", program=program)
+                    self.triage.consider(flaw, inputs, "paced", program=program, scenario=failure.scenario)
                     ctx.fresh_node()
                     if self.cfg.extra.get("reuse_only"):
                         break

@@ -48,6 +48,7 @@ class Finding:
     worker: int = 0
     occurrences: int = 1
     program: str | None = None  # the stateful engine's shortest program, as hypothesis printed it
+    scenario: str | None = None  # how the node is started before the datagrams (fuzz.replay)
     source: str = ""
     target: dict[str, Any] = field(default_factory=dict)  # how the campaign reached the node
 

@@ -42,6 +42,7 @@ __all__ = [
     "Flaw",
     "MonitorOracle",
     "judge_liveness",
+    "judge_withheld",
     "judge_replies",
     "rule_level",
 ]
@@ -215,6 +216,26 @@ def judge_liveness(inputs: Sequence[Input], probe_acked: bool, fate: dict[str, A
     return Flaw(rule, "the node stays live and ACKs the next valid unicast",
                 f"the node {how} after {inputs[culprit].describe() if culprit is not None else 'no input'}",
                 culprit=culprit, evidence=tuple(ev), source="process" if died else "liveness")
+
+
+def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None, wanted: int,
+                   alive: bool) -> Flaw | None:
+    """A fresh node's Mission_Ready, ACK withheld for ``wanted`` copies, then an ACK naming
+    another seq: it retransmits (MCP-RTX-1), each copy the same bytes (MCP-SEQ-2), and the
+    wrong ACK does not end it (MCP-RTX-2)."""
+    if not alive:
+        return None  # a death is judge_liveness's
+    if len(copies) < min(wanted, 2):
+        return Flaw("MCP-RTX-1", f"Mission_Ready retransmitted while unACKed ({wanted} copies awaited)",
+                    f"{len(copies)} cop{'y' if len(copies) == 1 else 'ies'} seen", source="startup")
+    if len({d.data for d in copies}) > 1:
+        return Flaw("MCP-SEQ-2", "every copy of Mission_Ready repeats the original's bytes",
+                    "copies differ: " + ", ".join(f"seq {d.header[2]}" for d in copies if d.header),
+                    source="startup", evidence=tuple(d.data.hex() for d in copies))
+    if after_wrong_ack is None:
+        return Flaw("MCP-RTX-2", "retransmission goes on after an ACK naming another seq",
+                    "no copy of Mission_Ready after the ACK of another seq", source="startup")
+    return None
 
 
 # ---------------------------------------------------------------- vehicle

@@ -14,16 +14,27 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_liveness, judge_replies
+from fuzz.oracles import (
+    DeliveryLedger,
+    Flaw,
+    Input,
+    MonitorOracle,
+    judge_liveness,
+    judge_replies,
+    judge_withheld,
+)
 from fuzz.target import FuzzTarget
 from spec.codec import Action
 from vehicle.probe import make_probe, probe_token
 
-__all__ = ["Outcome", "confirm", "frame_token", "run_sequence", "shrink"]
+__all__ = ["WITHHOLD", "Outcome", "confirm", "frame_token", "run_sequence", "shrink"]
 
 _ACK = int(Action.ACK)
 SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
 SENTINEL_SRC = 0x5E47  # the sentinel's own source ID
+#: Scenario "withhold:N": a fresh node whose Mission_Ready ACK is withheld for N copies, then
+#: given out of order (FuzzTarget.restart_withholding), before the datagrams are sent.
+WITHHOLD = "withhold:"
 
 
 def frame_token(data: bytes) -> str | None:
@@ -80,10 +91,18 @@ def settle_vehicle(target: FuzzTarget, ledger: DeliveryLedger | None, tag: str) 
 
 
 def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = "batch",
-                 fresh: bool = True, monitor: bool = True) -> Outcome:
-    """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``), then judge."""
+                 fresh: bool = True, monitor: bool = True, scenario: str | None = None) -> Outcome:
+    """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``, started as
+    ``scenario`` says), then judge."""
     out = Outcome()
-    if fresh and target.spawned:
+    if scenario is not None and scenario.startswith(WITHHOLD) and target.spawned:
+        copies = int(scenario[len(WITHHOLD):])
+        w = target.restart_withholding(copies)
+        out.restarted = True
+        flaw = judge_withheld(w.copies, w.after_wrong_ack, copies, target.alive())
+        if flaw is not None:
+            out.flaws.append(flaw)
+    elif fresh and target.spawned:
         target.restart()
         out.restarted = True
     elif not target.alive():
@@ -124,9 +143,10 @@ def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = 
 
 
 def confirm(target: FuzzTarget, datagrams: Sequence[bytes], rule: str, pace: str,
-            tries: int = 2) -> bool:
+            tries: int = 2, scenario: str | None = None) -> bool:
     """The sequence shows ``rule`` again (on a fresh node where one can be spawned)."""
-    return any(rule in run_sequence(target, datagrams, pace=pace).rules() for _ in range(tries))
+    return any(rule in run_sequence(target, datagrams, pace=pace, scenario=scenario).rules()
+               for _ in range(tries))
 
 
 def shrink(datagrams: list[bytes], still_fails: Callable[[list[bytes]], bool],

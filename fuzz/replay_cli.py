@@ -38,7 +38,7 @@ def replay_finding(path: str, cfg: FuzzConfig) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     try:
-        outcome = run_sequence(target, datagrams, pace=f.pace)
+        outcome = run_sequence(target, datagrams, pace=f.pace, scenario=f.scenario)
     finally:
         target.close()
     same = [x for x in outcome.flaws if x.rule == f.rule]

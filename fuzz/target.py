@@ -21,10 +21,12 @@ from conformance.session import Session
 from fuzz.config import FuzzConfig
 from spec.codec import Action
 
-__all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord"]
+__all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord", "Withheld"]
 
 PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
 PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
+READY_LIMIT = 20.0  # s: a fresh node's first Mission_Ready comes within this
+_READY = int(Action.MISSION_READY)
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,14 @@ class Traffic:
             out, self._pending = self._pending, []
         out.sort(key=lambda r: r.t_ns)
         return out
+
+
+@dataclass(frozen=True)
+class Withheld:
+    """A fresh node's Mission_Ready while its ACK was withheld, then given out of order."""
+
+    copies: list[Datagram]  # the copies seen before the wrong ACK
+    after_wrong_ack: Datagram | None  # a copy after the ACK of another seq (there must be one)
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,41 @@ class FuzzTarget:
             return
         self.session.restart()
         self.restarts += 1
+
+    def restart_withholding(self, copies: int) -> Withheld:
+        """Spawn mode: a fresh node whose Mission_Ready is left unACKed for ``copies`` copies,
+        then ACKed out of order (an ACK naming another seq first, then the right one); the
+        mission is started again. Returns what was seen (judged by
+        ``fuzz.oracles.judge_withheld``: MCP-RTX-1/2, MCP-SEQ-2)."""
+        s, drv = self.session, self.driver
+        if s.node is not None:
+            s.node.close()
+        s.restarts += 1
+        self.restarts += 1
+        s.ended = s.needs_restart = False
+        mark = drv.mark()
+        drv.auto_ack = lambda d: d.action != _READY
+        try:
+            s._spawn()
+            limit = time.monotonic() + READY_LIMIT + (copies + 1) * max(self.rto, 0.05) * 2
+            while time.monotonic() < limit and self.alive():
+                got = [d for d in drv.received(mark) if d.action == _READY]
+                if len(got) >= copies:
+                    break
+                drv.wait_for(lambda d: d.action == _READY, 0.1, drv.mark())
+            got = [d for d in drv.received(mark) if d.action == _READY]
+            after_wrong: Datagram | None = None
+            if got and got[-1].header is not None:
+                dst, src, seq, _ = got[-1].header
+                wrong = drv.send_ack((seq - 1) & 0xFFFF, dst=src)  # another seq's ACK (MCP-RTX-2)
+                after_wrong = drv.wait_for(lambda d: d.action == _READY and d.t > wrong.t,
+                                           2.5 * max(self.rto, 0.05) + 0.2, drv.mark_before(wrong))
+                last = after_wrong if after_wrong is not None and after_wrong.header else got[-1]
+                drv.send_ack(last.header[2], dst=src)  # type: ignore[index]
+        finally:
+            drv.auto_ack = lambda d: True
+        s._start_mission(False)
+        return Withheld(got, after_wrong)
 
     @property
     def spawned(self) -> bool:

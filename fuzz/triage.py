@@ -68,7 +68,7 @@ class Triage:
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
 
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
-                 program: str | None = None) -> Finding | None:
+                 program: str | None = None, scenario: str | None = None) -> Finding | None:
         """Handle one flaw seen after ``inputs``; the new finding, if one was kept."""
         shape = shape_of(flaw, inputs)
         key = self.aliases.get((flaw.rule, shape), (flaw.rule, shape))
@@ -79,7 +79,7 @@ class Triage:
             return None
         t0 = time.monotonic()
         try:
-            return self._confirm_and_shrink(flaw, inputs, shape, pace, program)
+            return self._confirm_and_shrink(flaw, inputs, shape, pace, program, scenario)
         finally:
             self.seconds += time.monotonic() - t0
 
@@ -87,11 +87,11 @@ class Triage:
         self.unconfirmed += 1
         self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
 
-    def _still(self, flaw: Flaw, pace: str):  # noqa: ANN202
+    def _still(self, flaw: Flaw, pace: str, scenario: str | None):  # noqa: ANN202
         """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
         def still_fails(seq: list[bytes]) -> bool:
             self.replays += 1
-            out = run_sequence(self.target, seq, pace=pace)
+            out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
             if flaw.source in _DEATH:
                 return any(f.source in _DEATH for f in out.flaws)
             return flaw.rule in out.rules()
@@ -113,11 +113,13 @@ class Triage:
         return out[:SUSPECTS]
 
     def _confirm_and_shrink(self, flaw: Flaw, inputs: Sequence[Input], shape: str, pace: str,
-                            program: str | None) -> Finding | None:
+                            program: str | None, scenario: str | None) -> Finding | None:
         end = flaw.culprit + 1 if flaw.culprit is not None and flaw.source not in _DEATH else len(inputs)
         candidate = [i.data for i in inputs[:end]]
-        still = self._still(flaw, pace)
-        minimal = next(([d] for d in self._suspects(flaw, inputs) if still([d])), None)
+        still = self._still(flaw, pace, scenario)
+        minimal = [] if scenario is not None and still([]) else None
+        if minimal is None:
+            minimal = next(([d] for d in self._suspects(flaw, inputs) if still([d])), None)
         if minimal is None:
             if not still(candidate):
                 self._unconfirmed(flaw)
@@ -127,7 +129,7 @@ class Triage:
         seen: Flaw | None = None
         outcome = None
         for _ in range(2):
-            outcome = run_sequence(self.target, minimal, pace=pace)
+            outcome = run_sequence(self.target, minimal, pace=pace, scenario=scenario)
             self.replays += 1
             seen = next((f for f in outcome.flaws if f.rule == flaw.rule
                          or (flaw.source in _DEATH and f.source in _DEATH)), None)
@@ -143,7 +145,7 @@ class Triage:
             return None
         traffic = [(r.direction, r.t_ns, r.data, r.addr) for r in outcome.traffic]
         finding = Finding.from_flaw(seen, minimal, final_shape, self.engine, self.seed, pace,
-                                    worker=self.worker, program=program,
+                                    worker=self.worker, program=program, scenario=scenario,
                                     target={"mode": self.target.cfg.mode,
                                             "spawn": self.target.run_cfg.spawn,
                                             "mavlink": self.target.cfg.mavlink})
