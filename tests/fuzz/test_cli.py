@@ -63,3 +63,18 @@ def test_shrink_finds_the_minimal_pair() -> None:
         return b"\x07" in s and b"\x21" in s
 
     assert sorted(shrink(seq, fails, budget=200)) == [b"\x07", b"\x21"]
+
+
+def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noqa: ANN001
+    from captures.recorder import McapRecorder
+    from conformance.errors import SetupError
+    from fuzz.campaign import load_seeds
+
+    sent = [bytes.fromhex("4e4353552d434d010100010000000a0005"), b"\x01\x02"]
+    with McapRecorder(tmp_path / "a.mcap") as rec:
+        for d in sent:
+            rec.datagram("tx", d, ("127.0.0.1", 7890))
+        rec.datagram("rx", bytes.fromhex("4e4353552d434d010100000001000b0007000a"), ("127.0.0.1", 7890))
+    assert load_seeds(str(tmp_path)) == sent
+    with pytest.raises(SetupError, match="--seeds"):
+        load_seeds(str(tmp_path / "none"))

@@ -96,3 +96,20 @@ def test_ledger_other_id_and_malformed_must_not_reach_the_vehicle() -> None:
     bad = Input.of(_pt(2).data[:-1])
     led.sent(1, bad, "t2")
     assert sorted(f.rule for f in led.judge({"t1": 1, "t2": 1}, settled=True)) == ["MCP-ACK-5", "MCP-ROB-4"]
+
+
+def _ready(seq: int) -> Datagram:
+    data = encode(Message(0, NODE, seq, Action.MISSION_READY, None))
+    return Datagram(0, time.monotonic(), time.time_ns(), data, ("127.0.0.1", 1), decode(data), None,
+                    read_header(data))
+
+
+def test_withheld_mission_ready_judged_by_rtx1_seq2_rtx2() -> None:
+    from fuzz.oracles import judge_withheld
+
+    same = [_ready(7), _ready(7), _ready(7)]
+    assert judge_withheld(same, _ready(7), 3, True) is None
+    assert judge_withheld(same[:1], None, 3, True).rule == "MCP-RTX-1"
+    assert judge_withheld([_ready(7), _ready(8)], _ready(9), 2, True).rule == "MCP-SEQ-2"
+    assert judge_withheld(same, None, 3, True).rule == "MCP-RTX-2"
+    assert judge_withheld(same, None, 3, False) is None  # a dead node is judge_liveness's
