@@ -1,0 +1,69 @@
+"""conformance.manager_case / manager_monitor: the judgements over a recorded mission, on
+synthetic traffic (no sockets)."""
+
+from __future__ import annotations
+
+from conformance.driver import Datagram, Sent, read_header
+from conformance.manager_case import abandoned, messages, runner_ack_time
+from conformance.manager_mission import Mission
+from conformance.manager_monitor import monitor_mission
+from spec.codec import PREAMBLE, Action, DecodeError, Message, decode, encode
+
+ADDR = ("127.0.0.1", 7889)
+
+
+def rx(i: int, t: float, data: bytes) -> Datagram:
+    try:
+        msg, err = decode(data), None
+    except DecodeError as exc:
+        msg, err = None, exc
+    return Datagram(i, t, int(t * 1e9), data, ADDR, msg, err, read_header(data), data[:9] == PREAMBLE)
+
+
+def cmd(dst: int, seq: int, action: Action, payload=None) -> bytes:
+    return encode(Message(dst, 0, seq, action, payload))
+
+
+def ack(t: float, drone: int, seq: int, own: int) -> Sent:
+    return Sent(t, int(t * 1e9), encode(Message(0, drone, own, Action.ACK, seq)), ADDR, 0, drone, own, int(Action.ACK))
+
+
+def mission(datagrams: list[bytes], times: list[float]) -> Mission:
+    m = Mission("main", (1,), 1, None, None, t0=0.0, t_end=times[-1] + 1.0)
+    m.rx = [rx(i, t, d) for i, (d, t) in enumerate(zip(datagrams, times, strict=True))]
+    return m
+
+
+def test_copies_group_under_their_message_and_an_ack_ends_the_wait():
+    start = cmd(1, 10, Action.START_MISSION)
+    m = mission([start, start, start, cmd(1, 11, Action.END_MISSION)], [0.0, 0.2, 0.4, 0.5])
+    m.acks[(1, 10)] = ack(0.45, 1, 10, 500)
+    m.acks[(1, 11)] = ack(0.51, 1, 11, 501)
+    msgs = messages(m)
+    assert [len(x.copies) for x in msgs] == [3, 1] and msgs[0].action == Action.START_MISSION
+    assert runner_ack_time(m, msgs[0]) == 0.45
+    assert abandoned(m, 0.2) == set()
+
+
+def test_a_retransmission_with_a_new_seq_is_a_copy_until_acked():
+    m = mission([cmd(1, 10, Action.START_MISSION), cmd(1, 11, Action.START_MISSION)], [0.0, 0.2])
+    assert len(messages(m)) == 1
+    m.acks[(1, 10)] = ack(0.1, 1, 10, 500)
+    assert len(messages(m)) == 2  # after the ACK, the same bytes again are a new message
+
+
+def test_a_manager_that_stopped_retransmitting_gave_up():
+    start = cmd(1, 10, Action.START_MISSION)
+    m = mission([start, start], [0.0, 0.2])
+    m.acks[(1, 10)] = ack(2.0, 1, 10, 500)  # our ACK long after its last copy
+    assert abandoned(m, 0.2) == {1}
+
+
+def test_the_monitor_judges_the_managers_traffic():
+    bad = b"XX" + cmd(1, 10, Action.START_MISSION)[2:]
+    m = mission([cmd(1, 9, Action.START_MISSION), bad], [0.0, 0.1])
+    m.acks[(1, 9)] = ack(0.05, 1, 9, 500)
+    violations, _, trace = monitor_mission(m, [m.acks[(1, 9)]], ("127.0.0.1", 7890), rto=0.2,
+                                           ack_window=0.25, broadcast_id=0xFFFF)
+    assert "MCP-HDR-1" in {v.rule for v in violations}, violations
+    assert len(trace) == 3
