@@ -41,15 +41,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from .codec import MAVLinkMessage, frame_version
 from .flight import AutoMission, move_towards
-from .mission import (
-    ACCEPTED,
-    Answer,
-    MissionProtocol,
-    check_item,
-    command_name,
-    convert_float_item,
-    result_name,
-)
+from .mission import MissionProtocol, command_name, result_name
+from .mission_messages import MissionMessages
 from .probe import probe_token
 from .records import (
     ACCEPTED_RESULT,
@@ -135,7 +128,7 @@ class VehicleConfig:
             raise ValueError("max_records must be >= 1")
 
 
-class VehicleModel:
+class VehicleModel(MissionMessages):
     """The autopilot's behaviour and the observation log; not thread-safe on its own."""
 
     def __init__(self, config: VehicleConfig | None = None, *, now: float = 0.0) -> None:
@@ -468,7 +461,8 @@ class VehicleModel:
     ) -> list[MAVLinkMessage]:
         out: list[MAVLinkMessage] = []
         result = mav.MAV_RESULT_ACCEPTED
-        request, extra = "command", {"params": list(p)}
+        request: str = "command"
+        extra: dict[str, Any] = {"params": list(p)}
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             result, out = self._arm_disarm(p[0], p[1], now)
             if p[0] in (0.0, 1.0):
@@ -596,94 +590,6 @@ class VehicleModel:
             self._target_alt = alt
         return mav.MAV_RESULT_ACCEPTED if ok else REFUSED
 
-    # ------------------------------------------------------------------ missions
-    @property
-    def mission(self) -> list[dict[str, Any]]:
-        """The stored mission (MISSION_ITEM_INT fields; item 0 as uploaded, home in downloads)."""
-        return self.missions.items
-
-    def _mission(self, msg: MAVLinkMessage, now: float, request: str, ans: Answer,
-                 command: int | None = None, **detail: Any) -> list[MAVLinkMessage]:
-        """Record a mission-protocol request with its answer; return the replies."""
-        if ans.result is not None:
-            answer = "MISSION_ACK " + result_name(ans.result)
-        else:
-            answer = ", ".join(_describe(m) for m in ans.replies if m.get_type() != "STATUSTEXT")
-        self._request(now, msg, request, ans.result in (None, ACCEPTED), ans.why, answer,
-                      command=command, mav_result=ans.result, **detail)
-        return ans.replies
-
-    def _src(self, msg: MAVLinkMessage) -> tuple[int, int]:
-        return msg.get_srcSystem(), msg.get_srcComponent()
-
-    def _on_mission_count(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        ans = self.missions.count(f, self._src(msg), self._conn, now)
-        if ans.result == ACCEPTED:
-            self.record(now, "mission", count=len(self.missions.items))
-        return self._mission(msg, now, "mission_upload", ans, count=int(f["count"]))
-
-    def _on_mission_item_int(self, msg: MAVLinkMessage, f: dict[str, Any],
-                             now: float) -> Iterable:
-        detail = {"command": int(f["command"]), "seq": int(f["seq"]), "frame": int(f["frame"]),
-                  "current": int(f["current"]), "x": f["x"], "y": f["y"], "z": f["z"]}
-        if int(f.get("current", 0)) in (2, 3) and int(f.get("mission_type", 0) or 0) == 0:
-            return self._mission(msg, now, "guided_item", self._guided_item(msg, f), **detail)
-        ans = self.missions.item(msg.get_type(), f, self._src(msg), now)
-        if ans.result == ACCEPTED and self.missions.upload is None:
-            self.record(now, "mission", count=len(self.missions.items))
-        return self._mission(msg, now, "mission_item", ans, **detail)
-
-    _on_mission_item = _on_mission_item_int
-
-    def _guided_item(self, msg: MAVLinkMessage, f: dict[str, Any]) -> Answer:
-        """A MISSION_ITEM with current=2 (fly here in GUIDED) or 3 (change altitude)."""
-        item = dict(f)
-        result, why = (convert_float_item(item) if msg.get_type() == "MISSION_ITEM"
-                       else (ACCEPTED, ""))
-        if result == ACCEPTED:
-            result, why = check_item(item)
-        if result == ACCEPTED and int(f["current"]) == 2 and self.custom_mode != GUIDED:
-            result, why = mav.MAV_MISSION_ERROR, f"guided waypoint while in {self.mode}"
-        if result == ACCEPTED:
-            if int(f["current"]) == 2:
-                self._target_pos = (int(item["x"]) * 1e-7, int(item["y"]) * 1e-7)
-            self._target_alt = max(float(item["z"]), 0.0) if self.armed else None
-            why = "guided target set"
-        src = self._src(msg)
-        return Answer([mav.MAVLink_mission_ack_message(src[0], src[1], result, 0)], result, why)
-
-    def _on_mission_request_list(self, msg: MAVLinkMessage, f: dict[str, Any],
-                                 now: float) -> Iterable:
-        return self._mission(msg, now, "mission_download",
-                             self.missions.request_list(f, self._src(msg)))
-
-    def _on_mission_request_int(self, msg: MAVLinkMessage, f: dict[str, Any],
-                                now: float) -> Iterable:
-        ans = self.missions.request_item(msg.get_type(), f, self._src(msg))
-        return self._mission(msg, now, "mission_read", ans, seq=int(f["seq"]))
-
-    _on_mission_request = _on_mission_request_int
-
-    def _on_mission_clear_all(self, msg: MAVLinkMessage, f: dict[str, Any],
-                              now: float) -> Iterable:
-        ans = self.missions.clear_all(f, self._src(msg))
-        if ans.result == ACCEPTED and int(f.get("mission_type", 0) or 0) == 0:
-            self._auto.started = False
-            self.record(now, "mission", count=0)
-        return self._mission(msg, now, "mission_clear", ans)
-
-    def _on_mission_set_current(self, msg: MAVLinkMessage, f: dict[str, Any],
-                                now: float) -> Iterable:
-        seq = int(f["seq"])
-        ok = 0 < seq < len(self.missions.items) or (seq == 0 and len(self.missions.items) > 1)
-        if ok:
-            self._auto.index = max(seq, 1)
-            self._auto.started, self._auto.complete = True, False
-            self.missions.current = self._auto.index
-        self._request(now, msg, "mission_set_current", ok, f"no item {seq}",
-                      "MISSION_CURRENT" if ok else "ignored", seq=seq)
-        return [self.missions.current_message()] if ok else []
-
     # ------------------------------------------------------------------ parameters
     def _param_value(self, name: str) -> MAVLinkMessage:
         names = list(self.params)
@@ -718,14 +624,6 @@ def result_text(result: int) -> str:
     """``MAV_RESULT`` name of ``result`` (e.g. ``"MAV_RESULT_FAILED"``)."""
     entry = mav.enums["MAV_RESULT"].get(result)
     return entry.name if entry is not None else str(result)
-
-
-def _describe(msg: MAVLinkMessage) -> str:
-    """``MISSION_REQUEST seq=3``-style summary of a reply."""
-    seq = getattr(msg, "seq", None)
-    if msg.get_type() == "MISSION_COUNT":
-        return f"MISSION_COUNT count={msg.count}"
-    return msg.get_type() if seq is None else f"{msg.get_type()} seq={seq}"
 
 
 def _statustext(severity: int, text: str) -> MAVLinkMessage:

@@ -360,6 +360,7 @@ class SimVehicle:
 
     def _read_loop(self, client: _Client) -> None:
         sock = client.sock
+        assert sock is not None  # TCP clients only
         while client.alive and not self._stop.is_set():
             try:
                 readable, _, _ = select.select([sock], [], [], POLL)
