@@ -8,6 +8,7 @@ screenshot is written under pytest's tmp_path as the test's artefact.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -60,9 +61,9 @@ def test_run_page_is_self_contained_and_charts_the_case_window(tmp_path):
 
 @pytest.mark.slow
 def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
-    page = tmp_path / "report.html"
+    page, capture = tmp_path / "report.html", tmp_path / "run.mcap"
     res = run_conform("--spawn", sample_node_command("--fault", "ack-broadcast"), "--mavlink", *FAST,
-                      "--html", str(page))
+                      "--html", str(page), "--capture", str(capture))
     assert res.rc == 1, res.explain()
     assert res.rules["MCP-ACK-4"] == "failed", res.explain()
     html = page.read_text()
@@ -90,6 +91,13 @@ def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
         finding.screenshot(str(shot))
         assert shot.stat().st_size > 5_000
     print(f"screenshot: {shot}")
+    # the run's capture, judged offline by the trace monitor: the same fault, and only it
+    from captures.cli import main
+
+    out = tmp_path / "check.json"
+    assert main(["check", str(capture), "--rto", FAST[1], "--ack-window", FAST[3], "--json", str(out)]) == 1
+    doc = json.loads(out.read_text())
+    assert {(v["rule"], v["node"]) for v in doc["violations"]} == {("MCP-ACK-4", 1)}, doc["violations"]
 
 
 @pytest.mark.slow

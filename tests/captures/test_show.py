@@ -128,3 +128,26 @@ def test_show_bad_arguments_are_one_line_errors(tmp_path, capsys, args, words):
     assert main(["show", str(path), *args]) == 2
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1
+
+
+def test_show_case_window_of_an_mcap(tmp_path, capsys):
+    from captures.recorder import McapRecorder
+    from spec.codec import Message, encode
+
+    path = tmp_path / "run.mcap"
+    start, ack = encode(Message(1, 0, 5, Action.START_MISSION)), encode(Message(0, 1, 9, Action.ACK, 5))
+    with McapRecorder(path) as rec:
+        rec.datagram("tx", start, ("127.0.0.1", 7890), 1_000)
+        rec.case_mark("ACK/test_one", "start", 2_000, rules=("MCP-ACK-1",))
+        rec.datagram("tx", start, ("127.0.0.1", 7890), 3_000)
+        rec.datagram("rx", ack, ("127.0.0.1", 7890), 4_000)
+        rec.case_mark("ACK/test_one", "end", 5_000, outcome="passed", rules=("MCP-ACK-1",))
+        rec.case_mark("ACK/test_two", "start", 6_000, rules=("MCP-ACK-1",))
+        rec.datagram("tx", start, ("127.0.0.1", 7890), 7_000)
+        rec.case_mark("ACK/test_two", "end", 8_000, outcome="passed", rules=("MCP-ACK-1",))
+    assert main(["show", str(path), "--case", "ACK/test_one"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("#")]
+    assert [ln.split()[0] for ln in lines] == ["#1", "#2"]
+    assert "answers #1" in lines[1]
+    assert main(["show", str(path), "--case", "ACK/test_"]) == 2  # a prefix of two cases
+    assert "matches several cases" in capsys.readouterr().err
