@@ -160,7 +160,7 @@ class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
-                 "tester", "bcast", "flags", "deliveries")
+                 "tester", "bcast", "flags", "deliveries", "last_t")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool) -> None:
@@ -171,23 +171,23 @@ class _Exchange:
         self.data = data
         self.payload = payload
         self.copies: list[tuple[int, int]] = [(i, t)]
+        self.last_t = t  # time of the latest copy
         self.acks: list[tuple[int, int]] = []
         self.wrong_ack: tuple[int, int] | None = None
         self.tester = tester
         self.bcast = bcast
         self.flags = 0  # bits: rules already reported on this exchange
-        self.deliveries: list[tuple[int, int]] = []  # (t_ns, copies seen by then) per forward
+        self.deliveries: tuple[tuple[int, int], ...] = ()  # (t_ns, copies seen by then) per forward
 
     @property
     def first(self) -> tuple[int, int]:
         return self.copies[0]
 
-    @property
-    def last_t(self) -> int:
-        return self.copies[-1][1]
-
     def copies_before(self, t: int) -> list[tuple[int, int]]:
-        return [c for c in self.copies if c[1] <= t]
+        copies = self.copies
+        if copies[-1][1] <= t:
+            return copies
+        return [c for c in copies if c[1] <= t]
 
     def describe(self) -> str:
         to = "broadcast" if self.bcast else f"ID {self.dst}"
@@ -199,7 +199,8 @@ class _Node:
 
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
-                 "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t")
+                 "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
+                 "actions", "last_command", "seen")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -211,6 +212,8 @@ class _Node:
         self.acks_since = 0  # ACKs (D-5) and malformed datagrams it sent since then
         self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
         self.first_seq: int | None = None  # MCP-SEQ-4
+        self.actions: set[int] = set()  # action codes of its new messages so far
+        self.seen: set[str] = set()  # rules observed on it (judged, violated or not)
         # as a drone, the mission as the trace shows it
         self.ready: tuple[int, int] | None = None  # its Mission_Ready (first copy) this mission
         self.ready_ex: _Exchange | None = None
@@ -218,6 +221,7 @@ class _Node:
         self.end: _Exchange | None = None  # End_Mission sent to it
         self.end_acked: int | None = None
         self.last_command_t = 0  # first copy of the latest command to it other than End_Mission
+        self.last_command: _Exchange | None = None  # the manager's latest command to it
         self.lists: dict[int, _Exchange] = {}  # WP_List / Obstacles_List sent to it, by action
         self.wp_active: _Exchange | None = None  # challenge 2: the WP_On not yet followed by WP_Off
         # as a drone with an observed autopilot link

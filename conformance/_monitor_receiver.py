@@ -39,7 +39,7 @@ from conformance._monitor_base import (
     gaps,
     median,
 )
-from conformance._monitor_sender import F_ACK1
+from conformance._monitor_sender import F_ACK1, _entry_t
 
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
@@ -51,34 +51,38 @@ _ROB_EXPECTED = {
 class ReceiverRules:
     """Mixin of :class:`conformance.monitor.Monitor`: receiver-side judgement."""
 
-    def _ack(self, i: int, t: int, src: int, dst: int, own_seq: int, named: int, tester: bool) -> None:
-        """A well-formed ACK from ``src`` to ``dst`` naming ``named``."""
-        if not tester:
-            self._nodes[src].acks_since += 1
-            self._observe(src, "MCP-ACK-2")
-        self._remember(src, own_seq, ("ack", dst, i, t, 0))
+    def _ack(self, i: int, t: int, src: int, dst: int, own_seq: int, named: int, tester: bool,
+             node: _Node | None) -> None:
+        """A well-formed ACK from ``src`` (``node``, None for the harness) to ``dst`` naming
+        ``named``."""
+        if node is not None:
+            node.acks_since += 1
+        if self.complete:  # MCP-ACK-6: what an ACK to this node would answer
+            self._ack_seq[(src, own_seq)] = (dst, i, t)
+        horizon = self._ack_horizon
+        match = self._ex.get((dst, src, named))
+        if match is not None and t - match.last_t <= horizon:
+            acks = match.acks
+            if acks:  # an ACK of a later copy
+                acks.append((i, t))
+            else:
+                self._acked(match, src, i, t, tester)
+            return
+        if node is not None:
+            node.seen.add("MCP-ACK-2")
         self._acks_to.add(dst)
         if dst == self.broadcast_id:
             if not tester:
                 self._emit("MCP-ACK-3", src, t, "an ACK's dst is the src of the acknowledged message",
                            f"ACK of seq {named} sent to the broadcast ID", [(i, t)])
             return
-        horizon = 2 * self.window_ns + self.rto_ns
-        match = other = None
-        for e in reversed(self._by_seq.get((dst, named), ())):
-            if isinstance(e, _Exchange):
-                if t - e.last_t > horizon:
-                    continue
-                if e.dst == src and not e.bcast:
-                    match = e
-                    break
-            elif t - e[3] > horizon:
-                continue
-            if other is None:
-                other = e
-        if match is not None:
-            self._acked(match, src, i, t, tester)
-            return
+        other = self._by_seq.get((dst, named))
+        if other is not None and t - _entry_t(other) > horizon:
+            other = None
+        if other is None and self.complete:
+            a = self._ack_seq.get((dst, named))
+            if a is not None and t - a[2] <= horizon:
+                other = ("ack", a[0], a[1], a[2], 0)
         self._maybe_wrong_ack(dst, src, named, i, t)
         if tester:
             return
@@ -93,7 +97,8 @@ class ReceiverRules:
             return
         if not self.complete:
             return  # the ACK may answer a message the capture missed
-        for ex in self._to_seq.get((src, named), ()):
+        ex = self._to_seq.get((src, named))
+        if ex is not None:
             if ex.src != dst and not ex.acks and t - ex.last_t <= horizon:
                 self._emit("MCP-ACK-3", src, t, f"the ACK goes to ID {ex.src}, the message's src",
                            f"ACK of seq {named} sent to ID {dst} ({ex.describe()})",
@@ -135,10 +140,19 @@ class ReceiverRules:
             self._judge_spacing(ex, before, t)
         if tester:
             return
-        self._observe(node, "MCP-ACK-1")
-        self._observe(node, "MCP-ACK-3")
+        seen = acker.seen
+        seen.add("MCP-ACK-1")
+        seen.add("MCP-ACK-2")
+        seen.add("MCP-ACK-3")
+        self._acks_to.add(ex.src)
         if self.complete and len(before) == 1:
-            self._latency.setdefault(node, []).append((t - before[0][1], before[0], (i, t)))
+            lat = t - before[0][1]
+            samples = self._latency.get(node)
+            if samples is None:
+                samples = self._latency[node] = [[], (0, ())]
+            samples[0].append(lat)
+            if lat > samples[1][0]:  # the slowest, as evidence
+                samples[1] = (lat, (before[0], (i, t)))
 
     def _maybe_wrong_ack(self, dst: int, src: int, named: int, i: int, t: int) -> None:
         """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
@@ -212,12 +226,11 @@ class ReceiverRules:
             for rule, dsts in self._rob_dsts.items():
                 if nid in dsts:
                     self._observe(nid, rule)
-            samples = self._latency.get(nid, [])
+            samples, slowest = self._latency.get(nid, [[], (0, ())])
             if len(samples) >= ACK_SAMPLES:
                 self._observe(nid, "MCP-ACK-7")
-                med = median([s[0] for s in samples])
+                med = median(samples)
                 if med > ACK_DEADLINE_NS:
-                    slow = sorted(samples, key=lambda s: -s[0])[:3]
                     self._emit("MCP-ACK-7", nid, end, f"median ACK latency within {fmt_ms(ACK_DEADLINE_NS)}",
-                               f"median {fmt_ms(med)} over {len(samples)} ACKs",
-                               [x for s in slow for x in (s[1], s[2])])
+                               f"median {fmt_ms(med)} over {len(samples)} ACKs (slowest "
+                               f"{fmt_ms(slowest[0])})", slowest[1])

@@ -39,7 +39,6 @@ from conformance._monitor_base import (
     median,
     pack_item,
 )
-from spec.mission import sane_item
 
 # bits of _Exchange.flags: a rule already reported on that exchange
 F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2 = (1 << k for k in range(7))
@@ -57,17 +56,9 @@ class SenderRules:
 
     # ------------------------------------------------------------------ bookkeeping
     def _remember(self, src: int, seq: int, entry: Any) -> None:
-        """What ``src`` sent with ``seq`` (an exchange, or a tuple for malformed datagrams and
-        ACKs): the receiver side looks here to learn what an ACK answers."""
-        key = (src, seq)
-        lst = self._by_seq.get(key)
-        if lst is None:
-            self._by_seq[key] = [entry]
-            return
-        old = self.last_t - self.horizon_ns
-        if _entry_t(lst[0]) < old:
-            lst[:] = [e for e in lst if _entry_t(e) >= old]
-        lst.append(entry)
+        """What ``src`` last sent with ``seq`` (an exchange, or a tuple for a malformed
+        datagram): the receiver side looks here to learn what an ACK answers."""
+        self._by_seq[(src, seq)] = entry
 
     def _message(self, i: int, t: int, src: int, dst: int, seq: int, action: int, data: bytes,
                  payload: Any, tester: bool) -> None:
@@ -80,18 +71,13 @@ class SenderRules:
         bcast = dst == self.broadcast_id
         ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
         self._ex[key] = ex
-        self._remember(src, seq, ex)
+        self._by_seq[(src, seq)] = ex
         if bcast:
             self._bcast_srcs.add(src)
         else:
             self._unicast_dsts.add(dst)
-            lst = self._to_seq.get((dst, seq))
-            if lst is None:
-                self._to_seq[(dst, seq)] = [ex]
-            else:
-                lst.append(ex)
-                if len(lst) > 8:
-                    del lst[:-8]
+            if self.complete:  # MCP-ACK-3: the latest message to dst with seq
+                self._to_seq[(dst, seq)] = ex
         if action == PASSTHROUGH:
             self._track_passthrough(ex)
         if not tester:
@@ -111,10 +97,12 @@ class SenderRules:
             return
         prev_t = ex.last_t
         ex.copies.append((i, t))
+        ex.last_t = t
         self._copy_received(ex, i, t)
         if tester:
             return
-        self._observe(src, "MCP-SEQ-2")
+        node = self._nodes[src]
+        node.seen.add("MCP-SEQ-2")
         if ex.bcast:
             if not ex.flags & F_RTX4:
                 ex.flags |= F_RTX4
@@ -125,7 +113,6 @@ class SenderRules:
             ex.flags |= F_STORM
             self._emit("MCP-RTX-3", src, t, f"no gap between copies under {fmt_ms(RTX_MIN_GAP_NS)}",
                        f"copies of {ex.describe()} {fmt_ms(t - prev_t)} apart", ex.copies[-2:])
-        node = self._nodes[src]
         newer = node.last_unicast
         if (newer is not None and newer is not ex and not ex.acks and newer.first[1] > prev_t
                 and not ex.flags & F_INTERLEAVE):
@@ -137,13 +124,9 @@ class SenderRules:
     def _judge_new(self, ex: _Exchange, i: int, t: int) -> None:
         src, action = ex.src, ex.action
         node: _Node = self._nodes[src]
-        for rule in ("MCP-HDR-1", "MCP-HDR-2", "MCP-HDR-3", "MCP-HDR-5"):
-            self._observe(src, rule)
-        if self.drones is not None and (src == MANAGER or src in self.drones):
-            self._observe(src, "MCP-HDR-4")
-        if node.first_seq is None:
-            node.first_seq = ex.seq
-            self._observe(src, "MCP-SEQ-4")
+        if action not in node.actions:  # what a message of this kind shows, observed once
+            node.actions.add(action)
+            self._first_of_kind(node, ex)
         allowed = MANAGER_SENDS if src == MANAGER else DRONE_SENDS
         if action not in allowed:
             self._emit("MCP-HDR-5", src, t,
@@ -151,28 +134,63 @@ class SenderRules:
                        "a drone sends only Mission_Ready and ACK",
                        f"{ex.describe()}", [(i, t)])
             return
-        self._check_seq(node, ex, i, t)
+        prev = node.last_new  # MCP-SEQ-1
+        node.last_new = ex
+        if prev is not None:
+            self._check_seq(node, prev, ex, i, t)
+        node.acks_since = 0
         if action == MR:
-            self._observe(src, "MCP-PAY-2")
             self._judge_ready(node, ex, i, t)
         else:
             self._judge_command(node, ex, i, t)
         if not ex.bcast:
-            self._check_stop_and_wait(node, ex, i, t)
+            prev = node.last_unicast  # MCP-BLK-1
+            if prev is not None:
+                node.seen.add("MCP-BLK-1")
+                if not prev.acks and self.complete:
+                    self._check_stop_and_wait(node, prev, ex, i, t)
             node.last_unicast = ex
-            if self.complete:
-                self._timers.at(t + MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns,
-                                self._rtx_deadline, ex)
+            if self.complete:  # MCP-RTX-1's deadline; all share one delay, so a FIFO
+                self._rtx_due.append((t + self._rtx_delay, ex))
 
-    def _check_seq(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+    def _first_of_kind(self, node: _Node, ex: _Exchange) -> None:
+        """Rules a node's first new message of a kind shows observed (not yet passed: a
+        rule is passed at the end when observed and never violated)."""
+        src, action = node.id, ex.action
+        rules = ["MCP-HDR-1", "MCP-HDR-2", "MCP-HDR-3", "MCP-HDR-5"]
+        if self.drones is not None and (src == MANAGER or src in self.drones):
+            rules.append("MCP-HDR-4")
+        if node.first_seq is None:
+            node.first_seq = ex.seq
+            rules.append("MCP-SEQ-4")
+        if action == MR:
+            rules += ["MCP-PAY-2", "MCP-FLOW-1"]
+        elif action in (START, END, WP_OFF):
+            rules.append("MCP-PAY-1")
+        elif action == PASSTHROUGH:
+            rules.append("MCP-PAY-6")
+        elif action in _ITEM_ACTIONS:
+            rules += ["MCP-PAY-5" if action == WP_ON else "MCP-PAY-3", "MCP-PAY-4", "MCP-PAY-7"]
+        if src == MANAGER and action != MR:
+            if self.inferred_challenge is None and action in _CHALLENGE_OF:
+                self.inferred_challenge = _CHALLENGE_OF[action]
+            challenge = self.challenge or self.inferred_challenge
+            if action in _LIST_FLOW and challenge == _LIST_FLOW[action][1]:
+                rules.append(_LIST_FLOW[action][0])
+            elif action in (WP_ON, WP_OFF) and challenge == 2:
+                rules.append("MCP-FLOW-5")
+            elif action == END:
+                rules.append("MCP-BLK-6")
+        if len(node.actions) > 1 or node.last_new is not None:
+            rules.append("MCP-SEQ-1")
+        for rule in rules:
+            self._observe(src, rule)
+
+    def _check_seq(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
         """MCP-SEQ-1: between two new non-ACK messages the number advances by at least 1 and
         at most 1 + the ACKs sent in between (D-5). On a lossy trace only a repeat is proof."""
-        prev = node.last_new
-        node.last_new = ex
-        acks, node.acks_since = node.acks_since, 0
-        if prev is None:
-            return
-        self._observe(node.id, "MCP-SEQ-1")
+        acks = node.acks_since
+        node.seen.add("MCP-SEQ-1")
         adv = (ex.seq - prev.seq) & 0xFFFF
         if adv == 0 or (self.complete and adv > 1 + acks):
             self._emit("MCP-SEQ-1", node.id, t,
@@ -180,16 +198,10 @@ class SenderRules:
                        f"(previous message {prev.seq}, {acks} ACK(s) since)",
                        f"{ex.describe()}", [prev.first, (i, t)])
 
-    def _check_stop_and_wait(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
+    def _check_stop_and_wait(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
         """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
         awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
         copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
-        prev = node.last_unicast
-        if prev is None:
-            return
-        self._observe(node.id, "MCP-BLK-1")
-        if prev.acks or not self.complete:
-            return
         g = gaps(prev.copies)
         est = median(g) if g else self.rto_ns
         if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
@@ -219,7 +231,7 @@ class SenderRules:
         """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
         its retransmissions were due."""
         if ex.acks or len(ex.copies) >= MIN_COPIES:
-            self._observe(ex.src, "MCP-RTX-1")
+            self._nodes[ex.src].seen.add("MCP-RTX-1")
             return
         g = gaps(ex.copies)
         est = median(g) if g else self.rto_ns
@@ -304,60 +316,53 @@ class SenderRules:
     # ------------------------------------------------------------------ the mission
     def _judge_ready(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
         """MCP-FLOW-1 / MCP-PAY-2: Mission_Ready is unicast to ID 0; MCP-BLK-5 (vehicle)."""
-        self._observe(node.id, "MCP-FLOW-1")
         if ex.dst != MANAGER:
             self._emit("MCP-FLOW-1", node.id, t, f"Mission_Ready unicast to ID {MANAGER}",
                        f"{ex.describe()}", [(i, t)])
         self._check_ready_fix(node, i, t)
 
     def _judge_command(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
-        """The manager's commands against the mission: PAY-1/3..7, FLOW-2..6, BLK-6."""
-        action = ex.action
-        if action in (START, END, WP_OFF):
-            self._observe(MANAGER, "MCP-PAY-1")
-        elif action == PASSTHROUGH:
-            self._observe(MANAGER, "MCP-PAY-6")
-        elif action in _ITEM_ACTIONS:
-            self._observe(MANAGER, "MCP-PAY-5" if action == WP_ON else "MCP-PAY-3")
-            self._observe(MANAGER, "MCP-PAY-4")
-            self._observe(MANAGER, "MCP-PAY-7")
-            for item in _items(ex):
-                problems = sane_item(item)
-                if problems:
-                    self._emit("MCP-PAY-7", MANAGER, t, "sane mission items",
-                               f"{ex.describe()}: item {item.seq}: {'; '.join(problems)}", [(i, t)])
-                    break
-        if self.inferred_challenge is None and action in _CHALLENGE_OF:
-            self.inferred_challenge = _CHALLENGE_OF[action]
+        """The manager's commands against the mission: PAY-7, FLOW-2..6, BLK-6."""
+        if self._insane and ex.action in _ITEM_ACTIONS:
+            problem = self._insane.get(ex.data[HDR:])
+            if problem is not None:
+                self._emit("MCP-PAY-7", MANAGER, t, "sane mission items", f"{ex.describe()}: {problem}",
+                           [(i, t)])
         if node.first_command is None:
             node.first_command = (i, t)
-        targets = [self._node(ex.dst)] if not ex.bcast else [
-            n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]
-        for d in targets:
+        if not ex.bcast:
+            self._judge_for_drone(self._nodes.get(ex.dst) or self._node(ex.dst), ex, i, t)
+            return
+        for d in [n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]:
             self._judge_for_drone(d, ex, i, t)
 
     def _judge_for_drone(self, d: _Node, ex: _Exchange, i: int, t: int) -> None:
         action = ex.action
-        ev = [(i, t)]
         if action == START:
             self._observe(MANAGER, "MCP-FLOW-2")
             if ex.bcast:
                 self._emit("MCP-FLOW-2", MANAGER, t, "Start_Mission unicast to each drone",
-                           f"{ex.describe()}", ev)
+                           f"{ex.describe()}", [(i, t)])
                 return
-        elif self.complete and d.start is None and d.ready is not None and not ex.bcast:
+        elif d.start is None and self.complete and d.ready is not None and not ex.bcast:
             self._emit("MCP-FLOW-2", MANAGER, t, f"Start_Mission is the first command drone {d.id} gets",
                        f"{ex.describe()} before any Start_Mission", [d.ready, (i, t)])
         if d.end is not None and not ex.bcast:
-            self._observe(MANAGER, "MCP-BLK-6")
             self._emit("MCP-BLK-6", MANAGER, t, f"no command to drone {d.id} after its End_Mission",
                        f"{ex.describe()}", [d.end.first, (i, t)])
             return
         challenge = self.challenge or self.inferred_challenge
-        if action in _LIST_FLOW:
+        if action == WP_ON:
+            if challenge == 2 and self.waypoints is not None and not self._carries_waypoints(ex):
+                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
+                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", [(i, t)])
+        elif action == WP_OFF:
+            if challenge == 2 and d.wp_active is None and self.complete and d.start is not None:
+                self._emit("MCP-FLOW-5", MANAGER, t, "WP_Off follows a WP_On",
+                           f"{ex.describe()} with no WP_On active for drone {d.id}", [(i, t)])
+        elif action in _LIST_FLOW:
             rule, number = _LIST_FLOW[action]
             if challenge == number:
-                self._observe(MANAGER, rule)
                 earlier = d.lists.get(action)
                 if earlier is not None and earlier is not ex:
                     self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(action)}",
@@ -365,17 +370,7 @@ class SenderRules:
                 elif not self._carries_waypoints(ex):
                     self._emit(rule, MANAGER, t, f"{action_name(action)} carries the mission's "
                                f"{len(self.waypoints or ())} items",
-                               f"{ex.describe()} carries {len(ex.payload)} other item(s)", ev)
-        elif action == WP_ON and challenge == 2:
-            self._observe(MANAGER, "MCP-FLOW-5")
-            if not self._carries_waypoints(ex):
-                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
-                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", ev)
-        elif action == WP_OFF and challenge == 2:
-            self._observe(MANAGER, "MCP-FLOW-5")
-            if d.wp_active is None and self.complete and d.start is not None:
-                self._emit("MCP-FLOW-5", MANAGER, t, "WP_Off follows a WP_On",
-                           f"{ex.describe()} with no WP_On active for drone {d.id}", ev)
+                               f"{ex.describe()} carries {len(ex.payload)} other item(s)", [(i, t)])
         elif action == END and self.complete and self.challenge in (1, 3):
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
@@ -388,11 +383,15 @@ class SenderRules:
     def _carries_waypoints(self, ex: _Exchange) -> bool:
         if self.waypoints is None:
             return True
-        want = {pack_item(*w) for w in self.waypoints}
-        got = [pack_item(*it) for it in _items(ex)]
+        if self._packed_waypoints is None:  # as on the wire (float32), sorted
+            self._packed_waypoints = sorted(pack_item(*w) for w in self.waypoints)
+            self._waypoint_set = frozenset(self._packed_waypoints)
+        payload = ex.data[HDR:]
         if ex.action == WP_ON:
-            return got[0] in want
-        return sorted(got) == sorted(pack_item(*w) for w in self.waypoints)
+            return payload in self._waypoint_set
+        size = len(payload[2:]) // max(1, len(ex.payload)) if ex.payload else 0
+        got = sorted(payload[2 + k * size:2 + (k + 1) * size] for k in range(len(ex.payload)))
+        return got == self._packed_waypoints
 
     def _track_mission(self, ex: _Exchange) -> None:
         """The mission as the trace shows it (whoever sent the commands)."""
@@ -412,6 +411,7 @@ class SenderRules:
                         d.wp_active = ex if action == WP_ON else None
             return
         d = self._node(ex.dst)
+        d.last_command = ex
         if action != END:
             d.last_command_t = ex.first[1]
         if action == START and d.start is None:
@@ -466,12 +466,33 @@ class SenderRules:
                            [n.start.first] + [e.first for e in ended[:1]])
 
     def _last_command_acked(self, d: _Node) -> bool:
-        last = None
-        for ex in self._ex.values():
-            if ex.src == MANAGER and ex.dst == d.id and ex.action != MR:
-                if last is None or ex.first[1] > last.first[1]:
-                    last = ex
+        last = d.last_command
         return last is not None and bool(last.acks)
+
+    def _prune(self, now: int) -> None:
+        """Forget messages older than the horizon (their copies can no longer come, their
+        ACKs no longer be matched); judge what the end of the trace would have judged."""
+        old = now - self.horizon_ns
+        stale = [k for k, ex in self._ex.items() if ex.last_t < old]
+        for k in stale:
+            ex = self._ex.pop(k)
+            if self.complete and not ex.tester and not ex.bcast and not ex.acks and len(ex.copies) >= 3:
+                self._judge_spacing(ex, ex.copies, now)
+        for k in [k for k, e in self._by_seq.items() if _entry_t(e) < old]:
+            del self._by_seq[k]
+        for k in [k for k, e in self._ack_seq.items() if e[2] < old]:
+            del self._ack_seq[k]
+        for k in [k for k, e in self._to_seq.items() if e.last_t < old]:
+            del self._to_seq[k]
+        for index in (self._pt, self._pt_to):
+            dead = []
+            for k, lst in index.items():
+                if lst[-1].last_t < old:
+                    dead.append(k)
+                elif lst[0].last_t < old:
+                    lst[:] = [e for e in lst if e.last_t >= old]
+            for k in dead:
+                del index[k]
 
 
 def _entry_t(entry: Any) -> int:

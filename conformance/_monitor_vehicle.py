@@ -183,7 +183,7 @@ class VehicleRules:
         ex = waiting[0] if waiting else mine[-1]
         seen = sum(1 for c in ex.copies if c[1] <= t)
         self._node_delivers.add(node.id)
-        ex.deliveries.append((t, seen))
+        ex.deliveries = (*ex.deliveries, (t, seen))
         self._observe(node.id, "MCP-PAY-8")
         if len(ex.deliveries) < 2:
             return

@@ -36,6 +36,7 @@ node and are the runner's; they stay ``not_observed`` here.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
@@ -43,6 +44,7 @@ from conformance._monitor_base import (
     ACK,
     HDR,
     LEVEL,
+    MIN_COPIES,
     N_ACTIONS,
     NS,
     PASSTHROUGH,
@@ -65,6 +67,7 @@ from conformance._monitor_sender import SenderRules
 from conformance._monitor_vehicle import VehicleRules, events_from_mavlink, events_from_vehicle
 from spec import SPEC
 from spec.codec import BROADCAST_ID, DecodeError, decode
+from spec.mission import sane_item
 
 __all__ = [
     "MONITORED_RULES",
@@ -90,6 +93,7 @@ MONITORED_RULES: frozenset[str] = frozenset(
 _ACK_LEN = HDR + 2
 _KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
 _EMPTY = frozenset(a for a in range(N_ACTIONS) if _KINDS[a] == "empty")
+_ITEMS = frozenset(a for a in range(N_ACTIONS) if _KINDS[a] in ("counted_items", "single_item"))
 
 
 class Monitor(SenderRules, ReceiverRules, VehicleRules):
@@ -113,9 +117,16 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self.challenge = challenge
         self.waypoints = tuple(waypoints) if waypoints is not None else None
         self.complete = complete
+        self._packed_waypoints: list[bytes] | None = None
+        self._insane: dict[bytes, str] = {}  # MCP-PAY-7: the first problem, by payload bytes
+        self._rtx_due: deque[tuple[int, Any]] = deque()  # MCP-RTX-1 deadlines, in order
+        self._rtx_delay = MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns
+        self._ack_horizon = 2 * self.window_ns + self.rto_ns  # how late an ACK may answer a copy
+        self._waypoint_set: frozenset[bytes] = frozenset()
         #: How long a (src, dst, seq) stays the same message: copies closer than this are
         #: retransmissions, a later one is a new message after the numbers wrapped.
         self.horizon_ns = max(60 * NS, 20 * self.rto_ns)
+        self._next_prune = 0  # trace time of the next pruning of old messages
         self.count = 0  # datagrams fed
         self.last_t = 0
         self.violations: list[Violation] = []
@@ -125,12 +136,13 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._addr_ids: dict[Any, set[int]] = {}
         self._orphans: list[tuple[int, int, Any, str, str]] = []  # malformed, sender unknown yet
         self._ex: dict[tuple[int, int, int], Any] = {}
-        self._by_seq: dict[tuple[int, int], list[Any]] = {}  # (src, seq) -> what src sent with it
-        self._to_seq: dict[tuple[int, int], list[Any]] = {}  # (dst, seq) -> exchanges to dst
+        self._by_seq: dict[tuple[int, int], Any] = {}  # (src, seq) -> what src last sent with it
+        self._ack_seq: dict[tuple[int, int], Any] = {}  # (src, own seq) -> (dst, i, t) of its ACK
+        self._to_seq: dict[tuple[int, int], Any] = {}  # (dst, seq) -> the latest message to dst
         self._timers = _Timers()
         self._violated: set[tuple[int, str]] = set()
-        self._observed: set[tuple[int, str]] = set()
         self._frame_ok: dict[bytes, str | None] = {}
+        self._items: dict[tuple[int, bytes], Any] = {}  # decoded item payloads by bytes
         self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
         self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
@@ -154,11 +166,17 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         i = self.count
         self.count = i + 1
         self.last_t = t_ns
+        if t_ns > self._next_prune:
+            self._prune(t_ns)
+            self._next_prune = t_ns + self.horizon_ns
         out: list[Violation] = []
         self._out = out
         heap = self._timers.heap
         if heap and heap[0][0] <= t_ns:
             self._run_timers(t_ns)
+        rtx = self._rtx_due
+        if rtx and rtx[0][0] <= t_ns:
+            self._rtx_expire(t_ns)
         n = len(data)
         tester = origin is TESTER
         if n < HDR or not data.startswith(PRE):
@@ -175,6 +193,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             tester = True
         if tester:
             self._tester_ids.add(src)
+            node = None
         else:
             node = nodes.get(src) or self._node(src)
             node.sent += 1
@@ -191,7 +210,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             receiver.received += 1
         if action == ACK:
             if n == _ACK_LEN:
-                self._ack(i, t_ns, src, dst, seq, (data[HDR] << 8) | data[HDR + 1], tester)
+                self._ack(i, t_ns, src, dst, seq, (data[HDR] << 8) | data[HDR + 1], tester, node)
             else:
                 self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester,
                                 f"ACK payload of {n - HDR} bytes (exactly 2 required)")
@@ -221,6 +240,16 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
                 self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester, why)
                 return out
             payload = frame
+        elif action in _ITEMS:  # mission items repeat (retransmissions, WP_On cycles): cached
+            key = (action, data[HDR:])
+            payload = self._items.get(key)
+            if payload is None:
+                payload = self._decode_items(data)
+                if len(self._items) < 4096:
+                    self._items[key] = payload
+            if isinstance(payload, DecodeError):
+                self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester, payload.reason)
+                return out
         else:
             try:
                 payload = decode(data).payload
@@ -283,7 +312,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
                 key = (node.id, rule.id)
                 if key in self._violated:
                     table[rule.id] = VERDICT_OF_LEVEL[rule.level]
-                elif key in self._observed:
+                elif rule.id in node.seen:
                     table[rule.id] = "info" if rule.level == "INFO" else "passed"
                 else:
                     table[rule.id] = "not_observed"
@@ -298,6 +327,20 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     def _reported(self, node: _Node) -> bool:
         return node.real or (self.drones is not None and node.id in self.drones)
 
+    def _decode_items(self, data: bytes) -> Any:
+        """The mission items of a datagram (or its DecodeError); MCP-PAY-7's problems noted
+        by payload bytes in ``_insane``."""
+        try:
+            payload = decode(data).payload
+        except DecodeError as exc:
+            return exc
+        for item in (payload if isinstance(payload, tuple) and not hasattr(payload, "_fields") else (payload,)):
+            problems = sane_item(item)
+            if problems:
+                self._insane[data[HDR:]] = f"item {item.seq}: {'; '.join(problems)}"
+                break
+        return payload
+
     # ------------------------------------------------------------------ shared helpers
     def _node(self, node_id: int) -> _Node:
         node = self._nodes.get(node_id)
@@ -308,6 +351,17 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     def _run_timers(self, now: int) -> None:
         for fn, args in self._timers.due(now):
             fn(now, *args)
+        if self._rtx_due and self._rtx_due[0][0] <= now:
+            self._rtx_expire(now)
+
+    def _rtx_expire(self, now: int) -> None:
+        rtx = self._rtx_due
+        while rtx and rtx[0][0] <= now:
+            ex = rtx.popleft()[1]
+            if ex.acks:
+                self._nodes[ex.src].seen.add("MCP-RTX-1")
+            else:
+                self._rtx_deadline(now, ex)
 
     def _judged(self, node: int, rule: str) -> bool:
         """Whether ``rule`` binds ``node`` (its role) and ``node`` is not the harness."""
@@ -315,7 +369,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         return n is not None and n.real and SPEC.rule(rule).applies_to(role_of(node))
 
     def _observe(self, node: int, rule: str) -> None:
-        self._observed.add((node, rule))
+        (self._nodes.get(node) or self._node(node)).seen.add(rule)
 
     def _emit(self, rule: str, node: int, t_ns: int, expected: str, actual: str,
               evidence: Iterable[tuple[int, int]]) -> None:
@@ -323,7 +377,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             return
         v = Violation(rule, LEVEL[rule], node, t_ns, expected, actual, tuple(evidence))
         self._violated.add((node, rule))
-        self._observed.add((node, rule))
+        self._nodes[node].seen.add(rule)
         self.violations.append(v)
         self._out.append(v)
 
