@@ -200,7 +200,7 @@ class _Node:
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
-                 "actions", "last_command", "seen")
+                 "actions", "last_command", "seen", "delivered_from")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -227,7 +227,8 @@ class _Node:
         # as a drone with an observed autopilot link
         self.vehicle = False
         self.fix: bool | None = None
-        self.forwards: list[tuple[int, Any]] = []  # (t_ns, key) frames written to the autopilot
+        self.forwards: list[tuple[int, Any]] = []  # (t_ns, "RTL") RTLs on its autopilot link
+        self.delivered_from: dict[int, _Exchange] = {}  # the last message delivered, by src
         # as the manager
         self.first_command: tuple[int, int] | None = None  # its first command to any drone
 

@@ -32,6 +32,7 @@ from conformance._monitor_base import (
     MANAGER,
     MAX_ACK_COPIES,
     MR,
+    NS,
     PASSTHROUGH,
     _Exchange,
     _Node,
@@ -59,15 +60,17 @@ class ReceiverRules:
             node.acks_since += 1
         if self.complete:  # MCP-ACK-6: what an ACK to this node would answer
             self._ack_seq[(src, own_seq)] = (dst, i, t)
-        horizon = self._ack_horizon
         match = self._ex.get((dst, src, named))
-        if match is not None and t - match.last_t <= horizon:
+        if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             acks = match.acks
             if acks:  # an ACK of a later copy
                 acks.append((i, t))
+                if match.deliveries and node is not None:  # a duplicate not to deliver again
+                    node.seen.add("MCP-DUP-1")
             else:
                 self._acked(match, src, i, t, tester)
             return
+        horizon = self._ack_horizon
         if node is not None:
             node.seen.add("MCP-ACK-2")
         self._acks_to.add(dst)
@@ -177,8 +180,8 @@ class ReceiverRules:
         if not ex.acks:
             if len(ex.copies) == MAX_ACK_COPIES:
                 self._timers.at(t + self.window_ns, self._ack_deadline, ex, None)
-        elif ex.action != END:
-            self._timers.at(t + self.window_ns, self._ack_deadline, ex, (i, t))
+        elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
+            self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._ack_deadline, ex, (i, t))
 
     def _receiving(self, node: _Node, ex: _Exchange) -> bool:
         """D-6: a drone receives between its Mission_Ready and the ACK of its End_Mission and
@@ -195,7 +198,9 @@ class ReceiverRules:
             if ex.dst not in self._tester_ids:  # judged once it shows it is a node, not the harness
                 self._on_real.setdefault(ex.dst, []).append((self._ack_deadline, (ex, copy)))
             return
-        if ex.flags & F_ACK1 or not self._receiving(node, ex):
+        if not self._receiving(node, ex):
+            return
+        if ex.flags & F_ACK1:
             return
         if copy is None:
             if ex.acks:

@@ -202,17 +202,23 @@ class SenderRules:
         """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
         awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
         copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
-        g = gaps(prev.copies)
-        est = median(g) if g else self.rto_ns
-        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
-            return  # it may have given up (retry limit)
-        if prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]:
+        if (prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]
+                and (len(prev.copies) < MIN_COPIES or prev.flags & F_SEQ2)):
+            # the same message again, unACKed, before a sender that retries could have given
+            # up: a retransmission under a new number
+            chained = prev.flags & F_SEQ2
             prev.flags |= F_SEQ2
             ex.flags |= F_SEQ2
+            if chained:
+                return  # the same renumbered retransmission, reported at its first copy
             self._emit("MCP-SEQ-2", node.id, t, "a retransmission repeats the original's sequence number",
                        f"{ex.describe()} repeats unACKed seq {prev.seq} with a new number",
                        [prev.copies[-1], (i, t)])
             return
+        g = gaps(prev.copies)
+        est = median(g) if g else self.rto_ns
+        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
+            return  # it may have given up (retry limit)
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
 
     def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
@@ -230,16 +236,16 @@ class SenderRules:
     def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
         """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
         its retransmissions were due."""
-        if ex.acks or len(ex.copies) >= MIN_COPIES:
+        if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
             self._nodes[ex.src].seen.add("MCP-RTX-1")
-            return
+            return  # (retransmitted under new numbers: MCP-SEQ-2's)
         g = gaps(ex.copies)
         est = median(g) if g else self.rto_ns
         due = ex.last_t + 3 * est // 2 + self.window_ns
         if now < due:
             self._timers.at(due, self._rtx_deadline, ex)
             return
-        if ex.wrong_ack is not None and ex.wrong_ack[1] >= ex.last_t:
+        if ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1]):
             return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
         n = len(ex.copies)
         self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
@@ -250,16 +256,27 @@ class SenderRules:
         """MCP-RTX-2 (complete trace): retransmission goes on after an ACK that names the
         wrong seq or comes from the wrong node."""
         later = [c for c in ex.copies if c[1] > wrong[1]]
+        newer = self._nodes[ex.src].last_unicast
+        if ex.flags & F_SEQ2 and newer is not None and newer.first[1] > wrong[1]:
+            later.append(newer.first)  # it went on, under new numbers (MCP-SEQ-2's fault)
         right = [a for a in ex.acks if a[1] > wrong[1]]
         if later:
             self._observe(ex.src, "MCP-RTX-2")
             return
-        if right or ex.flags & F_RTX2:
-            return  # the right ACK came before the next copy was due: inconclusive
+        if right or ex.flags & F_RTX2 or self._stopped_before(ex, wrong[1]):
+            return  # the right ACK came before the next copy was due (inconclusive), or it
+            # had stopped before the wrong ACK came (MCP-RTX-1's)
         ex.flags |= F_RTX2
         self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
                    f"{ex.describe()} not retransmitted for {fmt_s(now - wrong[1])} after a wrong ACK",
                    [ex.copies[-1], wrong])
+
+    def _stopped_before(self, ex: _Exchange, t: int) -> bool:
+        """Whether ``ex``'s next copy was already overdue at ``t``."""
+        before = [c for c in ex.copies if c[1] <= t]
+        g = gaps(before)
+        est = median(g) if g else self.rto_ns
+        return t - before[-1][1] > 3 * est // 2 + 3 * JITTER_NS
 
     def _finish_sender(self, end: int) -> None:
         if self.complete:
@@ -310,6 +327,9 @@ class SenderRules:
             return
         prule = PAYLOAD_RULE[action]
         self._observe(src, prule)
+        if (src, dst, seq, action) in self._malformed_seen:
+            return  # a retransmission of the same malformed message: reported once
+        self._malformed_seen.add((src, dst, seq, action))
         self._emit(prule, src, t, f"a {action_name(action)} payload as the spec lays it out",
                    f"{action_name(action)} seq {seq} to ID {dst}: {why}", [(i, t)])
 
@@ -506,3 +526,4 @@ def _new_mission(node: _Node) -> None:
     node.lists = {}
     node.wp_active = None
     node.last_new = None
+    node.delivered_from = {}

@@ -19,6 +19,7 @@ from __future__ import annotations
 from typing import Any
 
 from conformance._monitor_base import (
+    HDR,
     MANAGER,
     NS,
     PASSTHROUGH,
@@ -37,6 +38,9 @@ _RETURN_TO_LAUNCH = 20  # MAV_CMD_NAV_RETURN_TO_LAUNCH
 _TAKEOFF = 22  # MAV_CMD_NAV_TAKEOFF
 _FIX_MIN = 2  # GPS_RAW_INT fix_type below 2: no fix (MCP-BLK-5)
 _RTL_NAME = COPTER_MODE_NAMES[RTL]
+#: Allowance between the clocks of the MCP trace and of the autopilot link (two clocks of
+#: one host in the runner; a forwarded frame cannot precede its message by more).
+_CLOCKS_NS = 5_000_000
 
 
 def _key(frame: bytes) -> Any:
@@ -119,7 +123,7 @@ class VehicleRules:
     def _delivery_wait(self) -> int:
         """How long a delivered frame may take to reach the autopilot (a node may queue it
         behind slow work such as a takeoff)."""
-        return max(3 * self.window_ns, 2 * self.rto_ns, 3 * NS)
+        return max(4 * self.window_ns, 2 * self.rto_ns, NS)
 
     def _vehicle_event(self, t: int, drone: int, ev: VehicleEvent) -> None:
         node = self._node(drone)
@@ -168,7 +172,7 @@ class VehicleRules:
         """A frame the drone wrote to its autopilot: which message it delivers."""
         if not self.complete:
             return  # a lossy trace may miss another message with the same frame
-        cands = [ex for ex in self._pt.get(key, ()) if ex.first[1] <= t]
+        cands = [ex for ex in self._pt.get(key, ()) if ex.first[1] <= t + _CLOCKS_NS]
         mine = [ex for ex in cands if ex.dst == node.id]
         if not mine:
             others = [ex for ex in cands if not ex.bcast and ex.dst != node.id
@@ -181,20 +185,39 @@ class VehicleRules:
             return
         waiting = [ex for ex in mine if not ex.deliveries]  # frames are forwarded in order
         ex = waiting[0] if waiting else mine[-1]
+        if not ex.deliveries:
+            self._delivered_observations(node, ex)
         seen = sum(1 for c in ex.copies if c[1] <= t)
         self._node_delivers.add(node.id)
         ex.deliveries = (*ex.deliveries, (t, seen))
         self._observe(node.id, "MCP-PAY-8")
+        last = node.delivered_from.get(ex.src)
+        node.delivered_from[ex.src] = ex
         if len(ex.deliveries) < 2:
             return
         prev_seen = ex.deliveries[-2][1]
-        if seen > prev_seen:
+        if seen > prev_seen and last is not ex:
+            # a late copy of an older message, not the last delivered: not specified (MCP-DUP-4)
+            self._observe(node.id, "MCP-DUP-4")
+        elif seen > prev_seen:
             self._emit("MCP-DUP-1", node.id, t, "a duplicate is ACKed but not delivered again",
                        f"{ex.describe()} delivered again after copy {seen}", ex.copies[:seen])
         else:
             self._emit("MCP-PAY-8", node.id, t, "each delivered frame forwarded exactly once",
                        f"the frame of {ex.describe()} written {len(ex.deliveries)} times "
                        f"for {seen} cop{'y' if seen == 1 else 'ies'}", ex.copies[:seen])
+
+    def _delivered_observations(self, node: _Node, ex: _Exchange) -> None:
+        """A first delivery shows the rules whose condition it meets observed."""
+        prior = [p for p in self._pt_to.get(node.id, ()) if p is not ex and p.deliveries
+                 and p.first[1] < ex.first[1]]
+        same = [p for p in prior if p.src == ex.src]
+        if same and same[-1].data[HDR:] == ex.data[HDR:]:
+            node.seen.add("MCP-DUP-2")
+        if same and same[-1].seq > ex.seq:
+            node.seen.add("MCP-SEQ-3")
+        if any(p.src != ex.src and p.seq == ex.seq for p in prior):
+            node.seen.add("MCP-DUP-3")
 
     def _passthrough_acked(self, ex: _Exchange, node: _Node, t: int) -> None:
         """A Mav_Passthrough the drone ACKed: it must show on the link, unless a duplicate."""
@@ -212,9 +235,9 @@ class VehicleRules:
                  and p.deliveries]
         if not prior:
             return
-        last = prior[-1]
         same_src = [p for p in prior if p.src == ex.src]
-        other_src = [p for p in prior if p.src != ex.src and p.seq == ex.seq]
+        other_src = [p for p in self._pt_to.get(node.id, ()) if p.src != ex.src and p.seq == ex.seq
+                     and p.first[1] < ex.first[1]]
         if other_src:
             rule, why = "MCP-DUP-3", f"same seq as {other_src[-1].describe()}, another src"
             ev = other_src[-1]
@@ -225,7 +248,7 @@ class VehicleRules:
             rule, why = "MCP-SEQ-3", f"after seq {same_src[-1].seq}: the numbers wrapped"
             ev = same_src[-1]
         else:
-            rule, why, ev = "MCP-PAY-8", "a delivered frame", last
+            return  # not delivered, and nothing in the trace says which rule made it so
         self._observe(node.id, rule)
         self._emit(rule, node.id, now, "a new message is delivered (its frame reaches the autopilot)",
                    f"{ex.describe()} ACKed but not delivered within {fmt_s(self._delivery_wait())} ({why})",

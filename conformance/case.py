@@ -439,6 +439,21 @@ class CaseContext:
             raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
                             [d.describe() for d, _ in bad[:3]])
 
+    def expect_monitor_clean(self, rule: str) -> None:
+        """The trace monitor, which watches every datagram of the run, found no violation of
+        ``rule`` by the node (conformance.run_monitor); its first violation fails the case
+        with the monitor's expected, actual and evidence."""
+        mon = getattr(self.session, "monitor", None)
+        if mon is None:
+            return
+        found = mon.violations(rule, self.target_id)
+        if found:
+            v = found[0]
+            ev = [f"datagram #{i} of the run at {time.strftime('%H:%M:%S', time.localtime(t / 1e9))}"
+                  f".{t // 1_000_000 % 1000:03d}" for i, t in v.evidence[:4]]
+            raise self.fail(rule, v.expected, v.actual + (f" (and {len(found) - 1} more)" if len(found) > 1 else ""),
+                            ["trace monitor: " + e for e in ev])
+
     def expect_median_latency(self, samples: Sequence[float], limit: float, rule: str) -> None:
         if len(samples) < int(SPEC.params["ack_latency_samples"]):
             raise Inconclusive(f"{rule}: only {len(samples)} unambiguous ACK latency samples")

@@ -121,7 +121,9 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._insane: dict[bytes, str] = {}  # MCP-PAY-7: the first problem, by payload bytes
         self._rtx_due: deque[tuple[int, Any]] = deque()  # MCP-RTX-1 deadlines, in order
         self._rtx_delay = MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns
-        self._ack_horizon = 2 * self.window_ns + self.rto_ns  # how late an ACK may answer a copy
+        #: how late an ACK is still taken to answer something other than the message it
+        #: names exactly (a broadcast, a malformed datagram: numbers do not repeat that soon)
+        self._ack_horizon = max(10 * NS, 2 * (self.window_ns + self.rto_ns))
         self._waypoint_set: frozenset[bytes] = frozenset()
         #: How long a (src, dst, seq) stays the same message: copies closer than this are
         #: retransmissions, a later one is a new message after the numbers wrapped.
@@ -144,6 +146,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._frame_ok: dict[bytes, str | None] = {}
         self._items: dict[tuple[int, bytes], Any] = {}  # decoded item payloads by bytes
         self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
+        self._malformed_seen: set[tuple[int, int, int, int]] = set()
         self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
         self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
@@ -201,6 +204,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
                 node.real = True
                 for fn, args in self._on_real.pop(src, ()):
                     fn(t_ns, *args)
+            if origin is not None and "MCP-HDR-4" not in node.seen:
+                node.seen.add("MCP-HDR-4")  # the observer knows the sender: its src is checked
             if src_addr is not None and action < N_ACTIONS:
                 if src_addr not in node.addresses:
                     node.addresses[src_addr] = None
@@ -373,6 +378,13 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
 
     def _emit(self, rule: str, node: int, t_ns: int, expected: str, actual: str,
               evidence: Iterable[tuple[int, int]]) -> None:
+        n = self._nodes.get(node)
+        if (n is None or not n.real) and node not in self._tester_ids:
+            # a node not seen sending yet (a drone arming before its Mission_Ready): blamed
+            # once it shows itself as a node rather than the harness
+            self._on_real.setdefault(node, []).append(
+                (lambda now, *a: self._emit(*a), (rule, node, t_ns, expected, actual, tuple(evidence))))
+            return
         if not self._judged(node, rule):
             return
         v = Violation(rule, LEVEL[rule], node, t_ns, expected, actual, tuple(evidence))

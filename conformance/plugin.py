@@ -573,6 +573,11 @@ class McpState:
         if session is not None:
             with contextlib.suppress(Exception):
                 session.close()
+            monitor = getattr(session, "monitor", None)  # the report's monitor section
+            if monitor is not None:
+                with contextlib.suppress(Exception):
+                    monitor.finish()
+                    self.run.monitor = monitor.to_json()
         recorder, self.recorder = self.recorder, None
         if recorder is not None:
             with contextlib.suppress(Exception):

@@ -139,6 +139,7 @@ class RunRecord:
     started: float = field(default_factory=time.monotonic)
     started_wall: float = field(default_factory=time.time)
     finished: float | None = None
+    monitor: dict[str, Any] | None = None  # the trace monitor's section (conformance.run_monitor)
 
     @property
     def duration_s(self) -> float:
@@ -208,10 +209,37 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "cases": [c.to_json() for c in run.cases],
         "rules": rule_outcomes(run.cases, run.role),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
+        **({"monitor": run.monitor} if run.monitor is not None else {}),
     }
     if run.node is not None:
         doc["node"] = run.node
     return doc
+
+
+_MONITOR_RANK = {"not_observed": 0, "info": 1, "passed": 2, "warned": 3, "failed": 4}
+
+
+def merge_monitor(sections: list[dict[str, Any]]) -> dict[str, Any]:
+    """The ``monitor`` sections of several workers' runs (each against its own node) as one:
+    datagrams summed, violations concatenated, each node's verdicts worst-first."""
+    out = {"complete": all(m.get("complete", True) for m in sections),
+           "datagrams": sum(m.get("datagrams", 0) for m in sections),
+           "nodes": [], "violations": [v for m in sections for v in m.get("violations", [])], "rules": {}}
+    seen: dict[int, dict[str, Any]] = {}
+    for m in sections:
+        for n in m.get("nodes", []):
+            if n["id"] in seen:
+                seen[n["id"]]["datagrams"] += n["datagrams"]
+                seen[n["id"]]["addresses"] = sorted({*seen[n["id"]]["addresses"], *n["addresses"]})
+            else:
+                seen[n["id"]] = dict(n)
+        for node, table in m.get("rules", {}).items():
+            merged = out["rules"].setdefault(node, {})
+            for rule, verdict in table.items():
+                if _MONITOR_RANK[verdict] >= _MONITOR_RANK.get(merged.get(rule, "not_observed"), 0):
+                    merged[rule] = verdict
+    out["nodes"] = [seen[k] for k in sorted(seen)]
+    return out
 
 
 def load_schema() -> dict[str, Any]:
@@ -258,6 +286,10 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
         summary[c["outcome"]] += 1
     out["summary"] = {**summary, "duration_s": max(d["summary"]["duration_s"] for d in docs)}
     out["target"] = ", ".join(sorted({str(d.get("target")) for d in docs}))
+    sections = [d["monitor"] for d in docs if d.get("monitor")]
+    out.pop("monitor", None)
+    if sections:
+        out["monitor"] = merge_monitor(sections)
     return out
 
 

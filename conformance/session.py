@@ -29,6 +29,7 @@ from conformance.errors import SetupError, SpawnFailure, TargetLost
 from conformance.interrupts import INTERRUPTS
 from conformance.liveness import Liveness, describe_exit
 from conformance.procs import ManagedProcess
+from conformance.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import Action
 
@@ -207,6 +208,7 @@ class Session:
         self.passthrough_forwarded: bool | None = None  # learnt by the first probe
         self.other_src_accepted: bool | None = None
         self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
+        self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
 
     # ------------------------------------------------------------------ properties
     @property
@@ -257,6 +259,10 @@ class Session:
             self.recorder.local = self.driver.listen
             self.driver.add_observer(_held(self.recorder.datagram))
             self.driver.add_burst_observer(_held(self.recorder.burst))
+        self.monitor = RunMonitor(rto=cfg.rto, ack_window=cfg.ack_window, broadcast_id=cfg.broadcast_id,
+                                  node_id=self.target_id, node_addr=target)
+        self.monitor.listen = self.driver.listen
+        self.driver.add_observer(self.monitor.observe)
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -280,15 +286,22 @@ class Session:
         if self.driver is not None:
             self.driver.close()
             self.driver = None
+        if self.monitor is not None:
+            self.monitor.finish()
 
     def _start_vehicle(self) -> None:
         from vehicle import start_for_node
 
         try:
             self.vehicle, self.mavlink_url = start_for_node(
-                self.cfg.mavlink_transport, fix_withheld=True, on_frame=self._vehicle_frame)
+                self.cfg.mavlink_transport, fix_withheld=True, on_frame=self._vehicle_frame,
+                on_event=self._vehicle_event)
         except OSError as exc:
             raise SetupError(f"cannot start the simulated vehicle: {exc.strerror}") from None
+
+    def _vehicle_event(self, event: Any) -> None:
+        if self.monitor is not None:
+            self.monitor.vehicle_event(self.to_ns(event.t), event)
 
     def _placeholders(self) -> dict[str, str]:
         assert self.driver is not None
@@ -394,6 +407,8 @@ class Session:
             return
         if self.target_id is None and first_ready.header is not None:
             self.target_id = first_ready.header[1]
+            if self.monitor is not None:
+                self.monitor.node_id = self.target_id
         if first:
             self._observe_retransmissions(st, first_ready)
         withhold = False
@@ -508,6 +523,8 @@ class Session:
         if self.recorder is not None:
             with contextlib.suppress(Exception):
                 self.recorder.mavlink(direction, raw, self.to_ns(t), drone=self.target_id)
+        if self.monitor is not None:  # and to the trace monitor
+            self.monitor.vehicle_frame(self.to_ns(t), direction, raw)
 
     def flush_vehicle_frames(self) -> None:
         """Kept for callers: the vehicle's frames reach the capture as they pass (its tap)."""

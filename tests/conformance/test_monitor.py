@@ -106,6 +106,27 @@ def test_absences_are_not_judged_on_a_lossy_trace():
         assert FAULTY[name].build().judge(complete=False) == [], name
 
 
+def test_a_late_copy_of_an_older_message_delivered_again_is_only_reported():
+    """MCP-DUP-4 is not specified: A, B, then A's copy delivered again is no DUP-1."""
+    from spec.mavframe import heartbeat_frame
+    s = Script((1,), challenge=2)
+    s.ready(1)
+    s.start(1)
+    a = heartbeat_frame(seq=1)
+    seq_a = s.passthrough(1, a)
+    s.passthrough(1, heartbeat_frame(seq=2))
+    s.tick(1.0)
+    s.raw(0, encode(Message(1, 0, seq_a, Action.MAV_PASSTHROUGH, a)), to=1)
+    s.tick(0.004)
+    s.ack(1, 0, seq_a)
+    s.tick(0.01)
+    s.vehicle(1, "frame", frame=a)
+    s.tick(0.1)
+    s.end(1)
+    assert _rules(s.judge()) == []
+    assert s.last_monitor.verdicts()[1]["MCP-DUP-4"] == "info"
+
+
 def test_a_malformed_datagram_from_an_unknown_sender_blames_nobody():
     s = clean_script(1)
     s.records.append(s.records[-1]._replace(src_addr=("127.0.0.99", 9), data=b"XXXXXXXXX" + bytes(8)))

@@ -1,0 +1,139 @@
+"""The trace monitor over a whole conformance run (DESIGN.md, "The trace monitor").
+
+One :class:`RunMonitor` per run watches every datagram the runner sends and receives (the
+target driver's observer hook, the same one captures use) and, where the runner drives the
+simulated vehicle, every frame on the node's autopilot link. The runner's own datagrams
+are fed as the harness's (``origin=TESTER``): they are input to the node, often faulty on
+purpose (a wrong-source ACK, a bad preamble), and never blamed. A datagram that arrives
+from the node's address is fed as the node's (``origin=target ID``), so a malformed one is
+still the node's (MCP-HDR-1/2) and a wrong src is MCP-HDR-4. The runner's socket sees all
+traffic between it and the node, so the trace is complete (absences are evidence).
+
+Thread-safe: the driver's receive thread, the sending thread and the vehicle's threads
+all feed it. The report's ``monitor`` section is :meth:`RunMonitor.to_json`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from conformance.monitor import (
+    TESTER,
+    Monitor,
+    Violation,
+    events_from_mavlink,
+    events_from_vehicle,
+)
+
+__all__ = ["RunMonitor", "violation_json"]
+
+
+def violation_json(v: Violation) -> dict[str, Any]:
+    return {"rule": v.rule, "level": v.level, "node": v.node, "t_ns": v.t_ns, "expected": v.expected,
+            "actual": v.actual, "evidence": [{"index": i, "t_ns": t} for i, t in v.evidence]}
+
+
+class RunMonitor:
+    """A :class:`~conformance.monitor.Monitor` fed by the runner (see the module docstring).
+
+    ``node_id`` is the node under test's MCP ID when known, ``node_addr`` its address
+    (datagrams from there are its own), ``vehicle_id`` the drone whose autopilot link the
+    runner observes (None: not observed).
+    """
+
+    def __init__(self, *, rto: float, ack_window: float, broadcast_id: int, node_id: int | None,
+                 node_addr: tuple[str, int] | None, complete: bool = True,
+                 drones: Any = None, challenge: int | None = None) -> None:
+        self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id,
+                               drones=drones, challenge=challenge, complete=complete)
+        self.node_id = node_id
+        self.node_addr = node_addr
+        self.listen: tuple[str, int] | None = None
+        self._lock = threading.Lock()
+        self._finished = False
+        self.errors = 0  # feeding problems (a monitor bug must not stop the run)
+
+    # ------------------------------------------------------------------ feeding
+    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+        """The target driver's observer: ("tx"|"rx", data, peer address, t_ns)."""
+        with self._lock:
+            if self._finished:
+                return
+            try:
+                if direction == "tx":
+                    self.monitor.datagram(t_ns, self.listen, addr, data, TESTER)
+                else:
+                    self.monitor.datagram(t_ns, addr, self.listen, data, self._origin(addr))
+            except Exception:  # noqa: BLE001 - a monitor bug must not stop the run
+                self.errors += 1
+
+    def _origin(self, addr: Any) -> int | None:
+        """The node's own datagrams are the ones from its address (any local host when it
+        listens on all addresses)."""
+        if self.node_id is None or self.node_addr is None or addr is None:
+            return None
+        host, port = self.node_addr
+        if addr[1] != port:
+            return None
+        return self.node_id if host in ("", "0.0.0.0", addr[0]) or addr[0].startswith("127.") else None
+
+    def vehicle_frame(self, t_ns: int, direction: str, raw: bytes) -> None:
+        """A frame the node wrote to its autopilot ("rx"); the autopilot's own ("tx") are
+        left out: the vehicle's fix events say the same, before the frames leave."""
+        if direction == "rx":
+            self._vehicle(t_ns, events_from_mavlink(raw, direction))
+
+    def vehicle_event(self, t_ns: int, event: Any) -> None:
+        """One ``vehicle.records.Event`` of the simulated vehicle: the link connecting and
+        the GPS fix coming and going (recorded before the telemetry that shows it is sent,
+        so no Mission_Ready that answers it can come first)."""
+        self._vehicle(t_ns, [e for e in events_from_vehicle(event) if e.kind in ("link", "fix", "fix_lost")])
+
+    def _vehicle(self, t_ns: int, events: list[Any]) -> None:
+        if not events or self.node_id is None:
+            return
+        with self._lock:
+            if self._finished:
+                return
+            try:
+                for ev in events:
+                    self.monitor.vehicle(t_ns, self.node_id, ev)
+            except Exception:  # noqa: BLE001
+                self.errors += 1
+
+    # ------------------------------------------------------------------ reading
+    def finish(self, t_ns: int | None = None) -> None:
+        with self._lock:
+            if not self._finished:
+                self._finished = True
+                try:
+                    self.monitor.finish(time.time_ns() if t_ns is None else t_ns)
+                except Exception:  # noqa: BLE001
+                    self.errors += 1
+
+    def verdicts(self) -> dict[int, dict[str, str]]:
+        with self._lock:
+            return self.monitor.verdicts()
+
+    def violations(self, rule: str | None = None, node: int | None = None) -> list[Violation]:
+        with self._lock:
+            return [v for v in self.monitor.violations
+                    if (rule is None or v.rule == rule) and (node is None or v.node == node)]
+
+    def verdict(self, node: int, rule: str) -> str:
+        return self.verdicts().get(node, {}).get(rule, "not_observed")
+
+    def to_json(self) -> dict[str, Any]:
+        """The report's ``monitor`` section."""
+        with self._lock:
+            m = self.monitor
+            return {
+                "complete": m.complete,
+                "datagrams": m.count,
+                "nodes": [{"id": n.id, "role": n.role, "addresses": [f"{h}:{p}" for h, p in n.addresses],
+                           "datagrams": n.datagrams} for n in m.nodes()],
+                "violations": [violation_json(v) for v in m.violations],
+                "rules": {str(k): v for k, v in m.verdicts().items()},
+            }

@@ -1,0 +1,88 @@
+"""The runner's trace monitor (conformance.run_monitor): fed as the runner feeds it, the
+harness's own traffic is never blamed, the node's is; the report's ``monitor`` section
+follows the schema. The slow tests run ``mcp-conform`` end to end.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from conformance.report import RunRecord, build_json, merge_json, validate_json
+from conformance.run_monitor import RunMonitor
+from spec.codec import BROADCAST_ID, PREAMBLE, Action, Message, build_datagram, encode
+
+from .runner_helpers import FAST, run_conform, sample_node_command
+
+RUNNER = ("0.0.0.0", 7889)
+NODE = ("127.0.0.1", 45000)
+NS = 1_000_000_000
+
+
+def _monitor() -> RunMonitor:
+    rm = RunMonitor(rto=0.2, ack_window=0.25, broadcast_id=BROADCAST_ID, node_id=1, node_addr=NODE)
+    rm.listen = RUNNER
+    return rm
+
+
+def test_the_runners_deliberate_faults_are_not_blamed_the_nodes_are():
+    rm = _monitor()
+    t = 1_000 * NS
+    ready = encode(Message(0, 1, 500, Action.MISSION_READY))
+    rm.observe("rx", ready, NODE, t)
+    # the runner: a wrong-seq ACK, a wrong-src ACK, a bad preamble, an unknown action
+    rm.observe("tx", encode(Message(1, 0, 7, Action.ACK, 0x1234)), NODE, t + 1)
+    rm.observe("tx", encode(Message(1, 0x101, 8, Action.ACK, 500)), NODE, t + 2)
+    rm.observe("tx", PREAMBLE[:-1] + b"\x02" + bytes(8), NODE, t + 3)
+    rm.observe("tx", build_datagram(1, 0, 9, 12), NODE, t + 4)
+    rm.observe("tx", encode(Message(1, 0, 10, Action.ACK, 500)), NODE, t + 5)
+    assert rm.violations() == []
+    # the node: a datagram from its address with a bad preamble, and one with another src
+    rm.observe("rx", PREAMBLE[:-1] + b"\x02" + bytes(10), NODE, t + 6)
+    rm.observe("rx", encode(Message(0, 2, 501, Action.ACK, 10)), NODE, t + 7)
+    rm.finish(t + 10 * NS)
+    assert sorted((v.rule, v.node) for v in rm.violations()) == [("MCP-HDR-1", 1), ("MCP-HDR-4", 1)]
+    assert [n["id"] for n in rm.to_json()["nodes"]] == [1]
+    assert rm.verdict(1, "MCP-HDR-1") == "failed" and rm.verdict(1, "MCP-HDR-5") == "passed"
+
+
+def test_the_report_carries_the_monitor_section_and_it_validates():
+    rm = _monitor()
+    rm.observe("rx", encode(Message(0, 1, 500, Action.MISSION_READY)), NODE, NS)
+    rm.observe("rx", PREAMBLE[:3], NODE, NS + 1)  # short, from the node's address: MCP-HDR-2
+    rm.finish(3 * NS)
+    run = RunRecord(role="drone", target="127.0.0.1:45000", parameters={}, seed=1)
+    run.monitor = rm.to_json()
+    doc = build_json(run)
+    validate_json(doc)
+    assert doc["monitor"]["violations"][0]["rule"] == "MCP-HDR-2"
+    assert doc["monitor"]["rules"]["1"]["MCP-HDR-2"] == "failed"
+    merged = merge_json([doc, build_json(run)])
+    validate_json(merged)
+    assert merged["monitor"]["datagrams"] == 2 * doc["monitor"]["datagrams"]
+    run.monitor = None
+    assert "monitor" not in build_json(run)
+
+
+@pytest.mark.slow
+def test_the_embedded_run_reports_a_clean_monitor_section():
+    res = run_conform(timeout=300)
+    mon = res.report.get("monitor")
+    assert mon is not None, res.explain()
+    assert mon["complete"] and mon["datagrams"] > 50
+    assert mon["violations"] == [], mon["violations"]
+    assert [n["id"] for n in mon["nodes"]] == [1]
+    table = mon["rules"]["1"]
+    assert not [r for r, v in table.items() if v in ("failed", "warned")]
+    assert sum(v == "passed" for v in table.values()) >= 15, table
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault,rule", [
+    ("ack-broadcast", "MCP-ACK-4"), ("rtx-stop-on-any-ack", "MCP-RTX-2"), ("bad-preamble", "MCP-HDR-1"),
+    ("arm-early", "MCP-BLK-4"), ("passthrough-twice", "MCP-PAY-8"),
+])
+def test_the_monitor_section_names_a_mutants_rule_and_only_it(fault, rule):
+    res = run_conform("--spawn", sample_node_command("--fault", fault), "--mavlink", *FAST)
+    mon = res.report["monitor"]
+    assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
+    assert mon["rules"]["1"][rule] in ("failed", "warned")
