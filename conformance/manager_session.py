@@ -31,6 +31,7 @@ from conformance.config import RunConfig
 from conformance.driver import TargetDriver
 from conformance.errors import Inconclusive, SetupError, TargetLost
 from conformance.manager_mission import DronePlayers, Mission, MissionScript
+from conformance.run_monitor import RunMonitor
 from conformance.session import (
     BROADCAST_ADDRESS,
     MANAGER_ID,
@@ -109,6 +110,7 @@ class ManagerSession:
         self.obstacles_path = ""
         self.waypoints: tuple[Any, ...] | None = None
         self.obstacles: tuple[Any, ...] | None = None
+        self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
 
     # ------------------------------------------------------------------ facts
     @property
@@ -160,6 +162,12 @@ class ManagerSession:
         self.driver.alive = self.alive
         if self.recorder is not None:
             self.driver.add_observer(self.recorder.datagram)
+        # the trace monitor judges the manager's traffic (the drones are the runner's); judged
+        # as a lossy trace: the cases restart the manager and replay missions
+        self.monitor = RunMonitor(rto=cfg.rto, ack_window=cfg.ack_window, broadcast_id=cfg.broadcast_id,
+                                  node_id=MANAGER_ID, node_addr=target, complete=False)
+        self.monitor.listen = self.driver.listen
+        self.driver.add_observer(self.monitor.observe)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -196,6 +204,8 @@ class ManagerSession:
         if self.driver is not None:
             self.driver.close()
             self.driver = None
+        if self.monitor is not None:
+            self.monitor.finish()
         with contextlib.suppress(OSError):
             self._tmp.cleanup()
 

@@ -15,6 +15,7 @@ all feed it. The report's ``monitor`` section is :meth:`RunMonitor.to_json`.
 
 from __future__ import annotations
 
+import heapq
 import threading
 import time
 from typing import Any
@@ -27,7 +28,10 @@ from conformance.monitor import (
     events_from_vehicle,
 )
 
-__all__ = ["RunMonitor", "violation_json"]
+__all__ = ["REORDER_NS", "RunMonitor", "violation_json"]
+
+#: How long a datagram or event is held so that everything is fed in time order.
+REORDER_NS = 100_000_000
 
 
 def violation_json(v: Violation) -> dict[str, Any]:
@@ -53,21 +57,36 @@ class RunMonitor:
         self.listen: tuple[str, int] | None = None
         self._lock = threading.Lock()
         self._finished = False
+        self._pending: list[tuple[int, int, Any, tuple[Any, ...]]] = []  # heap: (t_ns, n, fn, args)
+        self._n = 0
         self.errors = 0  # feeding problems (a monitor bug must not stop the run)
 
     # ------------------------------------------------------------------ feeding
-    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
-        """The target driver's observer: ("tx"|"rx", data, peer address, t_ns)."""
+    def _push(self, t_ns: int, fn: Any, *args: Any) -> None:
+        """Feed in time order: the sending thread reports a datagram after it left, so the
+        node's answer can reach the receiving thread first; hold everything ``REORDER_NS``."""
         with self._lock:
             if self._finished:
                 return
+            self._n += 1
+            heapq.heappush(self._pending, (t_ns, self._n, fn, args))
+            self._drain(t_ns - REORDER_NS)
+
+    def _drain(self, until: int | None = None) -> None:
+        pending = self._pending
+        while pending and (until is None or pending[0][0] <= until):
+            t_ns, _, fn, args = heapq.heappop(pending)
             try:
-                if direction == "tx":
-                    self.monitor.datagram(t_ns, self.listen, addr, data, TESTER)
-                else:
-                    self.monitor.datagram(t_ns, addr, self.listen, data, self._origin(addr))
+                fn(t_ns, *args)
             except Exception:  # noqa: BLE001 - a monitor bug must not stop the run
                 self.errors += 1
+
+    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+        """The target driver's observer: ("tx"|"rx", data, peer address, t_ns)."""
+        if direction == "tx":
+            self._push(t_ns, self.monitor.datagram, self.listen, addr, data, TESTER)
+        else:
+            self._push(t_ns, self.monitor.datagram, addr, self.listen, data, self._origin(addr))
 
     def _origin(self, addr: Any) -> int | None:
         """The node's own datagrams are the ones from its address (any local host when it
@@ -92,21 +111,15 @@ class RunMonitor:
         self._vehicle(t_ns, [e for e in events_from_vehicle(event) if e.kind in ("link", "fix", "fix_lost")])
 
     def _vehicle(self, t_ns: int, events: list[Any]) -> None:
-        if not events or self.node_id is None:
-            return
-        with self._lock:
-            if self._finished:
-                return
-            try:
-                for ev in events:
-                    self.monitor.vehicle(t_ns, self.node_id, ev)
-            except Exception:  # noqa: BLE001
-                self.errors += 1
+        if events and self.node_id is not None:
+            for ev in events:
+                self._push(t_ns, self.monitor.vehicle, self.node_id, ev)
 
     # ------------------------------------------------------------------ reading
     def finish(self, t_ns: int | None = None) -> None:
         with self._lock:
             if not self._finished:
+                self._drain()
                 self._finished = True
                 try:
                     self.monitor.finish(time.time_ns() if t_ns is None else t_ns)
@@ -115,10 +128,13 @@ class RunMonitor:
 
     def verdicts(self) -> dict[int, dict[str, str]]:
         with self._lock:
+            self._drain()
             return self.monitor.verdicts()
 
     def violations(self, rule: str | None = None, node: int | None = None) -> list[Violation]:
+        """The violations so far (everything fed until now judged)."""
         with self._lock:
+            self._drain()
             return [v for v in self.monitor.violations
                     if (rule is None or v.rule == rule) and (node is None or v.node == node)]
 
@@ -128,6 +144,7 @@ class RunMonitor:
     def to_json(self) -> dict[str, Any]:
         """The report's ``monitor`` section."""
         with self._lock:
+            self._drain()
             m = self.monitor
             return {
                 "complete": m.complete,
