@@ -160,7 +160,7 @@ class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
-                 "tester", "bcast", "flags", "deliveries", "last_t")
+                 "tester", "bcast", "flags", "deliveries", "last_t", "addr")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool) -> None:
@@ -178,6 +178,7 @@ class _Exchange:
         self.bcast = bcast
         self.flags = 0  # bits: rules already reported on this exchange
         self.deliveries: tuple[tuple[int, int], ...] = ()  # (t_ns, copies seen by then) per forward
+        self.addr: Any = None  # the source address of its first copy
 
     @property
     def first(self) -> tuple[int, int]:

@@ -40,7 +40,7 @@ from conformance._monitor_base import (
     gaps,
     median,
 )
-from conformance._monitor_sender import F_ACK1, _entry_t
+from conformance._monitor_sender import F_ACK1, F_FAULTY, _entry_t
 
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
@@ -141,6 +141,12 @@ class ReceiverRules:
         before = ex.copies_before(t)
         if self.complete and not ex.tester and len(before) >= 3:
             self._judge_spacing(ex, before, t)
+        if ex.addr is not None:
+            addrs = self._acked_addrs.setdefault((ex.src, node), set())
+            if ex.addr not in addrs:
+                addrs.add(ex.addr)
+                if len(addrs) > 1:
+                    acker.seen.add("MCP-TRN-2")  # ACKed from two source addresses
         if tester:
             return
         seen = acker.seen
@@ -162,7 +168,7 @@ class ReceiverRules:
         message's destination, or its seq from another node (input of MCP-RTX-2)."""
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
-        if pending is None or pending.acks or pending.tester:
+        if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:
             return
         if (pending.dst == src) == (pending.seq == named):
             return
@@ -206,6 +212,14 @@ class ReceiverRules:
             if ex.acks:
                 return
             ex.flags |= F_ACK1
+            acked_from = self._acked_addrs.get((ex.src, ex.dst), set())
+            if ex.addr is not None and acked_from and ex.addr not in acked_from:
+                host, port = ex.addr
+                self._emit("MCP-TRN-2", node.id, now, "a datagram accepted whatever its source address",
+                           f"no ACK of {len(ex.copies)} copies of {ex.describe()} from {host}:{port}; "
+                           f"its messages from {', '.join(f'{h}:{p}' for h, p in sorted(acked_from))} "
+                           "are ACKed", ex.copies[:MAX_ACK_COPIES])
+                return
             rule = "MCP-FLOW-2" if node.id == MANAGER and ex.action == MR else "MCP-ACK-1"
             self._emit(rule, node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
                        f"no ACK of {len(ex.copies)} copies", ex.copies[:MAX_ACK_COPIES])

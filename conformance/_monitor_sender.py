@@ -41,7 +41,7 @@ from conformance._monitor_base import (
 )
 
 # bits of _Exchange.flags: a rule already reported on that exchange
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2 = (1 << k for k in range(7))
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))
 _LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
 _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
 _ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
@@ -61,7 +61,7 @@ class SenderRules:
         self._by_seq[(src, seq)] = entry
 
     def _message(self, i: int, t: int, src: int, dst: int, seq: int, action: int, data: bytes,
-                 payload: Any, tester: bool) -> None:
+                 payload: Any, tester: bool, addr: Any = None) -> None:
         """A well-formed non-ACK message: a copy of a known one, or a new message."""
         key = (src, dst, seq)
         ex = self._ex.get(key)
@@ -70,6 +70,7 @@ class SenderRules:
             return
         bcast = dst == self.broadcast_id
         ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
+        ex.addr = addr
         self._ex[key] = ex
         self._by_seq[(src, seq)] = ex
         if bcast:
@@ -337,6 +338,7 @@ class SenderRules:
     def _judge_ready(self, node: _Node, ex: _Exchange, i: int, t: int) -> None:
         """MCP-FLOW-1 / MCP-PAY-2: Mission_Ready is unicast to ID 0; MCP-BLK-5 (vehicle)."""
         if ex.dst != MANAGER:
+            ex.flags |= F_FAULTY  # what follows from the wrong destination is not judged again
             self._emit("MCP-FLOW-1", node.id, t, f"Mission_Ready unicast to ID {MANAGER}",
                        f"{ex.describe()}", [(i, t)])
         self._check_ready_fix(node, i, t)

@@ -30,8 +30,9 @@ a deadline that falls after the end of the trace judges nothing. Autopilot-link 
 taken as complete for a drone once any was fed for it.
 
 Rules judged (spec/mcp.yaml): HDR-1..5, ACK-1..7, SEQ-1..4, RTX-1..4, BLK-1..7, PAY-1..8,
-ROB-2..4, FLOW-1..6, DUP-1..3. ROB-1/5/6/7 (liveness after bad input) and TRN need a live
-node and are the runner's; they stay ``not_observed`` here.
+ROB-2..4, FLOW-1..6, DUP-1..4 and TRN-2 (a node that ACKs a sender from one address but not
+from another). ROB-1/5/6/7 (liveness after bad input) need a live node and are the runner's;
+they stay ``not_observed`` here.
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ MONITORED_RULES: frozenset[str] = frozenset(
         "HDR-1 HDR-2 HDR-3 HDR-4 HDR-5 ACK-1 ACK-2 ACK-3 ACK-4 ACK-5 ACK-6 ACK-7 SEQ-1 SEQ-2 SEQ-3 "
         "SEQ-4 RTX-1 RTX-2 RTX-3 RTX-4 BLK-1 BLK-2 BLK-3 BLK-4 BLK-5 BLK-6 BLK-7 PAY-1 PAY-2 PAY-3 "
         "PAY-4 PAY-5 PAY-6 PAY-7 PAY-8 ROB-2 ROB-3 ROB-4 FLOW-1 FLOW-2 FLOW-3 FLOW-4 FLOW-5 FLOW-6 "
-        "DUP-1 DUP-2 DUP-3").split())
+        "DUP-1 DUP-2 DUP-3 DUP-4 TRN-2").split())
 
 _ACK_LEN = HDR + 2
 _KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
@@ -147,6 +148,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._items: dict[tuple[int, bytes], Any] = {}  # decoded item payloads by bytes
         self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
         self._malformed_seen: set[tuple[int, int, int, int]] = set()
+        self._acked_addrs: dict[tuple[int, int], set[Any]] = {}  # (src, dst) -> addresses ACKed from
         self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
         self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
@@ -261,7 +263,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             except DecodeError as exc:
                 self._malformed(i, t_ns, src, dst, seq, action, "MCP-ROB-4", tester, exc.reason)
                 return out
-        self._message(i, t_ns, src, dst, seq, action, data, payload, tester)
+        self._message(i, t_ns, src, dst, seq, action, data, payload, tester, src_addr)
         return out
 
     def vehicle(self, t_ns: int, drone_id: int, event: VehicleEvent) -> list[Violation]:

@@ -483,6 +483,19 @@ def seq3() -> Script:
     return _finish(s)
 
 
+def trn2() -> Script:
+    s = _started()
+    first = len(s.records)
+    seq, data = s.send(0, 1, Action.WP_OFF)  # from another source port: never ACKed
+    for _ in range(5):
+        s.tick(s.rto)
+        s.raw(0, data, to=1)
+    s.records[first:] = [r._replace(src_addr=("127.0.0.1", 40000)) for r in s.records[first:]]
+    s.tick(s.rto)
+    s.exchange(0, 1, Action.WP_OFF)  # from its usual address: ACKed
+    return _finish(s)
+
+
 FAULTY: dict[str, Fault] = {
     "hdr1-bad-preamble": Fault("MCP-HDR-1", hdr1),
     "hdr2-short": Fault("MCP-HDR-2", hdr2),
@@ -530,4 +543,5 @@ FAULTY: dict[str, Fault] = {
     "dup2-same-bytes-dropped": Fault("MCP-DUP-2", dup2),
     "dup3-other-src-dropped": Fault("MCP-DUP-3", dup3),
     "seq3-no-wrap": Fault("MCP-SEQ-3", seq3),
+    "trn2-source-port-filter": Fault("MCP-TRN-2", trn2),
 }

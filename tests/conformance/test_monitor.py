@@ -87,7 +87,7 @@ def test_a_faulty_mission_raises_exactly_its_rule(name):
 
 def test_faulty_missions_cover_every_rule_group():
     groups = {FAULTY[n].rule.split("-")[1] for n in FAULTY}
-    assert groups >= {"HDR", "ACK", "SEQ", "RTX", "BLK", "PAY", "ROB", "FLOW", "DUP"}
+    assert groups >= {"HDR", "ACK", "SEQ", "RTX", "BLK", "PAY", "ROB", "FLOW", "DUP", "TRN"}
     assert len(FAULTY) >= 15
     assert {f.rule for f in FAULTY.values()} <= MONITORED_RULES
 
