@@ -49,11 +49,20 @@ def test_spawn_mode_reference_node_passes():
     assert res.rules["MCP-BLK-5"] == "passed", res.explain()
 
 
+@pytest.fixture(scope="module")
+def tcp_vehicle_rules():
+    """The per-rule outcomes of the drone-role suite with the vehicle on TCP."""
+    res = run_conform("--spawn", reference_node_command(), "--mavlink", "tcp", *FAST)
+    _assert_clean_pass(res)
+    return res.rules
+
+
 @pytest.mark.parametrize("transport", ["udp", "udpout"])
-def test_spawn_mode_reference_node_passes_with_the_vehicle_over_udp(transport):
-    """The drone-role suite over a UDP autopilot link, as with TCP: the same rules judged."""
+def test_spawn_mode_reference_node_passes_with_the_vehicle_over_udp(transport, tcp_vehicle_rules):
+    """The drone-role suite over a UDP autopilot link judges every rule as over TCP."""
     res = run_conform("--spawn", reference_node_command(), "--mavlink", transport, *FAST)
     _assert_clean_pass(res)
+    assert res.rules == tcp_vehicle_rules, res.explain()
     for rule in ("MCP-BLK-4", "MCP-BLK-5", "MCP-BLK-7", "MCP-DUP-1", "MCP-PAY-8"):
         assert res.rules[rule] == "passed", (rule, res.explain())
 
