@@ -74,7 +74,7 @@ class Arrow(NamedTuple):
     unanswered: bool = False
     rules: tuple[str, ...] = ()  # violations shown on this arrow
     note: str = ""  # tooltip
-    index: int | None = None  # the datagram's index in its capture
+    index: int | None = None  # type: ignore[assignment]  # the datagram's index in its capture
     extra_class: str = ""  # e.g. a diff's "missing" / "extra"
 
 

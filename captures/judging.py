@@ -234,8 +234,7 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     feed = mon.datagram
     pre = PREAMBLE
     for rec in cap:
-        kind = type(rec)
-        if kind is Datagram:
+        if isinstance(rec, Datagram):
             t = rec.t_ns
             if first is None:
                 first = t
@@ -262,7 +261,7 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 kept.append(rec)
             if rec.data[:len(pre)] != pre or len(rec.data) < 17:
                 unattributed += 1
-        elif kind is MavlinkFrame:
+        elif isinstance(rec, MavlinkFrame):
             last = max(last or rec.t_ns, rec.t_ns)
             if drone is None:
                 frames.append(rec)
@@ -270,10 +269,10 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 found = _vehicle(mon, rec, drone)
                 _collect(found, recent, evidence)
                 violations.extend(found)
-        elif kind is CaseMark:
+        elif isinstance(rec, CaseMark):
             cases.append(rec)
             last = max(last or rec.t_ns, rec.t_ns)
-        elif kind is Metadata:
+        elif isinstance(rec, Metadata):
             meta.append(rec)
     if last is not None:
         found = mon.finish(last)

@@ -67,7 +67,7 @@ __all__ = [
 
 
 class Datagram(NamedTuple):
-    index: int
+    index: int  # type: ignore[assignment]  # (shadows tuple.index; the capture's own word)
     t_ns: int
     src_addr: tuple[str, int] | None
     dst_addr: tuple[str, int] | None
@@ -77,7 +77,7 @@ class Datagram(NamedTuple):
 
 
 class MavlinkFrame(NamedTuple):
-    index: int  # 0, 1, 2, ... over the capture's MAVLink frames
+    index: int  # type: ignore[assignment]  # 0, 1, 2, ... over the capture's MAVLink frames
     t_ns: int
     direction: str | None  # as recorded: "rx" = received by the vehicle
     msg_type: str | None
@@ -261,7 +261,7 @@ class Capture:
             records = reader.records
             while True:
                 try:
-                    rec = next(records)
+                    rec: Any = next(records)
                 except StopIteration:
                     rest = size - f.tell()
                     if rest > 0:
@@ -319,7 +319,7 @@ class Capture:
             magic = fd.read(4)
             cls = _NgReader if magic == _PCAPNG_MAGIC else _PcapReader
             reader = object.__new__(cls)
-            reader.__init__(name, fd, magic)
+            reader.__init__(name, fd, magic)  # type: ignore[misc]  # scapy's metaclass, bypassed
         except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
             raise CaptureError(f"{name}: {self.format} file header unreadable "
                                f"(cut short or corrupt): {exc}") from None

@@ -95,6 +95,8 @@ def run(ns: argparse.Namespace) -> int:
         j = judge(ns.file, params, keep=True, monitor=NoJudge())
     trace = Trace(j.kept or (), params.broadcast_id)
     trace.mark(j.shown_violations)
+    start: int | None
+    end: int | None
     if ns.case is not None:
         start, end = case_window(j, ns.case)
     else:

@@ -245,7 +245,7 @@ class Trace:
             return []
         lo, hi = max(0, hit[0] - context), min(len(self.entries), hit[-1] + context + 1)
         if hi - lo > limit:  # keep the evidence, drop the middle's context
-            keep = set()
+            keep: set[int] = set()
             for h in hit:
                 keep.update(range(max(lo, h - 2), min(hi, h + 3)))
             return [self.entries[n] for n in sorted(keep)][:limit]
