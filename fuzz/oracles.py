@@ -55,7 +55,7 @@ OVERSIZE = 1472
 #: Rules judge_replies decides, attributing each ACK within the batch that provoked it (the
 #: fuzzer's mutations may reuse any sequence number, so an ACK matched across batches by the
 #: monitor could be another input's): the monitor's verdicts on these are left to it.
-REPLY_RULES = frozenset({"MCP-ACK-1", "MCP-ACK-4", "MCP-ACK-5", "MCP-ACK-6", "MCP-ROB-1",
+REPLY_RULES = frozenset({"MCP-ACK-1", "MCP-ACK-2", "MCP-ACK-3", "MCP-ACK-4", "MCP-ACK-5", "MCP-ACK-6", "MCP-ROB-1",
                          "MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4"})
 #: The rule a reply to a rejected datagram breaks, by the rule the codec's rejection cites.
 _REJECTED_REPLY_RULE = {"MCP-PAY-6": "MCP-ROB-4"}
@@ -148,6 +148,7 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
             by_key.setdefault((inp.header[1], inp.header[2]), []).append(i)
     acked: set[int] = set()
     flaws: list[Flaw] = []
+    unmatched: list[tuple[Datagram, int]] = []
     for d in replies:
         seq = _acked_seq(d)
         if seq is None:
@@ -158,10 +159,15 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
             acked.update(i for i in cands if expected_silent_rule(inputs[i], node_id, broadcast_id) is None)
             continue
         if not cands:
+            unmatched.append((d, seq))
             continue
         legit = [i for i in cands if expected_silent_rule(inputs[i], node_id, broadcast_id) is None]
         if legit:
             acked.update(legit)
+            if len(d.data) != HEADER_SIZE + 2:
+                flaws.append(Flaw("MCP-ACK-2", "an ACK payload of exactly 2 bytes",
+                                  f"{len(d.data) - HEADER_SIZE} payload bytes in the ACK of {inputs[legit[-1]].describe()}",
+                                  culprit=legit[-1], evidence=(f"reply: {d.data.hex()}",)))
             continue
         rules = {expected_silent_rule(inputs[i], node_id, broadcast_id) for i in cands}
         if len(rules) > 1:
@@ -173,6 +179,7 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                           f"ACK seq {seq} to {d.header[0]} for {inputs[i].describe()}",  # type: ignore[index]
                           culprit=i, evidence=(f"input: {inputs[i].data.hex()}",
                                                f"reply: {d.data.hex()}")))
+    flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id)
     if probe_acked:
         for i, inp in enumerate(inputs):
             m = inp.msg
@@ -184,6 +191,39 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                 flaws.append(Flaw("MCP-ACK-1", f"an ACK naming seq {m.seq}",
                                   f"no ACK of {inp.describe()}, though the probe sent after it was ACKed",
                                   culprit=i, evidence=(f"input: {inp.data.hex()}",)))
+    return flaws
+
+
+def _misaddressed(inputs: Sequence[Input], unmatched: list[tuple[Datagram, int]], acked: set[int],
+                  node_id: int, broadcast_id: int) -> list[Flaw]:
+    """ACKs that answer no input as sent, but one input that still awaits its ACK once the
+    ACK's dst is ignored (MCP-ACK-3: dst is the acknowledged message's src) or its payload
+    bytes are swapped (MCP-ACK-2: big-endian, D-2). Only unambiguous answers are judged;
+    the input then counts as answered (one fault, one rule: not MCP-ACK-1 as well)."""
+    flaws: list[Flaw] = []
+
+    def waiting(pred) -> list[int]:  # noqa: ANN001
+        return [i for i, inp in enumerate(inputs)
+                if i not in acked and inp.msg is not None and inp.msg.action != _ACK
+                and inp.msg.dst == node_id and inp.msg.src not in (node_id, broadcast_id) and pred(inp.msg)]
+
+    for d, seq in unmatched:
+        dst = d.header[0]  # type: ignore[index]
+        swapped = ((seq & 0xFF) << 8) | (seq >> 8)
+        by_seq = waiting(lambda m, s=seq: m.seq == s)
+        by_swap = waiting(lambda m, s=swapped, t=dst: m.seq == s and m.src == t) if swapped != seq else []
+        if len(by_seq) == 1 and not by_swap:
+            i = by_seq[0]
+            flaws.append(Flaw("MCP-ACK-3", f"the ACK's dst is {inputs[i].msg.src} (the message's src)",  # type: ignore[union-attr]
+                              f"ACK of seq {seq} sent to {dst} for {inputs[i].describe()}", culprit=i,
+                              evidence=(f"reply: {d.data.hex()}",)))
+            acked.add(i)
+        elif len(by_swap) == 1 and not by_seq:
+            i = by_swap[0]
+            flaws.append(Flaw("MCP-ACK-2", f"an ACK naming seq {swapped} big-endian ({swapped:04x})",
+                              f"the ACK names {seq} ({seq:04x}): the seq byte-swapped, for {inputs[i].describe()}",
+                              culprit=i, evidence=(f"reply: {d.data.hex()}",)))
+            acked.add(i)
     return flaws
 
 

@@ -78,3 +78,21 @@ def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noq
     assert load_seeds(str(tmp_path)) == sent
     with pytest.raises(SetupError, match="--seeds"):
         load_seeds(str(tmp_path / "none"))
+
+
+def test_progress_is_quiet_off_a_terminal_but_for_the_summary() -> None:
+    import io
+
+    from fuzz.campaign import Progress
+    from fuzz.config import FuzzConfig
+    from fuzz.progress import LiveProgress
+
+    out = io.StringIO()
+    live = LiveProgress(FuzzConfig(), out)
+    with live:
+        live.update(Progress(cases=10, fuzz_seconds=1.0))
+    assert out.getvalue() == ""
+    summary = {"cases": 10, "duration_s": 1.0, "judged_cases_per_s": 10.0, "findings": 0,
+               "findings_by_rule": {}, "seed": 1, "restarts": 0}
+    live.final(summary, FindingStore(None))
+    assert out.getvalue().count("\n") == 1 and "10 judged cases/s" in out.getvalue()

@@ -113,3 +113,17 @@ def test_withheld_mission_ready_judged_by_rtx1_seq2_rtx2() -> None:
     assert judge_withheld([_ready(7), _ready(8)], _ready(9), 2, True).rule == "MCP-SEQ-2"
     assert judge_withheld(same, None, 3, True).rule == "MCP-RTX-2"
     assert judge_withheld(same, None, 3, False) is None  # a dead node is judge_liveness's
+
+
+def test_misaddressed_and_byte_swapped_acks_are_ack3_and_ack2_not_ack1() -> None:
+    inputs = [_msg(0x0102), _msg(0x0304)]
+    swapped = _ack(0x0201)
+    wrong_dst = _ack(0x0304, dst=0x0FFF)
+    flaws = judge_replies(inputs, [swapped, wrong_dst], NODE, BROADCAST_ID, True)
+    assert sorted((f.rule, f.culprit) for f in flaws) == [("MCP-ACK-2", 0), ("MCP-ACK-3", 1)]
+    # both seqs were sent (boundary values): the ACK of 0x0201 answers its own input
+    both = [_msg(0x0102), _msg(0x0201)]
+    assert judge_replies(both, [_ack(0x0201)], NODE, BROADCAST_ID, True)[0].rule == "MCP-ACK-1"
+    long_ack = Datagram(0, 0.0, 0, _ack(5).data + b"\x00", ("127.0.0.1", 1), None, None,
+                        read_header(_ack(5).data))
+    assert [f.rule for f in judge_replies([_msg(5)], [long_ack], NODE, BROADCAST_ID, True)] == ["MCP-ACK-2"]
