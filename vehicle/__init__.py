@@ -13,7 +13,17 @@ from .codec import Decoder, Encoder
 from .links import TRANSPORTS, start_for_node
 from .model import VehicleConfig, VehicleModel
 from .probe import PROBE_PREFIX, make_probe, probe_token
-from .records import COPTER_MODE_NAMES, COPTER_MODES, EVENT_KINDS, Event, Frame, mode_name
+from .records import (
+    COPTER_MODE_NAMES,
+    COPTER_MODES,
+    EVENT_KINDS,
+    REQUESTS,
+    Event,
+    Frame,
+    describe_request,
+    is_rtl_request,
+    mode_name,
+)
 from .server import SimVehicle
 
 __all__ = [
@@ -21,6 +31,7 @@ __all__ = [
     "COPTER_MODE_NAMES",
     "EVENT_KINDS",
     "PROBE_PREFIX",
+    "REQUESTS",
     "Decoder",
     "Encoder",
     "Event",
@@ -29,6 +40,8 @@ __all__ = [
     "TRANSPORTS",
     "VehicleConfig",
     "VehicleModel",
+    "describe_request",
+    "is_rtl_request",
     "make_probe",
     "mode_name",
     "probe_token",

@@ -142,3 +142,27 @@ class Frame:
 def mode_name(custom_mode: int) -> str:
     """The ArduCopter name of ``custom_mode`` (``"MODE(n)"`` when unknown)."""
     return COPTER_MODE_NAMES.get(custom_mode, f"MODE({custom_mode})")
+
+
+def is_rtl_request(event: Event) -> bool:
+    """An RTL request: a mode change to RTL (SET_MODE, DO_SET_MODE) or NAV_RETURN_TO_LAUNCH,
+    whatever the vehicle answered (MCP-BLK-7 judges the attempt)."""
+    d = event.detail
+    return event.kind == "request" and (d.get("request") == "rtl"
+                                        or (d.get("request") == "mode" and d.get("mode") == "RTL"))
+
+
+def describe_request(event: Event) -> str:
+    """One line for evidence: what was asked, how, and the vehicle's answer."""
+    d = event.detail
+    what = str(d.get("request", "?"))
+    if what in ("mode", "rtl", "land", "mission_start") and d.get("mode"):
+        what = f"{what} {d['mode']}" if what == "mode" else f"{what} (mode {d['mode']})"
+    elif what in ("arm", "disarm") and d.get("forced"):
+        what += " (forced)"
+    elif what == "takeoff":
+        what += f" to {d.get('alt')} m"
+    answer = str(d.get("result", "?"))
+    if d.get("reason"):
+        answer += f": {d['reason']}"
+    return f"{what} request ({d.get('via')} {d.get('name')}) -> {answer}"

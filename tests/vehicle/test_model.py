@@ -307,3 +307,63 @@ def test_config_validation() -> None:
         VehicleConfig(gps_fix_delay=-1)
     with pytest.raises(ValueError):
         VehicleConfig(sysid=0)
+
+
+# ---------------------------------------------------------------- requests with their answers
+def requests(model: VehicleModel) -> list[dict]:
+    return [e.detail for e in model.events("request")]
+
+
+def test_every_arm_request_is_recorded_with_the_vehicles_answer() -> None:
+    model, gcs = make(fix_withheld=True)
+    gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, now=1.0)  # refused: no fix
+    model.give_fix(2.0)
+    gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, now=2.0)  # accepted
+    gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, now=3.0)
+    got = [(d["request"], d["result"], d["reason"], d["via"], d["name"], d["forced"])
+           for d in requests(model)]
+    assert got == [
+        ("arm", "denied", "PreArm: Need 3D Fix", "COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM", False),
+        ("arm", "accepted", None, "COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM", False),
+        ("disarm", "accepted", None, "COMMAND_LONG", "MAV_CMD_COMPONENT_ARM_DISARM", False),
+    ]
+    assert [e.t for e in model.events("request")] == [1.0, 2.0, 3.0]
+    assert requests(model)[0]["mav_result"] == FAILED and requests(model)[0]["srcsys"] == 42
+    assert len(model.events("arm")) == 1  # the state change is still its own event
+
+
+@pytest.mark.parametrize("how", ["nav_rtl", "do_set_mode", "set_mode_msg", "set_mode_no_flag"])
+def test_a_refused_rtl_is_still_an_rtl_request(how: str) -> None:
+    """MCP-BLK-7 judges the request: without a fix the vehicle refuses RTL (it needs a
+    position), and a SET_MODE without the custom-mode flag is refused as ArduPilot does."""
+    from vehicle.records import describe_request, is_rtl_request
+
+    model, gcs = make(fix_withheld=True)
+    if how == "nav_rtl":
+        gcs.command(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, now=1.0)
+    elif how == "do_set_mode":
+        gcs.command(mav.MAV_CMD_DO_SET_MODE, 1, 6, now=1.0)
+    elif how == "set_mode_msg":
+        gcs.send(mav.MAVLink_set_mode_message(1, 1, 6), now=1.0)
+    else:
+        gcs.send(mav.MAVLink_set_mode_message(1, 0, 6), now=1.0)
+    [event] = model.events("request")
+    assert is_rtl_request(event) and model.mode == "STABILIZE"
+    assert event.detail["result"] == "denied" and event.detail["reason"]
+    assert event.detail["custom_mode"] == 6
+    assert "-> denied: " in describe_request(event)
+
+
+def test_mode_takeoff_and_other_commands_are_requests() -> None:
+    model, gcs = make()
+    gcs.send(mav.MAVLink_set_mode_message(1, 1, 4), now=0.0)
+    gcs.command(mav.MAV_CMD_NAV_TAKEOFF, *[0] * 6, 10.0, now=0.1)  # not armed
+    gcs.command(mav.MAV_CMD_DO_CHANGE_SPEED, 1, 5, now=0.2)
+    gcs.command(mav.MAV_CMD_NAV_LAND, now=0.3)
+    got = [(d["request"], d["result"], d.get("mode"), d["reason"]) for d in requests(model)]
+    assert got == [("mode", "accepted", "GUIDED", None),
+                   ("takeoff", "denied", None, "Takeoff: not armed"),
+                   ("command", "accepted", None, None),
+                   ("land", "accepted", "LAND", None)]
+    assert requests(model)[1]["alt"] == 10.0 and requests(model)[0]["via"] == "SET_MODE"
+    assert requests(model)[2]["params"][:2] == [1.0, 5.0]
