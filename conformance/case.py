@@ -249,7 +249,9 @@ class CaseContext:
         return out
 
     def liveness(self) -> Exchange:
-        """A fresh WP_Off to the node, awaited across retransmissions (MCP-ROB-5)."""
+        """Is the node still there? A fresh WP_Off awaited across retransmissions; ANY reply
+        attributable to it counts (MCP-ROB-5). Its form is judged by the ACK cases alone, so
+        a malformed ACK is reported once, under its own rule."""
         return self.command(Action.WP_OFF)
 
     # ------------------------------------------------------------------ proof of life
@@ -316,48 +318,81 @@ class CaseContext:
         return CaseFailure(rule, expected, actual, ev)
 
     def expect_acked(self, exchanges: Sequence[tuple[str, Exchange]], rule: str = "MCP-ACK-1") -> None:
-        """Each command was ACKed (within MAX_ACK_COPIES copies, one every --rto)."""
+        """Each command was answered: a reply attributable to it (conformance.attribution)
+        arrived within MAX_ACK_COPIES copies, one every --rto. Its form is not judged here."""
         missing = [(label, ex) for label, ex in exchanges if not ex.acked]
         if missing:
             self.prove_live("node lost during this case: it answers no liveness probe either")
             label, ex = missing[0]
             if not self.session.alive():
                 self.node_silent = False
-            raise self.fail(rule, f"an ACK naming seq {ex.seq} for {label}",
-                            f"no ACK after {len(ex.copies)} copies sent {self.rto:g} s apart",
-                            [f"{lbl}: seq {e.seq}, {len(e.copies)} copies, unanswered" for lbl, e in missing])
+            raise self.fail(rule, f"an ACK of seq {ex.seq} for {label}",
+                            f"nothing attributable to it after {len(ex.copies)} copies sent {self.rto:g} s apart",
+                            [f"{lbl}: seq {e.seq}, {len(e.copies)} copies, unanswered" for lbl, e in missing]
+                            + self._stray_replies(ex))
+
+    def _stray_replies(self, ex: Exchange, limit: int = 3) -> list[str]:
+        """ACK-like datagrams that arrived while ``ex`` waited but were not tied to it."""
+        out = []
+        for d in self.driver.received(self.driver.mark_before(ex.first)):
+            if d.is_ack_like and len(out) < limit:
+                a = self.driver.attribution(d)
+                where = a.describe() if a is not None else "attributable to no command awaiting an answer"
+                out.append(f"reply {d.describe()}: {where}")
+        return out
 
     def expect_ack_format(self, exchanges: Sequence[Exchange], rule: str) -> None:
-        """ACK form: MCP-ACK-2 payload = 2-byte big-endian seq; MCP-ACK-3 dst/src."""
+        """ACK form, judged on replies attributed to their command (conformance.attribution):
+        MCP-ACK-2 payload = 2-byte big-endian seq; MCP-ACK-3 dst/src. A reply whose
+        attribution is ambiguous is not judged (the ambiguity is noted)."""
         acked = [ex for ex in exchanges if ex.ack is not None]
         if not acked:
-            raise Inconclusive(f"{rule}: the node ACKed none of the commands, so no ACK could be judged")
+            raise Inconclusive(f"{rule}: the node answered none of the commands, so no ACK could be judged")
+        clear = [ex for ex in acked if ex.attribution is None or not ex.attribution.ambiguous]
         for ex in acked:
+            if ex not in clear:
+                assert ex.attribution is not None
+                self.info(f"the reply to seq {ex.seq} was not judged: {ex.attribution.describe()}")
+        if not clear:
+            raise Inconclusive(f"{rule}: which command each reply answers is ambiguous, so no ACK's "
+                               f"form could be judged ({len(acked)} replies)")
+        for ex in clear:
             d = ex.ack
             assert d is not None and d.header is not None
             dst, src, _, _ = d.header
+            how = [f"reply: {d.describe()}", f"to: seq {ex.seq}, {_hex(ex.first.data)}"]
+            if ex.attribution is not None:
+                how.append(ex.attribution.describe())
             if rule == "MCP-ACK-2":
                 payload = d.data[17:]
                 if len(payload) != 2 or int.from_bytes(payload, "big") != ex.seq:
+                    named = (f"names seq {int.from_bytes(payload, 'big')} (0x{payload.hex()})" if len(payload) == 2
+                             else f"is {len(payload)} bytes ({payload[:8].hex(' ') or 'empty'})")
                     raise self.fail(rule, f"payload {ex.seq.to_bytes(2, 'big').hex(' ')} (seq {ex.seq}, big-endian, 2 bytes)",
-                                    f"payload {payload.hex(' ') or '(empty)'} ({len(payload)} bytes)", [d.describe()])
+                                    f"payload {named}, the command's seq is {ex.seq} (0x{ex.seq:04x})", how)
             elif rule == "MCP-ACK-3":
                 if dst != ex.first.src or src != self.target_id:
                     raise self.fail(rule, f"dst={ex.first.src} (the acknowledged message's src), src={self.target_id} (the node)",
-                                    f"dst={dst}, src={src}", [d.describe()])
+                                    f"dst={dst}, src={src}", how)
 
     def expect_silence(self, sents: Sequence[Sent], rule: str, *, also_not_delivered: Sequence[Probe] = (),
                        within: float | None = None) -> None:
-        """No ACK names any of ``sents`` over the ACK window (D-6); probes not forwarded."""
+        """No reply attributable to any of ``sents`` over the ACK window (D-6); probes not
+        forwarded."""
         window = self.ack_window if within is None else within
         since = min(self.driver.mark_before(s) for s in sents)
         self.driver.pause(max(0.0, sents[-1].t + window - time.monotonic()))
-        replies = self.driver.replies_to(sents, since)
-        if replies:
-            d = replies[0]
-            which = next(s for s in sents if d.names_seq(s.seq))
+        answers = self.driver.answers(sents, since)
+        for _, a in answers:
+            if a.ambiguous:
+                self.info(f"a reply was not judged: {a.describe()}")
+        answers = [(d, a) for d, a in answers if not a.ambiguous]
+        if answers:
+            d, a = answers[0]
+            which = next(s for s in sents if s.command == a.command)
             raise self.fail(rule, f"no ACK of seq {which.seq} within {window:g} s",
-                            f"ACK received {d.t - which.t:.3f} s after it", [f"sent: {_hex(which.data)}", f"reply: {d.describe()}"])
+                            f"ACK received {d.t - which.t:.3f} s after it",
+                            [f"sent: {_hex(which.data)}", f"reply: {d.describe()}", a.describe()])
         for p in also_not_delivered:
             if self.vehicle.probe_count(p.token) > 0:  # tokens are fresh: any arrival is a delivery
                 raise self.fail(rule, f"the frame of probe {p.token} not forwarded to the autopilot",
@@ -401,11 +436,15 @@ class CaseContext:
             probe_seqs = {x.probe.seq for x in attempts if x.probe is not None}
             if seq in probe_seqs:
                 continue
-            replies = [d for d in self.driver.received(since) if d.names_seq(seq) and d.header is not None
-                       and d.header[0] == src]
+            replies = [(d, self.driver.attribution(d)) for d in self.driver.received(since)]
+            replies = [(d, att) for d, att in replies
+                       if (att is not None and att.command == a.input.command and not att.ambiguous)
+                       or (att is None and d.names_seq(seq) and d.header is not None and d.header[0] == src)]
             if replies:
+                d, att = replies[0]
                 raise self.fail(rule, f"input {a.label!r} (seq {seq}) discarded without ACK",
-                                "the node ACKed it", [f"input: {_hex(a.input.data)}", f"reply: {replies[0].describe()}"])
+                                "the node ACKed it", [f"input: {_hex(a.input.data)}", f"reply: {d.describe()}"]
+                                + ([att.describe()] if att is not None else []))
         self.prove_live()  # "no ACK" is a verdict only from a node shown alive after the window
 
     def expect_delivered(self, deliveries: Sequence[tuple[Delivery, int]], rule: str) -> None:
@@ -470,21 +509,21 @@ class CaseContext:
         """Send a command from another socket (another source port, MCP-TRN-2) and await an
         ACK arriving at either socket, retransmitting every --rto."""
         first = self.driver.send(action, payload, self.target_id, sock=sock)
-        match = self.driver.ack_for(first)
+        match = self.driver.answered(first)
         for n in range(MAX_ACK_COPIES):
             deadline = time.monotonic() + self.rto
             since = self.driver.mark_before(first)
             while time.monotonic() < deadline:
-                got = self.driver.wait_for(lambda d: d.t >= first.t and match(d), 0.02, since)
+                got = self.driver.wait_for(match, 0.02, since)
                 if got is not None:
                     return first, got
                 try:
                     data, addr = sock.recvfrom(65535)
                 except (TimeoutError, BlockingIOError):
                     continue
-                read_header(data)
                 d = Datagram(-1, time.monotonic(), time.time_ns(), data, addr, None, None, read_header(data))
-                if d.names_seq(first.seq):
+                a = self.driver.attribute_external(d)
+                if a is not None and a.command == first.command:
                     return first, d
             if n < MAX_ACK_COPIES - 1:
                 self.driver.resend(first, sock=sock)

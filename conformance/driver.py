@@ -1,7 +1,8 @@
 """The target driver: the runner's one UDP socket, a background receiver, sends and waits.
 
 Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
-arrives; replies are matched to requests by sequence number; the runner sends from the
+arrives; replies are tied to the commands they answer by ``conformance.attribution`` (by the
+seq they name, else by timing) before their form is judged; the runner sends from the
 socket it listens on, so a node that replies to the datagram's source reaches it too.
 The driver knows nothing of cases or rules: the conformance session and, later, the
 fuzzer build on it. Recording hooks (``add_observer``) feed captures.
@@ -13,6 +14,7 @@ would: it ACKs every well-formed unicast non-ACK message addressed to the runner
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import struct
 import threading
@@ -21,6 +23,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from conformance.attribution import Attribution, Attributor
 from spec.codec import (
     PREAMBLE,
     Action,
@@ -105,6 +108,7 @@ class Sent:
     src: int
     seq: int
     action: int
+    command: int = -1  # the command it is a copy of: the runner's send index of its first copy
 
 
 @dataclass
@@ -112,7 +116,8 @@ class Exchange:
     """A unicast command sent as a manager would: retransmitted every ``rto`` until ACKed."""
 
     copies: list[Sent] = field(default_factory=list)
-    ack: Datagram | None = None  # the first reply naming the seq (possibly malformed)
+    ack: Datagram | None = None  # the first reply attributed to it (possibly malformed)
+    attribution: Attribution | None = None  # how ``ack`` was tied to the command
 
     @property
     def seq(self) -> int:
@@ -124,6 +129,8 @@ class Exchange:
 
     @property
     def acked(self) -> bool:
+        """The node answered: a reply is attributed to the command (its form is judged by
+        the ACK cases alone, conformance.attribution)."""
         return self.ack is not None
 
     def latency(self) -> float | None:
@@ -150,6 +157,8 @@ class TargetDriver:
         self._cond = threading.Condition()
         self._rx: list[Datagram] = []
         self._tx: list[Sent] = []
+        self._rx_attr: list[Attribution | None] = []  # parallel to _rx
+        self.attributor = Attributor(our_id)
         self._observers: list[Observer] = []
         self._burst_observers: list[BurstObserver] = []
         self._seq: dict[int, int] = {}
@@ -228,6 +237,7 @@ class TargetDriver:
                 d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
                              data[:PREAMBLE_LEN] == PREAMBLE)
                 self._rx.append(d)
+                self._rx_attr.append(self.attributor.received(d))
                 for hook in self.rx_hooks:
                     hook(d)
                 self._cond.notify_all()
@@ -253,6 +263,23 @@ class TargetDriver:
     def received(self, since: int = 0, until: int | None = None) -> list[Datagram]:
         with self._cond:
             return self._rx[since:until]
+
+    def attribution(self, d: Datagram) -> Attribution | None:
+        """The command ``d`` was attributed to on arrival (conformance.attribution)."""
+        with self._cond:
+            return self._rx_attr[d.index] if 0 <= d.index < len(self._rx_attr) else None
+
+    def attribute_external(self, d: Datagram) -> Attribution | None:
+        """Attribute a datagram that arrived on another socket (MCP-TRN-2's side socket)."""
+        with self._cond:
+            return self.attributor.received(d)
+
+    def answers(self, sents: Iterable[Sent], since: int = 0) -> list[tuple[Datagram, Attribution]]:
+        """Replies at index >= ``since`` attributed to the commands of ``sents``."""
+        cmds = {s.command for s in sents}
+        with self._cond:
+            return [(d, a) for d, a in zip(self._rx[since:], self._rx_attr[since:], strict=True)
+                    if a is not None and a.command in cmds]
 
     def sent(self) -> list[Sent]:
         with self._cond:
@@ -322,20 +349,26 @@ class TargetDriver:
         self._seq[self.our_id if src is None else src] = value & 0xFFFF
 
     def send_raw(self, data: bytes, addr: Address | None = None, *, dst: int = -1, src: int = -1,
-                 seq: int = -1, action: int = -1, sock: socket.socket | None = None) -> Sent:
+                 seq: int = -1, action: int = -1, sock: socket.socket | None = None,
+                 copy_of: Sent | None = None) -> Sent:
+        """Send one datagram; ``copy_of``: it is a retransmission of that command."""
         assert self._sock is not None, "driver not open"
         addr = addr or self.target
-        # stamped before it leaves: a reply within the same tick must not look older than it
-        t, t_ns = time.monotonic(), time.time_ns()
-        (sock or self._sock).sendto(data, addr)
         hdr = peek_header(data)
         if hdr is not None and dst == -1:
             dst, src, seq, action = hdr
-        s = Sent(t, t_ns, data, addr, dst, src, seq, action)
         with self._cond:
+            # logged (and stamped) before it leaves: a reply within the same tick must find it
+            t, t_ns = time.monotonic(), time.time_ns()
+            index = len(self._tx)
+            s = Sent(t, t_ns, data, addr, dst, src, seq, action, index)
+            command = self.attributor.sent(index, s, copy_of.command if copy_of is not None else None)
+            if command != index:
+                s = dataclasses.replace(s, command=command)
             self._tx.append(s)
             for hook in self.tx_hooks:
                 hook(s)
+        (sock or self._sock).sendto(data, addr)
         self._notify("tx", data, addr, t_ns)
         return s
 
@@ -362,35 +395,35 @@ class TargetDriver:
     def resend(self, sent: Sent, sock: socket.socket | None = None) -> Sent:
         """A retransmission: the same bytes (and so the same seq) again."""
         return self.send_raw(sent.data, sent.addr, dst=sent.dst, src=sent.src, seq=sent.seq,
-                             action=sent.action, sock=sock)
+                             action=sent.action, sock=sock, copy_of=sent)
 
-    def ack_for(self, sent: Sent) -> Callable[[Datagram], bool]:
-        """Predicate: a reply naming ``sent``'s seq (lenient about the ACK's own form)."""
-        seq, src = sent.seq, sent.src
+    def answered(self, sent: Sent) -> Callable[[Datagram], bool]:
+        """Predicate (evaluated under the lock, by ``wait_for``): a reply attributed to the
+        command ``sent`` belongs to."""
+        command = sent.command
 
         def match(d: Datagram) -> bool:
-            if not d.names_seq(seq):
-                return False
-            assert d.header is not None
-            return d.header[0] == src or src == self.our_id
+            a = self._rx_attr[d.index] if d.index < len(self._rx_attr) else None
+            return a is not None and a.command == command
         return match
 
     def exchange(self, first: Sent, *, rto: float, copies: int, tail: float | None = None) -> Exchange:
-        """Await an ACK of ``first``, retransmitting it every ``rto`` up to ``copies`` copies
-        in all (MCP-ACK-1 as observed by a manager, D-6); after the last copy wait ``tail``."""
+        """Await a reply attributed to ``first``, retransmitting it every ``rto`` up to
+        ``copies`` copies in all (MCP-ACK-1 as observed by a manager, D-6); after the last
+        copy wait ``tail``."""
         ex = Exchange([first])
         since = self.mark_before(first)
-        match = self.ack_for(first)
+        match = self.answered(first)
         for n in range(copies):
             wait = rto if n < copies - 1 else (rto if tail is None else max(rto, tail))
             try:
-                got = self.wait_for(lambda d: d.t >= first.t and match(d), wait, since)
+                got = self.wait_for(match, wait, since)
             except Exception as exc:  # NodeLost: say which exchange went unanswered
                 if hasattr(exc, "exchange"):
                     exc.exchange = ex
                 raise
             if got is not None:
-                ex.ack = got
+                ex.ack, ex.attribution = got, self.attribution(got)
                 return ex
             if not self.alive() or n == copies - 1:
                 return ex
@@ -406,9 +439,8 @@ class TargetDriver:
             return i
 
     def replies_to(self, sents: Iterable[Sent], since: int) -> list[Datagram]:
-        """ACK-like datagrams at index >= since naming the seq of any of ``sents``."""
-        preds = [self.ack_for(s) for s in sents]
-        return [d for d in self.received(since) if any(p(d) for p in preds)]
+        """ACK-like datagrams at index >= since attributed to any of ``sents``."""
+        return [d for d, _ in self.answers(sents, since)]
 
     def flood(self, datagrams: list[bytes], count: int, *, sock: socket.socket | None = None,
               limit: float = 30.0) -> int:

@@ -255,6 +255,8 @@ class Session:
         self.driver.alive = self.alive
         self.liveness = Liveness(self.driver, self.rto, lambda: self.target_id if self.target_id is not None else 1)
         self.liveness.start()
+        self.driver.attributor.horizon = max(self.rto, self.ack_window)
+        self.driver.attributor.peer_id = self.target_id
         if self.recorder is not None:
             self.recorder.local = self.driver.listen
             self.driver.add_observer(_held(self.recorder.datagram))
@@ -409,6 +411,7 @@ class Session:
             self.target_id = first_ready.header[1]
             if self.monitor is not None:
                 self.monitor.node_id = self.target_id
+            drv.attributor.peer_id = self.target_id
         if first:
             self._observe_retransmissions(st, first_ready)
         withhold = False

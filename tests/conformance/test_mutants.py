@@ -24,6 +24,9 @@ MUTANTS = [
     ("send-wp-list", "MCP-HDR-5"),
     ("ack-first-copy-only", "MCP-ACK-1"),
     ("ack-little-endian", "MCP-ACK-2"),
+    ("ack-own-seq", "MCP-ACK-2"),
+    ("ack-previous-seq", "MCP-ACK-2"),
+    ("ack-zero", "MCP-ACK-2"),
     ("ack-wrong-dst", "MCP-ACK-3"),
     ("ack-broadcast", "MCP-ACK-4"),
     ("ack-other-id", "MCP-ACK-5"),
@@ -38,6 +41,8 @@ MUTANTS = [
     ("rtx-stop-on-any-ack", "MCP-RTX-2"),
     ("rtx-storm", "MCP-RTX-3"),
     ("arm-early", "MCP-BLK-4"),
+    ("arm-before-fix", "MCP-BLK-4"),
+    ("arm-before-start", "MCP-BLK-4"),
     ("ready-without-fix", "MCP-BLK-5"),
     ("no-rtl", "MCP-BLK-7"),
     ("ready-bad-payload", "MCP-PAY-2"),
@@ -59,6 +64,17 @@ def test_mutants_cover_every_rule_group():
     assert len(MUTANTS) >= 15
 
 
+#: What the report must say of a fault's attempt or reply (the diagnosis, not only the rule).
+DIAGNOSIS = {
+    "ack-own-seq": "the node's own sequence number",
+    "ack-previous-seq": "an earlier command's, already answered",
+    "ack-zero": "payload names seq 0 (0x0000), the command's seq is",
+    "arm-early": "(accepted by the vehicle)",
+    "arm-before-fix": "(denied by the vehicle)",
+    "arm-before-start": "(accepted by the vehicle)",
+}
+
+
 @pytest.mark.parametrize("fault,rule", MUTANTS, ids=[f for f, _ in MUTANTS])
 def test_mutant_is_caught_with_its_rule(fault, rule):
     res = run_conform("--spawn", sample_node_command("--fault", fault), "--mavlink", *FAST)
@@ -68,12 +84,15 @@ def test_mutant_is_caught_with_its_rule(fault, rule):
     assert not others, f"other rules flagged: {others}\n{res.explain()}"
     assert not res.cases_with("error"), res.explain()
     assert res.rc == (1 if want == "failed" else 0), res.explain()
+    if fault in DIAGNOSIS:
+        assert DIAGNOSIS[fault] in res.output, res.explain()
 
 
 CORRECT_VARIANTS = [
     ("acks-only-in-receive-loop", ("--ack-mode", "recv-loop")),
     ("replies-to-datagram-source", ("--reply-to-source",)),
     ("forwards-no-passthrough", ("--no-passthrough",)),
+    ("rtl-request-refused-by-the-vehicle", ("--rtl-refused",)),
 ]
 
 
@@ -83,6 +102,9 @@ def test_no_false_alarm_on_a_correct_node_unlike_ours(label, extra):
     assert res.rc == 0, res.explain()
     assert not res.rules_with("failed"), res.explain()
     assert not res.cases_with("failed", "error"), res.explain()
+    if "--rtl-refused" in extra:  # judged on the request, not on the vehicle's compliance
+        assert res.rules.get("MCP-BLK-7") == "passed", res.explain()
+        assert "-> denied: base_mode lacks MAV_MODE_FLAG_CUSTOM_MODE_ENABLED" in res.output, res.explain()
 
 
 def test_no_false_alarm_with_the_descriptions_5_s_timeout():

@@ -12,7 +12,7 @@ MCP-REQUIREMENTS (see ``FAULTS``); everything else the node does stays the same.
 
     python tests/conformance/nodes/sample_node.py --id 1 --bind 127.0.0.1:7890 \
         --send-to 127.0.0.1:7889 [--mavlink tcp:127.0.0.1:5760] [--rto 5] [--retries 1000] \
-        [--ack-mode thread|recv-loop] [--reply-to-source] [--no-passthrough] \
+        [--ack-mode thread|recv-loop] [--reply-to-source] [--no-passthrough] [--rtl-refused] \
         [--busy-start S] [--fault NAME ...]
 
 Every event is one line on stderr. Exit codes: 0 after End_Mission (once it has kept
@@ -63,6 +63,9 @@ FAULTS: dict[str, tuple[str, str]] = {
     "ack-ack": ("MCP-ACK-6", "ACKs ACKs addressed to it"),
     "ack-little-endian": ("MCP-ACK-2", "ACK payload packed little-endian ('<H')"),
     "ack-wrong-dst": ("MCP-ACK-3", "ACK dst is 0x0FFF"),
+    "ack-own-seq": ("MCP-ACK-2", "ACK payload is the node's own sequence number (the ACK's own seq, big-endian)"),
+    "ack-previous-seq": ("MCP-ACK-2", "ACK payload is the seq of the message it ACKed before (0 at first)"),
+    "ack-zero": ("MCP-ACK-2", "ACK payload is always 00 00"),
     "ack-first-copy-only": ("MCP-ACK-1", "a duplicate copy is neither delivered nor ACKed"),
     "slow-ack": ("MCP-ACK-7", "every ACK leaves 300 ms late (receiving is not blocked)"),
     "seq-no-wrap": ("MCP-SEQ-3", "a seq <= the last delivered from that src (plain integers) is a duplicate"),
@@ -75,6 +78,10 @@ FAULTS: dict[str, tuple[str, str]] = {
     "rtx-none": ("MCP-RTX-1", "Mission_Ready is sent once, never retransmitted"),
     "rtx-storm": ("MCP-RTX-3", "retransmits every 10 ms (bounded by --retries)"),
     "arm-early": ("MCP-BLK-4", "arms as soon as the fix is present, before Mission_Ready"),
+    "arm-before-fix": ("MCP-BLK-4", "asks the autopilot to arm right after connecting, before the fix "
+                                    "(refused: PreArm: Need 3D Fix)"),
+    "arm-before-start": ("MCP-BLK-4", "asks the autopilot to arm once Mission_Ready is ACKed, before "
+                                      "Start_Mission (accepted)"),
     "ready-without-fix": ("MCP-BLK-5", "sends Mission_Ready without waiting for the GPS fix"),
     "no-rtl": ("MCP-BLK-7", "no RTL on End_Mission"),
     "ready-bad-payload": ("MCP-PAY-2", "Mission_Ready carries 4 bytes"),
@@ -258,6 +265,12 @@ class Autopilot:
         self.conn.write(frame)
         log(f"autopilot: wrote a {len(frame)}-byte passthrough frame")
 
+    def _job_rtl_refused(self, _arg: Any) -> None:
+        """RTL asked for with a SET_MODE whose base_mode lacks the custom-mode flag: the
+        autopilot refuses it (ArduPilot maps only custom modes); no retry."""
+        c = self.conn
+        self._command(11, lambda: c.mav.set_mode_send(c.target_system, 0, RTL), "mode RTL (no custom-mode flag)")
+
     def _job_rtl(self, _arg: Any) -> None:
         if not self._command(self.mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, self.conn.set_mode_rtl, "RTL"):
             self._command(self.mav.MAV_CMD_DO_SET_MODE, lambda: self.conn.set_mode_apm(RTL), "mode RTL")
@@ -283,6 +296,7 @@ class Node:
         self.recv_loop = args.ack_mode == "recv-loop"
         self.reply_to_source: bool = args.reply_to_source
         self.passthrough = not args.no_passthrough
+        self.rtl_refused: bool = args.rtl_refused
         self.busy_start = args.busy_start if args.busy_start is not None else (1.0 if self.recv_loop else 0.0)
         self.mavlink_url: str | None = args.mavlink
         self.stop = threading.Event()
@@ -297,6 +311,7 @@ class Node:
         self.inbox: queue.Queue[Message] = queue.Queue()
         self.malformed = 0
         self.deaf_until = 0.0
+        self.previous_acked = 0  # ack-previous-seq: the seq its last ACK acknowledged
         self.started = False
         self.ended = False
         self.autopilot: Autopilot | None = None
@@ -332,10 +347,17 @@ class Node:
             log(f"send to {addr} failed: {exc}")
 
     def send_ack(self, dst: int, acked_seq: int, addr: Any) -> None:
-        payload = struct.pack("<H" if "ack-little-endian" in self.faults else "!H", acked_seq)
+        seq = self.next_seq()  # ACKs take a number too (D-5)
+        named = acked_seq
+        if "ack-own-seq" in self.faults:
+            named = seq
+        elif "ack-previous-seq" in self.faults:
+            named, self.previous_acked = self.previous_acked, acked_seq
+        elif "ack-zero" in self.faults:
+            named = 0
+        payload = struct.pack("<H" if "ack-little-endian" in self.faults else "!H", named)
         if "ack-wrong-dst" in self.faults:
             dst = 0x0FFF
-        seq = self.next_seq()  # ACKs take a number too (D-5)
         data = self.datagram(dst, self.id, seq, Action.ACK, payload)
         target = addr if self.reply_to_source else self.send_to
         log(f"ACK seq {acked_seq} to ID {dst} (own seq {seq})")
@@ -594,7 +616,7 @@ class Node:
         if "no-rtl" in self.faults:
             log("End_Mission: no RTL (fault no-rtl)")
         elif self.autopilot is not None:
-            self.autopilot.submit("rtl")
+            self.autopilot.submit("rtl_refused" if self.rtl_refused else "rtl")
         else:
             log("no autopilot: would RTL")
 
@@ -621,6 +643,9 @@ class Node:
                 log(f"cannot connect to the autopilot at {self.mavlink_url}: {exc!r}")
                 return 2
             log(f"connected to the autopilot at {self.mavlink_url}")
+        if "arm-before-fix" in self.faults and self.autopilot is not None:
+            log("asking the autopilot to arm before the fix (fault arm-before-fix)")
+            self.autopilot.submit("arm").wait(5.0)
         if "ready-without-fix" in self.faults:
             log("not waiting for the GPS fix (fault ready-without-fix)")
         elif self.autopilot is not None:
@@ -637,6 +662,9 @@ class Node:
         src = self.id + 1 if "mission-ready-wrong-src" in self.faults else self.id
         dst = (5 if self.id != 5 else 6) if "ready-to-wrong-id" in self.faults else MANAGER_ID
         self.send_unicast(Action.MISSION_READY, payload, dst, src=src, ack_src=MANAGER_ID)
+        if "arm-before-start" in self.faults and self.autopilot is not None and not self.started:
+            log("asking the autopilot to arm before Start_Mission (fault arm-before-start)")
+            self.autopilot.submit("arm")
 
         while not self.stop.is_set() and not self.ended:
             msg = self.recv_message(POLL)
@@ -684,6 +712,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--ack-mode", choices=("thread", "recv-loop"), default="thread")
     p.add_argument("--reply-to-source", action="store_true", help="ACK to the datagram's source address")
     p.add_argument("--no-passthrough", action="store_true", help="ACK Mav_Passthrough but do not forward it")
+    p.add_argument("--rtl-refused", action="store_true",
+                   help="on End_Mission, request RTL in a form the autopilot refuses (SET_MODE without the "
+                        "custom-mode flag), once: still an RTL request (MCP-BLK-7)")
     p.add_argument("--busy-start", type=float, default=None, metavar="S",
                    help="seconds the Start_Mission handler blocks (default 1.0 in recv-loop mode, else 0)")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS), metavar="NAME")

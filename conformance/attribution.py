@@ -1,0 +1,205 @@
+"""Reply attribution: which command a datagram from the node answers.
+
+A reply is first tied to a command by what it is, then its form is judged, so one fault is
+reported under the one rule it breaks (MCP-ACK-1 only when the node sent nothing the runner
+can attribute; a wrong payload is MCP-ACK-2's, a wrong dst or src MCP-ACK-3's). An
+ACK-like datagram (a whole header with the ACK action code, well-formed or not) arriving at
+the runner is attributed, in this order:
+
+1. **by seq**: its payload names, big-endian (as MCP-ACK-2 wants), the seq of a command
+   with a copy not yet answered, sent recently (within three horizons of its last copy for a
+   command the node should answer, one for a datagram a silence check watches, so a node's
+   arbitrary payload is not taken for the ACK of an old broadcast); the latest such wins;
+2. **by seq, little-endian**: the same with the two payload bytes swapped;
+3. **by timing**: it names no such command, and arrived after the latest command and before
+   any other was sent (ACKs the runner sends do not count), and that command has a copy not
+   yet answered. The attribution says what the payload named instead ("seq 1311 (0x051f),
+   an earlier command's, already answered").
+
+A command is "open" while fewer replies were attributed to it than copies of it were sent,
+so a correct node's ACK of every copy is always attributed by seq, and a stale seq (a node
+that names the previous command) is never taken for an ACK of that earlier command. A timing
+attribution is **ambiguous** when another command the node should answer (well-formed, to
+its ID, not an ACK) is open and had a copy sent within the horizon (the larger of --rto
+and the ACK window) before the reply: the reply could be that command's late answer. The
+ambiguity is stated, never resolved by guessing: the ACK cases do not judge the form of an
+ambiguous reply; liveness (any attributable reply) accepts it.
+
+Sans-I/O: the driver feeds it every datagram sent and received, in order, under its lock.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from spec.codec import Action, DecodeError, decode
+
+_ACK = int(Action.ACK)
+_U16BE = struct.Struct("!H")
+_U16LE = struct.Struct("<H")
+BROADCAST_ID = 0xFFFF
+
+BY_SEQ = "seq"
+BY_SEQ_LE = "seq-le"
+BY_TIMING = "timing"
+
+
+class _SentLike(Protocol):
+    t: float
+    data: bytes
+    dst: int
+    src: int
+    seq: int
+    action: int
+
+
+class _ReceivedLike(Protocol):
+    t: float
+    data: bytes
+    header: tuple[int, int, int, int] | None
+
+
+@dataclass(frozen=True)
+class Attribution:
+    """Which command (its id: the index of its first copy among the runner's sends) a reply
+    answers, how that was decided, and what makes it uncertain."""
+
+    command: int
+    seq: int  # the command's seq
+    how: str  # BY_SEQ, BY_SEQ_LE or BY_TIMING
+    named: str  # what the reply's payload names, in words
+    ambiguous: str | None = None  # why the reply could answer another command
+
+    def describe(self) -> str:
+        how = {BY_SEQ: "its payload names the command's seq",
+               BY_SEQ_LE: "its payload names the command's seq little-endian",
+               BY_TIMING: "it arrived after the command and before any other was sent"}[self.how]
+        text = f"attributed to seq {self.seq}: {how}"
+        if self.how == BY_TIMING:
+            text += f" (its payload names {self.named})"
+        if self.ambiguous:
+            text += f"; ambiguous: {self.ambiguous}"
+        return text
+
+
+@dataclass
+class _Command:
+    id: int
+    seq: int
+    src: int
+    dst: int
+    expects_reply: bool  # a correct node ACKs it (well-formed, to the node's ID, not an ACK)
+    is_ack: bool
+    copies: list[float] = field(default_factory=list)  # send times
+    answers: int = 0
+
+    def open_at(self, t: float) -> bool:
+        return sum(1 for c in self.copies if c <= t) > self.answers
+
+    def recent(self, t: float, horizon: float) -> bool:
+        """Could a reply at ``t`` still answer it? A command the node should answer stays
+        answerable for 3 horizons after its last copy (a node may be deaf while busy, D-6);
+        one it should not answer (a silence check) for one horizon, the window it is watched."""
+        return t - self.copies[-1] <= (3 * horizon if self.expects_reply else horizon)
+
+
+def payload_seq(data: bytes, order: struct.Struct = _U16BE) -> int | None:
+    """The seq an ACK-like datagram's first two payload bytes name (None when shorter)."""
+    return order.unpack_from(data, 17)[0] if len(data) >= 19 else None
+
+
+class Attributor:
+    """Incremental attribution of replies to the runner's commands (see the module doc)."""
+
+    def __init__(self, our_id: int = 0, *, horizon: float = 2.0, peer_id: int | None = None) -> None:
+        self.our_id = our_id
+        self.horizon = horizon  # --rto or the ACK window, the larger (set by the session)
+        self.peer_id = peer_id  # the node's MCP ID, once known
+        self._commands: list[_Command] = []
+        self._by_tx: dict[int, _Command] = {}  # tx index of each copy -> its command
+        self._by_seq: dict[int, list[_Command]] = {}
+        self._latest: _Command | None = None  # the latest non-ACK datagram sent
+
+    # ------------------------------------------------------------------ input
+    def sent(self, tx_index: int, sent: _SentLike, copy_of: int | None = None) -> int:
+        """Note one datagram the runner sent; returns its command id (``copy_of``'s for a
+        retransmission, else ``tx_index``)."""
+        cmd = self._by_tx.get(copy_of) if copy_of is not None else None
+        if cmd is None:
+            is_ack = sent.action == _ACK
+            cmd = _Command(tx_index, sent.seq, sent.src, sent.dst,
+                           self._expects_reply(sent, is_ack), is_ack)
+            self._commands.append(cmd)
+            if sent.seq >= 0:
+                self._by_seq.setdefault(sent.seq, []).append(cmd)
+        cmd.copies.append(sent.t)
+        self._by_tx[tx_index] = cmd
+        if not cmd.is_ack:
+            self._latest = cmd
+        return cmd.id
+
+    def received(self, d: _ReceivedLike) -> Attribution | None:
+        """Attribute one datagram that arrived (None: not ACK-like, or nothing to tie it to)."""
+        if d.header is None or d.header[3] != _ACK:
+            return None
+        for how, order in ((BY_SEQ, _U16BE), (BY_SEQ_LE, _U16LE)):
+            seq = payload_seq(d.data, order)
+            if seq is None:
+                break
+            cands = [c for c in self._by_seq.get(seq, ())
+                     if c.open_at(d.t) and c.recent(d.t, self.horizon) and self._addressed(c, d)]
+            if cands:
+                cmd = cands[-1]
+                cmd.answers += 1
+                return Attribution(cmd.id, cmd.seq, how, self._named(d, cmd))
+        cmd = self._latest
+        if cmd is None or not cmd.open_at(d.t):
+            return None
+        cmd.answers += 1
+        others = [c for c in self._commands if c is not cmd and c.expects_reply and c.open_at(d.t)
+                  and d.t - max(c.copies) <= self.horizon]
+        ambiguous = None
+        if others:
+            seqs = ", ".join(str(c.seq) for c in others[-3:])
+            ambiguous = (f"command(s) with seq {seqs}, sent less than {self.horizon:g} s earlier, "
+                         "were also unanswered, and the payload names none of them")
+        return Attribution(cmd.id, cmd.seq, BY_TIMING, self._named(d, cmd), ambiguous)
+
+    # ------------------------------------------------------------------ helpers
+    def _expects_reply(self, sent: _SentLike, is_ack: bool) -> bool:
+        if is_ack or sent.dst == BROADCAST_ID:
+            return False
+        if self.peer_id is not None and sent.dst != self.peer_id:
+            return False
+        try:
+            decode(sent.data)
+        except DecodeError:
+            return False
+        return True
+
+    def _addressed(self, cmd: _Command, d: _ReceivedLike) -> bool:
+        """An ACK of a command sent under another src must be addressed to that src (so two
+        sources' equal seqs are told apart); for the runner's own src the dst is MCP-ACK-3's."""
+        assert d.header is not None
+        return cmd.src == self.our_id or d.header[0] == cmd.src
+
+    def _named(self, d: _ReceivedLike, cmd: _Command) -> str:
+        """What the payload names, in words, relative to ``cmd``."""
+        payload = d.data[17:]
+        if len(payload) != 2:
+            return f"nothing: {len(payload)} payload bytes ({payload[:8].hex(' ') or 'empty'})"
+        seq = _U16BE.unpack(payload)[0]
+        text = f"seq {seq} (0x{seq:04x})"
+        if seq == cmd.seq:
+            return text + ", the command's seq"
+        if _U16LE.unpack(payload)[0] == cmd.seq:
+            return text + ", the command's seq in little-endian order"
+        assert d.header is not None
+        if seq in (d.header[2], (d.header[2] + 1) & 0xFFFF):
+            return text + ", the node's own sequence number"
+        earlier = [c for c in self._by_seq.get(seq, ()) if c is not cmd]
+        if earlier:
+            return text + ", an earlier command's, already answered"
+        return text + ", which no command of the runner carried"
