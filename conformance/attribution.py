@@ -34,7 +34,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from spec.codec import Action, DecodeError, decode
+from spec.codec import Action, DecodeError, decode, peek_header
 
 _ACK = int(Action.ACK)
 _U16BE = struct.Struct("!H")
@@ -93,9 +93,10 @@ class _Command:
     expects_reply: bool  # a correct node ACKs it (well-formed, to the node's ID, not an ACK)
     is_ack: bool
     copies: list[float] = field(default_factory=list)  # send times
-    answers: int = 0
+    answers: int = 0  # replies attributed to it
 
     def open_at(self, t: float) -> bool:
+        """A copy sent by ``t`` has no reply attributed to it yet."""
         return sum(1 for c in self.copies if c <= t) > self.answers
 
     def recent(self, t: float, horizon: float) -> bool:
@@ -129,11 +130,15 @@ class Attributor:
         cmd = self._by_tx.get(copy_of) if copy_of is not None else None
         if cmd is None:
             is_ack = sent.action == _ACK
-            cmd = _Command(tx_index, sent.seq, sent.src, sent.dst,
-                           self._expects_reply(sent, is_ack), is_ack)
+            dst, src, seq = sent.dst, sent.src, sent.seq
+            if seq < 0:  # a malformed input (a bad preamble): a node may still ACK its seq
+                hdr = peek_header(sent.data, require_preamble=False)
+                if hdr is not None:
+                    dst, src, seq, _ = hdr
+            cmd = _Command(tx_index, seq, src, dst, self._expects_reply(sent, is_ack), is_ack)
             self._commands.append(cmd)
-            if sent.seq >= 0:
-                self._by_seq.setdefault(sent.seq, []).append(cmd)
+            if seq >= 0:
+                self._by_seq.setdefault(seq, []).append(cmd)
         cmd.copies.append(sent.t)
         self._by_tx[tx_index] = cmd
         if not cmd.is_ack:
@@ -150,8 +155,8 @@ class Attributor:
                 break
             cands = [c for c in self._by_seq.get(seq, ())
                      if c.open_at(d.t) and c.recent(d.t, self.horizon) and self._addressed(c, d)]
-            if cands:
-                cmd = cands[-1]
+            if cands:  # the one sent from the src the reply is addressed to, else the latest
+                cmd = max(cands, key=lambda c: (c.src == d.header[0], c.id))
                 cmd.answers += 1
                 return Attribution(cmd.id, cmd.seq, how, self._named(d, cmd))
         cmd = self._latest

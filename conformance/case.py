@@ -311,11 +311,13 @@ class CaseContext:
         return out
 
     # ------------------------------------------------------------------ verify helpers
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = (), *,
+             relies_on: tuple[str, ...] | None = None) -> CaseFailure:
+        """The failure of ``rule``; ``relies_on``: see ``CaseFailure`` (default: the spec's)."""
         ev = list(evidence)
         if self.session.node is not None and (not self.session.alive() or self.node_silent):
             ev += self.session.node_evidence()
-        return CaseFailure(rule, expected, actual, ev)
+        return CaseFailure(rule, expected, actual, ev, relies_on)
 
     def expect_acked(self, exchanges: Sequence[tuple[str, Exchange]], rule: str = "MCP-ACK-1") -> None:
         """Each command was answered: a reply attributable to it (conformance.attribution)
@@ -419,7 +421,7 @@ class CaseContext:
         if last.died:
             raise self.fail(last.rule or died_rule or rule, f"the node survives input {last.label!r}",
                             f"the node exited after it (code {self.session.node.returncode if self.session.node else '?'})",
-                            [f"input: {_hex(last.input.data)}"])
+                            [f"input: {_hex(last.input.data)}"], relies_on=())
         if last.probe is not None and not last.probe.acked:
             raise self.fail(live_rule, f"an ACK of the next valid unicast after input {last.label!r}",
                             f"no ACK of seq {last.probe.seq} after {len(last.probe.copies)} copies",
@@ -444,7 +446,7 @@ class CaseContext:
                 d, att = replies[0]
                 raise self.fail(rule, f"input {a.label!r} (seq {seq}) discarded without ACK",
                                 "the node ACKed it", [f"input: {_hex(a.input.data)}", f"reply: {d.describe()}"]
-                                + ([att.describe()] if att is not None else []))
+                                + ([att.describe()] if att is not None else []), relies_on=())
         self.prove_live()  # "no ACK" is a verdict only from a node shown alive after the window
 
     def expect_delivered(self, deliveries: Sequence[tuple[Delivery, int]], rule: str) -> None:

@@ -19,6 +19,18 @@ class CaseFailure(AssertionError):
     expected: str
     actual: str
     evidence: list[str] = field(default_factory=list)
+    #: Rules whose conformance this observation relied on (None: the spec's ``depends_on``
+    #: rules of ``rule``; () when the failure stands on its own, e.g. the node died). If one
+    #: of them failed earlier in the run, this failure is reported as its consequence.
+    relies_on: tuple[str, ...] | None = None
+
+    def dependencies(self) -> tuple[str, ...]:
+        if self.relies_on is not None:
+            return self.relies_on
+        from spec import SPEC
+
+        rule = SPEC.rules_by_id.get(self.rule)
+        return rule.rule_dependencies if rule is not None else ()
 
     def __post_init__(self) -> None:
         AssertionError.__init__(self, self.describe())

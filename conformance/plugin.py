@@ -68,6 +68,7 @@ from conformance.report import (
     build_json,
     case_from_json,
     merge_json,
+    name_consequence,
     run_from_json,
     worker_path,
     write_json,
@@ -616,6 +617,7 @@ class McpState:
                 rec.duration_s = max(0.0, (rec.end_ns - rec.start_ns) / 1e9)
         if rec.notes and rec.actual is None and rec.outcome in ("passed", "info"):
             rec.actual = "; ".join(rec.notes)
+        name_consequence(rec, self.run.cases)
         self.run.cases.append(rec)
         self.terminal.case(rec)
 
@@ -847,6 +849,7 @@ def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: B
         level = rule_level(exc.rule)
         rec.failed_rule, rec.expected, rec.actual = exc.rule, exc.expected, exc.actual
         rec.evidence = [str(e) for e in exc.evidence]
+        rec.relies_on = exc.dependencies()
         rec.reason = f"{exc.rule}: {rule.text}"
         if level == "MUST" or (level == "SHOULD" and state.cfg.strict):
             rec.outcome = "failed"

@@ -50,9 +50,12 @@ __all__ = [
     "RunRecord",
     "TerminalReport",
     "build_json",
+    "failures_json",
     "case_from_json",
     "junit_xml",
     "load_schema",
+    "name_consequence",
+    "roots_first",
     "rule_outcomes",
     "run_from_json",
     "tool_version",
@@ -108,6 +111,12 @@ class CaseRecord:
     evidence: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     baseline: str | None = None  # the baseline entry's reason, for xfailed / xpassed
+    relies_on: tuple[str, ...] = ()  # rules the failing observation relied on (CaseFailure)
+    consequence_of: list[str] = field(default_factory=list)  # of those, the ones that failed first
+
+    @property
+    def is_root_failure(self) -> bool:
+        return self.outcome in ("failed", "warned") and not self.consequence_of
 
     @property
     def group(self) -> str:
@@ -121,7 +130,37 @@ class CaseRecord:
             "capture": {"start_ns": self.start_ns, "end_ns": self.end_ns},
             "failed_rule": self.failed_rule, "evidence": list(self.evidence),
             "notes": list(self.notes), "baseline": self.baseline,
+            "consequence_of": list(self.consequence_of),
         }
+
+
+def name_consequence(rec: CaseRecord, earlier: list[CaseRecord]) -> None:
+    """A failure whose observation relied on a rule that already failed (spec ``depends_on``)
+    is still reported, as that rule's consequence: ``consequence_of`` lists it and the reason
+    says so ("consequence of MCP-ACK-1 (failed)"). Outcomes and exit codes do not change."""
+    if rec.outcome not in ("failed", "warned") or not rec.relies_on:
+        return
+    failed = {c.failed_rule: c.outcome for c in earlier
+              if c.outcome in ("failed", "warned") and c.failed_rule}
+    rec.consequence_of = [r for r in rec.relies_on if r in failed and r != rec.failed_rule]
+    if rec.consequence_of:
+        why = ", ".join(f"{r} ({failed[r]})" for r in rec.consequence_of)
+        rec.reason = f"consequence of {why}: {rec.reason}" if rec.reason else f"consequence of {why}"
+
+
+def roots_first(cases: list[Any]) -> list[Any]:
+    """The failed and warned cases (records or JSON dicts): root failures first, then those
+    that are consequences of earlier failures, each in run order."""
+    def get(c: Any, key: str) -> Any:
+        return c.get(key) if isinstance(c, dict) else getattr(c, key)
+    bad = [c for c in cases if get(c, "outcome") in ("failed", "warned")]
+    return sorted(bad, key=lambda c: bool(get(c, "consequence_of")))
+
+
+def failures_json(cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The JSON ``failures`` list: every failed or warned case, root failures first."""
+    return [{"case": c["id"], "rule": c.get("failed_rule"), "outcome": c["outcome"],
+             "consequence_of": list(c.get("consequence_of") or [])} for c in roots_first(cases)]
 
 
 @dataclass
@@ -207,6 +246,7 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "seed": run.seed,
         "error": run.error,
         "cases": [c.to_json() for c in run.cases],
+        "failures": failures_json([c.to_json() for c in run.cases]),
         "rules": rule_outcomes(run.cases, run.role),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
         **({"monitor": run.monitor} if run.monitor is not None else {}),
@@ -274,6 +314,7 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
         raise ValueError("no worker reports to merge")
     out = dict(docs[0])
     out["cases"] = [c for d in docs for c in d.get("cases", [])]
+    out["failures"] = failures_json(out["cases"])
     rules: dict[str, str] = {}
     for d in docs:
         for rule, outcome in d.get("rules", {}).items():
@@ -309,7 +350,7 @@ def case_from_json(d: dict[str, Any]) -> CaseRecord:
         actual=d.get("actual"), duration_s=float(d.get("duration_s") or 0.0),
         start_ns=cap.get("start_ns"), end_ns=cap.get("end_ns"), failed_rule=d.get("failed_rule"),
         evidence=list(d.get("evidence") or []), notes=list(d.get("notes") or []),
-        baseline=d.get("baseline"),
+        baseline=d.get("baseline"), consequence_of=list(d.get("consequence_of") or []),
     )
 
 
@@ -510,6 +551,8 @@ class TerminalReport:
         line.append(" ".join(c.rules), style="dim")
         line.append(f"  {c.duration_s:.2f} s", style="dim")
         self._print(line, soft_wrap=True)
+        if c.consequence_of:
+            self._detail(f"consequence of {', '.join(c.consequence_of)} (failed earlier in this run)")
         if c.failed_rule:
             rule = SPEC.rules_by_id.get(c.failed_rule)
             self._detail(f"{c.failed_rule} ({rule.level if rule else '?'}): {rule.text if rule else ''}")
@@ -531,6 +574,25 @@ class TerminalReport:
         if c.baseline:
             self._detail(f"baseline: {c.baseline}" + ("  (now passes: take it off the baseline)"
                                                       if c.outcome == "xpassed" else ""))
+
+    def _failures(self, run: RunRecord) -> None:
+        """Root failures first (what to fix), then the failures that are their consequences."""
+        bad = [c for c in roots_first(run.cases) if c.failed_rule]
+        roots = [c for c in bad if not c.consequence_of]
+        consequences = [c for c in bad if c.consequence_of]
+        for title, group in ((f"root failures ({len(roots)}):", roots),
+                             (f"their consequences ({len(consequences)}):", consequences)):
+            if not group:
+                continue
+            self._print(Text(title, style="bold"), soft_wrap=True)
+            for c in group:
+                line = Text("  ")
+                line.append(f"{c.outcome.upper():<7}", style=STYLES.get(c.outcome, ""))
+                line.append(f" {c.failed_rule}  {c.id}  ")
+                tag = (f"consequence of {', '.join(c.consequence_of)}" if c.consequence_of
+                       else (c.actual or ""))
+                line.append(tag, style="dim")
+                self._print(line, soft_wrap=True)
 
     def _detail(self, text: str) -> None:
         self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
@@ -578,6 +640,7 @@ class TerminalReport:
             if untouched:
                 self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
                                  f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
+        self._failures(run)
         counts = run.counts()
         parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
                  if counts[k] or k not in ("xfailed", "xpassed")]

@@ -54,6 +54,12 @@ class Rule:
     observe: Mapping[str, Observation]
     status: str = "active"
 
+    @property
+    def rule_dependencies(self) -> tuple[str, ...]:
+        """The rules (not errata or decisions) of ``depends_on``: rules whose conformance the
+        observation of this one relies on, so its failure may be their consequence."""
+        return tuple(d for d in self.depends_on if d.startswith("MCP-"))
+
     def applies_to(self, role: str) -> bool:
         """True when the rule binds a node of ``role`` (``drone`` or ``manager``)."""
         return role in self.observe
@@ -238,7 +244,7 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
         if r["id"] in by_id:
             raise _fail(where + ".id", f"duplicate rule ID {r['id']}", src)
         for dep in r.get("depends_on", []):
-            if dep not in note_ids:
+            if dep not in note_ids and not dep.startswith("MCP-"):
                 raise _fail(where + ".depends_on", f"{r['id']}: unknown erratum/decision {dep}", src)
         roles = tuple(r["roles"])
         expected = set(ROLES) if "any" in roles else set(roles)
@@ -251,5 +257,9 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
             status=r.get("status", "active"))
         rules.append(rule)
         by_id[rule.id] = rule
+    for i, rule in enumerate(rules):
+        for dep in rule.rule_dependencies:
+            if dep not in by_id or dep == rule.id:
+                raise _fail(f"rules[{i}].depends_on", f"{rule.id}: unknown rule {dep}", src)
     return Spec(raw=raw, sha256=sha, path=src, rules=tuple(rules), actions=tuple(actions),
                 errata=errata, decisions=decisions, params=params, rules_by_id=by_id)

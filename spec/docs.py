@@ -164,7 +164,9 @@ def render(spec: Spec) -> str:
         "",
         f"{len(spec.rules)} rules ({summary}). Observability per role: `mcp` (the node's MCP "
         "messages), `vehicle` (its MAVLink link), `none`; and the side of an exchange the rule "
-        "binds.",
+        "binds. \"Depends on\" lists the errata and decisions a rule rests on, and the rules "
+        "its observation relies on: when one of those failed first, the runner reports this "
+        "rule's failure as its consequence.",
         "",
     ]
     for group, title in spec.groups.items():

@@ -79,7 +79,7 @@ def test_json_follows_the_design_and_the_schema():
     doc = build_json(run)
     validate_json(doc)
     assert list(doc) == ["schema_version", "tool", "spec", "target", "role", "parameters", "seed",
-                         "error", "cases", "rules", "summary"]
+                         "error", "cases", "failures", "rules", "summary"]
     assert doc["schema_version"] == "1.1" and doc["tool"]["name"] == "mcp-conform"
     assert doc["spec"] == {"version": SPEC.version, "sha256": SPEC.sha256}
     assert doc["summary"] == {"passed": 1, "failed": 1, "warned": 1, "skipped": 1, "info": 1,
@@ -87,10 +87,13 @@ def test_json_follows_the_design_and_the_schema():
     first = doc["cases"][0]
     assert first["capture"] == {"start_ns": 10, "end_ns": 20} and first["duration_s"] == 0.5
     assert set(first) >= {"id", "rules", "level", "outcome", "reason", "expected", "actual",
-                          "duration_s", "capture", "failed_rule", "evidence", "notes", "baseline"}
+                          "duration_s", "capture", "failed_rule", "evidence", "notes", "baseline",
+                          "consequence_of"}
     failed = doc["cases"][1]  # schema 1.1: the evidence and the failed rule the terminal shows
     assert failed["failed_rule"] == "MCP-ACK-4" and failed["evidence"] == ["seq 3"]
     assert doc["cases"][4]["notes"] == ["initial seq 5"]
+    # every failure, root failures first (here no consequences)
+    assert [f["case"] for f in doc["failures"]] == ["ACK/test_b", "ACK/test_c"]
 
 
 def test_schema_rejects_what_the_design_does_not_allow():
@@ -186,5 +189,42 @@ def test_merge_json_of_xdist_workers_keeps_the_worst_outcome():
     m = merge_json([a, b])
     assert m["rules"] == {"MCP-ACK-1": "failed", "MCP-ACK-2": "passed"}
     assert [c["id"] for c in m["cases"]] == ["x", "y"]
+    assert m["failures"] == [{"case": "y", "rule": None, "outcome": "failed", "consequence_of": []}]
     assert m["summary"]["passed"] == 1 and m["summary"]["failed"] == 1 and m["summary"]["duration_s"] == 2.5
     assert m["target"] == "a, b" and m["error"] is None
+
+
+# ---------------------------------------------------------------------- cascades
+def test_a_failure_relying_on_a_rule_that_failed_first_is_named_its_consequence():
+    from conformance.report import name_consequence
+
+    root = case("ACK/test_ack", ("MCP-ACK-1",), "failed", failed_rule="MCP-ACK-1", actual="no reply",
+                reason="MCP-ACK-1: ...")
+    rob = case("ROB/test_short", ("MCP-ROB-1", "MCP-ROB-5"), "failed", failed_rule="MCP-ROB-5",
+               relies_on=("MCP-ACK-1",), reason="MCP-ROB-5: ...", actual="no ACK of the probe")
+    died = case("ROB/test_big", ("MCP-ROB-6",), "failed", failed_rule="MCP-ROB-6", relies_on=(),
+                reason="MCP-ROB-6: ...")
+    alone = case("ROB/test_flood", ("MCP-ROB-7",), "warned", failed_rule="MCP-ROB-7",
+                 relies_on=("MCP-ACK-1",), reason="MCP-ROB-7: ...")
+    name_consequence(alone, [])  # nothing failed before it: a root
+    run = RunRecord(role="drone")
+    for c in (root, rob, died):
+        name_consequence(c, run.cases)
+        run.cases.append(c)
+    run.cases.insert(0, alone)
+    assert rob.consequence_of == ["MCP-ACK-1"] and rob.reason.startswith("consequence of MCP-ACK-1 (failed): ")
+    assert root.consequence_of == [] and died.consequence_of == [] and alone.consequence_of == []
+    assert run.exit_code() == 1 and run.counts()["failed"] == 3  # outcomes unchanged
+    doc = build_json(run)
+    validate_json(doc)
+    assert [c["id"] for c in doc["cases"]] == ["ROB/test_flood", "ACK/test_ack", "ROB/test_short",
+                                               "ROB/test_big"]  # run order
+    assert [(f["case"], f["consequence_of"]) for f in doc["failures"]] == [
+        ("ROB/test_flood", []), ("ACK/test_ack", []), ("ROB/test_big", []),
+        ("ROB/test_short", ["MCP-ACK-1"])]
+    assert doc["cases"][2]["consequence_of"] == ["MCP-ACK-1"]
+    buf = io.StringIO()
+    TerminalReport(Console(file=buf, width=120, color_system=None)).summary(run)
+    text = buf.getvalue()
+    assert text.index("root failures (3):") < text.index("ACK/test_ack") < text.index(
+        "their consequences (1):") < text.index("ROB/test_short  consequence of MCP-ACK-1")

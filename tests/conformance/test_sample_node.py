@@ -364,3 +364,43 @@ def test_fault_passthrough_twice(mgr, spawn):
         mgr.ack_ready(ready)
         mgr.send(Action.MAV_PASSTHROUGH, make_probe("twice"))
         assert v.wait_for(lambda: v.probe_count("twice") == 2, timeout=3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", ["ack-own-seq", "ack-previous-seq", "ack-zero"])
+def test_faults_ack_payload_names_another_seq(mgr, spawn, fault):
+    started(mgr, spawn, "--fault", fault)
+    mgr.send(Action.WP_OFF, seq=0x0102)
+    mgr.send(Action.WP_OFF, seq=0x0103)
+    first, second = mgr.acks(0.4)
+    named = [first.payload, second.payload]  # big-endian, as decoded
+    if fault == "ack-own-seq":
+        assert named == [first.seq, second.seq]
+    elif fault == "ack-previous-seq":
+        assert named == [0, 0x0102]
+    else:
+        assert named == [0, 0]
+
+
+@pytest.mark.slow
+def test_fault_arm_before_fix_is_refused_and_recorded(mgr, spawn):
+    with SimVehicle(fix_withheld=True) as v:
+        spawn("--mavlink", v.url, "--fault", "arm-before-fix")
+        assert v.wait_for(lambda: any(e.detail["request"] == "arm" for e in v.events("request")), 10)
+        [arm] = [e.detail for e in v.events("request") if e.detail["request"] == "arm"]
+        assert (arm["result"], arm["reason"]) == ("denied", "PreArm: Need 3D Fix") and not v.armed
+
+
+@pytest.mark.slow
+def test_fault_arm_before_start_and_a_refused_rtl_request(mgr, spawn):
+    with SimVehicle(climb_rate=100.0) as v:
+        node = spawn("--mavlink", v.url, "--fault", "arm-before-start", "--rtl-refused")
+        ready, _ = mgr.wait_ready()
+        mgr.ack_ready(ready)
+        assert v.wait_for(lambda: v.armed, 5)  # armed before any Start_Mission
+        mgr.send(Action.START_MISSION)
+        mgr.send(Action.END_MISSION)
+        assert node.wait(5) == 0
+        rtl = [e.detail for e in v.events("request") if e.detail.get("mode") == "RTL"]
+        assert [(d["request"], d["result"], d["via"]) for d in rtl] == [("mode", "denied", "SET_MODE")]
+        assert v.rtl_commanded and v.mode != "RTL"

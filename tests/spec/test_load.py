@@ -142,6 +142,10 @@ def _unknown_depends_on(raw: dict[str, Any]) -> None:
     raw["rules"][0]["depends_on"] = ["D-99"]
 
 
+def _unknown_rule_dependency(raw: dict[str, Any]) -> None:
+    raw["rules"][0]["depends_on"] = ["MCP-ACK-99"]
+
+
 def _bad_preamble(raw: dict[str, Any]) -> None:
     raw["header"]["preamble_hex"] = "4E4353552D434D0102"
 
@@ -154,6 +158,7 @@ def _bad_preamble(raw: dict[str, Any]) -> None:
     (_wrong_struct_size, ["header.size", "17"]),
     (_wrong_item_struct, ["mission_item"]),
     (_unknown_depends_on, ["rules[0].depends_on", "D-99"]),
+    (_unknown_rule_dependency, ["rules[0].depends_on", "MCP-ACK-99"]),
     (_bad_preamble, ["header.preamble_hex"]),
 ], ids=lambda v: getattr(v, "__name__", "")[1:] if callable(v) else "")
 def test_broken_spec_names_the_key(tmp_path: Path, mutate: Any, names: list[str]) -> None:
