@@ -5,9 +5,18 @@ does not share the reference implementation's code) breaks exactly one rule. The
 must catch it with that rule ID (failed for a MUST, warned for a SHOULD) and nothing else
 may fail or warn. Then nodes that are correct but differ from ours: none may have a MUST
 failure (a false alarm is as bad as a missed fault).
+
+By default the node and the runner use short timings (node --rto 0.2, runner --rto 0.2
+--ack-window 0.25). ``MCP_MUTANTS_TIMING=real`` runs the same matrix at the description's
+timings (node --rto 5, the runner's defaults); each run then takes 30-130 s, so it is run
+by hand, not in CI:
+
+    MCP_MUTANTS_TIMING=real python -m pytest -n 2 -m slow tests/conformance/test_mutants.py
 """
 
 from __future__ import annotations
+
+import os
 
 import pytest
 
@@ -16,6 +25,17 @@ from spec import SPEC
 from .runner_helpers import FAST, run_conform, sample_node_command
 
 pytestmark = pytest.mark.slow
+
+REAL = os.environ.get("MCP_MUTANTS_TIMING", "short") == "real"
+NODE_RTO = 5.0 if REAL else 0.2
+RUNNER = [] if REAL else FAST  # the runner's defaults: --rto 5, --ack-window 2
+LIMIT = 600.0 if REAL else 240.0
+
+
+def conform(*node_args: str, extra: tuple[str, ...] = ()):
+    """The runner, spawning the sample node with ``node_args``, at this module's timings."""
+    return run_conform("--spawn", sample_node_command(*node_args, rto=NODE_RTO), "--mavlink", *RUNNER,
+                       *extra, timeout=LIMIT)
 
 MUTANTS = [
     ("bad-preamble", "MCP-HDR-1"),
@@ -77,7 +97,7 @@ DIAGNOSIS = {
 
 @pytest.mark.parametrize("fault,rule", MUTANTS, ids=[f for f, _ in MUTANTS])
 def test_mutant_is_caught_with_its_rule(fault, rule):
-    res = run_conform("--spawn", sample_node_command("--fault", fault), "--mavlink", *FAST)
+    res = conform("--fault", fault)
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}
@@ -98,7 +118,7 @@ CORRECT_VARIANTS = [
 
 @pytest.mark.parametrize("label,extra", CORRECT_VARIANTS, ids=[v[0] for v in CORRECT_VARIANTS])
 def test_no_false_alarm_on_a_correct_node_unlike_ours(label, extra):
-    res = run_conform("--spawn", sample_node_command(*extra), "--mavlink", *FAST)
+    res = conform(*extra)
     assert res.rc == 0, res.explain()
     assert not res.rules_with("failed"), res.explain()
     assert not res.cases_with("failed", "error"), res.explain()
@@ -146,7 +166,7 @@ def test_a_cascade_is_named_and_its_root_listed_first():
     """A node that stops ACKing after Start_Mission breaks MCP-ACK-1; the liveness-based
     verdicts that fail with it (MCP-ROB-5/6/7, MCP-TRN-2: spec depends_on) are reported as its
     consequences, after the root, with the same outcomes and exit code."""
-    res = run_conform("--spawn", sample_node_command("--fault", "mute-after-start"), "--mavlink", *FAST)
+    res = conform("--fault", "mute-after-start")
     assert res.rc == 1 and res.rules.get("MCP-ACK-1") == "failed", res.explain()
     failed = res.cases_with("failed", "warned")
     roots = [c for c in failed if not c["consequence_of"]]
