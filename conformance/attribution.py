@@ -41,6 +41,11 @@ _U16BE = struct.Struct("!H")
 _U16LE = struct.Struct("<H")
 BROADCAST_ID = 0xFFFF
 
+#: Commands remembered (the older half is forgotten beyond this) and how far back, in
+#: horizons, the ambiguity check looks for another unanswered command.
+MAX_COMMANDS = 20_000
+SCAN_HORIZONS = 10
+
 BY_SEQ = "seq"
 BY_SEQ_LE = "seq-le"
 BY_TIMING = "timing"
@@ -139,6 +144,8 @@ class Attributor:
             self._commands.append(cmd)
             if seq >= 0:
                 self._by_seq.setdefault(seq, []).append(cmd)
+            if len(self._commands) > MAX_COMMANDS:
+                self._forget_oldest()
         cmd.copies.append(sent.t)
         self._by_tx[tx_index] = cmd
         if not cmd.is_ack:
@@ -163,8 +170,13 @@ class Attributor:
         if cmd is None or not cmd.open_at(d.t):
             return None
         cmd.answers += 1
-        others = [c for c in self._commands if c is not cmd and c.expects_reply and c.open_at(d.t)
-                  and d.t - max(c.copies) <= self.horizon]
+        others = []
+        for c in reversed(self._commands):  # newest first; stop long before the horizon
+            if d.t - c.copies[0] > SCAN_HORIZONS * self.horizon:
+                break
+            if c is not cmd and c.expects_reply and c.open_at(d.t) and d.t - c.copies[-1] <= self.horizon:
+                others.append(c)
+        others.reverse()
         ambiguous = None
         if others:
             seqs = ", ".join(str(c.seq) for c in others[-3:])
@@ -173,6 +185,18 @@ class Attributor:
         return Attribution(cmd.id, cmd.seq, BY_TIMING, self._named(d, cmd), ambiguous)
 
     # ------------------------------------------------------------------ helpers
+    def _forget_oldest(self) -> None:
+        """Keep memory and lookups bounded on long runs (a fuzz campaign): the older half of
+        the commands can no longer be answered (they are far beyond every horizon)."""
+        keep = self._commands[len(self._commands) // 2:]
+        ids = {id(c) for c in keep}
+        self._commands = keep
+        self._by_tx = {i: c for i, c in self._by_tx.items() if id(c) in ids}
+        self._by_seq = {}
+        for c in keep:
+            if c.seq >= 0:
+                self._by_seq.setdefault(c.seq, []).append(c)
+
     def _expects_reply(self, sent: _SentLike, is_ack: bool) -> bool:
         if is_ack or sent.dst == BROADCAST_ID:
             return False

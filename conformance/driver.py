@@ -397,6 +397,18 @@ class TargetDriver:
         return self.send_raw(sent.data, sent.addr, dst=sent.dst, src=sent.src, seq=sent.seq,
                              action=sent.action, sock=sock, copy_of=sent)
 
+    def ack_for(self, sent: Sent) -> Callable[[Datagram], bool]:
+        """Predicate: a reply naming ``sent``'s seq in either byte order (lenient about the
+        ACK's own form). For conformance verdicts use ``answered`` (attribution)."""
+        seq, src = sent.seq, sent.src
+
+        def match(d: Datagram) -> bool:
+            if not d.names_seq(seq):
+                return False
+            assert d.header is not None
+            return d.header[0] == src or src == self.our_id
+        return match
+
     def answered(self, sent: Sent) -> Callable[[Datagram], bool]:
         """Predicate (evaluated under the lock, by ``wait_for``): a reply attributed to the
         command ``sent`` belongs to."""

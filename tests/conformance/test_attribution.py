@@ -154,3 +154,14 @@ def test_an_ack_of_a_malformed_input_is_tied_to_it_by_the_seq_it_names():
     probe = link.send(0.001, 1401)
     assert link.ack(0.002, 1400).command == inp
     assert link.ack(0.003, 1401).command == probe
+
+
+def test_memory_stays_bounded_on_a_long_run():
+    from conformance import attribution
+
+    link = Link()
+    for i in range(attribution.MAX_COMMANDS + 10):
+        link.send(i * 0.001, i & 0xFFFF)
+    assert len(link.att._commands) <= attribution.MAX_COMMANDS
+    last = attribution.MAX_COMMANDS + 9
+    assert link.ack(last * 0.001 + 0.0005, last & 0xFFFF).how == BY_SEQ
