@@ -403,4 +403,4 @@ def test_fault_arm_before_start_and_a_refused_rtl_request(mgr, spawn):
         assert node.wait(5) == 0
         rtl = [e.detail for e in v.events("request") if e.detail.get("mode") == "RTL"]
         assert [(d["request"], d["result"], d["via"]) for d in rtl] == [("mode", "denied", "SET_MODE")]
-        assert v.rtl_commanded and v.mode != "RTL"
+        assert v.mode != "RTL"
