@@ -67,7 +67,6 @@ FAULTS: dict[str, tuple[str, str]] = {
     "ack-previous-seq": ("MCP-ACK-2", "ACK payload is the seq of the message it ACKed before (0 at first)"),
     "ack-zero": ("MCP-ACK-2", "ACK payload is always 00 00"),
     "ack-first-copy-only": ("MCP-ACK-1", "a duplicate copy is neither delivered nor ACKed"),
-    "mute-after-start": ("MCP-ACK-1", "ACKs nothing after Start_Mission (still acts on what it receives)"),
     "slow-ack": ("MCP-ACK-7", "every ACK leaves 300 ms late (receiving is not blocked)"),
     "seq-no-wrap": ("MCP-SEQ-3", "a seq <= the last delivered from that src (plain integers) is a duplicate"),
     "rtx-new-seq": ("MCP-SEQ-2", "each retransmission takes a new seq (an ACK of any of them stops it)"),
@@ -313,7 +312,6 @@ class Node:
         self.malformed = 0
         self.deaf_until = 0.0
         self.previous_acked = 0  # ack-previous-seq: the seq its last ACK acknowledged
-        self.muted = False  # mute-after-start: Start_Mission was ACKed
         self.started = False
         self.ended = False
         self.autopilot: Autopilot | None = None
@@ -496,11 +494,6 @@ class Node:
             if "ack-other-id" in self.faults:
                 self.send_ack(msg.src, msg.seq, addr)
             return
-        if "mute-after-start" in self.faults and self.muted:
-            log(f"{msg.action.name} seq {msg.seq}: not ACKed (fault mute-after-start)")
-            self.offer(msg, data)
-            return
-        self.muted = msg.action == Action.START_MISSION and "mute-after-start" in self.faults
         dup = self.is_duplicate(msg, data)
         if dup and "ack-first-copy-only" in self.faults:
             log(f"duplicate {msg.action.name} seq {msg.seq} from {msg.src}: not ACKed (fault ack-first-copy-only)")
