@@ -109,7 +109,7 @@ def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = 
         out.append(f'<g class="head" data-lifeline="{_esc(lf.key)}"><rect x="{x - COL // 2 + 6}" y="{y0}" '
                    f'width="{COL - 12}" height="38" rx="4"/><text class="title" x="{x}" y="{y0 + 16}" '
                    f'text-anchor="middle">{_esc(lf.title)}</text><text class="sub" x="{x}" y="{y0 + 31}" '
-                   f'text-anchor="middle">{_esc(_clip(lf.subtitle, 30))}</text></g>')
+                   f'text-anchor="middle">{_esc(_clip(lf.subtitle, 27))}</text></g>')
         out.append(f'<line class="life" x1="{x}" y1="{y0 + 38}" x2="{x}" y2="{height - 8}"/>')
     t0 = shown[0].t_ns if shown else 0
     for row, a in enumerate(shown):

@@ -189,8 +189,9 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
     trace = Trace(datagrams, doc.get("parameters", {}).get("broadcast_id") or SPEC.protocol["broadcast_id"]) \
         if datagrams is not None else None
     monitor = doc.get("monitor") or {}
+    violations = _monitor_violations(monitor, trace)
     if trace is not None:
-        trace.mark(_monitor_violations(monitor))
+        trace.mark(violations)
     s = doc.get("summary", {})
     target = doc.get("target") or "the embedded reference node"
     body = [f"<h1>mcp-conform: {_e(doc.get('role', 'drone'))} at {_e(target)}</h1>",
@@ -213,7 +214,6 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
         fields = [("expected", c.get("expected")), ("actual", c.get("actual")), ("reason", c.get("reason")),
                   ("notes", "\n".join(c.get("notes") or []))]
         body.append(_finding(rule, c["outcome"], heading, fields, c.get("evidence") or [], chart, why))
-    violations = _monitor_violations(monitor)
     if violations:
         body.append(f"<h2>Trace monitor ({len(violations)} violation(s))</h2>")
         for v in violations:
@@ -234,18 +234,22 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
 
 
 class _JsonViolation:
-    """A violation as the JSON report's monitor section holds it."""
+    """A violation as the JSON report's monitor section holds it; its evidence as the
+    capture's datagram indexes (found by timestamp: the monitor and the recorder stamp each
+    datagram with the same run clock)."""
 
-    def __init__(self, d: dict[str, Any]) -> None:
+    def __init__(self, d: dict[str, Any], index_at: dict[int, int]) -> None:
         self.rule = d.get("rule")
         self.node = d.get("node")
         self.expected = d.get("expected")
         self.actual = d.get("actual")
-        self.evidence = d.get("evidence") or []
+        self.evidence = [index_at.get(e.get("t_ns") or -1, e.get("index")) if isinstance(e, dict) else e
+                         for e in d.get("evidence") or []]
 
 
-def _monitor_violations(monitor: dict[str, Any]) -> list[_JsonViolation]:
-    return [_JsonViolation(v) for v in monitor.get("violations", []) if isinstance(v, dict)]
+def _monitor_violations(monitor: dict[str, Any], trace: Trace | None) -> list[_JsonViolation]:
+    index_at = {e.dgram.t_ns: e.index for e in trace.entries} if trace is not None else {}
+    return [_JsonViolation(v, index_at) for v in monitor.get("violations", []) if isinstance(v, dict)]
 
 
 def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:

@@ -86,6 +86,8 @@ def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
         arrows = chart.find_elements(By.CSS_SELECTOR, "g.arrow")
         assert any("bcast" in a.get_attribute("class") for a in arrows)  # the broadcast it sent
         assert any("ack" in a.get_attribute("class").split() for a in arrows)  # the ACK it should not have
+        marked = chart.find_elements(By.CSS_SELECTOR, 'g.arrow.violation[data-rules~="MCP-ACK-4"]')
+        assert marked, "the monitor's evidence is marked on the case's chart"
         heads = [h.text for h in chart.find_elements(By.CSS_SELECTOR, "g.head")]
         assert any("broadcast" in h for h in heads) and any("drone 1" in h for h in heads)
         row = browser.find_element(By.CSS_SELECTOR, 'table.rules tr[data-rule="MCP-ACK-4"]')
