@@ -104,10 +104,25 @@ def side_from_datagrams(name: str, datagrams: Iterable[Any], *, truncated: str |
                         metadata: dict[str, str] | None = None) -> Side:
     """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``),
     taken in time order (a recorder's threads may write a reply before the message it
-    answers: the message's time is stamped before it leaves)."""
-    records = in_time_order(datagrams)
-    convs, t0 = build_conversations(records)
-    return Side(name, convs, t0, len(records), truncated, 0, metadata or {})
+    answers: the message's time is stamped before it leaves); a list is sorted here, an
+    iterator (``captures.reader``, which orders them) streams through."""
+    counted = _Counted(in_time_order(datagrams) if isinstance(datagrams, list) else datagrams)
+    convs, t0 = build_conversations(counted)
+    return Side(name, convs, t0, counted.n, truncated, 0, metadata or {})
+
+
+class _Counted:
+    """Iterates and counts (a capture's records stream through; ``captures.reader`` yields
+    them in log-time order already)."""
+
+    def __init__(self, it: Iterable[Any]) -> None:
+        self.it = it
+        self.n = 0
+
+    def __iter__(self) -> Any:
+        for d in self.it:
+            self.n += 1
+            yield d
 
 
 def in_time_order(datagrams: Iterable[Any]) -> list[Any]:
