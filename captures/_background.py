@@ -7,8 +7,10 @@ microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
 ``marshal``-ed batch, down a pipe to a writer process (``python -m captures._background
 FILE``) that runs :class:`~captures.recorder.McapRecorder` on another core.
 
-The writer runs niced (10) in its own session, so the node under load gets the CPU first
-(the writer catches up from the pipe and its backlog), and a signal to the node's process group (Ctrl-C, the
+The writer runs at nice 19, so it takes mostly CPU time nothing else wants: the node under
+load gets the CPU first and the writer catches up from the pipe and the backlog (at the end
+at normal priority where the system lets it change back). It runs in its own session, so a
+signal to the node's process group (Ctrl-C, the
 runner's ``killpg``) does not reach it; it finishes the file when the pipe closes, which
 happens when the node closes the recorder or dies in any way, SIGKILL included. So the file
 is valid whenever the node stops, with everything recorded up to ``FLUSH_S`` before a
@@ -193,8 +195,7 @@ def writer_main(path: str) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)  # finish the file on EOF, whatever the node gets
-    with contextlib.suppress(OSError, AttributeError):
-        os.nice(10)  # a busy host runs the node first; the writer catches up when it can
+    idle = _run_when_idle()
     stdin = sys.stdin.buffer
     rec: _rec.McapRecorder | None = None
     try:
@@ -217,9 +218,28 @@ def writer_main(path: str) -> int:
                     except Exception as exc:  # noqa: BLE001 - one bad record must not lose the file
                         print(f"mcp capture writer: {name}: {exc}", file=sys.stderr)
     finally:
+        if idle:  # the node is gone: finish at normal priority where the system lets us
+            _run_normally()
         if rec is not None:
             rec.close()
     return 0
+
+
+def _run_when_idle() -> bool:
+    """Lowest priority (nice 19): the writer gets the CPU time the node does not want, so
+    recording costs the node almost nothing; records wait in the pipe meanwhile. Unlike
+    SCHED_IDLE it is never starved outright, and any user may do it. True when it worked."""
+    try:
+        os.nice(19 - os.nice(0))
+        return True
+    except (AttributeError, OSError):
+        return False
+
+
+def _run_normally() -> None:
+    """Back to the usual priority to finish the file, where the system allows it (root)."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
 
 
 if __name__ == "__main__":
