@@ -163,8 +163,9 @@ def _long_mission(path: Path, messages: int, seq0: int, port: int, drop_ack: int
     t = 1_800_000_000_000_000_000
     n = 0
     cmd = 0
+    commands = messages // 2  # each with its ACK: both captures hold the same commands
     with McapRecorder(path, local=mgr) as rec:
-        while n < messages:
+        while cmd < commands:
             d = drones[cmd % len(drones)]
             if (cmd // len(drones)) % 2 == 0:
                 wp = ITEM._replace(seq=cmd % 1000, x=35.77 + (cmd % 97) / 1e4)
@@ -178,7 +179,7 @@ def _long_mission(path: Path, messages: int, seq0: int, port: int, drop_ack: int
             seq[0] = (seq[0] + 1) & 0xFFFF
             t += 100_000
             n += 1
-            if cmd != drop_ack and n < messages:
+            if cmd != drop_ack:
                 rec.datagram("rx", encode(Message(0, d, seq[d], Action.ACK, acked)), addr[d], t)
                 seq[d] = (seq[d] + 1) & 0xFFFF
                 t += 100_000

@@ -9,7 +9,7 @@ Sequence numbers are normalised per sender: "initial values are arbitrary" (MCP-
 a message's ``nseq`` is its seq minus the first seq that sender used in the capture (mod
 2^16), and an ACK's payload is normalised with the numbering of the sender it acknowledges.
 Entries are aligned on their ``key``, which holds no sequence number at all: a message by
-its sender, receiver, action and decoded payload, an ACK by the action of the message it
+its sender, receiver, action and decoded payload, an ACK by the key of the message it
 acknowledges (None: no message of the conversation has that seq). So two recordings with
 different initial seqs read the same, and one message more or less shifts nothing after it.
 Whether the numbers themselves follow the rules is the monitor's question (MCP-SEQ-*).
@@ -115,7 +115,7 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
                 payload = ("?", acked) if base is None else (acked - base) & 0xFFFF
                 pos = by_seq.get((peers, dst, acked))
                 conv = convs.get(peers)
-                what = conv.entries[pos].action if (pos is not None and conv is not None) else None
+                what = conv.entries[pos].key if (pos is not None and conv is not None) else None
                 key = (src, dst, action, ("ack", what))
                 fold = (src, dst, action, acked)
             else:
@@ -159,9 +159,9 @@ def describe(e: Entry | None, broadcast_id: int = BROADCAST_ID) -> str:
     if e.action is None:
         body = f" {p} ({len(e.data)} B)"
     elif e.action == _ACK:
-        what = e.key[3][1]
+        what = e.key[3][1]  # the acknowledged message's key
         body = (f" of seq+{p}" if isinstance(p, int) else f" of seq {p[1]}") + \
-            (f" ({_name(what)})" if what is not None else " (no such message)")
+            (f" ({_name(what[2])})" if what is not None else " (no such message)")
     elif isinstance(p, MissionItem):
         body = f" {_item_text(p)}"
     elif isinstance(p, tuple):

@@ -41,6 +41,7 @@ __all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "
            "load_side", "register", "run", "side_from_datagrams"]
 
 SCHEMA_VERSION = "1.0"
+BIG_MIDDLE = 5000
 KINDS = ("missing", "extra", "changed", "reordered", "copies", "timing", "address")
 
 
@@ -195,7 +196,10 @@ def _align(g: list[Entry], c: list[Entry]) -> list[tuple[str, int, int, int, int
     if lo:
         ops.append(("equal", 0, lo, 0, lo))
     if lo < n - hi or lo < m - hi:
-        sm = difflib.SequenceMatcher(None, gk[lo:n - hi], ck[lo:m - hi], autojunk=False)
+        # exact matching is quadratic on long repetitive stretches (a stream of WP_Offs);
+        # beyond BIG_MIDDLE entries difflib's popularity heuristic keeps it bounded
+        big = max(n - hi - lo, m - hi - lo) > BIG_MIDDLE
+        sm = difflib.SequenceMatcher(None, gk[lo:n - hi], ck[lo:m - hi], autojunk=big)
         for tag, i1, i2, j1, j2 in sm.get_opcodes():
             ops.append((tag, i1 + lo, i2 + lo, j1 + lo, j2 + lo))
     if hi:
@@ -216,16 +220,17 @@ def _streams(g: list[Entry], c: list[Entry]) -> Iterable[tuple[str, list[int], l
 
 
 def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any]) -> None:
-    """An ACK that moved because the message it acknowledges moved is that move's
-    consequence, not a second divergence (one fault, one report)."""
-    moved = {(d.golden.src, d.golden.nseq) for d in divs
-             if d.kind == "reordered" and d.peers == peers and d.golden is not None
-             and d.golden.action not in (None, Action.ACK)}
-    if not moved:
+    """An ACK that moved or changed because the message it acknowledges moved or changed is
+    that divergence's consequence, not a second one (one fault, one report)."""
+    hit = {(d.golden.src, d.golden.nseq) for d in divs
+           if d.kind in ("reordered", "changed") and d.peers == peers and d.golden is not None
+           and d.golden.action not in (None, Action.ACK)}
+    if not hit:
         return
     divs[:] = [d for d in divs if not (
-        d.kind == "reordered" and d.peers == peers and d.golden is not None
-        and d.golden.action == Action.ACK and (d.golden.dst, d.golden.payload) in moved)]
+        d.kind in ("reordered", "changed") and d.peers == peers and d.golden is not None
+        and d.golden.action == Action.ACK and (d.golden.dst, d.golden.payload) in hit
+        and all(f == "acknowledges" for f, _, _ in d.fields) | (d.kind == "reordered"))]
 
 
 def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,
@@ -269,7 +274,6 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
                                    "in the candidate, not in the golden capture"))
     pairs.extend(equal)
     pairs.extend(changed)
-    _drop_consequent_ack_moves(divs, peers)
     equal.sort()
     ref: tuple[int, int] | None = None
     tol_ns = None if opts.time_tolerance is None else int(opts.time_tolerance * 1e9)
@@ -315,6 +319,7 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
         if n not in swapped:
             divs.append(Divergence("changed", peers, g[i], c[j], i, j, _fields_differ(g[i], c[j]),
                                    "aligned messages differ"))
+    _drop_consequent_ack_moves(divs, peers)
     pairs.sort(key=lambda p: (p[0] if p[0] is not None else -1, p[1] if p[1] is not None else -1))
     result.aligned[peers] = _merge_order(pairs)
 
