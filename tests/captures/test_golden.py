@@ -134,3 +134,21 @@ def test_replay_errors_are_one_line(tmp_path):
     assert main(["replay", str(tmp_path / "none.mcap"), "--target", "127.0.0.1:9"]) == 2
     assert main(["replay", str(GOLDEN / "challenge1.mcap")]) == 2  # neither --target nor --spawn
     assert main(["replay", str(GOLDEN / "challenge1.mcap"), "--target", "nohost:xx"]) == 2
+
+
+def test_replay_in_attach_mode():
+    """A node already running (attach): replay sends to --target and listens on --listen."""
+    from conformance.session import free_udp_port
+
+    target, listen = free_udp_port(), free_udp_port()
+    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+                             f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.5", "-q"],
+                            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        result = replay(_records(GOLDEN / "challenge3.mcap"), ("127.0.0.1", target), role="drone",
+                        listen=("127.0.0.1", listen), rto=0.5, ack_window=0.3)
+        assert result.ok, _report(result.diff)
+        assert result.received >= 4
+    finally:
+        node.terminate()
+        node.wait(timeout=20)
