@@ -26,7 +26,7 @@ from typing import Any, NoReturn
 from conformance.baseline import BaselineError, load_baseline
 from conformance.config import RunConfig
 from conformance.interrupts import INTERRUPTS
-from conformance.plugin import ConfigError, make_config
+from conformance.options import ConfigError, make_config
 from conformance.report import RunRecord, tool_version, write_json
 from spec import SPEC
 

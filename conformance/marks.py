@@ -76,6 +76,10 @@ def rules(*ids: str, phase: str = "main") -> Callable[[F], F]:
     if phase not in PHASES:
         raise ValueError(f"rules(): unknown phase {phase!r}; expected one of {', '.join(PHASES)}")
 
+    from conformance.plugin import activate
+
+    activate()  # a module of cases is being collected: the runner (and its fixtures) is needed
+
     def decorate(fn: F) -> F:
         where = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', '?')}"
         checked = check_rule_ids(ids, where)

@@ -1,0 +1,868 @@
+"""The runner inside pytest (registered by ``conformance.plugin`` when a run asks for it).
+
+It holds the fixtures (``mcp_config``, ``mcp_session``, ``node``), the MUST / SHOULD / INFO
+outcome mapping, per-case and per-run time limits, and the reports (terminal,
+``--mcp-json``, ``--mcp-junit``, ``--mcp-html``, ``--mcp-capture``; merged by the
+controller under pytest-xdist). It is inert for any run that collects no case marked with
+``rules(...)``.
+
+Outcomes: a pass is ``passed`` (``info`` when every rule of the case is INFO); a
+``CaseFailure`` takes the level of the rule it names: MUST -> failed, SHOULD -> warned
+(the pytest report becomes a pass) unless ``--mcp-strict``, INFO -> info; ``Inconclusive``
+-> skipped with its reason; ``TargetLost``, a time limit and any other exception -> error.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import json
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Generator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rich.console import Console
+
+from conformance.baseline import Baseline, BaselineError, load_baseline, write_baseline
+from conformance.config import RunConfig
+from conformance.errors import (
+    CaseFailure,
+    Inconclusive,
+    NodeLost,
+    SetupError,
+    SilenceUnproven,
+    TargetLost,
+)
+from conformance.interrupts import INTERRUPTS
+from conformance.marks import (
+    PHASES,
+    case_id,
+    case_phase,
+    case_rules,
+    is_case,
+    rule_level,
+    rule_marker,
+    strongest_level,
+)
+from conformance.options import (
+    ConfigError,
+    apply_embedded_defaults,
+    make_config,
+    matches_select,
+    option_values,
+)
+from conformance.report import (
+    CaseRecord,
+    RunRecord,
+    TerminalReport,
+    build_json,
+    case_from_json,
+    merge_json,
+    name_consequence,
+    run_from_json,
+    worker_path,
+    write_json,
+    write_junit,
+)
+from spec import SPEC
+
+__all__ = ["McpState", "STATE_KEY"]
+
+
+class CaseTimeLimit(Exception):
+    """Raised by the SIGALRM handler: the case (or the run) ran out of time."""
+
+
+STATE_KEY = pytest.StashKey["McpState"]()
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
+    if cfg.role == "manager":
+        from conformance.manager_session import ManagerSession
+
+        return ManagerSession(cfg, recorder=recorder)
+    from conformance.session import Session
+
+    return Session(cfg, recorder=recorder)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "mcp_rules(*ids): the MCP rule IDs a conformance case verifies")
+    config.addinivalue_line("markers", "mcp_phase(phase): startup, main, late or end")
+    for rule in SPEC.rules:
+        config.addinivalue_line("markers", f"{rule_marker(rule.id)}: cases verifying {rule.id} ({rule.level})")
+    frontend = bool(config.getoption("mcp_frontend"))
+    values = option_values(config)
+    opt = (lambda n: "--" + n.replace("_", "-")) if frontend else (lambda n: "--mcp-" + n.replace("_", "-"))
+    try:
+        cfg = make_config(values, opt)
+    except ConfigError as exc:
+        raise pytest.UsageError(str(exc)) from None
+    if cfg.target is not None and int(getattr(config.option, "numprocesses", 0) or 0) > 1 \
+            and not hasattr(config, "workerinput"):
+        raise pytest.UsageError(
+            f"{opt('target')}: attach mode cannot be split across pytest-xdist workers (one node "
+            "under test, one runner at a time); run it without -n, or let each worker start its own "
+            "node with --mcp-spawn")
+    worker = getattr(config, "workerinput", {}).get("workerid")
+    if worker:  # a pytest-xdist worker: its own node; its report goes to the controller
+        cfg.capture = cfg.capture and worker_path(cfg.capture, worker)
+    family = config.getoption("mcp_junit_family") or "xunit2"
+    if family not in ("xunit2", "xunit1"):
+        raise pytest.UsageError(f"{opt('junit_family')}: {family!r} is not one of xunit2, xunit1")
+    baseline = None
+    if config.getoption("mcp_baseline"):
+        try:
+            baseline = load_baseline(config.getoption("mcp_baseline"), opt("baseline"))
+        except BaselineError as exc:
+            raise pytest.UsageError(str(exc)) from None
+    state = config.stash[STATE_KEY] = McpState(config, cfg, frontend)
+    state.baseline, state.junit_family = baseline, family
+    state.write_baseline_path = config.getoption("mcp_write_baseline")
+    state.exclude = list(config.getoption("mcp_exclude") or [])
+    state.worker = worker
+    state.html_path = config.getoption("mcp_html")  # under xdist the controller writes it
+
+
+def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
+    """--mcp-html: the report with each failed case's traffic charted (captures.html)."""
+    from captures.html import write_run
+
+    write_run(path, doc, capture)
+
+
+def _xdist_controller(config: pytest.Config) -> bool:
+    return (not hasattr(config, "workerinput") and config.pluginmanager.hasplugin("xdist")
+            and bool(getattr(config.option, "numprocesses", None)))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    """pytest-xdist: a worker finished; keep its report and its capture part (the
+    ``workeroutput`` channel pytest-cov uses for its data)."""
+    state = _state(node.config)
+    out = getattr(node, "workeroutput", None) or {}
+    if state is None:
+        return
+    if "mcp_report" in out:
+        state.worker_docs.append(out["mcp_report"])
+    if out.get("mcp_capture_part"):
+        state.capture_parts.append(out["mcp_capture_part"])
+
+
+def _merge_worker_reports(session: pytest.Session) -> None:
+    """Under pytest-xdist the controller writes ONE JSON report, ONE JUnit file and ONE
+    capture from what the workers sent, prints the mcp summary once, and exits as a run
+    without workers would."""
+    state = _state(session.config)
+    if state is None or not state.worker_docs:
+        return
+    doc = merge_json(state.worker_docs)
+    run = state.merged_run = run_from_json(doc)
+    problems = []
+    writers: list[tuple[str | None, Callable[[str], Any]]] = [
+        (state.cfg.json_path, lambda p: Path(p).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")),
+        (state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
+        (None if run.error else state.write_baseline_path, lambda p: write_baseline(p, run.cases, run.target)),
+    ]
+    if state.cfg.capture and state.capture_parts:
+        from captures.merge import merge_captures
+
+        writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
+    elif state.html_path and state.capture_parts:  # the workers recorded for the HTML report only
+        from captures.merge import merge_captures
+
+        fd, state.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
+        os.close(fd)
+        writers.append((state.html_capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
+    writers.append((state.html_path, lambda p: write_run_html(p, doc, state.cfg.capture or state.html_capture)))
+    for path, write in writers:
+        if path:
+            try:
+                write(path)
+            except OSError as exc:
+                problems.append(str(exc))
+    if not state.cfg.capture:  # temporary recordings made only for the HTML report
+        for part in [*state.capture_parts, state.html_capture or ""]:
+            if part:
+                Path(part).unlink(missing_ok=True)
+    code = 2 if problems else run.exit_code()
+    if code == 0 and session.exitstatus == pytest.ExitCode.TESTS_FAILED:
+        code = 1
+    for p in problems:
+        print(f"error: {p}", file=sys.stderr)
+    session.exitstatus = code
+
+
+def _state(config: pytest.Config) -> McpState | None:
+    return config.stash.get(STATE_KEY, None)
+
+
+# ---------------------------------------------------------------------- run state
+class McpState:
+    """Everything the plugin keeps for one pytest run."""
+
+    def __init__(self, config: pytest.Config, cfg: RunConfig, frontend: bool) -> None:
+        self.config = config
+        self.cfg = cfg
+        self.frontend = frontend
+        self.active = False
+        self.list_mode = bool(config.getoption("mcp_list"))
+        self.select: list[str] = list(config.getoption("mcp_select") or [])
+        self.exclude: list[str] = []
+        self.user_timeouts: dict[str, float] = {}  # nodeid -> pytest-timeout's --timeout
+        self.case_user_timeout: float | None = None  # of the case in progress
+        self.case_limit_text = ""
+        self.baseline: Baseline | None = None
+        self.junit_family = "xunit2"
+        self.write_baseline_path: str | None = None
+        self.worker: str | None = None  # the pytest-xdist worker id, on a worker
+        self.worker_docs: list[dict[str, Any]] = []  # on the xdist controller
+        self.capture_parts: list[str] = []
+        self.merged_run: RunRecord | None = None
+        self.run = RunRecord(role=cfg.role, target=self._target_guess(), parameters=cfg.parameters(),
+                             seed=cfg.seed, strict=cfg.strict)
+        self.session: Any = None
+        self.recorder: Any = None
+        self.html_path: str | None = None
+        self.html_capture: str | None = None  # the run's recording for --mcp-html without --mcp-capture
+        self.items: list[pytest.Item] = []
+        self.meta: dict[str, tuple[str, tuple[str, ...], str, str]] = {}  # nodeid -> id, rules, level, phase
+        self.records: dict[str, CaseRecord] = {}
+        self.done: set[str] = set()
+        self.ctx: dict[str, Any] = {}
+        self.collect_errors: list[str] = []
+        self.run_deadline: float | None = None
+        self.case_deadline: float | None = None
+        self.deadline_hit = False
+        self.interrupted: str | None = None
+        self._old_alarm: Any = None
+        self._old_term: Any = None
+        self._terminal: TerminalReport | None = None
+        self._wait_status: Any = None
+
+    def _target_guess(self) -> str | None:
+        if self.cfg.target is not None:
+            return f"{self.cfg.target[0]}:{self.cfg.target[1]}"
+        return None
+
+    @property
+    def terminal(self) -> TerminalReport:
+        if self._terminal is None:
+            tr = self.config.pluginmanager.get_plugin("terminalreporter")
+            before = None
+            if tr is not None:
+                def before() -> None:  # end pytest's progress line before ours
+                    tw = getattr(tr, "_tw", None)
+                    if tw is not None and getattr(tw, "width_of_current_line", False):
+                        tw.line()
+            self._terminal = TerminalReport(Console(highlight=False), before_line=before)
+        return self._terminal
+
+    # ------------------------------------------------------------------ session
+    def start_session(self) -> Any:
+        if self.session is not None:
+            return self.session
+        if self.run.error is not None:
+            pytest.exit(self.run.error, returncode=2)
+        try:
+            apply_embedded_defaults(self.cfg)
+            self.run.parameters = self.cfg.parameters()
+            if self.html_path and not self.cfg.capture:  # the HTML report's charts need the traffic
+                fd, self.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
+                os.close(fd)
+            if self.cfg.capture or self.html_capture:
+                from captures.recorder import McapRecorder, RecorderError, run_metadata
+
+                cfg = self.cfg
+                meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
+                                    target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
+                                    spawn=cfg.spawn, parameters=self.run.parameters)
+                try:
+                    with INTERRUPTS.held():  # never a file cut off after its header
+                        self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
+                except RecorderError as exc:
+                    raise SetupError(str(exc)) from None
+            recorder = self.recorder
+            if self.config.getoption("mcp_verbose_traffic"):
+                from conformance.live import Tee, TrafficPrinter
+
+                capman = self.config.pluginmanager.getplugin("capturemanager")
+                recorder = Tee(self.recorder, TrafficPrinter(
+                    uncaptured=capman.global_and_fixture_disabled if capman is not None else None))
+            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
+                                                               config=self.config)
+            self.session = session
+            self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
+            resume = self.wait_status.current
+            if self.frontend:
+                self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
+                                   f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")
+                self.wait_status.begin("startup phase: watching Mission_Ready and its retransmissions")
+            atexit.register(self.close_session)
+            # the startup phase is bounded by its own waits and the run deadline, not by the
+            # time limit of the case that happens to start it
+            self.case_deadline = None
+            self.arm()
+            try:
+                session.start()
+            except CaseTimeLimit:
+                # the run's deadline fell in the startup phase: the node never became ready
+                self.deadline_hit = False
+                timed_out = getattr(session, "startup_timed_out", None)
+                if timed_out is not None:
+                    raise timed_out(self.cfg.timeout) from None
+                raise SetupError(f"target never answered within the run's --timeout of "
+                                 f"{self.cfg.timeout:g} s") from None
+            finally:
+                self.wait_status.end()
+                if resume:
+                    self.wait_status.begin(resume)  # the first case, which started the node
+            self.case_deadline = time.monotonic() + self.current_limit()
+            self.arm()
+        except SetupError as exc:
+            self.disarm()
+            self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
+            self.run.node = getattr(exc, "node", None)
+            self.close_session()
+            pytest.exit(self.run.error, returncode=2)
+        self.run.target = getattr(session, "target_desc", None) or self.run.target
+        watch = getattr(getattr(session, "liveness", None), "loss_after", None)
+        if watch is not None:
+            self.run.parameters["loss_after_s"] = watch
+            self.terminal.note(f"liveness: the node is declared lost after {watch:g} s without an "
+                               "answer to the runner's probes" + (" (its process is watched too)"
+                                                                  if self.cfg.spawn else ""))
+        return session
+
+    def close_session(self) -> None:
+        session, self.session = self.session, None
+        if session is not None:
+            with contextlib.suppress(Exception):
+                session.close()
+            monitor = getattr(session, "monitor", None)  # the report's monitor section
+            if monitor is not None:
+                with contextlib.suppress(Exception):
+                    monitor.finish()
+                    self.run.monitor = monitor.to_json()
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            with contextlib.suppress(Exception):
+                recorder.close()
+
+    # ------------------------------------------------------------------ records
+    def record(self, item: pytest.Item) -> CaseRecord:
+        rec = self.records.get(item.nodeid)
+        if rec is None:
+            cid, ids, level, _ = self.meta.get(item.nodeid) or _meta(item)
+            rec = self.records[item.nodeid] = CaseRecord(id=cid, rules=ids, level=level)
+            rec.duration_s = 0.0
+        return rec
+
+    @property
+    def wait_status(self) -> Any:
+        """The progress line (frontend on a terminal only; pytest shows its own progress)."""
+        if self._wait_status is None:
+            from conformance.live import WaitStatus
+
+            self._wait_status = WaitStatus(self.terminal.console)
+            self._wait_status.enabled = self._wait_status.enabled and self.frontend
+        return self._wait_status
+
+    def finish(self, item: pytest.Item, rec: CaseRecord) -> None:
+        if item.nodeid in self.done:
+            return
+        self.wait_status.end()
+        self.done.add(item.nodeid)
+        ctx = self.ctx.pop(item.nodeid, None)
+        if ctx is not None:
+            rec.notes = list(getattr(ctx, "notes", []) or [])
+            rec.start_ns = getattr(ctx, "start_ns", None)
+            rec.end_ns = getattr(ctx, "end_ns", None)
+            if rec.start_ns is not None and rec.end_ns is not None:
+                rec.duration_s = max(0.0, (rec.end_ns - rec.start_ns) / 1e9)
+        if rec.notes and rec.actual is None and rec.outcome in ("passed", "info"):
+            rec.actual = "; ".join(rec.notes)
+        name_consequence(rec, self.run.cases)
+        self.run.cases.append(rec)
+        self.terminal.case(rec)
+
+    # ------------------------------------------------------------------ time limits
+    def current_limit(self) -> float:
+        """The case in progress's time limit: the runner's own, or the user's pytest-timeout
+        ``--timeout`` where that is shorter (and says so when it strikes)."""
+        limit = self.cfg.per_case_limit()
+        self.case_limit_text = f"its time limit of {limit:g} s"
+        user = self.case_user_timeout
+        if user is not None and user < limit:
+            limit, self.case_limit_text = user, f"the --timeout of {user:g} s (pytest-timeout)"
+        return limit
+
+    def arm(self) -> None:
+        """Arm SIGALRM for the rest of the case (or the run, whichever ends first)."""
+        if not _can_alarm():
+            return
+        now = time.monotonic()
+        ends = [d for d in (self.case_deadline, self.run_deadline) if d is not None]
+        if not ends:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            return
+        if self._old_alarm is None:
+            self._old_alarm = signal.signal(signal.SIGALRM, self._on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, max(min(ends) - now, 0.001))
+
+    def disarm(self) -> None:
+        if not _can_alarm():
+            return
+        signal.setitimer(signal.ITIMER_REAL, 0)
+
+    def restore_alarm(self) -> None:
+        if _can_alarm() and self._old_alarm is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, self._old_alarm)
+            self._old_alarm = None
+
+    def _on_alarm(self, signum: int, frame: Any) -> None:
+        now = time.monotonic()
+        if self.run_deadline is not None and now >= self.run_deadline - 0.002:
+            self.deadline_hit = True
+            raise CaseTimeLimit("run deadline exceeded")
+        raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
+
+    def install_term(self) -> None:
+        """SIGINT / SIGTERM (``conformance.interrupts``): the first stops the run, later
+        ones hurry it; none can skip the reports. Installed here when plain pytest runs us
+        (``mcp-conform`` installs it before anything else)."""
+        self._old_term = INTERRUPTS.install()
+
+    def restore_term(self) -> None:
+        if self._old_term:
+            INTERRUPTS.restore()
+            self._old_term = None
+
+
+def _can_alarm() -> bool:
+    return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+
+
+def _meta(item: pytest.Item) -> tuple[str, tuple[str, ...], str, str]:
+    ids = case_rules(item)
+    return case_id(item), ids, strongest_level(ids), case_phase(item)
+
+
+# ---------------------------------------------------------------------- collection
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Generator[None, pytest.CollectReport, pytest.CollectReport]:
+    report = yield
+    state = _state(collector.config)
+    if state is not None and report.failed:
+        text = report.longreprtext or ""
+        lines = [ln[1:].strip() for ln in text.splitlines() if ln.startswith("E ")]
+        msg = lines[-1] if lines else (text.strip().splitlines() or ["collection failed"])[-1]
+        state.collect_errors.append(f"collection error in {report.nodeid or 'the cases'}: {msg}")
+    return report
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    state = _state(config)
+    if state is None:
+        return
+    cases = [i for i in items if is_case(i)]
+    state.active = bool(cases) or state.frontend or bool(state.cfg.json_path or state.cfg.junit_path)
+    if not cases:
+        return
+    for item in cases:
+        cid, ids, level, phase = _meta(item)
+        unknown = [r for r in ids if r not in SPEC.rules_by_id]
+        if unknown:
+            state.collect_errors.append(f"unknown rule ID {unknown[0]!r} in {cid}")
+        state.meta[item.nodeid] = (cid, ids, level, phase)
+    if state.collect_errors:
+        return
+    keep: list[pytest.Item] = []
+    drop: list[pytest.Item] = []
+    for item in items:
+        m = state.meta.get(item.nodeid)
+        wanted = m is None or (matches_select(state.select, m[0], m[1])
+                               and not (state.exclude and matches_select(state.exclude, m[0], m[1])))
+        (keep if wanted else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+    if (state.select or state.exclude) and not any(i.nodeid in state.meta for i in keep):
+        opt = "--select" if state.frontend else "--mcp-select"
+        what = ", ".join(state.select) if state.select else "(all)"
+        if state.exclude:
+            what += f" once {', '.join(state.exclude)} are excluded"
+        state.run.error = f"{opt}: no case matches {what}"
+    order = {p: n for n, p in enumerate(PHASES)}
+    keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
+    items[:] = keep
+    state.items = [i for i in keep if i.nodeid in state.meta]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session: pytest.Session) -> bool | None:
+    state = _state(session.config)
+    if state is None or not state.active:
+        return None
+    if state.collect_errors and state.run.error is None:
+        state.run.error = state.collect_errors[0]
+    if state.run.error is not None:
+        raise session.Interrupted(state.run.error)
+    if session.config.option.collectonly:
+        return None
+    if state.list_mode:
+        state.terminal.listing([state.meta[i.nodeid] for i in state.items])
+        return True
+    if not state.items:
+        return None
+    mode = state.cfg.mode
+    state.terminal.header(state.run, mode)
+    state.run_deadline = time.monotonic() + state.cfg.timeout
+    state.install_term()
+    return None
+
+
+# ---------------------------------------------------------------------- running a case
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> bool | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    if INTERRUPTS.interrupted:  # a swallowed KeyboardInterrupt must still stop the run
+        raise KeyboardInterrupt(INTERRUPTS.signals[0])
+    if state.deadline_hit or (state.run_deadline is not None and time.monotonic() >= state.run_deadline):
+        state.deadline_hit = True
+        rec = state.record(item)
+        rec.outcome, rec.reason = "error", "run deadline exceeded"
+        state.finish(item, rec)
+        item.session.shouldstop = "run deadline exceeded"
+        return True
+    state.case_user_timeout = state.user_timeouts.pop(item.nodeid, None)
+    state.case_deadline = time.monotonic() + state.current_limit()
+    state.wait_status.begin(state.meta[item.nodeid][0])
+    return None
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_timeout_set_timer(item: pytest.Item, settings: Any) -> bool | None:
+    """pytest-timeout's hook for plugins that manage their own timer: for a conformance
+    case the runner's SIGALRM limit becomes the shorter of its own and the user's
+    ``--timeout``, and the case ends as ``error`` instead of the process being killed."""
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    timeout = getattr(settings, "timeout", None)
+    if timeout and timeout > 0:
+        state.user_timeouts[item.nodeid] = float(timeout)
+    return True
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_timeout_cancel_timer(item: pytest.Item) -> bool | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    return True  # the runner's own timer is disarmed after each phase
+
+
+def _phase_wrapper(item: pytest.Item) -> McpState | None:
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return None
+    return state
+
+
+def _armed(item: pytest.Item) -> Generator[None, None, None]:
+    """Run one phase (setup, call, teardown) of a case under the per-case time limit."""
+    state = _phase_wrapper(item)
+    if state is None:
+        return (yield)
+    state.arm()
+    try:
+        return (yield)
+    finally:
+        state.disarm()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+    return (yield from _armed(item))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    return (yield from _armed(item))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    return (yield from _armed(item))
+
+
+def _skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
+    path, lineno, _ = item.reportinfo()
+    return (str(path), (lineno or 0) + 1, f"Skipped: {reason}")
+
+
+def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: BaseException,
+                     rep: pytest.TestReport) -> None:
+    if isinstance(exc, CaseFailure):
+        if exc.rule not in SPEC.rules_by_id:
+            rec.outcome, rec.reason = "error", f"the case reported unknown rule {exc.rule!r}"
+            return
+        rule = SPEC.rule(exc.rule)
+        level = rule_level(exc.rule)
+        rec.failed_rule, rec.expected, rec.actual = exc.rule, exc.expected, exc.actual
+        rec.evidence = [str(e) for e in exc.evidence]
+        rec.relies_on = exc.dependencies()
+        rec.reason = f"{exc.rule}: {rule.text}"
+        if level == "MUST" or (level == "SHOULD" and state.cfg.strict):
+            rec.outcome = "failed"
+            rep.longrepr = exc.describe()
+        else:
+            rec.outcome = "warned" if level == "SHOULD" else "info"
+            rep.outcome, rep.longrepr = "passed", None
+            rep.sections.append((f"mcp-conform {rec.outcome}", exc.describe()))
+        return
+    if isinstance(exc, Inconclusive):
+        rec.outcome, rec.reason = "skipped", (str(exc).strip() or "inconclusive")
+        rep.outcome, rep.longrepr = "skipped", _skip_longrepr(item, rec.reason)
+        return
+    rec.outcome = "error"
+    if isinstance(exc, CaseTimeLimit):
+        rec.reason = str(exc)
+    elif isinstance(exc, NodeLost):
+        rec.reason = f"node lost during this case: {exc.reason}"
+        rec.evidence = list(exc.evidence)
+    elif isinstance(exc, SilenceUnproven):
+        rec.reason, rec.evidence = exc.reason, list(exc.evidence)
+    elif isinstance(exc, TargetLost):
+        rec.reason = f"target lost: {str(exc).strip() or 'the node is gone'}"
+    else:
+        rec.reason = _one_line(exc)
+        tb = exc.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        if tb is not None:
+            rec.evidence = [f"raised at {tb.tb_frame.f_code.co_filename}:{tb.tb_lineno} "
+                            f"in {tb.tb_frame.f_code.co_name}"]
+
+
+def _apply_baseline(state: McpState, rec: CaseRecord, rep: pytest.TestReport) -> None:
+    """An expected failure (``--baseline``) that failed or warned is ``xfailed``; one that
+    passed is ``xpassed`` (a failure under --strict), as pytest reports xfail / xpass."""
+    assert state.baseline is not None
+    if rec.outcome not in ("failed", "warned", "passed"):
+        return
+    entry = state.baseline.match(rec.id, rec.rules, rec.failed_rule if rec.outcome != "passed" else None)
+    if entry is None:
+        return
+    rec.baseline = entry.reason
+    if rec.outcome in ("failed", "warned"):
+        rec.outcome = "xfailed"
+        rep.outcome, rep.longrepr = "skipped", None
+        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
+    elif state.cfg.strict:
+        rec.outcome = "xpassed"
+        rep.outcome, rep.longrepr = "failed", f"[XPASS(strict)] {rec.id} is on the baseline ({entry.reason}) but passed"
+    else:
+        rec.outcome = "xpassed"
+        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    rep = yield
+    state = _state(item.config)
+    if state is None or not state.active or item.nodeid not in state.meta:
+        return rep
+    rec = state.record(item)
+    if call.when in ("setup", "call"):
+        rec.duration_s += rep.duration
+    if call.when == "setup" or call.when == "call":
+        if call.excinfo is not None and rec.outcome not in ("error",):
+            exc = call.excinfo.value
+            if rep.skipped and not isinstance(exc, Inconclusive):
+                rec.outcome = "skipped"
+                lr = rep.longrepr
+                rec.reason = str(lr[2]).removeprefix("Skipped: ") if isinstance(lr, tuple) else str(exc)
+            elif call.when == "setup" and isinstance(exc, CaseFailure):
+                rec.outcome, rec.reason = "error", f"setup: {_one_line(exc)}"
+            else:
+                _judge_exception(state, item, rec, exc, rep)
+        elif call.when == "call" and call.excinfo is None:
+            rec.outcome = "info" if all(rule_level(r) == "INFO" for r in rec.rules) else "passed"
+        if call.when == "call" and state.baseline is not None:
+            _apply_baseline(state, rec, rep)
+    elif call.when == "teardown":
+        if rep.failed and rec.outcome not in ("error", "failed"):
+            texc = call.excinfo.value if call.excinfo is not None else None
+            rec.outcome = "error"
+            rec.reason = (str(texc) if isinstance(texc, CaseTimeLimit) else
+                          f"teardown: {_one_line(texc) if texc is not None else 'failed'}")
+        state.finish(item, rec)
+        if state.worker:
+            rep.mcp_case = rec.to_json()  # type: ignore[attr-defined]  # for the controller's live lines
+    return rep
+
+
+# ---------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="session")
+def mcp_config(pytestconfig: pytest.Config) -> RunConfig:
+    """The run's parameters (``conformance.config.RunConfig``)."""
+    state = _state(pytestconfig)
+    assert state is not None
+    return state.cfg
+
+
+@pytest.fixture(scope="session")
+def mcp_session(pytestconfig: pytest.Config) -> Generator[Any, None, None]:
+    """The node under test over the whole run; started on first use (SetupError: exit 2)."""
+    state = _state(pytestconfig)
+    assert state is not None
+    # the node's startup is bounded by the run deadline, not by the first case's limit
+    saved, state.case_deadline = state.case_deadline, None
+    state.arm()
+    try:
+        session = state.start_session()
+    finally:
+        if saved is not None:
+            state.case_deadline = time.monotonic() + state.current_limit()
+        state.arm()
+    yield session
+    state.close_session()
+
+
+@pytest.fixture
+def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, None, None]:
+    """The per-case context: ``session.begin_case(case id, rules)``, then ``end_case``."""
+    item = request.node
+    state = _state(request.config)
+    assert state is not None
+    if item.nodeid not in state.meta:
+        state.meta[item.nodeid] = _meta(item)
+    rec = state.record(item)
+    ctx = mcp_session.begin_case(rec.id, rec.rules)
+    state.ctx[item.nodeid] = ctx
+    try:
+        yield ctx
+    finally:
+        outcome = rec.outcome
+        mcp_session.end_case(ctx, outcome)
+
+
+# ---------------------------------------------------------------------- the end
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if _xdist_controller(session.config):
+        _merge_worker_reports(session)
+        return
+    state = _state(session.config)
+    if state is None or not state.active:
+        return
+    INTERRUPTS.stop_raising()  # from here on a signal only hurries: the reports get written
+    if state._wait_status is not None:
+        state._wait_status.close()
+    state.restore_alarm()
+    state.close_session()
+    run = state.run
+    run.finished = time.monotonic()
+    if state.deadline_hit:
+        for item in state.items:
+            if item.nodeid not in state.done:
+                rec = state.record(item)
+                rec.outcome, rec.reason = "error", "run deadline exceeded"
+                state.finish(item, rec)
+    if run.error is None and state.collect_errors:
+        run.error = state.collect_errors[0]
+    if run.error is None and INTERRUPTS.interrupted:
+        run.error = INTERRUPTS.reason()
+    if run.error is None and exitstatus == pytest.ExitCode.INTERRUPTED and not state.deadline_hit:
+        run.error = state.interrupted or "interrupted"
+    if run.error is None and exitstatus == pytest.ExitCode.INTERNAL_ERROR:
+        run.error = "internal error (see the traceback above)"
+    if state.list_mode and run.error is None:
+        code = 0
+    else:
+        code = run.exit_code()
+        if code == 0 and exitstatus == pytest.ExitCode.TESTS_FAILED:
+            code = 1  # other (unmarked) tests of the run failed
+    if state.worker:  # the controller writes the reports (see _merge_worker_reports)
+        wo = session.config.workeroutput  # type: ignore[attr-defined]
+        wo["mcp_report"] = build_json(run)
+        if state.cfg.capture or state.html_capture:
+            wo["mcp_capture_part"] = state.cfg.capture or state.html_capture
+            wo["mcp_capture_temporary"] = not state.cfg.capture
+        session.exitstatus = code
+        return
+    problems = []
+    writers: list[tuple[str | None, Callable[[str], Any]]] = [
+        (state.cfg.json_path, lambda p: write_json(p, run)),
+        (None if state.list_mode else state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
+        (None if state.list_mode or run.error else state.write_baseline_path,
+         lambda p: write_baseline(p, run.cases, run.target)),
+        (None if state.list_mode else state.html_path, lambda p: write_run_html(
+            p, build_json(run), state.cfg.capture or state.html_capture)),
+    ]
+    for path, write in writers:
+        if path:
+            try:
+                write(path)
+            except OSError as exc:
+                problems.append(str(exc))
+    if state.html_capture:
+        Path(state.html_capture).unlink(missing_ok=True)
+    if problems:
+        run.error = run.error or problems[0]
+        code = 2
+    if session.config.pluginmanager.get_plugin("terminalreporter") is None and not state.list_mode:
+        state.terminal.summary(run)
+    elif run.error is not None and (state.list_mode or state.frontend):
+        state.terminal.error(run.error, run.node)
+    for p in problems:
+        print(f"error: {p}", file=sys.stderr)
+    session.exitstatus = code
+    state.restore_term()
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    state = _state(config)
+    if state is not None and state.merged_run is not None:  # the xdist controller: once
+        state.terminal.summary(state.merged_run)
+        return
+    if state is None or not state.active or state.list_mode:
+        return
+    state.terminal.summary(state.run)
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """The xdist controller prints each case's line as its worker reports it."""
+    case = getattr(report, "mcp_case", None)
+    if case is None or report.when != "teardown":
+        return
+    config = getattr(report, "config", None) or _CONTROLLER.get("config")
+    state = _state(config) if config is not None else None
+    if state is not None and state.worker is None:
+        state.terminal.case(case_from_json(case))
+
+
+_CONTROLLER: dict[str, pytest.Config] = {}
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if _xdist_controller(session.config):
+        _CONTROLLER["config"] = session.config

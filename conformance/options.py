@@ -1,0 +1,179 @@
+"""The runner's options: parsed and checked into a ``RunConfig`` (``make_config``), from the
+command line, the ini file or the environment (``option_values``); shared by the pytest
+plugin and ``mcp-conform``. Every error is a ``ConfigError`` whose message names the option.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from conformance.config import DEFAULT_SEED, RunConfig, parse_hostport
+from conformance.plugin import _FLAGS, _KEYS, _TRUE, env_name
+
+__all__ = ["ConfigError", "apply_embedded_defaults", "make_config", "matches_select", "option_values"]
+
+
+class ConfigError(ValueError):
+    """A bad option value; the message names the option."""
+
+
+# ---------------------------------------------------------------------- configuration
+def _float(value: Any, name: str, minimum: float = 0.0) -> float:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}: {value!r} is not a number of seconds") from None
+    if not f > minimum or f != f or f == float("inf"):
+        raise ConfigError(f"{name}: {value!r} must be a positive number of seconds")
+    return f
+
+
+def _int(value: Any, name: str, lo: int, hi: int) -> int:
+    try:
+        i = int(str(value), 0)
+    except ValueError:
+        raise ConfigError(f"{name}: {value!r} is not an integer") from None
+    if not lo <= i <= hi:
+        raise ConfigError(f"{name}: {i} is out of range {lo}-{hi}")
+    return i
+
+
+def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n: "--mcp-" + n.replace("_", "-")) -> RunConfig:
+    """A checked ``RunConfig`` from option values (keys: target, listen, target_id, role,
+    spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, seed, capture, json,
+    junit); ``opt(name)`` spells an option in error messages."""
+    cfg = RunConfig()
+    v = {k: x for k, x in values.items() if x is not None}
+    role = v.get("role", "drone")
+    if role not in ("drone", "manager"):
+        raise ConfigError(f"{opt('role')}: {role!r} is not one of drone, manager")
+    cfg.role = role
+    try:
+        if "target" in v:
+            cfg.target = parse_hostport(str(v["target"]), opt("target"))
+        if "listen" in v:
+            cfg.listen = parse_hostport(str(v["listen"]), opt("listen"), default_host="")
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if "target_id" in v:
+        cfg.target_id = _int(v["target_id"], opt("target_id"), 0, 0xFFFF)
+    if "spawn" in v:
+        if not str(v["spawn"]).strip():
+            raise ConfigError(f"{opt('spawn')}: the command is empty")
+        cfg.spawn = str(v["spawn"])
+    mavlink = v.get("mavlink", False)
+    cfg.mavlink = bool(mavlink)
+    if isinstance(mavlink, str):
+        from vehicle import TRANSPORTS
+
+        if mavlink not in TRANSPORTS:
+            raise ConfigError(f"{opt('mavlink')}: {mavlink!r} is not one of {', '.join(TRANSPORTS)}")
+        cfg.mavlink_transport = mavlink
+    cfg.strict = bool(v.get("strict", False))
+    if "rto" in v:
+        cfg.rto = _float(v["rto"], opt("rto"))
+    if "ack_window" in v:
+        cfg.ack_window = _float(v["ack_window"], opt("ack_window"))
+    if "broadcast_id" in v:
+        cfg.broadcast_id = _int(v["broadcast_id"], opt("broadcast_id"), 0, 0xFFFF)
+    if "timeout" in v:
+        cfg.timeout = _float(v["timeout"], opt("timeout"))
+    if "case_timeout" in v:
+        cfg.case_timeout = _float(v["case_timeout"], opt("case_timeout"))
+    cfg.seed = _int(v["seed"], opt("seed"), 0, 2**63 - 1) if "seed" in v else DEFAULT_SEED
+    cfg.capture = v.get("capture")
+    cfg.json_path = v.get("json")
+    cfg.junit_path = v.get("junit")
+    cfg.embedded = cfg.target is None and cfg.spawn is None
+    _manager_options(cfg, v, opt)
+    cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
+    return cfg
+
+
+def _manager_options(cfg: RunConfig, v: Mapping[str, Any], opt: Callable[[str], str]) -> None:
+    """--drones, --challenge, --waypoints (the manager role's)."""
+    if "drones" in v:
+        try:
+            ids = tuple(int(x, 0) for x in str(v["drones"]).split(",") if x.strip())
+        except ValueError:
+            raise ConfigError(f"{opt('drones')}: {v['drones']!r} is not a comma-separated list of IDs") from None
+        bad = [i for i in ids if not 0 < i < cfg.broadcast_id or i > 0xFFFF]
+        if not ids or bad or len(set(ids)) != len(ids):
+            raise ConfigError(f"{opt('drones')}: {v['drones']!r}: drone IDs are distinct, 1..{cfg.broadcast_id - 1}")
+        cfg.drones = ids
+    if "challenge" in v:
+        cfg.challenge = _int(v["challenge"], opt("challenge"), 1, 3)
+    if "waypoints" in v:
+        path = Path(str(v["waypoints"]))
+        if not path.is_file():
+            raise ConfigError(f"{opt('waypoints')}: {str(path)!r} is not a file")
+        cfg.waypoints = str(path)
+
+
+def apply_embedded_defaults(cfg: RunConfig) -> None:
+    """The embedded default runs the reference node with short timeouts: assume them too
+    (unless --rto / --ack-window were given)."""
+    if not cfg.embedded:
+        return
+    from conformance import session as session_module
+
+    explicit = cfg.extra.get("explicit", ())
+    if "rto" not in explicit:
+        cfg.rto = float(getattr(session_module, "EMBEDDED_RTO", cfg.rto))
+    if "ack_window" not in explicit:
+        cfg.ack_window = float(getattr(session_module, "EMBEDDED_ACK_WINDOW", cfg.ack_window))
+
+
+def matches_select(prefixes: list[str], cid: str, rule_ids: tuple[str, ...]) -> bool:
+    """A case is selected when a prefix starts its case ID or one of its rule IDs
+    (case-insensitive; ``MCP-ACK-1`` does not select ``MCP-ACK-10``)."""
+    if not prefixes:
+        return True
+    names = [cid.upper(), *(r.upper() for r in rule_ids)]
+    for p in (x.strip().upper() for x in prefixes):
+        for name in names:
+            if name == p or (name.startswith(p) and p and not (p[-1].isdigit() and name[len(p)].isdigit())):
+                return True
+    return False
+
+
+def _mavlink_value(text: str) -> Any:
+    """``--mcp-mavlink`` from the ini file or the environment: a transport (tcp, udp,
+    udpin, udpout), a yes (tcp) or a no (off)."""
+    word = text.strip().lower()
+    if word in _TRUE:
+        return "tcp"
+    return False if word in ("", "0", "false", "no", "off") else word
+
+
+def option_values(config: pytest.Config) -> dict[str, Any]:
+    """Each option from, in order of precedence, the command line, the ini file
+    (``mcp_target = ...`` under ``[pytest]``/``[tool.pytest.ini_options]``) and the
+    environment (``MCP_CONFORM_TARGET``), as pytest plugins conventionally offer them."""
+    out: dict[str, Any] = {}
+    for key in _KEYS:
+        value = config.getoption("mcp_" + key)
+        if key == "role" and value == "drone":
+            value = None  # the default: let the ini file or the environment speak
+        if value in (None, False):
+            ini = config.getini("mcp_" + key)
+            value = ini if ini not in ("", None, False, []) else None
+        if value in (None, False):
+            env = os.environ.get(env_name(key))
+            if env is not None and env != "":
+                value = env.strip().lower() in ("1", "true", "yes", "on") if key in _FLAGS else env
+        if key in _FLAGS and isinstance(value, str):
+            value = value.strip().lower() in _TRUE
+        elif key == "mavlink" and isinstance(value, str):
+            value = _mavlink_value(value)
+        out[key] = value
+    if out["role"] is None:
+        out["role"] = "drone"
+    return out
+
+
