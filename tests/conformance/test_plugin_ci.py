@@ -116,3 +116,35 @@ def test_mcp_node_version():
 
     proc = subprocess.run([sys.executable, "-m", "reference_impl", "--version"], capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stdout.startswith("mcp-node ") and "MCP spec" in proc.stdout
+
+
+INERT_CONFTEST = """
+import sys
+
+def pytest_sessionfinish(session):
+    pm = session.config.pluginmanager
+    with open("inert.txt", "w") as f:
+        f.write(f"{pm.has_plugin('conformance._plugin_run')} {'spec' in sys.modules} "
+                f"{'conformance._plugin_run' in sys.modules}")
+"""
+
+
+def test_the_plugin_loads_nothing_when_no_option_asks_for_it(tmp_path):
+    """Installed for every pytest run, the entry point registers the runner, and imports the
+    spec, only when an --mcp-* option, ini key or MCP_CONFORM_* variable asks for it."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "conftest.py").write_text(INERT_CONFTEST)
+    (tmp_path / "test_plain.py").write_text("def test_ok():\n    assert True\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MCP_CONFORM_")}
+
+    def run(*args: str) -> str:
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args],
+                              cwd=tmp_path, capture_output=True, text=True, env=env, timeout=120)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        return (tmp_path / "inert.txt").read_text()
+
+    assert run() == "False False False"
+    assert run("--mcp-rto", "0.5") == "True True True"
