@@ -84,6 +84,16 @@ class Tee:
         if self._printer is not None:
             self._printer(direction, data, addr, t_ns)
 
+    @property
+    def local(self) -> Any:
+        """The recorder's ``local`` address (set by the session to its socket's)."""
+        return getattr(self._recorder, "local", None)
+
+    @local.setter
+    def local(self, addr: Any) -> None:
+        if self._recorder is not None:
+            self._recorder.local = addr
+
     def __getattr__(self, name: str) -> Any:
         if self._recorder is not None:
             return getattr(self._recorder, name)

@@ -161,7 +161,9 @@ class ManagerSession:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
         if self.recorder is not None:
+            self.recorder.local = self.driver.listen  # the runner's socket: each datagram's other end
             self.driver.add_observer(self.recorder.datagram)
+            self.driver.add_burst_observer(self.recorder.burst)
         # the trace monitor judges the manager's traffic (the drones are the runner's); judged
         # as a lossy trace: the cases restart the manager and replay missions
         self.monitor = RunMonitor(rto=cfg.rto, ack_window=cfg.ack_window, broadcast_id=cfg.broadcast_id,

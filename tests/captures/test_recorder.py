@@ -262,3 +262,19 @@ def test_payload_summary():
     assert summarize_payload(ITEM)["command"] == 16
     many = summarize_payload(tuple(ITEM._replace(seq=i) for i in range(40)))
     assert many["count"] == 40 and len(many["items"]) < 40
+
+
+def test_the_runner_tee_forwards_the_local_address_and_bursts(tmp_path):
+    """``mcp-conform -v`` wraps the recorder (conformance.live.Tee): the session's socket
+    address and the flood's burst still reach the file."""
+    from conformance.live import Tee
+
+    path = tmp_path / "tee.mcap"
+    rec = McapRecorder(path)
+    tee = Tee(rec, None)
+    tee.local = ("", 7889)
+    tee.datagram("tx", b"x" * 17, PEER, 1)
+    tee.burst("tx", [b"y" * 17], 3, PEER, 2, 3)
+    rec.close()
+    msgs, _ = read_all(path)
+    assert msgs["/mcp/tx"][0][1]["local"] == "0.0.0.0:7889" and msgs["/mcp/burst"][0][1]["count"] == 3
