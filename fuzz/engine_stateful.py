@@ -127,7 +127,7 @@ class _Context:
         self.restarts_seen = target.restarts
         # the first flaws steps raised, with what the program had sent (hypothesis keeps only
         # the failures it can replay; triage confirms the others by itself)
-        self.raised: list[tuple[Flaw, list[bytes]]] = []
+        self.raised: list[tuple[Flaw, list[bytes], str | None]] = []
 
     def new_monitor(self) -> None:
         t = self.target
@@ -397,7 +397,7 @@ class StatefulEngine:
             while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
                    and not stop()):
                 t0 = time.monotonic()
-                report: list[str] = []
+                report: list[object] = []
                 machine = hypothesis_seed(self.cfg.seed * 1000 + self.cfg.worker * 100 + chunk)(
                     type("ManagerMachine", (ManagerMachine,), {}))
                 failure: FlawFound | None = None

@@ -117,7 +117,7 @@ class Triage:
         end = flaw.culprit + 1 if flaw.culprit is not None and flaw.source not in _DEATH else len(inputs)
         candidate = [i.data for i in inputs[:end]]
         still = self._still(flaw, pace, scenario)
-        minimal = [] if scenario is not None and still([]) else None
+        minimal: list[bytes] | None = [] if scenario is not None and still([]) else None
         if minimal is None:
             minimal = next(([d] for d in self._suspects(flaw, inputs) if still([d])), None)
         if minimal is None:
