@@ -14,6 +14,7 @@ would: it ACKs every well-formed unicast non-ACK message addressed to the runner
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import socket
 import struct
@@ -203,6 +204,11 @@ class TargetDriver:
         if self._sock is not None:
             self._sock.close()
             self._sock = None
+
+    def remove_observer(self, observer: Observer) -> None:
+        """Stop calling ``observer`` (no error when it was not there)."""
+        with contextlib.suppress(ValueError):
+            self._observers.remove(observer)
 
     def add_observer(self, observer: Observer) -> None:
         """Called for every datagram sent ("tx") and received ("rx"), from any thread."""
