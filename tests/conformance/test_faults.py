@@ -45,6 +45,7 @@ def _after_kill(run: WatchedRun, doc: dict, t_kill: float, t_kill_ns: int) -> No
     errors = [(ts, ln) for ts, ln in run.case_lines_after(t_kill) if ln.startswith("ERROR")]
     assert errors, run.text()
     ts, line = errors[0]
+    print(f"loss reported {ts - t_kill:.2f} s after the death (budget {BUDGET:g} s): {line}")
     assert ts - t_kill <= BUDGET, f"loss reported {ts - t_kill:.2f} s after the death: {line}\n{run.text()}"
     first = next(c for c in later if c["outcome"] == "error")
     assert ("node lost during this case" in (first["reason"] or "")
@@ -105,7 +106,8 @@ def test_spawn_node_killed_mid_run_is_restarted(tmp_path):
     assert "node lost during this case" in errors[0]["reason"], errors
     assert "SIGKILL" in errors[0]["reason"], errors
     assert not [c for c in doc["cases"] if c["outcome"] == "failed"], run.text()
-    ts, _ = next((ts, ln) for ts, ln in run.case_lines_after(t_kill) if ln.startswith("ERROR"))
+    ts, line = next((ts, ln) for ts, ln in run.case_lines_after(t_kill) if ln.startswith("ERROR"))
+    print(f"loss reported {ts - t_kill:.2f} s after the death (budget {BUDGET:g} s): {line}")
     assert ts - t_kill <= BUDGET, run.text()
     assert [c for c in doc["cases"] if (c["capture"]["start_ns"] or 0) > t_kill_ns and c["outcome"] == "passed"]
 
