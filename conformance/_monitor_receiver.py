@@ -59,8 +59,8 @@ class ReceiverRules:
         if node is not None:
             node.acks_since += 1
         if self.complete:  # MCP-ACK-6: what an ACK to this node would answer
-            self._ack_seq[(src, own_seq)] = (dst, i, t)
-        match = self._ex.get((dst, src, named))
+            self._ack_seq[src << 16 | own_seq] = (dst, i, t)
+        match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             acks = match.acks
             if acks:  # an ACK of a later copy
@@ -79,11 +79,11 @@ class ReceiverRules:
                 self._emit("MCP-ACK-3", src, t, "an ACK's dst is the src of the acknowledged message",
                            f"ACK of seq {named} sent to the broadcast ID", [(i, t)])
             return
-        other = self._by_seq.get((dst, named))
+        other = self._by_seq.get(dst << 16 | named)
         if other is not None and t - _entry_t(other) > horizon:
             other = None
         if other is None and self.complete:
-            a = self._ack_seq.get((dst, named))
+            a = self._ack_seq.get(dst << 16 | named)
             if a is not None and t - a[2] <= horizon:
                 other = ("ack", a[0], a[1], a[2], 0)
         self._maybe_wrong_ack(dst, src, named, i, t)
@@ -93,14 +93,14 @@ class ReceiverRules:
             self._ack_of_what_is_not_acked(src, other, named, i, t)
             return
         swapped = ((named & 0xFF) << 8) | (named >> 8)
-        ex = self._ex.get((dst, src, swapped)) if swapped != named else None
+        ex = self._ex.get(dst << 32 | src << 16 | swapped) if swapped != named else None
         if ex is not None and t - ex.last_t <= horizon:
             self._emit("MCP-ACK-2", src, t, f"ACK payload {ex.seq} as 2 bytes big-endian (D-2)",
                        f"ACK names {named}: {ex.seq} byte-swapped", [ex.copies[-1], (i, t)])
             return
         if not self.complete:
             return  # the ACK may answer a message the capture missed
-        ex = self._to_seq.get((src, named))
+        ex = self._to_seq.get(src << 16 | named)
         if ex is not None:
             if ex.src != dst and not ex.acks and t - ex.last_t <= horizon:
                 self._emit("MCP-ACK-3", src, t, f"the ACK goes to ID {ex.src}, the message's src",
@@ -132,29 +132,32 @@ class ReceiverRules:
         ex.acks.append((i, t))
         if not first:
             return
-        acker = self._node(node)
-        if ex.action == END:
+        acker = self._nodes.get(node) or self._node(node)
+        action = ex.action
+        if action == END:
             acker.end_acked = t
             self._end_acked(ex, acker, t)
-        elif ex.action == PASSTHROUGH:
+        elif action == PASSTHROUGH:
             self._passthrough_acked(ex, acker, t)
-        before = ex.copies_before(t)
-        if self.complete and not ex.tester and len(before) >= 3:
+        copies = ex.copies
+        before = copies if copies[-1][1] <= t else ex.copies_before(t)
+        complete = self.complete
+        if complete and len(before) >= 3 and not ex.tester:
             self._judge_spacing(ex, before, t)
         if ex.addr is not None:
-            addrs = self._acked_addrs.setdefault((ex.src, node), set())
-            if ex.addr not in addrs:
+            key = (ex.src, node)
+            addrs = self._acked_addrs.get(key)
+            if addrs is None:
+                self._acked_addrs[key] = {ex.addr}
+            elif ex.addr not in addrs:
                 addrs.add(ex.addr)
-                if len(addrs) > 1:
-                    acker.seen.add("MCP-TRN-2")  # ACKed from two source addresses
+                acker.seen.add("MCP-TRN-2")  # ACKed from two source addresses
         if tester:
             return
-        seen = acker.seen
-        seen.add("MCP-ACK-1")
-        seen.add("MCP-ACK-2")
-        seen.add("MCP-ACK-3")
+        if "MCP-ACK-1" not in acker.seen:
+            acker.seen.update(("MCP-ACK-1", "MCP-ACK-2", "MCP-ACK-3"))
         self._acks_to.add(ex.src)
-        if self.complete and len(before) == 1:
+        if complete and len(before) == 1:
             lat = t - before[0][1]
             samples = self._latency.get(node)
             if samples is None:

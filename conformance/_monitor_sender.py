@@ -58,12 +58,12 @@ class SenderRules:
     def _remember(self, src: int, seq: int, entry: Any) -> None:
         """What ``src`` last sent with ``seq`` (an exchange, or a tuple for a malformed
         datagram): the receiver side looks here to learn what an ACK answers."""
-        self._by_seq[(src, seq)] = entry
+        self._by_seq[src << 16 | seq] = entry
 
     def _message(self, i: int, t: int, src: int, dst: int, seq: int, action: int, data: bytes,
                  payload: Any, tester: bool, addr: Any = None) -> None:
         """A well-formed non-ACK message: a copy of a known one, or a new message."""
-        key = (src, dst, seq)
+        key = src << 32 | dst << 16 | seq  # ints: cheap to hash, not tracked by the GC
         ex = self._ex.get(key)
         if ex is not None and t - ex.last_t <= self.horizon_ns:
             self._copy(ex, i, t, data, tester)
@@ -72,13 +72,13 @@ class SenderRules:
         ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
         ex.addr = addr
         self._ex[key] = ex
-        self._by_seq[(src, seq)] = ex
+        self._by_seq[src << 16 | seq] = ex
         if bcast:
             self._bcast_srcs.add(src)
         else:
             self._unicast_dsts.add(dst)
             if self.complete:  # MCP-ACK-3: the latest message to dst with seq
-                self._to_seq[(dst, seq)] = ex
+                self._to_seq[dst << 16 | seq] = ex
         if action == PASSTHROUGH:
             self._track_passthrough(ex)
         if not tester:

@@ -138,10 +138,10 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._tester_ids: set[int] = set()
         self._addr_ids: dict[Any, set[int]] = {}
         self._orphans: list[tuple[int, int, Any, str, str]] = []  # malformed, sender unknown yet
-        self._ex: dict[tuple[int, int, int], Any] = {}
-        self._by_seq: dict[tuple[int, int], Any] = {}  # (src, seq) -> what src last sent with it
-        self._ack_seq: dict[tuple[int, int], Any] = {}  # (src, own seq) -> (dst, i, t) of its ACK
-        self._to_seq: dict[tuple[int, int], Any] = {}  # (dst, seq) -> the latest message to dst
+        self._ex: dict[int, Any] = {}  # src << 32 | dst << 16 | seq -> the message
+        self._by_seq: dict[int, Any] = {}  # src << 16 | seq -> what src last sent with it
+        self._ack_seq: dict[int, Any] = {}  # src << 16 | own seq -> (dst, i, t) of its ACK
+        self._to_seq: dict[int, Any] = {}  # dst << 16 | seq -> the latest message to dst
         self._timers = _Timers()
         self._violated: set[tuple[int, str]] = set()
         self._frame_ok: dict[bytes, str | None] = {}
