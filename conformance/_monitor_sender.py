@@ -51,6 +51,16 @@ def _items(ex: _Exchange) -> tuple[Any, ...]:
     return ex.payload if ex.action != WP_ON else (ex.payload,)
 
 
+
+#: The bytes of a packed mission item that hold target_system and target_component
+#: ('<fffffffHHBBBBB': 7 floats, seq, command, then the two targets): not in a WPL file.
+_TARGETS = slice(32, 34)
+
+
+def _file_fields(item: bytes) -> bytes:
+    """A packed item without its target_system / target_component bytes."""
+    return item[:_TARGETS.start] + item[_TARGETS.stop:]
+
 class SenderRules:
     """Mixin of :class:`conformance.monitor.Monitor`: sender-side judgement."""
 
@@ -403,16 +413,19 @@ class SenderRules:
                            [d.start.first, (i, t)])
 
     def _carries_waypoints(self, ex: _Exchange) -> bool:
+        """Does the command carry the mission's items: every field a QGC WPL 110 line holds,
+        in the file's order (a WP_On: one of them)? target_system and target_component are
+        not in the file, so a manager fills them as it likes: they are not compared."""
         if self.waypoints is None:
             return True
-        if self._packed_waypoints is None:  # as on the wire (float32), sorted
-            self._packed_waypoints = sorted(pack_item(*w) for w in self.waypoints)
+        if self._packed_waypoints is None:  # as on the wire (float32), in the file's order
+            self._packed_waypoints = [_file_fields(pack_item(*w)) for w in self.waypoints]
             self._waypoint_set = frozenset(self._packed_waypoints)
         payload = ex.data[HDR:]
         if ex.action == WP_ON:
-            return payload in self._waypoint_set
+            return _file_fields(payload) in self._waypoint_set
         size = len(payload[2:]) // max(1, len(ex.payload)) if ex.payload else 0
-        got = sorted(payload[2 + k * size:2 + (k + 1) * size] for k in range(len(ex.payload)))
+        got = [_file_fields(payload[2 + k * size:2 + (k + 1) * size]) for k in range(len(ex.payload))]
         return got == self._packed_waypoints
 
     def _track_mission(self, ex: _Exchange) -> None:

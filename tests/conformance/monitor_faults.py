@@ -153,7 +153,10 @@ def seq1() -> Script:
 def seq2() -> Script:
     s = _started()
     seq = s.next_seq(0)
-    first = encode(Message(1, 0, seq, Action.WP_LIST, tuple(reversed(s.items))))
+    # the first copy differs only in fields a waypoint file does not hold (target_system):
+    # the same mission (no FLOW-4), other bytes (MCP-SEQ-2)
+    first = encode(Message(1, 0, seq, Action.WP_LIST,
+                           tuple(i._replace(target_system=(i.target_system + 7) % 256) for i in s.items)))
     s.raw(0, first, to=1)
     s.tick(s.rto)  # unACKed: a retransmission with other bytes
     s.exchange(0, 1, Action.WP_LIST, tuple(s.items), seq=seq)

@@ -197,3 +197,25 @@ def test_every_prefix_and_trailing_garbage():
             m = Monitor()
             got = {v.rule for v in m.datagram(1, None, None, data) + m.finish(10)}
             assert got == want, (cut, data.hex(), got)
+
+
+def test_waypoints_are_compared_on_the_fields_a_waypoint_file_holds_in_order():
+    """MCP-FLOW-4 with --waypoints: target_system/component are not in a QGC WPL file, so a
+    manager that fills them its own way carries the mission; the items' order does count."""
+    from spec.codec import Action, Message, encode
+
+    from .monitor_faults import _finish, _started
+
+    def judged(items):
+        s = _started()
+        seq = s.next_seq(0)
+        s.exchange(0, 1, Action.WP_LIST, tuple(items), seq=seq)
+        s.tick(0.01)
+        s.exchange(0, 2, Action.WP_LIST, tuple(s.items))
+        return {v.rule for v in _finish(s, steps=False).judge()}
+
+    s = _started()
+    retargeted = [i._replace(target_system=42, target_component=190) for i in s.items]
+    assert "MCP-FLOW-4" not in judged(retargeted)
+    assert "MCP-FLOW-4" in judged(list(reversed(s.items)))
+    assert encode(Message(1, 0, 1, Action.WP_LIST, tuple(retargeted)))  # (well-formed items)
