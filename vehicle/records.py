@@ -165,4 +165,6 @@ def describe_request(event: Event) -> str:
     answer = str(d.get("result", "?"))
     if d.get("reason"):
         answer += f": {d['reason']}"
-    return f"{what} request ({d.get('via')} {d.get('name')}) -> {answer}"
+    via, name = d.get("via"), d.get("name")
+    how = f"{via}" if name in (None, via) else f"{via} {name}"
+    return f"{what} request ({how}) -> {answer}"

@@ -352,6 +352,8 @@ def test_a_refused_rtl_is_still_an_rtl_request(how: str) -> None:
     assert event.detail["result"] == "denied" and event.detail["reason"]
     assert event.detail["custom_mode"] == 6
     assert "-> denied: " in describe_request(event)
+    carrier = "(SET_MODE)" if how.startswith("set_mode") else "(COMMAND_LONG MAV_CMD_"
+    assert carrier in describe_request(event)
 
 
 def test_mode_takeoff_and_other_commands_are_requests() -> None:
