@@ -149,6 +149,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
 
                 seng = StatefulEngine(target, triage, cfg)
                 st = seng.run(deadline, budget, on_tick, stop)
+                res.monitor = res.monitor or seng.monitor_available
             done_cases += st.cases
             done_seconds += st.seconds
             res.engines[name] = {"cases": st.cases, "fuzz_seconds": round(st.seconds, 3),

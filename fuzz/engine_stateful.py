@@ -376,6 +376,7 @@ class StatefulEngine:
         self.programs: list[str] = []
         self.first_failure_example: int | None = None
         self.flaky: list[str] = []
+        self.monitor_available = False
 
     def _settings(self, chunk: int) -> settings:
         phases = [Phase.reuse, Phase.generate, Phase.shrink] if chunk == 0 else [Phase.generate, Phase.shrink]
@@ -437,6 +438,7 @@ class StatefulEngine:
                     break
         finally:
             self.raised = ctx.raised
+            self.monitor_available = ctx.monitor.available
             CTX = None
             with contextlib.suppress(Exception):
                 self.target.traffic.drain()
