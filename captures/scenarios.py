@@ -52,7 +52,8 @@ def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeo
         deadline = time.monotonic() + timeout
         for d in DRONES:  # a drone takes longer to start (its vehicle, the GPS fix) than the manager
             drones.append(subprocess.Popen(
-                node + ["drone", "--id", str(d), broadcast, str(drone_port), str(manager_port), "--rto", str(rto), "-q"],
+                node + ["drone", "--id", str(d), broadcast, str(drone_port), str(manager_port), "--rto", str(rto),
+                        "--reuse-port", "-q"],
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         try:
             _, err = manager.communicate(timeout=max(1.0, deadline - time.monotonic()))

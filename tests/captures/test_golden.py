@@ -62,6 +62,8 @@ def test_drone_suite_rerecorded_matches_its_golden(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     result = diff_captures(GOLDEN / "drone-suite.mcap", out, DiffOptions())
+    # a change to the suite's cases changes what the runner sends: re-record the golden then
+    # (captures/golden/README.md), and say so in the commit
     assert result.same, _report(result)
 
 
