@@ -217,9 +217,7 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     complete only with ``--complete``."""
     cap = open_capture(path)  # unreadable files fail here, before any judging
     harness = None
-    if cap.format == "mcap":
-        params.complete = True
-    mon = monitor if monitor is not None else _make_monitor(params)
+    mon = monitor
     tester = _tester()
     violations: list[Any] = []
     kept: list[Datagram] | None = [] if keep else None
@@ -231,7 +229,6 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     drone: int | None = None
     first = last = None
     n = unattributed = 0
-    feed = mon.datagram
     pre = PREAMBLE
     for rec in cap:
         if isinstance(rec, Datagram):
@@ -239,6 +236,13 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
             if first is None:
                 first = t
                 harness = rec.recorder in HARNESSES
+                if mon is None:
+                    # a harness is a party to every exchange with the one node it tests, so its
+                    # capture holds them all (complete); a node's own capture (mcp-node
+                    # --capture) misses what the other nodes exchange: judged as lossy
+                    params.complete = params.complete or (cap.format == "mcap" and harness)
+                    mon = _make_monitor(params)
+                feed = mon.datagram
             last = t
             n += 1
             recent.append(rec)
@@ -274,6 +278,8 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
             last = max(last or rec.t_ns, rec.t_ns)
         elif isinstance(rec, Metadata):
             meta.append(rec)
+    if mon is None:  # no datagram at all
+        mon = _make_monitor(params)
     if last is not None:
         found = mon.finish(last)
         _collect(found, recent, evidence)

@@ -611,7 +611,9 @@ class RoleNode:
         from captures.recorder import BackgroundRecorder, RecorderError, run_metadata
 
         try:
-            self.capture = BackgroundRecorder(path, metadata=run_metadata(
+            # the MCAP header names the writer: readers tell a node's own capture from a
+            # test harness's (captures.judging: a harness's datagrams are its input, not judged)
+            self.capture = BackgroundRecorder(path, library="mcp-node", metadata=run_metadata(
                 "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), **meta))
         except RecorderError as exc:
             raise RoleError(str(exc)) from None

@@ -100,7 +100,7 @@ def test_check_on_tcpdump_and_dumpcap_captures_of_a_real_mission(tmp_path: Path)
     try:
         for i in DRONES:
             procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
-                                      "--rto", RTO, log=tmp_path / f"drone{i}.log")
+                                      "--rto", RTO, "--reuse-port", log=tmp_path / f"drone{i}.log")
         procs["manager"] = node("manager", "--challenge", "2", "--drones", ",".join(map(str, DRONES)),
                                 "--waypoints", str(DATA / "challenge.waypoints"), BROADCAST, str(manager_port),
                                 str(drone_port), "--rto", RTO, log=tmp_path / "manager.log")

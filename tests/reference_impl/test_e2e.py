@@ -71,11 +71,30 @@ def test_manager_and_three_drones(challenge: int, tmp_path: Path) -> None:
     drone_port, manager_port = free_port(), free_port()
     while manager_port == drone_port:
         manager_port = free_port()
-    run_mission(challenge, tmp_path, drone_port, manager_port)
+    run_mission(challenge, tmp_path, drone_port, manager_port, capture=True)
+    judge_own_captures(challenge, tmp_path)
+
+
+def judge_own_captures(challenge: int, tmp_path: Path) -> None:
+    """Each node's own capture (``mcp-node --capture``, our recorder) judged by the trace
+    monitor as ``mcp-capture check`` does: no violation in any of them, and the manager's,
+    which holds every exchange of the mission, shows the challenge's flow rule passed."""
+    from captures.judging import Params, judge
+
+    items = tuple(load_waypoints(OBSTACLES if challenge == 3 else WAYPOINTS))
+    for name in ("manager", *(f"drone{i}" for i in DRONES)):
+        params = Params(rto=float(RTO), ack_window=0.5, drones=DRONES, challenge=challenge, waypoints=items)
+        j = judge(tmp_path / f"{name}.mcap", params)
+        assert j.truncated is None and j.datagrams > 10, (name, j.truncated, j.datagrams)
+        assert [(v.rule, v.node, v.actual) for v in j.violations] == [], name
+        if name == "manager":
+            flow = "MCP-FLOW-" + {1: "4", 2: "5", 3: "6"}[challenge]
+            assert j.verdicts[0][flow] == "passed"
+            assert all(j.verdicts[d]["MCP-ACK-1"] == "passed" for d in DRONES)
 
 
 def run_mission(challenge: int, tmp_path: Path, drone_port: int, manager_port: int,
-                records: bool = True) -> None:
+                records: bool = True, capture: bool = False) -> None:
     """The manager and three drones through one mission; every process exits 0 and (with
     ``records``) every drone's application gets each command exactly once, arms and RTLs."""
     procs: dict[str, subprocess.Popen[bytes]] = {}
@@ -83,11 +102,14 @@ def run_mission(challenge: int, tmp_path: Path, drone_port: int, manager_port: i
         for i in DRONES:
             procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
                                       "--reuse-port", "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
+                                      *(("--capture", str(tmp_path / f"drone{i}.mcap")) if capture else ()),
                                       log=tmp_path / f"drone{i}.log")
         procs["manager"] = node("manager", "--challenge", str(challenge), "--drones", ",".join(map(str, DRONES)),
                                 "--waypoints", str(WAYPOINTS), "--obstacles", str(OBSTACLES),
                                 BROADCAST, str(manager_port), str(drone_port), "--rto", RTO,
-                                "--record", str(tmp_path / "manager.json"), log=tmp_path / "manager.log")
+                                "--record", str(tmp_path / "manager.json"),
+                                *(("--capture", str(tmp_path / "manager.mcap")) if capture else ()),
+                                log=tmp_path / "manager.log")
         codes = wait_all(procs, DEADLINE)
         logs = {name: (tmp_path / f"{name}.log").read_text(errors="replace")[-1500:] for name in procs}
         assert codes == {name: 0 for name in procs}, logs
