@@ -143,7 +143,15 @@ def gave_up(m: Mission, msg: Message, rto: float) -> bool:
     MCP-RTX-1's business) — not merely because the mission record ends."""
     acked = runner_ack_time(m, msg)
     gaps = [b.t - a.t for a, b in zip(msg.copies, msg.copies[1:], strict=False)]
-    slack = 1.5 * (statistics.median(gaps) if gaps else rto) + 0.05
+    gap = statistics.median(gaps) if gaps else rto
+    slack = 1.5 * gap + 0.05
+    # moved on: a new unicast to a drone when the next copy was due (its retry limit), before
+    # any ACK of it, and no copy after that (one still awaiting would be retransmitted later:
+    # MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went out.
+    for y in messages(m):
+        if (y is not msg and y.dst in m.drones and y.first.t >= msg.last.t + 0.8 * gap - 0.015
+                and (acked is None or y.first.t < acked)):
+            return True
     if acked is None:
         return m.t_end - msg.last.t > slack
     return acked > msg.last.t + slack
