@@ -11,12 +11,14 @@ import conformance.cases
 from spec import SPEC
 
 
-def _cases() -> dict[str, tuple[str, ...]]:
+def _cases(package: object = conformance.cases) -> dict[str, tuple[str, ...]]:
+    """Case name -> the rule IDs it names, for every case of ``package``."""
     out = {}
-    for info in pkgutil.iter_modules(conformance.cases.__path__):
+    pkg_name = package.__name__  # type: ignore[attr-defined]
+    for info in pkgutil.iter_modules(package.__path__):  # type: ignore[attr-defined]
         if not info.name.startswith("test_"):
             continue
-        mod = importlib.import_module(f"conformance.cases.{info.name}")
+        mod = importlib.import_module(f"{pkg_name}.{info.name}")
         for name, fn in vars(mod).items():
             if name.startswith("test_") and callable(fn):
                 marks = [m for m in getattr(fn, "pytestmark", []) if m.name == "mcp_rules"]

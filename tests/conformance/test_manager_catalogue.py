@@ -5,25 +5,14 @@ on a manager, counts: it reports the spec's reason.)"""
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
 import conformance.cases_manager
 from spec import SPEC
 
+from .test_case_catalogue import _cases as _collect
+
 
 def _cases() -> dict[str, tuple[str, ...]]:
-    out = {}
-    for info in pkgutil.iter_modules(conformance.cases_manager.__path__):
-        if not info.name.startswith("test_"):
-            continue
-        mod = importlib.import_module(f"conformance.cases_manager.{info.name}")
-        for name, fn in vars(mod).items():
-            if name.startswith("test_") and callable(fn):
-                marks = [m for m in getattr(fn, "pytestmark", []) if m.name == "mcp_rules"]
-                assert marks, f"{info.name}.{name} names no rule"
-                out[f"{info.name}.{name}"] = tuple(r for m in marks for r in m.args)
-    return out
+    return _collect(conformance.cases_manager)
 
 
 def test_every_named_rule_exists_and_applies_to_a_manager():
