@@ -32,6 +32,7 @@ import math
 import os
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -238,8 +239,54 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
     return Manager(mcfg)
 
 
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
+class _Interrupt:
+    """SIGTERM / SIGINT as a flag the main thread polls (MCP-node exit status 0 on either).
+
+    The handler only stores the signal: raising KeyboardInterrupt from it, as a handler
+    conventionally does, lands between two bytecodes of whatever the main thread is in,
+    and inside ``threading.Condition.wait`` (a blocked ``Future.result``) that leaves the
+    condition's lock released under a ``with`` that then fails with "cannot release
+    un-acquired lock" - a traceback and exit status 1 on about one SIGTERM in a few
+    hundred. So the role runs in its own thread and the main thread only waits for it,
+    in short joins that see the flag.
+    """
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.signum = signum
+
+
+_POLL_S = 0.05  # how soon the main thread sees a signal; a node must be gone within 200 ms
+
+
+def _run_role(role: Drone | Manager, interrupt: _Interrupt) -> int | None:
+    """``role.run()`` in a worker thread; its exit code, or None when a signal stopped it.
+
+    An exception the role raises (RoleError, a bug) is raised again here, in the caller.
+    """
+    outcome: list[Any] = []
+
+    def work() -> None:
+        try:
+            outcome.append(("code", role.run()))
+        except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+            outcome.append(("error", exc))
+
+    worker = threading.Thread(target=work, name=f"{PROG}-role", daemon=True)
+    worker.start()
+    while worker.is_alive() and interrupt.signum is None:
+        worker.join(_POLL_S)
+    if interrupt.signum is not None and not outcome:
+        role.stop()
+        worker.join(5.0)
+        return None
+    worker.join()
+    kind, value = outcome[0]
+    if kind == "error":
+        raise value
+    return int(value)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -247,21 +294,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     saved_handlers, saved_level = _setup_logging(args)
     role: Drone | Manager | None = None
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    interrupt = _Interrupt()
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         role = _make_role(args)
-        code = role.run()
+        code = _run_role(role, interrupt) if interrupt.signum is None else None
+        if code is None:
+            role.stop()
+            role.close()
+            logging.getLogger(PROG).info("interrupted")
+            code = 0
     except RoleError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        if role is not None:
-            role.stop()
-            role.close()
-        logging.getLogger(PROG).info("interrupted")
-        code = 0
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         root = logging.getLogger()  # as it was: main() may run in-process (tests, embedding)
         root.handlers[:] = saved_handlers
         root.setLevel(saved_level)

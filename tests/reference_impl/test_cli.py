@@ -270,3 +270,48 @@ def test_the_waypoint_files_the_readme_names_are_shipped() -> None:
         path = ROOT / name
         assert path.is_file(), f"README names {name}, not shipped"
         assert load_waypoints(path), name
+
+
+def test_a_signal_stops_a_role_blocked_in_a_future_without_touching_its_locks() -> None:
+    """CI run of stop 15: SIGTERM raised KeyboardInterrupt inside ``Future.result()`` of a
+    drone waiting for Mission_Ready's ACK and the node died with "cannot release
+    un-acquired lock" (exit 1). The handler now only flags; the role thread is stopped by
+    the main thread. Here a role blocks in ``Future.result()`` while signals keep arriving:
+    every run ends through ``stop()`` with no exception, and the role's lock is intact."""
+    import concurrent.futures
+    import threading
+
+    from reference_impl.cli import _Interrupt, _run_role
+
+    class BlockedRole:
+        def __init__(self) -> None:
+            self.fut: concurrent.futures.Future[int] = concurrent.futures.Future()
+            self.stopped = 0
+
+        def run(self) -> int:
+            return self.fut.result()
+
+        def stop(self) -> None:
+            self.stopped += 1
+            self.fut.set_exception(RuntimeError("stopped"))  # what Mcp.close does to a blocked send
+
+    for _ in range(20):
+        role, interrupt = BlockedRole(), _Interrupt()
+        previous = signal.signal(signal.SIGUSR1, interrupt)
+        try:
+            killer = threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGUSR1))
+            killer.start()
+            assert _run_role(role, interrupt) is None  # type: ignore[arg-type]
+            killer.join()
+        finally:
+            signal.signal(signal.SIGUSR1, previous)
+        assert interrupt.signum == signal.SIGUSR1 and role.stopped == 1
+        assert role.fut._condition.acquire(blocking=False)  # not left held by anyone
+        role.fut._condition.release()
+    done = BlockedRole()
+    done.fut.set_result(3)
+    assert _run_role(done, _Interrupt()) == 3  # type: ignore[arg-type]
+    failing = BlockedRole()
+    failing.fut.set_exception(ValueError("a bug in the role"))
+    with pytest.raises(ValueError, match="a bug in the role"):
+        _run_role(failing, _Interrupt())  # type: ignore[arg-type]
