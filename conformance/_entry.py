@@ -30,13 +30,11 @@ def main(argv: Sequence[str] | None = None, *, exit_process: bool = True) -> int
 
 def _run(argv: list[str]) -> int:
     INTERRUPTS.install()
-    before = set(sys.modules)
     try:
-        from conformance import cli
+        with INTERRUPTS.held():  # a signal during the imports stops the run once they are done
+            from conformance import cli
     except KeyboardInterrupt:  # interrupted while importing: report that, nothing else
         INTERRUPTS.stop_raising()
-        for name in set(sys.modules) - before:  # half-imported modules: import them afresh
-            del sys.modules[name]
         from conformance import cli
 
         return cli.interrupted(argv)

@@ -2,7 +2,7 @@
 
 The first signal stops the run: it raises ``KeyboardInterrupt`` in the main thread (pytest
 then finishes the session: the case in progress, the reports, the node). Every later
-signal only *hurries* the shutdown (``hurry`` is set: processes are killed without their
+signal only *hurries* the shutdown (``hurry`` becomes true: processes are killed without their
 grace period) and never raises, so nothing can interrupt the writers. Once the run
 finishes (``stop_raising()``) even the first signal only hurries; inside ``held()`` (a
 capture record being written) the first signal waits for the block to end.
@@ -29,7 +29,10 @@ _SIGNALS = tuple(s for s in (getattr(signal, "SIGINT", None), getattr(signal, "S
 class Interrupts:
     def __init__(self) -> None:
         self.signals: list[str] = []  # names of the signals received, in order
-        self.hurry = threading.Event()
+        #: set by a second signal: stop processes without their grace period. A plain flag,
+        #: not a threading.Event: a signal handler must take no lock (a signal landing while
+        #: the handler held Event.set's lock re-entered it and deadlocked the run)
+        self.hurry = False
         self._raising = True
         self._held = False
         self._pending = False
@@ -48,7 +51,7 @@ class Interrupts:
         if self._old or threading.current_thread() is not threading.main_thread():
             return False
         self.signals, self._raising, self._pending = [], True, False  # a new run (several may run in one process)
-        self.hurry.clear()
+        self.hurry = False
         for sig in _SIGNALS:
             with contextlib.suppress(ValueError, OSError):
                 self._old[sig] = signal.signal(sig, self._handle)
@@ -67,11 +70,11 @@ class Interrupts:
             name = str(signum)
         self.signals.append(name)
         if len(self.signals) == 1 and self._raising:
-            if self._held:
-                self._pending = True  # raised when the held block ends
+            if self._held or _in_import_machinery(frame):
+                self._pending = True  # raised when the held block ends, else seen as `interrupted`
                 return
             raise KeyboardInterrupt(name)
-        self.hurry.set()
+        self.hurry = True
 
     @contextlib.contextmanager
     def held(self) -> Iterator[None]:
@@ -94,6 +97,14 @@ class Interrupts:
     def stop_raising(self) -> None:
         """From now on no signal raises (the run is finishing)."""
         self._raising = False
+
+
+def _in_import_machinery(frame: Any) -> bool:
+    """True when the signal landed in importlib's own code: an exception raised there may
+    be in one of its weakref callbacks, where Python prints "Exception ignored in ..." with
+    a traceback and swallows it. The run still stops: the runner checks ``interrupted``
+    before every case."""
+    return frame is not None and frame.f_code.co_filename.startswith("<frozen importlib")
 
 
 INTERRUPTS = Interrupts()

@@ -151,7 +151,7 @@ class SpawnedNode:
         return ev
 
     def stop(self) -> None:
-        self._p.stop(grace=0.0 if INTERRUPTS.hurry.is_set() else 2.0)
+        self._p.stop(grace=0.0 if INTERRUPTS.hurry else 2.0)
 
     def close(self) -> None:
         self.stop()

@@ -167,12 +167,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.udp_in is not None:
         where.append(f"udp-in {vehicle.udp_in_url.removeprefix('udpout:')}")
     print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
-    done = threading.Event()
+    stop: list[int] = []  # a flag the handler appends to: a signal handler takes no lock
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: done.set())
+        signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
     try:
-        while not done.wait(0.2):
-            pass
+        while not stop:
+            time.sleep(0.1)
     except KeyboardInterrupt:
         pass
     finally:
