@@ -201,7 +201,7 @@ class _Node:
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
-                 "actions", "last_command", "seen", "delivered_from")
+                 "actions", "last_command", "seen", "delivered_from", "seq_gap")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -211,6 +211,8 @@ class _Node:
         self.real = False  # sent at least one datagram that was not the harness's
         self.last_new: _Exchange | None = None  # its latest new non-ACK message (MCP-SEQ-1)
         self.acks_since = 0  # ACKs (D-5) and malformed datagrams it sent since then
+        #: MCP-SEQ-1 gap awaiting numbers taken by ACKs read late: [lo, hi, still needed, report]
+        self.seq_gap: list[Any] | None = None
         self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
         self.first_seq: int | None = None  # MCP-SEQ-4
         self.actions: set[int] = set()  # action codes of its new messages so far

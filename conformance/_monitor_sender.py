@@ -40,6 +40,11 @@ from conformance._monitor_base import (
     pack_item,
 )
 
+#: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
+#: node's datagrams to different peers reach a recorder's sockets in an order of the host's
+#: choosing, so the ACK that took the number before a message may be read just after it
+SEQ_GAP_GRACE_NS = NS
+
 # bits of _Exchange.flags: a rule already reported on that exchange
 F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))
 _LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
@@ -204,10 +209,33 @@ class SenderRules:
         node.seen.add("MCP-SEQ-1")
         adv = (ex.seq - prev.seq) & 0xFFFF
         if adv == 0 or (self.complete and adv > 1 + acks):
-            self._emit("MCP-SEQ-1", node.id, t,
-                       f"seq {(prev.seq + 1) & 0xFFFF}..{(prev.seq + 1 + acks) & 0xFFFF} "
-                       f"(previous message {prev.seq}, {acks} ACK(s) since)",
-                       f"{ex.describe()}", [prev.first, (i, t)])
+            report = ("MCP-SEQ-1", node.id, t,
+                      f"seq {(prev.seq + 1) & 0xFFFF}..{(prev.seq + 1 + acks) & 0xFFFF} "
+                      f"(previous message {prev.seq}, {acks} ACK(s) since)",
+                      f"{ex.describe()}", [prev.first, (i, t)])
+            if adv == 0:
+                self._emit(*report)
+                return
+            # numbers skipped: ACKs read within the grace that carry them explain the gap
+            gap = [prev.seq, ex.seq, adv - 1 - acks, report]
+            node.seq_gap = gap
+            self._timers.at(t + SEQ_GAP_GRACE_NS, self._seq_gap_deadline, node, gap)
+
+    def _seq_number_taken(self, node: _Node, seq: int) -> None:
+        """``node`` sent an ACK (or a malformed datagram) numbered ``seq``: it explains one
+        number of a pending MCP-SEQ-1 gap it falls in, else it counts for the next gap."""
+        gap = node.seq_gap
+        if gap is not None and 0 < (seq - gap[0]) & 0xFFFF < (gap[1] - gap[0]) & 0xFFFF:
+            gap[2] -= 1
+            if gap[2] <= 0:
+                node.seq_gap = None
+            return
+        node.acks_since += 1
+
+    def _seq_gap_deadline(self, now: int, node: _Node, gap: list[Any]) -> None:
+        if node.seq_gap is gap:
+            node.seq_gap = None
+            self._emit(*gap[3])
 
     def _check_stop_and_wait(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
         """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
@@ -324,7 +352,7 @@ class SenderRules:
         self._rob_dsts[rule].add(dst)
         if tester:
             return
-        self._nodes[src].acks_since += 1  # it took a number (MCP-SEQ-1 allows for it)
+        self._seq_number_taken(self._nodes[src], seq)  # it took a number (MCP-SEQ-1 allows for it)
         if rule == "MCP-ROB-3":
             self._observe(src, "MCP-HDR-3")
             self._emit("MCP-HDR-3", src, t, "action codes 0-8 only (9 'Any' is API-only)",

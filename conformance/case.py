@@ -12,10 +12,11 @@ from __future__ import annotations
 import socket
 import statistics
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from conformance._case_base import CaseBase
 from conformance.driver import Datagram, Exchange, Sent, read_header
 from conformance.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven
 from conformance.liveness import NOT_LIVE
@@ -68,20 +69,15 @@ def _hex(data: bytes, limit: int = 48) -> str:
     return h + (f" ... ({len(data)} bytes)" if len(data) > limit else f" ({len(data)} bytes)")
 
 
-class CaseContext:
+class CaseContext(CaseBase):
     """What a case sees of the node under test."""
+
+    session: Session
 
     def __init__(self, session: Session, case_id: str, rules: tuple[str, ...]) -> None:
         assert session.driver is not None
-        self.session = session
+        super().__init__(session, case_id, rules)
         self.driver = session.driver
-        self.case_id = case_id
-        self.rules = rules
-        self.start_ns = time.time_ns()
-        self.end_ns: int | None = None
-        self.notes: list[str] = []
-        self.node_silent = False
-        self.restart_if_failed = False
         self.mark = self.driver.mark()
         self._probe_n = 0
 
@@ -93,18 +89,6 @@ class CaseContext:
     @property
     def target_id(self) -> int:
         return self.session.target_id if self.session.target_id is not None else 1
-
-    @property
-    def broadcast_id(self) -> int:
-        return self.session.cfg.broadcast_id
-
-    @property
-    def rto(self) -> float:
-        return self.session.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.session.ack_window
 
     @property
     def vehicle(self) -> Any:
@@ -126,10 +110,6 @@ class CaseContext:
         """This case leaves the node in a state later cases must not inherit (spawn mode
         restarts it; attach mode cannot)."""
         self.restart_if_failed = True
-
-    def info(self, text: str) -> None:
-        """Record an observation (INFO rules; shown in every report)."""
-        self.notes.append(text)
 
     # ------------------------------------------------------------------ skips
     def require_observable(self, rule: str) -> None:
@@ -311,7 +291,7 @@ class CaseContext:
         return out
 
     # ------------------------------------------------------------------ verify helpers
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = (), *,
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = (), *,  # type: ignore[override]
              relies_on: tuple[str, ...] | None = None) -> CaseFailure:
         """The failure of ``rule``; ``relies_on``: see ``CaseFailure`` (default: the spec's)."""
         ev = list(evidence)
@@ -335,7 +315,7 @@ class CaseContext:
 
     def _stray_replies(self, ex: Exchange, limit: int = 3) -> list[str]:
         """ACK-like datagrams that arrived while ``ex`` waited but were not tied to it."""
-        out = []
+        out: list[str] = []
         for d in self.driver.received(self.driver.mark_before(ex.first)):
             if d.is_ack_like and len(out) < limit:
                 a = self.driver.attribution(d)
@@ -464,21 +444,6 @@ class CaseContext:
                                 f"the vehicle received its frame {got} more time(s)")
         if any(want == NOT_AGAIN for _, want in deliveries):
             self.prove_live()  # "not delivered again" is silence: proven only by a live node
-
-    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
-        """The generic verify for judgements over recorded observations."""
-        if not ok:
-            raise self.fail(rule, expected, actual, evidence)
-
-    def expect_all(self, datagrams: Sequence[Datagram], check: Callable[[Datagram], str | None],
-                   rule: str, expected: str) -> None:
-        """Every datagram passes ``check`` (which returns a problem or None)."""
-        if not datagrams:
-            raise Inconclusive(f"{rule}: the node sent nothing to judge")
-        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
-        if bad:
-            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
-                            [d.describe() for d, _ in bad[:3]])
 
     def expect_monitor_clean(self, rule: str) -> None:
         """The trace monitor, which watches every datagram of the run, found no violation of

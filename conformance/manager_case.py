@@ -22,11 +22,11 @@ from __future__ import annotations
 import math
 import statistics
 import struct
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from conformance._case_base import CaseBase
 from conformance.driver import Datagram, read_header
 from conformance.errors import CaseFailure, Inconclusive
 from conformance.manager_mission import Input, Mission
@@ -185,18 +185,14 @@ def unpack_items(region: bytes) -> list[Any]:
     return [MissionItem._make(t) for t in ITEM.iter_unpack(region)]
 
 
-class ManagerCaseContext:
+class ManagerCaseContext(CaseBase):
     """What a manager-role case sees (see the module docstring)."""
 
+    subject = "the manager"
+    session: ManagerSession
+
     def __init__(self, session: ManagerSession, case_id: str, rules: tuple[str, ...]) -> None:
-        self.session = session
-        self.case_id = case_id
-        self.rules = rules
-        self.start_ns = time.time_ns()
-        self.end_ns: int | None = None
-        self.notes: list[str] = []
-        self.node_silent = False
-        self.restart_if_failed = False
+        super().__init__(session, case_id, rules)
 
     # ------------------------------------------------------------------ facts
     @property
@@ -204,26 +200,11 @@ class ManagerCaseContext:
         return "manager"
 
     @property
-    def rto(self) -> float:
-        return self.session.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.session.ack_window
-
-    @property
-    def broadcast_id(self) -> int:
-        return self.session.cfg.broadcast_id
-
-    @property
     def challenge(self) -> int:
         return self.session.cfg.challenge
 
     def mission(self, kind: str = "main") -> Mission:
         return self.session.mission(kind)
-
-    def info(self, text: str) -> None:
-        self.notes.append(text)
 
     def require_observable(self, rule: str) -> None:
         obs = SPEC.rule(rule).observe.get("manager")
@@ -245,19 +226,6 @@ class ManagerCaseContext:
             ev.append(f"manager exited with code {m.exit_code}; output (last lines):\n    "
                       + "\n    ".join(m.output.splitlines()[-8:]))
         return CaseFailure(rule, expected, actual, ev)
-
-    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
-        if not ok:
-            raise self.fail(rule, expected, actual, evidence)
-
-    def expect_all(self, datagrams: Sequence[Datagram], check: Any, rule: str, expected: str) -> None:
-        """Every datagram passes ``check`` (which returns a problem or None)."""
-        if not datagrams:
-            raise Inconclusive(f"{rule}: the manager sent nothing to judge")
-        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
-        if bad:
-            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
-                            [d.describe() for d, _ in bad[:3]])
 
     def expect_monitor_clean(self, rule: str) -> None:
         """The trace monitor found no violation of ``rule`` by the manager in the main mission

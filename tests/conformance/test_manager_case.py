@@ -67,3 +67,37 @@ def test_the_monitor_judges_the_managers_traffic():
                                            ack_window=0.25, broadcast_id=0xFFFF)
     assert "MCP-HDR-1" in {v.rule for v in violations}, violations
     assert len(trace) == 3
+
+
+def _judge_seq_1(m: Mission) -> str | None:
+    """Run the manager-role MCP-SEQ-1 case on ``m``; its failure's actual, or None."""
+    from conformance._case_base import CaseBase
+    from conformance.cases_manager.test_seq import test_each_new_message_takes_the_next_seq
+    from conformance.errors import CaseFailure
+
+    class Node(CaseBase):
+        def mission(self, kind: str = "main") -> Mission:
+            return m
+
+    try:
+        test_each_new_message_takes_the_next_seq(Node(None, "SEQ-1", ("MCP-SEQ-1",)))
+    except CaseFailure as exc:
+        assert exc.rule == "MCP-SEQ-1"
+        return exc.actual
+    return None
+
+
+def test_seq_1_counts_the_numbers_acks_took_not_their_arrival_order():
+    """CI (slow suite, 3 workers): a manager that ACKs ACKs sent ACK seq 8235 to one drone,
+    then seq 8236 to another; the runner read the message first and SEQ-1 failed ("0 ACKs in
+    between"). The gap is explained by the number the ACK carried, wherever it arrived."""
+    ack_of_ack = encode(Message(2, 0, 8235, Action.ACK, 77))
+    m = mission([cmd(1, 8234, Action.START_MISSION), cmd(3, 8236, Action.START_MISSION), ack_of_ack], [0.0, 0.10, 0.101])
+    assert _judge_seq_1(m) is None
+    # a number skipped that no ACK carried is a fault, ACKs or not
+    m = mission([cmd(1, 8234, Action.START_MISSION), encode(Message(2, 0, 9000, Action.ACK, 77)),
+                 cmd(3, 8236, Action.START_MISSION)], [0.0, 0.05, 0.10])
+    assert _judge_seq_1(m) == "seq 8236"
+    # a repeated or backwards number is a fault
+    m = mission([cmd(1, 8234, Action.START_MISSION), cmd(3, 8233, Action.START_MISSION)], [0.0, 0.10])
+    assert _judge_seq_1(m) == "seq 8233"

@@ -219,3 +219,26 @@ def test_waypoints_are_compared_on_the_fields_a_waypoint_file_holds_in_order():
     assert "MCP-FLOW-4" not in judged(retargeted)
     assert "MCP-FLOW-4" in judged(list(reversed(s.items)))
     assert encode(Message(1, 0, 1, Action.WP_LIST, tuple(retargeted)))  # (well-formed items)
+
+
+def test_an_ack_read_after_the_message_it_took_a_number_before_explains_the_gap():
+    """CI (slow suite): a manager ACKed drone 1's ACK with seq N (MCP-ACK-6's fault) and then
+    sent drone 2 a message with seq N+1; the recorder read the message first. The gap is
+    explained by the number the ACK carried, read within SEQ_GAP_GRACE_NS; a number no ACK
+    carries within the grace is still MCP-SEQ-1 (the seq1-skips fault)."""
+    from tests.conformance.monitor_faults import _finish, _started
+
+    def script(ack_after: float | None, ack_seq_offset: int = 0) -> Script:
+        s = _started()
+        own = s.next_seq(0)  # the ACK's number, taken before the next message
+        s.exchange(0, 1, Action.WP_LIST, tuple(s.items))  # sent with own + 1
+        if ack_after is not None:
+            s.tick(ack_after)
+            s.raw(0, encode(Message(2, 0, (own + ack_seq_offset) & 0xFFFF, Action.ACK, 77)), to=2)
+        return _finish(s)
+
+    rules = lambda s: [v.rule for v in s.judge()]  # noqa: E731
+    assert "MCP-SEQ-1" not in rules(script(0.05))
+    assert "MCP-SEQ-1" in rules(script(None))  # no ACK at all: a skipped number
+    assert "MCP-SEQ-1" in rules(script(1.5))  # read too late to count
+    assert "MCP-SEQ-1" in rules(script(0.05, ack_seq_offset=7))  # its number is not the one skipped

@@ -1,0 +1,71 @@
+"""What the drone-role and the manager-role case contexts share: the case's identity and
+outcome fields, the session's timings, INFO notes and the generic verify helpers.
+
+Each role's context (``conformance.case.CaseContext``,
+``conformance.manager_case.ManagerCaseContext``) adds its own sends and judgements and its
+own ``fail`` (which evidence a failure carries: the node's exit, the manager's output).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from conformance.driver import Datagram
+from conformance.errors import CaseFailure, Inconclusive
+
+__all__ = ["CaseBase"]
+
+
+class CaseBase:
+    """The fields the plugin reads after a case, and the helpers every role's cases use."""
+
+    #: who is judged, in messages: "the node", "the manager"
+    subject = "the node"
+
+    def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
+        self.session = session
+        self.case_id = case_id
+        self.rules = rules
+        self.start_ns = time.time_ns()
+        self.end_ns: int | None = None
+        self.notes: list[str] = []
+        self.node_silent = False
+        self.restart_if_failed = False
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def rto(self) -> float:
+        return float(self.session.rto)
+
+    @property
+    def ack_window(self) -> float:
+        return float(self.session.ack_window)
+
+    @property
+    def broadcast_id(self) -> int:
+        return int(self.session.cfg.broadcast_id)
+
+    def info(self, text: str) -> None:
+        """Record an observation (INFO rules; shown in every report)."""
+        self.notes.append(text)
+
+    # ------------------------------------------------------------------ verify helpers
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        return CaseFailure(rule, expected, actual, list(evidence))
+
+    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
+        """The generic verify for judgements over recorded observations."""
+        if not ok:
+            raise self.fail(rule, expected, actual, evidence)
+
+    def expect_all(self, datagrams: Sequence[Datagram], check: Callable[[Datagram], str | None],
+                   rule: str, expected: str) -> None:
+        """Every datagram passes ``check`` (which returns a problem or None)."""
+        if not datagrams:
+            raise Inconclusive(f"{rule}: {self.subject} sent nothing to judge")
+        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
+        if bad:
+            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
+                            [d.describe() for d, _ in bad[:3]])
