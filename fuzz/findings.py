@@ -169,9 +169,11 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
     import time
 
-    from captures.recorder import McapRecorder
+    from captures.recorder import McapRecorder, run_metadata
 
-    with McapRecorder(path, library="mcp-fuzz") as rec:
+    meta = run_metadata("mcp-fuzz", role="drone", rule=f.rule, engine=f.engine, seed=f.seed,
+                        target=f.target or None, scenario=f.scenario)
+    with McapRecorder(path, library="mcp-fuzz", metadata=meta) as rec:
         t0 = time.time_ns()
         rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
         if traffic:

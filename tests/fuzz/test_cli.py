@@ -38,7 +38,7 @@ def test_bad_arguments_are_one_line_errors(argv: list[str], words: str,
 
 
 def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noqa: ANN001
-    from captures.reader import Datagram, open_capture
+    from captures.reader import Datagram, Metadata, open_capture
 
     store = FindingStore(tmp_path, ["--mavlink"])
     f = Finding("MCP-ACK-4", "no ACK", "an ACK", ["4e4353552d434d0101ffff000000010005"], "replies: valid",
@@ -50,6 +50,9 @@ def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noq
     assert body["rule"] == "MCP-ACK-4" and body["level"] == "MUST" and body["seed"] == 5
     recs = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Datagram)]
     assert [r.data.hex() for r in recs] == f.datagrams
+    meta = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Metadata)]
+    assert len(meta) == 1 and meta[0].data["recorder"] == "mcp-fuzz", meta
+    assert meta[0].data["rule"] == "MCP-ACK-4" and meta[0].data["seed"] == "5", meta
     store.add(Finding("MCP-ACK-4", "no ACK", "an ACK", ["00"], "replies: valid", "stateless", 5))
     assert len(store) == 1 and store.by_rule() == {"MCP-ACK-4": 2}
 
