@@ -32,6 +32,11 @@ golden, the replay's own traffic as candidate) and all the traffic with the trac
 (``conformance.monitor``). Exit 0 same and no MUST violated; 1 different or violated; 2
 unreadable capture or setup error (one line). :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
+
+A fuzz finding's ``repro.mcap`` (metadata record from recorder ``mcp-fuzz``) is replayed as
+``mcp-fuzz --replay`` replays it: its minimal sequence, with the campaign's pace and scenario,
+judged by the fuzzer's oracles; exit 1 when the node still breaks the finding's rule, 0 when
+it no longer does.
 """
 
 from __future__ import annotations
@@ -474,16 +479,21 @@ def register(sub: Any) -> None:
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import check_writable
     from captures.diff import build_json
-    from captures.reader import CaptureError, Datagram, open_capture
+    from captures.reader import CaptureError, Datagram, Metadata, open_capture
 
     out = out or sys.stdout
     err = err or sys.stderr
     check_writable(args.json, "--json")
     try:
-        records = [r for r in open_capture(args.capture) if type(r) is Datagram]
+        everything = list(open_capture(args.capture))
     except CaptureError as exc:
         err.write(f"mcp-capture replay: {exc}\n")
         return 2
+    records = [r for r in everything if type(r) is Datagram]
+    fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == "mcp-fuzz"),
+                     None)
+    if fuzz_meta is not None and args.role == "drone":
+        return _reproduce_finding(args, fuzz_meta, out, err)
     try:
         result = replay(records, args.target, role=args.role, listen=args.listen, target_id=args.target_id,
                         node_id=args.node_id, spawn=args.spawn, mavlink=args.mavlink, rto=args.rto,
@@ -517,3 +527,28 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
             err.write(f"mcp-capture replay: cannot write {args.json}: {exc.strerror}\n")
             return 2
     return result.exit_code
+
+
+def _reproduce_finding(args: Any, meta: dict[str, str], out: TextIO, err: TextIO) -> int:
+    """A finding's repro.mcap (metadata recorder ``mcp-fuzz``): its minimal sequence is
+    replayed as ``mcp-fuzz --replay`` does (the same pace, scenario and oracles), since a
+    diff against the campaign's traffic (probes, restarts) would judge the wrong thing.
+    Exit 1 when the finding reproduces (the node still breaks the rule), 0 when not."""
+    from fuzz.config import FuzzConfig
+    from fuzz.findings import finding_from_metadata
+    from fuzz.replay_cli import reproduce
+
+    f = finding_from_metadata(meta)
+    if f is None:
+        err.write("mcp-capture replay: the capture is an mcp-fuzz finding without its sequence in the "
+                  "metadata record; replay it with mcp-fuzz --replay FINDING-DIR\n")
+        return 2
+    if args.target is None and not args.spawn:
+        err.write("mcp-capture replay: a fuzz finding needs --target HOST:PORT or --spawn CMD\n")
+        return 2
+    out.write(f"{args.capture}: an mcp-fuzz finding ({f.rule}, {f.engine} engine, seed {f.seed}); "
+              f"replaying its {len(f.datagrams)} datagram(s) as mcp-fuzz --replay does\n")
+    out.flush()
+    cfg = FuzzConfig(target=args.target, spawn=args.spawn, listen=args.listen, target_id=args.target_id,
+                     mavlink=args.mavlink, rto=args.rto, ack_window=args.ack_window)
+    return reproduce(f, cfg, prog="mcp-capture replay")

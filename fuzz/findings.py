@@ -164,6 +164,26 @@ class FindingStore:
             return len(self.order)
 
 
+#: the recorder named in a finding's repro.mcap metadata record
+FUZZ_RECORDER = "mcp-fuzz"
+
+
+def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
+    """The finding a repro.mcap's metadata record describes, or None when it is not one
+    (another recorder, or a capture written before the record held the sequence)."""
+    if meta.get("recorder") != FUZZ_RECORDER or "datagrams" not in meta or "rule" not in meta:
+        return None
+    try:
+        datagrams = json.loads(meta["datagrams"])
+        [bytes.fromhex(x) for x in datagrams]
+        target = json.loads(meta["target"]) if "target" in meta else {}
+        return Finding(meta["rule"], meta.get("expected", ""), meta.get("actual", ""), datagrams,
+                       meta.get("shape", ""), meta.get("engine", ""), int(meta.get("seed", "0")),
+                       pace=meta.get("pace", "batch"), scenario=meta.get("scenario"), target=target)
+    except (ValueError, TypeError):
+        return None
+
+
 def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
                 ) -> None:
     """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
@@ -171,8 +191,10 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
 
     from captures.recorder import McapRecorder, run_metadata
 
-    meta = run_metadata("mcp-fuzz", role="drone", rule=f.rule, engine=f.engine, seed=f.seed,
-                        target=f.target or None, scenario=f.scenario)
+    # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
+    meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,
+                        engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
+                        target=f.target or None, datagrams=f.datagrams, shape=f.shape)
     with McapRecorder(path, library="mcp-fuzz", metadata=meta) as rec:
         t0 = time.time_ns()
         rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))

@@ -11,11 +11,11 @@ import sys
 
 from conformance.errors import SetupError
 from fuzz.config import FuzzConfig
-from fuzz.findings import load_finding
+from fuzz.findings import Finding, load_finding
 from fuzz.replay import run_sequence
 from fuzz.target import start_target
 
-__all__ = ["replay_finding"]
+__all__ = ["replay_finding", "reproduce"]
 
 PROG = "mcp-fuzz"
 
@@ -31,11 +31,17 @@ def replay_finding(path: str, cfg: FuzzConfig) -> int:
         if f.target.get("mode") == "spawn" and f.target.get("spawn"):
             cfg.spawn = f.target["spawn"]
         cfg.mavlink = cfg.mavlink or bool(f.target.get("mavlink"))
+    return reproduce(f, cfg)
+
+
+def reproduce(f: Finding, cfg: FuzzConfig, prog: str = PROG) -> int:
+    """Replay ``f``'s sequence against ``cfg``'s target: 1 when it reproduces, 0 when not,
+    2 when the target cannot be reached (said in one line)."""
     datagrams = [bytes.fromhex(h) for h in f.datagrams]
     try:
         target = start_target(cfg)
     except SetupError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     try:
         outcome = run_sequence(target, datagrams, pace=f.pace, scenario=f.scenario)
@@ -43,8 +49,8 @@ def replay_finding(path: str, cfg: FuzzConfig) -> int:
         target.close()
     same = [x for x in outcome.flaws if x.rule == f.rule]
     if same:
-        print(f"{PROG}: reproduced {f.rule} ({f.level}) with {len(datagrams)} datagram(s): {same[0].actual}")
+        print(f"{prog}: reproduced {f.rule} ({f.level}) with {len(datagrams)} datagram(s): {same[0].actual}")
         return 1
     others = sorted(outcome.rules())
-    print(f"{PROG}: {f.rule} did not reproduce" + (f" (seen instead: {', '.join(others)})" if others else ""))
+    print(f"{prog}: {f.rule} did not reproduce" + (f" (seen instead: {', '.join(others)})" if others else ""))
     return 0

@@ -9,6 +9,7 @@ only for the search.
 from __future__ import annotations
 
 import shlex
+import subprocess
 import sys
 from pathlib import Path
 
@@ -68,3 +69,12 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
     capsys.readouterr()
     assert fuzz_main(command[1:]) == 1
     assert f"reproduced {rule}" in capsys.readouterr().out
+    # the finding's capture alone reproduces it too (issue 10: "this is also how a fuzz
+    # finding is reproduced"), against the faulty node and not against the correct one
+    repro = str(finding_dir / "repro.mcap")
+    common = ["--rto", "0.2", "--ack-window", "0.25", *(["--mavlink"] if mavlink else [])]
+    for spawn, want in ((cfg.spawn, 1), (spawn_command(fault, mavlink).replace(f" --fault {fault}", ""), 0)):
+        proc = subprocess.run([sys.executable, "-m", "captures", "replay", repro, "--spawn", spawn, *common],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == want, (spawn, proc.stdout, proc.stderr)
+        assert ("reproduced " if want else "did not reproduce") in proc.stdout, proc.stdout
