@@ -33,8 +33,8 @@ from conformance.errors import Inconclusive, SetupError, TargetLost
 from conformance.manager_mission import DronePlayers, Mission, MissionScript
 from conformance.run_monitor import RunMonitor
 from conformance.session import (
-    BROADCAST_ADDRESS,
     MANAGER_ID,
+    SessionBase,
     SpawnedNode,
     fill_placeholders,
     free_udp_port,
@@ -85,7 +85,7 @@ def make_mission_items(seed: int, count: int | None = None) -> tuple[Any, ...]:
     return tuple(items)
 
 
-class ManagerSession:
+class ManagerSession(SessionBase):
     """One run against one Mission Manager (see the module docstring)."""
 
     def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
@@ -114,23 +114,8 @@ class ManagerSession:
 
     # ------------------------------------------------------------------ facts
     @property
-    def spawned(self) -> bool:
-        return self.cfg.spawn is not None
-
-    @property
-    def rto(self) -> float:
-        return self.cfg.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.cfg.ack_window
-
-    @property
     def startup(self) -> Any:
         return None
-
-    def alive(self) -> bool:
-        return self.node.alive() if self.node is not None else True
 
     # ------------------------------------------------------------------ start / stop
     def start(self) -> None:
@@ -212,17 +197,9 @@ class ManagerSession:
             self._tmp.cleanup()
 
     def _placeholders(self) -> dict[str, str]:
-        assert self.driver is not None
-        lhost = self.driver.listen[0] or "127.0.0.1"
-        if lhost == "0.0.0.0":
-            lhost = "127.0.0.1"
-        return {
-            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
-            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
-            "broadcast": BROADCAST_ADDRESS, "id": str(MANAGER_ID), "mavlink": "",
-            "drones": ",".join(map(str, self.cfg.drones)), "challenge": str(self.cfg.challenge),
-            "waypoints": self.waypoints_path, "obstacles": self.obstacles_path,
-        }
+        return {**self._address_placeholders(MANAGER_ID, ""),
+                "drones": ",".join(map(str, self.cfg.drones)), "challenge": str(self.cfg.challenge),
+                "waypoints": self.waypoints_path, "obstacles": self.obstacles_path}
 
     def spawn(self) -> None:
         """A fresh manager process (spawn mode), the previous one stopped."""
@@ -304,11 +281,9 @@ class ManagerSession:
         if self.lost is not None:
             raise TargetLost(self.lost)
         ctx = ManagerCaseContext(self, case_id, rules)
-        if self.recorder is not None:
-            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
-        if self.recorder is not None:
-            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)

@@ -181,7 +181,50 @@ class Startup:
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
 
-class Session:
+class SessionBase:
+    """What the drone-role and the manager-role sessions share: the run's timings, the
+    spawned node, the runner's placeholders and the case marks in the capture."""
+
+    cfg: RunConfig
+    node: SpawnedNode | None
+    driver: TargetDriver | None
+    recorder: Any
+
+    @property
+    def spawned(self) -> bool:
+        return self.cfg.spawn is not None
+
+    @property
+    def rto(self) -> float:
+        return self.cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.cfg.ack_window
+
+    def alive(self) -> bool:
+        return self.node.alive() if self.node is not None else True
+
+    def _address_placeholders(self, node_id: int, mavlink: str) -> dict[str, str]:
+        """{target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}."""
+        assert self.driver is not None
+        lhost = self.driver.listen[0] or "127.0.0.1"
+        if lhost == "0.0.0.0":
+            lhost = "127.0.0.1"
+        return {
+            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
+            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
+            "broadcast": BROADCAST_ADDRESS, "id": str(node_id), "mavlink": mavlink,
+        }
+
+    def _case_mark(self, case_id: str, phase: str, t_ns: int, **kw: Any) -> None:
+        """The case's start or end in the capture, never cut off by a signal."""
+        if self.recorder is not None:
+            with INTERRUPTS.held():
+                self.recorder.case_mark(case_id, phase, t_ns, **kw)
+
+
+class Session(SessionBase):
     """One run against one node (see the module docstring)."""
 
     def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
@@ -211,23 +254,8 @@ class Session:
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
 
     # ------------------------------------------------------------------ properties
-    @property
-    def spawned(self) -> bool:
-        return self.cfg.spawn is not None
-
-    @property
-    def rto(self) -> float:
-        return self.cfg.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.cfg.ack_window
-
     def to_ns(self, t_monotonic: float) -> int:
         return self._t0_ns + int(t_monotonic * 1e9)
-
-    def alive(self) -> bool:
-        return self.node.alive() if self.node is not None else True
 
     # ------------------------------------------------------------------ start / stop
     def start(self, observe_startup: bool = True) -> None:
@@ -306,16 +334,8 @@ class Session:
             self.monitor.vehicle_event(self.to_ns(event.t), event)
 
     def _placeholders(self) -> dict[str, str]:
-        assert self.driver is not None
-        lhost = self.driver.listen[0] or "127.0.0.1"
-        if lhost == "0.0.0.0":
-            lhost = "127.0.0.1"
-        return {
-            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
-            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
-            "broadcast": BROADCAST_ADDRESS, "id": str(self.target_id),
-            "mavlink": self.mavlink_url if self.vehicle is not None else "",
-        }
+        return self._address_placeholders(self.target_id if self.target_id is not None else 1,
+                                          self.mavlink_url if self.vehicle is not None else "")
 
     def _spawn(self) -> None:
         assert self.cfg.spawn is not None
@@ -538,9 +558,7 @@ class Session:
 
         self.before_case()
         ctx = CaseContext(self, case_id, rules)
-        if self.recorder is not None:
-            with INTERRUPTS.held():
-                self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
@@ -548,6 +566,4 @@ class Session:
         if ctx.restart_if_failed and outcome in ("failed", "warned", "error") and self.spawned:
             self.needs_restart = True
         self.after_case(ctx.node_silent)
-        if self.recorder is not None:
-            with INTERRUPTS.held():
-                self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)

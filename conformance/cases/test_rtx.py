@@ -7,8 +7,6 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-import statistics
-
 from conformance.errors import Inconclusive
 from conformance.marks import rules
 from spec import SPEC
@@ -41,21 +39,7 @@ def test_only_the_right_ack_ends_retransmission(node):
 
 @rules("MCP-RTX-3", phase="startup")
 def test_copies_are_evenly_spaced(node):
-    st = node.require_startup("MCP-RTX-3")
-    gaps = st.gaps()
-    if len(gaps) < 2:
-        raise Inconclusive(f"MCP-RTX-3: {len(gaps) + 1} copies are too few to judge spacing")
-    med = statistics.median(gaps)
-    tol = float(SPEC.params["rtx_spacing_tolerance"])
-    floor = float(SPEC.params["rtx_min_gap_s"])
-    # ±20 % of the median, widened by the runner's own timestamp jitter (matters only for
-    # sub-second timeouts; at the description's 5 s it is 0.3 % of the allowance)
-    allowance = tol * med + float(SPEC.params["timing_jitter_s"])
-    bad = [g for g in gaps if abs(g - med) > allowance or g < floor]
-    node.expect_true(not bad, "MCP-RTX-3",
-                     f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
-                     f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
-                     [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"])
+    node.expect_even_spacing(node.require_startup("MCP-RTX-3").gaps())
 
 
 @rules("MCP-RTX-4")

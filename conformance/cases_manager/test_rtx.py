@@ -8,8 +8,6 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-import statistics
-
 from conformance.errors import Inconclusive
 from conformance.manager_case import messages
 from conformance.marks import rules
@@ -50,19 +48,7 @@ def test_only_the_right_ack_ends_retransmission(node):
 
 @rules("MCP-RTX-3")
 def test_copies_are_evenly_spaced(node):
-    w = _withheld(node, "MCP-RTX-3")
-    gaps = w.gaps()
-    if len(gaps) < 2:
-        raise Inconclusive(f"MCP-RTX-3: {len(gaps) + 1} copies are too few to judge spacing")
-    med = statistics.median(gaps)
-    tol = float(SPEC.params["rtx_spacing_tolerance"])
-    floor = float(SPEC.params["rtx_min_gap_s"])
-    allowance = tol * med + float(SPEC.params["timing_jitter_s"])
-    bad = [g for g in gaps if abs(g - med) > allowance or g < floor]
-    node.expect_true(not bad, "MCP-RTX-3",
-                     f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
-                     f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
-                     [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"])
+    node.expect_even_spacing(_withheld(node, "MCP-RTX-3").gaps())
 
 
 @rules("MCP-RTX-4")
