@@ -211,7 +211,7 @@ class ManagerMachine(RuleBasedStateMachine):
         ctx.ledger.sent(len(self.sent), Input.of(probe.sent.data), None)
         ctx.stats.cases += len(datagrams)
         flaws = judge_replies(inputs, drv.received(mark), t.node_id, t.broadcast_id, probe.acked,
-                              ignore_seqs=[(drv.our_id, probe.sent.seq)])
+                              ignore_seqs=[(drv.our_id, probe.sent.seq)], probe_copies=probe.copies)
         dead = judge_liveness(inputs, probe.acked, t.fate())
         if dead is not None:
             flaws.append(dead)

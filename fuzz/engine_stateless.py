@@ -113,7 +113,8 @@ class StatelessEngine:
         self.ledger.sent(len(inputs), Input.of(probe.sent.data), None)
         self.stats.cases += len(inputs)
         flaws = judge_replies(inputs, drv.received(mark), target.node_id, target.broadcast_id,
-                              probe.acked, ignore_seqs=[(drv.our_id, probe.sent.seq)])
+                              probe.acked, ignore_seqs=[(drv.our_id, probe.sent.seq)],
+                              probe_copies=probe.copies)
         dead = judge_liveness(inputs, probe.acked, target.fate())
         if dead is not None:
             flaws.append(dead)

@@ -136,10 +136,12 @@ def _acked_seq(d: Datagram) -> int | None:
 
 def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id: int,
                   broadcast_id: int, probe_acked: bool, ignore_seqs: Iterable[tuple[int, int]] = (),
-                  ) -> list[Flaw]:
+                  probe_copies: int = 0) -> list[Flaw]:
     """ACKs sent for ``inputs`` (the node's datagrams in ``replies``), judged per input.
 
-    ``ignore_seqs``: (dst, seq) pairs the fuzzer knows are answered legitimately (its probe).
+    ``ignore_seqs``: (dst, seq) pairs the fuzzer knows are answered legitimately (its probe);
+    ``probe_copies``: how many copies of that probe were sent after the inputs (their ACKs
+    may be among ``replies`` in any form).
     """
     ignore = set(ignore_seqs)
     by_key: dict[tuple[int, int], list[int]] = {}
@@ -149,6 +151,8 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
     acked: set[int] = set()
     flaws: list[Flaw] = []
     unmatched: list[tuple[Datagram, int]] = []
+    probe_answered = False
+    uses: dict[tuple[int, int], int] = {}
     for d in replies:
         seq = _acked_seq(d)
         if seq is None:
@@ -156,6 +160,7 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
         key = (d.header[0], seq)  # type: ignore[index]  # the ACK's dst is the input's src
         cands = by_key.get(key, [])
         if key in ignore:  # the probe's ACK; it may answer an input of the same seq as well
+            probe_answered = True
             acked.update(i for i in cands if expected_silent_rule(inputs[i], node_id, broadcast_id) is None)
             continue
         if not cands:
@@ -163,6 +168,13 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
             continue
         legit = [i for i in cands if expected_silent_rule(inputs[i], node_id, broadcast_id) is None]
         if legit:
+            if uses.get(key, 0) >= len(cands):
+                # more ACKs naming (src, seq) than datagrams sent with it: a node ACKs each
+                # datagram once, so this one answers something else (an ACK that names a
+                # constant, say) and is tied by order below
+                unmatched.append((d, seq))
+                continue
+            uses[key] = uses.get(key, 0) + 1
             acked.update(legit)
             if len(d.data) != HEADER_SIZE + 2:
                 flaws.append(Flaw("MCP-ACK-2", "an ACK payload of exactly 2 bytes",
@@ -179,51 +191,80 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                           f"ACK seq {seq} to {d.header[0]} for {inputs[i].describe()}",  # type: ignore[index]
                           culprit=i, evidence=(f"input: {inputs[i].data.hex()}",
                                                f"reply: {d.data.hex()}")))
-    flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id)
+    probe_acks = (0, 0) if probe_answered or not probe_copies else (1, probe_copies)
+    flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id, probe_acks)
     if probe_acked:
         for i, inp in enumerate(inputs):
             m = inp.msg
-            # a message bearing the node's own ID as src may be taken for its own broadcast
-            # looped back (MCP-HDR-4), one from the broadcast ID cannot be ACKed to a node
-            # (MCP-ACK-3): neither is judged
-            if (m is not None and m.action != _ACK and m.dst == node_id
-                    and m.src not in (node_id, broadcast_id) and i not in acked):
+            if m is not None and i not in acked and _must_ack(inp, node_id, broadcast_id):
                 flaws.append(Flaw("MCP-ACK-1", f"an ACK naming seq {m.seq}",
                                   f"no ACK of {inp.describe()}, though the probe sent after it was ACKed",
                                   culprit=i, evidence=(f"input: {inp.data.hex()}",)))
     return flaws
 
 
+def _must_ack(inp: Input, node_id: int, broadcast_id: int) -> bool:
+    """A message a correct node ACKs: a unicast to it, not an ACK, from a real other ID (one
+    bearing the node's own ID may be taken for its own looped-back broadcast, MCP-HDR-4; one
+    from the broadcast ID cannot be ACKed, MCP-ACK-3)."""
+    m = inp.msg
+    return (m is not None and m.action != _ACK and m.dst == node_id
+            and m.src not in (node_id, broadcast_id))
+
+
 def _misaddressed(inputs: Sequence[Input], unmatched: list[tuple[Datagram, int]], acked: set[int],
-                  node_id: int, broadcast_id: int) -> list[Flaw]:
-    """ACKs that answer no input as sent, but one input that still awaits its ACK once the
-    ACK's dst is ignored (MCP-ACK-3: dst is the acknowledged message's src) or its payload
-    bytes are swapped (MCP-ACK-2: big-endian, D-2). Only unambiguous answers are judged;
-    the input then counts as answered (one fault, one rule: not MCP-ACK-1 as well)."""
+                  node_id: int, broadcast_id: int, probe_acks: tuple[int, int] = (0, 0)) -> list[Flaw]:
+    """ACKs that answer no input as sent, tied to the inputs still awaiting their ACK.
+
+    1. When they are exactly as many as the waiting inputs (plus the ACKs of the probe's
+       copies, ``probe_acks`` = (fewest, most), when the probe's ACK was not found either):
+       a node answers the datagrams of one socket in the order they came, so they pair up
+       in order. An ACK naming its input's seq went to the wrong dst (MCP-ACK-3: dst is the
+       acknowledged message's src); one naming another seq has the wrong payload (MCP-ACK-2:
+       the seq, big-endian, D-2) - the node's own seq, the previous one, a byte-swapped one.
+    2. Otherwise only unambiguous answers are judged: an ACK naming the seq of exactly one
+       waiting input (MCP-ACK-3), or whose byte-swapped seq names exactly one waiting input
+       from its dst (MCP-ACK-2).
+    A judged input counts as answered (one fault, one rule: not MCP-ACK-1 as well)."""
     flaws: list[Flaw] = []
 
     def waiting(pred) -> list[int]:  # noqa: ANN001
         return [i for i, inp in enumerate(inputs)
-                if i not in acked and inp.msg is not None and inp.msg.action != _ACK
-                and inp.msg.dst == node_id and inp.msg.src not in (node_id, broadcast_id) and pred(inp.msg)]
+                if i not in acked and _must_ack(inp, node_id, broadcast_id) and pred(inp.msg)]
 
+    def judge(d: Datagram, seq: int, i: int, how: str = "") -> None:
+        m = inputs[i].msg
+        assert m is not None
+        if seq == m.seq:
+            flaws.append(Flaw("MCP-ACK-3", f"the ACK's dst is {m.src} (the message's src)",
+                              f"ACK of seq {seq} sent to {d.header[0]} for {inputs[i].describe()}",  # type: ignore[index]
+                              culprit=i, evidence=(f"reply: {d.data.hex()}",)))
+        else:
+            swapped = ((seq & 0xFF) << 8) | (seq >> 8)
+            how = ": the seq byte-swapped" if swapped == m.seq else how
+            flaws.append(Flaw("MCP-ACK-2", f"an ACK naming seq {m.seq} big-endian ({m.seq:04x})",
+                              f"the ACK names {seq} ({seq:04x}){how}, for {inputs[i].describe()}",
+                              culprit=i, evidence=(f"reply: {d.data.hex()}",)))
+        acked.add(i)
+
+    left = waiting(lambda m: True)
+    fewest, most = probe_acks
+    if left and len(left) + fewest <= len(unmatched) <= len(left) + most:
+        for (d, seq), i in zip(unmatched, left, strict=False):
+            want = inputs[i].msg.seq  # type: ignore[union-attr]
+            off = (seq - want) & 0xFFFF
+            judge(d, seq, i, f", {off if off < 0x8000 else off - 0x10000:+d} from the message's seq "
+                             "(the reply paired with it by order of arrival)")
+        return flaws
     for d, seq in unmatched:
         dst = d.header[0]  # type: ignore[index]
         swapped = ((seq & 0xFF) << 8) | (seq >> 8)
         by_seq = waiting(lambda m, s=seq: m.seq == s)
         by_swap = waiting(lambda m, s=swapped, t=dst: m.seq == s and m.src == t) if swapped != seq else []
         if len(by_seq) == 1 and not by_swap:
-            i = by_seq[0]
-            flaws.append(Flaw("MCP-ACK-3", f"the ACK's dst is {inputs[i].msg.src} (the message's src)",  # type: ignore[union-attr]
-                              f"ACK of seq {seq} sent to {dst} for {inputs[i].describe()}", culprit=i,
-                              evidence=(f"reply: {d.data.hex()}",)))
-            acked.add(i)
+            judge(d, seq, by_seq[0])
         elif len(by_swap) == 1 and not by_seq:
-            i = by_swap[0]
-            flaws.append(Flaw("MCP-ACK-2", f"an ACK naming seq {swapped} big-endian ({swapped:04x})",
-                              f"the ACK names {seq} ({seq:04x}): the seq byte-swapped, for {inputs[i].describe()}",
-                              culprit=i, evidence=(f"reply: {d.data.hex()}",)))
-            acked.add(i)
+            judge(d, seq, by_swap[0])
     return flaws
 
 

@@ -127,7 +127,7 @@ def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = 
     out.probe_acked = probe.acked
     replies = drv.received(mark)
     out.flaws += judge_replies(inputs, replies, target.node_id, target.broadcast_id, probe.acked,
-                               ignore_seqs=[(drv.our_id, probe.sent.seq)])
+                               ignore_seqs=[(drv.our_id, probe.sent.seq)], probe_copies=probe.copies)
     dead = judge_liveness(inputs, probe.acked, target.fate())
     if dead is not None:
         out.flaws.append(dead)

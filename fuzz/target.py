@@ -19,7 +19,7 @@ from conformance.driver import Datagram, Sent, TargetDriver
 from conformance.errors import SetupError
 from conformance.session import Session
 from fuzz.config import FuzzConfig
-from spec.codec import Action
+from spec.codec import HEADER_SIZE, Action
 
 __all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord", "Withheld"]
 
@@ -194,6 +194,11 @@ class FuzzTarget:
         drv = self.driver
         sent = drv.send(Action.WP_OFF, None, self.node_id)
         ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
+        if ex.ack is not None and ex.ack.data[HEADER_SIZE:HEADER_SIZE + 2] != sent.seq.to_bytes(2, "big"):
+            # the reply taken for the probe's ACK does not name the probe (conformance.attribution
+            # ties it by arrival: a wrong payload, or an earlier input's ACK arriving late);
+            # let the node's other replies arrive too, so the judge sees every ACK it sent
+            drv.quiet(gap=0.05, limit=max(self.rto, PROBE_MIN_WAIT))
         return Probe(ex.acked, sent, len(ex.copies), ex.ack)
 
     # ------------------------------------------------------------------ process fate

@@ -127,3 +127,31 @@ def test_misaddressed_and_byte_swapped_acks_are_ack3_and_ack2_not_ack1() -> None
     long_ack = Datagram(0, 0.0, 0, _ack(5).data + b"\x00", ("127.0.0.1", 1), None, None,
                         read_header(_ack(5).data))
     assert [f.rule for f in judge_replies([_msg(5)], [long_ack], NODE, BROADCAST_ID, True)] == ["MCP-ACK-2"]
+
+
+def test_acks_naming_a_wrong_seq_are_paired_with_their_inputs_by_order_as_ack2() -> None:
+    """Found fuzzing nodes that ACK with their own seq, the previous seq or zero: every
+    input was reported as MCP-ACK-1 ("no ACK"), though each was answered, with the wrong
+    payload. The node's ACKs that name no input are as many as the inputs awaiting one
+    (plus the probe's): they pair up in order of arrival, each an MCP-ACK-2."""
+    inputs = [_msg(0x0101), _msg(0x0202)]
+    own = [_ack(0x7000), _ack(0x7001), _ack(0x7002)]  # two inputs, then the probe (seq 9)
+    flaws = judge_replies(inputs, own, NODE, BROADCAST_ID, True, ignore_seqs=[(0, 9)], probe_copies=1)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-2", 0), ("MCP-ACK-2", 1)], flaws
+    assert "names 28672 (7000)" in flaws[0].actual
+    # a constant payload that happens to name one input's seq answers it once only
+    zero = [_msg(0), _msg(0x0202)]
+    flaws = judge_replies(zero, [_ack(0), _ack(0), _ack(0)], NODE, BROADCAST_ID, True, ignore_seqs=[(0, 9)],
+                          probe_copies=1)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-2", 1)], flaws
+    # a count that does not fit is ambiguous: only MCP-ACK-1 for the unanswered input
+    flaws = judge_replies(inputs, [_ack(0x0101), _ack(0x7000), _ack(0x7001), _ack(0x7002)], NODE,
+                          BROADCAST_ID, True, ignore_seqs=[(0, 9)], probe_copies=1)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-1", 1)], flaws
+    # a correct node: every ACK names its input, the probe's too: nothing
+    assert judge_replies(inputs, [_ack(0x0101), _ack(0x0202), _ack(9)], NODE, BROADCAST_ID, True,
+                         ignore_seqs=[(0, 9)], probe_copies=1) == []
+    # an input's ACK to the wrong dst paired by order is MCP-ACK-3, not MCP-ACK-2
+    flaws = judge_replies([_msg(0x0101)], [_ack(0x0101, dst=0x0FFF), _ack(9, dst=0x0FFF)], NODE, BROADCAST_ID,
+                          True, ignore_seqs=[(0, 9)], probe_copies=1)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-3", 0)], flaws
