@@ -192,7 +192,8 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                           culprit=i, evidence=(f"input: {inputs[i].data.hex()}",
                                                f"reply: {d.data.hex()}")))
     probe_acks = (0, 0) if probe_answered or not probe_copies else (1, probe_copies)
-    flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id, probe_acks)
+    flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id, probe_acks,
+                           {k[0] for k in ignore} if probe_acks[1] else set())
     if probe_acked:
         for i, inp in enumerate(inputs):
             m = inp.msg
@@ -213,13 +214,15 @@ def _must_ack(inp: Input, node_id: int, broadcast_id: int) -> bool:
 
 
 def _misaddressed(inputs: Sequence[Input], unmatched: list[tuple[Datagram, int]], acked: set[int],
-                  node_id: int, broadcast_id: int, probe_acks: tuple[int, int] = (0, 0)) -> list[Flaw]:
+                  node_id: int, broadcast_id: int, probe_acks: tuple[int, int] = (0, 0),
+                  probe_srcs: set[int] | None = None) -> list[Flaw]:
     """ACKs that answer no input as sent, tied to the inputs still awaiting their ACK.
 
     1. When they are exactly as many as the waiting inputs (plus the ACKs of the probe's
        copies, ``probe_acks`` = (fewest, most), when the probe's ACK was not found either):
        a node answers the datagrams of one socket in the order they came, so they pair up
-       in order. An ACK naming its input's seq went to the wrong dst (MCP-ACK-3: dst is the
+       in order. Only ACKs addressed to a waiting input's src or the probe's count here (an
+       ACK of a message the node may answer or not, one from its own ID, goes elsewhere). An ACK naming its input's seq went to the wrong dst (MCP-ACK-3: dst is the
        acknowledged message's src); one naming another seq has the wrong payload (MCP-ACK-2:
        the seq, big-endian, D-2) - the node's own seq, the previous one, a byte-swapped one.
     2. Otherwise only unambiguous answers are judged: an ACK naming the seq of exactly one
@@ -249,8 +252,10 @@ def _misaddressed(inputs: Sequence[Input], unmatched: list[tuple[Datagram, int]]
 
     left = waiting(lambda m: True)
     fewest, most = probe_acks
-    if left and len(left) + fewest <= len(unmatched) <= len(left) + most:
-        for (d, seq), i in zip(unmatched, left, strict=False):
+    dsts = {inputs[i].msg.src for i in left} | (probe_srcs or set())  # type: ignore[union-attr]
+    pairable = [(d, seq) for d, seq in unmatched if d.header[0] in dsts]  # type: ignore[index]
+    if left and len(left) + fewest <= len(pairable) <= len(left) + most:
+        for (d, seq), i in zip(pairable, left, strict=False):
             want = inputs[i].msg.seq  # type: ignore[union-attr]
             off = (seq - want) & 0xFFFF
             judge(d, seq, i, f", {off if off < 0x8000 else off - 0x10000:+d} from the message's seq "

@@ -155,3 +155,13 @@ def test_acks_naming_a_wrong_seq_are_paired_with_their_inputs_by_order_as_ack2()
     flaws = judge_replies([_msg(0x0101)], [_ack(0x0101, dst=0x0FFF), _ack(9, dst=0x0FFF)], NODE, BROADCAST_ID,
                           True, ignore_seqs=[(0, 9)], probe_copies=1)
     assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-3", 0)], flaws
+
+
+def test_an_ack_of_a_message_from_the_nodes_own_id_does_not_spoil_the_pairing() -> None:
+    """A message bearing the node's own ID as src may or may not be ACKed (its own looped
+    broadcast, MCP-HDR-4); such an ACK goes to the node's own ID and is left out of the
+    pairing, so the WP_OFF's wrong-payload ACK is still MCP-ACK-2, not MCP-ACK-1."""
+    inputs = [_msg(92, src=NODE, action=Action.MISSION_READY), _msg(2744)]
+    replies = [_ack(0x672A, dst=NODE), _ack(0x672B), _ack(0x672C)]
+    flaws = judge_replies(inputs, replies, NODE, BROADCAST_ID, True, ignore_seqs=[(0, 9)], probe_copies=1)
+    assert [(f.rule, f.culprit) for f in flaws] == [("MCP-ACK-2", 1)], flaws
