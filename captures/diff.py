@@ -230,7 +230,7 @@ def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any]) -
     divs[:] = [d for d in divs if not (
         d.kind in ("reordered", "changed") and d.peers == peers and d.golden is not None
         and d.golden.action == Action.ACK and (d.golden.dst, d.golden.payload) in hit
-        and all(f == "acknowledges" for f, _, _ in d.fields) | (d.kind == "reordered"))]
+        and (d.kind == "reordered" or all(f == "acknowledges" for f, _, _ in d.fields)))]
 
 
 def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,

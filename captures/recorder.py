@@ -47,6 +47,7 @@ from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
 
 __all__ = [
     "CHANNELS",
+    "FUZZ_RECORDER",
     "METADATA_NAME",
     "BackgroundRecorder",
     "McapRecorder",
@@ -59,6 +60,8 @@ __all__ = [
 
 PROFILE = "mcp-conform"
 METADATA_NAME = "mcp-conform"
+#: the recorder a fuzz finding's repro.mcap names (``mcp-capture replay`` reproduces those)
+FUZZ_RECORDER = "mcp-fuzz"
 _STR = {"type": "string"}
 _B64 = {"type": "string", "contentEncoding": "base64"}
 _ADDR = {"type": ["string", "null"], "description": "host:port"}

@@ -480,6 +480,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import check_writable
     from captures.diff import build_json
     from captures.reader import CaptureError, Datagram, Metadata, open_capture
+    from captures.recorder import FUZZ_RECORDER
 
     out = out or sys.stdout
     err = err or sys.stderr
@@ -490,7 +491,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         err.write(f"mcp-capture replay: {exc}\n")
         return 2
     records = [r for r in everything if type(r) is Datagram]
-    fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == "mcp-fuzz"),
+    fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == FUZZ_RECORDER),
                      None)
     if fuzz_meta is not None and args.role == "drone":
         return _reproduce_finding(args, fuzz_meta, out, err)

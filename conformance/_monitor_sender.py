@@ -39,11 +39,12 @@ from conformance._monitor_base import (
     median,
     pack_item,
 )
+from spec import SPEC
 
 #: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
 #: node's datagrams to different peers reach a recorder's sockets in an order of the host's
 #: choosing, so the ACK that took the number before a message may be read just after it
-SEQ_GAP_GRACE_NS = NS
+SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
 
 # bits of _Exchange.flags: a rule already reported on that exchange
 F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))

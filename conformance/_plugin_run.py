@@ -172,7 +172,6 @@ def _merge_worker_reports(session: pytest.Session) -> None:
         return
     doc = merge_json(state.worker_docs)
     run = state.merged_run = run_from_json(doc)
-    problems = []
     writers: list[tuple[str | None, Callable[[str], Any]]] = [
         (state.cfg.json_path, lambda p: Path(p).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")),
         (state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
@@ -189,12 +188,7 @@ def _merge_worker_reports(session: pytest.Session) -> None:
         os.close(fd)
         writers.append((state.html_capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
     writers.append((state.html_path, lambda p: write_run_html(p, doc, state.cfg.capture or state.html_capture)))
-    for path, write in writers:
-        if path:
-            try:
-                write(path)
-            except OSError as exc:
-                problems.append(str(exc))
+    problems = _write_reports(writers)
     if not state.cfg.capture:  # temporary recordings made only for the HTML report
         for part in [*state.capture_parts, state.html_capture or ""]:
             if part:
@@ -205,6 +199,19 @@ def _merge_worker_reports(session: pytest.Session) -> None:
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     session.exitstatus = code
+
+
+def _write_reports(writers: list[tuple[str | None, Callable[[str], Any]]]) -> list[str]:
+    """Write each report that has a path; one problem line per report that could not be
+    written (the others are written all the same)."""
+    problems = []
+    for path, write in writers:
+        if path:
+            try:
+                write(path)
+            except OSError as exc:
+                problems.append(str(exc))
+    return problems
 
 
 def _state(config: pytest.Config) -> McpState | None:
@@ -809,7 +816,6 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
             wo["mcp_capture_temporary"] = not state.cfg.capture
         session.exitstatus = code
         return
-    problems = []
     writers: list[tuple[str | None, Callable[[str], Any]]] = [
         (state.cfg.json_path, lambda p: write_json(p, run)),
         (None if state.list_mode else state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
@@ -818,12 +824,7 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         (None if state.list_mode else state.html_path, lambda p: write_run_html(
             p, build_json(run), state.cfg.capture or state.html_capture)),
     ]
-    for path, write in writers:
-        if path:
-            try:
-                write(path)
-            except OSError as exc:
-                problems.append(str(exc))
+    problems = _write_reports(writers)
     if state.html_capture:
         Path(state.html_capture).unlink(missing_ok=True)
     if problems:

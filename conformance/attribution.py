@@ -34,12 +34,11 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from spec.codec import Action, DecodeError, decode, peek_header
+from spec.codec import BROADCAST_ID, HEADER_SIZE, Action, DecodeError, decode, peek_header
 
 _ACK = int(Action.ACK)
 _U16BE = struct.Struct("!H")
 _U16LE = struct.Struct("<H")
-BROADCAST_ID = 0xFFFF
 
 #: Commands remembered (the older half is forgotten beyond this) and how far back, in
 #: horizons, the ambiguity check looks for another unanswered command.
@@ -113,7 +112,7 @@ class _Command:
 
 def payload_seq(data: bytes, order: struct.Struct = _U16BE) -> int | None:
     """The seq an ACK-like datagram's first two payload bytes name (None when shorter)."""
-    return order.unpack_from(data, 17)[0] if len(data) >= 19 else None
+    return order.unpack_from(data, HEADER_SIZE)[0] if len(data) >= HEADER_SIZE + 2 else None
 
 
 class Attributor:
@@ -123,6 +122,7 @@ class Attributor:
         self.our_id = our_id
         self.horizon = horizon  # --rto or the ACK window, the larger (set by the session)
         self.peer_id = peer_id  # the node's MCP ID, once known
+        self.broadcast_id = BROADCAST_ID  # the run's (--broadcast-id), set by the session
         self._commands: list[_Command] = []
         self._by_tx: dict[int, _Command] = {}  # tx index of each copy -> its command
         self._by_seq: dict[int, list[_Command]] = {}
@@ -198,7 +198,7 @@ class Attributor:
                 self._by_seq.setdefault(c.seq, []).append(c)
 
     def _expects_reply(self, sent: _SentLike, is_ack: bool) -> bool:
-        if is_ack or sent.dst == BROADCAST_ID:
+        if is_ack or sent.dst == self.broadcast_id:
             return False
         if self.peer_id is not None and sent.dst != self.peer_id:
             return False
@@ -216,7 +216,7 @@ class Attributor:
 
     def _named(self, d: _ReceivedLike, cmd: _Command) -> str:
         """What the payload names, in words, relative to ``cmd``."""
-        payload = d.data[17:]
+        payload = d.data[HEADER_SIZE:]
         if len(payload) != 2:
             return f"nothing: {len(payload)} payload bytes ({payload[:8].hex(' ') or 'empty'})"
         seq = _U16BE.unpack(payload)[0]

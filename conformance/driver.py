@@ -456,10 +456,6 @@ class TargetDriver:
                 i -= 1
             return i
 
-    def replies_to(self, sents: Iterable[Sent], since: int) -> list[Datagram]:
-        """ACK-like datagrams at index >= since attributed to any of ``sents``."""
-        return [d for d, _ in self.answers(sents, since)]
-
     def flood(self, datagrams: list[bytes], count: int, *, sock: socket.socket | None = None,
               limit: float = 30.0) -> int:
         """Send ``count`` datagrams as fast as the socket takes them, cycling through

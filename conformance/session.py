@@ -285,6 +285,7 @@ class Session(SessionBase):
         self.liveness.start()
         self.driver.attributor.horizon = max(self.rto, self.ack_window)
         self.driver.attributor.peer_id = self.target_id
+        self.driver.attributor.broadcast_id = self.cfg.broadcast_id
         if self.recorder is not None:
             self.recorder.local = self.driver.listen
             self.driver.add_observer(_held(self.recorder.datagram))

@@ -164,13 +164,11 @@ class FindingStore:
             return len(self.order)
 
 
-#: the recorder named in a finding's repro.mcap metadata record
-FUZZ_RECORDER = "mcp-fuzz"
-
-
 def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
     """The finding a repro.mcap's metadata record describes, or None when it is not one
     (another recorder, or a capture written before the record held the sequence)."""
+    from captures.recorder import FUZZ_RECORDER
+
     if meta.get("recorder") != FUZZ_RECORDER or "datagrams" not in meta or "rule" not in meta:
         return None
     try:
@@ -189,13 +187,13 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
     import time
 
-    from captures.recorder import McapRecorder, run_metadata
+    from captures.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
     meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,
                         engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
                         target=f.target or None, datagrams=f.datagrams, shape=f.shape)
-    with McapRecorder(path, library="mcp-fuzz", metadata=meta) as rec:
+    with McapRecorder(path, library=FUZZ_RECORDER, metadata=meta) as rec:
         t0 = time.time_ns()
         rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
         if traffic:

@@ -127,7 +127,7 @@ def expected_silent_rule(inp: Input, node_id: int, broadcast_id: int) -> str | N
     return None
 
 
-def _acked_seq(d: Datagram) -> int | None:
+def acked_seq(d: Datagram) -> int | None:
     """The seq an ACK from the node names (its first two payload bytes, big-endian)."""
     if d.header is None or d.header[3] != _ACK or len(d.data) < HEADER_SIZE + 2:
         return None
@@ -154,7 +154,7 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
     probe_answered = False
     uses: dict[tuple[int, int], int] = {}
     for d in replies:
-        seq = _acked_seq(d)
+        seq = acked_seq(d)
         if seq is None:
             continue
         key = (d.header[0], seq)  # type: ignore[index]  # the ACK's dst is the input's src

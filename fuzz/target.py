@@ -19,7 +19,8 @@ from conformance.driver import Datagram, Sent, TargetDriver
 from conformance.errors import SetupError
 from conformance.session import Session
 from fuzz.config import FuzzConfig
-from spec.codec import HEADER_SIZE, Action
+from fuzz.oracles import acked_seq
+from spec.codec import Action
 
 __all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord", "Withheld"]
 
@@ -194,7 +195,7 @@ class FuzzTarget:
         drv = self.driver
         sent = drv.send(Action.WP_OFF, None, self.node_id)
         ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
-        if ex.ack is not None and ex.ack.data[HEADER_SIZE:HEADER_SIZE + 2] != sent.seq.to_bytes(2, "big"):
+        if ex.ack is not None and acked_seq(ex.ack) != sent.seq:
             # the reply taken for the probe's ACK does not name the probe (conformance.attribution
             # ties it by arrival: a wrong payload, or an earlier input's ACK arriving late);
             # let the node's other replies arrive too, so the judge sees every ACK it sent

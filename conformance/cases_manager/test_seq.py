@@ -9,6 +9,7 @@ from __future__ import annotations
 from conformance.errors import Inconclusive
 from conformance.manager_case import messages
 from conformance.marks import rules
+from spec import SPEC
 from spec.codec import Action
 
 
@@ -45,7 +46,7 @@ def test_each_new_message_takes_the_next_seq(node):
 
 
 #: how far from a pair of messages an ACK's number still counts for the gap between them
-_NEAR_S = 1.0
+_NEAR_S = float(SPEC.params["seq_reorder_grace_s"])
 
 
 @rules("MCP-SEQ-2")

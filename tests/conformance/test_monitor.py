@@ -218,7 +218,9 @@ def test_waypoints_are_compared_on_the_fields_a_waypoint_file_holds_in_order():
     retargeted = [i._replace(target_system=42, target_component=190) for i in s.items]
     assert "MCP-FLOW-4" not in judged(retargeted)
     assert "MCP-FLOW-4" in judged(list(reversed(s.items)))
-    assert encode(Message(1, 0, 1, Action.WP_LIST, tuple(retargeted)))  # (well-formed items)
+    wire = decode(encode(Message(1, 0, 1, Action.WP_LIST, tuple(retargeted))))  # well-formed items
+    assert [(i.seq, i.target_system, i.target_component) for i in wire.payload] == [
+        (i.seq, 42, 190) for i in s.items]
 
 
 def test_an_ack_read_after_the_message_it_took_a_number_before_explains_the_gap():

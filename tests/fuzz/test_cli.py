@@ -53,6 +53,11 @@ def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noq
     meta = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Metadata)]
     assert len(meta) == 1 and meta[0].data["recorder"] == "mcp-fuzz", meta
     assert meta[0].data["rule"] == "MCP-ACK-4" and meta[0].data["seed"] == "5", meta
+    from fuzz.findings import finding_from_metadata
+
+    back = finding_from_metadata(meta[0].data)  # what mcp-capture replay reproduces
+    assert back is not None and (back.rule, back.datagrams, back.pace) == (f.rule, f.datagrams, f.pace)
+    assert finding_from_metadata({**meta[0].data, "recorder": "mcp-conform"}) is None
     store.add(Finding("MCP-ACK-4", "no ACK", "an ACK", ["00"], "replies: valid", "stateless", 5))
     assert len(store) == 1 and store.by_rule() == {"MCP-ACK-4": 2}
 

@@ -277,7 +277,7 @@ def test_a_signal_stops_a_role_blocked_in_a_future_without_touching_its_locks() 
     drone waiting for Mission_Ready's ACK and the node died with "cannot release
     un-acquired lock" (exit 1). The handler now only flags; the role thread is stopped by
     the main thread. Here a role blocks in ``Future.result()`` while signals keep arriving:
-    every run ends through ``stop()`` with no exception, and the role's lock is intact."""
+    every run ends through ``stop()`` with no exception, and the role's thread is released."""
     import concurrent.futures
     import threading
 
@@ -287,9 +287,13 @@ def test_a_signal_stops_a_role_blocked_in_a_future_without_touching_its_locks() 
         def __init__(self) -> None:
             self.fut: concurrent.futures.Future[int] = concurrent.futures.Future()
             self.stopped = 0
+            self.returned = threading.Event()  # run() left Future.result(), whatever it raised
 
         def run(self) -> int:
-            return self.fut.result()
+            try:
+                return self.fut.result()
+            finally:
+                self.returned.set()
 
         def stop(self) -> None:
             self.stopped += 1
@@ -306,8 +310,7 @@ def test_a_signal_stops_a_role_blocked_in_a_future_without_touching_its_locks() 
         finally:
             signal.signal(signal.SIGUSR1, previous)
         assert interrupt.signum == signal.SIGUSR1 and role.stopped == 1
-        assert role.fut._condition.acquire(blocking=False)  # not left held by anyone
-        role.fut._condition.release()
+        assert role.returned.is_set()  # the role thread was released by stop(), not left blocked
     done = BlockedRole()
     done.fut.set_result(3)
     assert _run_role(done, _Interrupt()) == 3  # type: ignore[arg-type]
