@@ -6,9 +6,9 @@ unicast and ACKed 0.2 ms later, one exchange every 2 ms (a manager's sequence nu
 every ~130 s: several times in the trace, never within the monitor's 100 s horizon at
 --rto 5, inside which a repeated (src, dst, seq) is taken for a retransmission). Then prints, side by side:
 
-- read only: ``captures.reader`` (scapy's RawPcapReader + struct link/IP/UDP parsing);
-- read + monitor: ``captures.judging.judge`` (what ``mcp-capture check`` does, no printing);
-- monitor alone: the same datagrams already in memory, fed to ``conformance.monitor``;
+- read only: ``traceio.reader`` (scapy's RawPcapReader + struct link/IP/UDP parsing);
+- read + monitor: ``judge.judging.judge`` (what ``mcp-capture check`` does, no printing);
+- monitor alone: the same datagrams already in memory, fed to ``judge.monitor``;
 - the command: ``mcp-capture check FILE --json OUT`` in-process, terminal output discarded.
 
     python bench/bench_capture_check.py [--datagrams N] [--keep FILE]
@@ -30,9 +30,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from captures.judging import Params, judge  # noqa: E402
-from captures.reader import open_capture  # noqa: E402
+from judge.judging import Params, judge  # noqa: E402
 from spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from traceio.reader import open_capture  # noqa: E402
 
 DRONES = (1, 2, 3, 4)
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
@@ -119,7 +119,7 @@ def main() -> None:
     params = dict(rto=5.0, ack_window=2.0, challenge=2)
     t_judge, j = timed(lambda: judge(path, Params(**params)))  # type: ignore[arg-type]
 
-    from conformance.monitor import Monitor
+    from judge.monitor import Monitor
 
     def monitor_alone() -> list:
         m = Monitor(**params)  # type: ignore[arg-type]
@@ -140,8 +140,8 @@ def main() -> None:
             t_cli, rc = timed(lambda: capture_main(["check", str(path), "--challenge", "2",
                                                     "--json", str(Path(out_dir) / "check.json")]))
 
-    rows = [("read only (captures.reader)", t_read),
-            ("read + monitor (captures.judging.judge)", t_judge),
+    rows = [("read only (traceio.reader)", t_read),
+            ("read + monitor (judge.judging.judge)", t_judge),
             ("monitor alone, datagrams in memory", t_mon),
             (f"mcp-capture check --json (exit {rc})", t_cli)]
     print(f"{'':44} {'seconds':>8} {'datagrams/s':>12}")

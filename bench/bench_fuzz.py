@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))  # run from a source checkout
 from fuzz.config import FuzzConfig  # noqa: E402
 from fuzz.engine_stateless import StatelessEngine  # noqa: E402
 from fuzz.findings import FindingStore  # noqa: E402
-from fuzz.target import start_target  # noqa: E402
+from fuzz.targets import start_target  # noqa: E402
 from fuzz.triage import Triage  # noqa: E402
 from spec.codec import PREAMBLE, Action  # noqa: E402
 

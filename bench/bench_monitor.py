@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from conformance.monitor import Monitor  # noqa: E402
+from judge.monitor import Monitor  # noqa: E402
 from spec.codec import DecodeError, decode  # noqa: E402
 from tests.conformance.monitor_scripts import WAYPOINTS, Script  # noqa: E402
 

@@ -1,2 +1,4 @@
-"""captures: MCAP recording of runs (``captures.recorder``), one reader for MCAP, pcap and
-pcapng captures (``captures.reader``), and the ``mcp-capture`` tool (``captures.cli``)."""
+"""captures: the ``mcp-capture`` tool (``captures.cli``): check, show, diff, replay, export
+and the Wireshark dissector, combining the floors below it (``traceio`` reads and writes
+captures, ``judge`` judges them, ``harness`` drives a live node for ``replay``, ``fuzz``
+reproduces a finding). The golden captures live in ``captures/golden/``."""

@@ -21,7 +21,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from captures.cli import check_writable, write_output
-from captures.judging import (
+from judge.judging import (
     Judgement,
     add_monitor_options,
     evidence_of,
@@ -29,9 +29,9 @@ from captures.judging import (
     params_from_args,
     selected,
 )
-from captures.reader import Datagram
-from captures.trace import evidence_indexes
 from spec import SPEC
+from traceio.reader import Datagram
+from traceio.trace import evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
@@ -64,7 +64,7 @@ def run(ns: argparse.Namespace) -> int:
         doc = to_json(j, evidence)
         write_output(ns.json, json.dumps(doc, indent=2) + "\n", "--json")
     if ns.html:
-        from captures.html import render_check
+        from reports.html import render_check
 
         write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
     return j.exit_code()
@@ -77,8 +77,8 @@ def _addr(addr: Any) -> str:
 
 def describe_datagram(d: Datagram, first_ns: int | None) -> str:
     """One line: ``#12 +1.234567s 0 (127.0.0.1:7889) → 2 (127.0.0.1:7890) WP_Off #4``."""
-    from captures.trace import action_name
     from spec.codec import peek_header
+    from traceio.trace import action_name
 
     t = (d.t_ns - (first_ns or d.t_ns)) / 1e9
     h = peek_header(d.data, require_preamble=False)
@@ -104,7 +104,7 @@ def _level(v: Any) -> str:
 
 # ---------------------------------------------------------------- JSON
 def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
-    from conformance.report import tool_version
+    from spec.about import tool_version
 
     def ev(v: Any) -> list[dict[str, Any]]:
         idx = evidence_indexes(v)

@@ -24,8 +24,9 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import NoReturn
+
+from traceio.files import UsageError, check_writable, write_output
 
 __all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable", "main", "write_output"]
 
@@ -35,33 +36,11 @@ SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "c
                            "captures.export", "captures.dissector"]
 
 
-class UsageError(Exception):
-    """A bad command line (one line)."""
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse that raises instead of printing its usage and exiting."""
 
     def error(self, message: str) -> NoReturn:
         raise UsageError(f"{self.prog}: {message}")
-
-
-def check_writable(path: str | None, option: str) -> None:
-    """Refuse, before any work, an output path that cannot be a file."""
-    if path is None:
-        return
-    target = Path(path)
-    if not path or target.is_dir():
-        raise UsageError(f"{option}: {path!r} is not a file name")
-    if not target.expanduser().resolve().parent.is_dir():
-        raise UsageError(f"{option}: directory of {path!r} does not exist")
-
-
-def write_output(path: str, text: str, option: str) -> None:
-    try:
-        Path(path).write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UsageError(f"{option}: cannot write {path!r}: {exc.strerror or exc}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -79,7 +58,7 @@ def _error(message: str) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from captures.reader import CaptureError
+    from traceio.reader import CaptureError
 
     parser = build_parser()
     try:

@@ -36,7 +36,7 @@ from spec.codec import (
     peek_header,
 )
 
-__all__ = ["Conversation", "Entry", "build_conversations", "describe", "entry_fields", "peers_of"]
+__all__ = ["Conversation", "Entry", "build_conversations", "describe", "entry_fields", "peers_of", "peers_text"]
 
 Addr = tuple[str, int] | None
 _ACK = Action.ACK
@@ -197,3 +197,13 @@ def entry_fields(e: Entry) -> dict[str, Any]:
     if e.action is None:
         out["bytes"] = e.data[HEADER_SIZE:].hex() if len(e.data) >= HEADER_SIZE else e.data.hex()
     return out
+
+
+def peers_text(peers: tuple[Any, Any]) -> str:
+    """A conversation's two MCP IDs as text (``0 ↔ 1``, ``0 ↔ broadcast``)."""
+    from spec.codec import BROADCAST_ID
+
+    if peers == (None, None):
+        return "datagrams without an MCP header"
+    a, b = peers
+    return f"{a} ↔ {'broadcast' if b == BROADCAST_ID else b}"

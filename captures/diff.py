@@ -34,7 +34,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
-from captures.conversation import Conversation, Entry, build_conversations, describe, entry_fields
+from captures.conversation import (
+    Conversation,
+    Entry,
+    build_conversations,
+    describe,
+    entry_fields,
+    peers_text,
+)
 from spec.codec import Action
 
 __all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "diff_sides",
@@ -106,14 +113,14 @@ def side_from_datagrams(name: str, datagrams: Iterable[Any], *, truncated: str |
     """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``),
     taken in time order (a recorder's threads may write a reply before the message it
     answers: the message's time is stamped before it leaves); a list is sorted here, an
-    iterator (``captures.reader``, which orders them) streams through."""
+    iterator (``traceio.reader``, which orders them) streams through."""
     counted = _Counted(in_time_order(datagrams) if isinstance(datagrams, list) else datagrams)
     convs, t0 = build_conversations(counted)
     return Side(name, convs, t0, counted.n, truncated, 0, metadata or {})
 
 
 class _Counted:
-    """Iterates and counts (a capture's records stream through; ``captures.reader`` yields
+    """Iterates and counts (a capture's records stream through; ``traceio.reader`` yields
     them in log-time order already)."""
 
     def __init__(self, it: Iterable[Any]) -> None:
@@ -139,8 +146,8 @@ def in_time_order(datagrams: Iterable[Any]) -> list[Any]:
 
 
 def load_side(path: str | Path) -> Side:
-    """Read a capture (raises ``captures.reader.CaptureError`` when it cannot)."""
-    from captures.reader import Datagram, Metadata, Truncated, open_capture
+    """Read a capture (raises ``traceio.reader.CaptureError`` when it cannot)."""
+    from traceio.reader import Datagram, Metadata, Truncated, open_capture
 
     cap = open_capture(path)
     meta: dict[str, str] = {}
@@ -367,15 +374,6 @@ def diff_captures(golden: str | Path, candidate: str | Path, opts: DiffOptions |
 
 
 # ---------------------------------------------------------------- reporting
-def _peers_text(peers: tuple[Any, Any]) -> str:
-    from spec.codec import BROADCAST_ID
-
-    if peers == (None, None):
-        return "datagrams without an MCP header"
-    a, b = peers
-    return f"{a} ↔ {'broadcast' if b == BROADCAST_ID else b}"
-
-
 def _row(e: Entry | None, width: int) -> str:
     text = describe(e) if e is not None else "(missing)"
     return text[:width].ljust(width)
@@ -397,7 +395,7 @@ def print_report(result: DiffResult, out: TextIO = sys.stdout) -> None:
         out.write("same: every conversation matches\n")
         return
     first = result.divergences[0]
-    out.write(f"\nfirst divergence ({first.kind}) in conversation {_peers_text(first.peers)}: {first.note}\n")
+    out.write(f"\nfirst divergence ({first.kind}) in conversation {peers_text(first.peers)}: {first.note}\n")
     rows = result.aligned.get(first.peers, [])
     gconv = result.golden.conversations.get(first.peers)
     cconv = result.candidate.conversations.get(first.peers)
@@ -422,7 +420,7 @@ def print_report(result: DiffResult, out: TextIO = sys.stdout) -> None:
         e = d.golden or d.candidate
         where = f"golden #{d.golden_pos}" if d.golden_pos is not None else f"candidate #{d.candidate_pos}"
         fields = "; ".join(f"{f}: {a!r} → {b!r}" for f, a, b in d.fields[:3])
-        out.write(f"  {d.kind:<9} {_peers_text(d.peers):<12} {where:<15} {describe(e)}"
+        out.write(f"  {d.kind:<9} {peers_text(d.peers):<12} {where:<15} {describe(e)}"
                   f"{' — ' + fields if fields else ''}\n")
     if len(result.divergences) > 50:
         out.write(f"  ... {len(result.divergences) - 50} more (--json for all)\n")
@@ -449,8 +447,8 @@ def _entry_json(e: Entry | None, t0: int) -> dict[str, Any] | None:
 
 
 def build_json(result: DiffResult) -> dict[str, Any]:
-    from conformance.report import TOOL_NAME, tool_version
     from spec import SPEC
+    from spec.about import TOOL_NAME, tool_version
 
     g, c = result.golden, result.candidate
 
@@ -531,7 +529,7 @@ def _nonneg_float(text: str) -> float:
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import check_writable
-    from captures.reader import CaptureError
+    from traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr

@@ -2,7 +2,7 @@
 
 One section per conversation with divergences (then the others, folded): the golden
 conversation on the left, the candidate's on the right, each a chart of
-:mod:`captures.chart` whose rows are the aligned messages — a missing message leaves a gap
+:mod:`reports.chart` whose rows are the aligned messages — a missing message leaves a gap
 on the right, an extra one a gap on the left — with divergent arrows marked by class
 (``missing``, ``extra``, ``changed``, ``reordered``, ``copies``, ``timing``, ``address``)
 and the divergence list above.
@@ -14,8 +14,8 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from captures.chart import Arrow, Lifeline, render
-from captures.conversation import Entry, describe
+from captures.conversation import Entry, describe, peers_text
+from reports.chart import Arrow, Lifeline, render
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action
 
 __all__ = ["html_report", "write_html"]
@@ -82,13 +82,11 @@ def _charts(result: Any, peers: tuple[Any, Any]) -> tuple[str, str]:
 
 
 def html_report(result: Any) -> str:
-    from captures.diff import _peers_text
-
     verdict = ('<p class="same">same: every conversation matches</p>' if result.same else
                f'<p class="different">{len(result.divergences)} divergence(s): ' +
                escape(", ".join(f"{n} {k}" for k, n in result.summary().items())) + "</p>")
     rows = "".join(
-        f"<tr><td>{escape(d.kind)}</td><td>{escape(_peers_text(d.peers))}</td>"
+        f"<tr><td>{escape(d.kind)}</td><td>{escape(peers_text(d.peers))}</td>"
         f"<td>{escape(describe(d.golden)) if d.golden else ''}</td>"
         f"<td>{escape(describe(d.candidate)) if d.candidate else ''}</td><td>{escape(d.note)}</td></tr>"
         for d in result.divergences[:500])
@@ -100,7 +98,7 @@ def html_report(result: Any) -> str:
     for peers in diverging + others:
         left, right = _charts(result, peers)
         body = f"<div class='pair'><div>{left}</div><div>{right}</div></div>"
-        title = escape(_peers_text(peers))
+        title = escape(peers_text(peers))
         if peers in diverging:
             sections.append(f"<h2>conversation {title}</h2>{body}")
         else:

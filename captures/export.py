@@ -35,12 +35,12 @@ def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
 
 def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """Write ``out``; return (packets written, the capture's truncation reason or None).
-    Raises ``captures.reader.CaptureError`` for unreadable input, OSError for ``out``."""
+    Raises ``traceio.reader.CaptureError`` for unreadable input, OSError for ``out``."""
     from scapy.layers.inet import IP, UDP
     from scapy.layers.l2 import Ether
     from scapy.utils import PcapNgWriter, PcapWriter
 
-    from captures.reader import Datagram, Truncated, open_capture
+    from traceio.reader import Datagram, Truncated, open_capture
 
     cap = open_capture(capture)
     out = Path(out)
@@ -77,7 +77,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.reader import CaptureError
+    from traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr

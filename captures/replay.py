@@ -10,8 +10,8 @@ The node under test has the role ``--role`` (default drone) and, in the capture,
 ``--target-id`` (default: the capture's drone for the drone role, the manager 0 for the
 manager role). Replay plays every other sender of the capture — the manager and any other
 IDs a runner used, or all the drones — from one UDP socket, with the runner's attach, spawn
-and listen semantics and placeholders (it reuses ``conformance.session`` and
-``conformance.driver``): ``--listen`` is where it receives and sends from (all addresses on
+and listen semantics and placeholders (it reuses ``harness.session`` and
+``harness.driver``): ``--listen`` is where it receives and sends from (all addresses on
 the role's conventional port by default, an ephemeral one in spawn mode). For a manager
 under test ``--spawn`` also fills ``{drones}``, ``{challenge}``, ``{waypoints}`` and
 ``{obstacles}`` from the capture (the drones it talked to, the challenge its commands show,
@@ -29,7 +29,7 @@ MCP-SEQ-4: initial values are arbitrary). The played side's own seqs are kept.
 
 Then the node's answers are checked with the diff (:mod:`captures.diff`: the capture as
 golden, the replay's own traffic as candidate) and all the traffic with the trace monitor
-(``conformance.monitor``). Exit 0 same and no MUST violated; 1 different or violated; 2
+(``judge.monitor``). Exit 0 same and no MUST violated; 1 different or violated; 2
 unreadable capture or setup error (one line). :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
 
@@ -282,9 +282,9 @@ def replay(datagrams: Iterable[Any], target: tuple[str, int] | None = None, **op
 
 def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_total: int, node: int,
               live_id: int, answer_timeout: float, tmp: Path) -> ReplayResult:
-    from conformance.driver import TargetDriver
-    from conformance.errors import SetupError
-    from conformance.session import (
+    from harness.driver import TargetDriver
+    from harness.errors import SetupError
+    from harness.session import (
         BROADCAST_ADDRESS,
         SpawnedNode,
         fill_placeholders,
@@ -305,7 +305,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
     notes: list[str] = []
     try:
         if cfg.capture:
-            from captures.recorder import McapRecorder, RecorderError, run_metadata
+            from traceio.recorder import McapRecorder, RecorderError, run_metadata
 
             try:
                 recorder = McapRecorder(cfg.capture, local=driver.listen, metadata=run_metadata(
@@ -421,9 +421,9 @@ def _monitor(cfg: ReplayConfig, live: list[Rec], node: int) -> tuple[list[Any], 
     """The monitor over the replay's traffic; only the node's violations count (what the
     played side sent is the capture's, deliberate breaches of a runner's cases included)."""
     try:
-        from conformance.monitor import Monitor
+        from judge.monitor import Monitor
     except ImportError:
-        return [], "the trace monitor (conformance.monitor) is not installed"
+        return [], "the trace monitor (judge.monitor) is not installed"
     mon = Monitor(rto=cfg.rto, ack_window=cfg.ack_window)
     out: list[Any] = []
     for r in live:
@@ -438,7 +438,7 @@ def _monitor(cfg: ReplayConfig, live: list[Rec], node: int) -> tuple[list[Any], 
 def _hostport(what: str, default_host: str) -> Any:
     import argparse
 
-    from conformance.config import parse_hostport  # the runner's HOST:PORT parsing and messages
+    from harness.config import parse_hostport  # the runner's HOST:PORT parsing and messages
 
     def parse(text: str) -> tuple[str, int]:
         try:
@@ -479,8 +479,8 @@ def register(sub: Any) -> None:
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import check_writable
     from captures.diff import build_json
-    from captures.reader import CaptureError, Datagram, Metadata, open_capture
-    from captures.recorder import FUZZ_RECORDER
+    from traceio.reader import CaptureError, Datagram, Metadata, open_capture
+    from traceio.recorder import FUZZ_RECORDER
 
     out = out or sys.stdout
     err = err or sys.stderr

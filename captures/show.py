@@ -7,7 +7,7 @@ and address, seq, action, the decoded payload, and the marks a reader looks for 
 violation the monitor found, on the datagrams of its evidence), and the codec's reason for
 a datagram that does not decode. ``--from S`` / ``--to S`` (seconds since the first
 datagram) or ``--case ID`` (an MCAP capture's case marks) cut a window; ``--svg OUT``
-writes the window's message-sequence chart (``captures.chart``).
+writes the window's message-sequence chart (``reports.chart``).
 """
 
 from __future__ import annotations
@@ -18,9 +18,8 @@ from typing import Any
 from rich.console import Console
 from rich.text import Text
 
-from captures.chart import trace_svg
 from captures.cli import UsageError, check_writable, write_output
-from captures.judging import (
+from judge.judging import (
     Judgement,
     MonitorUnavailable,
     NoJudge,
@@ -28,7 +27,8 @@ from captures.judging import (
     judge,
     params_from_args,
 )
-from captures.trace import Entry, Trace, action_name, describe_payload
+from reports.chart import trace_svg
+from traceio.trace import Entry, Trace, action_name, describe_payload
 
 __all__ = ["case_window", "entry_line", "register", "run"]
 

@@ -13,8 +13,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from conformance.driver import Datagram
-from conformance.errors import CaseFailure, Inconclusive
+from harness.driver import Datagram
+from harness.errors import CaseFailure, Inconclusive
 from spec import SPEC
 
 __all__ = ["CaseBase"]

@@ -1,5 +1,5 @@
 """The ``mcp-conform`` entry point: SIGINT and SIGTERM are taken before anything heavy is
-imported (``conformance.interrupts`` needs only the standard library), so a signal at any
+imported (``harness.interrupts`` needs only the standard library), so a signal at any
 moment once the runner's code runs, its first half second included, still leaves the JSON
 report. The handlers stay until the process ends, and the process ends with ``os._exit``
 once its reports are written and its output flushed: the interpreter's finalization
@@ -14,7 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from conformance.interrupts import INTERRUPTS
+from harness.interrupts import INTERRUPTS
 
 
 def main(argv: Sequence[str] | None = None, *, exit_process: bool = True) -> int:

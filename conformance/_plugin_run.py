@@ -31,16 +31,6 @@ import pytest
 from rich.console import Console
 
 from conformance.baseline import Baseline, BaselineError, load_baseline, write_baseline
-from conformance.config import RunConfig
-from conformance.errors import (
-    CaseFailure,
-    Inconclusive,
-    NodeLost,
-    SetupError,
-    SilenceUnproven,
-    TargetLost,
-)
-from conformance.interrupts import INTERRUPTS
 from conformance.marks import (
     PHASES,
     case_id,
@@ -71,6 +61,16 @@ from conformance.report import (
     write_json,
     write_junit,
 )
+from harness.config import RunConfig
+from harness.errors import (
+    CaseFailure,
+    Inconclusive,
+    NodeLost,
+    SetupError,
+    SilenceUnproven,
+    TargetLost,
+)
+from harness.interrupts import INTERRUPTS
 from spec import SPEC
 
 __all__ = ["McpState", "STATE_KEY"]
@@ -91,12 +91,18 @@ def _one_line(exc: BaseException) -> str:
 @pytest.hookimpl(trylast=True)
 def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
     if cfg.role == "manager":
-        from conformance.manager_session import ManagerSession
+        from conformance.manager_case import ManagerCaseContext
+        from harness.manager_session import ManagerSession
 
-        return ManagerSession(cfg, recorder=recorder)
-    from conformance.session import Session
+        manager = ManagerSession(cfg, recorder=recorder)
+        manager.make_context = ManagerCaseContext
+        return manager
+    from conformance.case import CaseContext
+    from harness.session import Session
 
-    return Session(cfg, recorder=recorder)
+    session = Session(cfg, recorder=recorder)
+    session.make_context = CaseContext
+    return session
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -138,8 +144,8 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
-    """--mcp-html: the report with each failed case's traffic charted (captures.html)."""
-    from captures.html import write_run
+    """--mcp-html: the report with each failed case's traffic charted (reports.html)."""
+    from reports.html import write_run
 
     write_run(path, doc, capture)
 
@@ -178,11 +184,11 @@ def _merge_worker_reports(session: pytest.Session) -> None:
         (None if run.error else state.write_baseline_path, lambda p: write_baseline(p, run.cases, run.target)),
     ]
     if state.cfg.capture and state.capture_parts:
-        from captures.merge import merge_captures
+        from traceio.merge import merge_captures
 
         writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
     elif state.html_path and state.capture_parts:  # the workers recorded for the HTML report only
-        from captures.merge import merge_captures
+        from traceio.merge import merge_captures
 
         fd, state.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
         os.close(fd)
@@ -292,7 +298,7 @@ class McpState:
                 fd, self.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
                 os.close(fd)
             if self.cfg.capture or self.html_capture:
-                from captures.recorder import McapRecorder, RecorderError, run_metadata
+                from traceio.recorder import McapRecorder, RecorderError, run_metadata
 
                 cfg = self.cfg
                 meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
@@ -450,7 +456,7 @@ class McpState:
         raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
 
     def install_term(self) -> None:
-        """SIGINT / SIGTERM (``conformance.interrupts``): the first stops the run, later
+        """SIGINT / SIGTERM (``harness.interrupts``): the first stops the run, later
         ones hurry it; none can skip the reports. Installed here when plain pytest runs us
         (``mcp-conform`` installs it before anything else)."""
         self._old_term = INTERRUPTS.install()
@@ -730,7 +736,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
 # ---------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="session")
 def mcp_config(pytestconfig: pytest.Config) -> RunConfig:
-    """The run's parameters (``conformance.config.RunConfig``)."""
+    """The run's parameters (``harness.config.RunConfig``)."""
     state = _state(pytestconfig)
     assert state is not None
     return state.cfg

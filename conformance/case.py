@@ -17,14 +17,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from conformance._case_base import CaseBase
-from conformance.driver import Datagram, Exchange, Sent, read_header
-from conformance.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven
-from conformance.liveness import NOT_LIVE
+from harness.driver import Datagram, Exchange, Sent, read_header
+from harness.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven
+from harness.liveness import NOT_LIVE
 from spec import SPEC
 from spec.codec import Action
 
 if TYPE_CHECKING:
-    from conformance.session import Session
+    from harness.session import Session
 
 MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])
 DELIVERED = -1  # expect_delivered: reached the autopilot at least once (a node may forward twice: PAY-8's business)
@@ -300,7 +300,7 @@ class CaseContext(CaseBase):
         return CaseFailure(rule, expected, actual, ev, relies_on)
 
     def expect_acked(self, exchanges: Sequence[tuple[str, Exchange]], rule: str = "MCP-ACK-1") -> None:
-        """Each command was answered: a reply attributable to it (conformance.attribution)
+        """Each command was answered: a reply attributable to it (judge.attribution)
         arrived within MAX_ACK_COPIES copies, one every --rto. Its form is not judged here."""
         missing = [(label, ex) for label, ex in exchanges if not ex.acked]
         if missing:
@@ -324,7 +324,7 @@ class CaseContext(CaseBase):
         return out
 
     def expect_ack_format(self, exchanges: Sequence[Exchange], rule: str) -> None:
-        """ACK form, judged on replies attributed to their command (conformance.attribution):
+        """ACK form, judged on replies attributed to their command (judge.attribution):
         MCP-ACK-2 payload = 2-byte big-endian seq; MCP-ACK-3 dst/src. A reply whose
         attribution is ambiguous is not judged (the ambiguity is noted)."""
         acked = [ex for ex in exchanges if ex.ack is not None]
@@ -447,7 +447,7 @@ class CaseContext(CaseBase):
 
     def expect_monitor_clean(self, rule: str) -> None:
         """The trace monitor, which watches every datagram of the run, found no violation of
-        ``rule`` by the node (conformance.run_monitor); its first violation fails the case
+        ``rule`` by the node (judge.run_monitor); its first violation fails the case
         with the monitor's expected, actual and evidence."""
         mon = getattr(self.session, "monitor", None)
         if mon is None:

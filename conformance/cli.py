@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from conformance.baseline import BaselineError, load_baseline
-from conformance.config import RunConfig
-from conformance.interrupts import INTERRUPTS
 from conformance.options import ConfigError, make_config
 from conformance.report import RunRecord, tool_version, write_json
+from harness.config import RunConfig
+from harness.interrupts import INTERRUPTS
 from spec import SPEC
 
 __all__ = ["build_parser", "main", "pytest_args"]
@@ -179,7 +179,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the suite; return the contract's exit code (0, 1 or 2). SIGINT and SIGTERM are
-    taken first (``conformance.interrupts``): the first stops the run, the reports are
+    taken first (``harness.interrupts``): the first stops the run, the reports are
     written whatever follows."""
     argv = list(sys.argv[1:] if argv is None else argv)
     installed = INTERRUPTS.install()

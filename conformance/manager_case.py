@@ -27,14 +27,14 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from conformance._case_base import CaseBase
-from conformance.driver import Datagram, read_header
-from conformance.errors import CaseFailure, Inconclusive
-from conformance.manager_mission import Input, Mission
+from harness.driver import Datagram, read_header
+from harness.errors import CaseFailure, Inconclusive
+from harness.manager_mission import Input, Mission
 from spec import SPEC
 from spec.codec import HEADER_SIZE, ITEM, Action
 
 if TYPE_CHECKING:
-    from conformance.manager_session import ManagerSession
+    from harness.manager_session import ManagerSession
 
 _ACK = int(Action.ACK)
 _START = int(Action.START_MISSION)

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from conformance.config import DEFAULT_SEED, RunConfig, parse_hostport
-from conformance.plugin import _FLAGS, _KEYS, _TRUE, env_name
+from conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
+from harness.config import DEFAULT_SEED, RunConfig, parse_hostport
 
 __all__ = ["ConfigError", "apply_embedded_defaults", "make_config", "matches_select", "option_values"]
 
@@ -120,7 +120,7 @@ def apply_embedded_defaults(cfg: RunConfig) -> None:
     (unless --rto / --ack-window were given)."""
     if not cfg.embedded:
         return
-    from conformance import session as session_module
+    from harness import session as session_module
 
     explicit = cfg.extra.get("explicit", ())
     if "rto" not in explicit:

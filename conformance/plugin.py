@@ -31,8 +31,10 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
+from conformance.option_names import _FLAGS, _KEYS, env_name
+
 if TYPE_CHECKING:
-    from conformance.config import RunConfig
+    from harness.config import RunConfig
 
 __all__ = ["activate", "env_name"]  # and, loaded on first use: ConfigError, make_config,
 # matches_select (conformance.options), McpState, STATE_KEY (conformance._plugin_run)
@@ -44,21 +46,11 @@ _CONFIG: dict[str, pytest.Config] = {}
 class _HookSpecs:
     @pytest.hookspec(firstresult=True)
     def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
-        """Return the session for the run (see ``conformance.session.Session``)."""
+        """Return the session for the run (see ``harness.session.Session``)."""
 
 
 
 # ---------------------------------------------------------------------- options
-_KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
-         "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
-         "drones", "challenge", "waypoints")
-_FLAGS = ("strict",)
-_TRUE = ("1", "true", "yes", "on")
-
-
-def env_name(key: str) -> str:
-    """The environment variable that sets option ``key`` (``MCP_CONFORM_TARGET``, ...)."""
-    return "MCP_CONFORM_" + key.upper()
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -26,7 +26,6 @@ import contextlib
 import errno
 import json
 import os
-import re
 import socket
 import sys
 import time
@@ -42,6 +41,7 @@ from rich.table import Table
 from rich.text import Text
 
 from spec import SPEC
+from spec.about import TOOL_NAME, tool_version
 
 __all__ = [
     "OUTCOMES",
@@ -65,32 +65,11 @@ __all__ = [
 ]
 
 SCHEMA_VERSION = "1.1"
-TOOL_NAME = "mcp-conform"  # the command's name, in reports
-DIST_NAME = "centmesh-mcp-conform"  # the distribution's name (mcp-conform is taken on PyPI)
 OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
 RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
           "info": "cyan", "error": "bold magenta", "xfailed": "dim yellow", "xpassed": "bold yellow"}
 JUNIT_FAMILIES = ("xunit2", "xunit1")
-
-
-def tool_version() -> str:
-    """The installed distribution's version, else the source checkout's pyproject.toml."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version(DIST_NAME)
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
-    try:
-        m = re.search(r'^version\s*=\s*"([^"]+)"', pyproject.read_text(), re.MULTILINE)
-    except OSError:
-        m = None
-    return m.group(1) if m else "0+unknown"
 
 
 @dataclass
@@ -178,7 +157,7 @@ class RunRecord:
     started: float = field(default_factory=time.monotonic)
     started_wall: float = field(default_factory=time.time)
     finished: float | None = None
-    monitor: dict[str, Any] | None = None  # the trace monitor's section (conformance.run_monitor)
+    monitor: dict[str, Any] | None = None  # the trace monitor's section (judge.run_monitor)
 
     @property
     def duration_s(self) -> float:

@@ -1,1 +1,5 @@
-"""fuzz: reserved package of mcp-conform (see DESIGN.md); not implemented yet."""
+"""fuzz: the fuzz campaigns behind ``mcp-fuzz`` — engines (``fuzz.engine_stateless``,
+``fuzz.engine_stateful``), their inputs (``fuzz.mutators``), oracles (``fuzz.oracles``: the
+judge plus liveness, the process's fate and the vehicle's record), triage and findings
+(``fuzz.triage``, ``fuzz.findings``), replay (``fuzz.replay``, ``fuzz.replay_cli``). Drives
+the node through ``harness``; never imports ``conformance`` or ``reference_impl``."""

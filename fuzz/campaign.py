@@ -19,12 +19,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from conformance.errors import SetupError
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.findings import Finding, FindingStore, write_summary
-from fuzz.target import start_target
+from fuzz.targets import start_target
 from fuzz.triage import Triage
+from harness.errors import SetupError
 from spec import SPEC
 
 __all__ = ["Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
@@ -71,7 +71,7 @@ def load_seeds(directory: str | None) -> list[bytes]:
     """The datagrams the manager side sent in the MCAP captures of ``directory`` (``--seeds``)."""
     if directory is None:
         return []
-    from captures.reader import CaptureError, Datagram, open_capture
+    from traceio.reader import CaptureError, Datagram, open_capture
 
     d = Path(directory)
     if not d.is_dir():
@@ -265,7 +265,7 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
 def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult],
                  duration: float, error: str | None) -> dict[str, Any]:
     """``summary.json``: cases, judged cases/s, findings by rule, seed, duration."""
-    from conformance.report import tool_version
+    from spec.about import tool_version
 
     cases = sum(r.cases for r in results)
     fuzz_s = max((r.fuzz_seconds for r in results), default=0.0)

@@ -20,9 +20,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from conformance.config import DEFAULT_SEED, parse_hostport
-from conformance.errors import SetupError
 from fuzz.config import ENGINES, FuzzConfig
+from harness.config import DEFAULT_SEED, parse_hostport
+from harness.errors import SetupError
 
 __all__ = ["build_parser", "main"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from conformance.config import DEFAULT_SEED, RunConfig
+from harness.config import DEFAULT_SEED, RunConfig
 
 ENGINES = ("stateless", "stateful", "both")
 
@@ -56,7 +56,7 @@ class FuzzConfig:
 
     def run_config(self) -> RunConfig:
         """The runner's configuration of the same target (its session drives the node)."""
-        from conformance import session as session_module
+        from harness import session as session_module
 
         cfg = RunConfig(role="drone", target=self.target, listen=self.listen,
                         target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
@@ -79,7 +79,7 @@ def embedded_command(mavlink: bool) -> str:
     """The reference drone as the fuzzer spawns it: the runner's embedded command, quiet
     (its per-datagram log lines would cost more than the fuzzing itself), and without the
     runner's vehicle unless ``--mavlink`` (the drone then flies its built-in one)."""
-    from conformance.session import embedded_command as runner_command
+    from harness.session import embedded_command as runner_command
 
     cmd = runner_command()
     if not mavlink:

@@ -167,7 +167,7 @@ class FindingStore:
 def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
     """The finding a repro.mcap's metadata record describes, or None when it is not one
     (another recorder, or a capture written before the record held the sequence)."""
-    from captures.recorder import FUZZ_RECORDER
+    from traceio.recorder import FUZZ_RECORDER
 
     if meta.get("recorder") != FUZZ_RECORDER or "datagrams" not in meta or "rule" not in meta:
         return None
@@ -187,7 +187,7 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
     import time
 
-    from captures.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
+    from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
     meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,

@@ -14,11 +14,11 @@ commands to a drone).
 
 from __future__ import annotations
 
-from conformance.config import RunConfig
-from conformance.errors import SetupError
-from conformance.manager_session import ManagerSession, embedded_command
 from fuzz.config import FuzzConfig
 from fuzz.target import PROBE_COPIES, PROBE_MIN_WAIT, FuzzTarget, Probe, Traffic
+from harness.config import RunConfig
+from harness.errors import SetupError
+from harness.manager_session import ManagerSession, embedded_command
 from spec.codec import MANAGER_ID, Action
 
 __all__ = ["FUZZ_DRONES", "ManagerFuzzTarget"]

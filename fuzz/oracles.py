@@ -18,7 +18,7 @@ reply it sent, the frame it forwarded, its death), never on a consequence one st
 - the vehicle (:class:`DeliveryLedger`): passthrough frames carry probe tokens; the spec's
   duplicate rules say how often each may reach the autopilot (MCP-DUP-1/2/3, MCP-SEQ-3,
   MCP-PAY-8, MCP-ACK-5, MCP-ROB-4).
-- the trace monitor (:class:`MonitorOracle`, ``conformance.monitor``): every datagram in and
+- the trace monitor (:class:`MonitorOracle`, ``judge.monitor``): every datagram in and
   out, for the rules judged from traffic alone (HDR, ACK-2/3/7, SEQ, RTX, BLK, PAY ...). Only
   violations by the node under test count (the fuzzer's datagrams are fed as the tester's:
   they break rules on purpose), and the reply rules above stay judge_replies's.
@@ -32,7 +32,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.driver import Datagram
+from harness.driver import Datagram
 from spec import SPEC
 from spec.codec import HEADER_SIZE, Action, DecodeError, Message, decode
 
@@ -94,7 +94,7 @@ class Input:
 
     @classmethod
     def of(cls, data: bytes) -> Input:
-        from conformance.driver import read_header
+        from harness.driver import read_header
 
         try:
             return cls(data, read_header(data), decode(data), None)
@@ -427,7 +427,7 @@ class DeliveryLedger:
 class MonitorOracle:
     """The trace monitor over all traffic, keeping only the node under test's violations.
 
-    ``conformance.monitor`` is the shared judge of traffic (DESIGN.md); where it is not
+    ``judge.monitor`` is the shared judge of traffic (DESIGN.md); where it is not
     installed, this oracle says so (``available``) and judges nothing.
     """
 
@@ -438,7 +438,7 @@ class MonitorOracle:
         self.datagrams = 0
         self._sent_by_index: dict[int, bytes | None] = {}
         try:
-            from conformance.monitor import TESTER, Monitor
+            from judge.monitor import TESTER, Monitor
         except ImportError:
             self.monitor: Any = None
             self.tester: Any = None

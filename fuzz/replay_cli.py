@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import sys
 
-from conformance.errors import SetupError
 from fuzz.config import FuzzConfig
 from fuzz.findings import Finding, load_finding
 from fuzz.replay import run_sequence
-from fuzz.target import start_target
+from fuzz.targets import start_target
+from harness.errors import SetupError
 
 __all__ = ["replay_finding", "reproduce"]
 

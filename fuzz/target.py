@@ -15,11 +15,10 @@ import threading
 import time
 from dataclasses import dataclass
 
-from conformance.driver import Datagram, Sent, TargetDriver
-from conformance.errors import SetupError
-from conformance.session import Session
 from fuzz.config import FuzzConfig
 from fuzz.oracles import acked_seq
+from harness.driver import Datagram, Sent, TargetDriver
+from harness.session import Session
 from spec.codec import Action
 
 __all__ = ["FuzzTarget", "Probe", "Traffic", "TrafficRecord", "Withheld"]
@@ -196,7 +195,7 @@ class FuzzTarget:
         sent = drv.send(Action.WP_OFF, None, self.node_id)
         ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
         if ex.ack is not None and acked_seq(ex.ack) != sent.seq:
-            # the reply taken for the probe's ACK does not name the probe (conformance.attribution
+            # the reply taken for the probe's ACK does not name the probe (judge.attribution
             # ties it by arrival: a wrong payload, or an earlier input's ACK arriving late);
             # let the node's other replies arrive too, so the judge sees every ACK it sent
             drv.quiet(gap=0.05, limit=max(self.rto, PROBE_MIN_WAIT))
@@ -223,23 +222,3 @@ class FuzzTarget:
 
     def settle(self, seconds: float) -> None:
         time.sleep(max(0.0, seconds))
-
-
-def start_target(cfg: FuzzConfig) -> FuzzTarget:
-    """A started target, or SetupError (its resources released)."""
-    t: FuzzTarget
-    if cfg.role == "manager":
-        from fuzz.manager_target import ManagerFuzzTarget
-
-        t = ManagerFuzzTarget(cfg)
-    else:
-        t = FuzzTarget(cfg)
-    try:
-        t.start()
-    except SetupError:
-        t.close()
-        raise
-    except OSError as exc:
-        t.close()
-        raise SetupError(str(exc)) from None
-    return t

@@ -608,11 +608,12 @@ class RoleNode:
         """The node's MCAP capture (``--capture``), written off the hot path; None without."""
         if not path:
             return None
-        from captures.recorder import BackgroundRecorder, RecorderError, run_metadata
+        from traceio.background import BackgroundRecorder
+        from traceio.recorder import RecorderError, run_metadata
 
         try:
             # the MCAP header names the writer: readers tell a node's own capture from a
-            # test harness's (captures.judging: a harness's datagrams are its input, not judged)
+            # test harness's (judge.judging: a harness's datagrams are its input, not judged)
             self.capture = BackgroundRecorder(path, library="mcp-node", metadata=run_metadata(
                 "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), **meta))
         except RecorderError as exc:

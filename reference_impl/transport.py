@@ -92,7 +92,7 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
     ``remote``: where our messages go (and ACKs, unless ``reply_to_source``).
     ``on_event``: called in the loop thread for every endpoint event, in order; its
     exceptions are logged, never propagated. ``tap``: called with every datagram received
-    and sent (a capture; it must be quick: ``captures.recorder.BackgroundRecorder.datagram``). Use :meth:`send` only from the loop thread
+    and sent (a capture; it must be quick: ``traceio.background.BackgroundRecorder.datagram``). Use :meth:`send` only from the loop thread
     (other threads: ``loop.call_soon_threadsafe``).
     """
 

@@ -17,12 +17,28 @@ NAV_TAKEOFF first ("Auto: Missing Takeoff Cmd"), as ``ModeAuto::init`` checks.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-if TYPE_CHECKING:
-    from .model import VehicleModel
+
+class Airframe(Protocol):
+    """What flying a mission needs of the vehicle (``vehicle.model.VehicleModel`` has it):
+    its state, its stored mission, and the moves and records it makes."""
+
+    config: Any
+    missions: Any
+    lat: float
+    lon: float
+    altitude: float
+    armed: bool
+
+    def broadcast(self, msg: Any) -> Any: ...
+    def climb_to(self, *args: Any, **kwargs: Any) -> Any: ...
+    def descend(self, *args: Any, **kwargs: Any) -> Any: ...
+    def fly_to(self, *args: Any, **kwargs: Any) -> Any: ...
+    def land_and_disarm(self, *args: Any, **kwargs: Any) -> Any: ...
+    def record(self, *args: Any, **kwargs: Any) -> Any: ...
 
 #: Metres per degree of latitude (and of longitude at the equator), WGS-84 mean.
 METRES_PER_DEGREE = 111_319.5
@@ -72,7 +88,7 @@ def command_label(cmd: int) -> str:
 class AutoMission:
     """The mission as flown in AUTO (see the module docstring)."""
 
-    def __init__(self, model: VehicleModel) -> None:
+    def __init__(self, model: Airframe) -> None:
         self.model = model
         self.running = False
         self.started = False

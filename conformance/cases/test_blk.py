@@ -8,8 +8,8 @@ currently pending actions (from previously received commands), then execute an R
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec.codec import Action
 from vehicle.records import describe_request, is_rtl_request
 

@@ -7,8 +7,8 @@ Mav_Passthrough probe reaches the autopilot, so a duplicate delivery shows as a 
 from __future__ import annotations
 
 from conformance.case import DELIVERED, NOT_AGAIN
-from conformance.errors import Inconclusive
 from conformance.marks import rules
+from harness.errors import Inconclusive
 
 
 @rules("MCP-DUP-1")

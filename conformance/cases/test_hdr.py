@@ -1,7 +1,7 @@
 """HDR — framing of everything the node sent during the run (judged late, passively).
 
 Each case asks the trace monitor, which judged every datagram of the run as it came
-(conformance.run_monitor), then checks the datagrams the runner received itself.
+(judge.run_monitor), then checks the datagrams the runner received itself.
 
 "The Preamble is a 9-byte unique pattern. The first 7 bytes spell out “NCSU-CM” in ASCII,
 the value of each of the last two bytes is 1."

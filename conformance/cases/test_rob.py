@@ -12,8 +12,8 @@ import random
 import time
 
 from conformance.case import Attempt
-from conformance.driver import Sent
 from conformance.marks import rules
+from harness.driver import Sent
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from spec.strategies import malformed_corpus

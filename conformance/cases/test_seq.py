@@ -8,8 +8,8 @@ identified by repeating sequence number."
 from __future__ import annotations
 
 from conformance.case import DELIVERED
-from conformance.errors import Inconclusive
 from conformance.marks import rules
+from harness.errors import Inconclusive
 
 
 @rules("MCP-SEQ-1")

@@ -8,8 +8,8 @@ one with a new seq, liveness probes) and on inputs the runner sends on purpose.
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec import SPEC
 from spec.codec import MANAGER_ID, Action
 

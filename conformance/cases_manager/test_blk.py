@@ -7,9 +7,9 @@ nothing more.
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import abandoned, awaiting_until, messages, runner_ack_time
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec.codec import Action
 
 _START = int(Action.START_MISSION)

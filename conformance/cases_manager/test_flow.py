@@ -8,9 +8,9 @@ A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the 
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import abandoned, item_differences, messages
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec.codec import Action
 
 _START = int(Action.START_MISSION)

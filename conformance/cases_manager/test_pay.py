@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import struct
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import unpack_items
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec.codec import HEADER_SIZE, ITEM_SIZE, Action, DecodeError, decode
 from spec.mission import sane_item
 

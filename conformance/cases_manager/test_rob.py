@@ -7,9 +7,9 @@ across retransmissions (MCP-ROB-5). "No ACK" is judged over the ACK window (D-6)
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import messages
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec.codec import Action
 
 

@@ -8,9 +8,9 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import messages
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec import SPEC
 
 MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])

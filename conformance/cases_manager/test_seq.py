@@ -6,9 +6,9 @@ the same sequence number as the original."
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.manager_case import messages
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec import SPEC
 from spec.codec import Action
 

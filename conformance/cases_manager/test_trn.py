@@ -6,8 +6,8 @@ ports 7889 and 7890. At the IP level, they are local subnet IP broadcasts."
 
 from __future__ import annotations
 
-from conformance.errors import Inconclusive
 from conformance.marks import rules
+from harness.errors import Inconclusive
 from spec import SPEC
 
 _MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])

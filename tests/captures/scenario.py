@@ -1,5 +1,5 @@
 """A synthetic capture of challenge 2 between a manager and two drones, for diff and replay
-tests: datagram records as ``captures.reader`` yields them, with knobs for what may vary
+tests: datagram records as ``traceio.reader`` yields them, with knobs for what may vary
 between two recordings of the same scenario (initial seqs, ports, timing)."""
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ import pytest
 
 from captures.check import load_schema, validate_json
 from captures.cli import main
-from conformance.monitor import Monitor
+from judge.monitor import Monitor
 from spec import SPEC
 from spec.mission import load_waypoints, save_waypoints
 from tests.conformance.monitor_faults import FAULTY

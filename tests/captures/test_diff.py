@@ -10,9 +10,9 @@ import random
 import pytest
 
 from captures.diff import DiffOptions, diff_sides, print_report, register, side_from_datagrams
-from captures.recorder import McapRecorder
 from spec.codec import Action, decode, encode
 from tests.captures.scenario import D, challenge2, reindex
+from traceio.recorder import McapRecorder
 
 
 def _diff(golden: list[D], candidate: list[D], **opts):

@@ -12,7 +12,6 @@ import subprocess
 import pytest
 
 from captures import dissector, export
-from captures.recorder import McapRecorder
 from spec import SPEC
 from spec.codec import (
     HEADER_SIZE,
@@ -25,6 +24,7 @@ from spec.codec import (
     encode,
 )
 from spec.mavframe import heartbeat_frame
+from traceio.recorder import McapRecorder
 
 ITEMS = (MissionItem(0.5, 1.5, 2.5, 3.5, 35.771103, -78.674659, 12.25, 0, 16, 1, 1, 3, 1, 1),
          MissionItem(0.0, 0.0, 0.0, 0.0, 35.772, -78.675, 30.0, 1, 22, 2, 3, 6, 0, 1))

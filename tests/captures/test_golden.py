@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from captures.diff import DiffOptions, diff_captures, print_report
-from captures.reader import Datagram, open_capture
 from captures.replay import replay
 from captures.scenarios import GOLDEN, record_challenge
+from traceio.reader import Datagram, open_capture
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
@@ -140,7 +140,7 @@ def test_replay_errors_are_one_line(tmp_path):
 
 def test_replay_in_attach_mode():
     """A node already running (attach): replay sends to --target and listens on --listen."""
-    from conformance.session import free_udp_port
+    from harness.session import free_udp_port
 
     target, listen = free_udp_port(), free_udp_port()
     node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",

@@ -1,4 +1,4 @@
-"""The HTML reports (captures.html): self-contained, and shown by a real browser.
+"""The HTML reports (reports.html): self-contained, and shown by a real browser.
 
 The slow test runs ``mcp-conform --html`` against the independent sample node with one
 fault, opens the page from disk in headless chromium, and checks through the DOM that the
@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from captures.html import render_run
-from captures.reader import open_capture
-from captures.recorder import McapRecorder
+from reports.html import render_run
 from spec import SPEC
 from spec.codec import Action, Message, encode
 from tests.conformance.runner_helpers import FAST, run_conform, sample_node_command
+from traceio.reader import open_capture
+from traceio.recorder import McapRecorder
 
 from .browser import chromium
 

@@ -97,7 +97,7 @@ def test_interrupted_node_leaves_a_valid_capture(tmp_path, how):
 
 def test_a_mission_end_to_end_is_captured_on_every_node(tmp_path):
     """The manager and a drone, each with --capture: each file holds its side of the mission."""
-    from conformance.session import free_udp_port
+    from harness.session import free_udp_port
 
     pm, pd = free_udp_port(), free_udp_port()
     waypoints = ROOT / "tests" / "reference_impl" / "data" / "challenge.waypoints"
@@ -125,7 +125,7 @@ def test_the_runner_capture_is_complete(tmp_path):
 
     from mcap.reader import make_reader
 
-    from captures.reader import Datagram, open_capture
+    from traceio.reader import Datagram, open_capture
 
     path = tmp_path / "run.mcap"
     proc = subprocess.run([sys.executable, "-m", "conformance", "--select", "MCP-ROB-7", "--capture", str(path)],

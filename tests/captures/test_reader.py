@@ -1,4 +1,4 @@
-"""captures.reader: MCAP, pcap and pcapng into one stream of records.
+"""traceio.reader: MCAP, pcap and pcapng into one stream of records.
 
 Every link type a user's tcpdump or Wireshark writes, IP fragments, snap-length cuts, and
 files cut at every byte offset or followed by garbage: a prefix of the records and a
@@ -16,8 +16,9 @@ from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Dot1Q, Ether, Loopback
 from scapy.packet import Raw
 from scapy.utils import wrpcap, wrpcapng
 
-import captures.recorder as recorder_mod
-from captures.reader import (
+import traceio.recorder as recorder_mod
+from spec.codec import Action, Message, encode
+from traceio.reader import (
     CaptureError,
     CaseMark,
     Datagram,
@@ -25,8 +26,7 @@ from captures.reader import (
     Truncated,
     open_capture,
 )
-from captures.recorder import McapRecorder
-from spec.codec import Action, Message, encode
+from traceio.recorder import McapRecorder
 
 START = encode(Message(1, 0, 5, Action.START_MISSION))
 ACK = encode(Message(0, 1, 9, Action.ACK, 5))

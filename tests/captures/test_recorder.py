@@ -1,4 +1,4 @@
-"""captures.recorder: MCAP files read back with the mcap reader, CRCs validated."""
+"""traceio.recorder: MCAP files read back with the mcap reader, CRCs validated."""
 
 from __future__ import annotations
 
@@ -14,18 +14,18 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from captures.recorder import (
+from spec.codec import Action, Message, MissionItem, encode
+from spec.mavframe import heartbeat_frame
+from traceio.background import BackgroundRecorder
+from traceio.recorder import (
     CHANNELS,
     METADATA_NAME,
-    BackgroundRecorder,
     McapRecorder,
     RecorderError,
     mavlink_type,
     run_metadata,
     summarize_payload,
 )
-from spec.codec import Action, Message, MissionItem, encode
-from spec.mavframe import heartbeat_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
@@ -178,7 +178,7 @@ def test_background_writer_finishes_the_file_when_its_owner_is_killed(tmp_path):
     path = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
         import os, signal, time
-        from captures.recorder import BackgroundRecorder
+        from traceio.background import BackgroundRecorder
         rec = BackgroundRecorder({str(path)!r})
         for i in range(500):
             rec.datagram("tx", b"NCSU-CM\x01\x01" + bytes(8), ("127.0.0.1", 1), i)
@@ -242,7 +242,7 @@ def test_run_interrupted_by_an_exception_leaves_a_valid_file(tmp_path):
     """The process dies of an uncaught exception without calling close(): atexit does."""
     path = tmp_path / "crash.mcap"
     script = textwrap.dedent(f"""
-        from captures.recorder import McapRecorder
+        from traceio.recorder import McapRecorder
         rec = McapRecorder({str(path)!r})
         rec.case_mark("ACK/test_z", "start", 1)
         rec.datagram("tx", b"NCSU-CM\\x01\\x01" + bytes(8), ("127.0.0.1", 1), 2)

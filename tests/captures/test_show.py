@@ -1,4 +1,4 @@
-"""mcp-capture show, the conversation view (captures.trace) and the sequence chart (captures.chart)."""
+"""mcp-capture show, the conversation view (traceio.trace) and the sequence chart (reports.chart)."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ from typing import Any, NamedTuple
 
 import pytest
 
-import captures.judging as judging
-from captures.chart import Arrow, Lifeline, render, trace_svg
+import judge.judging as judging
 from captures.cli import main
-from captures.reader import open_capture
-from captures.trace import Trace
+from reports.chart import Arrow, Lifeline, render, trace_svg
 from spec.codec import Action
+from traceio.reader import open_capture
+from traceio.trace import Trace
 
 from .conversation import Script, mission
 
@@ -131,8 +131,8 @@ def test_show_bad_arguments_are_one_line_errors(tmp_path, capsys, args, words):
 
 
 def test_show_case_window_of_an_mcap(tmp_path, capsys):
-    from captures.recorder import McapRecorder
     from spec.codec import Message, encode
+    from traceio.recorder import McapRecorder
 
     path = tmp_path / "run.mcap"
     start, ack = encode(Message(1, 0, 5, Action.START_MISSION)), encode(Message(0, 1, 9, Action.ACK, 5))

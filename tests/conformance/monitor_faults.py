@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-from conformance.monitor import TESTER
+from judge.monitor import TESTER
 from spec.codec import PREAMBLE, Action, Message, MissionItem, build_datagram, encode
 from spec.mavframe import heartbeat_frame
 from tests.conformance.monitor_scripts import Script

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from conformance.monitor import TESTER, Monitor, VehicleEvent
+from judge.monitor import TESTER, Monitor, VehicleEvent
 from spec import SPEC
 from spec.codec import Action, Message, build_datagram, encode
 from spec.mavframe import heartbeat_frame

@@ -1,4 +1,4 @@
-"""conformance.attribution: which command a reply answers, decided before its form is judged."""
+"""judge.attribution: which command a reply answers, decided before its form is judged."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import pytest
 
-from conformance.attribution import BY_SEQ, BY_SEQ_LE, BY_TIMING, Attributor
+from judge.attribution import BY_SEQ, BY_SEQ_LE, BY_TIMING, Attributor
 from spec.codec import Action, Message, build_datagram, encode, peek_header
 
 NODE = 1
@@ -157,7 +157,7 @@ def test_an_ack_of_a_malformed_input_is_tied_to_it_by_the_seq_it_names():
 
 
 def test_memory_stays_bounded_on_a_long_run():
-    from conformance import attribution
+    from judge import attribution
 
     link = Link()
     for i in range(attribution.MAX_COMMANDS + 10):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from conformance._case_base import CaseBase
-from conformance.errors import CaseFailure, Inconclusive
+from harness.errors import CaseFailure, Inconclusive
 
 
 def _ctx(subject: str = "the node") -> CaseBase:

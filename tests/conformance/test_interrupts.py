@@ -1,4 +1,4 @@
-"""``conformance.interrupts``: how a signal becomes a stop without losing a report."""
+"""``harness.interrupts``: how a signal becomes a stop without losing a report."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from conformance.interrupts import Interrupts
+from harness.interrupts import Interrupts
 
 
 def _frame(filename: str) -> SimpleNamespace:

@@ -3,10 +3,10 @@ synthetic traffic (no sockets)."""
 
 from __future__ import annotations
 
-from conformance.driver import Datagram, Sent, read_header
 from conformance.manager_case import abandoned, messages, runner_ack_time
-from conformance.manager_mission import Mission
-from conformance.manager_monitor import monitor_mission
+from harness.driver import Datagram, Sent, read_header
+from harness.manager_mission import Mission
+from harness.manager_monitor import monitor_mission
 from spec.codec import PREAMBLE, Action, DecodeError, Message, decode, encode
 
 ADDR = ("127.0.0.1", 7889)
@@ -73,7 +73,7 @@ def _judge_seq_1(m: Mission) -> str | None:
     """Run the manager-role MCP-SEQ-1 case on ``m``; its failure's actual, or None."""
     from conformance._case_base import CaseBase
     from conformance.cases_manager.test_seq import test_each_new_message_takes_the_next_seq
-    from conformance.errors import CaseFailure
+    from harness.errors import CaseFailure
 
     class Node(CaseBase):
         def mission(self, kind: str = "main") -> Mission:

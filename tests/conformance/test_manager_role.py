@@ -88,7 +88,7 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
     import subprocess
     import sys
 
-    from conformance.manager_session import make_mission_items
+    from harness.manager_session import make_mission_items
     from spec.mission import save_waypoints
 
     from .runner_helpers import ROOT, free_port

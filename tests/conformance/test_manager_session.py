@@ -1,10 +1,10 @@
-"""conformance.manager_session: the mission files handed to the manager, the embedded
+"""harness.manager_session: the mission files handed to the manager, the embedded
 command and its placeholders (no sockets, no processes)."""
 
 from __future__ import annotations
 
-from conformance.manager_session import embedded_command, make_mission_items
-from conformance.session import fill_placeholders
+from harness.manager_session import embedded_command, make_mission_items
+from harness.session import fill_placeholders
 from spec.mission import load_waypoints, sane_item, save_waypoints
 
 

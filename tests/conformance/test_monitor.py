@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.monitor import MONITORED_RULES, TESTER, Monitor, Violation
+from judge.monitor import MONITORED_RULES, TESTER, Monitor, Violation
 from spec import SPEC
 from spec.codec import Action, DecodeError, Message, decode, encode
 from tests.conformance.monitor_faults import FAULTY

@@ -21,7 +21,7 @@ PLUGIN = [] if _plugin_is_installed() else ["-p", "conformance.plugin"]
 
 CONFTEST = """
 import json, time
-from conformance.errors import SetupError, TargetLost
+from harness.errors import SetupError, TargetLost
 
 SETUP_ERROR = {setup_error!r}
 LOST_AFTER = {lost_after!r}
@@ -66,7 +66,7 @@ def pytest_mcp_make_session(cfg, recorder, config):
 CASES = """
 import time
 from conformance.marks import rules
-from conformance.errors import CaseFailure, Inconclusive
+from harness.errors import CaseFailure, Inconclusive
 
 @rules("MCP-BLK-7", phase="end")
 def test_end(node):

@@ -1,4 +1,4 @@
-"""The runner's trace monitor (conformance.run_monitor): fed as the runner feeds it, the
+"""The runner's trace monitor (judge.run_monitor): fed as the runner feeds it, the
 harness's own traffic is never blamed, the node's is; the report's ``monitor`` section
 follows the schema. The slow tests run ``mcp-conform`` end to end.
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from conformance.report import RunRecord, build_json, merge_json, validate_json
-from conformance.run_monitor import RunMonitor
+from judge.run_monitor import RunMonitor
 from spec.codec import BROADCAST_ID, PREAMBLE, Action, Message, build_datagram, encode
 
 from .runner_helpers import FAST, run_conform, sample_node_command

@@ -38,7 +38,7 @@ def test_bad_arguments_are_one_line_errors(argv: list[str], words: str,
 
 
 def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noqa: ANN001
-    from captures.reader import Datagram, Metadata, open_capture
+    from traceio.reader import Datagram, Metadata, open_capture
 
     store = FindingStore(tmp_path, ["--mavlink"])
     f = Finding("MCP-ACK-4", "no ACK", "an ACK", ["4e4353552d434d0101ffff000000010005"], "replies: valid",
@@ -74,9 +74,9 @@ def test_shrink_finds_the_minimal_pair() -> None:
 
 
 def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noqa: ANN001
-    from captures.recorder import McapRecorder
-    from conformance.errors import SetupError
     from fuzz.campaign import load_seeds
+    from harness.errors import SetupError
+    from traceio.recorder import McapRecorder
 
     sent = [bytes.fromhex("4e4353552d434d010100010000000a0005"), b"\x01\x02"]
     with McapRecorder(tmp_path / "a.mcap") as rec:

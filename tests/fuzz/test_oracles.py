@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import time
 
-from conformance.driver import Datagram, read_header
 from fuzz.oracles import DeliveryLedger, Input, judge_liveness, judge_replies
+from harness.driver import Datagram, read_header
 from spec.codec import BROADCAST_ID, Action, Message, build_datagram, decode, encode
 
 NODE = 1

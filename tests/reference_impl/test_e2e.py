@@ -79,7 +79,7 @@ def judge_own_captures(challenge: int, tmp_path: Path) -> None:
     """Each node's own capture (``mcp-node --capture``, our recorder) judged by the trace
     monitor as ``mcp-capture check`` does: no violation in any of them, and the manager's,
     which holds every exchange of the mission, shows the challenge's flow rule passed."""
-    from captures.judging import Params, judge
+    from judge.judging import Params, judge
 
     items = tuple(load_waypoints(OBSTACLES if challenge == 3 else WAYPOINTS))
     for name in ("manager", *(f"drone{i}" for i in DRONES)):
@@ -175,12 +175,12 @@ class LoopbackCapture:
 
 @pytest.mark.parametrize("challenge", [1, 2, 3])
 def test_the_trace_monitor_finds_nothing_in_their_traffic(challenge: int, tmp_path: Path) -> None:
-    """The same mission captured by tcpdump on lo, read back (captures.reader) and judged by
-    conformance.monitor with the mission's drones, challenge and items: no violation. Every
+    """The same mission captured by tcpdump on lo, read back (traceio.reader) and judged by
+    judge.monitor with the mission's drones, challenge and items: no violation. Every
     node runs on this host, so the capture holds every datagram (judged as a complete trace)
     unless tcpdump reports drops."""
-    from captures.reader import Datagram, open_capture
-    from conformance.monitor import Monitor
+    from judge.monitor import Monitor
+    from traceio.reader import Datagram, open_capture
 
     drone_port, manager_port = free_port(), free_port()
     while manager_port == drone_port:

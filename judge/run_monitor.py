@@ -20,7 +20,7 @@ import threading
 import time
 from typing import Any
 
-from conformance.monitor import (
+from judge.monitor import (
     TESTER,
     Monitor,
     Violation,
@@ -40,7 +40,7 @@ def violation_json(v: Violation) -> dict[str, Any]:
 
 
 class RunMonitor:
-    """A :class:`~conformance.monitor.Monitor` fed by the runner (see the module docstring).
+    """A :class:`~judge.monitor.Monitor` fed by the runner (see the module docstring).
 
     ``node_id`` is the node under test's MCP ID when known, ``node_addr`` its address
     (datagrams from there are its own), ``vehicle_id`` the drone whose autopilot link the

@@ -36,7 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.driver import Datagram, Exchange, Sent, TargetDriver, read_header
+from harness.driver import Datagram, Exchange, Sent, TargetDriver, read_header
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from spec.strategies import malformed_corpus

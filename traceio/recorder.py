@@ -49,7 +49,6 @@ __all__ = [
     "CHANNELS",
     "FUZZ_RECORDER",
     "METADATA_NAME",
-    "BackgroundRecorder",
     "McapRecorder",
     "RecorderError",
     "datagram_record",
@@ -239,8 +238,8 @@ def mavlink_type(frame: bytes) -> str | None:
 def run_metadata(recorder: str, **values: Any) -> dict[str, str]:
     """The ``mcp-conform`` metadata record: tool and spec versions, who recorded, and
     ``values`` (target, role, seed, ...; None values are left out), all as strings."""
-    from conformance.report import TOOL_NAME, tool_version
     from spec import SPEC
+    from spec.about import TOOL_NAME, tool_version
 
     meta = {"tool": TOOL_NAME, "tool_version": tool_version(), "spec_version": SPEC.version,
             "spec_sha256": SPEC.sha256, "recorder": recorder, "host": platform.node(),
@@ -381,5 +380,3 @@ def _close_all() -> None:
         except Exception:  # noqa: BLE001 - best effort at exit
             pass
 
-
-from captures._background import BackgroundRecorder  # noqa: E402  (uses _LIVE, RecorderError)

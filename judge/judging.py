@@ -1,7 +1,7 @@
 """A capture judged by the trace monitor: what ``mcp-capture check`` and ``show`` share.
 
-``judge(path, params)`` reads the capture (``captures.reader``), feeds every datagram to
-``conformance.monitor.Monitor`` in capture order, closes the trace at its last record, and
+``judge(path, params)`` reads the capture (``traceio.reader``), feeds every datagram to
+``judge.monitor.Monitor`` in capture order, closes the trace at its last record, and
 returns a :class:`Judgement`: the nodes found (MCP ID, role, addresses, datagrams sent and
 received), the violations, the monitor's per-node, per-rule verdicts, and what the capture
 itself said (format, truncated, notes). Without a challenge it infers one from the manager's
@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from captures.cli import UsageError
-from captures.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
-from captures.trace import Node, action_name, evidence_indexes
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
+from traceio.files import UsageError
+from traceio.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
+from traceio.trace import Node, action_name, evidence_indexes
 
 __all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
            "evidence_of", "fetch", "judge", "params_from_args", "selected", "CaptureError"]
@@ -172,14 +172,14 @@ class Judgement:
 
 
 class MonitorUnavailable(UsageError):
-    """This installation has no trace monitor (``conformance.monitor``)."""
+    """This installation has no trace monitor (``judge.monitor``)."""
 
 
 def _make_monitor(params: Params) -> Any:
     try:
-        from conformance.monitor import Monitor
+        from judge.monitor import Monitor
     except ImportError as exc:
-        raise MonitorUnavailable(f"the trace monitor (conformance.monitor) is not available: {exc}") from None
+        raise MonitorUnavailable(f"the trace monitor (judge.monitor) is not available: {exc}") from None
 
     return Monitor(rto=params.rto, ack_window=params.ack_window, broadcast_id=params.broadcast_id,
                    drones=list(params.drones) if params.drones is not None else None,
@@ -208,7 +208,7 @@ HARNESSES = frozenset({"mcp-conform", "mcp-fuzz", "mcp-capture"})
 
 
 def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
-    """Read ``path`` and judge it; raises :class:`captures.reader.CaptureError`.
+    """Read ``path`` and judge it; raises :class:`traceio.reader.CaptureError`.
 
     Our MCAP captures: the harness's own datagrams are fed as the monitor's ``TESTER``
     origin, the trace is complete (the runner's socket saw every datagram it exchanged),
@@ -318,7 +318,7 @@ def _collect(found: list[Any], recent: deque[Datagram], evidence: dict[int, Data
 
 def _tester() -> Any:
     try:
-        from conformance.monitor import TESTER
+        from judge.monitor import TESTER
     except ImportError:
         return None
     return TESTER
@@ -329,7 +329,7 @@ def _nodes(mon: Any) -> list[Any]:
 
 
 def _vehicle(mon: Any, frame: MavlinkFrame, drone: int) -> list[Any]:
-    from conformance.monitor import events_from_mavlink
+    from judge.monitor import events_from_mavlink
 
     out: list[Any] = []
     for ev in events_from_mavlink(frame.data, frame.direction or "rx"):

@@ -3,7 +3,7 @@
 One file, no external assets (inline CSS, inline SVG charts, no script), that opens from
 disk in any browser: a summary, the per-rule table, and for every violation (check) or every
 failed, warned or errored case (a run) the rule's text from the spec, expected, actual, the
-evidence and the sequence chart of its traffic (``captures.chart``) — for a run, the
+evidence and the sequence chart of its traffic (``reports.chart``) — for a run, the
 datagrams of the case's capture window (``capture.start_ns`` / ``end_ns`` of the JSON
 report), with the datagrams the case's evidence names marked.
 
@@ -18,10 +18,10 @@ from collections.abc import Iterable, Sequence
 from html import escape
 from typing import Any
 
-from captures.chart import trace_svg
-from captures.reader import Datagram
-from captures.trace import Trace, evidence_indexes
+from reports.chart import trace_svg
 from spec import SPEC
+from traceio.reader import Datagram
+from traceio.trace import Trace, evidence_indexes
 
 __all__ = ["page", "render_check", "render_run", "write_run"]
 
@@ -116,7 +116,7 @@ def _finding(rule: str | None, outcome: str, heading: str, fields: Sequence[tupl
 
 # ---------------------------------------------------------------- mcp-capture check
 def render_check(j: Any, doc: dict[str, Any]) -> str:
-    """The page of a :class:`captures.judging.Judgement` (``doc``: its JSON, ``check.to_json``)."""
+    """The page of a :class:`judge.judging.Judgement` (``doc``: its JSON, ``check.to_json``)."""
     trace = Trace(j.kept or (), j.params.broadcast_id)
     trace.mark(j.shown_violations)
     f, s = doc["file"], doc["summary"]
@@ -254,7 +254,7 @@ def _monitor_violations(monitor: dict[str, Any], trace: Trace | None) -> list[_J
 
 def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:
     """Write the run's page; the charts come from ``capture`` (our MCAP) where it reads."""
-    from captures.reader import CaptureError, open_capture
+    from traceio.reader import CaptureError, open_capture
 
     datagrams = None
     if capture:

@@ -41,7 +41,7 @@ from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
-from conformance._monitor_base import (
+from judge._monitor_base import (
     ACK,
     HDR,
     LEVEL,
@@ -63,9 +63,9 @@ from conformance._monitor_base import (
     role_of,
     unpack_header,
 )
-from conformance._monitor_receiver import ReceiverRules
-from conformance._monitor_sender import SenderRules
-from conformance._monitor_vehicle import VehicleRules, events_from_mavlink, events_from_vehicle
+from judge._monitor_receiver import ReceiverRules
+from judge._monitor_sender import SenderRules
+from judge._monitor_vehicle import VehicleRules, events_from_mavlink, events_from_vehicle
 from spec import SPEC
 from spec.codec import BROADCAST_ID, DecodeError, decode
 from spec.mission import sane_item

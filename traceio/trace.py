@@ -3,7 +3,7 @@
 The view ``mcp-capture show``, the sequence charts and the HTML reports share. It names
 nodes by MCP ID (the header's src and dst; manager 0, D-1's broadcast ID), never by address,
 and learns each node's addresses from the datagrams it sent. It judges nothing (that is the
-monitor's business, ``conformance.monitor``); it only marks what a reader of the trace wants
+monitor's business, ``judge.monitor``); it only marks what a reader of the trace wants
 to see at a glance:
 
 - a copy: a unicast message with the (src, dst, seq) and bytes of an earlier one, i.e. a
@@ -21,7 +21,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from captures.reader import Datagram
 from spec import SPEC
 from spec.codec import (
     BROADCAST_ID,
@@ -33,6 +32,7 @@ from spec.codec import (
     peek_header,
 )
 from spec.mavframe import FrameError, parse_frame
+from traceio.reader import Datagram
 
 __all__ = ["Entry", "Node", "Trace", "action_name", "describe_payload", "lifeline_of", "node_role"]
 

@@ -17,7 +17,7 @@ stream of typed records:
 
 Formats:
 
-- MCAP as ``captures.recorder`` writes it, read sequentially with ``mcap``'s StreamReader
+- MCAP as ``traceio.recorder`` writes it, read sequentially with ``mcap``'s StreamReader
   (CRCs validated), so a file without its summary and footer is read up to its last whole
   chunk.
 - pcap (micro- and nanosecond, either byte order, gzip'd too) and pcapng, through scapy's
@@ -282,7 +282,7 @@ class Capture:
                             yield rec.log_time, "d", (local if tx else peer, peer if tx else local,
                                                       b64(body["raw_base64"]), "tx" if tx else "rx", library)
                         elif topic == "/mcp/burst":
-                            # a flood recorded as a count (captures.recorder): datagram i is
+                            # a flood recorded as a count (traceio.recorder): datagram i is
                             # cycle[i % len(cycle)], times spread evenly over the burst
                             peer, local = _parse_peer(body.get("peer")), _parse_peer(body.get("local"))
                             tx = body.get("direction") == "tx"

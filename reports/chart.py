@@ -12,7 +12,7 @@ action and seq; at a glance:
 
 ``render(lifelines, arrows)`` takes plain data (:class:`Arrow`), so any producer can chart
 a conversation (``mcp-capture show --svg``, the HTML reports, a golden diff);
-``trace_svg(trace, entries)`` charts entries of a :class:`captures.trace.Trace`. Every
+``trace_svg(trace, entries)`` charts entries of a :class:`traceio.trace.Trace`. Every
 arrow is an SVG ``<g class="arrow ...">`` with ``data-index`` and ``data-rules`` attributes
 and a ``<title>`` tooltip, so a browser (or a test, through the DOM) can find it.
 """
@@ -177,8 +177,8 @@ def _arrow(a: Arrow, x1: int, x2: int, y: int) -> str:
 
 # ---------------------------------------------------------------- from a Trace
 def arrow_of(e: Any, broadcast_id: int | None = None) -> Arrow:
-    """The arrow of a :class:`captures.trace.Entry`."""
-    from captures.trace import describe_payload
+    """The arrow of a :class:`traceio.trace.Entry`."""
+    from traceio.trace import describe_payload
 
     if e.msg is None:
         kind = "malformed"
@@ -213,7 +213,7 @@ def _addr(addr: Any) -> str:
 
 def trace_svg(trace: Any, entries: Iterable[Any] | None = None, title: str = "",
               max_rows: int = MAX_ROWS) -> str:
-    """The chart of ``entries`` (default: all) of a :class:`captures.trace.Trace`."""
+    """The chart of ``entries`` (default: all) of a :class:`traceio.trace.Trace`."""
     entries = list(trace.entries if entries is None else entries)
     keys = trace.lifelines(entries)
     lifelines = [Lifeline(k, *trace.lifeline_title(k)) for k in keys]

@@ -1,7 +1,7 @@
 """The target driver: the runner's one UDP socket, a background receiver, sends and waits.
 
 Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
-arrives; replies are tied to the commands they answer by ``conformance.attribution`` (by the
+arrives; replies are tied to the commands they answer by ``judge.attribution`` (by the
 seq they name, else by timing) before their form is judged; the runner sends from the
 socket it listens on, so a node that replies to the datagram's source reaches it too.
 The driver knows nothing of cases or rules: the conformance session and, later, the
@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.attribution import Attribution, Attributor
+from judge.attribution import Attribution, Attributor
 from spec.codec import (
     PREAMBLE,
     Action,
@@ -131,7 +131,7 @@ class Exchange:
     @property
     def acked(self) -> bool:
         """The node answered: a reply is attributed to the command (its form is judged by
-        the ACK cases alone, conformance.attribution)."""
+        the ACK cases alone, judge.attribution)."""
         return self.ack is not None
 
     def latency(self) -> float | None:
@@ -168,7 +168,7 @@ class TargetDriver:
         #: called in the receiver thread for every datagram, after it is recorded (the
         #: manager role's drone players answer from here)
         self.on_datagram: Callable[[Datagram], None] | None = None
-        # liveness (conformance.liveness): hooks on every datagram, and a check that raises
+        # liveness (harness.liveness): hooks on every datagram, and a check that raises
         # NodeLost in the waiting thread once the node is declared lost
         self.rx_hooks: list[Callable[[Datagram], None]] = []
         self.tx_hooks: list[Callable[[Sent], None]] = []
@@ -271,7 +271,7 @@ class TargetDriver:
             return self._rx[since:until]
 
     def attribution(self, d: Datagram) -> Attribution | None:
-        """The command ``d`` was attributed to on arrival (conformance.attribution)."""
+        """The command ``d`` was attributed to on arrival (judge.attribution)."""
         with self._cond:
             return self._rx_attr[d.index] if 0 <= d.index < len(self._rx_attr) else None
 

@@ -3,7 +3,7 @@ the embedded reference manager.
 
 The runner listens where drones listen (default: all addresses, port 7890, so the manager's
 IP broadcasts reach it) and plays every drone of ``--drones`` from that one socket
-(:mod:`conformance.manager_mission`). It hands the manager a QGC WPL 110 waypoint file of
+(:mod:`harness.manager_mission`). It hands the manager a QGC WPL 110 waypoint file of
 its own (``{waypoints}``; varied from the seed: several items, non-trivial coordinates,
 altitudes, commands and frames) unless ``--waypoints FILE`` names one, and for challenge 3
 an obstacles file (``{obstacles}``).
@@ -27,18 +27,18 @@ import time
 from pathlib import Path
 from typing import Any
 
-from conformance.config import RunConfig
-from conformance.driver import TargetDriver
-from conformance.errors import Inconclusive, SetupError, TargetLost
-from conformance.manager_mission import DronePlayers, Mission, MissionScript
-from conformance.run_monitor import RunMonitor
-from conformance.session import (
+from harness.config import RunConfig
+from harness.driver import TargetDriver
+from harness.errors import Inconclusive, SetupError, TargetLost
+from harness.manager_mission import DronePlayers, Mission, MissionScript
+from harness.session import (
     MANAGER_ID,
     SessionBase,
     SpawnedNode,
     fill_placeholders,
     free_udp_port,
 )
+from judge.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import MissionItem
 
@@ -55,7 +55,7 @@ _FRAMES = (0, 3, 10)  # GLOBAL, GLOBAL_RELATIVE_ALT, GLOBAL_TERRAIN_ALT
 
 def embedded_command() -> str:
     """The reference manager, as the runner spawns it for the embedded default."""
-    from conformance.session import EMBEDDED_RTO
+    from harness.session import EMBEDDED_RTO
 
     return (f"{shlex.quote(sys.executable)} -m reference_impl manager --challenge {{challenge}} "
             "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
@@ -266,7 +266,7 @@ class ManagerSession(SessionBase):
             self.unavailable[kind] = why
             raise Inconclusive(why) if kind != "main" else SetupError(why)
         if kind == "main":
-            from conformance.manager_monitor import monitor_mission
+            from harness.manager_monitor import monitor_mission
 
             m.monitor, _, m.monitor_trace = monitor_mission(
                 m, self.driver.sent(), self.driver.listen, rto=self.rto, ack_window=self.ack_window,
@@ -276,11 +276,11 @@ class ManagerSession(SessionBase):
 
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        from conformance.manager_case import ManagerCaseContext
-
+        """Start a case: the runner's case context (``make_context``, set by the runner to
+        ``conformance.manager_case.ManagerCaseContext``)."""
         if self.lost is not None:
             raise TargetLost(self.lost)
-        ctx = ManagerCaseContext(self, case_id, rules)
+        ctx = self.context_factory()(self, case_id, rules)
         self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 

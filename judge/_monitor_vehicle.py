@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from conformance._monitor_base import (
+from judge._monitor_base import (
     HDR,
     MANAGER,
     NS,
@@ -118,7 +118,7 @@ def events_from_vehicle(event: Any) -> list[VehicleEvent]:
 
 
 class VehicleRules:
-    """Mixin of :class:`conformance.monitor.Monitor`: autopilot-link judgement."""
+    """Mixin of :class:`judge.monitor.Monitor`: autopilot-link judgement."""
 
     def _delivery_wait(self) -> int:
         """How long a delivered frame may take to reach the autopilot (a node may queue it

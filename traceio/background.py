@@ -4,8 +4,8 @@ A node records every datagram it sends and receives; decoding, JSON and MCAP cos
 9 µs a record, several times a reference node's work per ACK. So a node does not record
 in-process: each call only timestamps the record and appends it to a deque (well under a
 microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
-``marshal``-ed batch, down a pipe to a writer process (``python -m captures._background
-FILE``) that runs :class:`~captures.recorder.McapRecorder` on another core.
+``marshal``-ed batch, down a pipe to a writer process (``python -m traceio.background
+FILE``) that runs :class:`~traceio.recorder.McapRecorder` on another core.
 
 The writer runs at nice 19, so it takes mostly CPU time nothing else wants: the node under
 load gets the CPU first and the writer catches up from the pipe and the backlog (at the end
@@ -32,7 +32,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from captures import recorder as _rec
+from traceio import recorder as _rec
 
 __all__ = ["BackgroundRecorder"]
 
@@ -49,7 +49,7 @@ def _addr(addr: Any) -> Any:
 
 
 class BackgroundRecorder:
-    """:class:`~captures.recorder.McapRecorder`'s methods, written by a writer process."""
+    """:class:`~traceio.recorder.McapRecorder`'s methods, written by a writer process."""
 
     def __init__(self, path: str | Path, *, library: str = "mcp-conform",
                  metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
@@ -65,7 +65,7 @@ class BackgroundRecorder:
             raise _rec.RecorderError(f"--capture: cannot write {str(self.path)!r}: {exc.strerror}") from None
         try:
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "captures._background", str(self.path)],
+                [sys.executable, "-m", "traceio.background", str(self.path)],
                 stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
         except OSError as exc:
             raise _rec.RecorderError(f"--capture: cannot start the capture writer: {exc.strerror}") from None

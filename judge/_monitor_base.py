@@ -1,4 +1,4 @@
-"""Records, constants and per-node state of the trace monitor (``conformance.monitor``).
+"""Records, constants and per-node state of the trace monitor (``judge.monitor``).
 
 Everything here is plain data: the public records (:class:`Violation`, :class:`NodeFacts`,
 :class:`VehicleEvent`), the spec-derived constants the rules use (never re-typed: levels,

@@ -1,4 +1,4 @@
-"""The trace monitor over a manager-role mission (``conformance.monitor``).
+"""The trace monitor over a manager-role mission (``judge.monitor``).
 
 The runner's socket sees every datagram of the mission — the manager's, and the drones'
 (the runner's own, fed as ``TESTER`` input, never blamed) — so the trace is complete. The
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from conformance.driver import Sent
-from conformance.manager_mission import MANAGER_ID, Mission
-from conformance.monitor import TESTER, Monitor, Violation
+from harness.driver import Sent
+from harness.manager_mission import MANAGER_ID, Mission
+from judge.monitor import TESTER, Monitor, Violation
 
 __all__ = ["monitor_mission"]
 

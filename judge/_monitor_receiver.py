@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from conformance._monitor_base import (
+from judge._monitor_base import (
     ACK_DEADLINE_NS,
     ACK_SAMPLES,
     END,
@@ -40,7 +40,7 @@ from conformance._monitor_base import (
     gaps,
     median,
 )
-from conformance._monitor_sender import F_ACK1, F_FAULTY, _entry_t
+from judge._monitor_sender import F_ACK1, F_FAULTY, _entry_t
 
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
@@ -50,7 +50,7 @@ _ROB_EXPECTED = {
 
 
 class ReceiverRules:
-    """Mixin of :class:`conformance.monitor.Monitor`: receiver-side judgement."""
+    """Mixin of :class:`judge.monitor.Monitor`: receiver-side judgement."""
 
     def _ack(self, i: int, t: int, src: int, dst: int, own_seq: int, named: int, tester: bool,
              node: _Node | None) -> None:

@@ -33,8 +33,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from conformance.driver import Datagram, Sent, TargetDriver
-from conformance.errors import NodeLost
+from harness.driver import Datagram, Sent, TargetDriver
+from harness.errors import NodeLost
 from spec.codec import Action
 
 LOSS_RTOS = 3.0  # declared lost after this many --rto without an answer to a probe...

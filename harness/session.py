@@ -20,16 +20,17 @@ import shlex
 import socket
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.config import RunConfig
-from conformance.driver import Datagram, Exchange, Sent, TargetDriver
-from conformance.errors import SetupError, SpawnFailure, TargetLost
-from conformance.interrupts import INTERRUPTS
-from conformance.liveness import Liveness, describe_exit
-from conformance.procs import ManagedProcess
-from conformance.run_monitor import RunMonitor
+from harness.config import RunConfig
+from harness.driver import Datagram, Exchange, Sent, TargetDriver
+from harness.errors import SetupError, SpawnFailure, TargetLost
+from harness.interrupts import INTERRUPTS
+from harness.liveness import Liveness, describe_exit
+from harness.procs import ManagedProcess
+from judge.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import Action
 
@@ -108,7 +109,7 @@ def fill_placeholders(command: str, values: dict[str, str]) -> list[str]:
 
 
 class SpawnedNode:
-    """The node process: its own process group, dies with the runner (``conformance.procs``),
+    """The node process: its own process group, dies with the runner (``harness.procs``),
     its stdout and stderr kept (bounded) as evidence."""
 
     def __init__(self, argv: list[str]) -> None:
@@ -189,6 +190,14 @@ class SessionBase:
     node: SpawnedNode | None
     driver: TargetDriver | None
     recorder: Any
+    #: The runner's case context for this role, ``make_context(session, case_id, rules)``: set
+    #: by the runner (``conformance``), which owns the cases and their verify helpers.
+    make_context: Callable[..., Any] | None = None
+
+    def context_factory(self) -> Callable[..., Any]:
+        if self.make_context is None:
+            raise RuntimeError("begin_case: no case context set (session.make_context)")
+        return self.make_context
 
     @property
     def spawned(self) -> bool:
@@ -555,10 +564,10 @@ class Session(SessionBase):
 
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        from conformance.case import CaseContext
-
+        """Start a case: the runner's case context (``make_context``, set by the runner to
+        ``conformance.case.CaseContext``); the session only marks the case's bounds."""
         self.before_case()
-        ctx = CaseContext(self, case_id, rules)
+        ctx = self.context_factory()(self, case_id, rules)
         self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 

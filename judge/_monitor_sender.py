@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from conformance._monitor_base import (
+from judge._monitor_base import (
     DRONE_SENDS,
     END,
     HDR,
@@ -68,7 +68,7 @@ def _file_fields(item: bytes) -> bytes:
     return item[:_TARGETS.start] + item[_TARGETS.stop:]
 
 class SenderRules:
-    """Mixin of :class:`conformance.monitor.Monitor`: sender-side judgement."""
+    """Mixin of :class:`judge.monitor.Monitor`: sender-side judgement."""
 
     # ------------------------------------------------------------------ bookkeeping
     def _remember(self, src: int, seq: int, entry: Any) -> None:

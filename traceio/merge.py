@@ -3,7 +3,7 @@
 Under ``pytest -n N --mcp-capture run.mcap`` each worker records its own node's traffic to a
 part (``run.gw0.mcap``, ...); the controller joins them into the one file the user asked
 for, as pytest-cov joins coverage data. Channels and schemas are matched by topic and
-schema name (every part is written by ``captures.recorder``, so they agree); each message
+schema name (every part is written by ``traceio.recorder``, so they agree); each message
 keeps its log time; metadata records are kept once per name, with the workers' names
 listed. A part that is cut short is read up to its last whole record, like every reader
 of ours; the parts are removed only when the merged file is complete.

@@ -1,0 +1,65 @@
+"""The floors of the house (docs/architecture.md), held by import-linter's contracts in
+pyproject.toml: the tree keeps them, and a deliberately added upward import or circle breaks
+them (so the contracts can fail)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "reports", "reference_impl",
+            "conformance", "fuzz", "captures")
+
+pytest.importorskip("importlinter", reason="import-linter is not installed (pip install -e '.[test]')")
+
+
+def _lint(root: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-c", "import sys; from importlinter.cli import lint_imports_command as c; "
+         "sys.exit(c.main(args=['pyproject.toml', '--no-cache'], standalone_mode=False))"],
+        cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
+        capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of the packages and pyproject.toml, to break on purpose."""
+    root = tmp_path_factory.mktemp("tree")
+    shutil.copy(ROOT / "pyproject.toml", root / "pyproject.toml")
+    for p in PACKAGES:
+        shutil.copytree(ROOT / p, root / p, ignore=shutil.ignore_patterns("__pycache__", "golden"))
+    return root
+
+
+def test_the_tree_keeps_every_contract(tree: Path) -> None:
+    r = _lint(tree)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "BROKEN" not in r.stdout and "KEPT" in r.stdout
+
+
+@pytest.mark.parametrize(("module", "line", "contract"), [
+    ("spec/about.py", "import judge.monitor", "Layers"),
+    ("judge/attribution.py", "import harness.driver", "Layers"),
+    ("traceio/trace.py", "from judge import monitor", "Layers"),
+    ("fuzz/findings.py", "import conformance.report", "Layers"),
+    ("conformance/baseline.py", "import fuzz.findings", "Layers"),
+    ("captures/show.py", "import reference_impl.endpoint", "reference node"),
+    ("judge/_monitor_base.py", "import judge.monitor", "circles"),
+])
+def test_an_added_upward_import_or_circle_breaks_a_contract(tree: Path, module: str, line: str,
+                                                           contract: str) -> None:
+    path = tree / module
+    original = path.read_text()
+    try:
+        path.write_text(original + f"\n{line}  # added by the test\n")
+        r = _lint(tree)
+    finally:
+        path.write_text(original)
+    assert r.returncode == 1, r.stdout + r.stderr
+    broken = r.stdout[r.stdout.index("Broken contracts"):]
+    assert contract in broken, broken
