@@ -63,3 +63,21 @@ def test_an_added_upward_import_or_circle_breaks_a_contract(tree: Path, module: 
     assert r.returncode == 1, r.stdout + r.stderr
     broken = r.stdout[r.stdout.index("Broken contracts"):]
     assert contract in broken, broken
+
+
+def test_docs_architecture_names_every_package_of_the_contracts() -> None:
+    """docs/architecture.md draws the same floors the contracts hold."""
+    tomllib = pytest.importorskip("tomllib", reason="Python < 3.11 has no tomllib")
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    assert set(config["root_packages"]) == set(PACKAGES)
+    (layers,) = [c["layers"] for c in config["contracts"] if c["type"] == "layers"]
+    floors = [[p.strip() for p in layer.split("|")] for layer in layers]
+    assert sorted(p for f in floors for p in f) == sorted(PACKAGES)
+    positions = {p: doc.index(f"**`{p}`**") for p in PACKAGES}  # one paragraph each
+    picture = doc[:doc.index("## The packages")]
+    heights = {p: picture.index(f" {p} ") if f" {p} " in picture else picture.index(p)
+               for p in PACKAGES}
+    for upper, lower in zip(floors, floors[1:]):  # the picture has the floors top to bottom
+        assert max(heights[p] for p in upper) < min(heights[p] for p in lower), (upper, lower)
+    assert all(positions.values())
