@@ -78,6 +78,6 @@ def test_docs_architecture_names_every_package_of_the_contracts() -> None:
     picture = doc[:doc.index("## The packages")]
     heights = {p: picture.index(f" {p} ") if f" {p} " in picture else picture.index(p)
                for p in PACKAGES}
-    for upper, lower in zip(floors, floors[1:]):  # the picture has the floors top to bottom
+    for upper, lower in zip(floors, floors[1:], strict=False):  # the floors top to bottom
         assert max(heights[p] for p in upper) < min(heights[p] for p in lower), (upper, lower)
     assert all(positions.values())
