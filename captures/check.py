@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from captures.cli import check_writable, write_output
+from captures.cli import check_writable, to_terminal, write_output
 from judge.judging import (
     Judgement,
     add_monitor_options,
@@ -35,7 +35,7 @@ from traceio.trace import evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"  # 1.1: parameters.from_capture
 VERDICT_STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "info": "cyan",
                   "not_observed": "dim"}
 
@@ -59,14 +59,14 @@ def run(ns: argparse.Namespace) -> int:
     j = judge(ns.file, params, keep=bool(ns.html))
     wanted = {i for v in j.shown_violations for i in evidence_indexes(v)}
     evidence = evidence_of(j, wanted)
-    print_report(j, evidence)
-    if ns.json:
+    if ns.json:  # the files first: an interrupted or piped terminal report loses neither
         doc = to_json(j, evidence)
         write_output(ns.json, json.dumps(doc, indent=2) + "\n", "--json")
     if ns.html:
         from reports.html import render_check
 
         write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
+    to_terminal(lambda: print_report(j, evidence))
     return j.exit_code()
 
 

@@ -21,14 +21,17 @@ argument or an unreadable file is a one-line error naming what was wrong, exit 2
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import sys
-from collections.abc import Sequence
-from typing import NoReturn
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
 
 from traceio.files import UsageError, check_writable, write_output
 
-__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable", "main", "write_output"]
+__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable", "main", "to_terminal",
+           "write_output"]
 
 PROG = "mcp-capture"
 #: The modules that register a subcommand, in the order ``--help`` lists them.
@@ -41,6 +44,20 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         raise UsageError(f"{self.prog}: {message}")
+
+
+def to_terminal(write: Callable[[], Any]) -> None:
+    """Print the terminal report, which comes after the files (``--json``, ``--html``): a
+    reader that went away (``| head -1``) loses the rest of it, never the files or the exit
+    code (the verdict)."""
+    try:
+        write()
+        sys.stdout.flush()
+    except (BrokenPipeError, SystemExit) as exc:  # rich turns a broken pipe into SystemExit(1)
+        if not isinstance(exc, BrokenPipeError) and not isinstance(exc.__context__, BrokenPipeError):
+            raise
+        with contextlib.suppress(OSError, ValueError):  # nothing more reaches the pipe
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -528,7 +528,7 @@ def _nonneg_float(text: str) -> float:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import check_writable
+    from captures.cli import check_writable, to_terminal
     from traceio.reader import CaptureError
 
     out = out or sys.stdout
@@ -541,8 +541,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     except CaptureError as exc:
         err.write(f"mcp-capture diff: {exc}\n")
         return 2
-    print_report(result, out)
-    try:
+    try:  # the files first: a piped terminal report (`| head -1`) loses neither
         if args.json:
             Path(args.json).write_text(json.dumps(build_json(result), indent=1) + "\n")
         if args.html:
@@ -552,4 +551,5 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     except OSError as exc:
         err.write(f"mcp-capture diff: cannot write {exc.filename}: {exc.strerror}\n")
         return 2
+    to_terminal(lambda: print_report(result, out))
     return 0 if result.same else 1

@@ -477,7 +477,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import check_writable
+    from captures.cli import check_writable, to_terminal
     from captures.diff import build_json
     from traceio.reader import CaptureError, Datagram, Metadata, open_capture
     from traceio.recorder import FUZZ_RECORDER
@@ -504,18 +504,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     except ReplayError as exc:
         err.write(f"mcp-capture replay: {exc}\n")
         return 2
-    out.write(f"replayed {result.sent} datagrams, received {result.received}\n")
-    for note in result.notes:
-        out.write(f"note: {note}\n")
-    print_report(result.diff, out)
-    if result.monitor:
-        out.write(f"monitor: not judged: {result.monitor}\n")
-    else:
-        out.write(f"monitor: {len(result.violations)} violation(s)\n")
-        for v in result.violations[:20]:
-            out.write(f"  {v.rule} {v.level} node {v.node}: expected {v.expected}; actual {v.actual}\n")
-    if result.node_output and not result.ok:
-        out.write("node output (last lines):\n    " + result.node_output.replace("\n", "\n    ") + "\n")
+    # the file first: a piped terminal report (`| head -1`) loses neither it nor the verdict
     if args.json:
         body = {"diff": build_json(result.diff), "sent": result.sent, "received": result.received,
                 "notes": result.notes, "monitor": result.monitor or None,
@@ -527,6 +516,22 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         except OSError as exc:
             err.write(f"mcp-capture replay: cannot write {args.json}: {exc.strerror}\n")
             return 2
+
+    def terminal() -> None:
+        out.write(f"replayed {result.sent} datagrams, received {result.received}\n")
+        for note in result.notes:
+            out.write(f"note: {note}\n")
+        print_report(result.diff, out)
+        if result.monitor:
+            out.write(f"monitor: not judged: {result.monitor}\n")
+        else:
+            out.write(f"monitor: {len(result.violations)} violation(s)\n")
+            for v in result.violations[:20]:
+                out.write(f"  {v.rule} {v.level} node {v.node}: expected {v.expected}; actual {v.actual}\n")
+        if result.node_output and not result.ok:
+            out.write("node output (last lines):\n    " + result.node_output.replace("\n", "\n    ") + "\n")
+
+    to_terminal(terminal)
     return result.exit_code
 
 

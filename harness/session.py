@@ -33,6 +33,7 @@ from harness.procs import ManagedProcess
 from judge.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import Action
+from traceio.recorder import NODE_METADATA
 
 MANAGER_ID = int(SPEC.protocol["manager_id"])
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
@@ -303,6 +304,8 @@ class Session(SessionBase):
                                   node_id=self.target_id, node_addr=target)
         self.monitor.listen = self.driver.listen
         self.driver.add_observer(self.monitor.observe)
+        self.node_address = target
+        self._record_node()
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -442,6 +445,7 @@ class Session(SessionBase):
             if self.monitor is not None:
                 self.monitor.node_id = self.target_id
             drv.attributor.peer_id = self.target_id
+            self._record_node()
         if first:
             self._observe_retransmissions(st, first_ready)
         withhold = False
@@ -549,6 +553,15 @@ class Session(SessionBase):
             self.needs_restart = True
         elif self.lost is None:
             self.lost = why
+
+    def _record_node(self) -> None:
+        """Tell the capture whose traffic it holds (the node under test's ID and address, as
+        the run's monitor knows them), so that ``mcp-capture check`` judges it the same."""
+        address = getattr(self, "node_address", None)
+        if self.recorder is not None and self.target_id is not None and address is not None:
+            with contextlib.suppress(Exception):
+                self.recorder.add_metadata(NODE_METADATA, {
+                    "id": self.target_id, "address": f"{address[0]}:{address[1]}"})
 
     def _vehicle_frame(self, t: float, direction: str, conn: int, raw: bytes) -> None:
         """The vehicle's frame tap: both directions of the autopilot link into the capture

@@ -23,6 +23,7 @@ from typing import Any
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
 from traceio.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
+from traceio.recorder import NODE_METADATA
 from traceio.trace import Node, action_name, evidence_indexes
 
 __all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
@@ -47,9 +48,37 @@ class Params:
     select: tuple[str, ...] = ()
     strict: bool = False
     complete: bool = False  # the trace holds every datagram the nodes exchanged
+    #: the parameters the user gave; the others are taken from the capture's own record of
+    #: the run (our MCAP captures), so that a run is judged offline with its live timings
+    given: frozenset[str] = frozenset()
+    from_capture: tuple[str, ...] = ()  # the parameters taken from the capture
+
+    def adopt(self, recorded: dict[str, Any]) -> None:
+        """Take the run's recorded ``rto``, ``ack_window``, ``broadcast_id``, ``drones`` and
+        ``challenge`` where the user gave none (an unusable value is left alone)."""
+        taken = []
+        for key in ("rto", "ack_window"):
+            v = recorded.get(key)
+            if key not in self.given and isinstance(v, (int, float)) and 0 < v < 1e6:
+                setattr(self, key, float(v))
+                taken.append(key)
+        v = recorded.get("broadcast_id")
+        if "broadcast_id" not in self.given and isinstance(v, int) and 1 <= v <= 0xFFFF:
+            self.broadcast_id = v
+            taken.append("broadcast_id")
+        v = recorded.get("drones")
+        if ("drones" not in self.given and isinstance(v, list) and v
+                and all(isinstance(d, int) and 1 <= d < 0xFFFF for d in v)):
+            self.drones = tuple(v)
+            taken.append("drones")
+        v = recorded.get("challenge")
+        if "challenge" not in self.given and isinstance(v, int) and 1 <= v <= 3:
+            self.challenge = v
+            taken.append("challenge")
+        self.from_capture = tuple(taken)
 
     def to_json(self) -> dict[str, Any]:
-        return {"rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
+        return {"from_capture": list(self.from_capture), "rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
                 "drones": list(self.drones) if self.drones is not None else None,
                 "challenge": self.challenge, "challenge_source": self.challenge_source,
                 "challenge_note": self.challenge_note or None, "waypoints": self.waypoints_file,
@@ -98,7 +127,9 @@ def _int(name: str, text: str, lo: int, hi: int) -> int:
 def params_from_args(ns: argparse.Namespace) -> Params:
     p = Params(rto=_positive("--rto", ns.rto, 5.0), ack_window=_positive("--ack-window", ns.ack_window, 2.0),
                strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()),
-               complete=bool(getattr(ns, "complete", False)))
+               complete=bool(getattr(ns, "complete", False)),
+               given=frozenset(k for k in ("rto", "ack_window", "broadcast_id", "drones", "challenge")
+                               if getattr(ns, k, None) is not None))
     if getattr(ns, "broadcast_id", None) is not None:
         p.broadcast_id = _int("--broadcast-id", ns.broadcast_id, 1, 0xFFFF)
     if ns.challenge is not None:
@@ -227,6 +258,7 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     meta: list[Metadata] = []
     frames: list[MavlinkFrame] = []  # autopilot-link frames before the drone under test is known
     drone: int | None = None
+    node_addr: Any = None  # the drone under test's address: what comes from there is its own
     first = last = None
     n = unattributed = 0
     pre = PREAMBLE
@@ -243,31 +275,31 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                     params.complete = params.complete or (cap.format == "mcap" and harness)
                     mon = _make_monitor(params)
                 feed = mon.datagram
+                if drone is not None:  # named by the run's record: its autopilot link so far
+                    violations.extend(_flush(mon, frames, drone, recent, evidence))
             last = t
             n += 1
             recent.append(rec)
+            h = peek_header(rec.data) if harness and drone is None and rec.direction == "rx" else None
+            if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test:
+                drone, node_addr = h[1], rec.src_addr  # its autopilot link so far, then this
+                violations.extend(_flush(mon, frames, drone, recent, evidence))
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, tester)
+            elif harness and node_addr is not None and _same_peer(rec.src_addr, node_addr):
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, drone)  # the node's own
             else:
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
             if found:
                 _collect(found, recent, evidence)
                 violations.extend(found)
-                h = peek_header(rec.data) if harness and drone is None else None
-                if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test
-                    drone = h[1]
-                    for f in frames:
-                        found = _vehicle(mon, f, drone)
-                        _collect(found, recent, evidence)
-                        violations.extend(found)
-                    frames.clear()
             if kept is not None:
                 kept.append(rec)
             if rec.data[:len(pre)] != pre or len(rec.data) < 17:
                 unattributed += 1
         elif isinstance(rec, MavlinkFrame):
             last = max(last or rec.t_ns, rec.t_ns)
-            if drone is None:
+            if drone is None or mon is None:
                 frames.append(rec)
             else:
                 found = _vehicle(mon, rec, drone)
@@ -278,6 +310,10 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
             last = max(last or rec.t_ns, rec.t_ns)
         elif isinstance(rec, Metadata):
             meta.append(rec)
+            if mon is None and rec.data.get("recorder") in HARNESSES:  # before the first datagram
+                params.adopt(_recorded_parameters(rec))
+            elif rec.name == NODE_METADATA and drone is None:  # the node under test, as the run knew it
+                drone, node_addr = _recorded_node(rec)
     if mon is None:  # no datagram at all
         mon = _make_monitor(params)
     if last is not None:
@@ -324,8 +360,50 @@ def _tester() -> Any:
     return TESTER
 
 
+def _recorded_parameters(rec: Metadata) -> dict[str, Any]:
+    """The run's parameters as its metadata record holds them (JSON), else nothing."""
+    import json
+
+    try:
+        values = json.loads(rec.data.get("parameters") or "{}")
+    except (ValueError, RecursionError):
+        return {}
+    return values if isinstance(values, dict) else {}
+
+
+def _recorded_node(rec: Metadata) -> tuple[int | None, Any]:
+    """The node under test's ID and address from the run's record (None, None if unusable)."""
+    try:
+        node = int(rec.data.get("id", ""))
+        host, _, port = str(rec.data.get("address", "")).rpartition(":")
+        address = (host, int(port))
+    except ValueError:
+        return None, None
+    return (node, address) if 0 <= node <= 0xFFFF and host else (None, None)
+
+
+def _same_peer(addr: Any, node: Any) -> bool:
+    """``addr`` is the node's address (as the live run's monitor decides: same port, and the
+    same host or any loopback host when the node listens on every address)."""
+    if addr is None or node is None:
+        return False
+    return addr[1] == node[1] and (addr[0] == node[0] or str(addr[0]).startswith("127."))
+
+
 def _nodes(mon: Any) -> list[Any]:
     return list(mon.nodes()) if hasattr(mon, "nodes") else []
+
+
+def _flush(mon: Any, frames: list[MavlinkFrame], drone: int, recent: deque[Datagram],
+           evidence: dict[int, Datagram]) -> list[Any]:
+    """The autopilot-link frames held until the drone under test was known, judged."""
+    out: list[Any] = []
+    for f in frames:
+        found = _vehicle(mon, f, drone)
+        _collect(found, recent, evidence)
+        out.extend(found)
+    frames.clear()
+    return out
 
 
 def _vehicle(mon: Any, frame: MavlinkFrame, drone: int) -> list[Any]:

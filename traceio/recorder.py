@@ -49,6 +49,7 @@ __all__ = [
     "CHANNELS",
     "FUZZ_RECORDER",
     "METADATA_NAME",
+    "NODE_METADATA",
     "McapRecorder",
     "RecorderError",
     "datagram_record",
@@ -61,6 +62,8 @@ PROFILE = "mcp-conform"
 METADATA_NAME = "mcp-conform"
 #: the recorder a fuzz finding's repro.mcap names (``mcp-capture replay`` reproduces those)
 FUZZ_RECORDER = "mcp-fuzz"
+#: The metadata record naming the node under test (``id``, ``address`` host:port) of a run.
+NODE_METADATA = "mcp-conform node"
 _STR = {"type": "string"}
 _B64 = {"type": "string", "contentEncoding": "base64"}
 _ADDR = {"type": ["string", "null"], "description": "host:port"}

@@ -68,3 +68,23 @@ def test_bad_option_values_exit_2(tmp_path, capsys, option, value, words):
     assert main(["check", str(path), option, value]) == 2
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1
+
+
+GOLDEN = __import__("pathlib").Path(__file__).resolve().parents[2] / "captures" / "golden"
+
+
+@pytest.mark.parametrize(("argv", "code"), [
+    (["diff", str(GOLDEN / "challenge1.mcap"), str(GOLDEN / "challenge2.mcap")], 1),
+    (["diff", str(GOLDEN / "challenge1.mcap"), str(GOLDEN / "challenge1.mcap")], 0),
+    (["check", str(GOLDEN / "drone-suite.mcap")], 0),
+], ids=["diff-different", "diff-same", "check"])
+def test_a_reader_that_goes_away_loses_neither_the_files_nor_the_verdict(tmp_path, argv, code):
+    """`mcp-capture diff a b | head -1` (issue 18 item 14): the --json and --html files are
+    written and the exit code is the verdict's, whatever happens to the terminal report."""
+    js, html = tmp_path / "out.json", tmp_path / "out.html"
+    cmd = [sys.executable, "-m", "captures", *argv, "--json", str(js), "--html", str(html)]
+    script = " ".join(f"'{w}'" for w in cmd) + " | head -c 1 >/dev/null; exit ${PIPESTATUS[0]}"
+    proc = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == code, proc.stderr
+    assert js.stat().st_size > 0 and html.stat().st_size > 0
+    assert "Traceback" not in proc.stderr and "Broken pipe" not in proc.stderr, proc.stderr
