@@ -97,6 +97,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "with the vehicle's answer and why")
     p.add_argument("--mavlink1", action="store_true",
                    help="speak MAVLink 1 on every link from the start")
+    p.add_argument("--frame-per-datagram", action="store_true",
+                   help="over UDP, one MAVLink frame per datagram (default: a turn's frames "
+                        "together, as SITL sends them); for ground stations that read one frame "
+                        "per datagram, like seed 001's programs")
     p.add_argument("--mission-request-int", action="store_true",
                    help="ask for mission items with MISSION_REQUEST_INT, not MISSION_REQUEST")
     p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (1)")
@@ -155,7 +159,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             mission_request_int=args.mission_request_int,
         )
         vehicle.start(args.host, None if args.no_tcp else args.port, udp_out=args.udp_out,
-                      udp_in=args.udp_in, mavlink1=args.mavlink1)
+                      udp_in=args.udp_in, mavlink1=args.mavlink1,
+                      frame_per_datagram=args.frame_per_datagram)
     except (ValueError, OSError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         if record is not None:

@@ -108,14 +108,19 @@ class SimVehicle:
         self._udp_peers: dict[tuple[int, Address], _Client] = {}
         self._started = False
         self._version = 2
+        self._frame_per_datagram = False
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, host: str = "127.0.0.1", port: int | None = 0, *,
               udp_out: list[Address] | tuple[Address, ...] = (),
-              udp_in: Address | None = None, mavlink1: bool = False) -> int | None:
+              udp_in: Address | None = None, mavlink1: bool = False,
+              frame_per_datagram: bool = False) -> int | None:
         """Serve: TCP on ``host:port`` (0 picks a free port; ``None``: no TCP), UDP to each
         ``udp_out`` destination from one socket, UDP listening on ``udp_in``; return the TCP
-        port. ``mavlink1`` starts every link in MAVLink 1.
+        port. ``mavlink1`` starts every link in MAVLink 1. Over UDP the frames of one turn go
+        out together in one datagram, as SITL packs them; ``frame_per_datagram`` sends each
+        frame in its own datagram instead, for ground stations that read one frame per
+        datagram (seed 001's programs look at the last frame of each).
 
         ``gps_fix_delay`` counts from here. Raises ``OSError`` if a port is taken and
         ``RuntimeError`` if already started.
@@ -123,6 +128,7 @@ class SimVehicle:
         if self._started:
             raise RuntimeError("vehicle already started")
         self._version = 1 if mavlink1 else 2
+        self._frame_per_datagram = frame_per_datagram
         endpoints: list[UdpEndpoint] = []
         sock = None
         try:
@@ -453,7 +459,11 @@ class SimVehicle:
         with client.send_lock:
             frames = [f for f in (client.encoder.encode(m) for m in msgs) if f]
             try:
-                client.send_raw(b"".join(frames))
+                if self._frame_per_datagram and client.udp is not None:
+                    for raw in frames:
+                        client.send_raw(raw)
+                else:
+                    client.send_raw(b"".join(frames))
             except OSError:
                 if client.udp is None:
                     client.alive = False

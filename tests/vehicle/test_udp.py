@@ -120,3 +120,48 @@ def test_cli_udp_out_and_record_file(tmp_path) -> None:
     assert refused[0]["result"] == "denied" and refused[0]["mav_result"] == 10
     assert "degE7" in refused[0]["reason"] and abs(refused[0]["x"] - 357713320) < 64  # float32
     assert [r["request"] for r in lines].count("mission_upload") == 2
+
+
+def _datagrams(frame_per_datagram: bool, seconds: float = 1.5) -> list[bytes]:
+    """What a plain UDP socket reads of the vehicle's --udp-out telemetry."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        s.settimeout(0.2)
+        v = SimVehicle(telemetry_hz=10.0)
+        v.start(port=None, udp_out=[s.getsockname()], frame_per_datagram=frame_per_datagram)
+        out: list[bytes] = []
+        try:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end and len(out) < 500:
+                try:
+                    out.append(s.recv(65535))
+                except TimeoutError:
+                    pass
+        finally:
+            v.close()
+    return out
+
+
+def _frames(data: bytes) -> list[str]:
+    parser = mavutil.mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    return [m.get_type() for m in (parser.parse_buffer(data) or [])]
+
+
+def test_one_frame_per_datagram_for_ground_stations_that_read_one() -> None:
+    """Issue 18 item 15: SITL packs a turn's frames into one datagram; seed 001's programs
+    read one frame per datagram (the last) and never see GPS_RAW_INT. With the option each
+    datagram holds exactly one whole frame, GPS_RAW_INT among them."""
+    packed = _datagrams(False)
+    assert any(len(_frames(d)) > 1 for d in packed), "the default packs frames (as SITL does)"
+    single = _datagrams(True)
+    assert single and all(len(_frames(d)) == 1 for d in single), [_frames(d) for d in single][:5]
+    assert "GPS_RAW_INT" in {_frames(d)[0] for d in single}
+
+
+def test_cli_frame_per_datagram_option() -> None:
+    out = subprocess.run([sys.executable, "-m", "vehicle", "--help"], capture_output=True, text=True,
+                         timeout=60).stdout
+    assert "--frame-per-datagram" in out
