@@ -1,0 +1,46 @@
+"""One judge (issue 18 item 6): ``mcp-capture check`` of an ``mcp-conform`` capture gives the
+run's live monitor verdicts, rule by rule, for every node — by default and with
+``--complete`` — on the reference node and on faulty nodes of our own (the independent
+sample node with one fault each, judged live by the runner's monitor)."""
+
+from __future__ import annotations
+
+import pytest
+
+from judge.judging import Params, judge
+from tests.conformance.runner_helpers import FAST, run_conform, sample_node_command
+
+pytestmark = pytest.mark.slow
+
+NODES = [
+    ("reference", ()),                                      # the embedded reference node
+    ("sample-correct", ("--spawn", sample_node_command(), "--mavlink", *FAST)),
+    ("no-dup-discard", ("--spawn", sample_node_command("--fault", "no-dup-discard"), "--mavlink", *FAST)),
+    ("mission-ready-wrong-src",
+     ("--spawn", sample_node_command("--fault", "mission-ready-wrong-src"), "--mavlink", *FAST)),
+    ("ready-without-fix",
+     ("--spawn", sample_node_command("--fault", "ready-without-fix"), "--mavlink", *FAST)),
+]
+
+
+def _differences(live: dict[str, dict[str, str]], offline: dict[int, dict[str, str]]) -> list[tuple]:
+    off = {str(k): v for k, v in offline.items()}
+    return [(n, r, live.get(n, {}).get(r), off.get(n, {}).get(r))
+            for n in sorted(set(live) | set(off))
+            for r in sorted(set(live.get(n, {})) | set(off.get(n, {})))
+            if live.get(n, {}).get(r) != off.get(n, {}).get(r)]
+
+
+@pytest.mark.parametrize(("label", "args"), NODES, ids=[n for n, _ in NODES])
+def test_check_of_the_runs_capture_gives_the_live_verdicts(tmp_path, label, args):
+    cap = tmp_path / "run.mcap"
+    res = run_conform(*args, "--capture", str(cap))
+    live = res.report["monitor"]["rules"]
+    assert live, res.explain()
+    for complete in (False, True):
+        j = judge(cap, Params(complete=complete))
+        assert _differences(live, j.verdicts) == [], (complete, res.explain())
+        live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])
+        assert sorted((v.rule, v.node) for v in j.violations) == live_violations
+    if label != "reference" and label != "sample-correct":  # the fault shows in both
+        assert any(v for t in live.values() for v in t.values() if v in ("failed", "warned"))
