@@ -3,13 +3,14 @@
     mcp-fuzz [--target HOST:PORT | --spawn CMD] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
              [--mavlink] [--seed N] [--max-cases N] [--duration S]
              [--engine stateless|stateful|both] [--jobs N] [--db DIR|redis://HOST:PORT/N]
-             [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N]
+             [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N] [--strict]
     mcp-fuzz --replay finding-N [--target HOST:PORT | --spawn CMD] [--mavlink]
 
 Without --target and --spawn it fuzzes the reference drone (embedded default); with
 ``--role manager`` the reference manager, the fuzzer playing drones (fuzz.manager_target). Exit 0:
-nothing found; 1: findings (for --replay: the finding reproduced); 2: usage or setup error,
-with a one-line reason. Live progress (rich) on a terminal; otherwise only the summary line.
+no MUST finding (SHOULD findings are reported, and count under ``--strict``, as for
+mcp-conform and mcp-capture check); 1: findings (for --replay: the finding reproduced); 2:
+usage or setup error, with a one-line reason. Live progress (rich) on a terminal; otherwise only the summary line.
 """
 
 from __future__ import annotations
@@ -18,13 +19,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from fuzz.config import ENGINES, FuzzConfig
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "exit_code", "main"]
 
 PROG = "mcp-fuzz"
 
@@ -61,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5; 0.2 embedded)")
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2; 0.25 embedded)")
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
+    p.add_argument("--strict", action="store_true", help="a SHOULD finding counts against the exit code "
+                   "(as for mcp-conform and mcp-capture check)")
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
     return p
 
@@ -190,7 +193,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 2
     live.final(summary, store)
-    return 1 if len(store) else 0
+    return exit_code(store.order, strict=ns.strict)
+
+
+def exit_code(findings: Sequence[Any], *, strict: bool = False) -> int:
+    """1 when a finding counts: a MUST, or a SHOULD under ``--strict`` (the one convention of
+    mcp-conform, mcp-capture check and mcp-fuzz); else 0."""
+    counted = {"MUST", "SHOULD"} if strict else {"MUST"}
+    return 1 if any(str(f.level).upper() in counted for f in findings) else 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -104,3 +104,28 @@ def test_progress_is_quiet_off_a_terminal_but_for_the_summary() -> None:
                "findings_by_rule": {}, "seed": 1, "restarts": 0}
     live.final(summary, FindingStore(None))
     assert out.getvalue().count("\n") == 1 and "10 judged cases/s" in out.getvalue()
+
+
+@pytest.mark.parametrize("levels, strict, code", [
+    ((), False, 0),
+    (("SHOULD",), False, 0),   # reported, not counted (as mcp-conform and mcp-capture check)
+    (("SHOULD",), True, 1),
+    (("MUST",), False, 1),
+    (("SHOULD", "MUST"), False, 1),
+])
+def test_one_convention_for_should_findings(monkeypatch: pytest.MonkeyPatch, tmp_path,
+                                            levels: tuple[str, ...], strict: bool, code: int) -> None:
+    """Issue 18 item 12: mcp-fuzz exits 1 on a SHOULD finding only under --strict."""
+    import fuzz.campaign
+
+    rules = {"SHOULD": "MCP-ROB-4", "MUST": "MCP-ROB-1"}
+
+    def campaign(cfg, store, progress=None):  # a campaign that confirmed these findings
+        for level in levels:
+            store.add(Finding(rules[level], "x", "y", ["00"], "replies: valid", "stateless", 1))
+        return {"cases": 1, "findings": len(store)}
+
+    monkeypatch.setattr(fuzz.campaign, "run_campaign", campaign)
+    monkeypatch.setattr("fuzz.progress.LiveProgress.final", lambda self, summary, store: None)
+    argv = ["--max-cases", "1", "--out", str(tmp_path)] + (["--strict"] if strict else [])
+    assert main(argv) == code
