@@ -20,18 +20,31 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-__all__ = ["merge_captures"]
+__all__ = ["SEGMENT", "merge_captures", "segment_name"]
 
 
-def _messages(path: Path, part: int, sink: list[tuple[str, dict[str, str]]]) -> Iterator[tuple[int, int, int, Any, Any, Any]]:
+SEGMENT = "segment"  # the channel and metadata key naming a part's session
+
+
+def segment_name(path: Path) -> str:
+    """``run.gw0.mcap`` -> ``gw0`` (the part's worker), else the file's stem."""
+    parts = path.name.split(".")
+    return parts[-2] if len(parts) >= 3 else path.stem
+
+
+def _metadata(path: Path) -> list[tuple[str, dict[str, str]]]:
+    """The part's metadata records (none from a part whose summary is unreadable)."""
+    with open(path, "rb") as f:
+        try:
+            return [(md.name, dict(md.metadata)) for md in make_reader(f).iter_metadata()]
+        except (McapError, EOFError, ValueError, OSError, AssertionError):
+            return []
+
+
+def _messages(path: Path, part: int) -> Iterator[tuple[int, int, int, Any, Any, Any]]:
     """(log_time, part, sequence, schema, channel, message) of one part, in log-time order."""
     with open(path, "rb") as f:
         reader = make_reader(f)
-        try:
-            for md in reader.iter_metadata():
-                sink.append((md.name, dict(md.metadata)))
-        except (McapError, EOFError, ValueError, OSError):
-            pass
         n = 0
         try:
             for schema, channel, message in reader.iter_messages(log_time_order=True):
@@ -42,35 +55,36 @@ def _messages(path: Path, part: int, sink: list[tuple[str, dict[str, str]]]) -> 
 
 
 def merge_captures(parts: Sequence[str | Path], out: str | Path, *, remove_parts: bool = True) -> int:
-    """Join ``parts`` into ``out`` in log-time order; returns the number of messages."""
+    """Join ``parts`` into ``out`` in log-time order, each part a segment; returns the number
+    of messages."""
     paths = [Path(p) for p in parts if Path(p).exists()]
-    metadata: list[tuple[str, dict[str, str]]] = []
-    streams = [_messages(p, i, metadata) for i, p in enumerate(paths)]
+    names = [segment_name(p) for p in paths]
+    streams = [_messages(p, i) for i, p in enumerate(paths)]
     count = 0
     with open(out, "wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile="mcp-conform", library="mcp-conform (merged from pytest-xdist workers)")
+        for path, name in zip(paths, names, strict=True):  # first: a reader knows the runs
+            for md_name, values in _metadata(path):
+                writer.add_metadata(md_name, {**values, SEGMENT: name})
+        writer.add_metadata("xdist", {"parts": ", ".join(p.name for p in paths)})
         schemas: dict[tuple[str, str], int] = {}
-        channels: dict[str, int] = {}
-        for _t, _part, _n, schema, channel, message in heapq.merge(*streams, key=lambda r: r[:3]):
+        channels: dict[tuple[int, str], int] = {}
+        for _t, part, _n, schema, channel, message in heapq.merge(*streams, key=lambda r: r[:3]):
             sid = 0
             if schema is not None:
                 skey = (schema.name, schema.encoding)
                 if skey not in schemas:
                     schemas[skey] = writer.register_schema(schema.name, schema.encoding, schema.data)
                 sid = schemas[skey]
-            if channel.topic not in channels:
-                channels[channel.topic] = writer.register_channel(
-                    channel.topic, channel.message_encoding, sid, dict(channel.metadata))
-            writer.add_message(channels[channel.topic], message.log_time, message.data,
+            ckey = (part, channel.topic)
+            if ckey not in channels:
+                channels[ckey] = writer.register_channel(
+                    channel.topic, channel.message_encoding, sid,
+                    {**dict(channel.metadata), SEGMENT: names[part]})
+            writer.add_message(channels[ckey], message.log_time, message.data,
                                message.publish_time, sequence=count)
             count += 1
-        seen: set[str] = set()
-        for name, values in metadata:
-            if name not in seen:
-                seen.add(name)
-                writer.add_metadata(name, values)
-        writer.add_metadata("xdist", {"parts": ", ".join(p.name for p in paths)})
         writer.finish()
     if remove_parts:
         for p in paths:
