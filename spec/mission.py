@@ -16,6 +16,8 @@ pymavlink owns the MAVLink message and the file format.
 from __future__ import annotations
 
 import math
+import stat
+import struct
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -24,9 +26,11 @@ from pymavlink import mavwp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from spec import SPEC
-from spec.codec import MissionItem
+from spec.codec import HEADER_SIZE, ITEM_SIZE, MAX_DATAGRAM, MissionItem
 
 __all__ = [
+    "MAX_FILE_BYTES",
+    "MAX_LIST_ITEMS",
     "WAYPOINT_FILE_HEADER",
     "WaypointFileError",
     "from_mavlink",
@@ -47,6 +51,13 @@ _FIELDS: tuple[str, ...] = tuple(MissionItem._fields)
 # <PARAM3> <PARAM4> <PARAM5/X> <PARAM6/Y> <PARAM7/Z> <AUTOCONTINUE> (the description's
 # "Extracting WayPoint list"; X is the latitude, E-2). Integer columns and their limits.
 _LINE_FIELDS = 12
+#: The most items one WP_List or Obstacles_List datagram carries: the largest datagram less
+#: the header and the 2-byte count, in items (MCP-PAY-4's layout): 1,769.
+MAX_LIST_ITEMS: int = (MAX_DATAGRAM - HEADER_SIZE - 2) // ITEM_SIZE
+#: The largest waypoint file read: room for that many lines of 12 generous columns. A longer
+#: file (or /dev/zero) is refused before it is read, not read whole.
+MAX_FILE_BYTES: int = 256 * (MAX_LIST_ITEMS + 16)
+_FLOAT32 = struct.Struct("<f")  # the wire's float (MCP-PAY-4): what does not fit, no node can get
 _INT_COLUMNS = {0: ("index", 0xFFFF), 1: ("current", 0xFF), 2: ("frame", 0xFF),
                 3: ("command", 0xFFFF), 11: ("autocontinue", 0xFF)}
 
@@ -123,9 +134,12 @@ def _check_lines(path: Path, lines: list[str]) -> list[int]:
                     raise WaypointFileError(path, number, f"{name} {value} is outside 0..{top}")
             else:
                 try:
-                    float(text)
+                    _FLOAT32.pack(float(text))
                 except ValueError:
                     raise WaypointFileError(path, number, f"field {col + 1} {text!r} is not a number") from None
+                except OverflowError:
+                    raise WaypointFileError(path, number, f"field {col + 1} {text} does not fit the wire's "
+                                                          "32-bit float (MCP-PAY-4)") from None
         indexes.append(int(cols[0]))
     return indexes
 
@@ -139,12 +153,25 @@ def load_waypoints(path: str | Path) -> tuple[Any, ...]:
     """
     src = Path(path)
     try:
-        lines = src.read_text(encoding="ascii").splitlines()
+        st = src.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise WaypointFileError(src, None, "not a regular file")
+        if st.st_size > MAX_FILE_BYTES:
+            raise WaypointFileError(src, None, f"{st.st_size} bytes: larger than a waypoint list "
+                                               f"one datagram carries ({MAX_LIST_ITEMS} items)")
+        with open(src, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)  # a file that grew since: still bounded
+        if len(data) > MAX_FILE_BYTES:
+            raise WaypointFileError(src, None, f"larger than {MAX_FILE_BYTES} bytes")
+        lines = data.decode("ascii").splitlines()
     except OSError as exc:
         raise WaypointFileError(src, None, f"cannot read: {exc.strerror}") from None
     except UnicodeDecodeError as exc:
         raise WaypointFileError(src, None, f"not a text file: byte {exc.start} is not ASCII") from None
     indexes = _check_lines(src, lines)
+    if len(indexes) > MAX_LIST_ITEMS:
+        raise WaypointFileError(src, None, f"{len(indexes)} waypoints: one WP_List or Obstacles_List "
+                                           f"datagram carries at most {MAX_LIST_ITEMS}")
     loader = mavwp.MAVWPLoader()
     try:
         loader.load(str(src))

@@ -151,3 +151,63 @@ def test_sane_item_checks_degrees_only_in_global_frames() -> None:
     local = EXPECTED[2]._replace(frame=mavlink2.MAV_FRAME_LOCAL_NED, x=500.0, y=-900.0)
     assert sane_item(local) == []
     assert sane_item(local._replace(frame=mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT)) != []
+
+
+# ---------------------------------------------------------------- hostile waypoint files (issue 19)
+def _wpl(n: int, lat: str = "35.7") -> str:
+    rows = [f"{i}\t0\t3\t16\t0\t0\t0\t0\t{lat}\t-78.6\t10\t1" for i in range(n)]
+    return "QGC WPL 110\n" + "\n".join(rows) + "\n"
+
+
+def test_non_regular_files_are_refused_without_reading(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # reading it would block for ever
+    from spec.mission import WaypointFileError, load_waypoints
+
+    for path in ("/dev/zero", str(tmp_path), str(fifo)):
+        with pytest.raises(WaypointFileError, match="not a regular file"):
+            load_waypoints(path)
+
+
+def test_values_the_wire_cannot_carry_and_lists_one_datagram_cannot_hold(tmp_path: Path) -> None:
+    from spec.mission import MAX_LIST_ITEMS, WaypointFileError, load_waypoints
+
+    big = tmp_path / "big.waypoints"
+    big.write_text(_wpl(2, lat="1e39"))
+    with pytest.raises(WaypointFileError, match=r"big.waypoints:2: field 9 1e39 does not fit"):
+        load_waypoints(big)
+    many = tmp_path / "many.waypoints"
+    many.write_text(_wpl(MAX_LIST_ITEMS + 1))
+    with pytest.raises(WaypointFileError, match=f"{MAX_LIST_ITEMS + 1} waypoints: .* at most 1769"):
+        load_waypoints(many)
+    full = tmp_path / "full.waypoints"
+    full.write_text(_wpl(MAX_LIST_ITEMS))
+    assert len(load_waypoints(full)) == MAX_LIST_ITEMS == 1769
+    huge = tmp_path / "huge.waypoints"
+    with open(huge, "wb") as f:
+        f.truncate(10**9)  # sparse: 1 GB said, nothing read
+    with pytest.raises(WaypointFileError, match="larger than a waypoint list"):
+        load_waypoints(huge)
+
+
+@pytest.mark.parametrize("path", ["/dev/zero", "1e39"])
+def test_mcp_capture_refuses_a_hostile_waypoints_file_in_one_line(tmp_path: Path, path: str) -> None:
+    """Under a 1 GB address-space limit, one line and exit 2 (it read /dev/zero whole)."""
+    import resource
+    import subprocess
+    import sys
+
+    if path == "1e39":
+        path = str(tmp_path / "bad.waypoints")
+        Path(path).write_text(_wpl(3, lat="1e39"))
+    golden = Path(__file__).resolve().parents[2] / "captures" / "golden" / "challenge1.mcap"
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+
+    proc = subprocess.run([sys.executable, "-m", "captures", "check", str(golden), "--waypoints", path],
+                          capture_output=True, text=True, timeout=60, preexec_fn=limit)
+    assert proc.returncode == 2, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "--waypoints" in proc.stderr, proc.stderr
