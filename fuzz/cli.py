@@ -92,6 +92,43 @@ def _float(v: str | None, name: str) -> float | None:
     return x
 
 
+def _check_writable_dir(path: Path, option: str) -> None:
+    """Before the campaign, not when its results are written: a directory we can write in."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise UsageError(f"{option}: cannot write in {str(path)!r}: {exc.strerror}") from None
+
+
+def _check_reachable(db: str) -> None:
+    """The example database answers before the campaign starts (both engines): a Redis
+    server that answers PING within 2 s, or a directory we can write in."""
+    if db.startswith("redis://"):
+        from urllib.parse import urlparse
+
+        import redis
+
+        u = urlparse(db)
+        client = redis.Redis(host=u.hostname, port=u.port, db=int((u.path or "/0").strip("/") or 0),
+                             socket_connect_timeout=2, socket_timeout=2)
+        try:
+            client.ping()
+        except redis.RedisError as exc:
+            raise UsageError(f"--db: cannot reach {db}: {str(exc).splitlines()[0]}") from None
+        finally:
+            client.close()
+        return
+    path = Path(db)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--db: cannot create {db!r}: {exc.strerror}") from None
+    _check_writable_dir(path, "--db")
+
+
 def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg = FuzzConfig()
     try:
@@ -131,6 +168,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
             check_database(cfg.db)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
+        _check_reachable(cfg.db)
     cfg.seeds_dir = ns.seeds
     cfg.out = ns.out
     if cfg.out is not None:
@@ -141,6 +179,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"--out: cannot create {cfg.out!r}: {exc.strerror}") from None
+        _check_writable_dir(out, "--out")
     cfg.rto = _float(ns.rto, "--rto")
     cfg.ack_window = _float(ns.ack_window, "--ack-window")
     cfg.broadcast_id = _int(ns.broadcast_id, "--broadcast-id", 0, 0xFFFF)

@@ -129,3 +129,28 @@ def test_one_convention_for_should_findings(monkeypatch: pytest.MonkeyPatch, tmp
     monkeypatch.setattr("fuzz.progress.LiveProgress.final", lambda self, summary, store: None)
     argv = ["--max-cases", "1", "--out", str(tmp_path)] + (["--strict"] if strict else [])
     assert main(argv) == code
+
+
+@pytest.mark.parametrize("engine", ["stateless", "stateful"])
+def test_outputs_and_services_are_checked_before_the_campaign(tmp_path, engine: str,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 19 item 5: a read-only --out and an unreachable --db redis://... are one-line
+    errors (exit 2) before any case runs, for both engines, never a traceback at the end."""
+    import os
+    import socket
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    os.chmod(ro, 0o500)
+    if os.access(ro, os.W_OK):  # root writes anywhere: a file where the directory should be
+        os.chmod(ro, 0o700)
+        ro = tmp_path / "file" / "out"
+        (tmp_path / "file").write_text("x")
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        dead = s.getsockname()[1]
+    for argv, words in ((["--out", str(ro)], "--out"),
+                        (["--db", f"redis://127.0.0.1:{dead}/0"], "cannot reach")):
+        assert main(["--engine", engine, "--max-cases", "1", *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and words in err and "Traceback" not in err, err
