@@ -55,7 +55,7 @@ class Link:
 
     def __init__(self, endpoints: list[Endpoint], *, seed: int = 0, drop: float = 0.0,
                  duplicate: float = 0.0, reorder: float = 0.0, latency: float = 0.001,
-                 jitter: float = 0.05, now: float = 0.0) -> None:
+                 jitter: float = 0.05, now: float = 0.0, impairment: Any = None) -> None:
         self.nodes = [Node(ep, (f"10.0.0.{i + 1}", 7000 + i)) for i, ep in enumerate(endpoints)]
         self.rng = random.Random(seed)
         self.drop, self.duplicate, self.reorder = drop, duplicate, reorder
@@ -64,6 +64,9 @@ class Link:
         self._wire: list[tuple[float, int, int, bytes, tuple[str, int]]] = []  # heap
         self._order = 0
         self.delivered_datagrams = 0
+        #: a ``harness.impair.Impairment`` deciding instead of drop/duplicate/reorder: each
+        #: (sender, receiver) pair is a direction of its own
+        self.impairment = impairment
 
     # ------------------------------------------------------------------ driving
     def send(self, i: int, action: int, payload: Any, dst: int, **kw: Any) -> int:
@@ -132,6 +135,13 @@ class Link:
                         self._transmit(j, data, n.addr)
 
     def _transmit(self, dst: int, data: bytes, src_addr: tuple[str, int]) -> None:
+        if self.impairment is not None:
+            decision = self.impairment.decide(f"{src_addr[0]}>{dst}", data, self.now)
+            for d in decision.deliveries:
+                self._order += 1
+                heapq.heappush(self._wire, (self.now + self.latency + d.delay_s, self._order, dst,
+                                            d.data, src_addr))
+            return
         rng = self.rng
         if self.drop and rng.random() < self.drop:
             return

@@ -1,0 +1,306 @@
+"""A bad link on demand: a seeded, sans-I/O impairment schedule (issue 22).
+
+MCP exists because radio links lose, duplicate and reorder datagrams; retransmission until
+ACK plus duplicate discard must turn such a link into exactly-once delivery. An
+:class:`Impairment` decides, for each datagram of each direction, what the link does to it:
+
+- ``loss`` — dropped with probability p (independent losses);
+- ``burst`` — Gilbert–Elliott burst loss ``P_GB/P_BG[/LOSS_BAD]``: a two-state chain, good
+  (no loss but ``loss``) and bad (loss ``LOSS_BAD``, default 1), entered with probability
+  ``P_GB`` per datagram and left with ``P_BG``;
+- ``dup`` — duplicated with probability p (``copies`` extra copies, default 1);
+- ``delay`` — every copy delayed by a uniform draw in ``LO-HI`` (``0-50ms``; jitter);
+- ``reorder`` — with probability p a copy is held back past the delay range (``HI`` plus up to
+  ``HI`` more, at least 10 ms), so datagrams sent after it arrive first;
+- ``corrupt`` — with probability p one to three bit flips, or (one time in four) a cut:
+  the datagram truncated to a random shorter length;
+- ``rate`` — a rate limit in datagrams per second per direction (``rate=200``): a datagram
+  that would exceed it is dropped (a full queue).
+
+The syntax is one string everywhere (``--impair``): ``loss=0.3,dup=0.1,reorder=0.2,
+delay=0-50ms,corrupt=0.01,burst=0.05/0.3,rate=500,seed=7``; :func:`parse_impairment` says in
+one line what is wrong with a bad one.
+
+Same seed and same traffic, same decisions: each direction has its own random stream, seeded
+from ``seed`` and the direction's name, and a datagram's decision depends only on its place
+in its direction's sequence (and, for ``rate``, on the times given) — never on the wall
+clock. Bytes and ``now`` in, :class:`Decision` out (what to deliver when); sockets live in
+the proxy (``harness.impair_proxy``) and the runner's driver.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import random
+import re
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["Decision", "Delivery", "Impairment", "ImpairmentError", "ImpairSpec",
+           "parse_impairment"]
+
+
+class ImpairmentError(ValueError):
+    """A bad impairment spec (one line, names the key)."""
+
+
+@dataclass(frozen=True)
+class ImpairSpec:
+    """What the link does, as parsed from ``loss=...,seed=N`` (all probabilities 0..1)."""
+
+    loss: float = 0.0
+    dup: float = 0.0
+    copies: int = 1
+    reorder: float = 0.0
+    delay_lo_s: float = 0.0
+    delay_hi_s: float = 0.0
+    corrupt: float = 0.0
+    burst_gb: float = 0.0  # Gilbert-Elliott: good -> bad per datagram
+    burst_bg: float = 0.0  # bad -> good
+    burst_loss: float = 1.0  # loss in the bad state
+    rate: float | None = None  # datagrams per second per direction
+    seed: int = 0
+
+    @property
+    def active(self) -> bool:
+        return any((self.loss, self.dup, self.reorder, self.delay_hi_s, self.corrupt,
+                    self.burst_gb, self.rate is not None))
+
+    def text(self) -> str:
+        """The spec back as its one-string form (what a reproducing command repeats)."""
+        parts = []
+        for key, value in (("loss", self.loss), ("dup", self.dup), ("reorder", self.reorder),
+                           ("corrupt", self.corrupt)):
+            if value:
+                parts.append(f"{key}={value:g}")
+        if self.dup and self.copies != 1:
+            parts.append(f"copies={self.copies}")
+        if self.delay_hi_s:
+            parts.append(f"delay={self.delay_lo_s * 1000:g}-{self.delay_hi_s * 1000:g}ms")
+        if self.burst_gb:
+            parts.append(f"burst={self.burst_gb:g}/{self.burst_bg:g}/{self.burst_loss:g}")
+        if self.rate is not None:
+            parts.append(f"rate={self.rate:g}")
+        parts.append(f"seed={self.seed}")
+        return ",".join(parts)
+
+
+_PROB_KEYS = ("loss", "dup", "reorder", "corrupt")
+_KEYS = (*_PROB_KEYS, "copies", "delay", "burst", "rate", "seed")
+_DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(ms|s)?\s*$")
+
+
+def _prob(key: str, text: str) -> float:
+    try:
+        p = float(text)
+    except ValueError:
+        raise ImpairmentError(f"--impair: {key}={text!r} is not a number") from None
+    if not 0.0 <= p <= 1.0:
+        raise ImpairmentError(f"--impair: {key}={text} is not a probability 0..1")
+    return p
+
+
+def _seconds(key: str, text: str) -> float:
+    m = _DURATION.match(text)
+    if m is None:
+        raise ImpairmentError(f"--impair: {key}: {text!r} is not a duration (50ms, 0.05s)")
+    value = float(m.group(1))
+    return value / 1000.0 if m.group(2) in (None, "ms") else value
+
+
+def parse_impairment(text: str) -> ImpairSpec:
+    """``loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,seed=7`` -> :class:`ImpairSpec`, or
+    :class:`ImpairmentError` naming what is wrong."""
+    values: dict[str, Any] = {}
+    if not text or not text.strip():
+        raise ImpairmentError("--impair: empty; e.g. loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,seed=7")
+    for word in text.split(","):
+        key, sep, value = word.strip().partition("=")
+        key = key.strip().lower()
+        if not sep or not value.strip():
+            raise ImpairmentError(f"--impair: {word.strip()!r} is not KEY=VALUE")
+        if key in values:
+            raise ImpairmentError(f"--impair: {key} given twice")
+        value = value.strip()
+        if key in _PROB_KEYS:
+            values[key] = _prob(key, value)
+        elif key == "copies":
+            if not value.isdigit() or not 1 <= int(value) <= 10:
+                raise ImpairmentError(f"--impair: copies={value!r} is not 1..10")
+            values[key] = int(value)
+        elif key == "delay":
+            lo, dash, hi = value.partition("-")
+            if dash and _DURATION.match(lo) and not lo.strip().endswith("s"):
+                m = _DURATION.match(hi)  # "0-50ms": the low end takes the high end's unit
+                lo += (m.group(2) or "ms") if m else ""
+            lo_s = _seconds("delay", lo)
+            hi_s = _seconds("delay", hi) if dash else lo_s
+            if hi_s < lo_s or hi_s > 60:
+                raise ImpairmentError(f"--impair: delay={value}: LO-HI with LO <= HI <= 60 s")
+            values["delay_lo_s"], values["delay_hi_s"] = lo_s, hi_s
+        elif key == "burst":
+            parts = value.split("/")
+            if len(parts) not in (2, 3):
+                raise ImpairmentError(f"--impair: burst={value}: P_GB/P_BG[/LOSS_BAD] (e.g. 0.05/0.3)")
+            values["burst_gb"] = _prob("burst P_GB", parts[0])
+            values["burst_bg"] = _prob("burst P_BG", parts[1])
+            if len(parts) == 3:
+                values["burst_loss"] = _prob("burst LOSS_BAD", parts[2])
+            if values["burst_gb"] > 0 and values["burst_bg"] == 0:
+                raise ImpairmentError(f"--impair: burst={value}: P_BG 0 would never leave the bad state")
+        elif key == "rate":
+            try:
+                rate = float(value.removesuffix("/s"))
+            except ValueError:
+                raise ImpairmentError(f"--impair: rate={value!r} is not datagrams per second") from None
+            if not rate > 0:
+                raise ImpairmentError(f"--impair: rate={value}: must be > 0")
+            values["rate"] = rate
+        elif key == "seed":
+            try:
+                values["seed"] = int(value, 0)
+            except ValueError:
+                raise ImpairmentError(f"--impair: seed={value!r} is not an integer") from None
+        else:
+            raise ImpairmentError(f"--impair: unknown key {key!r}; keys: {', '.join(_KEYS)}")
+    return ImpairSpec(**values)
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """One copy to deliver ``delay_s`` after the datagram reached the link."""
+
+    delay_s: float
+    data: bytes
+    kinds: tuple[str, ...] = ()  # what was done to this copy: dup, delay, reorder, corrupt, cut
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the link did to datagram number ``n`` of ``direction``: its copies (none:
+    dropped, and ``dropped`` says why: loss, burst or rate)."""
+
+    direction: str
+    n: int
+    size: int
+    deliveries: tuple[Delivery, ...]
+    dropped: str | None = None
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """Every kind of impairment applied (``drop:loss`` for a drop), for counting."""
+        out = [f"drop:{self.dropped}"] if self.dropped else []
+        for d in self.deliveries:
+            out.extend(d.kinds)
+        return tuple(out)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"direction": self.direction, "n": self.n, "size": self.size, "dropped": self.dropped,
+                "deliveries": [{"delay_ms": round(d.delay_s * 1000, 3), "size": len(d.data),
+                                "kinds": list(d.kinds)} for d in self.deliveries]}
+
+
+@dataclass
+class _Direction:
+    rng: random.Random
+    n: int = 0
+    bad: bool = False  # Gilbert-Elliott state
+    sent: deque[float] = field(default_factory=deque)  # times of the last second's datagrams
+
+
+class Impairment:
+    """The schedule: ``decide(direction, data, now)`` for each datagram entering the link."""
+
+    def __init__(self, spec: ImpairSpec) -> None:
+        self.spec = spec
+        self._dirs: dict[str, _Direction] = {}
+        self.counts: dict[str, int] = {}
+
+    def _direction(self, name: str) -> _Direction:
+        d = self._dirs.get(name)
+        if d is None:
+            digest = hashlib.sha256(f"{self.spec.seed}:{name}".encode()).digest()
+            d = self._dirs[name] = _Direction(random.Random(int.from_bytes(digest[:8], "big")))
+        return d
+
+    def decide(self, direction: str, data: bytes, now: float = 0.0) -> Decision:
+        """What happens to ``data`` entering the link in ``direction`` at ``now`` (seconds,
+        any clock; only the rate limit looks at it)."""
+        s = self.spec
+        d = self._direction(direction)
+        n, rng = d.n, d.rng
+        d.n += 1
+        # a fixed number of draws per datagram, so one decision never shifts the next ones
+        draws = [rng.random() for _ in range(9)]
+        dropped = None
+        if s.burst_gb:
+            d.bad = (draws[0] >= s.burst_bg) if d.bad else (draws[0] < s.burst_gb)
+            if d.bad and draws[1] < s.burst_loss:
+                dropped = "burst"
+        if dropped is None and draws[2] < s.loss:
+            dropped = "loss"
+        if dropped is None and s.rate is not None:
+            while d.sent and d.sent[0] <= now - 1.0:
+                d.sent.popleft()
+            if len(d.sent) >= s.rate:
+                dropped = "rate"
+            else:
+                d.sent.append(now)
+        if dropped is not None:
+            return self._count(Decision(direction, n, len(data), (), dropped))
+        copies = 1 + (s.copies if draws[3] < s.dup else 0)
+        out = []
+        for c in range(copies):
+            r = draws if c == 0 else [rng.random() for _ in range(9)]
+            kinds: list[str] = ["dup"] if c else []
+            delay = s.delay_lo_s + (s.delay_hi_s - s.delay_lo_s) * r[4]
+            if s.delay_hi_s:
+                kinds.append("delay")
+            if r[5] < s.reorder:
+                hold = max(s.delay_hi_s, 0.010)
+                delay = s.delay_hi_s + hold * (1.0 + r[6])
+                kinds.append("reorder")
+            body = data
+            if r[7] < s.corrupt and data:
+                body, how = _corrupt(data, r[8], rng)
+                kinds.append(how)
+            out.append(Delivery(delay, body, tuple(kinds)))
+        return self._count(Decision(direction, n, len(data), tuple(out)))
+
+    def _count(self, decision: Decision) -> Decision:
+        self.counts["datagrams"] = self.counts.get("datagrams", 0) + 1
+        for k in decision.kinds:
+            self.counts[k] = self.counts.get(k, 0) + 1
+        return decision
+
+    def summary(self) -> str:
+        """``1000 datagrams: 298 dropped (loss), 101 duplicated, ...`` for a person."""
+        c = self.counts
+        drops = {k.split(":", 1)[1]: v for k, v in c.items() if k.startswith("drop:")}
+        words = [f"{c.get('datagrams', 0)} datagrams"]
+        if drops:
+            words.append(f"{sum(drops.values())} dropped (" +
+                         ", ".join(f"{v} {k}" for k, v in sorted(drops.items())) + ")")
+        for key, label in (("dup", "duplicated"), ("reorder", "reordered"), ("delay", "delayed"),
+                           ("corrupt", "corrupted"), ("cut", "truncated")):
+            if c.get(key):
+                words.append(f"{c[key]} {label}")
+        return ", ".join(words)
+
+
+def _corrupt(data: bytes, r: float, rng: random.Random) -> tuple[bytes, str]:
+    """One to three bit flips, or (r < 0.25) a cut to a shorter length."""
+    if r < 0.25 and len(data) > 1:
+        return data[:rng.randrange(1, len(data))], "cut"
+    body = bytearray(data)
+    for _ in range(1 + rng.randrange(3)):
+        bit = rng.randrange(len(body) * 8)
+        body[bit // 8] ^= 1 << (bit % 8)
+    return bytes(body), "corrupt"
+
+
+def replace_seed(spec: ImpairSpec, seed: int) -> ImpairSpec:
+    """The same impairment with another seed (one seed per soak mission, per link)."""
+    return dataclasses.replace(spec, seed=seed)
