@@ -143,6 +143,34 @@ _CASE_SCHEMA: dict[str, Any] = {
     "required": ["case", "event", "rules"],
 }
 
+_IMPAIR_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "mcp.Impairment",
+    "description": "What an impaired link (harness.impair) did to one datagram: dropped it (and "
+                   "why), or delivered copies after a delay, perhaps reordered, corrupted or cut.",
+    "type": "object",
+    "properties": {
+        "direction": _STR,
+        "n": _INT,
+        "size": _INT,
+        "dropped": {"type": ["string", "null"]},
+        "deliveries": {"type": "array", "items": {"type": "object", "properties": {
+            "delay_ms": {"type": "number"}, "size": _INT,
+            "kinds": {"type": "array", "items": _STR}}}},
+        "raw_base64": _B64,
+    },
+    "required": ["direction", "n", "size", "deliveries", "raw_base64"],
+}
+_VEHICLE_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "mcp.VehicleEvent",
+    "description": "An event of the simulated vehicle the run observed on the drone's autopilot "
+                   "link (link connected, GPS fix gained or lost), as the run's monitor got it.",
+    "type": "object",
+    "properties": {"kind": _STR, "drone": _NULLABLE_INT, "detail": {"type": ["string", "null"]}},
+    "required": ["kind"],
+}
+
 #: topic -> (schema name, JSON schema)
 CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/mcp/tx": ("mcp.Datagram", _DATAGRAM_SCHEMA),
@@ -150,6 +178,8 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/mcp/burst": ("mcp.Burst", _BURST_SCHEMA),
     "/mavlink": ("mcp.MavlinkFrame", _MAVLINK_SCHEMA),
     "/conformance/case": ("mcp.CaseMark", _CASE_SCHEMA),
+    "/impair": ("mcp.Impairment", _IMPAIR_SCHEMA),
+    "/vehicle": ("mcp.VehicleEvent", _VEHICLE_SCHEMA),
 }
 _MAX_ITEMS = 16  # payload summary: mission items listed in full up to this many
 
@@ -327,6 +357,16 @@ class McapRecorder:
                 "count": int(count), "first_t_ns": int(first_t_ns), "last_t_ns": int(last_t_ns),
                 "cycle": datagrams}
         self._write("/mcp/burst", body, first_t_ns)
+
+    def impairment(self, decision: Any, data: bytes, t_ns: int | None = None) -> None:
+        """What an impaired link did to ``data`` (a ``harness.impair.Decision``)."""
+        body = {**decision.to_json(), "raw_base64": base64.b64encode(bytes(data)).decode("ascii")}
+        self._write("/impair", body, t_ns)
+
+    def vehicle_event(self, kind: str, t_ns: int | None = None, drone: int | None = None,
+                      detail: str | None = None) -> None:
+        """An event of the autopilot link the run's monitor was given (link, fix, fix_lost)."""
+        self._write("/vehicle", {"kind": kind, "drone": drone, "detail": detail}, t_ns)
 
     def mavlink(self, direction: str, frame: bytes, t_ns: int | None = None,
                 msg_type: str | None = None, drone: int | None = None) -> None:

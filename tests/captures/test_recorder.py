@@ -55,17 +55,19 @@ def test_channels_schemas_and_counts(tmp_path):
         rec.datagram("rx", ack, ("127.0.0.1", 40000), 1_200)
         rec.datagram("rx", b"garbage", ("127.0.0.1", 40000), 1_300)
         rec.mavlink("rx", b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00", 1_400, msg_type="HEARTBEAT")
+        rec.vehicle_event("fix", 1_450, drone=1, detail="fix_type 3")
         rec.case_mark("ACK/test_x", "end", 1_500, outcome="passed", rules=("MCP-ACK-1",))
     msgs, encodings = read_all(path)
     assert set(encodings.values()) == {"jsonschema"}
-    assert set(encodings) == set(CHANNELS) - {"/mcp/burst"}
+    assert set(encodings) == set(CHANNELS) - {"/mcp/burst", "/impair"}
     assert {t: len(v) for t, v in msgs.items()} == {
-        "/mcp/tx": 1, "/mcp/rx": 2, "/mavlink": 1, "/conformance/case": 2}
+        "/mcp/tx": 1, "/mcp/rx": 2, "/mavlink": 1, "/vehicle": 1, "/conformance/case": 2}
     with open(path, "rb") as f:
         summary = make_reader(f, validate_crcs=True).get_summary()
     assert summary is not None
     assert {s.name for s in summary.schemas.values()} == {
-        "mcp.Datagram", "mcp.Burst", "mcp.MavlinkFrame", "mcp.CaseMark"}
+        "mcp.Datagram", "mcp.Burst", "mcp.MavlinkFrame", "mcp.CaseMark", "mcp.Impairment",
+        "mcp.VehicleEvent"}
     assert {c.topic for c in summary.channels.values()} == set(CHANNELS)
     for schema in summary.schemas.values():
         body = json.loads(schema.data)

@@ -1,0 +1,222 @@
+"""``mcp-impair``: a UDP proxy that is a bad link, reproducible by seed (issue 22 item 2).
+
+    mcp-impair --listen HOST:PORT --forward HOST:PORT [--loss P] [--dup P] [--reorder P]
+               [--delay LO-HI] [--corrupt P] [--burst P_GB/P_BG[/LOSS]] [--rate N]
+               [--seed N] [--impair SPEC] [--capture FILE.mcap] [--duration S]
+
+Point a node at ``--listen`` instead of its peer: every datagram it sends there goes on to
+``--forward`` through the impairment, from a socket of its own for that sender (as a NAT
+would), and every datagram the forward side sends back to that socket returns to the sender
+from ``--listen``, impaired too. The two directions are impaired independently
+(``harness.impair``: the same seed and traffic give the same decisions). On exit (SIGINT,
+SIGTERM, ``--duration``) it prints what it did, per direction and kind; ``--capture`` records
+each decision with the datagram it touched (MCAP channel ``/impair``), so a capture shows
+which losses were the link's. Exit 0, or 2 with one line on a bad option or a port in use.
+
+Sockets and clocks live here; the decisions are ``harness.impair.Impairment``'s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import heapq
+import itertools
+import selectors
+import signal
+import socket
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from harness.config import parse_hostport
+from harness.impair import Impairment, ImpairmentError, ImpairSpec, parse_impairment
+
+__all__ = ["ImpairProxy", "main"]
+
+PROG = "mcp-impair"
+Address = tuple[str, int]
+#: the most senders one proxy keeps a forward socket for (a bound on open sockets)
+MAX_PEERS = 256
+
+
+class ImpairProxy:
+    """The proxy's sockets and its delivery queue; ``run(until)`` serves until a deadline or
+    :meth:`stop`. ``recorder`` (optional) gets every decision (``impairment(...)``)."""
+
+    def __init__(self, listen: Address, forward: Address, impairment: Impairment, *,
+                 recorder: Any = None) -> None:
+        self.impairment = impairment
+        self.forward = forward
+        self.recorder = recorder
+        self.sel = selectors.DefaultSelector()
+        self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.front.bind(listen)
+        except OSError:
+            self.front.close()
+            raise
+        self.front.setblocking(False)
+        self.sel.register(self.front, selectors.EVENT_READ, None)
+        self.back: dict[Address, socket.socket] = {}  # sender -> its forward socket
+        self.queue: list[tuple[float, int, socket.socket, bytes, Address]] = []
+        self._order = itertools.count()
+        self._stop = False
+        self.per_direction: dict[str, int] = {"up": 0, "down": 0}
+
+    @property
+    def address(self) -> Address:
+        host, port = self.front.getsockname()[:2]
+        return str(host), int(port)
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def _back_socket(self, sender: Address) -> socket.socket | None:
+        sock = self.back.get(sender)
+        if sock is None:
+            if len(self.back) >= MAX_PEERS:
+                return None
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind((self.front.getsockname()[0], 0))
+            sock.setblocking(False)
+            self.back[sender] = sock
+            self.sel.register(sock, selectors.EVENT_READ, sender)
+        return sock
+
+    def _impair(self, direction: str, data: bytes, out: socket.socket, dst: Address,
+                now: float) -> None:
+        decision = self.impairment.decide(direction, data, now)
+        self.per_direction[direction] += 1
+        if self.recorder is not None:
+            with contextlib.suppress(Exception):
+                self.recorder.impairment(decision, data, time.time_ns())
+        for d in decision.deliveries:
+            heapq.heappush(self.queue, (now + d.delay_s, next(self._order), out, d.data, dst))
+
+    def _read(self, sock: socket.socket, sender: Address | None, now: float) -> None:
+        for _ in range(64):  # bounded per wake-up
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:  # ICMP port unreachable from a peer: UDP goes on
+                return
+            if sender is None:  # from a node to --listen: up, from its own forward socket
+                peer = (str(addr[0]), int(addr[1]))
+                back = self._back_socket(peer)
+                if back is not None:
+                    self._impair("up", data, back, self.forward, now)
+            else:  # from the forward side to a sender's socket: down, from --listen
+                self._impair("down", data, self.front, sender, now)
+
+    def _deliver(self, now: float) -> None:
+        q = self.queue
+        while q and q[0][0] <= now:
+            _, _, sock, data, dst = heapq.heappop(q)
+            with contextlib.suppress(OSError):
+                sock.sendto(data, dst)
+
+    def run(self, until: float | None = None) -> None:
+        """Serve until ``until`` (a ``time.monotonic()`` deadline) or :meth:`stop`."""
+        while not self._stop:
+            now = time.monotonic()
+            if until is not None and now >= until:
+                break
+            self._deliver(now)
+            wait = 0.2 if not self.queue else max(0.0, self.queue[0][0] - now)
+            if until is not None:
+                wait = min(wait, max(0.0, until - now))
+            for key, _ in self.sel.select(min(wait, 0.2)):
+                self._read(key.fileobj, key.data, time.monotonic())  # type: ignore[arg-type]
+            self._deliver(time.monotonic())
+
+    def close(self) -> None:
+        for sock in [self.front, *self.back.values()]:
+            with contextlib.suppress(Exception):
+                self.sel.unregister(sock)
+            sock.close()
+        self.sel.close()
+
+    def report(self) -> str:
+        """What it did: per direction, then per kind."""
+        dirs = ", ".join(f"{n} {d}" for d, n in self.per_direction.items())
+        return f"{PROG}: {dirs}: {self.impairment.summary()}"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description="A UDP proxy that impairs both directions, "
+                                "reproducibly by seed (loss, duplication, delay, reordering, "
+                                "corruption, burst loss, rate limit).")
+    p.add_argument("--listen", required=True, metavar="HOST:PORT", help="where the node sends")
+    p.add_argument("--forward", required=True, metavar="HOST:PORT", help="where it goes on to")
+    for key, what in (("loss", "drop probability"), ("dup", "duplication probability"),
+                      ("reorder", "probability of being held back past later datagrams"),
+                      ("corrupt", "probability of bit flips or a cut")):
+        p.add_argument(f"--{key}", metavar="P", help=what)
+    p.add_argument("--delay", metavar="LO-HI", help="delay range, e.g. 0-50ms (jitter)")
+    p.add_argument("--burst", metavar="P_GB/P_BG[/LOSS]", help="Gilbert-Elliott burst loss")
+    p.add_argument("--rate", metavar="N", help="at most N datagrams per second per direction")
+    p.add_argument("--seed", metavar="N", help="the seed of the decisions (default 0)")
+    p.add_argument("--impair", metavar="SPEC", help="all of the above as one string "
+                   "(loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,seed=7); options given beside it win")
+    p.add_argument("--capture", metavar="FILE.mcap", help="record every decision (channel /impair)")
+    p.add_argument("--duration", metavar="S", type=float, help="stop after S seconds")
+    return p
+
+
+def spec_from_args(ns: argparse.Namespace) -> ImpairSpec:
+    words = [w for w in (ns.impair or "").split(",") if w.strip()]
+    given = {w.split("=", 1)[0].strip().lower(): w for w in words}
+    for key in ("loss", "dup", "reorder", "corrupt", "delay", "burst", "rate", "seed"):
+        value = getattr(ns, key)
+        if value is not None:
+            given[key] = f"{key}={value}"
+    return parse_impairment(",".join(given.values()) or "seed=0")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ns = build_parser().parse_args(argv)
+    try:
+        spec = spec_from_args(ns)
+        listen = parse_hostport(ns.listen, "--listen")
+        forward = parse_hostport(ns.forward, "--forward")
+        if ns.duration is not None and not ns.duration > 0:
+            raise ImpairmentError("--duration: must be > 0")
+    except (ImpairmentError, ValueError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    recorder = None
+    if ns.capture:
+        from traceio.recorder import McapRecorder, RecorderError, run_metadata
+
+        try:
+            recorder = McapRecorder(ns.capture, library=PROG, metadata=run_metadata(
+                PROG, impair=spec.text(), listen=ns.listen, forward=ns.forward))
+        except RecorderError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+    try:
+        proxy = ImpairProxy(listen, forward, Impairment(spec), recorder=recorder)
+    except OSError as exc:
+        print(f"{PROG}: error: --listen {ns.listen}: {exc.strerror}", file=sys.stderr)
+        if recorder is not None:
+            recorder.close()
+        return 2
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: proxy.stop())
+    print(f"{PROG}: {proxy.address[0]}:{proxy.address[1]} -> {forward[0]}:{forward[1]} "
+          f"({spec.text()})", flush=True)
+    try:
+        proxy.run(None if ns.duration is None else time.monotonic() + ns.duration)
+    finally:
+        proxy.close()
+        if recorder is not None:
+            recorder.close()
+    print(proxy.report(), flush=True)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
