@@ -1,7 +1,8 @@
 """The runner inside pytest (registered by ``conformance.plugin`` when a run asks for it).
 
-It holds the fixtures (``mcp_config``, ``mcp_session``, ``node``), the MUST / SHOULD / INFO
-outcome mapping, per-case and per-run time limits, and the reports (terminal,
+It holds the hooks and fixtures (``mcp_config``, ``mcp_session``, ``node``), the MUST /
+SHOULD / INFO outcome mapping, per-case and per-run time limits (the run's state is
+``conformance._run_state.McpState``), and the reports (terminal,
 ``--mcp-json``, ``--mcp-junit``, ``--mcp-html``, ``--mcp-capture``; merged by the
 controller under pytest-xdist). It is inert for any run that collects no case marked with
 ``rules(...)``.
@@ -14,59 +15,55 @@ Outcomes: a pass is ``passed`` (``info`` when every rule of the case is INFO); a
 
 from __future__ import annotations
 
-import atexit
-import contextlib
 import json
 import os
-import signal
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from rich.console import Console
 
-from conformance.baseline import Baseline, BaselineError, load_baseline, write_baseline
+from conformance._run_state import (
+    STATE_KEY,
+    CaseTimeLimit,
+    McpState,
+    _meta,
+    _one_line,
+    _write_reports,
+    state_of,
+    write_run_html,
+)
+from conformance.baseline import BaselineError, load_baseline, write_baseline
+from conformance.junit import write_junit
 from conformance.marks import (
     PHASES,
-    case_id,
-    case_phase,
-    case_rules,
     is_case,
     rule_level,
     rule_marker,
-    strongest_level,
 )
 from conformance.options import (
     ConfigError,
-    apply_embedded_defaults,
     make_config,
     matches_select,
     option_values,
 )
 from conformance.report import (
     CaseRecord,
-    RunRecord,
-    TerminalReport,
     build_json,
     case_from_json,
     merge_json,
-    name_consequence,
     run_from_json,
     worker_path,
     write_json,
-    write_junit,
 )
 from harness.config import RunConfig
 from harness.errors import (
     CaseFailure,
     Inconclusive,
     NodeLost,
-    SetupError,
     SilenceUnproven,
     TargetLost,
 )
@@ -74,18 +71,7 @@ from harness.interrupts import INTERRUPTS
 from spec import SPEC
 
 __all__ = ["McpState", "STATE_KEY"]
-
-
-class CaseTimeLimit(Exception):
-    """Raised by the SIGALRM handler: the case (or the run) ran out of time."""
-
-
-STATE_KEY = pytest.StashKey["McpState"]()
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+_state = state_of
 
 
 @pytest.hookimpl(trylast=True)
@@ -142,12 +128,6 @@ def pytest_configure(config: pytest.Config) -> None:
     state.worker = worker
     state.html_path = config.getoption("mcp_html")  # under xdist the controller writes it
 
-
-def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
-    """--mcp-html: the report with each failed case's traffic charted (reports.html)."""
-    from reports.html import write_run
-
-    write_run(path, doc, capture)
 
 
 def _xdist_controller(config: pytest.Config) -> bool:
@@ -206,274 +186,6 @@ def _merge_worker_reports(session: pytest.Session) -> None:
         print(f"error: {p}", file=sys.stderr)
     session.exitstatus = code
 
-
-def _write_reports(writers: list[tuple[str | None, Callable[[str], Any]]]) -> list[str]:
-    """Write each report that has a path; one problem line per report that could not be
-    written (the others are written all the same)."""
-    problems = []
-    for path, write in writers:
-        if path:
-            try:
-                write(path)
-            except OSError as exc:
-                problems.append(str(exc))
-    return problems
-
-
-def _state(config: pytest.Config) -> McpState | None:
-    return config.stash.get(STATE_KEY, None)
-
-
-# ---------------------------------------------------------------------- run state
-class McpState:
-    """Everything the plugin keeps for one pytest run."""
-
-    def __init__(self, config: pytest.Config, cfg: RunConfig, frontend: bool) -> None:
-        self.config = config
-        self.cfg = cfg
-        self.frontend = frontend
-        self.active = False
-        self.list_mode = bool(config.getoption("mcp_list"))
-        self.select: list[str] = list(config.getoption("mcp_select") or [])
-        self.exclude: list[str] = []
-        self.user_timeouts: dict[str, float] = {}  # nodeid -> pytest-timeout's --timeout
-        self.case_user_timeout: float | None = None  # of the case in progress
-        self.case_limit_text = ""
-        self.baseline: Baseline | None = None
-        self.junit_family = "xunit2"
-        self.write_baseline_path: str | None = None
-        self.worker: str | None = None  # the pytest-xdist worker id, on a worker
-        self.worker_docs: list[dict[str, Any]] = []  # on the xdist controller
-        self.capture_parts: list[str] = []
-        self.merged_run: RunRecord | None = None
-        self.run = RunRecord(role=cfg.role, target=self._target_guess(), parameters=cfg.parameters(),
-                             seed=cfg.seed, strict=cfg.strict)
-        self.session: Any = None
-        self.recorder: Any = None
-        self.html_path: str | None = None
-        self.html_capture: str | None = None  # the run's recording for --mcp-html without --mcp-capture
-        self.items: list[pytest.Item] = []
-        self.meta: dict[str, tuple[str, tuple[str, ...], str, str]] = {}  # nodeid -> id, rules, level, phase
-        self.records: dict[str, CaseRecord] = {}
-        self.done: set[str] = set()
-        self.ctx: dict[str, Any] = {}
-        self.collect_errors: list[str] = []
-        self.run_deadline: float | None = None
-        self.case_deadline: float | None = None
-        self.deadline_hit = False
-        self.interrupted: str | None = None
-        self._old_alarm: Any = None
-        self._old_term: Any = None
-        self._terminal: TerminalReport | None = None
-        self._wait_status: Any = None
-
-    def _target_guess(self) -> str | None:
-        if self.cfg.target is not None:
-            return f"{self.cfg.target[0]}:{self.cfg.target[1]}"
-        return None
-
-    @property
-    def terminal(self) -> TerminalReport:
-        if self._terminal is None:
-            tr = self.config.pluginmanager.get_plugin("terminalreporter")
-            before = None
-            if tr is not None:
-                def before() -> None:  # end pytest's progress line before ours
-                    tw = getattr(tr, "_tw", None)
-                    if tw is not None and getattr(tw, "width_of_current_line", False):
-                        tw.line()
-            self._terminal = TerminalReport(Console(highlight=False), before_line=before)
-        return self._terminal
-
-    # ------------------------------------------------------------------ session
-    def start_session(self) -> Any:
-        if self.session is not None:
-            return self.session
-        if self.run.error is not None:
-            pytest.exit(self.run.error, returncode=2)
-        try:
-            apply_embedded_defaults(self.cfg)
-            self.run.parameters = self.cfg.parameters()
-            if self.html_path and not self.cfg.capture:  # the HTML report's charts need the traffic
-                fd, self.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
-                os.close(fd)
-            if self.cfg.capture or self.html_capture:
-                from traceio.recorder import McapRecorder, RecorderError, run_metadata
-
-                cfg = self.cfg
-                meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
-                                    target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
-                                    spawn=cfg.spawn, parameters=self.run.parameters)
-                try:
-                    with INTERRUPTS.held():  # never a file cut off after its header
-                        self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
-                except RecorderError as exc:
-                    raise SetupError(str(exc)) from None
-            recorder = self.recorder
-            if self.config.getoption("mcp_verbose_traffic"):
-                from conformance.live import Tee, TrafficPrinter
-
-                capman = self.config.pluginmanager.getplugin("capturemanager")
-                recorder = Tee(self.recorder, TrafficPrinter(
-                    uncaptured=capman.global_and_fixture_disabled if capman is not None else None))
-            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
-                                                               config=self.config)
-            self.session = session
-            self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
-            resume = self.wait_status.current
-            if self.frontend:
-                self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
-                                   f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")
-                self.wait_status.begin("startup phase: watching Mission_Ready and its retransmissions")
-            atexit.register(self.close_session)
-            # the startup phase is bounded by its own waits and the run deadline, not by the
-            # time limit of the case that happens to start it
-            self.case_deadline = None
-            self.arm()
-            try:
-                session.start()
-            except CaseTimeLimit:
-                # the run's deadline fell in the startup phase: the node never became ready
-                self.deadline_hit = False
-                timed_out = getattr(session, "startup_timed_out", None)
-                if timed_out is not None:
-                    raise timed_out(self.cfg.timeout) from None
-                raise SetupError(f"target never answered within the run's --timeout of "
-                                 f"{self.cfg.timeout:g} s") from None
-            finally:
-                self.wait_status.end()
-                if resume:
-                    self.wait_status.begin(resume)  # the first case, which started the node
-            self.case_deadline = time.monotonic() + self.current_limit()
-            self.arm()
-        except SetupError as exc:
-            self.disarm()
-            self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
-            self.run.node = getattr(exc, "node", None)
-            self.close_session()
-            pytest.exit(self.run.error, returncode=2)
-        self.run.target = getattr(session, "target_desc", None) or self.run.target
-        watch = getattr(getattr(session, "liveness", None), "loss_after", None)
-        if watch is not None:
-            self.run.parameters["loss_after_s"] = watch
-            self.terminal.note(f"liveness: the node is declared lost after {watch:g} s without an "
-                               "answer to the runner's probes" + (" (its process is watched too)"
-                                                                  if self.cfg.spawn else ""))
-        return session
-
-    def close_session(self) -> None:
-        session, self.session = self.session, None
-        if session is not None:
-            with contextlib.suppress(Exception):
-                session.close()
-            monitor = getattr(session, "monitor", None)  # the report's monitor section
-            if monitor is not None:
-                with contextlib.suppress(Exception):
-                    monitor.finish()
-                    self.run.monitor = monitor.to_json()
-        recorder, self.recorder = self.recorder, None
-        if recorder is not None:
-            with contextlib.suppress(Exception):
-                recorder.close()
-
-    # ------------------------------------------------------------------ records
-    def record(self, item: pytest.Item) -> CaseRecord:
-        rec = self.records.get(item.nodeid)
-        if rec is None:
-            cid, ids, level, _ = self.meta.get(item.nodeid) or _meta(item)
-            rec = self.records[item.nodeid] = CaseRecord(id=cid, rules=ids, level=level)
-            rec.duration_s = 0.0
-        return rec
-
-    @property
-    def wait_status(self) -> Any:
-        """The progress line (frontend on a terminal only; pytest shows its own progress)."""
-        if self._wait_status is None:
-            from conformance.live import WaitStatus
-
-            self._wait_status = WaitStatus(self.terminal.console)
-            self._wait_status.enabled = self._wait_status.enabled and self.frontend
-        return self._wait_status
-
-    def finish(self, item: pytest.Item, rec: CaseRecord) -> None:
-        if item.nodeid in self.done:
-            return
-        self.wait_status.end()
-        self.done.add(item.nodeid)
-        ctx = self.ctx.pop(item.nodeid, None)
-        if ctx is not None:
-            rec.notes = list(getattr(ctx, "notes", []) or [])
-            rec.start_ns = getattr(ctx, "start_ns", None)
-            rec.end_ns = getattr(ctx, "end_ns", None)
-            if rec.start_ns is not None and rec.end_ns is not None:
-                rec.duration_s = max(0.0, (rec.end_ns - rec.start_ns) / 1e9)
-        if rec.notes and rec.actual is None and rec.outcome in ("passed", "info"):
-            rec.actual = "; ".join(rec.notes)
-        name_consequence(rec, self.run.cases)
-        self.run.cases.append(rec)
-        self.terminal.case(rec)
-
-    # ------------------------------------------------------------------ time limits
-    def current_limit(self) -> float:
-        """The case in progress's time limit: the runner's own, or the user's pytest-timeout
-        ``--timeout`` where that is shorter (and says so when it strikes)."""
-        limit = self.cfg.per_case_limit()
-        self.case_limit_text = f"its time limit of {limit:g} s"
-        user = self.case_user_timeout
-        if user is not None and user < limit:
-            limit, self.case_limit_text = user, f"the --timeout of {user:g} s (pytest-timeout)"
-        return limit
-
-    def arm(self) -> None:
-        """Arm SIGALRM for the rest of the case (or the run, whichever ends first)."""
-        if not _can_alarm():
-            return
-        now = time.monotonic()
-        ends = [d for d in (self.case_deadline, self.run_deadline) if d is not None]
-        if not ends:
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            return
-        if self._old_alarm is None:
-            self._old_alarm = signal.signal(signal.SIGALRM, self._on_alarm)
-        signal.setitimer(signal.ITIMER_REAL, max(min(ends) - now, 0.001))
-
-    def disarm(self) -> None:
-        if not _can_alarm():
-            return
-        signal.setitimer(signal.ITIMER_REAL, 0)
-
-    def restore_alarm(self) -> None:
-        if _can_alarm() and self._old_alarm is not None:
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            signal.signal(signal.SIGALRM, self._old_alarm)
-            self._old_alarm = None
-
-    def _on_alarm(self, signum: int, frame: Any) -> None:
-        now = time.monotonic()
-        if self.run_deadline is not None and now >= self.run_deadline - 0.002:
-            self.deadline_hit = True
-            raise CaseTimeLimit("run deadline exceeded")
-        raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
-
-    def install_term(self) -> None:
-        """SIGINT / SIGTERM (``harness.interrupts``): the first stops the run, later
-        ones hurry it; none can skip the reports. Installed here when plain pytest runs us
-        (``mcp-conform`` installs it before anything else)."""
-        self._old_term = INTERRUPTS.install()
-
-    def restore_term(self) -> None:
-        if self._old_term:
-            INTERRUPTS.restore()
-            self._old_term = None
-
-
-def _can_alarm() -> bool:
-    return hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
-
-
-def _meta(item: pytest.Item) -> tuple[str, tuple[str, ...], str, str]:
-    ids = case_rules(item)
-    return case_id(item), ids, strongest_level(ids), case_phase(item)
 
 
 # ---------------------------------------------------------------------- collection

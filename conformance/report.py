@@ -22,23 +22,12 @@ properties named after the case; ``xunit1`` also puts them in each testcase, as 
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import json
-import os
-import socket
-import sys
 import time
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
-
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
-from rich.text import Text
 
 from spec import SPEC
 from spec.about import TOOL_NAME, tool_version
@@ -48,11 +37,9 @@ __all__ = [
     "SCHEMA_VERSION",
     "CaseRecord",
     "RunRecord",
-    "TerminalReport",
     "build_json",
     "failures_json",
     "case_from_json",
-    "junit_xml",
     "load_schema",
     "name_consequence",
     "roots_first",
@@ -61,7 +48,6 @@ __all__ = [
     "tool_version",
     "validate_json",
     "write_json",
-    "write_junit",
 ]
 
 SCHEMA_VERSION = "1.1"
@@ -342,289 +328,3 @@ def run_from_json(doc: dict[str, Any]) -> RunRecord:
     run.cases = [case_from_json(c) for c in doc.get("cases", [])]
     run.finished = run.started + float((doc.get("summary") or {}).get("duration_s") or 0.0)
     return run
-
-
-# ---------------------------------------------------------------------- JUnit
-def _finding(c: CaseRecord) -> str:
-    """What a case found, as text: the rule, expected, actual, evidence and notes."""
-    lines = []
-    if c.failed_rule:
-        rule = SPEC.rules_by_id.get(c.failed_rule)
-        lines.append(f"{c.failed_rule}: {rule.text if rule else ''}".rstrip())
-        if c.expected is not None:
-            lines.append(f"expected: {c.expected}")
-        if c.actual is not None:
-            lines.append(f"actual:   {c.actual}")
-        lines += [f"evidence: {e}" for e in c.evidence]
-        lines += [f"note: {n}" for n in c.notes if c.actual is None or n not in c.actual]
-    else:
-        if c.reason:
-            lines.append(c.reason)
-        lines += [f"evidence: {e}" for e in c.evidence]
-        lines += [f"note: {n}" for n in c.notes]
-    return "\n".join(lines)
-
-
-def _iso(wall: float) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(wall))
-
-
-def _case_properties(c: CaseRecord) -> list[tuple[str, str]]:
-    props = [("rule", r) for r in c.rules]
-    props += [("level", c.level), ("outcome", c.outcome)]
-    if c.failed_rule:
-        props.append(("failed_rule", c.failed_rule))
-    if c.baseline:
-        props.append(("baseline", c.baseline))
-    return props
-
-
-def _run_error_case(run: RunRecord) -> tuple[str, str]:
-    """The name of the testcase that carries a run's error, and its type."""
-    if run.error and run.error.startswith("interrupted"):
-        return "run interrupted", "interrupted"
-    if run.error and run.error.startswith("run deadline"):
-        return "run deadline", "deadline"
-    return ("setup" if not run.cases else "run"), "setup-error" if not run.cases else "run-error"
-
-
-def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
-    """JUnit XML that CI systems show truthfully.
-
-    failed -> ``<failure type=RULE>``; error -> ``<error>``; skipped -> ``<skipped>`` with
-    the reason; warned passes (a failure under --strict, where it is already ``failed``)
-    but its name ends in `` [warned]`` and the finding is in ``<system-out>``; info passes
-    with the finding in ``<system-out>``; xfailed (a baseline's expected failure) is
-    ``<skipped type="xfailed">``, like pytest's xfail; xpassed passes with `` [xpassed]``,
-    or fails under --strict. A setup error or an interrupted run is an ``<error>``
-    testcase of its own, so no CI shows "no tests" or green for it.
-    """
-    if family not in JUNIT_FAMILIES:
-        raise ValueError(f"unknown JUnit family {family!r}")
-    counts = run.counts()
-    failures = counts["failed"] + (counts["xpassed"] if run.strict else 0)
-    errors = counts["error"] + (1 if run.error is not None else 0)
-    suite = ET.Element("testsuite", {
-        "name": TOOL_NAME, "tests": str(len(run.cases) + (1 if run.error is not None else 0)),
-        "failures": str(failures), "errors": str(errors),
-        "skipped": str(counts["skipped"] + counts["xfailed"]),
-        "time": f"{run.duration_s:.3f}", "timestamp": _iso(run.started_wall),
-        "hostname": socket.gethostname(),
-    })
-    props = ET.SubElement(suite, "properties")
-
-    def prop(parent: ET.Element, key: str, value: Any) -> None:
-        ET.SubElement(parent, "property", {"name": key, "value": "" if value is None else str(value)})
-
-    for key, value in (("target", run.target), ("role", run.role), ("seed", run.seed),
-                       ("spec_version", SPEC.version), ("strict", run.strict)):
-        prop(props, key, value)
-    if run.error is not None:
-        prop(props, "error", run.error)
-    if family == "xunit2":  # junit-10 has no testcase properties: name them after the case
-        for c in run.cases:
-            for key, value in _case_properties(c):
-                prop(props, f"{c.id}.{key}", value)
-    if run.error is not None:
-        name, kind = _run_error_case(run)
-        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.run", "name": name, "time": "0.000"})
-        ET.SubElement(tc, "error", {"message": run.error, "type": kind}).text = run.error
-    for c in run.cases:
-        name = c.id + (f" [{c.outcome}]" if c.outcome in ("warned", "xpassed") else "")
-        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.{c.group}", "name": name,
-                                               "time": f"{c.duration_s:.3f}"})
-        if family == "xunit1":
-            tprops = ET.SubElement(tc, "properties")
-            for key, value in _case_properties(c):
-                prop(tprops, key, value)
-        finding = _finding(c)
-        message = (c.reason or "").splitlines()[0] if c.reason else c.outcome
-        if c.outcome == "failed" or (c.outcome == "xpassed" and run.strict):
-            if c.outcome == "xpassed":
-                message = f"expected to fail ({c.baseline}) but passed: take it off the baseline"
-            ET.SubElement(tc, "failure", {"message": message, "type": c.failed_rule or c.outcome}).text = finding
-        elif c.outcome == "error":
-            ET.SubElement(tc, "error", {"message": message, "type": "error"}).text = finding
-        elif c.outcome == "skipped":
-            ET.SubElement(tc, "skipped", {"message": c.reason or "skipped"})
-        elif c.outcome == "xfailed":
-            ET.SubElement(tc, "skipped", {"message": f"xfailed: {c.baseline}", "type": "xfailed"}).text = finding
-        elif finding or c.outcome == "xpassed":
-            extra = f" (baseline: {c.baseline})" if c.outcome == "xpassed" else ""
-            ET.SubElement(tc, "system-out").text = f"{c.outcome.upper()}{extra}: {finding}"
-    root = ET.Element("testsuites", {"name": TOOL_NAME, "tests": suite.get("tests", "0"),
-                                     "failures": str(failures), "errors": str(errors),
-                                     "time": f"{run.duration_s:.3f}"})
-    root.append(suite)
-    ET.indent(root)
-    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
-
-
-def write_junit(path: str | Path, run: RunRecord, family: str = "xunit2") -> None:
-    try:
-        Path(path).write_text(junit_xml(run, family), encoding="utf-8")
-    except OSError as exc:
-        raise OSError(f"--junit: cannot write {str(path)!r}: {exc.strerror}") from None
-
-
-# ---------------------------------------------------------------------- terminal
-def node_lines(node: dict[str, Any] | None) -> list[str]:
-    """A spawn failure's details as indented lines: command, exit, stdout, stderr."""
-    if not node:
-        return []
-    import shlex
-
-    lines = [f"    command: {shlex.join(str(w) for w in node.get('command') or [])}"]
-    if node.get("exit"):
-        lines.append(f"    the node {node['exit']}")
-    for stream in ("stdout", "stderr"):
-        tail = node.get(stream) or []
-        lines.append(f"    {stream}:" + ("" if tail else " (nothing)"))
-        lines += [f"      {ln}" for ln in tail]
-    return lines
-
-
-class TerminalReport:
-    """The live report: one line per case, details on failures, a per-rule table at the end."""
-
-    def __init__(self, console: Console | None = None, before_line: Any = None) -> None:
-        self.console = console or Console(highlight=False)
-        self._before_line = before_line  # e.g. pytest's terminal reporter's ensure_newline
-        self.closed = False  # stdout went away (``mcp-conform | head -3``): the run goes on
-        self.console.on_broken_pipe = self._stdout_closed  # type: ignore[method-assign]  # rich would exit
-
-    def _print(self, *objs: Any, **kw: Any) -> None:
-        if self.closed:
-            return
-        try:
-            if self._before_line is not None:
-                self._before_line()
-            self.console.print(*objs, highlight=False, **kw)
-        except (BrokenPipeError, ValueError):
-            self._stdout_closed()
-        except OSError as exc:
-            if exc.errno not in (errno.EPIPE, errno.EBADF):
-                raise
-            self._stdout_closed()
-
-    def _stdout_closed(self) -> None:
-        """The reader of stdout left: stay quiet from now on (the report files are still
-        written); stdout is pointed at /dev/null so nothing else fails on it at exit."""
-        self.closed = True
-        with contextlib.suppress(OSError, ValueError, AttributeError):
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, sys.stdout.fileno())
-            os.close(devnull)
-
-    def header(self, run: RunRecord, mode: str | None = None) -> None:
-        what = f"{run.role} at {run.target}" if run.target else run.role
-        extra = f" ({mode})" if mode else ""
-        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · MCP spec {SPEC.version} · "
-                    f"testing {escape(what)}{escape(extra)}", soft_wrap=True)
-
-    def case(self, c: CaseRecord) -> None:
-        style = STYLES.get(c.outcome, "")
-        line = Text()
-        line.append(f"{c.outcome.upper():<8}", style=style)
-        line.append(f" {c.id}  ")
-        line.append(" ".join(c.rules), style="dim")
-        line.append(f"  {c.duration_s:.2f} s", style="dim")
-        self._print(line, soft_wrap=True)
-        if c.consequence_of:
-            self._detail(f"consequence of {', '.join(c.consequence_of)} (failed earlier in this run)")
-        if c.failed_rule:
-            rule = SPEC.rules_by_id.get(c.failed_rule)
-            self._detail(f"{c.failed_rule} ({rule.level if rule else '?'}): {rule.text if rule else ''}")
-            if c.expected is not None:
-                self._detail(f"expected: {c.expected}")
-            if c.actual is not None:
-                self._detail(f"actual:   {c.actual}")
-            for e in c.evidence:
-                self._detail(f"evidence: {e}")
-            notes = [n for n in c.notes if c.actual is None or n not in c.actual]
-        else:
-            if c.reason and c.outcome in ("skipped", "error"):
-                self._detail(c.reason)
-            for e in c.evidence:
-                self._detail(f"evidence: {e}")
-            notes = c.notes
-        for n in notes:
-            self._detail(f"note: {n}")
-        if c.baseline:
-            self._detail(f"baseline: {c.baseline}" + ("  (now passes: take it off the baseline)"
-                                                      if c.outcome == "xpassed" else ""))
-
-    def _failures(self, run: RunRecord) -> None:
-        """Root failures first (what to fix), then the failures that are their consequences."""
-        bad = [c for c in roots_first(run.cases) if c.failed_rule]
-        roots = [c for c in bad if not c.consequence_of]
-        consequences = [c for c in bad if c.consequence_of]
-        for title, group in ((f"root failures ({len(roots)}):", roots),
-                             (f"their consequences ({len(consequences)}):", consequences)):
-            if not group:
-                continue
-            self._print(Text(title, style="bold"), soft_wrap=True)
-            for c in group:
-                line = Text("  ")
-                line.append(f"{c.outcome.upper():<7}", style=STYLES.get(c.outcome, ""))
-                line.append(f" {c.failed_rule}  {c.id}  ")
-                tag = (f"consequence of {', '.join(c.consequence_of)}" if c.consequence_of
-                       else (c.actual or ""))
-                line.append(tag, style="dim")
-                self._print(line, soft_wrap=True)
-
-    def _detail(self, text: str) -> None:
-        self._print(Text("    " + text.replace("\n", "\n    "), style="dim"), soft_wrap=True)
-
-    def note(self, text: str) -> None:
-        """A dim line of what the runner is doing (e.g. before a long startup phase)."""
-        self._print(Text(text, style="dim"), soft_wrap=True)
-
-    def error(self, message: str, node: dict[str, Any] | None = None) -> None:
-        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report); a spawn
-        failure quotes the node's own words."""
-        err = Console(stderr=True, highlight=False, no_color=self.console.no_color)
-        with contextlib.suppress(OSError, ValueError):
-            if self._before_line is not None:
-                self._before_line()
-            err.print(Text(f"error: {message}", style="bold red"), soft_wrap=True, highlight=False)
-            for line in node_lines(node):
-                err.print(Text(line, style="dim"), soft_wrap=True, highlight=False)
-
-    def listing(self, entries: list[tuple[str, tuple[str, ...], str, str]]) -> None:
-        """``--list``: (case id, rules, level, phase) per case."""
-        for cid, ids, level, phase in entries:
-            phase_s = f"  ({phase})" if phase != "main" else ""
-            self._print(f"{escape(cid)}  {' '.join(ids)}  {level}{phase_s}", soft_wrap=True)
-        self._print(f"{len(entries)} cases", soft_wrap=True)
-
-    def summary(self, run: RunRecord) -> None:
-        if run.error is not None and not run.cases:  # a usage or setup error: its one line
-            self.error(run.error, run.node)
-            return
-        outcomes = rule_outcomes(run.cases, run.role)
-        if run.cases:
-            table = Table(title="per-rule outcome", show_lines=False, box=None, pad_edge=False)
-            table.add_column("rule")
-            table.add_column("level")
-            table.add_column("outcome")
-            touched = {r for c in run.cases for r in c.rules} | {c.failed_rule for c in run.cases}
-            untouched = [rid for rid in outcomes if rid not in touched]
-            for rid, outcome in outcomes.items():
-                if rid in untouched:
-                    continue
-                rule = SPEC.rules_by_id.get(rid)
-                table.add_row(rid, rule.level if rule else "?", Text(outcome, style=STYLES.get(outcome, "")))
-            self._print(table)
-            if untouched:
-                self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
-                                 f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
-        self._failures(run)
-        counts = run.counts()
-        parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
-                 if counts[k] or k not in ("xfailed", "xpassed")]
-        line = Text(", ").join(parts)
-        self._print(line, soft_wrap=True)
-        if run.error is not None:
-            self.error(run.error, run.node)
-        self._print(f"suite finished in {run.duration_s:.1f} s", soft_wrap=True)

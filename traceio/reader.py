@@ -38,7 +38,6 @@ import gzip
 import heapq
 import json
 import logging
-import socket
 import struct
 import zlib
 from binascii import a2b_base64
@@ -48,10 +47,18 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from scapy.error import Scapy_Exception
-from scapy.utils import RawPcapNgReader, RawPcapReader
 
 from spec import SPEC
 from spec.codec import PREAMBLE
+from traceio.packets import (
+    EPB_DIRECTION,
+    FRAGMENT,
+    LINKS,
+    MAX_RECORD,
+    NgReader,
+    PcapReader,
+    Reassembly,
+)
 
 __all__ = [
     "Capture",
@@ -113,9 +120,8 @@ _PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 _PCAP_MAGICS = {b"\xa1\xb2\xc3\xd4", b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\x3c\x4d", b"\x4d\x3c\xb2\xa1"}
 _GZIP_MAGIC = b"\x1f\x8b"
 MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
-_MAX_RECORD = 1 << 20
 #: How far (ns) an MCAP record may be written after a later one and still come out in order.
-REORDER_NS = 1_000_000_000  # scapy's per-read cap on a packet record: bigger than any IP datagram
+REORDER_NS = 1_000_000_000
 
 
 def open_capture(path: str | Path) -> Capture:
@@ -190,7 +196,7 @@ class Capture:
                           ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)")):
             if c[key]:
                 out.append(f"{c[key]} {text}")
-        for lt in sorted(self.linktypes - set(_LINKS)):
+        for lt in sorted(self.linktypes - set(LINKS)):
             out.append(f"link type {lt} is not one mcp-capture reads; its packets were skipped")
         return out
 
@@ -317,7 +323,7 @@ class Capture:
             if self.format.endswith(".gz"):
                 fd = gzip.GzipFile(fileobj=fd)  # type: ignore[assignment]
             magic = fd.read(4)
-            cls = _NgReader if magic == _PCAPNG_MAGIC else _PcapReader
+            cls = NgReader if magic == _PCAPNG_MAGIC else PcapReader
             reader = object.__new__(cls)
             reader.__init__(name, fd, magic)  # type: ignore[misc]  # scapy's metaclass, bypassed
         except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
@@ -327,14 +333,14 @@ class Capture:
 
     def _packets(self) -> Iterator[Datagram]:
         reader = self._reader
-        ng = isinstance(reader, _NgReader)
+        ng = isinstance(reader, NgReader)
         recorder: str | None = None
         read = reader._read_packet
         counts = self.counts
-        links = _LINKS
+        links = LINKS
         pcap_link = None if ng else reader.linktype
         nano = 1 if getattr(reader, "nano", False) else 1000
-        frag = _Reassembly(counts)
+        frag = Reassembly(counts)
         known: set[tuple[str, int]] = set()
         mcp_ports = MCP_PORTS
         preamble = PREAMBLE
@@ -344,7 +350,7 @@ class Capture:
         n_packet = 0
         while True:
             try:
-                data, meta = read(_MAX_RECORD)
+                data, meta = read(MAX_RECORD)
             except EOFError:
                 self.truncated = reader.cut_reason(offset)
                 break
@@ -359,7 +365,7 @@ class Capture:
                 t_ns = ts * (1_000_000_000 // tsresol) if 1_000_000_000 % tsresol == 0 \
                     else ts * 1_000_000_000 // tsresol
                 recorder = meta.ifname.decode("utf-8", "replace") if meta.ifname else None
-                direction = _EPB_DIRECTION.get(meta.direction)
+                direction = EPB_DIRECTION.get(meta.direction)
             else:
                 caplen = meta.caplen
                 if len(data) < caplen:
@@ -379,7 +385,7 @@ class Capture:
             got = parse(data, counts)
             if got is None:
                 continue
-            if got[0] is _FRAGMENT:
+            if got[0] is FRAGMENT:
                 got = frag.add(got[1], got[2], t_ns)
                 if got is None:
                     continue
@@ -413,213 +419,3 @@ def _parse_peer(peer: Any) -> tuple[str, int] | None:
         return (host.strip("[]"), int(port))
     except ValueError:
         return None
-
-
-# ---------------------------------------------------------------- scapy's raw readers
-class _PcapReader(RawPcapReader):
-    def cut_reason(self, offset: int) -> str | None:
-        pos = self.f.tell()
-        if pos > offset:
-            return f"{pos - offset} byte(s) after the last whole record (at byte {offset}): cut short or garbage"
-        return None
-
-
-class _NgReader(RawPcapNgReader):
-    _good_end = 0
-
-    def _read_block(self, size: int = _MAX_RECORD) -> Any:
-        res = super()._read_block(size)
-        self._good_end = self.f.tell()
-        return res
-
-    def cut_reason(self, offset: int) -> str | None:
-        pos = self.f.tell()
-        if pos > self._good_end:
-            return (f"{pos - self._good_end} byte(s) after the last whole block "
-                    f"(at byte {self._good_end}): cut short or garbage")
-        return None
-
-
-# ---------------------------------------------------------------- link, IP and UDP headers
-# This is the hot path of `mcp-capture check` on a big pcap (1,000,000 datagrams end to end):
-# precompiled struct unpacking of the few header fields we need runs at about a million
-# packets a second, where dissecting each packet with scapy (Ether()/IP()/UDP()) manages
-# ~15k/s (DESIGN.md). scapy stays the file-format reader (RawPcap*Reader, bytes only).
-_ETHERTYPE_AT = struct.Struct("!H").unpack_from
-_IP4 = struct.Struct("!BxHHHxBxx4s4s")  # ver_ihl, total_len, id, flags_frag, proto, src, dst
-_ip4 = _IP4.unpack_from
-_UDP = struct.Struct("!HHH")  # sport, dport, length
-_udp = _UDP.unpack_from
-_NULL_INET = (b"\x02\x00\x00\x00", b"\x00\x00\x00\x02")
-_ETH_IPV4, _ETH_IPV6, _ETH_VLAN = 0x0800, 0x86DD, (0x8100, 0x88A8, 0x9100)
-_ARPHRD_LOOPBACK = 772
-_SLL_DIRECTION = {0: "rx", 1: "rx", 2: "rx", 3: "rx", 4: "tx"}
-_EPB_DIRECTION = {1: "rx", 2: "tx"}
-_FRAGMENT = object()
-_ADDR: dict[bytes, str] = {}
-
-
-def _host(raw: bytes) -> str:
-    host = _ADDR.get(raw)
-    if host is None:
-        host = _ADDR[raw] = socket.inet_ntoa(raw)
-    return host
-
-
-def _ipv4(data: bytes, off: int, counts: Counter[str], link_dir: str | None) -> Any:
-    """(src, dst, payload, direction) of a UDP datagram in the IPv4 packet at ``off``."""
-    try:
-        ver_ihl, total, ident, frag, proto, src, dst = _ip4(data, off)
-    except struct.error:
-        counts["bad_ip"] += 1
-        return None
-    if ver_ihl >> 4 != 4:
-        if ver_ihl >> 4 == 6:
-            counts["ipv6"] += 1
-        else:
-            counts["bad_ip"] += 1
-        return None
-    if proto != 17:
-        counts["not_udp"] += 1
-        return None
-    ihl = (ver_ihl & 15) * 4
-    end = off + total  # the IP length, not the frame's: Ethernet pads short frames
-    if ihl < 20 or total < ihl:
-        counts["bad_ip"] += 1
-        return None
-    if end > len(data):
-        counts["snaplen_cut"] += 1
-        return None
-    if frag & 0x3FFF:  # more fragments, or a non-zero offset
-        return (_FRAGMENT, (src, dst, ident, link_dir), (frag & 0x1FFF, frag & 0x2000, data[off + ihl:end]))
-    return _udp_of(data, off + ihl, end, src, dst, counts, link_dir)
-
-
-def _udp_of(data: bytes, u: int, end: int, src: bytes, dst: bytes, counts: Counter[str],
-            link_dir: str | None) -> Any:
-    try:
-        sport, dport, ulen = _udp(data, u)
-    except struct.error:
-        counts["bad_ip"] += 1
-        return None
-    if ulen < 8 or u + ulen > end:
-        counts["bad_ip"] += 1
-        return None
-    return (_host(src), sport), (_host(dst), dport), data[u + 8:u + ulen], link_dir
-
-
-def _ether(data: bytes, counts: Counter[str]) -> Any:
-    try:
-        etype = _ETHERTYPE_AT(data, 12)[0]
-        off = 14
-        while etype in _ETH_VLAN:
-            etype = _ETHERTYPE_AT(data, off + 2)[0]
-            off += 4
-    except struct.error:
-        counts["not_udp"] += 1
-        return None
-    if etype != _ETH_IPV4:
-        counts["ipv6" if etype == _ETH_IPV6 else "not_udp"] += 1
-        return None
-    return _ipv4(data, off, counts, None)
-
-
-def _cooked(layout: str, ip_off: int, sll1: bool) -> Any:
-    """A parser for a Linux cooked header: ``layout`` unpacks (pkttype, hatype, protocol) for
-    SLL, (protocol, hatype, pkttype) for SLL2."""
-    unpack = struct.Struct(layout).unpack_from
-
-    def parse(data: bytes, counts: Counter[str]) -> Any:
-        try:
-            etype, hatype, pkttype = unpack(data, 0)
-        except struct.error:
-            counts["not_udp"] += 1
-            return None
-        if sll1:
-            etype, pkttype = pkttype, etype
-        if etype != _ETH_IPV4:
-            counts["ipv6" if etype == _ETH_IPV6 else "not_udp"] += 1
-            return None
-        if hatype == _ARPHRD_LOOPBACK:
-            if pkttype == 4:  # on "any", some kernels show a loopback packet going out, then in
-                counts["loopback_copy"] += 1
-                return None
-            return _ipv4(data, ip_off, counts, None)
-        return _ipv4(data, ip_off, counts, _SLL_DIRECTION.get(pkttype))
-
-    return parse
-
-
-# SLL: pkttype u16, hatype u16, addr len, 8-byte addr, protocol u16 (16 bytes); SLL2:
-# protocol u16, reserved, ifindex u32, hatype u16, pkttype u8, addr len, 8-byte addr (20).
-_sll = _cooked("!HH10xH", 16, sll1=True)
-_sll2 = _cooked("!H6xHB", 20, sll1=False)
-
-
-def _raw_ip(data: bytes, counts: Counter[str]) -> Any:
-    return _ipv4(data, 0, counts, None)
-
-
-def _null(data: bytes, counts: Counter[str]) -> Any:
-    family = data[:4]
-    if family not in _NULL_INET:  # host byte order of the machine that wrote it
-        counts["not_udp"] += 1
-        return None
-    return _ipv4(data, 4, counts, None)
-
-
-#: link type -> header parser (LINKTYPE_* numbers of pcap/pcapng)
-_LINKS = {
-    1: _ether,      # ETHERNET (tcpdump -i lo on Linux too)
-    113: _sll,      # LINUX_SLL (tcpdump -i any, libpcap < 1.10)
-    276: _sll2,     # LINUX_SLL2 (tcpdump -i any, libpcap >= 1.10)
-    101: _raw_ip,   # RAW
-    228: _raw_ip,   # IPV4
-    12: _raw_ip,    # DLT_RAW as some BSDs write it in pcap headers
-    14: _raw_ip,    # DLT_RAW (OpenBSD)
-    0: _null,       # NULL (BSD loopback)
-    108: _null,     # LOOP (OpenBSD loopback; family in network order)
-}
-
-
-class _Reassembly:
-    """IPv4 fragments of UDP datagrams, by (src, dst, id); bounded, oldest groups evicted."""
-
-    LIMIT = 4096
-
-    def __init__(self, counts: Counter[str]) -> None:
-        self.groups: dict[tuple[Any, ...], list[Any]] = {}
-        self.counts = counts
-
-    def add(self, key: tuple[Any, ...], piece: tuple[int, int, bytes], t_ns: int) -> Any:
-        units, more, body = piece
-        group = self.groups.get(key)
-        if group is None:
-            if len(self.groups) >= self.LIMIT:
-                self.groups.pop(next(iter(self.groups)))
-                self.counts["fragments_evicted"] += 1
-            group = self.groups[key] = [None, {}]  # [total length or None, {offset: bytes}]
-        group[1][units * 8] = body
-        if not more:
-            group[0] = units * 8 + len(body)
-        total = group[0]
-        if total is None:
-            return None
-        have = 0
-        for off in sorted(group[1]):
-            if off > have:
-                return None
-            have = max(have, off + len(group[1][off]))
-        if have < total:
-            return None
-        del self.groups[key]
-        whole = bytearray(total)
-        for off in sorted(group[1]):
-            chunk = group[1][off]
-            whole[off:off + len(chunk)] = chunk
-        self.counts["fragments_reassembled"] += 1
-        src, dst, _ident, link_dir = key
-        return _udp_of(bytes(whole), 0, total, src, dst, self.counts, link_dir)
-
-    def open_groups(self) -> int:
-        return len(self.groups)

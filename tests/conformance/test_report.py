@@ -10,17 +10,17 @@ import jsonschema
 import pytest
 from rich.console import Console
 
+from conformance.junit import junit_xml
 from conformance.report import (
     CaseRecord,
     RunRecord,
-    TerminalReport,
     build_json,
-    junit_xml,
     load_schema,
     rule_outcomes,
     validate_json,
     write_json,
 )
+from conformance.terminal import TerminalReport
 from spec import SPEC
 
 
