@@ -27,56 +27,38 @@ Behaviour (ArduCopter-like, simplified):
   message) is recorded as a ``request`` event with the answer and why.
 * Every received frame is recorded (``frames()``), plus events (``events()``) and probe
   counts (see ``vehicle.probe``).
+
+The commands, modes and parameters are handled by the ``vehicle.commands`` mixin, the
+mission protocol's messages by ``vehicle.mission_messages``; this module owns the state,
+time, motion, telemetry and the dispatch of what arrives.
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from .codec import MAVLinkMessage, frame_version
+from .commands import CommandMessages
 from .flight import AutoMission, move_towards
-from .mission import MissionProtocol, command_name, result_name
+from .mission import MissionProtocol, result_name
 from .mission_messages import MissionMessages
-from .probe import probe_token
 from .records import (
-    ACCEPTED_RESULT,
     AUTO,
-    COPTER_MODE_NAMES,
     DENIED_RESULT,
-    GUIDED,
     GUIDED_FLAG_MODES,
     LAND,
-    NO_ARM_MODES,
-    POSITION_MODES,
     RTL,
     STABILIZE,
     Event,
     Frame,
     mode_name,
 )
-
-#: MAV_CMD_COMPONENT_ARM_DISARM param2 values that skip ArduPilot's checks.
-FORCE_ARM_MAGIC = 2989.0
-FORCE_DISARM_MAGIC = 21196.0
-#: SET_MODE's message id, used by ArduPilot as the "command" of its COMMAND_ACK.
-SET_MODE_ACK_COMMAND = 11
-#: Result used where ArduCopter refuses a command (its checks failing give FAILED).
-REFUSED = mav.MAV_RESULT_FAILED
-#: Why a mode change without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is refused (ArduPilot maps
-#: only custom modes).
-NO_CUSTOM_FLAG = "base_mode lacks MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (only custom modes are accepted)"
-#: Commands that are mode changes: MAV_CMD -> (request name, the mode it enters).
-_MODE_COMMANDS: dict[int, tuple[str, int]] = {
-    mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: ("rtl", RTL),
-    mav.MAV_CMD_NAV_LAND: ("land", LAND),
-    mav.MAV_CMD_MISSION_START: ("mission_start", AUTO),
-}
 
 _SENSORS = (
     mav.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -128,7 +110,7 @@ class VehicleConfig:
             raise ValueError("max_records must be >= 1")
 
 
-class VehicleModel(MissionMessages):
+class VehicleModel(MissionMessages, CommandMessages):
     """The autopilot's behaviour and the observation log; not thread-safe on its own."""
 
     def __init__(self, config: VehicleConfig | None = None, *, now: float = 0.0) -> None:
@@ -423,211 +405,6 @@ class VehicleModel(MissionMessages):
         if target is not None and target not in (0, self.config.sysid):
             return []  # addressed to another system: ArduPilot would route, not act
         return list(handler(msg, fields, now))
-
-    def _ack(self, msg: MAVLinkMessage, command: int, result: int) -> MAVLinkMessage:
-        return mav.MAVLink_command_ack_message(
-            command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
-        )
-
-    def _on_statustext(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        token = probe_token(f.get("text"))
-        if token is not None:
-            self._probes[token] += 1
-            self.record(now, "probe", token=token, count=self._probes[token])
-        return []
-
-    def _on_set_mode(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        custom = int(f["custom_mode"])
-        if f["base_mode"] & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            result, notes = self._set_mode(custom, now, "SET_MODE")
-        else:
-            result, notes = REFUSED, []
-            self._why = NO_CUSTOM_FLAG
-        self._command_request(now, msg, "mode", None, result, notes, mode=mode_name(custom),
-                              custom_mode=custom)
-        return [*notes, self._ack(msg, SET_MODE_ACK_COMMAND, result)]
-
-    def _on_command_long(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        params = tuple(float(f[f"param{i}"]) for i in range(1, 8))
-        return self._command(msg, int(f["command"]), params, now)
-
-    def _on_command_int(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        params = (float(f["param1"]), float(f["param2"]), float(f["param3"]),
-                  float(f["param4"]), float(f["x"]), float(f["y"]), float(f["z"]))
-        return self._command(msg, int(f["command"]), params, now)
-
-    def _command(
-        self, msg: MAVLinkMessage, cmd: int, p: tuple[float, ...], now: float
-    ) -> list[MAVLinkMessage]:
-        out: list[MAVLinkMessage] = []
-        result = mav.MAV_RESULT_ACCEPTED
-        request: str = "command"
-        extra: dict[str, Any] = {"params": list(p)}
-        if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            result, out = self._arm_disarm(p[0], p[1], now)
-            if p[0] in (0.0, 1.0):
-                request = "arm" if p[0] == 1.0 else "disarm"
-                extra = {"forced": p[1] == (FORCE_ARM_MAGIC if p[0] == 1.0 else FORCE_DISARM_MAGIC)}
-        elif cmd == mav.MAV_CMD_DO_SET_MODE:
-            request, extra = "mode", {"mode": mode_name(int(p[1])), "custom_mode": int(p[1])}
-            if int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                result, out = self._set_mode(int(p[1]), now, "DO_SET_MODE")
-            else:
-                result = REFUSED
-                self._why = NO_CUSTOM_FLAG
-        elif cmd in _MODE_COMMANDS:
-            request, mode = _MODE_COMMANDS[cmd]
-            extra = {"mode": mode_name(mode), "custom_mode": mode}
-            result, out = self._set_mode(mode, now, command_name(cmd)[8:])
-            if cmd == mav.MAV_CMD_MISSION_START and result == mav.MAV_RESULT_ACCEPTED \
-                    and not self._auto.running:
-                self._auto.start_or_resume(now)
-        elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
-            request, extra = "takeoff", {"alt": p[6]}
-            result = self._takeoff(p[6], now)
-        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE:
-            wanted = int(p[0])
-            out = [m for m in self.snapshot(now) if m.get_msgId() == wanted]
-        self._command_request(now, msg, request, cmd, result, out, **extra)
-        self.record(now, "command", command=cmd, name=command_name(cmd), params=p, result=result,
-                    srcsys=msg.get_srcSystem())
-        return [*out, self._ack(msg, cmd, result)]
-
-    def _command_request(self, now: float, msg: MAVLinkMessage, request: str,
-                         command: int | None, result: int, out: list[MAVLinkMessage],
-                         **extra: Any) -> Event:
-        """Record a command or SET_MODE with its MAV_RESULT; a refusal's reason is its
-        STATUSTEXT (as the autopilot says it) and what the model noted."""
-        why, self._why = self._why, ""
-        accepted = result == mav.MAV_RESULT_ACCEPTED
-        if not accepted:
-            text = next((str(m.text) for m in out if m.get_type() == "STATUSTEXT"), "")
-            why = f"{text}: {why}" if text and why else (text or why)
-        return self._request(now, msg, request, accepted, why, result_text(result),
-                             command=command, mav_result=result, **extra)
-
-    def _request(self, now: float, msg: MAVLinkMessage, request: str, accepted: bool,
-                 reason: str | None, answer: str, *, command: int | None = None,
-                 mav_result: int | None = None, **extra: Any) -> Event:
-        """Record what the peer asked for and the answer it got (``records.REQUESTS``)."""
-        return self.record(
-            now, "request", request=request, result=ACCEPTED_RESULT if accepted else DENIED_RESULT,
-            reason=None if accepted else (reason or answer), via=msg.get_type(), command=command,
-            name=command_name(command) if command is not None else msg.get_type(),
-            mav_result=mav_result, answer=answer, srcsys=msg.get_srcSystem(),
-            srccomp=msg.get_srcComponent(), conn=self._conn, **extra)
-
-    def _arm_disarm(self, p1: float, p2: float, now: float) -> tuple[int, list[MAVLinkMessage]]:
-        if p1 == 1.0:
-            if self.armed:
-                return mav.MAV_RESULT_ACCEPTED, []
-            if p2 != FORCE_ARM_MAGIC:
-                if not self.has_fix(now):
-                    return REFUSED, [_statustext(mav.MAV_SEVERITY_CRITICAL, "PreArm: Need 3D Fix")]
-                if self.custom_mode in NO_ARM_MODES:
-                    return REFUSED, [_statustext(mav.MAV_SEVERITY_CRITICAL,
-                                                 "Arm: Mode not armable")]
-            self.armed = True
-            self.record(now, "arm", mode=self.mode, forced=p2 == FORCE_ARM_MAGIC)
-            return mav.MAV_RESULT_ACCEPTED, []
-        if p1 == 0.0:
-            if not self.armed:
-                return mav.MAV_RESULT_ACCEPTED, []
-            if self.altitude > 0.0 and p2 != FORCE_DISARM_MAGIC:
-                self._why = "Disarm: flying (needs the force value in param2)"
-                return REFUSED, []
-            self._disarm(now, "command")
-            return mav.MAV_RESULT_ACCEPTED, []
-        self._why = f"param1 {p1:g} is neither 1 (arm) nor 0 (disarm)"
-        return REFUSED, []
-
-    def _disarm(self, now: float, reason: str) -> None:
-        self.armed = False
-        self.altitude = 0.0
-        self._target_alt = None
-        self._target_pos = None
-        self.record(now, "disarm", reason=reason, mode=self.mode)
-
-    def _set_mode(self, custom: int, now: float, via: str) -> tuple[int, list[MAVLinkMessage]]:
-        known = custom in COPTER_MODE_NAMES
-        ok = known and (custom not in POSITION_MODES or self.has_fix(now))
-        refusal = "Flight mode change failed"
-        if not known:
-            self._why = f"unknown mode {custom}"
-        elif not ok:
-            self._why = f"{mode_name(custom)} needs a position (no GPS fix)"
-        elif custom == AUTO and custom != self.custom_mode:
-            refusal, self._why = self._auto.refusal() or ("", "")
-            ok = not refusal
-        if custom == RTL:
-            self.rtl_commanded = True
-            self.record(now, "rtl", via=via, accepted=ok)
-        if not ok:
-            return REFUSED, [_statustext(mav.MAV_SEVERITY_WARNING, refusal)]
-        if custom == AUTO and self.custom_mode != AUTO:
-            self._auto.start_or_resume(now)
-        elif custom != AUTO:
-            self._auto.stop()
-        if custom != self.custom_mode:
-            previous = self.mode
-            self.custom_mode = custom
-            self.record(now, "mode", mode=self.mode, custom_mode=custom, previous=previous,
-                        via=via)
-        return mav.MAV_RESULT_ACCEPTED, []
-
-    def _takeoff(self, alt: float, now: float) -> int:
-        checks = (
-            (self.armed, "Takeoff: not armed"),
-            (self.custom_mode == GUIDED, f"Takeoff: mode {self.mode} is not GUIDED"),
-            (self.altitude <= 0.0 and self._target_alt is None, "Takeoff: already flying"),
-            (math.isfinite(alt) and alt > 0, f"Takeoff: bad altitude {alt}"),
-        )
-        failed = [why for passed, why in checks if not passed]
-        ok = not failed
-        self._why = failed[0] if failed else ""
-        self.record(now, "takeoff", alt=alt, accepted=ok)
-        if ok:
-            self._target_alt = alt
-        return mav.MAV_RESULT_ACCEPTED if ok else REFUSED
-
-    # ------------------------------------------------------------------ parameters
-    def _param_value(self, name: str) -> MAVLinkMessage:
-        names = list(self.params)
-        return mav.MAVLink_param_value_message(
-            name.encode("ascii"), self.params[name], mav.MAV_PARAM_TYPE_REAL32, len(names),
-            names.index(name),
-        )
-
-    def _on_param_request_list(self, msg: MAVLinkMessage, f: dict[str, Any],
-                               now: float) -> Iterable:
-        return [self._param_value(name) for name in self.params]
-
-    def _on_param_request_read(self, msg: MAVLinkMessage, f: dict[str, Any],
-                               now: float) -> Iterable:
-        names = list(self.params)
-        name = str(f.get("param_id", ""))
-        if name not in self.params and 0 <= int(f["param_index"]) < len(names):
-            name = names[int(f["param_index"])]
-        return [self._param_value(name)] if name in self.params else []
-
-    def _on_param_set(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        name = str(f.get("param_id", ""))
-        value = float(f["param_value"])
-        if not name or not math.isfinite(value):
-            return []
-        self.params[name] = value
-        return [self._param_value(name)]
-
-
-
-def result_text(result: int) -> str:
-    """``MAV_RESULT`` name of ``result`` (e.g. ``"MAV_RESULT_FAILED"``)."""
-    entry = mav.enums["MAV_RESULT"].get(result)
-    return entry.name if entry is not None else str(result)
-
-
-def _statustext(severity: int, text: str) -> MAVLinkMessage:
-    return mav.MAVLink_statustext_message(severity, text.encode("ascii")[:50])
 
 
 def _reschedule(due: float, period: float, now: float) -> float:

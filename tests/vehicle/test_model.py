@@ -7,7 +7,7 @@ from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from vehicle import Decoder, VehicleConfig, VehicleModel, make_probe
-from vehicle.model import FORCE_DISARM_MAGIC, SET_MODE_ACK_COMMAND
+from vehicle.commands import FORCE_DISARM_MAGIC, SET_MODE_ACK_COMMAND
 
 ACCEPTED = mav.MAV_RESULT_ACCEPTED
 FAILED = mav.MAV_RESULT_FAILED
