@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from reference_impl.api import Mcp, McpException
-from reference_impl.drone import EventLogger, RoleError, RoleNode, action_name, write_record
 from reference_impl.handler import MissionMessageHandlerBase
+from reference_impl.role import EventLogger, RoleError, RoleNode, action_name, write_record
 from spec import SPEC
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
 
