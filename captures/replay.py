@@ -284,7 +284,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
               live_id: int, answer_timeout: float, tmp: Path) -> ReplayResult:
     from harness.driver import TargetDriver
     from harness.errors import SetupError
-    from harness.session import (
+    from harness.session_base import (
         BROADCAST_ADDRESS,
         SpawnedNode,
         fill_placeholders,

@@ -31,7 +31,8 @@ from harness.config import RunConfig
 from harness.driver import TargetDriver
 from harness.errors import Inconclusive, SetupError, TargetLost
 from harness.manager_mission import DronePlayers, Mission, MissionScript
-from harness.session import (
+from harness.session_base import (
+    EMBEDDED_RTO,
     MANAGER_ID,
     SessionBase,
     SpawnedNode,
@@ -55,8 +56,6 @@ _FRAMES = (0, 3, 10)  # GLOBAL, GLOBAL_RELATIVE_ALT, GLOBAL_TERRAIN_ALT
 
 def embedded_command() -> str:
     """The reference manager, as the runner spawns it for the embedded default."""
-    from harness.session import EMBEDDED_RTO
-
     return (f"{shlex.quote(sys.executable)} -m reference_impl manager --challenge {{challenge}} "
             "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
             "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
@@ -145,16 +144,9 @@ class ManagerSession(SessionBase):
         except OSError as exc:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
-        if self.recorder is not None:
-            self.recorder.local = self.driver.listen  # the runner's socket: each datagram's other end
-            self.driver.add_observer(self.recorder.datagram)
-            self.driver.add_burst_observer(self.recorder.burst)
         # the trace monitor judges the manager's traffic (the drones are the runner's); judged
         # as a lossy trace: the cases restart the manager and replay missions
-        self.monitor = RunMonitor(rto=cfg.rto, ack_window=cfg.ack_window, broadcast_id=cfg.broadcast_id,
-                                  node_id=MANAGER_ID, node_addr=target, complete=False)
-        self.monitor.listen = self.driver.listen
-        self.driver.add_observer(self.monitor.observe)
+        self.monitor = self.observe_run(target, MANAGER_ID, complete=False)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"

@@ -17,66 +17,35 @@ from __future__ import annotations
 
 import contextlib
 import shlex
-import socket
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
 from harness.driver import Datagram, Exchange, Sent, TargetDriver
 from harness.errors import SetupError, SpawnFailure, TargetLost
-from harness.interrupts import INTERRUPTS
-from harness.liveness import Liveness, describe_exit
-from harness.procs import ManagedProcess
+from harness.liveness import Liveness
+from harness.session_base import (  # noqa: F401  (re-exported: harness.session names them)
+    BROADCAST_ADDRESS,
+    DRONE_PORT,
+    EMBEDDED_ACK_WINDOW,
+    EMBEDDED_RTO,
+    MANAGER_ID,
+    MANAGER_PORT,
+    MIN_COPIES,
+    SessionBase,
+    SpawnedNode,
+    _held,
+    check_target,
+    fill_placeholders,
+    free_udp_port,
+)
 from judge.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import Action
-from traceio.recorder import NODE_METADATA
 
-MANAGER_ID = int(SPEC.protocol["manager_id"])
-DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
-MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
-BROADCAST_ADDRESS = str(SPEC.protocol["broadcast_address"])
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])  # the original + 3 retransmissions
-EMBEDDED_RTO = 0.2
-EMBEDDED_ACK_WINDOW = 0.25
 _READY = int(Action.MISSION_READY)
-
-
-def _held(write: Any) -> Any:
-    """A capture writer that a signal cannot cut in half (``INTERRUPTS.held``)."""
-    def call(*args: Any, **kw: Any) -> Any:
-        with INTERRUPTS.held():
-            return write(*args, **kw)
-    return call
-
-
-def check_target(target: tuple[str, int]) -> tuple[str, int]:
-    """``--target`` as a usable address, or a one-line SetupError before any case runs:
-    an unresolvable host, port 0, an address this host cannot send to."""
-    host, port = target
-    if port == 0:
-        raise SetupError(f"--target {host}:{port}: port 0 is not a port a node can listen on")
-    try:
-        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
-    except (socket.gaierror, UnicodeError) as exc:
-        why = exc.strerror if isinstance(exc, socket.gaierror) and exc.strerror else str(exc)
-        raise SetupError(f"--target {host}:{port}: cannot resolve host {host!r}: {why}") from None
-    addr = (str(infos[0][4][0]), port)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.connect(addr)  # routes it without sending anything
-        except OSError as exc:
-            raise SetupError(f"--target {host}:{port}: cannot reach {addr[0]}: {exc.strerror}") from None
-    return addr
-
-
-def free_udp_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 def embedded_command() -> str:
@@ -84,79 +53,6 @@ def embedded_command() -> str:
     return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} "
             "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
             "--mavlink {mavlink} --rto " + str(EMBEDDED_RTO))
-
-
-class _Placeholders(dict[str, str]):
-    def __missing__(self, key: str) -> str:  # unknown braces are left alone
-        return "{" + key + "}"
-
-
-def fill_placeholders(command: str, values: dict[str, str]) -> list[str]:
-    """Split ``command`` like a shell and replace known ``{placeholders}`` in each word."""
-    try:
-        words = shlex.split(command)
-    except ValueError as exc:
-        raise SetupError(f"--spawn: cannot split command: {exc}") from None
-    if not words:
-        raise SetupError("--spawn: empty command")
-    mapping = _Placeholders(values)
-    out = []
-    for w in words:
-        try:
-            out.append(w.format_map(mapping))
-        except (ValueError, IndexError, KeyError, AttributeError):
-            out.append(w)  # braces that are not placeholders stay as they are
-    return out
-
-
-class SpawnedNode:
-    """The node process: its own process group, dies with the runner (``harness.procs``),
-    its stdout and stderr kept (bounded) as evidence."""
-
-    def __init__(self, argv: list[str]) -> None:
-        self.argv = argv
-        try:
-            self._p = ManagedProcess(argv)
-        except OSError as exc:
-            raise SpawnFailure(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}",
-                               {"command": argv, "exit": None, "stdout": [], "stderr": []}) from None
-        self.proc = self._p.proc
-
-    def alive(self) -> bool:
-        return self._p.alive()
-
-    @property
-    def returncode(self) -> int | None:
-        return self._p.returncode
-
-    def output_tail(self, lines: int = 12) -> str:
-        out, err = self._p.output(lines)
-        return "\n".join(out + err)
-
-    def details(self, lines: int = 12) -> dict[str, Any]:
-        """The node's own words for a report: command as run, exit, stdout and stderr tails."""
-        out, err = self._p.output(lines)
-        rc = self.returncode
-        return {"command": list(self.argv), "exit": None if rc is None else describe_exit(rc),
-                "stdout": out, "stderr": err}
-
-    def evidence(self) -> list[str]:
-        d = self.details()
-        ev = [f"node command: {shlex.join(d['command'])}"]
-        if d["exit"]:
-            ev.append(f"node process {d['exit']}")
-        for stream in ("stdout", "stderr"):
-            if d[stream]:
-                ev.append(f"node {stream} (last lines):\n    " + "\n    ".join(d[stream]))
-            else:
-                ev.append(f"node {stream}: (nothing)")
-        return ev
-
-    def stop(self) -> None:
-        self._p.stop(grace=0.0 if INTERRUPTS.hurry else 2.0)
-
-    def close(self) -> None:
-        self.stop()
 
 
 @dataclass
@@ -181,57 +77,6 @@ class Startup:
     def gaps(self) -> list[float]:
         ts = [d.t for d in self.copies]
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]
-
-
-class SessionBase:
-    """What the drone-role and the manager-role sessions share: the run's timings, the
-    spawned node, the runner's placeholders and the case marks in the capture."""
-
-    cfg: RunConfig
-    node: SpawnedNode | None
-    driver: TargetDriver | None
-    recorder: Any
-    #: The runner's case context for this role, ``make_context(session, case_id, rules)``: set
-    #: by the runner (``conformance``), which owns the cases and their verify helpers.
-    make_context: Callable[..., Any] | None = None
-
-    def context_factory(self) -> Callable[..., Any]:
-        if self.make_context is None:
-            raise RuntimeError("begin_case: no case context set (session.make_context)")
-        return self.make_context
-
-    @property
-    def spawned(self) -> bool:
-        return self.cfg.spawn is not None
-
-    @property
-    def rto(self) -> float:
-        return self.cfg.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.cfg.ack_window
-
-    def alive(self) -> bool:
-        return self.node.alive() if self.node is not None else True
-
-    def _address_placeholders(self, node_id: int, mavlink: str) -> dict[str, str]:
-        """{target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}."""
-        assert self.driver is not None
-        lhost = self.driver.listen[0] or "127.0.0.1"
-        if lhost == "0.0.0.0":
-            lhost = "127.0.0.1"
-        return {
-            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
-            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
-            "broadcast": BROADCAST_ADDRESS, "id": str(node_id), "mavlink": mavlink,
-        }
-
-    def _case_mark(self, case_id: str, phase: str, t_ns: int, **kw: Any) -> None:
-        """The case's start or end in the capture, never cut off by a signal."""
-        if self.recorder is not None:
-            with INTERRUPTS.held():
-                self.recorder.case_mark(case_id, phase, t_ns, **kw)
 
 
 class Session(SessionBase):
@@ -296,16 +141,7 @@ class Session(SessionBase):
         self.driver.attributor.horizon = max(self.rto, self.ack_window)
         self.driver.attributor.peer_id = self.target_id
         self.driver.attributor.broadcast_id = self.cfg.broadcast_id
-        if self.recorder is not None:
-            self.recorder.local = self.driver.listen
-            self.driver.add_observer(_held(self.recorder.datagram))
-            self.driver.add_burst_observer(_held(self.recorder.burst))
-        self.monitor = RunMonitor(rto=cfg.rto, ack_window=cfg.ack_window, broadcast_id=cfg.broadcast_id,
-                                  node_id=self.target_id, node_addr=target)
-        self.monitor.listen = self.driver.listen
-        self.driver.add_observer(self.monitor.observe)
-        self.node_address = target
-        self._record_node()
+        self.monitor = self.observe_run(target, self.target_id, complete=True)
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -343,8 +179,19 @@ class Session(SessionBase):
             raise SetupError(f"cannot start the simulated vehicle: {exc.strerror}") from None
 
     def _vehicle_event(self, event: Any) -> None:
+        """The vehicle's events: to the run's monitor, and the ones it judges by (the link,
+        the fix coming and going) to the capture too, so ``check`` judges with them."""
+        t_ns = self.to_ns(event.t)
         if self.monitor is not None:
-            self.monitor.vehicle_event(self.to_ns(event.t), event)
+            self.monitor.vehicle_event(t_ns, event)
+        if self.recorder is not None:
+            from judge.monitor import events_from_vehicle
+
+            for ev in events_from_vehicle(event):
+                if ev.kind in ("link", "fix", "fix_lost"):
+                    with contextlib.suppress(Exception):
+                        self.recorder.vehicle_event(ev.kind, t_ns, drone=self.target_id,
+                                                    detail=ev.detail)
 
     def _placeholders(self) -> dict[str, str]:
         return self._address_placeholders(self.target_id if self.target_id is not None else 1,
@@ -445,7 +292,7 @@ class Session(SessionBase):
             if self.monitor is not None:
                 self.monitor.node_id = self.target_id
             drv.attributor.peer_id = self.target_id
-            self._record_node()
+            self.record_node(self.target_id, complete=True)
         if first:
             self._observe_retransmissions(st, first_ready)
         withhold = False
@@ -553,15 +400,6 @@ class Session(SessionBase):
             self.needs_restart = True
         elif self.lost is None:
             self.lost = why
-
-    def _record_node(self) -> None:
-        """Tell the capture whose traffic it holds (the node under test's ID and address, as
-        the run's monitor knows them), so that ``mcp-capture check`` judges it the same."""
-        address = getattr(self, "node_address", None)
-        if self.recorder is not None and self.target_id is not None and address is not None:
-            with contextlib.suppress(Exception):
-                self.recorder.add_metadata(NODE_METADATA, {
-                    "id": self.target_id, "address": f"{address[0]}:{address[1]}"})
 
     def _vehicle_frame(self, t: float, direction: str, conn: int, raw: bytes) -> None:
         """The vehicle's frame tap: both directions of the autopilot link into the capture

@@ -22,7 +22,15 @@ from typing import Any
 
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
-from traceio.reader import CaptureError, CaseMark, Datagram, MavlinkFrame, Metadata, open_capture
+from traceio.reader import (
+    CaptureError,
+    CaseMark,
+    Datagram,
+    MavlinkFrame,
+    Metadata,
+    VehicleMark,
+    open_capture,
+)
 from traceio.recorder import NODE_METADATA
 from traceio.trace import Node, action_name, evidence_indexes
 
@@ -54,8 +62,8 @@ class Params:
     from_capture: tuple[str, ...] = ()  # the parameters taken from the capture
 
     def adopt(self, recorded: dict[str, Any]) -> None:
-        """Take the run's recorded ``rto``, ``ack_window``, ``broadcast_id``, ``drones`` and
-        ``challenge`` where the user gave none (an unusable value is left alone)."""
+        """Take the run's recorded ``rto``, ``ack_window`` and ``broadcast_id`` where the user
+        gave none (an unusable value is left alone): what the run's own monitor judged with."""
         taken = []
         for key in ("rto", "ack_window"):
             v = recorded.get(key)
@@ -66,15 +74,6 @@ class Params:
         if "broadcast_id" not in self.given and isinstance(v, int) and 1 <= v <= 0xFFFF:
             self.broadcast_id = v
             taken.append("broadcast_id")
-        v = recorded.get("drones")
-        if ("drones" not in self.given and isinstance(v, list) and v
-                and all(isinstance(d, int) and 1 <= d < 0xFFFF for d in v)):
-            self.drones = tuple(v)
-            taken.append("drones")
-        v = recorded.get("challenge")
-        if "challenge" not in self.given and isinstance(v, int) and 1 <= v <= 3:
-            self.challenge = v
-            taken.append("challenge")
         self.from_capture = tuple(taken)
 
     def to_json(self) -> dict[str, Any]:
@@ -259,6 +258,8 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     frames: list[MavlinkFrame] = []  # autopilot-link frames before the drone under test is known
     drone: int | None = None
     node_addr: Any = None  # the drone under test's address: what comes from there is its own
+    recorded_complete: bool | None = None  # how the run's own monitor judged the trace
+    marks = False  # the run recorded the link and fix events its monitor judged by (/vehicle)
     first = last = None
     n = unattributed = 0
     pre = PREAMBLE
@@ -272,18 +273,19 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                     # a harness is a party to every exchange with the one node it tests, so its
                     # capture holds them all (complete); a node's own capture (mcp-node
                     # --capture) misses what the other nodes exchange: judged as lossy
-                    params.complete = params.complete or (cap.format == "mcap" and harness)
+                    params.complete = params.complete or (cap.format == "mcap" and harness
+                                                          and recorded_complete is not False)
                     mon = _make_monitor(params)
                 feed = mon.datagram
                 if drone is not None:  # named by the run's record: its autopilot link so far
-                    violations.extend(_flush(mon, frames, drone, recent, evidence))
+                    violations.extend(_flush(mon, frames, drone, recent, evidence, marks))
             last = t
             n += 1
             recent.append(rec)
             h = peek_header(rec.data) if harness and drone is None and rec.direction == "rx" else None
             if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test:
                 drone, node_addr = h[1], rec.src_addr  # its autopilot link so far, then this
-                violations.extend(_flush(mon, frames, drone, recent, evidence))
+                violations.extend(_flush(mon, frames, drone, recent, evidence, marks))
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, tester)
             elif harness and node_addr is not None and _same_peer(rec.src_addr, node_addr):
@@ -297,12 +299,13 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 kept.append(rec)
             if rec.data[:len(pre)] != pre or len(rec.data) < 17:
                 unattributed += 1
-        elif isinstance(rec, MavlinkFrame):
+        elif isinstance(rec, (MavlinkFrame, VehicleMark)):
             last = max(last or rec.t_ns, rec.t_ns)
+            marks = marks or isinstance(rec, VehicleMark)
             if drone is None or mon is None:
                 frames.append(rec)
             else:
-                found = _vehicle(mon, rec, drone)
+                found = _vehicle(mon, rec, drone, marks)
                 _collect(found, recent, evidence)
                 violations.extend(found)
         elif isinstance(rec, CaseMark):
@@ -314,6 +317,8 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 params.adopt(_recorded_parameters(rec))
             elif rec.name == NODE_METADATA and drone is None:  # the node under test, as the run knew it
                 drone, node_addr = _recorded_node(rec)
+                if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it
+                    recorded_complete = rec.data["complete"] == "true"
     if mon is None:  # no datagram at all
         mon = _make_monitor(params)
     if last is not None:
@@ -394,24 +399,34 @@ def _nodes(mon: Any) -> list[Any]:
     return list(mon.nodes()) if hasattr(mon, "nodes") else []
 
 
-def _flush(mon: Any, frames: list[MavlinkFrame], drone: int, recent: deque[Datagram],
-           evidence: dict[int, Datagram]) -> list[Any]:
-    """The autopilot-link frames held until the drone under test was known, judged."""
+def _flush(mon: Any, frames: list[Any], drone: int, recent: deque[Datagram],
+           evidence: dict[int, Datagram], marks: bool) -> list[Any]:
+    """The autopilot-link records held until the drone under test was known, judged."""
+    marks = marks or any(isinstance(f, VehicleMark) for f in frames)
     out: list[Any] = []
     for f in frames:
-        found = _vehicle(mon, f, drone)
+        found = _vehicle(mon, f, drone, marks)
         _collect(found, recent, evidence)
         out.extend(found)
     frames.clear()
     return out
 
 
-def _vehicle(mon: Any, frame: MavlinkFrame, drone: int) -> list[Any]:
-    from judge.monitor import events_from_mavlink
+def _vehicle(mon: Any, rec: MavlinkFrame | VehicleMark, drone: int, marks: bool) -> list[Any]:
+    """One autopilot-link record as the run's monitor took it: the link and fix events the
+    run recorded (``/vehicle``), and the frames the drone wrote to its autopilot; without
+    recorded events (a node's own capture, older captures) the fix comes from the
+    autopilot's GPS_RAW_INT frames."""
+    from judge.monitor import VehicleEvent, events_from_mavlink
 
+    if isinstance(rec, VehicleMark):
+        return mon.vehicle(rec.t_ns, drone, VehicleEvent(rec.kind, detail=rec.detail or ""))
+    direction = rec.direction or "rx"
+    if marks and direction == "tx":
+        return []  # the recorded fix events say the same, before the frames left
     out: list[Any] = []
-    for ev in events_from_mavlink(frame.data, frame.direction or "rx"):
-        out.extend(mon.vehicle(frame.t_ns, drone, ev))
+    for ev in events_from_mavlink(rec.data, direction):
+        out.extend(mon.vehicle(rec.t_ns, drone, ev))
     return out
 
 

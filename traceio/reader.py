@@ -69,6 +69,7 @@ __all__ = [
     "Metadata",
     "Record",
     "Truncated",
+    "VehicleMark",
     "open_capture",
 ]
 
@@ -99,6 +100,15 @@ class CaseMark(NamedTuple):
     rules: tuple[str, ...]
 
 
+class VehicleMark(NamedTuple):
+    """An autopilot-link event the run observed (``/vehicle``: link, fix, fix_lost)."""
+
+    t_ns: int
+    kind: str
+    drone: int | None
+    detail: str | None
+
+
 class Metadata(NamedTuple):
     name: str
     data: dict[str, str]
@@ -108,7 +118,7 @@ class Truncated(NamedTuple):
     reason: str
 
 
-Record = Datagram | MavlinkFrame | CaseMark | Metadata | Truncated
+Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | Metadata | Truncated
 
 
 class CaptureError(Exception):
@@ -250,6 +260,8 @@ class Capture:
         if kind == "m":
             n["m"] += 1
             return MavlinkFrame(n["m"] - 1, t, *fields)
+        if kind == "v":
+            return VehicleMark(t, *fields)
         return CaseMark(t, *fields)
 
     def _mcap_raw(self) -> Iterator[tuple[int, str, Any]]:
@@ -301,6 +313,11 @@ class Capture:
                         elif topic == "/mavlink":
                             yield rec.log_time, "m", (body.get("direction"), body.get("msg_type"),
                                                       b64(body["raw_base64"]))
+                        elif topic == "/vehicle":
+                            drone = body.get("drone")
+                            yield rec.log_time, "v", (str(body["kind"]),
+                                                      drone if isinstance(drone, int) else None,
+                                                      body.get("detail"))
                         elif topic == "/conformance/case":
                             yield rec.log_time, "c", (str(body["case"]), str(body["event"]),
                                                       body.get("outcome"), tuple(body.get("rules") or ()))

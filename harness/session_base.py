@@ -1,0 +1,222 @@
+"""What every role's session shares (``harness.session`` for a drone,
+``harness.manager_session`` for a Mission Manager): the run's constants, the node spawned by
+``--spawn`` with the runner's placeholders (``SpawnedNode``, ``fill_placeholders``), free
+ports, and ``SessionBase`` — the run's timings, liveness of the spawned node, the case marks
+in the capture, the capture's observers held against signals, and the case context the
+runner hands it (``make_context``). Neither role's session imports the other's module."""
+
+from __future__ import annotations
+
+import contextlib
+import shlex
+import socket
+from collections.abc import Callable
+from typing import Any
+
+from harness.config import RunConfig
+from harness.driver import TargetDriver
+from harness.errors import SetupError, SpawnFailure
+from harness.interrupts import INTERRUPTS
+from harness.liveness import describe_exit
+from harness.procs import ManagedProcess
+from spec import SPEC
+from traceio.recorder import NODE_METADATA
+
+MANAGER_ID = int(SPEC.protocol["manager_id"])
+DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
+MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
+BROADCAST_ADDRESS = str(SPEC.protocol["broadcast_address"])
+MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])  # the original + 3 retransmissions
+EMBEDDED_RTO = 0.2
+EMBEDDED_ACK_WINDOW = 0.25
+
+def _held(write: Any) -> Any:
+    """A capture writer that a signal cannot cut in half (``INTERRUPTS.held``)."""
+    def call(*args: Any, **kw: Any) -> Any:
+        with INTERRUPTS.held():
+            return write(*args, **kw)
+    return call
+
+
+def check_target(target: tuple[str, int]) -> tuple[str, int]:
+    """``--target`` as a usable address, or a one-line SetupError before any case runs:
+    an unresolvable host, port 0, an address this host cannot send to."""
+    host, port = target
+    if port == 0:
+        raise SetupError(f"--target {host}:{port}: port 0 is not a port a node can listen on")
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        why = exc.strerror if isinstance(exc, socket.gaierror) and exc.strerror else str(exc)
+        raise SetupError(f"--target {host}:{port}: cannot resolve host {host!r}: {why}") from None
+    addr = (str(infos[0][4][0]), port)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(addr)  # routes it without sending anything
+        except OSError as exc:
+            raise SetupError(f"--target {host}:{port}: cannot reach {addr[0]}: {exc.strerror}") from None
+    return addr
+
+
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+class _Placeholders(dict[str, str]):
+    def __missing__(self, key: str) -> str:  # unknown braces are left alone
+        return "{" + key + "}"
+
+
+def fill_placeholders(command: str, values: dict[str, str]) -> list[str]:
+    """Split ``command`` like a shell and replace known ``{placeholders}`` in each word."""
+    try:
+        words = shlex.split(command)
+    except ValueError as exc:
+        raise SetupError(f"--spawn: cannot split command: {exc}") from None
+    if not words:
+        raise SetupError("--spawn: empty command")
+    mapping = _Placeholders(values)
+    out = []
+    for w in words:
+        try:
+            out.append(w.format_map(mapping))
+        except (ValueError, IndexError, KeyError, AttributeError):
+            out.append(w)  # braces that are not placeholders stay as they are
+    return out
+
+
+class SpawnedNode:
+    """The node process: its own process group, dies with the runner (``harness.procs``),
+    its stdout and stderr kept (bounded) as evidence."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.argv = argv
+        try:
+            self._p = ManagedProcess(argv)
+        except OSError as exc:
+            raise SpawnFailure(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}",
+                               {"command": argv, "exit": None, "stdout": [], "stderr": []}) from None
+        self.proc = self._p.proc
+
+    def alive(self) -> bool:
+        return self._p.alive()
+
+    @property
+    def returncode(self) -> int | None:
+        return self._p.returncode
+
+    def output_tail(self, lines: int = 12) -> str:
+        out, err = self._p.output(lines)
+        return "\n".join(out + err)
+
+    def details(self, lines: int = 12) -> dict[str, Any]:
+        """The node's own words for a report: command as run, exit, stdout and stderr tails."""
+        out, err = self._p.output(lines)
+        rc = self.returncode
+        return {"command": list(self.argv), "exit": None if rc is None else describe_exit(rc),
+                "stdout": out, "stderr": err}
+
+    def evidence(self) -> list[str]:
+        d = self.details()
+        ev = [f"node command: {shlex.join(d['command'])}"]
+        if d["exit"]:
+            ev.append(f"node process {d['exit']}")
+        for stream in ("stdout", "stderr"):
+            if d[stream]:
+                ev.append(f"node {stream} (last lines):\n    " + "\n    ".join(d[stream]))
+            else:
+                ev.append(f"node {stream}: (nothing)")
+        return ev
+
+    def stop(self) -> None:
+        self._p.stop(grace=0.0 if INTERRUPTS.hurry else 2.0)
+
+    def close(self) -> None:
+        self.stop()
+
+
+class SessionBase:
+    """What the drone-role and the manager-role sessions share: the run's timings, the
+    spawned node, the runner's placeholders and the case marks in the capture."""
+
+    cfg: RunConfig
+    node: SpawnedNode | None
+    driver: TargetDriver | None
+    recorder: Any
+    #: The runner's case context for this role, ``make_context(session, case_id, rules)``: set
+    #: by the runner (``conformance``), which owns the cases and their verify helpers.
+    make_context: Callable[..., Any] | None = None
+
+    def context_factory(self) -> Callable[..., Any]:
+        if self.make_context is None:
+            raise RuntimeError("begin_case: no case context set (session.make_context)")
+        return self.make_context
+
+    def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool) -> Any:
+        """The run's observers on the driver, built one way for every role: the capture
+        (held against signals, so a record is never cut in half) and the run's trace
+        monitor (``judge.run_monitor``); the capture is told whose traffic it holds and
+        whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same."""
+        from judge.run_monitor import RunMonitor
+
+        driver = self.driver
+        assert driver is not None
+        if self.recorder is not None:
+            self.recorder.local = driver.listen  # the runner's socket: each datagram's other end
+            driver.add_observer(_held(self.recorder.datagram))
+            driver.add_burst_observer(_held(self.recorder.burst))
+        monitor = RunMonitor(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
+                             broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
+                             complete=complete)
+        monitor.listen = driver.listen
+        driver.add_observer(monitor.observe)
+        self.node_address = target
+        self.record_node(node_id, complete=complete)
+        return monitor
+
+    def record_node(self, node_id: int | None, *, complete: bool | None = None) -> None:
+        """Tell the capture whose traffic it holds (the node under test's ID and address, as
+        the run's monitor knows them) and how the monitor judges it."""
+        address = getattr(self, "node_address", None)
+        if self.recorder is None or node_id is None or address is None:
+            return
+        values: dict[str, Any] = {"id": node_id, "address": f"{address[0]}:{address[1]}"}
+        if complete is not None:
+            values["complete"] = "true" if complete else "false"
+        with contextlib.suppress(Exception):
+            self.recorder.add_metadata(NODE_METADATA, values)
+
+    @property
+    def spawned(self) -> bool:
+        return self.cfg.spawn is not None
+
+    @property
+    def rto(self) -> float:
+        return self.cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.cfg.ack_window
+
+    def alive(self) -> bool:
+        return self.node.alive() if self.node is not None else True
+
+    def _address_placeholders(self, node_id: int, mavlink: str) -> dict[str, str]:
+        """{target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}."""
+        assert self.driver is not None
+        lhost = self.driver.listen[0] or "127.0.0.1"
+        if lhost == "0.0.0.0":
+            lhost = "127.0.0.1"
+        return {
+            "target_host": self.driver.target[0], "target_port": str(self.driver.target[1]),
+            "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
+            "broadcast": BROADCAST_ADDRESS, "id": str(node_id), "mavlink": mavlink,
+        }
+
+    def _case_mark(self, case_id: str, phase: str, t_ns: int, **kw: Any) -> None:
+        """The case's start or end in the capture, never cut off by a signal."""
+        if self.recorder is not None:
+            with INTERRUPTS.held():
+                self.recorder.case_mark(case_id, phase, t_ns, **kw)
