@@ -146,7 +146,9 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                 st = eng.run(deadline, budget, on_tick, stop)
             else:
                 from fuzz.engine_stateful import StatefulEngine
+                from fuzz.target import FuzzTarget
 
+                assert isinstance(target, FuzzTarget)  # a drone (the CLI refuses a manager)
                 seng = StatefulEngine(target, triage, cfg)
                 st = seng.run(deadline, budget, on_tick, stop)
                 res.monitor = res.monitor or seng.monitor_available

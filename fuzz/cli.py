@@ -112,7 +112,7 @@ def _check_reachable(db: str) -> None:
         import redis
 
         u = urlparse(db)
-        client = redis.Redis(host=u.hostname, port=u.port, db=int((u.path or "/0").strip("/") or 0),
+        client = redis.Redis(host=u.hostname or "", port=u.port or 0, db=int((u.path or "/0").strip("/") or 0),
                              socket_connect_timeout=2, socket_timeout=2)
         try:
             client.ping()

@@ -47,8 +47,8 @@ from fuzz.oracles import (
     Flaw,
     Input,
     MonitorOracle,
+    judge_exchange,
     judge_liveness,
-    judge_replies,
     judge_withheld,
 )
 from fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
@@ -109,7 +109,7 @@ def open_database(spec: str | None) -> ExampleDatabase | None:
 
         u = urlparse(spec)
         db = int((u.path or "/0").strip("/") or 0)
-        return RedisExampleDatabase(Redis(host=u.hostname, port=u.port, db=db),
+        return RedisExampleDatabase(Redis(host=u.hostname or "", port=u.port or 0, db=db),
                                     key_prefix=b"mcp-fuzz:")
     return DirectoryBasedExampleDatabase(spec)
 
@@ -210,11 +210,7 @@ class ManagerMachine(RuleBasedStateMachine):
         probe = t.probe()
         ctx.ledger.sent(len(self.sent), Input.of(probe.sent.data), None)
         ctx.stats.cases += len(datagrams)
-        flaws = judge_replies(inputs, drv.received(mark), t.node_id, t.broadcast_id, probe.acked,
-                              ignore_seqs=[(drv.our_id, probe.sent.seq)], probe_copies=probe.copies)
-        dead = judge_liveness(inputs, probe.acked, t.fate())
-        if dead is not None:
-            flaws.append(dead)
+        flaws = judge_exchange(inputs, t, mark, probe)
         flaws += ctx.monitor.feed(t.traffic.drain())
         if flaws:
             raise FlawFound(self._absolute(flaws[0], len(self.sent) - len(datagrams)), list(self.sent),

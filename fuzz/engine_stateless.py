@@ -2,9 +2,9 @@
 whole by every oracle, a batch looked into only when something was found.
 
 One round: up to ``BATCH`` cases (``fuzz.mutators``) sent back to back, then the liveness
-probe (``FuzzTarget.probe``). The probe's ACK proves the node is live and, since a node
+probe (``TargetBase.probe``). The probe's ACK proves the node is live and, since a node
 handles its datagrams in order, that every ACK it was going to send for the batch has been
-sent: the ACKs that came name their cases by sequence number (``fuzz.oracles.judge_replies``)
+sent: the ACKs that came name their cases by sequence number (``fuzz.oracles.judge_exchange``)
 and the silence of the rest is proven without a timeout of its own. The monitor judges all
 traffic, the process's fate and the vehicle's record are read once per round. A flaw goes
 to triage (confirm on a fresh node, shrink, group); a dead or hung node is restarted.
@@ -17,9 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from fuzz.mutators import CaseGenerator
-from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_liveness, judge_replies
+from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_exchange
 from fuzz.replay import frame_token, vehicle_counts
-from fuzz.target import FuzzTarget
+from fuzz.target_base import TargetBase
 from fuzz.triage import Triage
 from spec.codec import Action
 
@@ -46,7 +46,7 @@ class EngineStats:
 class StatelessEngine:
     """Runs rounds against one target until the budget is spent."""
 
-    def __init__(self, target: FuzzTarget, triage: Triage, seed: int, *, worker: int = 0,
+    def __init__(self, target: TargetBase, triage: Triage, seed: int, *, worker: int = 0,
                  seeds: list[bytes] | None = None, batch: int = BATCH) -> None:
         self.target = target
         self.triage = triage
@@ -112,12 +112,7 @@ class StatelessEngine:
         probe = target.probe()
         self.ledger.sent(len(inputs), Input.of(probe.sent.data), None)
         self.stats.cases += len(inputs)
-        flaws = judge_replies(inputs, drv.received(mark), target.node_id, target.broadcast_id,
-                              probe.acked, ignore_seqs=[(drv.our_id, probe.sent.seq)],
-                              probe_copies=probe.copies)
-        dead = judge_liveness(inputs, probe.acked, target.fate())
-        if dead is not None:
-            flaws.append(dead)
+        flaws = judge_exchange(inputs, target, mark, probe)
         index = {inp.data: i for i, inp in enumerate(inputs)}
         flaws += [replace(f, culprit=index.get(f.datagram)) if f.datagram is not None else f
                   for f in self.monitor.feed(target.traffic.drain())]

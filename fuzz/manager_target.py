@@ -15,7 +15,7 @@ commands to a drone).
 from __future__ import annotations
 
 from fuzz.config import FuzzConfig
-from fuzz.target import PROBE_COPIES, PROBE_MIN_WAIT, FuzzTarget, Probe, Traffic
+from fuzz.target_base import PROBE_COPIES, PROBE_MIN_WAIT, Probe, TargetBase, Traffic
 from harness.config import RunConfig
 from harness.errors import SetupError
 from harness.manager_session import ManagerSession, embedded_command
@@ -36,9 +36,9 @@ def run_config(cfg: FuzzConfig) -> RunConfig:
     return rc
 
 
-class ManagerFuzzTarget(FuzzTarget):
-    """One manager under fuzz: ``fuzz.target.FuzzTarget`` with a manager session, readiness
-    instead of the drone's startup, and a Mission_Ready for the liveness probe."""
+class ManagerFuzzTarget(TargetBase):
+    """One manager under fuzz: a manager session, readiness instead of the drone's startup,
+    and a Mission_Ready for the liveness probe."""
 
     def __init__(self, cfg: FuzzConfig) -> None:  # noqa: D107 - no drone session
         self.cfg = cfg

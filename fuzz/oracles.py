@@ -36,11 +36,15 @@ from harness.driver import Datagram
 from spec import SPEC
 from spec.codec import HEADER_SIZE, Action, DecodeError, Message, decode
 
+#: the original and the retransmissions MCP-RTX-1 asks for while a message is unACKed
+MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+
 __all__ = [
     "OVERSIZE",
     "DeliveryLedger",
     "Flaw",
     "MonitorOracle",
+    "judge_exchange",
     "judge_liveness",
     "judge_withheld",
     "judge_replies",
@@ -282,6 +286,18 @@ def blame_rule(inp: Input) -> str:
     return "MCP-ROB-5"
 
 
+def judge_exchange(inputs: Sequence[Input], target: Any, mark: Any, probe: Any) -> list[Flaw]:
+    """What the node did with ``inputs`` and the liveness ``probe`` sent after them (every
+    engine and replay judge a batch this one way): the node's replies since ``mark`` judged
+    per input (:func:`judge_replies`), then its liveness (:func:`judge_liveness`) last."""
+    drv = target.driver
+    flaws = judge_replies(inputs, drv.received(mark), target.node_id, target.broadcast_id,
+                          probe.acked, ignore_seqs=[(drv.our_id, probe.sent.seq)],
+                          probe_copies=probe.copies)
+    dead = judge_liveness(inputs, probe.acked, target.fate())
+    return flaws + ([dead] if dead is not None else [])
+
+
 def judge_liveness(inputs: Sequence[Input], probe_acked: bool, fate: dict[str, Any]) -> Flaw | None:
     """A dead or hung node after ``inputs`` (the last input is blamed until shrinking says
     which one it was)."""
@@ -311,7 +327,7 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
     wrong ACK does not end it (MCP-RTX-2)."""
     if not alive:
         return None  # a death is judge_liveness's
-    if len(copies) < min(wanted, 2):
+    if len(copies) < min(wanted, MIN_COPIES):
         return Flaw("MCP-RTX-1", f"Mission_Ready retransmitted while unACKed ({wanted} copies awaited)",
                     f"{len(copies)} cop{'y' if len(copies) == 1 else 'ies'} seen", source="startup")
     if len({d.data for d in copies}) > 1:

@@ -19,11 +19,11 @@ from fuzz.oracles import (
     Flaw,
     Input,
     MonitorOracle,
-    judge_liveness,
-    judge_replies,
+    judge_exchange,
     judge_withheld,
 )
 from fuzz.target import FuzzTarget
+from fuzz.target_base import TargetBase
 from spec.codec import Action
 from vehicle.probe import make_probe, probe_token
 
@@ -33,7 +33,7 @@ _ACK = int(Action.ACK)
 SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
 SENTINEL_SRC = 0x5E47  # the sentinel's own source ID
 #: Scenario "withhold:N": a fresh node whose Mission_Ready ACK is withheld for N copies, then
-#: given out of order (FuzzTarget.restart_withholding), before the datagrams are sent.
+#: given out of order (TargetBase.restart_withholding), before the datagrams are sent.
 WITHHOLD = "withhold:"
 
 
@@ -66,12 +66,12 @@ class Outcome:
         return {f.rule for f in self.flaws}
 
 
-def vehicle_counts(target: FuzzTarget) -> dict[str, int]:
+def vehicle_counts(target: TargetBase) -> dict[str, int]:
     v = target.vehicle
     return dict(v.probe_tokens()) if v is not None else {}
 
 
-def settle_vehicle(target: FuzzTarget, ledger: DeliveryLedger | None, tag: str) -> bool:
+def settle_vehicle(target: TargetBase, ledger: DeliveryLedger | None, tag: str) -> bool:
     """Send a sentinel passthrough and wait for it to reach the vehicle: every frame sent
     before it has then arrived (a node forwards in order). False when it never came."""
     v = target.vehicle
@@ -90,12 +90,13 @@ def settle_vehicle(target: FuzzTarget, ledger: DeliveryLedger | None, tag: str) 
     return False
 
 
-def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = "batch",
+def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = "batch",
                  fresh: bool = True, monitor: bool = True, scenario: str | None = None) -> Outcome:
     """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``, started as
     ``scenario`` says), then judge."""
     out = Outcome()
-    if scenario is not None and scenario.startswith(WITHHOLD) and target.spawned:
+    if (scenario is not None and scenario.startswith(WITHHOLD) and target.spawned
+            and isinstance(target, FuzzTarget)):  # a drone's startup: the drone role's
         copies = int(scenario[len(WITHHOLD):])
         w = target.restart_withholding(copies)
         out.restarted = True
@@ -125,13 +126,10 @@ def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = 
     probe = target.probe()
     ledger.sent(len(inputs), Input.of(probe.sent.data), None)
     out.probe_acked = probe.acked
-    replies = drv.received(mark)
-    out.flaws += judge_replies(inputs, replies, target.node_id, target.broadcast_id, probe.acked,
-                               ignore_seqs=[(drv.our_id, probe.sent.seq)], probe_copies=probe.copies)
-    dead = judge_liveness(inputs, probe.acked, target.fate())
-    if dead is not None:
-        out.flaws.append(dead)
-    elif target.vehicle is not None and ledger.expected:
+    judged = judge_exchange(inputs, target, mark, probe)
+    out.flaws += judged
+    dead = any(f.source in ("liveness", "process") for f in judged)
+    if not dead and target.vehicle is not None and ledger.expected:
         settled = settle_vehicle(target, ledger, "r")
         after = vehicle_counts(target)
         out.flaws += ledger.judge({k: n - before.get(k, 0) for k, n in after.items()}, settled=settled)
@@ -142,7 +140,7 @@ def run_sequence(target: FuzzTarget, datagrams: Sequence[bytes], *, pace: str = 
     return out
 
 
-def confirm(target: FuzzTarget, datagrams: Sequence[bytes], rule: str, pace: str,
+def confirm(target: TargetBase, datagrams: Sequence[bytes], rule: str, pace: str,
             tries: int = 2, scenario: str | None = None) -> bool:
     """The sequence shows ``rule`` again (on a fresh node where one can be spawned)."""
     return any(rule in run_sequence(target, datagrams, pace=pace, scenario=scenario).rules()

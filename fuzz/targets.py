@@ -7,14 +7,15 @@ from __future__ import annotations
 from fuzz.config import FuzzConfig
 from fuzz.manager_target import ManagerFuzzTarget
 from fuzz.target import FuzzTarget
+from fuzz.target_base import TargetBase
 from harness.errors import SetupError
 
 __all__ = ["start_target"]
 
 
-def start_target(cfg: FuzzConfig) -> FuzzTarget:
+def start_target(cfg: FuzzConfig) -> TargetBase:
     """A started target, or SetupError (its resources released)."""
-    t: FuzzTarget
+    t: TargetBase
     if cfg.role == "manager":
         t = ManagerFuzzTarget(cfg)
     else:

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from fuzz.findings import Finding, FindingStore
 from fuzz.oracles import OVERSIZE, Flaw, Input
 from fuzz.replay import run_sequence, shrink
-from fuzz.target import FuzzTarget
+from fuzz.target_base import TargetBase
 from spec.codec import HEADER_SIZE, Action
 
 __all__ = ["Triage", "shape_of"]
@@ -52,7 +52,7 @@ def shape_of(flaw: Flaw, inputs: Sequence[Input]) -> str:
 class Triage:
     """Turns flaws into findings for one worker's target."""
 
-    def __init__(self, target: FuzzTarget, store: FindingStore, engine: str, seed: int,
+    def __init__(self, target: TargetBase, store: FindingStore, engine: str, seed: int,
                  worker: int = 0) -> None:
         self.target = target
         self.store = store

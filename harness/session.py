@@ -113,10 +113,12 @@ class Session(SessionBase):
         return self._t0_ns + int(t_monotonic * 1e9)
 
     # ------------------------------------------------------------------ start / stop
-    def start(self, observe_startup: bool = True) -> None:
+    def start(self, observe_startup: bool = True, watch: bool = True) -> None:
         """Open the driver, start the vehicle and the node, run the startup phase (observed
         for the startup-phase cases unless ``observe_startup`` is False: then it is the quick
-        one of a restart, as the fuzzer wants it)."""
+        one of a restart, as the fuzzer wants it). ``watch=False``: no background liveness
+        watcher and no run monitor (the fuzzer's probe behind each batch is its proof of
+        life, and its oracles judge every datagram once)."""
         cfg = self.cfg
         if cfg.role != "drone":
             raise SetupError(f"{cfg.role} role conformance is not available yet")
@@ -136,12 +138,14 @@ class Session(SessionBase):
         except OSError as exc:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
-        self.liveness = Liveness(self.driver, self.rto, lambda: self.target_id if self.target_id is not None else 1)
-        self.liveness.start()
+        if watch:
+            self.liveness = Liveness(self.driver, self.rto,
+                                     lambda: self.target_id if self.target_id is not None else 1)
+            self.liveness.start()
         self.driver.attributor.horizon = max(self.rto, self.ack_window)
         self.driver.attributor.peer_id = self.target_id
         self.driver.attributor.broadcast_id = self.cfg.broadcast_id
-        self.monitor = self.observe_run(target, self.target_id, complete=True)
+        self.monitor = self.observe_run(target, self.target_id, complete=True, judge=watch)
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -206,13 +210,23 @@ class Session(SessionBase):
 
     def restart(self) -> None:
         """Spawn mode: a fresh node for the next case (quick startup, nothing judged)."""
+        self.respawn()
+        self._startup_phase(first=False)
+
+    def respawn(self) -> None:
+        """Spawn mode: the node closed and started again, before its startup phase (which
+        the caller runs: ``restart`` the quick one; the fuzzer its own, then
+        ``send_start_mission``)."""
         if self.node is not None:
             self.node.close()
         self.restarts += 1
         self.ended = False
         self.needs_restart = False
         self._spawn()
-        self._startup_phase(first=False)
+
+    def send_start_mission(self) -> None:
+        """Start_Mission to the node after a startup phase run by the caller."""
+        self._start_mission(False)
 
     def node_evidence(self) -> list[str]:
         """What the process said (command, exit, stdout and stderr tails), for evidence."""

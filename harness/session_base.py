@@ -154,11 +154,13 @@ class SessionBase:
             raise RuntimeError("begin_case: no case context set (session.make_context)")
         return self.make_context
 
-    def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool) -> Any:
+    def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool,
+                    judge: bool = True) -> Any:
         """The run's observers on the driver, built one way for every role: the capture
         (held against signals, so a record is never cut in half) and the run's trace
         monitor (``judge.run_monitor``); the capture is told whose traffic it holds and
-        whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same."""
+        whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same.
+        ``judge=False``: no run monitor (the fuzzer judges with its own oracles); None."""
         from judge.run_monitor import RunMonitor
 
         driver = self.driver
@@ -167,12 +169,14 @@ class SessionBase:
             self.recorder.local = driver.listen  # the runner's socket: each datagram's other end
             driver.add_observer(_held(self.recorder.datagram))
             driver.add_burst_observer(_held(self.recorder.burst))
+        self.node_address = target
+        if not judge:
+            return None
         monitor = RunMonitor(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                              broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
                              complete=complete)
         monitor.listen = driver.listen
         driver.add_observer(monitor.observe)
-        self.node_address = target
         self.record_node(node_id, complete=complete)
         return monitor
 

@@ -1,0 +1,148 @@
+"""What the node under fuzz is in every role (``fuzz.target`` for a drone,
+``fuzz.manager_target`` for a Mission Manager): the runner's session and driver, a record of
+all traffic for the oracles, the liveness probe's outcome, and the spawned process's fate.
+Neither role's target imports the other's; ``fuzz.targets`` picks one.
+
+Silence by design costs no timeout (issue 11, boofuzz#533): a valid probe goes right behind a
+batch of inputs; its ACK proves the node is live and, since a node handles its datagrams in
+order, that whatever it was going to say about the batch has been said.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from harness.driver import Datagram, Sent, TargetDriver
+
+__all__ = ["PROBE_COPIES", "PROBE_MIN_WAIT", "Probe", "TargetBase", "Traffic", "TrafficRecord"]
+
+PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
+PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
+
+
+@dataclass(frozen=True)
+class TrafficRecord:
+    """One datagram the fuzzer sent (``tx``) or received (``rx``)."""
+
+    direction: str
+    t_ns: int
+    data: bytes
+    addr: tuple[str, int]
+
+
+class Traffic:
+    """Every datagram in and out, in arrival order, for the monitor (thread-safe append)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pending: list[TrafficRecord] = []
+
+    def __call__(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+        with self._lock:
+            self._pending.append(TrafficRecord(direction, t_ns, data, addr))
+
+    def drain(self) -> list[TrafficRecord]:
+        """What came since the last drain, in time order."""
+        with self._lock:
+            out, self._pending = self._pending, []
+        out.sort(key=lambda r: r.t_ns)
+        return out
+
+
+@dataclass(frozen=True)
+class Probe:
+    """The outcome of one liveness probe."""
+
+    acked: bool
+    sent: Sent
+    copies: int
+    ack: Datagram | None
+
+
+class TargetBase:
+    """The node under fuzz, whatever its role: ``session`` (the runner's, of that role),
+    ``run_cfg``, ``traffic``; the role's subclass starts it, restarts it and probes it."""
+
+    cfg: Any
+    run_cfg: Any
+    session: Any
+    traffic: Traffic
+    restarts: int
+
+    def start(self) -> None:
+        """Start (or attach to) the node; SetupError with a one-line reason otherwise."""
+        raise NotImplementedError
+
+    def restart(self) -> None:
+        """A fresh node (spawn mode); in attach mode the same node is all there is."""
+        raise NotImplementedError
+
+    def probe(self, copies: int = PROBE_COPIES) -> Probe:
+        """The role's valid unicast, retransmitted every --rto until ACKed: proof of life."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.session.close()
+
+    @property
+    def spawned(self) -> bool:
+        return self.session.spawned
+
+    @property
+    def driver(self) -> TargetDriver:
+        assert self.session.driver is not None, "target not started"
+        return self.session.driver
+
+    @property
+    def node_id(self) -> int:
+        assert self.session.target_id is not None
+        return self.session.target_id
+
+    @property
+    def vehicle(self):  # noqa: ANN201 - vehicle.SimVehicle or None
+        return self.session.vehicle
+
+    @property
+    def rto(self) -> float:
+        return self.run_cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.run_cfg.ack_window
+
+    @property
+    def broadcast_id(self) -> int:
+        return self.run_cfg.broadcast_id
+
+    def alive(self) -> bool:
+        return self.session.alive()
+
+    @property
+    def ended(self) -> bool:
+        return self.session.ended
+
+    # ------------------------------------------------------------------ process fate
+    def fate(self) -> dict[str, object]:
+        """What the spawned process did: exit code, signal, its last stderr lines."""
+        node = self.session.node
+        if node is None:
+            return {"spawned": False}
+        rc = node.returncode
+        out: dict[str, object] = {"spawned": True, "alive": rc is None, "exit_code": rc}
+        if rc is not None and rc < 0:
+            try:
+                out["signal"] = signal.Signals(-rc).name
+            except ValueError:
+                out["signal"] = str(-rc)
+        out["stderr_tail"] = node.output_tail(8)
+        return out
+
+    def wait_quiet(self, gap: float = 0.05, limit: float = 1.0) -> None:
+        self.driver.quiet(gap=gap, limit=limit)
+
+    def settle(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds))
