@@ -26,7 +26,8 @@ from typing import Any
 from fuzz.oracles import Flaw, rule_level
 from spec import SPEC
 
-__all__ = ["Finding", "FindingStore", "load_finding", "write_summary"]
+__all__ = ["Finding", "FindingStore", "finding_from_json", "finding_from_metadata", "load_finding",
+           "write_summary"]
 
 FINDING_SCHEMA = 1
 
@@ -76,6 +77,20 @@ class Finding:
                 f"x{self.occurrences}]: {self.actual}")
 
 
+def finding_from_json(d: Any) -> Finding:
+    """A finding from its recorded form (``finding.json``, or the ``finding`` value of a
+    repro.mcap's metadata record): the one way back; ValueError says what is wrong."""
+    if not isinstance(d, dict):
+        raise ValueError("not a JSON object")
+    try:
+        fields = {k: d[k] for k in Finding.__dataclass_fields__ if k in d}
+        f = Finding(**fields)
+        [bytes.fromhex(x) for x in f.datagrams]
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        raise ValueError(str(exc)) from None
+    return f
+
+
 def load_finding(path: str | Path) -> Finding:
     """A finding from ``finding-N/`` or its ``finding.json``; ValueError says what is wrong."""
     p = Path(path)
@@ -85,15 +100,12 @@ def load_finding(path: str | Path) -> Finding:
         d = json.loads(p.read_text())
     except OSError as exc:
         raise ValueError(f"--replay: cannot read {str(p)!r}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--replay: {str(p)!r} is not JSON: {exc.msg}") from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"--replay: {str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
     try:
-        fields = {k: d[k] for k in Finding.__dataclass_fields__ if k in d}
-        f = Finding(**fields)
-        [bytes.fromhex(x) for x in f.datagrams]
-    except (TypeError, ValueError, KeyError) as exc:
+        return finding_from_json(d)
+    except ValueError as exc:
         raise ValueError(f"--replay: {str(p)!r} is not a finding: {exc}") from None
-    return f
 
 
 class FindingStore:
@@ -165,20 +177,26 @@ class FindingStore:
 
 
 def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
-    """The finding a repro.mcap's metadata record describes, or None when it is not one
-    (another recorder, or a capture written before the record held the sequence)."""
+    """The finding a repro.mcap's metadata record describes (its ``finding`` value, read as
+    ``finding.json`` is), or None when it is not one (another recorder, or a capture written
+    before the record held the finding)."""
     from traceio.recorder import FUZZ_RECORDER
 
-    if meta.get("recorder") != FUZZ_RECORDER or "datagrams" not in meta or "rule" not in meta:
+    if meta.get("recorder") != FUZZ_RECORDER:
         return None
     try:
-        datagrams = json.loads(meta["datagrams"])
-        [bytes.fromhex(x) for x in datagrams]
-        target = json.loads(meta["target"]) if "target" in meta else {}
-        return Finding(meta["rule"], meta.get("expected", ""), meta.get("actual", ""), datagrams,
-                       meta.get("shape", ""), meta.get("engine", ""), int(meta.get("seed", "0")),
-                       pace=meta.get("pace", "batch"), scenario=meta.get("scenario"), target=target)
-    except (ValueError, TypeError):
+        if "finding" in meta:
+            return finding_from_json(json.loads(meta["finding"]))
+        if "datagrams" not in meta or "rule" not in meta:
+            return None
+        # a repro.mcap written before the record held the whole finding
+        return finding_from_json({
+            "rule": meta["rule"], "expected": meta.get("expected", ""), "actual": meta.get("actual", ""),
+            "datagrams": json.loads(meta["datagrams"]), "shape": meta.get("shape", ""),
+            "engine": meta.get("engine", ""), "seed": int(meta.get("seed", "0")),
+            "pace": meta.get("pace", "batch"), "scenario": meta.get("scenario"),
+            "target": json.loads(meta["target"]) if "target" in meta else {}})
+    except (ValueError, TypeError, RecursionError):
         return None
 
 
@@ -192,9 +210,11 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
     meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,
                         engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
-                        target=f.target or None, datagrams=f.datagrams, shape=f.shape)
+                        target=f.target or None, datagrams=f.datagrams, shape=f.shape,
+                        finding=f.to_json())
     with McapRecorder(path, library=FUZZ_RECORDER, metadata=meta) as rec:
-        t0 = time.time_ns()
+        # the case's marks around its traffic: the start before the first datagram
+        t0 = (min(t for _, t, _, _ in traffic) - 1) if traffic else time.time_ns()
         rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
         if traffic:
             for direction, t_ns, data, addr in traffic:

@@ -154,3 +154,29 @@ def test_outputs_and_services_are_checked_before_the_campaign(tmp_path, engine: 
         assert main(["--engine", engine, "--max-cases", "1", *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err and "Traceback" not in err, err
+
+
+def test_repro_capture_holds_the_whole_finding_and_its_marks_in_order(tmp_path) -> None:
+    """One way back from a recorded finding (finding.json or repro.mcap's metadata record),
+    program, evidence and source included; the case marks enclose the traffic (issue 18
+    item 13: the start mark came after the end mark)."""
+    import time as _time
+
+    from fuzz.findings import finding_from_metadata, write_repro
+    from traceio.reader import CaseMark, Datagram, Metadata, open_capture
+
+    f = Finding("MCP-DUP-1", "once", "twice", ["00ff"], "passthrough", "stateful", 3,
+                program="state.command(...)", evidence=["vehicle: token x delivered 2 times"],
+                source="vehicle", scenario="withhold:2", target={"spawn": "node --id {id}"})
+    t = _time.time_ns() - 5_000_000_000  # traffic recorded seconds before the file is written
+    traffic = [("tx", t, b"\x00\xff", ("127.0.0.1", 7890)), ("rx", t + 1000, b"\x01", ("127.0.0.1", 7890))]
+    path = tmp_path / "repro.mcap"
+    write_repro(path, f, traffic)
+    recs = list(open_capture(path))
+    meta = next(r for r in recs if isinstance(r, Metadata))
+    back = finding_from_metadata(meta.data)
+    assert back == f
+    marks = [r for r in recs if isinstance(r, CaseMark)]
+    data = [r for r in recs if isinstance(r, Datagram)]
+    assert [m.event for m in marks] == ["start", "end"]
+    assert marks[0].t_ns <= data[0].t_ns <= data[-1].t_ns <= marks[1].t_ns
