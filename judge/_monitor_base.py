@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+from collections import deque
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -241,22 +242,41 @@ class _Node:
 
 
 class _Timers:
-    """Deadlines: (t_ns, order, callback, args); callbacks run when time reaches them."""
+    """Deadlines (t_ns, order, callback, args); callbacks run, in time order, when time
+    reaches them. One mechanism, two lanes: ``at`` takes any time (a heap); ``after`` takes a
+    stream of deadlines each no earlier than the one before (one fixed delay, as MCP-RTX-1's
+    for every unicast), kept first in first out at O(1) on the hot path."""
 
     def __init__(self) -> None:
         self.heap: list[tuple[int, int, Callable[..., None], tuple[Any, ...]]] = []
+        self.fifo: deque[tuple[int, int, Callable[..., None], tuple[Any, ...]]] = deque()
         self._order = itertools.count()
 
     def at(self, t_ns: int, fn: Callable[..., None], *args: Any) -> None:
         heapq.heappush(self.heap, (t_ns, next(self._order), fn, args))
 
+    def after(self, t_ns: int, fn: Callable[..., None], *args: Any) -> None:
+        """A deadline no earlier than every one given to ``after`` before it."""
+        self.fifo.append((t_ns, next(self._order), fn, args))
+
+    def pending(self, now: int) -> bool:
+        heap, fifo = self.heap, self.fifo
+        return bool((heap and heap[0][0] <= now) or (fifo and fifo[0][0] <= now))
+
     def due(self, now: int) -> list[tuple[Callable[..., None], tuple[Any, ...]]]:
         out = []
-        heap = self.heap
-        while heap and heap[0][0] <= now:
-            _, _, fn, args = heapq.heappop(heap)
-            out.append((fn, args))
-        return out
+        heap, fifo = self.heap, self.fifo
+        while True:
+            h = heap[0] if heap and heap[0][0] <= now else None
+            f = fifo[0] if fifo and fifo[0][0] <= now else None
+            if h is None and f is None:
+                return out
+            if f is None or (h is not None and h[:2] < f[:2]):
+                heapq.heappop(heap)
+                out.append((h[2], h[3]))  # type: ignore[index]
+            else:
+                fifo.popleft()
+                out.append((f[2], f[3]))
 
 
 def median(values: list[int]) -> int:

@@ -168,7 +168,7 @@ class SenderRules:
                     self._check_stop_and_wait(node, prev, ex, i, t)
             node.last_unicast = ex
             if self.complete:  # MCP-RTX-1's deadline; all share one delay, so a FIFO
-                self._rtx_due.append((t + self._rtx_delay, ex))
+                self._timers.after(t + self._rtx_delay, self._rtx_expire, ex)
 
     def _first_of_kind(self, node: _Node, ex: _Exchange) -> None:
         """Rules a node's first new message of a kind shows observed (not yet passed: a
@@ -198,8 +198,6 @@ class SenderRules:
                 rules.append("MCP-FLOW-5")
             elif action == END:
                 rules.append("MCP-BLK-6")
-        if len(node.actions) > 1 or node.last_new is not None:
-            rules.append("MCP-SEQ-1")
         for rule in rules:
             self._observe(src, rule)
 

@@ -37,7 +37,6 @@ they stay ``not_observed`` here.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
@@ -120,7 +119,6 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self.complete = complete
         self._packed_waypoints: list[bytes] | None = None
         self._insane: dict[bytes, str] = {}  # MCP-PAY-7: the first problem, by payload bytes
-        self._rtx_due: deque[tuple[int, Any]] = deque()  # MCP-RTX-1 deadlines, in order
         self._rtx_delay = MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns
         #: how late an ACK is still taken to answer something other than the message it
         #: names exactly (a broadcast, a malformed datagram: numbers do not repeat that soon)
@@ -176,12 +174,9 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             self._next_prune = t_ns + self.horizon_ns
         out: list[Violation] = []
         self._out = out
-        heap = self._timers.heap
-        if heap and heap[0][0] <= t_ns:
+        tm = self._timers
+        if (tm.heap and tm.heap[0][0] <= t_ns) or (tm.fifo and tm.fifo[0][0] <= t_ns):
             self._run_timers(t_ns)
-        rtx = self._rtx_due
-        if rtx and rtx[0][0] <= t_ns:
-            self._rtx_expire(t_ns)
         n = len(data)
         tester = origin is TESTER
         if n < HDR or not data.startswith(PRE):
@@ -271,8 +266,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         out: list[Violation] = []
         self._out = out
         self.last_t = max(self.last_t, t_ns)
-        heap = self._timers.heap
-        if heap and heap[0][0] <= t_ns:
+        if self._timers.pending(t_ns):
             self._run_timers(t_ns)
         self._vehicle_event(t_ns, drone_id, event)
         return out
@@ -358,17 +352,13 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     def _run_timers(self, now: int) -> None:
         for fn, args in self._timers.due(now):
             fn(now, *args)
-        if self._rtx_due and self._rtx_due[0][0] <= now:
-            self._rtx_expire(now)
 
-    def _rtx_expire(self, now: int) -> None:
-        rtx = self._rtx_due
-        while rtx and rtx[0][0] <= now:
-            ex = rtx.popleft()[1]
-            if ex.acks:
-                self._nodes[ex.src].seen.add("MCP-RTX-1")
-            else:
-                self._rtx_deadline(now, ex)
+    def _rtx_expire(self, now: int, ex: Any) -> None:
+        """MCP-RTX-1's deadline of one unicast (``_timers.after``): ACKed, or judged."""
+        if ex.acks:
+            self._nodes[ex.src].seen.add("MCP-RTX-1")
+        else:
+            self._rtx_deadline(now, ex)
 
     def _judged(self, node: int, rule: str) -> bool:
         """Whether ``rule`` binds ``node`` (its role) and ``node`` is not the harness."""
