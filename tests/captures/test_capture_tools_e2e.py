@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -27,6 +25,7 @@ from pathlib import Path
 import pytest
 
 from spec import SPEC
+from tests.capturing import dropped_by_kernel, start_capture, stop_capture
 from tests.reference_impl.test_e2e import free_port, node, wait_all
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,33 +36,6 @@ RTO = "0.3"
 DEADLINE = 40.0
 
 pytestmark = pytest.mark.slow
-
-
-def start_capture(cmd: list[str], log: Path, ready: str) -> subprocess.Popen[bytes]:
-    """Start a capture tool and wait (bounded) until it says it is capturing."""
-    err = open(log, "wb")  # noqa: SIM115 - closed with the process below
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
-    err.close()
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        if ready in log.read_text(errors="replace"):
-            return proc
-        if proc.poll() is not None:
-            pytest.skip(f"{cmd[0]} cannot capture here: {log.read_text(errors='replace').strip()[-300:]}")
-        time.sleep(0.05)
-    proc.kill()
-    pytest.skip(f"{cmd[0]} did not start capturing within 15 s")
-    raise AssertionError  # unreachable
-
-
-def stop_capture(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)  # both tools flush and close their file on SIGINT
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
 
 
 def check(path: Path, tmp_path: Path, *extra: str) -> tuple[int, dict, str]:
@@ -115,9 +87,8 @@ def test_check_on_tcpdump_and_dumpcap_captures_of_a_real_mission(tmp_path: Path)
                 proc.wait(5)
         for cap in captures:
             stop_capture(cap)
-    dropped = [int(n) for log in ("tcpdump-lo.log", "tcpdump-any.log")
-               for n in re.findall(r"(\d+) packets? dropped by kernel", (tmp_path / log).read_text(errors="replace"))]
-    dropped_any = not dropped or any(dropped)  # unknown counts as dropped
+    dropped = [dropped_by_kernel(tmp_path / log) for log in ("tcpdump-lo.log", "tcpdump-any.log")]
+    dropped_any = any(n is None or n > 0 for n in dropped)  # unknown counts as dropped
     tables = {}
     for name, path in files.items():
         rc, doc, out = check(path, tmp_path, "--drones", "1,2", "--waypoints", str(DATA / "challenge.waypoints"))

@@ -5,13 +5,14 @@ from __future__ import annotations
 import json
 import os
 import shlex
-import socket
 import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from tests.capturing import free_port  # noqa: F401  (re-exported for the runner tests)
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_NODE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
@@ -67,12 +68,6 @@ def reference_node_command(rto: float = 0.2) -> str:
     return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} --bind "
             f"{{target_host}}:{{target_port}} --send-to {{listen_host}}:{{listen_port}} "
             f"--mavlink {{mavlink}} --rto {rto}")
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 SAMPLE_MANAGER = ROOT / "tests" / "conformance" / "nodes" / "sample_manager.py"

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.capturing import free_port as free_udp_port
 from vehicle.recordfile import read_records
 
 pytestmark = pytest.mark.slow
@@ -24,12 +25,6 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples" / "mavlink_c"
 SEED_HEARTBEAT = bytes.fromhex("FE 09 00 FF 00 00 00 00 00 00 06 03 C0 04 03 F5 C0")
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,6 @@ process must exit 0 after End_Mission. Ports are picked free; every process is k
 from __future__ import annotations
 
 import json
-import re
-import shutil
-import signal
-import socket
 import subprocess
 import sys
 import time
@@ -23,6 +19,7 @@ import pytest
 
 from spec import SPEC
 from spec.mission import load_waypoints
+from tests.capturing import dropped_by_kernel, free_port, start_capture, stop_capture
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parent / "data"
@@ -34,12 +31,6 @@ RTO = "0.3"
 DEADLINE = 40.0  # seconds for the whole mission; a hang fails instead of blocking CI
 
 pytestmark = pytest.mark.slow
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("", 0))
-        return int(s.getsockname()[1])
 
 
 def node(*args: str, log: Path) -> subprocess.Popen[bytes]:
@@ -139,70 +130,32 @@ def run_mission(challenge: int, tmp_path: Path, drone_port: int, manager_port: i
 
 
 # ---------------------------------------------------------------- the trace monitor
-class LoopbackCapture:
-    """tcpdump on the loopback interface, writing a pcap of the two MCP ports."""
-
-    def __init__(self, path: Path, ports: tuple[int, int]) -> None:
-        self.path = path
-        self.log = path.with_suffix(".log")
-        tcpdump = shutil.which("tcpdump")
-        if tcpdump is None:
-            pytest.skip("tcpdump is not installed (.ci/apt-tools installs it)")
-        with open(self.log, "wb") as err:
-            self.proc = subprocess.Popen(
-                [tcpdump, "-i", "lo", "-U", "-n", "-B", "8192", "-w", str(path),
-                 f"udp port {ports[0]} or udp port {ports[1]}"],
-                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
-        deadline = time.monotonic() + 10.0
-        while b"listening on" not in self.log.read_bytes():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.stop()
-                pytest.skip(f"tcpdump cannot capture on lo here: {self.log.read_text(errors='replace')[-300:]}")
-            time.sleep(0.05)
-
-    def stop(self) -> int | None:
-        """Stop it; the number of packets the kernel dropped (None if it did not say)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        m = re.search(rb"(\d+) packets? dropped by kernel", self.log.read_bytes())
-        return int(m.group(1)) if m else None
-
-
 @pytest.mark.parametrize("challenge", [1, 2, 3])
 def test_the_trace_monitor_finds_nothing_in_their_traffic(challenge: int, tmp_path: Path) -> None:
-    """The same mission captured by tcpdump on lo, read back (traceio.reader) and judged by
-    judge.monitor with the mission's drones, challenge and items: no violation. Every
-    node runs on this host, so the capture holds every datagram (judged as a complete trace)
-    unless tcpdump reports drops."""
-    from judge.monitor import Monitor
-    from traceio.reader import Datagram, open_capture
+    """The same mission captured by tcpdump on lo, judged as ``mcp-capture check`` judges a
+    capture (judge.judging) with the mission's drones, challenge and items: no violation.
+    Every node runs on this host, so the capture holds every datagram (judged as a complete
+    trace) unless tcpdump reports drops; then MCP-ACK-1 is not judged on absences."""
+    from judge.judging import Params, judge
 
     drone_port, manager_port = free_port(), free_port()
     while manager_port == drone_port:
         manager_port = free_port()
-    cap = LoopbackCapture(tmp_path / "mission.pcap", (drone_port, manager_port))
+    pcap, log = tmp_path / "mission.pcap", tmp_path / "tcpdump.log"
+    cap = start_capture(["tcpdump", "-i", "lo", "-U", "-n", "-B", "8192", "-w", str(pcap),
+                         f"udp port {drone_port} or udp port {manager_port}"], log, "listening on")
     try:
         run_mission(challenge, tmp_path, drone_port, manager_port, records=False)
     finally:
-        dropped = cap.stop()
-    items = load_waypoints(OBSTACLES if challenge == 3 else WAYPOINTS)
-    monitor = Monitor(rto=float(RTO), ack_window=0.5, drones=DRONES, challenge=challenge, waypoints=items,
-                      complete=dropped == 0)
-    violations = []
-    last = 0
-    for rec in open_capture(cap.path):
-        if type(rec) is Datagram:
-            violations += monitor.datagram(rec.t_ns, rec.src_addr, rec.dst_addr, rec.data)
-            last = rec.t_ns
-    violations += monitor.finish(last)
-    assert monitor.count > 20, f"tcpdump captured {monitor.count} datagrams"
-    assert [(v.rule, v.node, v.actual) for v in violations] == []
-    verdicts = monitor.verdicts()
-    assert sorted(verdicts) == [0, *DRONES]
-    assert verdicts[0]["MCP-FLOW-" + {1: "4", 2: "5", 3: "6"}[challenge]] == "passed"
-    assert all(verdicts[d]["MCP-ACK-1"] == "passed" for d in DRONES) or dropped != 0
+        stop_capture(cap)
+    dropped = dropped_by_kernel(log)
+    assert dropped is not None, f"tcpdump did not say how many packets it dropped: {log.read_text()[-300:]}"
+    items = tuple(load_waypoints(OBSTACLES if challenge == 3 else WAYPOINTS))
+    j = judge(pcap, Params(rto=float(RTO), ack_window=0.5, drones=DRONES, challenge=challenge,
+                           waypoints=items, complete=dropped == 0))
+    assert j.datagrams > 20, f"tcpdump captured {j.datagrams} datagrams"
+    assert [(v.rule, v.node, v.actual) for v in j.violations] == []
+    assert sorted(j.verdicts) == [0, *DRONES]
+    assert j.verdicts[0]["MCP-FLOW-" + {1: "4", 2: "5", 3: "6"}[challenge]] == "passed"
+    if dropped == 0:  # absences are evidence only in a capture that holds every datagram
+        assert all(j.verdicts[d]["MCP-ACK-1"] == "passed" for d in DRONES)

@@ -9,11 +9,11 @@ import shlex
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from tests.capturing import free_port, wait_for_port
 from vehicle.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -27,12 +27,6 @@ def section() -> str:
 
 def blocks(lang: str) -> list[str]:
     return re.findall(rf"```{lang}\n(.*?)```", section(), re.S)
-
-
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_the_commands_parse_and_the_records_have_the_documented_keys() -> None:
@@ -57,7 +51,7 @@ def test_the_vehicle_command_and_each_url_of_the_table(tmp_path: Path) -> None:
     proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
-        time.sleep(1.0)
+        assert wait_for_port(tcp), "the vehicle did not listen on TCP within 10 s"
         snippet = blocks("python")[0]
         for url in ("udpin:127.0.0.1:14550", "tcp:127.0.0.1:5760", "udpout:127.0.0.1:14551"):
             assert url in snippet
