@@ -3,8 +3,8 @@ them (issue 11, "Stateless engine").
 
 A :class:`CaseGenerator` draws one case at a time from a seeded ``random.Random`` (the same
 seed gives the same bytes in any process): a valid message of any on-wire action code
-(:func:`spec.strategies.random_message`), a malformed kind of the spec's strategies
-(:func:`spec.strategies.random_malformed`), a seed datagram from a capture, or one of those
+(:func:`spec.generators.random_message`), a malformed kind of the spec's strategies
+(:func:`spec.generators.random_malformed`), a seed datagram from a capture, or one of those
 mutated: bit and byte flips, header fields at their boundary values, length lies and
 truncation, concatenation, preamble damage, wrong action codes, counts that disagree with the
 payload, broken MAVLink frames in Mav_Passthrough, oversized datagrams up to 65,507 bytes
@@ -32,7 +32,7 @@ from spec.codec import (
     Message,
     encode,
 )
-from spec.strategies import MALFORMED_KINDS, WIRE_ACTIONS, random_malformed, random_message
+from spec.generators import MALFORMED_KINDS, WIRE_ACTIONS, random_malformed, random_message
 from vehicle.probe import make_probe
 
 __all__ = ["MUTATORS", "Case", "CaseGenerator"]

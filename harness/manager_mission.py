@@ -39,7 +39,7 @@ from typing import Any
 from harness.driver import Datagram, Exchange, Sent, TargetDriver, read_header
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
-from spec.strategies import malformed_corpus
+from spec.generators import malformed_corpus
 
 MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
 MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])

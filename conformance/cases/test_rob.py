@@ -1,7 +1,7 @@
 """ROB — robustness to bad input.
 
 Every malformed input comes from a fixed, seeded corpus drawn from the spec's strategies
-(``spec.strategies.malformed_corpus``) plus explicit edge cases, so every run sends the
+(``spec.generators.malformed_corpus``) plus explicit edge cases, so every run sends the
 same bytes. Each input is followed by a liveness probe (a fresh WP_Off awaited across
 retransmissions, MCP-ROB-5); "no ACK" is judged over the ACK window (D-6).
 """
@@ -16,7 +16,7 @@ from conformance.marks import rules
 from harness.driver import Sent
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
-from spec.strategies import malformed_corpus
+from spec.generators import malformed_corpus
 
 PER_KIND = 6
 
