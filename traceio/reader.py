@@ -82,6 +82,7 @@ class Datagram(NamedTuple):
     data: bytes
     direction: str | None = None  # "tx" | "rx" | None, seen from the recording host
     recorder: str | None = None
+    burst: bool = False  # one of a flood recorded as a count (/mcp/burst)
 
 
 class MavlinkFrame(NamedTuple):
@@ -309,7 +310,8 @@ class Capture:
                             src, dst = (local, peer) if tx else (peer, local)
                             for i in range(count if cycle else 0):
                                 yield (t1 + (t2 - t1) * i // max(1, count - 1), "d",
-                                       (src, dst, cycle[i % len(cycle)], "tx" if tx else "rx", library))
+                                       (src, dst, cycle[i % len(cycle)], "tx" if tx else "rx", library,
+                                        True))
                         elif topic == "/mavlink":
                             yield rec.log_time, "m", (body.get("direction"), body.get("msg_type"),
                                                       b64(body["raw_base64"]))

@@ -95,9 +95,34 @@ DIAGNOSIS = {
 }
 
 
+#: Mutants whose fault the run's trace monitor proves from traffic alone: the JSON's monitor
+#: section names their rule and no other.
+MONITOR_SEES = {"ack-broadcast": "MCP-ACK-4", "rtx-stop-on-any-ack": "MCP-RTX-2",
+                "bad-preamble": "MCP-HDR-1", "arm-early": "MCP-BLK-4", "passthrough-twice": "MCP-PAY-8"}
+
+
+def same_verdicts_offline(res, capture) -> None:
+    """One judge (issue 18): ``mcp-capture check`` of the run's capture, by default and with
+    ``--complete``, gives the live monitor's verdicts rule by rule and its violations."""
+    from judge.judging import Params, judge
+
+    live = res.report["monitor"]["rules"]
+    live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])
+    for complete in (False, True):
+        j = judge(capture, Params(complete=complete))
+        offline = {str(k): v for k, v in j.verdicts.items()}
+        diff = [(n, r, live.get(n, {}).get(r), offline.get(n, {}).get(r))
+                for n in sorted(set(live) | set(offline))
+                for r in sorted(set(live.get(n, {})) | set(offline.get(n, {})))
+                if live.get(n, {}).get(r) != offline.get(n, {}).get(r)]
+        assert diff == [], (complete, diff, res.explain())
+        assert sorted((v.rule, v.node) for v in j.violations) == live_violations, complete
+
+
 @pytest.mark.parametrize("fault,rule", MUTANTS, ids=[f for f, _ in MUTANTS])
-def test_mutant_is_caught_with_its_rule(fault, rule):
-    res = conform("--fault", fault)
+def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
+    capture = tmp_path / "run.mcap"
+    res = conform("--fault", fault, extra=("--capture", str(capture)))
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}
@@ -106,6 +131,11 @@ def test_mutant_is_caught_with_its_rule(fault, rule):
     assert res.rc == (1 if want == "failed" else 0), res.explain()
     if fault in DIAGNOSIS:
         assert DIAGNOSIS[fault] in res.output, res.explain()
+    if fault in MONITOR_SEES:
+        mon = res.report["monitor"]
+        assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
+        assert mon["rules"]["1"][rule] in ("failed", "warned")
+    same_verdicts_offline(res, capture)
 
 
 CORRECT_VARIANTS = [
@@ -117,8 +147,10 @@ CORRECT_VARIANTS = [
 
 
 @pytest.mark.parametrize("label,extra", CORRECT_VARIANTS, ids=[v[0] for v in CORRECT_VARIANTS])
-def test_no_false_alarm_on_a_correct_node_unlike_ours(label, extra):
-    res = conform(*extra)
+def test_no_false_alarm_on_a_correct_node_unlike_ours(label, extra, tmp_path):
+    capture = tmp_path / "run.mcap"
+    res = conform(*extra, extra=("--capture", str(capture)))
+    same_verdicts_offline(res, capture)
     assert res.rc == 0, res.explain()
     assert not res.rules_with("failed"), res.explain()
     assert not res.cases_with("failed", "error"), res.explain()

@@ -57,7 +57,7 @@ def test_failure_found_by_one_worker_is_replayed_first_by_the_other(redis_url: s
     from redis import Redis
 
     base = FuzzConfig(spawn=spawn_command("no-dup-discard", True), mavlink=True, engine="stateful",
-                      seed=3, duration=90.0, max_cases=20_000, rto=0.2, ack_window=0.25, db=redis_url,
+                      seed=6, duration=90.0, max_cases=20_000, rto=0.2, ack_window=0.25, db=redis_url,
                       extra={"stop_on_rule": "MCP-DUP-1"})
     first = FindingStore(None)
     run_worker(base.for_worker(0), first)

@@ -1,0 +1,37 @@
+"""The test run's order: the longest slow tests first.
+
+Under pytest-xdist the workers take tests in collection order; a long test that starts last
+makes the whole run as long as itself on top of everything before it. These are the tests
+that wait on protocol timers at the description's real timings (5 s) or run a fuzz campaign
+until it finds its fault: started first, they overlap with everything else. Nothing is
+skipped or shortened by this; it only decides what runs first.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+#: Substrings of node IDs of the longest tests (measured with --durations), longest first.
+LONG_FIRST = (
+    "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
+    "test_jobs.py::test_failure_found_by_one_worker_is_replayed_first_by_the_other",
+    "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
+    "test_faults.py::test_attach_node_killed_mid_run_at_the_descriptions_timings",
+    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[no-dup-discard]",
+    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",
+    "test_mutants.py::test_mutant_is_caught_with_its_rule[slow-ack]",
+    "test_readme_ci.py::test_the_ci_snippets_run_as_written",
+    "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
+    "test_reader.py::test_mcap_cut_at_every_byte[1]",
+)
+
+
+def _rank(item: pytest.Item) -> int:
+    for i, part in enumerate(LONG_FIRST):
+        if part in item.nodeid:
+            return i
+    return len(LONG_FIRST)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=_rank)  # stable: everything else keeps its order
