@@ -184,7 +184,7 @@ def load(path: str | Path | None = None) -> Spec:
     except OSError as exc:
         raise SpecError(f"{src}: cannot read spec: {exc.strerror}") from None
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml when there
     except yaml.YAMLError as exc:
         raise SpecError(f"{src}: not valid YAML: {str(exc).splitlines()[0]}") from None
     schema = json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
