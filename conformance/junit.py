@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord
+from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_failures
 from spec import SPEC
 from spec.about import TOOL_NAME
 
@@ -73,10 +73,13 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
     if family not in JUNIT_FAMILIES:
         raise ValueError(f"unknown JUnit family {family!r}")
     counts = run.counts()
-    failures = counts["failed"] + (counts["xpassed"] if run.strict else 0)
+    monitor = monitor_failures(run)  # rules the run's monitor proved violated, no case failed
+    counted = [f for f in monitor if f["outcome"] == "failed" or run.strict]
+    failures = counts["failed"] + (counts["xpassed"] if run.strict else 0) + len(counted)
     errors = counts["error"] + (1 if run.error is not None else 0)
     suite = ET.Element("testsuite", {
-        "name": TOOL_NAME, "tests": str(len(run.cases) + (1 if run.error is not None else 0)),
+        "name": TOOL_NAME,
+        "tests": str(len(run.cases) + len(monitor) + (1 if run.error is not None else 0)),
         "failures": str(failures), "errors": str(errors),
         "skipped": str(counts["skipped"] + counts["xfailed"]),
         "time": f"{run.duration_s:.3f}", "timestamp": _iso(run.started_wall),
@@ -123,6 +126,18 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
         elif finding or c.outcome == "xpassed":
             extra = f" (baseline: {c.baseline})" if c.outcome == "xpassed" else ""
             ET.SubElement(tc, "system-out").text = f"{c.outcome.upper()}{extra}: {finding}"
+    for f in monitor:  # one testcase per rule: the monitor's violations of it, counted
+        n = f["violations"]
+        tc = ET.SubElement(suite, "testcase", {"classname": f"{TOOL_NAME}.monitor",
+                                               "name": f"monitor/{f['rule']}"
+                                               + (" [warned]" if f["outcome"] == "warned" else ""),
+                                               "time": "0.000"})
+        text = (f"{f['rule']}: {n} violation(s) proved by the run's trace monitor; "
+                f"first: {f['actual']}")
+        if f in counted:
+            ET.SubElement(tc, "failure", {"message": f["actual"], "type": f["rule"]}).text = text
+        else:
+            ET.SubElement(tc, "system-out").text = f"WARNED: {text}"
     root = ET.Element("testsuites", {"name": TOOL_NAME, "tests": suite.get("tests", "0"),
                                      "failures": str(failures), "errors": str(errors),
                                      "time": f"{run.duration_s:.3f}"})

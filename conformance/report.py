@@ -43,6 +43,7 @@ __all__ = [
     "load_schema",
     "name_consequence",
     "roots_first",
+    "monitor_failures",
     "rule_outcomes",
     "run_from_json",
     "tool_version",
@@ -50,7 +51,7 @@ __all__ = [
     "write_json",
 ]
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"  # 1.2: the monitor's violations in failures and rules
 OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
 RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
@@ -157,12 +158,40 @@ class RunRecord:
         return out
 
     def exit_code(self) -> int:
-        """The contract: 2 usage/setup error, 1 a case failed or errored (or, under
-        --strict, a baseline's expected failure now passes), else 0."""
+        """The contract: 2 usage/setup error, 1 a case failed or errored, a MUST the run's
+        trace monitor proved violated (a SHOULD too under --strict), or, under --strict, a
+        baseline's expected failure now passes; else 0."""
         if self.error is not None:
             return 2
         counts = self.counts()
-        return 1 if counts["failed"] or counts["error"] or (self.strict and counts["xpassed"]) else 0
+        monitor = monitor_failures(self)
+        return 1 if (counts["failed"] or counts["error"] or (self.strict and counts["xpassed"])
+                     or any(f["outcome"] == "failed" for f in monitor)
+                     or (self.strict and any(f["outcome"] == "warned" for f in monitor))) else 0
+
+
+def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
+    """The rules the run's trace monitor proved violated by the node under test and no case
+    failed or warned (one fault, one entry: a case's failure of the same rule stands for it),
+    with the count and the first violation; outcome failed for a MUST, warned for a SHOULD."""
+    mon = run.monitor or {}
+    by_case = {c.failed_rule for c in run.cases if c.outcome in ("failed", "warned", "xfailed")}
+    seen: dict[str, dict[str, Any]] = {}
+    for v in mon.get("violations", []):
+        rule = v.get("rule")
+        if rule in by_case or rule not in SPEC.rules_by_id:
+            continue
+        level = SPEC.rule(rule).level
+        if level not in ("MUST", "SHOULD"):
+            continue
+        entry = seen.get(rule)
+        if entry is None:
+            seen[rule] = {"case": "monitor", "rule": rule, "outcome": "failed" if level == "MUST" else "warned",
+                          "consequence_of": [], "source": "monitor", "violations": 1,
+                          "actual": f"node {v.get('node')}: {v.get('actual')}"}
+        else:
+            entry["violations"] += 1
+    return [seen[r] for r in sorted(seen)]
 
 
 # ---------------------------------------------------------------------- JSON
@@ -173,8 +202,10 @@ def _rule_ids_for(role: str) -> list[str]:
         return []
 
 
-def rule_outcomes(cases: list[CaseRecord], role: str) -> dict[str, str]:
-    """Every rule of the role (plus any rule a case named) -> its aggregate outcome."""
+def rule_outcomes(cases: list[CaseRecord], role: str,
+                  monitor: list[dict[str, Any]] | None = None) -> dict[str, str]:
+    """Every rule of the role (plus any rule a case named) -> its aggregate outcome, the
+    rules the run's trace monitor proved violated (``monitor_failures``) included."""
     result: dict[str, str] = dict.fromkeys(_rule_ids_for(role), "skipped")
 
     def contribute(rule: str, outcome: str) -> None:
@@ -195,6 +226,8 @@ def rule_outcomes(cases: list[CaseRecord], role: str) -> dict[str, str]:
         else:  # skipped, error: not judged
             for r in c.rules:
                 contribute(r, "skipped")
+    for f in monitor or ():
+        contribute(f["rule"], f["outcome"])
     return result
 
 
@@ -211,8 +244,8 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "seed": run.seed,
         "error": run.error,
         "cases": [c.to_json() for c in run.cases],
-        "failures": failures_json([c.to_json() for c in run.cases]),
-        "rules": rule_outcomes(run.cases, run.role),
+        "failures": failures_json([c.to_json() for c in run.cases]) + monitor_failures(run),
+        "rules": rule_outcomes(run.cases, run.role, monitor_failures(run)),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
         **({"monitor": run.monitor} if run.monitor is not None else {}),
     }
@@ -296,6 +329,11 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
     out.pop("monitor", None)
     if sections:
         out["monitor"] = merge_monitor(sections)
+    merged = run_from_json(out)  # the monitor's entries over the merged cases, as one run's
+    out["failures"] += monitor_failures(merged)
+    for f in monitor_failures(merged):
+        if RULE_RANK[f["outcome"]] > RULE_RANK[rules.get(f["rule"], "skipped")]:
+            rules[f["rule"]] = f["outcome"]
     return out
 
 
@@ -327,4 +365,5 @@ def run_from_json(doc: dict[str, Any]) -> RunRecord:
                     seed=doc.get("seed"), strict=bool(params.get("strict", False)), error=doc.get("error"))
     run.cases = [case_from_json(c) for c in doc.get("cases", [])]
     run.finished = run.started + float((doc.get("summary") or {}).get("duration_s") or 0.0)
+    run.monitor = doc.get("monitor")
     return run

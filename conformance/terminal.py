@@ -14,7 +14,15 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
-from conformance.report import OUTCOMES, STYLES, CaseRecord, RunRecord, roots_first, rule_outcomes
+from conformance.report import (
+    OUTCOMES,
+    STYLES,
+    CaseRecord,
+    RunRecord,
+    monitor_failures,
+    roots_first,
+    rule_outcomes,
+)
 from spec import SPEC
 from spec.about import TOOL_NAME, tool_version
 
@@ -155,13 +163,15 @@ class TerminalReport:
         if run.error is not None and not run.cases:  # a usage or setup error: its one line
             self.error(run.error, run.node)
             return
-        outcomes = rule_outcomes(run.cases, run.role)
+        monitor = monitor_failures(run)
+        outcomes = rule_outcomes(run.cases, run.role, monitor)
         if run.cases:
             table = Table(title="per-rule outcome", show_lines=False, box=None, pad_edge=False)
             table.add_column("rule")
             table.add_column("level")
             table.add_column("outcome")
-            touched = {r for c in run.cases for r in c.rules} | {c.failed_rule for c in run.cases}
+            touched = ({r for c in run.cases for r in c.rules} | {c.failed_rule for c in run.cases}
+                       | {f["rule"] for f in monitor})
             untouched = [rid for rid in outcomes if rid not in touched]
             for rid, outcome in outcomes.items():
                 if rid in untouched:
@@ -173,9 +183,18 @@ class TerminalReport:
                 self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
                                  f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
         self._failures(run)
+        for f in monitor:  # proved by the run's trace monitor, failed by no case
+            n = f["violations"]
+            self._print(Text.assemble((f"monitor: {f['rule']} {f['outcome']}", STYLES[f["outcome"]]),
+                                      f" ({n} violation{'s' if n != 1 else ''} in the run's traffic; "
+                                      f"first: {f['actual']})"), soft_wrap=True)
         counts = run.counts()
         parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
                  if counts[k] or k not in ("xfailed", "xpassed")]
+        if monitor:
+            failed = sum(f["outcome"] == "failed" for f in monitor)
+            parts.append(Text(f"{failed} failed, {len(monitor) - failed} warned by the monitor",
+                              style=STYLES["failed" if failed else "warned"]))
         line = Text(", ").join(parts)
         self._print(line, soft_wrap=True)
         if run.error is not None:

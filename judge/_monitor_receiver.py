@@ -107,6 +107,8 @@ class ReceiverRules:
                            f"ACK of seq {named} sent to ID {dst} ({ex.describe()})",
                            [ex.copies[-1], (i, t)])
                 return
+        if node is not None:  # an ACK naming nothing dst sent: a wrong payload, if a copy waits
+            self._stray_acks[(src, dst)] = (i, t, named)
 
     def _ack_of_what_is_not_acked(self, node: int, other: Any, named: int, i: int, t: int) -> None:
         if isinstance(other, _Exchange):
@@ -223,6 +225,12 @@ class ReceiverRules:
                            f"its messages from {', '.join(f'{h}:{p}' for h, p in sorted(acked_from))} "
                            "are ACKed", ex.copies[:MAX_ACK_COPIES])
                 return
+            stray = self._stray_acks.get((node.id, ex.src))
+            if stray is not None and stray[1] >= ex.first[1]:  # ACKs came, naming another seq
+                self._emit("MCP-ACK-2", node.id, now, f"the ACK names the message's seq {ex.seq} (D-2)",
+                           f"{len(ex.copies)} copies of {ex.describe()} answered by ACKs naming "
+                           f"another seq (the last: {stray[2]})", [ex.copies[0], (stray[0], stray[1])])
+                return
             rule = "MCP-FLOW-2" if node.id == MANAGER and ex.action == MR else "MCP-ACK-1"
             self._emit(rule, node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
                        f"no ACK of {len(ex.copies)} copies", ex.copies[:MAX_ACK_COPIES])
@@ -230,6 +238,13 @@ class ReceiverRules:
         if any(a[1] >= copy[1] for a in ex.acks):
             return
         ex.flags |= F_ACK1
+        stray = self._stray_acks.get((node.id, ex.src))
+        if stray is not None and stray[1] >= copy[1]:  # an ACK came, naming another seq
+            self._emit("MCP-ACK-2", node.id, now,
+                       f"the ACK of every copy names the copy's seq {ex.seq} (D-2)",
+                       f"the copy of {ex.describe()} was answered by an ACK naming {stray[2]}",
+                       [copy, (stray[0], stray[1])])
+            return
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
 

@@ -199,10 +199,15 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
             f'MCP spec {_e(doc.get("spec", {}).get("version"))} · {s.get("duration_s", 0):.1f} s</p>']
     if doc.get("error"):
         body.append(f'<p class="banner bad">Error: {_e(doc["error"])}</p>')
-    bad = s.get("failed", 0) + s.get("error", 0)
-    body.append(f'<p class="banner {"bad" if bad else "warn" if s.get("warned") else "good"} summary">'
+    by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor"]
+    mon_failed = sum(f.get("outcome") == "failed" for f in by_monitor)
+    bad = s.get("failed", 0) + s.get("error", 0) + mon_failed
+    body.append(f'<p class="banner {"bad" if bad else "warn" if s.get("warned") or by_monitor else "good"} summary">'
                 + "".join(f'<span class="{k}"><b>{_e(s.get(k, 0))}</b> {k}</span>'
-                          for k in ("passed", "failed", "warned", "skipped", "info", "error")) + "</p>")
+                          for k in ("passed", "failed", "warned", "skipped", "info", "error"))
+                + (f'<span class="failed"><b>{mon_failed}</b> failed by the monitor</span>'
+                   f'<span class="warned"><b>{len(by_monitor) - mon_failed}</b> warned by the monitor</span>'
+                   if by_monitor else "") + "</p>")
     cases = [c for c in doc.get("cases", []) if c.get("outcome") in ("failed", "warned", "error")]
     body.append(f"<h2>Failed, warned and errored cases ({len(cases)})</h2>")
     if not cases:

@@ -43,6 +43,7 @@ MUTANTS = [
     ("mission-ready-wrong-src", "MCP-HDR-4"),
     ("send-wp-list", "MCP-HDR-5"),
     ("ack-first-copy-only", "MCP-ACK-1"),
+    ("ack-copies-wrong-seq", "MCP-ACK-2"),
     ("ack-little-endian", "MCP-ACK-2"),
     ("ack-own-seq", "MCP-ACK-2"),
     ("ack-previous-seq", "MCP-ACK-2"),

@@ -5,6 +5,8 @@ follows the schema. The slow tests run ``mcp-conform`` end to end.
 
 from __future__ import annotations
 
+import pytest
+
 from conformance.report import RunRecord, build_json, merge_json, validate_json
 from judge.run_monitor import RunMonitor
 from spec.codec import BROADCAST_ID, PREAMBLE, Action, Message, build_datagram, encode
@@ -57,3 +59,27 @@ def test_the_report_carries_the_monitor_section_and_it_validates():
     assert merged["monitor"]["datagrams"] == 2 * doc["monitor"]["datagrams"]
     run.monitor = None
     assert "monitor" not in build_json(run)
+
+
+@pytest.mark.slow
+def test_a_violation_the_monitor_proves_counts_once_under_its_rule(tmp_path):
+    """Issue 18 items 1-2: a node that ACKs every retransmitted copy with a wrong number
+    passes every case, yet the run's monitor proves MCP-ACK-2 (not "no ACK", MCP-ACK-1: an
+    ACK came). The violation counts: exit 1, a failures entry of source monitor, the rule
+    failed in the rule table, a JUnit failure, a terminal line — once, under its rule."""
+    import xml.etree.ElementTree as ET
+
+    from tests.conformance.runner_helpers import FAST, run_conform, sample_node_command
+
+    junit = tmp_path / "junit.xml"
+    res = run_conform("--spawn", sample_node_command("--fault", "ack-copies-wrong-seq"), "--mavlink",
+                      *FAST, "--junit", str(junit))
+    mon = res.report["monitor"]
+    assert {v["rule"] for v in mon["violations"]} == {"MCP-ACK-2"}, mon["violations"]
+    assert res.rc == 1, res.explain()
+    entries = [f for f in res.report["failures"] if f.get("source") == "monitor"]
+    assert [(f["rule"], f["outcome"]) for f in entries] == [("MCP-ACK-2", "failed")]
+    assert res.report["rules"]["MCP-ACK-2"] == "failed" and res.report["rules"]["MCP-ACK-1"] != "failed"
+    assert "monitor: MCP-ACK-2 failed" in res.output
+    cases = {tc.get("name"): tc for tc in ET.parse(junit).getroot().iter("testcase")}
+    assert cases["monitor/MCP-ACK-2"].find("failure") is not None

@@ -50,7 +50,7 @@ def test_serves_until_interrupted() -> None:
         conn.close()
         time.sleep(0.5)
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=5)
+        out, _ = proc.communicate(timeout=30)  # a bound on a loaded machine, not a timing
         assert proc.returncode == 0
         assert "connect" in out and "command" in out
     finally:

@@ -67,6 +67,7 @@ FAULTS: dict[str, tuple[str, str]] = {
     "ack-previous-seq": ("MCP-ACK-2", "ACK payload is the seq of the message it ACKed before (0 at first)"),
     "ack-zero": ("MCP-ACK-2", "ACK payload is always 00 00"),
     "ack-first-copy-only": ("MCP-ACK-1", "a duplicate copy is neither delivered nor ACKed"),
+    "ack-copies-wrong-seq": ("MCP-ACK-2", "a retransmitted copy is ACKed with the seq plus 1 (the first copy right)"),
     "slow-ack": ("MCP-ACK-7", "every ACK leaves 300 ms late (receiving is not blocked)"),
     "seq-no-wrap": ("MCP-SEQ-3", "a seq <= the last delivered from that src (plain integers) is a duplicate"),
     "rtx-new-seq": ("MCP-SEQ-2", "each retransmission takes a new seq (an ACK of any of them stops it)"),
@@ -346,10 +347,12 @@ class Node:
         except OSError as exc:
             log(f"send to {addr} failed: {exc}")
 
-    def send_ack(self, dst: int, acked_seq: int, addr: Any) -> None:
+    def send_ack(self, dst: int, acked_seq: int, addr: Any, copy: bool = False) -> None:
         seq = self.next_seq()  # ACKs take a number too (D-5)
         named = acked_seq
-        if "ack-own-seq" in self.faults:
+        if copy and "ack-copies-wrong-seq" in self.faults:
+            named = (acked_seq + 1) & 0xFFFF
+        elif "ack-own-seq" in self.faults:
             named = seq
         elif "ack-previous-seq" in self.faults:
             named, self.previous_acked = self.previous_acked, acked_seq
@@ -498,7 +501,7 @@ class Node:
         if dup and "ack-first-copy-only" in self.faults:
             log(f"duplicate {msg.action.name} seq {msg.seq} from {msg.src}: not ACKed (fault ack-first-copy-only)")
             return
-        self.send_ack(msg.src, msg.seq, addr)
+        self.send_ack(msg.src, msg.seq, addr, copy=dup)
         if dup:
             log(f"duplicate {msg.action.name} seq {msg.seq} from {msg.src}: not delivered")
             return
