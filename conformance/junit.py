@@ -73,7 +73,9 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
     if family not in JUNIT_FAMILIES:
         raise ValueError(f"unknown JUnit family {family!r}")
     counts = run.counts()
-    monitor = monitor_failures(run)  # rules the run's monitor proved violated, no case failed
+    # rules the run's monitor proved violated and no case failed (its consequences of a case's
+    # root failure stay in the JSON and the terminal: the run fails already)
+    monitor = [f for f in monitor_failures(run) if not f["consequence_of"]]
     counted = [f for f in monitor if f["outcome"] == "failed" or run.strict]
     failures = counts["failed"] + (counts["xpassed"] if run.strict else 0) + len(counted)
     errors = counts["error"] + (1 if run.error is not None else 0)

@@ -164,7 +164,7 @@ class RunRecord:
         if self.error is not None:
             return 2
         counts = self.counts()
-        monitor = monitor_failures(self)
+        monitor = [f for f in monitor_failures(self) if not f["consequence_of"]]
         return 1 if (counts["failed"] or counts["error"] or (self.strict and counts["xpassed"])
                      or any(f["outcome"] == "failed" for f in monitor)
                      or (self.strict and any(f["outcome"] == "warned" for f in monitor))) else 0
@@ -176,6 +176,11 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
     with the count and the first violation; outcome failed for a MUST, warned for a SHOULD."""
     mon = run.monitor or {}
     by_case = {c.failed_rule for c in run.cases if c.outcome in ("failed", "warned", "xfailed")}
+    # one fault, one root: what the monitor proves after a case failed or warned (a node that
+    # broke one rule may fail the next ones because of it) is listed as that case's
+    # consequence, not as a rule failed of its own; what it proves before any is a root
+    failing = [(c.start_ns, c.failed_rule) for c in run.cases
+               if c.outcome in ("failed", "warned") and c.failed_rule and c.start_ns is not None]
     seen: dict[str, dict[str, Any]] = {}
     for v in mon.get("violations", []):
         rule = v.get("rule")
@@ -186,8 +191,10 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
             continue
         entry = seen.get(rule)
         if entry is None:
+            t = v.get("t_ns")
+            roots = sorted({r for start, r in failing if t is None or start <= t})
             seen[rule] = {"case": "monitor", "rule": rule, "outcome": "failed" if level == "MUST" else "warned",
-                          "consequence_of": [], "source": "monitor", "violations": 1,
+                          "consequence_of": roots, "source": "monitor", "violations": 1,
                           "actual": f"node {v.get('node')}: {v.get('actual')}"}
         else:
             entry["violations"] += 1
@@ -227,7 +234,8 @@ def rule_outcomes(cases: list[CaseRecord], role: str,
             for r in c.rules:
                 contribute(r, "skipped")
     for f in monitor or ():
-        contribute(f["rule"], f["outcome"])
+        if not f.get("consequence_of"):  # a consequence is its root's, not a rule failed anew
+            contribute(f["rule"], f["outcome"])
     return result
 
 
@@ -332,7 +340,7 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
     merged = run_from_json(out)  # the monitor's entries over the merged cases, as one run's
     out["failures"] += monitor_failures(merged)
     for f in monitor_failures(merged):
-        if RULE_RANK[f["outcome"]] > RULE_RANK[rules.get(f["rule"], "skipped")]:
+        if not f["consequence_of"] and RULE_RANK[f["outcome"]] > RULE_RANK[rules.get(f["rule"], "skipped")]:
             rules[f["rule"]] = f["outcome"]
     return out
 

@@ -185,15 +185,17 @@ class TerminalReport:
         self._failures(run)
         for f in monitor:  # proved by the run's trace monitor, failed by no case
             n = f["violations"]
+            root = f" — consequence of {', '.join(f['consequence_of'])} (failed)" if f["consequence_of"] else ""
             self._print(Text.assemble((f"monitor: {f['rule']} {f['outcome']}", STYLES[f["outcome"]]),
                                       f" ({n} violation{'s' if n != 1 else ''} in the run's traffic; "
-                                      f"first: {f['actual']})"), soft_wrap=True)
+                                      f"first: {f['actual']}){root}"), soft_wrap=True)
         counts = run.counts()
         parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
                  if counts[k] or k not in ("xfailed", "xpassed")]
-        if monitor:
-            failed = sum(f["outcome"] == "failed" for f in monitor)
-            parts.append(Text(f"{failed} failed, {len(monitor) - failed} warned by the monitor",
+        own = [f for f in monitor if not f["consequence_of"]]
+        if own:
+            failed = sum(f["outcome"] == "failed" for f in own)
+            parts.append(Text(f"{failed} failed, {len(own) - failed} warned by the monitor",
                               style=STYLES["failed" if failed else "warned"]))
         line = Text(", ").join(parts)
         self._print(line, soft_wrap=True)

@@ -199,7 +199,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
             f'MCP spec {_e(doc.get("spec", {}).get("version"))} · {s.get("duration_s", 0):.1f} s</p>']
     if doc.get("error"):
         body.append(f'<p class="banner bad">Error: {_e(doc["error"])}</p>')
-    by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor"]
+    by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor" and not f.get("consequence_of")]
     mon_failed = sum(f.get("outcome") == "failed" for f in by_monitor)
     bad = s.get("failed", 0) + s.get("error", 0) + mon_failed
     body.append(f'<p class="banner {"bad" if bad else "warn" if s.get("warned") or by_monitor else "good"} summary">'

@@ -174,7 +174,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
     stop: list[int] = []  # a flag the handler appends to: a signal handler takes no lock
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
+        # SIGINT too, explicitly: a process started in the background by a non-interactive
+        # shell inherits SIGINT ignored, and Ctrl-C must still stop it
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda signum, _frame: stop.append(signum))
     try:
         while not stop:
             time.sleep(0.1)
