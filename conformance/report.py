@@ -242,6 +242,7 @@ def rule_outcomes(cases: list[CaseRecord], role: str,
 def build_json(run: RunRecord) -> dict[str, Any]:
     """The report document (see DESIGN.md and report.schema.json)."""
     counts = run.counts()
+    monitor = monitor_failures(run)
     doc = {
         "schema_version": SCHEMA_VERSION,
         "tool": {"name": TOOL_NAME, "version": tool_version()},
@@ -252,8 +253,8 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "seed": run.seed,
         "error": run.error,
         "cases": [c.to_json() for c in run.cases],
-        "failures": failures_json([c.to_json() for c in run.cases]) + monitor_failures(run),
-        "rules": rule_outcomes(run.cases, run.role, monitor_failures(run)),
+        "failures": failures_json([c.to_json() for c in run.cases]) + monitor,
+        "rules": rule_outcomes(run.cases, run.role, monitor),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
         **({"monitor": run.monitor} if run.monitor is not None else {}),
     }
@@ -337,9 +338,9 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
     out.pop("monitor", None)
     if sections:
         out["monitor"] = merge_monitor(sections)
-    merged = run_from_json(out)  # the monitor's entries over the merged cases, as one run's
-    out["failures"] += monitor_failures(merged)
-    for f in monitor_failures(merged):
+    monitor = monitor_failures(run_from_json(out))  # over the merged cases, as one run's
+    out["failures"] += monitor
+    for f in monitor:
         if not f["consequence_of"] and RULE_RANK[f["outcome"]] > RULE_RANK[rules.get(f["rule"], "skipped")]:
             rules[f["rule"]] = f["outcome"]
     return out

@@ -107,13 +107,12 @@ def _check_reachable(db: str) -> None:
     """The example database answers before the campaign starts (both engines): a Redis
     server that answers PING within 2 s, or a directory we can write in."""
     if db.startswith("redis://"):
-        from urllib.parse import urlparse
-
         import redis
 
-        u = urlparse(db)
-        client = redis.Redis(host=u.hostname or "", port=u.port or 0, db=int((u.path or "/0").strip("/") or 0),
-                             socket_connect_timeout=2, socket_timeout=2)
+        from fuzz.engine_stateful import redis_address
+
+        host, port, number = redis_address(db)  # checked already (check_database)
+        client = redis.Redis(host=host, port=port, db=number, socket_connect_timeout=2, socket_timeout=2)
         try:
             client.ping()
         except redis.RedisError as exc:

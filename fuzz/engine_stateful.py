@@ -81,16 +81,22 @@ class FlawFound(AssertionError):
         self.scenario = scenario
 
 
+def redis_address(spec: str) -> tuple[str, int, int]:
+    """``redis://HOST:PORT/N`` -> (host, port, db); ValueError naming what is wrong."""
+    u = urlparse(spec)
+    if not u.hostname or not u.port:
+        raise ValueError(f"--db: {spec!r} is not redis://HOST:PORT/N")
+    try:
+        db = int((u.path or "/0").strip("/") or 0)
+    except ValueError:
+        raise ValueError(f"--db: {spec!r}: the database number is not an integer") from None
+    return u.hostname, u.port, db
+
+
 def check_database(spec: str) -> None:
     """ValueError naming what is wrong with ``--db``."""
     if spec.startswith("redis://"):
-        u = urlparse(spec)
-        if not u.hostname or not u.port:
-            raise ValueError(f"--db: {spec!r} is not redis://HOST:PORT/N")
-        try:
-            int((u.path or "/0").strip("/") or 0)
-        except ValueError:
-            raise ValueError(f"--db: {spec!r}: the database number is not an integer") from None
+        redis_address(spec)
         try:
             import redis  # noqa: F401
         except ImportError:
@@ -107,10 +113,8 @@ def open_database(spec: str | None) -> ExampleDatabase | None:
         from hypothesis.extra.redis import RedisExampleDatabase
         from redis import Redis
 
-        u = urlparse(spec)
-        db = int((u.path or "/0").strip("/") or 0)
-        return RedisExampleDatabase(Redis(host=u.hostname or "", port=u.port or 0, db=db),
-                                    key_prefix=b"mcp-fuzz:")
+        host, port, db = redis_address(spec)
+        return RedisExampleDatabase(Redis(host=host, port=port, db=db), key_prefix=b"mcp-fuzz:")
     return DirectoryBasedExampleDatabase(spec)
 
 

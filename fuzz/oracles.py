@@ -33,11 +33,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.driver import Datagram
+from harness.session_base import MIN_COPIES  # the original + MCP-RTX-1's retransmissions
 from spec import SPEC
 from spec.codec import HEADER_SIZE, Action, DecodeError, Message, decode
-
-#: the original and the retransmissions MCP-RTX-1 asks for while a message is unACKed
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
 
 __all__ = [
     "OVERSIZE",

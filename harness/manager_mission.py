@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.driver import Datagram, Exchange, Sent, TargetDriver, read_header
+from harness.session_base import WithheldCopies
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from spec.generators import malformed_corpus
@@ -67,21 +68,11 @@ class Input:
 
 
 @dataclass
-class Withheld:
-    """The first Start_Mission, its ACK withheld (RTX-1/2/3, SEQ-2, BLK-1/3)."""
+class Withheld(WithheldCopies):
+    """The first Start_Mission, its ACK withheld (RTX-1/2/3, SEQ-2, BLK-1/3); ``copies`` are
+    those to ``drone`` before the wrong ACKs."""
 
     drone: int | None = None
-    copies: list[Datagram] = field(default_factory=list)  # to that drone, before the wrong ACKs
-    wrong_acks: list[Sent] = field(default_factory=list)
-    copy_after_wrong_acks: Datagram | None = None
-    wrong_ack_wait: float = 0.0
-    right_ack: Sent | None = None
-    copies_after_right_ack: list[Datagram] = field(default_factory=list)
-    stop_watch: float = 0.0
-
-    def gaps(self) -> list[float]:
-        ts = [d.t for d in self.copies]
-        return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
 
 @dataclass

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
-from harness.driver import Datagram, Exchange, Sent, TargetDriver
+from harness.driver import Datagram, Exchange, TargetDriver
 from harness.errors import SetupError, SpawnFailure, TargetLost
 from harness.liveness import Liveness
 from harness.session_base import (  # noqa: F401  (re-exported: harness.session names them)
@@ -36,12 +36,13 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     MIN_COPIES,
     SessionBase,
     SpawnedNode,
+    WithheldCopies,
     _held,
     check_target,
     fill_placeholders,
     free_udp_port,
 )
-from judge.run_monitor import RunMonitor
+from judge.run_monitor import RunMonitor, link_events
 from spec import SPEC
 from spec.codec import Action
 
@@ -56,8 +57,9 @@ def embedded_command() -> str:
 
 
 @dataclass
-class Startup:
-    """What the startup phase observed (judged by the startup-phase cases)."""
+class Startup(WithheldCopies):
+    """What the startup phase observed (judged by the startup-phase cases): Mission_Ready's
+    copies while its ACK was withheld, and what came around them."""
 
     observed: bool = False  # False: no Mission_Ready was seen (attach mode, node already past it)
     reason: str = ""  # why it was not observed
@@ -65,18 +67,7 @@ class Startup:
     node_connected_to_vehicle: bool = False
     fix_given_at: float | None = None
     ready_before_fix: list[Datagram] = field(default_factory=list)
-    copies: list[Datagram] = field(default_factory=list)  # Mission_Ready copies, ACK withheld
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
-    wrong_acks: list[Sent] = field(default_factory=list)
-    copy_after_wrong_acks: Datagram | None = None
-    wrong_ack_wait: float = 0.0
-    right_ack: Sent | None = None
-    copies_after_right_ack: list[Datagram] = field(default_factory=list)
-    stop_watch: float = 0.0
-
-    def gaps(self) -> list[float]:
-        ts = [d.t for d in self.copies]
-        return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
 
 class Session(SessionBase):
@@ -189,13 +180,9 @@ class Session(SessionBase):
         if self.monitor is not None:
             self.monitor.vehicle_event(t_ns, event)
         if self.recorder is not None:
-            from judge.monitor import events_from_vehicle
-
-            for ev in events_from_vehicle(event):
-                if ev.kind in ("link", "fix", "fix_lost"):
-                    with contextlib.suppress(Exception):
-                        self.recorder.vehicle_event(ev.kind, t_ns, drone=self.target_id,
-                                                    detail=ev.detail)
+            for ev in link_events(event):
+                with contextlib.suppress(Exception):
+                    self.recorder.vehicle_event(ev.kind, t_ns, drone=self.target_id, detail=ev.detail)
 
     def _placeholders(self) -> dict[str, str]:
         return self._address_placeholders(self.target_id if self.target_id is not None else 1,

@@ -11,10 +11,11 @@ import contextlib
 import shlex
 import socket
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
-from harness.driver import TargetDriver
+from harness.driver import Datagram, Sent, TargetDriver
 from harness.errors import SetupError, SpawnFailure
 from harness.interrupts import INTERRUPTS
 from harness.liveness import describe_exit
@@ -135,6 +136,25 @@ class SpawnedNode:
 
     def close(self) -> None:
         self.stop()
+
+
+@dataclass
+class WithheldCopies:
+    """A message's ACK withheld: its copies, then ACKs naming another seq or from another
+    source (MCP-RTX-2), then the right ACK — what either role's startup observes of the node's
+    first unicast (MCP-RTX-1/2/3, MCP-SEQ-2)."""
+
+    copies: list[Datagram] = field(default_factory=list)  # ACK withheld
+    wrong_acks: list[Sent] = field(default_factory=list)
+    copy_after_wrong_acks: Datagram | None = None
+    wrong_ack_wait: float = 0.0
+    right_ack: Sent | None = None
+    copies_after_right_ack: list[Datagram] = field(default_factory=list)
+    stop_watch: float = 0.0
+
+    def gaps(self) -> list[float]:
+        ts = [d.t for d in self.copies]
+        return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
 
 class SessionBase:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from judge.run_monitor import from_node
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
 from traceio.reader import (
@@ -292,7 +293,7 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 found = []
             elif harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, tester)
-            elif harness and node_addr is not None and _same_peer(rec.src_addr, node_addr):
+            elif harness and from_node(rec.src_addr, node_addr):
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, drone)  # the node's own
             else:
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
@@ -389,14 +390,6 @@ def _recorded_node(rec: Metadata) -> tuple[int | None, Any]:
     except ValueError:
         return None, None
     return (node, address) if 0 <= node <= 0xFFFF and host else (None, None)
-
-
-def _same_peer(addr: Any, node: Any) -> bool:
-    """``addr`` is the node's address (as the live run's monitor decides: same port, and the
-    same host or any loopback host when the node listens on every address)."""
-    if addr is None or node is None:
-        return False
-    return addr[1] == node[1] and (addr[0] == node[0] or str(addr[0]).startswith("127."))
 
 
 def _nodes(mon: Any) -> list[Any]:

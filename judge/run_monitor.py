@@ -28,7 +28,27 @@ from judge.monitor import (
     events_from_vehicle,
 )
 
-__all__ = ["REORDER_NS", "RunMonitor", "violation_json"]
+__all__ = ["LINK_KINDS", "REORDER_NS", "RunMonitor", "from_node", "link_events", "violation_json"]
+
+#: The vehicle's events the run's monitor judges by (the link, the fix coming and going); the
+#: frames on the link come through ``events_from_mavlink``. The capture records the same ones.
+LINK_KINDS = ("link", "fix", "fix_lost")
+
+
+def link_events(event: Any) -> list[Any]:
+    """The monitor's events (``LINK_KINDS``) for one ``vehicle.records.Event``."""
+    return [e for e in events_from_vehicle(event) if e.kind in LINK_KINDS]
+
+
+def from_node(addr: Any, node_addr: Any) -> bool:
+    """Whether a datagram from ``addr`` is the node's own: from the node's port, and its host
+    or any loopback host (a node listening on every address answers from 127.x)."""
+    if addr is None or node_addr is None:
+        return False
+    host, port = node_addr
+    if addr[1] != port:
+        return False
+    return host in ("", "0.0.0.0", addr[0]) or str(addr[0]).startswith("127.")
 
 #: How long a datagram or event is held so that everything is fed in time order.
 REORDER_NS = 100_000_000
@@ -91,12 +111,9 @@ class RunMonitor:
     def _origin(self, addr: Any) -> int | None:
         """The node's own datagrams are the ones from its address (any local host when it
         listens on all addresses)."""
-        if self.node_id is None or self.node_addr is None or addr is None:
+        if self.node_id is None:
             return None
-        host, port = self.node_addr
-        if addr[1] != port:
-            return None
-        return self.node_id if host in ("", "0.0.0.0", addr[0]) or addr[0].startswith("127.") else None
+        return self.node_id if from_node(addr, self.node_addr) else None
 
     def vehicle_frame(self, t_ns: int, direction: str, raw: bytes) -> None:
         """A frame the node wrote to its autopilot ("rx"); the autopilot's own ("tx") are
@@ -108,7 +125,7 @@ class RunMonitor:
         """One ``vehicle.records.Event`` of the simulated vehicle: the link connecting and
         the GPS fix coming and going (recorded before the telemetry that shows it is sent,
         so no Mission_Ready that answers it can come first)."""
-        self._vehicle(t_ns, [e for e in events_from_vehicle(event) if e.kind in ("link", "fix", "fix_lost")])
+        self._vehicle(t_ns, link_events(event))
 
     def _vehicle(self, t_ns: int, events: list[Any]) -> None:
         if events and self.node_id is not None:

@@ -25,6 +25,7 @@ __all__ = [
     "HEADER",
     "HEADER_SIZE",
     "ITEM",
+    "COUNT_SIZE",
     "ITEM_SIZE",
     "LocalProtocolError",
     "MANAGER_ID",
@@ -140,6 +141,9 @@ class LocalProtocolError(ValueError):
 
 # ---------------------------------------------------------------- payload codecs by kind
 _U16 = struct.Struct("!H")
+#: WP_List / Obstacles_List: the count before the items, as the spec lays it out (D-2)
+_COUNT = struct.Struct(SPEC.payloads["item_list"]["count_struct"])
+COUNT_SIZE: int = _COUNT.size
 _ACTIONS: tuple[Action, ...] = tuple(sorted((a for a in Action if SPEC.actions[a].on_wire), key=int))
 _make_item = MissionItem._make
 _iter_items = ITEM.iter_unpack
@@ -168,13 +172,13 @@ def _dec_seq(data: bytes, n: int, src: int) -> int:
 
 
 def _dec_items(data: bytes, n: int, src: int) -> tuple[Any, ...]:
-    if n < HEADER_SIZE + 2:
-        raise DecodeError("MCP-ROB-4", f"list payload of {n - HEADER_SIZE} bytes has no 2-byte count")
-    (count,) = _U16.unpack_from(data, HEADER_SIZE)
-    want = HEADER_SIZE + 2 + ITEM_SIZE * count
+    if n < HEADER_SIZE + COUNT_SIZE:
+        raise DecodeError("MCP-ROB-4", f"list payload of {n - HEADER_SIZE} bytes has no {COUNT_SIZE}-byte count")
+    (count,) = _COUNT.unpack_from(data, HEADER_SIZE)
+    want = HEADER_SIZE + COUNT_SIZE + ITEM_SIZE * count
     if n != want:
         raise DecodeError("MCP-ROB-4", f"count {count} needs {want} bytes, datagram has {n}")
-    return tuple(map(_make_item, _iter_items(memoryview(data)[HEADER_SIZE + 2:])))
+    return tuple(map(_make_item, _iter_items(memoryview(data)[HEADER_SIZE + COUNT_SIZE:])))
 
 
 def _dec_item(data: bytes, n: int, src: int) -> Any:
@@ -219,7 +223,7 @@ def _enc_items(payload: Any) -> bytes:
     items = tuple(payload)
     if len(items) > 0xFFFF:
         raise LocalProtocolError(f"{len(items)} items do not fit a u16 count")
-    return _U16.pack(len(items)) + b"".join(map(_pack_item, items))
+    return _COUNT.pack(len(items)) + b"".join(map(_pack_item, items))
 
 
 def _enc_item(payload: Any) -> bytes:

@@ -26,7 +26,7 @@ from pymavlink import mavwp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from spec import SPEC
-from spec.codec import HEADER_SIZE, ITEM_SIZE, MAX_DATAGRAM, MissionItem
+from spec.codec import COUNT_SIZE, HEADER_SIZE, ITEM, ITEM_SIZE, MAX_DATAGRAM, MissionItem
 
 __all__ = [
     "MAX_FILE_BYTES",
@@ -52,12 +52,14 @@ _FIELDS: tuple[str, ...] = tuple(MissionItem._fields)
 # "Extracting WayPoint list"; X is the latitude, E-2). Integer columns and their limits.
 _LINE_FIELDS = 12
 #: The most items one WP_List or Obstacles_List datagram carries: the largest datagram less
-#: the header and the 2-byte count, in items (MCP-PAY-4's layout): 1,769.
-MAX_LIST_ITEMS: int = (MAX_DATAGRAM - HEADER_SIZE - 2) // ITEM_SIZE
+#: the header and the count, in items (MCP-PAY-4's layout): 1,769.
+MAX_LIST_ITEMS: int = (MAX_DATAGRAM - HEADER_SIZE - COUNT_SIZE) // ITEM_SIZE
 #: The largest waypoint file read: room for that many lines of 12 generous columns. A longer
 #: file (or /dev/zero) is refused before it is read, not read whole.
 MAX_FILE_BYTES: int = 256 * (MAX_LIST_ITEMS + 16)
-_FLOAT32 = struct.Struct("<f")  # the wire's float (MCP-PAY-4): what does not fit, no node can get
+#: the item's first field, a float as the wire carries it (MCP-PAY-4): what does not fit, no
+#: node can get
+_FLOAT32 = struct.Struct(ITEM.format[:2])
 _INT_COLUMNS = {0: ("index", 0xFFFF), 1: ("current", 0xFF), 2: ("frame", 0xFF),
                 3: ("command", 0xFFFF), 11: ("autocontinue", 0xFF)}
 

@@ -4,6 +4,7 @@ kernel's drop count read from their own words) and free ports."""
 
 from __future__ import annotations
 
+import contextlib
 import re
 import signal
 import socket
@@ -27,7 +28,7 @@ def wait_for_port(port: int, host: str = "127.0.0.1", timeout: float = 10.0) -> 
     """Whether a TCP listener answers on ``port`` within ``timeout`` s (polled, bounded)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        with socket.socket() as s, __import__("contextlib").suppress(OSError):
+        with socket.socket() as s, contextlib.suppress(OSError):
             s.settimeout(0.2)
             s.connect((host, port))
             return True

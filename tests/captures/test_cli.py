@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -70,7 +71,7 @@ def test_bad_option_values_exit_2(tmp_path, capsys, option, value, words):
     assert words in err and err.count("\n") == 1
 
 
-GOLDEN = __import__("pathlib").Path(__file__).resolve().parents[2] / "captures" / "golden"
+GOLDEN = Path(__file__).resolve().parents[2] / "captures" / "golden"
 
 
 @pytest.mark.parametrize(("argv", "code"), [

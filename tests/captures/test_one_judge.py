@@ -13,6 +13,7 @@ from tests.conformance.runner_helpers import (
     FAST,
     run_conform,
     sample_manager_command,
+    verdict_differences,
 )
 
 pytestmark = pytest.mark.slow
@@ -29,14 +30,6 @@ NODES = [
 LOSSY = {"manager-reference", "manager-ack-ack", "manager-after-end"}
 
 
-def _differences(live: dict[str, dict[str, str]], offline: dict[int, dict[str, str]]) -> list[tuple]:
-    off = {str(k): v for k, v in offline.items()}
-    return [(n, r, live.get(n, {}).get(r), off.get(n, {}).get(r))
-            for n in sorted(set(live) | set(off))
-            for r in sorted(set(live.get(n, {})) | set(off.get(n, {})))
-            if live.get(n, {}).get(r) != off.get(n, {}).get(r)]
-
-
 @pytest.mark.parametrize(("label", "args"), NODES, ids=[n for n, _ in NODES])
 def test_check_of_the_runs_capture_gives_the_live_verdicts(tmp_path, label, args):
     cap = tmp_path / "run.mcap"
@@ -45,7 +38,7 @@ def test_check_of_the_runs_capture_gives_the_live_verdicts(tmp_path, label, args
     assert live, res.explain()
     for complete in (False,) if label in LOSSY else (False, True):
         j = judge(cap, Params(complete=complete))
-        assert _differences(live, j.verdicts) == [], (complete, res.explain())
+        assert verdict_differences(live, j.verdicts) == [], (complete, res.explain())
         live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])
         assert sorted((v.rule, v.node) for v in j.violations) == live_violations
     if label == "reference":  # the reference node: a clean monitor section, most rules judged

@@ -80,3 +80,13 @@ def sample_manager_command(*extra: str, rto: float = 0.2, retries: int = 12,
              "--waypoints", "{waypoints}", "--obstacles", "{obstacles}", "--bind", "{target_host}:{target_port}",
              "--send-to", send_to, "--rto", str(rto), "--retries", str(retries), *extra]
     return " ".join(shlex.quote(w) if "{" not in w else w for w in words)
+
+
+def verdict_differences(live: dict[str, dict[str, str]], offline: dict[Any, dict[str, str]]) -> list[tuple]:
+    """(node, rule, live verdict, offline verdict) wherever a run's monitor section and a
+    judgement of its capture (judge.judging) disagree."""
+    off = {str(k): v for k, v in offline.items()}
+    return [(n, r, live.get(n, {}).get(r), off.get(n, {}).get(r))
+            for n in sorted(set(live) | set(off))
+            for r in sorted(set(live.get(n, {})) | set(off.get(n, {})))
+            if live.get(n, {}).get(r) != off.get(n, {}).get(r)]

@@ -22,7 +22,7 @@ import pytest
 
 from spec import SPEC
 
-from .runner_helpers import FAST, run_conform, sample_node_command
+from .runner_helpers import FAST, run_conform, sample_node_command, verdict_differences
 
 pytestmark = pytest.mark.slow
 
@@ -111,11 +111,7 @@ def same_verdicts_offline(res, capture) -> None:
     live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])
     for complete in (False, True):
         j = judge(capture, Params(complete=complete))
-        offline = {str(k): v for k, v in j.verdicts.items()}
-        diff = [(n, r, live.get(n, {}).get(r), offline.get(n, {}).get(r))
-                for n in sorted(set(live) | set(offline))
-                for r in sorted(set(live.get(n, {})) | set(offline.get(n, {})))
-                if live.get(n, {}).get(r) != offline.get(n, {}).get(r)]
+        diff = verdict_differences(live, j.verdicts)
         assert diff == [], (complete, diff, res.explain())
         assert sorted((v.rule, v.node) for v in j.violations) == live_violations, complete
 

@@ -1,0 +1,29 @@
+"""`.ci/run` runs exactly the README's test command (so CI proves the quick start works on
+a fresh machine), the import contracts, the slow tests and the main job."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _readme_test_command() -> str:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"## Quick start\n.*?```sh\n(.*?)```", text, flags=re.S)
+    assert block is not None, "README has no quick-start sh block"
+    lines = [ln.split("#")[0].strip() for ln in block.group(1).splitlines() if ln.strip()]
+    assert len(lines) == 2, lines  # exactly two commands: the main job, the tests
+    return lines[1]
+
+
+def test_ci_runs_the_readme_test_command_verbatim_then_the_slow_tests_and_the_main_job() -> None:
+    steps = [ln.split("#")[0].strip() for ln in (ROOT / ".ci" / "run").read_text().splitlines()
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    cmd = _readme_test_command()
+    assert cmd in steps, (cmd, steps)
+    after = steps[steps.index(cmd) + 1:]
+    assert "lint-imports" in after
+    assert any(s.startswith("python -m pytest") and "-m slow" in s for s in after), after
+    assert any(s.startswith("mcp-conform") for s in after), after
