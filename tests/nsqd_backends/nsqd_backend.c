@@ -1,0 +1,623 @@
+/*
+ * nsqd_backend.c - a backend (the drone's side) of the Nsqd drone protocol over TCP.
+ *
+ * Written for mcp-conform's tests: correct by default, with exactly one deliberate fault
+ * planted at run time by `--fault NAME` (`--list-faults` prints the names; the rule each one
+ * breaks is in build.py's FAULTS).  Every fault is marked "FAULT name" in the code below.
+ *
+ * Wire format: big-endian; a frame is int32 L (counting its own 4 bytes, the id byte and the
+ * body, 5 <= L <= 8192), a message id byte, then the body.  Field types: bool (1 byte),
+ * int32, "float" (the value truncated to an integer, sent as uint32), string (int16 length n,
+ * then n bytes).  The backend serves one client at a time, sends UPDATE every
+ * --update-period seconds while one is connected, and answers a frame it cannot use with an
+ * ERROR frame naming it.  A framing error (bad L) closes the connection.
+ *
+ * Usage: nsqd_backend [--host H] [--port P] [--update-period S] [--fault NAME]
+ * Build: see build.py (gcc -std=c99 ... -fsanitize=address,undefined).
+ */
+#include <ctype.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <netdb.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/types.h>
+#include <time.h>
+#include <unistd.h>
+
+#define MAX_FRAME 8192          /* largest valid L */
+#define IN_CAP (2 * MAX_FRAME)  /* holds any partial frame plus one more read */
+#define OUT_CAP 65536           /* queued frames for a client that reads slowly */
+
+/* ---- faults ----------------------------------------------------------------------------- */
+
+enum fault {
+    F_NONE, F_LEN_EXCLUDES_SELF, F_NO_REASSEMBLY, F_FIRST_FRAME_PER_READ, F_NO_CLOSE_BAD_LEN,
+    F_SMALL_FRAME_LIMIT, F_UPDATE_STOPS, F_STATE_LITTLE_ENDIAN, F_WRONG_STOP_TEST_STATE,
+    F_UNKNOWN_ID_NO_SKIP, F_UNKNOWN_ID_HOVERS, F_CRASH_NEGATIVE_STRING, F_CRASH_BAD_NUMBER,
+    F_GPX_STACK_OVERFLOW, F_FD_LEAK, F_SECOND_CLIENT_KICKS_FIRST, F_STALE_PARTIAL_FRAME,
+    F_NO_ERROR_ON_UNKNOWN_ID, F_COUNT
+};
+
+static const char *const FAULT_NAMES[F_COUNT] = {
+    "none", "length-excludes-self", "no-reassembly", "first-frame-per-read",
+    "no-close-on-bad-length", "small-frame-limit", "update-stops", "update-state-little-endian",
+    "wrong-stop-test-state", "unknown-id-no-skip", "unknown-id-hovers",
+    "crash-on-negative-string", "crash-on-bad-number", "gpx-stack-overflow", "fd-leak",
+    "second-client-kicks-first", "stale-partial-frame", "no-error-on-unknown-id",
+};
+
+static enum fault fault = F_NONE;
+#define FAULT(f) (fault == (f))
+
+/* ---- messages and states -------------------------------------------------------------- */
+
+enum { MSG_ERROR = 0, MSG_UPDATE = 1, MSG_STOP_TEST = 8, MSG_LAST = 14 };
+
+enum state {
+    GROUNDED = 0, ARMED = 1, HOVER = 2, INITIALISE_ENROUTE = 3, ENROUTE = 4, ENROUTE_TURN = 5,
+    ENROUTE_STOPPED = 6, PUBLISH_ANGLE = 7, START_TEST = 8, RUNNING_TEST = 9, STOP_TEST = 10,
+    START_HOVER_TEST = 11, HOVER_LOGGING = 12, STOP_HOVER_LOGGING = 13, CAPTURE_IMAGES = 14,
+    KEEP = -1 /* the message leaves the state as it is */
+};
+
+/*
+ * Body layouts, one character per field, in order:
+ *   b bool (1 byte)   f "float" (4 bytes)   i int32   p int32 flag within 0..2
+ *   s string          n string holding a finite decimal number   g string holding a GPX document
+ */
+struct layout {
+    const char *name;
+    const char *fields;
+    int next_state;
+};
+
+static const struct layout LAYOUTS[MSG_LAST + 1] = {
+    {"ERROR", "s", KEEP},
+    {"UPDATE", "fffffffi", KEEP},
+    {"SET_AUTH", "", KEEP},
+    {"ARM", "b", KEEP},
+    {"TAKEOFF", "", HOVER},
+    {"LAND", "", GROUNDED},
+    {"SET_PID", "nnnp", KEEP},
+    {"SET_RPYTFF", "nnnnis", START_TEST},
+    {"STOP_TEST", "", STOP_TEST},
+    {"SET_HOVERHEIGHT", "fs", START_HOVER_TEST},
+    {"STOP_HOVER_TEST", "", STOP_HOVER_LOGGING},
+    {"FOLLOW_LINE", "", KEEP},
+    {"UPLOAD_FLIGHTPATH", "g", INITIALISE_ENROUTE},
+    {"CAPTURE_IMAGES", "", CAPTURE_IMAGES},
+    {"STOP_CAPTURE_IMAGES", "", HOVER},
+};
+
+/* ---- process-wide state ---------------------------------------------------------------- */
+
+static int state = GROUNDED;        /* the flight state; kept across connections */
+static double update_period = 0.4;
+
+static int cfd = -1;                /* the connected client, or -1 */
+static uint8_t *in_buf;             /* received bytes not yet consumed (heap: IN_CAP) */
+static size_t in_len;
+static uint8_t out_buf[OUT_CAP];    /* frames not yet sent */
+static size_t out_len;
+static double accepted_at, next_update;
+
+static int sig_pipe[2] = {-1, -1};  /* SIGTERM/SIGINT wake poll() through this pipe */
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static int32_t get_i32(const uint8_t *p)
+{
+    return (int32_t)(((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | p[3]);
+}
+
+static int16_t get_i16(const uint8_t *p)
+{
+    return (int16_t)(uint16_t)((p[0] << 8) | p[1]);
+}
+
+static void put_u32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)(v >> 24);
+    p[1] = (uint8_t)(v >> 16);
+    p[2] = (uint8_t)(v >> 8);
+    p[3] = (uint8_t)v;
+}
+
+/* ---- sending ---------------------------------------------------------------------------- */
+
+/* Queue one frame; a client that does not read loses whole frames, never part of one. */
+static void queue_frame(uint8_t id, const uint8_t *body, size_t len)
+{
+    if (out_len + 5 + len > OUT_CAP)
+        return;
+    /* FAULT length-excludes-self: L leaves out the 4 bytes of the length itself */
+    uint32_t L = (uint32_t)(FAULT(F_LEN_EXCLUDES_SELF) ? 1 + len : 5 + len);
+    put_u32(out_buf + out_len, L);
+    out_buf[out_len + 4] = id;
+    memcpy(out_buf + out_len + 5, body, len);
+    out_len += 5 + len;
+}
+
+static void queue_error(const char *text)
+{
+    uint8_t body[2 + 256];
+    size_t n = strlen(text);
+    if (n > 256)
+        n = 256;
+    body[0] = (uint8_t)(n >> 8);
+    body[1] = (uint8_t)n;
+    memcpy(body + 2, text, n);
+    queue_frame(MSG_ERROR, body, 2 + n);
+}
+
+static void queue_update(void)
+{
+    uint8_t body[32] = {0};  /* roll, pitch, yaw, thrust, lat, lon: 0 */
+    put_u32(body + 24, state == GROUNDED ? 0 : 10);  /* alt */
+    if (FAULT(F_STATE_LITTLE_ENDIAN)) {  /* FAULT update-state-little-endian */
+        uint32_t s = (uint32_t)state;
+        body[28] = (uint8_t)s;
+        body[29] = (uint8_t)(s >> 8);
+        body[30] = (uint8_t)(s >> 16);
+        body[31] = (uint8_t)(s >> 24);
+    } else {
+        put_u32(body + 28, (uint32_t)state);
+    }
+    queue_frame(MSG_UPDATE, body, sizeof body);
+}
+
+/* Send what the socket takes now; -1 when the connection is gone. */
+static int flush_output(void)
+{
+    while (out_len > 0) {
+        ssize_t n = send(cfd, out_buf, out_len, MSG_NOSIGNAL);
+        if (n < 0) {
+            if (errno == EINTR)
+                continue;
+            return (errno == EAGAIN || errno == EWOULDBLOCK) ? 0 : -1;
+        }
+        memmove(out_buf, out_buf + n, out_len - (size_t)n);
+        out_len -= (size_t)n;
+    }
+    return 0;
+}
+
+/* ---- body checks ------------------------------------------------------------------------ */
+
+/* The n bytes at s are a finite decimal number (strtod consumes all of them). */
+static int parse_number(const char *s, size_t n, double *out)
+{
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || end != s + n || !isfinite(v))
+        return 0;
+    *out = v;
+    return 1;
+}
+
+/* The tag [tag, end) has an attribute NAME="number" (or '...') with |number| <= lim. */
+static int attr_in_range(const char *tag, const char *end, const char *name, double lim)
+{
+    size_t k = strlen(name);
+    for (const char *p = tag + 1; p + k + 2 < end; p++) {
+        if (!isspace((unsigned char)p[-1]) || strncmp(p, name, k) != 0 || p[k] != '=')
+            continue;
+        char quote = p[k + 1];
+        if (quote != '"' && quote != '\'')
+            continue;
+        const char *v = p + k + 2;
+        const char *close = memchr(v, quote, (size_t)(end - v));
+        char num[48];
+        double x;
+        if (!close || (size_t)(close - v) >= sizeof num)
+            return 0;
+        memcpy(num, v, (size_t)(close - v));
+        num[close - v] = '\0';
+        return parse_number(num, (size_t)(close - v), &x) && fabs(x) <= lim;
+    }
+    return 0;
+}
+
+/* A GPX document: "<gpx" and one tag with lat="..." within +-90 and lon="..." within +-180. */
+static int gpx_scan(const char *doc)
+{
+    if (!strstr(doc, "<gpx"))
+        return 0;
+    for (const char *t = strchr(doc, '<'); t; t = strchr(t + 1, '<')) {
+        const char *end = strchr(t, '>');
+        if (!end)
+            end = t + strlen(t);
+        if (attr_in_range(t, end, "lat", 90.0) && attr_in_range(t, end, "lon", 180.0))
+            return 1;
+    }
+    return 0;
+}
+
+static int gpx_ok(const char *text, size_t n)
+{
+    if (FAULT(F_GPX_STACK_OVERFLOW)) {  /* FAULT gpx-stack-overflow: no bound on the copy */
+        char doc[256];
+        memcpy(doc, text, n + 1);
+        return gpx_scan(doc);
+    }
+    return gpx_scan(text);
+}
+
+/* A NUL-terminated heap copy of a string field's n bytes. */
+static char *copy_text(const uint8_t *p, int16_t n)
+{
+    /* 16-bit sizes as the field has; n >= 0 here unless FAULT crash-on-negative-string, where
+     * n = -1 makes len 65535 and the buffer malloc(0): memcpy runs far past both buffers. */
+    uint16_t len = (uint16_t)n;
+    char *text = malloc((uint16_t)(len + 1));
+    if (!text) {
+        perror("malloc");
+        exit(1);
+    }
+    memcpy(text, p, len);
+    text[len] = '\0';
+    return text;
+}
+
+/* Check one string field of KIND (s, n or g) with length n and rest bytes after its length. */
+static const char *check_string(char kind, int16_t n, const uint8_t *p, size_t rest)
+{
+    if ((n < 0 && !FAULT(F_CRASH_NEGATIVE_STRING)) || (n > 0 && (size_t)n > rest))
+        return "string length out of range";
+    char *text = copy_text(p, n);
+    const char *why = NULL;
+    double x;
+    if (kind == 'n' && !parse_number(text, (size_t)n, &x)) {
+        if (FAULT(F_CRASH_BAD_NUMBER)) {  /* FAULT crash-on-bad-number: like std::stof's throw */
+            fprintf(stderr, "terminate called after throwing an instance of "
+                            "'std::invalid_argument'\n  what():  stof\n");
+            abort();
+        }
+        why = "text is not a finite decimal number";
+    } else if (kind == 'g' && !gpx_ok(text, (size_t)n)) {
+        why = "text is not a GPX document";
+    }
+    free(text);
+    return why;
+}
+
+/* NULL when the body fits the layout, else what is wrong with it.  Extra bytes are ignored. */
+static const char *check_body(const char *fields, const uint8_t *p, size_t len)
+{
+    const uint8_t *end = p + len;
+    for (const char *f = fields; *f; f++) {
+        size_t rest = (size_t)(end - p);
+        if (*f == 'b') {
+            if (rest < 1)
+                return "body too short";
+            p += 1;
+        } else if (*f == 'f' || *f == 'i' || *f == 'p') {
+            if (rest < 4)
+                return "body too short";
+            if (*f == 'p' && (get_i32(p) < 0 || get_i32(p) > 2))
+                return "flag outside 0..2";
+            p += 4;
+        } else {  /* a string: s, n or g */
+            if (rest < 2)
+                return "body too short";
+            int16_t n = get_i16(p);
+            const char *why = check_string(*f, n, p + 2, rest - 2);
+            if (why)
+                return why;
+            p += 2 + n;
+        }
+    }
+    return NULL;
+}
+
+/* ---- receiving -------------------------------------------------------------------------- */
+
+static void handle_frame(uint8_t id, const uint8_t *body, size_t len)
+{
+    char text[160];
+    if (id > MSG_LAST) {
+        if (!FAULT(F_NO_ERROR_ON_UNKNOWN_ID)) {  /* FAULT no-error-on-unknown-id */
+            snprintf(text, sizeof text, "unknown message id %u", (unsigned)id);
+            queue_error(text);
+        }
+        if (FAULT(F_UNKNOWN_ID_HOVERS))  /* FAULT unknown-id-hovers */
+            state = HOVER;
+        return;
+    }
+    if (id == MSG_ERROR)  /* the client's complaint: nothing to do */
+        return;
+    const struct layout *m = &LAYOUTS[id];
+    const char *why = check_body(m->fields, body, len);
+    if (why) {
+        snprintf(text, sizeof text, "malformed %s (id %u): %s", m->name, (unsigned)id, why);
+        queue_error(text);
+        return;
+    }
+    int next = m->next_state;
+    if (id == MSG_STOP_TEST && FAULT(F_WRONG_STOP_TEST_STATE))  /* FAULT wrong-stop-test-state */
+        next = GROUNDED;
+    if (next != KEEP)
+        state = next;
+}
+
+/* Consume the whole frames in in_buf (one read's worth added); -1 on a framing error. */
+static int process_input(void)
+{
+    /* FAULT small-frame-limit */
+    const int32_t max_len = FAULT(F_SMALL_FRAME_LIMIT) ? 4096 : MAX_FRAME;
+    size_t off = 0;
+    int frames = 0;
+    while (in_len - off >= 4) {
+        int32_t L = get_i32(in_buf + off);
+        if (L < 5 || L > max_len) {
+            if (!FAULT(F_NO_CLOSE_BAD_LEN))
+                return -1;
+            off += 4;  /* FAULT no-close-on-bad-length: skip the length, go on */
+            continue;
+        }
+        if (in_len - off < (size_t)L)
+            break;  /* the rest of this frame is still to come */
+        uint8_t id = in_buf[off + 4];
+        /* FAULT first-frame-per-read: the frames after this read's first are dropped */
+        if (!(FAULT(F_FIRST_FRAME_PER_READ) && frames > 0))
+            handle_frame(id, in_buf + off + 5, (size_t)L - 5);
+        frames++;
+        /* FAULT unknown-id-no-skip: an unknown id's body is left to be read as frames */
+        off += (id > MSG_LAST && FAULT(F_UNKNOWN_ID_NO_SKIP)) ? 5 : (size_t)L;
+    }
+    memmove(in_buf, in_buf + off, in_len - off);
+    in_len -= off;
+    if (FAULT(F_NO_REASSEMBLY))  /* FAULT no-reassembly: a read's partial frame is dropped */
+        in_len = 0;
+    return 0;
+}
+
+static void drop_client(void)
+{
+    if (FAULT(F_FD_LEAK))  /* FAULT fd-leak: the peer sees the end, the fd stays open */
+        shutdown(cfd, SHUT_RDWR);
+    else
+        close(cfd);
+    cfd = -1;
+    out_len = 0;
+    if (!FAULT(F_STALE_PARTIAL_FRAME))  /* FAULT stale-partial-frame */
+        in_len = 0;
+}
+
+static void read_client(void)
+{
+    size_t room = IN_CAP - in_len;
+    if (room == 0) {  /* cannot happen: a partial frame is shorter than MAX_FRAME */
+        drop_client();
+        return;
+    }
+    ssize_t n = recv(cfd, in_buf + in_len, room, 0);
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR))
+        return;
+    if (n <= 0) {  /* FIN or RST: a partial frame goes with the connection */
+        drop_client();
+        return;
+    }
+    in_len += (size_t)n;
+    if (process_input() < 0)
+        drop_client();
+}
+
+static int set_nonblocking(int fd)
+{
+    int flags = fcntl(fd, F_GETFL);
+    return flags < 0 ? -1 : fcntl(fd, F_SETFL, flags | O_NONBLOCK);
+}
+
+static void accept_client(int lfd)
+{
+    int fd = accept(lfd, NULL, NULL);
+    if (fd < 0) {
+        if (errno == EMFILE || errno == ENFILE) {
+            perror("accept");
+            poll(NULL, 0, 100);  /* the backlog stays readable: do not spin */
+        }
+        return;
+    }
+    if (cfd >= 0)  /* FAULT second-client-kicks-first (only then is a second one accepted) */
+        drop_client();
+    set_nonblocking(fd);
+    cfd = fd;
+    accepted_at = now();
+    next_update = accepted_at;  /* the first UPDATE right away */
+}
+
+/* Queue the UPDATE that is due and schedule the next one. */
+static void update_tick(double t)
+{
+    /* FAULT update-stops: silence after the connection's first 3 s */
+    if (!(FAULT(F_UPDATE_STOPS) && t - accepted_at >= 3.0))
+        queue_update();
+    next_update += update_period;
+    if (next_update <= t)
+        next_update = t + update_period;
+}
+
+/* ---- setup ------------------------------------------------------------------------------ */
+
+static void on_signal(int sig)
+{
+    int saved = errno;
+    ssize_t w = write(sig_pipe[1], "x", 1);
+    (void)sig;
+    (void)w;
+    errno = saved;
+}
+
+static int listen_on(const char *host, const char *port)
+{
+    struct addrinfo hints, *res, *ai;
+    int fd = -1, one = 1;
+    memset(&hints, 0, sizeof hints);
+    hints.ai_family = AF_UNSPEC;
+    hints.ai_socktype = SOCK_STREAM;
+    hints.ai_flags = AI_PASSIVE;
+    int rc = getaddrinfo(host, port, &hints, &res);
+    if (rc != 0) {
+        fprintf(stderr, "nsqd_backend: %s: %s\n", host, gai_strerror(rc));
+        return -1;
+    }
+    for (ai = res; ai; ai = ai->ai_next) {
+        fd = socket(ai->ai_family, ai->ai_socktype, ai->ai_protocol);
+        if (fd < 0)
+            continue;
+        setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+        if (bind(fd, ai->ai_addr, ai->ai_addrlen) == 0 && listen(fd, 16) == 0)
+            break;
+        close(fd);
+        fd = -1;
+    }
+    freeaddrinfo(res);
+    if (fd < 0)
+        fprintf(stderr, "nsqd_backend: cannot listen on %s:%s: %s\n", host, port, strerror(errno));
+    else
+        set_nonblocking(fd);
+    return fd;
+}
+
+static void usage(FILE *to)
+{
+    fprintf(to, "usage: nsqd_backend [--host H] [--port P] [--update-period S] [--fault NAME]"
+                " [--list-faults]\n");
+}
+
+static int bad_usage(const char *what, const char *arg)
+{
+    fprintf(stderr, "nsqd_backend: %s: %s (try --help)\n", what, arg);
+    return 2;
+}
+
+/* argv[*i] is NAME or NAME=VALUE: its value (advancing *i past it), or NULL if not NAME. */
+static const char *option(int argc, char **argv, int *i, const char *name, int *missing)
+{
+    size_t k = strlen(name);
+    if (strncmp(argv[*i], name, k) != 0)
+        return NULL;
+    if (argv[*i][k] == '=')
+        return argv[*i] + k + 1;
+    if (argv[*i][k] != '\0')
+        return NULL;
+    if (*i + 1 >= argc) {
+        *missing = 1;
+        return NULL;
+    }
+    return argv[++*i];
+}
+
+int main(int argc, char **argv)
+{
+    const char *host = "127.0.0.1", *port = "8888", *v;
+    for (int i = 1; i < argc; i++) {
+        int missing = 0;
+        char *end;
+        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+            usage(stdout);
+            return 0;
+        } else if (!strcmp(argv[i], "--list-faults")) {
+            for (int f = 1; f < F_COUNT; f++)
+                puts(FAULT_NAMES[f]);
+            return 0;
+        } else if ((v = option(argc, argv, &i, "--host", &missing))) {
+            host = v;
+        } else if ((v = option(argc, argv, &i, "--port", &missing))) {
+            long p = strtol(v, &end, 10);
+            if (*v == '\0' || *end != '\0' || p < 1 || p > 65535)
+                return bad_usage("--port wants 1..65535", v);
+            port = v;
+        } else if ((v = option(argc, argv, &i, "--update-period", &missing))) {
+            update_period = strtod(v, &end);
+            if (*v == '\0' || *end != '\0' || !isfinite(update_period) || update_period <= 0)
+                return bad_usage("--update-period wants seconds > 0", v);
+        } else if ((v = option(argc, argv, &i, "--fault", &missing))) {
+            int f = F_COUNT;
+            while (--f > 0 && strcmp(v, FAULT_NAMES[f]) != 0)
+                ;
+            if (f == 0)
+                return bad_usage("unknown fault (see --list-faults)", v);
+            fault = (enum fault)f;
+        } else {
+            return bad_usage(missing ? "option needs a value" : "unknown option", argv[i]);
+        }
+    }
+
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = SIG_IGN;
+    sigaction(SIGPIPE, &sa, NULL);
+    if (pipe(sig_pipe) < 0 || set_nonblocking(sig_pipe[0]) < 0 || set_nonblocking(sig_pipe[1]) < 0) {
+        perror("pipe");
+        return 1;
+    }
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+
+    int lfd = listen_on(host, port);
+    if (lfd < 0)
+        return 1;
+    in_buf = malloc(IN_CAP);
+    if (!in_buf) {
+        perror("malloc");
+        return 1;
+    }
+    printf("listening on %s:%s\n", host, port);
+    fflush(stdout);
+
+    for (;;) {
+        struct pollfd pf[3];
+        int n = 0, i_lis = -1, i_cli = -1, timeout = -1;
+        pf[n++] = (struct pollfd){sig_pipe[0], POLLIN, 0};
+        if (cfd < 0 || FAULT(F_SECOND_CLIENT_KICKS_FIRST)) {
+            i_lis = n;
+            pf[n++] = (struct pollfd){lfd, POLLIN, 0};
+        }
+        if (cfd >= 0) {
+            double wait = next_update - now();
+            timeout = wait <= 0 ? 0 : (int)ceil(wait * 1000.0);
+            i_cli = n;
+            pf[n++] = (struct pollfd){cfd, (short)(POLLIN | (out_len ? POLLOUT : 0)), 0};
+        }
+        if (poll(pf, (nfds_t)n, timeout) < 0) {
+            if (errno == EINTR)
+                continue;
+            perror("poll");
+            break;
+        }
+        if (pf[0].revents)  /* SIGTERM or SIGINT */
+            break;
+        if (i_cli >= 0 && (pf[i_cli].revents & (POLLIN | POLLHUP | POLLERR)))
+            read_client();
+        if (cfd >= 0 && now() >= next_update)
+            update_tick(now());
+        if (cfd >= 0 && out_len > 0 && flush_output() < 0)
+            drop_client();
+        if (i_lis >= 0 && (pf[i_lis].revents & POLLIN))
+            accept_client(lfd);
+    }
+
+    if (cfd >= 0)
+        close(cfd);
+    close(lfd);
+    close(sig_pipe[0]);
+    close(sig_pipe[1]);
+    free(in_buf);
+    return 0;
+}

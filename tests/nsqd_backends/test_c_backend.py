@@ -1,0 +1,576 @@
+"""The C Nsqd backend (nsqd_backend.c) checked with a tiny raw-socket client.
+
+Each test builds the binary once (build.py, cached), starts it on a free loopback port and
+talks to it over TCP.  The first tests pin the correct behaviour: UPDATE at ~2.5 Hz, the
+state each command leads to, reassembly of split frames, rejected bodies answered with an
+ERROR naming the message, framing errors closing the connection, one client at a time, clean
+exit on SIGTERM.  Then one check per rule: the correct backend passes all of them, and each
+``--fault`` fails the check of the rule build.FAULTS gives it.  A backend is always stopped
+(fixture ``finally``); one that was not meant to crash must exit 0 with no sanitizer output.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import signal
+import socket
+import struct
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.nsqd_backends.build import CFLAGS, FAULTS, SOURCE, available, build
+
+FAST = "0.05"  # --update-period for the tests that are not about UPDATE's timing
+SANITIZER_ENV = {"ASAN_OPTIONS": "detect_leaks=1", "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
+
+# ---- frames ---------------------------------------------------------------------------------
+
+
+def frame(msg_id: int, body: bytes = b"") -> bytes:
+    return struct.pack(">iB", 5 + len(body), msg_id) + body
+
+
+def string(text: str | bytes) -> bytes:
+    data = text.encode() if isinstance(text, str) else text
+    return struct.pack(">h", len(data)) + data
+
+
+def set_pid(kp: str = "1.5", ki: str = "0.1", kd: str = "0", flag: int = 0) -> bytes:
+    return frame(6, string(kp) + string(ki) + string(kd) + struct.pack(">i", flag))
+
+
+def set_rpytff(roll: bytes = string("1.5"), flag: int = 1) -> bytes:
+    rest = string("0") + string("-2") + string("0.5") + struct.pack(">i", flag) + string("log.csv")
+    return frame(7, roll + rest)
+
+
+def gpx(lat: str = "52.1", lon: str = "4.3", pad: int = 0) -> str:
+    return (f'<?xml version="1.0"?><gpx version="1.1"><!--{" " * pad}--><trk><trkseg>'
+            f'<trkpt lat="{lat}" lon="{lon}"><ele>10</ele></trkpt></trkseg></trk></gpx>')
+
+
+def upload(text: str) -> bytes:
+    return frame(12, string(text))
+
+
+TAKEOFF, SET_AUTH = frame(4), frame(2)
+PROBE = frame(3)  # ARM without its bool: always rejected with an ERROR, never changes the state
+
+
+# ---- the backend and a client ---------------------------------------------------------------
+
+
+class Closed(ConnectionError):
+    """The backend closed the connection."""
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Client:
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=2)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.buf = b""
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def _need(self, n: int, deadline: float) -> bool:
+        """At least n bytes buffered (False on timeout); Closed at the connection's end."""
+        while len(self.buf) < n:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self.sock.settimeout(left)
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                return False
+            except ConnectionResetError as e:
+                raise Closed("connection reset") from e
+            if not data:
+                raise Closed("connection closed")
+            self.buf += data
+        return True
+
+    def raw(self, n: int, timeout: float = 1.0) -> bytes | None:
+        if not self._need(n, time.monotonic() + timeout):
+            return None
+        data, self.buf = self.buf[:n], self.buf[n:]
+        return data
+
+    def frame(self, timeout: float = 1.0) -> tuple[int, bytes] | None:
+        """The next (id, body), or None if none came within timeout."""
+        deadline = time.monotonic() + timeout
+        if not self._need(4, deadline):
+            return None
+        (length,) = struct.unpack(">i", self.buf[:4])
+        assert 5 <= length <= 8192, f"bad frame length {length}"
+        if not self._need(length, deadline):
+            return None
+        data, self.buf = self.buf[:length], self.buf[length:]
+        return data[4], data[5:]
+
+    def wait_state(self, state: int, timeout: float = 1.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while (f := self.frame(deadline - time.monotonic())) is not None:
+            if f[0] == 1 and update(f[1])[-1] == state:
+                return True
+        return False
+
+    def wait_error(self, timeout: float = 1.0) -> str | None:
+        deadline = time.monotonic() + timeout
+        while (f := self.frame(deadline - time.monotonic())) is not None:
+            if f[0] == 0:
+                (n,) = struct.unpack(">h", f[1][:2])
+                return f[1][2:2 + n].decode()
+        return None
+
+    def state_after(self, data: bytes) -> tuple[int, list[str]]:
+        """Send data and PROBE; the state after them and the ERROR texts before PROBE's."""
+        self.send(data + PROBE)
+        errors = []
+        while (text := self.wait_error()) is not None and "ARM" not in text:
+            errors.append(text)
+        assert text is not None, "no ERROR for the probe (malformed ARM)"
+        f = self.frame()
+        assert f is not None and f[0] == 1, f"no UPDATE after the probe's ERROR: {f}"
+        return update(f[1])[-1], errors
+
+    def closed(self, timeout: float = 1.0) -> bool:
+        deadline = time.monotonic() + timeout
+        try:
+            while self._need(len(self.buf) + 1, deadline):
+                pass
+        except Closed:
+            return True
+        return False
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def update(body: bytes) -> tuple[int, ...]:
+    """roll, pitch, yaw, thrust, lat, lon, alt, state of an UPDATE body."""
+    assert len(body) == 32, f"UPDATE body of {len(body)} bytes"
+    return struct.unpack(">7Ii", body)
+
+
+class Backend:
+    def __init__(self, exe: Path, log: Path, args: tuple[str, ...], crash_ok: bool) -> None:
+        self.port = free_port()
+        self.log, self.crash_ok = log, crash_ok
+        with open(log, "wb") as err:
+            self.proc = subprocess.Popen([str(exe), "--port", str(self.port), *args],
+                                         stdout=subprocess.PIPE, stderr=err,
+                                         env={**os.environ, **SANITIZER_ENV})
+
+    def wait_listening(self) -> None:
+        assert self.proc.stdout is not None
+        ready, _, _ = select.select([self.proc.stdout], [], [], 5)
+        line = self.proc.stdout.readline().decode() if ready else ""
+        assert line == f"listening on 127.0.0.1:{self.port}\n", (line, self.stderr())
+
+    def connect(self) -> Client:
+        return Client(self.port)
+
+    def stderr(self) -> str:
+        return self.log.read_text(errors="replace")
+
+    def wait_exit(self, timeout: float = 3.0) -> int:
+        return self.proc.wait(timeout)
+
+    def stop(self) -> str | None:
+        """Stop it; what was wrong with its exit, if anything."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(3)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                return "did not exit on SIGTERM"
+        assert self.proc.stdout is not None
+        self.proc.stdout.close()
+        err = self.stderr()
+        if not self.crash_ok and (self.proc.returncode != 0 or "Sanitizer" in err
+                                  or "runtime error" in err):
+            return f"exit {self.proc.returncode}:\n{err}"
+        return None
+
+
+@pytest.fixture(scope="module")
+def exe() -> Path:
+    reason = available()
+    if reason:
+        pytest.skip(reason)
+    return build()
+
+
+Start = Callable[..., Backend]
+
+
+@pytest.fixture
+def start(exe: Path, tmp_path: Path) -> Iterator[Start]:
+    """start(*args, crash_ok=False): a running backend; every one is stopped afterwards."""
+    started: list[Backend] = []
+
+    def _start(*args: str, crash_ok: bool = False) -> Backend:
+        b = Backend(exe, tmp_path / f"backend{len(started)}.stderr", args, crash_ok)
+        started.append(b)
+        b.wait_listening()
+        return b
+
+    try:
+        yield _start
+    finally:
+        problems = [p for p in (b.stop() for b in started) if p]
+    assert not problems, problems
+
+
+# ---- the correct backend --------------------------------------------------------------------
+
+
+def test_updates_arrive_at_2_5_hz_with_state_grounded(start: Start) -> None:
+    c = start().connect()
+    t0 = time.monotonic()
+    times = []
+    while time.monotonic() - t0 < 1.3:
+        raw = c.raw(37, timeout=0.6)
+        assert raw is not None, "no UPDATE within 0.6 s"
+        times.append(time.monotonic() - t0)
+        assert raw[:5] == struct.pack(">iB", 37, 1)
+        assert update(raw[5:]) == (0,) * 8
+    assert times[0] < 0.45
+    gaps = [b - a for a, b in zip(times, times[1:])]
+    assert len(gaps) >= 2 and all(0.3 < g < 0.5 for g in gaps), gaps
+
+
+def test_takeoff_hovers_at_alt_10(start: Start) -> None:
+    c = start("--update-period", FAST).connect()
+    c.send(TAKEOFF)
+    deadline = time.monotonic() + 1
+    while (f := c.frame(deadline - time.monotonic())) is not None:
+        if f[0] == 1 and update(f[1])[-1] == 2:
+            assert update(f[1])[6] == 10  # alt
+            return
+    pytest.fail("no UPDATE with state HOVER 2 after TAKEOFF")
+
+
+def test_each_command_moves_the_state_as_specified(start: Start) -> None:
+    c = start("--update-period", FAST).connect()
+    steps = [
+        (frame(3, b"\x01"), 0), (SET_AUTH, 0), (TAKEOFF, 2), (set_pid(flag=2), 2),
+        (frame(11), 2), (frame(0, string("client says hi")), 2), (frame(1, bytes(32)), 2),
+        (set_rpytff(), 8), (frame(8), 10), (frame(9, struct.pack(">I", 3) + string("h.csv")), 11),
+        (frame(10), 13), (upload(gpx()), 3), (frame(13), 14), (frame(14), 2), (frame(5), 0),
+    ]
+    for data, want in steps:
+        assert c.state_after(data) == (want, []), data
+
+
+MALFORMED = {
+    "SET_PID flag 3": set_pid(flag=3),
+    "SET_PID flag -1": set_pid(flag=-1),
+    "SET_PID kp not a number": set_pid(kp="1.5x"),
+    "SET_PID kp empty": set_pid(kp=""),
+    "SET_PID kd nan": set_pid(kd="nan"),
+    "SET_PID ki inf": set_pid(ki="inf"),
+    "SET_PID without flag": frame(6, string("1") + string("2") + string("3")),
+    "SET_RPYTFF roll length -1": set_rpytff(roll=b"\xff\xff"),
+    "SET_RPYTFF roll past the end": frame(7, struct.pack(">h", 100) + b"1.5"),
+    "SET_RPYTFF roll length cut": frame(7, b"\x00"),
+    "SET_HOVERHEIGHT short": frame(9, b"\x00\x00"),
+    "SET_HOVERHEIGHT file_name -5": frame(9, struct.pack(">Ih", 3, -5)),
+    "UPLOAD_FLIGHTPATH kml": upload('<kml><Point lat="1" lon="2"/></kml>'),
+    "UPLOAD_FLIGHTPATH lat 95": upload(gpx(lat="95")),
+    "UPLOAD_FLIGHTPATH lon -181": upload(gpx(lon="-181")),
+    "UPLOAD_FLIGHTPATH lon text": upload(gpx(lon="east")),
+    "UPLOAD_FLIGHTPATH bounds only": upload('<gpx><bounds minlat="1" minlon="2"/></gpx>'),
+    "UPDATE short": frame(1, bytes(31)),
+}
+
+
+def test_malformed_bodies_get_an_error_naming_the_message(start: Start) -> None:
+    c = start("--update-period", FAST).connect()
+    for case, data in MALFORMED.items():
+        state, errors = c.state_after(data)
+        name = case.split()[0]
+        assert state == 0 and len(errors) == 1 and name in errors[0], (case, state, errors)
+
+
+def test_a_frame_sent_byte_by_byte_takes_effect(start: Start) -> None:
+    c = start("--update-period", FAST).connect()
+    for i in range(len(TAKEOFF)):
+        c.send(TAKEOFF[i:i + 1])
+        time.sleep(0.02)
+    assert c.wait_state(2)
+
+
+def test_unknown_id_is_skipped_by_its_length_and_answered(start: Start) -> None:
+    c = start("--update-period", FAST).connect()
+    c.send(frame(99, bytes(8)) + TAKEOFF)
+    assert "99" in (c.wait_error() or "")
+    assert c.wait_state(2)
+
+
+@pytest.mark.parametrize("length", [0, 1, 4, -1, -8192, 8193, 0x7FFFFFFF])
+def test_a_bad_length_closes_and_the_next_client_is_served(start: Start, length: int) -> None:
+    b = start("--update-period", FAST)
+    c = b.connect()
+    c.send(struct.pack(">i", length) + TAKEOFF)
+    assert c.closed()
+    c2 = b.connect()
+    c2.send(TAKEOFF)
+    assert c2.wait_state(2)
+
+
+def test_second_client_waits_until_the_first_leaves(start: Start) -> None:
+    b = start("--update-period", FAST)
+    first = b.connect()
+    assert first.frame() is not None
+    second = b.connect()  # completes in the listen backlog
+    assert second.raw(1, timeout=0.3) is None
+    assert first.frame() is not None and not first.closed(0.1)
+    first.close()
+    assert second.frame() is not None
+
+
+def test_sigterm_exits_cleanly(start: Start) -> None:
+    b = start("--update-period", FAST)
+    b.connect().frame()
+    b.proc.send_signal(signal.SIGTERM)
+    assert b.wait_exit() == 0
+
+
+@pytest.mark.parametrize("args", [["--bogus"], ["--port"], ["--port", "0"], ["--fault", "nope"],
+                                  ["stray"], ["--update-period", "-1"]])
+def test_bad_command_lines_exit_2_with_one_line(exe: Path, args: list[str]) -> None:
+    proc = subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=5)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_faults_table_names_what_the_program_accepts(exe: Path) -> None:
+    proc = subprocess.run([str(exe), "--list-faults"], capture_output=True, text=True, timeout=5)
+    assert sorted(proc.stdout.split()) == sorted(FAULTS)
+    assert all(re.fullmatch(r"NSQD-(FRM|MSG|ROB|CON)-\d", rule) for rule in FAULTS.values())
+    assert set(FAULT_CHECKS) == set(FAULTS)
+
+
+def test_source_compiles_without_warnings() -> None:
+    if available():
+        pytest.skip(available())
+    proc = subprocess.run(["gcc", *CFLAGS, "-Wall", "-Wextra", "-pedantic", "-Wshadow",
+                           "-fsyntax-only", str(SOURCE)], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+
+
+def test_build_is_cached(exe: Path, tmp_path: Path) -> None:
+    assert build() == exe and exe.stat().st_mtime_ns == build().stat().st_mtime_ns
+    mine = build(tmp_path)
+    assert mine == tmp_path / "nsqd_backend" and os.access(mine, os.X_OK)
+    mtime = mine.stat().st_mtime_ns
+    assert build(tmp_path).stat().st_mtime_ns == mtime
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+CRASHES = {
+    "crash-on-negative-string": (set_rpytff(roll=b"\xff\xff"), "AddressSanitizer: heap-buffer-overflow"),
+    "gpx-stack-overflow": (upload(gpx(pad=300)), "AddressSanitizer: stack-buffer-overflow"),
+    "crash-on-bad-number": (set_pid(kp="abc"), "std::invalid_argument"),
+}
+
+
+@pytest.mark.parametrize("fault", CRASHES)
+def test_crash_faults_die_with_their_report(start: Start, fault: str) -> None:
+    data, report = CRASHES[fault]
+    b = start("--fault", fault, crash_ok=True)
+    c = b.connect()
+    c.send(data)
+    assert c.closed(3)
+    assert b.wait_exit() != 0
+    assert report in b.stderr()
+
+
+# ---- one check per rule: the correct backend passes all, each fault fails its own -------------
+
+
+def check_frm1(start: Start) -> None:
+    """NSQD-FRM-1: L counts itself: an UPDATE frame is L=37, id 1."""
+    raw = start("--update-period", FAST).connect().raw(5)
+    assert raw == struct.pack(">iB", 37, 1), raw
+
+
+def check_frm2(start: Start) -> None:
+    """NSQD-FRM-2: a frame split over reads is reassembled."""
+    test_a_frame_sent_byte_by_byte_takes_effect(start)
+
+
+def check_frm3(start: Start) -> None:
+    """NSQD-FRM-3: every frame of one read is processed."""
+    c = start("--update-period", FAST).connect()
+    c.send(SET_AUTH + TAKEOFF)
+    assert c.wait_state(2)
+
+
+def check_frm4(start: Start) -> None:
+    """NSQD-FRM-4: a length of 0 closes the connection."""
+    c = start("--update-period", FAST).connect()
+    c.send(bytes(4))
+    assert c.closed()
+
+
+def check_frm5(start: Start) -> None:
+    """NSQD-FRM-5: a frame of L=8192 is valid."""
+    data = upload(gpx(pad=8000))
+    data = upload(gpx(pad=8000 + 8192 - len(data)))
+    assert len(data) == 8192
+    c = start("--update-period", FAST).connect()
+    c.send(data)
+    assert c.wait_state(3)
+
+
+def check_msg1(start: Start) -> None:
+    """NSQD-MSG-1: UPDATE goes on as long as the client is connected."""
+    c = start("--update-period", FAST).connect()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 3.3:
+        assert c.frame(0.5) is not None, f"no UPDATE at {time.monotonic() - t0:.1f} s"
+
+
+def check_msg2(start: Start) -> None:
+    """NSQD-MSG-2: UPDATE's state is big-endian (HOVER 2 after TAKEOFF)."""
+    c = start("--update-period", FAST).connect()
+    c.send(TAKEOFF)
+    assert c.wait_state(2)
+
+
+def check_msg3(start: Start) -> None:
+    """NSQD-MSG-3: STOP_TEST leads to STOP_TEST 10."""
+    c = start("--update-period", FAST).connect()
+    assert c.state_after(set_rpytff()) == (8, [])
+    assert c.state_after(frame(8)) == (10, [])
+
+
+def check_msg4(start: Start) -> None:
+    """NSQD-MSG-4: an unknown id's body is skipped."""
+    test_unknown_id_is_skipped_by_its_length_and_answered(start)
+
+
+def check_msg5(start: Start) -> None:
+    """NSQD-MSG-5: an unknown id is answered with an ERROR naming it."""
+    c = start("--update-period", FAST).connect()
+    c.send(frame(200))
+    assert "200" in (c.wait_error() or "")
+
+
+def check_msg6(start: Start) -> None:
+    """NSQD-MSG-6: an unknown id leaves the state as it is."""
+    c = start("--update-period", FAST).connect()
+    assert c.state_after(frame(42, b"xyz"))[0] == 0
+
+
+def check_rob1(data: bytes) -> Callable[[Start], None]:
+    def check(start: Start) -> None:
+        """NSQD-ROB-1: a bad body is answered with an ERROR, the backend goes on."""
+        c = start("--update-period", FAST).connect()
+        c.send(data)
+        assert c.wait_error() is not None
+        c.send(TAKEOFF)
+        assert c.wait_state(2)
+    return check
+
+
+def check_rob1_long_gpx(start: Start) -> None:
+    """NSQD-ROB-1: a GPX of any valid size is taken."""
+    c = start("--update-period", FAST).connect()
+    c.send(upload(gpx(pad=1000)))
+    assert c.wait_state(3)
+
+
+def check_rob3(start: Start) -> None:
+    """NSQD-ROB-3: a partial frame goes with its connection."""
+    b = start("--update-period", FAST)
+    first = b.connect()
+    assert first.frame() is not None
+    first.send(b"\x00\x00\x00")
+    time.sleep(0.15)
+    first.close()
+    second = b.connect()
+    second.send(TAKEOFF)
+    assert second.wait_state(2)
+
+
+def check_con2(start: Start) -> None:
+    """NSQD-CON-2: one client at a time."""
+    test_second_client_waits_until_the_first_leaves(start)
+
+
+def check_con3(start: Start) -> None:
+    """NSQD-CON-3: a client that leaves leaves no file descriptor behind."""
+    b = start("--update-period", FAST)
+
+    def cycle() -> int:
+        c = b.connect()
+        assert c.frame() is not None
+        n = len(os.listdir(f"/proc/{b.proc.pid}/fd"))
+        c.close()
+        return n
+
+    counts = [cycle() for _ in range(4)]
+    assert len(set(counts)) == 1, counts
+
+
+FAULT_CHECKS: dict[str, Callable[[Start], None]] = {
+    "length-excludes-self": check_frm1,
+    "no-reassembly": check_frm2,
+    "first-frame-per-read": check_frm3,
+    "no-close-on-bad-length": check_frm4,
+    "small-frame-limit": check_frm5,
+    "update-stops": check_msg1,
+    "update-state-little-endian": check_msg2,
+    "wrong-stop-test-state": check_msg3,
+    "unknown-id-no-skip": check_msg4,
+    "no-error-on-unknown-id": check_msg5,
+    "unknown-id-hovers": check_msg6,
+    "crash-on-negative-string": check_rob1(set_rpytff(roll=b"\xff\xff")),
+    "crash-on-bad-number": check_rob1(set_pid(kp="abc")),
+    "gpx-stack-overflow": check_rob1_long_gpx,
+    "stale-partial-frame": check_rob3,
+    "second-client-kicks-first": check_con2,
+    "fd-leak": check_con3,
+}
+SLOW_FAULTS = {"update-stops"}  # its check waits 3.3 s
+
+
+def _params() -> list:
+    return [pytest.param(f, marks=[pytest.mark.slow] if f in SLOW_FAULTS else [], id=f)
+            for f in FAULT_CHECKS]
+
+
+@pytest.mark.parametrize("fault", _params())
+def test_correct_backend_passes_the_check(start: Start, fault: str) -> None:
+    FAULT_CHECKS[fault](start)
+
+
+@pytest.mark.parametrize("fault", _params())
+def test_fault_fails_the_check_of_its_rule(start: Start, fault: str) -> None:
+    crash_ok = fault.startswith("crash") or fault == "gpx-stack-overflow"
+
+    def with_fault(*args: str, **kw: bool) -> Backend:
+        return start(*args, "--fault", fault, crash_ok=crash_ok)
+
+    with pytest.raises((AssertionError, OSError)):
+        FAULT_CHECKS[fault](with_fault)
