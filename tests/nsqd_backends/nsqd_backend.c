@@ -166,15 +166,10 @@ static void queue_update(void)
 {
     uint8_t body[32] = {0};  /* roll, pitch, yaw, thrust, lat, lon: 0 */
     put_u32(body + 24, state == GROUNDED ? 0 : 10);  /* alt */
-    if (FAULT(F_STATE_LITTLE_ENDIAN)) {  /* FAULT update-state-little-endian */
-        uint32_t s = (uint32_t)state;
-        body[28] = (uint8_t)s;
-        body[29] = (uint8_t)(s >> 8);
-        body[30] = (uint8_t)(s >> 16);
-        body[31] = (uint8_t)(s >> 24);
-    } else {
-        put_u32(body + 28, (uint32_t)state);
-    }
+    uint32_t s = (uint32_t)state;
+    if (FAULT(F_STATE_LITTLE_ENDIAN))  /* FAULT update-state-little-endian: bytes reversed */
+        s = (s >> 24) | ((s >> 8) & 0xff00u) | ((s << 8) & 0xff0000u) | (s << 24);
+    put_u32(body + 28, s);
     queue_frame(MSG_UPDATE, body, sizeof body);
 }
 
@@ -362,8 +357,10 @@ static int process_input(void)
     while (in_len - off >= 4) {
         int32_t L = get_i32(in_buf + off);
         if (L < 5 || L > max_len) {
-            if (!FAULT(F_NO_CLOSE_BAD_LEN))
+            if (!FAULT(F_NO_CLOSE_BAD_LEN)) {
+                in_len = 0;  /* nothing of a broken stream is kept, even by stale-partial-frame */
                 return -1;
+            }
             off += 4;  /* FAULT no-close-on-bad-length: skip the length, go on */
             continue;
         }
@@ -546,10 +543,10 @@ int main(int argc, char **argv)
             if (*v == '\0' || *end != '\0' || !isfinite(update_period) || update_period <= 0)
                 return bad_usage("--update-period wants seconds > 0", v);
         } else if ((v = option(argc, argv, &i, "--fault", &missing))) {
-            int f = F_COUNT;
-            while (--f > 0 && strcmp(v, FAULT_NAMES[f]) != 0)
+            int f = F_COUNT;  /* "none" is accepted too: no fault */
+            while (--f >= 0 && strcmp(v, FAULT_NAMES[f]) != 0)
                 ;
-            if (f == 0)
+            if (f < 0)
                 return bad_usage("unknown fault (see --list-faults)", v);
             fault = (enum fault)f;
         } else {

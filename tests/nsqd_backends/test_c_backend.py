@@ -211,8 +211,7 @@ class Backend:
 
 @pytest.fixture(scope="module")
 def exe() -> Path:
-    reason = available()
-    if reason:
+    if (reason := available()) is not None:
         pytest.skip(reason)
     return build()
 
@@ -252,7 +251,7 @@ def test_updates_arrive_at_2_5_hz_with_state_grounded(start: Start) -> None:
         assert raw[:5] == struct.pack(">iB", 37, 1)
         assert update(raw[5:]) == (0,) * 8
     assert times[0] < 0.45
-    gaps = [b - a for a, b in zip(times, times[1:])]
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
     assert len(gaps) >= 2 and all(0.3 < g < 0.5 for g in gaps), gaps
 
 
@@ -369,8 +368,8 @@ def test_faults_table_names_what_the_program_accepts(exe: Path) -> None:
 
 
 def test_source_compiles_without_warnings() -> None:
-    if available():
-        pytest.skip(available())
+    if (reason := available()) is not None:
+        pytest.skip(reason)
     proc = subprocess.run(["gcc", *CFLAGS, "-Wall", "-Wextra", "-pedantic", "-Wshadow",
                            "-fsyntax-only", str(SOURCE)], capture_output=True, text=True,
                           timeout=60)
