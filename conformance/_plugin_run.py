@@ -68,7 +68,7 @@ from harness.errors import (
     TargetLost,
 )
 from harness.interrupts import INTERRUPTS
-from spec import SPEC
+from spec import RULES
 
 __all__ = ["McpState", "STATE_KEY"]
 _state = state_of
@@ -76,6 +76,13 @@ _state = state_of
 
 @pytest.hookimpl(trylast=True)
 def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
+    if cfg.role == "backend":  # --protocol nsqd: a TCP backend, the runner its client
+        from conformance.stream_case import StreamCaseContext
+        from harness.stream_session import StreamSession
+
+        stream = StreamSession(cfg, recorder=recorder)
+        stream.make_context = StreamCaseContext
+        return stream
     if cfg.role == "manager":
         from conformance.manager_case import ManagerCaseContext
         from harness.manager_session import ManagerSession
@@ -94,7 +101,7 @@ def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "mcp_rules(*ids): the MCP rule IDs a conformance case verifies")
     config.addinivalue_line("markers", "mcp_phase(phase): startup, main, late or end")
-    for rule in SPEC.rules:
+    for rule in RULES.values():
         config.addinivalue_line("markers", f"{rule_marker(rule.id)}: cases verifying {rule.id} ({rule.level})")
     frontend = bool(config.getoption("mcp_frontend"))
     values = option_values(config)
@@ -211,7 +218,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         return
     for item in cases:
         cid, ids, level, phase = _meta(item)
-        unknown = [r for r in ids if r not in SPEC.rules_by_id]
+        unknown = [r for r in ids if r not in RULES]
         if unknown:
             state.collect_errors.append(f"unknown rule ID {unknown[0]!r} in {cid}")
         state.meta[item.nodeid] = (cid, ids, level, phase)
@@ -346,10 +353,10 @@ def _skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
 def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: BaseException,
                      rep: pytest.TestReport) -> None:
     if isinstance(exc, CaseFailure):
-        if exc.rule not in SPEC.rules_by_id:
+        if exc.rule not in RULES:
             rec.outcome, rec.reason = "error", f"the case reported unknown rule {exc.rule!r}"
             return
-        rule = SPEC.rule(exc.rule)
+        rule = RULES[exc.rule]
         level = rule_level(exc.rule)
         rec.failed_rule, rec.expected, rec.actual = exc.rule, exc.expected, exc.actual
         rec.evidence = [str(e) for e in exc.evidence]

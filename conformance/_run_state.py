@@ -176,7 +176,10 @@ class McpState:
             self.session = session
             self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
             resume = self.wait_status.current
-            if self.frontend:
+            if self.frontend and self.cfg.role == "backend":
+                self.terminal.note("startup: the runner connects to the backend and waits for its first UPDATE")
+                self.wait_status.begin("startup: connecting and waiting for the first UPDATE")
+            elif self.frontend:
                 self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
                                    f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")
                 self.wait_status.begin("startup phase: watching Mission_Ready and its retransmissions")

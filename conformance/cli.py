@@ -36,6 +36,9 @@ PROG = "mcp-conform"
 CASES_PACKAGE = "conformance.cases"
 PLUGIN_MODULE = "conformance.plugin"
 MANAGER_CASES_PACKAGE = "conformance.cases_manager"
+NSQD_CASES_PACKAGE = "conformance.cases_nsqd"
+#: The roles each protocol's node may take (the first is the default).
+PROTOCOL_ROLES = {"mcp": ("drone", "manager"), "nsqd": ("backend",)}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -52,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", metavar="HOST:PORT", help=(f"where the runner receives and sends from (default: all addresses, port "
                          f"{SPEC.protocol['ports']['manager']} for a drone under test; a free port when spawning)"))
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
-    p.add_argument("--role", metavar="drone|manager", default="drone", help="the role of the node under test (default drone)")
+    p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
+                   help="the protocol the node speaks: mcp (default; UDP), nsqd (the Nsqd TCP drone protocol: the node is a backend)")
+    p.add_argument("--role", metavar="drone|manager|backend", default=None,
+                   help="the role of the node under test (default drone; backend under --protocol nsqd)")
     p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
@@ -121,7 +127,7 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
     if json_path:
         cfg = cfg or RunConfig()
         target = f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None
-        run = RunRecord(role=cfg.role if cfg.role in ("drone", "manager") else "drone", target=target,
+        run = RunRecord(role=cfg.role if cfg.role in ("drone", "manager", "backend") else "drone", target=target,
                         parameters=cfg.parameters(), seed=cfg.seed, strict=cfg.strict, error=message)
         run.finished = run.started
         try:
@@ -147,7 +153,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     """The pytest command line for these arguments."""
     import importlib
 
-    package = MANAGER_CASES_PACKAGE if ns.role == "manager" else CASES_PACKAGE
+    package = {"manager": MANAGER_CASES_PACKAGE, "backend": NSQD_CASES_PACKAGE}.get(ns.role, CASES_PACKAGE)
     cases_dir = str(Path(importlib.import_module(package).__file__ or "").resolve().parent)
     args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
@@ -209,6 +215,11 @@ def _main(argv: list[str]) -> int:
         ns = parser.parse_args(argv)
     except ConfigError as exc:
         return _fail(str(exc), json_path)
+    roles = PROTOCOL_ROLES[ns.protocol]
+    if ns.role is None:
+        ns.role = roles[0]
+    elif ns.role not in roles:
+        return _fail(f"--role: {ns.role!r} is not a role of --protocol {ns.protocol} ({', '.join(roles)})", json_path)
     if ns.version:
         with contextlib.suppress(BrokenPipeError):
             print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})", flush=True)
@@ -223,7 +234,7 @@ def _main(argv: list[str]) -> int:
         if ns.baseline:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
-        return _fail(str(exc), json_path, RunConfig(role=ns.role if ns.role in ("drone", "manager") else "drone"))
+        return _fail(str(exc), json_path, RunConfig(role=ns.role))
     if ns.list and (ns.capture or ns.html):
         ns.capture = ns.html = None  # nothing runs: no capture file, no HTML report
     import pytest

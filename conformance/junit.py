@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_failures
-from spec import SPEC
+from spec import RULES, spec_for_role
 from spec.about import TOOL_NAME
 
 __all__ = ["junit_xml", "write_junit"]
@@ -20,7 +20,7 @@ def _finding(c: CaseRecord) -> str:
     """What a case found, as text: the rule, expected, actual, evidence and notes."""
     lines = []
     if c.failed_rule:
-        rule = SPEC.rules_by_id.get(c.failed_rule)
+        rule = RULES.get(c.failed_rule)
         lines.append(f"{c.failed_rule}: {rule.text if rule else ''}".rstrip())
         if c.expected is not None:
             lines.append(f"expected: {c.expected}")
@@ -93,7 +93,7 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
         ET.SubElement(parent, "property", {"name": key, "value": "" if value is None else str(value)})
 
     for key, value in (("target", run.target), ("role", run.role), ("seed", run.seed),
-                       ("spec_version", SPEC.version), ("strict", run.strict)):
+                       ("spec_version", spec_for_role(run.role).version), ("strict", run.strict)):
         prop(props, key, value)
     if run.error is not None:
         prop(props, "error", run.error)

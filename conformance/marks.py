@@ -25,7 +25,7 @@ from typing import Any, TypeVar
 
 import pytest
 
-from spec import SPEC
+from spec import NSQD, RULES, SPEC
 
 __all__ = [
     "LEVEL_ORDER",
@@ -65,7 +65,7 @@ def check_rule_ids(ids: Iterable[str], where: str = "") -> tuple[str, ...]:
     if not out:
         raise UnknownRuleError(f"rules(){' on ' + where if where else ''}: at least one rule ID is needed")
     for rid in out:
-        if not isinstance(rid, str) or rid not in SPEC.rules_by_id:
+        if not isinstance(rid, str) or rid not in RULES:
             suffix = f" (in {where})" if where else ""
             raise UnknownRuleError(f"unknown rule ID {rid!r}{suffix}: not in spec {SPEC.version}")
     return out
@@ -123,7 +123,7 @@ def case_phase(item: Any) -> str:
 
 def rule_level(rule_id: str) -> str:
     """The level of a rule (MUST when the spec does not know it: the cautious reading)."""
-    rule = SPEC.rules_by_id.get(rule_id)
+    rule = RULES.get(rule_id)
     return rule.level if rule is not None else "MUST"
 
 
@@ -145,7 +145,7 @@ def case_group(item: Any) -> str:
     group of the spec, else the group of its first rule."""
     module = getattr(getattr(item, "module", None), "__name__", "") or ""
     base = module.rsplit(".", 1)[-1]
-    if base.startswith("test_") and base[5:].upper() in SPEC.groups:
+    if base.startswith("test_") and base[5:].upper() in SPEC.groups or base[5:].upper() in NSQD.groups:
         return base[5:].upper()
     ids = case_rules(item)
     if ids and ids[0].count("-") >= 2:

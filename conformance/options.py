@@ -50,8 +50,8 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
     cfg = RunConfig()
     v = {k: x for k, x in values.items() if x is not None}
     role = v.get("role", "drone")
-    if role not in ("drone", "manager"):
-        raise ConfigError(f"{opt('role')}: {role!r} is not one of drone, manager")
+    if role not in ("drone", "manager", "backend"):
+        raise ConfigError(f"{opt('role')}: {role!r} is not one of drone, manager (MCP), backend (--protocol nsqd)")
     cfg.role = role
     try:
         if "target" in v:

@@ -29,7 +29,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from spec import SPEC
+from spec import RULES, spec_for_role
 from spec.about import TOOL_NAME, tool_version
 
 __all__ = [
@@ -51,7 +51,7 @@ __all__ = [
     "write_json",
 ]
 
-SCHEMA_VERSION = "1.2"  # 1.2: the monitor's violations in failures and rules
+SCHEMA_VERSION = "1.3"  # 1.2: the monitor's violations in failures and rules; 1.3: spec.protocol, role backend (Nsqd)
 OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
 RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
@@ -184,9 +184,9 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
     seen: dict[str, dict[str, Any]] = {}
     for v in mon.get("violations", []):
         rule = v.get("rule")
-        if rule in by_case or rule not in SPEC.rules_by_id:
+        if rule in by_case or rule not in RULES:
             continue
-        level = SPEC.rule(rule).level
+        level = RULES[rule].level
         if level not in ("MUST", "SHOULD"):
             continue
         entry = seen.get(rule)
@@ -202,9 +202,14 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------- JSON
+def _spec_json(role: str) -> dict[str, Any]:
+    sp = spec_for_role(role)
+    return {"protocol": sp.protocol["short_name"], "version": sp.version, "sha256": sp.sha256}
+
+
 def _rule_ids_for(role: str) -> list[str]:
     try:
-        return [r.id for r in SPEC.rules_for(role)]
+        return [r.id for r in spec_for_role(role).rules_for(role)]
     except Exception:  # noqa: BLE001 - an unknown role: no rules to list
         return []
 
@@ -228,7 +233,7 @@ def rule_outcomes(cases: list[CaseRecord], role: str,
                 contribute(r, "xpassed")
         elif c.outcome in ("passed", "info"):
             for r in c.rules:
-                rule = SPEC.rules_by_id.get(r)
+                rule = RULES.get(r)
                 contribute(r, "info" if rule is not None and rule.level == "INFO" else "passed")
         else:  # skipped, error: not judged
             for r in c.rules:
@@ -246,7 +251,7 @@ def build_json(run: RunRecord) -> dict[str, Any]:
     doc = {
         "schema_version": SCHEMA_VERSION,
         "tool": {"name": TOOL_NAME, "version": tool_version()},
-        "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
+        "spec": _spec_json(run.role),
         "target": run.target,
         "role": run.role,
         "parameters": dict(run.parameters),

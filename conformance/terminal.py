@@ -23,7 +23,7 @@ from conformance.report import (
     roots_first,
     rule_outcomes,
 )
-from spec import SPEC
+from spec import RULES, spec_for_role
 from spec.about import TOOL_NAME, tool_version
 
 __all__ = ["TerminalReport", "node_lines"]
@@ -80,7 +80,7 @@ class TerminalReport:
     def header(self, run: RunRecord, mode: str | None = None) -> None:
         what = f"{run.role} at {run.target}" if run.target else run.role
         extra = f" ({mode})" if mode else ""
-        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · MCP spec {SPEC.version} · "
+        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · {spec_for_role(run.role).protocol['short_name']} spec {spec_for_role(run.role).version} · "
                     f"testing {escape(what)}{escape(extra)}", soft_wrap=True)
 
     def case(self, c: CaseRecord) -> None:
@@ -94,7 +94,7 @@ class TerminalReport:
         if c.consequence_of:
             self._detail(f"consequence of {', '.join(c.consequence_of)} (failed earlier in this run)")
         if c.failed_rule:
-            rule = SPEC.rules_by_id.get(c.failed_rule)
+            rule = RULES.get(c.failed_rule)
             self._detail(f"{c.failed_rule} ({rule.level if rule else '?'}): {rule.text if rule else ''}")
             if c.expected is not None:
                 self._detail(f"expected: {c.expected}")
@@ -176,7 +176,7 @@ class TerminalReport:
             for rid, outcome in outcomes.items():
                 if rid in untouched:
                     continue
-                rule = SPEC.rules_by_id.get(rid)
+                rule = RULES.get(rid)
                 table.add_row(rid, rule.level if rule else "?", Text(outcome, style=STYLES.get(outcome, "")))
             self._print(table)
             if untouched:

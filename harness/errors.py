@@ -27,18 +27,18 @@ class CaseFailure(AssertionError):
     def dependencies(self) -> tuple[str, ...]:
         if self.relies_on is not None:
             return self.relies_on
-        from spec import SPEC
+        from spec import RULES
 
-        rule = SPEC.rules_by_id.get(self.rule)
+        rule = RULES.get(self.rule)
         return rule.rule_dependencies if rule is not None else ()
 
     def __post_init__(self) -> None:
         AssertionError.__init__(self, self.describe())
 
     def describe(self) -> str:
-        from spec import SPEC
+        from spec import RULES
 
-        text = SPEC.rule(self.rule).text if self.rule in SPEC.rules_by_id else ""
+        text = RULES[self.rule].text if self.rule in RULES else ""
         lines = [f"{self.rule}: {text}", f"  expected: {self.expected}", f"  actual:   {self.actual}"]
         lines += [f"  evidence: {e}" for e in self.evidence]
         return "\n".join(lines)

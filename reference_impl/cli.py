@@ -291,6 +291,9 @@ def _run_role(role: Drone | Manager, interrupt: _Interrupt) -> int | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``mcp-node``; returns the exit status."""
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    if "--protocol" in args_in or any(a.startswith("--protocol=") for a in args_in):
+        return _other_protocol(args_in)
     args = build_parser().parse_args(argv)
     saved_handlers, saved_level = _setup_logging(args)
     role: Drone | Manager | None = None
@@ -319,6 +322,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (BrokenPipeError, ValueError):  # stdout gone: the record file still has it
             pass
     return code
+
+
+def _other_protocol(argv: list[str]) -> int:
+    """``--protocol mcp`` (the default) or ``--protocol nsqd`` (reference_impl.nsqd_cli)."""
+    i = next(i for i, a in enumerate(argv) if a == "--protocol" or a.startswith("--protocol="))
+    value = argv[i].split("=", 1)[1] if "=" in argv[i] else (argv[i + 1] if i + 1 < len(argv) else "")
+    rest = argv[:i] + argv[i + (1 if "=" in argv[i] else 2):]
+    if value == "mcp":
+        return main(rest)
+    if value == "nsqd":
+        from reference_impl import nsqd_cli
+
+        return nsqd_cli.main(rest)
+    print(f"{PROG}: error: --protocol: {value!r} is not one of mcp, nsqd", file=sys.stderr)
+    return 2
 
 
 def run() -> NoReturn:

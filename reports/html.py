@@ -19,7 +19,7 @@ from html import escape
 from typing import Any
 
 from reports.chart import trace_svg
-from spec import SPEC
+from spec import RULES, SPEC
 from traceio.reader import Datagram
 from traceio.trace import Trace, evidence_indexes
 
@@ -69,12 +69,12 @@ def page(title: str, body: str) -> str:
 
 
 def _rule_text(rule: str | None) -> str:
-    r = SPEC.rules_by_id.get(rule or "")
+    r = RULES.get(rule or "")
     return r.text if r else ""
 
 
 def _level(rule: str | None) -> str:
-    r = SPEC.rules_by_id.get(rule or "")
+    r = RULES.get(rule or "")
     return r.level if r else ""
 
 
@@ -158,7 +158,7 @@ def render_check(j: Any, doc: dict[str, Any]) -> str:
 def _rules_by_node(doc: dict[str, Any]) -> str:
     nodes = sorted(doc["rules"], key=int)
     rules = {r for by in doc["rules"].values() for r in by}
-    order = [r.id for r in SPEC.rules if r.id in rules] + sorted(rules - set(SPEC.rules_by_id))
+    order = [r for r in RULES if r in rules] + sorted(rules - set(RULES))
     counts: dict[str, int] = {}
     for v in doc["violations"]:
         counts[v["rule"]] = counts.get(v["rule"], 0) + 1
@@ -230,7 +230,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
                                  [("expected", v.expected), ("actual", v.actual)],
                                  [f"#{i}" for i in idx], chart, "" if chart else "no datagrams to chart"))
     rules = doc.get("rules", {})
-    order = [r.id for r in SPEC.rules if r.id in rules] + sorted(set(rules) - set(SPEC.rules_by_id))
+    order = [r for r in RULES if r in rules] + sorted(set(rules) - set(RULES))
     body.append("<h2>Rules</h2>")
     body.append(_table(["rule", "level", "outcome", "requirement"],
                        [[_e(r), _e(_level(r)), _verdict(rules[r]), _e(_rule_text(r))] for r in order],

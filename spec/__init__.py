@@ -1,6 +1,7 @@
 """The CentMesh MCP spec and everything derived from it.
 
-``spec.SPEC`` is the loaded, checked ``mcp.yaml``; ``spec.codec`` the wire codec built from
+``spec.SPEC`` is the loaded, checked ``mcp.yaml``, ``spec.NSQD`` the Nsqd TCP protocol's
+``nsqd.yaml`` (``spec.stream``, ``spec.stream_codec``), ``spec.RULES`` every rule of both; ``spec.codec`` the wire codec built from
 it; ``spec.mission`` mission items and waypoint files through pymavlink. ``spec`` imports no
 other package of this project.
 """
@@ -19,9 +20,29 @@ from spec._load import (
 
 SPEC: Spec = load()
 
+from spec.stream import StreamSpec, load_stream  # noqa: E402  (after _load, which it builds on)
+
+#: The Nsqd TCP drone protocol's spec (``nsqd.yaml``): the second protocol (``--protocol nsqd``).
+NSQD: StreamSpec = load_stream()
+
+#: Every protocol's spec by its ``--protocol`` name.
+PROTOCOLS: dict[str, Spec | StreamSpec] = {"mcp": SPEC, "nsqd": NSQD}
+
+def spec_for_role(role: str) -> Spec | StreamSpec:
+    """The spec whose roles include ``role`` (backend, client: Nsqd; drone, manager: MCP)."""
+    return NSQD if role in NSQD.roles else SPEC
+
+
+#: Every rule of every protocol by ID (the IDs carry the protocol's prefix: MCP-, NSQD-), for
+#: reports that name a rule whatever protocol the run spoke.
+RULES: dict[str, Rule] = {**SPEC.rules_by_id, **NSQD.rules_by_id}
+
 __all__ = [
     "LEVELS",
     "ROLES",
+    "NSQD",
+    "PROTOCOLS",
+    "RULES",
     "SPEC",
     "ActionSpec",
     "Note",
@@ -29,5 +50,8 @@ __all__ = [
     "Rule",
     "Spec",
     "SpecError",
+    "StreamSpec",
     "load",
+    "load_stream",
+    "spec_for_role",
 ]

@@ -1,6 +1,6 @@
 """Load and check ``spec/mcp.yaml``: the single source of truth of mcp-conform.
 
-``load()`` validates the YAML against ``mcp.schema.json`` and then checks what a schema
+``load()`` validates the YAML against ``spec.schema.json`` (one schema for every protocol) and then checks what a schema
 cannot (struct strings agree with their field lists and sizes, the preamble agrees with the
 header constants, rule IDs are unique, every D-/E- reference exists, observation entries
 match the rule's roles). Any problem raises :class:`SpecError` whose message names the bad
@@ -21,7 +21,7 @@ import jsonschema
 import yaml
 
 SPEC_PATH = Path(__file__).with_name("mcp.yaml")
-SCHEMA_PATH = Path(__file__).with_name("mcp.schema.json")
+SCHEMA_PATH = Path(__file__).with_name("spec.schema.json")
 
 ROLES = ("drone", "manager")
 LEVELS = ("MUST", "SHOULD", "INFO")
@@ -58,7 +58,7 @@ class Rule:
     def rule_dependencies(self) -> tuple[str, ...]:
         """The rules (not errata or decisions) of ``depends_on``: rules whose conformance the
         observation of this one relies on, so its failure may be their consequence."""
-        return tuple(d for d in self.depends_on if d.startswith("MCP-"))
+        return tuple(d for d in self.depends_on if d.count("-") == 2)
 
     def applies_to(self, role: str) -> bool:
         """True when the rule binds a node of ``role`` (``drone`` or ``manager``)."""
@@ -176,9 +176,10 @@ def _norm(fmt: str) -> str:
     return out
 
 
-def load(path: str | Path | None = None) -> Spec:
-    """Load, validate and check the spec file (default: the packaged ``mcp.yaml``)."""
-    src = Path(path) if path is not None else SPEC_PATH
+def read_validated(path: str | Path) -> tuple[dict[str, Any], str, Path]:
+    """Read a spec file and validate it against ``spec.schema.json`` (either protocol kind):
+    its YAML tree, its sha256 and its path; any problem raises :class:`SpecError`."""
+    src = Path(path)
     try:
         text = src.read_bytes()
     except OSError as exc:
@@ -193,7 +194,15 @@ def load(path: str | Path | None = None) -> Spec:
     if errors:
         err = errors[0]
         raise _fail(_where(err.absolute_path), err.message, src)
-    return _build(raw, hashlib.sha256(text).hexdigest(), src)
+    return raw, hashlib.sha256(text).hexdigest(), src
+
+
+def load(path: str | Path | None = None) -> Spec:
+    """Load, validate and check a datagram protocol's spec (default: the packaged ``mcp.yaml``)."""
+    raw, sha, src = read_validated(path if path is not None else SPEC_PATH)
+    if raw["protocol"]["transport"] != "udp":
+        raise SpecError(f"{src}: protocol.transport: {raw['protocol']['transport']!r}: a stream protocol (spec.stream.load_stream)")
+    return _build(raw, sha, src)
 
 
 def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
@@ -226,6 +235,16 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
     if wire != list(range(len(wire))):
         raise _fail("actions", f"on-wire action codes must be 0..N without gaps, got {wire}", src)
 
+    errata, decisions, params, rules, by_id = build_catalogue(raw, src, ROLES)
+    return Spec(raw=raw, sha256=sha, path=src, rules=rules, actions=tuple(actions),
+                errata=errata, decisions=decisions, params=params, rules_by_id=by_id)
+
+
+def build_catalogue(raw: Mapping[str, Any], src: Path, roles_of: tuple[str, ...]) -> tuple[
+        tuple[Note, ...], tuple[Note, ...], dict[str, float], tuple[Rule, ...], dict[str, Rule]]:
+    """The part every protocol's spec shares, checked: errata, decisions, parameters and the
+    rules (IDs with the protocol's prefix, unique, in a declared group; ``depends_on`` naming
+    notes or rules that exist; observations for exactly the rule's roles out of ``roles_of``)."""
     errata = tuple(Note(**n) for n in raw["errata"])
     decisions = tuple(Note(**n) for n in raw["decisions"])
     note_ids = {n.id for n in errata + decisions}
@@ -235,6 +254,7 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
             raise _fail(f"decisions[{i}].parameter", f"names no parameter: {n.parameter!r}", src)
 
     rules: list[Rule] = []
+    prefix = raw["protocol"]["short_name"] + "-"
     by_id: dict[str, Rule] = {}
     for i, r in enumerate(raw["rules"]):
         where = f"rules[{i}]"
@@ -244,10 +264,14 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
         if r["id"] in by_id:
             raise _fail(where + ".id", f"duplicate rule ID {r['id']}", src)
         for dep in r.get("depends_on", []):
-            if dep not in note_ids and not dep.startswith("MCP-"):
+            if dep not in note_ids and not dep.startswith(prefix):
                 raise _fail(where + ".depends_on", f"{r['id']}: unknown erratum/decision {dep}", src)
         roles = tuple(r["roles"])
-        expected = set(ROLES) if "any" in roles else set(roles)
+        if not set(roles) <= {*roles_of, "any"}:
+            raise _fail(where + ".roles", f"{r['id']}: roles {list(roles)} are not roles of {prefix[:-1]} {list(roles_of)}", src)
+        if not r["id"].startswith(prefix):
+            raise _fail(where + ".id", f"{r['id']}: a rule of {prefix[:-1]} starts with {prefix!r}", src)
+        expected = set(roles_of) if "any" in roles else set(roles)
         if set(r["observe"]) != expected:
             raise _fail(where + ".observe", f"{r['id']}: observation roles {sorted(r['observe'])} do not match roles {list(roles)}", src)
         rule = Rule(
@@ -261,5 +285,4 @@ def _build(raw: dict[str, Any], sha: str, src: Path) -> Spec:
         for dep in rule.rule_dependencies:
             if dep not in by_id or dep == rule.id:
                 raise _fail(f"rules[{i}].depends_on", f"{rule.id}: unknown rule {dep}", src)
-    return Spec(raw=raw, sha256=sha, path=src, rules=tuple(rules), actions=tuple(actions),
-                errata=errata, decisions=decisions, params=params, rules_by_id=by_id)
+    return errata, decisions, params, tuple(rules), by_id

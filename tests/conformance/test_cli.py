@@ -40,7 +40,7 @@ def report(path: Path) -> dict:
     (["--target-id", "65536"], "--target-id: 65536 is out of range"),
     (["--broadcast-id", "many"], "--broadcast-id"),
     (["--seed", "1.5"], "--seed"),
-    (["--role", "pilot"], "--role: 'pilot' is not one of drone, manager"),
+    (["--role", "pilot"], "--role: 'pilot' is not a role of --protocol mcp (drone, manager)"),
     (["--spawn", "  "], "--spawn: the command is empty"),
     (["--bogus"], "unrecognized arguments: --bogus"),
     (["--rto"], "argument --rto: expected one argument"),

@@ -1,0 +1,209 @@
+"""The per-case context of an Nsqd backend case (``--protocol nsqd``): the ``node`` fixture.
+
+A case opens connections (:meth:`StreamCaseContext.open`), sends frames whole, split or
+batched, then calls one verify helper; the helpers raise ``CaseFailure`` naming the rule,
+what was expected and what was seen. Every frame the backend sends on any connection is
+judged on the way (NSQD-FRM-1: its length; NSQD-MSG-2: its layout, its id, UPDATE's state),
+so a broken sender fails under its own rule whatever case saw it. A spawned backend that
+dies is a failure of the rule the case's input tested, with the signal, the sanitizer's
+summary line first, and the bytes sent in hex (the session restarts it for the next case).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from harness.errors import CaseFailure, Inconclusive, NodeLost
+from harness.stream_session import Conn, StreamSession
+from spec.stream_codec import encode, frame
+
+__all__ = ["StreamCaseContext"]
+
+
+class StreamCaseContext:
+    def __init__(self, session: StreamSession, case_id: str, rules: tuple[str, ...]) -> None:
+        self.session, self.case_id, self.rules = session, case_id, rules
+        self.spec = session.spec
+        self.start_ns = time.time_ns()
+        self.end_ns: int | None = None
+        self.params = self.spec.params
+        self.window = float(self.params["effect_window_s"])
+        self.gap_max = float(self.params["update_gap_max_s"])
+
+    # -- frames -------------------------------------------------------------------------
+    def encode(self, name: str, **values: Any) -> bytes:
+        return encode(self.spec, name, **values)
+
+    def frame(self, msg_id: int, body: bytes = b"", *, length: int | None = None) -> bytes:
+        return frame(self.spec, msg_id, body, length=length)
+
+    def state_value(self, name: str) -> int:
+        return self.spec.states[name]
+
+    # -- failures -----------------------------------------------------------------------
+    def _sent_hex(self) -> list[str]:
+        out = []
+        for c in self.session.conns:
+            for _, data in c.sent[-6:]:
+                out.append(f"sent {len(data)} B: {data[:64].hex(' ')}{' …' if len(data) > 64 else ''}")
+        return out[-8:]
+
+    def fail(self, rule: str, expected: str, actual: str, evidence: list[str] | None = None) -> CaseFailure:
+        """The failure to raise; a dead backend is reported instead, under the case's rule."""
+        death = self.session.death()
+        if death is not None:
+            ev = ([death.sanitizer] if death.sanitizer else []) + self._sent_hex() + [f"stderr: {line}" for line in death.stderr[-6:]]
+            rule = "NSQD-ROB-1" if "NSQD-ROB-1" in self.rules else self.rules[0]
+            return CaseFailure(rule, "the backend survives the input and keeps serving", death.describe(),
+                               ev, relies_on=())
+        return CaseFailure(rule, expected, actual, list(evidence or []) + self._sent_hex())
+
+    def check_stream(self, conn: Conn) -> None:
+        """What the backend sent on ``conn`` so far obeys NSQD-FRM-1 and NSQD-MSG-2."""
+        conn.pump(0)
+        if conn.framing_error is not None:
+            fe = conn.framing_error
+            raise self.fail("NSQD-FRM-1", "frames whose 32-bit length counts itself, 5..8192",
+                            f"a frame from the backend with {fe.reason} (prefix {fe.raw.hex(' ')})")
+        allowed = {self.spec.message("ERROR").id, self.spec.message("UPDATE").id}
+        for r in conn.frames:
+            if r.frame.msg_id not in allowed:
+                raise self.fail("NSQD-MSG-2", "a backend sends only ERROR and UPDATE",
+                                f"a frame with id {r.frame.msg_id}", [f"frame: {r.frame.raw[:48].hex(' ')}"])
+            if r.problem is not None:
+                raise self.fail("NSQD-MSG-2", "each message with exactly its layout", r.problem,
+                                [f"frame: {r.frame.raw[:48].hex(' ')}"])
+            if r.values is not None and "state" in r.values and r.values["state"] not in self.spec.states.values():
+                raise self.fail("NSQD-MSG-2", "UPDATE.state one of the flight states",
+                                f"state {r.values['state']} (0x{r.values['state'] & 0xFFFFFFFF:08x})",
+                                [f"frame: {r.frame.raw.hex(' ')}"])
+
+    # -- connections ----------------------------------------------------------------------
+    def open(self) -> Conn:
+        """A connection the backend accepted and sent an UPDATE on (else the case cannot run)."""
+        conn = self.session.connect()
+        if conn is not None and conn.wait_for(lambda: bool(conn.updates()) or conn.framing_error is not None
+                                              or any(r.problem for r in conn.frames),
+                                              self.gap_max + 0.5):
+            self.check_stream(conn)
+            return conn
+        if conn is not None:
+            self.check_stream(conn)
+        death = self.session.death()
+        if death is not None:
+            raise self.fail(self.rules[0], "", "")
+        raise NodeLost("the backend accepted no connection or sent no UPDATE on it "
+                       f"within {self.gap_max + 0.5:g} s")
+
+    def state(self, conn: Conn) -> int | None:
+        ups = conn.updates()
+        return ups[-1].values["state"] if ups else None  # type: ignore[index]
+
+    def settle(self, conn: Conn, *, avoid: tuple[int, ...] = ()) -> int:
+        """Bring the backend to a known state outside ``avoid`` (CAPTURE_IMAGES, else STOP_TEST)
+        and return it; Inconclusive when it does not get there."""
+        for name in ("CAPTURE_IMAGES", "STOP_TEST", "TAKEOFF"):
+            target = self.spec.message(name).effect.to[0]
+            if target in avoid:
+                continue
+            since = time.monotonic()
+            conn.send(self.encode(name))
+            if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
+                             self.window):
+                self.check_stream(conn)
+                conn.pump(0.05)
+                return target
+            self.check_stream(conn)
+        raise Inconclusive("the backend did not reach a known flight state (CAPTURE_IMAGES, STOP_TEST or "
+                           "TAKEOFF) to start this case from: its effect is judged by NSQD-MSG-3's cases")
+
+    def probe(self, conn: Conn) -> tuple[str, int]:
+        """A command whose effect this backend was seen to take, sent whole (a control for
+        cases that judge framing or streams by a command's effect: a wrong effect is
+        NSQD-MSG-3's failure, not theirs); found once per run."""
+        found = getattr(self.session, "proven_probe", None)
+        if found is None:
+            for name in ("STOP_TEST", "CAPTURE_IMAGES", "STOP_HOVER_TEST", "TAKEOFF"):
+                target = self.spec.message(name).effect.to[0]
+                try:
+                    self.settle(conn, avoid=(target,))
+                except Inconclusive:
+                    continue
+                since = time.monotonic()
+                conn.send(self.encode(name))
+                if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
+                                 self.window):
+                    found = (name, target)
+                    break
+            self.check_stream(conn)
+            if found is None:
+                raise Inconclusive("no command was seen to take its effect (STOP_TEST, CAPTURE_IMAGES, "
+                                   "STOP_HOVER_TEST, TAKEOFF): NSQD-MSG-3's cases say why")
+            self.session.proven_probe = found  # type: ignore[attr-defined]
+        return found
+
+    # -- verify helpers -------------------------------------------------------------------
+    def expect_state(self, conn: Conn, states: tuple[int, ...], since: float, rule: str, what: str,
+                     *, or_error: bool = False) -> None:
+        """An UPDATE after ``since`` shows one of ``states`` within the effect window (or,
+        with ``or_error``, an ERROR says the autopilot refused: D-6)."""
+        def seen() -> bool:
+            if any(u.values["state"] in states for u in conn.updates(since)):  # type: ignore[index]
+                return True
+            return or_error and bool(conn.errors(since))
+        ok = conn.wait_for(seen, self.window)
+        self.check_stream(conn)
+        if not ok:
+            got = [self.spec.state_name(u.values["state"]) for u in conn.updates(since)]  # type: ignore[index]
+            names = " or ".join(self.spec.state_name(s) for s in states)
+            closed = " (the backend closed the connection)" if conn.closed_at else ""
+            raise self.fail(rule, f"after {what}, UPDATE.state {names} within {self.window:g} s",
+                            f"states seen: {', '.join(dict.fromkeys(got)) or 'no UPDATE'}{closed}")
+
+    def expect_unchanged(self, conn: Conn, prior: int, since: float, rule: str, what: str) -> None:
+        """Two UPDATEs after ``since`` (bounded by the effect window) still show ``prior``;
+        a close by the backend is allowed (D-3) and then a new connection must show it."""
+        conn.wait_for(lambda: len(conn.updates(since)) >= 2, self.window)
+        self.check_stream(conn)
+        states = [u.values["state"] for u in conn.updates(since)]  # type: ignore[index]
+        if conn.closed_at is not None and not states:
+            other = self.open()
+            other.wait_for(lambda: len(other.updates()) >= 1, self.gap_max)
+            states = [u.values["state"] for u in other.updates()]  # type: ignore[index]
+        changed = [s for s in states if s != prior]
+        if changed:
+            raise self.fail(rule, f"after {what}, the flight state stays {self.spec.state_name(prior)}",
+                            f"UPDATE.state became {self.spec.state_name(changed[0])}")
+
+    def expect_error(self, conn: Conn, since: float, rule: str, what: str) -> None:
+        ok = conn.wait_for(lambda: bool(conn.errors(since)), self.window)
+        self.check_stream(conn)
+        if not ok:
+            raise self.fail(rule, f"an ERROR frame after {what}", f"no ERROR within {self.window:g} s"
+                            + (" (the backend closed the connection)" if conn.closed_at else ""))
+
+    def expect_closed(self, conn: Conn, rule: str, what: str) -> None:
+        window = float(self.params["close_window_s"])
+        ok = conn.wait_for(lambda: conn.closed_at is not None, window)
+        if not ok:
+            if self.session.death() is not None:
+                raise self.fail(rule, "", "")
+            raise self.fail(rule, f"the backend closes the connection after {what}",
+                            f"still open {window:g} s later ({len(conn.updates())} UPDATEs on it)")
+
+    def expect_alive(self, rule: str = "NSQD-ROB-1", what: str = "the input") -> Conn:
+        """The backend still serves: a new connection is accepted and gets UPDATE."""
+        for c in list(self.session.conns):
+            c.close()
+            self.session.conns.remove(c)
+        conn = self.session.connect()
+        ok = conn is not None and conn.wait_for(lambda: bool(conn.updates()), self.gap_max + 0.5)
+        if conn is not None:
+            self.check_stream(conn)
+        if not ok:
+            raise self.fail(rule, f"after {what}, a new connection accepted and sent UPDATE",
+                            "refused" if conn is None else f"no UPDATE within {self.gap_max + 0.5:g} s")
+        return conn  # type: ignore[return-value]
+
+

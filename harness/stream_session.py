@@ -1,0 +1,315 @@
+"""The runner's session with a stream-protocol node (``--protocol nsqd``: the node is a
+backend, the runner its client), the TCP counterpart of ``harness.session``.
+
+The node is embedded (the reference backend on a free loopback port, in a thread), attached
+(``--target HOST:PORT``) or spawned (``--spawn CMD`` with ``{target_host}``,
+``{target_port}``). The session opens connections for the cases (:class:`Conn`: bytes out
+in any split, frames in through the spec's deframer, timestamps kept), watches a spawned
+process (a death is reported with its signal, a sanitizer's summary line and the tail of
+stderr, and the backend is restarted for the next case) and says whether the backend is
+live (a new connection accepted and an UPDATE received: NSQD-CON-1, NSQD-MSG-1).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import shlex
+import signal
+import socket
+import struct
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from harness.config import RunConfig
+from harness.errors import SetupError, SpawnFailure
+from harness.procs import ManagedProcess
+from spec import NSQD
+from spec.stream import StreamSpec
+from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body
+
+__all__ = ["Conn", "Death", "Received", "StreamSession"]
+
+#: The embedded reference backend's UPDATE period (the description's is 0.4 s: D-8).
+EMBEDDED_UPDATE_PERIOD = 0.1
+_SANITIZER = re.compile(r"(SUMMARY: \w+Sanitizer: .*|ERROR: \w+Sanitizer: .*|runtime error: .*)")
+
+
+@dataclass(frozen=True)
+class Received:
+    """A frame from the backend, when it came, and what it decoded to (``problem``: why not)."""
+
+    t: float
+    frame: Frame
+    values: dict[str, Any] | None
+    problem: str | None = None
+
+
+@dataclass(frozen=True)
+class Death:
+    """How a spawned backend ended: exit code or signal, its sanitizer line, its stderr tail."""
+
+    code: int | None
+    signal_name: str | None
+    sanitizer: str | None
+    stderr: tuple[str, ...]
+
+    def describe(self) -> str:
+        how = f"killed by {self.signal_name}" if self.signal_name else f"exited with status {self.code}"
+        return f"the backend process {how}" + (f"; {self.sanitizer}" if self.sanitizer else "")
+
+
+@dataclass
+class Conn:
+    """One client connection of the runner to the backend."""
+
+    sock: socket.socket
+    spec: StreamSpec
+    opened: float = field(default_factory=time.monotonic)
+    frames: list[Received] = field(default_factory=list)
+    sent: list[tuple[float, bytes]] = field(default_factory=list)
+    framing_error: FramingError | None = None
+    closed_at: float | None = None  # the backend closed (FIN or RST)
+    reset: bool = False
+
+    def __post_init__(self) -> None:
+        self._deframer = Deframer(self.spec)
+        self.sock.setblocking(False)
+
+    # -- out --------------------------------------------------------------------------
+    def send(self, data: bytes, *, split: int | None = None, gap: float = 0.0) -> bool:
+        """Send ``data`` whole or in ``split``-byte writes (``gap`` s apart, TCP_NODELAY);
+        False when the backend had closed the connection."""
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        chunks = [data] if not split else [data[i:i + split] for i in range(0, len(data), split)]
+        self.sent.append((time.monotonic(), data))
+        try:
+            for i, c in enumerate(chunks):
+                self.sock.setblocking(True)
+                self.sock.sendall(c)
+                self.sock.setblocking(False)
+                if gap and i + 1 < len(chunks):
+                    time.sleep(gap)
+                    self.pump(0)
+        except OSError:
+            self.sock.setblocking(False)
+            self.closed_at = self.closed_at or time.monotonic()
+            return False
+        return True
+
+    def close(self, *, rst: bool = False) -> None:
+        if rst:
+            with contextlib.suppress(OSError):
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    # -- in ---------------------------------------------------------------------------
+    def pump(self, timeout: float) -> None:
+        """Read what arrives within ``timeout`` s (0: what is there now)."""
+        end = time.monotonic() + timeout
+        while self.closed_at is None:
+            left = end - time.monotonic()
+            self.sock.settimeout(max(left, 0.0) if left > 0 else 0.0)
+            try:
+                data = self.sock.recv(65536)
+            except (BlockingIOError, TimeoutError):
+                data = None
+            except ConnectionResetError:
+                self.closed_at, self.reset = time.monotonic(), True
+                break
+            except OSError:
+                self.closed_at = time.monotonic()
+                break
+            finally:
+                self.sock.setblocking(False)
+            if data is None:
+                if time.monotonic() >= end:
+                    break
+                continue
+            if not data:
+                self.closed_at = time.monotonic()
+                break
+            self._take(data)
+
+    def _take(self, data: bytes) -> None:
+        now = time.monotonic()
+        for item in self._deframer.feed(data):
+            if isinstance(item, FramingError):
+                self.framing_error = item
+                continue
+            problem, values = None, None
+            if not self.spec.has_message(item.msg_id):
+                problem = f"message id {item.msg_id} names no message"
+            else:
+                try:
+                    d = decode_body(self.spec, item.msg_id, item.body, check_text=False)
+                    values = d.as_dict()
+                    if d.extra:
+                        problem = f"{d.name}: {d.extra} bytes after its last field"
+                except BodyError as exc:
+                    problem = str(exc)
+            self.frames.append(Received(now, item, values, problem))
+
+    def updates(self, since: float = 0.0) -> list[Received]:
+        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id
+                and r.values is not None]
+
+    def errors(self, since: float = 0.0) -> list[Received]:
+        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("ERROR").id]
+
+    def wait_for(self, pred: Any, timeout: float) -> bool:
+        """Pump until ``pred()`` holds or ``timeout`` s pass (or the backend closes)."""
+        end = time.monotonic() + timeout
+        while True:
+            if pred():
+                return True
+            left = end - time.monotonic()
+            if left <= 0 or self.closed_at is not None:
+                return bool(pred())
+            self.pump(min(left, 0.05))
+
+
+def embedded_command() -> str:
+    """The reference backend as the embedded default, at a short UPDATE period."""
+    return (f"{shlex.quote(sys.executable)} -m reference_impl --protocol nsqd backend "
+            f"--bind {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
+
+
+class StreamSession:
+    """The node under test over the whole run, and the connections of its cases."""
+
+    def __init__(self, cfg: RunConfig, recorder: Any = None, spec: StreamSpec = NSQD) -> None:
+        self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        self.make_context: Any = None
+        self.proc: ManagedProcess | None = None
+        self.deaths: list[Death] = []
+        self._template: str | None = None
+        self.address: tuple[str, int] = cfg.target or ("127.0.0.1", 0)
+        self.target_desc = ""
+        self.lost: str | None = None
+        self.conns: list[Conn] = []
+
+    # -- life -------------------------------------------------------------------------
+    @property
+    def spawned(self) -> bool:
+        return self.proc is not None
+
+    def start(self) -> None:
+        if self.cfg.spawn:
+            self._spawn()
+            self.target_desc = f"{self.address[0]}:{self.address[1]} (spawned)"
+        elif self.cfg.target is None:  # the embedded default: the reference backend, spawned
+            self._spawn(embedded_command())
+            self.target_desc = f"{self.address[0]}:{self.address[1]} (embedded reference backend)"
+        else:
+            self.target_desc = f"{self.address[0]}:{self.address[1]}"
+        if not self.live(float(self.spec.params["connect_timeout_s"]) + float(self.spec.params["update_gap_max_s"])):
+            raise SetupError(f"the backend at {self.address[0]}:{self.address[1]} accepted no connection "
+                             "or sent no UPDATE (NSQD-CON-1)")
+
+    def _spawn(self, template: str | None = None) -> None:
+        host = "127.0.0.1"
+        with socket.socket() as s:
+            s.bind((host, 0))
+            port = int(s.getsockname()[1])
+        self.address = (host, port)
+        self._template = template or self._template or self.cfg.spawn
+        command = self._template.format(target_host=host, target_port=port)  # type: ignore[union-attr]
+        self.proc = ManagedProcess(shlex.split(command))
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            if not self.proc.alive():
+                out, err = self.proc.output(20)
+                raise SpawnFailure(f"the spawned backend exited with status {self.proc.returncode} before it "
+                                   f"listened on {host}:{port}",
+                                   {"command": command, "exit": self.proc.returncode, "stdout": out, "stderr": err})
+            with socket.socket() as s, contextlib.suppress(OSError):
+                s.settimeout(0.2)
+                s.connect(self.address)
+                return
+            time.sleep(0.05)
+        raise SetupError(f"the spawned backend did not listen on {host}:{port} within 10 s")
+
+    def close(self) -> None:
+        for c in self.conns:
+            c.close()
+        self.conns.clear()
+        if self.proc is not None:
+            self.proc.stop()
+
+    # -- connections --------------------------------------------------------------------
+    def connect(self, timeout: float | None = None) -> Conn | None:
+        """A new connection (None: refused or not accepted within ``timeout``)."""
+        timeout = timeout if timeout is not None else float(self.spec.params["connect_timeout_s"])
+        try:
+            sock = socket.create_connection(self.address, timeout=timeout)
+        except OSError:
+            return None
+        conn = Conn(sock, self.spec)
+        self.conns.append(conn)
+        return conn
+
+    def live(self, timeout: float) -> bool:
+        """The backend accepts a new connection and sends UPDATE on it within ``timeout``."""
+        conn = self.connect(min(timeout, float(self.spec.params["connect_timeout_s"])))
+        if conn is None:
+            return False
+        try:
+            # any bytes prove it live: frames the runner cannot parse are NSQD-FRM-1's to judge
+            return conn.wait_for(lambda: bool(conn.frames) or conn.framing_error is not None, timeout)
+        finally:
+            conn.close()
+            self.conns.remove(conn)
+
+    def death(self) -> Death | None:
+        """How the spawned backend ended, if it did (then it is restarted by :meth:`revive`)."""
+        if self.proc is None or self.proc.alive():
+            return None
+        code = self.proc.returncode
+        _, err = self.proc.output(80)
+        sig = signal.Signals(-code).name if code is not None and code < 0 else None
+        if sig is None and code is not None and code > 128:
+            with contextlib.suppress(ValueError):
+                sig = signal.Signals(code - 128).name
+        san = next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m and "SUMMARY" in m.group(1)), None)
+        san = san or next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m), None)
+        return Death(code, sig, san, tuple(err[-12:]))
+
+    def revive(self) -> None:
+        """Restart a dead spawned backend for the next case (the run goes on)."""
+        if self.proc is not None and not self.proc.alive():
+            self.proc.stop()
+            self._spawn()
+
+    def open_fds(self) -> int | None:
+        """The spawned backend's open descriptors, from /proc (None when not observable)."""
+        if self.proc is None:
+            return None
+        try:
+            import os
+
+            return len(os.listdir(f"/proc/{self.proc.pid}/fd"))
+        except OSError:
+            return None
+
+    # -- case API (conformance._plugin_run) ---------------------------------------------
+    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
+        if self.lost is not None:
+            from harness.errors import TargetLost
+
+            raise TargetLost(self.lost)
+        factory = self.make_context
+        if factory is None:
+            raise RuntimeError("StreamSession.make_context is not set")
+        return factory(self, case_id, rules)
+
+    def end_case(self, ctx: Any, outcome: str) -> None:
+        ctx.end_ns = time.time_ns()
+        for c in list(self.conns):
+            c.close()
+        self.conns.clear()
+        if self.spawned and self.death() is not None:
+            self.revive()

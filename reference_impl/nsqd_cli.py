@@ -1,0 +1,122 @@
+"""``mcp-node --protocol nsqd backend|client``: the reference Nsqd backend on a TCP port, or
+a small client that connects to a backend, sends commands and prints what comes back.
+
+::
+
+    mcp-node --protocol nsqd backend [--bind HOST:PORT] [--update-period S]
+    mcp-node --protocol nsqd client --connect HOST:PORT [--send NAME ...] [--duration S]
+
+The backend prints ``listening on HOST:PORT`` once it listens, logs one line per event to
+stderr and stops on SIGINT/SIGTERM (exit 0); a bad argument or a port in use is one line
+and exit 2. The client prints each frame it receives as JSON, one per line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import socket
+import sys
+import time
+from collections.abc import Sequence
+from typing import NoReturn
+
+from reference_impl.nsqd_backend import BackendCore, BackendServer
+from spec import NSQD
+from spec.stream_codec import BodyError, Deframer, FramingError, decode_body, encode
+
+PROG = "mcp-node --protocol nsqd"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{PROG}: error: {message}\n")
+
+
+def _hostport(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT")
+    return host or "127.0.0.1", int(port)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="The reference Nsqd backend, or a client of one.")
+    sub = p.add_subparsers(dest="role", required=True)
+    b = sub.add_parser("backend", help="serve the Nsqd protocol on a TCP port (one client at a time)")
+    b.add_argument("--bind", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT")
+    b.add_argument("--update-period", type=float, default=float(NSQD.params["update_period_s"]), metavar="S")
+    b.add_argument("-v", "--verbose", action="store_true")
+    c = sub.add_parser("client", help="connect to a backend, send commands, print what comes back")
+    c.add_argument("--connect", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT")
+    c.add_argument("--send", nargs="*", default=[], metavar="NAME", help="commands without a body (TAKEOFF, LAND ...)")
+    c.add_argument("--duration", type=float, default=2.0, metavar="S")
+    return p
+
+
+def _backend(args: argparse.Namespace) -> int:
+    if args.update_period <= 0:
+        print(f"{PROG}: error: --update-period: must be > 0", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr,
+                        format="%(name)s: %(message)s")
+    try:
+        server = BackendServer(*args.bind, core=BackendCore(update_period=args.update_period))
+    except OSError as exc:
+        print(f"{PROG}: error: --bind {args.bind[0]}:{args.bind[1]}: {exc.strerror}", file=sys.stderr)
+        return 2
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: server.stop())
+    print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
+    try:
+        server.serve()
+    finally:
+        server.close()
+    return 0
+
+
+def _client(args: argparse.Namespace) -> int:
+    for name in args.send:
+        try:
+            msg = NSQD.message(name.upper())
+        except KeyError:
+            print(f"{PROG}: error: --send: no message {name!r}", file=sys.stderr)
+            return 2
+        if msg.fields:
+            print(f"{PROG}: error: --send: {msg.name} has a body; only bodiless commands are sent from here", file=sys.stderr)
+            return 2
+    try:
+        sock = socket.create_connection(args.connect, timeout=2.0)
+    except OSError as exc:
+        print(f"{PROG}: error: --connect {args.connect[0]}:{args.connect[1]}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    deframer = Deframer(NSQD)
+    with sock:
+        for name in args.send:
+            sock.sendall(encode(NSQD, name.upper()))
+        end = time.monotonic() + args.duration
+        while (left := end - time.monotonic()) > 0:
+            sock.settimeout(left)
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                break
+            if not data:
+                break
+            for item in deframer.feed(data):
+                if isinstance(item, FramingError):
+                    print(json.dumps({"framing_error": item.reason}), flush=True)
+                    return 1
+                try:
+                    values = decode_body(NSQD, item.msg_id, item.body, check_text=False).as_dict()
+                    print(json.dumps({"id": item.msg_id, "name": NSQD.message(item.msg_id).name, **values}), flush=True)
+                except (KeyError, BodyError) as exc:
+                    print(json.dumps({"id": item.msg_id, "problem": str(exc)}), flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return _backend(args) if args.role == "backend" else _client(args)
