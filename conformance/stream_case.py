@@ -43,15 +43,14 @@ class StreamCaseContext:
 
     # -- failures -----------------------------------------------------------------------
     def _sent_hex(self) -> list[str]:
-        out = []
-        for c in self.session.conns:
-            for _, data in c.sent[-6:]:
-                out.append(f"sent {len(data)} B: {data[:64].hex(' ')}{' …' if len(data) > 64 else ''}")
-        return out[-8:]
+        return [f"sent {len(data)} B: {data[:64].hex(' ')}{' …' if len(data) > 64 else ''}"
+                for _, data in self.session.sent_log[-6:]]
 
     def fail(self, rule: str, expected: str, actual: str, evidence: list[str] | None = None) -> CaseFailure:
-        """The failure to raise; a dead backend is reported instead, under the case's rule."""
-        death = self.session.death()
+        """The failure to raise; a dead backend is reported instead, under the case's rule
+        (a connection the backend closed may be its death on the way: a moment's grace)."""
+        closed = any(c.closed_at is not None for c in self.session.conns)
+        death = self.session.death(grace=0.5 if closed else 0.05)
         if death is not None:
             ev = ([death.sanitizer] if death.sanitizer else []) + self._sent_hex() + [f"stderr: {line}" for line in death.stderr[-6:]]
             rule = "NSQD-ROB-1" if "NSQD-ROB-1" in self.rules else self.rules[0]

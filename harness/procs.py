@@ -32,6 +32,7 @@ from typing import IO, Any
 __all__ = ["Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
 
 TAIL_LINES = 40
+REPORT_LINES = 40  # lines kept of a sanitizer report's head
 LINE_CHARS = 400
 _PR_SET_PDEATHSIG = 1
 
@@ -146,6 +147,9 @@ class _Tail:
 
     def __init__(self, stream: IO[bytes]) -> None:
         self.lines: collections.deque[str] = collections.deque(maxlen=TAIL_LINES)
+        #: the head of the first sanitizer report (its ERROR line and what follows), kept
+        #: whole however long the output grows after it
+        self.report: list[str] = []
         self.thread = threading.Thread(target=self._read, args=(stream,), daemon=True,
                                        name="mcp-conform-node-output")
         self.thread.start()
@@ -154,7 +158,11 @@ class _Tail:
         with contextlib.suppress(OSError, ValueError):
             for raw in iter(stream.readline, b""):
                 text = raw.decode("utf-8", "replace").rstrip("\r\n")
-                self.lines.append(text if len(text) <= LINE_CHARS else text[:LINE_CHARS] + " ...")
+                text = text if len(text) <= LINE_CHARS else text[:LINE_CHARS] + " ..."
+                self.lines.append(text)
+                if (self.report and len(self.report) < REPORT_LINES) or \
+                        (not self.report and ("Sanitizer:" in text and "ERROR" in text or "runtime error:" in text)):
+                    self.report.append(text)
         with contextlib.suppress(OSError):
             stream.close()
 
@@ -193,6 +201,12 @@ class ManagedProcess:
             for t in (self._out, self._err):
                 t.thread.join(timeout=0.5)
         return self._out.tail(lines), self._err.tail(lines)
+
+    def sanitizer_report(self) -> list[str]:
+        """The head of the first AddressSanitizer/UBSan report on stderr ([] if none)."""
+        if not self.alive():
+            self._err.thread.join(timeout=0.5)
+        return list(self._err.report)
 
     def stop(self, grace: float = 2.0) -> None:
         """SIGTERM to the group, then SIGKILL to whatever is left of it; never raises."""

@@ -33,7 +33,7 @@ from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_b
 __all__ = ["Conn", "Death", "Received", "StreamSession"]
 
 #: The embedded reference backend's UPDATE period (the description's is 0.4 s: D-8).
-EMBEDDED_UPDATE_PERIOD = 0.1
+EMBEDDED_UPDATE_PERIOD = 0.05
 _SANITIZER = re.compile(r"(SUMMARY: \w+Sanitizer: .*|ERROR: \w+Sanitizer: .*|runtime error: .*)")
 
 
@@ -73,6 +73,8 @@ class Conn:
     framing_error: FramingError | None = None
     closed_at: float | None = None  # the backend closed (FIN or RST)
     reset: bool = False
+    log: list[tuple[float, bytes]] | None = None  # the case's record of everything sent
+
 
     def __post_init__(self) -> None:
         self._deframer = Deframer(self.spec)
@@ -85,6 +87,8 @@ class Conn:
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         chunks = [data] if not split else [data[i:i + split] for i in range(0, len(data), split)]
         self.sent.append((time.monotonic(), data))
+        if self.log is not None:
+            self.log.append(self.sent[-1])
         try:
             for i, c in enumerate(chunks):
                 self.sock.setblocking(True)
@@ -108,7 +112,8 @@ class Conn:
 
     # -- in ---------------------------------------------------------------------------
     def pump(self, timeout: float) -> None:
-        """Read what arrives within ``timeout`` s (0: what is there now)."""
+        """Read what arrives within ``timeout`` s, returning once something came (0: read
+        what is there now)."""
         end = time.monotonic() + timeout
         while self.closed_at is None:
             left = end - time.monotonic()
@@ -133,6 +138,14 @@ class Conn:
                 self.closed_at = time.monotonic()
                 break
             self._take(data)
+            if timeout > 0:  # something came: let the caller look at it
+                break
+
+    def watch(self, duration: float) -> None:
+        """Read everything that arrives over the next ``duration`` s."""
+        end = time.monotonic() + duration
+        while self.closed_at is None and (left := end - time.monotonic()) > 0:
+            self.pump(left)
 
     def _take(self, data: bytes) -> None:
         now = time.monotonic()
@@ -191,6 +204,7 @@ class StreamSession:
         self.target_desc = ""
         self.lost: str | None = None
         self.conns: list[Conn] = []
+        self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
 
     # -- life -------------------------------------------------------------------------
     @property
@@ -248,7 +262,7 @@ class StreamSession:
             sock = socket.create_connection(self.address, timeout=timeout)
         except OSError:
             return None
-        conn = Conn(sock, self.spec)
+        conn = Conn(sock, self.spec, log=self.sent_log)
         self.conns.append(conn)
         return conn
 
@@ -264,18 +278,28 @@ class StreamSession:
             conn.close()
             self.conns.remove(conn)
 
-    def death(self) -> Death | None:
-        """How the spawned backend ended, if it did (then it is restarted by :meth:`revive`)."""
-        if self.proc is None or self.proc.alive():
+    def death(self, grace: float = 0.0) -> Death | None:
+        """How the spawned backend ended, if it did within ``grace`` s (a sanitizer takes a
+        moment to write its report and exit); :meth:`revive` restarts it."""
+        if self.proc is None:
+            return None
+        end = time.monotonic() + grace
+        while self.proc.alive() and time.monotonic() < end:
+            time.sleep(0.02)
+        if self.proc.alive():
             return None
         code = self.proc.returncode
-        _, err = self.proc.output(80)
+        _, err = self.proc.output(400)
         sig = signal.Signals(-code).name if code is not None and code < 0 else None
         if sig is None and code is not None and code > 128:
             with contextlib.suppress(ValueError):
                 sig = signal.Signals(code - 128).name
         san = next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m and "SUMMARY" in m.group(1)), None)
         san = san or next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m), None)
+        report = self.proc.sanitizer_report()  # its ERROR line and the top frames of the stack
+        if report:
+            frames = [line for line in report[1:] if line.lstrip().startswith("#")][:5]
+            return Death(code, sig, san or report[0].strip(), tuple([report[0], *frames]))
         return Death(code, sig, san, tuple(err[-12:]))
 
     def revive(self) -> None:
@@ -302,6 +326,7 @@ class StreamSession:
 
             raise TargetLost(self.lost)
         factory = self.make_context
+        self.sent_log.clear()
         if factory is None:
             raise RuntimeError("StreamSession.make_context is not set")
         return factory(self, case_id, rules)

@@ -146,7 +146,14 @@ def render(spec: Spec) -> str:
         "",
     ]
     lines += _table(("offset", "field", "code", "bytes", "meaning"), _layout_rows(item))
-    lines += ["## Parameters", ""]
+    lines += catalogue_sections(spec, ROLES, "`mcp` (the node's MCP messages), `vehicle` (its MAVLink link), `none`")
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def catalogue_sections(spec: Any, roles: Sequence[str], observables: str) -> list[str]:
+    """Parameters, errata and decisions, and the rule tables: the part of the page every
+    protocol's spec has (``spec`` a ``Spec`` or a ``spec.stream.StreamSpec``)."""
+    lines: list[str] = ["## Parameters", ""]
     lines += _table(("parameter", "default", "meaning"),
                     [(f"`{k}`", v["default"], v.get("doc", ""))
                      for k, v in spec.raw["parameters"].items()])
@@ -162,8 +169,8 @@ def render(spec: Spec) -> str:
     lines += [
         "## Rules",
         "",
-        f"{len(spec.rules)} rules ({summary}). Observability per role: `mcp` (the node's MCP "
-        "messages), `vehicle` (its MAVLink link), `none`; and the side of an exchange the rule "
+        f"{len(spec.rules)} rules ({summary}). Observability per role: {observables}; "
+        "and the side of an exchange the rule "
         "binds. \"Depends on\" lists the errata and decisions a rule rests on, and the rules "
         "its observation relies on: when one of those failed first, the runner reports this "
         "rule's failure as its consequence.",
@@ -175,12 +182,12 @@ def render(spec: Spec) -> str:
             continue
         lines += [f"### {group} — {title}", ""]
         lines += _table(
-            ("ID", "level", "roles", "requirement", "depends on", *(f"observe ({r})" for r in ROLES)),
+            ("ID", "level", "roles", "requirement", "depends on", *(f"observe ({r})" for r in roles)),
             [(f"{r.id}" + (f" ({r.status})" if r.status != "active" else ""), r.level,
               ", ".join(r.roles), r.text, ", ".join(r.depends_on),
-              *(_observe(r, role) for role in ROLES))
+              *(_observe(r, role) for role in roles))
              for r in rules])
-    return "\n".join(lines).rstrip("\n") + "\n"
+    return lines
 
 
 def write(spec: Spec, path: str | Path | None = None) -> Path:

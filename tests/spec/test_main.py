@@ -26,10 +26,10 @@ def test_docs_check_passes_on_the_committed_page(capsys: pytest.CaptureFixture[s
 
 def test_docs_write_then_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "spec.md"
-    assert main(["docs", "--check", "--output", str(out)]) == 1
+    assert main(["--protocol", "mcp", "docs", "--check", "--output", str(out)]) == 1
     assert "stale" in capsys.readouterr().err
-    assert main(["docs", "--output", str(out)]) == 0
-    assert main(["docs", "--check", "--output", str(out)]) == 0
+    assert main(["--protocol", "mcp", "docs", "--output", str(out)]) == 0
+    assert main(["--protocol", "mcp", "docs", "--check", "--output", str(out)]) == 0
 
 
 def test_broken_spec_is_one_line_and_exit_2(tmp_path: Path) -> None:
