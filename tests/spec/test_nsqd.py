@@ -16,7 +16,16 @@ from hypothesis import strategies as st
 
 from spec import NSQD, RULES, SPEC, SpecError, load, load_stream
 from spec.docs_stream import render
-from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body, encode, gpx_problem, number_problem
+from spec.stream_codec import (
+    BodyError,
+    Deframer,
+    Frame,
+    FramingError,
+    decode_body,
+    encode,
+    gpx_problem,
+    number_problem,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
