@@ -1,4 +1,6 @@
-"""Codec benchmark: encode+decode of the 93-byte WP_List with two waypoints, spec codec vs scapy.
+"""Codec benchmark: encode+decode of the 93-byte WP_List with two waypoints, spec codec vs scapy;
+and beside it the Nsqd codec (spec.stream_codec): a 37-byte UPDATE and a 30-byte SET_RPYTFF
+encoded, deframed and decoded, against the Nsqd scapy layer.
 
     python bench/bench_codec.py [--rounds N] [--quick]
 
@@ -92,7 +94,51 @@ def main(argv: list[str] | None = None) -> int:
     codec, scapy = results[0][1], results[3][1]
     print(f"spec.codec is {codec / scapy:,.0f}x scapy; target {TARGET:,} msg/s: "
           f"{'met' if codec >= TARGET else 'NOT met'}")
+    nsqd = nsqd_results(big, small, rounds)
+    print()
+    print("Nsqd (TCP) beside it: UPDATE 37 bytes and SET_RPYTFF 30 bytes, one of each per message pair")
+    print(f"{'codec':<28}{'msg/s':>12}{'MCP msg/s':>12}")
+    for (name, rate), mcp in zip(nsqd, (results[0][1], results[1][1], results[2][1], results[5][1]), strict=True):
+        print(f"{name:<28}{rate:>12,.0f}{mcp:>12,.0f}")
     return 0
+
+
+def nsqd_results(big: int, small: int, rounds: int) -> list[tuple[str, float]]:
+    """The same measurements for the Nsqd codec and its scapy layer, per message."""
+    from spec import NSQD
+    from spec.scapy_nsqd import NSQD_Frame
+    from spec.stream_codec import Deframer, decode_body
+    from spec.stream_codec import encode as nsqd_encode
+
+    values = dict(roll=1, pitch=2, yaw=3, thrust=40, lat=55, lon=10, alt=3, state=2)
+    rpytff = dict(roll="1.5", pitch="2", yaw="3", thrust="4", flag=1, file_name="a.csv")
+    stream = nsqd_encode(NSQD, "UPDATE", **values) + nsqd_encode(NSQD, "SET_RPYTFF", **rpytff)
+
+    def enc(n: int) -> None:
+        for _ in range(n // 2):
+            nsqd_encode(NSQD, "UPDATE", **values)
+            nsqd_encode(NSQD, "SET_RPYTFF", **rpytff)
+
+    def dec(n: int) -> None:
+        d = Deframer(NSQD)
+        for _ in range(n // 2):
+            for fr in d.feed(stream):
+                decode_body(NSQD, fr.msg_id, fr.body)  # type: ignore[union-attr]
+
+    def both(n: int) -> None:
+        enc(n)
+        dec(n)
+
+    def scapy_dissect(n: int) -> None:
+        upd, rpy = stream[:37], stream[37:]
+        for _ in range(n // 2):
+            NSQD_Frame(upd)
+            NSQD_Frame(rpy)
+
+    return [("stream_codec encode+decode", best_rate(both, big, rounds, big // 10)),
+            ("stream_codec encode", best_rate(enc, big, rounds, big // 10)),
+            ("stream_codec deframe+decode", best_rate(dec, big, rounds, big // 10)),
+            ("scapy_nsqd dissect", best_rate(scapy_dissect, small, rounds, small // 10))]
 
 
 if __name__ == "__main__":

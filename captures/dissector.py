@@ -245,16 +245,24 @@ def register(sub: Any) -> None:
     p.add_argument("--install", action="store_true",
                    help=f"copy it to {plugin_dir()}/{FILENAME} instead of printing it")
     p.add_argument("-o", "--output", metavar="FILE", help="write it to FILE instead of printing it")
+    p.add_argument("--protocol", choices=("mcp", "nsqd"), default="mcp",
+                   help="mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol)")
     p.set_defaults(run=run)
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     err = err or sys.stderr
-    source = generate()
+    filename = FILENAME
+    if getattr(args, "protocol", "mcp") == "nsqd":
+        from captures import dissector_nsqd
+
+        source, filename = dissector_nsqd.generate(), dissector_nsqd.FILENAME
+    else:
+        source = generate()
     target: Path | None = None
     if args.install:
-        target = plugin_dir() / FILENAME
+        target = plugin_dir() / filename
     elif args.output:
         target = Path(args.output)
     if target is None:

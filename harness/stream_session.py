@@ -74,11 +74,17 @@ class Conn:
     closed_at: float | None = None  # the backend closed (FIN or RST)
     reset: bool = False
     log: list[tuple[float, bytes]] | None = None  # the case's record of everything sent
+    recorder: Any = None  # the run's capture (traceio.recorder.McapRecorder or a Tee), if any
+    index: int = 0  # the connection's number in the run
 
 
     def __post_init__(self) -> None:
         self._deframer = Deframer(self.spec)
         self.sock.setblocking(False)
+        try:
+            self.sock_peer: Any = self.sock.getpeername()
+        except OSError:
+            self.sock_peer = None
 
     # -- out --------------------------------------------------------------------------
     def send(self, data: bytes, *, split: int | None = None, gap: float = 0.0) -> bool:
@@ -89,6 +95,12 @@ class Conn:
         self.sent.append((time.monotonic(), data))
         if self.log is not None:
             self.log.append(self.sent[-1])
+        if self.recorder is not None:
+            head = Deframer(self.spec).feed(data)
+            whole = len(head) == 1 and isinstance(head[0], Frame) and len(head[0].raw) == len(data)
+            msg_id = head[0].msg_id if whole else None  # type: ignore[union-attr]
+            name = self.spec.message(msg_id).name if msg_id is not None and self.spec.has_message(msg_id) else None
+            self.recorder.stream_frame("tx", data, conn=self.index, peer=self.sock_peer, msg_id=msg_id, name=name)
         try:
             for i, c in enumerate(chunks):
                 self.sock.setblocking(True)
@@ -152,6 +164,8 @@ class Conn:
         for item in self._deframer.feed(data):
             if isinstance(item, FramingError):
                 self.framing_error = item
+                if self.recorder is not None:
+                    self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer, problem=item.reason)
                 continue
             problem, values = None, None
             if not self.spec.has_message(item.msg_id):
@@ -165,6 +179,10 @@ class Conn:
                 except BodyError as exc:
                     problem = str(exc)
             self.frames.append(Received(now, item, values, problem))
+            if self.recorder is not None:
+                name = self.spec.message(item.msg_id).name if self.spec.has_message(item.msg_id) else None
+                self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer,
+                                           msg_id=item.msg_id, name=name, fields=values, problem=problem)
 
     def updates(self, since: float = 0.0) -> list[Received]:
         return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id
@@ -205,6 +223,7 @@ class StreamSession:
         self.lost: str | None = None
         self.conns: list[Conn] = []
         self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
+        self._conn_count = 0
 
     # -- life -------------------------------------------------------------------------
     @property
@@ -262,7 +281,8 @@ class StreamSession:
             sock = socket.create_connection(self.address, timeout=timeout)
         except OSError:
             return None
-        conn = Conn(sock, self.spec, log=self.sent_log)
+        self._conn_count += 1
+        conn = Conn(sock, self.spec, log=self.sent_log, recorder=self.recorder, index=self._conn_count)
         self.conns.append(conn)
         return conn
 
@@ -329,10 +349,15 @@ class StreamSession:
         self.sent_log.clear()
         if factory is None:
             raise RuntimeError("StreamSession.make_context is not set")
-        return factory(self, case_id, rules)
+        ctx = factory(self, case_id, rules)
+        if self.recorder is not None:
+            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
+        if self.recorder is not None:
+            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
         for c in list(self.conns):
             c.close()
         self.conns.clear()

@@ -171,6 +171,32 @@ _VEHICLE_SCHEMA: dict[str, Any] = {
     "required": ["kind"],
 }
 
+_STREAM_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "nsqd.Frame",
+    "description": "Bytes on a stream protocol's connection (--protocol nsqd): tx what the runner "
+                   "wrote in one write, rx one frame the backend sent (or the bytes its deframer "
+                   "refused), decoded where they decode.",
+    "type": "object",
+    "properties": {
+        "direction": {"enum": ["tx", "rx"]},
+        "conn": _INT,
+        "peer": _STR,
+        "msg_id": _NULLABLE_INT,
+        "name": {"type": ["string", "null"]},
+        "fields": {"type": ["object", "null"]},
+        "problem": {"type": ["string", "null"]},
+        "length": _INT,
+        "raw_base64": _B64,
+    },
+    "required": ["direction", "conn", "length", "raw_base64"],
+}
+#: A stream protocol's channels, registered when its first frame is recorded.
+STREAM_CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
+    "/nsqd/tx": ("nsqd.Frame", _STREAM_SCHEMA),
+    "/nsqd/rx": ("nsqd.Frame", _STREAM_SCHEMA),
+}
+
 #: topic -> (schema name, JSON schema)
 CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/mcp/tx": ("mcp.Datagram", _DATAGRAM_SCHEMA),
@@ -357,6 +383,28 @@ class McapRecorder:
                 "count": int(count), "first_t_ns": int(first_t_ns), "last_t_ns": int(last_t_ns),
                 "cycle": datagrams}
         self._write("/mcp/burst", body, first_t_ns)
+
+    def stream_frame(self, direction: str, raw: bytes, *, conn: int, peer: Any, msg_id: int | None = None,
+                     name: str | None = None, fields: Mapping[str, Any] | None = None,
+                     problem: str | None = None, t_ns: int | None = None) -> None:
+        """Bytes on a stream connection (``/nsqd/tx``: one write of the runner; ``/nsqd/rx``:
+        one frame of the backend), with what they decode to."""
+        if direction not in ("tx", "rx"):
+            raise ValueError(f"stream direction must be 'tx' or 'rx', not {direction!r}")
+        topic = f"/nsqd/{direction}"
+        with self._lock:
+            if self._closed:
+                return
+            if topic not in self._channels:
+                for t, (sname, schema) in STREAM_CHANNELS.items():
+                    sid = self._writer.register_schema(name=sname, encoding="jsonschema",
+                                                       data=json.dumps(schema).encode())
+                    self._channels[t] = self._writer.register_channel(topic=t, message_encoding="json", schema_id=sid)
+                    self.counts.setdefault(t, 0)
+        body = {"direction": direction, "conn": int(conn), "peer": _peer(peer), "msg_id": msg_id, "name": name,
+                "fields": dict(fields) if fields is not None else None, "problem": problem, "length": len(raw),
+                "raw_base64": base64.b64encode(bytes(raw)).decode("ascii")}
+        self._write(topic, body, t_ns)
 
     def impairment(self, decision: Any, data: bytes, t_ns: int | None = None) -> None:
         """What an impaired link did to ``data`` (a ``harness.impair.Decision``)."""

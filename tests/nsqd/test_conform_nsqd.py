@@ -8,8 +8,10 @@ and the run completes with its JSON and JUnit intact."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -49,13 +51,23 @@ def spawn(exe: Path, fault: str | None = None) -> list[str]:
 
 
 def test_reference_backend_passes_every_rule(tmp_path):
+    """Runs in a row with one outcome set (``MCP_NSQD_RUNS``, default 2; 20 by hand); the
+    first records a capture whose channels are the protocol's own."""
     outcomes = set()
-    for _ in range(3):
-        rc, doc, out = run(tmp_path)
+    for i in range(int(os.environ.get("MCP_NSQD_RUNS", "2"))):
+        extra = ("--capture", str(tmp_path / "run.mcap")) if i == 0 else ()
+        rc, doc, out = run(tmp_path, *extra)
         assert rc == 0, out
         assert not rules_with(doc, "failed", "warned"), out
         assert doc["spec"]["protocol"] == "NSQD" and doc["role"] == "backend"
         outcomes.add(tuple(sorted((c["id"], c["outcome"]) for c in doc["cases"])))
+        if i == 0:
+            from mcap.reader import make_reader
+
+            with open(tmp_path / "run.mcap", "rb") as fh:
+                topics = Counter(ch.topic for _, ch, _ in make_reader(fh).iter_messages())
+            assert set(topics) == {"/nsqd/tx", "/nsqd/rx", "/conformance/case"}, topics
+            assert topics["/conformance/case"] == 2 * len(doc["cases"])
     assert len(outcomes) == 1
 
 
@@ -79,3 +91,27 @@ def test_each_fault_fails_its_own_rule_and_no_other(tmp_path, backend, fault):
         assert any("killed by SIGABRT" in (c.get("actual") or "") or "exited with status" in (c.get("actual") or "")
                    for c in failed), failed
         assert any(any("sent " in e for e in c.get("evidence", [])) for c in failed), failed
+
+
+def test_attach_mode_against_a_running_backend(tmp_path):
+    """``--target``: the reference backend started by hand (``mcp-node --protocol nsqd``)."""
+    import socket
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "--protocol", "nsqd", "backend",
+                             "--bind", f"127.0.0.1:{port}", "--update-period", "0.1"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert node.stdout is not None and node.stdout.readline().startswith("listening on")
+        rc, doc, out = run(tmp_path, "--target", f"127.0.0.1:{port}")
+        assert rc == 0, out
+        assert doc["target"] == f"127.0.0.1:{port}" and not rules_with(doc, "failed", "warned")
+    finally:
+        node.terminate()
+        node.wait(timeout=10)
+    t0 = time.monotonic()
+    rc, doc, out = run(tmp_path, "--target", f"127.0.0.1:{port}")  # nothing listens now
+    assert rc == 2 and "accepted no connection" in doc["error"] and time.monotonic() - t0 < 30

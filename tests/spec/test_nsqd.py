@@ -26,6 +26,7 @@ from spec.stream_codec import (
     gpx_problem,
     number_problem,
 )
+from spec.stream_strategies import message_values, streams
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -128,3 +129,22 @@ def test_text_checks():
     assert number_problem("abc") and number_problem("nan") and number_problem("1e999")
     assert gpx_problem('<gpx><trkseg><trkpt lat="1" lon="2"/></trkseg></gpx>') is None
     assert gpx_problem("<kml/>") and gpx_problem('<gpx><wpt lat="91" lon="0"/></gpx>')
+
+
+@settings(max_examples=150, deadline=None)
+@given(message_values())
+def test_every_message_round_trips(nv):
+    from spec.stream_codec import Deframer as D
+
+    name, values = nv
+    (fr,) = D(NSQD).feed(encode(NSQD, name, **values))
+    got = decode_body(NSQD, fr.msg_id, fr.body).as_dict()  # type: ignore[union-attr]
+    want = {k: (bool(v) if isinstance(v, bool) else v) for k, v in values.items()}
+    assert got == want
+
+
+@settings(max_examples=80, deadline=None)
+@given(streams())
+def test_streams_cut_anywhere_give_their_frames(stream):
+    data, cuts = stream
+    assert _frames(data, cuts) == _frames(data, [])
