@@ -19,8 +19,9 @@ from html import escape
 from typing import Any
 
 from reports.chart import trace_svg
+from reports.stream_chart import stream_svg
 from spec import RULES, SPEC
-from traceio.reader import Datagram
+from traceio.reader import Datagram, StreamFrame
 from traceio.trace import Trace, evidence_indexes
 
 __all__ = ["page", "render_check", "render_run", "write_run"]
@@ -184,8 +185,23 @@ def _case_chart(case: dict[str, Any], trace: Trace | None) -> tuple[str | None, 
     return trace_svg(trace, entries, title=f"{case['id']} · {len(entries)} datagram(s)"), ""
 
 
-def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None) -> str:
-    """The page of an ``mcp-conform`` JSON report, with charts from the run's datagrams."""
+def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) -> tuple[str | None, str]:
+    if frames is None:
+        return None, "no capture of the run's traffic"
+    cap = case.get("capture") or {}
+    start, end = cap.get("start_ns"), cap.get("end_ns")
+    if start is None:
+        return None, "the case has no capture window"
+    window = [f for f in frames if start <= f.t_ns <= (end or f.t_ns)]
+    if not window:
+        return None, "no frames in the case's capture window"
+    return stream_svg(window, title=f"{case['id']} · {len(window)} frame(s)"), ""
+
+
+def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
+               frames: Sequence[StreamFrame] | None = None) -> str:
+    """The page of an ``mcp-conform`` JSON report, with charts from the run's datagrams (or,
+    for a stream protocol's run, its frames)."""
     trace = Trace(datagrams, doc.get("parameters", {}).get("broadcast_id") or SPEC.protocol["broadcast_id"]) \
         if datagrams is not None else None
     monitor = doc.get("monitor") or {}
@@ -196,7 +212,8 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
     target = doc.get("target") or "the embedded reference node"
     body = [f"<h1>mcp-conform: {_e(doc.get('role', 'drone'))} at {_e(target)}</h1>",
             f'<p class="meta">{_e(doc.get("tool", {}).get("name"))} {_e(doc.get("tool", {}).get("version"))} · '
-            f'MCP spec {_e(doc.get("spec", {}).get("version"))} · {s.get("duration_s", 0):.1f} s</p>']
+            f'{_e(doc.get("spec", {}).get("protocol", "MCP"))} spec {_e(doc.get("spec", {}).get("version"))} · '
+            f'{s.get("duration_s", 0):.1f} s</p>']
     if doc.get("error"):
         body.append(f'<p class="banner bad">Error: {_e(doc["error"])}</p>')
     by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor" and not f.get("consequence_of")]
@@ -213,7 +230,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None)
     if not cases:
         body.append('<p class="none">None.</p>')
     for c in cases:
-        chart, why = _case_chart(c, trace)
+        chart, why = _stream_chart(c, frames) if doc.get("role") == "backend" else _case_chart(c, trace)
         rule = c.get("failed_rule") or (c.get("rules") or [None])[0]
         heading = f"{_e(c['outcome'].upper())} {_e(c['id'])} · {_e(' '.join(c.get('rules', [])))}"
         fields = [("expected", c.get("expected")), ("actual", c.get("actual")), ("reason", c.get("reason")),
@@ -261,11 +278,13 @@ def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:
     """Write the run's page; the charts come from ``capture`` (our MCAP) where it reads."""
     from traceio.reader import CaptureError, open_capture
 
-    datagrams = None
+    datagrams = frames = None
     if capture:
         try:
-            datagrams = list(open_capture(capture).datagrams())
+            records = list(open_capture(capture))
+            datagrams = [r for r in records if type(r) is Datagram]
+            frames = [r for r in records if type(r) is StreamFrame]
         except CaptureError:
-            datagrams = None
+            datagrams = frames = None
     with open(path, "w", encoding="utf-8") as f:
-        f.write(render_run(doc, datagrams))
+        f.write(render_run(doc, datagrams, frames if doc.get("role") == "backend" else None))

@@ -68,6 +68,7 @@ __all__ = [
     "MavlinkFrame",
     "Metadata",
     "Record",
+    "StreamFrame",
     "Truncated",
     "VehicleMark",
     "open_capture",
@@ -110,6 +111,19 @@ class VehicleMark(NamedTuple):
     detail: str | None
 
 
+class StreamFrame(NamedTuple):
+    """Bytes on a stream protocol's connection (``/nsqd/tx``: one write of the runner;
+    ``/nsqd/rx``: one frame of the backend), as ``traceio.recorder`` wrote them."""
+
+    index: int
+    t_ns: int
+    direction: str
+    conn: int
+    name: str | None
+    problem: str | None
+    raw: bytes
+
+
 class Metadata(NamedTuple):
     name: str
     data: dict[str, str]
@@ -119,7 +133,7 @@ class Truncated(NamedTuple):
     reason: str
 
 
-Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | Metadata | Truncated
+Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | StreamFrame | Metadata | Truncated
 
 
 class CaptureError(Exception):
@@ -227,6 +241,12 @@ class Capture:
         if self.truncated is not None:
             yield Truncated(self.truncated)
 
+    def stream_frames(self) -> Iterator[StreamFrame]:
+        """Only the stream protocol's frames (an Nsqd run's capture)."""
+        for rec in self:
+            if type(rec) is StreamFrame:
+                yield rec
+
     def datagrams(self) -> Iterator[Datagram]:
         """Only the datagrams."""
         for rec in self:
@@ -239,7 +259,7 @@ class Capture:
         after a later one (an ACK received while its command's record is being written), so
         records wait in a heap until the file has moved :data:`REORDER_NS` past them."""
         order: list[tuple[int, int, str, Any]] = []  # (log_time, file position, kind, fields)
-        n = {"d": 0, "m": 0}
+        n = {"d": 0, "m": 0, "s": 0}
         newest = 0
         for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
             if kind == "meta":
@@ -263,6 +283,9 @@ class Capture:
             return MavlinkFrame(n["m"] - 1, t, *fields)
         if kind == "v":
             return VehicleMark(t, *fields)
+        if kind == "s":
+            n["s"] += 1
+            return StreamFrame(n["s"] - 1, t, *fields)
         return CaseMark(t, *fields)
 
     def _mcap_raw(self) -> Iterator[tuple[int, str, Any]]:
@@ -320,6 +343,9 @@ class Capture:
                             yield rec.log_time, "v", (str(body["kind"]),
                                                       drone if isinstance(drone, int) else None,
                                                       body.get("detail"))
+                        elif topic == "/nsqd/tx" or topic == "/nsqd/rx":
+                            yield rec.log_time, "s", (topic[-2:], int(body["conn"]), body.get("name"),
+                                                      body.get("problem"), b64(body["raw_base64"]))
                         elif topic == "/conformance/case":
                             yield rec.log_time, "c", (str(body["case"]), str(body["event"]),
                                                       body.get("outcome"), tuple(body.get("rules") or ()))

@@ -80,12 +80,23 @@ def test_correct_c_backend_passes(tmp_path, backend):
 @pytest.mark.parametrize("fault", sorted(FAULTS))
 def test_each_fault_fails_its_own_rule_and_no_other(tmp_path, backend, fault):
     rule = FAULTS[fault]
-    rc, doc, out = run(tmp_path, *spawn(backend, fault))
+    extra = ("--capture", str(tmp_path / "run.mcap"), "--html", str(tmp_path / "run.html")) \
+        if fault in ("wrong-stop-test-state", "crash-on-negative-string") else ()
+    rc, doc, out = run(tmp_path, *spawn(backend, fault), *extra)
     flagged = rules_with(doc, "failed", "warned")
     assert rule in flagged, out
     assert set(flagged) == {rule}, (flagged, out)
     assert rc == (1 if flagged[rule] == "failed" else 0), out
     assert (tmp_path / "j.xml").read_text().count("<testcase") == len(doc["cases"])
+    if extra:  # the capture stays whole through a death and a restart; the page charts the failure
+        from traceio.reader import CaseMark, open_capture
+
+        cap = open_capture(tmp_path / "run.mcap")
+        records = list(cap)
+        assert cap.truncated is None
+        assert sum(type(r) is CaseMark for r in records) == 2 * len(doc["cases"])
+        page = (tmp_path / "run.html").read_text()
+        assert "<svg" in page and "runner conn" in page
     if fault in ("crash-on-negative-string", "gpx-stack-overflow", "crash-on-bad-number"):
         failed = [c for c in doc["cases"] if c["outcome"] == "failed"]
         assert any("killed by SIGABRT" in (c.get("actual") or "") or "exited with status" in (c.get("actual") or "")
