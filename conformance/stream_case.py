@@ -61,22 +61,9 @@ class StreamCaseContext:
     def check_stream(self, conn: Conn) -> None:
         """What the backend sent on ``conn`` so far obeys NSQD-FRM-1 and NSQD-MSG-2."""
         conn.pump(0)
-        if conn.framing_error is not None:
-            fe = conn.framing_error
-            raise self.fail("NSQD-FRM-1", "frames whose 32-bit length counts itself, 5..8192",
-                            f"a frame from the backend with {fe.reason} (prefix {fe.raw.hex(' ')})")
-        allowed = {self.spec.message("ERROR").id, self.spec.message("UPDATE").id}
-        for r in conn.frames:
-            if r.frame.msg_id not in allowed:
-                raise self.fail("NSQD-MSG-2", "a backend sends only ERROR and UPDATE",
-                                f"a frame with id {r.frame.msg_id}", [f"frame: {r.frame.raw[:48].hex(' ')}"])
-            if r.problem is not None:
-                raise self.fail("NSQD-MSG-2", "each message with exactly its layout", r.problem,
-                                [f"frame: {r.frame.raw[:48].hex(' ')}"])
-            if r.values is not None and "state" in r.values and r.values["state"] not in self.spec.states.values():
-                raise self.fail("NSQD-MSG-2", "UPDATE.state one of the flight states",
-                                f"state {r.values['state']} (0x{r.values['state'] & 0xFFFFFFFF:08x})",
-                                [f"frame: {r.frame.raw.hex(' ')}"])
+        v = conn.violation()
+        if v is not None:
+            raise self.fail(v.rule, v.expected, v.actual, list(v.evidence))
 
     # -- connections ----------------------------------------------------------------------
     def open(self) -> Conn:

@@ -65,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--strict", action="store_true", help="a SHOULD finding counts against the exit code "
                    "(as for mcp-conform and mcp-capture check)")
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
+    p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
+                   help="mcp (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
+                        "(--spawn CMD with {target_host} {target_port}, or --target HOST:PORT)")
     return p
 
 
@@ -211,6 +214,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    if ns.protocol == "nsqd":
+        return _nsqd(ns, cfg)
     if ns.replay:
         from fuzz.replay_cli import replay_finding
 
@@ -232,6 +237,39 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     live.final(summary, store)
     return exit_code(store.order, strict=ns.strict)
+
+
+def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
+    """``--protocol nsqd``: the stream campaign (fuzz.stream_campaign) or a finding's replay."""
+    from fuzz.stream_campaign import StreamCampaign, replay_stream_finding
+
+    if ns.replay:
+        try:
+            return replay_stream_finding(ns.replay, cfg.target, cfg.spawn)
+        except SetupError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--jobs", cfg.jobs > 1),
+                       ("--engine", ns.engine != "stateless"), ("--db", ns.db), ("--seeds", ns.seeds)):
+        if given:
+            print(f"{PROG}: error: {opt}: not available with --protocol nsqd", file=sys.stderr)
+            return 2
+    campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
+                              cfg.max_cases, Path(cfg.out) if cfg.out else None)
+    try:
+        summary = campaign.run()
+    except SetupError as exc:
+        campaign.summary(0.0) if campaign.out else None
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 2
+    for i, f in enumerate(campaign.findings, 1):
+        print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
+    print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['cases_per_s']} cases/s), "
+          f"{len(campaign.findings)} finding(s), {summary['unconfirmed']} unconfirmed; seed {cfg.seed}")
+    return 1 if campaign.findings else 0
 
 
 def exit_code(findings: Sequence[Any], *, strict: bool = False) -> int:

@@ -30,7 +30,7 @@ from spec import NSQD
 from spec.stream import StreamSpec
 from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body
 
-__all__ = ["Conn", "Death", "Received", "StreamSession"]
+__all__ = ["Conn", "Death", "Received", "SenderViolation", "StreamSession"]
 
 #: The embedded reference backend's UPDATE period (the description's is 0.4 s: D-8).
 EMBEDDED_UPDATE_PERIOD = 0.05
@@ -45,6 +45,17 @@ class Received:
     frame: Frame
     values: dict[str, Any] | None
     problem: str | None = None
+
+
+@dataclass(frozen=True)
+class SenderViolation:
+    """What the backend sent that breaks a rule binding its frames (NSQD-FRM-1, NSQD-MSG-2):
+    the one judgement of them, for the runner's cases and the fuzzer alike."""
+
+    rule: str
+    expected: str
+    actual: str
+    evidence: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -184,6 +195,25 @@ class Conn:
                 self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer,
                                            msg_id=item.msg_id, name=name, fields=values, problem=problem)
 
+    def violation(self) -> SenderViolation | None:
+        """The first rule the backend's frames on this connection break, if any."""
+        if self.framing_error is not None:
+            fe = self.framing_error
+            return SenderViolation("NSQD-FRM-1", "frames whose 32-bit length counts itself, 5..8192",
+                                   f"a frame from the backend with {fe.reason} (prefix {fe.raw.hex(' ')})")
+        allowed = {self.spec.message("ERROR").id, self.spec.message("UPDATE").id}
+        for r in self.frames:
+            ev = (f"frame: {r.frame.raw[:48].hex(' ')}",)
+            if r.frame.msg_id not in allowed:
+                return SenderViolation("NSQD-MSG-2", "a backend sends only ERROR and UPDATE",
+                                       f"a frame with id {r.frame.msg_id}", ev)
+            if r.problem is not None:
+                return SenderViolation("NSQD-MSG-2", "each message with exactly its layout", r.problem, ev)
+            if r.values is not None and "state" in r.values and r.values["state"] not in self.spec.states.values():
+                return SenderViolation("NSQD-MSG-2", "UPDATE.state one of the flight states",
+                                       f"state {r.values['state']} (0x{r.values['state'] & 0xFFFFFFFF:08x})", ev)
+        return None
+
     def updates(self, since: float = 0.0) -> list[Received]:
         return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id
                 and r.values is not None]
@@ -305,7 +335,7 @@ class StreamSession:
             return None
         end = time.monotonic() + grace
         while self.proc.alive() and time.monotonic() < end:
-            time.sleep(0.02)
+            time.sleep(0.005)
         if self.proc.alive():
             return None
         code = self.proc.returncode

@@ -1,0 +1,392 @@
+"""``mcp-fuzz --protocol nsqd``: a campaign against a TCP backend until it breaks (issue 21).
+
+Cases come from ``fuzz.stream_mutators`` (seeded); each is written on a connection to the
+backend and judged at once by the oracles of ``fuzz.stream_oracles`` (death, sanitizer
+report, a close after valid frames, the backend's own frames); every ``probe_every`` cases a
+probe command must still take its effect (else the stream lost sync, or the backend hangs),
+and every few hundred connections a spawned backend's descriptors are counted (a leak).
+
+A hit is triaged: the case (or, for a failed probe, each case since the last good one) is
+replayed in a fresh process until one reproduces alone; it is minimised (delta debugging
+over its writes, then over its bytes); it must then reproduce N of N times (``replays``),
+each in a fresh process, with the same signature, or it is dropped as unconfirmed; its
+signature deduplicates it. ``finding-N/`` holds ``finding.json``, the input as hex and as a
+Python bytes literal, the stderr excerpt and ``replay.txt``; ``mcp-fuzz --protocol nsqd
+--replay finding-N`` reproduces it (exit 1) or not (exit 0).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import random
+import shlex
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fuzz.stream_mutators import Case, Write, draw_case
+from fuzz.stream_oracles import Signature, parse_sanitizer
+from harness.config import RunConfig
+from harness.errors import SetupError
+from harness.stream_session import Conn, StreamSession
+from spec import NSQD
+from spec.stream_codec import encode
+
+__all__ = ["StreamCampaign", "replay_stream_finding"]
+
+_CLOSE_RULE = {"split-writes": "NSQD-FRM-2", "batched": "NSQD-FRM-3", "valid": "NSQD-FRM-5",
+               "body-padded": "NSQD-FRM-5"}
+_PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
+
+
+@dataclass
+class Hit:
+    signature: Signature
+    detail: str
+    stderr: tuple[str, ...] = ()
+
+
+@dataclass
+class Finding:
+    signature: Signature
+    cases: list[Case]
+    detail: str
+    replays: str
+    stderr: tuple[str, ...] = ()
+    count: int = 1
+    note: str = ""
+
+    def writes(self) -> list[Write]:
+        return [w for c in self.cases for w in c.writes]
+
+
+class Backend:
+    """The backend under fuzz: a session (spawned, attached or the embedded default) and the
+    fuzzer's current connection."""
+
+    def __init__(self, target: tuple[str, int] | None, spawn: str | None) -> None:
+        self.target, self.spawn = target, spawn
+        self.session = StreamSession(RunConfig(target=target, spawn=spawn))
+        self.session.start()
+        self.conn: Conn | None = None
+        self.connections = 0
+        self.reports_seen = 0
+        self.probe_i = 0
+        self.clean = True
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.session.close()
+
+    def fresh(self) -> Backend:
+        """A new process (spawn mode and the embedded default); attach mode: the same target."""
+        if self.target is not None and self.spawn is None:
+            self._drop()
+            return self
+        self.close()
+        return Backend(self.target, self.spawn)
+
+    def _drop(self) -> None:
+        if self.conn is not None:
+            self.conn.close()
+            with contextlib.suppress(ValueError):
+                self.session.conns.remove(self.conn)
+            self.conn = None
+
+    def _connect(self) -> Conn | None:
+        self._drop()
+        self.conn = self.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
+        self.connections += 1
+        self.clean = True  # only frames a backend handles were sent on it (a close is then a finding)
+        return self.conn
+
+    def death_hit(self, grace: float) -> Hit | None:
+        d = self.session.death(grace=grace)
+        if d is None:
+            return None
+        report = self.session.proc.sanitizer_report() if self.session.proc is not None else []
+        parsed = parse_sanitizer(report) if report else None
+        if parsed:
+            kind, access, frames = parsed
+        else:
+            kind, access, frames = d.signal_name or f"exit {d.code}", "", ()
+        return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(), tuple(report[:20]) or d.stderr)
+
+    def run(self, case: Case) -> Hit | None:
+        """Write the case; what the oracles saw, if anything."""
+        conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
+        if conn is None:
+            return self.death_hit(0.3) or Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"),
+                                              "a new connection was not accepted")
+        self.clean = self.clean and case.valid
+        for w in case.writes:
+            if not conn.send(w.data):
+                break
+            if w.end:
+                conn.close(rst=w.end == "rst")
+                self._drop()
+                break
+        if self.conn is not None:
+            self.conn.pump(0.003)
+            if not case.probe and self.conn.closed_at is None and self.death_hit(0.0) is None:
+                self._drop()  # a case that may leave the stream unusable: the next starts afresh
+        closed_by_backend = self.conn is not None and self.conn.closed_at is not None
+        hit = self.death_hit(0.03 if closed_by_backend else 0.0)  # a death closes the socket as the process exits
+        if hit is not None:
+            return hit
+        proc = self.session.proc
+        if proc is not None:
+            report = proc.sanitizer_report()
+            if len(report) > self.reports_seen:  # a report: the process may be on its way out
+                self.reports_seen = len(report)
+                dead = self.death_hit(0.3)
+                if dead is not None:
+                    return dead
+                parsed = parse_sanitizer(report)
+                if parsed:
+                    return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
+                               "a sanitizer report, the process still running", tuple(report[:20]))
+        if self.conn is not None:
+            v = self.conn.violation()
+            if v is not None:
+                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+            if self.conn.closed_at is not None and self.clean:
+                rule = _CLOSE_RULE.get(case.kind, "NSQD-FRM-5")
+                return Hit(Signature("close", case.kind, (), rule),
+                           f"the backend closed the connection after frames it handles ({case.note})")
+        return None
+
+    def probe(self) -> Hit | None:
+        """A command on the current connection (a new one if the backend closed it) must take
+        its effect within the effect window."""
+        name, state = _PROBES[self.probe_i % 2]
+        self.probe_i += 1
+        conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
+        if conn is None:
+            return self.death_hit(0.3) or Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"),
+                                              "a new connection was not accepted")
+        other_name, other = _PROBES[self.probe_i % 2]
+        since = time.monotonic()
+        window = float(NSQD.params["effect_window_s"])
+        conn.send(encode(NSQD, name))
+        seen = conn.wait_for(lambda: any(u.values["state"] == state for u in conn.updates(since)), window)  # type: ignore[index]
+        hit = self.death_hit(0.3 if conn.closed_at else 0.0)
+        if hit is not None:
+            return hit
+        if seen:
+            return None
+        if conn.closed_at is None and not conn.updates(since):
+            return Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
+                       f"no UPDATE within {window:g} s on an open connection")
+        # the stream lost sync on this connection, or commands lost their effect: try a new one
+        fresh = self._connect()
+        if fresh is None:
+            return Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"), "a new connection was not accepted")
+        since = time.monotonic()
+        fresh.send(encode(NSQD, other_name))
+        if not fresh.wait_for(lambda: bool(fresh.updates(since)), window + float(NSQD.params["update_gap_max_s"])):
+            return self.death_hit(0.3) or Hit(Signature("hang", "no UPDATE on a new connection", (), "NSQD-ROB-1"),
+                                              "the backend accepts but sends nothing")
+        return Hit(Signature("desync", "command lost", (), "NSQD-MSG-4"),
+                   f"{name} sent after the case took no effect within {window:g} s (the stream lost sync)")
+
+    def fds(self) -> int | None:
+        return self.session.open_fds()
+
+
+def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
+    b = backend.fresh()
+    hit = None
+    for c in cases:
+        hit = b.run(c)
+        if hit is not None:
+            break
+    if hit is None and probe:
+        hit = b.probe()
+    return (hit is not None and hit.signature.key == sig.key), b, hit
+
+
+def _ddmin(items: list[Any], test: Any, budget: int) -> list[Any]:
+    """Zeller's delta debugging, bounded by ``budget`` tests."""
+    n, spent = 2, 0
+    while len(items) >= 2 and spent < budget:
+        chunk = max(1, len(items) // n)
+        reduced = False
+        for i in range(0, len(items), chunk):
+            rest = items[:i] + items[i + chunk:]
+            spent += 1
+            if rest and test(rest):
+                items, n, reduced = rest, max(n - 1, 2), True
+                break
+            if spent >= budget:
+                break
+        if not reduced:
+            if n >= len(items):
+                break
+            n = min(len(items), n * 2)
+    return items
+
+
+@dataclass
+class StreamCampaign:
+    target: tuple[str, int] | None
+    spawn: str | None
+    seed: int
+    duration: float | None
+    max_cases: int | None
+    out: Path | None
+    replays: int = 3
+    probe_every: int = 40
+    findings: list[Finding] = field(default_factory=list)
+    unconfirmed: int = 0
+    cases: int = 0
+    by_kind: dict[str, int] = field(default_factory=dict)
+    restarts: int = 0
+
+    def run(self) -> dict[str, Any]:
+        rng = random.Random(self.seed)
+        t0 = time.monotonic()
+        backend = Backend(self.target, self.spawn)
+        window: list[Case] = []
+        fds0, conns0, leak_reported = backend.fds(), 0, False
+        try:
+            while (self.duration is None or time.monotonic() - t0 < self.duration) and \
+                    (self.max_cases is None or self.cases < self.max_cases):
+                case = draw_case(rng)
+                self.cases += 1
+                self.by_kind[case.kind] = self.by_kind.get(case.kind, 0) + 1
+                window.append(case)
+                hit = backend.run(case)
+                probe = False
+                if hit is None and len(window) >= self.probe_every:
+                    hit, probe = backend.probe(), True
+                    if hit is None:
+                        window.clear()
+                if hit is not None:
+                    # a death may show only at the next case's write: the one before is a suspect too
+                    backend = self._triage(backend, hit, list(window) if probe else window[-2:], probe)
+                    window.clear()
+                    continue
+                if not leak_reported and self.cases % 400 == 0 and fds0 is not None:
+                    fds = backend.fds()
+                    grown = (fds or 0) - fds0
+                    if fds is not None and grown > int(NSQD.params["fd_growth_max"]) and backend.connections - conns0 >= 50:
+                        leak_reported = True
+                        self._add(Finding(Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3"),
+                                          [], f"{fds0} -> {fds} open descriptors over {backend.connections - conns0} "
+                                          "connections", "observed over the campaign", note="connect/close cycles"))
+        finally:
+            backend.close()
+        return self.summary(time.monotonic() - t0)
+
+    def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
+        sig = hit.signature
+        known = next((f for f in self.findings if f.signature.key == sig.key), None)
+        if known is not None:  # deduplicated before any replay: counted, and the campaign goes on
+            known.count += 1
+            return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+        if self.target is not None and self.spawn is None and sig.oracle in ("crash", "hang") \
+                and backend.session.death() is not None:
+            raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
+        culprit: list[Case] | None = None
+        for c in reversed(suspects):  # the newest suspect first
+            ok, backend, _ = _reproduces(backend, [c], sig, probe=probe)
+            self.restarts += 1
+            if ok:
+                culprit = [c]
+                break
+        if culprit is None and len(suspects) > 1:
+            ok, backend, _ = _reproduces(backend, suspects, sig, probe=probe)
+            culprit = suspects if ok else None
+        if culprit is None:
+            self.unconfirmed += 1
+            return backend.fresh()
+        known = next((f for f in self.findings if f.signature.key == sig.key), None)
+        if known is not None:
+            known.count += 1
+            return backend.fresh()
+        state = {"b": backend}
+
+        def test(writes: list[Write]) -> bool:
+            ok, state["b"], _ = _reproduces(state["b"], [Case("min", tuple(writes))], sig, probe=probe)
+            return ok
+
+        writes = _ddmin([w for c in culprit for w in c.writes], test, budget=24)
+        if len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
+            data = writes[0].data
+            for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):  # a shorter tail, if it still reproduces
+                if 0 < cut < len(data) and test([Write(data[:cut])]):
+                    data = data[:cut]
+            writes = [Write(data)]
+        minimal = [Case(culprit[0].kind, tuple(writes), culprit[0].valid, culprit[0].note)]
+        confirmed = 0
+        for _ in range(self.replays):
+            ok, state["b"], last = _reproduces(state["b"], minimal, sig, probe=probe)
+            confirmed += ok
+            if last is not None and last.stderr:
+                hit = Hit(hit.signature, hit.detail, last.stderr)
+        if confirmed < self.replays:
+            self.unconfirmed += 1
+            return state["b"].fresh()
+        self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
+                          note=culprit[0].note + (" (then a probe command)" if probe else "")))
+        return state["b"].fresh()
+
+    def _add(self, f: Finding) -> None:
+        self.findings.append(f)
+        if self.out is not None:
+            write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target, probe="probe" in f.note)
+
+    def summary(self, elapsed: float) -> dict[str, Any]:
+        s = {"protocol": "nsqd", "seed": self.seed, "cases": self.cases, "elapsed_s": round(elapsed, 2),
+             "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0, "by_kind": self.by_kind,
+             "findings": [{"signature": f.signature.describe(), "rule": f.signature.rule, "count": f.count,
+                           "replays": f.replays} for f in self.findings],
+             "unconfirmed": self.unconfirmed, "restarts": self.restarts}
+        if self.out is not None:
+            (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
+        return s
+
+
+def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
+    d.mkdir(parents=True, exist_ok=True)
+    data = b"".join(w.data for w in f.writes())
+    doc = {"protocol": "nsqd", "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
+           "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
+           "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
+           "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()]}
+    (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
+    (d / "input.hex").write_text(data.hex(" ") + "\n")
+    (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
+    (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
+    how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
+    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", "nsqd", "--replay", str(d.resolve()), *how]) + "\n")
+
+
+def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None) -> int:
+    """Replay a finding once in a fresh backend: 1 reproduced, 0 not, 2 unreadable."""
+    p = Path(path)
+    doc_path = p / "finding.json" if p.is_dir() else p
+    try:
+        doc = json.loads(doc_path.read_text())
+        writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
+        sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"mcp-fuzz: error: --replay: cannot read {doc_path}: {exc}")
+        return 2
+    if not writes:
+        print(f"mcp-fuzz: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
+              "mcp-conform --protocol nsqd --select NSQD-CON-3")
+        return 2
+    backend = Backend(target, spawn)
+    try:
+        ok, backend, hit = _reproduces(backend, [Case("replay", tuple(writes))], sig, probe=bool(doc.get("probe")))
+    finally:
+        backend.close()
+    if ok:
+        print(f"reproduced {sig.rule}: {sig.describe()}")
+        return 1
+    print(f"did not reproduce {sig.describe()}" + (f" (saw {hit.signature.describe()})" if hit else ""))
+    return 0

@@ -1,0 +1,78 @@
+"""What the Nsqd fuzzer judges a backend by, and how a finding is named.
+
+Oracles (issue 21): the process's death in spawn mode (signal or exit code); an
+AddressSanitizer or UBSan report on its stderr, parsed into kind, access and the target's
+top frames, also when the process goes on (``halt_on_error=0``); a hang (no new connection
+accepted, or no UPDATE on it, within a bound); a close of a connection on which only frames
+the spec says a backend handles were sent; a frame from the backend that breaks NSQD-FRM-1
+or NSQD-MSG-2 (``harness.stream_session.Conn.violation``, the runner's own judgement); the
+stream losing sync or a command losing its effect (a probe command after the case does not
+take its effect); descriptors that grow with connection cycles. A finding's
+:class:`Signature` deduplicates: (oracle, signal or sanitizer kind, top frames) or
+(oracle, rule).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+__all__ = ["Signature", "parse_sanitizer"]
+
+_ASAN = re.compile(r"ERROR: (\w+Sanitizer): ([\w-]+)")
+_UBSAN = re.compile(r"runtime error: (.*)")
+_ACCESS = re.compile(r"^(READ|WRITE) of size (\d+)")
+_FRAME = re.compile(r"#\d+ 0x[0-9a-f]+ in (\S+)")
+_SKIP = ("__interceptor_", "__asan", "__ubsan", "__sanitizer", "_start", "__libc_start", "abort", "raise",
+         "__GI_", "__pthread_kill", "std::", "__cxa", "__gnu_cxx")
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What a finding is, for deduplication and for its name."""
+
+    oracle: str  # crash | sanitizer | hang | close | protocol | desync | leak
+    kind: str  # SIGSEGV, heap-buffer-overflow, NSQD-FRM-1, ...
+    frames: tuple[str, ...] = ()
+    rule: str = "NSQD-ROB-1"
+    access: str = ""
+
+    @property
+    def key(self) -> tuple[str, str, tuple[str, ...]]:
+        return (self.oracle, self.kind, self.frames[:3])
+
+    def describe(self) -> str:
+        where = f" in {' < '.join(self.frames[:3])}" if self.frames else ""
+        access = f" ({self.access})" if self.access else ""
+        return f"{self.oracle}: {self.kind}{access}{where} [{self.rule}]"
+
+
+def parse_sanitizer(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None:
+    """(kind, access, the target's top frames) of the first sanitizer report in ``lines``."""
+    kind = access = ""
+    start = None
+    for i, line in enumerate(lines):
+        m = _ASAN.search(line)
+        if m:
+            kind, start = m.group(2), i
+            break
+        m = _UBSAN.search(line)
+        if m:
+            kind, start = "ubsan: " + re.sub(r"-?\d+", "N", m.group(1))[:60], i
+            loc = line.split(": runtime error")[0].strip()
+            return kind, "", (loc.rsplit("/", 1)[-1],) if loc else ()
+    if start is None:
+        return None
+    frames: list[str] = []
+    for line in lines[start + 1:start + 60]:
+        a = _ACCESS.search(line.strip())
+        if a and not access:
+            access = f"{a.group(1)} of size {a.group(2)}"
+        f = _FRAME.search(line)
+        if f and not f.group(1).startswith(_SKIP):
+            frames.append(f.group(1))
+            if len(frames) == 5:
+                break
+        if line.strip() == "" and frames:
+            break
+    return kind, access, tuple(frames)
