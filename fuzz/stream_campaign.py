@@ -22,7 +22,7 @@ import json
 import random
 import shlex
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +37,7 @@ from spec.stream_codec import encode
 __all__ = ["StreamCampaign", "replay_stream_finding"]
 
 _CLOSE_RULE = {"split-writes": "NSQD-FRM-2", "batched": "NSQD-FRM-3", "valid": "NSQD-FRM-5",
-               "body-padded": "NSQD-FRM-5"}
+               "body-padded": "NSQD-FRM-5", "gpx-size": "NSQD-FRM-5"}
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
 
 
@@ -75,6 +75,7 @@ class Backend:
         self.reports_seen = 0
         self.probe_i = 0
         self.clean = True
+        self.bad_probes: set[str] = set()
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -148,26 +149,49 @@ class Backend:
                 if parsed:
                     return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
                                "a sanitizer report, the process still running", tuple(report[:20]))
-        if self.conn is not None:
+        if self.conn is not None:  # the backend's own frames first: an effect is read from them
             v = self.conn.violation()
             if v is not None:
                 return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if case.check and case.expect and self.conn is not None and self.conn.closed_at is None:
+            hit = self._effect(case)
+            if hit is not None:
+                return hit
+        if self.conn is not None:
             if self.conn.closed_at is not None and self.clean:
                 rule = _CLOSE_RULE.get(case.kind, "NSQD-FRM-5")
                 return Hit(Signature("close", case.kind, (), rule),
                            f"the backend closed the connection after frames it handles ({case.note})")
         return None
 
+    def _effect(self, case: Case) -> Hit | None:
+        """A valid command's effect shows in UPDATE.state within the effect window (NSQD-MSG-3)."""
+        conn = self.conn
+        assert conn is not None
+        since = conn.sent[-1][0] if conn.sent else time.monotonic()
+        window = float(NSQD.params["effect_window_s"])
+        ok = conn.wait_for(lambda: any(u.values["state"] in case.expect for u in conn.updates(since))  # type: ignore[index]
+                           or (case.or_error and bool(conn.errors(since))), window)
+        v = conn.violation()
+        if v is not None:
+            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if ok or conn.closed_at is not None:
+            return None
+        seen = sorted({NSQD.state_name(u.values["state"]) for u in conn.updates(since)})  # type: ignore[index]
+        return Hit(Signature("effect", case.note, (), "NSQD-MSG-3"),
+                   f"{case.note}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in case.expect)} expected, "
+                   f"saw {', '.join(seen) or 'no UPDATE'}")
+
     def probe(self) -> Hit | None:
         """A command on the current connection (a new one if the backend closed it) must take
         its effect within the effect window."""
-        name, state = _PROBES[self.probe_i % 2]
+        usable = [p for p in _PROBES if p[0] not in self.bad_probes] or list(_PROBES)
+        name, state = usable[self.probe_i % len(usable)]
         self.probe_i += 1
         conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
         if conn is None:
             return self.death_hit(0.3) or Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"),
                                               "a new connection was not accepted")
-        other_name, other = _PROBES[self.probe_i % 2]
         since = time.monotonic()
         window = float(NSQD.params["effect_window_s"])
         conn.send(encode(NSQD, name))
@@ -175,25 +199,40 @@ class Backend:
         hit = self.death_hit(0.3 if conn.closed_at else 0.0)
         if hit is not None:
             return hit
+        v = conn.violation()
+        if v is not None:
+            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
         if seen:
             return None
         if conn.closed_at is None and not conn.updates(since):
             return Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
                        f"no UPDATE within {window:g} s on an open connection")
-        # the stream lost sync on this connection, or commands lost their effect: try a new one
+        # the stream lost sync on this connection, or the command itself is wrong: on a new one
         fresh = self._connect()
         if fresh is None:
             return Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"), "a new connection was not accepted")
         since = time.monotonic()
-        fresh.send(encode(NSQD, other_name))
-        if not fresh.wait_for(lambda: bool(fresh.updates(since)), window + float(NSQD.params["update_gap_max_s"])):
+        fresh.send(encode(NSQD, name))
+        if fresh.wait_for(lambda: any(u.values["state"] == state for u in fresh.updates(since)), window):  # type: ignore[index]
+            return Hit(Signature("desync", "command lost", (), "NSQD-MSG-4"),
+                       f"{name} sent after the case took no effect within {window:g} s, and did on a new "
+                       "connection (the stream lost sync)")
+        if not fresh.updates(since):
             return self.death_hit(0.3) or Hit(Signature("hang", "no UPDATE on a new connection", (), "NSQD-ROB-1"),
                                               "the backend accepts but sends nothing")
-        return Hit(Signature("desync", "command lost", (), "NSQD-MSG-4"),
-                   f"{name} sent after the case took no effect within {window:g} s (the stream lost sync)")
+        self.bad_probes.add(name)  # its own effect is wrong: probe with the other command from now on
+        seen = sorted({NSQD.state_name(u.values["state"]) for u in fresh.updates(since)})  # type: ignore[index]
+        return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
+                   f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen)}")
 
     def fds(self) -> int | None:
         return self.session.open_fds()
+
+
+def _defaults(msg: Any) -> dict[str, Any]:
+    """Plain valid values of a message's fields (the probe commands have none)."""
+    return {f.name: ("1" if f.text == "number" else 0 if "length" not in NSQD.types[f.type] else "x")
+            for f in msg.fields}
 
 
 def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
@@ -255,6 +294,8 @@ class StreamCampaign:
             while (self.duration is None or time.monotonic() - t0 < self.duration) and \
                     (self.max_cases is None or self.cases < self.max_cases):
                 case = draw_case(rng)
+                if case.expect and self.cases % 4 == 0:  # one valid command in four is judged by its effect
+                    case = replace(case, check=True)
                 self.cases += 1
                 self.by_kind[case.kind] = self.by_kind.get(case.kind, 0) + 1
                 window.append(case)
@@ -291,13 +332,18 @@ class StreamCampaign:
                 and backend.session.death() is not None:
             raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
         culprit: list[Case] | None = None
+        if sig.oracle == "effect":  # a command's own effect: the command alone, judged by its effect
+            msg = NSQD.message(sig.kind)
+            culprit = [Case("valid", (Write(encode(NSQD, msg.name, **_defaults(msg))),), True, msg.name,
+                            expect=msg.effect.to, or_error=msg.effect.or_error, check=True)]
+            suspects, probe = [], False
         for c in reversed(suspects):  # the newest suspect first
             ok, backend, _ = _reproduces(backend, [c], sig, probe=probe)
             self.restarts += 1
             if ok:
                 culprit = [c]
                 break
-        if culprit is None and len(suspects) > 1:
+        if culprit is None and len(suspects) > 1 and sig.oracle != "effect":
             ok, backend, _ = _reproduces(backend, suspects, sig, probe=probe)
             culprit = suspects if ok else None
         if culprit is None:
@@ -313,14 +359,18 @@ class StreamCampaign:
             ok, state["b"], _ = _reproduces(state["b"], [Case("min", tuple(writes))], sig, probe=probe)
             return ok
 
-        writes = _ddmin([w for c in culprit for w in c.writes], test, budget=24)
+        writes = [w for c in culprit for w in c.writes]
+        if sig.oracle != "effect":
+            writes = _ddmin(writes, test, budget=24)
         if len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
             data = writes[0].data
             for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):  # a shorter tail, if it still reproduces
                 if 0 < cut < len(data) and test([Write(data[:cut])]):
                     data = data[:cut]
             writes = [Write(data)]
-        minimal = [Case(culprit[0].kind, tuple(writes), culprit[0].valid, culprit[0].note)]
+        c0 = culprit[0]
+        minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
+                        check=c0.check)]
         confirmed = 0
         for _ in range(self.replays):
             ok, state["b"], last = _reproduces(state["b"], minimal, sig, probe=probe)
@@ -356,7 +406,8 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
     doc = {"protocol": "nsqd", "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
            "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
            "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
-           "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()]}
+           "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
+           "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases)}
     (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
     (d / "input.hex").write_text(data.hex(" ") + "\n")
     (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
@@ -372,6 +423,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
     try:
         doc = json.loads(doc_path.read_text())
         writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
+        expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
         sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"mcp-fuzz: error: --replay: cannot read {doc_path}: {exc}")
@@ -382,7 +434,9 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
         return 2
     backend = Backend(target, spawn)
     try:
-        ok, backend, hit = _reproduces(backend, [Case("replay", tuple(writes))], sig, probe=bool(doc.get("probe")))
+        case = Case("replay", tuple(writes), bool(expect), sig.kind if expect else "", expect=expect,
+                    or_error=bool(doc.get("or_error")), check=bool(expect))
+        ok, backend, hit = _reproduces(backend, [case], sig, probe=bool(doc.get("probe")))
     finally:
         backend.close()
     if ok:

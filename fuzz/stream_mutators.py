@@ -39,6 +39,9 @@ class Case:
     valid: bool = False
     note: str = ""
     probe: bool = field(default=True)  # whether a probe command may follow on the same connection
+    expect: tuple[int, ...] = ()  # a valid command's effect on the flight state (NSQD-MSG-3)
+    or_error: bool = False  # ... or an ERROR when the autopilot may refuse (D-6)
+    check: bool = False  # judge the effect after this case (the campaign samples which)
 
     @property
     def data(self) -> bytes:
@@ -105,7 +108,7 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
     whole = frame(spec, msg.id, body)
     fr = spec.framing
     if kind == "valid":
-        return Case(kind, (Write(whole),), valid=True, note=msg.name)
+        return Case(kind, (Write(whole),), valid=True, note=msg.name, expect=msg.effect.to, or_error=msg.effect.or_error)
     if kind == "length-lie":
         n = len(whole)
         lie = rng.choice([0, 1, 2, 3, 4, -1, -n, -2**31, n - 1, n + 1, n + rng.randrange(2, 64),
@@ -144,13 +147,15 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
         f = next(f for f in gmsg.fields if f.text == "gpx") if gmsg is not msg or any(f.text == "gpx" for f in msg.fields) else None
         if f is None:
             return draw_case(rng, spec, "valid")
+        whole_path = False
         if kind == "gpx-size":
             room = fr.max_length - fr.header_size - 2
             size = rng.choice([room, room - 1, room + 1, rng.randrange(300, room)])
             doc = _gpx(rng, 400)
             text = doc[:size] if len(doc) >= size else doc + " " * (size - len(doc))
-            if rng.randrange(2):  # a whole path that just fits
-                text = _gpx(rng, max(1, (size - 80) // 52))
+            whole_path = bool(rng.randrange(2))
+            if whole_path:  # a whole path that fits: a frame the backend handles (NSQD-FRM-5)
+                text = _gpx(rng, max(1, (min(size, room) - 80) // 52))
             note = f"GPX of {len(text)} bytes"
             if len(text.encode("utf-8", "surrogateescape")) > room:  # the frame is over the bound: closed (FRM-4)
                 data = text.encode("utf-8", "surrogateescape")[:32767]
@@ -171,6 +176,9 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
             note = f"GPX mutated ({len(text)} bytes)"
         data = text.encode("utf-8", "surrogateescape")[: 32767]
         body = struct.pack(">h", len(data)) + data
+        if kind == "gpx-size" and whole_path:
+            return Case(kind, (Write(frame(spec, gmsg.id, body)),), valid=True, note=note,
+                        expect=gmsg.effect.to, or_error=gmsg.effect.or_error)
         return Case(kind, (Write(frame(spec, gmsg.id, body)),), note=note)
     if kind == "field-range":
         bounded = [(m, f) for m in msgs for f in m.fields if f.min is not None or f.max is not None]
