@@ -42,7 +42,8 @@ enum fault {
     F_SMALL_FRAME_LIMIT, F_UPDATE_STOPS, F_STATE_LITTLE_ENDIAN, F_WRONG_STOP_TEST_STATE,
     F_UNKNOWN_ID_NO_SKIP, F_UNKNOWN_ID_HOVERS, F_CRASH_NEGATIVE_STRING, F_CRASH_BAD_NUMBER,
     F_GPX_STACK_OVERFLOW, F_FD_LEAK, F_SECOND_CLIENT_KICKS_FIRST, F_STALE_PARTIAL_FRAME,
-    F_NO_ERROR_ON_UNKNOWN_ID, F_COUNT
+    F_NO_ERROR_ON_UNKNOWN_ID, F_OVERREAD_EVERY_FRAME, F_EARLY_RETURN_KEEPS_SIZE,
+    F_SWITCH_FALLTHROUGH, F_UNBOUNDED_GPX_ALLOC, F_COUNT
 };
 
 static const char *const FAULT_NAMES[F_COUNT] = {
@@ -51,6 +52,8 @@ static const char *const FAULT_NAMES[F_COUNT] = {
     "wrong-stop-test-state", "unknown-id-no-skip", "unknown-id-hovers",
     "crash-on-negative-string", "crash-on-bad-number", "gpx-stack-overflow", "fd-leak",
     "second-client-kicks-first", "stale-partial-frame", "no-error-on-unknown-id",
+    "overread-every-frame", "early-return-keeps-size", "switch-fallthrough",
+    "unbounded-gpx-alloc",
 };
 
 static enum fault fault = F_NONE;
@@ -58,13 +61,17 @@ static enum fault fault = F_NONE;
 
 /* ---- messages and states -------------------------------------------------------------- */
 
-enum { MSG_ERROR = 0, MSG_UPDATE = 1, MSG_STOP_TEST = 8, MSG_LAST = 14 };
+enum {
+    MSG_ERROR = 0, MSG_UPDATE = 1, MSG_TAKEOFF = 4, MSG_LAND = 5, MSG_SET_RPYTFF = 7,
+    MSG_STOP_TEST = 8, MSG_SET_HOVERHEIGHT = 9, MSG_STOP_HOVER_TEST = 10,
+    MSG_UPLOAD_FLIGHTPATH = 12, MSG_CAPTURE_IMAGES = 13, MSG_STOP_CAPTURE_IMAGES = 14,
+    MSG_LAST = 14
+};
 
 enum state {
     GROUNDED = 0, ARMED = 1, HOVER = 2, INITIALISE_ENROUTE = 3, ENROUTE = 4, ENROUTE_TURN = 5,
     ENROUTE_STOPPED = 6, PUBLISH_ANGLE = 7, START_TEST = 8, RUNNING_TEST = 9, STOP_TEST = 10,
-    START_HOVER_TEST = 11, HOVER_LOGGING = 12, STOP_HOVER_LOGGING = 13, CAPTURE_IMAGES = 14,
-    KEEP = -1 /* the message leaves the state as it is */
+    START_HOVER_TEST = 11, HOVER_LOGGING = 12, STOP_HOVER_LOGGING = 13, CAPTURE_IMAGES = 14
 };
 
 /*
@@ -75,26 +82,16 @@ enum state {
 struct layout {
     const char *name;
     const char *fields;
-    int next_state;
 };
 
 static const struct layout LAYOUTS[MSG_LAST + 1] = {
-    {"ERROR", "s", KEEP},
-    {"UPDATE", "fffffffi", KEEP},
-    {"SET_AUTH", "", KEEP},
-    {"ARM", "b", KEEP},
-    {"TAKEOFF", "", HOVER},
-    {"LAND", "", GROUNDED},
-    {"SET_PID", "nnnp", KEEP},
-    {"SET_RPYTFF", "nnnnis", START_TEST},
-    {"STOP_TEST", "", STOP_TEST},
-    {"SET_HOVERHEIGHT", "fs", START_HOVER_TEST},
-    {"STOP_HOVER_TEST", "", STOP_HOVER_LOGGING},
-    {"FOLLOW_LINE", "", KEEP},
-    {"UPLOAD_FLIGHTPATH", "g", INITIALISE_ENROUTE},
-    {"CAPTURE_IMAGES", "", CAPTURE_IMAGES},
-    {"STOP_CAPTURE_IMAGES", "", HOVER},
+    {"ERROR", "s"}, {"UPDATE", "fffffffi"}, {"SET_AUTH", ""}, {"ARM", "b"}, {"TAKEOFF", ""},
+    {"LAND", ""}, {"SET_PID", "nnnp"}, {"SET_RPYTFF", "nnnnis"}, {"STOP_TEST", ""},
+    {"SET_HOVERHEIGHT", "fs"}, {"STOP_HOVER_TEST", ""}, {"FOLLOW_LINE", ""},
+    {"UPLOAD_FLIGHTPATH", "g"}, {"CAPTURE_IMAGES", ""}, {"STOP_CAPTURE_IMAGES", ""},
 };
+
+static const char FLAG_OUTSIDE[] = "flag outside 0..2";  /* check_body's answer to a bad flag */
 
 /* ---- process-wide state ---------------------------------------------------------------- */
 
@@ -104,6 +101,7 @@ static double update_period = 0.4;
 static int cfd = -1;                /* the connected client, or -1 */
 static uint8_t *in_buf;             /* received bytes not yet consumed (heap: IN_CAP) */
 static size_t in_len;
+static size_t kept_size;            /* 0, or the size the next frame is read with (a fault's) */
 static uint8_t out_buf[OUT_CAP];    /* frames not yet sent */
 static size_t out_len;
 static double accepted_at, next_update;
@@ -125,6 +123,16 @@ static int32_t get_i32(const uint8_t *p)
 static int16_t get_i16(const uint8_t *p)
 {
     return (int16_t)(uint16_t)((p[0] << 8) | p[1]);
+}
+
+static void *xmalloc(size_t n)
+{
+    void *p = malloc(n);
+    if (!p) {
+        perror("malloc");
+        exit(1);
+    }
+    return p;
 }
 
 static void put_u32(uint8_t *p, uint32_t v)
@@ -240,8 +248,55 @@ static int gpx_scan(const char *doc)
     return 0;
 }
 
+/*
+ * FAULT unbounded-gpx-alloc: a parser of the route's <rte> nesting keeps one heap node per
+ * open <rte>.  At 200 levels its "grow the stack" loop never ends (the bound it tests is
+ * never raised): it allocates and fills 1 MiB per turn, never freed, then spins without
+ * serving.  Only the cap on the allocations (256 MiB, to spare the test machine) is not
+ * part of the bug.  Fewer than 200 levels are parsed and freed correctly.
+ */
+#define RTE_LEVELS 200
+static void *rte_leak;  /* the spin's blocks, chained (reachable: no leak report) */
+
+static void rte_stack_full(size_t depth)
+{
+    size_t cap = RTE_LEVELS, total = 0;
+    const size_t block = (size_t)1 << 20;
+    while (depth >= cap) {  /* the bug: nothing in the loop raises cap */
+        if (total < ((size_t)256 << 20)) {
+            void **b = xmalloc(block);
+            memset(b, 0x5a, block);
+            *b = rte_leak;
+            rte_leak = b;
+            total += block;
+        } else {
+            struct timespec nap = {0, 1000000};  /* spin, but let the 2 cores breathe */
+            nanosleep(&nap, NULL);
+        }
+    }
+}
+
+static void gpx_rte_nesting(const char *doc)
+{
+    char *level[RTE_LEVELS];
+    size_t depth = 0;
+    for (const char *t = strchr(doc, '<'); t; t = strchr(t + 1, '<')) {
+        if (!strncmp(t, "</rte>", 6) && depth > 0) {
+            free(level[--depth]);
+        } else if (!strncmp(t, "<rte>", 5)) {
+            level[depth++] = xmalloc(64);
+            if (depth == RTE_LEVELS)
+                rte_stack_full(depth);
+        }
+    }
+    while (depth > 0)
+        free(level[--depth]);
+}
+
 static int gpx_ok(const char *text, size_t n)
 {
+    if (FAULT(F_UNBOUNDED_GPX_ALLOC))
+        gpx_rte_nesting(text);
     if (FAULT(F_GPX_STACK_OVERFLOW)) {  /* FAULT gpx-stack-overflow: no bound on the copy */
         char doc[256];
         memcpy(doc, text, n + 1);
@@ -256,11 +311,7 @@ static char *copy_text(const uint8_t *p, int16_t n)
     /* 16-bit sizes as the field has; n >= 0 here unless FAULT crash-on-negative-string, where
      * n = -1 makes len 65535 and the buffer malloc(0): memcpy runs far past both buffers. */
     uint16_t len = (uint16_t)n;
-    char *text = malloc((uint16_t)(len + 1));
-    if (!text) {
-        perror("malloc");
-        exit(1);
-    }
+    char *text = xmalloc((uint16_t)(len + 1));
     memcpy(text, p, len);
     text[len] = '\0';
     return text;
@@ -302,7 +353,7 @@ static const char *check_body(const char *fields, const uint8_t *p, size_t len)
             if (rest < 4)
                 return "body too short";
             if (*f == 'p' && (get_i32(p) < 0 || get_i32(p) > 2))
-                return "flag outside 0..2";
+                return FLAG_OUTSIDE;
             p += 4;
         } else {  /* a string: s, n or g */
             if (rest < 2)
@@ -319,7 +370,8 @@ static const char *check_body(const char *fields, const uint8_t *p, size_t len)
 
 /* ---- receiving -------------------------------------------------------------------------- */
 
-static void handle_frame(uint8_t id, const uint8_t *body, size_t len)
+/* Handle one frame's id and body: 1 when done with it, 0 when it returned early (a fault's). */
+static int handle_frame(uint8_t id, const uint8_t *body, size_t len)
 {
     char text[160];
     if (id > MSG_LAST) {
@@ -329,22 +381,60 @@ static void handle_frame(uint8_t id, const uint8_t *body, size_t len)
         }
         if (FAULT(F_UNKNOWN_ID_HOVERS))  /* FAULT unknown-id-hovers */
             state = HOVER;
-        return;
+        return 1;
     }
-    if (id == MSG_ERROR)  /* the client's complaint: nothing to do */
-        return;
     const struct layout *m = &LAYOUTS[id];
-    const char *why = check_body(m->fields, body, len);
+    const char *why = id == MSG_ERROR ? NULL : check_body(m->fields, body, len);
     if (why) {
         snprintf(text, sizeof text, "malformed %s (id %u): %s", m->name, (unsigned)id, why);
         queue_error(text);
-        return;
+        /* FAULT early-return-keeps-size: like Nsqd's E-6, SET_PID's flag check returns before
+         * the frame size is reset, so the next frame is read with this frame's size */
+        return !(FAULT(F_EARLY_RETURN_KEEPS_SIZE) && why == FLAG_OUTSIDE);
     }
-    int next = m->next_state;
-    if (id == MSG_STOP_TEST && FAULT(F_WRONG_STOP_TEST_STATE))  /* FAULT wrong-stop-test-state */
-        next = GROUNDED;
-    if (next != KEEP)
-        state = next;
+    switch (id) {  /* the command's effect on the flight state; the others leave it */
+    case MSG_TAKEOFF:           state = HOVER; break;
+    case MSG_LAND:              state = GROUNDED; break;
+    case MSG_SET_RPYTFF:        state = START_TEST; break;
+    case MSG_STOP_TEST:  /* FAULT wrong-stop-test-state */
+        state = FAULT(F_WRONG_STOP_TEST_STATE) ? GROUNDED : STOP_TEST;
+        break;
+    case MSG_SET_HOVERHEIGHT:   state = START_HOVER_TEST; break;
+    case MSG_STOP_HOVER_TEST:   state = STOP_HOVER_LOGGING; break;
+    case MSG_UPLOAD_FLIGHTPATH: state = INITIALISE_ENROUTE; break;
+    case MSG_CAPTURE_IMAGES:
+        state = CAPTURE_IMAGES;
+        if (!FAULT(F_SWITCH_FALLTHROUGH))  /* FAULT switch-fallthrough: the break is missing */
+            break;
+        /* fall through */
+    case MSG_STOP_CAPTURE_IMAGES: state = HOVER; break;
+    default: break;  /* ERROR (the client's complaint), SET_AUTH, ARM, SET_PID, FOLLOW_LINE */
+    }
+    return 1;
+}
+
+/*
+ * FAULT overread-every-frame: Nsqd's HandleConnection copies the frame into a buffer of
+ * exactly its size and reads it through `Decoder decoder(b.data() + 4, _currentSize)`: a
+ * decoder that starts after the length prefix but takes the whole frame's size.  This
+ * decoder reads the id in place and copies its whole window before it decodes a body, so
+ * every frame with body fields reads 4 bytes past the buffer.
+ */
+static int handle_via_decoder(const uint8_t *frame, size_t size)
+{
+    uint8_t *b = xmalloc(size), *window = NULL;
+    memcpy(b, frame, size);
+    uint8_t id = b[4];
+    const uint8_t *body = b + 5;
+    if (id > MSG_ERROR && id <= MSG_LAST && LAYOUTS[id].fields[0] != '\0') {
+        window = xmalloc(size);
+        memcpy(window, b + 4, size);  /* b[size .. size + 3] are past b's end */
+        body = window + 1;
+    }
+    int done = handle_frame(id, body, size - 5);
+    free(window);
+    free(b);
+    return done;
 }
 
 /* Consume the whole frames in in_buf (one read's worth added); -1 on a framing error. */
@@ -355,7 +445,8 @@ static int process_input(void)
     size_t off = 0;
     int frames = 0;
     while (in_len - off >= 4) {
-        int32_t L = get_i32(in_buf + off);
+        /* the frame's own length, but after FAULT early-return-keeps-size */
+        int32_t L = kept_size ? (int32_t)kept_size : get_i32(in_buf + off);
         if (L < 5 || L > max_len) {
             if (!FAULT(F_NO_CLOSE_BAD_LEN)) {
                 in_len = 0;  /* nothing of a broken stream is kept, even by stale-partial-frame */
@@ -367,9 +458,15 @@ static int process_input(void)
         if (in_len - off < (size_t)L)
             break;  /* the rest of this frame is still to come */
         uint8_t id = in_buf[off + 4];
+        kept_size = 0;
         /* FAULT first-frame-per-read: the frames after this read's first are dropped */
-        if (!(FAULT(F_FIRST_FRAME_PER_READ) && frames > 0))
-            handle_frame(id, in_buf + off + 5, (size_t)L - 5);
+        if (!(FAULT(F_FIRST_FRAME_PER_READ) && frames > 0)) {
+            int done = FAULT(F_OVERREAD_EVERY_FRAME)
+                           ? handle_via_decoder(in_buf + off, (size_t)L)
+                           : handle_frame(id, in_buf + off + 5, (size_t)L - 5);
+            if (!done)  /* FAULT early-return-keeps-size */
+                kept_size = (size_t)L;
+        }
         frames++;
         /* FAULT unknown-id-no-skip: an unknown id's body is left to be read as frames */
         off += (id > MSG_LAST && FAULT(F_UNKNOWN_ID_NO_SKIP)) ? 5 : (size_t)L;
@@ -389,6 +486,7 @@ static void drop_client(void)
         close(cfd);
     cfd = -1;
     out_len = 0;
+    kept_size = 0;
     if (!FAULT(F_STALE_PARTIAL_FRAME))  /* FAULT stale-partial-frame */
         in_len = 0;
 }
@@ -570,11 +668,7 @@ int main(int argc, char **argv)
     int lfd = listen_on(host, port);
     if (lfd < 0)
         return 1;
-    in_buf = malloc(IN_CAP);
-    if (!in_buf) {
-        perror("malloc");
-        return 1;
-    }
+    in_buf = xmalloc(IN_CAP);
     printf("listening on %s:%s\n", host, port);
     fflush(stdout);
 

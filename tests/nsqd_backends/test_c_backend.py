@@ -5,8 +5,10 @@ talks to it over TCP.  The first tests pin the correct behaviour: UPDATE at ~2.5
 state each command leads to, reassembly of split frames, rejected bodies answered with an
 ERROR naming the message, framing errors closing the connection, one client at a time, clean
 exit on SIGTERM.  Then one check per rule: the correct backend passes all of them, and each
-``--fault`` fails the check of the rule build.FAULTS gives it.  A backend is always stopped
-(fixture ``finally``); one that was not meant to crash must exit 0 with no sanitizer output.
+``--fault`` fails the check of the rule build.FAULTS gives it; a fault whose bug is more than
+"fails the check" (a crash's report, a hang, a misread stream) has a test of its own too.  A
+backend is always stopped (fixture ``finally``): SIGTERM, or SIGKILL for one that may crash or
+hang; one that was not meant to crash must exit 0 with no sanitizer output.
 """
 
 from __future__ import annotations
@@ -57,6 +59,12 @@ def gpx(lat: str = "52.1", lon: str = "4.3", pad: int = 0) -> str:
 
 def upload(text: str) -> bytes:
     return frame(12, string(text))
+
+
+def gpx_rte(levels: int) -> str:
+    """A valid GPX document whose one route point sits inside ``levels`` nested <rte>."""
+    return ('<?xml version="1.0"?><gpx version="1.1">' + "<rte>" * levels
+            + '<rtept lat="52.1" lon="4.3"/>' + "</rte>" * levels + "</gpx>")
 
 
 TAKEOFF, SET_AUTH = frame(4), frame(2)
@@ -190,8 +198,16 @@ class Backend:
     def wait_exit(self, timeout: float = 3.0) -> int:
         return self.proc.wait(timeout)
 
+    def rss_mib(self) -> float:
+        """Its resident memory (VmRSS) in MiB."""
+        status = Path(f"/proc/{self.proc.pid}/status").read_text()
+        return int(re.search(r"^VmRSS:\s+(\d+) kB", status, re.M).group(1)) / 1024  # type: ignore[union-attr]
+
     def stop(self) -> str | None:
-        """Stop it; what was wrong with its exit, if anything."""
+        """Stop it (SIGKILL when crash_ok: it may hang); what was wrong with its exit, if anything."""
+        if self.proc.poll() is None and self.crash_ok:
+            self.proc.kill()
+            self.proc.wait()
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
@@ -266,15 +282,17 @@ def test_takeoff_hovers_at_alt_10(start: Start) -> None:
     pytest.fail("no UPDATE with state HOVER 2 after TAKEOFF")
 
 
+STEPS = [  # (a command, the state after it), from GROUNDED
+    (frame(3, b"\x01"), 0), (SET_AUTH, 0), (TAKEOFF, 2), (set_pid(flag=2), 2),
+    (frame(11), 2), (frame(0, string("client says hi")), 2), (frame(1, bytes(32)), 2),
+    (set_rpytff(), 8), (frame(8), 10), (frame(9, struct.pack(">I", 3) + string("h.csv")), 11),
+    (frame(10), 13), (upload(gpx()), 3), (frame(13), 14), (frame(14), 2), (frame(5), 0),
+]
+
+
 def test_each_command_moves_the_state_as_specified(start: Start) -> None:
     c = start("--update-period", FAST).connect()
-    steps = [
-        (frame(3, b"\x01"), 0), (SET_AUTH, 0), (TAKEOFF, 2), (set_pid(flag=2), 2),
-        (frame(11), 2), (frame(0, string("client says hi")), 2), (frame(1, bytes(32)), 2),
-        (set_rpytff(), 8), (frame(8), 10), (frame(9, struct.pack(">I", 3) + string("h.csv")), 11),
-        (frame(10), 13), (upload(gpx()), 3), (frame(13), 14), (frame(14), 2), (frame(5), 0),
-    ]
-    for data, want in steps:
+    for data, want in STEPS:
         assert c.state_after(data) == (want, []), data
 
 
@@ -403,6 +421,65 @@ def test_crash_faults_die_with_their_report(start: Start, fault: str) -> None:
     assert report in b.stderr()
 
 
+def test_overread_every_frame_dies_on_the_first_body_it_decodes(start: Start) -> None:
+    """Frames without body fields are served; the first body decoded reads 4 bytes past the
+    frame's heap copy (the decoder's window is the frame's size, from offset 4)."""
+    b = start("--fault", "overread-every-frame", "--update-period", FAST, crash_ok=True)
+    c = b.connect()
+    c.send(SET_AUTH + TAKEOFF)
+    assert c.wait_state(2)
+    data = set_pid()  # its last field ends at the frame's end
+    c.send(data)
+    assert c.closed(3)
+    assert b.wait_exit() != 0
+    err = b.stderr()
+    assert "AddressSanitizer: heap-buffer-overflow" in err, err
+    assert f"READ of size {len(data)}" in err and "handle_via_decoder" in err, err
+    assert f"0 bytes to the right of {len(data)}-byte region" in err, err
+
+
+def test_early_return_keeps_size_reads_the_next_frame_with_the_old_size(start: Start) -> None:
+    """SET_PID's out-of-range flag is refused (ERROR, not applied) but leaves its size behind:
+    the next frame's bytes are read as a frame of that size, then the stream is in step again.
+    Other rejected frames, and SET_PID's other checks, leave nothing behind."""
+    c = start("--fault", "early-return-keeps-size", "--update-period", FAST).connect()
+    state, errors = c.state_after(set_pid(kp="x") + set_rpytff(roll=b"\xff\xff") + set_pid(flag=2))
+    assert state == 0 and len(errors) == 2, errors
+    bad = set_pid(flag=3)
+    c.send(bad)
+    assert "SET_PID (id 6): flag outside 0..2" in (c.wait_error() or "")
+    c.send(TAKEOFF)  # 5 bytes of a frame read as len(bad) bytes long: held
+    assert not c.wait_state(2, 0.5)
+    c.send(bytes(len(bad) - len(TAKEOFF)))  # ... completed: TAKEOFF with a zero-padded body
+    assert c.wait_state(2)
+    assert c.state_after(frame(5)) == (0, [])  # LAND, read by its own length again
+
+
+def test_switch_fallthrough_ends_capture_images_in_hover_only(start: Start) -> None:
+    c = start("--fault", "switch-fallthrough", "--update-period", FAST).connect()
+    for data, want in STEPS:
+        assert c.state_after(data) == (2 if data == frame(13) else want, []), data
+
+
+def test_unbounded_gpx_alloc_hangs_from_200_nested_rte(start: Start) -> None:
+    """199 nested <rte> are taken; 200 start a loop that allocates (1 MiB a turn, capped at
+    256 MiB) and never returns: no more UPDATE, no reading, and the process stays alive."""
+    b = start("--fault", "unbounded-gpx-alloc", "--update-period", FAST, crash_ok=True)
+    c = b.connect()
+    assert c.state_after(upload(gpx_rte(199))) == (3, [])
+    rss = b.rss_mib()
+    c.send(upload(gpx_rte(200)) + TAKEOFF)
+    deadline = time.monotonic() + 1.5
+    while (f := c.frame(0.3)) is not None:  # what was queued before the hang
+        assert time.monotonic() < deadline, "UPDATE goes on"
+        assert f[0] == 1 and update(f[1])[-1] == 3, f
+    while time.monotonic() < deadline and b.rss_mib() - rss < 240:
+        time.sleep(0.05)
+    time.sleep(0.1)
+    assert 240 <= b.rss_mib() - rss < 300, (rss, b.rss_mib())
+    assert b.proc.poll() is None and c.frame(0.2) is None
+
+
 # ---- one check per rule: the correct backend passes all, each fault fails its own -------------
 
 
@@ -463,6 +540,12 @@ def check_msg3(start: Start) -> None:
     assert c.state_after(frame(8)) == (10, [])
 
 
+def check_msg3_capture(start: Start) -> None:
+    """NSQD-MSG-3: CAPTURE_IMAGES leads to CAPTURE_IMAGES 14."""
+    c = start("--update-period", FAST).connect()
+    assert c.state_after(frame(13)) == (14, [])
+
+
 def check_msg4(start: Start) -> None:
     """NSQD-MSG-4: an unknown id's body is skipped."""
     test_unknown_id_is_skipped_by_its_length_and_answered(start)
@@ -481,6 +564,14 @@ def check_msg6(start: Start) -> None:
     assert c.state_after(frame(42, b"xyz"))[0] == 0
 
 
+def check_msg7(start: Start) -> None:
+    """NSQD-MSG-7: a SET_PID whose flag is outside 0..2 is consumed and not applied: the frame
+    after it is read by its own length."""
+    c = start("--update-period", FAST).connect()
+    state, errors = c.state_after(set_pid(flag=3) + TAKEOFF)
+    assert state == 2 and len(errors) == 1 and "SET_PID" in errors[0], (state, errors)
+
+
 def check_rob1(data: bytes) -> Callable[[Start], None]:
     def check(start: Start) -> None:
         """NSQD-ROB-1: a bad body is answered with an ERROR, the backend goes on."""
@@ -497,6 +588,20 @@ def check_rob1_long_gpx(start: Start) -> None:
     c = start("--update-period", FAST).connect()
     c.send(upload(gpx(pad=1000)))
     assert c.wait_state(3)
+
+
+def check_rob1_bodies(start: Start) -> None:
+    """NSQD-ROB-1: valid frames with bodies are taken (SET_PID's last field ends the frame)."""
+    c = start("--update-period", FAST).connect()
+    assert c.state_after(set_pid() + set_rpytff()) == (8, [])
+
+
+def check_rob1_nested_rte(start: Start) -> None:
+    """NSQD-ROB-1: a flight path of 250 nested <rte> is taken and UPDATE goes on."""
+    c = start("--update-period", FAST).connect()
+    c.send(upload(gpx_rte(250)))
+    assert c.wait_state(3)
+    assert c.frame() is not None
 
 
 def check_rob3(start: Start) -> None:
@@ -544,14 +649,20 @@ FAULT_CHECKS: dict[str, Callable[[Start], None]] = {
     "unknown-id-no-skip": check_msg4,
     "no-error-on-unknown-id": check_msg5,
     "unknown-id-hovers": check_msg6,
+    "switch-fallthrough": check_msg3_capture,
+    "early-return-keeps-size": check_msg7,
     "crash-on-negative-string": check_rob1(set_rpytff(roll=b"\xff\xff")),
     "crash-on-bad-number": check_rob1(set_pid(kp="abc")),
     "gpx-stack-overflow": check_rob1_long_gpx,
+    "overread-every-frame": check_rob1_bodies,
+    "unbounded-gpx-alloc": check_rob1_nested_rte,
     "stale-partial-frame": check_rob3,
     "second-client-kicks-first": check_con2,
     "fd-leak": check_con3,
 }
 SLOW_FAULTS = {"update-stops"}  # its check waits 3.3 s
+#: Faults whose backend may die or hang: not judged by its exit, killed at the end.
+CRASH_OR_HANG = {*CRASHES, "overread-every-frame", "unbounded-gpx-alloc"}
 
 
 def _params() -> list:
@@ -566,7 +677,7 @@ def test_correct_backend_passes_the_check(start: Start, fault: str) -> None:
 
 @pytest.mark.parametrize("fault", _params())
 def test_fault_fails_the_check_of_its_rule(start: Start, fault: str) -> None:
-    crash_ok = fault.startswith("crash") or fault == "gpx-stack-overflow"
+    crash_ok = fault in CRASH_OR_HANG
 
     def with_fault(*args: str, **kw: bool) -> Backend:
         return start(*args, "--fault", fault, crash_ok=crash_ok)
