@@ -53,8 +53,10 @@ class StreamCaseContext:
         death = self.session.death(grace=0.5 if closed else 0.05)
         if death is not None:
             ev = ([death.sanitizer] if death.sanitizer else []) + self._sent_hex() + [f"stderr: {line}" for line in death.stderr[-6:]]
-            rule = "NSQD-ROB-1" if "NSQD-ROB-1" in self.rules else self.rules[0]
-            return CaseFailure(rule, "the backend survives the input and keeps serving", death.describe(),
+            # one fault, one root: a death is NSQD-ROB-1's ("no input ends the backend"),
+            # whatever the case was testing, which the evidence names with the bytes sent
+            ev.append(f"while testing {', '.join(self.rules)} ({self.case_id})")
+            return CaseFailure("NSQD-ROB-1", "the backend survives the input and keeps serving", death.describe(),
                                ev, relies_on=())
         return CaseFailure(rule, expected, actual, list(evidence or []) + self._sent_hex())
 

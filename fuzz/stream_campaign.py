@@ -242,9 +242,24 @@ def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: b
         hit = b.run(c)
         if hit is not None:
             break
+    if hit is None and sig.oracle in ("crash", "sanitizer"):
+        hit = b.death_hit(0.5)  # a replay has no next case to show a death: wait for it
+        if hit is None and b.session.proc is not None and b.session.proc.sanitizer_report():
+            parsed = parse_sanitizer(b.session.proc.sanitizer_report())
+            if parsed:
+                hit = Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]), "a sanitizer report")
     if hit is None and probe:
         hit = b.probe()
-    return (hit is not None and hit.signature.key == sig.key), b, hit
+    return (hit is not None and _same(hit.signature, sig)), b, hit
+
+
+def _same(seen: Signature, want: Signature) -> bool:
+    """The same finding: equal keys; a lost stream is one whatever the probe that showed it."""
+    if seen.oracle == want.oracle == "desync":
+        return True
+    if {seen.oracle, want.oracle} <= {"crash", "sanitizer"}:  # a report seen before or after the exit
+        return (seen.kind, seen.frames[:3]) == (want.kind, want.frames[:3])
+    return seen.key == want.key
 
 
 def _ddmin(items: list[Any], test: Any, budget: int) -> list[Any]:
@@ -278,6 +293,7 @@ class StreamCampaign:
     out: Path | None
     replays: int = 3
     probe_every: int = 40
+    stop_after: int | None = None  # end the campaign once this many findings are confirmed
     findings: list[Finding] = field(default_factory=list)
     unconfirmed: int = 0
     cases: int = 0
@@ -292,7 +308,8 @@ class StreamCampaign:
         fds0, conns0, leak_reported = backend.fds(), 0, False
         try:
             while (self.duration is None or time.monotonic() - t0 < self.duration) and \
-                    (self.max_cases is None or self.cases < self.max_cases):
+                    (self.max_cases is None or self.cases < self.max_cases) and \
+                    (self.stop_after is None or len(self.findings) < self.stop_after):
                 case = draw_case(rng)
                 if case.expect and self.cases % 4 == 0:  # one valid command in four is judged by its effect
                     case = replace(case, check=True)
@@ -325,7 +342,7 @@ class StreamCampaign:
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
         known = next((f for f in self.findings if f.signature.key == sig.key), None)
-        if known is not None:  # deduplicated before any replay: counted, and the campaign goes on
+        if known is not None and sig.oracle != "desync":  # deduplicated before any replay: counted
             known.count += 1
             return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
         if self.target is not None and self.spawn is None and sig.oracle in ("crash", "hang") \
@@ -349,6 +366,13 @@ class StreamCampaign:
         if culprit is None:
             self.unconfirmed += 1
             return backend.fresh()
+        if sig.oracle == "desync":  # named by what lost the stream its sync
+            kind = culprit[-1].kind
+            rule = ("NSQD-MSG-4" if kind == "bad-id" else "NSQD-ROB-3" if kind.endswith("mid-frame")
+                    else "NSQD-FRM-2" if kind == "split-writes" else "NSQD-FRM-3" if kind == "batched"
+                    else "NSQD-MSG-7")
+            sig = Signature("desync", f"stream lost after {kind}", (), rule)
+            hit = Hit(sig, hit.detail, hit.stderr)
         known = next((f for f in self.findings if f.signature.key == sig.key), None)
         if known is not None:
             known.count += 1

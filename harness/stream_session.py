@@ -393,3 +393,11 @@ class StreamSession:
         self.conns.clear()
         if self.spawned and self.death() is not None:
             self.revive()
+        elif self.spawned and outcome in ("failed", "error") and not self.live(float(self.spec.params["update_gap_max_s"])):
+            self.restart()  # alive but not serving (a hang): the next case gets a backend that serves
+
+    def restart(self) -> None:
+        """Stop the spawned backend (SIGTERM, then SIGKILL) and start it afresh."""
+        if self.proc is not None:
+            self.proc.stop(grace=0.5)
+            self._spawn()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.nsqd_backends.build import FAULTS, available, build
+from tests.nsqd_backends.build import FAULTS, built_or_skip
 
 pytestmark = pytest.mark.slow
 
@@ -35,10 +35,7 @@ def rules_with(doc: dict, *outcomes: str) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def backend() -> Path:
-    why = available()
-    if why:
-        pytest.skip(why)
-    return build()
+    return built_or_skip()
 
 
 def spawn(exe: Path, fault: str | None = None) -> list[str]:

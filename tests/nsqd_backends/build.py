@@ -100,3 +100,13 @@ def build(out_dir: Path | None = None) -> Path:
     tmp_stamp.write_text(key + "\n")
     os.replace(tmp_stamp, stamp)
     return exe
+
+
+def built_or_skip() -> Path:
+    """The binary for a test, or the test skipped with the reason gcc is missing."""
+    import pytest
+
+    why = available()
+    if why:
+        pytest.skip(why)
+    return build()

@@ -1,0 +1,65 @@
+"""``mcp-fuzz --protocol nsqd`` (issue 21) against the C backend of tests/nsqd_backends, built
+with AddressSanitizer: one fault of each class the issue names is found in a short seeded
+campaign as one confirmed, minimised finding whose replay reproduces it (exit 1) against the
+faulty backend and not (exit 0) against the correct one; the reference backend gives none."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fuzz.stream_campaign import StreamCampaign
+from tests.nsqd_backends.build import built_or_skip
+
+pytestmark = pytest.mark.slow
+
+#: fault -> (oracle, rule) of the finding: the eight classes of C network code of issue 21
+CLASSES = {
+    "overread-every-frame": ("crash", "NSQD-ROB-1"),      # a heap over-read on every frame
+    "unknown-id-no-skip": ("desync", "NSQD-MSG-4"),       # a trusted length that desynchronises
+    "crash-on-negative-string": ("crash", "NSQD-ROB-1"),  # a negative or overlong string length
+    "crash-on-bad-number": ("crash", "NSQD-ROB-1"),       # a numeric parse that aborts
+    "early-return-keeps-size": ("desync", "NSQD-MSG-7"),  # an early return keeps the frame state
+    "switch-fallthrough": ("effect", "NSQD-MSG-3"),       # a switch that falls through
+    "fd-leak": ("leak", "NSQD-CON-3"),                    # a close never detected
+    "unbounded-gpx-alloc": ("hang", "NSQD-MSG-1"),        # a parser that spins and allocates
+}
+
+
+@pytest.fixture(scope="module")
+def backend() -> Path:
+    return built_or_skip()
+
+
+def _spawn(exe: Path, fault: str | None = None) -> str:
+    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
+
+
+@pytest.mark.parametrize("fault", sorted(CLASSES))
+def test_each_class_is_found_confirmed_and_replays(tmp_path, backend, fault):
+    oracle, rule = CLASSES[fault]
+    c = StreamCampaign(None, _spawn(backend, fault), 20140307, 40.0, None, tmp_path, stop_after=1)
+    summary = c.run()
+    assert [f.signature.oracle for f in c.findings] == [oracle], summary
+    assert c.findings[0].signature.rule == rule
+    doc = json.loads((tmp_path / "finding-1" / "finding.json").read_text())
+    assert doc["rule"] == rule and doc["replays"] == "3 of 3" or oracle == "leak"
+    assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt"} <= {p.name for p in (tmp_path / "finding-1").iterdir()}
+    if oracle == "leak":
+        return  # observed over the campaign's connections: NSQD-CON-3's conformance case replays it
+    for spawn, want in ((_spawn(backend, fault), 1), (_spawn(backend), 0)):
+        run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(tmp_path / "finding-1"),
+                              "--spawn", spawn], capture_output=True, text=True, timeout=120)
+        assert run.returncode == want, (spawn, run.stdout, run.stderr)
+    if oracle == "crash":
+        assert doc["frames"] and doc["kind"] in ("heap-buffer-overflow", "stack-buffer-overflow") or doc["kind"].startswith("SIG")
+
+
+def test_reference_backend_gives_no_finding(tmp_path):
+    c = StreamCampaign(None, None, 7, 60.0, 1500, tmp_path)
+    summary = c.run()
+    assert summary["findings"] == [] and summary["cases"] == 1500, summary
