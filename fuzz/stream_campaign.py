@@ -354,6 +354,21 @@ class StreamCampaign:
             culprit = [Case("valid", (Write(encode(NSQD, msg.name, **_defaults(msg))),), True, msg.name,
                             expect=msg.effect.to, or_error=msg.effect.or_error, check=True)]
             suspects, probe = [], False
+        if probe and len(suspects) > 2:
+            # a failed probe: the cases since the last good one, replayed together, then delta
+            # debugged down to the case(s) that break the stream (log n replays, not n)
+            ok, backend, _ = _reproduces(backend, suspects, sig, probe=True)
+            self.restarts += 1
+            if ok:
+                box = {"b": backend}
+
+                def still(cs: list[Case]) -> bool:
+                    good, box["b"], _ = _reproduces(box["b"], cs, sig, probe=True)
+                    return good
+
+                culprit = _ddmin(list(suspects), still, budget=20)
+                backend = box["b"]
+            suspects = []
         for c in reversed(suspects):  # the newest suspect first
             ok, backend, _ = _reproduces(backend, [c], sig, probe=probe)
             self.restarts += 1

@@ -301,7 +301,7 @@ class StreamSession:
             c.close()
         self.conns.clear()
         if self.proc is not None:
-            self.proc.stop()
+            self.proc.stop(grace=0.5)  # a hung backend may ignore SIGTERM: SIGKILL soon after
 
     # -- connections --------------------------------------------------------------------
     def connect(self, timeout: float | None = None) -> Conn | None:

@@ -42,7 +42,7 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 @pytest.mark.parametrize("fault", sorted(CLASSES))
 def test_each_class_is_found_confirmed_and_replays(tmp_path, backend, fault):
     oracle, rule = CLASSES[fault]
-    c = StreamCampaign(None, _spawn(backend, fault), 20140307, 40.0, None, tmp_path, stop_after=1)
+    c = StreamCampaign(None, _spawn(backend, fault), 20140307, 90.0, None, tmp_path, stop_after=1)
     summary = c.run()
     assert [f.signature.oracle for f in c.findings] == [oracle], summary
     assert c.findings[0].signature.rule == rule
