@@ -119,15 +119,21 @@ def _spawn_kill(tmp_path, kill_after: str, rto: float, timing: list[str], select
                 wait: float = 60) -> None:
     budget = 3 * rto + 2.0
     js = tmp_path / "r.json"
-    run = WatchedRun(["--spawn", reference_node_command(rto), "--mavlink", *timing, *select,
-                      "--json", str(js)])
-    run.wait_line(case_line(kill_after), wait)
-    pids = children(run.proc.pid, "reference_impl")
-    assert len(pids) == 1, pids
-    t_kill_ns = time.time_ns()
-    t_kill = kill(pids[0])
-    rc = run.finish()
-    doc = read_report(js)
+    for attempt in range(3):  # on a loaded host the kill may land between two cases: try again
+        run = WatchedRun(["--spawn", reference_node_command(rto), "--mavlink", *timing, *select,
+                          "--json", str(js)])
+        run.wait_line(case_line(kill_after), wait)
+        pids = children(run.proc.pid, "reference_impl")
+        assert len(pids) == 1, pids
+        t_kill_ns = time.time_ns()
+        t_kill = kill(pids[0])
+        rc = run.finish()
+        doc = read_report(js)
+        if rc == 0 and not [c for c in doc["cases"] if c["outcome"] != "passed" and c["outcome"] != "skipped"
+                            and c["outcome"] != "info"] and attempt < 2:
+            print(f"attempt {attempt + 1}: the node died between two cases (restarted, nothing lost); again")
+            continue
+        break
     assert rc == 1, run.text()
     errors = [c for c in doc["cases"] if c["outcome"] == "error"]
     assert len(errors) == 1, run.text()
