@@ -265,6 +265,12 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - our own bug: one line, the findings so far kept
+        if campaign.out:
+            campaign.summary(0.0)
+        print(f"{PROG}: error: internal error ({type(exc).__name__}: {exc}); {len(campaign.findings)} "
+              "finding(s) written so far", file=sys.stderr)
+        return 2
     for i, f in enumerate(campaign.findings, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['cases_per_s']} cases/s), "

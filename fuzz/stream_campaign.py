@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from fuzz.stream_mutators import Case, Write, draw_case
+from fuzz.stream_mutators import Case, Write, draw_case, valid_values
 from fuzz.stream_oracles import Signature, parse_sanitizer
 from harness.config import RunConfig
 from harness.errors import SetupError
@@ -177,8 +177,11 @@ class Backend:
             return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
         if ok or conn.closed_at is not None:
             return None
+        if not conn.updates(since):  # nothing at all: not the command's effect, the backend's liveness
+            return self.death_hit(0.3) or Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
+                                              f"no UPDATE within {window:g} s on an open connection")
         seen = sorted({NSQD.state_name(u.values["state"]) for u in conn.updates(since)})  # type: ignore[index]
-        return Hit(Signature("effect", case.note, (), "NSQD-MSG-3"),
+        return Hit(Signature("effect", case.msg or case.note, (), "NSQD-MSG-3"),
                    f"{case.note}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in case.expect)} expected, "
                    f"saw {', '.join(seen) or 'no UPDATE'}")
 
@@ -230,9 +233,8 @@ class Backend:
 
 
 def _defaults(msg: Any) -> dict[str, Any]:
-    """Plain valid values of a message's fields (the probe commands have none)."""
-    return {f.name: ("1" if f.text == "number" else 0 if "length" not in NSQD.types[f.type] else "x")
-            for f in msg.fields}
+    """Valid values of a message's fields, the same every time (a fixed seed)."""
+    return valid_values(NSQD, msg, random.Random(0))
 
 
 def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
@@ -349,7 +351,8 @@ class StreamCampaign:
                 and backend.session.death() is not None:
             raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
         culprit: list[Case] | None = None
-        if sig.oracle == "effect":  # a command's own effect: the command alone, judged by its effect
+        if sig.oracle == "effect" and any(m.name == sig.kind for m in NSQD.messages):
+            # a command's own effect: the command alone (plain values), judged by its effect
             msg = NSQD.message(sig.kind)
             culprit = [Case("valid", (Write(encode(NSQD, msg.name, **_defaults(msg))),), True, msg.name,
                             expect=msg.effect.to, or_error=msg.effect.or_error, check=True)]

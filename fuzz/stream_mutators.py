@@ -42,6 +42,7 @@ class Case:
     expect: tuple[int, ...] = ()  # a valid command's effect on the flight state (NSQD-MSG-3)
     or_error: bool = False  # ... or an ERROR when the autopilot may refuse (D-6)
     check: bool = False  # judge the effect after this case (the campaign samples which)
+    msg: str = ""  # the message a one-message case carries (its name)
 
     @property
     def data(self) -> bytes:
@@ -108,7 +109,8 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
     whole = frame(spec, msg.id, body)
     fr = spec.framing
     if kind == "valid":
-        return Case(kind, (Write(whole),), valid=True, note=msg.name, expect=msg.effect.to, or_error=msg.effect.or_error)
+        return Case(kind, (Write(whole),), valid=True, note=msg.name, expect=msg.effect.to, or_error=msg.effect.or_error,
+                    msg=msg.name)
     if kind == "length-lie":
         n = len(whole)
         lie = rng.choice([0, 1, 2, 3, 4, -1, -n, -2**31, n - 1, n + 1, n + rng.randrange(2, 64),
@@ -178,7 +180,7 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
         body = struct.pack(">h", len(data)) + data
         if kind == "gpx-size" and whole_path:
             return Case(kind, (Write(frame(spec, gmsg.id, body)),), valid=True, note=note,
-                        expect=gmsg.effect.to, or_error=gmsg.effect.or_error)
+                        expect=gmsg.effect.to, or_error=gmsg.effect.or_error, msg=gmsg.name)
         return Case(kind, (Write(frame(spec, gmsg.id, body)),), note=note)
     if kind == "field-range":
         bounded = [(m, f) for m in msgs for f in m.fields if f.min is not None or f.max is not None]
