@@ -15,7 +15,7 @@ import pytest
 from fuzz.stream_campaign import StreamCampaign
 from tests.nsqd_backends.build import built_or_skip
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
 #: fault -> (oracle, rule) of the finding: the eight classes of C network code of issue 21
 CLASSES = {

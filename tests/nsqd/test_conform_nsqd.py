@@ -18,7 +18,7 @@ import pytest
 
 from tests.nsqd_backends.build import FAULTS, built_or_skip
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
 
 def run(tmp_path: Path, *args: str) -> tuple[int, dict, str]:
