@@ -259,7 +259,8 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
     try:
         summary = campaign.run()
     except SetupError as exc:
-        campaign.summary(0.0) if campaign.out else None
+        if campaign.out:
+            campaign.summary(0.0)
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

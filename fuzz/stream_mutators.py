@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from spec import NSQD
-from spec.stream import MessageSpec, StreamSpec
+from spec.stream import MessageSpec, StreamSpec, int_range
 from spec.stream_codec import encode_body, frame
 
 __all__ = ["KINDS", "Case", "Write", "draw_case", "valid_values"]
@@ -55,7 +55,6 @@ KINDS = ("valid", "length-lie", "string-length", "bad-id", "body-cut", "body-pad
 
 _NUMBERS_BAD = ["", "abc", "nan", "inf", "-inf", "1e999", "1.2.3", "0x10", " 1", "1 ", "--1", "+", ".",
                 "9" * 400, "1e-99999", "\x00", "١٢", "1,5"]
-_RANGES = {">?": (0, 1), ">B": (0, 255), ">h": (-2**15, 2**15 - 1), ">i": (-2**31, 2**31 - 1), ">I": (0, 2**32 - 1)}
 
 
 def _gpx(rng: random.Random, points: int) -> str:
@@ -76,7 +75,7 @@ def valid_values(spec: StreamSpec, msg: MessageSpec, rng: random.Random) -> dict
             else:
                 out[f.name] = "".join(rng.choice("abcdefghij_.0123") for _ in range(rng.randrange(0, 24)))
         else:
-            lo, hi = _RANGES.get(t["struct"], (0, 0))
+            lo, hi = int_range(t["struct"])
             lo = max(lo, f.min) if f.min is not None else lo
             hi = min(hi, f.max) if f.max is not None else hi
             out[f.name] = bool(rng.randrange(2)) if t["struct"] == ">?" else rng.randint(lo, hi)

@@ -91,6 +91,7 @@ class Conn:
 
     def __post_init__(self) -> None:
         self._deframer = Deframer(self.spec)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # each write its own segment
         self.sock.setblocking(False)
         try:
             self.sock_peer: Any = self.sock.getpeername()
@@ -101,7 +102,6 @@ class Conn:
     def send(self, data: bytes, *, split: int | None = None, gap: float = 0.0) -> bool:
         """Send ``data`` whole or in ``split``-byte writes (``gap`` s apart, TCP_NODELAY);
         False when the backend had closed the connection."""
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         chunks = [data] if not split else [data[i:i + split] for i in range(0, len(data), split)]
         self.sent.append((time.monotonic(), data))
         if self.log is not None:

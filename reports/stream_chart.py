@@ -8,9 +8,12 @@ did and what changed, not 2.5 arrows a second.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 
 from reports.chart import Arrow, Lifeline, render
+from spec import NSQD
+from spec.stream_codec import BodyError, decode_body
 from traceio.reader import StreamFrame
 
 __all__ = ["stream_svg"]
@@ -20,8 +23,10 @@ def _label(f: StreamFrame) -> str:
     if f.problem and not f.name:
         return f"{len(f.raw)} B: {f.problem}"[:60]
     name = f.name or (f"{len(f.raw)} B" if f.direction == "tx" else "frame")
-    if name == "UPDATE" and len(f.raw) >= 37:
-        return f"UPDATE state={int.from_bytes(f.raw[33:37], 'big', signed=True)}"
+    if name == "UPDATE" and not f.problem:  # the state, read by the spec's layout
+        body = f.raw[NSQD.framing.header_size:]
+        with contextlib.suppress(BodyError, KeyError):
+            return f"UPDATE state={decode_body(NSQD, NSQD.message('UPDATE').id, body, check_text=False)['state']}"
     return name + (f" ({f.problem})" if f.problem else "")
 
 

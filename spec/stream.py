@@ -18,7 +18,7 @@ from typing import Any
 
 from spec._load import Note, Rule, SpecError, _fail, build_catalogue, read_validated
 
-__all__ = ["NSQD_PATH", "Effect", "Field", "Framing", "MessageSpec", "StreamSpec", "load_stream"]
+__all__ = ["NSQD_PATH", "Effect", "Field", "Framing", "MessageSpec", "StreamSpec", "int_range", "load_stream"]
 
 NSQD_PATH = Path(__file__).with_name("nsqd.yaml")
 
@@ -135,6 +135,16 @@ class StreamSpec:
             if v == value:
                 return name
         return f"state {value} (unknown)"
+
+
+def int_range(struct_code: str) -> tuple[int, int]:
+    """The values a fixed-size integer type of the spec carries (``>?`` a bool: 0..1)."""
+    if struct_code.endswith("?"):
+        return 0, 1
+    bits = 8 * struct.calcsize(struct_code)
+    if struct_code[-1].islower():  # b h i q: signed
+        return -(2 ** (bits - 1)), 2 ** (bits - 1) - 1
+    return 0, 2 ** bits - 1
 
 
 def load_stream(path: str | Path | None = None) -> StreamSpec:

@@ -14,12 +14,11 @@ from typing import Any
 from hypothesis import strategies as st
 
 from spec import NSQD
-from spec.stream import Field, StreamSpec
+from spec.stream import Field, StreamSpec, int_range
 from spec.stream_codec import encode
 
 __all__ = ["frames", "message_values", "streams"]
 
-_RANGES = {">?": (0, 1), ">B": (0, 255), ">h": (-2**15, 2**15 - 1), ">i": (-2**31, 2**31 - 1), ">I": (0, 2**32 - 1)}
 
 
 def _gpx() -> st.SearchStrategy[str]:
@@ -38,7 +37,7 @@ def _field(spec: StreamSpec, f: Field) -> st.SearchStrategy[Any]:
         return st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=40)
     if t["struct"] == ">?":
         return st.booleans()
-    lo, hi = _RANGES.get(t["struct"], (0, 0))
+    lo, hi = int_range(t["struct"])
     lo = max(lo, f.min) if f.min is not None else lo
     hi = min(hi, f.max) if f.max is not None else hi
     return st.integers(lo, hi)

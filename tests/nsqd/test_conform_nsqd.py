@@ -104,7 +104,6 @@ def test_each_fault_fails_its_own_rule_and_no_other(tmp_path, backend, fault):
 def test_attach_mode_against_a_running_backend(tmp_path):
     """``--target``: the reference backend started by hand (``mcp-node --protocol nsqd``)."""
     import socket
-    import time
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -120,6 +119,5 @@ def test_attach_mode_against_a_running_backend(tmp_path):
     finally:
         node.terminate()
         node.wait(timeout=10)
-    t0 = time.monotonic()
     rc, doc, out = run(tmp_path, "--target", f"127.0.0.1:{port}")  # nothing listens now
-    assert rc == 2 and "accepted no connection" in doc["error"] and time.monotonic() - t0 < 30
+    assert rc == 2 and "accepted no connection" in doc["error"]
