@@ -10,7 +10,7 @@ Without --target and --spawn it fuzzes the reference drone (embedded default); w
 ``--role manager`` the reference manager, the fuzzer playing drones (fuzz.manager_target). Exit 0:
 no MUST finding (SHOULD findings are reported, and count under ``--strict``, as for
 mcp-conform and mcp-capture check); 1: findings (for --replay: the finding reproduced); 2:
-usage or setup error, with a one-line reason. Live progress (rich) on a terminal; otherwise only the summary line.
+usage or setup error, with a one-line reason. Live progress (rich) on a terminal; otherwise a plain status line every 10 s, then the summary line.
 """
 
 from __future__ import annotations

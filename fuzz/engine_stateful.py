@@ -66,7 +66,24 @@ OTHER_SRC = 0x7777
 SEQ_GAP = 1000  # numbers skipped between programs
 STEPS = 24  # steps per program at most
 END_ODDS = 8  # one End_Mission move in this many ends the mission
-CHUNK = 10  # examples per hypothesis run (the budget is checked between runs)
+CHUNK = 10  # examples per hypothesis run (the budget is checked between steps, too)
+TICK_S = 0.25  # progress updates from inside a run, at most this often
+#: How long hypothesis may shrink a failing program. Each shrink step replays a program
+#: against the node (seconds each), and triage minimises the datagrams afterwards anyway;
+#: unbounded, shrinking took most of a campaign (a DUP-1 failure found in the 21st program
+#: was shrunk for 30 s).
+SHRINK_S = 5.0
+
+
+class OutOfBudget(BaseException):  # noqa: N818 - not an error: a budget is spent
+    """Raised from inside a step once the campaign's deadline, its case budget or a stop
+    request is reached (``campaign_over``), or once a failure has been shrunk for
+    ``SHRINK_S``: a ``BaseException``, so hypothesis neither counts it as a failure nor
+    shrinks it, and a run ends within one step."""
+
+    def __init__(self, campaign_over: bool) -> None:
+        super().__init__("campaign budget spent" if campaign_over else "shrink budget spent")
+        self.campaign_over = campaign_over
 
 
 class FlawFound(AssertionError):
@@ -74,8 +91,8 @@ class FlawFound(AssertionError):
 
     def __init__(self, flaw: Flaw, sent: list[bytes], scenario: str | None = None) -> None:
         super().__init__(f"{flaw.rule}: expected {flaw.expected}; actual {flaw.actual}")
-        if CTX is not None and len(CTX.raised) < 20:
-            CTX.raised.append((flaw, list(sent), scenario))
+        if CTX is not None:
+            CTX.failed(flaw, sent, scenario)
         self.flaw = flaw
         self.sent = sent
         self.scenario = scenario
@@ -121,9 +138,14 @@ def open_database(spec: str | None) -> ExampleDatabase | None:
 class _Context:
     """What the machine plays against (set by the engine before each hypothesis run)."""
 
-    def __init__(self, target: FuzzTarget, stats: EngineStats) -> None:
+    def __init__(self, target: FuzzTarget, stats: EngineStats,
+                 out_of_budget: Callable[[], bool] = lambda: False,
+                 tick: Callable[[EngineStats], None] | None = None) -> None:
         self.target = target
         self.stats = stats
+        self.out_of_budget = out_of_budget
+        self.tick = tick
+        self._last_tick = 0.0
         self.examples = 0
         self.ledger = DeliveryLedger(target.node_id, target.broadcast_id)
         self.monitor = MonitorOracle(target.node_id, target.rto, target.ack_window,
@@ -132,6 +154,35 @@ class _Context:
         # the first flaws steps raised, with what the program had sent (hypothesis keeps only
         # the failures it can replay; triage confirms the others by itself)
         self.raised: list[tuple[Flaw, list[bytes], str | None]] = []
+        self.shrink_until: float | None = None
+
+    def failed(self, flaw: Flaw, sent: list[bytes], scenario: str | None) -> None:
+        """A step failed: remember it (the first 20), and start the shrink budget."""
+        if len(self.raised) < 20:
+            self.raised.append((flaw, list(sent), scenario))
+        if self.shrink_until is None:
+            self.shrink_until = time.monotonic() + SHRINK_S
+
+    def smallest_failure(self) -> tuple[Flaw, list[bytes], str | None] | None:
+        """Of the failures seen in this run, the shortest one under the first one's rule
+        (what shrinking had reached when it was cut short)."""
+        if not self.raised:
+            return None
+        rule = self.raised[0][0].rule
+        return min((r for r in self.raised if r[0].rule == rule), key=lambda r: len(r[1]))
+
+    def checkpoint(self) -> None:
+        """Between steps: progress for the live display (a few times a second), and
+        :class:`OutOfBudget` once the budget is spent (issue 18 item 11: a 10-s campaign
+        had run 80 s, shrinking one failure while the display stayed at 0)."""
+        now = time.monotonic()
+        if self.tick is not None and now - self._last_tick >= TICK_S:
+            self._last_tick = now
+            self.tick(self.stats)
+        if self.out_of_budget():
+            raise OutOfBudget(campaign_over=True)
+        if self.shrink_until is not None and now >= self.shrink_until:
+            raise OutOfBudget(campaign_over=False)
 
     def new_monitor(self) -> None:
         t = self.target
@@ -199,6 +250,7 @@ class ManagerMachine(RuleBasedStateMachine):
     def _step(self, datagrams: list[bytes]) -> None:
         """Send, probe, judge; a flaw fails the step (hypothesis then shrinks)."""
         t, drv, ctx = self.t, self.t.driver, self.ctx
+        ctx.checkpoint()
         mark = drv.mark()
         inputs = []
         for data in datagrams:
@@ -391,13 +443,15 @@ class StatefulEngine:
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         global CTX
         st = self.stats
-        ctx = _Context(self.target, st)
+        ctx = _Context(self.target, st, tick=tick, out_of_budget=lambda: (
+            time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases) or stop()))
         CTX = ctx
         chunk = 0
         try:
             while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
                    and not stop()):
                 t0 = time.monotonic()
+                out = False
                 report: list[object] = []
                 machine = hypothesis_seed(self.cfg.seed * 1000 + self.cfg.worker * 100 + chunk)(
                     type("ManagerMachine", (ManagerMachine,), {}))
@@ -415,10 +469,18 @@ class StatefulEngine:
                     self.flaky.append(str(exc)[:500])
                     if ctx.raised:
                         failure = FlawFound(*ctx.raised[0])
+                except OutOfBudget as exc:
+                    # a budget ran out mid-run (perhaps while shrinking): the shortest failure
+                    # seen goes to triage, which minimises its datagrams itself
+                    out = exc.campaign_over
+                    smallest = ctx.smallest_failure()
+                    if smallest is not None:
+                        failure = FlawFound(*smallest)
                 st.seconds += time.monotonic() - t0
                 st.batches += 1
                 chunk += 1
                 ctx.raised.clear()
+                ctx.shrink_until = None
                 if failure is not None:
                     st.flaws += 1
                     if self.first_failure_example is None:
@@ -434,7 +496,7 @@ class StatefulEngine:
                         break
                 if tick is not None:
                     tick(st)
-                if self.cfg.extra.get("reuse_only"):
+                if self.cfg.extra.get("reuse_only") or out:
                     break
         finally:
             self.raised = ctx.raised

@@ -1,20 +1,23 @@
 """Live progress (rich) while a campaign runs, and its one summary line at the end.
 
 On a terminal: cases, judged cases/s, findings, restarts, elapsed, refreshed a few times a
-second. When stdout is not a terminal nothing is printed until the summary line (and the
-findings, one line each).
+second. When stdout is not a terminal (a CI log), the same figures as a plain line every
+``STATUS_S`` seconds, then the findings, one line each, and the summary line.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from typing import Any
 
 from fuzz.campaign import Progress
 from fuzz.config import FuzzConfig
 from fuzz.findings import FindingStore
 
-__all__ = ["LiveProgress", "summary_line"]
+__all__ = ["STATUS_S", "LiveProgress", "status_line", "summary_line"]
+
+STATUS_S = 10.0  # off a terminal: a plain status line this often
 
 
 def summary_line(summary: dict[str, Any]) -> str:
@@ -24,8 +27,14 @@ def summary_line(summary: dict[str, Any]) -> str:
             f"{by_rule}; seed {summary['seed']}, {summary['restarts']} restart(s)")
 
 
+def status_line(engine: str, p: Progress) -> str:
+    """The live figures as one plain line (a CI log's progress)."""
+    return (f"mcp-fuzz: {p.elapsed:,.0f} s  {engine}  cases {p.cases:,}  "
+            f"{p.judged_rate:,.0f} judged cases/s  findings {p.findings}  restarts {p.restarts}")
+
+
 class LiveProgress:
-    """A rich Live line on a terminal; silent otherwise."""
+    """A rich Live line on a terminal; a plain status line every ``STATUS_S`` otherwise."""
 
     def __init__(self, cfg: FuzzConfig, stream: Any = None) -> None:
         self.cfg = cfg
@@ -33,6 +42,7 @@ class LiveProgress:
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._live: Any = None
         self._last: Progress | None = None
+        self._next_status = time.monotonic() + STATUS_S
 
     def __enter__(self) -> LiveProgress:
         if self.tty:
@@ -62,6 +72,9 @@ class LiveProgress:
         self._last = p
         if self._live is not None:
             self._live.update(self._render(p))
+        elif time.monotonic() >= self._next_status:
+            self._next_status = time.monotonic() + STATUS_S
+            print(status_line(p.engine or self.cfg.engine, p), file=self.stream, flush=True)
 
     def final(self, summary: dict[str, Any], store: FindingStore) -> None:
         out = self.stream

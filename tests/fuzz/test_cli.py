@@ -88,22 +88,34 @@ def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noq
         load_seeds(str(tmp_path / "none"))
 
 
-def test_progress_is_quiet_off_a_terminal_but_for_the_summary() -> None:
+def test_progress_off_a_terminal_is_a_plain_status_line_every_few_seconds(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 18 item 11: a CI log shows the campaign's progress while it runs (before: nothing
+    until the end), a line per ``STATUS_S``, not one per update; then the summary."""
     import io
 
+    import fuzz.progress
     from fuzz.campaign import Progress
     from fuzz.config import FuzzConfig
     from fuzz.progress import LiveProgress
 
+    clock = [100.0]
+    monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
     out = io.StringIO()
-    live = LiveProgress(FuzzConfig(), out)
+    live = LiveProgress(FuzzConfig(engine="stateful"), out)
     with live:
         live.update(Progress(cases=10, fuzz_seconds=1.0))
-    assert out.getvalue() == ""
+        assert out.getvalue() == ""  # not yet STATUS_S
+        clock[0] += fuzz.progress.STATUS_S
+        live.update(Progress(cases=1234, fuzz_seconds=2.0, findings=1))
+        live.update(Progress(cases=1300, fuzz_seconds=2.1, findings=1))  # within the next period
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 1, lines
+    assert "stateful" in lines[0] and "cases 1,234" in lines[0] and "findings 1" in lines[0], lines
     summary = {"cases": 10, "duration_s": 1.0, "judged_cases_per_s": 10.0, "findings": 0,
                "findings_by_rule": {}, "seed": 1, "restarts": 0}
     live.final(summary, FindingStore(None))
-    assert out.getvalue().count("\n") == 1 and "10 judged cases/s" in out.getvalue()
+    assert out.getvalue().count("\n") == 2 and "10 judged cases/s" in out.getvalue()
 
 
 @pytest.mark.parametrize("levels, strict, code", [

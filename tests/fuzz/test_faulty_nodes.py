@@ -85,3 +85,20 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == want, (spawn, proc.stdout, proc.stderr)
         assert ("reproduced " if want else "did not reproduce") in proc.stdout, proc.stdout
+
+
+@pytest.mark.slow
+def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Path) -> None:
+    """Issue 18 item 11: hypothesis shrank a failing program for as long as it liked, each
+    shrink step a program replayed against the node (10-s campaigns ran 80 s). The budget is
+    checked between steps; shrinking stops after SHRINK_S and the shortest failure seen goes to
+    triage, which is what a finding's confirmation costs beyond the duration."""
+    duration = 8.0
+    cfg = FuzzConfig(spawn=spawn_command("no-dup-discard", True), mavlink=True, engine="stateful",
+                     seed=2, duration=duration, out=str(tmp_path), rto=0.2, ack_window=0.25)
+    summary = run_campaign(cfg, FindingStore(tmp_path, replay_args(cfg)))
+    eng = summary["workers"][0]["engines"]["stateful"]
+    assert eng["flaws_seen"] >= 1 and summary["findings_by_rule"].get("MCP-DUP-1"), summary
+    slack = 5.0  # the step under way when the deadline passes, on a loaded machine
+    assert eng["fuzz_seconds"] <= duration + slack, eng
+    assert summary["duration_s"] <= duration + eng["triage_seconds"] + slack, summary
