@@ -240,6 +240,8 @@ MISSION_READY = int(Action.MISSION_READY)
 #: MCAP writers whose own datagrams (``/mcp/tx``) are the test harness's: input to the node
 #: under test, often faulty on purpose, never blamed (the monitor's ``TESTER`` origin).
 HARNESSES = frozenset({"mcp-conform", "mcp-fuzz", "mcp-capture"})
+#: The writer of a node's own capture (``mcp-node --capture``).
+NODE_RECORDER = "mcp-node"
 
 
 def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
@@ -365,9 +367,16 @@ class _Session:
         self.n = self.unattributed = 0
 
     def metadata(self, rec: Metadata) -> None:
-        if self.mon is None and rec.data.get("recorder") in HARNESSES:  # before the first datagram
+        recorder = rec.data.get("recorder")
+        if self.mon is None and recorder in HARNESSES:  # before the first datagram
             self.recorded_harness = True
             self.params.adopt(_recorded_parameters(rec))
+        elif self.mon is None and recorder == NODE_RECORDER:
+            # a node's own capture (mcp-node --capture): its socket saw every datagram it
+            # exchanged, so the file says it is complete; the node's own timeout
+            self.params.adopt(_recorded_parameters(rec))
+            if rec.data.get("complete") in ("true", "false"):
+                self.recorded_complete = rec.data["complete"] == "true"
         elif rec.name == NODE_METADATA and self.drone is None:  # the node under test, as the run knew it
             self.drone, self.node_addr = _recorded_node(rec)
             if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it
@@ -411,10 +420,10 @@ class _Session:
             self.harness = rec.recorder in HARNESSES or (rec.segment is not None and self.recorded_harness)
             if self.mon is None:
                 # a harness is a party to every exchange with the one node it tests, so its
-                # capture holds them all (complete); a node's own capture (mcp-node
-                # --capture) misses what the other nodes exchange: judged as lossy
-                params.complete = params.complete or (self.format == "mcap" and self.harness
-                                                      and self.recorded_complete is not False)
+                # capture holds them all (complete), as does a node's own capture (mcp-node
+                # --capture) when its record says so; any other capture is judged as lossy
+                params.complete = params.complete or (self.format == "mcap" and (
+                    (self.harness and self.recorded_complete is not False) or self.recorded_complete is True))
                 self.mon = _make_monitor(params)
             if self.drone is not None:  # named by the run's record: its autopilot link so far
                 self._flush()
