@@ -35,7 +35,7 @@ from traceio.trace import evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
-SCHEMA_VERSION = "1.1"  # 1.1: parameters.from_capture
+SCHEMA_VERSION = "1.2"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures)
 VERDICT_STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "info": "cyan",
                   "not_observed": "dim"}
 
@@ -125,6 +125,8 @@ def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
             counts[verdict] = counts.get(verdict, 0) + 1
     levels = [x["level"] for x in violations]
     duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
+    segments = {"segments": [_segment_json(name, s, j.params.select) for name, s in j.segments.items()]} \
+        if j.segments else {}
     return {
         "schema_version": SCHEMA_VERSION,
         "tool": {"name": "mcp-capture", "version": tool_version()},
@@ -135,10 +137,25 @@ def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
         "nodes": [n.to_json() for n in j.nodes.values()],
         "violations": violations,
         "rules": rules,
+        **segments,
         "summary": {"violations": len(violations), "must": levels.count("MUST"),
                     "should": levels.count("SHOULD"), "info": levels.count("INFO"),
                     "failing": len(j.failing()), "verdicts": counts, "exit_code": j.exit_code()},
     }
+
+
+def _segment_json(name: str, s: Judgement, select: tuple[str, ...]) -> dict[str, Any]:
+    """One worker's session of a merged capture, as its own monitor judged it."""
+    node = None
+    if s.vehicle_drone is not None:
+        node = {"id": s.vehicle_drone}
+        for n in s.nodes.values():
+            if n.id == s.vehicle_drone:
+                node["addresses"] = n.to_json()["addresses"]
+    return {"name": name, "datagrams": s.datagrams, "node": node, "nodes": [n.to_json() for n in s.nodes.values()],
+            "violations": len([v for v in s.violations if selected(v.rule, select)]),
+            "rules": {str(n): {r: v for r, v in sorted(t.items()) if selected(r, select)}
+                      for n, t in sorted(s.verdicts.items())}}
 
 
 def _str(value: Any) -> str | None:
@@ -168,6 +185,10 @@ def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console |
         con.print(f"[dim]note: {escape(note)}[/dim]", soft_wrap=True)
     if j.params.challenge_note:
         con.print(escape(j.params.challenge_note), soft_wrap=True)
+    for name, s in j.segments.items():
+        bad = len([v for v in s.violations if selected(v.rule, j.params.select)])
+        con.print(f"session {escape(name)}: {s.datagrams} datagram(s), node under test "
+                  f"{s.vehicle_drone if s.vehicle_drone is not None else '?'}, {bad} violation(s)", soft_wrap=True)
     nodes = Table(title="Nodes", title_justify="left", show_edge=False)
     for col in ("ID", "role", "addresses", "sent", "received"):
         nodes.add_column(col, justify="right" if col in ("ID", "sent", "received") else "left")

@@ -79,6 +79,11 @@ class ReceiverRules:
                 self._emit("MCP-ACK-3", src, t, "an ACK's dst is the src of the acknowledged message",
                            f"ACK of seq {named} sent to the broadcast ID", [(i, t)])
             return
+        if dst == src:  # no message the capture missed explains it: a node's own ID is not a
+            if not tester:  # sender it hears from (one that was seen is ``match`` above)
+                self._emit("MCP-ACK-3", src, t, "an ACK's dst is the src of the acknowledged message",
+                           f"ACK of seq {named} addressed to its own sender's ID {src}", [(i, t)])
+            return
         other = self._by_seq.get(dst << 16 | named)
         if other is not None and t - _entry_t(other) > horizon:
             other = None

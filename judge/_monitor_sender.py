@@ -120,6 +120,8 @@ class SenderRules:
             return
         node = self._nodes[src]
         node.seen.add("MCP-SEQ-2")
+        if len(ex.copies) == MIN_COPIES and not ex.acks and not ex.bcast:
+            node.seen.add("MCP-RTX-1")  # the copies the rule asks for, seen: on any trace
         if ex.bcast:
             if not ex.flags & F_RTX4:
                 ex.flags |= F_RTX4

@@ -15,14 +15,16 @@ The options (``add_monitor_options``) are shared by ``check`` and ``show``; bad 
 from __future__ import annotations
 
 import argparse
+from array import array
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from judge.run_monitor import from_node
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
+from traceio.merge import SEGMENT
 from traceio.reader import (
     CaptureError,
     CaseMark,
@@ -35,8 +37,8 @@ from traceio.reader import (
 from traceio.recorder import NODE_METADATA
 from traceio.trace import Node, action_name, evidence_indexes
 
-__all__ = ["Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
-           "evidence_of", "fetch", "judge", "params_from_args", "selected", "CaptureError"]
+__all__ = ["VERDICT_RANK", "Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
+           "evidence_of", "fetch", "judge", "merge_segments", "params_from_args", "selected", "CaptureError"]
 
 #: The challenge each challenge-specific command implies (MCP-FLOW-4/5/6).
 CHALLENGE_OF = {int(Action.WP_LIST): 1, int(Action.WP_ON): 2, int(Action.WP_OFF): 2,
@@ -185,6 +187,8 @@ class Judgement:
     metadata: list[Metadata] = field(default_factory=list)
     vehicle_drone: int | None = None  # whose autopilot link was judged (our MCAP captures)
     evidence: dict[int, Datagram] = field(default_factory=dict)  # what judging kept of the evidence
+    #: a merged capture's sessions (pytest-xdist workers: gw0, ...), each judged on its own
+    segments: dict[str, Judgement] = field(default_factory=dict)
 
     @property
     def shown_violations(self) -> list[Any]:
@@ -236,6 +240,8 @@ MISSION_READY = int(Action.MISSION_READY)
 #: MCAP writers whose own datagrams (``/mcp/tx``) are the test harness's: input to the node
 #: under test, often faulty on purpose, never blamed (the monitor's ``TESTER`` origin).
 HARNESSES = frozenset({"mcp-conform", "mcp-fuzz", "mcp-capture"})
+#: The writer of a node's own capture (``mcp-node --capture``).
+NODE_RECORDER = "mcp-node"
 
 
 def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
@@ -245,104 +251,241 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     origin, the trace is complete (the runner's socket saw every datagram it exchanged),
     and the autopilot-link frames (``/mavlink``) are fed as vehicle events of the drone
     under test (the sender of the first Mission_Ready the harness received). A pcap is
-    complete only with ``--complete``."""
+    complete only with ``--complete``.
+
+    A capture merged from pytest-xdist workers (``traceio.merge``) holds one session per
+    worker, each against its own node with its own runner: each segment is judged on its
+    own, by its own monitor, as that worker's run monitor judged it (its node, its runner's
+    ID and address, its parameters); ``Judgement.segments`` holds each, and the judgement of
+    the file is theirs merged per node (:func:`merge_segments`)."""
     cap = open_capture(path)  # unreadable files fail here, before any judging
-    harness = None
-    mon = monitor
-    tester = _tester()
-    violations: list[Any] = []
-    kept: list[Datagram] | None = [] if keep else None
-    recent: deque[Datagram] = deque(maxlen=RECENT)  # the evidence of a violation is mostly recent
-    evidence: dict[int, Datagram] = {}
-    cases: list[CaseMark] = []
+    sessions: dict[str | None, _Session] = {}
     meta: list[Metadata] = []
-    frames: list[MavlinkFrame] = []  # autopilot-link frames before the drone under test is known
-    drone: int | None = None
-    node_addr: Any = None  # the drone under test's address: what comes from there is its own
-    recorded_complete: bool | None = None  # how the run's own monitor judged the trace
-    marks = False  # the run recorded the link and fix events its monitor judged by (/vehicle)
-    first = last = None
-    n = unattributed = 0
-    pre = PREAMBLE
+
+    def session(seg: str | None) -> _Session:
+        got = sessions.get(seg)
+        if got is None:
+            got = sessions[seg] = _Session(cap.format, params if seg is None else replace(params), keep,
+                                           monitor if seg is None else _fresh(monitor))
+        return got
+
     for rec in cap:
+        if isinstance(rec, Metadata):
+            meta.append(rec)
+            seg = rec.data.get(SEGMENT)
+            if seg is not None or not cap.segments:
+                session(seg).metadata(rec)
+        elif isinstance(rec, (Datagram, MavlinkFrame, VehicleMark, CaseMark)):
+            session(rec.segment).record(rec)
+    if not sessions:
+        session(None)
+    judged = {seg: s.finish(str(path), cap) for seg, s in sessions.items()}
+    if list(judged) == [None]:
+        j = judged[None]
+        j.metadata = meta
+        return j
+    parts = {str(seg): j for seg, j in judged.items()}
+    out = merge_segments(str(path), cap, parts, meta)
+    params.__dict__.update(out.params.__dict__)
+    out.params = params
+    return out
+
+
+#: How a node's verdicts of several segments merge: the worst wins (as the merged report's
+#: monitor section of an xdist run merges its workers' sections).
+VERDICT_RANK = {"not_observed": 0, "info": 1, "passed": 2, "warned": 3, "failed": 4}
+
+
+def merge_segments(path: str, cap: Any, parts: dict[str, Judgement], meta: list[Metadata]) -> Judgement:
+    """One judgement of a merged capture from its segments' (each judged on its own): the
+    violations of all, each node's verdicts worst-first, its addresses and counts summed."""
+    first = next(iter(parts.values()))
+    nodes: dict[int, Node] = {}
+    verdicts: dict[int, dict[str, str]] = {}
+    for j in parts.values():
+        for nid, n in j.nodes.items():
+            have = nodes.get(nid)
+            if have is None:
+                nodes[nid] = Node(n.id, n.role, set(n.addresses), n.sent, n.received)
+            else:
+                have.addresses |= set(n.addresses)
+                have.sent += n.sent
+                have.received += n.received
+        for nid, table in j.verdicts.items():
+            merged = verdicts.setdefault(nid, {})
+            for rule, verdict in table.items():
+                if VERDICT_RANK.get(verdict, 0) >= VERDICT_RANK.get(merged.get(rule, "not_observed"), 0):
+                    merged[rule] = verdict
+    firsts = [j.first_ns for j in parts.values() if j.first_ns is not None]
+    lasts = [j.last_ns for j in parts.values() if j.last_ns is not None]
+    kept = None if first.kept is None else sorted((d for j in parts.values() for d in j.kept or ()),
+                                                  key=lambda d: d.index)
+    violations = sorted((v for j in parts.values() for v in j.violations), key=lambda v: (v.rule, v.t_ns))
+    evidence = {i: d for j in parts.values() for i, d in j.evidence.items()}
+    cases = sorted((c for j in parts.values() for c in j.cases), key=lambda c: c.t_ns)
+    params = replace(first.params)
+    notes = list(cap.notes) + [f"{len(parts)} sessions merged from pytest-xdist workers "
+                               f"({', '.join(parts)}): each judged on its own, verdicts merged per node"]
+    return Judgement(path, cap.format, params, dict(sorted(nodes.items())), violations,
+                     dict(sorted(verdicts.items())), sum(j.datagrams for j in parts.values()),
+                     min(firsts) if firsts else None, max(lasts) if lasts else None, cap.truncated,
+                     notes, sum(j.unattributed for j in parts.values()), kept, cases, meta,
+                     first.vehicle_drone, evidence, parts)
+
+
+def _fresh(monitor: Any) -> Any:
+    """A monitor of the same kind for another segment (``show``'s :class:`NoJudge`)."""
+    return None if monitor is None else type(monitor)()
+
+
+class _Session:
+    """One session of a capture (the whole file, or one segment of a merged file) judged by
+    its own monitor. The monitor numbers the datagrams it is fed; ``fed`` maps its numbers
+    back to the capture's indexes, so evidence names the file's datagrams."""
+
+    def __init__(self, fmt: str, params: Params, keep: bool, monitor: Any) -> None:
+        self.format = fmt
+        self.params = params
+        self.mon = monitor
+        self.tester = _tester()
+        self.harness: bool | None = None
+        self.violations: list[Any] = []
+        self.kept: list[Datagram] | None = [] if keep else None
+        self.recent: dict[int, Datagram] = {}  # the evidence of a violation is mostly recent
+        self.order: deque[int] = deque()
+        self.evidence: dict[int, Datagram] = {}
+        self.fed = array("q")  # the monitor's datagram numbers -> the capture's indexes
+        self.cases: list[CaseMark] = []
+        self.frames: list[Any] = []  # autopilot-link records before the drone under test is known
+        self.drone: int | None = None
+        self.node_addr: Any = None  # the drone under test's address: what comes from there is its own
+        self.recorded_complete: bool | None = None  # how the run's own monitor judged the trace
+        self.recorded_harness = False  # the run's metadata names a harness as its recorder
+        self.marks = False  # the run recorded the link and fix events its monitor judged by
+        self.first: int | None = None
+        self.last: int | None = None
+        self.n = self.unattributed = 0
+
+    def metadata(self, rec: Metadata) -> None:
+        recorder = rec.data.get("recorder")
+        if self.mon is None and recorder in HARNESSES:  # before the first datagram
+            self.recorded_harness = True
+            self.params.adopt(_recorded_parameters(rec))
+        elif self.mon is None and recorder == NODE_RECORDER:
+            # a node's own capture (mcp-node --capture): its socket saw every datagram it
+            # exchanged, so the file says it is complete; the node's own timeout
+            self.params.adopt(_recorded_parameters(rec))
+            if rec.data.get("complete") in ("true", "false"):
+                self.recorded_complete = rec.data["complete"] == "true"
+        elif rec.name == NODE_METADATA and self.drone is None:  # the node under test, as the run knew it
+            self.drone, self.node_addr = _recorded_node(rec)
+            if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it
+                self.recorded_complete = rec.data["complete"] == "true"
+
+    def _found(self, found: list[Any]) -> None:
+        if not found:
+            return
+        fed = self.fed
+        for v in found:
+            ev = getattr(v, "evidence", None)
+            if ev:
+                v = v._replace(evidence=tuple(
+                    (fed[e[0]], *e[1:]) if isinstance(e, tuple) and e and isinstance(e[0], int)
+                    and 0 <= e[0] < len(fed) else e for e in ev))
+            for i in evidence_indexes(v):
+                d = self.recent.get(i)
+                if d is not None:
+                    self.evidence[i] = d
+            self.violations.append(v)
+
+    def record(self, rec: Any) -> None:
         if isinstance(rec, Datagram):
-            t = rec.t_ns
-            if first is None:
-                first = t
-                harness = rec.recorder in HARNESSES
-                if mon is None:
-                    # a harness is a party to every exchange with the one node it tests, so its
-                    # capture holds them all (complete); a node's own capture (mcp-node
-                    # --capture) misses what the other nodes exchange: judged as lossy
-                    params.complete = params.complete or (cap.format == "mcap" and harness
-                                                          and recorded_complete is not False)
-                    mon = _make_monitor(params)
-                feed = mon.datagram
-                if drone is not None:  # named by the run's record: its autopilot link so far
-                    violations.extend(_flush(mon, frames, drone, recent, evidence, marks))
-            last = t
-            n += 1
-            recent.append(rec)
-            h = peek_header(rec.data) if harness and drone is None and rec.direction == "rx" else None
-            if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test:
-                drone, node_addr = h[1], rec.src_addr  # its autopilot link so far, then this
-                violations.extend(_flush(mon, frames, drone, recent, evidence, marks))
-            if rec.burst and harness:
-                # a flood the harness recorded as a count (its MCP-ROB-7 input, judged by its
-                # case): the run's monitor judges around it, and so does this one
-                found = []
-            elif harness and rec.direction == "tx":
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, tester)
-            elif harness and from_node(rec.src_addr, node_addr):
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, drone)  # the node's own
+            self.datagram(rec)
+        elif isinstance(rec, (MavlinkFrame, VehicleMark)):
+            self.last = max(self.last or rec.t_ns, rec.t_ns)
+            self.marks = self.marks or isinstance(rec, VehicleMark)
+            if self.drone is None or self.mon is None:
+                self.frames.append(rec)
+            else:
+                self._found(_vehicle(self.mon, rec, self.drone, self.marks))
+        elif isinstance(rec, CaseMark):
+            self.cases.append(rec)
+            self.last = max(self.last or rec.t_ns, rec.t_ns)
+
+    def datagram(self, rec: Datagram) -> None:
+        t = rec.t_ns
+        params = self.params
+        if self.first is None:
+            self.first = t
+            self.harness = rec.recorder in HARNESSES or (rec.segment is not None and self.recorded_harness)
+            if self.mon is None:
+                # a harness is a party to every exchange with the one node it tests, so its
+                # capture holds them all (complete), as does a node's own capture (mcp-node
+                # --capture) when its record says so; any other capture is judged as lossy
+                params.complete = params.complete or (self.format == "mcap" and (
+                    (self.harness and self.recorded_complete is not False) or self.recorded_complete is True))
+                self.mon = _make_monitor(params)
+            if self.drone is not None:  # named by the run's record: its autopilot link so far
+                self._flush()
+        harness = self.harness
+        self.last = t
+        self.n += 1
+        self.recent[rec.index] = rec
+        self.order.append(rec.index)
+        if len(self.order) > RECENT:
+            del self.recent[self.order.popleft()]
+        h = peek_header(rec.data) if harness and self.drone is None and rec.direction == "rx" else None
+        if h is not None and h[3] == MISSION_READY:  # its sender is the drone under test:
+            self.drone, self.node_addr = h[1], rec.src_addr  # its autopilot link so far, then this
+            self._flush()
+        feed = self.mon.datagram
+        if rec.burst and harness:
+            # a flood the harness recorded as a count (its MCP-ROB-7 input, judged by its
+            # case): the run's monitor judges around it, and so does this one
+            found: list[Any] = []
+        else:
+            self.fed.append(rec.index)
+            if harness and rec.direction == "tx":
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.tester)
+            elif harness and from_node(rec.src_addr, self.node_addr):
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone)  # the node's own
             else:
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
-            if found:
-                _collect(found, recent, evidence)
-                violations.extend(found)
-            if kept is not None:
-                kept.append(rec)
-            if rec.data[:len(pre)] != pre or len(rec.data) < 17:
-                unattributed += 1
-        elif isinstance(rec, (MavlinkFrame, VehicleMark)):
-            last = max(last or rec.t_ns, rec.t_ns)
-            marks = marks or isinstance(rec, VehicleMark)
-            if drone is None or mon is None:
-                frames.append(rec)
-            else:
-                found = _vehicle(mon, rec, drone, marks)
-                _collect(found, recent, evidence)
-                violations.extend(found)
-        elif isinstance(rec, CaseMark):
-            cases.append(rec)
-            last = max(last or rec.t_ns, rec.t_ns)
-        elif isinstance(rec, Metadata):
-            meta.append(rec)
-            if mon is None and rec.data.get("recorder") in HARNESSES:  # before the first datagram
-                params.adopt(_recorded_parameters(rec))
-            elif rec.name == NODE_METADATA and drone is None:  # the node under test, as the run knew it
-                drone, node_addr = _recorded_node(rec)
-                if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it
-                    recorded_complete = rec.data["complete"] == "true"
-    if mon is None:  # no datagram at all
-        mon = _make_monitor(params)
-    if last is not None:
-        found = mon.finish(last)
-        _collect(found, recent, evidence)
-        violations.extend(found)
-    if params.challenge is None:
-        inferred = getattr(mon, "inferred_challenge", None)
-        params.challenge_source = "inferred" if inferred else "unknown"
-        params.challenge_note = (
-            f"challenge {inferred} inferred from the manager's commands "
-            f"({', '.join(a for a, c in _CHALLENGE_NAMES if c == inferred)}); give --challenge to override"
-            if inferred else "challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or "
-            "Obstacles_List; MCP-FLOW-4/5/6 were not judged (give --challenge)")
-        params.challenge = inferred
-    violations.sort(key=lambda v: (v.rule, v.t_ns))
-    nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
-    return Judgement(str(path), cap.format, params, nodes, violations, mon.verdicts(), n, first, last,
-                     cap.truncated, cap.notes, unattributed, kept, cases, meta, drone, evidence)
+        self._found(found)
+        if self.kept is not None:
+            self.kept.append(rec)
+        if rec.data[:len(PREAMBLE)] != PREAMBLE or len(rec.data) < 17:
+            self.unattributed += 1
+
+    def _flush(self) -> None:
+        """The autopilot-link records held until the drone under test was known, judged."""
+        assert self.drone is not None
+        self.marks = self.marks or any(isinstance(f, VehicleMark) for f in self.frames)
+        for f in self.frames:
+            self._found(_vehicle(self.mon, f, self.drone, self.marks))
+        self.frames.clear()
+
+    def finish(self, path: str, cap: Any) -> Judgement:
+        params = self.params
+        mon = self.mon
+        if mon is None:  # no datagram at all
+            mon = self.mon = _make_monitor(params)
+        if self.last is not None:
+            self._found(mon.finish(self.last))
+        if params.challenge is None:
+            inferred = getattr(mon, "inferred_challenge", None)
+            params.challenge_source = "inferred" if inferred else "unknown"
+            params.challenge_note = (
+                f"challenge {inferred} inferred from the manager's commands "
+                f"({', '.join(a for a, c in _CHALLENGE_NAMES if c == inferred)}); give --challenge to override"
+                if inferred else "challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or "
+                "Obstacles_List; MCP-FLOW-4/5/6 were not judged (give --challenge)")
+            params.challenge = inferred
+        violations = sorted(self.violations, key=lambda v: (v.rule, v.t_ns))
+        nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
+        return Judgement(path, cap.format, params, nodes, violations, mon.verdicts(), self.n, self.first,
+                         self.last, cap.truncated, cap.notes, self.unattributed, self.kept, self.cases, [],
+                         self.drone, self.evidence)
 
 
 _CHALLENGE_NAMES = tuple((action_name(a), c) for a, c in CHALLENGE_OF.items())
@@ -350,16 +493,6 @@ _CHALLENGE_NAMES = tuple((action_name(a), c) for a, c in CHALLENGE_OF.items())
 
 #: Datagrams kept while judging, to show a violation's evidence without reading the file again.
 RECENT = 4096
-
-
-def _collect(found: list[Any], recent: deque[Datagram], evidence: dict[int, Datagram]) -> None:
-    if not recent:
-        return
-    base = recent[0].index
-    for v in found:
-        for i in evidence_indexes(v):
-            if 0 <= i - base < len(recent):
-                evidence[i] = recent[i - base]
 
 
 def _tester() -> Any:
@@ -394,19 +527,6 @@ def _recorded_node(rec: Metadata) -> tuple[int | None, Any]:
 
 def _nodes(mon: Any) -> list[Any]:
     return list(mon.nodes()) if hasattr(mon, "nodes") else []
-
-
-def _flush(mon: Any, frames: list[Any], drone: int, recent: deque[Datagram],
-           evidence: dict[int, Datagram], marks: bool) -> list[Any]:
-    """The autopilot-link records held until the drone under test was known, judged."""
-    marks = marks or any(isinstance(f, VehicleMark) for f in frames)
-    out: list[Any] = []
-    for f in frames:
-        found = _vehicle(mon, f, drone, marks)
-        _collect(found, recent, evidence)
-        out.extend(found)
-    frames.clear()
-    return out
 
 
 def _vehicle(mon: Any, rec: MavlinkFrame | VehicleMark, drone: int, marks: bool) -> list[Any]:

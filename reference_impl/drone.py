@@ -233,7 +233,7 @@ class Drone(RoleNode):
             self.vehicle.start(host="127.0.0.1", port=0)
             url = self.vehicle.url
             self.log.info("built-in simulated vehicle on %s (GPS fix in %.1f s)", url, cfg.gps_fix_delay)
-        capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, mavlink=url,
+        capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, rto=cfg.rto, mavlink=url,
                                      target=f"{cfg.remote_host}:{cfg.remote_port}")
         self.log.info("connecting to the autopilot at %s", url)
         tap = None if capture is None else (lambda d, raw: capture.mavlink(d, raw, drone=cfg.drone_id))

@@ -145,7 +145,8 @@ class Manager(RoleNode):
 
     def _run(self) -> int:
         cfg = self.cfg
-        capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, challenge=cfg.challenge,
+        capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, rto=cfg.rto,
+                                     challenge=cfg.challenge,
                                      drones=",".join(map(str, cfg.drones)),
                                      target=f"{cfg.remote_host}:{cfg.remote_port}")
         try:

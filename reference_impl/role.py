@@ -119,18 +119,26 @@ class RoleNode:
         self._stop = threading.Event()
         self.capture: Any = None
 
-    def _open_capture(self, path: str | None, role: str, node_id: int, **meta: Any) -> Any:
-        """The node's MCAP capture (``--capture``), written off the hot path; None without."""
+    def _open_capture(self, path: str | None, role: str, node_id: int, rto: float | None = None,
+                      **meta: Any) -> Any:
+        """The node's MCAP capture (``--capture``), written off the hot path; None without.
+
+        Its metadata says the capture is complete (the node's socket sees every datagram
+        the node sends and receives) and gives the node's retransmission timeout, so
+        ``mcp-capture check`` judges its absences (MCP-RTX-1) with the node's own timing."""
         if not path:
             return None
+        from spec import SPEC
         from traceio.background import BackgroundRecorder
         from traceio.recorder import RecorderError, run_metadata
 
+        timeout = float(SPEC.params["timeout_s"]) if rto is None else float(rto)
         try:
             # the MCAP header names the writer: readers tell a node's own capture from a
             # test harness's (judge.judging: a harness's datagrams are its input, not judged)
             self.capture = BackgroundRecorder(path, library="mcp-node", metadata=run_metadata(
-                "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), **meta))
+                "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), complete="true",
+                parameters={"rto": timeout}, **meta))
         except RecorderError as exc:
             raise RoleError(str(exc)) from None
         return self.capture

@@ -4,9 +4,12 @@ Under ``pytest -n N --mcp-capture run.mcap`` each worker records its own node's 
 part (``run.gw0.mcap``, ...); the controller joins them into the one file the user asked
 for, as pytest-cov joins coverage data. Channels and schemas are matched by topic and
 schema name (every part is written by ``traceio.recorder``, so they agree); each message
-keeps its log time; metadata records are kept once per name, with the workers' names
-listed. A part that is cut short is read up to its last whole record, like every reader
-of ours; the parts are removed only when the merged file is complete.
+keeps its log time. Each part stays a *segment*: its channels and its metadata records carry
+its name (``segment``: ``gw0``, ...) and its channels its writer (``library``), so a reader
+(``traceio.reader``, ``open_capture(path, segment=...)``) gives each worker's session apart
+and the judge judges each on its own, as that worker's run monitor did. A part that is cut
+short is read up to its last whole record, like every reader of ours; the parts are removed
+only when the merged file is complete.
 """
 
 from __future__ import annotations
@@ -20,10 +23,11 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-__all__ = ["SEGMENT", "merge_captures", "segment_name"]
+__all__ = ["LIBRARY", "SEGMENT", "merge_captures", "segment_name"]
 
 
 SEGMENT = "segment"  # the channel and metadata key naming a part's session
+LIBRARY = "library"  # the channel key naming the part's writer (its MCAP header's library)
 
 
 def segment_name(path: Path) -> str:
@@ -39,6 +43,15 @@ def _metadata(path: Path) -> list[tuple[str, dict[str, str]]]:
             return [(md.name, dict(md.metadata)) for md in make_reader(f).iter_metadata()]
         except (McapError, EOFError, ValueError, OSError, AssertionError):
             return []
+
+
+def _library(path: Path) -> str:
+    """The writer the part's header names ("" when unreadable)."""
+    with open(path, "rb") as f:
+        try:
+            return make_reader(f).get_header().library
+        except (McapError, EOFError, ValueError, OSError, AssertionError):
+            return ""
 
 
 def _messages(path: Path, part: int) -> Iterator[tuple[int, int, int, Any, Any, Any]]:
@@ -59,6 +72,7 @@ def merge_captures(parts: Sequence[str | Path], out: str | Path, *, remove_parts
     of messages."""
     paths = [Path(p) for p in parts if Path(p).exists()]
     names = [segment_name(p) for p in paths]
+    libraries = [_library(p) for p in paths]  # a reader tells a harness's datagrams by it
     streams = [_messages(p, i) for i, p in enumerate(paths)]
     count = 0
     with open(out, "wb") as f:
@@ -81,7 +95,7 @@ def merge_captures(parts: Sequence[str | Path], out: str | Path, *, remove_parts
             if ckey not in channels:
                 channels[ckey] = writer.register_channel(
                     channel.topic, channel.message_encoding, sid,
-                    {**dict(channel.metadata), SEGMENT: names[part]})
+                    {**dict(channel.metadata), SEGMENT: names[part], LIBRARY: libraries[part]})
             writer.add_message(channels[ckey], message.log_time, message.data,
                                message.publish_time, sequence=count)
             count += 1

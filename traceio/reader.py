@@ -84,6 +84,7 @@ class Datagram(NamedTuple):
     direction: str | None = None  # "tx" | "rx" | None, seen from the recording host
     recorder: str | None = None
     burst: bool = False  # one of a flood recorded as a count (/mcp/burst)
+    segment: str | None = None  # the session it belongs to in a merged capture (gw0, ...)
 
 
 class MavlinkFrame(NamedTuple):
@@ -92,6 +93,7 @@ class MavlinkFrame(NamedTuple):
     direction: str | None  # as recorded: "rx" = received by the vehicle
     msg_type: str | None
     data: bytes
+    segment: str | None = None
 
 
 class CaseMark(NamedTuple):
@@ -100,6 +102,7 @@ class CaseMark(NamedTuple):
     event: str  # "start" | "end"
     outcome: str | None
     rules: tuple[str, ...]
+    segment: str | None = None
 
 
 class VehicleMark(NamedTuple):
@@ -109,6 +112,7 @@ class VehicleMark(NamedTuple):
     kind: str
     drone: int | None
     detail: str | None
+    segment: str | None = None
 
 
 class StreamFrame(NamedTuple):
@@ -149,20 +153,31 @@ MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
 REORDER_NS = 1_000_000_000
 
 
-def open_capture(path: str | Path) -> Capture:
-    """Open ``path`` (MCAP, pcap or pcapng); raises :class:`CaptureError`."""
-    return Capture(path)
+def open_capture(path: str | Path, segment: str | None = None) -> Capture:
+    """Open ``path`` (MCAP, pcap or pcapng); raises :class:`CaptureError`. ``segment``: only
+    that session's records of a merged capture (see :class:`Capture`)."""
+    return Capture(path, segment)
 
 
 class Capture:
     """An opened capture; iterate it once for its records (see the module docstring).
 
     After iteration: ``truncated`` (the reason, or None), ``notes`` (what was skipped or
-    reassembled, one line each), ``counts`` (records by kind and skips by reason).
+    reassembled, one line each), ``counts`` (records by kind and skips by reason),
+    ``segments`` (the sessions of a merged capture, in order of appearance).
+
+    Segments: an MCAP file merged from pytest-xdist workers (``traceio.merge``) holds one
+    session per worker, each with its own node under test and runner. Every record of a
+    segment says so (``segment``: ``gw0``, ...; None in an unmerged capture), its datagrams
+    carry their own writer as ``recorder``, and its metadata records carry the segment in
+    their data. With ``segment`` given, only that session's records are yielded (metadata
+    records of other segments left out); datagram indexes stay the whole file's.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, segment: str | None = None) -> None:
         self.path = Path(path)
+        self.segment = segment
+        self.segments: list[str] = []
         self.truncated: str | None = None
         self.counts: Counter[str] = Counter()
         self.linktypes: set[int] = set()
@@ -261,16 +276,25 @@ class Capture:
         order: list[tuple[int, int, str, Any]] = []  # (log_time, file position, kind, fields)
         n = {"d": 0, "m": 0, "s": 0}
         newest = 0
+        want = self.segment
         for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
             if kind == "meta":
-                yield Metadata(*fields)
+                seg = fields[1].get("segment")
+                if seg is not None and seg not in self.segments:
+                    self.segments.append(seg)
+                if want is None or seg in (None, want):
+                    yield Metadata(*fields)
                 continue
             heapq.heappush(order, (t, pos, kind, fields))
             newest = max(newest, t)
             while order and order[0][0] < newest - REORDER_NS:
-                yield self._mcap_record(heapq.heappop(order), n)
+                rec = self._mcap_record(heapq.heappop(order), n)
+                if want is None or getattr(rec, "segment", None) == want:
+                    yield rec
         while order:
-            yield self._mcap_record(heapq.heappop(order), n)
+            rec = self._mcap_record(heapq.heappop(order), n)
+            if want is None or getattr(rec, "segment", None) == want:
+                yield rec
 
     @staticmethod
     def _mcap_record(item: tuple[int, int, str, Any], n: dict[str, int]) -> Record:
@@ -296,6 +320,9 @@ class Capture:
         size = self.path.stat().st_size
         topics: dict[int, str] = {}
         library: str | None = None
+        segments: dict[int, str] = {}  # channel -> its segment (merged captures)
+        writers: dict[int, str] = {}  # channel -> its segment's writer
+        seen = self.segments
         b64 = a2b_base64
         loads = json.loads
         with open(self.path, "rb") as f:
@@ -315,6 +342,8 @@ class Capture:
                 kind = type(rec)
                 if kind is Message:
                     topic = topics.get(rec.channel_id)
+                    seg = segments.get(rec.channel_id)
+                    lib = writers.get(rec.channel_id, library)
                     try:
                         body = loads(rec.data)
                         if topic == "/mcp/tx" or topic == "/mcp/rx":
@@ -322,7 +351,8 @@ class Capture:
                             local = _parse_peer(body.get("local"))
                             tx = topic == "/mcp/tx"
                             yield rec.log_time, "d", (local if tx else peer, peer if tx else local,
-                                                      b64(body["raw_base64"]), "tx" if tx else "rx", library)
+                                                      b64(body["raw_base64"]), "tx" if tx else "rx", lib,
+                                                      False, seg)
                         elif topic == "/mcp/burst":
                             # a flood recorded as a count (traceio.recorder): datagram i is
                             # cycle[i % len(cycle)], times spread evenly over the burst
@@ -333,28 +363,36 @@ class Capture:
                             src, dst = (local, peer) if tx else (peer, local)
                             for i in range(count if cycle else 0):
                                 yield (t1 + (t2 - t1) * i // max(1, count - 1), "d",
-                                       (src, dst, cycle[i % len(cycle)], "tx" if tx else "rx", library,
-                                        True))
+                                       (src, dst, cycle[i % len(cycle)], "tx" if tx else "rx", lib,
+                                        True, seg))
                         elif topic == "/mavlink":
                             yield rec.log_time, "m", (body.get("direction"), body.get("msg_type"),
-                                                      b64(body["raw_base64"]))
+                                                      b64(body["raw_base64"]), seg)
                         elif topic == "/vehicle":
                             drone = body.get("drone")
                             yield rec.log_time, "v", (str(body["kind"]),
                                                       drone if isinstance(drone, int) else None,
-                                                      body.get("detail"))
+                                                      body.get("detail"), seg)
                         elif topic == "/nsqd/tx" or topic == "/nsqd/rx":
                             yield rec.log_time, "s", (topic[-2:], int(body["conn"]), body.get("name"),
                                                       body.get("problem"), b64(body["raw_base64"]))
                         elif topic == "/conformance/case":
                             yield rec.log_time, "c", (str(body["case"]), str(body["event"]),
-                                                      body.get("outcome"), tuple(body.get("rules") or ()))
+                                                      body.get("outcome"), tuple(body.get("rules") or ()),
+                                                      seg)
                         else:
                             self.counts["mcap_other_topic"] += 1
                     except (ValueError, KeyError, TypeError, AttributeError):
                         self.counts["mcap_bad_message"] += 1
                 elif kind is Channel:
                     topics[rec.id] = rec.topic
+                    seg = rec.metadata.get("segment")
+                    if seg:
+                        segments[rec.id] = seg
+                        if seg not in seen:
+                            seen.append(seg)
+                        if rec.metadata.get("library"):
+                            writers[rec.id] = rec.metadata["library"]
                 elif kind is Header:
                     library = rec.library or None
                 elif kind is McapMetadata:

@@ -49,3 +49,34 @@ def test_check_of_the_runs_capture_gives_the_live_verdicts(tmp_path, label, args
     if label == "manager-after-end":
         # faults the monitor proves from traffic: they show in both
         assert any(v for t in live.values() for v in t.values() if v in ("failed", "warned"))
+
+
+def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_path):
+    """Issue 18 item 7: under ``pytest -n 2`` each worker runs its cases against its own
+    spawned node, with its own run monitor; the controller merges their captures. ``check``
+    of the merged file judges each worker's session on its own and gives, rule by rule, the
+    merged report's monitor section (the workers' sections, worst first per node); the two
+    workers' traffic mixed would give false MCP-ACK-5 (on the runner's ID), BLK-1, RTX-3."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from tests.conformance.runner_helpers import ROOT, reference_node_command
+
+    pytest.importorskip("xdist")
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+           "-n", "2", "-m", "mcp_ack_1 or mcp_ack_4 or mcp_ack_5 or mcp_hdr_1 or mcp_seq_2 or mcp_rtx_1",
+           "--mcp-spawn", reference_node_command(), "--mcp-mavlink", "--mcp-rto", FAST[1],
+           "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    live = json.loads((tmp_path / "r.json").read_text())["monitor"]
+    j = judge(tmp_path / "c.mcap", Params())
+    assert sorted(j.segments) == ["gw0", "gw1"]  # both workers ran cases, each its own session
+    assert {s.vehicle_drone for s in j.segments.values()} == {1}
+    assert verdict_differences(live["rules"], j.verdicts) == []
+    assert sorted((v.rule, v.node) for v in j.violations) == \
+        sorted((v["rule"], v["node"]) for v in live["violations"])
+    assert [n.id for n in j.nodes.values()] == [n["id"] for n in live["nodes"]] == [1]
