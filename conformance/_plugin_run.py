@@ -337,6 +337,11 @@ def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    state = _phase_wrapper(item)
+    not_judged = getattr(state.session, "not_judged", None) if state is not None else None
+    why = not_judged(state.meta[item.nodeid][1]) if not_judged is not None else None
+    if why:  # the node's datagrams cannot be read (harness.session: MCP-HDR-2 at startup)
+        raise Inconclusive(why)
     return (yield from _armed(item))
 
 

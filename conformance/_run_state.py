@@ -211,6 +211,11 @@ class McpState:
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
         self.run.target = getattr(session, "target_desc", None) or self.run.target
+        unreadable = getattr(session, "unreadable", None)
+        if unreadable is not None:
+            self.terminal.note(f"startup phase: {unreadable[1]} ({unreadable[0]}): no mission is started; "
+                               "only the cases judged on the datagrams' raw bytes are run, the others "
+                               "are skipped")
         watch = getattr(getattr(session, "liveness", None), "loss_after", None)
         if watch is not None:
             self.run.parameters["loss_after_s"] = watch

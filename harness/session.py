@@ -8,6 +8,11 @@ wrong-sequence and a wrong-source ACK, then the right one. What it saw is kept i
 (Start_Mission, MCP-BLK-4) so commands are sent only between the node's Mission_Ready and
 its End_Mission (D-6).
 
+A node whose header reads right only byte-swapped (``judge.monitor.byte_order_fault``,
+MCP-HDR-2) is diagnosed on its first datagrams: no mission is started, and every case but
+the ones judged on the raw bytes (``FRAMING_RULES``) is skipped with the diagnosis
+(``not_judged``): what it would read of the node's datagrams is misread.
+
 Setup errors (the node never answers, a port is taken, spawn fails) raise ``SetupError``.
 A node that dies or goes silent after an input fails that case; in spawn mode it is
 restarted for the next case, in attach mode the remaining cases are errors.
@@ -42,11 +47,16 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     fill_placeholders,
     free_udp_port,
 )
-from judge.run_monitor import RunMonitor, link_events
+from judge.monitor import byte_order_fault
+from judge.run_monitor import RunMonitor, from_node, link_events
 from spec import SPEC
 from spec.codec import Action
 
 _READY = int(Action.MISSION_READY)
+
+#: Rules judged on a datagram's raw bytes (the preamble, the header's length and byte order),
+#: not on the values of its header fields: still judged when those cannot be read.
+FRAMING_RULES = frozenset({"MCP-HDR-1", "MCP-HDR-2"})
 
 
 def embedded_command() -> str:
@@ -98,6 +108,8 @@ class Session(SessionBase):
         self.other_src_accepted: bool | None = None
         self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
+        #: (rule, why): the startup phase found the node's header unreadable in network order
+        self.unreadable: tuple[str, str] | None = None
 
     # ------------------------------------------------------------------ properties
     def to_ns(self, t_monotonic: float) -> int:
@@ -254,6 +266,9 @@ class Session(SessionBase):
         def is_ready(d: Datagram) -> bool:
             return d.action == _READY
 
+        def ready_or_unreadable(d: Datagram) -> bool:
+            return is_ready(d) or (first and self._byte_order(d) is not None)
+
         if self.vehicle is not None and first:
             v = self.vehicle
             st.node_connected_to_vehicle = v.wait_for(lambda: v.connected or not self.alive(),
@@ -270,7 +285,7 @@ class Session(SessionBase):
         elif self.vehicle is not None:
             self.vehicle.give_fix()
         wait = ready_limit if self.spawned else 2.5 * self.rto + 1.0
-        first_ready = drv.wait_for(is_ready, wait, mark)
+        first_ready = drv.wait_for(ready_or_unreadable, wait, mark)
         if first_ready is None:
             withhold = False
             self.startup = st
@@ -294,12 +309,38 @@ class Session(SessionBase):
                 self.monitor.node_id = self.target_id
             drv.attributor.peer_id = self.target_id
             self.record_node(self.target_id, complete=True)
+        swapped = self._byte_order(first_ready) if first else None
+        if swapped is not None:
+            # nothing the runner would read of this node's datagrams (its ACKs, seqs, IDs) is
+            # what it wrote: no mission, the cases that read them are skipped (not_judged)
+            self.unreadable = ("MCP-HDR-2", f"the node's header is not in network byte order: {swapped}")
+            withhold = False
+            st.reason = f"MCP-HDR-2: {self.unreadable[1]}"
+            self.startup = st
+            return
         if first:
             self._observe_retransmissions(st, first_ready)
         withhold = False
         if first:
             self.startup = st
         self._start_mission(first)
+
+    def _byte_order(self, d: Datagram) -> str | None:
+        """MCP-HDR-2: why ``d``, from the node's address, reads right only byte-swapped."""
+        drv = self.driver
+        if (d.header is None or not d.preamble_ok or self.target_id is None or drv is None
+                or not from_node(d.addr, drv.target)):
+            return None
+        return byte_order_fault(self.target_id, d.header[1], d.header[3])
+
+    def not_judged(self, rules: tuple[str, ...]) -> str | None:
+        """Why a case verifying ``rules`` cannot be judged against this node, or None: its
+        header cannot be read (``unreadable``) and the case reads more than raw bytes."""
+        if self.unreadable is None or set(rules) <= FRAMING_RULES:
+            return None
+        rule, why = self.unreadable
+        return (f"{rules[0]}: not judged: {why} ({rule}); every field this case would read of "
+                "the node's datagrams is misread")
 
     def _observe_retransmissions(self, st: Startup, first_ready: Datagram) -> None:
         """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""

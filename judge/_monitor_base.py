@@ -20,6 +20,7 @@ from spec import SPEC
 from spec.codec import HEADER, HEADER_SIZE, ITEM, MANAGER_ID, PREAMBLE, Action
 
 __all__ = [
+    "byte_order_fault",
     "NodeFacts",
     "TESTER",
     "VehicleEvent",
@@ -68,6 +69,25 @@ PAYLOAD_RULE = {MR: "MCP-PAY-2", START: "MCP-PAY-1", END: "MCP-PAY-1", WP_OFF: "
 
 def action_name(code: int) -> str:
     return ACTION_NAME.get(code, f"action {code}")
+
+
+def _swapped(value: int) -> int:
+    return ((value & 0xFF) << 8) | (value >> 8)
+
+
+def byte_order_fault(origin: int, src: int, action: int) -> str | None:
+    """MCP-HDR-2 (network byte order): why the header of a datagram known to come from node
+    ``origin`` reads right only with its u16 fields byte-swapped (src is ``origin`` swapped,
+    or the action code is a valid one swapped), else None. One diagnosis for the monitor and
+    the runner's startup phase: a node writing its header little-endian breaks MCP-HDR-2, and
+    the wrong src or action code that network order then reads (MCP-HDR-4/3) is not a fault
+    of its own."""
+    why = []
+    if src != origin and _swapped(src) == origin:
+        why.append(f"src {src} (0x{src:04x}) is ID {origin} byte-swapped")
+    if action >= N_ACTIONS and _swapped(action) < N_ACTIONS:
+        why.append(f"action code {action} (0x{action:04x}) is {action_name(_swapped(action))} byte-swapped")
+    return "; ".join(why) or None
 
 
 def role_of(node: int) -> str:

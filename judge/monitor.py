@@ -59,6 +59,7 @@ from judge._monitor_base import (
     _Node,
     _Timers,
     action_name,
+    byte_order_fault,
     role_of,
     unpack_header,
 )
@@ -71,6 +72,7 @@ from spec.mission import sane_item
 
 __all__ = [
     "MONITORED_RULES",
+    "byte_order_fault",
     "Monitor",
     "NodeFacts",
     "TESTER",
@@ -187,7 +189,11 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             return out
         dst, src, seq, action = unpack_header(data)[3:]
         nodes = self._nodes
-        if origin is not None and not tester and origin != src:
+        swapped = byte_order_fault(origin, src, action) if isinstance(origin, int) and not tester else None
+        if swapped is not None:
+            self._byte_order(i, t_ns, origin, action, swapped)
+            tester = True  # its fields are misread in network order: judged as input only
+        elif origin is not None and not tester and origin != src:
             self._wrong_src(i, t_ns, origin, src, action)
             tester = True  # its src is not its sender's: judged as input only
         elif self._declared is not None and not tester and src not in self._declared:
@@ -435,6 +441,15 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
                 else:
                     self._blame_unframed(node, i, t, rule, what, how)
         self._orphans.clear()
+
+    def _byte_order(self, i: int, t: int, origin: int, action: int, why: str) -> None:
+        """MCP-HDR-2: the node's header fields read right only byte-swapped (little-endian)."""
+        node = self._node(origin)
+        node.real = True
+        node.sent += 1
+        self._observe(origin, "MCP-HDR-2")
+        self._emit("MCP-HDR-2", origin, t, "header fields dst, src, seq, action in network byte order (!7s2B4H)",
+                   f"datagram #{i}: {why}", [(i, t)])
 
     def _wrong_src(self, i: int, t: int, origin: int, src: int, action: int) -> None:
         """MCP-HDR-4: the observer knows the sender is ``origin`` but the header says ``src``."""

@@ -160,6 +160,34 @@ def test_origin_names_the_sender_of_a_wrong_src():
     assert [(v.rule, v.node) for v in out] == [("MCP-HDR-4", 1)]
 
 
+def test_a_header_written_little_endian_is_hdr2_not_its_misread_fields():
+    """One fault, one rule (issue 18): a node's datagram whose header fields read right only
+    byte-swapped breaks MCP-HDR-2 (network byte order); the src and action code network
+    order reads (MCP-HDR-4, MCP-HDR-3 / ROB-3) are not faults of their own. A src that is
+    wrong but not swapped is still MCP-HDR-4."""
+    import struct
+
+    from judge.monitor import byte_order_fault
+    from spec.codec import PREAMBLE
+
+    def little(dst: int, src: int, seq: int, action: int, payload: bytes = b"") -> bytes:
+        return PREAMBLE + struct.pack("<4H", dst, src, seq, action) + payload
+
+    m = Monitor(complete=True)
+    out = m.datagram(1, ("127.0.0.1", 9), None, little(0, 1, 0x1234, Action.MISSION_READY), origin=1)
+    out += m.datagram(2, ("127.0.0.1", 9), None, little(0, 1, 0x1235, Action.ACK, b"\x03\xe8"), origin=1)
+    assert [(v.rule, v.node) for v in out] == [("MCP-HDR-2", 1)] * 2, _rules(out)
+    assert "src 256 (0x0100) is ID 1 byte-swapped" in out[0].actual
+    assert "action code 1792 (0x0700) is ACK byte-swapped" in out[1].actual
+    m.finish()
+    assert m.verdicts()[1]["MCP-HDR-2"] == "failed"
+    assert m.verdicts()[1]["MCP-HDR-3"] != "failed" and m.verdicts()[1]["MCP-HDR-4"] != "failed"
+    assert byte_order_fault(1, 2, 0) is None  # wrong, not swapped: MCP-HDR-4's
+    assert byte_order_fault(0x0101, 0x0101, 7) is None  # swapping changes nothing
+    assert byte_order_fault(1, 1, 9) is None  # 'Any' on the wire: MCP-HDR-3's
+    assert byte_order_fault(1, 1, 0x0800) is not None
+
+
 # ---------------------------------------------------------------- bytes
 EDGE = {
     "empty": b"",

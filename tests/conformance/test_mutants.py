@@ -39,6 +39,7 @@ def conform(*node_args: str, extra: tuple[str, ...] = ()):
 
 MUTANTS = [
     ("bad-preamble", "MCP-HDR-1"),
+    ("header-little-endian", "MCP-HDR-2"),
     ("send-action-9", "MCP-HDR-3"),
     ("mission-ready-wrong-src", "MCP-HDR-4"),
     ("send-wp-list", "MCP-HDR-5"),
@@ -133,6 +134,22 @@ def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
         assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
         assert mon["rules"]["1"][rule] in ("failed", "warned")
     same_verdicts_offline(res, capture)
+
+
+def test_a_node_whose_header_cannot_be_read_is_diagnosed_in_its_startup_phase():
+    """One fault, one root (issue 18): a node writing its header little-endian is diagnosed on
+    its first datagram (MCP-HDR-2); no mission is started and every case that would read its
+    header fields is skipped with that diagnosis instead of waiting out its timeouts, or
+    failing other rules (MCP-RTX-1, MCP-TRN-2, MCP-HDR-3/4) on misread fields."""
+    res = conform("--fault", "header-little-endian")
+    assert {f["rule"] for f in res.report["failures"]} == {"MCP-HDR-2"}, res.explain()
+    judged = {c["id"] for c in res.report["cases"] if c["outcome"] != "skipped"}
+    assert judged == {"HDR/test_every_datagram_starts_with_the_preamble",
+                      "HDR/test_every_datagram_has_the_17_byte_header"}, res.explain()
+    for case in res.cases_with("skipped"):
+        assert ("not judged: the node's header is not in network byte order: src 256 (0x0100) is "
+                "ID 1 byte-swapped") in case["reason"], case
+    assert "no mission is started" in res.output
 
 
 CORRECT_VARIANTS = [

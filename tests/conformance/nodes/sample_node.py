@@ -55,6 +55,8 @@ from spec.codec import (  # noqa: E402
 #: fault name -> (rule it violates, what it does)
 FAULTS: dict[str, tuple[str, str]] = {
     "bad-preamble": ("MCP-HDR-1", "every datagram it sends has preamble last byte 0x02"),
+    "header-little-endian": ("MCP-HDR-2", "every datagram it sends has its header fields dst, src, seq and "
+                                          "action little-endian ('<4H')"),
     "mission-ready-wrong-src": ("MCP-HDR-4", "Mission_Ready's src is id+1 (ACKs keep the right src)"),
     "send-action-9": ("MCP-HDR-3", "after Start_Mission, sends one 17-byte datagram with action 9 to ID 0"),
     "send-wp-list": ("MCP-HDR-5", "after Start_Mission, sends one WP_List (count 0) unicast to ID 0"),
@@ -339,6 +341,8 @@ class Node:
             return self._seq
 
     def datagram(self, dst: int, src: int, seq: int, action: int, payload: bytes = b"") -> bytes:
+        if "header-little-endian" in self.faults:
+            return self.preamble + struct.pack("<4H", dst, src, seq, int(action)) + payload
         return build_datagram(dst, src, seq, action, payload, preamble=self.preamble)
 
     def sendto(self, data: bytes, addr: Any) -> None:
