@@ -179,6 +179,10 @@ class McpState:
             if self.frontend and self.cfg.role == "backend":
                 self.terminal.note("startup: the runner connects to the backend and waits for its first UPDATE")
                 self.wait_status.begin("startup: connecting and waiting for the first UPDATE")
+            elif self.frontend and getattr(session, "startup_note", None):
+                line, status = session.startup_note  # the role's own startup (--role manager)
+                self.terminal.note(line)
+                self.wait_status.begin(status)
             elif self.frontend:
                 self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
                                    f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")

@@ -241,6 +241,9 @@ class ManagerCaseContext(CaseBase):
     def inputs(self, rule: str, m: Mission | None = None) -> list[Input]:
         m = m or self.mission()
         got = [i for i in m.inputs if i.rule == rule]
+        if not got and m.ready_unacked:
+            raise Inconclusive(f"{rule}: no input of this rule was sent: {m.ready_unacked}, and each input "
+                               "needs an ACKed Mission_Ready after it as its liveness probe (see MCP-ACK-1)")
         if not got:
             died = next((i for i in m.inputs if i.died or (i.probe is not None and not i.probe.acked)), None)
             why = f" (the inputs stopped after {died.label!r})" if died is not None else ""

@@ -18,6 +18,12 @@ End_Mission, recorded in a :class:`Mission`; the cases judge those records:
   is withheld for a few copies (RTX-1/3, SEQ-2, BLK-1/3), a wrong-seq and a wrong-source
   ACK are sent (RTX-2), then the right one; the rest of the mission is ACKed at once and
   watched to its end (payloads, order, End_Mission last, nothing after it).
+  When the manager ACKs no Mission_Ready within the startup limit, the other drones
+  announce readiness all the same (the last one held back) and whatever the manager then
+  does is watched as above: a manager that goes on with the mission without ACKing is
+  judged on what it did (MCP-ACK-1 fails); the receiver-side inputs are not sent (their
+  liveness probe is an ACKed Mission_Ready). Only a manager that sends nothing at all
+  "never answered".
 - ``silent``: every drone ready at once; one drone stops answering after its
   Start_Mission; what the manager does about the others is reported (INFO).
 
@@ -92,6 +98,9 @@ class Mission:
     held_back: int | None = None
     all_ready_t: float | None = None  # when the last drone's first Mission_Ready left
     duplicate: Exchange | None = None  # a second Mission_Ready (new seq) from another drone
+    #: why the drones announced readiness without the manager's ACKs ("": it ACKed the first
+    #: Mission_Ready); the receiver-side inputs, which need an ACKed probe, were not sent
+    ready_unacked: str = ""
     inputs: list[Input] = field(default_factory=list)
     withheld: Withheld = field(default_factory=Withheld)
     silent_drone: int | None = None
@@ -269,7 +278,7 @@ class MissionScript:
 
     # ------------------------------------------------------------------ main
     def run_main(self) -> bool:
-        """The main scenario; False when the manager never ACKed the first Mission_Ready."""
+        """The main scenario; False when the manager sent nothing at all."""
         m = self.m
         self._mark()
         drones = m.drones
@@ -277,7 +286,7 @@ class MissionScript:
         if first is not None:
             m.ready[drones[0]] = first
             if not first.acked:
-                return False
+                return self._ready_unacked(first, hold_back=True) and self._mission_on()
         for d in drones[1:-1]:
             m.ready[d] = self.mission_ready(d)
         if len(drones) > 1:
@@ -289,16 +298,72 @@ class MissionScript:
         if first is None:  # one drone: the inputs come from an outsider, before its Mission_Ready
             warm = self.mission_ready(probe_src, first=True)
             if not warm.acked:
-                return False
+                return self._ready_unacked(None, hold_back=True) and self._mission_on()
         self._receiver_inputs(probe_src)
         hold = max(2 * self.ack_window, 0.5)
         time.sleep(max(0.0, hold_from + hold - time.monotonic()))
         last = self.players.send(Action.MISSION_READY, None, drones[-1])
         m.all_ready_t = last.t
         m.ready[drones[-1]] = self.exchange(last)
+        return self._mission_on()
+
+    def _mission_on(self) -> bool:
+        """Every drone ready: the first Start_Mission withheld, the rest watched to the end."""
         self._withhold_start()
         self._await_end()
         return True
+
+    def _ready_unacked(self, first: Exchange | None, *, hold_back: bool) -> bool:
+        """The manager ACKed no Mission_Ready within the startup limit (``first``: the one
+        it did not ACK): the other drones announce readiness all the same, at once (the last
+        one after them when ``hold_back``: MCP-BLK-2 stays observable), every Mission_Ready
+        retransmitted every --rto up to ``MAX_ACK_COPIES`` copies (``first``'s go on), and
+        the mission that follows, if any, is watched to its end. False when the manager sent
+        nothing at all: it never answered."""
+        m = self.m
+        if first is not None:
+            m.ready_unacked = (f"the manager did not ACK drone {first.first.src}'s Mission_Ready (seq {first.seq}) "
+                               f"within {first.copies[-1].t - first.first.t:.1f} s")
+        else:
+            m.ready_unacked = f"the manager did not ACK a Mission_Ready within {self.ready_limit:g} s"
+        m.notes.append(m.ready_unacked + ": the drones announced readiness without its ACKs")
+        rest = [d for d in m.drones if d not in m.ready]
+        last = rest.pop() if hold_back and rest else None
+        group = [first] if first is not None else []
+        for d in rest:
+            m.ready[d] = Exchange([self.players.send(Action.MISSION_READY, None, d)])
+            group.append(m.ready[d])
+        if m.ready:
+            m.all_ready_t = max(ex.first.t for ex in m.ready.values())
+        self._exchange_all(group)
+        if last is not None:
+            m.held_back = last
+            sent = self.players.send(Action.MISSION_READY, None, last)
+            m.all_ready_t = sent.t
+            m.ready[last] = self.exchange(sent)
+        if not self.driver.received(m.start):
+            return False
+        return True
+
+    def _exchange_all(self, exs: list[Exchange]) -> None:
+        """Await the ACK of each of ``exs`` at once: each unACKed one retransmitted every
+        --rto, ``MAX_ACK_COPIES`` rounds."""
+        pending = [(ex, self.acks_of(ex.first)) for ex in exs]
+        since = min((self.driver.mark_before(ex.first) for ex in exs), default=self.driver.mark())
+        for n in range(MAX_ACK_COPIES):
+            deadline = time.monotonic() + (self.rto if n < MAX_ACK_COPIES - 1 else max(self.rto, self.ack_window))
+            while pending and time.monotonic() < deadline:
+                got = self.driver.wait_for(lambda d: any(match(d) for _, match in pending),
+                                           deadline - time.monotonic(), since)
+                if got is None:
+                    break
+                for ex, match in [p for p in pending if p[1](got)]:
+                    ex.ack = got
+                    pending.remove((ex, match))
+            if not pending or not self.alive() or n == MAX_ACK_COPIES - 1:
+                return
+            for ex, _ in pending:
+                ex.copies.append(self.driver.resend(ex.first))
 
     def _probe(self, probe_src: int) -> Exchange:
         return self.exchange(self.players.send(Action.MISSION_READY, None, probe_src))
@@ -513,7 +578,11 @@ class MissionScript:
         ex = self.mission_ready(m.drones[0], first=True)
         m.ready[m.drones[0]] = ex
         if not ex.acked:
-            return False
+            if not self._ready_unacked(ex, hold_back=False):
+                return False
+            others = tuple(d for d in m.drones if d != m.silent_drone)
+            self._await_end(others, cap=min(max(25 * self.rto, 5.0), 60.0))
+            return True
         for d in m.drones[1:]:
             m.ready[d] = self.mission_ready(d)
         others = tuple(d for d in m.drones if d != m.silent_drone)

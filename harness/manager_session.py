@@ -10,8 +10,10 @@ an obstacles file (``{obstacles}``).
 
 A manager runs one mission and is done, so every scenario that needs a fresh mission
 starts a fresh manager (spawn mode and the embedded default). The main scenario runs at
-start (a manager that never ACKs the first Mission_Ready is a setup error, exit 2); others
-run when the first case that needs them does. In attach mode the manager is already
+start; a manager that sends nothing at all in it never answered (a setup error, exit 2),
+while one that goes on with the mission without ACKing the drones' Mission_Ready is judged
+on what it did (MCP-ACK-1 fails). Other scenarios run when the first case that needs them
+does. In attach mode the manager is already
 running and only its one mission can be observed: the other scenarios are SKIPPED.
 """
 
@@ -116,10 +118,27 @@ class ManagerSession(SessionBase):
     def startup(self) -> Any:
         return None
 
+    @property
+    def ready_limit(self) -> float:
+        """How long the first Mission_Ready of a scenario is retransmitted awaiting the
+        manager's ACK (a fresh manager may still be starting)."""
+        return max(20.0, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
+
+    @property
+    def startup_note(self) -> tuple[str, str]:
+        """What the start of the run does, for the terminal's header: (line, status)."""
+        cfg = self.cfg
+        who = "starts the manager" if self.spawned else "attaches to the running manager"
+        first = cfg.drones[0]
+        line = (f"startup: the runner {who} and plays drones {', '.join(map(str, cfg.drones))}: drone {first} "
+                f"announces Mission_Ready, retransmitted every {self.rto:g} s (--rto) until the manager ACKs it "
+                f"(up to {self.ready_limit:g} s), then the others; the main mission is watched to its End_Mission")
+        return line, "startup: the drones' Mission_Ready and the main mission"
+
     # ------------------------------------------------------------------ start / stop
     def start(self) -> None:
         """Open the drones' socket and run the main scenario (a setup error when the manager
-        never ACKs the first Mission_Ready)."""
+        sends nothing at all)."""
         self.open()
         self.mission("main")
         if "main" not in self.missions:
@@ -240,7 +259,7 @@ class ManagerSession(SessionBase):
         if kind == "main":
             self.players.withhold_first_start = True
         self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
-        ready_limit = max(20.0, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
+        ready_limit = self.ready_limit
         script = MissionScript(self.driver, self.players, m, rto=self.rto, ack_window=self.ack_window,
                                broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed, alive=self.alive,
                                ready_limit=ready_limit)
@@ -252,9 +271,11 @@ class ManagerSession(SessionBase):
             if m.exit_code is None:
                 m.notes.append("the manager was still running at the end of the scenario (stopped)")
         if not ok:
-            ev = self.node_evidence()
-            why = (f"the manager never ACKed a drone's Mission_Ready within {ready_limit:.1f} s"
-                   + (f"; {ev[0]}" if ev else ""))
+            first = next(iter(m.ready.values()), None)
+            unacked = (f" (drone {first.first.src}'s Mission_Ready, seq {first.seq}: {len(first.copies)} copies, "
+                       "no ACK)" if first is not None else "")
+            why = (f"the manager never answered: nothing from it in {time.monotonic() - m.t0:.1f} s{unacked}"
+                   + (f"; manager process exited with code {m.exit_code}" if m.exit_code is not None else ""))
             self.unavailable[kind] = why
             raise Inconclusive(why) if kind != "main" else SetupError(why)
         if kind == "main":

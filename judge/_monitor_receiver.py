@@ -31,7 +31,6 @@ from judge._monitor_base import (
     JITTER_NS,
     MANAGER,
     MAX_ACK_COPIES,
-    MR,
     NS,
     PASSTHROUGH,
     _Exchange,
@@ -236,8 +235,9 @@ class ReceiverRules:
                            f"{len(ex.copies)} copies of {ex.describe()} answered by ACKs naming "
                            f"another seq (the last: {stray[2]})", [ex.copies[0], (stray[0], stray[1])])
                 return
-            rule = "MCP-FLOW-2" if node.id == MANAGER and ex.action == MR else "MCP-ACK-1"
-            self._emit(rule, node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
+            # a Mission_Ready the manager never ACKs is MCP-ACK-1's too, as the manager-role
+            # case judges it (one judge); MCP-FLOW-2 judges the Start_Mission that follows
+            self._emit("MCP-ACK-1", node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
                        f"no ACK of {len(ex.copies)} copies", ex.copies[:MAX_ACK_COPIES])
             return
         if any(a[1] >= copy[1] for a in ex.acks):

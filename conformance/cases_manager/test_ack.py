@@ -22,17 +22,34 @@ def _exchanges(m):
     return out
 
 
+def _went_on(m):
+    """What the manager sent the drones during the mission: the evidence that it heard the
+    Mission_Ready it did not ACK (a manager that sends nothing at all never answered)."""
+    from conformance.manager_case import messages
+
+    msgs = messages(m)
+    if not msgs:
+        return []
+    names = [f"{Action(x.action).name if 0 <= x.action <= 9 else x.action} to {x.dst} (seq {x.seq})"
+             for x in msgs[:4]]
+    return [f"meanwhile the manager went on with the mission: {len(msgs)} message(s) to the drones, "
+            + ", ".join(names) + (", ..." if len(msgs) > 4 else "")]
+
+
 @rules("MCP-ACK-1")
 def test_every_mission_ready_is_acked(node):
     """Each drone's Mission_Ready, a second one with a new seq, a copy of one (same seq and
-    bytes), and the probes are ACKed (awaited across the runner's retransmissions)."""
+    bytes), and the probes are ACKed (awaited across the runner's retransmissions). A manager
+    that ACKs none but goes on with the mission fails here, with what it sent as evidence."""
     m = node.mission()
     missing = [(label, ex) for label, ex in _exchanges(m) if not ex.acked]
     copies = [i for i in m.inputs if i.rule == "MCP-ACK-1"]
     first = missing[0] if missing else None
     node.expect_true(first is None, "MCP-ACK-1", f"an ACK of {first[0] if first else ''}",
                      f"no ACK of seq {first[1].seq} after {len(first[1].copies)} copies {node.rto:g} s apart"
-                     if first else "", [f"{lbl}: seq {ex.seq}" for lbl, ex in missing[:3]])
+                     if first else "",
+                     [f"{lbl}: seq {ex.seq}, {len(ex.copies)} copies, no ACK" for lbl, ex in missing[:3]]
+                     + (_went_on(m) if first else []))
     bad = [i for i in copies if i.reply is None]
     node.expect_true(not bad, "MCP-ACK-1", "a copy of an ACKed Mission_Ready (same seq and bytes) ACKed again",
                      f"no ACK within {node.rto:g} s", [f"copy: {i.sent.data.hex(' ')}" for i in bad])

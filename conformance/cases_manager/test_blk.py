@@ -30,6 +30,7 @@ def test_nothing_before_every_mission_ready(node):
     early = [x for x in messages(m) if x.first.t < m.all_ready_t]
     x = early[0] if early else None
     how = (f"drone {m.duplicate.first.src} announced itself twice" if m.duplicate is not None
+           else f"{m.ready_unacked}; the others announced themselves" if m.ready_unacked
            else "an ID outside the mission announced itself")
     node.expect_true(x is None, "MCP-BLK-2",
                      f"no command before drone {m.held_back}'s Mission_Ready (held back "

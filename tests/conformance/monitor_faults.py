@@ -402,13 +402,24 @@ def flow1() -> Script:
     return s
 
 
-def flow2() -> Script:
+def ack1_manager() -> Script:
     s = Script((1, 2))
     s.ready(1, deaf=8)  # the manager ignores drone 1's Mission_Ready for 8 copies
     s.ready(2)
     for d in s.drones:
         s.start(d)
     return _finish(s)
+
+
+def flow2() -> Script:
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items))  # before any Start_Mission to drone 1
+    for d in s.drones:
+        s.start(d)
+    s.challenge_steps(drones=(2,))
+    return _finish(s, steps=False)
 
 
 def flow3() -> Script:
@@ -537,7 +548,8 @@ FAULTY: dict[str, Fault] = {
     "rob3-acks-unknown-action": Fault("MCP-ROB-3", rob3, complete=False),
     "rob4-acks-bad-length": Fault("MCP-ROB-4", rob4, complete=False),
     "flow1-ready-to-wrong-id": Fault("MCP-FLOW-1", flow1),
-    "flow2-ready-not-acked": Fault("MCP-FLOW-2", flow2),
+    "ack1-manager-ready-not-acked": Fault("MCP-ACK-1", ack1_manager),
+    "flow2-list-before-start": Fault("MCP-FLOW-2", flow2),
     "flow3-no-end-mission": Fault("MCP-FLOW-3", flow3),
     "flow4-two-wp-lists": Fault("MCP-FLOW-4", flow4, complete=False),
     "flow5-wp-off-without-wp-on": Fault("MCP-FLOW-5", flow5),

@@ -101,3 +101,43 @@ def test_seq_1_counts_the_numbers_acks_took_not_their_arrival_order():
     # a repeated or backwards number is a fault
     m = mission([cmd(1, 8234, Action.START_MISSION), cmd(3, 8233, Action.START_MISSION)], [0.0, 0.10])
     assert _judge_seq_1(m) == "seq 8233"
+
+
+def test_a_mission_ready_never_acked_while_the_manager_went_on_is_ack_1_for_case_and_monitor():
+    """One judge: the manager never ACKs the drones' Mission_Ready (5 copies each) yet sends
+    them Start_Mission and End_Mission: the MCP-ACK-1 case fails with that evidence, and the
+    trace monitor over the same mission says MCP-ACK-1 too (not MCP-FLOW-2)."""
+    from conformance._case_base import CaseBase
+    from conformance.cases_manager.test_ack import test_every_mission_ready_is_acked
+    from harness.driver import Exchange
+    from harness.errors import CaseFailure
+
+    def ready_copies(drone: int, seq: int, t0: float) -> list[Sent]:
+        data = encode(Message(0, drone, seq, Action.MISSION_READY))
+        return [Sent(t0 + 0.2 * k, int((t0 + 0.2 * k) * 1e9), data, ADDR, 0, drone, seq, int(Action.MISSION_READY))
+                for k in range(5)]
+
+    m = Mission("main", (1, 2), 2, None, None, t0=0.0, t_end=3.0)
+    m.ready[1], m.ready[2] = Exchange(ready_copies(1, 700, 0.0)), Exchange(ready_copies(2, 900, 1.0))
+    sent = [*m.ready[1].copies, *m.ready[2].copies]
+    for i, (drone, seq, action, t) in enumerate([(1, 10, Action.START_MISSION, 1.05), (2, 11, Action.START_MISSION, 1.1),
+                                                 (1, 12, Action.END_MISSION, 2.15), (2, 13, Action.END_MISSION, 2.25)]):
+        m.rx.append(rx(i, t, cmd(drone, seq, action)))
+        m.acks[(drone, seq)] = ack(t + 0.01, drone, seq, 800 + i)
+        sent.append(m.acks[(drone, seq)])
+    violations, _, _ = monitor_mission(m, sent, ("127.0.0.1", 7890), rto=0.2, ack_window=0.25, broadcast_id=0xFFFF)
+    assert {v.rule for v in violations} == {"MCP-ACK-1"}, violations
+
+    class Node(CaseBase):
+        rto = 0.2
+
+        def mission(self, kind: str = "main") -> Mission:
+            return m
+
+    try:
+        test_every_mission_ready_is_acked(Node(None, "ACK-1", ("MCP-ACK-1",)))
+    except CaseFailure as exc:
+        assert exc.rule == "MCP-ACK-1" and exc.actual.startswith("no ACK of seq 700 after 5 copies"), exc
+        assert any("went on with the mission" in e and "START_MISSION to 1 (seq 10)" in e for e in exc.evidence)
+    else:
+        raise AssertionError("MCP-ACK-1 passed on a Mission_Ready never ACKed")

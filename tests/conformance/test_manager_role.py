@@ -28,6 +28,7 @@ MANAGER_FAULTS = [
     ("wp-off-first", "MCP-FLOW-5", 2),
     ("after-end", "MCP-BLK-6", 2),
     ("ack-ack", "MCP-ACK-6", 1),
+    ("no-ready-ack", "MCP-ACK-1", 1),
 ]
 
 
@@ -56,6 +57,40 @@ def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge):
     assert res.rules.get(rule) == want, res.explain()
     _no_other_findings(res, rule)
     assert res.rc == 1, res.explain()
+    if fault == "no-ready-ack":
+        _judged_on_what_it_did(res)
+
+
+def _judged_on_what_it_did(res):
+    """A manager that never ACKs a Mission_Ready but goes on with the mission: MCP-ACK-1's
+    evidence names the Mission_Ready (seq, copies, no ACK) and what the manager sent
+    meanwhile; the cases whose inputs need an ACKed Mission_Ready are skipped with the reason;
+    the run's monitor and ``mcp-capture check`` of its capture agree (a lossy trace: an
+    absence is not judged there, so never "passed")."""
+    case = next(c for c in res.report["cases"] if c["id"].endswith("test_every_mission_ready_is_acked"))
+    ev = "\n".join(case["evidence"])
+    assert "Mission_Ready of drone 1: seq" in ev and "copies, no ACK" in ev, case
+    assert "went on with the mission" in ev and "START_MISSION to 1" in ev, case
+    rob = next(c for c in res.report["cases"] if "MCP-ROB-2" in c["rules"])
+    assert rob["outcome"] == "skipped" and "did not ACK drone 1's Mission_Ready" in rob["reason"], rob
+    assert "never answered" not in res.output, res.explain()
+    assert res.rules["MCP-FLOW-4"] == "passed" and res.rules["MCP-RTX-1"] == "passed", res.explain()
+    assert res.report["monitor"]["rules"]["0"]["MCP-ACK-1"] != "passed", res.report["monitor"]
+
+
+def test_a_manager_that_sends_nothing_never_answered():
+    """A manager process that runs but sends nothing at all: a setup error (exit 2, "never
+    answered"), not a failed rule. The header says what the manager role's startup is (not
+    the drone role's)."""
+    import shlex
+    import sys
+
+    silent = f"{shlex.quote(sys.executable)} -c 'import time; time.sleep(120)'"
+    res = run_conform("--role", "manager", "--spawn", silent, *FAST)
+    assert res.rc == 2, res.explain()
+    assert "the manager never answered" in res.report.get("error", ""), res.explain()
+    assert "announces Mission_Ready and retransmits it while the runner withholds the ACK" not in res.output
+    assert "plays drones 1, 2, 3: drone 1 announces Mission_Ready" in res.output, res.output
 
 
 CORRECT_MANAGERS = [

@@ -66,6 +66,7 @@ FAULTS: dict[str, tuple[str, str]] = {
     "wp-off-first": ("MCP-FLOW-5", "challenge 2: a WP_Off before the first WP_On to each drone"),
     "after-end": ("MCP-BLK-6", "a WP_Off to the first drone after its End_Mission"),
     "ack-ack": ("MCP-ACK-6", "ACKs the ACKs addressed to it"),
+    "no-ready-ack": ("MCP-ACK-1", "never ACKs a Mission_Ready (counts it, and goes on with the mission)"),
 }
 
 _U16BE = struct.Struct("!H")
@@ -134,8 +135,9 @@ class SampleManager:
                     self.ack_cond.notify_all()
                 if "ack-ack" not in self.faults:
                     continue
-            self.ack_sock.sendto(encode(Message(msg.src, MANAGER_ID, self.next_seq(), Action.ACK, msg.seq)),
-                                 self.send_to)
+            if not (msg.action == Action.MISSION_READY and "no-ready-ack" in self.faults):
+                self.ack_sock.sendto(encode(Message(msg.src, MANAGER_ID, self.next_seq(), Action.ACK, msg.seq)),
+                                     self.send_to)
             if msg.action == Action.MISSION_READY:
                 with self.lock:
                     if "count-duplicates" in self.faults:
