@@ -72,7 +72,10 @@ class Decoder:
         held = bytes(self._mav.buf[self._mav.buf_index:])
         self._fed += len(data)
         try:
-            parsed = self._mav.parse_buffer(data) or []
+            if held and self._reported >= self._done + len(held):
+                held, parsed = self._after_stale(held, data)
+            else:
+                parsed = self._mav.parse_buffer(data) or []
         except Exception as exc:  # pymavlink should not raise with robust_parsing; be safe
             self._mav = self._new_parser()
             self.bad_bytes += len(data)
@@ -104,6 +107,20 @@ class Decoder:
         self._prune()
         self.bad_bytes += bad
         return good, bad, reason
+
+    def _after_stale(self, held: bytes, data: bytes) -> tuple[bytes, list[MAVLinkMessage]]:
+        """New bytes after an incomplete frame reported stale: they complete it (a frame, as
+        ever), or it fails and is dropped, parsing resuming at the new bytes (so a frame cut
+        short does not swallow the next one). Returns (the bytes still held before ``data``,
+        the messages)."""
+        trial = self._new_parser()
+        parsed = trial.parse_buffer(held + data) or []
+        if parsed and parsed[0].get_type() == "BAD_DATA" and len(parsed[0].data) >= len(held):
+            self._mav = self._new_parser()
+            self._done += len(held)
+            return b"", self._mav.parse_buffer(data) or []
+        self._mav = trial
+        return held, parsed
 
     def _unparsed(self, chunk: bytes, reason: str, *, frame: bool = False) -> None:
         """``chunk`` (starting at ``self._done``) did not parse: keep what was not reported."""
