@@ -39,6 +39,15 @@ class Probe:
     frame: bytes
 
 
+@dataclass(frozen=True)
+class Altered:
+    """Bytes that reached the autopilot instead of a probe's frame (MCP-PAY-8)."""
+
+    raw: bytes  # what arrived (as much as the vehicle kept)
+    how: str  # how it differs from the frame sent (judge.monitor.alteration)
+    why: str  # why it did not parse, as the vehicle's parser said
+
+
 @dataclass
 class Delivery:
     """A probe sent and what the vehicle counted of its token before and after."""
@@ -138,8 +147,11 @@ class CaseContext(CaseBase):
             raise Inconclusive(f"{rule} is judged on the node's startup: {st.reason or 'not observed'}")
         return st
 
-    def require_passthrough(self, rule: str) -> None:
-        """SKIP unless the node forwards Mav_Passthrough frames to its autopilot (learnt once)."""
+    def require_passthrough(self, rule: str, *, altered: bool = False) -> None:
+        """SKIP unless the node forwards Mav_Passthrough frames to its autopilot (learnt once).
+        A node whose frames reach the autopilot altered (``altered_arrival``) forwards no
+        intact frame, so delivery stays unobservable, except (``altered``) to MCP-PAY-8,
+        which judges exactly that."""
         self.require_vehicle(rule)
         if self.session.passthrough_forwarded is None:
             d = self.deliver(self.probe())
@@ -147,9 +159,32 @@ class CaseContext(CaseBase):
             if not d.exchange.acked:
                 self.session.passthrough_forwarded = None
                 raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
-        if not self.session.passthrough_forwarded:
-            raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
-                               "so delivery to its application is unobservable")
+            if not self.session.passthrough_forwarded:
+                self.session.passthrough_altered = self.altered_arrival(d) is not None
+        if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
+            return
+        if self.session.passthrough_altered:
+            raise Inconclusive(f"{rule}: the node's Mav_Passthrough frames reach its autopilot altered "
+                               "(MCP-PAY-8), so delivery to its application is unobservable")
+        raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
+                           "so delivery to its application is unobservable")
+
+    def altered_arrival(self, d: Delivery) -> Altered | None:
+        """MCP-PAY-8: bytes that reached the autopilot since ``d``'s probe was sent, did not
+        parse, and are an altered form of its frame (truncated, bits changed; the trace
+        monitor's comparison, ``judge.monitor.alteration``); None when nothing like it came.
+        An incomplete frame the vehicle still holds is waited for (``vehicle.codec.STALE``)."""
+        from judge.monitor import alteration
+        from vehicle.codec import STALE
+
+        v = self.vehicle
+        v.wait_for(lambda: v.holding() == 0, 2 * STALE + 0.1)
+        for u in v.unparsed(since=d.exchange.first.t):
+            how = alteration(d.probe.frame, u.raw)
+            if how is not None:
+                return Altered(u.raw, how if u.length == len(u.raw) else f"{how}; {u.length} bytes, "
+                               f"the first {len(u.raw)} kept", u.reason)
+        return None
 
     # ------------------------------------------------------------------ sending
     def send(self, action: Action, payload: Any = None, dst: int | None = None, **kw: Any) -> Sent:
@@ -430,13 +465,18 @@ class CaseContext(CaseBase):
         self.prove_live()  # "no ACK" is a verdict only from a node shown alive after the window
 
     def expect_delivered(self, deliveries: Sequence[tuple[Delivery, int]], rule: str) -> None:
-        """Each probe reached the autopilot the expected number of times (0: not delivered)."""
+        """Each probe reached the autopilot the expected number of times (0: not delivered).
+        Under MCP-PAY-8 ("A drone linked to an autopilot forwards each delivered
+        Mav_Passthrough frame to it exactly once."), a probe that never arrived intact but
+        arrived altered (``altered_arrival``) fails, with the frame sent and what arrived."""
         for d, want in deliveries:
             if not d.exchange.acked:
                 raise Inconclusive(f"{rule}: probe {d.probe.token} (seq {d.exchange.seq}) was not ACKed, "
                                    "so its delivery cannot be judged")
             got = d.delivered
             ok = (got == want) if want >= 0 else got > 0
+            if not ok and got == 0 and rule == "MCP-PAY-8":
+                self._expect_intact(d, rule)
             if not ok:
                 what = {NOT_AGAIN: "not delivered (again)", DELIVERED: "delivered",
                     1: "delivered exactly once"}.get(want, f"delivered {want} times")
@@ -444,6 +484,23 @@ class CaseContext(CaseBase):
                                 f"the vehicle received its frame {got} more time(s)")
         if any(want == NOT_AGAIN for _, want in deliveries):
             self.prove_live()  # "not delivered again" is silence: proven only by a live node
+
+    def _expect_intact(self, d: Delivery, rule: str) -> None:
+        """Fail ``rule`` when ``d``'s probe reached the autopilot altered; SKIP when nothing
+        of it arrived from a node never seen forwarding a frame intact (delivery is then
+        unobservable)."""
+        from judge.monitor import frame_hex
+
+        alt = self.altered_arrival(d)
+        if alt is None:
+            if self.session.passthrough_forwarded:
+                return  # it forwards frames, not this one: judged as not delivered
+            raise Inconclusive(f"{rule}: nothing of probe {d.probe.token} (seq {d.exchange.seq}) reached "
+                               "the autopilot, intact or altered: the node forwarded no frame")
+        raise self.fail(rule, f"the frame of probe {d.probe.token} (seq {d.exchange.seq}) forwarded as sent: "
+                        f"{frame_hex(d.probe.frame)}",
+                        f"{frame_hex(alt.raw)} arrived instead ({alt.how})",
+                        [f"the vehicle's parser: {alt.why}", f"token {d.probe.token}"])
 
     def expect_monitor_clean(self, rule: str) -> None:
         """The trace monitor, which watches every datagram of the run, found no violation of

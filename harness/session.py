@@ -105,6 +105,7 @@ class Session(SessionBase):
         self.needs_restart = False
         self.restarts = 0
         self.passthrough_forwarded: bool | None = None  # learnt by the first probe
+        self.passthrough_altered = False  # the first probe reached the autopilot altered (MCP-PAY-8)
         self.other_src_accepted: bool | None = None
         self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run

@@ -162,7 +162,10 @@ class VehicleEvent(NamedTuple):
     - ``mode``: a mode change was requested (``mode``: its ArduCopter name);
     - ``rtl``: RTL was commanded (RTL mode or MAV_CMD_NAV_RETURN_TO_LAUNCH);
     - ``frame``: the drone wrote a MAVLink frame to its autopilot (``frame``: its bytes;
-      ``token``: the passthrough-probe token when it is one).
+      ``token``: the passthrough-probe token when it is one);
+    - ``unparsed``: the drone wrote bytes that are no valid frame (a bad CRC, no start
+      marker, an incomplete or unknown-id frame; ``frame``: the bytes, ``detail``: why), as
+      a passthrough frame altered on its way arrives (MCP-PAY-8).
     """
 
     kind: str
@@ -173,7 +176,7 @@ class VehicleEvent(NamedTuple):
     detail: str = ""
 
 
-VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", "rtl", "frame")
+VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", "rtl", "frame", "unparsed")
 
 
 # ---------------------------------------------------------------- shared state
@@ -216,13 +219,17 @@ class _Exchange:
         return f"{action_name(self.action)} seq {self.seq} from ID {self.src} to {to}"
 
 
+#: Unparsed writes to an autopilot a node's record keeps (matched against passthroughs).
+UNPARSED_KEPT = 64
+
+
 class _Node:
     """What the monitor knows of one MCP ID (as a sender and as a receiver)."""
 
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
-                 "actions", "last_command", "seen", "delivered_from", "seq_gap")
+                 "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -253,6 +260,8 @@ class _Node:
         self.fix: bool | None = None
         self.forwards: list[tuple[int, Any]] = []  # (t_ns, "RTL") RTLs on its autopilot link
         self.delivered_from: dict[int, _Exchange] = {}  # the last message delivered, by src
+        #: (t_ns, bytes, why) the latest bytes written to its autopilot that were no frame
+        self.unparsed: deque[tuple[int, bytes, str]] = deque(maxlen=UNPARSED_KEPT)
         # as the manager
         self.first_command: tuple[int, int] | None = None  # its first command to any drone
 

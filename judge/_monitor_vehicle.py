@@ -8,10 +8,17 @@ the autopilot): once per delivered message (MCP-PAY-8), not again for a duplicat
 (MCP-DUP-3), across the wrap (MCP-SEQ-3), and never for a message to another ID
 (MCP-ACK-5, "neither ACKs nor acts on").
 
+A Mav_Passthrough frame that reaches the autopilot altered (truncated, corrupted) is not
+"forwarded ... exactly once" (MCP-PAY-8: "A drone linked to an autopilot forwards each
+delivered Mav_Passthrough frame to it exactly once."): when an ACKed one never arrives
+intact but bytes that did not parse and are an altered form of it (:func:`alteration`)
+were written meanwhile, MCP-PAY-8 is violated, with the frame sent and what arrived.
+
 Feed it :class:`VehicleEvent` records: :func:`events_from_mavlink` turns one raw MAVLink
-frame (as a capture's ``/mavlink`` channel or the simulated vehicle's frame tap holds it)
-into them; :func:`events_from_vehicle` turns the simulated vehicle's own event records.
-The link is taken as complete for a drone once any event was fed for it.
+frame (as a capture's ``/mavlink`` channel or the simulated vehicle's frame tap holds it,
+bytes that did not parse included) into them; :func:`events_from_vehicle` turns the
+simulated vehicle's own event records. The link is taken as complete for a drone once any
+event was fed for it.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ from judge._monitor_base import (
     _Node,
     fmt_s,
 )
-from spec.mavframe import FrameError, parse_frame
+from spec.mavframe import FrameError, is_frame, parse_frame
 from vehicle.probe import probe_token
 from vehicle.records import COPTER_MODE_NAMES, RTL, mode_name
 
@@ -57,13 +64,35 @@ def _key(frame: bytes) -> Any:
     return frame
 
 
+def alteration(sent: bytes, got: bytes) -> str | None:
+    """How ``got`` differs from the frame ``sent`` when it is an altered form of it (MCP-PAY-8):
+    cut short (at least its header left), bytes changed, or a changed prefix or suffix with
+    at least half of the frame as sent; ``None`` for the same bytes or unrelated ones."""
+    sent, got = bytes(sent), bytes(got)
+    if not sent or not got or got == sent:
+        return None
+    n = min(len(sent), len(got))
+    p = next((i for i in range(n) if sent[i] != got[i]), n)
+    s = next((i for i in range(n - p) if sent[-1 - i] != got[-1 - i]), n - p)
+    header = 6 if sent[0] == 0xFE else 10
+    if p == len(got):  # a prefix of the frame
+        return f"truncated to {len(got)} of {len(sent)} bytes" if len(got) >= header else None
+    if p + s < max(len(sent) // 2, header):
+        return None
+    if len(got) == len(sent):
+        k = sum(a != b for a, b in zip(sent, got, strict=True))
+        return f"{k} of {len(sent)} bytes differ (the first at offset {p})"
+    return f"{len(got)} bytes instead of {len(sent)}: the first {p} and the last {s} as sent"
+
+
 def events_from_mavlink(raw: bytes, direction: str = "rx") -> list[VehicleEvent]:
     """The events one MAVLink frame shows. ``direction`` is ``"rx"`` for a frame the drone
-    wrote to its autopilot, ``"tx"`` for one the autopilot sent to the drone."""
+    wrote to its autopilot, ``"tx"`` for one the autopilot sent to the drone. Bytes the drone
+    wrote that are no valid frame, and a frame of an unknown message id, are ``unparsed``."""
     try:
         msg = parse_frame(bytes(raw))
-    except FrameError:
-        return []
+    except FrameError as exc:
+        return [VehicleEvent("unparsed", frame=bytes(raw), detail=str(exc))] if direction == "rx" else []
     kind = msg.get_type()
     if direction == "tx":
         if kind == "GPS_RAW_INT":
@@ -72,6 +101,8 @@ def events_from_mavlink(raw: bytes, direction: str = "rx") -> list[VehicleEvent]
         return []
     token = probe_token(msg.text) if kind == "STATUSTEXT" else None
     out = [VehicleEvent("frame", frame=bytes(raw), token=token, detail=kind)]
+    if kind.startswith("UNKNOWN_"):
+        out.append(VehicleEvent("unparsed", frame=bytes(raw), detail=f"unknown message id {kind[8:]}"))
     if kind in ("COMMAND_LONG", "COMMAND_INT"):
         cmd = int(msg.command)
         if cmd == _ARM_DISARM:
@@ -93,6 +124,12 @@ def _mode(custom: int, via: str) -> list[VehicleEvent]:
     if name == _RTL_NAME:
         out.append(VehicleEvent("rtl", mode=name, detail=via))
     return out
+
+
+def frame_hex(data: bytes, limit: int = 300) -> str:
+    """``data`` as hex with its length (cut after ``limit`` bytes)."""
+    h = bytes(data[:limit]).hex(" ")
+    return f"{h}{' ...' if len(data) > limit else ''} ({len(data)} bytes)"
 
 
 def events_from_vehicle(event: Any) -> list[VehicleEvent]:
@@ -142,6 +179,8 @@ class VehicleRules:
             node.forwards.append((t, "RTL"))
         elif kind == "frame" and ev.frame is not None:
             self._judge_forward(node, t, ev.token if ev.token is not None else ev.frame)
+        elif kind == "unparsed" and ev.frame is not None:
+            node.unparsed.append((t, ev.frame, ev.detail))
 
     def _check_ready_fix(self, node: _Node, i: int, t: int) -> None:
         """MCP-BLK-5: no Mission_Ready while the autopilot reports no GPS fix."""
@@ -229,6 +268,8 @@ class VehicleRules:
         if now < due:  # ACKed again since: it may have been received late
             self._timers.at(due, self._delivery_deadline, ex, node)
             return
+        if not ex.deliveries and self._judge_altered(now, ex, node):
+            return
         if ex.deliveries or node.id not in self._node_delivers:
             return  # delivered, or a drone that does not forward passthrough at all
         prior = [p for p in self._pt_to.get(node.id, ()) if p is not ex and p.first[1] < ex.first[1]
@@ -253,6 +294,26 @@ class VehicleRules:
         self._emit(rule, node.id, now, "a new message is delivered (its frame reaches the autopilot)",
                    f"{ex.describe()} ACKed but not delivered within {fmt_s(self._delivery_wait())} ({why})",
                    [ev.first, ex.first] + ex.acks[:1])
+
+    def _judge_altered(self, now: int, ex: _Exchange, node: _Node) -> bool:
+        """MCP-PAY-8: an ACKed passthrough frame never arrived intact, but an altered form of
+        it (:func:`alteration`) was written to the autopilot since its first copy."""
+        if not is_frame(ex.payload):
+            return False  # what the frame should look like is unknown: nothing to compare
+        for entry in node.unparsed:
+            t, got, why = entry
+            if t + _CLOCKS_NS < ex.first[1]:
+                continue
+            how = alteration(ex.payload, got)
+            if how is None:
+                continue
+            node.unparsed.remove(entry)  # one arrival, one message
+            self._observe(node.id, "MCP-PAY-8")
+            self._emit("MCP-PAY-8", node.id, now, f"the frame of {ex.describe()} forwarded as sent: "
+                       f"{frame_hex(ex.payload)}",
+                       f"{frame_hex(got)} arrived instead ({how}; {why})", [ex.first] + ex.acks[:1])
+            return True
+        return False
 
     def _track_passthrough(self, ex: _Exchange) -> None:
         key = self._passthrough_key(ex)

@@ -65,7 +65,13 @@ from judge._monitor_base import (
 )
 from judge._monitor_receiver import ReceiverRules
 from judge._monitor_sender import SenderRules
-from judge._monitor_vehicle import VehicleRules, events_from_mavlink, events_from_vehicle
+from judge._monitor_vehicle import (
+    VehicleRules,
+    alteration,
+    events_from_mavlink,
+    events_from_vehicle,
+    frame_hex,
+)
 from spec import SPEC
 from spec.codec import BROADCAST_ID, DecodeError, decode
 from spec.mission import sane_item
@@ -79,8 +85,10 @@ __all__ = [
     "VEHICLE_KINDS",
     "VehicleEvent",
     "Violation",
+    "alteration",
     "events_from_mavlink",
     "events_from_vehicle",
+    "frame_hex",
 ]
 
 #: Rules the monitor can judge from traffic (and the autopilot link); every other rule of a

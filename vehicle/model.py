@@ -25,8 +25,9 @@ Behaviour (ArduCopter-like, simplified):
 * The mission protocol as ArduCopter 4.x answers it (``vehicle.mission``) and AUTO flying
   the stored mission (``vehicle.flight``); every request (command, SET_MODE, mission
   message) is recorded as a ``request`` event with the answer and why.
-* Every received frame is recorded (``frames()``), plus events (``events()``) and probe
-  counts (see ``vehicle.probe``).
+* Every received frame is recorded (``frames()``), plus events (``events()``), probe
+  counts (see ``vehicle.probe``) and the received bytes that did not parse as a frame
+  (``unparsed()``: an altered passthrough frame, MCP-PAY-8).
 
 The commands, modes and parameters are handled by the ``vehicle.commands`` mixin, the
 mission protocol's messages by ``vehicle.mission_messages``; this module owns the state,
@@ -53,10 +54,13 @@ from .records import (
     DENIED_RESULT,
     GUIDED_FLAG_MODES,
     LAND,
+    MAX_UNPARSED,
+    MAX_UNPARSED_BYTES,
     RTL,
     STABILIZE,
     Event,
     Frame,
+    Unparsed,
     mode_name,
 )
 
@@ -147,6 +151,7 @@ class VehicleModel(MissionMessages, CommandMessages):
         }
         self._events: deque[Event] = deque(maxlen=cfg.max_records)
         self._frames: deque[Frame] = deque(maxlen=cfg.max_records)
+        self._unparsed: deque[Unparsed] = deque(maxlen=MAX_UNPARSED)
         self._first: dict[str, float] = {}
         self._probes: Counter[str] = Counter()
         self.rtl_commanded = False
@@ -208,6 +213,19 @@ class VehicleModel(MissionMessages, CommandMessages):
             return list(self._frames)
         return [f for f in self._frames if f.msg_type == msg_type]
 
+    def unparsed(self, since: float | None = None) -> list[Unparsed]:
+        """Received bytes that did not parse as a MAVLink frame (MCP-PAY-8: an altered
+        passthrough frame arrives as such), whose first byte arrived at ``since`` or later;
+        the last ``MAX_UNPARSED`` are kept."""
+        return [u for u in self._unparsed if since is None or u.t >= since]
+
+    def record_unparsed(self, now: float, t: float, raw: bytes, reason: str, conn: int = 0) -> Unparsed:
+        """Keep bytes received at ``t`` that did not parse (known not to at ``now``)."""
+        u = Unparsed(t=t, raw=bytes(raw[:MAX_UNPARSED_BYTES]), reason=reason, length=len(raw),
+                     conn=conn, seen=now)
+        self._unparsed.append(u)
+        return u
+
     def first_time(self, kind: str) -> float | None:
         """When the first event of ``kind`` was recorded (since the last reset)."""
         return self._first.get(kind)
@@ -221,9 +239,11 @@ class VehicleModel(MissionMessages, CommandMessages):
         return dict(self._probes)
 
     def reset_observations(self) -> None:
-        """Forget events, frames, probe counts and ``rtl_commanded`` (not vehicle state)."""
+        """Forget events, frames, unparsed bytes, probe counts and ``rtl_commanded`` (not
+        vehicle state)."""
         self._events.clear()
         self._frames.clear()
+        self._unparsed.clear()
         self._first.clear()
         self._probes.clear()
         self.rtl_commanded = False

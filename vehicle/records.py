@@ -139,6 +139,33 @@ class Frame:
     conn: int = 0
 
 
+#: Unparsed records kept (oldest dropped beyond this), and bytes kept of each (its ``length``
+#: says how many arrived): what arrives altered is judged against what was sent (MCP-PAY-8).
+MAX_UNPARSED = 256
+MAX_UNPARSED_BYTES = 1024
+
+
+@dataclass(frozen=True)
+class Unparsed:
+    """Bytes the vehicle received on a link that did not parse as a MAVLink frame.
+
+    MCP-PAY-8: "A drone linked to an autopilot forwards each delivered Mav_Passthrough frame
+    to it exactly once." A frame altered on its way (truncated, corrupted) arrives as such
+    bytes: a frame with a bad CRC, bytes before any start marker, a frame of an unknown
+    message id (also handled as a frame, as before), or an incomplete frame after which
+    nothing came for ``codec.STALE`` seconds. ``t`` is when its first byte arrived, ``seen``
+    when the vehicle knew it did not parse (both ``time.monotonic()``); ``raw`` holds at
+    most ``MAX_UNPARSED_BYTES`` of the ``length`` bytes; ``conn`` numbers the link.
+    """
+
+    t: float
+    raw: bytes
+    reason: str
+    length: int = 0
+    conn: int = 0
+    seen: float = 0.0
+
+
 def mode_name(custom_mode: int) -> str:
     """The ArduCopter name of ``custom_mode`` (``"MODE(n)"`` when unknown)."""
     return COPTER_MODE_NAMES.get(custom_mode, f"MODE({custom_mode})")

@@ -4,7 +4,8 @@ TCP: the vehicle listens; a node connects with ``mavutil.mavlink_connection("tcp
 Either side may speak first: the vehicle sends a heartbeat and a telemetry snapshot as soon
 as a client connects, then streams telemetry to every connected client. Clients may come
 late, go away and come back (a restarted node), and several may be connected at once; each
-has its own parser and sequence numbers. Garbage bytes are counted, never fatal.
+has its own parser and sequence numbers. Garbage bytes are counted and kept
+(``unparsed()``), never fatal.
 
 UDP (``vehicle.udp``): ``udp_out`` destinations get the telemetry from one socket, which
 answers whoever writes to it; ``udp_in`` listens and serves every sender. A UDP peer counts
@@ -29,9 +30,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .codec import Decoder, Encoder, MAVLinkMessage
+from .codec import STALE, Decoder, Encoder, MAVLinkMessage, UnparsedBytes
 from .model import VehicleConfig, VehicleModel
-from .records import Event, Frame
+from .records import Event, Frame, Unparsed
 from .udp import Address, UdpEndpoint
 
 #: Seconds a blocked send may take before the client is considered dead.
@@ -78,7 +79,8 @@ class SimVehicle:
     ``SimVehicle(sysid=1, gps_fix_delay=0.0, climb_rate=20.0, fix_withheld=False)``: keyword
     settings are ``VehicleConfig`` fields (applied on top of ``config`` if one is given).
     ``on_event(event)`` is called for every recorded event and ``on_frame(t, direction,
-    conn, raw)`` for every frame sent ("tx") or received ("rx"); both run on a vehicle
+    conn, raw)`` for every frame sent ("tx") or received ("rx"), and for the received bytes
+    that did not parse (``unparsed()``; "rx", their ``seen`` time); both run on a vehicle
     thread with the vehicle's lock held, so they must be quick and must not wait for
     other vehicle threads (reading the vehicle's properties is fine).
     """
@@ -298,6 +300,17 @@ class SimVehicle:
         """Received frames in order (optionally only ``msg_type``, e.g. "COMMAND_LONG")."""
         return list(self._read(lambda m: m.frames(msg_type)))
 
+    def unparsed(self, since: float | None = None) -> list[Unparsed]:
+        """Received bytes that did not parse as a MAVLink frame, first byte at ``since`` or
+        later (``vehicle.records.Unparsed``: how an altered passthrough frame arrives, MCP-PAY-8)."""
+        return list(self._read(lambda m: m.unparsed(since)))
+
+    def holding(self) -> int:
+        """Bytes of incomplete frames the links hold, not yet reported as unparsed (they are,
+        ``codec.STALE`` s after the last byte arrived, unless more bytes complete them)."""
+        with self._cond:
+            return sum(c.decoder.holding() for c in self._clients.values())
+
     def first_time(self, kind: str) -> float | None:
         """``time.monotonic()`` of the first ``kind`` event since the last reset."""
         return self._read(lambda m: m.first_time(kind))
@@ -382,11 +395,12 @@ class SimVehicle:
 
     def _receive(self, client: _Client, data: bytes) -> None:
         """Decode bytes from ``client``, let the model answer, send the replies."""
-        msgs, bad, reason = client.decoder.feed(data)
+        msgs, bad, reason = client.decoder.feed(data, time.monotonic())
         with self._cond:
             now = time.monotonic()
             if bad:
                 self._model.record_bad_data(now, bad, reason, client.number)
+            self._keep_unparsed(client, client.decoder.take_unparsed(), now)
             for msg in msgs:
                 raw = bytes(msg.get_msgbuf())
                 if raw[:1] == b"\xfd":
@@ -409,6 +423,14 @@ class SimVehicle:
                                        error=f"{type(exc).__name__}: {exc}")
             self._flush_outbox()
             self._cond.notify_all()
+
+    def _keep_unparsed(self, client: _Client, found: list[UnparsedBytes], now: float) -> None:
+        """Record bytes that did not parse, and tap them as received (an unknown message id
+        is tapped with the frames); called with the lock held."""
+        for u in found:
+            self._model.record_unparsed(now, u.t, u.raw, u.reason, client.number)
+            if self._on_frame is not None and not u.frame:
+                self._on_frame(now, "rx", client.number, u.raw)
 
     def _flush_outbox(self) -> None:
         for conn, msg in self._model.take_outbox():
@@ -443,8 +465,10 @@ class SimVehicle:
     def _tick_loop(self) -> None:
         while not self._stop.is_set():
             with self._cond:
-                msgs = self._model.tick(time.monotonic())
+                now = time.monotonic()
+                msgs = self._model.tick(now)
                 for client in list(self._clients.values()):
+                    self._keep_unparsed(client, client.decoder.stale(now, STALE), now)
                     if client.heard or client.udp is None or client.udp.mode == "out":
                         self._send(client, msgs)
                 self._flush_outbox()

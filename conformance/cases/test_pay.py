@@ -24,7 +24,11 @@ def test_mission_ready_payload(node):
 
 @rules("MCP-PAY-8")
 def test_passthrough_frame_reaches_the_autopilot_once(node):
-    node.require_passthrough("MCP-PAY-8")
+    """MCP-PAY-8: "A drone linked to an autopilot forwards each delivered Mav_Passthrough
+    frame to it exactly once." Written twice fails; so does a frame that reaches the
+    autopilot altered (truncated, corrupted: the bytes that arrived are compared with the
+    frame sent); SKIPPED only when nothing of it arrived."""
+    node.require_passthrough("MCP-PAY-8", altered=True)
     d = node.deliver(node.probe())
     node.settle(d, expect_more=True)
     node.expect_delivered([(d, 1)], "MCP-PAY-8")

@@ -359,6 +359,27 @@ def pay8() -> Script:
     return s
 
 
+def _pay8_altered(alter: Callable[[bytes], bytes]) -> Script:
+    """MCP-PAY-8: drone 1 writes its passthrough frame to the autopilot altered (``alter``);
+    what arrives does not parse, so no intact frame is ever delivered."""
+    s = _started()
+    s.challenge_steps()
+    frame = heartbeat_frame()
+    s.exchange(0, 1, Action.MAV_PASSTHROUGH, frame,
+               on_delivery=lambda: s.vehicle(1, "unparsed", frame=alter(frame), detail="bad CRC"))
+    s.passthrough(2)
+    s.tick(0.05)
+    return _finish(s, steps=False)
+
+
+def pay8_truncated() -> Script:
+    return _pay8_altered(lambda f: f[:-3])
+
+
+def pay8_corrupted() -> Script:
+    return _pay8_altered(lambda f: f[:12] + bytes([f[12] ^ 0x04]) + f[13:])
+
+
 # ---------------------------------------------------------------- ROB
 def rob2() -> Script:
     s = _started()
@@ -544,6 +565,8 @@ FAULTY: dict[str, Fault] = {
     "pay6-bad-crc": Fault("MCP-PAY-6", pay6),
     "pay7-insane-item": Fault("MCP-PAY-7", pay7),
     "pay8-forwarded-twice": Fault("MCP-PAY-8", pay8),
+    "pay8-forwarded-truncated": Fault("MCP-PAY-8", pay8_truncated),
+    "pay8-forwarded-corrupted": Fault("MCP-PAY-8", pay8_corrupted),
     "rob2-acks-bad-preamble": Fault("MCP-ROB-2", rob2, complete=False),
     "rob3-acks-unknown-action": Fault("MCP-ROB-3", rob3, complete=False),
     "rob4-acks-bad-length": Fault("MCP-ROB-4", rob4, complete=False),

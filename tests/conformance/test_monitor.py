@@ -272,3 +272,44 @@ def test_an_ack_read_after_the_message_it_took_a_number_before_explains_the_gap(
     assert "MCP-SEQ-1" in rules(script(None))  # no ACK at all: a skipped number
     assert "MCP-SEQ-1" in rules(script(1.5))  # read too late to count
     assert "MCP-SEQ-1" in rules(script(0.05, ack_seq_offset=7))  # its number is not the one skipped
+
+
+def test_an_altered_form_of_a_frame_is_told_from_unrelated_bytes():
+    """MCP-PAY-8's comparison of what arrived with the frame sent (judge.monitor.alteration)."""
+    from judge.monitor import alteration
+    from spec.mavframe import heartbeat_frame
+
+    f = heartbeat_frame()
+    assert alteration(f, f) is None
+    assert alteration(f, f[:-3]) == f"truncated to {len(f) - 3} of {len(f)} bytes"
+    assert alteration(f, f[:4]) is None  # not even its header: nothing says it is this frame
+    flipped = f[:12] + bytes([f[12] ^ 1]) + f[13:]
+    assert alteration(f, flipped) == f"1 of {len(f)} bytes differ (the first at offset 12)"
+    assert alteration(f, b"\x00" + f[1:]) == f"1 of {len(f)} bytes differ (the first at offset 0)"
+    assert alteration(f, f[:-2] + b"\x00\x00\x00") == f"{len(f) + 1} bytes instead of {len(f)}: " \
+        f"the first {len(f) - 2} and the last 0 as sent"
+    assert alteration(f, bytes(len(f))) is None and alteration(f, heartbeat_frame(seq=9)[:5]) is None
+
+
+def test_passthrough_forwarded_intact_or_not_a_frame_is_no_alteration():
+    """No false alarm: a payload that is no MAVLink frame, forwarded as it came, arrives as
+    unparsed bytes; a frame forwarded intact after unrelated bad bytes is delivered."""
+    from spec.mavframe import heartbeat_frame
+
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    for d in s.drones:
+        s.start(d)
+    s.challenge_steps()
+    junk = b"\xfd\x05" + bytes(8)
+    s.exchange(0, 1, Action.MAV_PASSTHROUGH, junk,
+               on_delivery=lambda: s.vehicle(1, "unparsed", frame=junk + b"\xfd\x09\x00", detail="bad CRC"))
+    s.vehicle(2, "unparsed", frame=b"\x01\x02\x03", detail="Bad prefix")
+    s.passthrough(2, heartbeat_frame(seq=3))
+    for d in s.drones:
+        s.end(d)
+    found = s.judge()
+    assert "MCP-PAY-8" not in {v.rule for v in found}  # the junk is the manager's (MCP-PAY-6)
+    assert s.last_monitor.verdicts()[2]["MCP-PAY-8"] == "passed"
+    assert s.last_monitor.verdicts()[1]["MCP-PAY-8"] != "warned"

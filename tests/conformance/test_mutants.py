@@ -69,6 +69,8 @@ MUTANTS = [
     ("no-rtl", "MCP-BLK-7"),
     ("ready-bad-payload", "MCP-PAY-2"),
     ("passthrough-twice", "MCP-PAY-8"),
+    ("passthrough-truncated", "MCP-PAY-8"),
+    ("passthrough-corrupt", "MCP-PAY-8"),
     ("crash-on-short", "MCP-ROB-1"),
     ("ack-bad-preamble", "MCP-ROB-2"),
     ("ack-unknown-action", "MCP-ROB-3"),
@@ -94,13 +96,24 @@ DIAGNOSIS = {
     "arm-early": "(accepted by the vehicle)",
     "arm-before-fix": "(denied by the vehicle)",
     "arm-before-start": "(accepted by the vehicle)",
+    "passthrough-truncated": "arrived instead (truncated to",
+    "passthrough-corrupt": "arrived instead (1 of",
 }
 
 
 #: Mutants whose fault the run's trace monitor proves from traffic alone: the JSON's monitor
 #: section names their rule and no other.
 MONITOR_SEES = {"ack-broadcast": "MCP-ACK-4", "rtx-stop-on-any-ack": "MCP-RTX-2",
-                "bad-preamble": "MCP-HDR-1", "arm-early": "MCP-BLK-4", "passthrough-twice": "MCP-PAY-8"}
+                "bad-preamble": "MCP-HDR-1", "arm-early": "MCP-BLK-4", "passthrough-twice": "MCP-PAY-8",
+                "passthrough-truncated": "MCP-PAY-8", "passthrough-corrupt": "MCP-PAY-8"}
+
+
+#: Mutants whose rule a case must fail itself (not only the trace monitor), with what the
+#: case's expected and actual say: a frame altered on its way is compared with the frame sent.
+CASE_SAYS = {
+    "passthrough-truncated": ("forwarded as sent: fd ", "arrived instead (truncated to"),
+    "passthrough-corrupt": ("forwarded as sent: fd ", "arrived instead (1 of"),
+}
 
 
 def same_verdicts_offline(res, capture) -> None:
@@ -129,6 +142,10 @@ def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
     assert res.rc == (1 if want == "failed" else 0), res.explain()
     if fault in DIAGNOSIS:
         assert DIAGNOSIS[fault] in res.output, res.explain()
+    if fault in CASE_SAYS:
+        (case,) = [c for c in res.report["cases"] if rule in c["rules"]]
+        assert case["outcome"] == want, res.explain()
+        assert CASE_SAYS[fault][0] in case["expected"] and CASE_SAYS[fault][1] in case["actual"], case
     if fault in MONITOR_SEES:
         mon = res.report["monitor"]
         assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]

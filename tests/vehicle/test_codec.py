@@ -66,3 +66,48 @@ def test_mavlink1_encoder_packs_every_reply_the_model_sends() -> None:
         got, bad, _ = Decoder().feed(raw)
         assert bad == 0 and got[0].get_type() == m.get_type()
     assert got[0].type == 10  # the MISSION_ACK's result survives MAVLink 1
+
+
+def test_decoder_keeps_the_bytes_that_did_not_parse_once_each() -> None:
+    """MCP-PAY-8: a frame altered on its way arrives as unparsed bytes, which are kept (with
+    the arrival time of their first byte) to compare with the frame sent."""
+    from vehicle import make_probe
+
+    frame = make_probe("kept")
+    corrupt = bytearray(frame)
+    corrupt[15] ^= 0x01  # a payload bit, the CRC unchanged
+    unknown = bytearray(frame)
+    unknown[7:10] = b"\xee\xee\x00"  # an unknown message id (no CRC check for those)
+    dec = Decoder()
+    msgs, bad, _ = dec.feed(bytes(corrupt) + frame, 1.0)
+    assert [m.get_type() for m in msgs] == ["STATUSTEXT"] and bad == len(frame)
+    (u,) = dec.take_unparsed()
+    assert (u.t, u.raw, u.frame) == (1.0, bytes(corrupt), False) and "CRC" in u.reason
+    assert dec.take_unparsed() == []
+    msgs, bad, _ = dec.feed(bytes(unknown), 2.0)  # still handed on as a message, as before
+    assert [m.get_type() for m in msgs] == ["UNKNOWN_61166"] and bad == 0
+    (u,) = dec.take_unparsed()
+    assert (u.raw, u.frame, u.reason) == (bytes(unknown), True, "unknown message id 61166")
+
+
+def test_an_incomplete_frame_is_reported_once_when_nothing_follows() -> None:
+    """A truncated frame waits in the parser for bytes that never come: reported after
+    ``STALE`` s of quiet, once, and still completed by late bytes (valid traffic unchanged)."""
+    from vehicle import make_probe
+    from vehicle.codec import STALE
+
+    frame = make_probe("cut")
+    dec = Decoder()
+    assert dec.feed(frame[:-3], 10.0)[:2] == ([], 0) and dec.take_unparsed() == []
+    assert dec.holding() == len(frame) - 3
+    assert dec.stale(10.0 + STALE / 2) == []
+    (u,) = dec.stale(10.0 + STALE * 1.01)
+    assert (u.t, u.raw) == (10.0, frame[:-3]) and u.reason.startswith("incomplete frame")
+    assert dec.stale(20.0) == [] and dec.holding() == 0
+    msgs, _, _ = dec.feed(frame[-3:], 21.0)  # the rest, late: the frame still parses
+    assert [m.get_type() for m in msgs] == ["STATUSTEXT"] and dec.take_unparsed() == []
+    dec.feed(frame[:-3], 30.0)
+    dec.stale(31.0)
+    msgs, _, _ = dec.feed(make_probe("next"), 32.0)  # not completed: dropped, not reported again,
+    assert [m.get_type() for m in msgs] == ["STATUSTEXT"]  # and the next frame is not swallowed
+    assert dec.take_unparsed() == [] and dec.holding() == 0

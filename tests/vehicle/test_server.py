@@ -209,3 +209,34 @@ def test_close_stops_threads_and_port_in_use_is_an_error() -> None:
     leftover = [t for t in threading.enumerate() if t not in before and t.name.startswith("vehicle")]
     assert leftover == []
     assert not v.connected
+
+
+def test_unparsed_bytes_are_kept_and_tapped(vehicle: SimVehicle) -> None:
+    """MCP-PAY-8: what arrived altered (a truncated frame nothing followed, a corrupted one)
+    is in ``unparsed()`` and on the frame tap as "rx"; the valid frame after it is answered
+    as ever; the record is bounded and reset with the others."""
+    from vehicle.records import MAX_UNPARSED
+
+    taps: list[tuple[str, bytes]] = []
+    frame = make_probe("alt")
+    corrupt = bytearray(frame)
+    corrupt[20] ^= 0x10
+    with SimVehicle(on_frame=lambda t, d, c, raw: taps.append((d, raw))) as v:
+        sock = socket.create_connection(("127.0.0.1", v.port), timeout=WAIT)
+        try:
+            start = time.monotonic()
+            sock.sendall(frame[:-3])
+            assert v.wait_for(lambda: len(v.unparsed()) == 1, WAIT)
+            (u,) = v.unparsed(since=start)
+            assert (u.raw, u.length, u.conn) == (frame[:-3], len(frame) - 3, 1) and u.t <= u.seen
+            assert v.holding() == 0
+            sock.sendall(frame[-3:] + bytes(corrupt) + make_probe("good"))
+            assert v.wait_for(lambda: v.probe_count("good") == 1, WAIT)
+            assert v.probe_count("alt") == 1  # the late rest completed the frame: delivered
+            assert bytes(corrupt) in [x.raw for x in v.unparsed()]
+            assert ("rx", frame[:-3]) in taps and ("rx", bytes(corrupt)) in taps
+        finally:
+            sock.close()
+        v.reset_observations()
+        assert v.unparsed() == []
+    assert MAX_UNPARSED <= 1000

@@ -89,6 +89,10 @@ FAULTS: dict[str, tuple[str, str]] = {
     "no-rtl": ("MCP-BLK-7", "no RTL on End_Mission"),
     "ready-bad-payload": ("MCP-PAY-2", "Mission_Ready carries 4 bytes"),
     "passthrough-twice": ("MCP-PAY-8", "each delivered Mav_Passthrough frame is written twice"),
+    "passthrough-truncated": ("MCP-PAY-8", "each delivered Mav_Passthrough frame is written without its "
+                                           "last 3 bytes"),
+    "passthrough-corrupt": ("MCP-PAY-8", "each delivered Mav_Passthrough frame is written with one payload "
+                                         "bit flipped (CRC unchanged)"),
     "crash-on-short": ("MCP-ROB-1", "exits with code 3 on a datagram shorter than 17 bytes"),
     "ack-bad-preamble": ("MCP-ROB-2", "ignores the preamble when parsing, and ACKs"),
     "ack-unknown-action": ("MCP-ROB-3", "ACKs action codes above 8"),
@@ -634,6 +638,10 @@ class Node:
         if self.autopilot is None:
             log(f"Mav_Passthrough of {len(frame)} bytes: no autopilot")
             return
+        if "passthrough-truncated" in self.faults:
+            frame = frame[:-3]
+        elif "passthrough-corrupt" in self.faults and len(frame) > 12:
+            frame = frame[:11] + bytes([frame[11] ^ 0x01]) + frame[12:]  # a payload byte
         for _ in range(2 if "passthrough-twice" in self.faults else 1):
             self.autopilot.submit("forward", frame)
 
