@@ -125,6 +125,26 @@ def test_target_that_never_answers_is_a_setup_error(tmp_path):
     assert "Traceback" not in proc.stdout + proc.stderr
 
 
+def test_a_silent_target_is_waited_for_visibly_and_briefly(tmp_path):
+    """Issue 18 item 14: attaching to a silent target says what the run waits for (a plain
+    line off a terminal), waits --startup-timeout (default 60 s, not the run's 600 s) for the
+    node's first datagram, then exits 2 with one line."""
+    path = tmp_path / "r.json"
+    listen = free_port()
+    proc = conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{listen}",
+                   "--startup-timeout", "2", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert (f"waiting for the node's first datagram (its Mission_Ready, or an ACK of a probe) on "
+            f"127.0.0.1:{listen} (up to 2 s)") in proc.stdout
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--startup-timeout: no datagram from the node within 2 s" in lines[0], proc.stderr
+    assert report(path)["error"].startswith("--startup-timeout: no datagram from the node within 2 s")
+    assert "--startup-timeout S" in build_parser().format_help() and "(default 60" in build_parser().format_help()
+    from conformance.options import make_config
+
+    assert make_config({}).extra["startup_timeout"] == 60.0
+
+
 def test_version():
     proc = conform("--version")
     assert proc.returncode == 0 and proc.stdout.startswith("mcp-conform ")
