@@ -71,7 +71,8 @@ def _run_error_case(run: RunRecord) -> tuple[str, str]:
 def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
     """JUnit XML that CI systems show truthfully.
 
-    failed -> ``<failure type=RULE>``; error -> ``<error>``; skipped -> ``<skipped>`` with
+    failed -> ``<failure type=RULE message="RULE: what was seen">`` (the rule's text, expected
+    and evidence in its body); error -> ``<error>``; skipped -> ``<skipped>`` with
     the reason; warned passes (a failure under --strict, where it is already ``failed``)
     but its name ends in `` [warned]`` and the finding is in ``<system-out>``; info passes
     with the finding in ``<system-out>``; xfailed (a baseline's expected failure) is
@@ -124,6 +125,8 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
                 prop(tprops, key, value)
         finding = _finding(c)
         message = (c.reason or "").splitlines()[0] if c.reason else c.outcome
+        if c.failed_rule and c.actual:  # what was seen (the rule's text is in the body)
+            message = f"{c.failed_rule}: {c.actual.splitlines()[0]}"
         if c.outcome == "failed" or (c.outcome == "xpassed" and run.strict):
             if c.outcome == "xpassed":
                 message = f"expected to fail ({c.baseline}) but passed: take it off the baseline"
