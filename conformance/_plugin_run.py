@@ -49,6 +49,7 @@ from conformance.options import (
     make_config,
     matches_select,
     option_values,
+    unmatched,
 )
 from conformance.report import (
     CaseRecord,
@@ -223,6 +224,10 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         if unknown:
             state.collect_errors.append(f"unknown rule ID {unknown[0]!r} in {cid}")
         state.meta[item.nodeid] = (cid, ids, level, phase)
+    stray = unmatched(state.exclude, ((m[0], m[1]) for m in state.meta.values()))
+    if stray:  # as --select does: a typo is said, not a case silently run
+        state.collect_errors.append(f"{'--exclude' if state.frontend else '--mcp-exclude'}: "
+                                    f"no case matches {', '.join(stray)}")
     if state.collect_errors:
         return
     keep: list[pytest.Item] = []

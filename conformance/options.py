@@ -6,7 +6,7 @@ plugin and ``mcp-conform``. Every error is a ``ConfigError`` whose message names
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,7 @@ from conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
 from harness.config import DEFAULT_SEED, RunConfig, parse_hostport
 
 __all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select",
-           "option_values"]
+           "option_values", "unmatched"]
 
 #: How long the runner waits for the node's first datagram (``--startup-timeout``): a silent
 #: target is a one-line setup error (exit 2) after this, not after the whole run's --timeout.
@@ -147,6 +147,12 @@ def matches_select(prefixes: list[str], cid: str, rule_ids: tuple[str, ...]) -> 
             if name == p or (name.startswith(p) and p and not (p[-1].isdigit() and name[len(p)].isdigit())):
                 return True
     return False
+
+
+def unmatched(prefixes: list[str], cases: Iterable[tuple[str, tuple[str, ...]]]) -> list[str]:
+    """The prefixes (``--exclude``'s) that match no case (case ID, rule IDs) at all."""
+    cases = list(cases)
+    return [p for p in prefixes if not any(matches_select([p], cid, ids) for cid, ids in cases)]
 
 
 def _mavlink_value(text: str) -> Any:

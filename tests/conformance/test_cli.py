@@ -114,6 +114,15 @@ def test_select_matching_nothing_is_exit_2(tmp_path):
     assert "--select: no case matches MCP-NOPE" in proc.stderr
 
 
+def test_exclude_matching_nothing_is_exit_2_as_select(tmp_path):
+    """Issue 18 item 16: an --exclude that matches no case (a typo) says so, as --select does."""
+    path = tmp_path / "r.json"
+    proc = conform("--exclude", "MCP-ACK-4", "MCP-NOPE", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert report(path)["error"] == "--exclude: no case matches MCP-NOPE"
+    assert "--exclude: no case matches MCP-NOPE" in proc.stderr
+
+
 def test_target_that_never_answers_is_a_setup_error(tmp_path):
     path = tmp_path / "r.json"
     proc = conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{free_port()}",
