@@ -83,8 +83,9 @@ def _esc(text: Any) -> str:
 
 
 def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = "",
-           max_rows: int = MAX_ROWS) -> str:
-    """The SVG document (a string) of ``arrows`` between ``lifelines``."""
+           max_rows: int = MAX_ROWS, t0_ns: int | None = None) -> str:
+    """The SVG document (a string) of ``arrows`` between ``lifelines``; times are since
+    ``t0_ns`` (default: the first arrow's), so a window of a listing shows the listing's."""
     shown = list(arrows[:max_rows])
     hidden = len(arrows) - len(shown)
     keys = [lf.key for lf in lifelines]
@@ -111,7 +112,7 @@ def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = 
                    f'text-anchor="middle">{_esc(lf.title)}</text><text class="sub" x="{x}" y="{y0 + 31}" '
                    f'text-anchor="middle">{_esc(_clip(lf.subtitle, 27))}</text></g>')
         out.append(f'<line class="life" x1="{x}" y1="{y0 + 38}" x2="{x}" y2="{height - 8}"/>')
-    t0 = shown[0].t_ns if shown else 0
+    t0 = t0_ns if t0_ns is not None else shown[0].t_ns if shown else 0
     for row, a in enumerate(shown):
         y = top + ROW * row + ROW // 2 + 8
         out.append(f'<text class="time" x="6" y="{y + 4}">+{(a.t_ns - t0) / 1e9:.6f}s</text>')
@@ -212,9 +213,10 @@ def _addr(addr: Any) -> str:
 
 
 def trace_svg(trace: Any, entries: Iterable[Any] | None = None, title: str = "",
-              max_rows: int = MAX_ROWS) -> str:
-    """The chart of ``entries`` (default: all) of a :class:`traceio.trace.Trace`."""
+              max_rows: int = MAX_ROWS, t0_ns: int | None = None) -> str:
+    """The chart of ``entries`` (default: all) of a :class:`traceio.trace.Trace`; times
+    since ``t0_ns`` (default: the first entry's)."""
     entries = list(trace.entries if entries is None else entries)
     keys = trace.lifelines(entries)
     lifelines = [Lifeline(k, *trace.lifeline_title(k)) for k in keys]
-    return render(lifelines, [arrow_of(e, trace.broadcast_id) for e in entries], title, max_rows)
+    return render(lifelines, [arrow_of(e, trace.broadcast_id) for e in entries], title, max_rows, t0_ns)

@@ -151,3 +151,19 @@ def test_show_case_window_of_an_mcap(tmp_path, capsys):
     assert "answers #1" in lines[1]
     assert main(["show", str(path), "--case", "ACK/test_"]) == 2  # a prefix of two cases
     assert "matches several cases" in capsys.readouterr().err
+
+
+def test_show_window_times_are_the_same_in_the_listing_and_the_chart(tmp_path, capsys):
+    """Issue 18 item 16: ``show --from S`` lists times since the capture's first datagram;
+    the chart's time column says the same, not times since the window's first row."""
+    path = mission(drones=(1, 2), lose_ack_of=2).write(tmp_path / "m.pcap")
+    svg_path = tmp_path / "w.svg"
+    assert main(["show", str(path), "--from", "0.03", "--svg", str(svg_path)]) == 0
+    import re
+
+    listed = [re.search(r"\+\s*([\d.]+)s", ln).group(1) for ln in capsys.readouterr().out.splitlines()
+              if ln.startswith("#")]
+    root = ET.fromstring(svg_path.read_text())
+    charted = [re.fullmatch(r"\+([\d.]+)s", t.text).group(1) for t in root.iter(f"{SVG}text")
+               if "time" in (t.get("class") or "").split()]
+    assert listed and charted == listed and float(listed[0]) >= 0.03
