@@ -167,3 +167,39 @@ def test_show_window_times_are_the_same_in_the_listing_and_the_chart(tmp_path, c
     charted = [re.fullmatch(r"\+([\d.]+)s", t.text).group(1) for t in root.iter(f"{SVG}text")
                if "time" in (t.get("class") or "").split()]
     assert listed and charted == listed and float(listed[0]) >= 0.03
+
+
+def _runner_capture(path):
+    """A run as mcp-conform records it: the runner (bound to all addresses) plays manager 0
+    and, in a robustness case, a stranger ID 2; the node under test is drone 1."""
+    from spec.codec import Message, encode
+    from traceio.recorder import McapRecorder
+
+    node = ("127.0.0.1", 7890)
+    with McapRecorder(path, local=("0.0.0.0", 41285)) as rec:
+        rec.datagram("tx", encode(Message(0xFFFF, 0, 5, Action.WP_OFF)), node, 1_000)  # a broadcast: right
+        rec.datagram("rx", encode(Message(0, 1, 9, Action.ACK, 5)), node, 2_000)  # its ACK: MCP-ACK-4
+        rec.datagram("tx", encode(Message(1, 2, 7, Action.WP_OFF)), node, 3_000)  # the runner as ID 2
+    return path
+
+
+def test_the_runners_lifelines_are_named_as_the_runner(tmp_path):
+    """Issue 18 item 16: an ID only the recording runner sent from is mcp-conform playing it,
+    not "drone 2" at 0.0.0.0."""
+    trace = Trace(open_capture(_runner_capture(tmp_path / "run.mcap")).datagrams())
+    heads = {h.get("data-lifeline"): [t.text for t in h.iter(f"{SVG}text")]
+             for h in ET.fromstring(trace_svg(trace)).iter(f"{SVG}g") if h.get("data-lifeline")}
+    assert heads["0"] == ["runner as manager 0", "mcp-conform :41285"]
+    assert heads["2"] == ["runner as drone 2", "mcp-conform :41285"]
+    assert heads["1"] == ["drone 1", "127.0.0.1:7890"]
+
+
+def test_a_violation_is_badged_on_the_violators_datagrams_not_the_runners(tmp_path):
+    """Issue 18 item 16: an ACK of a broadcast breaks MCP-ACK-4; the runner's broadcast it
+    answers is evidence, not a violation: only the ACK carries the badge. A violation whose
+    evidence the node did not send (a message it left unanswered) keeps its badge there."""
+    trace = Trace(open_capture(_runner_capture(tmp_path / "run.mcap")).datagrams())
+    trace.mark([FakeViolation("MCP-ACK-4", "MUST", 1, 2_000, "no ACK", "an ACK", (0, 1)),
+                FakeViolation("MCP-ACK-5", "MUST", 1, 3_000, "nothing", "x", (2,))])
+    badged = {g.get("data-index"): g.get("data-rules") for g in arrows(trace_svg(trace))}
+    assert badged == {"0": "", "1": "MCP-ACK-4", "2": "MCP-ACK-5"}
