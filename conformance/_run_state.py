@@ -122,6 +122,7 @@ class McpState:
         self._terminal: TerminalReport | None = None
         self._wait_status: Any = None
         self.first_datagram: Any = None  # conformance.live.FirstDatagram, during the run
+        self.printer: Any = None  # conformance.live.TrafficPrinter under -v
         self.startup_deadline: float | None = None  # until the node's first datagram
         self.startup_expired = False
 
@@ -178,7 +179,7 @@ class McpState:
             printer = None
             if self.config.getoption("mcp_verbose_traffic"):
                 capman = self.config.pluginmanager.getplugin("capturemanager")
-                printer = TrafficPrinter(
+                printer = self.printer = TrafficPrinter(
                     uncaptured=capman.global_and_fixture_disabled if capman is not None else None)
             # MCP: the node's first datagram ends the --startup-timeout wait (a TCP backend's
             # startup is its connection, bounded by the session itself)
@@ -260,6 +261,9 @@ class McpState:
         if recorder is not None:
             with contextlib.suppress(Exception):
                 recorder.close()
+        if self.printer is not None:  # -v: the lines still held, before the summary
+            with contextlib.suppress(Exception):
+                self.printer.close()
 
     # ------------------------------------------------------------------ records
     def record(self, item: pytest.Item) -> CaseRecord:

@@ -3,7 +3,9 @@
 - ``TrafficPrinter`` (``mcp-conform -v``, ``--mcp-verbose-traffic``): every datagram the
   runner sends or receives, as it happens, on stderr: time since the run began, direction,
   peer address, and the decoded header and payload (or the rule a malformed datagram
-  breaks, as ``spec.codec`` names it).
+  breaks, as ``spec.codec`` names it). Lines are held ``HOLD_S`` and printed in time order:
+  the receiving thread may report a reply before the sender reports the datagram it
+  answers, and a reply is never printed before its request.
 - ``Tee``: hands each capture event to the MCAP recorder and to the printer, so the session
   sees one recorder whatever is switched on.
 - ``WaitStatus``: a rich status line for the startup phase and for any wait longer than
@@ -17,6 +19,7 @@
 from __future__ import annotations
 
 import contextlib
+import heapq
 import threading
 import time
 from typing import Any
@@ -29,6 +32,7 @@ from spec.codec import Action, DecodeError, MissionItem, decode
 __all__ = ["FirstDatagram", "TrafficPrinter", "Tee", "WaitStatus", "listen_text"]
 
 SHOW_AFTER_S = 2.0
+HOLD_S = 0.2  # how long a -v line waits for earlier datagrams reported later
 PLAIN_EVERY_S = 10.0
 
 
@@ -63,16 +67,47 @@ class TrafficPrinter:
         self.console = console or Console(stderr=True, highlight=False)
         self.t0_ns = t0_ns if t0_ns is not None else time.time_ns()
         self._lock = threading.Lock()
+        self._print_lock = threading.Lock()
         # pytest's capture manager swallows what a test prints; live lines go around it
         self._uncaptured = uncaptured or contextlib.nullcontext
+        self._pending: list[tuple[int, int, str, str | None]] = []  # (t_ns, n, line, style): a heap
+        self._n = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
 
     def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
-        t = ((t_ns if t_ns is not None else time.time_ns()) - self.t0_ns) / 1e9
+        t_ns = t_ns if t_ns is not None else time.time_ns()
         arrow = "→" if direction == "tx" else "←"
         peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) and len(addr) >= 2 else str(addr)
-        line = f"{t:9.3f} s  {direction} {arrow} {peer:<21} {_describe(data)}"
-        with self._lock, self._uncaptured():
-            self.console.print(escape(line), soft_wrap=True, style="dim" if direction == "tx" else None)
+        line = f"{(t_ns - self.t0_ns) / 1e9:9.3f} s  {direction} {arrow} {peer:<21} {_describe(data)}"
+        with self._lock:
+            heapq.heappush(self._pending, (t_ns, self._n, line, "dim" if direction == "tx" else None))
+            self._n += 1
+            if self._thread is None and not self._stop.is_set():
+                self._thread = threading.Thread(target=self._run, name="mcp-conform-traffic", daemon=True)
+                self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(HOLD_S / 4):
+            self.flush(time.time_ns() - int(HOLD_S * 1e9))
+
+    def flush(self, upto_ns: int | None = None) -> None:
+        """Print the held lines (those up to ``upto_ns``; all by default), in time order."""
+        with self._print_lock:
+            with self._lock:
+                ready = []
+                while self._pending and (upto_ns is None or self._pending[0][0] <= upto_ns):
+                    ready.append(heapq.heappop(self._pending))
+            if not ready:
+                return
+            with self._uncaptured(), contextlib.suppress(OSError, ValueError):
+                for _t, _n, line, style in ready:
+                    self.console.print(escape(line), soft_wrap=True, style=style)
+
+    def close(self) -> None:
+        """Print what is held and stop (the end of the run)."""
+        self._stop.set()
+        self.flush()
 
 
 def listen_text(addr: Any) -> str:
