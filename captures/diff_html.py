@@ -3,7 +3,8 @@
 One section per conversation with divergences (then the others, folded): the golden
 conversation on the left, the candidate's on the right, each a chart of
 :mod:`reports.chart` whose rows are the aligned messages — a missing message leaves a gap
-on the right, an extra one a gap on the left — with divergent arrows marked by class
+on the right, an extra one a gap on the left (a grey "(not here)" row: no arrow, no time of
+the other capture's) — with divergent arrows marked by class
 (``missing``, ``extra``, ``changed``, ``reordered``, ``copies``, ``timing``, ``address``)
 and the divergence list above.
 """
@@ -47,8 +48,8 @@ def _node(n: Any) -> str:
 def _arrow(e: Entry | None, other: Entry | None, kind: str) -> Arrow:
     if e is None:  # the other side has a message here: a gap row on this side
         assert other is not None
-        return Arrow(other.t_ns, _node(other.src), _node(other.dst), "(not here)", "msg",
-                     extra_class=f"gap {kind}".strip(), note=describe(other))
+        return Arrow(other.t_ns, _node(other.src), _node(other.dst), "(not here)", "gap",
+                     extra_class=kind, note=describe(other))
     if e.action is None:
         style = "malformed"
     elif e.action == Action.ACK:

@@ -106,7 +106,9 @@ def run(ns: argparse.Namespace) -> int:
     entries = trace.window(start, end)
     if ns.svg:  # before the listing: a reader that stops early (| head) still gets the chart
         title = f"{j.path}" + (f" · case {ns.case}" if ns.case else "")
-        write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows), "--svg")
+        # times since the capture's first datagram, as the listing's (--from 12 starts at +12 s)
+        write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows,
+                                       t0_ns=j.first_ns), "--svg")
     con = Console(highlight=False, soft_wrap=True)
     con.print(Text(f"{j.path} · {j.format} · {len(entries)} of {j.datagrams} datagram(s) shown"
                    + (f" · case {ns.case}" if ns.case else "") + (f" · chart: {ns.svg}" if ns.svg else ""),

@@ -37,7 +37,7 @@ from conformance._run_state import (
     write_run_html,
 )
 from conformance.baseline import BaselineError, load_baseline, write_baseline
-from conformance.junit import write_junit
+from conformance.junit import as_pytest_error, write_junit
 from conformance.marks import (
     PHASES,
     is_case,
@@ -49,6 +49,7 @@ from conformance.options import (
     make_config,
     matches_select,
     option_values,
+    unmatched,
 )
 from conformance.report import (
     CaseRecord,
@@ -99,6 +100,7 @@ def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    _PLUGIN_CONFIG["config"] = config
     config.addinivalue_line("markers", "mcp_rules(*ids): the MCP rule IDs a conformance case verifies")
     config.addinivalue_line("markers", "mcp_phase(phase): startup, main, late or end")
     for rule in RULES.values():
@@ -222,6 +224,10 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         if unknown:
             state.collect_errors.append(f"unknown rule ID {unknown[0]!r} in {cid}")
         state.meta[item.nodeid] = (cid, ids, level, phase)
+    stray = unmatched(state.exclude, ((m[0], m[1]) for m in state.meta.values()))
+    if stray:  # as --select does: a typo is said, not a case silently run
+        state.collect_errors.append(f"{'--exclude' if state.frontend else '--mcp-exclude'}: "
+                                    f"no case matches {', '.join(stray)}")
     if state.collect_errors:
         return
     keep: list[pytest.Item] = []
@@ -445,6 +451,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
             rec.outcome = "info" if all(rule_level(r) == "INFO" for r in rec.rules) else "passed"
         if call.when == "call" and state.baseline is not None:
             _apply_baseline(state, rec, rep)
+        if call.when == "call" and rec.outcome == "error" and rep.failed:
+            rep.mcp_outcome = "error"  # type: ignore[attr-defined]  # pytest's view: an error too
     elif call.when == "teardown":
         if rep.failed and rec.outcome not in ("error", "failed"):
             texc = call.excinfo.value if call.excinfo is not None else None
@@ -580,18 +588,37 @@ def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pyte
     state.terminal.summary(state.run)
 
 
-def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    """The xdist controller prints each case's line as its worker reports it."""
+def pytest_report_teststatus(report: pytest.TestReport, config: pytest.Config) -> Any:
+    """A case the runner judged an error is an ERROR in pytest's summary, not FAILED."""
+    if getattr(report, "mcp_outcome", None) == "error" and report.when == "call" and report.failed:
+        return "error", "E", ("ERROR", {"red": True})
+    return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_logreport(report: pytest.TestReport) -> Generator[None, None, None]:
+    """The xdist controller prints each case's line as its worker reports it; pytest's
+    --junitxml gets a case judged an error as an ``<error>`` (``conformance.junit``)."""
+    result = yield
+    config = getattr(report, "config", None) or _CONTROLLER.get("config") or _PLUGIN_CONFIG.get("config")
+    if getattr(report, "mcp_outcome", None) == "error" and report.when == "call":
+        as_pytest_error(config, report)
     case = getattr(report, "mcp_case", None)
     if case is None or report.when != "teardown":
-        return
-    config = getattr(report, "config", None) or _CONTROLLER.get("config")
+        return result
     state = _state(config) if config is not None else None
     if state is not None and state.worker is None:
         state.terminal.case(case_from_json(case))
+    return result
 
 
 _CONTROLLER: dict[str, pytest.Config] = {}
+_PLUGIN_CONFIG: dict[str, pytest.Config] = {}
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _PLUGIN_CONFIG.get("config") is config:
+        _PLUGIN_CONFIG.pop("config", None)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

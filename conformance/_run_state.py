@@ -121,6 +121,15 @@ class McpState:
         self._old_term: Any = None
         self._terminal: TerminalReport | None = None
         self._wait_status: Any = None
+        self.first_datagram: Any = None  # conformance.live.FirstDatagram, during the run
+        self.printer: Any = None  # conformance.live.TrafficPrinter under -v
+        self.startup_deadline: float | None = None  # until the node's first datagram
+        self.startup_expired = False
+
+    @property
+    def startup_timeout(self) -> float:
+        """--startup-timeout, never beyond the run's --timeout."""
+        return min(float(self.cfg.extra.get("startup_timeout", self.cfg.timeout)), self.cfg.timeout)
 
     def _target_guess(self) -> str | None:
         if self.cfg.target is not None:
@@ -165,12 +174,18 @@ class McpState:
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder
-            if self.config.getoption("mcp_verbose_traffic"):
-                from conformance.live import Tee, TrafficPrinter
+            from conformance.live import FirstDatagram, Tee, TrafficPrinter, listen_text
 
+            printer = None
+            if self.config.getoption("mcp_verbose_traffic"):
                 capman = self.config.pluginmanager.getplugin("capturemanager")
-                recorder = Tee(self.recorder, TrafficPrinter(
-                    uncaptured=capman.global_and_fixture_disabled if capman is not None else None))
+                printer = self.printer = TrafficPrinter(
+                    uncaptured=capman.global_and_fixture_disabled if capman is not None else None)
+            # MCP: the node's first datagram ends the --startup-timeout wait (a TCP backend's
+            # startup is its connection, bounded by the session itself)
+            self.first_datagram = FirstDatagram(self.cfg.role) if self.cfg.role != "backend" else None
+            if printer is not None or self.first_datagram is not None:
+                recorder = Tee(self.recorder, printer, self.first_datagram)
             session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
                                                                config=self.config)
             self.session = session
@@ -186,23 +201,36 @@ class McpState:
             elif self.frontend:
                 self.terminal.note(f"startup phase: the node starts, announces Mission_Ready and "
                                    f"retransmits it while the runner withholds the ACK (--rto {self.cfg.rto:g} s)")
-                self.wait_status.begin("startup phase: watching Mission_Ready and its retransmissions")
+            watch = self.first_datagram
+            if watch is not None and self.frontend:
+                self.wait_status.begin(watch.waiting_text, total=self.startup_timeout, plain=True,
+                                       until=watch.seen,
+                                       then="startup phase: watching Mission_Ready and its retransmissions")
             atexit.register(self.close_session)
             # the startup phase is bounded by its own waits and the run deadline, not by the
-            # time limit of the case that happens to start it
+            # time limit of the case that happens to start it; the wait for the node's first
+            # datagram by --startup-timeout
             self.case_deadline = None
+            if watch is not None:
+                self.startup_deadline = time.monotonic() + self.startup_timeout
             self.arm()
             try:
                 session.start()
             except CaseTimeLimit:
-                # the run's deadline fell in the startup phase: the node never became ready
+                # the run's deadline (or --startup-timeout) fell in the startup phase: the node
+                # never became ready
                 self.deadline_hit = False
+                if self.startup_expired:
+                    raise SetupError(f"--startup-timeout: no datagram from the node within "
+                                     f"{self.startup_timeout:g} s ({watch.awaited() if watch else 'none'} "
+                                     f"to {listen_text(watch.local if watch else None)})") from None
                 timed_out = getattr(session, "startup_timed_out", None)
                 if timed_out is not None:
                     raise timed_out(self.cfg.timeout) from None
                 raise SetupError(f"target never answered within the run's --timeout of "
                                  f"{self.cfg.timeout:g} s") from None
             finally:
+                self.startup_deadline = None
                 self.wait_status.end()
                 if resume:
                     self.wait_status.begin(resume)  # the first case, which started the node
@@ -242,6 +270,9 @@ class McpState:
         if recorder is not None:
             with contextlib.suppress(Exception):
                 recorder.close()
+        if self.printer is not None:  # -v: the lines still held, before the summary
+            with contextlib.suppress(Exception):
+                self.printer.close()
 
     # ------------------------------------------------------------------ records
     def record(self, item: pytest.Item) -> CaseRecord:
@@ -296,7 +327,7 @@ class McpState:
         if not _can_alarm():
             return
         now = time.monotonic()
-        ends = [d for d in (self.case_deadline, self.run_deadline) if d is not None]
+        ends = [d for d in (self.case_deadline, self.run_deadline, self.startup_deadline) if d is not None]
         if not ends:
             signal.setitimer(signal.ITIMER_REAL, 0)
             return
@@ -317,6 +348,15 @@ class McpState:
 
     def _on_alarm(self, signum: int, frame: Any) -> None:
         now = time.monotonic()
+        if self.startup_deadline is not None and now >= self.startup_deadline - 0.002 and not (
+                self.run_deadline is not None and now >= self.run_deadline - 0.002):
+            watch = self.first_datagram
+            self.startup_deadline = None
+            if watch is not None and watch.seen.is_set():  # the node spoke: the startup goes on
+                self.arm()
+                return
+            self.startup_expired = True
+            raise CaseTimeLimit("startup timeout")
         if self.run_deadline is not None and now >= self.run_deadline - 0.002:
             self.deadline_hit = True
             raise CaseTimeLimit("run deadline exceeded")

@@ -3,7 +3,7 @@
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
                 [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
                 [--json FILE] [--junit FILE] [--capture FILE.mcap] [--html FILE]
-                [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--seed N]
+                [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--startup-timeout S] [--seed N]
 
 A thin front end over pytest and the ``conformance.plugin``: it checks the arguments (a bad
 value is a one-line error naming the option, exit 2, with the JSON report still written),
@@ -78,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
     p.add_argument("--timeout", metavar="S", help="deadline for the whole run (default 600)")
+    p.add_argument("--startup-timeout", metavar="S",
+                   help="how long to wait for the node's first datagram (default 60; at most --timeout)")
     p.add_argument("--case-timeout", metavar="S", help="time limit of one case (default: from --rto and --ack-window)")
     p.add_argument("--seed", metavar="N", help="seed of the malformed corpus (default: fixed)")
     p.add_argument("--drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays (default 1,2,3)")
@@ -105,7 +107,7 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
             "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
             "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
-            "case_timeout": ns.case_timeout,
+            "case_timeout": ns.case_timeout, "startup_timeout": ns.startup_timeout,
             "drones": ns.drones, "challenge": ns.challenge, "waypoints": ns.waypoints}
 
 
@@ -164,7 +166,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     args += ["--mcp-frontend", "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
-                 "junit_family", "case_timeout", "drones", "challenge", "waypoints"):
+                 "junit_family", "case_timeout", "startup_timeout", "drones", "challenge", "waypoints"):
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")

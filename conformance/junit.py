@@ -1,5 +1,14 @@
 """JUnit XML of a run (``--mcp-junit``): one testcase per case, rule IDs, level and outcome as
-properties; ``xunit2`` (valid against the Jenkins junit-10 schema) or ``xunit1``."""
+properties; ``xunit2`` (valid against the Jenkins junit-10 schema) or ``xunit1``.
+
+One verdict in every report: a case the runner judges an ``error`` — it ran out of time
+(the runner's per-case limit or pytest-timeout's shorter ``--timeout``), lost the node, or
+raised something other than a rule's ``CaseFailure`` — is an error of the harness, not a
+failure of the node: ``<error>`` here, ``error`` in the JSON report, and ``<error>`` in
+pytest's own ``--junitxml`` too (``as_pytest_error``; pytest alone would write any exception
+of a test's call as a ``<failure>``). A time limit is never the observation: a case that
+judges silence waits a bounded window and fails the rule (``<failure type=RULE>``) itself.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +22,7 @@ from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_fa
 from spec import RULES, spec_for_role
 from spec.about import TOOL_NAME
 
-__all__ = ["junit_xml", "write_junit"]
+__all__ = ["as_pytest_error", "junit_xml", "write_junit"]
 
 
 def _finding(c: CaseRecord) -> str:
@@ -62,7 +71,8 @@ def _run_error_case(run: RunRecord) -> tuple[str, str]:
 def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
     """JUnit XML that CI systems show truthfully.
 
-    failed -> ``<failure type=RULE>``; error -> ``<error>``; skipped -> ``<skipped>`` with
+    failed -> ``<failure type=RULE message="RULE: what was seen">`` (the rule's text, expected
+    and evidence in its body); error -> ``<error>``; skipped -> ``<skipped>`` with
     the reason; warned passes (a failure under --strict, where it is already ``failed``)
     but its name ends in `` [warned]`` and the finding is in ``<system-out>``; info passes
     with the finding in ``<system-out>``; xfailed (a baseline's expected failure) is
@@ -115,6 +125,8 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
                 prop(tprops, key, value)
         finding = _finding(c)
         message = (c.reason or "").splitlines()[0] if c.reason else c.outcome
+        if c.failed_rule and c.actual:  # what was seen (the rule's text is in the body)
+            message = f"{c.failed_rule}: {c.actual.splitlines()[0]}"
         if c.outcome == "failed" or (c.outcome == "xpassed" and run.strict):
             if c.outcome == "xpassed":
                 message = f"expected to fail ({c.baseline}) but passed: take it off the baseline"
@@ -155,4 +167,23 @@ def write_junit(path: str | Path, run: RunRecord, family: str = "xunit2") -> Non
         raise OSError(f"--junit: cannot write {str(path)!r}: {exc.strerror}") from None
 
 
-# ---------------------------------------------------------------------- terminal
+def as_pytest_error(config: Any, report: Any) -> None:
+    """pytest's ``--junitxml`` has just written the call of a case the runner judged an
+    error (``report.mcp_outcome``) as a ``<failure>``: make it the ``<error>`` it is, with
+    the suite's counts, so pytest's JUnit and ``--mcp-junit`` give the same verdict."""
+    try:
+        from _pytest.junitxml import xml_key
+    except ImportError:  # pragma: no cover - a pytest without it
+        return
+    xml = config.stash.get(xml_key, None) if config is not None else None
+    if xml is None:
+        return
+    reporter = xml.node_reporter(report)
+    for node in reversed(reporter.nodes):
+        if node.tag == "failure":
+            node.tag = "error"
+            if xml.stats.get("failure", 0) > 0:
+                xml.stats["failure"] -= 1
+                xml.stats["error"] = xml.stats.get("error", 0) + 1
+            return
+

@@ -6,7 +6,7 @@ plugin and ``mcp-conform``. Every error is a ``ConfigError`` whose message names
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,12 @@ import pytest
 from conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
 from harness.config import DEFAULT_SEED, RunConfig, parse_hostport
 
-__all__ = ["ConfigError", "apply_embedded_defaults", "make_config", "matches_select", "option_values"]
+__all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select",
+           "option_values", "unmatched"]
+
+#: How long the runner waits for the node's first datagram (``--startup-timeout``): a silent
+#: target is a one-line setup error (exit 2) after this, not after the whole run's --timeout.
+DEFAULT_STARTUP_TIMEOUT = 60.0
 
 
 class ConfigError(ValueError):
@@ -45,8 +50,8 @@ def _int(value: Any, name: str, lo: int, hi: int) -> int:
 
 def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n: "--mcp-" + n.replace("_", "-")) -> RunConfig:
     """A checked ``RunConfig`` from option values (keys: target, listen, target_id, role,
-    spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, seed, capture, json,
-    junit); ``opt(name)`` spells an option in error messages."""
+    spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, startup_timeout, seed,
+    capture, json, junit); ``opt(name)`` spells an option in error messages."""
     cfg = RunConfig()
     v = {k: x for k, x in values.items() if x is not None}
     role = v.get("role", "drone")
@@ -85,6 +90,8 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         cfg.timeout = _float(v["timeout"], opt("timeout"))
     if "case_timeout" in v:
         cfg.case_timeout = _float(v["case_timeout"], opt("case_timeout"))
+    cfg.extra["startup_timeout"] = (_float(v["startup_timeout"], opt("startup_timeout"))
+                                    if "startup_timeout" in v else DEFAULT_STARTUP_TIMEOUT)
     cfg.seed = _int(v["seed"], opt("seed"), 0, 2**63 - 1) if "seed" in v else DEFAULT_SEED
     cfg.capture = v.get("capture")
     cfg.json_path = v.get("json")
@@ -140,6 +147,12 @@ def matches_select(prefixes: list[str], cid: str, rule_ids: tuple[str, ...]) -> 
             if name == p or (name.startswith(p) and p and not (p[-1].isdigit() and name[len(p)].isdigit())):
                 return True
     return False
+
+
+def unmatched(prefixes: list[str], cases: Iterable[tuple[str, tuple[str, ...]]]) -> list[str]:
+    """The prefixes (``--exclude``'s) that match no case (case ID, rule IDs) at all."""
+    cases = list(cases)
+    return [p for p in prefixes if not any(matches_select([p], cid, ids) for cid, ids in cases)]
 
 
 def _mavlink_value(text: str) -> Any:

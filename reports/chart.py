@@ -69,7 +69,7 @@ class Arrow(NamedTuple):
     src: str
     dst: str
     label: str  # action and seq
-    kind: str = "msg"  # msg | ack | bcast | malformed
+    kind: str = "msg"  # msg | ack | bcast | malformed | gap (a placeholder row: no arrow, no time)
     copy: int = 0  # k-th retransmission (0: the first send)
     unanswered: bool = False
     rules: tuple[str, ...] = ()  # violations shown on this arrow
@@ -83,8 +83,9 @@ def _esc(text: Any) -> str:
 
 
 def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = "",
-           max_rows: int = MAX_ROWS) -> str:
-    """The SVG document (a string) of ``arrows`` between ``lifelines``."""
+           max_rows: int = MAX_ROWS, t0_ns: int | None = None) -> str:
+    """The SVG document (a string) of ``arrows`` between ``lifelines``; times are since
+    ``t0_ns`` (default: the first arrow's), so a window of a listing shows the listing's."""
     shown = list(arrows[:max_rows])
     hidden = len(arrows) - len(shown)
     keys = [lf.key for lf in lifelines]
@@ -111,9 +112,13 @@ def render(lifelines: Sequence[Lifeline], arrows: Sequence[Arrow], title: str = 
                    f'text-anchor="middle">{_esc(lf.title)}</text><text class="sub" x="{x}" y="{y0 + 31}" '
                    f'text-anchor="middle">{_esc(_clip(lf.subtitle, 27))}</text></g>')
         out.append(f'<line class="life" x1="{x}" y1="{y0 + 38}" x2="{x}" y2="{height - 8}"/>')
-    t0 = shown[0].t_ns if shown else 0
+    timed = [a for a in shown if a.kind != "gap"]
+    t0 = t0_ns if t0_ns is not None else timed[0].t_ns if timed else 0
     for row, a in enumerate(shown):
         y = top + ROW * row + ROW // 2 + 8
+        if a.kind == "gap":  # a row the other side of a diff has: a note, not a datagram
+            out.append(_gap(a, x_of[a.src], x_of[a.dst], y))
+            continue
         out.append(f'<text class="time" x="6" y="{y + 4}">+{(a.t_ns - t0) / 1e9:.6f}s</text>')
         out.append(_arrow(a, x_of[a.src], x_of[a.dst], y))
     if hidden:
@@ -135,6 +140,16 @@ def _defs() -> str:
                     f'<path d="M0,0 L10,5 L0,10 z" fill="{c}"/></marker>'
                     for k, c in heads.items())
     return f"<defs>{marks}</defs>"
+
+
+def _gap(a: Arrow, x1: int, x2: int, y: int) -> str:
+    """A placeholder row: its label between the lifelines, grey and italic; no line, no time
+    (the time would be the other capture's)."""
+    classes = " ".join(["arrow", "gap", *a.extra_class.split()])
+    classes = " ".join(dict.fromkeys(classes.split()))
+    return (f'<g class="{classes}" data-index="" data-rules=""><title>{_esc(a.note or a.label)}</title>'
+            f'<text x="{(x1 + x2) // 2}" y="{y}" text-anchor="middle" font-style="italic" fill="#a0aec0">'
+            f"{_esc(a.label)}</text></g>")
 
 
 def _arrow(a: Arrow, x1: int, x2: int, y: int) -> str:
@@ -212,9 +227,10 @@ def _addr(addr: Any) -> str:
 
 
 def trace_svg(trace: Any, entries: Iterable[Any] | None = None, title: str = "",
-              max_rows: int = MAX_ROWS) -> str:
-    """The chart of ``entries`` (default: all) of a :class:`traceio.trace.Trace`."""
+              max_rows: int = MAX_ROWS, t0_ns: int | None = None) -> str:
+    """The chart of ``entries`` (default: all) of a :class:`traceio.trace.Trace`; times
+    since ``t0_ns`` (default: the first entry's)."""
     entries = list(trace.entries if entries is None else entries)
     keys = trace.lifelines(entries)
     lifelines = [Lifeline(k, *trace.lifeline_title(k)) for k in keys]
-    return render(lifelines, [arrow_of(e, trace.broadcast_id) for e in entries], title, max_rows)
+    return render(lifelines, [arrow_of(e, trace.broadcast_id) for e in entries], title, max_rows, t0_ns)

@@ -1,15 +1,16 @@
 """Self-contained HTML reports: ``mcp-capture check --html`` and ``mcp-conform --html``.
 
 One file, no external assets (inline CSS, inline SVG charts, no script), that opens from
-disk in any browser: a summary, the per-rule table, and for every violation (check) or every
+disk in any browser: a summary, the per-rule table, every case of a run (passed ones too, with
+skip reasons and INFO notes), and for every violation (check) or every
 failed, warned or errored case (a run) the rule's text from the spec, expected, actual, the
 evidence and the sequence chart of its traffic (``reports.chart``) — for a run, the
 datagrams of the case's capture window (``capture.start_ns`` / ``end_ns`` of the JSON
 report), with the datagrams the case's evidence names marked.
 
 Elements carry stable hooks for tools and tests: ``section.finding`` with ``data-rule`` and
-``data-outcome``, ``table.rules`` with one ``tr[data-rule]`` per rule, and the charts'
-``svg.mcp-chart`` / ``g.arrow``.
+``data-outcome``, ``table.rules`` with one ``tr[data-rule]`` per rule, ``table.cases`` with one
+``tr[data-case][data-outcome]`` per case, and the charts' ``svg.mcp-chart`` / ``g.arrow``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ h1 { font-size: 22px; margin: 0 0 4px; } h2 { font-size: 18px; margin: 28px 0 8p
 table { border-collapse: collapse; margin: 8px 0; }
 th, td { border: 1px solid #cbd5e0; padding: 3px 8px; text-align: left; vertical-align: top; }
 th { background: #edf2f7; }
-table.rules td:first-child, table.nodes td:first-child { white-space: nowrap; }
+table.rules td:first-child, table.nodes td:first-child, table.cases td:first-child { white-space: nowrap; }
+table.cases td:last-child { white-space: pre-wrap; font-size: 12.5px; }
 td.num { text-align: right; }
 span.passed { color: #2f855a; } span.failed, span.error { color: #c53030; font-weight: bold; }
 span.warned { color: #b7791f; font-weight: bold; } span.info { color: #2b6cb0; }
@@ -246,6 +248,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
                                  f"{_e(v.rule)} · node {_e(v.node)}",
                                  [("expected", v.expected), ("actual", v.actual)],
                                  [f"#{i}" for i in idx], chart, "" if chart else "no datagrams to chart"))
+    body.append(_all_cases(doc.get("cases", [])))
     rules = doc.get("rules", {})
     order = [r for r in RULES if r in rules] + sorted(set(rules) - set(RULES))
     body.append("<h2>Rules</h2>")
@@ -253,6 +256,32 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
                        [[_e(r), _e(_level(r)), _verdict(rules[r]), _e(_rule_text(r))] for r in order],
                        "rules", [f'data-rule="{_e(r)}"' for r in order]))
     return page(f"mcp-conform {target}", "\n".join(body))
+
+
+def _case_details(c: dict[str, Any]) -> str:
+    """What a case's row says beside its outcome: a skip's reason, what an INFO case (or a
+    pass) recorded, a failure's actual."""
+    if c.get("outcome") in ("skipped", "error"):
+        parts = [c.get("reason")]
+    elif c.get("failed_rule"):
+        parts = [f"{c['failed_rule']}: {c.get('actual') or ''}"]
+    else:
+        parts = [c.get("actual")] + [n for n in c.get("notes") or [] if n != c.get("actual")]
+    if c.get("baseline"):
+        parts.append(f"baseline: {c['baseline']}")
+    return "\n".join(str(p) for p in parts if p)
+
+
+def _all_cases(cases: Sequence[dict[str, Any]]) -> str:
+    """Every case of the run, passed ones included, as Autobahn's report lists them: its
+    rules, outcome, time, and the skip reason or the INFO note."""
+    rows = [[_e(c["id"]), _e(" ".join(c.get("rules") or [])), _verdict(c.get("outcome")),
+             f'<span class="num">{float(c.get("duration_s") or 0):.3f} s</span>', _e(_case_details(c))]
+            for c in cases]
+    return (f"<h2>All cases ({len(cases)})</h2>\n"
+            + (_table(["case", "rules", "outcome", "time", "details"], rows, "cases",
+                      [f'data-case="{_e(c["id"])}" data-outcome="{_e(c.get("outcome"))}"' for c in cases])
+               if cases else '<p class="none">No case ran.</p>'))
 
 
 class _JsonViolation:

@@ -37,6 +37,7 @@ from traceio.reader import Datagram
 __all__ = ["Entry", "Node", "Trace", "action_name", "describe_payload", "lifeline_of", "node_role"]
 
 _ACK = int(Action.ACK)
+_WILDCARD = ("", "0.0.0.0", "::")  # a socket bound to all addresses: no address of its own
 
 
 _WIRE_NAMES = {a.code: a.wire_name for a in SPEC.actions}
@@ -124,6 +125,12 @@ class Node:
     addresses: set[tuple[str, int]] = field(default_factory=set)
     sent: int = 0
     received: int = 0
+    sent_by_recorder: int = 0  # datagrams recorded as "tx": sent by the recording runner
+
+    @property
+    def is_runner(self) -> bool:
+        """Every datagram of this ID came from the recording host (mcp-conform playing it)."""
+        return self.sent > 0 and self.sent_by_recorder == self.sent
 
     def address_text(self) -> str:
         return ", ".join(f"{h}:{p}" for h, p in sorted(self.addresses)) or "-"
@@ -173,6 +180,8 @@ class Trace:
             dst, src, _seq, _action = header
             sender = self._node(src)
             sender.sent += 1
+            if d.direction == "tx":
+                sender.sent_by_recorder += 1
             if d.src_addr is not None:
                 sender.addresses.add(d.src_addr)
             if dst != self.broadcast_id:
@@ -226,11 +235,15 @@ class Trace:
 
     # ------------------------------------------------------------------ views
     def mark(self, violations: Iterable[Any]) -> None:
-        """Attach each violation to the datagrams of its evidence."""
+        """Attach each violation to the datagrams of its evidence that its node sent (an ACK
+        of a broadcast, not the broadcast it answers: MCP-ACK-4); to all of its evidence
+        when the node sent none of it (a message it left unanswered, MCP-ACK-1)."""
         for v in violations:
-            for i in evidence_indexes(v):
-                e = self.by_index.get(i)
-                if e is not None and v not in e.violations:
+            found = [e for e in (self.by_index.get(i) for i in evidence_indexes(v)) if e is not None]
+            node = getattr(v, "node", None)
+            own = [e for e in found if node is not None and e.header is not None and e.header[1] == node]
+            for e in own or found:
+                if v not in e.violations:
                     e.violations.append(v)
 
     def window(self, start_ns: int | None = None, end_ns: int | None = None) -> list[Entry]:
@@ -273,6 +286,9 @@ class Trace:
                 return (f"broadcast {n}", "all drones")
             node = self.nodes.get(n)
             role = node_role(n, self.broadcast_id)
+            if node is not None and node.is_runner:  # mcp-conform playing this ID
+                return (f"runner as {role} {n}", "mcp-conform " + ", ".join(
+                    f"{'' if h in _WILDCARD else h}:{p}" for h, p in sorted(node.addresses)))
             return (f"{role} {n}", node.address_text() if node else "-")
         return ("no MCP header", key)
 

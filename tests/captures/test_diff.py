@@ -240,3 +240,30 @@ def test_every_command_reads_a_cut_capture_up_to_its_last_whole_chunk(tmp_path, 
             assert code in (0, 1), (argv, err)
             assert "truncated" in (out + err).lower(), (argv, out[-500:], err)
             assert "Traceback" not in out + err
+
+
+def test_html_gaps_are_placeholders_not_red_arrows_and_times_stay_in_order():
+    """Issue 18 item 16: the row a missing message leaves on the candidate's side is a grey
+    "(not here)" note with no line and no time (its time would be the golden capture's,
+    out of order with the candidate's own), and each side's times run forward."""
+    import re
+    import xml.etree.ElementTree as ET
+
+    from captures.diff_html import html_report
+
+    golden = challenge2()
+    i = _find(golden, Action.ACK, 5)
+    shifted = [d._replace(t_ns=d.t_ns + 100 * 10**9) for d in golden[:i] + golden[i + 1:]]  # recorded later
+    html = html_report(_diff(golden, reindex(shifted)))
+    ns = "{http://www.w3.org/2000/svg}"
+    gaps = 0
+    for svg in re.findall(r"<svg .*?</svg>", html, flags=re.S):
+        root = ET.fromstring(svg)
+        times = [float(t.text.strip("+s")) for t in root.iter(f"{ns}text") if t.get("class") == "time"]
+        assert times == sorted(times), times
+        for g in root.iter(f"{ns}g"):
+            if "gap" in (g.get("class") or "").split():
+                gaps += 1
+                assert g.find(f"{ns}line") is None and g.find(f"{ns}path") is None
+                assert [t.text for t in g.iter(f"{ns}text")] == ["(not here)"]
+    assert gaps == 1

@@ -12,6 +12,7 @@ import json
 import re
 from pathlib import Path
 
+import lxml.html
 import pytest
 
 from reports.html import render_run
@@ -55,8 +56,28 @@ def test_run_page_is_self_contained_and_charts_the_case_window(tmp_path):
     assert html.count('<section class="finding') == 1
     assert 'data-rule="MCP-ACK-4"' in html and SPEC.rule("MCP-ACK-4").text in html
     assert html.count('class="arrow') == 2  # the two datagrams of the case's window
-    assert "no ACK of seq 7" in html and "ACK/test_ok" not in html
+    assert "no ACK of seq 7" in html and html.count(">ACK/test_ok<") == 1  # in the list of all cases only
     assert "no capture of the run" in render_run(doc, None)
+
+
+def test_run_page_lists_every_case_with_skip_reasons_and_info_notes(tmp_path):
+    """Issue 18 item 16: as Autobahn's report, the page lists the passed cases too, with the
+    reason of each skip and what each INFO case recorded."""
+    doc, datagrams = a_run(tmp_path)
+    doc["cases"] += [
+        {"id": "RTX/test_broadcasts", "rules": ["MCP-RTX-4"], "outcome": "skipped", "duration_s": 0.05,
+         "reason": "MCP-RTX-4 is not observable on a drone node"},
+        {"id": "SEQ/test_initial", "rules": ["MCP-SEQ-4"], "outcome": "info", "duration_s": 0.001,
+         "actual": "initial sequence number 48168", "notes": ["initial sequence number 48168", "and a <note>"]}]
+    root = lxml.html.fromstring(render_run(doc, datagrams))
+    rows = {tr.get("data-case"): tr for tr in root.xpath("//table[@class='cases']//tr[@data-case]")}
+    assert list(rows) == [c["id"] for c in doc["cases"]]
+    assert rows["ACK/test_ok"].get("data-outcome") == "passed"
+    cells = {k: [td.text_content() for td in tr.findall("td")] for k, tr in rows.items()}
+    assert cells["ACK/test_ok"][2] == "passed"
+    assert cells["RTX/test_broadcasts"][4] == "MCP-RTX-4 is not observable on a drone node"
+    assert cells["SEQ/test_initial"][4] == "initial sequence number 48168\nand a <note>"
+    assert cells["ACK/test_broadcast_is_not_acked"][4] == "MCP-ACK-4: ACK <1 ms later"
 
 
 @pytest.mark.slow

@@ -151,3 +151,55 @@ def test_show_case_window_of_an_mcap(tmp_path, capsys):
     assert "answers #1" in lines[1]
     assert main(["show", str(path), "--case", "ACK/test_"]) == 2  # a prefix of two cases
     assert "matches several cases" in capsys.readouterr().err
+
+
+def test_show_window_times_are_the_same_in_the_listing_and_the_chart(tmp_path, capsys):
+    """Issue 18 item 16: ``show --from S`` lists times since the capture's first datagram;
+    the chart's time column says the same, not times since the window's first row."""
+    path = mission(drones=(1, 2), lose_ack_of=2).write(tmp_path / "m.pcap")
+    svg_path = tmp_path / "w.svg"
+    assert main(["show", str(path), "--from", "0.03", "--svg", str(svg_path)]) == 0
+    import re
+
+    listed = [re.search(r"\+\s*([\d.]+)s", ln).group(1) for ln in capsys.readouterr().out.splitlines()
+              if ln.startswith("#")]
+    root = ET.fromstring(svg_path.read_text())
+    charted = [re.fullmatch(r"\+([\d.]+)s", t.text).group(1) for t in root.iter(f"{SVG}text")
+               if "time" in (t.get("class") or "").split()]
+    assert listed and charted == listed and float(listed[0]) >= 0.03
+
+
+def _runner_capture(path):
+    """A run as mcp-conform records it: the runner (bound to all addresses) plays manager 0
+    and, in a robustness case, a stranger ID 2; the node under test is drone 1."""
+    from spec.codec import Message, encode
+    from traceio.recorder import McapRecorder
+
+    node = ("127.0.0.1", 7890)
+    with McapRecorder(path, local=("0.0.0.0", 41285)) as rec:
+        rec.datagram("tx", encode(Message(0xFFFF, 0, 5, Action.WP_OFF)), node, 1_000)  # a broadcast: right
+        rec.datagram("rx", encode(Message(0, 1, 9, Action.ACK, 5)), node, 2_000)  # its ACK: MCP-ACK-4
+        rec.datagram("tx", encode(Message(1, 2, 7, Action.WP_OFF)), node, 3_000)  # the runner as ID 2
+    return path
+
+
+def test_the_runners_lifelines_are_named_as_the_runner(tmp_path):
+    """Issue 18 item 16: an ID only the recording runner sent from is mcp-conform playing it,
+    not "drone 2" at 0.0.0.0."""
+    trace = Trace(open_capture(_runner_capture(tmp_path / "run.mcap")).datagrams())
+    heads = {h.get("data-lifeline"): [t.text for t in h.iter(f"{SVG}text")]
+             for h in ET.fromstring(trace_svg(trace)).iter(f"{SVG}g") if h.get("data-lifeline")}
+    assert heads["0"] == ["runner as manager 0", "mcp-conform :41285"]
+    assert heads["2"] == ["runner as drone 2", "mcp-conform :41285"]
+    assert heads["1"] == ["drone 1", "127.0.0.1:7890"]
+
+
+def test_a_violation_is_badged_on_the_violators_datagrams_not_the_runners(tmp_path):
+    """Issue 18 item 16: an ACK of a broadcast breaks MCP-ACK-4; the runner's broadcast it
+    answers is evidence, not a violation: only the ACK carries the badge. A violation whose
+    evidence the node did not send (a message it left unanswered) keeps its badge there."""
+    trace = Trace(open_capture(_runner_capture(tmp_path / "run.mcap")).datagrams())
+    trace.mark([FakeViolation("MCP-ACK-4", "MUST", 1, 2_000, "no ACK", "an ACK", (0, 1)),
+                FakeViolation("MCP-ACK-5", "MUST", 1, 3_000, "nothing", "x", (2,))])
+    badged = {g.get("data-index"): g.get("data-rules") for g in arrows(trace_svg(trace))}
+    assert badged == {"0": "", "1": "MCP-ACK-4", "2": "MCP-ACK-5"}

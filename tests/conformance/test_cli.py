@@ -114,6 +114,15 @@ def test_select_matching_nothing_is_exit_2(tmp_path):
     assert "--select: no case matches MCP-NOPE" in proc.stderr
 
 
+def test_exclude_matching_nothing_is_exit_2_as_select(tmp_path):
+    """Issue 18 item 16: an --exclude that matches no case (a typo) says so, as --select does."""
+    path = tmp_path / "r.json"
+    proc = conform("--exclude", "MCP-ACK-4", "MCP-NOPE", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert report(path)["error"] == "--exclude: no case matches MCP-NOPE"
+    assert "--exclude: no case matches MCP-NOPE" in proc.stderr
+
+
 def test_target_that_never_answers_is_a_setup_error(tmp_path):
     path = tmp_path / "r.json"
     proc = conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{free_port()}",
@@ -123,6 +132,26 @@ def test_target_that_never_answers_is_a_setup_error(tmp_path):
     assert doc["error"] and "answer" in doc["error"]
     assert doc["error"] in proc.stderr and doc["error"] not in proc.stdout  # errors go to stderr
     assert "Traceback" not in proc.stdout + proc.stderr
+
+
+def test_a_silent_target_is_waited_for_visibly_and_briefly(tmp_path):
+    """Issue 18 item 14: attaching to a silent target says what the run waits for (a plain
+    line off a terminal), waits --startup-timeout (default 60 s, not the run's 600 s) for the
+    node's first datagram, then exits 2 with one line."""
+    path = tmp_path / "r.json"
+    listen = free_port()
+    proc = conform("--target", f"127.0.0.1:{free_port()}", "--listen", f"127.0.0.1:{listen}",
+                   "--startup-timeout", "2", "--json", str(path), cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert (f"waiting for the node's first datagram (its Mission_Ready, or an ACK of a probe) on "
+            f"127.0.0.1:{listen} (up to 2 s)") in proc.stdout
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--startup-timeout: no datagram from the node within 2 s" in lines[0], proc.stderr
+    assert report(path)["error"].startswith("--startup-timeout: no datagram from the node within 2 s")
+    assert "--startup-timeout S" in build_parser().format_help() and "(default 60" in build_parser().format_help()
+    from conformance.options import make_config
+
+    assert make_config({}).extra["startup_timeout"] == 60.0
 
 
 def test_version():

@@ -103,3 +103,17 @@ def test_baseline_outcomes_in_junit():
     run.strict = True
     strict = _cases(_parse(junit_xml(run)))["ACK/b [xpassed]"]
     assert isinstance(strict.result[0], Failure)
+
+
+def test_a_failures_message_is_what_was_seen_not_the_rules_text():
+    """Issue 18 item 16: CI lists show ``message=``; it says what the node did (the rule's
+    text stays in the body, the rule ID in ``type``)."""
+    run = RunRecord(role="drone", target="127.0.0.1:7890", seed=1)
+    run.cases = [CaseRecord("ACK/test_broadcast", ("MCP-ACK-4",), "MUST", "failed", failed_rule="MCP-ACK-4",
+                            reason="MCP-ACK-4: A node does not ACK a broadcast message (dst = broadcast ID, D-1).",
+                            expected="no ACK of seq 1310 within 0.25 s", actual="ACK received 0.000 s after it")]
+    run.finished = run.started + 1
+    (result,) = _cases(_parse(junit_xml(run)))["ACK/test_broadcast"].result
+    assert isinstance(result, Failure) and result.type == "MCP-ACK-4"
+    assert result.message == "MCP-ACK-4: ACK received 0.000 s after it"
+    assert "A node does not ACK a broadcast message" in result.text

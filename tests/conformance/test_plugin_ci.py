@@ -148,3 +148,47 @@ def test_the_plugin_loads_nothing_when_no_option_asks_for_it(tmp_path):
 
     assert run() == "False False False"
     assert run("--mcp-rto", "0.5") == "True True True"
+
+
+def _verdicts(path, name_of) -> dict[str, str]:
+    """testcase name -> failure | error | skipped | passed, from a JUnit file."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for tc in ET.parse(path).getroot().iter("testcase"):
+        tags = [t.tag for t in tc if t.tag in ("failure", "error", "skipped")]
+        out[name_of(tc)] = tags[0] if tags else "passed"
+    return out
+
+
+def test_a_timeout_is_an_error_in_pytests_junit_as_in_ours(pytester):
+    """Issue 18 item 14: one verdict for a case that runs out of time (pytest-timeout's
+    --timeout or the runner's own limit) and for a case that crashed: ``<error>`` in
+    pytest's --junitxml, as in --mcp-junit and the JSON report; a MUST failure stays a
+    ``<failure>`` in both."""
+    pytest.importorskip("pytest_timeout")
+    cases = SLOW_CASES + """
+@rules("MCP-ACK-4")
+def test_must_fails(node):
+    from harness.errors import CaseFailure
+    raise CaseFailure("MCP-ACK-4", "no ACK", "an ACK of seq 3")
+
+@rules("MCP-ROB-1")
+def test_crash(node):
+    raise RuntimeError("boom")
+"""
+    setup_files(pytester, cases)
+    pytester.makeini("[pytest]\n")
+    result, doc = run(pytester, "-p", "timeout", "--timeout", "1", "--mcp-case-timeout", "30",
+                      "--mcp-select", "ACK/test_slow_a", "--mcp-select", "ACK/test_must", "--mcp-select", "ROB",
+                      "--mcp-junit", "ours.xml", "--junitxml", "pytests.xml")
+    assert outcomes(doc) == {"ACK/test_slow_a": "error", "ACK/test_must_fails": "failed", "ROB/test_crash": "error"}
+    ours = _verdicts(pytester.path / "ours.xml", lambda tc: tc.get("name"))
+    theirs = _verdicts(pytester.path / "pytests.xml", lambda tc: tc.get("name"))
+    assert ours == {"ACK/test_slow_a": "error", "ACK/test_must_fails": "failure", "ROB/test_crash": "error"}
+    assert theirs == {"test_slow_a": "error", "test_must_fails": "failure", "test_crash": "error"}
+    import xml.etree.ElementTree as ET
+
+    suite = ET.parse(pytester.path / "pytests.xml").getroot().find("testsuite")
+    assert (suite.get("errors"), suite.get("failures")) == ("2", "1")
+    result.assert_outcomes(failed=1, errors=2)
