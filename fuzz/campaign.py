@@ -14,7 +14,7 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,7 @@ class WorkerResult:
     cases: int = 0
     fuzz_seconds: float = 0.0
     restarts: int = 0
+    restart_reasons: dict[str, int] = field(default_factory=dict)
     replays: int = 0
     unconfirmed: int = 0
     engines: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -164,6 +165,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
             res.unconfirmed += triage.unconfirmed
         res.cases, res.fuzz_seconds = done_cases, done_seconds
         res.restarts = target.restarts
+        res.restart_reasons = dict(target.restart_reasons)
     finally:
         target.close()
     return res
@@ -264,6 +266,14 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
     return [results[i] for i in sorted(results)], ("; ".join(errors) or None)
 
 
+def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for c in counts:
+        for k, n in c.items():
+            out[k] = out.get(k, 0) + n
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
 def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult],
                  duration: float, error: str | None) -> dict[str, Any]:
     """``summary.json``: cases, judged cases/s, findings by rule, seed, duration."""
@@ -288,6 +298,7 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "findings": len(store),
         "findings_by_rule": store.by_rule(),
         "restarts": sum(r.restarts for r in results),
+        "restarts_by_reason": _sum_counts(r.restart_reasons for r in results),
         "replays": sum(r.replays for r in results),
         "unconfirmed": sum(r.unconfirmed for r in results),
         "monitor": any(r.monitor for r in results),

@@ -53,6 +53,7 @@ from fuzz.oracles import (
 )
 from fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
 from fuzz.target import FuzzTarget
+from fuzz.target_base import DIED, MISSION_ENDED
 from fuzz.triage import Triage
 from spec.codec import Action, Message, encode
 from spec.strategies import malformed_datagrams, mission_items
@@ -192,7 +193,7 @@ class _Context:
         """A node that has not ended its mission, with oracles that know it."""
         t = self.target
         if t.spawned and (t.ended or not t.alive()):
-            t.restart()
+            t.restart(MISSION_ENDED if t.ended and t.alive() else DIED)
         if t.restarts != self.restarts_seen:
             self.restarts_seen = t.restarts
             self.ledger = DeliveryLedger(t.node_id, t.broadcast_id)

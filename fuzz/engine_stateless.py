@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from fuzz.mutators import CaseGenerator
 from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_exchange
 from fuzz.replay import frame_token, vehicle_counts
-from fuzz.target_base import TargetBase
+from fuzz.target_base import DIED, TargetBase
 from fuzz.triage import Triage
 from spec.codec import Action
 
@@ -135,7 +135,7 @@ class StatelessEngine:
         # triage replays on fresh nodes; a dead node is restarted either way
         if not self.target.alive() or any(f.source in ("liveness", "process") for f in flaws):
             if self.target.spawned:
-                self.target.restart()
+                self.target.restart(DIED)
         self.stats.restarts = self.target.restarts
         self.target.traffic.drain()
         self._fresh_oracles()

@@ -46,6 +46,7 @@ class ManagerFuzzTarget(TargetBase):
         self.session = ManagerSession(self.run_cfg)  # type: ignore[assignment]
         self.traffic = Traffic()
         self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
 
     def start(self) -> None:
         self.session.open()  # type: ignore[attr-defined]
@@ -66,11 +67,11 @@ class ManagerFuzzTarget(TargetBase):
                              + (f"; {ev[0]}" if ev else ""))
         self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
 
-    def restart(self) -> None:
+    def restart(self, reason: str) -> None:
         if not self.spawned:
             return
         self._fresh()
-        self.restarts += 1
+        self.count_restart(reason)
 
     def probe(self, copies: int = PROBE_COPIES) -> Probe:
         """A fresh Mission_Ready from drone 1, retransmitted every --rto, until ACKed."""

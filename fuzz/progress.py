@@ -24,7 +24,13 @@ def summary_line(summary: dict[str, Any]) -> str:
     by_rule = ", ".join(f"{r} x{n}" for r, n in summary["findings_by_rule"].items()) or "none"
     return (f"mcp-fuzz: {summary['cases']} cases in {summary['duration_s']:.1f} s "
             f"({summary['judged_cases_per_s']:.0f} judged cases/s), {summary['findings']} finding(s): "
-            f"{by_rule}; seed {summary['seed']}, {summary['restarts']} restart(s)")
+            f"{by_rule}; seed {summary['seed']}, {summary['restarts']} restart(s)"
+            + _reasons(summary.get("restarts_by_reason") or {}))
+
+
+def _reasons(by_reason: dict[str, int]) -> str:
+    """Why the node was restarted, as the summary line's tail (issue 18 item 9)."""
+    return f" ({'; '.join(f'{n} {why}' for why, n in by_reason.items())})" if by_reason else ""
 
 
 def status_line(engine: str, p: Progress) -> str:

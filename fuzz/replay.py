@@ -23,11 +23,11 @@ from fuzz.oracles import (
     judge_withheld,
 )
 from fuzz.target import FuzzTarget
-from fuzz.target_base import TargetBase
+from fuzz.target_base import REPLAY, TargetBase
 from spec.codec import Action
 from vehicle.probe import make_probe, probe_token
 
-__all__ = ["WITHHOLD", "Outcome", "confirm", "frame_token", "run_sequence", "shrink"]
+__all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence", "shrink"]
 
 _ACK = int(Action.ACK)
 SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
@@ -104,7 +104,7 @@ def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = 
         if flaw is not None:
             out.flaws.append(flaw)
     elif fresh and target.spawned:
-        target.restart()
+        target.restart(REPLAY)
         out.restarted = True
     elif not target.alive():
         return Outcome([Flaw("MCP-ROB-5", "a live node", "the node is not running")], False)
@@ -138,13 +138,6 @@ def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = 
         out.flaws += mon.feed(out.traffic)
         out.flaws += mon.advance(time.time_ns())
     return out
-
-
-def confirm(target: TargetBase, datagrams: Sequence[bytes], rule: str, pace: str,
-            tries: int = 2, scenario: str | None = None) -> bool:
-    """The sequence shows ``rule`` again (on a fresh node where one can be spawned)."""
-    return any(rule in run_sequence(target, datagrams, pace=pace, scenario=scenario).rules()
-               for _ in range(tries))
 
 
 def shrink(datagrams: list[bytes], still_fails: Callable[[list[bytes]], bool],

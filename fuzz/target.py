@@ -10,7 +10,14 @@ from dataclasses import dataclass
 
 from fuzz.config import FuzzConfig
 from fuzz.oracles import acked_seq
-from fuzz.target_base import PROBE_COPIES, PROBE_MIN_WAIT, Probe, TargetBase, Traffic
+from fuzz.target_base import (
+    PROBE_COPIES,
+    PROBE_MIN_WAIT,
+    WITHHELD_START,
+    Probe,
+    TargetBase,
+    Traffic,
+)
 from harness.driver import Datagram
 from harness.session import Session
 from spec.codec import Action
@@ -38,6 +45,7 @@ class FuzzTarget(TargetBase):
         self.session = Session(self.run_cfg)
         self.traffic = Traffic()
         self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -49,12 +57,13 @@ class FuzzTarget(TargetBase):
         if self.session.target_id is None:
             self.session.target_id = 1
 
-    def restart(self) -> None:
-        """A fresh node (spawn mode); in attach mode the same node is all there is."""
+    def restart(self, reason: str) -> None:
+        """A fresh node (spawn mode), for ``reason``; in attach mode the same node is all
+        there is."""
         if not self.spawned:
             return
         self.session.restart()
-        self.restarts += 1
+        self.count_restart(reason)
 
     def restart_withholding(self, copies: int) -> Withheld:
         """Spawn mode: a fresh node whose Mission_Ready is left unACKed for ``copies`` copies,
@@ -62,7 +71,7 @@ class FuzzTarget(TargetBase):
         mission is started again. Returns what was seen (judged by
         ``fuzz.oracles.judge_withheld``: MCP-RTX-1/2, MCP-SEQ-2)."""
         s, drv = self.session, self.driver
-        self.restarts += 1
+        self.count_restart(WITHHELD_START)
         mark = drv.mark()
         drv.auto_ack = lambda d: d.action != _READY
         try:

@@ -4,7 +4,8 @@ A flaw whose (rule, shape) group already has a confirmed finding is only counted
 the datagrams that led to it are replayed (``fuzz.replay``) on a fresh node when spawned, on
 the same node when attached: not reproduced, it is dropped (counted as unconfirmed in the
 summary, never reported); reproduced, it is shrunk to the minimal sequence that still shows
-the same rule, and that sequence is confirmed once more before it is kept.
+the same rule, and that sequence must show it again in each of ``CONFIRM_N`` more replays
+(N of N) before it is kept.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ _DEATH = ("liveness", "process")  # flaws of a node that died or hung: one famil
 MAX_GROUPS = 32  # a node broken everywhere: stop confirming new groups after this many
 SHRINK_BUDGET = 24  # replays per finding
 SUSPECTS = 6  # single inputs tried alone before delta debugging
+CONFIRM_N = 3  # replays of the minimal sequence, all of which must show the flaw
 
 
 def _size_class(n: int) -> str:
@@ -125,19 +127,23 @@ class Triage:
                 self._unconfirmed(flaw)
                 return None
             minimal = shrink(candidate, still, budget=SHRINK_BUDGET)
-        # the minimal sequence once more (confirmation), recording the node's answers
+        # the minimal sequence CONFIRM_N times more, each on a fresh node when spawned, at the
+        # campaign's pace: every one shows the flaw, or there is no finding (issue 18 item 9:
+        # findings confirmed once in two tries replayed 0 of 3 afterwards); the first
+        # replay's answers are what the finding records
         seen: Flaw | None = None
         outcome = None
-        for _ in range(2):
-            outcome = run_sequence(self.target, minimal, pace=pace, scenario=scenario)
+        for _ in range(CONFIRM_N):
+            out = run_sequence(self.target, minimal, pace=pace, scenario=scenario)
             self.replays += 1
-            seen = next((f for f in outcome.flaws if f.rule == flaw.rule
-                         or (flaw.source in _DEATH and f.source in _DEATH)), None)
-            if seen is not None:
-                break
-        if seen is None or outcome is None:
-            self._unconfirmed(flaw)
-            return None
+            again = next((f for f in out.flaws if f.rule == flaw.rule
+                          or (flaw.source in _DEATH and f.source in _DEATH)), None)
+            if again is None:
+                self._unconfirmed(flaw)
+                return None
+            if seen is None:
+                seen, outcome = again, out
+        assert seen is not None and outcome is not None
         final_shape = shape_of(seen, [Input.of(d) for d in minimal]) if flaw.source in _DEATH else shape
         self.aliases[(flaw.rule, shape)] = (seen.rule, final_shape)
         if self.store.known(seen.rule, final_shape):

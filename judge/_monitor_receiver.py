@@ -57,7 +57,7 @@ class ReceiverRules:
         ``named``."""
         if node is not None:
             self._seq_number_taken(node, own_seq)  # D-5: an ACK may take a number (MCP-SEQ-1)
-        if self.complete:  # MCP-ACK-6: what an ACK to this node would answer
+        if self._complete_for(src, dst):  # MCP-ACK-6: what an ACK to this node would answer
             self._ack_seq[src << 16 | own_seq] = (dst, i, t)
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
@@ -86,7 +86,7 @@ class ReceiverRules:
         other = self._by_seq.get(dst << 16 | named)
         if other is not None and t - _entry_t(other) > horizon:
             other = None
-        if other is None and self.complete:
+        if other is None and self._complete_for(src, dst):
             a = self._ack_seq.get(dst << 16 | named)
             if a is not None and t - a[2] <= horizon:
                 other = ("ack", a[0], a[1], a[2], 0)
@@ -102,7 +102,7 @@ class ReceiverRules:
             self._emit("MCP-ACK-2", src, t, f"ACK payload {ex.seq} as 2 bytes big-endian (D-2)",
                        f"ACK names {named}: {ex.seq} byte-swapped", [ex.copies[-1], (i, t)])
             return
-        if not self.complete:
+        if not self._complete_for(src, dst):
             return  # the ACK may answer a message the capture missed
         ex = self._to_seq.get(src << 16 | named)
         if ex is not None:
@@ -125,7 +125,7 @@ class ReceiverRules:
             return
         kind, dst, j, tj, action = other
         if kind == "ack":
-            if dst == node and self.complete:
+            if dst == node and self._complete_for(node):
                 self._emit("MCP-ACK-6", node, t, "an ACK is never ACKed",
                            f"ACK of the ACK with seq {named} (datagram #{j})", [(j, tj), (i, t)])
         elif dst == node:
@@ -147,7 +147,7 @@ class ReceiverRules:
             self._passthrough_acked(ex, acker, t)
         copies = ex.copies
         before = copies if copies[-1][1] <= t else ex.copies_before(t)
-        complete = self.complete
+        complete = self._complete_for(ex.src, ex.dst)
         if complete and len(before) >= 3 and not ex.tester:
             self._judge_spacing(ex, before, t)
         if ex.addr is not None:
@@ -182,7 +182,7 @@ class ReceiverRules:
         if (pending.dst == src) == (pending.seq == named):
             return
         pending.wrong_ack = (i, t)
-        if self.complete:
+        if self._complete_for(pending.src, pending.dst):
             g = gaps(pending.copies)
             est = median(g) if g else self.rto_ns
             self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._wrong_ack_deadline, pending, (i, t))
@@ -190,7 +190,7 @@ class ReceiverRules:
     # ------------------------------------------------------------------ missing ACKs
     def _copy_received(self, ex: _Exchange, i: int, t: int) -> None:
         """MCP-ACK-1 deadlines for a copy (complete trace only)."""
-        if not self.complete or ex.bcast:
+        if not self._complete_for(ex.src, ex.dst) or ex.bcast:
             return
         if not ex.acks:
             if len(ex.copies) == MAX_ACK_COPIES:

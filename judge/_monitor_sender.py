@@ -93,7 +93,7 @@ class SenderRules:
             self._bcast_srcs.add(src)
         else:
             self._unicast_dsts.add(dst)
-            if self.complete:  # MCP-ACK-3: the latest message to dst with seq
+            if self._complete_for(src, dst):  # MCP-ACK-3: the latest message to dst with seq
                 self._to_seq[dst << 16 | seq] = ex
         if action == PASSTHROUGH:
             self._track_passthrough(ex)
@@ -166,10 +166,10 @@ class SenderRules:
             prev = node.last_unicast  # MCP-BLK-1
             if prev is not None:
                 node.seen.add("MCP-BLK-1")
-                if not prev.acks and self.complete:
+                if not prev.acks and self._complete_for(node.id):
                     self._check_stop_and_wait(node, prev, ex, i, t)
             node.last_unicast = ex
-            if self.complete:  # MCP-RTX-1's deadline; all share one delay, so a FIFO
+            if self._complete_for(ex.src, ex.dst):  # MCP-RTX-1's deadline; all share one delay, so a FIFO
                 self._timers.after(t + self._rtx_delay, self._rtx_expire, ex)
 
     def _first_of_kind(self, node: _Node, ex: _Exchange) -> None:
@@ -209,7 +209,7 @@ class SenderRules:
         acks = node.acks_since
         node.seen.add("MCP-SEQ-1")
         adv = (ex.seq - prev.seq) & 0xFFFF
-        if adv == 0 or (self.complete and adv > 1 + acks):
+        if adv == 0 or (self._complete_for(node.id) and adv > 1 + acks):
             report = ("MCP-SEQ-1", node.id, t,
                       f"seq {(prev.seq + 1) & 0xFFFF}..{(prev.seq + 1 + acks) & 0xFFFF} "
                       f"(previous message {prev.seq}, {acks} ACK(s) since)",
@@ -319,7 +319,7 @@ class SenderRules:
         return t - before[-1][1] > 3 * est // 2 + 3 * JITTER_NS
 
     def _finish_sender(self, end: int) -> None:
-        if self.complete:
+        if self._complete_for(MANAGER):
             self._finish_blk2(end)
             self._finish_flow3(end)
             for ex in self._ex.values():
@@ -405,7 +405,7 @@ class SenderRules:
                 self._emit("MCP-FLOW-2", MANAGER, t, "Start_Mission unicast to each drone",
                            f"{ex.describe()}", [(i, t)])
                 return
-        elif d.start is None and self.complete and d.ready is not None and not ex.bcast:
+        elif d.start is None and self._complete_for(MANAGER, d.id) and d.ready is not None and not ex.bcast:
             self._emit("MCP-FLOW-2", MANAGER, t, f"Start_Mission is the first command drone {d.id} gets",
                        f"{ex.describe()} before any Start_Mission", [d.ready, (i, t)])
         if d.end is not None and not ex.bcast:
@@ -418,7 +418,7 @@ class SenderRules:
                 self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
                            f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", [(i, t)])
         elif action == WP_OFF:
-            if challenge == 2 and d.wp_active is None and self.complete and d.start is not None:
+            if challenge == 2 and d.wp_active is None and self._complete_for(MANAGER, d.id) and d.start is not None:
                 self._emit("MCP-FLOW-5", MANAGER, t, "WP_Off follows a WP_On",
                            f"{ex.describe()} with no WP_On active for drone {d.id}", [(i, t)])
         elif action in _LIST_FLOW:
@@ -432,7 +432,7 @@ class SenderRules:
                     self._emit(rule, MANAGER, t, f"{action_name(action)} carries the mission's "
                                f"{len(self.waypoints or ())} items",
                                f"{ex.describe()} carries {len(ex.payload)} other item(s)", [(i, t)])
-        elif action == END and self.complete and self.challenge in (1, 3):
+        elif action == END and self._complete_for(MANAGER, d.id) and self.challenge in (1, 3):
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
             self._observe(MANAGER, rule)
@@ -463,7 +463,7 @@ class SenderRules:
         if action == MR and ex.src != MANAGER:
             node = self._nodes[ex.src] if ex.src in self._nodes else self._node(ex.src)
             prev = node.ready_ex
-            if prev is None or prev.acks or not self.complete:
+            if prev is None or prev.acks or not self._complete_for(node.id, MANAGER):
                 _new_mission(node)
                 node.ready = ex.first
                 node.ready_ex = ex
@@ -540,7 +540,7 @@ class SenderRules:
         stale = [k for k, ex in self._ex.items() if ex.last_t < old]
         for k in stale:
             ex = self._ex.pop(k)
-            if self.complete and not ex.tester and not ex.bcast and not ex.acks and len(ex.copies) >= 3:
+            if self._complete_for(ex.src, ex.dst) and not ex.tester and not ex.bcast and not ex.acks and len(ex.copies) >= 3:
                 self._judge_spacing(ex, ex.copies, now)
         for k in [k for k, e in self._by_seq.items() if _entry_t(e) < old]:
             del self._by_seq[k]

@@ -193,7 +193,7 @@ class VehicleRules:
 
     def _judge_arm(self, node: _Node, t: int, ev: VehicleEvent) -> None:
         """MCP-BLK-4 (complete trace): no ARM before Start_Mission reached the drone."""
-        if not self.complete or node.id == MANAGER:
+        if not self._complete_for(node.id) or node.id == MANAGER:
             return
         self._observe(node.id, "MCP-BLK-4")
         start = node.start
@@ -209,7 +209,7 @@ class VehicleRules:
 
     def _judge_forward(self, node: _Node, t: int, key: Any) -> None:
         """A frame the drone wrote to its autopilot: which message it delivers."""
-        if not self.complete:
+        if not self._complete_for(node.id):
             return  # a lossy trace may miss another message with the same frame
         cands = [ex for ex in self._pt.get(key, ()) if ex.first[1] <= t + _CLOCKS_NS]
         mine = [ex for ex in cands if ex.dst == node.id]
@@ -260,7 +260,7 @@ class VehicleRules:
 
     def _passthrough_acked(self, ex: _Exchange, node: _Node, t: int) -> None:
         """A Mav_Passthrough the drone ACKed: it must show on the link, unless a duplicate."""
-        if node.vehicle and ex.action == PASSTHROUGH and self.complete:
+        if node.vehicle and ex.action == PASSTHROUGH and self._complete_for(node.id):
             self._timers.at(t + self._delivery_wait(), self._delivery_deadline, ex, node)
 
     def _delivery_deadline(self, now: int, ex: _Exchange, node: _Node) -> None:
@@ -335,7 +335,7 @@ class VehicleRules:
             self._timers.at(due, self._rtl_deadline, ex, node)
             return
         self._observe(node.id, "MCP-BLK-7")
-        since = ex.first[1] if self.complete else node.last_command_t
+        since = ex.first[1] if self._complete_for(node.id) else node.last_command_t
         if any(k == "RTL" and ft >= since for ft, k in node.forwards):
             return
         self._emit("MCP-BLK-7", node.id, now, "an RTL on the autopilot after End_Mission",

@@ -15,6 +15,7 @@ The options (``add_monitor_options``) are shared by ``check`` and ``show``; bad 
 from __future__ import annotations
 
 import argparse
+import contextlib
 from array import array
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -210,7 +211,7 @@ class MonitorUnavailable(UsageError):
     """This installation has no trace monitor (``judge.monitor``)."""
 
 
-def _make_monitor(params: Params) -> Any:
+def _make_monitor(params: Params, party: int | None = None) -> Any:
     try:
         from judge.monitor import Monitor
     except ImportError as exc:
@@ -218,7 +219,8 @@ def _make_monitor(params: Params) -> Any:
 
     return Monitor(rto=params.rto, ack_window=params.ack_window, broadcast_id=params.broadcast_id,
                    drones=list(params.drones) if params.drones is not None else None,
-                   challenge=params.challenge, waypoints=params.waypoints, complete=params.complete)
+                   challenge=params.challenge, waypoints=params.waypoints, complete=params.complete,
+                   party=party)
 
 
 class NoJudge:
@@ -361,6 +363,7 @@ class _Session:
         self.node_addr: Any = None  # the drone under test's address: what comes from there is its own
         self.recorded_complete: bool | None = None  # how the run's own monitor judged the trace
         self.recorded_harness = False  # the run's metadata names a harness as its recorder
+        self.party: int | None = None  # a node's own capture: that node's ID
         self.marks = False  # the run recorded the link and fix events its monitor judged by
         self.first: int | None = None
         self.last: int | None = None
@@ -377,6 +380,8 @@ class _Session:
             self.params.adopt(_recorded_parameters(rec))
             if rec.data.get("complete") in ("true", "false"):
                 self.recorded_complete = rec.data["complete"] == "true"
+            with contextlib.suppress(KeyError, ValueError):  # complete for what it took part in
+                self.party = int(rec.data["node_id"])
         elif rec.name == NODE_METADATA and self.drone is None:  # the node under test, as the run knew it
             self.drone, self.node_addr = _recorded_node(rec)
             if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it
@@ -421,10 +426,13 @@ class _Session:
             if self.mon is None:
                 # a harness is a party to every exchange with the one node it tests, so its
                 # capture holds them all (complete), as does a node's own capture (mcp-node
-                # --capture) when its record says so; any other capture is judged as lossy
+                # --capture) when its record says so -- complete for what that node took part
+                # in, unless the user says the whole trace is (--complete); any other capture
+                # is judged as lossy
+                party = None if params.complete else self.party
                 params.complete = params.complete or (self.format == "mcap" and (
                     (self.harness and self.recorded_complete is not False) or self.recorded_complete is True))
-                self.mon = _make_monitor(params)
+                self.mon = _make_monitor(params, party)
             if self.drone is not None:  # named by the run's record: its autopilot link so far
                 self._flush()
         harness = self.harness

@@ -113,12 +113,16 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     reply" is watched (D-6); ``broadcast_id`` (D-1); ``drones``: the mission's drone IDs when
     known (MCP-BLK-2, MCP-HDR-4); ``challenge`` (1-3) and ``waypoints`` (the mission items
     the manager should send: waypoints for challenges 1-2, obstacles for 3) for MCP-FLOW-4..6;
-    ``complete``: the trace holds every datagram the nodes exchanged (absences are evidence).
+    ``complete``: the trace holds every datagram the nodes exchanged (absences are evidence);
+    with ``party`` (a node's own capture, ``mcp-node --capture``) only every datagram that
+    node sent or received: what it overheard between others (a manager's commands to the
+    other drones on a shared port, without their ACKs) is judged as a lossy trace would be.
     """
 
     def __init__(self, rto: float = 5.0, ack_window: float = 2.0, broadcast_id: int = BROADCAST_ID,
                  drones: Iterable[int] | None = None, challenge: int | None = None,
-                 waypoints: Iterable[Any] | None = None, *, complete: bool = False) -> None:
+                 waypoints: Iterable[Any] | None = None, *, complete: bool = False,
+                 party: int | None = None) -> None:
         self.rto_ns = int(rto * NS)
         self.window_ns = int(ack_window * NS)
         self.broadcast_id = broadcast_id
@@ -127,6 +131,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self.challenge = challenge
         self.waypoints = tuple(waypoints) if waypoints is not None else None
         self.complete = complete
+        self.party = party
         self._packed_waypoints: list[bytes] | None = None
         self._insane: dict[bytes, str] = {}  # MCP-PAY-7: the first problem, by payload bytes
         self._rtx_delay = MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns
@@ -376,6 +381,11 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             self._nodes[ex.src].seen.add("MCP-RTX-1")
         else:
             self._rtx_deadline(now, ex)
+
+    def _complete_for(self, *ids: int) -> bool:
+        """Absences are evidence about what passes between ``ids``: the trace is complete,
+        and (a node's own capture) its node is one of them."""
+        return self.complete and (self.party is None or self.party in ids)
 
     def _judged(self, node: int, rule: str) -> bool:
         """Whether ``rule`` binds ``node`` (its role) and ``node`` is not the harness."""

@@ -85,3 +85,27 @@ def test_a_node_capture_without_its_record_stays_lossy(tmp_path):
     _node_capture(path, 2, complete=None, rto=None)
     j = judge(path, Params())
     assert not j.params.complete and j.params.rto == 5.0
+
+
+def test_a_node_capture_is_complete_for_its_own_exchanges_only():
+    """Drones sharing a port (``--reuse-port``) each overhear the manager's commands to the
+    others, never the others' ACKs (sent to the manager): drone 1's own capture proves
+    nothing about the manager's exchanges with drone 2 (no MCP-BLK-1 / MCP-RTX-1 against the
+    manager), while its own exchanges are still judged complete (a retransmission that
+    stops unACKed fails MCP-RTX-1)."""
+    d1, d2 = ("127.0.0.1", 40011), ("127.0.0.1", 40012)
+    m = Monitor(rto=0.2, ack_window=0.25, complete=True, party=1)
+    out = m.datagram(0, MANAGER, d2, encode(Message(2, 0, 10, Action.START_MISSION)))  # overheard
+    out += m.datagram(5 * MS, MANAGER, d1, encode(Message(1, 0, 11, Action.START_MISSION)))
+    out += m.datagram(6 * MS, d1, MANAGER, encode(Message(0, 1, 70, Action.ACK, 11)))
+    ready = encode(Message(0, 1, 71, Action.MISSION_READY))  # drone 1's own, two copies, unACKed
+    out += m.datagram(10 * MS, d1, MANAGER, ready) + m.datagram(210 * MS, d1, MANAGER, ready)
+    out += m.datagram(4000 * MS, MANAGER, d2, encode(Message(2, 0, 12, Action.WP_OFF)))  # time passes
+    out += m.finish()
+    assert sorted((v.rule, v.node) for v in out) == [("MCP-RTX-1", 1)], out
+    whole = Monitor(rto=0.2, ack_window=0.25, complete=True)  # the same, claimed complete for all
+    seen = []
+    for t, a, b, data in [(0, MANAGER, d2, encode(Message(2, 0, 10, Action.START_MISSION))),
+                          (5 * MS, MANAGER, d1, encode(Message(1, 0, 11, Action.START_MISSION)))]:
+        seen += whole.datagram(t, a, b, data)
+    assert "MCP-BLK-1" in {v.rule for v in seen + whole.finish()}

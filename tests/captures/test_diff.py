@@ -10,7 +10,7 @@ import random
 import pytest
 
 from captures.diff import DiffOptions, diff_sides, print_report, register, side_from_datagrams
-from spec.codec import Action, decode, encode
+from spec.codec import Action, Message, decode, encode
 from tests.captures.scenario import D, challenge2, reindex
 from traceio.recorder import McapRecorder
 
@@ -267,3 +267,33 @@ def test_html_gaps_are_placeholders_not_red_arrows_and_times_stay_in_order():
                 assert g.find(f"{ns}line") is None and g.find(f"{ns}path") is None
                 assert [t.text for t in g.iter(f"{ns}text")] == ["(not here)"]
     assert gaps == 1
+
+
+def test_the_harness_liveness_probes_are_not_compared(tmp_path):
+    """The runner's liveness watcher probes the node (WP_Off from its own MCP ID) only when
+    the node has been quiet for a while, which depends on the machine's load: a golden
+    re-recorded on a loaded machine differed by that one exchange. A harness capture's
+    probes and their ACKs are left out of the comparison; a node's or anyone's same-looking
+    traffic is not."""
+    from captures.diff import load_side
+    from harness.liveness import PROBE_SRC
+
+    plain = challenge2()
+    probe = encode(Message(1, PROBE_SRC, 7, Action.WP_OFF))
+    ack = encode(Message(PROBE_SRC, 1, 900, Action.ACK, 7))
+    k = next(i for i, d in enumerate(plain) if decode(d.data).src == 0 and decode(d.data).dst == 1)
+    m = plain[k]
+    probed = reindex(plain[:k + 1] + [D(0, m.t_ns + 1, m.src_addr, m.dst_addr, probe),
+                                      D(0, m.t_ns + 2, m.dst_addr, m.src_addr, ack)] + plain[k + 1:])
+    for library, same in (("mcp-conform", True), ("someone-else", False)):
+        paths = []
+        for name, ds in (("plain", plain), ("probed", probed)):
+            path = tmp_path / f"{library}-{name}.mcap"
+            with McapRecorder(path, library=library) as rec:
+                for d in ds:
+                    tx = decode(d.data).src in (0, PROBE_SRC)
+                    rec.datagram("tx" if tx else "rx", d.data, d.dst_addr if tx else d.src_addr, d.t_ns,
+                                 local=d.src_addr if tx else d.dst_addr)
+            paths.append(path)
+        result = diff_sides(load_side(paths[0]), load_side(paths[1]), DiffOptions())
+        assert result.same is same, (library, _report(result))

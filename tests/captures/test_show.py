@@ -97,7 +97,7 @@ class FlagsThirdDatagram:
 
 
 def test_show_lists_window_marks_and_writes_svg(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(judging, "_make_monitor", lambda params: FlagsThirdDatagram())
+    monkeypatch.setattr(judging, "_make_monitor", lambda params, party=None: FlagsThirdDatagram())
     path = mission(drones=(1, 2), lose_ack_of=2).write(tmp_path / "m.pcap")
     assert main(["show", str(path), "--svg", str(tmp_path / "c.svg")]) == 0
     out = capsys.readouterr().out
