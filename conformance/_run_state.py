@@ -248,6 +248,10 @@ class McpState:
             self.terminal.note(f"startup phase: {unreadable[1]} ({unreadable[0]}): no mission is started; "
                                "only the cases judged on the datagrams' raw bytes are run, the others "
                                "are skipped")
+        timing = getattr(session, "timing", None)
+        if timing is not None:
+            self.terminal.note(timing)
+            self.run.parameters["timing"] = timing
         watch = getattr(getattr(session, "liveness", None), "loss_after", None)
         if watch is not None:
             self.run.parameters["loss_after_s"] = watch

@@ -66,6 +66,8 @@ class WorkerResult:
     findings: list[tuple[dict[str, Any], list[Any]]] = field(default_factory=list)
     error: str | None = None
     monitor: bool = False
+    node_period: float | None = None  # the node's retransmission period, measured at start
+    timing: str | None = None  # it disagreed with --rto: what the campaign did about it
 
 
 def load_seeds(directory: str | None) -> list[bytes]:
@@ -108,6 +110,8 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     """One worker: start its target, run the engines, close the target."""
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
+    res.node_period = getattr(target, "node_period", None)
+    res.timing = getattr(target, "timing", None)
     prog = Progress()
     stop_rule = cfg.extra.get("stop_on_rule")  # tests: stop once this rule is found
 
@@ -302,6 +306,8 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "replays": sum(r.replays for r in results),
         "unconfirmed": sum(r.unconfirmed for r in results),
         "monitor": any(r.monitor for r in results),
+        "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),
+        "timing": next((r.timing for r in results if r.timing), None),
         "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error}
                     for r in results],
         "error": error,

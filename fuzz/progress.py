@@ -84,6 +84,8 @@ class LiveProgress:
 
     def final(self, summary: dict[str, Any], store: FindingStore) -> None:
         out = self.stream
+        if summary.get("timing"):
+            print(f"mcp-fuzz: {summary['timing']}", file=out)
         for n, f in enumerate(store.order, 1):
             print(f"  finding-{n}: {f.describe()}", file=out)
         print(summary_line(summary), file=out)

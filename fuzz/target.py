@@ -20,6 +20,7 @@ from fuzz.target_base import (
 )
 from harness.driver import Datagram
 from harness.session import Session
+from harness.session_base import timing_note
 from spec.codec import Action
 
 __all__ = ["FuzzTarget", "Withheld"]
@@ -46,13 +47,26 @@ class FuzzTarget(TargetBase):
         self.traffic = Traffic()
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}
+        self.node_period: float | None = None  # measured at the first start (spawn mode)
+        self.timing: str | None = None  # the node's period disagrees with --rto: what was done
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Start (or attach to) the node; SetupError with a one-line reason otherwise."""
-        self.session.start(observe_startup=False, watch=False)
+        """Start (or attach to) the node; SetupError with a one-line reason otherwise.
+
+        A spawned node's retransmission period is measured from its first Mission_Ready
+        copies; when it disagrees with --rto the campaign says so (``timing``) and judges by
+        what the node does: the probes, oracles and replays take the node's period (issue 18
+        item 10: at --rto 5 against a node retransmitting every 0.3 s the fuzzer ran 63
+        cases/s, restarted the node 27 times and gave a false MUST finding)."""
+        self.session.start(observe_startup=False, watch=False, measure=self.session.spawned)
         s = self.session
         assert s.driver is not None
+        self.node_period = s.period
+        self.timing = timing_note(s.period, self.run_cfg.rto, 2,
+                                  f"probes and oracles take the node's {s.period or 0:.2f} s")
+        if self.timing is not None and s.period is not None:
+            self.run_cfg.rto = s.period
         s.driver.add_observer(self.traffic)
         if self.session.target_id is None:
             self.session.target_id = 1

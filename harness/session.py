@@ -46,6 +46,7 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     check_target,
     fill_placeholders,
     free_udp_port,
+    timing_note,
 )
 from judge.monitor import byte_order_fault
 from judge.run_monitor import RunMonitor, from_node, link_events
@@ -111,18 +112,22 @@ class Session(SessionBase):
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
         #: (rule, why): the startup phase found the node's header unreadable in network order
         self.unreadable: tuple[str, str] | None = None
+        self.timing: str | None = None  # the node's retransmission period disagrees with --rto
+        self.period: float | None = None  # that period, as measured at startup
 
     # ------------------------------------------------------------------ properties
     def to_ns(self, t_monotonic: float) -> int:
         return self._t0_ns + int(t_monotonic * 1e9)
 
     # ------------------------------------------------------------------ start / stop
-    def start(self, observe_startup: bool = True, watch: bool = True) -> None:
+    def start(self, observe_startup: bool = True, watch: bool = True, measure: bool = False) -> None:
         """Open the driver, start the vehicle and the node, run the startup phase (observed
         for the startup-phase cases unless ``observe_startup`` is False: then it is the quick
         one of a restart, as the fuzzer wants it). ``watch=False``: no background liveness
         watcher and no run monitor (the fuzzer's probe behind each batch is its proof of
-        life, and its oracles judge every datagram once)."""
+        life, and its oracles judge every datagram once). ``measure``: in the quick startup,
+        the node's retransmission period is still measured (``period``), its Mission_Ready's
+        ACK withheld until a second copy shows it."""
         cfg = self.cfg
         if cfg.role != "drone":
             raise SetupError(f"{cfg.role} role conformance is not available yet")
@@ -157,7 +162,7 @@ class Session(SessionBase):
             self._start_vehicle()
         if self.spawned:
             self._spawn()
-        self._startup_phase(first=observe_startup)
+        self._startup_phase(first=observe_startup, measure=measure)
 
     def close(self) -> None:
         if self.liveness is not None:
@@ -255,12 +260,12 @@ class Session(SessionBase):
         return SetupError(f"target never answered within the run's --timeout of {timeout:g} s "
                           "(no Mission_Ready, no ACK of a probe)")
 
-    def _startup_phase(self, first: bool) -> None:
+    def _startup_phase(self, first: bool, measure: bool = False) -> None:
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
         mark = drv.mark()
-        withhold = first
+        withhold = first or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
         ready_limit = max(20.0, 4 * self.rto + 5.0)
 
@@ -321,6 +326,8 @@ class Session(SessionBase):
             return
         if first:
             self._observe_retransmissions(st, first_ready)
+        elif measure:
+            self._measure_period(first_ready)
         withhold = False
         if first:
             self.startup = st
@@ -343,6 +350,20 @@ class Session(SessionBase):
         return (f"{rules[0]}: not judged: {why} ({rule}); every field this case would read of "
                 "the node's datagrams is misread")
 
+    def _measure_period(self, first_ready: Datagram) -> None:
+        """The node's retransmission period from its first two Mission_Ready copies (the
+        ACK withheld until the second, up to the description's timeout), then the ACK."""
+        drv = self.driver
+        assert drv is not None
+        wait = max(self.rto, float(SPEC.params["timeout_s"])) * 1.5 + 1.0
+        second = drv.wait_for(lambda d: d.action == _READY, wait - (time.monotonic() - first_ready.t),
+                              first_ready.index + 1)
+        last = second or first_ready
+        if second is not None:
+            self.period = second.t - first_ready.t
+        if last.header is not None:
+            drv.send_ack(last.header[2], dst=last.header[1])
+
     def _observe_retransmissions(self, st: Startup, first_ready: Datagram) -> None:
         """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""
         drv = self.driver
@@ -351,14 +372,25 @@ class Session(SessionBase):
         # ACKs go to the node's configured ID (its Mission_Ready's src when none was given)
         ready_src = self.target_id if self.target_id is not None else (
             first_ready.header[1] if first_ready.header else 1)
-        deadline = first_ready.t + MIN_COPIES * self.rto * 1.5 + 1.0
+        # copies are awaited at --rto's pace, or at the node's own once two show it: a node
+        # slower than --rto says (the description's 5 s against --rto 0.3) is judged by what it
+        # does, not failed for copies that were not due yet (issue 18 item 10); a second copy
+        # is awaited up to the description's timeout
+        slowest = max(self.rto, float(SPEC.params["timeout_s"]))
         i = first_ready.index
         while True:
             copies = [d for d in drv.received(i) if d.action == _READY]
+            if len(copies) >= 2:
+                deadline = first_ready.t + MIN_COPIES * max(self.rto, copies[1].t - copies[0].t) * 1.5 + 1.0
+            else:
+                deadline = first_ready.t + max(MIN_COPIES * self.rto, slowest) * 1.5 + 1.0
             if len(copies) >= MIN_COPIES or time.monotonic() >= deadline or not self.alive():
                 break
             drv.wait_for(lambda d: d.action == _READY, 0.05, drv.mark())
         st.copies = [d for d in drv.received(i) if d.action == _READY]
+        self.period = st.period()
+        self.timing = timing_note(st.period(), self.rto, len(st.copies),
+                                  "the node is judged by its copies' own spacing")
         gaps = st.gaps()
         gap = sorted(gaps)[len(gaps) // 2] if gaps else self.rto
         # an ACK with the wrong seq, and the right seq from the wrong source (MCP-RTX-2)

@@ -156,6 +156,32 @@ class WithheldCopies:
         ts = [d.t for d in self.copies]
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
+    def period(self) -> float | None:
+        """The node's retransmission period as its copies show it (the median gap), or None
+        with fewer than two copies."""
+        g = sorted(self.gaps())
+        return g[len(g) // 2] if g else None
+
+
+#: How far the node's measured retransmission period may be from --rto before the run says
+#: so (a factor either way; the description's jitter and a loaded machine stay well inside).
+PERIOD_FACTOR = 2.0
+
+
+def disagrees(period: float | None, rto: float) -> bool:
+    """The node's measured retransmission period is more than ``PERIOD_FACTOR`` off --rto."""
+    return period is not None and period > 0 and not rto / PERIOD_FACTOR <= period <= rto * PERIOD_FACTOR
+
+
+def timing_note(period: float | None, rto: float, copies: int, then: str) -> str | None:
+    """Issue 18 item 10: the node's retransmission period, seen at startup, against --rto:
+    a sentence when they disagree (``then``: what the tool does about it), else None."""
+    if not disagrees(period, rto):
+        return None
+    return (f"timing: the node retransmits every {period:.2f} s (median of {copies - 1} gap(s) between its "
+            f"first message's copies), not every {rto:g} s as --rto says: {then}; "
+            f"--rto {period:.2g} says what the node does")
+
 
 class SessionBase:
     """What the drone-role and the manager-role sessions share: the run's timings, the

@@ -45,6 +45,10 @@ from spec import SPEC
 #: node's datagrams to different peers reach a recorder's sockets in an order of the host's
 #: choosing, so the ACK that took the number before a message may be read just after it
 SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
+#: The description's retransmission timeout: a lone copy's next one is not overdue before it
+#: even when the assumed --rto is shorter (issue 18 item 10: a correct node retransmitting every
+#: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
+DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 
 # bits of _Exchange.flags: a rule already reported on that exchange
 F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))
@@ -280,7 +284,7 @@ class SenderRules:
             self._nodes[ex.src].seen.add("MCP-RTX-1")
             return  # (retransmitted under new numbers: MCP-SEQ-2's)
         g = gaps(ex.copies)
-        est = median(g) if g else self.rto_ns
+        est = median(g) if g else max(self.rto_ns, DESCRIPTION_TIMEOUT_NS)
         due = ex.last_t + 3 * est // 2 + self.window_ns
         if now < due:
             self._timers.at(due, self._rtx_deadline, ex)

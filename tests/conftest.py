@@ -35,3 +35,26 @@ def _rank(item: pytest.Item) -> int:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=_rank)  # stable: everything else keeps its order
+
+
+#: ``MCP_TEST_CPU=FILE``: each test's CPU seconds (the worker's and its waited-for children's,
+#: user + system) appended to FILE as "seconds<TAB>nodeid" -- where CI's time goes on 2 cores.
+_CPU_FILE = __import__("os").environ.get("MCP_TEST_CPU")
+
+
+def _cpu() -> float:
+    import resource
+
+    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):  # type: ignore[no-untyped-def]
+    if _CPU_FILE is None:
+        yield
+        return
+    before = _cpu()
+    yield
+    with open(_CPU_FILE, "a", encoding="utf-8") as f:
+        f.write(f"{_cpu() - before:.3f}\t{item.nodeid}\n")

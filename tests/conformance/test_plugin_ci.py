@@ -179,7 +179,7 @@ def test_crash(node):
 """
     setup_files(pytester, cases)
     pytester.makeini("[pytest]\n")
-    result, doc = run(pytester, "-p", "timeout", "--timeout", "1", "--mcp-case-timeout", "30",
+    result, doc = run(pytester, "-p", "timeout", "--timeout", "4", "--mcp-case-timeout", "30",
                       "--mcp-select", "ACK/test_slow_a", "--mcp-select", "ACK/test_must", "--mcp-select", "ROB",
                       "--mcp-junit", "ours.xml", "--junitxml", "pytests.xml")
     assert outcomes(doc) == {"ACK/test_slow_a": "error", "ACK/test_must_fails": "failed", "ROB/test_crash": "error"}

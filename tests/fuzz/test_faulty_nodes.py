@@ -102,3 +102,16 @@ def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Pat
     slack = 5.0  # the step under way when the deadline passes, on a loaded machine
     assert eng["fuzz_seconds"] <= duration + slack, eng
     assert summary["duration_s"] <= duration + eng["triage_seconds"] + slack, summary
+
+
+@pytest.mark.slow
+def test_a_node_faster_than_rto_is_fuzzed_at_its_own_pace(tmp_path: Path) -> None:
+    """Issue 18 item 10: at the default --rto 5 against a node retransmitting every 0.2 s the
+    campaign measures the node's period at startup, says so, and paces its probes and oracles
+    by it (before: 63 cases/s, 27 restarts and a false MUST finding)."""
+    cfg = FuzzConfig(spawn=spawn_command("none", True).replace(" --fault none", ""), mavlink=True,
+                     engine="stateless", seed=3, duration=4.0, out=str(tmp_path), rto=5.0, ack_window=0.25)
+    summary = run_campaign(cfg, FindingStore(tmp_path, replay_args(cfg)))
+    assert summary["findings"] == 0, summary["findings_by_rule"]
+    assert summary["node_period_s"] is not None and 0.1 < summary["node_period_s"] < 1.0, summary
+    assert summary["timing"] and "not every 5 s as --rto says" in summary["timing"], summary
