@@ -31,6 +31,7 @@ class CaseBase:
         self.case_id = case_id
         self.rules = rules
         self.start_ns = time.time_ns()
+        self.start_t = time.monotonic()  # the same instant, on the clock of the impaired link
         self.end_ns: int | None = None
         self.notes: list[str] = []
         self.node_silent = False

@@ -348,7 +348,14 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
     why = not_judged(state.meta[item.nodeid][1]) if not_judged is not None else None
     if why:  # the node's datagrams cannot be read (harness.session: MCP-HDR-2 at startup)
         raise Inconclusive(why)
-    return (yield from _armed(item))
+    if state is None or state.cfg.impair is None:
+        return (yield from _armed(item))
+    from conformance._impaired import SPOILABLE, run_impaired
+
+    try:
+        return (yield from _armed(item))
+    except SPOILABLE as exc:  # --impair: repeated when the impairment spoiled it (never failed)
+        return run_impaired(state, item, exc)
 
 
 @pytest.hookimpl(wrapper=True)
@@ -507,7 +514,7 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
         yield ctx
     finally:
         outcome = rec.outcome
-        mcp_session.end_case(ctx, outcome)
+        mcp_session.end_case(state.ctx.get(item.nodeid, ctx), outcome)  # --impair: the last attempt's
 
 
 # ---------------------------------------------------------------------- the end

@@ -4,6 +4,7 @@
                 [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
                 [--json FILE] [--junit FILE] [--capture FILE.mcap] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--startup-timeout S] [--seed N]
+                [--impair loss=P,dup=P,reorder=P,delay=LO-HI,corrupt=P,seed=N]
 
 A thin front end over pytest and the ``conformance.plugin``: it checks the arguments (a bad
 value is a one-line error naming the option, exit 2, with the JSON report still written),
@@ -86,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs (default 1)")
     p.add_argument("--waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed "
                                                        "(default: one the runner writes, {waypoints})")
+    p.add_argument("--impair", metavar="SPEC", help="test through a bad link, reproducible by seed: "
+                   "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (the runner's own socket "
+                   "drops, duplicates, delays and reorders; a case the impairment spoiled is repeated, never failed)")
     p.add_argument("-v", "--verbose", action="store_true", help="print every datagram sent and received, live, to stderr")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
@@ -108,7 +112,8 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
             "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
             "case_timeout": ns.case_timeout, "startup_timeout": ns.startup_timeout,
-            "drones": ns.drones, "challenge": ns.challenge, "waypoints": ns.waypoints}
+            "drones": ns.drones, "challenge": ns.challenge, "waypoints": ns.waypoints,
+            "impair": ns.impair}
 
 
 def _check_writable(path: str | None, option: str) -> None:
@@ -166,7 +171,8 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     args += ["--mcp-frontend", "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
-                 "junit_family", "case_timeout", "startup_timeout", "drones", "challenge", "waypoints"):
+                 "junit_family", "case_timeout", "startup_timeout", "drones", "challenge", "waypoints",
+                 "impair"):
         value = getattr(ns, name)
         if value is not None:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")

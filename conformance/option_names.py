@@ -9,7 +9,7 @@ __all__ = ["env_name"]
 
 _KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
          "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
-         "drones", "challenge", "waypoints", "startup_timeout")
+         "drones", "challenge", "waypoints", "startup_timeout", "impair")
 _FLAGS = ("strict",)
 _TRUE = ("1", "true", "yes", "on")
 

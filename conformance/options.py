@@ -51,7 +51,7 @@ def _int(value: Any, name: str, lo: int, hi: int) -> int:
 def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n: "--mcp-" + n.replace("_", "-")) -> RunConfig:
     """A checked ``RunConfig`` from option values (keys: target, listen, target_id, role,
     spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, startup_timeout, seed,
-    capture, json, junit); ``opt(name)`` spells an option in error messages."""
+    capture, json, junit, impair); ``opt(name)`` spells an option in error messages."""
     cfg = RunConfig()
     v = {k: x for k, x in values.items() if x is not None}
     role = v.get("role", "drone")
@@ -98,6 +98,16 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
     cfg.junit_path = v.get("junit")
     cfg.embedded = cfg.target is None and cfg.spawn is None
     _manager_options(cfg, v, opt)
+    if "impair" in v:
+        from harness.impair import ImpairmentError, parse_impairment
+
+        try:
+            cfg.impair = parse_impairment(str(v["impair"]))
+        except ImpairmentError as exc:
+            raise ConfigError(str(exc).replace("--impair", opt("impair"), 1)) from None
+        if role != "drone":
+            raise ConfigError(f"{opt('impair')}: the {role} role is not run through a bad link yet "
+                              "(the drone role is)")
     cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
     return cfg
 

@@ -82,6 +82,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays")
     g.addoption("--mcp-challenge", metavar="1|2|3", help="--role manager: the challenge the manager runs")
     g.addoption("--mcp-waypoints", metavar="FILE", help="--role manager: the QGC WPL 110 file the manager is handed")
+    g.addoption("--mcp-impair", metavar="SPEC", help="the runner's link to the node is a bad one, reproducible by seed: "
+                "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (a case the impairment "
+                "spoiled is repeated, never failed)")
     g.addoption("--mcp-verbose-traffic", action="store_true", help="print every datagram sent and received, live, to stderr")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")

@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
     p.add_argument("--strict", action="store_true", help="a SHOULD finding counts against the exit code "
                    "(as for mcp-conform and mcp-capture check)")
+    p.add_argument("--impair", metavar="SPEC", help="fuzz through a bad link, reproducible by seed: "
+                   "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (an exchange the "
+                   "impairment touched is not judged: a dropped ACK is never a finding)")
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
     p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
                    help="mcp (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
@@ -185,6 +188,14 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg.rto = _float(ns.rto, "--rto")
     cfg.ack_window = _float(ns.ack_window, "--ack-window")
     cfg.broadcast_id = _int(ns.broadcast_id, "--broadcast-id", 0, 0xFFFF)
+    from harness.impair_link import ImpairmentError, impair_option
+
+    try:
+        cfg.impair = impair_option(ns.impair)
+    except ImpairmentError as exc:
+        raise UsageError(str(exc)) from None
+    if cfg.impair is not None and (cfg.role != "drone" or ns.protocol != "mcp"):
+        raise UsageError("--impair: only a drone (MCP) is fuzzed through a bad link yet")
     return cfg
 
 
@@ -203,6 +214,8 @@ def replay_args(cfg: FuzzConfig) -> list[str]:
                    ("--broadcast-id", cfg.broadcast_id)):
         if v is not None:
             out += [opt, str(v)]
+    if cfg.impair is not None:  # replayed as it was confirmed: through the same link
+        out += ["--impair", cfg.impair.text()]
     return out
 
 

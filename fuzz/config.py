@@ -37,6 +37,9 @@ class FuzzConfig:
     broadcast_id: int | None = None
     worker: int = 0  # which of the --jobs workers this is
     role: str = "drone"  # the role of the node under fuzz (manager: the fuzzer plays drones)
+    #: ``--impair SPEC``: the fuzzer's own socket edge is a bad link (a ``harness.impair.ImpairSpec``);
+    #: an exchange it touched is not judged (``fuzz.oracles.judge_exchange``)
+    impair: Any = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -61,6 +64,7 @@ class FuzzConfig:
         cfg = RunConfig(role="drone", target=self.target, listen=self.listen,
                         target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
                         seed=self.seed)
+        cfg.impair = self.impair
         if self.embedded:
             # the reference drone, with or without the simulated vehicle as asked
             cfg.spawn = embedded_command(self.mavlink)

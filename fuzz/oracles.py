@@ -289,6 +289,12 @@ def judge_exchange(inputs: Sequence[Input], target: Any, mark: Any, probe: Any) 
     engine and replay judge a batch this one way): the node's replies since ``mark`` judged
     per input (:func:`judge_replies`), then its liveness (:func:`judge_liveness`) last."""
     drv = target.driver
+    spoiled = getattr(target, "impairment_spoiled", None)
+    if spoiled is not None and spoiled():
+        # --impair: the link dropped, copied or reordered part of this exchange; what the
+        # node did is not judged (a dropped ACK is not MCP-ACK-1), only a death stands
+        dead = judge_liveness(inputs, True, target.fate())
+        return [dead] if dead is not None else []
     flaws = judge_replies(inputs, drv.received(mark), target.node_id, target.broadcast_id,
                           probe.acked, ignore_seqs=[(drv.our_id, probe.sent.seq)],
                           probe_copies=probe.copies)

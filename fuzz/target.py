@@ -83,11 +83,15 @@ class FuzzTarget(TargetBase):
         """Spawn mode: a fresh node whose Mission_Ready is left unACKed for ``copies`` copies,
         then ACKed out of order (an ACK naming another seq first, then the right one); the
         mission is started again. Returns what was seen (judged by
-        ``fuzz.oracles.judge_withheld``: MCP-RTX-1/2, MCP-SEQ-2)."""
+        ``fuzz.oracles.judge_withheld``: MCP-RTX-1/2, MCP-SEQ-2). Under ``--impair`` this
+        one observation runs on a clean link (the link paused): a lost copy is not MCP-RTX-1."""
         s, drv = self.session, self.driver
         self.count_restart(WITHHELD_START)
         mark = drv.mark()
         drv.auto_ack = lambda d: d.action != _READY
+        link = drv.link
+        if link is not None:
+            link.paused = True
         try:
             s.respawn()
             limit = time.monotonic() + READY_LIMIT + (copies + 1) * max(self.rto, 0.05) * 2
@@ -107,6 +111,8 @@ class FuzzTarget(TargetBase):
                 drv.send_ack(last.header[2], dst=src)  # type: ignore[index]
         finally:
             drv.auto_ack = lambda d: True
+            if link is not None:
+                link.paused = False
         s.send_start_mission()
         return Withheld(got, after_wrong)
 

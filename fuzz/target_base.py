@@ -92,6 +92,23 @@ class TargetBase:
         """Start (or attach to) the node; SetupError with a one-line reason otherwise."""
         raise NotImplementedError
 
+    def impairment_spoiled(self) -> list[str]:
+        """``--impair``: what the link did, since the last exchange judged, that can spoil
+        an observation (a drop, a copy, a reordering, a corruption, a long delay); [] on a
+        clean link. Each call starts the next window, and counts a spoiled one
+        (``unjudged``)."""
+        drv = getattr(self.session, "driver", None)
+        link = getattr(drv, "link", None)
+        if link is None:
+            return []
+        now = time.monotonic()
+        since = getattr(self, "_judged_until", None)
+        self._judged_until = now
+        spoiled = [ev.describe() for ev in link.touched(now - 60.0 if since is None else since, now)]
+        if spoiled:
+            self.unjudged = getattr(self, "unjudged", 0) + 1
+        return spoiled
+
     def restart(self, reason: str) -> None:
         """A fresh node (spawn mode), for ``reason``; in attach mode the same node is all
         there is."""

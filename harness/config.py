@@ -51,6 +51,8 @@ class RunConfig:
     drones: tuple[int, ...] = (1, 2, 3)
     challenge: int = 1
     waypoints: str | None = None
+    #: ``--impair SPEC``: the runner's socket edge is a bad link (``harness.impair_link``)
+    impair: Any = None  # harness.impair.ImpairSpec
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -73,5 +75,7 @@ class RunConfig:
         out["mode"] = self.mode
         if self.role == "manager":
             out.update(drones=list(self.drones), challenge=self.challenge, waypoints=self.waypoints)
+        if self.impair is not None:
+            out["impair"] = self.impair.text()
         out["listen"] = f"{self.listen[0]}:{self.listen[1]}" if self.listen else None
         return out

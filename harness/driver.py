@@ -174,6 +174,9 @@ class TargetDriver:
         self.tx_hooks: list[Callable[[Sent], None]] = []
         self.check: Callable[[], None] = lambda: None
         self._seq_lock = threading.Lock()
+        #: ``--impair``: the runner's own socket edge through a bad link
+        #: (``harness.impair_link``); None: a clean link
+        self.link: Any = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Address:
@@ -199,6 +202,8 @@ class TargetDriver:
 
     def close(self) -> None:
         self._stop.set()
+        if self.link is not None:
+            self.link.close()
         if self._thread is not None:
             self._thread.join(timeout=1.0)
         if self._sock is not None:
@@ -233,26 +238,40 @@ class TargetDriver:
                     return
                 time.sleep(0.01)
                 continue
-            t, t_ns = time.monotonic(), time.time_ns()
-            try:
-                msg: Message | None = decode(data)
-                err = None
-            except DecodeError as exc:
-                msg, err = None, exc
-            with self._cond:
-                d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
-                             data[:PREAMBLE_LEN] == PREAMBLE)
-                self._rx.append(d)
-                self._rx_attr.append(self.attributor.received(d))
-                for hook in self.rx_hooks:
-                    hook(d)
-                self._cond.notify_all()
+            if self.link is not None:
+                # observers (the capture, the run's monitor) hold the node's side of the
+                # link: what it sent, once, as it sent it; the cases what the runner got
+                self._notify("rx", data, addr, time.time_ns())
+                self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive)
+            else:
+                self._arrive(data, addr)
+
+    def _arrive(self, data: bytes, addr: Address) -> None:
+        """One datagram reaches the runner (from the socket, or from the impaired link's
+        timer thread for a delayed copy): logged, observed (on a clean link), answered."""
+        if self._stop.is_set():
+            return
+        t, t_ns = time.monotonic(), time.time_ns()
+        try:
+            msg: Message | None = decode(data)
+            err = None
+        except DecodeError as exc:
+            msg, err = None, exc
+        with self._cond:
+            d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
+                         data[:PREAMBLE_LEN] == PREAMBLE)
+            self._rx.append(d)
+            self._rx_attr.append(self.attributor.received(d))
+            for hook in self.rx_hooks:
+                hook(d)
+            self._cond.notify_all()
+        if self.link is None:
             self._notify("rx", data, addr, t_ns)
-            if self.on_datagram is not None:
-                self.on_datagram(d)
-            if (msg is not None and msg.action != Action.ACK and msg.dst == self.our_id
-                    and self.auto_ack(d)):
-                self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
+        if self.on_datagram is not None:
+            self.on_datagram(d)
+        if (msg is not None and msg.action != Action.ACK and msg.dst == self.our_id
+                and self.auto_ack(d)):
+            self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
 
     def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int) -> None:
         for obs in self._observers:
@@ -374,8 +393,12 @@ class TargetDriver:
             self._tx.append(s)
             for hook in self.tx_hooks:
                 hook(s)
-        (sock or self._sock).sendto(data, addr)
-        self._notify("tx", data, addr, t_ns)
+        if self.link is not None:  # observed as the node is sent each copy (see _receive_loop)
+            self.link.send(sock or self._sock, data, addr,
+                           lambda body: self._notify("tx", body, addr, time.time_ns()))
+        else:
+            (sock or self._sock).sendto(data, addr)
+            self._notify("tx", data, addr, t_ns)
         return s
 
     def send(self, action: Action, payload: Any = None, dst: int | None = None, *,

@@ -110,6 +110,8 @@ class Session(SessionBase):
         self.other_src_accepted: bool | None = None
         self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
+        #: when the observed startup phase ran (``time.monotonic()``): what spoils it
+        self.startup_window: tuple[float, float | None] = (0.0, None)
         #: (rule, why): the startup phase found the node's header unreadable in network order
         self.unreadable: tuple[str, str] | None = None
         self.timing: str | None = None  # the node's retransmission period disagrees with --rto
@@ -147,6 +149,8 @@ class Session(SessionBase):
         except OSError as exc:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
+        if cfg.impair is not None:
+            self.driver.link = self.impaired_link(cfg.impair)
         if watch:
             self.liveness = Liveness(self.driver, self.rto,
                                      lambda: self.target_id if self.target_id is not None else 1)
@@ -154,7 +158,7 @@ class Session(SessionBase):
         self.driver.attributor.horizon = max(self.rto, self.ack_window)
         self.driver.attributor.peer_id = self.target_id
         self.driver.attributor.broadcast_id = self.cfg.broadcast_id
-        self.monitor = self.observe_run(target, self.target_id, complete=True, judge=watch)
+        self.monitor = self.observe_run(target, self.target_id, complete=self.trace_complete, judge=watch)
         # runner seq: fixed by the seed, low enough that no case wraps by accident
         self.driver.set_seq(1000 + cfg.seed % 5000)
         self.target_desc = f"{target[0]}:{target[1]}"
@@ -162,7 +166,9 @@ class Session(SessionBase):
             self._start_vehicle()
         if self.spawned:
             self._spawn()
+        self.startup_window = (time.monotonic(), None)
         self._startup_phase(first=observe_startup, measure=measure)
+        self.startup_window = (self.startup_window[0], time.monotonic())
 
     def close(self) -> None:
         if self.liveness is not None:
@@ -314,7 +320,7 @@ class Session(SessionBase):
             if self.monitor is not None:
                 self.monitor.node_id = self.target_id
             drv.attributor.peer_id = self.target_id
-            self.record_node(self.target_id, complete=True)
+            self.record_node(self.target_id, complete=self.trace_complete)
         swapped = self._byte_order(first_ready) if first else None
         if swapped is not None:
             # nothing the runner would read of this node's datagrams (its ACKs, seqs, IDs) is

@@ -183,6 +183,13 @@ def timing_note(period: float | None, rto: float, copies: int, then: str) -> str
             f"--rto {period:.2g} says what the node does")
 
 
+class _HeldRecorder:
+    """The recorder's ``impairment`` writer, never cut in half by a signal."""
+
+    def __init__(self, recorder: Any) -> None:
+        self.impairment = _held(recorder.impairment)
+
+
 class SessionBase:
     """What the drone-role and the manager-role sessions share: the run's timings, the
     spawned node, the runner's placeholders and the case marks in the capture."""
@@ -237,6 +244,35 @@ class SessionBase:
             values["complete"] = "true" if complete else "false"
         with contextlib.suppress(Exception):
             self.recorder.add_metadata(NODE_METADATA, values)
+
+    # ------------------------------------------------------------------ --impair
+    @property
+    def trace_complete(self) -> bool:
+        """The run's trace holds every datagram the node exchanged (absences are evidence),
+        unless ``--impair`` makes the runner's own link lossy (issue 22)."""
+        return self.cfg.impair is None
+
+    def impaired_link(self, spec: Any) -> Any:
+        """The runner's socket edge through ``spec`` (``harness.impair_link``): each
+        decision kept, and recorded in the capture (``/impair``)."""
+        from harness.impair import Impairment
+        from harness.impair_link import ImpairedLink
+
+        recorder = _HeldRecorder(self.recorder) if self.recorder is not None else None
+        # a reply later than a quarter of the ACK window may fall outside what a case watches
+        return ImpairedLink(Impairment(spec), recorder=recorder,
+                            spoil_delay_s=min(0.25 * self.cfg.ack_window, 0.5))
+
+    def spoiled_by_impairment(self, since: float, until: float | None = None, *,
+                              lookback: bool = True) -> list[str]:
+        """What the impaired link did between ``since`` and ``until`` (``time.monotonic()``)
+        that can spoil an observation, for a person; [] on a clean link. ``lookback``: the
+        window reaches back over the node's retransmissions of an earlier exchange (2 x --rto)."""
+        link = self.driver.link if self.driver is not None else None
+        if link is None:
+            return []
+        start = since - 2 * self.cfg.rto if lookback else since
+        return [ev.describe() for ev in link.touched(start, until)]
 
     @property
     def spawned(self) -> bool:

@@ -84,7 +84,7 @@ class Mcp:
                  reply_to_source: bool = False, broadcast_id: int = BROADCAST_ID,
                  initial_seq: int | None = None, on_event: Callable[[Event], Any] | None = None,
                  max_queued: int = 10000, tap: DatagramTap | None = None,
-                 reuse_port: bool = False) -> None:
+                 reuse_port: bool = False, impairment: Any = None) -> None:
         self.handler = handler
         self.source_id = source_id
         self.on_event = on_event
@@ -107,7 +107,8 @@ class Mcp:
         remote = remote_host if remote_host is not None else broadcast_address
         self._net_thread = threading.Thread(
             target=self._run_loop, name=f"mcp-net-{source_id}", daemon=True,
-            args=(started, bind_host, local_port, remote, remote_port, reply_to_source, tap, reuse_port))
+            args=(started, bind_host, local_port, remote, remote_port, reply_to_source, tap, reuse_port,
+                  impairment))
         self._net_thread.start()
         try:
             self._proto = started.result()
@@ -234,14 +235,14 @@ class Mcp:
     # ------------------------------------------------------------------ threads
     def _run_loop(self, started: concurrent.futures.Future[McpDatagramProtocol], bind_host: str,
                   bind_port: int, remote_host: str, remote_port: int, reply_to_source: bool,
-                  tap: DatagramTap | None, reuse_port: bool = False) -> None:
+                  tap: DatagramTap | None, reuse_port: bool = False, impairment: Any = None) -> None:
         loop = self._loop
         asyncio.set_event_loop(loop)
         try:
             proto = loop.run_until_complete(create_transport(
                 self._endpoint, bind_host=bind_host, bind_port=bind_port, remote_host=remote_host,
                 remote_port=remote_port, reply_to_source=reply_to_source, on_event=self._on_event,
-                tap=tap, reuse_port=reuse_port))
+                tap=tap, reuse_port=reuse_port, impairment=impairment))
         except BaseException as exc:  # noqa: BLE001 - reported to the constructor
             started.set_exception(exc)
             return

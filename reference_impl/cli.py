@@ -2,7 +2,7 @@
 
 ::
 
-    mcp-node drone --id N [BROADCAST LOCAL_PORT REMOTE_PORT] [options]
+    mcp-node drone --id N [BROADCAST LOCAL_PORT REMOTE_PORT] [--impair SPEC] [options]
     mcp-node manager --challenge N --drones 1,2,3 --waypoints FILE [--obstacles FILE]
                      [BROADCAST LOCAL_PORT REMOTE_PORT] [options]
 
@@ -128,6 +128,11 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
                         "without it a port in use is an error")
     p.add_argument("--reply-to-source", action="store_true",
                    help="send ACKs to the source address of the acknowledged datagram")
+    p.add_argument("--impair", metavar="SPEC",
+                   help="run on a bad link, reproducible by seed: this node's own socket drops, duplicates, "
+                        "delays, reorders and corrupts what it sends and receives "
+                        "(loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,corrupt=0.01,seed=7; the syntax of mcp-conform, "
+                        "mcp-fuzz and mcp-impair)")
     p.add_argument("--record", metavar="FILE", help="write a JSON record of the run to FILE")
     p.add_argument("--capture", metavar="FILE.mcap",
                    help="record the node's MCP traffic (and a drone's autopilot link) to an MCAP "
@@ -216,7 +221,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                           retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
                           reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
                           record_path=args.record,
-                          capture_path=args.capture)
+                          capture_path=args.capture, impair=args.impair_spec)
         drone = Drone(cfg)
         if args.mavlink and args.gps_fix_delay:
             drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
@@ -235,6 +240,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                          retries=args.retries, reply_to_source=args.reply_to_source,
                          reuse_port=args.reuse_port,
                          record_path=args.record, capture_path=args.capture, dwell=args.dwell,
+                         impair=args.impair_spec,
                          ready_timeout=args.ready_timeout)
     return Manager(mcfg)
 
@@ -295,6 +301,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "--protocol" in args_in or any(a.startswith("--protocol=") for a in args_in):
         return _other_protocol(args_in)
     args = build_parser().parse_args(argv)
+    from harness.impair_link import ImpairmentError, impair_option
+
+    try:
+        args.impair_spec = impair_option(args.impair)
+    except ImpairmentError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     saved_handlers, saved_level = _setup_logging(args)
     role: Drone | Manager | None = None
     interrupt = _Interrupt()

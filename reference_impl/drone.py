@@ -171,6 +171,8 @@ class DroneConfig:
     record_path: str | None = None
     #: MCAP capture of the node's MCP traffic and its autopilot link (``--capture``)
     capture_path: str | None = None
+    #: ``--impair``: this node's socket edge is a bad link (a ``harness.impair.ImpairSpec``)
+    impair: Any = None
     heartbeat_timeout: float = 30.0
     #: Seconds to keep ACKing after End_Mission; None = 2 x the retransmission timeout.
     linger: float | None = None
@@ -234,6 +236,7 @@ class Drone(RoleNode):
             url = self.vehicle.url
             self.log.info("built-in simulated vehicle on %s (GPS fix in %.1f s)", url, cfg.gps_fix_delay)
         capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, rto=cfg.rto, mavlink=url,
+                                     impair=cfg.impair.text() if cfg.impair is not None else None,
                                      target=f"{cfg.remote_host}:{cfg.remote_port}")
         self.log.info("connecting to the autopilot at %s", url)
         tap = None if capture is None else (lambda d, raw: capture.mavlink(d, raw, drone=cfg.drone_id))
@@ -244,6 +247,7 @@ class Drone(RoleNode):
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
                            reuse_port=cfg.reuse_port, on_event=EventLogger(self.log),
+                           impairment=self._impairment(cfg.impair),
                            tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None

@@ -63,6 +63,8 @@ class ManagerConfig:
     record_path: str | None = None
     #: MCAP capture of the manager's MCP traffic (``--capture``)
     capture_path: str | None = None
+    #: ``--impair``: this node's socket edge is a bad link (a ``harness.impair.ImpairSpec``)
+    impair: Any = None
     #: Seconds a waypoint stays active between its WP_On and WP_Off (challenge 2).
     dwell: float = 0.0
     #: Longest wait for every Mission_Ready; None waits until stopped (the description's way).
@@ -146,6 +148,7 @@ class Manager(RoleNode):
     def _run(self) -> int:
         cfg = self.cfg
         capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, rto=cfg.rto,
+                                     impair=cfg.impair.text() if cfg.impair is not None else None,
                                      challenge=cfg.challenge,
                                      drones=",".join(map(str, cfg.drones)),
                                      target=f"{cfg.remote_host}:{cfg.remote_port}")
@@ -154,6 +157,7 @@ class Manager(RoleNode):
                            bind_host=cfg.bind_host, remote_host=cfg.remote_host, timeout=cfg.rto,
                            retries=cfg.retries, reply_to_source=cfg.reply_to_source,
                            reuse_port=cfg.reuse_port, on_event=EventLogger(self.log),
+                           impairment=self._impairment(cfg.impair),
                            tap=None if capture is None else capture.datagram)
         except McpException as exc:
             raise RoleError(str(exc)) from None

@@ -137,11 +137,22 @@ class RoleNode:
             # the MCAP header names the writer: readers tell a node's own capture from a
             # test harness's (judge.judging: a harness's datagrams are its input, not judged)
             self.capture = BackgroundRecorder(path, library="mcp-node", metadata=run_metadata(
-                "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv), complete="true",
+                "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv),
+                # --impair: what reached the far end is not what the node's socket saw
+                complete="false" if meta.get("impair") else "true",
                 parameters={"rto": timeout}, **meta))
         except RecorderError as exc:
             raise RoleError(str(exc)) from None
         return self.capture
+
+    def _impairment(self, spec: Any) -> Any:
+        """``--impair``: the schedule for this node's socket edge (None: a clean link)."""
+        if spec is None:
+            return None
+        from harness.impair import Impairment
+
+        logging.getLogger(self.__class__.__name__.lower()).info("impaired link: %s", spec.text())
+        return Impairment(spec)
 
     def _capture_bound(self) -> None:
         """The MCP socket is bound: it is the capture's ``local`` address."""

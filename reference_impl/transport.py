@@ -97,9 +97,14 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
     """
 
     def __init__(self, endpoint: Endpoint, remote: Addr, *, reply_to_source: bool = False,
-                 on_event: EventCallback | None = None, tap: DatagramTap | None = None) -> None:
+                 on_event: EventCallback | None = None, tap: DatagramTap | None = None,
+                 impairment: Any = None) -> None:
         self.endpoint = endpoint
         self.tap = tap
+        #: ``--impair``: a ``harness.impair.Impairment`` deciding what this node's own socket
+        #: edge does to each datagram it sends (``tx``) and receives (``rx``): a node on a bad
+        #: link; a corrupted ``rx`` copy is discarded, as the UDP checksum would discard it
+        self.impairment = impairment
         self.remote = remote
         self.reply_to_source = reply_to_source
         self.on_event = on_event
@@ -123,6 +128,23 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
 
     def datagram_received(self, data: bytes, addr: Addr) -> None:
         """Hot path: decode, ACK at once, then hand the events over."""
+        imp = self.impairment
+        if imp is None:
+            self._received(data, addr)
+            return
+        loop = self._loop
+        assert loop is not None
+        for d in imp.decide("rx", data, loop.time()).deliveries:
+            if "corrupt" in d.kinds or "cut" in d.kinds:
+                continue
+            if d.delay_s <= 0:
+                self._received(d.data, addr)
+            else:
+                loop.call_later(d.delay_s, self._received, d.data, addr)
+
+    def _received(self, data: bytes, addr: Addr) -> None:
+        if self.transport is None:
+            return
         ep = self.endpoint
         now = self._loop.time()  # type: ignore[union-attr]
         if self.tap is not None:
@@ -156,6 +178,9 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
         remote, to_source, tap = self.remote, self.reply_to_source, self.tap
         for data, addr in out:
             dest = addr if (to_source and addr is not None) else remote
+            if self.impairment is not None:
+                self._impaired_send(data, dest)
+                continue
             try:
                 tr.sendto(data, dest)
             except (OSError, ValueError, RuntimeError) as exc:  # closing, unreachable, ...
@@ -163,6 +188,29 @@ class McpDatagramProtocol(asyncio.DatagramProtocol):
                 continue
             if tap is not None:
                 tap("tx", data, dest)
+
+    def _impaired_send(self, data: bytes, dest: Addr) -> None:
+        """One datagram through the impairment: its copies now or later, none if dropped
+        (the tap sees what the node sent, once, as it does on a clean link)."""
+        loop = self._loop
+        assert loop is not None and self.impairment is not None
+        if self.tap is not None:
+            self.tap("tx", data, dest)
+
+        def out(body: bytes) -> None:
+            tr = self.transport
+            if tr is None:
+                return
+            try:
+                tr.sendto(body, dest)
+            except (OSError, ValueError, RuntimeError) as exc:
+                log.warning("sendto failed: %s", exc)
+
+        for d in self.impairment.decide("tx", data, loop.time()).deliveries:
+            if d.delay_s <= 0:
+                out(d.data)
+            else:
+                loop.call_later(d.delay_s, out, d.data)
 
     def _after(self, now: float) -> None:
         """Dispatch pending events and re-arm the retransmit timer."""
@@ -211,7 +259,7 @@ async def create_transport(endpoint: Endpoint, *, bind_host: str = "", bind_port
                            remote_host: str | None = None, remote_port: int = SPEC.protocol["ports"]["manager"],
                            reply_to_source: bool = False, on_event: EventCallback | None = None,
                            sock: socket.socket | None = None, tap: DatagramTap | None = None,
-                           reuse_port: bool = False,
+                           reuse_port: bool = False, impairment: Any = None,
                            ) -> McpDatagramProtocol:
     """Open (or adopt ``sock``) and start a transport for ``endpoint`` in the running loop.
 
@@ -224,6 +272,6 @@ async def create_transport(endpoint: Endpoint, *, bind_host: str = "", bind_port
         sock = open_udp_socket(bind_host, bind_port, reuse=reuse_port)
     remote = (remote_host if remote_host is not None else SPEC.protocol["broadcast_address"], remote_port)
     proto = McpDatagramProtocol(endpoint, remote, reply_to_source=reply_to_source, on_event=on_event,
-                                tap=tap)
+                                tap=tap, impairment=impairment)
     await loop.create_datagram_endpoint(lambda: proto, sock=sock)
     return proto
