@@ -244,6 +244,9 @@ MISSION_READY = int(Action.MISSION_READY)
 HARNESSES = frozenset({"mcp-conform", "mcp-fuzz", "mcp-capture"})
 #: The writer of a node's own capture (``mcp-node --capture``).
 NODE_RECORDER = "mcp-node"
+#: Writers of a node's own view: the node itself, or ``mcp-soak``'s medium (what the node
+#: sent into its link and what the link delivered to it: complete for that node's part).
+NODE_RECORDERS = frozenset({NODE_RECORDER, "mcp-soak"})
 
 
 def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = None) -> Judgement:
@@ -374,7 +377,7 @@ class _Session:
         if self.mon is None and recorder in HARNESSES:  # before the first datagram
             self.recorded_harness = True
             self.params.adopt(_recorded_parameters(rec))
-        elif self.mon is None and recorder == NODE_RECORDER:
+        elif self.mon is None and recorder in NODE_RECORDERS:
             # a node's own capture (mcp-node --capture): its socket saw every datagram it
             # exchanged, so the file says it is complete; the node's own timeout
             self.params.adopt(_recorded_parameters(rec))

@@ -169,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: a built-in simulated vehicle")
     d.add_argument("--gps-fix-delay", type=_number(0.0, True), default=0.0, metavar="S",
                    help="seconds before the built-in vehicle reports a GPS fix (0)")
+    d.add_argument("--linger", type=_number(0.0, True), default=None, metavar="S",
+                   help="seconds to keep ACKing retransmitted copies after End_Mission (2 x --rto): "
+                        "longer on a lossy link, where End_Mission's ACK may be lost many times")
     d.add_argument("--takeoff-alt", type=_number(0.0, False), default=10.0, metavar="M",
                    help="altitude to climb to after Start_Mission (10)")
     m = sub.add_parser("manager", help="the Mission Manager (ID 0)",
@@ -220,7 +223,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                           remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
                           retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
                           reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
-                          record_path=args.record,
+                          record_path=args.record, linger=args.linger,
                           capture_path=args.capture, impair=args.impair_spec)
         drone = Drone(cfg)
         if args.mavlink and args.gps_fix_delay:

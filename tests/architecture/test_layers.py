@@ -13,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "reports", "reference_impl",
-            "conformance", "fuzz", "captures")
+            "conformance", "fuzz", "captures", "soak")
 
 pytest.importorskip("importlinter", reason="import-linter is not installed (pip install -e '.[test]')")
 

@@ -108,6 +108,7 @@ class SampleManager:
         self.ack_cond = threading.Condition()
         self.stop = threading.Event()
         self.dropped: set[int] = set()
+        self.sent: list[list[Any]] = []  # [action, drone] of each command, for --record
 
     # ------------------------------------------------------------------ wire
     def next_seq(self) -> int:
@@ -163,6 +164,7 @@ class SampleManager:
         """Send and block until ACKed (or retries run out: the drone is dropped)."""
         if dst in self.dropped:
             return False
+        self.sent.append([action.name, dst])
         with self.ack_cond:
             since = len(self.acks)  # only ACKs that arrive after sending count
         seq = self.next_seq()
@@ -255,6 +257,8 @@ def main() -> int:
     p.add_argument("--rto", type=float, default=5.0)
     p.add_argument("--retries", type=int, default=1000)
     p.add_argument("--ack-socket", choices=("same", "other"), default="same")
+    p.add_argument("--record", default=None, metavar="FILE",
+                   help="write what it sent (JSON: sent as [action, drone], ready, outcome) on exit")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS))
     args = p.parse_args()
     try:
@@ -267,10 +271,20 @@ def main() -> int:
         mgr.stop.set()
         raise SystemExit(0)
     signal.signal(signal.SIGTERM, stop)
+    code = None
     try:
-        return mgr.run()
+        code = mgr.run()
+        return code
     except KeyboardInterrupt:
         return 0
+    finally:
+        if args.record:
+            import json
+
+            outcome = ("end_mission" if code == 0 else "drone_failed" if mgr.dropped else "stopped")
+            Path(args.record).write_text(json.dumps({"role": "manager", "outcome": outcome, "sent": mgr.sent,
+                                                     "ready": list(mgr.ready),
+                                                     "failed": sorted(mgr.dropped)}) + "\n")
 
 
 if __name__ == "__main__":

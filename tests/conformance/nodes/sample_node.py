@@ -32,6 +32,7 @@ import struct
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,15 @@ FAULTS: dict[str, tuple[str, str]] = {
     "flood-hang": ("MCP-ROB-7", "after 5000 malformed datagrams stops ACKing for 30 s"),
     "ready-to-wrong-id": ("MCP-FLOW-1", "Mission_Ready's dst is 5 instead of 0"),
     "source-port-filter": ("MCP-TRN-2", "drops datagrams whose source address is not --send-to"),
+    # faults a clean link hides and a bad one shows (mcp-soak, issue 22)
+    "dup-forgets-on-reorder": ("MCP-DUP-1", "remembers only the last seq per src: a late copy of an older "
+                                            "message, overtaken by a newer one, is delivered again"),
+    "dup-key-content": ("MCP-DUP-1", "a duplicate is a message whose action and payload equal the last "
+                                     "delivered from that src (seq never looked at): a late copy of an older "
+                                     "one is delivered again"),
+    "rtx-gives-up": ("MCP-RTX-1", "each unicast is sent 3 times at most, then given up (Mission_Ready too)"),
+    "ack-before-accept": ("MCP-ACK-1", "ACKs a command as it arrives, but drops it unread while its own "
+                                       "Mission_Ready is unACKed (the ACK promised a delivery)"),
 }
 
 BAD_PREAMBLE = PREAMBLE[:-1] + b"\x02"
@@ -115,6 +125,8 @@ STORM_INTERVAL = 0.01
 FLOOD_HANG_AFTER = 5000
 FLOOD_HANG_FOR = 30.0
 CRASH_BIG_ABOVE = 8192
+DUP_WINDOW = 64  # seqs remembered per src for duplicate discard
+GIVE_UP_AFTER = 3  # copies of a unicast under the rtx-gives-up fault
 
 _log_lock = threading.Lock()
 _t0 = time.monotonic()
@@ -315,6 +327,14 @@ class Node:
         self._waiters_lock = threading.Lock()
         self.last_seq: dict[Any, int] = {}  # per src (one global key under dup-ignores-src)
         self.last_content: dict[int, tuple[int, bytes]] = {}
+        #: the last DUP_WINDOW seqs delivered per src: a late copy of an older one is a
+        #: duplicate too (MCP-DUP-4 leaves it open; exactly-once on a reordering link needs it)
+        self.recent: dict[Any, deque[int]] = {}
+        self.ready_acked = False
+        self.linger: float | None = args.linger
+        self.record_path: str | None = args.record
+        self.deliveries: list[list[Any]] = []
+        self.outcome = "running"
         self.inbox: queue.Queue[Message] = queue.Queue()
         self.malformed = 0
         self.deaf_until = 0.0
@@ -400,7 +420,8 @@ class Node:
         name = Action(action).name
         try:
             data = self.datagram(dst, src, seq, action, payload)
-            for copy in range(1 + max(0, self.retries)):
+            retries = min(self.retries, GIVE_UP_AFTER - 1) if "rtx-gives-up" in self.faults else self.retries
+            for copy in range(1 + max(0, retries)):
                 if copy and "rtx-new-seq" in self.faults:
                     seq = self.next_seq()
                     with self._waiters_lock:
@@ -416,7 +437,7 @@ class Node:
                     return True
                 if self.stop.is_set():
                     return False
-            log(f"{name}: no ACK after {self.retries} retries, giving up")
+            log(f"{name}: no ACK after {retries} retries, giving up")
             return False
         finally:
             with self._waiters_lock:
@@ -505,6 +526,11 @@ class Node:
             if "ack-other-id" in self.faults:
                 self.send_ack(msg.src, msg.seq, addr)
             return
+        if "ack-before-accept" in self.faults and not self.ready_acked:
+            self.send_ack(msg.src, msg.seq, addr)
+            log(f"{msg.action.name} seq {msg.seq} ACKed but dropped: Mission_Ready not ACKed yet "
+                "(fault ack-before-accept)")
+            return
         dup = self.is_duplicate(msg, data)
         if dup and "ack-first-copy-only" in self.faults:
             log(f"duplicate {msg.action.name} seq {msg.seq} from {msg.src}: not ACKed (fault ack-first-copy-only)")
@@ -555,6 +581,8 @@ class Node:
     def is_duplicate(self, msg: Message, data: bytes) -> bool:
         if "no-dup-discard" in self.faults:
             return False
+        if "dup-key-content" in self.faults:
+            return self.last_content.get(msg.src) == (int(msg.action), bytes(data[HEADER_SIZE:]))
         last = self.last_seq.get(self._dup_key(msg))
         if last is not None:
             if "seq-no-wrap" in self.faults:
@@ -562,6 +590,10 @@ class Node:
                     return True
             elif msg.seq == last:
                 return True
+        recent = self.recent.get(self._dup_key(msg))
+        if recent is not None and msg.seq in recent and not (
+                self.faults & {"dup-forgets-on-reorder", "seq-no-wrap"}):
+            return True
         if "dup-by-content" in self.faults:
             return self.last_content.get(msg.src) == (int(msg.action), bytes(data[HEADER_SIZE:]))
         return False
@@ -572,10 +604,12 @@ class Node:
             log(f"duplicate broadcast {msg.action.name} seq {msg.seq} from {msg.src}: not delivered")
             return
         self.last_seq[self._dup_key(msg)] = msg.seq
+        self.recent.setdefault(self._dup_key(msg), deque(maxlen=DUP_WINDOW)).append(msg.seq)
         self.last_content[msg.src] = (int(msg.action), bytes(data[HEADER_SIZE:]))
         if self.ended:
             log(f"{msg.action.name} seq {msg.seq} after End_Mission: ignored")
             return
+        self.deliveries.append([msg.action.name, msg.src, msg.seq])  # the delivery log (--record)
         self.inbox.put(msg)
 
     # ---------------------------------------------------------------- handlers
@@ -676,7 +710,7 @@ class Node:
         payload = struct.pack("!HH", self.id, 0) if "ready-bad-payload" in self.faults else b""
         src = self.id + 1 if "mission-ready-wrong-src" in self.faults else self.id
         dst = (5 if self.id != 5 else 6) if "ready-to-wrong-id" in self.faults else MANAGER_ID
-        self.send_unicast(Action.MISSION_READY, payload, dst, src=src, ack_src=MANAGER_ID)
+        self.ready_acked = self.send_unicast(Action.MISSION_READY, payload, dst, src=src, ack_src=MANAGER_ID)
         if "arm-before-start" in self.faults and self.autopilot is not None and not self.started:
             log("asking the autopilot to arm before Start_Mission (fault arm-before-start)")
             self.autopilot.submit("arm")
@@ -687,7 +721,7 @@ class Node:
                 self.handle(msg)
         if self.stop.is_set():
             return 0
-        linger = 2 * self.rto
+        linger = 2 * self.rto if self.linger is None else self.linger
         log(f"End_Mission: still ACKing for {linger:.2f} s")
         if self.recv_loop:
             self.pump(time.monotonic() + linger)
@@ -696,6 +730,7 @@ class Node:
         if self.autopilot is not None:  # let RTL (and anything queued before it) reach the autopilot
             self.autopilot.submit("noop").wait(5.0)
         log("mission over: exiting")
+        self.outcome = "end_mission"
         return 0
 
     def _start(self, target: Any, name: str) -> None:
@@ -703,7 +738,22 @@ class Node:
         t.start()
         self._threads.append(t)
 
+    def write_record(self) -> None:
+        """The delivery log (``--record``): what the application was given, in order."""
+        if not self.record_path:
+            return
+        import json
+
+        if self.outcome == "running" and self.ended:
+            self.outcome = "end_mission"
+        try:
+            Path(self.record_path).write_text(json.dumps(
+                {"role": "drone", "id": self.id, "outcome": self.outcome, "deliveries": self.deliveries}) + "\n")
+        except OSError as exc:
+            log(f"cannot write the record: {exc}")
+
     def close(self) -> None:
+        self.write_record()
         self.stop.set()
         for t in self._threads:
             if t is not threading.current_thread():
@@ -732,6 +782,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "custom-mode flag), once: still an RTL request (MCP-BLK-7)")
     p.add_argument("--busy-start", type=float, default=None, metavar="S",
                    help="seconds the Start_Mission handler blocks (default 1.0 in recv-loop mode, else 0)")
+    p.add_argument("--linger", type=float, default=None, metavar="S",
+                   help="seconds to keep ACKing after End_Mission (default 2 x rto)")
+    p.add_argument("--record", default=None, metavar="FILE",
+                   help="write the delivery log (JSON: deliveries as [action, src, seq]) on exit")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS), metavar="NAME")
     args = p.parse_args(argv)
     if not 1 <= args.id <= 0xFFFE:

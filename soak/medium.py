@@ -1,0 +1,170 @@
+"""The mission's radio: one manager and K drones joined through seeded impaired links.
+
+Each node talks to the medium on loopback instead of to its peers: the manager sends to the
+medium's front socket, which routes by the MCP header's dst (the broadcast ID and datagrams
+without a readable header go to every drone) down each drone's link; drone *i* sends to its
+own link socket, and what it sends goes up its link to the manager. Every link direction is
+impaired on its own random stream (``harness.impair``: direction ``drone<i>:down`` /
+``drone<i>:up`` of one schedule, seeded by the mission's seed), so the same seed and the
+same traffic give the same decisions (MCP-DUP-1, MCP-RTX-1 exercised by a bad link).
+
+The medium records each node's own view (``views``): what the node sent as it entered the
+link and what the link delivered to it, as the node's own socket saw them — a capture that
+is complete for what that node took part in, judged by ``judge.judging`` as a node's own
+capture. Drone *i*'s view also holds its link's decisions (``/impair``).
+
+Sockets and a delivery queue here; the decisions are ``harness.impair.Impairment``'s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import itertools
+import selectors
+import socket
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from harness.impair import Impairment
+from spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
+
+__all__ = ["Medium"]
+
+Address = tuple[str, int]
+MANAGER = "manager"
+ACK = int(Action.ACK)
+
+
+def view_name(drone: int | None) -> str:
+    return MANAGER if drone is None else f"drone{drone}"
+
+
+class Medium:
+    """The links of one mission. ``manager_addr`` and ``drone_addrs`` are where the nodes
+    listen; ``front`` is where the manager sends, ``links[i]`` where drone *i* sends (and
+    the address each hears the other from). ``recorders`` maps ``manager``/``drone<i>`` to a
+    recorder (``traceio.recorder.McapRecorder``) of that node's view, or is empty."""
+
+    def __init__(self, drones: Sequence[int], impairment: Impairment, manager_addr: Address,
+                 drone_addrs: dict[int, Address], recorders: dict[str, Any] | None = None,
+                 host: str = "127.0.0.1") -> None:
+        self.impairment = impairment
+        self.manager_addr = manager_addr
+        self.drone_addrs = dict(drone_addrs)
+        self.recorders = recorders or {}
+        self.sel = selectors.DefaultSelector()
+        self.front = self._socket(host, None)
+        self.links = {i: self._socket(host, i) for i in drones}
+        self.queue: list[tuple[float, int, socket.socket, bytes, Address, str, Address]] = []
+        self._order = itertools.count()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        #: per node view: retransmitted copies it sent, duplicate copies delivered to it
+        self.retransmissions: dict[str, int] = {}
+        self.duplicates: dict[str, int] = {}
+        self._sent: dict[str, set[tuple[int, int, int, int]]] = {}
+        self._got: dict[str, set[tuple[int, int]]] = {}
+
+    def _socket(self, host: str, drone: int | None) -> socket.socket:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind((host, 0))
+        s.setblocking(False)
+        with contextlib.suppress(OSError):
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        self.sel.register(s, selectors.EVENT_READ, drone)
+        return s
+
+    @property
+    def front_addr(self) -> Address:
+        return self.front.getsockname()[:2]
+
+    def link_addr(self, drone: int) -> Address:
+        return self.links[drone].getsockname()[:2]
+
+    # ------------------------------------------------------------------ accounting
+    def _tx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
+        h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
+        if h is not None and h[3] != ACK:
+            sent = self._sent.setdefault(view, set())
+            if h in sent:
+                self.retransmissions[view] = self.retransmissions.get(view, 0) + 1
+            sent.add(h)
+        rec = self.recorders.get(view)
+        if rec is not None:
+            rec.datagram("tx", data, peer, local=local)
+
+    def _rx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
+        h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
+        if h is not None and h[3] != ACK:
+            key = (h[1], h[2])
+            got = self._got.setdefault(view, set())
+            if key in got:
+                self.duplicates[view] = self.duplicates.get(view, 0) + 1
+            got.add(key)
+        rec = self.recorders.get(view)
+        if rec is not None:
+            rec.datagram("rx", data, peer, local=local)
+
+    # ------------------------------------------------------------------ the links
+    def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,
+                view: str, now: float) -> None:
+        decision = self.impairment.decide(f"drone{drone}:{way}", data, now)
+        rec = self.recorders.get(view_name(drone))
+        if rec is not None:
+            rec.impairment(decision, data)
+        for d in decision.deliveries:
+            heapq.heappush(self.queue, (now + d.delay_s, next(self._order), out, d.data, dst, view,
+                                        out.getsockname()[:2]))
+
+    def _read(self, sock: socket.socket, drone: int | None, now: float) -> None:
+        for _ in range(64):
+            try:
+                data, _addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            if drone is None:  # the manager's: down the link of the drone it is addressed to
+                self._tx(MANAGER, data, self.front_addr, self.manager_addr)
+                h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
+                dst = h[0] if h is not None else BROADCAST_ID
+                for i in ([dst] if dst in self.links else list(self.links)):
+                    self._impair(i, "down", data, self.links[i], self.drone_addrs[i], view_name(i), now)
+            else:  # drone i's: up its link to the manager, from the link's address
+                self._tx(view_name(drone), data, self.link_addr(drone), self.drone_addrs[drone])
+                self._impair(drone, "up", data, sock, self.manager_addr, MANAGER, now)
+
+    def _deliver(self, now: float) -> None:
+        q = self.queue
+        while q and q[0][0] <= now:
+            _, _, sock, data, dst, view, src = heapq.heappop(q)
+            self._rx(view, data, src, dst)
+            with contextlib.suppress(OSError):
+                sock.sendto(data, dst)
+
+    def serve(self) -> None:
+        """Route and impair until :meth:`stop` (run in a thread by :meth:`start`)."""
+        while not self._stop.is_set():
+            now = time.monotonic()
+            self._deliver(now)
+            wait = 0.05 if not self.queue else max(0.0, min(0.05, self.queue[0][0] - now))
+            for key, _ in self.sel.select(wait):
+                self._read(key.fileobj, key.data, time.monotonic())  # type: ignore[arg-type]
+            self._deliver(time.monotonic())
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self.serve, name="mcp-soak-medium", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        for s in [self.front, *self.links.values()]:
+            with contextlib.suppress(Exception):
+                self.sel.unregister(s)
+            s.close()
+        self.sel.close()

@@ -1,0 +1,323 @@
+"""One whole mission on a bad link: a manager and K drones through :class:`soak.medium.Medium`,
+then judged twice (issue 22 item 4).
+
+- The monitor judges each node's view (``judge.judging``: a node's own capture, complete for
+  what it took part in; one MCAP per mission, one segment per node): no violation.
+- Exactly-once on what the applications delivered (MCP-DUP-1, MCP-RTX-1): every drone's
+  delivery log (``{record}``, the reference node's ``--record`` JSON: ``deliveries`` as
+  ``[action, src, seq]``) holds the challenge's commands once each, in order (MCP-FLOW-4/5/6),
+  never one (src, seq) twice, and what the manager's record says it sent to that drone; the
+  manager exits 0 within the mission's deadline (the mission completed: every command ACKed).
+
+Nodes are commands with placeholders (``--manager`` / ``--drone``), run as subprocesses; the
+reference ones by default (``python -m reference_impl``), never imported.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from harness.impair import Impairment, ImpairSpec
+from soak.medium import MANAGER, Medium, view_name
+
+__all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "expected_commands",
+           "run_mission"]
+
+DEFAULT_MANAGER = ("{python} -m reference_impl manager --challenge {challenge} --drones {drones} "
+                   "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} "
+                   "--send-to {listen_host}:{listen_port} --rto {rto} --record {record} -q")
+# --linger: a drone keeps ACKing after End_Mission until the soak ends it (a lost ACK of
+# End_Mission must not leave the manager retransmitting to a drone that is gone)
+DEFAULT_DRONE = ("{python} -m reference_impl drone --id {id} --bind {target_host}:{target_port} "
+                 "--send-to {listen_host}:{listen_port} --rto {rto} --linger 600 --record {record} -q")
+
+WAYPOINTS = """QGC WPL 110
+0\t1\t0\t16\t0\t0\t0\t0\t35.771332\t-78.674421\t0.000000\t1
+1\t0\t3\t22\t0.000000\t0.000000\t0.000000\t0.000000\t0.000000\t0.000000\t3.000000\t1
+2\t0\t3\t19\t5.000000\t0.000000\t0.000000\t0.000000\t35.771103\t-78.674659\t3.000000\t1
+3\t0\t3\t19\t5.000000\t0.000000\t0.000000\t0.000000\t35.771057\t-78.674421\t3.000000\t1
+4\t0\t3\t20\t0.000000\t0.000000\t0.000000\t0.000000\t0.000000\t0.000000\t0.000000\t1
+"""
+OBSTACLES = """QGC WPL 110
+0\t0\t3\t16\t2.000000\t0.000000\t0.000000\t0.000000\t35.771200\t-78.674500\t3.000000\t1
+1\t0\t3\t16\t2.000000\t0.000000\t0.000000\t0.000000\t35.771150\t-78.674300\t3.000000\t1
+2\t0\t3\t16\t3.000000\t0.000000\t0.000000\t0.000000\t35.770980\t-78.674550\t5.000000\t1
+"""
+FLOW = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}
+
+
+@dataclass
+class MissionSetup:
+    """What every mission of a campaign shares."""
+
+    impair: ImpairSpec  # its seed is replaced by each mission's
+    drones: tuple[int, ...] = (1, 2, 3)
+    rto: float = 0.2
+    timeout: float = 60.0  # the mission's deadline (s)
+    manager_cmd: str = DEFAULT_MANAGER
+    drone_cmd: str = DEFAULT_DRONE
+    waypoints: Path | None = None
+    obstacles: Path | None = None
+    workdir: Path = Path("soak-out")
+    strict: bool = True  # any monitor violation fails the mission (not only MUSTs)
+
+
+@dataclass
+class MissionResult:
+    index: int
+    seed: int
+    challenge: int
+    impair: str
+    ok: bool = False
+    outcome: str = "not run"
+    reasons: list[str] = field(default_factory=list)
+    mission_time: float | None = None
+    retransmissions: int = 0
+    duplicates: int = 0
+    violations: list[str] = field(default_factory=list)
+    capture: str | None = None
+    logs: dict[str, str] = field(default_factory=dict)
+    link: str = ""  # what the links did (dropped, duplicated, reordered)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"index": self.index, "seed": self.seed, "challenge": self.challenge, "impair": self.impair,
+                "ok": self.ok, "outcome": self.outcome, "reasons": self.reasons,
+                "mission_time_s": None if self.mission_time is None else round(self.mission_time, 3),
+                "retransmissions": self.retransmissions, "duplicates_discarded": self.duplicates,
+                "link": self.link, "violations": self.violations, "capture": self.capture, "logs": self.logs}
+
+
+def link_summary(counts: dict[str, int]) -> str:
+    """``412 dgrams: 120 lost, 40 dup, 70 reord, 3 corrupt`` (what the links did)."""
+    lost = sum(v for k, v in counts.items() if k.startswith("drop:"))
+    words = [f"{counts.get('datagrams', 0)} dgrams", f"{lost} lost"]
+    for key, label in (("dup", "dup"), ("reorder", "reord"), ("corrupt", "corrupt"), ("cut", "cut")):
+        if counts.get(key):
+            words.append(f"{counts[key]} {label}")
+    return ", ".join(words)
+
+
+def _free_port(host: str) -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _command(template: str, values: dict[str, Any]) -> list[str]:
+    """``template`` split like a shell, each word's placeholders filled (a bad one: ValueError)."""
+    try:
+        return [w.format_map(values) for w in shlex.split(template)]
+    except KeyError as exc:
+        raise ValueError(f"unknown placeholder {{{exc.args[0]}}} in {template!r}; placeholders: "
+                         + ", ".join("{" + k + "}" for k in sorted(values))) from None
+    except (IndexError, ValueError) as exc:
+        raise ValueError(f"bad command {template!r}: {exc}") from None
+
+
+def placeholders() -> list[str]:
+    return ["python", "id", "target_host", "target_port", "listen_host", "listen_port", "challenge",
+            "drones", "waypoints", "obstacles", "rto", "record"]
+
+
+def expected_commands(challenge: int, n_waypoints: int) -> list[str]:
+    """What one drone's application must get, once each, in this order (MCP-FLOW-4/5/6)."""
+    middle = {1: ["WP_List"], 2: ["WP_On", "WP_Off"] * n_waypoints, 3: ["Obstacles_List"]}[challenge]
+    return ["Start_Mission", *middle, "End_Mission"]
+
+
+def _spawn(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
+    with open(log, "wb") as err:
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=err, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+
+
+def _end(proc: subprocess.Popen[bytes], grace: float = 5.0) -> int | None:
+    """SIGTERM, then SIGKILL after ``grace``; the exit code (None if it had to be killed)."""
+    if proc.poll() is not None:
+        return proc.returncode
+    with contextlib.suppress(ProcessLookupError):
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(grace)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            proc.kill()
+        proc.wait(5)
+        return None
+
+
+def _record(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> MissionResult:
+    """Mission ``index`` with impairment seed ``seed``; everything it wrote under
+    ``setup.workdir/mission-<seed>-c<challenge>/``."""
+    from spec.mission import load_waypoints
+    from traceio.recorder import McapRecorder, run_metadata
+
+    spec = setup.impair.__class__(**{**setup.impair.__dict__, "seed": seed})
+    res = MissionResult(index, seed, challenge, spec.text())
+    out = setup.workdir / f"mission-{seed}-c{challenge}"
+    out.mkdir(parents=True, exist_ok=True)
+    wp_file, ob_file = setup.waypoints, setup.obstacles
+    if wp_file is None:
+        wp_file = setup.workdir / "mission.waypoints"
+        wp_file.write_text(WAYPOINTS)
+    if ob_file is None:
+        ob_file = setup.workdir / "obstacles.waypoints"
+        ob_file.write_text(OBSTACLES)
+    host = "127.0.0.1"
+    ports = {MANAGER: _free_port(host), **{view_name(i): _free_port(host) for i in setup.drones}}
+    views = [MANAGER, *(view_name(i) for i in setup.drones)]
+    parts = {v: out / f"mission.{v}.mcap" for v in views}
+    recorders = {}
+    for v in views:
+        node_id = 0 if v == MANAGER else int(v[5:])
+        recorders[v] = McapRecorder(parts[v], library="mcp-soak", metadata=run_metadata(
+            "mcp-soak", role="manager" if v == MANAGER else "drone", node_id=node_id, complete="true",
+            parameters={"rto": setup.rto}, impair=spec.text(), challenge=challenge))
+    medium = Medium(setup.drones, Impairment(spec), (host, ports[MANAGER]),
+                    {i: (host, ports[view_name(i)]) for i in setup.drones}, recorders, host)
+    common = {"python": sys.executable, "challenge": challenge, "drones": ",".join(map(str, setup.drones)),
+              "waypoints": str(wp_file), "obstacles": str(ob_file), "rto": f"{setup.rto:g}"}
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    manager_code: int | None = None
+    try:
+        cmds = {v: _command(setup.manager_cmd if v == MANAGER else setup.drone_cmd, {
+            **common, "id": 0 if v == MANAGER else int(v[5:]), "target_host": host, "target_port": ports[v],
+            "listen_host": host,
+            "listen_port": medium.front_addr[1] if v == MANAGER else medium.link_addr(int(v[5:]))[1],
+            "record": str(out / f"{v}.json")}) for v in views}
+        medium.start()
+        t0 = time.monotonic()
+        for v in views[1:] + views[:1]:  # the drones first, then the manager
+            procs[v] = _spawn(cmds[v], out / f"{v}.log")
+        try:
+            manager_code = procs[MANAGER].wait(max(0.1, setup.timeout - (time.monotonic() - t0)))
+            res.mission_time = time.monotonic() - t0
+        except subprocess.TimeoutExpired:
+            res.reasons.append(f"the mission did not end within {setup.timeout:g} s")
+        # a drone that exited by itself before the end (crashed, gave up) is a finding
+        early = {v: p.returncode for v, p in procs.items() if v != MANAGER and p.poll() is not None}
+        for v, code in early.items():
+            if code != 0:
+                res.reasons.append(f"{v} exited with {code} during the mission")
+    finally:
+        for p in procs.values():
+            _end(p)
+        medium.stop()
+        for r in recorders.values():
+            r.close()
+    res.retransmissions = sum(medium.retransmissions.values())
+    res.duplicates = sum(medium.duplicates.values())
+    res.link = link_summary(medium.impairment.counts)
+    res.logs = {v: str(out / f"{v}.log") for v in procs}
+    if manager_code not in (None, 0):
+        res.reasons.append(f"the manager exited with {manager_code}")
+
+    waypoints = load_waypoints(wp_file)
+    _check_deliveries(res, out, setup, challenge, len(waypoints))
+    capture = out / "mission.mcap"
+    _judge(res, parts, capture, setup, challenge, tuple(load_waypoints(ob_file) if challenge == 3 else waypoints))
+    res.ok = not res.reasons
+    res.outcome = "complete" if res.ok else ("timeout" if res.mission_time is None else "failed")
+    return res
+
+
+def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challenge: int,
+                      n_wp: int) -> None:
+    """Exactly-once on the applications' delivery logs (MCP-DUP-1, MCP-FLOW-4/5/6)."""
+    want = expected_commands(challenge, n_wp)
+    manager = _record(out / f"{MANAGER}.json")
+    sent: dict[int, list[str]] | None = None
+    if manager is not None and isinstance(manager.get("sent"), list):
+        sent = {}
+        for action, drone in manager["sent"]:
+            sent.setdefault(int(drone), []).append(_name(action))
+        if manager.get("outcome") not in (None, "end_mission"):
+            res.reasons.append(f"manager: outcome {manager.get('outcome')}")
+    for i in setup.drones:
+        rec = _record(out / f"{view_name(i)}.json")
+        if rec is None or not isinstance(rec.get("deliveries"), list):
+            res.reasons.append(f"drone{i}: no delivery log ({out / f'{view_name(i)}.json'})")
+            continue
+        got = [_name(d[0]) for d in rec["deliveries"]]
+        keys = [(d[1], d[2]) for d in rec["deliveries"]]
+        twice = sorted({k for k in keys if keys.count(k) > 1})
+        if twice:
+            res.reasons.append(f"drone{i}: delivered (src, seq) {twice[0]} {keys.count(twice[0])} times "
+                               f"(MCP-DUP-1)")
+        if got != want:
+            res.reasons.append(f"drone{i}: delivered {_short(got)}, expected {_short(want)} (exactly once, in order)")
+        elif sent is not None and sent.get(i, []) != got:
+            res.reasons.append(f"drone{i}: delivered {_short(got)}, the manager sent {_short(sent.get(i, []))}")
+        if rec.get("rtl") is False and got and got[-1] == "End_Mission":  # the vehicle's record
+            res.reasons.append(f"drone{i}: End_Mission delivered but no RTL asked of the autopilot (MCP-BLK-7)")
+
+
+def _name(action: Any) -> str:
+    """An action's name as the spec spells it (a log may write START_MISSION or start_mission)."""
+    return _NAMES.get(str(action).lower(), str(action))
+
+
+_NAMES = {n.lower(): n for n in ("Mission_Ready", "Start_Mission", "WP_List", "WP_On", "WP_Off",
+                                 "Obstacles_List", "End_Mission", "Mav_Passthrough", "ACK")}
+
+
+def _short(names: list[str]) -> str:
+    text = ",".join(names)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def _judge(res: MissionResult, parts: dict[str, Path], capture: Path, setup: MissionSetup, challenge: int,
+           items: tuple[Any, ...]) -> None:
+    """The nodes' views merged into one capture (a segment each) and judged by the monitor."""
+    from judge.judging import CaptureError, Params, judge
+    from traceio.merge import merge_captures
+
+    try:
+        merge_captures(list(parts.values()), capture)
+        res.capture = str(capture)
+        j = judge(capture, Params(rto=setup.rto, ack_window=max(0.5, 2 * setup.rto), drones=setup.drones,
+                                  challenge=challenge, waypoints=items,
+                                  given=frozenset({"rto", "ack_window", "drones", "challenge"})))
+    except (CaptureError, OSError, ValueError) as exc:
+        res.reasons.append(f"capture not judged: {exc}")
+        return
+    # each view is exact for what its own node did (what it sent entered the link as sent;
+    # its replies answer what the link delivered to it); the other end is seen through the
+    # link (copies lost, duplicated, held back), so each node is judged in its own view only
+    segments = j.segments or {MANAGER: j}
+    bad = []
+    for seg, sj in segments.items():
+        party = 0 if seg == MANAGER else int(seg[5:]) if seg.startswith("drone") else None
+        for v in (sj.shown_violations if setup.strict else sj.failing()):
+            if v.node == party:
+                bad.append(v)
+    for v in bad:
+        res.violations.append(f"{v.rule} node {v.node}: {v.actual}")
+    if bad:
+        v = bad[0]
+        res.reasons.append(f"monitor: {len(bad)} violation(s), first {v.rule} by node {v.node}: {v.actual}")
+    if res.mission_time is not None and j.verdicts.get(0, {}).get(FLOW[challenge]) not in ("passed", None):
+        res.reasons.append(f"monitor: {FLOW[challenge]} {j.verdicts[0][FLOW[challenge]]}")
+
+
+def environment_note() -> str:
+    """Why a reference-node command may fail to start: the interpreter running mcp-soak."""
+    return f"{sys.executable} (PYTHONPATH={os.environ.get('PYTHONPATH', '')})"

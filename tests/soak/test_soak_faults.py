@@ -1,0 +1,66 @@
+"""Faulty nodes a clean link hides are caught by ``mcp-soak`` on a bad one, with the seed that
+shows it, and that seed replays the failure (issue 22 item 4; MCP-DUP-1, MCP-RTX-1,
+MCP-ACK-1). The independent sample nodes (tests/conformance/nodes) with one ``--fault``
+each; the same nodes without it complete the same missions (no false alarm). One drone,
+so each link's decisions fall on the same datagrams run after run."""
+
+from __future__ import annotations
+
+import json
+import shlex
+from pathlib import Path
+
+import pytest
+
+from soak.cli import main
+
+pytestmark = pytest.mark.slow
+
+NODES = Path(__file__).resolve().parents[1] / "conformance" / "nodes"
+DRONE = (f"{{python}} {NODES / 'sample_node.py'} --id {{id}} --bind {{target_host}}:{{target_port}} "
+         "--send-to {listen_host}:{listen_port} --rto {rto} --linger 600 --record {record}")
+MANAGER = (f"{{python}} {NODES / 'sample_manager.py'} --challenge {{challenge}} --drones {{drones}} "
+           "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} "
+           "--send-to {listen_host}:{listen_port} --rto {rto} --record {record}")
+REORDERING = "loss=0.2,dup=0.3,reorder=0.4,delay=0-100ms"
+LOSSY = "loss=0.5"
+
+CASES = [  # (which node, fault, link, challenge, what the failure says)
+    ("drone", "dup-forgets-on-reorder", REORDERING, "2", "MCP-DUP-1"),
+    ("drone", "dup-key-content", REORDERING, "2", "MCP-DUP-1"),
+    ("drone", "ack-before-accept", "loss=0.3", "1", "expected Start_Mission"),
+    ("drone", "rtx-gives-up", LOSSY, "1", "did not end"),
+    ("manager", "give-up-after-two", LOSSY, "1", "the manager exited with 1"),
+]
+
+
+def soak(tmp_path: Path, name: str, *args: str) -> tuple[int, dict]:
+    out = tmp_path / f"{name}.json"
+    code = main(["--drones", "1", "--mission-timeout", "10", "--out", str(tmp_path / name), "--json", str(out),
+                 "--fail-fast", *args])
+    return code, json.loads(out.read_text())
+
+
+@pytest.mark.parametrize("role, fault, link, challenge, says", CASES, ids=[c[1] for c in CASES])
+def test_the_soak_catches_the_fault_and_its_seed_replays_it(role, fault, link, challenge, says, tmp_path):
+    nodes = ["--drone", DRONE + (f" --fault {fault}" if role == "drone" else ""),
+             "--manager", MANAGER + (f" --fault {fault}" if role == "manager" else "")]
+    code, doc = soak(tmp_path, "campaign", "--missions", "6", "--impair", link, "--challenges", challenge, *nodes)
+    assert code == 1, doc["results"]
+    bad = doc["first_failure"]
+    assert any(says in r for r in bad["reasons"]), bad["reasons"]
+    assert Path(bad["capture"]).exists()
+    repro = shlex.split(bad["reproduce"])
+    assert repro[:5] == ["mcp-soak", "--missions", "1", "--seed", str(bad["seed"])]
+    # the seed replays it: the reproducing command's own options, run again
+    code2, doc2 = soak(tmp_path, "replay", *repro[1:])
+    assert code2 == 1 and doc2["first_failure"]["seed"] == bad["seed"]
+    assert any(says in r for r in doc2["first_failure"]["reasons"]), doc2["first_failure"]["reasons"]
+
+
+@pytest.mark.parametrize("link, challenge", [(REORDERING, "2"), (LOSSY, "1")])
+def test_the_correct_sample_nodes_complete_the_same_missions(link, challenge, tmp_path):
+    code, doc = soak(tmp_path, "control", "--missions", "3", "--impair", link, "--challenges", challenge,
+                     "--drone", DRONE, "--manager", MANAGER)
+    assert code == 0, doc["first_failure"]
+    assert doc["complete"] == 3
