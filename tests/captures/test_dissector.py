@@ -209,7 +209,7 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
                         data, addr = sock.recvfrom(70000)
                     except OSError:
                         continue
-                    rec.datagram("rx", data, addr)
+                    rec.datagram("rx", data, addr, time.time_ns())
                     got.set()
 
             t = threading.Thread(target=receive, daemon=True)
@@ -219,8 +219,9 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
             gen = CaseGenerator(seed, node_id=1, broadcast_id=65535)
             for _ in range(cases):
                 data = gen.next().data
+                t_ns = time.time_ns()  # before the send: the node's answer comes after it
                 sock.sendto(data, ("127.0.0.1", node))
-                rec.datagram("tx", data, ("127.0.0.1", node))
+                rec.datagram("tx", data, ("127.0.0.1", node), t_ns)
                 time.sleep(0.002)
             time.sleep(0.5)
             stop.set()
@@ -251,3 +252,26 @@ def test_tshark_on_a_fuzz_capture(tmp_path):
     assert passthrough and all(r["mavlink_proto.msgid"] for r in passthrough)
     assert _check_acks(rows) >= 50
     assert any(r["centmesh.retransmission_of"] for r in rows if r["udp.srcport"] == str(node))
+
+
+def test_the_ports_preference_makes_any_datagram_there_centmesh(tmp_path):
+    """``-o centmesh.ports:RANGE``: a datagram on such a port is MCP without a preamble to find
+    it by — 2 bytes and 0 bytes, both MCP-ROB-1; without the preference, plain UDP."""
+    tshark = _tshark()
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import wrpcap
+
+    pcap, lua = tmp_path / "p.pcap", tmp_path / "centmesh.lua"
+    wrpcap(str(pcap), [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=50000, dport=40005) / b"xx",
+                       Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=50001, dport=40005)])
+    assert _run(dissector, "dissector", "-o", str(lua))[0] == 0
+
+    def rules(*opts: str) -> list[str]:
+        proc = subprocess.run([tshark, "-n", *opts, "-X", f"lua_script:{lua}", "-r", str(pcap), "-T", "fields",
+                               "-e", "centmesh.rule"], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.splitlines()
+
+    assert rules("-o", "centmesh.ports:40000-40010") == ["MCP-ROB-1", "MCP-ROB-1"]
+    assert rules() == ["", ""]
