@@ -7,7 +7,7 @@
                      [--json OUT] [--html OUT]
     mcp-capture replay CAPTURE --target HOST:PORT | --spawn CMD [--role drone|manager] [--listen ...]
     mcp-capture export CAPTURE --pcap OUT.pcap|OUT.pcapng
-    mcp-capture dissector [--install | -o FILE]
+    mcp-capture dissector [--install | -o FILE [--mavlink FILE]]
 
 Each subcommand lives in its own module, which this one only registers: the module has
 ``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``

@@ -514,7 +514,20 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
         yield ctx
     finally:
         outcome = rec.outcome
-        mcp_session.end_case(state.ctx.get(item.nodeid, ctx), outcome)  # --impair: the last attempt's
+        last = state.ctx.get(item.nodeid, ctx)  # --impair: the last attempt's
+        last.evidence = _log_evidence(rec)  # the capture's /log line of the case's end (issue 24)
+        mcp_session.end_case(last, outcome)
+
+
+def _log_evidence(rec: Any) -> str | None:
+    """Why a case did not pass, in one line: the reason, expected / actual and the first
+    evidence lines of the report (None when it passed)."""
+    if rec.outcome in ("passed", "info", "xpassed"):
+        return None
+    parts = [p for p in (rec.reason,
+                         f"expected {rec.expected}, got {rec.actual}" if rec.expected or rec.actual else None,
+                         *list(rec.evidence)[:3]) if p]
+    return "; ".join(str(p) for p in parts)[:2000] or None
 
 
 # ---------------------------------------------------------------------- the end

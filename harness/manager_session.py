@@ -299,4 +299,5 @@ class ManagerSession(SessionBase):
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
+                        evidence=getattr(ctx, "evidence", None))

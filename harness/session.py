@@ -508,4 +508,5 @@ class Session(SessionBase):
         if ctx.restart_if_failed and outcome in ("failed", "warned", "error") and self.spawned:
             self.needs_restart = True
         self.after_case(ctx.node_silent)
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
+                        evidence=getattr(ctx, "evidence", None))

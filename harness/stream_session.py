@@ -387,7 +387,8 @@ class StreamSession:
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
         if self.recorder is not None:
-            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules)
+            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
+                                    evidence=getattr(ctx, "evidence", None))
         for c in list(self.conns):
             c.close()
         self.conns.clear()

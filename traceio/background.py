@@ -112,11 +112,15 @@ class BackgroundRecorder:
                               msg_type, drone))
 
     def case_mark(self, case_id: str, event: str, t_ns: int | None = None,
-                  outcome: str | None = None, rules: tuple[str, ...] | list[str] = ()) -> None:
+                  outcome: str | None = None, rules: tuple[str, ...] | list[str] = (),
+                  evidence: str | None = None) -> None:
         if event not in ("start", "end"):
             raise ValueError(f"case_mark event must be 'start' or 'end', not {event!r}")
         self._put("case_mark", (case_id, event, time.time_ns() if t_ns is None else int(t_ns),
-                                outcome, list(rules)))
+                                outcome, list(rules), evidence))
+
+    def log(self, message: str, level: str = "info", name: str = "mcp-conform", t_ns: int | None = None) -> None:
+        self._put("log", (str(message), level, str(name), time.time_ns() if t_ns is None else int(t_ns)))
 
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
         self._put("add_metadata", (name, {str(k): str(v) for k, v in values.items()}))

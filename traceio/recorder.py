@@ -13,8 +13,15 @@ JSON (schema encoding ``jsonschema``, raw bytes with ``"contentEncoding": "base6
   MCP-ROB-7): how many, to whom, the first and last send times, and the distinct datagrams
   in the order they were cycled (datagram ``i`` of the burst is ``cycle[i % len(cycle)]``);
 - ``/mavlink``: frames on the autopilot link, both directions, from the autopilot's point
-  of view (``rx``: the autopilot received it from the node; ``tx``: the autopilot sent it);
+  of view (``rx``: the autopilot received it from the node; ``tx``: the autopilot sent it),
+  with the decoded message (pymavlink's ``to_dict()``) beside the raw bytes;
 - ``/conformance/case``: case start and end marks, the end with its outcome.
+
+For Foxglove (issue 24; :mod:`traceio.fox`, schemas from ``foxglove-sdk``): the vehicle's
+position (``/vehicle/location``, ``foxglove.LocationFix``, the Map panel) and attitude
+(``/vehicle/attitude``, ``foxglove.PoseInFrame``) from the autopilot's GLOBAL_POSITION_INT
+and ATTITUDE, and ``/log`` (``foxglove.Log``, the Log panel): case started, passed, failed
+with its rules and evidence, and what a producer logs with :meth:`McapRecorder.log`.
 
 An MCAP metadata record named ``mcp-conform`` (written first, so a truncated file keeps it)
 holds the tool and spec versions, who recorded (``recorder``: runner, mcp-node, mcp-fuzz),
@@ -44,6 +51,7 @@ from typing import IO, Any
 from mcap.writer import CompressionType, Writer
 
 from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
+from traceio import fox
 
 __all__ = [
     "CHANNELS",
@@ -53,6 +61,7 @@ __all__ = [
     "McapRecorder",
     "RecorderError",
     "datagram_record",
+    "foxglove_channels",
     "mavlink_type",
     "run_metadata",
     "summarize_payload",
@@ -125,6 +134,10 @@ _MAVLINK_SCHEMA: dict[str, Any] = {
         "msg_type": {"type": ["string", "null"]},
         "length": _INT,
         "drone": _NULLABLE_INT,
+        "message": {"type": ["object", "null"],
+                    "description": "the decoded message: pymavlink's to_dict() (ardupilotmega), "
+                                   "NaN as null, byte arrays as hex"},
+        "decode_error": {"type": ["string", "null"], "description": "why the frame did not decode"},
         "raw_base64": _B64,
     },
     "required": ["direction", "length", "raw_base64"],
@@ -139,6 +152,7 @@ _CASE_SCHEMA: dict[str, Any] = {
         "event": {"enum": ["start", "end"]},
         "outcome": {"type": ["string", "null"]},
         "rules": {"type": "array", "items": _STR},
+        "evidence": {"type": ["string", "null"], "description": "why the case failed (end marks)"},
     },
     "required": ["case", "event", "rules"],
 }
@@ -207,6 +221,17 @@ CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/impair": ("mcp.Impairment", _IMPAIR_SCHEMA),
     "/vehicle": ("mcp.VehicleEvent", _VEHICLE_SCHEMA),
 }
+
+
+def foxglove_channels() -> dict[str, tuple[str, dict[str, Any]]]:
+    """Foxglove's well-known channels (topic -> (schema name, JSON schema from foxglove-sdk)),
+    registered when foxglove-sdk is installed (else none: the capture is complete without)."""
+    if not fox.available():
+        return {}
+    return {topic: (f"foxglove.{name}", fox.json_schema(name)) for topic, name in fox.FOXGLOVE_CHANNELS.items()}
+
+#: case outcome -> foxglove.Log level of its end mark
+_OUTCOME_LEVEL = {"passed": "info", "skipped": "info", "warned": "warning", "failed": "error", "error": "error"}
 _MAX_ITEMS = 16  # payload summary: mission items listed in full up to this many
 
 
@@ -322,7 +347,8 @@ class McapRecorder:
         self.local = local
         self._lock = threading.Lock()
         self._closed = False
-        self.counts: dict[str, int] = {topic: 0 for topic in CHANNELS}
+        self._fox = foxglove_channels()
+        self.counts: dict[str, int] = {topic: 0 for topic in {**CHANNELS, **self._fox}}
         try:
             self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
@@ -338,7 +364,7 @@ class McapRecorder:
             self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
         self._channels: dict[str, int] = {}
         schemas: dict[str, int] = {}
-        for topic, (name, schema) in CHANNELS.items():
+        for topic, (name, schema) in {**CHANNELS, **self._fox}.items():
             if name not in schemas:
                 schemas[name] = self._writer.register_schema(
                     name=name, encoding="jsonschema", data=json.dumps(schema).encode())
@@ -422,17 +448,46 @@ class McapRecorder:
         if direction not in ("tx", "rx"):
             raise ValueError(f"mavlink direction must be 'tx' or 'rx', not {direction!r}")
         raw = bytes(frame)
+        t = int(t_ns) if t_ns is not None else time.time_ns()
+        message, error = fox.mavlink_dict(raw)
         body = {"direction": direction, "msg_type": msg_type or mavlink_type(raw), "length": len(raw),
-                "drone": drone, "raw_base64": base64.b64encode(raw).decode("ascii")}
-        self._write("/mavlink", body, t_ns)
+                "drone": drone, "message": message, "decode_error": error,
+                "raw_base64": base64.b64encode(raw).decode("ascii")}
+        self._write("/mavlink", body, t)
+        if message is not None and direction == "tx" and self._fox:  # what the autopilot reports
+            location = fox.location_body(t, message, drone)
+            if location is not None:
+                self._write(fox.LOCATION, location, t)
+            attitude = fox.attitude_body(t, message, drone)
+            if attitude is not None:
+                self._write(fox.ATTITUDE, attitude, t)
+
+    def log(self, message: str, level: str = "info", name: str = "mcp-conform", t_ns: int | None = None) -> None:
+        """An event for Foxglove's Log panel (``/log``, ``foxglove.Log``): ``level`` debug,
+        info, warning, error or fatal; ``name`` who logs it (runner, mcp-fuzz, ...)."""
+        fox.log_level(level)  # a bad level is the caller's error, whether or not the SDK is there
+        if self._fox:
+            t = int(t_ns) if t_ns is not None else time.time_ns()
+            self._write(fox.LOG, fox.log_body(t, level, message, name), t)
 
     def case_mark(self, case_id: str, event: str, t_ns: int | None = None,
-                  outcome: str | None = None, rules: tuple[str, ...] | list[str] = ()) -> None:
-        """A case's ``start`` or ``end`` (the end carries the outcome)."""
+                  outcome: str | None = None, rules: tuple[str, ...] | list[str] = (),
+                  evidence: str | None = None) -> None:
+        """A case's ``start`` or ``end`` (the end carries the outcome, and why it failed in
+        ``evidence`` where the caller knows it), also as a line of ``/log``."""
         if event not in ("start", "end"):
             raise ValueError(f"case_mark event must be 'start' or 'end', not {event!r}")
-        body = {"case": case_id, "event": event, "outcome": outcome, "rules": list(rules)}
-        self._write("/conformance/case", body, t_ns)
+        t = int(t_ns) if t_ns is not None else time.time_ns()
+        body: dict[str, Any] = {"case": case_id, "event": event, "outcome": outcome, "rules": list(rules)}
+        if evidence is not None:
+            body["evidence"] = evidence
+        self._write("/conformance/case", body, t)
+        ruled = f" [{', '.join(rules)}]" if rules else ""
+        if event == "start":
+            self.log(f"{case_id}: started{ruled}", "info", "case", t)
+        else:
+            text = f"{case_id}: {outcome or 'ended'}{ruled}" + (f": {evidence}" if evidence else "")
+            self.log(text, _OUTCOME_LEVEL.get(outcome or "", "info"), "case", t)
 
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
         """A further MCAP metadata record (string values)."""

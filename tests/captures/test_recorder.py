@@ -22,6 +22,7 @@ from traceio.recorder import (
     METADATA_NAME,
     McapRecorder,
     RecorderError,
+    foxglove_channels,
     mavlink_type,
     run_metadata,
     summarize_payload,
@@ -59,16 +60,16 @@ def test_channels_schemas_and_counts(tmp_path):
         rec.case_mark("ACK/test_x", "end", 1_500, outcome="passed", rules=("MCP-ACK-1",))
     msgs, encodings = read_all(path)
     assert set(encodings.values()) == {"jsonschema"}
-    assert set(encodings) == set(CHANNELS) - {"/mcp/burst", "/impair"}
+    assert set(encodings) == set(CHANNELS) - {"/mcp/burst", "/impair"} | {"/log"}
     assert {t: len(v) for t, v in msgs.items()} == {
-        "/mcp/tx": 1, "/mcp/rx": 2, "/mavlink": 1, "/vehicle": 1, "/conformance/case": 2}
+        "/mcp/tx": 1, "/mcp/rx": 2, "/mavlink": 1, "/vehicle": 1, "/conformance/case": 2, "/log": 2}
     with open(path, "rb") as f:
         summary = make_reader(f, validate_crcs=True).get_summary()
     assert summary is not None
     assert {s.name for s in summary.schemas.values()} == {
         "mcp.Datagram", "mcp.Burst", "mcp.MavlinkFrame", "mcp.CaseMark", "mcp.Impairment",
-        "mcp.VehicleEvent"}
-    assert {c.topic for c in summary.channels.values()} == set(CHANNELS)
+        "mcp.VehicleEvent", "foxglove.LocationFix", "foxglove.PoseInFrame", "foxglove.Log"}
+    assert {c.topic for c in summary.channels.values()} == set(CHANNELS) | set(foxglove_channels())
     for schema in summary.schemas.values():
         body = json.loads(schema.data)
         assert body["type"] == "object"
