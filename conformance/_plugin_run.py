@@ -36,6 +36,9 @@ from conformance._run_state import (
     state_of,
     write_run_html,
 )
+from conformance._verdicts import apply_baseline as _apply_baseline
+from conformance._verdicts import judge_exception as _judge_exception
+from conformance._verdicts import log_evidence as _log_evidence
 from conformance.baseline import BaselineError, load_baseline, write_baseline
 from conformance.junit import as_pytest_error, write_junit
 from conformance.marks import (
@@ -52,7 +55,6 @@ from conformance.options import (
     unmatched,
 )
 from conformance.report import (
-    CaseRecord,
     build_json,
     case_from_json,
     merge_json,
@@ -64,9 +66,6 @@ from harness.config import RunConfig
 from harness.errors import (
     CaseFailure,
     Inconclusive,
-    NodeLost,
-    SilenceUnproven,
-    TargetLost,
 )
 from harness.interrupts import INTERRUPTS
 from spec import RULES
@@ -363,77 +362,6 @@ def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> 
     return (yield from _armed(item))
 
 
-def _skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
-    path, lineno, _ = item.reportinfo()
-    return (str(path), (lineno or 0) + 1, f"Skipped: {reason}")
-
-
-def _judge_exception(state: McpState, item: pytest.Item, rec: CaseRecord, exc: BaseException,
-                     rep: pytest.TestReport) -> None:
-    if isinstance(exc, CaseFailure):
-        if exc.rule not in RULES:
-            rec.outcome, rec.reason = "error", f"the case reported unknown rule {exc.rule!r}"
-            return
-        rule = RULES[exc.rule]
-        level = rule_level(exc.rule)
-        rec.failed_rule, rec.expected, rec.actual = exc.rule, exc.expected, exc.actual
-        rec.evidence = [str(e) for e in exc.evidence]
-        rec.relies_on = exc.dependencies()
-        rec.reason = f"{exc.rule}: {rule.text}"
-        if level == "MUST" or (level == "SHOULD" and state.cfg.strict):
-            rec.outcome = "failed"
-            rep.longrepr = exc.describe()
-        else:
-            rec.outcome = "warned" if level == "SHOULD" else "info"
-            rep.outcome, rep.longrepr = "passed", None
-            rep.sections.append((f"mcp-conform {rec.outcome}", exc.describe()))
-        return
-    if isinstance(exc, Inconclusive):
-        rec.outcome, rec.reason = "skipped", (str(exc).strip() or "inconclusive")
-        rep.outcome, rep.longrepr = "skipped", _skip_longrepr(item, rec.reason)
-        return
-    rec.outcome = "error"
-    if isinstance(exc, CaseTimeLimit):
-        rec.reason = str(exc)
-    elif isinstance(exc, NodeLost):
-        rec.reason = f"node lost during this case: {exc.reason}"
-        rec.evidence = list(exc.evidence)
-    elif isinstance(exc, SilenceUnproven):
-        rec.reason, rec.evidence = exc.reason, list(exc.evidence)
-    elif isinstance(exc, TargetLost):
-        rec.reason = f"target lost: {str(exc).strip() or 'the node is gone'}"
-    else:
-        rec.reason = _one_line(exc)
-        tb = exc.__traceback__
-        while tb is not None and tb.tb_next is not None:
-            tb = tb.tb_next
-        if tb is not None:
-            rec.evidence = [f"raised at {tb.tb_frame.f_code.co_filename}:{tb.tb_lineno} "
-                            f"in {tb.tb_frame.f_code.co_name}"]
-
-
-def _apply_baseline(state: McpState, rec: CaseRecord, rep: pytest.TestReport) -> None:
-    """An expected failure (``--baseline``) that failed or warned is ``xfailed``; one that
-    passed is ``xpassed`` (a failure under --strict), as pytest reports xfail / xpass."""
-    assert state.baseline is not None
-    if rec.outcome not in ("failed", "warned", "passed"):
-        return
-    entry = state.baseline.match(rec.id, rec.rules, rec.failed_rule if rec.outcome != "passed" else None)
-    if entry is None:
-        return
-    rec.baseline = entry.reason
-    if rec.outcome in ("failed", "warned"):
-        rec.outcome = "xfailed"
-        rep.outcome, rep.longrepr = "skipped", None
-        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
-    elif state.cfg.strict:
-        rec.outcome = "xpassed"
-        rep.outcome, rep.longrepr = "failed", f"[XPASS(strict)] {rec.id} is on the baseline ({entry.reason}) but passed"
-    else:
-        rec.outcome = "xpassed"
-        rep.wasxfail = entry.reason  # type: ignore[attr-defined]
-
-
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, pytest.TestReport, pytest.TestReport]:
     rep = yield
@@ -517,17 +445,6 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
         last = state.ctx.get(item.nodeid, ctx)  # --impair: the last attempt's
         last.evidence = _log_evidence(rec)  # the capture's /log line of the case's end (issue 24)
         mcp_session.end_case(last, outcome)
-
-
-def _log_evidence(rec: Any) -> str | None:
-    """Why a case did not pass, in one line: the reason, expected / actual and the first
-    evidence lines of the report (None when it passed)."""
-    if rec.outcome in ("passed", "info", "xpassed"):
-        return None
-    parts = [p for p in (rec.reason,
-                         f"expected {rec.expected}, got {rec.actual}" if rec.expected or rec.actual else None,
-                         *list(rec.evidence)[:3]) if p]
-    return "; ".join(str(p) for p in parts)[:2000] or None
 
 
 # ---------------------------------------------------------------------- the end
