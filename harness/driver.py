@@ -1,7 +1,9 @@
 """The target driver: the runner's one UDP socket, a background receiver, sends and waits.
 
 Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
-arrives; replies are tied to the commands they answer by ``judge.attribution`` (by the
+arrives -- with the kernel's receive time where the system gives one (Linux
+``SO_TIMESTAMPNS``), so the gaps between a node's copies (MCP-RTX-3) and its ACK latency
+(MCP-ACK-7) are the node's, not the runner's own scheduling delay on a loaded machine; replies are tied to the commands they answer by ``judge.attribution`` (by the
 seq they name, else by timing) before their form is judged; the runner sends from the
 socket it listens on, so a node that replies to the datagram's source reaches it too.
 The driver knows nothing of cases or rules: the conformance session and, later, the
@@ -42,6 +44,34 @@ Observer = Callable[[str, bytes, Address, int], None]  # (direction "tx"|"rx", d
 BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], None]
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; Python's socket module does not name it): the
+#: kernel's receive time of each datagram as a struct timespec in the ancillary data
+SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct("@ll")
+_CMSG_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
+MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
+
+
+def kernel_timestamps(sock: socket.socket) -> bool:
+    """Ask the kernel to timestamp each datagram ``sock`` receives; False where it cannot."""
+    import sys
+
+    if not sys.platform.startswith("linux") or not _CMSG_SPACE:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def arrival_ns(ancillary: list[tuple[int, int, bytes]]) -> int | None:
+    """The kernel's receive time (ns since the epoch) from ``recvmsg``'s ancillary data."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            return sec * 10**9 + nsec
+    return None
 _U16BE = struct.Struct("!H")
 _U16LE = struct.Struct("<H")
 
@@ -152,6 +182,7 @@ class TargetDriver:
         self.listen = listen
         self.our_id = our_id
         self._rcvbuf = rcvbuf
+        self._kernel_times = False  # the kernel timestamps what this socket receives
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -194,6 +225,7 @@ class TargetDriver:
             host = self.listen[0] or "*"
             raise OSError(f"cannot listen on {host}:{self.listen[1]}: {exc.strerror}") from None
         sock.settimeout(0.05)
+        self._kernel_times = kernel_timestamps(sock)
         self._sock = sock
         self.listen = (self.listen[0], sock.getsockname()[1])
         self._thread = threading.Thread(target=self._receive_loop, name="mcp-conform-rx", daemon=True)
@@ -228,9 +260,15 @@ class TargetDriver:
     def _receive_loop(self) -> None:
         assert self._sock is not None
         sock = self._sock
+        stamped = self._kernel_times
         while not self._stop.is_set():
+            arrived: int | None = None
             try:
-                data, addr = sock.recvfrom(65535)
+                if stamped:
+                    data, anc, _, addr = sock.recvmsg(65535, _CMSG_SPACE)
+                    arrived = arrival_ns(anc)
+                else:
+                    data, addr = sock.recvfrom(65535)
             except TimeoutError:
                 continue
             except OSError:
@@ -241,17 +279,20 @@ class TargetDriver:
             if self.link is not None:
                 # observers (the capture, the run's monitor) hold the node's side of the
                 # link: what it sent, once, as it sent it; the cases what the runner got
-                self._notify("rx", data, addr, time.time_ns())
+                self._notify("rx", data, addr, arrived or time.time_ns())
                 self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive)
             else:
-                self._arrive(data, addr)
+                self._arrive(data, addr, arrived)
 
-    def _arrive(self, data: bytes, addr: Address) -> None:
+    def _arrive(self, data: bytes, addr: Address, arrived: int | None = None) -> None:
         """One datagram reaches the runner (from the socket, or from the impaired link's
-        timer thread for a delayed copy): logged, observed (on a clean link), answered."""
+        timer thread for a delayed copy): logged, observed (on a clean link), answered.
+        ``arrived``: the kernel's receive time (ns, the wall clock), when it gave one."""
         if self._stop.is_set():
             return
         t, t_ns = time.monotonic(), time.time_ns()
+        if arrived is not None and 0 <= t_ns - arrived < MAX_QUEUED_NS:
+            t, t_ns = t - (t_ns - arrived) / 1e9, arrived
         try:
             msg: Message | None = decode(data)
             err = None

@@ -1,0 +1,56 @@
+"""The runner's receive times are the kernel's where it gives them (Linux SO_TIMESTAMPNS):
+a datagram's time is when it arrived, not when the runner's receive thread got the CPU, so
+on a loaded machine the gaps between a node's copies (MCP-RTX-3) and its ACK latency
+(MCP-ACK-7) stay the node's."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import sys
+import time
+
+import pytest
+
+from harness.driver import SO_TIMESTAMPNS, TargetDriver, arrival_ns, kernel_timestamps
+from spec.codec import Action, Message, encode
+
+
+def test_the_ancillary_timespec_is_read_and_others_are_not():
+    ts = struct.pack("@ll", 1_700_000_000, 123_456_789)
+    assert arrival_ns([(socket.SOL_SOCKET, SO_TIMESTAMPNS, ts)]) == 1_700_000_000_123_456_789
+    assert arrival_ns([(socket.SOL_SOCKET, SO_TIMESTAMPNS + 1, ts), (socket.IPPROTO_IP, 1, b"x")]) is None
+    assert arrival_ns([]) is None
+
+
+def test_a_datagram_takes_its_arrival_time_not_its_pickup_time():
+    """``_arrive`` given the kernel's time 0.2 s ago dates the datagram 0.2 s back, on both
+    clocks; a time from the future or far in the past (a clock step) is not believed."""
+    drv = TargetDriver(("127.0.0.1", 9), ("127.0.0.1", 0))
+    data = encode(Message(0, 1, 5, Action.ACK, 4))
+    now_ns, now = time.time_ns(), time.monotonic()
+    drv._arrive(data, ("127.0.0.1", 9), now_ns - 200_000_000)
+    d = drv.received(0)[0]
+    assert abs((now - d.t) - 0.2) < 0.05 and abs((now_ns - d.t_ns) / 1e9 - 0.2) < 0.05
+    for wrong in (time.time_ns() + 10**9, time.time_ns() - 60 * 10**9):
+        drv._arrive(data, ("127.0.0.1", 9), wrong)
+        assert abs(drv.received(0)[-1].t - time.monotonic()) < 0.05
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPNS is Linux's")
+def test_the_driver_asks_the_kernel_for_receive_times():
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    assert kernel_timestamps(probe)
+    probe.close()
+    drv = TargetDriver(("127.0.0.1", 9), ("127.0.0.1", 0))
+    listen = drv.open()
+    try:
+        assert drv._kernel_times
+        time.sleep(0.1)  # the kernel enables receive timestamps a moment after asking
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            sent = time.time_ns()
+            s.sendto(encode(Message(0, 1, 7, Action.ACK, 3)), ("127.0.0.1", listen[1]))
+        got = drv.wait_for(lambda d: True, 2.0)
+        assert got is not None and 0 <= got.t_ns - sent < 10**9
+    finally:
+        drv.close()
