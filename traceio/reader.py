@@ -29,7 +29,10 @@ Formats:
   address that has carried MCP, or to one of the spec's conventional ports (MCP-TRN-1).
   Datagrams cut by the capture's snap length are dropped and counted.
 
-Unreadable input raises :class:`CaptureError` with a one-line reason naming the file.
+Unreadable input raises :class:`CaptureError` with a one-line reason naming the file, and so
+does a count read from the file that the file cannot stand for (a ``/mcp/burst`` record
+claiming more than :data:`MAX_BURST` datagrams, or all of them more than
+:data:`MAX_BURST_TOTAL`), checked before anything is expanded.
 """
 
 from __future__ import annotations
@@ -151,6 +154,13 @@ _GZIP_MAGIC = b"\x1f\x8b"
 MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
 #: How far (ns) an MCAP record may be written after a later one and still come out in order.
 REORDER_NS = 1_000_000_000
+#: The most datagrams one ``/mcp/burst`` record may stand for: a burst is a flood the runner
+#: really sent (MCP-ROB-7's ``flood_count``, 10,000), so ten times that is generous; a file
+#: claiming more is rejected before anything is expanded (issue 19 item 2: a 1.2 KB file
+#: claiming 10^12 grew without end in every tool that read it).
+MAX_BURST = 10 * int(SPEC.params["flood_count"])
+#: The most datagrams all the bursts of one file may stand for together.
+MAX_BURST_TOTAL = 100 * int(SPEC.params["flood_count"])
 
 
 def open_capture(path: str | Path, segment: str | None = None) -> Capture:
@@ -323,6 +333,7 @@ class Capture:
         segments: dict[int, str] = {}  # channel -> its segment (merged captures)
         writers: dict[int, str] = {}  # channel -> its segment's writer
         seen = self.segments
+        bursts = burst_total = 0
         b64 = a2b_base64
         loads = json.loads
         with open(self.path, "rb") as f:
@@ -358,8 +369,10 @@ class Capture:
                             # cycle[i % len(cycle)], times spread evenly over the burst
                             peer, local = _parse_peer(body.get("peer")), _parse_peer(body.get("local"))
                             tx = body.get("direction") == "tx"
+                            count, t1, t2 = body["count"], int(body["first_t_ns"]), int(body["last_t_ns"])
+                            bursts += 1
+                            burst_total += self._burst_count(count, bursts, rec.log_time, burst_total)
                             cycle = [b64(c["raw_base64"]) for c in body["cycle"]]
-                            count, t1, t2 = int(body["count"]), int(body["first_t_ns"]), int(body["last_t_ns"])
                             src, dst = (local, peer) if tx else (peer, local)
                             for i in range(count if cycle else 0):
                                 yield (t1 + (t2 - t1) * i // max(1, count - 1), "d",
@@ -382,7 +395,7 @@ class Capture:
                                                       seg)
                         else:
                             self.counts["mcap_other_topic"] += 1
-                    except (ValueError, KeyError, TypeError, AttributeError):
+                    except (ValueError, KeyError, TypeError, AttributeError, OverflowError):
                         self.counts["mcap_bad_message"] += 1
                 elif kind is Channel:
                     topics[rec.id] = rec.topic
@@ -397,6 +410,21 @@ class Capture:
                     library = rec.library or None
                 elif kind is McapMetadata:
                     yield 0, "meta", (rec.name, dict(rec.metadata))
+
+    def _burst_count(self, count: Any, n: int, t_ns: int, total: int) -> int:
+        """A ``/mcp/burst`` record's ``count``, checked before it is expanded: an integer up to
+        :data:`MAX_BURST`, all of the file's up to :data:`MAX_BURST_TOTAL` (else CaptureError,
+        one line naming the file and the record); not an integer: a bad message (TypeError)."""
+        if type(count) is not int or count < 0:
+            raise TypeError("burst count")
+        where = f"{self.path}: /mcp/burst record {n} (log time {t_ns} ns)"
+        if count > MAX_BURST:
+            raise CaptureError(f"{where} claims {count:,} datagrams; a burst holds at most {MAX_BURST:,} "
+                               "(10 x MCP-ROB-7's flood): corrupt or crafted file")
+        if total + count > MAX_BURST_TOTAL:
+            raise CaptureError(f"{where} brings the file's bursts to {total + count:,} datagrams; at most "
+                               f"{MAX_BURST_TOTAL:,} in one file: corrupt or crafted file")
+        return count
 
     # ------------------------------------------------------------------ pcap / pcapng
     def _open_packets(self) -> Any:
