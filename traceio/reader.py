@@ -58,6 +58,7 @@ from traceio.packets import (
     FRAGMENT,
     LINKS,
     MAX_RECORD,
+    GuardedStream,
     NgReader,
     PcapReader,
     Reassembly,
@@ -189,6 +190,7 @@ class Capture:
         self.segment = segment
         self.segments: list[str] = []
         self.truncated: str | None = None
+        self.corrupt = False  # the reading stopped at corruption (a failed CRC, garbage), not a cut
         self.counts: Counter[str] = Counter()
         self.linktypes: set[int] = set()
         self._fragments_open = 0
@@ -243,7 +245,9 @@ class Capture:
                           ("bad_ip", "malformed IP/UDP header(s) skipped"),
                           ("trailing_bytes", "byte(s) after the MCAP footer ignored"),
                           ("mcap_bad_message", "MCAP message(s) not readable as our records, skipped"),
-                          ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)")):
+                          ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)"),
+                          ("unknown_interface", "pcapng packet(s) naming an interface the file does not "
+                                                "describe, skipped")):
             if c[key]:
                 out.append(f"{c[key]} {text}")
         for lt in sorted(self.linktypes - set(LINKS)):
@@ -254,16 +258,21 @@ class Capture:
         logger = logging.getLogger("scapy.runtime")
         level = logger.level
         logger.setLevel(logging.ERROR)  # scapy warns on the truncation we report ourselves
+        read = 0
         try:
-            if self.format == "mcap":
-                yield from self._mcap()
-            else:
-                yield from self._packets()
+            for rec in self._mcap() if self.format == "mcap" else self._packets():
+                if type(rec) is not Metadata:
+                    read += 1
+                yield rec
         finally:
             logger.setLevel(level)
             if self._reader is not None:
                 self._reader.close()
         if self.truncated is not None:
+            if self.corrupt and not read:
+                # corruption before anything could be read: an error, never an empty "OK"
+                raise CaptureError(f"{self.path}: {self.format} file corrupt, nothing could be read: "
+                                   f"{self.truncated}")
             yield Truncated(self.truncated)
 
     def stream_frames(self) -> Iterator[StreamFrame]:
@@ -348,7 +357,7 @@ class Capture:
                         self.counts["trailing_bytes"] += rest
                     break
                 except Exception as exc:  # noqa: BLE001 - any failure past the magic is a cut or corrupt tail
-                    self.truncated = _mcap_reason(exc, f.tell(), size)
+                    self.truncated, self.corrupt = _mcap_reason(exc, f.tell(), size)
                     break
                 kind = type(rec)
                 if kind is Message:
@@ -429,10 +438,15 @@ class Capture:
     # ------------------------------------------------------------------ pcap / pcapng
     def _open_packets(self) -> Any:
         name = str(self.path)
+        logger = logging.getLogger("scapy.runtime")
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # one line of our own, not scapy's WARNING: lines
+        self._stream: GuardedStream | None = None
         try:
             fd: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
             if self.format.endswith(".gz"):
-                fd = gzip.GzipFile(fileobj=fd)  # type: ignore[assignment]
+                self._stream = GuardedStream(gzip.GzipFile(fileobj=fd))
+                fd = self._stream  # type: ignore[assignment]
             magic = fd.read(4)
             cls = NgReader if magic == _PCAPNG_MAGIC else PcapReader
             reader = object.__new__(cls)
@@ -440,7 +454,19 @@ class Capture:
         except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
             raise CaptureError(f"{name}: {self.format} file header unreadable "
                                f"(cut short or corrupt): {exc}") from None
+        finally:
+            logger.setLevel(level)
         return reader
+
+    def _stream_failure(self, n_packet: int) -> str | None:
+        """A gzip'd capture whose stream failed (scapy saw only an end of file): why."""
+        err = self._stream.error if self._stream is not None else None
+        if err is None:
+            return None
+        if isinstance(err, EOFError):  # the compressed stream ends early: a cut
+            return f"gzip stream cut short after packet {n_packet}: {err}"
+        self.corrupt = True
+        return f"gzip stream corrupt after packet {n_packet} (the packets read may be damaged too): {err}"
 
     def _packets(self) -> Iterator[Datagram]:
         reader = self._reader
@@ -463,10 +489,11 @@ class Capture:
             try:
                 data, meta = read(MAX_RECORD)
             except EOFError:
-                self.truncated = reader.cut_reason(offset)
+                self.truncated = self._stream_failure(n_packet) or reader.cut_reason(offset)
                 break
             except (OSError, struct.error, zlib.error, Scapy_Exception, ValueError) as exc:
-                self.truncated = f"corrupt record after packet {n_packet}: {exc}"
+                self.truncated = self._stream_failure(n_packet) or f"corrupt record after packet {n_packet}: {exc}"
+                self.corrupt = True
                 break
             n_packet += 1
             if ng:
@@ -480,8 +507,11 @@ class Capture:
             else:
                 caplen = meta.caplen
                 if len(data) < caplen:
-                    self.truncated = (f"record {n_packet} at byte {offset} is cut short or garbage "
-                                      f"(caplen {caplen}, {len(data)} bytes present)")
+                    self.truncated = self._stream_failure(n_packet) or (
+                        f"record {n_packet} at byte {offset} is cut short or garbage "
+                        f"(caplen {caplen}, {len(data)} bytes present)")
+                    # a length no record of this file can have is garbage, not a cut
+                    self.corrupt = self.corrupt or caplen > max(MAX_RECORD, reader.snaplen or 0)
                     break
                 offset += 16 + caplen
                 linktype = pcap_link
@@ -512,14 +542,24 @@ class Capture:
             yield Datagram(index, t_ns, src, dst, payload, direction, recorder)
             index += 1
         self._fragments_open = frag.open_groups()
+        if ng:
+            counts["unknown_interface"] += reader.unknown_interface
+        if self.truncated is None:
+            # a stream that failed at its very end (the gzip trailer's CRC) after the last record
+            self.truncated = self._stream_failure(n_packet)
 
 
-def _mcap_reason(exc: Exception, pos: int, size: int) -> str:
-    from mcap.exceptions import EndOfFile
+def _mcap_reason(exc: Exception, pos: int, size: int) -> tuple[str, bool]:
+    """Why an MCAP file stopped being readable, and whether that is corruption (a failed
+    CRC, a chunk that does not decompress) rather than a cut."""
+    from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 
     if isinstance(exc, EndOfFile) or pos >= size:
-        return f"file ends inside a record at byte {size} (no summary/footer): read up to the last whole chunk"
-    return f"corrupt record near byte {pos} of {size}: {type(exc).__name__}: {exc}"
+        return (f"file ends inside a record at byte {size} (no summary/footer): read up to the last whole chunk",
+                False)
+    if isinstance(exc, RecordLengthLimitExceeded):  # longer than the file: cut inside it
+        return f"file ends inside a record (at byte {pos} of {size}): read up to the last whole chunk", False
+    return f"corrupt record near byte {pos} of {size}: {type(exc).__name__}: {exc}", True
 
 
 def _parse_peer(peer: Any) -> tuple[str, int] | None:

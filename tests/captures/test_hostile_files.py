@@ -126,3 +126,120 @@ def test_a_burst_count_that_is_not_an_integer_is_a_skipped_record(tmp_path: Path
     rc, out, err = run("check", str(path))
     assert rc in (0, 1, 2) and "Traceback" not in err, err
     assert "not readable" in out + err, out + err
+
+
+# ---------------------------------------------------------------- item 8: silent corruption
+def _pcap(path: Path, n: int = 200) -> Path:
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import wrpcap
+
+    wrpcap(str(path), [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=7889, dport=7890)
+                       / encode(Message(1, 0, s, Action.WP_OFF, None)) for s in range(n)])
+    return path
+
+
+def _gz(tmp_path: Path, damage: str) -> Path:
+    import gzip
+
+    gz = bytearray(gzip.compress(_pcap(tmp_path / "c.pcap").read_bytes()))
+    if damage == "trailer CRC":
+        gz[-8] ^= 0xFF
+    else:  # a byte of the deflate stream: wrong bytes out, caught only by the CRC (or zlib)
+        gz[len(gz) // 2] ^= 0xFF
+    path = tmp_path / "c.pcap.gz"
+    path.write_bytes(bytes(gz))
+    return path
+
+
+@pytest.mark.parametrize("damage", ["trailer CRC", "mid-stream"])
+def test_a_gzip_whose_crc_fails_is_not_ok(tmp_path: Path, damage: str) -> None:
+    """Before: exit 0, "OK", nothing said about the failed CRC."""
+    path = _gz(tmp_path, damage)
+    rc, out, err = run("check", str(path), "--json", str(tmp_path / "c.json"))
+    assert rc in (0, 1, 2) and "Traceback" not in err and "WARNING" not in err, err
+    if rc == 2:  # corrupt before the first record
+        one_line_error(rc, out, err, str(path), "corrupt")
+        return
+    truncated = json.loads((tmp_path / "c.json").read_text())["file"]["truncated"]
+    assert truncated and "gzip stream corrupt" in truncated, truncated
+    last = out.strip().splitlines()[-1]
+    assert not last.startswith("OK") and last.startswith(("INCOMPLETE", "FAILED")), last
+    assert "gzip stream corrupt" in out
+
+
+def _mcap_bad_first_chunk(tmp_path: Path, compression: str) -> Path:
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / f"bad-{compression}.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType[compression.upper()], chunk_size=4096)
+        w.start("x", "mcp-conform")
+        sid = w.register_schema("mcp.Datagram", "jsonschema", b"{}")
+        cid = w.register_channel("/mcp/tx", "json", sid)
+        for s in range(300):
+            raw = base64.b64encode(encode(Message(1, 0, s, Action.WP_OFF, None))).decode()
+            w.add_message(cid, 1000 + s, json.dumps({"peer": "127.0.0.1:7890", "raw_base64": raw}).encode(),
+                          1000 + s)
+        w.finish()
+    data = bytearray(path.read_bytes())
+    first_chunk = data.index(b"\x06", 8)  # the opcode of the first Chunk record (after the header)
+    data[first_chunk + 200] ^= 0xFF  # inside its records: the chunk's CRC (or decompression) fails
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+@pytest.mark.parametrize("command", ["check", "show", "export"])
+def test_an_mcap_whose_first_chunk_fails_its_crc_is_an_error(tmp_path: Path, compression: str,
+                                                             command: str) -> None:
+    """Before: exit 0, "OK", 0 datagrams."""
+    path = _mcap_bad_first_chunk(tmp_path, compression)
+    args = [command, str(path)] + (["--pcap", str(tmp_path / "o.pcap")] if command == "export" else [])
+    one_line_error(*run(*args), str(path), "corrupt")
+
+
+@pytest.mark.parametrize("command", ["check", "show", "export"])
+def test_a_pcap_header_followed_by_garbage_is_an_error(tmp_path: Path, command: str) -> None:
+    import random
+
+    whole = _pcap(tmp_path / "ok.pcap").read_bytes()
+    path = tmp_path / "garbage.pcap"
+    path.write_bytes(whole[:24] + random.Random(19).randbytes(5000))
+    args = [command, str(path)] + (["--pcap", str(tmp_path / "o.pcap")] if command == "export" else [])
+    one_line_error(*run(*args), str(path), "corrupt", "garbage")
+
+
+def test_a_pcapng_packet_naming_an_unknown_interface_is_noted(tmp_path: Path) -> None:
+    """Before: skipped without a word (scapy's warning swallowed)."""
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import wrpcapng
+
+    path = tmp_path / "c.pcapng"
+    wrpcapng(str(path), [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=7889, dport=7890)
+                         / encode(Message(1, 0, s, Action.WP_OFF, None)) for s in range(3)])
+    data = bytearray(path.read_bytes())
+    epb = [i for i in range(0, len(data) - 8, 4) if data[i:i + 4] == b"\x06\x00\x00\x00"]
+    assert len(epb) == 3, epb
+    data[epb[1] + 8:epb[1] + 12] = (7).to_bytes(4, "little")  # interface 7 of 1
+    path.write_bytes(bytes(data))
+    rc, out, err = run("check", str(path), "--json", str(tmp_path / "c.json"))
+    assert rc in (0, 1) and not err.strip(), err
+    doc = json.loads((tmp_path / "c.json").read_text())["file"]
+    assert doc["datagrams"] == 2, doc
+    assert any("1 pcapng packet(s) naming an interface" in n for n in doc["notes"]), doc["notes"]
+
+
+@pytest.mark.slow
+def test_replay_to_a_dead_port_is_a_setup_error(tmp_path: Path) -> None:
+    """Before: exit 1 and a diff of everything "missing", as if the node answered wrong."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    golden = ROOT / "captures" / "golden" / "challenge1.mcap"
+    line = one_line_error(*run("replay", str(golden), "--target", f"127.0.0.1:{port}", "--rto", "0.2",
+                               "--ack-window", "0.25"), f"127.0.0.1:{port}", "never answered")
+    assert "mcp-capture replay" in line
