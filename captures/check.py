@@ -6,7 +6,8 @@ and a per-rule table of the monitor's verdicts per node. ``--json OUT`` writes t
 (``check.schema.json``, beside this module); ``--html OUT`` one self-contained page with the
 sequence chart of each violation's traffic. Exit 0: no MUST violated (and no SHOULD under
 ``--strict``); 1: violations; 2: unreadable input or a bad option, with a one-line reason. A
-truncated file is judged up to its last whole record, and the output says so.
+truncated file is judged up to its last whole record, and the output says so (the verdict
+reads INCOMPLETE, never OK); a file corrupt before its first record is an error (exit 2).
 """
 
 from __future__ import annotations
@@ -215,7 +216,11 @@ def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console |
     con.print(rules_table(j))
     failing = j.failing()
     verdict = "[bold red]FAILED[/bold red]" if failing else "[bold green]OK[/bold green]"
-    con.print(f"{verdict}: {len(shown)} violation(s), {len(failing)} counting against the exit code"
+    incomplete = ""
+    if j.truncated:  # never a plain "OK" over a cut or corrupt file (issue 19 item 8)
+        verdict = "[bold red]FAILED[/bold red]" if failing else "[bold yellow]INCOMPLETE[/bold yellow]"
+        incomplete = f" in what was read of {j.datagrams} datagram(s) (see 'truncated:' above)"
+    con.print(f"{verdict}: {len(shown)} violation(s){incomplete}, {len(failing)} counting against the exit code"
               f"{' (--strict)' if j.params.strict else ''}", soft_wrap=True)
 
 

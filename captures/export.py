@@ -11,6 +11,7 @@ Wireshark with ``mcp-capture dissector --install``.
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 from typing import Any, TextIO
@@ -47,6 +48,10 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     writer = PcapNgWriter(str(out)) if out.suffix.lower() == ".pcapng" else PcapWriter(str(out), sync=False)
     n = 0
     truncated: str | None = None
+    scapy_log = logging.getLogger("scapy.runtime")
+    level = scapy_log.level
+    scapy_log.setLevel(logging.ERROR)  # its WARNING: lines (an empty writer closed) are not ours to print
+    done = False
     try:
         for rec in cap:
             if type(rec) is Truncated:
@@ -62,8 +67,12 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
             pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
             writer.write(pkt)
             n += 1
+        done = True
     finally:
         writer.close()
+        scapy_log.setLevel(level)
+        if not done:  # the input failed part-way (CaptureError): no half-written output
+            out.unlink(missing_ok=True)
     return n, truncated or getattr(cap, "truncated", None)
 
 

@@ -30,7 +30,7 @@ MCP-SEQ-4: initial values are arbitrary). The played side's own seqs are kept.
 Then the node's answers are checked with the diff (:mod:`captures.diff`: the capture as
 golden, the replay's own traffic as candidate) and all the traffic with the trace monitor
 (``judge.monitor``). Exit 0 same and no MUST violated; 1 different or violated; 2
-unreadable capture or setup error (one line). :func:`replay` is the Python API (a list of
+unreadable capture or setup error (one line), a node that never answered at all included. :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
 
 A fuzz finding's ``repro.mcap`` (metadata record from recorder ``mcp-fuzz``) is replayed as
@@ -385,6 +385,13 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
             resend = data if _awaits_ack(data, live_id) else None
         wait_node(node_total, max(20.0, answer_timeout) if startup else answer_timeout, resend)
         driver.quiet(gap=min(cfg.ack_window, 0.5), limit=cfg.ack_window + 0.5)
+        if node_total and not node_sent():
+            # not one answer: no node to compare (a dead port, a wrong address, a node that
+            # did not start), a setup error rather than "different" (issue 19 item 8)
+            why = (f"it exited with code {proc.returncode}" if proc is not None and not proc.alive()
+                   else "is a node running there?")
+            raise ReplayError(f"the node at {target[0]}:{target[1]} never answered ({len(driver.sent())} datagram(s) "
+                              f"sent; it sent {node_total} in the capture): {why}")
         live = _live_records(driver, back, knocks)
         golden = [r for r in records if involves(r.data, node)]
         result = ReplayResult(diff_sides(side_from_datagrams("capture", golden),

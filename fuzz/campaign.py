@@ -22,6 +22,7 @@ from typing import Any
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.findings import Finding, FindingStore, write_summary
+from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
 from harness.errors import SetupError
@@ -68,6 +69,8 @@ class WorkerResult:
     monitor: bool = False
     node_period: float | None = None  # the node's retransmission period, measured at start
     timing: str | None = None  # it disagreed with --rto: what the campaign did about it
+    interrupted: bool = False  # SIGINT (or the parent's stop) ended it early
+    lost: bool = False  # attach mode: the node stopped answering (``error`` says so)
 
 
 def load_seeds(directory: str | None) -> list[bytes]:
@@ -105,9 +108,26 @@ class _LocalStore(FindingStore):
         return super().add(finding, traffic)
 
 
+def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> None:
+    """An engine's counts into its worker's result (also when it ended early)."""
+    res.cases += st.cases
+    res.fuzz_seconds += st.seconds
+    res.engines[name] = {"cases": st.cases, "fuzz_seconds": round(st.seconds, 3),
+                         "judged_cases_per_s": round(st.cases / st.seconds, 1) if st.seconds else 0.0,
+                         "batches": st.batches, "flaws_seen": st.flaws,
+                         "replays": triage.replays, "unconfirmed": triage.unconfirmed,
+                         "unconfirmed_by_rule": dict(triage.unconfirmed_rules),
+                         "triage_seconds": round(triage.seconds, 3)}
+    res.replays += triage.replays
+    res.unconfirmed += triage.unconfirmed
+
+
 def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
-               seeds: list[bytes] | None = None) -> WorkerResult:
-    """One worker: start its target, run the engines, close the target."""
+               seeds: list[bytes] | None = None, stop_event: Any = None) -> WorkerResult:
+    """One worker: start its target, run the engines, close the target. Whatever ends it, the
+    counts so far are kept (issue 19 items 1, 6): a node lost in attach mode (``TargetLost``)
+    sets ``lost`` and ``error``, SIGINT (KeyboardInterrupt) or ``stop_event`` sets
+    ``interrupted``."""
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
     res.node_period = getattr(target, "node_period", None)
@@ -116,6 +136,9 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     stop_rule = cfg.extra.get("stop_on_rule")  # tests: stop once this rule is found
 
     def stop() -> bool:
+        if stop_event is not None and stop_event.is_set():
+            res.interrupted = True
+            return True
         return stop_rule is not None and any(f.rule == stop_rule for f in store.order)
 
     try:
@@ -123,9 +146,9 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
         duration = cfg.duration if cfg.duration is not None else (
             None if cfg.max_cases is not None else DEFAULT_DURATION)
         start = time.monotonic()
-        done_cases = 0
-        done_seconds = 0.0
         for k, name in enumerate(engines):
+            if stop():
+                break
             left_engines = len(engines) - k
             if duration is not None:
                 deadline = start + duration * (k + 1) / len(engines)
@@ -133,11 +156,11 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                 deadline = float("inf")
             budget = None
             if cfg.max_cases is not None:
-                budget = max(0, (cfg.max_cases - done_cases) // left_engines)
+                budget = max(0, (cfg.max_cases - res.cases) // left_engines)
             triage = Triage(target, store, name, cfg.seed, cfg.worker)
             prog.engine = name
 
-            def on_tick(st: EngineStats, base_c: int = done_cases, base_s: float = done_seconds) -> None:
+            def on_tick(st: EngineStats, base_c: int = res.cases, base_s: float = res.fuzz_seconds) -> None:
                 prog.cases = base_c + st.cases
                 prog.fuzz_seconds = base_s + st.seconds
                 prog.findings = len(store)
@@ -145,38 +168,41 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                 if tick is not None:
                     tick(prog)
 
-            if name == "stateless":
-                eng = StatelessEngine(target, triage, cfg.seed, worker=cfg.worker, seeds=seeds)
-                res.monitor = eng.monitor.available
-                st = eng.run(deadline, budget, on_tick, stop)
-            else:
-                from fuzz.engine_stateful import StatefulEngine
-                from fuzz.target import FuzzTarget
+            eng: Any = None
+            try:
+                if name == "stateless":
+                    eng = StatelessEngine(target, triage, cfg.seed, worker=cfg.worker, seeds=seeds)
+                    res.monitor = eng.monitor.available
+                    eng.run(deadline, budget, on_tick, stop)
+                else:
+                    from fuzz.engine_stateful import StatefulEngine
+                    from fuzz.target import FuzzTarget
 
-                assert isinstance(target, FuzzTarget)  # a drone (the CLI refuses a manager)
-                seng = StatefulEngine(target, triage, cfg)
-                st = seng.run(deadline, budget, on_tick, stop)
-                res.monitor = res.monitor or seng.monitor_available
-            done_cases += st.cases
-            done_seconds += st.seconds
-            res.engines[name] = {"cases": st.cases, "fuzz_seconds": round(st.seconds, 3),
-                                 "judged_cases_per_s": round(st.cases / st.seconds, 1) if st.seconds else 0.0,
-                                 "batches": st.batches, "flaws_seen": st.flaws,
-                                 "replays": triage.replays, "unconfirmed": triage.unconfirmed,
-                                 "unconfirmed_by_rule": dict(triage.unconfirmed_rules),
-                                 "triage_seconds": round(triage.seconds, 3)}
-            res.replays += triage.replays
-            res.unconfirmed += triage.unconfirmed
-        res.cases, res.fuzz_seconds = done_cases, done_seconds
+                    assert isinstance(target, FuzzTarget)  # a drone (the CLI refuses a manager)
+                    eng = StatefulEngine(target, triage, cfg)
+                    eng.run(deadline, budget, on_tick, stop)
+            finally:
+                if eng is not None:
+                    _record(res, name, eng.stats, triage)
+                    if name != "stateless":
+                        res.monitor = res.monitor or eng.monitor_available
+    except TargetLost as exc:
+        res.error, res.lost = str(exc), True
+    except KeyboardInterrupt:
+        res.interrupted = True
+    finally:
         res.restarts = target.restarts
         res.restart_reasons = dict(target.restart_reasons)
-    finally:
         target.close()
     return res
 
 
-def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any) -> None:
-    """A ``--jobs`` worker process: its result (and findings) go back on ``q``."""
+def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any = None) -> None:
+    """A ``--jobs`` worker process: its result (and findings) go back on ``q``. SIGINT is the
+    parent's to handle: it sets ``stop_event``, and the worker ends its round and reports."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     store = _LocalStore()
     last = [0.0]
 
@@ -187,7 +213,7 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any) -> None:
             q.put(("progress", cfg.worker, (p.cases, p.fuzz_seconds, p.findings, p.restarts)))
 
     try:
-        res = run_worker(cfg, store, tick, seeds)
+        res = run_worker(cfg, store, tick, seeds, stop_event)
         res.findings = [(f.to_json(), store.traffic.get(f.key, [])) for f in store.order]
     except SetupError as exc:
         res = WorkerResult(cfg.worker, error=str(exc))
@@ -200,33 +226,49 @@ def _finding_from_json(d: dict[str, Any]) -> Finding:
     return Finding(**{k: d[k] for k in Finding.__dataclass_fields__ if k in d})
 
 
+STOP_GRACE = 30.0  # s: after SIGINT, how long --jobs workers get to finish their round and report
+
+
 def run_campaign(cfg: FuzzConfig, store: FindingStore,
                  tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
-    """Run the campaign; the summary (also written to ``--out``/summary.json)."""
+    """Run the campaign; the summary (also written to ``--out``/summary.json). SIGINT ends it
+    with the counts and findings so far and ``"interrupted": true`` (issue 19 item 6); a node
+    lost in attach mode with ``"node_lost": true`` and the error naming it (item 1)."""
     t0 = time.monotonic()
     seeds = load_seeds(cfg.seeds_dir)
     results: list[WorkerResult] = []
     error: str | None = None
+    interrupted = False
     try:
         if cfg.jobs <= 1:
             results.append(run_worker(cfg.for_worker(0), store, tick, seeds))
         else:
-            results, error = _run_jobs(cfg, store, seeds, tick)
+            results, error, interrupted = _run_jobs(cfg, store, seeds, tick)
     except SetupError as exc:
         error = str(exc)
         raise
+    except KeyboardInterrupt:  # before the worker ran (while its node started)
+        interrupted = True
     finally:
-        summary = make_summary(cfg, store, results, time.monotonic() - t0, error)
+        interrupted = interrupted or any(r.interrupted for r in results)
+        lost = [r.error for r in results if r.lost and r.error]
+        if lost:
+            error = lost[0]
+        elif interrupted and error is None:
+            error = "interrupted (SIGINT)"
+        summary = make_summary(cfg, store, results, time.monotonic() - t0, error,
+                               interrupted=interrupted, node_lost=bool(lost))
         if cfg.out is not None:
             write_summary(Path(cfg.out) / "summary.json", summary)
     return summary
 
 
 def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
-              tick: Callable[[Progress], None] | None) -> tuple[list[WorkerResult], str | None]:
+              tick: Callable[[Progress], None] | None) -> tuple[list[WorkerResult], str | None, bool]:
     ctx = multiprocessing.get_context("spawn")
     q = ctx.Queue()
-    procs = [ctx.Process(target=_worker_process, args=(cfg.for_worker(i), seeds, q), daemon=True)
+    stop_event = ctx.Event()
+    procs = [ctx.Process(target=_worker_process, args=(cfg.for_worker(i), seeds, q, stop_event), daemon=True)
              for i in range(cfg.jobs)]
     for p in procs:
         p.start()
@@ -235,28 +277,36 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
     results: dict[int, WorkerResult] = {}
     budget = (cfg.duration or DEFAULT_DURATION) + 120.0
     deadline = time.monotonic() + budget
+    interrupted = False
     while len(results) < len(procs) and time.monotonic() < deadline:
         try:
-            kind, worker, body = q.get(timeout=0.5)
-        except queue.Empty:
-            if all(not p.is_alive() for p in procs) and q.empty():
-                break
-            continue
-        if kind == "progress":
-            per[worker] = body
-        else:
-            findings = body.pop("findings", [])
-            res = WorkerResult(**body)
-            results[worker] = res
-            per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
-            for fj, traffic in findings:
-                store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
-        prog.cases = sum(v[0] for v in per.values())
-        prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
-        prog.findings = len(store)
-        prog.restarts = sum(v[3] for v in per.values())
-        if tick is not None:
-            tick(prog)
+            try:
+                kind, worker, body = q.get(timeout=0.5)
+            except queue.Empty:
+                if all(not p.is_alive() for p in procs) and q.empty():
+                    break
+                continue
+            if kind == "progress":
+                per[worker] = body
+            else:
+                findings = body.pop("findings", [])
+                res = WorkerResult(**body)
+                results[worker] = res
+                per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
+                for fj, traffic in findings:
+                    store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
+            prog.cases = sum(v[0] for v in per.values())
+            prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
+            prog.findings = len(store)
+            prog.restarts = sum(v[3] for v in per.values())
+            if tick is not None:
+                tick(prog)
+        except KeyboardInterrupt:
+            if interrupted:
+                break  # a second SIGINT: stop waiting for the workers
+            interrupted = True
+            stop_event.set()  # each worker ends its round and reports what it has
+            deadline = min(deadline, time.monotonic() + STOP_GRACE)
     for p in procs:
         p.join(timeout=5)
         if p.is_alive():
@@ -265,9 +315,13 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
     missing = [i for i in range(len(procs)) if i not in results]
     if missing:
         errors.append(f"worker(s) {', '.join(map(str, missing))} gave no result")
-    if errors and not any(r.cases for r in results.values()):
+        for i in missing:  # what its progress said, at least
+            c, fs, _, rs = per.get(i, (0, 0.0, 0, 0))
+            results[i] = WorkerResult(i, cases=c, fuzz_seconds=fs, restarts=rs, interrupted=interrupted,
+                                      error="gave no result")
+    if errors and not any(r.cases for r in results.values()) and not interrupted:
         raise SetupError(errors[0])
-    return [results[i] for i in sorted(results)], ("; ".join(errors) or None)
+    return [results[i] for i in sorted(results)], ("; ".join(errors) or None), interrupted
 
 
 def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
@@ -279,8 +333,10 @@ def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
 
 
 def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult],
-                 duration: float, error: str | None) -> dict[str, Any]:
-    """``summary.json``: cases, judged cases/s, findings by rule, seed, duration."""
+                 duration: float, error: str | None, *, interrupted: bool = False,
+                 node_lost: bool = False) -> dict[str, Any]:
+    """``summary.json``: cases, judged cases/s, findings by rule, seed, duration; whether
+    SIGINT ended it (``interrupted``) or the node was lost in attach mode (``node_lost``)."""
     from spec.about import tool_version
 
     cases = sum(r.cases for r in results)
@@ -310,5 +366,9 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "timing": next((r.timing for r in results if r.timing), None),
         "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error}
                     for r in results],
+        "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error,
+                     "interrupted": r.interrupted} for r in results],
+        "interrupted": interrupted,
+        "node_lost": node_lost,
         "error": error,
     }

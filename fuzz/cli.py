@@ -10,7 +10,9 @@ Without --target and --spawn it fuzzes the reference drone (embedded default); w
 ``--role manager`` the reference manager, the fuzzer playing drones (fuzz.manager_target). Exit 0:
 no MUST finding (SHOULD findings are reported, and count under ``--strict``, as for
 mcp-conform and mcp-capture check); 1: findings (for --replay: the finding reproduced); 2:
-usage or setup error, with a one-line reason. Live progress (rich) on a terminal; otherwise a plain status line every 10 s, then the summary line.
+usage or setup error, with a one-line reason, or the node lost in attach mode (the campaign
+ends there, its findings so far written); 130: interrupted (SIGINT), summary.json written
+with the counts and findings so far and ``"interrupted": true``. Live progress (rich) on a terminal; otherwise a plain status line every 10 s, then the summary line.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from harness.errors import SetupError
 __all__ = ["build_parser", "exit_code", "main"]
 
 PROG = "mcp-fuzz"
+EXIT_INTERRUPTED = 130  # SIGINT: the campaign ended early, summary.json holds the counts so far
 
 
 class UsageError(Exception):
@@ -41,7 +44,9 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Fuzz an MCP node; every exchange judged by the spec's rules.",
-                epilog="No --target and no --spawn: fuzz the embedded reference drone.")
+                epilog="No --target and no --spawn: fuzz the embedded reference drone. Exit codes: 0 no "
+                       "MUST finding; 1 findings; 2 usage or setup error, or the node lost in attach mode; "
+                       "130 interrupted (summary.json keeps the counts so far).")
     t = p.add_mutually_exclusive_group()
     t.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
     t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "
@@ -245,10 +250,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SetupError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # a second SIGINT while the campaign wound up
         print(f"{PROG}: interrupted", file=sys.stderr)
-        return 2
+        return EXIT_INTERRUPTED
     live.final(summary, store)
+    if summary.get("interrupted"):
+        where = f"; summary in {str(Path(cfg.out) / 'summary.json')!r}" if cfg.out else ""
+        print(f"{PROG}: interrupted after {summary['cases']} cases, {summary['findings']} finding(s){where}",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if summary.get("node_lost"):
+        print(f"{PROG}: error: {summary['error']}", file=sys.stderr)
+        return 2
     return exit_code(store.order, strict=ns.strict)
 
 
@@ -277,8 +290,10 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if campaign.out:
+            campaign.summary(0.0)
         print(f"{PROG}: interrupted", file=sys.stderr)
-        return 2
+        return EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - our own bug: one line, the findings so far kept
         if campaign.out:
             campaign.summary(0.0)

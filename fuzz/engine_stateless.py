@@ -126,6 +126,10 @@ class StatelessEngine:
         return flaws, inputs
 
     def _triage(self, flaws: list[Flaw], inputs: list[Input]) -> None:
+        if any(f.source in ("liveness", "process") for f in flaws):
+            # attach mode: a node that does not answer now is lost, and nothing it did not
+            # say counts (TargetLost ends the campaign; issue 19 item 1)
+            self.target.check_live("after a batch it did not answer")
         seen: set[str] = set()
         for f in flaws:
             if f.rule in seen:

@@ -93,7 +93,8 @@ def settle_vehicle(target: TargetBase, ledger: DeliveryLedger | None, tag: str) 
 def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = "batch",
                  fresh: bool = True, monitor: bool = True, scenario: str | None = None) -> Outcome:
     """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``, started as
-    ``scenario`` says), then judge."""
+    ``scenario`` says; in attach mode the node, once its liveness probe is ACKed, else
+    ``TargetLost``), then judge."""
     out = Outcome()
     if (scenario is not None and scenario.startswith(WITHHOLD) and target.spawned
             and isinstance(target, FuzzTarget)):  # a drone's startup: the drone role's
@@ -108,6 +109,10 @@ def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = 
         out.restarted = True
     elif not target.alive():
         return Outcome([Flaw("MCP-ROB-5", "a live node", "the node is not running")], False)
+    else:
+        # attach mode: the same node every time, so it must be proven live before the
+        # input, or what follows is the silence of a dead node (issue 19 item 1)
+        target.check_live("before a replay")
     drv = target.driver
     target.wait_quiet(gap=0.05, limit=0.5)
     target.traffic.drain()

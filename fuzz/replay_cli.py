@@ -45,6 +45,9 @@ def reproduce(f: Finding, cfg: FuzzConfig, prog: str = PROG) -> int:
         return 2
     try:
         outcome = run_sequence(target, datagrams, pace=f.pace, scenario=f.scenario)
+    except SetupError as exc:  # attach mode: the node does not answer before the replay
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     finally:
         target.close()
     same = [x for x in outcome.flaws if x.rule == f.rule]

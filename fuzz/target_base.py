@@ -17,9 +17,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from harness.driver import Datagram, Sent, TargetDriver
+from harness.errors import SetupError
 
 __all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
-           "TargetBase", "Traffic", "TrafficRecord"]
+           "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
 
 PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
 PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
@@ -52,6 +53,12 @@ class Traffic:
             out, self._pending = self._pending, []
         out.sort(key=lambda r: r.t_ns)
         return out
+
+
+class TargetLost(SetupError):
+    """Attach mode: the node stopped answering and there is no other to fuzz or to replay on
+    (issue 19 item 1: a campaign that ran on against a killed node reported its silence as
+    confirmed findings). The campaign ends with what it found until then, exit 2."""
 
 
 #: Why a node is restarted (counted per reason in the summary; issue 18 item 9: a campaign
@@ -173,6 +180,17 @@ class TargetBase:
                 out["signal"] = str(-rc)
         out["stderr_tail"] = node.output_tail(8)
         return out
+
+    def check_live(self, why: str) -> None:
+        """Attach mode: the liveness probe is ACKed, or ``TargetLost`` naming the node and
+        ``why`` it was probed (a finding needs a live node before its input; in spawn mode
+        every replay starts a fresh node, whose startup proves it live)."""
+        if self.spawned:
+            return
+        if not self.probe().acked:
+            host, port = self.driver.target
+            raise TargetLost(f"the node at {host}:{port} stopped answering (no ACK of the liveness probe "
+                             f"{why}); attach mode has no other node, so the campaign ends here")
 
     def wait_quiet(self, gap: float = 0.05, limit: float = 1.0) -> None:
         self.driver.quiet(gap=gap, limit=limit)

@@ -2,7 +2,8 @@
 
 A flaw whose (rule, shape) group already has a confirmed finding is only counted. Otherwise
 the datagrams that led to it are replayed (``fuzz.replay``) on a fresh node when spawned, on
-the same node when attached: not reproduced, it is dropped (counted as unconfirmed in the
+the same node when attached, once its liveness probe is ACKed (a node lost in attach mode
+ends the campaign: ``TargetLost``, issue 19 item 1): not reproduced, it is dropped (counted as unconfirmed in the
 summary, never reported); reproduced, it is shrunk to the minimal sequence that still shows
 the same rule, and that sequence must show it again in each of ``CONFIRM_N`` more replays
 (N of N) before it is kept.
@@ -72,6 +73,9 @@ class Triage:
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
                  program: str | None = None, scenario: str | None = None) -> Finding | None:
         """Handle one flaw seen after ``inputs``; the new finding, if one was kept."""
+        if flaw.source in _DEATH:
+            # attach mode: a node that is dead now is lost, not a finding (TargetLost)
+            self.target.check_live("after the inputs that preceded it")
         shape = shape_of(flaw, inputs)
         key = self.aliases.get((flaw.rule, shape), (flaw.rule, shape))
         if self.store.known(*key):

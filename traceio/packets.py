@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import socket
 import struct
+import zlib
 from collections import Counter
 from typing import Any
 
 from scapy.utils import RawPcapNgReader, RawPcapReader
 
-__all__ = ["EPB_DIRECTION", "FRAGMENT", "LINKS", "MAX_RECORD", "NgReader", "PcapReader", "Reassembly"]
+__all__ = ["EPB_DIRECTION", "FRAGMENT", "LINKS", "MAX_RECORD", "GuardedStream", "NgReader", "PcapReader", "Reassembly"]
 
 MAX_RECORD = 1 << 20  # scapy's per-read cap on a packet record: bigger than any IP datagram
 
@@ -28,6 +29,13 @@ class PcapReader(RawPcapReader):
 
 class NgReader(RawPcapNgReader):
     _good_end = 0
+    unknown_interface = 0  # packets naming an interface no IDB described (skipped, counted)
+
+    def _check_interface_id(self, intid: int) -> bool:
+        if 0 <= intid < len(self.interfaces):
+            return True
+        self.unknown_interface += 1
+        return False
 
     def _read_block(self, size: int = MAX_RECORD) -> Any:
         res = super()._read_block(size)
@@ -40,6 +48,30 @@ class NgReader(RawPcapNgReader):
             return (f"{pos - self._good_end} byte(s) after the last whole block "
                     f"(at byte {self._good_end}): cut short or garbage")
         return None
+
+
+class GuardedStream:
+    """A decompressing stream (gzip) whose failures scapy's readers would take for the end of
+    the file (they turn OSError and zlib.error into EOFError): the failure is kept in
+    ``error`` for the reader to report (issue 19 item 8: a .gz whose CRC failed read "OK")."""
+
+    def __init__(self, raw: Any) -> None:
+        self._raw = raw
+        self.error: BaseException | None = None
+
+    def read(self, n: int = -1) -> bytes:
+        try:
+            return self._raw.read(n)
+        except (OSError, EOFError, zlib.error) as exc:
+            if self.error is None:
+                self.error = exc
+            raise
+
+    def tell(self) -> int:
+        return self._raw.tell()
+
+    def close(self) -> None:
+        self._raw.close()
 
 
 # ---------------------------------------------------------------- link, IP and UDP headers

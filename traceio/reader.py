@@ -29,7 +29,10 @@ Formats:
   address that has carried MCP, or to one of the spec's conventional ports (MCP-TRN-1).
   Datagrams cut by the capture's snap length are dropped and counted.
 
-Unreadable input raises :class:`CaptureError` with a one-line reason naming the file.
+Unreadable input raises :class:`CaptureError` with a one-line reason naming the file, and so
+does a count read from the file that the file cannot stand for (a ``/mcp/burst`` record
+claiming more than :data:`MAX_BURST` datagrams, or all of them more than
+:data:`MAX_BURST_TOTAL`), checked before anything is expanded.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from traceio.packets import (
     FRAGMENT,
     LINKS,
     MAX_RECORD,
+    GuardedStream,
     NgReader,
     PcapReader,
     Reassembly,
@@ -151,6 +155,13 @@ _GZIP_MAGIC = b"\x1f\x8b"
 MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
 #: How far (ns) an MCAP record may be written after a later one and still come out in order.
 REORDER_NS = 1_000_000_000
+#: The most datagrams one ``/mcp/burst`` record may stand for: a burst is a flood the runner
+#: really sent (MCP-ROB-7's ``flood_count``, 10,000), so ten times that is generous; a file
+#: claiming more is rejected before anything is expanded (issue 19 item 2: a 1.2 KB file
+#: claiming 10^12 grew without end in every tool that read it).
+MAX_BURST = 10 * int(SPEC.params["flood_count"])
+#: The most datagrams all the bursts of one file may stand for together.
+MAX_BURST_TOTAL = 100 * int(SPEC.params["flood_count"])
 
 
 def open_capture(path: str | Path, segment: str | None = None) -> Capture:
@@ -179,6 +190,7 @@ class Capture:
         self.segment = segment
         self.segments: list[str] = []
         self.truncated: str | None = None
+        self.corrupt = False  # the reading stopped at corruption (a failed CRC, garbage), not a cut
         self.counts: Counter[str] = Counter()
         self.linktypes: set[int] = set()
         self._fragments_open = 0
@@ -233,7 +245,9 @@ class Capture:
                           ("bad_ip", "malformed IP/UDP header(s) skipped"),
                           ("trailing_bytes", "byte(s) after the MCAP footer ignored"),
                           ("mcap_bad_message", "MCAP message(s) not readable as our records, skipped"),
-                          ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)")):
+                          ("loopback_copy", "outgoing loopback copies skipped (seen again incoming)"),
+                          ("unknown_interface", "pcapng packet(s) naming an interface the file does not "
+                                                "describe, skipped")):
             if c[key]:
                 out.append(f"{c[key]} {text}")
         for lt in sorted(self.linktypes - set(LINKS)):
@@ -244,16 +258,21 @@ class Capture:
         logger = logging.getLogger("scapy.runtime")
         level = logger.level
         logger.setLevel(logging.ERROR)  # scapy warns on the truncation we report ourselves
+        read = 0
         try:
-            if self.format == "mcap":
-                yield from self._mcap()
-            else:
-                yield from self._packets()
+            for rec in self._mcap() if self.format == "mcap" else self._packets():
+                if type(rec) is not Metadata:
+                    read += 1
+                yield rec
         finally:
             logger.setLevel(level)
             if self._reader is not None:
                 self._reader.close()
         if self.truncated is not None:
+            if self.corrupt and not read:
+                # corruption before anything could be read: an error, never an empty "OK"
+                raise CaptureError(f"{self.path}: {self.format} file corrupt, nothing could be read: "
+                                   f"{self.truncated}")
             yield Truncated(self.truncated)
 
     def stream_frames(self) -> Iterator[StreamFrame]:
@@ -323,6 +342,7 @@ class Capture:
         segments: dict[int, str] = {}  # channel -> its segment (merged captures)
         writers: dict[int, str] = {}  # channel -> its segment's writer
         seen = self.segments
+        bursts = burst_total = 0
         b64 = a2b_base64
         loads = json.loads
         with open(self.path, "rb") as f:
@@ -337,7 +357,7 @@ class Capture:
                         self.counts["trailing_bytes"] += rest
                     break
                 except Exception as exc:  # noqa: BLE001 - any failure past the magic is a cut or corrupt tail
-                    self.truncated = _mcap_reason(exc, f.tell(), size)
+                    self.truncated, self.corrupt = _mcap_reason(exc, f.tell(), size)
                     break
                 kind = type(rec)
                 if kind is Message:
@@ -358,8 +378,10 @@ class Capture:
                             # cycle[i % len(cycle)], times spread evenly over the burst
                             peer, local = _parse_peer(body.get("peer")), _parse_peer(body.get("local"))
                             tx = body.get("direction") == "tx"
+                            count, t1, t2 = body["count"], int(body["first_t_ns"]), int(body["last_t_ns"])
+                            bursts += 1
+                            burst_total += self._burst_count(count, bursts, rec.log_time, burst_total)
                             cycle = [b64(c["raw_base64"]) for c in body["cycle"]]
-                            count, t1, t2 = int(body["count"]), int(body["first_t_ns"]), int(body["last_t_ns"])
                             src, dst = (local, peer) if tx else (peer, local)
                             for i in range(count if cycle else 0):
                                 yield (t1 + (t2 - t1) * i // max(1, count - 1), "d",
@@ -382,7 +404,7 @@ class Capture:
                                                       seg)
                         else:
                             self.counts["mcap_other_topic"] += 1
-                    except (ValueError, KeyError, TypeError, AttributeError):
+                    except (ValueError, KeyError, TypeError, AttributeError, OverflowError):
                         self.counts["mcap_bad_message"] += 1
                 elif kind is Channel:
                     topics[rec.id] = rec.topic
@@ -398,13 +420,33 @@ class Capture:
                 elif kind is McapMetadata:
                     yield 0, "meta", (rec.name, dict(rec.metadata))
 
+    def _burst_count(self, count: Any, n: int, t_ns: int, total: int) -> int:
+        """A ``/mcp/burst`` record's ``count``, checked before it is expanded: an integer up to
+        :data:`MAX_BURST`, all of the file's up to :data:`MAX_BURST_TOTAL` (else CaptureError,
+        one line naming the file and the record); not an integer: a bad message (TypeError)."""
+        if type(count) is not int or count < 0:
+            raise TypeError("burst count")
+        where = f"{self.path}: /mcp/burst record {n} (log time {t_ns} ns)"
+        if count > MAX_BURST:
+            raise CaptureError(f"{where} claims {count:,} datagrams; a burst holds at most {MAX_BURST:,} "
+                               "(10 x MCP-ROB-7's flood): corrupt or crafted file")
+        if total + count > MAX_BURST_TOTAL:
+            raise CaptureError(f"{where} brings the file's bursts to {total + count:,} datagrams; at most "
+                               f"{MAX_BURST_TOTAL:,} in one file: corrupt or crafted file")
+        return count
+
     # ------------------------------------------------------------------ pcap / pcapng
     def _open_packets(self) -> Any:
         name = str(self.path)
+        logger = logging.getLogger("scapy.runtime")
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # one line of our own, not scapy's WARNING: lines
+        self._stream: GuardedStream | None = None
         try:
             fd: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
             if self.format.endswith(".gz"):
-                fd = gzip.GzipFile(fileobj=fd)  # type: ignore[assignment]
+                self._stream = GuardedStream(gzip.GzipFile(fileobj=fd))
+                fd = self._stream  # type: ignore[assignment]
             magic = fd.read(4)
             cls = NgReader if magic == _PCAPNG_MAGIC else PcapReader
             reader = object.__new__(cls)
@@ -412,7 +454,19 @@ class Capture:
         except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
             raise CaptureError(f"{name}: {self.format} file header unreadable "
                                f"(cut short or corrupt): {exc}") from None
+        finally:
+            logger.setLevel(level)
         return reader
+
+    def _stream_failure(self, n_packet: int) -> str | None:
+        """A gzip'd capture whose stream failed (scapy saw only an end of file): why."""
+        err = self._stream.error if self._stream is not None else None
+        if err is None:
+            return None
+        if isinstance(err, EOFError):  # the compressed stream ends early: a cut
+            return f"gzip stream cut short after packet {n_packet}: {err}"
+        self.corrupt = True
+        return f"gzip stream corrupt after packet {n_packet} (the packets read may be damaged too): {err}"
 
     def _packets(self) -> Iterator[Datagram]:
         reader = self._reader
@@ -435,10 +489,11 @@ class Capture:
             try:
                 data, meta = read(MAX_RECORD)
             except EOFError:
-                self.truncated = reader.cut_reason(offset)
+                self.truncated = self._stream_failure(n_packet) or reader.cut_reason(offset)
                 break
             except (OSError, struct.error, zlib.error, Scapy_Exception, ValueError) as exc:
-                self.truncated = f"corrupt record after packet {n_packet}: {exc}"
+                self.truncated = self._stream_failure(n_packet) or f"corrupt record after packet {n_packet}: {exc}"
+                self.corrupt = True
                 break
             n_packet += 1
             if ng:
@@ -452,8 +507,11 @@ class Capture:
             else:
                 caplen = meta.caplen
                 if len(data) < caplen:
-                    self.truncated = (f"record {n_packet} at byte {offset} is cut short or garbage "
-                                      f"(caplen {caplen}, {len(data)} bytes present)")
+                    self.truncated = self._stream_failure(n_packet) or (
+                        f"record {n_packet} at byte {offset} is cut short or garbage "
+                        f"(caplen {caplen}, {len(data)} bytes present)")
+                    # a length no record of this file can have is garbage, not a cut
+                    self.corrupt = self.corrupt or caplen > max(MAX_RECORD, reader.snaplen or 0)
                     break
                 offset += 16 + caplen
                 linktype = pcap_link
@@ -484,14 +542,24 @@ class Capture:
             yield Datagram(index, t_ns, src, dst, payload, direction, recorder)
             index += 1
         self._fragments_open = frag.open_groups()
+        if ng:
+            counts["unknown_interface"] += reader.unknown_interface
+        if self.truncated is None:
+            # a stream that failed at its very end (the gzip trailer's CRC) after the last record
+            self.truncated = self._stream_failure(n_packet)
 
 
-def _mcap_reason(exc: Exception, pos: int, size: int) -> str:
-    from mcap.exceptions import EndOfFile
+def _mcap_reason(exc: Exception, pos: int, size: int) -> tuple[str, bool]:
+    """Why an MCAP file stopped being readable, and whether that is corruption (a failed
+    CRC, a chunk that does not decompress) rather than a cut."""
+    from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 
     if isinstance(exc, EndOfFile) or pos >= size:
-        return f"file ends inside a record at byte {size} (no summary/footer): read up to the last whole chunk"
-    return f"corrupt record near byte {pos} of {size}: {type(exc).__name__}: {exc}"
+        return (f"file ends inside a record at byte {size} (no summary/footer): read up to the last whole chunk",
+                False)
+    if isinstance(exc, RecordLengthLimitExceeded):  # longer than the file: cut inside it
+        return f"file ends inside a record (at byte {pos} of {size}): read up to the last whole chunk", False
+    return f"corrupt record near byte {pos} of {size}: {type(exc).__name__}: {exc}", True
 
 
 def _parse_peer(peer: Any) -> tuple[str, int] | None:

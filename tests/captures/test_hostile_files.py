@@ -1,0 +1,245 @@
+"""Hostile capture files (issue 19 items 2 and 8): each tool that reads them finishes in
+bounded time under a memory limit with one line and exit 2 (or a warning naming what was
+read), never a traceback, never "OK" over corruption.
+
+Every command runs in a subprocess under ``RLIMIT_AS`` (``MEMORY``) and a timeout: before
+the fix the huge burst grew by ~20 MB/s until the limit killed it (a MemoryError traceback)
+or the timeout did.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from spec.codec import Action, Message, encode
+from traceio.reader import MAX_BURST, MAX_BURST_TOTAL
+from traceio.recorder import McapRecorder
+
+ROOT = Path(__file__).resolve().parents[2]
+MEMORY = 1536 * 2**20  # bytes of address space for each command (python + scapy + mcap fit)
+TIMEOUT = 120.0  # s: generous on a loaded host; the hostile inputs used to run without end
+PEER = ("127.0.0.1", 7890)
+
+
+def _limit() -> None:
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
+
+
+def run(*argv: str, module: str = "captures") -> tuple[int, str, str]:
+    """``python -m module argv`` under the memory limit and the timeout."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    try:
+        p = subprocess.run([sys.executable, "-m", module, *argv], cwd=ROOT, env=env, text=True,
+                           capture_output=True, timeout=TIMEOUT, preexec_fn=_limit)
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"{module} {' '.join(argv)}: still running after {TIMEOUT:g} s") from None
+    return p.returncode, p.stdout, p.stderr
+
+
+def one_line_error(rc: int, out: str, err: str, *words: str) -> str:
+    lines = err.strip().splitlines()
+    assert rc == 2, f"rc {rc}\nstdout: {out[-2000:]}\nstderr: {err[-2000:]}"
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+# ---------------------------------------------------------------- item 2: unbounded expansion
+def burst_file(path: Path, counts: list[int]) -> Path:
+    """A small MCAP whose /mcp/burst records claim ``counts`` datagrams each."""
+    wp_off = encode(Message(1, 0, 3, Action.WP_OFF, None))
+    with McapRecorder(path, local=("127.0.0.1", 4000)) as rec:
+        rec.datagram("tx", wp_off, PEER, 1_000)
+        for i, n in enumerate(counts):
+            rec.burst("tx", [b"\x00\x01"], n, PEER, 2_000 + i, 3_000 + i)
+    return path
+
+
+@pytest.fixture
+def bomb(tmp_path: Path) -> Path:
+    path = burst_file(tmp_path / "bomb.mcap", [10**12])
+    assert path.stat().st_size < 16384
+    return path
+
+
+@pytest.mark.parametrize("command", ["check", "show", "export", "replay"])
+def test_a_burst_claiming_more_than_a_flood_is_refused(bomb: Path, tmp_path: Path, command: str) -> None:
+    out = tmp_path / "out.pcap"
+    args = {"check": ["check", str(bomb)], "show": ["show", str(bomb)],
+            "export": ["export", str(bomb), "--pcap", str(out)],
+            "replay": ["replay", str(bomb), "--target", "127.0.0.1:9"]}[command]
+    line = one_line_error(*run(*args), str(bomb), "/mcp/burst record 1", "1,000,000,000,000")
+    assert f"at most {MAX_BURST:,}" in line
+    assert not out.exists()  # export leaves no half-written file
+
+
+def test_many_bursts_beyond_the_files_bound_are_refused(tmp_path: Path) -> None:
+    """Each burst within the bound, all of them together not: refused at the one that
+    crosses it (after at most MAX_BURST_TOTAL datagrams, under the memory limit)."""
+    n = MAX_BURST_TOTAL // MAX_BURST + 5
+    path = burst_file(tmp_path / "many.mcap", [MAX_BURST] * n)
+    assert path.stat().st_size < 65536  # a few KB claiming millions
+    one_line_error(*run("check", str(path)), str(path), f"/mcp/burst record {MAX_BURST_TOTAL // MAX_BURST + 1} ",
+                   f"at most {MAX_BURST_TOTAL:,} in one file")
+
+
+def test_seeds_with_a_burst_bomb_are_a_setup_error(bomb: Path, tmp_path: Path) -> None:
+    seeds = tmp_path / "seeds"
+    seeds.mkdir()
+    bomb.rename(seeds / "bomb.mcap")
+    one_line_error(*run("--seeds", str(seeds), "--max-cases", "10", module="fuzz"), "--seeds", "/mcp/burst record")
+
+
+def test_a_burst_up_to_the_bound_is_read_whole(tmp_path: Path) -> None:
+    """The bound refuses no burst the runner writes (MCP-ROB-7's flood, 10,000)."""
+    path = burst_file(tmp_path / "flood.mcap", [10_000, MAX_BURST])
+    rc, out, err = run("check", str(path), "--json", str(tmp_path / "c.json"))
+    assert rc in (0, 1) and not err.strip(), err
+    doc = json.loads((tmp_path / "c.json").read_text())
+    assert doc["file"]["datagrams"] == 1 + 10_000 + MAX_BURST, doc["file"]
+
+
+def test_a_burst_count_that_is_not_an_integer_is_a_skipped_record(tmp_path: Path) -> None:
+    """1e999 (JSON's infinity) used to raise OverflowError in int()."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "inf.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start("x", "mcp-conform")
+        sid = w.register_schema("mcp.Burst", "jsonschema", b"{}")
+        cid = w.register_channel("/mcp/burst", "json", sid)
+        body = ('{"direction": "tx", "peer": "127.0.0.1:7890", "local": null, "count": 1e999, '
+                '"first_t_ns": 1, "last_t_ns": 2, "cycle": [{"raw_base64": "'
+                + base64.b64encode(b"\x00\x01").decode() + '"}]}')
+        w.add_message(cid, 1, body.encode(), 1)
+        w.finish()
+    rc, out, err = run("check", str(path))
+    assert rc in (0, 1, 2) and "Traceback" not in err, err
+    assert "not readable" in out + err, out + err
+
+
+# ---------------------------------------------------------------- item 8: silent corruption
+def _pcap(path: Path, n: int = 200) -> Path:
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import wrpcap
+
+    wrpcap(str(path), [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=7889, dport=7890)
+                       / encode(Message(1, 0, s, Action.WP_OFF, None)) for s in range(n)])
+    return path
+
+
+def _gz(tmp_path: Path, damage: str) -> Path:
+    import gzip
+
+    gz = bytearray(gzip.compress(_pcap(tmp_path / "c.pcap").read_bytes()))
+    if damage == "trailer CRC":
+        gz[-8] ^= 0xFF
+    else:  # a byte of the deflate stream: wrong bytes out, caught only by the CRC (or zlib)
+        gz[len(gz) // 2] ^= 0xFF
+    path = tmp_path / "c.pcap.gz"
+    path.write_bytes(bytes(gz))
+    return path
+
+
+@pytest.mark.parametrize("damage", ["trailer CRC", "mid-stream"])
+def test_a_gzip_whose_crc_fails_is_not_ok(tmp_path: Path, damage: str) -> None:
+    """Before: exit 0, "OK", nothing said about the failed CRC."""
+    path = _gz(tmp_path, damage)
+    rc, out, err = run("check", str(path), "--json", str(tmp_path / "c.json"))
+    assert rc in (0, 1, 2) and "Traceback" not in err and "WARNING" not in err, err
+    if rc == 2:  # corrupt before the first record
+        one_line_error(rc, out, err, str(path), "corrupt")
+        return
+    truncated = json.loads((tmp_path / "c.json").read_text())["file"]["truncated"]
+    assert truncated and "gzip stream corrupt" in truncated, truncated
+    last = out.strip().splitlines()[-1]
+    assert not last.startswith("OK") and last.startswith(("INCOMPLETE", "FAILED")), last
+    assert "gzip stream corrupt" in out
+
+
+def _mcap_bad_first_chunk(tmp_path: Path, compression: str) -> Path:
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / f"bad-{compression}.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType[compression.upper()], chunk_size=4096)
+        w.start("x", "mcp-conform")
+        sid = w.register_schema("mcp.Datagram", "jsonschema", b"{}")
+        cid = w.register_channel("/mcp/tx", "json", sid)
+        for s in range(300):
+            raw = base64.b64encode(encode(Message(1, 0, s, Action.WP_OFF, None))).decode()
+            w.add_message(cid, 1000 + s, json.dumps({"peer": "127.0.0.1:7890", "raw_base64": raw}).encode(),
+                          1000 + s)
+        w.finish()
+    data = bytearray(path.read_bytes())
+    first_chunk = data.index(b"\x06", 8)  # the opcode of the first Chunk record (after the header)
+    data[first_chunk + 200] ^= 0xFF  # inside its records: the chunk's CRC (or decompression) fails
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+@pytest.mark.parametrize("command", ["check", "show", "export"])
+def test_an_mcap_whose_first_chunk_fails_its_crc_is_an_error(tmp_path: Path, compression: str,
+                                                             command: str) -> None:
+    """Before: exit 0, "OK", 0 datagrams."""
+    path = _mcap_bad_first_chunk(tmp_path, compression)
+    args = [command, str(path)] + (["--pcap", str(tmp_path / "o.pcap")] if command == "export" else [])
+    one_line_error(*run(*args), str(path), "corrupt")
+
+
+@pytest.mark.parametrize("command", ["check", "show", "export"])
+def test_a_pcap_header_followed_by_garbage_is_an_error(tmp_path: Path, command: str) -> None:
+    import random
+
+    whole = _pcap(tmp_path / "ok.pcap").read_bytes()
+    path = tmp_path / "garbage.pcap"
+    path.write_bytes(whole[:24] + random.Random(19).randbytes(5000))
+    args = [command, str(path)] + (["--pcap", str(tmp_path / "o.pcap")] if command == "export" else [])
+    one_line_error(*run(*args), str(path), "corrupt", "garbage")
+
+
+def test_a_pcapng_packet_naming_an_unknown_interface_is_noted(tmp_path: Path) -> None:
+    """Before: skipped without a word (scapy's warning swallowed)."""
+    from scapy.layers.inet import IP, UDP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import wrpcapng
+
+    path = tmp_path / "c.pcapng"
+    wrpcapng(str(path), [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / UDP(sport=7889, dport=7890)
+                         / encode(Message(1, 0, s, Action.WP_OFF, None)) for s in range(3)])
+    data = bytearray(path.read_bytes())
+    epb = [i for i in range(0, len(data) - 8, 4) if data[i:i + 4] == b"\x06\x00\x00\x00"]
+    assert len(epb) == 3, epb
+    data[epb[1] + 8:epb[1] + 12] = (7).to_bytes(4, "little")  # interface 7 of 1
+    path.write_bytes(bytes(data))
+    rc, out, err = run("check", str(path), "--json", str(tmp_path / "c.json"))
+    assert rc in (0, 1) and not err.strip(), err
+    doc = json.loads((tmp_path / "c.json").read_text())["file"]
+    assert doc["datagrams"] == 2, doc
+    assert any("1 pcapng packet(s) naming an interface" in n for n in doc["notes"]), doc["notes"]
+
+
+@pytest.mark.slow
+def test_replay_to_a_dead_port_is_a_setup_error(tmp_path: Path) -> None:
+    """Before: exit 1 and a diff of everything "missing", as if the node answered wrong."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    golden = ROOT / "captures" / "golden" / "challenge1.mcap"
+    line = one_line_error(*run("replay", str(golden), "--target", f"127.0.0.1:{port}", "--rto", "0.2",
+                               "--ack-window", "0.25"), f"127.0.0.1:{port}", "never answered")
+    assert "mcp-capture replay" in line

@@ -1,0 +1,126 @@
+"""A campaign under faults of its own (issue 19 items 1 and 6): the node killed in attach
+mode, and the campaign interrupted with SIGINT.
+
+Observed before: a node killed with SIGKILL mid-campaign in attach mode gave "confirmed"
+MCP-ROB-* findings (its silence replayed on the same dead node); a campaign interrupted
+with SIGINT wrote ``"cases": 0, "workers": []`` and ``"error": null`` beside its findings,
+exit 2. Now a node lost in attach mode ends the campaign: exit 2, one line naming the node,
+summary.json with the counts so far and no finding from the dead node; SIGINT ends it with
+exit 130 and summary.json recording the interruption and the counts so far.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+FAST = ["--rto", "0.2", "--ack-window", "0.25"]
+STATUS_WAIT = 60.0  # s: the first plain status line comes 10 s in; a loaded host is slower
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _fuzz(args: list[str]) -> subprocess.Popen[str]:
+    """mcp-fuzz in a subprocess with SIGINT at its default (a test runner may ignore it)."""
+    return subprocess.Popen([sys.executable, "-m", "fuzz", *args], cwd=ROOT, env=_env(), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def _wait_status(proc: subprocess.Popen[str]) -> list[str]:
+    """Stdout lines up to the first status line (proof that cases were judged)."""
+    assert proc.stdout is not None
+    lines: list[str] = []
+    limit = time.monotonic() + STATUS_WAIT
+    while time.monotonic() < limit:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if " cases " in line:
+            return lines
+    proc.kill()
+    raise AssertionError("no status line: " + "".join(lines) + (proc.stderr.read() if proc.stderr else ""))
+
+
+def _finish(proc: subprocess.Popen[str], timeout: float = 90.0) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"mcp-fuzz did not end: {out}\n{err}") from None
+    return proc.returncode, out, err
+
+
+def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path: Path) -> None:
+    """Item 1: SIGKILL to the attached reference drone mid-campaign. Before: the campaign
+    ran on to its end against nothing and kept MCP-ROB-* 'hung after ...' as confirmed."""
+    node_port, listen_port = _free_port(), _free_port()
+    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+                             f"127.0.0.1:{node_port}", "--send-to", f"127.0.0.1:{listen_port}",
+                             "--rto", "0.2"], cwd=ROOT, env=_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out_dir = tmp_path / "out"
+    try:
+        time.sleep(1.0)
+        proc = _fuzz(["--target", f"127.0.0.1:{node_port}", "--listen", f"127.0.0.1:{listen_port}",
+                      *FAST, "--duration", "120", "--out", str(out_dir)])
+        _wait_status(proc)
+        node.send_signal(signal.SIGKILL)
+        rc, out, err = _finish(proc)
+    finally:
+        node.kill()
+        node.wait()
+    lines = err.strip().splitlines()
+    assert rc == 2, f"rc {rc}\n{out}\n{err}"
+    assert len(lines) == 1 and lines[0].startswith("mcp-fuzz: error: "), err
+    assert f"127.0.0.1:{node_port}" in lines[0] and "stopped answering" in lines[0], err
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert summary["node_lost"] is True and summary["error"] == lines[0].removeprefix("mcp-fuzz: error: ")
+    assert summary["cases"] > 0 and summary["workers"][0]["cases"] == summary["cases"], summary
+    assert summary["duration_s"] < 120, summary  # it ended at the loss, not at --duration
+    # the reference drone has no fault: whatever was found, none of it is the dead node's silence
+    assert not [d for d in out_dir.glob("finding-*")], summary["findings_by_rule"]
+    assert summary["findings"] == 0, summary
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_sigint_keeps_the_counts_so_far(tmp_path: Path, jobs: int) -> None:
+    """Item 6: one SIGINT mid-campaign (embedded reference drone). Before: exit 2 and
+    summary.json with "cases": 0, "workers": [] and "error": null."""
+    out_dir = tmp_path / "out"
+    proc = _fuzz([*FAST, "--duration", "120", "--jobs", str(jobs), "--out", str(out_dir)])
+    _wait_status(proc)
+    proc.send_signal(signal.SIGINT)
+    rc, out, err = _finish(proc)
+    assert rc == 130, f"rc {rc}\n{out}\n{err}"
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "interrupted" in lines[0], err
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True and "interrupted" in (summary["error"] or ""), summary
+    assert summary["cases"] > 0, summary
+    assert len(summary["workers"]) == jobs and all(w["cases"] > 0 for w in summary["workers"]), summary
+    assert sum(w["cases"] for w in summary["workers"]) == summary["cases"]
+    assert summary["duration_s"] < 120, summary
