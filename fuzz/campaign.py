@@ -364,8 +364,6 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "monitor": any(r.monitor for r in results),
         "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),
         "timing": next((r.timing for r in results if r.timing), None),
-        "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error}
-                    for r in results],
         "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error,
                      "interrupted": r.interrupted} for r in results],
         "interrupted": interrupted,
