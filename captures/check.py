@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import textwrap
+from collections import Counter
+from collections.abc import Iterator
 from importlib import resources
 from typing import Any
 
@@ -21,7 +24,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from captures.cli import check_writable, to_terminal, write_output
+from captures.cli import UsageError, check_writable, to_terminal, write_output
 from judge.judging import (
     Judgement,
     add_monitor_options,
@@ -37,6 +40,9 @@ from traceio.trace import evidence_indexes
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
 SCHEMA_VERSION = "1.2"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures)
+EXAMPLES = 3  # violations shown in full per rule; the rest are counted (all of them in --json)
+NODE_ROWS = 30  # rows of the terminal's nodes table at most (a noisy capture's random IDs)
+NODE_COLUMNS = 6  # node columns of the terminal's rules table at most
 VERDICT_STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "info": "cyan",
                   "not_observed": "dim"}
 
@@ -61,13 +67,12 @@ def run(ns: argparse.Namespace) -> int:
     wanted = {i for v in j.shown_violations for i in evidence_indexes(v)}
     evidence = evidence_of(j, wanted)
     if ns.json:  # the files first: an interrupted or piped terminal report loses neither
-        doc = to_json(j, evidence)
-        write_output(ns.json, json.dumps(doc, indent=2) + "\n", "--json")
+        write_json(ns.json, j, evidence)
     if ns.html:
         from reports.html import render_check
 
         write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
-    to_terminal(lambda: print_report(j, evidence))
+    to_terminal(lambda: print_report(j, evidence, json_path=ns.json))
     return j.exit_code()
 
 
@@ -104,9 +109,8 @@ def _level(v: Any) -> str:
 
 
 # ---------------------------------------------------------------- JSON
-def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
-    from spec.about import tool_version
-
+def _violations_json(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[dict[str, Any]]:
+    """Each shown violation as the JSON lists it, one at a time (a million of them stream)."""
     def ev(v: Any) -> list[dict[str, Any]]:
         idx = evidence_indexes(v)
         if not idx and getattr(v, "evidence", None):
@@ -115,16 +119,25 @@ def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
                  "summary": describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"}
                 for i in idx]
 
-    violations = [{"rule": v.rule, "level": _level(v), "node": v.node, "t": round(j.rel(v.t_ns), 9),
-                   "t_ns": v.t_ns, "text": _rule_text(v.rule), "expected": _str(v.expected),
-                   "actual": _str(v.actual), "evidence": ev(v)} for v in j.shown_violations]
+    for v in j.shown_violations:
+        yield {"rule": v.rule, "level": _level(v), "node": v.node, "t": round(j.rel(v.t_ns), 9),
+               "t_ns": v.t_ns, "text": _rule_text(v.rule), "expected": _str(v.expected),
+               "actual": _str(v.actual), "evidence": ev(v)}
+
+
+def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = True) -> dict[str, Any]:
+    """The ``--json`` document (``check.schema.json``); ``violations=False`` leaves the list
+    empty (:func:`write_json` streams it into the file)."""
+    from spec.about import tool_version
+
     rules = {str(node): {r: verdict for r, verdict in sorted(by_rule.items()) if selected(r, j.params.select)}
              for node, by_rule in sorted(j.verdicts.items())}
     counts: dict[str, int] = {}
     for by_rule in rules.values():
         for verdict in by_rule.values():
             counts[verdict] = counts.get(verdict, 0) + 1
-    levels = [x["level"] for x in violations]
+    shown = j.shown_violations
+    levels = Counter(_level(v) for v in shown)
     duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
     segments = {"segments": [_segment_json(name, s, j.params.select) for name, s in j.segments.items()]} \
         if j.segments else {}
@@ -136,13 +149,32 @@ def to_json(j: Judgement, evidence: dict[int, Datagram]) -> dict[str, Any]:
                  "datagrams": j.datagrams, "unattributed": j.unattributed, "duration_s": round(duration, 9)},
         "parameters": j.params.to_json(),
         "nodes": [n.to_json() for n in j.nodes.values()],
-        "violations": violations,
+        "violations": list(_violations_json(j, evidence)) if violations else [],
         "rules": rules,
         **segments,
-        "summary": {"violations": len(violations), "must": levels.count("MUST"),
-                    "should": levels.count("SHOULD"), "info": levels.count("INFO"),
+        "summary": {"violations": len(shown), "must": levels["MUST"],
+                    "should": levels["SHOULD"], "info": levels["INFO"],
                     "failing": len(j.failing()), "verdicts": counts, "exit_code": j.exit_code()},
     }
+
+
+def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
+    """Write :func:`to_json`'s document as ``json.dumps(doc, indent=2)`` would, streaming the
+    violations: memory stays that of one violation's JSON, not the whole document's (a
+    capture with a million violations makes a document of hundreds of MB)."""
+    head = json.dumps(to_json(j, evidence, violations=False), indent=2)
+    marker = '\n  "violations": [],\n'
+    before, after = head.split(marker, 1)  # the key is unique at the top level (indent 2)
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(before + '\n  "violations": [')
+            first = True
+            for doc in _violations_json(j, evidence):
+                f.write(("\n" if first else ",\n") + textwrap.indent(json.dumps(doc, indent=2), "    "))
+                first = False
+            f.write(("\n  ],\n" if not first else "],\n") + after + "\n")
+    except OSError as exc:
+        raise UsageError(f"--json: cannot write {path!r}: {exc.strerror or exc}") from None
 
 
 def _segment_json(name: str, s: Judgement, select: tuple[str, ...]) -> dict[str, Any]:
@@ -175,7 +207,24 @@ def validate_json(doc: dict[str, Any]) -> None:
 
 
 # ---------------------------------------------------------------- terminal
-def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console | None = None) -> None:
+def _violation_text(j: Judgement, v: Any, evidence: dict[int, Datagram]) -> str:
+    """One violation as the terminal shows it: when and who, expected, actual, evidence."""
+    lines = [f"  node {v.node} at +{j.rel(v.t_ns):.6f} s"]
+    if v.expected is not None:
+        lines.append(f"    expected: {v.expected}")
+    if v.actual is not None:
+        lines.append(f"    actual:   {v.actual}")
+    for i in evidence_indexes(v):
+        lines.append(f"    evidence: {describe_datagram(evidence[i], j.first_ns) if i in evidence else f'#{i}'}")
+    return "\n".join(lines)
+
+
+def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console | None = None, *,
+                 examples: int = EXAMPLES, json_path: str | None = None) -> None:
+    """The terminal report: nodes, the violations summarised per rule (the count and the first
+    ``examples`` in full; ``--json`` has every one), the rules table and the verdict. Its
+    size is bounded by the rules and nodes, not by the violations: a capture with a million
+    of them prints in the time of a few."""
     con = console or Console(highlight=False)
     span = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
     con.print(f"[bold]mcp-capture check[/bold] {escape(j.path)} · {j.format} · {j.datagrams} datagram(s) "
@@ -193,26 +242,28 @@ def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console |
     nodes = Table(title="Nodes", title_justify="left", show_edge=False)
     for col in ("ID", "role", "addresses", "sent", "received"):
         nodes.add_column(col, justify="right" if col in ("ID", "sent", "received") else "left")
-    for n in j.nodes.values():
+    listed = list(j.nodes.values())
+    for n in listed[:NODE_ROWS]:
         nodes.add_row(str(n.id), n.role, n.address_text(), str(n.sent), str(n.received))
+    if len(listed) > NODE_ROWS:
+        nodes.add_row("…", f"{len(listed) - NODE_ROWS} more", "(--json lists them all)", "", "")
     if j.unattributed:
         nodes.add_row("-", "no MCP header", "", str(j.unattributed), "")
     con.print(nodes)
     shown = j.shown_violations
     con.print(f"\n[bold]Violations[/bold] ({len(shown)})" if shown else "\n[green]No violations.[/green]")
-    rule = None
+    by_rule: dict[str, list[Any]] = {}
     for v in shown:
-        if v.rule != rule:
-            rule = v.rule
-            con.print(f"[bold red]{v.rule}[/bold red] ({_level(v)}): {escape(_rule_text(v.rule))}", soft_wrap=True)
-        con.print(f"  node {v.node} at +{j.rel(v.t_ns):.6f} s", soft_wrap=True)
-        if v.expected is not None:
-            con.print(f"    expected: {escape(str(v.expected))}", soft_wrap=True)
-        if v.actual is not None:
-            con.print(f"    actual:   {escape(str(v.actual))}", soft_wrap=True)
-        for i in evidence_indexes(v):
-            text = describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"
-            con.print(f"    evidence: {escape(text)}", soft_wrap=True)
+        by_rule.setdefault(v.rule, []).append(v)
+    for rule, vs in by_rule.items():  # per rule: its count, the first examples, how many more
+        con.print(f"[bold red]{rule}[/bold red] ({_level(vs[0])}): {escape(_rule_text(rule))}", soft_wrap=True)
+        if len(vs) > examples:
+            con.print(f"  {len(vs)} violations of {rule}; the first {examples}:", soft_wrap=True)
+        for v in vs[:examples]:
+            con.print(_violation_text(j, v, evidence), soft_wrap=True, markup=False)
+        if len(vs) > examples:
+            where = f"; all of them in {json_path}" if json_path else "; --json OUT lists them all"
+            con.print(f"  … and {len(vs) - examples} more{escape(where)}", soft_wrap=True)
     con.print(rules_table(j))
     failing = j.failing()
     verdict = "[bold red]FAILED[/bold red]" if failing else "[bold green]OK[/bold green]"
@@ -225,8 +276,17 @@ def print_report(j: Judgement, evidence: dict[int, Datagram], console: Console |
 
 
 def rules_table(j: Judgement) -> Table:
+    """Verdicts per rule and node; beyond ``NODE_COLUMNS`` nodes, those with a failed or warned
+    verdict first (the violations column counts every node's)."""
     nodes = sorted(j.verdicts)
-    t = Table(title="Rules", title_justify="left", show_edge=False)
+    more = 0
+    if len(nodes) > NODE_COLUMNS:
+        def clean(n: int) -> bool:
+            return not any(v in ("failed", "warned") for r, v in j.verdicts[n].items() if selected(r, j.params.select))
+        more = len(nodes) - NODE_COLUMNS
+        nodes = sorted(sorted(nodes, key=lambda n: (clean(n), n))[:NODE_COLUMNS])
+    t = Table(title="Rules", title_justify="left", show_edge=False,
+              caption=f"{more} more node(s) not shown (--json has every node's verdicts)" if more else None)
     t.add_column("rule")
     t.add_column("level")
     for n in nodes:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import difflib
 import json
 import sys
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -233,23 +233,29 @@ def _streams(g: list[Entry], c: list[Entry]) -> Iterable[tuple[str, list[int], l
     """Alignment per sender: each sender's own order is the protocol's; how two senders'
     datagrams interleave on the wire is a race (an ACK may leave before or after the
     other side's next message). Yields (tag, golden positions, candidate positions)."""
-    senders = sorted({e.src for e in g} | {e.src for e in c}, key=lambda s: -1 if s is None else s)
-    for sender in senders:
-        gi = [n for n, e in enumerate(g) if e.src == sender]
-        ci = [n for n, e in enumerate(c) if e.src == sender]
+    by_g: dict[Any, list[int]] = {}
+    by_c: dict[Any, list[int]] = {}
+    for n, e in enumerate(g):  # one pass each, whatever the number of senders
+        by_g.setdefault(e.src, []).append(n)
+    for n, e in enumerate(c):
+        by_c.setdefault(e.src, []).append(n)
+    for sender in sorted(by_g.keys() | by_c.keys(), key=lambda s: -1 if s is None else s):
+        gi, ci = by_g.get(sender, []), by_c.get(sender, [])
         for tag, i1, i2, j1, j2 in _align([g[i] for i in gi], [c[j] for j in ci]):
             yield tag, gi[i1:i2], ci[j1:j2]
 
 
-def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any]) -> None:
+def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any], start: int = 0) -> None:
     """An ACK that moved or changed because the message it acknowledges moved or changed is
-    that divergence's consequence, not a second one (one fault, one report)."""
-    hit = {(d.golden.src, d.golden.nseq) for d in divs
+    that divergence's consequence, not a second one (one fault, one report). Looks at
+    ``divs[start:]`` only, the conversation's own: the time is linear in the divergences, not
+    their number times the conversations' (a noisy capture has thousands of each)."""
+    hit = {(d.golden.src, d.golden.nseq) for d in divs[start:]
            if d.kind in ("reordered", "changed") and d.peers == peers and d.golden is not None
            and d.golden.action not in (None, Action.ACK)}
     if not hit:
         return
-    divs[:] = [d for d in divs if not (
+    divs[start:] = [d for d in divs[start:] if not (
         d.kind in ("reordered", "changed") and d.peers == peers and d.golden is not None
         and d.golden.action == Action.ACK and (d.golden.dst, d.golden.payload) in hit
         and (d.kind == "reordered" or all(f == "acknowledges" for f, _, _ in d.fields)))]
@@ -258,6 +264,7 @@ def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any]) -
 def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,
              result: DiffResult) -> None:
     divs = result.divergences
+    start = len(divs)  # this conversation's divergences are divs[start:]
     pairs: list[tuple[int | None, int | None]] = []
     equal: list[tuple[int, int]] = []
     changed: list[tuple[int, int]] = []
@@ -274,13 +281,13 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
         missing.extend(gs[k:])
         extra.extend(cs[k:])
     # a message missing here and extra there: moved (one divergence, "reordered")
-    extra_by_key: dict[tuple[Any, ...], list[int]] = {}
+    extra_by_key: dict[tuple[Any, ...], deque[int]] = {}
     for j in extra:
-        extra_by_key.setdefault(c[j].key, []).append(j)
+        extra_by_key.setdefault(c[j].key, deque()).append(j)
     for i in missing:
         js = extra_by_key.get(g[i].key)
         if js:
-            j = js.pop(0)
+            j = js.popleft()
             pairs.append((i, j))
             divs.append(Divergence("reordered", peers, g[i], c[j], i, j, (("position", i, j),),
                                    f"{describe(g[i])} came at another place in the order "
@@ -341,7 +348,7 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
         if n not in swapped:
             divs.append(Divergence("changed", peers, g[i], c[j], i, j, _fields_differ(g[i], c[j]),
                                    "aligned messages differ"))
-    _drop_consequent_ack_moves(divs, peers)
+    _drop_consequent_ack_moves(divs, peers, start)
     pairs.sort(key=lambda p: (p[0] if p[0] is not None else -1, p[1] if p[1] is not None else -1))
     result.aligned[peers] = _merge_order(pairs)
 

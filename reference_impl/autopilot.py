@@ -94,7 +94,10 @@ class AutopilotLink:
         self.heartbeat = threading.Event()
         self.fix = threading.Event()
         self.fix_type = 0
-        self.armed = False
+        self.armed = False  # the autopilot's state now (its HEARTBEATs): false again once it landed
+        #: the autopilot accepted our ARM: what the drone did, whatever the vehicle's state later
+        #: (after End_Mission's RTL it lands and disarms, maybe before the node exits)
+        self.arm_accepted = False
         self.custom_mode: int | None = None
         self.rel_alt = 0.0
         self.target_alt: float | None = None
@@ -270,7 +273,7 @@ class AutopilotLink:
         else:
             self.log.warning("could not arm the autopilot")
             return
-        self.armed = True
+        self.armed = self.arm_accepted = True
         self.log.info("armed")
         self.takeoff_sent = True
         if self._command(_MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt, label="TAKEOFF"):

@@ -304,7 +304,7 @@ class Drone(RoleNode):
             "obstacles": len(app.obstacles) if app else 0,
             "active_waypoints": len(app.active) if app else 0,
             "forwarded": link.forwarded if link else 0,
-            "armed": bool(link and link.armed),
+            "armed": bool(link and link.arm_accepted),  # it armed (the vehicle may have landed since)
             "rtl": bool(link and link.rtl_sent),
         }
 

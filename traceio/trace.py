@@ -156,6 +156,7 @@ class Trace:
         self.entries: list[Entry] = []
         self.nodes: dict[int, Node] = {}
         self.by_index: dict[int, Entry] = {}
+        self._positions: dict[int, int] | None = None  # index -> position in entries (around)
         for d in datagrams:
             self._add(d)
         self._pair()
@@ -190,21 +191,25 @@ class Trace:
         self.entries.append(e)
         self.by_index[d.index] = e
 
-    def _owner(self, addr: tuple[str, int] | None) -> str | None:
-        if addr is None:
-            return None
+    def _owners(self) -> dict[tuple[str, int], str]:
+        """Each address's node: the first (in order of appearance) that sent from it. One
+        pass over the nodes, so naming a headerless datagram's ends is a lookup, not a scan
+        of every node (a noisy capture's random headers make a node per datagram)."""
+        owners: dict[tuple[str, int], str] = {}
         for node in self.nodes.values():
-            if addr in node.addresses:
-                return str(node.id)
-        return None
+            for addr in node.addresses:
+                owners.setdefault(addr, str(node.id))
+        return owners
 
     def _pair(self) -> None:
+        owners = self._owners()
         latest: dict[tuple[int, int, int], list[Entry]] = {}  # (src, dst, seq) -> its copies
         broadcasts: dict[tuple[int, int], Entry] = {}  # (src, seq) -> the latest broadcast
         for e in self.entries:
             if e.header is None:  # no header: lifelines by address, or the owner of it
-                e.src = self._owner(e.dgram.src_addr) or lifeline_of(None, e.dgram.src_addr)
-                e.dst = self._owner(e.dgram.dst_addr) or lifeline_of(None, e.dgram.dst_addr)
+                src_addr, dst_addr = e.dgram.src_addr, e.dgram.dst_addr
+                e.src = (src_addr is not None and owners.get(src_addr)) or lifeline_of(None, src_addr)
+                e.dst = (dst_addr is not None and owners.get(dst_addr)) or lifeline_of(None, dst_addr)
                 continue
             if e.msg is None:
                 continue
@@ -252,7 +257,9 @@ class Trace:
 
     def around(self, indexes: Iterable[int], context: int = 4, limit: int = 60) -> list[Entry]:
         """Entries from a few before the first of ``indexes`` to a few after the last."""
-        pos = {e.index: n for n, e in enumerate(self.entries)}
+        pos = self._positions
+        if pos is None:  # once, not once per violation (an HTML report charts each)
+            pos = self._positions = {e.index: n for n, e in enumerate(self.entries)}
         hit = sorted(pos[i] for i in indexes if i in pos)
         if not hit:
             return []

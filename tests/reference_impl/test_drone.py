@@ -296,3 +296,24 @@ def test_unreachable_autopilot_is_a_role_error(manager: FakePeer) -> None:
 def test_bad_drone_id(bad: int) -> None:
     with pytest.raises(RoleError):
         DroneConfig(drone_id=bad)
+
+
+def test_end_mission_right_after_start_mission_arms_then_rtls_and_the_record_says_so(
+        vehicle: SimVehicle, manager: FakePeer, drone_factory: Any) -> None:
+    """End_Mission at once after Start_Mission, faster than the autopilot answers: the drone
+    finishes the pending arm and takeoff, then commands RTL (MCP-BLK-7: "finishes pending
+    actions, then commands RTL"). The vehicle then lands and disarms while the drone lingers
+    (long here: a loaded host's slow exit), and the record still says the drone armed: it
+    records what the drone did, not the autopilot's state when it exits (issue 19 item 9:
+    test_e2e's ``armed`` was false under load)."""
+    run = drone_factory(vehicle.url, linger=3.0)
+    ready(manager, vehicle)
+    manager.send(Action.START_MISSION)
+    manager.command(Action.END_MISSION)
+    assert run.join(30) == 0
+    arm_t, rtl_t = vehicle.first_time("arm"), vehicle.first_time("rtl")
+    assert arm_t is not None and rtl_t is not None and arm_t < rtl_t
+    assert vehicle.events("landed") and not vehicle.armed  # landed and disarmed before the drone exited
+    rec = run.drone.record()
+    assert rec["outcome"] == "end_mission" and rec["received"] == {"Start_Mission": 1, "End_Mission": 1}
+    assert rec["armed"] and rec["rtl"]

@@ -1,0 +1,122 @@
+"""mcp-capture show / diff / check on noisy captures, and check of a million violating datagrams.
+
+    python bench/bench_capture_tools.py [--sizes 10000,20000,40000] [--million N] [--skip-million]
+                                        [--baseline SRC]
+
+1. Noisy captures of 10k, 20k and 40k datagrams (tests/captures/noisy.py: unanswered drone
+   commands, mutated copies, random bytes with random headers from several sources, runts):
+   ``mcp-capture show``, ``diff`` (against another noisy capture of the same size) and
+   ``check --json``, each a subprocess: wall seconds, CPU seconds and peak RSS. Linear time
+   doubles from one size to the next (issue 19 item 7: 2.8 / 7.3 / 33 s for show before).
+2. ``mcp-capture check FILE --json OUT`` of a capture of ``--million`` datagrams, every one a
+   violation (a drone sending WP_On to the manager, MCP-HDR-5): wall, CPU, peak RSS, against
+   the issue's target of <= 60 s and <= 1 GB.
+
+``--baseline SRC`` runs the same commands from another source tree as well (a checkout of an
+older commit: ``git worktree add /tmp/old <rev>``), side by side. The captures are cached in
+$TMPDIR. Figures only: nothing here asserts a timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a source checkout
+
+from spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from tests.captures.noisy import write_noisy  # noqa: E402
+from traceio.recorder import McapRecorder  # noqa: E402
+
+ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
+TARGET_S, TARGET_MB = 60.0, 1024.0
+
+
+def cached(path: Path, make: object) -> Path:
+    if not path.exists():
+        part = path.with_suffix(".part")
+        make(part)  # type: ignore[operator]
+        part.replace(path)
+    return path
+
+
+def all_violating(path: Path, n: int) -> None:
+    """``n`` WP_Ons from drone 1..8 to the manager: each one MCP-HDR-5 (a drone sends only
+    Mission_Ready and ACK), none answered."""
+    t = 1_800_000_000_000_000_000
+    with McapRecorder(path, local=("127.0.0.1", 7889)) as rec:
+        for i in range(n):
+            d = 1 + i % 8
+            rec.datagram("rx", encode(Message(0, d, (i // 8) & 0xFFFF, Action.WP_ON, ITEM)),
+                         ("127.0.0.1", 41000 + d), t + i * 100_000)
+
+
+def run(src: Path, args: list[str]) -> tuple[float, float, float, int]:
+    """(wall s, CPU s, peak RSS MB, exit code) of ``python -m captures ARGS`` from ``src``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    code = subprocess.run([sys.executable, "-c",
+                           "import resource, sys; from captures.cli import main; rc = main(sys.argv[1:]); "
+                           "sys.stderr.write(f'\\nRSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n'); "
+                           "sys.exit(rc)", *args],
+                          cwd=src, env={**os.environ, "PYTHONPATH": str(src)}, stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    rss = next((int(line.split()[1]) / 1024 for line in code.stderr.splitlines() if line.startswith("RSS ")), 0.0)
+    if code.returncode not in (0, 1):
+        print(f"    ({' '.join(args[:1])} exit {code.returncode}: {code.stderr.strip()[-200:]})")
+    return wall, cpu, rss, code.returncode
+
+
+def row(label: str, trees: dict[str, Path], args: list[str]) -> None:
+    cells = []
+    for _name, src in trees.items():
+        wall, cpu, rss, _ = run(src, args)
+        cells.append(f"{wall:7.2f} s {cpu:7.2f} CPU {rss:6.0f} MB")
+    print(f"  {label:22s}" + "   |".join(cells), flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="10000,20000,40000", help="noisy capture sizes (10000,20000,40000)")
+    ap.add_argument("--million", type=int, default=1_000_000, help="violating datagrams in part 2 (1000000)")
+    ap.add_argument("--skip-million", action="store_true", help="part 1 only")
+    ap.add_argument("--baseline", type=Path, help="another source tree to run side by side (an older commit)")
+    args = ap.parse_args(argv)
+    tmp = Path(os.environ.get("TMPDIR", "/tmp"))
+    out = tmp / "bench-capture-tools.json"
+    trees = {"this tree": ROOT, **({"baseline": args.baseline.resolve()} if args.baseline else {})}
+    print(f"python {platform.python_version()} on {platform.machine()}, {os.cpu_count()} CPUs; "
+          f"load {os.getloadavg()[0]:.1f}; columns: {', '.join(f'{k} ({v})' for k, v in trees.items())}")
+    print("wall, CPU (user + system) and peak RSS of each command")
+    for n in (int(x) for x in args.sizes.split(",")):
+        a = cached(tmp / f"bench-noisy-{n}.mcap", lambda p, n=n: write_noisy(p, n))
+        b = cached(tmp / f"bench-noisy-{n}-other.mcap", lambda p, n=n: write_noisy(p, n, seed=7))
+        print(f"noisy capture of {n} datagrams:")
+        row("show", trees, ["show", str(a)])
+        row("diff (another one)", trees, ["diff", str(a), str(b)])
+        row("check --json", trees, ["check", str(a), "--json", str(out)])
+    if not args.skip_million:
+        m = args.million
+        cap = cached(tmp / f"bench-violating-{m}.mcap", lambda p: all_violating(p, m))
+        print(f"check --json of {m} datagrams, each a violation (target <= {TARGET_S:.0f} s, <= {TARGET_MB:.0f} MB):")
+        for name, src in trees.items():
+            wall, cpu, rss, code = run(src, ["check", str(cap), "--json", str(out)])
+            verdict = "meets" if wall <= TARGET_S and rss <= TARGET_MB else "MISSES"
+            size = out.stat().st_size / 1e6 if out.exists() else 0.0
+            print(f"  {name:22s}{wall:7.2f} s {cpu:7.2f} CPU {rss:6.0f} MB  exit {code}, JSON {size:.0f} MB "
+                  f"({verdict} the target)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
