@@ -207,7 +207,7 @@ class Capture:
                 with gzip.open(self.path, "rb") as g:
                     inner = g.read(4)
             except (OSError, EOFError, zlib.error) as exc:
-                raise CaptureError(f"{name}: broken gzip stream: {exc}") from None
+                raise CaptureError(f"{name}: corrupt gzip stream: {exc}") from None
             kind = "pcapng" if inner == _PCAPNG_MAGIC else "pcap" if inner in _PCAP_MAGICS else None
             if kind is None:
                 raise CaptureError(f"{name}: gzip'd file is not a pcap or pcapng capture")
