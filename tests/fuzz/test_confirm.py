@@ -1,0 +1,104 @@
+"""Issue 18 item 9: findings that stand up. A finding counts only when every confirming replay
+shows it (N of N), and a missing ACK is the node's only when retransmitted copies go unACKed
+too (UDP may lose a datagram even on loopback, under a burst)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+import fuzz.triage
+from fuzz.findings import FindingStore
+from fuzz.oracles import Flaw, Input, judge_exchange
+from fuzz.replay import Outcome
+from fuzz.triage import CONFIRM_N, Triage
+from harness.driver import TargetDriver
+from spec.codec import Action, Message, decode, encode
+
+
+class _Target:
+    """What triage reads of a target: its config, liveness; replays are faked."""
+
+    spawned = True
+    cfg = SimpleNamespace(mode="spawn", mavlink=False)
+    run_cfg = SimpleNamespace(spawn="node")
+
+    def check_live(self, why: str) -> None:
+        return None
+
+
+@pytest.mark.parametrize("shows, kept", [([True] * (1 + CONFIRM_N), True),
+                                         ([True] * CONFIRM_N + [False], False),
+                                         ([True, True, False, True], False)])
+def test_a_finding_needs_every_confirming_replay(monkeypatch: pytest.MonkeyPatch, shows, kept) -> None:
+    """Before: the minimal sequence was confirmed once in two tries, and findings confirmed
+    so replayed 0 of 3 afterwards."""
+    flaw = Flaw("MCP-ACK-1", "an ACK naming seq 7", "no ACK of WP_OFF seq 7", culprit=0)
+    replies = iter(shows)
+
+    def replay(target, seq, pace, scenario=None):  # noqa: ANN001, ANN202
+        return Outcome([flaw] if next(replies) else [])
+
+    monkeypatch.setattr(fuzz.triage, "run_sequence", replay)
+    store = FindingStore(None)
+    triage = Triage(_Target(), store, "stateless", seed=1)  # type: ignore[arg-type]
+    data = encode(Message(1, 0, 7, Action.WP_OFF))
+    found = triage.consider(flaw, [Input.of(data)], "batch")
+    assert (found is not None) is kept and (len(store) == 1) is kept
+    assert triage.unconfirmed == (0 if kept else 1)
+
+
+class _Node:
+    """A UDP node that ACKs every unicast, except the first copy of the seqs in ``lose``
+    (as if the kernel had dropped it) and every copy of those in ``never``."""
+
+    def __init__(self, lose: set[int], never: set[int]) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.lose, self.never, self.seen = lose, never, set()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        own = 100
+        while not self.stop.is_set():
+            try:
+                data, addr = self.sock.recvfrom(2048)
+            except TimeoutError:
+                continue
+            m = decode(data)
+            if m.seq in self.never or (m.seq in self.lose and m.seq not in self.seen):
+                self.seen.add(m.seq)
+                continue
+            own += 1
+            self.sock.sendto(encode(Message(m.src, 1, own, Action.ACK, m.seq)), addr)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.sock.close()
+
+
+@pytest.mark.parametrize("lose, never, flagged", [({500}, set(), False), (set(), {500}, True)])
+def test_a_missing_ack_counts_only_if_the_retransmissions_go_unacked_too(lose, never, flagged) -> None:
+    node = _Node(lose, never)
+    drv = TargetDriver(node.sock.getsockname(), ("127.0.0.1", 0))
+    drv.open()
+    try:
+        target = SimpleNamespace(driver=drv, node_id=1, broadcast_id=0xFFFF, rto=0.2,
+                                 fate=lambda: {"alive": True})
+        mark = drv.mark()
+        data = encode(Message(1, 0, 500, Action.WP_OFF))
+        drv.send_raw(data)
+        probe = drv.send(Action.WP_OFF, None, 1)
+        assert drv.wait_for(drv.ack_for(probe), 2.0, mark) is not None
+        flaws = judge_exchange([Input.of(data)], target, mark, SimpleNamespace(acked=True, sent=probe, copies=1))
+        assert ("MCP-ACK-1" in {f.rule for f in flaws}) is flagged, flaws
+    finally:
+        drv.close()
+        node.close()
