@@ -62,6 +62,13 @@ class ReceiverRules:
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             acks = match.acks
+            if (node is not None and acks and len(acks) >= len(match.copies)
+                    and self._complete_for(src, dst)):
+                # every copy of it is ACKed already, and a node ACKs each copy once: this ACK
+                # answers something else -- a wrong payload if a copy waits (MCP-ACK-2: a node
+                # that ACKs a copy of seq 1339 with 1340, just after 1340 itself)
+                self._stray_acks[(src, dst)] = (i, t, named)
+                return
             if acks:  # an ACK of a later copy
                 acks.append((i, t))
                 if match.deliveries and node is not None:  # a duplicate not to deliver again

@@ -142,6 +142,31 @@ def _spawn(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
                                 start_new_session=True)
 
 
+def _listening(port: int) -> bool | None:
+    """Whether a UDP socket is bound to ``port`` (Linux's /proc/net/udp); None elsewhere."""
+    lines: list[str] = []
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        with contextlib.suppress(OSError):
+            lines += Path(table).read_text().splitlines()[1:]
+    if not lines:
+        return None
+    want = f":{port:04X}"
+    return any(line.split()[1].endswith(want) for line in lines if len(line.split()) > 1)
+
+
+def _wait_listening(port: int, proc: subprocess.Popen[bytes], limit: float = 10.0) -> None:
+    """Until ``proc`` listens on ``port`` (or exits, or ``limit`` passes)."""
+    deadline = time.monotonic() + limit
+    while time.monotonic() < deadline and proc.poll() is None:
+        up = _listening(port)
+        if up is None:
+            time.sleep(0.5)  # no way to know here: give it a moment
+            return
+        if up:
+            return
+        time.sleep(0.01)
+
+
 def _end(proc: subprocess.Popen[bytes], grace: float = 5.0) -> int | None:
     """SIGTERM, then SIGKILL after ``grace``; the exit code (None if it had to be killed)."""
     if proc.poll() is not None:
@@ -205,8 +230,13 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
             "record": str(out / f"{v}.json")}) for v in views}
         medium.start()
         t0 = time.monotonic()
-        for v in views[1:] + views[:1]:  # the drones first, then the manager
+        # the manager first, listening before any drone speaks: a drone's first Mission_Ready
+        # must not depend on how fast the manager's process started (a seed replays only
+        # if the link sees the same traffic)
+        for v in views[:1] + views[1:]:
             procs[v] = _spawn(cmds[v], out / f"{v}.log")
+            if v == MANAGER:
+                _wait_listening(ports[MANAGER], procs[v])
         try:
             manager_code = procs[MANAGER].wait(max(0.1, setup.timeout - (time.monotonic() - t0)))
             res.mission_time = time.monotonic() - t0
