@@ -43,6 +43,8 @@ def register(sub: Any) -> None:
     p.add_argument("--case", metavar="ID", help="only the traffic of this conformance case (MCAP captures)")
     p.add_argument("--svg", metavar="OUT", help="write the window's message-sequence chart as SVG")
     p.add_argument("--max-rows", metavar="N", default="400", help="rows of the chart at most (default 400)")
+    p.add_argument("--segment", metavar="NAME", help="a capture merged from pytest-xdist workers: only this "
+                   "worker's session (each is listed and charted apart; the chart is the first's by default)")
     add_monitor_options(p)
     p.set_defaults(run=run)
 
@@ -93,8 +95,10 @@ def run(ns: argparse.Namespace) -> int:
     except MonitorUnavailable as exc:
         unjudged = f"violations not marked: {exc}"
         j = judge(ns.file, params, keep=True, monitor=NoJudge())
-    trace = Trace(j.kept or (), params.broadcast_id)
-    trace.mark(j.shown_violations)
+    sessions = _sessions(j, getattr(ns, "segment", None))
+    seg_name, part = sessions[0]
+    trace = Trace(part.kept or (), params.broadcast_id)
+    trace.mark(part.shown_violations)
     start: int | None
     end: int | None
     if ns.case is not None:
@@ -105,7 +109,8 @@ def run(ns: argparse.Namespace) -> int:
         end = None if t_to is None else base + int(t_to * 1e9)
     entries = trace.window(start, end)
     if ns.svg:  # before the listing: a reader that stops early (| head) still gets the chart
-        title = f"{j.path}" + (f" · case {ns.case}" if ns.case else "")
+        title = f"{j.path}" + (f" · session {seg_name}" if seg_name else "") + (
+            f" · case {ns.case}" if ns.case else "")
         # times since the capture's first datagram, as the listing's (--from 12 starts at +12 s)
         write_output(ns.svg, trace_svg(trace, entries, title=title, max_rows=max_rows,
                                        t0_ns=j.first_ns), "--svg")
@@ -117,9 +122,31 @@ def run(ns: argparse.Namespace) -> int:
         con.print(Text(f"truncated: {j.truncated}", style="yellow"))
     for note in [*j.notes, *([unjudged] if unjudged else [])]:
         con.print(Text(f"note: {note}", style="dim"))
-    for e in entries:
-        con.print(entry_line(e, trace, j.first_ns or 0))
+    for n, (name, part) in enumerate(sessions):
+        if n:  # each worker's session on its own lifelines: two workers' drone 1 are two nodes
+            trace = Trace(part.kept or (), params.broadcast_id)
+            trace.mark(part.shown_violations)
+            entries = trace.window(start, end)
+        if name is not None:
+            con.print(Text(f"── session {name}: {len(entries)} datagram(s)"
+                           + (" · the chart's" if n == 0 and ns.svg else ""), style="bold"))
+        for e in entries:
+            con.print(entry_line(e, trace, j.first_ns or 0))
     return 0
+
+
+def _sessions(j: Judgement, only: str | None) -> list[tuple[str | None, Judgement]]:
+    """The sessions to show: the whole capture, or each worker's of a merged one (issue 18
+    item 7: one chart drew two workers' drones as one) -- or the one ``--segment`` names."""
+    if not j.segments:
+        if only is not None:
+            raise UsageError(f"--segment: {j.path} holds one session (it is not merged from workers)")
+        return [(None, j)]
+    if only is not None:
+        if only not in j.segments:
+            raise UsageError(f"--segment: {only!r} is not a session of {j.path} ({', '.join(j.segments)})")
+        return [(only, j.segments[only])]
+    return list(j.segments.items())
 
 
 def _addr(addr: Any) -> str:

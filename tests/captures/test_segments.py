@@ -96,3 +96,29 @@ def test_a_violation_in_one_worker_is_that_workers_with_its_evidence(tmp_path):
     (index, _t), = j.violations[0].evidence
     d = {d.index: d for d in open_capture(merged).datagrams()}[index]
     assert d.segment == "gw1" and d.data == encode(Message(0, 1, 1, Action.START_MISSION))
+
+
+def test_show_lists_and_charts_each_workers_session_apart(tmp_path, capsys):
+    """``mcp-capture show`` of a merged capture: each worker's session under its own heading,
+    on its own lifelines (before: one chart drew both workers' drone 1 as one node, the faulty
+    worker's Start_Mission beside the other's traffic); ``--segment`` picks one."""
+    from captures.cli import main
+
+    merged, _ = _merged(tmp_path, second="faulty")
+
+    def show(*argv: str, code: int = 0) -> str:
+        assert main(["show", str(merged), *argv]) == code
+        captured = capsys.readouterr()
+        return captured.out + captured.err
+
+    out = show("--svg", str(tmp_path / "all.svg"))
+    heads = [line for line in out.splitlines() if line.startswith("── session ")]
+    assert [h.split(":")[0] for h in heads] == ["── session gw0", "── session gw1"], heads
+    gw1 = out.split("── session gw1")[1]
+    assert gw1.count("\n#") == 4 and "MCP-HDR-5" in gw1  # its four datagrams, its violation
+    assert "MCP-HDR-5" not in out.split("── session gw1")[0]  # not on the other worker's drone
+    svg = (tmp_path / "all.svg").read_text()
+    assert "session gw0" in svg
+    only = show("--segment", "gw1")
+    assert "── session gw1: 4 datagram(s)" in only and "session gw0" not in only
+    assert "--segment: 'gw9' is not a session" in show("--segment", "gw9", code=2)
