@@ -86,27 +86,25 @@ class Medium:
 
     # ------------------------------------------------------------------ accounting
     def _tx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
-        h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
-        if h is not None and h[3] != ACK:
-            sent = self._sent.setdefault(view, set())
-            if h in sent:
-                self.retransmissions[view] = self.retransmissions.get(view, 0) + 1
-            sent.add(h)
-        rec = self.recorders.get(view)
-        if rec is not None:
-            rec.datagram("tx", data, peer, local=local)
+        """What ``view``'s node sent: a message it sent before is a retransmission."""
+        self._account(view, "tx", data, peer, local, lambda h: h, self._sent, self.retransmissions)
 
     def _rx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
+        """What the link gave ``view``'s node: a (src, seq) it got before is a duplicate."""
+        self._account(view, "rx", data, peer, local, lambda h: (h[1], h[2]), self._got, self.duplicates)
+
+    def _account(self, view: str, direction: str, data: bytes, peer: Address, local: Address,
+                 key: Any, seen_by_view: dict[str, set[Any]], again: dict[str, int]) -> None:
         h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
         if h is not None and h[3] != ACK:
-            key = (h[1], h[2])
-            got = self._got.setdefault(view, set())
-            if key in got:
-                self.duplicates[view] = self.duplicates.get(view, 0) + 1
-            got.add(key)
+            k = key(h)
+            seen = seen_by_view.setdefault(view, set())
+            if k in seen:
+                again[view] = again.get(view, 0) + 1
+            seen.add(k)
         rec = self.recorders.get(view)
         if rec is not None:
-            rec.datagram("rx", data, peer, local=local)
+            rec.datagram(direction, data, peer, local=local)
 
     # ------------------------------------------------------------------ the links
     def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,
