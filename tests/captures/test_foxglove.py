@@ -174,19 +174,19 @@ def test_example_layout_is_the_generated_one_and_names_our_topics():
 
 @pytest.mark.slow
 def test_a_failed_case_logs_its_rule_and_evidence(tmp_path):
-    """The runner's verdicts in /log: a manager that never ACKs Mission_Ready fails MCP-ACK-1;
-    its end line is an error naming the rule and the report's reason."""
+    """The runner's verdicts in /log: a manager that starts the mission before every drone is
+    ready fails MCP-BLK-2; its end line is an error naming the rule and the report's reason."""
     from tests.conformance.runner_helpers import FAST, run_conform, sample_manager_command
 
     cap = tmp_path / "run.mcap"
-    res = run_conform("--role", "manager", "--spawn", sample_manager_command("--fault", "no-ready-ack"), *FAST,
+    res = run_conform("--role", "manager", "--spawn", sample_manager_command("--fault", "start-early"), *FAST,
                       "--capture", str(cap))
-    assert res.rules["MCP-ACK-1"] == "failed", res.explain()
+    assert res.rules["MCP-BLK-2"] == "failed", res.explain()
     msgs = _validated(cap)
-    failed = [c for c in res.report["cases"] if c["outcome"] == "failed" and c["failed_rule"] == "MCP-ACK-1"]
+    failed = [c for c in res.report["cases"] if c["outcome"] == "failed" and c["failed_rule"] == "MCP-BLK-2"]
     assert failed, res.explain()
     lines = {m["message"]: m["level"] for _, m in msgs["/log"]}
     for case in failed:
         line = next(t for t in lines if t.startswith(f"{case['id']}: failed ["))
-        assert lines[line] == 4 and "MCP-ACK-1" in line and case["reason"] in line, line
+        assert lines[line] == 4 and "MCP-BLK-2" in line and case["reason"] in line, line
     assert len(msgs["/log"]) == len(msgs["/conformance/case"])
