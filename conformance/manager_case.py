@@ -127,8 +127,12 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     times = [m.acks[(msg.dst, c.header[2])].t for c in msg.copies
              if c.header is not None and (msg.dst, c.header[2]) in m.acks]
     w = m.withheld
-    if w.drone == msg.dst and msg.action == _START and w.wrong_acks and w.copies and \
-            any(c in msg.copies for c in w.copies):
+    if w.drone == msg.dst and msg.action == _START and w.wrong_acks and (
+            any(c in msg.copies for c in w.copies) or msg.first.t <= w.wrong_acks[0].t):
+        # the withheld Start_Mission: the runner's deliberate wrong ACK answered it (what the
+        # manager did after it is MCP-RTX-2's), also when the withheld copies were recorded
+        # apart from the ones the mission holds (a loaded machine: a false MCP-BLK-1 beside the
+        # wrong-seq-ack manager's MCP-RTX-2)
         times.append(w.wrong_acks[0].t)
     return min(times) if times else None
 
