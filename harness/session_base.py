@@ -8,6 +8,7 @@ runner hands it (``make_context``). Neither role's session imports the other's m
 from __future__ import annotations
 
 import contextlib
+import random
 import shlex
 import socket
 from collections.abc import Callable
@@ -59,7 +60,33 @@ def check_target(target: tuple[str, int]) -> tuple[str, int]:
     return addr
 
 
+_PICK = random.SystemRandom()
+
+
+def _ephemeral_low() -> int:
+    """The lowest port the kernel hands out by itself (Linux's ip_local_port_range)."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range", encoding="ascii") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A UDP port free now for a node to bind, chosen below the kernel's ephemeral range where
+    the system has one: a port from bind(0) was handed out again to another process's socket
+    while a spawned node was still starting (a CI run lost a replay to "the node exited with
+    code 2" that way); outside that range only an explicit bind can take it."""
+    low = _ephemeral_low()
+    if low > 12000:
+        for _ in range(50):
+            port = _PICK.randrange(10000, low)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                try:
+                    s.bind((host, port))
+                except OSError:
+                    continue
+                return port
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])

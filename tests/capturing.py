@@ -18,7 +18,12 @@ __all__ = ["dropped_by_kernel", "free_port", "start_capture", "stop_capture", "w
 
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
-    """A port nothing is bound to now (UDP by default; ``socket.SOCK_STREAM`` for TCP)."""
+    """A port nothing is bound to now (UDP by default, chosen as the runner chooses its nodes'
+    ports: below the ephemeral range; ``socket.SOCK_STREAM`` for TCP)."""
+    if kind == socket.SOCK_DGRAM:
+        from harness.session_base import free_udp_port
+
+        return free_udp_port(host)
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])

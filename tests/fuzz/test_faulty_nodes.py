@@ -102,11 +102,11 @@ def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Pat
     slack = 5.0  # the step under way when the deadline passes, on a loaded machine
     assert eng["fuzz_seconds"] <= duration + slack, eng
     assert summary["duration_s"] <= duration + eng["triage_seconds"] + slack, summary
-    # every restart says why (issue 18 item 9): triage replays on fresh nodes here
+    # every restart says why (issue 18 item 9)
     from fuzz.target_base import DIED, MISSION_ENDED, REPLAY, WITHHELD_START
 
     reasons = summary["restarts_by_reason"]
-    assert sum(reasons.values()) == summary["restarts"] > 0 and REPLAY in reasons, summary
+    assert sum(reasons.values()) == summary["restarts"] > 0, summary
     assert set(reasons) <= {DIED, MISSION_ENDED, REPLAY, WITHHELD_START}, reasons
 
 
