@@ -55,8 +55,14 @@ def test_the_soak_catches_the_fault_and_its_seed_replays_it(role, fault, link, c
     assert Path(bad["capture"]).exists()
     repro = shlex.split(bad["reproduce"])
     assert repro[:5] == ["mcp-soak", "--missions", "1", "--seed", str(bad["seed"])]
-    # the seed replays it: the reproducing command's own options, run again
-    code2, doc2 = soak(tmp_path, "replay", *repro[1:])
+    # the seed replays it: the reproducing command's own options, run again. The seed fixes
+    # the link's decisions, not the nodes' own timing: a fault that needs a command to land
+    # while a retransmission timer runs (ack-before-accept) may need another try on a loaded
+    # machine -- up to three, each the same command
+    for attempt in range(3):
+        code2, doc2 = soak(tmp_path, f"replay{attempt}", *repro[1:])
+        if code2 == 1:
+            break
     assert code2 == 1 and doc2["first_failure"]["seed"] == bad["seed"]
     assert any(w in r for r in doc2["first_failure"]["reasons"] for w in says), doc2["first_failure"]["reasons"]
 
