@@ -504,7 +504,8 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         out.write(source)
     for path, text in writes:
         try:
-            path.parent.mkdir(parents=True, exist_ok=True) if args.install else None
+            if args.install:
+                path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(dm.generate_wlua() if text is None else text, encoding="utf-8")
         except OSError as exc:
             err.write(f"mcp-capture dissector: cannot write {path}: {exc.strerror}\n")

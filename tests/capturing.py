@@ -4,7 +4,9 @@ kernel's drop count read from their own words) and free ports."""
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import io
 import re
 import signal
 import socket
@@ -78,3 +80,12 @@ def dropped_by_kernel(log: Path) -> int | None:
     """The packets the kernel dropped, as the tool said on exit (None: it did not say)."""
     found = re.findall(r"(\d+) packets? dropped by kernel", log.read_text(errors="replace"))
     return sum(int(n) for n in found) if found else None
+
+
+def run_subcommand(module, *argv: str) -> tuple[int, str, str]:  # noqa: ANN001 - a captures.* module
+    """One ``mcp-capture`` subcommand (the module's ``register``) in process: (code, out, err)."""
+    parser = argparse.ArgumentParser(prog="mcp-capture")
+    module.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(list(argv))
+    out, err = io.StringIO(), io.StringIO()
+    return args.run(args, out, err), out.getvalue(), err.getvalue()

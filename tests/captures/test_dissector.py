@@ -5,8 +5,6 @@ decoder names. tshark runs on the golden captures and on a fuzz capture of the r
 
 from __future__ import annotations
 
-import argparse
-import io
 import socket
 import subprocess
 import sys
@@ -21,7 +19,7 @@ from captures.scenarios import GOLDEN
 from spec.codec import Action, DecodeError, Message, build_datagram, decode, encode
 from spec.mavframe import heartbeat_frame
 from tests.captures.test_export import ITEMS, _tshark
-from tests.capturing import free_port
+from tests.capturing import free_port, run_subcommand
 from traceio.recorder import McapRecorder
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,12 +33,7 @@ FIELDS = ["frame.number", "udp.srcport", "udp.dstport", "centmesh.src", "centmes
           "mavlink_proto.msgid", "centmesh.item.command", "_ws.col.Info", "_ws.expert.message"]
 
 
-def _run(module, *argv: str) -> tuple[int, str, str]:
-    parser = argparse.ArgumentParser(prog="mcp-capture")
-    module.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(list(argv))
-    out, err = io.StringIO(), io.StringIO()
-    return args.run(args, out, err), out.getvalue(), err.getvalue()
+_run = run_subcommand  # one mcp-capture subcommand in process (tests.capturing)
 
 
 def test_value_names_come_from_pymavlink_and_the_spec():

@@ -3,8 +3,6 @@ checked in tshark field by field against our own decoder."""
 
 from __future__ import annotations
 
-import argparse
-import io
 import os
 import shutil
 import subprocess
@@ -24,6 +22,7 @@ from spec.codec import (
     encode,
 )
 from spec.mavframe import heartbeat_frame
+from tests.capturing import run_subcommand
 from traceio.recorder import McapRecorder
 
 ITEMS = (MissionItem(0.5, 1.5, 2.5, 3.5, 35.771103, -78.674659, 12.25, 0, 16, 1, 1, 3, 1, 1),
@@ -64,12 +63,7 @@ def _capture(path) -> list[bytes]:
     return datagrams
 
 
-def _run(module, *argv: str) -> tuple[int, str, str]:
-    parser = argparse.ArgumentParser(prog="mcp-capture")
-    module.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(list(argv))
-    out, err = io.StringIO(), io.StringIO()
-    return args.run(args, out, err), out.getvalue(), err.getvalue()
+_run = run_subcommand  # one mcp-capture subcommand in process (tests.capturing)
 
 
 @pytest.mark.parametrize("suffix", ["pcap", "pcapng"])
