@@ -37,7 +37,6 @@ if TYPE_CHECKING:
     from harness.manager_session import ManagerSession
 
 _ACK = int(Action.ACK)
-_START = int(Action.START_MISSION)
 _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
 _WP_ON = int(Action.WP_ON)
@@ -123,17 +122,21 @@ def messages(m: Mission) -> list[Message]:
 
 
 def runner_ack_time(m: Mission, msg: Message) -> float | None:
-    """When the runner first answered ``msg`` (any copy's seq, or a deliberate wrong ACK)."""
+    """When the runner first answered ``msg``: an ACK of any copy's seq, or one of MCP-RTX-2's
+    deliberate wrong ACKs from ``msg``'s drone that the manager could take for it — sent while
+    ``msg`` awaited its ACK, or sent earlier and still unanswered by any other command to that
+    drone (the wrong-source ACK from drone B, sent while the manager awaits drone A's ACK,
+    reaches a manager that takes any ACK from the destination when it next sends to B: taking
+    it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1)."""
     times = [m.acks[(msg.dst, c.header[2])].t for c in msg.copies
              if c.header is not None and (msg.dst, c.header[2]) in m.acks]
-    w = m.withheld
-    if w.drone == msg.dst and msg.action == _START and w.wrong_acks and (
-            any(c in msg.copies for c in w.copies) or msg.first.t <= w.wrong_acks[0].t):
-        # the withheld Start_Mission: the runner's deliberate wrong ACK answered it (what the
-        # manager did after it is MCP-RTX-2's), also when the withheld copies were recorded
-        # apart from the ones the mission holds (a loaded machine: a false MCP-BLK-1 beside the
-        # wrong-seq-ack manager's MCP-RTX-2)
-        times.append(w.wrong_acks[0].t)
+    for a in m.withheld.wrong_acks:
+        if a.src != msg.dst:
+            continue
+        if a.t >= msg.first.t:
+            times.append(a.t)
+        elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):
+            times.append(msg.first.t)
     return min(times) if times else None
 
 

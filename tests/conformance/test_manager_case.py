@@ -3,7 +3,7 @@ synthetic traffic (no sockets)."""
 
 from __future__ import annotations
 
-from conformance.manager_case import abandoned, messages, runner_ack_time
+from conformance.manager_case import abandoned, awaiting_until, messages, runner_ack_time
 from harness.driver import Datagram, Sent, read_header
 from harness.manager_mission import Mission
 from harness.manager_monitor import monitor_mission
@@ -50,6 +50,29 @@ def test_a_retransmission_with_a_new_seq_is_a_copy_until_acked():
     assert len(messages(m)) == 1
     m.acks[(1, 10)] = ack(0.1, 1, 10, 500)
     assert len(messages(m)) == 2  # after the ACK, the same bytes again are a new message
+
+
+def test_a_wrong_source_ack_taken_by_the_next_unicast_is_rtx_2s_not_blk_1():
+    """The runner withholds drone 1's Start_Mission, then sends the wrong-seq ACK from drone 1
+    and a wrong-source ACK from drone 2 (naming drone 1's seq). A manager that takes any ACK
+    from the destination moves on to drone 2 and, if drone 2's stale ACK reaches it after that,
+    at once to drone 3 (a loaded CI run): drone 2's Start_Mission was answered by that ACK
+    (taking it is MCP-RTX-2's), so it no longer awaits its ACK when drone 3's goes out."""
+    s1, s2, s3 = (cmd(d, 10 + d, Action.START_MISSION) for d in (1, 2, 3))
+    m = mission([s1, s1, s1, s2, s3], [0.0, 0.2, 0.4, 0.5, 0.5001])
+    m.drones = (1, 2, 3)
+    m.withheld.drone = 1
+    m.withheld.wrong_acks = [ack(0.45, 1, (11 + 0x8000) & 0xFFFF, 500), ack(0.4501, 2, 11, 600)]
+    m.acks[(3, 13)] = ack(0.6, 3, 13, 700)
+    first, second, third = messages(m)
+    assert runner_ack_time(m, first) == 0.45  # the wrong-seq ACK, while it awaited
+    assert runner_ack_time(m, second) == 0.5  # the stale wrong-source ACK, at once
+    assert awaiting_until(m, second, 0.2) == 0.5 < third.first.t
+    # a wrong ACK sent before an earlier command to the same drone was that command's
+    m2 = mission([s2, cmd(2, 20, Action.END_MISSION)], [0.5, 0.9])
+    m2.withheld.wrong_acks = [ack(0.4501, 2, 11, 600)]
+    m2.acks[(2, 12)] = ack(0.6, 2, 12, 601)
+    assert [runner_ack_time(m2, x) for x in messages(m2)] == [0.5, None]
 
 
 def test_a_manager_that_stopped_retransmitting_gave_up():
