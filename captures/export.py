@@ -41,11 +41,14 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     from scapy.layers.l2 import Ether
     from scapy.utils import PcapNgWriter, PcapWriter
 
-    from traceio.reader import Datagram, Truncated, open_capture
+    from traceio.reader import CaptureError, Datagram, Truncated, open_capture
 
     cap = open_capture(capture)
     out = Path(out)
-    writer = PcapNgWriter(str(out)) if out.suffix.lower() == ".pcapng" else PcapWriter(str(out), sync=False)
+    ng = out.suffix.lower() == ".pcapng"
+    writer = PcapNgWriter(str(out)) if ng else PcapWriter(str(out), sync=False)
+    # what the output's timestamp fields hold: pcap 32-bit seconds, pcapng 64-bit microseconds
+    t_max_ns = (2**64 - 1) * 1000 if ng else (2**32 - 1) * 10**9
     n = 0
     truncated: str | None = None
     scapy_log = logging.getLogger("scapy.runtime")
@@ -64,6 +67,10 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
             src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
             pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
                    IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
+            if not 0 <= rec.t_ns <= t_max_ns:
+                raise CaptureError(f"{capture}: datagram #{rec.index} is stamped {rec.t_ns / 1e9:.0f} s, outside "
+                                   f"what a {'pcapng' if ng else 'pcap'} file's timestamp holds"
+                                   + ("" if ng else " (0 to 2^32 s; .pcapng holds more)"))
             pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
             writer.write(pkt)
             n += 1
