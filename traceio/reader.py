@@ -46,6 +46,7 @@ import zlib
 from binascii import a2b_base64
 from collections import Counter
 from collections.abc import Iterator
+from functools import lru_cache
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
@@ -565,6 +566,13 @@ def _mcap_reason(exc: Exception, pos: int, size: int) -> tuple[str, bool]:
 def _parse_peer(peer: Any) -> tuple[str, int] | None:
     if not isinstance(peer, str) or ":" not in peer:
         return None
+    return _peer(peer)
+
+
+@lru_cache(maxsize=4096)
+def _peer(peer: str) -> tuple[str, int] | None:
+    """One tuple per distinct address: a capture of a million datagrams between a few peers
+    keeps a few tuples, not two per datagram (issue 19: check of 10^6 violations <= 1 GB)."""
     host, _, port = peer.rpartition(":")
     try:
         return (host.strip("[]"), int(port))
