@@ -47,15 +47,26 @@ def cached(path: Path, make: object) -> Path:
     return path
 
 
+#: Drones sending: each (drone, seq) once in 65,536 x DRONES datagrams (a repeated one would be
+#: a copy of a message already judged, not a new violation).
+DRONES = 64
+#: One violating datagram a millisecond (1,000/s from 64 drones: 10^6 span about 17 minutes).
+#: The monitor forgets messages past its horizon (60 s), so its memory is that of a minute of
+#: traffic, and the violations' own that of every violation, which the JSON lists.
+SPACING_NS = 1_000_000
+
+
 def all_violating(path: Path, n: int) -> None:
-    """``n`` WP_Ons from drone 1..8 to the manager: each one MCP-HDR-5 (a drone sends only
-    Mission_Ready and ACK), none answered."""
+    """``n`` WP_Ons from drones 1..64 to the manager: each one MCP-HDR-5 (a drone sends only
+    Mission_Ready and ACK), none answered, no two with the same sender and seq."""
+    if n > DRONES * 65536:
+        raise ValueError(f"at most {DRONES * 65536} distinct violating datagrams")
     t = 1_800_000_000_000_000_000
     with McapRecorder(path, local=("127.0.0.1", 7889)) as rec:
         for i in range(n):
-            d = 1 + i % 8
-            rec.datagram("rx", encode(Message(0, d, (i // 8) & 0xFFFF, Action.WP_ON, ITEM)),
-                         ("127.0.0.1", 41000 + d), t + i * 100_000)
+            d = 1 + i % DRONES
+            rec.datagram("rx", encode(Message(0, d, i // DRONES, Action.WP_ON, ITEM)),
+                         ("127.0.0.1", 41000 + d), t + i * SPACING_NS)
 
 
 def run(src: Path, args: list[str]) -> tuple[float, float, float, int]:
@@ -107,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         row("check --json", trees, ["check", str(a), "--json", str(out)])
     if not args.skip_million:
         m = args.million
-        cap = cached(tmp / f"bench-violating-{m}.mcap", lambda p: all_violating(p, m))
+        cap = cached(tmp / f"bench-violating-{DRONES}-{SPACING_NS}-{m}.mcap", lambda p: all_violating(p, m))
         print(f"check --json of {m} datagrams, each a violation (target <= {TARGET_S:.0f} s, <= {TARGET_MB:.0f} MB):")
         for name, src in trees.items():
             wall, cpu, rss, code = run(src, ["check", str(cap), "--json", str(out)])

@@ -63,8 +63,7 @@ def run(ns: argparse.Namespace) -> int:
     check_writable(ns.json, "--json")
     check_writable(ns.html, "--html")
     j = judge(ns.file, params, keep=bool(ns.html))
-    wanted = {i for v in j.shown_violations for i in evidence_indexes(v)}
-    evidence = evidence_of(j, wanted)
+    evidence = evidence_of(j)
     if ns.json:  # the files first: an interrupted or piped terminal report loses neither
         write_json(ns.json, j, evidence)
     if ns.html:

@@ -122,6 +122,8 @@ def load_baseline(path: str | Path, option: str = "--baseline") -> Baseline:
         raise BaselineError(f"{where}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
     try:
         doc = json.loads(text) if text.lstrip().startswith(("{", "[")) else yaml.safe_load(text)
+    except RecursionError:
+        raise BaselineError(f"{where}: nested deeper than a baseline is") from None
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise BaselineError(f"{where}: not YAML or JSON ({first})") from None

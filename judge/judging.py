@@ -397,9 +397,10 @@ class _Session:
         for v in found:
             ev = getattr(v, "evidence", None)
             if ev:
-                v = v._replace(evidence=tuple(
-                    (fed[e[0]], *e[1:]) if isinstance(e, tuple) and e and isinstance(e[0], int)
-                    and 0 <= e[0] < len(fed) else e for e in ev))
+                mapped = tuple((fed[e[0]], *e[1:]) if isinstance(e, tuple) and e and isinstance(e[0], int)
+                               and 0 <= e[0] < len(fed) and fed[e[0]] != e[0] else e for e in ev)
+                if any(a is not b for a, b in zip(mapped, ev, strict=True)):
+                    v = v._replace(evidence=mapped)  # else shared with the monitor's own record
             for i in evidence_indexes(v):
                 d = self.recent.get(i)
                 if d is not None:
@@ -558,9 +559,15 @@ def _vehicle(mon: Any, rec: MavlinkFrame | VehicleMark, drone: int, marks: bool)
     return out
 
 
-def evidence_of(j: Judgement, indexes: set[int]) -> dict[int, Datagram]:
-    """The datagrams of ``indexes``: from what judging kept, else from a second, targeted
-    pass over the file (evidence far older than the violation)."""
+def evidence_of(j: Judgement, indexes: set[int] | None = None) -> dict[int, Datagram]:
+    """The datagrams of ``indexes`` (default: every shown violation's evidence): from what
+    judging kept, else from a second, targeted pass over the file (evidence far older than the
+    violation). When judging kept them all, its own dict is returned, not a copy (a million
+    violations: a copy and the set of indexes cost more than 100 MB)."""
+    if indexes is None:
+        have = j.evidence if j.kept is None else {d.index: d for d in j.kept}
+        missing = {i for v in j.shown_violations for i in evidence_indexes(v) if i not in have}
+        return {**have, **fetch(j.path, missing)} if missing else have
     kept = {d.index: d for d in j.kept if d.index in indexes} if j.kept is not None else \
         {i: j.evidence[i] for i in indexes if i in j.evidence}
     missing = indexes - set(kept)

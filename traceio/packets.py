@@ -50,18 +50,40 @@ class NgReader(RawPcapNgReader):
         return None
 
 
+#: A gzip'd capture expanding more than this many times, past :data:`BOMB_FLOOR` bytes, is
+#: refused as a decompression bomb (issue 19): pcaps compress 3-10 fold; a gigabyte of zeros
+#: compresses 1000-fold and would be read as tens of millions of empty records.
+BOMB_RATIO = 200
+BOMB_FLOOR = 16 << 20
+
+
+class DecompressionBomb(OSError):
+    """The gzip stream expands past :data:`BOMB_RATIO` times its compressed size."""
+
+
 class GuardedStream:
     """A decompressing stream (gzip) whose failures scapy's readers would take for the end of
     the file (they turn OSError and zlib.error into EOFError): the failure is kept in
-    ``error`` for the reader to report (issue 19 item 8: a .gz whose CRC failed read "OK")."""
+    ``error`` for the reader to report (issue 19 item 8: a .gz whose CRC failed read "OK").
+    ``raw_file`` (the compressed file) bounds the expansion: :class:`DecompressionBomb`."""
 
-    def __init__(self, raw: Any) -> None:
+    def __init__(self, raw: Any, raw_file: Any = None) -> None:
         self._raw = raw
+        self._file = raw_file
+        self._out = 0
         self.error: BaseException | None = None
 
     def read(self, n: int = -1) -> bytes:
         try:
-            return self._raw.read(n)
+            data = self._raw.read(n)
+            self._out += len(data)
+            if self._out > BOMB_FLOOR and self._file is not None:
+                consumed = max(1, self._file.tell())
+                if self._out > BOMB_RATIO * consumed:
+                    raise DecompressionBomb(f"the gzip stream expands {self._out // consumed}-fold "
+                                            f"({self._out >> 20} MiB from {consumed >> 10} KiB): "
+                                            "a decompression bomb, not a capture")
+            return data
         except (OSError, EOFError, zlib.error) as exc:
             if self.error is None:
                 self.error = exc

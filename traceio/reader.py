@@ -59,6 +59,7 @@ from traceio.packets import (
     FRAGMENT,
     LINKS,
     MAX_RECORD,
+    DecompressionBomb,
     GuardedStream,
     NgReader,
     PcapReader,
@@ -405,8 +406,8 @@ class Capture:
                                                       seg)
                         else:
                             self.counts["mcap_other_topic"] += 1
-                    except (ValueError, KeyError, TypeError, AttributeError, OverflowError):
-                        self.counts["mcap_bad_message"] += 1
+                    except (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError):
+                        self.counts["mcap_bad_message"] += 1  # RecursionError: JSON nested past the parser's depth
                 elif kind is Channel:
                     topics[rec.id] = rec.topic
                     seg = rec.metadata.get("segment")
@@ -446,7 +447,7 @@ class Capture:
         try:
             fd: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
             if self.format.endswith(".gz"):
-                self._stream = GuardedStream(gzip.GzipFile(fileobj=fd))
+                self._stream = GuardedStream(gzip.GzipFile(fileobj=fd), fd)
                 fd = self._stream  # type: ignore[assignment]
             magic = fd.read(4)
             cls = NgReader if magic == _PCAPNG_MAGIC else PcapReader
@@ -464,6 +465,8 @@ class Capture:
         err = self._stream.error if self._stream is not None else None
         if err is None:
             return None
+        if isinstance(err, DecompressionBomb):
+            raise CaptureError(f"{self.path}: {err} (after packet {n_packet})")
         if isinstance(err, EOFError):  # the compressed stream ends early: a cut
             return f"gzip stream cut short after packet {n_packet}: {err}"
         self.corrupt = True

@@ -29,12 +29,12 @@ TIMEOUT = 120.0  # s: generous on a loaded host; the hostile inputs used to run 
 PEER = ("127.0.0.1", 7890)
 
 
-def _limit() -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
+def run(*argv: str, module: str = "captures", limit: int = MEMORY) -> tuple[int, str, str]:
+    """``python -m module argv`` under the memory limit (address space) and the timeout."""
 
+    def _limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
-def run(*argv: str, module: str = "captures") -> tuple[int, str, str]:
-    """``python -m module argv`` under the memory limit and the timeout."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:
         p = subprocess.run([sys.executable, "-m", module, *argv], cwd=ROOT, env=env, text=True,
@@ -108,24 +108,85 @@ def test_a_burst_up_to_the_bound_is_read_whole(tmp_path: Path) -> None:
     assert doc["file"]["datagrams"] == 1 + 10_000 + MAX_BURST, doc["file"]
 
 
-def test_a_burst_count_that_is_not_an_integer_is_a_skipped_record(tmp_path: Path) -> None:
-    """1e999 (JSON's infinity) used to raise OverflowError in int()."""
+def mcap_of(path: Path, topic: str, bodies: list[bytes]) -> Path:
+    """An MCAP holding ``bodies`` as messages of ``topic``, as our recorder names it."""
     from mcap.writer import Writer
 
-    path = tmp_path / "inf.mcap"
     with open(path, "wb") as f:
         w = Writer(f)
         w.start("x", "mcp-conform")
-        sid = w.register_schema("mcp.Burst", "jsonschema", b"{}")
-        cid = w.register_channel("/mcp/burst", "json", sid)
-        body = ('{"direction": "tx", "peer": "127.0.0.1:7890", "local": null, "count": 1e999, '
-                '"first_t_ns": 1, "last_t_ns": 2, "cycle": [{"raw_base64": "'
-                + base64.b64encode(b"\x00\x01").decode() + '"}]}')
-        w.add_message(cid, 1, body.encode(), 1)
+        cid = w.register_channel(topic, "json", w.register_schema("mcp.Message", "jsonschema", b"{}"))
+        for t, body in enumerate(bodies, start=1):
+            w.add_message(cid, t, body, t)
         w.finish()
+    return path
+
+
+def test_a_burst_count_that_is_not_an_integer_is_a_skipped_record(tmp_path: Path) -> None:
+    """1e999 (JSON's infinity) used to raise OverflowError in int()."""
+    body = ('{"direction": "tx", "peer": "127.0.0.1:7890", "local": null, "count": 1e999, '
+            '"first_t_ns": 1, "last_t_ns": 2, "cycle": [{"raw_base64": "'
+            + base64.b64encode(b"\x00\x01").decode() + '"}]}')
+    path = mcap_of(tmp_path / "inf.mcap", "/mcp/burst", [body.encode()])
     rc, out, err = run("check", str(path))
     assert rc in (0, 1, 2) and "Traceback" not in err, err
     assert "not readable" in out + err, out + err
+
+
+def test_json_nested_past_the_parsers_depth_is_a_skipped_record(tmp_path: Path) -> None:
+    """A /mcp/tx message of 200,000 nested arrays: json.loads raises RecursionError, which
+    escaped the reader as a traceback (exit 1, "violations")."""
+    path = mcap_of(tmp_path / "deep.mcap", "/mcp/tx", [
+        b"[" * 200_000 + b"]" * 200_000, encode_tx(encode(Message(1, 0, 3, Action.WP_OFF, None)))])
+    for command in ("check", "show"):
+        rc, out, err = run(command, str(path))
+        assert rc in (0, 1) and "Traceback" not in err, err
+        assert "not readable" in out + err, out + err
+
+
+def encode_tx(data: bytes) -> bytes:
+    return json.dumps({"peer": "127.0.0.1:7890", "local": "127.0.0.1:7889",
+                       "raw_base64": base64.b64encode(data).decode()}).encode()
+
+
+def test_a_gzip_bomb_of_a_gigabyte_is_refused(tmp_path: Path) -> None:
+    """A pcap header and a gigabyte of zeros, gzip'd (1 MB): read as tens of millions of empty
+    records, it took minutes; refused once it expands past the bound, in one line."""
+    import gzip
+    import struct
+
+    path = tmp_path / "bomb.pcap.gz"
+    with gzip.open(path, "wb", compresslevel=9) as f:
+        f.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+        zeros = bytes(1 << 20)
+        for _ in range(1024):
+            f.write(zeros)
+    assert path.stat().st_size < 2 << 20
+    for command in ("check", "show"):
+        one_line_error(*run(command, str(path)), str(path), "decompression bomb")
+
+
+MILLION_MEMORY = 1536 * 2**20  # address space: 1 GB of heap (the bench's target) and the interpreter's
+
+
+@pytest.mark.slow
+def test_check_of_a_million_violating_datagrams_finishes_under_the_limit(tmp_path: Path) -> None:
+    """10^6 datagrams, each a violation (a drone sending WP_On to the manager, MCP-HDR-5):
+    ``check --json`` finishes under the memory limit with every violation in its JSON
+    (bench/bench_capture_tools.py prints its time and peak RSS)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_capture_tools import all_violating
+
+    n = 1_000_000
+    path = tmp_path / "million.mcap"
+    all_violating(path, n)
+    out = tmp_path / "c.json"
+    rc, _, err = run("check", str(path), "--json", str(out), limit=MILLION_MEMORY)
+    assert rc == 1 and "Traceback" not in err, err
+    with open(out) as f:
+        doc = json.load(f)
+    assert doc["summary"]["violations"] == n == len(doc["violations"]), doc["summary"]
+    assert {v["rule"] for v in doc["violations"]} == {"MCP-HDR-5"}
 
 
 # ---------------------------------------------------------------- item 8: silent corruption

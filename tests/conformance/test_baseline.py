@@ -36,6 +36,8 @@ def test_yaml_and_json_baselines_match_by_case_or_rule(tmp_path):
     ("expected_failures: [{id: a, reason: r}, {id: a, reason: r}]\n", "listed twice"),
     ("expected_failures: {a: b}\n", "must be a list"),
     ("[: not yaml", "not YAML or JSON"),
+    ("[" * 100_000 + "]" * 100_000, "nested deeper"),  # RecursionError escaped as a traceback
+    ("a: " + "[" * 100_000, "nested deeper|not YAML or JSON"),
 ])
 def test_bad_baselines_are_one_line_errors(tmp_path, text, words):
     p = tmp_path / "b.yaml"
