@@ -1,0 +1,145 @@
+"""The one judgement of what an Nsqd backend sends (NSQD-FRM-1, NSQD-MSG-2), live and offline.
+
+The runner's connections (``harness.stream_session.Conn.violation``), the fuzzer (through
+them) and ``mcp-capture check`` on a capture (MCAP or a pcap's reassembled TCP streams) all
+call :func:`decode_frame` on each frame the backend sent and :func:`sender_violation` on a
+connection's frames, so the same bytes get the same verdict wherever they were seen.
+
+:class:`StreamMonitor` is the offline side: fed each connection's backend-to-client bytes in
+order (any split), keeps per connection a deframer and each rule's first violation on it
+(nothing else: memory is bounded whatever the capture's length), and gives per-rule
+verdicts: ``failed`` (a violation, with the connection and evidence), ``passed`` (frames
+seen, none broke the rule) or ``not_observed``. A connection whose backend stream cannot be
+framed from its start (the capture joined it mid-stream, or lost bytes of it) is not judged
+after that point, and the monitor says so: a gap is never a framing violation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from spec.stream import StreamSpec
+from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body
+
+__all__ = ["RULES", "ConnVerdict", "Received", "SenderViolation", "StreamMonitor", "decode_frame",
+           "sender_violation"]
+
+#: The rules a backend's frames show without the runner's cases (what a capture can judge).
+RULES = ("NSQD-FRM-1", "NSQD-MSG-2")
+
+
+@dataclass(frozen=True)
+class Received:
+    """A frame from the backend, when it came, and what it decoded to (``problem``: why not)."""
+
+    t: float
+    frame: Frame
+    values: dict[str, Any] | None
+    problem: str | None = None
+
+
+@dataclass(frozen=True)
+class SenderViolation:
+    """What the backend sent that breaks a rule binding its frames (NSQD-FRM-1, NSQD-MSG-2):
+    the one judgement of them, for the runner's cases, the fuzzer and the capture tools."""
+
+    rule: str
+    expected: str
+    actual: str
+    evidence: tuple[str, ...] = ()
+
+
+def decode_frame(spec: StreamSpec, frame: Frame) -> tuple[dict[str, Any] | None, str | None]:
+    """(field values, problem) of one frame the backend sent (NSQD-MSG-2's layout)."""
+    if not spec.has_message(frame.msg_id):
+        return None, f"message id {frame.msg_id} names no message"
+    try:
+        d = decode_body(spec, frame.msg_id, frame.body, check_text=False)
+    except BodyError as exc:
+        return None, str(exc)
+    values = d.as_dict()
+    return values, (f"{d.name}: {d.extra} bytes after its last field" if d.extra else None)
+
+
+def sender_violation(spec: StreamSpec, frames: list[Received], framing_error: FramingError | None,
+                     ) -> SenderViolation | None:
+    """The first rule the backend's frames on one connection break, if any: a length out of
+    bounds (NSQD-FRM-1), then a frame a backend does not send or not in its layout, or an
+    UPDATE.state that is no flight state (NSQD-MSG-2)."""
+    if framing_error is not None:
+        fe = framing_error
+        return SenderViolation("NSQD-FRM-1", "frames whose 32-bit length counts itself, 5..8192",
+                               f"a frame from the backend with {fe.reason} (prefix {fe.raw.hex(' ')})")
+    allowed = {spec.message("ERROR").id, spec.message("UPDATE").id}
+    states = set(spec.states.values())
+    for r in frames:
+        ev = (f"frame: {r.frame.raw[:48].hex(' ')}",)
+        if r.frame.msg_id not in allowed:
+            return SenderViolation("NSQD-MSG-2", "a backend sends only ERROR and UPDATE",
+                                   f"a frame with id {r.frame.msg_id}", ev)
+        if r.problem is not None:
+            return SenderViolation("NSQD-MSG-2", "each message with exactly its layout", r.problem, ev)
+        if r.values is not None and "state" in r.values and r.values["state"] not in states:
+            return SenderViolation("NSQD-MSG-2", "UPDATE.state one of the flight states",
+                                   f"state {r.values['state']} (0x{r.values['state'] & 0xFFFFFFFF:08x})", ev)
+    return None
+
+
+@dataclass
+class ConnVerdict:
+    """One connection as the monitor saw it: each rule's first violation on it."""
+
+    conn: int
+    frames: int = 0
+    violations: dict[str, tuple[SenderViolation, int]] = field(default_factory=dict)  # rule -> (it, t_ns)
+    unjudged: str | None = None  # why the rest of its backend stream was not judged
+    _deframer: Any = None
+
+
+class StreamMonitor:
+    """Offline judge of the backends' frames, one connection at a time (see the module)."""
+
+    def __init__(self, spec: StreamSpec) -> None:
+        self.spec = spec
+        self.conns: dict[int, ConnVerdict] = {}
+
+    def _conn(self, conn: int) -> ConnVerdict:
+        c = self.conns.get(conn)
+        if c is None:
+            c = self.conns[conn] = ConnVerdict(conn, _deframer=Deframer(self.spec))
+        return c
+
+    def backend_bytes(self, conn: int, data: bytes, t_ns: int) -> None:
+        """Bytes the backend sent on ``conn``, in stream order; each frame judged as it
+        completes (one at a time: nothing is kept but each rule's first violation)."""
+        c = self._conn(conn)
+        if c.unjudged is not None:
+            return
+        for item in c._deframer.feed(data):
+            if isinstance(item, FramingError):
+                self._note(c, sender_violation(self.spec, [], item), t_ns)
+                continue
+            c.frames += 1
+            values, problem = decode_frame(self.spec, item)
+            self._note(c, sender_violation(self.spec, [Received(t_ns / 1e9, item, values, problem)], None), t_ns)
+
+    @staticmethod
+    def _note(c: ConnVerdict, v: SenderViolation | None, t_ns: int) -> None:
+        if v is not None and v.rule not in c.violations:
+            c.violations[v.rule] = (v, t_ns)
+
+    def unjudgeable(self, conn: int, why: str) -> None:
+        """The rest of ``conn``'s backend stream cannot be framed (a gap, joined mid-stream)."""
+        c = self._conn(conn)
+        if c.unjudged is None:
+            c.unjudged = why
+
+    def verdicts(self) -> dict[str, tuple[str, list[ConnVerdict]]]:
+        """rule -> (passed | failed | not_observed, the connections that failed it)."""
+        seen = any(c.frames or c.violations for c in self.conns.values())
+        out: dict[str, tuple[str, list[ConnVerdict]]] = {}
+        for rule in RULES:
+            bad = [c for c in self.conns.values() if rule in c.violations]
+            out[rule] = ("failed", bad) if bad else (("passed" if seen else "not_observed"), [])
+        return out
