@@ -268,3 +268,28 @@ def run_export(args: Any, out: TextIO | None = None, err: TextIO | None = None) 
     note = f" (the capture is TRUNCATED: {truncated[0]})" if truncated else ""
     out.write(f"wrote {n} TCP packets to {args.pcap}{note}\n")
     return 0
+
+
+# ---------------------------------------------------------------- replay
+def is_finding(path: str) -> bool:
+    """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
+    from fuzz.stream_findings import load_stream_finding
+
+    try:
+        load_stream_finding(path)
+    except (ValueError, OSError):
+        return False
+    return True
+
+
+def run_replay(args: Any) -> int:
+    """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
+    reproduced, 0: it did not, 2: unreadable or no backend)."""
+    from fuzz.stream_campaign import replay_stream_finding
+    from harness.errors import SetupError
+
+    try:
+        return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
+    except SetupError as exc:
+        sys.stderr.write(f"mcp-capture replay: {exc}\n")
+        return 2
