@@ -28,6 +28,7 @@ from typing import Any, TextIO
 
 from judge.stream_monitor import RULES, StreamMonitor
 from spec import NSQD
+from spec.stream_codec import Deframer, Frame
 from traceio.reader import StreamEvent, StreamFrame, Truncated
 from traceio.stream import BACKEND_PORT, StreamGap, is_stream_capture, stream_records
 
@@ -75,9 +76,12 @@ class _Conns:
                 self.records.append(rec)
             if kind is StreamFrame:
                 c = self.conn(rec.conn)
-                if rec.direction == "tx":
+                if rec.direction == "tx":  # compared as frames: writes and segments cut them differently
                     c["tx"] += len(rec.raw)
-                    c["answers"].append(("write", rec.raw.hex()))
+                    d = c.setdefault("deframer", Deframer(NSQD))
+                    for item in d.feed(rec.raw):
+                        c["answers"].append(("client", item.raw.hex() if isinstance(item, Frame)
+                                             else f"unframed: {item.reason}"))
                     continue
                 c["rx"] += 1
                 self.monitor.backend_bytes(rec.conn, rec.raw, rec.t_ns)
@@ -102,7 +106,7 @@ def _answer(answers: list[Any], rec: StreamFrame) -> None:
     if rec.problem:
         key = ("frame", f"refused: {rec.problem}")
     elif rec.name == "UPDATE":
-        from spec.stream_codec import Deframer, Frame, decode_body
+        from spec.stream_codec import decode_body
 
         item = Deframer(NSQD).feed(rec.raw)
         state = None
@@ -131,7 +135,7 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
         out.write(f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}\n")
     for n, c in sorted(seen.conns.items()):
         v = seen.monitor.conns.get(n)
-        rules = sorted(v.violations) if v else []
+        rules = [v.violation[0].rule] if v is not None and v.violation is not None else []
         out.write(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
                   f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
                   f"{'; BROKE ' + ', '.join(rules) if rules else ''}\n")
@@ -140,7 +144,7 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
         r = NSQD.rule(rule)
         out.write(f"{rule} {r.level}: {r.text}\n")
         for c in bad[:3]:
-            v, t = c.violations[rule]
+            v, t = c.violation  # type: ignore[misc]
             rel = (t - (seen.first_ns or t)) / 1e9
             out.write(f"  conn {c.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
             for e in v.evidence:
@@ -157,9 +161,9 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
                                 "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
                                for n, c in sorted(seen.conns.items())],
                "rules": {r: verdicts[r][0] for r in RULES},
-               "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violations[r][1],
-                               "expected": c.violations[r][0].expected, "actual": c.violations[r][0].actual,
-                               "evidence": list(c.violations[r][0].evidence)}
+               "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violation[1],  # type: ignore[index]
+                               "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
+                               "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
                               for r in failed for c in verdicts[r][1]],
                "gaps": [g._asdict() for g in seen.gaps], "verdict": verdict}
         Path(ns.json).write_text(json.dumps(doc, indent=1) + "\n")
@@ -219,7 +223,7 @@ def run_diff(args: Any, out: TextIO | None = None) -> int:
     if len(g.conns) != len(c.conns):
         diffs.append(f"connections: {len(g.conns)} in the golden, {len(c.conns)} in the candidate")
     for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
-        ga, ca = gc["answers"], cc["answers"]
+        ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
         for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
             if x != y:
                 diffs.append(f"conn {gn}/{cn} step {i + 1}: golden {x[0]} {x[1][:80]}; candidate {y[0]} {y[1][:80]}")

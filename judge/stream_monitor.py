@@ -6,17 +6,17 @@ call :func:`decode_frame` on each frame the backend sent and :func:`sender_viola
 connection's frames, so the same bytes get the same verdict wherever they were seen.
 
 :class:`StreamMonitor` is the offline side: fed each connection's backend-to-client bytes in
-order (any split), keeps per connection a deframer and each rule's first violation on it
-(nothing else: memory is bounded whatever the capture's length), and gives per-rule
-verdicts: ``failed`` (a violation, with the connection and evidence), ``passed`` (frames
-seen, none broke the rule) or ``not_observed``. A connection whose backend stream cannot be
+order (any split), keeps per connection a deframer and its first violations (nothing else:
+memory is bounded whatever the capture's length), and judges each connection as
+``Conn.violation`` does at its end: per-rule verdicts ``failed`` (with the connections and
+evidence), ``passed`` (frames seen, none broke the rule) or ``not_observed``. A connection whose backend stream cannot be
 framed from its start (the capture joined it mid-stream, or lost bytes of it) is not judged
 after that point, and the monitor says so: a gap is never a framing violation.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from spec.stream import StreamSpec
@@ -88,13 +88,20 @@ def sender_violation(spec: StreamSpec, frames: list[Received], framing_error: Fr
 
 @dataclass
 class ConnVerdict:
-    """One connection as the monitor saw it: each rule's first violation on it."""
+    """One connection as the monitor saw it: its verdict is :func:`sender_violation`'s over
+    all its frames, as ``Conn.violation`` gives it at the connection's end (a length out of
+    bounds first: the frames misread before it are its consequence, not NSQD-MSG-2's)."""
 
     conn: int
     frames: int = 0
-    violations: dict[str, tuple[SenderViolation, int]] = field(default_factory=dict)  # rule -> (it, t_ns)
+    framing: tuple[SenderViolation, int] | None = None  # NSQD-FRM-1 and when
+    first_bad: tuple[SenderViolation, int] | None = None  # the first frame breaking NSQD-MSG-2
     unjudged: str | None = None  # why the rest of its backend stream was not judged
     _deframer: Any = None
+
+    @property
+    def violation(self) -> tuple[SenderViolation, int] | None:
+        return self.framing or self.first_bad
 
 
 class StreamMonitor:
@@ -112,22 +119,20 @@ class StreamMonitor:
 
     def backend_bytes(self, conn: int, data: bytes, t_ns: int) -> None:
         """Bytes the backend sent on ``conn``, in stream order; each frame judged as it
-        completes (one at a time: nothing is kept but each rule's first violation)."""
+        completes (nothing kept but the first violation of each kind: bounded memory)."""
         c = self._conn(conn)
-        if c.unjudged is not None:
+        if c.unjudged is not None or c.framing is not None:
             return
         for item in c._deframer.feed(data):
             if isinstance(item, FramingError):
-                self._note(c, sender_violation(self.spec, [], item), t_ns)
-                continue
+                c.framing = (sender_violation(self.spec, [], item), t_ns)  # type: ignore[assignment]
+                return
             c.frames += 1
-            values, problem = decode_frame(self.spec, item)
-            self._note(c, sender_violation(self.spec, [Received(t_ns / 1e9, item, values, problem)], None), t_ns)
-
-    @staticmethod
-    def _note(c: ConnVerdict, v: SenderViolation | None, t_ns: int) -> None:
-        if v is not None and v.rule not in c.violations:
-            c.violations[v.rule] = (v, t_ns)
+            if c.first_bad is None:
+                values, problem = decode_frame(self.spec, item)
+                v = sender_violation(self.spec, [Received(t_ns / 1e9, item, values, problem)], None)
+                if v is not None:
+                    c.first_bad = (v, t_ns)
 
     def unjudgeable(self, conn: int, why: str) -> None:
         """The rest of ``conn``'s backend stream cannot be framed (a gap, joined mid-stream)."""
@@ -137,9 +142,10 @@ class StreamMonitor:
 
     def verdicts(self) -> dict[str, tuple[str, list[ConnVerdict]]]:
         """rule -> (passed | failed | not_observed, the connections that failed it)."""
-        seen = any(c.frames or c.violations for c in self.conns.values())
         out: dict[str, tuple[str, list[ConnVerdict]]] = {}
         for rule in RULES:
-            bad = [c for c in self.conns.values() if rule in c.violations]
+            bad = [c for c in self.conns.values() if c.violation is not None and c.violation[0].rule == rule]
+            # NSQD-MSG-2 is judged on connections whose framing held
+            seen = any(c.frames and (rule == "NSQD-FRM-1" or c.framing is None) for c in self.conns.values())
             out[rule] = ("failed", bad) if bad else (("passed" if seen else "not_observed"), [])
         return out
