@@ -20,6 +20,8 @@ import pytest
 
 from tests.nsqd_backends.build import built_or_skip
 
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
+
 ROOT = Path(__file__).resolve().parents[2]
 RULES = ("NSQD-FRM-1", "NSQD-MSG-2")
 ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
