@@ -47,23 +47,42 @@ def _addr(a: Any) -> str:
     return f"{a[0]}:{a[1]}" if a else "?"
 
 
-class _Conns:
-    """What a capture holds, per connection."""
+#: Connections listed (and compared by diff) at most; the rest are counted (a hostile capture's
+#: flood of connections stays bounded in memory). Steps kept per connection for diff, likewise.
+MAX_LISTED = 10000
+MAX_STEPS = 100000
+MAX_GAPS = 1000
 
-    def __init__(self, path: str) -> None:
+
+class _Conns:
+    """What a capture holds, per connection (the first :data:`MAX_LISTED`), with the monitor's
+    judgement of every connection."""
+
+    def __init__(self, path: str, *, steps: bool = False) -> None:
         self.path = path
+        self.steps = steps  # keep each connection's steps (diff)
         self.monitor = StreamMonitor(NSQD)
         self.conns: dict[int, dict[str, Any]] = {}
+        self.n_conns = 0  # connections are numbered 1, 2, ... in both kinds of capture
         self.truncated: str | None = None
         self.gaps: list[StreamGap] = []
+        self.n_gaps = 0
         self.first_ns: int | None = None
-        self.records: list[Any] = []
 
-    def conn(self, n: int) -> dict[str, Any]:
-        return self.conns.setdefault(n, {"client": None, "backend": None, "tx": 0, "rx": 0, "end": [],
-                                         "answers": []})
+    def conn(self, n: int) -> dict[str, Any] | None:
+        c = self.conns.get(n)
+        if c is None:
+            self.n_conns = max(self.n_conns, n)
+            if len(self.conns) >= MAX_LISTED:
+                return None
+            c = self.conns[n] = {"client": None, "backend": None, "tx": 0, "rx": 0, "end": [], "answers": []}
+        return c
 
-    def read(self, keep: bool = False) -> _Conns:
+    def _step(self, c: dict[str, Any], step: tuple[str, str]) -> None:
+        if self.steps and len(c["answers"]) < MAX_STEPS:
+            c["answers"].append(step)
+
+    def read(self) -> _Conns:
         for rec in stream_records(self.path):
             kind = type(rec)
             if kind is Truncated:
@@ -72,30 +91,36 @@ class _Conns:
             t = getattr(rec, "t_ns", None)
             if t is not None and self.first_ns is None:
                 self.first_ns = t
-            if keep:
-                self.records.append(rec)
             if kind is StreamFrame:
                 c = self.conn(rec.conn)
+                if rec.direction == "rx":
+                    self.monitor.backend_bytes(rec.conn, rec.raw, rec.t_ns)
+                if c is None:
+                    continue
                 if rec.direction == "tx":  # compared as frames: writes and segments cut them differently
                     c["tx"] += len(rec.raw)
-                    d = c.setdefault("deframer", Deframer(NSQD))
-                    for item in d.feed(rec.raw):
-                        c["answers"].append(("client", item.raw.hex() if isinstance(item, Frame)
-                                             else f"unframed: {item.reason}"))
+                    if self.steps:
+                        d = c.setdefault("deframer", Deframer(NSQD))
+                        for item in d.feed(rec.raw):
+                            self._step(c, ("client", item.raw.hex() if isinstance(item, Frame)
+                                           else f"unframed: {item.reason}"))
                     continue
                 c["rx"] += 1
-                self.monitor.backend_bytes(rec.conn, rec.raw, rec.t_ns)
-                _answer(c["answers"], rec)
+                if self.steps and len(c["answers"]) < MAX_STEPS:
+                    _answer(c["answers"], rec)
             elif kind is StreamEvent:
                 c = self.conn(rec.conn)
+                if c is None:
+                    continue
                 if rec.event == "open":
                     c["client"], c["backend"] = rec.client, rec.backend
                 else:
                     c["end"].append(f"{rec.by} {rec.how}")
-                    c["answers"].append(("close", f"{rec.by} {rec.how}"))
+                    self._step(c, ("close", f"{rec.by} {rec.how}"))
             elif kind is StreamGap:
-                self.gaps.append(rec)
-                self.conn(rec.conn)
+                self.n_gaps += 1
+                if len(self.gaps) < MAX_GAPS:
+                    self.gaps.append(rec)
                 if rec.direction == "rx":
                     self.monitor.unjudgeable(rec.conn, rec.reason)
         return self
@@ -123,24 +148,31 @@ def _answer(answers: list[Any], rec: StreamFrame) -> None:
 
 
 # ---------------------------------------------------------------- check
+ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
+
+
 def run_check(ns: Any, out: TextIO | None = None) -> int:
     out = out or sys.stdout
     seen = _Conns(ns.file).read()
     verdicts = seen.monitor.verdicts()
-    failed = [r for r, (v, _) in verdicts.items() if v == "failed"]
-    out.write(f"{ns.file}: Nsqd capture, {len(seen.conns)} connection(s)\n")
+    failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
+    broke = {c.conn: r for r in failed for c in verdicts[r][1]}
+    out.write(f"{ns.file}: Nsqd capture, {seen.n_conns} connection(s)\n")
     if seen.truncated:
         out.write(f"TRUNCATED: {seen.truncated} (judged up to there)\n")
     for g in seen.gaps[:20]:
         out.write(f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}\n")
-    for n, c in sorted(seen.conns.items()):
-        v = seen.monitor.conns.get(n)
-        rules = [v.violation[0].rule] if v is not None and v.violation is not None else []
+    if seen.n_gaps > 20:
+        out.write(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture\n")
+    for n, c in sorted(seen.conns.items())[:ROWS]:
+        rules = [broke[n]] if n in broke else []
         out.write(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
                   f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
                   f"{'; BROKE ' + ', '.join(rules) if rules else ''}\n")
+    if seen.n_conns > ROWS:
+        out.write(f"  ... and {seen.n_conns - ROWS} more connection(s)\n")
     for rule in failed:
-        bad = verdicts[rule][1]
+        bad, n_bad = verdicts[rule][1], verdicts[rule][2]
         r = NSQD.rule(rule)
         out.write(f"{rule} {r.level}: {r.text}\n")
         for c in bad[:3]:
@@ -149,18 +181,19 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
             out.write(f"  conn {c.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
             for e in v.evidence:
                 out.write(f"    {e}\n")
-        if len(bad) > 3:
-            out.write(f"  ... and {len(bad) - 3} more connection(s)\n")
+        if n_bad > 3:
+            out.write(f"  ... and {n_bad - 3} more connection(s)\n")
     out.write("rules: " + ", ".join(f"{r} {verdicts[r][0]}" for r in RULES) + "\n")
     out.write("(the rules judged by what the runner's cases send need mcp-conform --protocol nsqd)\n")
     verdict = "FAILED" if failed else ("INCOMPLETE" if seen.truncated else "OK")
     out.write(f"verdict: {verdict}\n")
     if getattr(ns, "json", None):
-        doc = {"protocol": "nsqd", "file": str(ns.file), "truncated": seen.truncated,
+        doc = {"protocol": "nsqd", "file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
                "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
                                 "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
                                for n, c in sorted(seen.conns.items())],
                "rules": {r: verdicts[r][0] for r in RULES},
+               "failed_connections": {r: verdicts[r][2] for r in RULES},
                "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violation[1],  # type: ignore[index]
                                "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
                                "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
@@ -188,26 +221,31 @@ def _line(rec: Any, first: int) -> str:
 
 
 def run_show(ns: Any, out: TextIO | None = None) -> int:
+    """Each record a line as it is read (nothing kept but the chart's frames, up to
+    ``--max-rows``)."""
     out = out or sys.stdout
-    seen = _Conns(ns.file).read(keep=True)
-    first = seen.first_ns or 0
     lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
     hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
-    out.write(f"{ns.file}: Nsqd capture, {len(seen.conns)} connection(s)\n")
+    rows = int(getattr(ns, "max_rows", 400) or 400)
+    out.write(f"{ns.file}: Nsqd capture\n")
     shown: list[StreamFrame] = []
-    rows = 0
-    for rec in seen.records:
-        if not hasattr(rec, "t_ns") or type(rec) not in (StreamFrame, StreamEvent, StreamGap):
+    first: int | None = None
+    conns = 0
+    for rec in stream_records(ns.file):
+        if type(rec) is Truncated:
+            out.write(f"TRUNCATED: {rec.reason}\n")
             continue
+        if type(rec) not in (StreamFrame, StreamEvent, StreamGap):
+            continue
+        first = rec.t_ns if first is None else first
+        conns = max(conns, rec.conn)
         rel = (rec.t_ns - first) / 1e9
         if (lo is not None and rel < lo) or (hi is not None and rel > hi):
             continue
         out.write(_line(rec, first) + "\n")
-        rows += 1
-        if type(rec) is StreamFrame:
+        if type(rec) is StreamFrame and len(shown) < rows:
             shown.append(rec)
-    if seen.truncated:
-        out.write(f"TRUNCATED: {seen.truncated}\n")
+    out.write(f"{conns} connection(s)\n")
     if getattr(ns, "svg", None):
         from reports.stream_chart import stream_svg
 
@@ -218,10 +256,12 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
 # ---------------------------------------------------------------- diff
 def run_diff(args: Any, out: TextIO | None = None) -> int:
     out = out or sys.stdout
-    g, c = _Conns(args.golden).read(), _Conns(args.candidate).read()
+    g, c = _Conns(args.golden, steps=True).read(), _Conns(args.candidate, steps=True).read()
     diffs: list[str] = []
-    if len(g.conns) != len(c.conns):
-        diffs.append(f"connections: {len(g.conns)} in the golden, {len(c.conns)} in the candidate")
+    if g.n_conns != c.n_conns:
+        diffs.append(f"connections: {g.n_conns} in the golden, {c.n_conns} in the candidate")
+    if max(g.n_conns, c.n_conns) > MAX_LISTED:
+        out.write(f"note: only the first {MAX_LISTED} connections of each are compared\n")
     for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
         ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
         for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
@@ -237,7 +277,7 @@ def run_diff(args: Any, out: TextIO | None = None) -> int:
         if s.truncated:
             out.write(f"note: {s.path} is TRUNCATED: {s.truncated}\n")
     if not diffs:
-        out.write(f"same: {len(g.conns)} connection(s), the client's writes and the backend's answers alike\n")
+        out.write(f"same: {g.n_conns} connection(s), the client's writes and the backend's answers alike\n")
         return 0
     out.write(f"different: {len(diffs)} divergence(s)\n")
     for d in diffs[:50]:

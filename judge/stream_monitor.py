@@ -105,17 +105,45 @@ class ConnVerdict:
 
 
 class StreamMonitor:
-    """Offline judge of the backends' frames, one connection at a time (see the module)."""
+    """Offline judge of the backends' frames, one connection at a time (see the module).
+
+    At most :data:`MAX_TRACKED` connections are followed at once (the least recently active
+    is then judged as it stands and folded into the totals), and at most
+    :data:`MAX_EXAMPLES` failing connections are kept per rule (the rest counted)."""
+
+    MAX_TRACKED = 65536
+    MAX_EXAMPLES = 1000
 
     def __init__(self, spec: StreamSpec) -> None:
         self.spec = spec
         self.conns: dict[int, ConnVerdict] = {}
+        self.failed: dict[str, list[ConnVerdict]] = {r: [] for r in RULES}
+        self.failed_count: dict[str, int] = dict.fromkeys(RULES, 0)
+        self.judged = {r: 0 for r in RULES}  # connections with frames judged under the rule
+        self.folded = 0
 
     def _conn(self, conn: int) -> ConnVerdict:
-        c = self.conns.get(conn)
+        c = self.conns.pop(conn, None)
         if c is None:
-            c = self.conns[conn] = ConnVerdict(conn, _deframer=Deframer(self.spec))
+            c = ConnVerdict(conn, _deframer=Deframer(self.spec))
+            if len(self.conns) >= self.MAX_TRACKED:
+                self._fold(self.conns.pop(next(iter(self.conns))))
+        self.conns[conn] = c  # the most recently active last
         return c
+
+    def _fold(self, c: ConnVerdict) -> None:
+        self.folded += 1
+        c._deframer = None
+        if c.frames:
+            self.judged["NSQD-FRM-1"] += 1
+            if c.framing is None:
+                self.judged["NSQD-MSG-2"] += 1
+        v = c.violation
+        if v is not None:
+            rule = v[0].rule
+            self.failed_count[rule] += 1
+            if len(self.failed[rule]) < self.MAX_EXAMPLES:
+                self.failed[rule].append(c)
 
     def backend_bytes(self, conn: int, data: bytes, t_ns: int) -> None:
         """Bytes the backend sent on ``conn``, in stream order; each frame judged as it
@@ -140,12 +168,18 @@ class StreamMonitor:
         if c.unjudged is None:
             c.unjudged = why
 
-    def verdicts(self) -> dict[str, tuple[str, list[ConnVerdict]]]:
-        """rule -> (passed | failed | not_observed, the connections that failed it)."""
-        out: dict[str, tuple[str, list[ConnVerdict]]] = {}
+    def verdict_of(self, conn: int) -> ConnVerdict | None:
+        """A connection still followed (None once folded into the totals)."""
+        return self.conns.get(conn)
+
+    def verdicts(self) -> dict[str, tuple[str, list[ConnVerdict], int]]:
+        """rule -> (passed | failed | not_observed, failing connections kept, how many failed);
+        every connection still followed is judged as it stands (the capture's end)."""
+        while self.conns:
+            self._fold(self.conns.pop(next(iter(self.conns))))
+        out: dict[str, tuple[str, list[ConnVerdict], int]] = {}
         for rule in RULES:
-            bad = [c for c in self.conns.values() if c.violation is not None and c.violation[0].rule == rule]
-            # NSQD-MSG-2 is judged on connections whose framing held
-            seen = any(c.frames and (rule == "NSQD-FRM-1" or c.framing is None) for c in self.conns.values())
-            out[rule] = ("failed", bad) if bad else (("passed" if seen else "not_observed"), [])
+            n = self.failed_count[rule]
+            state = "failed" if n else ("passed" if self.judged[rule] else "not_observed")
+            out[rule] = (state, sorted(self.failed[rule], key=lambda c: c.conn), n)
         return out
