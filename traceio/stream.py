@@ -77,7 +77,7 @@ def is_stream_capture(path: str | Path) -> bool:
     from traceio.tcp import tcp_segments
 
     try:
-        for seg in itertools.islice(tcp_segments(cap), _PEEK):
+        for seg in tcp_segments(cap, _PEEK):
             if BACKEND_PORT in (seg.src[1], seg.dst[1]) or _name(seg.payload[:_frame_len(seg.payload)]):
                 return True
         return False

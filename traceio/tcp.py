@@ -23,11 +23,16 @@ the backend's port, or whose bytes are not what only a backend sends.
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
+
+from scapy.config import conf
+from scapy.layers.inet import IP, TCP
+from scapy.layers.inet6 import IPv6
 
 from traceio.reader import Capture, StreamEvent
 
@@ -66,28 +71,31 @@ class StreamGap(NamedTuple):
     reason: str
 
 
-def tcp_segments(cap: Capture) -> Iterator[TcpSegment]:
-    """The TCP segments of a pcap/pcapng capture (``Capture.counts`` tallies the rest)."""
-    from scapy.config import conf
-    from scapy.layers.inet import IP, TCP
-    from scapy.layers.inet6 import IPv6
-
-    counts = cap.counts
+def tcp_segments(cap: Capture, packets: int | None = None) -> Iterator[TcpSegment]:
+    """The TCP segments of a pcap/pcapng capture (``Capture.counts`` tallies the rest);
+    ``packets``: look at that many packets at most."""
     logger = logging.getLogger("scapy.runtime")
-    for t_ns, linktype, data, _direction, _ifname in cap.raw_packets():
-        cls = conf.l2types.num2layer.get(linktype)
+    level = logger.level
+    logger.setLevel(logging.ERROR)  # scapy's warnings on a cut or bad file: the capture reports them
+    try:
+        yield from _segments(cap, packets)
+    finally:
+        logger.setLevel(level)
+
+
+def _segments(cap: Capture, packets: int | None) -> Iterator[TcpSegment]:
+    counts = cap.counts
+    layers = conf.l2types.num2layer
+    for t_ns, linktype, data, _direction, _ifname in itertools.islice(cap.raw_packets(), packets):
+        cls = layers.get(linktype)
         if cls is None:
             counts["not_tcp"] += 1
             continue
-        level = logger.level
-        logger.setLevel(logging.ERROR)
         try:
             pkt = cls(data)
         except Exception:  # noqa: BLE001 - scapy on hostile bytes: a packet it cannot dissect
             counts["bad_ip"] += 1
             continue
-        finally:
-            logger.setLevel(level)
         tcp = pkt.getlayer(TCP)
         ip = pkt.getlayer(IP)
         ip6 = pkt.getlayer(IPv6) if ip is None else None

@@ -249,3 +249,35 @@ def test_tshark_reads_what_export_wrote(tmp_path):
     out = subprocess.run(["tshark", "-r", str(tmp_path / "e.pcap"), "-q", "-z", "conv,tcp"],
                          capture_output=True, text=True, timeout=60).stdout
     assert out.count("<->") == 3
+
+
+@pytest.mark.parametrize("link", ["ipv6", "sll"])
+def test_other_link_and_network_layers(tmp_path, link):
+    """IPv6, and Linux cooked capture (tcpdump -i any): scapy's layers, the same reassembly."""
+    from scapy.layers.inet6 import IPv6
+    from scapy.layers.l2 import CookedLinux
+
+    c, s = ("fd00::1", 40001) if link == "ipv6" else ("10.0.0.1", 40001), ("fd00::2", 8888) if link == "ipv6" else SERVER
+
+    def pkt(src, dst, flags, seq, data=b""):
+        ip = IPv6(src=src[0], dst=dst[0]) if link == "ipv6" else IP(src=src[0], dst=dst[0])
+        under = Ether() if link == "ipv6" else CookedLinux(proto=0x0800)
+        p = under / ip / TCP(sport=src[1], dport=dst[1], flags=flags, seq=seq)
+        return p / Raw(data) if data else p
+
+    pk = [pkt(c, s, "S", 9), pkt(s, c, "SA", 99), pkt(c, s, "A", 10),
+          pkt(s, c, "PA", 100 + 10, UP[0][10:]), pkt(s, c, "PA", 100, UP[0][:10]), pkt(c, s, "PA", 10, TAKEOFF)]
+    wrpcap(str(tmp_path / "l.pcap"), pk)
+    conns = by_conn(tmp_path / "l.pcap")
+    assert conns[1]["rx"] == [UP[0]] and conns[1]["tx"] == [TAKEOFF]
+
+
+def test_an_mcp_udp_capture_is_still_read_as_mcp(tmp_path):
+    from traceio.stream import is_stream_capture
+
+    pk = [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / TCP(sport=1, dport=2) / Raw(b"not nsqd")] * 3
+    from scapy.layers.inet import UDP
+
+    pk += [Ether() / IP() / UDP(sport=7889, dport=7890) / Raw(b"x" * 20)] * 600
+    wrpcap(str(tmp_path / "m.pcap"), pk)
+    assert not is_stream_capture(tmp_path / "m.pcap")
