@@ -153,6 +153,8 @@ ROWS = 200  # connections listed in the terminal report at most (all of them in 
 
 def run_check(ns: Any, out: TextIO | None = None) -> int:
     out = out or sys.stdout
+    if getattr(ns, "html", None):
+        sys.stderr.write("mcp-capture check: note: --html is not written for an Nsqd capture (use show --svg)\n")
     seen = _Conns(ns.file).read()
     verdicts = seen.monitor.verdicts()
     failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
@@ -175,10 +177,10 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
         bad, n_bad = verdicts[rule][1], verdicts[rule][2]
         r = NSQD.rule(rule)
         out.write(f"{rule} {r.level}: {r.text}\n")
-        for c in bad[:3]:
-            v, t = c.violation  # type: ignore[misc]
+        for cv in bad[:3]:
+            v, t = cv.violation  # type: ignore[misc]
             rel = (t - (seen.first_ns or t)) / 1e9
-            out.write(f"  conn {c.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
+            out.write(f"  conn {cv.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
             for e in v.evidence:
                 out.write(f"    {e}\n")
         if n_bad > 3:
@@ -288,10 +290,6 @@ def run_diff(args: Any, out: TextIO | None = None) -> int:
 
 
 # ---------------------------------------------------------------- export
-def records_for_export(path: str) -> Iterable[Any]:
-    return stream_records(path)
-
-
 def run_export(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from traceio.tcp_pcap import write_tcp_pcap
 

@@ -124,7 +124,7 @@ class StreamFrame(NamedTuple):
     """Bytes on a stream protocol's connection (``/nsqd/tx``: one write of the runner;
     ``/nsqd/rx``: one frame of the backend), as ``traceio.recorder`` wrote them."""
 
-    index: int
+    index: int  # type: ignore[assignment]  # (shadows tuple.index, as Datagram's)
     t_ns: int
     direction: str
     conn: int

@@ -67,7 +67,7 @@ def is_stream_capture(path: str | Path) -> bool:
     if cap.format == "mcap":
         for rec in itertools.islice(cap, _PEEK):
             kind = type(rec)
-            if kind is Metadata and rec.data.get("protocol") == "nsqd":
+            if isinstance(rec, Metadata) and rec.data.get("protocol") == "nsqd":
                 return True
             if kind in (StreamFrame, StreamEvent):
                 return True

@@ -110,6 +110,7 @@ def _segments(cap: Capture, packets: int | None) -> Iterator[TcpSegment]:
             seglen = (ip.len or 0) - (ip.ihl or 5) * 4
             src, dst = str(ip.src), str(ip.dst)
         else:
+            assert ip6 is not None
             seglen = len(raw) - (len(ip6.original or b"") - 40 - (ip6.plen or 0))
             src, dst = str(ip6.src), str(ip6.dst)
         hdr = (tcp.dataofs or 5) * 4

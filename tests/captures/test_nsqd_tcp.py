@@ -281,3 +281,24 @@ def test_an_mcp_udp_capture_is_still_read_as_mcp(tmp_path):
     pk += [Ether() / IP() / UDP(sport=7889, dport=7890) / Raw(b"x" * 20)] * 600
     wrpcap(str(tmp_path / "m.pcap"), pk)
     assert not is_stream_capture(tmp_path / "m.pcap")
+
+
+def test_a_capture_without_connection_events_exports_a_followable_conversation(tmp_path):
+    """An MCAP written before /nsqd/conn: each connection opens with a handshake at its first
+    bytes; tshark and our reader follow the same bytes."""
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    recs = [StreamFrame(0, 10**9, "tx", 5, "TAKEOFF", None, TAKEOFF),
+            StreamFrame(1, 10**9 + 10, "rx", 5, "UPDATE", None, UP[0]),
+            StreamFrame(2, 10**9 + 20, "tx", 6, None, None, RPY * 100),  # 3500 bytes: three segments
+            StreamFrame(3, 10**9 + 30, "rx", 5, "UPDATE", None, UP[1])]
+    assert write_tcp_pcap(tmp_path / "w.pcap", recs, 8888) > 8
+    conns = by_conn(tmp_path / "w.pcap")
+    assert conns[1]["rx"] == [UP[0], UP[1]] and b"".join(conns[1]["tx"]) == TAKEOFF
+    assert b"".join(conns[2]["tx"]) == RPY * 100
+    import shutil
+
+    if shutil.which("tshark") is not None:
+        from tests.captures.tshark_follow import follow
+
+        assert follow(tmp_path / "w.pcap", 1) == (RPY * 100, b"")
