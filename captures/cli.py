@@ -9,6 +9,11 @@
     mcp-capture export CAPTURE --pcap OUT.pcap|OUT.pcapng
     mcp-capture dissector [--install | -o FILE [--mavlink FILE]]
 
+``check``, ``show``, ``diff`` and ``export`` read Nsqd captures too (``--protocol nsqd``, or as
+the file's first records show: our MCAP of an Nsqd run, a pcap of its TCP traffic), through
+``captures.nsqd``; ``replay`` takes an Nsqd fuzz finding (its directory, repro.mcap or
+repro.pcap).
+
 Each subcommand lives in its own module, which this one only registers: the module has
 ``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``
 returns the exit code. To add one, append its module to :data:`SUBCOMMANDS`.

@@ -521,6 +521,8 @@ def register(sub: Any) -> None:
                    help="messages of context around the first divergence (3)")
     p.add_argument("--json", metavar="OUT", help="write the comparison as JSON")
     p.add_argument("--html", metavar="OUT", help="write both sides' sequence charts side by side")
+    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
+                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
     p.set_defaults(run=run)
 
 
@@ -559,6 +561,10 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     check_writable(args.html, "--html")
     opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
     try:
+        from captures import nsqd
+
+        if nsqd.chosen(args, args.golden):  # Nsqd captures: connection by connection (issue 21)
+            return nsqd.run_diff(args, out)
         result = diff_captures(args.golden, args.candidate, opts)
     except CaptureError as exc:
         err.write(f"mcp-capture diff: {exc}\n")

@@ -89,15 +89,20 @@ def register(sub: Any) -> None:
                                    "timestamps, as a pcapng (OUT.pcapng) or pcap file.")
     p.add_argument("capture", metavar="CAPTURE", help="MCAP, pcap or pcapng capture")
     p.add_argument("--pcap", required=True, metavar="OUT", help="the file to write (.pcapng: pcapng)")
+    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
+                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
     p.set_defaults(run=run)
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    from captures import nsqd
     from traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr
     try:
+        if nsqd.chosen(args, args.capture):  # TCP conversations (issue 21)
+            return nsqd.run_export(args, out, err)
         n, truncated = export_pcap(args.capture, args.pcap)
     except CaptureError as exc:
         err.write(f"mcp-capture export: {exc}\n")

@@ -33,8 +33,10 @@ golden, the replay's own traffic as candidate) and all the traffic with the trac
 unreadable capture or setup error (one line), a node that never answered at all included. :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
 
-A fuzz finding's ``repro.mcap`` (metadata record from recorder ``mcp-fuzz``) is replayed as
-``mcp-fuzz --replay`` replays it: its minimal sequence, with the campaign's pace and scenario,
+An Nsqd fuzz finding (``finding-N/``, its repro.mcap or repro.pcap) is replayed as
+``mcp-fuzz --protocol nsqd --replay`` replays it (``captures.nsqd``; the embedded reference
+backend unless ``--target`` or ``--spawn``). A fuzz finding's ``repro.mcap`` (metadata record
+from recorder ``mcp-fuzz``) is replayed as ``mcp-fuzz --replay`` replays it: its minimal sequence, with the campaign's pace and scenario,
 judged by the fuzzer's oracles; exit 1 when the node still breaks the finding's rule, 0 when
 it no longer does.
 """
@@ -492,6 +494,10 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     err = err or sys.stderr
     check_writable(args.json, "--json")
+    from captures import nsqd
+
+    if nsqd.is_finding(args.capture):  # an Nsqd fuzz finding (its directory, repro.mcap or repro.pcap)
+        return nsqd.run_replay(args)
     try:
         everything = list(open_capture(args.capture))
     except CaptureError as exc:

@@ -46,6 +46,8 @@ def register(sub: Any) -> None:
     p.add_argument("--segment", metavar="NAME", help="a capture merged from pytest-xdist workers: only this "
                    "worker's session (each is listed and charted apart; the chart is the first's by default)")
     add_monitor_options(p)
+    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
+                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
     p.set_defaults(run=run)
 
 
@@ -89,6 +91,10 @@ def run(ns: argparse.Namespace) -> int:
     except ValueError:
         raise UsageError(f"--max-rows: not a positive integer: {ns.max_rows!r}") from None
     check_writable(ns.svg, "--svg")
+    from captures import nsqd
+
+    if nsqd.chosen(ns, ns.file):  # an Nsqd capture's connections (issue 21 item 4)
+        return nsqd.run_show(ns)
     unjudged = None
     try:
         j = judge(ns.file, params, keep=True)

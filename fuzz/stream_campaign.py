@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
 from fuzz.stream_mutators import Case, Write, draw_case, valid_values
 from fuzz.stream_oracles import Signature, parse_sanitizer
 from harness.config import RunConfig
@@ -57,6 +58,7 @@ class Finding:
     stderr: tuple[str, ...] = ()
     count: int = 1
     note: str = ""
+    traffic: list[Any] = field(default_factory=list)  # the last confirming replay's (repro.mcap, repro.pcap)
 
     def writes(self) -> list[Write]:
         return [w for c in self.cases for w in c.writes]
@@ -237,8 +239,22 @@ def _defaults(msg: Any) -> dict[str, Any]:
     return valid_values(NSQD, msg, random.Random(0))
 
 
-def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
+def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool,
+                log: TrafficLog | None = None) -> tuple[bool, Backend, Hit | None]:
     b = backend.fresh()
+    b.session.recorder = log  # the replay's traffic, for the finding's repro.mcap and repro.pcap
+    try:
+        return _replay(b, cases, sig, probe=probe)
+    finally:
+        if log is not None:
+            for c in list(b.session.conns):  # how the connections stand at the end: a dead backend's close
+                with contextlib.suppress(OSError, ValueError):
+                    c.pump(0)
+            log.done = True
+        b.session.recorder = None
+
+
+def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
     hit = None
     for c in cases:
         hit = b.run(c)
@@ -414,16 +430,19 @@ class StreamCampaign:
         minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                         check=c0.check)]
         confirmed = 0
+        traffic: list[Any] = []
         for _ in range(self.replays):
-            ok, state["b"], last = _reproduces(state["b"], minimal, sig, probe=probe)
+            log = TrafficLog()
+            ok, state["b"], last = _reproduces(state["b"], minimal, sig, probe=probe, log=log)
             confirmed += ok
+            traffic = log.records if ok else traffic
             if last is not None and last.stderr:
                 hit = Hit(hit.signature, hit.detail, last.stderr)
         if confirmed < self.replays:
             self.unconfirmed += 1
             return state["b"].fresh()
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
-                          note=culprit[0].note + (" (then a probe command)" if probe else "")))
+                          note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         return state["b"].fresh()
 
     def _add(self, f: Finding) -> None:
@@ -451,6 +470,7 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
            "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
            "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases)}
     (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
+    write_stream_repro(d, doc, f.traffic)
     (d / "input.hex").write_text(data.hex(" ") + "\n")
     (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
     (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
@@ -458,20 +478,21 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
     (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", "nsqd", "--replay", str(d.resolve()), *how]) + "\n")
 
 
-def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None) -> int:
-    """Replay a finding once in a fresh backend: 1 reproduced, 0 not, 2 unreadable."""
-    p = Path(path)
-    doc_path = p / "finding.json" if p.is_dir() else p
+def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,
+                          prog: str = "mcp-fuzz") -> int:
+    """Replay a finding (``finding-N/``, its finding.json, repro.mcap or repro.pcap) once in a
+    fresh backend: 1 reproduced, 0 not, 2 unreadable."""
+    doc_path = path
     try:
-        doc = json.loads(doc_path.read_text())
+        doc = load_stream_finding(path)
         writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
         expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
         sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"mcp-fuzz: error: --replay: cannot read {doc_path}: {exc}")
+        print(f"{prog}: error: {'--replay: ' if prog == 'mcp-fuzz' else ''}cannot read {doc_path}: {exc}")
         return 2
     if not writes:
-        print(f"mcp-fuzz: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
+        print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
               "mcp-conform --protocol nsqd --select NSQD-CON-3")
         return 2
     backend = Backend(target, spawn)

@@ -26,36 +26,16 @@ from typing import Any
 from harness.config import RunConfig
 from harness.errors import SetupError, SpawnFailure
 from harness.procs import ManagedProcess
+from judge.stream_monitor import Received, SenderViolation, decode_frame, sender_violation
 from spec import NSQD
 from spec.stream import StreamSpec
-from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body
+from spec.stream_codec import Deframer, Frame, FramingError
 
 __all__ = ["Conn", "Death", "Received", "SenderViolation", "StreamSession"]
 
 #: The embedded reference backend's UPDATE period (the description's is 0.4 s: D-8).
 EMBEDDED_UPDATE_PERIOD = 0.05
 _SANITIZER = re.compile(r"(SUMMARY: \w+Sanitizer: .*|ERROR: \w+Sanitizer: .*|runtime error: .*)")
-
-
-@dataclass(frozen=True)
-class Received:
-    """A frame from the backend, when it came, and what it decoded to (``problem``: why not)."""
-
-    t: float
-    frame: Frame
-    values: dict[str, Any] | None
-    problem: str | None = None
-
-
-@dataclass(frozen=True)
-class SenderViolation:
-    """What the backend sent that breaks a rule binding its frames (NSQD-FRM-1, NSQD-MSG-2):
-    the one judgement of them, for the runner's cases and the fuzzer alike."""
-
-    rule: str
-    expected: str
-    actual: str
-    evidence: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -97,6 +77,14 @@ class Conn:
             self.sock_peer: Any = self.sock.getpeername()
         except OSError:
             self.sock_peer = None
+        self._event("open", local=self.sock.getsockname())
+
+    def _event(self, event: str, **kw: Any) -> None:
+        """The connection's open and close on the capture (``/nsqd/conn``: a pcap of it shows
+        the handshake and who closed, how)."""
+        if self.recorder is not None:
+            with contextlib.suppress(OSError, AttributeError):
+                self.recorder.stream_event(event, conn=self.index, peer=self.sock_peer, **kw)
 
     # -- out --------------------------------------------------------------------------
     def send(self, data: bytes, *, split: int | None = None, gap: float = 0.0) -> bool:
@@ -127,6 +115,8 @@ class Conn:
         return True
 
     def close(self, *, rst: bool = False) -> None:
+        if self.sock.fileno() != -1:
+            self._event("close", by="client", how="rst" if rst else "fin")
         if rst:
             with contextlib.suppress(OSError):
                 self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
@@ -147,6 +137,7 @@ class Conn:
                 data = None
             except ConnectionResetError:
                 self.closed_at, self.reset = time.monotonic(), True
+                self._event("close", by="backend", how="rst")
                 break
             except OSError:
                 self.closed_at = time.monotonic()
@@ -159,6 +150,7 @@ class Conn:
                 continue
             if not data:
                 self.closed_at = time.monotonic()
+                self._event("close", by="backend", how="fin")
                 break
             self._take(data)
             if timeout > 0:  # something came: let the caller look at it
@@ -178,17 +170,7 @@ class Conn:
                 if self.recorder is not None:
                     self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer, problem=item.reason)
                 continue
-            problem, values = None, None
-            if not self.spec.has_message(item.msg_id):
-                problem = f"message id {item.msg_id} names no message"
-            else:
-                try:
-                    d = decode_body(self.spec, item.msg_id, item.body, check_text=False)
-                    values = d.as_dict()
-                    if d.extra:
-                        problem = f"{d.name}: {d.extra} bytes after its last field"
-                except BodyError as exc:
-                    problem = str(exc)
+            values, problem = decode_frame(self.spec, item)
             self.frames.append(Received(now, item, values, problem))
             if self.recorder is not None:
                 name = self.spec.message(item.msg_id).name if self.spec.has_message(item.msg_id) else None
@@ -196,23 +178,9 @@ class Conn:
                                            msg_id=item.msg_id, name=name, fields=values, problem=problem)
 
     def violation(self) -> SenderViolation | None:
-        """The first rule the backend's frames on this connection break, if any."""
-        if self.framing_error is not None:
-            fe = self.framing_error
-            return SenderViolation("NSQD-FRM-1", "frames whose 32-bit length counts itself, 5..8192",
-                                   f"a frame from the backend with {fe.reason} (prefix {fe.raw.hex(' ')})")
-        allowed = {self.spec.message("ERROR").id, self.spec.message("UPDATE").id}
-        for r in self.frames:
-            ev = (f"frame: {r.frame.raw[:48].hex(' ')}",)
-            if r.frame.msg_id not in allowed:
-                return SenderViolation("NSQD-MSG-2", "a backend sends only ERROR and UPDATE",
-                                       f"a frame with id {r.frame.msg_id}", ev)
-            if r.problem is not None:
-                return SenderViolation("NSQD-MSG-2", "each message with exactly its layout", r.problem, ev)
-            if r.values is not None and "state" in r.values and r.values["state"] not in self.spec.states.values():
-                return SenderViolation("NSQD-MSG-2", "UPDATE.state one of the flight states",
-                                       f"state {r.values['state']} (0x{r.values['state'] & 0xFFFFFFFF:08x})", ev)
-        return None
+        """The first rule the backend's frames on this connection break, if any (the one
+        judgement: ``judge.stream_monitor.sender_violation``)."""
+        return sender_violation(self.spec, self.frames, self.framing_error)
 
     def updates(self, since: float = 0.0) -> list[Received]:
         return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id

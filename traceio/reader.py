@@ -74,6 +74,7 @@ __all__ = [
     "MavlinkFrame",
     "Metadata",
     "Record",
+    "StreamEvent",
     "StreamFrame",
     "Truncated",
     "VehicleMark",
@@ -125,13 +126,26 @@ class StreamFrame(NamedTuple):
     """Bytes on a stream protocol's connection (``/nsqd/tx``: one write of the runner;
     ``/nsqd/rx``: one frame of the backend), as ``traceio.recorder`` wrote them."""
 
-    index: int
+    index: int  # type: ignore[assignment]  # (shadows tuple.index, as Datagram's)
     t_ns: int
     direction: str
     conn: int
     name: str | None
     problem: str | None
     raw: bytes
+
+
+class StreamEvent(NamedTuple):
+    """A stream connection opened (its addresses) or closed (``by`` client or backend, ``how``
+    fin or rst): ``/nsqd/conn``, or the TCP handshake and FIN/RST of a pcap."""
+
+    t_ns: int
+    event: str  # "open" | "close"
+    conn: int
+    client: tuple[str, int] | None = None
+    backend: tuple[str, int] | None = None
+    by: str | None = None
+    how: str | None = None
 
 
 class Metadata(NamedTuple):
@@ -143,7 +157,7 @@ class Truncated(NamedTuple):
     reason: str
 
 
-Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | StreamFrame | Metadata | Truncated
+Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | StreamFrame | StreamEvent | Metadata | Truncated
 
 
 class CaptureError(Exception):
@@ -328,6 +342,8 @@ class Capture:
             return MavlinkFrame(n["m"] - 1, t, *fields)
         if kind == "v":
             return VehicleMark(t, *fields)
+        if kind == "e":
+            return StreamEvent(t, *fields)
         if kind == "s":
             n["s"] += 1
             return StreamFrame(n["s"] - 1, t, *fields)
@@ -400,6 +416,10 @@ class Capture:
                         elif topic == "/nsqd/tx" or topic == "/nsqd/rx":
                             yield rec.log_time, "s", (topic[-2:], int(body["conn"]), body.get("name"),
                                                       body.get("problem"), b64(body["raw_base64"]))
+                        elif topic == "/nsqd/conn":
+                            yield rec.log_time, "e", (str(body["event"]), int(body["conn"]),
+                                                      _parse_peer(body.get("local")), _parse_peer(body.get("peer")),
+                                                      body.get("by"), body.get("how"))
                         elif topic == "/conformance/case":
                             yield rec.log_time, "c", (str(body["case"]), str(body["event"]),
                                                       body.get("outcome"), tuple(body.get("rules") or ()),
@@ -472,21 +492,15 @@ class Capture:
         self.corrupt = True
         return f"gzip stream corrupt after packet {n_packet} (the packets read may be damaged too): {err}"
 
-    def _packets(self) -> Iterator[Datagram]:
+    def raw_packets(self) -> Iterator[tuple[int, int, bytes, str | None, str | None]]:
+        """(t_ns, link type, bytes, direction, interface name) of each packet record of a
+        pcap or pcapng, stopping (``truncated``, ``corrupt``) where the file is cut or bad."""
         reader = self._reader
         ng = isinstance(reader, NgReader)
         recorder: str | None = None
         read = reader._read_packet
-        counts = self.counts
-        links = LINKS
         pcap_link = None if ng else reader.linktype
         nano = 1 if getattr(reader, "nano", False) else 1000
-        frag = Reassembly(counts)
-        known: set[tuple[str, int]] = set()
-        mcp_ports = MCP_PORTS
-        preamble = PREAMBLE
-        pre_len = len(preamble)
-        index = 0
         offset = 24  # pcap: where the next record starts
         n_packet = 0
         while True:
@@ -521,12 +535,28 @@ class Capture:
                 linktype = pcap_link
                 t_ns = meta.sec * 1_000_000_000 + meta.usec * nano
                 direction = None
+            self.linktypes.add(linktype)
+            yield t_ns, linktype, data, direction, recorder
+        if ng:
+            self.counts["unknown_interface"] += reader.unknown_interface
+        if self.truncated is None:
+            # a stream that failed at its very end (the gzip trailer's CRC) after the last record
+            self.truncated = self._stream_failure(n_packet)
+
+    def _packets(self) -> Iterator[Datagram]:
+        counts = self.counts
+        links = LINKS
+        frag = Reassembly(counts)
+        known: set[tuple[str, int]] = set()
+        mcp_ports = MCP_PORTS
+        preamble = PREAMBLE
+        pre_len = len(preamble)
+        index = 0
+        for t_ns, linktype, data, direction, recorder in self.raw_packets():
             parse = links.get(linktype)
             if parse is None:
-                self.linktypes.add(linktype)
                 counts["not_udp"] += 1
                 continue
-            self.linktypes.add(linktype)
             got = parse(data, counts)
             if got is None:
                 continue
@@ -546,11 +576,6 @@ class Capture:
             yield Datagram(index, t_ns, src, dst, payload, direction, recorder)
             index += 1
         self._fragments_open = frag.open_groups()
-        if ng:
-            counts["unknown_interface"] += reader.unknown_interface
-        if self.truncated is None:
-            # a stream that failed at its very end (the gzip trailer's CRC) after the last record
-            self.truncated = self._stream_failure(n_packet)
 
 
 def _mcap_reason(exc: Exception, pos: int, size: int) -> tuple[str, bool]:

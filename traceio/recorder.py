@@ -205,10 +205,27 @@ _STREAM_SCHEMA: dict[str, Any] = {
     },
     "required": ["direction", "conn", "length", "raw_base64"],
 }
+_CONN_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "nsqd.Connection",
+    "description": "A stream protocol's connection opened by the runner, or closed by either side "
+                   "(by: client or backend; how: fin or rst), with its addresses.",
+    "type": "object",
+    "properties": {
+        "event": {"enum": ["open", "close"]},
+        "conn": _INT,
+        "peer": _STR,
+        "local": _ADDR,
+        "by": {"type": ["string", "null"]},
+        "how": {"type": ["string", "null"]},
+    },
+    "required": ["event", "conn"],
+}
 #: A stream protocol's channels, registered when its first frame is recorded.
 STREAM_CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
     "/nsqd/tx": ("nsqd.Frame", _STREAM_SCHEMA),
     "/nsqd/rx": ("nsqd.Frame", _STREAM_SCHEMA),
+    "/nsqd/conn": ("nsqd.Connection", _CONN_SCHEMA),
 }
 
 #: topic -> (schema name, JSON schema)
@@ -417,20 +434,34 @@ class McapRecorder:
         one frame of the backend), with what they decode to."""
         if direction not in ("tx", "rx"):
             raise ValueError(f"stream direction must be 'tx' or 'rx', not {direction!r}")
-        topic = f"/nsqd/{direction}"
-        with self._lock:
-            if self._closed:
-                return
-            if topic not in self._channels:
-                for t, (sname, schema) in STREAM_CHANNELS.items():
-                    sid = self._writer.register_schema(name=sname, encoding="jsonschema",
-                                                       data=json.dumps(schema).encode())
-                    self._channels[t] = self._writer.register_channel(topic=t, message_encoding="json", schema_id=sid)
-                    self.counts.setdefault(t, 0)
+        self._stream_channels()
         body = {"direction": direction, "conn": int(conn), "peer": _peer(peer), "msg_id": msg_id, "name": name,
                 "fields": dict(fields) if fields is not None else None, "problem": problem, "length": len(raw),
                 "raw_base64": base64.b64encode(bytes(raw)).decode("ascii")}
-        self._write(topic, body, t_ns)
+        self._write(f"/nsqd/{direction}", body, t_ns)
+
+    def stream_event(self, event: str, *, conn: int, peer: Any = None, local: Any = None, by: str | None = None,
+                     how: str | None = None, t_ns: int | None = None) -> None:
+        """A stream connection opened (``open``: its addresses) or closed (``close``: ``by``
+        client or backend, ``how`` fin or rst), on ``/nsqd/conn``."""
+        if event not in ("open", "close"):
+            raise ValueError(f"stream event must be 'open' or 'close', not {event!r}")
+        self._stream_channels()
+        self._write("/nsqd/conn", {"event": event, "conn": int(conn), "peer": _peer(peer),
+                                   "local": _peer(local) if local else None, "by": by, "how": how}, t_ns)
+
+    def _stream_channels(self) -> None:
+        with self._lock:
+            if self._closed or "/nsqd/tx" in self._channels:
+                return
+            schemas: dict[str, int] = {}
+            for t, (sname, schema) in STREAM_CHANNELS.items():
+                if sname not in schemas:
+                    schemas[sname] = self._writer.register_schema(name=sname, encoding="jsonschema",
+                                                                  data=json.dumps(schema).encode())
+                self._channels[t] = self._writer.register_channel(topic=t, message_encoding="json",
+                                                                  schema_id=schemas[sname])
+                self.counts.setdefault(t, 0)
 
     def impairment(self, decision: Any, data: bytes, t_ns: int | None = None) -> None:
         """What an impaired link did to ``data`` (a ``harness.impair.Decision``)."""

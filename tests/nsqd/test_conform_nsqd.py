@@ -63,7 +63,7 @@ def test_reference_backend_passes_every_rule(tmp_path):
 
             with open(tmp_path / "run.mcap", "rb") as fh:
                 topics = Counter(ch.topic for _, ch, _ in make_reader(fh).iter_messages())
-            assert set(topics) == {"/nsqd/tx", "/nsqd/rx", "/conformance/case", "/log"}, topics
+            assert set(topics) == {"/nsqd/tx", "/nsqd/rx", "/nsqd/conn", "/conformance/case", "/log"}, topics
             assert topics["/conformance/case"] == 2 * len(doc["cases"]) == topics["/log"]  # Foxglove's log
     assert len(outcomes) == 1
 

@@ -1,0 +1,337 @@
+"""``mcp-capture check|show|diff|export`` on an Nsqd capture (``--protocol nsqd``, issue 21 item 4).
+
+The capture is our MCAP (``mcp-conform --protocol nsqd --capture``, a fuzz finding's
+repro.mcap) or a pcap/pcapng of the TCP traffic (tcpdump, Wireshark, a finding's repro.pcap),
+read through ``traceio.stream`` (pcaps reassembled by ``traceio.tcp``: out-of-order and
+retransmitted segments, both directions, any number of connections, bounded in memory).
+
+- ``check``: every backend's frames judged by ``judge.stream_monitor`` — the judgement the
+  runner's connections and the fuzzer make live (NSQD-FRM-1: lengths; NSQD-MSG-2: ids,
+  layouts, UPDATE.state). Exit 0 no rule broken, 1 broken, 2 unreadable. The rules the
+  runner's cases judge by what they send (effects, closes, timing) need the cases; a capture
+  shows only what the backends sent. A connection with bytes missing from the capture is
+  judged up to the gap, and the output says so.
+- ``show``: the connections and their traffic, one line per write, frame and event.
+- ``diff``: per connection (in order), the client's writes and the backend's answers —
+  frames, with repeated identical ones folded (UPDATE's period differs run to run), and how
+  the connection ended. Exit 0 same, 1 different.
+- ``export``: the conversations as a pcap/pcapng tshark follows (``traceio.tcp_pcap``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, TextIO
+
+from judge.stream_monitor import RULES, StreamMonitor
+from spec import NSQD
+from spec.stream_codec import Deframer, Frame
+from traceio.reader import StreamEvent, StreamFrame, Truncated
+from traceio.stream import BACKEND_PORT, StreamGap, is_stream_capture, stream_records
+
+__all__ = ["chosen", "run_check", "run_diff", "run_export", "run_show"]
+
+
+def chosen(ns: Any, *paths: str) -> bool:
+    """The subcommand reads the capture(s) as Nsqd: ``--protocol nsqd``, or found to be."""
+    proto = getattr(ns, "protocol", None)
+    if proto is not None:
+        return bool(proto == "nsqd")
+    return is_stream_capture(paths[0])
+
+
+def _addr(a: Any) -> str:
+    return f"{a[0]}:{a[1]}" if a else "?"
+
+
+#: Connections listed (and compared by diff) at most; the rest are counted (a hostile capture's
+#: flood of connections stays bounded in memory). Steps kept per connection for diff, likewise.
+MAX_LISTED = 10000
+MAX_STEPS = 100000
+MAX_GAPS = 1000
+
+
+class _Conns:
+    """What a capture holds, per connection (the first :data:`MAX_LISTED`), with the monitor's
+    judgement of every connection."""
+
+    def __init__(self, path: str, *, steps: bool = False) -> None:
+        self.path = path
+        self.steps = steps  # keep each connection's steps (diff)
+        self.monitor = StreamMonitor(NSQD)
+        self.conns: dict[int, dict[str, Any]] = {}
+        self.n_conns = 0  # connections are numbered 1, 2, ... in both kinds of capture
+        self.truncated: str | None = None
+        self.gaps: list[StreamGap] = []
+        self.n_gaps = 0
+        self.first_ns: int | None = None
+
+    def conn(self, n: int) -> dict[str, Any] | None:
+        c = self.conns.get(n)
+        if c is None:
+            self.n_conns = max(self.n_conns, n)
+            if len(self.conns) >= MAX_LISTED:
+                return None
+            c = self.conns[n] = {"client": None, "backend": None, "tx": 0, "rx": 0, "end": [], "answers": []}
+        return c
+
+    def _step(self, c: dict[str, Any], step: tuple[str, str]) -> None:
+        if self.steps and len(c["answers"]) < MAX_STEPS:
+            c["answers"].append(step)
+
+    def read(self) -> _Conns:
+        for rec in stream_records(self.path):
+            kind = type(rec)
+            if kind is Truncated:
+                self.truncated = rec.reason
+                continue
+            t = getattr(rec, "t_ns", None)
+            if t is not None and self.first_ns is None:
+                self.first_ns = t
+            if kind is StreamFrame:
+                c = self.conn(rec.conn)
+                if rec.direction == "rx":
+                    self.monitor.backend_bytes(rec.conn, rec.raw, rec.t_ns)
+                if c is None:
+                    continue
+                if rec.direction == "tx":  # compared as frames: writes and segments cut them differently
+                    c["tx"] += len(rec.raw)
+                    if self.steps:
+                        d = c.setdefault("deframer", Deframer(NSQD))
+                        for item in d.feed(rec.raw):
+                            self._step(c, ("client", item.raw.hex() if isinstance(item, Frame)
+                                           else f"unframed: {item.reason}"))
+                    continue
+                c["rx"] += 1
+                if self.steps and len(c["answers"]) < MAX_STEPS:
+                    _answer(c["answers"], rec)
+            elif kind is StreamEvent:
+                c = self.conn(rec.conn)
+                if c is None:
+                    continue
+                if rec.event == "open":
+                    c["client"], c["backend"] = rec.client, rec.backend
+                else:
+                    c["end"].append(f"{rec.by} {rec.how}")
+                    self._step(c, ("close", f"{rec.by} {rec.how}"))
+            elif kind is StreamGap:
+                self.n_gaps += 1
+                if len(self.gaps) < MAX_GAPS:
+                    self.gaps.append(rec)
+                if rec.direction == "rx":
+                    self.monitor.unjudgeable(rec.conn, rec.reason)
+        return self
+
+
+def _answer(answers: list[Any], rec: StreamFrame) -> None:
+    """The backend's frame as the diff compares it; identical neighbours folded."""
+    if rec.problem:
+        key = ("frame", f"refused: {rec.problem}")
+    elif rec.name == "UPDATE":
+        from spec.stream_codec import decode_body
+
+        item = Deframer(NSQD).feed(rec.raw)
+        state = None
+        if item and isinstance(item[0], Frame):
+            try:
+                state = decode_body(NSQD, item[0].msg_id, item[0].body, check_text=False).as_dict().get("state")
+            except ValueError:
+                state = None
+        key = ("frame", f"UPDATE state {NSQD.state_name(state) if state is not None else '?'}")
+    else:
+        key = ("frame", rec.name or f"id {rec.raw[4] if len(rec.raw) > 4 else '?'}")
+    if not answers or answers[-1] != key:
+        answers.append(key)
+
+
+# ---------------------------------------------------------------- check
+ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
+
+
+def run_check(ns: Any, out: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    if getattr(ns, "html", None):
+        sys.stderr.write("mcp-capture check: note: --html is not written for an Nsqd capture (use show --svg)\n")
+    seen = _Conns(ns.file).read()
+    verdicts = seen.monitor.verdicts()
+    failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
+    broke = {c.conn: r for r in failed for c in verdicts[r][1]}
+    out.write(f"{ns.file}: Nsqd capture, {seen.n_conns} connection(s)\n")
+    if seen.truncated:
+        out.write(f"TRUNCATED: {seen.truncated} (judged up to there)\n")
+    for g in seen.gaps[:20]:
+        out.write(f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}\n")
+    if seen.n_gaps > 20:
+        out.write(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture\n")
+    for n, c in sorted(seen.conns.items())[:ROWS]:
+        rules = [broke[n]] if n in broke else []
+        out.write(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
+                  f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
+                  f"{'; BROKE ' + ', '.join(rules) if rules else ''}\n")
+    if seen.n_conns > ROWS:
+        out.write(f"  ... and {seen.n_conns - ROWS} more connection(s)\n")
+    for rule in failed:
+        bad, n_bad = verdicts[rule][1], verdicts[rule][2]
+        r = NSQD.rule(rule)
+        out.write(f"{rule} {r.level}: {r.text}\n")
+        for cv in bad[:3]:
+            v, t = cv.violation  # type: ignore[misc]
+            rel = (t - (seen.first_ns or t)) / 1e9
+            out.write(f"  conn {cv.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
+            for e in v.evidence:
+                out.write(f"    {e}\n")
+        if n_bad > 3:
+            out.write(f"  ... and {n_bad - 3} more connection(s)\n")
+    out.write("rules: " + ", ".join(f"{r} {verdicts[r][0]}" for r in RULES) + "\n")
+    out.write("(the rules judged by what the runner's cases send need mcp-conform --protocol nsqd)\n")
+    verdict = "FAILED" if failed else ("INCOMPLETE" if seen.truncated else "OK")
+    out.write(f"verdict: {verdict}\n")
+    if getattr(ns, "json", None):
+        doc = {"protocol": "nsqd", "file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
+               "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
+                                "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
+                               for n, c in sorted(seen.conns.items())],
+               "rules": {r: verdicts[r][0] for r in RULES},
+               "failed_connections": {r: verdicts[r][2] for r in RULES},
+               "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violation[1],  # type: ignore[index]
+                               "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
+                               "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
+                              for r in failed for c in verdicts[r][1]],
+               "gaps": [g._asdict() for g in seen.gaps], "verdict": verdict}
+        Path(ns.json).write_text(json.dumps(doc, indent=1) + "\n")
+    return 1 if failed else 0
+
+
+# ---------------------------------------------------------------- show
+def _line(rec: Any, first: int) -> str:
+    t = f"+{(rec.t_ns - first) / 1e9:.6f}s"
+    kind = type(rec)
+    if kind is StreamEvent:
+        if rec.event == "open":
+            return f"{t} conn {rec.conn} opened {_addr(rec.client)} -> {_addr(rec.backend)}"
+        return f"{t} conn {rec.conn} closed by the {rec.by} ({(rec.how or '').upper()})"
+    if kind is StreamGap:
+        return f"{t} conn {rec.conn} {rec.direction} GAP: {rec.reason}"
+    arrow = "client -> backend" if rec.direction == "tx" else "backend -> client"
+    what = rec.name or ("bytes" if rec.direction == "tx" else "?")
+    problem = f" [{rec.problem}]" if rec.problem else ""
+    return f"{t} conn {rec.conn} {arrow} {what} {len(rec.raw)} B: {rec.raw[:24].hex(' ')}" \
+           f"{' …' if len(rec.raw) > 24 else ''}{problem}"
+
+
+def run_show(ns: Any, out: TextIO | None = None) -> int:
+    """Each record a line as it is read (nothing kept but the chart's frames, up to
+    ``--max-rows``)."""
+    out = out or sys.stdout
+    lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
+    hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
+    rows = int(getattr(ns, "max_rows", 400) or 400)
+    out.write(f"{ns.file}: Nsqd capture\n")
+    shown: list[StreamFrame] = []
+    first: int | None = None
+    conns = 0
+    for rec in stream_records(ns.file):
+        if type(rec) is Truncated:
+            out.write(f"TRUNCATED: {rec.reason}\n")
+            continue
+        if type(rec) not in (StreamFrame, StreamEvent, StreamGap):
+            continue
+        first = rec.t_ns if first is None else first
+        conns = max(conns, rec.conn)
+        rel = (rec.t_ns - first) / 1e9
+        if (lo is not None and rel < lo) or (hi is not None and rel > hi):
+            continue
+        out.write(_line(rec, first) + "\n")
+        if type(rec) is StreamFrame and len(shown) < rows:
+            shown.append(rec)
+    out.write(f"{conns} connection(s)\n")
+    if getattr(ns, "svg", None):
+        from reports.stream_chart import stream_svg
+
+        Path(ns.svg).write_text(stream_svg(shown, title=str(ns.file)))
+    return 0
+
+
+# ---------------------------------------------------------------- diff
+def run_diff(args: Any, out: TextIO | None = None) -> int:
+    out = out or sys.stdout
+    g, c = _Conns(args.golden, steps=True).read(), _Conns(args.candidate, steps=True).read()
+    diffs: list[str] = []
+    if g.n_conns != c.n_conns:
+        diffs.append(f"connections: {g.n_conns} in the golden, {c.n_conns} in the candidate")
+    if max(g.n_conns, c.n_conns) > MAX_LISTED:
+        out.write(f"note: only the first {MAX_LISTED} connections of each are compared\n")
+    for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
+        ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
+        for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
+            if x != y:
+                diffs.append(f"conn {gn}/{cn} step {i + 1}: golden {x[0]} {x[1][:80]}; candidate {y[0]} {y[1][:80]}")
+                break
+        else:
+            if len(ga) != len(ca):
+                longer, which = (ga, "golden") if len(ga) > len(ca) else (ca, "candidate")
+                nxt = longer[min(len(ga), len(ca))]
+                diffs.append(f"conn {gn}/{cn}: only the {which} goes on: {nxt[0]} {nxt[1][:80]}")
+    for s in (g, c):
+        if s.truncated:
+            out.write(f"note: {s.path} is TRUNCATED: {s.truncated}\n")
+    if not diffs:
+        out.write(f"same: {g.n_conns} connection(s), the client's writes and the backend's answers alike\n")
+        return 0
+    out.write(f"different: {len(diffs)} divergence(s)\n")
+    for d in diffs[:50]:
+        out.write(f"  {d}\n")
+    if getattr(args, "json", None):
+        Path(args.json).write_text(json.dumps({"protocol": "nsqd", "same": False, "divergences": diffs}, indent=1) + "\n")
+    return 1
+
+
+# ---------------------------------------------------------------- export
+def run_export(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    out, err = out or sys.stdout, err or sys.stderr
+    truncated: list[str] = []
+
+    def records() -> Iterable[Any]:
+        for rec in stream_records(args.capture):
+            if type(rec) is Truncated:
+                truncated.append(rec.reason)
+            yield rec
+
+    try:
+        n = write_tcp_pcap(args.pcap, records(), BACKEND_PORT)
+    except OSError as exc:
+        err.write(f"mcp-capture export: cannot write {args.pcap}: {exc.strerror}\n")
+        return 2
+    note = f" (the capture is TRUNCATED: {truncated[0]})" if truncated else ""
+    out.write(f"wrote {n} TCP packets to {args.pcap}{note}\n")
+    return 0
+
+
+# ---------------------------------------------------------------- replay
+def is_finding(path: str) -> bool:
+    """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
+    from fuzz.stream_findings import load_stream_finding
+
+    try:
+        load_stream_finding(path)
+    except (ValueError, OSError):
+        return False
+    return True
+
+
+def run_replay(args: Any) -> int:
+    """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
+    reproduced, 0: it did not, 2: unreadable or no backend)."""
+    from fuzz.stream_campaign import replay_stream_finding
+    from harness.errors import SetupError
+
+    try:
+        return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
+    except SetupError as exc:
+        sys.stderr.write(f"mcp-capture replay: {exc}\n")
+        return 2

@@ -1,0 +1,116 @@
+"""An Nsqd finding's captures: ``repro.mcap`` and ``repro.pcap`` (issue 21 item 3).
+
+The last confirming replay of a finding runs with a :class:`TrafficLog` as its session's
+recorder, so both files hold that replay's traffic as it happened: each connection opened,
+every write of the fuzzer and every frame of the backend with its time, and each close with
+who closed and how (FIN or RST; a backend that died closes too). ``repro.mcap`` is the
+project's capture (``/nsqd/tx``, ``/nsqd/rx``, ``/nsqd/conn``, the finding's case marks)
+whose ``mcp-conform`` metadata record, recorder ``mcp-fuzz``, holds ``protocol: nsqd`` and
+the whole ``finding.json`` under ``finding``: :func:`load_stream_finding` reads it back from
+there as from ``finding-N/``. ``repro.pcap`` is the same traffic as TCP packets
+(``traceio.tcp_pcap``: handshake, sequence numbers, FIN/RST), which tshark's "Follow TCP
+stream" turns back into the input's bytes. ``mcp-capture replay`` of either (or of the
+directory) replays the finding as ``mcp-fuzz --protocol nsqd --replay`` does.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from spec import NSQD
+from traceio.reader import CaptureError, Metadata, StreamEvent, StreamFrame, open_capture
+from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
+from traceio.tcp_pcap import write_tcp_pcap
+
+__all__ = ["TrafficLog", "load_stream_finding", "write_stream_repro"]
+
+
+def _addr(a: Any) -> tuple[str, int] | None:
+    return (str(a[0]), int(a[1])) if isinstance(a, (tuple, list)) and len(a) >= 2 else None
+
+
+class TrafficLog:
+    """A session recorder (``Conn.recorder``) that keeps the stream records in memory."""
+
+    def __init__(self) -> None:
+        self.records: list[Any] = []
+        self.peers: dict[int, Any] = {}
+        self.done = False
+
+    def stream_frame(self, direction: str, raw: bytes, *, conn: int, peer: Any = None, problem: str | None = None,
+                     name: str | None = None, t_ns: int | None = None, **_: Any) -> None:
+        if not self.done:
+            self.records.append(StreamFrame(len(self.records), t_ns or time.time_ns(), direction, conn, name,
+                                            problem, bytes(raw)))
+
+    def stream_event(self, event: str, *, conn: int, peer: Any = None, local: Any = None, by: str | None = None,
+                     how: str | None = None, t_ns: int | None = None) -> None:
+        if not self.done:
+            self.records.append(StreamEvent(t_ns or time.time_ns(), event, conn, _addr(local), _addr(peer), by, how))
+
+    def case_mark(self, *a: Any, **kw: Any) -> None:
+        """(The session's case marks are not this log's: the finding writes its own.)"""
+
+
+def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None:
+    """``d/repro.mcap`` and ``d/repro.pcap`` of a finding (``doc``: its finding.json)."""
+    rule = str(doc.get("rule", ""))
+    order: dict[int, int] = {}  # the session's connection numbers, 1, 2, ... as they appear here
+    records = [r._replace(conn=order.setdefault(r.conn, len(order) + 1)) for r in records]
+    meta = run_metadata(FUZZ_RECORDER, protocol="nsqd", role="backend", rule=rule,
+                        description=doc.get("description"), finding=doc)
+    t0 = (records[0].t_ns - 1) if records else time.time_ns()
+    t_end = (max(r.t_ns for r in records) + 1) if records else t0 + 1
+    case = f"finding:{rule}"
+    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER, metadata=meta) as rec:
+        rec.case_mark(case, "start", t0, rules=(rule,))
+        for r in records:
+            if type(r) is StreamEvent:
+                rec.stream_event(r.event, conn=r.conn, peer=r.backend, local=r.client, by=r.by, how=r.how,
+                                 t_ns=r.t_ns)
+            else:
+                rec.stream_frame(r.direction, r.raw, conn=r.conn, peer=None, name=r.name, problem=r.problem,
+                                 msg_id=r.raw[4] if len(r.raw) > 4 and not r.problem else None, t_ns=r.t_ns)
+        rec.case_mark(case, "end", t_end, outcome="failed", rules=(rule,), evidence=doc.get("detail"))
+    write_tcp_pcap(d / "repro.pcap", records, NSQD.port("backend"))
+
+
+def load_stream_finding(path: str | Path) -> dict[str, Any]:
+    """An Nsqd finding's ``finding.json`` document, from ``finding-N/``, its finding.json,
+    its repro.mcap (the metadata record) or its repro.pcap (the finding.json beside it);
+    ValueError (one line) when it is none of those."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "finding.json"
+    try:
+        with open(p, "rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
+    if head[:4] in (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d") \
+            and (p.parent / "finding.json").is_file():  # a repro.pcap: its finding beside it
+        p, head = p.parent / "finding.json", b"{"
+    if head.startswith(b"\x89MCAP"):
+        try:
+            meta = next((r.data for r in open_capture(p) if type(r) is Metadata
+                         and r.data.get("recorder") == FUZZ_RECORDER), None)
+        except CaptureError as exc:
+            raise ValueError(str(exc)) from None
+        if meta is None or meta.get("protocol") != "nsqd" or "finding" not in meta:
+            raise ValueError(f"{str(p)!r} is not an Nsqd finding's repro.mcap")
+        text = meta["finding"]
+    else:
+        try:
+            text = p.read_text(errors="replace")
+        except OSError as exc:
+            raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"{str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
+    if not isinstance(doc, dict) or doc.get("protocol") != "nsqd":
+        raise ValueError(f"{str(p)!r} is not an Nsqd finding")
+    return doc

@@ -1,0 +1,100 @@
+"""One judge for Nsqd traffic (issue 21 item 4): the C backend of tests/nsqd_backends, faulty
+and correct, run live by ``mcp-conform --protocol nsqd --capture``; its capture checked
+offline (the MCAP, the MCAP exported as a pcap, and — where tcpdump may capture on loopback —
+tcpdump's own pcap of the same run) breaks exactly the rules the live run failed of those a
+capture shows (NSQD-FRM-1, NSQD-MSG-2), and the correct backend's breaks none."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.nsqd_backends.build import built_or_skip
+
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
+
+ROOT = Path(__file__).resolve().parents[2]
+RULES = ("NSQD-FRM-1", "NSQD-MSG-2")
+ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _tcpdump(path: Path, port: int) -> subprocess.Popen | None:
+    """tcpdump on loopback for ``port``, once it listens (None where it cannot run here)."""
+    exe = shutil.which("tcpdump")
+    if exe is None or os.geteuid() != 0:
+        return None
+    log = path.with_suffix(".log")
+    with open(log, "w") as err:
+        p = subprocess.Popen([exe, "-i", "lo", "--immediate-mode", "-U", "-w", str(path), "tcp", "port", str(port)],
+                             stdout=subprocess.DEVNULL, stderr=err)
+    end = time.monotonic() + 10
+    while "listening" not in log.read_text() and p.poll() is None and time.monotonic() < end:
+        time.sleep(0.05)
+    if "listening" not in log.read_text():
+        p.kill()
+        p.wait()
+        return None
+    return p
+
+
+def _failed(check: Path, tmp: Path) -> tuple[set[str], int]:
+    out = tmp / f"{check.name}.json"
+    run = subprocess.run([sys.executable, "-m", "captures", "check", str(check), "--json", str(out)],
+                         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+    assert run.returncode in (0, 1), run.stderr
+    doc = json.loads(out.read_text())
+    assert doc["protocol"] == "nsqd"
+    failed = {r for r, v in doc["rules"].items() if v == "failed"}
+    assert run.returncode == (1 if failed else 0)
+    return failed, len(doc["connections"])
+
+
+@pytest.mark.parametrize("fault", ["update-state-little-endian", "length-excludes-self", None])
+def test_live_and_offline_verdicts_agree(tmp_path, fault):
+    exe = built_or_skip()
+    port = _free_port()
+    backend = subprocess.Popen([str(exe), "--host", "127.0.0.1", "--port", str(port), "--update-period", "0.05",
+                                *(["--fault", fault] if fault else [])], stderr=subprocess.DEVNULL)
+    dump = _tcpdump(tmp_path / "tcpdump.pcap", port)
+    try:
+        time.sleep(0.2)
+        live = subprocess.run([sys.executable, "-m", "conformance", "--protocol", "nsqd", "--target", f"127.0.0.1:{port}",
+                               "--select", "NSQD-FRM", "--capture", str(tmp_path / "live.mcap"),
+                               "--json", str(tmp_path / "live.json")],
+                              capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300)
+    finally:
+        if dump is not None:
+            time.sleep(0.5)  # the last packets written (--immediate-mode, -U)
+            dump.send_signal(signal.SIGINT)
+            dump.wait(10)
+        backend.terminate()
+        backend.wait(10)
+    report = json.loads((tmp_path / "live.json").read_text())
+    live_failed = {r for r in RULES if report["rules"].get(r) == "failed"}
+    assert live_failed == ({"NSQD-MSG-2"} if fault == "update-state-little-endian"
+                           else {"NSQD-FRM-1"} if fault else set()), live.stdout[-2000:]
+    conns = report_conns = _failed(tmp_path / "live.mcap", tmp_path)
+    assert conns[0] == live_failed and conns[1] > 3
+    exported = subprocess.run([sys.executable, "-m", "captures", "export", str(tmp_path / "live.mcap"),
+                               "--pcap", str(tmp_path / "exported.pcap")], capture_output=True, text=True,
+                              env=ENV, cwd=ROOT, timeout=120)
+    assert exported.returncode == 0, exported.stderr
+    assert _failed(tmp_path / "exported.pcap", tmp_path) == report_conns
+    if dump is None:
+        pytest.skip("tcpdump cannot capture on loopback here: checked the MCAP and its pcap export only")
+    assert _failed(tmp_path / "tcpdump.pcap", tmp_path) == report_conns  # the same connections, the same verdicts

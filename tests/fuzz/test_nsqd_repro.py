@@ -1,0 +1,95 @@
+"""An Nsqd finding's repro.mcap and repro.pcap (issue 21 item 3), from a short seeded campaign
+against the C backend of tests/nsqd_backends (a negative string length it trusts, read past
+its heap buffer under AddressSanitizer): repro.mcap holds the whole finding (read back as
+finding.json is) and the confirming replay's traffic; repro.pcap is that traffic as a TCP
+conversation — handshake, the input, the dead backend's FIN — that tshark's "Follow TCP
+stream" turns back into the finding's input; ``mcp-capture replay`` of the directory, the
+MCAP or the pcap reproduces it against the faulty backend (exit 1) and not against the
+correct one (exit 0), as ``mcp-fuzz --protocol nsqd --replay`` does."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fuzz.stream_campaign import StreamCampaign
+from fuzz.stream_findings import load_stream_finding
+from tests.nsqd_backends.build import built_or_skip
+from traceio.reader import Metadata, StreamEvent, StreamFrame, open_capture
+from traceio.stream import stream_records
+
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+FAULT = "crash-on-negative-string"
+
+
+def _spawn(exe: Path, fault: str | None = None) -> str:
+    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
+
+
+@pytest.fixture(scope="module")
+def finding(tmp_path_factory) -> tuple[Path, Path]:
+    exe = built_or_skip()
+    out = tmp_path_factory.mktemp("nsqd-finding")
+    c = StreamCampaign(None, _spawn(exe, FAULT), 20140307, 90.0, None, out, stop_after=1)
+    c.run()
+    assert [f.signature.oracle for f in c.findings] == ["crash"]
+    return exe, out / "finding-1"
+
+
+def test_repro_mcap_holds_the_finding_and_its_traffic(finding):
+    _, d = finding
+    doc = json.loads((d / "finding.json").read_text())
+    assert load_stream_finding(d / "repro.mcap") == doc == load_stream_finding(d)
+    meta = [r for r in open_capture(d / "repro.mcap") if type(r) is Metadata]
+    assert meta[0].data["recorder"] == "mcp-fuzz" and meta[0].data["protocol"] == "nsqd"
+    recs = [r for r in stream_records(d / "repro.mcap") if type(r) in (StreamFrame, StreamEvent)]
+    sent = b"".join(r.raw for r in recs if type(r) is StreamFrame and r.direction == "tx")
+    assert sent == bytes.fromhex((d / "input.hex").read_text())
+    events = [(r.event, r.by) for r in recs if type(r) is StreamEvent]
+    assert events[0] == ("open", None) and ("close", "backend") in events  # the backend died: its socket closed
+
+
+def test_repro_pcap_is_a_tcp_conversation_tshark_follows_to_the_input(finding):
+    if shutil.which("tshark") is None:
+        pytest.skip("tshark is not installed (bash .ci/apt-tools)")
+    from tests.captures.tshark_follow import follow
+
+    _, d = finding
+    data = bytes.fromhex((d / "input.hex").read_text())
+    client, _server = follow(d / "repro.pcap", 0)
+    assert client == data
+    flags = subprocess.run(["tshark", "-r", str(d / "repro.pcap"), "-T", "fields", "-e", "tcp.flags.str"],
+                           capture_output=True, text=True, timeout=60).stdout.split("\n")
+    assert "S" in flags[0] and "S" in flags[1] and "A" in flags[1]  # SYN, SYN-ACK
+    assert any("F" in f for f in flags)  # the backend's FIN as its process exited
+    # our own reader agrees with tshark
+    recs = list(stream_records(d / "repro.pcap"))
+    assert b"".join(r.raw for r in recs if type(r) is StreamFrame and r.direction == "tx") == data
+
+
+@pytest.mark.parametrize("what", [".", "repro.mcap", "repro.pcap"])
+def test_mcp_capture_replay_reproduces_it_or_not(finding, what):
+    exe, d = finding
+    for spawn, want in ((_spawn(exe, FAULT), 1), (_spawn(exe), 0)):
+        run = subprocess.run([sys.executable, "-m", "captures", "replay", str(d / what), "--spawn", spawn],
+                             capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+        assert run.returncode == want, (spawn, run.stdout, run.stderr)
+        assert ("reproduced NSQD-ROB-1" if want else "did not reproduce") in run.stdout
+
+
+def test_replay_of_a_file_that_is_no_finding_is_one_line_exit_2(tmp_path):
+    bad = tmp_path / "finding-9"
+    bad.mkdir()
+    (bad / "finding.json").write_text('{"protocol": "nsqd"}')
+    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(bad)],
+                         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+    assert run.returncode == 2 and run.stdout.count("\n") == 1 and "Traceback" not in run.stderr, run
