@@ -10,7 +10,8 @@ The waypoint loader (every ``--waypoints`` option) returns items or raises
 
 ``mcp-fuzz --seeds`` (``fuzz.campaign.load_seeds``) likewise.
 
-The inputs: the golden captures and small pcap/pcapng/gzip files of MCP traffic, mutated by
+The inputs: the golden captures, small pcap/pcapng/gzip files of MCP traffic and a pcap of
+an Nsqd TCP conversation (read by the TCP reassembly and judged with the Nsqd rules), mutated by
 hypothesis (bytes flipped, cut, inserted, slices repeated or dropped), and plain random bytes.
 """
 
@@ -62,6 +63,24 @@ def _pcap_bytes(ng: bool) -> bytes:
         return path.read_bytes()
 
 
+def _nsqd_pcap_bytes() -> bytes:
+    """An Nsqd TCP conversation (handshake, frames both ways, a second connection, FIN) as
+    ``mcp-capture export`` writes it: read back by the TCP reassembly and the Nsqd judge."""
+    import tempfile
+
+    from tests.captures.test_nsqd_tcp import RPY, TAKEOFF, UP
+    from traceio.reader import StreamFrame
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    recs = [StreamFrame(0, 10**9, "tx", 5, "TAKEOFF", None, TAKEOFF),
+            StreamFrame(1, 10**9 + 10, "rx", 5, "UPDATE", None, UP[0]),
+            StreamFrame(2, 10**9 + 20, "tx", 6, None, None, RPY * 3),
+            StreamFrame(3, 10**9 + 30, "rx", 5, "UPDATE", None, UP[1])]
+    with tempfile.TemporaryDirectory() as d:
+        write_tcp_pcap(Path(d) / "n.pcap", recs, 8888)
+        return (Path(d) / "n.pcap").read_bytes()
+
+
 SEEDS: dict[str, tuple[str, bytes]] = {}
 
 
@@ -76,6 +95,8 @@ def seed(kind: str) -> tuple[str, bytes]:
             SEEDS[kind] = (".pcapng", _pcap_bytes(True))
         elif kind == "pcap.gz":
             SEEDS[kind] = (".pcap.gz", gzip.compress(_pcap_bytes(False)))
+        elif kind == "nsqd.pcap":
+            SEEDS[kind] = (".pcap", _nsqd_pcap_bytes())
         elif kind == "waypoints":
             SEEDS[kind] = (".waypoints", (GOLDEN / "mission.waypoints").read_bytes())
     return SEEDS[kind]
@@ -129,7 +150,7 @@ _SETTINGS = settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
                                             HealthCheck.data_too_large])
 
 
-@pytest.mark.parametrize("kind", ["mcap", "pcap", "pcapng", "pcap.gz"])
+@pytest.mark.parametrize("kind", ["mcap", "pcap", "pcapng", "pcap.gz", "nsqd.pcap"])
 @pytest.mark.parametrize("command", ["check", "show", "export", "diff"])
 def test_capture_readers_survive_mutated_files(kind: str, command: str, tmp_path: Path) -> None:
     suffix, data = seed(kind)
@@ -151,7 +172,7 @@ def test_capture_readers_survive_mutated_files(kind: str, command: str, tmp_path
 def test_the_seeds_are_read_cleanly(tmp_path: Path) -> None:
     """The unmutated seeds read with exit 0 or 1: the property above starts from files the
     readers accept, so its mutations reach past the first check."""
-    for kind in ("mcap", "pcap", "pcapng", "pcap.gz"):
+    for kind in ("mcap", "pcap", "pcapng", "pcap.gz", "nsqd.pcap"):
         suffix, data = seed(kind)
         path = tmp_path / f"seed{suffix}"
         path.write_bytes(data)
