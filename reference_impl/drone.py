@@ -51,6 +51,12 @@ _PORTS = SPEC.protocol["ports"]
 
 
 # ---------------------------------------------------------------------- application
+#: Deliveries the record lists one by one (a mission has a few dozen; mcp-soak checks them for
+#: exactly-once); past it they are counted: a flood of commands (a fuzz campaign, 10^6 on a bad
+#: link in bench/bench_soak.py) keeps the drone's memory flat.
+MAX_DELIVERIES = 10_000
+
+
 class DroneApp(MissionMessageHandlerBase):
     """The drone application's handlers: record each delivery, keep the mission data,
     and hand autopilot work to the :class:`AutopilotLink` worker (never blocking here)."""
@@ -61,7 +67,8 @@ class DroneApp(MissionMessageHandlerBase):
         self.log = log
         self.takeoff_alt = takeoff_alt
         self.counts: Counter[str] = Counter()
-        self.deliveries: list[tuple[str, int, int]] = []
+        self.deliveries: list[tuple[str, int, int]] = []  # the first MAX_DELIVERIES
+        self.deliveries_omitted = 0  # deliveries past MAX_DELIVERIES, counted only
         self.waypoints: tuple[Any, ...] = ()
         self.obstacles: tuple[Any, ...] = ()
         self.active: list[Any] = []
@@ -75,7 +82,10 @@ class DroneApp(MissionMessageHandlerBase):
         with self._lock:
             self.counts[name] += 1
             if msg is not None:
-                self.deliveries.append((name, msg.src, msg.seq))
+                if len(self.deliveries) < MAX_DELIVERIES:
+                    self.deliveries.append((name, msg.src, msg.seq))
+                else:
+                    self.deliveries_omitted += 1
         if self.ended.is_set():
             self.log.info("%s after End_Mission: not acted on", name)
             return False
@@ -300,6 +310,7 @@ class Drone(RoleNode):
             "outcome": self.outcome,
             "received": dict(app.counts) if app else {},
             "deliveries": [list(d) for d in app.deliveries] if app else [],
+            "deliveries_omitted": app.deliveries_omitted if app else 0,
             "waypoints": len(app.waypoints) if app else 0,
             "obstacles": len(app.obstacles) if app else 0,
             "active_waypoints": len(app.active) if app else 0,

@@ -286,6 +286,10 @@ def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challe
         if rec is None or not isinstance(rec.get("deliveries"), list):
             res.reasons.append(f"drone{i}: no delivery log ({out / f'{view_name(i)}.json'})")
             continue
+        if rec.get("deliveries_omitted"):
+            res.reasons.append(f"drone{i}: its delivery log lists only the first {len(rec['deliveries'])} "
+                               f"deliveries ({rec['deliveries_omitted']} more): exactly-once not checkable")
+            continue
         got = [_name(d[0]) for d in rec["deliveries"]]
         keys = [(d[1], d[2]) for d in rec["deliveries"]]
         twice = sorted({k for k in keys if keys.count(k) > 1})
