@@ -184,7 +184,7 @@ class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
-                 "tester", "bcast", "flags", "deliveries", "last_t", "addr")
+                 "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool) -> None:
@@ -203,6 +203,11 @@ class _Exchange:
         self.flags = 0  # bits: rules already reported on this exchange
         self.deliveries: tuple[tuple[int, int], ...] = ()  # (t_ns, copies seen by then) per forward
         self.addr: Any = None  # the source address of its first copy
+        #: an ACK from its destination naming nothing sent to it, read after the sender's last
+        #: command to that destination and before this message (MCP-RTX-2's input, like
+        #: ``wrong_ack``: a sender that takes any ACK from the destination takes it for this one)
+        self.stale_ack: tuple[int, int] | None = None
+        self.moved_on: tuple[int, int] | None = None  # a new unicast sent right after a wrong ACK
 
     @property
     def first(self) -> tuple[int, int]:

@@ -182,6 +182,7 @@ class ReceiverRules:
     def _maybe_wrong_ack(self, dst: int, src: int, named: int, i: int, t: int) -> None:
         """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
         message's destination, or its seq from another node (input of MCP-RTX-2)."""
+        self._unmatched_acks[(src, dst)] = (i, t)  # what a later message to src may take (stale_ack)
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
         if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:

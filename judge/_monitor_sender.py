@@ -85,12 +85,18 @@ class SenderRules:
         """A well-formed non-ACK message: a copy of a known one, or a new message."""
         key = src << 32 | dst << 16 | seq  # ints: cheap to hash, not tracked by the GC
         ex = self._ex.get(key)
+        pair = src << 16 | dst
+        last_to = self._last_to.get(pair)
+        self._last_to[pair] = t
         if ex is not None and t - ex.last_t <= self.horizon_ns:
             self._copy(ex, i, t, data, tester)
             return
         bcast = dst == self.broadcast_id
         ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
         ex.addr = addr
+        stale = self._unmatched_acks.get((dst, src)) if not bcast else None
+        if stale is not None and (last_to is None or stale[1] > last_to) and t - stale[1] <= self._ack_horizon:
+            ex.stale_ack = stale  # an ACK from dst already there, that nothing since answered
         self._ex[key] = ex
         self._by_seq[src << 16 | seq] = ex
         if bcast:
@@ -263,7 +269,40 @@ class SenderRules:
         est = median(g) if g else self.rto_ns
         if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
             return  # it may have given up (retry limit)
+        wrong = self._taken_ack(prev)
+        if wrong is not None:
+            # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
+            # since: the sender took it for ``prev``'s ACK (MCP-RTX-2), unless a copy of
+            # ``prev`` follows (then it does not wait at all: MCP-BLK-1, ``_copy``)
+            prev.moved_on = (i, t)
+            self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
+            return
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
+
+    @staticmethod
+    def _taken_ack(ex: _Exchange) -> tuple[int, int] | None:
+        """The ACK a sender may have taken for ``ex``'s: a wrong one (the wrong seq from its
+        destination, its seq from another node) read after its last copy, or an ACK from its
+        destination that was already there, with no copy of ``ex`` after its first."""
+        if ex.wrong_ack is not None and ex.wrong_ack[1] >= ex.last_t:
+            return ex.wrong_ack
+        if ex.stale_ack is not None and len(ex.copies) == 1:
+            return ex.stale_ack
+        return None
+
+    def _moved_on_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int], newer: _Exchange) -> None:
+        """MCP-RTX-2 (complete trace): a new unicast at once after a wrong ACK, and no copy of
+        the unACKed ``ex`` after it when its next one was due: the wrong ACK ended ``ex``'s
+        retransmission. A copy after the new unicast is MCP-BLK-1's (``_copy``)."""
+        if ex.last_t > newer.first[1] or ex.flags & F_RTX2:
+            return
+        ex.flags |= F_RTX2
+        right = [a for a in ex.acks if a[1] > newer.first[1]]
+        self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
+                   f"{ex.describe()} taken as ACKed by an ACK that does not name it: {newer.describe()} "
+                   f"sent {fmt_ms(newer.first[1] - wrong[1])} after that ACK, no copy of it since"
+                   + (f" (its right ACK came {fmt_ms(right[0][1] - wrong[1])} after the wrong one)" if right else ""),
+                   [ex.copies[-1], wrong, newer.first])
 
     def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
                        how: str) -> None:
@@ -289,7 +328,7 @@ class SenderRules:
         if now < due:
             self._timers.at(due, self._rtx_deadline, ex)
             return
-        if ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1]):
+        if ex.moved_on is not None or (ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1])):
             return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
         n = len(ex.copies)
         self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
@@ -299,6 +338,8 @@ class SenderRules:
     def _wrong_ack_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int]) -> None:
         """MCP-RTX-2 (complete trace): retransmission goes on after an ACK that names the
         wrong seq or comes from the wrong node."""
+        if ex.moved_on is not None:
+            return  # moved on at once after a wrong ACK: ``_moved_on_deadline`` judges it
         later = [c for c in ex.copies if c[1] > wrong[1]]
         newer = self._nodes[ex.src].last_unicast
         if ex.flags & F_SEQ2 and newer is not None and newer.first[1] > wrong[1]:
