@@ -184,7 +184,8 @@ class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
-                 "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on")
+                 "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
+                 "heard")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool) -> None:
@@ -208,6 +209,9 @@ class _Exchange:
         #: ``wrong_ack``: a sender that takes any ACK from the destination takes it for this one)
         self.stale_ack: tuple[int, int] | None = None
         self.moved_on: tuple[int, int] | None = None  # a new unicast sent right after a wrong ACK
+        #: copies before this one may have gone unheard: its receiver showed itself only later
+        #: (a node started after the message was first sent; MCP-ACK-1 counts from here)
+        self.heard = 0
 
     @property
     def first(self) -> tuple[int, int]:

@@ -51,7 +51,7 @@ SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
 DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 
 # bits of _Exchange.flags: a rule already reported on that exchange
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1 = (1 << k for k in range(9))
 _LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
 _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
 _ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
@@ -268,7 +268,9 @@ class SenderRules:
         g = gaps(prev.copies)
         est = median(g) if g else self.rto_ns
         if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
-            return  # it may have given up (retry limit)
+            if g and len(prev.copies) < MIN_COPIES:
+                self._gave_up(prev, ex, i, t)
+            return  # it gave up (retry limit)
         wrong = self._taken_ack(prev)
         if wrong is not None:
             # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
@@ -278,6 +280,18 @@ class SenderRules:
             self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
             return
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
+
+    def _gave_up(self, ex: _Exchange, newer: _Exchange, i: int, t: int) -> None:
+        """MCP-RTX-1 (complete trace): the sender moved on to a new unicast when the next copy
+        of the unACKed ``ex`` was due, after fewer copies than the rule asks for -- proven then,
+        however soon an ACK of ``ex`` comes after it."""
+        if ex.flags & (F_RTX1 | F_SEQ2):
+            return
+        ex.flags |= F_RTX1
+        n = len(ex.copies)
+        self._emit("MCP-RTX-1", ex.src, t, f"at least {MIN_COPIES} copies until it is ACKed",
+                   f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, then {newer.describe()} "
+                   f"{fmt_ms(t - ex.last_t)} after the last: it gave up", [*ex.copies[:MIN_COPIES], (i, t)])
 
     @staticmethod
     def _taken_ack(ex: _Exchange) -> tuple[int, int] | None:
@@ -319,6 +333,8 @@ class SenderRules:
     def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
         """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
         its retransmissions were due."""
+        if ex.flags & F_RTX1:
+            return  # reported when it gave up (``_gave_up``)
         if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
             self._nodes[ex.src].seen.add("MCP-RTX-1")
             return  # (retransmitted under new numbers: MCP-SEQ-2's)
@@ -508,6 +524,9 @@ class SenderRules:
         if action == MR and ex.src != MANAGER:
             node = self._nodes[ex.src] if ex.src in self._nodes else self._node(ex.src)
             prev = node.ready_ex
+            if ex.tester and prev is not None and node.start is not None:
+                return  # the harness's fresh Mission_Ready of a drone it plays, its mission under
+                # way (a liveness probe of mcp-conform --role manager): no restart of that drone
             if prev is None or prev.acks or not self._complete_for(node.id, MANAGER):
                 _new_mission(node)
                 node.ready = ex.first

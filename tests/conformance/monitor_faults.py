@@ -263,6 +263,23 @@ def rtx2_takes_a_stale_ack() -> Script:
     return s
 
 
+def rtx1_gives_up_then_acked() -> Script:
+    """A manager that sends Start_Mission twice, then moves on to the next drone when the
+    third copy was due; the ACK of the first comes (late) after that: it gave up all the same
+    (MCP-RTX-1, as the case judges it: two copies while the ACK was withheld)."""
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    s.tick(s.rto)
+    s.raw(0, data, to=1)
+    s.tick(s.rto)
+    s.exchange(0, 2, Action.START_MISSION, **kw)  # the next drone, when the next copy was due
+    s.tick(0.2)
+    s.ack(1, 0, seq, origin=TESTER)  # drone 1's ACK, late
+    s.tick(0.05)
+    return _manager_finishes(s, kw)
+
+
 def rtx3() -> Script:
     s = _started()
     s.exchange(0, 1, Action.WP_OFF, deaf=3, gaps=[0.2, 0.2, 0.5])  # one gap 2.5x the others
@@ -501,8 +518,9 @@ def flow1() -> Script:
 
 def ack1_manager() -> Script:
     s = Script((1, 2))
-    s.ready(1, deaf=8)  # the manager ignores drone 1's Mission_Ready for 8 copies
-    s.ready(2)
+    s.ready(2)  # the manager is up: it ACKs drone 2's Mission_Ready
+    s.ready(1, deaf=8)  # ... then ignores drone 1's for 8 copies (before a node's first
+    # datagram, copies may go unheard: a node started late, not one that ignores them)
     for d in s.drones:
         s.start(d)
     return _finish(s)
@@ -623,6 +641,7 @@ FAULTY: dict[str, Fault] = {
     "seq1-skips": Fault("MCP-SEQ-1", seq1),
     "seq2-copy-differs": Fault("MCP-SEQ-2", seq2, complete=False),
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
+    "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
     "rtx2-manager-moves-on-after-a-wrong-ack": Fault("MCP-RTX-2", rtx2_moves_on),
     "rtx2-manager-takes-a-stale-ack": Fault("MCP-RTX-2", rtx2_takes_a_stale_ack),
