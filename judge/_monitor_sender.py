@@ -612,6 +612,10 @@ class SenderRules:
             del self._ack_seq[k]
         for k in [k for k, e in self._to_seq.items() if e.last_t < old]:
             del self._to_seq[k]
+        for k in [k for k, e in self._last_to.items() if e < old]:
+            del self._last_to[k]
+        for k in [k for k, e in self._unmatched_acks.items() if e[1] < old]:
+            del self._unmatched_acks[k]
         for index in (self._pt, self._pt_to):
             dead = []
             for k, lst in index.items():
