@@ -130,6 +130,7 @@ def test_a_manager_that_sends_nothing_never_answered():
 CORRECT_MANAGERS = [
     ("unicasts-to-the-broadcast-address", {"send_to": "{broadcast}:{listen_port}"}, ()),
     ("acks-from-another-socket", {}, ("--ack-socket", "other")),
+    ("acks-to-the-source-address", {}, ("--ack-to", "source")),
 ]
 
 
