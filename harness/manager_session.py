@@ -168,10 +168,10 @@ class ManagerSession(SessionBase):
         # runner's), one mission at a time: each scenario starts a fresh manager, and its
         # mission is a session of the capture of its own, complete (the runner plays every
         # drone: its socket is party to every exchange of the mission), judged so offline too
-        self.observe_run(target, MANAGER_ID, complete=True, judge=False)
+        self.observe_run(target, MANAGER_ID, complete=self.trace_complete, judge=False)
         self.monitor = SessionMonitors(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                                        broadcast_id=self.cfg.broadcast_id, node_id=MANAGER_ID,
-                                       node_addr=target, complete=True)
+                                       node_addr=target, complete=self.trace_complete)
         self.monitor.listen = self.driver.listen
         self.driver.add_observer(self.monitor.observe)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
@@ -306,8 +306,9 @@ class ManagerSession(SessionBase):
         begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
         if begin is not None and address is not None:
             with contextlib.suppress(Exception):
+                complete = "true" if self.trace_complete else "false"
                 begin(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
-                                              "complete": "true"})])
+                                              "complete": complete})])
 
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:

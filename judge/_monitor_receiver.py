@@ -39,7 +39,8 @@ from judge._monitor_base import (
     gaps,
     median,
 )
-from judge._monitor_sender import F_ACK1, F_FAULTY, _entry_t
+from judge._monitor_rtx import F_ACK1, F_FAULTY
+from judge._monitor_sender import _entry_t
 
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
