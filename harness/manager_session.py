@@ -41,7 +41,7 @@ from harness.session_base import (
     fill_placeholders,
     free_udp_port,
 )
-from judge.run_monitor import SessionMonitors
+from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from spec import SPEC
 from spec.codec import MissionItem
 from traceio.recorder import NODE_METADATA
@@ -171,12 +171,18 @@ class ManagerSession(SessionBase):
         self.observe_run(target, MANAGER_ID, complete=self.trace_complete, judge=False)
         self.monitor = SessionMonitors(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                                        broadcast_id=self.cfg.broadcast_id, node_id=MANAGER_ID,
-                                       node_addr=target, complete=self.trace_complete)
+                                       node_addr=target, complete=self.trace_complete,
+                                       challenge=cfg.challenge, waypoints=self._handed_items())
         self.monitor.listen = self.driver.listen
         self.driver.add_observer(self.monitor.observe)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"
+
+    def _handed_items(self) -> tuple[Any, ...] | None:
+        """What the manager was handed to send (MCP-FLOW-4/5/6): the obstacles for challenge
+        3, else the waypoints (None: unknown, attach mode without --waypoints)."""
+        return self.obstacles if self.cfg.challenge == 3 else self.waypoints
 
     def _mission_files(self) -> None:
         from spec.mission import WaypointFileError, load_waypoints, save_waypoints
@@ -308,7 +314,8 @@ class ManagerSession(SessionBase):
             with contextlib.suppress(Exception):
                 complete = "true" if self.trace_complete else "false"
                 begin(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
-                                              "complete": complete})])
+                                              "complete": complete}),
+                             (MISSION_METADATA, mission_metadata(self.cfg.challenge, self._handed_items()))])
 
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:

@@ -271,6 +271,8 @@ class SenderRules(RetransmissionRules):
         if (src, dst, seq, action) in self._malformed_seen:
             return  # a retransmission of the same malformed message: reported once
         self._malformed_seen.add((src, dst, seq, action))
+        if src == MANAGER and action in _LIST_FLOW:
+            self._malformed_lists.add((dst, action))  # sent, if malformed: not missing (MCP-FLOW-4/6)
         self._emit(prule, src, t, f"a {action_name(action)} payload as the spec lays it out",
                    f"{action_name(action)} seq {seq} to ID {dst}: {why}", [(i, t)])
 
@@ -337,7 +339,7 @@ class SenderRules(RetransmissionRules):
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
             self._observe(MANAGER, rule)
-            if want not in d.lists and d.start is not None:
+            if want not in d.lists and d.start is not None and (d.id, want) not in self._malformed_lists:
                 self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(want)}",
                            f"End_Mission to drone {d.id} without any {action_name(want)}",
                            [d.start.first, (i, t)])

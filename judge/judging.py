@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from judge.run_monitor import from_node
+from judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
 from traceio.merge import SEGMENT
@@ -53,7 +53,7 @@ class Params:
     broadcast_id: int = BROADCAST_ID
     drones: tuple[int, ...] | None = None
     challenge: int | None = None
-    challenge_source: str = "given"  # given | inferred | unknown
+    challenge_source: str = "given"  # given | recorded (the run's, from the capture) | inferred | unknown
     challenge_note: str = ""
     waypoints: tuple[Any, ...] | None = None
     waypoints_file: str | None = None
@@ -79,6 +79,18 @@ class Params:
             self.broadcast_id = v
             taken.append("broadcast_id")
         self.from_capture = tuple(taken)
+
+    def adopt_mission(self, challenge: int | None, items: tuple[Any, ...] | None) -> None:
+        """The challenge and the items the run's manager was handed (a manager-role session's
+        record), where the user gave none: what the run's monitor judged MCP-FLOW-4/5/6 by."""
+        taken = []
+        if challenge is not None and "challenge" not in self.given and self.challenge is None:
+            self.challenge, self.challenge_source = challenge, "recorded"
+            taken.append("challenge")
+        if items is not None and self.waypoints is None:
+            self.waypoints = items
+            taken.append("waypoints")
+        self.from_capture = (*self.from_capture, *taken)
 
     def to_json(self) -> dict[str, Any]:
         return {"from_capture": list(self.from_capture), "rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
@@ -399,6 +411,8 @@ class _Session:
                 self.recorded_complete = rec.data["complete"] == "true"
             with contextlib.suppress(KeyError, ValueError):  # complete for what it took part in
                 self.party = int(rec.data["node_id"])
+        elif rec.name == MISSION_METADATA and self.mon is None:  # the mission, as the run's monitor knew it
+            self.params.adopt_mission(*recorded_mission(rec.data))
         elif rec.name == NODE_METADATA and self.drone is None:  # the node under test, as the run knew it
             self.drone, self.node_addr = _recorded_node(rec)
             if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it

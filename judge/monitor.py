@@ -161,6 +161,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._items: dict[tuple[int, bytes], Any] = {}  # decoded item payloads by bytes
         self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
         self._malformed_seen: set[tuple[int, int, int, int]] = set()
+        self._malformed_lists: set[tuple[int, int]] = set()  # (drone, action): a list sent malformed
         self._acked_addrs: dict[tuple[int, int], set[Any]] = {}  # (src, dst) -> addresses ACKed from
         self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing

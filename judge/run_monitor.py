@@ -15,6 +15,7 @@ all feed it. The report's ``monitor`` section is :meth:`RunMonitor.to_json`.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import threading
 import time
@@ -28,7 +29,8 @@ from judge.monitor import (
     events_from_vehicle,
 )
 
-__all__ = ["LINK_KINDS", "REORDER_NS", "RunMonitor", "SessionMonitors", "from_node", "link_events", "violation_json"]
+__all__ = ["LINK_KINDS", "MISSION_METADATA", "REORDER_NS", "RunMonitor", "SessionMonitors", "from_node",
+           "link_events", "mission_metadata", "recorded_mission", "violation_json"]
 
 #: The vehicle's events the run's monitor judges by (the link, the fix coming and going); the
 #: frames on the link come through ``events_from_mavlink``. The capture records the same ones.
@@ -69,9 +71,9 @@ class RunMonitor:
 
     def __init__(self, *, rto: float, ack_window: float, broadcast_id: int, node_id: int | None,
                  node_addr: tuple[str, int] | None, complete: bool = True,
-                 drones: Any = None, challenge: int | None = None) -> None:
+                 drones: Any = None, challenge: int | None = None, waypoints: Any = None) -> None:
         self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id,
-                               drones=drones, challenge=challenge, complete=complete)
+                               drones=drones, challenge=challenge, waypoints=waypoints, complete=complete)
         self.node_id = node_id
         self.node_addr = node_addr
         self.listen: tuple[str, int] | None = None
@@ -171,6 +173,41 @@ class RunMonitor:
                 "violations": [violation_json(v) for v in m.violations],
                 "rules": {str(k): v for k, v in m.verdicts().items()},
             }
+
+
+#: The metadata record of a session's mission as the run's monitor judged it: the challenge
+#: and the items the manager was handed (waypoints; obstacles for challenge 3), so that
+#: ``mcp-capture check`` judges MCP-FLOW-4/5/6 with them as the run did.
+MISSION_METADATA = "mcp-conform mission"
+
+
+def mission_metadata(challenge: int, items: Any) -> dict[str, str]:
+    """``MISSION_METADATA``'s values: the challenge, and each item's fields (JSON)."""
+    import json
+
+    out = {"challenge": str(challenge)}
+    if items is not None:
+        out["items"] = json.dumps([list(it) for it in items])
+    return out
+
+
+def recorded_mission(values: dict[str, str]) -> tuple[int | None, tuple[Any, ...] | None]:
+    """(challenge, items) of a ``MISSION_METADATA`` record; None for what is unusable."""
+    import json
+
+    from spec.codec import MissionItem
+
+    challenge: int | None = None
+    with contextlib.suppress(ValueError):
+        challenge = int(values.get("challenge", ""))
+    if challenge not in (1, 2, 3):
+        challenge = None
+    items = None
+    with contextlib.suppress(ValueError, TypeError, RecursionError):
+        got = json.loads(values["items"]) if "items" in values else None
+        if isinstance(got, list) and all(isinstance(it, list) and len(it) == len(MissionItem._fields) for it in got):
+            items = tuple(MissionItem._make(it) for it in got)
+    return challenge, items
 
 
 #: How a node's verdicts of several sessions merge: the worst wins (``judge.judging``'s).

@@ -9,11 +9,12 @@ an End_Mission: false MCP-SEQ-1, MCP-BLK-2, MCP-BLK-6)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from judge.judging import Params, judge
 from judge.monitor import TESTER
-from judge.run_monitor import SessionMonitors
+from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from spec.codec import Action
 from tests.conformance.monitor_faults import rtx2_moves_on
 from tests.conformance.monitor_scripts import Script
@@ -25,8 +26,10 @@ from traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
 RUNNER, MANAGER = ("127.0.0.1", 41001), ("127.0.0.1", 41002)
 
 
-def _clean(seed: int) -> Script:
-    s = Script((1, 2), vehicle=False, seed=seed)
+def _clean(seed: int, sent: tuple | None = None) -> Script:
+    """A clean mission of a manager and the runner's drones 1 and 2; ``sent``: the items the
+    manager's WP_Lists carry (default: the mission's)."""
+    s = Script((1, 2), vehicle=False, seed=seed, **({"waypoints": sent} if sent is not None else {}))
     for d in s.drones:
         s.exchange(d, 0, Action.MISSION_READY, origin=TESTER)
         s.tick(0.02)
@@ -41,14 +44,16 @@ def _clean(seed: int) -> Script:
     return s
 
 
-def _record(path: Path, missions: dict[str, Script], *, sessions: bool = True) -> SessionMonitors:
+def _record(path: Path, missions: dict[str, Script], *, sessions: bool = True,
+            handed: tuple | None = None) -> SessionMonitors:
     """Record the missions one after the other as the manager role's runner does (the
     manager's datagrams received, the drones' sent, from the runner's one socket) and feed
     the same to a live monitor; returns it, finished."""
     rec = McapRecorder(path, metadata=run_metadata("mcp-conform", role="manager",
                                                    parameters={"rto": 0.2, "ack_window": 0.25}), local=RUNNER)
+    mission = handed is not None  # the challenge-1 items the runner handed the manager, recorded
     live = SessionMonitors(rto=0.2, ack_window=0.25, broadcast_id=0xFFFF, node_id=0, node_addr=MANAGER,
-                           complete=True)
+                           complete=True, **({"challenge": 1, "waypoints": handed} if mission else {}))
     live.listen = RUNNER
     node = {"id": 0, "address": f"{MANAGER[0]}:{MANAGER[1]}", "complete": "true"}
     if not sessions:
@@ -58,7 +63,8 @@ def _record(path: Path, missions: dict[str, Script], *, sessions: bool = True) -
     for name, s in missions.items():
         if sessions:
             live.begin(name)
-            rec.begin_segment(name, [(NODE_METADATA, node)])
+            rec.begin_segment(name, [(NODE_METADATA, node)]
+                              + ([(MISSION_METADATA, mission_metadata(1, handed))] if mission else []))
         records = sorted(s.datagrams(), key=lambda r: r.t_ns)
         shift = t - records[0].t_ns
         for r in records:
@@ -116,3 +122,26 @@ def test_an_xdist_merge_keeps_each_workers_missions_apart(tmp_path):
     assert all(s.params.complete for s in j.segments.values())  # the worker's run metadata holds
     assert sorted((v.rule, v.node) for v in j.violations) == \
         sorted((v["rule"], v["node"]) for v in a["violations"] + b["violations"]) == [("MCP-RTX-2", 0)]
+
+
+def test_the_mission_a_session_records_is_what_check_judges_its_lists_by(tmp_path):
+    """The challenge and the items the manager was handed, recorded with each session: the
+    live monitor and ``check`` compare the WP_List with them alike (a reversed list fails
+    MCP-FLOW-4 in both); ``--challenge`` given by the user still wins."""
+    from captures.check import to_json, validate_json
+    from tests.conformance.monitor_scripts import WAYPOINTS
+
+    wrong = tuple(reversed(WAYPOINTS))  # the manager sends the file's items reversed
+    cap = tmp_path / "run.mcap"
+    missions = {"main": _clean(6, wrong), "silent": _clean(7, wrong)}
+    live = _record(cap, missions, handed=WAYPOINTS).to_json()
+    assert {v["rule"] for v in live["violations"]} == {"MCP-FLOW-4"}, live["violations"]
+    for complete in (False, True):
+        j = judge(cap, Params(complete=complete))
+        assert verdict_differences(live["rules"], j.verdicts) == []
+        assert j.verdicts[0]["MCP-FLOW-4"] == "failed"
+        assert j.params.challenge == 1 and j.params.challenge_source == "recorded"
+        assert set(j.params.from_capture) >= {"rto", "ack_window", "challenge", "waypoints"}
+        validate_json(json.loads(json.dumps(to_json(j, {}))))
+    given = judge(cap, Params(challenge=2, given=frozenset({"challenge"})))
+    assert given.params.challenge == 2 and "MCP-FLOW-4" not in {v.rule for v in given.violations}

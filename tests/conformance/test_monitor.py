@@ -93,6 +93,28 @@ def test_faulty_missions_cover_every_rule_group():
 
 
 # ---------------------------------------------------------------- what the trace proves
+def test_a_list_sent_malformed_is_its_payload_rules_not_a_missing_list():
+    """One fault, one rule: an Obstacles_List whose count is little-endian is MCP-PAY-3's; the
+    End_Mission after it is not "End_Mission without any Obstacles_List" (MCP-FLOW-6)."""
+    import struct
+
+    from spec.codec import ITEM, build_datagram
+    from tests.conformance.monitor_faults import _runner_drones
+
+    s = Script((1,), vehicle=False, challenge=3)
+    kw = _runner_drones(s)
+    s.exchange(0, 1, Action.START_MISSION, **kw)
+    s.tick(0.01)
+    payload = struct.pack("<H", len(s.items)) + b"".join(ITEM.pack(*it) for it in s.items)
+    seq = s.next_seq(0)
+    s.raw(0, build_datagram(1, 0, seq, int(Action.OBSTACLES_LIST), payload), to=1)
+    s.tick(0.004)
+    s.ack(1, 0, seq, origin=TESTER)
+    s.tick(0.01)
+    s.exchange(0, 1, Action.END_MISSION, **kw)
+    assert {v.rule for v in s.judge()} == {"MCP-PAY-3"}
+
+
 @pytest.mark.parametrize("unheard", [0, 8])
 def test_copies_sent_before_a_late_starting_node_showed_itself_went_unheard(unheard):
     """A manager started by the runner may not listen yet while the runner retransmits the
