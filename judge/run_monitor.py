@@ -252,12 +252,11 @@ class SessionMonitors:
             self.current.finish(self._last.get(self._name))
 
     def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
-        with self._lock:
-            mon, name = self.current, self._name
-            if name is not None:
+        with self._lock:  # (held: a datagram goes to the session current when it was observed)
+            name = self._name
+            if name is not None and self.current is not None:
                 self._last[name] = max(self._last.get(name, t_ns), t_ns)
-        if mon is not None:
-            mon.observe(direction, data, addr, t_ns)
+                self.current.observe(direction, data, addr, t_ns)
 
     def mark(self, t_ns: int) -> None:
         """A record of the current session that is not a datagram (a case mark)."""
