@@ -74,7 +74,10 @@ def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_pa
     assert [n.id for n in j.nodes.values()] == [n["id"] for n in live["nodes"]] == [1]
 
 
-@pytest.mark.parametrize("fault", ["wrong-seq-ack", None], ids=["wrong-seq-ack", "reference-manager"])
+MERGED_MANAGERS = ["wrong-seq-ack", "no-ready-ack", "le-count", None]
+
+
+@pytest.mark.parametrize("fault", MERGED_MANAGERS, ids=[f or "reference-manager" for f in MERGED_MANAGERS])
 def test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts(tmp_path, fault):
     """The manager role under ``pytest -n 2``: each worker starts its own manager for each
     mission; each mission is a session of the worker's capture (``main``, ``silent``), and
@@ -90,9 +93,10 @@ def test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdict
 
     pytest.importorskip("xdist")
     spawn = sample_manager_command(*(("--fault", fault) if fault else ()))
-    rule = dict((f, r) for f, r, _ in MANAGER_FAULTS).get(fault)
+    rule, challenge = next(((r, c) for f, r, c in MANAGER_FAULTS if f == fault), (None, 1))
     cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases_manager",
-           "-n", "2", "--mcp-role", "manager", "--mcp-spawn", spawn, "--mcp-rto", FAST[1],
+           "-n", "2", "--mcp-role", "manager", "--mcp-spawn", spawn, "--mcp-challenge", str(challenge),
+           "--mcp-rto", FAST[1],
            "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
     proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
                           env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
