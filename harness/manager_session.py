@@ -15,6 +15,12 @@ while one that goes on with the mission without ACKing the drones' Mission_Ready
 on what it did (MCP-ACK-1 fails). Other scenarios run when the first case that needs them
 does. In attach mode the manager is already
 running and only its one mission can be observed: the other scenarios are SKIPPED.
+
+Each scenario's mission is a session of its own, of the run's trace monitor
+(``judge.run_monitor.SessionMonitors``) and of the capture (``McapRecorder.begin_segment``,
+with the node's record and the mission the manager was handed), judged as a complete trace:
+the runner plays every drone, so its socket is party to every exchange. ``mcp-capture check``
+judges the capture's sessions the same way.
 """
 
 from __future__ import annotations
