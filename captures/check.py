@@ -38,7 +38,8 @@ from traceio.trace import evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
-SCHEMA_VERSION = "1.2"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures)
+SCHEMA_VERSION = "1.3"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures); 1.3: the
+# challenge and waypoints recorded by a manager-role run (challenge_source "recorded")
 EXAMPLES = 3  # violations shown in full per rule; the rest are counted (all of them in --json)
 NODE_ROWS = 30  # rows of the terminal's nodes table at most (a noisy capture's random IDs)
 NODE_COLUMNS = 6  # node columns of the terminal's rules table at most

@@ -43,8 +43,9 @@ def register(sub: Any) -> None:
     p.add_argument("--case", metavar="ID", help="only the traffic of this conformance case (MCAP captures)")
     p.add_argument("--svg", metavar="OUT", help="write the window's message-sequence chart as SVG")
     p.add_argument("--max-rows", metavar="N", default="400", help="rows of the chart at most (default 400)")
-    p.add_argument("--segment", metavar="NAME", help="a capture merged from pytest-xdist workers: only this "
-                   "worker's session (each is listed and charted apart; the chart is the first's by default)")
+    p.add_argument("--segment", metavar="NAME", help="a capture of several sessions (merged from pytest-xdist "
+                   "workers: gw0 ...; a manager-role run's missions: main, silent): only this session (each "
+                   "is listed and charted apart; the chart is the first's by default)")
     add_monitor_options(p)
     p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
                    help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
@@ -146,7 +147,7 @@ def _sessions(j: Judgement, only: str | None) -> list[tuple[str | None, Judgemen
     item 7: one chart drew two workers' drones as one) -- or the one ``--segment`` names."""
     if not j.segments:
         if only is not None:
-            raise UsageError(f"--segment: {j.path} holds one session (it is not merged from workers)")
+            raise UsageError(f"--segment: {j.path} holds one session (not merged from workers, no missions of its own)")
         return [(None, j)]
     if only is not None:
         if only not in j.segments:

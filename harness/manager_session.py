@@ -15,6 +15,12 @@ while one that goes on with the mission without ACKing the drones' Mission_Ready
 on what it did (MCP-ACK-1 fails). Other scenarios run when the first case that needs them
 does. In attach mode the manager is already
 running and only its one mission can be observed: the other scenarios are SKIPPED.
+
+Each scenario's mission is a session of its own, of the run's trace monitor
+(``judge.run_monitor.SessionMonitors``) and of the capture (``McapRecorder.begin_segment``,
+with the node's record and the mission the manager was handed), judged as a complete trace:
+the runner plays every drone, so its socket is party to every exchange. ``mcp-capture check``
+judges the capture's sessions the same way.
 """
 
 from __future__ import annotations
@@ -41,9 +47,10 @@ from harness.session_base import (
     fill_placeholders,
     free_udp_port,
 )
-from judge.run_monitor import RunMonitor
+from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from spec import SPEC
 from spec.codec import MissionItem
+from traceio.recorder import NODE_METADATA
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
@@ -111,7 +118,7 @@ class ManagerSession(SessionBase):
         self.obstacles_path = ""
         self.waypoints: tuple[Any, ...] | None = None
         self.obstacles: tuple[Any, ...] | None = None
-        self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
+        self.monitor: SessionMonitors | None = None  # the trace monitor, one session per mission
 
     # ------------------------------------------------------------------ facts
     @property
@@ -163,12 +170,25 @@ class ManagerSession(SessionBase):
         except OSError as exc:
             raise SetupError(str(exc)) from None
         self.driver.alive = self.alive
-        # the trace monitor judges the manager's traffic (the drones are the runner's); judged
-        # as a lossy trace: the cases restart the manager and replay missions
-        self.monitor = self.observe_run(target, MANAGER_ID, complete=False)
+        # the capture; the trace monitor judges the manager's traffic (the drones are the
+        # runner's), one mission at a time: each scenario starts a fresh manager, and its
+        # mission is a session of the capture of its own, complete (the runner plays every
+        # drone: its socket is party to every exchange of the mission), judged so offline too
+        self.observe_run(target, MANAGER_ID, complete=self.trace_complete, judge=False)
+        self.monitor = SessionMonitors(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
+                                       broadcast_id=self.cfg.broadcast_id, node_id=MANAGER_ID,
+                                       node_addr=target, complete=self.trace_complete,
+                                       challenge=cfg.challenge, waypoints=self._handed_items())
+        self.monitor.listen = self.driver.listen
+        self.driver.add_observer(self.monitor.observe)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"
+
+    def _handed_items(self) -> tuple[Any, ...] | None:
+        """What the manager was handed to send (MCP-FLOW-4/5/6): the obstacles for challenge
+        3, else the waypoints (None: unknown, attach mode without --waypoints)."""
+        return self.obstacles if self.cfg.challenge == 3 else self.waypoints
 
     def _mission_files(self) -> None:
         from spec.mission import WaypointFileError, load_waypoints, save_waypoints
@@ -252,6 +272,7 @@ class ManagerSession(SessionBase):
             self.unavailable[kind] = why
             raise Inconclusive(why)
         assert self.driver is not None and self.players is not None
+        self._begin_session(kind)
         if self.spawned:
             self._spawn()
         m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
@@ -287,6 +308,21 @@ class ManagerSession(SessionBase):
         self.missions[kind] = m
         return m
 
+    def _begin_session(self, kind: str) -> None:
+        """Scenario ``kind``'s mission is a session of the capture and of the run's monitor
+        of its own (``McapRecorder.begin_segment``, :class:`SessionMonitors`), named by the
+        scenario, with the node under test's record (complete: the runner plays every drone)."""
+        if self.monitor is not None:
+            self.monitor.begin(kind)
+        address = getattr(self, "node_address", None)
+        begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
+        if begin is not None and address is not None:
+            with contextlib.suppress(Exception):
+                complete = "true" if self.trace_complete else "false"
+                begin(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
+                                              "complete": complete}),
+                             (MISSION_METADATA, mission_metadata(self.cfg.challenge, self._handed_items()))])
+
     # ------------------------------------------------------------------ case API
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
         """Start a case: the runner's case context (``make_context``, set by the runner to
@@ -295,9 +331,13 @@ class ManagerSession(SessionBase):
             raise TargetLost(self.lost)
         ctx = self.context_factory()(self, case_id, rules)
         self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        if self.monitor is not None:
+            self.monitor.mark(ctx.start_ns)
         return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
+        if self.monitor is not None:
+            self.monitor.mark(ctx.end_ns)
         self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
                         evidence=getattr(ctx, "evidence", None))

@@ -184,7 +184,8 @@ class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
-                 "tester", "bcast", "flags", "deliveries", "last_t", "addr")
+                 "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
+                 "heard")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool) -> None:
@@ -203,6 +204,14 @@ class _Exchange:
         self.flags = 0  # bits: rules already reported on this exchange
         self.deliveries: tuple[tuple[int, int], ...] = ()  # (t_ns, copies seen by then) per forward
         self.addr: Any = None  # the source address of its first copy
+        #: an ACK from its destination naming nothing sent to it, read after the sender's last
+        #: command to that destination and before this message (MCP-RTX-2's input, like
+        #: ``wrong_ack``: a sender that takes any ACK from the destination takes it for this one)
+        self.stale_ack: tuple[int, int] | None = None
+        self.moved_on: tuple[int, int] | None = None  # a new unicast sent right after a wrong ACK
+        #: copies before this one may have gone unheard: its receiver showed itself only later
+        #: (a node started after the message was first sent; MCP-ACK-1 counts from here)
+        self.heard = 0
 
     @property
     def first(self) -> tuple[int, int]:

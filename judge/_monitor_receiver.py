@@ -39,7 +39,8 @@ from judge._monitor_base import (
     gaps,
     median,
 )
-from judge._monitor_sender import F_ACK1, F_FAULTY, _entry_t
+from judge._monitor_rtx import F_ACK1, F_FAULTY
+from judge._monitor_sender import _entry_t
 
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
@@ -182,6 +183,7 @@ class ReceiverRules:
     def _maybe_wrong_ack(self, dst: int, src: int, named: int, i: int, t: int) -> None:
         """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
         message's destination, or its seq from another node (input of MCP-RTX-2)."""
+        self._unmatched_acks[(src, dst)] = (i, t)  # what a later message to src may take (stale_ack)
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
         if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:
@@ -200,10 +202,21 @@ class ReceiverRules:
         if not self._complete_for(ex.src, ex.dst) or ex.bcast:
             return
         if not ex.acks:
-            if len(ex.copies) == MAX_ACK_COPIES:
+            if len(ex.copies) - ex.heard == MAX_ACK_COPIES:
                 self._timers.at(t + self.window_ns, self._ack_deadline, ex, None)
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
             self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._ack_deadline, ex, (i, t))
+
+    def _ack_rearm(self, now: int, ex: _Exchange) -> None:
+        """``ex``'s receiver showed itself only at ``now``, after ``ex``'s ACK-1 deadline: it
+        may not have been running yet (a node started after the message was first sent), so
+        the copies before ``now`` but the last went unheard; MCP-ACK-1 counts the copies from
+        the last of them (as it would have for a message first sent then)."""
+        if ex.acks:
+            return
+        ex.heard = max(0, len(ex.copies_before(now)) - 1)
+        if len(ex.copies) - ex.heard >= MAX_ACK_COPIES:
+            self._timers.at(ex.copies[ex.heard + MAX_ACK_COPIES - 1][1] + self.window_ns, self._ack_deadline, ex, None)
 
     def _receiving(self, node: _Node, ex: _Exchange) -> bool:
         """D-6: a drone receives between its Mission_Ready and the ACK of its End_Mission and
@@ -218,7 +231,7 @@ class ReceiverRules:
         node = self._nodes.get(ex.dst)
         if node is None or not node.real:
             if ex.dst not in self._tester_ids:  # judged once it shows it is a node, not the harness
-                self._on_real.setdefault(ex.dst, []).append((self._ack_deadline, (ex, copy)))
+                self._on_real.setdefault(ex.dst, []).append((self._ack_rearm, (ex,)))
             return
         if not self._receiving(node, ex):
             return
@@ -244,8 +257,10 @@ class ReceiverRules:
                 return
             # a Mission_Ready the manager never ACKs is MCP-ACK-1's too, as the manager-role
             # case judges it (one judge); MCP-FLOW-2 judges the Start_Mission that follows
+            heard = ex.copies[ex.heard:]
             self._emit("MCP-ACK-1", node.id, now, f"an ACK of {ex.describe()} within {MAX_ACK_COPIES} copies",
-                       f"no ACK of {len(ex.copies)} copies", ex.copies[:MAX_ACK_COPIES])
+                       f"no ACK of {len(heard)} copies" + (f" (and {ex.heard} before the node showed itself)"
+                                                           if ex.heard else ""), heard[:MAX_ACK_COPIES])
             return
         if any(a[1] >= copy[1] for a in ex.acks):
             return

@@ -15,7 +15,6 @@ from judge._monitor_base import (
     DRONE_SENDS,
     END,
     HDR,
-    JITTER_NS,
     MANAGER,
     MANAGER_SENDS,
     MIN_COPIES,
@@ -25,7 +24,6 @@ from judge._monitor_base import (
     PASSTHROUGH,
     PAYLOAD_RULE,
     RTX_MIN_GAP_NS,
-    RTX_TOLERANCE,
     START,
     WP_LIST,
     WP_OFF,
@@ -34,24 +32,15 @@ from judge._monitor_base import (
     _Node,
     action_name,
     fmt_ms,
-    fmt_s,
-    gaps,
-    median,
     pack_item,
 )
+from judge._monitor_rtx import F_FAULTY, F_INTERLEAVE, F_RTX3, F_RTX4, F_STORM, RetransmissionRules
 from spec import SPEC
 
 #: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
 #: node's datagrams to different peers reach a recorder's sockets in an order of the host's
 #: choosing, so the ACK that took the number before a message may be read just after it
 SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
-#: The description's retransmission timeout: a lone copy's next one is not overdue before it
-#: even when the assumed --rto is shorter (issue 18 item 10: a correct node retransmitting every
-#: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
-DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
-
-# bits of _Exchange.flags: a rule already reported on that exchange
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY = (1 << k for k in range(8))
 _LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
 _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
 _ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
@@ -71,7 +60,7 @@ def _file_fields(item: bytes) -> bytes:
     """A packed item without its target_system / target_component bytes."""
     return item[:_TARGETS.start] + item[_TARGETS.stop:]
 
-class SenderRules:
+class SenderRules(RetransmissionRules):
     """Mixin of :class:`judge.monitor.Monitor`: sender-side judgement."""
 
     # ------------------------------------------------------------------ bookkeeping
@@ -85,12 +74,18 @@ class SenderRules:
         """A well-formed non-ACK message: a copy of a known one, or a new message."""
         key = src << 32 | dst << 16 | seq  # ints: cheap to hash, not tracked by the GC
         ex = self._ex.get(key)
+        pair = src << 16 | dst
+        last_to = self._last_to.get(pair)
+        self._last_to[pair] = t
         if ex is not None and t - ex.last_t <= self.horizon_ns:
             self._copy(ex, i, t, data, tester)
             return
         bcast = dst == self.broadcast_id
         ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
         ex.addr = addr
+        stale = self._unmatched_acks.get((dst, src)) if not bcast else None
+        if stale is not None and (last_to is None or stale[1] > last_to) and t - stale[1] <= self._ack_horizon:
+            ex.stale_ack = stale  # an ACK from dst already there, that nothing since answered
         self._ex[key] = ex
         self._by_seq[src << 16 | seq] = ex
         if bcast:
@@ -242,86 +237,6 @@ class SenderRules:
             node.seq_gap = None
             self._emit(*gap[3])
 
-    def _check_stop_and_wait(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
-        """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
-        awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
-        copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
-        if (prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]
-                and (len(prev.copies) < MIN_COPIES or prev.flags & F_SEQ2)):
-            # the same message again, unACKed, before a sender that retries could have given
-            # up: a retransmission under a new number
-            chained = prev.flags & F_SEQ2
-            prev.flags |= F_SEQ2
-            ex.flags |= F_SEQ2
-            if chained:
-                return  # the same renumbered retransmission, reported at its first copy
-            self._emit("MCP-SEQ-2", node.id, t, "a retransmission repeats the original's sequence number",
-                       f"{ex.describe()} repeats unACKed seq {prev.seq} with a new number",
-                       [prev.copies[-1], (i, t)])
-            return
-        g = gaps(prev.copies)
-        est = median(g) if g else self.rto_ns
-        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
-            return  # it may have given up (retry limit)
-        self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
-
-    def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
-                       how: str) -> None:
-        if pending.flags & F_SEQ2:
-            return
-        if pending.action == START and pending.dst == newer.dst and pending.src == MANAGER:
-            self._emit("MCP-BLK-3", MANAGER, t, "no further command to that drone until Start_Mission is ACKed",
-                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
-        else:
-            self._emit("MCP-BLK-1", pending.src, t,
-                       "no new unicast message while one awaits its ACK (stop-and-wait)",
-                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
-
-    def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
-        """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
-        its retransmissions were due."""
-        if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
-            self._nodes[ex.src].seen.add("MCP-RTX-1")
-            return  # (retransmitted under new numbers: MCP-SEQ-2's)
-        g = gaps(ex.copies)
-        est = median(g) if g else max(self.rto_ns, DESCRIPTION_TIMEOUT_NS)
-        due = ex.last_t + 3 * est // 2 + self.window_ns
-        if now < due:
-            self._timers.at(due, self._rtx_deadline, ex)
-            return
-        if ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1]):
-            return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
-        n = len(ex.copies)
-        self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
-                   f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, "
-                   f"none for {fmt_s(now - ex.last_t)}", ex.copies[:MIN_COPIES])
-
-    def _wrong_ack_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int]) -> None:
-        """MCP-RTX-2 (complete trace): retransmission goes on after an ACK that names the
-        wrong seq or comes from the wrong node."""
-        later = [c for c in ex.copies if c[1] > wrong[1]]
-        newer = self._nodes[ex.src].last_unicast
-        if ex.flags & F_SEQ2 and newer is not None and newer.first[1] > wrong[1]:
-            later.append(newer.first)  # it went on, under new numbers (MCP-SEQ-2's fault)
-        right = [a for a in ex.acks if a[1] > wrong[1]]
-        if later:
-            self._observe(ex.src, "MCP-RTX-2")
-            return
-        if right or ex.flags & F_RTX2 or self._stopped_before(ex, wrong[1]):
-            return  # the right ACK came before the next copy was due (inconclusive), or it
-            # had stopped before the wrong ACK came (MCP-RTX-1's)
-        ex.flags |= F_RTX2
-        self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
-                   f"{ex.describe()} not retransmitted for {fmt_s(now - wrong[1])} after a wrong ACK",
-                   [ex.copies[-1], wrong])
-
-    def _stopped_before(self, ex: _Exchange, t: int) -> bool:
-        """Whether ``ex``'s next copy was already overdue at ``t``."""
-        before = [c for c in ex.copies if c[1] <= t]
-        g = gaps(before)
-        est = median(g) if g else self.rto_ns
-        return t - before[-1][1] > 3 * est // 2 + 3 * JITTER_NS
-
     def _finish_sender(self, end: int) -> None:
         if self._complete_for(MANAGER):
             self._finish_blk2(end)
@@ -329,24 +244,6 @@ class SenderRules:
             for ex in self._ex.values():
                 if not ex.tester and not ex.bcast and not ex.acks and len(ex.copies) >= 3:
                     self._judge_spacing(ex, ex.copies, end)
-
-    def _judge_spacing(self, ex: _Exchange, copies: list[tuple[int, int]], t: int) -> None:
-        """MCP-RTX-3 (complete trace): every gap within ±20 % of the median (plus the spec's
-        timestamp jitter) and none under 50 ms."""
-        g = gaps(copies)
-        if len(g) < 2 or ex.flags & (F_RTX3 | F_STORM):
-            return
-        self._observe(ex.src, "MCP-RTX-3")
-        med = median(g)
-        allowance = RTX_TOLERANCE * med + JITTER_NS
-        bad = [x for x in g if abs(x - med) > allowance or x < RTX_MIN_GAP_NS]
-        if bad:
-            ex.flags |= F_RTX3
-            self._emit("MCP-RTX-3", ex.src, t,
-                       f"every gap within ±{RTX_TOLERANCE:.0%} of the median gap and none under "
-                       f"{fmt_ms(RTX_MIN_GAP_NS)}",
-                       f"{ex.describe()}: median {fmt_ms(med)}, outliers "
-                       + ", ".join(fmt_ms(x) for x in bad), copies)
 
     # ------------------------------------------------------------------ malformed
     def _malformed(self, i: int, t: int, src: int, dst: int, seq: int, action: int, rule: str,
@@ -374,6 +271,8 @@ class SenderRules:
         if (src, dst, seq, action) in self._malformed_seen:
             return  # a retransmission of the same malformed message: reported once
         self._malformed_seen.add((src, dst, seq, action))
+        if src == MANAGER and action in _LIST_FLOW:
+            self._malformed_lists.add((dst, action))  # sent, if malformed: not missing (MCP-FLOW-4/6)
         self._emit(prule, src, t, f"a {action_name(action)} payload as the spec lays it out",
                    f"{action_name(action)} seq {seq} to ID {dst}: {why}", [(i, t)])
 
@@ -440,7 +339,7 @@ class SenderRules:
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
             self._observe(MANAGER, rule)
-            if want not in d.lists and d.start is not None:
+            if want not in d.lists and d.start is not None and (d.id, want) not in self._malformed_lists:
                 self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(want)}",
                            f"End_Mission to drone {d.id} without any {action_name(want)}",
                            [d.start.first, (i, t)])
@@ -467,6 +366,9 @@ class SenderRules:
         if action == MR and ex.src != MANAGER:
             node = self._nodes[ex.src] if ex.src in self._nodes else self._node(ex.src)
             prev = node.ready_ex
+            if ex.tester and prev is not None and node.start is not None:
+                return  # the harness's fresh Mission_Ready of a drone it plays, its mission under
+                # way (a liveness probe of mcp-conform --role manager): no restart of that drone
             if prev is None or prev.acks or not self._complete_for(node.id, MANAGER):
                 _new_mission(node)
                 node.ready = ex.first
@@ -552,6 +454,10 @@ class SenderRules:
             del self._ack_seq[k]
         for k in [k for k, e in self._to_seq.items() if e.last_t < old]:
             del self._to_seq[k]
+        for k in [k for k, e in self._last_to.items() if e < old]:
+            del self._last_to[k]
+        for k in [k for k, e in self._unmatched_acks.items() if e[1] < old]:
+            del self._unmatched_acks[k]
         for index in (self._pt, self._pt_to):
             dead = []
             for k, lst in index.items():

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from judge.run_monitor import from_node
+from judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
 from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
 from traceio.files import UsageError
 from traceio.merge import SEGMENT
@@ -53,7 +53,7 @@ class Params:
     broadcast_id: int = BROADCAST_ID
     drones: tuple[int, ...] | None = None
     challenge: int | None = None
-    challenge_source: str = "given"  # given | inferred | unknown
+    challenge_source: str = "given"  # given | recorded (the run's, from the capture) | inferred | unknown
     challenge_note: str = ""
     waypoints: tuple[Any, ...] | None = None
     waypoints_file: str | None = None
@@ -79,6 +79,18 @@ class Params:
             self.broadcast_id = v
             taken.append("broadcast_id")
         self.from_capture = tuple(taken)
+
+    def adopt_mission(self, challenge: int | None, items: tuple[Any, ...] | None) -> None:
+        """The challenge and the items the run's manager was handed (a manager-role session's
+        record), where the user gave none: what the run's monitor judged MCP-FLOW-4/5/6 by."""
+        taken = []
+        if challenge is not None and "challenge" not in self.given and self.challenge is None:
+            self.challenge, self.challenge_source = challenge, "recorded"
+            taken.append("challenge")
+        if items is not None and self.waypoints is None:
+            self.waypoints = items
+            taken.append("waypoints")
+        self.from_capture = (*self.from_capture, *taken)
 
     def to_json(self) -> dict[str, Any]:
         return {"from_capture": list(self.from_capture), "rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
@@ -262,7 +274,10 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     worker, each against its own node with its own runner: each segment is judged on its
     own, by its own monitor, as that worker's run monitor judged it (its node, its runner's
     ID and address, its parameters); ``Judgement.segments`` holds each, and the judgement of
-    the file is theirs merged per node (:func:`merge_segments`)."""
+    the file is theirs merged per node (:func:`merge_segments`). So does a run that restarts
+    its node for each fresh mission (``mcp-conform --role manager``): each mission is a session
+    (``McapRecorder.begin_segment``; under xdist ``gw0/main``), complete on its own; the
+    run's metadata holds for every session, a session's for it and those within it."""
     cap = open_capture(path)  # unreadable files fail here, before any judging
     sessions: dict[str | None, _Session] = {}
     meta: list[Metadata] = []
@@ -272,14 +287,17 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
         if got is None:
             got = sessions[seg] = _Session(cap.format, params if seg is None else replace(params), keep,
                                            monitor if seg is None else _fresh(monitor))
+            for rec in meta:  # the run's records so far that hold for this session
+                if _holds_for(rec, seg):
+                    got.metadata(rec)
         return got
 
     for rec in cap:
         if isinstance(rec, Metadata):
             meta.append(rec)
-            seg = rec.data.get(SEGMENT)
-            if seg is not None or not cap.segments:
-                session(seg).metadata(rec)
+            for seg, s in sessions.items():
+                if _holds_for(rec, seg):
+                    s.metadata(rec)
         elif isinstance(rec, (Datagram, MavlinkFrame, VehicleMark, CaseMark)):
             session(rec.segment).record(rec)
     if not sessions:
@@ -294,6 +312,14 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
     params.__dict__.update(out.params.__dict__)
     out.params = params
     return out
+
+
+def _holds_for(rec: Metadata, seg: str | None) -> bool:
+    """Whether a metadata record holds for session ``seg``: a record of no session holds
+    for every one (the run's), a session's for it and the sessions within it (``gw0`` for
+    ``gw0/main``: a worker's run whose missions are sessions, ``traceio.merge.nested``)."""
+    own = rec.data.get(SEGMENT)
+    return own is None or (seg is not None and (seg == own or seg.startswith(own + "/")))
 
 
 #: How a node's verdicts of several segments merge: the worst wins (as the merged report's
@@ -329,8 +355,8 @@ def merge_segments(path: str, cap: Any, parts: dict[str, Judgement], meta: list[
     evidence = {i: d for j in parts.values() for i, d in j.evidence.items()}
     cases = sorted((c for j in parts.values() for c in j.cases), key=lambda c: c.t_ns)
     params = replace(first.params)
-    notes = list(cap.notes) + [f"{len(parts)} sessions merged from pytest-xdist workers "
-                               f"({', '.join(parts)}): each judged on its own, verdicts merged per node"]
+    notes = list(cap.notes) + [f"{len(parts)} sessions ({', '.join(parts)}: pytest-xdist workers, or missions "
+                               "of a run that restarts its node): each judged on its own, verdicts merged per node"]
     return Judgement(path, cap.format, params, dict(sorted(nodes.items())), violations,
                      dict(sorted(verdicts.items())), sum(j.datagrams for j in parts.values()),
                      min(firsts) if firsts else None, max(lasts) if lasts else None, cap.truncated,
@@ -385,6 +411,8 @@ class _Session:
                 self.recorded_complete = rec.data["complete"] == "true"
             with contextlib.suppress(KeyError, ValueError):  # complete for what it took part in
                 self.party = int(rec.data["node_id"])
+        elif rec.name == MISSION_METADATA and self.mon is None:  # the mission, as the run's monitor knew it
+            self.params.adopt_mission(*recorded_mission(rec.data))
         elif rec.name == NODE_METADATA and self.drone is None:  # the node under test, as the run knew it
             self.drone, self.node_addr = _recorded_node(rec)
             if rec.data.get("complete") in ("true", "false"):  # as the run's monitor judged it

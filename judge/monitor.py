@@ -161,11 +161,17 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._items: dict[tuple[int, bytes], Any] = {}  # decoded item payloads by bytes
         self._on_real: dict[int, list[Any]] = {}  # judgements waiting for a node to show itself
         self._malformed_seen: set[tuple[int, int, int, int]] = set()
+        self._malformed_lists: set[tuple[int, int]] = set()  # (drone, action): a list sent malformed
         self._acked_addrs: dict[tuple[int, int], set[Any]] = {}  # (src, dst) -> addresses ACKed from
         self._acks_to: set[int] = set()  # IDs an ACK was addressed to (MCP-ACK-6 observed)
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing
         #: it was sent: a copy whose ACK-1 deadline finds one after it was ACKed wrongly (ACK-2)
         self._stray_acks: dict[tuple[int, int], tuple[int, int, int]] = {}
+        #: src << 16 | dst -> when src last sent dst a (non-ACK) message, any copy
+        self._last_to: dict[int, int] = {}
+        #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it
+        #: (the harness's too: MCP-RTX-2's deliberate wrong ACKs), for ``stale_ack``
+        self._unmatched_acks: dict[tuple[int, int], tuple[int, int]] = {}
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
         self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
         self._rob_dsts: dict[str, set[int]] = {r: set() for r in ("MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4")}

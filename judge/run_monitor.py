@@ -15,6 +15,7 @@ all feed it. The report's ``monitor`` section is :meth:`RunMonitor.to_json`.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import threading
 import time
@@ -28,7 +29,8 @@ from judge.monitor import (
     events_from_vehicle,
 )
 
-__all__ = ["LINK_KINDS", "REORDER_NS", "RunMonitor", "from_node", "link_events", "violation_json"]
+__all__ = ["LINK_KINDS", "MISSION_METADATA", "REORDER_NS", "RunMonitor", "SessionMonitors", "from_node",
+           "link_events", "mission_metadata", "recorded_mission", "violation_json"]
 
 #: The vehicle's events the run's monitor judges by (the link, the fix coming and going); the
 #: frames on the link come through ``events_from_mavlink``. The capture records the same ones.
@@ -69,9 +71,9 @@ class RunMonitor:
 
     def __init__(self, *, rto: float, ack_window: float, broadcast_id: int, node_id: int | None,
                  node_addr: tuple[str, int] | None, complete: bool = True,
-                 drones: Any = None, challenge: int | None = None) -> None:
+                 drones: Any = None, challenge: int | None = None, waypoints: Any = None) -> None:
         self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id,
-                               drones=drones, challenge=challenge, complete=complete)
+                               drones=drones, challenge=challenge, waypoints=waypoints, complete=complete)
         self.node_id = node_id
         self.node_addr = node_addr
         self.listen: tuple[str, int] | None = None
@@ -171,3 +173,139 @@ class RunMonitor:
                 "violations": [violation_json(v) for v in m.violations],
                 "rules": {str(k): v for k, v in m.verdicts().items()},
             }
+
+
+#: The metadata record of a session's mission as the run's monitor judged it: the challenge
+#: and the items the manager was handed (waypoints; obstacles for challenge 3), so that
+#: ``mcp-capture check`` judges MCP-FLOW-4/5/6 with them as the run did.
+MISSION_METADATA = "mcp-conform mission"
+
+
+def mission_metadata(challenge: int, items: Any) -> dict[str, str]:
+    """``MISSION_METADATA``'s values: the challenge, and each item's fields (JSON)."""
+    import json
+
+    out = {"challenge": str(challenge)}
+    if items is not None:
+        out["items"] = json.dumps([list(it) for it in items])
+    return out
+
+
+def recorded_mission(values: dict[str, str]) -> tuple[int | None, tuple[Any, ...] | None]:
+    """(challenge, items) of a ``MISSION_METADATA`` record; None for what is unusable."""
+    import json
+
+    from spec.codec import MissionItem
+
+    challenge: int | None = None
+    with contextlib.suppress(ValueError):
+        challenge = int(values.get("challenge", ""))
+    if challenge not in (1, 2, 3):
+        challenge = None
+    items = None
+    with contextlib.suppress(ValueError, TypeError, RecursionError):
+        got = json.loads(values["items"]) if "items" in values else None
+        if isinstance(got, list) and all(isinstance(it, list) and len(it) == len(MissionItem._fields) for it in got):
+            items = tuple(MissionItem._make(it) for it in got)
+    return challenge, items
+
+
+#: How a node's verdicts of several sessions merge: the worst wins (``judge.judging``'s).
+_RANK = {"not_observed": 0, "info": 1, "passed": 2, "warned": 3, "failed": 4}
+
+
+class SessionMonitors:
+    """One :class:`RunMonitor` per session of a run whose node is restarted for each fresh
+    mission (``mcp-conform --role manager``: a manager runs one mission and is done), with
+    :class:`RunMonitor`'s interface. Each session is judged on its own, complete (the runner's
+    socket saw every datagram of it), as ``mcp-capture check`` judges the capture's sessions
+    (``McapRecorder.begin_segment``); the report's section is theirs merged per node, worst
+    verdict first, as the judgement of the file is (``judge.judging.merge_segments``).
+
+    A session's monitor is finished where the capture's session ends: at its last record (a
+    datagram, or a case mark: :meth:`mark`)."""
+
+    def __init__(self, **kw: Any) -> None:
+        self._kw = kw
+        self.parts: dict[str, RunMonitor] = {}
+        self.current: RunMonitor | None = None
+        self.listen: tuple[str, int] | None = None
+        self._last: dict[str, int] = {}
+        self._name: str | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def node_id(self) -> int | None:
+        return self._kw.get("node_id")
+
+    def begin(self, name: str) -> None:
+        """Session ``name`` starts (the one before it is finished at its last record)."""
+        with self._lock:
+            self._finish_current()
+            mon = RunMonitor(**self._kw)
+            mon.listen = self.listen
+            self.parts[name] = self.current = mon
+            self._name = name
+
+    def _finish_current(self) -> None:
+        if self.current is not None and self._name is not None:
+            self.current.finish(self._last.get(self._name))
+
+    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+        with self._lock:  # (held: a datagram goes to the session current when it was observed)
+            name = self._name
+            if name is not None and self.current is not None:
+                self._last[name] = max(self._last.get(name, t_ns), t_ns)
+                self.current.observe(direction, data, addr, t_ns)
+
+    def mark(self, t_ns: int) -> None:
+        """A record of the current session that is not a datagram (a case mark)."""
+        with self._lock:
+            if self._name is not None:
+                self._last[self._name] = max(self._last.get(self._name, t_ns), t_ns)
+
+    def finish(self, t_ns: int | None = None) -> None:
+        with self._lock:
+            self._finish_current()
+
+    def verdicts(self) -> dict[int, dict[str, str]]:
+        out: dict[int, dict[str, str]] = {}
+        for mon in list(self.parts.values()):
+            for node, table in mon.verdicts().items():
+                merged = out.setdefault(node, {})
+                for rule, verdict in table.items():
+                    if _RANK.get(verdict, 0) >= _RANK.get(merged.get(rule, "not_observed"), 0):
+                        merged[rule] = verdict
+        return dict(sorted(out.items()))
+
+    def violations(self, rule: str | None = None, node: int | None = None) -> list[Violation]:
+        return [v for mon in list(self.parts.values()) for v in mon.violations(rule, node)]
+
+    def verdict(self, node: int, rule: str) -> str:
+        return self.verdicts().get(node, {}).get(rule, "not_observed")
+
+    @property
+    def errors(self) -> int:
+        return sum(m.errors for m in self.parts.values())
+
+    def to_json(self) -> dict[str, Any]:
+        """The report's ``monitor`` section: the sessions' merged (datagram indexes of the
+        evidence count over the whole run, in session order)."""
+        sections = [(m.to_json(), m) for m in list(self.parts.values())]
+        nodes: dict[int, dict[str, Any]] = {}
+        violations: list[dict[str, Any]] = []
+        base = 0
+        for sec, _ in sections:
+            for n in sec["nodes"]:
+                have = nodes.get(n["id"])
+                if have is None:
+                    nodes[n["id"]] = dict(n)
+                else:
+                    have["datagrams"] += n["datagrams"]
+                    have["addresses"] = sorted({*have["addresses"], *n["addresses"]})
+            for v in sec["violations"]:
+                violations.append({**v, "evidence": [{**e, "index": e["index"] + base} for e in v["evidence"]]})
+            base += sec["datagrams"]
+        return {"complete": all(sec["complete"] for sec, _ in sections) if sections else True,
+                "datagrams": base, "nodes": [nodes[k] for k in sorted(nodes)], "violations": violations,
+                "rules": {str(k): v for k, v in self.verdicts().items()}}

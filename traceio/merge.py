@@ -23,7 +23,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-__all__ = ["LIBRARY", "SEGMENT", "merge_captures", "segment_name"]
+__all__ = ["LIBRARY", "SEGMENT", "merge_captures", "nested", "segment_name"]
 
 
 SEGMENT = "segment"  # the channel and metadata key naming a part's session
@@ -34,6 +34,13 @@ def segment_name(path: Path) -> str:
     """``run.gw0.mcap`` -> ``gw0`` (the part's worker), else the file's stem."""
     parts = path.name.split(".")
     return parts[-2] if len(parts) >= 3 else path.stem
+
+
+def nested(part: str, inner: str | None) -> str:
+    """The segment of a part's session in the merged file: the part's name, and the session
+    the part itself holds, if any (``gw0/main``: a worker's run whose missions are sessions,
+    ``traceio.recorder.McapRecorder.begin_segment``)."""
+    return part if not inner else f"{part}/{inner}"
 
 
 def _metadata(path: Path) -> list[tuple[str, dict[str, str]]]:
@@ -80,10 +87,10 @@ def merge_captures(parts: Sequence[str | Path], out: str | Path, *, remove_parts
         writer.start(profile="mcp-conform", library="mcp-conform (merged from pytest-xdist workers)")
         for path, name in zip(paths, names, strict=True):  # first: a reader knows the runs
             for md_name, values in _metadata(path):
-                writer.add_metadata(md_name, {**values, SEGMENT: name})
+                writer.add_metadata(md_name, {**values, SEGMENT: nested(name, values.get(SEGMENT))})
         writer.add_metadata("xdist", {"parts": ", ".join(p.name for p in paths)})
         schemas: dict[tuple[str, str], int] = {}
-        channels: dict[tuple[int, str], int] = {}
+        channels: dict[tuple[int, int], int] = {}
         for _t, part, _n, schema, channel, message in heapq.merge(*streams, key=lambda r: r[:3]):
             sid = 0
             if schema is not None:
@@ -91,11 +98,12 @@ def merge_captures(parts: Sequence[str | Path], out: str | Path, *, remove_parts
                 if skey not in schemas:
                     schemas[skey] = writer.register_schema(schema.name, schema.encoding, schema.data)
                 sid = schemas[skey]
-            ckey = (part, channel.topic)
+            ckey = (part, channel.id)  # a part's sessions have channels of the same topics
             if ckey not in channels:
                 channels[ckey] = writer.register_channel(
                     channel.topic, channel.message_encoding, sid,
-                    {**dict(channel.metadata), SEGMENT: names[part], LIBRARY: libraries[part]})
+                    {**dict(channel.metadata), SEGMENT: nested(names[part], channel.metadata.get(SEGMENT)),
+                     LIBRARY: libraries[part]})
             writer.add_message(channels[ckey], message.log_time, message.data,
                                message.publish_time, sequence=count)
             count += 1

@@ -52,6 +52,7 @@ from mcap.writer import CompressionType, Writer
 
 from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
 from traceio import fox
+from traceio.merge import SEGMENT
 
 __all__ = [
     "CHANNELS",
@@ -380,15 +381,34 @@ class McapRecorder:
         if metadata:
             self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
         self._channels: dict[str, int] = {}
-        schemas: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._register_channels({})
+        self.segment: str | None = None
+        self._seq = 0
+        _LIVE.add(self)
+
+    def _register_channels(self, metadata: Mapping[str, str]) -> None:
+        schemas = self._schemas
         for topic, (name, schema) in {**CHANNELS, **self._fox}.items():
             if name not in schemas:
                 schemas[name] = self._writer.register_schema(
                     name=name, encoding="jsonschema", data=json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schemas[name])
-        self._seq = 0
-        _LIVE.add(self)
+                topic=topic, message_encoding="json", schema_id=schemas[name], metadata=dict(metadata))
+
+    def begin_segment(self, name: str, metadata: Iterable[tuple[str, Mapping[str, Any]]] = ()) -> None:
+        """From now on every record belongs to session ``name`` of the file (its channels
+        carry ``segment: name``, as a merged capture's workers' do: ``traceio.merge``), and
+        so do the ``metadata`` records given (name, values): a reader gives each session
+        apart and the judge judges each on its own (a run that restarts its node for a fresh
+        mission: each mission is a session). Streams opened later (``/nsqd``) stay unsegmented."""
+        with self._lock:
+            if self._closed:
+                return
+            self._register_channels({SEGMENT: name})
+            self.segment = name
+            for md_name, values in metadata:
+                self._writer.add_metadata(md_name, {**{str(k): str(v) for k, v in values.items()}, SEGMENT: name})
 
     # ------------------------------------------------------------------ writing
     @property
@@ -521,10 +541,12 @@ class McapRecorder:
             self.log(text, _OUTCOME_LEVEL.get(outcome or "", "info"), "case", t)
 
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
-        """A further MCAP metadata record (string values)."""
+        """A further MCAP metadata record (string values), of the current session
+        (:meth:`begin_segment`) if any."""
         with self._lock:
             if not self._closed:
-                self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
+                seg = {SEGMENT: self.segment} if self.segment is not None else {}
+                self._writer.add_metadata(name, {**{str(k): str(v) for k, v in values.items()}, **seg})
 
     def close(self) -> None:
         """Write the summary and footer; safe to call more than once and from any thread."""

@@ -1,8 +1,9 @@
 """One judge (issue 18 item 6): ``mcp-capture check`` of an ``mcp-conform`` capture gives the
 run's live monitor verdicts, rule by rule, for every node — by default and with
-``--complete`` — on the reference node and the reference manager, and on faulty managers of
-our own. (The faulty drones, each with its own fault, are held to it in
-tests/conformance/test_mutants.py, in the run that catches their fault.)"""
+``--complete`` — on the reference node, and merged from pytest-xdist workers for both roles.
+(The faulty drones, each with its own fault, are held to it in
+tests/conformance/test_mutants.py, and the reference manager, challenges 1-3, and every faulty
+manager in tests/conformance/test_manager_role.py, in the run that catches their fault.)"""
 
 from __future__ import annotations
 
@@ -15,21 +16,13 @@ from tests.conformance.runner_helpers import (
     sample_manager_command,
     verdict_differences,
 )
+from tests.conformance.test_manager_role import MANAGER_FAULTS
 
 pytestmark = pytest.mark.slow
 
 NODES = [
     ("reference", ()),                                      # the embedded reference node
-    ("manager-reference", ("--role", "manager")),
-    ("manager-ack-ack", ("--role", "manager", "--spawn", sample_manager_command("--fault", "ack-ack"), *FAST)),
-    ("manager-after-end",
-     ("--role", "manager", "--spawn", sample_manager_command("--fault", "after-end"), *FAST)),
-    ("manager-no-ready-ack",
-     ("--role", "manager", "--spawn", sample_manager_command("--fault", "no-ready-ack"), *FAST)),
 ]
-#: The manager role's run monitor judges the whole run as a lossy trace (the cases restart the
-#: manager and replay missions), so ``--complete`` is not that run's judgement.
-LOSSY = {"manager-reference", "manager-ack-ack", "manager-after-end", "manager-no-ready-ack"}
 
 
 @pytest.mark.parametrize(("label", "args"), NODES, ids=[n for n, _ in NODES])
@@ -38,24 +31,16 @@ def test_check_of_the_runs_capture_gives_the_live_verdicts(tmp_path, label, args
     res = run_conform(*args, "--capture", str(cap))
     live = res.report["monitor"]["rules"]
     assert live, res.explain()
-    for complete in (False,) if label in LOSSY else (False, True):
+    for complete in (False, True):
         j = judge(cap, Params(complete=complete))
         assert verdict_differences(live, j.verdicts) == [], (complete, res.explain())
         live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])
         assert sorted((v.rule, v.node) for v in j.violations) == live_violations
-    if label == "reference":  # the reference node: a clean monitor section, most rules judged
-        mon = res.report["monitor"]
-        assert mon["complete"] and mon["datagrams"] > 50 and mon["violations"] == []
-        assert [n["id"] for n in mon["nodes"]] == [1]
-        assert sum(v == "passed" for v in mon["rules"]["1"].values()) >= 15
-    if label == "manager-no-ready-ack":
-        # the case fails MCP-ACK-1 on its own exchanges; a lossy trace proves no absence, so the
-        # run's monitor and the check of its capture leave it unjudged, never "passed"
-        assert res.rc == 1 and res.rules["MCP-ACK-1"] == "failed", res.explain()
-        assert live["0"]["MCP-ACK-1"] == j.verdicts[0]["MCP-ACK-1"] == "not_observed", live["0"]
-    if label == "manager-after-end":
-        # faults the monitor proves from traffic: they show in both
-        assert any(v for t in live.values() for v in t.values() if v in ("failed", "warned"))
+    # the reference node: a clean monitor section, most rules judged
+    mon = res.report["monitor"]
+    assert mon["complete"] and mon["datagrams"] > 50 and mon["violations"] == []
+    assert [n["id"] for n in mon["nodes"]] == [1]
+    assert sum(v == "passed" for v in mon["rules"]["1"].values()) >= 15
 
 
 def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_path):
@@ -87,3 +72,45 @@ def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_pa
     assert sorted((v.rule, v.node) for v in j.violations) == \
         sorted((v["rule"], v["node"]) for v in live["violations"])
     assert [n.id for n in j.nodes.values()] == [n["id"] for n in live["nodes"]] == [1]
+
+
+MERGED_MANAGERS = ["wrong-seq-ack", "no-ready-ack", "le-count", None]
+
+
+@pytest.mark.parametrize("fault", MERGED_MANAGERS, ids=[f or "reference-manager" for f in MERGED_MANAGERS])
+def test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts(tmp_path, fault):
+    """The manager role under ``pytest -n 2``: each worker starts its own manager for each
+    mission; each mission is a session of the worker's capture (``main``, ``silent``), and
+    of the merged file (``gw0/main`` ...), judged complete; ``check`` gives the merged report's
+    monitor section rule by rule, by default and with ``--complete``, and the faulty manager's
+    fault under its rule only (MCP-RTX-2, not MCP-BLK-1)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from tests.conformance.runner_helpers import ROOT
+
+    pytest.importorskip("xdist")
+    spawn = sample_manager_command(*(("--fault", fault) if fault else ()))
+    rule, challenge = next(((r, c) for f, r, c in MANAGER_FAULTS if f == fault), (None, 1))
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases_manager",
+           "-n", "2", "--mcp-role", "manager", "--mcp-spawn", spawn, "--mcp-challenge", str(challenge),
+           "--mcp-rto", FAST[1],
+           "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
+    assert proc.returncode == (1 if fault else 0), proc.stdout + proc.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    live = report["monitor"]
+    failed = {r for r, o in report["rules"].items() if o in ("failed", "warned")}
+    assert failed == ({rule} if rule else set()), (failed, proc.stdout[-3000:])
+    assert {v["rule"] for v in live["violations"]} == ({rule} if rule else set()), live["violations"]
+    for complete in (False, True):
+        j = judge(tmp_path / "c.mcap", Params(complete=complete))
+        workers = {name.split("/")[0] for name in j.segments}
+        assert workers == {"gw0", "gw1"} and all("/" in name for name in j.segments), list(j.segments)
+        assert all(s.params.complete for s in j.segments.values())
+        assert verdict_differences(live["rules"], j.verdicts) == [], complete
+        assert sorted((v.rule, v.node) for v in j.violations) == \
+            sorted((v["rule"], v["node"]) for v in live["violations"])

@@ -187,6 +187,99 @@ def rtx2() -> Script:
     return s
 
 
+def _runner_drones(s: Script) -> dict[str, object]:
+    """The harness plays every drone (``mcp-conform --role manager``): its datagrams are input."""
+    for d in s.drones:
+        s.exchange(d, 0, Action.MISSION_READY, origin=TESTER)
+        s.tick(0.02)
+    return {"acker_origin": TESTER}
+
+
+def _manager_finishes(s: Script, kw: dict[str, object]) -> Script:
+    for d in s.drones:
+        s.exchange(0, d, Action.WP_LIST, tuple(s.items), **kw)
+        s.tick(0.01)
+    for d in s.drones:
+        s.exchange(0, d, Action.END_MISSION, **kw)
+    return s
+
+
+def rtx2_moves_on() -> Script:
+    """A manager that takes a wrong-seq ACK for its Start_Mission's: at once, with no copy
+    after it, it sends the next drone its Start_Mission; the right ACK comes 155 ms later
+    (before the next copy would have been due). What it did after the wrong ACK proves it
+    took it: MCP-RTX-2, not a new unicast while one awaits its ACK (MCP-BLK-1)."""
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    for _ in range(2):
+        s.tick(s.rto)
+        s.raw(0, data, to=1)
+    s.tick(0.01)
+    s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)  # the wrong seq from drone 1
+    s.ack(2, 0, seq, origin=TESTER)  # its seq, from drone 2
+    s.tick(0.0005)
+    t_moved = s.t
+    s.send(0, 2, Action.START_MISSION)  # taken: the next drone's Start_Mission at once
+    s.tick(0.004)
+    s.ack(2, 0, s.seq[0] - 1, origin=TESTER)
+    s.t = t_moved + 0.155
+    s.ack(1, 0, seq, origin=TESTER)  # the right ACK
+    s.tick(0.05)
+    return _manager_finishes(s, kw)
+
+
+def rtx2_takes_a_stale_ack() -> Script:
+    """A manager that takes any ACK from the destination: the runner's wrong-source ACK
+    from drone 2 (sent while drone 1's Start_Mission awaited its ACK) is still unanswered
+    when drone 2's Start_Mission goes out, and the manager sends the next command at once,
+    before drone 2's own ACK: MCP-RTX-2 (as the cases judge it), not MCP-BLK-1."""
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    for _ in range(2):
+        s.tick(s.rto)
+        s.raw(0, data, to=1)
+    s.tick(0.01)
+    s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)
+    s.ack(2, 0, seq, origin=TESTER)
+    s.tick(s.rto - 0.01)
+    s.raw(0, data, to=1)  # a correct retransmission: the wrong ACKs did not end it
+    s.tick(0.004)
+    s.ack(1, 0, seq, origin=TESTER)
+    s.tick(0.01)
+    seq2, _ = s.send(0, 2, Action.START_MISSION)  # taken at once by drone 2's earlier ACK:
+    s.tick(0.0005)
+    s.send(0, 1, Action.WP_LIST, tuple(s.items))  # the next command, before drone 2's own ACK
+    s.tick(0.002)
+    s.ack(2, 0, seq2, origin=TESTER)
+    s.tick(0.002)
+    s.ack(1, 0, s.seq[0] - 1, origin=TESTER)
+    s.tick(0.05)
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items), **kw)
+    s.tick(0.01)
+    for d in s.drones:
+        s.exchange(0, d, Action.END_MISSION, **kw)
+    return s
+
+
+def rtx1_gives_up_then_acked() -> Script:
+    """A manager that sends Start_Mission twice, then moves on to the next drone when the
+    third copy was due; the ACK of the first comes (late) after that: it gave up all the same
+    (MCP-RTX-1, as the case judges it: two copies while the ACK was withheld)."""
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    s.tick(s.rto)
+    s.raw(0, data, to=1)
+    s.tick(s.rto)
+    s.exchange(0, 2, Action.START_MISSION, **kw)  # the next drone, when the next copy was due
+    s.tick(0.2)
+    s.ack(1, 0, seq, origin=TESTER)  # drone 1's ACK, late
+    s.tick(0.05)
+    return _manager_finishes(s, kw)
+
+
 def rtx3() -> Script:
     s = _started()
     s.exchange(0, 1, Action.WP_OFF, deaf=3, gaps=[0.2, 0.2, 0.5])  # one gap 2.5x the others
@@ -425,8 +518,9 @@ def flow1() -> Script:
 
 def ack1_manager() -> Script:
     s = Script((1, 2))
-    s.ready(1, deaf=8)  # the manager ignores drone 1's Mission_Ready for 8 copies
-    s.ready(2)
+    s.ready(2)  # the manager is up: it ACKs drone 2's Mission_Ready
+    s.ready(1, deaf=8)  # ... then ignores drone 1's for 8 copies (before a node's first
+    # datagram, copies may go unheard: a node started late, not one that ignores them)
     for d in s.drones:
         s.start(d)
     return _finish(s)
@@ -547,7 +641,10 @@ FAULTY: dict[str, Fault] = {
     "seq1-skips": Fault("MCP-SEQ-1", seq1),
     "seq2-copy-differs": Fault("MCP-SEQ-2", seq2, complete=False),
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
+    "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
+    "rtx2-manager-moves-on-after-a-wrong-ack": Fault("MCP-RTX-2", rtx2_moves_on),
+    "rtx2-manager-takes-a-stale-ack": Fault("MCP-RTX-2", rtx2_takes_a_stale_ack),
     "rtx3-uneven": Fault("MCP-RTX-3", rtx3),
     "rtx3-storm": Fault("MCP-RTX-3", rtx3_storm, complete=False),
     "rtx4-broadcast-twice": Fault("MCP-RTX-4", rtx4, complete=False),

@@ -9,7 +9,7 @@ import pytest
 
 from spec import SPEC
 
-from .runner_helpers import FAST, run_conform, sample_manager_command
+from .runner_helpers import FAST, run_conform, sample_manager_command, verdict_differences
 
 pytestmark = pytest.mark.slow
 
@@ -32,6 +32,26 @@ MANAGER_FAULTS = [
 ]
 
 
+def same_verdicts_offline(res, capture, rule=None) -> None:
+    """One judge (issue 18): each mission of the run is a session of its capture, judged
+    complete; ``mcp-capture check`` of the capture, by default and with ``--complete``, gives
+    the live monitor's verdicts rule by rule and its violations; the monitor proves nothing
+    but the fault's rule (no false alarm beside it)."""
+    from judge.judging import Params, judge
+
+    mon = res.report["monitor"]
+    live = mon["rules"]
+    live_violations = sorted((v["rule"], v["node"]) for v in mon["violations"])
+    assert mon["complete"], mon
+    assert {r for r, _ in live_violations} <= ({rule} if rule else set()), (live_violations, res.explain())
+    for complete in (False, True):
+        j = judge(capture, Params(complete=complete))
+        assert "main" in j.segments and all(s.params.complete for s in j.segments.values()), list(j.segments)
+        diff = verdict_differences(live, j.verdicts)
+        assert diff == [], (complete, diff, res.explain())
+        assert sorted((v.rule, v.node) for v in j.violations) == live_violations, complete
+
+
 def _no_other_findings(res, rule=None):
     others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}
     assert not others, f"other rules flagged: {others}\n{res.explain()}"
@@ -39,10 +59,12 @@ def _no_other_findings(res, rule=None):
 
 
 @pytest.mark.parametrize("challenge", [1, 2, 3])
-def test_reference_manager_passes_every_must_and_should(challenge):
-    res = run_conform("--role", "manager", "--challenge", str(challenge))
+def test_reference_manager_passes_every_must_and_should(challenge, tmp_path):
+    capture = tmp_path / "run.mcap"
+    res = run_conform("--role", "manager", "--challenge", str(challenge), "--capture", str(capture))
     assert res.rc == 0, res.explain()
     _no_other_findings(res)
+    same_verdicts_offline(res, capture)
     assert res.rules["MCP-BLK-2"] == "passed" and res.rules["MCP-RTX-2"] == "passed", res.explain()
     flow = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}[challenge]
     assert res.rules[flow] == "passed", res.explain()
@@ -50,13 +72,18 @@ def test_reference_manager_passes_every_must_and_should(challenge):
 
 
 @pytest.mark.parametrize("fault,rule,challenge", MANAGER_FAULTS, ids=[f for f, _, _ in MANAGER_FAULTS])
-def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge):
+def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge, tmp_path):
+    capture = tmp_path / "run.mcap"
     res = run_conform("--role", "manager", "--spawn", sample_manager_command("--fault", fault),
-                      "--challenge", str(challenge), *FAST)
+                      "--challenge", str(challenge), *FAST, "--capture", str(capture))
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     _no_other_findings(res, rule)
     assert res.rc == 1, res.explain()
+    same_verdicts_offline(res, capture, rule)
+    # proven from the mission's traffic too, live and offline alike (the monitor is given, and
+    # the capture records, the challenge and the items the manager was handed)
+    assert res.report["monitor"]["rules"]["0"][rule] == want, res.report["monitor"]
     if fault == "no-ready-ack":
         _judged_on_what_it_did(res)
 
@@ -96,14 +123,18 @@ def test_a_manager_that_sends_nothing_never_answered():
 CORRECT_MANAGERS = [
     ("unicasts-to-the-broadcast-address", {"send_to": "{broadcast}:{listen_port}"}, ()),
     ("acks-from-another-socket", {}, ("--ack-socket", "other")),
+    ("acks-to-the-source-address", {}, ("--ack-to", "source")),
 ]
 
 
 @pytest.mark.parametrize("label,kw,extra", CORRECT_MANAGERS, ids=[c[0] for c in CORRECT_MANAGERS])
-def test_no_false_alarm_on_a_correct_manager_unlike_ours(label, kw, extra):
-    res = run_conform("--role", "manager", "--spawn", sample_manager_command(*extra, **kw), *FAST)
+def test_no_false_alarm_on_a_correct_manager_unlike_ours(label, kw, extra, tmp_path):
+    capture = tmp_path / "run.mcap"
+    res = run_conform("--role", "manager", "--spawn", sample_manager_command(*extra, **kw), *FAST,
+                      "--capture", str(capture))
     assert res.rc == 0, res.explain()
     _no_other_findings(res)
+    same_verdicts_offline(res, capture)
     assert res.rules["MCP-FLOW-4"] == "passed", res.explain()
 
 

@@ -93,6 +93,82 @@ def test_faulty_missions_cover_every_rule_group():
 
 
 # ---------------------------------------------------------------- what the trace proves
+def test_a_list_sent_malformed_is_its_payload_rules_not_a_missing_list():
+    """One fault, one rule: an Obstacles_List whose count is little-endian is MCP-PAY-3's; the
+    End_Mission after it is not "End_Mission without any Obstacles_List" (MCP-FLOW-6)."""
+    import struct
+
+    from spec.codec import ITEM, build_datagram
+    from tests.conformance.monitor_faults import _runner_drones
+
+    s = Script((1,), vehicle=False, challenge=3)
+    kw = _runner_drones(s)
+    s.exchange(0, 1, Action.START_MISSION, **kw)
+    s.tick(0.01)
+    payload = struct.pack("<H", len(s.items)) + b"".join(ITEM.pack(*it) for it in s.items)
+    seq = s.next_seq(0)
+    s.raw(0, build_datagram(1, 0, seq, int(Action.OBSTACLES_LIST), payload), to=1)
+    s.tick(0.004)
+    s.ack(1, 0, seq, origin=TESTER)
+    s.tick(0.01)
+    s.exchange(0, 1, Action.END_MISSION, **kw)
+    assert {v.rule for v in s.judge()} == {"MCP-PAY-3"}
+
+
+@pytest.mark.parametrize("unheard", [0, 8])
+def test_copies_sent_before_a_late_starting_node_showed_itself_went_unheard(unheard):
+    """A manager started by the runner may not listen yet while the runner retransmits the
+    first Mission_Ready: the copies before its first datagram but the last went unheard.
+    Its ACK of a later copy is no MCP-ACK-1 failure; a manager that then leaves the heard
+    copies unACKed is (counted from the last unheard one)."""
+    from tests.conformance.monitor_faults import _manager_finishes
+
+    s = Script((1, 2), vehicle=False)
+    kw = {"acker_origin": TESTER}
+    s.exchange(1, 0, Action.MISSION_READY, origin=TESTER, deaf=unheard)
+    s.tick(0.02)
+    s.exchange(2, 0, Action.MISSION_READY, origin=TESTER)
+    s.tick(0.02)
+    for d in s.drones:
+        s.exchange(0, d, Action.START_MISSION, **kw)
+        s.tick(0.01)
+    _manager_finishes(s, kw)
+    assert _rules(s.judge()) == []
+    assert s.last_monitor.verdicts()[0]["MCP-ACK-1"] == "passed"
+    # the same manager, late, that ACKs nothing of drone 1's Mission_Ready once it is up
+    s = Script((1, 2), vehicle=False)
+    seq, data = s.send(1, 0, Action.MISSION_READY, origin=TESTER)
+    for k in range(unheard + 6):
+        if k == unheard:
+            s.tick(0.005)
+            s.ack(0, 2, 7)  # the manager's first datagram (to another drone)
+        s.tick(s.rto)
+        s.raw(1, data, origin=TESTER)
+    s.tick(0.02)
+    s.exchange(2, 0, Action.MISSION_READY, origin=TESTER)
+    s.tick(0.02)
+    s.exchange(0, 2, Action.START_MISSION, **kw)
+    assert {v.rule for v in s.judge()} >= {"MCP-ACK-1"}
+
+
+def test_the_harness_probing_a_drone_it_plays_mid_mission_is_no_restart():
+    """``mcp-conform --role manager`` sends a fresh Mission_Ready of a drone it plays after
+    that drone's Start_Mission (a liveness probe, or an input to a manager that starts
+    early): no restart of the drone's mission, so its WP_List after it is no MCP-FLOW-2."""
+    from tests.conformance.monitor_faults import _manager_finishes, _runner_drones
+
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    for d in s.drones:
+        s.exchange(0, d, Action.START_MISSION, **kw)
+        s.tick(0.01)
+    s.exchange(1, 0, Action.MISSION_READY, origin=TESTER)  # the probe
+    s.tick(0.01)
+    _manager_finishes(s, kw)
+    assert _rules(s.judge()) == []
+    assert s.last_monitor.verdicts()[0]["MCP-FLOW-2"] == "passed"
+
+
 def test_an_unanswered_command_at_the_end_is_not_a_violation():
     s = Script((1,), challenge=1)
     s.ready(1)

@@ -14,11 +14,12 @@ Without ``--fault`` the manager is correct. Each ``--fault NAME`` breaks exactly
 
     python tests/conformance/nodes/sample_manager.py --challenge 1 --drones 1,2,3 \
         --waypoints FILE [--obstacles FILE] --bind 127.0.0.1:7889 --send-to 127.255.255.255:7890 \
-        [--rto 5] [--retries 1000] [--ack-socket same|other] [--fault NAME ...]
+        [--rto 5] [--retries 1000] [--ack-socket same|other] [--ack-to send-to|source] [--fault NAME ...]
 
 Correct variants: ``--send-to`` a broadcast address (the description's way: unicasts go
 to the broadcast address); ``--ack-socket other`` (ACKs leave from a second socket, on
-another source port); ``--rto 5`` (the description's timeout). One line per event on
+another source port); ``--ack-to source`` (ACKs go to the source address of the datagram
+they answer); ``--rto 5`` (the description's timeout). One line per event on
 stderr. Exit 0 after End_Mission to every drone, 1 when a drone was dropped, 2 on a usage
 or bind error; SIGTERM/SIGINT end it with 0.
 """
@@ -138,7 +139,7 @@ class SampleManager:
                     continue
             if not (msg.action == Action.MISSION_READY and "no-ready-ack" in self.faults):
                 self.ack_sock.sendto(encode(Message(msg.src, MANAGER_ID, self.next_seq(), Action.ACK, msg.seq)),
-                                     self.send_to)
+                                     addr if self.args.ack_to == "source" else self.send_to)
             if msg.action == Action.MISSION_READY:
                 with self.lock:
                     if "count-duplicates" in self.faults:
@@ -257,6 +258,8 @@ def main() -> int:
     p.add_argument("--rto", type=float, default=5.0)
     p.add_argument("--retries", type=int, default=1000)
     p.add_argument("--ack-socket", choices=("same", "other"), default="same")
+    p.add_argument("--ack-to", choices=("send-to", "source"), default="send-to",
+                   help="where ACKs go: --send-to, or the source address of the datagram ACKed")
     p.add_argument("--record", default=None, metavar="FILE",
                    help="write what it sent (JSON: sent as [action, drone], ready, outcome) on exit")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS))

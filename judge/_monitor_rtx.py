@@ -1,0 +1,189 @@
+"""Retransmission and stop-and-wait rules of the trace monitor (a sender's messages against
+each other): MCP-RTX-1 (copies until ACKed, or a sender that gave up too soon), MCP-RTX-2
+(only the right ACK ends retransmission: judged on what the sender did after a wrong one),
+MCP-RTX-3 (even spacing), MCP-BLK-1/3 (no new unicast while one awaits its ACK), with
+MCP-SEQ-2's renumbered retransmissions told apart. Complete traces only: each needs an absence.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from judge._monitor_base import (
+    HDR,
+    JITTER_NS,
+    MANAGER,
+    MIN_COPIES,
+    NS,
+    RTX_MIN_GAP_NS,
+    RTX_TOLERANCE,
+    START,
+    _Exchange,
+    _Node,
+    fmt_ms,
+    fmt_s,
+    gaps,
+    median,
+)
+from spec import SPEC
+
+#: The description's retransmission timeout: a lone copy's next one is not overdue before it
+#: even when the assumed --rto is shorter (issue 18 item 10: a correct node retransmitting every
+#: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
+DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
+
+# bits of _Exchange.flags: a rule already reported on that exchange
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1 = (1 << k for k in range(9))
+
+
+class RetransmissionRules:
+    """Mixin of :class:`judge.monitor.Monitor` (through ``SenderRules``)."""
+
+    def _check_stop_and_wait(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
+        awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
+        copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
+        if (prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]
+                and (len(prev.copies) < MIN_COPIES or prev.flags & F_SEQ2)):
+            # the same message again, unACKed, before a sender that retries could have given
+            # up: a retransmission under a new number
+            chained = prev.flags & F_SEQ2
+            prev.flags |= F_SEQ2
+            ex.flags |= F_SEQ2
+            if chained:
+                return  # the same renumbered retransmission, reported at its first copy
+            self._emit("MCP-SEQ-2", node.id, t, "a retransmission repeats the original's sequence number",
+                       f"{ex.describe()} repeats unACKed seq {prev.seq} with a new number",
+                       [prev.copies[-1], (i, t)])
+            return
+        g = gaps(prev.copies)
+        est = median(g) if g else self.rto_ns
+        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
+            if g and len(prev.copies) < MIN_COPIES:
+                self._gave_up(prev, ex, i, t)
+            return  # it gave up (retry limit)
+        wrong = self._taken_ack(prev)
+        if wrong is not None:
+            # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
+            # since: the sender took it for ``prev``'s ACK (MCP-RTX-2), unless a copy of
+            # ``prev`` follows (then it does not wait at all: MCP-BLK-1, ``_copy``)
+            prev.moved_on = (i, t)
+            self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
+            return
+        self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
+
+    def _gave_up(self, ex: _Exchange, newer: _Exchange, i: int, t: int) -> None:
+        """MCP-RTX-1 (complete trace): the sender moved on to a new unicast when the next copy
+        of the unACKed ``ex`` was due, after fewer copies than the rule asks for -- proven then,
+        however soon an ACK of ``ex`` comes after it."""
+        if ex.flags & (F_RTX1 | F_SEQ2):
+            return
+        ex.flags |= F_RTX1
+        n = len(ex.copies)
+        self._emit("MCP-RTX-1", ex.src, t, f"at least {MIN_COPIES} copies until it is ACKed",
+                   f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, then {newer.describe()} "
+                   f"{fmt_ms(t - ex.last_t)} after the last: it gave up", [*ex.copies[:MIN_COPIES], (i, t)])
+
+    @staticmethod
+    def _taken_ack(ex: _Exchange) -> tuple[int, int] | None:
+        """The ACK a sender may have taken for ``ex``'s: a wrong one (the wrong seq from its
+        destination, its seq from another node) read after its last copy, or an ACK from its
+        destination that was already there, with no copy of ``ex`` after its first."""
+        if ex.wrong_ack is not None and ex.wrong_ack[1] >= ex.last_t:
+            return ex.wrong_ack
+        if ex.stale_ack is not None and len(ex.copies) == 1:
+            return ex.stale_ack
+        return None
+
+    def _moved_on_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int], newer: _Exchange) -> None:
+        """MCP-RTX-2 (complete trace): a new unicast at once after a wrong ACK, and no copy of
+        the unACKed ``ex`` after it when its next one was due: the wrong ACK ended ``ex``'s
+        retransmission. A copy after the new unicast is MCP-BLK-1's (``_copy``)."""
+        if ex.last_t > newer.first[1] or ex.flags & F_RTX2:
+            return
+        ex.flags |= F_RTX2
+        right = [a for a in ex.acks if a[1] > newer.first[1]]
+        self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
+                   f"{ex.describe()} taken as ACKed by an ACK that does not name it: {newer.describe()} "
+                   f"sent {fmt_ms(newer.first[1] - wrong[1])} after that ACK, no copy of it since"
+                   + (f" (its right ACK came {fmt_ms(right[0][1] - wrong[1])} after the wrong one)" if right else ""),
+                   [ex.copies[-1], wrong, newer.first])
+
+    def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
+                       how: str) -> None:
+        if pending.flags & F_SEQ2:
+            return
+        if pending.action == START and pending.dst == newer.dst and pending.src == MANAGER:
+            self._emit("MCP-BLK-3", MANAGER, t, "no further command to that drone until Start_Mission is ACKed",
+                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
+        else:
+            self._emit("MCP-BLK-1", pending.src, t,
+                       "no new unicast message while one awaits its ACK (stop-and-wait)",
+                       f"{newer.describe()} sent {how} ({pending.describe()})", evidence)
+
+    def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
+        """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
+        its retransmissions were due."""
+        if ex.flags & F_RTX1:
+            return  # reported when it gave up (``_gave_up``)
+        if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
+            self._nodes[ex.src].seen.add("MCP-RTX-1")
+            return  # (retransmitted under new numbers: MCP-SEQ-2's)
+        g = gaps(ex.copies)
+        est = median(g) if g else max(self.rto_ns, DESCRIPTION_TIMEOUT_NS)
+        due = ex.last_t + 3 * est // 2 + self.window_ns
+        if now < due:
+            self._timers.at(due, self._rtx_deadline, ex)
+            return
+        if ex.moved_on is not None or (ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1])):
+            return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
+        n = len(ex.copies)
+        self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
+                   f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, "
+                   f"none for {fmt_s(now - ex.last_t)}", ex.copies[:MIN_COPIES])
+
+    def _wrong_ack_deadline(self, now: int, ex: _Exchange, wrong: tuple[int, int]) -> None:
+        """MCP-RTX-2 (complete trace): retransmission goes on after an ACK that names the
+        wrong seq or comes from the wrong node."""
+        if ex.moved_on is not None:
+            return  # moved on at once after a wrong ACK: ``_moved_on_deadline`` judges it
+        later = [c for c in ex.copies if c[1] > wrong[1]]
+        newer = self._nodes[ex.src].last_unicast
+        if ex.flags & F_SEQ2 and newer is not None and newer.first[1] > wrong[1]:
+            later.append(newer.first)  # it went on, under new numbers (MCP-SEQ-2's fault)
+        right = [a for a in ex.acks if a[1] > wrong[1]]
+        if later:
+            self._observe(ex.src, "MCP-RTX-2")
+            return
+        if right or ex.flags & F_RTX2 or self._stopped_before(ex, wrong[1]):
+            return  # the right ACK came before the next copy was due (inconclusive), or it
+            # had stopped before the wrong ACK came (MCP-RTX-1's)
+        ex.flags |= F_RTX2
+        self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
+                   f"{ex.describe()} not retransmitted for {fmt_s(now - wrong[1])} after a wrong ACK",
+                   [ex.copies[-1], wrong])
+
+    def _stopped_before(self, ex: _Exchange, t: int) -> bool:
+        """Whether ``ex``'s next copy was already overdue at ``t``."""
+        before = [c for c in ex.copies if c[1] <= t]
+        g = gaps(before)
+        est = median(g) if g else self.rto_ns
+        return t - before[-1][1] > 3 * est // 2 + 3 * JITTER_NS
+
+    def _judge_spacing(self, ex: _Exchange, copies: list[tuple[int, int]], t: int) -> None:
+        """MCP-RTX-3 (complete trace): every gap within ±20 % of the median (plus the spec's
+        timestamp jitter) and none under 50 ms."""
+        g = gaps(copies)
+        if len(g) < 2 or ex.flags & (F_RTX3 | F_STORM):
+            return
+        self._observe(ex.src, "MCP-RTX-3")
+        med = median(g)
+        allowance = RTX_TOLERANCE * med + JITTER_NS
+        bad = [x for x in g if abs(x - med) > allowance or x < RTX_MIN_GAP_NS]
+        if bad:
+            ex.flags |= F_RTX3
+            self._emit("MCP-RTX-3", ex.src, t,
+                       f"every gap within ±{RTX_TOLERANCE:.0%} of the median gap and none under "
+                       f"{fmt_ms(RTX_MIN_GAP_NS)}",
+                       f"{ex.describe()}: median {fmt_ms(med)}, outliers "
+                       + ", ".join(fmt_ms(x) for x in bad), copies)
