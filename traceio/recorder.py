@@ -32,7 +32,9 @@ the target, role and seed where they apply.
 driver's receiver thread calls it) and ``close()`` is idempotent; it is also called at
 interpreter exit, so a run interrupted by an exception or SIGTERM leaves a valid file.
 :class:`BackgroundRecorder` (same methods) hands the work to a writer process, for nodes
-where recording must cost the hot path almost nothing.
+where recording must cost the hot path almost nothing. ``live`` (``--live``,
+:mod:`traceio.live`): every message written is also handed, the same bytes, to a Foxglove
+WebSocket server's feed; a recorder of no file (``path`` None) feeds only that.
 """
 
 from __future__ import annotations
@@ -339,16 +341,25 @@ class McapRecorder:
 
     ``metadata``: the ``mcp-conform`` metadata record (see :func:`run_metadata`), written
     first. ``local``: the recording socket's address, the default ``local`` of datagrams.
+    ``live``: a feed (``traceio.live.LiveFeed``: ``publish(topic, data, t_ns)``) handed every
+    message as it is written, the same bytes (``--live``); ``path`` None: no file, only the feed.
     """
 
-    def __init__(self, path: str | Path, *, library: str = "mcp-conform",
-                 metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
-        self.path = Path(path)
+    def __init__(self, path: str | Path | None, *, library: str = "mcp-conform",
+                 metadata: Mapping[str, str] | None = None, local: Any = None, live: Any = None) -> None:
+        self.path = Path(path) if path is not None else None
         self.local = local
+        self._live = live
         self._lock = threading.Lock()
         self._closed = False
         self._fox = foxglove_channels()
         self.counts: dict[str, int] = {topic: 0 for topic in {**CHANNELS, **self._fox}}
+        self._seq = 0
+        self._channels: dict[str, int] = {}
+        self._writer: Writer | None = None
+        if self.path is None:
+            _LIVE.add(self)
+            return
         try:
             self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
@@ -362,7 +373,6 @@ class McapRecorder:
         self._writer.start(profile=PROFILE, library=library)
         if metadata:
             self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
-        self._channels: dict[str, int] = {}
         schemas: dict[str, int] = {}
         for topic, (name, schema) in {**CHANNELS, **self._fox}.items():
             if name not in schemas:
@@ -370,7 +380,6 @@ class McapRecorder:
                     name=name, encoding="jsonschema", data=json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schemas[name])
-        self._seq = 0
         _LIVE.add(self)
 
     # ------------------------------------------------------------------ writing
@@ -385,9 +394,15 @@ class McapRecorder:
             if self._closed:
                 return
             self._seq += 1
-            self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
-                                     publish_time=t, sequence=self._seq)
-            self.counts[topic] += 1
+            if self._writer is not None:
+                self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
+                                         publish_time=t, sequence=self._seq)
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            if self._live is not None:  # the same bytes, in the same order (--live)
+                try:
+                    self._live.publish(topic, data, t)
+                except Exception:  # noqa: BLE001 - a viewer's trouble never costs the capture
+                    pass
 
     def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
                  local: Any = None) -> None:
@@ -421,7 +436,7 @@ class McapRecorder:
         with self._lock:
             if self._closed:
                 return
-            if topic not in self._channels:
+            if topic not in self._channels and self._writer is not None:
                 for t, (sname, schema) in STREAM_CHANNELS.items():
                     sid = self._writer.register_schema(name=sname, encoding="jsonschema",
                                                        data=json.dumps(schema).encode())
@@ -492,7 +507,7 @@ class McapRecorder:
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
         """A further MCAP metadata record (string values)."""
         with self._lock:
-            if not self._closed:
+            if not self._closed and self._writer is not None:
                 self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
 
     def close(self) -> None:
@@ -501,6 +516,9 @@ class McapRecorder:
             if self._closed:
                 return
             self._closed = True
+            if self._writer is None:
+                _LIVE.discard(self)
+                return
             try:
                 self._writer.finish()
             finally:
