@@ -28,6 +28,7 @@ from __future__ import annotations
 import atexit
 import json
 import threading
+import time
 import warnings
 import weakref
 from typing import Any
@@ -37,6 +38,9 @@ from traceio.recorder import CHANNELS, STREAM_CHANNELS, foxglove_channels
 __all__ = ["DEFAULT_HOST", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
 
 DEFAULT_HOST = "127.0.0.1"
+#: How long :meth:`LiveServer.stop` lets a subscribed client's queue drain before it closes the
+#: server (which drops what is still queued: a run's last verdict would not reach Foxglove).
+LINGER_S = 0.3
 
 
 class LiveError(Exception):
@@ -118,13 +122,15 @@ class LiveServer:
     def stopped(self) -> bool:
         return self._stopped
 
-    def feed(self, segment: str | None = None) -> LiveFeed:
-        """The feed of one view (one per ``segment``), its channels advertised now."""
+    def feed(self, segment: str | None = None, topics: tuple[str, ...] | None = None) -> LiveFeed:
+        """The feed of one view (one per ``segment``), its channels advertised now: every
+        channel of a capture, or only ``topics`` (a campaign's own ``/log``)."""
         with self._lock:
             feed = self._feeds.get(segment)
             if feed is None:
                 feed = self._feeds[segment] = LiveFeed(self, segment)
-                for topic, (name, schema) in _schemas().items():
+            for topic, (name, schema) in _schemas().items():
+                if topics is None or topic in topics:
                     self._channel(feed.topic(topic), name, schema, segment)
             return feed
 
@@ -156,12 +162,15 @@ class LiveServer:
             self.published += 1
 
     def stop(self) -> None:
-        """Close the server (idempotent): clients are disconnected, the port is free."""
+        """Close the server (idempotent): clients are disconnected, the port is free. With a
+        client subscribed, the messages queued for it get ``LINGER_S`` to go out first."""
         with self._lock:
             if self._stopped:
                 return
             self._stopped = True
             channels, self._channels = list(self._channels.values()), {}
+        if any(_has_sinks(c) for c in channels):
+            time.sleep(LINGER_S)
         try:
             self._server.stop()
         finally:
@@ -177,6 +186,13 @@ class LiveServer:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _has_sinks(channel: Any) -> bool:
+    try:
+        return bool(channel.has_sinks())
+    except Exception:  # noqa: BLE001 - a closed channel has none
+        return False
 
 
 _SERVERS: weakref.WeakSet[LiveServer] = weakref.WeakSet()
