@@ -168,7 +168,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from traceio.live import LiveError, LiveServer
 
         try:
-            setup.live = LiveServer(*ns.live, name=PROG)
+            # every view's channels made before a client can connect (traceio.live)
+            setup.live = LiveServer(*ns.live, name=PROG, feeds={
+                None: ("/log",), "manager": None, **{f"drone{i}": None for i in setup.drones}})
         except LiveError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2

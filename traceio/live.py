@@ -16,7 +16,10 @@ context of its own, so nothing else logged in the process reaches it, and the ch
 advertised from the start (a client connecting before the first datagram sees every topic).
 A :class:`LiveFeed` is what one recorder writes to; a server holding several nodes' views
 (``mcp-soak``: the manager and each drone) gives each its own feed (``segment``), whose
-topics carry the view's name in front (``/drone1/mcp/rx``): one topic, one channel.
+topics carry the view's name in front (``/drone1/mcp/rx``): one topic, one channel. The
+channels are made before the server starts listening (a channel made while a client is
+connected may be lost to it: ``foxglove-sdk`` 0.30 advertises it before it can be
+subscribed to).
 
 The server listens on loopback unless told otherwise, on the port asked (0: a free one, see
 :attr:`LiveServer.url`), and :meth:`LiveServer.stop` (idempotent; also at interpreter exit)
@@ -41,6 +44,9 @@ DEFAULT_HOST = "127.0.0.1"
 #: How long :meth:`LiveServer.stop` lets a subscribed client's queue drain before it closes the
 #: server (which drops what is still queued: a run's last verdict would not reach Foxglove).
 LINGER_S = 0.3
+#: Messages queued for one client before the oldest are dropped (the SDK's default is 1024; a
+#: whole run is a few thousand small messages, and a viewer should see every one).
+BACKLOG = 65536
 
 
 class LiveError(Exception):
@@ -70,8 +76,9 @@ def parse_live(text: str, option: str = "--live") -> tuple[str, int]:
 
 
 def _schemas() -> dict[str, tuple[str, dict[str, Any]]]:
-    """Every channel a capture has from its start: topic -> (schema name, JSON schema)."""
-    return {**CHANNELS, **foxglove_channels()}
+    """Every channel a capture may have: topic -> (schema name, JSON schema); a stream
+    protocol's (``/nsqd/*``) too, which a capture registers at its first frame."""
+    return {**CHANNELS, **foxglove_channels(), **STREAM_CHANNELS}
 
 
 class LiveFeed:
@@ -86,14 +93,14 @@ class LiveFeed:
         return topic if self.segment is None else f"/{self.segment}{topic}"
 
     def publish(self, topic: str, data: bytes, t_ns: int) -> None:
-        self._server.publish(self.topic(topic), data, t_ns, source=topic, segment=self.segment)
+        self._server.publish(self.topic(topic), data, t_ns)
 
 
 class LiveServer:
     """foxglove-sdk's WebSocket server of one run (see the module's description)."""
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = 0, *, name: str = "mcp-conform",
-                 option: str = "--live") -> None:
+                 option: str = "--live", feeds: dict[str | None, tuple[str, ...] | None] | None = None) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
             import foxglove
@@ -105,8 +112,14 @@ class LiveServer:
         self._stopped = False
         self.published = 0
         self._context = foxglove.Context()
+        # every channel made before the server starts: a channel made while a client is
+        # connected is advertised to it before the server knows it, and the client's subscribe
+        # can come in between ("unknown channel", nothing served on it: foxglove-sdk 0.30)
+        for segment, topics in (feeds if feeds is not None else {None: None}).items():
+            self.feed(segment, topics)
         try:
-            self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context)
+            self._server = foxglove.start_server(name=name, host=host, port=port, context=self._context,
+                                                 message_backlog_size=BACKLOG)
         except (RuntimeError, OSError, ValueError, OverflowError) as exc:
             why = str(exc).removeprefix("FoxgloveError: ")
             raise LiveError(f"{option} {host}:{port}: cannot serve: {why}") from None
@@ -122,9 +135,16 @@ class LiveServer:
     def stopped(self) -> bool:
         return self._stopped
 
+    def subscribed(self) -> int:
+        """How many channels a client is subscribed to now."""
+        with self._lock:
+            return sum(_has_sinks(c) for c in self._channels.values())
+
     def feed(self, segment: str | None = None, topics: tuple[str, ...] | None = None) -> LiveFeed:
-        """The feed of one view (one per ``segment``), its channels advertised now: every
-        channel of a capture, or only ``topics`` (a campaign's own ``/log``)."""
+        """The feed of one view (one per ``segment``), its channels made now: every channel of
+        a capture, or only ``topics`` (a campaign's own ``/log``). Give the feeds to the
+        constructor (``feeds``) where they are known: made before the server starts, they are
+        served to a client from its first moment (see there)."""
         with self._lock:
             feed = self._feeds.get(segment)
             if feed is None:
@@ -145,19 +165,14 @@ class LiveServer:
                 message_encoding="json", context=self._context, metadata=metadata)
         return channel
 
-    def publish(self, topic: str, data: bytes, t_ns: int, *, source: str | None = None,
-                segment: str | None = None) -> None:
-        """One message on ``topic`` (``source``: the capture's topic, for a channel made late:
-        a stream protocol's ``/nsqd/*``)."""
+    def publish(self, topic: str, data: bytes, t_ns: int) -> None:
+        """One message on ``topic``."""
         with self._lock:
             if self._stopped:
                 return
             channel = self._channels.get(topic)
             if channel is None:
-                schema = STREAM_CHANNELS.get(source or topic)
-                if schema is None:
-                    return  # not a channel of ours
-                channel = self._channel(topic, schema[0], schema[1], segment)
+                return  # not a channel of this server's feeds
             channel.log(data, log_time=int(t_ns))
             self.published += 1
 
