@@ -165,3 +165,23 @@ def test_mcp_soak_streams_each_view_and_the_missions_outcomes(tmp_path: Path) ->
     lines = [m.json()["message"] for m in seen.on("/log")]
     assert "mission 1 (seed 4) complete" in lines, lines
     assert seen.closed and not _listening(port)
+
+
+def test_mcp_fuzz_logs_each_new_finding_with_its_rule_and_evidence() -> None:
+    from fuzz.findings import Finding
+    from fuzz.live import LiveStore
+
+    lines: list[tuple[str, str, str]] = []
+
+    class Recorder:
+        def log(self, message: str, level: str = "info", name: str = "", t_ns: int | None = None) -> None:
+            lines.append((message, level, name))
+
+    store = LiveStore(None, [], Recorder())
+    finding = Finding("MCP-ACK-1", "an ACK of seq 7", "no ACK within 0.25 s", ["00"], "wp_on", "stateless", 1,
+                      evidence=["sent WP_On seq 7 at 0.1 s"])
+    store.add(finding)
+    store.add(Finding(**{**finding.__dict__, "occurrences": 1}))  # the same group: counted, not logged
+    assert lines == [("finding MCP-ACK-1 (MUST) [stateless, 1 datagram(s)]: expected an ACK of seq 7; "
+                      "actual no ACK within 0.25 s — sent WP_On seq 7 at 0.1 s", "error", "mcp-fuzz")]
+    assert store.order[0].occurrences == 2

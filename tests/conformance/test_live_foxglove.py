@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -98,3 +99,33 @@ def test_a_websocket_client_receives_every_channel_of_a_live_run_while_it_runs(t
     first = min(by_key[k] for k in live)
     after = Counter((topic, t, data) for seq, topic, t, data in captured if seq >= first)
     assert after == live, f"missed live: {sorted((after - live).elements())[:5]}"
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_stops_serving(tmp_path: Path) -> None:
+    """SIGINT mid-run: the runner ends as an interrupted run does (exit 2, its report written),
+    the client's connection is closed and nothing is left listening."""
+    port = free_port(socket.SOCK_STREAM)
+    report = tmp_path / "report.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "conformance", "--live", f"127.0.0.1:{port}", "--json", str(report)],
+        cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"),
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+    def then(s: foxglove_ws.Session) -> None:  # a few cases in: Ctrl-C
+        if proc.poll() is None and len(s.on("/conformance/case")) >= 6:
+            proc.send_signal(signal.SIGINT)
+
+    try:
+        ws = foxglove_ws.connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
+        seen = foxglove_ws.watch(ws, running=lambda: proc.poll() is None, until=120, then=then)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 2, out
+    assert json.loads(report.read_text())["error"] == "interrupted by SIGINT"
+    assert seen.closed and len(seen.on("/conformance/case")) >= 6
+    with socket.socket() as s:
+        assert s.connect_ex(("127.0.0.1", port)) != 0
