@@ -23,7 +23,8 @@ subscribed to).
 
 The server listens on loopback unless told otherwise, on the port asked (0: a free one, see
 :attr:`LiveServer.url`), and :meth:`LiveServer.stop` (idempotent; also at interpreter exit)
-closes it: nothing is left listening when a run ends, however it ends.
+closes it: nothing is left listening when a run ends, however it ends, and a client that
+stopped reading does not hold the end of the run (``STOP_S``).
 """
 
 from __future__ import annotations
@@ -47,6 +48,11 @@ LINGER_S = 0.3
 #: Messages queued for one client before the oldest are dropped (the SDK's default is 1024; a
 #: whole run is a few thousand small messages, and a viewer should see every one).
 BACKLOG = 65536
+#: How long :meth:`LiveServer.stop` waits for the server to close its clients' connections.
+#: foxglove-sdk's ``stop()`` stops listening at once, then waits for every client to take
+#: what is queued for it: a client that stopped reading (a laptop gone to sleep) would hold
+#: the run's end for ever. After this long the wait is left to a daemon thread.
+STOP_S = 2.0
 
 
 class LiveError(Exception):
@@ -110,6 +116,7 @@ class LiveServer:
         self._channels: dict[str, Any] = {}
         self._feeds: dict[str | None, LiveFeed] = {}
         self._stopped = False
+        self.abandoned = False
         self.published = 0
         self._context = foxglove.Context()
         # every channel made before the server starts: a channel made while a client is
@@ -186,6 +193,14 @@ class LiveServer:
             channels, self._channels = list(self._channels.values()), {}
         if any(_has_sinks(c) for c in channels):
             time.sleep(LINGER_S)
+        closing = threading.Thread(target=self._close, args=(channels,), name="live-stop", daemon=True)
+        closing.start()
+        closing.join(STOP_S)
+        #: a client that does not read held the close past STOP_S (nothing listens any more)
+        self.abandoned = closing.is_alive()
+        _SERVERS.discard(self)
+
+    def _close(self, channels: list[Any]) -> None:
         try:
             self._server.stop()
         finally:
@@ -194,7 +209,6 @@ class LiveServer:
                     channel.close()
                 except Exception:  # noqa: BLE001 - the server is gone; nothing more to close
                     pass
-            _SERVERS.discard(self)
 
     def __enter__(self) -> LiveServer:
         return self

@@ -171,3 +171,26 @@ def test_a_node_writer_process_serves_and_stops(tmp_path: Path) -> None:
         taken.listen()
         with pytest.raises(Exception, match=r"^--live 127\.0\.0\.1:\d+: cannot serve"):
             BackgroundRecorder(None, live=("127.0.0.1", taken.getsockname()[1]))
+
+
+def test_a_client_that_stops_reading_does_not_hold_the_end_of_the_run() -> None:
+    """foxglove-sdk's stop() waits for each client to take what is queued for it: with a
+    subscribed client that reads nothing and 20000 messages queued, it never returned."""
+    server = LiveServer("127.0.0.1", 0)
+    feed = server.feed()
+    ws = foxglove_ws.connect(server.url, timeout=5)
+    ws.recv()  # serverInfo, then the channels
+    ids = [c["id"] for c in json.loads(ws.recv())["channels"]]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": i} for i in ids]}))
+    _wait_subscribed(server, len(ids))
+    data = b'{"x":"' + b"a" * 300 + b'"}'
+    for i in range(20000):
+        feed.publish("/mcp/rx", data, i)
+    stopper = threading.Thread(target=server.stop, daemon=True)
+    stopper.start()
+    stopper.join(60)
+    assert not stopper.is_alive(), "stop() hung on a client that does not read"
+    assert server.abandoned  # the stuck client's connection left to a daemon thread
+    with socket.socket() as s:
+        assert s.connect_ex(("127.0.0.1", server.port)) != 0
+    ws.close()
