@@ -30,7 +30,9 @@ stopped reading does not hold the end of the run (``STOP_S``).
 from __future__ import annotations
 
 import atexit
+import errno
 import json
+import socket
 import threading
 import time
 import warnings
@@ -203,6 +205,7 @@ class LiveServer:
     def _close(self, channels: list[Any]) -> None:
         try:
             self._server.stop()
+            _wait_unbound(self.host, self.port)
         finally:
             for channel in channels:
                 try:
@@ -215,6 +218,23 @@ class LiveServer:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _wait_unbound(host: str, port: int, timeout: float = 1.0) -> None:
+    """Until nothing listens on (host, port): foxglove-sdk's ``stop()`` returns a moment
+    (about a millisecond) before its listening socket is closed, and a connection made in
+    that moment is accepted. Probed by binding the address (no connection is made)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind((host, port))
+                return
+            except OSError as exc:
+                if exc.errno != errno.EADDRINUSE or time.monotonic() > deadline:
+                    return  # not ours to probe (a name, another interface), or given up
+        time.sleep(0.001)
 
 
 def _has_sinks(channel: Any) -> bool:
