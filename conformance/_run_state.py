@@ -105,6 +105,7 @@ class McpState:
                              seed=cfg.seed, strict=cfg.strict)
         self.session: Any = None
         self.recorder: Any = None
+        self.live: Any = None  # traceio.live.LiveServer under --live
         self.html_path: str | None = None
         self.html_capture: str | None = None  # the run's recording for --mcp-html without --mcp-capture
         self.items: list[pytest.Item] = []
@@ -161,7 +162,8 @@ class McpState:
             if self.html_path and not self.cfg.capture:  # the HTML report's charts need the traffic
                 fd, self.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
                 os.close(fd)
-            if self.cfg.capture or self.html_capture:
+            feed = self.start_live()
+            if self.cfg.capture or self.html_capture or feed is not None:
                 from traceio.recorder import McapRecorder, RecorderError, run_metadata
 
                 cfg = self.cfg
@@ -170,7 +172,9 @@ class McpState:
                                     spawn=cfg.spawn, parameters=self.run.parameters)
                 try:
                     with INTERRUPTS.held():  # never a file cut off after its header
-                        self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta)
+                        # --live without a file: a recorder of no file feeds the live server
+                        self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta,
+                                                     live=feed)
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder
@@ -260,6 +264,24 @@ class McpState:
                                                                   if self.cfg.spawn else ""))
         return session
 
+    def start_live(self) -> Any:
+        """``--live [HOST:]PORT`` (issue 24): the Foxglove WebSocket server of the run, its URL
+        printed; the feed the run's recorder writes to (None without --live). A port in use is
+        a one-line SetupError."""
+        value = self.config.getoption("mcp_live", None)
+        if not value or self.live is not None:
+            return None if self.live is None else self.live.feed()
+        from traceio.live import LiveError, LiveServer, parse_live
+
+        try:
+            host, port = parse_live(value, "--live" if self.frontend else "--mcp-live")
+            self.live = LiveServer(host, port, name="mcp-conform")
+        except LiveError as exc:
+            raise SetupError(str(exc)) from None
+        self.terminal.note(f"live: {self.live.url} (Foxglove: Open connection, Foxglove WebSocket; "
+                           "layout: examples/foxglove-layout.json)")
+        return self.live.feed()
+
     def close_session(self) -> None:
         session, self.session = self.session, None
         if session is not None:
@@ -274,6 +296,10 @@ class McpState:
         if recorder is not None:
             with contextlib.suppress(Exception):
                 recorder.close()
+        live, self.live = self.live, None
+        if live is not None:  # nothing left listening once the run is over
+            with contextlib.suppress(Exception):
+                live.stop()
         if self.printer is not None:  # -v: the lines still held, before the summary
             with contextlib.suppress(Exception):
                 self.printer.close()

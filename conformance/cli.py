@@ -2,7 +2,7 @@
 
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
                 [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
-                [--json FILE] [--junit FILE] [--capture FILE.mcap] [--html FILE]
+                [--json FILE] [--junit FILE] [--capture FILE.mcap] [--live [HOST:]PORT] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--startup-timeout S] [--seed N]
                 [--impair loss=P,dup=P,reorder=P,delay=LO-HI,corrupt=P,seed=N]
 
@@ -74,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baseline", metavar="FILE", help="expected failures (YAML or JSON, case or rule IDs with a reason): listed failures are xfailed (exit 0), listed cases that pass are xpassed (exit 1 under --strict)")
     p.add_argument("--write-baseline", metavar="FILE", help="write this run's failed and warned cases as a baseline")
     p.add_argument("--capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    p.add_argument("--live", metavar="[HOST:]PORT", help="serve the run live over the Foxglove WebSocket protocol, "
+                   "the capture's channels (loopback unless HOST is given; port 0: a free one; the ws:// URL is printed)")
     p.add_argument("--html", metavar="FILE", help="write a self-contained HTML report (failed cases with their sequence charts)")
     p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
@@ -128,6 +130,16 @@ def _check_writable(path: str | None, option: str) -> None:
         raise ConfigError(f"{option}: {path!r} is a directory")
 
 
+def _check_live(value: str) -> None:
+    """--live [HOST:]PORT, checked before anything runs (a one-line error, exit 2)."""
+    from traceio.live import LiveError, parse_live
+
+    try:
+        parse_live(value)
+    except LiveError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> int:
     """Print the one-line error, write the JSON report if asked, return 2."""
     print(f"{PROG}: error: {message}", file=sys.stderr)
@@ -169,7 +181,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     if not _plugin_is_installed():
         args += ["-p", PLUGIN_MODULE]
     args += ["--mcp-frontend", "--mcp-role", ns.role]
-    for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "html", "rto",
+    for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "live", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
                  "junit_family", "case_timeout", "startup_timeout", "drones", "challenge", "waypoints",
                  "impair"):
@@ -239,12 +251,14 @@ def _main(argv: list[str]) -> int:
         _check_writable(ns.capture, "--capture")
         _check_writable(ns.html, "--html")
         _check_writable(ns.write_baseline, "--write-baseline")
+        if ns.live is not None:
+            _check_live(ns.live)
         if ns.baseline:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
         return _fail(str(exc), json_path, RunConfig(role=ns.role))
-    if ns.list and (ns.capture or ns.html):
-        ns.capture = ns.html = None  # nothing runs: no capture file, no HTML report
+    if ns.list and (ns.capture or ns.html or ns.live):
+        ns.capture = ns.html = ns.live = None  # nothing runs: no capture file, no HTML report, no server
     import pytest
 
     if ns.json:

@@ -67,6 +67,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-json", metavar="FILE", help="write the JSON report")
     g.addoption("--mcp-junit", metavar="FILE", help="write a JUnit XML report")
     g.addoption("--mcp-capture", metavar="FILE.mcap", help="record the run to an MCAP file")
+    g.addoption("--mcp-live", metavar="[HOST:]PORT", help="serve the run live to Foxglove over its WebSocket protocol "
+                "(the capture's channels; loopback unless HOST is given; port 0: a free one)")
     g.addoption("--mcp-html", metavar="FILE", help="write a self-contained HTML report (failed cases with their sequence charts)")
     g.addoption("--mcp-rto", metavar="S", help="the node's retransmission timeout as assumed (default 5)")
     g.addoption("--mcp-ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")

@@ -4,6 +4,7 @@
              [--mavlink] [--seed N] [--max-cases N] [--duration S]
              [--engine stateless|stateful|both] [--jobs N] [--db DIR|redis://HOST:PORT/N]
              [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N] [--strict]
+             [--live [HOST:]PORT]
     mcp-fuzz --replay finding-N [--target HOST:PORT | --spawn CMD] [--mavlink]
 
 Without --target and --spawn it fuzzes the reference drone (embedded default); with
@@ -72,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--impair", metavar="SPEC", help="fuzz through a bad link, reproducible by seed: "
                    "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (an exchange the "
                    "impairment touched is not judged: a dropped ACK is never a finding)")
+    p.add_argument("--live", metavar="[HOST:]PORT", help="serve the campaign live over the Foxglove WebSocket "
+                   "protocol: its traffic and its findings (loopback unless HOST is given; port 0: a free one)")
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
     p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
                    help="mcp (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
@@ -201,6 +204,18 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         raise UsageError(str(exc)) from None
     if cfg.impair is not None and (cfg.role != "drone" or ns.protocol != "mcp"):
         raise UsageError("--impair: only a drone (MCP) is fuzzed through a bad link yet")
+    if ns.live is not None:
+        from traceio.live import LiveError, parse_live
+
+        try:
+            cfg.extra["live"] = parse_live(ns.live)
+        except LiveError as exc:
+            raise UsageError(str(exc)) from None
+        for given, why in ((cfg.jobs > 1, "one worker's run is served: use --jobs 1"),
+                           (ns.protocol != "mcp", "not available with --protocol nsqd"),
+                           (ns.replay, "not available with --replay")):
+            if given:
+                raise UsageError(f"--live: {why}")
     return cfg
 
 
@@ -242,17 +257,35 @@ def main(argv: Sequence[str] | None = None) -> int:
     from fuzz.findings import FindingStore
     from fuzz.progress import LiveProgress
 
-    store = FindingStore(cfg.out, replay_args(cfg))
+    served = None
+    if "live" in cfg.extra:  # --live: the campaign on a Foxglove WebSocket server (fuzz.live)
+        from fuzz.live import LiveCampaign, LiveStore
+        from traceio.live import LiveError
+
+        try:
+            served = LiveCampaign(cfg, *cfg.extra["live"])
+        except LiveError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+        store: FindingStore = LiveStore(cfg.out, replay_args(cfg), served.recorder)
+        served.started(cfg)
+    else:
+        store = FindingStore(cfg.out, replay_args(cfg))
     live = LiveProgress(cfg)
     try:
         with live:
             summary = run_campaign(cfg, store, live.update)
+        if served is not None:
+            served.ended(summary)
     except SetupError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # a second SIGINT while the campaign wound up
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        if served is not None:  # nothing left listening, however the campaign ended
+            served.close()
     live.final(summary, store)
     if summary.get("interrupted"):
         where = f"; summary in {str(Path(cfg.out) / 'summary.json')!r}" if cfg.out else ""

@@ -43,7 +43,7 @@ class ManagerFuzzTarget(TargetBase):
     def __init__(self, cfg: FuzzConfig) -> None:  # noqa: D107 - no drone session
         self.cfg = cfg
         self.run_cfg = run_config(cfg)
-        self.session = ManagerSession(self.run_cfg)  # type: ignore[assignment]
+        self.session = ManagerSession(self.run_cfg, recorder=cfg.extra.get("live_recorder"))  # type: ignore[assignment]
         self.traffic = Traffic()
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}

@@ -43,7 +43,7 @@ class FuzzTarget(TargetBase):
     def __init__(self, cfg: FuzzConfig) -> None:
         self.cfg = cfg
         self.run_cfg = cfg.run_config()
-        self.session = Session(self.run_cfg)
+        self.session = Session(self.run_cfg, recorder=cfg.extra.get("live_recorder"))  # --live (fuzz.live)
         self.traffic = Traffic()
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}

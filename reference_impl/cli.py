@@ -94,6 +94,16 @@ def _count(text: str) -> int:
     return value
 
 
+def _live(text: str) -> tuple[str, int]:
+    """``--live [HOST:]PORT`` (``traceio.live.parse_live``)."""
+    from traceio.live import LiveError, parse_live
+
+    try:
+        return parse_live(text)
+    except LiveError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--live: ")) from None
+
+
 def _ident(text: str) -> int:
     try:
         return int(text)
@@ -137,6 +147,9 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
     p.add_argument("--capture", metavar="FILE.mcap",
                    help="record the node's MCP traffic (and a drone's autopilot link) to an MCAP "
                         "file, in the runner's format (mcp-capture show|check|diff FILE)")
+    p.add_argument("--live", type=_live, metavar="[HOST:]PORT",
+                   help="serve the capture's channels live over the Foxglove WebSocket protocol "
+                        "(loopback unless HOST is given; port 0: a free one; the ws:// URL goes to stderr)")
     verbosity = p.add_mutually_exclusive_group()
     verbosity.add_argument("-v", "--verbose", action="store_true", help="debug output")
     verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
@@ -224,7 +237,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                           retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
                           reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
                           record_path=args.record, linger=args.linger,
-                          capture_path=args.capture, impair=args.impair_spec)
+                          capture_path=args.capture, live=args.live, impair=args.impair_spec)
         drone = Drone(cfg)
         if args.mavlink and args.gps_fix_delay:
             drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
@@ -242,7 +255,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                          remote_host=remote_host, remote_port=remote_port, rto=args.rto,
                          retries=args.retries, reply_to_source=args.reply_to_source,
                          reuse_port=args.reuse_port,
-                         record_path=args.record, capture_path=args.capture, dwell=args.dwell,
+                         record_path=args.record, capture_path=args.capture, live=args.live, dwell=args.dwell,
                          impair=args.impair_spec,
                          ready_timeout=args.ready_timeout)
     return Manager(mcfg)

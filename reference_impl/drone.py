@@ -181,6 +181,8 @@ class DroneConfig:
     record_path: str | None = None
     #: MCAP capture of the node's MCP traffic and its autopilot link (``--capture``)
     capture_path: str | None = None
+    #: ``--live``: serve the capture's channels over the Foxglove WebSocket protocol (host, port)
+    live: tuple[str, int] | None = None
     #: ``--impair``: this node's socket edge is a bad link (a ``harness.impair.ImpairSpec``)
     impair: Any = None
     heartbeat_timeout: float = 30.0
@@ -245,7 +247,7 @@ class Drone(RoleNode):
             self.vehicle.start(host="127.0.0.1", port=0)
             url = self.vehicle.url
             self.log.info("built-in simulated vehicle on %s (GPS fix in %.1f s)", url, cfg.gps_fix_delay)
-        capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, rto=cfg.rto, mavlink=url,
+        capture = self._open_capture(cfg.capture_path, "drone", cfg.drone_id, rto=cfg.rto, live=cfg.live, mavlink=url,
                                      impair=cfg.impair.text() if cfg.impair is not None else None,
                                      target=f"{cfg.remote_host}:{cfg.remote_port}")
         self.log.info("connecting to the autopilot at %s", url)

@@ -63,6 +63,8 @@ class ManagerConfig:
     record_path: str | None = None
     #: MCAP capture of the manager's MCP traffic (``--capture``)
     capture_path: str | None = None
+    #: ``--live``: serve the capture's channels over the Foxglove WebSocket protocol (host, port)
+    live: tuple[str, int] | None = None
     #: ``--impair``: this node's socket edge is a bad link (a ``harness.impair.ImpairSpec``)
     impair: Any = None
     #: Seconds a waypoint stays active between its WP_On and WP_Off (challenge 2).
@@ -147,7 +149,7 @@ class Manager(RoleNode):
 
     def _run(self) -> int:
         cfg = self.cfg
-        capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, rto=cfg.rto,
+        capture = self._open_capture(cfg.capture_path, "manager", MANAGER_ID, rto=cfg.rto, live=cfg.live,
                                      impair=cfg.impair.text() if cfg.impair is not None else None,
                                      challenge=cfg.challenge,
                                      drones=",".join(map(str, cfg.drones)),

@@ -119,14 +119,17 @@ class RoleNode:
         self._stop = threading.Event()
         self.capture: Any = None
 
-    def _open_capture(self, path: str | None, role: str, node_id: int, rto: float | None = None,
-                      **meta: Any) -> Any:
+    def _open_capture(self, path: str | None, role: str, node_id: int, rto: float | None = None, *,
+                      live: tuple[str, int] | None = None, **meta: Any) -> Any:
         """The node's MCAP capture (``--capture``), written off the hot path; None without.
+        ``live`` (``--live``, issue 24): the writer process also serves the capture's channels
+        over the Foxglove WebSocket protocol (a writer of no file without ``--capture``); the
+        ``ws://`` URL goes to stderr.
 
         Its metadata says the capture is complete (the node's socket sees every datagram
         the node sends and receives) and gives the node's retransmission timeout, so
         ``mcp-capture check`` judges its absences (MCP-RTX-1) with the node's own timing."""
-        if not path:
+        if not path and live is None:
             return None
         from spec import SPEC
         from traceio.background import BackgroundRecorder
@@ -136,13 +139,16 @@ class RoleNode:
         try:
             # the MCAP header names the writer: readers tell a node's own capture from a
             # test harness's (judge.judging: a harness's datagrams are its input, not judged)
-            self.capture = BackgroundRecorder(path, library="mcp-node", metadata=run_metadata(
+            self.capture = BackgroundRecorder(path or None, library="mcp-node", live=live, metadata=run_metadata(
                 "mcp-node", role=role, node_id=node_id, argv=" ".join(sys.argv),
                 # --impair: what reached the far end is not what the node's socket saw
                 complete="false" if meta.get("impair") else "true",
                 parameters={"rto": timeout}, **meta))
         except RecorderError as exc:
             raise RoleError(str(exc)) from None
+        if self.capture.live_url is not None:
+            print(f"mcp-node: live: {self.capture.live_url} (Foxglove: Open connection, Foxglove WebSocket)",
+                  file=sys.stderr, flush=True)
         return self.capture
 
     def _impairment(self, spec: Any) -> Any:

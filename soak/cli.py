@@ -3,7 +3,7 @@ impairment (issue 22 item 4; MCP-DUP-1, MCP-RTX-1, MCP-FLOW-4/5/6 on a bad link)
 
     mcp-soak --missions 100 --impair loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms [--seed N]
              [--drones 1,2,3] [--challenges 1,2,3] [--rto 0.2] [--mission-timeout 60]
-             [--manager CMD] [--drone CMD] [--out DIR] [--json FILE] [--keep]
+             [--manager CMD] [--drone CMD] [--out DIR] [--json FILE] [--keep] [--live [HOST:]PORT]
 
 Mission *k* of a campaign with ``--seed S`` runs challenge ``challenges[k % n]`` with
 impairment seed ``S + k``: ``--missions 1 --seed S+k --challenges c`` replays it. Each
@@ -57,6 +57,15 @@ def _ids(text: str, what: str, lo: int, hi: int) -> tuple[int, ...]:
     return ids
 
 
+def _live(text: str) -> tuple[str, int]:
+    from traceio.live import LiveError, parse_live
+
+    try:
+        return parse_live(text)
+    except LiveError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--live: ")) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Whole MCP missions on a bad link: each through its own seeded "
                 "impairment, judged by the monitor and checked exactly-once on what the drones delivered.")
@@ -86,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fail a mission on MUST violations only (default: any monitor violation)")
     p.add_argument("--fail-fast", action="store_true", help="stop after the first failing mission")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-': stdout)")
+    p.add_argument("--live", type=_live, metavar="[HOST:]PORT",
+                   help="serve the missions live over the Foxglove WebSocket protocol: each node's view under "
+                        "its name (/manager/..., /drone1/...), each mission's outcome on /log "
+                        "(loopback unless HOST is given; port 0: a free one)")
     p.epilog = ("placeholders in --manager/--drone: " + ", ".join("{" + k + "}" for k in placeholders())
                 + "; {target_host}:{target_port} is where the node listens, {listen_host}:{listen_port} "
                 "where it sends, {record} the JSON delivery log it must write")
@@ -149,12 +162,44 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     from rich.console import Console
+
+    console = Console(stderr=ns.json == "-")
+    if ns.live is not None:
+        from traceio.live import LiveError, LiveServer
+
+        try:
+            # every view's channels made before a client can connect (traceio.live)
+            setup.live = LiveServer(*ns.live, name=PROG, feeds={
+                None: ("/log",), "manager": None, **{f"drone{i}": None for i in setup.drones}})
+        except LiveError as exc:
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+    try:
+        return _campaign(ns, setup, seed, console)
+    finally:
+        if setup.live is not None:  # nothing left listening, however the campaign ended
+            setup.live.stop()
+
+
+def _log(setup: MissionSetup, message: str, level: str = "info") -> None:
+    """A line of the campaign's /log (--live): a mission started, complete or failed."""
+    if setup.live is None:
+        return
+    from traceio.fox import log_body
+
+    t = time.time_ns()
+    setup.live.feed(None, topics=("/log",)).publish("/log", json.dumps(log_body(t, level, message, PROG)).encode(), t)
+
+
+def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: Any) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    console = Console(stderr=ns.json == "-")
     if not console.is_terminal:
         console.width = 150
+    if setup.live is not None:
+        console.print(f"{PROG}: live: {setup.live.url} (Foxglove: Open connection, Foxglove WebSocket)",
+                      highlight=False, soft_wrap=True)
     console.print(f"{PROG}: {ns.missions} missions, drones {','.join(map(str, ns.drones))}, "
                   f"challenges {','.join(map(str, ns.challenges))}, link {setup.impair.text().rsplit(',seed=', 1)[0]}, "
                   f"seeds {seed}..{seed + ns.missions - 1}, rto {ns.rto:g} s")
@@ -165,8 +210,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         task = bar.add_task("missions", total=ns.missions, state="")
         for k in range(ns.missions):
             challenge = ns.challenges[k % len(ns.challenges)]
+            _log(setup, f"mission {k} started: seed {seed + k}, challenge {challenge}")
             r = run_mission(setup, k, seed + k, challenge)
             results.append(r)
+            _log(setup, f"mission {k} (seed {r.seed}) complete" if r.ok else
+                 f"mission {k} (seed {r.seed}) {r.outcome}: " + "; ".join(r.reasons[:3]), "info" if r.ok else "error")
             if r.ok and not ns.keep:
                 shutil.rmtree(ns.out / f"mission-{r.seed}-c{r.challenge}", ignore_errors=True)
                 r.capture = None

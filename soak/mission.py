@@ -71,6 +71,9 @@ class MissionSetup:
     obstacles: Path | None = None
     workdir: Path = Path("soak-out")
     strict: bool = True  # any monitor violation fails the mission (not only MUSTs)
+    #: ``--live``: the campaign's Foxglove WebSocket server (``traceio.live.LiveServer``); each
+    #: node's view is served as it is recorded, under its name (``/drone1/mcp/rx``)
+    live: Any = None
 
 
 @dataclass
@@ -215,7 +218,8 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
         node_id = 0 if v == MANAGER else int(v[5:])
         recorders[v] = McapRecorder(parts[v], library="mcp-soak", metadata=run_metadata(
             "mcp-soak", role="manager" if v == MANAGER else "drone", node_id=node_id, complete="true",
-            parameters={"rto": setup.rto}, impair=spec.text(), challenge=challenge))
+            parameters={"rto": setup.rto}, impair=spec.text(), challenge=challenge),
+            live=setup.live.feed(v) if setup.live is not None else None)
     medium = Medium(setup.drones, Impairment(spec), (host, ports[MANAGER]),
                     {i: (host, ports[view_name(i)]) for i in setup.drones}, recorders, host)
     common = {"python": sys.executable, "challenge": challenge, "drones": ",".join(map(str, setup.drones)),

@@ -5,7 +5,9 @@ A node records every datagram it sends and receives; decoding, JSON and MCAP cos
 in-process: each call only timestamps the record and appends it to a deque (well under a
 microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
 ``marshal``-ed batch, down a pipe to a writer process (``python -m traceio.background
-FILE``) that runs :class:`~traceio.recorder.McapRecorder` on another core.
+FILE``) that runs :class:`~traceio.recorder.McapRecorder` on another core. ``live``
+(``--live``): the writer also serves the records over the Foxglove WebSocket protocol
+(:mod:`traceio.live`), off the node's hot path as well, and stops serving when it ends.
 
 The writer runs at nice 19, so it takes mostly CPU time nothing else wants: the node under
 load gets the CPU first and the writer catches up from the pipe and the backlog (at the end
@@ -51,30 +53,53 @@ def _addr(addr: Any) -> Any:
 class BackgroundRecorder:
     """:class:`~traceio.recorder.McapRecorder`'s methods, written by a writer process."""
 
-    def __init__(self, path: str | Path, *, library: str = "mcp-conform",
-                 metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
-        self.path = Path(path)
+    def __init__(self, path: str | Path | None, *, library: str = "mcp-conform",
+                 metadata: Mapping[str, str] | None = None, local: Any = None,
+                 live: tuple[str, int] | None = None) -> None:
+        self.path = Path(path) if path is not None else None
         #: the recording socket's address: the default ``local`` of datagrams (settable)
         self.local = _addr(local)
         self.dropped = 0
+        #: ``ws://HOST:PORT`` of the writer's live server (``live``: its (host, port))
+        self.live_url: str | None = None
         self._closed = False
         self._queue: deque[tuple[str, tuple[Any, ...]]] = deque()
+        if self.path is not None:
+            try:
+                open(self.path, "wb").close()  # noqa: SIM115 - one-line error now, not in the writer
+            except OSError as exc:
+                raise _rec.RecorderError(f"--capture: cannot write {str(self.path)!r}: {exc.strerror}") from None
+        argv = [sys.executable, "-m", "traceio.background", str(self.path) if self.path is not None else "-"]
+        if live is not None:
+            argv += ["--live", f"{live[0]}:{live[1]}"]
         try:
-            open(self.path, "wb").close()  # noqa: SIM115 - one-line error now, not in the writer
-        except OSError as exc:
-            raise _rec.RecorderError(f"--capture: cannot write {str(self.path)!r}: {exc.strerror}") from None
-        try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-m", "traceio.background", str(self.path)],
-                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
+            self._proc = subprocess.Popen(argv, stdin=subprocess.PIPE,
+                                          stdout=subprocess.PIPE if live is not None else subprocess.DEVNULL,
+                                          start_new_session=True)
         except OSError as exc:
             raise _rec.RecorderError(f"--capture: cannot start the capture writer: {exc.strerror}") from None
+        if live is not None:
+            self.live_url = self._live_started()
         self._lock = threading.Lock()  # one writer of the pipe at a time
         self._wake = threading.Event()
         self._queue.append(("__init__", (library, dict(metadata or {}), self.local)))
         self._thread = threading.Thread(target=self._flush_loop, name="mcap-flusher", daemon=True)
         self._thread.start()
         _rec._LIVE.add(self)
+
+    def _live_started(self) -> str:
+        """The writer's first line: its live server's URL, or why it has none (a RecorderError)."""
+        out = self._proc.stdout
+        assert out is not None
+        line = out.readline().decode("utf-8", "replace").strip()  # the writer says at once
+        out.close()
+        if line.startswith("ws://"):
+            return line
+        with contextlib.suppress(OSError):
+            if self._proc.stdin is not None:
+                self._proc.stdin.close()
+        self._proc.wait(timeout=10)
+        raise _rec.RecorderError(line.removeprefix("error: ") or "--live: the capture writer did not start")
 
     @property
     def closed(self) -> bool:
@@ -193,12 +218,24 @@ def _read_exact(stream: Any, n: int) -> bytes:
     return b"".join(chunks)
 
 
-def writer_main(path: str) -> int:
-    """The writer process: apply batches from stdin to an McapRecorder until EOF."""
+def writer_main(path: str | None, live: str | None = None) -> int:
+    """The writer process: apply batches from stdin to an McapRecorder until EOF. ``live``
+    (``HOST:PORT``): it also serves the records live (:mod:`traceio.live`) and prints the
+    server's URL first on stdout (or ``error: ...``), for the node to show."""
     import signal
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)  # finish the file on EOF, whatever the node gets
+    server = None
+    if live is not None:
+        from traceio.live import LiveError, LiveServer, parse_live
+
+        try:
+            server = LiveServer(*parse_live(live), name="mcp-node")
+        except LiveError as exc:
+            print(f"error: {exc}", flush=True)
+            return 2
+        print(server.url, flush=True)
     idle = _run_when_idle()
     stdin = sys.stdin.buffer
     rec: _rec.McapRecorder | None = None
@@ -215,7 +252,8 @@ def writer_main(path: str) -> int:
             for name, args in batch:
                 if name == "__init__":
                     library, metadata, local = args
-                    rec = _rec.McapRecorder(path, library=library, metadata=metadata, local=local)
+                    rec = _rec.McapRecorder(path, library=library, metadata=metadata, local=local,
+                                            live=server.feed() if server is not None else None)
                 elif rec is not None:
                     try:
                         getattr(rec, name)(*args)
@@ -226,6 +264,8 @@ def writer_main(path: str) -> int:
             _run_normally()
         if rec is not None:
             rec.close()
+        if server is not None:  # nothing left listening once the node is done
+            server.stop()
     return 0
 
 
@@ -246,5 +286,7 @@ def _run_normally() -> None:
         os.setpriority(os.PRIO_PROCESS, 0, 0)
 
 
-if __name__ == "__main__":
-    sys.exit(writer_main(sys.argv[1]))
+if __name__ == "__main__":  # FILE ('-': none) [--live HOST:PORT]
+    _args = sys.argv[1:]
+    sys.exit(writer_main(None if _args[0] == "-" else _args[0],
+                         _args[2] if len(_args) > 2 and _args[1] == "--live" else None))

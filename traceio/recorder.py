@@ -32,7 +32,9 @@ the target, role and seed where they apply.
 driver's receiver thread calls it) and ``close()`` is idempotent; it is also called at
 interpreter exit, so a run interrupted by an exception or SIGTERM leaves a valid file.
 :class:`BackgroundRecorder` (same methods) hands the work to a writer process, for nodes
-where recording must cost the hot path almost nothing.
+where recording must cost the hot path almost nothing. ``live`` (``--live``,
+:mod:`traceio.live`): every message written is also handed, the same bytes, to a Foxglove
+WebSocket server's feed; a recorder of no file (``path`` None) feeds only that.
 """
 
 from __future__ import annotations
@@ -357,16 +359,27 @@ class McapRecorder:
 
     ``metadata``: the ``mcp-conform`` metadata record (see :func:`run_metadata`), written
     first. ``local``: the recording socket's address, the default ``local`` of datagrams.
+    ``live``: a feed (``traceio.live.LiveFeed``: ``publish(topic, data, t_ns)``) handed every
+    message as it is written, the same bytes (``--live``); ``path`` None: no file, only the feed.
     """
 
-    def __init__(self, path: str | Path, *, library: str = "mcp-conform",
-                 metadata: Mapping[str, str] | None = None, local: Any = None) -> None:
-        self.path = Path(path)
+    def __init__(self, path: str | Path | None, *, library: str = "mcp-conform",
+                 metadata: Mapping[str, str] | None = None, local: Any = None, live: Any = None) -> None:
+        self.path = Path(path) if path is not None else None
         self.local = local
+        self._live = live
         self._lock = threading.Lock()
         self._closed = False
         self._fox = foxglove_channels()
         self.counts: dict[str, int] = {topic: 0 for topic in {**CHANNELS, **self._fox}}
+        self._seq = 0
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self.segment: str | None = None
+        self._writer: Writer | None = None
+        if self.path is None:
+            _LIVE.add(self)
+            return
         try:
             self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
@@ -380,14 +393,12 @@ class McapRecorder:
         self._writer.start(profile=PROFILE, library=library)
         if metadata:
             self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
-        self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
         self._register_channels({})
-        self.segment: str | None = None
-        self._seq = 0
         _LIVE.add(self)
 
     def _register_channels(self, metadata: Mapping[str, str]) -> None:
+        if self._writer is None:
+            return
         schemas = self._schemas
         for topic, (name, schema) in {**CHANNELS, **self._fox}.items():
             if name not in schemas:
@@ -408,7 +419,8 @@ class McapRecorder:
             self._register_channels({SEGMENT: name})
             self.segment = name
             for md_name, values in metadata:
-                self._writer.add_metadata(md_name, {**{str(k): str(v) for k, v in values.items()}, SEGMENT: name})
+                if self._writer is not None:
+                    self._writer.add_metadata(md_name, {**{str(k): str(v) for k, v in values.items()}, SEGMENT: name})
 
     # ------------------------------------------------------------------ writing
     @property
@@ -422,9 +434,15 @@ class McapRecorder:
             if self._closed:
                 return
             self._seq += 1
-            self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
-                                     publish_time=t, sequence=self._seq)
-            self.counts[topic] += 1
+            if self._writer is not None:
+                self._writer.add_message(channel_id=self._channels[topic], log_time=t, data=data,
+                                         publish_time=t, sequence=self._seq)
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            if self._live is not None:  # the same bytes, in the same order (--live)
+                try:
+                    self._live.publish(topic, data, t)
+                except Exception:  # noqa: BLE001 - a viewer's trouble never costs the capture
+                    pass
 
     def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
                  local: Any = None) -> None:
@@ -472,7 +490,7 @@ class McapRecorder:
 
     def _stream_channels(self) -> None:
         with self._lock:
-            if self._closed or "/nsqd/tx" in self._channels:
+            if self._closed or "/nsqd/tx" in self._channels or self._writer is None:
                 return
             schemas: dict[str, int] = {}
             for t, (sname, schema) in STREAM_CHANNELS.items():
@@ -544,7 +562,7 @@ class McapRecorder:
         """A further MCAP metadata record (string values), of the current session
         (:meth:`begin_segment`) if any."""
         with self._lock:
-            if not self._closed:
+            if not self._closed and self._writer is not None:
                 seg = {SEGMENT: self.segment} if self.segment is not None else {}
                 self._writer.add_metadata(name, {**{str(k): str(v) for k, v in values.items()}, **seg})
 
@@ -554,6 +572,9 @@ class McapRecorder:
             if self._closed:
                 return
             self._closed = True
+            if self._writer is None:
+                _LIVE.discard(self)
+                return
             try:
                 self._writer.finish()
             finally:
