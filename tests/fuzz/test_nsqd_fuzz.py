@@ -63,3 +63,35 @@ def test_reference_backend_gives_no_finding(tmp_path):
     c = StreamCampaign(None, None, 7, 60.0, 1500, tmp_path)
     summary = c.run()
     assert summary["findings"] == [] and summary["cases"] == 1500, summary
+
+
+@pytest.mark.parametrize("close_seen", [True, False])
+def test_a_bad_id_desync_replays_however_soon_the_close_is_seen(tmp_path, backend, monkeypatch, close_seen):
+    """unknown-id-no-skip reads a bad id's body as the next length and closes the connection;
+    NSQD-MSG-4 says it must keep it. The replay's probe went to a new connection when the close
+    had been seen by then (1 replay in 6: "did not reproduce", a CI failure) and on the old one
+    when not: now it goes on the old one either way, as a connection that had to be kept."""
+    import time
+
+    import fuzz.stream_campaign as sc
+
+    writes = [{"hex": "0000000991834b4746", "end": ""}]  # id 145, 4 bytes of body
+    (tmp_path / "finding.json").write_text(json.dumps({
+        "protocol": "nsqd", "oracle": "desync", "kind": "stream lost after bad-id", "frames": [],
+        "rule": "NSQD-MSG-4", "writes": writes, "expect": [], "probe": True}))
+    run = sc.Backend.run
+
+    def settled(self, case):  # the timing that lost the replay, or the other one, made certain
+        hit = run(self, case)
+        if close_seen and self.conn is not None:
+            end = time.monotonic() + 2.0
+            while self.conn.closed_at is None and time.monotonic() < end:
+                self.conn.pump(0.05)
+            assert self.conn.closed_at is not None
+        return hit
+
+    monkeypatch.setattr(sc.Backend, "run", settled)
+    for fault, want in (("unknown-id-no-skip", 1), (None, 0)):
+        if fault is None and close_seen:
+            continue  # the correct backend keeps the connection: nothing to wait for
+        assert sc.replay_stream_finding(str(tmp_path), None, _spawn(backend, fault)) == want, fault
