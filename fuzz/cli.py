@@ -275,13 +275,12 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         except SetupError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
-    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--jobs", cfg.jobs > 1),
-                       ("--engine", ns.engine != "stateless"), ("--db", ns.db), ("--seeds", ns.seeds)):
+    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--seeds", ns.seeds)):
         if given:
             print(f"{PROG}: error: {opt}: not available with --protocol nsqd", file=sys.stderr)
             return 2
     campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
-                              cfg.max_cases, Path(cfg.out) if cfg.out else None)
+                              cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
     try:
         summary = campaign.run()
     except SetupError as exc:
