@@ -335,6 +335,7 @@ class StreamCampaign:
     started: float = field(default_factory=time.monotonic)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
+    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
 
     def _over(self, deadline: float) -> bool:
         return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
@@ -527,7 +528,10 @@ class StreamCampaign:
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
                            "count": f.count, "replays": f.replays, "engine": "stateful" if f.program is not None
                            else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "restarts": self.restarts}
+             "unconfirmed": self.unconfirmed, "restarts": self.restarts, "db": self.db,
+             "jobs": len(self.workers) if self.workers is not None else 1}
+        if self.workers is not None:
+            s["workers"] = self.workers
         if self.out is not None:
             (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
         return s

@@ -233,12 +233,12 @@ class Player:
         if not seen:
             sig = (Signature("hang", "UPDATE stream stopped with a second client", (), "NSQD-CON-2") if c.others
                    else Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"))
-        elif c.after_cut and not c.kinds:
-            sig = Signature("desync", f"stream lost after {c.after_cut}", (), "NSQD-ROB-3")
-            what += f" (a new connection after a frame cut by {c.after_cut[:3].upper()})"
         elif c.others:
             sig = Signature("effect", "command lost with a second client", (), "NSQD-CON-2")
             what += " (a second client had connected)"
+        elif c.after_cut and not c.kinds:
+            sig = Signature("desync", f"stream lost after {c.after_cut}", (), "NSQD-ROB-3")
+            what += f" (a new connection after a frame cut by {c.after_cut[:3].upper()})"
         elif c.kinds:
             sig = Signature("desync", f"stream lost after {c.kinds[-1]}", (), desync_rule(c.kinds[-1]))
         else:
@@ -278,13 +278,13 @@ class Player:
             self._gone(c)
             if c.second or not c.clean:
                 continue  # a second client may be closed (D-4); after a bad frame it may (D-3)
+            if c.others:  # before a cut: the second client is what happened to it last
+                raise Hit(Signature("close", "first client closed by a second", (), "NSQD-CON-2"),
+                          f"client {slot} was closed by the backend when a second client connected")
             if c.after_cut and not c.kinds:
                 raise Hit(Signature("desync", f"stream lost after {c.after_cut}", (), "NSQD-ROB-3"),
                           f"client {slot}'s new connection, after a frame cut by {c.after_cut[:3].upper()}, "
                           "was closed after frames a backend handles")
-            if c.others:
-                raise Hit(Signature("close", "first client closed by a second", (), "NSQD-CON-2"),
-                          f"client {slot} was closed by the backend when a second client connected")
             raise Hit(Signature("close", c.last_kind, (), _CLOSE_RULE.get(c.last_kind, "NSQD-FRM-5")),
                       f"the backend closed client {slot}'s connection after frames it handles")
         self._promote()
