@@ -119,6 +119,28 @@ class Backend:
             kind, access, frames = d.signal_name or f"exit {d.code}", "", ()
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(), tuple(report[:20]) or d.stderr)
 
+    def report_hit(self) -> Hit | None:
+        """A new sanitizer report on stderr: once it is whole (SUMMARY, or no line for 0.3 s;
+        symbolising its stacks takes a while on a loaded machine), a death if the process then
+        exits (ASan's default), else the report of a process still running (halt_on_error=0)."""
+        proc = self.session.proc
+        assert proc is not None
+        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 0.3
+        while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
+            time.sleep(0.01)
+            now = proc.sanitizer_report()
+            if len(now) > len(report):
+                report, quiet = now, time.monotonic() + 0.3
+        self.reports_seen = len(report)
+        dead = self.death_hit(0.3)
+        if dead is not None:
+            return dead
+        parsed = parse_sanitizer(report)
+        if parsed:
+            return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
+                       "a sanitizer report, the process still running", tuple(report[:20]))
+        return None
+
     def run(self, case: Case) -> Hit | None:
         """Write the case; what the oracles saw, if anything."""
         conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
@@ -145,14 +167,7 @@ class Backend:
         if proc is not None:
             report = proc.sanitizer_report()
             if len(report) > self.reports_seen:  # a report: the process may be on its way out
-                self.reports_seen = len(report)
-                dead = self.death_hit(0.3)
-                if dead is not None:
-                    return dead
-                parsed = parse_sanitizer(report)
-                if parsed:
-                    return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
-                               "a sanitizer report, the process still running", tuple(report[:20]))
+                return self.report_hit()
         if self.conn is not None:  # the backend's own frames first: an effect is read from them
             v = self.conn.violation()
             if v is not None:

@@ -37,7 +37,7 @@ from hypothesis.stateful import RuleBasedStateMachine, rule, run_state_machine_a
 from fuzz.engine_stateful import OutOfBudget, open_database
 from fuzz.stream_campaign import _CLOSE_RULE, Finding, _ddmin, _same, desync_rule
 from fuzz.stream_mutators import KINDS, Write, draw_case, valid_values
-from fuzz.stream_oracles import Signature, parse_sanitizer
+from fuzz.stream_oracles import Signature
 from harness.stream_session import Conn
 from spec import NSQD
 from spec.stream_codec import encode
@@ -194,7 +194,9 @@ class Player:
                 c.conn.close(rst=w.end == "rst")
                 self._gone(c)
                 if not _whole_frames(b"".join(x.data for x in op.writes)):
-                    self.cut = f"{w.end}-mid-frame"
+                    self.cut = f"{w.end}-mid-frame"  # the next connection served is a new stream
+                    for o in self.clients.values():  # a waiting client may be that one
+                        o.after_cut = o.after_cut or (self.cut if o.second else "")
                 return
         c.conn.pump(0.003)
 
@@ -260,14 +262,10 @@ class Player:
             raise Hit(hit.signature, hit.detail, hit.stderr)
         proc = self.b.session.proc
         if proc is not None:
-            report = proc.sanitizer_report()
-            if len(report) > self.b.reports_seen:
-                self.b.reports_seen = len(report)
-                self._dead()
-                parsed = parse_sanitizer(report)
-                if parsed:
-                    raise Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
-                              "a sanitizer report, the process still running", tuple(report[:20]))
+            if len(proc.sanitizer_report()) > self.b.reports_seen:
+                hit = self.b.report_hit()
+                if hit is not None:
+                    raise Hit(hit.signature, hit.detail, hit.stderr)
         for c in self.clients.values():
             v = c.conn.violation()
             if v is not None:
