@@ -130,11 +130,13 @@ def main() -> int:
     ap.add_argument("--backend", choices=("reference", "c", "both"), default="both",
                     help="nsqd: the Python reference backend, the correct C backend, or both")
     ap.add_argument("--engines", default="stateless,both", help="nsqd: mcp-fuzz engines to time (comma-separated)")
+    ap.add_argument("--probe-every", type=int, default=40, help="nsqd: mcp-fuzz's probe period in cases (its default 40)")
     args = ap.parse_args()
     if args.protocol == "nsqd":
         from bench.bench_fuzz_nsqd import main_nsqd
 
-        return main_nsqd(args.cases, args.seconds, args.backend, [e for e in args.engines.split(",") if e])
+        return main_nsqd(args.cases, args.seconds, args.backend, [e for e in args.engines.split(",") if e],
+                         args.probe_every)
     try:
         import boofuzz  # noqa: F401
     except ImportError:

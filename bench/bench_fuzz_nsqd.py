@@ -113,10 +113,32 @@ def run_boofuzz(addr: tuple[str, int], cases: int, seconds: float, tuned: bool) 
     return int(n), elapsed
 
 
+def _boofuzz_child(addr: tuple[str, int], cases: int, seconds: float, tuned: bool, pipe: Any) -> None:
+    pipe.send(run_boofuzz(addr, cases, seconds, tuned))
+
+
+def run_boofuzz_isolated(addr: tuple[str, int], cases: int, seconds: float, tuned: bool) -> tuple[int, float]:
+    """``run_boofuzz`` in a process of its own: a Session's web UI thread (tornado) outlives it
+    and would run beside the next row (and a second UI in one process fails to start)."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    here, there = ctx.Pipe()
+    proc = ctx.Process(target=_boofuzz_child, args=(addr, cases, seconds, tuned, there), daemon=True)
+    proc.start()
+    try:
+        n, elapsed = here.recv()
+    finally:
+        proc.join(timeout=10)
+        if proc.is_alive():
+            proc.kill()
+    return n, elapsed
+
+
 def run_ours(command: str | None, addr: tuple[str, int] | None, engine: str, cases: int,
-             seconds: float) -> tuple[int, float, int]:
+             seconds: float, probe_every: int = 40) -> tuple[int, float, int]:
     """mcp-fuzz's campaign: (cases, judged seconds, findings)."""
-    c = StreamCampaign(addr, command, 20140307, seconds, cases, None, engine=engine)
+    c = StreamCampaign(addr, command, 20140307, seconds, cases, None, engine=engine, probe_every=probe_every)
     c.run()
     return c.cases, c.fuzz_s, len(c.findings)
 
@@ -163,7 +185,7 @@ def backends(which: str) -> list[tuple[str, str]]:
     return out
 
 
-def main_nsqd(cases: int, seconds: float, which: str, engines: list[str]) -> int:
+def main_nsqd(cases: int, seconds: float, which: str, engines: list[str], probe_every: int = 40) -> int:
     try:
         import boofuzz  # noqa: F401
         have_boofuzz = True
@@ -180,16 +202,16 @@ def main_nsqd(cases: int, seconds: float, which: str, engines: list[str]) -> int
         try:
             for name, engine, tuned in rows:
                 if engine:
-                    n, s, found = run_ours(None, addr, engine, cases, seconds)
+                    n, s, found = run_ours(None, addr, engine, cases, seconds, probe_every)
                 else:
-                    (n, s), found = run_boofuzz(addr, cases, seconds, tuned), None
+                    (n, s), found = run_boofuzz_isolated(addr, cases, seconds, tuned), None
                 extra = "" if found is None else f"  findings: {found}"
                 print(f"{name:34} {n:8d} cases in {s:6.2f} s  {n / s if s else 0:9,.0f} cases/s  "
                       f"backend live after: {_alive(addr)}{extra}", flush=True)
         finally:
             proc.stop(grace=0.5)
         for e in engines:  # process oracles on: its own process of the same command
-            n, s, found = run_ours(command, None, e, cases, seconds)
+            n, s, found = run_ours(command, None, e, cases, seconds, probe_every)
             print(f"{'mcp-fuzz ' + e + ', spawned':34} {n:8d} cases in {s:6.2f} s  {n / s if s else 0:9,.0f} "
                   f"cases/s  findings: {found}", flush=True)
     print(f"machine: {os.cpu_count()} CPUs; Python {sys.version.split()[0]}")
