@@ -14,6 +14,13 @@ spawned`` (process oracles on: death, sanitizer reports, descriptors). Rows:
 - ``mcp-fuzz <engine>``: its stateless (and stateful) engine, every case judged (the
   backend's frames, effects, closes, probes for sync and liveness).
 
+Each row also says what the reference backend parsed (frames, connections: its ``-v`` log)
+and how many connection attempts the kernel dropped from a full listen queue meanwhile: a
+blind sender outruns a one-client-at-a-time backend's accept loop, and each drop stalls it
+for a SYN retransmission (1 s), so boofuzz's tuned figure varies widely from run to run. A
+tuned session that reused its connection would count cases the backend never reads (after
+the first framing error the connection is gone and boofuzz ignores the failed sends).
+
 boofuzz's session is Nsqd's frames as the spec has them: one request per client message of
 ``spec/nsqd.yaml``, a 4-byte big-endian ``Size`` that counts itself (``inclusive``) over the
 id byte and the body, each string field an int16 ``Size`` and its text (valid values as
@@ -30,6 +37,7 @@ import os
 import random
 import shlex
 import socket
+import subprocess
 import sys
 import tempfile
 import threading
@@ -42,7 +50,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a sourc
 from bench.bench_fuzz import _free_tcp_port, _quiet_stdout  # noqa: E402
 from fuzz.stream_campaign import StreamCampaign  # noqa: E402
 from fuzz.stream_mutators import valid_values  # noqa: E402
-from harness.procs import ManagedProcess  # noqa: E402
 from harness.stream_session import embedded_command  # noqa: E402
 from spec import NSQD  # noqa: E402
 
@@ -143,20 +150,61 @@ def run_ours(command: str | None, addr: tuple[str, int] | None, engine: str, cas
     return c.cases, c.fuzz_s, len(c.findings)
 
 
-def _start(command: str) -> tuple[ManagedProcess, tuple[str, int]]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
-    proc = ManagedProcess(shlex.split(command.format(target_host="127.0.0.1", target_port=port)))
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        with socket.socket() as s, contextlib.suppress(OSError):
-            s.settimeout(0.2)
-            s.connect(("127.0.0.1", port))
-            return proc, ("127.0.0.1", port)
-        time.sleep(0.05)
-    proc.stop()
-    raise SystemExit(f"bench_fuzz: the backend did not listen: {command}")
+class _Backend:
+    """The backend for boofuzz's rows and mcp-fuzz's attached ones: one process, its stderr in
+    a file. The reference backend runs with ``-v``: it logs each frame it parsed (handled or
+    rejected) and each connection it accepted, so a row can say how much of what a tool sent
+    the backend actually read (a blind sender's cases may die in the listen backlog)."""
+
+    def __init__(self, command: str, verbose: bool) -> None:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        self.addr = ("127.0.0.1", port)
+        self.log = tempfile.NamedTemporaryFile(prefix="bench-nsqd-", suffix=".log", delete=False)  # noqa: SIM115
+        argv = shlex.split(command.format(target_host="127.0.0.1", target_port=port)) + (["-v"] if verbose else [])
+        self.proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=self.log)
+        self.verbose, self.seen = verbose, (0, 0)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline:
+            with socket.socket() as s, contextlib.suppress(OSError):
+                s.settimeout(0.2)
+                s.connect(self.addr)
+                return
+            time.sleep(0.05)
+        self.stop()
+        raise SystemExit(f"bench_fuzz: the backend did not listen: {command}")
+
+    def read_since_last(self) -> str:
+        """Frames parsed and connections accepted since the last call ('' when not logged)."""
+        if not self.verbose:
+            return ""
+        time.sleep(0.3)  # what is still queued in the backend
+        text = Path(self.log.name).read_text(errors="replace")
+        frames = text.count("Handled(") + text.count("Rejected(")
+        conns = text.count(" connected")
+        d = (frames - self.seen[0], conns - self.seen[1])
+        self.seen = (frames, conns)
+        return f"  backend parsed {d[0]} frames on {d[1]} connections"
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(timeout=2)
+        self.proc.kill()
+        self.proc.wait()
+        self.log.close()
+        os.unlink(self.log.name)
+
+
+def listen_drops() -> int | None:
+    """The kernel's count of connection attempts a full listen queue dropped (Linux, machine
+    wide): each costs the client a SYN retransmission, 1 s, and shows as a stall in its row."""
+    try:
+        lines = [line.split() for line in Path("/proc/net/netstat").read_text().splitlines() if line.startswith("TcpExt:")]
+        return int(lines[1][lines[0].index("ListenDrops")])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _alive(addr: tuple[str, int]) -> bool:
@@ -194,22 +242,30 @@ def main_nsqd(cases: int, seconds: float, which: str, engines: list[str], probe_
         print(f"bench_fuzz: {BOOFUZZ_MISSING}")
     for label, command in backends(which):
         print(f"== {label}: {cases} cases or {seconds:g} s per row, whichever first", flush=True)
-        proc, addr = _start(command)
+        backend = _Backend(command, verbose=command == embedded_command())
+        addr = backend.addr
         rows: list[tuple[str, str, bool]] = []
         if have_boofuzz:
             rows += [("boofuzz 0.4.2 default", "", False), ("boofuzz 0.4.2 tuned", "", True)]
         rows += [(f"mcp-fuzz {e}, attached", e, False) for e in engines]
         try:
+            backend.read_since_last()  # the liveness checks of the start
             for name, engine, tuned in rows:
+                drops0 = listen_drops()
                 if engine:
                     n, s, found = run_ours(None, addr, engine, cases, seconds, probe_every)
                 else:
                     (n, s), found = run_boofuzz_isolated(addr, cases, seconds, tuned), None
                 extra = "" if found is None else f"  findings: {found}"
+                parsed = backend.read_since_last()
+                drops1 = listen_drops()
+                if drops0 is not None and drops1 is not None:
+                    parsed += f"  listen drops {drops1 - drops0}"
                 print(f"{name:34} {n:8d} cases in {s:6.2f} s  {n / s if s else 0:9,.0f} cases/s  "
-                      f"backend live after: {_alive(addr)}{extra}", flush=True)
+                      f"live after: {_alive(addr)}{extra}{parsed}", flush=True)
+                backend.read_since_last()  # the liveness check's own connection
         finally:
-            proc.stop(grace=0.5)
+            backend.stop()
         for e in engines:  # process oracles on: its own process of the same command
             n, s, found = run_ours(command, None, e, cases, seconds, probe_every)
             print(f"{'mcp-fuzz ' + e + ', spawned':34} {n:8d} cases in {s:6.2f} s  {n / s if s else 0:9,.0f} "
