@@ -27,8 +27,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from fuzz.ddmin import ddmin
 from fuzz.stream_mutators import Case, Write, draw_case, valid_values
-from fuzz.stream_oracles import Signature, parse_sanitizer
+from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, parse_sanitizer, same_finding
 from harness.config import RunConfig
 from harness.errors import SetupError
 from harness.stream_session import Conn, StreamSession
@@ -37,8 +38,7 @@ from spec.stream_codec import encode
 
 __all__ = ["StreamCampaign", "replay_stream_finding"]
 
-_CLOSE_RULE = {"split-writes": "NSQD-FRM-2", "batched": "NSQD-FRM-3", "valid": "NSQD-FRM-5",
-               "body-padded": "NSQD-FRM-5", "gpx-size": "NSQD-FRM-5"}
+_same, _ddmin, _CLOSE_RULE = same_finding, ddmin, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
 
 
@@ -260,13 +260,6 @@ class Backend:
         return self.session.open_fds()
 
 
-def desync_rule(kind: str) -> str:
-    """The rule a stream that lost its sync after a case of ``kind`` breaks (both engines)."""
-    return ("NSQD-MSG-4" if kind == "bad-id" else "NSQD-ROB-3" if kind.endswith("mid-frame")
-            else "NSQD-FRM-2" if kind == "split-writes" else "NSQD-FRM-3" if kind == "batched"
-            else "NSQD-MSG-7")
-
-
 def message_names(data: bytes) -> list[str]:
     """The message of each frame in ``data``, walked by its length prefixes (after a prefix
     that lies, no further): ``unknown`` for an id that names none, ``-`` for no id at all."""
@@ -301,36 +294,6 @@ def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: b
     if hit is None and probe:
         hit = b.probe()
     return (hit is not None and _same(hit.signature, sig)), b, hit
-
-
-def _same(seen: Signature, want: Signature) -> bool:
-    """The same finding: equal keys; a lost stream is one whatever the probe that showed it."""
-    if seen.oracle == want.oracle == "desync":
-        return True
-    if {seen.oracle, want.oracle} <= {"crash", "sanitizer"}:  # a report seen before or after the exit
-        return (seen.kind, seen.frames[:3]) == (want.kind, want.frames[:3])
-    return seen.key == want.key
-
-
-def _ddmin(items: list[Any], test: Any, budget: int) -> list[Any]:
-    """Zeller's delta debugging, bounded by ``budget`` tests."""
-    n, spent = 2, 0
-    while len(items) >= 2 and spent < budget:
-        chunk = max(1, len(items) // n)
-        reduced = False
-        for i in range(0, len(items), chunk):
-            rest = items[:i] + items[i + chunk:]
-            spent += 1
-            if rest and test(rest):
-                items, n, reduced = rest, max(n - 1, 2), True
-                break
-            if spent >= budget:
-                break
-        if not reduced:
-            if n >= len(items):
-                break
-            n = min(len(items), n * 2)
-    return items
 
 
 @dataclass
@@ -402,6 +365,10 @@ class StreamCampaign:
             return triage_program(self, backend, hit, ops)
         finally:
             self.triage_s += time.monotonic() - t0
+
+    def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
+                            program: list[dict[str, Any]]) -> None:
+        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program))
 
     def _stateless(self, backend: Backend, deadline: float) -> Backend:
         rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))

@@ -34,10 +34,10 @@ from hypothesis.errors import Flaky
 from hypothesis.reporting import with_reporter
 from hypothesis.stateful import RuleBasedStateMachine, rule, run_state_machine_as_test
 
+from fuzz.ddmin import ddmin
 from fuzz.engine_stateful import OutOfBudget, open_database
-from fuzz.stream_campaign import _CLOSE_RULE, Finding, _ddmin, _same, desync_rule
 from fuzz.stream_mutators import KINDS, Write, draw_case, valid_values
-from fuzz.stream_oracles import Signature
+from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from harness.stream_session import Conn
 from spec import NSQD
 from spec.stream_codec import encode
@@ -283,7 +283,7 @@ class Player:
                 raise Hit(Signature("desync", f"stream lost after {c.after_cut}", (), "NSQD-ROB-3"),
                           f"client {slot}'s new connection, after a frame cut by {c.after_cut[:3].upper()}, "
                           "was closed after frames a backend handles")
-            raise Hit(Signature("close", c.last_kind, (), _CLOSE_RULE.get(c.last_kind, "NSQD-FRM-5")),
+            raise Hit(Signature("close", c.last_kind, (), CLOSE_RULE.get(c.last_kind, "NSQD-FRM-5")),
                       f"the backend closed client {slot}'s connection after frames it handles")
         self._promote()
 
@@ -527,18 +527,17 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
         h = play_program(box["b"], o)
         if h is not None and h.stderr:
             box["stderr"] = h.stderr
-        return h is not None and _same(h.signature, sig)
+        return h is not None and same_finding(h.signature, sig)
 
     if not reproduces(ops):
         campaign.unconfirmed += 1
         return box["b"].fresh()
     if len(ops) > 1:
-        ops = _ddmin(list(ops), reproduces, budget=16)
+        ops = ddmin(list(ops), reproduces, budget=16)
     confirmed = sum(reproduces(ops) for _ in range(campaign.replays))
     if confirmed < campaign.replays:
         campaign.unconfirmed += 1
         return box["b"].fresh()
-    campaign._add(Finding(sig, [], hit.detail, f"{confirmed} of {campaign.replays}", tuple(box["stderr"]),
-                          note="stateful: " + "; ".join(op.describe() for op in ops),
-                          program=[op.to_json() for op in ops]))
+    campaign.add_program_finding(sig, hit.detail, f"{confirmed} of {campaign.replays}", tuple(box["stderr"]),
+                                 "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops])
     return box["b"].fresh()
