@@ -177,8 +177,9 @@ class Player:
             o.others = True
         self.clients[slot] = c
         if served:  # a second client: the first's frames a moment later show what it did to it
-            first = served[0]
-            first.conn.wait_for(lambda: first.conn.closed_at is not None, min(0.15, self.gap / 4))
+            first, t = served[0].conn, time.monotonic()
+            # until the backend has gone round its loop once more (its next UPDATE to the first)
+            first.wait_for(lambda: first.closed_at is not None or bool(first.updates(t)), min(0.15, self.gap / 4))
         return c
 
     def _send(self, c: Client, op: Op) -> None:
