@@ -2,6 +2,7 @@
 
     pip install -e '.[bench]'      # boofuzz
     python bench/bench_fuzz.py [--cases N] [--seconds S]
+    python bench/bench_fuzz.py --protocol nsqd [--backend reference|c|both]   # Nsqd over TCP (issue 21)
 
 One reference drone (the embedded default, spawned once) is fuzzed three times in a row:
 
@@ -124,7 +125,18 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=20_000)
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--protocol", choices=("mcp", "nsqd"), default="mcp",
+                    help="nsqd: against an Nsqd backend over TCP (bench/bench_fuzz_nsqd.py)")
+    ap.add_argument("--backend", choices=("reference", "c", "both"), default="both",
+                    help="nsqd: the Python reference backend, the correct C backend, or both")
+    ap.add_argument("--engines", default="stateless,both", help="nsqd: mcp-fuzz engines to time (comma-separated)")
+    ap.add_argument("--probe-every", type=int, default=40, help="nsqd: mcp-fuzz's probe period in cases (its default 40)")
     args = ap.parse_args()
+    if args.protocol == "nsqd":
+        from bench.bench_fuzz_nsqd import main_nsqd
+
+        return main_nsqd(args.cases, args.seconds, args.backend, [e for e in args.engines.split(",") if e],
+                         args.probe_every)
     try:
         import boofuzz  # noqa: F401
     except ImportError:

@@ -308,15 +308,24 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         except SetupError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
-    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--jobs", cfg.jobs > 1),
-                       ("--engine", ns.engine != "stateless"), ("--db", ns.db), ("--seeds", ns.seeds)):
+    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--seeds", ns.seeds)):
         if given:
             print(f"{PROG}: error: {opt}: not available with --protocol nsqd", file=sys.stderr)
             return 2
+    from fuzz.stream_progress import StreamLive
+
     campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
-                              cfg.max_cases, Path(cfg.out) if cfg.out else None)
+                              cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
+    live = StreamLive()
+    campaign.tick = live.update
     try:
-        summary = campaign.run()
+        with live:
+            if cfg.jobs > 1:
+                from fuzz.stream_jobs import run_stream_jobs
+
+                summary = run_stream_jobs(campaign, cfg.jobs, live)
+            else:
+                summary = campaign.run()
     except SetupError as exc:
         if campaign.out:
             campaign.summary(0.0)
@@ -333,10 +342,16 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         print(f"{PROG}: error: internal error ({type(exc).__name__}: {exc}); {len(campaign.findings)} "
               "finding(s) written so far", file=sys.stderr)
         return 2
+    errors = [w["error"] for w in summary.get("workers", []) if w.get("error")]
+    if errors and not summary["cases"]:
+        print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
+        return 2
     for i, f in enumerate(campaign.findings, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
-    print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['cases_per_s']} cases/s), "
-          f"{len(campaign.findings)} finding(s), {summary['unconfirmed']} unconfirmed; seed {cfg.seed}")
+    classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
+    print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
+          f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
+          f"engine {cfg.engine}, {cfg.jobs} job(s), seed {cfg.seed}")
     return 1 if campaign.findings else 0
 
 

@@ -22,13 +22,15 @@ import json
 import random
 import shlex
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from fuzz.ddmin import ddmin
 from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
 from fuzz.stream_mutators import Case, Write, draw_case, valid_values
-from fuzz.stream_oracles import Signature, parse_sanitizer
+from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, parse_sanitizer, same_finding
 from harness.config import RunConfig
 from harness.errors import SetupError
 from harness.stream_session import Conn, StreamSession
@@ -37,8 +39,7 @@ from spec.stream_codec import encode
 
 __all__ = ["StreamCampaign", "replay_stream_finding"]
 
-_CLOSE_RULE = {"split-writes": "NSQD-FRM-2", "batched": "NSQD-FRM-3", "valid": "NSQD-FRM-5",
-               "body-padded": "NSQD-FRM-5", "gpx-size": "NSQD-FRM-5"}
+_same, _ddmin, _CLOSE_RULE = same_finding, ddmin, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
 
 
@@ -59,8 +60,11 @@ class Finding:
     count: int = 1
     note: str = ""
     traffic: list[Any] = field(default_factory=list)  # the last confirming replay's (repro.mcap, repro.pcap)
+    program: list[dict[str, Any]] | None = None  # the stateful engine's: its ops (fuzz.stream_stateful.Op)
 
     def writes(self) -> list[Write]:
+        if self.program is not None:
+            return [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in self.program for w in op["writes"]]
         return [w for c in self.cases for w in c.writes]
 
 
@@ -84,6 +88,7 @@ class Backend:
         # found nothing and "did not reproduce" the desync)
         self.must_keep = False
         self.bad_probes: set[str] = set()
+        self.synced = False  # the last case's judged effect showed the stream in sync
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -123,6 +128,28 @@ class Backend:
             kind, access, frames = d.signal_name or f"exit {d.code}", "", ()
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(), tuple(report[:20]) or d.stderr)
 
+    def report_hit(self) -> Hit | None:
+        """A new sanitizer report on stderr: once it is whole (SUMMARY, or no line for 0.3 s;
+        symbolising its stacks takes a while on a loaded machine), a death if the process then
+        exits (ASan's default), else the report of a process still running (halt_on_error=0)."""
+        proc = self.session.proc
+        assert proc is not None
+        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 0.3
+        while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
+            time.sleep(0.01)
+            now = proc.sanitizer_report()
+            if len(now) > len(report):
+                report, quiet = now, time.monotonic() + 0.3
+        self.reports_seen = len(report)
+        dead = self.death_hit(0.3)
+        if dead is not None:
+            return dead
+        parsed = parse_sanitizer(report)
+        if parsed:
+            return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
+                       "a sanitizer report, the process still running", tuple(report[:20]))
+        return None
+
     def run(self, case: Case) -> Hit | None:
         """Write the case; what the oracles saw, if anything."""
         conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
@@ -143,21 +170,17 @@ class Backend:
             if not case.probe and self.conn.closed_at is None and self.death_hit(0.0) is None:
                 self._drop()  # a case that may leave the stream unusable: the next starts afresh
         closed_by_backend = self.conn is not None and self.conn.closed_at is not None
-        hit = self.death_hit(0.03 if closed_by_backend else 0.0)  # a death closes the socket as the process exits
+        # a death closes the socket as the process exits: where a close would be a finding, a
+        # moment to tell the two apart (a close after a bad frame is allowed, and a death then
+        # shows at the next case: not worth 30 ms on every framing error)
+        hit = self.death_hit(0.03 if closed_by_backend and self.clean else 0.0)
         if hit is not None:
             return hit
         proc = self.session.proc
         if proc is not None:
             report = proc.sanitizer_report()
             if len(report) > self.reports_seen:  # a report: the process may be on its way out
-                self.reports_seen = len(report)
-                dead = self.death_hit(0.3)
-                if dead is not None:
-                    return dead
-                parsed = parse_sanitizer(report)
-                if parsed:
-                    return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]),
-                               "a sanitizer report, the process still running", tuple(report[:20]))
+                return self.report_hit()
         if self.conn is not None:  # the backend's own frames first: an effect is read from them
             v = self.conn.violation()
             if v is not None:
@@ -179,8 +202,13 @@ class Backend:
         assert conn is not None
         since = conn.sent[-1][0] if conn.sent else time.monotonic()
         window = float(NSQD.params["effect_window_s"])
+        before = [u.values["state"] for u in conn.updates() if u.t < since]  # type: ignore[index]
         ok = conn.wait_for(lambda: any(u.values["state"] in case.expect for u in conn.updates(since))  # type: ignore[index]
                            or (case.or_error and bool(conn.errors(since))), window)
+        # a state the stream was not in before, reached by the command: the stream is in sync,
+        # as a probe would have shown (the campaign starts its probe window afresh)
+        self.synced = ok and bool(before) and before[-1] not in case.expect and \
+            any(u.values["state"] in case.expect for u in conn.updates(since))  # type: ignore[index]
         v = conn.violation()
         if v is not None:
             return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
@@ -242,6 +270,19 @@ class Backend:
         return self.session.open_fds()
 
 
+def message_names(data: bytes) -> list[str]:
+    """The message of each frame in ``data``, walked by its length prefixes (after a prefix
+    that lies, no further): ``unknown`` for an id that names none, ``-`` for no id at all."""
+    names, off = [], 0
+    while off + 5 <= len(data):
+        n, mid = int.from_bytes(data[off:off + 4], "big", signed=True), data[off + 4]
+        names.append(NSQD.message(mid).name if NSQD.has_message(mid) else "unknown")
+        if n < 5 or off + n > len(data):
+            break
+        off += n
+    return names or ["-"]
+
+
 def _defaults(msg: Any) -> dict[str, Any]:
     """Valid values of a message's fields, the same every time (a fixed seed)."""
     return valid_values(NSQD, msg, random.Random(0))
@@ -286,36 +327,6 @@ def _replay_kind(sig: Signature) -> str:
     return sig.kind[len(lost):] if sig.oracle == "desync" and sig.kind.startswith(lost) else "replay"
 
 
-def _same(seen: Signature, want: Signature) -> bool:
-    """The same finding: equal keys; a lost stream is one whatever the probe that showed it."""
-    if seen.oracle == want.oracle == "desync":
-        return True
-    if {seen.oracle, want.oracle} <= {"crash", "sanitizer"}:  # a report seen before or after the exit
-        return (seen.kind, seen.frames[:3]) == (want.kind, want.frames[:3])
-    return seen.key == want.key
-
-
-def _ddmin(items: list[Any], test: Any, budget: int) -> list[Any]:
-    """Zeller's delta debugging, bounded by ``budget`` tests."""
-    n, spent = 2, 0
-    while len(items) >= 2 and spent < budget:
-        chunk = max(1, len(items) // n)
-        reduced = False
-        for i in range(0, len(items), chunk):
-            rest = items[:i] + items[i + chunk:]
-            spent += 1
-            if rest and test(rest):
-                items, n, reduced = rest, max(n - 1, 2), True
-                break
-            if spent >= budget:
-                break
-        if not reduced:
-            if n >= len(items):
-                break
-            n = min(len(items), n * 2)
-    return items
-
-
 @dataclass
 class StreamCampaign:
     target: tuple[str, int] | None
@@ -332,32 +343,101 @@ class StreamCampaign:
     cases: int = 0
     by_kind: dict[str, int] = field(default_factory=dict)
     restarts: int = 0
+    engine: str = "stateless"  # stateless | stateful | both (the duration split between them)
+    db: str | None = None  # hypothesis's example database of the stateful engine (--db)
+    worker: int = 0  # a --jobs worker's index: its own seed stream
+    tick: Callable[[StreamCampaign], None] | None = None  # live progress (fuzz.stream_progress)
+    tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases
+    fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
+    triage_s: float = 0.0
+    started: float = field(default_factory=time.monotonic)
+    stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
+    current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
+    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
+
+    def _over(self, deadline: float) -> bool:
+        return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
+                or (self.stop_after is not None and len(self.findings) >= self.stop_after) or self.stop())
+
+    def note_tried(self, kind: str, data: bytes) -> None:
+        """Which message ids x mutation kinds were sent (the progress table, summary.json)."""
+        row = self.tried.setdefault(kind, {})
+        for name in message_names(data):
+            row[name] = row.get(name, 0) + 1
+
+    def _tick(self) -> None:
+        if self.tick is not None:
+            self.tick(self)
 
     def run(self) -> dict[str, Any]:
-        rng = random.Random(self.seed)
+        self.started = t0 = time.monotonic()
+        engines = ["stateless", "stateful"] if self.engine == "both" else [self.engine]
+        backend = self.current = Backend(self.target, self.spawn)
+        try:
+            for k, name in enumerate(engines):
+                deadline = t0 + self.duration * (k + 1) / len(engines) if self.duration is not None else float("inf")
+                if name == "stateful":
+                    from fuzz.stream_stateful import StreamStatefulEngine
+
+                    backend = StreamStatefulEngine(self, backend, self.db, self.worker).run(
+                        lambda d=deadline: self._over(d), self._tick)
+                else:
+                    backend = self._stateless(backend, deadline)
+        finally:
+            self.current.close()
+        return self.summary(time.monotonic() - t0)
+
+    def add_program(self, backend: Backend, hit: Any, ops: list[Any]) -> Backend:
+        """A stateful program's failure: triaged like a case's (fuzz.stream_stateful)."""
+        from fuzz.stream_stateful import triage_program
+
         t0 = time.monotonic()
-        backend = Backend(self.target, self.spawn)
+        try:
+            return triage_program(self, backend, hit, ops)
+        finally:
+            self.triage_s += time.monotonic() - t0
+
+    def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
+                            program: list[dict[str, Any]]) -> None:
+        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program))
+
+    def _stateless(self, backend: Backend, deadline: float) -> Backend:
+        rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))
         window: list[Case] = []
         fds0, conns0, leak_reported = backend.fds(), 0, False
+        n, last_tick = 0, 0.0
+        t_fuzz = time.monotonic()
         try:
-            while (self.duration is None or time.monotonic() - t0 < self.duration) and \
-                    (self.max_cases is None or self.cases < self.max_cases) and \
-                    (self.stop_after is None or len(self.findings) < self.stop_after):
+            while not self._over(deadline):
                 case = draw_case(rng)
-                if case.expect and self.cases % 4 == 0:  # one valid command in four is judged by its effect
+                if case.expect and n % 4 == 0:  # one valid command in four is judged by its effect
                     case = replace(case, check=True)
+                n += 1
                 self.cases += 1
                 self.by_kind[case.kind] = self.by_kind.get(case.kind, 0) + 1
+                self.note_tried(case.kind, case.data)
+                if time.monotonic() - last_tick >= 0.25:
+                    last_tick = time.monotonic()
+                    self.fuzz_s += last_tick - t_fuzz
+                    t_fuzz = last_tick
+                    self._tick()
                 window.append(case)
                 hit = backend.run(case)
                 probe = False
+                if hit is None and backend.synced:  # a judged effect proved the stream in sync
+                    backend.synced = False
+                    window.clear()
                 if hit is None and len(window) >= self.probe_every:
                     hit, probe = backend.probe(), True
                     if hit is None:
                         window.clear()
                 if hit is not None:
                     # a death may show only at the next case's write: the one before is a suspect too
-                    backend = self._triage(backend, hit, list(window) if probe else window[-2:], probe)
+                    t1 = time.monotonic()
+                    self.fuzz_s += t1 - t_fuzz
+                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-2:], probe)
+                    t_fuzz = time.monotonic()
+                    self.triage_s += t_fuzz - t1
                     window.clear()
                     continue
                 if not leak_reported and self.cases % 400 == 0 and fds0 is not None:
@@ -369,8 +449,8 @@ class StreamCampaign:
                                           [], f"{fds0} -> {fds} open descriptors over {backend.connections - conns0} "
                                           "connections", "observed over the campaign", note="connect/close cycles"))
         finally:
-            backend.close()
-        return self.summary(time.monotonic() - t0)
+            self.fuzz_s += time.monotonic() - t_fuzz
+        return backend
 
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
@@ -417,10 +497,7 @@ class StreamCampaign:
             return backend.fresh()
         if sig.oracle == "desync":  # named by what lost the stream its sync
             kind = culprit[-1].kind
-            rule = ("NSQD-MSG-4" if kind == "bad-id" else "NSQD-ROB-3" if kind.endswith("mid-frame")
-                    else "NSQD-FRM-2" if kind == "split-writes" else "NSQD-FRM-3" if kind == "batched"
-                    else "NSQD-MSG-7")
-            sig = Signature("desync", f"stream lost after {kind}", (), rule)
+            sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
             hit = Hit(sig, hit.detail, hit.stderr)
         known = next((f for f in self.findings if f.signature.key == sig.key), None)
         if known is not None:
@@ -466,11 +543,23 @@ class StreamCampaign:
             write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target, probe="probe" in f.note)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
-        s = {"protocol": "nsqd", "seed": self.seed, "cases": self.cases, "elapsed_s": round(elapsed, 2),
-             "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0, "by_kind": self.by_kind,
-             "findings": [{"signature": f.signature.describe(), "rule": f.signature.rule, "count": f.count,
-                           "replays": f.replays} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "restarts": self.restarts}
+        """``summary.json``: cases, judged cases/s (triage's replays excluded), findings by
+        class (the oracle) and each one, which message ids x mutation kinds were sent."""
+        by_class: dict[str, int] = {}
+        for f in self.findings:
+            by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
+        s = {"protocol": "nsqd", "engine": self.engine, "seed": self.seed, "cases": self.cases,
+             "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
+             "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
+             "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
+             "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
+             "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
+                           "count": f.count, "replays": f.replays, "engine": "stateful" if f.program is not None
+                           else "stateless"} for f in self.findings],
+             "unconfirmed": self.unconfirmed, "restarts": self.restarts, "db": self.db,
+             "jobs": len(self.workers) if self.workers is not None else 1}
+        if self.workers is not None:
+            s["workers"] = self.workers
         if self.out is not None:
             (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
         return s
@@ -484,6 +573,8 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
            "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
            "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
            "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases)}
+    if f.program is not None:
+        doc["program"] = f.program
     (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
     write_stream_repro(d, doc, f.traffic)
     (d / "input.hex").write_text(data.hex(" ") + "\n")
@@ -503,14 +594,31 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
         writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
         expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
         sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
+        program = None
+        if doc.get("program"):
+            from fuzz.stream_stateful import Op
+
+            program = [Op.from_json(o) for o in doc["program"]]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"{prog}: error: {'--replay: ' if prog == 'mcp-fuzz' else ''}cannot read {doc_path}: {exc}")
         return 2
-    if not writes:
+    if not writes and program is None:
         print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
               "mcp-conform --protocol nsqd --select NSQD-CON-3")
         return 2
     backend = Backend(target, spawn)
+    if program is not None:
+        from fuzz.stream_stateful import play_program
+
+        try:
+            seen = play_program(backend, program)
+        finally:
+            backend.close()
+        if seen is not None and _same(seen.signature, sig):
+            print(f"reproduced {sig.rule}: {sig.describe()}")
+            return 1
+        print(f"did not reproduce {sig.describe()}" + (f" (saw {seen.signature.describe()})" if seen else ""))
+        return 0
     try:
         case = Case(_replay_kind(sig), tuple(writes), bool(expect), sig.kind if expect else "", expect=expect,
                     or_error=bool(doc.get("or_error")), check=bool(expect))

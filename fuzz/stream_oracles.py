@@ -17,7 +17,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["Signature", "parse_sanitizer"]
+__all__ = ["CLOSE_RULE", "Signature", "desync_rule", "parse_sanitizer", "same_finding"]
 
 _ASAN = re.compile(r"ERROR: (\w+Sanitizer): ([\w-]+)")
 _UBSAN = re.compile(r"runtime error: (.*)")
@@ -76,3 +76,24 @@ def parse_sanitizer(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None
         if line.strip() == "" and frames:
             break
     return kind, access, tuple(frames)
+
+
+#: a close after frames a backend handles, by the case's kind: the rule it breaks
+CLOSE_RULE = {"split-writes": "NSQD-FRM-2", "batched": "NSQD-FRM-3", "valid": "NSQD-FRM-5",
+               "body-padded": "NSQD-FRM-5", "gpx-size": "NSQD-FRM-5"}
+
+
+def desync_rule(kind: str) -> str:
+    """The rule a stream that lost its sync after a case of ``kind`` breaks (both engines)."""
+    return ("NSQD-MSG-4" if kind == "bad-id" else "NSQD-ROB-3" if kind.endswith("mid-frame")
+            else "NSQD-FRM-2" if kind == "split-writes" else "NSQD-FRM-3" if kind == "batched"
+            else "NSQD-MSG-7")
+
+
+def same_finding(seen: Signature, want: Signature) -> bool:
+    """The same finding: equal keys; a lost stream is one whatever the probe that showed it."""
+    if seen.oracle == want.oracle == "desync":
+        return True
+    if {seen.oracle, want.oracle} <= {"crash", "sanitizer"}:  # a report seen before or after the exit
+        return (seen.kind, seen.frames[:3]) == (want.kind, want.frames[:3])
+    return seen.key == want.key

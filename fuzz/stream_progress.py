@@ -1,0 +1,109 @@
+"""Live progress of ``mcp-fuzz --protocol nsqd`` (issue 21 item 5), as ``fuzz.progress`` is
+for MCP.
+
+On a terminal (rich): cases, judged cases/s (triage's replays excluded), findings by class
+(the oracle: crash, sanitizer, hang, close, protocol, desync, effect, leak), restarts,
+elapsed, and a small table of which message ids x mutation kinds have been sent, refreshed a
+few times a second. Off a terminal (a CI log): the same figures as one plain line every
+``STATUS_S`` seconds. At the end, the findings one line each and the summary line.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+from spec import NSQD
+
+__all__ = ["STATUS_S", "StreamLive", "by_class", "status_line", "tried_table"]
+
+STATUS_S = 10.0
+_OTHER = ("unknown", "-")  # an id that names no message; bytes with no id at all
+
+
+def by_class(findings: list[Any]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for f in findings:
+        out[f.signature.oracle] = out.get(f.signature.oracle, 0) + 1
+    return out
+
+
+def _classes(view: Any) -> str:
+    return ", ".join(f"{k} {n}" for k, n in sorted(by_class(view.findings).items())) or "none"
+
+
+def status_line(view: Any) -> str:
+    """The live figures as one plain line (a CI log's progress)."""
+    rate = view.cases / view.fuzz_s if view.fuzz_s > 0 else 0.0
+    return (f"mcp-fuzz: {time.monotonic() - view.started:,.0f} s  nsqd {view.engine}  cases {view.cases:,}  "
+            f"{rate:,.0f} judged cases/s  findings {len(view.findings)} ({_classes(view)})  "
+            f"restarts {view.restarts}")
+
+
+def tried_table(tried: dict[str, dict[str, int]]) -> tuple[list[str], list[tuple[str, list[int]]]]:
+    """Columns (message ids as numbers, then ``?`` unknown and ``-`` none) and a row per
+    mutation kind: the cases sent with each."""
+    names = [m.name for m in NSQD.messages]
+    cols = [str(m.id) for m in NSQD.messages] + ["?", "-"]
+    keys = names + list(_OTHER)
+    rows = [(kind, [row.get(k, 0) for k in keys]) for kind, row in sorted(tried.items())]
+    return cols, rows
+
+
+def _cell(n: int) -> str:
+    return "·" if n == 0 else str(n) if n < 1000 else f"{n // 1000}k"
+
+
+class StreamLive:
+    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` otherwise."""
+
+    def __init__(self, stream: Any = None) -> None:
+        self.stream = stream or sys.stdout
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._live: Any = None
+        self._next_status = time.monotonic() + STATUS_S
+
+    def __enter__(self) -> StreamLive:
+        if self.tty:
+            from rich.console import Console
+            from rich.live import Live
+            from rich.text import Text
+
+            self._live = Live(Text("mcp-fuzz nsqd: starting"), console=Console(file=self.stream),
+                              refresh_per_second=4, transient=True)
+            self._live.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._live is not None:
+            self._live.__exit__(*exc)
+            self._live = None
+
+    def render(self, view: Any) -> Any:
+        from rich.console import Group
+        from rich.table import Table
+        from rich.text import Text
+
+        rate = view.cases / view.fuzz_s if view.fuzz_s > 0 else 0.0
+        line = Text.assemble(
+            ("mcp-fuzz ", "bold"), (f"nsqd {view.engine}  ", "cyan"), f"cases {view.cases:,}  ",
+            (f"{rate:,.0f} judged cases/s  ", "green"),
+            (f"findings {len(view.findings)} ({_classes(view)})  ", "red" if view.findings else ""),
+            f"restarts {view.restarts}  ", f"elapsed {time.monotonic() - view.started:,.1f} s")
+        cols, rows = tried_table(view.tried)
+        table = Table(title="cases sent: mutation kind x message id", title_justify="left", box=None,
+                      padding=(0, 1), show_edge=False)
+        table.add_column("kind", no_wrap=True)
+        for c in cols:
+            table.add_column(c, justify="right", no_wrap=True)
+        for kind, counts in rows:
+            table.add_row(kind, *(_cell(n) for n in counts))
+        return Group(line, table)
+
+    def update(self, view: Any) -> None:
+        if self._live is not None:
+            self._live.update(self.render(view))
+        elif time.monotonic() >= self._next_status:
+            self._next_status = time.monotonic() + STATUS_S
+            print(status_line(view), file=self.stream, flush=True)

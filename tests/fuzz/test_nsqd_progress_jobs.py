@@ -1,0 +1,103 @@
+"""``mcp-fuzz --protocol nsqd`` progress, summary.json and --jobs (issue 21 item 5): the live
+figures (cases, judged cases/s, findings by class, the kinds x message ids table) on a
+terminal and as plain lines off one; summary.json holding them; workers with their own
+backends sharing the example database (a program one campaign saved is replayed first)."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from fuzz import stream_progress
+from fuzz.stream_campaign import StreamCampaign
+from fuzz.stream_jobs import run_stream_jobs
+from fuzz.stream_oracles import Signature
+from fuzz.stream_progress import StreamLive, tried_table
+from tests.nsqd_backends.build import built_or_skip
+
+
+def _view(**kw: object) -> SimpleNamespace:
+    base = dict(cases=1200, fuzz_s=10.0, restarts=2, started=time.monotonic() - 12, engine="both",
+                tried={"length-lie": {"TAKEOFF": 7, "unknown": 1}, "valid": {"SET_PID": 1500}},
+                findings=[SimpleNamespace(signature=Signature("close", "x", (), "NSQD-CON-2")),
+                          SimpleNamespace(signature=Signature("crash", "SIGABRT", ("f",), "NSQD-ROB-1")),
+                          SimpleNamespace(signature=Signature("crash", "SIGSEGV", ("g",), "NSQD-ROB-1"))])
+    base.update(kw)
+    return SimpleNamespace(**base)
+
+
+def test_off_a_terminal_a_plain_status_line(monkeypatch):
+    monkeypatch.setattr(stream_progress, "STATUS_S", 0.0)
+    out = io.StringIO()
+    with StreamLive(out) as live:
+        live._next_status = 0.0
+        live.update(_view())
+    line = out.getvalue()
+    assert line.count("\n") == 1 and "\x1b" not in line
+    assert "cases 1,200" in line and "120 judged cases/s" in line and "findings 3 (close 1, crash 2)" in line
+
+
+def test_on_a_terminal_the_table_of_kinds_by_message_ids():
+    from rich.console import Console
+
+    cols, rows = tried_table(_view().tried)
+    assert cols[:2] == ["0", "1"] and cols[-2:] == ["?", "-"]
+    assert dict(rows)["length-lie"][4] == 7 and dict(rows)["length-lie"][-2] == 1  # TAKEOFF is id 4
+    console = Console(record=True, width=120, file=io.StringIO())
+    console.print(StreamLive(io.StringIO()).render(_view()))
+    text = console.export_text()
+    assert "findings 3 (close 1, crash 2)" in text and "120 judged cases/s" in text
+    row = next(line for line in text.splitlines() if line.strip().startswith("valid"))
+    assert "1k" in row and row.count("·") == len(cols) - 1
+
+
+def _spawn(exe: Path, fault: str | None = None) -> str:
+    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
+
+
+@pytest.mark.slow
+@pytest.mark.nsqd
+def test_summary_json_and_plain_progress_from_the_command_line(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--duration", "12", "--out", str(tmp_path),
+                          "--engine", "both"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    status = [line for line in run.stdout.splitlines() if "judged cases/s  findings" in line]
+    assert status and "nsqd both" in status[0], run.stdout
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["engine"] == "both" and s["cases"] > 0 and s["findings"] == [] and s["findings_by_class"] == {}
+    assert 0 < s["fuzz_s"] <= s["elapsed_s"] and s["judged_cases_per_s"] >= s["cases_per_s"]
+    assert sum(n for row in s["tried"].values() for n in row.values()) >= s["cases"] * 0.9
+    assert "valid" in s["tried"] and "length-lie" in s["tried"]
+
+
+@pytest.mark.slow
+@pytest.mark.nsqd
+def test_jobs_share_the_example_database(tmp_path):
+    """A program saved by one campaign is the first the workers of the next replay: with two
+    cases each they find the second-client fault; with an empty database they do not."""
+    exe = built_or_skip()
+    spawn, db = _spawn(exe, "second-client-kicks-first"), str(tmp_path / "db")
+    first = StreamCampaign(None, spawn, 3, 60.0, None, None, engine="stateful", db=db, stop_after=1)
+    first.run()
+    assert [f.signature.rule for f in first.findings] == ["NSQD-CON-2"]
+    assert any((tmp_path / "db").iterdir())
+
+    def jobs(database: str, out: Path) -> dict:
+        c = StreamCampaign(None, spawn, 11, 60.0, 4, out, engine="stateful", db=database)
+        out.mkdir()
+        return run_stream_jobs(c, 2)
+
+    control = jobs(str(tmp_path / "empty-db"), tmp_path / "control")
+    assert control["findings"] == [] and len(control["workers"]) == 2, control
+    shared = jobs(db, tmp_path / "shared")
+    assert [f["rule"] for f in shared["findings"]] == ["NSQD-CON-2"], shared
+    assert [w["findings"] for w in shared["workers"]] == [1, 1] and shared["findings"][0]["count"] == 2
+    assert (tmp_path / "shared" / "finding-1" / "finding.json").is_file()
+    assert not (tmp_path / "shared" / "finding-2").exists()

@@ -1,0 +1,81 @@
+"""The Nsqd stateful engine (issue 21 item 1): faults only a second client or a reconnect
+exposes, found by ``mcp-fuzz --protocol nsqd --engine stateful`` against the C backend of
+tests/nsqd_backends, confirmed, minimised and replayable; no finding against the correct
+backend; the stateless engine, one connection at a time, cannot see the second-client fault."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fuzz.stream_campaign import StreamCampaign, message_names
+from fuzz.stream_mutators import Write
+from fuzz.stream_stateful import Op, _whole_frames, command_bytes
+from tests.nsqd_backends.build import built_or_skip
+
+
+def _spawn(exe: Path, fault: str | None = None) -> str:
+    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
+
+
+def _replay(finding: Path, spawn: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(finding), "--spawn", spawn],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_an_op_round_trips_through_finding_json():
+    op = Op("send", 1, (Write(b"\x00\x00\x00\x05\x08"), Write(b"\x00", "rst")), "split-writes", True, False, note="n")
+    assert Op.from_json(json.loads(json.dumps(op.to_json()))) == op
+    assert Op.from_json(Op("close", 0, how="rst").to_json()).how == "rst"
+
+
+def test_cut_and_whole_frames_and_the_tried_names():
+    whole = command_bytes("SET_HOVERHEIGHT")
+    assert _whole_frames(whole + command_bytes("TAKEOFF"))
+    assert not _whole_frames(whole[:-1]) and not _whole_frames(whole[:3])
+    assert message_names(whole + command_bytes("TAKEOFF")) == ["SET_HOVERHEIGHT", "TAKEOFF"]
+    assert message_names(b"\x00\x00\x00\x05\xf0") == ["unknown"]
+    assert message_names(b"\x01\x02") == ["-"]
+
+
+@pytest.mark.slow
+@pytest.mark.nsqd
+@pytest.mark.parametrize("fault,rule", [("second-client-kicks-first", "NSQD-CON-2"),
+                                        ("stale-partial-frame", "NSQD-ROB-3")])
+def test_a_fault_of_several_connections_is_found_and_replays(tmp_path, fault, rule):
+    exe = built_or_skip()
+    c = StreamCampaign(None, _spawn(exe, fault), 20140307, 120.0, None, tmp_path, engine="stateful", stop_after=1)
+    summary = c.run()
+    assert [f.signature.rule for f in c.findings] == [rule], summary
+    doc = json.loads((tmp_path / "finding-1" / "finding.json").read_text())
+    assert doc["replays"] == "3 of 3" and doc["program"], doc
+    if fault == "second-client-kicks-first":  # a program of two clients
+        assert {o["slot"] for o in doc["program"]} == {0, 1}, doc["program"]
+    assert summary["findings"][0]["engine"] == "stateful" and summary["findings_by_class"]
+    assert _replay(tmp_path / "finding-1", _spawn(exe, fault)).returncode == 1
+    run = _replay(tmp_path / "finding-1", _spawn(exe))
+    assert run.returncode == 0, run.stdout + run.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.nsqd
+def test_one_connection_at_a_time_cannot_see_the_second_client_fault(tmp_path):
+    """The stateless engine's cases on one connection: the same fault gives it nothing."""
+    exe = built_or_skip()
+    c = StreamCampaign(None, _spawn(exe, "second-client-kicks-first"), 20140307, 60.0, 600, tmp_path)
+    summary = c.run()
+    assert not [f for f in c.findings if f.signature.rule == "NSQD-CON-2"], summary
+
+
+@pytest.mark.slow
+@pytest.mark.nsqd
+@pytest.mark.parametrize("backend", ["c", "reference"])
+def test_no_false_alarm_on_a_correct_backend(tmp_path, backend):
+    spawn = _spawn(built_or_skip()) if backend == "c" else None
+    c = StreamCampaign(None, spawn, 5, 45.0, None, tmp_path, engine="stateful")
+    summary = c.run()
+    assert summary["findings"] == [] and summary["unconfirmed"] == 0 and summary["cases"] > 50, summary
