@@ -124,6 +124,11 @@ class McpState:
         self.first_datagram: Any = None  # conformance.live.FirstDatagram, during the run
         self.printer: Any = None  # conformance.live.TrafficPrinter under -v
         self.startup_deadline: float | None = None  # until the node's first datagram
+        self.plan: Any = None  # conformance.schedule.Plan, once the cases are collected
+        self.batch_items: list[pytest.Item] = []  # the plan's batch, in its order
+        from conformance._batch import BatchRun
+
+        self.batch = BatchRun()
         self.startup_expired = False
 
     @property
@@ -188,6 +193,8 @@ class McpState:
                 recorder = Tee(self.recorder, printer, self.first_datagram)
             session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
                                                                config=self.config)
+            if self.plan is not None and self.plan.overlap_startup_watch:
+                session.defer_startup_watch = True  # MCP-RTX-1's watch runs on beside the cases
             self.session = session
             self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
             resume = self.wait_status.current

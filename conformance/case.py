@@ -9,6 +9,7 @@ across the runner's own retransmissions, every --rto, as a manager would (MCP-AC
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import statistics
 import time
@@ -141,8 +142,10 @@ class CaseContext(CaseBase):
             raise Inconclusive(f"{rule}: the node never connected to the simulated vehicle "
                                "(does its command line use {mavlink}?)")
 
-    def require_startup(self, rule: str) -> Any:
-        st = self.startup
+    def require_startup(self, rule: str, *, watched: bool = False) -> Any:
+        """The startup phase as observed, or SKIP; ``watched``: with its watch for copies
+        after the right ACK over (it may run on beside the cases: ``conformance.schedule``)."""
+        st = self.session.finish_startup_watch() if watched else self.startup
         if not st.observed:
             raise Inconclusive(f"{rule} is judged on the node's startup: {st.reason or 'not observed'}")
         return st
@@ -153,6 +156,18 @@ class CaseContext(CaseBase):
         intact frame, so delivery stays unobservable, except (``altered``) to MCP-PAY-8,
         which judges exactly that."""
         self.require_vehicle(rule)
+        lock = getattr(self.session, "capability_lock", None) or contextlib.nullcontext()
+        with lock:  # learnt once, whichever case asks first (cases may run together)
+            self._learn_passthrough(rule)
+        if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
+            return
+        if self.session.passthrough_altered:
+            raise Inconclusive(f"{rule}: the node's Mav_Passthrough frames reach its autopilot altered "
+                               "(MCP-PAY-8), so delivery to its application is unobservable")
+        raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
+                           "so delivery to its application is unobservable")
+
+    def _learn_passthrough(self, rule: str) -> None:
         if self.session.passthrough_forwarded is None:
             d = self.deliver(self.probe())
             self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
@@ -161,13 +176,6 @@ class CaseContext(CaseBase):
                 raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
             if not self.session.passthrough_forwarded:
                 self.session.passthrough_altered = self.altered_arrival(d) is not None
-        if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
-            return
-        if self.session.passthrough_altered:
-            raise Inconclusive(f"{rule}: the node's Mav_Passthrough frames reach its autopilot altered "
-                               "(MCP-PAY-8), so delivery to its application is unobservable")
-        raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
-                           "so delivery to its application is unobservable")
 
     def altered_arrival(self, d: Delivery) -> Altered | None:
         """MCP-PAY-8: bytes that reached the autopilot since ``d``'s probe was sent, did not

@@ -408,6 +408,12 @@ class TargetDriver:
             self._seq[src] = (seq + 1) & 0xFFFF
         return seq
 
+    @property
+    def seq_lock(self) -> Any:
+        """Held to reserve a run of seqs at once (``peek_seq`` then ``set_seq``) while other
+        threads send (``next_seq`` takes it too)."""
+        return self._seq_lock
+
     def peek_seq(self, src: int | None = None) -> int:
         return self._seq.get(self.our_id if src is None else src, 0)
 

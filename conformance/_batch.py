@@ -1,0 +1,209 @@
+"""The batch of the schedule (``conformance.schedule``) run: its cases together, each in a
+thread of its own with its own case context, so their windows are watched once; kept only
+when it ran clean, else thrown away and its cases run again one by one.
+
+Clean (``unclean``): every case passed or was skipped, the node is alive, not lost, not
+silent, and every datagram it sent while the batch ran is a well-formed ACK, to the runner,
+whose payload names the seq of a command the node had to answer (a well-formed unicast to
+its ID), tied to it by that seq without ambiguity. So a reply a silence probe drew (an ACK
+of a broadcast, of a message to another ID, of an ACK, of a malformed datagram), a reply
+tied by timing only, a node lost to one input, any failure: the batch's verdicts are
+discarded and each case runs alone, in the serial order, as ``--serial`` runs it — a fault
+one probe provokes is never judged beside another's.
+
+The cases run as the pytest items they are: the batch starts at its first case's call
+(``run_batch``); each later case's ``node`` fixture takes the context made for it
+(``pending``), and its call returns the verdict its thread ended with (``take``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+
+from conformance.schedule import BATCH, BATCH_CASES, plan_cases
+from harness.errors import Inconclusive
+from spec.codec import Action, DecodeError, decode
+
+__all__ = ["BatchRun", "in_plan_order", "run_batch", "unclean"]
+
+_ACK = int(Action.ACK)
+
+
+@dataclass
+class _Member:
+    item: pytest.Item
+    ctx: Any
+    exc: BaseException | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+
+
+@dataclass
+class BatchRun:
+    """The batch in progress or done: its members by nodeid, whether it was kept."""
+
+    members: dict[str, _Member] = field(default_factory=dict)
+    kept: bool | None = None  # None: not run yet
+    why: str = ""
+    pending: dict[str, Any] = field(default_factory=dict)  # nodeid -> context for its fixture
+    taken: set[str] = field(default_factory=set)
+
+
+def _kwargs(item: pytest.Item, ctx: Any) -> dict[str, Any]:
+    """The case function's arguments: its context, and its parametrization."""
+    fn = item.obj  # type: ignore[attr-defined]
+    params = dict(getattr(getattr(item, "callspec", None), "params", {}) or {})
+    names = [n for n in inspect.signature(fn).parameters]
+    out: dict[str, Any] = {}
+    for n in names:
+        if n == "node":
+            out[n] = ctx
+        elif n in params:
+            out[n] = params[n]
+        else:
+            raise LookupError(f"case argument {n!r} is neither its context nor a parameter")
+    return out
+
+
+def batchable(item: pytest.Item) -> bool:
+    """The case takes nothing the batch cannot give it (its context, its parameters)."""
+    try:
+        _kwargs(item, None)
+    except (LookupError, TypeError, ValueError):
+        return False
+    return True
+
+
+def _run_one(m: _Member) -> None:
+    try:
+        m.item.obj(**_kwargs(m.item, m.ctx))  # type: ignore[attr-defined]
+    except BaseException as exc:  # noqa: BLE001 - the verdict, re-raised in the case's own call
+        m.exc = exc
+    finally:
+        m.done.set()
+
+
+def _expected_reply(session: Any, d: Any, sent: list[Any]) -> str | None:
+    """Why ``d`` is not the plain ACK of a command the node had to answer (None: it is)."""
+    drv = session.driver
+    a = drv.attribution(d)
+    if a is None:
+        return f"a datagram tied to no command: {d.describe()}"
+    if a.how != "seq" or a.ambiguous:
+        return f"a reply {a.describe()}: {d.describe()}"
+    first = sent[a.command] if 0 <= a.command < len(sent) else None
+    if first is None or first.action == _ACK or first.dst != session.target_id:
+        return f"a reply to a datagram the node must not answer: {d.describe()}"
+    try:
+        decode(first.data)
+    except DecodeError:
+        return f"a reply to a malformed datagram: {d.describe()}"
+    if d.msg is None or d.header[0] != drv.our_id or d.header[1] != session.target_id:
+        return f"a reply not in the form of an ACK to the runner: {d.describe()}"
+    return None
+
+
+def unclean(session: Any, members: list[_Member], since: int) -> str | None:
+    """Why the batch's verdicts cannot be kept (None: it ran clean)."""
+    for m in members:
+        if m.exc is not None and not isinstance(m.exc, (Inconclusive, pytest.skip.Exception)):
+            return f"{m.ctx.case_id} ended {type(m.exc).__name__}"
+        if getattr(m.ctx, "node_silent", False):
+            return f"the node went silent in {m.ctx.case_id}"
+    if not session.alive():
+        return "the node's process exited"
+    if getattr(session, "needs_restart", False) or getattr(session, "lost", None):
+        return "the node was lost"
+    liveness = getattr(session, "liveness", None)
+    if liveness is not None and getattr(liveness, "lost", None) is not None:
+        return "the node was declared lost"
+    drv = session.driver
+    sent = drv.sent()
+    for d in drv.received(since):
+        if d.header is None or d.header[3] != _ACK:
+            return f"the node sent {d.describe()}"
+        why = _expected_reply(session, d, sent)
+        if why is not None:
+            return why
+    return None
+
+
+def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: BatchRun) -> None:
+    """Run the batch's cases together (``leader``'s context is its fixture's); decide
+    whether it is kept. Later cases' contexts wait in ``batch.pending`` for their fixtures."""
+    session = state.session
+    members: list[_Member] = []
+    since = session.driver.mark()
+    for item in items:
+        if item is leader:
+            ctx = item.funcargs["node"]  # type: ignore[attr-defined]
+        else:
+            rec = state.record(item)
+            ctx = session.begin_case(rec.id, rec.rules)
+            batch.pending[item.nodeid] = ctx
+        members.append(_Member(item, ctx))
+        batch.members[item.nodeid] = members[-1]
+    threads = [threading.Thread(target=_run_one, args=(m,), name=f"mcp-batch-{n}", daemon=True)
+               for n, m in enumerate(members)]
+    for t in threads:
+        t.start()
+    for m in members:
+        while not m.done.wait(0.05):  # a signal (the time limit, SIGINT) still reaches the main thread
+            pass
+    why = unclean(session, members, since)
+    batch.kept = why is None
+    batch.why = why or ""
+    if why is None:
+        return
+    # thrown away: the later cases' contexts end here; each case runs alone at its turn
+    for m in members:
+        if m.item is not leader:
+            batch.pending.pop(m.item.nodeid, None)
+            m.ctx.end_ns = time.time_ns()
+            session.end_case(m.ctx, "rerun")
+
+
+def rerun_leader(state: Any, item: pytest.Item, batch: BatchRun) -> None:
+    """The batch was thrown away: its first case again, alone, with a fresh context."""
+    session = state.session
+    old = item.funcargs["node"]  # type: ignore[attr-defined]
+    session.end_case(old, "rerun")
+    rec = state.record(item)
+    new = session.begin_case(rec.id, rec.rules)
+    new.notes.append(f"ran alone after its batch was thrown away: {batch.why}")
+    item.funcargs["node"] = new  # type: ignore[attr-defined]
+    state.ctx[item.nodeid] = new
+    item.obj(**_kwargs(item, new))  # type: ignore[attr-defined]
+
+
+def take(item: pytest.Item, batch: BatchRun) -> None:
+    """The verdict the case's thread ended with: returned, or raised again."""
+    m = batch.members[item.nodeid]
+    batch.taken.add(item.nodeid)
+    if m.exc is not None:
+        raise m.exc
+
+
+def in_plan_order(state: Any, items: list[pytest.Item]) -> list[pytest.Item]:
+    """The cases in the order of the run's plan (``conformance.schedule``); other items stay
+    at the end, as they came."""
+    cases = [i for i in items if i.nodeid in state.meta]
+    rest = [i for i in items if i.nodeid not in state.meta]
+    cfg = state.cfg
+    by_id: dict[str, pytest.Item] = {}
+    for i in cases:
+        by_id.setdefault(state.meta[i.nodeid][0], i)
+    serial = bool(state.config.getoption("mcp_serial")) or len(by_id) != len(cases) \
+        or not all(batchable(i) for i in cases if state.meta[i.nodeid][0] in BATCH_CASES)
+    plan = plan_cases([(state.meta[i.nodeid][0], state.meta[i.nodeid][3]) for i in cases], role=cfg.role,
+                      spawned=cfg.mode != "attach", serial=serial, impaired=cfg.impair is not None,
+                      worker=hasattr(state.config, "workerinput"))
+    state.plan = plan
+    state.run.schedule = plan.to_json()
+    state.batch_items = [by_id[s.case] for s in plan.steps if s.group == BATCH]
+    return [by_id[s.case] for s in plan.steps] + rest
