@@ -4,8 +4,7 @@
 
 In one run, one after the other, each target twice — ``mcp-conform --serial`` (every case
 alone, the schedule of before) and the default schedule (``conformance.schedule``: the
-windows of the cases that only wait watched together, the startup's last watch beside the
-cases):
+windows of the cases that only wait watched together):
 
 - ``embedded``: the reference node with its short timeouts (the embedded default);
 - ``rto0.3``: a spawned node of our own (the independent sample node,

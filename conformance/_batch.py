@@ -18,6 +18,7 @@ The cases run as the pytest items they are: the batch starts at its first case's
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import threading
 import time
@@ -26,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from conformance.schedule import BATCH, BATCH_CASES, plan_cases
+from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
 from harness.errors import Inconclusive
 from spec.codec import Action, DecodeError, decode
 
@@ -41,6 +42,7 @@ class _Member:
     ctx: Any
     exc: BaseException | None = None
     done: threading.Event = field(default_factory=threading.Event)
+    sent: int = 0  # datagrams the case sent itself (its thread)
 
 
 @dataclass
@@ -79,7 +81,8 @@ def batchable(item: pytest.Item) -> bool:
     return True
 
 
-def _run_one(m: _Member) -> None:
+def _run_one(m: _Member, threads: dict[int, _Member]) -> None:
+    threads[threading.get_ident()] = m
     try:
         m.item.obj(**_kwargs(m.item, m.ctx))  # type: ignore[attr-defined]
     except BaseException as exc:  # noqa: BLE001 - the verdict, re-raised in the case's own call
@@ -113,6 +116,8 @@ def unclean(session: Any, members: list[_Member], since: int) -> str | None:
     for m in members:
         if m.exc is not None and not isinstance(m.exc, (Inconclusive, pytest.skip.Exception)):
             return f"{m.ctx.case_id} ended {type(m.exc).__name__}"
+        if m.exc is not None and m.sent:  # skipped on what it saw beside the others
+            return f"{m.ctx.case_id} was skipped after sending ({m.exc})"
         if getattr(m.ctx, "node_silent", False):
             return f"the node went silent in {m.ctx.case_id}"
     if not session.alive():
@@ -148,22 +153,70 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
             batch.pending[item.nodeid] = ctx
         members.append(_Member(item, ctx))
         batch.members[item.nodeid] = members[-1]
-    threads = [threading.Thread(target=_run_one, args=(m,), name=f"mcp-batch-{n}", daemon=True)
+    try:
+        why = _learn_first(session, members)
+    except BaseException as exc:  # the time limit, an interrupt
+        _throw_away(session, batch, leader, members, f"it was cut short ({type(exc).__name__}: {exc})")
+        raise
+    if why is not None:
+        _throw_away(session, batch, leader, members, why)
+        return
+    by_thread: dict[int, _Member] = {}
+
+    def count(sent: Any) -> None:  # in the sending thread, under the driver's lock
+        m = by_thread.get(threading.get_ident())
+        if m is not None:
+            m.sent += 1
+    drv = session.driver
+    drv.tx_hooks.append(count)
+    threads = [threading.Thread(target=_run_one, args=(m, by_thread), name=f"mcp-batch-{n}", daemon=True)
                for n, m in enumerate(members)]
     for t in threads:
         t.start()
-    for m in members:
-        while not m.done.wait(0.05):  # a signal (the time limit, SIGINT) still reaches the main thread
-            pass
+    try:
+        for m in members:
+            while not m.done.wait(0.05):  # a signal (the time limit, SIGINT) still reaches the main thread
+                pass
+    except BaseException as exc:  # the time limit, an interrupt: nothing of the batch is kept
+        _throw_away(session, batch, leader, members, f"it was cut short ({type(exc).__name__}: {exc})")
+        raise
+    finally:
+        with contextlib.suppress(ValueError):
+            drv.tx_hooks.remove(count)
     why = unclean(session, members, since)
-    batch.kept = why is None
-    batch.why = why or ""
     if why is None:
+        batch.kept = True
         return
-    # thrown away: the later cases' contexts end here; each case runs alone at its turn
+    _throw_away(session, batch, leader, members, why)
+
+
+def _learn_first(session: Any, members: list[_Member]) -> str | None:
+    """What a case of the batch would learn of the node before judging (whether it forwards
+    Mav_Passthrough frames to its autopilot), learnt first, by the first case that asks, as
+    a serial run learns it: alone, nothing else on the node's autopilot link. Why the batch
+    cannot run, or None."""
+    if getattr(session, "passthrough_forwarded", False) is not None:
+        return None
+    vehicle = getattr(session, "vehicle", None)
+    if vehicle is None or not vehicle.connections:
+        return None  # the cases that need it are skipped before they send anything
+    first = next((m for m in members if m.ctx.case_id in PASSTHROUGH_CASES), None)
+    if first is None:
+        return None
+    try:
+        with session.capability_lock:
+            first.ctx.learn_passthrough(first.ctx.rules[0])
+    except Inconclusive as exc:  # the probe was not ACKed: not learnt
+        return f"{first.ctx.case_id} could not learn whether the node forwards frames ({exc})"
+    return None
+
+
+def _throw_away(session: Any, batch: BatchRun, leader: pytest.Item, members: list[_Member], why: str) -> None:
+    """The batch's verdicts are not kept: the later cases' contexts end here; each case runs
+    alone at its turn (its fixture makes it a fresh context)."""
+    batch.kept, batch.why = False, why
     for m in members:
-        if m.item is not leader:
-            batch.pending.pop(m.item.nodeid, None)
+        if m.item is not leader and batch.pending.pop(m.item.nodeid, None) is not None:
             m.ctx.end_ns = time.time_ns()
             session.end_case(m.ctx, "rerun")
 

@@ -375,10 +375,13 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
     if batch.kept is None:  # the first case of the batch: all of them, together
         state.case_deadline = time.monotonic() + 2 * state.current_limit()
         state.arm()
-        _batch.run_batch(state, pyfuncitem, state.batch_items, batch)
-        if state.plan is not None:
-            state.plan.batch_outcome = "kept" if batch.kept else f"thrown away, its cases ran alone: {batch.why}"
-            state.run.schedule = state.plan.to_json()
+        try:
+            _batch.run_batch(state, pyfuncitem, state.batch_items, batch)
+        finally:
+            if state.plan is not None:
+                state.plan.batch_outcome = ("kept" if batch.kept else
+                                            f"thrown away, its cases ran alone: {batch.why}")
+                state.run.schedule = state.plan.to_json()
         if not batch.kept:
             _batch.rerun_leader(state, pyfuncitem, batch)
             return True

@@ -142,10 +142,8 @@ class CaseContext(CaseBase):
             raise Inconclusive(f"{rule}: the node never connected to the simulated vehicle "
                                "(does its command line use {mavlink}?)")
 
-    def require_startup(self, rule: str, *, watched: bool = False) -> Any:
-        """The startup phase as observed, or SKIP; ``watched``: with its watch for copies
-        after the right ACK over (it may run on beside the cases: ``conformance.schedule``)."""
-        st = self.session.finish_startup_watch() if watched else self.startup
+    def require_startup(self, rule: str) -> Any:
+        st = self.startup
         if not st.observed:
             raise Inconclusive(f"{rule} is judged on the node's startup: {st.reason or 'not observed'}")
         return st
@@ -158,7 +156,7 @@ class CaseContext(CaseBase):
         self.require_vehicle(rule)
         lock = getattr(self.session, "capability_lock", None) or contextlib.nullcontext()
         with lock:  # learnt once, whichever case asks first (cases may run together)
-            self._learn_passthrough(rule)
+            self.learn_passthrough(rule)
         if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
             return
         if self.session.passthrough_altered:
@@ -167,8 +165,16 @@ class CaseContext(CaseBase):
         raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
                            "so delivery to its application is unobservable")
 
-    def _learn_passthrough(self, rule: str) -> None:
+    def learn_passthrough(self, rule: str) -> None:
+        """Whether the node forwards Mav_Passthrough frames (``session.passthrough_forwarded``,
+        learnt once by a probe); Inconclusive when the probe was not ACKed (not learnt).
+        An incomplete frame the vehicle still holds (an altered frame a moment ago) is waited
+        out first, so the probe's bytes are not read as its tail."""
         if self.session.passthrough_forwarded is None:
+            from vehicle.codec import STALE
+
+            v = self.vehicle
+            v.wait_for(lambda: v.holding() == 0, 2 * STALE + 0.1)
             d = self.deliver(self.probe())
             self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
             if not d.exchange.acked:

@@ -16,9 +16,13 @@ What only waits is overlapped; nothing is weakened to overlap:
   its cases run again one by one, in their serial order: a fault one probe provokes is
   never blamed on another, and the verdicts are the serial run's (``batch_outcome``);
 - **alone**: everything else, each with its reason (mission state, restarts, floods,
-  latency, the startup's and the whole run's observations);
-- **the startup's last watch** (``watch``): the watch for Mission_Ready copies after the
-  right ACK (MCP-RTX-1) runs on while the cases run; MCP-RTX-1 is judged after them.
+  latency, the startup's and the whole run's observations).
+
+The startup phase is not overlapped: while Mission_Ready's ACK is withheld a node may be
+deaf (D-6: it blocks in its send), and the watch for copies after the right ACK (MCP-RTX-1)
+is also the time a node has to arm before Start_Mission (MCP-BLK-4): Start_Mission sent at
+once would hide a node that arms as soon as its Mission_Ready is ACKed, and commands sent
+before it would be sent to a node whose mission has not started.
 
 ``--serial`` runs every case alone in the order of their modules (the schedule the runner
 had before; the comparison of the two is ``bench/bench_suite.py`` and
@@ -30,7 +34,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["BATCH", "Plan", "Step", "plan_cases"]
+__all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "plan_cases"]
 
 SILENCE = ("waits out a 'no reply' window (D-6); its probes are told apart from the batch's others "
            "by the seq each reply names")
@@ -51,6 +55,10 @@ BATCH_CASES: dict[str, str] = {
     "ROB/test_unknown_action_code_is_discarded": MALFORMED,
     "ROB/test_payload_that_does_not_fit_is_not_acked": MALFORMED,
 }
+#: the batch's cases that first learn whether the node forwards Mav_Passthrough frames
+#: (``CaseContext.require_passthrough``): learnt before the batch starts, alone
+PASSTHROUGH_CASES = ("DUP/test_same_seq_twice_is_delivered_once", "DUP/test_late_copy_of_an_older_message",
+                     "PAY/test_passthrough_frame_reaches_the_autopilot_once")
 #: malformed input: shared only when a lost node can be restarted (spawn mode)
 CRASHABLE = frozenset(c for c, why in BATCH_CASES.items() if why is MALFORMED)
 
@@ -67,9 +75,6 @@ ALONE: dict[str, str] = {
     "DUP/test_same_seq_from_another_src_is_not_a_duplicate": "sends as another source and moves that "
                                                              "source's seq: alone",
     "BLK/test_end_mission_then_rtl": "End_Mission ends the mission: last, alone",
-    "RTX/test_mission_ready_is_retransmitted_until_acked": "judged once the watch for Mission_Ready "
-                                                           "copies after the right ACK has run its "
-                                                           "course (the cases ran meanwhile)",
 }
 PHASE_WHY = {
     "startup": "judged on the startup phase's observation; sends nothing",
@@ -102,7 +107,6 @@ class Plan:
     mode: str  # "scheduled" or "serial"
     why: str  # why this mode
     steps: list[Step]
-    overlap_startup_watch: bool = False
     batch_outcome: str | None = None
 
     @property
@@ -110,15 +114,12 @@ class Plan:
         return [s.case for s in self.steps if s.group == BATCH]
 
     def to_json(self) -> dict[str, object]:
-        return {"mode": self.mode, "why": self.why, "overlap_startup_watch": self.overlap_startup_watch,
-                "batch_outcome": self.batch_outcome, "steps": [s.to_json() for s in self.steps]}
+        return {"mode": self.mode, "why": self.why, "batch_outcome": self.batch_outcome,
+                "steps": [s.to_json() for s in self.steps]}
 
     def lines(self) -> list[str]:
         """The plan for a person (``-v``)."""
         out = [f"schedule: {self.mode} ({self.why})"]
-        if self.overlap_startup_watch:
-            out.append("  the startup's watch for Mission_Ready copies after the right ACK runs on "
-                       "while the cases run (MCP-RTX-1 is judged after them)")
         for s in self.steps:
             out.append(f"  {s.group:<7} {'shared' if s.shared else 'alone ':<6} {s.case}: {s.why}")
         return out
@@ -149,7 +150,6 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
         return Plan("serial", why_serial, steps)
     shared: list[Step] = []
     steps_or_slot: list[Step | None] = []
-    overlap = False
     for c, phase in cases:
         why = BATCH_CASES.get(c)
         if phase == "main" and why is not None and (spawned or c not in CRASHABLE):
@@ -161,10 +161,6 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
             steps_or_slot.append(Step(c, "alone", False, "attach mode: a node lost to a malformed "
                                       "input cannot be restarted, so it is not risked beside others"))
             continue
-        if c in ALONE and c.startswith("RTX/"):
-            overlap = True
-            steps_or_slot.append(Step(c, "late", False, ALONE[c]))
-            continue
         group = phase if phase in PHASE_WHY else "alone"
         steps_or_slot.append(Step(c, group, False, ALONE.get(c) or PHASE_WHY.get(phase) or NOTHING))
     if len(shared) == 1:  # a batch of one shares nothing
@@ -174,7 +170,4 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
     steps: list[Step] = []
     for s in steps_or_slot:
         steps.extend(shared if s is None else [s])
-    # the RTX-1 judgement moves after the main cases (the watch runs on meanwhile)
-    order = {"startup": 0, "alone": 1, BATCH: 1, "late": 2, "end": 3}
-    steps.sort(key=lambda s: order[s.group])
-    return Plan("scheduled", "what only waits is overlapped", steps, overlap_startup_watch=overlap)
+    return Plan("scheduled", "what only waits is overlapped", steps)

@@ -80,9 +80,6 @@ class Startup(WithheldCopies):
     fix_given_at: float | None = None
     ready_before_fix: list[Datagram] = field(default_factory=list)
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
-    watch_from: int = 0  # the index of the first Mission_Ready: where the watch looks from
-    watch_until: float = 0.0  # when the watch for copies after the right ACK ends
-    watch_closed: bool = False  # copies_after_right_ack is final
 
 
 class Session(SessionBase):
@@ -119,11 +116,8 @@ class Session(SessionBase):
         #: (rule, why): the startup phase found the node's header unreadable in network order
         self.unreadable: tuple[str, str] | None = None
         self.timing: str | None = None  # the node's retransmission period disagrees with --rto
-        #: the startup's watch after the right ACK runs on beside the cases (the runner's
-        #: schedule); MCP-RTX-1 then waits for its end (``finish_startup_watch``)
-        self.defer_startup_watch = False
-        self.restarted_at: list[float] = []  # when each restart began (time.monotonic())
-        #: held while a case learns what the node can do (passthrough), as cases may run together
+        #: held while a case learns what the node can do (passthrough): the runner's schedule
+        #: may run cases together (conformance.schedule)
         self.capability_lock = threading.RLock()
         self.period: float | None = None  # that period, as measured at startup
 
@@ -238,7 +232,6 @@ class Session(SessionBase):
         """Spawn mode: the node closed and started again, before its startup phase (which
         the caller runs: ``restart`` the quick one; the fuzzer its own, then
         ``send_start_mission``)."""
-        self.restarted_at.append(time.monotonic())
         if self.node is not None:
             self.node.close()
         self.restarts += 1
@@ -425,39 +418,14 @@ class Session(SessionBase):
         rseq = latest.header[2] if latest.header else seq
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
         st.stop_watch = max(self.ack_window, 1.5 * gap)
-        st.watch_from, st.watch_until = i, st.right_ack.t + st.stop_watch
-        if self.defer_startup_watch:
-            # the watch runs on while the cases run (conformance.schedule); Mission_Ready is
-            # not ACKed by the driver before it ends, as it would not have been during it
-            until = st.watch_until
-            drv.auto_ack = lambda d: not (d.action == _READY and d.t <= until)
-        else:
-            time.sleep(st.stop_watch)
-            self._close_startup_watch(st)
+        time.sleep(st.stop_watch)
+        grace = 0.05
+        st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
+                                     and d.t > st.right_ack.t + grace]
         # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
         st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
                                    if d.header is not None and d.action not in (_READY, int(Action.ACK))
                                    and d.header[0] != self.cfg.broadcast_id]
-
-    def _close_startup_watch(self, st: Startup) -> None:
-        """MCP-RTX-1: the Mission_Ready copies that came after the right ACK, within the
-        watch (and before any restart: a fresh node's Mission_Ready is its own)."""
-        drv = self.driver
-        assert drv is not None and st.right_ack is not None
-        grace = 0.05
-        end = min([st.watch_until, *self.restarted_at])
-        st.copies_after_right_ack = [d for d in drv.received(st.watch_from) if d.action == _READY
-                                     and st.right_ack.t + grace < d.t <= end]
-        st.watch_closed = True
-
-    def finish_startup_watch(self) -> Startup:
-        """The startup observed, its watch after the right ACK over (waited for when it
-        runs on beside the cases)."""
-        st = self.startup
-        if st.observed and st.right_ack is not None and not st.watch_closed:
-            time.sleep(max(0.0, st.watch_until + 0.05 - time.monotonic()))
-            self._close_startup_watch(st)
-        return st
 
     def _start_mission(self, first: bool) -> None:
         drv = self.driver

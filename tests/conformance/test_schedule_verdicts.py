@@ -1,9 +1,9 @@
 """Verdicts do not depend on the schedule (issue 23): the same outcome for every case, run
-``--serial`` and scheduled (``conformance.schedule``: the batch of windows, the startup's
-watch beside the cases), against the reference node and faulty sample nodes whose faults
-fall in the batch (a reply a silence probe draws, a crash on a malformed input, a duplicate
-delivered, a frame forwarded twice), in the startup (retransmission stopped by a wrong
-ACK) and beside it (slow ACKs).
+``--serial`` and scheduled (``conformance.schedule``: the batch of windows), against the
+reference node, correct sample nodes unlike it and faulty ones whose faults fall in the
+batch (a reply a silence probe draws, a crash on a malformed input, a duplicate delivered,
+a frame forwarded twice or truncated), in the startup (retransmission stopped by a wrong
+ACK, arming before Start_Mission) and beside it (slow ACKs).
 
 Each node is run once ``--serial`` and ``MCP_SCHEDULE_RUNS`` times scheduled (default 2;
 the issue's 20 by hand: ``MCP_SCHEDULE_RUNS=20 python -m pytest -n 2 -m slow
@@ -36,6 +36,9 @@ NODES = [
     ("crash-on-short", ("--fault", "crash-on-short")),
     ("no-dup-discard", ("--fault", "no-dup-discard")),
     ("passthrough-twice", ("--fault", "passthrough-twice")),
+    ("passthrough-truncated", ("--fault", "passthrough-truncated")),
+    ("forwards-no-passthrough", ("--no-passthrough",)),
+    ("arm-before-start", ("--fault", "arm-before-start")),
     ("rtx-stop-on-any-ack", ("--fault", "rtx-stop-on-any-ack")),
     ("slow-ack", ("--fault", "slow-ack")),
 ]
