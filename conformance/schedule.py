@@ -82,6 +82,23 @@ PHASE_WHY = {
     "end": "ends the mission: last, alone",
 }
 NOTHING = "nothing to overlap (no window worth sharing): alone"
+#: why the quick cases that judge the form of the node's ACKs or its duplicate detection are
+#: not shared even though a batch runs anyway: beside others' commands a node that names the
+#: previous message's seq in its ACK names another open command's (MCP-ACK-2 passed beside
+#: them), and one that takes a message with the bytes of the one before for a duplicate
+#: sees other messages between the two (MCP-DUP-2 passed)
+JUDGES_ORDER = {
+    "ACK/test_every_retransmitted_copy_is_acked": "judges each copy's ACK: alone, so no other command is open "
+                                                  "beside it (a reply naming another's seq would look right)",
+    "ACK/test_ack_payload_is_the_big_endian_seq": "judges the ACK's payload: alone, so no other command is open "
+                                                  "beside it (a node naming the previous message's seq would "
+                                                  "name another open command's)",
+    "ACK/test_ack_is_addressed_back_to_the_sender": "judges the ACK's form: alone, so each reply is tied to its "
+                                                    "command by order as well as seq",
+    "DUP/test_new_seq_with_the_same_bytes_is_delivered": "judges duplicate detection on two messages in a row: "
+                                                         "alone, other messages between them would hide a node "
+                                                         "that compares bytes",
+}
 BATCH = "batch"
 
 
@@ -162,7 +179,8 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
                                       "input cannot be restarted, so it is not risked beside others"))
             continue
         group = phase if phase in PHASE_WHY else "alone"
-        steps_or_slot.append(Step(c, group, False, ALONE.get(c) or PHASE_WHY.get(phase) or NOTHING))
+        why_alone = ALONE.get(c) or JUDGES_ORDER.get(c) or PHASE_WHY.get(phase) or NOTHING
+        steps_or_slot.append(Step(c, group, False, why_alone))
     if len(shared) == 1:  # a batch of one shares nothing
         only = shared[0]
         shared = []

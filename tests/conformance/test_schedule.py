@@ -53,6 +53,17 @@ def test_the_plan_batches_what_only_waits_and_says_why_each_case_runs_alone():
     assert "batch" in text and "shared" in text
 
 
+@pytest.mark.parametrize("case", ["ACK/test_ack_payload_is_the_big_endian_seq",
+                                  "ACK/test_every_retransmitted_copy_is_acked",
+                                  "DUP/test_new_seq_with_the_same_bytes_is_delivered"])
+def test_quick_cases_that_judge_by_order_are_not_run_beside_the_batch(case):
+    """Beside the batch's commands a node naming the previous message's seq in its ACKs named
+    another open command's (MCP-ACK-2 passed), one comparing bytes saw other messages between
+    the two it should have taken for one (MCP-DUP-2 passed): those cases run alone."""
+    (step,) = [s for s in plan_cases([*CASES, (case, "main")]).steps if s.case == case]
+    assert step.group == "alone" and not step.shared and "alone" in step.why
+
+
 def test_attach_mode_does_not_risk_malformed_inputs_beside_others():
     plan = plan_cases(CASES, spawned=False)
     assert set(plan.batch) == set(BATCH_CASES) - CRASHABLE
@@ -183,9 +194,11 @@ def _windows(res) -> list[tuple[int, int]]:
 
 
 def test_a_scheduled_run_watches_its_windows_together_and_serial_one_after_another():
-    res = run_conform()
+    res = run_conform("-v")
     assert res.rc == 0, res.explain()
     plan = res.report["schedule"]
+    assert "schedule: scheduled" in res.output  # -v prints the plan, case by case, with why
+    assert "batch   shared ACK/test_broadcast_is_not_acked: waits out a 'no reply' window" in res.output
     jsonschema.validate(res.report, SCHEMA)
     assert plan["mode"] == "scheduled" and plan["batch_outcome"] == "kept", plan
     spans = _windows(res)

@@ -1,8 +1,9 @@
 """Verdicts do not depend on the schedule (issue 23): the same outcome for every case, run
 ``--serial`` and scheduled (``conformance.schedule``: the batch of windows), against the
 reference node, correct sample nodes unlike it and faulty ones whose faults fall in the
-batch (a reply a silence probe draws, a crash on a malformed input, a duplicate delivered,
-a frame forwarded twice or truncated), in the startup (retransmission stopped by a wrong
+batch (a reply a silence probe draws, an ACK in the wrong form or missing for a copy, a
+crash on a malformed input, a duplicate delivered, new bytes taken for a duplicate, a frame
+forwarded twice or truncated), in the startup (retransmission stopped by a wrong
 ACK, arming before Start_Mission) and beside it (slow ACKs).
 
 Each node is run once ``--serial`` and ``MCP_SCHEDULE_RUNS`` times scheduled (default 2;
@@ -33,6 +34,11 @@ NODES = [
     ("ack-unknown-action", ("--fault", "ack-unknown-action")),
     ("ack-bad-length", ("--fault", "ack-bad-length")),
     ("ack-little-endian", ("--fault", "ack-little-endian")),
+    ("ack-first-copy-only", ("--fault", "ack-first-copy-only")),
+    ("ack-copies-wrong-seq", ("--fault", "ack-copies-wrong-seq")),
+    ("ack-previous-seq", ("--fault", "ack-previous-seq")),
+    ("ack-wrong-dst", ("--fault", "ack-wrong-dst")),
+    ("dup-by-content", ("--fault", "dup-by-content")),
     ("crash-on-short", ("--fault", "crash-on-short")),
     ("no-dup-discard", ("--fault", "no-dup-discard")),
     ("passthrough-twice", ("--fault", "passthrough-twice")),
