@@ -5,7 +5,9 @@ when it ran clean, else thrown away and its cases run again one by one.
 Clean (``unclean``): every case passed or was skipped, the node is alive, not lost, not
 silent, and every datagram it sent while the batch ran is a well-formed ACK, to the runner,
 whose payload names the seq of a command the node had to answer (a well-formed unicast to
-its ID), tied to it by that seq without ambiguity. So a reply a silence probe drew (an ACK
+its ID), tied to it by that seq without ambiguity, and no more of them than copies of such
+commands were sent (a reply naming another open command's seq looks right one by one). So a
+reply a silence probe drew (an ACK
 of a broadcast, of a message to another ID, of an ACK, of a malformed datagram), a reply
 tied by timing only, a node lost to one input, any failure: the batch's verdicts are
 discarded and each case runs alone, in the serial order, as ``--serial`` runs it — a fault
@@ -31,7 +33,7 @@ from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cas
 from harness.errors import Inconclusive
 from spec.codec import Action, DecodeError, decode
 
-__all__ = ["BatchRun", "in_plan_order", "run_batch", "unclean"]
+__all__ = ["BatchRun", "in_plan_order", "run_batch", "serial_from_here", "unclean"]
 
 _ACK = int(Action.ACK)
 
@@ -111,8 +113,21 @@ def _expected_reply(session: Any, d: Any, sent: list[Any]) -> str | None:
     return None
 
 
-def unclean(session: Any, members: list[_Member], since: int) -> str | None:
-    """Why the batch's verdicts cannot be kept (None: it ran clean)."""
+def _answerable(session: Any, s: Any) -> bool:
+    """A datagram the runner sent that a correct node ACKs: well-formed, unicast to its ID,
+    not an ACK."""
+    if s.action == _ACK or s.dst != session.target_id:
+        return False
+    try:
+        decode(s.data)
+    except DecodeError:
+        return False
+    return True
+
+
+def unclean(session: Any, members: list[_Member], since: int, sent_since: int = 0) -> str | None:
+    """Why the batch's verdicts cannot be kept (None: it ran clean). ``since``: the index of
+    the first datagram received in the batch; ``sent_since``: of the first sent."""
     for m in members:
         if m.exc is not None and not isinstance(m.exc, (Inconclusive, pytest.skip.Exception)):
             return f"{m.ctx.case_id} ended {type(m.exc).__name__}"
@@ -129,12 +144,18 @@ def unclean(session: Any, members: list[_Member], since: int) -> str | None:
         return "the node was declared lost"
     drv = session.driver
     sent = drv.sent()
-    for d in drv.received(since):
+    got = drv.received(since)
+    for d in got:
         if d.header is None or d.header[3] != _ACK:
             return f"the node sent {d.describe()}"
         why = _expected_reply(session, d, sent)
         if why is not None:
             return why
+    # one ACK per copy of a command it had to answer, at most: more, and it answered something
+    # else too, whatever seq it named (a reply naming another open command's seq looks right)
+    due = sum(1 for s in sent[sent_since:] if _answerable(session, s))
+    if len(got) > due:
+        return f"the node sent {len(got)} ACKs for {due} copies of commands it had to answer"
     return None
 
 
@@ -144,6 +165,7 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
     session = state.session
     members: list[_Member] = []
     since = session.driver.mark()
+    sent_since = len(session.driver.sent())
     for item in items:
         if item is leader:
             ctx = item.funcargs["node"]  # type: ignore[attr-defined]
@@ -183,7 +205,7 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
     finally:
         with contextlib.suppress(ValueError):
             drv.tx_hooks.remove(count)
-    why = unclean(session, members, since)
+    why = unclean(session, members, since, sent_since)
     if why is None:
         batch.kept = True
         return
@@ -215,6 +237,9 @@ def _throw_away(session: Any, batch: BatchRun, leader: pytest.Item, members: lis
     """The batch's verdicts are not kept: the later cases' contexts end here; each case runs
     alone at its turn (its fixture makes it a fresh context)."""
     batch.kept, batch.why = False, why
+    # what the batch left open takes no reply of the cases run again (a node naming the
+    # previous message's seq would otherwise answer the batch's commands for them)
+    session.driver.close_attribution()
     for m in members:
         if m.item is not leader and batch.pending.pop(m.item.nodeid, None) is not None:
             m.ctx.end_ns = time.time_ns()
@@ -232,6 +257,21 @@ def rerun_leader(state: Any, item: pytest.Item, batch: BatchRun) -> None:
     item.funcargs["node"] = new  # type: ignore[attr-defined]
     state.ctx[item.nodeid] = new
     item.obj(**_kwargs(item, new))  # type: ignore[attr-defined]
+
+
+def serial_from_here(item: pytest.Item, serial_order: list[pytest.Item]) -> None:
+    """The batch was thrown away at ``item``: the items still to run go back to the serial
+    order, so every case after it meets the node in the state a ``--serial`` run leaves it
+    in (a node whose answers depend on what came before — the previous message's seq — saw
+    the batch's cases before MCP-ACK-7 otherwise). pytest runs ``session.items`` by index:
+    the items after this one are replaced in place."""
+    items = item.session.items
+    i = items.index(item)
+    done = set(items[: i + 1])
+    rest = [it for it in serial_order if it not in done]
+    rest += [it for it in items[i + 1:] if it not in rest and it not in done]
+    if len(rest) == len(items) - i - 1:
+        items[i + 1:] = rest
 
 
 def take(item: pytest.Item, batch: BatchRun) -> None:

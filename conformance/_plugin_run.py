@@ -248,6 +248,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
     from conformance._batch import in_plan_order
 
+    state.serial_order = list(keep)  # a batch thrown away: the rest of the run goes back to it
     items[:] = in_plan_order(state, keep)
     state.items = [i for i in items if i.nodeid in state.meta]
 
@@ -382,6 +383,8 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
                 state.plan.batch_outcome = ("kept" if batch.kept else
                                             f"thrown away, its cases ran alone: {batch.why}")
                 state.run.schedule = state.plan.to_json()
+            if not batch.kept:
+                _batch.serial_from_here(pyfuncitem, state.serial_order)
         if not batch.kept:
             _batch.rerun_leader(state, pyfuncitem, batch)
             return True

@@ -11,10 +11,13 @@ What only waits is overlapped; nothing is weakened to overlap:
   delivery by its probe's token, so each case still judges only its own traffic. A batch is
   kept only when it ran *clean*: every case of it passed (or was skipped before sending),
   the node stayed live, and every datagram the node sent meanwhile was an ACK that names
-  the seq of a command it had to answer. Anything else (a failure, a reply tied by timing
-  only or ambiguously, a node lost or silent) and the batch's verdicts are thrown away and
-  its cases run again one by one, in their serial order: a fault one probe provokes is
-  never blamed on another, and the verdicts are the serial run's (``batch_outcome``);
+  the seq of a command it had to answer, no more of them than copies of such commands.
+  Anything else (a failure, a reply tied by timing only or ambiguously, a node lost or
+  silent) and the batch's verdicts are thrown away and its cases run again one by one, in
+  their serial order: a fault one probe provokes is never blamed on another, and the
+  verdicts are the serial run's (``batch_outcome``). Cases whose verdict depends on what
+  came just before (an ACK's form, duplicates of the message before) stay alone: beside
+  others' commands such a fault can hide (``JUDGES_ORDER``);
 - **alone**: everything else, each with its reason (mission state, restarts, floods,
   latency, the startup's and the whole run's observations).
 

@@ -335,6 +335,11 @@ class TargetDriver:
         with self._cond:
             return self._rx_attr[d.index] if 0 <= d.index < len(self._rx_attr) else None
 
+    def close_attribution(self) -> None:
+        """No reply from now on is tied to a command sent before (``Attributor.close_all``)."""
+        with self._cond:
+            self.attributor.close_all()
+
     def attribute_external(self, d: Datagram) -> Attribution | None:
         """Attribute a datagram that arrived on another socket (MCP-TRN-2's side socket)."""
         with self._cond:

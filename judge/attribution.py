@@ -184,6 +184,15 @@ class Attributor:
                          "were also unanswered, and the payload names none of them")
         return Attribution(cmd.id, cmd.seq, BY_TIMING, self._named(d, cmd), ambiguous)
 
+    def close_all(self) -> None:
+        """Every command sent so far counts as answered from now on: a later reply is tied
+        only to commands sent after this (the runner's schedule runs a batch of cases again
+        one by one after throwing it away; the batch's copies left open would otherwise take
+        replies a serial run ties to the command they follow)."""
+        for c in self._commands:
+            c.answers = max(c.answers, len(c.copies))
+        self._latest = None
+
     # ------------------------------------------------------------------ helpers
     def _forget_oldest(self) -> None:
         """Keep memory and lookups bounded on long runs (a fuzz campaign): the older half of

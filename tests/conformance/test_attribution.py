@@ -165,3 +165,17 @@ def test_memory_stays_bounded_on_a_long_run():
     assert len(link.att._commands) <= attribution.MAX_COMMANDS
     last = attribution.MAX_COMMANDS + 9
     assert link.ack(last * 0.001 + 0.0005, last & 0xFFFF).how == BY_SEQ
+
+
+def test_after_close_all_a_reply_is_tied_only_to_commands_sent_after():
+    """The runner's schedule throws a batch away and runs its cases again: a copy the batch
+    left open must not take the reply of a command sent after (a node naming the previous
+    message's seq answered the batch's commands for them, a cascade of retransmissions)."""
+    link = Link()
+    old = link.send(0.0, 1000)
+    link.send(0.1, 1000, copy_of=old)  # two copies, one answered: still open
+    assert link.ack(0.12, 1000).command == old
+    link.att.close_all()
+    new = link.send(0.2, 1001)
+    a = link.ack(0.21, 1000)  # names the earlier command's seq
+    assert (a.command, a.how) == (new, BY_TIMING)

@@ -167,6 +167,17 @@ def test_a_reply_to_a_probe_that_must_not_be_answered_throws_the_batch_away():
     assert "must not answer" in unclean(s, [_member()], 0)
 
 
+def test_more_acks_than_copies_to_answer_throw_the_batch_away():
+    """A node that also ACKed a probe it must not answer, naming the seq of another open
+    command (as a node naming the previous message's seq does), is not taken for clean."""
+    s = _Session()
+    wp = s.driver.send(1, Action.WP_OFF)
+    s.driver.send(0xFFFF, Action.WP_OFF)  # a broadcast: not to be answered
+    for _ in range(2):
+        s.driver.reply(_ack(wp.seq), Attribution(wp.command, wp.seq, "seq", "its seq"))
+    assert "2 ACKs for 1 copies" in unclean(s, [_member()], 0)
+
+
 def test_a_reply_tied_by_timing_only_throws_the_batch_away():
     s = _Session()
     wp = s.driver.send(1, Action.WP_OFF)
@@ -185,6 +196,25 @@ def test_a_failure_a_silence_or_another_message_throws_the_batch_away():
     assert "silent" in unclean(s, [silent], 0)
     s.driver.reply(encode(Message(0, 1, 9, Action.MISSION_READY, None)), None)
     assert "MISSION_READY" in unclean(s, [_member()], 0)
+
+
+def test_a_batch_thrown_away_gives_the_rest_of_the_run_the_serial_order():
+    from conformance._batch import serial_from_here
+
+    class It:  # an item: hashable, with its session
+        session: object = None
+
+    class Session:
+        items: list = []
+
+    serial = [It() for _ in range(6)]
+    a, b4, c7, d5, e6, f = serial
+    session = Session()
+    session.items = [a, b4, d5, e6, c7, f]  # the batch b4, d5, e6 where b4 stood
+    for it in serial:
+        it.session = session
+    serial_from_here(b4, serial)  # thrown away while its first case ran
+    assert session.items == [a, b4, c7, d5, e6, f]
 
 
 # ---------------------------------------------------------------------- a run
