@@ -335,10 +335,17 @@ class TargetDriver:
         with self._cond:
             return self._rx_attr[d.index] if 0 <= d.index < len(self._rx_attr) else None
 
-    def close_attribution(self) -> None:
-        """No reply from now on is tied to a command sent before (``Attributor.close_all``)."""
-        with self._cond:
-            self.attributor.close_all()
+    def settle_attribution(self, limit: float) -> None:
+        """Wait (at most ``limit`` s) until no command with a copy unanswered can still take a
+        reply (``Attributor.answerable_until``); replies meanwhile are tied as they come."""
+        deadline = time.monotonic() + limit
+        while True:
+            now = time.monotonic()
+            with self._cond:
+                until = self.attributor.answerable_until(now)
+            if until <= now or now >= deadline:
+                return
+            self.pause(min(until, deadline) - now)
 
     def attribute_external(self, d: Datagram) -> Attribution | None:
         """Attribute a datagram that arrived on another socket (MCP-TRN-2's side socket)."""
