@@ -246,8 +246,11 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         state.run.error = f"{opt}: no case matches {what}"
     order = {p: n for n, p in enumerate(PHASES)}
     keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
-    items[:] = keep
-    state.items = [i for i in keep if i.nodeid in state.meta]
+    from conformance._batch import in_plan_order
+
+    state.serial_order = list(keep)  # a batch thrown away: the rest of the run goes back to it
+    items[:] = in_plan_order(state, keep)
+    state.items = [i for i in items if i.nodeid in state.meta]
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -268,6 +271,9 @@ def pytest_runtestloop(session: pytest.Session) -> bool | None:
         return None
     mode = state.cfg.mode
     state.terminal.header(state.run, mode)
+    if state.plan is not None and session.config.getoption("mcp_verbose_traffic"):
+        for line in state.plan.lines():  # -v: the schedule, before the traffic
+            state.terminal.note(line)
     state.run_deadline = time.monotonic() + state.cfg.timeout
     state.install_term()
     return None
@@ -357,6 +363,37 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
         return run_impaired(state, item, exc)
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
+    """The schedule's batch (``conformance._batch``): its first case runs them all; each case
+    then takes its own verdict. A batch thrown away runs its cases alone, at their turn."""
+    state = _phase_wrapper(pyfuncitem)
+    if state is None or pyfuncitem not in state.batch_items:
+        return None
+    from conformance import _batch
+
+    batch = state.batch
+    if batch.kept is None:  # the first case of the batch: all of them, together
+        state.case_deadline = time.monotonic() + 2 * state.current_limit()
+        state.arm()
+        try:
+            _batch.run_batch(state, pyfuncitem, state.batch_items, batch)
+        finally:
+            if state.plan is not None:
+                state.plan.batch_outcome = ("kept" if batch.kept else
+                                            f"thrown away, its cases ran alone: {batch.why}")
+                state.run.schedule = state.plan.to_json()
+            if not batch.kept:
+                _batch.serial_from_here(pyfuncitem, state.serial_order)
+        if not batch.kept:
+            _batch.rerun_leader(state, pyfuncitem, batch)
+            return True
+    if batch.kept:
+        _batch.take(pyfuncitem, batch)
+        return True
+    return None
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
     return (yield from _armed(item))
@@ -436,7 +473,12 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
     if item.nodeid not in state.meta:
         state.meta[item.nodeid] = _meta(item)
     rec = state.record(item)
-    ctx = mcp_session.begin_case(rec.id, rec.rules)
+    batch = state.batch
+    ctx = batch.pending.pop(item.nodeid, None)  # made when its batch ran (conformance._batch)
+    if ctx is None:
+        ctx = mcp_session.begin_case(rec.id, rec.rules)
+        if batch.kept is False and item.nodeid in batch.members:
+            ctx.notes.append(f"ran alone after its batch was thrown away: {batch.why}")
     state.ctx[item.nodeid] = ctx
     try:
         yield ctx

@@ -125,6 +125,12 @@ class McpState:
         self.first_datagram: Any = None  # conformance.live.FirstDatagram, during the run
         self.printer: Any = None  # conformance.live.TrafficPrinter under -v
         self.startup_deadline: float | None = None  # until the node's first datagram
+        self.plan: Any = None  # conformance.schedule.Plan, once the cases are collected
+        self.batch_items: list[pytest.Item] = []  # the plan's batch, in its order
+        self.serial_order: list[pytest.Item] = []  # the items as --serial runs them
+        from conformance._batch import BatchRun
+
+        self.batch = BatchRun()
         self.startup_expired = False
 
     @property

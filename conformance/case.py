@@ -9,6 +9,7 @@ across the runner's own retransmissions, every --rto, as a manager would (MCP-AC
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import statistics
 import time
@@ -153,14 +154,9 @@ class CaseContext(CaseBase):
         intact frame, so delivery stays unobservable, except (``altered``) to MCP-PAY-8,
         which judges exactly that."""
         self.require_vehicle(rule)
-        if self.session.passthrough_forwarded is None:
-            d = self.deliver(self.probe())
-            self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
-            if not d.exchange.acked:
-                self.session.passthrough_forwarded = None
-                raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
-            if not self.session.passthrough_forwarded:
-                self.session.passthrough_altered = self.altered_arrival(d) is not None
+        lock = getattr(self.session, "capability_lock", None) or contextlib.nullcontext()
+        with lock:  # learnt once, whichever case asks first (cases may run together)
+            self.learn_passthrough(rule)
         if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
             return
         if self.session.passthrough_altered:
@@ -168,6 +164,24 @@ class CaseContext(CaseBase):
                                "(MCP-PAY-8), so delivery to its application is unobservable")
         raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
                            "so delivery to its application is unobservable")
+
+    def learn_passthrough(self, rule: str) -> None:
+        """Whether the node forwards Mav_Passthrough frames (``session.passthrough_forwarded``,
+        learnt once by a probe); Inconclusive when the probe was not ACKed (not learnt).
+        An incomplete frame the vehicle still holds (an altered frame a moment ago) is waited
+        out first, so the probe's bytes are not read as its tail."""
+        if self.session.passthrough_forwarded is None:
+            from vehicle.codec import STALE
+
+            v = self.vehicle
+            v.wait_for(lambda: v.holding() == 0, 2 * STALE + 0.1)
+            d = self.deliver(self.probe())
+            self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
+            if not d.exchange.acked:
+                self.session.passthrough_forwarded = None
+                raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
+            if not self.session.passthrough_forwarded:
+                self.session.passthrough_altered = self.altered_arrival(d) is not None
 
     def altered_arrival(self, d: Delivery) -> Altered | None:
         """MCP-PAY-8: bytes that reached the autopilot since ``d``'s probe was sent, did not

@@ -92,6 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--impair", metavar="SPEC", help="test through a bad link, reproducible by seed: "
                    "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (the runner's own socket "
                    "drops, duplicates, delays and reorders; a case the impairment spoiled is repeated, never failed)")
+    p.add_argument("--serial", action="store_true", help="run every case alone, one after another, as "
+                   "listed (the default schedule overlaps what only waits; -v prints it)")
     p.add_argument("-v", "--verbose", action="store_true", help="print every datagram sent and received, live, to stderr")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
@@ -190,7 +192,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")
     if ns.mavlink:
         args.append(f"--mcp-mavlink={ns.mavlink}")
-    for flag in ("strict", "list"):
+    for flag in ("strict", "list", "serial"):
         if getattr(ns, flag):
             args.append(f"--mcp-{flag}")
     if ns.verbose:

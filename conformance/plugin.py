@@ -88,6 +88,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                 "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (a case the impairment "
                 "spoiled is repeated, never failed)")
     g.addoption("--mcp-verbose-traffic", action="store_true", help="print every datagram sent and received, live, to stderr")
+    g.addoption("--mcp-serial", action="store_true", help="run every case alone, one after another "
+                "(the default schedule overlaps what only waits)")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
     for key in _KEYS:

@@ -145,6 +145,7 @@ class RunRecord:
     started_wall: float = field(default_factory=time.time)
     finished: float | None = None
     monitor: dict[str, Any] | None = None  # the trace monitor's section (judge.run_monitor)
+    schedule: dict[str, Any] | None = None  # the run's plan (conformance.schedule)
 
     @property
     def duration_s(self) -> float:
@@ -262,6 +263,7 @@ def build_json(run: RunRecord) -> dict[str, Any]:
         "rules": rule_outcomes(run.cases, run.role, monitor),
         "summary": {**{k: counts[k] for k in OUTCOMES}, "duration_s": round(run.duration_s, 3)},
         **({"monitor": run.monitor} if run.monitor is not None else {}),
+        **({"schedule": run.schedule} if run.schedule is not None else {}),
     }
     if run.node is not None:
         doc["node"] = run.node

@@ -335,6 +335,18 @@ class TargetDriver:
         with self._cond:
             return self._rx_attr[d.index] if 0 <= d.index < len(self._rx_attr) else None
 
+    def settle_attribution(self, limit: float) -> None:
+        """Wait (at most ``limit`` s) until no command with a copy unanswered can still take a
+        reply (``Attributor.answerable_until``); replies meanwhile are tied as they come."""
+        deadline = time.monotonic() + limit
+        while True:
+            now = time.monotonic()
+            with self._cond:
+                until = self.attributor.answerable_until(now)
+            if until <= now or now >= deadline:
+                return
+            self.pause(min(until, deadline) - now)
+
     def attribute_external(self, d: Datagram) -> Attribution | None:
         """Attribute a datagram that arrived on another socket (MCP-TRN-2's side socket)."""
         with self._cond:
@@ -407,6 +419,12 @@ class TargetDriver:
             seq = self._seq.get(src, 0)
             self._seq[src] = (seq + 1) & 0xFFFF
         return seq
+
+    @property
+    def seq_lock(self) -> Any:
+        """Held to reserve a run of seqs at once (``peek_seq`` then ``set_seq``) while other
+        threads send (``next_seq`` takes it too)."""
+        return self._seq_lock
 
     def peek_seq(self, src: int | None = None) -> int:
         return self._seq.get(self.our_id if src is None else src, 0)

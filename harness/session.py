@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import shlex
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -115,6 +116,9 @@ class Session(SessionBase):
         #: (rule, why): the startup phase found the node's header unreadable in network order
         self.unreadable: tuple[str, str] | None = None
         self.timing: str | None = None  # the node's retransmission period disagrees with --rto
+        #: held while a case learns what the node can do (passthrough): the runner's schedule
+        #: may run cases together (conformance.schedule)
+        self.capability_lock = threading.RLock()
         self.period: float | None = None  # that period, as measured at startup
 
     # ------------------------------------------------------------------ properties

@@ -184,6 +184,17 @@ class Attributor:
                          "were also unanswered, and the payload names none of them")
         return Attribution(cmd.id, cmd.seq, BY_TIMING, self._named(d, cmd), ambiguous)
 
+    def answerable_until(self, now: float) -> float:
+        """When the last command with a copy still unanswered stops being answerable (a reply
+        until then may still be tied to it by its seq: ``_Command.recent``); ``now`` when none
+        is. The runner's schedule waits for it before it runs a thrown-away batch's cases
+        again, as a serial run's next case meets only answered or expired commands."""
+        end = now
+        for c in self._commands[-2000:]:
+            if c.copies and c.open_at(now) and c.recent(now, self.horizon):
+                end = max(end, c.copies[-1] + (3 * self.horizon if c.expects_reply else self.horizon))
+        return end
+
     # ------------------------------------------------------------------ helpers
     def _forget_oldest(self) -> None:
         """Keep memory and lookups bounded on long runs (a fuzz campaign): the older half of

@@ -24,10 +24,11 @@ PER_KIND = 6
 def _corpus(node, *kinds: str) -> list[tuple[str, bytes]]:
     """Seeded entries addressed to the node, with seqs reserved from the runner's counter."""
     drv = node.driver
-    first = drv.peek_seq()
-    entries = malformed_corpus(node.session.cfg.seed, PER_KIND, dst=node.target_id, src=drv.our_id,
-                               first_seq=first, kinds=list(kinds))
-    drv.set_seq(first + len(entries) + 1)
+    with drv.seq_lock:  # reserved at once: cases of a batch draw seqs meanwhile
+        first = drv.peek_seq()
+        entries = malformed_corpus(node.session.cfg.seed, PER_KIND, dst=node.target_id, src=drv.our_id,
+                                   first_seq=first, kinds=list(kinds))
+        drv.set_seq(first + len(entries) + 1)
     return [(f"{kind} #{i}", data) for i, (kind, data) in enumerate(entries)]
 
 

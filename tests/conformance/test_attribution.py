@@ -165,3 +165,24 @@ def test_memory_stays_bounded_on_a_long_run():
     assert len(link.att._commands) <= attribution.MAX_COMMANDS
     last = attribution.MAX_COMMANDS + 9
     assert link.ack(last * 0.001 + 0.0005, last & 0xFFFF).how == BY_SEQ
+
+
+def test_a_command_left_open_stays_answerable_for_three_horizons_then_not():
+    """The runner's schedule waits for this before it runs a thrown-away batch's cases again:
+    a copy the batch left open must not take the reply of a command sent after (a node naming
+    the previous message's seq answered it instead, a cascade of retransmissions), and a late
+    ACK of the batch's own commands (a slow node) is still tied to them meanwhile."""
+    link = Link(horizon=1.0)
+    old = link.send(0.0, 1000)
+    link.send(0.1, 1000, copy_of=old)  # two copies, one answered: still open
+    assert link.ack(0.12, 1000).command == old
+    assert link.att.answerable_until(0.5) == pytest.approx(3.1)
+    assert link.ack(2.0, 1000).command == old  # a late ACK of the second copy: still its own
+    assert link.att.answerable_until(2.1) == 2.1  # answered: nothing open
+    other = link.send(3.0, 1001)
+    link.send(3.1, 1001, copy_of=other)
+    link.ack(3.12, 1001)
+    assert link.att.answerable_until(7.0) == 7.0  # expired after 3 horizons
+    new = link.send(7.0, 1002)
+    a = link.ack(7.01, 1001)  # names the earlier, expired command's seq
+    assert (a.command, a.how) == (new, BY_TIMING)

@@ -1,0 +1,194 @@
+"""The suite's schedule (issue 23, DESIGN.md "The suite's schedule"): which cases share time
+and which run alone, and why — a plan that is data, printed by ``-v`` and written into the
+JSON report (``schedule``).
+
+What only waits is overlapped; nothing is weakened to overlap:
+
+- **a batch** (``shared``): the cases whose wall time is a watched window — "no reply" over
+  the ACK window (D-6: MCP-ACK-4/5/6, MCP-ROB-1..4) or a delivery count that must not grow
+  (MCP-DUP-1/4, MCP-PAY-8) — run together, so their windows are watched once. Each probe is
+  its own: a reply is tied to a probe by the seq it names (``judge.attribution``), a
+  delivery by its probe's token, so each case still judges only its own traffic. A batch is
+  kept only when it ran *clean*: every case of it passed (or was skipped before sending),
+  the node stayed live, and every datagram the node sent meanwhile was an ACK that names
+  the seq of a command it had to answer, no more of them than copies of such commands.
+  Anything else (a failure, a reply tied by timing only or ambiguously, a node lost or
+  silent) and the batch's verdicts are thrown away and its cases run again one by one, in
+  their serial order: a fault one probe provokes is never blamed on another, and the
+  verdicts are the serial run's (``batch_outcome``). Cases whose verdict depends on what
+  came just before (an ACK's form, duplicates of the message before) stay alone: beside
+  others' commands such a fault can hide (``JUDGES_ORDER``);
+- **alone**: everything else, each with its reason (mission state, restarts, floods,
+  latency, the startup's and the whole run's observations).
+
+The startup phase is not overlapped: while Mission_Ready's ACK is withheld a node may be
+deaf (D-6: it blocks in its send), and the watch for copies after the right ACK (MCP-RTX-1)
+is also the time a node has to arm before Start_Mission (MCP-BLK-4): Start_Mission sent at
+once would hide a node that arms as soon as its Mission_Ready is ACKed, and commands sent
+before it would be sent to a node whose mission has not started.
+
+``--serial`` runs every case alone in the order of their modules (the schedule the runner
+had before; the comparison of the two is ``bench/bench_suite.py`` and
+``tests/conformance/test_schedule_verdicts.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+__all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "plan_cases"]
+
+SILENCE = ("waits out a 'no reply' window (D-6); its probes are told apart from the batch's others "
+           "by the seq each reply names")
+COUNT = ("waits out a delivery-count window; its probes carry tokens of their own, counted one by "
+         "one by the vehicle")
+MALFORMED = SILENCE + "; a node lost to one input makes the batch run again case by case"
+
+#: the cases that only wait, and why they can share their window
+BATCH_CASES: dict[str, str] = {
+    "ACK/test_broadcast_is_not_acked": SILENCE,
+    "ACK/test_message_to_another_id_is_neither_acked_nor_acted_on": SILENCE,
+    "ACK/test_an_ack_is_never_acked": SILENCE,
+    "DUP/test_same_seq_twice_is_delivered_once": COUNT,
+    "DUP/test_late_copy_of_an_older_message": COUNT,
+    "PAY/test_passthrough_frame_reaches_the_autopilot_once": COUNT,
+    "ROB/test_short_datagrams_are_discarded": MALFORMED,
+    "ROB/test_bad_preamble_is_discarded": MALFORMED,
+    "ROB/test_unknown_action_code_is_discarded": MALFORMED,
+    "ROB/test_payload_that_does_not_fit_is_not_acked": MALFORMED,
+}
+#: the batch's cases that first learn whether the node forwards Mav_Passthrough frames
+#: (``CaseContext.require_passthrough``): learnt before the batch starts, alone
+PASSTHROUGH_CASES = ("DUP/test_same_seq_twice_is_delivered_once", "DUP/test_late_copy_of_an_older_message",
+                     "PAY/test_passthrough_frame_reaches_the_autopilot_once")
+#: malformed input: shared only when a lost node can be restarted (spawn mode)
+CRASHABLE = frozenset(c for c, why in BATCH_CASES.items() if why is MALFORMED)
+
+#: why a case runs alone (by case ID; the others: "nothing to overlap")
+ALONE: dict[str, str] = {
+    "ROB/test_flood_of_malformed_datagrams": "a flood: alone, it would bury other cases' probes",
+    "SEQ/test_zero_after_65535_is_new": "moves the runner's seq across the wrap and may leave the node "
+                                        "unusable (a fresh node follows): alone",
+    "ROB/test_unexpected_messages_are_survived": "a second Start_Mission and other mission-state "
+                                                 "messages: alone",
+    "ROB/test_datagrams_of_0_and_65507_bytes_are_survived": "inputs that may crash the node, and no "
+                                                            "window to share: alone",
+    "ACK/test_ack_leaves_within_the_deadline": "measures ACK latency: other traffic would skew it",
+    "DUP/test_same_seq_from_another_src_is_not_a_duplicate": "sends as another source and moves that "
+                                                             "source's seq: alone",
+    "BLK/test_end_mission_then_rtl": "End_Mission ends the mission: last, alone",
+}
+PHASE_WHY = {
+    "startup": "judged on the startup phase's observation; sends nothing",
+    "late": "judged on the whole run's traffic: after the cases that make it",
+    "end": "ends the mission: last, alone",
+}
+NOTHING = "nothing to overlap (no window worth sharing): alone"
+#: why the quick cases that judge the form of the node's ACKs or its duplicate detection are
+#: not shared even though a batch runs anyway: beside others' commands a node that names the
+#: previous message's seq in its ACK names another open command's (MCP-ACK-2 passed beside
+#: them), and one that takes a message with the bytes of the one before for a duplicate
+#: sees other messages between the two (MCP-DUP-2 passed)
+JUDGES_ORDER = {
+    "ACK/test_every_retransmitted_copy_is_acked": "judges each copy's ACK: alone, so no other command is open "
+                                                  "beside it (a reply naming another's seq would look right)",
+    "ACK/test_ack_payload_is_the_big_endian_seq": "judges the ACK's payload: alone, so no other command is open "
+                                                  "beside it (a node naming the previous message's seq would "
+                                                  "name another open command's)",
+    "ACK/test_ack_is_addressed_back_to_the_sender": "judges the ACK's form: alone, so each reply is tied to its "
+                                                    "command by order as well as seq",
+    "DUP/test_new_seq_with_the_same_bytes_is_delivered": "judges duplicate detection on two messages in a row: "
+                                                         "alone, other messages between them would hide a node "
+                                                         "that compares bytes",
+}
+BATCH = "batch"
+
+
+@dataclass(frozen=True)
+class Step:
+    """One case in the plan: its group (``startup``, ``alone``, ``batch``, ``late``,
+    ``end``), whether it shares its time with the other cases of its group, and why."""
+
+    case: str
+    group: str
+    shared: bool
+    why: str
+
+    def to_json(self) -> dict[str, object]:
+        return {"case": self.case, "group": self.group, "shared": self.shared, "why": self.why}
+
+
+@dataclass
+class Plan:
+    """The run's schedule: the cases in the order they run, and what became of the batch
+    (``batch_outcome``: "kept", or why its cases ran again one by one)."""
+
+    mode: str  # "scheduled" or "serial"
+    why: str  # why this mode
+    steps: list[Step]
+    batch_outcome: str | None = None
+
+    @property
+    def batch(self) -> list[str]:
+        return [s.case for s in self.steps if s.group == BATCH]
+
+    def to_json(self) -> dict[str, object]:
+        return {"mode": self.mode, "why": self.why, "batch_outcome": self.batch_outcome,
+                "steps": [s.to_json() for s in self.steps]}
+
+    def lines(self) -> list[str]:
+        """The plan for a person (``-v``)."""
+        out = [f"schedule: {self.mode} ({self.why})"]
+        for s in self.steps:
+            out.append(f"  {s.group:<7} {'shared' if s.shared else 'alone ':<6} {s.case}: {s.why}")
+        return out
+
+
+def serial_why(role: str, serial: bool, impaired: bool, worker: bool = False) -> str | None:
+    """Why this run is not scheduled, or None when it is."""
+    if worker:
+        return "a pytest-xdist worker: the workers share the cases out, each runs its share one by one"
+    if serial:
+        return "--serial: every case alone, in the order of their modules"
+    if role != "drone":
+        return f"the {role} role's cases run one after another (not scheduled yet)"
+    if impaired:
+        return "--impair: a spoiled observation is repeated case by case"
+    return None
+
+
+def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned: bool = True,
+               serial: bool = False, impaired: bool = False, worker: bool = False) -> Plan:
+    """The plan for ``cases`` (case ID, phase), given in the serial order (by phase, then by
+    module): the batch's cases run together where its first one stood, every other case
+    keeps its place."""
+    why_serial = serial_why(role, serial, impaired, worker)
+    if why_serial is not None:
+        steps = [Step(c, phase if phase in PHASE_WHY else "alone", False,
+                      PHASE_WHY.get(phase, why_serial)) for c, phase in cases]
+        return Plan("serial", why_serial, steps)
+    shared: list[Step] = []
+    steps_or_slot: list[Step | None] = []
+    for c, phase in cases:
+        why = BATCH_CASES.get(c)
+        if phase == "main" and why is not None and (spawned or c not in CRASHABLE):
+            if not shared:
+                steps_or_slot.append(None)  # the batch runs where its first case stood
+            shared.append(Step(c, BATCH, True, why))
+            continue
+        if why is not None and c in CRASHABLE:
+            steps_or_slot.append(Step(c, "alone", False, "attach mode: a node lost to a malformed "
+                                      "input cannot be restarted, so it is not risked beside others"))
+            continue
+        group = phase if phase in PHASE_WHY else "alone"
+        why_alone = ALONE.get(c) or JUDGES_ORDER.get(c) or PHASE_WHY.get(phase) or NOTHING
+        steps_or_slot.append(Step(c, group, False, why_alone))
+    if len(shared) == 1:  # a batch of one shares nothing
+        only = shared[0]
+        shared = []
+        steps_or_slot = [Step(only.case, "alone", False, NOTHING) if s is None else s for s in steps_or_slot]
+    steps: list[Step] = []
+    for s in steps_or_slot:
+        steps.extend(shared if s is None else [s])
+    return Plan("scheduled", "what only waits is overlapped", steps)
