@@ -31,6 +31,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
@@ -42,6 +43,34 @@ from fuzz.targets import start_target  # noqa: E402
 from fuzz.triage import Triage  # noqa: E402
 from spec.codec import PREAMBLE, Action  # noqa: E402
 
+
+def timed_session(boofuzz: Any, kw: dict, requests: list[Any], seconds: float) -> tuple[int, float]:
+    """A boofuzz Session of ``kw`` over ``requests``, stopped after ``seconds``: (cases fuzzed,
+    seconds taken). Run in a temporary directory (boofuzz writes boofuzz-results/ where it runs),
+    its banner kept off stdout, its web interface stopped."""
+    cwd = os.getcwd()
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chdir(tmp)
+        try:
+            with _quiet_stdout():
+                session = boofuzz.Session(**kw)
+                for req in requests:
+                    session.connect(req)
+                timer = threading.Timer(seconds, lambda: setattr(session, "_index_end", 0))
+                timer.start()
+                t0 = time.monotonic()
+                try:
+                    session.fuzz()
+                finally:
+                    elapsed = time.monotonic() - t0
+                    timer.cancel()
+                n = session.num_cases_actually_fuzzed
+                if getattr(session, "web_interface_thread", None) is not None:
+                    with contextlib.suppress(Exception):
+                        session.web_interface_thread.stop()
+        finally:
+            os.chdir(cwd)
+    return int(n), elapsed
 
 def _free_tcp_port() -> int:
     with socket.socket() as s:
@@ -90,29 +119,7 @@ def run_boofuzz(target: tuple[str, int], node_id: int, cases: int, seconds: floa
     else:
         # the default UI, on a port nobody else holds, not kept open waiting for ENTER at the end
         kw.update(web_port=_free_tcp_port(), keep_web_open=False)
-    cwd = os.getcwd()
-    with tempfile.TemporaryDirectory() as tmp:
-        os.chdir(tmp)  # boofuzz writes boofuzz-results/ where it runs
-        try:
-            with _quiet_stdout():
-                session = boofuzz.Session(**kw)
-                session.connect(_request(boofuzz, node_id))
-                done = threading.Event()
-                timer = threading.Timer(seconds, lambda: (done.set(), setattr(session, "_index_end", 0)))
-                timer.start()
-                t0 = time.monotonic()
-                try:
-                    session.fuzz()
-                finally:
-                    elapsed = time.monotonic() - t0
-                    timer.cancel()
-                n = session.num_cases_actually_fuzzed
-                if getattr(session, "web_interface_thread", None) is not None:
-                    with contextlib.suppress(Exception):
-                        session.web_interface_thread.stop()
-        finally:
-            os.chdir(cwd)
-    return int(n), elapsed
+    return timed_session(boofuzz, kw, [_request(boofuzz, node_id)], seconds)
 
 
 def run_mcp_fuzz(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa: ANN001

@@ -40,14 +40,13 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from bench.bench_fuzz import _free_tcp_port, _quiet_stdout  # noqa: E402
+from bench.bench_fuzz import _free_tcp_port, timed_session  # noqa: E402
 from fuzz.stream_campaign import StreamCampaign  # noqa: E402
 from fuzz.stream_mutators import valid_values  # noqa: E402
 from harness.stream_session import embedded_command  # noqa: E402
@@ -95,29 +94,7 @@ def run_boofuzz(addr: tuple[str, int], cases: int, seconds: float, tuned: bool) 
                   check_data_received_each_request=False)
     else:
         kw.update(web_port=_free_tcp_port(), keep_web_open=False)
-    cwd = os.getcwd()
-    with tempfile.TemporaryDirectory() as tmp:
-        os.chdir(tmp)  # boofuzz writes boofuzz-results/ where it runs
-        try:
-            with _quiet_stdout():
-                session = boofuzz.Session(**kw)
-                for req in nsqd_requests(boofuzz):
-                    session.connect(req)
-                timer = threading.Timer(seconds, lambda: setattr(session, "_index_end", 0))
-                timer.start()
-                t0 = time.monotonic()
-                try:
-                    session.fuzz()
-                finally:
-                    elapsed = time.monotonic() - t0
-                    timer.cancel()
-                n = session.num_cases_actually_fuzzed
-                if getattr(session, "web_interface_thread", None) is not None:
-                    with contextlib.suppress(Exception):
-                        session.web_interface_thread.stop()
-        finally:
-            os.chdir(cwd)
-    return int(n), elapsed
+    return timed_session(boofuzz, kw, list(nsqd_requests(boofuzz)), seconds)
 
 
 def _boofuzz_child(addr: tuple[str, int], cases: int, seconds: float, tuned: bool, pipe: Any) -> None:
