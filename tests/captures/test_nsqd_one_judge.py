@@ -52,6 +52,29 @@ def _tcpdump(path: Path, port: int) -> subprocess.Popen | None:
     return p
 
 
+def _closed_connections(pcap: Path, port: int) -> int:
+    """Connections to ``port`` in tcpdump's (growing) pcap that were opened and closed (SYN, then
+    FIN or RST), read with scapy; a record cut by the writer ends the count."""
+    from scapy.layers.inet import TCP
+    from scapy.layers.l2 import Ether
+    from scapy.utils import RawPcapReader
+
+    opened, closed = set(), set()
+    try:
+        for buf, _meta in RawPcapReader(str(pcap)):
+            tcp = Ether(buf).getlayer(TCP)
+            if tcp is None:
+                continue
+            client = tcp.sport if tcp.dport == port else tcp.dport
+            if "S" in tcp.flags and "A" not in tcp.flags:
+                opened.add(client)
+            if "F" in tcp.flags or "R" in tcp.flags:
+                closed.add(client)
+    except Exception:  # noqa: BLE001 - the file is being written: a cut record ends the count
+        pass
+    return len(opened & closed)
+
+
 def _failed(check: Path, tmp: Path) -> tuple[set[str], int]:
     out = tmp / f"{check.name}.json"
     run = subprocess.run([sys.executable, "-m", "captures", "check", str(check), "--json", str(out)],
@@ -71,15 +94,24 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
     backend = subprocess.Popen([str(exe), "--host", "127.0.0.1", "--port", str(port), "--update-period", "0.05",
                                 *(["--fault", fault] if fault else [])], stderr=subprocess.DEVNULL)
     dump = _tcpdump(tmp_path / "tcpdump.pcap", port)
+    report_conns = None
     try:
         time.sleep(0.2)
         live = subprocess.run([sys.executable, "-m", "conformance", "--protocol", "nsqd", "--target", f"127.0.0.1:{port}",
                                "--select", "NSQD-FRM", "--capture", str(tmp_path / "live.mcap"),
                                "--json", str(tmp_path / "live.json")],
                               capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300)
+        if (tmp_path / "live.mcap").exists():
+            report_conns = _failed(tmp_path / "live.mcap", tmp_path)
     finally:
         if dump is not None:
-            time.sleep(0.5)  # the last packets written (--immediate-mode, -U)
+            # tcpdump drops what it has not yet read from the kernel when interrupted: under load
+            # it lags, so wait until its pcap holds every connection the run closed (bounded)
+            end = time.monotonic() + 20
+            while (report_conns is not None and time.monotonic() < end
+                   and _closed_connections(tmp_path / "tcpdump.pcap", port) < report_conns[1]):
+                time.sleep(0.1)
+            time.sleep(0.2)
             dump.send_signal(signal.SIGINT)
             dump.wait(10)
         backend.terminate()
@@ -88,8 +120,8 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
     live_failed = {r for r in RULES if report["rules"].get(r) == "failed"}
     assert live_failed == ({"NSQD-MSG-2"} if fault == "update-state-little-endian"
                            else {"NSQD-FRM-1"} if fault else set()), live.stdout[-2000:]
-    conns = report_conns = _failed(tmp_path / "live.mcap", tmp_path)
-    assert conns[0] == live_failed and conns[1] > 3
+    conns = report_conns
+    assert conns is not None and conns[0] == live_failed and conns[1] > 3
     exported = subprocess.run([sys.executable, "-m", "captures", "export", str(tmp_path / "live.mcap"),
                                "--pcap", str(tmp_path / "exported.pcap")], capture_output=True, text=True,
                               env=ENV, cwd=ROOT, timeout=120)
