@@ -52,6 +52,25 @@ _CMSG_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE")
 MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
 
 
+def clock_offset_ns(tries: int = 5) -> int:
+    """CLOCK_REALTIME minus CLOCK_MONOTONIC, read so that a preemption between the two reads
+    cannot skew it: each try brackets one monotonic read between two wall-clock reads, and the
+    tightest bracket wins. Reading the two clocks one after the other instead (as a kernel
+    receive time was converted before) puts a preempted thread's whole pause into the offset,
+    so a datagram could be dated before the ACK the runner had sent before it arrived (a false
+    MCP-BLK-1 under load)."""
+    best_width, best = None, 0
+    for _ in range(tries):
+        r1 = time.time_ns()
+        m = time.monotonic_ns()
+        r2 = time.time_ns()
+        if best_width is None or r2 - r1 < best_width:
+            best_width, best = r2 - r1, (r1 + r2) // 2 - m
+            if best_width < 20_000:
+                break
+    return best
+
+
 def kernel_timestamps(sock: socket.socket) -> bool:
     """Ask the kernel to timestamp each datagram ``sock`` receives; False where it cannot."""
     import sys
@@ -292,7 +311,7 @@ class TargetDriver:
             return
         t, t_ns = time.monotonic(), time.time_ns()
         if arrived is not None and 0 <= t_ns - arrived < MAX_QUEUED_NS:
-            t, t_ns = t - (t_ns - arrived) / 1e9, arrived
+            t, t_ns = (arrived - clock_offset_ns()) / 1e9, arrived
         try:
             msg: Message | None = decode(data)
             err = None

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
-from harness.driver import Datagram, Exchange, TargetDriver
+from harness.driver import Datagram, Exchange, TargetDriver, clock_offset_ns
 from harness.errors import SetupError, SpawnFailure, TargetLost
 from harness.liveness import Liveness
 from harness.session_base import (  # noqa: F401  (re-exported: harness.session names them)
@@ -109,7 +109,7 @@ class Session(SessionBase):
         self.passthrough_forwarded: bool | None = None  # learnt by the first probe
         self.passthrough_altered = False  # the first probe reached the autopilot altered (MCP-PAY-8)
         self.other_src_accepted: bool | None = None
-        self._t0_ns = time.time_ns() - int(time.monotonic() * 1e9)  # monotonic -> run clock
+        self._t0_ns = clock_offset_ns()  # monotonic -> run clock (read so a preemption cannot skew it)
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
         #: when the observed startup phase ran (``time.monotonic()``): what spoils it
         self.startup_window: tuple[float, float | None] = (0.0, None)

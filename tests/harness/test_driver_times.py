@@ -54,3 +54,50 @@ def test_the_driver_asks_the_kernel_for_receive_times():
         assert got is not None and 0 <= got.t_ns - sent < 10**9
     finally:
         drv.close()
+
+
+class _PreemptedClocks:
+    """Fake clocks of one timeline (ns): every read advances it 1 µs, and the thread is
+    preempted (``pause`` ns) between the first monotonic read and the wall-clock read after
+    it — the moment the old conversion put into its offset."""
+
+    OFFSET = 1_700_000_000 * 10**9  # wall clock minus monotonic
+
+    def __init__(self, pause: int) -> None:
+        self.now, self.pause, self.reads = 10**12, pause, 0
+
+    def _tick(self) -> int:
+        self.now += 1_000
+        return self.now
+
+    def monotonic(self) -> float:
+        return self.monotonic_ns() / 1e9
+
+    def monotonic_ns(self) -> int:
+        self.reads += 1
+        t = self._tick()
+        if self.reads == 1:
+            self.now += self.pause
+        return t
+
+    def time_ns(self) -> int:
+        return self._tick() + self.OFFSET
+
+
+def test_a_preempted_receive_thread_does_not_date_a_datagram_earlier(monkeypatch):
+    """The kernel's receive time converted to the monotonic clock stays the arrival time when
+    the receive thread is preempted between its clock reads: a manager's reply to the runner's
+    ACK was dated before that ACK (a false MCP-BLK-1 under load) when the offset between the
+    clocks was read across the pause."""
+    import harness.driver as driver
+
+    clocks = _PreemptedClocks(pause=30_000_000)  # 30 ms off the CPU
+    monkeypatch.setattr(driver.time, "monotonic", clocks.monotonic)
+    monkeypatch.setattr(driver.time, "monotonic_ns", clocks.monotonic_ns)
+    monkeypatch.setattr(driver.time, "time_ns", clocks.time_ns)
+    drv = TargetDriver(("127.0.0.1", 9), ("127.0.0.1", 0))
+    arrived = clocks.now + clocks.OFFSET - 1_000_000  # 1 ms before the receive thread woke
+    drv._arrive(encode(Message(0, 1, 5, Action.ACK, 4)), ("127.0.0.1", 9), arrived)
+    d = drv.received(0)[0]
+    assert d.t_ns == arrived
+    assert abs(d.t * 1e9 - (arrived - clocks.OFFSET)) < 100_000  # within 0.1 ms, not 30 ms early
