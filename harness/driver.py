@@ -91,6 +91,18 @@ def arrival_ns(ancillary: list[tuple[int, int, bytes]]) -> int | None:
             sec, nsec = _TIMESPEC.unpack_from(data)
             return sec * 10**9 + nsec
     return None
+
+
+def recv_stamped(sock: socket.socket, stamped: bool) -> tuple[bytes, Any, int | None]:
+    """One datagram from ``sock``: (data, addr, the kernel's receive time in ns or None).
+    ``stamped``: ``kernel_timestamps(sock)`` said yes. Raises what ``recvfrom`` raises."""
+    if stamped:
+        data, anc, _, addr = sock.recvmsg(65535, _CMSG_SPACE)
+        return data, addr, arrival_ns(anc)
+    data, addr = sock.recvfrom(65535)
+    return data, addr, None
+
+
 _U16BE = struct.Struct("!H")
 _U16LE = struct.Struct("<H")
 
@@ -283,11 +295,7 @@ class TargetDriver:
         while not self._stop.is_set():
             arrived: int | None = None
             try:
-                if stamped:
-                    data, anc, _, addr = sock.recvmsg(65535, _CMSG_SPACE)
-                    arrived = arrival_ns(anc)
-                else:
-                    data, addr = sock.recvfrom(65535)
+                data, addr, arrived = recv_stamped(sock, stamped)
             except TimeoutError:
                 continue
             except OSError:

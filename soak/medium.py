@@ -28,6 +28,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from harness.driver import kernel_timestamps, recv_stamped
 from harness.impair import Impairment
 from spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
 
@@ -56,6 +57,7 @@ class Medium:
         self.drone_addrs = dict(drone_addrs)
         self.recorders = recorders or {}
         self.sel = selectors.DefaultSelector()
+        self._stamped: dict[int, bool] = {}
         self.front = self._socket(host, None)
         self.links = {i: self._socket(host, i) for i in drones}
         self.queue: list[tuple[float, int, socket.socket, bytes, Address, str, Address]] = []
@@ -74,6 +76,10 @@ class Medium:
         s.setblocking(False)
         with contextlib.suppress(OSError):
             s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        # the node's datagrams are recorded at the kernel's receive time, not when this thread
+        # got the CPU: on a loaded host the pickup lags and would widen the gaps between a
+        # node's copies (a false MCP-RTX-3)
+        self._stamped[s.fileno()] = kernel_timestamps(s)
         self.sel.register(s, selectors.EVENT_READ, drone)
         return s
 
@@ -85,16 +91,18 @@ class Medium:
         return self.links[drone].getsockname()[:2]
 
     # ------------------------------------------------------------------ accounting
-    def _tx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
-        """What ``view``'s node sent: a message it sent before is a retransmission."""
-        self._account(view, "tx", data, peer, local, lambda h: h, self._sent, self.retransmissions)
+    def _tx(self, view: str, data: bytes, peer: Address, local: Address, t_ns: int | None = None) -> None:
+        """What ``view``'s node sent (``t_ns``: when it reached the link, by the kernel's
+        clock where it says): a message it sent before is a retransmission."""
+        self._account(view, "tx", data, peer, local, lambda h: h, self._sent, self.retransmissions, t_ns)
 
     def _rx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
         """What the link gave ``view``'s node: a (src, seq) it got before is a duplicate."""
         self._account(view, "rx", data, peer, local, lambda h: (h[1], h[2]), self._got, self.duplicates)
 
     def _account(self, view: str, direction: str, data: bytes, peer: Address, local: Address,
-                 key: Any, seen_by_view: dict[str, set[Any]], again: dict[str, int]) -> None:
+                 key: Any, seen_by_view: dict[str, set[Any]], again: dict[str, int],
+                 t_ns: int | None = None) -> None:
         h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
         if h is not None and h[3] != ACK:
             k = key(h)
@@ -104,7 +112,7 @@ class Medium:
             seen.add(k)
         rec = self.recorders.get(view)
         if rec is not None:
-            rec.datagram(direction, data, peer, local=local)
+            rec.datagram(direction, data, peer, t_ns, local=local)
 
     # ------------------------------------------------------------------ the links
     def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,
@@ -120,19 +128,19 @@ class Medium:
     def _read(self, sock: socket.socket, drone: int | None, now: float) -> None:
         for _ in range(64):
             try:
-                data, _addr = sock.recvfrom(65535)
+                data, _addr, arrived = recv_stamped(sock, self._stamped.get(sock.fileno(), False))
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
                 return
             if drone is None:  # the manager's: down the link of the drone it is addressed to
-                self._tx(MANAGER, data, self.front_addr, self.manager_addr)
+                self._tx(MANAGER, data, self.front_addr, self.manager_addr, arrived)
                 h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
                 dst = h[0] if h is not None else BROADCAST_ID
                 for i in ([dst] if dst in self.links else list(self.links)):
                     self._impair(i, "down", data, self.links[i], self.drone_addrs[i], view_name(i), now)
             else:  # drone i's: up its link to the manager, from the link's address
-                self._tx(view_name(drone), data, self.link_addr(drone), self.drone_addrs[drone])
+                self._tx(view_name(drone), data, self.link_addr(drone), self.drone_addrs[drone], arrived)
                 self._impair(drone, "up", data, sock, self.manager_addr, MANAGER, now)
 
     def _deliver(self, now: float) -> None:

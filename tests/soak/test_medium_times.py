@@ -1,0 +1,48 @@
+"""The soak's medium records each node's datagram at the kernel's receive time, not when its
+thread got round to reading it: on a loaded host that pickup lags, and the lag would widen the
+gaps between a node's copies in the capture the monitor judges (a false MCP-RTX-3)."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import time
+
+import pytest
+
+from harness.impair import Impairment, parse_impairment
+from soak.medium import Medium
+from spec.codec import Action, Message, encode
+
+
+class _Recorder:
+    def __init__(self) -> None:
+        self.records: list[tuple[str, int | None]] = []
+
+    def datagram(self, direction, data, addr, t_ns=None, local=None) -> None:
+        self.records.append((direction, t_ns))
+
+    def impairment(self, decision, data) -> None:
+        pass
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="kernel receive times (SO_TIMESTAMPNS) are Linux's")
+def test_a_nodes_datagram_is_recorded_when_it_arrived_not_when_it_was_read():
+    rec = _Recorder()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as manager, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as drone:
+        manager.bind(("127.0.0.1", 0))
+        drone.bind(("127.0.0.1", 0))
+        medium = Medium([1], Impairment(parse_impairment("seed=1")), manager.getsockname(), {1: drone.getsockname()},
+                        {"manager": rec})
+        try:
+            time.sleep(0.05)  # the kernel stamps datagrams a moment after it is asked to
+            sent = time.time_ns()
+            manager.sendto(encode(Message(1, 0, 3, Action.START_MISSION, None)), medium.front_addr)
+            time.sleep(0.3)  # the medium's thread is late to read it
+            medium._read(medium.front, None, time.monotonic())
+        finally:
+            medium.stop()
+    tx = [t for d, t in rec.records if d == "tx"]
+    assert len(tx) == 1 and tx[0] is not None
+    assert 0 <= tx[0] - sent < 100_000_000, (tx[0] - sent) / 1e6  # ms after the send, not 300 ms
