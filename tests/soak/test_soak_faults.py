@@ -1,8 +1,9 @@
 """Faulty nodes a clean link hides are caught by ``mcp-soak`` on a bad one, with the seed that
-shows it, and that seed replays the failure (issue 22 item 4; MCP-DUP-1, MCP-RTX-1,
+shows it, and that seed replays the failure (issue 22 item 4; MCP-DUP-1, MCP-DUP-3, MCP-RTX-1,
 MCP-ACK-1). The independent sample nodes (tests/conformance/nodes) with one ``--fault``
-each; the same nodes without it complete the same missions (no false alarm). One drone,
-so each link's decisions fall on the same datagrams run after run."""
+each; the same nodes without it complete the same missions (no false alarm). One drone
+(three where the fault needs several senders), so each link's decisions fall on the same
+datagrams run after run."""
 
 from __future__ import annotations
 
@@ -33,21 +34,34 @@ CASES = [  # (which node, fault, link, challenge, what the failure says)
     # (MCP-RTX-1) before the mission's timeout says it did not end
     ("drone", "rtx-gives-up", LOSSY, "1", ("MCP-RTX-1", "did not end")),
     ("manager", "give-up-after-two", LOSSY, "1", "the manager exited with 1"),
+    # a duplicate discard keyed by seq alone across senders shows only where one node hears
+    # several: the manager, from three drones, counting the Mission_Readys it delivers. A copy
+    # of one drone's (duplicated by the link, or its ACK lost) after another drone's is
+    # delivered again, and the mission starts before the last drone is ready: what the
+    # manager did on the wire is MCP-BLK-2's
+    ("manager", "dup-seq-only", REORDERING, "1", "MCP-BLK-2", "1,2,3"),
 ]
 
 
 def soak(tmp_path: Path, name: str, *args: str) -> tuple[int, dict]:
     out = tmp_path / f"{name}.json"
+    # --lenient: MUST violations fail a mission, SHOULDs do not. The soak's business is
+    # exactly-once and the MUSTs a bad link exposes; MCP-RTX-3's even spacing (±20 % of a
+    # 200 ms timeout) is the nodes' own timers, which a CI host running six workers on two
+    # cores really does starve (a correct manager's copy 86 ms late, recorded at the kernel's
+    # receive time). Even spacing is judged by the conformance suites, not here.
     code = main(["--drones", "1", "--mission-timeout", "10", "--out", str(tmp_path / name), "--json", str(out),
-                 "--fail-fast", *args])
+                 "--fail-fast", "--lenient", *args])
     return code, json.loads(out.read_text())
 
 
-@pytest.mark.parametrize("role, fault, link, challenge, says", CASES, ids=[c[1] for c in CASES])
-def test_the_soak_catches_the_fault_and_its_seed_replays_it(role, fault, link, challenge, says, tmp_path):
+@pytest.mark.parametrize("role, fault, link, challenge, says, drones", [(*c, "1")[:6] for c in CASES],
+                         ids=[c[1] for c in CASES])
+def test_the_soak_catches_the_fault_and_its_seed_replays_it(role, fault, link, challenge, says, drones, tmp_path):
     nodes = ["--drone", DRONE + (f" --fault {fault}" if role == "drone" else ""),
              "--manager", MANAGER + (f" --fault {fault}" if role == "manager" else "")]
-    code, doc = soak(tmp_path, "campaign", "--missions", "6", "--impair", link, "--challenges", challenge, *nodes)
+    code, doc = soak(tmp_path, "campaign", "--missions", "6", "--impair", link, "--challenges", challenge,
+                     "--drones", drones, *nodes)
     assert code == 1, doc["results"]
     bad = doc["first_failure"]
     says = (says,) if isinstance(says, str) else says

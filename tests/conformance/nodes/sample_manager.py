@@ -56,6 +56,8 @@ from spec.mission import load_waypoints  # noqa: E402
 FAULTS: dict[str, tuple[str, str]] = {
     "start-early": ("MCP-BLK-2", "starts once every drone but one is ready"),
     "count-duplicates": ("MCP-BLK-2", "counts Mission_Ready messages, not drones"),
+    "dup-seq-only": ("MCP-DUP-3", "counts delivered Mission_Readys, its duplicate discard keyed by seq alone across "
+                                  "drones (a copy after another drone's is delivered again: a clean link hides it)"),
     "no-wait-start-ack": ("MCP-BLK-3", "sends a drone its challenge command while its Start_Mission is unACKed"),
     "wrong-seq-ack": ("MCP-RTX-2", "any ACK from the destination ends the retransmission, whatever its seq"),
     "rtx-new-seq": ("MCP-SEQ-2", "each retransmission takes a new seq (an ACK of any of them ends it)"),
@@ -104,6 +106,7 @@ class SampleManager:
         self.seq = 0x2000
         self.lock = threading.Lock()
         self.ready: list[int] = []  # drones (or, with count-duplicates, messages)
+        self.last_ready_seq: int | None = None  # dup-seq-only: the last delivered, whoever sent it
         self.ready_event = threading.Event()
         self.acks: list[Message] = []  # every ACK received, in order (each waiter scans its own part)
         self.ack_cond = threading.Condition()
@@ -144,6 +147,10 @@ class SampleManager:
                 with self.lock:
                     if "count-duplicates" in self.faults:
                         self.ready.append(msg.src)
+                    elif "dup-seq-only" in self.faults:
+                        if msg.seq != self.last_ready_seq:
+                            self.last_ready_seq = msg.seq
+                            self.ready.append(msg.src)
                     elif msg.src in self.drones and msg.src not in self.ready:
                         self.ready.append(msg.src)
                     if len(self.ready) >= need:
