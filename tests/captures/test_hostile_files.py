@@ -29,7 +29,7 @@ TIMEOUT = 120.0  # s: generous on a loaded host; the hostile inputs used to run 
 PEER = ("127.0.0.1", 7890)
 
 
-def run(*argv: str, module: str = "captures", limit: int = MEMORY) -> tuple[int, str, str]:
+def run(*argv: str, module: str = "captures", limit: int = MEMORY, timeout: float = TIMEOUT) -> tuple[int, str, str]:
     """``python -m module argv`` under the memory limit (address space) and the timeout."""
 
     def _limit() -> None:
@@ -38,9 +38,9 @@ def run(*argv: str, module: str = "captures", limit: int = MEMORY) -> tuple[int,
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:
         p = subprocess.run([sys.executable, "-m", module, *argv], cwd=ROOT, env=env, text=True,
-                           capture_output=True, timeout=TIMEOUT, preexec_fn=_limit)
+                           capture_output=True, timeout=timeout, preexec_fn=_limit)
     except subprocess.TimeoutExpired:
-        raise AssertionError(f"{module} {' '.join(argv)}: still running after {TIMEOUT:g} s") from None
+        raise AssertionError(f"{module} {' '.join(argv)}: still running after {timeout:g} s") from None
     return p.returncode, p.stdout, p.stderr
 
 
@@ -181,7 +181,9 @@ def test_check_of_a_million_violating_datagrams_finishes_under_the_limit(tmp_pat
     path = tmp_path / "million.mcap"
     all_violating(path, n)
     out = tmp_path / "c.json"
-    rc, _, err = run("check", str(path), "--json", str(out), limit=MILLION_MEMORY)
+    # bounded, not timed: ~50 s on a quiet host (the bench's figure), over 120 s beside six
+    # CI workers and other jobs on two cores; the speed is the bench's business
+    rc, _, err = run("check", str(path), "--json", str(out), limit=MILLION_MEMORY, timeout=900)
     assert rc == 1 and "Traceback" not in err, err
     with open(out) as f:
         doc = json.load(f)
