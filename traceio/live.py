@@ -7,7 +7,7 @@ each event of a run (a datagram, a MAVLink frame, a case mark, a log line) into 
 bodies of its channels once, and hands every body it writes to its ``live`` feed as well
 (a recorder without a file, ``McapRecorder(None, live=...)``, when the run writes no
 capture): the live stream and the capture are the same messages, with the same schemas
-(``traceio.recorder.CHANNELS`` and the ``foxglove-sdk`` schemas of :mod:`traceio.fox`), the
+(``traceio.channels.CHANNELS`` and the ``foxglove-sdk`` schemas of :mod:`traceio.fox`), the
 same topics and the same log times. So Foxglove shows a live run with the layout of
 ``examples/foxglove-layout.json`` as it shows the capture afterwards.
 
@@ -39,7 +39,7 @@ import warnings
 import weakref
 from typing import Any
 
-from traceio.recorder import CHANNELS, STREAM_CHANNELS, foxglove_channels
+from traceio.channels import CHANNELS, STREAM_CHANNELS, foxglove_channels
 
 __all__ = ["DEFAULT_HOST", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
 
