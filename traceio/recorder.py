@@ -40,13 +40,11 @@ WebSocket server's feed; a recorder of no file (``path`` None) feeds only that.
 
 from __future__ import annotations
 
-import atexit
 import base64
 import json
 import platform
 import threading
 import time
-import weakref
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import IO, Any
@@ -56,6 +54,7 @@ from mcap.writer import CompressionType, Writer
 from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
 from traceio import fox
 from traceio.channels import CHANNELS, HEX_LIMIT, STREAM_CHANNELS, foxglove_channels
+from traceio.files import ClosedAtExit
 from traceio.merge import SEGMENT
 
 __all__ = [
@@ -185,6 +184,10 @@ def run_metadata(recorder: str, **values: Any) -> dict[str, str]:
     return meta
 
 
+#: the recorders open, closed at interpreter exit: an interrupted run still leaves valid files
+OPEN = ClosedAtExit("close")
+
+
 class McapRecorder:
     """Writes one MCAP file; every method may be called from any thread.
 
@@ -209,7 +212,7 @@ class McapRecorder:
         self.segment: str | None = None
         self._writer: Writer | None = None
         if self.path is None:
-            _LIVE.add(self)
+            OPEN.add(self)
             return
         try:
             self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
@@ -225,7 +228,7 @@ class McapRecorder:
         if metadata:
             self._writer.add_metadata(METADATA_NAME, {str(k): str(v) for k, v in metadata.items()})
         self._register_channels({})
-        _LIVE.add(self)
+        OPEN.add(self)
 
     def _register_channels(self, metadata: Mapping[str, str]) -> None:
         if self._writer is None:
@@ -404,30 +407,16 @@ class McapRecorder:
                 return
             self._closed = True
             if self._writer is None:
-                _LIVE.discard(self)
+                OPEN.discard(self)
                 return
             try:
                 self._writer.finish()
             finally:
                 self._file.close()
-                _LIVE.discard(self)
+                OPEN.discard(self)
 
     def __enter__(self) -> McapRecorder:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-_LIVE: weakref.WeakSet[Any] = weakref.WeakSet()
-
-
-@atexit.register
-def _close_all() -> None:
-    """An interrupted run still leaves valid files."""
-    for rec in list(_LIVE):
-        try:
-            rec.close()
-        except Exception:  # noqa: BLE001 - best effort at exit
-            pass
-
