@@ -24,14 +24,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from captures.cli import UsageError, check_writable, to_terminal, write_output
-from judge.judging import (
-    Judgement,
-    add_monitor_options,
-    evidence_of,
-    judge,
-    params_from_args,
-    selected,
-)
+from judge.judging import Judgement, evidence_of, judge
+from judge.params import add_monitor_options, params_from_args, selected
 from spec import SPEC
 from traceio.reader import Datagram
 from traceio.trace import evidence_indexes

@@ -6,20 +6,24 @@ scapy's ``PcapNgWriter`` (OUT ending in ``.pcapng``) or ``PcapWriter`` (anything
 Where the capture does not name an address (a pcap of one side, a wildcard bind) the
 loopback address stands in, and a missing port is the spec's conventional port of the
 sender's role (MCP-TRN-1: the manager on 7889, drones on 7890). Open the result in
-Wireshark with ``mcp-capture dissector --install``.
+Wireshark with ``mcp-capture dissector --install``. An Nsqd capture (``--protocol nsqd``, or
+found to be one) is written as its TCP conversations (:func:`export_tcp_pcap`). Either way a
+capture unreadable part-way leaves no output, and every error is one line (exit 2).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
 from spec import SPEC
 from spec.codec import MANAGER_ID, peek_header
 
-__all__ = ["export_pcap", "register", "run"]
+__all__ = ["export_pcap", "export_tcp_pcap", "register", "run"]
 
 _LOOPBACK = "127.0.0.1"
 _PORTS = SPEC.protocol["ports"]
@@ -34,6 +38,33 @@ def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
     return str(host), int(port)
 
 
+class _Output:
+    """The file being written: ``opened`` once its writer has created it."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.opened = path, False
+
+
+@contextlib.contextmanager
+def _whole_or_none(path: Path) -> Iterator[_Output]:
+    """``path`` is written whole or not at all: where the input fails part-way (CaptureError)
+    or anything else stops the export after the file was opened, the half-written file is
+    removed (a file that could not be opened is left as it was). scapy's WARNING: lines (an
+    empty writer closed) are not ours to print."""
+    out = _Output(path)
+    scapy_log = logging.getLogger("scapy.runtime")
+    level = scapy_log.level
+    scapy_log.setLevel(logging.ERROR)
+    done = False
+    try:
+        yield out
+        done = True
+    finally:
+        scapy_log.setLevel(level)
+        if not done and out.opened:
+            path.unlink(missing_ok=True)
+
+
 def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """Write ``out``; return (packets written, the capture's truncation reason or None).
     Raises ``traceio.reader.CaptureError`` for unreadable input, OSError for ``out``."""
@@ -46,41 +77,56 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     cap = open_capture(capture)
     out = Path(out)
     ng = out.suffix.lower() == ".pcapng"
-    writer = PcapNgWriter(str(out)) if ng else PcapWriter(str(out), sync=False)
     # what the output's timestamp fields hold: pcap 32-bit seconds, pcapng 64-bit microseconds
     t_max_ns = (2**64 - 1) * 1000 if ng else (2**32 - 1) * 10**9
     n = 0
     truncated: str | None = None
-    scapy_log = logging.getLogger("scapy.runtime")
-    level = scapy_log.level
-    scapy_log.setLevel(logging.ERROR)  # its WARNING: lines (an empty writer closed) are not ours to print
-    done = False
-    try:
-        for rec in cap:
-            if type(rec) is Truncated:
-                truncated = rec.reason
-                continue
-            if type(rec) is not Datagram:
-                continue
-            header = peek_header(rec.data, require_preamble=False)
-            dst_id, src_id = (header[0], header[1]) if header else (None, None)
-            src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
-            pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
-                   IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
-            if not 0 <= rec.t_ns <= t_max_ns:
-                raise CaptureError(f"{capture}: datagram #{rec.index} is stamped {rec.t_ns / 1e9:.0f} s, outside "
-                                   f"what a {'pcapng' if ng else 'pcap'} file's timestamp holds"
-                                   + ("" if ng else " (0 to 2^32 s; .pcapng holds more)"))
-            pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
-            writer.write(pkt)
-            n += 1
-        done = True
-    finally:
-        writer.close()
-        scapy_log.setLevel(level)
-        if not done:  # the input failed part-way (CaptureError): no half-written output
-            out.unlink(missing_ok=True)
+    with _whole_or_none(out) as output:
+        writer = PcapNgWriter(str(out)) if ng else PcapWriter(str(out), sync=False)
+        output.opened = True
+        try:
+            for rec in cap:
+                if type(rec) is Truncated:
+                    truncated = rec.reason
+                    continue
+                if type(rec) is not Datagram:
+                    continue
+                header = peek_header(rec.data, require_preamble=False)
+                dst_id, src_id = (header[0], header[1]) if header else (None, None)
+                src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
+                pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
+                       IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
+                if not 0 <= rec.t_ns <= t_max_ns:
+                    raise CaptureError(f"{capture}: datagram #{rec.index} is stamped {rec.t_ns / 1e9:.0f} s, "
+                                       f"outside what a {'pcapng' if ng else 'pcap'} file's timestamp holds"
+                                       + ("" if ng else " (0 to 2^32 s; .pcapng holds more)"))
+                pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
+                writer.write(pkt)
+                n += 1
+        finally:
+            writer.close()
     return n, truncated or getattr(cap, "truncated", None)
+
+
+def export_tcp_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+    """An Nsqd capture's TCP conversations (``traceio.tcp_pcap``, NSQD-*): (packets written,
+    the capture's truncation reason or None); errors as :func:`export_pcap`'s."""
+    from traceio.reader import Truncated
+    from traceio.stream import BACKEND_PORT, stream_records
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    truncated: list[str] = []
+
+    with _whole_or_none(Path(out)) as output:
+        def records() -> Iterator[Any]:
+            output.opened = True  # write_tcp_pcap asks for the first record once its writer is open
+            for rec in stream_records(capture):
+                if type(rec) is Truncated:
+                    truncated.append(rec.reason)
+                yield rec
+
+        n = write_tcp_pcap(out, records(), BACKEND_PORT)
+    return n, truncated[0] if truncated else None
 
 
 def register(sub: Any) -> None:
@@ -101,15 +147,18 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     err = err or sys.stderr
     try:
-        if nsqd.chosen(args, args.capture):  # TCP conversations (issue 21)
-            return nsqd.run_export(args, out, err)
-        n, truncated = export_pcap(args.capture, args.pcap)
+        tcp = nsqd.chosen(args, args.capture)  # TCP conversations (issue 21)
+        n, truncated = (export_tcp_pcap if tcp else export_pcap)(args.capture, args.pcap)
     except CaptureError as exc:
         err.write(f"mcp-capture export: {exc}\n")
         return 2
     except OSError as exc:
         err.write(f"mcp-capture export: cannot write {args.pcap}: {exc.strerror}\n")
         return 2
-    note = f" (the capture is TRUNCATED: {truncated}; exported up to its last whole chunk)" if truncated else ""
-    out.write(f"wrote {n} datagrams to {args.pcap}{note}\n")
+    if tcp:
+        note = f" (the capture is TRUNCATED: {truncated})" if truncated else ""
+        out.write(f"wrote {n} TCP packets to {args.pcap}{note}\n")
+    else:
+        note = f" (the capture is TRUNCATED: {truncated}; exported up to its last whole chunk)" if truncated else ""
+        out.write(f"wrote {n} datagrams to {args.pcap}{note}\n")
     return 0

@@ -15,14 +15,14 @@ retransmitted segments, both directions, any number of connections, bounded in m
 - ``diff``: per connection (in order), the client's writes and the backend's answers —
   frames, with repeated identical ones folded (UPDATE's period differs run to run), and how
   the connection ended. Exit 0 same, 1 different.
-- ``export``: the conversations as a pcap/pcapng tshark follows (``traceio.tcp_pcap``).
+- ``export``: the conversations as a pcap/pcapng tshark follows (``traceio.tcp_pcap``; the
+  command, its errors and its output are ``captures.export``'s, as for MCP).
 """
 
 from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -30,9 +30,9 @@ from judge.stream_monitor import RULES, StreamMonitor
 from spec import NSQD
 from spec.stream_codec import Deframer, Frame
 from traceio.reader import StreamEvent, StreamFrame, Truncated
-from traceio.stream import BACKEND_PORT, StreamGap, is_stream_capture, stream_records
+from traceio.stream import StreamGap, is_stream_capture, stream_records
 
-__all__ = ["chosen", "run_check", "run_diff", "run_export", "run_show"]
+__all__ = ["chosen", "run_check", "run_diff", "run_show"]
 
 
 def chosen(ns: Any, *paths: str) -> bool:
@@ -287,29 +287,6 @@ def run_diff(args: Any, out: TextIO | None = None) -> int:
     if getattr(args, "json", None):
         Path(args.json).write_text(json.dumps({"protocol": "nsqd", "same": False, "divergences": diffs}, indent=1) + "\n")
     return 1
-
-
-# ---------------------------------------------------------------- export
-def run_export(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from traceio.tcp_pcap import write_tcp_pcap
-
-    out, err = out or sys.stdout, err or sys.stderr
-    truncated: list[str] = []
-
-    def records() -> Iterable[Any]:
-        for rec in stream_records(args.capture):
-            if type(rec) is Truncated:
-                truncated.append(rec.reason)
-            yield rec
-
-    try:
-        n = write_tcp_pcap(args.pcap, records(), BACKEND_PORT)
-    except OSError as exc:
-        err.write(f"mcp-capture export: cannot write {args.pcap}: {exc.strerror}\n")
-        return 2
-    note = f" (the capture is TRUNCATED: {truncated[0]})" if truncated else ""
-    out.write(f"wrote {n} TCP packets to {args.pcap}{note}\n")
-    return 0
 
 
 # ---------------------------------------------------------------- replay

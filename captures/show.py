@@ -19,14 +19,8 @@ from rich.console import Console
 from rich.text import Text
 
 from captures.cli import UsageError, check_writable, write_output
-from judge.judging import (
-    Judgement,
-    MonitorUnavailable,
-    NoJudge,
-    add_monitor_options,
-    judge,
-    params_from_args,
-)
+from judge.judging import Judgement, MonitorUnavailable, NoJudge, judge
+from judge.params import add_monitor_options, params_from_args
 from reports.chart import trace_svg
 from traceio.trace import Entry, Trace, action_name, describe_payload
 

@@ -15,32 +15,27 @@ Outcomes: a pass is ``passed`` (``info`` when every rule of the case is INFO); a
 
 from __future__ import annotations
 
-import json
-import os
 import sys
-import tempfile
 import time
-from collections.abc import Callable, Generator
-from pathlib import Path
+from collections.abc import Generator
 from typing import Any
 
 import pytest
 
+from conformance._run_reports import hand_to_controller, merge_worker_reports, write_run_reports
 from conformance._run_state import (
     STATE_KEY,
     CaseTimeLimit,
     McpState,
     _meta,
     _one_line,
-    _write_reports,
     state_of,
-    write_run_html,
 )
 from conformance._verdicts import apply_baseline as _apply_baseline
 from conformance._verdicts import judge_exception as _judge_exception
 from conformance._verdicts import log_evidence as _log_evidence
-from conformance.baseline import BaselineError, load_baseline, write_baseline
-from conformance.junit import as_pytest_error, write_junit
+from conformance.baseline import BaselineError, load_baseline
+from conformance.junit import as_pytest_error
 from conformance.marks import (
     PHASES,
     is_case,
@@ -55,12 +50,8 @@ from conformance.options import (
     unmatched,
 )
 from conformance.report import (
-    build_json,
     case_from_json,
-    merge_json,
-    run_from_json,
     worker_path,
-    write_json,
 )
 from harness.config import RunConfig
 from harness.errors import (
@@ -155,45 +146,6 @@ def pytest_testnodedown(node: Any, error: Any) -> None:
         state.worker_docs.append(out["mcp_report"])
     if out.get("mcp_capture_part"):
         state.capture_parts.append(out["mcp_capture_part"])
-
-
-def _merge_worker_reports(session: pytest.Session) -> None:
-    """Under pytest-xdist the controller writes ONE JSON report, ONE JUnit file and ONE
-    capture from what the workers sent, prints the mcp summary once, and exits as a run
-    without workers would."""
-    state = _state(session.config)
-    if state is None or not state.worker_docs:
-        return
-    doc = merge_json(state.worker_docs)
-    run = state.merged_run = run_from_json(doc)
-    writers: list[tuple[str | None, Callable[[str], Any]]] = [
-        (state.cfg.json_path, lambda p: Path(p).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")),
-        (state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
-        (None if run.error else state.write_baseline_path, lambda p: write_baseline(p, run.cases, run.target)),
-    ]
-    if state.cfg.capture and state.capture_parts:
-        from traceio.merge import merge_captures
-
-        writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
-    elif state.html_path and state.capture_parts:  # the workers recorded for the HTML report only
-        from traceio.merge import merge_captures
-
-        fd, state.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
-        os.close(fd)
-        writers.append((state.html_capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
-    writers.append((state.html_path, lambda p: write_run_html(p, doc, state.cfg.capture or state.html_capture)))
-    problems = _write_reports(writers)
-    if not state.cfg.capture:  # temporary recordings made only for the HTML report
-        for part in [*state.capture_parts, state.html_capture or ""]:
-            if part:
-                Path(part).unlink(missing_ok=True)
-    code = 2 if problems else run.exit_code()
-    if code == 0 and session.exitstatus == pytest.ExitCode.TESTS_FAILED:
-        code = 1
-    for p in problems:
-        print(f"error: {p}", file=sys.stderr)
-    session.exitstatus = code
-
 
 
 # ---------------------------------------------------------------------- collection
@@ -493,7 +445,7 @@ def node(request: pytest.FixtureRequest, mcp_session: Any) -> Generator[Any, Non
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if _xdist_controller(session.config):
-        _merge_worker_reports(session)
+        merge_worker_reports(session, _state(session.config))
         return
     state = _state(session.config)
     if state is None or not state.active:
@@ -525,25 +477,11 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         code = run.exit_code()
         if code == 0 and exitstatus == pytest.ExitCode.TESTS_FAILED:
             code = 1  # other (unmarked) tests of the run failed
-    if state.worker:  # the controller writes the reports (see _merge_worker_reports)
-        wo = session.config.workeroutput  # type: ignore[attr-defined]
-        wo["mcp_report"] = build_json(run)
-        if state.cfg.capture or state.html_capture:
-            wo["mcp_capture_part"] = state.cfg.capture or state.html_capture
-            wo["mcp_capture_temporary"] = not state.cfg.capture
+    if state.worker:  # the controller writes the reports (conformance._run_reports)
+        hand_to_controller(session, state, run)
         session.exitstatus = code
         return
-    writers: list[tuple[str | None, Callable[[str], Any]]] = [
-        (state.cfg.json_path, lambda p: write_json(p, run)),
-        (None if state.list_mode else state.cfg.junit_path, lambda p: write_junit(p, run, state.junit_family)),
-        (None if state.list_mode or run.error else state.write_baseline_path,
-         lambda p: write_baseline(p, run.cases, run.target)),
-        (None if state.list_mode else state.html_path, lambda p: write_run_html(
-            p, build_json(run), state.cfg.capture or state.html_capture)),
-    ]
-    problems = _write_reports(writers)
-    if state.html_capture:
-        Path(state.html_capture).unlink(missing_ok=True)
+    problems = write_run_reports(state, run)
     if problems:
         run.error = run.error or problems[0]
         code = 2

@@ -1,6 +1,6 @@
 """The runner's state over one pytest run (``McpState``, kept in ``config.stash`` under
 ``STATE_KEY``): the run's configuration, its records (cases, outcomes, reports), the session
-under test, time limits and signals, and the writing of the reports. The hooks that drive it
+under test, time limits and signals (the report files are ``conformance._run_reports``'). The hooks that drive it
 are ``conformance._plugin_run``'s; this module holds no hook."""
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import signal
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -36,8 +35,6 @@ from harness.errors import (
 )
 from harness.interrupts import INTERRUPTS
 
-__all__ = ["McpState", "STATE_KEY"]
-
 __all__ = ["STATE_KEY", "CaseTimeLimit", "McpState", "state_of"]
 
 
@@ -51,27 +48,6 @@ STATE_KEY = pytest.StashKey["McpState"]()
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
-
-
-def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
-    """--mcp-html: the report with each failed case's traffic charted (reports.html)."""
-    from reports.html import write_run
-
-    write_run(path, doc, capture)
-
-
-
-def _write_reports(writers: list[tuple[str | None, Callable[[str], Any]]]) -> list[str]:
-    """Write each report that has a path; one problem line per report that could not be
-    written (the others are written all the same)."""
-    problems = []
-    for path, write in writers:
-        if path:
-            try:
-                write(path)
-            except OSError as exc:
-                problems.append(str(exc))
-    return problems
 
 
 def state_of(config: pytest.Config) -> McpState | None:

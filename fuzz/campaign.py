@@ -11,8 +11,6 @@ the others. Findings come back to the parent, which groups them across workers a
 
 from __future__ import annotations
 
-import multiprocessing
-import queue
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
@@ -25,6 +23,7 @@ from fuzz.findings import Finding, FindingStore, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
+from fuzz.workers import run_workers
 from harness.errors import SetupError
 from spec import SPEC
 
@@ -226,7 +225,6 @@ def _finding_from_json(d: dict[str, Any]) -> Finding:
     return Finding(**{k: d[k] for k in Finding.__dataclass_fields__ if k in d})
 
 
-STOP_GRACE = 30.0  # s: after SIGINT, how long --jobs workers get to finish their round and report
 
 
 def run_campaign(cfg: FuzzConfig, store: FindingStore,
@@ -265,54 +263,33 @@ def run_campaign(cfg: FuzzConfig, store: FindingStore,
 
 def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
               tick: Callable[[Progress], None] | None) -> tuple[list[WorkerResult], str | None, bool]:
-    ctx = multiprocessing.get_context("spawn")
-    q = ctx.Queue()
-    stop_event = ctx.Event()
-    procs = [ctx.Process(target=_worker_process, args=(cfg.for_worker(i), seeds, q, stop_event), daemon=True)
-             for i in range(cfg.jobs)]
-    for p in procs:
-        p.start()
     prog = Progress()
     per: dict[int, tuple[int, float, int, int]] = {}
     results: dict[int, WorkerResult] = {}
-    budget = (cfg.duration or DEFAULT_DURATION) + 120.0
-    deadline = time.monotonic() + budget
-    interrupted = False
-    while len(results) < len(procs) and time.monotonic() < deadline:
-        try:
-            try:
-                kind, worker, body = q.get(timeout=0.5)
-            except queue.Empty:
-                if all(not p.is_alive() for p in procs) and q.empty():
-                    break
-                continue
-            if kind == "progress":
-                per[worker] = body
-            else:
-                findings = body.pop("findings", [])
-                res = WorkerResult(**body)
-                results[worker] = res
-                per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
-                for fj, traffic in findings:
-                    store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
-            prog.cases = sum(v[0] for v in per.values())
-            prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
-            prog.findings = len(store)
-            prog.restarts = sum(v[3] for v in per.values())
-            if tick is not None:
-                tick(prog)
-        except KeyboardInterrupt:
-            if interrupted:
-                break  # a second SIGINT: stop waiting for the workers
-            interrupted = True
-            stop_event.set()  # each worker ends its round and reports what it has
-            deadline = min(deadline, time.monotonic() + STOP_GRACE)
-    for p in procs:
-        p.join(timeout=5)
-        if p.is_alive():
-            p.kill()
+
+    def handle(kind: str, worker: int, body: Any) -> bool:
+        if kind == "progress":
+            per[worker] = body
+        else:
+            findings = body.pop("findings", [])
+            res = WorkerResult(**body)
+            results[worker] = res
+            per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
+            for fj, traffic in findings:
+                store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
+        prog.cases = sum(v[0] for v in per.values())
+        prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
+        prog.findings = len(store)
+        prog.restarts = sum(v[3] for v in per.values())
+        if tick is not None:
+            tick(prog)
+        return False
+
+    interrupted = run_workers(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop), cfg.jobs,
+                              (cfg.duration or DEFAULT_DURATION) + 120.0, handle,
+                              lambda: len(results) >= cfg.jobs)
     errors = [r.error for r in results.values() if r.error]
-    missing = [i for i in range(len(procs)) if i not in results]
+    missing = [i for i in range(cfg.jobs) if i not in results]
     if missing:
         errors.append(f"worker(s) {', '.join(map(str, missing))} gave no result")
         for i in missing:  # what its progress said, at least

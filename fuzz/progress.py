@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 from fuzz.campaign import Progress
 from fuzz.config import FuzzConfig
 from fuzz.findings import FindingStore
 
-__all__ = ["STATUS_S", "LiveProgress", "status_line", "summary_line"]
+__all__ = ["STATUS_S", "LiveDisplay", "LiveProgress", "status_line", "summary_line"]
 
 STATUS_S = 10.0  # off a terminal: a plain status line this often
+_Display = TypeVar("_Display", bound="LiveDisplay")
 
 
 def summary_line(summary: dict[str, Any]) -> str:
@@ -39,23 +40,24 @@ def status_line(engine: str, p: Progress) -> str:
             f"{p.judged_rate:,.0f} judged cases/s  findings {p.findings}  restarts {p.restarts}")
 
 
-class LiveProgress:
-    """A rich Live line on a terminal; a plain status line every ``STATUS_S`` otherwise."""
+class LiveDisplay:
+    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` otherwise: the
+    display both campaigns share (MCP's :class:`LiveProgress`, Nsqd's
+    ``fuzz.stream_progress.StreamLive``), each giving its ``first`` panel, ``render`` and
+    ``status`` line of what it is shown."""
 
-    def __init__(self, cfg: FuzzConfig, stream: Any = None) -> None:
-        self.cfg = cfg
+    def __init__(self, stream: Any = None) -> None:
         self.stream = stream or sys.stdout
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._live: Any = None
-        self._last: Progress | None = None
         self._next_status = time.monotonic() + STATUS_S
 
-    def __enter__(self) -> LiveProgress:
+    def __enter__(self: _Display) -> _Display:
         if self.tty:
             from rich.console import Console
             from rich.live import Live
 
-            self._live = Live(self._render(Progress()), console=Console(file=self.stream),
+            self._live = Live(self.first(), console=Console(file=self.stream),
                               refresh_per_second=4, transient=True)
             self._live.__enter__()
         return self
@@ -65,7 +67,37 @@ class LiveProgress:
             self._live.__exit__(*exc)
             self._live = None
 
-    def _render(self, p: Progress) -> Any:
+    def first(self) -> Any:
+        """The panel before the first update."""
+        raise NotImplementedError
+
+    def render(self, view: Any) -> Any:
+        """The panel of ``view`` (a rich renderable)."""
+        raise NotImplementedError
+
+    def status(self, view: Any) -> str:
+        """``view`` as one plain line."""
+        raise NotImplementedError
+
+    def update(self, view: Any) -> None:
+        if self._live is not None:
+            self._live.update(self.render(view))
+        elif time.monotonic() >= self._next_status:
+            self._next_status = time.monotonic() + STATUS_S
+            print(self.status(view), file=self.stream, flush=True)
+
+
+class LiveProgress(LiveDisplay):
+    """MCP's campaign: cases, judged cases/s, findings, restarts, elapsed, one line."""
+
+    def __init__(self, cfg: FuzzConfig, stream: Any = None) -> None:
+        super().__init__(stream)
+        self.cfg = cfg
+
+    def first(self) -> Any:
+        return self.render(Progress())
+
+    def render(self, p: Progress) -> Any:
         from rich.text import Text
 
         return Text.assemble(
@@ -74,13 +106,8 @@ class LiveProgress:
             (f"findings {p.findings}  ", "red" if p.findings else ""),
             f"restarts {p.restarts}  ", f"elapsed {p.elapsed:,.1f} s")
 
-    def update(self, p: Progress) -> None:
-        self._last = p
-        if self._live is not None:
-            self._live.update(self._render(p))
-        elif time.monotonic() >= self._next_status:
-            self._next_status = time.monotonic() + STATUS_S
-            print(status_line(p.engine or self.cfg.engine, p), file=self.stream, flush=True)
+    def status(self, p: Progress) -> str:
+        return status_line(p.engine or self.cfg.engine, p)
 
     def final(self, summary: dict[str, Any], store: FindingStore) -> None:
         out = self.stream

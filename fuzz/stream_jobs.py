@@ -13,18 +13,16 @@ time). SIGINT: the workers end their round and report what they have.
 
 from __future__ import annotations
 
-import multiprocessing
-import queue
 import signal
 import time
 from types import SimpleNamespace
 from typing import Any
 
 from fuzz.stream_campaign import StreamCampaign
+from fuzz.workers import run_workers
 
 __all__ = ["run_stream_jobs"]
 
-STOP_GRACE = 30.0  # s: after SIGINT (or a stop_after reached), how long workers get to report
 _FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe_every", "engine", "db")
 
 
@@ -60,44 +58,21 @@ def run_stream_jobs(parent: StreamCampaign, jobs: int, live: Any = None) -> dict
     kw = {k: getattr(parent, k) for k in _FIELDS}
     if parent.max_cases is not None:  # the budget shared: N workers run max_cases in all
         kw["max_cases"] = max(1, parent.max_cases // jobs)
-    ctx = multiprocessing.get_context("spawn")
-    q, stop = ctx.Queue(), ctx.Event()
-    procs = [ctx.Process(target=_worker, args=(kw, i, q, stop), daemon=True) for i in range(jobs)]
-    for p in procs:
-        p.start()
     per: dict[int, dict[str, Any]] = {}
     done: dict[int, dict[str, Any]] = {}
-    deadline = time.monotonic() + (parent.duration or 60.0) + 120.0
     view = SimpleNamespace(cases=0, fuzz_s=0.0, findings=[], restarts=0, tried={}, started=t0, engine=parent.engine)
-    interrupted = False
-    try:
-        while len(done) < jobs and time.monotonic() < deadline:
-            try:
-                try:
-                    kind, worker, body = q.get(timeout=0.5)
-                except queue.Empty:
-                    if all(not p.is_alive() for p in procs) and q.empty():
-                        break
-                    continue
-                per[worker] = body
-                if kind == "done":
-                    done[worker] = body
-                _merge_view(view, per)
-                if parent.stop_after is not None and len(view.findings) >= parent.stop_after:
-                    stop.set()
-                if live is not None:
-                    live.update(view)
-            except KeyboardInterrupt:
-                if interrupted:
-                    break
-                interrupted = True
-                stop.set()
-                deadline = min(deadline, time.monotonic() + STOP_GRACE)
-    finally:
-        for p in procs:
-            p.join(timeout=5)
-            if p.is_alive():
-                p.kill()
+
+    def handle(kind: str, worker: int, body: Any) -> bool:
+        per[worker] = body
+        if kind == "done":
+            done[worker] = body
+        _merge_view(view, per)
+        if live is not None:
+            live.update(view)
+        return parent.stop_after is not None and len(view.findings) >= parent.stop_after
+
+    interrupted = run_workers(_worker, lambda i, q, stop: (kw, i, q, stop), jobs, (parent.duration or 60.0) + 120.0,
+                              handle, lambda: len(done) >= jobs)
     _merge(parent, per, done, jobs)
     summary = parent.summary(time.monotonic() - t0)
     if interrupted:

@@ -10,15 +10,14 @@ few times a second. Off a terminal (a CI log): the same figures as one plain lin
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import Any
 
+from fuzz.progress import STATUS_S, LiveDisplay
 from spec import NSQD
 
 __all__ = ["STATUS_S", "StreamLive", "by_class", "status_line", "tried_table"]
 
-STATUS_S = 10.0
 _OTHER = ("unknown", "-")  # an id that names no message; bytes with no id at all
 
 
@@ -55,30 +54,16 @@ def _cell(n: int) -> str:
     return "·" if n == 0 else str(n) if n < 1000 else f"{n // 1000}k"
 
 
-class StreamLive:
-    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` otherwise."""
+class StreamLive(LiveDisplay):
+    """Nsqd's campaign: the status line, and on a terminal a table of kinds x message ids."""
 
-    def __init__(self, stream: Any = None) -> None:
-        self.stream = stream or sys.stdout
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self._live: Any = None
-        self._next_status = time.monotonic() + STATUS_S
+    def first(self) -> Any:
+        from rich.text import Text
 
-    def __enter__(self) -> StreamLive:
-        if self.tty:
-            from rich.console import Console
-            from rich.live import Live
-            from rich.text import Text
+        return Text("mcp-fuzz nsqd: starting")
 
-            self._live = Live(Text("mcp-fuzz nsqd: starting"), console=Console(file=self.stream),
-                              refresh_per_second=4, transient=True)
-            self._live.__enter__()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._live is not None:
-            self._live.__exit__(*exc)
-            self._live = None
+    def status(self, view: Any) -> str:
+        return status_line(view)
 
     def render(self, view: Any) -> Any:
         from rich.console import Group
@@ -100,10 +85,3 @@ class StreamLive:
         for kind, counts in rows:
             table.add_row(kind, *(_cell(n) for n in counts))
         return Group(line, table)
-
-    def update(self, view: Any) -> None:
-        if self._live is not None:
-            self._live.update(self.render(view))
-        elif time.monotonic() >= self._next_status:
-            self._next_status = time.monotonic() + STATUS_S
-            print(status_line(view), file=self.stream, flush=True)

@@ -8,13 +8,12 @@ itself said (format, truncated, notes). Without a challenge it infers one from t
 commands (WP_List: challenge 1, WP_On / WP_Off: 2, Obstacles_List: 3, MCP-FLOW-4/5/6) and
 says which datagram decided, or why none could be inferred.
 
-The options (``add_monitor_options``) are shared by ``check`` and ``show``; bad values are
-:class:`UsageError` (one line, exit 2).
+What it is judged with (:class:`Params`) and the options that set it (``add_monitor_options``,
+shared by ``check`` and ``show``) are ``judge.params``'s, imported here too.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 from array import array
 from collections import deque
@@ -22,8 +21,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from judge.params import Params, add_monitor_options, params_from_args, selected
 from judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
-from spec.codec import BROADCAST_ID, MANAGER_ID, PREAMBLE, Action, peek_header
+from spec.codec import PREAMBLE, Action, peek_header
 from traceio.files import UsageError
 from traceio.merge import SEGMENT
 from traceio.reader import (
@@ -44,141 +44,6 @@ __all__ = ["VERDICT_RANK", "Judgement", "MonitorUnavailable", "NoJudge", "Params
 #: The challenge each challenge-specific command implies (MCP-FLOW-4/5/6).
 CHALLENGE_OF = {int(Action.WP_LIST): 1, int(Action.WP_ON): 2, int(Action.WP_OFF): 2,
                 int(Action.OBSTACLES_LIST): 3}
-
-
-@dataclass
-class Params:
-    rto: float = 5.0
-    ack_window: float = 2.0
-    broadcast_id: int = BROADCAST_ID
-    drones: tuple[int, ...] | None = None
-    challenge: int | None = None
-    challenge_source: str = "given"  # given | recorded (the run's, from the capture) | inferred | unknown
-    challenge_note: str = ""
-    waypoints: tuple[Any, ...] | None = None
-    waypoints_file: str | None = None
-    select: tuple[str, ...] = ()
-    strict: bool = False
-    complete: bool = False  # the trace holds every datagram the nodes exchanged
-    #: the parameters the user gave; the others are taken from the capture's own record of
-    #: the run (our MCAP captures), so that a run is judged offline with its live timings
-    given: frozenset[str] = frozenset()
-    from_capture: tuple[str, ...] = ()  # the parameters taken from the capture
-
-    def adopt(self, recorded: dict[str, Any]) -> None:
-        """Take the run's recorded ``rto``, ``ack_window`` and ``broadcast_id`` where the user
-        gave none (an unusable value is left alone): what the run's own monitor judged with."""
-        taken = []
-        for key in ("rto", "ack_window"):
-            v = recorded.get(key)
-            if key not in self.given and isinstance(v, (int, float)) and 0 < v < 1e6:
-                setattr(self, key, float(v))
-                taken.append(key)
-        v = recorded.get("broadcast_id")
-        if "broadcast_id" not in self.given and isinstance(v, int) and 1 <= v <= 0xFFFF:
-            self.broadcast_id = v
-            taken.append("broadcast_id")
-        self.from_capture = tuple(taken)
-
-    def adopt_mission(self, challenge: int | None, items: tuple[Any, ...] | None) -> None:
-        """The challenge and the items the run's manager was handed (a manager-role session's
-        record), where the user gave none: what the run's monitor judged MCP-FLOW-4/5/6 by."""
-        taken = []
-        if challenge is not None and "challenge" not in self.given and self.challenge is None:
-            self.challenge, self.challenge_source = challenge, "recorded"
-            taken.append("challenge")
-        if items is not None and self.waypoints is None:
-            self.waypoints = items
-            taken.append("waypoints")
-        self.from_capture = (*self.from_capture, *taken)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"from_capture": list(self.from_capture), "rto": self.rto, "ack_window": self.ack_window, "broadcast_id": self.broadcast_id,
-                "drones": list(self.drones) if self.drones is not None else None,
-                "challenge": self.challenge, "challenge_source": self.challenge_source,
-                "challenge_note": self.challenge_note or None, "waypoints": self.waypoints_file,
-                "select": list(self.select), "strict": self.strict, "complete": self.complete}
-
-
-def add_monitor_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rto", metavar="S", help="the nodes' retransmission timeout (default 5)")
-    p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
-    p.add_argument("--challenge", metavar="N", help="the mission's challenge, 1-3 (default: inferred "
-                   "from the manager's commands)")
-    p.add_argument("--drones", metavar="1,2,...", help="the drones of the mission (default: those seen)")
-    p.add_argument("--waypoints", metavar="FILE", help="what the mission should carry (QGC WPL 110), "
-                   "for MCP-FLOW-4/5/6 and MCP-PAY")
-    p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535, D-1)")
-    p.add_argument("--select", metavar="PREFIX", action="append", default=[],
-                   help="report only rules starting with PREFIX (MCP-ACK, ACK-1, ...); repeatable")
-    p.add_argument("--strict", action="store_true", help="a violated SHOULD is a failure")
-    p.add_argument("--complete", action="store_true", help="the capture holds every datagram the nodes "
-                   "exchanged (taken on the one host where they all run): a missing ACK or retransmission "
-                   "is then evidence (our MCAP captures are complete by nature)")
-
-
-def _positive(name: str, text: str | None, default: float) -> float:
-    if text is None:
-        return default
-    try:
-        value = float(text)
-    except ValueError:
-        raise UsageError(f"{name}: not a number: {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise UsageError(f"{name}: must be a positive number of seconds: {text!r}")
-    return value
-
-
-def _int(name: str, text: str, lo: int, hi: int) -> int:
-    try:
-        value = int(text, 0)
-    except ValueError:
-        raise UsageError(f"{name}: not an integer: {text!r}") from None
-    if not lo <= value <= hi:
-        raise UsageError(f"{name}: {value} is outside {lo}-{hi}")
-    return value
-
-
-def params_from_args(ns: argparse.Namespace) -> Params:
-    p = Params(rto=_positive("--rto", ns.rto, 5.0), ack_window=_positive("--ack-window", ns.ack_window, 2.0),
-               strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()),
-               complete=bool(getattr(ns, "complete", False)),
-               given=frozenset(k for k in ("rto", "ack_window", "broadcast_id", "drones", "challenge")
-                               if getattr(ns, k, None) is not None))
-    if getattr(ns, "broadcast_id", None) is not None:
-        p.broadcast_id = _int("--broadcast-id", ns.broadcast_id, 1, 0xFFFF)
-    if ns.challenge is not None:
-        p.challenge = _int("--challenge", ns.challenge, 1, 3)
-    if ns.drones is not None:
-        words = [w for w in ns.drones.replace(" ", "").split(",") if w]
-        if not words:
-            raise UsageError(f"--drones: no drone IDs in {ns.drones!r}")
-        ids = tuple(_int("--drones", w, 1, 0xFFFE) for w in words)
-        if MANAGER_ID in ids or p.broadcast_id in ids or len(set(ids)) != len(ids):
-            raise UsageError(f"--drones: IDs must be distinct drone IDs (not 0 or the broadcast ID): {ns.drones!r}")
-        p.drones = ids
-    if ns.waypoints is not None:
-        from spec.mission import WaypointFileError, load_waypoints
-
-        try:
-            p.waypoints = tuple(load_waypoints(ns.waypoints))
-        except (WaypointFileError, OSError, ValueError) as exc:
-            raise UsageError(f"--waypoints: {_one_line(exc)}") from None
-        p.waypoints_file = str(ns.waypoints)
-    return p
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
-
-
-def selected(rule: str, select: tuple[str, ...]) -> bool:
-    """Whether ``rule`` (MCP-ACK-1) matches one of the prefixes (MCP-ACK, ACK-1, ACK)."""
-    if not select:
-        return True
-    short = rule[4:] if rule.startswith("MCP-") else rule
-    return any(rule.startswith(s) or short.startswith(s) for s in select)
 
 
 @dataclass

@@ -12,13 +12,20 @@ name (HTTP 400), so the client offers both, as Foxglove's app does.
 from __future__ import annotations
 
 import json
+import signal
+import socket
 import struct
+import subprocess
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import websocket
+
+from tests.capturing import free_port
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01
@@ -104,3 +111,63 @@ def watch(ws: websocket.WebSocket, running: Callable[[], bool], until: float = 2
             s.statuses.append(doc)
     ws.close()
     return s
+
+
+def listening(port: int, host: str = "127.0.0.1") -> bool:
+    """Whether anything accepts a connection on (host, port)."""
+    with socket.socket() as s:
+        return s.connect_ex((host, port)) == 0
+
+
+@dataclass
+class Watched:
+    port: int
+    seen: Session
+    returncode: int
+    out: str
+    err: str  # empty where stderr went to ``out``
+
+
+def watch_tool(argv: list[str], *, cwd: Path, env: dict[str, str], stderr_to_out: bool = False,
+               until: float = 240.0, wait: float = 60.0, running: Callable[[], bool] = lambda: True,
+               interrupt_when: Callable[[Session], bool] | None = None) -> Watched:
+    """Run ``argv --live 127.0.0.1:PORT`` (a free port) and watch it as Foxglove does until the
+    server closes the connection (or ``until`` s); ``running()`` and the process still going
+    is what each message's ``running`` says. ``interrupt_when(session)``: SIGINT the tool, as
+    a user's Ctrl-C, once it holds. The process is killed if it outlives ``wait`` s after."""
+    port = free_port(socket.SOCK_STREAM)
+    proc = subprocess.Popen([*argv, "--live", f"127.0.0.1:{port}"], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT if stderr_to_out else subprocess.PIPE)
+
+    def then(s: Session) -> None:
+        if interrupt_when is not None and proc.poll() is None and interrupt_when(s):
+            proc.send_signal(signal.SIGINT)
+
+    try:
+        ws = connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
+        seen = watch(ws, running=lambda: proc.poll() is None and running(), until=until, then=then)
+        out, err = proc.communicate(timeout=wait)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return Watched(port, seen, proc.returncode, out, err or "")
+
+
+class Watcher(threading.Thread):
+    """A client of an in-process server (``url``) watching from a thread: :func:`watch` for
+    ``until`` s, ``then(session)`` after each message; :meth:`session` when it is done."""
+
+    def __init__(self, url: str, until: float = 30.0, then: Callable[[Session], Any] | None = None) -> None:
+        super().__init__(daemon=True)
+        self.ws = connect(url, timeout=5)
+        self.until, self.then = until, then
+        self._session: Session | None = None
+
+    def run(self) -> None:
+        self._session = watch(self.ws, running=lambda: True, until=self.until, then=self.then)
+
+    def session(self, timeout: float = 30.0) -> Session:
+        self.join(timeout)
+        assert self._session is not None, "the client was still watching"
+        return self._session

@@ -85,7 +85,7 @@ class BackgroundRecorder:
         self._queue.append(("__init__", (library, dict(metadata or {}), self.local)))
         self._thread = threading.Thread(target=self._flush_loop, name="mcap-flusher", daemon=True)
         self._thread.start()
-        _rec._LIVE.add(self)
+        _rec.OPEN.add(self)
 
     def _live_started(self) -> str:
         """The writer's first line: its live server's URL, or why it has none (a RecorderError)."""
@@ -198,7 +198,7 @@ class BackgroundRecorder:
             self._proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:  # it finishes on its own; we do not wait longer
             pass
-        _rec._LIVE.discard(self)
+        _rec.OPEN.discard(self)
 
     def __enter__(self) -> BackgroundRecorder:
         return self

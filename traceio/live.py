@@ -7,7 +7,7 @@ each event of a run (a datagram, a MAVLink frame, a case mark, a log line) into 
 bodies of its channels once, and hands every body it writes to its ``live`` feed as well
 (a recorder without a file, ``McapRecorder(None, live=...)``, when the run writes no
 capture): the live stream and the capture are the same messages, with the same schemas
-(``traceio.recorder.CHANNELS`` and the ``foxglove-sdk`` schemas of :mod:`traceio.fox`), the
+(``traceio.channels.CHANNELS`` and the ``foxglove-sdk`` schemas of :mod:`traceio.fox`), the
 same topics and the same log times. So Foxglove shows a live run with the layout of
 ``examples/foxglove-layout.json`` as it shows the capture afterwards.
 
@@ -29,19 +29,22 @@ stopped reading does not hold the end of the run (``STOP_S``).
 
 from __future__ import annotations
 
-import atexit
 import errno
 import json
 import socket
 import threading
 import time
 import warnings
-import weakref
 from typing import Any
 
-from traceio.recorder import CHANNELS, STREAM_CHANNELS, foxglove_channels
+from traceio.channels import CHANNELS, STREAM_CHANNELS, foxglove_channels
+from traceio.files import ClosedAtExit
 
 __all__ = ["DEFAULT_HOST", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
+
+#: the servers running, stopped at interpreter exit: a run that ends without stopping its
+#: server leaves nothing listening
+_SERVERS = ClosedAtExit("stop")
 
 DEFAULT_HOST = "127.0.0.1"
 #: How long :meth:`LiveServer.stop` lets a subscribed client's queue drain before it closes the
@@ -242,16 +245,3 @@ def _has_sinks(channel: Any) -> bool:
         return bool(channel.has_sinks())
     except Exception:  # noqa: BLE001 - a closed channel has none
         return False
-
-
-_SERVERS: weakref.WeakSet[LiveServer] = weakref.WeakSet()
-
-
-@atexit.register
-def _stop_all() -> None:
-    """A run that ends without stopping its server leaves nothing listening."""
-    for server in list(_SERVERS):
-        try:
-            server.stop()
-        except Exception:  # noqa: BLE001 - best effort at exit
-            pass

@@ -15,6 +15,9 @@ stream of typed records:
   full disk, a copy cut short) or holds garbage after its last whole record: the records
   before it are all there is. ``Capture.truncated`` holds the same reason after iteration.
 
+The record types are ``traceio.records``' (imported here too, so ``traceio.reader`` names
+them as before).
+
 Formats:
 
 - MCAP as ``traceio.recorder`` writes it, read sequentially with ``mcap``'s StreamReader
@@ -48,7 +51,7 @@ from collections import Counter
 from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, Any
 
 from scapy.error import Scapy_Exception
 
@@ -65,6 +68,18 @@ from traceio.packets import (
     PcapReader,
     Reassembly,
 )
+from traceio.records import (
+    CaptureError,
+    CaseMark,
+    Datagram,
+    MavlinkFrame,
+    Metadata,
+    Record,
+    StreamEvent,
+    StreamFrame,
+    Truncated,
+    VehicleMark,
+)
 
 __all__ = [
     "Capture",
@@ -80,88 +95,6 @@ __all__ = [
     "VehicleMark",
     "open_capture",
 ]
-
-
-class Datagram(NamedTuple):
-    index: int  # type: ignore[assignment]  # (shadows tuple.index; the capture's own word)
-    t_ns: int
-    src_addr: tuple[str, int] | None
-    dst_addr: tuple[str, int] | None
-    data: bytes
-    direction: str | None = None  # "tx" | "rx" | None, seen from the recording host
-    recorder: str | None = None
-    burst: bool = False  # one of a flood recorded as a count (/mcp/burst)
-    segment: str | None = None  # the session it belongs to in a merged capture (gw0, ...)
-
-
-class MavlinkFrame(NamedTuple):
-    index: int  # type: ignore[assignment]  # 0, 1, 2, ... over the capture's MAVLink frames
-    t_ns: int
-    direction: str | None  # as recorded: "rx" = received by the vehicle
-    msg_type: str | None
-    data: bytes
-    segment: str | None = None
-
-
-class CaseMark(NamedTuple):
-    t_ns: int
-    case: str
-    event: str  # "start" | "end"
-    outcome: str | None
-    rules: tuple[str, ...]
-    segment: str | None = None
-
-
-class VehicleMark(NamedTuple):
-    """An autopilot-link event the run observed (``/vehicle``: link, fix, fix_lost)."""
-
-    t_ns: int
-    kind: str
-    drone: int | None
-    detail: str | None
-    segment: str | None = None
-
-
-class StreamFrame(NamedTuple):
-    """Bytes on a stream protocol's connection (``/nsqd/tx``: one write of the runner;
-    ``/nsqd/rx``: one frame of the backend), as ``traceio.recorder`` wrote them."""
-
-    index: int  # type: ignore[assignment]  # (shadows tuple.index, as Datagram's)
-    t_ns: int
-    direction: str
-    conn: int
-    name: str | None
-    problem: str | None
-    raw: bytes
-
-
-class StreamEvent(NamedTuple):
-    """A stream connection opened (its addresses) or closed (``by`` client or backend, ``how``
-    fin or rst): ``/nsqd/conn``, or the TCP handshake and FIN/RST of a pcap."""
-
-    t_ns: int
-    event: str  # "open" | "close"
-    conn: int
-    client: tuple[str, int] | None = None
-    backend: tuple[str, int] | None = None
-    by: str | None = None
-    how: str | None = None
-
-
-class Metadata(NamedTuple):
-    name: str
-    data: dict[str, str]
-
-
-class Truncated(NamedTuple):
-    reason: str
-
-
-Record = Datagram | MavlinkFrame | CaseMark | VehicleMark | StreamFrame | StreamEvent | Metadata | Truncated
-
-
-class CaptureError(Exception):
-    """The file cannot be read as a capture (one line, names the file)."""
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"

@@ -41,9 +41,7 @@ def test_the_live_stream_is_the_capture_message_for_message(tmp_path: Path) -> N
     server = LiveServer("127.0.0.1", 0)
     feed = server.feed()
     all_topics = len(ALL)
-    ws = foxglove_ws.connect(server.url, timeout=5)
-    result: dict[str, foxglove_ws.Session] = {}
-    watcher = threading.Thread(target=lambda: result.update(s=foxglove_ws.watch(ws, running=lambda: True, until=30)))
+    watcher = foxglove_ws.Watcher(server.url)
     watcher.start()
     _wait_subscribed(server, all_topics)
     rec = McapRecorder(tmp_path / "run.mcap", live=feed, local=("127.0.0.1", 7889))
@@ -57,8 +55,7 @@ def test_the_live_stream_is_the_capture_message_for_message(tmp_path: Path) -> N
                   evidence="no ACK of seq 7 within 0.25 s")
     rec.close()
     server.stop()
-    watcher.join(30)
-    seen = result["s"]
+    seen = watcher.session()
     assert seen.closed
     assert seen.topics() == ALL
     live = [(m.topic, m.log_time, m.data) for m in seen.messages]
@@ -139,8 +136,7 @@ def test_a_port_in_use_is_a_one_line_error_and_stop_frees_the_port() -> None:
     server.stop()
     server.stop()  # idempotent
     server.publish("/log", b"{}", 1)  # a no-op once stopped
-    with socket.socket() as s:
-        assert s.connect_ex(("127.0.0.1", port)) != 0
+    assert not foxglove_ws.listening(port)
 
 
 def test_nothing_listens_once_stop_returns() -> None:
@@ -158,11 +154,8 @@ def test_a_node_writer_process_serves_and_stops(tmp_path: Path) -> None:
     rec = BackgroundRecorder(None, library="mcp-node", live=("127.0.0.1", 0))
     assert rec.live_url is not None and rec.live_url.startswith("ws://127.0.0.1:")
     port = int(rec.live_url.rsplit(":", 1)[1])
-    ws = foxglove_ws.connect(rec.live_url, timeout=5)
-    result: dict[str, foxglove_ws.Session] = {}
     got = threading.Event()
-    watcher = threading.Thread(target=lambda: result.update(s=foxglove_ws.watch(
-        ws, running=lambda: True, until=30, then=lambda s: bool(s.on("/mcp/tx")) and got.set())))
+    watcher = foxglove_ws.Watcher(rec.live_url, then=lambda s: bool(s.on("/mcp/tx")) and got.set())
     watcher.start()
     deadline = time.monotonic() + 20
     while not got.is_set() and time.monotonic() < deadline:  # until the client has seen a datagram
@@ -170,12 +163,10 @@ def test_a_node_writer_process_serves_and_stops(tmp_path: Path) -> None:
         rec.flush()
         got.wait(0.1)
     rec.close()
-    watcher.join(30)
-    seen = result["s"]
+    seen = watcher.session()
     assert seen.closed and seen.on("/mcp/tx")
     assert seen.on("/mcp/tx")[0].json()["action_name"] == "MISSION_READY"
-    with socket.socket() as s:
-        assert s.connect_ex(("127.0.0.1", port)) != 0
+    assert not foxglove_ws.listening(port)
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -201,6 +192,5 @@ def test_a_client_that_stops_reading_does_not_hold_the_end_of_the_run() -> None:
     stopper.join(60)
     assert not stopper.is_alive(), "stop() hung on a client that does not read"
     assert server.abandoned  # the stuck client's connection left to a daemon thread
-    with socket.socket() as s:
-        assert s.connect_ex(("127.0.0.1", server.port)) != 0
+    assert not foxglove_ws.listening(server.port)
     ws.close()

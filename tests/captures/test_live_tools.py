@@ -6,7 +6,6 @@ stop serving when they end (issue 24 item 2)."""
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -104,33 +103,16 @@ def test_mcp_fuzz_serves_one_workers_mcp_run(argv: list[str], why: str, capsys: 
     assert why in capsys.readouterr().err
 
 
-def _listening(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
 @pytest.mark.slow
 def test_mcp_node_streams_its_capture_channels_and_stops_on_sigint() -> None:
-    port = free_port(socket.SOCK_STREAM)
-    proc = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind", "127.0.0.1:0",
-                             "--send-to", f"127.0.0.1:{free_port()}", "--rto", "0.2", "--live", f"127.0.0.1:{port}"],
-                            cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     wanted = ("/mcp/tx", "/mavlink", "/vehicle/location", "/vehicle/attitude")
-
-    def then(s: foxglove_ws.Session) -> None:  # everything seen: Ctrl-C, as a user ends it
-        if proc.poll() is None and all(s.on(t) for t in wanted):
-            proc.send_signal(signal.SIGINT)
-
-    try:
-        ws = foxglove_ws.connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
-        seen = foxglove_ws.watch(ws, running=lambda: proc.poll() is None, until=60, then=then)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 0, err
-    assert f"mcp-node: live: ws://127.0.0.1:{port}" in err
+    run = foxglove_ws.watch_tool(  # everything seen: Ctrl-C, as a user ends it
+        [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind", "127.0.0.1:0",
+         "--send-to", f"127.0.0.1:{free_port()}", "--rto", "0.2"], cwd=ROOT, env=ENV, until=60, wait=30,
+        interrupt_when=lambda s: all(s.on(t) for t in wanted))
+    seen = run.seen
+    assert run.returncode == 0, run.err
+    assert f"mcp-node: live: ws://127.0.0.1:{run.port}" in run.err
     assert seen.closed and seen.server_info["name"] == "mcp-node"
     for topic in wanted:
         assert any(m.running for m in seen.on(topic)), topic
@@ -138,33 +120,24 @@ def test_mcp_node_streams_its_capture_channels_and_stops_on_sigint() -> None:
     assert (ready["action_name"], ready["src"]) == ("MISSION_READY", 1)
     fix = seen.on("/vehicle/location")[0].json()
     assert fix["frame_id"] == "drone1" and fix["latitude"] != 0
-    assert not _listening(port)
+    assert not foxglove_ws.listening(run.port)
 
 
 @pytest.mark.slow
 def test_mcp_soak_streams_each_view_and_the_missions_outcomes(tmp_path: Path) -> None:
-    port = free_port(socket.SOCK_STREAM)
-    proc = subprocess.Popen([sys.executable, "-m", "soak", "--missions", "2", "--impair", "loss=0.1,seed=3",
-                             "--drones", "1,2", "--challenges", "1", "--out", str(tmp_path),
-                             "--live", f"127.0.0.1:{port}"],
-                            cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ws = foxglove_ws.connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
-        seen = foxglove_ws.watch(ws, running=lambda: proc.poll() is None, until=120)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 0, out + err
-    assert f"mcp-soak: live: ws://127.0.0.1:{port}" in out
+    run = foxglove_ws.watch_tool(
+        [sys.executable, "-m", "soak", "--missions", "2", "--impair", "loss=0.1,seed=3",
+         "--drones", "1,2", "--challenges", "1", "--out", str(tmp_path)], cwd=ROOT, env=ENV, until=120)
+    seen = run.seen
+    assert run.returncode == 0, run.out + run.err
+    assert f"mcp-soak: live: ws://127.0.0.1:{run.port}" in run.out
     assert {"/log", "/manager/mcp/tx", "/drone1/mcp/rx", "/drone2/impair"} <= seen.topics()
     for topic in ("/manager/mcp/tx", "/manager/mcp/rx", "/drone1/mcp/rx", "/drone2/mcp/tx", "/drone1/impair"):
         assert any(m.running for m in seen.on(topic)), topic
     assert {m.json()["src"] for m in seen.on("/drone2/mcp/tx") if m.json()["decoded"]} == {2}
     lines = [m.json()["message"] for m in seen.on("/log")]
     assert "mission 1 (seed 4) complete" in lines, lines
-    assert seen.closed and not _listening(port)
+    assert seen.closed and not foxglove_ws.listening(run.port)
 
 
 def test_mcp_fuzz_logs_each_new_finding_with_its_rule_and_evidence() -> None:

@@ -206,6 +206,7 @@ def test_bad_pcaps_are_one_line_and_exit_2(tmp_path, capsys, content, what):
         assert main(cmd) == 2, cmd
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err and (what is None or what in err), err
+    assert not (tmp_path / "o.pcap").exists()  # no half-written export (as for MCP: captures.export)
 
 
 def test_a_pcap_cut_inside_a_record_is_judged_up_to_the_cut(tmp_path, capsys):

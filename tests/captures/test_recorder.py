@@ -258,6 +258,31 @@ def test_run_interrupted_by_an_exception_leaves_a_valid_file(tmp_path):
     assert len(msgs["/conformance/case"]) == 1 and len(msgs["/mcp/tx"]) == 1
 
 
+def test_what_a_run_left_open_is_closed_at_exit_though_one_close_fails(tmp_path):
+    """The recorders open are closed at exit by the one registry of what a run left open
+    (traceio.files.ClosedAtExit, the live servers' too): one whose close fails does not keep
+    the others' files from being finished."""
+    path = tmp_path / "left.mcap"
+    script = textwrap.dedent(f"""
+        from traceio import recorder
+        class Broken:
+            def close(self):
+                raise OSError("disk gone")
+        broken = Broken()
+        recorder.OPEN.add(broken)
+        rec = recorder.McapRecorder({str(path)!r})
+        rec.datagram("tx", b"NCSU-CM\\x01\\x01" + bytes(8), ("127.0.0.1", 1), 2)
+        later = Broken()
+        recorder.OPEN.add(later)
+        assert rec in recorder.OPEN
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    msgs, _ = read_all(path)
+    assert len(msgs["/mcp/tx"]) == 1
+
+
 def test_payload_summary():
     assert summarize_payload(None) is None
     assert summarize_payload(513) == 513

@@ -11,9 +11,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import signal
-import socket
-import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
@@ -24,11 +21,11 @@ from mcap.reader import make_reader
 
 from spec.codec import Action, decode
 from tests import foxglove_ws
-from tests.capturing import free_port
 from traceio import fox
 from traceio.recorder import CHANNELS
 
 ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
 #: The channels the issue names, each of which must carry messages while the run goes.
 WANTED = ("/mcp/tx", "/mcp/rx", "/mavlink", "/vehicle/location", "/vehicle/attitude", "/log",
           "/conformance/case")
@@ -42,27 +39,16 @@ def _captured(path: Path) -> list[tuple[int, str, int, bytes]]:
 
 @pytest.mark.slow
 def test_a_websocket_client_receives_every_channel_of_a_live_run_while_it_runs(tmp_path: Path) -> None:
-    port = free_port(socket.SOCK_STREAM)
     capture, report = tmp_path / "run.mcap", tmp_path / "report.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "conformance", "--live", f"127.0.0.1:{port}", "--mavlink",
-         "--capture", str(capture), "--json", str(report)],
-        cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"),
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        ws = foxglove_ws.connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
-        # "while it runs": the runner still going and its report (written at the end) not yet there
-        seen = foxglove_ws.watch(ws, running=lambda: proc.poll() is None and not report.exists())
-        out, _ = proc.communicate(timeout=240)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 0, out
-    assert f"live: ws://127.0.0.1:{port}" in out
+    # "while it runs": the runner still going and its report (written at the end) not yet there
+    run = foxglove_ws.watch_tool(
+        [sys.executable, "-m", "conformance", "--mavlink", "--capture", str(capture), "--json", str(report)],
+        cwd=ROOT, env=ENV, stderr_to_out=True, wait=240, running=lambda: not report.exists())
+    seen, out = run.seen, run.out
+    assert run.returncode == 0, out
+    assert f"live: ws://127.0.0.1:{run.port}" in out
     assert seen.closed, "the server did not close the connection at the end of the run"
-    with socket.socket() as s:  # nothing left listening
-        assert s.connect_ex(("127.0.0.1", port)) != 0
+    assert not foxglove_ws.listening(run.port)  # nothing left listening
 
     # serverInfo, then every channel of a capture advertised, with the capture's schemas
     assert seen.subprotocol in foxglove_ws.SUBPROTOCOLS
@@ -105,27 +91,11 @@ def test_a_websocket_client_receives_every_channel_of_a_live_run_while_it_runs(t
 def test_an_interrupted_run_stops_serving(tmp_path: Path) -> None:
     """SIGINT mid-run: the runner ends as an interrupted run does (exit 2, its report written),
     the client's connection is closed and nothing is left listening."""
-    port = free_port(socket.SOCK_STREAM)
     report = tmp_path / "report.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "conformance", "--live", f"127.0.0.1:{port}", "--json", str(report)],
-        cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"),
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-    def then(s: foxglove_ws.Session) -> None:  # a few cases in: Ctrl-C
-        if proc.poll() is None and len(s.on("/conformance/case")) >= 6:
-            proc.send_signal(signal.SIGINT)
-
-    try:
-        ws = foxglove_ws.connect(f"ws://127.0.0.1:{port}", alive=lambda: proc.poll() is None)
-        seen = foxglove_ws.watch(ws, running=lambda: proc.poll() is None, until=120, then=then)
-        out, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 2, out
+    run = foxglove_ws.watch_tool(  # a few cases in: Ctrl-C
+        [sys.executable, "-m", "conformance", "--json", str(report)], cwd=ROOT, env=ENV, stderr_to_out=True,
+        until=120, interrupt_when=lambda s: len(s.on("/conformance/case")) >= 6)
+    assert run.returncode == 2, run.out
     assert json.loads(report.read_text())["error"] == "interrupted by SIGINT"
-    assert seen.closed and len(seen.on("/conformance/case")) >= 6
-    with socket.socket() as s:
-        assert s.connect_ex(("127.0.0.1", port)) != 0
+    assert run.seen.closed and len(run.seen.on("/conformance/case")) >= 6
+    assert not foxglove_ws.listening(run.port)

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from fuzz import stream_progress
+import fuzz.progress
 from fuzz.stream_campaign import StreamCampaign
 from fuzz.stream_jobs import run_stream_jobs
 from fuzz.stream_oracles import Signature
@@ -34,7 +34,7 @@ def _view(**kw: object) -> SimpleNamespace:
 
 
 def test_off_a_terminal_a_plain_status_line(monkeypatch):
-    monkeypatch.setattr(stream_progress, "STATUS_S", 0.0)
+    monkeypatch.setattr(fuzz.progress, "STATUS_S", 0.0)  # the display both campaigns share
     out = io.StringIO()
     with StreamLive(out) as live:
         live._next_status = 0.0
@@ -42,6 +42,27 @@ def test_off_a_terminal_a_plain_status_line(monkeypatch):
     line = out.getvalue()
     assert line.count("\n") == 1 and "\x1b" not in line
     assert "cases 1,200" in line and "120 judged cases/s" in line and "findings 3 (close 1, crash 2)" in line
+
+
+def test_both_campaigns_share_one_display(monkeypatch):
+    """MCP's and Nsqd's progress are one display (fuzz.progress.LiveDisplay): the status line's
+    period is the one STATUS_S, a line per due update, and on a terminal one rich Live."""
+    from fuzz.config import FuzzConfig
+    from fuzz.progress import LiveDisplay, LiveProgress
+
+    clock = [1000.0]
+    monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
+    for make, view in ((lambda out: StreamLive(out), _view()),
+                       (lambda out: LiveProgress(FuzzConfig(engine="stateful"), out), fuzz.progress.Progress())):
+        out = io.StringIO()
+        with make(out) as live:
+            assert isinstance(live, LiveDisplay)
+            live.update(view)
+            assert out.getvalue() == ""  # not yet STATUS_S
+            clock[0] += fuzz.progress.STATUS_S
+            live.update(view)
+            live.update(view)
+        assert out.getvalue().count("\n") == 1 and out.getvalue().startswith("mcp-fuzz: ")
 
 
 def test_on_a_terminal_the_table_of_kinds_by_message_ids():

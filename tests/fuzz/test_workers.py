@@ -1,0 +1,40 @@
+"""``--jobs`` worker processes, as both campaigns run them (``fuzz.workers``: MCP's
+``fuzz.campaign`` and Nsqd's ``fuzz.stream_jobs`` share the one loop): a stop asked for
+reaches every worker, which then reports; workers that die without a word do not keep the
+parent waiting for the budget."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fuzz.workers import run_workers
+
+
+def _reporting_worker(worker: int, q: Any, stop: Any) -> None:
+    q.put(("progress", worker, 1))
+    stopped = stop.wait(60)
+    q.put(("done", worker, stopped))
+
+
+def _silent_worker(worker: int, q: Any, stop: Any) -> None:
+    raise SystemExit(3)
+
+
+def test_a_stop_asked_for_reaches_every_worker_and_each_reports():
+    got: list[tuple[str, int, Any]] = []
+
+    def handle(kind: str, worker: int, body: Any) -> bool:
+        got.append((kind, worker, body))
+        return kind == "progress"  # the first progress asks the workers to stop
+
+    done = lambda: sum(k == "done" for k, _, _ in got) == 2  # noqa: E731
+    interrupted = run_workers(_reporting_worker, lambda i, q, stop: (i, q, stop), 2, 120.0, handle, done)
+    assert not interrupted
+    assert sorted((w, b) for k, w, b in got if k == "done") == [(0, True), (1, True)]  # stop.wait saw the stop
+
+
+def test_workers_that_die_without_a_word_end_the_wait():
+    got: list[Any] = []
+    interrupted = run_workers(_silent_worker, lambda i, q, stop: (i, q, stop), 2, 3600.0,
+                              lambda *m: got.append(m) or False, lambda: False)
+    assert not interrupted and got == []
