@@ -128,8 +128,10 @@ class StreamCampaign:
             self.triage_s += time.monotonic() - t0
 
     def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
-                            program: list[dict[str, Any]]) -> None:
-        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program))
+                            program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
+        """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
+        (repro.mcap, repro.pcap), as a case's finding has it."""
+        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=list(traffic or [])))
 
     def _stateless(self, backend: Backend, deadline: float) -> Backend:
         rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))
