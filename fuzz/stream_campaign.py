@@ -167,7 +167,7 @@ class StreamCampaign:
                     # a death may show only at the next case's write: the one before is a suspect too
                     t1 = time.monotonic()
                     self.fuzz_s += t1 - t_fuzz
-                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-2:], probe)
+                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-hit.suspects:], probe)
                     t_fuzz = time.monotonic()
                     self.triage_s += t_fuzz - t1
                     window.clear()
