@@ -140,6 +140,7 @@ class Backend:
         return hit
 
     def _run(self, case: Case) -> Hit | None:
+        self.session.sent_log.clear()  # the session's record of what the current case sent
         reused = self.conn is not None and self.conn.closed_at is None
         conn = self.conn if reused else self._connect()
         if conn is None:

@@ -132,6 +132,7 @@ class Player:
     # -- playing ------------------------------------------------------------------------
     def play(self, op: Op) -> None:
         """One op; :class:`Hit` when an oracle fires."""
+        self.b.session.sent_log.clear()  # the session's record of what the current op sent
         if op.what == "open":
             self._open(op.slot)
         elif op.what == "close":

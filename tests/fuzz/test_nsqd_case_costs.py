@@ -135,3 +135,17 @@ def test_a_close_after_unwatched_valid_frames_is_still_found_and_replays():
         assert ok
     finally:
         b.close()
+
+
+def test_the_sessions_record_of_what_was_sent_is_the_current_cases(backend):
+    """The session keeps what the current case sent (``sent_log``): over a campaign it held every
+    write since the start (hundreds of MB in minutes at thousands of cases/s)."""
+    import random
+
+    from fuzz.stream_mutators import draw_case
+
+    rng = random.Random(3)
+    for _ in range(60):
+        case = draw_case(rng)
+        backend.run(case)
+        assert len(backend.session.sent_log) <= len(case.writes) + 2  # + a probe's command, if any
