@@ -4,12 +4,21 @@
 connection; ``run`` writes a case and asks the oracles of ``fuzz.stream_oracles`` what they
 saw, ``probe`` checks that a command still takes its effect. ``_reproduces`` replays cases in
 a fresh process, as triage and ``--replay`` do (``fuzz.stream_campaign``).
+
+What a case waits for (judged cases/s, issue 21): an observation that ends it, never a fixed
+wait that proves nothing. A bad frame's watch ends at the backend's answer (ERROR, close); a
+connection a case may leave unusable ends with our FIN and the backend's close (it has
+handled every byte before it); a valid frame on a kept connection, answered by nothing, is
+sent and what is there read, its close window (a close after frames a backend handles is a
+finding) coming before the next bad frame on that still-clean connection, at the probe, or in
+a replay; a probe or a judged effect ends at the UPDATE that shows the state (:meth:`Backend._verify`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import random
+import select
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -33,6 +42,7 @@ class Hit:
     signature: Signature
     detail: str
     stderr: tuple[str, ...] = ()
+    suspects: int = 2  # how many of the latest cases may have caused it (the campaign's triage)
 
 
 class Backend:
@@ -56,6 +66,8 @@ class Backend:
         self.must_keep = False
         self.bad_probes: set[str] = set()
         self.synced = False  # the last case's judged effect showed the stream in sync
+        self.unwatched = ""  # the kind of the last valid case sent without its close window
+        self.unwatched_n = 0  # how many cases in a row before this one were
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -118,11 +130,31 @@ class Backend:
         return None
 
     def run(self, case: Case) -> Hit | None:
-        """Write the case; what the oracles saw, if anything."""
-        conn = self.conn if self.conn is not None and self.conn.closed_at is None else self._connect()
+        """Write the case; what the oracles saw, if anything (its ``suspects``: this case, the
+        one before, and the valid ones before them sent without a wait: what shows now may be
+        theirs)."""
+        hit = self._run(case)
+        if hit is not None:
+            hit.suspects = max(hit.suspects, self.unwatched_n + 2)
+        self.unwatched_n = self.unwatched_n + 1 if self.unwatched else 0
+        return hit
+
+    def _run(self, case: Case) -> Hit | None:
+        self.session.sent_log.clear()  # the session's record of what the current case sent
+        reused = self.conn is not None and self.conn.closed_at is None
+        conn = self.conn if reused else self._connect()
         if conn is None:
             return self.death_hit(0.3) or Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"),
                                               "a new connection was not accepted")
+        if not reused:
+            self.unwatched = ""
+        if self.unwatched and not case.valid:
+            # valid frames went out unwatched (a correct backend answers them with nothing:
+            # a fixed wait after each proved nothing) and the connection is still clean: before
+            # a frame it may close on, their close window (a close now is theirs)
+            hit = self._close_window(self.unwatched, "")
+            if hit is not None:
+                return hit
         self.clean = self.clean and case.valid
         self.must_keep = case.kind == "bad-id"
         for w in case.writes:
@@ -133,9 +165,22 @@ class Backend:
                 self._drop()
                 break
         if self.conn is not None:
-            self.conn.pump(0.003)
-            if not case.probe and self.conn.closed_at is None and self.death_hit(0.0) is None:
-                self._drop()  # a case that may leave the stream unusable: the next starts afresh
+            if case.valid and reused and self.conn.closed_at is None and not case.check:
+                # a frame the backend handles, answered by nothing: read what is there; on a
+                # clean connection its close window comes before the next bad frame (and at
+                # the probe), on another a close is allowed anyway
+                self.conn.pump(0)
+                self.unwatched = case.kind if self.clean else ""
+            elif case.probe or self.conn.closed_at is not None:
+                self.conn.pump(0.003)  # ends at the first frame (an ERROR, the first UPDATE) or the close
+                self.unwatched = ""
+            else:  # a case that may leave the stream unusable: the next starts afresh. Its
+                # connection ends with our FIN: the backend's close (it has handled every byte
+                # before it) ends the watch at once, no fixed wait (the same bound)
+                self.conn.shutdown()
+                self.conn.wait_for(lambda: False, 0.003)
+                if self.death_hit(0.0) is None:
+                    self._drop()
         closed_by_backend = self.conn is not None and self.conn.closed_at is not None
         # a death closes the socket as the process exits: where a close would be a finding, a
         # moment to tell the two apart (a close after a bad frame is allowed, and a death then
@@ -163,35 +208,92 @@ class Backend:
                            f"the backend closed the connection after frames it handles ({case.note})")
         return None
 
+    def _close_window(self, kind: str, note: str) -> Hit | None:
+        """The close window (3 ms, ended by the backend's close) after frames the backend
+        handles, sent on a connection that only carried such frames: a close in it is a finding
+        (NSQD-FRM-2/3/5, by the last case's ``kind``)."""
+        conn = self.conn
+        self.unwatched = ""
+        if conn is None or conn.closed_at is not None or not self.clean:
+            return None
+        conn.wait_for(lambda: False, 0.003)
+        if conn.closed_at is None:
+            return None
+        hit = self.death_hit(0.03)
+        if hit is not None:
+            return hit
+        return Hit(Signature("close", kind, (), _CLOSE_RULE.get(kind, "NSQD-FRM-5")),
+                   f"the backend closed the connection after frames it handles{f' ({note})' if note else ''}")
+
+    def _verify(self, conn: Conn, states: tuple[int, ...], or_error: bool, since: float) -> tuple[bool, Conn | None]:
+        """Whether a command just sent on ``conn`` took its effect (NSQD-MSG-3): UPDATE.state in
+        ``states`` (or, ``or_error``, an ERROR) on ``conn`` after ``since``, or on the next
+        connection. Our FIN follows the command, so the backend handles the command before it
+        sees the stream end; a one-client backend then closes ``conn`` and serves the next
+        connection (opened at once, waiting in the backlog: NSQD-CON-2, D-4), whose UPDATEs
+        carry the flight state the command left. The observation ends with the UPDATE that
+        shows it instead of the next periodic one (up to a period); a backend that serves
+        several clients at once shows it in a later UPDATE, within the same window. The next
+        connection, when opened, becomes the current one (``self.conn``)."""
+        window = float(NSQD.params["effect_window_s"])
+        conn.shutdown()
+        fresh = self.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
+        if fresh is not None:
+            self.connections += 1
+
+        def shown() -> bool:
+            return (any(u.values["state"] in states for u in conn.updates(since))  # type: ignore[index]
+                    or (or_error and bool(conn.errors(since)))
+                    or (fresh is not None and any(u.values["state"] in states for u in fresh.updates())))  # type: ignore[index]
+
+        ok = _wait_any([c for c in (conn, fresh) if c is not None], shown, window)
+        return ok, fresh
+
+    def _adopt(self, fresh: Conn | None) -> None:
+        """``fresh`` (a connection :meth:`_verify` opened) is the current connection."""
+        self._drop()
+        self.conn = fresh
+        self.clean, self.must_keep = True, False
+
     def _effect(self, case: Case) -> Hit | None:
         """A valid command's effect shows in UPDATE.state within the effect window (NSQD-MSG-3)."""
         conn = self.conn
         assert conn is not None
         since = conn.sent[-1][0] if conn.sent else time.monotonic()
         window = float(NSQD.params["effect_window_s"])
+        clean = self.clean
         before = [u.values["state"] for u in conn.updates() if u.t < since]  # type: ignore[index]
-        ok = conn.wait_for(lambda: any(u.values["state"] in case.expect for u in conn.updates(since))  # type: ignore[index]
-                           or (case.or_error and bool(conn.errors(since))), window)
+        ok, fresh = self._verify(conn, case.expect, case.or_error, since)
+        ups = conn.updates(since) + (fresh.updates() if fresh is not None else [])
         # a state the stream was not in before, reached by the command: the stream is in sync,
         # as a probe would have shown (the campaign starts its probe window afresh)
         self.synced = ok and bool(before) and before[-1] not in case.expect and \
-            any(u.values["state"] in case.expect for u in conn.updates(since))  # type: ignore[index]
-        v = conn.violation()
-        if v is not None:
-            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
-        if ok or conn.closed_at is not None:
+            any(u.values["state"] in case.expect for u in ups)  # type: ignore[index]
+        self._adopt(fresh)
+        for c in (conn, fresh):
+            v = c.violation() if c is not None else None
+            if v is not None:
+                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if ok:
             return None
-        if not conn.updates(since):  # nothing at all: not the command's effect, the backend's liveness
+        if conn.reset or (not clean and conn.closed_at is not None):
+            return None  # the backend had closed it (a bad frame before may let it): the command unread
+        if not ups:  # nothing at all: not the command's effect, the backend's liveness
             return self.death_hit(0.3) or Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
-                                              f"no UPDATE within {window:g} s on an open connection")
-        seen = sorted({NSQD.state_name(u.values["state"]) for u in conn.updates(since)})  # type: ignore[index]
+                                              f"no UPDATE within {window:g} s of the command")
+        seen = sorted({NSQD.state_name(u.values["state"]) for u in ups})  # type: ignore[index]
         return Hit(Signature("effect", case.msg or case.note, (), "NSQD-MSG-3"),
                    f"{case.note}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in case.expect)} expected, "
                    f"saw {', '.join(seen) or 'no UPDATE'}")
 
     def probe(self) -> Hit | None:
         """A command on the current connection (a new one if the backend closed it, unless it
-        had to keep it: ``must_keep``) must take its effect within the effect window."""
+        had to keep it: ``must_keep``) must take its effect within the effect window
+        (:meth:`_verify`: on that connection or, after our FIN, on the next one)."""
+        if self.unwatched:
+            hit = self._close_window(self.unwatched, "")
+            if hit is not None:
+                return hit
         usable = [p for p in _PROBES if p[0] not in self.bad_probes] or list(_PROBES)
         name, state = usable[self.probe_i % len(usable)]
         self.probe_i += 1
@@ -203,22 +305,25 @@ class Backend:
         since = time.monotonic()
         window = float(NSQD.params["effect_window_s"])
         conn.send(encode(NSQD, name))
-        seen = conn.wait_for(lambda: any(u.values["state"] == state for u in conn.updates(since)), window)  # type: ignore[index]
-        hit = self.death_hit(0.3 if conn.closed_at else 0.0)
+        seen, fresh = self._verify(conn, (state,), False, since)
+        self._adopt(fresh)
+        hit = self.death_hit(0.0 if seen else 0.3)
         if hit is not None:
             return hit
-        v = conn.violation()
-        if v is not None:
-            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        for c in (conn, fresh):
+            v = c.violation() if c is not None else None
+            if v is not None:
+                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
         if seen:
             return None
-        if conn.closed_at is None and not conn.updates(since):
+        if conn.closed_at is None and not conn.updates(since) and (fresh is None or not fresh.updates()):
             return Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
                        f"no UPDATE within {window:g} s on an open connection")
-        # the stream lost sync on this connection, or the command itself is wrong: on a new one
-        fresh = self._connect()
-        if fresh is None:
-            return Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"), "a new connection was not accepted")
+        # the stream lost sync on this connection, or the command itself is wrong: on the new one
+        if fresh is None or fresh.closed_at is not None:
+            fresh = self._connect()
+            if fresh is None:
+                return Hit(Signature("hang", "not accepting", (), "NSQD-ROB-1"), "a new connection was not accepted")
         since = time.monotonic()
         fresh.send(encode(NSQD, name))
         if fresh.wait_for(lambda: any(u.values["state"] == state for u in fresh.updates(since)), window):  # type: ignore[index]
@@ -229,12 +334,28 @@ class Backend:
             return self.death_hit(0.3) or Hit(Signature("hang", "no UPDATE on a new connection", (), "NSQD-ROB-1"),
                                               "the backend accepts but sends nothing")
         self.bad_probes.add(name)  # its own effect is wrong: probe with the other command from now on
-        seen = sorted({NSQD.state_name(u.values["state"]) for u in fresh.updates(since)})  # type: ignore[index]
+        seen_states = sorted({NSQD.state_name(u.values["state"]) for u in fresh.updates(since)})  # type: ignore[index]
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
-                   f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen)}")
+                   f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen_states)}")
 
     def fds(self) -> int | None:
         return self.session.open_fds()
+
+
+def _wait_any(conns: list[Conn], pred: Any, timeout: float) -> bool:
+    """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
+    end = time.monotonic() + timeout
+    while True:
+        if pred():
+            return True
+        live = [c for c in conns if c.closed_at is None]
+        left = end - time.monotonic()
+        if left <= 0 or not live:
+            return bool(pred())
+        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
+        for c in live:
+            if c.sock in ready:
+                c.pump(0)
 
 
 def message_names(data: bytes) -> list[str]:
@@ -282,6 +403,8 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tu
             parsed = parse_sanitizer(b.session.proc.sanitizer_report())
             if parsed:
                 hit = Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1", parsed[1]), "a sanitizer report")
+    if hit is None and sig.oracle == "close" and cases:
+        hit = b._close_window(cases[-1].kind, cases[-1].note)  # a replay has no next case to show a close
     if hit is None and probe:
         hit = b.probe()
     return (hit is not None and _same(hit.signature, sig)), b, hit

@@ -128,8 +128,10 @@ class StreamCampaign:
             self.triage_s += time.monotonic() - t0
 
     def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
-                            program: list[dict[str, Any]]) -> None:
-        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program))
+                            program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
+        """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
+        (repro.mcap, repro.pcap), as a case's finding has it."""
+        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=list(traffic or [])))
 
     def _stateless(self, backend: Backend, deadline: float) -> Backend:
         rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))
@@ -165,7 +167,7 @@ class StreamCampaign:
                     # a death may show only at the next case's write: the one before is a suspect too
                     t1 = time.monotonic()
                     self.fuzz_s += t1 - t_fuzz
-                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-2:], probe)
+                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-hit.suspects:], probe)
                     t_fuzz = time.monotonic()
                     self.triage_s += t_fuzz - t1
                     window.clear()

@@ -21,6 +21,7 @@ step) and ticks the campaign's progress. Workers share hypothesis's example data
 
 from __future__ import annotations
 
+import contextlib
 import random
 import time
 from collections.abc import Callable
@@ -36,6 +37,7 @@ from hypothesis.stateful import RuleBasedStateMachine, rule, run_state_machine_a
 
 from fuzz.ddmin import ddmin
 from fuzz.engine_stateful import OutOfBudget, open_database
+from fuzz.stream_findings import TrafficLog
 from fuzz.stream_mutators import KINDS, Write, draw_case, valid_values
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from harness.stream_session import Conn
@@ -130,6 +132,7 @@ class Player:
     # -- playing ------------------------------------------------------------------------
     def play(self, op: Op) -> None:
         """One op; :class:`Hit` when an oracle fires."""
+        self.b.session.sent_log.clear()  # the session's record of what the current op sent
         if op.what == "open":
             self._open(op.slot)
         elif op.what == "close":
@@ -429,8 +432,11 @@ class ClientsMachine(RuleBasedStateMachine):
         self.player.close()
 
 
-def play_program(backend: Any, ops: list[Op]) -> Hit | None:
-    """Play ``ops`` on ``backend`` (a fresh one for a replay): the first hit, if any."""
+def play_program(backend: Any, ops: list[Op], log: Any = None) -> Hit | None:
+    """Play ``ops`` on ``backend`` (a fresh one for a replay): the first hit, if any.
+    ``log`` (a ``fuzz.stream_findings.TrafficLog``): the replay's traffic, for the finding's
+    repro.mcap and repro.pcap, as a stateless finding's confirming replay keeps it."""
+    backend.session.recorder = log
     p = Player(backend)
     try:
         for op in ops:
@@ -443,7 +449,14 @@ def play_program(backend: Any, ops: list[Op]) -> Hit | None:
     except Hit as hit:
         return hit
     finally:
+        if log is not None:
+            for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
+                with contextlib.suppress(OSError, ValueError):
+                    c.pump(0)
         p.close()
+        if log is not None:
+            log.done = True
+        backend.session.recorder = None
 
 
 class StreamStatefulEngine:
@@ -520,25 +533,29 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     if campaign.target is not None and campaign.spawn is None and sig.oracle in ("crash", "hang") \
             and backend.session.death() is not None:
         raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
-    box = {"b": backend, "stderr": hit.stderr}
+    box: dict[str, Any] = {"b": backend, "stderr": hit.stderr, "traffic": []}
 
-    def reproduces(o: list[Op]) -> bool:
+    def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
         box["b"] = campaign.current = box["b"].fresh()
         campaign.restarts += 1
-        h = play_program(box["b"], o)
+        h = play_program(box["b"], o, log)
         if h is not None and h.stderr:
             box["stderr"] = h.stderr
-        return h is not None and same_finding(h.signature, sig)
+        ok = h is not None and same_finding(h.signature, sig)
+        if ok and log is not None:
+            box["traffic"] = log.records  # the last confirming replay's: repro.mcap, repro.pcap
+        return ok
 
     if not reproduces(ops):
         campaign.unconfirmed += 1
         return box["b"].fresh()
     if len(ops) > 1:
         ops = ddmin(list(ops), reproduces, budget=16)
-    confirmed = sum(reproduces(ops) for _ in range(campaign.replays))
+    confirmed = sum(reproduces(ops, TrafficLog()) for _ in range(campaign.replays))
     if confirmed < campaign.replays:
         campaign.unconfirmed += 1
         return box["b"].fresh()
     campaign.add_program_finding(sig, hit.detail, f"{confirmed} of {campaign.replays}", tuple(box["stderr"]),
-                                 "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops])
+                                 "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops],
+                                 box["traffic"])
     return box["b"].fresh()

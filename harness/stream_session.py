@@ -67,6 +67,7 @@ class Conn:
     log: list[tuple[float, bytes]] | None = None  # the case's record of everything sent
     recorder: Any = None  # the run's capture (traceio.recorder.McapRecorder or a Tee), if any
     index: int = 0  # the connection's number in the run
+    fin_at: float | None = None  # when the runner half-closed it (:meth:`shutdown`)
 
 
     def __post_init__(self) -> None:
@@ -114,8 +115,19 @@ class Conn:
             return False
         return True
 
+    def shutdown(self) -> None:
+        """Our FIN, the connection still read (a half-close): TCP delivers in order, so the
+        backend handles every byte sent before it sees the stream end (a one-client backend
+        then closes it and serves the next client, NSQD-CON-2)."""
+        if self.fin_at is not None or self.sock.fileno() == -1:
+            return
+        self.fin_at = time.monotonic()
+        self._event("close", by="client", how="fin")
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_WR)
+
     def close(self, *, rst: bool = False) -> None:
-        if self.sock.fileno() != -1:
+        if self.sock.fileno() != -1 and (rst or self.fin_at is None):
             self._event("close", by="client", how="rst" if rst else "fin")
         if rst:
             with contextlib.suppress(OSError):

@@ -79,3 +79,50 @@ def test_no_false_alarm_on_a_correct_backend(tmp_path, backend):
     c = StreamCampaign(None, spawn, 5, 45.0, None, tmp_path, engine="stateful")
     summary = c.run()
     assert summary["findings"] == [] and summary["unconfirmed"] == 0 and summary["cases"] > 50, summary
+
+
+@pytest.mark.nsqd
+def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
+    """A stateful finding's finding-N/ (issue 21 item 3): finding.json, the input as hex and as
+    a bytes literal, stderr, replay.txt, and its confirming replay's traffic as repro.mcap and
+    repro.pcap, a TCP conversation per connection that tshark follows to the bytes sent; the
+    replay command and ``mcp-capture replay`` of the MCAP reproduce it (exit 1) or not (0)."""
+    import shutil
+
+    from fuzz.stream_backend import Backend
+    from fuzz.stream_stateful import play_program, triage_program
+    from traceio.reader import StreamEvent, StreamFrame
+    from traceio.stream import stream_records
+
+    exe = built_or_skip()
+    fault = _spawn(exe, "second-client-kicks-first")
+    ops = [Op("open", 0), Op("open", 1), Op("cmd", 0, (Write(command_bytes("TAKEOFF")),), "TAKEOFF", valid=True)]
+    b = Backend(None, fault)
+    hit = play_program(b, ops)
+    assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
+    c = StreamCampaign(None, fault, 1, 10.0, None, tmp_path, engine="stateful")
+    triage_program(c, b, hit, ops).close()
+    d = tmp_path / "finding-1"
+    assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt", "repro.mcap", "repro.pcap"} \
+        <= {p.name for p in d.iterdir()}
+    doc = json.loads((d / "finding.json").read_text())
+    assert doc["program"] and doc["replays"] == "3 of 3"
+    data = bytes.fromhex((d / "input.hex").read_text())
+    assert (d / "input.py").read_text().endswith(f"INPUT = {data!r}\n")
+    for what in ("repro.mcap", "repro.pcap"):
+        recs = [r for r in stream_records(d / what) if type(r) in (StreamFrame, StreamEvent)]
+        assert b"".join(r.raw for r in recs if type(r) is StreamFrame and r.direction == "tx") == data, what
+        opened = [r.conn for r in recs if type(r) is StreamEvent and r.event == "open"]
+        assert len(opened) == 2, what  # both clients' connections
+    assert ("close", "backend") in [(r.event, r.by) for r in recs if type(r) is StreamEvent]  # the first client kicked
+    if shutil.which("tshark") is not None:
+        from tests.captures.tshark_follow import follow
+
+        per_conn = [b"".join(r.raw for r in recs if type(r) is StreamFrame and r.direction == "tx" and r.conn == k)
+                    for k in opened]
+        assert [follow(d / "repro.pcap", i)[0] for i in range(len(opened))] == per_conn
+    assert _replay(d, fault).returncode == 1
+    assert _replay(d, _spawn(exe)).returncode == 0
+    run = subprocess.run([sys.executable, "-m", "captures", "replay", str(d / "repro.mcap"), "--spawn", fault],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1 and "reproduced NSQD-CON-2" in run.stdout, run.stdout + run.stderr
