@@ -241,6 +241,8 @@ class Session(SessionBase):
         """Spawn mode: the node closed and started again, before its startup phase (which
         the caller runs: ``restart`` the quick one; the fuzzer its own, then
         ``send_start_mission``)."""
+        if self.defer_startup_watch:  # a restart does not cut the startup's last watch short
+            self.finish_startup_watch()  # (MCP-RTX-1 watched as long as a serial run watches it)
         self.restarted_at.append(time.monotonic())
         if self.node is not None:
             self.node.close()

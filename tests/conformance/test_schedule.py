@@ -272,6 +272,22 @@ def test_the_watch_beside_the_cases_counts_copies_within_it_and_before_a_restart
     assert [round(d.t - now, 1) for d in st.copies_after_right_ack] == [-0.9, -0.1]
 
 
+def test_a_restart_waits_for_the_end_of_the_startup_s_watch_beside_the_cases():
+    """A node restarted while the watch after the right ACK runs on (a case crashed it) is
+    first watched to the watch's end: the copies after the right ACK are watched as long as
+    a serial run watches them, whatever the cases did meanwhile."""
+    session = Session(RunConfig(spawn="node"))
+    session.driver = _Drv()  # type: ignore[assignment]
+    session._spawn = lambda: None  # type: ignore[method-assign]
+    session.defer_startup_watch = True
+    now = time.monotonic()
+    right = Sent(now, 0, b"", ("127.0.0.1", 1), 1, 0, 5, int(Action.ACK))
+    session.startup = Startup(observed=True, right_ack=right, watch_from=0, watch_until=now + 0.3,
+                              watch_closed=False)
+    session.respawn()
+    assert session.startup.watch_closed and session.restarted_at[0] >= now + 0.3
+
+
 class _StartupDrv(_Drv):
     """A node's four Mission_Ready copies at a 1 s period, as the startup phase meets them."""
 
