@@ -23,7 +23,8 @@ What only waits is overlapped; nothing is weakened to overlap:
 - **the startup's last watch** (``overlap_startup_watch``): the watch for Mission_Ready
   copies after the right ACK (MCP-RTX-1, 1.5 retransmission periods: 7.5 s at the
   description's 5 s) runs on while the cases run; MCP-RTX-1 is judged after them, on the
-  copies within the watch and before any restart. Start_Mission still waits the ACK window
+  copies within the watch (a node restarted meanwhile is first watched to its end, as long
+  as a serial run watches it). Start_Mission still waits the ACK window
   (D-6) after the right ACK: it is the time a node has to arm before Start_Mission
   (MCP-BLK-4; sent at once, the arm request of a node that arms as soon as its
   Mission_Ready is ACKed came after it and the fault was hidden), and the one the serial
