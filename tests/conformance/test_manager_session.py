@@ -41,3 +41,45 @@ def test_embedded_command_fills_every_manager_placeholder():
     assert argv[argv.index("--challenge") + 1] == "2" and argv[argv.index("--drones") + 1] == "1,2"
     assert argv[argv.index("--waypoints") + 1] == "/w" and argv[argv.index("--obstacles") + 1] == "/o"
     assert "reference_impl" in argv and "manager" in argv
+
+
+# ---------------------------------------------------------------------- the withheld Start_Mission's watch
+def test_the_watch_after_the_right_start_ack_runs_on_beside_the_mission_s_end():
+    """The watch for Start_Mission copies after the right ACK (MCP-RTX-1) no longer holds up
+    the wait for the mission's end (issue 23: it runs on beside it): the end is awaited from
+    the right ACK, but not given up before the watch's end, and only the copies within the
+    watch count."""
+    import time
+
+    from harness.driver import Datagram, Sent, read_header
+    from harness.manager_mission import Mission, MissionScript
+    from spec.codec import Action, Message, encode
+
+    now = time.monotonic()
+    start = encode(Message(1, 0, 77, Action.START_MISSION, None))
+    rx = [Datagram(n, now + t, 0, start, ("127.0.0.1", 9), None, None, read_header(start))
+          for n, t in enumerate((0.1, 0.5))]  # a copy within the watch, one after it
+
+    class Drv:
+        def received(self, since=0, until=None):
+            return [d for d in rx[since:until] if d.t <= time.monotonic()]
+
+        def mark(self):
+            return len(rx)
+
+        def wait_for(self, pred, timeout, since=0):
+            time.sleep(timeout)
+
+    class Players:
+        acked_actions = {1: {int(Action.END_MISSION)}}  # the mission has ended already
+
+    m = Mission("main", (1,), 1, None, None)
+    m.withheld.drone = 1
+    m.withheld.right_ack = Sent(now, 0, b"", ("127.0.0.1", 9), 1, 0, 77, int(Action.ACK))
+    script = MissionScript(Drv(), Players(), m, rto=0.05, ack_window=0.05, broadcast_id=0xFFFF, seed=0,
+                           alive=lambda: True, ready_limit=1.0)
+    script._watch_end = now + 0.3
+    script._await_end()
+    assert time.monotonic() >= now + 0.3 and m.ended_by == "end_mission"
+    script._close_watch()
+    assert [round(d.t - now, 1) for d in m.withheld.copies_after_right_ack] == [0.1]
