@@ -40,7 +40,12 @@ def _after_kill(run: WatchedRun, doc: dict, t_kill: float, t_kill_ns: int, budge
     loss was reported (an ERROR line naming it) within the budget."""
     later = [c for c in doc["cases"] if (c["capture"]["end_ns"] or 0) > t_kill_ns + 20_000_000]
     assert later, run.text()
-    bad = [c for c in later if c["outcome"] == "failed"
+    # a robustness case already under way when the node died (proven live before its first
+    # input; the kill lands after the watched line, which a loaded host prints late) blames
+    # the death on its input: in attach mode no process shows it came from elsewhere
+    bad = [c for c in later
+           if (c["outcome"] == "failed" and not ((c["capture"]["start_ns"] or 0) < t_kill_ns
+                                                 and (c.get("failed_rule") or "").startswith("MCP-ROB-")))
            or (c["outcome"] == "passed" and SILENCE_RULES & set(c["rules"]))]
     assert not bad, f"verdicts after the death: {bad}\n{run.text()}"
     errors = [(ts, ln) for ts, ln in run.case_lines_after(t_kill) if ln.startswith("ERROR")]
