@@ -105,7 +105,8 @@ class NoJudge:
 
     inferred_challenge = None
 
-    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes, origin: Any = None) -> list[Any]:
+    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes, origin: Any = None,
+                 run_delay: int | None = None) -> list[Any]:
         return []
 
     def finish(self, t_ns: int) -> list[Any]:
@@ -352,10 +353,10 @@ class _Session:
             self.fed.append(rec.index)
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.tester)
-            elif harness and from_node(rec.src_addr, self.node_addr):
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone)  # the node's own
+            elif harness and from_node(rec.src_addr, self.node_addr):  # the node's own
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone, rec.run_delay_ns)
             else:
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, None, rec.run_delay_ns)
         self._found(found)
         if self.kept is not None:
             self.kept.append(rec)
