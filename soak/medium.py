@@ -119,7 +119,10 @@ class Medium:
             seen.add(k)
         rec = self.recorders.get(view)
         if rec is not None:
-            rec.datagram(direction, data, peer, t_ns, local=local, run_delay=run_delay)
+            if run_delay is None:
+                rec.datagram(direction, data, peer, t_ns, local=local)
+            else:
+                rec.datagram(direction, data, peer, t_ns, local=local, run_delay=run_delay)
 
     # ------------------------------------------------------------------ the links
     def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,

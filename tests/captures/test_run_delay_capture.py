@@ -12,6 +12,7 @@ import pytest
 
 from captures.cli import main
 from harness.driver import TargetDriver
+from judge.judging import Params, judge
 from judge.run_monitor import RunMonitor
 from spec import SPEC
 from spec.codec import Action, Message, encode
@@ -68,3 +69,24 @@ def test_check_of_the_capture_gives_the_live_verdict(tmp_path, starved_ms, rtx3)
     main(["check", str(path), "--rto", "0.2", "--ack-window", "0.25", "--json", str(out)])
     doc = json.loads(out.read_text())
     assert sorted((v["rule"], v["node"]) for v in doc["violations"]) == live
+
+
+@pytest.mark.parametrize(("starved_ms", "rtx3"), [(70, False), (0, True), (None, True)],
+                         ids=["starved", "not-starved", "unknown"])
+def test_a_soak_nodes_view_is_judged_with_its_run_delay(tmp_path, starved_ms, rtx3):
+    """``mcp-soak``'s medium records each node's view (``soak.medium``): the node's own
+    datagrams as ``tx``, with its run delay; the soak's judge excuses the same late copy."""
+    path = tmp_path / "mission.drone1.mcap"
+    rec = McapRecorder(path, library="mcp-soak", metadata=run_metadata(
+        "mcp-soak", role="drone", node_id=1, complete="true", parameters={"rto": 0.2}), local=NODE)
+    ready = encode(Message(0, 1, 7, Action.MISSION_READY))
+    t, delay = 1_700_000_000 * 10**9, 5 * MS
+    rec.datagram("tx", ready, LISTEN, t, run_delay=None if starved_ms is None else delay)
+    for k, gap in enumerate(GAPS_MS):
+        t += gap * MS
+        delay += (starved_ms or 0) * MS if k == 2 else 0
+        rec.datagram("tx", ready, LISTEN, t, run_delay=None if starved_ms is None else delay)
+    rec.datagram("rx", encode(Message(1, 0, 3, Action.ACK, 7)), LISTEN, t + 5 * MS)
+    rec.close()
+    j = judge(path, Params(rto=0.2, ack_window=0.25))
+    assert any(v.rule == "MCP-RTX-3" and v.node == 1 for v in j.violations) is rtx3, j.violations
