@@ -354,9 +354,9 @@ class _Session:
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.tester)
             elif harness and from_node(rec.src_addr, self.node_addr):  # the node's own
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone, rec.run_delay_ns)
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone, **_rd(rec))
             else:
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, None, rec.run_delay_ns)
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, **_rd(rec))
         self._found(found)
         if self.kept is not None:
             self.kept.append(rec)
@@ -418,6 +418,12 @@ def _recorded_parameters(rec: Metadata) -> dict[str, Any]:
     except (ValueError, RecursionError):
         return {}
     return values if isinstance(values, dict) else {}
+
+
+def _rd(rec: Datagram) -> dict[str, int]:
+    """The sender's run delay as the capture recorded it (MCP-RTX-3, ``judge.spacing``), as
+    the monitor's keyword: none at all where unknown (a monitor of four parameters still works)."""
+    return {} if rec.run_delay_ns is None else {"run_delay": rec.run_delay_ns}
 
 
 def _recorded_node(rec: Metadata) -> tuple[int | None, Any]:
