@@ -8,13 +8,13 @@ own ``fail`` (which evidence a failure carries: the node's exit, the manager's o
 
 from __future__ import annotations
 
-import statistics
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from harness.driver import Datagram
 from harness.errors import CaseFailure, Inconclusive
+from judge.spacing import judge_spacing
 from spec import SPEC
 
 __all__ = ["CaseBase"]
@@ -73,19 +73,25 @@ class CaseBase:
             raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
                             [d.describe() for d, _ in bad[:3]])
 
-    def expect_even_spacing(self, gaps: Sequence[float], rule: str = "MCP-RTX-3") -> None:
-        """MCP-RTX-3: the gaps between successive copies of one message each within
+    def expect_even_spacing(self, gaps: Sequence[float], rule: str = "MCP-RTX-3",
+                            run_delays: Sequence[int | None] | None = None) -> None:
+        """MCP-RTX-3: the gaps (s) between successive copies of one message each within
         ``rtx_spacing_tolerance`` of their median and none under ``rtx_min_gap_s``. The
         allowance is widened by the runner's own timestamp jitter (``timing_jitter_s``: it
-        matters only for sub-second timeouts; at the description's 5 s it is 0.3 %)."""
+        matters only for sub-second timeouts; at the description's 5 s it is 0.3 %). Judged
+        by the monitor's own ``judge.spacing``: a gap the host's load accounts for (the
+        node's run delay at each copy, ``run_delays``, where known) is excused."""
         if len(gaps) < 2:
             raise Inconclusive(f"{rule}: {len(gaps) + 1} copies are too few to judge spacing")
-        med = statistics.median(gaps)
+        sp = judge_spacing([round(g * 1e9) for g in gaps], run_delays)
         tol = float(SPEC.params["rtx_spacing_tolerance"])
         floor = float(SPEC.params["rtx_min_gap_s"])
-        allowance = tol * med + float(SPEC.params["timing_jitter_s"])
-        bad = [g for g in gaps if abs(g - med) > allowance or g < floor]
-        self.expect_true(not bad, rule,
+        evidence = [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"]
+        excused = (f"{sp.excused} gap(s) excused: the host kept {self.subject} off the CPU for "
+                   f"{sp.starved / 1e6:.1f} ms between its copies") if sp.excused else None
+        self.expect_true(not sp.bad, rule,
                          f"every gap within ±{tol:.0%} of the median gap and none under {floor * 1000:.0f} ms",
-                         f"median {med * 1000:.1f} ms, outliers: {', '.join(f'{g * 1000:.1f} ms' for g in bad)}",
-                         [f"gaps (ms): {', '.join(f'{g * 1000:.1f}' for g in gaps)}"])
+                         f"median {sp.median / 1e6:.1f} ms, outliers: {', '.join(f'{g / 1e6:.1f} ms' for g in sp.bad)}",
+                         evidence + ([excused] if excused else []))
+        if excused:
+            self.info(f"{rule}: {excused}")

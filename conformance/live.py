@@ -75,7 +75,8 @@ class TrafficPrinter:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
+    def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
+                 run_delay: int | None = None) -> None:
         t_ns = t_ns if t_ns is not None else time.time_ns()
         arrow = "→" if direction == "tx" else "←"
         peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) and len(addr) >= 2 else str(addr)
@@ -126,7 +127,8 @@ class FirstDatagram:
         self.local: Any = None
         self.seen = threading.Event()
 
-    def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
+    def __call__(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
+                 run_delay: int | None = None) -> None:
         if direction == "rx":
             self.seen.set()
 
@@ -148,9 +150,13 @@ class Tee:
         self._printer = printer
         self._watch = watch
 
-    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None) -> None:
-        if self._recorder is not None:
-            self._recorder.datagram(direction, data, addr, t_ns)
+    def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
+                 run_delay: int | None = None) -> None:
+        if self._recorder is not None:  # (the node's run delay only when known: MCP-RTX-3)
+            if run_delay is None:
+                self._recorder.datagram(direction, data, addr, t_ns)
+            else:
+                self._recorder.datagram(direction, data, addr, t_ns, run_delay=run_delay)
         if self._printer is not None:
             self._printer(direction, data, addr, t_ns)
         if self._watch is not None:

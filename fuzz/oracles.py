@@ -510,7 +510,8 @@ class MonitorOracle:
             if r.direction == "tx":
                 vs = self.monitor.datagram(r.t_ns, self.local, r.addr, r.data, origin=self.tester)
             else:
-                vs = self.monitor.datagram(r.t_ns, r.addr, self.local, r.data, origin=self.node_id)
+                vs = self.monitor.datagram(r.t_ns, r.addr, self.local, r.data, origin=self.node_id,
+                                           run_delay=getattr(r, "run_delay", None))
             out.extend(self._mine(vs))
         return out
 

@@ -34,6 +34,7 @@ class TrafficRecord:
     t_ns: int
     data: bytes
     addr: tuple[str, int]
+    run_delay: int | None = None  # the spawned node's run delay as it came (MCP-RTX-3)
 
 
 class Traffic:
@@ -43,9 +44,10 @@ class Traffic:
         self._lock = threading.Lock()
         self._pending: list[TrafficRecord] = []
 
-    def __call__(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+    def __call__(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
+                 run_delay: int | None = None) -> None:
         with self._lock:
-            self._pending.append(TrafficRecord(direction, t_ns, data, addr))
+            self._pending.append(TrafficRecord(direction, t_ns, data, addr, run_delay))
 
     def drain(self) -> list[TrafficRecord]:
         """What came since the last drain, in time order."""

@@ -3,11 +3,11 @@
 Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
 arrives -- with the kernel's receive time where the system gives one (Linux
 ``SO_TIMESTAMPNS``), so the gaps between a node's copies (MCP-RTX-3) and its ACK latency
-(MCP-ACK-7) are the node's, not the runner's own scheduling delay on a loaded machine; replies are tied to the commands they answer by ``judge.attribution`` (by the
-seq they name, else by timing) before their form is judged; the runner sends from the
-socket it listens on, so a node that replies to the datagram's source reaches it too.
-The driver knows nothing of cases or rules: the conformance session and, later, the
-fuzzer build on it. Recording hooks (``add_observer``) feed captures.
+(MCP-ACK-7) are the node's, not the runner's own scheduling delay on a loaded machine;
+replies are tied to the commands they answer by ``judge.attribution`` (by the seq they
+name, else by timing); the runner sends from the socket it listens on, so a node that
+replies to the datagram's source reaches it too. The driver knows nothing of cases or
+rules. Recording hooks (``add_observer``) feed captures, with the spawned node's run delay.
 
 While the session allows it, the receiver answers the node as a correct Mission Manager
 would: it ACKs every well-formed unicast non-ACK message addressed to the runner's ID
@@ -16,7 +16,6 @@ would: it ACKs every well-formed unicast non-ACK message addressed to the runner
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import socket
 import struct
@@ -26,6 +25,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from harness.run_delay import delay_for, takes_run_delay
 from judge.attribution import Attribution, Attributor
 from spec.codec import (
     PREAMBLE,
@@ -39,7 +39,8 @@ from spec.codec import (
 )
 
 Address = tuple[str, int]
-Observer = Callable[[str, bytes, Address, int], None]  # (direction "tx"|"rx", data, addr, t_ns)
+#: (direction "tx"|"rx", data, addr, t_ns); keyword ``run_delay`` (ns) too when it is known
+Observer = Callable[..., None]
 #: (direction, cycle of distinct datagrams, count, peer addr, first_t_ns, last_t_ns, local addr)
 BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], None]
 _ACK = int(Action.ACK)
@@ -125,6 +126,7 @@ class Datagram:
     error: DecodeError | None  # why it is not, otherwise
     header: tuple[int, int, int, int] | None  # (dst, src, seq, action) when 17+ bytes long
     preamble_ok: bool = True  # the first 9 bytes are the preamble (MCP-HDR-1)
+    run_delay: int | None = None  # the node's run delay (ns) as it came, when known (MCP-RTX-3)
 
     @property
     def action(self) -> int | None:
@@ -222,7 +224,7 @@ class TargetDriver:
         self._tx: list[Sent] = []
         self._rx_attr: list[Attribution | None] = []  # parallel to _rx
         self.attributor = Attributor(our_id)
-        self._observers: list[Observer] = []
+        self._observers: list[tuple[Observer, bool]] = []  # (observer, it takes ``run_delay``)
         self._burst_observers: list[BurstObserver] = []
         self._seq: dict[int, int] = {}
         self.auto_ack: Callable[[Datagram], bool] = lambda d: True
@@ -236,9 +238,9 @@ class TargetDriver:
         self.tx_hooks: list[Callable[[Sent], None]] = []
         self.check: Callable[[], None] = lambda: None
         self._seq_lock = threading.Lock()
-        #: ``--impair``: the runner's own socket edge through a bad link
-        #: (``harness.impair_link``); None: a clean link
-        self.link: Any = None
+        self.link: Any = None  # ``--impair``: the runner's socket edge through a bad link
+        #: the spawned node's run delay now (``harness.run_delay``; MCP-RTX-3); None: unknown
+        self.run_delay: Callable[[], int | None] | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Address:
@@ -274,17 +276,14 @@ class TargetDriver:
             self._sock = None
 
     def remove_observer(self, observer: Observer) -> None:
-        """Stop calling ``observer`` (no error when it was not there)."""
-        with contextlib.suppress(ValueError):
-            self._observers.remove(observer)
+        self._observers = [o for o in self._observers if o[0] != observer]
 
     def add_observer(self, observer: Observer) -> None:
         """Called for every datagram sent ("tx") and received ("rx"), from any thread."""
-        self._observers.append(observer)
+        self._observers.append((observer, takes_run_delay(observer)))
 
     def add_burst_observer(self, observer: BurstObserver) -> None:
-        """Called once per :meth:`flood` with its count and distinct datagrams (a capture
-        records the flood as one summary instead of one record per datagram)."""
+        """Called once per :meth:`flood` with its count and distinct datagrams (one record)."""
         self._burst_observers.append(observer)
 
     # ------------------------------------------------------------------ receiving
@@ -306,7 +305,7 @@ class TargetDriver:
             if self.link is not None:
                 # observers (the capture, the run's monitor) hold the node's side of the
                 # link: what it sent, once, as it sent it; the cases what the runner got
-                self._notify("rx", data, addr, arrived or time.time_ns())
+                self._notify("rx", data, addr, arrived or time.time_ns(), delay_for(data, self.run_delay))
                 self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive)
             else:
                 self._arrive(data, addr, arrived)
@@ -325,26 +324,27 @@ class TargetDriver:
             err = None
         except DecodeError as exc:
             msg, err = None, exc
+        rd = delay_for(msg, self.run_delay)
         with self._cond:
             d = Datagram(len(self._rx), t, t_ns, data, addr, msg, err, read_header(data),
-                         data[:PREAMBLE_LEN] == PREAMBLE)
+                         data[:PREAMBLE_LEN] == PREAMBLE, rd)
             self._rx.append(d)
             self._rx_attr.append(self.attributor.received(d))
             for hook in self.rx_hooks:
                 hook(d)
             self._cond.notify_all()
         if self.link is None:
-            self._notify("rx", data, addr, t_ns)
+            self._notify("rx", data, addr, t_ns, rd)
         if self.on_datagram is not None:
             self.on_datagram(d)
         if (msg is not None and msg.action != Action.ACK and msg.dst == self.our_id
                 and self.auto_ack(d)):
             self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
 
-    def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int) -> None:
-        for obs in self._observers:
+    def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int, rd: int | None = None) -> None:
+        for obs, takes in self._observers:  # run_delay only to those that take it, when known
             try:
-                obs(direction, data, addr, t_ns)
+                obs(direction, data, addr, t_ns, run_delay=rd) if takes and rd is not None else obs(direction, data, addr, t_ns)
             except Exception:  # a broken recorder must not stop the run
                 pass
 
@@ -513,8 +513,7 @@ class TargetDriver:
                              action=sent.action, sock=sock, copy_of=sent)
 
     def ack_for(self, sent: Sent) -> Callable[[Datagram], bool]:
-        """Predicate: a reply naming ``sent``'s seq in either byte order (lenient about the
-        ACK's own form). For conformance verdicts use ``answered`` (attribution)."""
+        """Predicate: a reply naming ``sent``'s seq in either byte order (verdicts: ``answered``)."""
         seq, src = sent.seq, sent.src
 
         def match(d: Datagram) -> bool:
@@ -574,9 +573,7 @@ class TargetDriver:
         out = sock or self._sock
         addr = self.target
         deadline = time.monotonic() + limit
-        first_ns = time.time_ns()
-        sent = 0
-        n = len(datagrams)
+        first_ns, sent, n = time.time_ns(), 0, len(datagrams)
         while sent < count and n and time.monotonic() < deadline:
             try:
                 out.sendto(datagrams[sent % n], addr)

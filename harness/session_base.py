@@ -21,6 +21,7 @@ from harness.errors import SetupError, SpawnFailure
 from harness.interrupts import INTERRUPTS
 from harness.liveness import describe_exit
 from harness.procs import ManagedProcess
+from harness.run_delay import run_delay_ns
 from spec import SPEC
 from traceio.recorder import NODE_METADATA
 
@@ -183,6 +184,10 @@ class WithheldCopies:
         ts = [d.t for d in self.copies]
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]
 
+    def run_delays(self) -> list[int | None]:
+        """The node's run delay (ns) at each copy, where known (MCP-RTX-3, ``judge.spacing``)."""
+        return [d.run_delay for d in self.copies]
+
     def period(self) -> float | None:
         """The node's retransmission period as its copies show it (the median gap), or None
         with fewer than two copies."""
@@ -234,6 +239,11 @@ class SessionBase:
             raise RuntimeError("begin_case: no case context set (session.make_context)")
         return self.make_context
 
+    def node_run_delay(self) -> int | None:
+        """The spawned node's run delay now (``harness.run_delay``); None in attach mode."""
+        node = getattr(self, "node", None)
+        return run_delay_ns(node.proc.pid) if node is not None else None
+
     def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool,
                     judge: bool = True) -> Any:
         """The run's observers on the driver, built one way for every role: the capture
@@ -245,6 +255,7 @@ class SessionBase:
 
         driver = self.driver
         assert driver is not None
+        driver.run_delay = self.node_run_delay  # spawn mode: the node's lateness (MCP-RTX-3)
         if self.recorder is not None:
             self.recorder.local = driver.listen  # the runner's socket: each datagram's other end
             driver.add_observer(_held(self.recorder.datagram))

@@ -185,10 +185,10 @@ class _Exchange:
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
-                 "heard")
+                 "heard", "run_delays")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
-                 i: int, t: int, tester: bool, bcast: bool) -> None:
+                 i: int, t: int, tester: bool, bcast: bool, rd: int | None = None) -> None:
         self.src = src
         self.dst = dst
         self.seq = seq
@@ -196,6 +196,7 @@ class _Exchange:
         self.data = data
         self.payload = payload
         self.copies: list[tuple[int, int]] = [(i, t)]
+        self.run_delays: list[int | None] = [rd]  # the sender's run delay at each copy (MCP-RTX-3)
         self.last_t = t  # time of the latest copy
         self.acks: list[tuple[int, int]] = []
         self.wrong_ack: tuple[int, int] | None = None

@@ -25,6 +25,7 @@ from judge._monitor_base import (
     gaps,
     median,
 )
+from judge.spacing import judge_spacing
 from spec import SPEC
 
 #: The description's retransmission timeout: a lone copy's next one is not overdue before it
@@ -172,14 +173,13 @@ class RetransmissionRules:
 
     def _judge_spacing(self, ex: _Exchange, copies: list[tuple[int, int]], t: int) -> None:
         """MCP-RTX-3 (complete trace): every gap within ±20 % of the median (plus the spec's
-        timestamp jitter) and none under 50 ms."""
+        timestamp jitter) and none under 50 ms; a gap the host's load accounts for (the
+        sender's run delay, where known) is excused (``judge.spacing``)."""
         g = gaps(copies)
         if len(g) < 2 or ex.flags & (F_RTX3 | F_STORM):
             return
         self._observe(ex.src, "MCP-RTX-3")
-        med = median(g)
-        allowance = RTX_TOLERANCE * med + JITTER_NS
-        bad = [x for x in g if abs(x - med) > allowance or x < RTX_MIN_GAP_NS]
+        med, _allowance, bad, _excused, _starved = judge_spacing(g, ex.run_delays)
         if bad:
             ex.flags |= F_RTX3
             self._emit("MCP-RTX-3", ex.src, t,

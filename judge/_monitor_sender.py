@@ -81,7 +81,7 @@ class SenderRules(RetransmissionRules):
             self._copy(ex, i, t, data, tester)
             return
         bcast = dst == self.broadcast_id
-        ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast)
+        ex = _Exchange(src, dst, seq, action, data, payload, i, t, tester, bcast, self._rd)
         ex.addr = addr
         stale = self._unmatched_acks.get((dst, src)) if not bcast else None
         if stale is not None and (last_to is None or stale[1] > last_to) and t - stale[1] <= self._ack_horizon:
@@ -113,6 +113,7 @@ class SenderRules(RetransmissionRules):
             return
         prev_t = ex.last_t
         ex.copies.append((i, t))
+        ex.run_delays.append(self._rd)
         ex.last_t = t
         self._copy_received(ex, i, t)
         if tester:

@@ -105,7 +105,8 @@ class NoJudge:
 
     inferred_challenge = None
 
-    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes, origin: Any = None) -> list[Any]:
+    def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes, origin: Any = None,
+                 run_delay: int | None = None) -> list[Any]:
         return []
 
     def finish(self, t_ns: int) -> list[Any]:
@@ -352,10 +353,10 @@ class _Session:
             self.fed.append(rec.index)
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.tester)
-            elif harness and from_node(rec.src_addr, self.node_addr):
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone)  # the node's own
+            elif harness and from_node(rec.src_addr, self.node_addr):  # the node's own
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone, **_rd(rec))
             else:
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, **_rd(rec))
         self._found(found)
         if self.kept is not None:
             self.kept.append(rec)
@@ -417,6 +418,12 @@ def _recorded_parameters(rec: Metadata) -> dict[str, Any]:
     except (ValueError, RecursionError):
         return {}
     return values if isinstance(values, dict) else {}
+
+
+def _rd(rec: Datagram) -> dict[str, int]:
+    """The sender's run delay as the capture recorded it (MCP-RTX-3, ``judge.spacing``), as
+    the monitor's keyword: none at all where unknown (a monitor of four parameters still works)."""
+    return {} if rec.run_delay_ns is None else {"run_delay": rec.run_delay_ns}
 
 
 def _recorded_node(rec: Metadata) -> tuple[int | None, Any]:

@@ -144,6 +144,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self.horizon_ns = max(60 * NS, 20 * self.rto_ns)
         self._next_prune = 0  # trace time of the next pruning of old messages
         self.count = 0  # datagrams fed
+        self._rd: int | None = None  # the run delay of the datagram being judged
         self.last_t = 0
         self.violations: list[Violation] = []
         self._out: list[Violation] = []
@@ -186,12 +187,14 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
 
     # ------------------------------------------------------------------ input
     def datagram(self, t_ns: int, src_addr: Any, dst_addr: Any, data: bytes,
-                 origin: Any = None) -> list[Violation]:
+                 origin: Any = None, run_delay: int | None = None) -> list[Violation]:
         """Judge one datagram seen on the wire (any direction). ``src_addr``/``dst_addr`` are
         ``(host, port)`` or None; ``origin`` is :data:`TESTER` for the harness's own
-        datagrams, an MCP ID when the observer knows the sender, else None."""
+        datagrams, an MCP ID when the observer knows the sender, else None; ``run_delay``:
+        its sender's run delay (ns) as it came, when known (MCP-RTX-3, ``judge.spacing``)."""
         i = self.count
         self.count = i + 1
+        self._rd = run_delay
         self.last_t = t_ns
         if t_ns > self._next_prune:
             self._prune(t_ns)

@@ -103,12 +103,14 @@ class RunMonitor:
             except Exception:  # noqa: BLE001 - a monitor bug must not stop the run
                 self.errors += 1
 
-    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
-        """The target driver's observer: ("tx"|"rx", data, peer address, t_ns)."""
+    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
+                run_delay: int | None = None) -> None:
+        """The target driver's observer: ("tx"|"rx", data, peer address, t_ns), with the
+        spawned node's run delay when known (MCP-RTX-3)."""
         if direction == "tx":
             self._push(t_ns, self.monitor.datagram, self.listen, addr, data, TESTER)
         else:
-            self._push(t_ns, self.monitor.datagram, addr, self.listen, data, self._origin(addr))
+            self._push(t_ns, self.monitor.datagram, addr, self.listen, data, self._origin(addr), run_delay)
 
     def _origin(self, addr: Any) -> int | None:
         """The node's own datagrams are the ones from its address (any local host when it
@@ -251,12 +253,13 @@ class SessionMonitors:
         if self.current is not None and self._name is not None:
             self.current.finish(self._last.get(self._name))
 
-    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int) -> None:
+    def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
+                run_delay: int | None = None) -> None:
         with self._lock:  # (held: a datagram goes to the session current when it was observed)
             name = self._name
             if name is not None and self.current is not None:
                 self._last[name] = max(self._last.get(name, t_ns), t_ns)
-                self.current.observe(direction, data, addr, t_ns)
+                self.current.observe(direction, data, addr, t_ns, run_delay)
 
     def mark(self, t_ns: int) -> None:
         """A record of the current session that is not a datagram (a case mark)."""

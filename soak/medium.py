@@ -11,7 +11,9 @@ same traffic give the same decisions (MCP-DUP-1, MCP-RTX-1 exercised by a bad li
 The medium records each node's own view (``views``): what the node sent as it entered the
 link and what the link delivered to it, as the node's own socket saw them — a capture that
 is complete for what that node took part in, judged by ``judge.judging`` as a node's own
-capture. Drone *i*'s view also holds its link's decisions (``/impair``).
+capture. Drone *i*'s view also holds its link's decisions (``/impair``), and each node's
+own datagrams the node's run delay as they came (``run_delays``: MCP-RTX-3 excuses a copy the
+loaded host made late, ``judge.spacing``).
 
 Sockets and a delivery queue here; the decisions are ``harness.impair.Impairment``'s.
 """
@@ -25,11 +27,12 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from harness.driver import kernel_timestamps, recv_stamped
 from harness.impair import Impairment
+from harness.run_delay import delay_for
 from spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
 
 __all__ = ["Medium"]
@@ -47,12 +50,15 @@ class Medium:
     """The links of one mission. ``manager_addr`` and ``drone_addrs`` are where the nodes
     listen; ``front`` is where the manager sends, ``links[i]`` where drone *i* sends (and
     the address each hears the other from). ``recorders`` maps ``manager``/``drone<i>`` to a
-    recorder (``traceio.recorder.McapRecorder``) of that node's view, or is empty."""
+    recorder (``traceio.recorder.McapRecorder``) of that node's view, or is empty;
+    ``run_delays`` maps a view to a callable reading its node's run delay now (ns, or None)."""
 
     def __init__(self, drones: Sequence[int], impairment: Impairment, manager_addr: Address,
                  drone_addrs: dict[int, Address], recorders: dict[str, Any] | None = None,
-                 host: str = "127.0.0.1") -> None:
+                 host: str = "127.0.0.1",
+                 run_delays: dict[str, Callable[[], int | None]] | None = None) -> None:
         self.impairment = impairment
+        self.run_delays = run_delays or {}
         self.manager_addr = manager_addr
         self.drone_addrs = dict(drone_addrs)
         self.recorders = recorders or {}
@@ -94,7 +100,8 @@ class Medium:
     def _tx(self, view: str, data: bytes, peer: Address, local: Address, t_ns: int | None = None) -> None:
         """What ``view``'s node sent (``t_ns``: when it reached the link, by the kernel's
         clock where it says): a message it sent before is a retransmission."""
-        self._account(view, "tx", data, peer, local, lambda h: h, self._sent, self.retransmissions, t_ns)
+        self._account(view, "tx", data, peer, local, lambda h: h, self._sent, self.retransmissions, t_ns,
+                      delay_for(data, self.run_delays.get(view)))
 
     def _rx(self, view: str, data: bytes, peer: Address, local: Address) -> None:
         """What the link gave ``view``'s node: a (src, seq) it got before is a duplicate."""
@@ -102,7 +109,7 @@ class Medium:
 
     def _account(self, view: str, direction: str, data: bytes, peer: Address, local: Address,
                  key: Any, seen_by_view: dict[str, set[Any]], again: dict[str, int],
-                 t_ns: int | None = None) -> None:
+                 t_ns: int | None = None, run_delay: int | None = None) -> None:
         h = peek_header(data) if data[:len(PREAMBLE)] == PREAMBLE else None
         if h is not None and h[3] != ACK:
             k = key(h)
@@ -112,7 +119,10 @@ class Medium:
             seen.add(k)
         rec = self.recorders.get(view)
         if rec is not None:
-            rec.datagram(direction, data, peer, t_ns, local=local)
+            if run_delay is None:
+                rec.datagram(direction, data, peer, t_ns, local=local)
+            else:
+                rec.datagram(direction, data, peer, t_ns, local=local, run_delay=run_delay)
 
     # ------------------------------------------------------------------ the links
     def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,

@@ -24,11 +24,13 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from harness.impair import Impairment, ImpairSpec
+from harness.run_delay import run_delay_ns
 from soak.medium import MANAGER, Medium, view_name
 
 __all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "expected_commands",
@@ -139,6 +141,14 @@ def expected_commands(challenge: int, n_waypoints: int) -> list[str]:
     return ["Start_Mission", *middle, "End_Mission"]
 
 
+def _run_delay(procs: dict[str, subprocess.Popen[bytes]], view: str) -> Callable[[], int | None]:
+    """A reader of ``view``'s node's run delay (MCP-RTX-3's evidence of host load), once spawned."""
+    def read() -> int | None:
+        p = procs.get(view)
+        return run_delay_ns(p.pid) if p is not None else None
+    return read
+
+
 def _spawn(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
     with open(log, "wb") as err:
         return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=err, stderr=subprocess.STDOUT,
@@ -220,11 +230,12 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
             "mcp-soak", role="manager" if v == MANAGER else "drone", node_id=node_id, complete="true",
             parameters={"rto": setup.rto}, impair=spec.text(), challenge=challenge),
             live=setup.live.feed(v) if setup.live is not None else None)
+    procs: dict[str, subprocess.Popen[bytes]] = {}
     medium = Medium(setup.drones, Impairment(spec), (host, ports[MANAGER]),
-                    {i: (host, ports[view_name(i)]) for i in setup.drones}, recorders, host)
+                    {i: (host, ports[view_name(i)]) for i in setup.drones}, recorders, host,
+                    {v: _run_delay(procs, v) for v in views})
     common = {"python": sys.executable, "challenge": challenge, "drones": ",".join(map(str, setup.drones)),
               "waypoints": str(wp_file), "obstacles": str(ob_file), "rto": f"{setup.rto:g}"}
-    procs: dict[str, subprocess.Popen[bytes]] = {}
     manager_code: int | None = None
     try:
         cmds = {v: _command(setup.manager_cmd if v == MANAGER else setup.drone_cmd, {

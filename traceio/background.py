@@ -115,12 +115,13 @@ class BackgroundRecorder:
         self._queue.append((name, args))
 
     def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
-                 local: Any = None) -> None:
+                 local: Any = None, run_delay: int | None = None) -> None:
         if direction not in ("tx", "rx"):
             raise ValueError(f"datagram direction must be 'tx' or 'rx', not {direction!r}")
         self._put("datagram", (direction, bytes(data), _addr(addr),
                                time.time_ns() if t_ns is None else int(t_ns),
-                               self.local if local is None else _addr(local)))
+                               self.local if local is None else _addr(local),
+                               None if run_delay is None else int(run_delay)))
 
     def burst(self, direction: str, cycle: Iterable[bytes], count: int, addr: Any,
               first_t_ns: int, last_t_ns: int, local: Any = None) -> None:

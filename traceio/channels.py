@@ -46,6 +46,10 @@ _DATAGRAM_SCHEMA: dict[str, Any] = {
         "raw_base64": _B64,
         "raw_hex": {"type": "string", "description": f"the raw bytes in hex, up to {HEX_LIMIT} bytes "
                                                      "(raw_base64 holds every datagram whole)"},
+        "run_delay_ns": {"type": "integer", "minimum": 0,
+                         "description": "the sender's cumulative run delay (ns: time runnable but "
+                                        "waiting for a CPU) as the datagram came, when the recorder "
+                                        "spawned it (MCP-RTX-3 excuses a late copy the host caused)"},
     },
     "required": ["direction", "peer", "length", "decoded", "raw_base64"],
 }

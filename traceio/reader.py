@@ -321,9 +321,10 @@ class Capture:
                             peer = _parse_peer(body.get("peer"))
                             local = _parse_peer(body.get("local"))
                             tx = topic == "/mcp/tx"
+                            rd = body.get("run_delay_ns")
                             yield rec.log_time, "d", (local if tx else peer, peer if tx else local,
                                                       b64(body["raw_base64"]), "tx" if tx else "rx", lib,
-                                                      False, seg)
+                                                      False, seg, rd if type(rd) is int and rd >= 0 else None)
                         elif topic == "/mcp/burst":
                             # a flood recorded as a count (traceio.recorder): datagram i is
                             # cycle[i % len(cycle)], times spread evenly over the burst

@@ -279,12 +279,15 @@ class McapRecorder:
                     pass
 
     def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
-                 local: Any = None) -> None:
+                 local: Any = None, run_delay: int | None = None) -> None:
         """One datagram: ``direction`` is ``tx`` (the recording endpoint sent it) or ``rx``;
-        ``addr`` is the peer, ``local`` the recording socket (default: ``self.local``)."""
+        ``addr`` is the peer, ``local`` the recording socket (default: ``self.local``);
+        ``run_delay``: its sender's run delay (ns) as it came, when known (MCP-RTX-3)."""
         if direction not in ("tx", "rx"):
             raise ValueError(f"datagram direction must be 'tx' or 'rx', not {direction!r}")
         record = datagram_record(direction, data, addr, self.local if local is None else local)
+        if run_delay is not None:
+            record["run_delay_ns"] = int(run_delay)
         self._write(f"/mcp/{direction}", record, t_ns)
 
     def burst(self, direction: str, cycle: Iterable[bytes], count: int, addr: Any,

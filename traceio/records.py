@@ -34,6 +34,7 @@ class Datagram(NamedTuple):
     recorder: str | None = None
     burst: bool = False  # one of a flood recorded as a count (/mcp/burst)
     segment: str | None = None  # the session it belongs to in a merged capture (gw0, ...)
+    run_delay_ns: int | None = None  # its sender's run delay as it came, when recorded (MCP-RTX-3)
 
 
 class MavlinkFrame(NamedTuple):

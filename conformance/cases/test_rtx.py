@@ -39,7 +39,8 @@ def test_only_the_right_ack_ends_retransmission(node):
 
 @rules("MCP-RTX-3", phase="startup")
 def test_copies_are_evenly_spaced(node):
-    node.expect_even_spacing(node.require_startup("MCP-RTX-3").gaps())
+    st = node.require_startup("MCP-RTX-3")
+    node.expect_even_spacing(st.gaps(), run_delays=st.run_delays())
 
 
 @rules("MCP-RTX-4")

@@ -48,7 +48,8 @@ def test_only_the_right_ack_ends_retransmission(node):
 
 @rules("MCP-RTX-3")
 def test_copies_are_evenly_spaced(node):
-    node.expect_even_spacing(_withheld(node, "MCP-RTX-3").gaps())
+    w = _withheld(node, "MCP-RTX-3")
+    node.expect_even_spacing(w.gaps(), run_delays=w.run_delays())
 
 
 @rules("MCP-RTX-4")
