@@ -8,7 +8,7 @@ copy, a gap longer than the allowance is excused when the run delay accrued over
 for the excess, and a short gap right after such an excused one when the two together keep the
 schedule (a node on an absolute schedule catching up). The 50 ms floor is never excused, and
 nothing is where the run delay is unknown (attach mode, pcaps): the verdict is then the plain
-rule's.
+rule's (decision D-7, docs/spec.md).
 """
 
 from __future__ import annotations
