@@ -266,7 +266,7 @@ def test_sigterm_exits_cleanly_while_waiting_for_the_ack(mgr, spawn):
     node = spawn()
     mgr.wait_ready()
     node.proc.send_signal(signal.SIGTERM)
-    assert node.wait(3) == 0
+    assert node.wait(20) == 0  # it exits, with 0: how fast is a loaded host's business
 
 
 def test_every_fault_names_a_rule_of_the_spec():
@@ -287,7 +287,7 @@ def test_fault_ack_little_endian(mgr, spawn):
 def test_fault_crash_on_short(mgr, spawn):
     node, _ = started(mgr, spawn, "--fault", "crash-on-short")
     mgr.send_raw(b"NCSU")
-    assert node.wait(3) == 3
+    assert node.wait(20) == 3
 
 
 def test_fault_ack_first_copy_only(mgr, spawn):
