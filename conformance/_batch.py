@@ -29,7 +29,7 @@ from typing import Any
 
 import pytest
 
-from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, RTX1, plan_cases
+from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
 from harness.errors import Inconclusive
 from spec.codec import Action, DecodeError, decode
 
@@ -285,16 +285,6 @@ def take(item: pytest.Item, batch: BatchRun) -> None:
         raise m.exc
 
 
-def _rtx1_late(state: Any, order: list[pytest.Item]) -> list[pytest.Item]:
-    """``order`` with MCP-RTX-1's case first of the late ones, as the plan runs it when the
-    startup's watch runs on beside the main cases (``Plan.overlap_startup_watch``)."""
-    rtx1 = [i for i in order if state.meta.get(i.nodeid, ("",))[0] == RTX1]
-    rest = [i for i in order if i not in rtx1]
-    at = next((n for n, i in enumerate(rest) if i.nodeid in state.meta and state.meta[i.nodeid][3] in ("late", "end")),
-              len(rest))
-    return rest[:at] + rtx1 + rest[at:]
-
-
 def in_plan_order(state: Any, items: list[pytest.Item]) -> list[pytest.Item]:
     """The cases in the order of the run's plan (``conformance.schedule``); other items stay
     at the end, as they came."""
@@ -311,7 +301,5 @@ def in_plan_order(state: Any, items: list[pytest.Item]) -> list[pytest.Item]:
                       worker=hasattr(state.config, "workerinput"))
     state.plan = plan
     state.run.schedule = plan.to_json()
-    if plan.overlap_startup_watch:  # a batch thrown away keeps MCP-RTX-1 after the main cases
-        state.serial_order = _rtx1_late(state, state.serial_order)
     state.batch_items = [by_id[s.case] for s in plan.steps if s.group == BATCH]
     return [by_id[s.case] for s in plan.steps] + rest

@@ -174,8 +174,6 @@ class McpState:
                 recorder = Tee(self.recorder, printer, self.first_datagram)
             session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
                                                                config=self.config)
-            if self.plan is not None and self.plan.overlap_startup_watch:
-                session.defer_startup_watch = True  # MCP-RTX-1's watch runs on beside the cases
             self.session = session
             self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
             resume = self.wait_status.current

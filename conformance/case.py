@@ -142,11 +142,8 @@ class CaseContext(CaseBase):
             raise Inconclusive(f"{rule}: the node never connected to the simulated vehicle "
                                "(does its command line use {mavlink}?)")
 
-    def require_startup(self, rule: str, *, watched: bool = False) -> Any:
-        """The startup phase as observed, or SKIP; ``watched``: with its watch for copies
-        after the right ACK over (it may run on beside the cases: ``conformance.schedule``)."""
-        finish = getattr(self.session, "finish_startup_watch", None)
-        st = finish() if watched and finish is not None else self.startup
+    def require_startup(self, rule: str) -> Any:
+        st = self.startup
         if not st.observed:
             raise Inconclusive(f"{rule} is judged on the node's startup: {st.reason or 'not observed'}")
         return st

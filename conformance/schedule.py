@@ -19,20 +19,13 @@ What only waits is overlapped; nothing is weakened to overlap:
   came just before (an ACK's form, duplicates of the message before) stay alone: beside
   others' commands such a fault can hide (``JUDGES_ORDER``);
 - **alone**: everything else, each with its reason (mission state, restarts, floods,
-  latency, the startup's and the whole run's observations);
-- **the startup's last watch** (``overlap_startup_watch``): the watch for Mission_Ready
-  copies after the right ACK (MCP-RTX-1, 1.5 retransmission periods: 7.5 s at the
-  description's 5 s) runs on while the cases run; MCP-RTX-1 is judged after them, on the
-  copies within the watch (a node restarted meanwhile is first watched to its end, as long
-  as a serial run watches it). Start_Mission still waits the ACK window
-  (D-6) after the right ACK: it is the time a node has to arm before Start_Mission
-  (MCP-BLK-4; sent at once, the arm request of a node that arms as soon as its
-  Mission_Ready is ACKed came after it and the fault was hidden), and the one the serial
-  run gives it whenever the period is short (the watch is then the ACK window too).
+  latency, the startup's and the whole run's observations).
 
-The rest of the startup phase is not overlapped: while Mission_Ready's ACK is withheld a
-node may be deaf (D-6: it blocks in its send; ``ack-before-accept`` ACKs a command then and
-drops it), and no command goes to a node whose mission has not started.
+The startup phase is not overlapped: while Mission_Ready's ACK is withheld a node may be
+deaf (D-6: it blocks in its send), and the watch for copies after the right ACK (MCP-RTX-1)
+is also the time a node has to arm before Start_Mission (MCP-BLK-4): Start_Mission sent at
+once would hide a node that arms as soon as its Mission_Ready is ACKed, and commands sent
+before it would be sent to a node whose mission has not started.
 
 ``--serial`` runs every case alone in the order of their modules (the schedule the runner
 had before; the comparison of the two is ``bench/bench_suite.py`` and
@@ -86,10 +79,6 @@ ALONE: dict[str, str] = {
                                                              "source's seq: alone",
     "BLK/test_end_mission_then_rtl": "End_Mission ends the mission: last, alone",
 }
-RTX1 = "RTX/test_mission_ready_is_retransmitted_until_acked"
-#: why MCP-RTX-1's case moves after the main cases when the startup's last watch overlaps them
-WATCH_WHY = ("judged once the startup's watch for Mission_Ready copies after the right ACK has run "
-             "its course (the cases ran meanwhile)")
 PHASE_WHY = {
     "startup": "judged on the startup phase's observation; sends nothing",
     "late": "judged on the whole run's traffic: after the cases that make it",
@@ -138,7 +127,6 @@ class Plan:
     mode: str  # "scheduled" or "serial"
     why: str  # why this mode
     steps: list[Step]
-    overlap_startup_watch: bool = False
     batch_outcome: str | None = None
 
     @property
@@ -146,15 +134,12 @@ class Plan:
         return [s.case for s in self.steps if s.group == BATCH]
 
     def to_json(self) -> dict[str, object]:
-        return {"mode": self.mode, "why": self.why, "overlap_startup_watch": self.overlap_startup_watch,
-                "batch_outcome": self.batch_outcome, "steps": [s.to_json() for s in self.steps]}
+        return {"mode": self.mode, "why": self.why, "batch_outcome": self.batch_outcome,
+                "steps": [s.to_json() for s in self.steps]}
 
     def lines(self) -> list[str]:
         """The plan for a person (``-v``)."""
         out = [f"schedule: {self.mode} ({self.why})"]
-        if self.overlap_startup_watch:
-            out.append("  the startup's watch for Mission_Ready copies after the right ACK runs on while the "
-                       "cases run (Start_Mission after the ACK window; MCP-RTX-1 judged after them)")
         for s in self.steps:
             out.append(f"  {s.group:<7} {'shared' if s.shared else 'alone ':<6} {s.case}: {s.why}")
         return out
@@ -206,11 +191,4 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
     steps: list[Step] = []
     for s in steps_or_slot:
         steps.extend(shared if s is None else [s])
-    # the startup's last watch runs on beside the main cases: MCP-RTX-1 judged after them
-    overlap = any(s.case == RTX1 for s in steps) and any(s.group in ("alone", BATCH) for s in steps)
-    if overlap:
-        steps = [Step(s.case, "late", False, WATCH_WHY) if s.case == RTX1 else s for s in steps]
-        order = {"startup": 0, "alone": 1, BATCH: 1, "late": 2, "end": 3}
-        rtx1_first = {RTX1: 0}
-        steps = sorted(steps, key=lambda s: (order[s.group], rtx1_first.get(s.case, 1) if s.group == "late" else 0))
-    return Plan("scheduled", "what only waits is overlapped", steps, overlap_startup_watch=overlap)
+    return Plan("scheduled", "what only waits is overlapped", steps)

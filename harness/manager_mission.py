@@ -230,7 +230,6 @@ class MissionScript:
         self.seed = seed
         self.alive = alive
         self.ready_limit = ready_limit
-        self._watch_end = 0.0  # when the watch after the withheld Start_Mission's right ACK ends
 
     # ------------------------------------------------------------------ helpers
     def outsider(self) -> int:
@@ -312,7 +311,6 @@ class MissionScript:
         """Every drone ready: the first Start_Mission withheld, the rest watched to the end."""
         self._withhold_start()
         self._await_end()
-        self._close_watch()
         return True
 
     def _ready_unacked(self, first: Exchange | None, *, hold_back: bool) -> bool:
@@ -530,18 +528,10 @@ class MissionScript:
         m.acks.setdefault((w.drone, rseq), w.right_ack)
         self.players.acked_actions.setdefault(w.drone, set()).add(_START)
         w.stop_watch = max(self.ack_window, 1.5 * gap)
-        # the watch for copies after the right ACK runs on while the mission goes on: the
-        # mission's end is awaited from now, but not before the watch's end (``_await_end``)
-        self._watch_end = w.right_ack.t + w.stop_watch
-
-    def _close_watch(self) -> None:
-        """MCP-RTX-1: the first Start_Mission's copies after the right ACK, within the watch."""
-        m, w, grace = self.m, self.m.withheld, 0.05
-        if w.right_ack is None or w.drone is None:
-            return
-        is_copy = self._is_start(w.drone)
-        w.copies_after_right_ack = [d for d in self.driver.received(m.start) if is_copy(d)
-                                    and w.right_ack.t + grace < d.t <= self._watch_end
+        time.sleep(w.stop_watch)
+        grace = 0.05
+        w.copies_after_right_ack = [d for d in drv.received(m.start) if is_copy(d)
+                                    and d.t > w.right_ack.t + grace
                                     and (d.header is None or (w.drone, d.header[2]) not in m.acks
                                          or m.acks[(w.drone, d.header[2])].t > w.right_ack.t + grace)]
 
@@ -558,7 +548,7 @@ class MissionScript:
         while True:
             now = time.monotonic()
             if all(_END in self.players.acked_actions.get(d, set()) for d in expect):
-                time.sleep(max(tail, self._watch_end - now))
+                time.sleep(tail)
                 m.ended_by = "end_mission"
                 break
             if not self.alive():
@@ -567,7 +557,7 @@ class MissionScript:
                 break
             rx = self.driver.received(m.start)
             last = rx[-1].t if rx else m.t0
-            if now - max(last, m.t0) > idle and now >= self._watch_end:
+            if now - max(last, m.t0) > idle:
                 m.ended_by = "idle"
                 break
             if now >= t_cap:

@@ -80,10 +80,6 @@ class Startup(WithheldCopies):
     fix_given_at: float | None = None
     ready_before_fix: list[Datagram] = field(default_factory=list)
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
-    watch_from: int = 0  # the index of the first Mission_Ready: where the watch looks from
-    watch_until: float = 0.0  # when the watch for copies after the right ACK ends
-    watch_closed: bool = True  # copies_after_right_ack is final
-    arm_wait: float = 0.0  # how long after the right ACK Start_Mission waited (MCP-BLK-4)
 
 
 class Session(SessionBase):
@@ -124,11 +120,6 @@ class Session(SessionBase):
         #: may run cases together (conformance.schedule)
         self.capability_lock = threading.RLock()
         self.period: float | None = None  # that period, as measured at startup
-        #: the startup's watch for Mission_Ready copies after the right ACK runs on beside the
-        #: cases (the runner's schedule); Start_Mission waits only the arm window; MCP-RTX-1
-        #: then waits for the watch's end (``finish_startup_watch``)
-        self.defer_startup_watch = False
-        self.restarted_at: list[float] = []  # when each restart began (time.monotonic())
 
     # ------------------------------------------------------------------ properties
     def to_ns(self, t_monotonic: float) -> int:
@@ -241,9 +232,6 @@ class Session(SessionBase):
         """Spawn mode: the node closed and started again, before its startup phase (which
         the caller runs: ``restart`` the quick one; the fuzzer its own, then
         ``send_start_mission``)."""
-        if self.defer_startup_watch:  # a restart does not cut the startup's last watch short
-            self.finish_startup_watch()  # (MCP-RTX-1 watched as long as a serial run watches it)
-        self.restarted_at.append(time.monotonic())
         if self.node is not None:
             self.node.close()
         self.restarts += 1
@@ -430,45 +418,14 @@ class Session(SessionBase):
         rseq = latest.header[2] if latest.header else seq
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
         st.stop_watch = max(self.ack_window, 1.5 * gap)
-        st.watch_from, st.watch_until, st.watch_closed = i, st.right_ack.t + st.stop_watch, False
-        if self.defer_startup_watch:
-            # the watch runs on while the cases run (conformance.schedule). Start_Mission waits
-            # the ACK window (D-6) first: a node that arms once its Mission_Ready is ACKed does
-            # so before it (MCP-BLK-4; sent at once, the arm request came after it). The copies
-            # are not ACKed by the driver before the watch ends, as they would not be during it
-            until = st.watch_until
-            drv.auto_ack = lambda d: not (d.action == _READY and d.t <= until)
-            st.arm_wait = min(st.stop_watch, self.ack_window)
-        else:
-            st.arm_wait = st.stop_watch
-        time.sleep(max(0.0, st.right_ack.t + st.arm_wait - time.monotonic()))
-        if not self.defer_startup_watch:
-            self._close_startup_watch(st, time.monotonic())
+        time.sleep(st.stop_watch)
+        grace = 0.05
+        st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
+                                     and d.t > st.right_ack.t + grace]
         # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
         st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
                                    if d.header is not None and d.action not in (_READY, int(Action.ACK))
                                    and d.header[0] != self.cfg.broadcast_id]
-
-    def _close_startup_watch(self, st: Startup, until: float | None = None) -> None:
-        """MCP-RTX-1: the Mission_Ready copies that came after the right ACK, within the
-        watch (``until``: its end, by default ``watch_until``) and before any restart (a
-        fresh node's Mission_Ready is its own)."""
-        drv = self.driver
-        assert drv is not None and st.right_ack is not None
-        grace = 0.05
-        end = min([st.watch_until if until is None else until, *self.restarted_at])
-        st.copies_after_right_ack = [d for d in drv.received(st.watch_from) if d.action == _READY
-                                     and st.right_ack.t + grace < d.t <= end]
-        st.watch_closed = True
-
-    def finish_startup_watch(self) -> Startup:
-        """The startup observed, its watch after the right ACK over (waited for when it runs
-        on beside the cases)."""
-        st = self.startup
-        if st.observed and st.right_ack is not None and not st.watch_closed:
-            time.sleep(max(0.0, st.watch_until + 0.05 - time.monotonic()))
-            self._close_startup_watch(st)
-        return st
 
     def _start_mission(self, first: bool) -> None:
         drv = self.driver

@@ -16,7 +16,7 @@ MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
 
 @rules("MCP-RTX-1", "MCP-FLOW-1", phase="startup")
 def test_mission_ready_is_retransmitted_until_acked(node):
-    st = node.require_startup("MCP-RTX-1", watched=True)
+    st = node.require_startup("MCP-RTX-1")
     n = len(st.copies)
     node.expect_true(n >= MIN_COPIES and not st.copies_after_right_ack, "MCP-RTX-1",
                      f"at least {MIN_COPIES} copies while the ACK is withheld, none after the right ACK",

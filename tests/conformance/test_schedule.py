@@ -12,11 +12,9 @@ import jsonschema
 import pytest
 
 from conformance._batch import _Member, unclean
-from conformance.schedule import BATCH, BATCH_CASES, CRASHABLE, RTX1, plan_cases
-from harness.config import RunConfig
+from conformance.schedule import BATCH, BATCH_CASES, CRASHABLE, plan_cases
 from harness.driver import Datagram, Sent, read_header
 from harness.errors import CaseFailure, Inconclusive
-from harness.session import Session, Startup
 from judge.attribution import Attribution
 from spec.codec import Action, Message, encode
 
@@ -42,21 +40,17 @@ def test_the_plan_batches_what_only_waits_and_says_why_each_case_runs_alone():
     assert all(not s.shared and s.why for s in plan.steps if s.group != BATCH)
     assert "latency" in steps["ACK/test_ack_leaves_within_the_deadline"].why
     assert "flood" in steps["ROB/test_flood_of_malformed_datagrams"].why
-    # the batch runs where its first case stood; the MCP-RTX-1 judgement after the main cases
-    # (the startup's watch runs on beside them), first of the late ones; the rest keep their place
+    # the batch runs where its first case stood; every other case keeps its place
     order = [s.case for s in plan.steps]
     assert order.index("ACK/test_every_command_type_is_acked") < order.index(plan.batch[0])
-    assert plan.overlap_startup_watch and plan.to_json()["overlap_startup_watch"]
-    assert steps[RTX1].group == "late" and "watch" in steps[RTX1].why
-    assert order.index(RTX1) == order.index("ACK/test_ack_leaves_within_the_deadline") + 1
-    assert [c for c in order if c not in BATCH_CASES and c != RTX1] == \
-        [c for c, _ in CASES if c not in BATCH_CASES and c != RTX1]
+    assert order.index("RTX/test_mission_ready_is_retransmitted_until_acked") < order.index(plan.batch[0])
+    assert [c for c in order if c not in BATCH_CASES] == [c for c, _ in CASES if c not in BATCH_CASES]
     assert order[-1] == "BLK/test_end_mission_then_rtl"
     assert sorted(order) == sorted(c for c, _ in CASES)
     doc = {"schedule": plan.to_json()}
     jsonschema.validate(doc["schedule"], SCHEMA["properties"]["schedule"])
     text = "\n".join(plan.lines())
-    assert "batch" in text and "shared" in text and "after the ACK window" in text
+    assert "batch" in text and "shared" in text
 
 
 @pytest.mark.parametrize("case", ["ACK/test_ack_payload_is_the_big_endian_seq",
@@ -84,7 +78,7 @@ def test_a_serial_plan_keeps_the_order_and_shares_nothing(kw, why):
     plan = plan_cases(CASES, **kw)
     assert plan.mode == "serial" and why in plan.why
     assert [s.case for s in plan.steps] == [c for c, _ in CASES]
-    assert not plan.batch and not plan.overlap_startup_watch
+    assert not plan.batch
     assert not any(s.shared for s in plan.steps)
 
 
@@ -221,123 +215,6 @@ def test_a_batch_thrown_away_gives_the_rest_of_the_run_the_serial_order():
         it.session = session
     serial_from_here(b4, serial)  # thrown away while its first case ran
     assert session.items == [a, b4, c7, d5, e6, f]
-
-
-def test_a_batch_thrown_away_still_judges_mcp_rtx_1_after_the_main_cases():
-    """The serial order a thrown-away batch goes back to keeps MCP-RTX-1 where the plan put it
-    (first of the late cases): put back among the startup's, it ran after the batch's first
-    case as an item of another module, and pytest had torn that one down for the next one
-    it expected (an error, "previous item was not torn down properly")."""
-    from types import SimpleNamespace
-
-    from conformance._batch import in_plan_order
-
-    class It:
-        def __init__(self, nodeid: str) -> None:
-            self.nodeid = nodeid
-
-        def _kw(self, fn=None):  # batchable: the case takes its context only
-            return {}
-
-    items = [It(c) for c, _ in CASES]
-    for it in items:
-        it.obj = lambda node: None
-    meta = {it.nodeid: (c, (), "MUST", phase) for it, (c, phase) in zip(items, CASES, strict=True)}
-    state = SimpleNamespace(meta=meta, cfg=SimpleNamespace(role="drone", mode="spawn", impair=None),
-                            config=SimpleNamespace(getoption=lambda name: False), run=SimpleNamespace(),
-                            serial_order=list(items))
-    planned = in_plan_order(state, items)
-    assert state.plan.overlap_startup_watch
-    ids = [i.nodeid for i in state.serial_order]
-    assert ids.index(RTX1) == ids.index("ROB/test_flood_of_malformed_datagrams") - 1
-    assert [i.nodeid for i in planned].index(RTX1) == [i.nodeid for i in planned].index(
-        "ROB/test_flood_of_malformed_datagrams") - 1
-
-
-# ---------------------------------------------------------------------- the startup's watch
-def test_the_watch_beside_the_cases_counts_copies_within_it_and_before_a_restart():
-    session = Session(RunConfig(spawn="node"))
-    drv = _Drv()
-    session.driver = drv  # type: ignore[assignment]
-    ready = encode(Message(0, 1, 5, Action.MISSION_READY, None))
-    now = time.monotonic()
-    right = Sent(now - 1.0, 0, b"", ("127.0.0.1", 1), 1, 0, 5, int(Action.ACK))
-    for t in (now - 0.9, now - 0.1, now + 0.5):  # after the right ACK; before a restart; after it
-        drv.rx.append(Datagram(len(drv.rx), t, 0, ready, ("127.0.0.1", 2), None, None, read_header(ready)))
-    session.startup = Startup(observed=True, right_ack=right, watch_from=0, watch_until=now + 0.2,
-                              watch_closed=False)
-    session.restarted_at.append(now - 0.05)
-    st = session.finish_startup_watch()
-    assert st.watch_closed
-    assert [round(d.t - now, 1) for d in st.copies_after_right_ack] == [-0.9, -0.1]
-
-
-def test_a_restart_waits_for_the_end_of_the_startup_s_watch_beside_the_cases():
-    """A node restarted while the watch after the right ACK runs on (a case crashed it) is
-    first watched to the watch's end: the copies after the right ACK are watched as long as
-    a serial run watches them, whatever the cases did meanwhile."""
-    session = Session(RunConfig(spawn="node"))
-    session.driver = _Drv()  # type: ignore[assignment]
-    session._spawn = lambda: None  # type: ignore[method-assign]
-    session.defer_startup_watch = True
-    now = time.monotonic()
-    right = Sent(now, 0, b"", ("127.0.0.1", 1), 1, 0, 5, int(Action.ACK))
-    session.startup = Startup(observed=True, right_ack=right, watch_from=0, watch_until=now + 0.3,
-                              watch_closed=False)
-    session.respawn()
-    assert session.startup.watch_closed and session.restarted_at[0] >= now + 0.3
-
-
-class _StartupDrv(_Drv):
-    """A node's four Mission_Ready copies at a 1 s period, as the startup phase meets them."""
-
-    target = ("127.0.0.1", 2)
-    auto_ack = None
-
-    def __init__(self) -> None:
-        super().__init__()
-        ready = encode(Message(0, 1, 5, Action.MISSION_READY, None))
-        t0 = time.monotonic() - 3.0
-        for k in range(4):
-            self.rx.append(Datagram(k, t0 + k * 1.0, 0, ready, ("127.0.0.1", 2), None, None, read_header(ready)))
-
-    def received(self, since=0, until=None):
-        return self.rx[since:until]
-
-    def send_ack(self, seq: int, dst: int, src: int = 0) -> Sent:
-        s = Sent(time.monotonic(), time.time_ns(), b"", ("127.0.0.1", 1), dst, src, seq, int(Action.ACK))
-        self.tx.append(s)
-        return s
-
-    def wait_for(self, pred, timeout, since=0):
-        return next((d for d in self.rx[since:] if pred(d)), None)
-
-    def mark(self) -> int:
-        return len(self.rx)
-
-    def mark_before(self, _sent) -> int:
-        return len(self.rx)
-
-
-@pytest.mark.parametrize("defer", [False, True])
-def test_start_mission_waits_the_ack_window_after_the_right_ack_and_the_watch_may_run_on(defer):
-    """Beside the cases, the watch after the right ACK (1.5 periods) runs on, but Start_Mission
-    still waits the ACK window after it: the time a node that arms as soon as its
-    Mission_Ready is ACKed has to do so (MCP-BLK-4; sent at once, arm-before-start passed)."""
-    session = Session(RunConfig(spawn="node", rto=1.0, ack_window=0.3))
-    session.driver = drv = _StartupDrv()  # type: ignore[assignment]
-    session.alive = lambda: True  # type: ignore[method-assign]
-    session.defer_startup_watch = defer
-    st = Startup()
-    session._observe_retransmissions(st, drv.rx[0])
-    waited = time.monotonic() - st.right_ack.t
-    assert st.stop_watch == pytest.approx(1.5)
-    if defer:
-        assert st.arm_wait == pytest.approx(0.3) and 0.3 <= waited < 1.0
-        assert not st.watch_closed and st.watch_until == pytest.approx(st.right_ack.t + 1.5)
-        assert drv.auto_ack(drv.rx[-1]) is False  # a copy within the watch is not ACKed
-    else:
-        assert st.arm_wait == st.stop_watch and waited >= 1.5 and st.watch_closed
 
 
 # ---------------------------------------------------------------------- a run
