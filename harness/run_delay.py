@@ -14,7 +14,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from spec.codec import Action, DecodeError, decode
+from spec.codec import PREAMBLE, Action, peek_header
 
 __all__ = ["delay_for", "run_delay_ns", "takes_run_delay"]
 
@@ -54,16 +54,16 @@ def run_delay_ns(pid: int, proc: str = "/proc") -> int | None:
 
 def delay_for(msg: Any, read: Callable[[], int | None] | None) -> int | None:
     """``read()`` (the node's run delay now) for a datagram that is a non-ACK MCP message
-    (``msg``: decoded, or the raw bytes), else None: only a node's own messages have copies
+    (``msg``: decoded, or the raw bytes, judged by their preamble and header), else None: only a node's own messages have copies
     whose spacing MCP-RTX-3 judges."""
     if read is None:
         return None
-    if isinstance(msg, (bytes, bytearray)):
-        try:
-            msg = decode(bytes(msg))
-        except DecodeError:
-            return None
-    if msg is None or msg.action == _ACK:
+    if isinstance(msg, (bytes, bytearray)):  # its header is enough: no payload decoded twice
+        h = peek_header(bytes(msg)) if msg[:len(PREAMBLE)] == PREAMBLE else None
+        action = h[3] if h is not None else None
+    else:
+        action = msg.action if msg is not None else None
+    if action is None or action == _ACK:
         return None
     try:
         return read()
