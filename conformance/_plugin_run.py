@@ -61,8 +61,13 @@ from harness.errors import (
 from harness.interrupts import INTERRUPTS
 from spec import RULES
 
-__all__ = ["McpState", "STATE_KEY"]
+__all__ = ["McpState", "STATE_KEY", "TEARDOWN_GRACE_S"]
 _state = state_of
+
+#: A case's teardown (the node fixture's end of the case; after the last case, the node
+#: stopped: up to 2 s after SIGTERM, 2 more after SIGKILL) always has at least this long, even
+#: when the case ran out of time: the next case then starts clean.
+TEARDOWN_GRACE_S = 10.0
 
 
 @pytest.hookimpl(trylast=True)
@@ -281,15 +286,20 @@ def _phase_wrapper(item: pytest.Item) -> McpState | None:
     return state
 
 
-def _armed(item: pytest.Item) -> Generator[None, None, None]:
-    """Run one phase (setup, call, teardown) of a case under the per-case time limit."""
+def _armed(item: pytest.Item, *, teardown: bool = False) -> Generator[None, None, None]:
+    """Run one phase (setup, call, teardown) of a case under the per-case time limit; the
+    teardown never with less than TEARDOWN_GRACE_S (``McpState.arm_teardown``)."""
     state = _phase_wrapper(item)
     if state is None:
         return (yield)
-    state.arm()
+    if teardown:
+        state.arm_teardown(TEARDOWN_GRACE_S)
+    else:
+        state.arm()
     try:
         return (yield)
     finally:
+        state.grace_deadline = None
         state.disarm()
 
 
@@ -348,7 +358,7 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
-    return (yield from _armed(item))
+    return (yield from _armed(item, teardown=True))
 
 
 @pytest.hookimpl(wrapper=True)
@@ -378,11 +388,13 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         if call.when == "call" and rec.outcome == "error" and rep.failed:
             rep.mcp_outcome = "error"  # type: ignore[attr-defined]  # pytest's view: an error too
     elif call.when == "teardown":
+        texc = call.excinfo.value if call.excinfo is not None else None
+        why = (str(texc) if isinstance(texc, CaseTimeLimit) else
+               f"teardown: {_one_line(texc) if texc is not None else 'failed'}")
         if rep.failed and rec.outcome not in ("error", "failed"):
-            texc = call.excinfo.value if call.excinfo is not None else None
-            rec.outcome = "error"
-            rec.reason = (str(texc) if isinstance(texc, CaseTimeLimit) else
-                          f"teardown: {_one_line(texc) if texc is not None else 'failed'}")
+            rec.outcome, rec.reason = "error", why
+        elif rep.failed and rec.outcome == "error" and why not in (rec.reason or ""):
+            rec.reason = f"{rec.reason}; {why}" if rec.reason else why  # on its own case, not the next
         state.finish(item, rec)
         if state.worker:
             rep.mcp_case = rec.to_json()  # type: ignore[attr-defined]  # for the controller's live lines

@@ -92,6 +92,8 @@ class McpState:
         self.collect_errors: list[str] = []
         self.run_deadline: float | None = None
         self.case_deadline: float | None = None
+        self.grace_deadline: float | None = None  # a case's teardown: at least this long
+        self.grace_s = 0.0
         self.deadline_hit = False
         self.interrupted: str | None = None
         self._old_alarm: Any = None
@@ -335,7 +337,8 @@ class McpState:
         return limit
 
     def arm(self) -> None:
-        """Arm SIGALRM for the rest of the case (or the run, whichever ends first)."""
+        """Arm SIGALRM for the rest of the case (or the run, whichever ends first); in a
+        case's teardown (``arm_teardown``) never before its grace period is over."""
         if not _can_alarm():
             return
         now = time.monotonic()
@@ -345,7 +348,17 @@ class McpState:
             return
         if self._old_alarm is None:
             self._old_alarm = signal.signal(signal.SIGALRM, self._on_alarm)
-        signal.setitimer(signal.ITIMER_REAL, max(min(ends) - now, 0.001))
+        end = min(ends) if self.grace_deadline is None else max(min(ends), self.grace_deadline)
+        signal.setitimer(signal.ITIMER_REAL, max(end - now, 0.001))
+
+    def arm_teardown(self, grace_s: float) -> None:
+        """A case's teardown (its node fixture ends the case) is bounded by the rest of the
+        case's limit, but it is given at least ``grace_s`` of its own: a case that ran out of
+        time (in its setup or its call) is still torn down, so the next case starts clean (a
+        limit already past cut pytest's own teardown short: the NEXT case errored, "previous
+        item was not torn down properly"). An overrun is the torn-down case's error."""
+        self.grace_s, self.grace_deadline = grace_s, time.monotonic() + grace_s
+        self.arm()
 
     def disarm(self) -> None:
         if not _can_alarm():
@@ -371,7 +384,10 @@ class McpState:
             raise CaseTimeLimit("startup timeout")
         if self.run_deadline is not None and now >= self.run_deadline - 0.002:
             self.deadline_hit = True
-            raise CaseTimeLimit("run deadline exceeded")
+            if self.grace_deadline is None or now < self.grace_deadline - 0.002:
+                raise CaseTimeLimit("run deadline exceeded")
+        if self.grace_deadline is not None and now >= self.grace_deadline - 0.002:
+            raise CaseTimeLimit(f"teardown overran its grace of {self.grace_s:g} s")
         raise CaseTimeLimit(f"case exceeded {self.case_limit_text}")
 
     def install_term(self) -> None:
