@@ -167,10 +167,10 @@ def test_a_timeout_is_an_error_in_pytests_junit_as_in_ours(pytester):
     pytest's --junitxml, as in --mcp-junit and the JSON report; a MUST failure stays a
     ``<failure>`` in both."""
     pytest.importorskip("pytest_timeout")
-    # --timeout 10 and a 20-s sleep (the node's startup is not charged to the first case; the
-    # third error a loaded host gave was the next case's: the timed-out case's teardown was cut
-    # short, see test_a_timed_out_case_is_torn_down_within_its_grace_and_the_next_starts_clean)
-    cases = SLOW_CASES.replace("time.sleep(6)", "time.sleep(20)") + """
+    # --timeout 3 and an 8-s sleep (the node's startup is not charged to the first case; the
+    # third error a loaded host once gave was the next case's: the timed-out case's teardown
+    # was cut short, see test_a_timed_out_case_is_torn_down_within_its_grace_and_the_next_starts_clean)
+    cases = SLOW_CASES.replace("time.sleep(6)", "time.sleep(8)") + """
 @rules("MCP-ACK-4")
 def test_must_fails(node):
     from harness.errors import CaseFailure
@@ -182,7 +182,7 @@ def test_crash(node):
 """
     setup_files(pytester, cases)
     pytester.makeini("[pytest]\n")
-    result, doc = run(pytester, "-p", "timeout", "--timeout", "10", "--mcp-case-timeout", "30",
+    result, doc = run(pytester, "-p", "timeout", "--timeout", "3", "--mcp-case-timeout", "30",
                       "--mcp-select", "ACK/test_slow_a", "--mcp-select", "ACK/test_must", "--mcp-select", "ROB",
                       "--mcp-junit", "ours.xml", "--junitxml", "pytests.xml")
     assert outcomes(doc) == {"ACK/test_slow_a": "error", "ACK/test_must_fails": "failed", "ROB/test_crash": "error"}
