@@ -286,9 +286,12 @@ def _phase_wrapper(item: pytest.Item) -> McpState | None:
     return state
 
 
-def _armed(item: pytest.Item, *, teardown: bool = False) -> Generator[None, None, None]:
+def _armed(item: pytest.Item, *, teardown: bool = False, conclude: bool = False) -> Generator[None, None, None]:
     """Run one phase (setup, call, teardown) of a case under the per-case time limit; the
-    teardown never with less than TEARDOWN_GRACE_S (``McpState.arm_teardown``)."""
+    teardown never with less than TEARDOWN_GRACE_S (``McpState.arm_teardown``). With
+    ``conclude``, a case that passed or was skipped then runs its context's ``conclude()``
+    (the Nsqd backend proven alive after the case's writes, NSQD-ROB-1: a death on them is
+    this case's verdict, not the next case's), whose failure is the case's."""
     state = _phase_wrapper(item)
     if state is None:
         return (yield)
@@ -297,10 +300,25 @@ def _armed(item: pytest.Item, *, teardown: bool = False) -> Generator[None, None
     else:
         state.arm()
     try:
-        return (yield)
+        try:
+            out = yield
+        except Inconclusive:
+            if conclude:
+                _conclude(state, item)
+            raise
+        if conclude:
+            _conclude(state, item)
+        return out
     finally:
         state.grace_deadline = None
         state.disarm()
+
+
+def _conclude(state: McpState, item: pytest.Item) -> None:
+    ctx = state.ctx.get(item.nodeid)
+    finish = getattr(ctx, "conclude", None)
+    if finish is not None:
+        finish()
 
 
 @pytest.hookimpl(wrapper=True)
@@ -316,7 +334,7 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
     if why:  # the node's datagrams cannot be read (harness.session: MCP-HDR-2 at startup)
         raise Inconclusive(why)
     if state is None or state.cfg.impair is None:
-        return (yield from _armed(item))
+        return (yield from _armed(item, conclude=True))
     from conformance._impaired import SPOILABLE, run_impaired
 
     try:

@@ -5,8 +5,10 @@ batched, then calls one verify helper; the helpers raise ``CaseFailure`` naming 
 what was expected and what was seen. Every frame the backend sends on any connection is
 judged on the way (NSQD-FRM-1: its length; NSQD-MSG-2: its layout, its id, UPDATE's state),
 so a broken sender fails under its own rule whatever case saw it. A spawned backend that
-dies is a failure of the rule the case's input tested, with the signal, the sanitizer's
-summary line first, and the bytes sent in hex (the session restarts it for the next case).
+dies is an NSQD-ROB-1 failure naming the rule the case's input tested, with the signal, the
+sanitizer's summary line first, and the bytes sent in hex (the session restarts it for the
+next case). Before its verdict a case proves the backend alive after its last write
+(:meth:`StreamCaseContext.conclude`): a death seen late is still the case's that caused it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,11 @@ from harness.stream_session import Conn, StreamSession
 from spec.stream_codec import encode, frame
 
 __all__ = ["StreamCaseContext"]
+
+#: How long a backend that refused, closed or stopped serving a new connection may take to be
+#: seen dead: a dying process closes its sockets a moment before it is reaped (a loaded host,
+#: a sanitizer writing its report). Waited only on that path.
+DYING_S = 1.0
 
 
 class StreamCaseContext:
@@ -78,7 +85,8 @@ class StreamCaseContext:
             return conn
         if conn is not None:
             self.check_stream(conn)
-        death = self.session.death()
+        # refused or closed: a dying backend closes its sockets a moment before it is reaped
+        death = self.session.death(grace=DYING_S if conn is None or conn.closed_at is not None else 0.0)
         if death is not None:
             raise self.fail(self.rules[0], "", "")
         raise NodeLost("the backend accepted no connection or sent no UPDATE on it "
@@ -130,6 +138,27 @@ class StreamCaseContext:
                                    "STOP_HOVER_TEST, TAKEOFF): NSQD-MSG-3's cases say why")
             self.session.proven_probe = found  # type: ignore[attr-defined]
         return found
+
+    def conclude(self) -> None:
+        """Before the case's verdict: the backend proven alive after the case's last write
+        (NSQD-ROB-1), so a death on it is this case's failure, with the write that killed it
+        in the evidence, not the next case's (a closed connection, or a backend that stopped
+        serving, may be a death whose process has not ended yet). The case's connections
+        are closed (read to the end first: a FIN, not a reset), then a new one must be
+        accepted and sent UPDATE; a case that proved it already (:meth:`expect_alive`, a
+        new connection served after its last write) costs nothing."""
+        if self.session.proven_alive():
+            return
+        for c in list(self.session.conns):
+            c.pump(0)
+            c.close()
+        self.session.conns.clear()
+        timeout = self.gap_max + 0.5
+        if self.session.live(timeout):
+            return
+        self.session.death(grace=DYING_S)  # the process's end follows its sockets' by a moment
+        raise self.fail("NSQD-ROB-1", "after the case's input, a new connection accepted and sent UPDATE",
+                        f"no UPDATE on a new connection within {timeout:g} s")
 
     # -- verify helpers -------------------------------------------------------------------
     def expect_state(self, conn: Conn, states: tuple[int, ...], since: float, rule: str, what: str,

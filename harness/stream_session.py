@@ -234,6 +234,7 @@ class StreamSession:
         self.conns: list[Conn] = []
         self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
         self._conn_count = 0
+        self._live_at: float | None = None  # when the last connection that proved it live opened
 
     # -- life -------------------------------------------------------------------------
     @property
@@ -303,10 +304,24 @@ class StreamSession:
             return False
         try:
             # any bytes prove it live: frames the runner cannot parse are NSQD-FRM-1's to judge
-            return conn.wait_for(lambda: bool(conn.frames) or conn.framing_error is not None, timeout)
+            ok = conn.wait_for(lambda: bool(conn.frames) or conn.framing_error is not None, timeout)
+            if ok:
+                self._live_at = conn.opened
+            return ok
         finally:
             conn.close()
             self.conns.remove(conn)
+
+    def proven_alive(self) -> bool:
+        """A round trip after the case's last write (NSQD-ROB-1): a connection opened after
+        it was accepted and sent something (a backend serves a new client once it has read
+        what the old ones sent; one that dies on a write never gets there). Nothing sent:
+        nothing to prove."""
+        if not self.sent_log:
+            return True
+        last = self.sent_log[-1][0]
+        return (self._live_at is not None and self._live_at > last) or any(
+            c.opened > last and (c.frames or c.framing_error is not None) for c in self.conns)
 
     def death(self, grace: float = 0.0) -> Death | None:
         """How the spawned backend ended, if it did within ``grace`` s (a sanitizer takes a

@@ -169,7 +169,7 @@ def test_rejected_frame_leaves_the_stream_in_sync(node, label, name, body):
     conn.send(node.frame(node.spec.message(name).id, body))
     conn.watch(0.05)
     if conn.closed_at is not None:
-        return  # D-3: a backend may close on a malformed body; the next connection is NSQD-ROB-1's
+        return  # D-3: a backend may close on a malformed body; that it lives on is NSQD-ROB-1's (conclude)
     since = time.monotonic()
     conn.send(node.encode(probe))
     node.expect_state(conn, (state,), since, "NSQD-MSG-7", f"{name} with {label.replace('-', ' ')}, then {probe}")
