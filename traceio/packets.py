@@ -54,7 +54,7 @@ class NgReader(RawPcapNgReader):
 #: refused as a decompression bomb (issue 19): pcaps compress 3-10 fold; a gigabyte of zeros
 #: compresses 1000-fold and would be read as tens of millions of empty records.
 BOMB_RATIO = 200
-BOMB_FLOOR = 16 << 20
+BOMB_FLOOR = 2 << 20  # a capture that small is read whatever its ratio; a bomb is refused within a moment
 
 
 class DecompressionBomb(OSError):
