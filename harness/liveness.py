@@ -18,6 +18,14 @@ one notion of "the node is live" the runner uses:
   been heard for ``loss_after`` (``LOSS_RTOS`` x ``--rto``, at least ``LOSS_MIN_S``), the
   node is declared **lost**. A node that ignores one kind of command but answers the probe
   is live: its missing ACK is a verdict, not a loss.
+- **the mission's end**: once the runner has sent the node End_Mission ("No further
+  commands", MCP-BLK-7), a process that exits with code 0 ended normally: a node may end
+  after its mission (the reference node does, after ACKing copies for a linger period), and
+  its ACKs of End_Mission may all have been lost before it did (a bad link, a loaded host
+  late with its retransmission). That is not a loss: the wait sees the node gone and the
+  exchange comes back unanswered (the End_Mission case says the ACK could not be observed:
+  an error, repeated under ``--impair``). An exit before End_Mission was sent, a non-zero
+  exit or a signal stays a loss.
 - The case thread finds out at its next wait (``TargetDriver.wait_for`` / ``pause`` call
   ``check``), which raises ``NodeLost`` with the evidence of the last exchange.
 
@@ -35,7 +43,7 @@ from typing import Any
 
 from harness.driver import Datagram, Sent, TargetDriver
 from harness.errors import NodeLost
-from spec.codec import Action
+from spec.codec import HEADER_SIZE, Action
 
 LOSS_RTOS = 3.0  # declared lost after this many --rto without an answer to a probe...
 LOSS_MIN_S = 2.0  # ...and never sooner than this (a loaded host, a node deaf while busy)
@@ -43,6 +51,7 @@ PROBE_SRC = 0x4C56  # the watcher's own MCP ID ("LV"): never the manager's, the 
 WATCH_INTERVAL = 0.025  # process poll and probe clock: an exit is noticed within 100 ms
 NOT_LIVE = "node not live after the window: silence proves nothing"
 _ACK = int(Action.ACK)
+_END = int(Action.END_MISSION)
 
 
 def loss_after(rto: float) -> float:
@@ -89,6 +98,9 @@ class Liveness:
         self.last_heard_t = time.monotonic()
         self.owed: Sent | None = None  # the oldest command sent since the node was last heard
         self.probe: Sent | None = None  # the watcher's probe in flight
+        #: the runner's first well-formed End_Mission to this node: from then on an exit with
+        #: code 0 is the end of its mission, not a loss (see the module docstring)
+        self.end_sent: Sent | None = None
         self._probe_first = 0.0
         self._probe_last = 0.0
         self._probe_copies = 0
@@ -121,7 +133,7 @@ class Liveness:
             self.process = process
             self.enabled = False
             self.lost = None
-            self.owed = self.probe = None
+            self.owed = self.probe = self.end_sent = None
             self.last_heard_t = time.monotonic()
 
     def probe_src(self) -> int:
@@ -154,6 +166,8 @@ class Liveness:
                 or len(s.data) < 17):
             return
         with self._lock:
+            if s.action == _END and len(s.data) == HEADER_SIZE and self.end_sent is None:
+                self.end_sent = s  # End_Mission has no payload (one with a payload is malformed)
             if self.owed is None and s.t >= self.last_heard_t:
                 self.owed = s
 
@@ -178,6 +192,8 @@ class Liveness:
                 return False
             proc = self.process
             if proc is not None and not proc.alive():
+                if self.ended_normally():
+                    return False  # the mission's end: the waits see the node gone
                 self._declare(f"the node process {describe_exit(proc.returncode)}", now, exited=True)
                 return True
             if not self.enabled or self.owed is None:
@@ -201,6 +217,13 @@ class Liveness:
                 self._probe_last = s.t
                 self._probe_copies += 1
         return False
+
+    def ended_normally(self) -> bool:
+        """The spawned node exited with code 0 after the runner sent it End_Mission: the end of
+        its mission, not a loss (MCP-BLK-7: End_Mission is the last command it gets)."""
+        proc = self.process
+        return (proc is not None and self.end_sent is not None and not proc.alive()
+                and proc.returncode == 0)
 
     def _declare(self, why: str, now: float, exited: bool = False) -> None:
         ev = []

@@ -9,7 +9,7 @@ currently pending actions (from previously received commands), then execute an R
 from __future__ import annotations
 
 from conformance.marks import rules
-from harness.errors import Inconclusive
+from harness.errors import Inconclusive, SilenceUnproven
 from spec.codec import Action
 from vehicle.records import describe_request, is_rtl_request
 
@@ -62,6 +62,13 @@ def test_end_mission_then_rtl(node):
     ex = node.command(Action.END_MISSION)
     node.session.end_mission = ex
     node.session.ended = True
+    watch = node.session.liveness
+    if not ex.acked and watch is not None and watch.ended_normally():
+        # a node may end after End_Mission (harness.liveness): its ACKs were lost before it did
+        raise SilenceUnproven("the node ended its mission (its process exited with code 0 after "
+                              "End_Mission) before any ACK of End_Mission reached the runner",
+                              [f"End_Mission seq {ex.seq}: {len(ex.copies)} copies {node.rto:g} s apart, "
+                               "none answered before the node exited", *node.session.node_evidence()])
     node.expect_acked([("End_Mission", ex)])
     node.require_observable("MCP-BLK-7")
     v = node.vehicle
