@@ -28,6 +28,13 @@ LONG_FIRST = (
     "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[dup-seq-only]",
     "test_readme_ci.py::test_the_ci_snippets_run_as_written",
     "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
+    # the Nsqd run (-m "slow and nsqd"), which waits more than it computes
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",
+    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[update-stops]",
+    "test_conform_nsqd.py::test_correct_c_backend_passes",
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",
 )
 
 
