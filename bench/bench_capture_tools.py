@@ -26,6 +26,7 @@ import resource
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,15 +59,63 @@ SPACING_NS = 1_000_000
 
 def all_violating(path: Path, n: int) -> None:
     """``n`` WP_Ons from drones 1..64 to the manager: each one MCP-HDR-5 (a drone sends only
-    Mission_Ready and ACK), none answered, no two with the same sender and seq."""
+    Mission_Ready and ACK), none answered, no two with the same sender and seq.
+
+    Written as ``McapRecorder.datagram`` writes them, byte for byte, without encoding and
+    decoding each (``violating_bodies``): the generation is not what is measured."""
     if n > DRONES * 65536:
         raise ValueError(f"at most {DRONES * 65536} distinct violating datagrams")
     t = 1_800_000_000_000_000_000
-    with McapRecorder(path, local=("127.0.0.1", 7889)) as rec:
-        for i in range(n):
-            d = 1 + i % DRONES
-            rec.datagram("rx", encode(Message(0, d, i // DRONES, Action.WP_ON, ITEM)),
-                         ("127.0.0.1", 41000 + d), t + i * SPACING_NS)
+    with McapRecorder(path, local=LOCAL) as rec:
+        for i, body in enumerate(violating_bodies(n)):
+            rec.write_encoded("/mcp/rx", body, t + i * SPACING_NS)
+
+
+LOCAL = ("127.0.0.1", 7889)
+
+
+def violating(i: int) -> tuple[bytes, tuple[str, int]]:
+    """The ``i``-th violating datagram and its sender's address."""
+    d = 1 + i % DRONES
+    return encode(Message(0, d, i // DRONES, Action.WP_ON, ITEM)), ("127.0.0.1", 41000 + d)
+
+
+def violating_bodies(n: int) -> Iterator[bytes]:
+    """The JSON bodies ``McapRecorder.datagram("rx", *violating(i))`` writes, i < n: each
+    drone's first body with its seq and raw bytes put in (they differ in nothing else; the
+    first two of each drone are checked against the recorder's own)."""
+    import base64
+
+    from traceio.recorder import datagram_record, encode_body
+
+    parts = []
+    for d in range(DRONES):
+        raw, peer = violating(d)
+        rec = datagram_record("rx", raw, peer, LOCAL)
+        assert rec["seq"] == 0 and rec["raw_base64"] and rec["raw_hex"], rec
+        rec.update(seq=987654321, raw_base64="@B64@", raw_hex="@HEX@")
+        body = encode_body(rec)
+        marks = sorted((body.index(m), m) for m in (b"987654321", b'"@B64@"', b'"@HEX@"'))
+        assert all(body.count(m) == 1 for _, m in marks), body
+        cut, pieces, kinds = 0, [], []
+        for at, m in marks:
+            pieces.append(body[cut:at])
+            kinds.append(m)
+            cut = at + len(m)
+        pieces.append(body[cut:])
+        seq_at = next(k for k in range(len(raw)) if raw[k] != violating(d + DRONES * 0x0102)[0][k])
+        parts.append((raw[:seq_at], raw[seq_at + 2:], pieces, kinds))
+    b64, hexed = base64.b64encode, bytes.hex
+    for i in range(n):
+        head, tail, pieces, kinds = parts[i % DRONES]
+        seq = i // DRONES
+        raw = head + seq.to_bytes(2, "big") + tail
+        values = {b"987654321": str(seq).encode(), b'"@B64@"': b'"' + b64(raw) + b'"',
+                  b'"@HEX@"': b'"' + hexed(raw).encode() + b'"'}
+        body = pieces[0] + values[kinds[0]] + pieces[1] + values[kinds[1]] + pieces[2] + values[kinds[2]] + pieces[3]
+        if i < 2 * DRONES:
+            assert body == encode_body(datagram_record("rx", *violating(i), LOCAL)), i
+        yield body
 
 
 def run(src: Path, args: list[str]) -> tuple[float, float, float, int]:

@@ -13,6 +13,7 @@ import pytest
 
 #: Substrings of node IDs of the longest tests (measured with --durations), longest first.
 LONG_FIRST = (
+    "test_hostile_files.py::test_check_of_a_million_violating_datagrams",  # CPU: a minute of a core
     "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
     "test_jobs.py::test_failure_found_by_one_worker_is_replayed_first_by_the_other",
     "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
@@ -20,9 +21,20 @@ LONG_FIRST = (
     "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[no-dup-discard]",
     "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",
     "test_mutants.py::test_mutant_is_caught_with_its_rule[slow-ack]",
+    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[no-ready-ack]",
+    "test_manager_role.py::test_faulty_manager_is_caught_with_its_rule[no-ready-ack]",
+    "test_reader.py::test_mcap_cut_at_every_byte[1]",
+    "test_mutants.py::test_mutant_is_caught_with_its_rule[ack-first-copy-only]",
+    "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[dup-seq-only]",
     "test_readme_ci.py::test_the_ci_snippets_run_as_written",
     "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
-    "test_reader.py::test_mcap_cut_at_every_byte[1]",
+    # the Nsqd run (-m "slow and nsqd"), which waits more than it computes
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",
+    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[update-stops]",
+    "test_conform_nsqd.py::test_correct_c_backend_passes",
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",
 )
 
 

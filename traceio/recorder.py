@@ -122,6 +122,11 @@ def _peer(addr: Any) -> str:
     return "" if addr is None else str(addr)
 
 
+def encode_body(body: Mapping[str, Any]) -> bytes:
+    """A message's JSON body as the recorder writes it (compact separators)."""
+    return json.dumps(body, separators=(",", ":")).encode()
+
+
 def datagram_record(direction: str, data: bytes, addr: Any, local: Any = None) -> dict[str, Any]:
     """The JSON body of one ``/mcp/tx`` or ``/mcp/rx`` message (``addr``: the peer)."""
     data = bytes(data)
@@ -262,7 +267,12 @@ class McapRecorder:
         return self._closed
 
     def _write(self, topic: str, body: dict[str, Any], t_ns: int | None) -> None:
-        data = json.dumps(body, separators=(",", ":")).encode()
+        self.write_encoded(topic, encode_body(body), t_ns)
+
+    def write_encoded(self, topic: str, data: bytes, t_ns: int | None) -> None:
+        """A message of ``topic`` whose JSON body is already ``encode_body``'s bytes (a
+        generator of large captures, bench/, writes the bodies it varies without a
+        ``json.dumps`` each)."""
         t = int(t_ns) if t_ns is not None else time.time_ns()
         with self._lock:
             if self._closed:

@@ -169,6 +169,22 @@ def test_a_gzip_bomb_of_a_gigabyte_is_refused(tmp_path: Path) -> None:
         one_line_error(*run(command, str(path)), str(path), "decompression bomb")
 
 
+def test_the_million_capture_is_what_the_recorder_writes(tmp_path: Path) -> None:
+    """bench's generator of the million-datagram capture below puts each datagram's seq and
+    raw bytes into its drone's first JSON body instead of encoding and decoding each: its
+    file is, byte for byte, the one ``McapRecorder.datagram`` writes of the same datagrams."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_capture_tools import LOCAL, SPACING_NS, all_violating, violating
+
+    n = 64 * 257  # every drone's seqs 0..256: both seq bytes vary
+    all_violating(tmp_path / "fast.mcap", n)
+    t = 1_800_000_000_000_000_000
+    with McapRecorder(tmp_path / "slow.mcap", local=LOCAL) as rec:
+        for i in range(n):
+            rec.datagram("rx", *violating(i), t + i * SPACING_NS)
+    assert (tmp_path / "fast.mcap").read_bytes() == (tmp_path / "slow.mcap").read_bytes()
+
+
 MILLION_MEMORY = 1536 * 2**20  # address space: 1 GB of heap (the bench's target) and the interpreter's
 
 

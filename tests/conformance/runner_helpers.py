@@ -90,3 +90,23 @@ def verdict_differences(live: dict[str, dict[str, str]], offline: dict[Any, dict
             for n in sorted(set(live) | set(off))
             for r in sorted(set(live.get(n, {})) | set(off.get(n, {})))
             if live.get(n, {}).get(r) != off.get(n, {}).get(r)]
+
+
+def wait_udp_bound(port: int, timeout: float = 30.0) -> None:
+    """Until a socket is bound to UDP ``port`` here (``/proc/net/udp``): a node started in the
+    background listens, however long a loaded host took to start it (a fixed sleep did not)."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while True:
+        for table in ("/proc/net/udp", "/proc/net/udp6"):
+            try:
+                with open(table, encoding="ascii") as f:
+                    next(f)
+                    if any(int(line.split()[1].rsplit(":", 1)[1], 16) == port for line in f):
+                        return
+            except OSError:
+                continue
+        if time.monotonic() > deadline:
+            raise AssertionError(f"nothing bound UDP port {port} within {timeout} s")
+        time.sleep(0.05)

@@ -23,6 +23,7 @@ import pytest
 from spec import SPEC
 
 from .runner_helpers import FAST, run_conform, sample_node_command, verdict_differences
+from .test_schedule_verdicts import FOLDED, assert_same_verdicts, serial_and_scheduled
 
 pytestmark = pytest.mark.slow
 
@@ -33,9 +34,19 @@ LIMIT = 600.0 if REAL else 240.0
 
 
 def conform(*node_args: str, extra: tuple[str, ...] = ()):
-    """The runner, spawning the sample node with ``node_args``, at this module's timings."""
-    return run_conform("--spawn", sample_node_command(*node_args, rto=NODE_RTO), "--mavlink", *RUNNER,
-                       *extra, timeout=LIMIT)
+    """The runner, spawning the sample node with ``node_args``, at this module's timings.
+
+    A node test_schedule_verdicts folds here (``FOLDED``: verdicts do not depend on the
+    schedule, issue 23) is also run ``--serial`` and again scheduled, at once, and every
+    scheduled run must give each case the serial run's outcome; the first scheduled run
+    (with ``extra``) is the one returned."""
+    if node_args not in FOLDED:
+        return run_conform("--spawn", sample_node_command(*node_args, rto=NODE_RTO), "--mavlink", *RUNNER,
+                           *extra, timeout=LIMIT)
+    serial, scheduled = serial_and_scheduled(sample_node_command(*node_args, rto=NODE_RTO), *RUNNER,
+                                             first=extra, timeout=LIMIT)
+    assert_same_verdicts(serial, scheduled)
+    return scheduled[0]
 
 MUTANTS = [
     ("bad-preamble", "MCP-HDR-1"),

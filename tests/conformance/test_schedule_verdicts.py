@@ -9,19 +9,36 @@ ACK, arming before Start_Mission) and beside it (slow ACKs).
 Each node is run once ``--serial`` and ``MCP_SCHEDULE_RUNS`` times scheduled (default 2;
 the issue's 20 by hand: ``MCP_SCHEDULE_RUNS=20 python -m pytest -n 2 -m slow
 tests/conformance/test_schedule_verdicts.py``), each scheduled run compared case by case.
+The runs of a node go at once (``serial_and_scheduled``): each spawns its own node on its
+own ports, and they only wait on the node's timers.
+
+Most of these nodes are test_mutants' nodes too, which runs each of them scheduled, with the
+same node and runner options, to check the fault's rule: those (``FOLDED``) are compared
+there, in the same test, its scheduled run being the first of the ``MCP_SCHEDULE_RUNS``
+(``test_every_node_is_compared_here_or_in_test_mutants``), not run a second time here. At
+``MCP_MUTANTS_TIMING=real`` test_mutants runs other timings, and every node is compared here.
 """
 
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from .runner_helpers import FAST, reference_node_command, run_conform, sample_node_command
+from .runner_helpers import (
+    FAST,
+    RunResult,
+    reference_node_command,
+    run_conform,
+    sample_node_command,
+)
 
 pytestmark = pytest.mark.slow
 
 RUNS = int(os.environ.get("MCP_SCHEDULE_RUNS", "2"))
+#: Runs of one node at once (``MCP_SCHEDULE_RUNS=20`` does not start 21 nodes together).
+AT_ONCE = 3
 
 NODES = [
     ("reference", None),
@@ -49,24 +66,55 @@ NODES = [
     ("slow-ack", ("--fault", "slow-ack")),
 ]
 
+#: The nodes compared in test_mutants (its mutants' and correct variants' node arguments).
+FOLDED: dict[tuple[str, ...], str] = (
+    {} if os.environ.get("MCP_MUTANTS_TIMING", "short") == "real"
+    else {args: label for label, args in NODES if label not in ("reference", "sample")})
+HERE = [(label, args) for label, args in NODES if args not in FOLDED]
 
-def _outcomes(res) -> dict[str, str]:
+
+def serial_and_scheduled(spawn: str, *runner: str, first: tuple[str, ...] = (),
+                         timeout: float = 300) -> tuple[RunResult, list[RunResult]]:
+    """``spawn``'s node run once ``--serial`` and ``RUNS`` times scheduled, at once: (the serial
+    run, the scheduled runs); ``first``: more options of the first scheduled run."""
+    base = ("--spawn", spawn, "--mavlink", *runner)
+    argsets = [(*base, "--serial"), (*base, *first)] + [base] * (RUNS - 1)
+    with ThreadPoolExecutor(max_workers=min(AT_ONCE, len(argsets))) as pool:
+        serial, *scheduled = pool.map(lambda args: run_conform(*args, timeout=timeout), argsets)
+    return serial, scheduled
+
+
+def _outcomes(res: RunResult) -> dict[str, str]:
     return {c["id"]: c["outcome"] for c in res.report.get("cases", [])}
 
 
-@pytest.mark.parametrize("label,node_args", NODES, ids=[n for n, _ in NODES])
-def test_serial_and_scheduled_give_the_same_verdicts(label, node_args):
-    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
-    serial = run_conform("--spawn", spawn, "--mavlink", *FAST, "--serial", timeout=300)
+def assert_same_verdicts(serial: RunResult, scheduled: list[RunResult]) -> None:
+    """Every scheduled run gives each case the serial run's outcome, and the same exit code."""
     assert serial.report.get("schedule", {}).get("mode") == "serial", serial.explain()
     want = _outcomes(serial)
     assert want, serial.explain()
-    for n in range(RUNS):
-        res = run_conform("--spawn", spawn, "--mavlink", *FAST, timeout=300)
-        plan = res.report["schedule"]
-        assert plan["mode"] == "scheduled", plan
+    for n, res in enumerate(scheduled):
+        plan = res.report.get("schedule", {})
+        assert plan.get("mode") == "scheduled", (plan, res.explain())
         got = _outcomes(res)
         diff = {c: (want.get(c), got.get(c)) for c in sorted(set(want) | set(got)) if want.get(c) != got.get(c)}
         assert not diff, (f"run {n + 1}: serial vs scheduled differ: {diff}; batch: {plan['batch_outcome']}\n"
                           + res.explain())
         assert res.rc == serial.rc, res.explain()
+
+
+@pytest.mark.parametrize("label,node_args", HERE, ids=[n for n, _ in HERE])
+def test_serial_and_scheduled_give_the_same_verdicts(label, node_args):
+    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
+    assert_same_verdicts(*serial_and_scheduled(spawn, *FAST))
+
+
+def test_every_node_is_compared_here_or_in_test_mutants():
+    """A node folded into test_mutants is one of its nodes there, with the same arguments
+    (the sample node's defaults, ``--rto 0.2``, the runner's FAST timings), and compared."""
+    from . import test_mutants
+
+    assert test_mutants.RUNNER == FAST and test_mutants.NODE_RTO == 0.2 or not FOLDED
+    theirs = {("--fault", f) for f, _ in test_mutants.MUTANTS} | {a for _, a in test_mutants.CORRECT_VARIANTS}
+    assert set(FOLDED) <= theirs, set(FOLDED) - theirs
+    assert {label for label, _ in HERE} | set(FOLDED.values()) == {label for label, _ in NODES}
