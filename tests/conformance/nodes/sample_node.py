@@ -316,6 +316,7 @@ class Node:
         self.reply_to_source: bool = args.reply_to_source
         self.passthrough = not args.no_passthrough
         self.rtl_refused: bool = args.rtl_refused
+        self.read_delay = args.read_delay
         self.busy_start = args.busy_start if args.busy_start is not None else (1.0 if self.recv_loop else 0.0)
         self.mavlink_url: str | None = args.mavlink
         self.stop = threading.Event()
@@ -510,6 +511,8 @@ class Node:
             msg = decode(data)
         except DecodeError as exc:
             self.on_malformed(data, addr, exc)
+            if self.read_delay:  # a slow reader (correct): each malformed datagram costs it time
+                time.sleep(self.read_delay)
             return
         if msg.action == Action.ACK:
             if msg.dst == self.id or ("mission-ready-wrong-src" in self.faults and msg.dst == self.id + 1):
@@ -782,6 +785,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "custom-mode flag), once: still an RTL request (MCP-BLK-7)")
     p.add_argument("--busy-start", type=float, default=None, metavar="S",
                    help="seconds the Start_Mission handler blocks (default 1.0 in recv-loop mode, else 0)")
+    p.add_argument("--read-delay", type=float, default=0.0, metavar="S",
+                   help="seconds each malformed datagram costs the receiver (a slow, correct reader)")
     p.add_argument("--linger", type=float, default=None, metavar="S",
                    help="seconds to keep ACKing after End_Mission (default 2 x rto)")
     p.add_argument("--record", default=None, metavar="FILE",
