@@ -34,7 +34,15 @@ from judge._monitor_base import (
     fmt_ms,
     pack_item,
 )
-from judge._monitor_rtx import F_FAULTY, F_INTERLEAVE, F_RTX3, F_RTX4, F_STORM, RetransmissionRules
+from judge._monitor_rtx import (
+    F_FAULTY,
+    F_INTERLEAVE,
+    F_RTX1,
+    F_RTX3,
+    F_RTX4,
+    F_STORM,
+    RetransmissionRules,
+)
 from spec import SPEC
 
 #: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
@@ -417,7 +425,9 @@ class SenderRules(RetransmissionRules):
 
     def _finish_flow3(self, end: int) -> None:
         """MCP-FLOW-3 (complete trace): once the manager has ended the mission of some drones,
-        every drone it started gets End_Mission (unless its last command was never ACKed)."""
+        every drone it started gets End_Mission (unless its last command was never ACKed, or
+        the manager gave up on it before its ACK came: MCP-RTX-1 is then proven on it, and a
+        drone dropped after that is the give-up's consequence, not a second violation)."""
         mgr = self._nodes.get(MANAGER)
         if mgr is None or not mgr.real:
             return
@@ -438,7 +448,7 @@ class SenderRules(RetransmissionRules):
 
     def _last_command_acked(self, d: _Node) -> bool:
         last = d.last_command
-        return last is not None and bool(last.acks)
+        return last is not None and bool(last.acks) and not last.flags & F_RTX1
 
     def _prune(self, now: int) -> None:
         """Forget messages older than the horizon (their copies can no longer come, their

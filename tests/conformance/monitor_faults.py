@@ -280,6 +280,29 @@ def rtx1_gives_up_then_acked() -> Script:
     return _manager_finishes(s, kw)
 
 
+def rtx1_gives_up_then_drops_the_drone() -> Script:
+    """A manager that sends drone 1's WP_List twice, then gives up and moves on to drone 2;
+    the ACK comes (late) after that, and the manager, having dropped drone 1, never sends it
+    End_Mission (``sample_manager --fault give-up-after-two`` on a loaded host). The missing
+    End_Mission is that give-up's consequence: MCP-RTX-1 only, not MCP-FLOW-3 beside it."""
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    for d in s.drones:
+        s.exchange(0, d, Action.START_MISSION, **kw)
+        s.tick(0.01)
+    seq, data = s.send(0, 1, Action.WP_LIST, tuple(s.items))
+    s.tick(s.rto)
+    s.raw(0, data, to=1)
+    s.tick(s.rto)
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items), **kw)  # drone 2, when the next copy was due
+    s.tick(0.2)
+    s.ack(1, 0, seq, origin=TESTER)  # drone 1's ACK, late
+    s.tick(0.05)
+    s.exchange(0, 2, Action.END_MISSION, **kw)  # drone 1 dropped: no End_Mission
+    s.tick(3.0)
+    return s
+
+
 def rtx3() -> Script:
     s = _started()
     s.exchange(0, 1, Action.WP_OFF, deaf=3, gaps=[0.2, 0.2, 0.5])  # one gap 2.5x the others
@@ -642,6 +665,7 @@ FAULTY: dict[str, Fault] = {
     "seq2-copy-differs": Fault("MCP-SEQ-2", seq2, complete=False),
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
     "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
+    "rtx1-manager-gives-up-and-drops-the-drone": Fault("MCP-RTX-1", rtx1_gives_up_then_drops_the_drone),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
     "rtx2-manager-moves-on-after-a-wrong-ack": Fault("MCP-RTX-2", rtx2_moves_on),
     "rtx2-manager-takes-a-stale-ack": Fault("MCP-RTX-2", rtx2_takes_a_stale_ack),
