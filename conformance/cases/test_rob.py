@@ -101,7 +101,7 @@ FLOOD_READ_S = 10.0
 @rules("MCP-ROB-7", phase="late")
 def test_flood_of_malformed_datagrams(node):
     """10 000 malformed datagrams as fast as loopback takes them, then a liveness probe
-    (retried across retransmissions before it is judged), sent once the node has read what
+    (retried across retransmissions before it is judged), sent (D-8) once the node has read what
     its socket holds of the flood (``harness.rx_queue``; at most FLOOD_READ_S): "ACKs
     normally right after" is judged on the node's answers, not on the CPU a loaded host gave
     it for the backlog. A node that stops reading is probed at the bound, and judged."""
