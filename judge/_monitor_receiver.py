@@ -102,6 +102,16 @@ class ReceiverRules:
         if tester:
             return
         if other is not None:
+            w = self._waiting_copy.get((src, dst))
+            if (w is not None and w.acks and w.acks[-1][1] < w.last_t and not w.flags & F_ACK1
+                    and t - w.last_t <= horizon):
+                # a copy of an ACKed message waits for its ACK: this may be that copy's wrong
+                # ACK (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the
+                # broadcast sent just after it) as well as an ACK of ``other``; the copy's
+                # ACK-1 deadline decides which (``_decide_ambiguous``)
+                self._stray_acks[(src, dst)] = (i, t, named)
+                self._ambiguous.setdefault(id(w), []).append((other, named, i, t))
+                return
             self._ack_of_what_is_not_acked(src, other, named, i, t)
             return
         swapped = ((named & 0xFF) << 8) | (named >> 8)
@@ -205,6 +215,7 @@ class ReceiverRules:
             if len(ex.copies) - ex.heard == MAX_ACK_COPIES:
                 self._timers.at(t + self.window_ns, self._ack_deadline, ex, None)
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
+            self._waiting_copy[(ex.dst, ex.src)] = ex
             self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._ack_deadline, ex, (i, t))
 
     def _ack_rearm(self, now: int, ex: _Exchange) -> None:
@@ -263,20 +274,33 @@ class ReceiverRules:
                                                            if ex.heard else ""), heard[:MAX_ACK_COPIES])
             return
         if any(a[1] >= copy[1] for a in ex.acks):
+            self._decide_ambiguous(ex, node.id, wrong=False)  # they named what they ACKed
             return
         ex.flags |= F_ACK1
         stray = self._stray_acks.get((node.id, ex.src))
         if stray is not None and stray[1] >= copy[1]:  # an ACK came, naming another seq
+            self._decide_ambiguous(ex, node.id, wrong=True)  # the copy's wrong ACKs
             self._emit("MCP-ACK-2", node.id, now,
                        f"the ACK of every copy names the copy's seq {ex.seq} (D-2)",
                        f"the copy of {ex.describe()} was answered by an ACK naming {stray[2]}",
                        [copy, (stray[0], stray[1])])
             return
+        self._decide_ambiguous(ex, node.id, wrong=False)
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
 
+    def _decide_ambiguous(self, ex: _Exchange, node: int, *, wrong: bool) -> None:
+        """The ACKs naming what ``node`` must not ACK that came while a copy of ``ex`` waited:
+        ``wrong`` (the copy was not ACKed, an ACK naming another seq came): they were the
+        copy's wrong ACKs, judged as MCP-ACK-2 by the caller; else ACKs of what they named."""
+        for other, named, i, t in self._ambiguous.pop(id(ex), ()):
+            if not wrong:
+                self._ack_of_what_is_not_acked(node, other, named, i, t)
+
     def _finish_receiver(self, end: int) -> None:
         """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
+        for ex in list(self._waiting_copy.values()):  # the trace ended before a copy's deadline
+            self._decide_ambiguous(ex, ex.dst, wrong=False)
         for node in self._nodes.values():
             if not node.real:
                 continue

@@ -168,6 +168,11 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing
         #: it was sent: a copy whose ACK-1 deadline finds one after it was ACKed wrongly (ACK-2)
         self._stray_acks: dict[tuple[int, int], tuple[int, int, int]] = {}
+        #: (receiver, sender) -> the latest message a copy of which came after its ACK, and
+        #: the ACKs naming what the receiver must not ACK (a broadcast ...) while that copy
+        #: waited: the copy's wrong ACKs or what they name, decided at its ACK-1 deadline
+        self._waiting_copy: dict[tuple[int, int], Any] = {}
+        self._ambiguous: dict[int, list[tuple[Any, int, int, int]]] = {}
         #: src << 16 | dst -> when src last sent dst a (non-ACK) message, any copy
         self._last_to: dict[int, int] = {}
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it

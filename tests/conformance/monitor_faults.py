@@ -114,6 +114,43 @@ def ack4() -> Script:
     return _finish(s)
 
 
+def _copy_then_broadcast() -> tuple[Script, int, int]:
+    """The harness's WP_Off to drone 1, ACKed; a copy of it (the ACK was late for the runner,
+    a loaded host), then at once the harness's next message, a broadcast with the next seq."""
+    s = _started()
+    seq, data = s.send(0, 1, Action.WP_OFF, seq=40000, origin=TESTER)  # numbers of its own
+    s.tick(0.004)
+    s.ack(1, 0, seq)
+    s.tick(0.25)
+    s.raw(0, data, to=1, origin=TESTER)  # the copy
+    s.tick(0.001)
+    bseq, _ = s.send(0, 0xFFFF, Action.WP_OFF, seq=seq + 1, origin=TESTER)
+    s.tick(0.004)
+    return s, seq, bseq
+
+
+def ack2_copy_acked_with_the_next_seq() -> Script:
+    """Drone 1 ACKs the copy naming seq + 1 (``sample_node --fault ack-copies-wrong-seq``),
+    which is the broadcast's seq: the ACK a waiting copy explains is that copy's wrong ACK
+    (MCP-ACK-2), not an ACK of the broadcast (MCP-ACK-4) beside a copy never ACKed (MCP-ACK-1)."""
+    s, seq, bseq = _copy_then_broadcast()
+    assert bseq == (seq + 1) & 0xFFFF
+    s.ack(1, 0, bseq)
+    s.tick(0.5)
+    return _finish(s)
+
+
+def ack4_beside_a_waiting_copy() -> Script:
+    """Drone 1 ACKs the broadcast while a copy waits, and then the copy with its own seq: the
+    broadcast's ACK is MCP-ACK-4 all the same."""
+    s, seq, bseq = _copy_then_broadcast()
+    s.ack(1, 0, bseq)
+    s.tick(0.003)
+    s.ack(1, 0, seq)
+    s.tick(0.5)
+    return _finish(s)
+
+
 def ack5() -> Script:
     s = _started()
     seq = s.exchange(0, 2, Action.WP_OFF)
@@ -664,6 +701,8 @@ FAULTY: dict[str, Fault] = {
     "seq1-skips": Fault("MCP-SEQ-1", seq1),
     "seq2-copy-differs": Fault("MCP-SEQ-2", seq2, complete=False),
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
+    "ack2-copy-acked-with-the-next-seq": Fault("MCP-ACK-2", ack2_copy_acked_with_the_next_seq),
+    "ack4-beside-a-waiting-copy": Fault("MCP-ACK-4", ack4_beside_a_waiting_copy),
     "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
     "rtx1-manager-gives-up-and-drops-the-drone": Fault("MCP-RTX-1", rtx1_gives_up_then_drops_the_drone),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
