@@ -92,21 +92,19 @@ def verdict_differences(live: dict[str, dict[str, str]], offline: dict[Any, dict
             if live.get(n, {}).get(r) != off.get(n, {}).get(r)]
 
 
-def wait_udp_bound(port: int, timeout: float = 30.0) -> None:
-    """Until a socket is bound to UDP ``port`` here (``/proc/net/udp``): a node started in the
-    background listens, however long a loaded host took to start it (a fixed sleep did not)."""
-    import time
+def wait_first_datagram(listen_port: int, timeout: float = 30.0) -> None:
+    """Until a node started in the background has sent its first datagram to
+    ``listen_port`` (read here on a socket of our own, closed at once: its Mission_Ready is
+    retransmitted until ACKed). Attach mode expects a running node; a loaded host can take
+    seconds from a node's start to its first Mission_Ready, longer than the runner waits
+    for it (2.5 x --rto + 1 s) before it probes instead."""
+    import socket
 
-    deadline = time.monotonic() + timeout
-    while True:
-        for table in ("/proc/net/udp", "/proc/net/udp6"):
-            try:
-                with open(table, encoding="ascii") as f:
-                    next(f)
-                    if any(int(line.split()[1].rsplit(":", 1)[1], 16) == port for line in f):
-                        return
-            except OSError:
-                continue
-        if time.monotonic() > deadline:
-            raise AssertionError(f"nothing bound UDP port {port} within {timeout} s")
-        time.sleep(0.05)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", listen_port))
+        s.settimeout(timeout)
+        try:
+            s.recvfrom(65535)
+        except TimeoutError:
+            raise AssertionError(f"no datagram from the node on port {listen_port} within {timeout} s") from None

@@ -19,7 +19,7 @@ from .runner_helpers import (
     free_port,
     reference_node_command,
     run_conform,
-    wait_udp_bound,
+    wait_first_datagram,
 )
 
 pytestmark = pytest.mark.slow
@@ -74,7 +74,7 @@ def test_attach_mode_reference_node_passes_and_skips_vehicle_rules():
          "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        wait_udp_bound(port)  # attach: the node runs before the runner starts
+        wait_first_datagram(listen)  # attach: the node runs (and speaks) before the runner starts
         res = run_conform("--target", f"127.0.0.1:{port}", "--listen", f"127.0.0.1:{listen}", *FAST)
     finally:
         node.kill()
