@@ -110,7 +110,7 @@ class ReceiverRules:
                 # broadcast sent just after it) as well as an ACK of ``other``; the copy's
                 # ACK-1 deadline decides which (``_decide_ambiguous``)
                 self._stray_acks[(src, dst)] = (i, t, named)
-                self._ambiguous.setdefault(id(w), []).append((other, named, i, t))
+                self._ambiguous.setdefault(id(w), (w, []))[1].append((other, named, i, t))
                 return
             self._ack_of_what_is_not_acked(src, other, named, i, t)
             return
@@ -293,13 +293,13 @@ class ReceiverRules:
         """The ACKs naming what ``node`` must not ACK that came while a copy of ``ex`` waited:
         ``wrong`` (the copy was not ACKed, an ACK naming another seq came): they were the
         copy's wrong ACKs, judged as MCP-ACK-2 by the caller; else ACKs of what they named."""
-        for other, named, i, t in self._ambiguous.pop(id(ex), ()):
+        for other, named, i, t in self._ambiguous.pop(id(ex), (ex, []))[1]:
             if not wrong:
                 self._ack_of_what_is_not_acked(node, other, named, i, t)
 
     def _finish_receiver(self, end: int) -> None:
         """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
-        for ex in list(self._waiting_copy.values()):  # the trace ended before a copy's deadline
+        for ex, _ in list(self._ambiguous.values()):  # the trace ended before a copy's deadline
             self._decide_ambiguous(ex, ex.dst, wrong=False)
         for node in self._nodes.values():
             if not node.real:

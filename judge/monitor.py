@@ -172,7 +172,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: the ACKs naming what the receiver must not ACK (a broadcast ...) while that copy
         #: waited: the copy's wrong ACKs or what they name, decided at its ACK-1 deadline
         self._waiting_copy: dict[tuple[int, int], Any] = {}
-        self._ambiguous: dict[int, list[tuple[Any, int, int, int]]] = {}
+        self._ambiguous: dict[int, tuple[Any, list[tuple[Any, int, int, int]]]] = {}
         #: src << 16 | dst -> when src last sent dst a (non-ACK) message, any copy
         self._last_to: dict[int, int] = {}
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it
