@@ -21,12 +21,17 @@ The syntax is one string everywhere (``--impair``): ``loss=0.3,dup=0.1,reorder=0
 delay=0-50ms,corrupt=0.01,burst=0.05/0.3,rate=500,seed=7``; :func:`parse_impairment` says in
 one line what is wrong with a bad one.
 
-Same seed and same traffic, same decisions: each direction has its own random stream, seeded
-from ``seed`` and the direction's name, and a datagram's decision depends only on its place
-in its direction's sequence (and, for ``rate``, on the times given) — never on the wall
-clock. Bytes and ``now`` in, :class:`Decision` out (what to deliver when); sockets live in
-the proxy (``harness.impair_proxy``) and the runner's driver.
-"""
+Same seed and same traffic, same decisions — and the same decision for a datagram whatever
+the host's timing did around it. A datagram's decision is drawn from a random stream seeded
+from ``seed``, the direction's name and the datagram's *identity* in its direction, never
+from the wall clock (only ``rate`` looks at the times given, and the Gilbert–Elliott chain at
+the order of the datagrams). The identity is protocol-aware, read from the MCP header
+(``spec.codec.peek_header``): an ACK is "the c-th ACK naming the r-th distinct seq this
+direction ACKed", any other message "the c-th copy of the r-th distinct message of its action
+code", anything else "the c-th copy of these bytes". So a retransmission timer that fires once
+more on a loaded host (one more copy, one more ACK of it) shifts nothing for the other
+datagrams, a node's random initial seq (MCP-SEQ-4) changes nothing, and a soak mission's seed
+replays its failure."""
 
 from __future__ import annotations
 
@@ -34,9 +39,11 @@ import dataclasses
 import hashlib
 import random
 import re
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
+
+from spec.codec import HEADER_SIZE, Action, peek_header
 
 __all__ = ["Decision", "Delivery", "Impairment", "ImpairmentError", "ImpairSpec",
            "parse_impairment"]
@@ -202,12 +209,48 @@ class Decision:
                                 "kinds": list(d.kinds)} for d in self.deliveries]}
 
 
+#: how many distinct messages a direction remembers the rank and copy count of (least
+#: recently seen forgotten first): a retransmission follows its original within a few
+#: timeouts, and a flood of distinct datagrams does not grow the memory
+COPY_MEMORY = 4096
+_ACK = int(Action.ACK)
+
+
+def _identity(data: bytes) -> tuple[str, bytes]:
+    """(kind, key): copies of one message share both; see the module's docstring."""
+    head = peek_header(data)
+    if head is None:
+        return "raw", data
+    action = head[3]
+    if action == _ACK and len(data) == HEADER_SIZE + 2:
+        return "ack", f"{head[0]}:{head[1]}:".encode() + data[HEADER_SIZE:]  # dst, src, named seq
+    return f"a{action}", data
+
+
 @dataclass
 class _Direction:
-    rng: random.Random
+    key: bytes  # seed and direction name
     n: int = 0
     bad: bool = False  # Gilbert-Elliott state
     sent: deque[float] = field(default_factory=deque)  # times of the last second's datagrams
+    seen: OrderedDict[tuple[str, bytes], list[int]] = field(default_factory=OrderedDict)  # -> [rank, copies]
+    ranks: dict[str, int] = field(default_factory=dict)  # kind -> distinct messages so far
+
+    def rng(self, data: bytes) -> random.Random:
+        """The datagram's own random stream, from its identity (kind, rank, copy)."""
+        ident = _identity(data)
+        entry = self.seen.pop(ident, None)
+        if entry is None:
+            rank = self.ranks.get(ident[0], 0)
+            self.ranks[ident[0]] = rank + 1
+            entry = [rank, 0]
+        else:
+            entry[1] += 1
+        self.seen[ident] = entry
+        if len(self.seen) > COPY_MEMORY:
+            self.seen.popitem(last=False)
+        name = f"{ident[0]}:{entry[0]}:{entry[1]}".encode()
+        return random.Random(hashlib.blake2b(name, digest_size=16, key=self.key).digest())
 
 
 class Impairment:
@@ -221,8 +264,7 @@ class Impairment:
     def _direction(self, name: str) -> _Direction:
         d = self._dirs.get(name)
         if d is None:
-            digest = hashlib.sha256(f"{self.spec.seed}:{name}".encode()).digest()
-            d = self._dirs[name] = _Direction(random.Random(int.from_bytes(digest[:8], "big")))
+            d = self._dirs[name] = _Direction(hashlib.sha256(f"{self.spec.seed}:{name}".encode()).digest()[:32])
         return d
 
     def decide(self, direction: str, data: bytes, now: float = 0.0) -> Decision:
@@ -230,9 +272,8 @@ class Impairment:
         any clock; only the rate limit looks at it)."""
         s = self.spec
         d = self._direction(direction)
-        n, rng = d.n, d.rng
+        n, rng = d.n, d.rng(data)
         d.n += 1
-        # a fixed number of draws per datagram, so one decision never shifts the next ones
         draws = [rng.random() for _ in range(9)]
         dropped = None
         if s.burst_gb:

@@ -8,8 +8,10 @@ import pytest
 
 from harness.impair import Impairment, ImpairmentError, parse_impairment
 from reference_impl import DeliveryConfirmed, Endpoint, MessageDelivered
-from spec.codec import Action, MissionItem
+from spec.codec import Action, MissionItem, build_datagram, encode_payload
 from tests.reference_impl.helpers import Link
+
+ITEM = (MissionItem(0, 0, 0, 0, 35.0, -78.0, 10.0, 0, 16, 1, 1, 3, 0, 1),)
 
 
 def _run(text: str, n: int = 2000, direction: str = "a>b", dt: float = 0.001) -> Impairment:
@@ -57,6 +59,42 @@ def test_same_seed_and_traffic_same_decisions_another_seed_others() -> None:
         b.decide("y>x", b"other", i)
         mixed.append(b.decide("x>y", b"m" * 20, i))
     assert only == mixed
+
+
+def test_a_hosts_timing_does_not_shift_the_decisions_on_the_other_datagrams() -> None:
+    """A retransmission timer that fires once more on a loaded host adds a copy to one
+    direction and an ACK of it to the other; a node picks its initial seq at random
+    (MCP-SEQ-4). Neither changes what the link does to the other datagrams, nor to the
+    first copies of each message: a soak seed replays its failure whatever the timing."""
+    text = "loss=0.5,dup=0.3,reorder=0.3,delay=0-50ms,corrupt=0.05,seed=4"
+
+    def traffic(seq0: int, extra_at: int | None) -> list[tuple[str, bytes]]:
+        out, seq = [], seq0
+        for i in range(40):
+            cmd = build_datagram(1, 0, seq, Action.WP_LIST, encode_payload(Action.WP_LIST, ITEM))
+            copies = 2 + (extra_at == i)  # one copy more of the i-th command
+            for _ in range(copies):
+                out.append((f"cmd{i}", cmd))
+            for c in range(copies):  # the drone ACKs each copy, with a seq of its own (D-5)
+                out.append((f"ack{i}", build_datagram(0, 1, (seq0 + 7 * i + c) & 0xFFFF, Action.ACK,
+                                                      seq.to_bytes(2, "big"))))
+            seq = (seq + 1) & 0xFFFF
+        out.append(("junk", b"not mcp at all"))
+        return out
+
+    def decide(datagrams: list[tuple[str, bytes]]) -> dict[tuple[str, int], tuple]:
+        imp, seen, out = Impairment(parse_impairment(text)), {}, {}
+        for i, (name, data) in enumerate(datagrams):
+            dec = imp.decide("a>b", data, i * 0.01)
+            k = seen[name] = seen.get(name, -1) + 1
+            out[name, k] = (dec.dropped, tuple((d.delay_s, d.kinds) for d in dec.deliveries))
+        return out
+
+    plain = decide(traffic(100, None))
+    for other in (decide(traffic(100, 5)), decide(traffic(60_000, None)), decide(traffic(9, 5))):
+        assert {key: other[key] for key in plain} == plain
+    # each copy is its own draw: at loss=0.5, some second copies differ from their first
+    assert any(plain[f"cmd{i}", 0][0] != plain[f"cmd{i}", 1][0] for i in range(40))
 
 
 def test_loss_duplication_delay_reorder_and_corruption_at_their_rates() -> None:
