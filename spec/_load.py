@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import jsonschema
-import yaml
 
 SPEC_PATH = Path(__file__).with_name("mcp.yaml")
 SCHEMA_PATH = Path(__file__).with_name("spec.schema.json")
@@ -176,25 +175,67 @@ def _norm(fmt: str) -> str:
     return out
 
 
+def _cache_dir() -> Path:
+    base = os.environ.get("MCP_CONFORM_CACHE") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "mcp-conform"
+
+
 def read_validated(path: str | Path) -> tuple[dict[str, Any], str, Path]:
     """Read a spec file and validate it against ``spec.schema.json`` (either protocol kind):
-    its YAML tree, its sha256 and its path; any problem raises :class:`SpecError`."""
+    its YAML tree, its sha256 and its path; any problem raises :class:`SpecError`.
+
+    Every process of the harness (the runner, each spawned reference node, each fuzz worker)
+    reads the spec at import; parsing the YAML and importing and running the JSON-schema
+    validator is most of that (about 0.1 CPU s a process, hundreds of processes a CI run). So
+    a tree that validated is kept as JSON in the user's cache directory (``$MCP_CONFORM_CACHE``,
+    else ``$XDG_CACHE_HOME/mcp-conform``, else ``~/.cache/mcp-conform``), named by the sha256 of
+    the spec's bytes and the schema's: the same bytes are not validated twice, any change to
+    either is validated again. A cache that cannot be read or written is simply not used.
+    """
     src = Path(path)
     try:
         text = src.read_bytes()
     except OSError as exc:
         raise SpecError(f"{src}: cannot read spec: {exc.strerror}") from None
+    sha = hashlib.sha256(text).hexdigest()
+    schema_bytes = SCHEMA_PATH.read_bytes()
+    key = hashlib.sha256(text + b"\0" + schema_bytes).hexdigest()
+    cached = _cache_dir() / f"spec-{key}.json"
+    try:
+        raw = json.loads(cached.read_bytes())
+        if isinstance(raw, dict):
+            return raw, sha, src
+    except (OSError, ValueError):
+        pass
+    import yaml  # only when the bytes were not validated before, like the validator
+
     try:
         raw = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml when there
     except yaml.YAMLError as exc:
         raise SpecError(f"{src}: not valid YAML: {str(exc).splitlines()[0]}") from None
-    schema = json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
-    validator = jsonschema.Draft202012Validator(schema)
+    import jsonschema
+
+    validator = jsonschema.Draft202012Validator(json.loads(schema_bytes))
     errors = sorted(validator.iter_errors(raw), key=lambda e: list(e.absolute_path))
     if errors:
         err = errors[0]
         raise _fail(_where(err.absolute_path), err.message, src)
-    return raw, hashlib.sha256(text).hexdigest(), src
+    _remember(cached, raw)
+    return raw, sha, src
+
+
+def _remember(cached: Path, raw: Any) -> None:
+    """Keep a validated tree, only where JSON gives back the very same tree."""
+    try:
+        data = json.dumps(raw)
+        if json.loads(data) != raw:
+            return
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cached.with_name(f"{cached.name}.{os.getpid()}.tmp")
+        tmp.write_text(data, encoding="utf-8")
+        os.replace(tmp, cached)
+    except (OSError, TypeError, ValueError):
+        pass
 
 
 def load(path: str | Path | None = None) -> Spec:

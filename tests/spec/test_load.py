@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import copy
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -181,3 +185,34 @@ def test_unreadable_and_unparsable_specs(tmp_path: Path) -> None:
     bad.write_text("rules: [\n", encoding="utf-8")
     with pytest.raises(SpecError, match="not valid YAML"):
         load(bad)
+
+
+def _load_in_a_process(cache: Path, path: Path | None = None) -> dict[str, Any]:
+    code = ("import json, sys; from spec import load; s = load(sys.argv[1] if len(sys.argv) > 1 else None); "
+            "print(json.dumps({'jsonschema': 'jsonschema' in sys.modules, 'sha': s.sha256, 'rules': len(s.rules)}))")
+    args = [sys.executable, "-c", code] + ([str(path)] if path else [])
+    done = subprocess.run(args, capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "MCP_CONFORM_CACHE": str(cache)})
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)
+
+
+def test_a_validated_spec_is_not_validated_again_and_a_changed_one_is(tmp_path: Path) -> None:
+    """The spec is read at every process's import: a tree that validated is kept (by the
+    sha256 of the spec's and the schema's bytes), so the next process neither imports nor runs
+    the JSON-schema validator; a spec whose bytes changed is validated again."""
+    cache = tmp_path / "cache"
+    first, second = _load_in_a_process(cache), _load_in_a_process(cache)
+    assert first["jsonschema"] and not second["jsonschema"]
+    assert first == {**second, "jsonschema": True} and first["rules"] > 0
+    # one level changed to one the schema refuses: the cached tree of the good bytes is not used
+    raw = copy.deepcopy(_raw())
+    _bad_level(raw)
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False), encoding="utf-8")
+    with pytest.raises(SpecError, match=r"rules\[3\]\.level"):
+        load(path)
+    # a cache that cannot be written is not used: the spec still loads, validated each time
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    assert _load_in_a_process(blocked)["jsonschema"] and _load_in_a_process(blocked)["jsonschema"]
