@@ -134,9 +134,10 @@ class Session(SessionBase):
         watcher and no run monitor (the fuzzer's probe behind each batch is its proof of
         life, and its oracles judge every datagram once). ``measure``: in the quick startup,
         the node's retransmission period is still measured (``period``), its Mission_Ready's
-        ACK withheld until a second copy shows it. ``diagnose``: the quick startup still
-        diagnoses a header that reads right only byte-swapped (MCP-HDR-2, ``unreadable``), as
-        the observed one does (a shard of ``mcp-conform --parallel`` that does not hold the
+        ACK withheld until a second copy shows it. ``diagnose``: the quick startup leaves the
+        node as the observed one does: a header that reads right only byte-swapped is still
+        diagnosed (MCP-HDR-2, ``unreadable``), a Mission_Ready the driver could not decode still
+        ACKed by its header (a shard of ``mcp-conform --parallel`` that does not hold the
         startup-phase cases: its cases are skipped on that diagnosis, as in a run of one)."""
         cfg = self.cfg
         if cfg.role != "drone":
@@ -342,6 +343,11 @@ class Session(SessionBase):
             self._observe_retransmissions(st, first_ready)
         elif measure:
             self._measure_period(first_ready)
+        elif diagnose and first_ready.msg is None and first_ready.header is not None:
+            # the driver ACKs only what it decodes: a Mission_Ready it could not (a bad
+            # preamble) is ACKed as the observed startup ACKs it, by its header
+            drv.send_ack(first_ready.header[2], dst=self.target_id if self.target_id is not None
+                         else first_ready.header[1])
         withhold = False
         if first:
             self.startup = st
