@@ -131,6 +131,10 @@ def pytest_configure(config: pytest.Config) -> None:
     state.exclude = list(config.getoption("mcp_exclude") or [])
     state.worker = worker
     state.html_path = config.getoption("mcp_html")  # under xdist the controller writes it
+    try:
+        state.set_shard(config.getoption("mcp_shard"), config.getoption("mcp_shard_events"))
+    except ValueError as exc:
+        raise pytest.UsageError(f"--mcp-shard: {exc}") from None
 
 
 
@@ -207,6 +211,8 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
 
     state.serial_order = list(keep)  # a batch thrown away: the rest of the run goes back to it
     items[:] = in_plan_order(state, keep)
+    if state.shard is not None:  # mcp-conform --parallel: this instance's share of the plan
+        state.take_shard(items)
     state.items = [i for i in items if i.nodeid in state.meta]
 
 

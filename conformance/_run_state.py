@@ -110,6 +110,9 @@ class McpState:
 
         self.batch = BatchRun()
         self.startup_expired = False
+        self.shard: tuple[int, int] | None = None  # (K, N): mcp-conform --parallel's instance K of N
+        self.events_path: str | None = None  # where that instance tells the front end its progress
+        self.observe_startup = True  # the observed startup phase, or the quick one (a shard)
 
     @property
     def startup_timeout(self) -> float:
@@ -132,6 +135,13 @@ class McpState:
                     if tw is not None and getattr(tw, "width_of_current_line", False):
                         tw.line()
             self._terminal = TerminalReport(Console(highlight=False), before_line=before)
+            if self.events_path:  # the run's notes reach the front end of --parallel too
+                note = self._terminal.note
+
+                def told(text: str) -> None:
+                    note(text)
+                    self.emit({"note": text})
+                self._terminal.note = told  # type: ignore[method-assign]
         return self._terminal
 
     # ------------------------------------------------------------------ session
@@ -203,7 +213,10 @@ class McpState:
                 self.startup_deadline = time.monotonic() + self.startup_timeout
             self.arm()
             try:
-                session.start()
+                if self.observe_startup:
+                    session.start()
+                else:  # a shard without the startup's cases: the quick startup, still diagnosed
+                    session.start(observe_startup=False, diagnose=True)
             except CaseTimeLimit:
                 # the run's deadline (or --startup-timeout) fell in the startup phase: the node
                 # never became ready
@@ -324,6 +337,51 @@ class McpState:
         name_consequence(rec, self.run.cases)
         self.run.cases.append(rec)
         self.terminal.case(rec)
+        self.emit({"case": rec.to_json()})
+
+    # ------------------------------------------------------------------ shards (--parallel)
+    def set_shard(self, value: str | None, events: str | None) -> None:
+        """``--mcp-shard K/N`` (``mcp-conform --parallel``): run instance K's share of the plan
+        shared out across N; ``events``: the file its progress is appended to."""
+        self.events_path = events
+        if not value:
+            return
+        k, sep, n = value.partition("/")
+        if not sep or not k.isdigit() or not n.isdigit() or not 0 <= int(k) < int(n):
+            raise ValueError(f"{value!r} is not K/N with 0 <= K < N")
+        if self.cfg.mode == "attach":
+            raise ValueError("attach mode has one node under test: it cannot be shared out")
+        self.shard = (int(k), int(n))
+
+    def take_shard(self, items: list[pytest.Item]) -> None:
+        """Keep this instance's cases of the plan (``conformance.schedule.shard_plan``), in
+        its order; the plan (every instance's) is the report's and the front end's."""
+        from conformance.schedule import shard_plan
+
+        assert self.shard is not None and self.plan is not None
+        k, n = self.shard
+        apply_embedded_defaults(self.cfg)  # the estimates' timings: the run's
+        plan = self.plan = shard_plan(self.plan, n, self.cfg.rto, self.cfg.ack_window)
+        self.run.schedule = plan.to_json()
+        mine = set(plan.of_shard(k)) if k < plan.shards else set()
+        drop = [i for i in items if i.nodeid in self.meta and self.meta[i.nodeid][0] not in mine]
+        if drop:
+            gone = set(drop)
+            items[:] = [i for i in items if i not in gone]
+            self.config.hook.pytest_deselected(items=drop)
+            self.batch_items = [i for i in self.batch_items if i not in gone]
+            self.serial_order = [i for i in self.serial_order if i not in gone]
+        self.observe_startup = plan.observes_startup(k)
+        self.emit({"plan": plan.to_json()})
+
+    def emit(self, event: dict[str, Any]) -> None:
+        """One line of this instance's progress for the front end (``--mcp-shard-events``)."""
+        if not self.events_path:
+            return
+        import json
+
+        with open(self.events_path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(event) + "\n")
 
     # ------------------------------------------------------------------ time limits
     def current_limit(self) -> float:

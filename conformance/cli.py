@@ -4,7 +4,7 @@
                 [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
                 [--json FILE] [--junit FILE] [--capture FILE.mcap] [--live [HOST:]PORT] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--startup-timeout S] [--seed N]
-                [--impair loss=P,dup=P,reorder=P,delay=LO-HI,corrupt=P,seed=N]
+                [--impair loss=P,dup=P,reorder=P,delay=LO-HI,corrupt=P,seed=N] [--serial] [--parallel N]
 
 A thin front end over pytest and the ``conformance.plugin``: it checks the arguments (a bad
 value is a one-line error naming the option, exit 2, with the JSON report still written),
@@ -94,6 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "drops, duplicates, delays and reorders; a case the impairment spoiled is repeated, never failed)")
     p.add_argument("--serial", action="store_true", help="run every case alone, one after another, as "
                    "listed (the default schedule overlaps what only waits; -v prints it)")
+    p.add_argument("--parallel", metavar="N", default="1", help="spawn mode: share the cases out across up to N "
+                   "node instances, each spawned on its own ports with its own startup phase (default 1; -v "
+                   "prints which case runs on which)")
+    p.add_argument("--shard", metavar="K/N", help=argparse.SUPPRESS)  # one instance of --parallel
+    p.add_argument("--shard-events", metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="store_true", help="print every datagram sent and received, live, to stderr")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
@@ -140,6 +145,31 @@ def _check_live(value: str) -> None:
         parse_live(value)
     except LiveError as exc:
         raise ConfigError(str(exc)) from None
+
+
+def _parallel(ns: argparse.Namespace) -> int:
+    """--parallel N, checked: N node instances of a spawned drone (1: the run of one)."""
+    try:
+        n = int(ns.parallel)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigError(f"--parallel: {ns.parallel!r} is not a positive whole number")
+    if n == 1 or ns.list:
+        return 1
+    if ns.target is not None:
+        raise ConfigError("--parallel: attach mode has one node under test; only spawned nodes "
+                          "(--spawn, the embedded one) are shared out")
+    if ns.role != "drone":
+        raise ConfigError(f"--parallel: the {ns.role} role's cases are not shared out (the drone role's are)")
+    if ns.live is not None:
+        raise ConfigError("--parallel: --live follows one node instance; run it without --parallel")
+    if ns.listen is not None and not ns.listen.endswith(":0"):
+        raise ConfigError("--parallel: each node instance listens on a free port of its own; "
+                          "give --listen HOST:0 or leave it out")
+    if ns.shard is not None:
+        raise ConfigError("--parallel: not within one of its own instances (--shard)")
+    return n
 
 
 def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> int:
@@ -192,6 +222,10 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
             args.append(f"--mcp-{name.replace('_', '-')}={value}")
     if ns.mavlink:
         args.append(f"--mcp-mavlink={ns.mavlink}")
+    if ns.shard is not None:
+        args.append(f"--mcp-shard={ns.shard}")
+    if ns.shard_events is not None:
+        args.append(f"--mcp-shard-events={ns.shard_events}")
     for flag in ("strict", "list", "serial"):
         if getattr(ns, flag):
             args.append(f"--mcp-{flag}")
@@ -259,6 +293,14 @@ def _main(argv: list[str]) -> int:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
         return _fail(str(exc), json_path, RunConfig(role=ns.role))
+    try:
+        parallel = _parallel(ns)
+    except ConfigError as exc:
+        return _fail(str(exc), json_path, cfg)
+    if parallel > 1:
+        from conformance.parallel import run_parallel
+
+        return run_parallel(ns, cfg, parallel, _fail)
     if ns.list and (ns.capture or ns.html or ns.live):
         ns.capture = ns.html = ns.live = None  # nothing runs: no capture file, no HTML report, no server
     import pytest

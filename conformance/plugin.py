@@ -92,6 +92,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                 "(the default schedule overlaps what only waits)")
     g.addoption("--mcp-list", action="store_true", help="list the cases with their rule IDs; run nothing")
     g.addoption("--mcp-frontend", action="store_true", help="(used by mcp-conform) speak as mcp-conform")
+    g.addoption("--mcp-shard", metavar="K/N", help="(used by mcp-conform --parallel) run instance K's share "
+                "of the plan shared out across N node instances (conformance.schedule.shard_plan)")
+    g.addoption("--mcp-shard-events", metavar="FILE", help="(used by mcp-conform --parallel) append the plan, "
+                "each case's record and the run's notes to FILE, one JSON object a line")
     for key in _KEYS:
         parser.addini("mcp_" + key, f"default for --mcp-{key.replace('_', '-')} (environment: {env_name(key)})",
                       type="bool" if key in _FLAGS else "string", default=False if key in _FLAGS else None)

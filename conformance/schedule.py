@@ -30,6 +30,21 @@ before it would be sent to a node whose mission has not started.
 ``--serial`` runs every case alone in the order of their modules (the schedule the runner
 had before; the comparison of the two is ``bench/bench_suite.py`` and
 ``tests/conformance/test_schedule_verdicts.py``).
+
+**Shards** (``mcp-conform --parallel N``, spawn mode; ``shard_plan``): the plan's units (a
+case alone, the batch as one) are shared out across up to N node instances, each spawned on
+ports of its own, longest first onto the instance that would finish first, by an estimate in
+units of the node's timeout (``--rto``) and the ACK window where those are what a unit waits
+(``estimate``). Each instance runs its own startup phase: the observed one (the fix held for
+MCP-BLK-5, Mission_Ready's copies, the wrong ACKs, the watch after the right one) only on the
+instance that holds the startup-phase cases and MCP-BLK-4 (judged on that startup's
+Start_Mission; ``STARTUP_BOUND``), all on one; the others the quick one of a restart (the
+first Mission_Ready ACKed at once, a header that reads right only byte-swapped still
+diagnosed). Within an instance, cases that run alone still run alone and the batch stays
+whole. The cases judged on the whole run's traffic (the ``late`` phase's observations) run
+on every instance, each on its own node's traffic (``shard`` None), and the worst verdict
+is the case's: the run's traffic is the union of the instances'. Nothing else changes what
+a case sees, so its verdict is the run of one's (``tests/conformance/test_parallel.py``).
 """
 
 from __future__ import annotations
@@ -37,7 +52,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "plan_cases"]
+__all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "estimate", "plan_cases", "shard_plan"]
 
 SILENCE = ("waits out a 'no reply' window (D-6); its probes are told apart from the batch's others "
            "by the seq each reply names")
@@ -103,6 +118,14 @@ JUDGES_ORDER = {
                                                          "that compares bytes",
 }
 BATCH = "batch"
+#: cases judged on the observed startup phase beyond the ``startup`` phase's own: they run on
+#: the instance that observes it (``shard_plan``)
+STARTUP_BOUND = {
+    "BLK/test_no_arming_before_start_mission": "judged on the observed startup's Start_Mission: on the "
+                                               "instance that observes the startup phase",
+}
+EVERY = ("judged on the whole run's traffic: on every instance, each on its own node's traffic; "
+         "the worst verdict is the case's")
 
 
 @dataclass(frozen=True)
@@ -114,9 +137,11 @@ class Step:
     group: str
     shared: bool
     why: str
+    shard: int | None = 0  # the node instance it runs on (``--parallel``); None: on every one
 
     def to_json(self) -> dict[str, object]:
-        return {"case": self.case, "group": self.group, "shared": self.shared, "why": self.why}
+        return {"case": self.case, "group": self.group, "shared": self.shared, "why": self.why,
+                "shard": self.shard}
 
 
 @dataclass
@@ -128,6 +153,7 @@ class Plan:
     why: str  # why this mode
     steps: list[Step]
     batch_outcome: str | None = None
+    shards: int = 1  # node instances (``--parallel``)
 
     @property
     def batch(self) -> list[str]:
@@ -135,14 +161,32 @@ class Plan:
 
     def to_json(self) -> dict[str, object]:
         return {"mode": self.mode, "why": self.why, "batch_outcome": self.batch_outcome,
-                "steps": [s.to_json() for s in self.steps]}
+                "shards": self.shards, "steps": [s.to_json() for s in self.steps]}
 
     def lines(self) -> list[str]:
-        """The plan for a person (``-v``)."""
-        out = [f"schedule: {self.mode} ({self.why})"]
+        """The plan for a person (``-v``); with shards, each step's node instance (1-based;
+        ``all``: on every one)."""
+        out = [f"schedule: {self.mode} ({self.why})"
+               + (f", across {self.shards} node instances" if self.shards > 1 else "")]
         for s in self.steps:
-            out.append(f"  {s.group:<7} {'shared' if s.shared else 'alone ':<6} {s.case}: {s.why}")
+            where = "" if self.shards <= 1 else f"{'all' if s.shard is None else s.shard + 1:>3} "
+            out.append(f"  {where}{s.group:<7} {'shared' if s.shared else 'alone ':<6} {s.case}: {s.why}")
         return out
+
+    def of_shard(self, shard: int) -> list[str]:
+        """The cases instance ``shard`` runs, in the plan's order."""
+        return [s.case for s in self.steps if s.shard is None or s.shard == shard]
+
+    def observes_startup(self, shard: int) -> bool:
+        """Whether instance ``shard`` runs the observed startup phase (it holds a case judged
+        on it), else the quick one."""
+        return any(s.shard == shard and (s.group == "startup" or s.case in STARTUP_BOUND) for s in self.steps)
+
+    @classmethod
+    def from_json(cls, doc: dict) -> Plan:
+        steps = [Step(str(s["case"]), str(s["group"]), bool(s["shared"]), str(s["why"]), s.get("shard", 0))
+                 for s in doc.get("steps", [])]
+        return cls(str(doc["mode"]), str(doc["why"]), steps, doc.get("batch_outcome"), int(doc.get("shards", 1)))
 
 
 def serial_why(role: str, serial: bool, impaired: bool, worker: bool = False) -> str | None:
@@ -192,3 +236,65 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
     for s in steps_or_slot:
         steps.extend(shared if s is None else [s])
     return Plan("scheduled", "what only waits is overlapped", steps)
+
+
+# ---------------------------------------------------------------------- shards (--parallel)
+#: a node's time to its first Mission_Ready once spawned (the process's start; not a timeout)
+NODE_START_S = 1.0
+#: a case that only exchanges a few datagrams with a node that answers at once
+QUICK_CASE_S = 0.15
+
+
+def startup_estimate(observed: bool, rto: float, window: float) -> float:
+    """The startup phase's wall time, estimated (harness.session): the observed one holds
+    the fix (2 windows, MCP-BLK-5), waits for three retransmissions, one more after the
+    wrong ACKs, watches 1.5 timeouts after the right one (MCP-RTX-1, MCP-BLK-4); both then
+    send Start_Mission and watch its ACK's window."""
+    if not observed:
+        return NODE_START_S + window
+    return max(2 * window, 0.5) + NODE_START_S + 4 * rto + max(window, 1.5 * rto) + window
+
+
+def estimate(step: Step, rto: float, window: float) -> float:
+    """A step's wall time, estimated in units of what it waits: a silence or count window
+    (the batch's, shared), else the few exchanges of a quick case."""
+    if step.group == BATCH:
+        return 1.5 * window + 0.2
+    if step.case in BATCH_CASES:  # run alone: its own window
+        return 1.5 * window + 0.2
+    if step.case == "ROB/test_flood_of_malformed_datagrams":
+        return 0.5 + window
+    return QUICK_CASE_S
+
+
+def shard_plan(plan: Plan, shards: int, rto: float, window: float) -> Plan:
+    """``plan`` shared out across at most ``shards`` node instances (see the module's
+    docstring): the startup-bound cases on instance 0, the whole run's observations on every
+    instance, the rest unit by unit (the batch one unit), longest first, each onto the
+    instance estimated to finish first. Instances left with nothing of their own are not
+    used; the instances are numbered in the order they are started."""
+    if shards <= 1:
+        return plan
+    steps = plan.steps
+    bound = [s for s in steps if s.group == "startup" or s.case in STARTUP_BOUND]
+    every = {s.case for s in steps if s.group == "late" and s.case not in ALONE and s.case not in STARTUP_BOUND}
+    units: list[list[Step]] = []
+    batch = [s for s in steps if s.group == BATCH]
+    if batch:
+        units.append(batch)
+    units += [[s] for s in steps if s.group != BATCH and s not in bound and s.case not in every]
+    loads = [startup_estimate(bool(bound) and k == 0, rto, window) for k in range(shards)]
+    loads[0] += sum(estimate(s, rto, window) for s in bound)
+    where: dict[str, int] = {s.case: 0 for s in bound}
+    # longest first; ties keep the plan's order (a stable sort), so the plan is the same in
+    # every process that makes it
+    for unit in sorted(units, key=lambda u: -sum(estimate(s, rto, window) for s in u)):
+        k = min(range(shards), key=lambda i: (loads[i], i))
+        loads[k] += sum(estimate(s, rto, window) for s in unit)
+        for s in unit:
+            where[s.case] = k
+    used = sorted(set(where.values()) or {0})
+    number = {k: n for n, k in enumerate(used)}
+    out = [Step(s.case, s.group, s.shared, EVERY if s.case in every else s.why,
+                None if s.case in every else number[where[s.case]]) for s in steps]
+    return Plan(plan.mode, plan.why, out, plan.batch_outcome, len(used))

@@ -126,14 +126,19 @@ class Session(SessionBase):
         return self._t0_ns + int(t_monotonic * 1e9)
 
     # ------------------------------------------------------------------ start / stop
-    def start(self, observe_startup: bool = True, watch: bool = True, measure: bool = False) -> None:
+    def start(self, observe_startup: bool = True, watch: bool = True, measure: bool = False,
+              diagnose: bool = False) -> None:
         """Open the driver, start the vehicle and the node, run the startup phase (observed
         for the startup-phase cases unless ``observe_startup`` is False: then it is the quick
         one of a restart, as the fuzzer wants it). ``watch=False``: no background liveness
         watcher and no run monitor (the fuzzer's probe behind each batch is its proof of
         life, and its oracles judge every datagram once). ``measure``: in the quick startup,
         the node's retransmission period is still measured (``period``), its Mission_Ready's
-        ACK withheld until a second copy shows it."""
+        ACK withheld until a second copy shows it. ``diagnose``: the quick startup leaves the
+        node as the observed one does: a header that reads right only byte-swapped is still
+        diagnosed (MCP-HDR-2, ``unreadable``), a Mission_Ready the driver could not decode still
+        ACKed by its header (a shard of ``mcp-conform --parallel`` that does not hold the
+        startup-phase cases: its cases are skipped on that diagnosis, as in a run of one)."""
         cfg = self.cfg
         if cfg.role != "drone":
             raise SetupError(f"{cfg.role} role conformance is not available yet")
@@ -171,7 +176,7 @@ class Session(SessionBase):
         if self.spawned:
             self._spawn()
         self.startup_window = (time.monotonic(), None)
-        self._startup_phase(first=observe_startup, measure=measure)
+        self._startup_phase(first=observe_startup, measure=measure, diagnose=diagnose)
         self.startup_window = (self.startup_window[0], time.monotonic())
 
     def close(self) -> None:
@@ -270,7 +275,7 @@ class Session(SessionBase):
         return SetupError(f"target never answered within the run's --timeout of {timeout:g} s "
                           "(no Mission_Ready, no ACK of a probe)")
 
-    def _startup_phase(self, first: bool, measure: bool = False) -> None:
+    def _startup_phase(self, first: bool, measure: bool = False, diagnose: bool = False) -> None:
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
@@ -283,7 +288,7 @@ class Session(SessionBase):
             return d.action == _READY
 
         def ready_or_unreadable(d: Datagram) -> bool:
-            return is_ready(d) or (first and self._byte_order(d) is not None)
+            return is_ready(d) or ((first or diagnose) and self._byte_order(d) is not None)
 
         if self.vehicle is not None and first:
             v = self.vehicle
@@ -325,7 +330,7 @@ class Session(SessionBase):
                 self.monitor.node_id = self.target_id
             drv.attributor.peer_id = self.target_id
             self.record_node(self.target_id, complete=self.trace_complete)
-        swapped = self._byte_order(first_ready) if first else None
+        swapped = self._byte_order(first_ready) if first or diagnose else None
         if swapped is not None:
             # nothing the runner would read of this node's datagrams (its ACKs, seqs, IDs) is
             # what it wrote: no mission, the cases that read them are skipped (not_judged)
@@ -338,6 +343,11 @@ class Session(SessionBase):
             self._observe_retransmissions(st, first_ready)
         elif measure:
             self._measure_period(first_ready)
+        elif diagnose and first_ready.msg is None and first_ready.header is not None:
+            # the driver ACKs only what it decodes: a Mission_Ready it could not (a bad
+            # preamble) is ACKed as the observed startup ACKs it, by its header
+            drv.send_ack(first_ready.header[2], dst=self.target_id if self.target_id is not None
+                         else first_ready.header[1])
         withhold = False
         if first:
             self.startup = st

@@ -1,0 +1,156 @@
+"""``mcp-conform --parallel N`` (issue 23): the suite shared out across N spawned node
+instances (``conformance.schedule.shard_plan``, ``conformance.parallel``).
+
+The plan as data (which instance runs which case; the startup-bound cases together, the
+batch whole, the whole run's observations on every instance), the options refused with one
+line, and — slow — the verdicts: every case the same outcome with ``--parallel 1`` and
+``--parallel 3`` against the reference node and faulty sample nodes whose faults fall in the
+startup, the batch, the whole run's traffic, a crash, a flood and the seq wrap.
+"""
+
+from __future__ import annotations
+
+import json
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import jsonschema
+import pytest
+
+from conformance.parallel import pick_every
+from conformance.schedule import BATCH, BATCH_CASES, STARTUP_BOUND, Plan, plan_cases, shard_plan
+
+from .runner_helpers import FAST, run_conform, sample_node_command
+
+SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "conformance" / "report.schema.json").read_text())
+
+STARTUP = [("BLK/test_nothing_new_while_mission_ready_awaits_its_ack", "startup"),
+           ("RTX/test_mission_ready_is_retransmitted_until_acked", "startup")]
+MAIN = [("ACK/test_every_command_type_is_acked", "main"), *[(c, "main") for c in BATCH_CASES],
+        ("ACK/test_ack_leaves_within_the_deadline", "main"), ("DUP/test_new_seq_with_the_same_bytes_is_delivered", "main"),
+        ("TRN/test_datagram_from_another_source_port_is_accepted", "main")]
+LATE = [("BLK/test_no_arming_before_start_mission", "late"), ("HDR/test_src_is_the_node_id", "late"),
+        ("ROB/test_flood_of_malformed_datagrams", "late"), ("SEQ/test_zero_after_65535_is_new", "late"),
+        ("BLK/test_end_mission_then_rtl", "end")]
+CASES = STARTUP + MAIN + LATE
+
+
+def test_one_instance_is_the_plan_as_it_was():
+    plan = plan_cases(CASES)
+    assert shard_plan(plan, 1, 5.0, 2.0) is plan
+    doc = plan.to_json()
+    assert doc["shards"] == 1 and {s["shard"] for s in doc["steps"]} == {0}
+    jsonschema.validate(doc, SCHEMA["properties"]["schedule"])
+
+
+@pytest.mark.parametrize("rto,window", [(5.0, 2.0), (0.3, 2.0), (0.2, 0.25)])
+def test_shards_keep_the_startup_together_the_batch_whole_and_observe_the_whole_run_on_each(rto, window):
+    plan = shard_plan(plan_cases(CASES), 3, rto, window)
+    steps = {s.case: s for s in plan.steps}
+    assert [s.case for s in plan.steps] == [s.case for s in plan_cases(CASES).steps]  # the order kept
+    assert plan.shards == 3
+    bound = {c for c, phase in STARTUP} | set(STARTUP_BOUND)
+    assert {steps[c].shard for c in bound} == {0}
+    assert plan.observes_startup(0) and not plan.observes_startup(1) and not plan.observes_startup(2)
+    assert len({s.shard for s in plan.steps if s.group == BATCH}) == 1
+    assert steps["HDR/test_src_is_the_node_id"].shard is None  # judged on each instance's traffic
+    for sender in ("ROB/test_flood_of_malformed_datagrams", "SEQ/test_zero_after_65535_is_new",
+                   "BLK/test_end_mission_then_rtl"):
+        assert steps[sender].shard is not None, sender
+    # the observed startup is the longest wait: the instance that runs it gets nothing else
+    # that can go elsewhere
+    assert {s.case for s in plan.steps if s.shard == 0} == bound
+    for k in range(3):  # each instance's share in the plan's order; the whole-run cases on each
+        assert "HDR/test_src_is_the_node_id" in plan.of_shard(k)
+    jsonschema.validate(plan.to_json(), SCHEMA["properties"]["schedule"])
+    assert Plan.from_json(plan.to_json()) == plan
+    lines = plan.lines()
+    assert "across 3 node instances" in lines[0]
+    assert any(line.strip().startswith("all late") for line in lines)
+
+
+def test_instances_left_idle_are_not_used_and_the_plan_is_the_same_every_time():
+    few = STARTUP + [("ACK/test_every_command_type_is_acked", "main"), ("HDR/test_src_is_the_node_id", "late")]
+    plan = shard_plan(plan_cases(few), 4, 5.0, 2.0)
+    assert plan.shards == 2  # the startup's instance and one for the only other unit
+    assert sorted({s.shard for s in plan.steps if s.shard is not None}) == [0, 1]
+    assert shard_plan(plan_cases(CASES), 3, 5.0, 2.0) == shard_plan(plan_cases(CASES), 3, 5.0, 2.0)
+    no_startup = shard_plan(plan_cases(MAIN), 2, 5.0, 2.0)
+    assert not any(no_startup.observes_startup(k) for k in range(no_startup.shards))
+
+
+def test_a_case_run_on_every_instance_keeps_the_worst_verdict_and_says_where():
+    case = {"id": "HDR/test_src_is_the_node_id", "outcome": "passed", "notes": []}
+    got = pick_every({0: case, 1: {**case, "outcome": "failed", "notes": ["x"]}, 2: {**case, "outcome": "skipped"}})
+    assert got["outcome"] == "failed"
+    assert got["notes"][0] == "x" and "failed on instance 2's" in got["notes"][1]
+    assert pick_every({0: case, 1: {**case, "outcome": "skipped"}})["outcome"] == "passed"
+    assert pick_every({0: case, 1: dict(case)}) == case  # the same everywhere: no note
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--parallel", "2", "--target", "127.0.0.1:9"], "--parallel: attach mode"),
+    (["--parallel", "0"], "--parallel: '0' is not a positive whole number"),
+    (["--parallel", "2", "--role", "manager"], "--parallel: the manager role"),
+    (["--parallel", "2", "--live", "0"], "--parallel: --live"),
+    (["--parallel", "2", "--listen", "127.0.0.1:7889"], "--parallel: each node instance listens"),
+])
+def test_parallel_is_refused_where_there_is_no_instance_to_share_to(tmp_path, args, needle):
+    res = run_conform(*args, timeout=60)
+    assert res.rc == 2, res.explain()
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("mcp-conform: error:")]
+    assert len(errors) == 1 and needle in errors[0], res.output
+    assert "Traceback" not in res.output
+    assert needle in (res.report.get("error") or ""), res.report
+
+
+# ---------------------------------------------------------------------- verdicts (slow)
+NODES = [
+    ("reference", None),
+    ("sample", ()),
+    ("rtx-stop-on-any-ack", ("--fault", "rtx-stop-on-any-ack")),  # the observed startup
+    ("ready-without-fix", ("--fault", "ready-without-fix")),
+    ("arm-early", ("--fault", "arm-early")),  # MCP-BLK-4, and the monitor on every instance
+    ("header-little-endian", ("--fault", "header-little-endian")),  # diagnosed on every instance
+    ("bad-preamble", ("--fault", "bad-preamble")),  # the whole run's traffic
+    ("send-action-9", ("--fault", "send-action-9")),
+    ("ack-broadcast", ("--fault", "ack-broadcast")),  # the batch
+    ("crash-on-short", ("--fault", "crash-on-short")),  # a crash in the batch: run again alone
+    ("flood-hang", ("--fault", "flood-hang")),
+    ("seq-no-wrap", ("--fault", "seq-no-wrap")),
+]
+
+
+def _outcomes(res) -> dict[str, str]:
+    return {c["id"]: c["outcome"] for c in res.report.get("cases", [])}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label,node_args", NODES, ids=[n for n, _ in NODES])
+def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_args, tmp_path):
+    from .runner_helpers import reference_node_command
+
+    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
+    base = ("--spawn", spawn, "--mavlink", *FAST)
+    record = ("--capture", str(tmp_path / "run.mcap"), "--junit", str(tmp_path / "run.xml"))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        one, three = pool.map(lambda a: run_conform(*a, timeout=300),
+                              [(*base, "--parallel", "1"), (*base, "--parallel", "3", *record)])
+    want, got = _outcomes(one), _outcomes(three)
+    assert want, one.explain()
+    diff = {c: (want.get(c), got.get(c)) for c in sorted(set(want) | set(got)) if want.get(c) != got.get(c)}
+    assert not diff, f"--parallel 1 vs 3 differ: {diff}\n{three.explain()}"
+    assert three.rc == one.rc, three.explain()
+    assert three.report.get("error") == one.report.get("error"), three.explain()
+    # one report of the same shape, the plan saying which instance ran each case
+    assert set(three.report) == set(one.report)
+    assert one.report["schedule"]["shards"] == 1
+    plan = three.report["schedule"]
+    assert plan["shards"] > 1 and len({s["case"] for s in plan["steps"]}) == len(plan["steps"])
+    assert len(three.report["cases"]) == len(got)  # each case once
+    assert three.output.count("suite finished in") == 1
+    from conformance.report import validate_json
+
+    validate_json(three.report)
+    assert (tmp_path / "run.xml").read_text().count("<testcase ") == len(got)
+    assert (tmp_path / "run.mcap").stat().st_size > 0 and not list(tmp_path.glob("*.events"))
