@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-
 SPEC_PATH = Path(__file__).with_name("mcp.yaml")
 SCHEMA_PATH = Path(__file__).with_name("spec.schema.json")
 
