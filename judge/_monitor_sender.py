@@ -378,8 +378,13 @@ class SenderRules(RetransmissionRules):
             if ex.tester and prev is not None and node.start is not None:
                 return  # the harness's fresh Mission_Ready of a drone it plays, its mission under
                 # way (a liveness probe of mcp-conform --role manager): no restart of that drone
-            if prev is None or prev.acks or not self._complete_for(node.id, MANAGER):
-                _new_mission(node)
+            complete = self._complete_for(node.id, MANAGER)
+            if prev is None or prev.acks or not complete:
+                if prev is not None or not complete:
+                    _new_mission(node)
+                # else its first Mission_Ready of a complete trace: no mission to restart, and
+                # what the manager sent it before (a Start_Mission too early) is MCP-BLK-2's,
+                # the mission it started not forgotten (MCP-FLOW-2 on the commands after)
                 node.ready = ex.first
                 node.ready_ex = ex
             return

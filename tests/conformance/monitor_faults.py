@@ -385,6 +385,20 @@ def blk2() -> Script:
     return _finish(s)
 
 
+def blk2_start_before_that_drones_ready() -> Script:
+    """A manager that sends drone 2 its Start_Mission before drone 2's Mission_Ready came
+    (``sample_manager --fault start-early`` when the drone is the slower to start): MCP-BLK-2.
+    The Mission_Ready that follows is drone 2's first, not a restart of its mission: the
+    WP_List after it is not "a command before Start_Mission" (MCP-FLOW-2 beside BLK-2 on a
+    fast host, before)."""
+    s = Script((1, 2))
+    s.ready(1)
+    s.start(1)
+    s.start(2)  # before drone 2 said Mission_Ready
+    s.ready(2)
+    return _finish(s)
+
+
 def blk3() -> Script:
     s = Script((1, 2))
     for d in s.drones:
@@ -713,6 +727,7 @@ FAULTY: dict[str, Fault] = {
     "rtx4-broadcast-twice": Fault("MCP-RTX-4", rtx4, complete=False),
     "blk1-no-stop-and-wait": Fault("MCP-BLK-1", blk1, complete=False),
     "blk2-start-before-all-ready": Fault("MCP-BLK-2", blk2),
+    "blk2-start-before-that-drones-ready": Fault("MCP-BLK-2", blk2_start_before_that_drones_ready),
     "blk3-command-before-start-acked": Fault("MCP-BLK-3", blk3),
     "blk4-arms-early": Fault("MCP-BLK-4", blk4),
     "blk5-ready-without-fix": Fault("MCP-BLK-5", blk5),
