@@ -125,7 +125,6 @@ class ManagerSession(SessionBase):
         #: the runner from the cases it will run; empty: one after another, ``--serial``)
         self.overlap: set[str] = set()
         self.side: dict[str, SideScenario] = {}  # running beside the main one
-        self.side_notes: list[str] = []  # why a scenario of ``overlap`` runs after the main one
 
     # ------------------------------------------------------------------ facts
     @property
@@ -147,6 +146,10 @@ class ManagerSession(SessionBase):
         line = (f"startup: the runner {who} and plays drones {', '.join(map(str, cfg.drones))}: drone {first} "
                 f"announces Mission_Ready, retransmitted every {self.rto:g} s (--rto) until the manager ACKs it "
                 f"(up to {self.ready_limit:g} s), then the others; the main mission is watched to its End_Mission")
+        if "silent" in self.overlap:
+            why = side_by_side_why_not(cfg.spawn, cfg.drones)
+            line += ("; the silent drone's scenario runs beside it, on a second manager instance with ports of "
+                     "its own" if why is None else f"; the silent drone's scenario runs after it ({why})")
         return line, "startup: the drones' Mission_Ready and the main mission"
 
     # ------------------------------------------------------------------ start / stop
@@ -336,10 +339,8 @@ class ManagerSession(SessionBase):
         for kind in sorted(self.overlap):
             if kind != "silent" or kind in self.side:
                 continue
-            why = side_by_side_why_not(self.cfg.spawn, self.cfg.drones)
-            if why is not None:
-                self.side_notes.append(f"the {kind} scenario runs after the main one: {why}")
-                continue
+            if side_by_side_why_not(self.cfg.spawn, self.cfg.drones) is not None:
+                continue  # it runs after the main one (the header says why)
             listen = self.cfg.listen[0] if self.cfg.listen else ""
             target_host = self.cfg.target[0] if self.cfg.target else "127.0.0.1"
             side = SideScenario(kind, spawn=self.cfg.spawn or "", placeholders=self._placeholders(),
@@ -350,10 +351,9 @@ class ManagerSession(SessionBase):
                                 ready_limit=self.ready_limit)
             try:
                 side.start()
-            except OSError as exc:
+            except OSError:
                 side.close()
-                self.side_notes.append(f"the {kind} scenario runs after the main one: {exc}")
-                continue
+                continue  # no socket of its own: it runs after the main one
             self.side[kind] = side
 
     def _side_mission(self, side: SideScenario) -> Mission:

@@ -46,7 +46,7 @@ def side_by_side_why_not(spawn: str | None, drones: tuple[int, ...]) -> str | No
     missing = [p for p in NEEDED if p not in spawn]
     if missing:
         return (f"the --spawn command has no {' and no '.join(missing)}: a second instance would share the "
-                "first one's ports, so the scenario runs after the main one")
+                "first one's ports")
     return None
 
 
@@ -133,13 +133,11 @@ class SideScenario:
                 if m.exit_code is None:
                     m.notes.append("the manager was still running at the end of the scenario (stopped)")
 
-    def join(self, until: Callable[[], bool] = lambda: False) -> Mission:
-        """The scenario's record once it is over (its own waits bound it); ``until``: give
-        up waiting (the run is being stopped) — the scenario is stopped."""
+    def join(self) -> Mission:
+        """The scenario's record once it is over (its own waits bound it: the startup limit,
+        the copies, the watch's cap); a signal reaches the waiting thread between joins."""
         t = self._thread
         while t is not None and t.is_alive():
-            if until():
-                self._stop.set()
             t.join(0.05)
         if self.error is not None:
             raise self.error
