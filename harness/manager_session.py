@@ -12,8 +12,12 @@ A manager runs one mission and is done, so every scenario that needs a fresh mis
 starts a fresh manager (spawn mode and the embedded default). The main scenario runs at
 start; a manager that sends nothing at all in it never answered (a setup error, exit 2),
 while one that goes on with the mission without ACKing the drones' Mission_Ready is judged
-on what it did (MCP-ACK-1 fails). Other scenarios run when the first case that needs them
-does. In attach mode the manager is already
+on what it did (MCP-ACK-1 fails). The other scenario a run's cases judge (``overlap``, set
+by the runner: the silent drone's) runs beside the main one, on a manager instance of its
+own (``harness.manager_side``: its own ports and drones' socket, its traffic handed to the
+capture and the monitor as its own session when its case asks for it); with ``overlap``
+empty (``--serial``), or a spawn command that cannot give a second instance ports of its
+own, it runs when the first case that needs it does. In attach mode the manager is already
 running and only its one mission can be observed: the other scenarios are SKIPPED.
 
 Each scenario's mission is a session of its own, of the run's trace monitor
