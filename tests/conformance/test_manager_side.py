@@ -22,6 +22,26 @@ def test_a_second_instance_needs_ports_of_its_own():
     assert "{listen_port}" in side_by_side_why_not("m --bind {target_host}:{target_port} --send-to x:7890", (1, 2))
 
 
+def test_the_tee_records_a_datagram_with_the_socket_it_reached():
+    """``mcp-conform -v`` wraps the recorder (``conformance.live.Tee``): a datagram of the
+    side instance's socket is recorded with that socket as its ``local``, not the main one's."""
+    from conformance.live import Tee
+
+    got = []
+
+    class Rec:
+        local = ("", 1)
+
+        def datagram(self, *a, **kw):
+            got.append((a, kw))
+
+    tee = Tee(Rec(), None)
+    tee.datagram("rx", b"x", ("127.0.0.1", 5), 7, local=("", 2))
+    tee.datagram("rx", b"x", ("127.0.0.1", 5), 8, run_delay=3)
+    assert got == [(("rx", b"x", ("127.0.0.1", 5), 7), {"local": ("", 2)}),
+                   (("rx", b"x", ("127.0.0.1", 5), 8), {"run_delay": 3})]
+
+
 def _run(tmp_path, overlap: set[str]):
     from conformance.manager_case import ManagerCaseContext
     from traceio.recorder import McapRecorder
