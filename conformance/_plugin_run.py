@@ -80,11 +80,13 @@ def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config
         stream.make_context = StreamCaseContext
         return stream
     if cfg.role == "manager":
-        from conformance.manager_case import ManagerCaseContext
+        from conformance.manager_case import ManagerCaseContext, scenarios_beside_main
         from harness.manager_session import ManagerSession
 
         manager = ManagerSession(cfg, recorder=recorder)
         manager.make_context = ManagerCaseContext
+        state = _state(config)  # the scenarios its cases judge run beside the main one (issue 23)
+        manager.overlap = scenarios_beside_main(config, state.items if state is not None else [])
         return manager
     from conformance.case import CaseContext
     from harness.session import Session

@@ -151,12 +151,16 @@ class Tee:
         self._watch = watch
 
     def datagram(self, direction: str, data: bytes, addr: Any, t_ns: int | None = None,
-                 run_delay: int | None = None) -> None:
+                 run_delay: int | None = None, local: Any = None) -> None:
+        """``local``: the runner's socket, when not the recorder's (a manager instance of
+        its own, ``harness.manager_side``)."""
         if self._recorder is not None:  # (the node's run delay only when known: MCP-RTX-3)
-            if run_delay is None:
-                self._recorder.datagram(direction, data, addr, t_ns)
-            else:
-                self._recorder.datagram(direction, data, addr, t_ns, run_delay=run_delay)
+            kw: dict[str, Any] = {}
+            if run_delay is not None:
+                kw["run_delay"] = run_delay
+            if local is not None:
+                kw["local"] = local
+            self._recorder.datagram(direction, data, addr, t_ns, **kw)
         if self._printer is not None:
             self._printer(direction, data, addr, t_ns)
         if self._watch is not None:

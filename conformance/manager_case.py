@@ -22,9 +22,9 @@ from __future__ import annotations
 import math
 import statistics
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from conformance._case_base import CaseBase
 from harness.driver import Datagram, read_header
@@ -36,6 +36,7 @@ from spec.codec import HEADER_SIZE, ITEM, Action
 if TYPE_CHECKING:
     from harness.manager_session import ManagerSession
 
+F = TypeVar("F", bound=Callable[..., Any])
 _ACK = int(Action.ACK)
 _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
@@ -190,6 +191,25 @@ def unpack_items(region: bytes) -> list[Any]:
     from spec.codec import MissionItem
 
     return [MissionItem._make(t) for t in ITEM.iter_unpack(region)]
+
+
+def needs_scenario(kind: str) -> Callable[[F], F]:
+    """A case that judges scenario ``kind`` (not the main one): the runner starts that
+    scenario beside the main mission when the case is to run (``scenarios_beside_main``)."""
+    def mark(fn: F) -> F:
+        fn.mcp_scenario = kind  # type: ignore[attr-defined]
+        return fn
+    return mark
+
+
+def scenarios_beside_main(config: Any, items: Sequence[Any]) -> set[str]:
+    """The scenarios the cases of this run (pytest items) judge besides the main one, to
+    run beside it on manager instances of their own (``harness.manager_side``; issue 23);
+    none with ``--serial`` (every scenario after the one before, as before) or in a
+    pytest-xdist worker (the workers share the cases out: a worker may not run the case)."""
+    if config.getoption("mcp_serial", False) or hasattr(config, "workerinput"):
+        return set()
+    return {k for i in items if (k := getattr(getattr(i, "obj", None), "mcp_scenario", None))}
 
 
 class ManagerCaseContext(CaseBase):

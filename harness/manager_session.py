@@ -12,8 +12,12 @@ A manager runs one mission and is done, so every scenario that needs a fresh mis
 starts a fresh manager (spawn mode and the embedded default). The main scenario runs at
 start; a manager that sends nothing at all in it never answered (a setup error, exit 2),
 while one that goes on with the mission without ACKing the drones' Mission_Ready is judged
-on what it did (MCP-ACK-1 fails). Other scenarios run when the first case that needs them
-does. In attach mode the manager is already
+on what it did (MCP-ACK-1 fails). The other scenario a run's cases judge (``overlap``, set
+by the runner: the silent drone's) runs beside the main one, on a manager instance of its
+own (``harness.manager_side``: its own ports and drones' socket, its traffic handed to the
+capture and the monitor as its own session when its case asks for it); with ``overlap``
+empty (``--serial``), or a spawn command that cannot give a second instance ports of its
+own, it runs when the first case that needs it does. In attach mode the manager is already
 running and only its one mission can be observed: the other scenarios are SKIPPED.
 
 Each scenario's mission is a session of its own, of the run's trace monitor
@@ -38,7 +42,9 @@ from typing import Any
 from harness.config import RunConfig
 from harness.driver import TargetDriver
 from harness.errors import Inconclusive, SetupError, TargetLost
+from harness.interrupts import INTERRUPTS
 from harness.manager_mission import DronePlayers, Mission, MissionScript
+from harness.manager_side import SideScenario, side_by_side_why_not
 from harness.session_base import (
     EMBEDDED_RTO,
     MANAGER_ID,
@@ -119,6 +125,10 @@ class ManagerSession(SessionBase):
         self.waypoints: tuple[Any, ...] | None = None
         self.obstacles: tuple[Any, ...] | None = None
         self.monitor: SessionMonitors | None = None  # the trace monitor, one session per mission
+        #: scenarios to run beside the main one, each on a manager instance of its own (set by
+        #: the runner from the cases it will run; empty: one after another, ``--serial``)
+        self.overlap: set[str] = set()
+        self.side: dict[str, SideScenario] = {}  # running beside the main one
 
     # ------------------------------------------------------------------ facts
     @property
@@ -140,6 +150,10 @@ class ManagerSession(SessionBase):
         line = (f"startup: the runner {who} and plays drones {', '.join(map(str, cfg.drones))}: drone {first} "
                 f"announces Mission_Ready, retransmitted every {self.rto:g} s (--rto) until the manager ACKs it "
                 f"(up to {self.ready_limit:g} s), then the others; the main mission is watched to its End_Mission")
+        if "silent" in self.overlap:
+            why = side_by_side_why_not(cfg.spawn, cfg.drones)
+            line += ("; the silent drone's scenario runs beside it, on a second manager instance with ports of "
+                     "its own" if why is None else f"; the silent drone's scenario runs after it ({why})")
         return line, "startup: the drones' Mission_Ready and the main mission"
 
     # ------------------------------------------------------------------ start / stop
@@ -147,6 +161,7 @@ class ManagerSession(SessionBase):
         """Open the drones' socket and run the main scenario (a setup error when the manager
         sends nothing at all)."""
         self.open()
+        self._start_side()
         self.mission("main")
         if "main" not in self.missions:
             raise SetupError(self.unavailable.get("main", "the manager never answered"))
@@ -216,6 +231,9 @@ class ManagerSession(SessionBase):
             self.waypoints = None  # attach mode without --waypoints: the mission is unknown
 
     def close(self) -> None:
+        for side in self.side.values():
+            side.close()
+        self.side.clear()
         if self.node is not None:
             self.node.close()
             self.node = None
@@ -257,11 +275,15 @@ class ManagerSession(SessionBase):
 
     # ------------------------------------------------------------------ scenarios
     def mission(self, kind: str) -> Mission:
-        """The record of scenario ``kind`` (``main`` or ``silent``), run on first use."""
+        """The record of scenario ``kind`` (``main`` or ``silent``), run on first use (or
+        already running beside the main one: then awaited)."""
         if kind in self.missions:
             return self.missions[kind]
         if kind in self.unavailable:
             raise Inconclusive(self.unavailable[kind])
+        side = self.side.pop(kind, None)
+        if side is not None:
+            return self._side_mission(side)
         if self.missions and not self.spawned:
             why = (f"the {kind} scenario needs a fresh mission, and in attach mode the manager runs "
                    "one mission only (use --spawn to let the runner restart it)")
@@ -291,30 +313,82 @@ class ManagerSession(SessionBase):
             self.node.stop()
             if m.exit_code is None:
                 m.notes.append("the manager was still running at the end of the scenario (stopped)")
+        return self._settle(m, ok, time.monotonic() - m.t0)
+
+    def _settle(self, m: Mission, ok: bool, elapsed: float) -> Mission:
+        """The scenario's record kept, or why the manager never answered in it."""
+        kind = m.kind
         if not ok:
             first = next(iter(m.ready.values()), None)
             unacked = (f" (drone {first.first.src}'s Mission_Ready, seq {first.seq}: {len(first.copies)} copies, "
                        "no ACK)" if first is not None else "")
-            why = (f"the manager never answered: nothing from it in {time.monotonic() - m.t0:.1f} s{unacked}"
+            why = (f"the manager never answered: nothing from it in {elapsed:.1f} s{unacked}"
                    + (f"; manager process exited with code {m.exit_code}" if m.exit_code is not None else ""))
             self.unavailable[kind] = why
             raise Inconclusive(why) if kind != "main" else SetupError(why)
         if kind == "main":
             from harness.manager_monitor import monitor_mission
 
+            assert self.driver is not None
             m.monitor, _, m.monitor_trace = monitor_mission(
                 m, self.driver.sent(), self.driver.listen, rto=self.rto, ack_window=self.ack_window,
                 broadcast_id=self.cfg.broadcast_id)
         self.missions[kind] = m
         return m
 
-    def _begin_session(self, kind: str) -> None:
+    # ------------------------------------------------------------------ side by side (issue 23)
+    def _start_side(self) -> None:
+        """Start each scenario of ``self.overlap`` on a manager instance of its own, beside
+        the main mission (``harness.manager_side``); where it cannot, it runs after it."""
+        for kind in sorted(self.overlap):
+            if kind != "silent" or kind in self.side:
+                continue
+            if side_by_side_why_not(self.cfg.spawn, self.cfg.drones) is not None:
+                continue  # it runs after the main one (the header says why)
+            listen = self.cfg.listen[0] if self.cfg.listen else ""
+            target_host = self.cfg.target[0] if self.cfg.target else "127.0.0.1"
+            side = SideScenario(kind, spawn=self.cfg.spawn or "", placeholders=self._placeholders(),
+                                listen_host=listen, target_host=target_host, drones=self.cfg.drones,
+                                challenge=self.cfg.challenge, waypoints=self.waypoints, obstacles=self.obstacles,
+                                seq_base=1000 + self.cfg.seed % 5000, rto=self.rto, ack_window=self.ack_window,
+                                broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed,
+                                ready_limit=self.ready_limit)
+            try:
+                side.start()
+            except OSError:
+                side.close()
+                continue  # no socket of its own: it runs after the main one
+            self.side[kind] = side
+
+    def _side_mission(self, side: SideScenario) -> Mission:
+        """The scenario that ran beside the main one: awaited, then its traffic written to the
+        capture and fed to the run's monitor as its own session, with its instance's address."""
+        try:
+            m = side.join()
+        finally:
+            self._begin_session(side.kind, address=side.target)
+            if self.monitor is not None and self.monitor.current is not None:
+                self.monitor.current.listen = side.listen  # this instance's drones' socket
+                self.monitor.current.node_addr = side.target
+            observers: list[Any] = [self.monitor.observe] if self.monitor is not None else []
+            rec = self.recorder
+            if rec is not None:
+                def record(direction: str, data: bytes, addr: Any, t_ns: int, run_delay: int | None = None) -> None:
+                    with INTERRUPTS.held():
+                        rec.datagram(direction, data, addr, t_ns, run_delay=run_delay, local=side.listen)
+                observers.insert(0, record)
+            side.replay(observers)
+            side.close()
+        return self._settle(m, side.ok, side.elapsed)
+
+    def _begin_session(self, kind: str, address: tuple[str, int] | None = None) -> None:
         """Scenario ``kind``'s mission is a session of the capture and of the run's monitor
         of its own (``McapRecorder.begin_segment``, :class:`SessionMonitors`), named by the
-        scenario, with the node under test's record (complete: the runner plays every drone)."""
+        scenario, with the node under test's record (complete: the runner plays every drone);
+        ``address``: where that scenario's manager received (default: the main one's)."""
         if self.monitor is not None:
             self.monitor.begin(kind)
-        address = getattr(self, "node_address", None)
+        address = address or getattr(self, "node_address", None)
         begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
         if begin is not None and address is not None:
             with contextlib.suppress(Exception):

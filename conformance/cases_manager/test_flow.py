@@ -8,7 +8,7 @@ A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the 
 
 from __future__ import annotations
 
-from conformance.manager_case import abandoned, item_differences, messages
+from conformance.manager_case import abandoned, item_differences, messages, needs_scenario
 from conformance.marks import rules
 from harness.errors import Inconclusive
 from spec.codec import Action
@@ -123,6 +123,7 @@ def test_challenge_3_obstacles_as_one_list(node):
 
 
 @rules("MCP-FLOW-7", phase="late")
+@needs_scenario("silent")
 def test_a_silent_drone_and_the_others(node):
     """One drone stops answering after its Start_Mission: what becomes of the others."""
     m = node.mission("silent")

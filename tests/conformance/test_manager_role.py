@@ -177,3 +177,28 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
     assert res.rules["MCP-FLOW-4"] == "passed" and res.rules["MCP-BLK-2"] == "passed", res.explain()
     silent = next(c for c in res.report["cases"] if "MCP-FLOW-7" in c["rules"])
     assert silent["outcome"] == "skipped" and "attach mode" in silent["reason"], silent
+
+
+def _decided(res):
+    """Each case's outcome and the run monitor's verdicts (what a run decided)."""
+    return ({c["id"]: c["outcome"] for c in res.report.get("cases", [])}, res.report.get("monitor", {}).get("rules"))
+
+
+SCHEDULE_TARGETS = [(f"reference-c{c}", (), c) for c in (1, 2, 3)] + \
+    [(f, ("--fault", f), c) for f, _, c in MANAGER_FAULTS] + [("dup-seq-only", ("--fault", "dup-seq-only"), 1)]
+
+
+@pytest.mark.parametrize("label,extra,challenge", SCHEDULE_TARGETS, ids=[t[0] for t in SCHEDULE_TARGETS])
+def test_same_outcomes_serial_and_side_by_side(label, extra, challenge):
+    """Issue 23: the silent drone's scenario beside the main mission (the default) decides
+    every case and every monitor verdict as ``--serial`` (after it) does, for the reference
+    manager and each faulty sample manager; the header says where it ran."""
+    spawn = ("--spawn", sample_manager_command(*extra), *FAST) if extra else ()
+    args = ("--role", "manager", "--challenge", str(challenge), *spawn)
+    serial = run_conform(*args, "--serial")
+    side = run_conform(*args)
+    assert serial.report.get("cases") and side.report.get("cases"), (serial.explain(), side.explain())
+    assert _decided(side) == _decided(serial), (side.explain(), serial.explain())
+    assert side.rc == serial.rc
+    assert "the silent drone's scenario runs beside it" in side.output, side.output
+    assert "runs beside it" not in serial.output, serial.output
