@@ -61,7 +61,7 @@ def _no_other_findings(res, rule=None):
 @pytest.mark.parametrize("challenge", [1, 2, 3])
 def test_reference_manager_passes_every_must_and_should(challenge, tmp_path):
     capture = tmp_path / "run.mcap"
-    res = run_conform("--role", "manager", "--challenge", str(challenge), "--capture", str(capture))
+    res = side_by_side_and_serial("--role", "manager", "--challenge", str(challenge), "--capture", str(capture))
     assert res.rc == 0, res.explain()
     _no_other_findings(res)
     same_verdicts_offline(res, capture)
@@ -74,8 +74,8 @@ def test_reference_manager_passes_every_must_and_should(challenge, tmp_path):
 @pytest.mark.parametrize("fault,rule,challenge", MANAGER_FAULTS, ids=[f for f, _, _ in MANAGER_FAULTS])
 def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge, tmp_path):
     capture = tmp_path / "run.mcap"
-    res = run_conform("--role", "manager", "--spawn", sample_manager_command("--fault", fault),
-                      "--challenge", str(challenge), *FAST, "--capture", str(capture))
+    res = side_by_side_and_serial("--role", "manager", "--spawn", sample_manager_command("--fault", fault),
+                                  "--challenge", str(challenge), *FAST, "--capture", str(capture))
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     _no_other_findings(res, rule)
@@ -179,26 +179,40 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
     assert silent["outcome"] == "skipped" and "attach mode" in silent["reason"], silent
 
 
+
 def _decided(res):
     """Each case's outcome and the run monitor's verdicts (what a run decided)."""
     return ({c["id"]: c["outcome"] for c in res.report.get("cases", [])}, res.report.get("monitor", {}).get("rules"))
 
 
-SCHEDULE_TARGETS = [(f"reference-c{c}", (), c) for c in (1, 2, 3)] + \
-    [(f, ("--fault", f), c) for f, _, c in MANAGER_FAULTS] + [("dup-seq-only", ("--fault", "dup-seq-only"), 1)]
+def side_by_side_and_serial(*args: str):
+    """Issue 23: the run with the silent drone's scenario beside the main mission (the
+    default) and the ``--serial`` one (after it), at once; they must decide every case and
+    every monitor verdict alike. The default run is returned."""
+    from concurrent.futures import ThreadPoolExecutor
 
-
-@pytest.mark.parametrize("label,extra,challenge", SCHEDULE_TARGETS, ids=[t[0] for t in SCHEDULE_TARGETS])
-def test_same_outcomes_serial_and_side_by_side(label, extra, challenge):
-    """Issue 23: the silent drone's scenario beside the main mission (the default) decides
-    every case and every monitor verdict as ``--serial`` (after it) does, for the reference
-    manager and each faulty sample manager; the header says where it ran."""
-    spawn = ("--spawn", sample_manager_command(*extra), *FAST) if extra else ()
-    args = ("--role", "manager", "--challenge", str(challenge), *spawn)
-    serial = run_conform(*args, "--serial")
-    side = run_conform(*args)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        side, serial = pool.map(lambda a: run_conform(*a), [args, (*_without_capture(args), "--serial")])
     assert serial.report.get("cases") and side.report.get("cases"), (serial.explain(), side.explain())
     assert _decided(side) == _decided(serial), (side.explain(), serial.explain())
     assert side.rc == serial.rc
     assert "the silent drone's scenario runs beside it" in side.output, side.output
     assert "runs beside it" not in serial.output, serial.output
+    return side
+
+
+def _without_capture(args: tuple[str, ...]) -> tuple[str, ...]:
+    out, skip = [], False
+    for a in args:
+        if skip:
+            skip = False
+        elif a == "--capture":
+            skip = True
+        else:
+            out.append(a)
+    return tuple(out)
+
+
+def test_dup_seq_only_decides_the_same_serial_and_side_by_side():
+    side_by_side_and_serial("--role", "manager", "--challenge", "1",
+                            "--spawn", sample_manager_command("--fault", "dup-seq-only"), *FAST)
