@@ -380,11 +380,12 @@ class SenderRules(RetransmissionRules):
                 # way (a liveness probe of mcp-conform --role manager): no restart of that drone
             complete = self._complete_for(node.id, MANAGER)
             if prev is None or prev.acks or not complete:
-                if prev is not None or not complete:
-                    _new_mission(node)
-                # else its first Mission_Ready of a complete trace: no mission to restart, and
-                # what the manager sent it before (a Start_Mission too early) is MCP-BLK-2's,
-                # the mission it started not forgotten (MCP-FLOW-2 on the commands after)
+                # its first Mission_Ready of a complete trace restarts no mission: a
+                # Start_Mission the manager sent it before is MCP-BLK-2's, the mission it
+                # started not forgotten (else MCP-FLOW-2 on each command after it)
+                early = node.start if prev is None and complete else None
+                _new_mission(node)
+                node.start = early
                 node.ready = ex.first
                 node.ready_ex = ex
             return
