@@ -225,6 +225,10 @@ class TargetDriver:
         self._rx_attr: list[Attribution | None] = []  # parallel to _rx
         self.attributor = Attributor(our_id)
         self._observers: list[tuple[Observer, bool]] = []  # (observer, it takes ``run_delay``)
+        #: held while the observers are told of one datagram: whoever else feeds the same
+        #: observers (a side scenario's held traffic, ``ManagerSession``) holds it too, so
+        #: every observer (the recorder, the monitor) sees one and the same order
+        self.notify_lock = threading.RLock()
         self._burst_observers: list[BurstObserver] = []
         self._seq: dict[int, int] = {}
         self.auto_ack: Callable[[Datagram], bool] = lambda d: True
@@ -342,11 +346,12 @@ class TargetDriver:
             self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
 
     def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int, rd: int | None = None) -> None:
-        for obs, takes in self._observers:  # run_delay only to those that take it, when known
-            try:
-                obs(direction, data, addr, t_ns, run_delay=rd) if takes and rd is not None else obs(direction, data, addr, t_ns)
-            except Exception:  # a broken recorder must not stop the run
-                pass
+        with self.notify_lock:
+            for obs, takes in self._observers:  # run_delay only to those that take it, when known
+                try:
+                    obs(direction, data, addr, t_ns, run_delay=rd) if takes and rd is not None else obs(direction, data, addr, t_ns)
+                except Exception:  # a broken recorder must not stop the run
+                    pass
 
     def mark(self) -> int:
         """Index of the next datagram to arrive: 'from now on'."""

@@ -377,7 +377,13 @@ class ManagerSession(SessionBase):
                     with INTERRUPTS.held():
                         rec.datagram(direction, data, addr, t_ns, run_delay=run_delay, local=side.listen)
                 observers.insert(0, record)
-            side.replay(observers)
+            # the main driver's datagrams (its manager may still send) wait until the held
+            # traffic is told: the capture and the monitor get one order (one judge)
+            if self.driver is not None:
+                with self.driver.notify_lock:
+                    side.replay(observers)
+            else:
+                side.replay(observers)
             side.close()
         return self._settle(m, side.ok, side.elapsed)
 

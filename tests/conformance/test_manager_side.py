@@ -94,3 +94,54 @@ def test_without_overlap_the_silent_scenario_runs_after_the_main_one(tmp_path):
     s, main, silent, side_target, _ = _run(tmp_path, set())
     assert side_target is None and silent.t0 > main.t_end
     assert {d.addr[1] for d in silent.rx} == {s.node_address[1]}  # the same ports, one after the other
+
+
+def test_the_held_traffic_and_the_main_managers_reach_capture_and_monitor_in_one_order():
+    """One judge: while the side scenario's held traffic is handed to the recorder and the
+    monitor, the main manager may still send (its driver's receiver thread tells the same
+    observers). Each observer must see one and the same order, or the capture is judged
+    otherwise than the live monitor was (CI: MCP-BLK-3 twice live, once offline)."""
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from harness.driver import TargetDriver
+    from harness.manager_side import SideScenario
+
+    rec, mon = [], []
+
+    def recorder(direction, data, addr, t_ns, run_delay=None, local=None):
+        rec.append(data)
+        time.sleep(0)  # let the other thread in between two observers
+
+    def monitor(direction, data, addr, t_ns, run_delay=None):
+        mon.append(data)
+        time.sleep(0)
+
+    main = TargetDriver(("127.0.0.1", 9), ("127.0.0.1", 0))
+    main.add_observer(lambda d, data, addr, t: recorder(d, data, addr, t))
+    main.add_observer(lambda d, data, addr, t: monitor(d, data, addr, t))
+    side = SideScenario("silent", spawn="true", placeholders={}, listen_host="127.0.0.1", target_host="127.0.0.1",
+                        drones=(1, 2), challenge=1, waypoints=None, obstacles=None, seq_base=1000, rto=0.2,
+                        ack_window=0.25, broadcast_id=0xFFFF, seed=1, ready_limit=5.0)
+    side._held = [("rx", b"held%d" % k, ("127.0.0.1", 1), k, None) for k in range(3000)]
+    fake = SimpleNamespace(driver=main, monitor=SimpleNamespace(observe=monitor, current=None),
+                           recorder=SimpleNamespace(datagram=recorder), _begin_session=lambda *a, **k: None,
+                           _settle=lambda m, ok, elapsed: m)
+    stop = threading.Event()
+
+    def main_manager_sends() -> None:
+        k = 0
+        while not stop.is_set() and k < 100_000:
+            main._notify("rx", b"main%d" % k, ("127.0.0.1", 2), 10**9 + k)
+            k += 1
+
+    t = threading.Thread(target=main_manager_sends)
+    t.start()
+    try:
+        ManagerSession._side_mission(fake, side)
+    finally:
+        stop.set()
+        t.join()
+    assert sum(1 for d in rec if d.startswith(b"held")) == 3000
+    assert rec == mon
