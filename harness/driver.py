@@ -225,9 +225,7 @@ class TargetDriver:
         self._rx_attr: list[Attribution | None] = []  # parallel to _rx
         self.attributor = Attributor(our_id)
         self._observers: list[tuple[Observer, bool]] = []  # (observer, it takes ``run_delay``)
-        #: held while the observers are told of one datagram: whoever else feeds the same
-        #: observers (a side scenario's held traffic, ``ManagerSession``) holds it too, so
-        #: every observer (the recorder, the monitor) sees one and the same order
+        #: held while the observers hear of a datagram; whoever else feeds them holds it too (one order)
         self.notify_lock = threading.RLock()
         self._burst_observers: list[BurstObserver] = []
         self._seq: dict[int, int] = {}
