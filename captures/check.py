@@ -77,7 +77,17 @@ def run(ns: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------- shared descriptions
 def _addr(addr: Any) -> str:
-    return f"{addr[0]}:{addr[1]}" if addr else "?"
+    if not addr:
+        return "?"
+    text = _ADDR_TEXT.get(addr)
+    if text is None:
+        text = f"{addr[0]}:{addr[1]}"
+        if len(_ADDR_TEXT) < 4096:  # a capture's few peers (a million datagrams' evidence: issue 17)
+            _ADDR_TEXT[addr] = text
+    return text
+
+
+_ADDR_TEXT: dict[Any, str] = {}
 
 
 def describe_datagram(d: Datagram, first_ns: int | None) -> str:
@@ -107,20 +117,40 @@ def _level(v: Any) -> str:
     return r.level if r else "?"
 
 
+def _pairs(evidence: Any) -> bool:
+    """Whether a violation's evidence is the monitor's ``(index, t_ns)`` pairs (ints), whose
+    indexes :func:`traceio.trace.evidence_indexes` gives as their first items."""
+    return type(evidence) is tuple and all(type(e) is tuple and e and type(e[0]) is int for e in evidence)
+
+
 # ---------------------------------------------------------------- JSON
 def _violations_json(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[dict[str, Any]]:
-    """Each shown violation as the JSON lists it, one at a time (a million of them stream)."""
+    """Each shown violation as the JSON lists it, one at a time (a million of them stream).
+    What repeats from one violation to the next (a rule's level and text, an address's
+    text) is looked up once (issue 17: a million violations)."""
+    first_ns = j.first_ns
+    zero = first_ns or 0  # Judgement.rel's origin
+
     def ev(v: Any) -> list[dict[str, Any]]:
-        idx = evidence_indexes(v)
+        pairs = v.evidence if _pairs(getattr(v, "evidence", None)) else None
+        idx = [e[0] for e in pairs] if pairs is not None else evidence_indexes(v)
         if not idx and getattr(v, "evidence", None):
             return [{"index": None, "t": None, "summary": str(x)} for x in v.evidence]
-        return [{"index": i, "t": round(j.rel(evidence[i].t_ns), 9) if i in evidence else None,
-                 "summary": describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"}
-                for i in idx]
+        out = []
+        for i in idx:
+            d = evidence.get(i)
+            out.append({"index": i, "t": round((d.t_ns - zero) / 1e9, 9), "summary": describe_datagram(d, first_ns)}
+                       if d is not None else {"index": i, "t": None, "summary": f"#{i}"})
+        return out
 
+    rules: dict[tuple[str, Any], tuple[str, str]] = {}
     for v in j.shown_violations:
-        yield {"rule": v.rule, "level": _level(v), "node": v.node, "t": round(j.rel(v.t_ns), 9),
-               "t_ns": v.t_ns, "text": _rule_text(v.rule), "expected": _str(v.expected),
+        rule = v.rule
+        got = rules.get((rule, getattr(v, "level", None)))
+        if got is None:
+            got = rules[rule, getattr(v, "level", None)] = (_level(v), _rule_text(rule))
+        yield {"rule": rule, "level": got[0], "node": v.node, "t": round((v.t_ns - zero) / 1e9, 9),
+               "t_ns": v.t_ns, "text": got[1], "expected": _str(v.expected),
                "actual": _str(v.actual), "evidence": ev(v)}
 
 
@@ -166,7 +196,7 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
     head = json.dumps(to_json(j, evidence, violations=False), indent=2)
     marker = '\n  "violations": [],\n'
     before, after = head.split(marker, 1)  # the key is unique at the top level (indent 2)
-    dumps = json.JSONEncoder().encode
+    dumps = _one_line()
     try:
         with open(path, "w", encoding="utf-8") as f:
             f.write(before + '\n  "violations": [')
@@ -177,6 +207,19 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
             f.write(("\n  ],\n" if not first else "],\n") + after + "\n")
     except OSError as exc:
         raise UsageError(f"--json: cannot write {path!r}: {exc.strerror or exc}") from None
+
+
+def _one_line() -> Any:
+    """``json.JSONEncoder().encode`` of a violation's JSON: the same C encoder, with the same
+    settings, made once rather than once per violation (a million violations: issue 17). No
+    circular check: a violation's JSON is strings, numbers and lists and dicts of them."""
+    default = json.JSONEncoder()
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None or not default.ensure_ascii:
+        return default.encode
+    encode = make(None, default.default, json.encoder.encode_basestring_ascii, None, default.key_separator,
+                  default.item_separator, default.sort_keys, default.skipkeys, default.allow_nan)
+    return lambda doc: "".join(encode(doc, 0))
 
 
 def _segment_json(name: str, s: Judgement, select: tuple[str, ...]) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from array import array
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -191,12 +192,18 @@ def _collector_paused() -> Iterator[None]:
     collector's passes over the oldest generation walks all of it: a fifth of the CPU time of
     checking a million violations (issue 17). Reading and judging make almost no cyclic
     garbage (the collector found some 1,800 objects in those 10^6 datagrams); refcounting
-    frees the rest as before, and the collector takes up what is left once it is back."""
+    frees the rest as before, and the collector takes up what is left once it is back.
+    What judging made goes to the oldest generation at once (``gc.freeze`` then
+    ``gc.unfreeze``: a splice of lists), not through three passes of the collector over
+    it; only when nothing else is frozen (a process that froze its objects keeps them so)."""
     was = gc.isenabled()
     gc.disable()
     try:
         yield
     finally:
+        if gc.get_freeze_count() == 0:
+            gc.freeze()
+            gc.unfreeze()
         if was:
             gc.enable()
 
@@ -273,6 +280,7 @@ class _Session:
         self.order: deque[int] = deque()
         self.evidence: dict[int, Datagram] = {}
         self.fed = array("q")  # the monitor's datagram numbers -> the capture's indexes
+        self.fed_as_is = True  # so far each capture index is the monitor's number: nothing to map
         self.cases: list[CaseMark] = []
         self.frames: list[Any] = []  # autopilot-link records before the drone under test is known
         self.drone: int | None = None
@@ -311,7 +319,7 @@ class _Session:
         fed = self.fed
         for v in found:
             ev = getattr(v, "evidence", None)
-            if ev:
+            if ev and not self.fed_as_is:
                 mapped = tuple((fed[e[0]], *e[1:]) if isinstance(e, tuple) and e and isinstance(e[0], int)
                                and 0 <= e[0] < len(fed) and fed[e[0]] != e[0] else e for e in ev)
                 if any(a is not b for a, b in zip(mapped, ev, strict=True)):
@@ -371,13 +379,18 @@ class _Session:
             # case): the run's monitor judges around it, and so does this one
             found: list[Any] = []
         else:
+            if rec.index != len(self.fed):
+                self.fed_as_is = False
             self.fed.append(rec.index)
+            rd = rec.run_delay_ns
             if harness and rec.direction == "tx":
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.tester)
             elif harness and from_node(rec.src_addr, self.node_addr):  # the node's own
                 found = feed(t, rec.src_addr, rec.dst_addr, rec.data, self.drone, **_rd(rec))
+            elif rd is None:  # as _rd has it: no keyword at all
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data)
             else:
-                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, **_rd(rec))
+                found = feed(t, rec.src_addr, rec.dst_addr, rec.data, run_delay=rd)
         self._found(found)
         if self.kept is not None:
             self.kept.append(rec)
@@ -408,13 +421,15 @@ class _Session:
                 if inferred else "challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or "
                 "Obstacles_List; MCP-FLOW-4/5/6 were not judged (give --challenge)")
             params.challenge = inferred
-        violations = sorted(self.violations, key=lambda v: (v.rule, v.t_ns))
+        violations = sorted(self.violations, key=_BY_RULE_AND_TIME)
         nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
         return Judgement(path, cap.format, params, nodes, violations, mon.verdicts(), self.n, self.first,
                          self.last, cap.truncated, cap.notes, self.unattributed, self.kept, self.cases, [],
                          self.drone, self.evidence)
 
 
+#: The order of a session's violations: by rule, then time (stable).
+_BY_RULE_AND_TIME = attrgetter("rule", "t_ns")
 _CHALLENGE_NAMES = tuple((action_name(a), c) for a, c in CHALLENGE_OF.items())
 
 

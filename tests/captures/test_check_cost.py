@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import struct
+import sys
 import zlib
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,15 @@ def _capture(path: Path, n: int = 20) -> Path:
         for i in range(n):
             rec.datagram("rx", encode(Message(0, 1 + i % 3, i, Action.MISSION_READY, None)),
                          ("127.0.0.1", 41001 + i % 3), 1_800_000_000_000_000_000 + i * 1_000_000)
+    return path
+
+
+def _violating(path: Path, n: int) -> Path:
+    """``n`` datagrams, each a violation (bench/bench_capture_tools.py's million capture)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    from bench_capture_tools import all_violating
+
+    all_violating(path, n)
     return path
 
 
@@ -185,3 +195,61 @@ def test_a_cut_message_index_reads_as_mcap_reads_it(tmp_path: Path, cut: int) ->
                                                                      emit_chunks=True))
         want = [tuple(d) for d in plain]
     assert got == want and mine.truncated == plain.truncated and mine.truncated
+
+
+def test_what_judging_made_goes_to_the_oldest_generation_at_once(tmp_path: Path) -> None:
+    """With the collector paused, every object judging made would sit in the youngest
+    generation, and the collector's next three passes would walk them all (a million
+    violations: two million tuples) on their way to the oldest. Moved there at once: the
+    younger generations hold next to nothing after judging, and nothing stays frozen."""
+    cap = _violating(tmp_path / "c.mcap", 5000)
+    gc.collect()
+    j = judge(cap, Params())
+    assert len(j.violations) >= 1000 and gc.is_tracked(j.violations[0])  # made while judging
+    assert len(gc.get_objects(generation=0)) + len(gc.get_objects(generation=1)) < 1000
+    assert gc.get_freeze_count() == 0
+    if gc.isenabled():
+        gc.freeze()  # a process that froze its objects keeps them frozen
+        try:
+            judge(cap, Params())
+            assert gc.get_freeze_count() > 0
+        finally:
+            gc.unfreeze()
+
+
+def test_evidence_indexes_of_every_kind_of_evidence() -> None:
+    """The monitor's (index, t_ns) pairs first, and every other kind as before."""
+    from traceio.reader import Datagram as D
+    from traceio.trace import evidence_indexes
+
+    class V:
+        evidence = ((3, 10), 4, D(5, 1, None, None, b""), {"index": 6}, (True, 1), ("x", 2), (), {"index": "7"})
+
+    assert evidence_indexes(V()) == [3, 4, 5, 6, True]
+
+
+def test_each_violation_line_is_json_dumps_of_its_document(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--json``'s violation lines, byte for byte ``json.dumps`` of what ``to_json`` lists
+    (every rule of a noisy capture: evidence pairs, addresses, no MCP header), written with
+    one encoder for the file: before, ``JSONEncoder().encode`` made one per violation."""
+    import json
+
+    import captures.check as check_mod
+    from judge.judging import evidence_of
+
+    from .noisy import write_noisy
+
+    j = judge(write_noisy(tmp_path / "n.mcap", 800), Params())
+    evidence = evidence_of(j)
+    made = []
+    real = json.encoder.c_make_encoder
+    monkeypatch.setattr(json.encoder, "c_make_encoder", lambda *a: made.append(a) or real(*a))
+    out = tmp_path / "c.json"
+    check_mod.write_json(str(out), j, evidence)
+    lines = [x.rstrip(",") for x in out.read_text().splitlines() if x.startswith('    {"rule": ')]
+    monkeypatch.undo()
+    docs = check_mod.to_json(j, evidence)["violations"]
+    assert len({d["rule"] for d in docs}) >= 3 and len(docs) == len(j.shown_violations) > 100
+    assert any(e["t"] is not None and " → " in e["summary"] for d in docs for e in d["evidence"])
+    assert [x[4:] for x in lines] == [json.dumps(d) for d in docs]
+    assert len(made) <= 2  # the head's json.dumps(indent=2) makes none: the pure-Python one
