@@ -27,8 +27,9 @@ from captures.cli import UsageError, check_writable, to_terminal, write_output
 from judge.judging import Judgement, evidence_of, judge
 from judge.params import add_monitor_options, params_from_args, selected
 from spec import SPEC
+from spec.codec import peek_header
 from traceio.reader import Datagram
-from traceio.trace import evidence_indexes
+from traceio.trace import action_name, evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
@@ -92,9 +93,6 @@ _ADDR_TEXT: dict[Any, str] = {}
 
 def describe_datagram(d: Datagram, first_ns: int | None) -> str:
     """One line: ``#12 +1.234567s 0 (127.0.0.1:7889) → 2 (127.0.0.1:7890) WP_Off #4``."""
-    from spec.codec import peek_header
-    from traceio.trace import action_name
-
     t = (d.t_ns - (first_ns or d.t_ns)) / 1e9
     h = peek_header(d.data, require_preamble=False)
     if h is None:
@@ -125,11 +123,18 @@ def _pairs(evidence: Any) -> bool:
 
 # ---------------------------------------------------------------- JSON
 def _violations_json(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[dict[str, Any]]:
-    """Each shown violation as the JSON lists it, one at a time (a million of them stream).
-    What repeats from one violation to the next (a rule's level and text, an address's
-    text) is looked up once (issue 17: a million violations)."""
+    """Each shown violation as the JSON lists it, one at a time (a million of them stream)."""
+    doc = _violation_json(j, evidence)
+    for v in j.shown_violations:
+        yield doc(v)
+
+
+def _violation_json(j: Judgement, evidence: dict[int, Datagram]) -> Any:
+    """A violation's JSON (a dict), by the function returned. What repeats from one violation
+    to the next (a rule's level and text) is looked up once (issue 17: a million violations)."""
     first_ns = j.first_ns
     zero = first_ns or 0  # Judgement.rel's origin
+    rules: dict[tuple[str, Any], tuple[str, str]] = {}
 
     def ev(v: Any) -> list[dict[str, Any]]:
         pairs = v.evidence if _pairs(getattr(v, "evidence", None)) else None
@@ -143,15 +148,62 @@ def _violations_json(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[di
                        if d is not None else {"index": i, "t": None, "summary": f"#{i}"})
         return out
 
-    rules: dict[tuple[str, Any], tuple[str, str]] = {}
-    for v in j.shown_violations:
+    def doc(v: Any) -> dict[str, Any]:
         rule = v.rule
         got = rules.get((rule, getattr(v, "level", None)))
         if got is None:
             got = rules[rule, getattr(v, "level", None)] = (_level(v), _rule_text(rule))
-        yield {"rule": rule, "level": got[0], "node": v.node, "t": round((v.t_ns - zero) / 1e9, 9),
-               "t_ns": v.t_ns, "text": got[1], "expected": _str(v.expected),
-               "actual": _str(v.actual), "evidence": ev(v)}
+        return {"rule": rule, "level": got[0], "node": v.node, "t": round((v.t_ns - zero) / 1e9, 9),
+                "t_ns": v.t_ns, "text": got[1], "expected": _str(v.expected),
+                "actual": _str(v.actual), "evidence": ev(v)}
+
+    return doc
+
+
+def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[str]:
+    """Each shown violation's line of ``--json``: ``json.JSONEncoder().encode`` of its
+    :func:`_violation_json`, byte for byte. A violation of the monitor's plain types (int
+    node and times, str texts, ``(index, t_ns)`` evidence: every one the monitor makes) is
+    written from its parts as the encoder writes them (ints and floats by ``repr``, strings
+    by ``encode_basestring_ascii``, ``", "`` and ``": "``) without its dict; any other
+    through the dict and the encoder (a million violations: issue 17)."""
+    doc = _violation_json(j, evidence)
+    dumps = _one_line()
+    text = json.encoder.encode_basestring_ascii
+    first_ns = j.first_ns
+    zero = first_ns or 0
+    heads: dict[tuple[str, Any], tuple[str, str]] = {}
+    for v in j.shown_violations:
+        rule, node, t_ns, ev = v.rule, v.node, v.t_ns, getattr(v, "evidence", None)
+        if type(rule) is not str or type(node) is not int or type(t_ns) is not int or not _pairs(ev):
+            yield dumps(doc(v))
+            continue
+        items = []
+        for e in ev:
+            i = e[0]
+            d = evidence.get(i)
+            if d is None:
+                items.append(f'{{"index": {i}, "t": null, "summary": "#{i}"}}')
+                continue
+            t = round((d.t_ns - zero) / 1e9, 9)
+            if type(t) is not float or t - t != 0.0:  # not a finite float: the encoder's words
+                break
+            items.append(f'{{"index": {i}, "t": {t!r}, "summary": {text(describe_datagram(d, first_ns))}}}')
+        else:
+            t = round((t_ns - zero) / 1e9, 9)
+            if t - t == 0.0:
+                head = heads.get((rule, getattr(v, "level", None)))
+                if head is None:
+                    level, about = _level(v), _rule_text(rule)
+                    head = heads[rule, getattr(v, "level", None)] = (
+                        f'{{"rule": {text(rule)}, "level": {text(level)}, "node": ',
+                        f', "text": {text(about)}, "expected": ')
+                expected, actual = v.expected, v.actual
+                yield (f'{head[0]}{node}, "t": {t!r}, "t_ns": {t_ns}{head[1]}'
+                       f'{"null" if expected is None else text(str(expected))}, "actual": '
+                       f'{"null" if actual is None else text(str(actual))}, "evidence": [{", ".join(items)}]}}')
+                continue
+        yield dumps(doc(v))
 
 
 def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = True) -> dict[str, Any]:
@@ -196,13 +248,12 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
     head = json.dumps(to_json(j, evidence, violations=False), indent=2)
     marker = '\n  "violations": [],\n'
     before, after = head.split(marker, 1)  # the key is unique at the top level (indent 2)
-    dumps = _one_line()
     try:
         with open(path, "w", encoding="utf-8") as f:
             f.write(before + '\n  "violations": [')
             first = True
-            for doc in _violations_json(j, evidence):
-                f.write(("\n    " if first else ",\n    ") + dumps(doc))
+            for line in _violation_lines(j, evidence):
+                f.write(("\n    " if first else ",\n    ") + line)
                 first = False
             f.write(("\n  ],\n" if not first else "],\n") + after + "\n")
     except OSError as exc:

@@ -253,3 +253,16 @@ def test_each_violation_line_is_json_dumps_of_its_document(tmp_path: Path, monke
     assert any(e["t"] is not None and " → " in e["summary"] for d in docs for e in d["evidence"])
     assert [x[4:] for x in lines] == [json.dumps(d) for d in docs]
     assert len(made) <= 2  # the head's json.dumps(indent=2) makes none: the pure-Python one
+
+    # odd violations, and evidence not at hand: still json.dumps of the document, byte for byte
+    vs = j.violations[:6]
+    j.violations = [vs[0]._replace(node=True), vs[1]._replace(evidence=("a \"quoted\" note", 3)),
+                    vs[2]._replace(expected=None, actual='ünïcode "quotes" \\ \n\u2028'),
+                    vs[3]._replace(level="should", evidence=()), vs[4]._replace(rule="MCP-NOT-A-RULE"),
+                    vs[5]._replace(actual=12.5, expected=("tuple",)), *j.violations[6:]]
+    some = dict(list(evidence.items())[::2])
+    check_mod.write_json(str(out), j, some)
+    lines = [x.rstrip(",") for x in out.read_text().splitlines() if x.startswith('    {"rule": ')]
+    docs = check_mod.to_json(j, some)["violations"]
+    assert any(e["t"] is None for d in docs for e in d["evidence"])
+    assert [x[4:] for x in lines] == [json.dumps(d) for d in docs]
