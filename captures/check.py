@@ -17,7 +17,7 @@ import json
 from collections import Counter
 from collections.abc import Iterator
 from importlib import resources
-from typing import Any
+from typing import Any, NamedTuple
 
 from rich.console import Console
 from rich.markup import escape
@@ -113,6 +113,13 @@ def _level(v: Any) -> str:
         return str(level).upper()
     r = SPEC.rules_by_id.get(v.rule)
     return r.level if r else "?"
+
+
+class _RuleLevel(NamedTuple):
+    """What :func:`_level` reads of a violation."""
+
+    rule: str
+    level: Any
 
 
 def _pairs(evidence: Any) -> bool:
@@ -218,7 +225,9 @@ def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = T
         for verdict in by_rule.values():
             counts[verdict] = counts.get(verdict, 0) + 1
     shown = j.shown_violations
-    levels = Counter(_level(v) for v in shown)
+    levels: Counter[str] = Counter()
+    for (rule, level), n in Counter((v.rule, getattr(v, "level", None)) for v in shown).items():
+        levels[_level(_RuleLevel(rule, level))] += n  # per rule and level: a million violations, few kinds
     duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
     segments = {"segments": [_segment_json(name, s, j.params.select) for name, s in j.segments.items()]} \
         if j.segments else {}
@@ -252,9 +261,14 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
         with open(path, "w", encoding="utf-8") as f:
             f.write(before + '\n  "violations": [')
             first = True
+            lines: list[str] = []  # written a thousand at a time
             for line in _violation_lines(j, evidence):
-                f.write(("\n    " if first else ",\n    ") + line)
+                lines.append(("\n    " if first else ",\n    ") + line)
                 first = False
+                if len(lines) == 1000:
+                    f.write("".join(lines))
+                    lines.clear()
+            f.write("".join(lines))
             f.write(("\n  ],\n" if not first else "],\n") + after + "\n")
     except OSError as exc:
         raise UsageError(f"--json: cannot write {path!r}: {exc.strerror or exc}") from None
