@@ -182,11 +182,13 @@ def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[st
     heads: dict[tuple[str, Any], tuple[str, str]] = {}
     for v in j.shown_violations:
         rule, node, t_ns, ev = v.rule, v.node, v.t_ns, getattr(v, "evidence", None)
-        if type(rule) is not str or type(node) is not int or type(t_ns) is not int or not _pairs(ev):
+        if type(rule) is not str or type(node) is not int or type(t_ns) is not int or type(ev) is not tuple:
             yield dumps(doc(v))
             continue
         items = []
-        for e in ev:
+        for e in ev:  # as _pairs has them, else the encoder's
+            if type(e) is not tuple or not e or type(e[0]) is not int:
+                break
             i = e[0]
             d = evidence.get(i)
             if d is None:

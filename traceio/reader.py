@@ -245,6 +245,7 @@ class Capture:
         n = {"d": 0, "m": 0, "s": 0}
         newest = 0
         want = self.segment
+        push, pop = heapq.heappush, heapq.heappop
         for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
             if kind == "meta":
                 seg = fields[1].get("segment")
@@ -253,10 +254,17 @@ class Capture:
                 if want is None or seg in (None, want):
                     yield Metadata(*fields)
                 continue
-            heapq.heappush(order, (t, pos, kind, fields))
-            newest = max(newest, t)
+            push(order, (t, pos, kind, fields))
+            if t > newest:
+                newest = t
             while order and order[0][0] < newest - REORDER_NS:
-                rec = self._mcap_record(heapq.heappop(order), n)
+                item = pop(order)
+                if item[2] == "d":  # _mcap_record's, inline: most records are datagrams
+                    i = n["d"]
+                    n["d"] = i + 1
+                    rec = Datagram(i, item[0], *item[3])
+                else:
+                    rec = self._mcap_record(item, n)
                 if want is None or getattr(rec, "segment", None) == want:
                     yield rec
         while order:
