@@ -180,11 +180,13 @@ def judge(path: str | Path, params: Params, keep: bool = False, monitor: Any = N
                 for seg, s in sessions.items():
                     if _holds_for(rec, seg):
                         s.metadata(rec)
+            elif type(rec) is Datagram:  # most records: straight to its session's datagram
+                session(rec.segment).datagram(rec)
             elif isinstance(rec, (Datagram, MavlinkFrame, VehicleMark, CaseMark)):
                 session(rec.segment).record(rec)
-    if not sessions:
-        session(None)
-    judged = {seg: s.finish(str(path), cap) for seg, s in sessions.items()}
+        if not sessions:
+            session(None)
+        judged = {seg: s.finish(str(path), cap) for seg, s in sessions.items()}  # sorted: a key per violation
     if list(judged) == [None]:
         j = judged[None]
         j.metadata = meta
@@ -329,6 +331,7 @@ class _Session:
         if not found:
             return
         fed = self.fed
+        recent, kept = self.recent, self.evidence
         for v in found:
             ev = getattr(v, "evidence", None)
             if ev and not self.fed_as_is:
@@ -337,9 +340,9 @@ class _Session:
                 if any(a is not b for a, b in zip(mapped, ev, strict=True)):
                     v = v._replace(evidence=mapped)  # else shared with the monitor's own record
             for i in evidence_indexes(v):
-                d = self.recent.get(i)
+                d = recent.get(i)
                 if d is not None:
-                    self.evidence[i] = d
+                    kept[i] = d
             self.violations.append(v)
 
     def record(self, rec: Any) -> None:
