@@ -93,13 +93,22 @@ _ADDR_TEXT: dict[Any, str] = {}
 
 def describe_datagram(d: Datagram, first_ns: int | None) -> str:
     """One line: ``#12 +1.234567s 0 (127.0.0.1:7889) → 2 (127.0.0.1:7890) WP_Off #4``."""
-    t = (d.t_ns - (first_ns or d.t_ns)) / 1e9
-    h = peek_header(d.data, require_preamble=False)
+    index, t_ns, src_addr, dst_addr, data = d[:5]
+    t = (t_ns - (first_ns or t_ns)) / 1e9
+    h = peek_header(data, require_preamble=False)
     if h is None:
-        return f"#{d.index} +{t:.6f}s {_addr(d.src_addr)} → {_addr(d.dst_addr)}: {len(d.data)} bytes, no MCP header"
+        return f"#{index} +{t:.6f}s {_addr(src_addr)} → {_addr(dst_addr)}: {len(data)} bytes, no MCP header"
     dst, src, seq, action = h
-    return (f"#{d.index} +{t:.6f}s {src} ({_addr(d.src_addr)}) → {dst} ({_addr(d.dst_addr)}) "
-            f"{action_name(action)} seq {seq}, {len(d.data)} bytes")
+    key = (src, src_addr, dst, dst_addr, action)
+    between = _BETWEEN.get(key)  # who to whom, what: the same for many datagrams (issue 17)
+    if between is None:
+        between = f"{src} ({_addr(src_addr)}) → {dst} ({_addr(dst_addr)}) {action_name(action)}"
+        if len(_BETWEEN) < 4096:
+            _BETWEEN[key] = between
+    return f"#{index} +{t:.6f}s {between} seq {seq}, {len(data)} bytes"
+
+
+_BETWEEN: dict[Any, str] = {}
 
 
 def _rule_text(rule: str) -> str:
@@ -180,6 +189,7 @@ def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[st
     first_ns = j.first_ns
     zero = first_ns or 0
     heads: dict[tuple[str, Any], tuple[str, str]] = {}
+    said_before: dict[str, str] = {}
     for v in j.shown_violations:
         rule, node, t_ns, ev = v.rule, v.node, v.t_ns, getattr(v, "evidence", None)
         if type(rule) is not str or type(node) is not int or type(t_ns) is not int or type(ev) is not tuple:
@@ -208,8 +218,12 @@ def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[st
                         f'{{"rule": {text(rule)}, "level": {text(level)}, "node": ',
                         f', "text": {text(about)}, "expected": ')
                 expected, actual = v.expected, v.actual
-                yield (f'{head[0]}{node}, "t": {t!r}, "t_ns": {t_ns}{head[1]}'
-                       f'{"null" if expected is None else text(str(expected))}, "actual": '
+                said = said_before.get(expected) if type(expected) is str else None
+                if said is None:
+                    said = "null" if expected is None else text(str(expected))
+                    if type(expected) is str and len(said_before) < 4096:  # a rule's expectation repeats
+                        said_before[expected] = said
+                yield (f'{head[0]}{node}, "t": {t!r}, "t_ns": {t_ns}{head[1]}{said}, "actual": '
                        f'{"null" if actual is None else text(str(actual))}, "evidence": [{", ".join(items)}]}}')
                 continue
         yield dumps(doc(v))
