@@ -17,7 +17,7 @@ import json
 from collections import Counter
 from collections.abc import Iterator
 from importlib import resources
-from typing import Any
+from typing import Any, NamedTuple
 
 from rich.console import Console
 from rich.markup import escape
@@ -27,8 +27,9 @@ from captures.cli import UsageError, check_writable, to_terminal, write_output
 from judge.judging import Judgement, evidence_of, judge
 from judge.params import add_monitor_options, params_from_args, selected
 from spec import SPEC
+from spec.codec import peek_header
 from traceio.reader import Datagram
-from traceio.trace import evidence_indexes
+from traceio.trace import action_name, evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
 
@@ -77,21 +78,37 @@ def run(ns: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------- shared descriptions
 def _addr(addr: Any) -> str:
-    return f"{addr[0]}:{addr[1]}" if addr else "?"
+    if not addr:
+        return "?"
+    text = _ADDR_TEXT.get(addr)
+    if text is None:
+        text = f"{addr[0]}:{addr[1]}"
+        if len(_ADDR_TEXT) < 4096:  # a capture's few peers (a million datagrams' evidence: issue 17)
+            _ADDR_TEXT[addr] = text
+    return text
+
+
+_ADDR_TEXT: dict[Any, str] = {}
 
 
 def describe_datagram(d: Datagram, first_ns: int | None) -> str:
     """One line: ``#12 +1.234567s 0 (127.0.0.1:7889) → 2 (127.0.0.1:7890) WP_Off #4``."""
-    from spec.codec import peek_header
-    from traceio.trace import action_name
-
-    t = (d.t_ns - (first_ns or d.t_ns)) / 1e9
-    h = peek_header(d.data, require_preamble=False)
+    index, t_ns, src_addr, dst_addr, data = d[:5]
+    t = (t_ns - (first_ns or t_ns)) / 1e9
+    h = peek_header(data, require_preamble=False)
     if h is None:
-        return f"#{d.index} +{t:.6f}s {_addr(d.src_addr)} → {_addr(d.dst_addr)}: {len(d.data)} bytes, no MCP header"
+        return f"#{index} +{t:.6f}s {_addr(src_addr)} → {_addr(dst_addr)}: {len(data)} bytes, no MCP header"
     dst, src, seq, action = h
-    return (f"#{d.index} +{t:.6f}s {src} ({_addr(d.src_addr)}) → {dst} ({_addr(d.dst_addr)}) "
-            f"{action_name(action)} seq {seq}, {len(d.data)} bytes")
+    key = (src, src_addr, dst, dst_addr, action)
+    between = _BETWEEN.get(key)  # who to whom, what: the same for many datagrams (issue 17)
+    if between is None:
+        between = f"{src} ({_addr(src_addr)}) → {dst} ({_addr(dst_addr)}) {action_name(action)}"
+        if len(_BETWEEN) < 4096:
+            _BETWEEN[key] = between
+    return f"#{index} +{t:.6f}s {between} seq {seq}, {len(data)} bytes"
+
+
+_BETWEEN: dict[Any, str] = {}
 
 
 def _rule_text(rule: str) -> str:
@@ -107,21 +124,109 @@ def _level(v: Any) -> str:
     return r.level if r else "?"
 
 
+class _RuleLevel(NamedTuple):
+    """What :func:`_level` reads of a violation."""
+
+    rule: str
+    level: Any
+
+
+def _pairs(evidence: Any) -> bool:
+    """Whether a violation's evidence is the monitor's ``(index, t_ns)`` pairs (ints), whose
+    indexes :func:`traceio.trace.evidence_indexes` gives as their first items."""
+    return type(evidence) is tuple and all(type(e) is tuple and e and type(e[0]) is int for e in evidence)
+
+
 # ---------------------------------------------------------------- JSON
 def _violations_json(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[dict[str, Any]]:
     """Each shown violation as the JSON lists it, one at a time (a million of them stream)."""
+    doc = _violation_json(j, evidence)
+    for v in j.shown_violations:
+        yield doc(v)
+
+
+def _violation_json(j: Judgement, evidence: dict[int, Datagram]) -> Any:
+    """A violation's JSON (a dict), by the function returned. What repeats from one violation
+    to the next (a rule's level and text) is looked up once (issue 17: a million violations)."""
+    first_ns = j.first_ns
+    zero = first_ns or 0  # Judgement.rel's origin
+    rules: dict[tuple[str, Any], tuple[str, str]] = {}
+
     def ev(v: Any) -> list[dict[str, Any]]:
-        idx = evidence_indexes(v)
+        pairs = v.evidence if _pairs(getattr(v, "evidence", None)) else None
+        idx = [e[0] for e in pairs] if pairs is not None else evidence_indexes(v)
         if not idx and getattr(v, "evidence", None):
             return [{"index": None, "t": None, "summary": str(x)} for x in v.evidence]
-        return [{"index": i, "t": round(j.rel(evidence[i].t_ns), 9) if i in evidence else None,
-                 "summary": describe_datagram(evidence[i], j.first_ns) if i in evidence else f"#{i}"}
-                for i in idx]
+        out = []
+        for i in idx:
+            d = evidence.get(i)
+            out.append({"index": i, "t": round((d.t_ns - zero) / 1e9, 9), "summary": describe_datagram(d, first_ns)}
+                       if d is not None else {"index": i, "t": None, "summary": f"#{i}"})
+        return out
 
+    def doc(v: Any) -> dict[str, Any]:
+        rule = v.rule
+        got = rules.get((rule, getattr(v, "level", None)))
+        if got is None:
+            got = rules[rule, getattr(v, "level", None)] = (_level(v), _rule_text(rule))
+        return {"rule": rule, "level": got[0], "node": v.node, "t": round((v.t_ns - zero) / 1e9, 9),
+                "t_ns": v.t_ns, "text": got[1], "expected": _str(v.expected),
+                "actual": _str(v.actual), "evidence": ev(v)}
+
+    return doc
+
+
+def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[str]:
+    """Each shown violation's line of ``--json``: ``json.JSONEncoder().encode`` of its
+    :func:`_violation_json`, byte for byte. A violation of the monitor's plain types (int
+    node and times, str texts, ``(index, t_ns)`` evidence: every one the monitor makes) is
+    written from its parts as the encoder writes them (ints and floats by ``repr``, strings
+    by ``encode_basestring_ascii``, ``", "`` and ``": "``) without its dict; any other
+    through the dict and the encoder (a million violations: issue 17)."""
+    doc = _violation_json(j, evidence)
+    dumps = _one_line()
+    text = json.encoder.encode_basestring_ascii
+    first_ns = j.first_ns
+    zero = first_ns or 0
+    heads: dict[tuple[str, Any], tuple[str, str]] = {}
+    said_before: dict[str, str] = {}
     for v in j.shown_violations:
-        yield {"rule": v.rule, "level": _level(v), "node": v.node, "t": round(j.rel(v.t_ns), 9),
-               "t_ns": v.t_ns, "text": _rule_text(v.rule), "expected": _str(v.expected),
-               "actual": _str(v.actual), "evidence": ev(v)}
+        rule, node, t_ns, ev = v.rule, v.node, v.t_ns, getattr(v, "evidence", None)
+        if type(rule) is not str or type(node) is not int or type(t_ns) is not int or type(ev) is not tuple:
+            yield dumps(doc(v))
+            continue
+        items = []
+        for e in ev:  # as _pairs has them, else the encoder's
+            if type(e) is not tuple or not e or type(e[0]) is not int:
+                break
+            i = e[0]
+            d = evidence.get(i)
+            if d is None:
+                items.append(f'{{"index": {i}, "t": null, "summary": "#{i}"}}')
+                continue
+            t = round((d.t_ns - zero) / 1e9, 9)
+            if type(t) is not float or t - t != 0.0:  # not a finite float: the encoder's words
+                break
+            items.append(f'{{"index": {i}, "t": {t!r}, "summary": {text(describe_datagram(d, first_ns))}}}')
+        else:
+            t = round((t_ns - zero) / 1e9, 9)
+            if t - t == 0.0:
+                head = heads.get((rule, getattr(v, "level", None)))
+                if head is None:
+                    level, about = _level(v), _rule_text(rule)
+                    head = heads[rule, getattr(v, "level", None)] = (
+                        f'{{"rule": {text(rule)}, "level": {text(level)}, "node": ',
+                        f', "text": {text(about)}, "expected": ')
+                expected, actual = v.expected, v.actual
+                said = said_before.get(expected) if type(expected) is str else None
+                if said is None:
+                    said = "null" if expected is None else text(str(expected))
+                    if type(expected) is str and len(said_before) < 4096:  # a rule's expectation repeats
+                        said_before[expected] = said
+                yield (f'{head[0]}{node}, "t": {t!r}, "t_ns": {t_ns}{head[1]}{said}, "actual": '
+                       f'{"null" if actual is None else text(str(actual))}, "evidence": [{", ".join(items)}]}}')
+                continue
+        yield dumps(doc(v))
 
 
 def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = True) -> dict[str, Any]:
@@ -136,7 +241,9 @@ def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = T
         for verdict in by_rule.values():
             counts[verdict] = counts.get(verdict, 0) + 1
     shown = j.shown_violations
-    levels = Counter(_level(v) for v in shown)
+    levels: Counter[str] = Counter()
+    for (rule, level), n in Counter((v.rule, getattr(v, "level", None)) for v in shown).items():
+        levels[_level(_RuleLevel(rule, level))] += n  # per rule and level: a million violations, few kinds
     duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
     segments = {"segments": [_segment_json(name, s, j.params.select) for name, s in j.segments.items()]} \
         if j.segments else {}
@@ -166,17 +273,34 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
     head = json.dumps(to_json(j, evidence, violations=False), indent=2)
     marker = '\n  "violations": [],\n'
     before, after = head.split(marker, 1)  # the key is unique at the top level (indent 2)
-    dumps = json.JSONEncoder().encode
     try:
         with open(path, "w", encoding="utf-8") as f:
             f.write(before + '\n  "violations": [')
             first = True
-            for doc in _violations_json(j, evidence):
-                f.write(("\n    " if first else ",\n    ") + dumps(doc))
+            lines: list[str] = []  # written a thousand at a time
+            for line in _violation_lines(j, evidence):
+                lines.append(("\n    " if first else ",\n    ") + line)
                 first = False
+                if len(lines) == 1000:
+                    f.write("".join(lines))
+                    lines.clear()
+            f.write("".join(lines))
             f.write(("\n  ],\n" if not first else "],\n") + after + "\n")
     except OSError as exc:
         raise UsageError(f"--json: cannot write {path!r}: {exc.strerror or exc}") from None
+
+
+def _one_line() -> Any:
+    """``json.JSONEncoder().encode`` of a violation's JSON: the same C encoder, with the same
+    settings, made once rather than once per violation (a million violations: issue 17). No
+    circular check: a violation's JSON is strings, numbers and lists and dicts of them."""
+    default = json.JSONEncoder()
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None or not default.ensure_ascii:
+        return default.encode
+    encode = make(None, default.default, json.encoder.encode_basestring_ascii, None, default.key_separator,
+                  default.item_separator, default.sort_keys, default.skipkeys, default.allow_nan)
+    return lambda doc: "".join(encode(doc, 0))
 
 
 def _segment_json(name: str, s: Judgement, select: tuple[str, ...]) -> dict[str, Any]:

@@ -101,6 +101,8 @@ MONITORED_RULES: frozenset[str] = frozenset(
         "DUP-1 DUP-2 DUP-3 DUP-4 TRN-2").split())
 
 _ACK_LEN = HDR + 2
+#: (rule, role) -> whether the rule binds a node of that role (``Monitor._judged``)
+_BINDS: dict[tuple[str, str], bool] = {}
 _KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
 _EMPTY = frozenset(a for a in range(N_ACTIONS) if _KINDS[a] == "empty")
 _ITEMS = frozenset(a for a in range(N_ACTIONS) if _KINDS[a] in ("counted_items", "single_item"))
@@ -404,7 +406,13 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     def _judged(self, node: int, rule: str) -> bool:
         """Whether ``rule`` binds ``node`` (its role) and ``node`` is not the harness."""
         n = self._nodes.get(node)
-        return n is not None and n.real and SPEC.rule(rule).applies_to(role_of(node))
+        if n is None or not n.real:
+            return False
+        role = role_of(node)
+        binds = _BINDS.get((rule, role))
+        if binds is None:  # the spec's answer, asked once per rule and role (issue 17)
+            binds = _BINDS[rule, role] = SPEC.rule(rule).applies_to(role)
+        return binds
 
     def _observe(self, node: int, rule: str) -> None:
         (self._nodes.get(node) or self._node(node)).seen.add(rule)

@@ -304,7 +304,9 @@ def evidence_indexes(violation: Any) -> list[int]:
     """The datagram indexes of a violation's evidence (ints, or records with ``.index``)."""
     out = []
     for item in getattr(violation, "evidence", None) or ():
-        if isinstance(item, int):
+        if type(item) is tuple and item and type(item[0]) is int:  # the monitor's (index, t_ns): first
+            out.append(item[0])
+        elif isinstance(item, int):
             out.append(item)
         elif hasattr(item, "index") and isinstance(item.index, int):
             out.append(item.index)
