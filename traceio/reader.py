@@ -104,6 +104,8 @@ _GZIP_MAGIC = b"\x1f\x8b"
 MCP_PORTS: frozenset[int] = frozenset(SPEC.protocol["ports"].values())
 #: How far (ns) an MCAP record may be written after a later one and still come out in order.
 REORDER_NS = 1_000_000_000
+#: where a raw record's fields hold its session (segment), by kind (``_mcap_raw``)
+_SEGMENT_FIELD = {"d": 6, "m": 3, "v": 3, "c": 4}
 #: The most datagrams one ``/mcp/burst`` record may stand for: a burst is a flood the runner
 #: really sent (MCP-ROB-7's ``flood_count``, 10,000), so ten times that is generous; a file
 #: claiming more is rejected before anything is expanded (issue 19 item 2: a 1.2 KB file
@@ -241,9 +243,13 @@ class Capture:
         """Records in log_time order: the recorder's threads may write a datagram a little
         after a later one (an ACK received while its command's record is being written), so
         records wait in a heap until the file has moved :data:`REORDER_NS` past them."""
-        order: list[tuple[int, int, str, Any]] = []  # (log_time, file position, kind, fields)
+        order: list[tuple[int, int, str, Any, Any]] = []  # (log_time, file position, kind, fields, segment)
         n = {"d": 0, "m": 0, "s": 0}
-        newest = 0
+        #: the newest log_time of each session: a session's records are held until the file
+        #: has moved past them in *that* session (a session written late, with the times its
+        #: datagrams arrived -- a scenario run beside the main one, its traffic held until
+        #: its case asks -- is put in order among itself, as its live monitor did)
+        newest: dict[Any, int] = {}
         want = self.segment
         push, pop = heapq.heappush, heapq.heappop
         for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
@@ -254,10 +260,11 @@ class Capture:
                 if want is None or seg in (None, want):
                     yield Metadata(*fields)
                 continue
-            push(order, (t, pos, kind, fields))
-            if t > newest:
-                newest = t
-            while order and order[0][0] < newest - REORDER_NS:
+            seg = fields[_SEGMENT_FIELD[kind]] if kind in _SEGMENT_FIELD else None
+            push(order, (t, pos, kind, fields, seg))
+            if t > newest.get(seg, -1):
+                newest[seg] = t
+            while order and order[0][0] < newest[order[0][4]] - REORDER_NS:
                 item = pop(order)
                 if item[2] == "d":  # _mcap_record's, inline: most records are datagrams
                     i = n["d"]
@@ -273,8 +280,8 @@ class Capture:
                 yield rec
 
     @staticmethod
-    def _mcap_record(item: tuple[int, int, str, Any], n: dict[str, int]) -> Record:
-        t, _pos, kind, fields = item
+    def _mcap_record(item: tuple[int, int, str, Any, Any], n: dict[str, int]) -> Record:
+        t, _pos, kind, fields, _seg = item
         if kind == "d":
             n["d"] += 1
             return Datagram(n["d"] - 1, t, *fields)

@@ -145,3 +145,26 @@ def test_the_mission_a_session_records_is_what_check_judges_its_lists_by(tmp_pat
         validate_json(json.loads(json.dumps(to_json(j, {}))))
     given = judge(cap, Params(challenge=2, given=frozenset({"challenge"})))
     assert given.params.challenge == 2 and "MCP-FLOW-4" not in {v.rule for v in given.violations}
+
+
+def test_a_session_written_late_is_put_in_order_among_itself(tmp_path: Path) -> None:
+    """A scenario run beside the main mission (``mcp-conform --role manager``) has its
+    traffic held, then written as a session of its own once its case asks: with the times
+    its datagrams arrived, seconds older than the main session's last records, and in the
+    order the runner's threads saw them (a drone's ACK may be seen before the command it
+    follows, a few ms older). Its live monitor put them in time order; the reader must too,
+    in that session, or a WP_List sent before its Start_Mission's ACK (MCP-BLK-3) is judged
+    as sent after it (CI: BLK-3 twice live, once offline)."""
+    path = tmp_path / "late.mcap"
+    rec = McapRecorder(path, local=("127.0.0.1", 7890))
+    t = 1_700_000_000_000_000_000
+    rec.begin_segment("main")
+    for k in range(40):  # the main mission, 4 s of it
+        rec.datagram("rx", b"main-%d" % k, ("127.0.0.1", 7889), t + k * 100_000_000)
+    rec.begin_segment("silent")  # written now, with the times of 3 s ago
+    late = t + 1_000_000_000
+    for k, dt in enumerate([0, 30, 10, 20, 50, 40]):  # ms: seen out of order by a few ms
+        rec.datagram("rx", b"silent-%d" % k, ("127.0.0.1", 7991), late + dt * 1_000_000)
+    rec.close()
+    times = [d.t_ns for d in open_capture(path).datagrams() if d.segment == "silent"]
+    assert len(times) == 6 and times == sorted(times), [(x - late) // 1_000_000 for x in times]
