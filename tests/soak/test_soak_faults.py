@@ -45,6 +45,12 @@ CASES = [  # (which node, fault, link, challenge, what the failure says)
     ("manager", "dup-seq-only", DUPLICATING, "1", "MCP-BLK-2", "1,2,3,4,5"),
 ]
 
+#: the fault needs a command to land while the drone's Mission_Ready waits for its ACK: at
+#: --rto 0.2 that is a 200-ms window, which a loaded host's scheduling (the manager's
+#: Start_Mission a little late) closed in three replays of three; 0.6 s keeps the window
+#: open whatever the host, and the seed's link decisions are the same
+EXTRA = {"ack-before-accept": ("--rto", "0.6", "--mission-timeout", "20")}
+
 
 def soak(tmp_path: Path, name: str, *args: str) -> tuple[int, dict]:
     out = tmp_path / f"{name}.json"
@@ -64,7 +70,7 @@ def test_the_soak_catches_the_fault_and_its_seed_replays_it(role, fault, link, c
     nodes = ["--drone", DRONE + (f" --fault {fault}" if role == "drone" else ""),
              "--manager", MANAGER + (f" --fault {fault}" if role == "manager" else "")]
     code, doc = soak(tmp_path, "campaign", "--missions", "6", "--impair", link, "--challenges", challenge,
-                     "--drones", drones, *nodes)
+                     "--drones", drones, *EXTRA.get(fault, ()), *nodes)
     assert code == 1, doc["results"]
     bad = doc["first_failure"]
     says = (says,) if isinstance(says, str) else says
