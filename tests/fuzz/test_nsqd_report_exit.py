@@ -1,0 +1,42 @@
+"""A sanitizer's whole report, then the process's exit (ASan's default, halt_on_error): on a
+loaded host the exit came more than 0.3 s after the report's SUMMARY, and the crash was
+classed as a report of a process still running, so its replay said "did not reproduce"
+(CI: test_nsqd_repro, the oracle "sanitizer" where the finding's is "crash")."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+from fuzz.stream_backend import Backend
+from harness.stream_session import Death
+
+REPORT = [
+    "==1==ERROR: AddressSanitizer: heap-buffer-overflow on address 0x6020 at pc 0x55 bp 0x7f sp 0x7f",
+    "READ of size 65535 at 0x6020 thread T0",
+    "    #0 0x55 in check_string /src/backend.c:120",
+    "    #1 0x55 in check_body /src/backend.c:200",
+    "SUMMARY: AddressSanitizer: heap-buffer-overflow /src/backend.c:120 in check_string",
+]
+
+
+def _backend(exits_after: float) -> Backend:
+    born = time.monotonic()
+    proc = SimpleNamespace(sanitizer_report=lambda: list(REPORT), alive=lambda: time.monotonic() - born < exits_after)
+
+    def death(grace: float = 0.0):
+        end = time.monotonic() + grace
+        while proc.alive() and time.monotonic() < end:
+            time.sleep(0.005)
+        return None if proc.alive() else Death(-6, "SIGABRT", REPORT[0], tuple(REPORT))
+
+    b = object.__new__(Backend)
+    b.session = SimpleNamespace(proc=proc, death=death)
+    b.reports_seen = 0
+    return b
+
+
+def test_a_process_that_exits_a_second_after_its_whole_report_is_a_crash():
+    hit = _backend(exits_after=1.0).report_hit()
+    assert hit is not None and hit.signature.oracle == "crash", hit
+    assert hit.signature.frames[:2] == ("check_string", "check_body"), hit.signature
