@@ -137,6 +137,7 @@ def pytest_configure(config: pytest.Config) -> None:
         state.set_shard(config.getoption("mcp_shard"), config.getoption("mcp_shard_events"))
     except ValueError as exc:
         raise pytest.UsageError(f"--mcp-shard: {exc}") from None
+    INTERRUPTS.release()  # mcp-conform held signals through pytest's start-up: from here they stop the run
 
 
 

@@ -308,8 +308,10 @@ def _main(argv: list[str]) -> int:
 
     if ns.json:
         Path(ns.json).unlink(missing_ok=True)  # rewritten below; its absence shows a pytest failure
+    INTERRUPTS.hold()  # until the plugin is configured (``_plugin_run.pytest_configure``)
     rc = int(pytest.main(pytest_args(ns)))
     INTERRUPTS.stop_raising()
+    INTERRUPTS.release()  # pytest ended before it configured the plugin: nothing left to raise
     if rc in (0, 1, 2) and (not ns.json or Path(ns.json).exists()):
         return rc
     if INTERRUPTS.interrupted:

@@ -94,6 +94,23 @@ class Interrupts:
                 if self._raising:
                     raise KeyboardInterrupt(self.signals[0])
 
+    def hold(self) -> None:
+        """As :meth:`held`, across code a ``with`` block cannot wrap (pytest's own start-up:
+        a signal landing in its argument parsing broke argparse's state, and the run ended
+        with a traceback); :meth:`release` ends it. Main thread only."""
+        if threading.current_thread() is threading.main_thread():
+            self._held = True
+
+    def release(self) -> None:
+        """End :meth:`hold`: a first signal that came meanwhile stops the run now."""
+        if threading.current_thread() is not threading.main_thread() or not self._held:
+            return
+        self._held = False
+        if self._pending:
+            self._pending = False
+            if self._raising:
+                raise KeyboardInterrupt(self.signals[0])
+
     def stop_raising(self) -> None:
         """From now on no signal raises (the run is finishing)."""
         self._raising = False
