@@ -22,15 +22,12 @@ the same verdicts (the differences, if any). Figures only: nothing here asserts 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import shlex
 import statistics
-import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
+
+from bench_suite import run as suite_run  # bench/ is on sys.path when a bench runs
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "tests" / "conformance" / "nodes" / "sample_manager.py"
@@ -55,15 +52,8 @@ def sample_manager(fault: str) -> str:
 
 
 def run(args: list[str]) -> tuple[float, dict]:
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "report.json"
-        cmd = [sys.executable, "-m", "conformance", "--role", "manager", *args, "--json", str(path)]
-        env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-        t0 = time.monotonic()
-        subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
-        wall = time.monotonic() - t0
-        doc = json.loads(path.read_text()) if path.exists() else {}
-    return wall, doc
+    """``mcp-conform --role manager ARGS``: its wall time and JSON report (bench_suite's run)."""
+    return suite_run(["--role", "manager", *args])
 
 
 def outcome(doc: dict) -> tuple:
