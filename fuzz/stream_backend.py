@@ -108,23 +108,27 @@ class Backend:
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(), tuple(report[:20]) or d.stderr)
 
     def report_hit(self) -> Hit | None:
-        """A new sanitizer report on stderr: once it is whole (SUMMARY, or no line for 0.3 s;
-        symbolising its stacks takes a while on a loaded machine), a death if the process then
-        exits (ASan's default), else the report of a process still running (halt_on_error=0)."""
+        """A new sanitizer report on stderr: once it is whole (its SUMMARY line, which ASan
+        writes last; up to 5 s, or 1 s without a new line: symbolising its stacks takes a
+        while on a loaded machine), a death if the process then exits (ASan's default), else
+        the report of a process still running (halt_on_error=0)."""
         proc = self.session.proc
         assert proc is not None
-        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 0.3
+        # a quiet spell of 0.3 s once ended the wait mid-report on a loaded CI host: with no
+        # SUMMARY the death grace was the short one and a crash was classed as a report of a
+        # process still running (test_nsqd_repro's campaign: "sanitizer", not "crash")
+        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
         while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
             time.sleep(0.01)
             now = proc.sanitizer_report()
             if len(now) > len(report):
-                report, quiet = now, time.monotonic() + 0.3
+                report, quiet = now, time.monotonic() + 1.0
         self.reports_seen = len(report)
         # a whole report (SUMMARY) is followed by the process's exit under ASan's default
         # (halt_on_error): a loaded host took over 0.3 s from the one to the other, and a crash
         # was classed as a report of a process still running (a replay: "did not reproduce")
         whole = any("SUMMARY:" in x for x in report)
-        dead = self.death_hit(3.0 if whole else 0.3)
+        dead = self.death_hit(3.0 if whole else 1.0)
         if dead is not None:
             return dead
         parsed = parse_sanitizer(report)
