@@ -29,8 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from spec import SPEC
 
 __all__ = ["Baseline", "BaselineError", "BaselineEntry", "load_baseline", "write_baseline"]
@@ -120,6 +118,8 @@ def load_baseline(path: str | Path, option: str = "--baseline") -> Baseline:
         raise BaselineError(f"{where}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise BaselineError(f"{where}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+    import yaml  # here, not at the top: every run imports this module, few read a baseline
+
     try:
         doc = json.loads(text) if text.lstrip().startswith(("{", "[")) else yaml.safe_load(text)
     except RecursionError:
@@ -152,6 +152,8 @@ def write_baseline(path: str | Path, cases: Iterable[Any], target: str | None = 
         if str(path).endswith(".json"):
             text = json.dumps({"version": BASELINE_VERSION, "expected_failures": items}, indent=2) + "\n"
         else:
+            import yaml
+
             head = (f"# mcp-conform expected-failures baseline{f' for {target}' if target else ''}\n"
                     "# Each entry: a case ID or rule ID and why its failure is accepted for now.\n")
             text = head + yaml.safe_dump({"version": BASELINE_VERSION, "expected_failures": items},
