@@ -1,13 +1,15 @@
-"""mcp-capture show / diff / check on noisy captures, and check of a million violating datagrams.
+"""mcp-capture show / diff / check / export on noisy captures, and check of a million violating datagrams.
 
     python bench/bench_capture_tools.py [--sizes 10000,20000,40000] [--million N] [--skip-million]
-                                        [--baseline SRC]
+                                        [--only show,diff,check,export] [--golden] [--baseline SRC]
 
 1. Noisy captures of 10k, 20k and 40k datagrams (tests/captures/noisy.py: unanswered drone
    commands, mutated copies, random bytes with random headers from several sources, runts):
-   ``mcp-capture show``, ``diff`` (against another noisy capture of the same size) and
-   ``check --json``, each a subprocess: wall seconds, CPU seconds and peak RSS. Linear time
-   doubles from one size to the next (issue 19 item 7: 2.8 / 7.3 / 33 s for show before).
+   ``mcp-capture show``, ``diff`` (against another noisy capture of the same size),
+   ``check --json`` and ``export --pcap`` (a .pcap and a .pcapng), each a subprocess: wall
+   seconds, CPU seconds and peak RSS. Linear time doubles from one size to the next (issue 19
+   item 7: 2.8 / 7.3 / 33 s for show before). ``--golden``: the same commands on
+   captures/golden/drone-suite.mcap (10,283 datagrams) first.
 2. ``mcp-capture check FILE --json OUT`` of a capture of ``--million`` datagrams, every one a
    violation (a drone sending WP_On to the manager, MCP-HDR-5): wall, CPU, peak RSS, against
    the issue's target of <= 60 s and <= 1 GB.
@@ -150,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="10000,20000,40000", help="noisy capture sizes (10000,20000,40000)")
     ap.add_argument("--million", type=int, default=1_000_000, help="violating datagrams in part 2 (1000000)")
     ap.add_argument("--skip-million", action="store_true", help="part 1 only")
+    ap.add_argument("--only", default="show,diff,check,export",
+                    help="the commands of part 1 (show,diff,check,export)")
+    ap.add_argument("--golden", action="store_true", help="part 1's commands on the golden drone-suite capture too")
     ap.add_argument("--baseline", type=Path, help="another source tree to run side by side (an older commit)")
     args = ap.parse_args(argv)
     tmp = Path(os.environ.get("TMPDIR", "/tmp"))
@@ -158,13 +163,27 @@ def main(argv: list[str] | None = None) -> int:
     print(f"python {platform.python_version()} on {platform.machine()}, {os.cpu_count()} CPUs; "
           f"load {os.getloadavg()[0]:.1f}; columns: {', '.join(f'{k} ({v})' for k, v in trees.items())}")
     print("wall, CPU (user + system) and peak RSS of each command")
-    for n in (int(x) for x in args.sizes.split(",")):
+    only = set(args.only.split(","))
+    inputs: list[tuple[str, Path, Path | None]] = []
+    if args.golden:
+        inputs.append(("golden drone-suite.mcap (10,283 datagrams)", ROOT / "captures" / "golden" / "drone-suite.mcap",
+                       None))
+    for n in (int(x) for x in args.sizes.split(",") if x):
         a = cached(tmp / f"bench-noisy-{n}.mcap", lambda p, n=n: write_noisy(p, n))
-        b = cached(tmp / f"bench-noisy-{n}-other.mcap", lambda p, n=n: write_noisy(p, n, seed=7))
-        print(f"noisy capture of {n} datagrams:")
-        row("show", trees, ["show", str(a)])
-        row("diff (another one)", trees, ["diff", str(a), str(b)])
-        row("check --json", trees, ["check", str(a), "--json", str(out)])
+        b = cached(tmp / f"bench-noisy-{n}-other.mcap", lambda p, n=n: write_noisy(p, n, seed=7)) \
+            if "diff" in only else None
+        inputs.append((f"noisy capture of {n} datagrams", a, b))
+    for title, a, b in inputs:
+        print(f"{title}:")
+        if "show" in only:
+            row("show", trees, ["show", str(a)])
+        if "diff" in only and b is not None:
+            row("diff (another one)", trees, ["diff", str(a), str(b)])
+        if "check" in only:
+            row("check --json", trees, ["check", str(a), "--json", str(out)])
+        if "export" in only:
+            for suffix in ("pcap", "pcapng"):
+                row(f"export --pcap .{suffix}", trees, ["export", str(a), "--pcap", str(tmp / f"bench-export.{suffix}")])
     if not args.skip_million:
         m = args.million
         cap = cached(tmp / f"bench-violating-{DRONES}-{SPACING_NS}-{m}.mcap", lambda p: all_violating(p, m))

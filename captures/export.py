@@ -1,11 +1,15 @@
 """``mcp-capture export CAPTURE --pcap OUT``: a capture as a pcap or pcapng file.
 
 Every datagram of the capture (a burst expanded datagram by datagram) becomes one
-Ethernet/IPv4/UDP packet with the capture's addresses, ports and timestamps, written by
-scapy's ``PcapNgWriter`` (OUT ending in ``.pcapng``) or ``PcapWriter`` (anything else).
-Where the capture does not name an address (a pcap of one side, a wildcard bind) the
-loopback address stands in, and a missing port is the spec's conventional port of the
-sender's role (MCP-TRN-1: the manager on 7889, drones on 7890). Open the result in
+Ethernet/IPv4/UDP packet with the capture's addresses, ports and timestamps, built and
+written with dpkt (``traceio.pcap_out``): a pcapng (OUT ending in ``.pcapng``; the time cut
+to the microsecond) or a pcap (anything else; rounded to the nearest microsecond), both
+computed from the capture's integer nanoseconds. Where the capture does not name an address
+(a pcap of one side, a wildcard bind) the loopback address stands in, and a missing port is
+the spec's conventional port of the sender's role (MCP-TRN-1: the manager on 7889, drones on
+7890); an address that is not an IPv4 literal (never looked up), a port past 65535, a
+datagram longer than UDP carries or a time the file cannot hold is an error naming the
+datagram. Open the result in
 Wireshark with ``mcp-capture dissector --install``. An Nsqd capture (``--protocol nsqd``, or
 found to be one) is written as its TCP conversations (:func:`export_tcp_pcap`). Either way a
 capture unreadable part-way leaves no output, and every error is one line (exit 2).
@@ -14,7 +18,6 @@ capture unreadable part-way leaves no output, and every error is one line (exit 
 from __future__ import annotations
 
 import contextlib
-import logging
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -49,69 +52,59 @@ class _Output:
 def _whole_or_none(path: Path) -> Iterator[_Output]:
     """``path`` is written whole or not at all: where the input fails part-way (CaptureError)
     or anything else stops the export after the file was opened, the half-written file is
-    removed (a file that could not be opened is left as it was). scapy's WARNING: lines (an
-    empty writer closed) are not ours to print."""
+    removed (a file that could not be opened is left as it was)."""
     out = _Output(path)
-    scapy_log = logging.getLogger("scapy.runtime")
-    level = scapy_log.level
-    scapy_log.setLevel(logging.ERROR)
     done = False
     try:
         yield out
         done = True
     finally:
-        scapy_log.setLevel(level)
         if not done and out.opened:
             path.unlink(missing_ok=True)
 
 
 def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """Write ``out``; return (packets written, the capture's truncation reason or None).
-    Raises ``traceio.reader.CaptureError`` for unreadable input, OSError for ``out``."""
-    from scapy.layers.inet import IP, UDP
-    from scapy.layers.l2 import Ether
-    from scapy.utils import PcapNgWriter, PcapWriter
-
+    Raises ``traceio.reader.CaptureError`` for unreadable input (a datagram the file cannot
+    hold included), OSError for ``out``."""
+    from traceio.pcap_out import FrameError, PacketFile, udp_frame
     from traceio.reader import CaptureError, Datagram, Truncated, open_capture
 
     cap = open_capture(capture)
     out = Path(out)
-    ng = out.suffix.lower() == ".pcapng"
-    # what the output's timestamp fields hold: pcap 32-bit seconds, pcapng 64-bit microseconds
-    t_max_ns = (2**64 - 1) * 1000 if ng else (2**32 - 1) * 10**9
     n = 0
     truncated: str | None = None
-    with _whole_or_none(out) as output:
-        writer = PcapNgWriter(str(out)) if ng else PcapWriter(str(out), sync=False)
+    with _whole_or_none(out) as output, PacketFile(out) as pcap:
         output.opened = True
-        try:
-            for rec in cap:
-                if type(rec) is Truncated:
-                    truncated = rec.reason
-                    continue
-                if type(rec) is not Datagram:
-                    continue
-                header = peek_header(rec.data, require_preamble=False)
-                dst_id, src_id = (header[0], header[1]) if header else (None, None)
-                src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
-                pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") /
-                       IP(src=src[0], dst=dst[0]) / UDP(sport=src[1], dport=dst[1]) / rec.data)
-                if not 0 <= rec.t_ns <= t_max_ns:
-                    raise CaptureError(f"{capture}: datagram #{rec.index} is stamped {rec.t_ns / 1e9:.0f} s, "
-                                       f"outside what a {'pcapng' if ng else 'pcap'} file's timestamp holds"
-                                       + ("" if ng else " (0 to 2^32 s; .pcapng holds more)"))
-                pkt.time = rec.t_ns / 1e9  # type: ignore[attr-defined]
-                writer.write(pkt)
-                n += 1
-        finally:
-            writer.close()
+        # what the output's timestamp fields hold: pcap 32-bit seconds, pcapng 64-bit microseconds
+        ng, t_max_ns = pcap.pcapng, pcap.max_ns
+        for rec in cap:
+            if type(rec) is Truncated:
+                truncated = rec.reason
+                continue
+            if type(rec) is not Datagram:
+                continue
+            header = peek_header(rec.data, require_preamble=False)
+            dst_id, src_id = (header[0], header[1]) if header else (None, None)
+            src, dst = _fill(rec.src_addr, src_id), _fill(rec.dst_addr, dst_id)
+            try:
+                frame = udp_frame(src, dst, bytes(rec.data))
+            except FrameError as exc:
+                raise CaptureError(f"{capture}: datagram #{rec.index}: {exc}") from None
+            if not 0 <= rec.t_ns <= t_max_ns:
+                raise CaptureError(f"{capture}: datagram #{rec.index} is stamped {rec.t_ns / 1e9:.0f} s, "
+                                   f"outside what a {'pcapng' if ng else 'pcap'} file's timestamp holds"
+                                   + ("" if ng else " (0 to 2^32 s; .pcapng holds more)"))
+            pcap.write(frame, rec.t_ns)
+            n += 1
     return n, truncated or getattr(cap, "truncated", None)
 
 
 def export_tcp_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """An Nsqd capture's TCP conversations (``traceio.tcp_pcap``, NSQD-*): (packets written,
     the capture's truncation reason or None); errors as :func:`export_pcap`'s."""
-    from traceio.reader import Truncated
+    from traceio.pcap_out import FrameError
+    from traceio.reader import CaptureError, Truncated
     from traceio.stream import BACKEND_PORT, stream_records
     from traceio.tcp_pcap import write_tcp_pcap
 
@@ -125,7 +118,10 @@ def export_tcp_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | No
                     truncated.append(rec.reason)
                 yield rec
 
-        n = write_tcp_pcap(out, records(), BACKEND_PORT)
+        try:
+            n = write_tcp_pcap(out, records(), BACKEND_PORT)
+        except FrameError as exc:  # a time a pcap cannot hold, an address not IPv4
+            raise CaptureError(f"{capture}: {exc}") from None
     return n, truncated[0] if truncated else None
 
 

@@ -3,8 +3,9 @@
 :func:`write_tcp_pcap` takes a stream capture's records in time order — ``StreamEvent``
 (``open``, ``close`` by client or backend with FIN or RST), ``StreamFrame`` (``tx`` one
 write of the client, ``rx`` one frame of the backend) or ``traceio.tcp.StreamData`` — and
-writes each connection as the packets TCP would have put on the wire, built with scapy
-(Ether/IP/TCP): the three-way handshake, each write as segments of at most :data:`MSS` bytes
+writes each connection as the packets TCP would have put on the wire, built and written with
+dpkt (Ether/IPv4/TCP, :mod:`traceio.pcap_out`; a pcap in nanoseconds, a pcapng in
+microseconds): the three-way handshake, each write as segments of at most :data:`MSS` bytes
 with the peer's ACK, sequence and acknowledgement numbers that follow the bytes, and the
 close as it happened (FIN and its ACK from each side that closed, or an RST after which the
 connection says nothing more). Bytes with no open event (a capture written before
@@ -14,11 +15,12 @@ stream" (``-z follow,tcp,raw,N``) gives back each direction's bytes exactly.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from traceio.pcap_out import PacketFile, tcp_frame
 
 __all__ = ["MSS", "write_tcp_pcap"]
 
@@ -43,29 +45,18 @@ class _Conn:
 
 class _Writer:
     def __init__(self, path: Path, backend_port: int) -> None:
-        from scapy.utils import PcapNgWriter, PcapWriter
-
-        self.pcapng = path.suffix.lower() == ".pcapng"
-        self.w = PcapNgWriter(str(path)) if self.pcapng else PcapWriter(str(path), sync=False, nano=True)
+        self.w = PacketFile(path, nano=True)  # pcap in nanoseconds; pcapng in microseconds
         self.backend_port = backend_port
         self.conns: dict[int, _Conn] = {}
         self.packets = 0
         self.last_ns = 0
 
     def _emit(self, t_ns: int, src: _Side, dst: _Side, flags: str, payload: bytes = b"") -> None:
-        from scapy.layers.inet import IP, TCP
-        from scapy.layers.l2 import Ether
-        from scapy.packet import Raw
-
         t_ns = max(t_ns, self.last_ns + _STEP_NS)
         self.last_ns = t_ns
-        pkt = (Ether(src="02:00:00:00:00:01", dst="02:00:00:00:00:02") / IP(src=src.addr[0], dst=dst.addr[0])
-               / TCP(sport=src.addr[1], dport=dst.addr[1], flags=flags, seq=src.seq % (1 << 32),
-                     ack=dst.seq % (1 << 32) if "A" in flags else 0, window=65535))
-        if payload:
-            pkt = pkt / Raw(payload)
-        pkt.time = t_ns / 1e9
-        self.w.write(pkt)
+        frame = tcp_frame(src.addr, dst.addr, flags, src.seq % (1 << 32),
+                          dst.seq % (1 << 32) if "A" in flags else 0, payload, window=65535)
+        self.w.write(frame, t_ns)
         self.packets += 1
 
     def open(self, t_ns: int, conn: int, client: Any, backend: Any) -> _Conn:
@@ -110,24 +101,17 @@ class _Writer:
         self._emit(t_ns, dst, src, "A")
 
     def finish(self) -> None:
-        if not self.packets and self.pcapng:  # scapy writes no header for an empty pcapng
-            from scapy.layers.l2 import Ether
-
-            self.w.write_header(Ether())
-        elif not self.packets:
-            self.w.write_header(None)
         self.w.close()
 
 
 def write_tcp_pcap(path: str | Path, records: Iterable[Any], backend_port: int) -> int:
     """Write the conversations of ``records`` (see the module docstring) to ``path`` (pcapng
-    when it ends ``.pcapng``); the number of packets written. OSError for ``path``."""
+    when it ends ``.pcapng``); the number of packets written. OSError for ``path``;
+    ``traceio.pcap_out.FrameError`` for what a packet or the file cannot hold (a time past a
+    pcap's 2^32 s, an address that is not IPv4)."""
     from traceio.reader import StreamEvent, StreamFrame
     from traceio.tcp import StreamData
 
-    scapy_log = logging.getLogger("scapy.runtime")
-    level = scapy_log.level
-    scapy_log.setLevel(logging.ERROR)
     w = _Writer(Path(path), backend_port)
     try:
         for rec in records:
@@ -143,5 +127,4 @@ def write_tcp_pcap(path: str | Path, records: Iterable[Any], backend_port: int) 
                 w.data(rec.t_ns, rec.conn, rec.direction, rec.data)
     finally:
         w.finish()
-        scapy_log.setLevel(level)
     return w.packets

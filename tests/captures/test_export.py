@@ -1,5 +1,6 @@
-"""mcp-capture export (pcap/pcapng through scapy) and the generated Wireshark dissector,
-checked in tshark field by field against our own decoder."""
+"""mcp-capture export (pcap/pcapng built with dpkt; read back by scapy, tshark and our own
+reader) and the generated Wireshark dissector, checked in tshark field by field against our
+own decoder."""
 
 from __future__ import annotations
 
@@ -85,12 +86,91 @@ def test_export_keeps_addresses_timestamps_and_bytes(tmp_path, suffix):
     assert abs(float(pkts[3].time) - (T0 + 3_000_000) / 1e9) < 1e-6
 
 
+#: times that the float arithmetic before (t_ns / 1e9 through scapy) stamped a microsecond off:
+#: 500 ns past a microsecond, just under a second's end (a pcap's rounding carries into the
+#: seconds), whole microseconds, and times of the golden drone-suite capture
+TIMES = [0, 1_000_000_500, 1_700_000_000_000_001_000, 1_700_000_000_999_999_500, 1_700_000_001_123_456_499,
+         1_700_000_001_123_456_500, 1_700_000_001_123_456_501, 1_795_629_244_084_981_505,
+         1_795_629_244_661_675_949, 2**32 * 10**9 - 1_000_000_000]
+#: (local, peer, direction, sender's MCP id) and what the packet must say: (src, dst) after
+#: the export's rules (a wildcard or missing host is loopback, a missing port the sender's
+#: role's, MCP-TRN-1)
+PEERS = [((("10.1.2.3", 7889), ("10.1.2.4", 40001), "tx", 0), (("10.1.2.3", 7889), ("10.1.2.4", 40001))),
+         ((("10.1.2.3", 7889), ("10.1.2.4", 40001), "rx", 1), (("10.1.2.4", 40001), ("10.1.2.3", 7889))),
+         ((("0.0.0.0", 7889), ("192.168.7.9", 0), "rx", 3), (("192.168.7.9", 7890), ("127.0.0.1", 7889))),
+         ((None, ("192.168.7.9", 0), "tx", 0), (("127.0.0.1", 7889), ("192.168.7.9", 7890)))]
+
+
+def _read_back(reader: str, path) -> list[tuple[int, tuple, tuple, bytes]]:
+    """(time in ns, (src host, port), (dst host, port), UDP payload) of every packet of ``path``
+    as tshark or our own reader (traceio.reader) reads it."""
+    if reader == "traceio":
+        from traceio.reader import Datagram, open_capture
+
+        return [(r.t_ns, r.src_addr, r.dst_addr, bytes(r.data)) for r in open_capture(path) if type(r) is Datagram]
+    tshark = shutil.which("tshark")
+    if tshark is None:
+        pytest.skip("tshark is not installed (bash .ci/apt-tools); the traceio case reads the same files")
+    proc = subprocess.run([tshark, "-n", "-r", str(path), "-T", "fields", "-e", "frame.time_epoch",
+                           "-e", "ip.src", "-e", "udp.srcport", "-e", "ip.dst", "-e", "udp.dstport",
+                           "-e", "udp.payload"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = []
+    for line in proc.stdout.splitlines():
+        t, sh, sp, dh, dp, payload = line.split("\t")
+        sec, frac = t.split(".")
+        rows.append((int(sec) * 10**9 + int(frac.ljust(9, "0")), (sh, int(sp)), (dh, int(dp)), bytes.fromhex(payload)))
+    return rows
+
+
+@pytest.mark.parametrize("reader", ["tshark", "traceio"])
+@pytest.mark.parametrize("suffix", ["pcap", "pcapng"])
+def test_every_packet_reads_back_with_the_captures_addresses_ports_times_and_bytes(tmp_path, suffix, reader):
+    """Packet by packet, what a reader finds in the export is what the MCAP held: the
+    addresses and ports (the export's rules for missing ones), the payload, and the time at
+    the file's resolution computed from the capture's nanoseconds (pcap: to the nearest
+    microsecond; pcapng: cut to the microsecond, as scapy's writer did)."""
+    expected = []
+    with McapRecorder(tmp_path / "c.mcap") as rec:
+        for n, t_ns in enumerate(TIMES):
+            (local, peer, direction, sender), (src, dst) = PEERS[n % len(PEERS)]
+            dst_id = 1 if sender == 0 else 0
+            data = encode(Message(dst_id, sender, n, Action.ACK, 7 * n)) + bytes(n * 150)  # up to 1.4 kB
+            rec.datagram(direction, data, peer, t_ns, local=local)
+            us = t_ns // 1000 if suffix == "pcapng" else (t_ns + 500) // 1000
+            expected.append((us * 1000, src, dst, data))
+    out = tmp_path / f"c.{suffix}"
+    code, text, err = _run(export, "export", str(tmp_path / "c.mcap"), "--pcap", str(out))
+    assert code == 0 and f"wrote {len(TIMES)} datagrams" in text, err
+    got = _read_back(reader, out)
+    assert len(got) == len(expected)
+    for k, (g, e) in enumerate(zip(got, expected, strict=True)):
+        assert g == e, (k, TIMES[k], g[:3], e[:3])
+
+
 def test_export_errors_are_one_line(tmp_path):
     code, _, err = _run(export, "export", str(tmp_path / "missing.mcap"), "--pcap", str(tmp_path / "o.pcap"))
     assert code == 2 and err.count("\n") == 1 and "missing.mcap" in err
     _capture(tmp_path / "c.mcap")
     code, _, err = _run(export, "export", str(tmp_path / "c.mcap"), "--pcap", str(tmp_path / "no" / "o.pcap"))
     assert code == 2 and "cannot write" in err
+
+
+@pytest.mark.parametrize("peer,size,why", [
+    (("localhost", 7890), 20, "'localhost' is not an IPv4 address"),  # scapy looked the name up
+    (("::1", 7890), 20, "'::1' is not an IPv4 address"),
+    (("10.0.0.1", 70000), 20, "port 70000 is outside 0..65535"),  # scapy: struct.error, a traceback
+    (("10.0.0.1", 7890), 65508, "a 65508-byte datagram is longer than IPv4/UDP carries (65507)"),
+])
+@pytest.mark.parametrize("suffix", ["pcap", "pcapng"])
+def test_a_datagram_no_packet_can_carry_is_one_line_and_no_output(tmp_path, suffix, peer, size, why):
+    with McapRecorder(tmp_path / "c.mcap") as rec:
+        rec.datagram("tx", encode(MESSAGES[1]), DRONE, T0, local=MANAGER)
+        rec.datagram("tx", encode(MESSAGES[1]).ljust(size, b"\0"), peer, T0 + 1000, local=MANAGER)
+    out = tmp_path / f"o.{suffix}"
+    code, text, err = _run(export, "export", str(tmp_path / "c.mcap"), "--pcap", str(out))
+    assert code == 2 and err == f"mcp-capture export: {tmp_path / 'c.mcap'}: datagram #1: {why}\n", err
+    assert not out.exists() and text == ""
 
 
 def test_dissector_is_derived_from_the_spec():

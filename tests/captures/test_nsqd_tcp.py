@@ -303,3 +303,46 @@ def test_a_capture_without_connection_events_exports_a_followable_conversation(t
         from tests.captures.tshark_follow import follow
 
         assert follow(tmp_path / "w.pcap", 1) == (RPY * 100, b"")
+
+
+@pytest.mark.parametrize("suffix", ["pcap", "pcapng"])
+def test_export_stamps_each_packet_with_the_captures_time(tmp_path, suffix):
+    """The TCP export's times come from the capture's integer nanoseconds: a pcap holds them
+    to the nanosecond, a pcapng to the microsecond (cut); scapy's writer went through a float
+    and put a time of today's clock up to ~0.2 µs off in the pcap (a microsecond off in the pcapng).
+    Packets of one instant are a microsecond apart (the handshake before the first bytes)."""
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    t0, t1 = 1_795_629_244_661_675_949, 1_795_629_244_671_676_450
+    recs = [StreamFrame(0, t0, "tx", 5, "TAKEOFF", None, TAKEOFF), StreamFrame(1, t1, "rx", 5, "UPDATE", None, UP[0])]
+    path = tmp_path / f"t.{suffix}"
+    assert write_tcp_pcap(path, recs, 8888) == 7  # handshake, TAKEOFF + ACK, UPDATE + ACK
+    res = (lambda t: t) if suffix == "pcap" else (lambda t: t // 1000 * 1000)
+    got = [(type(r).__name__, r.t_ns) for r in stream_records(path)]
+    assert got == [("StreamEvent", res(t0)), ("StreamFrame", res(t0 + 3000)), ("StreamFrame", res(t1))]
+    import shutil
+
+    if shutil.which("tshark") is not None:
+        out = subprocess.run(["tshark", "-r", str(path), "-T", "fields", "-e", "frame.time_epoch"],
+                             capture_output=True, text=True, timeout=60).stdout.split()
+        stamps = [int(s.replace(".", "").ljust(19, "0")) for s in out]
+        assert stamps == [res(t0 + k * 1000) for k in range(5)] + [res(t1), res(t1 + 1000)], out
+
+
+@pytest.mark.parametrize("suffix,rc", [("pcap", 2), ("pcapng", 0)])
+def test_export_refuses_a_time_a_pcap_cannot_hold(tmp_path, capsys, suffix, rc):
+    """Past 2^32 s a pcap's seconds cannot hold the time: one line, exit 2, no file (scapy's
+    struct.error escaped as a traceback); pcapng's 64-bit microseconds hold it."""
+    from traceio.recorder import McapRecorder
+
+    src = tmp_path / "late.mcap"
+    with McapRecorder(src) as rec:
+        rec.stream_frame("tx", TAKEOFF, conn=1, peer=("127.0.0.1", 8888), t_ns=2**33 * 10**9)
+    out = tmp_path / f"o.{suffix}"
+    assert main(["export", str(src), "--pcap", str(out)]) == rc
+    err = capsys.readouterr().err
+    if rc == 2:
+        assert err == f"mcp-capture export: {src}: {2**33} s is outside what a pcap file's timestamp holds\n", err
+        assert not out.exists()
+    else:
+        assert err == "" and [type(r) for r in stream_records(out)][-1] is StreamFrame
