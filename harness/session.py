@@ -153,6 +153,10 @@ class Session(SessionBase):
             listen = cfg.listen or ("", MANAGER_PORT)
             target = check_target(cfg.target)
         self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
+        # the startup phase decides when Mission_Ready is ACKed: one that lands before it (an
+        # attached node speaks before the runner binds) ACKed here would stop its copies
+        # unseen, and the startup would wait for one in vain
+        self.driver.auto_ack = lambda d: d.action != _READY
         try:
             self.driver.open()
         except OSError as exc:

@@ -1,0 +1,47 @@
+"""Attach mode's startup: the node runs (and speaks) before the runner does."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+from harness.config import RunConfig
+from harness.driver import TargetDriver
+from harness.session import Session
+from spec.codec import Action
+from tests.conformance.runner_helpers import ROOT, free_port, wait_first_datagram
+
+
+def test_a_mission_ready_heard_before_the_startup_phase_is_not_acked(monkeypatch):
+    """A Mission_Ready that lands between the driver's bind and the startup phase is not
+    ACKed: ACKed there (the driver's auto-ACK), the node stopped sending it, the startup saw
+    none within 2.5 x --rto + 1 s and probed ID 1 (the node's ID still unknown), which a node
+    with ID 3 rightly ignores (MCP-ACK-5): "target never answered" on a quiet host
+    (test_runner's attach-mode test, once). Here the window is held open until the node's
+    next copy has arrived."""
+    port, listen = free_port(), free_port()
+    node = subprocess.Popen(
+        [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind", f"127.0.0.1:{port}",
+         "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    real_open = TargetDriver.open
+
+    def open_and_hear_a_copy(self: TargetDriver):
+        addr = real_open(self)
+        assert self.wait_for(lambda d: d.action == Action.MISSION_READY, 10.0) is not None
+        time.sleep(0.05)  # whatever the driver does with it is done
+        return addr
+
+    session = Session(RunConfig(target=("127.0.0.1", port), listen=("127.0.0.1", listen), rto=0.2,
+                                ack_window=0.25))
+    try:
+        wait_first_datagram(listen)
+        monkeypatch.setattr(TargetDriver, "open", open_and_hear_a_copy)
+        session.start()
+        assert session.target_id == 3
+        assert session.startup is not None and session.startup.observed, session.startup.reason
+    finally:
+        session.close()
+        node.kill()
+        node.wait(timeout=5)
