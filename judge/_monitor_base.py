@@ -235,6 +235,8 @@ class _Exchange:
 
 #: Unparsed writes to an autopilot a node's record keeps (matched against passthroughs).
 UNPARSED_KEPT = 64
+#: Numbers taken by a node's ACKs within the MCP-SEQ-1 grace kept at most (a flood's bound).
+TAKEN_KEPT = 1024
 
 
 class _Node:
@@ -243,7 +245,8 @@ class _Node:
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
-                 "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed")
+                 "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed", "taken",
+                 "taken_before")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -255,6 +258,11 @@ class _Node:
         self.acks_since = 0  # ACKs (D-5) and malformed datagrams it sent since then
         #: MCP-SEQ-1 gap awaiting numbers taken by ACKs read late: [lo, hi, still needed, report]
         self.seq_gap: list[Any] | None = None
+        #: (t_ns, seq) of the numbers its ACKs and malformed datagrams took, read within
+        #: the grace (MCP-SEQ-1): of those read before a new message, the ones numbered
+        #: after it explain the gap after it (``taken_before``, at the latest new message)
+        self.taken: deque[tuple[int, int]] = deque(maxlen=TAKEN_KEPT)
+        self.taken_before: tuple[int, ...] = ()
         self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
         self.first_seq: int | None = None  # MCP-SEQ-4
         self.actions: set[int] = set()  # action codes of its new messages so far

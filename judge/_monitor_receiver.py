@@ -57,7 +57,7 @@ class ReceiverRules:
         """A well-formed ACK from ``src`` (``node``, None for the harness) to ``dst`` naming
         ``named``."""
         if node is not None:
-            self._seq_number_taken(node, own_seq)  # D-5: an ACK may take a number (MCP-SEQ-1)
+            self._seq_number_taken(node, own_seq, t)  # D-5: an ACK may take a number (MCP-SEQ-1)
         if self._complete_for(src, dst):  # MCP-ACK-6: what an ACK to this node would answer
             self._ack_seq[src << 16 | own_seq] = (dst, i, t)
         match = self._ex.get(dst << 32 | src << 16 | named)

@@ -47,7 +47,9 @@ from spec import SPEC
 
 #: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
 #: node's datagrams to different peers reach a recorder's sockets in an order of the host's
-#: choosing, so the ACK that took the number before a message may be read just after it
+#: choosing, so the ACK that took the number before a message may be read just after it; and
+#: one numbered after a message may be read this long before it (a sender whose receive
+#: thread ACKs between its main thread's taking a number and sending the message)
 SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
 _LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
 _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
@@ -166,6 +168,10 @@ class SenderRules(RetransmissionRules):
         if prev is not None:
             self._check_seq(node, prev, ex, i, t)
         node.acks_since = 0
+        taken = node.taken
+        while taken and taken[0][0] < t - SEQ_GAP_GRACE_NS:
+            taken.popleft()
+        node.taken_before = tuple(seq for _, seq in taken)  # read before ex, within the grace
         if action == MR:
             self._judge_ready(node, ex, i, t)
         else:
@@ -213,10 +219,16 @@ class SenderRules(RetransmissionRules):
 
     def _check_seq(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:
         """MCP-SEQ-1: between two new non-ACK messages the number advances by at least 1 and
-        at most 1 + the ACKs sent in between (D-5). On a lossy trace only a repeat is proof."""
+        at most 1 + the ACKs sent in between (D-5). On a lossy trace only a repeat is proof.
+        The numbers are judged, not the order they were read in: a number skipped may be one
+        an ACK took that was read within the grace before ``prev`` (a sender's threads, or
+        the recorder's sockets, put the ACK first) or after ``ex`` (``_seq_number_taken``)."""
         acks = node.acks_since
         node.seen.add("MCP-SEQ-1")
         adv = (ex.seq - prev.seq) & 0xFFFF
+        if adv > 1 + acks:  # numbers taken by ACKs read just before prev, in the gap
+            early = {s for s in node.taken_before if 0 < (s - prev.seq) & 0xFFFF < adv}
+            acks += len(early)
         if adv == 0 or (self._complete_for(node.id) and adv > 1 + acks):
             report = ("MCP-SEQ-1", node.id, t,
                       f"seq {(prev.seq + 1) & 0xFFFF}..{(prev.seq + 1 + acks) & 0xFFFF} "
@@ -230,9 +242,14 @@ class SenderRules(RetransmissionRules):
             node.seq_gap = gap
             self._timers.at(t + SEQ_GAP_GRACE_NS, self._seq_gap_deadline, node, gap)
 
-    def _seq_number_taken(self, node: _Node, seq: int) -> None:
-        """``node`` sent an ACK (or a malformed datagram) numbered ``seq``: it explains one
-        number of a pending MCP-SEQ-1 gap it falls in, else it counts for the next gap."""
+    def _seq_number_taken(self, node: _Node, seq: int, t: int) -> None:
+        """``node`` sent an ACK (or a malformed datagram) numbered ``seq`` at ``t``: it explains
+        one number of a pending MCP-SEQ-1 gap it falls in, else it counts for the next gap
+        (and, by its number, for the gap after the next new message: read before it)."""
+        taken = node.taken
+        while taken and taken[0][0] < t - SEQ_GAP_GRACE_NS:
+            taken.popleft()
+        taken.append((t, seq))
         gap = node.seq_gap
         if gap is not None and 0 < (seq - gap[0]) & 0xFFFF < (gap[1] - gap[0]) & 0xFFFF:
             gap[2] -= 1
@@ -263,7 +280,7 @@ class SenderRules(RetransmissionRules):
         self._rob_dsts[rule].add(dst)
         if tester:
             return
-        self._seq_number_taken(self._nodes[src], seq)  # it took a number (MCP-SEQ-1 allows for it)
+        self._seq_number_taken(self._nodes[src], seq, t)  # it took a number (MCP-SEQ-1 allows for it)
         if rule == "MCP-ROB-3":
             self._observe(src, "MCP-HDR-3")
             self._emit("MCP-HDR-3", src, t, "action codes 0-8 only (9 'Any' is API-only)",

@@ -457,6 +457,30 @@ def blk2_start_before_that_drones_ready() -> Script:
     return _finish(s)
 
 
+def blk2_start_early_ack_numbered_after_it_read_first() -> Script:
+    """``sample_manager --fault start-early`` with three drones (CI, side by side and --serial
+    alike): it starts drone 1 before drone 3's Mission_Ready (MCP-BLK-2); while its main
+    thread has taken seq N for drone 2's Start_Mission, its receive thread takes N+1 for the
+    ACK of drone 3's Mission_Ready and sends it first; drone 3's Start_Mission takes N+2.
+    The ACK read before the message numbered below it explains the gap N..N+2 (MCP-SEQ-1
+    beside BLK-2 before)."""
+    s = Script((1, 2, 3))
+    s.ready(1)
+    s.ready(2)
+    s.start(1)  # before drone 3 said Mission_Ready
+    n = s.next_seq(0)  # drone 2's Start_Mission's number
+    s.vehicle(3, "link")
+    s.vehicle(3, "fix")
+    s.tick(0.01)
+    mr, _ = s.send(3, 0, Action.MISSION_READY)
+    s.tick(0.0001)
+    s.ack(0, 3, mr)  # N+1, read 20 us before N
+    s.tick(0.00002)
+    s.start(2, seq=n)
+    s.start(3)  # N+2
+    return _finish(s)
+
+
 def blk3() -> Script:
     s = Script((1, 2))
     for d in s.drones:
@@ -789,6 +813,8 @@ FAULTY: dict[str, Fault] = {
     "blk1-no-stop-and-wait": Fault("MCP-BLK-1", blk1, complete=False),
     "blk2-start-before-all-ready": Fault("MCP-BLK-2", blk2),
     "blk2-start-before-that-drones-ready": Fault("MCP-BLK-2", blk2_start_before_that_drones_ready),
+    "blk2-start-early-ack-numbered-after-it-read-first": Fault("MCP-BLK-2",
+                                                               blk2_start_early_ack_numbered_after_it_read_first),
     "blk3-command-before-start-acked": Fault("MCP-BLK-3", blk3),
     "blk4-arms-early": Fault("MCP-BLK-4", blk4),
     "blk5-ready-without-fix": Fault("MCP-BLK-5", blk5),

@@ -350,6 +350,37 @@ def test_an_ack_read_after_the_message_it_took_a_number_before_explains_the_gap(
     assert "MCP-SEQ-1" in rules(script(0.05, ack_seq_offset=7))  # its number is not the one skipped
 
 
+def test_an_ack_read_before_the_message_numbered_before_it_explains_the_gap():
+    """CI (start-early, side by side and --serial alike): the manager's main thread took seq
+    N for a Start_Mission, its receive thread then took N+1 for the ACK of a drone's
+    Mission_Ready and sent it first; the next Start_Mission took N+2. The ACK numbered N+1
+    was read 22 us before the message numbered N: it explains the gap between N and N+2 as
+    one read just after would (the reorder works both ways; the manager case
+    test_each_new_message_takes_the_next_seq judges on the numbers within the grace on both
+    sides). A number no ACK carries within the grace is still MCP-SEQ-1."""
+    from tests.conformance.monitor_faults import _finish, _started
+
+    def script(ack_before: float | None, ack_seq_offset: int = 0) -> Script:
+        s = _started()
+        n = s.next_seq(0)  # the message's number, taken first
+        own = s.next_seq(0)  # the ACK's, taken after it
+        if ack_before is not None:
+            s.raw(0, encode(Message(2, 0, (own + ack_seq_offset) & 0xFFFF, Action.ACK, 77)), to=2)
+            s.tick(ack_before)
+        s.exchange(0, 1, Action.WP_LIST, tuple(s.items), seq=n)
+        s.tick(0.01)
+        s.exchange(0, 2, Action.WP_LIST, tuple(s.items))  # own + 1
+        return _finish(s, steps=False)
+
+    rules = lambda s: [v.rule for v in s.judge()]  # noqa: E731
+    assert "MCP-SEQ-1" not in rules(script(0.00002))
+    assert "MCP-SEQ-1" not in rules(script(0.5))  # within the grace
+    assert "MCP-SEQ-1" in rules(script(None))  # no ACK at all: a skipped number
+    assert "MCP-SEQ-1" in rules(script(1.5))  # read too long before to count
+    assert "MCP-SEQ-1" in rules(script(0.00002, ack_seq_offset=7))  # its number is not the one skipped
+    assert "MCP-SEQ-1" in rules(script(0.00002, ack_seq_offset=-1))  # the message's own number
+
+
 def test_an_altered_form_of_a_frame_is_told_from_unrelated_bytes():
     """MCP-PAY-8's comparison of what arrived with the frame sent (judge.monitor.alteration)."""
     from judge.monitor import alteration
