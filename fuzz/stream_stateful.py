@@ -51,6 +51,11 @@ STEPS = 12  # moves per program at most
 CHUNK = 10  # programs per hypothesis run (the budget is checked between moves, too)
 SHRINK_S = 8.0  # how long hypothesis may shrink a failing program (triage minimises again)
 TICK_S = 0.25
+#: UPDATEs to the first client, counted from a second's connect, that show the backend has
+#: gone round its loop with the second waiting (Player._settle): one may come from the turn
+#: under way when it connected, one from the next turn, which saw it (a backend that kicks
+#: the first may send that UPDATE just before it closes it), and a third only on a first kept
+LOOP_UPDATES = 3
 #: the commands whose effect UPDATE shows (NSQD-MSG-3), and every message a client sends
 COMMANDS = tuple(m.name for m in NSQD.messages if m.sent_by in ("client", "any") and m.effect.to)
 CLIENT_MSGS = tuple(m.name for m in NSQD.messages if m.sent_by in ("client", "any") and not m.effect.unobserved)
@@ -178,12 +183,27 @@ class Player:
         self.cut = ""
         for o in served:
             o.others = True
+            self._settle(o.conn)
         self.clients[slot] = c
-        if served:  # a second client: the first's frames a moment later show what it did to it
-            first, t = served[0].conn, time.monotonic()
-            # until the backend has gone round its loop once more (its next UPDATE to the first)
-            first.wait_for(lambda: first.closed_at is not None or bool(first.updates(t)), min(0.15, self.gap / 4))
         return c
+
+    def _settle(self, first: Conn) -> None:
+        """A second client has just connected: wait until ``first`` shows what that did to it
+        (NSQD-CON-2), the backend's close or ``LOOP_UPDATES`` UPDATEs sent to it since (its
+        loop gone round with the second waiting). What it had sent before is read first: a
+        frame is stamped when read, and one waiting unread proves nothing (the old wait, 0.15 s
+        or until such a frame, let a loaded host's backend kick the first after the judgement:
+        a finding a replay missed). The backend's own progress, so load makes the wait longer,
+        never wrong; it ends early only on a stream that stopped (no UPDATE within
+        update_gap_max_s, NSQD-MSG-1: a command on it judges that). The verdict comes at this
+        op every time, as hypothesis's shrinking and its replay of a saved program need."""
+        first.pump(0)
+        have = len(first.updates())
+        proof = have + LOOP_UPDATES
+        while first.closed_at is None and have < proof:
+            if not first.wait_for(lambda n=have: first.closed_at is not None or len(first.updates()) > n, self.gap):
+                return
+            have = len(first.updates())
 
     def _send(self, c: Client, op: Op) -> None:
         c.clean = c.clean and op.valid

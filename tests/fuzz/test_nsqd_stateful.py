@@ -126,3 +126,61 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
     run = subprocess.run([sys.executable, "-m", "captures", "replay", str(d / "repro.mcap"), "--spawn", fault],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 1 and "reproduced NSQD-CON-2" in run.stdout, run.stdout + run.stderr
+
+
+def _frozen_while_a_second_client_connects(fault: str | None) -> tuple[Exception | None, object, int]:
+    """Clients 0 then 1 of the C backend, the backend stopped (SIGSTOP) from before the second
+    connects until a second later, as a loaded host's scheduler may leave it: what the second
+    client's op raised, the first client, and the UPDATEs it had read by the stop."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from fuzz.stream_backend import Backend
+    from fuzz.stream_stateful import Hit, Player
+
+    b = Backend(None, _spawn(built_or_skip(), fault))
+    pid = b.session.proc.pid
+    timer = threading.Timer(1.0, os.kill, (pid, signal.SIGCONT))
+    try:
+        p = Player(b)
+        p.play(Op("open", 0))
+        first = p.clients[0]
+        os.kill(pid, signal.SIGSTOP)
+        while Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "T":
+            time.sleep(0.001)  # stopped: it sends nothing more until SIGCONT
+        first.conn.pump(0)
+        before = len(first.conn.updates())
+        timer.start()
+        try:
+            p.play(Op("open", 1))
+        except Hit as hit:
+            return hit, first, before
+        return None, first, before
+    finally:
+        timer.cancel()
+        os.kill(pid, signal.SIGCONT)
+        b.close()
+
+
+@pytest.mark.nsqd
+def test_a_first_client_kicked_late_is_still_judged_at_the_second_clients_connect():
+    """NSQD-CON-2 on a loaded host (CI: test_jobs_share_the_example_database, a worker's replay
+    of the saved program found nothing): the first client is watched until the backend has gone
+    round its loop with the second waiting, not for 0.15 s or until an UPDATE it had sent before
+    (the old wait, which a frozen backend's late kick always escaped)."""
+    hit, _, _ = _frozen_while_a_second_client_connects("second-client-kicks-first")
+    assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
+    assert hit.signature.kind == "first client closed by a second"
+
+
+@pytest.mark.nsqd
+def test_a_correct_backend_frozen_at_the_second_clients_connect_is_no_finding():
+    """The same freeze on the correct backend: no finding; the watch ended by the first's
+    UPDATEs since the second connected (the backend's own progress), its connection kept."""
+    from fuzz.stream_stateful import LOOP_UPDATES
+
+    hit, first, before = _frozen_while_a_second_client_connects(None)
+    assert hit is None, hit
+    assert first.conn.closed_at is None and len(first.conn.updates()) >= before + LOOP_UPDATES
