@@ -21,15 +21,9 @@ so a correct node's ACK of every copy is always attributed by seq, and a stale s
 that names the previous command) is never taken for an ACK of that earlier command. A timing
 attribution is **ambiguous** when another command the node should answer (well-formed, to
 its ID, not an ACK) is open and had a copy sent within the horizon (the larger of --rto
-and the ACK window) before the reply: the reply could be that command's late answer. A seq
-attribution to a datagram the node must not answer (a silence check's probe) is ambiguous
-when a command the node should answer, ACKed already, is still open: a copy of it (one the
-runner retransmitted while the ACK was on its way, a loaded host) waits for an ACK of its
-own, and a node that ACKs a copy naming seq + 1 names the probe the runner sent next
-(MCP-ACK-2, not MCP-ACK-5; the trace monitor decides it at the copy's deadline). The
+and the ACK window) before the reply: the reply could be that command's late answer. The
 ambiguity is stated, never resolved by guessing: the ACK cases do not judge the form of an
-ambiguous reply, the silence checks do not count it; liveness (any attributable reply)
-accepts it.
+ambiguous reply; liveness (any attributable reply) accepts it.
 
 Sans-I/O: the driver feeds it every datagram sent and received, in order, under its lock.
 """
@@ -116,10 +110,6 @@ class _Command:
         return t - self.copies[-1] <= (3 * horizon if self.expects_reply else horizon)
 
 
-def _seqs(cmds: list[_Command]) -> str:
-    return ", ".join(str(c.seq) for c in cmds[-3:])
-
-
 def payload_seq(data: bytes, order: struct.Struct = _U16BE) -> int | None:
     """The seq an ACK-like datagram's first two payload bytes name (None when shorter)."""
     return order.unpack_from(data, HEADER_SIZE)[0] if len(data) >= HEADER_SIZE + 2 else None
@@ -175,22 +165,22 @@ class Attributor:
             if cands:  # the one sent from the src the reply is addressed to, else the latest
                 cmd = max(cands, key=lambda c: (c.src == d.header[0], c.id))
                 cmd.answers += 1
-                ambiguous = None
-                if not cmd.expects_reply:
-                    waiting = self._open_others(cmd, d.t, answered=True)
-                    if waiting:
-                        ambiguous = (f"a copy of the command with seq {_seqs(waiting)}, ACKed already, "
-                                     "waited for an ACK of its own: the reply may be that copy's ACK "
-                                     "naming another seq")
-                return Attribution(cmd.id, cmd.seq, how, self._named(d, cmd), ambiguous)
+                return Attribution(cmd.id, cmd.seq, how, self._named(d, cmd))
         cmd = self._latest
         if cmd is None or not cmd.open_at(d.t):
             return None
         cmd.answers += 1
-        others = self._open_others(cmd, d.t)
+        others = []
+        for c in reversed(self._commands):  # newest first; stop long before the horizon
+            if d.t - c.copies[0] > SCAN_HORIZONS * self.horizon:
+                break
+            if c is not cmd and c.expects_reply and c.open_at(d.t) and d.t - c.copies[-1] <= self.horizon:
+                others.append(c)
+        others.reverse()
         ambiguous = None
         if others:
-            ambiguous = (f"command(s) with seq {_seqs(others)}, sent less than {self.horizon:g} s earlier, "
+            seqs = ", ".join(str(c.seq) for c in others[-3:])
+            ambiguous = (f"command(s) with seq {seqs}, sent less than {self.horizon:g} s earlier, "
                          "were also unanswered, and the payload names none of them")
         return Attribution(cmd.id, cmd.seq, BY_TIMING, self._named(d, cmd), ambiguous)
 
@@ -206,22 +196,6 @@ class Attributor:
         return end
 
     # ------------------------------------------------------------------ helpers
-    def _open_others(self, cmd: _Command, t: float, *, answered: bool = False) -> list[_Command]:
-        """Commands other than ``cmd`` the node should answer with a copy sent by ``t`` not
-        answered yet, oldest first: with a copy sent within the horizon before ``t``; with
-        ``answered``, those ACKed already (a copy that crossed the ACK, or came after it, waits
-        for its own), while still answerable (``_Command.recent``)."""
-        out = []
-        for c in reversed(self._commands):  # newest first; stop long before the horizon
-            if t - c.copies[0] > SCAN_HORIZONS * self.horizon:
-                break
-            if c is cmd or not c.expects_reply or not c.open_at(t):
-                continue
-            if (c.answers > 0 and c.recent(t, self.horizon)) if answered else t - c.copies[-1] <= self.horizon:
-                out.append(c)
-        out.reverse()
-        return out
-
     def _forget_oldest(self) -> None:
         """Keep memory and lookups bounded on long runs (a fuzz campaign): the older half of
         the commands can no longer be answered (they are far beyond every horizon)."""

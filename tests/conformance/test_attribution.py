@@ -122,41 +122,6 @@ def test_timing_is_ambiguous_when_another_command_is_open():
     assert a.command == later and a.ambiguous is None
 
 
-def test_a_reply_naming_a_probe_while_a_crossed_copy_waits_is_ambiguous():
-    """A loaded host: the liveness WP_Off's ACK is late, the runner's copy of it crosses that
-    ACK, and MCP-ACK-5's probe to ID 2 takes the next seq. A node that ACKs the copy naming
-    seq + 1 (MCP-ACK-2) names the probe: which it answers is ambiguous, so the silence check
-    does not count it (the monitor decides it at the copy's deadline)."""
-    link = Link(horizon=0.25)
-    live = link.send(0.0, 1429)
-    link.send(0.2, 1429, copy_of=live)  # no ACK yet: a copy
-    assert link.ack(0.203, 1429).command == live  # the first copy's ACK, on its way meanwhile
-    probe = link.send(0.26, 1430, dst=2)
-    a = link.ack(0.28, 1430)
-    assert (a.command, a.how) == (probe, BY_SEQ)
-    assert a.ambiguous and "1429" in a.ambiguous
-
-
-def test_a_reply_naming_a_probe_is_unambiguous_when_no_acked_copy_waits():
-    """The node ACKs the probe to ID 2 (MCP-ACK-5) after every copy was answered; or ACKs a
-    malformed input while the liveness probe sent after it is not answered yet (nothing ACKed
-    waits for a second ACK): no ambiguity."""
-    link = Link(horizon=0.25)
-    live = link.send(0.0, 1429)
-    link.send(0.2, 1429, copy_of=live)
-    link.ack(0.203, 1429)
-    link.ack(0.21, 1429)  # the copy's own ACK
-    probe = link.send(0.26, 1430, dst=2)
-    a = link.ack(0.27, 1430)
-    assert (a.command, a.how, a.ambiguous) == (probe, BY_SEQ, None)
-    bad = b"XXXXXXXXX" + build_datagram(NODE, 0, 1431, int(Action.WP_OFF))[9:]
-    link.tx.append(Sent(0.3, bad, -1, -1, -1, -1))
-    inp = link.att.sent(len(link.tx) - 1, link.tx[-1])
-    link.send(0.301, 1432)  # the liveness probe after it, not answered yet
-    a = link.ack(0.302, 1431)
-    assert (a.command, a.ambiguous) == (inp, None)
-
-
 def test_an_old_silence_check_does_not_capture_an_arbitrary_payload():
     """A broadcast (which a correct node never answers) stays answerable by seq only for one
     horizon, so a node's arbitrary payload that happens to equal its seq later is not taken
