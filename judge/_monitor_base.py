@@ -185,7 +185,7 @@ class _Exchange:
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
-                 "heard", "run_delays", "crossed")
+                 "heard", "run_delays")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool, rd: int | None = None) -> None:
@@ -213,10 +213,6 @@ class _Exchange:
         #: copies before this one may have gone unheard: its receiver showed itself only later
         #: (a node started after the message was first sent; MCP-ACK-1 counts from here)
         self.heard = 0
-        #: (the latest copy sent before its first ACK came, how many ACKs the copies up to it
-        #: take): a copy that crossed the first ACK waits for its own (MCP-ACK-1 counts ACKs
-        #: against copies) until its deadline decides what an ambiguous ACK answered
-        self.crossed: tuple[tuple[int, int], int] | None = None
 
     @property
     def first(self) -> tuple[int, int]:

@@ -103,11 +103,12 @@ class ReceiverRules:
             return
         if other is not None:
             w = self._waiting_copy.get((src, dst))
-            if w is not None and t - w.last_t <= horizon and self._copy_waits(w):
+            if (w is not None and w.acks and w.acks[-1][1] < w.last_t and not w.flags & F_ACK1
+                    and t - w.last_t <= horizon):
                 # a copy of an ACKed message waits for its ACK: this may be that copy's wrong
                 # ACK (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the
-                # broadcast or of the message to another ID sent just after it) as well as an
-                # ACK of ``other``; the copy's deadline decides which (``_decide_ambiguous``)
+                # broadcast sent just after it) as well as an ACK of ``other``; the copy's
+                # ACK-1 deadline decides which (``_decide_ambiguous``)
                 self._stray_acks[(src, dst)] = (i, t, named)
                 self._ambiguous.setdefault(id(w), (w, []))[1].append((other, named, i, t))
                 return
@@ -130,16 +131,6 @@ class ReceiverRules:
                 return
         if node is not None:  # an ACK naming nothing dst sent: a wrong payload, if a copy waits
             self._stray_acks[(src, dst)] = (i, t, named)
-
-    @staticmethod
-    def _copy_waits(w: _Exchange) -> bool:
-        """A copy of ``w`` (a message ACKed already) waits for its own ACK: one sent after its
-        latest ACK, until its ACK-1 deadline; or one that crossed its first ACK (sent before
-        it came: the ACKs so far are fewer than the copies up to it), until its deadline."""
-        acks = w.acks
-        if w.crossed is not None and len(acks) < w.crossed[1]:
-            return True
-        return bool(acks) and acks[-1][1] < w.last_t and not w.flags & F_ACK1
 
     def _ack_of_what_is_not_acked(self, node: int, other: Any, named: int, i: int, t: int) -> None:
         if isinstance(other, _Exchange):
@@ -167,8 +158,6 @@ class ReceiverRules:
             return
         acker = self._nodes.get(node) or self._node(node)
         action = ex.action
-        if not tester and action != END and not ex.bcast:
-            self._crossing(ex, t)
         if action == END:
             acker.end_acked = t
             self._end_acked(ex, acker, t)
@@ -228,47 +217,6 @@ class ReceiverRules:
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
             self._waiting_copy[(ex.dst, ex.src)] = ex
             self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._ack_deadline, ex, (i, t))
-
-    def _crossing(self, ex: _Exchange, t: int) -> None:
-        """``ex``'s first ACK came at ``t``, after more copies than it answers: the sender
-        retransmitted while the ACK was on its way (a late ACK, a loaded host), and a node
-        ACKs every copy (MCP-ACK-1), so the latest copy before ``t`` still waits for its own
-        ACK. Not judged as missing (a node may have been deaf to an earlier copy, D-6), but
-        an ACK naming what the node must not ACK while it waits may be that copy's wrong
-        ACK (``_copy_waits``), decided at the copy's deadline (``_crossed_deadline``)."""
-        if not self._complete_for(ex.src, ex.dst):
-            return
-        before = ex.copies_before(t)
-        owed = len(before) - ex.heard
-        if owed < 2:
-            return
-        ex.crossed = (before[-1], owed)
-        self._waiting_copy[(ex.dst, ex.src)] = ex
-        self._timers.at(before[-1][1] + max(4 * self.window_ns, 2 * self.rto_ns, NS),
-                        self._crossed_deadline, ex)
-
-    def _crossed_deadline(self, now: int, ex: _Exchange) -> None:
-        """The deadline of a copy that crossed ``ex``'s first ACK: ACKed in turn (as many ACKs
-        as copies up to it), the ACKs that came meanwhile naming what the node must not ACK
-        answered what they named (MCP-ACK-4/5 ...); not ACKed but answered by an ACK naming
-        another seq, that ACK was the copy's, with a wrong payload: MCP-ACK-2, counted once
-        (never also as an ACK of what it happens to name); neither, nothing is proven."""
-        crossed, ex.crossed = ex.crossed, None
-        if crossed is None:
-            return
-        copy, owed = crossed
-        node = self._nodes.get(ex.dst)
-        stray = self._stray_acks.get((ex.dst, ex.src))
-        wrong = (len(ex.acks) < owed and stray is not None and stray[1] >= copy[1]
-                 and node is not None and node.real and self._receiving(node, ex))
-        if not wrong and self._copy_waits(ex):
-            return  # a copy sent after the ACK waits too: its ACK-1 deadline decides them
-        self._decide_ambiguous(ex, ex.dst, wrong=wrong)
-        if wrong:
-            assert stray is not None
-            self._emit("MCP-ACK-2", ex.dst, now, f"the ACK of every copy names the copy's seq {ex.seq} (D-2)",
-                       f"the copy of {ex.describe()} sent before its first ACK came was answered by "
-                       f"an ACK naming {stray[2]}", [copy, (stray[0], stray[1])])
 
     def _ack_rearm(self, now: int, ex: _Exchange) -> None:
         """``ex``'s receiver showed itself only at ``now``, after ``ex``'s ACK-1 deadline: it

@@ -151,64 +151,6 @@ def ack4_beside_a_waiting_copy() -> Script:
     return _finish(s)
 
 
-def _copy_crossing_a_late_ack(next_seq: bool = True) -> tuple[Script, int, int]:
-    """The harness's WP_Off to drone 1 (a liveness probe), its ACK late (a loaded host): the
-    harness retransmits it and the copy crosses the ACK of the first; then (``next_seq``) the
-    harness's next message, MCP-ACK-5's probe to ID 2, takes the next seq."""
-    s = _started()
-    seq, data = s.send(0, 1, Action.WP_OFF, seq=40000, origin=TESTER)
-    s.tick(s.rto)
-    s.raw(0, data, to=1, origin=TESTER)  # the copy: no ACK came yet
-    s.tick(0.003)
-    s.ack(1, 0, seq)  # the first copy's ACK, on its way while the copy was sent
-    if not next_seq:
-        s.tick(0.003)
-        return s, seq, -1
-    s.tick(0.05)
-    oseq, _ = s.send(0, 2, Action.WP_OFF, seq=seq + 1, origin=TESTER)
-    s.tick(0.02)
-    return s, seq, oseq
-
-
-def ack2_crossed_copy_acked_with_the_next_seq() -> Script:
-    """Drone 1 ACKs the copy that crossed its ACK naming seq + 1 (``sample_node --fault
-    ack-copies-wrong-seq``), which is the seq of the message to ID 2: the copy waits for an
-    ACK of its own (ACKs counted against copies), so the ACK is the copy's wrong ACK
-    (MCP-ACK-2), not an ACK of the message to another ID (MCP-ACK-5)."""
-    s, seq, oseq = _copy_crossing_a_late_ack()
-    assert oseq == (seq + 1) & 0xFFFF
-    s.ack(1, 0, oseq)
-    s.tick(0.5)
-    return _finish(s)
-
-
-def ack2_later_copy_beside_a_crossed_one() -> Script:
-    """The copy that crossed the late ACK is ACKed in turn; then a copy sent after both ACKs
-    (MCP-ACK-1's resend) is ACKed naming seq + 1, the next message's, to ID 2: the later
-    copy's deadline decides that ACK (MCP-ACK-2), not the crossed copy's earlier one."""
-    s, seq, _ = _copy_crossing_a_late_ack(next_seq=False)
-    s.ack(1, 0, seq)  # the crossed copy's own ACK
-    s.tick(0.3)
-    s.raw(0, encode(Message(1, 0, seq, Action.WP_OFF, None)), to=1, origin=TESTER)  # after both ACKs
-    s.tick(0.001)
-    oseq, _ = s.send(0, 2, Action.WP_OFF, seq=seq + 1, origin=TESTER)
-    s.tick(0.004)
-    s.ack(1, 0, oseq)
-    s.tick(0.5)
-    return _finish(s)
-
-
-def ack5_beside_a_crossed_copy() -> Script:
-    """Drone 1 ACKs the message to ID 2 while the copy that crossed its ACK waits, and then
-    the copy with its own seq: MCP-ACK-5 all the same."""
-    s, seq, oseq = _copy_crossing_a_late_ack()
-    s.ack(1, 0, oseq)
-    s.tick(0.003)
-    s.ack(1, 0, seq)
-    s.tick(0.5)
-    return _finish(s)
-
-
 def ack5() -> Script:
     s = _started()
     seq = s.exchange(0, 2, Action.WP_OFF)
@@ -799,9 +741,6 @@ FAULTY: dict[str, Fault] = {
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
     "ack2-copy-acked-with-the-next-seq": Fault("MCP-ACK-2", ack2_copy_acked_with_the_next_seq),
     "ack4-beside-a-waiting-copy": Fault("MCP-ACK-4", ack4_beside_a_waiting_copy),
-    "ack2-crossed-copy-acked-with-the-next-seq": Fault("MCP-ACK-2", ack2_crossed_copy_acked_with_the_next_seq),
-    "ack5-beside-a-crossed-copy": Fault("MCP-ACK-5", ack5_beside_a_crossed_copy),
-    "ack2-later-copy-beside-a-crossed-one": Fault("MCP-ACK-2", ack2_later_copy_beside_a_crossed_one),
     "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
     "rtx1-manager-gives-up-and-drops-the-drone": Fault("MCP-RTX-1", rtx1_gives_up_then_drops_the_drone),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),
