@@ -55,3 +55,17 @@ def test_a_report_whose_stacks_take_half_a_second_to_symbolise_is_waited_for():
     followed was classed as a report of a process still running."""
     hit = _backend(exits_after=1.4, line_at=(0.0, 0.0, 0.5, 0.5, 1.0)).report_hit()
     assert hit is not None and hit.signature.oracle == "crash", hit
+
+
+def test_a_replay_waits_for_a_crash_whose_report_begins_late():
+    """A replay has no next case to show a death: it waited 0.5 s, then classed whatever part
+    of a report it found as "sanitizer" (CI, loaded: the finding, a crash, "did not
+    reproduce"). Now it waits for the death or the report's start, and takes the report whole."""
+    from fuzz.stream_backend import _replay
+
+    sig = _backend(exits_after=0.0).report_hit().signature
+    assert sig.oracle == "crash"
+    ok, _, hit = _replay(_backend(exits_after=1.6, line_at=(0.7, 0.7, 1.0, 1.0, 1.3)), [], sig, probe=False)
+    assert ok and hit.signature.oracle == "crash", hit
+    ok, _, hit = _replay(_backend(exits_after=99.0, line_at=(99.0,) * len(REPORT)), [], sig, probe=False)
+    assert not ok and hit is None  # nothing comes: not reproduced, after the bounded wait
