@@ -114,9 +114,6 @@ class Backend:
         the report of a process still running (halt_on_error=0)."""
         proc = self.session.proc
         assert proc is not None
-        # a quiet spell of 0.3 s once ended the wait mid-report on a loaded CI host: with no
-        # SUMMARY the death grace was the short one and a crash was classed as a report of a
-        # process still running (test_nsqd_repro's campaign: "sanitizer", not "crash")
         report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
         while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
             time.sleep(0.01)
@@ -124,9 +121,9 @@ class Backend:
             if len(now) > len(report):
                 report, quiet = now, time.monotonic() + 1.0
         self.reports_seen = len(report)
-        # a whole report (SUMMARY) is followed by the process's exit under ASan's default
-        # (halt_on_error): a loaded host took over 0.3 s from the one to the other, and a crash
-        # was classed as a report of a process still running (a replay: "did not reproduce")
+        # a loaded CI host took over 0.3 s between lines of a report, and between its SUMMARY
+        # and the exit: shorter waits classed a crash as a report of a process still running
+        # ("sanitizer": its replay "did not reproduce", test_nsqd_repro)
         whole = any("SUMMARY:" in x for x in report)
         dead = self.death_hit(3.0 if whole else 1.0)
         if dead is not None:
