@@ -53,6 +53,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import IO, Any
 
+from orjson import JSONDecodeError
+from orjson import loads as _fast_loads
 from scapy.error import Scapy_Exception
 
 from spec import SPEC
@@ -312,7 +314,7 @@ class Capture:
         seen = self.segments
         bursts = burst_total = 0
         b64 = a2b_base64
-        loads = _json_body
+        loads, fast = _json_body, _datagram_body
         with open(self.path, "rb") as f:
             # chunks split by traceio.mcap_chunks: as mcap splits them, at C speed (issue 17)
             reader = stream_reader(f, max(size, 64))
@@ -343,8 +345,9 @@ class Capture:
                     seg = segments.get(rec.channel_id)
                     lib = writers.get(rec.channel_id, library)
                     try:
-                        body = loads(rec.data)
-                        if topic == "/mcp/tx" or topic == "/mcp/rx":
+                        datagram = topic == "/mcp/tx" or topic == "/mcp/rx"
+                        body = (fast if datagram else loads)(rec.data)
+                        if datagram:
                             peer = _parse_peer(body.get("peer"))
                             local = _parse_peer(body.get("local"))
                             tx = topic == "/mcp/tx"
@@ -558,6 +561,22 @@ def _json_body(data: bytes) -> Any:
     if data[:1] == b"{" and data[1:2] != b"\x00":
         return _decode_json(data.decode("utf-8", "surrogatepass"))
     return json.loads(data)
+
+
+def _datagram_body(data: bytes) -> Any:
+    """A ``/mcp/tx`` or ``/mcp/rx`` body as :func:`_json_body` reads it, through orjson where
+    orjson gives the same (2.5 against 8.2 µs a body; check of 10^6 datagrams: 15.5 CPU s, 20 with
+    json, issue 17). orjson refuses some of what json reads (NaN, ``1e999``, a lone surrogate,
+    UTF-16): those go to json. It reads an integer outside 64 bits as a float, where json keeps
+    the integer: of a datagram's body only strings and ``run_delay_ns`` are used, so a body
+    whose ``run_delay_ns`` came out a float goes to json too."""
+    try:
+        body = _fast_loads(data)
+    except JSONDecodeError:
+        return _json_body(data)
+    if type(body) is dict and type(body.get("run_delay_ns")) is float:
+        return _json_body(data)
+    return body
 
 
 _decode_json = json.JSONDecoder().decode
