@@ -1,58 +1,57 @@
-"""The test run's order: the longest tests first, as a pytest-xdist ``load`` schedule wants them.
+"""The test run's order: the longest slow tests first.
 
-A long test that starts last makes the run as long as itself on top of everything before it.
-``tests/durations.tsv`` holds the wall seconds of the tests that take a while (measured under
-CI's load: ``MCP_TEST_TIMES=FILE``, below); they go first, longest first (the greedy
-longest-processing-time schedule), the rest after them in collection order. Nothing is skipped
-or shortened by this; it only decides what runs first.
-
-CI runs ``--dist load --maxschedchunk 1``: each worker holds the test it runs and the next, and
-takes one more from the front of the list each time one ends. The first hand-out gives worker
-``i`` the list's items ``2i`` and ``2i + 1``; so that each worker starts one of the ``n``
-longest and has one of the next ``n`` waiting (not the two longest on one worker), the first
-``2n`` are interleaved here (``n`` from ``PYTEST_XDIST_WORKER_COUNT``).
+Under pytest-xdist the workers take tests in collection order; a long test that starts last
+makes the whole run as long as itself on top of everything before it. These are the tests
+that wait on protocol timers at the description's real timings (5 s) or run a fuzz campaign
+until it finds its fault: started first, they overlap with everything else. Nothing is
+skipped or shortened by this; it only decides what runs first.
 """
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
-DURATIONS = Path(__file__).with_name("durations.tsv")
+#: Substrings of node IDs of the longest tests (measured with --durations), longest first.
+LONG_FIRST = (
+    "test_hostile_files.py::test_check_of_a_million_violating_datagrams",  # CPU: a minute of a core
+    "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
+    "test_jobs.py::test_failure_found_by_one_worker_is_replayed_first_by_the_other",
+    "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
+    "test_faults.py::test_attach_node_killed_mid_run_at_the_descriptions_timings",
+    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[no-dup-discard]",
+    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",
+    "test_mutants.py::test_mutant_is_caught_with_its_rule[slow-ack]",
+    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[no-ready-ack]",
+    "test_manager_role.py::test_faulty_manager_is_caught_with_its_rule[no-ready-ack]",
+    "test_reader.py::test_mcap_cut_at_every_byte[1]",
+    "test_mutants.py::test_mutant_is_caught_with_its_rule[ack-first-copy-only]",
+    "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[dup-seq-only]",
+    "test_readme_ci.py::test_the_ci_snippets_run_as_written",
+    "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
+    # the Nsqd run (-m "slow and nsqd"), which waits more than it computes
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",
+    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[update-stops]",
+    "test_conform_nsqd.py::test_correct_c_backend_passes",
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",
+)
 
 
-def _durations() -> dict[str, float]:
-    """nodeid -> wall seconds, from ``DURATIONS`` ("seconds<TAB>nodeid" lines; # comments)."""
-    out: dict[str, float] = {}
-    if DURATIONS.is_file():
-        for line in DURATIONS.read_text(encoding="utf-8").splitlines():
-            if line.strip() and not line.startswith("#"):
-                secs, _, nodeid = line.partition("\t")
-                out[nodeid.strip()] = float(secs)
-    return out
-
-
-def longest_first(items: list, seconds: dict[str, float], workers: int) -> list:
-    """``items`` longest first by ``seconds`` (unknown ones after, in their order), the first
-    ``2 * workers`` interleaved for xdist's first hand-out of two per worker."""
-    ranked = sorted(items, key=lambda it: -seconds.get(it.nodeid, -1.0))  # stable
-    if workers > 1 and len(ranked) >= 2 * workers:
-        head = ranked[:2 * workers]
-        ranked[:2 * workers] = [x for pair in zip(head[:workers], head[workers:], strict=True) for x in pair]
-    return ranked
+def _rank(item: pytest.Item) -> int:
+    for i, part in enumerate(LONG_FIRST):
+        if part in item.nodeid:
+            return i
+    return len(LONG_FIRST)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    items[:] = longest_first(items, _durations(), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0")))
+    items.sort(key=_rank)  # stable: everything else keeps its order
 
 
-#: ``MCP_TEST_TIMES=FILE``: each test's CPU seconds (the worker's and its waited-for children's,
-#: user + system) and wall seconds appended to FILE as "cpu<TAB>wall<TAB>nodeid" -- where CI's
-#: time goes on 2 cores. ``tests/durations.tsv`` is its wall column of the longer tests:
-#: ``awk -F'\t' '$2 >= 1.5 {print $2 "\t" $3}' FILE | sort -rn``.
-_CPU_FILE = os.environ.get("MCP_TEST_TIMES")
+#: ``MCP_TEST_CPU=FILE``: each test's CPU seconds (the worker's and its waited-for children's,
+#: user + system) appended to FILE as "seconds<TAB>nodeid" -- where CI's time goes on 2 cores.
+_CPU_FILE = __import__("os").environ.get("MCP_TEST_CPU")
 
 
 def _cpu() -> float:
@@ -67,9 +66,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):  #
     if _CPU_FILE is None:
         yield
         return
-    import time
-
-    before, start = _cpu(), time.monotonic()
+    before = _cpu()
     yield
     with open(_CPU_FILE, "a", encoding="utf-8") as f:
-        f.write(f"{_cpu() - before:.3f}\t{time.monotonic() - start:.2f}\t{item.nodeid}\n")
+        f.write(f"{_cpu() - before:.3f}\t{item.nodeid}\n")
