@@ -267,6 +267,10 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     if INTERRUPTS.interrupted:  # a swallowed KeyboardInterrupt must still stop the run
         raise KeyboardInterrupt(INTERRUPTS.signals[0])
     if state.deadline_hit or (state.run_deadline is not None and time.monotonic() >= state.run_deadline):
+        if state.session is None and not state.done and state.run.error is None:  # no node started yet
+            state.run.error = (f"the run's --timeout of {state.cfg.timeout:g} s passed before the runner "
+                               "reached the target (its own start-up took all of it)")
+            pytest.exit(state.run.error, returncode=2)
         state.deadline_hit = True
         rec = state.record(item)
         rec.outcome, rec.reason = "error", "run deadline exceeded"

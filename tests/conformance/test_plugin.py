@@ -292,6 +292,45 @@ def test_run_deadline(pytester):
     assert doc["error"] is None
 
 
+def test_a_run_deadline_passed_before_the_node_starts_is_a_setup_error(pytester):
+    """A loaded CI host (issue 19): ``mcp-conform --timeout 3`` against a silent target gave 44
+    cases "run deadline exceeded" (exit 1), the deadline having passed before the first case
+    started the node. Now: exit 2, no case, the error saying where the time went. The host's
+    stall is a plugin sleeping before the first case."""
+    setup_files(pytester, """
+    from conformance.marks import rules
+
+    @rules("MCP-ACK-1")
+    def test_first(node):
+        pass
+
+    @rules("MCP-ACK-2")
+    def test_second(node):
+        pass
+    """)
+    pytester.makepyfile(stall="""
+    import time
+
+    import pytest
+
+    stalled = []
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        if not stalled:
+            stalled.append(item.nodeid)
+            time.sleep(1.3)
+        yield
+    """)
+    pytester.syspathinsert()
+    result, doc = run(pytester, "-p", "stall", "--mcp-timeout", "1")
+    assert result.ret == 2, result.stdout.str()
+    assert doc["cases"] == [], doc["cases"]
+    assert doc["error"] == ("the run's --timeout of 1 s passed before the runner reached the target "
+                            "(its own start-up took all of it)"), doc["error"]
+    assert log(pytester) == []  # no node was started
+
+
 def test_unknown_rule_id_is_a_collection_error_naming_it(pytester):
     setup_files(pytester, CASES + '\n@rules("MCP-ACK-99")\ndef test_typo(node):\n    pass\n')
     result, doc = run(pytester)
