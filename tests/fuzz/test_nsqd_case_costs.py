@@ -95,7 +95,9 @@ def test_a_probe_ends_at_the_update_that_shows_its_effect():
         assert old is not None
         assert b.probe() is None
         sent = old.sent[-1][0]
-        assert old.fin_at is not None and not old.updates(sent)  # no periodic UPDATE waited for
+        # no periodic UPDATE waited for: after the probe, at most the connection's first UPDATE
+        # (sent on connect; a loaded CI host read it 1 ms after the probe's command)
+        assert old.fin_at is not None and old.updates(sent) in ([], old.updates()[:1]), old.updates()
         assert b.conn is not None and b.conn is not old
         assert b.conn.updates()[0].values["state"] == NSQD.states["STOP_TEST"]  # type: ignore[index]
         # a judged effect the same way: TAKEOFF's HOVER on the next connection's first UPDATE
