@@ -1,13 +1,21 @@
-"""The test run's order: the longest slow tests first.
+"""The test run's order: the longest slow tests first, one or two at the head of each worker's
+share.
 
-Under pytest-xdist the workers take tests in collection order; a long test that starts last
-makes the whole run as long as itself on top of everything before it. These are the tests
-that wait on protocol timers at the description's real timings (5 s) or run a fuzz campaign
-until it finds its fault: started first, they overlap with everything else. Nothing is
-skipped or shortened by this; it only decides what runs first.
+A long test that starts last makes the whole run as long as itself on top of everything before
+it. These are the tests that wait on protocol timers at the description's real timings (5 s) or
+run a fuzz campaign until it finds its fault: started first, they overlap with everything else.
+Under ``--dist worksteal`` (CI) each worker is first handed a contiguous share of the list and
+works it from the front, idle workers stealing the back half of the longest share: with the
+long tests simply first, worker 0's share held all of them, one after another (the last began
+at 321 s of 356). So they are dealt round-robin to the heads of the shares (``dealt``). Nothing
+is skipped or shortened by this; it only decides what runs first and where.
 """
 
 from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -45,8 +53,43 @@ def _rank(item: pytest.Item) -> int:
     return len(LONG_FIRST)
 
 
+#: Tests that mostly wait (the Nsqd matrices: ~700 s of wall for ~40 CPU s): spread through every
+#: share, not left together at the end, where they ran on an idle CPU for the last ~30 s.
+WAITERS = ("tests/nsqd/test_conform_nsqd.py::", "tests/fuzz/test_nsqd_fuzz.py::", "tests/fuzz/test_nsqd_stateful.py::")
+
+
+def dealt(items: list, long: int, workers: int, waits: Callable[[Any], bool] = lambda it: False) -> list:
+    """``items`` (their first ``long`` the long tests, longest first) reordered so that worksteal's
+    first hand-out (share ``i`` of ``workers``: ``remaining // (workers - i)`` items from the
+    front) gives each share long tests ``i``, ``i + workers``, ... at its head, then the rest in
+    order with the tests that ``waits`` dealt round-robin and spaced evenly among them."""
+    if workers < 2 or len(items) < 2 * workers:
+        return items
+    longs = items[:long]
+    waiters = [it for it in items[long:] if waits(it)]
+    rest = iter([it for it in items[long:] if not waits(it)])
+    out: list = []
+    left = len(items)
+    for i in range(workers):
+        size = left // (workers - i)
+        left -= size
+        head, mine = longs[i::workers][:size], waiters[i::workers]
+        others = [x for x in (next(rest, None) for _ in range(size - len(head) - len(mine))) if x is not None]
+        step, spread, body = max(1, len(others) // max(1, len(mine))), iter(mine), []
+        for k, x in enumerate(others):  # a waiter before every step-th of the others
+            if k % step == 0:
+                body += [w for w in [next(spread, None)] if w is not None]
+            body.append(x)
+        out += head + body + list(spread)
+    return out + list(rest)
+
+
+@pytest.hookimpl(trylast=True)  # after -m's deselection: the shares are of the tests that run
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=_rank)  # stable: everything else keeps its order
+    long = sum(1 for it in items if _rank(it) < len(LONG_FIRST))
+    items[:] = dealt(items, long, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0")),
+                     lambda it: it.nodeid.startswith(WAITERS))
 
 
 #: ``MCP_TEST_CPU=FILE``: each test's CPU seconds (the worker's and its waited-for children's,
