@@ -294,6 +294,11 @@ class SenderRules(RetransmissionRules):
             return
         prule = PAYLOAD_RULE[action]
         self._observe(src, prule)
+        if src == MANAGER and dst != self.broadcast_id and dst != MANAGER:
+            # the manager's latest command to dst, malformed: whether dst ACKed it is not tracked,
+            # so MCP-FLOW-3 leaves dst undecided (a manager giving up on a drone that rightly
+            # did not ACK its malformed list is not also blamed for the missing End_Mission)
+            self._node(dst).last_command = None
         if (src, dst, seq, action) in self._malformed_seen:
             return  # a retransmission of the same malformed message: reported once
         self._malformed_seen.add((src, dst, seq, action))
@@ -448,8 +453,8 @@ class SenderRules(RetransmissionRules):
 
     def _finish_flow3(self, end: int) -> None:
         """MCP-FLOW-3 (complete trace): once the manager has ended the mission of some drones,
-        every drone it started gets End_Mission (unless its last command was never ACKed, or
-        the manager gave up on it before its ACK came: MCP-RTX-1 is then proven on it, and a
+        every drone it started gets End_Mission (unless its last command was never ACKed or was
+        malformed (``_malformed``), or the manager gave up on it before its ACK came: MCP-RTX-1 is then proven on it, and a
         drone dropped after that is the give-up's consequence, not a second violation)."""
         mgr = self._nodes.get(MANAGER)
         if mgr is None or not mgr.real:

@@ -340,6 +340,31 @@ def rtx1_gives_up_then_drops_the_drone() -> Script:
     return s
 
 
+def pay3_then_drops_the_drone() -> Script:
+    """A manager whose WP_List count is little-endian (``sample_manager --fault le-count``):
+    drone 1 rightly does not ACK it (MCP-ROB-4), the manager sends it 13 times, gives up and
+    ends drone 2's mission only. MCP-PAY-3 alone: drone 1's missing End_Mission follows from
+    the malformed list it did not ACK, not a second violation (MCP-FLOW-3 fired on a loaded
+    host, where the trace ran on 2 s past drone 2's End_Mission)."""
+    from spec.codec import ITEM
+
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    for d in s.drones:
+        s.exchange(0, d, Action.START_MISSION, **kw)
+        s.tick(0.01)
+    bad = (len(s.items) << 8).to_bytes(2, "big") + b"".join(ITEM.pack(*i) for i in s.items)
+    data = build_datagram(1, 0, s.next_seq(0), int(Action.WP_LIST), bad)
+    for _ in range(13):
+        s.raw(0, data, to=1)
+        s.tick(s.rto)
+    s.exchange(0, 2, Action.WP_LIST, tuple(s.items), **kw)
+    s.tick(0.01)
+    s.exchange(0, 2, Action.END_MISSION, **kw)  # drone 1 dropped: no End_Mission
+    s.tick(3.0)
+    return s
+
+
 def rtx3() -> Script:
     s = _started()
     s.exchange(0, 1, Action.WP_OFF, deaf=3, gaps=[0.2, 0.2, 0.5])  # one gap 2.5x the others
@@ -762,6 +787,7 @@ FAULTY: dict[str, Fault] = {
     "pay1-payload-on-wp-off": Fault("MCP-PAY-1", pay1),
     "pay2-ready-payload": Fault("MCP-PAY-2", pay2),
     "pay3-count-mismatch": Fault("MCP-PAY-3", pay3),
+    "pay3-manager-drops-the-drone-that-did-not-ack-it": Fault("MCP-PAY-3", pay3_then_drops_the_drone),
     "pay5-short-item": Fault("MCP-PAY-5", pay5),
     "pay6-bad-crc": Fault("MCP-PAY-6", pay6),
     "pay7-insane-item": Fault("MCP-PAY-7", pay7),
