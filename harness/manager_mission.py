@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.driver import Datagram, Exchange, Sent, TargetDriver, read_header
+from harness.rx_queue import FLOOD_READ_S, wait_read
 from harness.session_base import WithheldCopies
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
@@ -482,6 +483,9 @@ class MissionScript:
         flood = Sent(time.monotonic(), time.time_ns(), data[0], self.driver.target, -1, -1, -1, -1)
         inp = Input(f"a flood of {sent} malformed datagrams", "MCP-ROB-7", flood)
         self.m.inputs.append(inp)
+        # the probe once the manager has read the flood, as the drone role's case does (a loaded
+        # CI host: the reference manager's backlog outlasted the probe's 5 copies, MCP-ACK-1)
+        wait_read(*self.driver.target[:2], FLOOD_READ_S)
         inp.probe = self._probe(p)
         inp.died = not self.alive()
 

@@ -18,7 +18,11 @@ from __future__ import annotations
 import ipaddress
 import time
 
-__all__ = ["udp_rx_queue", "wait_read"]
+__all__ = ["FLOOD_READ_S", "udp_rx_queue", "wait_read"]
+
+#: How long MCP-ROB-7's flood waits for the node to read its backlog before the probe (both
+#: roles: a correct node a loaded host starves of CPU works through the backlog first).
+FLOOD_READ_S = 10.0
 
 _TABLES = ("/proc/net/udp", "/proc/net/udp6")
 

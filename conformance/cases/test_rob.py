@@ -14,7 +14,7 @@ import time
 from conformance.case import Attempt
 from conformance.marks import rules
 from harness.driver import Sent
-from harness.rx_queue import wait_read
+from harness.rx_queue import FLOOD_READ_S, wait_read
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from spec.generators import malformed_corpus
@@ -92,10 +92,6 @@ def test_datagrams_of_0_and_65507_bytes_are_survived(node):
     attempts = node.try_inputs([("0 bytes", b"", "MCP-ROB-1"), (f"{len(big)}-byte WP_List", big),
                                 (f"{len(junk)} random bytes", junk)])
     node.expect_discarded(attempts, "MCP-ROB-6", died_rule="MCP-ROB-6", live_rule="MCP-ROB-6", silent=False)
-
-
-#: how long the flood case waits for the node to read its backlog before the probe
-FLOOD_READ_S = 10.0
 
 
 @rules("MCP-ROB-7", phase="late")

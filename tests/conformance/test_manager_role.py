@@ -124,6 +124,9 @@ CORRECT_MANAGERS = [
     ("unicasts-to-the-broadcast-address", {"send_to": "{broadcast}:{listen_port}"}, ()),
     ("acks-from-another-socket", {}, ("--ack-socket", "other")),
     ("acks-to-the-source-address", {}, ("--ack-to", "source")),
+    # 0.3 ms per malformed datagram: the flood's backlog takes it ~3 s to read, the probe's five
+    # copies 1 s (without the wait for the backlog: a false MCP-ACK-1 beside MCP-ROB-7)
+    ("reads-malformed-input-slowly", {}, ("--read-delay", "0.0003")),
 ]
 
 

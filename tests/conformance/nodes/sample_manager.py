@@ -96,6 +96,8 @@ class SampleManager:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        if args.read_delay:  # a backlog to read slowly: the reference manager's 4 MB buffer
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind(hostport(args.bind))
         self.sock.settimeout(0.05)
         self.ack_sock = self.sock
@@ -131,6 +133,8 @@ class SampleManager:
             try:
                 msg = decode(data)
             except DecodeError:
+                if self.args.read_delay:  # a slow reader (correct): each malformed datagram costs it time
+                    time.sleep(self.args.read_delay)
                 continue  # discarded without ACK
             if msg.dst != MANAGER_ID:
                 continue
@@ -270,6 +274,8 @@ def main() -> int:
     p.add_argument("--record", default=None, metavar="FILE",
                    help="write what it sent (JSON: sent as [action, drone], ready, outcome) on exit")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS))
+    p.add_argument("--read-delay", type=float, default=0.0, metavar="S",
+                   help="seconds each malformed datagram costs it to read (a slow but correct reader)")
     args = p.parse_args()
     try:
         mgr = SampleManager(args)
