@@ -171,10 +171,7 @@ class CaseContext(CaseBase):
         An incomplete frame the vehicle still holds (an altered frame a moment ago) is waited
         out first, so the probe's bytes are not read as its tail."""
         if self.session.passthrough_forwarded is None:
-            from vehicle.codec import STALE
-
-            v = self.vehicle
-            v.wait_for(lambda: v.holding() == 0, 2 * STALE + 2.0)
+            self._wait_held_reported()
             d = self.deliver(self.probe())
             self.session.passthrough_forwarded = d.exchange.acked and d.delivered > 0
             if not d.exchange.acked:
@@ -183,20 +180,25 @@ class CaseContext(CaseBase):
             if not self.session.passthrough_forwarded:
                 self.session.passthrough_altered = self.altered_arrival(d) is not None
 
-    def altered_arrival(self, d: Delivery) -> Altered | None:
-        """MCP-PAY-8: bytes that reached the autopilot since ``d``'s probe was sent, did not
-        parse, and are an altered form of its frame (truncated, bits changed; the trace
-        monitor's comparison, ``judge.monitor.alteration``); None when nothing like it came.
-        An incomplete frame the vehicle still holds is waited for until the vehicle reports it
-        (``vehicle.codec.STALE`` after its last byte, by the vehicle's tick thread, which a loaded
-        host delays: 0.5 s was a thin margin beside ten busy test workers); the wait ends at once
-        when nothing is held."""
-        from judge.monitor import alteration
+    def _wait_held_reported(self) -> None:
+        """Until the vehicle holds no incomplete frame (it reports one as unparsed ``STALE``
+        after its last byte); at most 2 x STALE + 2 s, a loaded host delaying its tick thread."""
         from vehicle.codec import STALE
 
         v = self.vehicle
         v.wait_for(lambda: v.holding() == 0, 2 * STALE + 2.0)
-        for u in v.unparsed(since=d.exchange.first.t):
+
+    def altered_arrival(self, d: Delivery) -> Altered | None:
+        """MCP-PAY-8: bytes that reached the autopilot since ``d``'s probe was sent, did not
+        parse, and are an altered form of its frame (truncated, bits changed; the trace
+        monitor's comparison, ``judge.monitor.alteration``); None when nothing like it came.
+        An incomplete frame the vehicle still holds is waited for (``_wait_held_reported``: 0.5 s
+        was a thin margin beside ten busy test workers); the wait ends at once when nothing is
+        held."""
+        from judge.monitor import alteration
+
+        self._wait_held_reported()
+        for u in self.vehicle.unparsed(since=d.exchange.first.t):
             how = alteration(d.probe.frame, u.raw)
             if how is not None:
                 return Altered(u.raw, how if u.length == len(u.raw) else f"{how}; {u.length} bytes, "

@@ -36,7 +36,13 @@ RTO = 0.2
 #: for a loaded host's late timers and lines (a fresh-clone CI reported it 2.66 s after, at 2.6):
 #: the bound tells "at once" from the "minutes late" of the bug, not the host's speed.
 HOST_SLACK = 1.0
-BUDGET = 3 * RTO + 2.0 + HOST_SLACK
+
+
+def _budget(rto: float) -> float:
+    return 3 * rto + 2.0 + HOST_SLACK
+
+
+BUDGET = _budget(RTO)
 
 
 def _after_kill(run: WatchedRun, doc: dict, t_kill: float, t_kill_ns: int, budget: float = BUDGET) -> None:
@@ -87,7 +93,7 @@ def test_attach_node_killed_mid_run_at_the_descriptions_timings(tmp_path):
 
 
 def _attach_kill(tmp_path, kill_after: str, rto: float, timing: list[str], wait: float = 60) -> None:
-    budget = 3 * rto + 2.0 + HOST_SLACK
+    budget = _budget(rto)
     node_port, listen_port = free_port(), free_port()
     cmd = (reference_node_command(rto).replace("{id}", "1")
            .replace("{target_host}:{target_port}", f"127.0.0.1:{node_port}")
@@ -132,7 +138,7 @@ def test_spawn_node_killed_mid_run_at_the_descriptions_timings(tmp_path):
 
 def _spawn_kill(tmp_path, kill_after: str, rto: float, timing: list[str], select: list[str],
                 wait: float = 60) -> None:
-    budget = 3 * rto + 2.0 + HOST_SLACK
+    budget = _budget(rto)
     js = tmp_path / "r.json"
     # on a loaded host the kill may land between two cases: try again (3 tries all missed once
     # beside 9 busy workers: the cases around the batch last milliseconds at --rto 0.2)
