@@ -14,6 +14,7 @@ import pytest
 from captures.diff import DiffOptions, diff_captures, print_report
 from captures.replay import replay
 from captures.scenarios import GOLDEN, record_challenge
+from tests.forkserver import run_module
 from traceio.reader import Datagram, open_capture
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -60,8 +61,7 @@ def test_drone_suite_rerecorded_matches_its_golden(tmp_path):
     out = tmp_path / "drone-suite.mcap"
     # --serial: the golden is the suite's traffic in its serial order (the schedule runs the
     # silence cases' batch in threads: the same datagrams, their order not fixed)
-    proc = subprocess.run([sys.executable, "-m", "conformance", "--serial", "--capture", str(out)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
+    proc = run_module("conformance", ["--serial", "--capture", str(out)], cwd=ROOT, timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     result = diff_captures(GOLDEN / "drone-suite.mcap", out, DiffOptions())
     # a change to the suite's cases changes what the runner sends: re-record the golden then

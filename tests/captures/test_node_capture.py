@@ -16,6 +16,7 @@ import pytest
 
 from spec.codec import Action, Message, decode, encode
 from tests.captures.test_recorder import read_all
+from tests.forkserver import run_module
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
@@ -128,8 +129,7 @@ def test_the_runner_capture_is_complete(tmp_path):
     from traceio.reader import Datagram, open_capture
 
     path = tmp_path / "run.mcap"
-    proc = subprocess.run([sys.executable, "-m", "conformance", "--select", "MCP-ROB-7", "--capture", str(path)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_module("conformance", ["--select", "MCP-ROB-7", "--capture", str(path)], cwd=ROOT, timeout=300)
     assert proc.returncode == 0, proc.stdout[-1500:] + proc.stderr[-1500:]
     msgs = read_all(path)[0]
     (_, burst), = msgs["/mcp/burst"]

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
@@ -101,10 +102,9 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
     report_conns = None
     try:
         time.sleep(0.2)
-        live = subprocess.run([sys.executable, "-m", "conformance", "--protocol", "nsqd", "--target", f"127.0.0.1:{port}",
-                               "--select", "NSQD-FRM", "--capture", str(tmp_path / "live.mcap"),
-                               "--json", str(tmp_path / "live.json")],
-                              capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300)
+        live = run_module("conformance", ["--protocol", "nsqd", "--target", f"127.0.0.1:{port}",
+                                          "--select", "NSQD-FRM", "--capture", str(tmp_path / "live.mcap"),
+                                          "--json", str(tmp_path / "live.json")], env=ENV, cwd=ROOT, timeout=300)
         if (tmp_path / "live.mcap").exists():
             report_conns = _failed(tmp_path / "live.mcap", tmp_path)
     finally:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import shlex
-import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -13,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from tests.capturing import free_port  # noqa: F401  (re-exported for the runner tests)
+from tests.forkserver import run_module
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_NODE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
@@ -47,12 +47,12 @@ class RunResult:
 
 
 def run_conform(*args: str, timeout: float = 240.0) -> RunResult:
-    """``python -m conformance ARGS --json FILE`` from the repository root."""
+    """``python -m conformance ARGS --json FILE`` from the repository root (a child of the
+    tests' fork server, ``tests/forkserver.py``, unless ``MCP_TEST_FORKSERVER=0``)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
-        cmd = [sys.executable, "-m", "conformance", *args, "--json", str(path)]
         env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+        proc = run_module("conformance", [*args, "--json", str(path)], cwd=ROOT, env=env, timeout=timeout)
         report = json.loads(path.read_text()) if path.exists() else {}
     return RunResult(proc.returncode, report, proc.stdout + proc.stderr)
 

@@ -14,14 +14,14 @@ import pytest
 from conformance.cli import build_parser, main, pytest_args
 from conformance.report import validate_json
 from tests.capturing import free_port
+from tests.forkserver import run_module
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def conform(*args: str, cwd: Path = ROOT, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-    return subprocess.run([sys.executable, "-m", "conformance", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return run_module("conformance", list(args), cwd=cwd, env=env, timeout=timeout)
 
 
 def report(path: Path) -> dict:

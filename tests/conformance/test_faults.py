@@ -17,6 +17,8 @@ import time
 
 import pytest
 
+from tests.forkserver import run_module
+
 from .fault_helpers import (
     SILENCE_RULES,
     WatchedRun,
@@ -171,8 +173,7 @@ def _spawn_kill(tmp_path, kill_after: str, rto: float, timing: list[str], select
 
 # ---------------------------------------------------------------------- setup errors
 def _conform(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "conformance", *args], cwd=ROOT, env=env(),
-                          capture_output=True, text=True, timeout=timeout)
+    return run_module("conformance", list(args), cwd=ROOT, env=env(), timeout=timeout)
 
 
 @pytest.mark.parametrize("args,words", [

@@ -9,6 +9,8 @@ import textwrap
 
 import pytest
 
+from tests.forkserver import run_module
+
 from .test_plugin import PLUGIN, log, outcomes, run, setup_files
 
 pytest_plugins = ("pytester",)
@@ -92,15 +94,11 @@ def test_attach_mode_refuses_to_be_split_across_xdist_workers(pytester):
 
 @pytest.mark.slow
 def test_verbose_prints_live_traffic_to_stderr_and_embedded_reports_the_vehicle(tmp_path):
-    import subprocess
-    import sys
-
     from .runner_helpers import ROOT
 
     js = tmp_path / "r.json"
-    proc = subprocess.run([sys.executable, "-m", "conformance", "-v", "--select", "MCP-ACK-4", "--json", str(js)],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                          env={**__import__("os").environ, "PYTHONPATH": str(ROOT), "NO_COLOR": "1"})
+    proc = run_module("conformance", ["-v", "--select", "MCP-ACK-4", "--json", str(js)], cwd=tmp_path, timeout=120,
+                      env={**__import__("os").environ, "PYTHONPATH": str(ROOT), "NO_COLOR": "1"})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     lines = proc.stderr.splitlines()
     assert any(" rx ← " in ln and "MISSION_READY" in ln for ln in lines), proc.stderr

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import FAULTS, built_or_skip
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
@@ -23,9 +24,8 @@ pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
 def run(tmp_path: Path, *args: str) -> tuple[int, dict, str]:
     out = tmp_path / "r.json"
-    proc = subprocess.run([sys.executable, "-m", "conformance", "--protocol", "nsqd", "--json", str(out),
-                           "--junit", str(tmp_path / "j.xml"), *args],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_module("conformance", ["--protocol", "nsqd", "--json", str(out), "--junit", str(tmp_path / "j.xml"),
+                                      *args], timeout=300)
     return proc.returncode, json.loads(out.read_text()), proc.stdout + proc.stderr
 
 

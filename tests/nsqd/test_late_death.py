@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.forkserver import run_module
 
 pytestmark = [pytest.mark.slow]
 
@@ -27,9 +28,8 @@ def _run(tmp_path: Path, killer: str, *backend_args: str) -> tuple[dict, str, in
     cmd = " ".join([sys.executable, "-m", "tests.nsqd.late_death_backend", "--bind", "{target_host}:{target_port}",
                     *backend_args])
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.run([sys.executable, "-m", "conformance", "--protocol", "nsqd", "--json", str(out),
-                           "--spawn", cmd, "--select", killer, NEXT],
-                          capture_output=True, text=True, timeout=300, cwd=ROOT, env=env)
+    proc = run_module("conformance", ["--protocol", "nsqd", "--json", str(out), "--spawn", cmd, "--select", killer,
+                                      NEXT], timeout=300, cwd=ROOT, env=env)
     doc = json.loads(out.read_text())
     cases = {c["id"]: c for c in doc["cases"]}
     assert list(cases) == [killer, NEXT], proc.stdout + proc.stderr

@@ -1,0 +1,213 @@
+"""A fork server for the tests' ``python -m conformance`` runs: one process per pytest
+process imports the runner once, then forks a child for each run.
+
+Why: the slow tests start the runner about 290 times. A fresh interpreter spends about
+0.35 CPU s of each run importing pytest, the runner, the judge, the vehicle and pymavlink's
+dialects before it sends a datagram (measured: 1.1 CPU s for a whole suite against the
+sample node, 0.45 of it in imports), about 100 CPU s in all on CI's 2 cores. A forked child
+starts with those modules loaded and runs the same entry point a user's ``mcp-conform``
+runs (``conformance._entry.main``), in its own process: its own pid, working directory,
+environment, standard streams (files the caller reads) and exit status (``os.waitpid`` in
+the server, returned as it is, a signal as a negative number like ``subprocess``).
+
+What a child does not share with a fresh interpreter: the modules below were imported
+before its signal handlers were installed (the tests that signal the runner during its
+imports start it themselves), and they were imported with the server's environment (none
+of them reads the environment at import time: the runner reads ``MCP_CONFORM_*`` when it
+configures). The case modules are not imported here: pytest imports them in the child,
+with their asserts rewritten, as in a user's run.
+
+Set ``MCP_TEST_FORKSERVER=0`` to run each run in a fresh interpreter instead.
+
+The server: ``python -m tests.forkserver SOCKET`` listens on a Unix socket. A request is one
+JSON line (argv, cwd, env, the two output paths); the reply is a line with the child's pid,
+then a line with its exit status once the server has reaped it. One thread, a select loop.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "conformance")  # the runner and the floors below
+THIRD_PARTY = ("pytest", "_pytest.pytester", "pymavlink.mavutil", "pymavlink.dialects.v10.ardupilotmega",
+               "pymavlink.dialects.v20.ardupilotmega", "rich.console", "rich.table", "foxglove.messages", "mcap.writer",
+               "mcap.reader", "orjson", "execnet", "xdist.plugin", "unittest", "xml.etree.ElementTree", "pdb")
+
+
+def _preload() -> None:
+    """Import what every run imports: the packages' modules but the cases and entry points."""
+    import importlib
+    import pkgutil
+
+    for name in THIRD_PARTY:
+        importlib.import_module(name)
+    for package in PACKAGES:
+        path = importlib.import_module(package).__path__
+        for info in pkgutil.walk_packages(path, package + "."):
+            if ".cases" not in info.name and not info.name.endswith("__main__"):
+                importlib.import_module(info.name)
+
+
+def enabled() -> bool:
+    return os.environ.get("MCP_TEST_FORKSERVER", "1") != "0" and hasattr(os, "fork")
+
+
+class _Client:
+    """The calling process's server, started on first use, ended with the process."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._dir = ""
+        self._path = ""
+
+    def _server(self) -> str:
+        with self._lock:
+            if self._proc is None or self._proc.poll() is not None:
+                self._dir = tempfile.mkdtemp(prefix="mcp-forkserver-")
+                self._path = os.path.join(self._dir, "s")
+                env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
+                self._proc = subprocess.Popen([sys.executable, "-m", "tests.forkserver", self._path], cwd=ROOT, env=env,
+                                              stdin=subprocess.PIPE, stdout=subprocess.PIPE)  # its stdin's end: ours
+                assert self._proc.stdout is not None
+                if self._proc.stdout.readline().strip() != b"ready":
+                    raise RuntimeError("the test fork server did not start")
+            return self._path
+
+    def run(self, argv: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> subprocess.CompletedProcess[str]:
+        path = self._server()
+        with tempfile.TemporaryDirectory() as tmp:
+            out, err = os.path.join(tmp, "stdout"), os.path.join(tmp, "stderr")
+            request = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": out, "stderr": err}
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+                s.connect(path)
+                s.sendall(json.dumps(request).encode() + b"\n")
+                s.settimeout(timeout)
+                reader = s.makefile("rb")
+                pid = int(reader.readline())
+                try:
+                    line = reader.readline()
+                except TimeoutError:
+                    os.kill(pid, signal.SIGKILL)
+                    raise subprocess.TimeoutExpired(argv, timeout) from None
+                if not line:
+                    raise RuntimeError(f"the test fork server died while running {argv}")
+                rc = int(line)
+            return subprocess.CompletedProcess(argv, rc, Path(out).read_text(errors="replace"),
+                                               Path(err).read_text(errors="replace"))
+
+
+_CLIENT = _Client()
+
+
+def run_module(module: str, args: list[str], *, cwd: Path | str | None = None, env: dict[str, str] | None = None,
+               timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
+    """``python -m MODULE ARGS`` (only ``conformance`` is served), as ``subprocess.run`` with
+    ``capture_output=True, text=True``: in a child of the fork server when it is enabled. The
+    working directory and the environment default to the caller's, as subprocess's do."""
+    if module != "conformance" or not enabled():
+        return subprocess.run([sys.executable, "-m", module, *args], cwd=cwd, env=env, capture_output=True,
+                              text=True, timeout=timeout)
+    return _CLIENT.run(list(args), cwd=Path(cwd or os.getcwd()), env=dict(os.environ if env is None else env),
+                       timeout=timeout)
+
+
+# ---- the server --------------------------------------------------------------------------
+
+
+def _child(request: dict, closing: list[int]) -> None:
+    """In the forked child: become ``python -m conformance ARGS`` and never return."""
+    code = 1
+    try:
+        for fd in closing:
+            os.close(fd)
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+        null = os.open(os.devnull, os.O_RDONLY)
+        os.dup2(null, 0)
+        os.close(null)
+        for fd, name in ((1, "stdout"), (2, "stderr")):
+            f = os.open(request[name], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            os.dup2(f, fd)
+            os.close(f)
+        os.chdir(request["cwd"])
+        os.environ.clear()
+        os.environ.update(request["env"])
+        sys.argv = [str(ROOT / "conformance" / "__main__.py"), *request["argv"]]
+        from conformance._entry import main
+
+        code = main(request["argv"])  # ends the process itself (os._exit), its streams flushed
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except BaseException:
+        import traceback
+
+        traceback.print_exc()
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except Exception:
+                pass
+        os._exit(code)
+
+
+def serve(path: str) -> None:
+    _preload()
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(path)
+    listener.listen(64)
+    os.write(1, b"ready\n")
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)  # the caller's pipe: closed here, so the caller never waits on it
+    os.close(null)
+    waiting: dict[int, socket.socket] = {}  # child pid -> its caller's connection
+    pending: dict[socket.socket, bytes] = {}
+    while True:
+        ready, _, _ = select.select([0, listener, *pending], [], [], 0.02 if waiting else None)
+        if 0 in ready and not os.read(0, 4096):
+            break  # the calling process has ended
+        if listener in ready:
+            conn, _ = listener.accept()
+            pending[conn] = b""
+        for conn in [c for c in ready if c in pending]:
+            data = conn.recv(1 << 16)
+            if not data:
+                pending.pop(conn).close()
+                continue
+            pending[conn] += data
+            if not pending[conn].endswith(b"\n"):
+                continue
+            request = json.loads(pending.pop(conn))
+            closing = [listener.fileno(), conn.fileno(), *(c.fileno() for c in pending),
+                       *(c.fileno() for c in waiting.values())]
+            pid = os.fork()
+            if pid == 0:
+                _child(request, closing)
+            conn.sendall(b"%d\n" % pid)
+            waiting[pid] = conn
+        while waiting:
+            pid, status = os.waitpid(-1, os.WNOHANG)
+            if pid == 0:
+                break
+            conn = waiting.pop(pid, None)
+            if conn is not None:
+                rc = os.waitstatus_to_exitcode(status)
+                try:
+                    conn.sendall(b"%d\n" % rc)
+                except OSError:
+                    pass
+                conn.close()
+
+
+if __name__ == "__main__":
+    serve(sys.argv[1])

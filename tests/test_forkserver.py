@@ -1,0 +1,53 @@
+"""The tests' fork server (tests/forkserver.py) runs ``python -m conformance`` as a fresh
+interpreter does: same exit status, same output, the caller's working directory and
+environment, its own process, killed at the timeout."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests import forkserver
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
+
+
+def _both(args: list[str], cwd: Path = ROOT, env: dict[str, str] = ENV) -> tuple[subprocess.CompletedProcess[str], ...]:
+    fresh = subprocess.run([sys.executable, "-m", "conformance", *args], cwd=cwd, env=env, capture_output=True,
+                           text=True, timeout=60)
+    forked = forkserver._CLIENT.run(args, cwd=cwd, env=env, timeout=60)
+    return fresh, forked
+
+
+@pytest.mark.parametrize("args", [["--version"], ["--list", "--select", "MCP-SEQ"], ["--rto", "zero"],
+                                  ["--role", "manager", "--list"], ["--protocol", "nsqd", "--list"]],
+                         ids=["version", "list", "bad-option", "manager-list", "nsqd-list"])
+def test_a_forked_run_matches_a_fresh_interpreter(args: list[str]) -> None:
+    fresh, forked = _both(args)
+    assert (forked.returncode, forked.stdout, forked.stderr) == (fresh.returncode, fresh.stdout, fresh.stderr)
+    assert fresh.stdout or fresh.stderr  # the comparison compared something
+
+
+def test_the_callers_directory_and_environment_are_the_childs(tmp_path: Path) -> None:
+    """A relative --json lands in the caller's directory; an MCP_CONFORM_ variable set after
+    the server started reaches the run (its seed in the report)."""
+    env = dict(ENV, MCP_CONFORM_SEED="4242")
+    forked = forkserver._CLIENT.run(["--list", "--json", "r.json"], cwd=tmp_path, env=env, timeout=60)
+    assert forked.returncode == 0, forked.stderr
+    report = (tmp_path / "r.json").read_text()
+    assert '"seed": 4242' in report
+
+
+def test_a_run_past_its_timeout_is_killed(tmp_path: Path) -> None:
+    """As ``subprocess.run(timeout=...)``: the child is killed and TimeoutExpired raised."""
+    hang = ["--target", "127.0.0.1:9", "--startup-timeout", "30", "--timeout", "60"]
+    start = time.monotonic()
+    with pytest.raises(subprocess.TimeoutExpired):
+        forkserver._CLIENT.run(hang, cwd=tmp_path, env=ENV, timeout=1.0)
+    assert time.monotonic() - start < 20
