@@ -4,7 +4,7 @@
              [--mavlink] [--seed N] [--max-cases N] [--duration S]
              [--engine stateless|stateful|both] [--jobs N] [--db DIR|redis://HOST:PORT/N]
              [--seeds DIR] [--out DIR] [--rto S] [--ack-window S] [--broadcast-id N] [--strict]
-             [--live [HOST:]PORT]
+             [--live [HOST:]PORT] [--status-every S]
     mcp-fuzz --replay finding-N [--target HOST:PORT | --spawn CMD] [--mavlink]
 
 Without --target and --spawn it fuzzes the reference drone (embedded default); with
@@ -13,7 +13,8 @@ no MUST finding (SHOULD findings are reported, and count under ``--strict``, as 
 mcp-conform and mcp-capture check); 1: findings (for --replay: the finding reproduced); 2:
 usage or setup error, with a one-line reason, or the node lost in attach mode (the campaign
 ends there, its findings so far written); 130: interrupted (SIGINT), summary.json written
-with the counts and findings so far and ``"interrupted": true``. Live progress (rich) on a terminal; otherwise a plain status line every 10 s, then the summary line.
+with the counts and findings so far and ``"interrupted": true``. Live progress (rich) on a terminal; otherwise a plain status line every 10 s
+(``--status-every S``), then the summary line.
 """
 
 from __future__ import annotations
@@ -76,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--live", metavar="[HOST:]PORT", help="serve the campaign live over the Foxglove WebSocket "
                    "protocol: its traffic and its findings (loopback unless HOST is given; port 0: a free one)")
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
+    p.add_argument("--status-every", metavar="S", help="off a terminal, a plain status line every S seconds "
+                                                       "(default 10)")
     p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
                    help="mcp (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
                         "(--spawn CMD with {target_host} {target_port}, or --target HOST:PORT)")
@@ -164,6 +167,8 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg.seed = DEFAULT_SEED if seed is None else seed
     cfg.max_cases = _int(ns.max_cases, "--max-cases", 1, 10**12)
     cfg.duration = _float(ns.duration, "--duration")
+    if ns.status_every is not None:
+        cfg.extra["status_every"] = _float(ns.status_every, "--status-every")
     if ns.engine not in ENGINES:
         raise UsageError(f"--engine: {ns.engine!r} is not one of {', '.join(ENGINES)}")
     cfg.engine = ns.engine
@@ -271,7 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         served.started(cfg)
     else:
         store = FindingStore(cfg.out, replay_args(cfg))
-    live = LiveProgress(cfg)
+    live = LiveProgress(cfg, every=cfg.extra.get("status_every"))
     try:
         with live:
             summary = run_campaign(cfg, store, live.update)
@@ -316,7 +321,7 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
 
     campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
                               cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
-    live = StreamLive()
+    live = StreamLive(every=cfg.extra.get("status_every"))
     campaign.tick = live.update
     try:
         with live:

@@ -41,16 +41,18 @@ def status_line(engine: str, p: Progress) -> str:
 
 
 class LiveDisplay:
-    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` otherwise: the
+    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` (or ``every``)
+    otherwise: the
     display both campaigns share (MCP's :class:`LiveProgress`, Nsqd's
     ``fuzz.stream_progress.StreamLive``), each giving its ``first`` panel, ``render`` and
     ``status`` line of what it is shown."""
 
-    def __init__(self, stream: Any = None) -> None:
+    def __init__(self, stream: Any = None, every: float | None = None) -> None:
         self.stream = stream or sys.stdout
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._live: Any = None
-        self._next_status = time.monotonic() + STATUS_S
+        self.every = STATUS_S if every is None else every  # ``mcp-fuzz --status-every``
+        self._next_status = time.monotonic() + self.every
 
     def __enter__(self: _Display) -> _Display:
         if self.tty:
@@ -83,15 +85,15 @@ class LiveDisplay:
         if self._live is not None:
             self._live.update(self.render(view))
         elif time.monotonic() >= self._next_status:
-            self._next_status = time.monotonic() + STATUS_S
+            self._next_status = time.monotonic() + self.every
             print(self.status(view), file=self.stream, flush=True)
 
 
 class LiveProgress(LiveDisplay):
     """MCP's campaign: cases, judged cases/s, findings, restarts, elapsed, one line."""
 
-    def __init__(self, cfg: FuzzConfig, stream: Any = None) -> None:
-        super().__init__(stream)
+    def __init__(self, cfg: FuzzConfig, stream: Any = None, every: float | None = None) -> None:
+        super().__init__(stream, every)
         self.cfg = cfg
 
     def first(self) -> Any:

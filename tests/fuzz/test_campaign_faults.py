@@ -26,7 +26,9 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 FAST = ["--rto", "0.2", "--ack-window", "0.25"]
-STATUS_WAIT = 60.0  # s: the first plain status line comes 10 s in; a loaded host is slower
+STATUS = ["--status-every", "1"]  # a plain status line each second, the first 1 s in (default 10)
+STATUS_JOBS = ["--status-every", "5"]  # the line sums the workers: each has started by then
+STATUS_WAIT = 60.0  # s: a loaded host is slower
 
 
 def _env() -> dict[str, str]:
@@ -86,7 +88,7 @@ def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path
     try:
         time.sleep(1.0)
         proc = _fuzz(["--target", f"127.0.0.1:{node_port}", "--listen", f"127.0.0.1:{listen_port}",
-                      *FAST, "--duration", "120", "--out", str(out_dir)])
+                      *FAST, *STATUS, "--duration", "120", "--out", str(out_dir)])
         _wait_status(proc)
         node.send_signal(signal.SIGKILL)
         rc, out, err = _finish(proc)
@@ -111,7 +113,8 @@ def test_sigint_keeps_the_counts_so_far(tmp_path: Path, jobs: int) -> None:
     """Item 6: one SIGINT mid-campaign (embedded reference drone). Before: exit 2 and
     summary.json with "cases": 0, "workers": [] and "error": null."""
     out_dir = tmp_path / "out"
-    proc = _fuzz([*FAST, "--duration", "120", "--jobs", str(jobs), "--out", str(out_dir)])
+    proc = _fuzz([*FAST, *(STATUS if jobs == 1 else STATUS_JOBS), "--duration", "120", "--jobs", str(jobs),
+                  "--out", str(out_dir)])
     _wait_status(proc)
     proc.send_signal(signal.SIGINT)
     rc, out, err = _finish(proc)

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from fuzz.cli import main
+from fuzz.cli import UsageError, main
 from fuzz.findings import Finding, FindingStore, load_finding
 from fuzz.replay import shrink
 
@@ -116,6 +116,32 @@ def test_progress_off_a_terminal_is_a_plain_status_line_every_few_seconds(
                "findings_by_rule": {}, "seed": 1, "restarts": 0}
     live.final(summary, FindingStore(None))
     assert out.getvalue().count("\n") == 2 and "10 judged cases/s" in out.getvalue()
+
+
+def test_status_every_sets_the_period_of_the_plain_status_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--status-every S``: a CI log's status line every S seconds, not every STATUS_S; a
+    period that is not a positive number is a one-line usage error."""
+    import io
+
+    import fuzz.progress
+    from fuzz.campaign import Progress
+    from fuzz.cli import build_parser, make_config
+    from fuzz.progress import LiveProgress
+    from fuzz.stream_progress import StreamLive
+
+    clock = [100.0]
+    monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
+    cfg = make_config(build_parser().parse_args(["--status-every", "0.5"]))
+    assert cfg.extra["status_every"] == 0.5 and StreamLive(every=0.5).every == 0.5
+    out = io.StringIO()
+    with LiveProgress(cfg, out, every=cfg.extra["status_every"]) as live:
+        for _ in range(4):
+            clock[0] += 0.5
+            live.update(Progress(cases=10, fuzz_seconds=1.0))
+    assert len(out.getvalue().splitlines()) == 4
+    for bad in ("0", "-1", "soon"):
+        with pytest.raises(UsageError, match="--status-every"):
+            make_config(build_parser().parse_args(["--status-every", bad]))
 
 
 @pytest.mark.parametrize("levels, strict, code", [
