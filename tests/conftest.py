@@ -43,6 +43,9 @@ LONG_FIRST = (
     "test_conform_nsqd.py::test_correct_c_backend_passes",
     "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",
     "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",
+    # the quick run's longest (they wait), first there
+    "test_schedule.py::test_a_scheduled_run_watches_its_windows_together_and_serial_one_after_another",
+    "test_forkserver.py::test_an_environment_read_at_import_gets_a_server_imported_with_it",
 )
 
 

@@ -12,10 +12,11 @@ the server, returned as it is, a signal as a negative number like ``subprocess``
 
 What a child does not share with a fresh interpreter: the modules below were imported
 before its signal handlers were installed (the tests that signal the runner during its
-imports start it themselves), and they were imported with the server's environment (none
-of them reads the environment at import time: the runner reads ``MCP_CONFORM_*`` when it
-configures). The case modules are not imported here: pytest imports them in the child,
-with their asserts rewritten, as in a user's run.
+imports start it themselves). What is read from the environment at import is the same: a
+server is started with the caller's PYTHON* and MAVLINK* variables, one server for each
+combination (``IMPORT_TIME``); the runner itself reads ``MCP_CONFORM_*`` when it configures.
+The case modules are not imported here: pytest imports them in the child, with their
+asserts rewritten, as in a user's run.
 
 Set ``MCP_TEST_FORKSERVER=0`` to run each run in a fresh interpreter instead.
 
@@ -62,30 +63,44 @@ def enabled() -> bool:
     return os.environ.get("MCP_TEST_FORKSERVER", "1") != "0" and hasattr(os, "fork")
 
 
+#: What a fresh interpreter reads from the environment when it starts or imports: the
+#: interpreter's own PYTHON* variables (PYTHONPATH: where modules come from) and pymavlink's
+#: MAVLINK* (mavutil picks its dialect module at import; mavwp asks ``mavlink20()`` of the
+#: environment when called). A request is served by a server started with the same values,
+#: one server per combination (a test that sets MAVLINK20 gets its own).
+IMPORT_TIME = ("PYTHON", "MAVLINK")
+
+
+def _key(env: dict[str, str]) -> tuple[tuple[str, str], ...]:
+    return tuple(sorted((k, v) for k, v in env.items() if k.startswith(IMPORT_TIME)))
+
+
+class _Server:
+    def __init__(self, env: dict[str, str]) -> None:
+        self.path = os.path.join(tempfile.mkdtemp(prefix="mcp-forkserver-"), "s")
+        self.proc = subprocess.Popen([sys.executable, "-m", "tests.forkserver", self.path], cwd=ROOT, env=env,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)  # its stdin's end: ours
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != b"ready":
+            raise RuntimeError("the test fork server did not start")
+
+
 class _Client:
-    """The calling process's server, started on first use, ended with the process."""
+    """The calling process's servers, each started on first use, ended with the process."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._dir = ""
-        self._path = ""
+        self._servers: dict[tuple[tuple[str, str], ...], _Server] = {}
 
-    def _server(self) -> str:
+    def _server(self, env: dict[str, str]) -> str:
         with self._lock:
-            if self._proc is None or self._proc.poll() is not None:
-                self._dir = tempfile.mkdtemp(prefix="mcp-forkserver-")
-                self._path = os.path.join(self._dir, "s")
-                env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-                self._proc = subprocess.Popen([sys.executable, "-m", "tests.forkserver", self._path], cwd=ROOT, env=env,
-                                              stdin=subprocess.PIPE, stdout=subprocess.PIPE)  # its stdin's end: ours
-                assert self._proc.stdout is not None
-                if self._proc.stdout.readline().strip() != b"ready":
-                    raise RuntimeError("the test fork server did not start")
-            return self._path
+            server = self._servers.get(_key(env))
+            if server is None or server.proc.poll() is not None:
+                server = self._servers[_key(env)] = _Server(env)
+            return server.path
 
     def run(self, argv: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> subprocess.CompletedProcess[str]:
-        path = self._server()
+        path = self._server(env)
         with tempfile.TemporaryDirectory() as tmp:
             out, err = os.path.join(tmp, "stdout"), os.path.join(tmp, "stderr")
             request = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": out, "stderr": err}
@@ -140,6 +155,7 @@ def _child(request: dict, closing: list[int]) -> None:
             os.dup2(f, fd)
             os.close(f)
         os.chdir(request["cwd"])
+        sys.path[0] = request["cwd"]  # as ``python -m`` puts it first
         os.environ.clear()
         os.environ.update(request["env"])
         sys.argv = [str(ROOT / "conformance" / "__main__.py"), *request["argv"]]

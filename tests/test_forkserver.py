@@ -51,3 +51,16 @@ def test_a_run_past_its_timeout_is_killed(tmp_path: Path) -> None:
     with pytest.raises(subprocess.TimeoutExpired):
         forkserver._CLIENT.run(hang, cwd=tmp_path, env=ENV, timeout=1.0)
     assert time.monotonic() - start < 20
+
+
+def test_an_environment_read_at_import_gets_a_server_imported_with_it() -> None:
+    """pymavlink picks its dialect module when mavutil is imported and mavwp asks the
+    environment when it loads a waypoint file: a caller whose environment gained MAVLINK20
+    after its first run (mavutil sets it on the first MAVLink 2 frame it reads) is served by
+    a server imported with it. One server for both gave the second run a MAVLink 1 message
+    class handed MAVLink 2's arguments: every manager-role case an error."""
+    args = ["--role", "manager", "--waypoints", "examples/mission.waypoints", "--select", "MCP-ACK-1"]
+    without = {k: v for k, v in ENV.items() if k != "MAVLINK20"}
+    for env in (without, dict(without, MAVLINK20="1"), without):  # a fresh interpreter passes each
+        forked = forkserver._CLIENT.run(args, cwd=ROOT, env=env, timeout=60)
+        assert forked.returncode == 0 and "1 passed" in forked.stdout, (env.get("MAVLINK20"), forked.stdout)
