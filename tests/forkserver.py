@@ -72,7 +72,16 @@ IMPORT_TIME = ("PYTHON", "MAVLINK")
 
 
 def _key(env: dict[str, str]) -> tuple[tuple[str, str], ...]:
-    return tuple(sorted((k, v) for k, v in env.items() if k.startswith(IMPORT_TIME)))
+    """The variables that decide what an import gives, as an import sees them: PYTHONPATH's
+    entries but the repository's (which every run has first, as its working directory or
+    through the editable install) and mavutil's default dialect as if unset."""
+    out = []
+    for k, v in sorted(env.items()):
+        if k == "PYTHONPATH":
+            v = os.pathsep.join(dict.fromkeys(p for p in v.split(os.pathsep) if p and Path(p).resolve() != ROOT))
+        if k.startswith(IMPORT_TIME) and v and not (k == "MAVLINK_DIALECT" and v == "ardupilotmega"):
+            out.append((k, v))
+    return tuple(out)
 
 
 class _Server:
@@ -155,7 +164,8 @@ def _child(request: dict, closing: list[int]) -> None:
             os.dup2(f, fd)
             os.close(f)
         os.chdir(request["cwd"])
-        sys.path[0] = request["cwd"]  # as ``python -m`` puts it first
+        extra = [p for p in request["env"].get("PYTHONPATH", "").split(os.pathsep) if p]
+        sys.path[:] = [request["cwd"], *extra, *(p for p in sys.path[1:] if p not in extra)]  # as python -m has it
         os.environ.clear()
         os.environ.update(request["env"])
         sys.argv = [str(ROOT / "conformance" / "__main__.py"), *request["argv"]]
