@@ -185,7 +185,7 @@ class _Exchange:
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
-                 "heard", "run_delays")
+                 "heard", "run_delays", "owed")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool, rd: int | None = None) -> None:
@@ -199,6 +199,7 @@ class _Exchange:
         self.run_delays: list[int | None] = [rd]  # the sender's run delay at each copy (MCP-RTX-3)
         self.last_t = t  # time of the latest copy
         self.acks: list[tuple[int, int]] = []
+        self.owed = 0  # copies that left before its first ACK came back, each owed an ACK
         self.wrong_ack: tuple[int, int] | None = None
         self.tester = tester
         self.bcast = bcast

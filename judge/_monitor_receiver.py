@@ -103,12 +103,13 @@ class ReceiverRules:
             return
         if other is not None:
             w = self._waiting_copy.get((src, dst))
-            if (w is not None and w.acks and w.acks[-1][1] < w.last_t and not w.flags & F_ACK1
-                    and t - w.last_t <= horizon):
-                # a copy of an ACKed message waits for its ACK: this may be that copy's wrong
-                # ACK (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the
-                # broadcast sent just after it) as well as an ACK of ``other``; the copy's
-                # ACK-1 deadline decides which (``_decide_ambiguous``)
+            if (w is not None and w.acks and (w.acks[-1][1] < w.last_t or len(w.acks) < w.owed)
+                    and not w.flags & F_ACK1 and t - w.last_t <= horizon):
+                # a copy of an ACKed message waits for its ACK (sent after the first ACK, or
+                # before it came back: ``owed``): this may be that copy's wrong ACK
+                # (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the broadcast
+                # sent just after it) as well as an ACK of ``other``; the copy's ACK-1
+                # deadline decides which (``_decide_ambiguous``)
                 self._stray_acks[(src, dst)] = (i, t, named)
                 self._ambiguous.setdefault(id(w), (w, []))[1].append((other, named, i, t))
                 return
@@ -166,6 +167,13 @@ class ReceiverRules:
         copies = ex.copies
         before = copies if copies[-1][1] <= t else ex.copies_before(t)
         complete = self._complete_for(ex.src, ex.dst)
+        if complete and len(before) > 1 and action != END:
+            # copies that left before this ACK came back (a slow answer, a loaded host) are each
+            # owed an ACK too: until they have them, an ACK naming what the node must not ACK
+            # may be one of theirs with a wrong number (``_owed_deadline`` decides)
+            ex.owed = len(before)
+            self._waiting_copy[(ex.dst, ex.src)] = ex
+            self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._owed_deadline, ex, before[-1])
         if complete and len(before) >= 3 and not ex.tester:
             self._judge_spacing(ex, before, t)
         if ex.addr is not None:
@@ -288,6 +296,22 @@ class ReceiverRules:
         self._decide_ambiguous(ex, node.id, wrong=False)
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
+
+    def _owed_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int]) -> None:
+        """The ACKs owed to ``ex``'s copies sent before its first ACK came back: all came (an
+        ACK naming something else meanwhile was an ACK of that), or not while one came naming
+        something else: that was a copy's wrong ACK (MCP-ACK-2), not an ACK of what it named."""
+        waiting = self._ambiguous.get(id(ex))
+        if waiting is None:
+            return
+        if len(ex.acks) >= ex.owed or ex.flags & F_ACK1:
+            self._decide_ambiguous(ex, ex.dst, wrong=False)
+            return
+        _, named, i, t = waiting[1][0]
+        self._decide_ambiguous(ex, ex.dst, wrong=True)
+        self._emit("MCP-ACK-2", ex.dst, now, f"the ACK of every copy names the copy's seq {ex.seq} (D-2)",
+                   f"a copy of {ex.describe()} sent before its first ACK came back was answered by an ACK "
+                   f"naming {named}", [copy, (i, t)])
 
     def _decide_ambiguous(self, ex: _Exchange, node: int, *, wrong: bool) -> None:
         """The ACKs naming what ``node`` must not ACK that came while a copy of ``ex`` waited:

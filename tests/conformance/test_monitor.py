@@ -420,3 +420,38 @@ def test_passthrough_forwarded_intact_or_not_a_frame_is_no_alteration():
     assert "MCP-PAY-8" not in {v.rule for v in found}  # the junk is the manager's (MCP-PAY-6)
     assert s.last_monitor.verdicts()[2]["MCP-PAY-8"] == "passed"
     assert s.last_monitor.verdicts()[1]["MCP-PAY-8"] != "warned"
+
+
+@pytest.mark.parametrize("copy_ack, acks_other, want", [
+    ("plus-one", False, {"MCP-ACK-2"}),  # ack-copies-wrong-seq: the copy's ACK names the next seq
+    ("right", True, {"MCP-ACK-5"}),      # the copy ACKed right; the message to ID 2 ACKed by drone 1
+    ("right", False, set()),
+], ids=["copy-acked-wrong", "other-id-acked", "clean"])
+def test_an_ack_naming_the_next_message_while_a_copy_sent_before_the_first_ack_waits(copy_ack, acks_other, want):
+    """CI under load (test_mutants[ack-copies-wrong-seq]): the manager's copy of seq N left
+    before drone 1's ACK of N came back (200 ms, a loaded host); the manager went on to send
+    N+1 to drone 2; drone 1's ACK of the copy named N+1 (its fault, MCP-ACK-2) and was judged
+    an ACK of a message to another ID (MCP-ACK-5): a consequence of the wrong number, not a
+    second violation. The copy still owed its ACK: an ACK naming something else then is
+    ambiguous, and the copy's ACK decides it, as for a copy sent after the first ACK."""
+    from tests.conformance.monitor_faults import _finish, _started
+
+    s = _started(challenge=2)
+    seq, data = s.send(0, 1, Action.WP_OFF)
+    s.tick(0.2)
+    s.raw(0, data, to=1)  # the copy, before any ACK
+    s.tick(0.01)
+    s.ack(1, 0, seq)  # the ACK of the first
+    s.tick(0.005)
+    other, _ = s.send(0, 2, Action.WP_OFF)
+    assert other == (seq + 1) & 0xFFFF
+    s.tick(0.002)
+    s.ack(1, 0, other if copy_ack == "plus-one" else seq)  # the copy's ACK
+    s.tick(0.002)
+    s.ack(2, 0, other)
+    if acks_other:
+        s.tick(0.002)
+        s.ack(1, 0, other)
+    s.tick(0.5)
+    rules = {v.rule for v in _finish(s, steps=False).judge()}
+    assert rules & {"MCP-ACK-2", "MCP-ACK-5"} == want, rules
