@@ -34,6 +34,7 @@ LONG_FIRST = (
     "test_reader.py::test_mcap_cut_at_every_byte[1]",
     "test_mutants.py::test_mutant_is_caught_with_its_rule[ack-first-copy-only]",
     "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[dup-seq-only]",
+    "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[ack-before-accept]",
     "test_readme_ci.py::test_the_ci_snippets_run_as_written",
     "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
     # the Nsqd run (-m "slow and nsqd"), which waits more than it computes
