@@ -41,9 +41,8 @@ def status_line(engine: str, p: Progress) -> str:
 
 
 class LiveDisplay:
-    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` (or ``every``)
-    otherwise: the
-    display both campaigns share (MCP's :class:`LiveProgress`, Nsqd's
+    """A rich Live panel on a terminal; a plain status line every ``STATUS_S`` (or ``every``,
+    ``mcp-fuzz --status-every``) otherwise: the display both campaigns share (MCP's :class:`LiveProgress`, Nsqd's
     ``fuzz.stream_progress.StreamLive``), each giving its ``first`` panel, ``render`` and
     ``status`` line of what it is shown."""
 

@@ -96,12 +96,6 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
                      lambda it: it.nodeid.startswith(WAITERS))
 
 
-#: The project's packages (pyproject.toml's), compiled by a parallel run's controller before its
-#: workers start.
-PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "reports", "reference_impl", "conformance", "fuzz",
-            "captures", "soak")
-
-
 def pytest_configure(config: pytest.Config) -> None:
     """On a fresh clone each of ``-n N`` workers compiles the same modules and rewrites the same
     test files at once, N times the work of one (the quick tests: 68 s cold, 57 s warm). The
@@ -115,8 +109,11 @@ def pytest_configure(config: pytest.Config) -> None:
     import compileall
     from pathlib import Path
 
+    import tomllib
+
     root = Path(__file__).resolve().parents[1]
-    for name in (*PACKAGES, "tests"):
+    packages = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["importlinter"]["root_packages"]
+    for name in (*packages, "tests"):
         compileall.compile_dir(str(root / name), quiet=2)
     try:
         from _pytest.assertion import rewrite

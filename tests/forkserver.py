@@ -234,6 +234,10 @@ def serve(path: str) -> None:
                     pass
                 conn.close()
 
+    listener.close()
+    os.unlink(path)
+    os.rmdir(os.path.dirname(path))  # the caller's mkdtemp
+
 
 if __name__ == "__main__":
     serve(sys.argv[1])
