@@ -180,12 +180,17 @@ VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", 
 
 
 # ---------------------------------------------------------------- shared state
+#: kinds of wrong ACK (MCP-RTX-2): the wrong seq from the message's destination (a stale ACK is
+#: one too), and the message's seq from another node
+WRONG_SEQ, WRONG_SRC = 1, 2
+
+
 class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
-                 "heard", "run_delays", "owed")
+                 "heard", "run_delays", "owed", "wrong_at")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool, rd: int | None = None) -> None:
@@ -201,6 +206,9 @@ class _Exchange:
         self.acks: list[tuple[int, int]] = []
         self.owed = 0  # copies that left before its first ACK came back, each owed an ACK
         self.wrong_ack: tuple[int, int] | None = None
+        #: kind (WRONG_SEQ / WRONG_SRC) -> t_ns of the latest wrong ACK of that kind while it
+        #: awaited its ACK: a copy well after it shows its sender ignores that kind (``ignores``)
+        self.wrong_at: dict[int, int] | None = None
         self.tester = tester
         self.bcast = bcast
         self.flags = 0  # bits: rules already reported on this exchange
@@ -243,7 +251,7 @@ class _Node:
                  "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
                  "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed", "taken",
-                 "taken_before")
+                 "taken_before", "ignores")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -261,6 +269,9 @@ class _Node:
         self.taken: deque[tuple[int, int]] = deque(maxlen=TAKEN_KEPT)
         self.taken_before: tuple[int, ...] = ()
         self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
+        #: bits WRONG_SEQ / WRONG_SRC: kinds of wrong ACK it was seen to ignore (a copy of the
+        #: message well after one): it is not taken to have taken one of that kind (MCP-RTX-2)
+        self.ignores = 0
         self.first_seq: int | None = None  # MCP-SEQ-4
         self.actions: set[int] = set()  # action codes of its new messages so far
         self.seen: set[str] = set()  # rules observed on it (judged, violated or not)

@@ -33,6 +33,8 @@ from judge._monitor_base import (
     MAX_ACK_COPIES,
     NS,
     PASSTHROUGH,
+    WRONG_SEQ,
+    WRONG_SRC,
     _Exchange,
     _Node,
     fmt_ms,
@@ -210,6 +212,7 @@ class ReceiverRules:
         if (pending.dst == src) == (pending.seq == named):
             return
         pending.wrong_ack = (i, t)
+        pending.wrong_at = {**(pending.wrong_at or {}), WRONG_SEQ if pending.dst == src else WRONG_SRC: t}
         if self._complete_for(pending.src, pending.dst):
             g = gaps(pending.copies)
             est = median(g) if g else self.rto_ns

@@ -18,6 +18,7 @@ from judge._monitor_base import (
     RTX_MIN_GAP_NS,
     RTX_TOLERANCE,
     START,
+    WRONG_SEQ,
     _Exchange,
     _Node,
     fmt_ms,
@@ -85,14 +86,18 @@ class RetransmissionRules:
                    f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, then {newer.describe()} "
                    f"{fmt_ms(t - ex.last_t)} after the last: it gave up", [*ex.copies[:MIN_COPIES], (i, t)])
 
-    @staticmethod
-    def _taken_ack(ex: _Exchange) -> tuple[int, int] | None:
+    def _taken_ack(self, ex: _Exchange) -> tuple[int, int] | None:
         """The ACK a sender may have taken for ``ex``'s: a wrong one (the wrong seq from its
         destination, its seq from another node) read after its last copy, or an ACK from its
-        destination that was already there, with no copy of ``ex`` after its first."""
-        if ex.wrong_ack is not None and ex.wrong_ack[1] >= ex.last_t:
-            return ex.wrong_ack
-        if ex.stale_ack is not None and len(ex.copies) == 1:
+        destination that was already there, with no copy of ``ex`` after its first -- of a
+        kind the sender was not seen to ignore (it retransmitted well after one: a sender
+        that never waits is then MCP-BLK-1/3's, not taken for one that took a stale ACK)."""
+        ignores = self._nodes[ex.src].ignores
+        wrong = ex.wrong_ack
+        if wrong is not None and wrong[1] >= ex.last_t and ex.wrong_at is not None:
+            if any(k & ~ignores for k, wt in ex.wrong_at.items() if wt >= ex.last_t):
+                return wrong
+        if ex.stale_ack is not None and len(ex.copies) == 1 and not ignores & WRONG_SEQ:
             return ex.stale_ack
         return None
 

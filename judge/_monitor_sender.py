@@ -15,6 +15,7 @@ from judge._monitor_base import (
     DRONE_SENDS,
     END,
     HDR,
+    JITTER_NS,
     MANAGER,
     MANAGER_SENDS,
     MIN_COPIES,
@@ -130,6 +131,10 @@ class SenderRules(RetransmissionRules):
             return
         node = self._nodes[src]
         node.seen.add("MCP-SEQ-2")
+        if ex.wrong_at is not None and not ex.acks:
+            for kind, wrong_t in ex.wrong_at.items():
+                if t - wrong_t > JITTER_NS:  # retransmitted after reading it: not taken
+                    node.ignores |= kind
         if len(ex.copies) == MIN_COPIES and not ex.acks and not ex.bcast:
             node.seen.add("MCP-RTX-1")  # the copies the rule asks for, seen: on any trace
         if ex.bcast:

@@ -241,11 +241,9 @@ def _manager_finishes(s: Script, kw: dict[str, object]) -> Script:
     return s
 
 
-def rtx2_moves_on() -> Script:
-    """A manager that takes a wrong-seq ACK for its Start_Mission's: at once, with no copy
-    after it, it sends the next drone its Start_Mission; the right ACK comes 155 ms later
-    (before the next copy would have been due). What it did after the wrong ACK proves it
-    took it: MCP-RTX-2, not a new unicast while one awaits its ACK (MCP-BLK-1)."""
+def withheld_start_and_wrong_acks(wrong_seq: bool) -> tuple[Script, dict[str, object], int, bytes]:
+    """Drones 1 and 2 ready; drone 1's Start_Mission sent three times unACKed, then the
+    runner's wrong ACKs: the wrong seq from drone 1 (``wrong_seq``) and its seq from drone 2."""
     s = Script((1, 2), vehicle=False)
     kw = _runner_drones(s)
     seq, data = s.send(0, 1, Action.START_MISSION)
@@ -253,8 +251,18 @@ def rtx2_moves_on() -> Script:
         s.tick(s.rto)
         s.raw(0, data, to=1)
     s.tick(0.01)
-    s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)  # the wrong seq from drone 1
+    if wrong_seq:
+        s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)  # the wrong seq from drone 1
     s.ack(2, 0, seq, origin=TESTER)  # its seq, from drone 2
+    return s, kw, seq, data
+
+
+def rtx2_moves_on() -> Script:
+    """A manager that takes a wrong-seq ACK for its Start_Mission's: at once, with no copy
+    after it, it sends the next drone its Start_Mission; the right ACK comes 155 ms later
+    (before the next copy would have been due). What it did after the wrong ACK proves it
+    took it: MCP-RTX-2, not a new unicast while one awaits its ACK (MCP-BLK-1)."""
+    s, kw, seq, data = withheld_start_and_wrong_acks(wrong_seq=True)
     s.tick(0.0005)
     t_moved = s.t
     s.send(0, 2, Action.START_MISSION)  # taken: the next drone's Start_Mission at once
@@ -268,20 +276,15 @@ def rtx2_moves_on() -> Script:
 
 def rtx2_takes_a_stale_ack() -> Script:
     """A manager that takes any ACK from the destination: the runner's wrong-source ACK
-    from drone 2 (sent while drone 1's Start_Mission awaited its ACK) is still unanswered
-    when drone 2's Start_Mission goes out, and the manager sends the next command at once,
-    before drone 2's own ACK: MCP-RTX-2 (as the cases judge it), not MCP-BLK-1."""
-    s = Script((1, 2), vehicle=False)
-    kw = _runner_drones(s)
-    seq, data = s.send(0, 1, Action.START_MISSION)
-    for _ in range(2):
-        s.tick(s.rto)
-        s.raw(0, data, to=1)
-    s.tick(0.01)
-    s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)
-    s.ack(2, 0, seq, origin=TESTER)
+    from drone 2 (sent while drone 1's Start_Mission awaited its ACK: not from drone 1, so
+    drone 1's Start_Mission goes on) is still unanswered when drone 2's Start_Mission goes
+    out, and the manager sends the next command at once, before drone 2's own ACK: MCP-RTX-2
+    (as the cases judge it), not MCP-BLK-1. (Had it retransmitted after a wrong seq from the
+    destination, it would not be taken for one that takes a stale ACK:
+    ``test_a_manager_seen_ignoring_wrong_acks_that_never_waits_is_blk_3s``.)"""
+    s, kw, seq, data = withheld_start_and_wrong_acks(wrong_seq=False)
     s.tick(s.rto - 0.01)
-    s.raw(0, data, to=1)  # a correct retransmission: the wrong ACKs did not end it
+    s.raw(0, data, to=1)  # a correct retransmission: the wrong-source ACK did not end it
     s.tick(0.004)
     s.ack(1, 0, seq, origin=TESTER)
     s.tick(0.01)

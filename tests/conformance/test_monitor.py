@@ -151,6 +151,43 @@ def test_copies_sent_before_a_late_starting_node_showed_itself_went_unheard(unhe
     assert {v.rule for v in s.judge()} >= {"MCP-ACK-1"}
 
 
+@pytest.mark.parametrize("ignored", [True, False])
+def test_a_manager_seen_ignoring_wrong_acks_that_never_waits_is_blk_3s(ignored):
+    """The runner's wrong ACKs while drone 1's Start_Mission awaits its ACK (the wrong seq from
+    drone 1, drone 1's seq from drone 2) and a manager that retransmits after them: it ignores
+    both kinds. Drone 2's wrong-source ACK is still unanswered when drone 2's Start_Mission
+    goes out, and 20 ms later, before its ACK, the manager sends drone 2 its WP_List. It never
+    waits for Start_Mission's ACK (MCP-BLK-3); it is not taken for a manager that took drone
+    2's stale ACK for it (MCP-RTX-2: a side-by-side run's false alarm on the sample manager's
+    no-wait-start-ack, whose serial run gave BLK-3). A manager that was not seen ignoring a
+    wrong seq from the destination (it took drone 1's: no copy after it) still is RTX-2's."""
+    from tests.conformance.monitor_faults import withheld_start_and_wrong_acks
+
+    s, kw, seq, data = withheld_start_and_wrong_acks(wrong_seq=True)
+    if ignored:
+        s.tick(s.rto - 0.01)
+        s.raw(0, data, to=1)  # retransmitted after both wrong ACKs
+        s.tick(0.004)
+    else:
+        s.tick(0.0005)  # taken: no copy after the wrong seq from drone 1
+    s.ack(1, 0, seq, origin=TESTER)
+    s.tick(0.01)
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items), **kw)
+    s.tick(0.2)
+    seq2, _ = s.send(0, 2, Action.START_MISSION)
+    s.tick(0.02)
+    s.send(0, 2, Action.WP_LIST, tuple(s.items))  # before Start_Mission's ACK
+    s.tick(0.002)
+    s.ack(2, 0, seq2, origin=TESTER)
+    s.tick(0.002)
+    s.ack(2, 0, s.seq[0] - 1, origin=TESTER)
+    s.tick(0.05)
+    for d in s.drones:
+        s.exchange(0, d, Action.END_MISSION, **kw)
+    rules = {v.rule for v in s.judge()}
+    assert rules == ({"MCP-BLK-3"} if ignored else {"MCP-RTX-2"}), rules
+
+
 def test_the_harness_probing_a_drone_it_plays_mid_mission_is_no_restart():
     """``mcp-conform --role manager`` sends a fresh Mission_Ready of a drone it plays after
     that drone's Start_Mission (a liveness probe, or an input to a manager that starts

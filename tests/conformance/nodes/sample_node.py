@@ -299,9 +299,10 @@ class Autopilot:
 class Waiter:
     """A unicast message of ours awaiting its ACK."""
 
-    def __init__(self, seq: int, ack_src: int) -> None:
+    def __init__(self, seq: int, ack_src: int, action: int) -> None:
         self.seqs = {seq}
         self.ack_src = ack_src
+        self.action = action
         self.event = threading.Event()
 
 
@@ -332,6 +333,7 @@ class Node:
         #: duplicate too (MCP-DUP-4 leaves it open; exactly-once on a reordering link needs it)
         self.recent: dict[Any, deque[int]] = {}
         self.ready_acked = False
+        self.ready_ack_heard = False
         self.linger: float | None = args.linger
         self.record_path: str | None = args.record
         self.deliveries: list[list[Any]] = []
@@ -414,7 +416,7 @@ class Node:
         """Send and retransmit every rto with the same seq and bytes until the right ACK."""
         src = self.id if src is None else src
         seq = self.next_seq()
-        waiter = Waiter(seq, dst if ack_src is None else ack_src)
+        waiter = Waiter(seq, dst if ack_src is None else ack_src, action)
         with self._waiters_lock:
             self._waiters.append(waiter)
         interval = STORM_INTERVAL if "rtx-storm" in self.faults else self.rto
@@ -529,7 +531,7 @@ class Node:
             if "ack-other-id" in self.faults:
                 self.send_ack(msg.src, msg.seq, addr)
             return
-        if "ack-before-accept" in self.faults and not self.ready_acked:
+        if "ack-before-accept" in self.faults and not self.ready_ack_heard:
             self.send_ack(msg.src, msg.seq, addr)
             log(f"{msg.action.name} seq {msg.seq} ACKed but dropped: Mission_Ready not ACKed yet "
                 "(fault ack-before-accept)")
@@ -574,6 +576,10 @@ class Node:
             waiters = list(self._waiters)
         for w in waiters:
             if "rtx-stop-on-any-ack" in self.faults or (msg.src == w.ack_src and msg.payload in w.seqs):
+                if w.action == Action.MISSION_READY:
+                    # set here, by the thread that reads the next datagram too: the sending
+                    # thread's own ``ready_acked`` comes a scheduling delay later
+                    self.ready_ack_heard = True
                 w.event.set()
                 return
         log(f"ignored ACK of seq {msg.payload} from ID {msg.src}")
