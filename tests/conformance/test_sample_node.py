@@ -269,6 +269,28 @@ def test_sigterm_exits_cleanly_while_waiting_for_the_ack(mgr, spawn):
     assert node.wait(20) == 0  # it exits, with 0: how fast is a loaded host's business
 
 
+def test_a_signal_while_the_main_thread_logs_does_not_hang_the_node(mgr):
+    """A loaded CI run's SIGTERM landed while the main thread was inside ``log()``: the handler
+    logged too, waited for the log's lock its own thread held, and the node never exited.
+    Here the main thread holds that lock when the signal comes: the node still exits 0 and
+    says which signal ended it."""
+    script = (
+        "import os, signal, sys, time\n"
+        f"sys.path.insert(0, {str(NODE.parent)!r})\n"
+        "import sample_node as s\n"
+        "def run(self):\n"
+        "    with s._log_lock:\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        self.stop.wait(5)\n"
+        "    return 0 if self.stop.is_set() else 9\n"
+        "s.Node.run = run\n"
+        f"sys.exit(s.main(['--id', '{NODE_ID}', '--bind', '127.0.0.1:0', '--send-to', '127.0.0.1:{mgr.port}']))\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert proc.returncode == 0, proc.stderr
+    assert "signal 15: exiting" in proc.stderr, proc.stderr
+
+
 def test_every_fault_names_a_rule_of_the_spec():
     from spec import SPEC
 

@@ -814,8 +814,13 @@ def main(argv: list[str] | None = None) -> int:
         log(f"cannot bind {args.bind[0]}:{args.bind[1]}: {exc}")
         return 2
 
+    signalled: list[int] = []
+
     def on_signal(signum: int, _frame: Any) -> None:
-        log(f"signal {signum}: exiting")
+        # no log() here: the handler runs in the main thread, which may be inside log() holding
+        # its lock (a loaded host's SIGTERM while "sent MISSION_READY" was being written: the
+        # node hung for good). A list append and an Event set take no lock the main thread holds
+        signalled.append(signum)
         node.stop.set()
 
     signal.signal(signal.SIGTERM, on_signal)
@@ -823,6 +828,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return node.run()
     finally:
+        if signalled:
+            log(f"signal {signalled[0]}: exiting")
         node.close()
 
 
