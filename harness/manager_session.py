@@ -45,6 +45,7 @@ from harness.errors import Inconclusive, SetupError, TargetLost
 from harness.interrupts import INTERRUPTS
 from harness.manager_mission import DronePlayers, Mission, MissionScript
 from harness.manager_side import SideScenario, side_by_side_why_not
+from harness.procs import SPAWN_STARTUP_S
 from harness.session_base import (
     EMBEDDED_RTO,
     MANAGER_ID,
@@ -139,7 +140,7 @@ class ManagerSession(SessionBase):
     def ready_limit(self) -> float:
         """How long the first Mission_Ready of a scenario is retransmitted awaiting the
         manager's ACK (a fresh manager may still be starting)."""
-        return max(20.0, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
+        return max(SPAWN_STARTUP_S, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
 
     @property
     def startup_note(self) -> tuple[str, str]:

@@ -29,8 +29,12 @@ import sys
 import threading
 from typing import IO, Any
 
-__all__ = ["Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
+__all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
 
+#: How long a process the runner spawned (node, manager, backend) gets to show itself before
+#: the run is a setup error: a loaded host starts processes slowly, for reasons that are not
+#: the protocol's
+SPAWN_STARTUP_S = 20.0
 TAIL_LINES = 40
 REPORT_LINES = 40  # lines kept of a sanitizer report's head
 LINE_CHARS = 400

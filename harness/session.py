@@ -32,6 +32,7 @@ from harness.config import RunConfig
 from harness.driver import Datagram, Exchange, TargetDriver, clock_offset_ns
 from harness.errors import SetupError, SpawnFailure, TargetLost
 from harness.liveness import Liveness
+from harness.procs import SPAWN_STARTUP_S
 from harness.session_base import (  # noqa: F401  (re-exported: harness.session names them)
     BROADCAST_ADDRESS,
     DRONE_PORT,
@@ -286,7 +287,7 @@ class Session(SessionBase):
         mark = drv.mark()
         withhold = first or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
-        ready_limit = max(20.0, 4 * self.rto + 5.0)
+        ready_limit = max(SPAWN_STARTUP_S, 4 * self.rto + 5.0)
 
         def is_ready(d: Datagram) -> bool:
             return d.action == _READY

@@ -188,7 +188,7 @@ WRONG_SEQ, WRONG_SRC = 1, 2
 class _Exchange:
     """One message (src, dst, seq) and its copies, with the ACKs naming it."""
 
-    __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks", "wrong_ack",
+    __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
                  "heard", "run_delays", "owed", "wrong_at")
 
@@ -205,10 +205,10 @@ class _Exchange:
         self.last_t = t  # time of the latest copy
         self.acks: list[tuple[int, int]] = []
         self.owed = 0  # copies that left before its first ACK came back, each owed an ACK
-        self.wrong_ack: tuple[int, int] | None = None
-        #: kind (WRONG_SEQ / WRONG_SRC) -> t_ns of the latest wrong ACK of that kind while it
-        #: awaited its ACK: a copy well after it shows its sender ignores that kind (``ignores``)
-        self.wrong_at: dict[int, int] | None = None
+        #: kind (WRONG_SEQ / WRONG_SRC) -> (i, t_ns) of the latest wrong ACK of that kind while
+        #: it awaited its ACK (MCP-RTX-2's input): a copy well after one shows its sender
+        #: ignores that kind (``_Node.ignores``)
+        self.wrong_at: dict[int, tuple[int, int]] | None = None
         self.tester = tester
         self.bcast = bcast
         self.flags = 0  # bits: rules already reported on this exchange
@@ -222,6 +222,11 @@ class _Exchange:
         #: copies before this one may have gone unheard: its receiver showed itself only later
         #: (a node started after the message was first sent; MCP-ACK-1 counts from here)
         self.heard = 0
+
+    @property
+    def wrong_ack(self) -> tuple[int, int] | None:
+        """The latest wrong ACK while it awaited its ACK, of either kind."""
+        return max(self.wrong_at.values(), key=lambda a: a[1]) if self.wrong_at else None
 
     @property
     def first(self) -> tuple[int, int]:

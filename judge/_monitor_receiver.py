@@ -211,8 +211,7 @@ class ReceiverRules:
             return
         if (pending.dst == src) == (pending.seq == named):
             return
-        pending.wrong_ack = (i, t)
-        pending.wrong_at = {**(pending.wrong_at or {}), WRONG_SEQ if pending.dst == src else WRONG_SRC: t}
+        pending.wrong_at = {**(pending.wrong_at or {}), WRONG_SEQ if pending.dst == src else WRONG_SRC: (i, t)}
         if self._complete_for(pending.src, pending.dst):
             g = gaps(pending.copies)
             est = median(g) if g else self.rto_ns

@@ -93,10 +93,9 @@ class RetransmissionRules:
         kind the sender was not seen to ignore (it retransmitted well after one: a sender
         that never waits is then MCP-BLK-1/3's, not taken for one that took a stale ACK)."""
         ignores = self._nodes[ex.src].ignores
-        wrong = ex.wrong_ack
-        if wrong is not None and wrong[1] >= ex.last_t and ex.wrong_at is not None:
-            if any(k & ~ignores for k, wt in ex.wrong_at.items() if wt >= ex.last_t):
-                return wrong
+        taken = [a for k, a in (ex.wrong_at or {}).items() if a[1] >= ex.last_t and k & ~ignores]
+        if taken:
+            return max(taken, key=lambda a: a[1])
         if ex.stale_ack is not None and len(ex.copies) == 1 and not ignores & WRONG_SEQ:
             return ex.stale_ack
         return None

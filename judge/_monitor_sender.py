@@ -132,7 +132,7 @@ class SenderRules(RetransmissionRules):
         node = self._nodes[src]
         node.seen.add("MCP-SEQ-2")
         if ex.wrong_at is not None and not ex.acks:
-            for kind, wrong_t in ex.wrong_at.items():
+            for kind, (_, wrong_t) in ex.wrong_at.items():
                 if t - wrong_t > JITTER_NS:  # retransmitted after reading it: not taken
                     node.ignores |= kind
         if len(ex.copies) == MIN_COPIES and not ex.acks and not ex.bcast:

@@ -332,8 +332,9 @@ class Node:
         #: the last DUP_WINDOW seqs delivered per src: a late copy of an older one is a
         #: duplicate too (MCP-DUP-4 leaves it open; exactly-once on a reordering link needs it)
         self.recent: dict[Any, deque[int]] = {}
+        #: set by the thread that reads datagrams as the ACK arrives (the sending thread learns
+        #: it a scheduling delay later: the ack-before-accept fault read that and raced)
         self.ready_acked = False
-        self.ready_ack_heard = False
         self.linger: float | None = args.linger
         self.record_path: str | None = args.record
         self.deliveries: list[list[Any]] = []
@@ -531,7 +532,7 @@ class Node:
             if "ack-other-id" in self.faults:
                 self.send_ack(msg.src, msg.seq, addr)
             return
-        if "ack-before-accept" in self.faults and not self.ready_ack_heard:
+        if "ack-before-accept" in self.faults and not self.ready_acked:
             self.send_ack(msg.src, msg.seq, addr)
             log(f"{msg.action.name} seq {msg.seq} ACKed but dropped: Mission_Ready not ACKed yet "
                 "(fault ack-before-accept)")
@@ -577,9 +578,7 @@ class Node:
         for w in waiters:
             if "rtx-stop-on-any-ack" in self.faults or (msg.src == w.ack_src and msg.payload in w.seqs):
                 if w.action == Action.MISSION_READY:
-                    # set here, by the thread that reads the next datagram too: the sending
-                    # thread's own ``ready_acked`` comes a scheduling delay later
-                    self.ready_ack_heard = True
+                    self.ready_acked = True
                 w.event.set()
                 return
         log(f"ignored ACK of seq {msg.payload} from ID {msg.src}")
@@ -719,7 +718,7 @@ class Node:
         payload = struct.pack("!HH", self.id, 0) if "ready-bad-payload" in self.faults else b""
         src = self.id + 1 if "mission-ready-wrong-src" in self.faults else self.id
         dst = (5 if self.id != 5 else 6) if "ready-to-wrong-id" in self.faults else MANAGER_ID
-        self.ready_acked = self.send_unicast(Action.MISSION_READY, payload, dst, src=src, ack_src=MANAGER_ID)
+        self.send_unicast(Action.MISSION_READY, payload, dst, src=src, ack_src=MANAGER_ID)
         if "arm-before-start" in self.faults and self.autopilot is not None and not self.started:
             log("asking the autopilot to arm before Start_Mission (fault arm-before-start)")
             self.autopilot.submit("arm")
