@@ -169,6 +169,11 @@ class ReceiverRules:
         copies = ex.copies
         before = copies if copies[-1][1] <= t else ex.copies_before(t)
         complete = self._complete_for(ex.src, ex.dst)
+        if complete and not ex.bcast and not ex.tester:
+            # MCP-RTX-1 observed: a unicast retransmitted until ACKed, judged now, not at its
+            # deadline (``_rtx_expire``), which a trace that ends sooner never reaches: a side-by-
+            # side run and a serial one of the same manager disagreed on "passed"
+            self._nodes[ex.src].seen.add("MCP-RTX-1")
         if complete and len(before) > 1 and action != END:
             # copies that left before this ACK came back (a slow answer, a loaded host) are each
             # owed an ACK too: until they have them, an ACK naming what the node must not ACK

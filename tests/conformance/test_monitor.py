@@ -188,6 +188,21 @@ def test_a_manager_seen_ignoring_wrong_acks_that_never_waits_is_blk_3s(ignored):
     assert rules == ({"MCP-BLK-3"} if ignored else {"MCP-RTX-2"}), rules
 
 
+@pytest.mark.parametrize("tail", [0.0, 10.0])
+def test_a_unicast_acked_is_rtx_1_observed_however_soon_the_trace_ends(tail):
+    """MCP-RTX-1 is observed on a unicast retransmitted until its ACK as the ACK comes, not at
+    the deadline that would judge it unACKed: a trace that ends before that deadline gives the
+    same verdict as a longer one (a side-by-side run and the serial run of the same manager
+    disagreed, "passed" against "not_observed")."""
+    from tests.conformance.monitor_faults import _runner_drones
+
+    s = Script((1,), vehicle=False)
+    kw = _runner_drones(s)
+    s.exchange(0, 1, Action.START_MISSION, **kw)
+    assert _rules(s.judge(tail=tail)) == []
+    assert s.last_monitor.verdicts()[0]["MCP-RTX-1"] == "passed"
+
+
 def test_the_harness_probing_a_drone_it_plays_mid_mission_is_no_restart():
     """``mcp-conform --role manager`` sends a fresh Mission_Ready of a drone it plays after
     that drone's Start_Mission (a liveness probe, or an input to a manager that starts
