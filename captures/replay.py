@@ -290,11 +290,11 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
         BROADCAST_ADDRESS,
         SpawnedNode,
         fill_placeholders,
-        free_udp_port,
+        free_port,
     )
 
     listen = cfg.listen or (("", 0) if cfg.spawn else ("", int(_PORTS["manager" if cfg.role == "drone" else "drone"])))
-    target = cfg.target or ("127.0.0.1", free_udp_port())
+    target = cfg.target or ("127.0.0.1", free_port())
     driver = TargetDriver(target, listen, our_id=MANAGER_ID if cfg.role == "drone" else -1)
     driver.auto_ack = lambda d: False  # the capture's ACKs are replayed, at the capture's pace
     try:

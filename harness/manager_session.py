@@ -52,7 +52,7 @@ from harness.session_base import (
     SessionBase,
     SpawnedNode,
     fill_placeholders,
-    free_udp_port,
+    free_port,
 )
 from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from spec import SPEC
@@ -172,7 +172,7 @@ class ManagerSession(SessionBase):
         cfg = self.cfg
         if self.spawned:
             listen = cfg.listen or ("", 0)
-            target = cfg.target or ("127.0.0.1", free_udp_port())
+            target = cfg.target or ("127.0.0.1", free_port())
         else:
             if cfg.target is None:
                 raise SetupError("no --target and no --spawn")

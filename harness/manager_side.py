@@ -29,7 +29,7 @@ from typing import Any
 from harness.driver import TargetDriver
 from harness.manager_mission import MANAGER_ID, DronePlayers, Mission, MissionScript
 from harness.run_delay import run_delay_ns
-from harness.session_base import SpawnedNode, fill_placeholders, free_udp_port
+from harness.session_base import SpawnedNode, fill_placeholders, free_port
 
 __all__ = ["SideScenario", "side_by_side_why_not"]
 
@@ -65,7 +65,7 @@ class SideScenario:
         self.mission = Mission(kind, drones, challenge, waypoints, obstacles)
         self._script_kw = dict(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id, seed=seed,
                                ready_limit=ready_limit)
-        self.driver = TargetDriver((target_host, free_udp_port(target_host or "127.0.0.1")), (listen_host, 0),
+        self.driver = TargetDriver((target_host, free_port(target_host or "127.0.0.1")), (listen_host, 0),
                                    our_id=MANAGER_ID)
         self.players = DronePlayers(self.driver, drones, seq_base)
         self.node: SpawnedNode | None = None

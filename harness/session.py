@@ -47,7 +47,7 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     _held,
     check_target,
     fill_placeholders,
-    free_udp_port,
+    free_port,
     timing_note,
 )
 from judge.monitor import byte_order_fault
@@ -145,7 +145,7 @@ class Session(SessionBase):
             raise SetupError(f"{cfg.role} role conformance is not available yet")
         if self.spawned:
             listen = cfg.listen or ("", 0)
-            target = cfg.target or ("127.0.0.1", free_udp_port())
+            target = cfg.target or ("127.0.0.1", free_port())
             if self.target_id is None:
                 self.target_id = 1
         else:

@@ -73,22 +73,25 @@ def _ephemeral_low() -> int:
         return 0
 
 
-def free_udp_port(host: str = "127.0.0.1") -> int:
-    """A UDP port free now for a node to bind, chosen below the kernel's ephemeral range where
-    the system has one: a port from bind(0) was handed out again to another process's socket
-    while a spawned node was still starting (a CI run lost a replay to "the node exited with
-    code 2" that way); outside that range only an explicit bind can take it."""
+def free_port(host: str = "127.0.0.1", kind: int = socket.SOCK_DGRAM) -> int:
+    """A port (UDP by default, ``socket.SOCK_STREAM`` for TCP) free now for another process to
+    bind, chosen below the kernel's ephemeral range where the system has one: a port from
+    bind(0) was handed out again to another process's socket while a spawned node was still
+    starting (a CI run lost a replay to "the node exited with code 2" that way; another's test
+    client reached a just-started drone's autopilot link, its bind(0), on the port it had
+    chosen for the drone's ``--live`` server); outside that range only an explicit bind can
+    take it."""
     low = _ephemeral_low()
     if low > 12000:
         for _ in range(50):
             port = _PICK.randrange(10000, low)
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            with socket.socket(socket.AF_INET, kind) as s:
                 try:
                     s.bind((host, port))
                 except OSError:
                     continue
                 return port
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
 

@@ -20,15 +20,12 @@ __all__ = ["dropped_by_kernel", "free_port", "start_capture", "stop_capture", "w
 
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
-    """A port nothing is bound to now (UDP by default, chosen as the runner chooses its nodes'
-    ports: below the ephemeral range; ``socket.SOCK_STREAM`` for TCP)."""
-    if kind == socket.SOCK_DGRAM:
-        from harness.session_base import free_udp_port
+    """A port nothing is bound to now, UDP by default, ``socket.SOCK_STREAM`` for TCP: chosen
+    as the runner chooses its nodes' ports (``harness.session_base.free_port``), below the
+    ephemeral range, where no other process's bind(0) can take it before the tool binds it."""
+    from harness.session_base import free_port as below_ephemeral
 
-        return free_udp_port(host)
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
+    return below_ephemeral(host, kind)
 
 
 def wait_for_port(port: int, host: str = "127.0.0.1", timeout: float = 10.0) -> bool:

@@ -142,9 +142,9 @@ def test_replay_errors_are_one_line(tmp_path):
 
 def test_replay_in_attach_mode():
     """A node already running (attach): replay sends to --target and listens on --listen."""
-    from harness.session import free_udp_port
+    from harness.session import free_port
 
-    target, listen = free_udp_port(), free_udp_port()
+    target, listen = free_port(), free_port()
     node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
                              f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.5", "-q"],
                             cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -98,9 +98,9 @@ def test_interrupted_node_leaves_a_valid_capture(tmp_path, how):
 
 def test_a_mission_end_to_end_is_captured_on_every_node(tmp_path):
     """The manager and a drone, each with --capture: each file holds its side of the mission."""
-    from harness.session import free_udp_port
+    from harness.session import free_port
 
-    pm, pd = free_udp_port(), free_udp_port()
+    pm, pd = free_port(), free_port()
     waypoints = ROOT / "tests" / "reference_impl" / "data" / "challenge.waypoints"
     base = [sys.executable, "-m", "reference_impl"]
     drone = subprocess.Popen(base + ["drone", "--id", "1", "127.255.255.255", str(pd), str(pm), "--rto", "0.2",

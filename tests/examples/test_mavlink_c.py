@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.capturing import free_port as free_udp_port
+from tests.capturing import free_port
 from vehicle.recordfile import read_records
 
 pytestmark = pytest.mark.slow
@@ -48,7 +48,7 @@ class Vehicle:
     """``python -m vehicle`` on UDP with a record file."""
 
     def __init__(self, tmp: Path, *args: str) -> None:
-        self.port = free_udp_port()
+        self.port = free_port()
         self.record = tmp / "record.jsonl"
         self.log = tmp / "vehicle.log"
         with open(self.log, "w") as log:
@@ -160,7 +160,7 @@ def test_mission_upload_takeoff_and_the_dege7_bug(build: Path, vehicle_factory) 
 
 
 def test_receiver_prints_the_udp_out_telemetry(build: Path, vehicle_factory) -> None:
-    port = free_udp_port()
+    port = free_port()
     proc = subprocess.Popen([str(build / "receiver"), "-l", str(port), "-n", "14", "-t", "10"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(0.2)

@@ -14,13 +14,14 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+
+from tests.capturing import free_port
 
 pytestmark = pytest.mark.slow
 
@@ -35,12 +36,6 @@ def _env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _fuzz(args: list[str]) -> subprocess.Popen[str]:
@@ -79,7 +74,7 @@ def _finish(proc: subprocess.Popen[str], timeout: float = 90.0) -> tuple[int, st
 def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path: Path) -> None:
     """Item 1: SIGKILL to the attached reference drone mid-campaign. Before: the campaign
     ran on to its end against nothing and kept MCP-ROB-* 'hung after ...' as confirmed."""
-    node_port, listen_port = _free_port(), _free_port()
+    node_port, listen_port = free_port(), free_port()
     node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
                              f"127.0.0.1:{node_port}", "--send-to", f"127.0.0.1:{listen_port}",
                              "--rto", "0.2"], cwd=ROOT, env=_env(),

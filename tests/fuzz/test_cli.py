@@ -9,6 +9,7 @@ import pytest
 from fuzz.cli import UsageError, main
 from fuzz.findings import Finding, FindingStore, load_finding
 from fuzz.replay import shrink
+from tests.capturing import free_port
 
 
 def test_help_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
@@ -184,9 +185,7 @@ def test_outputs_and_services_are_checked_before_the_campaign(tmp_path, engine: 
         os.chmod(ro, 0o700)
         ro = tmp_path / "file" / "out"
         (tmp_path / "file").write_text("x")
-    with socket.socket() as s:  # a port nothing listens on
-        s.bind(("127.0.0.1", 0))
-        dead = s.getsockname()[1]
+    dead = free_port(socket.SOCK_STREAM)  # a port nothing listens on
     for argv, words in ((["--out", str(ro)], "--out"),
                         (["--db", f"redis://127.0.0.1:{dead}/0"], "cannot reach")):
         assert main(["--engine", engine, "--max-cases", "1", *argv]) == 2

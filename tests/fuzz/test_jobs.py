@@ -16,13 +16,8 @@ import pytest
 from fuzz.campaign import run_campaign, run_worker
 from fuzz.config import FuzzConfig
 from fuzz.findings import FindingStore
+from tests.capturing import free_port
 from tests.fuzz.test_faulty_nodes import spawn_command
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture
@@ -30,7 +25,7 @@ def redis_url(tmp_path: Path) -> Iterator[str]:
     exe = shutil.which("redis-server")
     if exe is None:
         pytest.skip("redis-server is not installed (Debian package redis-server, .ci/apt-tools)")
-    port = _free_port()
+    port = free_port(socket.SOCK_STREAM)
     proc = subprocess.Popen([exe, "--port", str(port), "--bind", "127.0.0.1", "--save", "",
                              "--appendonly", "no", "--dir", str(tmp_path)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.capturing import free_port
 from tests.forkserver import run_module
 from tests.nsqd_backends.build import FAULTS, built_or_skip
 
@@ -105,9 +106,7 @@ def test_attach_mode_against_a_running_backend(tmp_path):
     """``--target``: the reference backend started by hand (``mcp-node --protocol nsqd``)."""
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port(socket.SOCK_STREAM)
     node = subprocess.Popen([sys.executable, "-m", "reference_impl", "--protocol", "nsqd", "backend",
                              "--bind", f"127.0.0.1:{port}", "--update-period", "0.1"],
                             stdout=subprocess.PIPE, text=True)

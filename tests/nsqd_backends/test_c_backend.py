@@ -26,6 +26,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.capturing import free_port
 from tests.nsqd_backends.build import CFLAGS, FAULTS, SOURCE, available, build
 
 FAST = "0.05"  # --update-period for the tests that are not about UPDATE's timing
@@ -76,12 +77,6 @@ PROBE = frame(3)  # ARM without its bool: always rejected with an ERROR, never c
 
 class Closed(ConnectionError):
     """The backend closed the connection."""
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Client:
@@ -176,7 +171,7 @@ def update(body: bytes) -> tuple[int, ...]:
 
 class Backend:
     def __init__(self, exe: Path, log: Path, args: tuple[str, ...], crash_ok: bool) -> None:
-        self.port = free_port()
+        self.port = free_port(socket.SOCK_STREAM)
         self.log, self.crash_ok = log, crash_ok
         with open(log, "wb") as err:
             self.proc = subprocess.Popen([str(exe), "--port", str(self.port), *args],

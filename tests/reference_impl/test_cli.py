@@ -17,6 +17,7 @@ import pytest
 from reference_impl.cli import _addresses, build_parser, main
 from spec import SPEC
 from spec.codec import MANAGER_ID, Action
+from tests.capturing import free_port
 from tests.reference_impl.test_drone import FakePeer
 from vehicle import SimVehicle, make_probe
 
@@ -109,9 +110,7 @@ def test_address_defaults_follow_the_description() -> None:
 def test_unreachable_autopilot_exits_2_in_one_line() -> None:
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port(socket.SOCK_STREAM)  # nothing listens there
     code, out, err = finish(spawn("drone", "--id", "1", "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9",
                                   "--mavlink", f"tcp:127.0.0.1:{port}"))
     assert code == 2
@@ -167,11 +166,8 @@ def test_the_runner_spawn_command(tmp_path: Path) -> None:
     runner = FakePeer()
     v = SimVehicle(fix_withheld=True)
     v.start()
-    import socket
 
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        target = s.getsockname()[1]
+    target = free_port()
     proc = spawn("drone", "--id", "4", "--bind", f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{runner.port}",
                  "--mavlink", v.url, "--rto", "0.2")
     try:

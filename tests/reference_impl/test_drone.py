@@ -13,6 +13,7 @@ import pytest
 
 from reference_impl.drone import Drone, DroneConfig, RoleError, action_name
 from spec.codec import MANAGER_ID, Action, DecodeError, Message, MissionItem, decode, encode
+from tests.capturing import free_port
 from vehicle import SimVehicle, make_probe
 
 RTO = 0.2
@@ -282,10 +283,7 @@ def test_stop_while_waiting_for_the_fix(vehicle: SimVehicle, manager: FakePeer, 
 
 
 def test_unreachable_autopilot_is_a_role_error(manager: FakePeer) -> None:
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()  # nothing listens there now
+    port = free_port(socket.SOCK_STREAM)  # nothing listens there now
     cfg = DroneConfig(drone_id=1, bind_host="127.0.0.1", local_port=0, remote_host="127.0.0.1",
                       remote_port=manager.port, mavlink_url=f"tcp:127.0.0.1:{port}", rto=RTO)
     with pytest.raises(RoleError, match="cannot connect to the autopilot"):
