@@ -8,7 +8,6 @@ runner hands it (``make_context``). Neither role's session imports the other's m
 from __future__ import annotations
 
 import contextlib
-import random
 import shlex
 import socket
 from collections.abc import Callable
@@ -24,6 +23,7 @@ from harness.procs import ManagedProcess
 from harness.run_delay import run_delay_ns
 from spec import SPEC
 from traceio.recorder import NODE_METADATA
+from vehicle.ports import free_port  # noqa: F401  (re-exported: the runner's and the tests' ports)
 
 MANAGER_ID = int(SPEC.protocol["manager_id"])
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
@@ -59,41 +59,6 @@ def check_target(target: tuple[str, int]) -> tuple[str, int]:
         except OSError as exc:
             raise SetupError(f"--target {host}:{port}: cannot reach {addr[0]}: {exc.strerror}") from None
     return addr
-
-
-_PICK = random.SystemRandom()
-
-
-def _ephemeral_low() -> int:
-    """The lowest port the kernel hands out by itself (Linux's ip_local_port_range)."""
-    try:
-        with open("/proc/sys/net/ipv4/ip_local_port_range", encoding="ascii") as f:
-            return int(f.read().split()[0])
-    except (OSError, ValueError, IndexError):
-        return 0
-
-
-def free_port(host: str = "127.0.0.1", kind: int = socket.SOCK_DGRAM) -> int:
-    """A port (UDP by default, ``socket.SOCK_STREAM`` for TCP) free now for another process to
-    bind, chosen below the kernel's ephemeral range where the system has one: a port from
-    bind(0) was handed out again to another process's socket while a spawned node was still
-    starting (a CI run lost a replay to "the node exited with code 2" that way; another's test
-    client reached a just-started drone's autopilot link, its bind(0), on the port it had
-    chosen for the drone's ``--live`` server); outside that range only an explicit bind can
-    take it."""
-    low = _ephemeral_low()
-    if low > 12000:
-        for _ in range(50):
-            port = _PICK.randrange(10000, low)
-            with socket.socket(socket.AF_INET, kind) as s:
-                try:
-                    s.bind((host, port))
-                except OSError:
-                    continue
-                return port
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 class _Placeholders(dict[str, str]):

@@ -19,18 +19,12 @@ computers send at 1 Hz), so ``SimVehicle.connected`` says the node is on the lin
 
 from __future__ import annotations
 
-import socket
 from typing import Any
 
+from .ports import free_port
 from .server import SimVehicle
 
 TRANSPORTS = ("tcp", "udp", "udpin", "udpout")
-
-
-def _free_udp_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 def start_for_node(transport: str = "tcp", **settings: Any) -> tuple[SimVehicle, str]:
@@ -47,6 +41,6 @@ def start_for_node(transport: str = "tcp", **settings: Any) -> tuple[SimVehicle,
     if transport == "udpout":
         vehicle.start(port=None, udp_in=("127.0.0.1", 0))
         return vehicle, vehicle.udp_in_url
-    port = _free_udp_port()
+    port = free_port()  # below the ephemeral range: no other bind(0) takes it first
     vehicle.start(port=None, udp_out=[("127.0.0.1", port)])
     return vehicle, f"{transport}:127.0.0.1:{port}"

@@ -7,7 +7,8 @@ import socket
 
 import pytest
 
-from harness.session_base import _ephemeral_low, free_port
+from harness.session_base import free_port
+from vehicle.ports import ephemeral_low
 
 
 @pytest.mark.parametrize("kind", [socket.SOCK_DGRAM, socket.SOCK_STREAM], ids=["udp", "tcp"])
@@ -15,7 +16,7 @@ def test_a_nodes_port_is_free_and_below_the_ephemeral_range(kind):
     """UDP for a node's MCP socket; TCP for a tool's ``--live`` server or an Nsqd backend (a
     loaded CI run's test, given a TCP port from bind(0) for a drone's ``--live``, reached the
     drone's autopilot link, which bind(0) had handed the same port)."""
-    low = _ephemeral_low()
+    low = ephemeral_low()
     if low <= 12000:
         pytest.skip(f"no ephemeral range above 12000 here ({low}): bind(0) is all there is")
     ports = {free_port(kind=kind) for _ in range(20)}
