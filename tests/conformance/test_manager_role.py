@@ -5,6 +5,8 @@ nothing else failed or warned), and correct managers unlike ours (no false alarm
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from spec import SPEC
@@ -195,29 +197,32 @@ def side_by_side_and_serial(*args: str):
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=2) as pool:
-        side, serial = pool.map(lambda a: run_conform(*a), [args, (*_without_capture(args), "--serial")])
+        side, serial = pool.map(lambda a: run_conform(*a), [args, (*_serial_capture(args), "--serial")])
     assert serial.report.get("cases") and side.report.get("cases"), (serial.explain(), side.explain())
     (side_cases, side_mon), (serial_cases, serial_mon) = _decided(side), _decided(serial)
     case_diff = {k: (side_cases.get(k), serial_cases.get(k)) for k in side_cases.keys() | serial_cases.keys()
                  if side_cases.get(k) != serial_cases.get(k)}
     # (node, rule, side-by-side verdict, serial verdict): what differs, not two whole reports
     mon_diff = verdict_differences(side_mon or {}, serial_mon or {})
-    assert not case_diff and not mon_diff, (case_diff, mon_diff, side.explain(), serial.explain())
+    assert not case_diff and not mon_diff, (case_diff, mon_diff, "captures: " + " ".join(
+        a for a in (*args, *_serial_capture(args)) if a.endswith(".mcap")), side.explain(), serial.explain())
     assert side.rc == serial.rc
     assert "the silent drone's scenario runs beside it" in side.output, side.output
     assert "runs beside it" not in serial.output, serial.output
     return side
 
 
-def _without_capture(args: tuple[str, ...]) -> tuple[str, ...]:
-    out, skip = [], False
+def _serial_capture(args: tuple[str, ...]) -> tuple[str, ...]:
+    """The serial run's arguments: ``--capture X`` becomes ``X``'s sibling ``*-serial.mcap``,
+    so a disagreement leaves both runs' traffic (a loaded CI run's serial run alone said
+    MCP-RTX-2 failed for the no-wait-start-ack manager, and its trace was not kept)."""
+    out, capture = [], False
     for a in args:
-        if skip:
-            skip = False
+        if capture:
+            a, capture = str(Path(a).with_name(Path(a).stem + "-serial.mcap")), False
         elif a == "--capture":
-            skip = True
-        else:
-            out.append(a)
+            capture = True
+        out.append(a)
     return tuple(out)
 
 
