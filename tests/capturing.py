@@ -21,9 +21,9 @@ __all__ = ["dropped_by_kernel", "free_port", "start_capture", "stop_capture", "w
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
     """A port nothing is bound to now, UDP by default, ``socket.SOCK_STREAM`` for TCP: chosen
-    as the runner chooses its nodes' ports (``harness.session_base.free_port``), below the
-    ephemeral range, where no other process's bind(0) can take it before the tool binds it."""
-    from harness.session_base import free_port as below_ephemeral
+    as the runner chooses its nodes' ports (``vehicle.ports.free_port``, which takes the host
+    first), below the ephemeral range, where no other process's bind(0) can take it first."""
+    from vehicle.ports import free_port as below_ephemeral
 
     return below_ephemeral(host, kind)
 

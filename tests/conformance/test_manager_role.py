@@ -196,8 +196,9 @@ def side_by_side_and_serial(*args: str):
     every monitor verdict alike. The default run is returned."""
     from concurrent.futures import ThreadPoolExecutor
 
+    serial_args = (*_serial_capture(args), "--serial")
     with ThreadPoolExecutor(max_workers=2) as pool:
-        side, serial = pool.map(lambda a: run_conform(*a), [args, (*_serial_capture(args), "--serial")])
+        side, serial = pool.map(lambda a: run_conform(*a), [args, serial_args])
     assert serial.report.get("cases") and side.report.get("cases"), (serial.explain(), side.explain())
     (side_cases, side_mon), (serial_cases, serial_mon) = _decided(side), _decided(serial)
     case_diff = {k: (side_cases.get(k), serial_cases.get(k)) for k in side_cases.keys() | serial_cases.keys()
@@ -205,7 +206,7 @@ def side_by_side_and_serial(*args: str):
     # (node, rule, side-by-side verdict, serial verdict): what differs, not two whole reports
     mon_diff = verdict_differences(side_mon or {}, serial_mon or {})
     assert not case_diff and not mon_diff, (case_diff, mon_diff, "captures: " + " ".join(
-        a for a in (*args, *_serial_capture(args)) if a.endswith(".mcap")), side.explain(), serial.explain())
+        a for a in (*args, *serial_args) if a.endswith(".mcap")), side.explain(), serial.explain())
     assert side.rc == serial.rc
     assert "the silent drone's scenario runs beside it" in side.output, side.output
     assert "runs beside it" not in serial.output, serial.output
