@@ -275,7 +275,8 @@ class _Node:
         self.taken_before: tuple[int, ...] = ()
         self.last_unicast: _Exchange | None = None  # its latest new unicast (MCP-BLK-1)
         #: bits WRONG_SEQ / WRONG_SRC: kinds of wrong ACK it was seen to ignore (a copy of the
-        #: message well after one): it is not taken to have taken one of that kind (MCP-RTX-2)
+        #: message well after one), or both once it was seen moving on with no ACK to take
+        #: (MCP-BLK-1/3): it is not taken to have taken one of that kind (MCP-RTX-2)
         self.ignores = 0
         self.first_seq: int | None = None  # MCP-SEQ-4
         self.actions: set[int] = set()  # action codes of its new messages so far

@@ -19,6 +19,7 @@ from judge._monitor_base import (
     RTX_TOLERANCE,
     START,
     WRONG_SEQ,
+    WRONG_SRC,
     _Exchange,
     _Node,
     fmt_ms,
@@ -90,8 +91,9 @@ class RetransmissionRules:
         """The ACK a sender may have taken for ``ex``'s: a wrong one (the wrong seq from its
         destination, its seq from another node) read after its last copy, or an ACK from its
         destination that was already there, with no copy of ``ex`` after its first -- of a
-        kind the sender was not seen to ignore (it retransmitted well after one: a sender
-        that never waits is then MCP-BLK-1/3's, not taken for one that took a stale ACK)."""
+        kind the sender was not seen to ignore (it retransmitted well after one, or it moved on
+        before with no ACK to take, ``_stop_and_wait``: a sender that never waits is then
+        MCP-BLK-1/3's, not taken for one that took a stale ACK)."""
         ignores = self._nodes[ex.src].ignores
         taken = [a for k, a in (ex.wrong_at or {}).items() if a[1] >= ex.last_t and k & ~ignores]
         if taken:
@@ -116,8 +118,14 @@ class RetransmissionRules:
 
     def _stop_and_wait(self, pending: _Exchange, newer: _Exchange, t: int, evidence: list[Any],
                        how: str) -> None:
+        """MCP-BLK-1/3, proven: ``newer`` went out while ``pending`` awaited its ACK, with no
+        ACK it could have taken for it. A sender seen moving on so is not taken, later, for
+        one that took a wrong or stale ACK (``_taken_ack``): moving on after one is what it
+        does anyway (the no-wait-start-ack manager's WP_List 20 ms after each Start_Mission,
+        whatever came: MCP-BLK-3, not MCP-RTX-2 when drone 2's stale ACK was there)."""
         if pending.flags & F_SEQ2:
             return
+        self._nodes[pending.src].ignores |= WRONG_SEQ | WRONG_SRC
         if pending.action == START and pending.dst == newer.dst and pending.src == MANAGER:
             self._emit("MCP-BLK-3", MANAGER, t, "no further command to that drone until Start_Mission is ACKed",
                        f"{newer.describe()} sent {how} ({pending.describe()})", evidence)

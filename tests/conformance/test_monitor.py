@@ -188,6 +188,53 @@ def test_a_manager_seen_ignoring_wrong_acks_that_never_waits_is_blk_3s(ignored):
     assert rules == ({"MCP-BLK-3"} if ignored else {"MCP-RTX-2"}), rules
 
 
+@pytest.mark.parametrize("start2_ack_ms", [1, 25])
+def test_a_manager_seen_moving_on_with_no_ack_is_not_taken_for_one_that_takes_a_stale_ack(start2_ack_ms):
+    """The sample manager's no-wait-start-ack, as a loaded CI run's serial run recorded it: each
+    drone's WP_List 20 ms after its Start_Mission, whatever came. Drone 1's went out with no
+    ACK at all to take (MCP-BLK-3, proven); the runner's wrong ACKs came after it, while drone
+    1's WP_List (ACKed) was the manager's latest unicast. Drone 2's wrong-source ACK is still
+    unanswered when drone 2's Start_Mission goes out, and its WP_List follows 20 ms later,
+    before the ACK when the runner is slow to send it (25 ms). A manager seen moving on with
+    no ACK is not taken for one that took drone 2's stale ACK (MCP-RTX-2: the serial run's
+    false alarm; its side-by-side run, ACKed at once, said not_observed): MCP-BLK-3 only."""
+    from tests.conformance.monitor_faults import _runner_drones
+
+    s = Script((1, 2), vehicle=False)
+    kw = _runner_drones(s)
+    seq, data = s.send(0, 1, Action.START_MISSION)
+    s.tick(0.02)
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items), **kw)  # no ACK of Start_Mission yet
+    for _ in range(3):
+        s.tick(s.rto - 0.02 if _ == 0 else s.rto)
+        s.raw(0, data, to=1)
+    s.tick(0.001)
+    s.ack(1, 0, (seq + 0x8000) & 0xFFFF, origin=TESTER)  # the wrong seq from drone 1
+    s.ack(2, 0, seq, origin=TESTER)  # its seq, from drone 2
+    s.tick(s.rto - 0.001)
+    s.raw(0, data, to=1)  # retransmitted after both
+    s.tick(0.001)
+    s.ack(1, 0, seq, origin=TESTER)
+    s.tick(0.001)
+    seq2, _ = s.send(0, 2, Action.START_MISSION)
+    t_start2 = s.t
+    if start2_ack_ms < 20:  # ACKed before the WP_List (the side-by-side run)
+        s.tick(start2_ack_ms / 1000)
+        s.ack(2, 0, seq2, origin=TESTER)
+    s.t = t_start2 + 0.02
+    wp_seq, _ = s.send(0, 2, Action.WP_LIST, tuple(s.items))
+    if start2_ack_ms > 20:  # after it (the serial run, loaded)
+        s.t = t_start2 + start2_ack_ms / 1000
+        s.ack(2, 0, seq2, origin=TESTER)
+    s.tick(0.001)
+    s.ack(2, 0, wp_seq, origin=TESTER)
+    s.tick(0.05)
+    for d in s.drones:
+        s.exchange(0, d, Action.END_MISSION, **kw)
+    rules = {v.rule for v in s.judge()}
+    assert rules == {"MCP-BLK-3"}, rules
+
+
 @pytest.mark.parametrize("tail", [0.0, 10.0])
 def test_a_unicast_acked_is_rtx_1_observed_however_soon_the_trace_ends(tail):
     """MCP-RTX-1 is observed on a unicast retransmitted until its ACK as the ACK comes, not at
