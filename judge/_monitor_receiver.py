@@ -74,6 +74,12 @@ class ReceiverRules:
                 return
             if acks:  # an ACK of a later copy
                 acks.append((i, t))
+                w = self._waiting_copy.get((src, dst))
+                if w is not None and w is not match and w.last_t > match.last_t and w.acks[-1][1] < w.last_t:
+                    # a later copy of another message waits for its ACK: this may be that
+                    # copy's wrong ACK (a copy of 1325 ACKed naming 1326, whose own copy waited
+                    # before it) as well as a re-ACK of ``match`` (``_ack_deadline``)
+                    self._doubtful.add(i)
                 if match.deliveries and node is not None:  # a duplicate not to deliver again
                     node.seen.add("MCP-DUP-1")
             else:
@@ -289,7 +295,16 @@ class ReceiverRules:
                        f"no ACK of {len(heard)} copies" + (f" (and {ex.heard} before the node showed itself)"
                                                            if ex.heard else ""), heard[:MAX_ACK_COPIES])
             return
-        if any(a[1] >= copy[1] for a in ex.acks):
+        after = [a for a in ex.acks if a[1] >= copy[1]]
+        if after:
+            if all(a[0] in self._doubtful for a in after):
+                # each may be another copy's wrong ACK: whether the copy was ACKed (and the
+                # ACKs that came while it waited named what they ACKed, MCP-ACK-4/5) or ACKed
+                # wrongly (MCP-ACK-2) is not proven either way (a scheduled run of the sample
+                # node acking copies with the seq plus 1: a copy of 1326 answered "1327", the
+                # seq of a WP_Off to drone 2, then a copy of 1325 answered "1326")
+                self._ambiguous.pop(id(ex), None)
+                return
             self._decide_ambiguous(ex, node.id, wrong=False)  # they named what they ACKed
             return
         ex.flags |= F_ACK1

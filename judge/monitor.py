@@ -175,6 +175,9 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: waited: the copy's wrong ACKs or what they name, decided at its ACK-1 deadline
         self._waiting_copy: dict[tuple[int, int], Any] = {}
         self._ambiguous: dict[int, tuple[Any, list[tuple[Any, int, int, int]]]] = {}
+        #: indexes of re-ACKs naming a message while a later copy of another one waited for
+        #: its ACK: that copy's wrong ACK as well as the re-ACK (``_acked``)
+        self._doubtful: set[int] = set()
         #: src << 16 | dst -> when src last sent dst a (non-ACK) message, any copy
         self._last_to: dict[int, int] = {}
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it

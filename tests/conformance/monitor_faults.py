@@ -140,6 +140,42 @@ def ack2_copy_acked_with_the_next_seq() -> Script:
     return _finish(s)
 
 
+def ack2_interleaved_copies_acked_with_the_next_seq() -> Script:
+    """``sample_node --fault ack-copies-wrong-seq`` under a scheduled run (cases side by side):
+    the copies of two ACKed WP_Offs (A, then B = A + 1) interleave. B's copy is answered
+    "B + 1", the seq of the harness's message to ID 2 that reached drone 1; A's next copy
+    is answered "A + 1" = B, which also reads as B's copy's ACK. Which ACK answered B's copy is
+    not proven, so neither is an ACK of the message to ID 2 (MCP-ACK-5, the CI run's false
+    alarm): A's copies answered with another seq are MCP-ACK-2's."""
+    from spec.codec import build_datagram
+
+    s = Script((1,), challenge=1)
+    s.ready(1)
+    s.start(1)
+    a, da = s.send(0, 1, Action.WP_OFF, seq=40000, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, a)
+    b, db = s.send(0, 1, Action.WP_OFF, seq=a + 1, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, b)
+    s.raw(0, build_datagram(2, 0, b + 1, int(Action.WP_OFF), b""), to=1, origin=TESTER)  # to ID 2
+    s.tick(0.15)
+    s.raw(0, da, to=1, origin=TESTER)  # A's copy, answered "B"
+    s.tick(0.005)
+    s.ack(1, 0, b)
+    s.tick(0.04)
+    s.raw(0, db, to=1, origin=TESTER)  # B's copy, answered "B + 1"
+    s.tick(0.008)
+    s.ack(1, 0, b + 1)
+    for _ in range(2):
+        s.tick(0.15)
+        s.raw(0, da, to=1, origin=TESTER)  # A's copies, each answered "B"
+        s.tick(0.0003)
+        s.ack(1, 0, b)
+    s.tick(1.5)
+    return _finish(s)
+
+
 def ack4_beside_a_waiting_copy() -> Script:
     """Drone 1 ACKs the broadcast while a copy waits, and then the copy with its own seq: the
     broadcast's ACK is MCP-ACK-4 all the same."""
@@ -769,6 +805,7 @@ FAULTY: dict[str, Fault] = {
     "rtx1-gives-up": Fault("MCP-RTX-1", rtx1),
     "ack2-copy-acked-with-the-next-seq": Fault("MCP-ACK-2", ack2_copy_acked_with_the_next_seq),
     "ack4-beside-a-waiting-copy": Fault("MCP-ACK-4", ack4_beside_a_waiting_copy),
+    "ack2-interleaved-copies-acked-with-the-next-seq": Fault("MCP-ACK-2", ack2_interleaved_copies_acked_with_the_next_seq),
     "rtx1-manager-gives-up-then-acked": Fault("MCP-RTX-1", rtx1_gives_up_then_acked),
     "rtx1-manager-gives-up-and-drops-the-drone": Fault("MCP-RTX-1", rtx1_gives_up_then_drops_the_drone),
     "rtx2-stops-on-wrong-ack": Fault("MCP-RTX-2", rtx2),

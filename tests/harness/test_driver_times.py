@@ -101,3 +101,41 @@ def test_a_preempted_receive_thread_does_not_date_a_datagram_earlier(monkeypatch
     d = drv.received(0)[0]
     assert d.t_ns == arrived
     assert abs(d.t * 1e9 - (arrived - clocks.OFFSET)) < 100_000  # within 0.1 ms, not 30 ms early
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPNS and /proc/net/udp are Linux's")
+@pytest.mark.parametrize("answers", [True, False])
+def test_a_reply_read_late_behind_a_backlog_counts_by_its_arrival_time(answers):
+    """The node answers the WP_Off at once, but 150 datagrams it sent before are still unread
+    and the runner's receive thread takes 10 ms over each (a loaded host, a recorder): the ACK
+    is read ~1.5 s after it came, past the exchange's 0.3 s. It counts: it arrived in time (a
+    loaded CI run's flood probe, ACKed in 0.2 ms, said "no ACK after 5 copies", MCP-ROB-7). A
+    node that does not answer is still unanswered once the backlog is read."""
+    from harness.driver import read_header
+
+    node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    node.bind(("127.0.0.1", 0))
+    node.settimeout(2.0)
+    drv = TargetDriver(("127.0.0.1", node.getsockname()[1]), ("127.0.0.1", 0))
+    listen = drv.open()
+    drv.add_observer(lambda direction, data, addr, t_ns: time.sleep(0.01) if direction == "rx" else None)
+    try:
+        time.sleep(0.1)  # the kernel enables receive timestamps a moment after asking
+        junk = encode(Message(0, 1, 1, Action.ACK, 0))
+        for _ in range(150):
+            node.sendto(junk, ("127.0.0.1", listen[1]))
+        sent = drv.send(Action.WP_OFF)
+        data, addr = node.recvfrom(65535)
+        h = read_header(data)
+        assert h is not None
+        if answers:
+            node.sendto(encode(Message(h[1], h[0], 2, Action.ACK, h[2])), addr)
+        t0 = time.monotonic()
+        ex = drv.exchange(sent, rto=0.1, copies=3)
+        assert ex.acked is answers
+        assert time.monotonic() - t0 < 5.0
+        if answers:
+            assert ex.ack is not None and ex.ack.t - sent.t < 0.3
+    finally:
+        drv.close()
+        node.close()
