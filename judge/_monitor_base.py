@@ -344,6 +344,14 @@ class _Timers:
                 out.append((f[2], f[3]))
 
 
+def late_ack_wait_ns(rto_ns: int, window_ns: int) -> int:
+    """How long a copy of an ACKed message waits to be ACKed again (MCP-ACK-1: "ACKed again,
+    however late"; its latency is MCP-ACK-7's): the monitor's deadline, and the manager-role
+    case's wait for the ACK of its copy of a Mission_Ready (one judge: a loaded host's manager
+    ACKed that copy 287 ms later, past the case's 0.2 s --rto, and the case alone failed it)."""
+    return max(4 * window_ns, 2 * rto_ns, NS)
+
+
 def median(values: list[int]) -> int:
     s = sorted(values)
     n = len(s)

@@ -31,7 +31,6 @@ from judge._monitor_base import (
     JITTER_NS,
     MANAGER,
     MAX_ACK_COPIES,
-    NS,
     PASSTHROUGH,
     WRONG_SEQ,
     WRONG_SRC,
@@ -39,6 +38,7 @@ from judge._monitor_base import (
     _Node,
     fmt_ms,
     gaps,
+    late_ack_wait_ns,
     median,
 )
 from judge._monitor_rtx import F_ACK1, F_FAULTY
@@ -187,7 +187,7 @@ class ReceiverRules:
             # load judged a copy's ACK naming N+1, the next message, to drone 2, MCP-ACK-5)
             ex.owed = len(before)
             self._waiting_copy[(ex.dst, ex.src)] = ex
-            self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._owed_deadline, ex, before[-1])
+            self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._owed_deadline, ex, before[-1])
         if complete and len(before) >= 3 and not ex.tester:
             self._judge_spacing(ex, before, t)
         if ex.addr is not None:
@@ -238,7 +238,7 @@ class ReceiverRules:
                 self._timers.at(t + self.window_ns, self._ack_deadline, ex, None)
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
             self._waiting_copy[(ex.dst, ex.src)] = ex
-            self._timers.at(t + max(4 * self.window_ns, 2 * self.rto_ns, NS), self._ack_deadline, ex, (i, t))
+            self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._ack_deadline, ex, (i, t))
 
     def _ack_rearm(self, now: int, ex: _Exchange) -> None:
         """``ex``'s receiver showed itself only at ``now``, after ``ex``'s ACK-1 deadline: it

@@ -34,6 +34,7 @@ from judge._monitor_base import (
     _Exchange,
     _Node,
     fmt_s,
+    late_ack_wait_ns,
 )
 from spec.mavframe import FrameError, is_frame, parse_frame
 from vehicle.probe import probe_token
@@ -160,7 +161,7 @@ class VehicleRules:
     def _delivery_wait(self) -> int:
         """How long a delivered frame may take to reach the autopilot (a node may queue it
         behind slow work such as a takeoff)."""
-        return max(4 * self.window_ns, 2 * self.rto_ns, NS)
+        return late_ack_wait_ns(self.rto_ns, self.window_ns)
 
     def _vehicle_event(self, t: int, drone: int, ev: VehicleEvent) -> None:
         node = self._node(drone)

@@ -60,6 +60,7 @@ from judge._monitor_base import (
     _Timers,
     action_name,
     byte_order_fault,
+    late_ack_wait_ns,
     role_of,
     unpack_header,
 )
@@ -89,6 +90,7 @@ __all__ = [
     "events_from_mavlink",
     "events_from_vehicle",
     "frame_hex",
+    "late_ack_wait_ns",
 ]
 
 #: Rules the monitor can judge from traffic (and the autopilot link); every other rule of a

@@ -111,6 +111,7 @@ class SampleManager:
         self.last_ready_seq: int | None = None  # dup-seq-only: the last delivered, whoever sent it
         self.ready_event = threading.Event()
         self.acks: list[Message] = []  # every ACK received, in order (each waiter scans its own part)
+        self.acked: set[tuple[int, int]] = set()  # (src, seq) of the messages it ACKed
         self.ack_cond = threading.Condition()
         self.stop = threading.Event()
         self.dropped: set[int] = set()
@@ -145,8 +146,13 @@ class SampleManager:
                 if "ack-ack" not in self.faults:
                     continue
             if not (msg.action == Action.MISSION_READY and "no-ready-ack" in self.faults):
-                self.ack_sock.sendto(encode(Message(msg.src, MANAGER_ID, self.next_seq(), Action.ACK, msg.seq)),
-                                     addr if self.args.ack_to == "source" else self.send_to)
+                ack = encode(Message(msg.src, MANAGER_ID, self.next_seq(), Action.ACK, msg.seq))
+                to = addr if self.args.ack_to == "source" else self.send_to
+                if self.args.copy_ack_delay and (msg.src, msg.seq) in self.acked:  # a copy: late
+                    threading.Timer(self.args.copy_ack_delay, self.ack_sock.sendto, (ack, to)).start()
+                else:
+                    self.ack_sock.sendto(ack, to)
+                self.acked.add((msg.src, msg.seq))
             if msg.action == Action.MISSION_READY:
                 with self.lock:
                     if "count-duplicates" in self.faults:
@@ -274,6 +280,9 @@ def main() -> int:
     p.add_argument("--record", default=None, metavar="FILE",
                    help="write what it sent (JSON: sent as [action, drone], ready, outcome) on exit")
     p.add_argument("--fault", action="append", default=[], choices=sorted(FAULTS))
+    p.add_argument("--copy-ack-delay", type=float, default=0.0, metavar="S",
+                   help="the ACK of a copy of a message it already ACKed leaves S seconds late (correct: "
+                        "ACKed again, however late; receiving is not blocked)")
     p.add_argument("--read-delay", type=float, default=0.0, metavar="S",
                    help="seconds each malformed datagram costs it to read (a slow but correct reader)")
     args = p.parse_args()
