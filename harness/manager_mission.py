@@ -45,7 +45,7 @@ from typing import Any
 from harness.driver import Datagram, Exchange, Sent, TargetDriver, read_header
 from harness.rx_queue import FLOOD_READ_S, wait_read
 from harness.session_base import WithheldCopies
-from judge.monitor import late_ack_wait_ns
+from judge.monitor import late_ack_wait_s
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from spec.generators import malformed_corpus
@@ -374,8 +374,8 @@ class MissionScript:
         inp = Input(label, rule, sent, expect_ack=expect_ack)
         self.m.inputs.append(inp)
         if expect_ack:  # ACKed again, however late: as long as the monitor waits (one judge)
-            wait = late_ack_wait_ns(int(self.rto * 1e9), int(self.ack_window * 1e9)) / 1e9
-            inp.reply = self.driver.wait_for(self.acks_of(sent), wait, self.driver.mark_before(sent))
+            inp.reply = self.driver.wait_for(self.acks_of(sent), late_ack_wait_s(self.rto, self.ack_window),
+                                             self.driver.mark_before(sent))
         if not self.alive():
             inp.died = True
             return False

@@ -352,6 +352,11 @@ def late_ack_wait_ns(rto_ns: int, window_ns: int) -> int:
     return max(4 * window_ns, 2 * rto_ns, NS)
 
 
+def late_ack_wait_s(rto: float, ack_window: float) -> float:
+    """``late_ack_wait_ns`` from the runner's --rto and --ack-window in seconds."""
+    return late_ack_wait_ns(int(rto * NS), int(ack_window * NS)) / NS
+
+
 def median(values: list[int]) -> int:
     s = sorted(values)
     n = len(s)

@@ -60,7 +60,7 @@ from judge._monitor_base import (
     _Timers,
     action_name,
     byte_order_fault,
-    late_ack_wait_ns,
+    late_ack_wait_s,
     role_of,
     unpack_header,
 )
@@ -90,7 +90,7 @@ __all__ = [
     "events_from_mavlink",
     "events_from_vehicle",
     "frame_hex",
-    "late_ack_wait_ns",
+    "late_ack_wait_s",
 ]
 
 #: Rules the monitor can judge from traffic (and the autopilot link); every other rule of a

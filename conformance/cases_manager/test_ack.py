@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from conformance.marks import rules
 from harness.errors import Inconclusive
-from judge.monitor import late_ack_wait_ns
+from judge.monitor import late_ack_wait_s
 from spec import SPEC
 from spec.codec import MANAGER_ID, Action
 
@@ -53,7 +53,7 @@ def test_every_mission_ready_is_acked(node):
                      + (_went_on(m) if first else []))
     bad = [i for i in copies if i.reply is None]
     node.expect_true(not bad, "MCP-ACK-1", "a copy of an ACKed Mission_Ready (same seq and bytes) ACKed again",
-                     f"no ACK within {late_ack_wait_ns(int(node.rto * 1e9), int(node.ack_window * 1e9)) / 1e9:g} s",
+                     f"no ACK within {late_ack_wait_s(node.rto, node.ack_window):g} s",
                      [f"copy: {i.sent.data.hex(' ')}" for i in bad])
 
 
