@@ -14,6 +14,22 @@ acknowledges (None: no message of the conversation has that seq). So two recordi
 different initial seqs read the same, and one message more or less shifts nothing after it.
 Whether the numbers themselves follow the rules is the monitor's question (MCP-SEQ-*).
 
+Passthrough probe tokens are normalised the same way. A runner names each probe it sends
+(``vehicle.probe``: a STATUSTEXT frame ``MCPPROBE:<token>`` in a Mav_Passthrough) so the
+vehicle can count its deliveries; the name is the runner's, and part of it changes from run
+to run: ``conformance.case.Case.probe`` names a probe ``<case id>-<n>-<seq>``, the case's
+n-th probe and the driver's next seq, which depends on how the cases of a batch interleaved
+(``…-1-1323`` in one run, ``…-1-1322`` in the next). A probe's key holds no token but a
+:class:`ProbeKey`: the token's *stem* (a runner's token without its seq: which case's which
+probe; None for another naming) and the token's order of first appearance among the tokens
+of that stem in its sender's stream of the conversation (#1, #2, ...; a token sent again is
+the same number), with the frame's own header fields. So two runs agree, while a probe
+repeated where the other run sent a new one, another case's probe, or a frame changed
+otherwise still differs. The order is counted per stem, not over all of a sender's probes:
+the cases of a batch run side by side, so which case's probe came first is a race. Only
+frames exactly as ``vehicle.make_probe`` builds them are read this way; any other
+passthrough payload is compared byte for byte.
+
 Folding: a datagram that repeats the sender's latest entry in the conversation (same seq,
 action and payload: a retransmission, MCP-RTX-1, or the ACK of one) adds a copy to that
 entry instead of a new one. Malformed datagrams are entries too (action ``None``, their
@@ -23,7 +39,9 @@ header names, or in ``(None, None)`` when they have no whole header.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
+from functools import lru_cache
 from typing import Any, NamedTuple
 
 from spec.codec import (
@@ -36,10 +54,14 @@ from spec.codec import (
     peek_header,
 )
 
-__all__ = ["Conversation", "Entry", "build_conversations", "describe", "entry_fields", "peers_of", "peers_text"]
+__all__ = ["Conversation", "Entry", "ProbeKey", "build_conversations", "describe", "entry_fields",
+           "peers_of", "peers_text", "probe_frame"]
 
 Addr = tuple[str, int] | None
 _ACK = Action.ACK
+_PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
+#: conformance.case.Case.probe's tokens: ``<case id tail>-<n>-<the driver's next seq>``
+_RUNNER_TOKEN = re.compile(r"(.+-[0-9]+)-[0-9]+")
 _NAMES = {int(a): a.name for a in Action}
 
 
@@ -62,6 +84,42 @@ class Entry(NamedTuple):
     data: bytes  # the first copy's bytes
 
 
+class ProbeKey(NamedTuple):
+    """What a passthrough probe's key holds instead of its frame (module docstring)."""
+
+    stem: str | None  # a runner's token without its run-dependent seq; None: another naming
+    ordinal: int  # the token's order of first appearance among its stem's: 1, 2, ...
+    version: int  # MAVLink 1 or 2
+    sysid: int
+    compid: int
+    mavseq: int  # the frame's own sequence byte
+
+
+@lru_cache(maxsize=4096)
+def probe_frame(frame: bytes) -> tuple[str, int, int, int, int] | None:
+    """``(token, version, sysid, compid, mavseq)`` of a probe frame exactly as
+    ``vehicle.make_probe`` builds it (so those fields say everything the bytes say), else None."""
+    from spec.mavframe import FrameError, parse_frame
+    from vehicle.probe import PROBE_PREFIX, make_probe, probe_token
+
+    if PROBE_PREFIX.encode() not in frame:
+        return None
+    try:
+        msg = parse_frame(frame)
+    except FrameError:
+        return None
+    token = probe_token(msg.text) if msg.get_type() == "STATUSTEXT" else None
+    if token is None:
+        return None
+    h = msg.get_header()
+    version = 2 if frame[0] == 0xFD else 1
+    try:
+        canonical = make_probe(token, h.srcSystem, h.srcComponent, h.seq, version=version)
+    except ValueError:
+        return None
+    return (token, version, h.srcSystem, h.srcComponent, h.seq) if canonical == frame else None
+
+
 class Conversation(NamedTuple):
     peers: tuple[Any, Any]  # (lower ID, higher ID); broadcast as BROADCAST_ID
     entries: list[Entry]
@@ -80,6 +138,7 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
     first_seq: dict[int, int] = {}
     latest: dict[tuple[Any, Any], tuple[int, tuple[Any, ...]]] = {}  # (peers, sender) -> (pos, fold key)
     by_seq: dict[tuple[Any, Any, int], int] = {}  # (peers, sender, seq) -> entry position
+    tokens: dict[tuple[Any, ...], dict[str, int]] = {}  # (peers, sender, stem) -> token -> ordinal
     t0: int | None = None
     payload: Any
     key: tuple[Any, ...]
@@ -119,7 +178,16 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
                 key = (src, dst, action, ("ack", what))
                 fold = (src, dst, action, acked)
             else:
-                key = (src, dst, action, payload)
+                content = payload
+                if action == _PASSTHROUGH and isinstance(payload, bytes):
+                    probe = probe_frame(payload)
+                    if probe is not None:
+                        token = probe[0]
+                        runner = _RUNNER_TOKEN.fullmatch(token)
+                        stem = runner.group(1) if runner else None
+                        names = tokens.setdefault((peers, src, stem), {})
+                        content = ProbeKey(stem, names.setdefault(token, len(names) + 1), *probe[1:])
+                key = (src, dst, action, content)
                 fold = (src, dst, action, seq, payload)
         conv = convs.get(peers)
         if conv is None:
@@ -164,6 +232,9 @@ def describe(e: Entry | None, broadcast_id: int = BROADCAST_ID) -> str:
             (f" ({_name(what[2])})" if what is not None else " (no such message)")
     elif isinstance(p, MissionItem):
         body = f" {_item_text(p)}"
+    elif isinstance(e.key[3], ProbeKey):
+        probe = e.key[3]
+        body = f" probe {probe.stem + ' ' if probe.stem else ''}#{probe.ordinal}"
     elif isinstance(p, tuple):
         body = f" [{len(p)} items]"
     elif isinstance(p, bytes):
@@ -190,6 +261,11 @@ def entry_fields(e: Entry) -> dict[str, Any]:
                 out[f"payload.items[{i}].{k}"] = v
     elif isinstance(p, tuple) and not p:
         out["payload.count"] = 0
+    elif isinstance(e.key[3], ProbeKey):
+        for k, v in e.key[3]._asdict().items():
+            out[f"payload.probe.{k}"] = v
+        found = probe_frame(p)
+        out["token"] = found[0] if found else None  # shown, not compared (module docstring)
     elif isinstance(p, bytes):
         out["payload"] = p.hex()
     else:

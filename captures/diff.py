@@ -4,9 +4,10 @@ Not bytes: each capture is read (MCAP, pcap or pcapng, a truncated file up to it
 whole chunk) and folded into conversations (:mod:`captures.conversation`): per pair of
 MCP IDs, the messages in order with who sent them, the action and the decoded payload,
 retransmissions folded into a copy count, sequence numbers normalised per sender
-(MCP-SEQ-4). Each conversation of the golden capture is aligned with the candidate's by
-``difflib.SequenceMatcher`` over the messages' keys, so a message dropped or added shows
-as that one message, not as everything after it. Then, on aligned pairs:
+(MCP-SEQ-4), and so are the runner's passthrough probe tokens (their run-dependent seq
+dropped, each numbered by first appearance). Each conversation of the golden capture is
+aligned with the candidate's by ``difflib.SequenceMatcher`` over the messages' keys, so a
+message dropped or added shows as that one message, not as everything after it. Then, on aligned pairs:
 
 - retransmission counts must agree within ``--copies-tolerance`` (default 1);
 - timing is ignored unless ``--time-tolerance S`` is given, but the largest drift (the
@@ -188,8 +189,8 @@ def _fields_differ(g: Entry, c: Entry) -> tuple[tuple[str, Any, Any], ...]:
     fg, fc = entry_fields(g), entry_fields(c)
     out = []
     for k in list(fg) + [k for k in fc if k not in fg]:
-        if k == "seq":
-            continue  # normalised seqs are shown, not compared (MCP-SEQ-* is the monitor's)
+        if k in ("seq", "token"):
+            continue  # normalised seqs and probe tokens are shown, not compared (their keys are)
         a, b = fg.get(k), fc.get(k)
         if a != b:
             out.append((k, a, b))

@@ -297,3 +297,111 @@ def test_the_harness_liveness_probes_are_not_compared(tmp_path):
             paths.append(path)
         result = diff_sides(load_side(paths[0]), load_side(paths[1]), DiffOptions())
         assert result.same is same, (library, _report(result))
+
+
+# ---------------------------------------------------------------- passthrough probe tokens
+def _probe_run(tokens: list[str], seq0: int = 100, port: int = 7889, t0: int = 10**18,
+               frame=None) -> list[D]:
+    """The manager sends one Mav_Passthrough probe per token to drone 1, each ACKed."""
+    from vehicle.probe import make_probe
+
+    frame = frame or make_probe
+    mgr, drone = ("127.0.0.1", port), ("127.0.0.1", port + 1)
+    out: list[D] = []
+    for n, token in enumerate(tokens):
+        s = (seq0 + n) & 0xFFFF
+        out.append(D(len(out), t0 + len(out) * 1000, mgr, drone,
+                     encode(Message(1, 0, s, Action.MAV_PASSTHROUGH, frame(token)))))
+        out.append(D(len(out), t0 + len(out) * 1000, drone, mgr,
+                     encode(Message(0, 1, 7 + n, Action.ACK, s))))
+    return out
+
+
+# tokens as conformance.case.Case.probe names them: <case id tail>-<n>-<the driver's next seq>,
+# the seq depending on how a batch's cases interleaved (issue 35: -1323 in one run, -1322 next)
+RUN_A = ["ither_acked_nor_acted_on-1-1323", "delivered_once-1-1330", "delivered_once-1-1330",
+         "delivered_once-2-1333"]
+RUN_B = ["ither_acked_nor_acted_on-1-1322", "delivered_once-1-1329", "delivered_once-1-1329",
+         "delivered_once-2-1334"]
+
+
+def test_probe_tokens_that_differ_only_by_the_runners_seq_are_the_same():
+    result = _diff(_probe_run(RUN_A), _probe_run(RUN_B, seq0=4000, port=50000))
+    assert result.same, _report(result)
+    e = result.golden.conversations[(0, 1)].entries[0]
+    from captures.conversation import describe, entry_fields
+
+    assert describe(e) == "0→1 MAV_PASSTHROUGH seq+0 probe ither_acked_nor_acted_on-1 #1"
+    fields = entry_fields(e)
+    assert fields["payload.probe.stem"] == "ither_acked_nor_acted_on-1"
+    assert fields["token"] == RUN_A[0]
+
+
+def test_other_probe_namings_are_numbered_by_first_appearance():
+    """Tokens without the runner's seq (a fuzzer's counters, a timestamp) are their order of
+    first appearance: a token sent again is the same number."""
+    assert _diff(_probe_run(["sent17", "sent99", "sent17"]), _probe_run(["x1", "y", "x1"])).same
+    result = _diff(_probe_run(["sent17", "sent99", "sent17"]), _probe_run(["x1", "y", "z"]))
+    assert [d.kind for d in result.divergences] == ["changed"], _report(result)
+    assert ("payload.probe.ordinal", 1, 3) in result.divergences[0].fields
+
+
+def test_a_probe_repeated_where_the_other_run_sent_a_new_one_differs():
+    """DUP-2 sends one probe twice: a new token the second time is another message."""
+    repeated = ["delivered_once-1-1330", "delivered_once-1-1330"]
+    renamed = ["delivered_once-1-1330", "delivered_once-1-1331"]  # same stem, a new token
+    result = _diff(_probe_run(repeated), _probe_run(renamed))
+    assert [d.kind for d in result.divergences] == ["changed"], _report(result)
+    d = result.divergences[0]
+    assert ("payload.probe.ordinal", 1, 2) in d.fields
+    assert not any(f == "token" for f, _, _ in d.fields)  # the token is shown, never compared
+    assert "probe delivered_once-1 #1" in _report(result)
+
+
+def test_another_cases_probe_or_two_probes_swapped_differ():
+    result = _diff(_probe_run(RUN_A), _probe_run(RUN_A[:3] + ["other_case-2-1333"]))
+    assert [d.kind for d in result.divergences] == ["changed"], _report(result)
+    stem = ("payload.probe.stem", "delivered_once-2", "other_case-2")
+    assert stem in result.divergences[0].fields
+    swapped = [RUN_B[3], RUN_B[1], RUN_B[2], RUN_B[0]]
+    result = _diff(_probe_run(RUN_A), _probe_run(swapped))
+    kinds = {d.kind for d in result.divergences}
+    assert result.divergences and kinds == {"reordered"}, _report(result)
+
+
+def test_a_probe_frame_changed_otherwise_still_differs():
+    """Only frames exactly as vehicle.make_probe builds them are read as probes: another
+    header field or a v1 frame is a difference, and so is a frame make_probe would not build
+    (another severity: compared byte for byte)."""
+    from functools import partial
+
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    from spec.mavframe import pack_message
+    from vehicle.probe import PROBE_PREFIX, make_probe
+
+    golden = _probe_run(RUN_A)
+    for frame in (partial(make_probe, seq=9), partial(make_probe, srcsys=1),
+                  partial(make_probe, version=1)):
+        result = _diff(golden, _probe_run(RUN_B, frame=frame))
+        assert [d.kind for d in result.divergences] == ["changed"] * 4, _report(result)
+
+    def warning(token: str) -> bytes:
+        text = (PROBE_PREFIX + token).encode()
+        msg = mavlink2.MAVLink_statustext_message(mavlink2.MAV_SEVERITY_WARNING, text)
+        return pack_message(msg)
+    result = _diff(golden, _probe_run(RUN_A, frame=warning))
+    assert [d.kind for d in result.divergences] == ["changed"] * 4, _report(result)
+    fields = {f for f, _, _ in result.divergences[0].fields}
+    assert "payload" in fields and "payload.probe.stem" in fields
+
+
+def test_the_ack_of_a_probe_follows_its_probe():
+    """An ACK is keyed by what it acknowledges: the ACK of probe #1 reads the same in both runs;
+    with a probe changed, the ACK's move is that change's consequence, not a second report."""
+    golden = _probe_run(RUN_A)
+    assert _diff(golden, _probe_run(RUN_B, seq0=9)).same
+    changed = RUN_B[:1] + ["something_else-1-1"] + RUN_B[2:]
+    result = _diff(golden, _probe_run(changed))
+    (d,) = result.divergences
+    assert d.golden.action == Action.MAV_PASSTHROUGH, _report(result)
