@@ -30,6 +30,15 @@ the cases of a batch run side by side, so which case's probe came first is a rac
 frames exactly as ``vehicle.make_probe`` builds them are read this way; any other
 passthrough payload is compared byte for byte.
 
+ACKs of messages in flight together are put in the order of those messages. When the
+runner's batch (``conformance._batch``) runs cases side by side, two of them may each send a
+command to the node within a fraction of a millisecond, and which ACK leaves first is the
+node's race (the reference drone ACKed the second of two such Mav_Passthroughs first in one
+run of four): a run of one sender's ACKs with nothing else of the conversation between them,
+each acknowledging a message sent before the run began, reads in the order of the messages
+they acknowledge. An ACK sent before the next command, or one of nothing known, keeps its
+place; how fast each came is the monitor's question (MCP-ACK-7).
+
 Folding: a datagram that repeats the sender's latest entry in the conversation (same seq,
 action and payload: a retransmission, MCP-RTX-1, or the ACK of one) adds a copy to that
 entry instead of a new one. Malformed datagrams are entries too (action ``None``, their
@@ -139,7 +148,9 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
     latest: dict[tuple[Any, Any], tuple[int, tuple[Any, ...]]] = {}  # (peers, sender) -> (pos, fold key)
     by_seq: dict[tuple[Any, Any, int], int] = {}  # (peers, sender, seq) -> entry position
     tokens: dict[tuple[Any, ...], dict[str, int]] = {}  # (peers, sender, stem) -> token -> ordinal
+    acks: dict[tuple[Any, Any], dict[int, int]] = {}  # peers -> ACK's position -> acknowledged's
     t0: int | None = None
+    ack_of: int | None = None  # an ACK's acknowledged entry
     payload: Any
     key: tuple[Any, ...]
     _decode, _peek = decode, peek_header
@@ -173,6 +184,7 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
                 base = first_seq.get(dst)
                 payload = ("?", acked) if base is None else (acked - base) & 0xFFFF
                 pos = by_seq.get((peers, dst, acked))
+                ack_of = pos
                 conv = convs.get(peers)
                 what = conv.entries[pos].key if (pos is not None and conv is not None) else None
                 key = (src, dst, action, ("ack", what))
@@ -202,9 +214,30 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
         latest[(peers, src)] = (pos, fold)
         if seq is not None:
             by_seq[(peers, src, seq)] = pos
+        if action == _ACK and ack_of is not None:
+            acks.setdefault(peers, {})[pos] = ack_of
         entries.append(Entry(src, dst, action, nseq, payload, key, 1, d.t_ns, d.t_ns,
                              d.src_addr, d.dst_addr, d.index, seq, data))
+    for peers, acked in acks.items():
+        _order_acks_in_flight(convs[peers].entries, acked)
     return convs, (t0 or 0)
+
+
+def _order_acks_in_flight(entries: list[Entry], acked: dict[int, int]) -> None:
+    """Each run of one sender's consecutive ACKs, all of messages sent before the run, in the
+    order of those messages (module docstring)."""
+    i, n = 0, len(entries)
+    while i < n:
+        e = entries[i]
+        j = i + 1
+        if i in acked and acked[i] < i:
+            while (j < n and j in acked and acked[j] < i and entries[j].src == e.src
+                   and entries[j].dst == e.dst):
+                j += 1
+            if j - i > 1:
+                run = sorted(range(i, j), key=acked.__getitem__)
+                entries[i:j] = [entries[k] for k in run]
+        i = j
 
 
 def _name(action: int | None) -> str:
