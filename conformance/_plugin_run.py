@@ -544,7 +544,7 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if session.config.pluginmanager.get_plugin("terminalreporter") is None and not state.list_mode:
         state.terminal.summary(run)
     elif run.error is not None and (state.list_mode or state.frontend):
-        state.terminal.error(run.error, run.node)
+        state.terminal.error(run.error, run.node, run.error_detail)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     session.exitstatus = code

@@ -222,9 +222,11 @@ class McpState:
                 # never became ready
                 self.deadline_hit = False
                 if self.startup_expired:
-                    raise SetupError(f"--startup-timeout: no datagram from the node within "
-                                     f"{self.startup_timeout:g} s ({watch.awaited() if watch else 'none'} "
-                                     f"to {listen_text(watch.local if watch else None)})") from None
+                    why = (f"--startup-timeout: no datagram from the node within {self.startup_timeout:g} s "
+                           f"({watch.awaited() if watch else 'none'} to "
+                           f"{listen_text(watch.local if watch else None)})")
+                    unanswered = getattr(session, "startup_unanswered", None)  # with what it saw
+                    raise (unanswered(why) if unanswered is not None else SetupError(why)) from None
                 timed_out = getattr(session, "startup_timed_out", None)
                 if timed_out is not None:
                     raise timed_out(self.cfg.timeout) from None
@@ -241,6 +243,7 @@ class McpState:
             self.disarm()
             self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
             self.run.node = getattr(exc, "node", None)
+            self.run.error_detail = list(getattr(exc, "detail", None) or [])
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
         self.run.target = getattr(session, "target_desc", None) or self.run.target

@@ -82,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
     p.add_argument("--timeout", metavar="S", help="deadline for the whole run (default 600)")
     p.add_argument("--startup-timeout", metavar="S",
-                   help="how long to wait for the node's first datagram (default 60; at most --timeout)")
+                   help="how long to wait for the node's first datagram, and for a spawned node's "
+                        "Mission_Ready (default 60; at most --timeout)")
     p.add_argument("--case-timeout", metavar="S", help="time limit of one case (default: from --rto and --ack-window)")
     p.add_argument("--seed", metavar="N", help="seed of the malformed corpus (default: fixed)")
     p.add_argument("--drones", metavar="1,2,3", help="--role manager: the drone IDs the runner plays (default 1,2,3)")

@@ -74,7 +74,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-ack-window", metavar="S", help="how long 'no reply' is watched (default 2)")
     g.addoption("--mcp-broadcast-id", metavar="N", help="the broadcast MCP ID (default 0xFFFF)")
     g.addoption("--mcp-timeout", metavar="S", help="deadline for the whole run (default 600)")
-    g.addoption("--mcp-startup-timeout", metavar="S", help="how long to wait for the node's first datagram (default 60)")
+    g.addoption("--mcp-startup-timeout", metavar="S", help="how long to wait for the node's first datagram, and for a spawned node's Mission_Ready (default 60)")
     g.addoption("--mcp-case-timeout", metavar="S", help="time limit of one case (default: from --mcp-rto and --mcp-ack-window); pytest-timeout's --timeout applies too where it is shorter")
     g.addoption("--mcp-seed", metavar="N", help="seed of the malformed corpus")
     g.addoption("--mcp-exclude", metavar="PREFIX", action="append", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX (repeatable)")

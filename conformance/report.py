@@ -140,6 +140,7 @@ class RunRecord:
     strict: bool = False
     error: str | None = None
     node: dict[str, Any] | None = None  # a spawn failure: the node's command, exit, stdout, stderr
+    error_detail: list[str] = field(default_factory=list)  # what explains the setup error
     cases: list[CaseRecord] = field(default_factory=list)
     started: float = field(default_factory=time.monotonic)
     started_wall: float = field(default_factory=time.time)
@@ -267,6 +268,8 @@ def build_json(run: RunRecord) -> dict[str, Any]:
     }
     if run.node is not None:
         doc["node"] = run.node
+    if run.error_detail:
+        doc["error_detail"] = list(run.error_detail)
     return doc
 
 
@@ -382,4 +385,5 @@ def run_from_json(doc: dict[str, Any]) -> RunRecord:
     run.cases = [case_from_json(c) for c in doc.get("cases", [])]
     run.finished = run.started + float((doc.get("summary") or {}).get("duration_s") or 0.0)
     run.monitor = doc.get("monitor")
+    run.error_detail = list(doc.get("error_detail") or [])
     return run

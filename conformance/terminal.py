@@ -141,15 +141,16 @@ class TerminalReport:
         """A dim line of what the runner is doing (e.g. before a long startup phase)."""
         self._print(Text(text, style="dim"), soft_wrap=True)
 
-    def error(self, message: str, node: dict[str, Any] | None = None) -> None:
-        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report); a spawn
-        failure quotes the node's own words."""
+    def error(self, message: str, node: dict[str, Any] | None = None, detail: list[str] | None = None) -> None:
+        """Errors go to stderr (a CI log or ``2>`` keeps them apart from the report); ``detail``
+        says what the runner observed (a node that never announced), a spawn failure quotes
+        the node's own words."""
         err = Console(stderr=True, highlight=False, no_color=self.console.no_color)
         with contextlib.suppress(OSError, ValueError):
             if self._before_line is not None:
                 self._before_line()
             err.print(Text(f"error: {message}", style="bold red"), soft_wrap=True, highlight=False)
-            for line in node_lines(node):
+            for line in [f"    {ln}" for ln in detail or []] + node_lines(node):
                 err.print(Text(line, style="dim"), soft_wrap=True, highlight=False)
 
     def listing(self, entries: list[tuple[str, tuple[str, ...], str, str]]) -> None:
@@ -161,7 +162,7 @@ class TerminalReport:
 
     def summary(self, run: RunRecord) -> None:
         if run.error is not None and not run.cases:  # a usage or setup error: its one line
-            self.error(run.error, run.node)
+            self.error(run.error, run.node, run.error_detail)
             return
         monitor = monitor_failures(run)
         outcomes = rule_outcomes(run.cases, run.role, monitor)
@@ -200,5 +201,5 @@ class TerminalReport:
         line = Text(", ").join(parts)
         self._print(line, soft_wrap=True)
         if run.error is not None:
-            self.error(run.error, run.node)
+            self.error(run.error, run.node, run.error_detail)
         self._print(f"suite finished in {run.duration_s:.1f} s", soft_wrap=True)

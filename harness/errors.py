@@ -52,7 +52,15 @@ class Inconclusive(Exception):
 
 
 class SetupError(Exception):
-    """The run cannot start (node never answered, port in use, spawn failed): exit 2."""
+    """The run cannot start (node never answered, port in use, spawn failed): exit 2.
+    ``detail``: what the runner observed that explains it, a few lines (a node that never
+    announced: ``harness.startup_report``); the message itself stays one line."""
+
+    detail: list[str]
+
+    def __init__(self, *args: object, detail: list[str] | None = None) -> None:
+        super().__init__(*args)
+        self.detail = list(detail or [])
 
 
 class TargetLost(Exception):
@@ -87,6 +95,6 @@ class SpawnFailure(SetupError):
     """The spawned node failed to start or exited during startup. ``node`` holds its own
     words for the reports: ``command`` (as run), ``exit``, ``stdout`` and ``stderr`` tails."""
 
-    def __init__(self, message: str, node: dict[str, object]) -> None:
-        super().__init__(message)
+    def __init__(self, message: str, node: dict[str, object], detail: list[str] | None = None) -> None:
+        super().__init__(message, detail=detail)
         self.node = node

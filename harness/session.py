@@ -121,6 +121,9 @@ class Session(SessionBase):
         #: may run cases together (conformance.schedule)
         self.capability_lock = threading.RLock()
         self.period: float | None = None  # that period, as measured at startup
+        self._startup_mark: int | None = None  # the first startup's first datagram (while it runs)
+        self.startup_fix_at: float | None = None  # when this startup gave the vehicle its fix
+        self._startup_waited = 0.0  # how long the startup waited for Mission_Ready (s)
 
     # ------------------------------------------------------------------ properties
     def to_ns(self, t_monotonic: float) -> int:
@@ -181,8 +184,9 @@ class Session(SessionBase):
         if self.spawned:
             self._spawn()
         self.startup_window = (time.monotonic(), None)
-        self._startup_phase(first=observe_startup, measure=measure, diagnose=diagnose)
+        self._startup_phase(first=observe_startup, measure=measure, diagnose=diagnose, initial=True)
         self.startup_window = (self.startup_window[0], time.monotonic())
+        self._startup_mark = None  # started: later failures are the cases' to explain
 
     def close(self) -> None:
         if self.liveness is not None:
@@ -259,35 +263,83 @@ class Session(SessionBase):
 
     # ------------------------------------------------------------------ startup phase
     def _fail_setup(self, why: str) -> SetupError:
-        """A setup error; in spawn mode it quotes the node (its exit, its own words)."""
-        if self.node is None:
-            return SetupError(why)
+        """A setup error; in spawn mode it quotes the node (its exit, its own words). In the
+        run's first startup it also says what the runner observed meanwhile (``detail``)."""
         node = self.node
-        if node.alive():  # it may be on its way out: give it a moment to say why
+        if node is not None and node.alive():  # it may be on its way out: give it a moment to say why
             with contextlib.suppress(Exception):
                 node.proc.wait(timeout=0.2)
+        detail = self._startup_detail()
+        if node is None:  # attach mode: what the runner knows fits the error's one line
+            return SetupError(why + (f" ({'; '.join(detail)})" if detail else ""))
         details = node.details()
         if details["exit"]:  # "the node exited during startup" -> "the node exited with code 3 ..."
             head, _, rest = why.partition("the node exited")
             why = (f"{head}the node {details['exit']}{rest}" if _ else
                    f"{why} (the node {details['exit']})")
-        return SpawnFailure(why, details)
+        return SpawnFailure(why, details, detail)
+
+    def _startup_detail(self) -> list[str]:
+        """What the runner observed in the run's first startup (``harness.startup_report``);
+        [] after it (a restart: the cases' evidence says what happened)."""
+        if self._startup_mark is None or self.driver is None:
+            return []
+        from harness.startup_report import explain_session
+
+        return explain_session(self, self.driver.received(self._startup_mark))
+
+    @property
+    def fix_hold(self) -> float:
+        """How long the fix is withheld after the node connected (MCP-BLK-5's window)."""
+        return max(2 * self.ack_window, 0.5)
+
+    @property
+    def startup_limit(self) -> float | None:
+        """``--startup-timeout`` (never beyond the run's --timeout) when the run gives one: how
+        long the first startup waits for the node's Mission_Ready, as the runner printed."""
+        limit = self.cfg.extra.get("startup_timeout")
+        return None if limit is None else min(float(limit), float(self.cfg.timeout))
+
+    def startup_unanswered(self, why: str | None = None, probed: bool = False) -> SetupError:
+        """A startup ended with no Mission_Ready (and no ACK of a probe, when ``probed``);
+        ``why``: the caller's words (the --startup-timeout's alarm). A setup error that, in
+        the run's first startup, says what the runner observed."""
+        limit = self.startup_limit if self._startup_mark is not None and self.spawned else None
+        if why is None:
+            within = (f"the --startup-timeout of {limit:g} s" if limit is not None
+                      else f"{self._startup_waited:.1f} s")
+            why = (f"the node sent no Mission_Ready within {within}" if not probed else
+                   f"target never answered: no Mission_Ready within {within} and no ACK of a "
+                   f"WP_Off probe to ID {self.target_id if self.target_id is not None else 1}")
+        return self._fail_setup(why)
 
     def startup_timed_out(self, timeout: float) -> SetupError:
         """The run's --timeout fell in the startup phase: a setup error, never case errors."""
         if self.spawned:
             return self._fail_setup(f"the node sent no Mission_Ready within the run's --timeout of {timeout:g} s")
-        return SetupError(f"target never answered within the run's --timeout of {timeout:g} s "
-                          "(no Mission_Ready, no ACK of a probe)")
+        return self._fail_setup(f"target never answered within the run's --timeout of {timeout:g} s "
+                                "(no Mission_Ready, no ACK of a probe)")
 
-    def _startup_phase(self, first: bool, measure: bool = False, diagnose: bool = False) -> None:
+    def _startup_phase(self, first: bool, measure: bool = False, diagnose: bool = False,
+                       initial: bool = False) -> None:
+        """``initial``: the run's first startup (``start``), bounded by ``startup_limit`` and
+        explained when the node never announces (``startup_unanswered``)."""
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
         mark = drv.mark()
+        self._startup_mark = mark if initial else None
+        self.startup_fix_at = None
         withhold = first or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
         ready_limit = max(SPAWN_STARTUP_S, 4 * self.rto + 5.0)
+        # the run's first startup waits as long as --startup-timeout says, counted from the
+        # node's start (restarts and runs without one: the runner's own limits)
+        limit = self.startup_limit if initial else None
+        deadline = None if limit is None else self.startup_window[0] + limit
+
+        def left(default: float) -> float:
+            return default if deadline is None else max(deadline - time.monotonic(), 0.0)
 
         def is_ready(d: Datagram) -> bool:
             return d.action == _READY
@@ -298,32 +350,34 @@ class Session(SessionBase):
         if self.vehicle is not None and first:
             v = self.vehicle
             st.node_connected_to_vehicle = v.wait_for(lambda: v.connected or not self.alive(),
-                                                      timeout=ready_limit) and bool(v.connected)
+                                                      timeout=min(ready_limit, left(ready_limit))
+                                                      ) and bool(v.connected)
             if not self.alive():
                 raise self._fail_setup("the node exited during startup")
             if st.node_connected_to_vehicle:
                 # hold the fix while a node that ignores it would already speak (MCP-BLK-5)
-                hold = max(2 * self.ack_window, 0.5)
+                hold = self.fix_hold
                 drv.wait_for(is_ready, hold, mark)
             st.ready_before_fix = [d for d in drv.received(mark) if is_ready(d)]
-            st.fix_given_at = time.monotonic()
+            st.fix_given_at = self.startup_fix_at = time.monotonic()
             v.give_fix()
         elif self.vehicle is not None:
             self.vehicle.give_fix()
-        wait = ready_limit if self.spawned else 2.5 * self.rto + 1.0
+        # spawn mode: the first startup waits --startup-timeout from the node's start; attach
+        # mode: a node past its startup answers a probe instead
+        wait = left(ready_limit) if self.spawned else 2.5 * self.rto + 1.0
         first_ready = drv.wait_for(ready_or_unreadable, wait, mark)
+        self._startup_waited = wait
         if first_ready is None:
             withhold = False
             self.startup = st
             if not self.alive():
                 raise self._fail_setup("the node exited before sending Mission_Ready")
-            if self.spawned and first:
-                raise self._fail_setup(f"the node sent no Mission_Ready within {wait:.1f} s")
+            if self.spawned and (first or initial):
+                raise self.startup_unanswered()
             probe = self._probe_alive()
             if not probe.acked:
-                raise self._fail_setup(
-                    f"target never answered: no Mission_Ready within {wait:.1f} s and no ACK of a "
-                    f"WP_Off probe to ID {self.target_id if self.target_id is not None else 1}")
+                raise self.startup_unanswered(probed=True)
             st.reason = "no Mission_Ready was seen: the node was already past its startup phase"
             if first:
                 self.startup = st
