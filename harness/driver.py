@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import socket
 import struct
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -27,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.run_delay import delay_for, takes_run_delay
+from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
 from harness.rx_queue import read_backlog
 from judge.attribution import Attribution, Attributor
 from spec.codec import (
@@ -47,11 +47,6 @@ Observer = Callable[..., None]
 BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], None]
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
-#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; Python's socket module does not name it): the
-#: kernel's receive time of each datagram as a struct timespec in the ancillary data
-SO_TIMESTAMPNS = 35
-_TIMESPEC = struct.Struct("@ll")
-_CMSG_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
 MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
 
 
@@ -72,36 +67,6 @@ def clock_offset_ns(tries: int = 5) -> int:
             if best_width < 20_000:
                 break
     return best
-
-
-def kernel_timestamps(sock: socket.socket) -> bool:
-    """Ask the kernel to timestamp each datagram ``sock`` receives; False where it cannot."""
-    if not sys.platform.startswith("linux") or not _CMSG_SPACE:
-        return False
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-    except OSError:
-        return False
-    return True
-
-
-def arrival_ns(ancillary: list[tuple[int, int, bytes]]) -> int | None:
-    """The kernel's receive time (ns since the epoch) from ``recvmsg``'s ancillary data."""
-    for level, kind, data in ancillary:
-        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
-            sec, nsec = _TIMESPEC.unpack_from(data)
-            return sec * 10**9 + nsec
-    return None
-
-
-def recv_stamped(sock: socket.socket, stamped: bool) -> tuple[bytes, Any, int | None]:
-    """One datagram from ``sock``: (data, addr, the kernel's receive time in ns or None).
-    ``stamped``: ``kernel_timestamps(sock)`` said yes. Raises what ``recvfrom`` raises."""
-    if stamped:
-        data, anc, _, addr = sock.recvmsg(65535, _CMSG_SPACE)
-        return data, addr, arrival_ns(anc)
-    data, addr = sock.recvfrom(65535)
-    return data, addr, None
 
 
 _U16BE = struct.Struct("!H")
