@@ -16,12 +16,14 @@ would: it ACKs every well-formed unicast non-ACK message addressed to the runner
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import socket
 import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -200,6 +202,9 @@ class TargetDriver:
         # NodeLost in the waiting thread once the node is declared lost
         self.rx_hooks: list[Callable[[Datagram], None]] = []
         self.tx_hooks: list[Callable[[Sent], None]] = []
+        #: entered around each send in the sending thread, outside the lock (the seq taken and
+        #: the datagram sent under it): it may hold a thread back (conformance._batch)
+        self.tx_gate: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext
         self.check: Callable[[], None] = lambda: None
         self._seq_lock = threading.Lock()
         self.link: Any = None  # ``--impair``: the runner's socket edge through a bad link
@@ -427,6 +432,12 @@ class TargetDriver:
                  seq: int = -1, action: int = -1, sock: socket.socket | None = None,
                  copy_of: Sent | None = None) -> Sent:
         """Send one datagram; ``copy_of``: it is a retransmission of that command."""
+        with self.tx_gate():
+            return self._send_raw(data, addr, dst=dst, src=src, seq=seq, action=action, sock=sock,
+                                  copy_of=copy_of)
+
+    def _send_raw(self, data: bytes, addr: Address | None, *, dst: int, src: int, seq: int, action: int,
+                  sock: socket.socket | None = None, copy_of: Sent | None = None) -> Sent:
         assert self._sock is not None, "driver not open"
         addr = addr or self.target
         hdr = peek_header(data)
@@ -456,10 +467,11 @@ class TargetDriver:
              sock: socket.socket | None = None) -> Sent:
         """Encode and send one new message (a fresh seq unless ``seq`` is given)."""
         src = self.our_id if src is None else src
-        seq = self.next_seq(src) if seq is None else seq
         dst = 0 if dst is None else dst
-        data = encode(Message(dst, src, seq, action, payload))
-        return self.send_raw(data, addr, dst=dst, src=src, seq=seq, action=int(action), sock=sock)
+        with self.tx_gate():  # a thread held back takes its seq once let go: the node sees them in order
+            seq = self.next_seq(src) if seq is None else seq
+            data = encode(Message(dst, src, seq, action, payload))
+            return self._send_raw(data, addr, dst=dst, src=src, seq=seq, action=int(action), sock=sock)
 
     def send_datagram(self, dst: int, seq: int, action: int, payload: bytes, *,
                       src: int | None = None, addr: Address | None = None) -> Sent:
