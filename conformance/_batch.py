@@ -13,6 +13,14 @@ tied by timing only, a node lost to one input, any failure: the batch's verdicts
 discarded and each case runs alone, in the serial order, as ``--serial`` runs it — a fault
 one probe provokes is never judged beside another's.
 
+A case whose observation is a run of its own messages with nothing between them (MCP-DUP-1:
+a message and its copy, the copy of the one *last* delivered from the manager) sends it
+``in_a_row`` (``InARow``): meanwhile the other cases' threads are held back before they
+send, so the node sees the run as a case alone sees it. Without it, a correct node that
+remembers only the last seq it delivered (MCP-DUP-1's own words; an older copy is MCP-DUP-4's
+open question) took the copy for a late copy of an older message when a neighbour's WP_Off
+came between, and delivered it again: a verdict that depended on the interleaving (issue 35).
+
 The cases run as the pytest items they are: the batch starts at its first case's call
 (``run_batch``); each later case's ``node`` fixture takes the context made for it
 (``pending``), and its call returns the verdict its thread ended with (``take``).
@@ -24,6 +32,7 @@ import contextlib
 import inspect
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +42,7 @@ from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cas
 from harness.errors import Inconclusive
 from spec.codec import Action, DecodeError, decode
 
-__all__ = ["BatchRun", "in_plan_order", "run_batch", "serial_from_here", "unclean"]
+__all__ = ["BatchRun", "InARow", "in_plan_order", "run_batch", "serial_from_here", "unclean"]
 
 _ACK = int(Action.ACK)
 
@@ -56,6 +65,53 @@ class BatchRun:
     why: str = ""
     pending: dict[str, Any] = field(default_factory=dict)  # nodeid -> context for its fixture
     taken: set[str] = field(default_factory=set)
+
+
+class InARow:
+    """The batch's runs of consecutive messages: while one case's thread holds the run
+    (``held``), every other case's thread waits before it sends (``gate``, the driver's
+    ``tx_gate``; the seq is taken after the wait, so the node sees the runner's seqs in
+    order); the run starts once no other case is sending. Threads that are no case of the
+    batch (the receiver's ACKs, the liveness watcher's probes from an MCP ID of their own)
+    are never held."""
+
+    def __init__(self, members: dict[int, _Member]) -> None:
+        self._cond = threading.Condition()
+        self._members = members  # thread id -> member
+        self._holder: int | None = None
+        self._sending = 0  # sends of other case threads in progress
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        me = threading.get_ident()
+        with self._cond:
+            while self._holder is not None or self._sending:
+                self._cond.wait(0.05)
+            self._holder = me
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._holder = None
+                self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def gate(self) -> Iterator[None]:
+        me = threading.get_ident()
+        counted = False
+        if me in self._members:
+            with self._cond:
+                while self._holder not in (None, me):
+                    self._cond.wait(0.05)
+                counted = self._holder is None
+                self._sending += counted
+        try:
+            yield
+        finally:
+            if counted:
+                with self._cond:
+                    self._sending -= 1
+                    self._cond.notify_all()
 
 
 def _kwargs(item: pytest.Item, ctx: Any) -> dict[str, Any]:
@@ -191,6 +247,10 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
             m.sent += 1
     drv = session.driver
     drv.tx_hooks.append(count)
+    in_a_row = InARow(by_thread)
+    for m in members:
+        m.ctx.hold_others = in_a_row.held
+    drv.tx_gate = in_a_row.gate
     threads = [threading.Thread(target=_run_one, args=(m, by_thread), name=f"mcp-batch-{n}", daemon=True)
                for n, m in enumerate(members)]
     for t in threads:
@@ -203,6 +263,9 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
         _throw_away(session, batch, leader, members, f"it was cut short ({type(exc).__name__}: {exc})")
         raise
     finally:
+        drv.tx_gate = contextlib.nullcontext
+        for m in members:
+            m.ctx.hold_others = None
         with contextlib.suppress(ValueError):
             drv.tx_hooks.remove(count)
     why = unclean(session, members, since, sent_since)

@@ -90,6 +90,8 @@ class CaseContext(CaseBase):
         self.driver = session.driver
         self.mark = self.driver.mark()
         self._probe_n = 0
+        #: beside other cases (the schedule's batch): holds their sends back (``in_a_row``)
+        self.hold_others: Any = None
 
     # ------------------------------------------------------------------ facts
     @property
@@ -215,6 +217,11 @@ class CaseContext(CaseBase):
     def resend(self, sent: Sent) -> Sent:
         return self.driver.resend(sent)
 
+    def in_a_row(self) -> contextlib.AbstractContextManager[Any]:
+        """A block whose messages reach the node with nothing of other cases' between them,
+        as when the case runs alone (beside the batch's cases, conformance._batch.InARow)."""
+        return self.hold_others() if self.hold_others is not None else contextlib.nullcontext()
+
     def await_ack(self, sent: Sent, copies: int = MAX_ACK_COPIES) -> Exchange:
         """Await the ACK of ``sent``, retransmitting it every --rto (a manager's behaviour)."""
         return self.driver.exchange(sent, rto=self.rto, copies=copies, tail=self.ack_window)
@@ -271,15 +278,16 @@ class CaseContext(CaseBase):
                 break
         return count
 
-    def redeliver(self, d: Delivery, sent: Sent) -> Delivery:
-        """Send a copy of ``sent`` (same bytes, same seq) and await its ACK and the count.
-        The baseline is taken once the earlier delivery's count has stopped moving, so a node
-        that forwards each frame twice (MCP-PAY-8's business) is not taken for one that
-        delivers the copy again (MCP-DUP-1)."""
+    def redeliver(self, d: Delivery, sent: Sent, *, watch: bool = True) -> Delivery:
+        """Send a copy of ``sent`` (same bytes, same seq) and await its ACK and (``watch``;
+        else the caller's ``settle``) the count. The baseline is taken once the earlier
+        delivery's count has stopped moving, so a node that forwards each frame twice
+        (MCP-PAY-8's business) is not taken for one that delivers the copy again (MCP-DUP-1)."""
         before = self.quiet_count(d.probe.token)
         ex = self.await_ack(self.resend(sent))
         out = Delivery(d.probe, ex, before)
-        self.settle(out, expect_more=True)
+        if watch:
+            self.settle(out, expect_more=True)
         return out
 
     def liveness(self) -> Exchange:

@@ -8,7 +8,10 @@ What only waits is overlapped; nothing is weakened to overlap:
   the ACK window (D-6: MCP-ACK-4/5/6, MCP-ROB-1..4) or a delivery count that must not grow
   (MCP-DUP-1/4, MCP-PAY-8) — run together, so their windows are watched once. Each probe is
   its own: a reply is tied to a probe by the seq it names (``judge.attribution``), a
-  delivery by its probe's token, so each case still judges only its own traffic. A batch is
+  delivery by its probe's token, so each case still judges only its own traffic; a case
+  whose messages must reach the node with nothing between them (MCP-DUP-1's message and its
+  copy: the copy of the one last delivered) holds the others' sends back meanwhile
+  (``conformance._batch.InARow``), so a node sees them as it would alone. A batch is
   kept only when it ran *clean*: every case of it passed (or was skipped before sending),
   the node stayed live, and every datagram the node sent meanwhile was an ACK that names
   the seq of a command it had to answer, no more of them than copies of such commands.

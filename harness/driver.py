@@ -16,17 +16,19 @@ would: it ACKs every well-formed unicast non-ACK message addressed to the runner
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import socket
 import struct
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any
 
 from harness.run_delay import delay_for, takes_run_delay
+from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
 from harness.rx_queue import read_backlog
 from judge.attribution import Attribution, Attributor
 from spec.codec import (
@@ -47,11 +49,6 @@ Observer = Callable[..., None]
 BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], None]
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
-#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS; Python's socket module does not name it): the
-#: kernel's receive time of each datagram as a struct timespec in the ancillary data
-SO_TIMESTAMPNS = 35
-_TIMESPEC = struct.Struct("@ll")
-_CMSG_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
 MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
 
 
@@ -72,36 +69,6 @@ def clock_offset_ns(tries: int = 5) -> int:
             if best_width < 20_000:
                 break
     return best
-
-
-def kernel_timestamps(sock: socket.socket) -> bool:
-    """Ask the kernel to timestamp each datagram ``sock`` receives; False where it cannot."""
-    if not sys.platform.startswith("linux") or not _CMSG_SPACE:
-        return False
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-    except OSError:
-        return False
-    return True
-
-
-def arrival_ns(ancillary: list[tuple[int, int, bytes]]) -> int | None:
-    """The kernel's receive time (ns since the epoch) from ``recvmsg``'s ancillary data."""
-    for level, kind, data in ancillary:
-        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
-            sec, nsec = _TIMESPEC.unpack_from(data)
-            return sec * 10**9 + nsec
-    return None
-
-
-def recv_stamped(sock: socket.socket, stamped: bool) -> tuple[bytes, Any, int | None]:
-    """One datagram from ``sock``: (data, addr, the kernel's receive time in ns or None).
-    ``stamped``: ``kernel_timestamps(sock)`` said yes. Raises what ``recvfrom`` raises."""
-    if stamped:
-        data, anc, _, addr = sock.recvmsg(65535, _CMSG_SPACE)
-        return data, addr, arrival_ns(anc)
-    data, addr = sock.recvfrom(65535)
-    return data, addr, None
 
 
 _U16BE = struct.Struct("!H")
@@ -235,6 +202,9 @@ class TargetDriver:
         # NodeLost in the waiting thread once the node is declared lost
         self.rx_hooks: list[Callable[[Datagram], None]] = []
         self.tx_hooks: list[Callable[[Sent], None]] = []
+        #: entered around each send in the sending thread, outside the lock (the seq taken and
+        #: the datagram sent under it): it may hold a thread back (conformance._batch)
+        self.tx_gate: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext
         self.check: Callable[[], None] = lambda: None
         self._seq_lock = threading.Lock()
         self.link: Any = None  # ``--impair``: the runner's socket edge through a bad link
@@ -462,6 +432,12 @@ class TargetDriver:
                  seq: int = -1, action: int = -1, sock: socket.socket | None = None,
                  copy_of: Sent | None = None) -> Sent:
         """Send one datagram; ``copy_of``: it is a retransmission of that command."""
+        with self.tx_gate():
+            return self._send_raw(data, addr, dst=dst, src=src, seq=seq, action=action, sock=sock,
+                                  copy_of=copy_of)
+
+    def _send_raw(self, data: bytes, addr: Address | None, *, dst: int, src: int, seq: int, action: int,
+                  sock: socket.socket | None = None, copy_of: Sent | None = None) -> Sent:
         assert self._sock is not None, "driver not open"
         addr = addr or self.target
         hdr = peek_header(data)
@@ -491,10 +467,11 @@ class TargetDriver:
              sock: socket.socket | None = None) -> Sent:
         """Encode and send one new message (a fresh seq unless ``seq`` is given)."""
         src = self.our_id if src is None else src
-        seq = self.next_seq(src) if seq is None else seq
         dst = 0 if dst is None else dst
-        data = encode(Message(dst, src, seq, action, payload))
-        return self.send_raw(data, addr, dst=dst, src=src, seq=seq, action=int(action), sock=sock)
+        with self.tx_gate():  # a thread held back takes its seq once let go: the node sees them in order
+            seq = self.next_seq(src) if seq is None else seq
+            data = encode(Message(dst, src, seq, action, payload))
+            return self._send_raw(data, addr, dst=dst, src=src, seq=seq, action=int(action), sock=sock)
 
     def send_datagram(self, dst: int, seq: int, action: int, payload: bytes, *,
                       src: int | None = None, addr: Address | None = None) -> Sent:
