@@ -250,12 +250,13 @@ class Flight:
             log.info("climb not finished when the next job came")
 
     async def job_mission(self, waypoints: tuple[Any, ...]) -> None:
-        """WP_List with MAVSDK's raw mission API (item 0 home, as ArduPilot numbers it)."""
+        """WP_List with MAVSDK's raw mission API (item 0 home, as ArduPilot numbers it; MAVSDK
+        wants exactly one item marked current: home)."""
         if not all(_is_position(wp) for wp in waypoints):
             log.warning("WP_List holds an item that is not a position: not uploaded")
             return
         home = await self.telemetry.home()
-        items = [MissionItem(0, mavlink2.MAV_FRAME_GLOBAL_INT, mavlink2.MAV_CMD_NAV_WAYPOINT, 0, 1,
+        items = [MissionItem(0, mavlink2.MAV_FRAME_GLOBAL_INT, mavlink2.MAV_CMD_NAV_WAYPOINT, 1, 1,
                              0, 0, 0, 0, round(home.latitude_deg * 1e7),
                              round(home.longitude_deg * 1e7), home.absolute_altitude_m, 0)]
         for seq, wp in enumerate(waypoints, start=1):
