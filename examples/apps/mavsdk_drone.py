@@ -28,8 +28,9 @@ What it does, with the MCP rule each step keeps (docs: /work/shared/MCP-REQUIREM
    whole transport); its ``MavlinkDirect`` plugin sends any MAVLink message by name and fields.
    So the frame is decoded with pymavlink (ardupilotmega dialect, v1 or v2) and sent once with
    ``MavlinkDirect.send_message``: MAVSDK frames it again with its own system ID, component ID
-   and sequence number, the fields unchanged. A frame that does not decode, or a message
-   MAVSDK's dialect does not know, is logged and not forwarded;
+   and sequence number, the fields unchanged (NaN as JSON ``null``). A frame that does not
+   decode, a field of +-infinity, or a message MAVSDK's dialect does not know, is logged and
+   not forwarded;
 6. End_Mission: the flight work already queued finishes (a climb in progress gets at most
    ``END_GRACE`` more seconds), then ``action.return_to_launch()`` (MCP-BLK-7); the node keeps
    ACKing retransmitted copies for 2 x its timeout, then exits 0.
@@ -163,13 +164,22 @@ class MavsdkMissionHandler(MissionMessageHandlerBase):
         self._job("rtl")
 
 
+def _json_value(value: Any) -> Any:
+    """A field value as MavlinkDirect's JSON takes it: NaN as ``null`` (which MAVSDK encodes
+    as NaN; JSON has no NaN), byte arrays as lists of numbers."""
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, (bytes, bytearray)):
+        return list(value)
+    if isinstance(value, list):
+        return [_json_value(v) for v in value]
+    return value
+
+
 def _direct_message(msg: Any) -> MavlinkMessage:
     """A pymavlink message as MAVSDK's ``MavlinkMessage``: its name and its fields as JSON
     (char arrays as strings, arrays as lists, as pymavlink decoded them)."""
-    fields = {name: getattr(msg, name) for name in msg.get_fieldnames()}
-    for name, value in fields.items():
-        if isinstance(value, (bytes, bytearray)):
-            fields[name] = list(value)
+    fields = {name: _json_value(getattr(msg, name)) for name in msg.get_fieldnames()}
     return MavlinkMessage(message_name=msg.get_type(),
                           target_system_id=int(fields.get("target_system", 0) or 0),
                           target_component_id=int(fields.get("target_component", 0) or 0),
