@@ -171,6 +171,7 @@ class Flight:
     def job_takeoff(self, _arg: Any) -> None:
         """DroneKit's ``arm_and_takeoff``: GUIDED, arm, ``simple_takeoff``, wait for the altitude."""
         v = self.vehicle
+        log.info("arming %s", v.version)  # from AUTOPILOT_VERSION, which DroneKit asks for itself
         v.mode = VehicleMode("GUIDED")
         for _ in range(3):
             v.armed = True
@@ -317,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
         log.info("connecting to the autopilot at %s", args.autopilot)
         vehicle = connect(args.autopilot, wait_ready=True, timeout=args.ready_timeout,
                           heartbeat_timeout=args.ready_timeout)
-        log.info("connected: %s, mode %s", vehicle.version, vehicle.mode.name)
+        log.info("connected: mode %s", vehicle.mode.name)
         handler = DronekitMissionHandler(vehicle)
         host, port = args.manager
         mcp = Mcp(handler, args.listen, port, host, args.id, remote_host=host, timeout=args.rto)
