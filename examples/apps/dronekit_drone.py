@@ -88,7 +88,8 @@ class DronekitMissionHandler(MissionMessageHandlerBase):
 
     def handle_start_mission_message(self, buffer: Any = None) -> None:
         if self.end_at is not None or self.started:
-            log.info("Start_Mission %s: not acted on", "after End_Mission" if self.end_at else "again")
+            log.info("Start_Mission %s: not acted on",
+                     "after End_Mission" if self.end_at else "again")
             return
         self.started = True
         log.info("Start_Mission: arming and taking off")
@@ -135,7 +136,8 @@ def _describe(wp: Any) -> str:
 
 def _is_position(wp: Any) -> bool:
     """A waypoint a GUIDED goto can fly to: finite, latitude and longitude in range (E-2)."""
-    return all(math.isfinite(v) for v in (wp.x, wp.y, wp.z)) and abs(wp.x) <= 90 and abs(wp.y) <= 180
+    return (all(math.isfinite(v) for v in (wp.x, wp.y, wp.z))
+            and abs(wp.x) <= 90 and abs(wp.y) <= 180)
 
 
 # ---------------------------------------------------------------------- flight (main thread)
@@ -169,7 +171,8 @@ class Flight:
                 return
 
     def job_takeoff(self, _arg: Any) -> None:
-        """DroneKit's ``arm_and_takeoff``: GUIDED, arm, ``simple_takeoff``, wait for the altitude."""
+        """DroneKit's ``arm_and_takeoff``: GUIDED, arm, ``simple_takeoff``, wait for the
+        altitude."""
         v = self.vehicle
         log.info("arming %s", v.version)  # from AUTOPILOT_VERSION, which DroneKit asks for itself
         v.mode = VehicleMode("GUIDED")
@@ -279,7 +282,8 @@ def _autopilot(text: str) -> str:
     if text.startswith("/dev/") or text.upper().startswith("COM"):
         return text
     raise argparse.ArgumentTypeError(
-        f"expected tcp:HOST:PORT, udp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or a serial device: {text!r}")
+        "expected tcp:HOST:PORT, udp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or a serial "
+        f"device: {text!r}")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -335,7 +339,8 @@ def main(argv: list[str] | None = None) -> int:
         log.info("Mission_Ready ACKed; waiting for Start_Mission")
         Flight(vehicle, handler, args.alt).run()
         linger = 2 * args.rto
-        log.info("mission over (%d frames forwarded); still ACKing for %.1f s", handler.forwarded, linger)
+        log.info("mission over (%d frames forwarded); still ACKing for %.1f s",
+                 handler.forwarded, linger)
         time.sleep(linger)
         return 0
     except Stopped as why:

@@ -65,7 +65,8 @@ try:
     from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync, MissionRawError
     from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 except ImportError as _exc:  # pragma: no cover - depends on the environment
-    sys.exit(f"mavsdk_drone.py: error: MAVSDK 4.x is not installed ({_exc}): pip install 'mavsdk>=4'")
+    sys.exit(f"mavsdk_drone.py: error: MAVSDK 4.x is not installed ({_exc}): "
+             "pip install 'mavsdk>=4'")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -110,7 +111,8 @@ class MavsdkMissionHandler(MissionMessageHandlerBase):
 
     def handle_start_mission_message(self, buffer: Any = None) -> None:
         if self.end_at is not None or self.started:
-            log.info("Start_Mission %s: not acted on", "after End_Mission" if self.end_at else "again")
+            log.info("Start_Mission %s: not acted on",
+                     "after End_Mission" if self.end_at else "again")
             return
         self.started = True
         log.info("Start_Mission: arming and taking off")
@@ -144,14 +146,16 @@ class MavsdkMissionHandler(MissionMessageHandlerBase):
             return
         for msg in msgs:
             direct_msg = _direct_message(msg)
-            future = asyncio.run_coroutine_threadsafe(self.direct.send_message(direct_msg), self.loop)
+            future = asyncio.run_coroutine_threadsafe(self.direct.send_message(direct_msg),
+                                                      self.loop)
             try:
                 future.result(timeout=5.0)
             except MavlinkDirectError as exc:
                 log.warning("Mav_Passthrough: MAVSDK did not send %s: %s", msg.get_type(), exc)
                 continue
             except Exception as exc:  # noqa: BLE001 - the loop closing, a timeout: say which
-                log.warning("Mav_Passthrough: %s not sent: %s", msg.get_type(), exc or type(exc).__name__)
+                log.warning("Mav_Passthrough: %s not sent: %s", msg.get_type(),
+                            exc or type(exc).__name__)
                 continue
             self.forwarded += 1
             log.info("Mav_Passthrough: forwarded %s to the autopilot", msg.get_type())
@@ -195,7 +199,8 @@ def _describe(wp: Any) -> str:
 
 def _is_position(wp: Any) -> bool:
     """A waypoint with a finite latitude, longitude and altitude in range (E-2)."""
-    return all(math.isfinite(v) for v in (wp.x, wp.y, wp.z)) and abs(wp.x) <= 90 and abs(wp.y) <= 180
+    return (all(math.isfinite(v) for v in (wp.x, wp.y, wp.z))
+            and abs(wp.x) <= 90 and abs(wp.y) <= 180)
 
 
 # ---------------------------------------------------------------------- flight (asyncio)
@@ -325,7 +330,8 @@ async def wait_until_ready(telemetry: TelemetryAsync) -> None:
 async def run(args: argparse.Namespace) -> int:
     loop = asyncio.get_running_loop()
     url = mavsdk_url(args.autopilot)
-    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
+    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    async with Mavsdk(config) as sdk:
         log.info("connecting to the autopilot at %s (%s)", url, args.autopilot)
         try:
             await sdk.add_any_connection(url)
@@ -342,7 +348,8 @@ async def run(args: argparse.Namespace) -> int:
         except McpException as exc:
             raise AppError(str(exc)) from None
         try:
-            log.info("drone %d listening on UDP %d, manager at %s:%d", args.id, args.listen, host, port)
+            log.info("drone %d listening on UDP %d, manager at %s:%d", args.id, args.listen,
+                     host, port)
             await wait_until_ready(TelemetryAsync(drone))
             log.info("global and home position ok: sending Mission_Ready")
             await loop.run_in_executor(None, mcp.send_unicast_message, Action.MISSION_READY, None,
@@ -424,7 +431,8 @@ def _autopilot(text: str) -> str:
     if text.startswith("/dev/"):
         return text
     raise argparse.ArgumentTypeError(
-        f"expected tcp:HOST:PORT, udp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or /dev/DEVICE[,BAUD]: {text!r}")
+        "expected tcp:HOST:PORT, udp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or "
+        f"/dev/DEVICE[,BAUD]: {text!r}")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -1,4 +1,5 @@
-"""The example drone applications (examples/apps/) under ``mcp-conform --mavlink``, as a user runs them.
+"""The example drone applications (examples/apps/) under ``mcp-conform --mavlink``, as a user
+runs them.
 
 Each application is an independent MCP node written with a real MAVLink client library
 (DroneKit-Python, MAVSDK 4.x) flying the runner's simulated vehicle; a run must exit 0 with
@@ -61,7 +62,8 @@ def check(res: RunResult) -> None:
     for rule in JUDGED_ON_THE_LINK:
         outcomes = {c["id"]: c["outcome"] for c in cases if rule in c["rules"]}
         assert outcomes, f"no case judges {rule}"
-        assert "passed" in outcomes.values() and not {"skipped", "warned"} & set(outcomes.values()), \
+        seen = set(outcomes.values())
+        assert "passed" in seen and not {"skipped", "warned"} & seen, \
             f"{rule}: {outcomes}\n{res.explain()}"
     must = [v for v in res.report["monitor"]["violations"] if v["level"] == "MUST"]
     assert not must, must
@@ -86,16 +88,15 @@ def test_dronekit_app_conforms_at_the_descriptions_timeout() -> None:
 
 @pytest.mark.parametrize("app", ["dronekit_drone", "mavsdk_drone"])
 @pytest.mark.parametrize("argv", [
-    ["--id", "0", "--listen", "7890", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:127.0.0.1:5760"],
-    ["--id", "1", "--listen", "7890", "--manager", "7889", "--autopilot", "tcp:127.0.0.1:5760"],
-    ["--id", "1", "--listen", "7890", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:nowhere"],
-    ["--id", "1", "--listen", "7890", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:127.0.0.1:1",
-     "--rto", "-1"],
+    ["--id", "0", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:127.0.0.1:5760"],
+    ["--id", "1", "--manager", "7889", "--autopilot", "tcp:127.0.0.1:5760"],
+    ["--id", "1", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:nowhere"],
+    ["--id", "1", "--manager", "127.0.0.1:7889", "--autopilot", "tcp:127.0.0.1:1", "--rto", "-1"],
 ])
 def test_bad_arguments_are_one_line(app: str, argv: list[str]) -> None:
     _need(app)
-    proc = subprocess.run([sys.executable, str(APPS / f"{app}.py"), *argv], capture_output=True,
-                          text=True, timeout=60)
+    proc = subprocess.run([sys.executable, str(APPS / f"{app}.py"), "--listen", "7890", *argv],
+                          capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == ""
     lines = proc.stderr.strip().splitlines()
