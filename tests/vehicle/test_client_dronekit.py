@@ -24,7 +24,6 @@ from tests.vehicle.clients import (
     require_dronekit, served, wait_until,
 )
 
-pytestmark = pytest.mark.slow
 ALT = 10.0
 
 
@@ -40,7 +39,8 @@ def test_wait_ready_then_armable_after_the_fix(transport: str) -> None:
     """connect(wait_ready=True) returns within a bound; is_armable is False while the fix is
     withheld and True after it; version, capabilities and global_frame are whole."""
     require_dronekit()
-    with served(transport, fix_withheld=True) as (sim, link):
+    home = (35.5, -78.25)  # not the default: seen from the vehicle, not assumed
+    with served(transport, fix_withheld=True, home_lat=home[0], home_lon=home[1]) as (sim, link):
         t0 = time.monotonic()
         with dronekit_vehicle(link, wait_ready=True) as v:
             took = time.monotonic() - t0
@@ -68,6 +68,12 @@ def test_wait_ready_then_armable_after_the_fix(transport: str) -> None:
                                             v.location.global_frame.lon,
                                             v.location.global_frame.alt),
                        WAIT, "location.global_frame whole", show=lambda: state(v))
+            # DroneKit's home: download the commands, then home_location (mission item 0)
+            v.commands.download()
+            v.commands.wait_ready(timeout=WAIT)
+            got = v.home_location
+            assert got is not None and got.alt is not None, f"home_location: {got}"
+            assert abs(got.lat - home[0]) < 1e-5 and abs(got.lon - home[1]) < 1e-5, got
 
 
 def fly_up(dronekit, v) -> None:
@@ -94,6 +100,7 @@ def send_ned_velocity(v, vx: float, vy: float, vz: float, duration: float) -> No
         time.sleep(0.2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_arm_takeoff_velocity_and_mode(transport: str) -> None:
     """GUIDED, arm, simple_takeoff to 10 m, fly north by velocity (the vehicle moves north,
@@ -121,7 +128,8 @@ def test_arm_takeoff_velocity_and_mode(transport: str) -> None:
 
 
 def hostile(link: Link) -> int:
-    """Parameter, command and mission messages no client should send; returns how many."""
+    """Parameter, command, mission, position-target and MAVFTP messages no client should send,
+    requests for another system, a truncated frame and garbage; returns how many."""
     conn = mavutil.mavlink_connection(link.pymavlink, source_system=251)
     sent = 0
     try:
@@ -172,21 +180,35 @@ def hostile(link: Link) -> int:
             MAV.MAVLink_mission_set_current_message(s, c, 65000),
             MAV.MAVLink_mission_write_partial_list_message(s, c, 5, 2),
             MAV.MAVLink_mission_count_message(s, c, 0),
+            # position targets, streams and MAVFTP (as tests/vehicle/test_ardupilot_hostile.py)
+            MAV.MAVLink_set_position_target_local_ned_message(
+                0, s, c, 250, 0, math.nan, math.inf, 0, 0, 0, 0, 0, 0, 0, 0, 0),
+            MAV.MAVLink_set_position_target_global_int_message(
+                0, s, c, MAV.MAV_FRAME_GLOBAL_INT, 0, 2**31 - 1, 0, math.nan, 0, 0, 0, 0, 0, 0,
+                math.nan, 0),
+            MAV.MAVLink_request_data_stream_message(s, c, 99, 10, 7),
+            MAV.MAVLink_file_transfer_protocol_message(0, s, c, b"\xff" * 251),
+            # valid requests for another system: not this vehicle's to take
+            MAV.MAVLink_param_set_message(99, c, b"RTL_ALT", 1.0, MAV.MAV_PARAM_TYPE_INT32),
+            MAV.MAVLink_command_long_message(99, c, MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0,
+                                             1, 0, 0, 0, 0, 0, 0),
         ]
         for msg in msgs:
             conn.mav.send(msg)
             sent += 1
             conn.recv_match(blocking=True, timeout=0.02)  # let the vehicle answer, in order
-        # a malformed frame: a PARAM_SET whose payload was cut short
+        # a PARAM_SET whose payload was cut short, then garbage
         raw = bytearray(MAV.MAVLink_param_set_message(s, c, b"CUT", 1.0, real32).pack(conn.mav))
         conn.write(bytes(raw[:-6]))
-        sent += 1
-        time.sleep(0.3)
+        conn.write(bytes(range(256)) * 2)
+        sent += 2
+        time.sleep(0.5)  # the vehicle reports held bytes stale after 0.2 s (vehicle.codec)
         return sent
     finally:
         conn.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_hostile_messages_leave_every_parameter_to_a_real_client(transport: str) -> None:
     """Hostile parameter, command and mission messages first (pymavlink), then DroneKit's

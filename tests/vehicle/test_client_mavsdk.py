@@ -20,7 +20,6 @@ from tests.vehicle.clients import (
     wait_until,
 )
 
-pytestmark = pytest.mark.slow
 ALT = 10.0
 
 
@@ -100,9 +99,11 @@ def _version(info):
         return None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_arm_takeoff_in_air_and_goto_location(transport: str) -> None:
-    """Arm, takeoff: in_air and IN_AIR; goto_location 40 m north: the vehicle gets there."""
+    """Arm, takeoff: in_air and IN_AIR; goto_location 40 m north: the vehicle gets there;
+    return_to_launch: landed (ON_GROUND, not in_air) and disarmed."""
     p = plugins()
     with served(transport) as (sim, link), mavsdk_system(link) as system:
         tel = p["Telemetry"](system)
@@ -120,6 +121,11 @@ def test_arm_takeoff_in_air_and_goto_location(transport: str) -> None:
         wait_until(lambda: left() < 5.0, WAIT, "goto_location reaching 5 m of the target",
                    show=lambda: (f"{left():.1f} m left", sim.mode, vars(tel.position())))
         print(f"goto_location 40 m north over {transport}: {left():.1f} m left")
+        action.return_to_launch()
+        wait_until(lambda: tel.landed_state() == p["LandedState"].ON_GROUND and not tel.armed(),
+                   WAIT, "return_to_launch: landed and disarmed",
+                   show=lambda: (sim.mode, health(tel)))
+        assert not tel.in_air()
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
@@ -160,6 +166,7 @@ def test_mission_raw_upload_download_start(transport: str) -> None:
                    show=lambda: vars(mission.mission_progress()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_offboard_velocity_moves_the_vehicle(transport: str) -> None:
     """offboard_velocity_ned.py: a first setpoint, start, 5 m/s east: the vehicle moves east,
