@@ -35,6 +35,13 @@ How it answers, as ArduCopter 4.x (ArduPilot's GCS_MAVLink and AP_Mission source
   - download: MISSION_REQUEST_LIST / MISSION_REQUEST_INT / MISSION_REQUEST; item 0 is home.
   - MAV_CMD_MISSION_START or mode AUTO flies the mission (needs a NAV_TAKEOFF first when
     armed on the ground), with MISSION_CURRENT and MISSION_ITEM_REACHED.
+  - readiness: HOME_POSITION (at the first fix, every 5 s, on request), AUTOPILOT_VERSION
+    (4.5.7), EKF_STATUS_REPORT and SYS_STATUS pre-arm/GPS health only with a 3D fix,
+    EXTENDED_SYS_STATE; SET_MESSAGE_INTERVAL and REQUEST_DATA_STREAM set the rates.
+  - GUIDED: SET_POSITION_TARGET_LOCAL_NED / GLOBAL_INT (position or velocity; ignored
+    outside GUIDED), DO_REPOSITION, CONDITION_YAW, DO_CHANGE_SPEED.
+  - parameters: a subset of ArduCopter's table with its types; PARAM_SET of an unknown name
+    is ignored (no PARAM_VALUE). Commands it does not handle: MAV_RESULT_UNSUPPORTED.
 Where it differs from ArduCopter:
   - arming needs only a 3D fix and a mode other than AUTO/RTL/LAND; no other pre-arm check.
   - climb, descent and horizontal speeds are fast by default (20, 20, 50 m/s); RTL flies
@@ -44,8 +51,12 @@ Where it differs from ArduCopter:
   - a peer that speaks only MAVLink 1 is answered in MAVLink 1 (ArduPilot sends what
     SERIALn_PROTOCOL says); --mavlink1 starts every link in MAVLink 1.
   - over UDP a peer is known once it has sent a frame (--udp-out destinations get
-    telemetry from the start); commands the model does not simulate are ACCEPTED.
-  - parameters are a small table (PARAM_SET stores anything).
+    telemetry from the start).
+  - every stream runs at --telemetry-hz from the start (as if SRn_* were set), and rates are
+    the vehicle's, not per link; attitude is level, yaw turns at once.
+  - MAVFTP: every request gets a NAK (no files, not even @PARAM/param.pck), so clients fall
+    back to PARAM_REQUEST_LIST; FTP, fence, rally and attitude targets are not advertised.
+  - 32 parameters, of which only GUID_TIMEOUT changes how it flies.
 """
 
 
@@ -110,8 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--climb-rate", type=_positive, default=20.0, metavar="M_S")
     p.add_argument("--descent-rate", type=_positive, default=20.0, metavar="M_S")
     p.add_argument("--telemetry-hz", type=_positive, default=4.0, metavar="HZ")
-    p.add_argument("--home", default="35.771332,-78.674421,0", metavar="LAT,LON[,ALT]",
-                   help="home position (the description's Raleigh sample)")
+    p.add_argument("--home", default="35.771332,-78.674421,96", metavar="LAT,LON[,ALT]",
+                   help="home position, ALT in m above mean sea level (the description's "
+                        "Raleigh sample, 96 m)")
     p.add_argument("--frames", action="store_true", help="also print every received frame")
     return p
 

@@ -112,7 +112,16 @@ class Decoder:
         """New bytes after an incomplete frame reported stale: they complete it (a frame, as
         ever), or it fails and is dropped, parsing resuming at the new bytes (so a frame cut
         short does not swallow the next one). Returns (the bytes still held before ``data``,
-        the messages)."""
+        the messages). New bytes that begin with a whole valid frame are not its continuation:
+        the stale bytes are dropped (garbage that looked like the start of a long frame must not
+        swallow the next request)."""
+        fresh = self._new_parser()
+        alone = fresh.parse_buffer(data) or []
+        if alone and alone[0].get_type() != "BAD_DATA" \
+                and bytes(alone[0].get_msgbuf() or b"") == data[:len(alone[0].get_msgbuf() or b"")]:
+            self._mav = fresh
+            self._done += len(held)
+            return b"", alone
         trial = self._new_parser()
         parsed = trial.parse_buffer(held + data) or []
         if parsed and parsed[0].get_type() == "BAD_DATA" and len(parsed[0].data) >= len(held):

@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from .codec import MAVLinkMessage
 from .mission import command_name
 from .probe import probe_token
+from .telemetry import STREAMS, Streams, message_name
 from .records import (
     ACCEPTED_RESULT,
     AUTO,
@@ -42,6 +43,11 @@ REFUSED = mav.MAV_RESULT_FAILED
 #: Why a mode change without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED is refused (ArduPilot maps
 #: only custom modes).
 NO_CUSTOM_FLAG = "base_mode lacks MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (only custom modes are accepted)"
+#: Commands about what the vehicle sends (``_stream_command``).
+_STREAM_COMMANDS = frozenset({
+    mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+    mav.MAV_CMD_GET_HOME_POSITION, mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+    mav.MAV_CMD_GET_MESSAGE_INTERVAL})
 #: Commands that are mode changes: MAV_CMD -> (request name, the mode it enters).
 _MODE_COMMANDS: dict[int, tuple[str, int]] = {
     mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: ("rtl", RTL),
@@ -59,9 +65,12 @@ class CommandMessages:
     custom_mode: int
     altitude: float
     rtl_commanded: bool
-    params: dict[str, float]
+    home_set: bool
+    streams: Streams
     _target_alt: float | None
     _target_pos: tuple[float, float] | None
+    _guided_vel: tuple[float, float, float] | None
+    taking_off: bool
     _auto: AutoMission
     _conn: int
     _probes: Counter[str]
@@ -75,7 +84,14 @@ class CommandMessages:
 
         def has_fix(self, now: float) -> bool: ...
 
-        def snapshot(self, now: float) -> list[MAVLinkMessage]: ...
+        def message(self, msgid: int, now: float) -> MAVLinkMessage | None: ...
+
+        def _cmd_reposition(self, msg: MAVLinkMessage, p: tuple[float, ...],
+                            now: float) -> tuple[int, list]: ...
+
+        def _cmd_condition_yaw(self, p: tuple[float, ...]) -> int: ...
+
+        def _cmd_change_speed(self, p: tuple[float, ...]) -> int: ...
 
     def _ack(self, msg: MAVLinkMessage, command: int, result: int) -> MAVLinkMessage:
         return mav.MAVLink_command_ack_message(
@@ -87,6 +103,27 @@ class CommandMessages:
         if token is not None:
             self._probes[token] += 1
             self.record(now, "probe", token=token, count=self._probes[token])
+        return []
+
+    def _on_request_data_stream(self, msg: MAVLinkMessage, f: dict[str, Any],
+                                now: float) -> Iterable:
+        """REQUEST_DATA_STREAM as ``GCS_MAVLINK::handle_request_data_stream`` takes it: no
+        answer; start_stop 0 stops the stream, 1 sets its rate (Hz), others are ignored."""
+        stream, rate = int(f["req_stream_id"]), int(f["req_message_rate"])
+        start = int(f["start_stop"])
+        hz = 0 if start == 0 else rate
+        if start not in (0, 1):
+            why = f"start_stop {start} is neither 0 nor 1: ignored"
+        elif stream != mav.MAV_DATA_STREAM_ALL and stream not in STREAMS:
+            why = f"stream {stream} has nothing this vehicle sends: ignored"
+        else:
+            why = ""
+            every = stream == mav.MAV_DATA_STREAM_ALL
+            ids = [m for ids in STREAMS.values() for m in ids] if every else STREAMS[stream]
+            for msgid in ids:
+                self.streams.set_rate(msgid, hz, now)
+        self._request(now, msg, "data_stream", not why, why or None,
+                      "none" if why else f"{hz} Hz", stream=stream, rate=hz)
         return []
 
     def _on_set_mode(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
@@ -122,9 +159,10 @@ class CommandMessages:
                 request = "arm" if p[0] == 1.0 else "disarm"
                 extra = {"forced": p[1] == (FORCE_ARM_MAGIC if p[0] == 1.0 else FORCE_DISARM_MAGIC)}
         elif cmd == mav.MAV_CMD_DO_SET_MODE:
-            request, extra = "mode", {"mode": mode_name(int(p[1])), "custom_mode": int(p[1])}
-            if int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                result, out = self._set_mode(int(p[1]), now, "DO_SET_MODE")
+            custom = _int(p[1])
+            request, extra = "mode", {"mode": mode_name(custom), "custom_mode": custom}
+            if _int(p[0]) & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                result, out = self._set_mode(custom, now, "DO_SET_MODE")
             else:
                 result = REFUSED
                 self._why = NO_CUSTOM_FLAG
@@ -138,13 +176,49 @@ class CommandMessages:
         elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
             request, extra = "takeoff", {"alt": p[6]}
             result = self._takeoff(p[6], now)
-        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE:
-            wanted = int(p[0])
-            out = [m for m in self.snapshot(now) if m.get_msgId() == wanted]
+        elif cmd in _STREAM_COMMANDS:
+            result, out, request = self._stream_command(msg, cmd, p, now)
+        elif cmd == mav.MAV_CMD_DO_REPOSITION:
+            request = "reposition"
+            result, out = self._cmd_reposition(msg, p, now)
+        elif cmd == mav.MAV_CMD_CONDITION_YAW:
+            request, result = "yaw", self._cmd_condition_yaw(p)
+        elif cmd == mav.MAV_CMD_DO_CHANGE_SPEED:
+            request, result = "speed", self._cmd_change_speed(p)
+        else:
+            result = mav.MAV_RESULT_UNSUPPORTED
+            self._why = f"{command_name(cmd)} is not a command this vehicle handles"
         self._command_request(now, msg, request, cmd, result, out, **extra)
         self.record(now, "command", command=cmd, name=command_name(cmd), params=p, result=result,
                     srcsys=msg.get_srcSystem())
         return [*out, self._ack(msg, cmd, result)]
+
+    def _stream_command(self, msg: MAVLinkMessage, cmd: int, p: tuple[float, ...],
+                        now: float) -> tuple[int, list[MAVLinkMessage], str]:
+        """REQUEST_MESSAGE, REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION and
+        SET/GET_MESSAGE_INTERVAL, as ``GCS_MAVLINK``'s handlers answer them."""
+        wanted = int(p[0]) if math.isfinite(p[0]) and 0 <= p[0] < 2 ** 24 else -1
+        if cmd == mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            if p[0] != 1.0:
+                self._why = f"param1 {p[0]:g} is not 1"
+                return mav.MAV_RESULT_FAILED, [], "message"
+            wanted = mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+        elif cmd == mav.MAV_CMD_GET_HOME_POSITION:
+            if not self.home_set:
+                self._why = "home is not set (no GPS fix yet)"
+                return mav.MAV_RESULT_FAILED, [], "message"
+            wanted = mav.MAVLINK_MSG_ID_HOME_POSITION
+        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result, self._why = self.streams.set_interval(wanted, p[1], now)
+            return result, [], "message_interval"
+        if not self.streams.known(wanted):
+            self._why = f"{message_name(wanted)} is not a message the vehicle sends"
+            return mav.MAV_RESULT_FAILED, [], "message"
+        if cmd == mav.MAV_CMD_GET_MESSAGE_INTERVAL:
+            return mav.MAV_RESULT_ACCEPTED, [mav.MAVLink_message_interval_message(
+                wanted, self.streams.interval_us(wanted))], "message_interval"
+        reply = self.message(wanted, now)  # ArduPilot accepts, and may have nothing to send
+        return mav.MAV_RESULT_ACCEPTED, [reply] if reply is not None else [], "message"
 
     def _command_request(self, now: float, msg: MAVLinkMessage, request: str,
                          command: int | None, result: int, out: list[MAVLinkMessage],
@@ -199,6 +273,8 @@ class CommandMessages:
         self.altitude = 0.0
         self._target_alt = None
         self._target_pos = None
+        self._guided_vel = None
+        self.taking_off = False
         self.record(now, "disarm", reason=reason, mode=self.mode)
 
     def _set_mode(self, custom: int, now: float, via: str) -> tuple[int, list[MAVLinkMessage]]:
@@ -241,35 +317,13 @@ class CommandMessages:
         self.record(now, "takeoff", alt=alt, accepted=ok)
         if ok:
             self._target_alt = alt
+            self.taking_off = True
         return mav.MAV_RESULT_ACCEPTED if ok else REFUSED
 
-    # ------------------------------------------------------------------ parameters
-    def _param_value(self, name: str) -> MAVLinkMessage:
-        names = list(self.params)
-        return mav.MAVLink_param_value_message(
-            name.encode("ascii"), self.params[name], mav.MAV_PARAM_TYPE_REAL32, len(names),
-            names.index(name),
-        )
 
-    def _on_param_request_list(self, msg: MAVLinkMessage, f: dict[str, Any],
-                               now: float) -> Iterable:
-        return [self._param_value(name) for name in self.params]
-
-    def _on_param_request_read(self, msg: MAVLinkMessage, f: dict[str, Any],
-                               now: float) -> Iterable:
-        names = list(self.params)
-        name = str(f.get("param_id", ""))
-        if name not in self.params and 0 <= int(f["param_index"]) < len(names):
-            name = names[int(f["param_index"])]
-        return [self._param_value(name)] if name in self.params else []
-
-    def _on_param_set(self, msg: MAVLinkMessage, f: dict[str, Any], now: float) -> Iterable:
-        name = str(f.get("param_id", ""))
-        value = float(f["param_value"])
-        if not name or not math.isfinite(value):
-            return []
-        self.params[name] = value
-        return [self._param_value(name)]
+def _int(value: float) -> int:
+    """``int(value)``, or -1 for NaN/inf (a hostile parameter never raises)."""
+    return int(value) if math.isfinite(value) and abs(value) < 2 ** 31 else -1
 
 
 def result_text(result: int) -> str:

@@ -46,13 +46,27 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from .codec import MAVLinkMessage, frame_version
 from .commands import CommandMessages
-from .flight import AutoMission, move_towards
+from .flight import METRES_PER_DEGREE, AutoMission, move_towards
+from .guided import GuidedMessages
 from .mission import MissionProtocol, result_name
 from .mission_messages import MissionMessages
+from .params import ParamMessages, ParamTable, copter_parameters
+from .telemetry import (
+    FIRMWARE_VERSION,
+    HOME_INTERVAL,
+    ON_REQUEST,
+    STREAMED,
+    Streams,
+    autopilot_version,
+    ekf_status_report,
+    home_position,
+    sys_status,
+)
 from .records import (
     AUTO,
     DENIED_RESULT,
     GUIDED_FLAG_MODES,
+    GUIDED,
     LAND,
     MAX_UNPARSED,
     MAX_UNPARSED_BYTES,
@@ -64,14 +78,6 @@ from .records import (
     mode_name,
 )
 
-_SENSORS = (
-    mav.MAV_SYS_STATUS_SENSOR_3D_GYRO
-    | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-    | mav.MAV_SYS_STATUS_SENSOR_3D_MAG
-    | mav.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | mav.MAV_SYS_STATUS_SENSOR_GPS
-)
-
 
 @dataclass
 class VehicleConfig:
@@ -81,9 +87,12 @@ class VehicleConfig:
     compid: int = mav.MAV_COMP_ID_AUTOPILOT1
     home_lat: float = 35.771332
     home_lon: float = -78.674421
-    #: Home altitude above mean sea level; VFR_HUD.alt and GLOBAL_POSITION_INT.alt are AMSL
-    #: as in ArduCopter, so with the default 0 they equal the relative altitude.
-    home_alt: float = 0.0
+    #: Home altitude above mean sea level, metres; VFR_HUD.alt, GLOBAL_POSITION_INT.alt and
+    #: HOME_POSITION.altitude are AMSL as in ArduCopter. The default is the ground's height
+    #: at the default home (Raleigh, NC): not 0, because dronekit leaves
+    #: ``location.global_frame`` at (None, None, None) until it sees a non-zero AMSL altitude
+    #: (``dronekit/locations.py``: "Require first alt value to be non-0").
+    home_alt: float = 96.0
     gps_fix_delay: float = 0.0
     fix_withheld: bool = False
     climb_rate: float = 20.0
@@ -114,7 +123,7 @@ class VehicleConfig:
             raise ValueError("max_records must be >= 1")
 
 
-class VehicleModel(MissionMessages, CommandMessages):
+class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessages):
     """The autopilot's behaviour and the observation log; not thread-safe on its own."""
 
     def __init__(self, config: VehicleConfig | None = None, *, now: float = 0.0) -> None:
@@ -130,8 +139,17 @@ class VehicleModel(MissionMessages, CommandMessages):
         self._fix_at = now + cfg.gps_fix_delay
         self._fix_controlled = False
         self._reported_fix: bool | None = None
-        self._next_hb = now
-        self._next_tel = now
+        self.home_set = False
+        rate = 1.0 / cfg.telemetry_hz
+        defaults = {mav.MAVLINK_MSG_ID_HEARTBEAT: 1.0 / cfg.heartbeat_hz,
+                    **dict.fromkeys(STREAMED, rate),
+                    mav.MAVLINK_MSG_ID_HOME_POSITION: HOME_INTERVAL,
+                    **{m: 0.0 for m in ON_REQUEST if m != mav.MAVLINK_MSG_ID_HEARTBEAT}}
+        self.streams = Streams(defaults, now)
+        #: Velocity north, east, down (m/s) over the last step of the simulation.
+        self.velocity = (0.0, 0.0, 0.0)
+        self.yaw = 0.0  # radians, 0 = north
+        self.init_guided()
         self.lat, self.lon = cfg.home_lat, cfg.home_lon
         self._target_pos: tuple[float, float] | None = None
         self.missions = MissionProtocol(
@@ -141,14 +159,7 @@ class VehicleModel(MissionMessages, CommandMessages):
         self._auto = AutoMission(self)
         #: Messages due outside a reply: (conn, message), conn 0 meaning every peer.
         self._outbox: list[tuple[int, MAVLinkMessage]] = []
-        self.params: dict[str, float] = {
-            "SYSID_THISMAV": float(cfg.sysid),
-            "ARMING_CHECK": 1.0,
-            "FRAME_CLASS": 1.0,
-            "RTL_ALT": 1500.0,
-            "WPNAV_SPEED": 500.0,
-            "DISARM_DELAY": 10.0,
-        }
+        self.params = ParamTable(copter_parameters(cfg.sysid))
         self._events: deque[Event] = deque(maxlen=cfg.max_records)
         self._frames: deque[Frame] = deque(maxlen=cfg.max_records)
         self._unparsed: deque[Unparsed] = deque(maxlen=MAX_UNPARSED)
@@ -255,18 +266,13 @@ class VehicleModel(MissionMessages, CommandMessages):
     # ------------------------------------------------------------------ time
     def next_deadline(self) -> float:
         """The earliest time at which ``tick`` has telemetry to send."""
-        return min(self._next_hb, self._next_tel)
+        return self.streams.next_deadline()
 
     def tick(self, now: float) -> list[MAVLinkMessage]:
         """Advance the simulation to ``now``; return the telemetry that is due."""
         self._advance(now)
-        out: list[MAVLinkMessage] = []
-        if now >= self._next_hb:
-            out.append(self._heartbeat())
-            self._next_hb = _reschedule(self._next_hb, 1.0 / self.config.heartbeat_hz, now)
-        if now >= self._next_tel:
-            out.extend(self._telemetry(now))
-            self._next_tel = _reschedule(self._next_tel, 1.0 / self.config.telemetry_hz, now)
+        self._update_home(now)
+        out = [m for m in (self.message(i, now) for i in self.streams.due(now)) if m is not None]
         conn, due, why = self.missions.update(now)
         for msg in due:
             self.broadcast(msg, conn)
@@ -279,9 +285,20 @@ class VehicleModel(MissionMessages, CommandMessages):
         return out
 
     def snapshot(self, now: float) -> list[MAVLinkMessage]:
-        """A heartbeat and one of each telemetry message, without touching the schedule."""
+        """A heartbeat and one of each streamed message, without touching the schedule."""
         self._advance(now)
-        return [self._heartbeat(), *self._telemetry(now)]
+        self._update_home(now)
+        ids = (mav.MAVLINK_MSG_ID_HEARTBEAT, *STREAMED)
+        return [m for m in (self.message(i, now) for i in ids) if m is not None]
+
+    def _update_home(self, now: float) -> None:
+        """Home is set at the first fix, and ArduPilot then sends HOME_POSITION unasked
+        (``AP_AHRS::set_home``)."""
+        if not self.home_set and self.has_fix(now):
+            self.home_set = True
+            home = self.message(mav.MAVLINK_MSG_ID_HOME_POSITION, now)
+            if home is not None:
+                self.broadcast(home)
 
     def _advance(self, now: float) -> None:
         dt = now - self._last
@@ -289,7 +306,15 @@ class VehicleModel(MissionMessages, CommandMessages):
             return
         self._last = now
         if not self.armed:
+            self.velocity = (0.0, 0.0, 0.0)
             return
+        before = (self.lat, self.lon, self.altitude)
+        self._fly(now, dt)
+        north = (self.lat - before[0]) * METRES_PER_DEGREE
+        east = (self.lon - before[1]) * METRES_PER_DEGREE * math.cos(math.radians(self.lat))
+        self.velocity = (north / dt, east / dt, -(self.altitude - before[2]) / dt)
+
+    def _fly(self, now: float, dt: float) -> None:
         if self.custom_mode == AUTO:
             self._auto.step(now, dt)
         elif self.custom_mode == RTL:
@@ -299,31 +324,36 @@ class VehicleModel(MissionMessages, CommandMessages):
         elif self.custom_mode == LAND:
             self.descend(now, dt)
         else:
+            if self.custom_mode == GUIDED:
+                self.guided_step(now, dt)
             if self._target_pos is not None and self.fly_to(self._target_pos, dt):
                 self._target_pos = None
             if self._target_alt is not None and self.climb_to(now, self._target_alt, dt):
                 self.record(now, "reached", alt=self.altitude)
                 self._target_alt = None
+                self.taking_off = False
 
     # ------------------------------------------------------------------ motion
     def fly_to(self, target: tuple[float, float], dt: float) -> bool:
         """Move towards ``target`` (lat, lon) for ``dt`` s; True once there."""
         self.lat, self.lon, arrived = move_towards(
-            self.lat, self.lon, target, self.config.horizontal_speed * dt)
+            self.lat, self.lon, target, (self.speed_xy or self.config.horizontal_speed) * dt)
         return arrived
 
     def climb_to(self, now: float, alt: float, dt: float) -> bool:
         """Climb (or descend, without landing) towards ``alt`` m for ``dt`` s; True once there."""
+        up = self.speed_up or self.config.climb_rate
+        down = self.speed_down or self.config.descent_rate
         if self.altitude < alt:
-            self.altitude = min(alt, self.altitude + self.config.climb_rate * dt)
+            self.altitude = min(alt, self.altitude + up * dt)
         elif self.altitude > alt:
-            self.altitude = max(alt, self.altitude - self.config.descent_rate * dt)
+            self.altitude = max(alt, self.altitude - down * dt)
         return self.altitude == alt
 
     def descend(self, now: float, dt: float) -> bool:
         """Descend for ``dt`` s; on touching down record ``landed`` and disarm (True)."""
         self._target_alt = None
-        self.altitude = max(0.0, self.altitude - self.config.descent_rate * dt)
+        self.altitude = max(0.0, self.altitude - (self.speed_down or self.config.descent_rate) * dt)
         if self.altitude > 0.0:
             return False
         self.land_and_disarm(now, "landed")
@@ -343,14 +373,75 @@ class VehicleModel(MissionMessages, CommandMessages):
         return out
 
     # ------------------------------------------------------------------ telemetry
-    def _vertical_speed(self) -> float:
-        if not self.armed:
-            return 0.0
-        if self.custom_mode in (RTL, LAND) and self.altitude > 0:
-            return -self.config.descent_rate
-        if self._target_alt is not None:
-            return self.config.climb_rate
-        return 0.0
+    def banner(self) -> list[MAVLinkMessage]:
+        """The STATUSTEXTs ArduPilot sends before a parameter list (``send_banner``)."""
+        version = ".".join(map(str, FIRMWARE_VERSION))
+        return [_text(f"ArduCopter V{version} (simulated)"), _text("Frame: QUAD/X")]
+
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE as ``GCS_MAVLINK_Copter::landed_state`` reports it."""
+        if not self.armed or self.altitude <= 0.0 and self._target_alt is None:
+            return mav.MAV_LANDED_STATE_ON_GROUND
+        if self.custom_mode in (RTL, LAND) and self.velocity[2] > 0 or self.landing:
+            return mav.MAV_LANDED_STATE_LANDING
+        if self.taking_off:
+            return mav.MAV_LANDED_STATE_TAKEOFF
+        return mav.MAV_LANDED_STATE_IN_AIR
+
+    def message(self, msgid: int, now: float) -> MAVLinkMessage | None:
+        """The message ``msgid`` as the vehicle would send it now (None: nothing to send,
+        or not a message it sends)."""
+        cfg = self.config
+        fix = self.has_fix(now)
+        if msgid == mav.MAVLINK_MSG_ID_GPS_RAW_INT:  # the first report of a fix (or its loss)
+            self._note_fix(now, fix)
+        boot_ms = int((now - self._t0) * 1000) & 0xFFFFFFFF
+        lat = int(round(self.lat * 1e7)) if fix else 0
+        lon = int(round(self.lon * 1e7)) if fix else 0
+        amsl = cfg.home_alt + self.altitude
+        vn, ve, vd = self.velocity
+        heading = int(round(math.degrees(self.yaw))) % 360
+        speed = math.hypot(vn, ve)
+        builders: dict[int, Callable[[], MAVLinkMessage | None]] = {
+            mav.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
+            mav.MAVLINK_MSG_ID_SYS_STATUS: lambda: sys_status(
+                fix, self.armed, self.params["FENCE_ENABLE"] != 0),
+            mav.MAVLINK_MSG_ID_GPS_RAW_INT: lambda: mav.MAVLink_gps_raw_int_message(
+                boot_ms * 1000, 3 if fix else 0, lat, lon, int(amsl * 1000) if fix else 0,
+                121 if fix else 9999, 200 if fix else 9999, round(speed * 100) if fix else 0,
+                heading * 100 if fix else 65535, 10 if fix else 0),
+            mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: lambda: mav.MAVLink_global_position_int_message(
+                boot_ms, lat, lon, round(amsl * 1000), round(self.altitude * 1000),
+                round(vn * 100), round(ve * 100), round(vd * 100), heading * 100),
+            mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: lambda: None if not self.home_set else (
+                mav.MAVLink_local_position_ned_message(
+                    boot_ms, (self.lat - cfg.home_lat) * METRES_PER_DEGREE,
+                    (self.lon - cfg.home_lon) * METRES_PER_DEGREE
+                    * math.cos(math.radians(cfg.home_lat)), -self.altitude, vn, ve, vd)),
+            mav.MAVLINK_MSG_ID_VFR_HUD: lambda: mav.MAVLink_vfr_hud_message(
+                speed, speed, heading, 50 if self.armed and self.altitude > 0 else 0, amsl, -vd),
+            mav.MAVLINK_MSG_ID_ATTITUDE: lambda: mav.MAVLink_attitude_message(
+                boot_ms, 0.0, 0.0, _wrap_pi(self.yaw), 0.0, 0.0, 0.0),
+            mav.MAVLINK_MSG_ID_MISSION_CURRENT: self.missions.current_message,
+            mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT: lambda: ekf_status_report(fix),
+            mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: lambda: mav.MAVLink_extended_sys_state_message(
+                mav.MAV_VTOL_STATE_UNDEFINED, self.landed_state()),
+            mav.MAVLINK_MSG_ID_HOME_POSITION: lambda: home_position(
+                cfg.home_lat, cfg.home_lon, cfg.home_alt, int((now - self._t0) * 1e6))
+            if self.home_set else None,
+            mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION: lambda: autopilot_version(cfg.sysid),
+            mav.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: lambda: self.position_target(boot_ms),
+        }
+        build = builders.get(msgid)
+        return build() if build is not None else None
+
+    def _note_fix(self, now: float, fix: bool) -> None:
+        if fix != self._reported_fix:
+            if fix:
+                self.record(now, "fix", fix_type=3)
+            elif self._reported_fix is not None:
+                self.record(now, "fix_lost", fix_type=0)
+            self._reported_fix = fix
 
     def _heartbeat(self) -> MAVLinkMessage:
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -363,41 +454,6 @@ class VehicleModel(MissionMessages, CommandMessages):
             mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.custom_mode,
             status, 3,
         )
-
-    def _telemetry(self, now: float) -> list[MAVLinkMessage]:
-        cfg = self.config
-        fix = self.has_fix(now)
-        if fix != self._reported_fix:
-            if fix:
-                self.record(now, "fix", fix_type=3)
-            elif self._reported_fix is not None:
-                self.record(now, "fix_lost", fix_type=0)
-            self._reported_fix = fix
-        boot_ms = int((now - self._t0) * 1000) & 0xFFFFFFFF
-        lat = int(round(self.lat * 1e7)) if fix else 0
-        lon = int(round(self.lon * 1e7)) if fix else 0
-        amsl = cfg.home_alt + self.altitude
-        vz = self._vertical_speed()
-        health = _SENSORS if fix else _SENSORS & ~mav.MAV_SYS_STATUS_SENSOR_GPS
-        return [
-            mav.MAVLink_sys_status_message(
-                _SENSORS, _SENSORS, health, 200, 12600, 1000 if self.armed else 50, 100,
-                0, 0, 0, 0, 0, 0,
-            ),
-            mav.MAVLink_gps_raw_int_message(
-                boot_ms * 1000, 3 if fix else 0, lat, lon, int(amsl * 1000) if fix else 0,
-                121 if fix else 9999, 200 if fix else 9999, 0, 0, 10 if fix else 0,
-            ),
-            mav.MAVLink_global_position_int_message(
-                boot_ms, lat, lon, int(amsl * 1000), int(self.altitude * 1000), 0, 0,
-                int(-vz * 100), 0,
-            ),
-            mav.MAVLink_vfr_hud_message(
-                0.0, 0.0, 0, 50 if self.armed and self.altitude > 0 else 0, amsl, vz,
-            ),
-            mav.MAVLink_attitude_message(boot_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-            self.missions.current_message(),
-        ]
 
     # ------------------------------------------------------------------ input
     def handle(
@@ -427,7 +483,9 @@ class VehicleModel(MissionMessages, CommandMessages):
         return list(handler(msg, fields, now))
 
 
-def _reschedule(due: float, period: float, now: float) -> float:
-    """The next due time after ``due``, skipping missed slots instead of bursting."""
-    nxt = due + period
-    return nxt if nxt > now else now + period
+def _wrap_pi(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
+
+
+def _text(text: str) -> MAVLinkMessage:
+    return mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, text.encode("ascii")[:50])

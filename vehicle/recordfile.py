@@ -2,13 +2,16 @@
 
 Each line is a ``request`` event of the model, its detail as ``vehicle.records`` documents
 it, plus ``t`` (seconds since the vehicle started): ``request`` (arm, disarm, mode, rtl,
-takeoff, mission_start, command, mission_upload, mission_item, ...), ``result``
+takeoff, mission_start, command, message, message_interval, data_stream, reposition, yaw,
+speed, position_target, param_list, param_read, param_set, ftp, mission_upload,
+mission_item, ...: ``records.REQUESTS``), ``result``
 ("accepted" or "denied"), ``reason`` ("PreArm: Need 3D Fix", "latitude 357713312 is not in
 degrees (-90..90); a degE7 value sent as degrees?", ...), ``answer`` (``MAV_RESULT_FAILED``,
 ``MISSION_ACK MAV_MISSION_INVALID_PARAM5_X``, ``MISSION_REQUEST seq=1``, ...), ``via`` (the
 MAVLink message), ``command``/``name``, ``mav_result``, the sender (``srcsys``, ``srccomp``,
 ``conn``) and what the request named (``mode``, ``alt``, ``params``, ``seq``, ``x``/``y``/``z``
-...). Lines are flushed as written, so the file is complete up to the last request even if the vehicle is killed.
+...). Lines are flushed as written, so the file is complete up to the last request even if
+the vehicle is killed.
 """
 
 from __future__ import annotations

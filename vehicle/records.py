@@ -74,7 +74,24 @@ REQUESTS: tuple[str, ...] = (
     "land",  # MAV_CMD_NAV_LAND
     "takeoff",  # MAV_CMD_NAV_TAKEOFF (detail: alt)
     "mission_start",  # MAV_CMD_MISSION_START
-    "command",  # any other COMMAND_LONG / COMMAND_INT (detail: params)
+    "command",  # any other COMMAND_LONG / COMMAND_INT (detail: params); one the vehicle does
+    #             not handle is MAV_RESULT_UNSUPPORTED, as ArduPilot answers it
+    "message",  # MAV_CMD_REQUEST_MESSAGE, REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION
+    #             (detail: params; param1 is the message id)
+    "message_interval",  # MAV_CMD_SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL (detail: params)
+    "data_stream",  # REQUEST_DATA_STREAM (detail: stream, rate in Hz; no answer is sent)
+    "reposition",  # MAV_CMD_DO_REPOSITION (vehicle.guided)
+    "yaw",  # MAV_CMD_CONDITION_YAW
+    "speed",  # MAV_CMD_DO_CHANGE_SPEED
+    "position_target",  # SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT (detail: frame,
+    #                     type_mask, position [lat, lon, alt above home] or None, velocity
+    #                     [n, e, d], note); not in GUIDED: "denied", ignored as ArduCopter does
+    # the parameter protocol and MAVFTP (vehicle.params):
+    "param_list",  # PARAM_REQUEST_LIST
+    "param_read",  # PARAM_REQUEST_READ (detail: param, index)
+    "param_set",  # PARAM_SET (detail: param, value); an unknown or non-ASCII name is "denied"
+    #               and nothing is stored or answered
+    "ftp",  # FILE_TRANSFER_PROTOCOL (detail: opcode); answered with a NAK
     # the mission protocol (vehicle.mission):
     "mission_upload",  # MISSION_COUNT (detail: count); via "timeout" when it was cancelled
     "mission_item",  # MISSION_ITEM / MISSION_ITEM_INT (detail: seq, frame, current, x, y, z;
@@ -101,7 +118,9 @@ DENIED_RESULT = "denied"
 #   mav_result  the MAV_RESULT of the COMMAND_ACK, or the MAV_MISSION_RESULT of the
 #             MISSION_ACK sent back (None when the answer was not an ACK)
 #   answer    what the vehicle sent back: "MAV_RESULT_FAILED", "MISSION_ACK
-#             MAV_MISSION_INVALID_PARAM5_X", "MISSION_REQUEST seq=2", "MISSION_COUNT count=3"
+#             MAV_MISSION_INVALID_PARAM5_X", "MISSION_REQUEST seq=2", "MISSION_COUNT count=3",
+#             "PARAM_VALUE RTL_ALT=2000", "FILE_TRANSFER_PROTOCOL NAK FileNotFound"; "none"
+#             when the vehicle answers nothing (as ArduPilot, e.g. PARAM_SET of an unknown name)
 #   srcsys, srccomp, conn  who asked: MAVLink system and component ids, link number
 # plus, by request: "arm"/"disarm": forced (bool); "mode"/"rtl"/"land"/"mission_start":
 # mode and custom_mode (the mode asked for, "MODE(n)" when unknown); "takeoff": alt;

@@ -159,7 +159,7 @@ def test_command_for_another_system_is_ignored() -> None:
 
 def test_command_ack_is_addressed_to_the_sender() -> None:
     _, gcs = make()
-    ack = by_type(gcs.command(mav.MAV_CMD_DO_CHANGE_SPEED, 1, 5, now=0.0), "COMMAND_ACK")
+    ack = by_type(gcs.command(mav.MAV_CMD_REQUEST_MESSAGE, 0, now=0.0), "COMMAND_ACK")
     assert (ack.result, ack.target_system, ack.target_component) == (ACCEPTED, 42, 191)
 
 
@@ -209,11 +209,11 @@ def test_takeoff_climbs_to_altitude_then_rtl_lands_and_disarms() -> None:
     assert ack_of(gcs.command(mav.MAV_CMD_NAV_TAKEOFF, *[0] * 6, 10.0, now=1.0), 22) == ACCEPTED
     msgs = model.tick(1.25)  # 0.25 s at 20 m/s
     assert by_type(msgs, "GLOBAL_POSITION_INT").relative_alt == 5000
-    assert by_type(msgs, "VFR_HUD").alt == pytest.approx(5.0)
+    assert by_type(msgs, "VFR_HUD").alt == pytest.approx(model.config.home_alt + 5.0)  # AMSL
     assert by_type(msgs, "VFR_HUD").climb > 0
     msgs = model.tick(2.0)
     assert by_type(msgs, "GLOBAL_POSITION_INT").relative_alt == 10000
-    assert by_type(msgs, "VFR_HUD").alt == pytest.approx(10.0)
+    assert by_type(msgs, "VFR_HUD").alt == pytest.approx(model.config.home_alt + 10.0)
     assert model.events("reached")
     # disarming in flight is refused unless forced
     assert ack_of(gcs.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, now=2.1), 400) == FAILED
@@ -293,7 +293,8 @@ def test_make_probe_builds_one_valid_v2_frame() -> None:
 # ---------------------------------------------------------------- missions and params
 def test_params_list_and_set() -> None:
     _, gcs = make(sysid=3)
-    values = gcs.send(mav.MAVLink_param_request_list_message(3, 1), 0.0)
+    values = [m for m in gcs.send(mav.MAVLink_param_request_list_message(3, 1), 0.0)
+              if m.get_type() == "PARAM_VALUE"]
     names = {v.param_id: v.param_value for v in values}
     assert names["SYSID_THISMAV"] == 3.0 and all(v.param_count == len(values) for v in values)
     echo = gcs.send(mav.MAVLink_param_set_message(3, 1, b"RTL_ALT", 2000.0, 9), 0.1)
@@ -362,10 +363,14 @@ def test_mode_takeoff_and_other_commands_are_requests() -> None:
     gcs.command(mav.MAV_CMD_NAV_TAKEOFF, *[0] * 6, 10.0, now=0.1)  # not armed
     gcs.command(mav.MAV_CMD_DO_CHANGE_SPEED, 1, 5, now=0.2)
     gcs.command(mav.MAV_CMD_NAV_LAND, now=0.3)
+    gcs.command(mav.MAV_CMD_DO_SET_SERVO, 5, 1500, now=0.4)  # not simulated: UNSUPPORTED
     got = [(d["request"], d["result"], d.get("mode"), d["reason"]) for d in requests(model)]
     assert got == [("mode", "accepted", "GUIDED", None),
                    ("takeoff", "denied", None, "Takeoff: not armed"),
-                   ("command", "accepted", None, None),
-                   ("land", "accepted", "LAND", None)]
+                   ("speed", "accepted", None, None),
+                   ("land", "accepted", "LAND", None),
+                   ("command", "denied", None,
+                    "MAV_CMD_DO_SET_SERVO is not a command this vehicle handles")]
+    assert requests(model)[4]["answer"] == "MAV_RESULT_UNSUPPORTED"
     assert requests(model)[1]["alt"] == 10.0 and requests(model)[0]["via"] == "SET_MODE"
     assert requests(model)[2]["params"][:2] == [1.0, 5.0]
