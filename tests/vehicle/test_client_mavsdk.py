@@ -67,18 +67,27 @@ def take_off(p, system, tel):
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_health_home_armable_and_version(transport: str) -> None:
-    """health() says global and home position ok and armable; info.get_version() is
-    ArduCopter 4.x; the autopilot is ArduPilot; on the ground, landed_state is ON_GROUND;
-    an ArduPilot integer parameter reads as one."""
+    """While the fix is withheld, health() is not ready (no global position, not armable);
+    after it, global and home position ok and armable; info.get_version() is ArduCopter 4.x;
+    the autopilot is ArduPilot; on the ground, landed_state is ON_GROUND; an ArduPilot integer
+    parameter reads as one."""
     p = plugins()
     from mavsdk import Autopilot
 
-    with served(transport, sysid=3) as (sim, link), mavsdk_system(link) as system:
+    with served(transport, sysid=3, fix_withheld=True) as (sim, link), \
+            mavsdk_system(link) as system:
         tel, info = p["Telemetry"](system), p["Info"](system)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            h = tel.health()
+            assert not (h.is_global_position_ok or h.is_armable), f"without a fix: {health(tel)}"
+            time.sleep(0.1)
+        sim.give_fix()
         t0 = time.monotonic()
         wait_until(lambda: ready(tel), WAIT, "health: global, home position ok, armable",
                    show=lambda: health(tel))
-        print(f"MAVSDK health ready over {transport}: {time.monotonic() - t0:.2f} s")
+        print(f"MAVSDK health ready over {transport}: {time.monotonic() - t0:.2f} s after "
+              f"the fix")
         assert not math.isnan(tel.home().latitude_deg)
         version = wait_until(lambda: _version(info), WAIT, "info.get_version()",
                              show=MavsdkLog.tail)
