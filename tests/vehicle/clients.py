@@ -157,6 +157,42 @@ def north_east_m(lat0: float, lon0: float, lat1: float, lon1: float) -> tuple[fl
     return north, east
 
 
+# ------------------------------------------------------------------ the record
+#: The messages that carry a request to the autopilot (``vehicle.records.REQUESTS``: each one
+#: is a request event, a line of ``--record``, with the answer and the reason).
+REQUEST_MESSAGES = (
+    "COMMAND_LONG", "COMMAND_INT", "SET_MODE", "REQUEST_DATA_STREAM",
+    "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT",
+    "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET", "FILE_TRANSFER_PROTOCOL",
+    "MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST_LIST",
+    "MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
+)
+
+
+def unrecorded_requests(sim: SimVehicle, sysid: int = 1) -> list[str]:
+    """What a client asked of this vehicle that has no request line of its own (issue 35:
+    "--record holds a line for every request the peer made, with the answer and the reason"):
+    per message type and sender, the frames addressed to the vehicle (or to every system)
+    against the request events that came by that message; and request lines without their
+    answer, or denied without a reason. Empty when the record is whole."""
+    asked: dict[tuple[str, int, int], int] = {}
+    for f in sim.frames():
+        if f.msg_type in REQUEST_MESSAGES and f.fields.get("target_system") in (0, sysid):
+            key = (f.msg_type, f.srcsys, f.srccomp)
+            asked[key] = asked.get(key, 0) + 1
+    recorded: dict[tuple[str, int, int], int] = {}
+    problems = []
+    for e in sim.events("request"):
+        d = e.detail
+        key = (str(d.get("via")), int(d.get("srcsys") or 0), int(d.get("srccomp") or 0))
+        recorded[key] = recorded.get(key, 0) + 1
+        if not d.get("answer") or (d.get("result") != "accepted" and not d.get("reason")):
+            problems.append(f"request without its answer or reason: {d}")
+    problems += [f"{n} {t} from {s}:{c}, {recorded.get((t, s, c), 0)} recorded"
+                 for (t, s, c), n in sorted(asked.items()) if recorded.get((t, s, c), 0) < n]
+    return problems
+
+
 # ------------------------------------------------------------------ pymavlink
 def pymavlink_params(link: Link, timeout: float = WAIT) -> dict[str, float]:
     """Every parameter by a plain PARAM_REQUEST_LIST (the reference a library is compared to)."""

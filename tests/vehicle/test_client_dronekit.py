@@ -21,7 +21,7 @@ from pymavlink import mavutil
 
 from tests.vehicle.clients import (
     CONNECT_WAIT, MAV, TRANSPORTS, WAIT, Link, dronekit_vehicle, north_east_m, pymavlink_params,
-    require_dronekit, served, wait_until,
+    require_dronekit, served, unrecorded_requests, wait_until,
 )
 
 ALT = 10.0
@@ -74,6 +74,7 @@ def test_wait_ready_then_armable_after_the_fix(transport: str) -> None:
             got = v.home_location
             assert got is not None and got.alt is not None, f"home_location: {got}"
             assert abs(got.lat - home[0]) < 1e-5 and abs(got.lon - home[1]) < 1e-5, got
+        assert not unrecorded_requests(sim), unrecorded_requests(sim)
 
 
 def fly_up(dronekit, v) -> None:
@@ -125,6 +126,7 @@ def test_arm_takeoff_velocity_and_mode(transport: str) -> None:
                    show=lambda: state(v))
         wait_until(lambda: (v.location.global_relative_frame.alt or 0) < ALT * 0.5, WAIT,
                    "coming down in LAND", show=lambda: state(v))
+        assert not unrecorded_requests(sim), unrecorded_requests(sim)
 
 
 def hostile(link: Link) -> int:
@@ -235,3 +237,4 @@ def test_hostile_messages_leave_every_parameter_to_a_real_client(transport: str)
             wait_until(lambda: v.mode.name == "GUIDED", WAIT, "GUIDED", show=lambda: state(v))
             v.armed = True
             wait_until(lambda: v.armed, WAIT, "armed after hostile input", show=lambda: state(v))
+        assert not unrecorded_requests(sim), unrecorded_requests(sim)

@@ -16,7 +16,8 @@ import pytest
 from pymavlink import mavwp
 
 from tests.vehicle.clients import (
-    TRANSPORTS, WAIT, MavproxyProcess, mavproxy_command, pymavlink_params, served, wait_until,
+    TRANSPORTS, WAIT, MavproxyProcess, mavproxy_command, pymavlink_params, served,
+    unrecorded_requests, wait_until,
 )
 
 pytestmark = pytest.mark.slow
@@ -35,7 +36,7 @@ MISSION = """QGC WPL 110
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_headless_mavproxy_has_every_parameter_soon(transport: str, tmp_path) -> None:
     mavproxy_command()
-    with served(transport) as (_sim, link):
+    with served(transport) as (sim, link):
         expected = pymavlink_params(link)
         with MavproxyProcess(link, str(tmp_path)) as mp:
             t_link, _ = mp.expect(r"Detected vehicle", WAIT)
@@ -48,6 +49,7 @@ def test_headless_mavproxy_has_every_parameter_soon(transport: str, tmp_path) ->
                 f"MAVProxy took {took:.1f} s for the parameters (its MAVFTP timeout is 12 s)\n"
                 f"{mp.tail()}")
             assert not mp.printed(r"FTP: request timed out"), mp.tail()
+        assert not unrecorded_requests(sim), unrecorded_requests(sim)
 
 
 def same_items(a: mavwp.MAVWPLoader, b: mavwp.MAVWPLoader) -> list[str]:
@@ -96,3 +98,4 @@ def test_mavproxy_console_mode_arm_and_wp_round_trip(transport: str, tmp_path) -
         assert sim.mode == "LAND"
         assert not mp.printed(r"fence breach"), (
             f"MAVProxy shows a fence breach (SYS_STATUS geofence health bit):\n{mp.tail()}")
+        assert not unrecorded_requests(sim), unrecorded_requests(sim)

@@ -17,7 +17,7 @@ import pytest
 
 from tests.vehicle.clients import (
     MAV, TRANSPORTS, WAIT, MavsdkLog, mavsdk_system, north_east_m, require_mavsdk, served,
-    wait_until,
+    unrecorded_requests, wait_until,
 )
 
 ALT = 10.0
@@ -67,18 +67,27 @@ def take_off(p, system, tel):
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_health_home_armable_and_version(transport: str) -> None:
-    """health() says global and home position ok and armable; info.get_version() is
-    ArduCopter 4.x; the autopilot is ArduPilot; on the ground, landed_state is ON_GROUND;
-    an ArduPilot integer parameter reads as one."""
+    """While the fix is withheld, health() is not ready (no global position, not armable);
+    after it, global and home position ok and armable; info.get_version() is ArduCopter 4.x;
+    the autopilot is ArduPilot; on the ground, landed_state is ON_GROUND; an ArduPilot integer
+    parameter reads as one."""
     p = plugins()
     from mavsdk import Autopilot
 
-    with served(transport, sysid=3) as (_sim, link), mavsdk_system(link) as system:
+    with served(transport, sysid=3, fix_withheld=True) as (sim, link), \
+            mavsdk_system(link) as system:
         tel, info = p["Telemetry"](system), p["Info"](system)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            h = tel.health()
+            assert not (h.is_global_position_ok or h.is_armable), f"without a fix: {health(tel)}"
+            time.sleep(0.1)
+        sim.give_fix()
         t0 = time.monotonic()
         wait_until(lambda: ready(tel), WAIT, "health: global, home position ok, armable",
                    show=lambda: health(tel))
-        print(f"MAVSDK health ready over {transport}: {time.monotonic() - t0:.2f} s")
+        print(f"MAVSDK health ready over {transport}: {time.monotonic() - t0:.2f} s after "
+              f"the fix")
         assert not math.isnan(tel.home().latitude_deg)
         version = wait_until(lambda: _version(info), WAIT, "info.get_version()",
                              show=MavsdkLog.tail)
@@ -88,6 +97,7 @@ def test_health_home_armable_and_version(transport: str) -> None:
                    "landed_state ON_GROUND on the ground", show=lambda: health(tel))
         assert not tel.in_air()
         assert p["Param"](system).get_param_int("SYSID_THISMAV") == 3
+    assert not unrecorded_requests(sim, sysid=3), unrecorded_requests(sim, sysid=3)
 
 
 def _version(info):
@@ -126,6 +136,7 @@ def test_arm_takeoff_in_air_and_goto_location(transport: str) -> None:
                    WAIT, "return_to_launch: landed and disarmed",
                    show=lambda: (sim.mode, health(tel)))
         assert not tel.in_air()
+    assert not unrecorded_requests(sim), unrecorded_requests(sim)
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
@@ -164,6 +175,7 @@ def test_mission_raw_upload_download_start(transport: str) -> None:
         wait_until(lambda: mission.mission_progress().current >= 2, WAIT,
                    "mission_progress past the takeoff",
                    show=lambda: vars(mission.mission_progress()))
+    assert not unrecorded_requests(sim), unrecorded_requests(sim)
 
 
 @pytest.mark.slow
@@ -194,3 +206,4 @@ def test_offboard_velocity_moves_the_vehicle(transport: str) -> None:
         assert abs(north) < east / 2
         offboard.set_velocity_ned(vel(0.0, 0.0, 0.0, 0.0))
         offboard.stop()
+    assert not unrecorded_requests(sim), unrecorded_requests(sim)
