@@ -6,7 +6,7 @@ The runner marks each case's start and end in its capture (``/conformance/case``
 thread of its own, all sending from the runner's one socket: where one case's datagram falls
 among another's in the manager's stream, and which of two ACKs the node sends first, is the
 threads' race and carries no meaning. Two whole-suite runs of the reference drone
-(``mcp-conform --mavlink``) differed by 28–33 such "reorderings" every time: the four
+(``mcp-conform --mavlink``) differed in 8 pairs of 8, by 19–37 divergences each: the four
 MCP-ROB cases' malformed datagrams and liveness WP_Offs interleave differently in each run.
 
 An *overlap span* (:func:`overlap_spans`) is a stretch of time covered by case intervals that

@@ -1,7 +1,7 @@
 """mcp-capture diff where cases ran side by side (captures.overlap): the interleaving of
 overlapping cases' traffic is not compared; their own order, and everything outside, is.
 
-Issue 35: two whole-suite runs of the reference drone differed by 28–33 reorderings every
+Issue 35: two whole-suite runs of the reference drone differed by 19–37 divergences every
 time, the schedule's batch (four MCP-ROB cases, the DUP and ACK silence cases) interleaving
 its threads' datagrams differently in each run. The runs here are small models of that
 batch: a ROB-like case sending malformed datagrams, each followed by a liveness WP_Off, and a

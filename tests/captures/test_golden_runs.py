@@ -10,7 +10,7 @@ capture, rewritten with the project's own reader and writer, must differ and say
 
 Then pairs of whole-suite runs (the default schedule: its batch runs the MCP-ACK silence,
 MCP-DUP count and four MCP-ROB cases side by side, each in its own thread): where one case's
-datagram falls among another's is the threads' race, and two runs differed by 28–33
+datagram falls among another's is the threads' race, and two runs differed by 19–37
 "reorderings" every time until the diff read the batch's span lane by lane
 (``captures.overlap``, from the runner's case marks). They compare equal now; a malformed
 input of one ROB case changed, or two of them swapped (that case's own order), in a copy of
