@@ -6,8 +6,11 @@ MCP IDs, the messages in order with who sent them, the action and the decoded pa
 retransmissions folded into a copy count, sequence numbers normalised per sender
 (MCP-SEQ-4), and so are the runner's passthrough probe tokens (their run-dependent seq
 dropped, each numbered by first appearance). Each conversation of the golden capture is
-aligned with the candidate's by ``difflib.SequenceMatcher`` over the messages' keys, so a
-message dropped or added shows as that one message, not as everything after it. Then, on aligned pairs:
+aligned with the candidate's, sender by sender, by ``difflib.SequenceMatcher`` over the
+messages' keys: a message dropped or added shows as that one message, not as everything
+after it. Where the runner's case marks say cases ran side by side (the schedule's batch),
+how their traffic interleaved is not compared, each case's own order is
+(:mod:`captures.overlap`). Then, on aligned pairs:
 
 - retransmission counts must agree within ``--copies-tolerance`` (default 1);
 - timing is ignored unless ``--time-tolerance S`` is given, but the largest drift (the
@@ -43,6 +46,7 @@ from captures.conversation import (
     entry_fields,
     peers_text,
 )
+from captures.overlap import SPAN_EDGES, Span, aligned_order, overlap_spans, spans_text
 from harness.liveness import PROBE_SRC as LIVENESS_ID
 from spec.codec import Action, peek_header
 
@@ -73,6 +77,7 @@ class Side:
     truncated: str | None = None
     bursts: int = 0
     metadata: dict[str, str] = field(default_factory=dict)
+    overlaps: list[Span] = field(default_factory=list)  # cases run side by side (captures.overlap)
 
     @property
     def messages(self) -> int:
@@ -111,14 +116,15 @@ class DiffResult:
 
 # ---------------------------------------------------------------- reading
 def side_from_datagrams(name: str, datagrams: Iterable[Any], *, truncated: str | None = None,
-                        metadata: dict[str, str] | None = None) -> Side:
+                        metadata: dict[str, str] | None = None, marks: Iterable[Any] = ()) -> Side:
     """A side from datagram records (``index``, ``t_ns``, ``src_addr``, ``dst_addr``, ``data``),
     taken in time order (a recorder's threads may write a reply before the message it
     answers: the message's time is stamped before it leaves); a list is sorted here, an
-    iterator (``traceio.reader``, which orders them) streams through."""
+    iterator (``traceio.reader``, which orders them) streams through. ``marks``: the run's
+    case marks, read once the datagrams are (where cases overlapped: ``captures.overlap``)."""
     counted = _Counted(in_time_order(datagrams) if isinstance(datagrams, list) else datagrams)
     convs, t0 = build_conversations(counted)
-    return Side(name, convs, t0, counted.n, truncated, 0, metadata or {})
+    return Side(name, convs, t0, counted.n, truncated, 0, metadata or {}, overlap_spans(marks))
 
 
 class _Counted:
@@ -149,11 +155,12 @@ def in_time_order(datagrams: Iterable[Any]) -> list[Any]:
 
 def load_side(path: str | Path) -> Side:
     """Read a capture (raises ``traceio.reader.CaptureError`` when it cannot)."""
-    from traceio.reader import Datagram, Metadata, Truncated, open_capture
+    from traceio.reader import CaseMark, Datagram, Metadata, Truncated, open_capture
 
     cap = open_capture(path)
     meta: dict[str, str] = {}
     truncated: list[str] = []
+    marks: list[CaseMark] = []
 
     def datagrams() -> Iterable[Any]:
         for rec in cap:
@@ -164,8 +171,10 @@ def load_side(path: str | Path) -> Side:
                 meta.update(rec.data)
             elif isinstance(rec, Truncated):
                 truncated.append(rec.reason)
+            elif isinstance(rec, CaseMark):
+                marks.append(rec)
 
-    side = side_from_datagrams(str(path), datagrams())
+    side = side_from_datagrams(str(path), datagrams(), marks=marks)
     side.truncated = truncated[0] if truncated else getattr(cap, "truncated", None)
     side.metadata = meta
     return side
@@ -199,15 +208,9 @@ def _fields_differ(g: Entry, c: Entry) -> tuple[tuple[str, Any, Any], ...]:
     return tuple(out)
 
 
-def _content(e: Entry) -> tuple[Any, ...]:
-    return e.key
-
-
-def _align(g: list[Entry], c: list[Entry]) -> list[tuple[str, int, int, int, int]]:
+def _align(gk: list[Any], ck: list[Any]) -> list[tuple[str, int, int, int, int]]:
     """SequenceMatcher opcodes over the keys, with the common prefix and suffix trimmed
     first (the usual case is two nearly equal conversations: linear time)."""
-    gk = [e.key for e in g]
-    ck = [e.key for e in c]
     n, m = len(gk), len(ck)
     lo = 0
     while lo < n and lo < m and gk[lo] == ck[lo]:
@@ -230,10 +233,12 @@ def _align(g: list[Entry], c: list[Entry]) -> list[tuple[str, int, int, int, int
     return ops
 
 
-def _streams(g: list[Entry], c: list[Entry]) -> Iterable[tuple[str, list[int], list[int]]]:
+def _streams(g: list[Entry], c: list[Entry], g_spans: list[Span] | None = None,
+             c_spans: list[Span] | None = None) -> Iterable[tuple[str, list[int], list[int]]]:
     """Alignment per sender: each sender's own order is the protocol's; how two senders'
     datagrams interleave on the wire is a race (an ACK may leave before or after the
-    other side's next message). Yields (tag, golden positions, candidate positions)."""
+    other side's next message), and so is how cases run side by side interleave (read lane
+    by lane: ``captures.overlap``). Yields (tag, golden positions, candidate positions)."""
     by_g: dict[Any, list[int]] = {}
     by_c: dict[Any, list[int]] = {}
     for n, e in enumerate(g):  # one pass each, whatever the number of senders
@@ -241,9 +246,14 @@ def _streams(g: list[Entry], c: list[Entry]) -> Iterable[tuple[str, list[int], l
     for n, e in enumerate(c):
         by_c.setdefault(e.src, []).append(n)
     for sender in sorted(by_g.keys() | by_c.keys(), key=lambda s: -1 if s is None else s):
-        gi, ci = by_g.get(sender, []), by_c.get(sender, [])
-        for tag, i1, i2, j1, j2 in _align([g[i] for i in gi], [c[j] for j in ci]):
-            yield tag, gi[i1:i2], ci[j1:j2]
+        gi = aligned_order(g, by_g.get(sender, []), g_spans or [])
+        ci = aligned_order(c, by_c.get(sender, []), c_spans or [])
+        gk = [g[i].key if i >= 0 else SPAN_EDGES[i] for i in gi]
+        ck = [c[j].key if j >= 0 else SPAN_EDGES[j] for j in ci]
+        for tag, i1, i2, j1, j2 in _align(gk, ck):
+            gs, cs = [i for i in gi[i1:i2] if i >= 0], [j for j in ci[j1:j2] if j >= 0]
+            if gs or cs:
+                yield tag, gs, cs
 
 
 def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any], start: int = 0) -> None:
@@ -264,6 +274,7 @@ def _drop_consequent_ack_moves(divs: list[Divergence], peers: tuple[Any, Any], s
 
 def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffOptions,
              result: DiffResult) -> None:
+    gs_, cs_ = result.golden.overlaps, result.candidate.overlaps
     divs = result.divergences
     start = len(divs)  # this conversation's divergences are divs[start:]
     pairs: list[tuple[int | None, int | None]] = []
@@ -271,7 +282,7 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
     changed: list[tuple[int, int]] = []
     missing: list[int] = []
     extra: list[int] = []
-    for tag, gs, cs in _streams(g, c):
+    for tag, gs, cs in _streams(g, c, gs_, cs_):
         if tag == "equal":
             equal.extend(zip(gs, cs, strict=True))
             continue
@@ -333,13 +344,13 @@ def _compare(peers: tuple[Any, Any], g: list[Entry], c: list[Entry], opts: DiffO
     swapped: set[int] = set()
     by_content: dict[tuple[Any, ...], list[int]] = {}
     for n, (i, _j) in enumerate(changed):
-        by_content.setdefault(_content(g[i]), []).append(n)
+        by_content.setdefault(g[i].key, []).append(n)
     for n, (i, j) in enumerate(changed):
         if n in swapped:
             continue
-        for other in by_content.get(_content(c[j]), []):
+        for other in by_content.get(c[j].key, []):
             oi, oj = changed[other]
-            if other != n and other not in swapped and _content(c[oj]) == _content(g[i]):
+            if other != n and other not in swapped and c[oj].key == g[i].key:
                 swapped.update((n, other))
                 divs.append(Divergence("reordered", peers, g[i], c[j], i, j,
                                        (("order", describe(g[i]), describe(g[oi])),),
@@ -414,6 +425,9 @@ def print_report(result: DiffResult, out: TextIO = sys.stdout) -> None:
     if opts.time_tolerance is None:
         drift += "; timing not compared (--time-tolerance S to compare)"
     out.write(drift + "\n")
+    for side, label in ((g, "golden"), (c, "candidate")):
+        if side.overlaps:
+            out.write(f"{label}: {spans_text(side.overlaps)}\n")
     if result.same:
         out.write("same: every conversation matches\n")
         return
@@ -477,7 +491,9 @@ def build_json(result: DiffResult) -> dict[str, Any]:
 
     def side(s: Side) -> dict[str, Any]:
         return {"file": s.name, "truncated": s.truncated, "datagrams": s.datagrams, "messages": s.messages,
-                "metadata": s.metadata}
+                "metadata": s.metadata,
+                "overlaps": [{"start_s": (o.start_ns - s.t0_ns) / 1e9, "cases": list(o.cases)}
+                             for o in s.overlaps]}
     convs = []
     for peers in sorted(set(g.conversations) | set(c.conversations), key=_order_key):
         convs.append({"peers": list(peers),

@@ -6,7 +6,8 @@ conversation on the left, the candidate's on the right, each a chart of
 on the right, an extra one a gap on the left (a grey "(not here)" row: no arrow, no time of
 the other capture's) — with divergent arrows marked by class
 (``missing``, ``extra``, ``changed``, ``reordered``, ``copies``, ``timing``, ``address``)
-and the divergence list above.
+and the divergence list above. Arrows stay in time order; where cases ran side by side the
+page says so (their interleaving was not compared: :mod:`captures.overlap`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from captures.conversation import Entry, describe, peers_text
+from captures.overlap import spans_text
 from reports.chart import Arrow, Lifeline, render
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action
 
@@ -104,7 +106,9 @@ def html_report(result: Any) -> str:
             sections.append(f"<h2>conversation {title}</h2>{body}")
         else:
             sections.append(f"<details><summary>conversation {title} (same)</summary>{body}</details>")
-    drift = f"<p>largest timing drift {result.max_drift_ns / 1e9:+.3f} s</p>"
+    drift = f"<p>largest timing drift {result.max_drift_ns / 1e9:+.3f} s</p>" + "".join(
+        f"<p>{label}: {escape(spans_text(side.overlaps))}</p>"
+        for side, label in ((result.golden, "golden"), (result.candidate, "candidate")) if side.overlaps)
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>mcp-capture diff</title>"
             f"<style>{STYLE}</style></head><body><h1>mcp-capture diff</h1>"
             f"<p>golden: {escape(result.golden.name)}<br>candidate: {escape(result.candidate.name)}</p>"

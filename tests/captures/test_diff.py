@@ -440,3 +440,21 @@ def test_acks_of_commands_in_flight_together_read_in_the_commands_order():
     result = _diff(golden, late)
     assert result.divergences and {d.kind for d in result.divergences} == {"reordered"}, \
         _report(result)
+
+
+def test_a_header_cut_short_is_compared_without_its_seq():
+    """MCP-ROB-1 sends a header cut at 16 bytes numbered from the runner's counter, whose
+    value depends on how the batch's cases drew from it: two runs differ only by that seq.
+    Any other byte of it still differs."""
+    from spec.codec import HEADER_SIZE, build_datagram
+
+    def run(cut: bytes) -> list[D]:
+        mgr, drone = ("127.0.0.1", 7889), ("127.0.0.1", 7890)
+        return [D(0, 10**18, mgr, drone, cut)]
+
+    def cut(seq: int, dst: int = 1) -> bytes:
+        return build_datagram(dst, 0, seq, int(Action.WP_OFF))[:HEADER_SIZE - 1]
+    assert _diff(run(cut(0x533)), run(cut(0x532))).same
+    result = _diff(run(cut(0x533)), run(cut(0x533, dst=2)))
+    assert [d.kind for d in result.divergences] == ["changed"], _report(result)
+    assert result.divergences[0].fields[0][0] == "bytes"

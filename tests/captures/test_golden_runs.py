@@ -8,10 +8,13 @@ drone with the simulated vehicle (``--mavlink``: MCP-ACK-5 then sends its probe 
 in the batch beside MCP-ACK-4 and -6) are diffed by the command itself, then a copy of one
 capture, rewritten with the project's own reader and writer, must differ and say where.
 
-Not MCP-DUP here: its batch cases (DUP-1, DUP-4) send to the same node side by side, and where
-one case's message falls among the other's in the manager's stream is the threads' race,
-which the diff (rightly, so far) reads as a reordering; a golden of those is recorded
-``--serial`` (captures/golden/README.md).
+Then pairs of whole-suite runs (the default schedule: its batch runs the MCP-ACK silence,
+MCP-DUP count and four MCP-ROB cases side by side, each in its own thread): where one case's
+datagram falls among another's is the threads' race, and two runs differed by 19–37
+"reorderings" every time until the diff read the batch's span lane by lane
+(``captures.overlap``, from the runner's case marks). They compare equal now; a malformed
+input of one ROB case changed, or two of them swapped (that case's own order), in a copy of
+a run still differ.
 """
 
 from __future__ import annotations
@@ -25,9 +28,9 @@ import pytest
 
 from captures.conversation import ProbeKey, probe_frame
 from captures.diff import load_side
-from spec.codec import Action, decode, encode
+from spec.codec import Action, DecodeError, decode, encode
 from tests.forkserver import run_module
-from traceio.reader import Datagram, Metadata, open_capture
+from traceio.reader import CaseMark, Datagram, Metadata, open_capture
 from traceio.recorder import McapRecorder
 from vehicle.probe import make_probe
 
@@ -51,6 +54,13 @@ def _diff_cli(golden: Path, candidate: Path) -> subprocess.CompletedProcess[str]
                           capture_output=True, text=True, timeout=120, cwd=ROOT, env=os.environ)
 
 
+def _decoded(r: Datagram):
+    try:
+        return decode(r.data)
+    except DecodeError:
+        return None
+
+
 def _probes(path: Path) -> list[tuple[ProbeKey, str]]:
     """(normalised key, raw token) of each probe the runner sent, in capture order."""
     side = load_side(path)
@@ -65,13 +75,15 @@ def _probes(path: Path) -> list[tuple[ProbeKey, str]]:
 
 
 def _rewrite(src: Path, dst: Path, change) -> int:
-    """Copy ``src``'s datagrams (and metadata) to ``dst`` through traceio's reader and
+    """Copy ``src``'s datagrams (metadata, case marks) to ``dst`` through traceio's reader and
     recorder, ``change(datagram)`` returning new bytes or None; returns how many changed."""
     changed = 0
     with McapRecorder(dst) as rec:
         for r in open_capture(src):
             if isinstance(r, Metadata):
                 rec.add_metadata(r.name, r.data)
+            elif isinstance(r, CaseMark):
+                rec.case_mark(r.case, r.event, r.t_ns, r.outcome, r.rules)
             elif type(r) is Datagram:
                 data = change(r)
                 if data is not None:
@@ -117,8 +129,8 @@ def test_a_probe_renamed_in_a_copy_of_a_run_differs(runs, tmp_path):
     target: list[str] = []
 
     def rename(r: Datagram) -> bytes | None:
-        msg = decode(r.data)
-        if msg.action != Action.MAV_PASSTHROUGH or target:
+        msg = _decoded(r)
+        if msg is None or msg.action != Action.MAV_PASSTHROUGH or target:
             return None
         found = probe_frame(msg.payload)
         if found is None or "acted_on" not in found[0]:
@@ -142,8 +154,8 @@ def test_an_mcp_field_changed_in_a_copy_of_a_run_differs(runs, tmp_path):
     done: list[int] = []
 
     def misack(r: Datagram) -> bytes | None:
-        msg = decode(r.data)
-        if done or msg.action != Action.ACK or msg.src == 0 or r.direction != "rx":
+        msg = _decoded(r)
+        if done or msg is None or msg.action != Action.ACK or msg.src == 0 or r.direction != "rx":
             return None
         done.append(msg.payload)
         return encode(msg._replace(payload=(msg.payload + 0x1000) & 0xFFFF))
@@ -156,3 +168,71 @@ def test_an_mcp_field_changed_in_a_copy_of_a_run_differs(runs, tmp_path):
     first = proc.stdout.split("first divergence", 1)[1]
     assert "1→0 ACK of seq+" in first and "(no such message)" in first, proc.stdout
     assert "— payload: " in proc.stdout, proc.stdout  # the ACK's field, golden → candidate
+
+
+# ---------------------------------------------------------------- whole-suite runs
+SUITE_PAIRS = 3
+
+
+def _record_suite(path: Path) -> Path:
+    proc = run_module("conformance", ["--mavlink", "--rto", "0.3", "--ack-window", "0.3",
+                                      "--capture", str(path)], cwd=path.parent, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return path
+
+
+@pytest.fixture(scope="module")
+def suite_runs(tmp_path_factory) -> list[Path]:
+    d = tmp_path_factory.mktemp("suite-runs")
+    return [_record_suite(d / f"suite{n}.mcap") for n in range(2 * SUITE_PAIRS)]
+
+
+def test_pairs_of_whole_suite_runs_are_the_same(suite_runs):
+    for n in range(SUITE_PAIRS):
+        proc = _diff_cli(suite_runs[2 * n], suite_runs[2 * n + 1])
+        assert proc.returncode == 0, f"pair {n}: {proc.stdout[-3000:]}{proc.stderr[-2000:]}"
+        assert "same: every conversation matches" in proc.stdout
+        # the batch ran side by side in both (else this pair proves nothing about it)
+        assert proc.stdout.count("span of cases run side by side") == 2, proc.stdout
+
+
+def _rob2_inputs_in_the_batch(path: Path) -> list[Datagram]:
+    """The bad-preamble inputs (MCP-ROB-2) the runner sent while the batch ran."""
+    (span,) = load_side(path).overlaps
+    out = []
+    for r in open_capture(path):
+        if type(r) is Datagram and span.start_ns <= r.t_ns <= span.end_ns and r.direction == "tx":
+            try:
+                decode(r.data)
+            except DecodeError as exc:
+                if exc.rule == "MCP-ROB-2":
+                    out.append(r)
+    return out
+
+
+def test_a_change_inside_the_batch_of_a_whole_suite_run_differs(suite_runs, tmp_path):
+    """A copy as it is reads the same; one ROB-2 input's last byte changed is one change;
+    two ROB-2 inputs swapped (that case's own order) is a reordering."""
+    golden = suite_runs[0]
+    same = tmp_path / "copy.mcap"
+    assert _rewrite(golden, same, lambda r: None) == 0
+    proc = _diff_cli(golden, same)
+    assert proc.returncode == 0, proc.stdout[-3000:]
+
+    inputs = _rob2_inputs_in_the_batch(golden)
+    assert len(inputs) >= 2, inputs
+    first, second = inputs[0], next(r for r in inputs[1:] if r.data != inputs[0].data)
+    flipped = {first.index: first.data[:-1] + bytes([first.data[-1] ^ 0xFF])}
+    changed = tmp_path / "changed.mcap"
+    assert _rewrite(golden, changed, lambda r: flipped.get(r.index)) == 1
+    proc = _diff_cli(golden, changed)
+    assert proc.returncode == 1, proc.stdout[-3000:]
+    assert "1 divergence(s): 1 changed" in proc.stdout, proc.stdout
+    assert "malformed" in proc.stdout.split("first divergence", 1)[1], proc.stdout
+
+    swapped = {first.index: second.data, second.index: first.data}
+    reordered = tmp_path / "swapped.mcap"
+    assert _rewrite(golden, reordered, lambda r: swapped.get(r.index)) == 2
+    proc = _diff_cli(golden, reordered)
+    assert proc.returncode == 1, proc.stdout[-3000:]
+    assert "reordered" in proc.stdout.split("first divergence", 1)[1], proc.stdout
