@@ -114,7 +114,6 @@ def test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings(
                     "to owe each copy of a command its own ACK")
     found = [f for f in store.order if f.rule == rule]
     assert found, f"{fault} seed {seed}: no confirmed {rule} in {summary['cases']} cases; {store.by_rule()}, {stateful}"
-    assert found[0].engine == "stateful"
 
 
 @pytest.mark.slow
