@@ -3,15 +3,23 @@
     pip install -e '.[bench]'      # boofuzz
     python bench/bench_fuzz.py [--cases N] [--seconds S]
     python bench/bench_fuzz.py --protocol nsqd [--backend reference|c|both]   # Nsqd over TCP (issue 21)
+    python bench/bench_fuzz.py --time-to-find [--seeds 1,2,3,4,5] [--faults F,...] [--engines E,...] [--nsqd]
 
-One reference drone (the embedded default, spawned once) is fuzzed three times in a row:
+One reference drone (the embedded default, spawned once) is fuzzed four times in a row:
 
 - ``boofuzz default``: a boofuzz 0.4.2 Session as its documentation sets one up (web UI,
   text logger, results database, receiving after each request), over UDP;
 - ``boofuzz tuned``: no web UI, no loggers, ``fuzz_db_keep_only_n_pass_cases=1``,
   ``reuse_target_connection=True``, no receive: it sends blind and judges nothing;
 - ``mcp-fuzz stateless``: the stateless engine with every oracle on (replies, liveness
-  probe, process fate, trace monitor).
+  probe, process fate, trace monitor);
+- ``mcp-fuzz stateful``: the stateful engine's programs (``fuzz.programs``), pipelined, with
+  the same oracles and every copy's ACK counted (MCP-ACK-1), its rare restarts included
+  (withheld Mission_Ready, End_Mission).
+
+``--time-to-find`` prints instead the median time to the first confirmed finding for each
+of the project's own faulty nodes (and, with ``--nsqd``, backends), per engine
+(``bench/bench_fuzz_ttf.py``).
 
 boofuzz's request is the MCP header (preamble, dst, src, seq, action as big-endian words)
 and a payload blob, mutated by boofuzz's own primitives. Each runs ``--cases`` cases or
@@ -128,6 +136,15 @@ def run_mcp_fuzz(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa:
     return st.cases, st.seconds
 
 
+def run_stateful(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa: ANN001
+    from fuzz.engine_stateful import StatefulEngine
+
+    cfg = FuzzConfig(engine="stateful", seed=1)
+    eng = StatefulEngine(tgt, Triage(tgt, FindingStore(None), "stateful", 1), cfg)
+    st = eng.run(time.monotonic() + seconds, cases)
+    return st.cases, st.seconds
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=20_000)
@@ -136,9 +153,20 @@ def main() -> int:
                     help="nsqd: against an Nsqd backend over TCP (bench/bench_fuzz_nsqd.py)")
     ap.add_argument("--backend", choices=("reference", "c", "both"), default="both",
                     help="nsqd: the Python reference backend, the correct C backend, or both")
-    ap.add_argument("--engines", default="stateless,both", help="nsqd: mcp-fuzz engines to time (comma-separated)")
+    ap.add_argument("--engines", default="stateless,both", help="nsqd: mcp-fuzz engines to time (comma-separated); --time-to-find: default stateless,stateful,both")
     ap.add_argument("--probe-every", type=int, default=40, help="nsqd: mcp-fuzz's probe period in cases (its default 40)")
+    ap.add_argument("--time-to-find", action="store_true",
+                    help="the median time to the first confirmed finding per faulty node and engine")
+    ap.add_argument("--seeds", default="1,2,3,4,5", help="time-to-find: the seeds")
+    ap.add_argument("--faults", default="", help="time-to-find: these faults only (comma-separated)")
+    ap.add_argument("--nsqd", action="store_true", help="time-to-find: the C backend's faults too")
     args = ap.parse_args()
+    if args.time_to_find:
+        from bench.bench_fuzz_ttf import ENGINES, main_ttf
+
+        engines = [e for e in args.engines.split(",") if e in ENGINES] if args.engines != "stateless,both" else list(ENGINES)
+        return main_ttf([int(x) for x in args.seeds.split(",") if x], [f for f in args.faults.split(",") if f] or None,
+                        engines, args.nsqd)
     if args.protocol == "nsqd":
         from bench.bench_fuzz_nsqd import main_nsqd
 
@@ -146,16 +174,20 @@ def main() -> int:
                          args.probe_every)
     try:
         import boofuzz  # noqa: F401
+        have_boofuzz = True
     except ImportError:
-        print("bench_fuzz: boofuzz is not installed: pip install -e '.[bench]'", file=sys.stderr)
-        return 2
+        print("bench_fuzz: boofuzz is not installed (pip install -e '.[bench]'): its rows skipped", file=sys.stderr)
+        have_boofuzz = False
     tgt = start_target(FuzzConfig())  # the reference drone, spawned once for all three
     rows = []
     try:
         addr, node = tgt.driver.target, tgt.node_id
-        for label, fn in (("boofuzz default", lambda: run_boofuzz(addr, node, args.cases, args.seconds, False)),
-                          ("boofuzz tuned (blind)", lambda: run_boofuzz(addr, node, args.cases, args.seconds, True)),
-                          ("mcp-fuzz stateless, every oracle", lambda: run_mcp_fuzz(tgt, args.cases, args.seconds))):
+        runs = [("boofuzz default", lambda: run_boofuzz(addr, node, args.cases, args.seconds, False)),
+                ("boofuzz tuned (blind)", lambda: run_boofuzz(addr, node, args.cases, args.seconds, True))]
+        runs = runs if have_boofuzz else []
+        runs += [("mcp-fuzz stateless, every oracle", lambda: run_mcp_fuzz(tgt, args.cases, args.seconds)),
+                 ("mcp-fuzz stateful, every oracle", lambda: run_stateful(tgt, args.cases, args.seconds))]
+        for label, fn in runs:
             n, s = fn()
             probe = tgt.probe()
             rows.append((label, n, s, probe.acked))
@@ -163,7 +195,8 @@ def main() -> int:
                   f"  node live after: {probe.acked}", flush=True)
     finally:
         tgt.close()
-    print(f"machine: {os.cpu_count()} CPUs; Python {sys.version.split()[0]}")
+    print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}; "
+          f"Python {sys.version.split()[0]}")
     return 0
 
 

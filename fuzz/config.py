@@ -13,6 +13,20 @@ from typing import Any
 from harness.config import DEFAULT_SEED, RunConfig
 
 ENGINES = ("stateless", "stateful", "both")
+#: The engine mix when ``--engine`` is not given, for a drone (MCP): the stateless engine's
+#: batches, then the stateful engine's programs, the budget split between them
+#: (``fuzz.campaign``). The faults that need a sequence — a message then its copy (MCP-ACK-1,
+#: MCP-DUP-1), a seq walked to the wrap (MCP-SEQ-3) — are the stateful engine's; pipelined,
+#: it runs about as fast as the stateless one (issue 36 item 4; bench/bench_fuzz.py).
+DEFAULT_ENGINE = "both"
+
+
+def default_engine(role: str = "drone", protocol: str = "mcp") -> str:
+    """``--engine``'s default (the one source the command line reads): :data:`DEFAULT_ENGINE`
+    for a drone; a manager is fuzzed by the stateless engine only (the stateful engine's
+    programs are a manager's moves); Nsqd keeps the stateless engine until its stateful one
+    is as fast (``fuzz.stream_stateful``: tens of cases/s, bench/bench_fuzz.py --protocol nsqd)."""
+    return DEFAULT_ENGINE if role == "drone" and protocol == "mcp" else "stateless"
 
 
 @dataclass
@@ -27,7 +41,7 @@ class FuzzConfig:
     seed: int = DEFAULT_SEED
     max_cases: int | None = None
     duration: float | None = None
-    engine: str = "stateless"
+    engine: str = DEFAULT_ENGINE
     jobs: int = 1
     db: str | None = None  # a directory, or redis://HOST:PORT/N
     seeds_dir: str | None = None

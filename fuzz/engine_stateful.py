@@ -1,44 +1,40 @@
-"""The stateful engine: hypothesis plays the manager across a mission (issue 11 item 3).
+"""The stateful engine: programs of a manager's moves across a mission, pipelined (issue 11
+item 3, issue 36 item 4).
 
-:class:`ManagerMachine` is a ``RuleBasedStateMachine`` whose rules are what a manager (and
-a confused network) may do to a drone: commands of every kind (Start_Mission, WP_List,
-WP_On, WP_Off, Obstacles_List, Mav_Passthrough), End_Mission, broadcasts, duplicates and
-late copies, a jump of the sequence number to just before the wrap, messages from other
-sources and to other IDs, ACKs sent to the node, malformed datagrams from the spec's
-strategies, and a restart whose Mission_Ready ACKs are withheld for a few copies. After
-every step a liveness probe follows and every oracle judges (``fuzz.oracles``: replies,
-liveness, process, vehicle deliveries, the trace monitor); a flaw fails the step, so
-hypothesis shrinks the program to its shortest form and prints it. The engine then hands
-the failing example's datagrams to triage (confirmed on a fresh node, shrunk again as a
-datagram sequence, written with the printed program).
+A program (``fuzz.programs``: commands of every kind and their copies, duplicates and late
+copies, broadcasts, messages to other IDs and from other sources, ACKs to the node, a jump
+of the sequence number to the wrap, malformed datagrams, now and then a fresh node whose
+Mission_Ready ACKs are withheld or an End_Mission) is sent back to back, as the stateless
+engine sends a batch: nothing waits for an ACK between moves. One liveness probe follows the
+program; its ACK proves the node live and, since a node handles its datagrams in order, that
+every ACK it was going to send for the program has been sent. Each ACK is then tied to what
+it answers by the sequence number it names (``fuzz.oracles.judge_exchange``, the conformance
+batch's attribution), and every oracle judges: replies, liveness, process, the trace
+monitor, the vehicle's record (``DeliveryLedger``: each frame as often as the duplicate
+rules say, judged once the node's forwards have settled) and the copies of each command:
+each copy is ACKed again (MCP-ACK-1), observed as the rule says — a copy left unanswered is
+sent again every ``--rto`` up to ``ACK_COPIES`` copies before it is a finding, so a node
+that lost one datagram of a burst is not blamed, and a healthy node pays nothing.
 
-Workers share hypothesis's example database (``--db DIR`` or ``--db redis://HOST:PORT/N``):
-a program that failed on one worker is replayed first by the others.
+Before (one probe and one ACK wait per step, hypothesis drawing each step): 90-270 cases/s;
+the faults that need a sequence (a message then its copy; a seq walked to the wrap) were
+too slow to reach within a campaign's budget. A flaw goes to triage with the datagrams of
+its program up to the culprit (confirmed on a fresh node, shrunk, grouped) and the program
+printed; the program is saved in the example database (``--db DIR`` or ``--db
+redis://HOST:PORT/N``, hypothesis's), whose programs every worker plays first.
 """
 
 from __future__ import annotations
 
 import contextlib
+import random
 import time
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 from urllib.parse import urlparse
 
-from hypothesis import HealthCheck, Phase, settings
-from hypothesis import seed as hypothesis_seed
-from hypothesis import strategies as st
 from hypothesis.database import DirectoryBasedExampleDatabase, ExampleDatabase
-from hypothesis.errors import Flaky
-from hypothesis.reporting import with_reporter
-from hypothesis.stateful import (
-    RuleBasedStateMachine,
-    initialize,
-    invariant,
-    precondition,
-    rule,
-    run_state_machine_as_test,
-)
 
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats
@@ -47,56 +43,48 @@ from fuzz.oracles import (
     Flaw,
     Input,
     MonitorOracle,
+    acked_seq,
     judge_exchange,
-    judge_liveness,
     judge_withheld,
 )
+from fuzz.programs import Move, ProgramGenerator, dumps, loads, program_text
 from fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
 from fuzz.target import FuzzTarget
 from fuzz.target_base import DIED, MISSION_ENDED
 from fuzz.triage import Triage
 from spec.codec import Action, Message, encode
-from spec.strategies import malformed_datagrams, mission_items
+from spec.generators import random_malformed, random_message
 from vehicle.probe import make_probe
 
-__all__ = ["ManagerMachine", "StatefulEngine", "check_database", "open_database"]
+__all__ = ["ACK_COPIES", "OutOfBudget", "StatefulEngine", "check_database", "judge_copies",
+           "open_database"]
 
-COMMANDS = (Action.START_MISSION, Action.WP_LIST, Action.WP_ON, Action.WP_OFF,
-            Action.OBSTACLES_LIST, Action.MAV_PASSTHROUGH)
 OTHER_SRC = 0x7777
-SEQ_GAP = 1000  # numbers skipped between programs
-STEPS = 24  # steps per program at most
-END_ODDS = 8  # one End_Mission move in this many ends the mission
-CHUNK = 10  # examples per hypothesis run (the budget is checked between steps, too)
-TICK_S = 0.25  # progress updates from inside a run, at most this often
-#: How long hypothesis may shrink a failing program. Each shrink step replays a program
-#: against the node (seconds each), and triage minimises the datagrams afterwards anyway;
-#: unbounded, shrinking took most of a campaign (a DUP-1 failure found in the 21st program
-#: was shrunk for 30 s).
-SHRINK_S = 5.0
+SEQ_GAP = 1000  # numbers skipped between programs: one program's never alias another's
+TICK_S = 0.25  # progress updates, at most this often
+#: Copies of a command left unanswered sent in all before its missing ACK is a finding:
+#: MCP-ACK-1's observation ("retransmitting it every --rto as a manager would, up to 5
+#: copies").
+ACK_COPIES = 5
+COPY_RECHECKS = 3  # unanswered copies observed per program at most (a lost datagram each)
+#: With the vehicle, its record is judged for under-delivery (a frame that never arrived:
+#: MCP-DUP-2, MCP-SEQ-3) once the forwards have settled: a sentinel frame behind them, sent
+#: after programs totalling this long, and before the node is restarted or ends its mission.
+SETTLE_S = 0.5
+DB_KEY = b"mcp-fuzz/stateful/programs"
+_ACK = int(Action.ACK)
+_PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
 
 
 class OutOfBudget(BaseException):  # noqa: N818 - not an error: a budget is spent
     """Raised from inside a step once the campaign's deadline, its case budget or a stop
-    request is reached (``campaign_over``), or once a failure has been shrunk for
-    ``SHRINK_S``: a ``BaseException``, so hypothesis neither counts it as a failure nor
-    shrinks it, and a run ends within one step."""
+    request is reached (``campaign_over``), or once a failure has been shrunk for long
+    enough: a ``BaseException``, so hypothesis neither counts it as a failure nor shrinks
+    it, and a run ends within one step (the Nsqd engine's, ``fuzz.stream_stateful``)."""
 
     def __init__(self, campaign_over: bool) -> None:
         super().__init__("campaign budget spent" if campaign_over else "shrink budget spent")
         self.campaign_over = campaign_over
-
-
-class FlawFound(AssertionError):
-    """A step broke a rule: the flaw, and every datagram the program sent."""
-
-    def __init__(self, flaw: Flaw, sent: list[bytes], scenario: str | None = None) -> None:
-        super().__init__(f"{flaw.rule}: expected {flaw.expected}; actual {flaw.actual}")
-        if CTX is not None:
-            CTX.failed(flaw, sent, scenario)
-        self.flaw = flaw
-        self.sent = sent
-        self.scenario = scenario
 
 
 def redis_address(spec: str) -> tuple[str, int, int]:
@@ -136,289 +124,55 @@ def open_database(spec: str | None) -> ExampleDatabase | None:
     return DirectoryBasedExampleDatabase(spec)
 
 
-class _Context:
-    """What the machine plays against (set by the engine before each hypothesis run)."""
-
-    def __init__(self, target: FuzzTarget, stats: EngineStats,
-                 out_of_budget: Callable[[], bool] = lambda: False,
-                 tick: Callable[[EngineStats], None] | None = None) -> None:
-        self.target = target
-        self.stats = stats
-        self.out_of_budget = out_of_budget
-        self.tick = tick
-        self._last_tick = 0.0
-        self.examples = 0
-        self.ledger = DeliveryLedger(target.node_id, target.broadcast_id)
-        self.monitor = MonitorOracle(target.node_id, target.rto, target.ack_window,
-                                     target.broadcast_id, target.driver.listen)
-        self.restarts_seen = target.restarts
-        # the first flaws steps raised, with what the program had sent (hypothesis keeps only
-        # the failures it can replay; triage confirms the others by itself)
-        self.raised: list[tuple[Flaw, list[bytes], str | None]] = []
-        self.shrink_until: float | None = None
-
-    def failed(self, flaw: Flaw, sent: list[bytes], scenario: str | None) -> None:
-        """A step failed: remember it (the first 20), and start the shrink budget."""
-        if len(self.raised) < 20:
-            self.raised.append((flaw, list(sent), scenario))
-        if self.shrink_until is None:
-            self.shrink_until = time.monotonic() + SHRINK_S
-
-    def smallest_failure(self) -> tuple[Flaw, list[bytes], str | None] | None:
-        """Of the failures seen in this run, the shortest one under the first one's rule
-        (what shrinking had reached when it was cut short)."""
-        if not self.raised:
-            return None
-        rule = self.raised[0][0].rule
-        return min((r for r in self.raised if r[0].rule == rule), key=lambda r: len(r[1]))
-
-    def checkpoint(self) -> None:
-        """Between steps: progress for the live display (a few times a second), and
-        :class:`OutOfBudget` once the budget is spent (issue 18 item 11: a 10-s campaign
-        had run 80 s, shrinking one failure while the display stayed at 0)."""
-        now = time.monotonic()
-        if self.tick is not None and now - self._last_tick >= TICK_S:
-            self._last_tick = now
-            self.tick(self.stats)
-        if self.out_of_budget():
-            raise OutOfBudget(campaign_over=True)
-        if self.shrink_until is not None and now >= self.shrink_until:
-            raise OutOfBudget(campaign_over=False)
-
-    def new_monitor(self) -> None:
-        t = self.target
-        self.monitor = MonitorOracle(t.node_id, t.rto, t.ack_window, t.broadcast_id, t.driver.listen)
-
-    def fresh_node(self) -> None:
-        """A node that has not ended its mission, with oracles that know it."""
-        t = self.target
-        if t.spawned and (t.ended or not t.alive()):
-            t.restart(MISSION_ENDED if t.ended and t.alive() else DIED)
-        if t.restarts != self.restarts_seen:
-            self.restarts_seen = t.restarts
-            self.ledger = DeliveryLedger(t.node_id, t.broadcast_id)
-            self.monitor = MonitorOracle(t.node_id, t.rto, t.ack_window, t.broadcast_id, t.driver.listen)
-            t.traffic.drain()
+def _must_ack(inp: Input, node_id: int, broadcast_id: int) -> bool:
+    """A message a correct node ACKs, every copy (MCP-ACK-1; as ``fuzz.oracles`` says)."""
+    m = inp.msg
+    return (m is not None and m.action != _ACK and m.dst == node_id
+            and m.src not in (node_id, broadcast_id))
 
 
-CTX: _Context | None = None
-
-
-class ManagerMachine(RuleBasedStateMachine):
-    """The manager's moves against one drone (see the module docstring)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        assert CTX is not None, "ManagerMachine runs under StatefulEngine"
-        self.ctx = CTX
-        self.ctx.examples += 1
-        self.ctx.fresh_node()
-        self.t = self.ctx.target
-        self.sent: list[bytes] = []
-        self.history: list[bytes] = []  # new unicast messages to the node, in order
-        self.tokens = 0
-        self.ended = False
-        self.wrapped = False
-        self.scenario: str | None = None  # how the node was started, when not plainly
-        # each program numbers its messages afresh, away from the wrap, and is judged by a
-        # fresh monitor: one program's numbers never alias another's in the trace
-        drv = self.t.driver
-        for src in (drv.our_id, OTHER_SRC):  # forward only: a lower number is a wrap
-            drv.set_seq(drv.peek_seq(src) + SEQ_GAP, src)
-        self.t.traffic.drain()
-        self.ctx.new_monitor()
-
-    # ------------------------------------------------------------------ helpers
-    def _token(self) -> str:
-        self.tokens += 1
-        return f"s{self.ctx.examples}x{self.tokens}"
-
-    def _message(self, action: Action, dst: int, src: int, items: list[Any]) -> bytes:
-        drv = self.t.driver
-        seq = drv.next_seq(src)
-        if action == Action.MAV_PASSTHROUGH:
-            payload: Any = make_probe(self._token())
-        elif action in (Action.WP_LIST, Action.OBSTACLES_LIST):
-            payload = tuple(items)
-        elif action == Action.WP_ON:
-            payload = items[0] if items else None
-        else:
-            payload = None
-        if action == Action.WP_ON and payload is None:
-            action, payload = Action.WP_OFF, None
-        return encode(Message(dst, src, seq, action, payload))
-
-    def _step(self, datagrams: list[bytes]) -> None:
-        """Send, probe, judge; a flaw fails the step (hypothesis then shrinks)."""
-        t, drv, ctx = self.t, self.t.driver, self.ctx
-        ctx.checkpoint()
-        mark = drv.mark()
-        inputs = []
-        for data in datagrams:
-            sent = drv.send_raw(data)
-            inp = Input.of(data)
-            inputs.append(inp)
-            self.sent.append(data)
-            token = frame_token(data) if inp.header and inp.header[3] == Action.MAV_PASSTHROUGH else None
-            ctx.ledger.sent(len(self.sent) - 1, inp, token)
+def judge_copies(inputs: list[Input], replies: list[Any], node_id: int, broadcast_id: int) -> list[int]:
+    """The first copy left unanswered of each command some of whose copies were ACKed: the
+    node ACKed fewer datagrams naming (src, seq) than were sent with it (MCP-ACK-1: "every
+    later copy is ACKed again"). A command none of whose copies was ACKed is
+    ``judge_replies``'s (MCP-ACK-1 too). Indices into ``inputs``; a candidate only, until
+    observed as the rule says (:meth:`StatefulEngine._copy_flaws`)."""
+    sent: dict[tuple[int, int], list[int]] = {}
+    for i, inp in enumerate(inputs):
+        if _must_ack(inp, node_id, broadcast_id):
             m = inp.msg
-            if m is not None and m.action != Action.ACK and m.dst == t.node_id and m.src != t.node_id:
-                drv.wait_for(drv.ack_for(sent), max(t.rto, 0.5), mark)
-        probe = t.probe()
-        ctx.ledger.sent(len(self.sent), Input.of(probe.sent.data), None)
-        ctx.stats.cases += len(datagrams)
-        flaws = judge_exchange(inputs, t, mark, probe)
-        flaws += ctx.monitor.feed(t.traffic.drain())
-        if flaws:
-            raise FlawFound(self._absolute(flaws[0], len(self.sent) - len(datagrams)), list(self.sent),
-                            self.scenario)
+            assert m is not None
+            sent.setdefault((m.src, m.seq), []).append(i)
+    acks: dict[tuple[int, int], int] = {}
+    for d in replies:
+        seq = acked_seq(d)
+        if seq is not None:
+            key = (d.header[0], seq)
+            acks[key] = acks.get(key, 0) + 1
+    out = []
+    for key, idx in sent.items():
+        n = acks.get(key, 0)
+        if 0 < n < len(idx):
+            out.append(idx[n])
+    return sorted(out)
 
-    def _absolute(self, f: Flaw, offset: int) -> Flaw:
-        """The flaw's culprit as an index into everything this program sent."""
-        if f.datagram is not None:
-            idx = max((i for i, d in enumerate(self.sent) if d == f.datagram), default=None)
-            return replace(f, culprit=idx)
-        return replace(f, culprit=None if f.culprit is None else f.culprit + offset)
 
-    # ------------------------------------------------------------------ rules
-    @initialize()
-    def begin(self) -> None:
-        self.ctx.fresh_node()
+@dataclass
+class _Window:
+    """What the vehicle's record is judged over: the datagrams sent since the last settle,
+    and where each program began among them."""
 
-    @precondition(lambda self: not self.ended)
-    @rule(action=st.sampled_from(COMMANDS), items=st.lists(mission_items(), max_size=2),
-          copies=st.integers(1, 3))
-    def command(self, action: Action, items: list[Any], copies: int) -> None:
-        """A new command to the node, sent ``copies`` times as a manager whose ACKs were lost
-        would (every copy ACKed, MCP-ACK-1; delivered once, MCP-DUP-1/2)."""
-        data = self._message(action, self.t.node_id, self.t.driver.our_id, items)
-        self.history.append(data)
-        self._step([data] * copies)
+    sent: list[bytes] = field(default_factory=list)
+    starts: list[tuple[int, list[Move], str | None]] = field(default_factory=list)
+    since: float = field(default_factory=time.monotonic)
 
-    @precondition(lambda self: not self.ended and bool(self.history))
-    @rule()
-    def duplicate(self) -> None:
-        """The last command again, same bytes (ACKed again, not delivered again: MCP-DUP-1)."""
-        self._step([self.history[-1]])
-
-    @precondition(lambda self: not self.ended and len(self.history) >= 2)
-    @rule(back=st.integers(2, 4))
-    def late_copy(self, back: int) -> None:
-        """A late copy of an older command (MCP-DUP-4: either way, but ACKed)."""
-        self._step([self.history[-min(back, len(self.history))]])
-
-    @precondition(lambda self: not self.ended)
-    @rule(action=st.sampled_from(COMMANDS))
-    def broadcast(self, action: Action) -> None:
-        """A broadcast: delivered, never ACKed (MCP-ACK-4)."""
-        self._step([self._message(action, self.t.broadcast_id, self.t.driver.our_id, [])])
-
-    @precondition(lambda self: not self.ended)
-    @rule(action=st.sampled_from(COMMANDS), offset=st.integers(1, 3))
-    def to_other_id(self, action: Action, offset: int) -> None:
-        """A unicast to another drone: neither ACKed nor acted on (MCP-ACK-5)."""
-        dst = (self.t.node_id + offset) & 0xFFFF
-        if dst in (self.t.broadcast_id, self.t.driver.our_id):
-            dst = (self.t.node_id + 10) & 0xFFFF
-        self._step([self._message(action, dst, self.t.driver.our_id, [])])
-
-    @precondition(lambda self: not self.ended)
-    @rule(action=st.sampled_from(COMMANDS))
-    def other_source(self, action: Action) -> None:
-        """A command from another source (ACKed to that source; duplicates per source, MCP-DUP-3)."""
-        data = self._message(action, self.t.node_id, OTHER_SRC, [])
-        self._step([data])
-
-    @precondition(lambda self: not self.ended)
-    @rule(seq=st.integers(0, 0xFFFF))
-    def ack_to_node(self, seq: int) -> None:
-        """An ACK to the node, naming anything: never ACKed (MCP-ACK-6)."""
-        drv = self.t.driver
-        self._step([encode(Message(self.t.node_id, drv.our_id, drv.next_seq(), Action.ACK, seq))])
-
-    @precondition(lambda self: not self.ended and not self.wrapped)
-    @rule(before=st.integers(0, 2))
-    def near_wrap(self, before: int) -> None:
-        """The manager's sequence number jumps to just before 65535, so the next commands
-        wrap to 0 (MCP-SEQ-3: 0 after 65535 is new); once per program, so no number is
-        reused for another message."""
-        self.wrapped = True
-        self.t.driver.set_seq(0xFFFF - before)
-
-    @precondition(lambda self: not self.ended)
-    @rule(data=malformed_datagrams())
-    def garbage(self, data: bytes) -> None:
-        """A malformed datagram: discarded silently, the node stays live (MCP-ROB-*)."""
-        self._step([data])
-
-    @precondition(lambda self: not self.ended and self.t.spawned and len(self.history) >= 2)
-    @rule(now=st.integers(0, END_ODDS - 1))
-    def end_mission(self, now: int) -> None:
-        """End_Mission (now and then: it costs a fresh node for the next program): ACKed;
-        the mission is over."""
-        if now != END_ODDS - 1:
-            return
-        data = self._message(Action.END_MISSION, self.t.node_id, self.t.driver.our_id, [])
-        t, drv = self.t, self.t.driver
-        mark = drv.mark()
-        sent = drv.send_raw(data)
-        self.sent.append(data)
-        self.ctx.stats.cases += 1
-        got = drv.wait_for(drv.ack_for(sent), max(t.rto, 0.5) * 3, mark)
-        self.ended = True
-        t.session.ended = True
-        if got is None and t.alive():
-            raise FlawFound(Flaw("MCP-ACK-1", f"an ACK of End_Mission seq {sent.seq}",
-                                 "no ACK of End_Mission", culprit=len(self.sent) - 1), list(self.sent),
-                            self.scenario)
-
-    @precondition(lambda self: not self.ended and self.t.spawned and len(self.history) >= 2)
-    @rule(copies=st.integers(1, 3), now=st.integers(0, END_ODDS - 1))
-    def restart_withholding_acks(self, copies: int, now: int) -> None:
-        """Now and then a fresh node whose Mission_Ready ACKs are withheld for a few copies,
-        then given out of order (the monitor judges the copies: MCP-RTX-1/2, MCP-SEQ-2)."""
-        if now != END_ODDS - 1:
-            return
-        t = self.t
-        w = t.restart_withholding(copies)
-        self.ctx.restarts_seen = t.restarts
-        self.ctx.ledger = DeliveryLedger(t.node_id, t.broadcast_id)  # a new node delivers afresh
-        self.history.clear()
-        self.sent.clear()  # what the new node was sent starts here
-        self.scenario = f"{WITHHOLD}{copies}"
-        flaw = judge_withheld(w.copies, w.after_wrong_ack, copies, t.alive())
-        if flaw is not None:
-            raise FlawFound(flaw, [], scenario=self.scenario)
-        self._step([])
-
-    @precondition(lambda self: self.ended)
-    @rule()
-    def mission_over(self) -> None:
-        """Nothing is sent after End_Mission (D-6: the node may no longer receive)."""
-
-    @invariant()
-    def node_alive(self) -> None:
-        if not self.ended and not self.t.alive():
-            raise FlawFound(judge_liveness([Input.of(d) for d in self.sent[-1:]], False, self.t.fate())
-                            or Flaw("MCP-ROB-5", "a live node", "the node died"), list(self.sent),
-                            self.scenario)
-
-    def teardown(self) -> None:
-        """Once every forward has arrived (a sentinel frame behind them), the vehicle's record
-        is judged: each frame as often as the duplicate rules say (MCP-DUP-1/2, MCP-SEQ-3,
-        MCP-PAY-8); judged here only, so a failing program fails in the same place each time."""
-        ctx, t = self.ctx, self.t
-        if t.vehicle is None or self.ended or not t.alive() or not ctx.ledger.expected:
-            return
-        settled = settle_vehicle(t, ctx.ledger, "t")
-        flaws = ctx.ledger.judge(vehicle_counts(t), settled=settled)
-        ctx.ledger.expected.clear()
-        if flaws:
-            raise FlawFound(self._absolute(flaws[0], 0), list(self.sent), self.scenario)
+    def program_of(self, index: int) -> tuple[int, list[Move], str | None]:
+        return max((s for s in self.starts if s[0] <= index), key=lambda s: s[0],
+                   default=(0, [], None))
 
 
 class StatefulEngine:
-    """Runs ``ManagerMachine`` in chunks of examples until the budget is spent."""
+    """Plays programs against one drone until the budget is spent (see the module docstring)."""
 
     def __init__(self, target: FuzzTarget, triage: Triage, cfg: FuzzConfig) -> None:
         self.target = target
@@ -426,84 +180,273 @@ class StatefulEngine:
         self.cfg = cfg
         self.stats = EngineStats()
         self.database = open_database(cfg.db)
-        self.programs: list[str] = []
+        self.gen = ProgramGenerator(cfg.seed, cfg.worker, restarts=target.spawned)
+        self.programs: list[str] = []  # the failing programs, printed
+        self.played = 0
         self.first_failure_example: int | None = None
         self.flaky: list[str] = []
         self.monitor_available = False
+        self._tokens = 0
+        self._restarts_seen = target.restarts
+        self._flagged: set[bytes] = set()  # over-delivered frames already sent to triage
+        self._new_oracles()
 
-    def _settings(self, chunk: int) -> settings:
-        phases = [Phase.reuse, Phase.generate, Phase.shrink] if chunk == 0 else [Phase.generate, Phase.shrink]
-        if self.cfg.extra.get("reuse_only"):
-            phases = [Phase.reuse, Phase.shrink]
-        return settings(max_examples=CHUNK, stateful_step_count=STEPS, deadline=None,
-                        database=self.database, phases=phases, print_blob=False,
-                        suppress_health_check=list(HealthCheck), report_multiple_bugs=False)
+    # ------------------------------------------------------------------ oracles
+    def _new_oracles(self) -> None:
+        t = self.target
+        self.ledger = DeliveryLedger(t.node_id, t.broadcast_id)
+        self.monitor = MonitorOracle(t.node_id, t.rto, t.ack_window, t.broadcast_id, t.driver.listen)
+        self.monitor_available = self.monitor.available
+        self.window = _Window()
 
+    def _fresh_node(self) -> None:
+        """A node that has not ended its mission, with oracles that know it."""
+        t = self.target
+        if t.spawned and (t.ended or not t.alive()):
+            t.restart(MISSION_ENDED if t.ended and t.alive() else DIED)
+        if t.restarts != self._restarts_seen:
+            self._restarts_seen = t.restarts
+            self._new_oracles()
+            t.traffic.drain()
+
+    # ------------------------------------------------------------------ the run
     def run(self, deadline: float, max_cases: int | None,
             tick: Callable[[EngineStats], None] | None = None,
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
-        global CTX
         st = self.stats
-        ctx = _Context(self.target, st, tick=tick, out_of_budget=lambda: (
-            time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases) or stop()))
-        CTX = ctx
-        chunk = 0
+        self._over = lambda: (time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases)
+                              or stop())
+        saved = self._saved_programs()
+        reuse_only = bool(self.cfg.extra.get("reuse_only"))
+        last_tick = 0.0
         try:
-            while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
-                   and not stop()):
+            while not self._over():
+                if saved:
+                    moves = saved.pop(0)
+                elif reuse_only:
+                    break
+                else:
+                    moves = self.gen.program()
                 t0 = time.monotonic()
-                out = False
-                report: list[object] = []
-                machine = hypothesis_seed(self.cfg.seed * 1000 + self.cfg.worker * 100 + chunk)(
-                    type("ManagerMachine", (ManagerMachine,), {}))
-                failure: FlawFound | None = None
-                try:
-                    with with_reporter(report.append):
-                        run_state_machine_as_test(machine, settings=self._settings(chunk))
-                except FlawFound as exc:
-                    failure = exc
-                    # hypothesis attaches the shortest program to the exception it raises
-                    report.extend(getattr(exc, "__notes__", []))
-                except Flaky as exc:
-                    # a program that failed once and not the same way again: hypothesis cannot
-                    # shrink it, triage may still confirm what was first seen
-                    self.flaky.append(str(exc)[:500])
-                    if ctx.raised:
-                        failure = FlawFound(*ctx.raised[0])
-                except OutOfBudget as exc:
-                    # a budget ran out mid-run (perhaps while shrinking): the shortest failure
-                    # seen goes to triage, which minimises its datagrams itself
-                    out = exc.campaign_over
-                    smallest = ctx.smallest_failure()
-                    if smallest is not None:
-                        failure = FlawFound(*smallest)
+                failure = self._play(moves)
                 st.seconds += time.monotonic() - t0
                 st.batches += 1
-                chunk += 1
-                ctx.raised.clear()
-                ctx.shrink_until = None
+                self.played += 1
                 if failure is not None:
-                    st.flaws += 1
-                    if self.first_failure_example is None:
-                        self.first_failure_example = ctx.examples
-                    program = "\n".join(str(r) for r in report).strip() or None
-                    if program:
-                        self.programs.append(program)
-                    inputs = [Input.of(d) for d in failure.sent]
-                    flaw = failure.flaw
-                    self.triage.consider(flaw, inputs, "paced", program=program, scenario=failure.scenario)
-                    ctx.fresh_node()
-                    if self.cfg.extra.get("reuse_only"):
+                    self._failed(*failure)
+                    if reuse_only:
                         break
-                if tick is not None:
+                now = time.monotonic()
+                if tick is not None and now - last_tick >= TICK_S:
+                    last_tick = now
                     tick(st)
-                if self.cfg.extra.get("reuse_only") or out:
-                    break
+            last = self._settle_and_judge()  # the last window's under-delivery, too
+            if last is not None:
+                self._failed(*last)
         finally:
-            self.raised = ctx.raised
-            self.monitor_available = ctx.monitor.available
-            CTX = None
             with contextlib.suppress(Exception):
                 self.target.traffic.drain()
+        if tick is not None:
+            tick(st)
         st.restarts = self.target.restarts
         return st
+
+    def _saved_programs(self) -> list[list[Move]]:
+        if self.database is None:
+            return []
+        return [m for m in (loads(v) for v in self.database.fetch(DB_KEY)) if m]
+
+    def _failed(self, flaw: Flaw, sent: list[bytes], moves: list[Move], scenario: str | None) -> None:
+        """A flaw seen: the program saved for the other workers, the datagrams triaged."""
+        st = self.stats
+        st.flaws += 1
+        if self.first_failure_example is None:
+            self.first_failure_example = self.played
+        program = program_text(moves)
+        self.programs.append(program)
+        if self.database is not None:
+            self.database.save(DB_KEY, dumps(moves))
+        self.triage.consider(flaw, [Input.of(d) for d in sent], "batch", program=program, scenario=scenario)
+        # triage replays on fresh nodes: whatever this node was is not what it is now
+        self._restarts_seen = -1
+        self._fresh_node()
+
+    # ------------------------------------------------------------------ one program
+    def _play(self, moves: list[Move]) -> tuple[Flaw, list[bytes], list[Move], str | None] | None:
+        """Send one program back to back, probe once, judge; the first flaw, with the
+        program's datagrams up to its culprit, or None."""
+        t, st = self.target, self.stats
+        self._fresh_node()
+        drv = t.driver
+        scenario: str | None = None
+        if moves and moves[0].name == "withhold":
+            self._settle_and_judge()
+            copies = moves[0].copies
+            w = t.restart_withholding(copies)
+            self._restarts_seen = t.restarts
+            self._new_oracles()
+            scenario = f"{WITHHOLD}{copies}"
+            flaw = judge_withheld(w.copies, w.after_wrong_ack, copies, t.alive())
+            if flaw is not None:
+                return flaw, [], moves[:1], scenario
+        for src in (drv.our_id, OTHER_SRC):  # forward only: a lower number is a wrap
+            drv.set_seq(drv.peek_seq(src) + SEQ_GAP, src)
+        t.traffic.drain()
+        self.monitor = MonitorOracle(t.node_id, t.rto, t.ack_window, t.broadcast_id, drv.listen)
+        win = self.window
+        base = len(win.sent)
+        win.starts.append((base, moves, scenario))
+        history: list[bytes] = []
+        inputs: list[Input] = []
+        mark = drv.mark()
+        end = None
+        for move in moves:
+            if move.name == "end_mission":
+                end = move
+                break
+            if move.name == "withhold" or self._over():
+                continue
+            for data in self._render(move, history):
+                drv.send_raw(data)
+                inp = Input.of(data)
+                token = frame_token(data) if inp.header and inp.header[3] == _PASSTHROUGH else None
+                self.ledger.sent(len(win.sent), inp, token)
+                win.sent.append(data)
+                inputs.append(inp)
+                st.cases += 1
+        probe = t.probe()
+        self.ledger.sent(len(win.sent), Input.of(probe.sent.data), None)
+        flaws = judge_exchange(inputs, t, mark, probe)
+        if probe.acked and not flaws:
+            flaws += self._copy_flaws(inputs, mark)
+        flaws += self.monitor.feed(t.traffic.drain())
+        if flaws:
+            f = flaws[0]
+            if f.datagram is not None and f.culprit is None:  # the monitor's: by its bytes
+                f = replace(f, culprit=max((i for i, inp in enumerate(inputs) if inp.data == f.datagram),
+                                           default=None))
+            upto = len(inputs) if f.culprit is None or f.source in ("liveness", "process") else f.culprit + 1
+            return f, [i.data for i in inputs[:upto]], moves, scenario
+        vehicle = self._judge_vehicle(settled=False)
+        if vehicle is not None:
+            return vehicle
+        if time.monotonic() - win.since >= SETTLE_S or end is not None:
+            vehicle = self._settle_and_judge()
+            if vehicle is not None:
+                return vehicle
+        if end is not None and not self._over():
+            return self._end_mission(moves, scenario)
+        return None
+
+    def _copy_flaws(self, inputs: list[Input], mark: int) -> list[Flaw]:
+        """MCP-ACK-1 for copies, observed as the rule says: each copy left unanswered
+        (``judge_copies``) is sent again every --rto, up to ``ACK_COPIES`` copies in all; an
+        ACK of any of them and there is no finding (a lost datagram is the link's doing)."""
+        t, drv = self.target, self.target.driver
+        flaws = []
+        for i in judge_copies(inputs, drv.received(mark), t.node_id, t.broadcast_id)[:COPY_RECHECKS]:
+            inp = inputs[i]
+            m = inp.msg
+            assert m is not None
+            answered = False
+            again = drv.mark()
+            for _ in range(ACK_COPIES - 1):
+                sent = drv.send_raw(inp.data)
+                token = frame_token(inp.data) if m.action == _PASSTHROUGH else None
+                self.ledger.sent(len(self.window.sent), inp, token)  # a copy: the ledger counts it
+                self.window.sent.append(inp.data)
+                if drv.wait_for(drv.ack_for(sent), max(t.rto, 0.05), again) is not None:
+                    answered = True
+                    break
+            if not answered:
+                copies = sum(1 for j in inputs if j.data == inp.data)
+                flaws.append(Flaw("MCP-ACK-1", f"an ACK of every copy of seq {m.seq} (a copy is ACKed again)",
+                                  f"{inp.describe()} sent {copies} times in the program, not every copy ACKed; "
+                                  f"{ACK_COPIES - 1} more copies, one every --rto, none ACKed",
+                                  culprit=i, evidence=(f"input: {inp.data.hex()}",)))
+                break  # one fault, one finding: the program's first such copy is enough
+        return flaws
+
+    def _judge_vehicle(self, *, settled: bool) -> tuple[Flaw, list[bytes], list[Move], str | None] | None:
+        """The vehicle's record against the ledger: over-delivery whenever it shows,
+        under-delivery once ``settled``; the flaw with its program's datagrams."""
+        t = self.target
+        if t.vehicle is None or not self.ledger.expected:
+            return None
+        for f in self.ledger.judge(vehicle_counts(t), settled=settled):
+            if f.datagram is None or f.culprit is None or f.culprit < 0 or f.datagram in self._flagged:
+                continue
+            self._flagged.add(f.datagram)
+            win = self.window
+            start, moves, scenario = win.program_of(f.culprit)
+            return replace(f, culprit=f.culprit - start), win.sent[start:f.culprit + 1], moves, scenario
+        return None
+
+    def _settle_and_judge(self) -> tuple[Flaw, list[bytes], list[Move], str | None] | None:
+        """With the vehicle: a sentinel behind the window's forwards, then the record judged
+        for under-delivery too; a new window either way."""
+        t = self.target
+        found = None
+        if t.vehicle is not None and self.ledger.expected and t.alive() and not t.ended:
+            settled = settle_vehicle(t, self.ledger, "t")
+            found = self._judge_vehicle(settled=settled)
+        self.ledger.expected.clear()
+        self.window = _Window()
+        return found
+
+    def _end_mission(self, moves: list[Move], scenario: str | None) -> tuple[Flaw, list[bytes], list[Move], str | None] | None:
+        """End_Mission: ACKed (MCP-ACK-1), the mission over; the next program gets a fresh node."""
+        t, drv = self.target, self.target.driver
+        data = encode(Message(t.node_id, drv.our_id, drv.next_seq(), Action.END_MISSION, None))
+        sent = drv.send_raw(data)
+        self.stats.cases += 1
+        got = drv.exchange(sent, rto=max(t.rto, 0.05), copies=ACK_COPIES)
+        t.session.ended = True
+        if got.ack is None and t.alive():
+            return (Flaw("MCP-ACK-1", f"an ACK of End_Mission seq {sent.seq}",
+                         f"no ACK of End_Mission in {ACK_COPIES} copies, one every --rto", culprit=0),
+                    [data], moves, scenario)
+        return None
+
+    # ------------------------------------------------------------------ rendering
+    def _token(self) -> str:
+        self._tokens += 1
+        return f"s{self.cfg.worker}n{self._tokens}"
+
+    def _message(self, action: int, dst: int, src: int, seed: int) -> bytes:
+        drv = self.target.driver
+        seq = drv.next_seq(src)
+        if action == _PASSTHROUGH:
+            return encode(Message(dst, src, seq, Action.MAV_PASSTHROUGH, make_probe(self._token())))
+        return encode(random_message(random.Random(seed), Action(action), dst=dst, src=src, seq=seq))
+
+    def _render(self, move: Move, history: list[bytes]) -> list[bytes]:
+        """A move's datagrams, numbered by the driver as it is played."""
+        t, drv = self.target, self.target.driver
+        name = move.name
+        if name == "command":
+            data = self._message(move.action, t.node_id, drv.our_id, move.seed)
+            history.append(data)
+            return [data] * move.copies
+        if name == "duplicate":
+            return history[-1:]
+        if name == "late_copy":
+            return [history[-min(move.arg, len(history))]] if history else []
+        if name == "broadcast":
+            return [self._message(move.action, t.broadcast_id, drv.our_id, move.seed)]
+        if name == "to_other_id":
+            dst = (t.node_id + move.arg) & 0xFFFF
+            if dst in (t.broadcast_id, drv.our_id, OTHER_SRC):
+                dst = (t.node_id + 10) & 0xFFFF
+            return [self._message(move.action, dst, drv.our_id, move.seed)]
+        if name == "other_source":
+            return [self._message(move.action, t.node_id, OTHER_SRC, move.seed)]
+        if name == "ack_to_node":
+            return [encode(Message(t.node_id, drv.our_id, drv.next_seq(), Action.ACK, move.arg))]
+        if name == "near_wrap":
+            drv.set_seq(0xFFFF - move.arg)
+            return []
+        if name == "garbage":
+            return [random_malformed(random.Random(move.seed), move.kind, dst=t.node_id, src=drv.our_id,
+                                     seq=drv.next_seq())]
+        return []
