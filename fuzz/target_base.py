@@ -18,11 +18,15 @@ from typing import Any
 
 from harness.driver import Datagram, Sent, TargetDriver
 from harness.errors import SetupError
+from spec import SPEC
 
 __all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
            "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
 
-PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
+#: The probe and its retransmissions, one --rto apart, before "not live": MCP-ROB-5/6 ("it
+#: still ACKs the next valid unicast") depend on MCP-ACK-1, observed across up to 5 copies
+#: ("a node may be deaf while busy, D-6"); a live node pays one round trip.
+PROBE_COPIES = int(SPEC.params["max_ack_copies"])
 PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
 
 
