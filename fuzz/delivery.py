@@ -89,7 +89,7 @@ class DeliveryLedger:
             return
         self.last_index[m.src] = index
         last = self.last_delivered.get(m.src)
-        before = self._state(m.src)
+        before = self._state(m.src) if token is not None else ""
         if last == m.seq:  # a duplicate of the last delivered: not delivered again
             if token is not None:
                 self._expect(token, index, 0, 0, "MCP-DUP-1", "MCP-DUP-1", inp, add=True, before=before,

@@ -291,10 +291,12 @@ def observe_missing_acks(flaws: list[Flaw], inputs: Sequence[Input], target: Any
         if confirmed or not _alive(target):
             continue  # not observed as the rule says (a death is judge_liveness's)
         inp = inputs[f.culprit]
+        _count(target, "ack1_retransmitted")
         seen = retransmit_unanswered(target, inp.data)
         inp.observed["resent"] = inp.observed.get("resent", 0) + seen.copies - 1
         if seen.acked:
             inp.observed["acked"] = True
+            _count(target, "ack1_answered_on_retransmission")
             continue
         if not _alive(target):
             continue
@@ -302,6 +304,13 @@ def observe_missing_acks(flaws: list[Flaw], inputs: Sequence[Input], target: Any
         kept.append(replace(f, actual=f"{f.actual}, nor any of its {seen.copies - 1} retransmissions",
                             evidence=f.evidence + (f"timing: {seen.describe()}",)))
     return kept
+
+
+def _count(target: Any, what: str) -> None:
+    """One more of ``what`` in the target's ``observations`` (what the oracles had to do)."""
+    seen = getattr(target, "observations", None)
+    if isinstance(seen, dict):
+        seen[what] = seen.get(what, 0) + 1
 
 
 def _alive(target: Any) -> bool:

@@ -95,6 +95,9 @@ class TargetBase:
     traffic: Traffic
     restarts: int
     restart_reasons: dict[str, int]  # why the node was restarted (issue 18 item 9), counted
+    #: what the oracles had to do to observe as the rules say, counted (``fuzz.oracles``:
+    #: missing ACKs retransmitted, and answered on a retransmission)
+    observations: dict[str, int]
 
     def count_restart(self, reason: str) -> None:
         """One more restart, and why (summary.json's ``restarts_by_reason``, the last line)."""
