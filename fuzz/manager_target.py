@@ -47,6 +47,7 @@ class ManagerFuzzTarget(TargetBase):
         self.traffic = Traffic()
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}
+        self.observations: dict[str, int] = {}
 
     def start(self) -> None:
         self.session.open()  # type: ignore[attr-defined]

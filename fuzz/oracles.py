@@ -17,30 +17,41 @@ reply it sent, the frame it forwarded, its death), never on a consequence one st
   size"), MCP-ROB-5 otherwise ("stays live after any malformed or unexpected input").
 - the vehicle (:class:`DeliveryLedger`): passthrough frames carry probe tokens; the spec's
   duplicate rules say how often each may reach the autopilot (MCP-DUP-1/2/3, MCP-SEQ-3,
-  MCP-PAY-8, MCP-ACK-5, MCP-ROB-4).
+  MCP-PAY-8, MCP-ACK-5, MCP-ROB-4; ``fuzz.delivery``).
 - the trace monitor (:class:`MonitorOracle`, ``judge.monitor``): every datagram in and
   out, for the rules judged from traffic alone (HDR, ACK-2/3/7, SEQ, RTX, BLK, PAY ...). Only
   violations by the node under test count (the fuzzer's datagrams are fed as the tester's:
   they break rules on purpose), and the reply rules above stay judge_replies's.
+
+Each judgement observes as its rule's text says, never on less (issue 36): a missing ACK is
+MCP-ACK-1 only once the input was retransmitted every --rto up to the rule's 5 copies, none
+answered ("the runner retransmitting it every --rto as a manager would, up to 5 copies (a
+node may be deaf while busy, D-6)", ``fuzz.observation``); the liveness probe is awaited
+across as many copies (MCP-ROB-5/6 depend on MCP-ACK-1); a delivery count is judged against
+what the node was shown to have received (an ACK, or the frame's own delivery), since a
+datagram the kernel dropped from a full receive buffer never reached it (MCP-DUP-1: "the
+same (src, seq) as the one last delivered from that src").
 """
 
 from __future__ import annotations
 
 import struct
-import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import replace
 from typing import Any
 
+from fuzz.delivery import DeliveryLedger
+from fuzz.flaws import Flaw, Input, rule_level
+from fuzz.observation import retransmit_unanswered
 from harness.driver import Datagram
 from harness.session_base import MIN_COPIES  # the original + MCP-RTX-1's retransmissions
-from spec import SPEC
-from spec.codec import HEADER_SIZE, Action, DecodeError, Message, decode
+from spec.codec import HEADER_SIZE, Action
 
 __all__ = [
     "OVERSIZE",
     "DeliveryLedger",
     "Flaw",
+    "Input",
     "MonitorOracle",
     "judge_exchange",
     "judge_liveness",
@@ -61,57 +72,6 @@ REPLY_RULES = frozenset({"MCP-ACK-1", "MCP-ACK-2", "MCP-ACK-3", "MCP-ACK-4", "MC
                          "MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4"})
 #: The rule a reply to a rejected datagram breaks, by the rule the codec's rejection cites.
 _REJECTED_REPLY_RULE = {"MCP-PAY-6": "MCP-ROB-4"}
-
-
-def rule_level(rule: str) -> str:
-    return SPEC.rule(rule).level if rule in SPEC.rules_by_id else "MUST"
-
-
-@dataclass(frozen=True)
-class Flaw:
-    """One thing the node did wrong: the rule, expected vs actual, and the input to blame
-    (``culprit``: index into the inputs judged, None when it is the whole sequence)."""
-
-    rule: str
-    expected: str
-    actual: str
-    culprit: int | None = None
-    evidence: tuple[str, ...] = ()
-    source: str = "replies"  # replies | liveness | process | vehicle | monitor
-    datagram: bytes | None = None  # the culprit's bytes, where the index alone is not enough
-
-    @property
-    def level(self) -> str:
-        return rule_level(self.rule)
-
-
-@dataclass(frozen=True)
-class Input:
-    """One datagram the fuzzer sent, decoded once."""
-
-    data: bytes
-    header: tuple[int, int, int, int] | None  # (dst, src, seq, action), whatever the preamble
-    msg: Message | None
-    error: DecodeError | None
-
-    @classmethod
-    def of(cls, data: bytes) -> Input:
-        from harness.driver import read_header
-
-        try:
-            return cls(data, read_header(data), decode(data), None)
-        except DecodeError as exc:
-            return cls(data, read_header(data), None, exc)
-
-    def describe(self) -> str:
-        if self.msg is not None:
-            m = self.msg
-            return f"{Action(m.action).name} dst={m.dst} src={m.src} seq={m.seq} ({len(self.data)} B)"
-        if self.header is not None:
-            dst, src, seq, action = self.header
-            return (f"malformed action={action} dst={dst} src={src} seq={seq} ({len(self.data)} B): "
-                    f"{self.error}")
-        return f"malformed {len(self.data)} B: {self.error}"
 
 
 def expected_silent_rule(inp: Input, node_id: int, broadcast_id: int) -> str | None:
@@ -140,6 +100,13 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                   broadcast_id: int, probe_acked: bool, ignore_seqs: Iterable[tuple[int, int]] = (),
                   probe_copies: int = 0) -> list[Flaw]:
     """ACKs sent for ``inputs`` (the node's datagrams in ``replies``), judged per input.
+
+    What one copy shows, up to the probe's ACK (a node handles its datagrams in order):
+    an ACK that should not be there (MCP-ACK-4/5/6, ROB-1..4: "discarded silently") or is
+    misformed (MCP-ACK-2/3) stands as seen; one ACK answers one copy ("every copy,
+    retransmissions included", MCP-ACK-1), and an input it marks ``received``. A missing
+    ACK is only a candidate here: MCP-ACK-1 is "observed ... the runner retransmitting it
+    every --rto as a manager would, up to 5 copies", which :func:`observe_missing_acks` does.
 
     ``ignore_seqs``: (dst, seq) pairs the fuzzer knows are answered legitimately (its probe);
     ``probe_copies``: how many copies of that probe were sent after the inputs (their ACKs
@@ -177,7 +144,8 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
                 unmatched.append((d, seq))
                 continue
             uses[key] = uses.get(key, 0) + 1
-            acked.update(legit)
+            # every copy is ACKed again (MCP-ACK-1): one ACK answers one copy, in order
+            acked.update(legit[:uses[key]])
             if len(d.data) != HEADER_SIZE + 2:
                 flaws.append(Flaw("MCP-ACK-2", "an ACK payload of exactly 2 bytes",
                                   f"{len(d.data) - HEADER_SIZE} payload bytes in the ACK of {inputs[legit[-1]].describe()}",
@@ -196,6 +164,8 @@ def judge_replies(inputs: Sequence[Input], replies: Iterable[Datagram], node_id:
     probe_acks = (0, 0) if probe_answered or not probe_copies else (1, probe_copies)
     flaws += _misaddressed(inputs, unmatched, acked, node_id, broadcast_id, probe_acks,
                            {k[0] for k in ignore} if probe_acks[1] else set())
+    for i in acked:
+        inputs[i].observed["acked"] = True
     if probe_acked:
         for i, inp in enumerate(inputs):
             m = inp.msg
@@ -287,7 +257,8 @@ def blame_rule(inp: Input) -> str:
 def judge_exchange(inputs: Sequence[Input], target: Any, mark: Any, probe: Any) -> list[Flaw]:
     """What the node did with ``inputs`` and the liveness ``probe`` sent after them (every
     engine and replay judge a batch this one way): the node's replies since ``mark`` judged
-    per input (:func:`judge_replies`), then its liveness (:func:`judge_liveness`) last."""
+    per input (:func:`judge_replies`), each missing ACK observed as MCP-ACK-1 says
+    (:func:`observe_missing_acks`), then its liveness (:func:`judge_liveness`) last."""
     drv = target.driver
     spoiled = getattr(target, "impairment_spoiled", None)
     if spoiled is not None and spoiled():
@@ -300,40 +271,58 @@ def judge_exchange(inputs: Sequence[Input], target: Any, mark: Any, probe: Any) 
                           probe_copies=probe.copies)
     dead = judge_liveness(inputs, probe.acked, target.fate())
     if dead is None:
-        kept: list[Flaw] = []
-        rechecks = 0
-        for f in flaws:
-            if f.rule == "MCP-ACK-1" and f.source == "replies" and f.culprit is not None and rechecks < RECHECKS:
-                rechecks += 1
-                if _acked_on_retransmission(target, inputs[f.culprit]):
-                    continue
-            kept.append(f)
-        flaws = kept
+        flaws = observe_missing_acks(flaws, inputs, target)
     return flaws + ([dead] if dead is not None else [])
 
 
-RECHECKS = 3  # missing ACKs re-checked per exchange at most (the rest stand as seen)
+def observe_missing_acks(flaws: list[Flaw], inputs: Sequence[Input], target: Any) -> list[Flaw]:
+    """MCP-ACK-1 as its rule observes it: "the runner retransmitting it every --rto as a
+    manager would, up to 5 copies (a node may be deaf while busy, D-6)". Each input left
+    without an ACK is retransmitted (``fuzz.observation``); answered, it is no flaw (and the
+    node is known to have it); unanswered through every copy, the flaw stands with the
+    copies' timing. The first such input is the exchange's MCP-ACK-1; the exchange's other
+    missing ACKs are then not observed, so not reported. A healthy node pays nothing."""
+    kept: list[Flaw] = []
+    confirmed = False
+    for f in flaws:
+        if f.rule != "MCP-ACK-1" or f.source != "replies" or f.culprit is None:
+            kept.append(f)
+            continue
+        if confirmed or not _alive(target):
+            continue  # not observed as the rule says (a death is judge_liveness's)
+        inp = inputs[f.culprit]
+        _count(target, "ack1_retransmitted")
+        seen = retransmit_unanswered(target, inp.data)
+        inp.observed["resent"] = inp.observed.get("resent", 0) + seen.copies - 1
+        if seen.acked:
+            inp.observed["acked"] = True
+            _count(target, "ack1_answered_on_retransmission")
+            continue
+        if not _alive(target):
+            continue
+        confirmed = True
+        kept.append(replace(f, actual=f"{f.actual}, nor any of its {seen.copies - 1} retransmissions",
+                            evidence=f.evidence + (f"timing: {seen.describe()}",)))
+    return kept
 
 
-def _acked_on_retransmission(target: Any, inp: Input) -> bool:
-    """A missing ACK (MCP-ACK-1) is a finding only if the input was retransmitted as a manager
-    would and no copy was ACKed either: UDP may lose a datagram even on loopback (a full
-    receive buffer under a burst), and a lost datagram is the link's doing, not the node's
-    (issue 18 item 9: correct nodes got MUST findings that replayed 0 of 3). Re-sends the
-    input's bytes (a copy: the node ACKs copies and does not deliver them again, MCP-ACK-1,
-    MCP-DUP-1) up to two times, every --rto; True when a copy was ACKed."""
-    drv = target.driver
-    mark = drv.mark()
-    for _ in range(2):
-        sent = drv.send_raw(inp.data)
-        if drv.wait_for(drv.ack_for(sent), max(target.rto, 0.5), mark) is not None:
-            return True
-    return False
+def _count(target: Any, what: str) -> None:
+    """One more of ``what`` in the target's ``observations`` (what the oracles had to do)."""
+    seen = getattr(target, "observations", None)
+    if isinstance(seen, dict):
+        seen[what] = seen.get(what, 0) + 1
+
+
+def _alive(target: Any) -> bool:
+    return bool(target.fate().get("alive", True))
 
 
 def judge_liveness(inputs: Sequence[Input], probe_acked: bool, fate: dict[str, Any]) -> Flaw | None:
     """A dead or hung node after ``inputs`` (the last input is blamed until shrinking says
-    which one it was)."""
+    which one it was). MCP-ROB-5 "it still ACKs the next valid unicast message" (and ROB-6)
+    depend on MCP-ACK-1, so "hung" is a probe unanswered through its copies every --rto, as
+    many as MCP-ACK-1 observes (``fuzz.target_base.PROBE_COPIES``); a death is the process's
+    exit, seen at once."""
     if probe_acked and fate.get("alive", True):
         return None
     died = not fate.get("alive", True)
@@ -357,7 +346,9 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
                    alive: bool) -> Flaw | None:
     """A fresh node's Mission_Ready, ACK withheld for ``wanted`` copies, then an ACK naming
     another seq: it retransmits (MCP-RTX-1), each copy the same bytes (MCP-SEQ-2), and the
-    wrong ACK does not end it (MCP-RTX-2)."""
+    wrong ACK does not end it (MCP-RTX-2). Observed as MCP-RTX-1 says, "at least 3 copies
+    while the ACK is withheld" (``wanted`` up to ``MIN_COPIES``), and MCP-RTX-2 over 2.5
+    periods after the wrong ACK (``fuzz.target.FuzzTarget.restart_withholding``)."""
     if not alive:
         return None  # a death is judge_liveness's
     if len(copies) < min(wanted, MIN_COPIES):
@@ -373,110 +364,14 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
     return None
 
 
-# ---------------------------------------------------------------- vehicle
-@dataclass
-class _Sent:
-    index: int
-    token: str
-    expect_min: int
-    expect_max: int
-    rule_over: str
-    rule_under: str
-    what: str
-    data: bytes = b""
-    t: float = 0.0
-
-
-@dataclass
-class DeliveryLedger:
-    """How often each passthrough probe token may reach the autopilot, by the spec's
-    duplicate rules: per source, a message with the (src, seq) of the last one delivered is
-    a duplicate (MCP-DUP-1, per source MCP-DUP-3), a new seq is delivered (MCP-DUP-2; 0
-    after 65535 is new, MCP-SEQ-3); a late copy of an older seq may go either way (MCP-DUP-4,
-    INFO). Broadcasts are delivered but not ACKed; messages to another ID are not acted on
-    (MCP-ACK-5); malformed ones neither (MCP-ROB-4, D-4)."""
-
-    node_id: int
-    broadcast_id: int
-    last_delivered: dict[int, int] = field(default_factory=dict)  # src -> seq
-    delivered_seqs: dict[int, set[int]] = field(default_factory=dict)
-    highest: dict[int, int] = field(default_factory=dict)  # src -> numerically highest delivered
-    expected: dict[str, _Sent] = field(default_factory=dict)
-    checked_under: set[str] = field(default_factory=set)
-
-    def sent(self, index: int, inp: Input, token: str | None) -> None:
-        """Record one input (in sending order), with the probe token it carries, if any."""
-        m = inp.msg
-        if m is None or m.action == _ACK:
-            if token is not None and m is None:
-                self._expect(token, index, 0, 0, "MCP-ROB-4", "MCP-ROB-4", inp)
-            return
-        if m.src in (self.node_id, self.broadcast_id):  # no valid sender (see judge_replies)
-            if token is not None:
-                self._expect(token, index, 0, 1, "MCP-PAY-8", "MCP-DUP-4", inp)
-            return
-        if m.dst not in (self.node_id, self.broadcast_id):
-            if token is not None:
-                self._expect(token, index, 0, 0, "MCP-ACK-5", "MCP-ACK-5", inp)
-            return
-        last = self.last_delivered.get(m.src)
-        if last == m.seq:  # a duplicate of the last delivered: not delivered again
-            if token is not None:
-                self._expect(token, index, 0, 0, "MCP-DUP-1", "MCP-DUP-1", inp, add=True)
-            return
-        seen = self.delivered_seqs.setdefault(m.src, set())
-        older = m.seq in seen
-        # a new number below one already delivered: the numbers have wrapped since (MCP-SEQ-3)
-        wrapped = not older and m.seq < self.highest.get(m.src, -1)
-        self.last_delivered[m.src] = m.seq
-        seen.add(m.seq)
-        self.highest[m.src] = max(self.highest.get(m.src, -1), m.seq)
-        if token is None or m.action != _PASSTHROUGH:
-            return
-        if older:  # a late copy of an older seq: MCP-DUP-4 (INFO) leaves it open
-            self._expect(token, index, 0, 1, "MCP-PAY-8", "MCP-DUP-4", inp, add=True)
-        else:
-            self._expect(token, index, 1, 1, "MCP-PAY-8",
-                         "MCP-SEQ-3" if wrapped else "MCP-DUP-2", inp, add=True)
-
-    def _expect(self, token: str, index: int, lo: int, hi: int, over: str, under: str,
-                inp: Input, add: bool = False) -> None:
-        prev = self.expected.get(token)
-        now = time.monotonic()
-        if prev is not None and add:
-            # another copy of the same frame: the allowance adds up; the rule of the copy that
-            # pushed the count over is the one blamed
-            self.expected[token] = _Sent(index, token, prev.expect_min + lo, prev.expect_max + hi,
-                                         over if hi == 0 else prev.rule_over,
-                                         prev.rule_under, inp.describe(), inp.data, now)
-        elif prev is None:
-            self.expected[token] = _Sent(index, token, lo, hi, over, under, inp.describe(), inp.data, now)
-
-    def expire(self, older_than: float) -> None:
-        """Forget tokens sent before ``older_than`` (time.monotonic)."""
-        self.expected = {k: e for k, e in self.expected.items() if e.t >= older_than}
-
-    def judge(self, counts: dict[str, int], *, settled: bool) -> list[Flaw]:
-        """Over-delivery at any time; under-delivery only once the forwards have settled."""
-        flaws = []
-        for token, e in self.expected.items():
-            n = counts.get(token, 0)
-            if n > e.expect_max:
-                flaws.append(Flaw(e.rule_over, f"frame {token} reaches the autopilot at most {e.expect_max} time(s)",
-                                  f"it reached the autopilot {n} times (last input: {e.what})",
-                                  culprit=e.index, source="vehicle", datagram=e.data))
-            elif settled and n < e.expect_min and e.rule_under != "MCP-DUP-4":
-                flaws.append(Flaw(e.rule_under, f"frame {token} reaches the autopilot {e.expect_min} time(s)",
-                                  f"it reached the autopilot {n} times ({e.what})",
-                                  culprit=e.index, source="vehicle", datagram=e.data))
-        return flaws
-
-
 # ---------------------------------------------------------------- trace monitor
 class MonitorOracle:
     """The trace monitor over all traffic, keeping only the node under test's violations.
 
-    ``judge.monitor`` is the shared judge of traffic (DESIGN.md); where it is not
+    ``judge.monitor`` is the shared judge of traffic (DESIGN.md), with the spec's own windows
+    (MCP-ACK-7 "judged on the median of at least 3 samples", MCP-RTX-3's spacing tolerance,
+    D-6's ACK window); the rules a batch's attribution decides (``REPLY_RULES``, MCP-ACK-1
+    among them) are left to judge_replies and :func:`observe_missing_acks`. Where it is not
     installed, this oracle says so (``available``) and judges nothing.
     """
 

@@ -47,6 +47,7 @@ class FuzzTarget(TargetBase):
         self.traffic = Traffic()
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}
+        self.observations: dict[str, int] = {}
         self.node_period: float | None = None  # measured at the first start (spawn mode)
         self.timing: str | None = None  # the node's period disagrees with --rto: what was done
 

@@ -18,11 +18,15 @@ from typing import Any
 
 from harness.driver import Datagram, Sent, TargetDriver
 from harness.errors import SetupError
+from spec import SPEC
 
 __all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
            "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
 
-PROBE_COPIES = 3  # the probe and two retransmissions, one --rto apart, before "not live"
+#: The probe and its retransmissions, one --rto apart, before "not live": MCP-ROB-5/6 ("it
+#: still ACKs the next valid unicast") depend on MCP-ACK-1, observed across up to 5 copies
+#: ("a node may be deaf while busy, D-6"); a live node pays one round trip.
+PROBE_COPIES = int(SPEC.params["max_ack_copies"])
 PROBE_MIN_WAIT = 0.5  # s: a busy node on a loaded host gets at least this per copy
 
 
@@ -91,6 +95,9 @@ class TargetBase:
     traffic: Traffic
     restarts: int
     restart_reasons: dict[str, int]  # why the node was restarted (issue 18 item 9), counted
+    #: what the oracles had to do to observe as the rules say, counted (``fuzz.oracles``:
+    #: missing ACKs retransmitted, and answered on a retransmission)
+    observations: dict[str, int]
 
     def count_restart(self, reason: str) -> None:
         """One more restart, and why (summary.json's ``restarts_by_reason``, the last line)."""

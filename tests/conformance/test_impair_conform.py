@@ -73,7 +73,8 @@ def test_the_fuzzer_never_judges_an_exchange_the_impairment_touched():
     inp = Input.of(encode(Message(1, 0x20, 77, Action.WP_OFF, None)))
     driver = SimpleNamespace(received=lambda mark: [], our_id=0, link=None, mark=lambda: 0,
                              send_raw=lambda data: SimpleNamespace(seq=77, src=0x20),
-                             ack_for=lambda sent: (lambda d: True), wait_for=lambda *a: None)
+                             ack_for=lambda sent: (lambda d: True), wait_for=lambda *a: None,
+                             exchange=lambda first, **kw: SimpleNamespace(acked=False, copies=[first] * 4))
     probe = SimpleNamespace(acked=True, sent=SimpleNamespace(seq=1), copies=1)
 
     def target(spoiled):

@@ -67,10 +67,51 @@ def test_liveness_blames_short_oversized_and_other_inputs() -> None:
     assert judge_liveness([_msg(1)], True, {"alive": True}) is None
 
 
-def _pt(seq: int, dst: int = NODE, src: int = 0) -> Input:
+def _pt(seq: int, dst: int = NODE, src: int = 0, token: str | None = None) -> Input:
     from vehicle.probe import make_probe
 
-    return Input.of(encode(Message(dst, src, seq, Action.MAV_PASSTHROUGH, make_probe(f"t{seq}"))))
+    return Input.of(encode(Message(dst, src, seq, Action.MAV_PASSTHROUGH, make_probe(token or f"t{seq}"))))
+
+
+def test_every_copy_is_acked_again_one_ack_answers_one_copy() -> None:
+    # MCP-ACK-1: "every copy, retransmissions included" (the no-re-ACK-of-copies fault)
+    copies = [_msg(20), _msg(20)]
+    assert [(f.rule, f.culprit) for f in judge_replies(copies, [_ack(20)], NODE, BROADCAST_ID, True)] == [
+        ("MCP-ACK-1", 1)]
+    assert judge_replies([_msg(20), _msg(20)], [_ack(20), _ack(20)], NODE, BROADCAST_ID, True) == []
+    assert copies[0].received and not copies[1].received
+
+
+def test_ledger_duplicate_judged_only_when_the_node_was_shown_the_original() -> None:
+    # MCP-DUP-1: a duplicate is one of "the one last delivered from that src": a message the
+    # kernel dropped before the node read it makes the next (src, seq) new to the node
+    def ledger(original_received: bool) -> DeliveryLedger:
+        led = DeliveryLedger(NODE, BROADCAST_ID)
+        first = _pt(5, token="a")
+        first.observed["acked"] = original_received
+        led.sent(0, first, "a")
+        led.sent(1, _pt(5, token="b"), "b")  # same (src, seq), another frame: a duplicate
+        return led
+
+    assert ledger(False).judge({"a": 0, "b": 1}, settled=True) == []
+    assert [f.rule for f in ledger(False).judge({"a": 1, "b": 1}, settled=False)] == ["MCP-DUP-1"]  # it had it
+    flaws = ledger(True).judge({"a": 0, "b": 1}, settled=False)
+    assert [f.rule for f in flaws] == ["MCP-DUP-1"]
+    # the finding carries what its judgement needed (issue 36 item 3)
+    vehicle, before, timing = flaws[0].evidence
+    assert "frame b delivered 1 time(s)" in vehicle
+    assert "last delivered from src 0: seq 5" in before and "ACKed" in before
+    assert timing.startswith("timing: ") and "forwards still arriving" in timing
+
+
+def test_ledger_copies_resent_for_ack1_after_later_messages_are_late_copies() -> None:
+    led = DeliveryLedger(NODE, BROADCAST_ID)
+    first = _pt(7, token="c")
+    led.sent(0, first, "c")
+    led.sent(1, _msg(8), None)  # a later message from the same source
+    assert [f.rule for f in led.judge({"c": 2}, settled=False)] == ["MCP-PAY-8"]
+    first.observed["resent"] = 1  # MCP-ACK-1's observation sent one more copy, after seq 8
+    assert led.judge({"c": 2}, settled=False) == []  # a late copy: MCP-DUP-4 leaves it open
 
 
 def test_ledger_duplicate_delivered_twice_is_dup1() -> None:
@@ -84,7 +125,11 @@ def test_ledger_duplicate_delivered_twice_is_dup1() -> None:
 def test_ledger_wrap_not_delivered_is_seq3_and_double_forward_is_pay8() -> None:
     led = DeliveryLedger(NODE, BROADCAST_ID)
     led.sent(0, _pt(0xFFFF), "t65535")
-    led.sent(1, _pt(0), "t0")
+    wrapped = _pt(0)
+    led.sent(1, wrapped, "t0")
+    # not shown received (no ACK: the kernel may have dropped it): under-delivery not judged
+    assert led.judge({"t65535": 1, "t0": 0}, settled=True) == []
+    wrapped.observed["acked"] = True  # as judge_replies marks an input the node ACKed
     assert [f.rule for f in led.judge({"t65535": 1, "t0": 0}, settled=True)] == ["MCP-SEQ-3"]
     assert led.judge({"t65535": 1, "t0": 0}, settled=False) == []  # not settled: under-delivery waits
     assert [f.rule for f in led.judge({"t65535": 2, "t0": 1}, settled=False)] == ["MCP-PAY-8"]
