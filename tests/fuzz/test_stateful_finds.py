@@ -24,7 +24,7 @@ from fuzz.cli import replay_args
 from fuzz.config import DEFAULT_ENGINE, FuzzConfig, default_engine
 from fuzz.engine_stateful import judge_copies
 from fuzz.findings import FindingStore
-from fuzz.oracles import Input, judge_replies
+from fuzz.oracles import Input
 from fuzz.programs import ProgramGenerator, dumps, loads
 from harness.driver import Datagram
 from spec.codec import Action, Message, encode
