@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.run_delay import delay_for, takes_run_delay
-from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
 from harness.rx_queue import read_backlog
+from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
 from judge.attribution import Attribution, Attributor
 from spec.codec import (
     PREAMBLE,

@@ -15,7 +15,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from .codec import MAVLinkMessage
 from .mission import command_name
 from .probe import probe_token
-from .telemetry import STREAMS, Streams, message_name
 from .records import (
     ACCEPTED_RESULT,
     AUTO,
@@ -29,6 +28,7 @@ from .records import (
     Event,
     mode_name,
 )
+from .telemetry import STREAMS, Streams, message_name
 
 if TYPE_CHECKING:
     from .flight import AutoMission

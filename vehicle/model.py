@@ -51,6 +51,21 @@ from .guided import GuidedMessages
 from .mission import MissionProtocol, result_name
 from .mission_messages import MissionMessages
 from .params import ParamMessages, ParamTable, copter_parameters
+from .records import (
+    AUTO,
+    DENIED_RESULT,
+    GUIDED,
+    GUIDED_FLAG_MODES,
+    LAND,
+    MAX_UNPARSED,
+    MAX_UNPARSED_BYTES,
+    RTL,
+    STABILIZE,
+    Event,
+    Frame,
+    Unparsed,
+    mode_name,
+)
 from .telemetry import (
     FIRMWARE_VERSION,
     HOME_INTERVAL,
@@ -61,21 +76,6 @@ from .telemetry import (
     ekf_status_report,
     home_position,
     sys_status,
-)
-from .records import (
-    AUTO,
-    DENIED_RESULT,
-    GUIDED_FLAG_MODES,
-    GUIDED,
-    LAND,
-    MAX_UNPARSED,
-    MAX_UNPARSED_BYTES,
-    RTL,
-    STABILIZE,
-    Event,
-    Frame,
-    Unparsed,
-    mode_name,
 )
 
 

@@ -20,8 +20,18 @@ import pytest
 from pymavlink import mavutil
 
 from tests.vehicle.clients import (
-    CONNECT_WAIT, MAV, TRANSPORTS, WAIT, Link, dronekit_vehicle, north_east_m, pymavlink_params,
-    require_dronekit, served, unrecorded_requests, wait_until,
+    CONNECT_WAIT,
+    MAV,
+    TRANSPORTS,
+    WAIT,
+    Link,
+    dronekit_vehicle,
+    north_east_m,
+    pymavlink_params,
+    require_dronekit,
+    served,
+    unrecorded_requests,
+    wait_until,
 )
 
 ALT = 10.0

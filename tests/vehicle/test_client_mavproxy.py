@@ -16,8 +16,14 @@ import pytest
 from pymavlink import mavwp
 
 from tests.vehicle.clients import (
-    TRANSPORTS, WAIT, MavproxyProcess, mavproxy_command, pymavlink_params, served,
-    unrecorded_requests, wait_until,
+    TRANSPORTS,
+    WAIT,
+    MavproxyProcess,
+    mavproxy_command,
+    pymavlink_params,
+    served,
+    unrecorded_requests,
+    wait_until,
 )
 
 pytestmark = pytest.mark.slow

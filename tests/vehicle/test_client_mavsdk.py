@@ -16,8 +16,16 @@ import time
 import pytest
 
 from tests.vehicle.clients import (
-    MAV, TRANSPORTS, WAIT, MavsdkLog, mavsdk_system, north_east_m, require_mavsdk, served,
-    unrecorded_requests, wait_until,
+    MAV,
+    TRANSPORTS,
+    WAIT,
+    MavsdkLog,
+    mavsdk_system,
+    north_east_m,
+    require_mavsdk,
+    served,
+    unrecorded_requests,
+    wait_until,
 )
 
 ALT = 10.0
