@@ -22,7 +22,7 @@ from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.findings import Finding, FindingStore, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
-from fuzz.triage import Triage
+from fuzz.triage import GRACE_S, Triage
 from fuzz.workers import run_workers
 from harness.errors import SetupError
 from spec import SPEC
@@ -70,6 +70,9 @@ class WorkerResult:
     timing: str | None = None  # it disagreed with --rto: what the campaign did about it
     interrupted: bool = False  # SIGINT (or the parent's stop) ended it early
     lost: bool = False  # attach mode: the node stopped answering (``error`` says so)
+    triage_seconds: float = 0.0
+    untriaged: int = 0  # flaws left untriaged at the deadline
+    environment: list[dict[str, Any]] = field(default_factory=list)  # environment-dependent flaws, with why
 
 
 def load_seeds(directory: str | None) -> list[bytes]:
@@ -116,9 +119,14 @@ def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> No
                          "batches": st.batches, "flaws_seen": st.flaws,
                          "replays": triage.replays, "unconfirmed": triage.unconfirmed,
                          "unconfirmed_by_rule": dict(triage.unconfirmed_rules),
-                         "triage_seconds": round(triage.seconds, 3)}
+                         "triage_seconds": round(triage.seconds, 3), "untriaged": triage.untriaged}
     res.replays += triage.replays
     res.unconfirmed += triage.unconfirmed
+    res.triage_seconds += triage.seconds
+    res.untriaged += triage.untriaged
+    for e in triage.environment.values():
+        if not any(x["rule"] == e["rule"] and x["shape"] == e["shape"] for x in res.environment):
+            res.environment.append(dict(e))
 
 
 def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
@@ -145,6 +153,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
         duration = cfg.duration if cfg.duration is not None else (
             None if cfg.max_cases is not None else DEFAULT_DURATION)
         start = time.monotonic()
+        base: set[str] | None = None
         for k, name in enumerate(engines):
             if stop():
                 break
@@ -157,6 +166,10 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
             if cfg.max_cases is not None:
                 budget = max(0, (cfg.max_cases - res.cases) // left_engines)
             triage = Triage(target, store, name, cfg.seed, cfg.worker)
+            if duration is not None:
+                triage.deadline = start + duration  # --duration bounds triage too (GRACE_S)
+            if base is not None:  # the baseline is the worker's, whatever the engine
+                triage.baseline_rules = base
             prog.engine = name
 
             def on_tick(st: EngineStats, base_c: int = res.cases, base_s: float = res.fuzz_seconds) -> None:
@@ -181,6 +194,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                     eng = StatefulEngine(target, triage, cfg)
                     eng.run(deadline, budget, on_tick, stop)
             finally:
+                base = triage.baseline_rules
                 if eng is not None:
                     _record(res, name, eng.stats, triage)
                     if name != "stateless":
@@ -337,6 +351,14 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "restarts": sum(r.restarts for r in results),
         "restarts_by_reason": _sum_counts(r.restart_reasons for r in results),
         "replays": sum(r.replays for r in results),
+        "triage_s": round(max((r.triage_seconds for r in results), default=0.0), 3),
+        "triage_share": round(max((r.triage_seconds for r in results), default=0.0) / duration, 3)
+        if duration > 0 else 0.0,
+        "grace_s": GRACE_S,
+        "duration_limit_s": cfg.duration if cfg.duration is not None else (
+            None if cfg.max_cases is not None else DEFAULT_DURATION),
+        "untriaged": sum(r.untriaged for r in results),
+        "environment_dependent": [e for r in results for e in r.environment],
         "unconfirmed": sum(r.unconfirmed for r in results),
         "monitor": any(r.monitor for r in results),
         "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),

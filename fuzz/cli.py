@@ -357,7 +357,20 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
           f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
           f"engine {cfg.engine}, {cfg.jobs} job(s), seed {cfg.seed}")
+    print(f"{PROG}: {_budget_line(summary)}")
     return 1 if campaign.findings else 0
+
+
+def _budget_line(s: dict[str, Any]) -> str:
+    """Where the time went: triage's share against its budget, the --duration bound and its
+    grace (issue 36 items 2, 5), the hits counted rather than triaged."""
+    bound = (f"--duration {s['duration_s']:g} s + grace {s['grace_s']:g} s" if s.get("duration_s") is not None
+             else "no --duration")
+    untriaged = sum(s.get("untriaged", {}).values())
+    return (f"triage {s['triage_s']:g} s of {s['elapsed_s']:g} s ({100 * s.get('triage_share', 0):.0f} %, "
+            f"budget {100 * s.get('triage_share_max', 0):.0f} %); {bound}"
+            + (f"; {untriaged} hit(s) counted, not triaged (budget or deadline spent, or not reproduced "
+               "twice)" if untriaged else ""))
 
 
 def exit_code(findings: Sequence[Any], *, strict: bool = False) -> int:

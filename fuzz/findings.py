@@ -30,6 +30,7 @@ __all__ = ["Finding", "FindingStore", "finding_from_json", "finding_from_metadat
            "write_summary"]
 
 FINDING_SCHEMA = 1
+NO_INPUT = "no input: the node's behaviour whatever it is sent"  # a baseline finding's shape (fuzz.triage)
 
 
 @dataclass
@@ -73,6 +74,9 @@ class Finding:
                    engine, seed, pace, evidence=list(flaw.evidence), source=flaw.source, **kw)
 
     def describe(self) -> str:
+        if self.shape == NO_INPUT:
+            return (f"{self.rule} ({self.level}) [the node's behaviour whatever it is sent, no input blamed: "
+                    f"a valid WP_Off in its place shows it, x{self.occurrences}]: {self.actual}")
         return (f"{self.rule} ({self.level}) [{self.engine}, {len(self.datagrams)} datagram(s), "
                 f"x{self.occurrences}]: {self.actual}")
 

@@ -29,6 +29,15 @@ def summary_line(summary: dict[str, Any]) -> str:
             + _reasons(summary.get("restarts_by_reason") or {}))
 
 
+def budget_line(summary: dict[str, Any]) -> str:
+    """Where the time went: triage's share, the --duration bound and its grace (issue 36)."""
+    limit = summary.get("duration_limit_s")
+    bound = f"--duration {limit:g} s + grace {summary.get('grace_s', 0):g} s" if limit is not None else "no --duration"
+    left = f"; {summary['untriaged']} flaw(s) left untriaged at the deadline" if summary.get("untriaged") else ""
+    return (f"mcp-fuzz: triage {summary.get('triage_s', 0):g} s of {summary['duration_s']:.1f} s "
+            f"({100 * summary.get('triage_share', 0):.0f} %); {bound}{left}")
+
+
 def _reasons(by_reason: dict[str, int]) -> str:
     """Why the node was restarted, as the summary line's tail (issue 18 item 9)."""
     return f" ({'; '.join(f'{n} {why}' for why, n in by_reason.items())})" if by_reason else ""
@@ -116,4 +125,8 @@ class LiveProgress(LiveDisplay):
             print(f"mcp-fuzz: {summary['timing']}", file=out)
         for n, f in enumerate(store.order, 1):
             print(f"  finding-{n}: {f.describe()}", file=out)
+        for e in summary.get("environment_dependent", []):
+            print(f"  environment-dependent (not a finding): {e['rule']} ({e['shape']}) x{e['times']}: {e['why']}",
+                  file=out)
         print(summary_line(summary), file=out)
+        print(budget_line(summary), file=out)

@@ -335,9 +335,13 @@ class Backend:
             return Hit(Signature("desync", "command lost", (), "NSQD-MSG-4"),
                        f"{name} sent after the case took no effect within {window:g} s, and did on a new "
                        "connection (the stream lost sync)")
-        if not fresh.updates(since):
+        if not fresh.updates():
             return self.death_hit(0.3) or Hit(Signature("hang", "no UPDATE on a new connection", (), "NSQD-ROB-1"),
                                               "the backend accepts but sends nothing")
+        if not fresh.updates(since):  # it sent UPDATEs on it, then none for a window: its stream stopped
+            return self.death_hit(0.3) or Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
+                                              f"no UPDATE within {window:g} s on a new connection after "
+                                              f"{len(fresh.updates())} UPDATE(s) on it")
         self.bad_probes.add(name)  # its own effect is wrong: probe with the other command from now on
         seen_states = sorted({NSQD.state_name(u.values["state"]) for u in fresh.updates(since)})  # type: ignore[index]
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),

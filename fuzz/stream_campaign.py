@@ -10,7 +10,14 @@ A hit is triaged: the case (or, for a failed probe, each case since the last goo
 replayed in a fresh process until one reproduces alone; it is minimised (delta debugging
 over its writes, then over its bytes); it must then reproduce N of N times (``replays``),
 each in a fresh process, with the same signature, or it is dropped as unconfirmed; its
-signature deduplicates it. ``finding-N/`` holds ``finding.json``, the input as hex and as a
+signature deduplicates it. Before any replay, the same observation without the input (a
+connection sent nothing; the probe with no case before it) decides whether the input made
+the difference: if the baseline fails too, the finding is the target's behaviour, under the
+rule the baseline broke, with no input blamed (``fuzz.stream_blame``, issue 36 item 2). A hit
+whose signature is already a finding (or was one's before minimising) is counted, not
+triaged again; one that did not reproduce ``UNCONFIRMED_TRIES`` times is counted too; triage
+has a budget (``TRIAGE_SHARE`` of the campaign) and ``--duration`` bounds the whole campaign,
+triage included, within ``GRACE_S`` (both in the summary). ``finding-N/`` holds ``finding.json``, the input as hex and as a
 Python bytes literal, the stderr excerpt and ``replay.txt``; ``mcp-fuzz --protocol nsqd
 --replay finding-N`` reproduces it (exit 1) or not (exit 0).
 """
@@ -28,6 +35,15 @@ from typing import Any
 
 from fuzz.ddmin import ddmin
 from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
+from fuzz.stream_blame import (
+    GRACE_S,
+    PROBED,
+    TRIAGE_SHARE,
+    UNCONFIRMED_TRIES,
+    Late,
+    baseline,
+    budget_left,
+)
 from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
 from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
@@ -50,6 +66,8 @@ class Finding:
     note: str = ""
     traffic: list[Any] = field(default_factory=list)  # the last confirming replay's (repro.mcap, repro.pcap)
     program: list[dict[str, Any]] | None = None  # the stateful engine's: its ops (fuzz.stream_stateful.Op)
+    no_input: bool = False  # the target's behaviour: a baseline sent nothing showed it (fuzz.stream_blame)
+    probe: bool = False  # a no-input finding's baseline ends with the probe
 
     def writes(self) -> list[Write]:
         if self.program is not None:
@@ -84,6 +102,10 @@ class StreamCampaign:
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
     workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
+    untriaged: dict[str, int] = field(default_factory=dict)  # signature -> hits counted, not triaged
+    tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
+    aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
+    base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
 
     def _over(self, deadline: float) -> bool:
         return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
@@ -123,7 +145,13 @@ class StreamCampaign:
 
         t0 = time.monotonic()
         try:
-            return triage_program(self, backend, hit, ops)
+            if self.skip(hit.signature, backend, "program"):
+                return backend.fresh() if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
+            blame, backend = self.blamed(backend, hit, False)
+            return triage_program(self, backend, hit, ops) if blame else backend
+        except Late:
+            self.untriaged[hit.signature.describe()] = self.untriaged.get(hit.signature.describe(), 0) + 1
+            return self.current
         finally:
             self.triage_s += time.monotonic() - t0
 
@@ -184,15 +212,110 @@ class StreamCampaign:
             self.fuzz_s += time.monotonic() - t_fuzz
         return backend
 
-    def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
-        sig = hit.signature
-        known = next((f for f in self.findings if f.signature.key == sig.key), None)
-        if known is not None and sig.oracle != "desync":  # deduplicated before any replay: counted
+    def known(self, sig: Signature) -> Finding | None:
+        """The finding a hit of ``sig`` already is: the same signature (a sanitizer's report seen
+        before or after the exit alike: ``same_finding``), or a hit's that became it."""
+        if sig.oracle == "desync":  # named by what lost the stream its sync: only after its triage
+            return None
+        return next((f for f in self.findings if f.signature.key == sig.key or (
+            f.signature.oracle != "desync" and same_finding(sig, f.signature))), None) or self.aliases.get(sig.key)
+
+    def skip(self, sig: Signature, backend: Backend, how: str) -> bool:
+        """Counted, not triaged: a known finding's hit, a signature that did not reproduce
+        ``UNCONFIRMED_TRIES`` times when shown ``how`` (after a case, after a probe window,
+        by a program), or any once the triage budget is spent."""
+        known = self.known(sig)
+        if known is not None:
             known.count += 1
-            return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+            return True
         if self.target is not None and self.spawn is None and sig.oracle in ("crash", "hang") \
                 and backend.session.death() is not None:
-            raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
+            raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
+        if self.tries.get((sig.key, how), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
+            self.untriaged[sig.describe()] = self.untriaged.get(sig.describe(), 0) + 1
+            return True
+        return False
+
+    def _tried(self, sig: Signature, probe: bool) -> None:
+        k = (sig.key, "probe" if probe else "case")
+        self.tries[k] = self.tries.get(k, 0) + 1
+
+    def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
+            log: TrafficLog | None = None) -> tuple[bool, Backend, Hit | None]:
+        """One replay (``_reproduces``), none once the deadline passed (``Late``)."""
+        if self.duration is not None and time.monotonic() >= self.started + self.duration:
+            raise Late
+        ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log)
+        self.current = b
+        return ok, b, h
+
+    def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
+        """Whether the input makes the difference: the baseline (``fuzz.stream_blame``) on a
+        fresh backend, run once per campaign (with the probe or without). A failing baseline is
+        confirmed ``replays`` times and kept as the target's behaviour, no input blamed; it
+        explains the hit when it is of its kind (a death for a death, a bad frame for a bad
+        frame; any for what a probe showed): then (False, backend)."""
+        key = probe or hit.signature.oracle in ("hang", "desync")
+        if key not in self.base_seen:
+            self.base_seen[key] = self._baseline(backend, hit, key)
+            backend = self.current
+        base = self.base_seen[key]
+        if base is None:
+            return True, backend
+        h, b = hit.signature.oracle, base.oracle
+        if not (h in ("hang", "desync", "effect") or h == b or {h, b} <= {"crash", "sanitizer"}):
+            return True, backend
+        found = self.known(base)
+        if found is not None:
+            found.count += 1
+            self.aliases[hit.signature.key] = found
+        return False, backend
+
+    def _baseline(self, backend: Backend, hit: Hit, key: bool) -> Signature | None:
+        """The baseline, confirmed ``replays`` times: its signature (a finding, no input
+        blamed), or None (clean, or not every time: counted unconfirmed)."""
+        if self.duration is not None and time.monotonic() >= self.started + self.duration:
+            raise Late
+        b = self.current = backend.fresh()
+        self.restarts += 1
+        base = baseline(b, hit.signature, probe=key)
+        if base is None:
+            return None
+        sig, confirmed = base.signature, 1
+        for _ in range(self.replays - 1):
+            if self.duration is not None and time.monotonic() >= self.started + self.duration:
+                raise Late
+            b = self.current = b.fresh()
+            self.restarts += 1
+            again = baseline(b, sig, probe=key)
+            confirmed += again is not None and same_finding(again.signature, sig)
+        self.current = b.fresh()
+        if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
+            self.unconfirmed += 1
+            return None
+        if self.known(sig) is None:
+            self._add(Finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
+                              note="the target's behaviour, whatever it is sent: no input blamed (" + (
+                                  "the probe command with no case before it)" if base.detail.endswith(PROBED)
+                                  else "a baseline connection sent nothing)"),
+                              no_input=True, probe=key))
+        return sig
+
+    def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
+        sig = hit.signature
+        if self.skip(sig, backend, "probe" if probe else "case"):
+            return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+        try:
+            blame, backend = self.blamed(backend, hit, probe)
+            if not blame:
+                return backend
+            return self._triage_input(backend, hit, suspects, probe)
+        except Late:
+            self.untriaged[sig.describe()] = self.untriaged.get(sig.describe(), 0) + 1
+            return self.current
+
+    def _triage_input(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
+        sig = hit.signature
         culprit: list[Case] | None = None
         if sig.oracle == "effect" and any(m.name == sig.kind for m in NSQD.messages):
             # a command's own effect: the command alone (plain values), judged by its effect
@@ -203,42 +326,44 @@ class StreamCampaign:
         if probe and len(suspects) > 2:
             # a failed probe: the cases since the last good one, replayed together, then delta
             # debugged down to the case(s) that break the stream (log n replays, not n)
-            ok, backend, _ = _reproduces(backend, suspects, sig, probe=True)
+            ok, backend, _ = self.rep(backend, suspects, sig, probe=True)
             self.restarts += 1
             if ok:
                 box = {"b": backend}
 
                 def still(cs: list[Case]) -> bool:
-                    good, box["b"], _ = _reproduces(box["b"], cs, sig, probe=True)
+                    good, box["b"], _ = self.rep(box["b"], cs, sig, probe=True)
                     return good
 
                 culprit = _ddmin(list(suspects), still, budget=20)
                 backend = box["b"]
             suspects = []
         for c in reversed(suspects):  # the newest suspect first
-            ok, backend, _ = _reproduces(backend, [c], sig, probe=probe)
+            ok, backend, _ = self.rep(backend, [c], sig, probe=probe)
             self.restarts += 1
             if ok:
                 culprit = [c]
                 break
         if culprit is None and len(suspects) > 1 and sig.oracle != "effect":
-            ok, backend, _ = _reproduces(backend, suspects, sig, probe=probe)
+            ok, backend, _ = self.rep(backend, suspects, sig, probe=probe)
             culprit = suspects if ok else None
         if culprit is None:
             self.unconfirmed += 1
+            self._tried(sig, probe)
             return backend.fresh()
         if sig.oracle == "desync":  # named by what lost the stream its sync
             kind = culprit[-1].kind
             sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
             hit = Hit(sig, hit.detail, hit.stderr)
-        known = next((f for f in self.findings if f.signature.key == sig.key), None)
+        known = self.known(sig)
         if known is not None:
             known.count += 1
+            self.aliases[hit.signature.key] = known
             return backend.fresh()
         state = {"b": backend}
 
         def test(writes: list[Write]) -> bool:
-            ok, state["b"], _ = _reproduces(state["b"], [Case(_replay_kind(sig), tuple(writes))], sig, probe=probe)
+            ok, state["b"], _ = self.rep(state["b"], [Case(_replay_kind(sig), tuple(writes))], sig, probe=probe)
             return ok
 
         writes = [w for c in culprit for w in c.writes]
@@ -257,22 +382,25 @@ class StreamCampaign:
         traffic: list[Any] = []
         for _ in range(self.replays):
             log = TrafficLog()
-            ok, state["b"], last = _reproduces(state["b"], minimal, sig, probe=probe, log=log)
+            ok, state["b"], last = self.rep(state["b"], minimal, sig, probe=probe, log=log)
             confirmed += ok
             traffic = log.records if ok else traffic
             if last is not None and last.stderr:
                 hit = Hit(hit.signature, hit.detail, last.stderr)
         if confirmed < self.replays:
             self.unconfirmed += 1
+            self._tried(hit.signature, probe)
             return state["b"].fresh()
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+        self.aliases[hit.signature.key] = self.findings[-1]
         return state["b"].fresh()
 
     def _add(self, f: Finding) -> None:
         self.findings.append(f)
         if self.out is not None:
-            write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target, probe="probe" in f.note)
+            write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target,
+                          probe=f.probe or "probe" in f.note)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
         """``summary.json``: cases, judged cases/s (triage's replays excluded), findings by
@@ -286,9 +414,11 @@ class StreamCampaign:
              "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
              "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                           "count": f.count, "replays": f.replays, "engine": "stateful" if f.program is not None
+                           "count": f.count, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
                            else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "restarts": self.restarts, "db": self.db,
+             "unconfirmed": self.unconfirmed, "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
+             "duration_s": self.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
+             "triage_share": round(self.triage_s / elapsed, 3) if elapsed else 0.0,
              "jobs": len(self.workers) if self.workers is not None else 1}
         if self.workers is not None:
             s["workers"] = self.workers
@@ -304,7 +434,8 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
            "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
            "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
            "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
-           "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases)}
+           "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases),
+           "no_input": f.no_input}
     if f.program is not None:
         doc["program"] = f.program
     (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
@@ -334,6 +465,19 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"{prog}: error: {'--replay: ' if prog == 'mcp-fuzz' else ''}cannot read {doc_path}: {exc}")
         return 2
+    if doc.get("no_input"):
+        from fuzz.stream_blame import baseline
+
+        backend = Backend(target, spawn)
+        try:
+            seen = baseline(backend, sig, probe=bool(doc.get("probe")))
+        finally:
+            backend.close()
+        if seen is not None and _same(seen.signature, sig):
+            print(f"reproduced {sig.rule} with no input (the target's behaviour): {sig.describe()}")
+            return 1
+        print(f"did not reproduce {sig.describe()} with no input" + (f" (saw {seen.signature.describe()})" if seen else ""))
+        return 0
     if not writes and program is None:
         print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
               "mcp-conform --protocol nsqd --select NSQD-CON-3")

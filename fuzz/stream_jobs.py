@@ -28,7 +28,7 @@ _FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe
 
 def _snapshot(c: StreamCampaign) -> dict[str, Any]:
     return {"cases": c.cases, "fuzz_s": c.fuzz_s, "triage_s": c.triage_s, "restarts": c.restarts,
-            "unconfirmed": c.unconfirmed, "tried": c.tried, "by_kind": c.by_kind,
+            "unconfirmed": c.unconfirmed, "untriaged": c.untriaged, "tried": c.tried, "by_kind": c.by_kind,
             "signatures": [f.signature for f in c.findings]}
 
 
@@ -112,6 +112,7 @@ def _merge(parent: StreamCampaign, per: dict[int, dict[str, Any]], done: dict[in
     parent.restarts = sum(b["restarts"] for b in per.values())
     parent.unconfirmed = sum(b["unconfirmed"] for b in per.values())
     parent.tried = _sum_tables([b["tried"] for b in per.values()])
+    parent.untriaged = _sum_tables([{"": b.get("untriaged", {})} for b in per.values()]).get("", {})
     by_kind: dict[str, int] = {}
     for b in per.values():
         for k, n in b["by_kind"].items():

@@ -116,7 +116,8 @@ def test_progress_off_a_terminal_is_a_plain_status_line_every_few_seconds(
     summary = {"cases": 10, "duration_s": 1.0, "judged_cases_per_s": 10.0, "findings": 0,
                "findings_by_rule": {}, "seed": 1, "restarts": 0}
     live.final(summary, FindingStore(None))
-    assert out.getvalue().count("\n") == 2 and "10 judged cases/s" in out.getvalue()
+    assert out.getvalue().count("\n") == 3 and "10 judged cases/s" in out.getvalue()
+    assert "triage 0 s of 1.0 s" in out.getvalue()  # where the time went (issue 36)
 
 
 def test_status_every_sets_the_period_of_the_plain_status_line(monkeypatch: pytest.MonkeyPatch) -> None:

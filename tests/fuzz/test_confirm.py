@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 
 import fuzz.triage
-from fuzz.findings import FindingStore
+from fuzz.findings import NO_INPUT, FindingStore
 from fuzz.oracles import Flaw, Input, judge_exchange
 from fuzz.replay import Outcome
 from fuzz.triage import CONFIRM_N, Triage
@@ -45,10 +45,41 @@ def test_a_finding_needs_every_confirming_replay(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setattr(fuzz.triage, "run_sequence", replay)
     store = FindingStore(None)
     triage = Triage(_Target(), store, "stateless", seed=1)  # type: ignore[arg-type]
+    triage.baseline_rules = set()  # the node's baseline is clean (test_the_baseline_... below)
     data = encode(Message(1, 0, 7, Action.WP_OFF))
     found = triage.consider(flaw, [Input.of(data)], "batch")
     assert (found is not None) is kept and (len(store) == 1) is kept
     assert triage.unconfirmed == (0 if kept else 1)
+
+
+@pytest.mark.parametrize("baseline_shows", [True, False])
+def test_the_baseline_decides_whether_the_input_is_blamed(monkeypatch: pytest.MonkeyPatch, baseline_shows) -> None:
+    """Issue 36 item 2: a rule that a valid WP_Off in the input's place breaks too, every
+    time, is the node's behaviour (one finding, shape NO_INPUT; later flaws counted there);
+    a clean baseline leaves the input to be confirmed as before."""
+    flaw = Flaw("MCP-ACK-3", "an ACK to the sender", "ACK sent to 4095", culprit=0)
+    sent: list[list[bytes]] = []
+
+    def replay(target, seq, pace, scenario=None):  # noqa: ANN001, ANN202
+        sent.append(list(seq))
+        baseline = seq and seq[0][11:13] == (0x0B5E).to_bytes(2, "big")
+        return Outcome([flaw] if baseline_shows or not baseline else [])
+
+    monkeypatch.setattr(fuzz.triage, "run_sequence", replay)
+    store = FindingStore(None)
+    target = _Target()
+    target.node_id = 1  # type: ignore[attr-defined]
+    triage = Triage(target, store, "stateless", seed=1)  # type: ignore[arg-type]
+    data = encode(Message(1, 0, 7, Action.OBSTACLES_LIST, ()))
+    triage.consider(flaw, [Input.of(data)], "batch")
+    triage.consider(flaw, [Input.of(data)], "batch")
+    assert [f.shape == NO_INPUT for f in store.order] == [baseline_shows], [f.shape for f in store.order]
+    # (its occurrences: the baseline's own, then each flaw counted there)
+    if baseline_shows:
+        assert store.order[0].occurrences == 3 and all(data not in s for s in sent)
+        assert len(sent) == CONFIRM_N  # the baseline, once for the worker: not per flaw
+    else:
+        assert any(s == [data] for s in sent)
 
 
 class _Node:

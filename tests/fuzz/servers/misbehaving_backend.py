@@ -1,0 +1,112 @@
+"""Nsqd backends that misbehave whatever they are sent (issue 36 item 2), for the fuzzer's
+blame tests (tests/fuzz/test_blame.py): a finding against them is the target's behaviour,
+under its rule, with no input blamed.
+
+``--mode slow``: on accept one valid UPDATE at once, then the next UPDATEs one byte a second
+(NSQD-MSG-1: "no gap longer than update_gap_max_s"; mcp-conform names it in
+MSG/test_update_stream_keeps_its_period). ``--mode bad-frames``: an UPDATE every update
+period whose 32-bit length is written little-endian (a missing ``htonl``, E-1), so every
+frame it sends breaks NSQD-FRM-1 (mcp-conform: FRM/test_backend_frames_are_well_formed).
+Both read and discard whatever a client sends, serve up to ``MAX_CLIENTS`` clients at once
+(a thread each) and exit after ``--lifetime`` seconds.
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames [--lifetime S]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import socket
+import struct
+import threading
+import time
+
+from spec import NSQD
+from spec.stream_codec import encode
+
+MAX_CLIENTS = 64
+PERIOD = float(NSQD.params["update_period_s"])
+
+
+def update() -> bytes:
+    """A valid UPDATE (NSQD-MSG-2's layout), the drone grounded."""
+    return encode(NSQD, "UPDATE", roll=0.0, pitch=0.0, yaw=0.0, thrust=0.0, lat=55.0, lon=10.0, alt=0.0,
+                  state=NSQD.states["GROUNDED"])
+
+
+def _drain(c: socket.socket) -> bool:
+    """Read and discard what the client sent; False once it closed."""
+    try:
+        while True:
+            data = c.recv(65536)
+            if not data:
+                return False
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+
+
+def serve_client(c: socket.socket, mode: str, end: float) -> None:
+    c.setblocking(False)
+    try:
+        if mode == "slow":
+            c.sendall(update())
+            pending, step = b"", 1.0
+        else:
+            pending, step = b"", PERIOD
+        nxt = time.monotonic() + step
+        while time.monotonic() < end:
+            if not _drain(c):
+                return
+            now = time.monotonic()
+            if now >= nxt:
+                nxt = now + step
+                if mode == "slow":
+                    pending = pending or update()
+                    c.sendall(pending[:1])
+                    pending = pending[1:]
+                else:
+                    frame = update()
+                    c.sendall(struct.pack("<I", len(frame)) + frame[4:])  # the length not in network order
+            time.sleep(0.02)
+    except OSError:
+        pass
+    finally:
+        with contextlib.suppress(OSError):
+            c.close()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--bind", required=True)
+    ap.add_argument("--mode", choices=("slow", "bad-frames"), required=True)
+    ap.add_argument("--lifetime", type=float, default=300.0)
+    ns = ap.parse_args()
+    host, _, port = ns.bind.rpartition(":")
+    end = time.monotonic() + ns.lifetime
+    ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    ls.bind((host, int(port)))
+    ls.listen(16)
+    ls.settimeout(0.2)
+    print(f"listening on {host}:{port}", flush=True)
+    threads: list[threading.Thread] = []
+    while time.monotonic() < end:
+        try:
+            c, _ = ls.accept()
+        except TimeoutError:
+            continue
+        threads = [t for t in threads if t.is_alive()]
+        if len(threads) >= MAX_CLIENTS:
+            c.close()
+            continue
+        t = threading.Thread(target=serve_client, args=(c, ns.mode, end), daemon=True)
+        t.start()
+        threads.append(t)
+    ls.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""Blame only where the input makes the difference (issue 36 item 2): against Nsqd backends
+that misbehave whatever they are sent (tests/fuzz/servers/misbehaving_backend.py), a campaign
+reports the target's behaviour under the rule mcp-conform names for it (NSQD-MSG-1 for a
+stream that trickles, NSQD-FRM-1 for frames whose length is not in network order), with no
+input blamed, replayable with no input; and it ends within its ``--duration`` plus the grace
+it states (the elapsed time printed, bounded generously: a loaded host is slow, not wrong)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fuzz.stream_blame import GRACE_S
+
+pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
+
+ROOT = Path(__file__).resolve().parents[2]
+DURATION = 12.0
+
+
+def _spawn(mode: str) -> str:
+    return (f"{sys.executable} -m tests.fuzz.servers.misbehaving_backend --bind {{target_host}}:{{target_port}} "
+            f"--mode {mode} --lifetime 120")
+
+
+def _fuzz(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", *args], capture_output=True,
+                          text=True, timeout=DURATION + GRACE_S + 120, cwd=ROOT)
+
+
+@pytest.mark.parametrize("mode,rule", [("slow", "NSQD-MSG-1"), ("bad-frames", "NSQD-FRM-1")])
+def test_a_backend_that_misbehaves_whatever_it_is_sent_is_its_own_finding(tmp_path, mode, rule):
+    run = _fuzz("--spawn", _spawn(mode), "--duration", f"{DURATION:g}", "--out", str(tmp_path))
+    out = run.stdout + run.stderr
+    print(out)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    print(f"{mode}: elapsed {summary['elapsed_s']} s for --duration {DURATION:g} (grace {summary['grace_s']} s), "
+          f"triage {summary['triage_s']} s")
+    assert run.returncode == 1, out
+    assert [(f["rule"], f["no_input"]) for f in summary["findings"]] == [(rule, True)], summary["findings"]
+    doc = json.loads((tmp_path / "finding-1" / "finding.json").read_text())
+    assert doc["writes"] == [] and doc["no_input"] and "no input blamed" in doc["note"], doc
+    assert f"grace {GRACE_S:g} s" in out and "triage" in out, out
+    assert summary["elapsed_s"] <= DURATION + GRACE_S, summary
+    replay = _fuzz("--replay", str(tmp_path / "finding-1"), "--spawn", _spawn(mode))
+    assert replay.returncode == 1 and "with no input" in replay.stdout, replay.stdout + replay.stderr
+
+
+def test_the_reference_backend_gives_no_finding_and_keeps_the_bound(tmp_path):
+    """The baseline of a correct backend is clean: nothing reported, and the bound holds."""
+    run = _fuzz("--duration", "6", "--out", str(tmp_path))
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    print(run.stdout, f"elapsed {summary['elapsed_s']} s for --duration 6")
+    assert run.returncode == 0 and summary["findings"] == [], run.stdout + run.stderr
+    assert summary["elapsed_s"] <= 6 + GRACE_S, summary
