@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from fuzz.config import ENGINES, FuzzConfig
+from fuzz.config import ENGINES, FuzzConfig, default_engine
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 
@@ -61,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", metavar="N", help=f"campaign seed (default {DEFAULT_SEED})")
     p.add_argument("--max-cases", metavar="N", help="stop after N cases")
     p.add_argument("--duration", metavar="S", help="stop after S seconds (default 60 unless --max-cases)")
-    p.add_argument("--engine", metavar="|".join(ENGINES), default="stateless", help="engine(s) to run (default stateless)")
+    p.add_argument("--engine", metavar="|".join(ENGINES), default=None,
+                   help="engine(s) to run (default: both for a drone, stateless for a manager "
+                        "and for --protocol nsqd)")
     p.add_argument("--jobs", metavar="N", default="1", help="parallel workers, each with its own spawned node")
     p.add_argument("--db", metavar="DIR|redis://HOST:PORT/N", help="hypothesis example database shared by workers")
     p.add_argument("--seeds", metavar="DIR", help="MCAP captures whose datagrams seed the mutations")
@@ -169,9 +171,10 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg.duration = _float(ns.duration, "--duration")
     if ns.status_every is not None:
         cfg.extra["status_every"] = _float(ns.status_every, "--status-every")
-    if ns.engine not in ENGINES:
-        raise UsageError(f"--engine: {ns.engine!r} is not one of {', '.join(ENGINES)}")
-    cfg.engine = ns.engine
+    engine = default_engine(ns.role, ns.protocol) if ns.engine is None else ns.engine
+    if engine not in ENGINES:
+        raise UsageError(f"--engine: {engine!r} is not one of {', '.join(ENGINES)}")
+    cfg.engine = engine
     if cfg.role == "manager" and cfg.engine != "stateless":
         raise UsageError("--engine: a manager is fuzzed by the stateless engine only "
                          "(the stateful engine's programs are a manager's commands to a drone)")
