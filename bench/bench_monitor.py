@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a sourc
 
 from judge.monitor import Monitor  # noqa: E402
 from spec.codec import DecodeError, decode  # noqa: E402
-from tests.conformance.monitor_scripts import WAYPOINTS, Script  # noqa: E402
+from tests.judge.monitor_scripts import WAYPOINTS, Script  # noqa: E402
 
 TARGET = 150_000
 

@@ -1,6 +1,6 @@
 """mcp-capture check: the monitor's scripted missions written as pcaps, judged from the file.
 
-The conversations are the monitor's own (tests/conformance/monitor_scripts.py and
+The conversations are the monitor's own (tests/judge/monitor_scripts.py and
 monitor_faults.py). A pcap cannot hold the harness's origin or the autopilot link, so each
 faulty mission is checked against the monitor judging the same datagrams in memory: the
 command line must find exactly what the monitor finds, and for the faults that traffic
@@ -19,8 +19,8 @@ from captures.cli import main
 from judge.monitor import Monitor
 from spec import SPEC
 from spec.mission import load_waypoints, save_waypoints
-from tests.conformance.monitor_faults import FAULTY
-from tests.conformance.monitor_scripts import TESTER, Script, clean_script
+from tests.judge.monitor_faults import FAULTY
+from tests.judge.monitor_scripts import TESTER, Script, clean_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -154,7 +154,7 @@ def test_truncated_pcap_is_judged_and_said(tmp_path, capsys):
 
 
 def test_html_report_of_a_faulty_pcap(tmp_path):
-    from tests.captures.test_html_report import no_external_assets
+    from tests.reports.test_html_report import no_external_assets
 
     s = FAULTY["ack6-acks-ack"].build()
     pcap = s.write_pcap(tmp_path / "t.pcap")

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from spec.codec import Action, Message, decode, encode
-from tests.captures.test_recorder import read_all
 from tests.forkserver import run_module
+from tests.traceio.test_recorder import read_all
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow

@@ -1,5 +1,5 @@
 """The trace monitor on scripted whole missions: clean ones raise nothing, each faulty one
-raises exactly its rule (tests/conformance/monitor_faults.py), on complete and lossy traces.
+raises exactly its rule (tests/judge/monitor_faults.py), on complete and lossy traces.
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import pytest
 from judge.monitor import MONITORED_RULES, TESTER, Monitor, Violation
 from spec import SPEC
 from spec.codec import Action, DecodeError, Message, decode, encode
-from tests.conformance.monitor_faults import FAULTY
-from tests.conformance.monitor_scripts import Script, clean_script
+from tests.judge.monitor_faults import FAULTY
+from tests.judge.monitor_scripts import Script, clean_script
 
 
 def _rules(violations: list[Violation]) -> list[tuple[str, int, str]]:
@@ -99,7 +99,7 @@ def test_a_list_sent_malformed_is_its_payload_rules_not_a_missing_list():
     import struct
 
     from spec.codec import ITEM, build_datagram
-    from tests.conformance.monitor_faults import _runner_drones
+    from tests.judge.monitor_faults import _runner_drones
 
     s = Script((1,), vehicle=False, challenge=3)
     kw = _runner_drones(s)
@@ -121,7 +121,7 @@ def test_copies_sent_before_a_late_starting_node_showed_itself_went_unheard(unhe
     first Mission_Ready: the copies before its first datagram but the last went unheard.
     Its ACK of a later copy is no MCP-ACK-1 failure; a manager that then leaves the heard
     copies unACKed is (counted from the last unheard one)."""
-    from tests.conformance.monitor_faults import _manager_finishes
+    from tests.judge.monitor_faults import _manager_finishes
 
     s = Script((1, 2), vehicle=False)
     kw = {"acker_origin": TESTER}
@@ -161,7 +161,7 @@ def test_a_manager_seen_ignoring_wrong_acks_that_never_waits_is_blk_3s(ignored):
     2's stale ACK for it (MCP-RTX-2: a side-by-side run's false alarm on the sample manager's
     no-wait-start-ack, whose serial run gave BLK-3). A manager that was not seen ignoring a
     wrong seq from the destination (it took drone 1's: no copy after it) still is RTX-2's."""
-    from tests.conformance.monitor_faults import withheld_start_and_wrong_acks
+    from tests.judge.monitor_faults import withheld_start_and_wrong_acks
 
     s, kw, seq, data = withheld_start_and_wrong_acks(wrong_seq=True)
     if ignored:
@@ -198,7 +198,7 @@ def test_a_manager_seen_moving_on_with_no_ack_is_not_taken_for_one_that_takes_a_
     before the ACK when the runner is slow to send it (25 ms). A manager seen moving on with
     no ACK is not taken for one that took drone 2's stale ACK (MCP-RTX-2: the serial run's
     false alarm; its side-by-side run, ACKed at once, said not_observed): MCP-BLK-3 only."""
-    from tests.conformance.monitor_faults import _runner_drones
+    from tests.judge.monitor_faults import _runner_drones
 
     s = Script((1, 2), vehicle=False)
     kw = _runner_drones(s)
@@ -241,7 +241,7 @@ def test_a_unicast_acked_is_rtx_1_observed_however_soon_the_trace_ends(tail):
     the deadline that would judge it unACKed: a trace that ends before that deadline gives the
     same verdict as a longer one (a side-by-side run and the serial run of the same manager
     disagreed, "passed" against "not_observed")."""
-    from tests.conformance.monitor_faults import _runner_drones
+    from tests.judge.monitor_faults import _runner_drones
 
     s = Script((1,), vehicle=False)
     kw = _runner_drones(s)
@@ -254,7 +254,7 @@ def test_the_harness_probing_a_drone_it_plays_mid_mission_is_no_restart():
     """``mcp-conform --role manager`` sends a fresh Mission_Ready of a drone it plays after
     that drone's Start_Mission (a liveness probe, or an input to a manager that starts
     early): no restart of the drone's mission, so its WP_List after it is no MCP-FLOW-2."""
-    from tests.conformance.monitor_faults import _manager_finishes, _runner_drones
+    from tests.judge.monitor_faults import _manager_finishes, _runner_drones
 
     s = Script((1, 2), vehicle=False)
     kw = _runner_drones(s)
@@ -431,7 +431,7 @@ def test_an_ack_read_after_the_message_it_took_a_number_before_explains_the_gap(
     sent drone 2 a message with seq N+1; the recorder read the message first. The gap is
     explained by the number the ACK carried, read within SEQ_GAP_GRACE_NS; a number no ACK
     carries within the grace is still MCP-SEQ-1 (the seq1-skips fault)."""
-    from tests.conformance.monitor_faults import _finish, _started
+    from tests.judge.monitor_faults import _finish, _started
 
     def script(ack_after: float | None, ack_seq_offset: int = 0) -> Script:
         s = _started()
@@ -457,7 +457,7 @@ def test_an_ack_read_before_the_message_numbered_before_it_explains_the_gap():
     one read just after would (the reorder works both ways; the manager case
     test_each_new_message_takes_the_next_seq judges on the numbers within the grace on both
     sides). A number no ACK carries within the grace is still MCP-SEQ-1."""
-    from tests.conformance.monitor_faults import _finish, _started
+    from tests.judge.monitor_faults import _finish, _started
 
     def script(ack_before: float | None, ack_seq_offset: int = 0) -> Script:
         s = _started()
@@ -536,7 +536,7 @@ def test_an_ack_naming_the_next_message_while_a_copy_sent_before_the_first_ack_w
     proves neither (the node's other copies prove its MCP-ACK-2 in a run): a loaded run's
     manager that ACKs ACKs (MCP-ACK-6) was late with a copy's ACK and got a false MCP-ACK-2
     when its absence was taken for proof."""
-    from tests.conformance.monitor_faults import _finish, _started
+    from tests.judge.monitor_faults import _finish, _started
 
     s = _started(challenge=2)
     seq, data = s.send(0, 1, Action.WP_OFF)

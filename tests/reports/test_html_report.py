@@ -134,7 +134,7 @@ def test_mcp_capture_check_html_in_chromium(tmp_path):
 
     from captures.cli import main
     from spec.mission import save_waypoints
-    from tests.conformance.monitor_faults import FAULTY
+    from tests.judge.monitor_faults import FAULTY
 
     s = FAULTY["ack4-acks-broadcast"].build()
     pcap = s.write_pcap(tmp_path / "faulty.pcap")

@@ -68,7 +68,7 @@ def _nsqd_pcap_bytes() -> bytes:
     ``mcp-capture export`` writes it: read back by the TCP reassembly and the Nsqd judge."""
     import tempfile
 
-    from tests.captures.test_nsqd_tcp import RPY, TAKEOFF, UP
+    from tests.traceio.test_nsqd_tcp import RPY, TAKEOFF, UP
     from traceio.reader import StreamFrame
     from traceio.tcp_pcap import write_tcp_pcap
 

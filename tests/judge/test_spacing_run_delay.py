@@ -11,8 +11,8 @@ from conformance._case_base import CaseBase
 from harness.errors import CaseFailure
 from judge.spacing import judge_spacing
 from spec.codec import Action, peek_header
-from tests.conformance.monitor_faults import _finish, _started
-from tests.conformance.monitor_scripts import MANAGER_ADDR, Script
+from tests.judge.monitor_faults import _finish, _started
+from tests.judge.monitor_scripts import MANAGER_ADDR, Script
 
 MS = 10**6
 EVEN = [300 * MS, 300 * MS, 385 * MS, 300 * MS]  # one copy 85 ms late: outside 300 ± 75 ms

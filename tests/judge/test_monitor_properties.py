@@ -12,7 +12,7 @@ import random
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.conformance.monitor_scripts import Script
+from tests.judge.monitor_scripts import Script
 
 
 @st.composite

@@ -14,7 +14,7 @@ Autopilot-link events (``VehicleEvent``) can be recorded beside the datagrams.
 
 Faulty conversations are written step by step with the same building blocks
 (:meth:`Script.exchange`, :meth:`Script.send`, :meth:`Script.ack`, :meth:`Script.raw`,
-:meth:`Script.vehicle`); ``tests/conformance/monitor_faults.py`` holds ``FAULTY``, one
+:meth:`Script.vehicle`); ``tests/judge/monitor_faults.py`` holds ``FAULTY``, one
 conversation per fault with the one rule it must raise. Other tests (``mcp-capture check``)
 import both modules.
 """

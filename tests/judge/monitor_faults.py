@@ -2,7 +2,7 @@
 
 ``FAULTY[name]`` is a :class:`Fault`: the rule the conversation must raise (and no other),
 whether the monitor judges it as a complete trace, and ``build()`` returning the
-:class:`~tests.conformance.monitor_scripts.Script`. Every conversation is a whole mission
+:class:`~tests.judge.monitor_scripts.Script`. Every conversation is a whole mission
 (or the part of one the fault allows) of the manager and two drones, built from the
 script's clean phases with one step changed.
 """
@@ -15,7 +15,7 @@ from typing import NamedTuple
 from judge.monitor import TESTER
 from spec.codec import PREAMBLE, Action, Message, MissionItem, build_datagram, encode
 from spec.mavframe import heartbeat_frame
-from tests.conformance.monitor_scripts import Script
+from tests.judge.monitor_scripts import Script
 
 __all__ = ["FAULTY", "Fault"]
 

@@ -236,8 +236,7 @@ def test_each_violation_line_is_json_dumps_of_its_document(tmp_path: Path, monke
 
     import captures.check as check_mod
     from judge.judging import evidence_of
-
-    from .noisy import write_noisy
+    from tests.captures.noisy import write_noisy
 
     j = judge(write_noisy(tmp_path / "n.mcap", 800), Params())
     evidence = evidence_of(j)

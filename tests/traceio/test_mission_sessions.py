@@ -16,9 +16,9 @@ from judge.judging import Params, judge
 from judge.monitor import TESTER
 from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from spec.codec import Action
-from tests.conformance.monitor_faults import rtx2_moves_on
-from tests.conformance.monitor_scripts import Script
 from tests.conformance.runner_helpers import verdict_differences
+from tests.judge.monitor_faults import rtx2_moves_on
+from tests.judge.monitor_scripts import Script
 from traceio.merge import merge_captures
 from traceio.reader import Metadata, open_capture
 from traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
@@ -129,7 +129,7 @@ def test_the_mission_a_session_records_is_what_check_judges_its_lists_by(tmp_pat
     live monitor and ``check`` compare the WP_List with them alike (a reversed list fails
     MCP-FLOW-4 in both); ``--challenge`` given by the user still wins."""
     from captures.check import to_json, validate_json
-    from tests.conformance.monitor_scripts import WAYPOINTS
+    from tests.judge.monitor_scripts import WAYPOINTS
 
     wrong = tuple(reversed(WAYPOINTS))  # the manager sends the file's items reversed
     cap = tmp_path / "run.mcap"
