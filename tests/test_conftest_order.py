@@ -3,7 +3,11 @@ workers' first shares, everything else kept in order after them."""
 
 from __future__ import annotations
 
-from .conftest import dealt
+from pathlib import Path
+
+from .conftest import LONG_FIRST, WAITERS, dealt
+
+TESTS = Path(__file__).resolve().parent
 
 
 def _shares(n: int, workers: int) -> list[int]:
@@ -46,3 +50,14 @@ def test_the_tests_that_wait_are_spread_through_every_share() -> None:
         gaps = [b - a for a, b in zip(waiters, waiters[1:], strict=False)]
         assert gaps and min(gaps) >= 3, share  # spaced among the others, not bunched
         at += size
+
+
+def test_every_test_the_order_names_still_exists() -> None:
+    """A moved or renamed test would silently lose its place at the head of a share."""
+    for part in LONG_FIRST:
+        name, test = part.split("::")
+        stem = test.split("[")[0]
+        files = list(TESTS.rglob(name))
+        assert any(f"def {stem}" in f.read_text() for f in files), part
+    for prefix in WAITERS:
+        assert (TESTS.parent / prefix.removesuffix("::")).is_file(), prefix
