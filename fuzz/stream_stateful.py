@@ -1,55 +1,62 @@
-"""The Nsqd stateful engine: hypothesis plays clients of a backend (issue 21 item 1).
+"""The Nsqd stateful engine: programs of clients of a backend (issue 21 item 1, issue 36 item 4).
 
-:class:`ClientsMachine` is a ``RuleBasedStateMachine`` over connections to the backend, its
-moves derived from ``spec/nsqd.yaml``: open a connection (in one of two client slots: a
-second client while the first is served, NSQD-CON-2, D-4), a valid command (the messages
-table's effect is judged, NSQD-MSG-3), a mutated case of any kind of ``fuzz.stream_mutators``,
-a frame cut by FIN or RST (NSQD-ROB-2) and a new connection after it (NSQD-ROB-3), a close.
-Each move is an :class:`Op`; :class:`Player` plays ops on a backend (``stream_campaign.Backend``)
-and judges after each one with the stateless engine's oracles (death, sanitizer report, the
-backend's own frames by ``Conn.violation``, a close after frames a backend handles, a
-command's effect, a stream that stopped), plus what only several connections show: a first
-client closed or disturbed when a second connects, a waiting client never served once the
-first leaves (NSQD-CON-2), a command lost on a new connection after a cut frame (NSQD-ROB-3).
+A program (``fuzz.stream_programs``: drawn by a seeded random) is a list of :class:`Op` over
+connections to the backend, its moves derived from ``spec/nsqd.yaml``: open a connection (in
+one of two client slots: a second client while the first is served, NSQD-CON-2, D-4), a
+valid command (the messages table's effect is judged, NSQD-MSG-3), a mutated case of any kind
+of ``fuzz.stream_mutators``, a frame cut by FIN or RST (NSQD-ROB-2) and a new connection
+after it (NSQD-ROB-3), a close. :class:`Player` plays ops on a backend
+(``fuzz.stream_backend.Backend``) and judges them with the stateless engine's oracles (death,
+sanitizer report, the backend's own frames by ``Conn.violation``, a close after frames a
+backend handles, a command's effect, a stream that stopped), plus what only several
+connections show: a first client closed or disturbed when a second connects, a waiting client
+never served once the first leaves (NSQD-CON-2), a command lost on a new connection after a
+cut frame (NSQD-ROB-3).
 
-A failing program is shrunk by hypothesis (for at most ``SHRINK_S``, one signature kept), then
-triaged as the campaign's cases are (``StreamCampaign.add_program``): replayed in a fresh
-process, delta-debugged over its ops, confirmed N of N, deduplicated by signature. The engine
-runs in chunks inside the campaign's budget (``OutOfBudget`` from a step ends a run within one
-step) and ticks the campaign's progress. Workers share hypothesis's example database (``--db``).
+Two ways to play (issue 36 item 5: cases per second against a slow-updating backend come from
+overlapping cases, not from waiting out each UPDATE period):
+
+- **careful** (triage's replays, ``--replay``): each op judged as it is played, waiting for
+  what shows it: a command's effect in the next UPDATE, the backend's loop gone round
+  (``LOOP_UPDATES``) when a second client connects;
+- **pipelined** (the campaign, ``Player(fast=True)``): ops written back to back, what is
+  there read after each (death, reports, frames, closes), and the waits done once, at the
+  program's end (:meth:`Player.finish`): the first client's next UPDATE once a second one
+  connected, the promoted client's first, and a turnover -- every client's FIN, then a new
+  connection, whose UPDATE on accept shows the flight state all their bytes left (the backend
+  has read each stream to its end before it serves the next client): the last command's
+  effect judged by it in one round trip instead of an UPDATE period.
+
+A pipelined program's failure is triaged by careful replays (``StreamCampaign.add_program``):
+replayed in a fresh process, delta-debugged over its ops, confirmed N of N, deduplicated by
+signature; a confirmed program is saved in the example database (``--db``) and played first
+by every worker of the next campaign.
 """
 
 from __future__ import annotations
 
 import contextlib
 import random
+import select
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hypothesis import HealthCheck, Phase, settings
-from hypothesis import seed as hypothesis_seed
-from hypothesis import strategies as st
-from hypothesis.errors import Flaky
-from hypothesis.reporting import with_reporter
-from hypothesis.stateful import RuleBasedStateMachine, rule, run_state_machine_as_test
-
 from fuzz.ddmin import ddmin
-from fuzz.engine_stateful import OutOfBudget, open_database
 from fuzz.stream_findings import TrafficLog
-from fuzz.stream_mutators import KINDS, Write, draw_case, valid_values
+from fuzz.stream_mutators import Write, valid_values
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from harness.stream_session import Conn
 from spec import NSQD
 from spec.stream_codec import encode
 
-__all__ = ["ClientsMachine", "Op", "Player", "StreamStatefulEngine", "play_program", "triage_program"]
+__all__ = ["Op", "Player", "play_program", "triage_program"]
 
 SLOTS = 2  # client slots: a first client and a second one at once
-STEPS = 12  # moves per program at most
-CHUNK = 10  # programs per hypothesis run (the budget is checked between moves, too)
-SHRINK_S = 8.0  # how long hypothesis may shrink a failing program (triage minimises again)
+#: unused since the programs are drawn by ``fuzz.stream_programs`` (hypothesis's shrinking is
+#: gone; triage's ddmin minimises a failing program): kept for callers that set it
+SHRINK_S = 8.0
 TICK_S = 0.25
 #: UPDATEs to the first client, counted from a second's connect, that show the backend has
 #: gone round its loop with the second waiting (Player._settle): one may come from the turn
@@ -113,6 +120,10 @@ class Client:
     others: bool = False  # another client connected while it was served
     kinds: list[str] = field(default_factory=list)  # the mutated cases sent on it
     last_kind: str = "valid"
+    others_at: float = 0.0  # when another client connected while it was served
+    promoted: bool = False  # pipelined: served once the first left, its first UPDATE not yet judged
+    sent: bool = False  # anything was sent on it
+    pending: tuple[Op, float] | None = None  # pipelined: its last command, judged at the end
 
 
 class Hit(Exception):
@@ -124,11 +135,17 @@ class Hit(Exception):
 
 
 class Player:
-    """Plays ops on a backend's session and judges after each (see the module docstring)."""
+    """Plays ops on a backend's session, careful or pipelined (``fast``; see the module
+    docstring). ``spare``: a connection already served (the last pipelined program's turnover
+    left it), the first client's when the first op opens one."""
 
-    def __init__(self, backend: Any) -> None:
+    def __init__(self, backend: Any, *, fast: bool = False, spare: Conn | None = None) -> None:
         self.b = backend
         backend._drop()
+        self.fast, self.spare = fast, spare
+        #: clients that sent bytes while waiting and were not served since: a one-client
+        #: backend reads them once the first leaves, even of a client closed meanwhile
+        self.queued = 0
         self.clients: dict[int, Client] = {}
         self.cut = ""  # a client left mid-frame since the last new connection
         self.window = float(NSQD.params["effect_window_s"])
@@ -160,10 +177,17 @@ class Player:
             c.conn.close()
             self._forget(c)
         self.clients.clear()
+        if self.spare is not None:
+            self.spare.close()
+            self._forget_conn(self.spare)
+            self.spare = None
 
     def _forget(self, c: Client) -> None:
-        if c.conn in self.b.session.conns:
-            self.b.session.conns.remove(c.conn)
+        self._forget_conn(c.conn)
+
+    def _forget_conn(self, conn: Conn) -> None:
+        if conn in self.b.session.conns:
+            self.b.session.conns.remove(conn)
 
     def _open(self, slot: int) -> Client | None:
         old = self.clients.pop(slot, None)
@@ -172,7 +196,8 @@ class Player:
             self._forget(old)
             self._promote()  # a client waiting behind the old one is served before the new one
         served = [c for c in self.clients.values() if not c.second and c.conn.closed_at is None]
-        conn = self.b.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
+        conn, self.spare = (self.spare, None) if self.spare is not None and not self.clients else (None, self.spare)
+        conn = conn or self.b.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
         if conn is None:
             if served:
                 return None  # a second client may be refused (D-4)
@@ -182,8 +207,9 @@ class Player:
         c = Client(conn, second=bool(served), after_cut=self.cut)
         self.cut = ""
         for o in served:
-            o.others = True
-            self._settle(o.conn)
+            o.others, o.others_at = True, time.monotonic()
+            if not self.fast:
+                self._settle(o.conn)
         self.clients[slot] = c
         return c
 
@@ -211,6 +237,8 @@ class Player:
         if not op.valid or not op.in_sync:
             c.kinds.append(op.kind)
         c.last_kind = op.kind if op.valid else c.last_kind
+        self._sent(c)
+        c.pending = None
         for w in op.writes:
             if not c.conn.send(w.data):
                 break
@@ -222,7 +250,12 @@ class Player:
                     for o in self.clients.values():  # a waiting client may be that one
                         o.after_cut = o.after_cut or (self.cut if o.second else "")
                 return
-        c.conn.pump(0.003)
+        c.conn.pump(0 if self.fast else 0.003)
+
+    def _sent(self, c: Client) -> None:
+        if c.second and not c.sent:
+            self.queued += 1
+        c.sent = True
 
     def _gone(self, c: Client) -> None:
         for slot, o in list(self.clients.items()):
@@ -234,6 +267,13 @@ class Player:
         msg = NSQD.message(op.kind)
         conn = c.conn
         judged = not c.second and c.in_sync and conn.closed_at is None
+        self._sent(c)
+        if self.fast:  # judged at the program's end, if nothing follows it (finish)
+            c.pending = (op, time.monotonic()) if judged else None
+            conn.send(op.writes[0].data)
+            c.last_kind = "valid"
+            conn.pump(0)
+            return
         if judged and not conn.updates():  # the state before the command, from the stream
             conn.wait_for(lambda: bool(conn.updates()), self.gap)
             if not conn.updates() and conn.closed_at is None:
@@ -253,7 +293,13 @@ class Player:
         if ok or conn.closed_at is not None:
             return  # a close is judged with the others' (_judge)
         self._judge()  # a death or the backend's own frames first
-        seen = sorted({NSQD.state_name(u.values["state"]) for u in conn.updates(since)})  # type: ignore[index]
+        raise self._lost(c, op, [u.values["state"] for u in conn.updates(since)])  # type: ignore[misc]
+
+    def _lost(self, c: Client, op: Op, states: list[int]) -> Hit:
+        """The finding of a command whose effect did not show (``states``: what UPDATE showed):
+        named by what the connection had been through."""
+        msg = NSQD.message(op.kind)
+        seen = sorted({NSQD.state_name(s) for s in states})
         what = (f"{op.kind}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in msg.effect.to)} expected "
                 f"within {self.window:g} s, saw {', '.join(seen) or 'no UPDATE'}")
         if not seen:
@@ -269,7 +315,7 @@ class Player:
             sig = Signature("desync", f"stream lost after {c.kinds[-1]}", (), desync_rule(c.kinds[-1]))
         else:
             sig = Signature("effect", op.kind, (), "NSQD-MSG-3")
-        raise Hit(sig, what)
+        return Hit(sig, what)
 
     # -- judging ------------------------------------------------------------------------
     def _dead(self) -> None:
@@ -280,7 +326,10 @@ class Player:
     def _judge(self) -> None:
         for c in self.clients.values():
             c.conn.pump(0)
-        closed = any(c.conn.closed_at is not None for c in self.clients.values())
+        # a death closes the socket as the process exits: a moment to tell the two apart
+        # (pipelined: only where a close would be a finding, as the stateless engine does)
+        closed = any(c.conn.closed_at is not None and (not self.fast or (c.clean and not c.second))
+                     for c in self.clients.values())
         hit = self.b.death_hit(0.03 if closed else 0.0)
         if hit is not None:
             raise Hit(hit.signature, hit.detail, hit.stderr)
@@ -319,9 +368,13 @@ class Player:
             if not c.second:
                 continue
             c.second = False
+            self.queued -= c.sent  # what it sent is read now, before anything sent after
             conn = c.conn
             if conn.updates():
                 continue
+            if self.fast:  # its first UPDATE is waited for at the program's end (finish)
+                c.promoted = True
+                return
             bound = self.gap + 0.5
             if not conn.wait_for(lambda conn=conn: bool(conn.updates()), bound) and conn.closed_at is None:
                 self._dead()
@@ -329,6 +382,105 @@ class Player:
                           f"client {slot}, waiting while another was served, got no UPDATE within {bound:g} s "
                           "of the other leaving")
             return
+
+
+    # -- the end of a pipelined program ---------------------------------------------------
+    def finish(self) -> Conn | None:
+        """A pipelined program's waits, once (see the module docstring): a first client that
+        saw a second connect watched until its next UPDATE (the backend's loop gone round with
+        the second waiting; a backend that kicks the first does so on accepting the second:
+        ``_judge`` then names it), a promoted client's first UPDATE (NSQD-CON-2), then the
+        turnover: every client's FIN, the served one's first, and a new connection, whose
+        first UPDATE -- or the next waiting client's, served before it -- shows the state all
+        their bytes left; the served client's last command (``pending``, when nothing was sent
+        after it on any connection) is judged by it. :class:`Hit` when an oracle fires; the
+        new connection, served, when the backend is live (the next program's first client),
+        else None (the caller restarts the backend: as a careful replay, not a finding)."""
+        for c in list(self.clients.values()):
+            conn = c.conn
+            if c.others and not c.second and conn.closed_at is None:
+                conn.wait_for(lambda conn=conn, t=c.others_at: conn.closed_at is not None or bool(conn.updates(t)),
+                              self.gap)
+        self._judge()
+        for slot, c in self.clients.items():
+            conn = c.conn
+            bound = self.gap + 0.5
+            if c.promoted and not conn.wait_for(lambda conn=conn: bool(conn.updates()), bound) and conn.closed_at is None:
+                self._dead()
+                raise Hit(Signature("hang", "waiting client not served", (), "NSQD-CON-2"),
+                          f"client {slot}, waiting while another was served, got no UPDATE within {bound:g} s "
+                          "of the other leaving")
+        self._judge()
+        order = sorted(self.clients.values(), key=lambda c: c.second)  # the served one first
+        served = order[0] if order and not order[0].second else None
+        pending = served.pending if served is not None and not self.queued else None
+        for c in order:
+            c.conn.shutdown()
+        observer = self.b.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
+        if observer is not None:
+            self.b.connections += 1
+        nxt = order[1].conn if served is not None and len(order) > 1 else observer
+        conns = [c.conn for c in order] + ([observer] if observer is not None else [])
+
+        def shown() -> bool:
+            if pending is not None and served is not None:
+                old, (op, since) = served.conn, pending
+                to = NSQD.message(op.kind).effect
+                if any(u.values["state"] in to.to for u in old.updates(since)):  # type: ignore[index]
+                    return True
+                if to.or_error and old.errors(since):
+                    return True
+                if old.closed_at is None:
+                    return False  # the next client's UPDATE proves nothing before the backend closed this one
+            return nxt is not None and bool(nxt.updates())
+
+        _wait_all(conns, shown, self.window)
+        hit = self.b.death_hit(0.0)
+        for conn in conns:
+            v = conn.violation()
+            if hit is None and v is not None:
+                hit = Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if hit is None and pending is not None and served is not None and served.conn.closed_at is not None \
+                and not served.conn.reset:
+            op, since = pending
+            effect = NSQD.message(op.kind).effect
+            old = served.conn
+            states = [u.values["state"] for u in old.updates(since)]  # type: ignore[index]
+            first = nxt.updates()[:1] if nxt is not None else []
+            if not (any(s in effect.to for s in states) or (effect.or_error and old.errors(since))
+                    or (first and first[0].values["state"] in effect.to)):  # type: ignore[index]
+                hit = self._lost(served, op, states + [u.values["state"] for u in first])  # type: ignore[misc]
+        for c in order:
+            c.conn.close()
+            self._forget(c)
+        self.clients.clear()
+        if hit is not None:
+            if observer is not None:
+                observer.close()
+                self._forget_conn(observer)
+            raise hit
+        if observer is not None and not observer.wait_for(lambda: bool(observer.updates()), self.gap):
+            observer.close()
+            self._forget_conn(observer)
+            self._dead()
+            return None
+        return observer
+
+
+def _wait_all(conns: list[Conn], pred: Callable[[], bool], timeout: float) -> bool:
+    """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
+    end = time.monotonic() + timeout
+    while True:
+        if pred():
+            return True
+        live = [c for c in conns if c.closed_at is None]
+        left = end - time.monotonic()
+        if left <= 0 or not live:
+            return bool(pred())
+        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
+        for c in live:
+            if c.sock in ready:
+                c.pump(0)
 
 
 def _whole_frames(data: bytes) -> bool:
@@ -340,116 +492,6 @@ def _whole_frames(data: bytes) -> bool:
             return False
         off += n
     return off == len(data)
-
-
-# ---------------------------------------------------------------------------- the machine
-@dataclass
-class _Context:
-    campaign: Any
-    backend: Any
-    out_of_budget: Callable[[], bool]
-    tick: Callable[[], None] | None = None
-    chunk_started: float = 0.0
-    target: Signature | None = None  # the signature being shrunk (others are ignored)
-    raised: list[tuple[Hit, list[Op]]] = field(default_factory=list)
-    shrink_until: float | None = None
-    last_tick: float = 0.0
-    restarts: int = 0
-
-    def checkpoint(self) -> None:
-        now = time.monotonic()
-        if self.tick is not None and now - self.last_tick >= TICK_S:
-            self.last_tick = now
-            self.campaign.fuzz_s += now - self.chunk_started  # the live rate counts this run so far
-            self.chunk_started = now
-            self.tick()
-        if self.out_of_budget():
-            raise OutOfBudget(campaign_over=True)
-        if self.shrink_until is not None and now >= self.shrink_until:
-            raise OutOfBudget(campaign_over=False)
-
-    def fresh(self) -> None:
-        """A backend that is alive and serving for the next program."""
-        b = self.backend
-        if b.session.death() is not None or not b.session.live(float(NSQD.params["update_gap_max_s"])):
-            self.backend = self.campaign.current = b.fresh()
-            self.restarts += 1
-
-
-CTX: _Context | None = None
-
-
-class ProgramFailed(AssertionError):
-    def __init__(self, hit: Hit, ops: list[Op]) -> None:
-        super().__init__(hit.signature.describe())
-        self.hit, self.ops = hit, ops
-
-
-class ClientsMachine(RuleBasedStateMachine):
-    """Clients' moves against one backend (see the module docstring)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        assert CTX is not None, "ClientsMachine runs under StreamStatefulEngine"
-        self.ctx = CTX
-        self.ctx.fresh()
-        self.player = Player(self.ctx.backend)
-        self.ops: list[Op] = []
-
-    def _do(self, op: Op) -> None:
-        ctx = self.ctx
-        ctx.checkpoint()
-        self.ops.append(op)
-        ctx.campaign.cases += 1
-        if op.what in ("send", "cmd"):
-            ctx.campaign.note_tried("valid" if op.what == "cmd" else op.kind, b"".join(w.data for w in op.writes))
-        try:
-            self.player.play(op)
-        except Hit as hit:
-            if ctx.target is not None and hit.signature.key != ctx.target.key and \
-                    not (hit.signature.oracle == ctx.target.oracle == "desync"):
-                return  # while shrinking, only the failure being shrunk counts
-            if ctx.target is None:
-                ctx.target = hit.signature
-                ctx.shrink_until = time.monotonic() + SHRINK_S
-            if len(ctx.raised) < 20:
-                ctx.raised.append((hit, list(self.ops)))
-            raise ProgramFailed(hit, list(self.ops)) from None
-
-    @rule(slot=st.integers(0, SLOTS - 1))
-    def connect(self, slot: int) -> None:
-        """A new connection in ``slot`` (a reconnect when it had one; a second client when the
-        other slot is served)."""
-        self._do(Op("open", slot))
-
-    @rule(slot=st.integers(0, SLOTS - 1), name=st.sampled_from(COMMANDS))
-    def command(self, slot: int, name: str) -> None:
-        """A valid command; its effect judged on a served connection (NSQD-MSG-3)."""
-        self._do(Op("cmd", slot, (Write(command_bytes(name)),), name, valid=True))
-
-    @rule(slot=st.integers(0, SLOTS - 1), kind=st.sampled_from(KINDS), seed=st.integers(0, 2**32 - 1))
-    def mutated(self, slot: int, kind: str, seed: int) -> None:
-        """A case of ``fuzz.stream_mutators`` (its kind, drawn from ``seed``)."""
-        case = draw_case(random.Random(seed), kind=kind)
-        self._do(Op("send", slot, case.writes, case.kind, case.valid, case.probe, note=case.note))
-
-    @rule(slot=st.integers(0, SLOTS - 1), name=st.sampled_from(CLIENT_MSGS), cut=st.integers(1, 10_000),
-          how=st.sampled_from(("fin", "rst")))
-    def leave_mid_frame(self, slot: int, name: str, cut: int, how: str) -> None:
-        """A frame cut by FIN or RST (NSQD-ROB-2); the next connection is a new stream (NSQD-ROB-3)."""
-        whole = command_bytes(name)
-        cut = 1 + cut % (len(whole) - 1)
-        self._do(Op("send", slot, (Write(whole[:cut], end=how),), f"{how}-mid-frame", in_sync=False,
-                    note=f"{name} cut at {cut} by {how.upper()}"))
-
-    @rule(slot=st.integers(0, SLOTS - 1), how=st.sampled_from(("fin", "rst")))
-    def disconnect(self, slot: int, how: str) -> None:
-        """The client in ``slot`` leaves (a waiting one is then served: NSQD-CON-2)."""
-        if slot in self.player.clients:
-            self._do(Op("close", slot, how=how))
-
-    def teardown(self) -> None:
-        self.player.close()
 
 
 def play_program(backend: Any, ops: list[Op], log: Any = None) -> Hit | None:
@@ -479,64 +521,13 @@ def play_program(backend: Any, ops: list[Op], log: Any = None) -> Hit | None:
         backend.session.recorder = None
 
 
-class StreamStatefulEngine:
-    """Runs :class:`ClientsMachine` in chunks until the budget is spent; each failure goes to
-    ``campaign.add_program`` (triage, dedup, finding-N/)."""
+def __getattr__(name: str) -> Any:
+    """``StreamStatefulEngine`` lives with the programs it plays (``fuzz.stream_programs``)."""
+    if name == "StreamStatefulEngine":
+        from fuzz.stream_programs import StreamStatefulEngine
 
-    def __init__(self, campaign: Any, backend: Any, db: str | None = None, worker: int = 0) -> None:
-        self.campaign = campaign
-        self.backend = backend
-        self.database = open_database(db)
-        self.worker = worker
-        self.programs = 0
-        self.flaky = 0
-
-    def _settings(self, chunk: int) -> settings:
-        phases = [Phase.reuse, Phase.generate, Phase.shrink] if chunk == 0 else [Phase.generate, Phase.shrink]
-        return settings(max_examples=CHUNK, stateful_step_count=STEPS, deadline=None, database=self.database,
-                        phases=phases, print_blob=False, suppress_health_check=list(HealthCheck),
-                        report_multiple_bugs=False)
-
-    def run(self, out_of_budget: Callable[[], bool], tick: Callable[[], None] | None = None) -> Any:
-        """Fuzz until ``out_of_budget()``; the backend (maybe a fresh one) at the end."""
-        global CTX
-        ctx = _Context(self.campaign, self.backend, out_of_budget, tick)
-        CTX = ctx
-        chunk = 0
-        try:
-            while not out_of_budget():
-                ctx.chunk_started = time.monotonic()
-                failure: tuple[Hit, list[Op]] | None = None
-                over = False
-                machine = hypothesis_seed(self.campaign.seed * 1000 + self.worker * 100 + chunk)(
-                    type("ClientsMachine", (ClientsMachine,), {}))
-                try:
-                    with with_reporter(lambda _text: None):  # the program is in the finding, not on stdout
-                        run_state_machine_as_test(machine, settings=self._settings(chunk))
-                except ProgramFailed as exc:
-                    failure = (exc.hit, exc.ops)
-                except Flaky:
-                    self.flaky += 1  # failed once, not again the same way: triage may still confirm it
-                    failure = ctx.raised[0] if ctx.raised else None
-                except OutOfBudget as exc:
-                    over = exc.campaign_over
-                    if ctx.raised:  # the shortest failure shrinking had reached
-                        failure = min(ctx.raised, key=lambda r: len(r[1]))
-                self.campaign.fuzz_s += time.monotonic() - ctx.chunk_started
-                self.programs += CHUNK
-                chunk += 1
-                ctx.raised.clear()
-                ctx.target, ctx.shrink_until = None, None
-                if failure is not None:
-                    ctx.backend = self.campaign.current = self.campaign.add_program(ctx.backend, failure[0], failure[1])
-                if tick is not None:
-                    tick()
-                if over:
-                    break
-        finally:
-            CTX = None
-            self.campaign.restarts += ctx.restarts
-        return ctx.backend
+        return StreamStatefulEngine
+    raise AttributeError(name)
 
 
 def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
