@@ -63,6 +63,12 @@ TICK_S = 0.25
 #: under way when it connected, one from the next turn, which saw it (a backend that kicks
 #: the first may send that UPDATE just before it closes it), and a third only on a first kept
 LOOP_UPDATES = 3
+#: Pipelined: how long after a second client's connect a first one is watched for a kick at
+#: most (its next UPDATE or the second's first frame end it sooner). A backend that accepts
+#: within its loop turn (Main.cpp's 50 Hz: 20 ms) kicks well within it; a later kick escapes
+#: this program (the turnover's FIN comes first), never misjudged: ``LOOP_UPDATES`` is the
+#: careful replay's proof, this only the search's chance
+KICK_WATCH_S = 0.1
 #: the commands whose effect UPDATE shows (NSQD-MSG-3), and every message a client sends
 COMMANDS = tuple(m.name for m in NSQD.messages if m.sent_by in ("client", "any") and m.effect.to)
 CLIENT_MSGS = tuple(m.name for m in NSQD.messages if m.sent_by in ("client", "any") and not m.effect.unobserved)
@@ -290,7 +296,10 @@ class Player:
             return
         ok = conn.wait_for(lambda: any(u.values["state"] in msg.effect.to for u in conn.updates(since))  # type: ignore[index]
                            or (msg.effect.or_error and bool(conn.errors(since))), self.window)
-        if ok or conn.closed_at is not None:
+        if ok:
+            c.after_cut, c.kinds = "", []  # the stream proved in sync: a later loss is not theirs
+            return
+        if conn.closed_at is not None:
             return  # a close is judged with the others' (_judge)
         self._judge()  # a death or the backend's own frames first
         raise self._lost(c, op, [u.values["state"] for u in conn.updates(since)])  # type: ignore[misc]
@@ -391,16 +400,16 @@ class Player:
         the second waiting; a backend that kicks the first does so on accepting the second:
         ``_judge`` then names it), a promoted client's first UPDATE (NSQD-CON-2), then the
         turnover: every client's FIN, the served one's first, and a new connection, whose
-        first UPDATE -- or the next waiting client's, served before it -- shows the state all
-        their bytes left; the served client's last command (``pending``, when nothing was sent
+        first UPDATE shows the state all their bytes left; the served client's last command (``pending``, when nothing was sent
         after it on any connection) is judged by it. :class:`Hit` when an oracle fires; the
         new connection, served, when the backend is live (the next program's first client),
         else None (the caller restarts the backend: as a careful replay, not a finding)."""
+        waiting = [c.conn for c in self.clients.values() if c.second]
         for c in list(self.clients.values()):
-            conn = c.conn
+            conn, t = c.conn, c.others_at
             if c.others and not c.second and conn.closed_at is None:
-                conn.wait_for(lambda conn=conn, t=c.others_at: conn.closed_at is not None or bool(conn.updates(t)),
-                              self.gap)
+                _wait_all([conn, *waiting], lambda conn=conn, t=t: conn.closed_at is not None or bool(conn.updates(t))
+                          or any(w.frames for w in waiting), t + KICK_WATCH_S - time.monotonic())
         self._judge()
         for slot, c in self.clients.items():
             conn = c.conn
@@ -419,7 +428,7 @@ class Player:
         observer = self.b.session.connect(timeout=float(NSQD.params["connect_timeout_s"]))
         if observer is not None:
             self.b.connections += 1
-        nxt = order[1].conn if served is not None and len(order) > 1 else observer
+        nxt = observer  # a waiting client, FIN'd before it is served, is dropped before its first UPDATE
         conns = [c.conn for c in order] + ([observer] if observer is not None else [])
 
         def shown() -> bool:
@@ -533,7 +542,10 @@ def __getattr__(name: str) -> Any:
 def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     """A failing program: deduplicated, replayed in a fresh process, delta-debugged over its
     ops, confirmed ``campaign.replays`` of as many times, then a finding (``campaign._add``).
-    The backend to go on with."""
+    The first careful replay names the finding: a pipelined program's verdict (``hit``) is
+    what led to it, read at the program's end, where a close or a lost command may have more
+    than one cause in view (a second client, a cut frame before it); played op by op, the
+    replay sees which op it followed. The backend to go on with."""
     from harness.errors import SetupError
 
     sig = hit.signature
@@ -557,9 +569,19 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
             box["traffic"] = log.records  # the last confirming replay's: repro.mcap, repro.pcap
         return ok
 
-    if not reproduces(ops):
+    box["b"] = campaign.current = box["b"].fresh()
+    campaign.restarts += 1
+    first = play_program(box["b"], ops)
+    if first is None:
         campaign.unconfirmed += 1
         return box["b"].fresh()
+    if not same_finding(first.signature, sig):
+        sig, hit = first.signature, first
+        known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
+        if known is not None:
+            known.count += 1
+            return box["b"].fresh()
+    box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:
         ops = ddmin(list(ops), reproduces, budget=16)
     confirmed = sum(reproduces(ops, TrafficLog()) for _ in range(campaign.replays))
