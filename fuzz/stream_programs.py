@@ -27,12 +27,13 @@ from typing import Any
 
 from fuzz.engine_stateful import open_database
 from fuzz.stream_mutators import Write, draw_case
-from fuzz.stream_stateful import CLIENT_MSGS, COMMANDS, TICK_S, Hit, Op, Player, command_bytes
+from fuzz.stream_player import CLIENT_MSGS, COMMANDS, Hit, Op, Player, command_bytes
 from spec import NSQD
 
 __all__ = ["DB_KEY", "StreamProgramGenerator", "StreamStatefulEngine", "dumps", "loads"]
 
 DB_KEY = b"mcp-fuzz/nsqd/stateful-programs"
+TICK_S = 0.25  # the campaign's live progress at most this often
 STEPS = 20  # ops per program at most (the ops a cut brings along excluded)
 #: (move, weight) of the ops after a program's first connect
 _MOVES = (("cmd", 6), ("mutated", 5), ("second", 1), ("close", 1), ("cut", 1), ("reconnect", 1))
