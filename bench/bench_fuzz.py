@@ -2,7 +2,7 @@
 
     pip install -e '.[bench]'      # boofuzz
     python bench/bench_fuzz.py [--cases N] [--seconds S]
-    python bench/bench_fuzz.py --protocol nsqd [--backend reference|c|both]   # Nsqd over TCP (issue 21)
+    python bench/bench_fuzz.py --protocol nsqd [--backend reference|c|both] [--engines E,...]   # Nsqd over TCP
     python bench/bench_fuzz.py --time-to-find [--seeds 1,2,3,4,5] [--faults F,...] [--engines E,...] [--nsqd]
 
 One reference drone (the embedded default, spawned once) is fuzzed four times in a row:
@@ -153,7 +153,8 @@ def main() -> int:
                     help="nsqd: against an Nsqd backend over TCP (bench/bench_fuzz_nsqd.py)")
     ap.add_argument("--backend", choices=("reference", "c", "both"), default="both",
                     help="nsqd: the Python reference backend, the correct C backend, or both")
-    ap.add_argument("--engines", default="stateless,both", help="nsqd: mcp-fuzz engines to time (comma-separated); --time-to-find: default stateless,stateful,both")
+    ap.add_argument("--engines", default="stateless,stateful,both",
+                    help="nsqd and --time-to-find: mcp-fuzz engines to time (comma-separated)")
     ap.add_argument("--probe-every", type=int, default=40, help="nsqd: mcp-fuzz's probe period in cases (its default 40)")
     ap.add_argument("--time-to-find", action="store_true",
                     help="the median time to the first confirmed finding per faulty node and engine")
@@ -164,7 +165,7 @@ def main() -> int:
     if args.time_to_find:
         from bench.bench_fuzz_ttf import ENGINES, main_ttf
 
-        engines = [e for e in args.engines.split(",") if e in ENGINES] if args.engines != "stateless,both" else list(ENGINES)
+        engines = [e for e in args.engines.split(",") if e in ENGINES]
         return main_ttf([int(x) for x in args.seeds.split(",") if x], [f for f in args.faults.split(",") if f] or None,
                         engines, args.nsqd)
     if args.protocol == "nsqd":

@@ -184,3 +184,64 @@ def test_a_correct_backend_frozen_at_the_second_clients_connect_is_no_finding():
     hit, first, before = _frozen_while_a_second_client_connects(None)
     assert hit is None, hit
     assert first.conn.closed_at is None and len(first.conn.updates()) >= before + LOOP_UPDATES
+
+
+def _pipelined(fault: str | None, ops: list[Op]) -> tuple[object, bool]:
+    """``ops`` played pipelined on the C backend (``fault``) and judged at their end
+    (``Player.finish``): (the hit or None, whether the turnover left a served connection)."""
+    from fuzz.stream_backend import Backend
+    from fuzz.stream_stateful import Hit, Player
+
+    b = Backend(None, _spawn(built_or_skip(), fault))
+    p = Player(b, fast=True)
+    try:
+        for op in ops:
+            p.play(op)
+        spare = p.finish()
+        return None, spare is not None and bool(spare.updates())
+    except Hit as hit:
+        return hit, False
+    finally:
+        p.close()
+        b.close()
+
+
+def _cmd(slot: int, name: str) -> Op:
+    return Op("cmd", slot, (Write(command_bytes(name)),), name, valid=True)
+
+
+@pytest.mark.nsqd
+def test_a_pipelined_program_is_judged_at_its_end_by_the_turnover():
+    """Ops written back to back, judged once: the last command's effect by the new
+    connection's first UPDATE (NSQD-MSG-3), a first client kicked by a second (NSQD-CON-2);
+    on the correct backend, a waiting client's command then its close (bytes the backend
+    reads once the first leaves) void the judgement instead of failing it."""
+    hit, _ = _pipelined("wrong-stop-test-state", [Op("open", 0), _cmd(0, "TAKEOFF"), _cmd(0, "STOP_TEST")])
+    assert hit is not None and hit.signature.rule == "NSQD-MSG-3", hit
+    hit, _ = _pipelined("second-client-kicks-first", [Op("open", 0), Op("open", 1), _cmd(0, "TAKEOFF")])
+    assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
+    ops = [Op("open", 0), Op("open", 1), _cmd(1, "CAPTURE_IMAGES"), Op("close", 1), _cmd(0, "TAKEOFF")]
+    for program in (ops, [Op("open", 0), _cmd(0, "STOP_TEST")], [Op("open", 0), Op("open", 1), Op("close", 0),
+                                                                    _cmd(1, "LAND")]):
+        hit, served = _pipelined(None, program)
+        assert hit is None and served, (hit, program)
+
+
+def test_programs_are_seeded_and_leave_no_cut_frame_behind():
+    """The same seed, the same programs; every frame cut by FIN or RST is followed in its own
+    program by a new connection and a command (NSQD-ROB-3 is judged there, never on the next
+    program's first bytes); a program round-trips through the example database's form."""
+    from fuzz.stream_programs import StreamProgramGenerator, dumps, loads
+
+    a, b = StreamProgramGenerator(7), StreamProgramGenerator(7)
+    programs = [a.program() for _ in range(200)]
+    assert programs == [b.program() for _ in range(200)]
+    assert programs != [StreamProgramGenerator(7, worker=1).program() for _ in range(200)]
+    for ops in programs:
+        assert ops[0] == Op("open", 0) and loads(dumps(ops)) == ops
+        for i, op in enumerate(ops):
+            if op.writes and op.writes[-1].end:
+                assert [o.what for o in ops[i + 1:i + 3]] == ["open", "cmd"], [o.describe() for o in ops]
+                assert ops[i + 1].slot == ops[i + 2].slot == op.slot
+    whats = {o.what for ops in programs for o in ops}
+    assert whats == {"open", "cmd", "send", "close"} and any({o.slot for o in ops} == {0, 1} for ops in programs)

@@ -52,11 +52,11 @@ def _ack(seq: int, dst: int = 0, src: int = 1) -> Datagram:
     return Datagram(0, 0.0, 0, encode(msg), ("127.0.0.1", 1), msg, None, (dst, src, 900, int(Action.ACK)))
 
 
-def test_the_default_engine_mix_has_the_stateful_engine_for_a_drone_only():
+def test_the_default_engine_mix_has_the_stateful_engine_but_for_a_manager():
     assert DEFAULT_ENGINE == "both" and FuzzConfig().engine == "both"
     assert default_engine("drone", "mcp") == "both"
     assert default_engine("manager", "mcp") == "stateless"  # the stateful programs are a manager's
-    assert default_engine("drone", "nsqd") == "stateless"
+    assert default_engine("drone", "nsqd") == "both"  # Nsqd's pipelined programs (fuzz.stream_programs)
 
 
 def test_a_copy_left_unanswered_is_named_and_a_command_answered_every_time_is_not():
