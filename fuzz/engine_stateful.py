@@ -307,6 +307,8 @@ class StatefulEngine:
             if move.name == "withhold" or self._over():
                 continue
             for data in self._render(move, history):
+                if self._over():  # a move of several datagrams stops at the case budget too
+                    break
                 drv.send_raw(data)
                 inp = Input.of(data)
                 token = frame_token(data) if inp.header and inp.header[3] == _PASSTHROUGH else None
