@@ -30,60 +30,21 @@ only: nothing here asserts a timing (DESIGN.md, "Performance targets").
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import os
-import socket
 import sys
-import tempfile
-import threading
 import time
 from pathlib import Path
-from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
+from bench.boofuzz_session import timed_session, web_port  # noqa: E402
 from fuzz.config import FuzzConfig  # noqa: E402
 from fuzz.engine_stateless import StatelessEngine  # noqa: E402
 from fuzz.findings import FindingStore  # noqa: E402
 from fuzz.targets import start_target  # noqa: E402
 from fuzz.triage import Triage  # noqa: E402
 from spec.codec import PREAMBLE, Action  # noqa: E402
-
-
-def timed_session(boofuzz: Any, kw: dict, requests: list[Any], seconds: float) -> tuple[int, float]:
-    """A boofuzz Session of ``kw`` over ``requests``, stopped after ``seconds``: (cases fuzzed,
-    seconds taken). Run in a temporary directory (boofuzz writes boofuzz-results/ where it runs),
-    its banner kept off stdout, its web interface stopped."""
-    cwd = os.getcwd()
-    with tempfile.TemporaryDirectory() as tmp:
-        os.chdir(tmp)
-        try:
-            with _quiet_stdout():
-                session = boofuzz.Session(**kw)
-                for req in requests:
-                    session.connect(req)
-                timer = threading.Timer(seconds, lambda: setattr(session, "_index_end", 0))
-                timer.start()
-                t0 = time.monotonic()
-                try:
-                    session.fuzz()
-                finally:
-                    elapsed = time.monotonic() - t0
-                    timer.cancel()
-                n = session.num_cases_actually_fuzzed
-                if getattr(session, "web_interface_thread", None) is not None:
-                    with contextlib.suppress(Exception):
-                        session.web_interface_thread.stop()
-        finally:
-            os.chdir(cwd)
-    return int(n), elapsed
-
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _request(boofuzz, node_id: int):  # noqa: ANN001, ANN202
@@ -98,23 +59,6 @@ def _request(boofuzz, node_id: int):  # noqa: ANN001, ANN202
     ))
 
 
-@contextlib.contextmanager
-def _quiet_stdout():  # noqa: ANN202
-    """boofuzz's text logger writes to the process's stdout: send fd 1 to /dev/null."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        with contextlib.redirect_stdout(io.StringIO()):
-            yield
-    finally:
-        sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
-        os.close(devnull)
-
-
 def run_boofuzz(target: tuple[str, int], node_id: int, cases: int, seconds: float, tuned: bool) -> tuple[int, float]:
     import boofuzz
 
@@ -126,7 +70,7 @@ def run_boofuzz(target: tuple[str, int], node_id: int, cases: int, seconds: floa
                   receive_data_after_fuzz=False, check_data_received_each_request=False)
     else:
         # the default UI, on a port nobody else holds, not kept open waiting for ENTER at the end
-        kw.update(web_port=_free_tcp_port(), keep_web_open=False)
+        kw.update(web_port=web_port(), keep_web_open=False)
     return timed_session(boofuzz, kw, [_request(boofuzz, node_id)], seconds)
 
 

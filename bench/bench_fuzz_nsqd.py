@@ -50,7 +50,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from bench.bench_fuzz import _free_tcp_port, timed_session  # noqa: E402
+from bench.boofuzz_session import timed_session, web_port  # noqa: E402
 from fuzz.stream_campaign import StreamCampaign  # noqa: E402
 from fuzz.stream_mutators import valid_values  # noqa: E402
 from harness.stream_session import embedded_command  # noqa: E402
@@ -97,7 +97,7 @@ def run_boofuzz(addr: tuple[str, int], cases: int, seconds: float, tuned: bool) 
                   receive_data_after_each_request=False, receive_data_after_fuzz=False,
                   check_data_received_each_request=False)
     else:
-        kw.update(web_port=_free_tcp_port(), keep_web_open=False)
+        kw.update(web_port=web_port(), keep_web_open=False)
     return timed_session(boofuzz, kw, list(nsqd_requests(boofuzz)), seconds)
 
 
