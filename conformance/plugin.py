@@ -21,7 +21,8 @@ registered only when a run asks for it:
         node.expect_acked([("WP_Off", node.command(Action.WP_OFF))])
 
 The session under test is made by the ``pytest_mcp_make_session`` hook (firstresult), so a
-conftest can substitute its own.
+conftest can substitute its own: a ``harness.node.NodeUnderTest`` (stand it on
+``harness.node.NodeBase``; anything else is a one-line setup error naming what it lacks).
 """
 
 from __future__ import annotations
