@@ -23,7 +23,14 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from captures.cli import UsageError, check_writable, to_terminal, write_output
+from captures.cli import (
+    UsageError,
+    add_protocol_option,
+    capture_tools,
+    check_writable,
+    to_terminal,
+    write_output,
+)
 from judge.judging import Judgement, evidence_of, judge
 from judge.params import add_monitor_options, params_from_args, selected
 from spec import SPEC
@@ -51,19 +58,17 @@ def register(sub: Any) -> None:
     add_monitor_options(p)
     p.add_argument("--json", metavar="OUT", help="write the result as JSON (check.schema.json)")
     p.add_argument("--html", metavar="OUT", help="write a self-contained HTML report with sequence charts")
-    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
-                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
+    add_protocol_option(p)
     p.set_defaults(run=run)
 
 
 def run(ns: argparse.Namespace) -> int:
-    from captures import nsqd
-
     params = params_from_args(ns)
     check_writable(ns.json, "--json")
     check_writable(ns.html, "--html")
-    if nsqd.chosen(ns, ns.file):  # an Nsqd capture: the stream judge (issue 21 item 4)
-        return nsqd.run_check(ns)
+    tools = capture_tools(ns, ns.file)
+    if tools is not None:  # a protocol with capture tools of its own (Nsqd's stream judge)
+        return int(tools.run_check(ns))
     j = judge(ns.file, params, keep=bool(ns.html))
     evidence = evidence_of(j)
     if ns.json:  # the files first: an interrupted or piped terminal report loses neither

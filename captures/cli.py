@@ -9,10 +9,12 @@
     mcp-capture export CAPTURE --pcap OUT.pcap|OUT.pcapng
     mcp-capture dissector [--install | -o FILE [--mavlink FILE]]
 
-``check``, ``show``, ``diff`` and ``export`` read Nsqd captures too (``--protocol nsqd``, or as
-the file's first records show: our MCAP of an Nsqd run, a pcap of its TCP traffic), through
-``captures.nsqd``; ``replay`` takes an Nsqd fuzz finding (its directory, repro.mcap or
-repro.pcap).
+``check``, ``show``, ``diff`` and ``export`` read every protocol's captures: ``--protocol``, or
+as the file's first records show (``capture_profile``: each protocol's profile, in
+``spec.profiles``, says how its captures are recognised), and a protocol whose profile names
+capture tools of its own (Nsqd's, ``captures.nsqd``: our MCAP of an Nsqd run, a pcap of its
+TCP traffic) is read by them (``capture_tools``); ``replay`` takes an Nsqd fuzz finding (its
+directory, repro.mcap or repro.pcap).
 
 Each subcommand lives in its own module, which this one only registers: the module has
 ``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``
@@ -33,15 +35,42 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
+from spec.profiles import DEFAULT_PROTOCOL, PROFILES, Profile, resolve
 from traceio.files import UsageError, check_writable, write_output
 
-__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "build_parser", "check_writable", "main", "to_terminal",
-           "write_output"]
+__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "add_protocol_option", "build_parser", "capture_profile",
+           "capture_tools", "check_writable", "main", "to_terminal", "write_output"]
 
 PROG = "mcp-capture"
 #: The modules that register a subcommand, in the order ``--help`` lists them.
 SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "captures.replay",
                            "captures.export", "captures.dissector"]
+
+
+def add_protocol_option(p: argparse.ArgumentParser) -> None:
+    """``--protocol``, as every subcommand that reads a capture takes it."""
+    p.add_argument("--protocol", choices=tuple(PROFILES), default=None,
+                   help=f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
+                        "default: as its first records show)")
+
+
+def capture_profile(ns: Any, path: str) -> Profile:
+    """The protocol a capture is read as: ``--protocol``, else the first whose profile
+    recognises the file (``capture_detect``), else the default (a datagram capture)."""
+    name = getattr(ns, "protocol", None)
+    if name is not None:
+        return PROFILES[name]
+    for prof in PROFILES.values():
+        if prof.capture_detect is not None and resolve(prof.capture_detect)(path):
+            return prof
+    return PROFILES[DEFAULT_PROTOCOL]
+
+
+def capture_tools(ns: Any, path: str) -> Any:
+    """The capture tools of the protocol ``path`` is read as (its ``run_check``, ``run_show``,
+    ``run_diff``, ``export_pcap``), or None: the datagram core's own (``captures.check`` ...)."""
+    prof = capture_profile(ns, path)
+    return resolve(prof.capture_tools) if prof.capture_tools is not None else None
 
 
 class _Parser(argparse.ArgumentParser):

@@ -524,6 +524,8 @@ def build_json(result: DiffResult) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- command line
 def register(sub: Any) -> None:
+    from captures.cli import add_protocol_option
+
     """Add ``diff`` to ``mcp-capture``'s subparsers."""
     p = sub.add_parser("diff", help="compare two captures as MCP conversations",
                        description=__doc__.split("\n\n")[0] if __doc__ else None)
@@ -538,8 +540,7 @@ def register(sub: Any) -> None:
                    help="messages of context around the first divergence (3)")
     p.add_argument("--json", metavar="OUT", help="write the comparison as JSON")
     p.add_argument("--html", metavar="OUT", help="write both sides' sequence charts side by side")
-    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
-                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
+    add_protocol_option(p)
     p.set_defaults(run=run)
 
 
@@ -569,7 +570,7 @@ def _nonneg_float(text: str) -> float:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import check_writable, to_terminal
+    from captures.cli import capture_tools, check_writable, to_terminal
     from traceio.reader import CaptureError
 
     out = out or sys.stdout
@@ -578,10 +579,9 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     check_writable(args.html, "--html")
     opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
     try:
-        from captures import nsqd
-
-        if nsqd.chosen(args, args.golden):  # Nsqd captures: connection by connection (issue 21)
-            return nsqd.run_diff(args, out)
+        tools = capture_tools(args, args.golden)
+        if tools is not None:  # a protocol with capture tools of its own (Nsqd's: per connection)
+            return int(tools.run_diff(args, out))
         result = diff_captures(args.golden, args.candidate, opts)
     except CaptureError as exc:
         err.write(f"mcp-capture diff: {exc}\n")

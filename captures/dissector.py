@@ -45,6 +45,7 @@ from typing import Any, TextIO
 
 from captures import dissector_mavlink as dm
 from spec import SPEC
+from spec.profiles import DEFAULT_PROTOCOL, PROFILES, resolve
 
 __all__ = ["FILENAME", "PROTOCOL", "generate", "plugin_dir", "register", "run"]
 
@@ -473,21 +474,17 @@ def register(sub: Any) -> None:
     p.add_argument("--mavlink", metavar="FILE", dest="mavlink_output",
                    help=f"also write the MAVLink dissector (pymavlink's mavgen --lang=WLua) to FILE; "
                         f"--install writes it as {dm.FILENAME}")
-    p.add_argument("--protocol", choices=("mcp", "nsqd"), default="mcp",
-                   help="mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol)")
+    p.add_argument("--protocol", choices=tuple(PROFILES), default=DEFAULT_PROTOCOL,
+                   help="mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol): the "
+                        "dissector its profile names")
     p.set_defaults(run=run)
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     err = err or sys.stderr
-    filename = FILENAME
-    if getattr(args, "protocol", "mcp") == "nsqd":
-        from captures import dissector_nsqd
-
-        source, filename = dissector_nsqd.generate(), dissector_nsqd.FILENAME
-    else:
-        source = generate()
+    dissector = resolve(PROFILES[getattr(args, "protocol", DEFAULT_PROTOCOL)].dissector)
+    source, filename = dissector.generate(), dissector.FILENAME
     target: Path | None = None
     writes: list[tuple[Path, str | None]] = []
     if args.install:

@@ -11,7 +11,8 @@ the spec's conventional port of the sender's role (MCP-TRN-1: the manager on 788
 datagram longer than UDP carries or a time the file cannot hold is an error naming the
 datagram. Open the result in
 Wireshark with ``mcp-capture dissector --install``. An Nsqd capture (``--protocol nsqd``, or
-found to be one) is written as its TCP conversations (:func:`export_tcp_pcap`). Either way a
+found to be one) is written by its capture tools, as its TCP conversations
+(``captures.nsqd.export_pcap``). Either way a
 capture unreadable part-way leaves no output, and every error is one line (exit 2).
 """
 
@@ -26,7 +27,7 @@ from typing import Any, TextIO
 from spec import SPEC
 from spec.codec import MANAGER_ID, peek_header
 
-__all__ = ["export_pcap", "export_tcp_pcap", "register", "run"]
+__all__ = ["export_pcap", "register", "run", "whole_or_none"]
 
 _LOOPBACK = "127.0.0.1"
 _PORTS = SPEC.protocol["ports"]
@@ -49,7 +50,7 @@ class _Output:
 
 
 @contextlib.contextmanager
-def _whole_or_none(path: Path) -> Iterator[_Output]:
+def whole_or_none(path: Path) -> Iterator[_Output]:
     """``path`` is written whole or not at all: where the input fails part-way (CaptureError)
     or anything else stops the export after the file was opened, the half-written file is
     removed (a file that could not be opened is left as it was)."""
@@ -74,7 +75,7 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     out = Path(out)
     n = 0
     truncated: str | None = None
-    with _whole_or_none(out) as output, PacketFile(out) as pcap:
+    with whole_or_none(out) as output, PacketFile(out) as pcap:
         output.opened = True
         # what the output's timestamp fields hold: pcap 32-bit seconds, pcapng 64-bit microseconds
         ng, t_max_ns = pcap.pcapng, pcap.max_ns
@@ -100,51 +101,28 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     return n, truncated or getattr(cap, "truncated", None)
 
 
-def export_tcp_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
-    """An Nsqd capture's TCP conversations (``traceio.tcp_pcap``, NSQD-*): (packets written,
-    the capture's truncation reason or None); errors as :func:`export_pcap`'s."""
-    from traceio.pcap_out import FrameError
-    from traceio.reader import CaptureError, Truncated
-    from traceio.stream import BACKEND_PORT, stream_records
-    from traceio.tcp_pcap import write_tcp_pcap
-
-    truncated: list[str] = []
-
-    with _whole_or_none(Path(out)) as output:
-        def records() -> Iterator[Any]:
-            output.opened = True  # write_tcp_pcap asks for the first record once its writer is open
-            for rec in stream_records(capture):
-                if type(rec) is Truncated:
-                    truncated.append(rec.reason)
-                yield rec
-
-        try:
-            n = write_tcp_pcap(out, records(), BACKEND_PORT)
-        except FrameError as exc:  # a time a pcap cannot hold, an address not IPv4
-            raise CaptureError(f"{capture}: {exc}") from None
-    return n, truncated[0] if truncated else None
-
-
 def register(sub: Any) -> None:
+    from captures.cli import add_protocol_option
+
     p = sub.add_parser("export", help="write a capture as pcap or pcapng (for Wireshark, tshark)",
                        description="Write every datagram of CAPTURE, with its addresses and "
                                    "timestamps, as a pcapng (OUT.pcapng) or pcap file.")
     p.add_argument("capture", metavar="CAPTURE", help="MCAP, pcap or pcapng capture")
     p.add_argument("--pcap", required=True, metavar="OUT", help="the file to write (.pcapng: pcapng)")
-    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
-                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
+    add_protocol_option(p)
     p.set_defaults(run=run)
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures import nsqd
+    from captures.cli import capture_tools
     from traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr
     try:
-        tcp = nsqd.chosen(args, args.capture)  # TCP conversations (issue 21)
-        n, truncated = (export_tcp_pcap if tcp else export_pcap)(args.capture, args.pcap)
+        tools = capture_tools(args, args.capture)  # a stream's: its TCP conversations (issue 21)
+        tcp = tools is not None
+        n, truncated = (tools.export_pcap if tools is not None else export_pcap)(args.capture, args.pcap)
     except CaptureError as exc:
         err.write(f"mcp-capture export: {exc}\n")
         return 2

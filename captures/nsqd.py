@@ -1,4 +1,6 @@
-"""``mcp-capture check|show|diff|export`` on an Nsqd capture (``--protocol nsqd``, issue 21 item 4).
+"""``mcp-capture check|show|diff|export`` on an Nsqd capture (``--protocol nsqd``, issue 21 item 4):
+the capture tools Nsqd's profile names (``spec.profiles``), which ``captures.cli.capture_tools``
+hands each subcommand.
 
 The capture is our MCAP (``mcp-conform --protocol nsqd --capture``, a fuzz finding's
 repro.mcap) or a pcap/pcapng of the TCP traffic (tcpdump, Wireshark, a finding's repro.pcap),
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -30,17 +33,9 @@ from judge.stream_monitor import RULES, StreamMonitor
 from spec import NSQD
 from spec.stream_codec import Deframer, Frame
 from traceio.reader import StreamEvent, StreamFrame, Truncated
-from traceio.stream import StreamGap, is_stream_capture, stream_records
+from traceio.stream import StreamGap, stream_records
 
-__all__ = ["chosen", "run_check", "run_diff", "run_show"]
-
-
-def chosen(ns: Any, *paths: str) -> bool:
-    """The subcommand reads the capture(s) as Nsqd: ``--protocol nsqd``, or found to be."""
-    proto = getattr(ns, "protocol", None)
-    if proto is not None:
-        return bool(proto == "nsqd")
-    return is_stream_capture(paths[0])
+__all__ = ["export_pcap", "run_check", "run_diff", "run_show"]
 
 
 def _addr(a: Any) -> str:
@@ -312,3 +307,30 @@ def run_replay(args: Any) -> int:
     except SetupError as exc:
         sys.stderr.write(f"mcp-capture replay: {exc}\n")
         return 2
+
+
+def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+    """``mcp-capture export``: an Nsqd capture's TCP conversations (``traceio.tcp_pcap``,
+    NSQD-*): (packets written, the capture's truncation reason or None); errors as
+    ``captures.export.export_pcap``'s."""
+    from captures.export import whole_or_none
+    from traceio.pcap_out import FrameError
+    from traceio.reader import CaptureError, Truncated
+    from traceio.stream import BACKEND_PORT, stream_records
+    from traceio.tcp_pcap import write_tcp_pcap
+
+    truncated: list[str] = []
+
+    with whole_or_none(Path(out)) as output:
+        def records() -> Iterator[Any]:
+            output.opened = True  # write_tcp_pcap asks for the first record once its writer is open
+            for rec in stream_records(capture):
+                if type(rec) is Truncated:
+                    truncated.append(rec.reason)
+                yield rec
+
+        try:
+            n = write_tcp_pcap(out, records(), BACKEND_PORT)
+        except FrameError as exc:  # a time a pcap cannot hold, an address not IPv4
+            raise CaptureError(f"{capture}: {exc}") from None
+    return n, truncated[0] if truncated else None

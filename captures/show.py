@@ -18,7 +18,13 @@ from typing import Any
 from rich.console import Console
 from rich.text import Text
 
-from captures.cli import UsageError, check_writable, write_output
+from captures.cli import (
+    UsageError,
+    add_protocol_option,
+    capture_tools,
+    check_writable,
+    write_output,
+)
 from judge.judging import Judgement, MonitorUnavailable, NoJudge, judge
 from judge.params import add_monitor_options, params_from_args
 from reports.chart import trace_svg
@@ -41,8 +47,7 @@ def register(sub: Any) -> None:
                    "workers: gw0 ...; a manager-role run's missions: main, silent): only this session (each "
                    "is listed and charted apart; the chart is the first's by default)")
     add_monitor_options(p)
-    p.add_argument("--protocol", choices=("mcp", "nsqd"), default=None,
-                   help="read the capture as MCP (UDP) or Nsqd (TCP) traffic (default: as its first records show)")
+    add_protocol_option(p)
     p.set_defaults(run=run)
 
 
@@ -86,10 +91,9 @@ def run(ns: argparse.Namespace) -> int:
     except ValueError:
         raise UsageError(f"--max-rows: not a positive integer: {ns.max_rows!r}") from None
     check_writable(ns.svg, "--svg")
-    from captures import nsqd
-
-    if nsqd.chosen(ns, ns.file):  # an Nsqd capture's connections (issue 21 item 4)
-        return nsqd.run_show(ns)
+    tools = capture_tools(ns, ns.file)
+    if tools is not None:  # a protocol with capture tools of its own (Nsqd's connections)
+        return int(tools.run_show(ns))
     unjudged = None
     try:
         j = judge(ns.file, params, keep=True)

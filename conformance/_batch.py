@@ -193,10 +193,10 @@ def unclean(session: Any, members: list[_Member], since: int, sent_since: int = 
             return f"the node went silent in {m.ctx.case_id}"
     if not session.alive():
         return "the node's process exited"
-    if getattr(session, "needs_restart", False) or getattr(session, "lost", None):
+    if session.needs_restart or session.lost:
         return "the node was lost"
-    liveness = getattr(session, "liveness", None)
-    if liveness is not None and getattr(liveness, "lost", None) is not None:
+    liveness = session.liveness
+    if liveness is not None and liveness.lost is not None:
         return "the node was declared lost"
     drv = session.driver
     sent = drv.sent()
@@ -280,9 +280,9 @@ def _learn_first(session: Any, members: list[_Member]) -> str | None:
     Mav_Passthrough frames to its autopilot), learnt first, by the first case that asks, as
     a serial run learns it: alone, nothing else on the node's autopilot link. Why the batch
     cannot run, or None."""
-    if getattr(session, "passthrough_forwarded", False) is not None:
+    if session.passthrough_forwarded is not None:
         return None
-    vehicle = getattr(session, "vehicle", None)
+    vehicle = session.vehicle
     if vehicle is None or not vehicle.connections:
         return None  # the cases that need it are skipped before they send anything
     first = next((m for m in members if m.ctx.case_id in PASSTHROUGH_CASES), None)

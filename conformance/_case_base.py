@@ -1,9 +1,13 @@
-"""What the drone-role and the manager-role case contexts share: the case's identity and
-outcome fields, the session's timings, INFO notes and the generic verify helpers.
+"""What every case context shares, whatever the protocol and the role: the case's identity
+and outcome fields, INFO notes, the generic verify and the runner's hooks
+(:class:`CaseBase`); and what the datagram protocol's two roles add to it, the session's
+timings and the verify helpers over datagrams (:class:`DatagramCaseBase`).
 
 Each role's context (``conformance.case.CaseContext``,
-``conformance.manager_case.ManagerCaseContext``) adds its own sends and judgements and its
-own ``fail`` (which evidence a failure carries: the node's exit, the manager's output).
+``conformance.manager_case.ManagerCaseContext`` on :class:`DatagramCaseBase`;
+``conformance.stream_case.StreamCaseContext`` on :class:`CaseBase`) adds its own sends and
+judgements and its own ``fail`` (which evidence a failure carries: the node's exit, the
+manager's output, the bytes sent to a backend).
 """
 
 from __future__ import annotations
@@ -17,11 +21,11 @@ from harness.errors import CaseFailure, Inconclusive
 from judge.spacing import judge_spacing
 from spec import SPEC
 
-__all__ = ["CaseBase"]
+__all__ = ["CaseBase", "DatagramCaseBase"]
 
 
 class CaseBase:
-    """The fields the plugin reads after a case, and the helpers every role's cases use."""
+    """The fields the runner reads after a case, its hooks, and the helpers every case uses."""
 
     #: who is judged, in messages: "the node", "the manager"
     subject = "the node"
@@ -36,6 +40,34 @@ class CaseBase:
         self.notes: list[str] = []
         self.node_silent = False
         self.restart_if_failed = False
+        #: what the capture's case mark carries beside the verdict (None: nothing)
+        self.evidence: list[str] | None = None
+
+    @classmethod
+    def prepare_session(cls, session: Any, config: Any, items: Sequence[Any]) -> None:
+        """Before the run starts: what the role's cases need of its session, from pytest's
+        config and the cases collected (``items``); nothing by default."""
+
+    def conclude(self) -> None:
+        """Before the case's verdict: what the role proves of the node after every case
+        (a stream backend's liveness after the case's last write); nothing by default."""
+
+    def info(self, text: str) -> None:
+        """Record an observation (INFO rules; shown in every report)."""
+        self.notes.append(text)
+
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        return CaseFailure(rule, expected, actual, list(evidence))
+
+    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
+        """The generic verify for judgements over recorded observations."""
+        if not ok:
+            raise self.fail(rule, expected, actual, evidence)
+
+
+class DatagramCaseBase(CaseBase):
+    """What the datagram protocol's role contexts add: the session's timings and the verify
+    helpers over datagrams."""
 
     # ------------------------------------------------------------------ facts
     @property
@@ -50,19 +82,7 @@ class CaseBase:
     def broadcast_id(self) -> int:
         return int(self.session.cfg.broadcast_id)
 
-    def info(self, text: str) -> None:
-        """Record an observation (INFO rules; shown in every report)."""
-        self.notes.append(text)
-
     # ------------------------------------------------------------------ verify helpers
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
-        return CaseFailure(rule, expected, actual, list(evidence))
-
-    def expect_true(self, ok: bool, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> None:
-        """The generic verify for judgements over recorded observations."""
-        if not ok:
-            raise self.fail(rule, expected, actual, evidence)
-
     def expect_all(self, datagrams: Sequence[Datagram], check: Callable[[Datagram], str | None],
                    rule: str, expected: str) -> None:
         """Every datagram passes ``check`` (which returns a problem or None)."""

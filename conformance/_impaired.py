@@ -43,12 +43,11 @@ def _what(spoiled: list[str]) -> str:
 
 
 def _link(session: Any) -> Any:
-    driver = getattr(session, "driver", None)
-    return getattr(driver, "link", None)
+    return session.driver.link if session.driver is not None else None
 
 
 def _sent_since(session: Any, since: float) -> bool:
-    driver = getattr(session, "driver", None)
+    driver = session.driver
     return driver is not None and any(s.t >= since for s in driver.sent()[-200:])
 
 
@@ -81,7 +80,7 @@ def run_impaired(state: Any, item: pytest.Item, first: BaseException) -> None:
                 raise exc
             raise Inconclusive(f"{head}: spoiled by the impairment: the startup phase it judges was "
                                f"touched ({_what(spoiled)}); it is observed once per run") from exc
-        since = getattr(ctx, "start_t", time.monotonic())
+        since = ctx.start_t
         # the first attempt may inherit an earlier case's traffic; a repeat starts settled
         spoiled = session.spoiled_by_impairment(since, None, lookback=attempt == 1)
         if isinstance(exc, Inconclusive) and not _sent_since(session, since):

@@ -60,6 +60,7 @@ from harness.errors import (
 )
 from harness.interrupts import INTERRUPTS
 from spec import RULES
+from spec.profiles import resolve
 
 __all__ = ["McpState", "STATE_KEY", "TEARDOWN_GRACE_S"]
 _state = state_of
@@ -72,27 +73,14 @@ TEARDOWN_GRACE_S = 10.0
 
 @pytest.hookimpl(trylast=True)
 def pytest_mcp_make_session(cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
-    if cfg.role == "backend":  # --protocol nsqd: a TCP backend, the runner its client
-        from conformance.stream_case import StreamCaseContext
-        from harness.stream_session import StreamSession
-
-        stream = StreamSession(cfg, recorder=recorder)
-        stream.make_context = StreamCaseContext
-        return stream
-    if cfg.role == "manager":
-        from conformance.manager_case import ManagerCaseContext, scenarios_beside_main
-        from harness.manager_session import ManagerSession
-
-        manager = ManagerSession(cfg, recorder=recorder)
-        manager.make_context = ManagerCaseContext
-        state = _state(config)  # the scenarios its cases judge run beside the main one (issue 23)
-        manager.overlap = scenarios_beside_main(config, state.items if state is not None else [])
-        return manager
-    from conformance.case import CaseContext
-    from harness.session import Session
-
-    session = Session(cfg, recorder=recorder)
-    session.make_context = CaseContext
+    """The node under test of the run's protocol and role, as its profile names it
+    (``spec.profiles``): its session, handed its case context."""
+    role = cfg.profile()[1]
+    context = resolve(role.context)
+    session = resolve(role.session)(cfg, recorder=recorder)
+    session.make_context = context
+    state = _state(config)  # what the role's cases need of it (a manager's overlapping scenarios)
+    context.prepare_session(session, config, state.items if state is not None else [])
     return session
 
 
@@ -342,9 +330,8 @@ def _armed(item: pytest.Item, *, teardown: bool = False, conclude: bool = False)
 
 def _conclude(state: McpState, item: pytest.Item) -> None:
     ctx = state.ctx.get(item.nodeid)
-    finish = getattr(ctx, "conclude", None)
-    if finish is not None:
-        finish()
+    if ctx is not None:
+        ctx.conclude()
 
 
 @pytest.hookimpl(wrapper=True)
@@ -355,8 +342,8 @@ def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
     state = _phase_wrapper(item)
-    not_judged = getattr(state.session, "not_judged", None) if state is not None else None
-    why = not_judged(state.meta[item.nodeid][1]) if not_judged is not None else None
+    why = state.session.not_judged(state.meta[item.nodeid][1]) \
+        if state is not None and state.session is not None else None
     if why:  # the node's datagrams cannot be read (harness.session: MCP-HDR-2 at startup)
         raise Inconclusive(why)
     if state is None or state.cfg.impair is None:

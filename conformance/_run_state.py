@@ -34,6 +34,8 @@ from harness.errors import (
     SetupError,
 )
 from harness.interrupts import INTERRUPTS
+from harness.node import check_node
+from spec.profiles import resolve
 
 __all__ = ["STATE_KEY", "CaseTimeLimit", "McpState", "state_of"]
 
@@ -179,21 +181,19 @@ class McpState:
                 capman = self.config.pluginmanager.getplugin("capturemanager")
                 printer = self.printer = TrafficPrinter(
                     uncaptured=capman.global_and_fixture_disabled if capman is not None else None)
-            # MCP: the node's first datagram ends the --startup-timeout wait (a TCP backend's
-            # startup is its connection, bounded by the session itself)
-            self.first_datagram = FirstDatagram(self.cfg.role) if self.cfg.role != "backend" else None
+            # a datagram node's first datagram ends the --startup-timeout wait (a stream
+            # node's startup is its connection, bounded by the session itself)
+            awaited = resolve(self.cfg.profile()[1].session).first_awaited
+            self.first_datagram = FirstDatagram(awaited) if awaited is not None else None
             if printer is not None or self.first_datagram is not None:
                 recorder = Tee(self.recorder, printer, self.first_datagram)
-            session = self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
-                                                               config=self.config)
+            session = check_node(self.config.hook.pytest_mcp_make_session(cfg=self.cfg, recorder=recorder,
+                                                                          config=self.config))
             self.session = session
             self.run.parameters = self.cfg.parameters()  # as the session settled them (mavlink ...)
             resume = self.wait_status.current
-            if self.frontend and self.cfg.role == "backend":
-                self.terminal.note("startup: the runner connects to the backend and waits for its first UPDATE")
-                self.wait_status.begin("startup: connecting and waiting for the first UPDATE")
-            elif self.frontend and getattr(session, "startup_note", None):
-                line, status = session.startup_note  # the role's own startup (--role manager)
+            if self.frontend and session.startup_note is not None:
+                line, status = session.startup_note  # the role's own startup (--role manager, a backend)
                 self.terminal.note(line)
                 self.wait_status.begin(status)
             elif self.frontend:
@@ -225,13 +225,8 @@ class McpState:
                     why = (f"--startup-timeout: no datagram from the node within {self.startup_timeout:g} s "
                            f"({watch.awaited() if watch else 'none'} to "
                            f"{listen_text(watch.local if watch else None)})")
-                    unanswered = getattr(session, "startup_unanswered", None)  # with what it saw
-                    raise (unanswered(why) if unanswered is not None else SetupError(why)) from None
-                timed_out = getattr(session, "startup_timed_out", None)
-                if timed_out is not None:
-                    raise timed_out(self.cfg.timeout) from None
-                raise SetupError(f"target never answered within the run's --timeout of "
-                                 f"{self.cfg.timeout:g} s") from None
+                    raise session.startup_unanswered(why) from None  # with what it saw
+                raise session.startup_timed_out(self.cfg.timeout) from None
             finally:
                 self.startup_deadline = None
                 self.wait_status.end()
@@ -246,17 +241,17 @@ class McpState:
             self.run.error_detail = list(getattr(exc, "detail", None) or [])
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
-        self.run.target = getattr(session, "target_desc", None) or self.run.target
-        unreadable = getattr(session, "unreadable", None)
+        self.run.target = session.target_desc or self.run.target
+        unreadable = session.unreadable
         if unreadable is not None:
             self.terminal.note(f"startup phase: {unreadable[1]} ({unreadable[0]}): no mission is started; "
                                "only the cases judged on the datagrams' raw bytes are run, the others "
                                "are skipped")
-        timing = getattr(session, "timing", None)
+        timing = session.timing
         if timing is not None:
             self.terminal.note(timing)
             self.run.parameters["timing"] = timing
-        watch = getattr(getattr(session, "liveness", None), "loss_after", None)
+        watch = session.liveness.loss_after if session.liveness is not None else None
         if watch is not None:
             self.run.parameters["loss_after_s"] = watch
             self.terminal.note(f"liveness: the node is declared lost after {watch:g} s without an "
@@ -287,7 +282,7 @@ class McpState:
         if session is not None:
             with contextlib.suppress(Exception):
                 session.close()
-            monitor = getattr(session, "monitor", None)  # the report's monitor section
+            monitor = session.monitor  # the report's monitor section
             if monitor is not None:
                 with contextlib.suppress(Exception):
                     monitor.finish()
@@ -330,9 +325,8 @@ class McpState:
         self.done.add(item.nodeid)
         ctx = self.ctx.pop(item.nodeid, None)
         if ctx is not None:
-            rec.notes = list(getattr(ctx, "notes", []) or [])
-            rec.start_ns = getattr(ctx, "start_ns", None)
-            rec.end_ns = getattr(ctx, "end_ns", None)
+            rec.notes = list(ctx.notes)
+            rec.start_ns, rec.end_ns = ctx.start_ns, ctx.end_ns
             if rec.start_ns is not None and rec.end_ns is not None:
                 rec.duration_s = max(0.0, (rec.end_ns - rec.start_ns) / 1e9)
         if rec.notes and rec.actual is None and rec.outcome in ("passed", "info"):

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from conformance._case_base import CaseBase
+from conformance._case_base import DatagramCaseBase
 from harness.driver import Datagram, Exchange, Sent, read_header
 from harness.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven
 from harness.liveness import NOT_LIVE
@@ -79,7 +79,7 @@ def _hex(data: bytes, limit: int = 48) -> str:
     return h + (f" ... ({len(data)} bytes)" if len(data) > limit else f" ({len(data)} bytes)")
 
 
-class CaseContext(CaseBase):
+class CaseContext(DatagramCaseBase):
     """What a case sees of the node under test."""
 
     session: Session
@@ -156,8 +156,7 @@ class CaseContext(CaseBase):
         intact frame, so delivery stays unobservable, except (``altered``) to MCP-PAY-8,
         which judges exactly that."""
         self.require_vehicle(rule)
-        lock = getattr(self.session, "capability_lock", None) or contextlib.nullcontext()
-        with lock:  # learnt once, whichever case asks first (cases may run together)
+        with self.session.capability_lock:  # learnt once, whichever case asks first (cases may run together)
             self.learn_passthrough(rule)
         if self.session.passthrough_forwarded or (altered and self.session.passthrough_altered):
             return
@@ -533,7 +532,7 @@ class CaseContext(CaseBase):
         """The trace monitor, which watches every datagram of the run, found no violation of
         ``rule`` by the node (judge.run_monitor); its first violation fails the case
         with the monitor's expected, actual and evidence."""
-        mon = getattr(self.session, "monitor", None)
+        mon = self.session.monitor
         if mon is None:
             return
         found = mon.violations(rule, self.target_id)

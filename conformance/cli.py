@@ -30,16 +30,12 @@ from conformance.report import RunRecord, tool_version, write_json
 from harness.config import RunConfig
 from harness.interrupts import INTERRUPTS
 from spec import SPEC
+from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick
 
 __all__ = ["build_parser", "main", "pytest_args"]
 
 PROG = "mcp-conform"
-CASES_PACKAGE = "conformance.cases"
 PLUGIN_MODULE = "conformance.plugin"
-MANAGER_CASES_PACKAGE = "conformance.cases_manager"
-NSQD_CASES_PACKAGE = "conformance.cases_nsqd"
-#: The roles each protocol's node may take (the first is the default).
-PROTOCOL_ROLES = {"mcp": ("drone", "manager"), "nsqd": ("backend",)}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -56,10 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", metavar="HOST:PORT", help=(f"where the runner receives and sends from (default: all addresses, port "
                          f"{SPEC.protocol['ports']['manager']} for a drone under test; a free port when spawning)"))
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
-    p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
+    p.add_argument("--protocol", metavar="|".join(PROFILES), default=None,
                    help="the protocol the node speaks: mcp (default; UDP), nsqd (the Nsqd TCP drone protocol: the node is a backend)")
-    p.add_argument("--role", metavar="drone|manager|backend", default=None,
-                   help="the role of the node under test (default drone; backend under --protocol nsqd)")
+    p.add_argument("--role", metavar="|".join(ROLE_NAMES), default=None,
+                   help="the role of the node under test (default: the protocol's first: drone; backend under --protocol nsqd)")
     p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
@@ -117,7 +113,8 @@ def _json_path(argv: Sequence[str]) -> str | None:
 
 
 def _values(ns: argparse.Namespace) -> dict[str, Any]:
-    return {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id, "role": ns.role,
+    return {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id,
+            "protocol": ns.protocol, "role": ns.role,
             "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
             "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
@@ -161,7 +158,7 @@ def _parallel(ns: argparse.Namespace) -> int:
     if ns.target is not None:
         raise ConfigError("--parallel: attach mode has one node under test; only spawned nodes "
                           "(--spawn, the embedded one) are shared out")
-    if ns.role != "drone":
+    if not pick(ns.protocol, ns.role)[1].shardable:
         raise ConfigError(f"--parallel: the {ns.role} role's cases are not shared out (the drone role's are)")
     if ns.live is not None:
         raise ConfigError("--parallel: --live follows one node instance; run it without --parallel")
@@ -179,7 +176,7 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
     if json_path:
         cfg = cfg or RunConfig()
         target = f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None
-        run = RunRecord(role=cfg.role if cfg.role in ("drone", "manager", "backend") else "drone", target=target,
+        run = RunRecord(role=cfg.role if cfg.role in ROLE_NAMES else "drone", target=target,
                         parameters=cfg.parameters(), seed=cfg.seed, strict=cfg.strict, error=message)
         run.finished = run.started
         try:
@@ -205,7 +202,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     """The pytest command line for these arguments."""
     import importlib
 
-    package = {"manager": MANAGER_CASES_PACKAGE, "backend": NSQD_CASES_PACKAGE}.get(ns.role, CASES_PACKAGE)
+    package = pick(ns.protocol, ns.role)[1].cases
     cases_dir = str(Path(importlib.import_module(package).__file__ or "").resolve().parent)
     args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
@@ -214,7 +211,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
             "-W", "ignore::pytest.PytestAssertRewriteWarning", "-W", "ignore::pytest.PytestConfigWarning"]
     if not _plugin_is_installed():
         args += ["-p", PLUGIN_MODULE]
-    args += ["--mcp-frontend", "--mcp-role", ns.role]
+    args += ["--mcp-frontend", "--mcp-protocol", ns.protocol, "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "live", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
                  "junit_family", "case_timeout", "startup_timeout", "drones", "challenge", "waypoints",
@@ -273,11 +270,12 @@ def _main(argv: list[str]) -> int:
         ns = parser.parse_args(argv)
     except ConfigError as exc:
         return _fail(str(exc), json_path)
-    roles = PROTOCOL_ROLES[ns.protocol]
-    if ns.role is None:
-        ns.role = roles[0]
-    elif ns.role not in roles:
-        return _fail(f"--role: {ns.role!r} is not a role of --protocol {ns.protocol} ({', '.join(roles)})", json_path)
+    try:  # the one pick (spec.profiles): each name checked, the defaults filled in
+        prof, role = pick(ns.protocol, ns.role)
+    except ProfileError as exc:
+        option = "--protocol" if ns.protocol is not None and ns.protocol not in PROFILES else "--role"
+        return _fail(f"{option}: {exc}", json_path)
+    ns.protocol, ns.role = prof.name, role.name
     if ns.version:
         with contextlib.suppress(BrokenPipeError):
             print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})", flush=True)
@@ -294,7 +292,7 @@ def _main(argv: list[str]) -> int:
         if ns.baseline:
             load_baseline(ns.baseline)
     except (ConfigError, BaselineError) as exc:
-        return _fail(str(exc), json_path, RunConfig(role=ns.role))
+        return _fail(str(exc), json_path, RunConfig(protocol=ns.protocol, role=ns.role))
     try:
         parallel = _parallel(ns)
     except ConfigError as exc:

@@ -122,8 +122,8 @@ class FirstDatagram:
     """Notes the runner's socket (``local``, set by the session) and the first datagram it
     receives: the startup wait of ``--startup-timeout`` ends there."""
 
-    def __init__(self, role: str = "drone") -> None:
-        self.role = role
+    def __init__(self, awaited: str = "its Mission_Ready, or an ACK of a probe") -> None:
+        self._awaited = awaited  # what the node's first datagram is (the session's ``first_awaited``)
         self.local: Any = None
         self.seen = threading.Event()
 
@@ -133,8 +133,7 @@ class FirstDatagram:
             self.seen.set()
 
     def awaited(self) -> str:
-        return ("an ACK of the drones' Mission_Ready" if self.role == "manager"
-                else "its Mission_Ready, or an ACK of a probe")
+        return self._awaited
 
     def waiting_text(self) -> str:
         return f"waiting for the node's first datagram ({self.awaited()}) on {listen_text(self.local)}"

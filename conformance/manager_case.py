@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from conformance._case_base import CaseBase
+from conformance._case_base import DatagramCaseBase
 from harness.driver import Datagram, read_header
 from harness.errors import CaseFailure, Inconclusive
 from harness.manager_mission import Input, Mission
@@ -212,7 +212,7 @@ def scenarios_beside_main(config: Any, items: Sequence[Any]) -> set[str]:
     return {k for i in items if (k := getattr(getattr(i, "obj", None), "mcp_scenario", None))}
 
 
-class ManagerCaseContext(CaseBase):
+class ManagerCaseContext(DatagramCaseBase):
     """What a manager-role case sees (see the module docstring)."""
 
     subject = "the manager"
@@ -220,6 +220,11 @@ class ManagerCaseContext(CaseBase):
 
     def __init__(self, session: ManagerSession, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
+
+    @classmethod
+    def prepare_session(cls, session: Any, config: Any, items: Sequence[Any]) -> None:
+        """The scenarios its cases judge run beside the main one (issue 23)."""
+        session.overlap = scenarios_beside_main(config, items)
 
     # ------------------------------------------------------------------ facts
     @property

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 __all__ = ["env_name"]
 
-_KEYS = ("target", "listen", "target_id", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
+_KEYS = ("target", "listen", "target_id", "protocol", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
          "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
          "drones", "challenge", "waypoints", "startup_timeout", "impair")
 _FLAGS = ("strict",)

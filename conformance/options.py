@@ -14,6 +14,7 @@ import pytest
 
 from conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
 from harness.config import DEFAULT_SEED, RunConfig, parse_hostport
+from spec.profiles import PROFILES, ProfileError, pick
 
 __all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select",
            "option_values", "unmatched"]
@@ -49,15 +50,18 @@ def _int(value: Any, name: str, lo: int, hi: int) -> int:
 
 
 def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n: "--mcp-" + n.replace("_", "-")) -> RunConfig:
-    """A checked ``RunConfig`` from option values (keys: target, listen, target_id, role,
+    """A checked ``RunConfig`` from option values (keys: target, listen, target_id, protocol, role,
     spawn, mavlink, strict, rto, ack_window, broadcast_id, timeout, startup_timeout, seed,
     capture, json, junit, impair); ``opt(name)`` spells an option in error messages."""
     cfg = RunConfig()
     v = {k: x for k, x in values.items() if x is not None}
-    role = v.get("role", "drone")
-    if role not in ("drone", "manager", "backend"):
-        raise ConfigError(f"{opt('role')}: {role!r} is not one of drone, manager (MCP), backend (--protocol nsqd)")
-    cfg.role = role
+    try:  # the one place a protocol and a role turn into a profile (spec.profiles)
+        prof, role_prof = pick(v.get("protocol"), v.get("role"))
+    except ProfileError as exc:
+        what = opt("protocol") if "protocol" in v and v["protocol"] not in PROFILES else opt("role")
+        raise ConfigError(f"{what}: {exc}") from None
+    cfg.protocol, cfg.role = prof.name, role_prof.name
+    role = cfg.role
     try:
         if "target" in v:
             cfg.target = parse_hostport(str(v["target"]), opt("target"))
@@ -105,7 +109,7 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
             cfg.impair = parse_impairment(str(v["impair"]))
         except ImpairmentError as exc:
             raise ConfigError(str(exc).replace("--impair", opt("impair"), 1)) from None
-        if role != "drone":
+        if not role_prof.impairable:
             raise ConfigError(f"{opt('impair')}: the {role} role is not run through a bad link yet "
                               "(the drone role is)")
     cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
@@ -137,13 +141,13 @@ def apply_embedded_defaults(cfg: RunConfig) -> None:
     (unless --rto / --ack-window were given)."""
     if not cfg.embedded:
         return
-    from harness import session as session_module
+    from harness.session_base import EMBEDDED_ACK_WINDOW, EMBEDDED_RTO
 
     explicit = cfg.extra.get("explicit", ())
     if "rto" not in explicit:
-        cfg.rto = float(getattr(session_module, "EMBEDDED_RTO", cfg.rto))
+        cfg.rto = EMBEDDED_RTO
     if "ack_window" not in explicit:
-        cfg.ack_window = float(getattr(session_module, "EMBEDDED_ACK_WINDOW", cfg.ack_window))
+        cfg.ack_window = EMBEDDED_ACK_WINDOW
 
 
 def matches_select(prefixes: list[str], cid: str, rule_ids: tuple[str, ...]) -> bool:
@@ -181,8 +185,6 @@ def option_values(config: pytest.Config) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key in _KEYS:
         value = config.getoption("mcp_" + key)
-        if key == "role" and value == "drone":
-            value = None  # the default: let the ini file or the environment speak
         if value in (None, False):
             ini = config.getini("mcp_" + key)
             value = ini if ini not in ("", None, False, []) else None
@@ -195,8 +197,6 @@ def option_values(config: pytest.Config) -> dict[str, Any]:
         elif key == "mavlink" and isinstance(value, str):
             value = _mavlink_value(value)
         out[key] = value
-    if out["role"] is None:
-        out["role"] = "drone"
     return out
 
 

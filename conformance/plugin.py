@@ -21,7 +21,8 @@ registered only when a run asks for it:
         node.expect_acked([("WP_Off", node.command(Action.WP_OFF))])
 
 The session under test is made by the ``pytest_mcp_make_session`` hook (firstresult), so a
-conftest can substitute its own.
+conftest can substitute its own: a ``harness.node.NodeUnderTest`` (stand it on
+``harness.node.NodeBase``; anything else is a one-line setup error naming what it lacks).
 """
 
 from __future__ import annotations
@@ -58,7 +59,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
     g.addoption("--mcp-listen", metavar="HOST:PORT", help="where the runner receives (default: all addresses, the role's port)")
     g.addoption("--mcp-target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
-    g.addoption("--mcp-role", metavar="drone|manager", default="drone", help="the role of the node under test")
+    g.addoption("--mcp-protocol", metavar="mcp|nsqd", help="the protocol the node speaks (default mcp)")
+    g.addoption("--mcp-role", metavar="drone|manager|backend",
+                help="the role of the node under test (default: the protocol's first, drone for mcp)")
     g.addoption("--mcp-spawn", metavar="CMD", help="start the node under test with CMD ({target_port} ... placeholders)")
     g.addoption("--mcp-mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                 help="start the simulated vehicle and pass {mavlink} (a pymavlink URL of that transport; default tcp)")

@@ -14,8 +14,10 @@ next case). Before its verdict a case proves the backend alive after its last wr
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
+from conformance._case_base import CaseBase
 from harness.errors import CaseFailure, Inconclusive, NodeLost
 from harness.stream_session import Conn, StreamSession
 from spec.stream_codec import encode, frame
@@ -28,12 +30,15 @@ __all__ = ["StreamCaseContext"]
 DYING_S = 1.0
 
 
-class StreamCaseContext:
+class StreamCaseContext(CaseBase):
+    """What a backend case sees (see the module docstring)."""
+
+    subject = "the backend"
+    session: StreamSession
+
     def __init__(self, session: StreamSession, case_id: str, rules: tuple[str, ...]) -> None:
-        self.session, self.case_id, self.rules = session, case_id, rules
+        super().__init__(session, case_id, rules)
         self.spec = session.spec
-        self.start_ns = time.time_ns()
-        self.end_ns: int | None = None
         self.params = self.spec.params
         self.window = float(self.params["effect_window_s"])
         self.gap_max = float(self.params["update_gap_max_s"])
@@ -53,7 +58,7 @@ class StreamCaseContext:
         return [f"sent {len(data)} B: {data[:64].hex(' ')}{' …' if len(data) > 64 else ''}"
                 for _, data in self.session.sent_log[-6:]]
 
-    def fail(self, rule: str, expected: str, actual: str, evidence: list[str] | None = None) -> CaseFailure:
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
         """The failure to raise; a dead backend is reported instead, under the case's rule
         (a connection the backend closed may be its death on the way: a moment's grace)."""
         closed = any(c.closed_at is not None for c in self.session.conns)
@@ -65,7 +70,7 @@ class StreamCaseContext:
             ev.append(f"while testing {', '.join(self.rules)} ({self.case_id})")
             return CaseFailure("NSQD-ROB-1", "the backend survives the input and keeps serving", death.describe(),
                                ev, relies_on=())
-        return CaseFailure(rule, expected, actual, list(evidence or []) + self._sent_hex())
+        return CaseFailure(rule, expected, actual, list(evidence) + self._sent_hex())
 
     def check_stream(self, conn: Conn) -> None:
         """What the backend sent on ``conn`` so far obeys NSQD-FRM-1 and NSQD-MSG-2."""
@@ -118,7 +123,7 @@ class StreamCaseContext:
         """A command whose effect this backend was seen to take, sent whole (a control for
         cases that judge framing or streams by a command's effect: a wrong effect is
         NSQD-MSG-3's failure, not theirs); found once per run."""
-        found = getattr(self.session, "proven_probe", None)
+        found = self.session.proven_probe
         if found is None:
             for name in ("STOP_TEST", "CAPTURE_IMAGES", "STOP_HOVER_TEST", "TAKEOFF"):
                 target = self.spec.message(name).effect.to[0]
@@ -136,7 +141,7 @@ class StreamCaseContext:
             if found is None:
                 raise Inconclusive("no command was seen to take its effect (STOP_TEST, CAPTURE_IMAGES, "
                                    "STOP_HOVER_TEST, TAKEOFF): NSQD-MSG-3's cases say why")
-            self.session.proven_probe = found  # type: ignore[attr-defined]
+            self.session.proven_probe = found
         return found
 
     def conclude(self) -> None:

@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from spec import SPEC
+from spec.profiles import Profile, RoleProfile, pick
 
 DEFAULT_SEED = 20140307  # the description's date: every run sends the same bytes by default
 
@@ -28,6 +29,8 @@ def parse_hostport(text: str, what: str, default_host: str = "127.0.0.1") -> tup
 class RunConfig:
     """Everything a run needs to know; defaults are the description's (spec) values."""
 
+    #: the protocol the node speaks (``spec.profiles``: every tool's ``--protocol``)
+    protocol: str = "mcp"
     role: str = "drone"
     target: tuple[str, int] | None = None
     listen: tuple[str, int] | None = None  # None: all addresses, the role's convention port
@@ -55,6 +58,10 @@ class RunConfig:
     impair: Any = None  # harness.impair.ImpairSpec
     extra: dict[str, Any] = field(default_factory=dict)
 
+    def profile(self) -> tuple[Profile, RoleProfile]:
+        """The protocol's profile and the role's, as ``spec.profiles.pick`` names them."""
+        return pick(self.protocol, self.role)
+
     @property
     def mode(self) -> str:
         return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
@@ -70,11 +77,12 @@ class RunConfig:
     def parameters(self) -> dict[str, Any]:
         """The parameters block of the JSON report."""
         d = asdict(self)
-        out = {k: d[k] for k in ("role", "target_id", "spawn", "mavlink", "strict", "rto",
+        out = {k: d[k] for k in ("protocol", "role", "target_id", "spawn", "mavlink", "strict", "rto",
                                  "ack_window", "broadcast_id", "timeout", "seed")}
         out["mode"] = self.mode
-        if self.role == "manager":
-            out.update(drones=list(self.drones), challenge=self.challenge, waypoints=self.waypoints)
+        for name in self.profile()[1].parameters:  # the role's own (--role manager: its drones)
+            value = d[name]
+            out[name] = list(value) if isinstance(value, tuple) else value
         if self.impair is not None:
             out["impair"] = self.impair.text()
         out["listen"] = f"{self.listen[0]}:{self.listen[1]}" if self.listen else None

@@ -103,6 +103,8 @@ def make_mission_items(seed: int, count: int | None = None) -> tuple[Any, ...]:
 class ManagerSession(SessionBase):
     """One run against one Mission Manager (see the module docstring)."""
 
+    first_awaited = "an ACK of the drones' Mission_Ready"
+
     def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
         self.cfg = cfg
         self.recorder = recorder
@@ -421,4 +423,4 @@ class ManagerSession(SessionBase):
         if self.monitor is not None:
             self.monitor.mark(ctx.end_ns)
         self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                        evidence=getattr(ctx, "evidence", None))
+                        evidence=ctx.evidence)

@@ -86,6 +86,8 @@ class Startup(WithheldCopies):
 class Session(SessionBase):
     """One run against one node (see the module docstring)."""
 
+    first_awaited = "its Mission_Ready, or an ACK of a probe"
+
     def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
         self.cfg = cfg
         self.recorder = recorder
@@ -582,4 +584,4 @@ class Session(SessionBase):
             self.needs_restart = True
         self.after_case(ctx.node_silent)
         self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                        evidence=getattr(ctx, "evidence", None))
+                        evidence=ctx.evidence)

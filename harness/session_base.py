@@ -8,8 +8,11 @@ runner hands it (``make_context``). Neither role's session imports the other's m
 from __future__ import annotations
 
 import contextlib
+import re
 import shlex
+import signal
 import socket
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,6 +22,7 @@ from harness.driver import Datagram, Sent, TargetDriver
 from harness.errors import SetupError, SpawnFailure
 from harness.interrupts import INTERRUPTS
 from harness.liveness import describe_exit
+from harness.node import NodeBase
 from harness.procs import ManagedProcess
 from harness.run_delay import run_delay_ns
 from spec import SPEC
@@ -127,11 +131,54 @@ class SpawnedNode:
                 ev.append(f"node {stream}: (nothing)")
         return ev
 
-    def stop(self) -> None:
-        self._p.stop(grace=0.0 if INTERRUPTS.hurry else 2.0)
+    @property
+    def process(self) -> ManagedProcess:
+        """The managed process itself (its output, its sanitizer report: ``harness.procs``)."""
+        return self._p
+
+    def stop(self, grace: float = 2.0) -> None:
+        self._p.stop(grace=0.0 if INTERRUPTS.hurry else grace)
 
     def close(self) -> None:
         self.stop()
+
+
+_SANITIZER = re.compile(r"(SUMMARY: \w+Sanitizer: .*|ERROR: \w+Sanitizer: .*|runtime error: .*)")
+
+
+@dataclass(frozen=True)
+class Death:
+    """How a spawned node ended: exit code or signal, its sanitizer line, its stderr tail."""
+
+    code: int | None
+    signal_name: str | None
+    sanitizer: str | None
+    stderr: tuple[str, ...]
+    subject: str = "the node"
+
+    def describe(self) -> str:
+        how = f"killed by {self.signal_name}" if self.signal_name else f"exited with status {self.code}"
+        return f"{self.subject} process {how}" + (f"; {self.sanitizer}" if self.sanitizer else "")
+
+
+def death_of(node: SpawnedNode, subject: str = "the node") -> Death:
+    """How ``node``, which has ended, ended: the signal (from the exit status, or a shell's
+    128 + N), the sanitizer's summary line and the top frames of its report, else its stderr's
+    tail."""
+    p = node.process
+    code = p.returncode
+    _, err = p.output(400)
+    sig = signal.Signals(-code).name if code is not None and code < 0 else None
+    if sig is None and code is not None and code > 128:
+        with contextlib.suppress(ValueError):
+            sig = signal.Signals(code - 128).name
+    san = next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m and "SUMMARY" in m.group(1)), None)
+    san = san or next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m), None)
+    report = p.sanitizer_report()  # its ERROR line and the top frames of the stack
+    if report:
+        frames = [line for line in report[1:] if line.lstrip().startswith("#")][:5]
+        return Death(code, sig, san or report[0].strip(), tuple([report[0], *frames]), subject)
+    return Death(code, sig, san, tuple(err[-12:]), subject)
 
 
 @dataclass
@@ -190,17 +237,18 @@ class _HeldRecorder:
         self.impairment = _held(recorder.impairment)
 
 
-class SessionBase:
+class SessionBase(NodeBase):
     """What the drone-role and the manager-role sessions share: the run's timings, the
-    spawned node, the runner's placeholders and the case marks in the capture."""
+    spawned node, the runner's placeholders and the case marks in the capture. The
+    runner's case context for this role, ``make_context(session, case_id, rules)``, is set
+    by the runner (``conformance``), which owns the cases and their verify helpers."""
 
     cfg: RunConfig
     node: SpawnedNode | None
     driver: TargetDriver | None
     recorder: Any
-    #: The runner's case context for this role, ``make_context(session, case_id, rules)``: set
-    #: by the runner (``conformance``), which owns the cases and their verify helpers.
-    make_context: Callable[..., Any] | None = None
+    #: who is judged, in the words of a report ("the backend process killed by SIGSEGV")
+    subject = "the node"
 
     def context_factory(self) -> Callable[..., Any]:
         if self.make_context is None:
@@ -294,6 +342,17 @@ class SessionBase:
 
     def alive(self) -> bool:
         return self.node.alive() if self.node is not None else True
+
+    def node_death(self, grace: float = 0.0) -> Death | None:
+        """How the spawned node ended, if it did within ``grace`` s (a sanitizer takes a
+        moment to write its report and exit); None while it runs, or when none was spawned."""
+        node = self.node
+        if node is None:
+            return None
+        end = time.monotonic() + grace
+        while node.alive() and time.monotonic() < end:
+            time.sleep(0.005)
+        return None if node.alive() else death_of(node, self.subject)
 
     def _address_placeholders(self, node_id: int, mavlink: str) -> dict[str, str]:
         """{target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}."""

@@ -1,21 +1,22 @@
 """The runner's session with a stream-protocol node (``--protocol nsqd``: the node is a
 backend, the runner its client), the TCP counterpart of ``harness.session``.
 
-The node is embedded (the reference backend on a free loopback port, in a thread), attached
+The node is embedded (the reference backend on a free loopback port, spawned), attached
 (``--target HOST:PORT``) or spawned (``--spawn CMD`` with ``{target_host}``,
-``{target_port}``). The session opens connections for the cases (:class:`Conn`: bytes out
-in any split, frames in through the spec's deframer, timestamps kept), watches a spawned
-process (a death is reported with its signal, a sanitizer's summary line and the tail of
-stderr, and the backend is restarted for the next case) and says whether the backend is
-live (a new connection accepted and an UPDATE received: NSQD-CON-1, NSQD-MSG-1).
+``{target_port}``). What every node under test shares is ``harness.session_base``'s: the
+spawned process and its placeholders, how it died, the case marks in the capture. The
+session opens connections for the cases (:class:`Conn`: bytes out in any split, frames in
+through the spec's deframer, timestamps kept), watches a spawned process (a death is
+reported with its signal, a sanitizer's summary line and the tail of stderr, and the
+backend is restarted for the next case) and says whether the backend is live (a new
+connection accepted and an UPDATE received: NSQD-CON-1, NSQD-MSG-1).
 """
 
 from __future__ import annotations
 
 import contextlib
-import re
+import os
 import shlex
-import signal
 import socket
 import struct
 import sys
@@ -24,8 +25,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
-from harness.errors import SetupError, SpawnFailure
+from harness.errors import SetupError, SpawnFailure, TargetLost
 from harness.procs import SPAWN_STARTUP_S, ManagedProcess
+from harness.session_base import Death, SessionBase, SpawnedNode, fill_placeholders, free_port
 from judge.stream_monitor import Received, SenderViolation, decode_frame, sender_violation
 from spec import NSQD
 from spec.stream import StreamSpec
@@ -35,21 +37,6 @@ __all__ = ["Conn", "Death", "Received", "SenderViolation", "StreamSession"]
 
 #: The embedded reference backend's UPDATE period (the description's is 0.4 s: D-8).
 EMBEDDED_UPDATE_PERIOD = 0.05
-_SANITIZER = re.compile(r"(SUMMARY: \w+Sanitizer: .*|ERROR: \w+Sanitizer: .*|runtime error: .*)")
-
-
-@dataclass(frozen=True)
-class Death:
-    """How a spawned backend ended: exit code or signal, its sanitizer line, its stderr tail."""
-
-    code: int | None
-    signal_name: str | None
-    sanitizer: str | None
-    stderr: tuple[str, ...]
-
-    def describe(self) -> str:
-        how = f"killed by {self.signal_name}" if self.signal_name else f"exited with status {self.code}"
-        return f"the backend process {how}" + (f"; {self.sanitizer}" if self.sanitizer else "")
 
 
 @dataclass
@@ -219,37 +206,45 @@ def embedded_command() -> str:
             f"--bind {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
 
 
-class StreamSession:
+class StreamSession(SessionBase):
     """The node under test over the whole run, and the connections of its cases."""
+
+    subject = "the backend"
+    startup_note = ("startup: the runner connects to the backend and waits for its first UPDATE",
+                    "startup: connecting and waiting for the first UPDATE")
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: StreamSpec = NSQD) -> None:
         self.cfg, self.recorder, self.spec = cfg, recorder, spec
-        self.make_context: Any = None
-        self.proc: ManagedProcess | None = None
-        self.deaths: list[Death] = []
-        self._template: str | None = None
+        self.node: SpawnedNode | None = None
+        self.driver = None  # no datagram socket: the cases' connections (:class:`Conn`)
+        #: the command the backend is spawned with: --spawn, or the reference backend when
+        #: nothing is attached (the embedded default); None in attach mode
+        self._template: str | None = cfg.spawn or (embedded_command() if cfg.target is None else None)
         self.address: tuple[str, int] = cfg.target or ("127.0.0.1", 0)
-        self.target_desc = ""
-        self.lost: str | None = None
         self.conns: list[Conn] = []
         self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
+        #: a command this backend was seen to take the effect of (found once per run by a case)
+        self.proven_probe: tuple[str, int] | None = None
         self._conn_count = 0
         self._live_at: float | None = None  # when the last connection that proved it live opened
 
     # -- life -------------------------------------------------------------------------
     @property
     def spawned(self) -> bool:
-        return self.proc is not None
+        return self._template is not None
+
+    @property
+    def proc(self) -> ManagedProcess | None:
+        """The spawned backend's process (its output, its sanitizer report), None when attached."""
+        return self.node.process if self.node is not None else None
 
     def start(self) -> None:
-        if self.cfg.spawn:
+        if self.spawned:
             self._spawn()
-            self.target_desc = f"{self.address[0]}:{self.address[1]} (spawned)"
-        elif self.cfg.target is None:  # the embedded default: the reference backend, spawned
-            self._spawn(embedded_command())
-            self.target_desc = f"{self.address[0]}:{self.address[1]} (embedded reference backend)"
+            how = " (spawned)" if self.cfg.spawn else " (embedded reference backend)"
         else:
-            self.target_desc = f"{self.address[0]}:{self.address[1]}"
+            how = ""
+        self.target_desc = f"{self.address[0]}:{self.address[1]}{how}"
         # attached: the protocol's allowance; spawned: also the time a just-started process takes
         # on a loaded host (a CI run beside a fuzz campaign: the embedded reference backend missed
         # 3.5 s). How soon the first UPDATE follows accepting is the cases' (NSQD-MSG-1)
@@ -258,22 +253,20 @@ class StreamSession:
             raise SetupError(f"the backend at {self.address[0]}:{self.address[1]} accepted no connection "
                              "or sent no UPDATE (NSQD-CON-1)")
 
-    def _spawn(self, template: str | None = None) -> None:
+    def _spawn(self) -> None:
+        """The backend started on a free loopback port (``{target_host}`` ``{target_port}``
+        filled in by the runner's one placeholder helper), and listening."""
+        assert self._template is not None
         host = "127.0.0.1"
-        with socket.socket() as s:
-            s.bind((host, 0))
-            port = int(s.getsockname()[1])
+        port = free_port(host, socket.SOCK_STREAM)
         self.address = (host, port)
-        self._template = template or self._template or self.cfg.spawn
-        command = self._template.format(target_host=host, target_port=port)  # type: ignore[union-attr]
-        self.proc = ManagedProcess(shlex.split(command))
+        argv = fill_placeholders(self._template, {"target_host": host, "target_port": str(port)})
+        node = self.node = SpawnedNode(argv)
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline:
-            if not self.proc.alive():
-                out, err = self.proc.output(20)
-                raise SpawnFailure(f"the spawned backend exited with status {self.proc.returncode} before it "
-                                   f"listened on {host}:{port}",
-                                   {"command": command, "exit": self.proc.returncode, "stdout": out, "stderr": err})
+            if not node.alive():
+                raise SpawnFailure(f"the spawned backend {node.details()['exit']} before it listened on "
+                                   f"{host}:{port}", node.details(20))
             with socket.socket() as s, contextlib.suppress(OSError):
                 s.settimeout(0.2)
                 s.connect(self.address)
@@ -285,8 +278,8 @@ class StreamSession:
         for c in self.conns:
             c.close()
         self.conns.clear()
-        if self.proc is not None:
-            self.proc.stop(grace=0.5)  # a hung backend may ignore SIGTERM: SIGKILL soon after
+        if self.node is not None:
+            self.node.stop(grace=0.5)  # a hung backend may ignore SIGTERM: SIGKILL soon after
 
     # -- connections --------------------------------------------------------------------
     def connect(self, timeout: float | None = None) -> Conn | None:
@@ -328,66 +321,38 @@ class StreamSession:
             c.opened > last and (c.frames or c.framing_error is not None) for c in self.conns)
 
     def death(self, grace: float = 0.0) -> Death | None:
-        """How the spawned backend ended, if it did within ``grace`` s (a sanitizer takes a
-        moment to write its report and exit); :meth:`revive` restarts it."""
-        if self.proc is None:
-            return None
-        end = time.monotonic() + grace
-        while self.proc.alive() and time.monotonic() < end:
-            time.sleep(0.005)
-        if self.proc.alive():
-            return None
-        code = self.proc.returncode
-        _, err = self.proc.output(400)
-        sig = signal.Signals(-code).name if code is not None and code < 0 else None
-        if sig is None and code is not None and code > 128:
-            with contextlib.suppress(ValueError):
-                sig = signal.Signals(code - 128).name
-        san = next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m and "SUMMARY" in m.group(1)), None)
-        san = san or next((m.group(1) for line in err for m in [_SANITIZER.search(line)] if m), None)
-        report = self.proc.sanitizer_report()  # its ERROR line and the top frames of the stack
-        if report:
-            frames = [line for line in report[1:] if line.lstrip().startswith("#")][:5]
-            return Death(code, sig, san or report[0].strip(), tuple([report[0], *frames]))
-        return Death(code, sig, san, tuple(err[-12:]))
+        """How the spawned backend ended, if it did within ``grace`` s (``SessionBase.death``);
+        :meth:`revive` restarts it."""
+        return self.node_death(grace)
 
     def revive(self) -> None:
         """Restart a dead spawned backend for the next case (the run goes on)."""
-        if self.proc is not None and not self.proc.alive():
-            self.proc.stop()
+        if self.node is not None and not self.node.alive():
+            self.node.stop()
             self._spawn()
 
     def open_fds(self) -> int | None:
         """The spawned backend's open descriptors, from /proc (None when not observable)."""
-        if self.proc is None:
+        if self.node is None:
             return None
         try:
-            import os
-
-            return len(os.listdir(f"/proc/{self.proc.pid}/fd"))
+            return len(os.listdir(f"/proc/{self.node.proc.pid}/fd"))
         except OSError:
             return None
 
     # -- case API (conformance._plugin_run) ---------------------------------------------
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
         if self.lost is not None:
-            from harness.errors import TargetLost
-
             raise TargetLost(self.lost)
-        factory = self.make_context
+        factory = self.context_factory()
         self.sent_log.clear()
-        if factory is None:
-            raise RuntimeError("StreamSession.make_context is not set")
         ctx = factory(self, case_id, rules)
-        if self.recorder is not None:
-            self.recorder.case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
         return ctx
 
     def end_case(self, ctx: Any, outcome: str) -> None:
         ctx.end_ns = time.time_ns()
-        if self.recorder is not None:
-            self.recorder.case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                                    evidence=getattr(ctx, "evidence", None))
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules, evidence=ctx.evidence)
         for c in list(self.conns):
             c.close()
         self.conns.clear()
@@ -398,6 +363,6 @@ class StreamSession:
 
     def restart(self) -> None:
         """Stop the spawned backend (SIGTERM, then SIGKILL) and start it afresh."""
-        if self.proc is not None:
-            self.proc.stop(grace=0.5)
+        if self.node is not None:
+            self.node.stop(grace=0.5)
             self._spawn()

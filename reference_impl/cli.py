@@ -354,18 +354,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _other_protocol(argv: list[str]) -> int:
-    """``--protocol mcp`` (the default) or ``--protocol nsqd`` (reference_impl.nsqd_cli)."""
+    """``--protocol NAME``: the reference node its profile names (``spec.profiles``: mcp, the
+    default, is this module; nsqd is ``reference_impl.nsqd_cli``), given the other arguments."""
+    from spec.profiles import PROFILES, resolve
+
     i = next(i for i, a in enumerate(argv) if a == "--protocol" or a.startswith("--protocol="))
     value = argv[i].split("=", 1)[1] if "=" in argv[i] else (argv[i + 1] if i + 1 < len(argv) else "")
     rest = argv[:i] + argv[i + (1 if "=" in argv[i] else 2):]
-    if value == "mcp":
-        return main(rest)
-    if value == "nsqd":
-        from reference_impl import nsqd_cli
-
-        return nsqd_cli.main(rest)
-    print(f"{PROG}: error: --protocol: {value!r} is not one of mcp, nsqd", file=sys.stderr)
-    return 2
+    profile = PROFILES.get(value)
+    if profile is None:
+        print(f"{PROG}: error: --protocol: {value!r} is not one of {', '.join(PROFILES)}", file=sys.stderr)
+        return 2
+    return int(resolve(profile.reference_cli).main(rest))
 
 
 def run() -> NoReturn:

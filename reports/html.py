@@ -200,6 +200,20 @@ def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) ->
     return stream_svg(window, title=f"{case['id']} · {len(window)} frame(s)"), ""
 
 
+def _framing(doc: dict[str, Any]) -> str:
+    """How the run's protocol carries its messages (``spec.profiles``: datagram, stream), from
+    the report's protocol (else its role, which belongs to one protocol)."""
+    from spec.profiles import PROFILES, ProfileError, profile_of_role
+
+    name = (doc.get("parameters") or {}).get("protocol")
+    if name in PROFILES:
+        return PROFILES[name].framing
+    try:
+        return profile_of_role(str(doc.get("role") or "drone")).framing
+    except ProfileError:
+        return "datagram"
+
+
 def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
                frames: Sequence[StreamFrame] | None = None) -> str:
     """The page of an ``mcp-conform`` JSON report, with charts from the run's datagrams (or,
@@ -232,7 +246,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     if not cases:
         body.append('<p class="none">None.</p>')
     for c in cases:
-        chart, why = _stream_chart(c, frames) if doc.get("role") == "backend" else _case_chart(c, trace)
+        chart, why = _stream_chart(c, frames) if _framing(doc) == "stream" else _case_chart(c, trace)
         rule = c.get("failed_rule") or (c.get("rules") or [None])[0]
         heading = f"{_e(c['outcome'].upper())} {_e(c['id'])} · {_e(' '.join(c.get('rules', [])))}"
         fields = [("expected", c.get("expected")), ("actual", c.get("actual")), ("reason", c.get("reason")),
@@ -316,4 +330,4 @@ def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:
         except CaptureError:
             datagrams = frames = None
     with open(path, "w", encoding="utf-8") as f:
-        f.write(render_run(doc, datagrams, frames if doc.get("role") == "backend" else None))
+        f.write(render_run(doc, datagrams, frames if _framing(doc) == "stream" else None))

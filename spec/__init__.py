@@ -2,8 +2,9 @@
 
 ``spec.SPEC`` is the loaded, checked ``mcp.yaml``, ``spec.NSQD`` the Nsqd TCP protocol's
 ``nsqd.yaml`` (``spec.stream``, ``spec.stream_codec``), ``spec.RULES`` every rule of both; ``spec.codec`` the wire codec built from
-it; ``spec.mission`` mission items and waypoint files through pymavlink. ``spec`` imports no
-other package of this project.
+it; ``spec.mission`` mission items and waypoint files through pymavlink; ``spec.profiles`` each
+protocol declared once (its spec, codec, framing, and the modules of the floors above that
+serve it, by name). ``spec`` imports no other package of this project.
 """
 
 from spec._load import (

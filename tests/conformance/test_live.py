@@ -35,7 +35,7 @@ def test_verbose_prints_a_reply_after_the_datagram_it_answers():
 
 def test_off_a_terminal_the_first_datagram_wait_is_a_plain_line_saying_what_and_where():
     out = io.StringIO()
-    watch = FirstDatagram("drone")
+    watch = FirstDatagram()
     watch.local = ("", 7889)
     status = WaitStatus(Console(file=out, highlight=False, no_color=True, width=200))
     assert not status.enabled  # no spinner in a log

@@ -21,20 +21,19 @@ PLUGIN = [] if _plugin_is_installed() else ["-p", "conformance.plugin"]
 
 CONFTEST = """
 import json, time
+from conformance._case_base import CaseBase
 from harness.errors import SetupError, TargetLost
+from harness.node import NodeBase
 
 SETUP_ERROR = {setup_error!r}
 LOST_AFTER = {lost_after!r}
 CASE_TIMEOUT = {case_timeout!r}
 
-class FakeCtx:
+class FakeCtx(CaseBase):
     def __init__(self, case_id, rules):
-        self.case_id, self.rules, self.notes = case_id, rules, []
-        self.start_ns, self.end_ns = time.time_ns(), None
-    def info(self, text):
-        self.notes.append(text)
+        super().__init__(None, case_id, rules)
 
-class FakeSession:
+class FakeSession(NodeBase):
     def __init__(self, cfg, recorder=None):
         self.cfg, self.recorder, self.target_desc, self.target_id = cfg, recorder, "127.0.0.1:9", 1
         self.begun = 0

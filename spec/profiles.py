@@ -1,0 +1,158 @@
+"""Each protocol declared once: its profile, per role (DESIGN.md, "A protocol is a plug-in").
+
+A profile names everything the tools need to speak, judge, fuzz and read one protocol: its
+spec, codec and framing (``datagram`` or ``stream``), transport, monitor, dissector and
+capture reader, fuzz mutators and oracles, and per role (the role of the node under test)
+the runner's session and case context, the case package and the reference node. Things
+that live on a higher floor are named by import path (``"package.module:attribute"``), and
+resolved lazily, with :func:`resolve`, by the floor that uses them: ``spec`` imports none
+of them, and a name here is only a string until a tool asks for it.
+
+Every tool's ``--protocol`` and ``--role`` go through :func:`pick`, the one place where a
+protocol name or a role name turns into behaviour. A new protocol adds its profile here.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+from spec import NSQD, SPEC, Spec, StreamSpec
+
+__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "pick",
+           "profile_of_role", "resolve", "ROLE_NAMES"]
+
+DEFAULT_PROTOCOL = "mcp"
+
+
+class ProfileError(ValueError):
+    """An unknown protocol, or a role the protocol's nodes do not take: one line for a person."""
+
+
+@dataclass(frozen=True)
+class RoleProfile:
+    """The node under test in one role: what the runner drives it with and judges it by."""
+
+    name: str
+    #: the runner's session over the whole run (``harness``) and its case context (``conformance``)
+    session: str
+    context: str
+    #: the package of the role's conformance cases
+    cases: str
+    #: the fuzz target of the role (``fuzz``), None: fuzzed by the protocol's own campaign
+    fuzz_target: str | None
+    #: the reference node of the role: ``mcp-node``'s words before its own options
+    reference: tuple[str, ...]
+    #: RunConfig fields only this role reads, reported in the JSON report's parameters
+    parameters: tuple[str, ...] = ()
+    #: ``--impair``: the runner's socket edge can be a bad link for this role
+    impairable: bool = False
+    #: ``--parallel``: the role's cases are shared out across node instances
+    shardable: bool = False
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One protocol: its spec and everything derived from it, by the floor that owns it."""
+
+    name: str
+    spec: Spec | StreamSpec
+    #: how the wire carries messages: ``datagram`` (one message a datagram) or ``stream``
+    #: (frames deframed from a byte stream)
+    framing: str
+    transport: str  # udp, tcp
+    codec: str
+    monitor: str
+    dissector: str  # its Wireshark Lua dissector: ``generate()`` and ``FILENAME``
+    #: a capture's records, and whether a capture file holds this protocol's traffic
+    capture_reader: str
+    capture_detect: str | None
+    #: ``mcp-capture check|show|diff|export`` of its captures, None: the datagram core's own
+    capture_tools: str | None
+    mutators: str
+    oracles: str
+    #: the reference node's command line (``mcp-node --protocol NAME``)
+    reference_cli: str
+    roles: tuple[RoleProfile, ...]
+
+    @property
+    def default_role(self) -> RoleProfile:
+        return self.roles[0]
+
+    @property
+    def role_names(self) -> tuple[str, ...]:
+        return tuple(r.name for r in self.roles)
+
+    def role(self, name: str | None) -> RoleProfile:
+        """The role ``name`` (None: the protocol's default); ProfileError when its nodes do
+        not take it."""
+        if name is None:
+            return self.default_role
+        for r in self.roles:
+            if r.name == name:
+                return r
+        raise ProfileError(f"{name!r} is not a role of --protocol {self.name} ({', '.join(self.role_names)})")
+
+
+MCP = Profile(
+    name="mcp", spec=SPEC, framing="datagram", transport="udp",
+    codec="spec.codec", monitor="judge.run_monitor:RunMonitor",
+    dissector="captures.dissector", capture_reader="traceio.reader:open_capture",
+    capture_detect=None, capture_tools=None,
+    mutators="fuzz.mutators", oracles="fuzz.oracles", reference_cli="reference_impl.cli",
+    roles=(
+        RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
+                    cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
+                    reference=("drone",), impairable=True, shardable=True),
+        RoleProfile("manager", session="harness.manager_session:ManagerSession",
+                    context="conformance.manager_case:ManagerCaseContext",
+                    cases="conformance.cases_manager", fuzz_target="fuzz.manager_target:ManagerFuzzTarget",
+                    reference=("manager",), parameters=("drones", "challenge", "waypoints")),
+    ),
+)
+
+NSQD_PROFILE = Profile(
+    name="nsqd", spec=NSQD, framing="stream", transport="tcp",
+    codec="spec.stream_codec", monitor="judge.stream_monitor:StreamMonitor",
+    dissector="captures.dissector_nsqd", capture_reader="traceio.stream:stream_records",
+    capture_detect="traceio.stream:is_stream_capture", capture_tools="captures.nsqd",
+    mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles", reference_cli="reference_impl.nsqd_cli",
+    roles=(
+        RoleProfile("backend", session="harness.stream_session:StreamSession",
+                    context="conformance.stream_case:StreamCaseContext", cases="conformance.cases_nsqd",
+                    fuzz_target=None, reference=("--protocol", "nsqd", "backend")),
+    ),
+)
+
+#: Every protocol by its ``--protocol`` name; the first is the default.
+PROFILES: dict[str, Profile] = {p.name: p for p in (MCP, NSQD_PROFILE)}
+#: Every role of every protocol (a role name belongs to one protocol).
+ROLE_NAMES: tuple[str, ...] = tuple(r.name for p in PROFILES.values() for r in p.roles)
+
+
+def profile_of_role(role: str) -> Profile:
+    """The protocol whose nodes take ``role``; ProfileError when none does."""
+    for p in PROFILES.values():
+        if role in p.role_names:
+            return p
+    raise ProfileError(f"{role!r} is not one of "
+                       + ", ".join(f"{r} ({p.name})" for p in PROFILES.values() for r in p.role_names))
+
+
+def pick(protocol: str | None = None, role: str | None = None) -> tuple[Profile, RoleProfile]:
+    """The profile and role a tool's ``--protocol`` and ``--role`` name (no protocol: the
+    default, mcp; no role: the protocol's first). ProfileError (one line) when they name
+    nothing, or nothing together."""
+    prof = PROFILES.get(DEFAULT_PROTOCOL if protocol is None else protocol)
+    if prof is None:
+        raise ProfileError(f"{protocol!r} is not one of {', '.join(PROFILES)}")
+    return prof, prof.role(role)
+
+
+def resolve(path: str) -> Any:
+    """``"package.module"`` -> the module, ``"package.module:name"`` -> its attribute: a
+    profile's name of a thing on a higher floor, imported by the floor that asks for it."""
+    module, _, attr = path.partition(":")
+    mod = importlib.import_module(module)
+    return getattr(mod, attr) if attr else mod
