@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from conformance._case_base import CaseBase
+from conformance._case_base import DatagramCaseBase
 from harness.errors import CaseFailure
 from judge.spacing import judge_spacing
 from spec.codec import Action, peek_header
@@ -94,8 +94,8 @@ def test_the_monitor_still_fails_a_badly_spaced_sender():
 
 
 # ---------------------------------------------------------------- the runner's case
-def _ctx() -> CaseBase:
-    return CaseBase(None, "RTX/x", ("MCP-RTX-3",))
+def _ctx() -> DatagramCaseBase:
+    return DatagramCaseBase(None, "RTX/x", ("MCP-RTX-3",))
 
 
 def test_the_case_excuses_the_same_gaps_and_says_so():
