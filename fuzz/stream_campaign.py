@@ -99,6 +99,7 @@ class StreamCampaign:
     fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
     triage_s: float = 0.0
     started: float = field(default_factory=time.monotonic)
+    origin: float | None = None  # a --jobs parent's start: --duration counts from it (fuzz.budget)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
     workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
@@ -122,7 +123,7 @@ class StreamCampaign:
             self.tick(self)
 
     def run(self) -> dict[str, Any]:
-        self.started = t0 = time.monotonic()
+        self.started = t0 = self.origin if self.origin is not None else time.monotonic()
         engines = ["stateless", "stateful"] if self.engine == "both" else [self.engine]
         backend = self.current = Backend(self.target, self.spawn)
         try:

@@ -23,7 +23,7 @@ but not every time depends on the environment (timing, load): it is not a findin
 named in the summary (``environment_dependent``) with why, not lost among the unconfirmed.
 
 Budget: no replay starts after the campaign's deadline (``deadline``), so ``--duration``
-bounds triage too.
+bounds triage too, within ``fuzz.budget.GRACE_S``.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+from fuzz.budget import Late
 from fuzz.findings import NO_INPUT, Finding, FindingStore
 from fuzz.oracles import OVERSIZE, Flaw, Input
 from fuzz.replay import run_sequence, shrink
@@ -45,11 +46,6 @@ SHRINK_BUDGET = 24  # replays per finding
 SUSPECTS = 6  # single inputs tried alone before delta debugging
 CONFIRM_N = 3  # replays of the minimal sequence, all of which must show the flaw
 BASELINE_SRC = 0x0B5E  # the baseline's valid case comes from this source ID
-GRACE_S = 10.0  # s past --duration a campaign may take: the replay under way at the deadline
-
-
-class Late(Exception):
-    """The campaign's deadline passed: no further replay starts."""
 
 
 def _size_class(n: int) -> str:

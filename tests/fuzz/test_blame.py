@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.stream_blame import GRACE_S
+from fuzz.budget import GRACE_S
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 

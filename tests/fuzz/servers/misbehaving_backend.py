@@ -10,13 +10,20 @@ frame it sends breaks NSQD-FRM-1 (mcp-conform: FRM/test_backend_frames_are_well_
 Both read and discard whatever a client sends, serve up to ``MAX_CLIENTS`` clients at once
 (a thread each) and exit after ``--lifetime`` seconds.
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames [--lifetime S]``
+``--mode slow-restart`` (the campaign's bound, ``fuzz.budget``): valid UPDATEs every update
+period, and an exit (status 1) at the first byte a client sends; its first start serves at
+once, every later one (``--state FILE`` marks the first) sends its first UPDATE only
+``--restart-delay`` seconds after it started, so each replay of a triage outlasts the grace.
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames|slow-restart
+[--lifetime S] [--state FILE --restart-delay S]``
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import socket
 import struct
 import threading
@@ -48,10 +55,12 @@ def _drain(c: socket.socket) -> bool:
         return False
 
 
-def serve_client(c: socket.socket, mode: str, end: float) -> None:
+def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) -> None:
     c.setblocking(False)
     try:
-        if mode == "slow":
+        if mode == "slow-restart":
+            _crash_on_input(c, end, ready)
+        elif mode == "slow":
             c.sendall(update())
             pending, step = b"", 1.0
         else:
@@ -78,12 +87,36 @@ def serve_client(c: socket.socket, mode: str, end: float) -> None:
             c.close()
 
 
+def _crash_on_input(c: socket.socket, end: float, ready: float) -> None:
+    """UPDATEs every period from ``ready`` on; the process exits at the first byte received."""
+    nxt = ready
+    while time.monotonic() < end:
+        try:
+            if c.recv(1):
+                os._exit(1)
+            return  # the client closed
+        except BlockingIOError:
+            pass
+        if time.monotonic() >= nxt:
+            c.sendall(update())
+            nxt = max(ready, time.monotonic()) + PERIOD
+        time.sleep(0.01)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "bad-frames"), required=True)
+    ap.add_argument("--mode", choices=("slow", "bad-frames", "slow-restart"), required=True)
     ap.add_argument("--lifetime", type=float, default=300.0)
+    ap.add_argument("--state", help="slow-restart: marks that the first start happened")
+    ap.add_argument("--restart-delay", type=float, default=0.0)
     ns = ap.parse_args()
+    ready = time.monotonic()
+    if ns.state:
+        if os.path.exists(ns.state):
+            ready += ns.restart_delay
+        else:
+            open(ns.state, "w").close()
     host, _, port = ns.bind.rpartition(":")
     end = time.monotonic() + ns.lifetime
     ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -102,7 +135,7 @@ def main() -> None:
         if len(threads) >= MAX_CLIENTS:
             c.close()
             continue
-        t = threading.Thread(target=serve_client, args=(c, ns.mode, end), daemon=True)
+        t = threading.Thread(target=serve_client, args=(c, ns.mode, end, ready), daemon=True)
         t.start()
         threads.append(t)
     ls.close()
