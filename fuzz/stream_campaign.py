@@ -97,7 +97,8 @@ class StreamCampaign:
     tick: Callable[[StreamCampaign], None] | None = None  # live progress (fuzz.stream_progress)
     tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases
     fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
-    triage_s: float = 0.0
+    triage_s: float = 0.0  # triage's own: its baselines and replays, the processes they start included
+    restart_s: float = 0.0  # the backend restarted to go on fuzzing (after a death, a hang, a triage)
     started: float = field(default_factory=time.monotonic)
     origin: float | None = None  # a --jobs parent's start: --duration counts from it (fuzz.budget)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
@@ -144,17 +145,17 @@ class StreamCampaign:
         """A stateful program's failure: triaged like a case's (fuzz.stream_stateful)."""
         from fuzz.stream_stateful import triage_program
 
-        t0 = time.monotonic()
+        t0, r0 = time.monotonic(), self.restart_s
         try:
             if self.skip(hit.signature, backend, "program"):
-                return backend.fresh() if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
+                return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
             blame, backend = self.blamed(backend, hit, False)
             return triage_program(self, backend, hit, ops) if blame else backend
         except Late:
             self.untriaged[hit.signature.describe()] = self.untriaged.get(hit.signature.describe(), 0) + 1
             return self.current
         finally:
-            self.triage_s += time.monotonic() - t0
+            self.triage_s += time.monotonic() - t0 - (self.restart_s - r0)
 
     def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
@@ -194,11 +195,11 @@ class StreamCampaign:
                         window.clear()
                 if hit is not None:
                     # a death may show only at the next case's write: the one before is a suspect too
-                    t1 = time.monotonic()
+                    t1, r0 = time.monotonic(), self.restart_s
                     self.fuzz_s += t1 - t_fuzz
                     backend = self.current = self._triage(backend, hit, list(window) if probe else window[-hit.suspects:], probe)
                     t_fuzz = time.monotonic()
-                    self.triage_s += t_fuzz - t1
+                    self.triage_s += t_fuzz - t1 - (self.restart_s - r0)
                     window.clear()
                     continue
                 if not leak_reported and self.cases % 400 == 0 and fds0 is not None:
@@ -290,7 +291,7 @@ class StreamCampaign:
             self.restarts += 1
             again = baseline(b, sig, probe=key)
             confirmed += again is not None and same_finding(again.signature, sig)
-        self.current = b.fresh()
+        self.restart(b)
         if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
             self.unconfirmed += 1
             return None
@@ -305,7 +306,7 @@ class StreamCampaign:
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
         if self.skip(sig, backend, "probe" if probe else "case"):
-            return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+            return self.restart(backend) if sig.oracle in ("crash", "hang", "sanitizer") else backend
         try:
             blame, backend = self.blamed(backend, hit, probe)
             if not blame:
@@ -351,7 +352,7 @@ class StreamCampaign:
         if culprit is None:
             self.unconfirmed += 1
             self._tried(sig, probe)
-            return backend.fresh()
+            return self.restart(backend)
         if sig.oracle == "desync":  # named by what lost the stream its sync
             kind = culprit[-1].kind
             sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
@@ -360,7 +361,7 @@ class StreamCampaign:
         if known is not None:
             known.count += 1
             self.aliases[hit.signature.key] = known
-            return backend.fresh()
+            return self.restart(backend)
         state = {"b": backend}
 
         def test(writes: list[Write]) -> bool:
@@ -391,11 +392,21 @@ class StreamCampaign:
         if confirmed < self.replays:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
-            return state["b"].fresh()
+            return self.restart(state["b"])
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.findings[-1]
-        return state["b"].fresh()
+        return self.restart(state["b"])
+
+    def restart(self, backend: Backend) -> Backend:
+        """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the
+        background), timed on its own (``restart_s``): a restart after a hit counted, not
+        triaged, is no triage."""
+        t0 = time.monotonic()
+        b = self.current = backend.restart()
+        self.restarts += 1
+        self.restart_s += time.monotonic() - t0
+        return b
 
     def _add(self, f: Finding) -> None:
         self.findings.append(f)
@@ -412,6 +423,7 @@ class StreamCampaign:
         s = {"protocol": "nsqd", "engine": self.engine, "seed": self.seed, "cases": self.cases,
              "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
              "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
+             "restart_s": round(self.restart_s, 2),
              "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
              "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
