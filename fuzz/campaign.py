@@ -24,6 +24,7 @@ from typing import Any
 from fuzz.budget import GRACE_S, campaign_end
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats, StatelessEngine
+from fuzz.environment import merge_environment
 from fuzz.findings import Finding, FindingStore, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
@@ -129,9 +130,7 @@ def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> No
     res.unconfirmed += triage.unconfirmed
     res.triage_seconds += triage.seconds
     res.untriaged += triage.untriaged
-    for e in triage.environment.values():
-        if not any(x["rule"] == e["rule"] and x["shape"] == e["shape"] for x in res.environment):
-            res.environment.append(dict(e))
+    res.environment = merge_environment([*res.environment, *triage.environment.values()])
 
 
 def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
@@ -368,7 +367,7 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "grace_s": GRACE_S,
         "duration_limit_s": _duration_limit(cfg),
         "untriaged": sum(r.untriaged for r in results),
-        "environment_dependent": [e for r in results for e in r.environment],
+        "environment_dependent": merge_environment(e for r in results for e in r.environment),
         "unconfirmed": sum(r.unconfirmed for r in results),
         "monitor": any(r.monitor for r in results),
         "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from fuzz.config import ENGINES, FuzzConfig, default_engine
+from fuzz.environment import environment_lines
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 
@@ -356,6 +357,8 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         return 2
     for i, f in enumerate(campaign.findings, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
+    for line in environment_lines(summary):
+        print(line)
     classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
           f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from fuzz.ddmin import ddmin
+from fuzz.environment import EnvironmentLog
 from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
 from fuzz.stream_blame import (
     GRACE_S,
@@ -108,6 +109,7 @@ class StreamCampaign:
     tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
+    environment: EnvironmentLog = field(default_factory=EnvironmentLog)  # seen, then not every replay: why
 
     def _over(self, deadline: float) -> bool:
         return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
@@ -294,6 +296,9 @@ class StreamCampaign:
         self.restart(b)
         if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
             self.unconfirmed += 1
+            self.environment.note(sig.rule, f"{sig.describe()}, no input", base.detail, confirmed, self.replays,
+                                  "a baseline sent nothing showed it, then not every confirming baseline did "
+                                  "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
             self._add(Finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
@@ -392,6 +397,9 @@ class StreamCampaign:
         if confirmed < self.replays:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
+            self.environment.note(sig.rule, sig.describe(), hit.detail, 1 + confirmed, 1 + self.replays,
+                                  f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                                  f"{confirmed} of {self.replays} confirming replays did (timing or load)")
             return self.restart(state["b"])
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
@@ -429,7 +437,8 @@ class StreamCampaign:
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
                            "count": f.count, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
                            else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
+             "unconfirmed": self.unconfirmed, "environment_dependent": self.environment.values(),
+             "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
              "duration_s": self.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
              "triage_share": round(self.triage_s / elapsed, 3) if elapsed else 0.0,
              "jobs": len(self.workers) if self.workers is not None else 1}

@@ -31,6 +31,7 @@ _FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe
 
 def _snapshot(c: StreamCampaign) -> dict[str, Any]:
     return {"cases": c.cases, "fuzz_s": c.fuzz_s, "triage_s": c.triage_s, "restart_s": c.restart_s,
+            "environment": c.environment.values(),
             "restarts": c.restarts,
             "unconfirmed": c.unconfirmed, "untriaged": c.untriaged, "tried": c.tried, "by_kind": c.by_kind,
             "signatures": [f.signature for f in c.findings]}
@@ -114,6 +115,8 @@ def _merge(parent: StreamCampaign, per: dict[int, dict[str, Any]], done: dict[in
     parent.fuzz_s = max((b["fuzz_s"] for b in per.values()), default=0.0)
     parent.triage_s = sum(b["triage_s"] for b in per.values())
     parent.restart_s = sum(b.get("restart_s", 0.0) for b in per.values())
+    for e in (e for b in per.values() for e in b.get("environment", [])):
+        parent.environment.add(e)
     parent.restarts = sum(b["restarts"] for b in per.values())
     parent.unconfirmed = sum(b["unconfirmed"] for b in per.values())
     parent.tried = _sum_tables([b["tried"] for b in per.values()])

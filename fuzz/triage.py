@@ -32,6 +32,7 @@ import time
 from collections.abc import Sequence
 
 from fuzz.budget import Late
+from fuzz.environment import EnvironmentLog
 from fuzz.findings import NO_INPUT, Finding, FindingStore
 from fuzz.oracles import OVERSIZE, Flaw, Input
 from fuzz.replay import run_sequence, shrink
@@ -90,7 +91,7 @@ class Triage:
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
         self.deadline = float("inf")  # no replay starts after it (the campaign's --duration)
         self.baseline_rules: set[str] | None = None  # rules the node breaks sent no input (once run)
-        self.environment: dict[tuple[str, str], dict[str, object]] = {}  # (rule, shape) -> why it did not replay
+        self.environment = EnvironmentLog()  # flaws that did not replay every time, with why
         self.untriaged = 0  # flaws left at the deadline
 
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
@@ -157,13 +158,6 @@ class Triage:
     def _target_doc(self) -> dict[str, object]:
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink}
 
-    def _environment(self, flaw: Flaw, shape: str, seen: int, tries: int, why: str) -> None:
-        """A flaw that reproduced ``seen`` of ``tries`` replays: environment-dependent, named."""
-        e = self.environment.setdefault((flaw.rule, shape), {"rule": flaw.rule, "shape": shape,
-                                                              "actual": flaw.actual, "times": 0})
-        e["times"] = int(e["times"]) + 1  # type: ignore[call-overload]
-        e["why"] = f"reproduced {seen} of {tries} replays: {why}"
-
     def _unconfirmed(self, flaw: Flaw) -> None:
         self.unconfirmed += 1
         self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
@@ -226,7 +220,7 @@ class Triage:
                           or (flaw.source in _DEATH and f.source in _DEATH)), None)
             if again is None:
                 self._unconfirmed(flaw)
-                self._environment(flaw, shape, k + 1, k + 2, f"the minimal sequence of {len(minimal)} datagram(s) "
+                self.environment.note(flaw.rule, shape, flaw.actual, k + 1, k + 2, f"the minimal sequence of {len(minimal)} datagram(s) "
                                   f"showed it in triage, then not in confirmation replay {k + 1} (pace {pace}; "
                                   "timing or load)" + (f"; seen instead: {', '.join(sorted(out.rules()))}"
                                                        if out.rules() else ""))
