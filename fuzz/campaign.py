@@ -7,6 +7,10 @@ its own seed stream (``seed``, worker index); the stateful engine's workers shar
 hypothesis's example database (``--db``), so a failure one worker found is replayed first by
 the others. Findings come back to the parent, which groups them across workers and writes
 ``finding-N/``.
+
+``--duration`` counts from the campaign's start (``fuzz.budget``): a worker's deadlines are
+the campaign's, its node's start included, and the ``--jobs`` parent stops waiting at the
+same bound, ``--duration`` plus ``GRACE_S``.
 """
 
 from __future__ import annotations
@@ -17,12 +21,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fuzz.budget import GRACE_S, campaign_end
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats, StatelessEngine
+from fuzz.environment import merge_environment
 from fuzz.findings import Finding, FindingStore, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
-from fuzz.triage import GRACE_S, Triage
+from fuzz.triage import Triage
 from fuzz.workers import run_workers
 from harness.errors import SetupError
 from spec import SPEC
@@ -124,17 +130,17 @@ def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> No
     res.unconfirmed += triage.unconfirmed
     res.triage_seconds += triage.seconds
     res.untriaged += triage.untriaged
-    for e in triage.environment.values():
-        if not any(x["rule"] == e["rule"] and x["shape"] == e["shape"] for x in res.environment):
-            res.environment.append(dict(e))
+    res.environment = merge_environment([*res.environment, *triage.environment.values()])
 
 
 def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
-               seeds: list[bytes] | None = None, stop_event: Any = None) -> WorkerResult:
+               seeds: list[bytes] | None = None, stop_event: Any = None,
+               started: float | None = None) -> WorkerResult:
     """One worker: start its target, run the engines, close the target. Whatever ends it, the
     counts so far are kept (issue 19 items 1, 6): a node lost in attach mode (``TargetLost``)
     sets ``lost`` and ``error``, SIGINT (KeyboardInterrupt) or ``stop_event`` sets
-    ``interrupted``."""
+    ``interrupted``. ``--duration`` counts from ``started`` (the campaign's start; default now)."""
+    start = started if started is not None else time.monotonic()
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
     res.node_period = getattr(target, "node_period", None)
@@ -150,9 +156,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
 
     try:
         engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
-        duration = cfg.duration if cfg.duration is not None else (
-            None if cfg.max_cases is not None else DEFAULT_DURATION)
-        start = time.monotonic()
+        duration = _duration_limit(cfg)
         base: set[str] | None = None
         for k, name in enumerate(engines):
             if stop():
@@ -210,9 +214,11 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     return res
 
 
-def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any = None) -> None:
+def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any = None,
+                    started: float | None = None) -> None:
     """A ``--jobs`` worker process: its result (and findings) go back on ``q``. SIGINT is the
-    parent's to handle: it sets ``stop_event``, and the worker ends its round and reports."""
+    parent's to handle: it sets ``stop_event``, and the worker ends its round and reports.
+    ``started``: the parent's start (the monotonic clock is the machine's), its deadlines'."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -226,7 +232,7 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any
             q.put(("progress", cfg.worker, (p.cases, p.fuzz_seconds, p.findings, p.restarts)))
 
     try:
-        res = run_worker(cfg, store, tick, seeds, stop_event)
+        res = run_worker(cfg, store, tick, seeds, stop_event, started)
         res.findings = [(f.to_json(), store.traffic.get(f.key, [])) for f in store.order]
     except SetupError as exc:
         res = WorkerResult(cfg.worker, error=str(exc))
@@ -253,9 +259,9 @@ def run_campaign(cfg: FuzzConfig, store: FindingStore,
     interrupted = False
     try:
         if cfg.jobs <= 1:
-            results.append(run_worker(cfg.for_worker(0), store, tick, seeds))
+            results.append(run_worker(cfg.for_worker(0), store, tick, seeds, started=t0))
         else:
-            results, error, interrupted = _run_jobs(cfg, store, seeds, tick)
+            results, error, interrupted = _run_jobs(cfg, store, seeds, tick, t0)
     except SetupError as exc:
         error = str(exc)
         raise
@@ -275,8 +281,8 @@ def run_campaign(cfg: FuzzConfig, store: FindingStore,
     return summary
 
 
-def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
-              tick: Callable[[Progress], None] | None) -> tuple[list[WorkerResult], str | None, bool]:
+def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes], tick: Callable[[Progress], None] | None,
+              t0: float) -> tuple[list[WorkerResult], str | None, bool]:
     prog = Progress()
     per: dict[int, tuple[int, float, int, int]] = {}
     results: dict[int, WorkerResult] = {}
@@ -299,9 +305,8 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
             tick(prog)
         return False
 
-    interrupted = run_workers(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop), cfg.jobs,
-                              (cfg.duration or DEFAULT_DURATION) + 120.0, handle,
-                              lambda: len(results) >= cfg.jobs)
+    interrupted = run_workers(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop, t0), cfg.jobs,
+                              campaign_end(t0, _duration_limit(cfg)), handle, lambda: len(results) >= cfg.jobs)
     errors = [r.error for r in results.values() if r.error]
     missing = [i for i in range(cfg.jobs) if i not in results]
     if missing:
@@ -313,6 +318,11 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes],
     if errors and not any(r.cases for r in results.values()) and not interrupted:
         raise SetupError(errors[0])
     return [results[i] for i in sorted(results)], ("; ".join(errors) or None), interrupted
+
+
+def _duration_limit(cfg: FuzzConfig) -> float | None:
+    """The campaign's ``--duration``: given, else ``DEFAULT_DURATION`` unless ``--max-cases`` bounds it."""
+    return cfg.duration if cfg.duration is not None else (None if cfg.max_cases is not None else DEFAULT_DURATION)
 
 
 def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
@@ -355,10 +365,9 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "triage_share": round(max((r.triage_seconds for r in results), default=0.0) / duration, 3)
         if duration > 0 else 0.0,
         "grace_s": GRACE_S,
-        "duration_limit_s": cfg.duration if cfg.duration is not None else (
-            None if cfg.max_cases is not None else DEFAULT_DURATION),
+        "duration_limit_s": _duration_limit(cfg),
         "untriaged": sum(r.untriaged for r in results),
-        "environment_dependent": [e for r in results for e in r.environment],
+        "environment_dependent": merge_environment(e for r in results for e in r.environment),
         "unconfirmed": sum(r.unconfirmed for r in results),
         "monitor": any(r.monitor for r in results),
         "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),

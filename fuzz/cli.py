@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from fuzz.config import ENGINES, FuzzConfig, default_engine
+from fuzz.environment import environment_lines
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 
@@ -356,6 +357,8 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         return 2
     for i, f in enumerate(campaign.findings, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
+    for line in environment_lines(summary):
+        print(line)
     classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
           f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
@@ -365,13 +368,15 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
 
 
 def _budget_line(s: dict[str, Any]) -> str:
-    """Where the time went: triage's share against its budget, the --duration bound and its
-    grace (issue 36 items 2, 5), the hits counted rather than triaged."""
+    """Where the time went: fuzzing, triage's own replays (its share against its budget) and
+    the restarts to go on fuzzing, the --duration bound and its grace (issue 36 items 2, 5),
+    the hits counted rather than triaged."""
     bound = (f"--duration {s['duration_s']:g} s + grace {s['grace_s']:g} s" if s.get("duration_s") is not None
              else "no --duration")
     untriaged = sum(s.get("untriaged", {}).values())
-    return (f"triage {s['triage_s']:g} s of {s['elapsed_s']:g} s ({100 * s.get('triage_share', 0):.0f} %, "
-            f"budget {100 * s.get('triage_share_max', 0):.0f} %); {bound}"
+    return (f"fuzzing {s['fuzz_s']:g} s, triage {s['triage_s']:g} s ({100 * s.get('triage_share', 0):.0f} %, "
+            f"budget {100 * s.get('triage_share_max', 0):.0f} %), restarts {s.get('restart_s', 0):g} s "
+            f"({s.get('restarts', 0)}) of {s['elapsed_s']:g} s; {bound}"
             + (f"; {untriaged} hit(s) counted, not triaged (budget or deadline spent, or not reproduced "
                "twice)" if untriaged else ""))
 

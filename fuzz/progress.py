@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 from fuzz.campaign import Progress
 from fuzz.config import FuzzConfig
+from fuzz.environment import environment_lines
 from fuzz.findings import FindingStore
 
 __all__ = ["STATUS_S", "LiveDisplay", "LiveProgress", "status_line", "summary_line"]
@@ -125,8 +126,7 @@ class LiveProgress(LiveDisplay):
             print(f"mcp-fuzz: {summary['timing']}", file=out)
         for n, f in enumerate(store.order, 1):
             print(f"  finding-{n}: {f.describe()}", file=out)
-        for e in summary.get("environment_dependent", []):
-            print(f"  environment-dependent (not a finding): {e['rule']} ({e['shape']}) x{e['times']}: {e['why']}",
-                  file=out)
+        for line in environment_lines(summary):
+            print(line, file=out)
         print(summary_line(summary), file=out)
         print(budget_line(summary), file=out)

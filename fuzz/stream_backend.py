@@ -12,6 +12,14 @@ handled every byte before it); a valid frame on a kept connection, answered by n
 sent and what is there read, its close window (a close after frames a backend handles is a
 finding) coming before the next bad frame on that still-clean connection, at the probe, or in
 a replay; a probe or a judged effect ends at the UPDATE that shows the state (:meth:`Backend._verify`).
+
+Restarts (issue 36 item 5): a backend that dies on every frame (an ASan build that over-reads)
+is restarted after nearly every case. A spawned process is ready when it accepts a connection
+and sends on it (``harness.stream_session``'s own check, polled every 50 ms: a sanitizer's
+start takes a few ms, so nearly every start waited one poll). :meth:`Backend.restart`, the
+restart the campaign goes on fuzzing with, takes a spare started in the background after the
+previous restart, already through that check, and starts the next spare: the wait is gone
+from the campaign. A replay's process (:meth:`Backend.fresh`) is still started for it.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ import contextlib
 import random
 import select
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,18 +77,38 @@ class Backend:
         self.synced = False  # the last case's judged effect showed the stream in sync
         self.unwatched = ""  # the kind of the last valid case sent without its close window
         self.unwatched_n = 0  # how many cases in a row before this one were
+        self.spare: _Spare | None = None  # the next restart's backend, started in the background
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self.session.close()
+        if self.spare is not None:
+            self.spare.discard()
+            self.spare = None
 
     def fresh(self) -> Backend:
-        """A new process (spawn mode and the embedded default); attach mode: the same target."""
+        """A new process (spawn mode and the embedded default), started now; attach mode: the
+        same target. The spare, if any, goes with it."""
         if self.target is not None and self.spawn is None:
             self._drop()
             return self
+        spare, self.spare = self.spare, None
         self.close()
-        return Backend(self.target, self.spawn)
+        b = Backend(self.target, self.spawn)
+        b.spare = spare
+        return b
+
+    def restart(self) -> Backend:
+        """A new process to go on fuzzing with: the spare started after the previous restart
+        (a fresh start if it failed: its error is then the start's own), and the next spare
+        started. Attach mode: :meth:`fresh`."""
+        if self.target is not None and self.spawn is None:
+            return self.fresh()
+        spare, self.spare = self.spare, None
+        self.close()
+        b = (spare.take() if spare is not None else None) or Backend(self.target, self.spawn)
+        b.spare = _Spare(self.target, self.spawn)
+        return b
 
     def _drop(self) -> None:
         if self.conn is not None:
@@ -349,6 +378,42 @@ class Backend:
 
     def fds(self) -> int | None:
         return self.session.open_fds()
+
+
+class _Spare:
+    """A :class:`Backend` started in the background, for the next :meth:`Backend.restart`.
+
+    Started on the one spawner thread that lives as long as the campaign's process
+    (:data:`_SPAWNER`): a spawned backend gets SIGKILL when the thread that started it ends
+    (``harness.procs``' parent-death signal is the thread's, prctl(2) PR_SET_PDEATHSIG), so
+    a thread of its own, ended once started, killed every spare before it was used."""
+
+    def __init__(self, target: tuple[str, int] | None, spawn: str | None) -> None:
+        self.future = _SPAWNER.submit(Backend, target, spawn)
+
+    def take(self) -> Backend | None:
+        """The started backend, once ready; None if it failed to start (the restart then
+        starts one itself and reports its error) or has ended since (a backend that dies on
+        its own is not handed to a case)."""
+        try:
+            b = self.future.result()
+        except Exception:  # noqa: BLE001 - see above
+            return None
+        if b.session.proc is not None and not b.session.proc.alive():
+            b.close()
+            return None
+        return b
+
+    def discard(self) -> None:
+        """Not needed: closed now, or as soon as its start ends (no wait for it)."""
+        def close(f: Future[Backend]) -> None:
+            if not f.cancelled() and f.exception() is None:
+                f.result().close()
+        self.future.add_done_callback(close)
+
+
+#: the thread every spare backend is started on (one at a time; it lives with the process)
+_SPAWNER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nsqd-spare")
 
 
 def _wait_any(conns: list[Conn], pred: Any, timeout: float) -> bool:

@@ -14,8 +14,9 @@ target's behaviour: reported under the rule the baseline broke, with no input bl
 
 The budget: ``--duration`` bounds the whole campaign, triage included. No replay starts after
 the deadline; one under way is not cut, so a campaign ends within ``--duration`` plus
-:data:`GRACE_S` (the longest one replay takes: a backend restarted, a connection's timeout,
-a probe's two effect windows, a sanitizer report read whole). Triage may spend
+``fuzz.budget.GRACE_S`` (the longest one replay takes: a backend restarted, a connection's
+timeout, a probe's two effect windows, a sanitizer report read whole), the one bound of both
+protocols' campaigns and of their ``--jobs`` parents. Triage may spend
 :data:`TRIAGE_SHARE` of the campaign (of ``--duration``, or of the time so far under
 ``--max-cases``); once spent, a new signature's hits are counted in the summary
 (``untriaged``), not replayed.
@@ -26,21 +27,17 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from fuzz.budget import GRACE_S, Late
 from fuzz.stream_backend import Backend, Hit
 from fuzz.stream_oracles import Signature
 from spec import NSQD
 
 __all__ = ["GRACE_S", "PROBED", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "baseline", "watch_stream"]
 
-GRACE_S = 10.0  # s past --duration a campaign may take: the replay under way at the deadline
 TRIAGE_SHARE = 0.25  # of the campaign's time, triage's budget
 UNCONFIRMED_TRIES = 2  # a signature that did not reproduce this many times is counted, not triaged again
 PROBED = "(the probe with no case before it)"  # a baseline hit's detail ends so when the probe showed it
 STREAM_UPDATES = 3  # UPDATEs a baseline connection reads (mcp-conform's FRM-1 case reads three)
-
-
-class Late(Exception):
-    """The campaign's deadline passed: no further replay starts."""
 
 
 def watch_stream(b: Backend, updates: int = STREAM_UPDATES) -> Hit | None:

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from fuzz.ddmin import ddmin
+from fuzz.environment import EnvironmentLog
 from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
 from fuzz.stream_blame import (
     GRACE_S,
@@ -97,8 +98,10 @@ class StreamCampaign:
     tick: Callable[[StreamCampaign], None] | None = None  # live progress (fuzz.stream_progress)
     tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases
     fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
-    triage_s: float = 0.0
+    triage_s: float = 0.0  # triage's own: its baselines and replays, the processes they start included
+    restart_s: float = 0.0  # the backend restarted to go on fuzzing (after a death, a hang, a triage)
     started: float = field(default_factory=time.monotonic)
+    origin: float | None = None  # a --jobs parent's start: --duration counts from it (fuzz.budget)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
     workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
@@ -106,6 +109,7 @@ class StreamCampaign:
     tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
+    environment: EnvironmentLog = field(default_factory=EnvironmentLog)  # seen, then not every replay: why
 
     def _over(self, deadline: float) -> bool:
         return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
@@ -122,7 +126,7 @@ class StreamCampaign:
             self.tick(self)
 
     def run(self) -> dict[str, Any]:
-        self.started = t0 = time.monotonic()
+        self.started = t0 = self.origin if self.origin is not None else time.monotonic()
         engines = ["stateless", "stateful"] if self.engine == "both" else [self.engine]
         backend = self.current = Backend(self.target, self.spawn)
         try:
@@ -143,17 +147,17 @@ class StreamCampaign:
         """A stateful program's failure: triaged like a case's (fuzz.stream_stateful)."""
         from fuzz.stream_stateful import triage_program
 
-        t0 = time.monotonic()
+        t0, r0 = time.monotonic(), self.restart_s
         try:
             if self.skip(hit.signature, backend, "program"):
-                return backend.fresh() if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
+                return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
             blame, backend = self.blamed(backend, hit, False)
             return triage_program(self, backend, hit, ops) if blame else backend
         except Late:
             self.untriaged[hit.signature.describe()] = self.untriaged.get(hit.signature.describe(), 0) + 1
             return self.current
         finally:
-            self.triage_s += time.monotonic() - t0
+            self.triage_s += time.monotonic() - t0 - (self.restart_s - r0)
 
     def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
@@ -193,11 +197,11 @@ class StreamCampaign:
                         window.clear()
                 if hit is not None:
                     # a death may show only at the next case's write: the one before is a suspect too
-                    t1 = time.monotonic()
+                    t1, r0 = time.monotonic(), self.restart_s
                     self.fuzz_s += t1 - t_fuzz
                     backend = self.current = self._triage(backend, hit, list(window) if probe else window[-hit.suspects:], probe)
                     t_fuzz = time.monotonic()
-                    self.triage_s += t_fuzz - t1
+                    self.triage_s += t_fuzz - t1 - (self.restart_s - r0)
                     window.clear()
                     continue
                 if not leak_reported and self.cases % 400 == 0 and fds0 is not None:
@@ -289,9 +293,12 @@ class StreamCampaign:
             self.restarts += 1
             again = baseline(b, sig, probe=key)
             confirmed += again is not None and same_finding(again.signature, sig)
-        self.current = b.fresh()
+        self.restart(b)
         if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
             self.unconfirmed += 1
+            self.environment.note(sig.rule, f"{sig.describe()}, no input", base.detail, confirmed, self.replays,
+                                  "a baseline sent nothing showed it, then not every confirming baseline did "
+                                  "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
             self._add(Finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
@@ -304,7 +311,7 @@ class StreamCampaign:
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
         if self.skip(sig, backend, "probe" if probe else "case"):
-            return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+            return self.restart(backend) if sig.oracle in ("crash", "hang", "sanitizer") else backend
         try:
             blame, backend = self.blamed(backend, hit, probe)
             if not blame:
@@ -350,7 +357,7 @@ class StreamCampaign:
         if culprit is None:
             self.unconfirmed += 1
             self._tried(sig, probe)
-            return backend.fresh()
+            return self.restart(backend)
         if sig.oracle == "desync":  # named by what lost the stream its sync
             kind = culprit[-1].kind
             sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
@@ -359,7 +366,7 @@ class StreamCampaign:
         if known is not None:
             known.count += 1
             self.aliases[hit.signature.key] = known
-            return backend.fresh()
+            return self.restart(backend)
         state = {"b": backend}
 
         def test(writes: list[Write]) -> bool:
@@ -390,11 +397,24 @@ class StreamCampaign:
         if confirmed < self.replays:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
-            return state["b"].fresh()
+            self.environment.note(sig.rule, sig.describe(), hit.detail, 1 + confirmed, 1 + self.replays,
+                                  f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                                  f"{confirmed} of {self.replays} confirming replays did (timing or load)")
+            return self.restart(state["b"])
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.findings[-1]
-        return state["b"].fresh()
+        return self.restart(state["b"])
+
+    def restart(self, backend: Backend) -> Backend:
+        """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the
+        background), timed on its own (``restart_s``): a restart after a hit counted, not
+        triaged, is no triage."""
+        t0 = time.monotonic()
+        b = self.current = backend.restart()
+        self.restarts += 1
+        self.restart_s += time.monotonic() - t0
+        return b
 
     def _add(self, f: Finding) -> None:
         self.findings.append(f)
@@ -411,12 +431,14 @@ class StreamCampaign:
         s = {"protocol": "nsqd", "engine": self.engine, "seed": self.seed, "cases": self.cases,
              "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
              "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
+             "restart_s": round(self.restart_s, 2),
              "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
              "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
                            "count": f.count, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
                            else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
+             "unconfirmed": self.unconfirmed, "environment_dependent": self.environment.values(),
+             "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
              "duration_s": self.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
              "triage_share": round(self.triage_s / elapsed, 3) if elapsed else 0.0,
              "jobs": len(self.workers) if self.workers is not None else 1}

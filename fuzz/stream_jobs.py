@@ -8,7 +8,9 @@ on one worker is replayed first by the others. Workers report progress a few tim
 and their findings at the end; the parent deduplicates them across workers by signature
 (counts summed), writes ``finding-N/`` and ``summary.json`` (with a ``workers`` list), and
 shows the live figures summed (judged cases/s: all workers' cases over the longest fuzzing
-time). SIGINT: the workers end their round and report what they have.
+time). ``--duration`` counts from the parent's start for every worker, and the parent stops
+waiting at the campaign's bound (``fuzz.budget.campaign_end``: ``--duration`` plus
+``GRACE_S``). SIGINT: the workers end their round and report what they have.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import time
 from types import SimpleNamespace
 from typing import Any
 
+from fuzz.budget import campaign_end
 from fuzz.stream_campaign import StreamCampaign
 from fuzz.workers import run_workers
 
@@ -27,7 +30,9 @@ _FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe
 
 
 def _snapshot(c: StreamCampaign) -> dict[str, Any]:
-    return {"cases": c.cases, "fuzz_s": c.fuzz_s, "triage_s": c.triage_s, "restarts": c.restarts,
+    return {"cases": c.cases, "fuzz_s": c.fuzz_s, "triage_s": c.triage_s, "restart_s": c.restart_s,
+            "environment": c.environment.values(),
+            "restarts": c.restarts,
             "unconfirmed": c.unconfirmed, "untriaged": c.untriaged, "tried": c.tried, "by_kind": c.by_kind,
             "signatures": [f.signature for f in c.findings]}
 
@@ -55,7 +60,7 @@ def run_stream_jobs(parent: StreamCampaign, jobs: int, live: Any = None) -> dict
     """Run ``jobs`` workers of ``parent``'s campaign; their merged results in ``parent`` (its
     findings written to its ``out``); the summary."""
     t0 = parent.started = time.monotonic()
-    kw = {k: getattr(parent, k) for k in _FIELDS}
+    kw = {**{k: getattr(parent, k) for k in _FIELDS}, "origin": t0}
     if parent.max_cases is not None:  # the budget shared: N workers run max_cases in all
         kw["max_cases"] = max(1, parent.max_cases // jobs)
     per: dict[int, dict[str, Any]] = {}
@@ -71,7 +76,7 @@ def run_stream_jobs(parent: StreamCampaign, jobs: int, live: Any = None) -> dict
             live.update(view)
         return parent.stop_after is not None and len(view.findings) >= parent.stop_after
 
-    interrupted = run_workers(_worker, lambda i, q, stop: (kw, i, q, stop), jobs, (parent.duration or 60.0) + 120.0,
+    interrupted = run_workers(_worker, lambda i, q, stop: (kw, i, q, stop), jobs, campaign_end(t0, parent.duration),
                               handle, lambda: len(done) >= jobs)
     _merge(parent, per, done, jobs)
     summary = parent.summary(time.monotonic() - t0)
@@ -109,6 +114,9 @@ def _merge(parent: StreamCampaign, per: dict[int, dict[str, Any]], done: dict[in
     parent.cases = sum(b["cases"] for b in per.values())
     parent.fuzz_s = max((b["fuzz_s"] for b in per.values()), default=0.0)
     parent.triage_s = sum(b["triage_s"] for b in per.values())
+    parent.restart_s = sum(b.get("restart_s", 0.0) for b in per.values())
+    for e in (e for b in per.values() for e in b.get("environment", [])):
+        parent.environment.add(e)
     parent.restarts = sum(b["restarts"] for b in per.values())
     parent.unconfirmed = sum(b["unconfirmed"] for b in per.values())
     parent.tried = _sum_tables([b["tried"] for b in per.values()])

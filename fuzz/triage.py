@@ -23,7 +23,7 @@ but not every time depends on the environment (timing, load): it is not a findin
 named in the summary (``environment_dependent``) with why, not lost among the unconfirmed.
 
 Budget: no replay starts after the campaign's deadline (``deadline``), so ``--duration``
-bounds triage too.
+bounds triage too, within ``fuzz.budget.GRACE_S``.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+from fuzz.budget import Late
+from fuzz.environment import EnvironmentLog
 from fuzz.findings import NO_INPUT, Finding, FindingStore
 from fuzz.oracles import OVERSIZE, Flaw, Input
 from fuzz.replay import run_sequence, shrink
@@ -45,11 +47,6 @@ SHRINK_BUDGET = 24  # replays per finding
 SUSPECTS = 6  # single inputs tried alone before delta debugging
 CONFIRM_N = 3  # replays of the minimal sequence, all of which must show the flaw
 BASELINE_SRC = 0x0B5E  # the baseline's valid case comes from this source ID
-GRACE_S = 10.0  # s past --duration a campaign may take: the replay under way at the deadline
-
-
-class Late(Exception):
-    """The campaign's deadline passed: no further replay starts."""
 
 
 def _size_class(n: int) -> str:
@@ -94,7 +91,7 @@ class Triage:
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
         self.deadline = float("inf")  # no replay starts after it (the campaign's --duration)
         self.baseline_rules: set[str] | None = None  # rules the node breaks sent no input (once run)
-        self.environment: dict[tuple[str, str], dict[str, object]] = {}  # (rule, shape) -> why it did not replay
+        self.environment = EnvironmentLog()  # flaws that did not replay every time, with why
         self.untriaged = 0  # flaws left at the deadline
 
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
@@ -161,13 +158,6 @@ class Triage:
     def _target_doc(self) -> dict[str, object]:
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink}
 
-    def _environment(self, flaw: Flaw, shape: str, seen: int, tries: int, why: str) -> None:
-        """A flaw that reproduced ``seen`` of ``tries`` replays: environment-dependent, named."""
-        e = self.environment.setdefault((flaw.rule, shape), {"rule": flaw.rule, "shape": shape,
-                                                              "actual": flaw.actual, "times": 0})
-        e["times"] = int(e["times"]) + 1  # type: ignore[call-overload]
-        e["why"] = f"reproduced {seen} of {tries} replays: {why}"
-
     def _unconfirmed(self, flaw: Flaw) -> None:
         self.unconfirmed += 1
         self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
@@ -230,7 +220,7 @@ class Triage:
                           or (flaw.source in _DEATH and f.source in _DEATH)), None)
             if again is None:
                 self._unconfirmed(flaw)
-                self._environment(flaw, shape, k + 1, k + 2, f"the minimal sequence of {len(minimal)} datagram(s) "
+                self.environment.note(flaw.rule, shape, flaw.actual, k + 1, k + 2, f"the minimal sequence of {len(minimal)} datagram(s) "
                                   f"showed it in triage, then not in confirmation replay {k + 1} (pace {pace}; "
                                   "timing or load)" + (f"; seen instead: {', '.join(sorted(out.rules()))}"
                                                        if out.rules() else ""))

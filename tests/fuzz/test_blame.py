@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.stream_blame import GRACE_S
+from fuzz.budget import GRACE_S
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -57,3 +57,18 @@ def test_the_reference_backend_gives_no_finding_and_keeps_the_bound(tmp_path):
     print(run.stdout, f"elapsed {summary['elapsed_s']} s for --duration 6")
     assert run.returncode == 0 and summary["findings"] == [], run.stdout + run.stderr
     assert summary["elapsed_s"] <= 6 + GRACE_S, summary
+
+
+def test_a_crash_that_replays_once_then_not_is_named_environment_dependent(tmp_path):
+    """Seen by the campaign, reproduced by one replay of triage, then by none of the confirming
+    replays (misbehaving_backend --mode flaky-crash): no finding, but named in the summary and
+    on the last lines, with why, as MCP's campaign names one (``fuzz.environment``)."""
+    spawn = (f"{sys.executable} -m tests.fuzz.servers.misbehaving_backend --bind {{target_host}}:{{target_port}} "
+             f"--mode flaky-crash --state {tmp_path / 'count'} --lifetime 120")
+    run = _fuzz("--spawn", spawn, "--duration", "20", "--out", str(tmp_path / "out"))  # a replay waits 2 s for a death
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    print(run.stdout + run.stderr, summary["environment_dependent"])
+    env = [e for e in summary["environment_dependent"] if e["rule"] == "NSQD-ROB-1"]
+    assert len(env) == 1 and "crash" in env[0]["shape"] and env[0]["why"].startswith("reproduced 1 of 4"), env
+    assert not any(f["oracle"] == "crash" for f in summary["findings"]), summary["findings"]
+    assert "environment-dependent (not a finding): NSQD-ROB-1" in run.stdout, run.stdout

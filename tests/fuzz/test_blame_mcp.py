@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import pytest
 
+from fuzz.budget import GRACE_S
 from fuzz.campaign import run_campaign
 from fuzz.cli import main as fuzz_main
 from fuzz.cli import replay_args
 from fuzz.config import FuzzConfig
 from fuzz.findings import NO_INPUT, FindingStore, load_finding
-from fuzz.triage import GRACE_S
 from tests.fuzz.test_faulty_nodes import spawn_command
 
 pytestmark = [pytest.mark.slow]

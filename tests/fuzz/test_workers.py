@@ -5,6 +5,7 @@ parent waiting for the budget."""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from fuzz.workers import run_workers
@@ -28,13 +29,31 @@ def test_a_stop_asked_for_reaches_every_worker_and_each_reports():
         return kind == "progress"  # the first progress asks the workers to stop
 
     done = lambda: sum(k == "done" for k, _, _ in got) == 2  # noqa: E731
-    interrupted = run_workers(_reporting_worker, lambda i, q, stop: (i, q, stop), 2, 120.0, handle, done)
+    interrupted = run_workers(_reporting_worker, lambda i, q, stop: (i, q, stop), 2, time.monotonic() + 120.0, handle, done)
     assert not interrupted
     assert sorted((w, b) for k, w, b in got if k == "done") == [(0, True), (1, True)]  # stop.wait saw the stop
 
 
 def test_workers_that_die_without_a_word_end_the_wait():
     got: list[Any] = []
-    interrupted = run_workers(_silent_worker, lambda i, q, stop: (i, q, stop), 2, 3600.0,
+    interrupted = run_workers(_silent_worker, lambda i, q, stop: (i, q, stop), 2, time.monotonic() + 3600.0,
                               lambda *m: got.append(m) or False, lambda: False)
     assert not interrupted and got == []
+
+
+def _stuck_worker(worker: int, q: Any, stop: Any) -> None:
+    q.put(("progress", worker, 1))
+    time.sleep(60)  # a replay that outlasts the grace: deaf to the stop
+
+
+def test_the_parent_stops_waiting_at_the_campaigns_bound():
+    """At ``until`` (``fuzz.budget.campaign_end``) the parent kills a worker still running,
+    with no further wait (before: --duration + 120 s, then 5 s of join per worker)."""
+    got: list[Any] = []
+    t0 = time.monotonic()
+    run_workers(_stuck_worker, lambda i, q, stop: (i, q, stop), 2, t0 + 2.0, lambda *m: got.append(m) or False,
+                lambda: False)
+    took = time.monotonic() - t0
+    print(f"returned {took:.2f} s after the start, bound 2 s")
+    assert took < 2.0 + 1.0, took
+    assert sorted(w for _, w, _ in got) == [0, 1]  # what they reported was handled

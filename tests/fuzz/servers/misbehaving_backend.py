@@ -10,13 +10,25 @@ frame it sends breaks NSQD-FRM-1 (mcp-conform: FRM/test_backend_frames_are_well_
 Both read and discard whatever a client sends, serve up to ``MAX_CLIENTS`` clients at once
 (a thread each) and exit after ``--lifetime`` seconds.
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames [--lifetime S]``
+``--mode slow-restart`` (the campaign's bound, ``fuzz.budget``): valid UPDATEs every update
+period, and an exit (status 1) at the first byte a client sends; its first start serves at
+once, every later one (``--state FILE`` marks the first) sends its first UPDATE only
+``--restart-delay`` seconds after it started, so each replay of a triage outlasts the grace.
+
+``--mode flaky-crash`` (environment-dependent naming, issue 36 item 3): valid UPDATEs every
+update period; the first two times any of its processes is sent bytes (counted in ``--state
+FILE``) it exits (status 1), and never again: the campaign sees it, one replay of triage
+reproduces it, the confirming replays do not.
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames|slow-restart|flaky-crash
+[--lifetime S] [--state FILE --restart-delay S]``
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import socket
 import struct
 import threading
@@ -26,6 +38,7 @@ from spec import NSQD
 from spec.stream_codec import encode
 
 MAX_CLIENTS = 64
+STATE = ""  # --state
 PERIOD = float(NSQD.params["update_period_s"])
 
 
@@ -48,9 +61,12 @@ def _drain(c: socket.socket) -> bool:
         return False
 
 
-def serve_client(c: socket.socket, mode: str, end: float) -> None:
+def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) -> None:
     c.setblocking(False)
     try:
+        if mode in ("slow-restart", "flaky-crash"):
+            _crash_on_input(c, end, ready, STATE if mode == "flaky-crash" else None)
+            return
         if mode == "slow":
             c.sendall(update())
             pending, step = b"", 1.0
@@ -78,12 +94,48 @@ def serve_client(c: socket.socket, mode: str, end: float) -> None:
             c.close()
 
 
+def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | None) -> None:
+    """UPDATEs every period from ``ready`` on; the process exits at the first byte received
+    (with ``count``, a file: only the first two times, over all processes, that bytes came)."""
+    nxt = ready
+    while time.monotonic() < end:
+        try:
+            data = c.recv(65536)
+            if data and count is not None:
+                with open(count, "a+") as f:
+                    f.write("x")
+                    f.seek(0)
+                    times = len(f.read())
+                if times <= 2:
+                    os._exit(1)
+            elif data:
+                os._exit(1)
+            else:
+                return  # the client closed
+        except BlockingIOError:
+            pass
+        if time.monotonic() >= nxt:
+            c.sendall(update())
+            nxt = max(ready, time.monotonic()) + PERIOD
+        time.sleep(0.01)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "bad-frames"), required=True)
+    ap.add_argument("--mode", choices=("slow", "bad-frames", "slow-restart", "flaky-crash"), required=True)
     ap.add_argument("--lifetime", type=float, default=300.0)
+    ap.add_argument("--state", help="slow-restart: marks that the first start happened")
+    ap.add_argument("--restart-delay", type=float, default=0.0)
     ns = ap.parse_args()
+    global STATE
+    STATE = ns.state or ""
+    ready = time.monotonic()
+    if ns.state and ns.mode == "slow-restart":
+        if os.path.exists(ns.state):
+            ready += ns.restart_delay
+        else:
+            open(ns.state, "w").close()
     host, _, port = ns.bind.rpartition(":")
     end = time.monotonic() + ns.lifetime
     ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -102,7 +154,7 @@ def main() -> None:
         if len(threads) >= MAX_CLIENTS:
             c.close()
             continue
-        t = threading.Thread(target=serve_client, args=(c, ns.mode, end), daemon=True)
+        t = threading.Thread(target=serve_client, args=(c, ns.mode, end, ready), daemon=True)
         t.start()
         threads.append(t)
     ls.close()
