@@ -110,9 +110,14 @@ class StreamCampaign:
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
     environment: EnvironmentLog = field(default_factory=EnvironmentLog)  # seen, then not every replay: why
+    #: the cases the engine now running may reach: ``--max-cases`` shared between the engines of
+    #: ``both`` as the duration is (the stateless engine spent all 20,000 before the stateful one
+    #: began); None: ``max_cases``
+    case_cap: int | None = None
 
     def _over(self, deadline: float) -> bool:
-        return (time.monotonic() >= deadline or (self.max_cases is not None and self.cases >= self.max_cases)
+        cap = self.case_cap if self.case_cap is not None else self.max_cases
+        return (time.monotonic() >= deadline or (cap is not None and self.cases >= cap)
                 or (self.stop_after is not None and len(self.findings) >= self.stop_after) or self.stop())
 
     def note_tried(self, kind: str, data: bytes) -> None:
@@ -132,6 +137,8 @@ class StreamCampaign:
         try:
             for k, name in enumerate(engines):
                 deadline = t0 + self.duration * (k + 1) / len(engines) if self.duration is not None else float("inf")
+                if self.max_cases is not None:
+                    self.case_cap = self.max_cases * (k + 1) // len(engines)
                 if name == "stateful":
                     from fuzz.stream_stateful import StreamStatefulEngine
 
