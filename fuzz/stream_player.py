@@ -407,7 +407,8 @@ class Player:
             return nxt is not None and bool(nxt.updates())
 
         _wait_all(conns, shown, self.window)
-        hit = self.b.death_hit(0.0)
+        died = self.b.death_hit(0.0)  # the backend's record of a death, raised as the player's Hit
+        hit = Hit(died.signature, died.detail, died.stderr) if died is not None else None
         for conn in conns:
             v = conn.violation()
             if hit is None and v is not None:
