@@ -49,7 +49,9 @@ def test_restarts_after_counted_crashes_are_not_triage(tmp_path, spawn):
     crashes = next(f["count"] for f in s["findings"] if f["oracle"] == "crash")
     assert crashes > 1 and s["restarts"] >= crashes - 1, s  # each counted crash restarted the backend
     assert s["fuzz_s"] + s["triage_s"] + s["restart_s"] <= s["elapsed_s"] + 0.5, s
-    assert s["triage_share"] == round(s["triage_s"] / s["elapsed_s"], 3)
+    # the share is triage's own time over the elapsed time; the summary rounds all three, so
+    # the share recomputed from the rounded seconds may differ in its last digit (0.639/0.64)
+    assert abs(s["triage_share"] - s["triage_s"] / s["elapsed_s"]) <= 0.002, s
 
 
 @pytest.mark.slow
