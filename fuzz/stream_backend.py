@@ -34,7 +34,7 @@ from typing import Any
 
 from fuzz.stream_findings import TrafficLog
 from fuzz.stream_mutators import Case, valid_values
-from fuzz.stream_oracles import CLOSE_RULE, Signature, parse_sanitizer, same_finding
+from fuzz.stream_oracles import CLOSE_RULE, Signature, parse_cause, parse_sanitizer, same_finding
 from harness.config import RunConfig
 from harness.stream_session import Conn, StreamSession
 from spec import NSQD
@@ -128,8 +128,13 @@ class Backend:
         d = self.session.death(grace=grace)
         if d is None:
             return None
-        report = self.session.proc.sanitizer_report() if self.session.proc is not None else []
-        parsed = parse_sanitizer(report) if report else None
+        proc = self.session.proc
+        report = proc.sanitizer_report() if proc is not None else []
+        # named by what killed it: under halt_on_error=0 the first report is seldom that (a
+        # real backend's over-read on every frame hid its aborting number parse, its negative
+        # string length and its GPX parser's SEGV under one finding)
+        cause = proc.last_cause() if proc is not None else []
+        parsed = parse_cause(cause) if cause else (parse_sanitizer(report) if report else None)
         if parsed:
             kind, access, frames = parsed
         else:

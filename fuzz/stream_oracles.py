@@ -22,7 +22,9 @@ __all__ = ["CLOSE_RULE", "Signature", "desync_rule", "parse_sanitizer", "same_fi
 _ASAN = re.compile(r"ERROR: (\w+Sanitizer): ([\w-]+)")
 _UBSAN = re.compile(r"runtime error: (.*)")
 _ACCESS = re.compile(r"^(READ|WRITE) of size (\d+)")
-_FRAME = re.compile(r"#\d+ 0x[0-9a-f]+ in (\S+)")
+_FRAME = re.compile(r"#\d+ 0x[0-9a-f]+ in (.+)$")
+_TEMPLATE = re.compile(r"<[^<>]*>")
+_TERMINATE = re.compile(r"terminate called after throwing an instance of '([^']+)'")
 _SKIP = ("__interceptor_", "__asan", "__ubsan", "__sanitizer", "_start", "__libc_start", "abort", "raise",
          "__GI_", "__pthread_kill", "std::", "__cxa", "__gnu_cxx")
 
@@ -47,6 +49,32 @@ class Signature:
         return f"{self.oracle}: {self.kind}{access}{where} [{self.rule}]"
 
 
+def frame_name(text: str) -> str:
+    """The function a sanitizer stack frame names, from what follows its ``in``: its return
+    type, template arguments, parameters and source location dropped
+    (``char* std::__find_if<char*, ...>(char*, ...) /usr/include/...`` -> ``std::__find_if``,
+    ``tinyxml2::XMLNode::FirstChildElement(char const*) const /src/x.cpp:12`` ->
+    ``tinyxml2::XMLNode::FirstChildElement``, ``handle_frame /src/b.c:40`` -> ``handle_frame``)."""
+    text = text.split(" /", 1)[0]
+    for _ in range(16):  # nested templates, innermost first; bounded
+        stripped = _TEMPLATE.sub("", text)
+        if stripped == text:
+            break
+        text = stripped
+    text = text.split(" (", 1)[0].strip()  # "(module+0x...)" of a frame without symbols' source
+    head = text.split("(", 1)[0].strip()
+    return head.split()[-1] if head else ""
+
+
+def parse_cause(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None:
+    """(kind, access, frames) of a cause of death (``ManagedProcess.last_cause``): a sanitizer
+    report, or an uncaught C++ exception (``abort: uncaught std::length_error``), else None."""
+    m = _TERMINATE.search(lines[0]) if lines else None
+    if m:
+        return f"abort: uncaught {m.group(1)}", "", ()
+    return parse_sanitizer(lines)
+
+
 def parse_sanitizer(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None:
     """(kind, access, the target's top frames) of the first sanitizer report in ``lines``."""
     kind = access = ""
@@ -69,8 +97,9 @@ def parse_sanitizer(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None
         if a and not access:
             access = f"{a.group(1)} of size {a.group(2)}"
         f = _FRAME.search(line)
-        if f and not f.group(1).startswith(_SKIP):
-            frames.append(f.group(1))
+        name = frame_name(f.group(1)) if f else ""
+        if name and not name.startswith(_SKIP):
+            frames.append(name)
             if len(frames) == 5:
                 break
         if line.strip() == "" and frames:

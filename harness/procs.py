@@ -154,6 +154,10 @@ class _Tail:
         #: the head of the first sanitizer report (its ERROR line and what follows), kept
         #: whole however long the output grows after it
         self.report: list[str] = []
+        #: the head of the latest cause of death written: a sanitizer report, or C++'s
+        #: "terminate called after throwing ..." line (under ASan's halt_on_error=0 the first
+        #: report is seldom what killed the process)
+        self.last_cause: list[str] = []
         self.thread = threading.Thread(target=self._read, args=(stream,), daemon=True,
                                        name="mcp-conform-node-output")
         self.thread.start()
@@ -164,9 +168,14 @@ class _Tail:
                 text = raw.decode("utf-8", "replace").rstrip("\r\n")
                 text = text if len(text) <= LINE_CHARS else text[:LINE_CHARS] + " ..."
                 self.lines.append(text)
-                if (self.report and len(self.report) < REPORT_LINES) or \
-                        (not self.report and ("Sanitizer:" in text and "ERROR" in text or "runtime error:" in text)):
+                starts = "Sanitizer:" in text and "ERROR" in text or "runtime error:" in text
+                if (self.report and len(self.report) < REPORT_LINES) or (not self.report and starts):
                     self.report.append(text)
+                if starts or text.startswith("terminate called"):
+                    self.last_cause = [text]
+                elif self.last_cause and len(self.last_cause) < REPORT_LINES \
+                        and not self.last_cause[0].startswith("terminate called"):
+                    self.last_cause.append(text)
         with contextlib.suppress(OSError):
             stream.close()
 
@@ -205,6 +214,13 @@ class ManagedProcess:
             for t in (self._out, self._err):
                 t.thread.join(timeout=0.5)
         return self._out.tail(lines), self._err.tail(lines)
+
+    def last_cause(self) -> list[str]:
+        """The head of the latest sanitizer report, or the latest "terminate called after
+        throwing" line, whichever came last on stderr ([] if neither)."""
+        if not self.alive():
+            self._err.thread.join(timeout=0.5)
+        return list(self._err.last_cause)
 
     def sanitizer_report(self) -> list[str]:
         """The head of the first AddressSanitizer/UBSan report on stderr ([] if none)."""

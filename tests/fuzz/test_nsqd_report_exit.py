@@ -29,7 +29,7 @@ def _backend(exits_after: float, line_at: tuple[float, ...] = (0.0,) * len(REPOR
         age = time.monotonic() - born
         return [line for line, at in zip(REPORT, line_at, strict=True) if at <= age]
 
-    proc = SimpleNamespace(sanitizer_report=report, alive=lambda: time.monotonic() - born < exits_after)
+    proc = SimpleNamespace(sanitizer_report=report, last_cause=report, alive=lambda: time.monotonic() - born < exits_after)
 
     def death(grace: float = 0.0):
         end = time.monotonic() + grace
