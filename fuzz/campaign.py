@@ -143,8 +143,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     start = started if started is not None else time.monotonic()
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
-    res.node_period = getattr(target, "node_period", None)
-    res.timing = getattr(target, "timing", None)
+    res.node_period, res.timing = target.node_period, target.timing
     prog = Progress()
     stop_rule = cfg.extra.get("stop_on_rule")  # tests: stop once this rule is found
 

@@ -50,6 +50,7 @@ from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from harness.errors import SetupError
 from spec import NSQD
+from spec.profiles import NSQD_PROFILE
 from spec.stream_codec import encode
 
 __all__ = ["StreamCampaign", "replay_stream_finding"]
@@ -435,7 +436,7 @@ class StreamCampaign:
         by_class: dict[str, int] = {}
         for f in self.findings:
             by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-        s = {"protocol": "nsqd", "engine": self.engine, "seed": self.seed, "cases": self.cases,
+        s = {"protocol": NSQD_PROFILE.name, "engine": self.engine, "seed": self.seed, "cases": self.cases,
              "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
              "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
              "restart_s": round(self.restart_s, 2),
@@ -459,7 +460,7 @@ class StreamCampaign:
 def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
     d.mkdir(parents=True, exist_ok=True)
     data = b"".join(w.data for w in f.writes())
-    doc = {"protocol": "nsqd", "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
+    doc = {"protocol": NSQD_PROFILE.name, "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
            "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
            "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
            "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
@@ -473,7 +474,7 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
     (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
     (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
     how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", "nsqd", "--replay", str(d.resolve()), *how]) + "\n")
+    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", NSQD_PROFILE.name, "--replay", str(d.resolve()), *how]) + "\n")
 
 
 def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from spec import NSQD
+from spec.profiles import NSQD_PROFILE
 from traceio.reader import CaptureError, Metadata, StreamEvent, StreamFrame, open_capture
 from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 from traceio.tcp_pcap import write_tcp_pcap
@@ -60,7 +61,7 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
     rule = str(doc.get("rule", ""))
     order: dict[int, int] = {}  # the session's connection numbers, 1, 2, ... as they appear here
     records = [r._replace(conn=order.setdefault(r.conn, len(order) + 1)) for r in records]
-    meta = run_metadata(FUZZ_RECORDER, protocol="nsqd", role="backend", rule=rule,
+    meta = run_metadata(FUZZ_RECORDER, protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.default_role.name, rule=rule,
                         description=doc.get("description"), finding=doc)
     t0 = (records[0].t_ns - 1) if records else time.time_ns()
     t_end = (max(r.t_ns for r in records) + 1) if records else t0 + 1
@@ -75,7 +76,7 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
                 rec.stream_frame(r.direction, r.raw, conn=r.conn, peer=None, name=r.name, problem=r.problem,
                                  msg_id=r.raw[4] if len(r.raw) > 4 and not r.problem else None, t_ns=r.t_ns)
         rec.case_mark(case, "end", t_end, outcome="failed", rules=(rule,), evidence=doc.get("detail"))
-    write_tcp_pcap(d / "repro.pcap", records, NSQD.port("backend"))
+    write_tcp_pcap(d / "repro.pcap", records, NSQD.port(NSQD_PROFILE.default_role.name))
 
 
 def load_stream_finding(path: str | Path) -> dict[str, Any]:
@@ -99,7 +100,7 @@ def load_stream_finding(path: str | Path) -> dict[str, Any]:
                          and r.data.get("recorder") == FUZZ_RECORDER), None)
         except CaptureError as exc:
             raise ValueError(str(exc)) from None
-        if meta is None or meta.get("protocol") != "nsqd" or "finding" not in meta:
+        if meta is None or meta.get("protocol") != NSQD_PROFILE.name or "finding" not in meta:
             raise ValueError(f"{str(p)!r} is not an Nsqd finding's repro.mcap")
         text = meta["finding"]
     else:
@@ -111,6 +112,6 @@ def load_stream_finding(path: str | Path) -> dict[str, Any]:
         doc = json.loads(text)
     except (json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
-    if not isinstance(doc, dict) or doc.get("protocol") != "nsqd":
+    if not isinstance(doc, dict) or doc.get("protocol") != NSQD_PROFILE.name:
         raise ValueError(f"{str(p)!r} is not an Nsqd finding")
     return doc
