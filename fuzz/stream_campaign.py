@@ -55,7 +55,7 @@ from spec.stream_codec import encode
 
 __all__ = ["StreamCampaign", "replay_stream_finding"]
 
-_same, _ddmin, _CLOSE_RULE = same_finding, ddmin, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
+_same, _CLOSE_RULE = same_finding, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 
 @dataclass
 class Finding:
@@ -350,7 +350,7 @@ class StreamCampaign:
                     good, box["b"], _ = self.rep(box["b"], cs, sig, probe=True)
                     return good
 
-                culprit = _ddmin(list(suspects), still, budget=20)
+                culprit = ddmin(list(suspects), still, budget=20)
                 backend = box["b"]
             suspects = []
         for c in reversed(suspects):  # the newest suspect first
@@ -383,7 +383,7 @@ class StreamCampaign:
 
         writes = [w for c in culprit for w in c.writes]
         if sig.oracle != "effect":
-            writes = _ddmin(writes, test, budget=24)
+            writes = ddmin(writes, test, budget=24)
         if len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
             data = writes[0].data
             for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):  # a shorter tail, if it still reproduces
