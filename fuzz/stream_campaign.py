@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import random
-import shlex
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -35,6 +34,7 @@ from typing import Any
 
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
+from fuzz.finding_files import finding_dir, write_finding_doc
 from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
 from fuzz.stream_blame import (
     GRACE_S,
@@ -427,7 +427,7 @@ class StreamCampaign:
     def _add(self, f: Finding) -> None:
         self.findings.append(f)
         if self.out is not None:
-            write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target,
+            write_finding(finding_dir(self.out, len(self.findings)), f, self.spawn, self.target,
                           probe=f.probe or "probe" in f.note)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
@@ -458,7 +458,6 @@ class StreamCampaign:
 
 
 def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
-    d.mkdir(parents=True, exist_ok=True)
     data = b"".join(w.data for w in f.writes())
     doc = {"protocol": NSQD_PROFILE.name, "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
            "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
@@ -468,13 +467,12 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
            "no_input": f.no_input}
     if f.program is not None:
         doc["program"] = f.program
-    (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
     write_stream_repro(d, doc, f.traffic)
     (d / "input.hex").write_text(data.hex(" ") + "\n")
     (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
     (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
     how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", NSQD_PROFILE.name, "--replay", str(d.resolve()), *how]) + "\n")
+    write_finding_doc(d, doc, ["--protocol", NSQD_PROFILE.name, "--replay", "{dir}", *how])
 
 
 def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,
