@@ -47,6 +47,7 @@ def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noq
     d = store.add(f)
     assert d is not None and (d / "replay.txt").read_text().startswith("mcp-fuzz --replay ")
     assert load_finding(d).datagrams == f.datagrams
+    assert load_finding(d / "repro.mcap").datagrams == f.datagrams  # read as every finding is
     body = json.loads((d / "finding.json").read_text())
     assert body["rule"] == "MCP-ACK-4" and body["level"] == "MUST" and body["seed"] == 5
     recs = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Datagram)]
