@@ -29,7 +29,7 @@ from fuzz.findings import Finding, FindingStore, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
-from fuzz.workers import run_workers
+from fuzz.workers import Reporter, run_workers
 from harness.errors import SetupError
 from spec import SPEC
 
@@ -143,8 +143,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
     start = started if started is not None else time.monotonic()
     res = WorkerResult(cfg.worker)
     target = start_target(cfg)
-    res.node_period = getattr(target, "node_period", None)
-    res.timing = getattr(target, "timing", None)
+    res.node_period, res.timing = target.node_period, target.timing
     prog = Progress()
     stop_rule = cfg.extra.get("stop_on_rule")  # tests: stop once this rule is found
 
@@ -219,17 +218,11 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any
     """A ``--jobs`` worker process: its result (and findings) go back on ``q``. SIGINT is the
     parent's to handle: it sets ``stop_event``, and the worker ends its round and reports.
     ``started``: the parent's start (the monotonic clock is the machine's), its deadlines'."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    report = Reporter(q, cfg.worker)
     store = _LocalStore()
-    last = [0.0]
 
     def tick(p: Progress) -> None:
-        now = time.monotonic()
-        if now - last[0] >= 0.25:
-            last[0] = now
-            q.put(("progress", cfg.worker, (p.cases, p.fuzz_seconds, p.findings, p.restarts)))
+        report.progress(lambda: (p.cases, p.fuzz_seconds, p.findings, p.restarts))
 
     try:
         res = run_worker(cfg, store, tick, seeds, stop_event, started)
@@ -238,7 +231,7 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any
         res = WorkerResult(cfg.worker, error=str(exc))
     except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
         res = WorkerResult(cfg.worker, error=f"worker {cfg.worker} failed: {type(exc).__name__}: {exc}")
-    q.put(("done", cfg.worker, asdict(res)))
+    report.done(asdict(res))
 
 
 def _finding_from_json(d: dict[str, Any]) -> Finding:

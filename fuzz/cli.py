@@ -25,10 +25,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from fuzz.config import ENGINES, FuzzConfig, default_engine
+from fuzz.config import ENGINES, FuzzConfig, default_engine, engines
 from fuzz.environment import environment_lines
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
+from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
 
 __all__ = ["build_parser", "exit_code", "main"]
 
@@ -55,8 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "
                    "{listen_host} {listen_port} {broadcast} {id} {mavlink}")
     p.add_argument("--listen", metavar="HOST:PORT", help="where the fuzzer receives and sends from")
-    p.add_argument("--role", metavar="drone|manager", default="drone",
-                   help="the role of the node under fuzz (manager: the fuzzer plays drones; stateless engine)")
+    p.add_argument("--role", metavar="|".join(pick()[0].role_names), default=None,
+                   help="the role of the node under fuzz (default: the protocol's first; manager: the "
+                        "fuzzer plays drones; stateless engine)")
     p.add_argument("--target-id", metavar="N", help="the node's MCP ID (default: from its Mission_Ready, else 1)")
     p.add_argument("--mavlink", action="store_true", help="start the simulated vehicle and pass {mavlink}")
     p.add_argument("--seed", metavar="N", help=f"campaign seed (default {DEFAULT_SEED})")
@@ -82,8 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
     p.add_argument("--status-every", metavar="S", help="off a terminal, a plain status line every S seconds "
                                                        "(default 10)")
-    p.add_argument("--protocol", metavar="mcp|nsqd", default="mcp", choices=("mcp", "nsqd"),
-                   help="mcp (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
+    p.add_argument("--protocol", metavar="|".join(PROFILES), default=DEFAULT_PROTOCOL, choices=tuple(PROFILES),
+                   help=f"{DEFAULT_PROTOCOL} (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
                         "(--spawn CMD with {target_host} {target_port}, or --target HOST:PORT)")
     return p
 
@@ -162,9 +164,11 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
             raise UsageError("--spawn: the command is empty")
         cfg.spawn = ns.spawn
     cfg.target_id = _int(ns.target_id, "--target-id", 0, 0xFFFF)
-    if ns.role not in ("drone", "manager"):
-        raise UsageError(f"--role: {ns.role!r} is not one of drone, manager")
-    cfg.role = ns.role
+    try:
+        prof, role = pick(ns.protocol, ns.role)
+    except ProfileError as exc:
+        raise UsageError(f"--role: {exc}") from None
+    cfg.protocol, cfg.role = prof.name, role.name
     cfg.mavlink = ns.mavlink
     seed = _int(ns.seed, "--seed", 0, 2**63 - 1)
     cfg.seed = DEFAULT_SEED if seed is None else seed
@@ -172,13 +176,13 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg.duration = _float(ns.duration, "--duration")
     if ns.status_every is not None:
         cfg.extra["status_every"] = _float(ns.status_every, "--status-every")
-    engine = default_engine(ns.role, ns.protocol) if ns.engine is None else ns.engine
+    engine = default_engine(cfg.role, cfg.protocol) if ns.engine is None else ns.engine
     if engine not in ENGINES:
         raise UsageError(f"--engine: {engine!r} is not one of {', '.join(ENGINES)}")
     cfg.engine = engine
-    if cfg.role == "manager" and cfg.engine != "stateless":
-        raise UsageError("--engine: a manager is fuzzed by the stateless engine only "
-                         "(the stateful engine's programs are a manager's commands to a drone)")
+    if engine not in engines(cfg.protocol, cfg.role):
+        raise UsageError(f"--engine: a {cfg.role} is fuzzed by the {', '.join(engines(cfg.protocol, cfg.role))} "
+                         "engine only (the stateful engine's programs are a manager's commands to a drone)")
     cfg.jobs = _int(ns.jobs, "--jobs", 1, 256) or 1
     if cfg.jobs > 1 and cfg.target is not None:
         raise UsageError("--jobs: each worker needs its own node; use --spawn (or the embedded default), not --target")
@@ -211,8 +215,8 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         cfg.impair = impair_option(ns.impair)
     except ImpairmentError as exc:
         raise UsageError(str(exc)) from None
-    if cfg.impair is not None and (cfg.role != "drone" or ns.protocol != "mcp"):
-        raise UsageError("--impair: only a drone (MCP) is fuzzed through a bad link yet")
+    if cfg.impair is not None and not role.impairable:
+        raise UsageError(f"--impair: a {cfg.role} ({cfg.protocol}) is not fuzzed through a bad link yet")
     if ns.live is not None:
         from traceio.live import LiveError, parse_live
 
@@ -221,7 +225,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         except LiveError as exc:
             raise UsageError(str(exc)) from None
         for given, why in ((cfg.jobs > 1, "one worker's run is served: use --jobs 1"),
-                           (ns.protocol != "mcp", "not available with --protocol nsqd"),
+                           (role.fuzz_target is None, f"not available with --protocol {cfg.protocol}"),
                            (ns.replay, "not available with --replay")):
             if given:
                 raise UsageError(f"--live: {why}")
@@ -237,7 +241,9 @@ def replay_args(cfg: FuzzConfig) -> list[str]:
         out += ["--spawn", cfg.spawn]
     if cfg.mavlink:
         out.append("--mavlink")
-    if cfg.role != "drone":
+    if cfg.protocol != DEFAULT_PROTOCOL:
+        out += ["--protocol", cfg.protocol]
+    if cfg.role != pick(cfg.protocol)[1].name:
         out += ["--role", cfg.role]
     for opt, v in (("--target-id", cfg.target_id), ("--rto", cfg.rto), ("--ack-window", cfg.ack_window),
                    ("--broadcast-id", cfg.broadcast_id)):
@@ -256,8 +262,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    if ns.protocol == "nsqd":
-        return _nsqd(ns, cfg)
+    if pick(cfg.protocol, cfg.role)[1].fuzz_target is None:  # fuzzed by its own campaign
+        return _stream(ns, cfg)
     if ns.replay:
         from fuzz.replay_cli import replay_finding
 
@@ -307,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return exit_code(store.order, strict=ns.strict)
 
 
-def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
+def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
     """``--protocol nsqd``: the stream campaign (fuzz.stream_campaign) or a finding's replay."""
     from fuzz.stream_campaign import StreamCampaign, replay_stream_finding
 
@@ -317,9 +323,9 @@ def _nsqd(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         except SetupError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
-    for opt, given in (("--mavlink", ns.mavlink), ("--role", ns.role != "drone"), ("--seeds", ns.seeds)):
+    for opt, given in (("--mavlink", ns.mavlink), ("--seeds", ns.seeds)):
         if given:
-            print(f"{PROG}: error: {opt}: not available with --protocol nsqd", file=sys.stderr)
+            print(f"{PROG}: error: {opt}: not available with --protocol {cfg.protocol}", file=sys.stderr)
             return 2
     from fuzz.stream_progress import StreamLive
 

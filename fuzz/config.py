@@ -21,13 +21,30 @@ ENGINES = ("stateless", "stateful", "both")
 DEFAULT_ENGINE = "both"
 
 
-def default_engine(role: str = "drone", protocol: str = "mcp") -> str:
+def target_class(protocol: str | None, role: str | None) -> Any:
+    """The fuzz target class the role profile names (``spec.profiles``, ``fuzz_target``);
+    None: the protocol is fuzzed by its own campaign."""
+    from spec.profiles import pick, resolve
+
+    path = pick(protocol, role)[1].fuzz_target
+    return None if path is None else resolve(path)
+
+
+def engines(protocol: str | None = None, role: str | None = None) -> tuple[str, ...]:
+    """The engines that fuzz the node of ``protocol`` and ``role`` (the target's ``ENGINES``;
+    a protocol fuzzed by its own campaign runs all of :data:`ENGINES`)."""
+    cls = target_class(protocol, role)
+    return ENGINES if cls is None else tuple(cls.ENGINES)
+
+
+def default_engine(role: str | None = None, protocol: str | None = None) -> str:
     """``--engine``'s default (the one source the command line reads): :data:`DEFAULT_ENGINE`
     for a drone and for an Nsqd backend (its stateful engine's programs pipelined, judged at
     their end: 300-900 cases/s against the C backend, bench/bench_fuzz.py --protocol nsqd;
-    the faults of a second client and of a cut frame are its); a manager is fuzzed by the
-    stateless engine only (the stateful engine's programs are a manager's moves)."""
-    return "stateless" if role == "manager" else DEFAULT_ENGINE
+    the faults of a second client and of a cut frame are its); a target that cannot take it
+    (a manager: the stateful engine's programs are a manager's moves) its first engine."""
+    allowed = engines(protocol, role)
+    return DEFAULT_ENGINE if DEFAULT_ENGINE in allowed else allowed[0]
 
 
 @dataclass
@@ -51,7 +68,10 @@ class FuzzConfig:
     ack_window: float | None = None
     broadcast_id: int | None = None
     worker: int = 0  # which of the --jobs workers this is
-    role: str = "drone"  # the role of the node under fuzz (manager: the fuzzer plays drones)
+    #: the protocol and role of the node under fuzz (``spec.profiles.pick``; manager: the
+    #: fuzzer plays drones)
+    protocol: str = "mcp"
+    role: str = "drone"
     #: ``--impair SPEC``: the fuzzer's own socket edge is a bad link (a ``harness.impair.ImpairSpec``);
     #: an exchange it touched is not judged (``fuzz.oracles.judge_exchange``)
     impair: Any = None

@@ -1,16 +1,28 @@
-"""Zeller's delta debugging, for minimising a finding's input (issue 21: frames, bytes, a
-stateful program's moves)."""
+"""Zeller's delta debugging, the one minimiser of every protocol's findings (issue 21;
+issue 37): MCP's datagrams (``fuzz.triage``), Nsqd's frames, writes and suspects
+(``fuzz.stream_campaign``) and a stateful program's moves (``fuzz.stream_stateful``)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 __all__ = ["ddmin"]
 
 
-def ddmin(items: list[Any], test: Any, budget: int) -> list[Any]:
-    """Zeller's delta debugging, bounded by ``budget`` tests."""
-    n, spent = 2, 0
+def ddmin(items: list[Any], test: Callable[[list[Any]], bool], budget: int, singles: int = 0) -> list[Any]:
+    """The shortest subsequence of ``items`` that ``test`` still holds for, by Zeller's ddmin
+    (complements of ever smaller chunks), within ``budget`` tests. ``singles``: first try up
+    to that many items alone, the last first (the likeliest culprits, and the usual minimal
+    reproducer of a datagram campaign)."""
+    items = list(items)
+    spent = 0
+    if len(items) > 1:
+        for item in reversed(items[-singles:] if singles else []):
+            spent += 1
+            if test([item]):
+                return [item]
+    n = 2
     while len(items) >= 2 and spent < budget:
         chunk = max(1, len(items) // n)
         reduced = False

@@ -16,13 +16,13 @@ is written, the others are counted. Under ``--out DIR`` each group is ``finding-
 from __future__ import annotations
 
 import json
-import shlex
 import threading
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
 from fuzz.oracles import Flaw, rule_level
 from spec import SPEC
 
@@ -96,20 +96,16 @@ def finding_from_json(d: Any) -> Finding:
 
 
 def load_finding(path: str | Path) -> Finding:
-    """A finding from ``finding-N/`` or its ``finding.json``; ValueError says what is wrong."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / "finding.json"
+    """A finding from ``finding-N/``, its ``finding.json`` or its repro.mcap
+    (``fuzz.finding_files``); ValueError says what is wrong."""
     try:
-        d = json.loads(p.read_text())
-    except OSError as exc:
-        raise ValueError(f"--replay: cannot read {str(p)!r}: {exc.strerror}") from None
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise ValueError(f"--replay: {str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
+        d = read_finding_doc(path)
+    except ValueError as exc:
+        raise ValueError(f"--replay: {exc}") from None
     try:
         return finding_from_json(d)
     except ValueError as exc:
-        raise ValueError(f"--replay: {str(p)!r} is not a finding: {exc}") from None
+        raise ValueError(f"--replay: {str(path)!r} is not a finding: {exc}") from None
 
 
 class FindingStore:
@@ -147,8 +143,7 @@ class FindingStore:
             n = len(self.order)
         if self.out is None:
             return None
-        d = self.out / f"finding-{n}"
-        d.mkdir(parents=True, exist_ok=True)
+        d = finding_dir(self.out, n)
         self._write(d, finding, traffic)
         return d
 
@@ -163,9 +158,7 @@ class FindingStore:
 
     def _write(self, d: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
                ) -> None:
-        (d / "finding.json").write_text(json.dumps(f.to_json(), indent=2) + "\n")
-        cmd = ["mcp-fuzz", "--replay", str(d.resolve())] + self.replay_args
-        (d / "replay.txt").write_text(shlex.join(cmd) + "\n")
+        write_finding_doc(d, f.to_json(), ["--replay", "{dir}", *self.replay_args])
         write_repro(d / "repro.mcap", f, traffic)
 
     def by_rule(self) -> dict[str, int]:

@@ -40,6 +40,9 @@ class ManagerFuzzTarget(TargetBase):
     """One manager under fuzz: a manager session, readiness instead of the drone's startup,
     and a Mission_Ready for the liveness probe."""
 
+    #: the stateful engine's programs are a manager's commands to a drone
+    ENGINES = ("stateless",)
+
     def __init__(self, cfg: FuzzConfig) -> None:  # noqa: D107 - no drone session
         self.cfg = cfg
         self.run_cfg = run_config(cfg)

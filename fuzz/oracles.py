@@ -260,8 +260,7 @@ def judge_exchange(inputs: Sequence[Input], target: Any, mark: Any, probe: Any) 
     per input (:func:`judge_replies`), each missing ACK observed as MCP-ACK-1 says
     (:func:`observe_missing_acks`), then its liveness (:func:`judge_liveness`) last."""
     drv = target.driver
-    spoiled = getattr(target, "impairment_spoiled", None)
-    if spoiled is not None and spoiled():
+    if target.impairment_spoiled():
         # --impair: the link dropped, copied or reordered part of this exchange; what the
         # node did is not judged (a dropped ACK is not MCP-ACK-1), only a death stands
         dead = judge_liveness(inputs, True, target.fate())

@@ -16,7 +16,8 @@ from fuzz.config import FuzzConfig
 from fuzz.environment import environment_lines
 from fuzz.findings import FindingStore
 
-__all__ = ["STATUS_S", "LiveDisplay", "LiveProgress", "status_line", "summary_line"]
+__all__ = ["STATUS_S", "LiveDisplay", "LiveProgress", "figures_line", "figures_text", "status_line",
+           "summary_line"]
 
 STATUS_S = 10.0  # off a terminal: a plain status line this often
 _Display = TypeVar("_Display", bound="LiveDisplay")
@@ -44,10 +45,27 @@ def _reasons(by_reason: dict[str, int]) -> str:
     return f" ({'; '.join(f'{n} {why}' for why, n in by_reason.items())})" if by_reason else ""
 
 
+def figures_line(label: str, elapsed: float, cases: int, rate: float, findings: str, restarts: int) -> str:
+    """A campaign's live figures as one plain line (a CI log's progress), whatever its
+    protocol: ``label`` its engine (and protocol), ``findings`` their count (and classes)."""
+    return (f"mcp-fuzz: {elapsed:,.0f} s  {label}  cases {cases:,}  {rate:,.0f} judged cases/s  "
+            f"findings {findings}  restarts {restarts}")
+
+
+def figures_text(label: str, elapsed: float, cases: int, rate: float, findings: str, found: bool,
+                 restarts: int) -> Any:
+    """The same figures as the terminal panel's first line (rich)."""
+    from rich.text import Text
+
+    return Text.assemble(
+        ("mcp-fuzz ", "bold"), (f"{label}  ", "cyan"), f"cases {cases:,}  ",
+        (f"{rate:,.0f} judged cases/s  ", "green"), (f"findings {findings}  ", "red" if found else ""),
+        f"restarts {restarts}  ", f"elapsed {elapsed:,.1f} s")
+
+
 def status_line(engine: str, p: Progress) -> str:
-    """The live figures as one plain line (a CI log's progress)."""
-    return (f"mcp-fuzz: {p.elapsed:,.0f} s  {engine}  cases {p.cases:,}  "
-            f"{p.judged_rate:,.0f} judged cases/s  findings {p.findings}  restarts {p.restarts}")
+    """MCP's live figures as one plain line."""
+    return figures_line(engine, p.elapsed, p.cases, p.judged_rate, str(p.findings), p.restarts)
 
 
 class LiveDisplay:
@@ -109,13 +127,8 @@ class LiveProgress(LiveDisplay):
         return self.render(Progress())
 
     def render(self, p: Progress) -> Any:
-        from rich.text import Text
-
-        return Text.assemble(
-            ("mcp-fuzz ", "bold"), (f"{p.engine or self.cfg.engine}  ", "cyan"),
-            f"cases {p.cases:,}  ", (f"{p.judged_rate:,.0f} judged cases/s  ", "green"),
-            (f"findings {p.findings}  ", "red" if p.findings else ""),
-            f"restarts {p.restarts}  ", f"elapsed {p.elapsed:,.1f} s")
+        return figures_text(p.engine or self.cfg.engine, p.elapsed, p.cases, p.judged_rate, str(p.findings),
+                            bool(p.findings), p.restarts)
 
     def status(self, p: Progress) -> str:
         return status_line(p.engine or self.cfg.engine, p)

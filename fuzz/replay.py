@@ -11,7 +11,7 @@ a sentinel passthrough frame after it shows when every earlier forward has arriv
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from fuzz.oracles import (
@@ -27,7 +27,7 @@ from fuzz.target_base import REPLAY, TargetBase
 from spec.codec import Action
 from vehicle.probe import make_probe, probe_token
 
-__all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence", "shrink"]
+__all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence"]
 
 _ACK = int(Action.ACK)
 SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
@@ -143,37 +143,3 @@ def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = 
         out.flaws += mon.feed(out.traffic)
         out.flaws += mon.advance(time.time_ns())
     return out
-
-
-def shrink(datagrams: list[bytes], still_fails: Callable[[list[bytes]], bool],
-           budget: int = 40) -> list[bytes]:
-    """The shortest subsequence that still fails, by delta debugging (Zeller's ddmin), within
-    ``budget`` replays: single datagrams first, the usual minimal reproducer."""
-    seq = list(datagrams)
-    calls = 0
-    if len(seq) > 1:
-        for d in reversed(seq):  # the last ones are the likeliest culprits
-            if calls >= min(budget // 2, 8):
-                break
-            calls += 1
-            if still_fails([d]):
-                return [d]
-    n = 2
-    while len(seq) >= 2 and calls < budget:
-        chunk = max(1, len(seq) // n)
-        parts = [seq[i:i + chunk] for i in range(0, len(seq), chunk)]
-        reduced = False
-        for i in range(len(parts)):
-            if calls >= budget:
-                break
-            complement = [d for j, p in enumerate(parts) if j != i for d in p]
-            calls += 1
-            if complement and still_fails(complement):
-                seq, n, reduced = complement, max(n - 1, 2), True
-                break
-        if not reduced:
-            if n >= len(seq):
-                break
-            n = min(len(seq), 2 * n)
-    return seq
-

@@ -38,6 +38,7 @@ from fuzz.stream_oracles import CLOSE_RULE, Signature, parse_cause, parse_saniti
 from harness.config import RunConfig
 from harness.stream_session import Conn, StreamSession
 from spec import NSQD
+from spec.profiles import NSQD_PROFILE
 from spec.stream_codec import encode
 
 __all__ = ["Backend", "Hit", "message_names"]
@@ -60,7 +61,8 @@ class Backend:
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None) -> None:
         self.target, self.spawn = target, spawn
-        self.session = StreamSession(RunConfig(target=target, spawn=spawn))
+        self.session = StreamSession(RunConfig(protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.default_role.name,
+                                               target=target, spawn=spawn))
         self.session.start()
         self.conn: Conn | None = None
         self.connections = 0
@@ -124,11 +126,17 @@ class Backend:
         self.clean = True  # only frames a backend handles were sent on it (a close is then a finding)
         return self.conn
 
+    @property
+    def process(self) -> Any:
+        """The spawned backend's process (``harness.process.ManagedProcess``), None: attached."""
+        node = self.session.node
+        return node.process if node is not None else None
+
     def death_hit(self, grace: float) -> Hit | None:
         d = self.session.death(grace=grace)
         if d is None:
             return None
-        proc = self.session.proc
+        proc = self.process
         report = proc.sanitizer_report() if proc is not None else []
         # named by what killed it: under halt_on_error=0 the first report is seldom that (a
         # real backend's over-read on every frame hid its aborting number parse, its negative
@@ -146,7 +154,7 @@ class Backend:
         writes last; up to 5 s, or 1 s without a new line: symbolising its stacks takes a
         while on a loaded machine), a death if the process then exits (ASan's default), else
         the report of a process still running (halt_on_error=0)."""
-        proc = self.session.proc
+        proc = self.process
         assert proc is not None
         report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
         while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
@@ -227,7 +235,7 @@ class Backend:
         hit = self.death_hit(0.03 if closed_by_backend and self.clean else 0.0)
         if hit is not None:
             return hit
-        proc = self.session.proc
+        proc = self.process
         if proc is not None:
             report = proc.sanitizer_report()
             if len(report) > self.reports_seen:  # a report: the process may be on its way out
@@ -404,7 +412,7 @@ class _Spare:
             b = self.future.result()
         except Exception:  # noqa: BLE001 - see above
             return None
-        if b.session.proc is not None and not b.session.proc.alive():
+        if b.process is not None and not b.process.alive():
             b.close()
             return None
         return b
@@ -486,7 +494,7 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tu
         # taken whole and followed to the exit (Backend.report_hit). A loaded CI host took
         # more than the 0.5 s this once waited: the report, read half-way, made a crash
         # "sanitizer" and the replay "did not reproduce" (test_nsqd_repro)
-        proc, end = b.session.proc, time.monotonic() + REPLAY_DEATH_S
+        proc, end = b.process, time.monotonic() + REPLAY_DEATH_S
         while hit is None and time.monotonic() < end:
             hit = b.death_hit(0.05)
             if hit is None and proc is not None and proc.sanitizer_report():

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import random
-import shlex
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -35,6 +34,7 @@ from typing import Any
 
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
+from fuzz.finding_files import finding_dir, write_finding_doc
 from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
 from fuzz.stream_blame import (
     GRACE_S,
@@ -50,11 +50,12 @@ from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from harness.errors import SetupError
 from spec import NSQD
+from spec.profiles import NSQD_PROFILE
 from spec.stream_codec import encode
 
 __all__ = ["StreamCampaign", "replay_stream_finding"]
 
-_same, _ddmin, _CLOSE_RULE = same_finding, ddmin, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
+_same, _CLOSE_RULE = same_finding, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 
 @dataclass
 class Finding:
@@ -349,7 +350,7 @@ class StreamCampaign:
                     good, box["b"], _ = self.rep(box["b"], cs, sig, probe=True)
                     return good
 
-                culprit = _ddmin(list(suspects), still, budget=20)
+                culprit = ddmin(list(suspects), still, budget=20)
                 backend = box["b"]
             suspects = []
         for c in reversed(suspects):  # the newest suspect first
@@ -382,7 +383,7 @@ class StreamCampaign:
 
         writes = [w for c in culprit for w in c.writes]
         if sig.oracle != "effect":
-            writes = _ddmin(writes, test, budget=24)
+            writes = ddmin(writes, test, budget=24)
         if len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
             data = writes[0].data
             for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):  # a shorter tail, if it still reproduces
@@ -426,7 +427,7 @@ class StreamCampaign:
     def _add(self, f: Finding) -> None:
         self.findings.append(f)
         if self.out is not None:
-            write_finding(self.out / f"finding-{len(self.findings)}", f, self.spawn, self.target,
+            write_finding(finding_dir(self.out, len(self.findings)), f, self.spawn, self.target,
                           probe=f.probe or "probe" in f.note)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
@@ -435,7 +436,7 @@ class StreamCampaign:
         by_class: dict[str, int] = {}
         for f in self.findings:
             by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-        s = {"protocol": "nsqd", "engine": self.engine, "seed": self.seed, "cases": self.cases,
+        s = {"protocol": NSQD_PROFILE.name, "engine": self.engine, "seed": self.seed, "cases": self.cases,
              "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
              "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
              "restart_s": round(self.restart_s, 2),
@@ -457,9 +458,8 @@ class StreamCampaign:
 
 
 def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
-    d.mkdir(parents=True, exist_ok=True)
     data = b"".join(w.data for w in f.writes())
-    doc = {"protocol": "nsqd", "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
+    doc = {"protocol": NSQD_PROFILE.name, "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
            "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
            "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
            "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
@@ -467,13 +467,12 @@ def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int
            "no_input": f.no_input}
     if f.program is not None:
         doc["program"] = f.program
-    (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
     write_stream_repro(d, doc, f.traffic)
     (d / "input.hex").write_text(data.hex(" ") + "\n")
     (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
     (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
     how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", "--protocol", "nsqd", "--replay", str(d.resolve()), *how]) + "\n")
+    write_finding_doc(d, doc, ["--protocol", NSQD_PROFILE.name, "--replay", "{dir}", *how])
 
 
 def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,

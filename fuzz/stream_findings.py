@@ -15,13 +15,14 @@ directory) replays the finding as ``mcp-fuzz --protocol nsqd --replay`` does.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
 
+from fuzz.finding_files import read_finding_doc
 from spec import NSQD
-from traceio.reader import CaptureError, Metadata, StreamEvent, StreamFrame, open_capture
+from spec.profiles import NSQD_PROFILE
+from traceio.reader import StreamEvent, StreamFrame
 from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 from traceio.tcp_pcap import write_tcp_pcap
 
@@ -60,7 +61,7 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
     rule = str(doc.get("rule", ""))
     order: dict[int, int] = {}  # the session's connection numbers, 1, 2, ... as they appear here
     records = [r._replace(conn=order.setdefault(r.conn, len(order) + 1)) for r in records]
-    meta = run_metadata(FUZZ_RECORDER, protocol="nsqd", role="backend", rule=rule,
+    meta = run_metadata(FUZZ_RECORDER, protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.default_role.name, rule=rule,
                         description=doc.get("description"), finding=doc)
     t0 = (records[0].t_ns - 1) if records else time.time_ns()
     t_end = (max(r.t_ns for r in records) + 1) if records else t0 + 1
@@ -75,42 +76,15 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
                 rec.stream_frame(r.direction, r.raw, conn=r.conn, peer=None, name=r.name, problem=r.problem,
                                  msg_id=r.raw[4] if len(r.raw) > 4 and not r.problem else None, t_ns=r.t_ns)
         rec.case_mark(case, "end", t_end, outcome="failed", rules=(rule,), evidence=doc.get("detail"))
-    write_tcp_pcap(d / "repro.pcap", records, NSQD.port("backend"))
+    write_tcp_pcap(d / "repro.pcap", records, NSQD.port(NSQD_PROFILE.default_role.name))
 
 
 def load_stream_finding(path: str | Path) -> dict[str, Any]:
     """An Nsqd finding's ``finding.json`` document, from ``finding-N/``, its finding.json,
-    its repro.mcap (the metadata record) or its repro.pcap (the finding.json beside it);
-    ValueError (one line) when it is none of those."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / "finding.json"
-    try:
-        with open(p, "rb") as f:
-            head = f.read(8)
-    except OSError as exc:
-        raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
-    if head[:4] in (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d") \
-            and (p.parent / "finding.json").is_file():  # a repro.pcap: its finding beside it
-        p, head = p.parent / "finding.json", b"{"
-    if head.startswith(b"\x89MCAP"):
-        try:
-            meta = next((r.data for r in open_capture(p) if type(r) is Metadata
-                         and r.data.get("recorder") == FUZZ_RECORDER), None)
-        except CaptureError as exc:
-            raise ValueError(str(exc)) from None
-        if meta is None or meta.get("protocol") != "nsqd" or "finding" not in meta:
-            raise ValueError(f"{str(p)!r} is not an Nsqd finding's repro.mcap")
-        text = meta["finding"]
-    else:
-        try:
-            text = p.read_text(errors="replace")
-        except OSError as exc:
-            raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
-    try:
-        doc = json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise ValueError(f"{str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
-    if not isinstance(doc, dict) or doc.get("protocol") != "nsqd":
-        raise ValueError(f"{str(p)!r} is not an Nsqd finding")
+    its repro.mcap (the metadata record) or its repro.pcap (the finding.json beside it),
+    read as every finding is (``fuzz.finding_files``); ValueError (one line) when it is none
+    of those, or another protocol's."""
+    doc = read_finding_doc(path)
+    if doc.get("protocol") != NSQD_PROFILE.name:
+        raise ValueError(f"{str(path)!r} is not an Nsqd finding")
     return doc

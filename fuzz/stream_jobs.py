@@ -15,14 +15,13 @@ waiting at the campaign's bound (``fuzz.budget.campaign_end``: ``--duration`` pl
 
 from __future__ import annotations
 
-import signal
 import time
 from types import SimpleNamespace
 from typing import Any
 
 from fuzz.budget import campaign_end
 from fuzz.stream_campaign import StreamCampaign
-from fuzz.workers import run_workers
+from fuzz.workers import Reporter, run_workers
 
 __all__ = ["run_stream_jobs"]
 
@@ -38,22 +37,15 @@ def _snapshot(c: StreamCampaign) -> dict[str, Any]:
 
 
 def _worker(kw: dict[str, Any], worker: int, q: Any, stop: Any) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent's to handle: it sets ``stop``
+    report = Reporter(q, worker)
     c = StreamCampaign(**kw, out=None, worker=worker, stop=stop.is_set)
-    last = [0.0]
-
-    def tick(camp: StreamCampaign) -> None:
-        if time.monotonic() - last[0] >= 0.25:
-            last[0] = time.monotonic()
-            q.put(("progress", worker, _snapshot(camp)))
-
-    c.tick = tick
+    c.tick = lambda camp: report.progress(lambda: _snapshot(camp))
     error = None
     try:
         c.run()
     except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
         error = f"worker {worker}: {type(exc).__name__}: {exc}"
-    q.put(("done", worker, {**_snapshot(c), "findings": c.findings, "error": error}))
+    report.done({**_snapshot(c), "findings": c.findings, "error": error})
 
 
 def run_stream_jobs(parent: StreamCampaign, jobs: int, live: Any = None) -> dict[str, Any]:

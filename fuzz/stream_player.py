@@ -305,7 +305,7 @@ class Player:
         hit = self.b.death_hit(0.03 if closed else 0.0)
         if hit is not None:
             raise Hit(hit.signature, hit.detail, hit.stderr)
-        proc = self.b.session.proc
+        proc = self.b.process
         if proc is not None:
             if len(proc.sanitizer_report()) > self.b.reports_seen:
                 hit = self.b.report_hit()

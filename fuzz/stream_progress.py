@@ -13,8 +13,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fuzz.progress import STATUS_S, LiveDisplay
+from fuzz.progress import STATUS_S, LiveDisplay, figures_line, figures_text
 from spec import NSQD
+from spec.profiles import NSQD_PROFILE
 
 __all__ = ["STATUS_S", "StreamLive", "by_class", "status_line", "tried_table"]
 
@@ -32,12 +33,15 @@ def _classes(view: Any) -> str:
     return ", ".join(f"{k} {n}" for k, n in sorted(by_class(view.findings).items())) or "none"
 
 
-def status_line(view: Any) -> str:
-    """The live figures as one plain line (a CI log's progress)."""
+def _figures(view: Any) -> tuple[str, float, int, float, str]:
     rate = view.cases / view.fuzz_s if view.fuzz_s > 0 else 0.0
-    return (f"mcp-fuzz: {time.monotonic() - view.started:,.0f} s  nsqd {view.engine}  cases {view.cases:,}  "
-            f"{rate:,.0f} judged cases/s  findings {len(view.findings)} ({_classes(view)})  "
-            f"restarts {view.restarts}")
+    return (f"{NSQD_PROFILE.name} {view.engine}", time.monotonic() - view.started, view.cases, rate,
+            f"{len(view.findings)} ({_classes(view)})")
+
+
+def status_line(view: Any) -> str:
+    """The live figures as one plain line (a CI log's progress: ``fuzz.progress.figures_line``)."""
+    return figures_line(*_figures(view), view.restarts)
 
 
 def tried_table(tried: dict[str, dict[str, int]]) -> tuple[list[str], list[tuple[str, list[int]]]]:
@@ -60,7 +64,7 @@ class StreamLive(LiveDisplay):
     def first(self) -> Any:
         from rich.text import Text
 
-        return Text("mcp-fuzz nsqd: starting")
+        return Text(f"mcp-fuzz {NSQD_PROFILE.name}: starting")
 
     def status(self, view: Any) -> str:
         return status_line(view)
@@ -68,14 +72,8 @@ class StreamLive(LiveDisplay):
     def render(self, view: Any) -> Any:
         from rich.console import Group
         from rich.table import Table
-        from rich.text import Text
 
-        rate = view.cases / view.fuzz_s if view.fuzz_s > 0 else 0.0
-        line = Text.assemble(
-            ("mcp-fuzz ", "bold"), (f"nsqd {view.engine}  ", "cyan"), f"cases {view.cases:,}  ",
-            (f"{rate:,.0f} judged cases/s  ", "green"),
-            (f"findings {len(view.findings)} ({_classes(view)})  ", "red" if view.findings else ""),
-            f"restarts {view.restarts}  ", f"elapsed {time.monotonic() - view.started:,.1f} s")
+        line = figures_text(*_figures(view), bool(view.findings), view.restarts)
         cols, rows = tried_table(view.tried)
         table = Table(title="cases sent: mutation kind x message id", title_justify="left", box=None,
                       padding=(0, 1), show_edge=False)

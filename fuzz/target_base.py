@@ -98,6 +98,13 @@ class TargetBase:
     #: what the oracles had to do to observe as the rules say, counted (``fuzz.oracles``:
     #: missing ACKs retransmitted, and answered on a retransmission)
     observations: dict[str, int]
+    #: the engines that fuzz this role (``--engine``; the first is its default when
+    #: it cannot take ``both``)
+    ENGINES: tuple[str, ...] = ("stateless", "stateful", "both")
+    #: the node's retransmission period, measured at its first start (None: not measured),
+    #: and the sentence saying it disagrees with --rto (None: it agrees)
+    node_period: float | None = None
+    timing: str | None = None
 
     def count_restart(self, reason: str) -> None:
         """One more restart, and why (summary.json's ``restarts_by_reason``, the last line)."""
@@ -113,8 +120,8 @@ class TargetBase:
         an observation (a drop, a copy, a reordering, a corruption, a long delay); [] on a
         clean link. Each call starts the next window, and counts a spoiled one
         (``unjudged``)."""
-        drv = getattr(self.session, "driver", None)
-        link = getattr(drv, "link", None)
+        drv = self.session.driver
+        link = drv.link if drv is not None else None
         if link is None:
             return []
         now = time.monotonic()

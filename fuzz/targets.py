@@ -1,12 +1,11 @@
-"""The node under fuzz of the campaign's role: the drone target (``fuzz.target``) or the
-manager target (``fuzz.manager_target``), started, or a ``SetupError`` with its resources
-released. The one place that picks a role's target, so the two never import each other."""
+"""The node under fuzz of the campaign's role, started, or a ``SetupError`` with its
+resources released: the target its role profile names (``spec.profiles``, ``fuzz_target``:
+the drone's ``fuzz.target``, the manager's ``fuzz.manager_target``), so the targets never
+import each other and no role is named here."""
 
 from __future__ import annotations
 
-from fuzz.config import FuzzConfig
-from fuzz.manager_target import ManagerFuzzTarget
-from fuzz.target import FuzzTarget
+from fuzz.config import FuzzConfig, target_class
 from fuzz.target_base import TargetBase
 from harness.errors import SetupError
 
@@ -15,11 +14,7 @@ __all__ = ["start_target"]
 
 def start_target(cfg: FuzzConfig) -> TargetBase:
     """A started target, or SetupError (its resources released)."""
-    t: TargetBase
-    if cfg.role == "manager":
-        t = ManagerFuzzTarget(cfg)
-    else:
-        t = FuzzTarget(cfg)
+    t: TargetBase = target_class(cfg.protocol, cfg.role)(cfg)
     try:
         t.start()
     except SetupError:

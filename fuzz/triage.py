@@ -32,10 +32,11 @@ import time
 from collections.abc import Sequence
 
 from fuzz.budget import Late
+from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
 from fuzz.findings import NO_INPUT, Finding, FindingStore
 from fuzz.oracles import OVERSIZE, Flaw, Input
-from fuzz.replay import run_sequence, shrink
+from fuzz.replay import run_sequence
 from fuzz.target_base import TargetBase
 from spec.codec import HEADER_SIZE, Action, build_datagram
 
@@ -207,7 +208,7 @@ class Triage:
             if not still(candidate):
                 self._unconfirmed(flaw)
                 return None
-            minimal = shrink(candidate, still, budget=SHRINK_BUDGET)
+            minimal = ddmin(candidate, still, SHRINK_BUDGET, singles=min(SHRINK_BUDGET // 2, 8))
         # the minimal sequence CONFIRM_N times more, each on a fresh node when spawned, at the
         # campaign's pace: every one shows the flaw, or there is no finding (issue 18 item 9:
         # findings confirmed once in two tries replayed 0 of 3 afterwards); the first

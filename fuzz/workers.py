@@ -19,10 +19,33 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["JOIN_S", "STOP_GRACE", "run_workers"]
+__all__ = ["JOIN_S", "PROGRESS_S", "STOP_GRACE", "Reporter", "run_workers"]
 
 STOP_GRACE = 30.0  # s: after SIGINT (or a stop asked for), how long workers get to report
 JOIN_S = 1.0  # s, all workers together: to exit once reported (or be killed at the bound)
+PROGRESS_S = 0.25  # s: a worker reports its progress at most this often
+
+
+class Reporter:
+    """A worker's end of the queue, whatever its campaign: SIGINT left to the parent (it sets
+    the stop event), ``("progress", worker, body)`` at most every :data:`PROGRESS_S`, and one
+    ``("done", worker, body)`` at the end."""
+
+    def __init__(self, q: Any, worker: int) -> None:
+        import signal
+
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.q, self.worker, self._last = q, worker, 0.0
+
+    def progress(self, body: Callable[[], Any]) -> None:
+        """Report ``body()`` unless the last report was less than PROGRESS_S ago."""
+        now = time.monotonic()
+        if now - self._last >= PROGRESS_S:
+            self._last = now
+            self.q.put(("progress", self.worker, body()))
+
+    def done(self, body: Any) -> None:
+        self.q.put(("done", self.worker, body))
 
 
 def run_workers(target: Callable[..., None], args_of: Callable[[int, Any, Any], tuple[Any, ...]], jobs: int,

@@ -7,8 +7,8 @@ import json
 import pytest
 
 from fuzz.cli import UsageError, main
+from fuzz.ddmin import ddmin
 from fuzz.findings import Finding, FindingStore, load_finding
-from fuzz.replay import shrink
 from tests.capturing import free_port
 
 
@@ -47,6 +47,7 @@ def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noq
     d = store.add(f)
     assert d is not None and (d / "replay.txt").read_text().startswith("mcp-fuzz --replay ")
     assert load_finding(d).datagrams == f.datagrams
+    assert load_finding(d / "repro.mcap").datagrams == f.datagrams  # read as every finding is
     body = json.loads((d / "finding.json").read_text())
     assert body["rule"] == "MCP-ACK-4" and body["level"] == "MUST" and body["seed"] == 5
     recs = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Datagram)]
@@ -71,7 +72,7 @@ def test_shrink_finds_the_minimal_pair() -> None:
         calls.append(1)
         return b"\x07" in s and b"\x21" in s
 
-    assert sorted(shrink(seq, fails, budget=200)) == [b"\x07", b"\x21"]
+    assert sorted(ddmin(seq, fails, 200, singles=8)) == [b"\x07", b"\x21"]
 
 
 def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noqa: ANN001
@@ -218,3 +219,19 @@ def test_repro_capture_holds_the_whole_finding_and_its_marks_in_order(tmp_path) 
     data = [r for r in recs if isinstance(r, Datagram)]
     assert [m.event for m in marks] == ["start", "end"]
     assert marks[0].t_ns <= data[0].t_ns <= data[-1].t_ns <= marks[1].t_ns
+
+
+def test_ddmin_tries_the_last_items_alone_first_then_complements() -> None:
+    """One ddmin for both protocols: MCP's triage asks for singles first (a lone datagram is
+    the usual reproducer), Nsqd's campaign does not; both end at the same minimal pair."""
+    tried: list[list[int]] = []
+
+    def fails(xs: list[int]) -> bool:
+        tried.append(xs)
+        return 1 in xs and 8 in xs
+
+    assert ddmin(list(range(10)), fails, 40, singles=8) == [1, 8]
+    assert tried[:8] == [[9], [8], [7], [6], [5], [4], [3], [2]]
+    tried.clear()
+    assert ddmin(list(range(10)), fails, 40) == [1, 8] and len(tried[0]) == 5  # a half first
+    assert ddmin(list(range(10)), lambda xs: 7 in xs, 40, singles=8) == [7]

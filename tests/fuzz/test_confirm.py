@@ -121,8 +121,8 @@ def test_a_missing_ack_counts_only_if_the_retransmissions_go_unacked_too(lose, n
     drv = TargetDriver(node.sock.getsockname(), ("127.0.0.1", 0))
     drv.open()
     try:
-        target = SimpleNamespace(driver=drv, node_id=1, broadcast_id=0xFFFF, rto=0.2,
-                                 fate=lambda: {"alive": True})
+        target = SimpleNamespace(driver=drv, node_id=1, broadcast_id=0xFFFF, rto=0.2, ack_window=0.2,
+                                 fate=lambda: {"alive": True}, impairment_spoiled=lambda: [], observations={})
         mark = drv.mark()
         data = encode(Message(1, 0, 500, Action.WP_OFF))
         drv.send_raw(data)

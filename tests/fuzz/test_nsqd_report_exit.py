@@ -38,7 +38,7 @@ def _backend(exits_after: float, line_at: tuple[float, ...] = (0.0,) * len(REPOR
         return None if proc.alive() else Death(-6, "SIGABRT", REPORT[0], tuple(REPORT))
 
     b = object.__new__(Backend)
-    b.session = SimpleNamespace(proc=proc, death=death)
+    b.session = SimpleNamespace(node=SimpleNamespace(process=proc), death=death)
     b.reports_seen = 0
     return b
 

@@ -35,7 +35,7 @@ def test_a_restart_takes_the_spare_started_before_it(spawn):
         assert b.spare is not None
         spare = b.spare.future.result(timeout=30)
         b = b.restart()
-        assert b is spare and b.session.proc is not None and b.session.proc.alive()
+        assert b is spare and b.process is not None and b.process.alive()
         assert b.session.live(2.0)  # it serves
     finally:
         b.close()

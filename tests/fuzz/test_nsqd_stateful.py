@@ -141,7 +141,7 @@ def _frozen_while_a_second_client_connects(fault: str | None) -> tuple[Exception
     from fuzz.stream_stateful import Hit, Player
 
     b = Backend(None, _spawn(built_or_skip(), fault))
-    pid = b.session.proc.pid
+    pid = b.process.pid
     timer = threading.Timer(1.0, os.kill, (pid, signal.SIGCONT))
     try:
         p = Player(b)

@@ -56,7 +56,7 @@ def test_the_default_engine_mix_has_the_stateful_engine_but_for_a_manager():
     assert DEFAULT_ENGINE == "both" and FuzzConfig().engine == "both"
     assert default_engine("drone", "mcp") == "both"
     assert default_engine("manager", "mcp") == "stateless"  # the stateful programs are a manager's
-    assert default_engine("drone", "nsqd") == "both"  # Nsqd's pipelined programs (fuzz.stream_programs)
+    assert default_engine("backend", "nsqd") == "both"  # Nsqd's pipelined programs (fuzz.stream_programs)
 
 
 def test_a_copy_left_unanswered_is_named_and_a_command_answered_every_time_is_not():

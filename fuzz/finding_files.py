@@ -1,0 +1,77 @@
+"""A finding on disk, whatever its protocol (issue 37 item 2: one findings store).
+
+Every campaign writes a confirmed finding as ``finding-N/`` under ``--out``: its
+``finding.json`` (the protocol's document: ``fuzz.findings`` for MCP, ``fuzz.stream_campaign``
+for Nsqd), its ``replay.txt`` (the one command that replays it, ``mcp-fuzz [--protocol P]
+--replay DIR ...``) and its captures (the protocol's rendering: ``repro.mcap``, and for a
+stream protocol ``repro.pcap``). A finding is read back by :func:`read_finding_doc` from the
+directory, its finding.json, its repro.mcap (the ``finding`` value of the ``mcp-fuzz``
+metadata record, ``traceio.recorder.FUZZ_RECORDER``) or its repro.pcap (the finding.json
+beside it). What the document's fields mean is the protocol's.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+from pathlib import Path
+from typing import Any
+
+__all__ = ["finding_dir", "read_finding_doc", "write_finding_doc"]
+
+_PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
+
+
+def finding_dir(out: Path, n: int) -> Path:
+    """``out/finding-N``, created."""
+    d = out / f"finding-{n}"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def write_finding_doc(d: Path, doc: dict[str, Any], replay: list[str]) -> None:
+    """``d/finding.json`` (``doc``) and ``d/replay.txt``: ``mcp-fuzz`` with ``replay``'s words,
+    ``{dir}`` standing for the directory's absolute path."""
+    (d / "finding.json").write_text(json.dumps(doc, indent=2) + "\n")
+    where = str(d.resolve())
+    (d / "replay.txt").write_text(shlex.join(["mcp-fuzz", *(where if w == "{dir}" else w for w in replay)]) + "\n")
+
+
+def read_finding_doc(path: str | Path, *, mcap: bool = True) -> dict[str, Any]:
+    """A finding's JSON document from ``finding-N/``, its finding.json, its repro.pcap (the
+    finding.json beside it) or, with ``mcap``, its repro.mcap (the metadata record); ValueError
+    (one line) when it is none of those. Which protocol's it is, the caller checks."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "finding.json"
+    try:
+        with open(p, "rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
+    if head[:4] in _PCAP_MAGICS and (p.parent / "finding.json").is_file():
+        p, head = p.parent / "finding.json", b"{"
+    if mcap and head.startswith(b"\x89MCAP"):
+        from traceio.reader import CaptureError, Metadata, open_capture
+        from traceio.recorder import FUZZ_RECORDER
+
+        try:
+            meta = next((r.data for r in open_capture(p) if type(r) is Metadata
+                         and r.data.get("recorder") == FUZZ_RECORDER), None)
+        except CaptureError as exc:
+            raise ValueError(str(exc)) from None
+        if meta is None or "finding" not in meta:
+            raise ValueError(f"{str(p)!r} is not a finding's repro.mcap")
+        text = meta["finding"]
+    else:
+        try:
+            text = p.read_text(errors="replace")
+        except OSError as exc:
+            raise ValueError(f"cannot read {str(p)!r}: {exc.strerror}") from None
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"{str(p)!r} is not JSON: {getattr(exc, 'msg', exc)}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{str(p)!r} is not a finding: not a JSON object")
+    return doc
