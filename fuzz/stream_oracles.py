@@ -55,15 +55,17 @@ def frame_name(text: str) -> str:
     (``char* std::__find_if<char*, ...>(char*, ...) /usr/include/...`` -> ``std::__find_if``,
     ``tinyxml2::XMLNode::FirstChildElement(char const*) const /src/x.cpp:12`` ->
     ``tinyxml2::XMLNode::FirstChildElement``, ``handle_frame /src/b.c:40`` -> ``handle_frame``)."""
-    text = text.split(" /", 1)[0]
     for _ in range(16):  # nested templates, innermost first; bounded
         stripped = _TEMPLATE.sub("", text)
         if stripped == text:
             break
         text = stripped
-    text = text.split(" (", 1)[0].strip()  # "(module+0x...)" of a frame without symbols' source
-    head = text.split("(", 1)[0].strip()
-    return head.split()[-1] if head else ""
+    words = text.split("(", 1)[0].split()
+    if not words:
+        return ""
+    # with a parameter list, the name is the last word before it (a return type may precede);
+    # without one (C, or no symbols' types), the first word (its source location follows)
+    return words[-1] if "(" in text and not text.split("(", 1)[0].rstrip().endswith(" ") else words[0]
 
 
 def parse_cause(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None:
@@ -98,7 +100,7 @@ def parse_sanitizer(lines: list[str]) -> tuple[str, str, tuple[str, ...]] | None
             access = f"{a.group(1)} of size {a.group(2)}"
         f = _FRAME.search(line)
         name = frame_name(f.group(1)) if f else ""
-        if name and not name.startswith(_SKIP):
+        if name and not name.startswith(_SKIP) and not name.startswith("__"):  # "__": the C library's
             frames.append(name)
             if len(frames) == 5:
                 break

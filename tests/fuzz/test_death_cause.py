@@ -61,3 +61,13 @@ def test_frame_names_drop_return_type_templates_parameters_and_location():
                       "(char*, char*) /usr/include/c++/12/bits/stl_algobase.h:2100") == "std::__find_if"
     assert frame_name("handle_frame /src/b.c:40:3") == "handle_frame"  # C: as before
     assert frame_name("main (/tmp/x+0x1234)") == "main"
+    # a frame without a parameter list: its first word (its location follows), as before
+    assert frame_name("__strlen_evex ../sysdeps/x86_64/multiarch/strlen-evex.S:79") == "__strlen_evex"
+
+
+def test_the_c_librarys_frames_are_not_the_targets():
+    report = ["==7==ERROR: AddressSanitizer: SEGV on unknown address 0x000000000000",
+              "    #0 0x7f in __strlen_evex ../sysdeps/x86_64/multiarch/strlen-evex.S:79",
+              "    #1 0x55 in __interceptor_strlen ../../../../src/libsanitizer/sanitizer_common/x.inc:387",
+              "    #2 0x55 in Server::HandleConnection() /src/Server.cpp:150"]
+    assert parse_cause(report) == ("SEGV", "", ("Server::HandleConnection",))
