@@ -21,10 +21,14 @@ import pytest
 
 #: Substrings of node IDs of the longest tests (measured with --durations), longest first.
 LONG_FIRST = (
+    "test_oracle_observation.py::test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign",
     "test_hostile_files.py::test_check_of_a_million_violating_datagrams",  # CPU: a minute of a core
     "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
     "test_jobs.py::test_failure_found_by_one_worker_is_replayed_first_by_the_other",
     "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-1]",
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-2]",
+    "test_apps.py::test_dronekit_app_conforms_at_the_descriptions_timeout",
     "test_faults.py::test_attach_node_killed_mid_run_at_the_descriptions_timings",
     "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[no-dup-discard]",
     "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",
