@@ -58,7 +58,7 @@ def retransmit_unanswered(target: Any, data: bytes, copies: int = MAX_ACK_COPIES
     watched for the ACK window (D-6)."""
     drv = target.driver
     rto = target.rto
-    tail = getattr(target, "ack_window", rto)
+    tail = target.ack_window
     first = drv.send_raw(data)
     ex = drv.exchange(first, rto=rto, copies=max(1, copies - 1), tail=tail)
     return Retransmitted(ex.acked, 1 + len(ex.copies), rto, max(rto, tail), ex)

@@ -307,9 +307,7 @@ def observe_missing_acks(flaws: list[Flaw], inputs: Sequence[Input], target: Any
 
 def _count(target: Any, what: str) -> None:
     """One more of ``what`` in the target's ``observations`` (what the oracles had to do)."""
-    seen = getattr(target, "observations", None)
-    if isinstance(seen, dict):
-        seen[what] = seen.get(what, 0) + 1
+    target.observations[what] = target.observations.get(what, 0) + 1
 
 
 def _alive(target: Any) -> bool:

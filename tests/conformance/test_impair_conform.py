@@ -78,8 +78,9 @@ def test_the_fuzzer_never_judges_an_exchange_the_impairment_touched():
     probe = SimpleNamespace(acked=True, sent=SimpleNamespace(seq=1), copies=1)
 
     def target(spoiled):
-        return SimpleNamespace(driver=driver, node_id=1, broadcast_id=0xFFFF, rto=0.01,
-                               fate=lambda: {"alive": True}, impairment_spoiled=lambda: spoiled)
+        return SimpleNamespace(driver=driver, node_id=1, broadcast_id=0xFFFF, rto=0.01, ack_window=0.01,
+                               observations={}, fate=lambda: {"alive": True},
+                               impairment_spoiled=lambda: spoiled)
 
     assert [f.rule for f in judge_exchange([inp], target([]), 0, probe)] == ["MCP-ACK-1"]
     assert judge_exchange([inp], target(["ACK seq 77 1->32 (received) drop:loss"]), 0, probe) == []
