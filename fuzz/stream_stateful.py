@@ -40,6 +40,7 @@ import contextlib
 from typing import Any
 
 from fuzz.ddmin import ddmin
+from fuzz.stream_backend import REPLAY_DEATH_S, _passing
 from fuzz.stream_findings import TrafficLog
 from fuzz.stream_oracles import same_finding
 from fuzz.stream_player import (
@@ -65,22 +66,30 @@ __all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "
 SHRINK_S = 8.0
 
 
-def play_program(backend: Any, ops: list[Op], log: Any = None) -> Hit | None:
+def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None) -> Hit | None:
     """Play ``ops`` on ``backend`` (a fresh one for a replay): the first hit, if any.
     ``log`` (a ``fuzz.stream_findings.TrafficLog``): the replay's traffic, for the finding's
-    repro.mcap and repro.pcap, as a stateless finding's confirming replay keeps it."""
+    repro.mcap and repro.pcap, as a stateless finding's confirming replay keeps it. ``want``
+    (a death's signature): a non-fatal sanitizer report on the way is not the verdict, the
+    program goes on to the death (``fuzz.stream_backend._passing``, halt_on_error=0)."""
     backend.session.recorder = log
     p = Player(backend)
+    passed: Hit | None = None
     try:
         for op in ops:
-            p.play(op)
-        hit = backend.death_hit(0.3)
+            try:
+                p.play(op)
+            except Hit as hit:
+                if want is None or not _passing(hit, want):
+                    raise
+                passed = hit
+        hit = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
         if hit is not None:
             return Hit(hit.signature, hit.detail, hit.stderr)
         p._judge()
-        return None
+        return passed
     except Hit as hit:
-        return hit
+        return passed if want is not None and _passing(hit, want) else hit
     finally:
         if log is not None:
             for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
@@ -114,7 +123,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
         box["b"] = campaign.current = box["b"].fresh()
         campaign.restarts += 1
-        h = play_program(box["b"], o, log)
+        h = play_program(box["b"], o, log, want=sig)
         if h is not None and h.stderr:
             box["stderr"] = h.stderr
         ok = h is not None and same_finding(h.signature, sig)
@@ -124,7 +133,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
 
     box["b"] = campaign.current = box["b"].fresh()
     campaign.restarts += 1
-    first = play_program(box["b"], ops)
+    first = play_program(box["b"], ops, want=sig)
     if first is None:
         campaign.unconfirmed += 1
         return box["b"].fresh()

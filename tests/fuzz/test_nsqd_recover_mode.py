@@ -21,6 +21,8 @@ from fuzz.stream_backend import Backend, _defaults, _reproduces
 from fuzz.stream_campaign import StreamCampaign
 from fuzz.stream_mutators import Case, Write
 from fuzz.stream_oracles import Signature
+from fuzz.stream_player import Op
+from fuzz.stream_stateful import play_program
 from spec import NSQD
 from spec.stream_codec import encode
 
@@ -113,5 +115,27 @@ def test_a_replay_of_the_death_goes_on_past_the_reports_before_it(tmp_path):
         # and a replay that does not die is not the death, however many reports it wrote
         ok, b, hit = _reproduces(b, [valid, valid], death, probe=False)
         assert not ok and hit is not None and hit.signature.oracle == "sanitizer", hit
+    finally:
+        b.close()
+
+
+def test_a_program_replay_of_the_death_goes_on_past_the_reports_before_it(tmp_path):
+    """The stateful engine's replay (``play_program``) alike: ops that each draw a report, then
+    the one that kills the process; without the death it wanted, the report is what it saw."""
+    script = tmp_path / "overread_backend.py"
+    script.write_text(FAKE)
+    values = _defaults(NSQD.message("SET_PID")) | {"kp": "abc"}
+    ok_frame, bad_frame = encode(NSQD, "STOP_TEST"), encode(NSQD, "SET_PID", **values)
+    valid = [Op("open", 0)] + [Op("send", 0, (Write(ok_frame),), "valid", True, note="STOP_TEST")] * 3
+    bad = Op("send", 0, (Write(bad_frame),), "bad-number", False, note="SET_PID.kp = 'abc'")
+    death = Signature("crash", "abort: uncaught std::invalid_argument", (), "NSQD-ROB-1")
+    b = Backend(None, f"{sys.executable} {script} --port {{target_port}}")
+    try:
+        b = b.fresh()
+        hit = play_program(b, [*valid, bad], want=death)
+        assert hit is not None and hit.signature == death, hit and hit.signature
+        b = b.fresh()
+        hit = play_program(b, valid, want=death)
+        assert hit is not None and hit.signature.oracle == "sanitizer", hit and hit.signature
     finally:
         b.close()
