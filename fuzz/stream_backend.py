@@ -296,7 +296,7 @@ class Backend:
                     or (or_error and bool(conn.errors(since)))
                     or (fresh is not None and any(u.values["state"] in states for u in fresh.updates())))  # type: ignore[index]
 
-        ok = _wait_any([c for c in (conn, fresh) if c is not None], shown, window)
+        ok = read_until([c for c in (conn, fresh) if c is not None], shown, window)
         return ok, fresh
 
     def _adopt(self, fresh: Conn | None) -> None:
@@ -432,7 +432,7 @@ class _Spare:
 _SPAWNER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nsqd-spare")
 
 
-def _wait_any(conns: list[Conn], pred: Any, timeout: float) -> bool:
+def read_until(conns: list[Conn], pred: Any, timeout: float) -> bool:
     """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
     end = time.monotonic() + timeout
     while True:

@@ -6,12 +6,11 @@ careful and the pipelined ways of playing differ; this module is the player of b
 from __future__ import annotations
 
 import random
-import select
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from fuzz.stream_backend import read_until
 from fuzz.stream_mutators import Write, valid_values
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule
 from harness.stream_session import Conn
@@ -371,7 +370,7 @@ class Player:
         for c in list(self.clients.values()):
             conn, t = c.conn, c.others_at
             if c.others and not c.second and conn.closed_at is None:
-                _wait_all([conn, *waiting], lambda conn=conn, t=t: conn.closed_at is not None or bool(conn.updates(t))
+                read_until([conn, *waiting], lambda conn=conn, t=t: conn.closed_at is not None or bool(conn.updates(t))
                           or any(w.frames for w in waiting), t + KICK_WATCH_S - time.monotonic())
         self._judge()
         for slot, c in self.clients.items():
@@ -406,7 +405,7 @@ class Player:
                     return False  # the next client's UPDATE proves nothing before the backend closed this one
             return nxt is not None and bool(nxt.updates())
 
-        _wait_all(conns, shown, self.window)
+        read_until(conns, shown, self.window)
         died = self.b.death_hit(0.0)  # the backend's record of a death, raised as the player's Hit
         hit = Hit(died.signature, died.detail, died.stderr) if died is not None else None
         for conn in conns:
@@ -438,22 +437,6 @@ class Player:
             self._dead()
             return None
         return observer
-
-
-def _wait_all(conns: list[Conn], pred: Callable[[], bool], timeout: float) -> bool:
-    """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
-    end = time.monotonic() + timeout
-    while True:
-        if pred():
-            return True
-        live = [c for c in conns if c.closed_at is None]
-        left = end - time.monotonic()
-        if left <= 0 or not live:
-            return bool(pred())
-        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
-        for c in live:
-            if c.sock in ready:
-                c.pump(0)
 
 
 def _whole_frames(data: bytes) -> bool:
