@@ -501,11 +501,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
             seen = baseline(backend, sig, probe=bool(doc.get("probe")))
         finally:
             backend.close()
-        if seen is not None and _same(seen.signature, sig):
-            print(f"reproduced {sig.rule} with no input (the target's behaviour): {sig.describe()}")
-            return 1
-        print(f"did not reproduce {sig.describe()} with no input" + (f" (saw {seen.signature.describe()})" if seen else ""))
-        return 0
+        return _replay_verdict(seen, sig, " with no input")
     if not writes and program is None:
         print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
               "mcp-conform --protocol nsqd --select NSQD-CON-3")
@@ -518,11 +514,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
             seen = play_program(backend, program)
         finally:
             backend.close()
-        if seen is not None and _same(seen.signature, sig):
-            print(f"reproduced {sig.rule}: {sig.describe()}")
-            return 1
-        print(f"did not reproduce {sig.describe()}" + (f" (saw {seen.signature.describe()})" if seen else ""))
-        return 0
+        return _replay_verdict(seen, sig)
     try:
         case = Case(_replay_kind(sig), tuple(writes), bool(expect), sig.kind if expect else "", expect=expect,
                     or_error=bool(doc.get("or_error")), check=bool(expect))
@@ -533,4 +525,15 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
         print(f"reproduced {sig.rule}: {sig.describe()}")
         return 1
     print(f"did not reproduce {sig.describe()}" + (f" (saw {hit.signature.describe()})" if hit else ""))
+    return 0
+
+
+def _replay_verdict(seen: Any, sig: Signature, how: str = "") -> int:
+    """A replay's line and exit code: 1 when what it saw is the finding's signature (``how``:
+    " with no input" for the target's own behaviour), else 0."""
+    if seen is not None and _same(seen.signature, sig):
+        what = " (the target's behaviour)" if how else ""
+        print(f"reproduced {sig.rule}{how}{what}: {sig.describe()}")
+        return 1
+    print(f"did not reproduce {sig.describe()}{how}" + (f" (saw {seen.signature.describe()})" if seen else ""))
     return 0
