@@ -24,6 +24,7 @@ from the campaign. A replay's process (:meth:`Backend.fresh`) is still started f
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import random
 import select
@@ -53,14 +54,34 @@ class Hit:
     detail: str
     stderr: tuple[str, ...] = ()
     suspects: int = 2  # how many of the latest cases may have caused it (the campaign's triage)
+    #: when its cause showed (time.monotonic(): a sanitizer's report or a "terminate called"
+    #: line read from stderr), None if unknown: the cases sent before it are the suspects
+    at: float | None = None
+
+
+@dataclass
+class Traits:
+    """What a campaign learned of its backend, shared by every process it starts.
+
+    ``reports_fatal``: whether a sanitizer's report ends the process (ASan's default) or not
+    (``halt_on_error=0``: a real backend's ASan build over-reads on every frame and goes on).
+    Until known, a whole report is followed by a 3 s wait for the exit (a loaded CI host took
+    over 0.3 s between the SUMMARY and the exit); once a process was seen alive 3 s after one,
+    the wait is 0.3 s (a failed replay of a death cost those 3 s on every non-fatal report)."""
+
+    reports_fatal: bool | None = None
 
 
 class Backend:
     """The backend under fuzz: a session (spawned, attached or the embedded default) and the
     fuzzer's current connection."""
 
-    def __init__(self, target: tuple[str, int] | None, spawn: str | None) -> None:
+    def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None) -> None:
         self.target, self.spawn = target, spawn
+        self.traits = traits if traits is not None else Traits()
+        #: (time.monotonic() at its first write, case) for each case this process was sent
+        #: (bounded): a death's suspects are the ones sent before its cause showed
+        self.history: collections.deque[tuple[float, Case]] = collections.deque(maxlen=64)
         self.session = StreamSession(RunConfig(protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.default_role.name,
                                                target=target, spawn=spawn))
         self.session.start()
@@ -96,7 +117,7 @@ class Backend:
             return self
         spare, self.spare = self.spare, None
         self.close()
-        b = Backend(self.target, self.spawn)
+        b = Backend(self.target, self.spawn, self.traits)
         b.spare = spare
         return b
 
@@ -108,8 +129,9 @@ class Backend:
             return self.fresh()
         spare, self.spare = self.spare, None
         self.close()
-        b = (spare.take() if spare is not None else None) or Backend(self.target, self.spawn)
-        b.spare = _Spare(self.target, self.spawn)
+        b = (spare.take() if spare is not None else None) or Backend(self.target, self.spawn, self.traits)
+        b.traits = self.traits
+        b.spare = _Spare(self.target, self.spawn, self.traits)
         return b
 
     def _drop(self) -> None:
@@ -143,11 +165,14 @@ class Backend:
         # string length and its GPX parser's SEGV under one finding)
         cause = proc.last_cause() if proc is not None else []
         parsed = parse_cause(cause) if cause else (parse_sanitizer(report) if report else None)
+        at = None
         if parsed:
             kind, access, frames = parsed
+            at = proc.cause_time() if cause else proc.report_time()
         else:
             kind, access, frames = d.signal_name or f"exit {d.code}", "", ()
-        return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(), tuple(report[:20]) or d.stderr)
+        return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(),
+                   tuple(report[:20]) or d.stderr, at=at)
 
     def report_hit(self) -> Hit | None:
         """A new sanitizer report on stderr: once it is whole (its SUMMARY line, which ASan
@@ -167,27 +192,53 @@ class Backend:
         # and the exit: shorter waits classed a crash as a report of a process still running
         # ("sanitizer": its replay "did not reproduce", test_nsqd_repro)
         whole = any("SUMMARY:" in x for x in report)
-        dead = self.death_hit(3.0 if whole else 1.0)
+        dead = self.death_hit((0.3 if self.traits.reports_fatal is False else 3.0) if whole else 1.0)
         if dead is not None:
+            first = parse_sanitizer(report) if whole else None
+            if first and self.traits.reports_fatal is None and dead.signature.kind == first[0]:
+                self.traits.reports_fatal = True  # it died of the report itself
             return dead
+        if whole and self.traits.reports_fatal is None:
+            self.traits.reports_fatal = False
         parsed = parse_sanitizer(report)
         if parsed:
             # named by kind and frames, the bug; its access size is the input's (a real backend's
             # over-read on every frame read as many sizes as frame lengths: one finding per size)
             access = f" ({parsed[1]})" if parsed[1] else ""
             return Hit(Signature("sanitizer", parsed[0], parsed[2], "NSQD-ROB-1"),
-                       f"a sanitizer report{access}, the process still running", tuple(report[:20]))
+                       f"a sanitizer report{access}, the process still running", tuple(report[:20]),
+                       at=proc.report_time())
         return None
 
     def run(self, case: Case) -> Hit | None:
         """Write the case; what the oracles saw, if anything (its ``suspects``: this case, the
         one before, and the valid ones before them sent without a wait: what shows now may be
         theirs)."""
+        self.history.append((time.monotonic(), case))
         hit = self._run(case)
         if hit is not None:
             hit.suspects = max(hit.suspects, self.unwatched_n + 2)
         self.unwatched_n = self.unwatched_n + 1 if self.unwatched else 0
         return hit
+
+    def suspects(self, hit: Hit, window: list[Case]) -> tuple[list[Case], float]:
+        """The cases that may have caused ``hit`` (oldest first, as sent) and how long a replay
+        of one should wait for it to show (``_reproduces``' ``wait``).
+
+        Where its cause's time is known (a death's "terminate called" or sanitizer line, a
+        report's first line), the cases this process was sent before it: the latest
+        ``hit.suspects`` of them. A backend's death shows only at a later case's write or read
+        (a real backend's abort took a case or two to be seen; the cases after it were blamed
+        and the death "did not reproduce"), but its cause's line is read as it is written. The
+        wait: four times the time from that case to its cause, at least 0.5 s, at most
+        :data:`REPLAY_DEATH_S` (a replay of the wrong case waited those 2 s each time)."""
+        if hit.at is None or hit.signature.oracle not in ("crash", "sanitizer"):
+            return window[-hit.suspects:], REPLAY_DEATH_S
+        before = [(t, c) for t, c in self.history if t <= hit.at]
+        if not before:
+            return window[-hit.suspects:], REPLAY_DEATH_S
+        latency = hit.at - before[-1][0]
+        return [c for _, c in before[-hit.suspects:]], min(REPLAY_DEATH_S, max(0.5, 4 * latency))
 
     def _run(self, case: Case) -> Hit | None:
         self.session.sent_log.clear()  # the session's record of what the current case sent
@@ -404,8 +455,8 @@ class _Spare:
     (``harness.procs``' parent-death signal is the thread's, prctl(2) PR_SET_PDEATHSIG), so
     a thread of its own, ended once started, killed every spare before it was used."""
 
-    def __init__(self, target: tuple[str, int] | None, spawn: str | None) -> None:
-        self.future = _SPAWNER.submit(Backend, target, spawn)
+    def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits) -> None:
+        self.future = _SPAWNER.submit(Backend, target, spawn, traits)
 
     def take(self) -> Backend | None:
         """The started backend, once ready; None if it failed to start (the restart then
@@ -472,11 +523,13 @@ REPLAY_DEATH_S = 2.0
 
 
 def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool,
-                log: TrafficLog | None = None) -> tuple[bool, Backend, Hit | None]:
+                log: TrafficLog | None = None, wait: float = REPLAY_DEATH_S) -> tuple[bool, Backend, Hit | None]:
+    """Whether ``cases`` written to a fresh process show ``sig``; ``wait``: how long, after the
+    last, for a death or a report to show (``Backend.suspects``)."""
     b = backend.fresh()
     b.session.recorder = log  # the replay's traffic, for the finding's repro.mcap and repro.pcap
     try:
-        return _replay(b, cases, sig, probe=probe)
+        return _replay(b, cases, sig, probe=probe, wait=wait)
     finally:
         if log is not None:
             for c in list(b.session.conns):  # how the connections stand at the end: a dead backend's close
@@ -494,7 +547,8 @@ def _passing(hit: Hit | None, sig: Signature) -> bool:
             and not _same(hit.signature, sig))
 
 
-def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tuple[bool, Backend, Hit | None]:
+def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
+            wait: float = REPLAY_DEATH_S) -> tuple[bool, Backend, Hit | None]:
     hit = passed = None
     for c in cases:
         hit = b.run(c)
@@ -508,7 +562,7 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool) -> tu
         # taken whole and followed to the exit (Backend.report_hit). A loaded CI host took
         # more than the 0.5 s this once waited: the report, read half-way, made a crash
         # "sanitizer" and the replay "did not reproduce" (test_nsqd_repro)
-        proc, end = b.process, time.monotonic() + REPLAY_DEATH_S
+        proc, end = b.process, time.monotonic() + wait
         while hit is None and time.monotonic() < end:
             hit = b.death_hit(0.05)
             if hit is None and proc is not None and len(proc.sanitizer_report()) > b.reports_seen:

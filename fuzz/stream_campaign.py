@@ -35,7 +35,15 @@ from typing import Any
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
 from fuzz.finding_files import finding_dir, write_finding_doc
-from fuzz.stream_backend import Backend, Hit, _defaults, _replay_kind, _reproduces, message_names
+from fuzz.stream_backend import (
+    REPLAY_DEATH_S,
+    Backend,
+    Hit,
+    _defaults,
+    _replay_kind,
+    _reproduces,
+    message_names,
+)
 from fuzz.stream_blame import (
     GRACE_S,
     PROBED,
@@ -115,6 +123,8 @@ class StreamCampaign:
     #: ``both`` as the duration is (the stateless engine spent all 20,000 before the stateful one
     #: began); None: ``max_cases``
     case_cap: int | None = None
+    #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
+    wait: float = REPLAY_DEATH_S
 
     def _over(self, deadline: float) -> bool:
         cap = self.case_cap if self.case_cap is not None else self.max_cases
@@ -156,6 +166,7 @@ class StreamCampaign:
         from fuzz.stream_stateful import triage_program
 
         t0, r0 = time.monotonic(), self.restart_s
+        self.wait = REPLAY_DEATH_S
         try:
             if self.skip(hit.signature, backend, "program"):
                 return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
@@ -207,7 +218,8 @@ class StreamCampaign:
                     # a death may show only at the next case's write: the one before is a suspect too
                     t1, r0 = time.monotonic(), self.restart_s
                     self.fuzz_s += t1 - t_fuzz
-                    backend = self.current = self._triage(backend, hit, list(window) if probe else window[-hit.suspects:], probe)
+                    suspects, self.wait = (list(window), REPLAY_DEATH_S) if probe else backend.suspects(hit, window)
+                    backend = self.current = self._triage(backend, hit, suspects, probe)
                     t_fuzz = time.monotonic()
                     self.triage_s += t_fuzz - t1 - (self.restart_s - r0)
                     window.clear()
@@ -253,11 +265,13 @@ class StreamCampaign:
         self.tries[k] = self.tries.get(k, 0) + 1
 
     def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
-            log: TrafficLog | None = None) -> tuple[bool, Backend, Hit | None]:
-        """One replay (``_reproduces``), none once the deadline passed (``Late``)."""
+            log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
+        """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
+        triaged hit's own (``self.wait``) unless given (a confirming replay waits the whole
+        :data:`REPLAY_DEATH_S`: a loaded host's slow death is no reason to call it unconfirmed)."""
         if self.duration is not None and time.monotonic() >= self.started + self.duration:
             raise Late
-        ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log)
+        ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log, wait=self.wait if wait is None else wait)
         self.current = b
         return ok, b, h
 
@@ -397,7 +411,7 @@ class StreamCampaign:
         traffic: list[Any] = []
         for _ in range(self.replays):
             log = TrafficLog()
-            ok, state["b"], last = self.rep(state["b"], minimal, sig, probe=probe, log=log)
+            ok, state["b"], last = self.rep(state["b"], minimal, sig, probe=probe, log=log, wait=REPLAY_DEATH_S)
             confirmed += ok
             traffic = log.records if ok else traffic
             if last is not None and last.stderr:

@@ -27,6 +27,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from typing import IO, Any
 
 __all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
@@ -158,6 +159,10 @@ class _Tail:
         #: "terminate called after throwing ..." line (under ASan's halt_on_error=0 the first
         #: report is seldom what killed the process)
         self.last_cause: list[str] = []
+        #: when each was read (time.monotonic()): the first report's first line, the latest
+        #: cause's (what a death is attributed by: the case sent last before it, issue 36)
+        self.report_at: float | None = None
+        self.cause_at: float | None = None
         self.thread = threading.Thread(target=self._read, args=(stream,), daemon=True,
                                        name="mcp-conform-node-output")
         self.thread.start()
@@ -170,9 +175,11 @@ class _Tail:
                 self.lines.append(text)
                 starts = "Sanitizer:" in text and "ERROR" in text or "runtime error:" in text
                 if (self.report and len(self.report) < REPORT_LINES) or (not self.report and starts):
+                    if not self.report:
+                        self.report_at = time.monotonic()
                     self.report.append(text)
                 if starts or text.startswith("terminate called"):
-                    self.last_cause = [text]
+                    self.last_cause, self.cause_at = [text], time.monotonic()
                 elif self.last_cause and len(self.last_cause) < REPORT_LINES \
                         and not self.last_cause[0].startswith("terminate called"):
                     self.last_cause.append(text)
@@ -221,6 +228,16 @@ class ManagedProcess:
         if not self.alive():
             self._err.thread.join(timeout=0.5)
         return list(self._err.last_cause)
+
+    def cause_time(self) -> float | None:
+        """When the latest cause's first line was read (``time.monotonic()``), None if none."""
+        if not self.alive():
+            self._err.thread.join(timeout=0.5)
+        return self._err.cause_at
+
+    def report_time(self) -> float | None:
+        """When the first sanitizer report's first line was read, None if none."""
+        return self._err.report_at
 
     def sanitizer_report(self) -> list[str]:
         """The head of the first AddressSanitizer/UBSan report on stderr ([] if none)."""

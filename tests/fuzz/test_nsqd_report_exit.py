@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from types import SimpleNamespace
 
-from fuzz.stream_backend import Backend
+from fuzz.stream_backend import Backend, Traits
 from harness.stream_session import Death
 
 REPORT = [
@@ -29,7 +29,8 @@ def _backend(exits_after: float, line_at: tuple[float, ...] = (0.0,) * len(REPOR
         age = time.monotonic() - born
         return [line for line, at in zip(REPORT, line_at, strict=True) if at <= age]
 
-    proc = SimpleNamespace(sanitizer_report=report, last_cause=report, alive=lambda: time.monotonic() - born < exits_after)
+    proc = SimpleNamespace(sanitizer_report=report, last_cause=report, alive=lambda: time.monotonic() - born < exits_after,
+                           cause_time=lambda: born, report_time=lambda: born)
 
     def death(grace: float = 0.0):
         end = time.monotonic() + grace
@@ -40,6 +41,7 @@ def _backend(exits_after: float, line_at: tuple[float, ...] = (0.0,) * len(REPOR
     b = object.__new__(Backend)
     b.session = SimpleNamespace(node=SimpleNamespace(process=proc), death=death)
     b.reports_seen = 0
+    b.traits = Traits()
     return b
 
 
