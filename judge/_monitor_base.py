@@ -190,7 +190,7 @@ class _Exchange:
 
     __slots__ = ("src", "dst", "seq", "action", "data", "payload", "copies", "acks",
                  "tester", "bcast", "flags", "deliveries", "last_t", "addr", "stale_ack", "moved_on",
-                 "heard", "run_delays", "owed", "wrong_at")
+                 "heard", "run_delays", "owed", "wrong_at", "maybe_answered")
 
     def __init__(self, src: int, dst: int, seq: int, action: int, data: bytes, payload: Any,
                  i: int, t: int, tester: bool, bcast: bool, rd: int | None = None) -> None:
@@ -205,6 +205,10 @@ class _Exchange:
         self.last_t = t  # time of the latest copy
         self.acks: list[tuple[int, int]] = []
         self.owed = 0  # copies that left before its first ACK came back, each owed an ACK
+        #: (i, t_ns) of the latest ACK from its destination counted as a later copy's ACK of
+        #: another message while a copy of this one waited: it may have answered that copy
+        #: (naming a wrong seq), so the copy's MCP-ACK-1 is not proven after it
+        self.maybe_answered: tuple[int, int] | None = None
         #: kind (WRONG_SEQ / WRONG_SRC) -> (i, t_ns) of the latest wrong ACK of that kind while
         #: it awaited its ACK (MCP-RTX-2's input): a copy well after one shows its sender
         #: ignores that kind (``_Node.ignores``)

@@ -80,6 +80,7 @@ class ReceiverRules:
                     # copy's wrong ACK (a copy of 1325 ACKed naming 1326, whose own copy waited
                     # before it) as well as a re-ACK of ``match`` (``_ack_deadline``)
                     self._doubtful.add(i)
+                    w.maybe_answered = (i, t)
                 if match.deliveries and node is not None:  # a duplicate not to deliver again
                     node.seen.add("MCP-DUP-1")
             else:
@@ -307,15 +308,26 @@ class ReceiverRules:
                 return
             self._decide_ambiguous(ex, node.id, wrong=False)  # they named what they ACKed
             return
-        ex.flags |= F_ACK1
         stray = self._stray_acks.get((node.id, ex.src))
         if stray is not None and stray[1] >= copy[1]:  # an ACK came, naming another seq
+            ex.flags |= F_ACK1
             self._decide_ambiguous(ex, node.id, wrong=True)  # the copy's wrong ACKs
             self._emit("MCP-ACK-2", node.id, now,
                        f"the ACK of every copy names the copy's seq {ex.seq} (D-2)",
                        f"the copy of {ex.describe()} was answered by an ACK naming {stray[2]}",
                        [copy, (stray[0], stray[1])])
             return
+        maybe = ex.maybe_answered
+        if maybe is not None and maybe[1] >= copy[1]:
+            # an ACK came after the copy that was counted as another message's copy's (its
+            # number, while that copy waited too: the doubtful ACK of ``_ack``): it may have
+            # answered this copy with a wrong seq. Neither rule is proven by this copy: not
+            # MCP-ACK-1 (an ACK came), not MCP-ACK-2 (it may be the other copy's). CI under
+            # load, the ack-copies-wrong-seq node: a copy of 1326 answered "1327" while 1327's
+            # copy waited was judged unACKed, beside the node's proven MCP-ACK-2
+            self._decide_ambiguous(ex, node.id, wrong=False)
+            return
+        ex.flags |= F_ACK1
         self._decide_ambiguous(ex, node.id, wrong=False)
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])

@@ -65,6 +65,7 @@ from judge._monitor_base import (
     unpack_header,
 )
 from judge._monitor_receiver import ReceiverRules
+from judge._monitor_rtx import DESCRIPTION_TIMEOUT_NS
 from judge._monitor_sender import SenderRules
 from judge._monitor_vehicle import (
     VehicleRules,
@@ -138,7 +139,15 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self.party = party
         self._packed_waypoints: list[bytes] | None = None
         self._insane: dict[bytes, str] = {}  # MCP-PAY-7: the first problem, by payload bytes
-        self._rtx_delay = MIN_COPIES * 3 * self.rto_ns // 2 + self.window_ns
+        #: MCP-RTX-1's first look at an unACKed unicast (``_rtx_expire``; one delay for all,
+        #: a FIFO): when its MIN_COPIES copies at --rto's pace were all due, or sooner when a
+        #: lone copy's next one is overdue by then (``_rtx_deadline``: one and a half timeouts,
+        #: the description's when --rto is shorter, plus the ACK window), which waits on from
+        #: there while copies come. At --rto 5 the first look came 32 s after the copy, so a
+        #: complete capture of a manager's End_Mission sent once, with nothing more for six
+        #: timeouts (30 s), ended unjudged though its next copy was overdue at 9.5 s (issue 38)
+        self._rtx_delay = min(MIN_COPIES * 3 * self.rto_ns // 2,
+                              3 * max(self.rto_ns, DESCRIPTION_TIMEOUT_NS) // 2) + self.window_ns
         #: how late an ACK is still taken to answer something other than the message it
         #: names exactly (a broadcast, a malformed datagram: numbers do not repeat that soon)
         self._ack_horizon = max(10 * NS, 2 * (self.window_ns + self.rto_ns))

@@ -7,11 +7,14 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
+from conformance.link_copies import credited_copy
 from conformance.marks import rules
 from harness.errors import Inconclusive
 from spec import SPEC
+from spec.codec import Action
 
 MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+_READY = int(Action.MISSION_READY)
 
 
 @rules("MCP-RTX-1", "MCP-FLOW-1", phase="startup")
@@ -31,7 +34,17 @@ def test_only_the_right_ack_ends_retransmission(node):
     st = node.require_startup("MCP-RTX-2")
     if len(st.copies) < 2:
         raise Inconclusive("MCP-RTX-2: the node did not retransmit at all (see MCP-RTX-1)")
-    node.expect_true(st.copy_after_wrong_acks is not None, "MCP-RTX-2",
+    first = st.copy_after_wrong_acks
+    if first is not None and node.driver.link is not None:
+        # through --impair: a copy proves it only if the node had both wrong ACKs when it sent
+        # it and the link did not make it (``conformance.link_copies``)
+        end = st.right_ack.t if st.right_ack is not None else float("inf")
+        copies = [d for d in node.driver.received(first.index) if d.action == _READY and d.t <= end]
+        credited, why = credited_copy(node.driver.link, st.wrong_acks, copies)
+        if credited is None:
+            raise Inconclusive("MCP-RTX-2: spoiled by the impairment: no copy after the wrong ACKs "
+                               "shows the node had them (" + "; ".join(why[:3]) + ")")
+    node.expect_true(first is not None, "MCP-RTX-2",
                      "retransmission goes on after an ACK with the wrong seq and one from the wrong src",
                      f"no copy within {st.wrong_ack_wait:.2f} s after them",
                      [f"wrong ACK: {s.data.hex(' ')}" for s in st.wrong_acks])

@@ -1,0 +1,58 @@
+"""False or missing verdicts of the judge found under load or through an impaired link
+(issue 38), each reproduced on a scripted trace (``tests.judge.monitor_scripts``)."""
+
+from __future__ import annotations
+
+from judge.monitor import TESTER
+from spec.codec import Action
+from spec.mavframe import heartbeat_frame
+from tests.judge.monitor_faults import _finish
+from tests.judge.monitor_scripts import Script
+
+
+def _interleaved_copies(answer_a: str) -> Script:
+    """Two cases side by side on a loaded host (CI, test_mutants[ack-copies-wrong-seq]): the
+    harness's Mav_Passthrough A and WP_Off B = A + 1 to drone 1, each ACKed right at once,
+    then each retransmitted (the harness read the ACKs late): B's copy first, answered
+    "B + 1" (no message of that number: an ACK naming nothing sent), then A's copy, answered
+    ``answer_a`` ("B": the seq plus 1, as the ack-copies-wrong-seq node does; "none": never)."""
+    s = Script((1,), challenge=1)
+    s.ready(1)
+    s.start(1)
+    a, da = s.send(0, 1, Action.MAV_PASSTHROUGH, heartbeat_frame(), seq=1326, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, a)
+    s.tick(0.01)
+    b, db = s.send(0, 1, Action.WP_OFF, seq=a + 1, origin=TESTER)
+    s.tick(0.004)
+    s.ack(1, 0, b)
+    s.tick(0.2)
+    s.raw(0, db, to=1, origin=TESTER)  # B's copy, answered "B + 1"
+    s.tick(0.005)
+    s.ack(1, 0, b + 1)
+    s.tick(0.05)
+    s.raw(0, da, to=1, origin=TESTER)  # A's copy
+    if answer_a == "B":
+        s.tick(0.005)
+        s.ack(1, 0, b)
+    s.tick(1.5)
+    return _finish(s)
+
+
+def test_a_copy_answered_by_an_ack_matched_to_another_copy_is_not_unacked():
+    """CI (loaded, 10 workers on 2 cores): "copy of Mav_Passthrough seq 1326 from ID 0 to ID
+    1 after its ACK was not ACKed" (MCP-ACK-1) beside the node's proven MCP-ACK-2. A's copy
+    was answered "1327", B's number; B still had a copy owed an ACK, so the monitor counted
+    that ACK as B's copy's and A's copy as never answered. An ACK did come for A's copy (a
+    wrong one, or B's copy's second): MCP-ACK-1 is not proven there; and neither is
+    MCP-ACK-2 (the ACK may be B's), which the node's other copies prove in a run."""
+    rules = {v.rule for v in _interleaved_copies("B").judge()}
+    assert "MCP-ACK-1" not in rules, rules
+
+
+def test_a_copy_never_answered_is_still_unacked():
+    """The same interleaving with A's copy never answered: MCP-ACK-1, as before (the fix
+    above does not hide a missing ACK)."""
+    found = _interleaved_copies("none").judge()
+    assert [v.actual for v in found if v.rule == "MCP-ACK-1"] == [
+        "copy of Mav_Passthrough seq 1326 from ID 0 to ID 1 after its ACK was not ACKed"], found
