@@ -170,3 +170,14 @@ def test_jobs_give_the_serial_missions(tmp_path) -> None:
     serial, side = ([(r["index"], r["seed"], r["challenge"], r["outcome"]) for r in d["results"]] for d in docs)
     assert serial == side == [(0, 40, 1, "complete"), (1, 41, 2, "complete"), (2, 42, 3, "complete")]
     assert docs[1]["jobs"] == 3
+
+
+def test_a_node_that_cannot_start_is_named_not_a_traceback(tmp_path) -> None:
+    out = tmp_path / "soak.json"
+    rc = main(["--missions", "1", "--drones", "1", "--drone", "/no/such/drone --id {id}",
+               "--out", str(tmp_path / "out"), "--json", str(out), "--impair", "seed=0"])
+    assert rc == 1
+    r = json.loads(out.read_text())["results"][0]
+    assert r["ended"]["drone1"]["how"] == "not started" and "/no/such/drone" in r["ended"]["drone1"]["detail"]
+    assert r["ended"]["manager"]["how"] in ("stopped", "killed")
+    assert any("drone1 could not start" in x for x in r["reasons"])
