@@ -3,6 +3,7 @@
     mcp-impair --listen HOST:PORT --forward HOST:PORT [--loss P] [--dup P] [--reorder P]
                [--delay LO-HI] [--corrupt P] [--burst P_GB/P_BG[/LOSS]] [--rate N]
                [--seed N] [--impair SPEC] [--capture FILE.mcap] [--duration S]
+               [--max-held N] [--max-held-bytes B]
 
 Point a node at ``--listen`` instead of its peer: every datagram it sends there goes on to
 ``--forward`` through the impairment, from a socket of its own for that sender (as a NAT
@@ -11,7 +12,15 @@ from ``--listen``, impaired too. The two directions are impaired independently
 (``harness.impair``: the same seed and traffic give the same decisions). On exit (SIGINT,
 SIGTERM, ``--duration``) it prints what it did, per direction and kind; ``--capture`` records
 each decision with the datagram it touched (MCAP channel ``/impair``), so a capture shows
-which losses were the link's. Exit 0, or 2 with one line on a bad option or a port in use.
+which losses were the link's. Exit 0, or 2 with one line on a bad option, a port in use or a
+``--forward`` host that does not resolve (it is resolved once, at start: never a DNS lookup
+per datagram).
+
+Delayed copies wait in a bounded queue (``harness.impair.DelayQueue``): at most
+``--max-held`` copies (default 20,000) and ``--max-held-bytes`` bytes (default 16 MiB, each
+copy charged its length plus 256 bytes of bookkeeping), so a flood through a long delay holds
+at most that much beside the interpreter; a copy past the cap is dropped, recorded
+(``dropped: "queue"`` on ``/impair``) and counted in the end summary (``K queue``).
 
 Sockets and clocks live here; the decisions are ``harness.impair.Impairment``'s.
 """
@@ -20,8 +29,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import heapq
-import itertools
 import selectors
 import signal
 import socket
@@ -31,9 +38,17 @@ from collections.abc import Sequence
 from typing import Any
 
 from harness.config import parse_hostport
-from harness.impair import Impairment, ImpairmentError, ImpairSpec, parse_impairment
+from harness.impair import (
+    MAX_HELD,
+    MAX_HELD_BYTES,
+    DelayQueue,
+    Impairment,
+    ImpairmentError,
+    ImpairSpec,
+    parse_impairment,
+)
 
-__all__ = ["ImpairProxy", "main"]
+__all__ = ["ImpairProxy", "main", "resolve"]
 
 PROG = "mcp-impair"
 Address = tuple[str, int]
@@ -41,14 +56,30 @@ Address = tuple[str, int]
 MAX_PEERS = 256
 
 
+def resolve(addr: Address, what: str) -> Address:
+    """``addr`` with its host as an IPv4 address, looked up once (``socket.getaddrinfo``);
+    ValueError in one line when it does not resolve."""
+    host, port = addr
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        why = exc.strerror if isinstance(exc, socket.gaierror) else str(exc)
+        raise ValueError(f"{what}: cannot resolve {host!r}: {why}") from None
+    return str(infos[0][4][0]), int(infos[0][4][1])
+
+
 class ImpairProxy:
     """The proxy's sockets and its delivery queue; ``run(until)`` serves until a deadline or
-    :meth:`stop`. ``recorder`` (optional) gets every decision (``impairment(...)``)."""
+    :meth:`stop`. ``recorder`` (optional) gets every decision (``impairment(...)``);
+    ``max_held``/``max_held_bytes``: the delay queue's cap. ``forward`` is resolved here, once
+    (ValueError when it does not)."""
 
     def __init__(self, listen: Address, forward: Address, impairment: Impairment, *,
-                 recorder: Any = None) -> None:
+                 recorder: Any = None, max_held: int = MAX_HELD,
+                 max_held_bytes: int = MAX_HELD_BYTES) -> None:
         self.impairment = impairment
-        self.forward = forward
+        self.forward = resolve(forward, "--forward")
+        self.queue: DelayQueue[tuple[socket.socket, bytes, Address]] = DelayQueue(max_held, max_held_bytes)
         self.recorder = recorder
         self.sel = selectors.DefaultSelector()
         self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -60,8 +91,6 @@ class ImpairProxy:
         self.front.setblocking(False)
         self.sel.register(self.front, selectors.EVENT_READ, None)
         self.back: dict[Address, socket.socket] = {}  # sender -> its forward socket
-        self.queue: list[tuple[float, int, socket.socket, bytes, Address]] = []
-        self._order = itertools.count()
         self._stop = False
         self.per_direction: dict[str, int] = {"up": 0, "down": 0}
 
@@ -89,11 +118,12 @@ class ImpairProxy:
                 now: float) -> None:
         decision = self.impairment.decide(direction, data, now)
         self.per_direction[direction] += 1
+        kept = tuple(d for d in decision.deliveries
+                     if self.queue.push(now + d.delay_s, len(d.data), (out, d.data, dst)))
+        decision = self.impairment.refused(decision, kept)
         if self.recorder is not None:
             with contextlib.suppress(Exception):
                 self.recorder.impairment(decision, data, time.time_ns())
-        for d in decision.deliveries:
-            heapq.heappush(self.queue, (now + d.delay_s, next(self._order), out, d.data, dst))
 
     def _read(self, sock: socket.socket, sender: Address | None, now: float) -> None:
         for _ in range(64):  # bounded per wake-up
@@ -112,9 +142,7 @@ class ImpairProxy:
                 self._impair("down", data, self.front, sender, now)
 
     def _deliver(self, now: float) -> None:
-        q = self.queue
-        while q and q[0][0] <= now:
-            _, _, sock, data, dst = heapq.heappop(q)
+        for sock, data, dst in self.queue.pop_due(now):
             with contextlib.suppress(OSError):
                 sock.sendto(data, dst)
 
@@ -125,7 +153,8 @@ class ImpairProxy:
             if until is not None and now >= until:
                 break
             self._deliver(now)
-            wait = 0.2 if not self.queue else max(0.0, self.queue[0][0] - now)
+            due = self.queue.next_due()
+            wait = 0.2 if due is None else max(0.0, due - now)
             if until is not None:
                 wait = min(wait, max(0.0, until - now))
             for key, _ in self.sel.select(min(wait, 0.2)):
@@ -138,11 +167,15 @@ class ImpairProxy:
                 self.sel.unregister(sock)
             sock.close()
         self.sel.close()
+        self.queue.clear()
 
     def report(self) -> str:
-        """What it did: per direction, then per kind."""
+        """What it did: per direction, then per kind (``K queue``: copies the full delay queue
+        dropped), then the most the queue held against its cap."""
         dirs = ", ".join(f"{n} {d}" for d, n in self.per_direction.items())
-        return f"{PROG}: {dirs}: {self.impairment.summary()}"
+        q = self.queue
+        return (f"{PROG}: {dirs}: {self.impairment.summary()}; delay queue held at most "
+                f"{q.peak_count} copies, {q.peak_bytes / (1 << 20):.1f} MiB (cap {q.cap_text()})")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -163,6 +196,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "(loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,seed=7); options given beside it win")
     p.add_argument("--capture", metavar="FILE.mcap", help="record every decision (channel /impair)")
     p.add_argument("--duration", metavar="S", type=float, help="stop after S seconds")
+    p.add_argument("--max-held", metavar="N", type=int, default=MAX_HELD,
+                   help=f"the delay queue's cap in copies held at once ({MAX_HELD}); past it a "
+                   "copy is dropped, recorded and counted ('queue')")
+    p.add_argument("--max-held-bytes", metavar="B", type=int, default=MAX_HELD_BYTES,
+                   help=f"the delay queue's cap in bytes ({MAX_HELD_BYTES}: 16 MiB; each copy "
+                   "counts its length plus 256): the most a flood through a long delay holds")
     return p
 
 
@@ -181,9 +220,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         spec = spec_from_args(ns)
         listen = parse_hostport(ns.listen, "--listen")
-        forward = parse_hostport(ns.forward, "--forward")
+        forward = resolve(parse_hostport(ns.forward, "--forward"), "--forward")
         if ns.duration is not None and not ns.duration > 0:
             raise ImpairmentError("--duration: must be > 0")
+        if ns.max_held < 1 or ns.max_held_bytes < 1:
+            raise ImpairmentError("--max-held and --max-held-bytes must be >= 1")
     except (ImpairmentError, ValueError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
@@ -198,7 +239,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
     try:
-        proxy = ImpairProxy(listen, forward, Impairment(spec), recorder=recorder)
+        proxy = ImpairProxy(listen, forward, Impairment(spec), recorder=recorder,
+                            max_held=ns.max_held, max_held_bytes=ns.max_held_bytes)
     except OSError as exc:
         print(f"{PROG}: error: --listen {ns.listen}: {exc.strerror}", file=sys.stderr)
         if recorder is not None:

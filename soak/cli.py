@@ -4,6 +4,7 @@ impairment (issue 22 item 4; MCP-DUP-1, MCP-RTX-1, MCP-FLOW-4/5/6 on a bad link)
     mcp-soak --missions 100 --impair loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms [--seed N]
              [--drones 1,2,3] [--challenges 1,2,3] [--rto 0.2] [--mission-timeout 60]
              [--manager CMD] [--drone CMD] [--out DIR] [--json FILE] [--keep] [--live [HOST:]PORT]
+             [--jobs N]
 
 Mission *k* of a campaign with ``--seed S`` runs challenge ``challenges[k % n]`` with
 impairment seed ``S + k``: ``--missions 1 --seed S+k --challenges c`` replays it. Each
@@ -11,6 +12,13 @@ mission: the monitor judges every node's view, every drone's delivery log must h
 command once, in order, and the manager must complete the mission. Exit 0 when every
 mission passed; 1 with the first failing seed, its capture and the command that reproduces
 it; 2 with one line on a bad option.
+
+``--jobs N`` runs N missions side by side (``soak.campaign``): the same missions, merged in
+mission order. SIGTERM or SIGINT stops the campaign: no mission starts, the running ones end
+their nodes at once (outcome ``interrupted``), and the table, the summary and ``--json`` are
+written with what it has (``"interrupted": "SIGTERM"``); exit 128 + the signal's number. Each
+mission names how every node ended (``ended``: exited with its code and when, stopped by the
+soak, killed after the grace, never started).
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ import argparse
 import json
 import shlex
 import shutil
+import signal
 import statistics
 import sys
 import time
@@ -27,6 +36,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from harness.impair import ImpairmentError, parse_impairment
+from soak.campaign import Stop, run_missions, stopping_on_signals
 from soak.mission import (
     DEFAULT_DRONE,
     DEFAULT_MANAGER,
@@ -94,7 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lenient", action="store_true",
                    help="fail a mission on MUST violations only (default: any monitor violation)")
     p.add_argument("--fail-fast", action="store_true", help="stop after the first failing mission")
-    p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-': stdout)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-': stdout); "
+                   "written on SIGTERM or SIGINT too, with the missions so far")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="missions side by side (1): the same missions, merged in mission order")
     p.add_argument("--live", type=_live, metavar="[HOST:]PORT",
                    help="serve the missions live over the Foxglove WebSocket protocol: each node's view under "
                         "its name (/manager/..., /drone1/...), each mission's outcome on /log "
@@ -113,6 +126,10 @@ def setup_from_args(ns: argparse.Namespace) -> tuple[MissionSetup, int]:
         raise ValueError(str(exc)) from None
     if ns.missions < 1:
         raise ValueError("--missions: must be >= 1")
+    if ns.jobs < 1:
+        raise ValueError("--jobs: must be >= 1")
+    if ns.jobs > 1 and ns.live is not None:
+        raise ValueError("--live serves one mission's views at a time: use it with --jobs 1")
     if not ns.rto > 0 or not ns.mission_timeout > 0:
         raise ValueError("--rto and --mission-timeout must be > 0")
     for name in ("waypoints", "obstacles"):
@@ -192,6 +209,7 @@ def _log(setup: MissionSetup, message: str, level: str = "info") -> None:
 
 
 def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: Any) -> int:
+    stop = Stop()
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
@@ -203,25 +221,29 @@ def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: A
     console.print(f"{PROG}: {ns.missions} missions, drones {','.join(map(str, ns.drones))}, "
                   f"challenges {','.join(map(str, ns.challenges))}, link {setup.impair.text().rsplit(',seed=', 1)[0]}, "
                   f"seeds {seed}..{seed + ns.missions - 1}, rto {ns.rto:g} s")
-    results: list[MissionResult] = []
     t0 = time.monotonic()
+    plan = [(k, seed + k, ns.challenges[k % len(ns.challenges)]) for k in range(ns.missions)]
     with Progress(TextColumn("[bold]missions"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[state]}"),
                   TimeElapsedColumn(), console=console, transient=False) as bar:
         task = bar.add_task("missions", total=ns.missions, state="")
-        for k in range(ns.missions):
-            challenge = ns.challenges[k % len(ns.challenges)]
-            _log(setup, f"mission {k} started: seed {seed + k}, challenge {challenge}")
-            r = run_mission(setup, k, seed + k, challenge)
-            results.append(r)
-            _log(setup, f"mission {k} (seed {r.seed}) complete" if r.ok else
-                 f"mission {k} (seed {r.seed}) {r.outcome}: " + "; ".join(r.reasons[:3]), "info" if r.ok else "error")
+        tally = {"ok": 0, "failed": 0}
+
+        def run(k: int, mseed: int, challenge: int, stop: Stop) -> MissionResult:
+            _log(setup, f"mission {k} started: seed {mseed}, challenge {challenge}")
+            return run_mission(setup, k, mseed, challenge, stop)
+
+        def done(r: MissionResult) -> None:
+            _log(setup, f"mission {r.index} (seed {r.seed}) complete" if r.ok else
+                 f"mission {r.index} (seed {r.seed}) {r.outcome}: " + "; ".join(r.reasons[:3]),
+                 "info" if r.ok else "error")
             if r.ok and not ns.keep:
                 shutil.rmtree(ns.out / f"mission-{r.seed}-c{r.challenge}", ignore_errors=True)
                 r.capture = None
-            failed = sum(not x.ok for x in results)
-            bar.update(task, advance=1, state=f"[green]{len(results) - failed} ok[/] [red]{failed} failed[/]")
-            if failed and ns.fail_fast:
-                break
+            tally["ok" if r.ok else "failed"] += 1
+            bar.update(task, advance=1, state=f"[green]{tally['ok']} ok[/] [red]{tally['failed']} failed[/]")
+
+        with stopping_on_signals(stop):
+            results = run_missions(plan, run, ns.jobs, stop, fail_fast=ns.fail_fast, done=done)
     wall = time.monotonic() - t0
 
     table = Table(title=f"missions: link {setup.impair.text().rsplit(',seed=', 1)[0]}, seed {seed}+k")
@@ -236,25 +258,34 @@ def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: A
     console.print(table)
     times = [r.mission_time for r in results if r.ok and r.mission_time is not None]
     ok = sum(r.ok for r in results)
+    cut = sum(r.outcome == "interrupted" for r in results)
     p50, p99 = percentile(times, 50), percentile(times, 99)
+    interrupted = stop.why if stop.why in ("SIGTERM", "SIGINT") else None
+    if interrupted:
+        console.print(f"[red]stopped by {interrupted}[/]: {len(results)} of {ns.missions} missions ran "
+                      f"({cut} interrupted, their nodes ended)", highlight=False)
     console.print(f"{ok}/{len(results)} missions complete, every command delivered exactly once"
                   if ok == len(results) else f"{ok}/{len(results)} missions complete, "
-                  f"{len(results) - ok} failed")
+                  f"{len(results) - ok - cut} failed" + (f", {cut} interrupted" if cut else ""))
     console.print(f"mission time p50 {p50:.2f} s, p99 {p99:.2f} s; " if p50 is not None and p99 is not None
                   else "", end="")
     console.print(f"{sum(len(r.violations) for r in results)} monitor violations; "
                   f"{sum(r.retransmissions for r in results)} retransmissions, "
                   f"{sum(r.duplicates for r in results)} duplicates discarded; wall time {wall:.1f} s")
-    first_bad = next((r for r in results if not r.ok), None)
+    first_bad = next((r for r in results if not r.ok and r.outcome != "interrupted"), None)
     if first_bad is not None:
         console.print(f"[red]FAILED[/] seed {first_bad.seed} (mission {first_bad.index}, challenge "
                       f"{first_bad.challenge}): " + "; ".join(first_bad.reasons[:3]), highlight=False)
+        console.print("nodes: " + "; ".join(f"{v} {e.describe()}" for v, e in first_bad.ended.items()),
+                      highlight=False)
         console.print(f"capture: {first_bad.capture or '-'}  logs: {ns.out / f'mission-{first_bad.seed}-c{first_bad.challenge}'}",
                       highlight=False)
         console.print(f"reproduce: {reproduce(ns, first_bad)}", highlight=False, soft_wrap=True)
     if ns.json:
         doc: dict[str, Any] = {
-            "tool": PROG, "missions": len(results), "complete": ok, "failed": len(results) - ok,
+            "tool": PROG, "missions": len(results), "planned": ns.missions, "complete": ok,
+            "failed": len(results) - ok - cut, "interrupted_missions": cut, "interrupted": interrupted,
+            "jobs": ns.jobs,
             "seed": seed, "impair": setup.impair.text(), "drones": list(ns.drones), "rto": ns.rto,
             "wall_time_s": round(wall, 3),
             "mission_time_p50_s": None if p50 is None else round(p50, 3),
@@ -263,7 +294,8 @@ def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: A
                 "seed": first_bad.seed, "challenge": first_bad.challenge, "capture": first_bad.capture,
                 "reasons": first_bad.reasons, "reproduce": reproduce(ns, first_bad)},
             "results": [r.to_json() for r in results],
-            "median_retransmissions": statistics.median([r.retransmissions for r in results]),
+            "median_retransmissions": statistics.median([r.retransmissions for r in results])
+            if results else None,
         }
         text = json.dumps(doc, indent=1)
         if ns.json == "-":
@@ -274,6 +306,8 @@ def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: A
             except OSError as exc:
                 print(f"{PROG}: error: --json {ns.json}: {exc.strerror}", file=sys.stderr)
                 return 2
+    if interrupted:
+        return 128 + int(getattr(signal, interrupted))
     return 0 if first_bad is None else 1
 
 

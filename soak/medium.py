@@ -15,14 +15,15 @@ capture. Drone *i*'s view also holds its link's decisions (``/impair``), and eac
 own datagrams the node's run delay as they came (``run_delays``: MCP-RTX-3 excuses a copy the
 loaded host made late, ``judge.spacing``).
 
-Sockets and a delivery queue here; the decisions are ``harness.impair.Impairment``'s.
+Sockets and a delivery queue here; the decisions are ``harness.impair.Impairment``'s. The
+queue is ``harness.impair.DelayQueue`` at its default cap (20,000 copies, 16 MiB), as
+``mcp-impair``'s: a node flooding a long delay cannot grow the soak without bound; a copy past
+it is dropped and recorded in its link's view (``dropped: "queue"``).
 """
 
 from __future__ import annotations
 
 import contextlib
-import heapq
-import itertools
 import selectors
 import socket
 import threading
@@ -31,7 +32,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from harness.driver import kernel_timestamps, recv_stamped
-from harness.impair import Impairment
+from harness.impair import DelayQueue, Impairment
 from harness.run_delay import delay_for
 from spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
 
@@ -66,8 +67,7 @@ class Medium:
         self._stamped: dict[int, bool] = {}
         self.front = self._socket(host, None)
         self.links = {i: self._socket(host, i) for i in drones}
-        self.queue: list[tuple[float, int, socket.socket, bytes, Address, str, Address]] = []
-        self._order = itertools.count()
+        self.queue: DelayQueue[tuple[socket.socket, bytes, Address, str, Address]] = DelayQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         #: per node view: retransmitted copies it sent, duplicate copies delivered to it
@@ -128,12 +128,13 @@ class Medium:
     def _impair(self, drone: int, way: str, data: bytes, out: socket.socket, dst: Address,
                 view: str, now: float) -> None:
         decision = self.impairment.decide(f"drone{drone}:{way}", data, now)
+        src = out.getsockname()[:2]
+        kept = tuple(d for d in decision.deliveries
+                     if self.queue.push(now + d.delay_s, len(d.data), (out, d.data, dst, view, src)))
+        decision = self.impairment.refused(decision, kept)
         rec = self.recorders.get(view_name(drone))
         if rec is not None:
             rec.impairment(decision, data)
-        for d in decision.deliveries:
-            heapq.heappush(self.queue, (now + d.delay_s, next(self._order), out, d.data, dst, view,
-                                        out.getsockname()[:2]))
 
     def _read(self, sock: socket.socket, drone: int | None, now: float) -> None:
         for _ in range(64):
@@ -154,9 +155,7 @@ class Medium:
                 self._impair(drone, "up", data, sock, self.manager_addr, MANAGER, now)
 
     def _deliver(self, now: float) -> None:
-        q = self.queue
-        while q and q[0][0] <= now:
-            _, _, sock, data, dst, view, src = heapq.heappop(q)
+        for sock, data, dst, view, src in self.queue.pop_due(now):
             self._rx(view, data, src, dst)
             with contextlib.suppress(OSError):
                 sock.sendto(data, dst)
@@ -166,7 +165,8 @@ class Medium:
         while not self._stop.is_set():
             now = time.monotonic()
             self._deliver(now)
-            wait = 0.05 if not self.queue else max(0.0, min(0.05, self.queue[0][0] - now))
+            due = self.queue.next_due()
+            wait = 0.05 if due is None else max(0.0, min(0.05, due - now))
             for key, _ in self.sel.select(wait):
                 self._read(key.fileobj, key.data, time.monotonic())  # type: ignore[arg-type]
             self._deliver(time.monotonic())

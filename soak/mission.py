@@ -10,7 +10,13 @@ then judged twice (issue 22 item 4).
   manager exits 0 within the mission's deadline (the mission completed: every command ACKed).
 
 Nodes are commands with placeholders (``--manager`` / ``--drone``), run as subprocesses; the
-reference ones by default (``python -m reference_impl``), never imported.
+reference ones by default (``python -m reference_impl``), never imported. Each runs in a
+process group of its own, and each mission names how every node ended (:class:`NodeEnd`:
+exited by itself, with its code and when, exit 0 included; stopped by the soak's SIGTERM;
+killed after the grace; never started). At the mission's end, or when the campaign is stopped
+(``stop``: a SIGTERM or SIGINT to ``mcp-soak``), the soak ends every group still running:
+SIGTERM, SIGKILL after 5 s, then SIGKILL to what is left in each group (a node's own
+children). A leader is reaped only after that, so its group's id cannot have been reused.
 """
 
 from __future__ import annotations
@@ -20,9 +26,9 @@ import json
 import os
 import shlex
 import signal
-import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,9 +38,10 @@ from typing import Any
 from harness.impair import Impairment, ImpairSpec
 from harness.run_delay import run_delay_ns
 from soak.medium import MANAGER, Medium, view_name
+from vehicle.ports import free_port
 
-__all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "expected_commands",
-           "run_mission"]
+__all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "NodeEnd",
+           "expected_commands", "run_mission"]
 
 DEFAULT_MANAGER = ("{python} -m reference_impl manager --challenge {challenge} --drones {drones} "
                    "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} "
@@ -78,6 +85,30 @@ class MissionSetup:
     live: Any = None
 
 
+@dataclass(frozen=True)
+class NodeEnd:
+    """How one node ended: ``exited`` by itself (``code``, ``at`` seconds into the mission),
+    ``stopped`` by the soak's SIGTERM, ``killed`` (SIGKILL after the grace), ``not started``
+    (``detail``: why)."""
+
+    how: str
+    code: int | None = None
+    at: float | None = None
+    detail: str = ""
+
+    def describe(self) -> str:
+        if self.how == "not started":
+            return f"not started: {self.detail}"
+        code = "" if self.code is None else (f" by signal {-self.code}" if self.code < 0 else f" with {self.code}")
+        at = "" if self.at is None else f" at {self.at:.2f} s"
+        return {"exited": f"exited{code}{at}", "stopped": f"stopped by the soak{at}, ended{code}",
+                "killed": f"killed (SIGKILL) after the grace, stopped{at}"}.get(self.how, self.how)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"how": self.how, "code": self.code, "at_s": None if self.at is None else round(self.at, 3),
+                **({"detail": self.detail} if self.detail else {})}
+
+
 @dataclass
 class MissionResult:
     index: int
@@ -94,13 +125,15 @@ class MissionResult:
     capture: str | None = None
     logs: dict[str, str] = field(default_factory=dict)
     link: str = ""  # what the links did (dropped, duplicated, reordered)
+    ended: dict[str, NodeEnd] = field(default_factory=dict)  # node view -> how it ended
 
     def to_json(self) -> dict[str, Any]:
         return {"index": self.index, "seed": self.seed, "challenge": self.challenge, "impair": self.impair,
                 "ok": self.ok, "outcome": self.outcome, "reasons": self.reasons,
                 "mission_time_s": None if self.mission_time is None else round(self.mission_time, 3),
                 "retransmissions": self.retransmissions, "duplicates_discarded": self.duplicates,
-                "link": self.link, "violations": self.violations, "capture": self.capture, "logs": self.logs}
+                "link": self.link, "violations": self.violations, "capture": self.capture, "logs": self.logs,
+                "ended": {v: e.to_json() for v, e in self.ended.items()}}
 
 
 def link_summary(counts: dict[str, int]) -> str:
@@ -113,10 +146,22 @@ def link_summary(counts: dict[str, int]) -> str:
     return ", ".join(words)
 
 
+_PORTS_LOCK = threading.Lock()
+_RECENT_PORTS: list[int] = []
+
+
 def _free_port(host: str) -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
+    """A port for a node to bind (``vehicle.ports.free_port``: below the ephemeral range, so a
+    medium's bind(0) beside it cannot take it), never one handed to the last 512 nodes (missions
+    side by side, ``--jobs``, pick while each other's nodes start)."""
+    with _PORTS_LOCK:
+        for _ in range(100):
+            port = free_port(host)
+            if port not in _RECENT_PORTS:
+                break
+        _RECENT_PORTS.append(port)
+        del _RECENT_PORTS[:-512]
+        return port
 
 
 def _command(template: str, values: dict[str, Any]) -> list[str]:
@@ -150,9 +195,69 @@ def _run_delay(procs: dict[str, subprocess.Popen[bytes]], view: str) -> Callable
 
 
 def _spawn(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
+    """``cmd`` in a session (a process group) of its own; OSError when it cannot start."""
     with open(log, "wb") as err:
         return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=err, stderr=subprocess.STDOUT,
                                 start_new_session=True)
+
+
+def _exit_status(proc: subprocess.Popen[bytes]) -> int | None:
+    """``proc``'s exit code if it ended (negative: the signal), None while it runs; the process
+    is *not* reaped (``WNOWAIT``), so its pid, its group's id, stays its own until
+    :func:`_end_nodes` has ended the group."""
+    if proc.returncode is not None:
+        return proc.returncode
+    if not hasattr(os, "waitid"):  # not Linux: reaped here
+        return proc.poll()
+    try:
+        info = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+    except ChildProcessError:
+        return proc.poll()
+    if info is None or info.si_pid == 0:
+        return None
+    return info.si_status if info.si_code == os.CLD_EXITED else -info.si_status
+
+
+def _signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, sig)
+
+
+def _end_nodes(procs: dict[str, subprocess.Popen[bytes]], ended: dict[str, NodeEnd], t0: float,
+               grace: float = 5.0) -> None:
+    """End every node still running (SIGTERM to its group, SIGKILL after ``grace``), record
+    how each ended in ``ended``, SIGKILL what is left of every group, then reap."""
+    running = []
+    for v, p in procs.items():
+        code = _exit_status(p)
+        if v in ended:
+            continue
+        if code is not None:
+            ended[v] = NodeEnd("exited", code, time.monotonic() - t0)
+        else:
+            running.append(v)
+    at = time.monotonic() - t0
+    for v in running:
+        _signal_group(procs[v], signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    while running:
+        for v in list(running):
+            code = _exit_status(procs[v])
+            if code is not None:
+                ended[v] = NodeEnd("stopped", code, at)
+                running.remove(v)
+        if not running or time.monotonic() >= deadline:
+            break
+        time.sleep(0.02)
+    for v in running:
+        _signal_group(procs[v], signal.SIGKILL)
+    for p in procs.values():  # a node's own children, its group's leader not yet reaped
+        _signal_group(p, signal.SIGKILL)
+    for v, p in procs.items():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            code = p.wait(5)
+            if v in running:
+                ended[v] = NodeEnd("killed", code, at)
 
 
 def _listening(port: int) -> bool | None:
@@ -167,10 +272,11 @@ def _listening(port: int) -> bool | None:
     return any(line.split()[1].endswith(want) for line in lines if len(line.split()) > 1)
 
 
-def _wait_listening(port: int, proc: subprocess.Popen[bytes], limit: float = 10.0) -> None:
-    """Until ``proc`` listens on ``port`` (or exits, or ``limit`` passes)."""
+def _wait_listening(port: int, proc: subprocess.Popen[bytes], limit: float = 10.0,
+                    stop: threading.Event | None = None) -> None:
+    """Until ``proc`` listens on ``port`` (or exits, or ``limit`` passes, or ``stop``)."""
     deadline = time.monotonic() + limit
-    while time.monotonic() < deadline and proc.poll() is None:
+    while time.monotonic() < deadline and _exit_status(proc) is None and not (stop and stop.is_set()):
         up = _listening(port)
         if up is None:
             time.sleep(0.5)  # no way to know here: give it a moment
@@ -180,21 +286,6 @@ def _wait_listening(port: int, proc: subprocess.Popen[bytes], limit: float = 10.
         time.sleep(0.01)
 
 
-def _end(proc: subprocess.Popen[bytes], grace: float = 5.0) -> int | None:
-    """SIGTERM, then SIGKILL after ``grace``; the exit code (None if it had to be killed)."""
-    if proc.poll() is not None:
-        return proc.returncode
-    with contextlib.suppress(ProcessLookupError):
-        proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(grace)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            proc.kill()
-        proc.wait(5)
-        return None
-
-
 def _record(path: Path) -> dict[str, Any] | None:
     try:
         return json.loads(path.read_text())
@@ -202,9 +293,12 @@ def _record(path: Path) -> dict[str, Any] | None:
         return None
 
 
-def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> MissionResult:
+def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
+                stop: threading.Event | None = None) -> MissionResult:
     """Mission ``index`` with impairment seed ``seed``; everything it wrote under
-    ``setup.workdir/mission-<seed>-c<challenge>/``."""
+    ``setup.workdir/mission-<seed>-c<challenge>/``. ``stop`` set (the campaign was stopped):
+    its nodes are ended at once, its views merged into its capture unjudged, and its outcome
+    is ``interrupted`` (``stop.why``, when the event has one, names the signal)."""
     from spec.mission import load_waypoints
     from traceio.recorder import McapRecorder, run_metadata
 
@@ -213,11 +307,11 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
     out = setup.workdir / f"mission-{seed}-c{challenge}"
     out.mkdir(parents=True, exist_ok=True)
     wp_file, ob_file = setup.waypoints, setup.obstacles
-    if wp_file is None:
-        wp_file = setup.workdir / "mission.waypoints"
+    if wp_file is None:  # the mission's own: missions side by side never write one another's
+        wp_file = out / "mission.waypoints"
         wp_file.write_text(WAYPOINTS)
     if ob_file is None:
-        ob_file = setup.workdir / "obstacles.waypoints"
+        ob_file = out / "obstacles.waypoints"
         ob_file.write_text(OBSTACLES)
     host = "127.0.0.1"
     ports = {MANAGER: _free_port(host), **{view_name(i): _free_port(host) for i in setup.drones}}
@@ -236,7 +330,7 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
                     {v: _run_delay(procs, v) for v in views})
     common = {"python": sys.executable, "challenge": challenge, "drones": ",".join(map(str, setup.drones)),
               "waypoints": str(wp_file), "obstacles": str(ob_file), "rto": f"{setup.rto:g}"}
-    manager_code: int | None = None
+    t0 = time.monotonic()
     try:
         cmds = {v: _command(setup.manager_cmd if v == MANAGER else setup.drone_cmd, {
             **common, "id": 0 if v == MANAGER else int(v[5:]), "target_host": host, "target_port": ports[v],
@@ -248,23 +342,22 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
         # the manager first, listening before any drone speaks: a drone's first Mission_Ready
         # must not depend on how fast the manager's process started (a seed replays only
         # if the link sees the same traffic)
-        for v in views[:1] + views[1:]:
-            procs[v] = _spawn(cmds[v], out / f"{v}.log")
+        for v in views:
+            if stop is not None and stop.is_set():
+                break
+            try:
+                procs[v] = _spawn(cmds[v], out / f"{v}.log")
+            except OSError as exc:
+                res.ended[v] = NodeEnd("not started", detail=f"{cmds[v][0]}: {exc.strerror or exc}")
+                res.reasons.append(f"{v} could not start: {res.ended[v].detail}")
+                break
             if v == MANAGER:
-                _wait_listening(ports[MANAGER], procs[v])
-        try:
-            manager_code = procs[MANAGER].wait(max(0.1, setup.timeout - (time.monotonic() - t0)))
-            res.mission_time = time.monotonic() - t0
-        except subprocess.TimeoutExpired:
-            res.reasons.append(f"the mission did not end within {setup.timeout:g} s")
-        # a drone that exited by itself before the end (crashed, gave up) is a finding
-        early = {v: p.returncode for v, p in procs.items() if v != MANAGER and p.poll() is not None}
-        for v, code in early.items():
-            if code != 0:
-                res.reasons.append(f"{v} exited with {code} during the mission")
+                _wait_listening(ports[MANAGER], procs[v], stop=stop)
+        if not res.reasons:
+            _await_manager(res, procs, t0, setup.timeout, stop)
     finally:
-        for p in procs.values():
-            _end(p)
+        _end_nodes(procs, res.ended, t0)
+        res.ended = {v: res.ended[v] for v in views if v in res.ended}
         medium.stop()
         for r in recorders.values():
             r.close()
@@ -272,8 +365,16 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
     res.duplicates = sum(medium.duplicates.values())
     res.link = link_summary(medium.impairment.counts)
     res.logs = {v: str(out / f"{v}.log") for v in procs}
-    if manager_code not in (None, 0):
-        res.reasons.append(f"the manager exited with {manager_code}")
+    if res.outcome == "interrupted":
+        with contextlib.suppress(Exception):  # what it has: the views so far, one capture
+            from traceio.merge import merge_captures
+
+            merge_captures(list(parts.values()), out / "mission.mcap")
+            res.capture = str(out / "mission.mcap")
+        return res
+    end = res.ended.get(MANAGER)
+    if end is not None and end.how == "exited" and end.code != 0:
+        res.reasons.append(f"the manager exited with {end.code}")
 
     waypoints = load_waypoints(wp_file)
     _check_deliveries(res, out, setup, challenge, len(waypoints))
@@ -282,6 +383,33 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int) -> M
     res.ok = not res.reasons
     res.outcome = "complete" if res.ok else ("timeout" if res.mission_time is None else "failed")
     return res
+
+
+def _await_manager(res: MissionResult, procs: dict[str, subprocess.Popen[bytes]], t0: float,
+                   timeout: float, stop: threading.Event | None) -> None:
+    """Until the manager exits (the mission's time), the deadline passes or ``stop``; a drone
+    that exits by itself meanwhile is recorded when seen (within 20 ms), exit 0 included: a
+    drone gone before the manager is named (``ended``), and a failure when its code is not 0."""
+    deadline = t0 + timeout
+    while True:
+        now = time.monotonic()
+        for v, p in procs.items():
+            if v not in res.ended and (code := _exit_status(p)) is not None:
+                res.ended[v] = NodeEnd("exited", code, now - t0)
+                if v != MANAGER and code != 0:  # crashed, gave up: a finding
+                    res.reasons.append(f"{v} exited with {code} during the mission")
+        if MANAGER in res.ended:
+            res.mission_time = res.ended[MANAGER].at
+            return
+        if stop is not None and stop.is_set():
+            res.outcome = "interrupted"
+            res.reasons.append(f"interrupted ({getattr(stop, 'why', None) or 'stopped'}) "
+                               f"{now - t0:.1f} s into the mission")
+            return
+        if now >= deadline:
+            res.reasons.append(f"the mission did not end within {timeout:g} s")
+            return
+        time.sleep(min(0.02, max(0.0, deadline - now)))
 
 
 def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challenge: int,
