@@ -16,10 +16,10 @@ a replay; a probe or a judged effect ends at the UPDATE that shows the state (:m
 Restarts (issue 36 item 5): a backend that dies on every frame (an ASan build that over-reads)
 is restarted after nearly every case. A spawned process is ready when it accepts a connection
 and sends on it (``harness.stream_session``'s own check, polled every 50 ms: a sanitizer's
-start takes a few ms, so nearly every start waited one poll). :meth:`Backend.restart`, the
-restart the campaign goes on fuzzing with, takes a spare started in the background after the
-previous restart, already through that check, and starts the next spare: the wait is gone
-from the campaign. A replay's process (:meth:`Backend.fresh`) is still started for it.
+start takes a few ms, so nearly every start waited one poll; a real backend takes 1.2-1.4 s).
+:meth:`Backend.fresh`, the process a replay or the campaign goes on with, takes a spare started
+in the background after the previous one, already through that check, and starts the next
+spare: the wait is gone from the campaign and from triage.
 """
 
 from __future__ import annotations
@@ -66,8 +66,7 @@ class Traits:
     ``reports_fatal``: whether a sanitizer's report ends the process (ASan's default) or not
     (``halt_on_error=0``: a real backend's ASan build over-reads on every frame and goes on).
     Until known, a whole report is followed by a 3 s wait for the exit (a loaded CI host took
-    over 0.3 s between the SUMMARY and the exit); once a process was seen alive 3 s after one,
-    the wait is 0.3 s (a failed replay of a death cost those 3 s on every non-fatal report)."""
+    over 0.3 s between SUMMARY and exit); once a process lived 3 s past one, 0.3 s."""
 
     reports_fatal: bool | None = None
 
@@ -100,39 +99,35 @@ class Backend:
         self.synced = False  # the last case's judged effect showed the stream in sync
         self.unwatched = ""  # the kind of the last valid case sent without its close window
         self.unwatched_n = 0  # how many cases in a row before this one were
-        self.spare: _Spare | None = None  # the next restart's backend, started in the background
+        #: the next processes, started in the background (:data:`SPARES` of them)
+        self.spares: list[_Spare] = []
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self.session.close()
-        if self.spare is not None:
-            self.spare.discard()
-            self.spare = None
+        for spare in self.spares:
+            spare.discard()
+        self.spares = []
 
     def fresh(self) -> Backend:
-        """A new process (spawn mode and the embedded default), started now; attach mode: the
-        same target. The spare, if any, goes with it."""
+        """A new process (spawn mode and the embedded default): the spare started in the
+        background after the previous one (a fresh start if it failed: its error is then the
+        start's own), and the next spare started; attach mode: the same target. A replay's and
+        a restart's alike: a real backend takes 1.2-1.4 s to start, and every replay of triage
+        waited for it."""
         if self.target is not None and self.spawn is None:
             self._drop()
             return self
-        spare, self.spare = self.spare, None
+        spares, self.spares = self.spares, []
         self.close()
-        b = Backend(self.target, self.spawn, self.traits)
-        b.spare = spare
+        b = (spares[0].take() if spares else None) or Backend(self.target, self.spawn, self.traits)
+        b.traits = self.traits
+        b.spares = spares[1:]
+        while len(b.spares) < SPARES:
+            b.spares.append(_Spare(self.target, self.spawn, self.traits))
         return b
 
-    def restart(self) -> Backend:
-        """A new process to go on fuzzing with: the spare started after the previous restart
-        (a fresh start if it failed: its error is then the start's own), and the next spare
-        started. Attach mode: :meth:`fresh`."""
-        if self.target is not None and self.spawn is None:
-            return self.fresh()
-        spare, self.spare = self.spare, None
-        self.close()
-        b = (spare.take() if spare is not None else None) or Backend(self.target, self.spawn, self.traits)
-        b.traits = self.traits
-        b.spare = _Spare(self.target, self.spawn, self.traits)
-        return b
+    restart = fresh  #: the process the campaign goes on fuzzing with
 
     def _drop(self) -> None:
         if self.conn is not None:
@@ -226,10 +221,11 @@ class Backend:
         of one should wait for it to show (``_reproduces``' ``wait``).
 
         Where its cause's time is known (a death's "terminate called" or sanitizer line, a
-        report's first line), the cases this process was sent before it: the latest
-        ``hit.suspects`` of them. A backend's death shows only at a later case's write or read
-        (a real backend's abort took a case or two to be seen; the cases after it were blamed
-        and the death "did not reproduce"), but its cause's line is read as it is written. The
+        report's first line), the cases this process was sent before it (the latest
+        :data:`SUSPECTS_MAX`). A backend's death shows only at a later case's write or read, and
+        a backend may handle its input well behind the fuzzer (a real one handles one frame per
+        20 ms loop: the cases after its culprit were blamed and the death "did not
+        reproduce"), but its cause's line is read as it is written. The
         wait: four times the time from that case to its cause, at least 0.5 s, at most
         :data:`REPLAY_DEATH_S` (a replay of the wrong case waited those 2 s each time)."""
         if hit.at is None or hit.signature.oracle not in ("crash", "sanitizer"):
@@ -238,7 +234,7 @@ class Backend:
         if not before:
             return window[-hit.suspects:], REPLAY_DEATH_S
         latency = hit.at - before[-1][0]
-        return [c for _, c in before[-hit.suspects:]], min(REPLAY_DEATH_S, max(0.5, 4 * latency))
+        return [c for _, c in before[-SUSPECTS_MAX:]], min(REPLAY_DEATH_S, max(0.5, 4 * latency))
 
     def _run(self, case: Case) -> Hit | None:
         self.session.sent_log.clear()  # the session's record of what the current case sent
@@ -479,8 +475,12 @@ class _Spare:
         self.future.add_done_callback(close)
 
 
-#: the thread every spare backend is started on (one at a time; it lives with the process)
-_SPAWNER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="nsqd-spare")
+#: how many processes are started ahead: two, as a replay of triage may take less time than a
+#: real backend's start (1.2-1.4 s)
+SPARES = 2
+
+#: the threads every spare backend is started on (they live with the process)
+_SPAWNER = ThreadPoolExecutor(max_workers=SPARES, thread_name_prefix="nsqd-spare")
 
 
 def read_until(conns: list[Conn], pred: Any, timeout: float) -> bool:
@@ -517,6 +517,10 @@ def _defaults(msg: Any) -> dict[str, Any]:
     return valid_values(NSQD, msg, random.Random(0))
 
 
+#: The most cases a death's suspects reach back (``Backend.suspects``; the campaign's triage
+#: finds the culprit among them by bisection)
+SUSPECTS_MAX = 16
+
 #: How long a replay of a crash waits, after its last case, for the process's death or a
 #: sanitizer's report to begin (a correct backend's replay waits it out).
 REPLAY_DEATH_S = 2.0
@@ -550,13 +554,17 @@ def _passing(hit: Hit | None, sig: Signature) -> bool:
 def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
             wait: float = REPLAY_DEATH_S) -> tuple[bool, Backend, Hit | None]:
     hit = passed = None
+    death = sig.oracle in ("crash", "sanitizer")
     for c in cases:
         hit = b.run(c)
-        if _passing(hit, sig):
-            passed, hit = hit, None
+        if _passing(hit, sig) or (death and hit is not None and hit.signature.oracle not in ("crash", "sanitizer")
+                                  and c is not cases[-1]):
+            passed, hit = hit, None  # a death's replay goes on past what the cases before it show
             continue
         if hit is not None:
             break
+    if death and len(cases) > 1:  # a backend that handles a frame per loop has them queued
+        wait = min(REPLAY_DEATH_S, wait + 0.04 * (len(cases) - 1))
     if hit is None and sig.oracle in ("crash", "sanitizer"):
         # a replay has no next case to show a death: wait for it, or for a sanitizer's report,
         # taken whole and followed to the exit (Backend.report_hit). A loaded CI host took

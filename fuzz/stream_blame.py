@@ -20,6 +20,11 @@ protocols' campaigns and of their ``--jobs`` parents. Triage may spend
 :data:`TRIAGE_SHARE` of the campaign (of ``--duration``, or of the time so far under
 ``--max-cases``); once spent, a new signature's hits are counted in the summary
 (``untriaged``), not replayed.
+
+Two observations of triage live here too: :func:`death_culprit` finds the case a death comes
+of among every case its process was sent before the death's cause showed (bisection over
+prefixes), and :func:`leak_check` observes NSQD-CON-3 as its rule does (descriptors over
+connect/close cycles with nothing sent) before the first case.
 """
 
 from __future__ import annotations
@@ -28,7 +33,9 @@ import time
 from typing import Any
 
 from fuzz.budget import GRACE_S, Late
+from fuzz.ddmin import ddmin
 from fuzz.stream_backend import Backend, Hit
+from fuzz.stream_mutators import Case
 from fuzz.stream_oracles import Signature
 from spec import NSQD
 
@@ -109,3 +116,67 @@ def budget_left(campaign: Any, now: float) -> bool:
         return False
     base = campaign.duration if campaign.duration is not None else max(now - campaign.started, 1.0)
     return campaign.triage_s == 0.0 or campaign.triage_s < TRIAGE_SHARE * base
+
+
+def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self: the campaign
+    """NSQD-CON-3 as its rule observes it, before the first case: open descriptors over
+    connect/close cycles with nothing sent (``StreamSession.cycle_connections``: four times
+    ``fd_growth_max``), on a process of its own; confirmed on ``replays`` fresh ones. (Checked
+    over the campaign, every 400 cases once 50 connections were made, it never showed on a
+    real backend that dies every 15 cases or so.)"""
+    grow_max = int(NSQD.params["fd_growth_max"])
+
+    def grown(b: Backend) -> tuple[int, str] | None:
+        before = b.session.settled_fds(quiet=0.1, limit=1.0)
+        done = b.session.cycle_connections(4 * grow_max, within=10.0)
+        after = b.session.settled_fds()
+        if before is None or after is None or b.session.death() is not None:
+            return None
+        return after - before, f"{before} -> {after} open descriptors over {done} connect/close cycles"
+
+    first = grown(backend)
+    if first is None or first[0] <= grow_max:
+        return backend
+    t0, confirmed, b = time.monotonic(), 0, backend
+    for _ in range(self.replays):
+        b = self.current = b.fresh()
+        again = grown(b)
+        confirmed += again is not None and again[0] > grow_max
+    sig = Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3")
+    if confirmed < self.replays:
+        self.unconfirmed += 1
+        self.environment.note(sig.rule, sig.describe(), first[1], 1 + confirmed, 1 + self.replays,
+                              "a process's descriptors grew over the cycles, then not on every fresh one")
+    else:
+        self.add_found(sig, first[1], f"{confirmed} of {self.replays}", "connect/close cycles")
+    self.triage_s += time.monotonic() - t0
+    return self.restart(b)
+
+
+def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Case]) -> tuple[list[Case] | None, Backend]:
+    """The case(s) a death or a report comes of, among ``suspects`` (every case the process
+    was sent before its cause showed, oldest first; ``Backend.suspects``): the newest alone;
+    else the shortest prefix that shows it, by bisection (a real backend handles one frame
+    per 20 ms loop and lagged a dozen cases behind the fuzzer: its culprit was seldom among
+    the last two), then its last case alone, else that prefix delta-debugged."""
+    ok, backend, _ = self.rep(backend, suspects[-1:], sig, probe=False)
+    if ok:
+        return suspects[-1:], backend
+    ok, backend, _ = self.rep(backend, suspects, sig, probe=False)
+    if not ok:
+        return None, backend
+    lo, hi = 0, len(suspects)  # the prefix of hi cases shows it, of lo does not
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        ok, backend, _ = self.rep(backend, suspects[:mid], sig, probe=False)
+        lo, hi = (lo, mid) if ok else (mid, hi)
+    ok, backend, _ = self.rep(backend, suspects[hi - 1:hi], sig, probe=False)
+    if ok:
+        return suspects[hi - 1:hi], backend
+    box = {"b": backend}
+
+    def still(cs: list[Case]) -> bool:
+        good, box["b"], _ = self.rep(box["b"], cs, sig, probe=False)
+        return good
+
+    return ddmin(suspects[:hi], still, budget=12), box["b"]

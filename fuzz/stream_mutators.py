@@ -22,6 +22,7 @@ from typing import Any
 from spec import NSQD
 from spec.stream import MessageSpec, StreamSpec, int_range
 from spec.stream_codec import encode_body, frame
+from spec.stream_strategies import GPX_FORMS, gpx_document
 
 __all__ = ["KINDS", "Case", "Write", "draw_case", "valid_values"]
 
@@ -57,10 +58,35 @@ _NUMBERS_BAD = ["", "abc", "nan", "inf", "-inf", "1e999", "1.2.3", "0x10", " 1",
                 "9" * 400, "1e-99999", "\x00", "١٢", "1,5"]
 
 
-def _gpx(rng: random.Random, points: int) -> str:
-    pts = "".join(f'<rtept lat="{rng.uniform(-89, 89):.5f}" lon="{rng.uniform(-179, 179):.5f}"/>'
-                  for _ in range(points))
-    return f'<?xml version="1.0"?><gpx version="1.1" creator="mcp-fuzz"><rte>{pts}</rte></gpx>'
+def _gpx(rng: random.Random, points: int, form: tuple[str, str] | None = None) -> str:
+    """A flight path of ``points`` random points in one of ``spec.stream_strategies.GPX_FORMS``
+    (D-7: "at least one wpt, rtept or trkpt"; Nsqd's Matrice100::loadPathFromString reads
+    ``trk > trkpt`` only, and every route it is sent is a null ``trk``)."""
+    pts = [(round(rng.uniform(-89, 89), 5), round(rng.uniform(-179, 179), 5)) for _ in range(points)]
+    return gpx_document(pts, form or rng.choice(GPX_FORMS))
+
+
+def _gpx_broken(rng: random.Random) -> str:
+    """A document D-7 does not call a flight path, or one at its edges: cut, nested deep, a
+    coordinate that is no number or out of range, a point without lat, a track without points,
+    an entity, an attribute flood, bytes."""
+    doc = _gpx(rng, rng.randrange(1, 8))
+    point = next(p for _, p in GPX_FORMS if f"<{p} " in doc)
+    return rng.choice([
+        doc[: rng.randrange(1, len(doc))],
+        "<gpx>" + "<rte>" * rng.randrange(50, 1500) + "</gpx>",
+        doc.replace('lat="', 'lat="x', 1),
+        doc.replace(f"<{point}", f'<{point} lat="1e999"', 1),
+        doc.replace(f"<{point} lat=", f"<{point} lax=", 1),
+        '<gpx><wpt lat="' + "9" * rng.randrange(100, 3000) + '" lon="1"/></gpx>',
+        '<gpx><trk></trk></gpx>',
+        '<gpx><trk><trkpt lon="1"/></trk></gpx>',
+        f'<gpx><trk><trkpt lat="{rng.choice(["abc", "", "1e999", "-"])}" lon="1"/></trk></gpx>',
+        '<notgpx><trk><trkpt lat="1" lon="1"/></trk></notgpx>',
+        '<?xml version="1.0"?><!DOCTYPE g [<!ENTITY a "aaaaaaaaaa">]><gpx><wpt lat="&a;" lon="1"/></gpx>',
+        "<gpx " + "a=\"1\" " * rng.randrange(10, 900) + "/>",
+        rng.randbytes(rng.randrange(1, 200)).decode("latin-1"),
+    ])
 
 
 def valid_values(spec: StreamSpec, msg: MessageSpec, rng: random.Random) -> dict[str, Any]:
@@ -163,17 +189,7 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
                 return Case(kind, (Write(frame(spec, gmsg.id, struct.pack(">h", len(data)) + data)),),
                             note=note, probe=False)
         else:
-            doc = _gpx(rng, rng.randrange(1, 8))
-            text = rng.choice([
-                doc[: rng.randrange(1, len(doc))],
-                "<gpx>" + "<rte>" * rng.randrange(50, 1500) + "</gpx>",
-                doc.replace('lat="', 'lat="x', 1),
-                doc.replace("<rtept", "<rtept lat=\"1e999\"", 1),
-                '<gpx><wpt lat="' + "9" * rng.randrange(100, 3000) + '" lon="1"/></gpx>',
-                '<?xml version="1.0"?><!DOCTYPE g [<!ENTITY a "aaaaaaaaaa">]><gpx><wpt lat="&a;" lon="1"/></gpx>',
-                "<gpx " + "a=\"1\" " * rng.randrange(10, 900) + "/>",
-                rng.randbytes(rng.randrange(1, 200)).decode("latin-1"),
-            ])
+            text = _gpx_broken(rng)
             note = f"GPX mutated ({len(text)} bytes)"
         data = text.encode("utf-8", "surrogateescape")[: 32767]
         body = struct.pack(">h", len(data)) + data

@@ -340,6 +340,33 @@ class StreamSession(SessionBase):
         except OSError:
             return None
 
+    def cycle_connections(self, cycles: int, within: float) -> int:
+        """NSQD-CON-3's cycles: connections opened and closed with nothing sent, up to
+        ``cycles`` within ``within`` s (a SYN a full listen backlog dropped is retried, not
+        counted); how many were made. The conformance case and the fuzzer's leak check alike."""
+        done, deadline = 0, time.monotonic() + within
+        while done < cycles and time.monotonic() < deadline:
+            try:
+                with socket.create_connection(self.address, timeout=0.1):
+                    pass
+            except OSError:
+                time.sleep(0.02)
+                continue
+            done += 1
+            time.sleep(0.0005)  # yields: an embedded backend shares this process
+        return done
+
+    def settled_fds(self, quiet: float = 0.3, limit: float = 2.0) -> int | None:
+        """:meth:`open_fds` once it held for ``quiet`` s (the backend has handled the closes
+        before it), or at ``limit`` s."""
+        last, since, end = self.open_fds(), time.monotonic(), time.monotonic() + limit
+        while last is not None and time.monotonic() < end and time.monotonic() - since < quiet:
+            time.sleep(0.02)
+            now = self.open_fds()
+            if now != last:
+                last, since = now, time.monotonic()
+        return last
+
     # -- case API (conformance._plugin_run) ---------------------------------------------
     def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
         if self.lost is not None:

@@ -17,14 +17,28 @@ from spec import NSQD
 from spec.stream import Field, StreamSpec, int_range
 from spec.stream_codec import encode
 
-__all__ = ["frames", "message_values", "streams"]
+__all__ = ["GPX_FORMS", "frames", "gpx_document", "message_values", "streams"]
 
+
+
+#: the forms a flight path's points take (D-7: "at least one wpt, rtept or trkpt"): waypoints, a
+#: route, a GPX 1.1 track of segments, a track whose points are its own children (what a backend
+#: reading ``trk > trkpt`` takes)
+GPX_FORMS = (("", "wpt"), ("rte", "rtept"), ("trk><trkseg", "trkpt"), ("trk", "trkpt"))
+
+
+def gpx_document(points: list[tuple[float, float]], form: tuple[str, str]) -> str:
+    """A GPX 1.1 flight path of ``points`` (lat, lon) in one of :data:`GPX_FORMS`."""
+    outer, point = form
+    pts = "".join(f'<{point} lat="{lat:.6f}" lon="{lon:.6f}"/>' for lat, lon in points)
+    if outer:
+        pts = f"<{outer}>{pts}" + "".join(f"</{t}>" for t in reversed(outer.split("><")))
+    return f'<?xml version="1.0"?><gpx version="1.1" creator="mcp-fuzz">{pts}</gpx>'
 
 
 def _gpx() -> st.SearchStrategy[str]:
     point = st.tuples(st.floats(-90, 90, allow_nan=False), st.floats(-180, 180, allow_nan=False))
-    return st.lists(point, min_size=1, max_size=8).map(lambda pts: "<gpx version=\"1.1\"><rte>" + "".join(
-        f'<rtept lat="{lat:.6f}" lon="{lon:.6f}"/>' for lat, lon in pts) + "</rte></gpx>")
+    return st.builds(gpx_document, st.lists(point, min_size=1, max_size=8), st.sampled_from(GPX_FORMS))
 
 
 def _field(spec: StreamSpec, f: Field) -> st.SearchStrategy[Any]:
