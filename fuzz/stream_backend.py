@@ -164,8 +164,8 @@ class Backend:
         if parsed:
             kind, access, frames = parsed
             at = proc.cause_time() if cause else proc.report_time()
-        else:
-            kind, access, frames = d.signal_name or f"exit {d.code}", "", ()
+        else:  # no cause written: seen now, its cause no later
+            kind, access, frames, at = d.signal_name or f"exit {d.code}", "", (), time.monotonic()
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(),
                    tuple(report[:20]) or d.stderr, at=at)
 
@@ -190,8 +190,8 @@ class Backend:
         dead = self.death_hit((0.3 if self.traits.reports_fatal is False else 3.0) if whole else 1.0)
         if dead is not None:
             first = parse_sanitizer(report) if whole else None
-            if first and self.traits.reports_fatal is None and dead.signature.kind == first[0]:
-                self.traits.reports_fatal = True  # it died of the report itself
+            if first and self.traits.reports_fatal is None:  # of the report itself, or of a later cause
+                self.traits.reports_fatal = (dead.signature.kind, dead.signature.frames[:3]) == (first[0], first[2][:3])
             return dead
         if whole and self.traits.reports_fatal is None:
             self.traits.reports_fatal = False

@@ -18,7 +18,8 @@ the deadline; one under way is not cut, so a campaign ends within ``--duration``
 timeout, a probe's two effect windows, a sanitizer report read whole), the one bound of both
 protocols' campaigns and of their ``--jobs`` parents. Triage may spend
 :data:`TRIAGE_SHARE` of the campaign (of ``--duration``, or of the time so far under
-``--max-cases``); once spent, a new signature's hits are counted in the summary
+``--max-cases``); a new triage starts under 90 % of it, and one that reaches it ends there
+(``over_budget``); once spent, a new signature's hits are counted in the summary
 (``untriaged``), not replayed.
 
 Two observations of triage live here too: :func:`death_culprit` finds the case a death comes
@@ -39,7 +40,8 @@ from fuzz.stream_mutators import Case
 from fuzz.stream_oracles import Signature
 from spec import NSQD
 
-__all__ = ["GRACE_S", "PROBED", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "baseline", "watch_stream"]
+__all__ = ["GRACE_S", "PROBED", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "baseline", "death_culprit", "leak_check",
+           "over_budget", "watch_stream"]
 
 TRIAGE_SHARE = 0.25  # of the campaign's time, triage's budget
 UNCONFIRMED_TRIES = 2  # a signature that did not reproduce this many times is counted, not triaged again
@@ -115,7 +117,17 @@ def budget_left(campaign: Any, now: float) -> bool:
     if campaign.duration is not None and now >= campaign.started + campaign.duration:
         return False
     base = campaign.duration if campaign.duration is not None else max(now - campaign.started, 1.0)
-    return campaign.triage_s == 0.0 or campaign.triage_s < TRIAGE_SHARE * base
+    # room left for the triage it starts (a real backend's took 5-10 s): the share is a bound
+    # (``over_budget`` ends a triage that would pass it)
+    return campaign.triage_s == 0.0 or campaign.triage_s < 0.9 * TRIAGE_SHARE * base
+
+
+def over_budget(campaign: Any, now: float) -> bool:
+    """Whether the triage in progress (begun at ``campaign.triage_from``) has taken the
+    campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``)."""
+    if campaign.duration is None or campaign.triage_from is None:
+        return False
+    return campaign.triage_s + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration
 
 
 def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self: the campaign

@@ -54,6 +54,7 @@ from fuzz.stream_blame import (
     budget_left,
     death_culprit,
     leak_check,
+    over_budget,
 )
 from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
 from fuzz.stream_mutators import Case, Write, draw_case
@@ -127,6 +128,7 @@ class StreamCampaign:
     case_cap: int | None = None
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
+    triage_from: float | None = None  # when the triage in progress began (``over_budget``)
 
     def _over(self, deadline: float) -> bool:
         cap = self.case_cap if self.case_cap is not None else self.max_cases
@@ -170,7 +172,7 @@ class StreamCampaign:
         from fuzz.stream_stateful import triage_program
 
         t0, r0 = time.monotonic(), self.restart_s
-        self.wait = REPLAY_DEATH_S
+        self.wait, self.triage_from = REPLAY_DEATH_S, t0
         try:
             if self.skip(hit.signature, backend, "program"):
                 return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
@@ -181,6 +183,7 @@ class StreamCampaign:
             return self.current
         finally:
             self.triage_s += time.monotonic() - t0 - (self.restart_s - r0)
+            self.triage_from = None
 
     def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
@@ -220,10 +223,11 @@ class StreamCampaign:
                 if hit is not None:
                     # a death may show only at the next case's write: the one before is a suspect too
                     t1, r0 = time.monotonic(), self.restart_s
+                    self.triage_from = t1
                     self.fuzz_s += t1 - t_fuzz
                     suspects, self.wait = (list(window), REPLAY_DEATH_S) if probe else backend.suspects(hit, window)
                     backend = self.current = self._triage(backend, hit, suspects, probe)
-                    t_fuzz = time.monotonic()
+                    t_fuzz, self.triage_from = time.monotonic(), None
                     self.triage_s += t_fuzz - t1 - (self.restart_s - r0)
                     window.clear()
                     continue
@@ -262,9 +266,10 @@ class StreamCampaign:
     def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
             log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
         """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
-        triaged hit's own (``self.wait``) unless given (a confirming replay waits the whole
-        :data:`REPLAY_DEATH_S`: a loaded host's slow death is no reason to call it unconfirmed)."""
-        if self.duration is not None and time.monotonic() >= self.started + self.duration:
+        triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
+        least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
+        if self.duration is not None and time.monotonic() >= self.started + self.duration \
+                or over_budget(self, time.monotonic()):
             raise Late
         ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log, wait=self.wait if wait is None else wait)
         self.current = b
@@ -407,24 +412,23 @@ class StreamCampaign:
             writes = [w for c in culprit for w in c.writes]
             if sig.oracle != "effect":
                 writes = ddmin(writes, test, budget=24)
-            if len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
-                data = writes[0].data
-                for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):  # a shorter tail, if it still reproduces
-                    if 0 < cut < len(data) and test([Write(data[:cut])]):
-                        data = data[:cut]
-                writes = [Write(data)]
             c0 = culprit[0]
             minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                             check=c0.check)]
-        confirmed = 0
-        traffic: list[Any] = []
-        for _ in range(self.replays):
-            log = TrafficLog()
-            ok, state["b"], last = self.rep(state["b"], minimal, sig, probe=probe, log=log, wait=REPLAY_DEATH_S)
-            confirmed += ok
-            traffic = log.records if ok else traffic
-            if last is not None and last.stderr:
-                hit = Hit(hit.signature, hit.detail, last.stderr)
+
+        def confirm(cases: list[Case]) -> tuple[int, list[Any], Hit | None]:
+            n, traffic, last = 0, [], None
+            for _ in range(self.replays):
+                log = TrafficLog()
+                ok, state["b"], last = self.rep(state["b"], cases, sig, probe=probe, log=log,
+                                                wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                n += ok
+                traffic = log.records if ok else traffic
+            return n, traffic, last
+
+        confirmed, traffic, last = confirm(minimal)
+        if last is not None and last.stderr:
+            hit = Hit(hit.signature, hit.detail, last.stderr)
         if confirmed < self.replays:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
@@ -432,6 +436,18 @@ class StreamCampaign:
                                   f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
                                   f"{confirmed} of {self.replays} confirming replays did (timing or load)")
             return self.restart(state["b"])
+        if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
+            # a shorter tail, once it is confirmed as the whole input was (after it: an input
+            # that does not replay spends no time on cuts)
+            data = writes[0].data
+            for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
+                if 0 < cut < len(data) and test([Write(data[:cut])]):
+                    data = data[:cut]
+            if len(data) < len(writes[0].data):
+                shorter = [replace(minimal[0], writes=(Write(data),))]
+                n, cut_traffic, _ = confirm(shorter)
+                if n == self.replays:
+                    minimal, traffic = shorter, cut_traffic
         self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.findings[-1]

@@ -65,7 +65,9 @@ def test_a_crash_that_replays_once_then_not_is_named_environment_dependent(tmp_p
     on the last lines, with why, as MCP's campaign names one (``fuzz.environment``)."""
     spawn = (f"{sys.executable} -m tests.fuzz.servers.misbehaving_backend --bind {{target_host}}:{{target_port}} "
              f"--mode flaky-crash --state {tmp_path / 'count'} --lifetime 120")
-    run = _fuzz("--spawn", spawn, "--duration", "20", "--out", str(tmp_path / "out"))  # a replay waits 2 s for a death
+    # triage's share of 30 s (7.5 s) holds a baseline, the replay that shows it and 3 confirming
+    # ones that wait 1 s each for a death
+    run = _fuzz("--spawn", spawn, "--duration", "30", "--out", str(tmp_path / "out"))
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     print(run.stdout + run.stderr, summary["environment_dependent"])
     env = [e for e in summary["environment_dependent"] if e["rule"] == "NSQD-ROB-1"]
