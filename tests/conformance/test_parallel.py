@@ -11,6 +11,7 @@ startup, the batch, the whole run's traffic, a crash, a flood and the seq wrap.
 from __future__ import annotations
 
 import json
+import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -120,29 +121,39 @@ NODES = [
     ("seq-no-wrap", ("--fault", "seq-no-wrap")),
 ]
 
+#: The faulty nodes test_mutants runs with the same node and runner options (sample node at
+#: --rto 0.2, the runner at FAST): its run of each is the ``--parallel 1`` run (``--parallel 1``
+#: is the plan as it was, test_one_instance_is_the_plan_as_it_was), and the ``--parallel 3``
+#: run goes beside it there, compared by ``assert_three_agree_with_one``: not a second
+#: ``--parallel 1`` run of the same node here (10 whole-suite runs fewer in CI). At
+#: ``MCP_MUTANTS_TIMING=real`` test_mutants runs other timings, and every node is compared here.
+FOLDED: dict[tuple[str, ...], str] = (
+    {} if os.environ.get("MCP_MUTANTS_TIMING", "short") == "real"
+    else {args: label for label, args in NODES if label not in ("reference", "sample")})
+HERE = [(label, args) for label, args in NODES if args not in FOLDED]
+
 
 def _outcomes(res) -> dict[str, str]:
     return {c["id"]: c["outcome"] for c in res.report.get("cases", [])}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("label,node_args", NODES, ids=[n for n, _ in NODES])
-def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_args, tmp_path):
-    from .runner_helpers import reference_node_command
+def three_instances(spawn: str, tmp_path: Path):
+    """The ``--parallel 3`` run's arguments of ``spawn``'s node (at FAST), recording a capture
+    and a JUnit file in ``tmp_path`` (``three.mcap``, ``three.xml``)."""
+    return ("--spawn", spawn, "--mavlink", *FAST, "--parallel", "3", "--capture", str(tmp_path / "three.mcap"),
+            "--junit", str(tmp_path / "three.xml"))
 
-    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
-    base = ("--spawn", spawn, "--mavlink", *FAST)
-    record = ("--capture", str(tmp_path / "run.mcap"), "--junit", str(tmp_path / "run.xml"))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        one, three = pool.map(lambda a: run_conform(*a, timeout=300),
-                              [(*base, "--parallel", "1"), (*base, "--parallel", "3", *record)])
+
+def assert_three_agree_with_one(one, three, tmp_path: Path) -> None:
+    """Every case the same outcome with one instance and three, the same exit code and error;
+    one report of the same shape, the plan saying which instance ran each case; the capture
+    and JUnit file of the three-instance run whole."""
     want, got = _outcomes(one), _outcomes(three)
     assert want, one.explain()
     diff = {c: (want.get(c), got.get(c)) for c in sorted(set(want) | set(got)) if want.get(c) != got.get(c)}
     assert not diff, f"--parallel 1 vs 3 differ: {diff}\n{three.explain()}"
     assert three.rc == one.rc, three.explain()
     assert three.report.get("error") == one.report.get("error"), three.explain()
-    # one report of the same shape, the plan saying which instance ran each case
     assert set(three.report) == set(one.report)
     assert one.report["schedule"]["shards"] == 1
     plan = three.report["schedule"]
@@ -152,5 +163,26 @@ def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_arg
     from conformance.report import validate_json
 
     validate_json(three.report)
-    assert (tmp_path / "run.xml").read_text().count("<testcase ") == len(got)
-    assert (tmp_path / "run.mcap").stat().st_size > 0 and not list(tmp_path.glob("*.events"))
+    assert (tmp_path / "three.xml").read_text().count("<testcase ") == len(got)
+    assert (tmp_path / "three.mcap").stat().st_size > 0 and not list(tmp_path.glob("*.events"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label,node_args", HERE, ids=[n for n, _ in HERE])
+def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_args, tmp_path):
+    from .runner_helpers import reference_node_command
+
+    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        one, three = pool.map(lambda a: run_conform(*a, timeout=300),
+                              [("--spawn", spawn, "--mavlink", *FAST, "--parallel", "1"),
+                               three_instances(spawn, tmp_path)])
+    assert_three_agree_with_one(one, three, tmp_path)
+
+
+def test_every_node_is_compared_here_or_in_test_mutants():
+    from . import test_mutants
+
+    assert test_mutants.RUNNER == FAST and test_mutants.NODE_RTO == 0.2 or not FOLDED
+    assert set(FOLDED) <= {("--fault", f) for f, _ in test_mutants.MUTANTS}, set(FOLDED)
+    assert {label for label, _ in HERE} | set(FOLDED.values()) == {label for label, _ in NODES}
