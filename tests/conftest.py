@@ -1,5 +1,4 @@
-"""The test run's order: the longest slow tests first, one or two at the head of each worker's
-share.
+"""The test run's order: the longest slow tests first, a few at the head of each worker's share.
 
 A long test that starts last makes the whole run as long as itself on top of everything before
 it. These are the tests that wait on protocol timers at the description's real timings (5 s) or
@@ -19,35 +18,58 @@ from typing import Any
 
 import pytest
 
-#: Substrings of node IDs of the longest tests (measured with --durations), longest first.
+#: Substrings of node IDs of the longest tests, longest first: the slow run's tests of 22 s and
+#: more (--durations=0 of two runs of ``-n 10 -m slow`` on the 2-core host, their mean; most
+#: wait on protocol timers, the description's 5 s timeout, a fixed-length fuzz campaign).
 LONG_FIRST = (
-    "test_oracle_observation.py::test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign",
-    "test_hostile_files.py::test_check_of_a_million_violating_datagrams",  # CPU: a minute of a core
-    "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
-    "test_jobs.py::test_failure_found_by_one_worker_is_replayed_first_by_the_other",
-    "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",
-    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-1]",
-    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-2]",
-    "test_apps.py::test_dronekit_app_conforms_at_the_descriptions_timeout",
-    "test_faults.py::test_attach_node_killed_mid_run_at_the_descriptions_timings",
-    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[no-dup-discard]",
-    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",
-    "test_mutants.py::test_mutant_is_caught_with_its_rule[slow-ack]",
-    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[no-ready-ack]",
-    "test_manager_role.py::test_faulty_manager_is_caught_with_its_rule[no-ready-ack]",
-    "test_reader.py::test_mcap_cut_at_every_byte[1]",
-    "test_mutants.py::test_mutant_is_caught_with_its_rule[ack-first-copy-only]",
-    "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[dup-seq-only]",
-    "test_soak_faults.py::test_the_soak_catches_the_fault_and_its_seed_replays_it[ack-before-accept]",
-    "test_readme_ci.py::test_the_ci_snippets_run_as_written",
-    "test_faults.py::test_signals_in_quick_succession_leave_valid_reports",
-    # the Nsqd run (-m "slow and nsqd"), which waits more than it computes
-    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",
-    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend",
-    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[update-stops]",
-    "test_conform_nsqd.py::test_correct_c_backend_passes",
-    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",
-    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",
+    "test_oracle_observation.py::test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign",  # 61 s
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",  # 56 s
+    "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",  # 53 s
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-1]",  # 53 s
+    "test_faults.py::test_attach_node_killed_mid_run_at_the_descriptions_timings",  # 51 s
+    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[no-ready-ack]",  # 49 s
+    "test_manager_role.py::test_faulty_manager_is_caught_with_its_rule[no-ready-ack]",  # 49 s
+    "test_golden_runs.py::test_pairs_of_whole_suite_runs_are_the_same",  # 48 s
+    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend[reference]",  # 45 s
+    "test_nsqd_stateful.py::test_no_false_alarm_on_a_correct_backend[c]",  # 45 s
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[ack-first-copy-only-2]",  # 45 s
+    "test_mutants.py::test_mutant_is_caught_with_its_rule[slow-ack]",  # 45 s
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unbounded-gpx-alloc]",  # 44 s
+    "test_apps.py::test_dronekit_app_conforms_at_the_descriptions_timeout",  # 43 s
+    "test_mutants.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",  # 42 s
+    "test_nsqd_recover_mode.py::test_a_death_after_non_fatal_reports_is_confirmed_by_its_cause",  # 41 s
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[seq-no-wrap-2]",  # 39 s
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[update-stops]",  # 38 s
+    "test_conform_nsqd.py::test_correct_c_backend_passes",  # 38 s
+    "test_golden_runs.py::test_pairs_of_runs_of_the_same_cases_are_the_same",  # 37 s
+    "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[seq-no-wrap-1]",  # 37 s
+    "test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",  # 36 s
+    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[hang-on-big]",  # 35 s
+    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",  # 34 s
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[early-return-keeps-size]",  # 32 s
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",  # 31 s
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unknown-id-no-skip]",  # 31 s
+    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[seq-no-wrap]",  # 30 s
+    "test_nsqd_progress_jobs.py::test_jobs_share_the_example_database",  # 29 s
+    "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[no-close-on-bad-length]",  # 27 s
+    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[wrong-seq-ack]",  # 27 s
+    "test_nsqd_one_judge.py::test_live_and_offline_verdicts_agree[None]",  # 26 s
+    "test_capture_tools_e2e.py::test_check_on_tcpdump_and_dumpcap_captures_of_a_real_mission",  # 26 s
+    "test_impair_conform.py::test_a_faulty_node_fails_the_same_rule_through_a_bad_link[no-dup-discard-MCP-DUP-1]",  # 26 s
+    "test_hostile_files.py::test_replay_to_a_dead_port_is_a_setup_error",  # 26 s
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[crash-on-negative-string]",  # 26 s
+    "test_impair_conform.py::test_a_faulty_node_fails_the_same_rule_through_a_bad_link[ack-broadcast-MCP-ACK-4]",  # 25 s
+    "test_stateful_finds.py::test_no_finding_on_the_correct_node_at_the_default_settings",  # 25 s
+    "test_blame.py::test_a_backend_that_misbehaves_whatever_it_is_sent_is_its_own_finding[slow-NSQD-MSG-1]",  # 25 s
+    "test_one_judge.py::test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdicts[le-count]",  # 25 s
+    "test_one_judge.py::test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts[reference-node]",  # 24 s
+    "test_nsqd_one_judge.py::test_live_and_offline_verdicts_agree[update-state-little-endian]",  # 24 s
+    "test_conform_nsqd.py::test_reference_backend_passes_every_rule",  # 24 s
+    "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[crash-on-bad-number]",  # 24 s
+    "test_soak_faults.py::test_the_correct_sample_nodes_complete_the_same_missions[loss=0.2,dup=0.7,reorder=0.5,delay=0-150ms-1-1,2,3,4,5]",  # 24 s
+    "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[ack-bad-preamble]",  # 24 s
+    "test_xdist.py::test_spawn_mode_under_xdist_leaves_one_report_of_each_kind",  # 23 s
+    "test_manager_role.py::test_a_manager_that_sends_nothing_never_answered",  # 23 s
     # the quick run's longest (they wait), first there
     "test_schedule.py::test_a_scheduled_run_watches_its_windows_together_and_serial_one_after_another",
     "test_forkserver.py::test_an_environment_read_at_import_gets_a_server_imported_with_it",
@@ -133,7 +155,10 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 #: ``MCP_TEST_CPU=FILE``: each test's CPU seconds (the worker's and its waited-for children's,
-#: user + system) appended to FILE as "seconds<TAB>nodeid" -- where CI's time goes on 2 cores.
+#: user + system) appended to FILE as "seconds<TAB>nodeid<TAB>worker<TAB>start<TAB>end" (start
+#: and end: wall-clock time.time(), setup to teardown) -- where CI's time goes on 2 cores, and
+#: when each worker was busy (the run's tail: a worker idle while another still runs). The
+#: runner's forkserver (tests/forkserver.py) is no child of the worker: its runs' CPU is not in it.
 _CPU_FILE = __import__("os").environ.get("MCP_TEST_CPU")
 
 
@@ -149,7 +174,10 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):  #
     if _CPU_FILE is None:
         yield
         return
-    before = _cpu()
+    import time
+
+    before, start = _cpu(), time.time()
     yield
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "-")
     with open(_CPU_FILE, "a", encoding="utf-8") as f:
-        f.write(f"{_cpu() - before:.3f}\t{item.nodeid}\n")
+        f.write(f"{_cpu() - before:.3f}\t{item.nodeid}\t{worker}\t{start:.3f}\t{time.time():.3f}\n")

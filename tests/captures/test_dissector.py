@@ -19,7 +19,8 @@ from captures.scenarios import GOLDEN
 from spec.codec import Action, DecodeError, Message, build_datagram, decode, encode
 from spec.mavframe import heartbeat_frame
 from tests.captures.test_export import ITEMS, _tshark
-from tests.capturing import free_port, run_subcommand
+from tests.capturing import run_subcommand
+from tests.spawned import start_node
 from traceio.recorder import McapRecorder
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -185,15 +186,13 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
     (fuzz.mutators) 2 ms apart, both directions recorded as mcp-fuzz's target sees them."""
     from fuzz.mutators import CaseGenerator
 
-    node, us = free_port(), free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
-                             f"127.0.0.1:{node}", "--send-to", f"127.0.0.1:{us}", "--rto", "0.3", "-q"],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", us))
+    sock.bind(("127.0.0.1", 0))  # ours before the node's port is chosen: no race for it
+    us = sock.getsockname()[1]
     sock.settimeout(0.2)
     stop = threading.Event()
     got = threading.Event()
+    node = None
     try:
         with McapRecorder(path, local=("127.0.0.1", us)) as rec:
             def receive() -> None:
@@ -207,22 +206,27 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
 
             t = threading.Thread(target=receive, daemon=True)
             t.start()
-            assert got.wait(20), "the reference drone sent nothing"
+            # started again on a fresh port if it exits first; its stderr in the failure
+            node, port = start_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "1",
+                                               "--bind", f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{us}",
+                                               "--rto", "0.3", "-q"], got.wait, cwd=ROOT)
             time.sleep(0.7)  # its Mission_Ready, retransmitted
             gen = CaseGenerator(seed, node_id=1, broadcast_id=65535)
             for _ in range(cases):
                 data = gen.next().data
                 t_ns = time.time_ns()  # before the send: the node's answer comes after it
-                sock.sendto(data, ("127.0.0.1", node))
-                rec.datagram("tx", data, ("127.0.0.1", node), t_ns)
+                sock.sendto(data, ("127.0.0.1", port))
+                rec.datagram("tx", data, ("127.0.0.1", port), t_ns)
                 time.sleep(0.002)
             time.sleep(0.5)
             stop.set()
             t.join(5)
     finally:
-        proc.terminate()
-        proc.wait(10)
+        stop.set()
+        if node is not None:
+            node.stop()
         sock.close()
+    return port
     return node
 
 

@@ -143,16 +143,13 @@ def test_replay_errors_are_one_line(tmp_path):
 def test_replay_in_attach_mode():
     """A node already running (attach): replay sends to --target and listens on --listen."""
     from harness.session import free_port
+    from tests.spawned import attached_node
 
-    target, listen = free_port(), free_port()
-    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
-                             f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.5", "-q"],
-                            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
+    listen = free_port()
+    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+                                  f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.5", "-q"],
+                       listen, kill=False, cwd=ROOT) as (node, target):
         result = replay(_records(GOLDEN / "challenge3.mcap"), ("127.0.0.1", target), role="drone",
                         listen=("127.0.0.1", listen), rto=0.5, ack_window=0.3)
-        assert result.ok, _report(result.diff)
+        assert result.ok, f"{_report(result.diff)}\nthe node: {node.explain()}"
         assert result.received >= 4
-    finally:
-        node.terminate()
-        node.wait(timeout=20)

@@ -99,18 +99,22 @@ def test_interrupted_node_leaves_a_valid_capture(tmp_path, how):
 def test_a_mission_end_to_end_is_captured_on_every_node(tmp_path):
     """The manager and a drone, each with --capture: each file holds its side of the mission."""
     from harness.session import free_port
+    from tests.spawned import Node
 
     pm, pd = free_port(), free_port()
     waypoints = ROOT / "tests" / "reference_impl" / "data" / "challenge.waypoints"
     base = [sys.executable, "-m", "reference_impl"]
-    drone = subprocess.Popen(base + ["drone", "--id", "1", "127.255.255.255", str(pd), str(pm), "--rto", "0.2",
-                                     "--capture", str(tmp_path / "d.mcap"), "-q"], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    manager = subprocess.run(base + ["manager", "--challenge", "1", "--drones", "1", "--waypoints", str(waypoints),
-                                     "127.255.255.255", str(pm), str(pd), "--rto", "0.2",
-                                     "--capture", str(tmp_path / "m.mcap"), "-q"], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=60, text=True)
-    assert drone.wait(timeout=30) == 0 and manager.returncode == 0, manager.stderr
+    drone = Node(base + ["drone", "--id", "1", "127.255.255.255", str(pd), str(pm), "--rto", "0.2",
+                         "--capture", str(tmp_path / "d.mcap"), "-q"], cwd=ROOT)  # its stderr kept
+    try:
+        manager = subprocess.run(base + ["manager", "--challenge", "1", "--drones", "1", "--waypoints",
+                                         str(waypoints), "127.255.255.255", str(pm), str(pd), "--rto", "0.2",
+                                         "--capture", str(tmp_path / "m.mcap"), "-q"], cwd=ROOT,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=60, text=True)
+        assert drone.proc.wait(timeout=30) == 0 and manager.returncode == 0, \
+            f"the manager: exit {manager.returncode}; {manager.stderr}\nthe drone: {drone.explain()}"
+    finally:
+        drone.stop(kill=True)
     m, d = read_all(tmp_path / "m.mcap")[0], read_all(tmp_path / "d.mcap")[0]
     sent = [b["action_name"] for _, b in m["/mcp/tx"] if b["action_name"] != "ACK"]
     assert sent == ["START_MISSION", "WP_LIST", "END_MISSION"]

@@ -21,6 +21,7 @@ import pytest
 
 from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
+from tests.spawned import Node
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -96,8 +97,8 @@ def _failed(check: Path, tmp: Path) -> tuple[set[str], int]:
 def test_live_and_offline_verdicts_agree(tmp_path, fault):
     exe = built_or_skip()
     port = _free_port()
-    backend = subprocess.Popen([str(exe), "--host", "127.0.0.1", "--port", str(port), "--update-period", "0.05",
-                                *(["--fault", fault] if fault else [])], stderr=subprocess.DEVNULL)
+    backend = Node([str(exe), "--host", "127.0.0.1", "--port", str(port), "--update-period", "0.05",
+                    *(["--fault", fault] if fault else [])])  # its stderr said if the run finds no backend
     dump = _tcpdump(tmp_path / "tcpdump.pcap", port)
     report_conns = None
     try:
@@ -118,12 +119,12 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
             time.sleep(0.2)
             dump.send_signal(signal.SIGINT)
             dump.wait(10)
-        backend.terminate()
-        backend.wait(10)
+        said = backend.explain()
+        backend.stop()
     report = json.loads((tmp_path / "live.json").read_text())
     live_failed = {r for r in RULES if report["rules"].get(r) == "failed"}
     assert live_failed == ({"NSQD-MSG-2"} if fault == "update-state-little-endian"
-                           else {"NSQD-FRM-1"} if fault else set()), live.stdout[-2000:]
+                           else {"NSQD-FRM-1"} if fault else set()), f"{live.stdout[-2000:]}\nthe backend: {said}"
     conns = report_conns
     assert conns is not None and conns[0] == live_failed and conns[1] > 3
     exported = subprocess.run([sys.executable, "-m", "captures", "export", str(tmp_path / "live.mcap"),

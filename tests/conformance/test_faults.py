@@ -18,6 +18,7 @@ import time
 import pytest
 
 from tests.forkserver import run_module
+from tests.spawned import attached_node
 
 from .fault_helpers import (
     SILENCE_RULES,
@@ -94,28 +95,33 @@ def test_attach_node_killed_mid_run_at_the_descriptions_timings(tmp_path):
     _attach_kill(tmp_path, "SEQ/test_initial_sequence_number_is_recorded", 5.0, [], wait=150)
 
 
-def _attach_kill(tmp_path, kill_after: str, rto: float, timing: list[str], wait: float = 60) -> None:
-    budget = _budget(rto)
-    node_port, listen_port = free_port(), free_port()
-    cmd = (reference_node_command(rto).replace("{id}", "1")
-           .replace("{target_host}:{target_port}", f"127.0.0.1:{node_port}")
-           .replace("{listen_host}:{listen_port}", f"127.0.0.1:{listen_port}")
-           .replace("--mavlink {mavlink} ", ""))
+def _reference_node(rto: float, listen_port: int):
+    """The reference drone's command line (attach mode, its own vehicle) for a port."""
     import shlex
 
-    node = subprocess.Popen(shlex.split(cmd), cwd=ROOT, env=env(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    return lambda port: shlex.split(reference_node_command(rto).replace("{id}", "1")
+                                    .replace("{target_host}:{target_port}", f"127.0.0.1:{port}")
+                                    .replace("{listen_host}:{listen_port}", f"127.0.0.1:{listen_port}")
+                                    .replace("--mavlink {mavlink} ", ""))
+
+
+def _attach_kill(tmp_path, kill_after: str, rto: float, timing: list[str], wait: float = 60) -> None:
+    budget = _budget(rto)
+    listen_port = free_port()
     js = tmp_path / "r.json"
-    try:
+    # not waited for (the runner's startup waits for its Mission_Ready); its stderr in the failure
+    with attached_node(_reference_node(rto, listen_port), None, env=env(), cwd=ROOT) as (node, node_port):
         run = WatchedRun(["--target", f"127.0.0.1:{node_port}", "--listen", f"127.0.0.1:{listen_port}",
                           *timing, "--json", str(js)])
-        run.wait_line(case_line(kill_after), wait)
+        try:
+            run.wait_line(case_line(kill_after), wait)
+        except AssertionError as exc:
+            run.proc.kill()
+            run.finish()
+            raise AssertionError(f"{exc}\nthe node: {node.explain()}") from None
         t_kill_ns = time.time_ns()
         t_kill = kill(node.pid)
         rc = run.finish()
-    finally:
-        node.kill()
-        node.wait()
     doc = read_report(js)
     assert rc == 1, run.text()
     _after_kill(run, doc, t_kill, t_kill_ns, budget)
@@ -249,18 +255,9 @@ def test_closed_stdout_ends_quietly(tmp_path):
 @pytest.fixture(scope="module")
 def attach_node():
     """One reference node for many short runs (attach mode: no node to start per run)."""
-    import shlex
-
-    node_port, listen_port = free_port(), free_port()
-    cmd = (reference_node_command(RTO).replace("{id}", "1")
-           .replace("{target_host}:{target_port}", f"127.0.0.1:{node_port}")
-           .replace("{listen_host}:{listen_port}", f"127.0.0.1:{listen_port}")
-           .replace("--mavlink {mavlink} ", ""))
-    node = subprocess.Popen(shlex.split(cmd), cwd=ROOT, env=env(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    yield node_port, listen_port
-    node.kill()
-    node.wait()
+    listen_port = free_port()
+    with attached_node(_reference_node(RTO, listen_port), listen_port, env=env(), cwd=ROOT) as (_, node_port):
+        yield node_port, listen_port
 
 
 SIGNAL_RUNS = int(os.environ.get("MCP_SIGNAL_RUNS", "5"))

@@ -160,7 +160,6 @@ def test_no_false_alarm_with_the_descriptions_5_s_timeout():
 def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
     """A manager that is already running: its one mission is judged; the scenario that needs
     a fresh mission is SKIPPED with the reason."""
-    import subprocess
     import sys
 
     from harness.manager_session import make_mission_items
@@ -170,18 +169,17 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
 
     wp = tmp_path / "mission.waypoints"
     save_waypoints(wp, make_mission_items(5))
-    mport, rport = free_port(), free_port()
-    mgr = subprocess.Popen([sys.executable, "-m", "reference_impl", "manager", "--challenge", "1",
-                            "--drones", "1,2,3", "--waypoints", str(wp), "--bind", f"127.0.0.1:{mport}",
-                            "--send-to", f"127.0.0.1:{rport}", "--rto", "0.2", "--quiet"],
-                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
+    from tests.spawned import attached_node
+
+    rport = free_port()
+    # a manager speaks only once a drone has: not waited for; its stderr in the failure
+    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "manager", "--challenge", "1",
+                                  "--drones", "1,2,3", "--waypoints", str(wp), "--bind", f"127.0.0.1:{p}",
+                                  "--send-to", f"127.0.0.1:{rport}", "--rto", "0.2", "--quiet"],
+                       None, cwd=ROOT) as (mgr, mport):
         res = run_conform("--role", "manager", "--target", f"127.0.0.1:{mport}", "--listen", f"127.0.0.1:{rport}",
                           "--waypoints", str(wp), *FAST)
-    finally:
-        mgr.kill()
-        mgr.wait()
-    assert res.rc == 0, res.explain()
+        assert res.rc == 0, f"{res.explain()}\nthe manager: {mgr.explain()}"
     _no_other_findings(res)
     assert res.rules["MCP-FLOW-4"] == "passed" and res.rules["MCP-BLK-2"] == "passed", res.explain()
     silent = next(c for c in res.report["cases"] if "MCP-FLOW-7" in c["rules"])

@@ -17,12 +17,15 @@ by hand, not in CI:
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
 from spec import SPEC
 
 from .runner_helpers import FAST, run_conform, sample_node_command, verdict_differences
+from .test_parallel import FOLDED as PARALLEL
+from .test_parallel import assert_three_agree_with_one, three_instances
 from .test_schedule_verdicts import FOLDED, assert_same_verdicts, serial_and_scheduled
 
 pytestmark = pytest.mark.slow
@@ -33,20 +36,28 @@ RUNNER = [] if REAL else FAST  # the runner's defaults: --rto 5, --ack-window 2
 LIMIT = 600.0 if REAL else 240.0
 
 
-def conform(*node_args: str, extra: tuple[str, ...] = ()):
+def conform(*node_args: str, extra: tuple[str, ...] = (), tmp_path=None):
     """The runner, spawning the sample node with ``node_args``, at this module's timings.
 
     A node test_schedule_verdicts folds here (``FOLDED``: verdicts do not depend on the
     schedule, issue 23) is also run ``--serial`` and again scheduled, at once, and every
-    scheduled run must give each case the serial run's outcome; the first scheduled run
-    (with ``extra``) is the one returned."""
-    if node_args not in FOLDED:
-        return run_conform("--spawn", sample_node_command(*node_args, rto=NODE_RTO), "--mavlink", *RUNNER,
-                           *extra, timeout=LIMIT)
-    serial, scheduled = serial_and_scheduled(sample_node_command(*node_args, rto=NODE_RTO), *RUNNER,
-                                             first=extra, timeout=LIMIT)
-    assert_same_verdicts(serial, scheduled)
-    return scheduled[0]
+    scheduled run must give each case the serial run's outcome; a node test_parallel folds
+    here (``PARALLEL``) is also run on 3 instances (``--parallel 3``) at once, and must give
+    each case the first scheduled run's outcome (that run is ``--parallel 1``). The first
+    scheduled run (with ``extra``) is the one returned."""
+    spawn = sample_node_command(*node_args, rto=NODE_RTO)
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        three = (beside.submit(run_conform, *three_instances(spawn, tmp_path), timeout=LIMIT)
+                 if node_args in PARALLEL and tmp_path is not None else None)
+        if node_args not in FOLDED:
+            one = run_conform("--spawn", spawn, "--mavlink", *RUNNER, *extra, timeout=LIMIT)
+        else:
+            serial, scheduled = serial_and_scheduled(spawn, *RUNNER, first=extra, timeout=LIMIT)
+            assert_same_verdicts(serial, scheduled)
+            one = scheduled[0]
+        if three is not None:
+            assert_three_agree_with_one(one, three.result(), tmp_path)
+    return one
 
 MUTANTS = [
     ("bad-preamble", "MCP-HDR-1"),
@@ -148,7 +159,7 @@ def same_verdicts_offline(res, capture) -> None:
 @pytest.mark.parametrize("fault,rule", MUTANTS, ids=[f for f, _ in MUTANTS])
 def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
     capture = tmp_path / "run.mcap"
-    res = conform("--fault", fault, extra=("--capture", str(capture)))
+    res = conform("--fault", fault, extra=("--capture", str(capture)), tmp_path=tmp_path)
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}

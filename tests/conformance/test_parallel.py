@@ -5,12 +5,14 @@ The plan as data (which instance runs which case; the startup-bound cases togeth
 batch whole, the whole run's observations on every instance), the options refused with one
 line, and — slow — the verdicts: every case the same outcome with ``--parallel 1`` and
 ``--parallel 3`` against the reference node and faulty sample nodes whose faults fall in the
-startup, the batch, the whole run's traffic, a crash, a flood and the seq wrap.
+startup, the batch, the whole run's traffic, a crash, a flood and the seq wrap (each compared
+beside a run made for other checks, ``FOLDED`` and ``IN_SCHEDULE``, where there is one).
 """
 
 from __future__ import annotations
 
 import json
+import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -120,29 +122,41 @@ NODES = [
     ("seq-no-wrap", ("--fault", "seq-no-wrap")),
 ]
 
+#: Nodes whose ``--parallel 3`` run goes beside a run of the same node and options (``--parallel
+#: 1`` is the plan as it was, test_one_instance_is_the_plan_as_it_was) made elsewhere for its
+#: own checks, and is compared with it there by ``assert_three_agree_with_one``, not a second
+#: ``--parallel 1`` run here (12 whole-suite runs fewer in CI): the reference and the sample node
+#: in test_schedule_verdicts (its scheduled run, FAST), the faulty ones in test_mutants (sample
+#: node at --rto 0.2, FAST). At ``MCP_MUTANTS_TIMING=real`` test_mutants runs other timings, and
+#: the faulty nodes are compared here.
+IN_SCHEDULE: dict[tuple[str, ...] | None, str] = {None: "reference", (): "sample"}
+FOLDED: dict[tuple[str, ...], str] = (
+    {} if os.environ.get("MCP_MUTANTS_TIMING", "short") == "real"
+    else {args: label for label, args in NODES if args not in IN_SCHEDULE})
+HERE = [(label, args) for label, args in NODES if args not in FOLDED and args not in IN_SCHEDULE]
+
 
 def _outcomes(res) -> dict[str, str]:
     return {c["id"]: c["outcome"] for c in res.report.get("cases", [])}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("label,node_args", NODES, ids=[n for n, _ in NODES])
-def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_args, tmp_path):
-    from .runner_helpers import reference_node_command
+def three_instances(spawn: str, tmp_path: Path):
+    """The ``--parallel 3`` run's arguments of ``spawn``'s node (at FAST), recording a capture
+    and a JUnit file in ``tmp_path`` (``three.mcap``, ``three.xml``)."""
+    return ("--spawn", spawn, "--mavlink", *FAST, "--parallel", "3", "--capture", str(tmp_path / "three.mcap"),
+            "--junit", str(tmp_path / "three.xml"))
 
-    spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
-    base = ("--spawn", spawn, "--mavlink", *FAST)
-    record = ("--capture", str(tmp_path / "run.mcap"), "--junit", str(tmp_path / "run.xml"))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        one, three = pool.map(lambda a: run_conform(*a, timeout=300),
-                              [(*base, "--parallel", "1"), (*base, "--parallel", "3", *record)])
+
+def assert_three_agree_with_one(one, three, tmp_path: Path) -> None:
+    """Every case the same outcome with one instance and three, the same exit code and error;
+    one report of the same shape, the plan saying which instance ran each case; the capture
+    and JUnit file of the three-instance run whole."""
     want, got = _outcomes(one), _outcomes(three)
     assert want, one.explain()
     diff = {c: (want.get(c), got.get(c)) for c in sorted(set(want) | set(got)) if want.get(c) != got.get(c)}
     assert not diff, f"--parallel 1 vs 3 differ: {diff}\n{three.explain()}"
     assert three.rc == one.rc, three.explain()
     assert three.report.get("error") == one.report.get("error"), three.explain()
-    # one report of the same shape, the plan saying which instance ran each case
     assert set(three.report) == set(one.report)
     assert one.report["schedule"]["shards"] == 1
     plan = three.report["schedule"]
@@ -152,5 +166,28 @@ def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_arg
     from conformance.report import validate_json
 
     validate_json(three.report)
-    assert (tmp_path / "run.xml").read_text().count("<testcase ") == len(got)
-    assert (tmp_path / "run.mcap").stat().st_size > 0 and not list(tmp_path.glob("*.events"))
+    assert (tmp_path / "three.xml").read_text().count("<testcase ") == len(got)
+    assert (tmp_path / "three.mcap").stat().st_size > 0 and not list(tmp_path.glob("*.events"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label,node_args", HERE or [pytest.param(
+    "none", (), marks=pytest.mark.skip(reason="at these timings every node's --parallel 3 run is compared in "
+                                              "test_mutants or test_schedule_verdicts"))], ids=[n for n, _ in HERE] or None)
+def test_one_instance_and_three_give_every_case_the_same_verdict(label, node_args, tmp_path):
+    spawn = sample_node_command(*node_args)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        one, three = pool.map(lambda a: run_conform(*a, timeout=300),
+                              [("--spawn", spawn, "--mavlink", *FAST, "--parallel", "1"),
+                               three_instances(spawn, tmp_path)])
+    assert_three_agree_with_one(one, three, tmp_path)
+
+
+def test_every_node_is_compared_here_or_in_test_mutants_or_test_schedule_verdicts():
+    from . import test_mutants, test_schedule_verdicts
+
+    assert test_mutants.RUNNER == FAST and test_mutants.NODE_RTO == 0.2 or not FOLDED
+    assert set(FOLDED) <= {("--fault", f) for f, _ in test_mutants.MUTANTS}, set(FOLDED)
+    assert {a: label for label, a in test_schedule_verdicts.HERE if a in IN_SCHEDULE} == IN_SCHEDULE
+    assert {label for label, _ in HERE} | set(FOLDED.values()) | set(IN_SCHEDULE.values()) == \
+        {label for label, _ in NODES}

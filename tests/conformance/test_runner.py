@@ -12,6 +12,7 @@ import sys
 import pytest
 
 from spec import SPEC
+from tests.spawned import attached_node
 
 from .runner_helpers import (
     FAST,
@@ -19,7 +20,6 @@ from .runner_helpers import (
     free_port,
     reference_node_command,
     run_conform,
-    wait_first_datagram,
 )
 
 pytestmark = pytest.mark.slow
@@ -68,17 +68,12 @@ def test_spawn_mode_reference_node_passes_with_the_vehicle_over_udp(transport, t
 
 
 def test_attach_mode_reference_node_passes_and_skips_vehicle_rules():
-    port, listen = free_port(), free_port()
-    node = subprocess.Popen(
-        [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind", f"127.0.0.1:{port}",
-         "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_first_datagram(listen)  # attach: the node runs (and speaks) before the runner starts
+    listen = free_port()
+    # attach: the node runs (and speaks) before the runner starts
+    with attached_node(lambda port: [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind",
+                                     f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
+                       listen, cwd=ROOT) as (_, port):
         res = run_conform("--target", f"127.0.0.1:{port}", "--listen", f"127.0.0.1:{listen}", *FAST)
-    finally:
-        node.kill()
-        node.wait(timeout=5)
     _assert_clean_pass(res)
     assert res.report["cases"], res.explain()
     for rule in ("MCP-BLK-4", "MCP-BLK-5", "MCP-DUP-1", "MCP-PAY-8"):

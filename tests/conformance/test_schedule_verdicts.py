@@ -105,9 +105,20 @@ def assert_same_verdicts(serial: RunResult, scheduled: list[RunResult]) -> None:
 
 
 @pytest.mark.parametrize("label,node_args", HERE, ids=[n for n, _ in HERE])
-def test_serial_and_scheduled_give_the_same_verdicts(label, node_args):
+def test_serial_and_scheduled_give_the_same_verdicts(label, node_args, tmp_path):
+    """And for a node test_parallel folds here (``IN_SCHEDULE``: the reference and the sample
+    node), its ``--parallel 3`` run at once beside them, every case the outcome of the first
+    scheduled run (that is ``--parallel 1``)."""
+    from .test_parallel import IN_SCHEDULE, assert_three_agree_with_one, three_instances
+
     spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)
-    assert_same_verdicts(*serial_and_scheduled(spawn, *FAST))
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        three = (beside.submit(run_conform, *three_instances(spawn, tmp_path), timeout=300)
+                 if node_args in IN_SCHEDULE else None)
+        serial, scheduled = serial_and_scheduled(spawn, *FAST)
+        assert_same_verdicts(serial, scheduled)
+        if three is not None:
+            assert_three_agree_with_one(scheduled[0], three.result(), tmp_path)
 
 
 def test_every_node_is_compared_here_or_in_test_mutants():

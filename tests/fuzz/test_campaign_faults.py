@@ -74,22 +74,18 @@ def _finish(proc: subprocess.Popen[str], timeout: float = 90.0) -> tuple[int, st
 def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path: Path) -> None:
     """Item 1: SIGKILL to the attached reference drone mid-campaign. Before: the campaign
     ran on to its end against nothing and kept MCP-ROB-* 'hung after ...' as confirmed."""
-    node_port, listen_port = free_port(), free_port()
-    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
-                             f"127.0.0.1:{node_port}", "--send-to", f"127.0.0.1:{listen_port}",
-                             "--rto", "0.2"], cwd=ROOT, env=_env(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    from tests.spawned import attached_node
+
+    listen_port = free_port()
     out_dir = tmp_path / "out"
-    try:
-        time.sleep(1.0)
+    with attached_node(lambda port: [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+                                     f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{listen_port}", "--rto", "0.2"],
+                       listen_port, cwd=ROOT, env=_env()) as (node, node_port):  # it runs and speaks
         proc = _fuzz(["--target", f"127.0.0.1:{node_port}", "--listen", f"127.0.0.1:{listen_port}",
                       *FAST, *STATUS, "--duration", "120", "--out", str(out_dir)])
         _wait_status(proc)
-        node.send_signal(signal.SIGKILL)
+        node.proc.send_signal(signal.SIGKILL)
         rc, out, err = _finish(proc)
-    finally:
-        node.kill()
-        node.wait()
     lines = err.strip().splitlines()
     assert rc == 2, f"rc {rc}\n{out}\n{err}"
     assert len(lines) == 1 and lines[0].startswith("mcp-fuzz: error: "), err

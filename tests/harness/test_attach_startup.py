@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 
@@ -10,7 +9,8 @@ from harness.config import RunConfig
 from harness.driver import TargetDriver
 from harness.session import Session
 from spec.codec import Action
-from tests.conformance.runner_helpers import ROOT, free_port, wait_first_datagram
+from tests.conformance.runner_helpers import ROOT, free_port
+from tests.spawned import attached_node
 
 
 def test_a_mission_ready_heard_before_the_startup_phase_is_not_acked(monkeypatch):
@@ -20,11 +20,7 @@ def test_a_mission_ready_heard_before_the_startup_phase_is_not_acked(monkeypatch
     with ID 3 rightly ignores (MCP-ACK-5): "target never answered" on a quiet host
     (test_runner's attach-mode test, once). Here the window is held open until the node's
     next copy has arrived."""
-    port, listen = free_port(), free_port()
-    node = subprocess.Popen(
-        [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind", f"127.0.0.1:{port}",
-         "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    listen = free_port()
     real_open = TargetDriver.open
 
     def open_and_hear_a_copy(self: TargetDriver):
@@ -33,15 +29,15 @@ def test_a_mission_ready_heard_before_the_startup_phase_is_not_acked(monkeypatch
         time.sleep(0.05)  # whatever the driver does with it is done
         return addr
 
-    session = Session(RunConfig(target=("127.0.0.1", port), listen=("127.0.0.1", listen), rto=0.2,
-                                ack_window=0.25))
-    try:
-        wait_first_datagram(listen)
-        monkeypatch.setattr(TargetDriver, "open", open_and_hear_a_copy)
-        session.start()
-        assert session.target_id == 3
-        assert session.startup is not None and session.startup.observed, session.startup.reason
-    finally:
-        session.close()
-        node.kill()
-        node.wait(timeout=5)
+    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind",
+                                  f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
+                       listen, cwd=ROOT) as (_, port):  # it has spoken
+        session = Session(RunConfig(target=("127.0.0.1", port), listen=("127.0.0.1", listen), rto=0.2,
+                                    ack_window=0.25))
+        try:
+            monkeypatch.setattr(TargetDriver, "open", open_and_hear_a_copy)
+            session.start()
+            assert session.target_id == 3
+            assert session.startup is not None and session.startup.observed, session.startup.reason
+        finally:
+            session.close()
