@@ -226,7 +226,8 @@ class Backend:
         a backend may handle its input well behind the fuzzer (a real one handles one frame per
         20 ms loop: the cases after its culprit were blamed and the death "did not
         reproduce"), but its cause's line is read as it is written. The
-        wait: four times the time from that case to its cause, at least 0.5 s, at most
+        wait: four times the time from that case to its cause, at least 1 s (a real backend's
+        death showed 0.5-0.9 s after a replay's last case on a loaded host), at most
         :data:`REPLAY_DEATH_S` (a replay of the wrong case waited those 2 s each time)."""
         if hit.at is None or hit.signature.oracle not in ("crash", "sanitizer"):
             return window[-hit.suspects:], REPLAY_DEATH_S
@@ -234,7 +235,7 @@ class Backend:
         if not before:
             return window[-hit.suspects:], REPLAY_DEATH_S
         latency = hit.at - before[-1][0]
-        return [c for _, c in before[-SUSPECTS_MAX:]], min(REPLAY_DEATH_S, max(0.5, 4 * latency))
+        return [c for _, c in before[-SUSPECTS_MAX:]], min(REPLAY_DEATH_S, max(1.0, 4 * latency))
 
     def _run(self, case: Case) -> Hit | None:
         self.session.sent_log.clear()  # the session's record of what the current case sent

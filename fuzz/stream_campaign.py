@@ -436,9 +436,10 @@ class StreamCampaign:
                                   f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
                                   f"{confirmed} of {self.replays} confirming replays did (timing or load)")
             return self.restart(state["b"])
-        if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer"):
+        if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
+                and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
             # a shorter tail, once it is confirmed as the whole input was (after it: an input
-            # that does not replay spends no time on cuts)
+            # that does not replay spends no time on cuts), while half of triage's share is left
             data = writes[0].data
             for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
                 if 0 < cut < len(data) and test([Write(data[:cut])]):
