@@ -166,3 +166,25 @@ def test_docs_site_builds_strict(tmp_path: Path) -> None:
         assert f"usage: {command}" in cli, command
     rules = (tmp_path / "site" / "spec" / "index.html").read_text(encoding="utf-8")
     assert "MCP-ACK-2" in rules
+
+
+def test_sources_cite_the_design_page_users_have() -> None:
+    """Source files and schemas cite docs/design.md (shipped with the docs), not a DESIGN.md
+    users never see; every section a citation names in quotes is a heading of that page."""
+    tracked = subprocess.run(["git", "ls-files", "*.py", "*.json", "*.yaml", "*.lua", "*.c"], cwd=ROOT,
+                             capture_output=True, text=True)
+    if tracked.returncode != 0:
+        pytest.skip("not a git checkout: the tracked files cannot be listed")
+    design = (ROOT / "docs" / "design.md").read_text(encoding="utf-8")
+    headings = {h.strip() for h in re.findall(r"^#+ (.+)$", design, re.M)}
+    cited = 0
+    for name in tracked.stdout.split():
+        if name.startswith("tests/"):
+            continue
+        text = (ROOT / name).read_text(encoding="utf-8", errors="replace")
+        assert "DESIGN.md" not in text, f"{name} cites DESIGN.md"
+        for double, single in re.findall(r"docs/design\.md,?\s+\(?(?:\"([^\"]+)\"|'([^']+)')", text):
+            section = double or single
+            cited += 1
+            assert " ".join(section.split()) in headings, (name, section, sorted(headings))
+    assert cited >= 10, cited
