@@ -7,7 +7,7 @@ encoded, deframed and decoded, against the Nsqd scapy layer.
 Prints messages/s (best of N rounds after a warm-up) for the spec-derived ``struct`` codec
 (``spec.codec.encode`` + ``decode``) and for the scapy layer (build + ``bytes()``, then
 dissect), side by side from one run. The target for the spec codec is >= 300k msg/s
-(DESIGN.md, "Performance targets"). Figures only: nothing here asserts a timing.
+(docs/design.md, "Performance targets"). Figures only: nothing here asserts a timing.
 """
 
 from __future__ import annotations

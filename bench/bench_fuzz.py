@@ -24,7 +24,7 @@ of the project's own faulty nodes (and, with ``--nsqd``, backends), per engine
 boofuzz's request is the MCP header (preamble, dst, src, seq, action as big-endian words)
 and a payload blob, mutated by boofuzz's own primitives. Each runs ``--cases`` cases or
 ``--seconds`` seconds, whichever comes first; the figures are printed side by side. Figures
-only: nothing here asserts a timing (DESIGN.md, "Performance targets").
+only: nothing here asserts a timing (docs/design.md, "Performance targets").
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ the same datagrams:
 - the monitor, complete: the same with ``complete=True`` (absence deadlines armed).
 
 Prints datagrams/s (best of N rounds). The target is >= 150,000 datagrams/s in memory
-(DESIGN.md, "Performance targets"). Figures only: nothing here asserts a timing.
+(docs/design.md, "Performance targets"). Figures only: nothing here asserts a timing.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ The same client loop measures both: it sends a unicast command (WP_Off, ID 0 -> 
 new sequence number, waits for the reply (for the node: the ACK whose payload is that
 seq, MCP-ACK-2; for the echo: the datagram itself), and repeats, bounded by ``--count``
 round trips and ``--max-seconds`` per round. It prints round trips per second and p50/p99
-latency for each, and the node's rate as a fraction of the echo's (DESIGN.md's target:
+latency for each, and the node's rate as a fraction of the echo's (docs/design.md's target:
 within 2x, i.e. at least 0.5). Figures only: nothing here asserts a timing.
 """
 

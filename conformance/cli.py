@@ -1,4 +1,5 @@
-"""``mcp-conform``: the black-box conformance runner's command line (DESIGN.md).
+"""``mcp-conform``: the black-box conformance runner's command line (docs/design.md,
+"The runner's contract").
 
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
                 [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]

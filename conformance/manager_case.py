@@ -261,7 +261,8 @@ class ManagerCaseContext(DatagramCaseBase):
 
     def expect_monitor_clean(self, rule: str) -> None:
         """The trace monitor found no violation of ``rule`` by the manager in the main mission
-        (what is judged from traffic alone is the monitor's, DESIGN.md)."""
+        (what is judged from traffic alone is the monitor's: docs/design.md, "The trace
+        monitor")."""
         m = self.mission()
         bad = [v for v in m.monitor if v.rule == rule]
         if bad:

@@ -2,7 +2,7 @@
 
 Everything here works on :class:`CaseRecord` and :class:`RunRecord`, filled in by the
 plugin as cases finish; nothing here knows about pytest. The JSON report follows
-DESIGN.md ("The runner's contract") and is validated against ``report.schema.json``,
+docs/design.md ("The runner's contract") and is validated against ``report.schema.json``,
 shipped beside this module (draft 2020-12, ``schema_version`` "1.1": 1.0 plus each case's
 ``failed_rule``, ``evidence``, ``notes`` and ``baseline``, and the ``xfailed`` / ``xpassed``
 outcomes of an expected-failures baseline, ``conformance.baseline``).
@@ -247,7 +247,7 @@ def rule_outcomes(cases: list[CaseRecord], role: str,
 
 
 def build_json(run: RunRecord) -> dict[str, Any]:
-    """The report document (see DESIGN.md and report.schema.json)."""
+    """The report document (see docs/design.md and report.schema.json)."""
     counts = run.counts()
     monitor = monitor_failures(run)
     doc = {

@@ -1,4 +1,4 @@
-"""The suite's schedule (issue 23, DESIGN.md "The suite's schedule"): which cases share time
+"""The suite's schedule (issue 23, docs/design.md "The suite's schedule"): which cases share time
 and which run alone, and why — a plan that is data, printed by ``-v`` and written into the
 JSON report (``schedule``).
 

@@ -1,4 +1,4 @@
-"""``mcp-fuzz``: fuzz campaigns judged by the spec (DESIGN.md "mcp-fuzz", issue 11).
+"""``mcp-fuzz``: fuzz campaigns judged by the spec (docs/design.md "mcp-fuzz", issue 11).
 
     mcp-fuzz [--target HOST:PORT | --spawn CMD] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
              [--mavlink] [--seed N] [--max-cases N] [--duration S]

@@ -1,4 +1,4 @@
-"""A fuzz campaign's parameters (DESIGN.md "mcp-fuzz"), checked once by the command line.
+"""A fuzz campaign's parameters (docs/design.md "mcp-fuzz"), checked once by the command line.
 
 The target options mean what they mean to ``mcp-conform`` (the runner's ``RunConfig`` is
 built from them, so placeholders, listen semantics and the embedded default are the

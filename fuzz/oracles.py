@@ -365,11 +365,12 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
 class MonitorOracle:
     """The trace monitor over all traffic, keeping only the node under test's violations.
 
-    ``judge.monitor`` is the shared judge of traffic (DESIGN.md), with the spec's own windows
-    (MCP-ACK-7 "judged on the median of at least 3 samples", MCP-RTX-3's spacing tolerance,
-    D-6's ACK window); the rules a batch's attribution decides (``REPLY_RULES``, MCP-ACK-1
-    among them) are left to judge_replies and :func:`observe_missing_acks`. Where it is not
-    installed, this oracle says so (``available``) and judges nothing.
+    ``judge.monitor`` is the shared judge of traffic (docs/design.md, "The trace monitor"),
+    with the spec's own windows (MCP-ACK-7 "judged on the median of at least 3 samples",
+    MCP-RTX-3's spacing tolerance, D-6's ACK window); the rules a batch's attribution decides
+    (``REPLY_RULES``, MCP-ACK-1 among them) are left to judge_replies and
+    :func:`observe_missing_acks`. Where it is not installed, this oracle says so
+    (``available``) and judges nothing.
     """
 
     def __init__(self, node_id: int, rto: float, ack_window: float, broadcast_id: int,

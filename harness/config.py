@@ -1,4 +1,4 @@
-"""The runner's parameters (DESIGN.md, "The runner's contract"), shared by CLI and plugin."""
+"""The runner's parameters (docs/design.md, "The runner's contract"), shared by CLI and plugin."""
 
 from __future__ import annotations
 

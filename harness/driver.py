@@ -1,6 +1,6 @@
 """The target driver: the runner's one UDP socket, a background receiver, sends and waits.
 
-Case hygiene (DESIGN.md): one background receiver timestamps every datagram as it
+Case hygiene (docs/design.md): one background receiver timestamps every datagram as it
 arrives -- with the kernel's receive time where the system gives one (Linux
 ``SO_TIMESTAMPNS``), so the gaps between a node's copies (MCP-RTX-3) and its ACK latency
 (MCP-ACK-7) are the node's, not the runner's own scheduling delay on a loaded machine;

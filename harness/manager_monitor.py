@@ -3,7 +3,7 @@
 The runner's socket sees every datagram of the mission — the manager's, and the drones'
 (the runner's own, fed as ``TESTER`` input, never blamed) — so the trace is complete. The
 monitor judges the manager's traffic passively while the cases drive it; the cases keep
-their own verify helpers for what they provoke on purpose (DESIGN.md, "The trace monitor").
+their own verify helpers for what they provoke on purpose (docs/design.md, "The trace monitor").
 """
 
 from __future__ import annotations

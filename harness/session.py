@@ -1,7 +1,7 @@
 """The node under test over a whole run: attach, spawn or the embedded reference node.
 
 A ``Session`` owns the target driver, the simulated vehicle (``--mavlink``), the spawned
-process, and the startup phase (DESIGN.md "Startup rules"): the vehicle withholds the GPS
+process, and the startup phase (docs/design.md "Startup rules"): the vehicle withholds the GPS
 fix, then gives it; the runner withholds the ACK of Mission_Ready for a few copies, sends a
 wrong-sequence and a wrong-source ACK, then the right one. What it saw is kept in
 ``Session.startup`` for the startup-phase cases to judge. Then it starts the mission

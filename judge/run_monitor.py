@@ -1,4 +1,4 @@
-"""The trace monitor over a whole conformance run (DESIGN.md, "The trace monitor").
+"""The trace monitor over a whole conformance run (docs/design.md, "The trace monitor").
 
 One :class:`RunMonitor` per run watches every datagram the runner sends and receives (the
 target driver's observer hook, the same one captures use) and, where the runner drives the

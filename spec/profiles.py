@@ -1,4 +1,4 @@
-"""Each protocol declared once: its profile, per role (DESIGN.md, "A protocol is a plug-in").
+"""Each protocol declared once: its profile, per role (docs/design.md, "A protocol is a plug-in").
 
 A profile names everything the tools need to speak, judge, fuzz and read one protocol: its
 spec, codec and framing (``datagram`` or ``stream``), transport, monitor, dissector and

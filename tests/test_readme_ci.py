@@ -1,7 +1,8 @@
-"""Every command of the README's "Use it in CI" section, run as CI would run it (issue 13).
+"""Every command of the CI guide's "Use it in CI" section (docs/guide/ci.md, once the README's;
+issues 13 and 40), run as CI would run it.
 
-The snippets are taken from the README itself (YAML parsed, commands extracted), so the test
-fails the day the README and the tool disagree. The one line that cannot run here is the
+The snippets are taken from the page itself (YAML parsed, commands extracted), so the test
+fails the day the guide and the tool disagree. The one line that cannot run here is the
 install from PyPI (no package index in tests): it is checked to name this distribution, whose
 commands are already installed in the environment running the tests.
 """
@@ -22,9 +23,10 @@ pytestmark = pytest.mark.slow
 
 
 def _section() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    start = text.index("### Use it in CI")
-    return text[start:text.index("\n## ", start)]
+    text = (ROOT / "docs" / "guide" / "ci.md").read_text(encoding="utf-8")
+    start = text.index("## Use it in CI")
+    end = text.find("\n## ", start)
+    return text[start:end if end >= 0 else len(text)]
 
 
 def _blocks(lang: str) -> list[str]:

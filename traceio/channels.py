@@ -1,5 +1,5 @@
 """The channels of an mcp-conform capture and their JSON schemas: the file format
-``traceio.recorder`` writes and ``traceio.reader`` reads, written down (DESIGN.md "Captures").
+``traceio.recorder`` writes and ``traceio.reader`` reads, written down (docs/design.md "Captures").
 
 ``CHANNELS``: every run's (``/mcp/tx``, ``/mcp/rx``, ``/mcp/burst`` for MCP-ROB-7's flood,
 ``/mavlink``, ``/conformance/case``, ``/impair``, ``/vehicle``); ``STREAM_CHANNELS``: a stream

@@ -100,7 +100,8 @@ class GuardedStream:
 # This is the hot path of `mcp-capture check` on a big pcap (1,000,000 datagrams end to end):
 # precompiled struct unpacking of the few header fields we need runs at about a million
 # packets a second, where dissecting each packet with scapy (Ether()/IP()/UDP()) manages
-# ~15k/s (DESIGN.md). scapy stays the file-format reader (RawPcap*Reader, bytes only).
+# ~15k/s (docs/design.md, "Performance targets"). scapy stays the file-format reader
+# (RawPcap*Reader, bytes only).
 _ETHERTYPE_AT = struct.Struct("!H").unpack_from
 _IP4 = struct.Struct("!BxHHHxBxx4s4s")  # ver_ihl, total_len, id, flags_frag, proto, src, dst
 _ip4 = _IP4.unpack_from

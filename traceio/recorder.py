@@ -1,4 +1,4 @@
-"""MCAP recording of a run (DESIGN.md "Captures"): the one capture format of mcp-conform.
+"""MCAP recording of a run (docs/design.md "Captures"): the one capture format of mcp-conform.
 
 Every producer writes it (the runner's ``--capture``, ``mcp-node --capture``, ``mcp-fuzz``)
 and every ``mcp-capture`` command reads it. One file per run, five channels, every message

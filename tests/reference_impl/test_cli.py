@@ -253,18 +253,19 @@ def test_a_port_is_shared_only_when_asked_and_sigterm_exits_promptly(tmp_path: P
                 p.communicate()
 
 
-def test_the_waypoint_files_the_readme_names_are_shipped() -> None:
-    """Every ``*.waypoints`` file the README names exists and loads (QGC WPL 110 through
-    pymavlink, ``spec.mission``)."""
+def test_the_waypoint_files_the_docs_name_are_shipped() -> None:
+    """Every ``*.waypoints`` file the README or a page of docs/ names exists and loads (QGC WPL
+    110 through pymavlink, ``spec.mission``)."""
     import re
 
     from spec.mission import load_waypoints
 
-    names = set(re.findall(r"[\w./-]+\.waypoints", (ROOT / "README.md").read_text()))
-    assert names, "the README names no waypoint file"
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    names = {n for page in pages for n in re.findall(r"[\w./-]+\.waypoints", page.read_text())}
+    assert names, "the README and docs/ name no waypoint file"
     for name in names:
         path = ROOT / name
-        assert path.is_file(), f"README names {name}, not shipped"
+        assert path.is_file(), f"the docs name {name}, not shipped"
         assert load_waypoints(path), name
 
 

@@ -1,4 +1,5 @@
-"""The README's simulated-vehicle section, run as written (free ports substituted)."""
+"""The simulated-vehicle section of docs/guide/vehicle.md (once the README's), run as written
+(free ports substituted)."""
 
 from __future__ import annotations
 
@@ -20,9 +21,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def section() -> str:
-    text = (ROOT / "README.md").read_text()
-    start = text.index("### The simulated vehicle: a MAVLink peer over TCP and UDP")
-    return text[start:text.index("\n### ", start + 10)]
+    text = (ROOT / "docs" / "guide" / "vehicle.md").read_text()
+    start = text.index("## The simulated vehicle: a MAVLink peer over TCP and UDP")
+    return text[start:text.index("\n## ", start + 10)]
 
 
 def blocks(lang: str) -> list[str]:
