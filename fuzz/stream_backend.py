@@ -226,8 +226,7 @@ class Backend:
         a backend may handle its input well behind the fuzzer (a real one handles one frame per
         20 ms loop: the cases after its culprit were blamed and the death "did not
         reproduce"), but its cause's line is read as it is written. The
-        wait: four times the time from that case to its cause, at least 1 s (a real backend's
-        death showed 0.5-0.9 s after a replay's last case on a loaded host), at most
+        wait: four times the time from that case to its cause, at least 1 s (0.5-0.9 s: a real one's, loaded), at most
         :data:`REPLAY_DEATH_S` (a replay of the wrong case waited those 2 s each time)."""
         if hit.at is None or hit.signature.oracle not in ("crash", "sanitizer"):
             return window[-hit.suspects:], REPLAY_DEATH_S
