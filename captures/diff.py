@@ -524,9 +524,8 @@ def build_json(result: DiffResult) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- command line
 def register(sub: Any) -> None:
-    from captures.cli import add_protocol_option
-
     """Add ``diff`` to ``mcp-capture``'s subparsers."""
+    from captures.cli import add_protocol_option
     p = sub.add_parser("diff", help="compare two captures as MCP conversations",
                        description=__doc__.split("\n\n")[0] if __doc__ else None)
     p.add_argument("golden", metavar="GOLDEN", help="the reference capture (MCAP, pcap, pcapng)")
@@ -571,6 +570,7 @@ def _nonneg_float(text: str) -> float:
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import capture_tools, check_writable, to_terminal
+    from traceio.grammar import write_text as _write_text
     from traceio.reader import CaptureError
 
     given_out = out
@@ -587,10 +587,8 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         err.write(f"mcp-capture: error: diff: {exc}\n")
         return 2
     try:  # the files first: a piped terminal report (`| head -1`) loses neither
-        if args.json:
-            from traceio.grammar import write_text
-
-            write_text(args.json, json.dumps(build_json(result), indent=1) + "\n")
+        if args.json:  # "-": stdout (traceio.grammar)
+            _write_text(args.json, json.dumps(build_json(result), indent=1) + "\n")
         if args.html:
             from captures.diff_html import write_html
 
