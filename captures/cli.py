@@ -124,7 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     for sp in sub.choices.values():
         sp.epilog = epilog(*([sp.epilog] if sp.epilog else []))
         sp.formatter_class = argparse.RawDescriptionHelpFormatter
-        add_verbosity(sp, "more detail: every violation in full (check, show; else as the default)",
+        add_verbosity(sp, "check: every violation in full, not 3 per rule (the others print all they have already)",
                       "no terminal report: the exit code, errors and the files asked for only")
     return p
 
