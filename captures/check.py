@@ -35,6 +35,7 @@ from judge.judging import Judgement, evidence_of, judge
 from judge.params import add_monitor_options, params_from_args, selected
 from spec import SPEC
 from spec.codec import peek_header
+from traceio.grammar import open_output
 from traceio.reader import Datagram
 from traceio.trace import action_name, evidence_indexes
 
@@ -77,7 +78,8 @@ def run(ns: argparse.Namespace) -> int:
         from reports.html import render_check
 
         write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
-    to_terminal(lambda: print_report(j, evidence, json_path=ns.json))
+    to_terminal(lambda: print_report(j, evidence, json_path=ns.json,
+                                     examples=len(j.violations) if getattr(ns, "verbose", False) else EXAMPLES))
     return j.exit_code()
 
 
@@ -279,7 +281,7 @@ def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
     marker = '\n  "violations": [],\n'
     before, after = head.split(marker, 1)  # the key is unique at the top level (indent 2)
     try:
-        with open(path, "w", encoding="utf-8") as f:
+        with open_output(path) as f:
             f.write(before + '\n  "violations": [')
             first = True
             lines: list[str] = []  # written a thousand at a time

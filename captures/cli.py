@@ -22,7 +22,10 @@ returns the exit code. To add one, append its module to :data:`SUBCOMMANDS`.
 
 Exit codes are the subcommand's (``check``: 0 no MUST violated, 1 violations; ``diff`` and
 ``replay``: 0 same, 1 different); a bad
-argument or an unreadable file is a one-line error naming what was wrong, exit 2.
+argument or an unreadable file is a one-line error naming what was wrong, exit 2; Ctrl-C 130.
+The options follow the tools' one grammar (``traceio.grammar``, docs/grammar.md): a capture
+named ``-`` is read from stdin, ``--json -`` (``--html -``, ``--svg -``) writes to stdout, the
+terminal report then going to stderr; ``-v``/``-q`` after the subcommand.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from typing import Any, NoReturn
 
 from spec.profiles import DEFAULT_PROTOCOL, PROFILES, Profile, resolve
 from traceio.files import UsageError, check_writable, write_output
+from traceio.grammar import STDIO, add_verbosity, add_version, epilog, read_path
 
 __all__ = ["PROG", "SUBCOMMANDS", "UsageError", "add_protocol_option", "build_parser", "capture_profile",
            "capture_tools", "check_writable", "main", "to_terminal", "write_output"]
@@ -77,15 +81,29 @@ class _Parser(argparse.ArgumentParser):
     """argparse that raises instead of printing its usage and exiting."""
 
     def error(self, message: str) -> NoReturn:
-        raise UsageError(f"{self.prog}: {message}")
+        command = self.prog.removeprefix(PROG).strip()  # a subcommand's: "check: ..."
+        raise UsageError(f"{command}: {message}" if command else message)
+
+
+#: ``-q`` (``main``): no terminal report; ``-`` as an output: the terminal report on stderr.
+_TERMINAL = {"quiet": False, "stderr": False}
+#: The inputs (positionals) that may be ``-``, stdin; the outputs that may be ``-``, stdout.
+_INPUTS = ("file", "golden", "candidate", "capture")
+_OUTPUTS = ("json", "html", "svg")
 
 
 def to_terminal(write: Callable[[], Any]) -> None:
     """Print the terminal report, which comes after the files (``--json``, ``--html``): a
     reader that went away (``| head -1``) loses the rest of it, never the files or the exit
     code (the verdict)."""
+    if _TERMINAL["quiet"]:
+        return
     try:
-        write()
+        if _TERMINAL["stderr"]:
+            with contextlib.redirect_stdout(sys.stderr):
+                write()
+        else:
+            write()
         sys.stdout.flush()
     except (BrokenPipeError, SystemExit) as exc:  # rich turns a broken pipe into SystemExit(1)
         if not isinstance(exc, BrokenPipeError) and not isinstance(exc.__context__, BrokenPipeError):
@@ -96,10 +114,18 @@ def to_terminal(write: Callable[[], Any]) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Read, judge and chart MCP captures: our MCAP files "
-                "(mcp-conform --capture) and pcap/pcapng as tcpdump and Wireshark write them.")
+                "(mcp-conform --capture) and pcap/pcapng as tcpdump and Wireshark write them.",
+                epilog=epilog("A capture named - is read from stdin."),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version(p, PROG)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         importlib.import_module(name).register(sub)
+    for sp in sub.choices.values():
+        sp.epilog = epilog(*([sp.epilog] if sp.epilog else []))
+        sp.formatter_class = argparse.RawDescriptionHelpFormatter
+        add_verbosity(sp, "check: every violation in full, not 3 per rule (the others print all they have already)",
+                      "no terminal report: the exit code, errors and the files asked for only")
     return p
 
 
@@ -117,9 +143,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         return _error(str(exc))
     if getattr(ns, "run", None) is None:
-        parser.print_help(sys.stderr)
-        return 2
+        return _error("a COMMAND is required: " + ", ".join(m.rsplit(".", 1)[1] for m in SUBCOMMANDS)
+                      + f" ({PROG} --help)")
+    _TERMINAL["quiet"] = bool(getattr(ns, "quiet", False))
+    _TERMINAL["stderr"] = any(getattr(ns, o, None) == STDIO for o in _OUTPUTS)
     try:
+        stdin = [a for a in _INPUTS if getattr(ns, a, None) == STDIO]
+        if len(stdin) > 1:
+            raise UsageError("only one capture can be read from stdin (-)")
+        for a in stdin:
+            setattr(ns, a, read_path(STDIO))
         return int(ns.run(ns))
     except (CaptureError, UsageError) as exc:
         return _error(str(exc))
@@ -127,7 +160,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.close()
         return 0
     except KeyboardInterrupt:
-        return _error("interrupted")
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

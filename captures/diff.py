@@ -524,9 +524,8 @@ def build_json(result: DiffResult) -> dict[str, Any]:
 
 # ---------------------------------------------------------------- command line
 def register(sub: Any) -> None:
-    from captures.cli import add_protocol_option
-
     """Add ``diff`` to ``mcp-capture``'s subparsers."""
+    from captures.cli import add_protocol_option
     p = sub.add_parser("diff", help="compare two captures as MCP conversations",
                        description=__doc__.split("\n\n")[0] if __doc__ else None)
     p.add_argument("golden", metavar="GOLDEN", help="the reference capture (MCAP, pcap, pcapng)")
@@ -571,9 +570,10 @@ def _nonneg_float(text: str) -> float:
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     from captures.cli import capture_tools, check_writable, to_terminal
+    from traceio.grammar import write_text as _write_text
     from traceio.reader import CaptureError
 
-    out = out or sys.stdout
+    given_out = out
     err = err or sys.stderr
     check_writable(args.json, "--json")
     check_writable(args.html, "--html")
@@ -581,20 +581,20 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     try:
         tools = capture_tools(args, args.golden)
         if tools is not None:  # a protocol with capture tools of its own (Nsqd's: per connection)
-            return int(tools.run_diff(args, out))
+            return int(tools.run_diff(args, given_out or sys.stdout))
         result = diff_captures(args.golden, args.candidate, opts)
     except CaptureError as exc:
-        err.write(f"mcp-capture diff: {exc}\n")
+        err.write(f"mcp-capture: error: diff: {exc}\n")
         return 2
     try:  # the files first: a piped terminal report (`| head -1`) loses neither
-        if args.json:
-            Path(args.json).write_text(json.dumps(build_json(result), indent=1) + "\n")
+        if args.json:  # "-": stdout (traceio.grammar)
+            _write_text(args.json, json.dumps(build_json(result), indent=1) + "\n")
         if args.html:
             from captures.diff_html import write_html
 
             write_html(result, args.html)
     except OSError as exc:
-        err.write(f"mcp-capture diff: cannot write {exc.filename}: {exc.strerror}\n")
+        err.write(f"mcp-capture: error: diff: cannot write {exc.filename}: {exc.strerror}\n")
         return 2
-    to_terminal(lambda: print_report(result, out))
+    to_terminal(lambda: print_report(result, given_out or sys.stdout))
     return 0 if result.same else 1

@@ -505,10 +505,10 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
                 path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(dm.generate_wlua() if text is None else text, encoding="utf-8")
         except OSError as exc:
-            err.write(f"mcp-capture dissector: cannot write {path}: {exc.strerror}\n")
+            err.write(f"mcp-capture: error: dissector: cannot write {path}: {exc.strerror}\n")
             return 2
         except RuntimeError as exc:
-            err.write(f"mcp-capture dissector: {exc}\n")
+            err.write(f"mcp-capture: error: dissector: {exc}\n")
             return 2
         out.write(f"wrote {path}\n")
     if writes and target is not None:

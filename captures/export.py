@@ -124,10 +124,10 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         tcp = tools is not None
         n, truncated = (tools.export_pcap if tools is not None else export_pcap)(args.capture, args.pcap)
     except CaptureError as exc:
-        err.write(f"mcp-capture export: {exc}\n")
+        err.write(f"mcp-capture: error: export: {exc}\n")
         return 2
     except OSError as exc:
-        err.write(f"mcp-capture export: cannot write {args.pcap}: {exc.strerror}\n")
+        err.write(f"mcp-capture: error: export: cannot write {args.pcap}: {exc.strerror}\n")
         return 2
     if tcp:
         note = f" (the capture is TRUNCATED: {truncated})" if truncated else ""

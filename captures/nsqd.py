@@ -305,7 +305,7 @@ def run_replay(args: Any) -> int:
     try:
         return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
     except SetupError as exc:
-        sys.stderr.write(f"mcp-capture replay: {exc}\n")
+        sys.stderr.write(f"mcp-capture: error: replay: {exc}\n")
         return 2
 
 

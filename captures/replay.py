@@ -480,7 +480,10 @@ def register(sub: Any) -> None:
                    help="keep the capture's gaps between sends up to S seconds (0.5)")
     p.add_argument("--timeout", type=float, default=300.0, metavar="S", help="bound on the whole replay (300)")
     p.add_argument("--copies-tolerance", type=int, default=1, metavar="N", help="as in diff (1)")
-    p.add_argument("--capture-out", dest="capture_out", metavar="OUT.mcap", help="record the replay")
+    p.add_argument("--capture", dest="capture_out", metavar="FILE.mcap", help="record the replay to an MCAP file")
+    from traceio.grammar import deprecated
+
+    deprecated(p, "--capture-out", "--capture", dest="capture_out")
     p.add_argument("--json", metavar="OUT", help="write the result as JSON")
     p.set_defaults(run=run)
 
@@ -501,7 +504,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     try:
         everything = list(open_capture(args.capture))
     except CaptureError as exc:
-        err.write(f"mcp-capture replay: {exc}\n")
+        err.write(f"mcp-capture: error: replay: {exc}\n")
         return 2
     records = [r for r in everything if type(r) is Datagram]
     fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == FUZZ_RECORDER),
@@ -515,7 +518,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
                         max_gap=args.max_gap, timeout=args.timeout, copies_tolerance=args.copies_tolerance,
                         capture=args.capture_out)
     except ReplayError as exc:
-        err.write(f"mcp-capture replay: {exc}\n")
+        err.write(f"mcp-capture: error: replay: {exc}\n")
         return 2
     # the file first: a piped terminal report (`| head -1`) loses neither it nor the verdict
     if args.json:
@@ -524,10 +527,12 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
                 "violations": [{"rule": v.rule, "level": v.level, "node": v.node, "expected": str(v.expected),
                                 "actual": str(v.actual)} for v in result.violations],
                 "ok": result.ok}
+        from traceio.grammar import write_text
+
         try:
-            Path(args.json).write_text(json.dumps(body, indent=1) + "\n")
+            write_text(args.json, json.dumps(body, indent=1) + "\n")
         except OSError as exc:
-            err.write(f"mcp-capture replay: cannot write {args.json}: {exc.strerror}\n")
+            err.write(f"mcp-capture: error: replay: cannot write {args.json}: {exc.strerror}\n")
             return 2
 
     def terminal() -> None:
@@ -559,11 +564,11 @@ def _reproduce_finding(args: Any, meta: dict[str, str], out: TextIO, err: TextIO
 
     f = finding_from_metadata(meta)
     if f is None:
-        err.write("mcp-capture replay: the capture is an mcp-fuzz finding without its sequence in the "
+        err.write("mcp-capture: error: replay: the capture is an mcp-fuzz finding without its sequence in the "
                   "metadata record; replay it with mcp-fuzz --replay FINDING-DIR\n")
         return 2
     if args.target is None and not args.spawn:
-        err.write("mcp-capture replay: a fuzz finding needs --target HOST:PORT or --spawn CMD\n")
+        err.write("mcp-capture: error: replay: a fuzz finding needs --target HOST:PORT or --spawn CMD\n")
         return 2
     out.write(f"{args.capture}: an mcp-fuzz finding ({f.rule}, {f.engine} engine, seed {f.seed}); "
               f"replaying its {len(f.datagrams)} datagram(s) as mcp-fuzz --replay does\n")

@@ -12,26 +12,35 @@ value is a one-line error naming the option, exit 2, with the JSON report still 
 then runs the installed cases (``--pyargs conformance.cases``) without pytest's cache,
 random ordering, configuration files or terminal output (the plugin's rich report is the
 output), and returns the contract's exit code: 0 no MUST failed (and no SHOULD under
-``--strict``), 1 a case failed or errored, 2 a usage or setup error.
+``--strict``), 1 a case failed or errored, 2 a usage or setup error, 128 + the signal's
+number when SIGINT (130) or SIGTERM (143) stopped the run (its reports written). The options
+follow the tools' one grammar (``traceio.grammar``, docs/grammar.md): ``--json -`` writes the
+report to stdout (the terminal report then goes to stderr); an ``MCP_CONFORM_*`` variable is
+checked as its option is, a bad value a one-line error naming the variable.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
+import signal
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
 from conformance.baseline import BaselineError, load_baseline
+from conformance.option_names import _FLAGS, _KEYS, env_name
 from conformance.options import ConfigError, make_config
-from conformance.report import RunRecord, tool_version, write_json
+from conformance.report import RunRecord, write_json
 from harness.config import RunConfig
 from harness.interrupts import INTERRUPTS
 from spec import SPEC
 from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick
+from traceio.grammar import STDIO, add_verbosity, epilog, version_text
 
 __all__ = ["build_parser", "main", "pytest_args"]
 
@@ -48,7 +57,8 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Black-box conformance runner for CentMesh MCP nodes.",
-                epilog="No --target and no --spawn: test the embedded reference drone.")
+                epilog=epilog("No --target and no --spawn: test the embedded reference drone."),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
     p.add_argument("--listen", metavar="HOST:PORT", help=(f"where the runner receives and sends from (default: all addresses, port "
                          f"{SPEC.protocol['ports']['manager']} for a drone under test; a free port when spawning)"))
@@ -65,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--select", metavar="PREFIX", nargs="+", action="extend", default=[], help="run only cases whose rule ID or case ID starts with PREFIX")
     p.add_argument("--exclude", metavar="PREFIX", nargs="+", action="extend", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX")
     p.add_argument("--list", action="store_true", help="print the cases with their rule IDs and run nothing")
-    p.add_argument("--json", metavar="FILE", help="write the JSON report (always, errors included)")
+    p.add_argument("--json", metavar="FILE", help="write the JSON report (always, errors included; "
+                   "'-': stdout, the terminal report then on stderr)")
     p.add_argument("--junit", metavar="FILE", help="write a JUnit XML report")
     p.add_argument("--junit-family", metavar="xunit2|xunit1", choices=("xunit2", "xunit1"), help="xunit2 (default): valid against the Jenkins junit-10 schema; xunit1: rule IDs also as properties in each testcase")
     p.add_argument("--baseline", metavar="FILE", help="expected failures (YAML or JSON, case or rule IDs with a reason): listed failures are xfailed (exit 0), listed cases that pass are xpassed (exit 1 under --strict)")
@@ -97,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "prints which case runs on which)")
     p.add_argument("--shard", metavar="K/N", help=argparse.SUPPRESS)  # one instance of --parallel
     p.add_argument("--shard-events", metavar="FILE", help=argparse.SUPPRESS)
-    p.add_argument("-v", "--verbose", action="store_true", help="print every datagram sent and received, live, to stderr")
+    add_verbosity(p, "print every datagram sent and received, live, to stderr",
+                  "no terminal report: the exit code, errors and the files asked for only")
     p.add_argument("--version", action="store_true", help="print the version and exit")
     return p
 
@@ -114,7 +126,10 @@ def _json_path(argv: Sequence[str]) -> str | None:
 
 
 def _values(ns: argparse.Namespace) -> dict[str, Any]:
-    return {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id,
+    """The options' values: the command line's, else their ``MCP_CONFORM_*`` variable's (as
+    the plugin reads them, ``conformance.options.option_values``), so a bad variable is the
+    same one-line error as a bad option."""
+    given = {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id,
             "protocol": ns.protocol, "role": ns.role,
             "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
@@ -122,6 +137,20 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
             "case_timeout": ns.case_timeout, "startup_timeout": ns.startup_timeout,
             "drones": ns.drones, "challenge": ns.challenge, "waypoints": ns.waypoints,
             "impair": ns.impair}
+    for key in _KEYS:
+        env = os.environ.get(env_name(key), "")
+        if key not in _FLAGS and key != "mavlink" and given.get(key) is None and env != "":
+            given[key] = env
+    return given
+
+
+def _spelling(ns: argparse.Namespace) -> Any:
+    """How make_config names an option in an error: ``--rto``, or ``MCP_CONFORM_RTO`` when
+    only the variable gave it."""
+    def opt(name: str) -> str:
+        from_env = getattr(ns, name, None) is None and os.environ.get(env_name(name), "") != ""
+        return env_name(name) if from_env else "--" + name.replace("_", "-")
+    return opt
 
 
 def _check_writable(path: str | None, option: str) -> None:
@@ -181,7 +210,12 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
                         parameters=cfg.parameters(), seed=cfg.seed, strict=cfg.strict, error=message)
         run.finished = run.started
         try:
-            write_json(json_path, run)
+            if json_path == STDIO:
+                from conformance.report import build_json
+
+                print(json.dumps(build_json(run), indent=2), flush=True)
+            else:
+                write_json(json_path, run)
         except OSError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
     return 2
@@ -246,22 +280,78 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     installed = INTERRUPTS.install()
     try:
-        return _main(argv)
-    except KeyboardInterrupt:  # before pytest took over, or after it returned
-        return interrupted(argv)
+        with _json_to_stdout(argv) as args:
+            try:
+                return _main(args)
+            except KeyboardInterrupt:  # before pytest took over, or after it returned
+                return interrupted(args)
     finally:
         if installed:
             INTERRUPTS.restore()
 
 
+@contextlib.contextmanager
+def _json_to_stdout(argv: list[str]) -> Any:
+    """``--json -``: the report is written to a file of our own, the terminal report and
+    anything else printed goes to stderr meanwhile, then the report goes to stdout."""
+    i = next((i for i, a in enumerate(argv) if a == "--json=-" or (a == "--json" and argv[i + 1:i + 2] == ["-"])),
+             None)
+    if i is None or "--version" in argv or "-h" in argv or "--help" in argv:
+        yield argv
+        return
+    fd, path = tempfile.mkstemp(prefix="mcp-conform-", suffix=".json")
+    os.close(fd)
+    os.unlink(path)
+    args = [*argv[:i], f"--json={path}", *argv[i + (1 if argv[i] == "--json=-" else 2):]]
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield args
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+        with contextlib.suppress(OSError):
+            with open(path, encoding="utf-8") as f:
+                sys.stdout.write(f.read())
+            sys.stdout.flush()
+            os.unlink(path)
+
+
+def _signal_code() -> int:
+    """128 + the number of the first signal that stopped the run (130 SIGINT, 143 SIGTERM)."""
+    name = INTERRUPTS.signals[0] if INTERRUPTS.signals else "SIGINT"
+    return 128 + int(getattr(signal, name, signal.SIGINT))
+
+
 def interrupted(argv: Sequence[str]) -> int:
-    """A signal stopped the run outside pytest: the report says so (exit 2)."""
+    """A signal stopped the run outside pytest: the report says so (exit 128 + its number)."""
     INTERRUPTS.stop_raising()
     written = _json_path(argv)
-    if written and Path(written).exists():  # the run's own report: keep it
+    if written and written != STDIO and Path(written).exists():  # the run's own report: keep it
         print(f"{PROG}: error: {INTERRUPTS.reason()}", file=sys.stderr)
-        return 2
-    return _fail(INTERRUPTS.reason(), written)
+        return _signal_code()
+    _fail(INTERRUPTS.reason(), written)
+    return _signal_code()
+
+
+@contextlib.contextmanager
+def _quiet(quiet: bool) -> Any:
+    """``-q``: stdout (the terminal report) to /dev/null for the run; errors stay on stderr."""
+    if not quiet:
+        yield
+        return
+    sys.stdout.flush()
+    saved, devnull = os.dup(1), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.close(devnull)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _main(argv: list[str]) -> int:
@@ -279,10 +369,10 @@ def _main(argv: list[str]) -> int:
     ns.protocol, ns.role = prof.name, role.name
     if ns.version:
         with contextlib.suppress(BrokenPipeError):
-            print(f"{PROG} {tool_version()} (MCP spec {SPEC.version})", flush=True)
+            print(version_text(PROG), flush=True)
         return 0
     try:
-        cfg = make_config(_values(ns), lambda n: "--" + n.replace("_", "-"))
+        cfg = make_config(_values(ns), _spelling(ns))
         _check_writable(ns.json, "--json")
         _check_writable(ns.junit, "--junit")
         _check_writable(ns.capture, "--capture")
@@ -309,13 +399,16 @@ def _main(argv: list[str]) -> int:
     if ns.json:
         Path(ns.json).unlink(missing_ok=True)  # rewritten below; its absence shows a pytest failure
     INTERRUPTS.hold()  # until the plugin is configured (``_plugin_run.pytest_configure``)
-    rc = int(pytest.main(pytest_args(ns)))
+    with _quiet(ns.quiet):
+        rc = int(pytest.main(pytest_args(ns)))
     INTERRUPTS.stop_raising()
     INTERRUPTS.release()  # pytest ended before it configured the plugin: nothing left to raise
+    if INTERRUPTS.interrupted:
+        if not ns.json or not Path(ns.json).exists():
+            _fail(INTERRUPTS.reason(), ns.json, cfg)
+        return _signal_code()
     if rc in (0, 1, 2) and (not ns.json or Path(ns.json).exists()):
         return rc
-    if INTERRUPTS.interrupted:
-        return _fail(INTERRUPTS.reason(), ns.json, cfg)
     why = {3: "internal error in the runner (see the traceback above)",
            4: "pytest refused the arguments (see above)",
            5: "no conformance cases were collected"}.get(rc, f"the run ended with pytest exit code {rc}")

@@ -30,6 +30,7 @@ from fuzz.environment import environment_lines
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
+from traceio.grammar import add_version, epilog
 
 __all__ = ["build_parser", "exit_code", "main"]
 
@@ -48,9 +49,11 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Fuzz an MCP node; every exchange judged by the spec's rules.",
-                epilog="No --target and no --spawn: fuzz the embedded reference drone. Exit codes: 0 no "
-                       "MUST finding; 1 findings; 2 usage or setup error, or the node lost in attach mode; "
-                       "130 interrupted (summary.json keeps the counts so far).")
+                epilog=epilog("No --target and no --spawn: fuzz the embedded reference drone. 1: a MUST finding\n"
+                              "(a SHOULD one too under --strict); 2 also when the node is lost in attach mode;\n"
+                              "130: summary.json keeps the counts so far."),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version(p, PROG)
     t = p.add_mutually_exclusive_group()
     t.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
     t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "

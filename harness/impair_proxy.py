@@ -1,19 +1,19 @@
 """``mcp-impair``: a UDP proxy that is a bad link, reproducible by seed (issue 22 item 2).
 
-    mcp-impair --listen HOST:PORT --forward HOST:PORT [--loss P] [--dup P] [--reorder P]
+    mcp-impair --listen HOST:PORT --target HOST:PORT [--loss P] [--dup P] [--reorder P]
                [--delay LO-HI] [--corrupt P] [--burst P_GB/P_BG[/LOSS]] [--rate N]
                [--seed N] [--impair SPEC] [--capture FILE.mcap] [--duration S]
-               [--max-held N] [--max-held-bytes B]
+               [--max-held N] [--max-held-bytes B] [-v|-q]
 
 Point a node at ``--listen`` instead of its peer: every datagram it sends there goes on to
-``--forward`` through the impairment, from a socket of its own for that sender (as a NAT
+``--target`` (``--forward``, its old name, still works) through the impairment, from a socket of its own for that sender (as a NAT
 would), and every datagram the forward side sends back to that socket returns to the sender
 from ``--listen``, impaired too. The two directions are impaired independently
 (``harness.impair``: the same seed and traffic give the same decisions). On exit (SIGINT,
-SIGTERM, ``--duration``) it prints what it did, per direction and kind; ``--capture`` records
+SIGTERM, ``--duration``: how it is stopped, exit 0) it prints what it did, per direction and kind; ``--capture`` records
 each decision with the datagram it touched (MCAP channel ``/impair``), so a capture shows
 which losses were the link's. Exit 0, or 2 with one line on a bad option, a port in use or a
-``--forward`` host that does not resolve (it is resolved once, at start: never a DNS lookup
+``--target`` host that does not resolve (it is resolved once, at start: never a DNS lookup
 per datagram).
 
 Delayed copies wait in a bounded queue (``harness.impair.DelayQueue``): at most
@@ -35,7 +35,7 @@ import socket
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 from harness.config import parse_hostport
 from harness.impair import (
@@ -47,6 +47,7 @@ from harness.impair import (
     ImpairSpec,
     parse_impairment,
 )
+from traceio.grammar import add_verbosity, add_version, deprecated, epilog
 
 __all__ = ["ImpairProxy", "main", "resolve"]
 
@@ -78,9 +79,10 @@ class ImpairProxy:
                  recorder: Any = None, max_held: int = MAX_HELD,
                  max_held_bytes: int = MAX_HELD_BYTES) -> None:
         self.impairment = impairment
-        self.forward = resolve(forward, "--forward")
+        self.forward = resolve(forward, "--target")
         self.queue: DelayQueue[tuple[socket.socket, bytes, Address]] = DelayQueue(max_held, max_held_bytes)
         self.recorder = recorder
+        self.verbose = False  # -v: one line per datagram the link touched
         self.sel = selectors.DefaultSelector()
         self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -124,6 +126,9 @@ class ImpairProxy:
         if self.recorder is not None:
             with contextlib.suppress(Exception):
                 self.recorder.impairment(decision, data, time.time_ns())
+        if self.verbose and decision.kinds:  # -v: what the link did to it
+            print(f"{PROG}: {direction} #{decision.n} ({decision.size} B): {', '.join(decision.kinds)}",
+                  file=sys.stderr, flush=True)
 
     def _read(self, sock: socket.socket, sender: Address | None, now: float) -> None:
         for _ in range(64):  # bounded per wake-up
@@ -178,12 +183,25 @@ class ImpairProxy:
                 f"{q.peak_count} copies, {q.peak_bytes / (1 << 20):.1f} MiB (cap {q.cap_text()})")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse that says a usage error in one line (not the whole usage), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{PROG}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description="A UDP proxy that impairs both directions, "
-                                "reproducibly by seed (loss, duplication, delay, reordering, "
-                                "corruption, burst loss, rate limit).")
+    p = _Parser(prog=PROG, description="A UDP proxy that impairs both directions, "
+                "reproducibly by seed (loss, duplication, delay, reordering, "
+                "corruption, burst loss, rate limit).",
+                epilog=epilog("Ctrl-C, SIGTERM or --duration is how it stops: exit 0."),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version(p, PROG)
     p.add_argument("--listen", required=True, metavar="HOST:PORT", help="where the node sends")
-    p.add_argument("--forward", required=True, metavar="HOST:PORT", help="where it goes on to")
+    p.add_argument("--target", metavar="HOST:PORT", help="where it goes on to (required)")
+    deprecated(p, "--forward", "--target")
+    add_verbosity(p, "also one line on stderr per datagram the link touched (dropped, duplicated, "
+                  "delayed, corrupted)", "no start and end lines: errors only")
     for key, what in (("loss", "drop probability"), ("dup", "duplication probability"),
                       ("reorder", "probability of being held back past later datagrams"),
                       ("corrupt", "probability of bit flips or a cut")):
@@ -218,9 +236,11 @@ def spec_from_args(ns: argparse.Namespace) -> ImpairSpec:
 def main(argv: Sequence[str] | None = None) -> int:
     ns = build_parser().parse_args(argv)
     try:
+        if ns.target is None:
+            raise ImpairmentError("--target HOST:PORT is required: where the datagrams go on to")
         spec = spec_from_args(ns)
         listen = parse_hostport(ns.listen, "--listen")
-        forward = resolve(parse_hostport(ns.forward, "--forward"), "--forward")
+        forward = resolve(parse_hostport(ns.target, "--target"), "--target")
         if ns.duration is not None and not ns.duration > 0:
             raise ImpairmentError("--duration: must be > 0")
         if ns.max_held < 1 or ns.max_held_bytes < 1:
@@ -234,7 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         try:
             recorder = McapRecorder(ns.capture, library=PROG, metadata=run_metadata(
-                PROG, impair=spec.text(), listen=ns.listen, forward=ns.forward))
+                PROG, impair=spec.text(), listen=ns.listen, forward=ns.target))
         except RecorderError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
@@ -246,17 +266,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         if recorder is not None:
             recorder.close()
         return 2
+    proxy.verbose = ns.verbose
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: proxy.stop())
-    print(f"{PROG}: {proxy.address[0]}:{proxy.address[1]} -> {forward[0]}:{forward[1]} "
-          f"({spec.text()})", flush=True)
+    if not ns.quiet:
+        print(f"{PROG}: {proxy.address[0]}:{proxy.address[1]} -> {forward[0]}:{forward[1]} "
+              f"({spec.text()})", flush=True)
     try:
         proxy.run(None if ns.duration is None else time.monotonic() + ns.duration)
     finally:
         proxy.close()
         if recorder is not None:
             recorder.close()
-    print(proxy.report(), flush=True)
+    if not ns.quiet:
+        print(proxy.report(), flush=True)
     return 0
 
 

@@ -74,7 +74,7 @@ def embedded_command() -> str:
     """The reference manager, as the runner spawns it for the embedded default."""
     return (f"{shlex.quote(sys.executable)} -m reference_impl manager --challenge {{challenge}} "
             "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
-            "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
+            "--listen {target_host}:{target_port} --target {listen_host}:{listen_port} "
             f"--rto {EMBEDDED_RTO} --retries {EMBEDDED_RETRIES}")
 
 

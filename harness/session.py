@@ -65,7 +65,7 @@ FRAMING_RULES = frozenset({"MCP-HDR-1", "MCP-HDR-2"})
 def embedded_command() -> str:
     """The reference drone, as the runner spawns it for the embedded default."""
     return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} "
-            "--bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
+            "--listen {target_host}:{target_port} --target {listen_host}:{listen_port} "
             "--mavlink {mavlink} --rto " + str(EMBEDDED_RTO))
 
 

@@ -203,7 +203,7 @@ class Conn:
 def embedded_command() -> str:
     """The reference backend as the embedded default, at a short UPDATE period."""
     return (f"{shlex.quote(sys.executable)} -m reference_impl --protocol nsqd backend "
-            f"--bind {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
+            f"--listen {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
 
 
 class StreamSession(SessionBase):

@@ -87,6 +87,8 @@ def add_monitor_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535, D-1)")
     p.add_argument("--select", metavar="PREFIX", action="append", default=[],
                    help="report only rules starting with PREFIX (MCP-ACK, ACK-1, ...); repeatable")
+    p.add_argument("--exclude", metavar="PREFIX", action="append", default=[],
+                   help="leave out rules starting with PREFIX; repeatable")
     p.add_argument("--strict", action="store_true", help="a violated SHOULD is a failure")
     p.add_argument("--complete", action="store_true", help="the capture holds every datagram the nodes "
                    "exchanged (taken on the one host where they all run): a missing ACK or retransmission "
@@ -117,7 +119,8 @@ def _int(name: str, text: str, lo: int, hi: int) -> int:
 
 def params_from_args(ns: argparse.Namespace) -> Params:
     p = Params(rto=_positive("--rto", ns.rto, 5.0), ack_window=_positive("--ack-window", ns.ack_window, 2.0),
-               strict=bool(getattr(ns, "strict", False)), select=tuple(getattr(ns, "select", None) or ()),
+               strict=bool(getattr(ns, "strict", False)),
+               select=tuple(getattr(ns, "select", None) or ()) + tuple("!" + x for x in getattr(ns, "exclude", None) or ()),
                complete=bool(getattr(ns, "complete", False)),
                given=frozenset(k for k in ("rto", "ack_window", "broadcast_id", "drones", "challenge")
                                if getattr(ns, k, None) is not None))
@@ -150,8 +153,12 @@ def _one_line(exc: BaseException) -> str:
 
 
 def selected(rule: str, select: tuple[str, ...]) -> bool:
-    """Whether ``rule`` (MCP-ACK-1) matches one of the prefixes (MCP-ACK, ACK-1, ACK)."""
+    """Whether ``rule`` (MCP-ACK-1) matches one of the prefixes (MCP-ACK, ACK-1, ACK) and none
+    of the excluded ones (``--exclude``, kept in ``select`` as ``!PREFIX``)."""
     if not select:
         return True
     short = rule[4:] if rule.startswith("MCP-") else rule
-    return any(rule.startswith(s) or short.startswith(s) for s in select)
+    chosen = [s for s in select if not s.startswith("!")]
+    left_out = [s[1:] for s in select if s.startswith("!")]
+    return ((not chosen or any(rule.startswith(s) or short.startswith(s) for s in chosen))
+            and not any(rule.startswith(s) or short.startswith(s) for s in left_out))

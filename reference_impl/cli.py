@@ -10,17 +10,19 @@ The three optional positionals keep the description's invocation shape
 (``./mission_manager.py 2 127.255.255.255 7889 7890``,
 ``./mcp_mission_controller.py 127.255.255.255 7890 7889``); their defaults come from the
 spec (broadcast 127.255.255.255; a drone listens on 7890 and sends to 7889, the manager the
-other way round, MCP-TRN-1). ``--bind HOST:PORT`` and ``--send-to HOST:PORT`` override them,
+other way round, MCP-TRN-1). ``--listen HOST:PORT`` and ``--target HOST:PORT`` override them,
 which is how the conformance runner spawns a node against its own sockets and vehicle::
 
-    python -m reference_impl drone --id 1 --bind 127.0.0.1:40001 --send-to 127.0.0.1:40002 \\
+    python -m reference_impl drone --id 1 --listen 127.0.0.1:40001 --target 127.0.0.1:40002 \\
         --mavlink tcp:127.0.0.1:5760 --rto 0.2
 
 Progress goes to stderr, one line per protocol event; a JSON summary of what the node
-received and sent goes to stdout on exit (and to ``--record FILE``). Exit status: 0 after
-End_Mission or on Ctrl-C/SIGTERM; 1 when the mission failed (a message never ACKed);
-2 on a usage or setup error (bad argument, port or autopilot unreachable), reported in
-one line.
+received and sent goes to stdout on exit (and to ``--json FILE``). Exit status: 0 after
+End_Mission or on Ctrl-C/SIGTERM (how a node is stopped); 1 when the mission failed (a
+message never ACKed); 2 on a usage or setup error (bad argument, port or autopilot
+unreachable), reported in one line. The options follow the tools' one grammar
+(``traceio.grammar``, docs/grammar.md); ``--bind``, ``--send-to`` and ``--record`` are kept as
+deprecated aliases of ``--listen``, ``--target`` and ``--json``.
 """
 
 from __future__ import annotations
@@ -39,6 +41,8 @@ from typing import Any, NoReturn
 from reference_impl.drone import Drone, DroneConfig, RoleError
 from reference_impl.manager import CHALLENGES, Manager, ManagerConfig
 from spec import SPEC
+from spec.profiles import PROFILES
+from traceio.grammar import STDIO, add_verbosity, deprecated, epilog, version_text
 
 __all__ = ["build_parser", "main"]
 
@@ -125,10 +129,12 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
                    help=f"UDP port to listen on ({local})")
     p.add_argument("remote_port", nargs="?", type=_port, default=None, metavar="REMOTE_PORT",
                    help=f"UDP port to send to ({remote})")
-    p.add_argument("--bind", type=_hostport, metavar="HOST:PORT",
+    p.add_argument("--listen", type=_hostport, metavar="HOST:PORT",
                    help="where to listen (overrides LOCAL_PORT; default: all addresses)")
-    p.add_argument("--send-to", type=_hostport, metavar="HOST:PORT",
+    p.add_argument("--target", type=_hostport, metavar="HOST:PORT",
                    help="where to send (overrides BROADCAST and REMOTE_PORT)")
+    deprecated(p, "--bind", "--listen", type=_hostport)
+    deprecated(p, "--send-to", "--target", type=_hostport)
     p.add_argument("--rto", type=_number(0.0, False), metavar="S",
                    help=f"retransmission timeout in seconds ({SPEC.params['timeout_s']:g})")
     p.add_argument("--retries", type=_count, metavar="N",
@@ -143,31 +149,25 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
                         "delays, reorders and corrupts what it sends and receives "
                         "(loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms,corrupt=0.01,seed=7; the syntax of mcp-conform, "
                         "mcp-fuzz and mcp-impair)")
-    p.add_argument("--record", metavar="FILE", help="write a JSON record of the run to FILE")
+    p.add_argument("--json", metavar="FILE", help="write the JSON record of the run to FILE as well as to "
+                   "stdout on exit ('-': stdout only)")
+    deprecated(p, "--record", "--json")
     p.add_argument("--capture", metavar="FILE.mcap",
                    help="record the node's MCP traffic (and a drone's autopilot link) to an MCAP "
                         "file, in the runner's format (mcp-capture show|check|diff FILE)")
     p.add_argument("--live", type=_live, metavar="[HOST:]PORT",
                    help="serve the capture's channels live over the Foxglove WebSocket protocol "
                         "(loopback unless HOST is given; port 0: a free one; the ws:// URL goes to stderr)")
-    verbosity = p.add_mutually_exclusive_group()
-    verbosity.add_argument("-v", "--verbose", action="store_true", help="debug output")
-    verbosity.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
-
-
-def _version() -> str:
-    """The installed distribution's version (the reference node ships with mcp-conform)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("centmesh-mcp-conform")
-    except PackageNotFoundError:
-        return "0+unknown"
+    add_verbosity(p, "debug output", "warnings and errors only")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.")
-    p.add_argument("--version", action="version", version=f"{PROG} {_version()} (MCP spec {SPEC.version})")
+    p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.",
+                       epilog=epilog("Ctrl-C or SIGTERM is how a node is stopped: exit 0."),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=version_text(PROG), help="print the version and exit")
+    p.add_argument("--protocol", metavar="|".join(PROFILES), help="the protocol the node speaks: mcp (default: "
+                   "these roles) or nsqd (mcp-node --protocol nsqd backend|client --help); first on the line")
     sub = p.add_subparsers(dest="role", required=True, metavar="{drone,manager}",
                            parser_class=_OneLineParser)
     d = sub.add_parser("drone", help="a drone application (MCP + MAVLink to its autopilot)",
@@ -200,21 +200,28 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--ready-timeout", type=_number(0.0, False), metavar="S",
                    help="give up when not every drone is ready after S seconds (default: wait)")
     _common(m, _PORTS["manager"], _PORTS["drone"])
+    for sp in (d, m):
+        sp.epilog, sp.formatter_class = p.epilog, argparse.RawDescriptionHelpFormatter
     return p
 
 
 def _addresses(args: argparse.Namespace, local: int, remote: int) -> tuple[str, int, str, int]:
-    bind_host, bind_port = args.bind if args.bind else ("", local if args.local_port is None else args.local_port)
-    if args.send_to:
-        remote_host, remote_port = args.send_to
+    bind_host, bind_port = args.listen if args.listen else ("", local if args.local_port is None else args.local_port)
+    if args.target:
+        remote_host, remote_port = args.target
     else:
         remote_host = args.broadcast or _BROADCAST
         remote_port = remote if args.remote_port is None else args.remote_port
     if not remote_host:
-        raise RoleError("--send-to needs a host: HOST:PORT")
+        raise RoleError("--target needs a host: HOST:PORT")
     if remote_port == 0:
         raise RoleError("the port to send to cannot be 0")
     return bind_host, bind_port, remote_host, remote_port
+
+
+def _record(args: argparse.Namespace) -> str | None:
+    """``--json FILE``: the record's file; ``-`` is stdout, where the record goes anyway."""
+    return None if args.json in (None, STDIO) else args.json
 
 
 def _setup_logging(args: argparse.Namespace) -> tuple[list[logging.Handler], int]:
@@ -236,7 +243,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                           remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
                           retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
                           reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
-                          record_path=args.record, linger=args.linger,
+                          record_path=_record(args), linger=args.linger,
                           capture_path=args.capture, live=args.live, impair=args.impair_spec)
         drone = Drone(cfg)
         if args.mavlink and args.gps_fix_delay:
@@ -255,7 +262,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
                          remote_host=remote_host, remote_port=remote_port, rto=args.rto,
                          retries=args.retries, reply_to_source=args.reply_to_source,
                          reuse_port=args.reuse_port,
-                         record_path=args.record, capture_path=args.capture, live=args.live, dwell=args.dwell,
+                         record_path=_record(args), capture_path=args.capture, live=args.live, dwell=args.dwell,
                          impair=args.impair_spec,
                          ready_timeout=args.ready_timeout)
     return Manager(mcfg)

@@ -3,12 +3,13 @@ a small client that connects to a backend, sends commands and prints what comes 
 
 ::
 
-    mcp-node --protocol nsqd backend [--bind HOST:PORT] [--update-period S]
-    mcp-node --protocol nsqd client --connect HOST:PORT [--send NAME ...] [--duration S]
+    mcp-node --protocol nsqd backend [--listen HOST:PORT] [--update-period S] [-v|-q]
+    mcp-node --protocol nsqd client --target HOST:PORT [--send NAME ...] [--duration S]
 
 The backend prints ``listening on HOST:PORT`` once it listens, logs one line per event to
 stderr and stops on SIGINT/SIGTERM (exit 0); a bad argument or a port in use is one line
-and exit 2. The client prints each frame it receives as JSON, one per line.
+and exit 2. The client prints each frame it receives as JSON, one per line. ``--bind`` and
+``--connect`` are kept as deprecated aliases of ``--listen`` and ``--target`` (docs/grammar.md).
 """
 
 from __future__ import annotations
@@ -26,13 +27,15 @@ from typing import NoReturn
 from reference_impl.nsqd_backend import BackendCore, BackendServer
 from spec import NSQD
 from spec.stream_codec import BodyError, Deframer, FramingError, decode_body, encode
+from traceio.grammar import add_verbosity, deprecated, epilog
 
 PROG = "mcp-node --protocol nsqd"
+ERR = "mcp-node"  # errors' one prefix, as mcp-node's
 
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{PROG}: error: {message}\n")
+        self.exit(2, f"{ERR}: error: {message}\n")
 
 
 def _hostport(text: str) -> tuple[str, int]:
@@ -43,29 +46,38 @@ def _hostport(text: str) -> tuple[str, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description="The reference Nsqd backend, or a client of one.")
+    p = _Parser(prog=PROG, description="The reference Nsqd backend, or a client of one.",
+                epilog=epilog("The backend stops on Ctrl-C or SIGTERM: exit 0."),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="role", required=True)
     b = sub.add_parser("backend", help="serve the Nsqd protocol on a TCP port (one client at a time)")
-    b.add_argument("--bind", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT")
+    b.add_argument("--listen", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT",
+                   help="where to listen")
+    deprecated(b, "--bind", "--listen", type=_hostport)
     b.add_argument("--update-period", type=float, default=float(NSQD.params["update_period_s"]), metavar="S")
-    b.add_argument("-v", "--verbose", action="store_true")
+    add_verbosity(b, "one line per event on stderr", "errors only")
     c = sub.add_parser("client", help="connect to a backend, send commands, print what comes back")
-    c.add_argument("--connect", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT")
+    c.add_argument("--target", type=_hostport, default=("127.0.0.1", NSQD.port("backend")), metavar="HOST:PORT",
+                   help="the backend's address")
+    deprecated(c, "--connect", "--target", type=_hostport)
     c.add_argument("--send", nargs="*", default=[], metavar="NAME", help="commands without a body (TAKEOFF, LAND ...)")
-    c.add_argument("--duration", type=float, default=2.0, metavar="S")
+    c.add_argument("--duration", type=float, default=2.0, metavar="S", help="how long to listen (2)")
+    for sp in (b, c):
+        sp.epilog, sp.formatter_class = p.epilog, argparse.RawDescriptionHelpFormatter
     return p
 
 
 def _backend(args: argparse.Namespace) -> int:
     if args.update_period <= 0:
-        print(f"{PROG}: error: --update-period: must be > 0", file=sys.stderr)
+        print(f"{ERR}: error: --update-period: must be > 0", file=sys.stderr)
         return 2
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=sys.stderr,
+    level = logging.INFO if args.verbose else logging.ERROR if args.quiet else logging.WARNING
+    logging.basicConfig(level=level, stream=sys.stderr,
                         format="%(name)s: %(message)s")
     try:
-        server = BackendServer(*args.bind, core=BackendCore(update_period=args.update_period))
+        server = BackendServer(*args.listen, core=BackendCore(update_period=args.update_period))
     except OSError as exc:
-        print(f"{PROG}: error: --bind {args.bind[0]}:{args.bind[1]}: {exc.strerror}", file=sys.stderr)
+        print(f"{ERR}: error: --listen {args.listen[0]}:{args.listen[1]}: {exc.strerror}", file=sys.stderr)
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: server.stop())
@@ -82,15 +94,15 @@ def _client(args: argparse.Namespace) -> int:
         try:
             msg = NSQD.message(name.upper())
         except KeyError:
-            print(f"{PROG}: error: --send: no message {name!r}", file=sys.stderr)
+            print(f"{ERR}: error: --send: no message {name!r}", file=sys.stderr)
             return 2
         if msg.fields:
-            print(f"{PROG}: error: --send: {msg.name} has a body; only bodiless commands are sent from here", file=sys.stderr)
+            print(f"{ERR}: error: --send: {msg.name} has a body; only bodiless commands are sent from here", file=sys.stderr)
             return 2
     try:
-        sock = socket.create_connection(args.connect, timeout=2.0)
+        sock = socket.create_connection(args.target, timeout=2.0)
     except OSError as exc:
-        print(f"{PROG}: error: --connect {args.connect[0]}:{args.connect[1]}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"{ERR}: error: --target {args.target[0]}:{args.target[1]}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     deframer = Deframer(NSQD)
     with sock:

@@ -3,15 +3,17 @@ impairment (issue 22 item 4; MCP-DUP-1, MCP-RTX-1, MCP-FLOW-4/5/6 on a bad link)
 
     mcp-soak --missions 100 --impair loss=0.3,dup=0.1,reorder=0.2,delay=0-50ms [--seed N]
              [--drones 1,2,3] [--challenges 1,2,3] [--rto 0.2] [--mission-timeout 60]
-             [--manager CMD] [--drone CMD] [--out DIR] [--json FILE] [--keep] [--live [HOST:]PORT]
-             [--jobs N]
+             [--manager CMD] [--drone CMD] [--out DIR] [--json FILE|-] [--keep] [--live [HOST:]PORT]
+             [--jobs N] [--no-strict] [-v|-q]
 
 Mission *k* of a campaign with ``--seed S`` runs challenge ``challenges[k % n]`` with
 impairment seed ``S + k``: ``--missions 1 --seed S+k --challenges c`` replays it. Each
 mission: the monitor judges every node's view, every drone's delivery log must hold each
 command once, in order, and the manager must complete the mission. Exit 0 when every
 mission passed; 1 with the first failing seed, its capture and the command that reproduces
-it; 2 with one line on a bad option.
+it; 2 with one line on a bad option. A mission fails on any monitor violation by default
+(``--strict``, the soak's default); ``--no-strict`` (``--lenient``, its old name, still works)
+on MUST violations only. The options follow the tools' one grammar (docs/grammar.md).
 
 ``--jobs N`` runs N missions side by side (``soak.campaign``): the same missions, merged in
 mission order. SIGTERM or SIGINT stops the campaign: no mission starts, the running ones end
@@ -30,6 +32,7 @@ import shutil
 import signal
 import statistics
 import sys
+import textwrap
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,6 +48,7 @@ from soak.mission import (
     placeholders,
     run_mission,
 )
+from traceio.grammar import add_verbosity, add_version, deprecated, epilog
 
 __all__ = ["build_parser", "main"]
 
@@ -101,8 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("soak-out"), metavar="DIR",
                    help="where missions write captures, logs and records (soak-out)")
     p.add_argument("--keep", action="store_true", help="keep passing missions' files too")
-    p.add_argument("--lenient", action="store_true",
-                   help="fail a mission on MUST violations only (default: any monitor violation)")
+    p.add_argument("--strict", action=argparse.BooleanOptionalAction, default=True,
+                   help="fail a mission on any monitor violation, SHOULD included (the default); "
+                        "--no-strict: on MUST violations only")
+    deprecated(p, "--lenient", "--no-strict", dest="strict", flag=False)
     p.add_argument("--fail-fast", action="store_true", help="stop after the first failing mission")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-': stdout); "
                    "written on SIGTERM or SIGINT too, with the missions so far")
@@ -112,9 +118,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="serve the missions live over the Foxglove WebSocket protocol: each node's view under "
                         "its name (/manager/..., /drone1/...), each mission's outcome on /log "
                         "(loopback unless HOST is given; port 0: a free one)")
-    p.epilog = ("placeholders in --manager/--drone: " + ", ".join("{" + k + "}" for k in placeholders())
-                + "; {target_host}:{target_port} is where the node listens, {listen_host}:{listen_port} "
-                "where it sends, {record} the JSON delivery log it must write")
+    add_verbosity(p, "also one line per mission as it ends", "no table or summary: errors, the exit code "
+                  "and --json only")
+    add_version(p, PROG)
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = epilog(textwrap.fill(
+        "placeholders in --manager/--drone: " + ", ".join("{" + k + "}" for k in placeholders())
+        + "; {target_host}:{target_port} is where the node listens, {listen_host}:{listen_port} "
+        "where it sends, {record} the JSON delivery log it must write", 100))
     return p
 
 
@@ -140,7 +151,7 @@ def setup_from_args(ns: argparse.Namespace) -> tuple[MissionSetup, int]:
     setup = MissionSetup(impair=spec, drones=ns.drones, rto=ns.rto, timeout=ns.mission_timeout,
                          manager_cmd=ns.manager or DEFAULT_MANAGER, drone_cmd=ns.drone or DEFAULT_DRONE,
                          waypoints=ns.waypoints, obstacles=ns.obstacles, workdir=ns.out,
-                         strict=not ns.lenient)
+                         strict=ns.strict)
     from soak.mission import _command
 
     dummy = {k: "1" for k in placeholders()}
@@ -158,8 +169,8 @@ def reproduce(ns: argparse.Namespace, r: MissionResult) -> str:
     for opt in ("manager", "drone", "waypoints", "obstacles"):
         if getattr(ns, opt) is not None:
             words += [f"--{opt}", str(getattr(ns, opt))]
-    if ns.lenient:
-        words.append("--lenient")
+    if not ns.strict:
+        words.append("--no-strict")
     return shlex.join(words)
 
 
@@ -180,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     from rich.console import Console
 
-    console = Console(stderr=ns.json == "-")
+    console = Console(stderr=ns.json == "-", quiet=ns.quiet)
     if ns.live is not None:
         from traceio.live import LiveError, LiveServer
 
@@ -240,6 +251,10 @@ def _campaign(ns: argparse.Namespace, setup: MissionSetup, seed: int, console: A
                 shutil.rmtree(ns.out / f"mission-{r.seed}-c{r.challenge}", ignore_errors=True)
                 r.capture = None
             tally["ok" if r.ok else "failed"] += 1
+            if ns.verbose:
+                bar.console.print(f"mission {r.index} seed {r.seed} challenge {r.challenge}: "
+                                  + ("complete" if r.ok else f"{r.outcome}: " + "; ".join(r.reasons[:3])),
+                                  highlight=False, markup=False)
             bar.update(task, advance=1, state=f"[green]{tally['ok']} ok[/] [red]{tally['failed']} failed[/]")
 
         with stopping_on_signals(stop):

@@ -44,12 +44,12 @@ __all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", 
            "expected_commands", "run_mission"]
 
 DEFAULT_MANAGER = ("{python} -m reference_impl manager --challenge {challenge} --drones {drones} "
-                   "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} "
-                   "--send-to {listen_host}:{listen_port} --rto {rto} --record {record} -q")
+                   "--waypoints {waypoints} --obstacles {obstacles} --listen {target_host}:{target_port} "
+                   "--target {listen_host}:{listen_port} --rto {rto} --json {record} -q")
 # --linger: a drone keeps ACKing after End_Mission until the soak ends it (a lost ACK of
 # End_Mission must not leave the manager retransmitting to a drone that is gone)
-DEFAULT_DRONE = ("{python} -m reference_impl drone --id {id} --bind {target_host}:{target_port} "
-                 "--send-to {listen_host}:{listen_port} --rto {rto} --linger 600 --record {record} -q")
+DEFAULT_DRONE = ("{python} -m reference_impl drone --id {id} --listen {target_host}:{target_port} "
+                 "--target {listen_host}:{listen_port} --rto {rto} --linger 600 --json {record} -q")
 
 WAYPOINTS = """QGC WPL 110
 0\t1\t0\t16\t0\t0\t0\t0\t35.771332\t-78.674421\t0.000000\t1

@@ -21,7 +21,7 @@ class UsageError(Exception):
 
 def check_writable(path: str | None, option: str) -> None:
     """Refuse, before any work, an output path that cannot be a file."""
-    if path is None:
+    if path is None or path == "-":  # "-": stdout (traceio.grammar)
         return
     target = Path(path)
     if not path or target.is_dir():
@@ -32,8 +32,10 @@ def check_writable(path: str | None, option: str) -> None:
 
 def write_output(path: str, text: str, option: str) -> None:
     """Write a text output, or say in one line why it could not be written."""
+    from traceio.grammar import write_text
+
     try:
-        Path(path).write_text(text, encoding="utf-8")
+        write_text(path, text)
     except OSError as exc:
         raise UsageError(f"{option}: cannot write {path!r}: {exc.strerror or exc}") from None
 

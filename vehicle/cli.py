@@ -1,15 +1,22 @@
 """Command line: serve a simulated vehicle and print one line per recorded event.
 
-``python -m vehicle --port 5760 --fix-delay 3`` listens like ArduPilot SITL on TCP until
-Ctrl-C (or SIGTERM); ``--udp-out 127.0.0.1:14550`` also sends telemetry there over UDP
-(SITL's ``--out``), ``--udp-in 127.0.0.1:14551`` listens on UDP; ``--record FILE`` writes
-one JSON line per request with the vehicle's answer. Received frames are printed only with
-``--frames``. ``--help`` lists where the vehicle differs from ArduCopter.
+``python -m vehicle --listen 127.0.0.1:5760 --fix-delay 3`` listens like ArduPilot SITL on
+TCP until Ctrl-C, SIGTERM or ``--duration`` (exit 0); ``--udp-out 127.0.0.1:14550`` also
+sends telemetry there over UDP (SITL's ``--out``), ``--udp-in 127.0.0.1:14551`` listens on
+UDP; ``--record FILE`` writes one JSON line per request with the vehicle's answer. Received
+frames are printed only with ``-v``; ``-q`` prints none of the events. ``--help`` lists where
+the vehicle differs from ArduCopter.
+
+The options follow the tools' one grammar (docs/grammar.md); this package imports nothing of
+the project's, so the grammar's pieces (``traceio.grammar``) are repeated here, and
+tests/tools/test_grammar.py holds them to the same table. ``--host``, ``--port`` and
+``--frames`` are kept as hidden aliases that warn once.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -60,6 +67,34 @@ Where it differs from ArduCopter:
 """
 
 
+#: traceio.grammar.EXIT_CODES, repeated (vehicle imports nothing of ours; the grammar test compares them)
+EXIT_CODES = ("exit codes: 0 ok, 1 findings or failures, 2 usage or setup error (one line on stderr),\n"
+              "  130 interrupted (128 + the signal's number: 143 for SIGTERM)")
+DIST_NAME = "centmesh-mcp-conform"  # spec.about.DIST_NAME
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(DIST_NAME)
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+class _Deprecated(argparse.Action):
+    """An old spelling (traceio.grammar's, repeated): sets the value, warns once on stderr."""
+
+    def __init__(self, option_strings: Any, dest: str, new: str = "", **kw: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"{parser.prog}: warning: {option_string} is deprecated; use {self.new}", file=sys.stderr)
+        setattr(ns, self.dest, self.const if self.nargs == 0 else values)
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports a usage error on one line and exits with status 2."""
 
@@ -89,11 +124,19 @@ def _hostport(text: str) -> tuple[str, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="python -m vehicle",
+    prog = "mcp-vehicle" if os.path.basename(sys.argv[0] or "") == "mcp-vehicle" else "python -m vehicle"
+    p = _OneLineParser(prog=prog,
                        description="Simulated ArduCopter autopilot on TCP and UDP (like SITL).",
-                       epilog=DIFFERENCES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (127.0.0.1)")
-    p.add_argument("--port", type=int, default=5760, help="TCP port, 0 picks one (5760)")
+                       epilog=DIFFERENCES + "Ctrl-C, SIGTERM or --duration is how it stops: exit 0.\n"
+                       + EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"{prog} {_version()}",
+                   help="print the version and exit")
+    p.add_argument("--listen", type=_hostport, default=("127.0.0.1", 5760), metavar="HOST:PORT",
+                   help="where to listen on TCP; port 0 picks one (127.0.0.1:5760)")
+    p.add_argument("--host", action=_Deprecated, new="--listen HOST:PORT", default=argparse.SUPPRESS,
+                   help=argparse.SUPPRESS)
+    p.add_argument("--port", action=_Deprecated, new="--listen HOST:PORT", type=int, default=argparse.SUPPRESS,
+                   help=argparse.SUPPRESS)
     p.add_argument("--no-tcp", action="store_true", help="do not listen on TCP")
     p.add_argument("--udp-out", action="append", default=[], type=_hostport,
                    metavar="HOST:PORT",
@@ -124,7 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--home", default="35.771332,-78.674421,96", metavar="LAT,LON[,ALT]",
                    help="home position, ALT in m above mean sea level (the description's "
                         "Raleigh sample, 96 m)")
-    p.add_argument("--frames", action="store_true", help="also print every received frame")
+    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    verbosity = p.add_mutually_exclusive_group()
+    verbosity.add_argument("-v", "--verbose", action="store_true", help="also print every received frame")
+    verbosity.add_argument("-q", "--quiet", action="store_true", help="print no events, only where it listens")
+    p.add_argument("--frames", action=_Deprecated, new="-v", dest="verbose", nargs=0, const=True,
+                   default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return p
 
 
@@ -143,8 +191,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError
     except ValueError:
         parser.error(f"--home must be LAT,LON[,ALT]: {args.home}")
-    if not 0 <= args.port <= 65535:
-        parser.error(f"--port must be 0..65535: {args.port}")
+    host, port = args.listen
+    host, port = getattr(args, "host", host), getattr(args, "port", port)
+    if not 0 <= port <= 65535:
+        parser.error(f"--port must be 0..65535: {port}")
     if args.no_tcp and not (args.udp_out or args.udp_in):
         parser.error("--no-tcp needs --udp-out or --udp-in")
     t0 = time.monotonic()
@@ -159,7 +209,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     def show(event: Event) -> None:
         if writer is not None:
             writer(event)
-        if event.kind != "frame" or args.frames:
+        if args.quiet:
+            return
+        if event.kind != "frame" or args.verbose:
             print(format_event(event, t0), flush=True)
 
     try:
@@ -170,7 +222,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             home_lat=parts[0], home_lon=parts[1], home_alt=parts[2] if len(parts) > 2 else 0.0,
             mission_request_int=args.mission_request_int,
         )
-        vehicle.start(args.host, None if args.no_tcp else args.port, udp_out=args.udp_out,
+        vehicle.start(host, None if args.no_tcp else port, udp_out=args.udp_out,
                       udp_in=args.udp_in, mavlink1=args.mavlink1,
                       frame_per_datagram=args.frame_per_datagram)
     except (ValueError, OSError) as exc:
@@ -190,8 +242,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # shell inherits SIGINT ignored, and Ctrl-C must still stop it
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
-        while not stop:
+        while not stop and (deadline is None or time.monotonic() < deadline):
             time.sleep(0.1)
     except KeyboardInterrupt:
         pass

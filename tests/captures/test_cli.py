@@ -29,14 +29,15 @@ def test_subcommand_help(command, capsys):
 
 
 @pytest.mark.parametrize("argv,words", [
-    ([], "usage:"),
+    ([], "a COMMAND is required"),
     (["frobnicate"], "invalid choice"),
     (["check"], "required: FILE"),
     (["check", "x.pcap", "--bogus"], "unrecognized arguments"),
 ])
 def test_usage_errors_exit_2(argv, words, capsys):
     assert main(argv) == 2
-    assert words in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert words in err and err.startswith("mcp-capture: error: ") and err.count("\n") == 1, err
 
 
 @pytest.mark.parametrize("content,words", [

@@ -169,7 +169,7 @@ def test_a_datagram_no_packet_can_carry_is_one_line_and_no_output(tmp_path, suff
         rec.datagram("tx", encode(MESSAGES[1]).ljust(size, b"\0"), peer, T0 + 1000, local=MANAGER)
     out = tmp_path / f"o.{suffix}"
     code, text, err = _run(export, "export", str(tmp_path / "c.mcap"), "--pcap", str(out))
-    assert code == 2 and err == f"mcp-capture export: {tmp_path / 'c.mcap'}: datagram #1: {why}\n", err
+    assert code == 2 and err == f"mcp-capture: error: export: {tmp_path / 'c.mcap'}: datagram #1: {why}\n", err
     assert not out.exists() and text == ""
 
 

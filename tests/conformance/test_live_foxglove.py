@@ -89,13 +89,13 @@ def test_a_websocket_client_receives_every_channel_of_a_live_run_while_it_runs(t
 
 @pytest.mark.slow
 def test_an_interrupted_run_stops_serving(tmp_path: Path) -> None:
-    """SIGINT mid-run: the runner ends as an interrupted run does (exit 2, its report written),
+    """SIGINT mid-run: the runner ends as an interrupted run does (exit 130, its report written),
     the client's connection is closed and nothing is left listening."""
     report = tmp_path / "report.json"
     run = foxglove_ws.watch_tool(  # a few cases in: Ctrl-C
         [sys.executable, "-m", "conformance", "--json", str(report)], cwd=ROOT, env=ENV, stderr_to_out=True,
         until=120, interrupt_when=lambda s: len(s.on("/conformance/case")) >= 6)
-    assert run.returncode == 2, run.out
+    assert run.returncode == 130, run.out
     assert json.loads(report.read_text())["error"] == "interrupted by SIGINT"
     assert run.seen.closed and len(run.seen.on("/conformance/case")) >= 6
     assert not foxglove_ws.listening(run.port)

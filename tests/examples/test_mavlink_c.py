@@ -54,7 +54,7 @@ class Vehicle:
         with open(self.log, "w") as log:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "vehicle", "--no-tcp", "--udp-in", f"127.0.0.1:{self.port}",
-                 "--record", str(self.record), "--frames", *args],
+                 "--record", str(self.record), "-v", *args],
                 stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
         deadline = time.monotonic() + 15

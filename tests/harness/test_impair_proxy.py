@@ -104,9 +104,9 @@ def test_every_decision_is_recorded_on_impair(tmp_path) -> None:
 
 
 @pytest.mark.parametrize(("argv", "words"), [
-    (["--listen", "127.0.0.1:0", "--forward", "127.0.0.1:9", "--loss", "2"], "probability"),
-    (["--listen", "127.0.0.1:x", "--forward", "127.0.0.1:9"], "--listen"),
-    (["--listen", "127.0.0.1:0", "--forward", "127.0.0.1:9", "--impair", "wobble=1"], "unknown key"),
+    (["--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--loss", "2"], "probability"),
+    (["--listen", "127.0.0.1:x", "--target", "127.0.0.1:9"], "--listen"),
+    (["--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--impair", "wobble=1"], "unknown key"),
 ])
 def test_bad_options_are_one_line_exit_2(argv, words, capsys) -> None:
     assert main(argv) == 2
@@ -129,7 +129,7 @@ def test_the_command_reports_what_it_did() -> None:
 
         port = free_port()
         proc = subprocess.Popen([sys.executable, "-m", "harness.impair_proxy", "--listen",
-                                 f"127.0.0.1:{port}", "--forward", f"127.0.0.1:{far.getsockname()[1]}",
+                                 f"127.0.0.1:{port}", "--target", f"127.0.0.1:{far.getsockname()[1]}",
                                  "--impair", "dup=1,seed=3", "--duration", "60"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:

@@ -1,6 +1,6 @@
 """``mcp-impair`` bounded and honest (issue 38 item 6): delayed copies wait in a queue with a
 stated cap and a copy past it is dropped, recorded and counted, so a flood through a 60 s
-delay with duplication cannot grow the proxy without bound; a ``--forward`` host is resolved
+delay with duplication cannot grow the proxy without bound; a ``--target`` host is resolved
 once, at start (one line and exit 2 when it does not resolve)."""
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def test_a_flood_through_a_60_s_delay_with_duplication_stays_within_the_stated_c
         far.bind(("127.0.0.1", 0))  # never read: nothing is due within the test anyway
         port = free_port()
         proc = subprocess.Popen([sys.executable, "-m", "harness.impair_proxy", "--listen",
-                                 f"127.0.0.1:{port}", "--forward", f"127.0.0.1:{far.getsockname()[1]}",
+                                 f"127.0.0.1:{port}", "--target", f"127.0.0.1:{far.getsockname()[1]}",
                                  "--impair", "delay=59000-60000ms,dup=1,seed=5", "--duration", "60"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
@@ -127,15 +127,15 @@ def test_a_flood_through_a_60_s_delay_with_duplication_stays_within_the_stated_c
 
 
 def test_an_unresolvable_forward_host_is_one_line_exit_2(capsys) -> None:
-    assert main(["--listen", "127.0.0.1:0", "--forward", "nosuchhost.invalid:7"]) == 2
+    assert main(["--listen", "127.0.0.1:0", "--target", "nosuchhost.invalid:7"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("mcp-impair: error: --forward")
+    assert err.count("\n") == 1 and err.startswith("mcp-impair: error: --target")
     assert "nosuchhost.invalid" in err and "Traceback" not in err
 
 
 def test_the_command_exits_2_without_a_traceback_on_an_unresolvable_host() -> None:
     r = subprocess.run([sys.executable, "-m", "harness.impair_proxy", "--listen", "127.0.0.1:0",
-                        "--forward", "nosuchhost.invalid:7"], capture_output=True, text=True, timeout=60)
+                        "--target", "nosuchhost.invalid:7"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
 
 

@@ -1,5 +1,5 @@
 """``mcp-node``: arguments, one-line errors (exit 2), clean exits, and the command line the
-conformance runner spawns (``--bind/--send-to/--mavlink/--rto``)."""
+conformance runner spawns (``--listen/--target/--mavlink/--rto``)."""
 
 from __future__ import annotations
 
@@ -46,8 +46,8 @@ def test_help() -> None:
     code, out, err = finish(spawn("--help"))
     assert code == 0 and "drone" in out and "manager" in out
     code, out, _ = finish(spawn("drone", "--help"))
-    for opt in ("--bind", "--send-to", "--mavlink", "--rto", "--retries", "--gps-fix-delay",
-                "--takeoff-alt", "--reply-to-source", "--record", "BROADCAST", "LOCAL_PORT"):
+    for opt in ("--listen", "--target", "--mavlink", "--rto", "--retries", "--gps-fix-delay",
+                "--takeoff-alt", "--reply-to-source", "--json", "BROADCAST", "LOCAL_PORT"):
         assert opt in out
     code, out, _ = finish(spawn("manager", "--help"))
     assert code == 0 and "--challenge" in out and "--waypoints" in out and "--obstacles" in out
@@ -62,8 +62,8 @@ def test_help() -> None:
     ["drone", "--id", "1", "--rto", "0"],
     ["drone", "--id", "1", "--rto", "nan"],
     ["drone", "--id", "1", "--retries", "-1"],
-    ["drone", "--id", "1", "--bind", "127.0.0.1:99999"],
-    ["drone", "--id", "1", "--send-to", "127.0.0.1:0"],
+    ["drone", "--id", "1", "--listen", "127.0.0.1:99999"],
+    ["drone", "--id", "1", "--target", "127.0.0.1:0"],
     ["drone", "--id", "1", "127.255.255.255", "port"],
     ["drone", "--id", "1", "--takeoff-alt", "-3"],
     ["drone", "--id", "1", "-v", "-q"],
@@ -102,16 +102,16 @@ def test_address_defaults_follow_the_description() -> None:
     assert addresses("manager", "--challenge", "2", "--drones", "1", "--waypoints", wp,
                      "127.255.255.255", "17889", "17890") == ("", 17889, "127.255.255.255", 17890)
     assert addresses("drone", "--id", "1", "127.0.0.255", "17890", "17889") == ("", 17890, "127.0.0.255", 17889)
-    assert addresses("drone", "--id", "1", "127.0.0.255", "17890", "17889", "--bind", "127.0.0.1:5",
-                     "--send-to", "127.0.0.2:6") == ("127.0.0.1", 5, "127.0.0.2", 6)
-    assert addresses("drone", "--id", "1", "--bind", "7") == ("", 7, BROADCAST, PORTS["manager"])
+    assert addresses("drone", "--id", "1", "127.0.0.255", "17890", "17889", "--listen", "127.0.0.1:5",
+                     "--target", "127.0.0.2:6") == ("127.0.0.1", 5, "127.0.0.2", 6)
+    assert addresses("drone", "--id", "1", "--listen", "7") == ("", 7, BROADCAST, PORTS["manager"])
 
 
 def test_unreachable_autopilot_exits_2_in_one_line() -> None:
     import socket
 
     port = free_port(socket.SOCK_STREAM)  # nothing listens there
-    code, out, err = finish(spawn("drone", "--id", "1", "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9",
+    code, out, err = finish(spawn("drone", "--id", "1", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9",
                                   "--mavlink", f"tcp:127.0.0.1:{port}"))
     assert code == 2
     assert [ln for ln in err.splitlines() if ln.startswith("mcp-node: error: ")] != []
@@ -121,8 +121,8 @@ def test_unreachable_autopilot_exits_2_in_one_line() -> None:
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path: Path) -> None:
     rec = tmp_path / "rec.json"
-    proc = spawn("drone", "--id", "1", "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9",
-                 "--gps-fix-delay", "1000", "--record", str(rec))
+    proc = spawn("drone", "--id", "1", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9",
+                 "--gps-fix-delay", "1000", "--json", str(rec))
     try:
         deadline = time.monotonic() + 20
         assert proc.stderr is not None
@@ -145,7 +145,7 @@ def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path:
 
 def test_sigterm_while_the_manager_waits_exits_0(tmp_path: Path) -> None:
     proc = spawn("manager", "--challenge", "1", "--drones", "1,2", "--waypoints", str(DATA / "challenge.waypoints"),
-                 "--bind", "127.0.0.1:0", "--send-to", "127.0.0.1:9", "--record", str(tmp_path / "m.json"))
+                 "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--json", str(tmp_path / "m.json"))
     try:
         assert proc.stderr is not None
         line = proc.stderr.readline()
@@ -161,14 +161,14 @@ def test_sigterm_while_the_manager_waits_exits_0(tmp_path: Path) -> None:
 
 
 def test_the_runner_spawn_command(tmp_path: Path) -> None:
-    """``drone --id {id} --bind {target} --send-to {listen} --mavlink {mavlink} --rto 0.2``, with the
+    """``drone --id {id} --listen {target} --target {listen} --mavlink {mavlink} --rto 0.2``, with the
     fix withheld for a while and the first copies of Mission_Ready left unACKed."""
     runner = FakePeer()
     v = SimVehicle(fix_withheld=True)
     v.start()
 
     target = free_port()
-    proc = spawn("drone", "--id", "4", "--bind", f"127.0.0.1:{target}", "--send-to", f"127.0.0.1:{runner.port}",
+    proc = spawn("drone", "--id", "4", "--listen", f"127.0.0.1:{target}", "--target", f"127.0.0.1:{runner.port}",
                  "--mavlink", v.url, "--rto", "0.2")
     try:
         runner.to = ("127.0.0.1", target)
@@ -222,7 +222,7 @@ def test_a_port_is_shared_only_when_asked_and_sigterm_exits_promptly(tmp_path: P
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("", 0))
         port = s.getsockname()[1]
-    common = ["--bind", f"127.0.0.1:{port}", "--send-to", "127.0.0.1:9", "--rto", "0.2"]
+    common = ["--listen", f"127.0.0.1:{port}", "--target", "127.0.0.1:9", "--rto", "0.2"]
     first = spawn("drone", "--id", "1", *common)
     procs = [first]
     try:

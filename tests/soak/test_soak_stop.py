@@ -165,7 +165,7 @@ def test_jobs_give_the_serial_missions(tmp_path) -> None:
     for jobs in ("1", "3"):
         out = tmp_path / f"jobs{jobs}.json"
         assert main(["--missions", "3", "--jobs", jobs, "--seed", "40", "--impair", "loss=0.2,dup=0.1",
-                     "--out", str(tmp_path / jobs), "--json", str(out), "--lenient"]) == 0
+                     "--out", str(tmp_path / jobs), "--json", str(out), "--no-strict"]) == 0
         docs.append(json.loads(out.read_text()))
     serial, side = ([(r["index"], r["seed"], r["challenge"], r["outcome"]) for r in d["results"]] for d in docs)
     assert serial == side == [(0, 40, 1, "complete"), (1, 41, 2, "complete"), (2, 42, 3, "complete")]

@@ -342,7 +342,7 @@ def test_export_refuses_a_time_a_pcap_cannot_hold(tmp_path, capsys, suffix, rc):
     assert main(["export", str(src), "--pcap", str(out)]) == rc
     err = capsys.readouterr().err
     if rc == 2:
-        assert err == f"mcp-capture export: {src}: {2**33} s is outside what a pcap file's timestamp holds\n", err
+        assert err == f"mcp-capture: error: export: {src}: {2**33} s is outside what a pcap file's timestamp holds\n", err
         assert not out.exists()
     else:
         assert err == "" and [type(r) for r in stream_records(out)][-1] is StreamFrame

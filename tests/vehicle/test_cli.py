@@ -23,8 +23,8 @@ def test_help_exits_zero(capsys: pytest.CaptureFixture[str]) -> None:
     assert "--fix-delay" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv", [["--port", "x"], ["--fix-delay", "-1"], ["--home", "1"],
-                                  ["--port", "70000"], ["--bogus"]])
+@pytest.mark.parametrize("argv", [["--listen", "x"], ["--port", "x"], ["--fix-delay", "-1"], ["--home", "1"],
+                                  ["--listen", "127.0.0.1:70000"], ["--bogus"]])
 def test_bad_arguments_give_one_line_and_status_2(argv: list[str],
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
@@ -36,7 +36,7 @@ def test_bad_arguments_give_one_line_and_status_2(argv: list[str],
 
 def test_serves_until_interrupted() -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle", "--port", "0", "--fix-delay", "0.2"],
+        [sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--fix-delay", "0.2"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -64,7 +64,7 @@ def test_record_has_a_line_for_every_request_with_answer_and_reason(tmp_path: Pa
     parameters, mission, message rates, data streams, position targets, FTP)."""
     record = tmp_path / "requests.jsonl"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle", "--port", "0", "--record", str(record)],
+        [sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--record", str(record)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
