@@ -362,6 +362,7 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         return 2
     errors = [w["error"] for w in summary.get("workers", []) if w.get("error")]
     if errors and not summary["cases"]:
+        print(f"{PROG}: {_budget_line(summary)}")  # where it ended: at the bound, if the workers were cut there
         print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
         return 2
     for i, f in enumerate(campaign.findings, 1):
