@@ -156,13 +156,10 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
 
 
 def _version() -> str:
-    """The installed distribution's version (the reference node ships with mcp-conform)."""
-    from importlib.metadata import PackageNotFoundError, version
+    """The version every tool and report says (``spec.about``: the reference node ships with mcp-conform)."""
+    from spec.about import tool_version
 
-    try:
-        return version("centmesh-mcp-conform")
-    except PackageNotFoundError:
-        return "0+unknown"
+    return tool_version()
 
 
 def build_parser() -> argparse.ArgumentParser:
