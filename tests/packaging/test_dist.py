@@ -6,8 +6,9 @@ holds every file the code refers to; and, installed into a fresh virtual environ
 its report and ``--version`` saying the wheel's version.
 
 The build runs without isolation (``--no-isolation``: the test extra brings setuptools>=77, so
-no package index is needed); the venv sees the system's site-packages for the dependencies
-(``--system-site-packages``) and gets the wheel alone, ``--no-deps --no-index``."""
+no package index is needed); the venv (``--without-pip``) gets the wheel alone, from this
+interpreter's pip (``--python VENV``, ``--no-deps --no-index``), and finds
+its dependencies in this interpreter's site-packages, named by a ``.pth`` file."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import json
 import os
 import re
 import shutil
+import site
 import subprocess
 import sys
 import tarfile
@@ -29,19 +31,20 @@ from tests.packaging.tree import ROOT, module_paths, resource_paths, top_package
 
 pytestmark = pytest.mark.slow
 
-#: the sdist's own tests run from the unpacked tree: small and quick (~10 s), and they read
-#: the tree (the spec and its generated docs/ pages, pyproject.toml's version)
-SDIST_TESTS = ("tests/spec", "tests/packaging/test_version.py")
+#: the sdist's own tests run from the unpacked tree: a few quick files (~5 s) that read the
+#: tree: the spec and its generated docs/ pages, the version that pyproject.toml reads, tools' --help
+SDIST_TESTS = ("tests/spec/test_load.py", "tests/spec/test_codec.py", "tests/spec/test_docs.py",
+               "tests/packaging/test_version.py")
 #: files git tracks that the sdist leaves out
 NOT_IN_SDIST = {".gitignore"}
 
 
 def _tracked() -> list[str] | None:
-    """The tree's files as a fresh clone would have them (tracked, and new ones not ignored),
-    or None outside a git checkout (an unpacked sdist)."""
+    """The tree's files as a fresh clone would have them (those git tracks: a new file counts
+    once it is added), or None outside a git checkout (an unpacked sdist)."""
     if shutil.which("git") is None or not (ROOT / ".git").exists():
         return None
-    proc = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+    proc = subprocess.run(["git", "ls-files", "-z", "--cached"],
                           cwd=ROOT, capture_output=True, text=True, timeout=60)
     if proc.returncode != 0:
         return None
@@ -126,12 +129,21 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
     # the wheel in a fresh venv, run from a folder outside the checkout
     venv, away = tmp_path / "venv", tmp_path / "away"
     away.mkdir()
-    _run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], cwd=tmp_path, timeout=120)
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], cwd=tmp_path, timeout=120)
     bin_ = venv / "bin"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
     env["NO_COLOR"] = "1"
-    _run([str(bin_ / "python"), "-m", "pip", "install", "-q", "--no-deps", "--no-index", "--disable-pip-version-check",
-          str(wheel)], cwd=away, env=env)
+    # the wheel alone first, by this interpreter's pip (--python: no pip of the venv's own to
+    # install, and pip sees no other copy of the distribution there)...
+    _run([sys.executable, "-m", "pip", "--python", str(bin_ / "python"), "install", "-q", "--no-deps", "--no-index",
+          "--disable-pip-version-check", str(wheel)], cwd=away, env=env)
+    # then the dependencies, from this interpreter's site-packages (this one may itself be a
+    # venv, tox's: --system-site-packages would see its base's), after the venv's own: a
+    # directory named in a .pth is not a site directory, so its .pth files (an editable
+    # install of this checkout among them) do not run in the venv
+    purelib = _run([str(bin_ / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                   cwd=tmp_path, env=env).strip()
+    (Path(purelib) / "zz-deps.pth").write_text("\n".join(site.getsitepackages()) + "\n")
     where = _run([str(bin_ / "python"), "-c", "import importlib.metadata as m, spec, conformance, reference_impl, traceio; "
                   f"print(m.version({DIST_NAME!r})); "
                   "print(spec.__file__, conformance.__file__, reference_impl.__file__, traceio.__file__)"],
