@@ -23,7 +23,15 @@ OPTIONAL = {"redis": "redis", "foxglove": "viewers"}  # import name -> extra
 
 
 def _dist_name(requirement: str) -> str:
-    return requirement.split(";")[0].split("[")[0].split("<")[0].split(">")[0].split("=")[0].strip().lower()
+    return (
+        requirement.split(";")[0]
+        .split("[")[0]
+        .split("<")[0]
+        .split(">")[0]
+        .split("=")[0]
+        .strip()
+        .lower()
+    )
 
 
 def test_the_optional_packages_are_extras_not_dependencies():
@@ -34,7 +42,10 @@ def test_the_optional_packages_are_extras_not_dependencies():
     assert {_dist_name(r) for r in extras["redis"]} == {"redis"}
     assert {_dist_name(r) for r in extras["viewers"]} == {"foxglove-sdk"}
     # the test extra brings both, so that no test is skipped for want of them
-    assert any(r.startswith(f"{project['name']}[") and "redis" in r and "viewers" in r for r in extras["test"])
+    assert any(
+        r.startswith(f"{project['name']}[") and "redis" in r and "viewers" in r
+        for r in extras["test"]
+    )
 
 
 def test_the_optional_packages_are_imported_only_where_they_are_used():
@@ -46,10 +57,18 @@ def test_the_optional_packages_are_imported_only_where_they_are_used():
             tree = ast.parse(path.read_text(encoding="utf-8"))
             for node in tree.body:  # module level, and under a module-level if/try
                 for sub in ast.walk(node) if isinstance(node, (ast.If, ast.Try)) else (node,):
-                    names = ([a.name for a in sub.names] if isinstance(sub, ast.Import)
-                             else [sub.module or ""] if isinstance(sub, ast.ImportFrom) else [])
-                    top_level += [f"{path.relative_to(ROOT)}:{sub.lineno}: {n}" for n in names
-                                  if n.split(".")[0] in OPTIONAL or n.startswith("hypothesis.extra.redis")]
+                    names = (
+                        [a.name for a in sub.names]
+                        if isinstance(sub, ast.Import)
+                        else [sub.module or ""]
+                        if isinstance(sub, ast.ImportFrom)
+                        else []
+                    )
+                    top_level += [
+                        f"{path.relative_to(ROOT)}:{sub.lineno}: {n}"
+                        for n in names
+                        if n.split(".")[0] in OPTIONAL or n.startswith("hypothesis.extra.redis")
+                    ]
     assert not top_level, "\n".join(top_level)
 
 
@@ -59,9 +78,13 @@ def without_extras(tmp_path_factory) -> dict[str, str]:
     block = tmp_path_factory.mktemp("no-extras")
     for name in OPTIONAL:
         (block / name).mkdir()
-        (block / name / "__init__.py").write_text(f"raise ImportError(\"No module named '{name}'\", name={name!r})\n")
+        (block / name / "__init__.py").write_text(
+            f"raise ImportError(\"No module named '{name}'\", name={name!r})\n"
+        )
     env = dict(os.environ, PYTHONPATH=f"{block}{os.pathsep}{ROOT}", NO_COLOR="1")
-    probe = subprocess.run([sys.executable, "-c", "import foxglove"], env=env, capture_output=True, text=True)
+    probe = subprocess.run(
+        [sys.executable, "-c", "import foxglove"], env=env, capture_output=True, text=True
+    )
     assert probe.returncode != 0 and "ImportError" in probe.stderr
     return env
 
@@ -78,8 +101,15 @@ CASES = {
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_asking_for_a_missing_extra_is_one_line_naming_it(case, without_extras, tmp_path):
     name, args, extra = CASES[case]
-    proc = subprocess.run([*script_argv(name), *args], capture_output=True, text=True, timeout=60,
-                          env=without_extras, cwd=tmp_path, stdin=subprocess.DEVNULL)
+    proc = subprocess.run(
+        [*script_argv(name), *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=without_extras,
+        cwd=tmp_path,
+        stdin=subprocess.DEVNULL,
+    )
     assert proc.returncode == 2, proc.stdout + proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if "error" in ln.lower() or "Traceback" in ln]
     assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
@@ -91,13 +121,25 @@ def test_a_capture_is_written_and_read_without_foxglove_sdk(without_extras, tmp_
     """The runner records its capture without the Foxglove channels, and the capture tools
     read it: foxglove-sdk is for viewing, not for testing."""
     cap = tmp_path / "run.mcap"
-    run = subprocess.run([*script_argv("mcp-conform"), "--select", "MCP-ACK-1", "--capture", str(cap)],
-                         capture_output=True, text=True, timeout=120, env=without_extras, cwd=tmp_path,
-                         stdin=subprocess.DEVNULL)
+    run = subprocess.run(
+        [*script_argv("mcp-conform"), "--select", "MCP-ACK-1", "--capture", str(cap)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=without_extras,
+        cwd=tmp_path,
+        stdin=subprocess.DEVNULL,
+    )
     assert run.returncode == 0, run.stdout + run.stderr
     assert "0 error" in run.stdout and "0 failed" in run.stdout, run.stdout
-    check = subprocess.run([*script_argv("mcp-capture"), "check", str(cap)], capture_output=True, text=True,
-                           timeout=120, env=without_extras, cwd=tmp_path)
+    check = subprocess.run(
+        [*script_argv("mcp-capture"), "check", str(cap)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=without_extras,
+        cwd=tmp_path,
+    )
     assert check.returncode == 0, check.stdout + check.stderr
     from mcap.reader import make_reader
 

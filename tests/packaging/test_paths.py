@@ -17,7 +17,7 @@ from tests.packaging.tree import ROOT, module_paths, resource_paths, top_package
 #: in an installed wheel.
 OTHER_FILE_USES = {
     "spec/docs.py": "docs/spec.md of the source tree, only when pyproject.toml is beside the "
-                    "package (a checkout); else the working directory's: a page it writes",
+    "package (a checkout); else the working directory's: a page it writes",
     "spec/docs_stream.py": "docs/nsqd.md, as spec/docs.py",
     "conformance/cli.py": "the folder of an imported case package (a package the wheel ships)",
     "captures/dissector_mavlink.py": "pymavlink's own dialect files",
@@ -25,9 +25,12 @@ OTHER_FILE_USES = {
 
 #: String constants naming a folder of the repository, and why each is no pointer into it.
 REPO_FOLDER_STRINGS = {
-    ("spec/__main__.py", "docs/spec.md"): "python -m spec docs writes the page (a developer's command)",
+    (
+        "spec/__main__.py",
+        "docs/spec.md",
+    ): "python -m spec docs writes the page (a developer's command)",
     ("traceio/fox.py", "examples/foxglove-layout.json"): "LAYOUT_FILE: the repository's copy, "
-        "which tests/traceio/test_foxglove.py regenerates; the banner names traceio.live.LAYOUT_PATH",
+    "which tests/traceio/test_foxglove.py regenerates; the banner names traceio.live.LAYOUT_PATH",
 }
 REPO_FOLDER = re.compile(r"(?<![\w./-])(examples|docs|bench|tests|captures/golden|\.ci)/[\w./-]*")
 
@@ -49,11 +52,15 @@ def test_every_file_the_code_finds_beside_itself_is_accounted_for():
         if module not in owners and rel not in OTHER_FILE_USES:
             lines = [i for i, ln in enumerate(text.splitlines(), 1) if "__file__" in ln]
             unaccounted.append(f"{rel}:{lines}")
-    assert not unaccounted, ("a module finds a file through __file__ that no module-level Path names: make it "
-                             "one (test_dist checks the wheel holds it) or say why in OTHER_FILE_USES: "
-                             + ", ".join(unaccounted))
+    assert not unaccounted, (
+        "a module finds a file through __file__ that no module-level Path names: make it "
+        "one (test_dist checks the wheel holds it) or say why in OTHER_FILE_USES: "
+        + ", ".join(unaccounted)
+    )
     # the ones known today, so that a path lost from the scan is noticed
-    assert {"captures/golden", "traceio/foxglove-layout.json", "spec/mcp.yaml"} <= set(constants.values()), constants
+    assert {"captures/golden", "traceio/foxglove-layout.json", "spec/mcp.yaml"} <= set(
+        constants.values()
+    ), constants
     assert {"captures/check.schema.json", "conformance/report.schema.json"} <= resource_paths()
 
 
@@ -61,11 +68,20 @@ def test_no_message_or_default_names_a_folder_the_wheel_does_not_have():
     named = []
     for rel, text in _sources():
         tree = ast.parse(text)
-        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
-                      if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-                      and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        docstrings = {
+            id(n.body[0].value)
+            for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and n.body
+            and isinstance(n.body[0], ast.Expr)
+            and isinstance(n.body[0].value, ast.Constant)
+        }
         for node in ast.walk(tree):
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and id(node) not in docstrings
+            ):
                 for m in REPO_FOLDER.finditer(node.value):
                     if (rel, m.group(0)) not in REPO_FOLDER_STRINGS:
                         named.append(f"{rel}:{node.lineno}: {m.group(0)!r} in {node.value[:80]!r}")

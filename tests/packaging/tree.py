@@ -71,15 +71,23 @@ print(json.dumps(found))
 def module_paths() -> dict[str, str]:
     """Every module-level ``Path`` of our packages that points into the tree, imported as the
     tools import them: ``module.NAME`` -> path relative to the root (``captures/golden``)."""
-    proc = subprocess.run([sys.executable, "-c", _PATHS_SCRIPT, str(ROOT), *top_packages()],
-                          capture_output=True, text=True, timeout=120, env=tree_env(), cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-c", _PATHS_SCRIPT, str(ROOT), *top_packages()],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=tree_env(),
+        cwd=ROOT,
+    )
     assert proc.returncode == 0, proc.stderr
     return dict(json.loads(proc.stdout))
 
 
 def resource_paths() -> set[str]:
     """``importlib.resources.files("pkg").joinpath("NAME")`` in our packages: ``pkg/NAME``."""
-    pattern = re.compile(r"""resources\.files\(\s*["']([\w.]+)["']\s*\)\.joinpath\(\s*["']([^"']+)["']""")
+    pattern = re.compile(
+        r"""resources\.files\(\s*["']([\w.]+)["']\s*\)\.joinpath\(\s*["']([^"']+)["']"""
+    )
     found = set()
     for pkg in top_packages():
         for path in (ROOT / pkg).rglob("*.py"):
