@@ -266,7 +266,7 @@ class McpState:
         value = self.config.getoption("mcp_live", None)
         if not value or self.live is not None:
             return None if self.live is None else self.live.feed()
-        from traceio.live import LiveError, LiveServer, parse_live
+        from traceio.live import LAYOUT_PATH, LiveError, LiveServer, parse_live
 
         try:
             host, port = parse_live(value, "--live" if self.frontend else "--mcp-live")
@@ -274,7 +274,7 @@ class McpState:
         except LiveError as exc:
             raise SetupError(str(exc)) from None
         self.terminal.note(f"live: {self.live.url} (Foxglove: Open connection, Foxglove WebSocket; "
-                           "layout: examples/foxglove-layout.json)")
+                           f"layout: {LAYOUT_PATH})")
         return self.live.feed()
 
     def close_session(self) -> None:

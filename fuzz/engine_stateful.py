@@ -106,7 +106,8 @@ def check_database(spec: str) -> None:
         try:
             import redis  # noqa: F401
         except ImportError:
-            raise ValueError("--db redis://...: the 'redis' package is not installed") from None
+            raise ValueError("--db redis://...: the 'redis' package is not installed "
+                             "(pip install 'centmesh-mcp-conform[redis]')") from None
     elif "://" in spec:
         raise ValueError(f"--db: {spec!r} is neither a directory nor redis://HOST:PORT/N")
 

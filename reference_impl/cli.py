@@ -161,6 +161,7 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
     add_verbosity(p, "debug output", "warnings and errors only")
 
 
+
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.",
                        epilog=epilog("Ctrl-C or SIGTERM is how a node is stopped: exit 0."),

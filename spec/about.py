@@ -1,32 +1,20 @@
 """What the tools say of themselves in every report and capture: the command's name, the
-distribution's name and its version (read from the installed distribution, else from the
-source checkout's ``pyproject.toml``). The lowest floor, so that every layer may name itself."""
+distribution's name and its version. ``__version__`` is the one place the version is written:
+the build reads it (pyproject.toml, ``[tool.setuptools.dynamic]``), so the distribution's
+metadata, the JSON reports, the captures' metadata and every ``--version`` say the same, from an
+installed wheel, an unpacked sdist or a checkout alike. The lowest floor, so that every layer may
+name itself."""
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
+__all__ = ["DIST_NAME", "TOOL_NAME", "__version__", "tool_version"]
 
-__all__ = ["DIST_NAME", "TOOL_NAME", "tool_version"]
+__version__ = "0.1.0"
 
 TOOL_NAME = "mcp-conform"  # the command's name, in reports
 DIST_NAME = "centmesh-mcp-conform"  # the distribution's name (mcp-conform is taken on PyPI)
 
 
 def tool_version() -> str:
-    """The installed distribution's version, else the source checkout's pyproject.toml."""
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version(DIST_NAME)
-        except PackageNotFoundError:
-            pass
-    except ImportError:  # pragma: no cover
-        pass
-    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
-    try:
-        m = re.search(r'^version\s*=\s*"([^"]+)"', pyproject.read_text(), re.MULTILINE)
-    except OSError:
-        m = None
-    return m.group(1) if m else "0+unknown"
+    """The version of the code that runs (``__version__``)."""
+    return __version__

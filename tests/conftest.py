@@ -135,7 +135,10 @@ def pytest_configure(config: pytest.Config) -> None:
     import compileall
     from pathlib import Path
 
-    import tomllib
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib  # type: ignore[no-redef]
 
     root = Path(__file__).resolve().parents[1]
     packages = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["importlinter"]["root_packages"]

@@ -9,7 +9,8 @@ bodies of its channels once, and hands every body it writes to its ``live`` feed
 capture): the live stream and the capture are the same messages, with the same schemas
 (``traceio.channels.CHANNELS`` and the ``foxglove-sdk`` schemas of :mod:`traceio.fox`), the
 same topics and the same log times. So Foxglove shows a live run with the layout of
-``examples/foxglove-layout.json`` as it shows the capture afterwards.
+``examples/foxglove-layout.json`` as it shows the capture afterwards (the package ships that
+file as :data:`LAYOUT_PATH`, which the banner names: an installed wheel has no examples/).
 
 :class:`LiveServer` is ``foxglove-sdk``'s WebSocket server (``foxglove.start_server``) with a
 context of its own, so nothing else logged in the process reaches it, and the channels
@@ -35,12 +36,17 @@ import socket
 import threading
 import time
 import warnings
+from pathlib import Path
 from typing import Any
 
 from traceio.channels import CHANNELS, STREAM_CHANNELS, foxglove_channels
 from traceio.files import ClosedAtExit
 
-__all__ = ["DEFAULT_HOST", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
+__all__ = ["DEFAULT_HOST", "LAYOUT_PATH", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
+
+#: Foxglove's layout for these channels as the package ships it (package data; the same
+#: file as examples/foxglove-layout.json, both built by ``traceio.fox.layout_json``)
+LAYOUT_PATH = Path(__file__).resolve().with_name("foxglove-layout.json")
 
 #: the servers running, stopped at interpreter exit: a run that ends without stopping its
 #: server leaves nothing listening
@@ -112,9 +118,13 @@ class LiveServer:
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = 0, *, name: str = "mcp-conform",
                  option: str = "--live", feeds: dict[str | None, tuple[str, ...] | None] | None = None) -> None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            import foxglove
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                import foxglove
+        except ImportError:
+            raise LiveError(f"{option}: foxglove-sdk is not installed "
+                            "(pip install 'centmesh-mcp-conform[viewers]')") from None
         self._foxglove = foxglove
         self.host = host
         self._lock = threading.Lock()

@@ -381,7 +381,10 @@ class McapRecorder:
     def log(self, message: str, level: str = "info", name: str = "mcp-conform", t_ns: int | None = None) -> None:
         """An event for Foxglove's Log panel (``/log``, ``foxglove.Log``): ``level`` debug,
         info, warning, error or fatal; ``name`` who logs it (runner, mcp-fuzz, ...)."""
-        fox.log_level(level)  # a bad level is the caller's error, whether or not the SDK is there
+        try:
+            fox.log_level(level)  # a bad level is the caller's error (ValueError), SDK or not
+        except ImportError:  # no foxglove-sdk: no /log channel either (self._fox is False)
+            pass
         if self._fox:
             t = int(t_ns) if t_ns is not None else time.time_ns()
             self._write(fox.LOG, fox.log_body(t, level, message, name), t)
