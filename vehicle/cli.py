@@ -70,16 +70,23 @@ Where it differs from ArduCopter:
 #: traceio.grammar.EXIT_CODES, repeated (vehicle imports nothing of ours; the grammar test compares them)
 EXIT_CODES = ("exit codes: 0 ok, 1 findings or failures, 2 usage or setup error (one line on stderr),\n"
               "  130 interrupted (128 + the signal's number: 143 for SIGTERM)")
-DIST_NAME = "centmesh-mcp-conform"  # spec.about.DIST_NAME
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    """``spec.about.__version__``, read from its file beside this package (the vehicle imports
+    nothing of ours; the installed distribution's metadata would name another checkout's
+    version under PYTHONPATH, or none from an unpacked sdist)."""
+    import ast
+    from pathlib import Path
 
     try:
-        return version(DIST_NAME)
-    except PackageNotFoundError:
+        tree = ast.parse((Path(__file__).resolve().parents[1] / "spec" / "about.py").read_text(encoding="utf-8"))
+    except (OSError, SyntaxError):
         return "0+unknown"
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "__version__" for t in node.targets):
+            return str(ast.literal_eval(node.value))
+    return "0+unknown"
 
 
 class _Deprecated(argparse.Action):

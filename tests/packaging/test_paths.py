@@ -21,6 +21,7 @@ OTHER_FILE_USES = {
     "spec/docs_stream.py": "docs/nsqd.md, as spec/docs.py",
     "conformance/cli.py": "the folder of an imported case package (a package the wheel ships)",
     "captures/dissector_mavlink.py": "pymavlink's own dialect files",
+    "vehicle/cli.py": "spec/about.py, the version's one source (a package the wheel ships): read, not imported",
 }
 
 #: String constants naming a folder of the repository, and why each is no pointer into it.
