@@ -20,6 +20,8 @@ with the counts and findings so far and ``"interrupted": true``. Live progress (
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +32,7 @@ from fuzz.environment import environment_lines
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
-from traceio.grammar import add_version, epilog
+from traceio.grammar import add_verbosity, add_version, epilog
 
 __all__ = ["build_parser", "exit_code", "main"]
 
@@ -54,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
                               "130: summary.json keeps the counts so far."),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version(p, PROG)
+    add_verbosity(p, "also each finding's expected and actual, and the hits counted but not triaged",
+                  "no progress display; the findings and the last two lines only")
     t = p.add_mutually_exclusive_group()
     t.add_argument("--target", metavar="HOST:PORT", help="the node's unicast address (attach mode)")
     t.add_argument("--spawn", metavar="CMD", help="start the node: CMD with {target_host} {target_port} "
@@ -74,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", metavar="DIR|redis://HOST:PORT/N", help="hypothesis example database shared by workers")
     p.add_argument("--seeds", metavar="DIR", help="MCAP captures whose datagrams seed the mutations")
     p.add_argument("--out", metavar="DIR", help="write summary.json and finding-N/ here")
+    p.add_argument("--json", metavar="FILE|-", help="write the summary (summary.json's document) to FILE, or to "
+                   "stdout with - (the campaign's own lines then go to stderr)")
     p.add_argument("--rto", metavar="S", help="the node's retransmission timeout as assumed (default 5; 0.2 embedded)")
     p.add_argument("--ack-window", metavar="S", help="how long 'no reply' is watched (default 2; 0.25 embedded)")
     p.add_argument("--broadcast-id", metavar="N", help="the broadcast MCP ID (default 65535)")
@@ -265,6 +271,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    if ns.json is None:
+        return _run(ns, cfg)
+    with contextlib.redirect_stdout(sys.stderr) if ns.json == "-" else contextlib.nullcontext():
+        rc = _run(ns, cfg)
+    summary = getattr(ns, "summary", None)
+    if summary is not None:
+        text = json.dumps(summary, indent=2, default=str) + "\n"
+        try:
+            if ns.json == "-":
+                sys.stdout.write(text)
+                sys.stdout.flush()
+            else:
+                Path(ns.json).write_text(text, encoding="utf-8")
+        except OSError as exc:
+            print(f"{PROG}: error: --json: cannot write {ns.json!r}: {exc.strerror}", file=sys.stderr)
+            return 2
+    return rc
+
+
+def _run(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
+    """The campaign or the replay; its summary left in ``ns.summary`` (``--json``)."""
     if pick(cfg.protocol, cfg.role)[1].fuzz_target is None:  # fuzzed by its own campaign
         return _stream(ns, cfg)
     if ns.replay:
@@ -289,10 +316,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         served.started(cfg)
     else:
         store = FindingStore(cfg.out, replay_args(cfg))
-    live = LiveProgress(cfg, every=cfg.extra.get("status_every"))
+    live = LiveProgress(cfg, every=cfg.extra.get("status_every"), quiet=ns.quiet, verbose=ns.verbose)
     try:
         with live:
-            summary = run_campaign(cfg, store, live.update)
+            summary = ns.summary = run_campaign(cfg, store, live.update)
         if served is not None:
             served.ended(summary)
     except SetupError as exc:
@@ -334,7 +361,7 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
 
     campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
                               cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
-    live = StreamLive(every=cfg.extra.get("status_every"))
+    live = StreamLive(every=cfg.extra.get("status_every"), quiet=ns.quiet)
     campaign.tick = live.update
     try:
         with live:
@@ -344,6 +371,7 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
                 summary = run_stream_jobs(campaign, cfg.jobs, live)
             else:
                 summary = campaign.run()
+        ns.summary = summary
     except SetupError as exc:
         if campaign.out:
             campaign.summary(0.0)
@@ -367,8 +395,13 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         return 2
     for i, f in enumerate(campaign.findings, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
-    for line in environment_lines(summary):
+        if ns.verbose:
+            print(f"  {f.detail}")
+    for line in environment_lines(summary) if not ns.quiet else ():
         print(line)
+    if ns.verbose:
+        for shape, n in sorted(summary.get("untriaged", {}).items(), key=lambda kv: -kv[1]):
+            print(f"  counted, not triaged: {shape} ×{n}")
     classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
           f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "

@@ -74,11 +74,12 @@ class LiveDisplay:
     ``fuzz.stream_progress.StreamLive``), each giving its ``first`` panel, ``render`` and
     ``status`` line of what it is shown."""
 
-    def __init__(self, stream: Any = None, every: float | None = None) -> None:
+    def __init__(self, stream: Any = None, every: float | None = None, quiet: bool = False) -> None:
         self.stream = stream or sys.stdout
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.quiet = quiet  # ``mcp-fuzz -q``: neither the panel nor the status lines
+        self.tty = not quiet and bool(getattr(self.stream, "isatty", lambda: False)())
         self._live: Any = None
-        self.every = STATUS_S if every is None else every  # ``mcp-fuzz --status-every``
+        self.every = float("inf") if quiet else STATUS_S if every is None else every  # ``--status-every``
         self._next_status = time.monotonic() + self.every
 
     def __enter__(self: _Display) -> _Display:
@@ -119,9 +120,10 @@ class LiveDisplay:
 class LiveProgress(LiveDisplay):
     """MCP's campaign: cases, judged cases/s, findings, restarts, elapsed, one line."""
 
-    def __init__(self, cfg: FuzzConfig, stream: Any = None, every: float | None = None) -> None:
-        super().__init__(stream, every)
-        self.cfg = cfg
+    def __init__(self, cfg: FuzzConfig, stream: Any = None, every: float | None = None, quiet: bool = False,
+                 verbose: bool = False) -> None:
+        super().__init__(stream, every, quiet)
+        self.cfg, self.verbose = cfg, verbose
 
     def first(self) -> Any:
         return self.render(Progress())
@@ -139,7 +141,9 @@ class LiveProgress(LiveDisplay):
             print(f"mcp-fuzz: {summary['timing']}", file=out)
         for n, f in enumerate(store.order, 1):
             print(f"  finding-{n}: {f.describe()}", file=out)
-        for line in environment_lines(summary):
+            if self.verbose:
+                print(f"    expected: {f.expected}\n    actual: {f.actual}", file=out)
+        for line in environment_lines(summary) if not self.quiet else ():
             print(line, file=out)
         print(summary_line(summary), file=out)
         print(budget_line(summary), file=out)

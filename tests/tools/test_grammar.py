@@ -226,3 +226,18 @@ def test_conform_json_dash_is_stdout(tmp_path) -> None:
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["tool"]["name"] == "mcp-conform" and "MCP-" in run.stderr
     assert not (tmp_path / "-").exists()
+
+
+@pytest.mark.parametrize("protocol", ["mcp", "nsqd"])
+def test_fuzz_json_dash_is_stdout_and_quiet_has_no_progress(tmp_path, protocol) -> None:
+    """mcp-fuzz --json - : the summary document on stdout, the campaign's lines on stderr; -q:
+    no status line, the last two lines still there."""
+    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", protocol, "--max-cases", "150",
+                          "--duration", "8", "--status-every", "0.1", "-q", "--json", "-"],
+                         capture_output=True, text=True, env=ENV, timeout=120, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout)
+    assert summary["cases"] >= 1 and summary["findings"] in ([], 0), summary
+    lines = run.stderr.splitlines()
+    assert any(" cases in " in ln for ln in lines) and not any(" judged cases/s  findings" in ln for ln in lines), lines
+    assert not (tmp_path / "-").exists()
