@@ -124,9 +124,10 @@ def budget_left(campaign: Any, now: float) -> bool:
 
 def over_budget(campaign: Any, now: float) -> bool:
     """Whether the triage in progress (begun at ``campaign.triage_from``) has taken the
-    campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``)."""
-    if campaign.duration is None or campaign.triage_from is None:
-        return False
+    campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``),
+    unless it is the campaign's first, as :func:`budget_left` lets the first begin."""
+    if campaign.duration is None or campaign.triage_from is None or campaign.triage_s == 0.0:
+        return False  # the campaign's first triage ends as it ends (a 12 s campaign's 3 s of share held none)
     return campaign.triage_s + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration
 
 

@@ -355,6 +355,11 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
                 _wait_listening(ports[MANAGER], procs[v], stop=stop)
         if not res.reasons:
             _await_manager(res, procs, t0, setup.timeout, stop)
+            if res.mission_time is not None and not (stop is not None and stop.is_set()):
+                # the drones act on their last delivery before they are ended: End_Mission's
+                # RTL (MCP-BLK-7) came after the ACK that let the manager exit, and a loaded
+                # host's drone was stopped between the two ("no RTL asked", a correct drone)
+                time.sleep(max(0.5, 2 * setup.rto))
     finally:
         _end_nodes(procs, res.ended, t0)
         res.ended = {v: res.ended[v] for v in views if v in res.ended}

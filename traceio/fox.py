@@ -11,8 +11,8 @@ schema name:
   verdicts (case started; passed; failed with its rules and evidence).
 
 The schemas are not written here: they are the ``foxglove-sdk`` package's own
-(``foxglove.messages.<Name>.get_schema()``, a protobuf ``FileDescriptorSet``), turned into
-JSON Schema by :func:`json_schema` so every channel of a capture stays JSON (``mcp-capture``
+(``foxglove.messages.<Name>.get_schema()``, a protobuf ``FileDescriptorSet`` read with
+protobuf's ``descriptor_pb2``), turned into JSON Schema by :func:`json_schema` so every channel of a capture stays JSON (``mcp-capture``
 reads JSON; Foxglove decodes its well-known schemas in JSON as in protobuf). The one
 convention of Foxglove's JSON encoding applied: a ``google.protobuf.Timestamp`` is
 ``{"sec", "nsec"}``. Enums are their integer values.
@@ -39,86 +39,34 @@ _LEVELS = ("debug", "info", "warning", "error", "fatal")
 
 
 # ---------------------------------------------------------------- protobuf descriptors
-def _fields(buf: bytes) -> list[tuple[int, Any]]:
-    """The (field number, value) pairs of one protobuf message (varints and length-delimited)."""
-    out: list[tuple[int, Any]] = []
-    i, n = 0, len(buf)
-
-    def varint() -> int:
-        nonlocal i
-        shift = value = 0
-        while True:
-            b = buf[i]
-            i += 1
-            value |= (b & 0x7F) << shift
-            shift += 7
-            if not b & 0x80:
-                return value
-
-    while i < n:
-        key = varint()
-        num, wire = key >> 3, key & 7
-        if wire == 0:
-            out.append((num, varint()))
-        elif wire == 2:
-            size = varint()
-            out.append((num, buf[i:i + size]))
-            i += size
-        elif wire == 1:
-            i += 8
-        elif wire == 5:
-            i += 4
-        else:
-            raise ValueError(f"protobuf wire type {wire} in a descriptor")
-    return out
-
-
-def _str(value: bytes) -> str:
-    return value.decode("utf-8")
-
-
 @cache
 def _descriptors(name: str) -> tuple[dict[str, list[tuple[str, int, int, str]]], dict[str, list[int]]]:
     """Messages (full name -> [(field, label, type, type name)]) and enums (full name ->
-    values) of the SDK's ``foxglove.<name>`` schema."""
+    values) of the SDK's ``foxglove.<name>`` schema, read with protobuf's own
+    ``descriptor_pb2.FileDescriptorSet``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         import foxglove.messages as fm
+        from google.protobuf import descriptor_pb2
     schema = getattr(fm, name).get_schema()
     if schema.encoding != "protobuf":
         raise ValueError(f"foxglove.{name}: schema encoding {schema.encoding!r}, expected protobuf")
     messages: dict[str, list[tuple[str, int, int, str]]] = {}
     enums: dict[str, list[int]] = {}
 
-    def enum(prefix: str, data: bytes) -> None:
-        ename = next(_str(v) for k, v in _fields(data) if k == 1)
-        enums[f"{prefix}.{ename}"] = [next((x for kk, x in _fields(v) if kk == 2), 0)
-                                      for k, v in _fields(data) if k == 2]
+    def message(prefix: str, m: Any) -> None:
+        mname = f"{prefix}.{m.name}" if prefix else m.name
+        messages[mname] = [(f.name, f.label, f.type, f.type_name.lstrip(".")) for f in m.field]
+        for sub in m.nested_type:
+            message(mname, sub)
+        for e in m.enum_type:
+            enums[f"{mname}.{e.name}"] = [v.number for v in e.value]
 
-    def message(prefix: str, data: bytes) -> None:
-        fs = _fields(data)
-        mname = f"{prefix}.{next(_str(v) for k, v in fs if k == 1)}"
-        rows = []
-        for k, v in fs:
-            if k == 2:  # FieldDescriptorProto: name 1, label 4, type 5, type_name 6
-                f = dict(_fields(v))
-                rows.append((_str(f[1]), int(f.get(4, 1)), int(f[5]), _str(f.get(6, b"")).lstrip(".")))
-            elif k == 3:
-                message(mname, v)
-            elif k == 4:
-                enum(mname, v)
-        messages[mname] = rows
-
-    for k, file in _fields(schema.data):
-        if k != 1:
-            continue
-        fs = _fields(file)
-        package = next((_str(v) for kk, v in fs if kk == 2), "")
-        for kk, v in fs:
-            if kk == 4:
-                message(package, v)
-            elif kk == 5:
-                enum(package, v)
+    for file in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+        for m in file.message_type:
+            message(file.package, m)
+        for e in file.enum_type:
+            enums[f"{file.package}.{e.name}" if file.package else e.name] = [v.number for v in e.value]
     return messages, enums
 
 
