@@ -51,18 +51,34 @@ BY_TIMING = "timing"
 
 
 class _SentLike(Protocol):
-    t: float
-    data: bytes
-    dst: int
-    src: int
-    seq: int
-    action: int
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def data(self) -> bytes: ...
+
+    @property
+    def dst(self) -> int: ...
+
+    @property
+    def src(self) -> int: ...
+
+    @property
+    def seq(self) -> int: ...
+
+    @property
+    def action(self) -> int: ...
 
 
 class _ReceivedLike(Protocol):
-    t: float
-    data: bytes
-    header: tuple[int, int, int, int] | None
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def data(self) -> bytes: ...
+
+    @property
+    def header(self) -> tuple[int, int, int, int] | None: ...
 
 
 @dataclass(frozen=True)
