@@ -496,7 +496,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     mav_target = getattr(args, "mavlink_output", None)
     if filename == FILENAME and (args.install or mav_target):
         # Mav_Passthrough payloads: mavgen's MAVLink dissector beside ours (made when written)
-        writes.append((plugin_dir() / dm.FILENAME if args.install else Path(mav_target), None))
+        writes.append((plugin_dir() / dm.FILENAME if args.install else Path(mav_target), None))  # type: ignore[arg-type]  # set (the condition)
     if target is None:
         out.write(source)
     for path, text in writes:

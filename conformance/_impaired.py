@@ -92,7 +92,7 @@ def run_impaired(state: Any, item: pytest.Item, first: BaseException) -> None:
             break
         clean = attempt + 1 == ATTEMPTS
         try:
-            exc = _attempt(state, item, ctx, link, clean, notes)
+            exc = _attempt(state, item, ctx, link, clean, notes)  # type: ignore[assignment]  # None: returns below
         finally:
             if link is not None:
                 link.paused = False

@@ -137,8 +137,8 @@ class _Run:
                     self._note(line)  # once: each instance prints the plan under -v too
             self.terminal.note(f"parallel: {self.plan.shards} node instance(s) of --parallel {self.n}, each on "
                                "its own ports with its own startup phase (-v: which case runs on which)")
-        elif inst.plan != self.plan.to_json() | {"batch_outcome": inst.plan.get("batch_outcome")} \
-                and self.problem is None:
+        elif (inst.plan != self.plan.to_json() | {"batch_outcome": inst.plan.get("batch_outcome")}  # type: ignore[union-attr]  # set before the call
+                and self.problem is None):
             self.problem = f"node instance {inst.k + 1} planned the run otherwise than the first"
 
     def _note(self, text: str) -> None:

@@ -101,7 +101,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                 "each case's record and the run's notes to FILE, one JSON object a line")
     for key in _KEYS:
         parser.addini("mcp_" + key, f"default for --mcp-{key.replace('_', '-')} (environment: {env_name(key)})",
-                      type="bool" if key in _FLAGS else "string", default=False if key in _FLAGS else None)
+                      type="bool" if key in _FLAGS else "string", default=False if key in _FLAGS else None)  # type: ignore[maybe-unrecognized-str-typeform]  # mypy 2.4: pytest's Literal, not a type
 
 
 def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:

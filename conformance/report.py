@@ -250,7 +250,7 @@ def build_json(run: RunRecord) -> dict[str, Any]:
     """The report document (see docs/design.md and report.schema.json)."""
     counts = run.counts()
     monitor = monitor_failures(run)
-    doc = {
+    doc: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION,
         "tool": {"name": TOOL_NAME, "version": tool_version()},
         "spec": _spec_json(run.role),

@@ -235,7 +235,7 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned
         only = shared[0]
         shared = []
         steps_or_slot = [Step(only.case, "alone", False, NOTHING) if s is None else s for s in steps_or_slot]
-    steps: list[Step] = []
+    steps = []  # list[Step], as above
     for s in steps_or_slot:
         steps.extend(shared if s is None else [s])
     return Plan("scheduled", "what only waits is overlapped", steps)

@@ -160,7 +160,7 @@ class StreamCampaign:
                     from fuzz.stream_stateful import StreamStatefulEngine
 
                     backend = StreamStatefulEngine(self, backend, self.db, self.worker).run(
-                        lambda d=deadline: self._over(d), self._tick)
+                        lambda d=deadline: self._over(d), self._tick)  # type: ignore[misc]  # mypy: a default argument
                 else:
                     backend = self._stateless(backend, deadline)
         finally:
@@ -417,6 +417,7 @@ class StreamCampaign:
                             check=c0.check)]
 
         def confirm(cases: list[Case]) -> tuple[int, list[Any], Hit | None]:
+            traffic: list[Any]
             n, traffic, last = 0, [], None
             for _ in range(self.replays):
                 log = TrafficLog()
@@ -558,7 +559,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
         from fuzz.stream_stateful import play_program
 
         try:
-            seen = play_program(backend, program)
+            seen = play_program(backend, program)  # type: ignore[assignment]  # the player's Hit: .signature as well
         finally:
             backend.close()
         return _replay_verdict(seen, sig)

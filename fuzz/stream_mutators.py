@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from spec import NSQD
-from spec.stream import MessageSpec, StreamSpec, int_range
+from spec.stream import Field, MessageSpec, StreamSpec, int_range
 from spec.stream_codec import encode_body, frame
 from spec.stream_strategies import GPX_FORMS, gpx_document
 
@@ -133,6 +133,7 @@ def draw_case(rng: random.Random, spec: StreamSpec = NSQD, kind: str | None = No
     body = encode_body(spec, msg, values)
     whole = frame(spec, msg.id, body)
     fr = spec.framing
+    f: Field | None  # the field a case aims at
     if kind == "valid":
         return Case(kind, (Write(whole),), valid=True, note=msg.name, expect=msg.effect.to, or_error=msg.effect.or_error,
                     msg=msg.name)

@@ -264,7 +264,7 @@ class Player:
         if conn.closed_at is not None:
             return  # a close is judged with the others' (_judge)
         self._judge()  # a death or the backend's own frames first
-        raise self._lost(c, op, [u.values["state"] for u in conn.updates(since)])  # type: ignore[misc]
+        raise self._lost(c, op, [u.values["state"] for u in conn.updates(since)])  # type: ignore[index]  # an UPDATE has values
 
     def _lost(self, c: Client, op: Op, states: list[int]) -> Hit:
         """The finding of a command whose effect did not show (``states``: what UPDATE showed):

@@ -80,16 +80,16 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
             try:
                 p.play(op)
             except Hit as hit:
-                if want is None or not _passing(hit, want):
+                if want is None or not _passing(hit, want):  # type: ignore[arg-type]  # the player's Hit: .signature as well
                     raise
                 passed = hit
-        hit = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
-        if hit is not None:
-            return Hit(hit.signature, hit.detail, hit.stderr)
+        died = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
+        if died is not None:
+            return Hit(died.signature, died.detail, died.stderr)
         p._judge()
         return passed
     except Hit as hit:
-        return passed if want is not None and _passing(hit, want) else hit
+        return passed if want is not None and _passing(hit, want) else hit  # type: ignore[arg-type]  # as above
     finally:
         if log is not None:
             for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close

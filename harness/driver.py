@@ -527,7 +527,7 @@ class TargetDriver:
             if got is None and n == copies - 1 and self._kernel_times:
                 end = time.monotonic()  # a reply that came by now, read late (``read_backlog``)
                 if read_backlog(self.listen[0] or "0.0.0.0", self.listen[1]):
-                    got = self.wait_for(lambda d, end=end: d.t <= end and match(d), 0.2, since)
+                    got = self.wait_for(lambda d, end=end: d.t <= end and match(d), 0.2, since)  # type: ignore[misc]  # mypy: a default argument
             if got is not None:
                 ex.ack, ex.attribution = got, self.attribution(got)
                 return ex

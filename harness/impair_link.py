@@ -138,7 +138,7 @@ class ImpairedLink:
                 deliver(d.data, addr)
             else:
                 body = d.data
-                self._later(d.delay_s, lambda body=body: deliver(body, addr))
+                self._later(d.delay_s, lambda body=body: deliver(body, addr))  # type: ignore[misc]  # mypy: a default argument
 
     # ------------------------------------------------------------------ decisions
     def _decide(self, direction: str, data: bytes) -> Decision:

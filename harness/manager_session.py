@@ -145,7 +145,7 @@ class ManagerSession(SessionBase):
         return max(SPAWN_STARTUP_S, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
 
     @property
-    def startup_note(self) -> tuple[str, str]:
+    def startup_note(self) -> tuple[str, str]:  # type: ignore[override]  # NodeBase's default; the runner only reads it
         """What the start of the run does, for the terminal's header: (line, status)."""
         cfg = self.cfg
         who = "starts the manager" if self.spawned else "attaches to the running manager"

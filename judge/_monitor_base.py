@@ -333,7 +333,7 @@ class _Timers:
         return bool((heap and heap[0][0] <= now) or (fifo and fifo[0][0] <= now))
 
     def due(self, now: int) -> list[tuple[Callable[..., None], tuple[Any, ...]]]:
-        out = []
+        out: list[tuple[Callable[..., None], tuple[Any, ...]]] = []
         heap, fifo = self.heap, self.fifo
         while True:
             h = heap[0] if heap and heap[0][0] <= now else None

@@ -22,7 +22,7 @@ again within the ACK window.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from judge._monitor_base import (
     ACK_DEADLINE_NS,
@@ -44,6 +44,11 @@ from judge._monitor_base import (
 from judge._monitor_rtx import F_ACK1, F_FAULTY
 from judge._monitor_sender import _entry_t
 
+if TYPE_CHECKING:
+    from judge._monitor_host import MonitorHost
+else:
+    MonitorHost = object  # the host's state, declared for the type checker only
+
 _ROB_EXPECTED = {
     "MCP-ROB-2": "a datagram whose first 9 bytes are not the preamble is discarded silently",
     "MCP-ROB-3": "a datagram with an action code above 8 is discarded silently",
@@ -51,7 +56,7 @@ _ROB_EXPECTED = {
 }
 
 
-class ReceiverRules:
+class ReceiverRules(MonitorHost):
     """Mixin of :class:`judge.monitor.Monitor`: receiver-side judgement."""
 
     def _ack(self, i: int, t: int, src: int, dst: int, own_seq: int, named: int, tester: bool,

@@ -7,7 +7,7 @@ MCP-SEQ-2's renumbered retransmissions told apart. Complete traces only: each ne
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from judge._monitor_base import (
     HDR,
@@ -30,6 +30,11 @@ from judge._monitor_base import (
 from judge.spacing import judge_spacing
 from spec import SPEC
 
+if TYPE_CHECKING:
+    from judge._monitor_host import MonitorHost
+else:
+    MonitorHost = object  # the host's state, declared for the type checker only
+
 #: The description's retransmission timeout: a lone copy's next one is not overdue before it
 #: even when the assumed --rto is shorter (issue 18 item 10: a correct node retransmitting every
 #: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
@@ -39,7 +44,7 @@ DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1 = (1 << k for k in range(9))
 
 
-class RetransmissionRules:
+class RetransmissionRules(MonitorHost):
     """Mixin of :class:`judge.monitor.Monitor` (through ``SenderRules``)."""
 
     def _check_stop_and_wait(self, node: _Node, prev: _Exchange, ex: _Exchange, i: int, t: int) -> None:

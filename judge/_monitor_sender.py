@@ -477,7 +477,7 @@ class SenderRules(RetransmissionRules):
             if n.end is None and self._last_command_acked(n):
                 self._emit("MCP-FLOW-3", MANAGER, end, f"End_Mission as the last command to drone {n.id}",
                            f"drone {n.id} never got End_Mission (other drones did)",
-                           [n.start.first] + [e.first for e in ended[:1]])
+                           [n.start.first] + [e.first for e in ended[:1]])  # type: ignore[union-attr]  # drones: n.start set
 
     def _last_command_acked(self, d: _Node) -> bool:
         last = d.last_command
@@ -500,8 +500,8 @@ class SenderRules(RetransmissionRules):
             del self._to_seq[k]
         for k in [k for k, e in self._last_to.items() if e < old]:
             del self._last_to[k]
-        for k in [k for k, e in self._unmatched_acks.items() if e[1] < old]:
-            del self._unmatched_acks[k]
+        for pair in [k for k, e in self._unmatched_acks.items() if e[1] < old]:
+            del self._unmatched_acks[pair]
         for index in (self._pt, self._pt_to):
             dead = []
             for k, lst in index.items():

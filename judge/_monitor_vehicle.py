@@ -23,7 +23,7 @@ event was fed for it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from judge._monitor_base import (
     HDR,
@@ -39,6 +39,11 @@ from judge._monitor_base import (
 from spec.mavframe import FrameError, is_frame, parse_frame
 from vehicle.probe import probe_token
 from vehicle.records import COPTER_MODE_NAMES, RTL, mode_name
+
+if TYPE_CHECKING:
+    from judge._monitor_host import MonitorHost
+else:
+    MonitorHost = object  # the host's state, declared for the type checker only
 
 _ARM_DISARM = 400  # MAV_CMD_COMPONENT_ARM_DISARM
 _DO_SET_MODE = 176  # MAV_CMD_DO_SET_MODE
@@ -155,7 +160,7 @@ def events_from_vehicle(event: Any) -> list[VehicleEvent]:
     return []
 
 
-class VehicleRules:
+class VehicleRules(MonitorHost):
     """Mixin of :class:`judge.monitor.Monitor`: autopilot-link judgement."""
 
     def _delivery_wait(self) -> int:

@@ -51,18 +51,34 @@ BY_TIMING = "timing"
 
 
 class _SentLike(Protocol):
-    t: float
-    data: bytes
-    dst: int
-    src: int
-    seq: int
-    action: int
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def data(self) -> bytes: ...
+
+    @property
+    def dst(self) -> int: ...
+
+    @property
+    def src(self) -> int: ...
+
+    @property
+    def seq(self) -> int: ...
+
+    @property
+    def action(self) -> int: ...
 
 
 class _ReceivedLike(Protocol):
-    t: float
-    data: bytes
-    header: tuple[int, int, int, int] | None
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def data(self) -> bytes: ...
+
+    @property
+    def header(self) -> tuple[int, int, int, int] | None: ...
 
 
 @dataclass(frozen=True)
@@ -156,6 +172,7 @@ class Attributor:
         """Attribute one datagram that arrived (None: not ACK-like, or nothing to tie it to)."""
         if d.header is None or d.header[3] != _ACK:
             return None
+        cmd: _Command | None
         for how, order in ((BY_SEQ, _U16BE), (BY_SEQ_LE, _U16LE)):
             seq = payload_seq(d.data, order)
             if seq is None:
@@ -163,7 +180,7 @@ class Attributor:
             cands = [c for c in self._by_seq.get(seq, ())
                      if c.open_at(d.t) and c.recent(d.t, self.horizon) and self._addressed(c, d)]
             if cands:  # the one sent from the src the reply is addressed to, else the latest
-                cmd = max(cands, key=lambda c: (c.src == d.header[0], c.id))
+                cmd = max(cands, key=lambda c: (c.src == d.header[0], c.id))  # type: ignore[index]  # header: not None (above)
                 cmd.answers += 1
                 return Attribution(cmd.id, cmd.seq, how, self._named(d, cmd))
         cmd = self._latest

@@ -38,7 +38,7 @@ they stay ``not_observed`` here.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, Literal
 
 from judge._monitor_base import (
     ACK,
@@ -281,7 +281,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             payload = None
         elif action == PASSTHROUGH:
             frame = data[HDR:]
-            why = self._frame_ok.get(frame, False)
+            why: str | None | Literal[False] = self._frame_ok.get(frame, False)
             if why is False:
                 try:
                     decode(data)
@@ -483,7 +483,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         for i, t, addr, rule, what in self._orphans:
             ids = self._addr_ids.get(addr) if addr is not None else None
             if ids is not None and rule == "MCP-HDR-4":
-                ids = ids & self._declared
+                ids = ids & self._declared  # type: ignore[operator]  # HDR-4 orphans: only when declared
             if ids is not None and len(ids) == 1:
                 (node,) = ids
                 host, port = addr

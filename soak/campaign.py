@@ -46,7 +46,7 @@ def stopping_on_signals(stop: Stop) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before: dict[int, Any] = {}
+    before: dict[signal.Signals, Any] = {}
     try:
         for sig in (signal.SIGTERM, signal.SIGINT):
             before[sig] = signal.signal(sig, lambda n, _f: stop.request(signal.Signals(n).name))

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from spec.docs import _table, catalogue_sections
-from spec.stream import StreamSpec
+from spec.stream import MessageSpec, StreamSpec
 
 __all__ = ["DEFAULT_OUTPUT", "check", "default_output", "render", "write"]
 
@@ -25,7 +25,7 @@ def default_output() -> Path:
     return root / DEFAULT_OUTPUT if (root / "pyproject.toml").is_file() else DEFAULT_OUTPUT
 
 
-def _layout(spec: StreamSpec, msg: object) -> str:
+def _layout(spec: StreamSpec, msg: MessageSpec) -> str:
     fields = msg.fields
     if not fields:
         return "empty"
@@ -37,7 +37,7 @@ def _layout(spec: StreamSpec, msg: object) -> str:
     return "; ".join(parts)
 
 
-def _effect(spec: StreamSpec, msg: object) -> str:
+def _effect(spec: StreamSpec, msg: MessageSpec) -> str:
     eff = msg.effect
     if eff.unobserved:
         return "not judged (D-5)"

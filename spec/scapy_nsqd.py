@@ -43,7 +43,7 @@ def _fields(msg: Any) -> list[Any]:
         if "length" in t:
             fmt = NSQD.types[t["length"]]["struct"]
             out.append(FieldLenField(f"{f.name}_len", None, length_of=f.name, fmt=fmt))
-            out.append(StrLenField(f.name, b"", length_from=lambda pkt, n=f.name: max(0, getattr(pkt, f"{n}_len"))))
+            out.append(StrLenField(f.name, b"", length_from=lambda pkt, n=f.name: max(0, getattr(pkt, f"{n}_len"))))  # type: ignore[misc]  # mypy: a default argument
         elif t["struct"] == ">B":
             out.append(ByteField(f.name, 0))
         elif t["struct"] == ">I":
@@ -59,7 +59,7 @@ class NSQD_Frame(Packet):  # noqa: N801 - scapy layer names carry the protocol's
     """One frame: ``length`` (this header included), ``msg_id``; the body is the next layer."""
 
     name = "NSQD"
-    fields_desc = [SignedIntField("length", None), ByteEnumField("msg_id", 0, MESSAGE_NAMES)]
+    fields_desc = [SignedIntField("length", None), ByteEnumField("msg_id", 0, MESSAGE_NAMES)]  # type: ignore[arg-type]  # None: post_build fills it (scapy's convention, not in its stub)
 
     def post_build(self, pkt: bytes, pay: bytes) -> bytes:
         if self.length is None:

@@ -254,6 +254,7 @@ class Capture:
         newest: dict[Any, int] = {}
         want = self.segment
         push, pop = heapq.heappush, heapq.heappop
+        rec: Record
         for pos, (t, kind, fields) in enumerate(self._mcap_raw()):
             if kind == "meta":
                 seg = fields[1].get("segment")

@@ -175,7 +175,7 @@ class GuidedMessages:
                          vel: tuple[float, float, float] | None) -> list[MAVLinkMessage]:
         mask = int(f["type_mask"])
         use_pos, use_vel, use_acc = not mask & _POS, not mask & _VEL, not mask & _ACC
-        detail = {"frame": frame, "type_mask": mask, "position": list(pos) if pos else None,
+        detail: dict[str, Any] = {"frame": frame, "type_mask": mask, "position": list(pos) if pos else None,
                   "velocity": list(vel) if vel else None}
         if self.custom_mode != GUIDED:
             self._request(now, msg, "position_target", False,
