@@ -12,20 +12,19 @@ Elements carry stable hooks for tools and tests: ``section.finding`` with ``data
 ``data-outcome``, ``table.rules`` with one ``tr[data-rule]`` per rule, ``table.cases`` with one
 ``tr[data-case][data-outcome]`` per case, and the charts' ``svg.mcp-chart`` / ``g.arrow``.
 
-Every fragment is a ``string.Template`` filled by :func:`_fill`, which escapes each value
-(a rule's text, a node's output, a path) unless it is :class:`Markup`, HTML built here or a
-chart: escaping is the default, as in a template engine with autoescape.
+Every fragment is a ``string.Template`` filled by ``reports.templating.fill``, which escapes
+each value (a rule's text, a node's output, a path) unless it is ``Markup``, HTML built here
+or a chart: escaping is the default, as in a template engine with autoescape.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from html import escape
-from string import Template
 from typing import Any
 
 from reports.chart import trace_svg
 from reports.stream_chart import stream_svg
+from reports.templating import Markup, Template, attrs, fill, join
 from spec import RULES, SPEC
 from traceio.reader import Datagram, StreamFrame
 from traceio.trace import Trace, evidence_indexes
@@ -65,36 +64,9 @@ ul.evidence { margin: 4px 0; padding-left: 20px; font-family: ui-monospace, mono
 """
 
 
-def _e(text: Any) -> str:
-    return escape("" if text is None else str(text), quote=True)
-
-
-class Markup(str):
-    """HTML this module built (a filled template) or a chart (``reports.chart`` escapes its
-    own text): put into a template as it is. Every other value is escaped."""
-
-
-def _fill(template: Template, **values: Any) -> Markup:
-    """``template`` filled with ``values``, each escaped (``html.escape``, quotes too) unless it
-    is :class:`Markup`: autoescape, as a template engine's. ``string.Template`` rather than
-    jinja2, which is not among the project's dependencies: the pages are a few fixed
-    fragments, and this one function is where escaping happens."""
-    return Markup(template.substitute({k: v if isinstance(v, Markup) else _e(v) for k, v in values.items()}))
-
-
-def _join(parts: Iterable[Any], sep: str = "") -> Markup:
-    """``parts`` one after the other, each escaped unless it is :class:`Markup`."""
-    return Markup(sep.join(p if isinstance(p, Markup) else _e(p) for p in parts))
-
-
-def _attrs(attrs: dict[str, Any]) -> Markup:
-    return _join(_fill(_ATTR, name=k, value=v) for k, v in attrs.items())
-
-
 _PAGE = Template('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
                  '<meta name="viewport" content="width=device-width, initial-scale=1">'
                  "<title>$title</title><style>$css</style></head>\n<body>\n$body\n</body></html>\n")
-_ATTR = Template(' $name="$value"')
 _TABLE = Template('<table class="$cls"><thead><tr>$heads</tr></thead><tbody>$rows</tbody></table>')
 _TH = Template("<th>$cell</th>")
 _TD = Template("<td>$cell</td>")
@@ -123,7 +95,7 @@ _NUM = Template('<span class="num">$text</span>')
 def page(title: str, body: str) -> str:
     """A whole HTML document around ``body`` (HTML: a :class:`Markup`, or a string this
     module's renderers returned)."""
-    return str(_fill(_PAGE, title=title, css=Markup(CSS), body=Markup(body)))
+    return str(fill(_PAGE, title=title, css=Markup(CSS), body=Markup(body)))
 
 
 def _rule_text(rule: str | None) -> str:
@@ -140,33 +112,33 @@ def _table(headers: Sequence[str], rows: Iterable[Sequence[Any]], cls: str = "",
            row_attrs: Iterable[dict[str, Any]] | None = None) -> Markup:
     """A table; its cells are values (escaped) or :class:`Markup`; ``row_attrs``: each row's
     attributes (``data-rule``, ...)."""
-    attrs = list(row_attrs) if row_attrs is not None else None
-    body = _join(_fill(_TR, attrs=_attrs(attrs[n]) if attrs is not None else Markup(""),
-                       cells=_join(_fill(_TD, cell=c) for c in row)) for n, row in enumerate(rows))
-    return _fill(_TABLE, cls=cls, heads=_join(_fill(_TH, cell=h) for h in headers), rows=body)
+    each = list(row_attrs) if row_attrs is not None else None
+    body = join(fill(_TR, attrs=attrs(each[n]) if each is not None else Markup(""),
+                       cells=join(fill(_TD, cell=c) for c in row)) for n, row in enumerate(rows))
+    return fill(_TABLE, cls=cls, heads=join(fill(_TH, cell=h) for h in headers), rows=body)
 
 
 def _verdict(v: str | None) -> Markup:
-    return _fill(_SPAN, cls=v, text=v) if v else Markup("")
+    return fill(_SPAN, cls=v, text=v) if v else Markup("")
 
 
 def _finding(rule: str | None, outcome: str, heading: str, fields: Sequence[tuple[str, Any]],
              evidence: Sequence[str], chart: Markup | None, chart_note: str = "") -> Markup:
-    out = [_fill(_FINDING, outcome=outcome, rule=rule or "", heading=heading)]
+    out = [fill(_FINDING, outcome=outcome, rule=rule or "", heading=heading)]
     text = _rule_text(rule)
     if text:
-        out.append(_fill(_RULE_TEXT, rule=rule, level=_level(rule), text=text))
+        out.append(fill(_RULE_TEXT, rule=rule, level=_level(rule), text=text))
     items = [(k, v) for k, v in fields if v not in (None, "", [])]
     if items:
-        out.append(_fill(_DL, items=_join(_fill(_DT_DD, term=k, value=v) for k, v in items)))
+        out.append(fill(_DL, items=join(fill(_DT_DD, term=k, value=v) for k, v in items)))
     if evidence:
-        out.append(_fill(_EVIDENCE, items=_join(_fill(_LI, item=x) for x in evidence)))
+        out.append(fill(_EVIDENCE, items=join(fill(_LI, item=x) for x in evidence)))
     if chart:
-        out.append(_fill(_CHART, svg=chart))
+        out.append(fill(_CHART, svg=chart))
     elif chart_note:
-        out.append(_fill(_NONE, text=chart_note))
+        out.append(fill(_NONE, text=chart_note))
     out.append(Markup("</section>"))
-    return _join(out, "\n")
+    return join(out, "\n")
 
 
 # ---------------------------------------------------------------- mcp-capture check
@@ -175,26 +147,26 @@ def render_check(j: Any, doc: dict[str, Any]) -> str:
     trace = Trace(j.kept or (), j.params.broadcast_id)
     trace.mark(j.shown_violations)
     f, s = doc["file"], doc["summary"]
-    body = [_fill(_H1, text=f"mcp-capture check: {f['path']}"),
-            _fill(_META, text=f'{f["format"]} · {f["datagrams"]} datagram(s) over {f["duration_s"]:.3f} s · '
+    body = [fill(_H1, text=f"mcp-capture check: {f['path']}"),
+            fill(_META, text=f'{f["format"]} · {f["datagrams"]} datagram(s) over {f["duration_s"]:.3f} s · '
                               f'{doc["tool"]["name"]} {doc["tool"]["version"]} · MCP spec {doc["spec"]["version"]}')]
     if f["truncated"]:
-        body.append(_fill(_BANNER, cls="warn", text=f"Truncated: {f['truncated']}; judged what was read."))
-    counts = _join([_fill(_COUNT, n=s["violations"], text="violation(s)")]
-                   + [_fill(_SPAN_PLAIN, text=f"{k.upper()} {s[k]}") for k in ("must", "should", "info")]
-                   + [_fill(_SPAN_PLAIN, text=f"exit code {s['exit_code']}")])
-    body.append(_fill(_BANNER, cls=("bad" if s["failing"] else "good") + " summary", text=counts))
+        body.append(fill(_BANNER, cls="warn", text=f"Truncated: {f['truncated']}; judged what was read."))
+    counts = join([fill(_COUNT, n=s["violations"], text="violation(s)")]
+                   + [fill(_SPAN_PLAIN, text=f"{k.upper()} {s[k]}") for k in ("must", "should", "info")]
+                   + [fill(_SPAN_PLAIN, text=f"exit code {s['exit_code']}")])
+    body.append(fill(_BANNER, cls=("bad" if s["failing"] else "good") + " summary", text=counts))
     notes = [*f["notes"], *([doc["parameters"]["challenge_note"]] if doc["parameters"]["challenge_note"] else [])]
     if notes:
-        body.append(_fill(_UL, items=_join(_fill(_LI, item=n) for n in notes)))
-    body.append(_fill(_H2, text="Nodes"))
+        body.append(fill(_UL, items=join(fill(_LI, item=n) for n in notes)))
+    body.append(fill(_H2, text="Nodes"))
     body.append(_table(["ID", "role", "addresses", "sent", "received"],
                        [[n["id"], n["role"], ", ".join(n["addresses"]) or "-",
                          n["datagrams"]["sent"], n["datagrams"]["received"]] for n in doc["nodes"]],
                        "nodes"))
-    body.append(_fill(_H2, text=f"Violations ({len(doc['violations'])})"))
+    body.append(fill(_H2, text=f"Violations ({len(doc['violations'])})"))
     if not doc["violations"]:
-        body.append(_fill(_NONE, text="No violations."))
+        body.append(fill(_NONE, text="No violations."))
     for v, raw in zip(doc["violations"], j.shown_violations, strict=True):
         idx = evidence_indexes(raw)
         entries = trace.around(idx) if idx else []
@@ -204,9 +176,9 @@ def render_check(j: Any, doc: dict[str, Any]) -> str:
                              [("expected", v["expected"]), ("actual", v["actual"])],
                              [e["summary"] for e in v["evidence"]], chart,
                              "" if chart else "no datagrams in the evidence to chart"))
-    body.append(_fill(_H2, text="Rules"))
+    body.append(fill(_H2, text="Rules"))
     body.append(_rules_by_node(doc))
-    return page(f"mcp-capture check {f['path']}", _join(body, "\n"))
+    return page(f"mcp-capture check {f['path']}", join(body, "\n"))
 
 
 def _rules_by_node(doc: dict[str, Any]) -> Markup:
@@ -278,25 +250,25 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     s = doc.get("summary", {})
     target = doc.get("target") or "the embedded reference node"
     tool, spec = doc.get("tool", {}), doc.get("spec", {})
-    body = [_fill(_H1, text=f"mcp-conform: {doc.get('role', 'drone')} at {target}"),
-            _fill(_META, text=f'{_str(tool.get("name"))} {_str(tool.get("version"))} · '
+    body = [fill(_H1, text=f"mcp-conform: {doc.get('role', 'drone')} at {target}"),
+            fill(_META, text=f'{_str(tool.get("name"))} {_str(tool.get("version"))} · '
                               f'{_str(spec.get("protocol", "MCP"))} spec {_str(spec.get("version"))} · '
                               f'{s.get("duration_s", 0):.1f} s')]
     if doc.get("error"):
-        body.append(_fill(_BANNER, cls="bad", text=f"Error: {doc['error']}"))
+        body.append(fill(_BANNER, cls="bad", text=f"Error: {doc['error']}"))
     by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor" and not f.get("consequence_of")]
     mon_failed = sum(f.get("outcome") == "failed" for f in by_monitor)
     bad = s.get("failed", 0) + s.get("error", 0) + mon_failed
-    kinds = [_fill(_KIND, cls=k, n=s.get(k, 0), text=k) for k in ("passed", "failed", "warned", "skipped", "info", "error")]
+    kinds = [fill(_KIND, cls=k, n=s.get(k, 0), text=k) for k in ("passed", "failed", "warned", "skipped", "info", "error")]
     if by_monitor:
-        kinds += [_fill(_KIND, cls="failed", n=mon_failed, text="failed by the monitor"),
-                  _fill(_KIND, cls="warned", n=len(by_monitor) - mon_failed, text="warned by the monitor")]
+        kinds += [fill(_KIND, cls="failed", n=mon_failed, text="failed by the monitor"),
+                  fill(_KIND, cls="warned", n=len(by_monitor) - mon_failed, text="warned by the monitor")]
     cls = "bad" if bad else "warn" if s.get("warned") or by_monitor else "good"
-    body.append(_fill(_BANNER, cls=f"{cls} summary", text=_join(kinds)))
+    body.append(fill(_BANNER, cls=f"{cls} summary", text=join(kinds)))
     cases = [c for c in doc.get("cases", []) if c.get("outcome") in ("failed", "warned", "error")]
-    body.append(_fill(_H2, text=f"Failed, warned and errored cases ({len(cases)})"))
+    body.append(fill(_H2, text=f"Failed, warned and errored cases ({len(cases)})"))
     if not cases:
-        body.append(_fill(_NONE, text="None."))
+        body.append(fill(_NONE, text="None."))
     for c in cases:
         chart, why = _stream_chart(c, frames) if _framing(doc) == "stream" else _case_chart(c, trace)
         rule = c.get("failed_rule") or (c.get("rules") or [None])[0]
@@ -305,7 +277,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
                   ("notes", "\n".join(c.get("notes") or []))]
         body.append(_finding(rule, c["outcome"], heading, fields, c.get("evidence") or [], chart, why))
     if violations:
-        body.append(_fill(_H2, text=f"Trace monitor ({len(violations)} violation(s))"))
+        body.append(fill(_H2, text=f"Trace monitor ({len(violations)} violation(s))"))
         for v in violations:
             idx = evidence_indexes(v)
             entries = trace.around(idx) if trace is not None and idx else []
@@ -318,11 +290,11 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     body.append(_all_cases(doc.get("cases", [])))
     rules = doc.get("rules", {})
     order = [r for r in RULES if r in rules] + sorted(set(rules) - set(RULES))
-    body.append(_fill(_H2, text="Rules"))
+    body.append(fill(_H2, text="Rules"))
     body.append(_table(["rule", "level", "outcome", "requirement"],
                        [[r, _level(r), _verdict(rules[r]), _rule_text(r)] for r in order],
                        "rules", [{"data-rule": r} for r in order]))
-    return page(f"mcp-conform {target}", _join(body, "\n"))
+    return page(f"mcp-conform {target}", join(body, "\n"))
 
 
 def _str(value: Any) -> str:
@@ -348,12 +320,12 @@ def _all_cases(cases: Sequence[dict[str, Any]]) -> Markup:
     """Every case of the run, passed ones included, as Autobahn's report lists them: its
     rules, outcome, time, and the skip reason or the INFO note."""
     rows = [[c["id"], " ".join(c.get("rules") or []), _verdict(c.get("outcome")),
-             _fill(_NUM, text=f'{float(c.get("duration_s") or 0):.3f} s'), _case_details(c)]
+             fill(_NUM, text=f'{float(c.get("duration_s") or 0):.3f} s'), _case_details(c)]
             for c in cases]
     table = _table(["case", "rules", "outcome", "time", "details"], rows, "cases",
                    [{"data-case": c["id"], "data-outcome": c.get("outcome")} for c in cases]) \
-        if cases else _fill(_NONE, text="No case ran.")
-    return _join([_fill(_H2, text=f"All cases ({len(cases)})"), table], "\n")
+        if cases else fill(_NONE, text="No case ran.")
+    return join([fill(_H2, text=f"All cases ({len(cases)})"), table], "\n")
 
 
 class _JsonViolation:

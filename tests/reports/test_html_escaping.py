@@ -11,8 +11,8 @@ import lxml.html
 
 from captures.check import to_json
 from judge.judging import Params, evidence_of, judge
-from reports import html as report_html
 from reports.html import render_check, render_run
+from reports.templating import Markup, Template, attrs, fill, join
 from spec import RULES
 
 from .test_html_report import a_run
@@ -58,5 +58,24 @@ def test_a_check_page_shows_a_path_a_role_and_a_note_as_text(tmp_path) -> None:
 
 
 def test_markup_is_the_only_way_in_unescaped() -> None:
-    assert report_html._fill(report_html._LI, item=XSS) == f"<li>{report_html._e(XSS)}</li>"
-    assert report_html._fill(report_html._LI, item=report_html.Markup("<b>x</b>")) == "<li><b>x</b></li>"
+    li = Template("<li>$item</li>")
+    assert fill(li, item=XSS) == "<li>&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt;</li>"
+    assert fill(li, item=Markup("<b>x</b>")) == "<li><b>x</b></li>"
+    assert join([XSS, Markup("<br>")]) == "&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt;<br>"
+    assert attrs({"data-case": '"><script>'}) == ' data-case="&quot;&gt;&lt;script&gt;"'
+
+
+def test_a_diff_page_shows_hostile_capture_names_as_text(tmp_path) -> None:
+    """``mcp-capture diff --html``: the captures' names (file names may hold anything but /)
+    appear as text; the charts stay SVG."""
+    from tests.captures.scenario import challenge2, reindex
+    from tests.captures.test_diff import _cli, _write_mcap
+
+    golden, cand = tmp_path / f"{XSS.replace('/', '|')}.mcap", tmp_path / "cand.mcap"
+    _write_mcap(golden, challenge2())
+    _write_mcap(cand, reindex(challenge2()[:-1]))
+    assert _cli(str(golden), str(cand), "--html", str(tmp_path / "d.html"))[0] == 1
+    page = (tmp_path / "d.html").read_text()
+    root = lxml.html.fromstring(page)
+    assert "<script" not in page and not root.xpath("//script") and root.xpath("//svg")
+    assert '<script>alert("x")<|script>' in root.text_content()
