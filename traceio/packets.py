@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import gzip
 import mmap
-import os
 import socket
 import struct
 import zlib
@@ -71,11 +70,11 @@ class GuardedStream:
     the file holds), which the pcap reader reads directly, and ``size`` the file's length."""
 
     def __init__(self, raw: Any, raw_file: Any = None, size: int | None = None,
-                 mapped: mmap.mmap | None = None) -> None:
+                 mapped: mmap.mmap | None = None, compressed: bool = False) -> None:
         self._read = raw.read
         self._raw = raw
         self._file = raw_file
-        self._bounded = size is None  # a gzip stream: its expansion is watched
+        self._bounded = compressed  # a gzip stream: its expansion is watched
         self.size = size
         self.mapped = mapped
         self.pos = 0
@@ -84,15 +83,14 @@ class GuardedStream:
 
     @classmethod
     def gzip(cls, fd: Any) -> GuardedStream:
-        return cls(gzip.GzipFile(fileobj=fd), fd)
+        return cls(gzip.GzipFile(fileobj=fd), fd, compressed=True)
 
     @classmethod
     def plain(cls, fd: Any) -> GuardedStream:
-        size = os.fstat(fd.fileno()).st_size
         try:
             mapped = mmap.mmap(fd.fileno(), 0, access=mmap.ACCESS_READ)
-        except (OSError, ValueError):  # not a regular file (a pipe, /dev/stdin), or empty
-            return cls(fd, fd, size)
+        except (OSError, ValueError):  # not a regular file (a pipe, /dev/stdin): read as a stream
+            return cls(fd)
         return cls(mapped, fd, len(mapped), mapped)
 
     def read(self, n: int) -> bytes:
