@@ -7,18 +7,19 @@ on the right, an extra one a gap on the left (a grey "(not here)" row: no arrow,
 the other capture's) — with divergent arrows marked by class
 (``missing``, ``extra``, ``changed``, ``reordered``, ``copies``, ``timing``, ``address``)
 and the divergence list above. Arrows stay in time order; where cases ran side by side the
-page says so (their interleaving was not compared: :mod:`captures.overlap`).
+page says so (their interleaving was not compared: :mod:`captures.overlap`). Values are
+escaped by ``reports.templating.fill`` (autoescape) unless they are markup built here.
 """
 
 from __future__ import annotations
 
-from html import escape
 from pathlib import Path
 from typing import Any
 
 from captures.conversation import Entry, describe, peers_text
 from captures.overlap import spans_text
 from reports.chart import Arrow, Lifeline, render
+from reports.templating import Markup, Template, fill, join
 from spec.codec import BROADCAST_ID, MANAGER_ID, Action
 
 __all__ = ["html_report", "write_html"]
@@ -84,35 +85,41 @@ def _charts(result: Any, peers: tuple[Any, Any]) -> tuple[str, str]:
             render(lifelines, right, title=f"candidate: {result.candidate.name}"))
 
 
+_PAGE = Template("<!DOCTYPE html><html><head><meta charset='utf-8'><title>mcp-capture diff</title>"
+                 "<style>$style</style></head><body><h1>mcp-capture diff</h1>"
+                 "<p>golden: $golden<br>candidate: $candidate</p>$verdict$drift$table$sections</body></html>\n")
+_SAME = Template('<p class="same">$text</p>')
+_DIFFERENT = Template('<p class="different">$n divergence(s): $kinds</p>')
+_ROW = Template("<tr><td>$kind</td><td>$peers</td><td>$golden</td><td>$candidate</td><td>$note</td></tr>")
+_TABLE = Template("<table class='divs'><tr><th>kind</th><th>conversation</th><th>golden</th><th>candidate</th>"
+                  "<th>what</th></tr>$rows</table>")
+_PAIR = Template("<div class='pair'><div>$left</div><div>$right</div></div>")
+_DIVERGING = Template("<h2>conversation $title</h2>$body")
+_FOLDED = Template("<details><summary>conversation $title (same)</summary>$body</details>")
+_P = Template("<p>$text</p>")
+
+
 def html_report(result: Any) -> str:
-    verdict = ('<p class="same">same: every conversation matches</p>' if result.same else
-               f'<p class="different">{len(result.divergences)} divergence(s): ' +
-               escape(", ".join(f"{n} {k}" for k, n in result.summary().items())) + "</p>")
-    rows = "".join(
-        f"<tr><td>{escape(d.kind)}</td><td>{escape(peers_text(d.peers))}</td>"
-        f"<td>{escape(describe(d.golden)) if d.golden else ''}</td>"
-        f"<td>{escape(describe(d.candidate)) if d.candidate else ''}</td><td>{escape(d.note)}</td></tr>"
-        for d in result.divergences[:500])
-    table = ("<table class='divs'><tr><th>kind</th><th>conversation</th><th>golden</th><th>candidate</th>"
-             f"<th>what</th></tr>{rows}</table>") if rows else ""
+    """The page: every value escaped by ``reports.templating.fill`` unless it is markup built
+    here or a chart (``reports.chart`` escapes its own text)."""
+    verdict = fill(_SAME, text="same: every conversation matches") if result.same else fill(
+        _DIFFERENT, n=len(result.divergences), kinds=", ".join(f"{n} {k}" for k, n in result.summary().items()))
+    rows = join(fill(_ROW, kind=d.kind, peers=peers_text(d.peers), golden=describe(d.golden) if d.golden else "",
+                     candidate=describe(d.candidate) if d.candidate else "", note=d.note)
+                for d in result.divergences[:500])
+    table = fill(_TABLE, rows=rows) if rows else Markup("")
     diverging = [p for p in result.aligned if any(d.peers == p for d in result.divergences)]
     others = [p for p in result.aligned if p not in diverging]
     sections = []
     for peers in diverging + others:
         left, right = _charts(result, peers)
-        body = f"<div class='pair'><div>{left}</div><div>{right}</div></div>"
-        title = escape(peers_text(peers))
-        if peers in diverging:
-            sections.append(f"<h2>conversation {title}</h2>{body}")
-        else:
-            sections.append(f"<details><summary>conversation {title} (same)</summary>{body}</details>")
-    drift = f"<p>largest timing drift {result.max_drift_ns / 1e9:+.3f} s</p>" + "".join(
-        f"<p>{label}: {escape(spans_text(side.overlaps))}</p>"
-        for side, label in ((result.golden, "golden"), (result.candidate, "candidate")) if side.overlaps)
-    return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>mcp-capture diff</title>"
-            f"<style>{STYLE}</style></head><body><h1>mcp-capture diff</h1>"
-            f"<p>golden: {escape(result.golden.name)}<br>candidate: {escape(result.candidate.name)}</p>"
-            f"{verdict}{drift}{table}{''.join(sections)}</body></html>\n")
+        body = fill(_PAIR, left=Markup(left), right=Markup(right))
+        sections.append(fill(_DIVERGING if peers in diverging else _FOLDED, title=peers_text(peers), body=body))
+    drift = join([fill(_P, text=f"largest timing drift {result.max_drift_ns / 1e9:+.3f} s")]
+                 + [fill(_P, text=f"{label}: {spans_text(side.overlaps)}")
+                    for side, label in ((result.golden, "golden"), (result.candidate, "candidate")) if side.overlaps])
+    return str(fill(_PAGE, style=Markup(STYLE), golden=result.golden.name, candidate=result.candidate.name,
+                    verdict=verdict, drift=drift, table=table, sections=join(sections)))
 
 
 def write_html(result: Any, path: str | Path) -> None:

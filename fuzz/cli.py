@@ -136,18 +136,25 @@ def _check_writable_dir(path: Path, option: str) -> None:
 
 def _check_reachable(db: str) -> None:
     """The example database answers before the campaign starts (both engines): a Redis
-    server that answers PING within 2 s, or a directory we can write in."""
-    if db.startswith("redis://"):
+    server that answers PING within 2 s, or a directory we can write in. The Redis URL is
+    redis-py's (``Redis.from_url``: ``redis://[[user]:password@]host[:port][/db]``,
+    ``rediss://`` for TLS, ``unix://path``); a password is never echoed in an error."""
+    if db.startswith(("redis://", "rediss://", "unix://")):
+        from urllib.parse import urlsplit
+
         import redis
 
-        from fuzz.engine_stateful import redis_address
-
-        host, port, number = redis_address(db)  # checked already (check_database)
-        client = redis.Redis(host=host, port=port, db=number, socket_connect_timeout=2, socket_timeout=2)
+        parts = urlsplit(db)
+        shown = db if parts.password is None else parts._replace(
+            netloc=f"{parts.username or ''}:***@{parts.netloc.rpartition('@')[2]}").geturl()
+        try:
+            client = redis.Redis.from_url(db, socket_connect_timeout=2, socket_timeout=2)
+        except ValueError as exc:
+            raise UsageError(f"--db: {shown!r} is not a Redis URL: {str(exc).splitlines()[0]}") from None
         try:
             client.ping()
         except redis.RedisError as exc:
-            raise UsageError(f"--db: cannot reach {db}: {str(exc).splitlines()[0]}") from None
+            raise UsageError(f"--db: cannot reach {shown}: {str(exc).splitlines()[0]}") from None
         finally:
             client.close()
         return

@@ -11,16 +11,20 @@ report), with the datagrams the case's evidence names marked.
 Elements carry stable hooks for tools and tests: ``section.finding`` with ``data-rule`` and
 ``data-outcome``, ``table.rules`` with one ``tr[data-rule]`` per rule, ``table.cases`` with one
 ``tr[data-case][data-outcome]`` per case, and the charts' ``svg.mcp-chart`` / ``g.arrow``.
+
+Every fragment is a ``string.Template`` filled by ``reports.templating.fill``, which escapes
+each value (a rule's text, a node's output, a path) unless it is ``Markup``, HTML built here
+or a chart: escaping is the default, as in a template engine with autoescape.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from html import escape
 from typing import Any
 
 from reports.chart import trace_svg
 from reports.stream_chart import stream_svg
+from reports.templating import Markup, Template, attrs, fill, join
 from spec import RULES, SPEC
 from traceio.reader import Datagram, StreamFrame
 from traceio.trace import Trace, evidence_indexes
@@ -60,15 +64,38 @@ ul.evidence { margin: 4px 0; padding-left: 20px; font-family: ui-monospace, mono
 """
 
 
-def _e(text: Any) -> str:
-    return escape("" if text is None else str(text), quote=True)
+_PAGE = Template('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+                 '<meta name="viewport" content="width=device-width, initial-scale=1">'
+                 "<title>$title</title><style>$css</style></head>\n<body>\n$body\n</body></html>\n")
+_TABLE = Template('<table class="$cls"><thead><tr>$heads</tr></thead><tbody>$rows</tbody></table>')
+_TH = Template("<th>$cell</th>")
+_TD = Template("<td>$cell</td>")
+_TR = Template("<tr$attrs>$cells</tr>")
+_LI = Template("<li>$item</li>")
+_UL = Template("<ul>$items</ul>")
+_SPAN = Template('<span class="$cls">$text</span>')
+_H1 = Template("<h1>$text</h1>")
+_H2 = Template("<h2>$text</h2>")
+_META = Template('<p class="meta">$text</p>')
+_BANNER = Template('<p class="banner $cls">$text</p>')
+_NONE = Template('<p class="none">$text</p>')
+_FINDING = Template('<section class="finding $outcome" data-rule="$rule" data-outcome="$outcome">\n'
+                    "<h3>$heading</h3>")
+_RULE_TEXT = Template('<p class="rule-text">$rule ($level): $text</p>')
+_DL = Template("<dl>$items</dl>")
+_DT_DD = Template("<dt>$term</dt><dd>$value</dd>")
+_EVIDENCE = Template('<b>evidence</b><ul class="evidence">$items</ul>')
+_CHART = Template('<div class="chart">$svg</div>')
+_COUNT = Template("<span><b>$n</b> $text</span>")
+_SPAN_PLAIN = Template("<span>$text</span>")
+_KIND = Template('<span class="$cls"><b>$n</b> $text</span>')
+_NUM = Template('<span class="num">$text</span>')
 
 
 def page(title: str, body: str) -> str:
-    """A whole HTML document around ``body``."""
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-            f'<meta name="viewport" content="width=device-width, initial-scale=1">'
-            f"<title>{_e(title)}</title><style>{CSS}</style></head>\n<body>\n{body}\n</body></html>\n")
+    """A whole HTML document around ``body`` (HTML: a :class:`Markup`, or a string this
+    module's renderers returned)."""
+    return str(fill(_PAGE, title=title, css=Markup(CSS), body=Markup(body)))
 
 
 def _rule_text(rule: str | None) -> str:
@@ -81,40 +108,37 @@ def _level(rule: str | None) -> str:
     return r.level if r else ""
 
 
-def _table(headers: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "",
-           row_attrs: Iterable[str] | None = None) -> str:
-    """A table of already-escaped cells."""
-    attrs = list(row_attrs) if row_attrs is not None else None
-    out = [f'<table class="{cls}"><thead><tr>' + "".join(f"<th>{_e(h)}</th>" for h in headers) + "</tr></thead><tbody>"]
-    for n, row in enumerate(rows):
-        extra = f" {attrs[n]}" if attrs is not None else ""
-        out.append(f"<tr{extra}>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>")
-    out.append("</tbody></table>")
-    return "".join(out)
+def _table(headers: Sequence[str], rows: Iterable[Sequence[Any]], cls: str = "",
+           row_attrs: Iterable[dict[str, Any]] | None = None) -> Markup:
+    """A table; its cells are values (escaped) or :class:`Markup`; ``row_attrs``: each row's
+    attributes (``data-rule``, ...)."""
+    each = list(row_attrs) if row_attrs is not None else None
+    body = join(fill(_TR, attrs=attrs(each[n]) if each is not None else Markup(""),
+                       cells=join(fill(_TD, cell=c) for c in row)) for n, row in enumerate(rows))
+    return fill(_TABLE, cls=cls, heads=join(fill(_TH, cell=h) for h in headers), rows=body)
 
 
-def _verdict(v: str | None) -> str:
-    return f'<span class="{_e(v)}">{_e(v)}</span>' if v else ""
+def _verdict(v: str | None) -> Markup:
+    return fill(_SPAN, cls=v, text=v) if v else Markup("")
 
 
 def _finding(rule: str | None, outcome: str, heading: str, fields: Sequence[tuple[str, Any]],
-             evidence: Sequence[str], chart: str | None, chart_note: str = "") -> str:
-    out = [f'<section class="finding {_e(outcome)}" data-rule="{_e(rule or "")}" data-outcome="{_e(outcome)}">',
-           f"<h3>{heading}</h3>"]
+             evidence: Sequence[str], chart: Markup | None, chart_note: str = "") -> Markup:
+    out = [fill(_FINDING, outcome=outcome, rule=rule or "", heading=heading)]
     text = _rule_text(rule)
     if text:
-        out.append(f'<p class="rule-text">{_e(rule)} ({_e(_level(rule))}): {_e(text)}</p>')
+        out.append(fill(_RULE_TEXT, rule=rule, level=_level(rule), text=text))
     items = [(k, v) for k, v in fields if v not in (None, "", [])]
     if items:
-        out.append("<dl>" + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in items) + "</dl>")
+        out.append(fill(_DL, items=join(fill(_DT_DD, term=k, value=v) for k, v in items)))
     if evidence:
-        out.append('<b>evidence</b><ul class="evidence">' + "".join(f"<li>{_e(x)}</li>" for x in evidence) + "</ul>")
+        out.append(fill(_EVIDENCE, items=join(fill(_LI, item=x) for x in evidence)))
     if chart:
-        out.append(f'<div class="chart">{chart}</div>')
+        out.append(fill(_CHART, svg=chart))
     elif chart_note:
-        out.append(f'<p class="none">{_e(chart_note)}</p>')
-    out.append("</section>")
-    return "\n".join(out)
+        out.append(fill(_NONE, text=chart_note))
+    out.append(Markup("</section>"))
+    return join(out, "\n")
 
 
 # ---------------------------------------------------------------- mcp-capture check
@@ -123,58 +147,57 @@ def render_check(j: Any, doc: dict[str, Any]) -> str:
     trace = Trace(j.kept or (), j.params.broadcast_id)
     trace.mark(j.shown_violations)
     f, s = doc["file"], doc["summary"]
-    body = [f"<h1>mcp-capture check: {_e(f['path'])}</h1>",
-            f'<p class="meta">{_e(f["format"])} · {f["datagrams"]} datagram(s) over {f["duration_s"]:.3f} s · '
-            f'{_e(doc["tool"]["name"])} {_e(doc["tool"]["version"])} · MCP spec {_e(doc["spec"]["version"])}</p>']
+    body = [fill(_H1, text=f"mcp-capture check: {f['path']}"),
+            fill(_META, text=f'{f["format"]} · {f["datagrams"]} datagram(s) over {f["duration_s"]:.3f} s · '
+                              f'{doc["tool"]["name"]} {doc["tool"]["version"]} · MCP spec {doc["spec"]["version"]}')]
     if f["truncated"]:
-        body.append(f'<p class="banner warn">Truncated: {_e(f["truncated"])}; judged what was read.</p>')
-    cls = "bad" if s["failing"] else "good"
-    body.append(f'<p class="banner {cls} summary"><span><b>{s["violations"]}</b> violation(s)</span>'
-                f'<span>MUST {s["must"]}</span><span>SHOULD {s["should"]}</span><span>INFO {s["info"]}</span>'
-                f'<span>exit code {s["exit_code"]}</span></p>')
+        body.append(fill(_BANNER, cls="warn", text=f"Truncated: {f['truncated']}; judged what was read."))
+    counts = join([fill(_COUNT, n=s["violations"], text="violation(s)")]
+                   + [fill(_SPAN_PLAIN, text=f"{k.upper()} {s[k]}") for k in ("must", "should", "info")]
+                   + [fill(_SPAN_PLAIN, text=f"exit code {s['exit_code']}")])
+    body.append(fill(_BANNER, cls=("bad" if s["failing"] else "good") + " summary", text=counts))
     notes = [*f["notes"], *([doc["parameters"]["challenge_note"]] if doc["parameters"]["challenge_note"] else [])]
     if notes:
-        body.append("<ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>")
-    body.append("<h2>Nodes</h2>")
+        body.append(fill(_UL, items=join(fill(_LI, item=n) for n in notes)))
+    body.append(fill(_H2, text="Nodes"))
     body.append(_table(["ID", "role", "addresses", "sent", "received"],
-                       [[_e(n["id"]), _e(n["role"]), _e(", ".join(n["addresses"]) or "-"),
-                         _e(n["datagrams"]["sent"]), _e(n["datagrams"]["received"])] for n in doc["nodes"]],
+                       [[n["id"], n["role"], ", ".join(n["addresses"]) or "-",
+                         n["datagrams"]["sent"], n["datagrams"]["received"]] for n in doc["nodes"]],
                        "nodes"))
-    body.append(f"<h2>Violations ({len(doc['violations'])})</h2>")
+    body.append(fill(_H2, text=f"Violations ({len(doc['violations'])})"))
     if not doc["violations"]:
-        body.append('<p class="none">No violations.</p>')
+        body.append(fill(_NONE, text="No violations."))
     for v, raw in zip(doc["violations"], j.shown_violations, strict=True):
         idx = evidence_indexes(raw)
         entries = trace.around(idx) if idx else []
-        chart = trace_svg(trace, entries, title=f"{v['rule']} · node {v['node']}") if entries else None
+        chart = Markup(trace_svg(trace, entries, title=f"{v['rule']} · node {v['node']}")) if entries else None
         outcome = "failed" if v["level"] == "MUST" or (v["level"] == "SHOULD" and j.params.strict) else "warned"
-        heading = f"{_e(v['rule'])} · node {_e(v['node'])} · +{v['t']:.6f} s"
-        body.append(_finding(v["rule"], outcome, heading,
+        body.append(_finding(v["rule"], outcome, f"{v['rule']} · node {v['node']} · +{v['t']:.6f} s",
                              [("expected", v["expected"]), ("actual", v["actual"])],
                              [e["summary"] for e in v["evidence"]], chart,
                              "" if chart else "no datagrams in the evidence to chart"))
-    body.append("<h2>Rules</h2>")
+    body.append(fill(_H2, text="Rules"))
     body.append(_rules_by_node(doc))
-    return page(f"mcp-capture check {f['path']}", "\n".join(body))
+    return page(f"mcp-capture check {f['path']}", join(body, "\n"))
 
 
-def _rules_by_node(doc: dict[str, Any]) -> str:
+def _rules_by_node(doc: dict[str, Any]) -> Markup:
     nodes = sorted(doc["rules"], key=int)
     rules = {r for by in doc["rules"].values() for r in by}
     order = [r for r in RULES if r in rules] + sorted(rules - set(RULES))
     counts: dict[str, int] = {}
     for v in doc["violations"]:
         counts[v["rule"]] = counts.get(v["rule"], 0) + 1
-    rows = [[_e(r), _e(_level(r)), *(_verdict(doc["rules"][n].get(r)) for n in nodes), _e(counts.get(r, "") or "")]
+    rows = [[r, _level(r), *(_verdict(doc["rules"][n].get(r)) for n in nodes), counts.get(r, "") or ""]
             for r in order]
     return _table(["rule", "level", *(f"node {n}" for n in nodes), "violations"], rows, "rules",
-                  [f'data-rule="{_e(r)}"' for r in order])
+                  [{"data-rule": r} for r in order])
 
 
 # ---------------------------------------------------------------- mcp-conform
 
 
-def _case_chart(case: dict[str, Any], trace: Trace | None) -> tuple[str | None, str]:
+def _case_chart(case: dict[str, Any], trace: Trace | None) -> tuple[Markup | None, str]:
     if trace is None:
         return None, "no capture of the run's traffic"
     cap = case.get("capture") or {}
@@ -184,10 +207,10 @@ def _case_chart(case: dict[str, Any], trace: Trace | None) -> tuple[str | None, 
     entries = trace.window(start, end)
     if not entries:
         return None, "no datagrams in the case's capture window"
-    return trace_svg(trace, entries, title=f"{case['id']} · {len(entries)} datagram(s)"), ""
+    return Markup(trace_svg(trace, entries, title=f"{case['id']} · {len(entries)} datagram(s)")), ""
 
 
-def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) -> tuple[str | None, str]:
+def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) -> tuple[Markup | None, str]:
     if frames is None:
         return None, "no capture of the run's traffic"
     cap = case.get("capture") or {}
@@ -197,7 +220,7 @@ def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) ->
     window = [f for f in frames if start <= f.t_ns <= (end or f.t_ns)]
     if not window:
         return None, "no frames in the case's capture window"
-    return stream_svg(window, title=f"{case['id']} · {len(window)} frame(s)"), ""
+    return Markup(stream_svg(window, title=f"{case['id']} · {len(window)} frame(s)")), ""
 
 
 def _framing(doc: dict[str, Any]) -> str:
@@ -226,50 +249,57 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
         trace.mark(violations)
     s = doc.get("summary", {})
     target = doc.get("target") or "the embedded reference node"
-    body = [f"<h1>mcp-conform: {_e(doc.get('role', 'drone'))} at {_e(target)}</h1>",
-            f'<p class="meta">{_e(doc.get("tool", {}).get("name"))} {_e(doc.get("tool", {}).get("version"))} · '
-            f'{_e(doc.get("spec", {}).get("protocol", "MCP"))} spec {_e(doc.get("spec", {}).get("version"))} · '
-            f'{s.get("duration_s", 0):.1f} s</p>']
+    tool, spec = doc.get("tool", {}), doc.get("spec", {})
+    body = [fill(_H1, text=f"mcp-conform: {doc.get('role', 'drone')} at {target}"),
+            fill(_META, text=f'{_str(tool.get("name"))} {_str(tool.get("version"))} · '
+                              f'{_str(spec.get("protocol", "MCP"))} spec {_str(spec.get("version"))} · '
+                              f'{s.get("duration_s", 0):.1f} s')]
     if doc.get("error"):
-        body.append(f'<p class="banner bad">Error: {_e(doc["error"])}</p>')
+        body.append(fill(_BANNER, cls="bad", text=f"Error: {doc['error']}"))
     by_monitor = [f for f in doc.get("failures", []) if f.get("source") == "monitor" and not f.get("consequence_of")]
     mon_failed = sum(f.get("outcome") == "failed" for f in by_monitor)
     bad = s.get("failed", 0) + s.get("error", 0) + mon_failed
-    body.append(f'<p class="banner {"bad" if bad else "warn" if s.get("warned") or by_monitor else "good"} summary">'
-                + "".join(f'<span class="{k}"><b>{_e(s.get(k, 0))}</b> {k}</span>'
-                          for k in ("passed", "failed", "warned", "skipped", "info", "error"))
-                + (f'<span class="failed"><b>{mon_failed}</b> failed by the monitor</span>'
-                   f'<span class="warned"><b>{len(by_monitor) - mon_failed}</b> warned by the monitor</span>'
-                   if by_monitor else "") + "</p>")
+    kinds = [fill(_KIND, cls=k, n=s.get(k, 0), text=k) for k in ("passed", "failed", "warned", "skipped", "info", "error")]
+    if by_monitor:
+        kinds += [fill(_KIND, cls="failed", n=mon_failed, text="failed by the monitor"),
+                  fill(_KIND, cls="warned", n=len(by_monitor) - mon_failed, text="warned by the monitor")]
+    cls = "bad" if bad else "warn" if s.get("warned") or by_monitor else "good"
+    body.append(fill(_BANNER, cls=f"{cls} summary", text=join(kinds)))
     cases = [c for c in doc.get("cases", []) if c.get("outcome") in ("failed", "warned", "error")]
-    body.append(f"<h2>Failed, warned and errored cases ({len(cases)})</h2>")
+    body.append(fill(_H2, text=f"Failed, warned and errored cases ({len(cases)})"))
     if not cases:
-        body.append('<p class="none">None.</p>')
+        body.append(fill(_NONE, text="None."))
     for c in cases:
         chart, why = _stream_chart(c, frames) if _framing(doc) == "stream" else _case_chart(c, trace)
         rule = c.get("failed_rule") or (c.get("rules") or [None])[0]
-        heading = f"{_e(c['outcome'].upper())} {_e(c['id'])} · {_e(' '.join(c.get('rules', [])))}"
+        heading = f"{c['outcome'].upper()} {c['id']} · {' '.join(c.get('rules', []))}"
         fields = [("expected", c.get("expected")), ("actual", c.get("actual")), ("reason", c.get("reason")),
                   ("notes", "\n".join(c.get("notes") or []))]
         body.append(_finding(rule, c["outcome"], heading, fields, c.get("evidence") or [], chart, why))
     if violations:
-        body.append(f"<h2>Trace monitor ({len(violations)} violation(s))</h2>")
+        body.append(fill(_H2, text=f"Trace monitor ({len(violations)} violation(s))"))
         for v in violations:
             idx = evidence_indexes(v)
             entries = trace.around(idx) if trace is not None and idx else []
-            chart = trace_svg(trace, entries, title=f"{v.rule} · node {v.node}") if entries else None
+            chart = Markup(trace_svg(trace, entries, title=f"{v.rule} · node {v.node}")) \
+                if trace is not None and entries else None
             body.append(_finding(v.rule, "failed" if _level(v.rule) == "MUST" else "warned",
-                                 f"{_e(v.rule)} · node {_e(v.node)}",
+                                 f"{v.rule} · node {v.node}",
                                  [("expected", v.expected), ("actual", v.actual)],
                                  [f"#{i}" for i in idx], chart, "" if chart else "no datagrams to chart"))
     body.append(_all_cases(doc.get("cases", [])))
     rules = doc.get("rules", {})
     order = [r for r in RULES if r in rules] + sorted(set(rules) - set(RULES))
-    body.append("<h2>Rules</h2>")
+    body.append(fill(_H2, text="Rules"))
     body.append(_table(["rule", "level", "outcome", "requirement"],
-                       [[_e(r), _e(_level(r)), _verdict(rules[r]), _e(_rule_text(r))] for r in order],
-                       "rules", [f'data-rule="{_e(r)}"' for r in order]))
-    return page(f"mcp-conform {target}", "\n".join(body))
+                       [[r, _level(r), _verdict(rules[r]), _rule_text(r)] for r in order],
+                       "rules", [{"data-rule": r} for r in order]))
+    return page(f"mcp-conform {target}", join(body, "\n"))
+
+
+def _str(value: Any) -> str:
+    """A value as the page shows it: None as nothing."""
+    return "" if value is None else str(value)
 
 
 def _case_details(c: dict[str, Any]) -> str:
@@ -286,16 +316,16 @@ def _case_details(c: dict[str, Any]) -> str:
     return "\n".join(str(p) for p in parts if p)
 
 
-def _all_cases(cases: Sequence[dict[str, Any]]) -> str:
+def _all_cases(cases: Sequence[dict[str, Any]]) -> Markup:
     """Every case of the run, passed ones included, as Autobahn's report lists them: its
     rules, outcome, time, and the skip reason or the INFO note."""
-    rows = [[_e(c["id"]), _e(" ".join(c.get("rules") or [])), _verdict(c.get("outcome")),
-             f'<span class="num">{float(c.get("duration_s") or 0):.3f} s</span>', _e(_case_details(c))]
+    rows = [[c["id"], " ".join(c.get("rules") or []), _verdict(c.get("outcome")),
+             fill(_NUM, text=f'{float(c.get("duration_s") or 0):.3f} s'), _case_details(c)]
             for c in cases]
-    return (f"<h2>All cases ({len(cases)})</h2>\n"
-            + (_table(["case", "rules", "outcome", "time", "details"], rows, "cases",
-                      [f'data-case="{_e(c["id"])}" data-outcome="{_e(c.get("outcome"))}"' for c in cases])
-               if cases else '<p class="none">No case ran.</p>'))
+    table = _table(["case", "rules", "outcome", "time", "details"], rows, "cases",
+                   [{"data-case": c["id"], "data-outcome": c.get("outcome")} for c in cases]) \
+        if cases else fill(_NONE, text="No case ran.")
+    return join([fill(_H2, text=f"All cases ({len(cases)})"), table], "\n")
 
 
 class _JsonViolation:

@@ -23,8 +23,8 @@ Formats:
 - MCAP as ``traceio.recorder`` writes it, read sequentially with ``mcap``'s StreamReader
   (CRCs validated), so a file without its summary and footer is read up to its last whole
   chunk.
-- pcap (micro- and nanosecond, either byte order, gzip'd too) and pcapng, through scapy's
-  raw readers (bytes and metadata, no dissection). Link types: Ethernet (802.1Q tags too),
+- pcap (micro- and nanosecond, either byte order, gzip'd too) and pcapng, through dpkt's
+  readers and block classes (``traceio.packets``: bytes and metadata, no dissection). Link types: Ethernet (802.1Q tags too),
   Linux cooked SLL and SLL2, raw IP, BSD loopback (null) and OpenBSD loop. IPv4 UDP only;
   IP fragments are reassembled (``Capture.notes`` says how many, and how many stayed
   incomplete). A datagram is MCP when it starts with the spec's 9-byte preamble, on any
@@ -43,8 +43,6 @@ from __future__ import annotations
 import gzip
 import heapq
 import json
-import logging
-import struct
 import zlib
 from binascii import a2b_base64
 from collections import Counter
@@ -55,20 +53,17 @@ from typing import IO, Any
 
 from orjson import JSONDecodeError
 from orjson import loads as _fast_loads
-from scapy.error import Scapy_Exception
 
 from spec import SPEC
 from spec.codec import PREAMBLE
 from traceio.packets import (
-    EPB_DIRECTION,
     FRAGMENT,
     LINKS,
-    MAX_RECORD,
     DecompressionBomb,
     GuardedStream,
-    NgReader,
-    PcapReader,
+    HeaderError,
     Reassembly,
+    open_packets,
 )
 from traceio.records import (
     CaptureError,
@@ -165,6 +160,7 @@ class Capture:
             if kind is None:
                 raise CaptureError(f"{name}: gzip'd file is not a pcap or pcapng capture")
             self.format = kind + ".gz"
+            head = inner
         elif head == _MCAP_MAGIC:
             self.format = "mcap"
         elif _MCAP_MAGIC.startswith(head) and len(head) < 8:
@@ -178,7 +174,7 @@ class Capture:
                                "mcp-capture reads MCAP, pcap and pcapng")
         self._reader: Any = None
         if self.format != "mcap":
-            self._reader = self._open_packets()
+            self._reader = self._open_packets(head[:4])
 
     # ------------------------------------------------------------------ public
     @property
@@ -208,9 +204,6 @@ class Capture:
         return out
 
     def __iter__(self) -> Iterator[Record]:
-        logger = logging.getLogger("scapy.runtime")
-        level = logger.level
-        logger.setLevel(logging.ERROR)  # scapy warns on the truncation we report ourselves
         read = 0
         try:
             for rec in self._mcap() if self.format == "mcap" else self._packets():
@@ -218,7 +211,6 @@ class Capture:
                     read += 1
                 yield rec
         finally:
-            logger.setLevel(level)
             if self._reader is not None:
                 self._reader.close()
         if self.truncated is not None:
@@ -423,30 +415,28 @@ class Capture:
         return count
 
     # ------------------------------------------------------------------ pcap / pcapng
-    def _open_packets(self) -> Any:
+    def _open_packets(self, magic: bytes) -> Any:
         name = str(self.path)
-        logger = logging.getLogger("scapy.runtime")
-        level = logger.level
-        logger.setLevel(logging.ERROR)  # one line of our own, not scapy's WARNING: lines
         self._stream: GuardedStream | None = None
+        fd: IO[bytes] | None = None
+        stream = None
         try:
-            fd: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
+            fd = open(self.path, "rb")  # noqa: SIM115 - closed with the reader
             if self.format.endswith(".gz"):
-                self._stream = GuardedStream(gzip.GzipFile(fileobj=fd), fd)
-                fd = self._stream  # type: ignore[assignment]
-            magic = fd.read(4)
-            cls = NgReader if magic == _PCAPNG_MAGIC else PcapReader
-            reader = object.__new__(cls)
-            reader.__init__(name, fd, magic)  # type: ignore[misc]  # scapy's metaclass, bypassed
-        except (Scapy_Exception, EOFError, OSError, zlib.error, struct.error) as exc:
+                stream = self._stream = GuardedStream.gzip(fd)
+            else:
+                stream = GuardedStream.plain(fd)
+            return open_packets(stream, magic, self.linktypes)
+        except (HeaderError, EOFError, OSError, zlib.error) as exc:
+            if stream is not None:
+                stream.close()
+            elif fd is not None:
+                fd.close()
             raise CaptureError(f"{name}: {self.format} file header unreadable "
                                f"(cut short or corrupt): {exc}") from None
-        finally:
-            logger.setLevel(level)
-        return reader
 
     def _stream_failure(self, n_packet: int) -> str | None:
-        """A gzip'd capture whose stream failed (scapy saw only an end of file): why."""
+        """A gzip'd capture whose stream failed: why."""
         err = self._stream.error if self._stream is not None else None
         if err is None:
             return None
@@ -460,53 +450,22 @@ class Capture:
     def raw_packets(self) -> Iterator[tuple[int, int, bytes, str | None, str | None]]:
         """(t_ns, link type, bytes, direction, interface name) of each packet record of a
         pcap or pcapng, stopping (``truncated``, ``corrupt``) where the file is cut or bad."""
+        yield from self._reader
+        self._packets_read()
+
+    def _packets_read(self) -> None:
+        """After the packets: what stopped the reading, if anything."""
         reader = self._reader
-        ng = isinstance(reader, NgReader)
-        recorder: str | None = None
-        read = reader._read_packet
-        pcap_link = None if ng else reader.linktype
-        nano = 1 if getattr(reader, "nano", False) else 1000
-        offset = 24  # pcap: where the next record starts
-        n_packet = 0
-        while True:
-            try:
-                data, meta = read(MAX_RECORD)
-            except EOFError:
-                self.truncated = self._stream_failure(n_packet) or reader.cut_reason(offset)
-                break
-            except (OSError, struct.error, zlib.error, Scapy_Exception, ValueError) as exc:
-                self.truncated = self._stream_failure(n_packet) or f"corrupt record after packet {n_packet}: {exc}"
-                self.corrupt = True
-                break
-            n_packet += 1
-            if ng:
-                linktype = meta.linktype
-                ts = (meta.tshigh << 32 | meta.tslow) if meta.tshigh is not None else 0
-                tsresol = meta.tsresol
-                t_ns = ts * (1_000_000_000 // tsresol) if 1_000_000_000 % tsresol == 0 \
-                    else ts * 1_000_000_000 // tsresol
-                recorder = meta.ifname.decode("utf-8", "replace") if meta.ifname else None
-                direction = EPB_DIRECTION.get(meta.direction)
-            else:
-                caplen = meta.caplen
-                if len(data) < caplen:
-                    self.truncated = self._stream_failure(n_packet) or (
-                        f"record {n_packet} at byte {offset} is cut short or garbage "
-                        f"(caplen {caplen}, {len(data)} bytes present)")
-                    # a length no record of this file can have is garbage, not a cut
-                    self.corrupt = self.corrupt or caplen > max(MAX_RECORD, reader.snaplen or 0)
-                    break
-                offset += 16 + caplen
-                linktype = pcap_link
-                t_ns = meta.sec * 1_000_000_000 + meta.usec * nano
-                direction = None
-            self.linktypes.add(linktype)
-            yield t_ns, linktype, data, direction, recorder
-        if ng:
-            self.counts["unknown_interface"] += reader.unknown_interface
-        if self.truncated is None:
-            # a stream that failed at its very end (the gzip trailer's CRC) after the last record
-            self.truncated = self._stream_failure(n_packet)
+        self.counts["unknown_interface"] += reader.unknown_interface
+        if reader.truncated is not None and self._stream is not None:
+            self._stream.drain()  # garbage in a gzip'd capture: did the stream fail its CRC?
+        # a gzip stream that failed (mid-way, or at its trailer's CRC after the last record)
+        failure = self._stream_failure(reader.count)
+        if failure is not None:
+            self.truncated = failure
+        else:
+            self.truncated = reader.truncated
+            self.corrupt = self.corrupt or reader.corrupt
 
     def _packets(self) -> Iterator[Datagram]:
         counts = self.counts
@@ -517,7 +476,7 @@ class Capture:
         preamble = PREAMBLE
         pre_len = len(preamble)
         index = 0
-        for t_ns, linktype, data, direction, recorder in self.raw_packets():
+        for t_ns, linktype, data, direction, recorder in self._reader:
             parse = links.get(linktype)
             if parse is None:
                 counts["not_udp"] += 1
@@ -540,6 +499,7 @@ class Capture:
                 continue
             yield Datagram(index, t_ns, src, dst, payload, direction, recorder)
             index += 1
+        self._packets_read()
         self._fragments_open = frag.open_groups()
 
 
