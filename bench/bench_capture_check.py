@@ -6,7 +6,7 @@ unicast and ACKed 0.2 ms later, one exchange every 2 ms (a manager's sequence nu
 every ~130 s: several times in the trace, never within the monitor's 100 s horizon at
 --rto 5, inside which a repeated (src, dst, seq) is taken for a retransmission). Then prints, side by side:
 
-- read only: ``traceio.reader`` (scapy's RawPcapReader + struct link/IP/UDP parsing);
+- read only: ``traceio.reader`` (dpkt's pcap and pcapng readers + struct link/IP/UDP parsing);
 - read + monitor: ``judge.judging.judge`` (what ``mcp-capture check`` does, no printing);
 - monitor alone: the same datagrams already in memory, fed to ``judge.monitor``;
 - the command: ``mcp-capture check FILE --json OUT`` in-process, terminal output discarded.
