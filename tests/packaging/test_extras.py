@@ -40,7 +40,7 @@ def test_the_optional_packages_are_extras_not_dependencies():
     assert not deps & {"redis", "foxglove-sdk"}, deps
     extras = project["optional-dependencies"]
     assert {_dist_name(r) for r in extras["redis"]} == {"redis"}
-    assert {_dist_name(r) for r in extras["viewers"]} == {"foxglove-sdk"}
+    assert {_dist_name(r) for r in extras["viewers"]} == {"foxglove-sdk", "protobuf"}  # protobuf: traceio.fox reads the SDK's schemas
     # the test extra brings both, so that no test is skipped for want of them
     assert any(
         r.startswith(f"{project['name']}[") and "redis" in r and "viewers" in r
