@@ -22,6 +22,12 @@ import pytest
 #: more (--durations=0 of two runs of ``-n 10 -m slow`` on the 2-core host, their mean; most
 #: wait on protocol timers, the description's 5 s timeout, a fixed-length fuzz campaign).
 LONG_FIRST = (
+    # CI at 14 workers (538 s, 2026-11-29): the CPU-heavy ones slow most under contention
+    "test_dist.py::test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout",  # 129 s (18 s alone)
+    "test_reader.py::test_mcap_cut_at_every_byte[1]",  # 106 s (9 s alone)
+    "test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",  # 92 s
+    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",  # 71 s
+    "test_dissector.py::test_tshark_on_the_golden_captures[drone-suite]",  # 60 s
     "test_oracle_observation.py::test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign",  # 61 s
     "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",  # 56 s
     "test_manager_role.py::test_no_false_alarm_with_the_descriptions_5_s_timeout",  # 53 s
@@ -43,9 +49,7 @@ LONG_FIRST = (
     "test_conform_nsqd.py::test_correct_c_backend_passes",  # 38 s
     "test_golden_runs.py::test_pairs_of_runs_of_the_same_cases_are_the_same",  # 37 s
     "test_stateful_finds.py::test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings[seq-no-wrap-1]",  # 37 s
-    "test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",  # 36 s
     "test_faulty_nodes.py::test_seeded_campaign_finds_the_fault_and_its_reproducer_replays[hang-on-big]",  # 35 s
-    "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",  # 34 s
     "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[early-return-keeps-size]",  # 32 s
     "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[wrong-stop-test-state]",  # 31 s
     "test_nsqd_fuzz.py::test_each_class_is_found_confirmed_and_replays[unknown-id-no-skip]",  # 31 s
