@@ -32,7 +32,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
-from urllib.parse import urlparse
 
 from hypothesis.database import DirectoryBasedExampleDatabase, ExampleDatabase
 
@@ -87,41 +86,37 @@ class OutOfBudget(BaseException):  # noqa: N818 - not an error: a budget is spen
         self.campaign_over = campaign_over
 
 
-def redis_address(spec: str) -> tuple[str, int, int]:
-    """``redis://HOST:PORT/N`` -> (host, port, db); ValueError naming what is wrong."""
-    u = urlparse(spec)
-    if not u.hostname or not u.port:
-        raise ValueError(f"--db: {spec!r} is not redis://HOST:PORT/N")
-    try:
-        db = int((u.path or "/0").strip("/") or 0)
-    except ValueError:
-        raise ValueError(f"--db: {spec!r}: the database number is not an integer") from None
-    return u.hostname, u.port, db
+#: the URL schemes redis-py's ``Redis.from_url`` takes (``redis://[[user]:password@]host[:port][/db]``,
+#: ``rediss://`` for TLS, ``unix://path``)
+REDIS_SCHEMES = ("redis://", "rediss://", "unix://")
 
 
 def check_database(spec: str) -> None:
-    """ValueError naming what is wrong with ``--db``."""
-    if spec.startswith("redis://"):
-        redis_address(spec)
+    """ValueError naming what is wrong with ``--db``: a Redis URL redis-py reads, or a directory."""
+    if spec.startswith(REDIS_SCHEMES):
         try:
-            import redis  # noqa: F401
+            import redis
         except ImportError:
             raise ValueError("--db redis://...: the 'redis' package is not installed "
                              "(pip install 'centmesh-mcp-conform[redis]')") from None
+        try:
+            redis.Redis.from_url(spec).close()
+        except ValueError as exc:
+            raise ValueError(f"--db: not a Redis URL: {str(exc).splitlines()[0]}") from None
     elif "://" in spec:
-        raise ValueError(f"--db: {spec!r} is neither a directory nor redis://HOST:PORT/N")
+        raise ValueError(f"--db: {spec!r} is neither a directory nor a Redis URL ({', '.join(REDIS_SCHEMES)})")
 
 
 def open_database(spec: str | None) -> ExampleDatabase | None:
-    """hypothesis's example database for ``--db`` (a directory, or Redis)."""
+    """hypothesis's example database for ``--db`` (a directory, or Redis by redis-py's own URL
+    parsing: a password or a TLS URL is kept, as ``mcp-fuzz``'s reachability check read it)."""
     if spec is None:
         return None
-    if spec.startswith("redis://"):
+    if spec.startswith(REDIS_SCHEMES):
         from hypothesis.extra.redis import RedisExampleDatabase
         from redis import Redis
 
-        host, port, db = redis_address(spec)
-        return RedisExampleDatabase(Redis(host=host, port=port, db=db), key_prefix=b"mcp-fuzz:")
+        return RedisExampleDatabase(Redis.from_url(spec), key_prefix=b"mcp-fuzz:")
     return DirectoryBasedExampleDatabase(spec)
 
 

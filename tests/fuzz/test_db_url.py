@@ -67,3 +67,19 @@ def test_a_malformed_url_is_one_line() -> None:
         _check_reachable(f"redis://:{SECRET}@127.0.0.1:not-a-port/0")
     msg = str(err.value)
     assert "is not a Redis URL" in msg and "\n" not in msg and SECRET not in msg, msg
+
+
+def test_the_campaigns_database_keeps_the_password(redis_with_password: int) -> None:
+    """The stateful engines' example database (``fuzz.engine_stateful.open_database``) is opened
+    from the same URL by redis-py: what one worker saves, another reads (the hand-written parser
+    kept host, port and db only, so a password-protected server refused every save)."""
+    from fuzz.engine_stateful import check_database, open_database
+
+    url = f"redis://:{SECRET}@127.0.0.1:{redis_with_password}/0"
+    check_database(url)
+    db = open_database(url)
+    assert db is not None
+    db.save(b"program", b"moves")
+    assert list(open_database(url).fetch(b"program")) == [b"moves"]
+    with pytest.raises(ValueError, match="not a Redis URL"):
+        check_database(f"redis://:{SECRET}@127.0.0.1:not-a-port/0")
