@@ -3,8 +3,15 @@ die with the runner, even when the runner is killed with SIGKILL, and what they 
 kept, bounded, as evidence.
 
 - **Parent-death signal**: on Linux each spawned process gets ``PR_SET_PDEATHSIG`` =
-  SIGKILL (``prctl`` through ctypes, in ``preexec_fn``), so it is killed the moment the
-  runner dies, however it dies.
+  SIGKILL (prctl(2)), so it is killed the moment the runner dies, however it dies. No Python
+  runs in the child between fork and exec (CPython documents ``preexec_fn`` as unsafe while
+  threads run, and the runner's threads do): the command is started through util-linux's
+  ``setpriv --pdeathsig KILL`` (setpriv(1)), then ``sh``, which checks that its parent is
+  still the runner (one that died before the signal was set would not send it: prctl(2)
+  advises this check) and execs the command: the pid is the node's own throughout.
+  The signal is the forking *thread*'s (prctl(2)): a process started from a thread that
+  ends is killed then (``fuzz.stream_backend``'s spawner thread lives for that reason).
+  Without ``setpriv`` (not Linux, util-linux older than 2.33) the reaper alone covers it.
 - **Reaper**: a node's own children (``sh -c "python node.py; ..."``) do not inherit that
   signal, so a tiny watchdog process (its own session, so a signal to the runner's group
   does not take it too) holds the read end of a pipe; the runner writes each process
@@ -20,17 +27,18 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import ctypes
-import ctypes.util
+import errno
+import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
-from typing import IO, Any
+from typing import IO
 
-__all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "pdeathsig_preexec", "reaper"]
+__all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "deathsig_argv", "reaper"]
 
 #: How long a process the runner spawned (node, manager, backend) gets to show itself before
 #: the run is a setup error: a loaded host starts processes slowly, for reasons that are not
@@ -39,7 +47,6 @@ SPAWN_STARTUP_S = 20.0
 TAIL_LINES = 40
 REPORT_LINES = 40  # lines kept of a sanitizer report's head
 LINE_CHARS = 400
-_PR_SET_PDEATHSIG = 1
 
 _REAPER_CODE = r"""
 import os, signal, sys
@@ -71,30 +78,61 @@ for pgid in groups:
 """
 
 
-def _libc() -> Any:
-    if not sys.platform.startswith("linux"):
+#: run by ``sh -c`` once setpriv has set the death signal: $0 is the runner's pid, "$@" the
+#: command; a runner that died before the signal was set is no longer the parent (137: as
+#: if killed, which is what the signal would have done)
+_GUARD = 'test "$PPID" = "$0" || exit 137; exec "$@"'
+_LOG = logging.getLogger(__name__)
+_WRAPPER: list[str] | None = None
+_PROBED = False
+
+
+def _wrapper() -> list[str] | None:
+    """``[setpriv, --pdeathsig, KILL, --, sh, -c, GUARD]`` if this system runs it (probed
+    once per runner: a setpriv without ``--pdeathsig`` exits 1), else None."""
+    global _WRAPPER, _PROBED
+    if _PROBED:
+        return _WRAPPER
+    _PROBED = True
+    setpriv, sh = shutil.which("setpriv"), shutil.which("sh")
+    if not sys.platform.startswith("linux") or setpriv is None or sh is None:
+        _LOG.debug("no setpriv(1) here: processes are not given a parent-death signal; "
+                   "the reaper alone kills them when the runner dies")
         return None
+    argv = [setpriv, "--pdeathsig", "KILL", "--", sh, "-c", _GUARD]
     try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-    except OSError:
+        ok = subprocess.run([*argv, str(os.getpid()), sh, "-c", "exit 0"], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            timeout=SPAWN_STARTUP_S).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        ok = False
+    if not ok:
+        _LOG.debug("%s --pdeathsig failed: processes are not given a parent-death signal; "
+                   "the reaper alone kills them when the runner dies", setpriv)
         return None
+    _WRAPPER = argv
+    return _WRAPPER
 
 
-_LIBC = _libc()
+def _check_executable(command: str) -> None:
+    """The OSError Popen would raise for a command that cannot be run (the wrapper is
+    found, so the error would otherwise be the wrapper's exit 127, not an exception)."""
+    path = command if os.sep in command else shutil.which(command)
+    if path is None or not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), command)
+    if os.path.isdir(path) or not os.access(path, os.X_OK):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), command)
 
 
-def pdeathsig_preexec(parent_pid: int) -> Any:
-    """A ``preexec_fn`` that asks the kernel to SIGKILL the child when the runner dies
-    (Linux); None elsewhere (the reaper still covers it)."""
-    if _LIBC is None:
-        return None
-    prctl = _LIBC.prctl
-
-    def preexec() -> None:
-        prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        if os.getppid() != parent_pid:  # the runner died between fork and prctl
-            os._exit(137)
-    return preexec
+def deathsig_argv(argv: list[str]) -> list[str]:
+    """``argv`` started so that the kernel SIGKILLs it when the calling thread's process
+    dies (see the module docstring); ``argv`` itself where setpriv is not available. Raises
+    OSError, as Popen would, for a command that cannot be run."""
+    wrapper = _wrapper()
+    if wrapper is None or not argv:
+        return argv
+    _check_executable(argv[0])
+    return [*wrapper, str(os.getpid()), *argv]
 
 
 class Reaper:
@@ -195,9 +233,9 @@ class ManagedProcess:
 
     def __init__(self, argv: list[str]) -> None:
         self.argv = argv
-        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, start_new_session=True,
-                                     preexec_fn=pdeathsig_preexec(os.getpid()))
+        self.proc = subprocess.Popen(deathsig_argv(argv), stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     start_new_session=True)
         reaper().watch(self.proc.pid)
         assert self.proc.stdout is not None and self.proc.stderr is not None
         self._out = _Tail(self.proc.stdout)
