@@ -39,10 +39,11 @@ def _env() -> dict[str, str]:
 
 
 def _fuzz(args: list[str]) -> subprocess.Popen[str]:
-    """mcp-fuzz in a subprocess with SIGINT at its default (a test runner may ignore it)."""
-    return subprocess.Popen([sys.executable, "-m", "fuzz", *args], cwd=ROOT, env=_env(), text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    """mcp-fuzz in a subprocess with SIGINT at its default (a test runner may ignore it, and
+    an ignored signal stays ignored across exec): coreutils' ``env --default-signal``, which
+    execs the command, rather than a ``preexec_fn`` in a pytest worker that may run threads."""
+    return subprocess.Popen(["env", "--default-signal=INT", sys.executable, "-m", "fuzz", *args], cwd=ROOT,
+                            env=_env(), text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
 def _wait_status(proc: subprocess.Popen[str]) -> list[str]:

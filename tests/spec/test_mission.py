@@ -194,20 +194,24 @@ def test_values_the_wire_cannot_carry_and_lists_one_datagram_cannot_hold(tmp_pat
 
 @pytest.mark.parametrize("path", ["/dev/zero", "1e39"])
 def test_mcp_capture_refuses_a_hostile_waypoints_file_in_one_line(tmp_path: Path, path: str) -> None:
-    """Under a 1 GB address-space limit, one line and exit 2 (it read /dev/zero whole)."""
-    import resource
+    """Under a 2 GiB address-space limit, one line and exit 2 (it read /dev/zero whole). The
+    limit is set by util-linux's prlimit(1), which execs the command: no ``preexec_fn`` in a
+    pytest worker that may run threads (documented unsafe)."""
+    import shutil
     import subprocess
     import sys
+
+    prlimit = shutil.which("prlimit")
+    if prlimit is None:
+        pytest.skip("no prlimit(1): the address-space limit cannot be set")
 
     if path == "1e39":
         path = str(tmp_path / "bad.waypoints")
         Path(path).write_text(_wpl(3, lat="1e39"))
     golden = Path(__file__).resolve().parents[2] / "captures" / "golden" / "challenge1.mcap"
 
-    def limit() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
-
-    proc = subprocess.run([sys.executable, "-m", "captures", "check", str(golden), "--waypoints", path],
-                          capture_output=True, text=True, timeout=60, preexec_fn=limit)
+    limit = f"--as={2 << 30}:{2 << 30}"
+    proc = subprocess.run([prlimit, limit, "--", sys.executable, "-m", "captures", "check", str(golden),
+                           "--waypoints", path], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "--waypoints" in proc.stderr, proc.stderr
