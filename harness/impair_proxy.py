@@ -10,11 +10,13 @@ Point a node at ``--listen`` instead of its peer: every datagram it sends there 
 would), and every datagram the forward side sends back to that socket returns to the sender
 from ``--listen``, impaired too. The two directions are impaired independently
 (``harness.impair``: the same seed and traffic give the same decisions). On exit (SIGINT,
-SIGTERM, ``--duration``: how it is stopped, exit 0) it prints what it did, per direction and kind; ``--capture`` records
+SIGTERM, ``--duration``: how it is stopped) it prints what it did, per direction and kind; ``--capture`` records
 each decision with the datagram it touched (MCAP channel ``/impair``), so a capture shows
-which losses were the link's. Exit 0, or 2 with one line on a bad option, a port in use or a
-``--target`` host that does not resolve (it is resolved once, at start: never a DNS lookup
-per datagram).
+which losses were the link's. Exit 0 at the end of ``--duration``; 130 or 143 when SIGINT or
+SIGTERM stopped it (128 + the signal's number, the tools' one convention: docs/grammar.md),
+its report printed and its capture closed all the same; 2 with one line on a bad option, a
+port in use or a ``--target`` host that does not resolve (it is resolved once, at start:
+never a DNS lookup per datagram).
 
 Delayed copies wait in a bounded queue (``harness.impair.DelayQueue``): at most
 ``--max-held`` copies (default 20,000) and ``--max-held-bytes`` bytes (default 16 MiB, each
@@ -194,7 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="A UDP proxy that impairs both directions, "
                 "reproducibly by seed (loss, duplication, delay, reordering, "
                 "corruption, burst loss, rate limit).",
-                epilog=epilog("Ctrl-C, SIGTERM or --duration is how it stops: exit 0."),
+                epilog=epilog("--duration is its normal end (exit 0); Ctrl-C or SIGTERM stops it too: "
+                              "exit 130 or 143, its report printed."),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version(p, PROG)
     p.add_argument("--listen", required=True, metavar="HOST:PORT", help="where the node sends")
@@ -267,8 +270,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             recorder.close()
         return 2
     proxy.verbose = ns.verbose
+    stopped_by: list[int] = []  # the signals that stopped it: a handler takes no lock
+
+    def stop(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        proxy.stop()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: proxy.stop())
+        signal.signal(sig, stop)
     if not ns.quiet:
         print(f"{PROG}: {proxy.address[0]}:{proxy.address[1]} -> {forward[0]}:{forward[1]} "
               f"({spec.text()})", flush=True)
@@ -280,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             recorder.close()
     if not ns.quiet:
         print(proxy.report(), flush=True)
-    return 0
+    return 128 + stopped_by[0] if stopped_by else 0
 
 
 if __name__ == "__main__":  # pragma: no cover

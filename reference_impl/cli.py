@@ -18,9 +18,10 @@ which is how the conformance runner spawns a node against its own sockets and ve
 
 Progress goes to stderr, one line per protocol event; a JSON summary of what the node
 received and sent goes to stdout on exit (and to ``--json FILE``). Exit status: 0 after
-End_Mission or on Ctrl-C/SIGTERM (how a node is stopped); 1 when the mission failed (a
-message never ACKed); 2 on a usage or setup error (bad argument, port or autopilot
-unreachable), reported in one line. The options follow the tools' one grammar
+End_Mission; 1 when the mission failed (a message never ACKed); 2 on a usage or setup error
+(bad argument, port or autopilot unreachable), reported in one line; 128 + the signal's
+number when Ctrl-C or SIGTERM stopped it (130, 143: the tools' one convention, docs/grammar.md),
+the record written as on any exit. The options follow the tools' one grammar
 (``traceio.grammar``, docs/grammar.md); ``--bind``, ``--send-to`` and ``--record`` are kept as
 deprecated aliases of ``--listen``, ``--target`` and ``--json``.
 """
@@ -164,7 +165,7 @@ def _common(p: argparse.ArgumentParser, local: int, remote: int) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog=PROG, description="The reference MCP drone application or Mission Manager.",
-                       epilog=epilog("Ctrl-C or SIGTERM is how a node is stopped: exit 0."),
+                       epilog=epilog("Ctrl-C or SIGTERM stops a node: exit 130 or 143, its record written."),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=version_text(PROG), help="print the version and exit")
     p.add_argument("--protocol", metavar="|".join(PROFILES), help="the protocol the node speaks: mcp (default: "
@@ -270,7 +271,7 @@ def _make_role(args: argparse.Namespace) -> Drone | Manager:
 
 
 class _Interrupt:
-    """SIGTERM / SIGINT as a flag the main thread polls (MCP-node exit status 0 on either).
+    """SIGTERM / SIGINT as a flag the main thread polls (exit status 128 + its number).
 
     The handler only stores the signal: raising KeyboardInterrupt from it, as a handler
     conventionally does, lands between two bytecodes of whatever the main thread is in,
@@ -343,7 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             role.stop()
             role.close()
             logging.getLogger(PROG).info("interrupted")
-            code = 0
+            code = 128 + int(interrupt.signum or signal.SIGINT)
     except RoleError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return exc.exit_code

@@ -1,7 +1,8 @@
 """Command line: serve a simulated vehicle and print one line per recorded event.
 
 ``python -m vehicle --listen 127.0.0.1:5760 --fix-delay 3`` listens like ArduPilot SITL on
-TCP until Ctrl-C, SIGTERM or ``--duration`` (exit 0); ``--udp-out 127.0.0.1:14550`` also
+TCP until ``--duration`` (exit 0) or Ctrl-C or SIGTERM (exit 130 or 143: 128 + the signal's
+number, the tools' one convention, docs/grammar.md); ``--udp-out 127.0.0.1:14550`` also
 sends telemetry there over UDP (SITL's ``--out``), ``--udp-in 127.0.0.1:14551`` listens on
 UDP; ``--record FILE`` writes one JSON line per request with the vehicle's answer. Received
 frames are printed only with ``-v``; ``-q`` prints none of the events. ``--help`` lists where
@@ -134,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     prog = "mcp-vehicle" if os.path.basename(sys.argv[0] or "") == "mcp-vehicle" else "python -m vehicle"
     p = _OneLineParser(prog=prog,
                        description="Simulated ArduCopter autopilot on TCP and UDP (like SITL).",
-                       epilog=DIFFERENCES + "Ctrl-C, SIGTERM or --duration is how it stops: exit 0.\n"
+                       epilog=DIFFERENCES + "--duration is its normal end (exit 0); Ctrl-C or SIGTERM stops it "
+                       "too: exit 130 or 143.\n"
                        + EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"{prog} {_version()}",
                    help="print the version and exit")
@@ -242,21 +244,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         where += [f"udp-out {h}:{p} (from port {vehicle.udp_out_port})" for h, p in args.udp_out]
     if args.udp_in is not None:
         where.append(f"udp-in {vehicle.udp_in_url.removeprefix('udpout:')}")
-    print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
     stop: list[int] = []  # a flag the handler appends to: a signal handler takes no lock
     if threading.current_thread() is threading.main_thread():
         # SIGINT too, explicitly: a process started in the background by a non-interactive
-        # shell inherits SIGINT ignored, and Ctrl-C must still stop it
+        # shell inherits SIGINT ignored, and Ctrl-C must still stop it. Before the line that
+        # says it listens: from that line on, a signal is an exit 130 or 143, not a traceback
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda signum, _frame: stop.append(signum))
+    print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
         while not stop and (deadline is None or time.monotonic() < deadline):
             time.sleep(0.1)
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt:  # SIGINT as Python's own exception: an interrupt all the same
+        stop.append(signal.SIGINT)
     finally:
         vehicle.close()
         if record is not None:
             record.close()
-    return 0
+    return 128 + int(stop[0]) if stop else 0

@@ -1,0 +1,119 @@
+"""The grammar's exit code for a signal (docs/grammar.md, issue 40 item 1): 128 + its number,
+130 for SIGINT and 143 for SIGTERM, from every tool that runs until it is stopped. Each test
+starts the real command, waits for the line that says it is running (printed once its own
+handlers are in place), sends the signal to the process and checks the exit code and that
+no traceback was printed. ``mcp-node``, ``mcp-impair`` and the vehicle exited 0 before;
+``mcp-conform --parallel``'s code was unchecked: it is 2 (an xfail on that exact code below;
+it passes once fixed)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
+READY_WITHIN = 60.0  # s: a bound for a loaded host, not a timing
+SIGNALS = [pytest.param(signal.SIGINT, id="SIGINT"), pytest.param(signal.SIGTERM, id="SIGTERM")]
+
+
+def _run_until(argv: list[str], ready: Callable[[str], bool], stream: str, sig: int) -> tuple[int, str, str]:
+    """Start ``argv``, wait for a line of ``stream`` (stdout or stderr) that ``ready`` accepts,
+    send ``sig``; the exit code, stdout and stderr."""
+    proc = subprocess.Popen(argv, cwd=ROOT, env=ENV, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    watched = proc.stdout if stream == "stdout" else proc.stderr
+    other = proc.stderr if stream == "stdout" else proc.stdout
+    assert watched is not None and other is not None
+    seen: list[str] = []
+    rest: list[str] = []
+    drain = threading.Thread(target=lambda: rest.append(other.read()), daemon=True)  # never a full pipe
+    drain.start()
+    try:
+        deadline = time.monotonic() + READY_WITHIN
+        while time.monotonic() < deadline:
+            line = watched.readline()
+            if not line:
+                break
+            seen.append(line)
+            if ready(line):
+                break
+        assert seen and ready(seen[-1]), f"{argv[0]}: not running after {READY_WITHIN:g} s: {''.join(seen)[-2000:]}"
+        proc.send_signal(sig)
+        tail = watched.read()
+        proc.wait(timeout=60)
+        drain.join(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = "".join(seen) + tail
+    out, err = (text, "".join(rest)) if stream == "stdout" else ("".join(rest), text)
+    return proc.returncode, out, err
+
+
+def _check(code: int, out: str, err: str, sig: int) -> None:
+    assert code == 128 + sig, f"exit {code}, want {128 + sig}\nstdout: {out[-1500:]}\nstderr: {err[-1500:]}"
+    assert "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("sig", SIGNALS)
+def test_mcp_node(sig: int) -> None:
+    code, out, err = _run_until(
+        ["mcp-node", "drone", "--id", "1", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9",
+         "--gps-fix-delay", "1000"], lambda ln: "waiting for a 3D GPS fix" in ln, "stderr", sig)
+    _check(code, out, err, sig)
+    assert '"outcome": "stopped"' in out, out  # the record, as on any exit
+
+
+@pytest.mark.parametrize("sig", SIGNALS)
+def test_mcp_impair(sig: int) -> None:
+    code, out, err = _run_until(["mcp-impair", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9",
+                                 "--duration", "120"], lambda ln: ln.startswith("mcp-impair: "), "stdout", sig)
+    _check(code, out, err, sig)
+    assert "datagrams" in out or " up" in out, out  # what it did, printed all the same
+
+
+def test_mcp_impair_duration_is_its_normal_end() -> None:
+    run = subprocess.run(["mcp-impair", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--duration", "0.5",
+                          "-q"], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+
+
+@pytest.mark.parametrize("sig", SIGNALS)
+@pytest.mark.parametrize("command", [[sys.executable, "-m", "vehicle"], ["mcp-vehicle"]],
+                         ids=["python -m vehicle", "mcp-vehicle"])
+def test_the_vehicle(command: list[str], sig: int) -> None:
+    code, out, err = _run_until([*command, "--listen", "127.0.0.1:0", "--duration", "120", "-q"],
+                                lambda ln: "listening on" in ln, "stdout", sig)
+    _check(code, out, err, sig)
+
+
+def test_the_vehicle_duration_is_its_normal_end() -> None:
+    run = subprocess.run([sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--duration", "0.5", "-q"],
+                         cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+
+
+@pytest.mark.parametrize("sig", SIGNALS)
+def test_mcp_conform_parallel(sig: int, tmp_path: Path) -> None:
+    """Two instances of the embedded reference drone; the signal once a case has ended. The
+    report is written and says so, but the exit code is 2 today, not 128 + the signal's."""
+    js = tmp_path / "run.json"
+    code, out, err = _run_until(
+        ["mcp-conform", "--parallel", "2", "--rto", "0.2", "--ack-window", "0.25", "--json", str(js)],
+        lambda ln: ln.lstrip().startswith(("PASSED", "FAILED", "SKIPPED", "WARNED", "ERROR")), "stdout", sig)
+    assert json.loads(js.read_text(encoding="utf-8"))["error"].startswith("interrupted"), js.read_text()
+    if code == 2:  # only this known gap; any other code fails
+        pytest.xfail("conformance/parallel.py's _finish returns 2 for a run with any error, the interrupt "
+                     "included (and prints 'error: interrupted by ...' twice); its fix is outside these files")
+    _check(code, out, err, sig)
