@@ -119,7 +119,7 @@ def test_unreachable_autopilot_exits_2_in_one_line() -> None:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path: Path) -> None:
+def test_signal_while_waiting_for_the_fix_exits_128_plus_its_number(sig: signal.Signals, tmp_path: Path) -> None:
     rec = tmp_path / "rec.json"
     proc = spawn("drone", "--id", "1", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9",
                  "--gps-fix-delay", "1000", "--json", str(rec))
@@ -137,13 +137,13 @@ def test_signal_while_waiting_for_the_fix_exits_0(sig: signal.Signals, tmp_path:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert code == 0, err
+    assert code == 128 + sig, err  # docs/grammar.md: 130 for SIGINT, 143 for SIGTERM
     assert "Traceback" not in err
     assert json.loads(out.splitlines()[-1])["outcome"] == "stopped"
     assert json.loads(rec.read_text())["received"] == {}
 
 
-def test_sigterm_while_the_manager_waits_exits_0(tmp_path: Path) -> None:
+def test_sigterm_while_the_manager_waits_exits_143(tmp_path: Path) -> None:
     proc = spawn("manager", "--challenge", "1", "--drones", "1,2", "--waypoints", str(DATA / "challenge.waypoints"),
                  "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", "--json", str(tmp_path / "m.json"))
     try:
@@ -155,7 +155,7 @@ def test_sigterm_while_the_manager_waits_exits_0(tmp_path: Path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert code == 0 and "Traceback" not in err, err
+    assert code == 128 + signal.SIGTERM and "Traceback" not in err, err
     rec = json.loads((tmp_path / "m.json").read_text())
     assert rec["outcome"] == "stopped" and rec["sent"] == []
 
@@ -232,7 +232,7 @@ def test_a_port_is_shared_only_when_asked_and_sigterm_exits_promptly(tmp_path: P
         errors = [ln for ln in err.splitlines() if ln.startswith("mcp-node: error: ")]
         assert len(errors) == 1 and "in use" in errors[0], err
         first.send_signal(signal.SIGTERM)
-        assert finish(first)[0] == 0
+        assert finish(first)[0] == 128 + signal.SIGTERM
         a = spawn("drone", "--id", "1", *common, "--reuse-port")
         b = spawn("drone", "--id", "2", *common, "--reuse-port")
         procs += [a, b]
@@ -244,7 +244,7 @@ def test_a_port_is_shared_only_when_asked_and_sigterm_exits_promptly(tmp_path: P
         results = [finish(p) for p in (a, b)]
         took = time.monotonic() - t0
         print(f"two drones exited {took * 1000:.0f} ms after SIGTERM")
-        assert [r[0] for r in results] == [0, 0], results
+        assert [r[0] for r in results] == [128 + signal.SIGTERM] * 2, results
         assert took < 1.0, f"{took:.2f} s to exit on SIGTERM (was 1.7 s)"
     finally:
         for p in procs:
