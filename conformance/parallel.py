@@ -297,6 +297,8 @@ def _finish(run: _Run, ns: Any, wall: float, fail: Callable[[str, str | None], i
         run.terminal.error(error, None)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
+    if INTERRUPTS.interrupted and not problems:  # 128 + the first signal's number, as a run of one
+        return 128 + int(getattr(signal, INTERRUPTS.signals[0], signal.SIGINT))
     if problems or error:
         return 2
     return record.exit_code()

@@ -3,8 +3,7 @@
 starts the real command, waits for the line that says it is running (printed once its own
 handlers are in place), sends the signal to the process and checks the exit code and that
 no traceback was printed. ``mcp-node``, ``mcp-impair`` and the vehicle exited 0 before;
-``mcp-conform --parallel``'s code was unchecked: it is 2 (an xfail on that exact code below;
-it passes once fixed)."""
+``mcp-conform --parallel``'s code was unchecked: it was 2."""
 
 from __future__ import annotations
 
@@ -107,13 +106,10 @@ def test_the_vehicle_duration_is_its_normal_end() -> None:
 @pytest.mark.parametrize("sig", SIGNALS)
 def test_mcp_conform_parallel(sig: int, tmp_path: Path) -> None:
     """Two instances of the embedded reference drone; the signal once a case has ended. The
-    report is written and says so, but the exit code is 2 today, not 128 + the signal's."""
+    report is written and says so, and the code is 128 + the signal's, as a run of one."""
     js = tmp_path / "run.json"
     code, out, err = _run_until(
         ["mcp-conform", "--parallel", "2", "--rto", "0.2", "--ack-window", "0.25", "--json", str(js)],
         lambda ln: ln.lstrip().startswith(("PASSED", "FAILED", "SKIPPED", "WARNED", "ERROR")), "stdout", sig)
     assert json.loads(js.read_text(encoding="utf-8"))["error"].startswith("interrupted"), js.read_text()
-    if code == 2:  # only this known gap; any other code fails
-        pytest.xfail("conformance/parallel.py's _finish returns 2 for a run with any error, the interrupt "
-                     "included (and prints 'error: interrupted by ...' twice); its fix is outside these files")
     _check(code, out, err, sig)
