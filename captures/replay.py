@@ -33,9 +33,9 @@ golden, the replay's own traffic as candidate) and all the traffic with the trac
 unreadable capture or setup error (one line), a node that never answered at all included. :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
 
-An Nsqd fuzz finding (``finding-N/``, its repro.mcap or repro.pcap) is replayed as
-``mcp-fuzz --protocol nsqd --replay`` replays it (``captures.nsqd``; the embedded reference
-backend unless ``--target`` or ``--spawn``). A fuzz finding's ``repro.mcap`` (metadata record
+This is MCP's replay (its capture tools, ``captures.mcp``); another protocol's capture is
+replayed by its own (an Nsqd fuzz finding — ``finding-N/``, its repro.mcap or repro.pcap —
+as ``mcp-fuzz --protocol nsqd --replay`` replays it: ``captures.nsqd``). A fuzz finding's ``repro.mcap`` (metadata record
 from recorder ``mcp-fuzz``) is replayed as ``mcp-fuzz --replay`` replays it: its minimal sequence, with the campaign's pace and scenario,
 judged by the fuzzer's oracles; exit 1 when the node still breaks the finding's rule, 0 when
 it no longer does.
@@ -64,7 +64,7 @@ from captures.diff import (
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MANAGER_ID, Action, peek_header
 
-__all__ = ["ReplayError", "ReplayResult", "Step", "plan", "register", "replay", "run"]
+__all__ = ["ReplayError", "ReplayResult", "Step", "plan", "register", "replay", "run", "run_replay"]
 
 _PORTS = SPEC.protocol["ports"]
 _ACK = int(Action.ACK)
@@ -489,18 +489,29 @@ def register(sub: Any) -> None:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import check_writable, to_terminal
+    """``mcp-capture replay``: the options checked, then the capture's protocol's replay."""
+    from captures.cli import capture_tools, check_writable
+    from traceio.reader import CaptureError
+
+    err = err or sys.stderr
+    check_writable(args.json, "--json")
+    try:
+        tools = capture_tools(args, args.capture)
+    except CaptureError as exc:
+        err.write(f"mcp-capture: error: replay: {exc}\n")
+        return 2
+    return int(tools.run_replay(args, out, err))
+
+
+def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    """MCP's replay (``captures.mcp``): :func:`replay`, or a fuzz finding's reproduction."""
+    from captures.cli import to_terminal
     from captures.diff import build_json
     from traceio.reader import CaptureError, Datagram, Metadata, open_capture
     from traceio.recorder import FUZZ_RECORDER
 
     out = out or sys.stdout
     err = err or sys.stderr
-    check_writable(args.json, "--json")
-    from captures import nsqd
-
-    if nsqd.is_finding(args.capture):  # an Nsqd fuzz finding (its directory, repro.mcap or repro.pcap)
-        return nsqd.run_replay(args)
     try:
         everything = list(open_capture(args.capture))
     except CaptureError as exc:
@@ -509,7 +520,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     records = [r for r in everything if type(r) is Datagram]
     fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == FUZZ_RECORDER),
                      None)
-    if fuzz_meta is not None and args.role == "drone":
+    if fuzz_meta is not None and args.role == fuzz_meta.get("role"):  # the finding's fuzzed role
         return _reproduce_finding(args, fuzz_meta, out, err)
     try:
         result = replay(records, args.target, role=args.role, listen=args.listen, target_id=args.target_id,

@@ -68,8 +68,8 @@ class Profile:
     #: a capture's records, and whether a capture file holds this protocol's traffic
     capture_reader: str
     capture_detect: str | None
-    #: ``mcp-capture check|show|diff|export`` of its captures, None: the datagram core's own
-    capture_tools: str | None
+    #: ``mcp-capture check|show|diff|export|replay`` of its captures (``captures.cli.CaptureTools``)
+    capture_tools: str
     mutators: str
     oracles: str
     #: the reference node's command line (``mcp-node --protocol NAME``)
@@ -99,7 +99,7 @@ MCP = Profile(
     name="mcp", spec=SPEC, framing="datagram", transport="udp",
     codec="spec.codec", monitor="judge.run_monitor:RunMonitor",
     dissector="captures.dissector", capture_reader="traceio.reader:open_capture",
-    capture_detect=None, capture_tools=None,
+    capture_detect=None, capture_tools="captures.mcp",
     mutators="fuzz.mutators", oracles="fuzz.oracles", reference_cli="reference_impl.cli",
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
@@ -116,7 +116,7 @@ NSQD_PROFILE = Profile(
     name="nsqd", spec=NSQD, framing="stream", transport="tcp",
     codec="spec.stream_codec", monitor="judge.stream_monitor:StreamMonitor",
     dissector="captures.dissector_nsqd", capture_reader="traceio.stream:stream_records",
-    capture_detect="traceio.stream:is_stream_capture", capture_tools="captures.nsqd",
+    capture_detect="captures.nsqd:is_capture", capture_tools="captures.nsqd",
     mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles", reference_cli="reference_impl.nsqd_cli",
     roles=(
         RoleProfile("backend", session="harness.stream_session:StreamSession",
