@@ -40,6 +40,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, Protocol, TextIO
 
+from spec import profiles
 from spec.profiles import PROFILES, Profile, pick, resolve
 from traceio.files import UsageError, check_writable, write_output
 from traceio.grammar import STDIO, add_verbosity, add_version, epilog, read_path
@@ -55,9 +56,8 @@ SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "c
 
 def add_protocol_option(p: argparse.ArgumentParser) -> None:
     """``--protocol``, as every subcommand that reads a capture takes it."""
-    p.add_argument("--protocol", choices=tuple(PROFILES), default=None,
-                   help=f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
-                        "default: as its first records show)")
+    profiles.add_protocol_option(p, f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
+                                    "default: as its first records show)")
 
 
 class CaptureTools(Protocol):

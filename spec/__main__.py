@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.table import Table
 
 from spec._load import LEVELS, Spec, SpecError, load, read_validated
-from spec.profiles import PROFILES
+from spec.profiles import PROFILES, add_protocol_option, pick
 from spec.stream import StreamSpec, load_stream
 
 
@@ -29,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m spec",
                                 description="Validate the MCP spec and print its summary.")
     p.add_argument("--spec", metavar="PATH", help="spec file to load (default: the packaged mcp.yaml and nsqd.yaml)")
-    p.add_argument("--protocol", choices=tuple(PROFILES), help="the packaged spec of this protocol only")
+    add_protocol_option(p, f"the packaged spec of this protocol only ({', '.join(PROFILES)})")
     sub = p.add_subparsers(dest="command")
     d = sub.add_parser("docs", help="write docs/spec.md from the spec (or --check it)")
     d.add_argument("--check", action="store_true", help="fail (exit 1) when the page is stale")
@@ -43,7 +43,7 @@ def _load_any(path: str | None, protocol: str | None) -> list[Spec | StreamSpec]
         raw, _, _ = read_validated(path)
         return [load_stream(path) if raw["protocol"]["transport"] == "tcp" else load(path)]
     if protocol is not None:
-        return [PROFILES[protocol].spec]
+        return [pick(protocol)[0].spec]
     return [load(), load_stream()]
 
 

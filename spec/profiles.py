@@ -14,14 +14,15 @@ protocol name or a role name turns into behaviour. A new protocol adds its profi
 
 from __future__ import annotations
 
+import argparse
 import importlib
 from dataclasses import dataclass
 from typing import Any
 
 from spec import NSQD, SPEC, Spec, StreamSpec
 
-__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "pick",
-           "profile_of_role", "resolve", "ROLE_NAMES"]
+__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
+           "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
 
 DEFAULT_PROTOCOL = "mcp"
 
@@ -50,6 +51,10 @@ class RoleProfile:
     impairable: bool = False
     #: ``--parallel``: the role's cases are shared out across node instances
     shardable: bool = False
+    #: the role the runner (a replay, a reference node's default address) plays against it
+    peer: str | None = None
+    #: the node's protocol ID when the spec fixes it for the role (MCP's manager: 0), else None
+    fixed_id: int | None = None
 
 
 @dataclass(frozen=True)
@@ -104,11 +109,13 @@ MCP = Profile(
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
                     cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
-                    reference=("drone",), impairable=True, shardable=True),
+                    reference=("drone",), impairable=True, shardable=True,
+                    peer="manager"),
         RoleProfile("manager", session="harness.manager_session:ManagerSession",
                     context="conformance.manager_case:ManagerCaseContext",
                     cases="conformance.cases_manager", fuzz_target="fuzz.manager_target:ManagerFuzzTarget",
-                    reference=("manager",), parameters=("drones", "challenge", "waypoints")),
+                    reference=("manager",), parameters=("drones", "challenge", "waypoints"),
+                    peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
     ),
 )
 
@@ -121,7 +128,8 @@ NSQD_PROFILE = Profile(
     roles=(
         RoleProfile("backend", session="harness.stream_session:StreamSession",
                     context="conformance.stream_case:StreamCaseContext", cases="conformance.cases_nsqd",
-                    fuzz_target=None, reference=("--protocol", "nsqd", "backend")),
+                    fuzz_target=None, reference=("--protocol", "nsqd", "backend"),
+                    peer="client"),
     ),
 )
 
@@ -148,6 +156,25 @@ def pick(protocol: str | None = None, role: str | None = None) -> tuple[Profile,
     if prof is None:
         raise ProfileError(f"{protocol!r} is not one of {', '.join(PROFILES)}")
     return prof, prof.role(role)
+
+
+class _ProtocolOption(argparse.Action):
+    """``--protocol NAME`` checked by :func:`pick`: an unknown name is the same one line in
+    every tool (``PROG: error: --protocol: 'x' is not one of mcp, nsqd``)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        try:
+            pick(values)
+        except ProfileError as exc:
+            parser.error(f"{option_string}: {exc}")
+        setattr(namespace, self.dest, values)
+
+
+def add_protocol_option(parser: Any, help: str, default: str | None = None) -> None:
+    """``--protocol`` as every tool takes it: one of :data:`PROFILES`, picked by :func:`pick`."""
+    parser.add_argument("--protocol", action=_ProtocolOption, default=default, metavar="|".join(PROFILES),
+                        help=help)
 
 
 def resolve(path: str) -> Any:
