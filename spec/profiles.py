@@ -19,7 +19,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from spec import NSQD, SPEC, Spec, StreamSpec
+from spec import NSQD, SPEC, SpecBase
 
 __all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
            "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
@@ -62,7 +62,7 @@ class Profile:
     """One protocol: its spec and everything derived from it, by the floor that owns it."""
 
     name: str
-    spec: Spec | StreamSpec
+    spec: SpecBase
     #: how the wire carries messages: ``datagram`` (one message a datagram) or ``stream``
     #: (frames deframed from a byte stream)
     framing: str
@@ -80,6 +80,8 @@ class Profile:
     #: the reference node's command line (``mcp-node --protocol NAME``)
     reference_cli: str
     roles: tuple[RoleProfile, ...]
+    #: the loader of a spec file of this protocol (``python -m spec --spec PATH``)
+    loader: str
 
     @property
     def default_role(self) -> RoleProfile:
@@ -99,6 +101,14 @@ class Profile:
                 return r
         raise ProfileError(f"{name!r} is not a role of --protocol {self.name} ({', '.join(self.role_names)})")
 
+    def role_of_id(self, node_id: int) -> RoleProfile:
+        """The role of the node with this protocol ID: the role whose ID the spec fixes to it
+        (MCP's manager, 0), else the first role with no fixed ID (MCP's drones)."""
+        for r in self.roles:
+            if r.fixed_id == node_id:
+                return r
+        return next(r for r in self.roles if r.fixed_id is None)
+
 
 MCP = Profile(
     name="mcp", spec=SPEC, framing="datagram", transport="udp",
@@ -117,6 +127,7 @@ MCP = Profile(
                     reference=("manager",), parameters=("drones", "challenge", "waypoints"),
                     peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
     ),
+    loader="spec._load:load",
 )
 
 NSQD_PROFILE = Profile(
@@ -131,6 +142,7 @@ NSQD_PROFILE = Profile(
                     fuzz_target=None, reference=("--protocol", "nsqd", "backend"),
                     peer="client"),
     ),
+    loader="spec.stream:load_stream",
 )
 
 #: Every protocol by its ``--protocol`` name; the first is the default.
