@@ -25,12 +25,12 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from spec import SPEC
-from spec.codec import MANAGER_ID, peek_header
+from spec.codec import peek_header
+from spec.profiles import MCP
 
 __all__ = ["export_pcap", "register", "run", "whole_or_none"]
 
 _LOOPBACK = "127.0.0.1"
-_PORTS = SPEC.protocol["ports"]
 
 
 def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
@@ -38,7 +38,7 @@ def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
     if not host or host == "0.0.0.0":
         host = _LOOPBACK
     if not port:
-        port = int(_PORTS["manager"] if mcp_id == MANAGER_ID else _PORTS["drone"])
+        port = SPEC.port(MCP.role_of_id(mcp_id).name)
     return str(host), int(port)
 
 

@@ -101,11 +101,12 @@ class Profile:
                 return r
         raise ProfileError(f"{name!r} is not a role of --protocol {self.name} ({', '.join(self.role_names)})")
 
-    def role_of_id(self, node_id: int) -> RoleProfile:
+    def role_of_id(self, node_id: int | None) -> RoleProfile:
         """The role of the node with this protocol ID: the role whose ID the spec fixes to it
-        (MCP's manager, 0), else the first role with no fixed ID (MCP's drones)."""
+        (MCP's manager, 0), else (an unknown ID too) the first role with no fixed ID (MCP's
+        drones)."""
         for r in self.roles:
-            if r.fixed_id == node_id:
+            if r.fixed_id is not None and r.fixed_id == node_id:
                 return r
         return next(r for r in self.roles if r.fixed_id is None)
 
