@@ -39,7 +39,8 @@ from traceio.grammar import open_output
 from traceio.reader import Datagram
 from traceio.trace import action_name, evidence_indexes
 
-__all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "to_json", "validate_json"]
+__all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "run_check", "to_json",
+           "validate_json"]
 
 SCHEMA_VERSION = "1.3"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures); 1.3: the
 # challenge and waypoints recorded by a manager-role run (challenge_source "recorded")
@@ -64,12 +65,16 @@ def register(sub: Any) -> None:
 
 
 def run(ns: argparse.Namespace) -> int:
-    params = params_from_args(ns)
+    """``mcp-capture check``: the options checked, then the capture's protocol's check."""
+    params_from_args(ns)  # the monitor options' errors, whatever the protocol
     check_writable(ns.json, "--json")
     check_writable(ns.html, "--html")
-    tools = capture_tools(ns, ns.file)
-    if tools is not None:  # a protocol with capture tools of its own (Nsqd's stream judge)
-        return int(tools.run_check(ns))
+    return int(capture_tools(ns, ns.file).run_check(ns))
+
+
+def run_check(ns: argparse.Namespace) -> int:
+    """MCP's check (``captures.mcp``): the trace monitor's judgement of every datagram."""
+    params = params_from_args(ns)
     j = judge(ns.file, params, keep=bool(ns.html))
     evidence = evidence_of(j)
     if ns.json:  # the files first: an interrupted or piped terminal report loses neither

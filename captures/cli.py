@@ -9,12 +9,13 @@
     mcp-capture export CAPTURE --pcap OUT.pcap|OUT.pcapng
     mcp-capture dissector [--install | -o FILE [--mavlink FILE]]
 
-``check``, ``show``, ``diff`` and ``export`` read every protocol's captures: ``--protocol``, or
-as the file's first records show (``capture_profile``: each protocol's profile, in
-``spec.profiles``, says how its captures are recognised), and a protocol whose profile names
-capture tools of its own (Nsqd's, ``captures.nsqd``: our MCAP of an Nsqd run, a pcap of its
-TCP traffic) is read by them (``capture_tools``); ``replay`` takes an Nsqd fuzz finding (its
-directory, repro.mcap or repro.pcap).
+Every subcommand that reads a capture picks its protocol once and hands the work to that
+protocol's capture tools: ``--protocol``, else the first protocol whose profile recognises
+the file (``capture_profile``: each profile in ``spec.profiles`` names its ``capture_detect``),
+else the default; the profile's ``capture_tools`` module (:class:`CaptureTools`: MCP's
+``captures.mcp``, Nsqd's ``captures.nsqd``) then checks, shows, diffs, exports or replays it.
+A subcommand's own module keeps what is the same for every protocol: its options, their
+checks, its errors.
 
 Each subcommand lives in its own module, which this one only registers: the module has
 ``register(subparsers)``, adding its parser and ``set_defaults(run=FUNCTION)``; ``run(ns)``
@@ -36,14 +37,16 @@ import importlib
 import os
 import sys
 from collections.abc import Callable, Sequence
-from typing import Any, NoReturn
+from pathlib import Path
+from typing import Any, NoReturn, Protocol, TextIO
 
-from spec.profiles import DEFAULT_PROTOCOL, PROFILES, Profile, resolve
+from spec import profiles
+from spec.profiles import PROFILES, Profile, pick, resolve
 from traceio.files import UsageError, check_writable, write_output
 from traceio.grammar import STDIO, add_verbosity, add_version, epilog, read_path
 
-__all__ = ["PROG", "SUBCOMMANDS", "UsageError", "add_protocol_option", "build_parser", "capture_profile",
-           "capture_tools", "check_writable", "main", "to_terminal", "write_output"]
+__all__ = ["PROG", "SUBCOMMANDS", "CaptureTools", "UsageError", "add_protocol_option", "build_parser",
+           "capture_profile", "capture_tools", "check_writable", "main", "to_terminal", "write_output"]
 
 PROG = "mcp-capture"
 #: The modules that register a subcommand, in the order ``--help`` lists them.
@@ -53,28 +56,47 @@ SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "c
 
 def add_protocol_option(p: argparse.ArgumentParser) -> None:
     """``--protocol``, as every subcommand that reads a capture takes it."""
-    p.add_argument("--protocol", choices=tuple(PROFILES), default=None,
-                   help=f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
-                        "default: as its first records show)")
+    profiles.add_protocol_option(p, f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
+                                    "default: as its first records show)")
+
+
+class CaptureTools(Protocol):
+    """What a protocol's capture tools module (its profile's ``capture_tools``) provides: the
+    work of each ``mcp-capture`` subcommand on that protocol's captures, the options already
+    parsed and checked. Each ``run_*`` returns the exit code."""
+
+    #: what ``export`` writes, as its closing line counts them ("datagrams", "TCP packets")
+    EXPORTED: str
+
+    def run_check(self, ns: argparse.Namespace) -> int: ...
+
+    def run_show(self, ns: argparse.Namespace) -> int: ...
+
+    def run_diff(self, ns: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int: ...
+
+    def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]: ...
+
+    def is_finding(self, path: str) -> bool: ...
+
+    def run_replay(self, ns: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int: ...
 
 
 def capture_profile(ns: Any, path: str) -> Profile:
     """The protocol a capture is read as: ``--protocol``, else the first whose profile
-    recognises the file (``capture_detect``), else the default (a datagram capture)."""
+    recognises the file (``capture_detect``), else the default."""
     name = getattr(ns, "protocol", None)
     if name is not None:
-        return PROFILES[name]
+        return pick(name)[0]
     for prof in PROFILES.values():
         if prof.capture_detect is not None and resolve(prof.capture_detect)(path):
             return prof
-    return PROFILES[DEFAULT_PROTOCOL]
+    return pick()[0]
 
 
-def capture_tools(ns: Any, path: str) -> Any:
-    """The capture tools of the protocol ``path`` is read as (its ``run_check``, ``run_show``,
-    ``run_diff``, ``export_pcap``), or None: the datagram core's own (``captures.check`` ...)."""
-    prof = capture_profile(ns, path)
-    return resolve(prof.capture_tools) if prof.capture_tools is not None else None
+def capture_tools(ns: Any, path: str) -> CaptureTools:
+    """The capture tools of the protocol ``path`` is read as (:func:`capture_profile`)."""
+    tools: CaptureTools = resolve(capture_profile(ns, path).capture_tools)
+    return tools
 
 
 class _Parser(argparse.ArgumentParser):

@@ -30,7 +30,6 @@ sides' sequence charts side by side). Exit 0 same, 1 different, 2 unreadable inp
 from __future__ import annotations
 
 import difflib
-import json
 import sys
 from collections import Counter, deque
 from collections.abc import Iterable
@@ -51,7 +50,7 @@ from harness.liveness import PROBE_SRC as LIVENESS_ID
 from spec.codec import Action, peek_header
 
 __all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "diff_sides",
-           "load_side", "register", "run", "side_from_datagrams"]
+           "load_side", "print_report", "register", "run", "side_from_datagrams"]
 
 SCHEMA_VERSION = "1.0"
 BIG_MIDDLE = 5000
@@ -569,32 +568,15 @@ def _nonneg_float(text: str) -> float:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import capture_tools, check_writable, to_terminal
-    from traceio.grammar import write_text as _write_text
+    """``mcp-capture diff``: the options checked, then the protocol's diff (the golden's)."""
+    from captures.cli import capture_tools, check_writable
     from traceio.reader import CaptureError
 
-    given_out = out
     err = err or sys.stderr
     check_writable(args.json, "--json")
     check_writable(args.html, "--html")
-    opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
     try:
-        tools = capture_tools(args, args.golden)
-        if tools is not None:  # a protocol with capture tools of its own (Nsqd's: per connection)
-            return int(tools.run_diff(args, given_out or sys.stdout))
-        result = diff_captures(args.golden, args.candidate, opts)
+        return int(capture_tools(args, args.golden).run_diff(args, out, err))
     except CaptureError as exc:
         err.write(f"mcp-capture: error: diff: {exc}\n")
         return 2
-    try:  # the files first: a piped terminal report (`| head -1`) loses neither
-        if args.json:  # "-": stdout (traceio.grammar)
-            _write_text(args.json, json.dumps(build_json(result), indent=1) + "\n")
-        if args.html:
-            from captures.diff_html import write_html
-
-            write_html(result, args.html)
-    except OSError as exc:
-        err.write(f"mcp-capture: error: diff: cannot write {exc.filename}: {exc.strerror}\n")
-        return 2
-    to_terminal(lambda: print_report(result, given_out or sys.stdout))
-    return 0 if result.same else 1

@@ -45,7 +45,7 @@ from typing import Any, TextIO
 
 from captures import dissector_mavlink as dm
 from spec import SPEC
-from spec.profiles import DEFAULT_PROTOCOL, PROFILES, resolve
+from spec.profiles import DEFAULT_PROTOCOL, add_protocol_option, pick, resolve
 
 __all__ = ["FILENAME", "PROTOCOL", "generate", "plugin_dir", "register", "run"]
 
@@ -474,16 +474,15 @@ def register(sub: Any) -> None:
     p.add_argument("--mavlink", metavar="FILE", dest="mavlink_output",
                    help=f"also write the MAVLink dissector (pymavlink's mavgen --lang=WLua) to FILE; "
                         f"--install writes it as {dm.FILENAME}")
-    p.add_argument("--protocol", choices=tuple(PROFILES), default=DEFAULT_PROTOCOL,
-                   help="mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol): the "
-                        "dissector its profile names")
+    add_protocol_option(p, "mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol): the "
+                           "dissector its profile names", default=DEFAULT_PROTOCOL)
     p.set_defaults(run=run)
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     err = err or sys.stderr
-    dissector = resolve(PROFILES[getattr(args, "protocol", DEFAULT_PROTOCOL)].dissector)
+    dissector = resolve(pick(getattr(args, "protocol", DEFAULT_PROTOCOL))[0].dissector)
     source, filename = dissector.generate(), dissector.FILENAME
     target: Path | None = None
     writes: list[tuple[Path, str | None]] = []

@@ -10,10 +10,10 @@ the spec's conventional port of the sender's role (MCP-TRN-1: the manager on 788
 7890); an address that is not an IPv4 literal (never looked up), a port past 65535, a
 datagram longer than UDP carries or a time the file cannot hold is an error naming the
 datagram. Open the result in
-Wireshark with ``mcp-capture dissector --install``. An Nsqd capture (``--protocol nsqd``, or
-found to be one) is written by its capture tools, as its TCP conversations
-(``captures.nsqd.export_pcap``). Either way a
-capture unreadable part-way leaves no output, and every error is one line (exit 2).
+Wireshark with ``mcp-capture dissector --install``. :func:`export_pcap` is MCP's (its capture
+tools, ``captures.mcp``); each protocol's capture tools write its captures (Nsqd's as TCP
+conversations, ``captures.nsqd.export_pcap``), and for every one a capture unreadable
+part-way leaves no output, and every error is one line (exit 2).
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from spec import SPEC
-from spec.codec import MANAGER_ID, peek_header
+from spec.codec import peek_header
+from spec.profiles import MCP
 
 __all__ = ["export_pcap", "register", "run", "whole_or_none"]
 
 _LOOPBACK = "127.0.0.1"
-_PORTS = SPEC.protocol["ports"]
 
 
 def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
@@ -38,7 +38,7 @@ def _fill(addr: Any, mcp_id: int | None) -> tuple[str, int]:
     if not host or host == "0.0.0.0":
         host = _LOOPBACK
     if not port:
-        port = int(_PORTS["manager"] if mcp_id == MANAGER_ID else _PORTS["drone"])
+        port = SPEC.port(MCP.role_of_id(mcp_id).name)
     return str(host), int(port)
 
 
@@ -114,25 +114,22 @@ def register(sub: Any) -> None:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    """``mcp-capture export``: the capture's protocol's ``export_pcap``; its errors and
+    closing line are the same for every protocol."""
     from captures.cli import capture_tools
     from traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr
     try:
-        tools = capture_tools(args, args.capture)  # a stream's: its TCP conversations (issue 21)
-        tcp = tools is not None
-        n, truncated = (tools.export_pcap if tools is not None else export_pcap)(args.capture, args.pcap)
+        tools = capture_tools(args, args.capture)
+        n, truncated = tools.export_pcap(args.capture, args.pcap)
     except CaptureError as exc:
         err.write(f"mcp-capture: error: export: {exc}\n")
         return 2
     except OSError as exc:
         err.write(f"mcp-capture: error: export: cannot write {args.pcap}: {exc.strerror}\n")
         return 2
-    if tcp:
-        note = f" (the capture is TRUNCATED: {truncated})" if truncated else ""
-        out.write(f"wrote {n} TCP packets to {args.pcap}{note}\n")
-    else:
-        note = f" (the capture is TRUNCATED: {truncated}; exported up to its last whole chunk)" if truncated else ""
-        out.write(f"wrote {n} datagrams to {args.pcap}{note}\n")
+    note = f" (the capture is TRUNCATED: {truncated}; exported up to its last whole record)" if truncated else ""
+    out.write(f"wrote {n} {tools.EXPORTED} to {args.pcap}{note}\n")
     return 0

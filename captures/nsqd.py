@@ -1,6 +1,7 @@
-"""``mcp-capture check|show|diff|export`` on an Nsqd capture (``--protocol nsqd``, issue 21 item 4):
-the capture tools Nsqd's profile names (``spec.profiles``), which ``captures.cli.capture_tools``
-hands each subcommand.
+"""``mcp-capture check|show|diff|export|replay`` on an Nsqd capture (``--protocol nsqd``, issue 21
+item 4): the capture tools Nsqd's profile names (``spec.profiles``), which
+``captures.cli.capture_tools`` hands each subcommand (``captures.cli.CaptureTools``), as
+MCP's are ``captures.mcp``. :func:`is_capture` is how the profile recognises its captures.
 
 The capture is our MCAP (``mcp-conform --protocol nsqd --capture``, a fuzz finding's
 repro.mcap) or a pcap/pcapng of the TCP traffic (tcpdump, Wireshark, a finding's repro.pcap),
@@ -19,6 +20,8 @@ retransmitted segments, both directions, any number of connections, bounded in m
   the connection ended. Exit 0 same, 1 different.
 - ``export``: the conversations as a pcap/pcapng tshark follows (``traceio.tcp_pcap``; the
   command, its errors and its output are ``captures.export``'s, as for MCP).
+- ``replay``: an Nsqd fuzz finding (``finding-N/``, its finding.json, repro.mcap or
+  repro.pcap), replayed as ``mcp-fuzz --protocol nsqd --replay`` does.
 """
 
 from __future__ import annotations
@@ -33,9 +36,12 @@ from judge.stream_monitor import RULES, StreamMonitor
 from spec import NSQD
 from spec.stream_codec import Deframer, Frame
 from traceio.reader import StreamEvent, StreamFrame, Truncated
-from traceio.stream import StreamGap, stream_records
+from traceio.stream import StreamGap, is_stream_capture, stream_records
 
-__all__ = ["export_pcap", "run_check", "run_diff", "run_show"]
+__all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "run_check", "run_diff", "run_replay", "run_show"]
+
+#: what ``export`` writes (``captures.export``'s closing line)
+EXPORTED = "TCP packets"
 
 
 def _addr(a: Any) -> str:
@@ -251,7 +257,7 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
 
 
 # ---------------------------------------------------------------- diff
-def run_diff(args: Any, out: TextIO | None = None) -> int:
+def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     g, c = _Conns(args.golden, steps=True).read(), _Conns(args.candidate, steps=True).read()
     diffs: list[str] = []
@@ -285,7 +291,7 @@ def run_diff(args: Any, out: TextIO | None = None) -> int:
 
 
 # ---------------------------------------------------------------- replay
-def is_finding(path: str) -> bool:
+def is_finding(path: str | Path) -> bool:
     """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
     from fuzz.stream_findings import load_stream_finding
 
@@ -296,16 +302,29 @@ def is_finding(path: str) -> bool:
     return True
 
 
-def run_replay(args: Any) -> int:
+def is_capture(path: str | Path) -> bool:
+    """Nsqd's ``capture_detect``: an Nsqd capture (``traceio.stream.is_stream_capture``), or a
+    finding's directory or finding.json (what ``replay`` takes besides its captures)."""
+    if Path(path).is_dir() or Path(path).name == "finding.json":
+        return is_finding(path)
+    return is_stream_capture(path)
+
+
+def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
-    reproduced, 0: it did not, 2: unreadable or no backend)."""
+    reproduced, 0: it did not, 2: unreadable, no finding or no backend)."""
     from fuzz.stream_campaign import replay_stream_finding
     from harness.errors import SetupError
 
+    err = err or sys.stderr
+    if not is_finding(args.capture):
+        err.write(f"mcp-capture: error: replay: {args.capture}: an Nsqd capture is replayed as a fuzz "
+                  "finding only (its directory, finding.json, repro.mcap or repro.pcap)\n")
+        return 2
     try:
         return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
     except SetupError as exc:
-        sys.stderr.write(f"mcp-capture: error: replay: {exc}\n")
+        err.write(f"mcp-capture: error: replay: {exc}\n")
         return 2
 
 

@@ -33,9 +33,9 @@ golden, the replay's own traffic as candidate) and all the traffic with the trac
 unreadable capture or setup error (one line), a node that never answered at all included. :func:`replay` is the Python API (a list of
 datagram records or raw bytes plus a target), which ``mcp-fuzz`` uses to reproduce findings.
 
-An Nsqd fuzz finding (``finding-N/``, its repro.mcap or repro.pcap) is replayed as
-``mcp-fuzz --protocol nsqd --replay`` replays it (``captures.nsqd``; the embedded reference
-backend unless ``--target`` or ``--spawn``). A fuzz finding's ``repro.mcap`` (metadata record
+This is MCP's replay (its capture tools, ``captures.mcp``); another protocol's capture is
+replayed by its own (an Nsqd fuzz finding — ``finding-N/``, its repro.mcap or repro.pcap —
+as ``mcp-fuzz --protocol nsqd --replay`` replays it: ``captures.nsqd``). A fuzz finding's ``repro.mcap`` (metadata record
 from recorder ``mcp-fuzz``) is replayed as ``mcp-fuzz --replay`` replays it: its minimal sequence, with the campaign's pace and scenario,
 judged by the fuzzer's oracles; exit 1 when the node still breaks the finding's rule, 0 when
 it no longer does.
@@ -63,8 +63,9 @@ from captures.diff import (
 )
 from spec import SPEC
 from spec.codec import HEADER_SIZE, MANAGER_ID, Action, peek_header
+from spec.profiles import MCP
 
-__all__ = ["ReplayError", "ReplayResult", "Step", "plan", "register", "replay", "run"]
+__all__ = ["ReplayError", "ReplayResult", "Step", "plan", "register", "replay", "run", "run_replay"]
 
 _PORTS = SPEC.protocol["ports"]
 _ACK = int(Action.ACK)
@@ -117,9 +118,11 @@ def _src(data: bytes) -> int | None:
 
 
 def node_id_for(records: Sequence[Any], role: str) -> int:
-    """The node under test's ID in the capture: the manager, or the drone talking to it."""
-    if role == "manager":
-        return MANAGER_ID
+    """The node under test's ID in the capture: the one its role fixes (the manager's), or
+    the drone talking to the manager."""
+    fixed = MCP.role(role).fixed_id
+    if fixed is not None:
+        return fixed
     counts: dict[int, int] = {}
     for r in records:
         h = peek_header(r.data, require_preamble=False)
@@ -202,7 +205,7 @@ def _awaits_ack(data: bytes, node: int) -> bool:
 # ---------------------------------------------------------------- running
 @dataclass
 class ReplayConfig:
-    role: str = "drone"
+    role: str = MCP.default_role.name
     target: tuple[str, int] | None = None
     listen: tuple[str, int] | None = None
     target_id: int | None = None  # the live node's ID (default: the capture's)
@@ -272,8 +275,9 @@ def replay(datagrams: Iterable[Any], target: tuple[str, int] | None = None, **op
     if cfg.target is None and cfg.spawn is None:
         raise ReplayError("replay needs --target HOST:PORT or --spawn CMD")
     records = _as_records(datagrams)
+    fixed = MCP.role(cfg.role).fixed_id  # a role whose ID the spec fixes is found by it in the capture
     node = cfg.node_id if cfg.node_id is not None else (
-        cfg.target_id if cfg.target_id is not None and cfg.role == "drone" else node_id_for(records, cfg.role))
+        cfg.target_id if cfg.target_id is not None and fixed is None else node_id_for(records, cfg.role))
     live_id = cfg.target_id if cfg.target_id is not None else node
     steps, node_total = plan(records, node)
     answer_timeout = cfg.answer_timeout if cfg.answer_timeout is not None else 1.5 * cfg.rto + cfg.ack_window
@@ -293,9 +297,11 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
         free_port,
     )
 
-    listen = cfg.listen or (("", 0) if cfg.spawn else ("", int(_PORTS["manager" if cfg.role == "drone" else "drone"])))
+    role = MCP.role(cfg.role)
+    peer = MCP.role(role.peer)  # the side replay plays: its port, its ID when the spec fixes one
+    listen = cfg.listen or (("", 0) if cfg.spawn else ("", int(_PORTS[peer.name])))
     target = cfg.target or ("127.0.0.1", free_port())
-    driver = TargetDriver(target, listen, our_id=MANAGER_ID if cfg.role == "drone" else -1)
+    driver = TargetDriver(target, listen, our_id=-1 if peer.fixed_id is None else peer.fixed_id)
     driver.auto_ack = lambda d: False  # the capture's ACKs are replayed, at the capture's pace
     try:
         driver.open()
@@ -326,7 +332,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
                       "listen_host": "127.0.0.1" if lhost == "0.0.0.0" else lhost,
                       "listen_port": str(driver.listen[1]), "broadcast": BROADCAST_ADDRESS,
                       "id": str(live_id), "mavlink": vehicle.url if vehicle is not None else ""}
-            if cfg.role == "manager":
+            if role.parameters:  # a role run with mission parameters: {drones}, {challenge}, ... from the capture
                 values.update(_manager_placeholders(records, node, tmp))
             try:
                 proc = SpawnedNode(fill_placeholders(cfg.spawn, values))
@@ -467,7 +473,8 @@ def register(sub: Any) -> None:
     p.add_argument("--listen", type=_hostport("--listen", ""), metavar="HOST:PORT",
                    help="where replay receives and sends from (default: all addresses, the role's port; "
                         "spawn: an ephemeral port)")
-    p.add_argument("--role", choices=("drone", "manager"), default="drone", help="the node's role (drone)")
+    p.add_argument("--role", choices=MCP.role_names, default=MCP.default_role.name,
+                   help=f"the node's role ({MCP.default_role.name})")
     p.add_argument("--target-id", type=int, metavar="N", help="the live node's MCP ID (default: the capture's)")
     p.add_argument("--node-id", type=int, metavar="N", help="the node's MCP ID in the capture (default: by role)")
     p.add_argument("--spawn", metavar="CMD", help="start the node (the runner's placeholders)")
@@ -489,18 +496,29 @@ def register(sub: Any) -> None:
 
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    from captures.cli import check_writable, to_terminal
+    """``mcp-capture replay``: the options checked, then the capture's protocol's replay."""
+    from captures.cli import capture_tools, check_writable
+    from traceio.reader import CaptureError
+
+    err = err or sys.stderr
+    check_writable(args.json, "--json")
+    try:
+        tools = capture_tools(args, args.capture)
+    except CaptureError as exc:
+        err.write(f"mcp-capture: error: replay: {exc}\n")
+        return 2
+    return int(tools.run_replay(args, out, err))
+
+
+def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+    """MCP's replay (``captures.mcp``): :func:`replay`, or a fuzz finding's reproduction."""
+    from captures.cli import to_terminal
     from captures.diff import build_json
     from traceio.reader import CaptureError, Datagram, Metadata, open_capture
     from traceio.recorder import FUZZ_RECORDER
 
     out = out or sys.stdout
     err = err or sys.stderr
-    check_writable(args.json, "--json")
-    from captures import nsqd
-
-    if nsqd.is_finding(args.capture):  # an Nsqd fuzz finding (its directory, repro.mcap or repro.pcap)
-        return nsqd.run_replay(args)
     try:
         everything = list(open_capture(args.capture))
     except CaptureError as exc:
@@ -509,7 +527,7 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     records = [r for r in everything if type(r) is Datagram]
     fuzz_meta = next((r.data for r in everything if type(r) is Metadata and r.data.get("recorder") == FUZZ_RECORDER),
                      None)
-    if fuzz_meta is not None and args.role == "drone":
+    if fuzz_meta is not None and args.role == fuzz_meta.get("role"):  # the finding's fuzzed role
         return _reproduce_finding(args, fuzz_meta, out, err)
     try:
         result = replay(records, args.target, role=args.role, listen=args.listen, target_id=args.target_id,

@@ -30,7 +30,7 @@ from judge.params import add_monitor_options, params_from_args
 from reports.chart import trace_svg
 from traceio.trace import Entry, Trace, action_name, describe_payload
 
-__all__ = ["case_window", "entry_line", "register", "run"]
+__all__ = ["case_window", "entry_line", "register", "run", "run_show"]
 
 
 def register(sub: Any) -> None:
@@ -80,7 +80,8 @@ def case_window(j: Judgement, case_id: str) -> tuple[int, int]:
 
 
 def run(ns: argparse.Namespace) -> int:
-    params = params_from_args(ns)
+    """``mcp-capture show``: the options checked, then the capture's protocol's show."""
+    params_from_args(ns)  # the monitor options' errors, whatever the protocol
     t_from, t_to = _seconds("--from", ns.t_from), _seconds("--to", ns.t_to)
     if ns.case is not None and (t_from is not None or t_to is not None):
         raise UsageError("--case cannot be combined with --from/--to")
@@ -91,9 +92,15 @@ def run(ns: argparse.Namespace) -> int:
     except ValueError:
         raise UsageError(f"--max-rows: not a positive integer: {ns.max_rows!r}") from None
     check_writable(ns.svg, "--svg")
-    tools = capture_tools(ns, ns.file)
-    if tools is not None:  # a protocol with capture tools of its own (Nsqd's connections)
-        return int(tools.run_show(ns))
+    ns.max_rows = max_rows
+    return int(capture_tools(ns, ns.file).run_show(ns))
+
+
+def run_show(ns: argparse.Namespace) -> int:
+    """MCP's show (``captures.mcp``): the datagrams, marked by the trace monitor."""
+    params = params_from_args(ns)
+    t_from, t_to = _seconds("--from", ns.t_from), _seconds("--to", ns.t_to)
+    max_rows = int(ns.max_rows)
     unjudged = None
     try:
         j = judge(ns.file, params, keep=True)

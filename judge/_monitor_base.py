@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 from spec import SPEC
 from spec.codec import HEADER, HEADER_SIZE, ITEM, MANAGER_ID, PREAMBLE, Action
+from spec.profiles import MCP
 
 __all__ = [
     "byte_order_fault",
@@ -91,7 +92,8 @@ def byte_order_fault(origin: int, src: int, action: int) -> str | None:
 
 
 def role_of(node: int) -> str:
-    return "manager" if node == MANAGER else "drone"
+    """The MCP role of the node with this ID (``spec.profiles``: ID 0 is the manager's)."""
+    return MCP.role_of_id(node).name
 
 
 class _Tester:

@@ -36,13 +36,13 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 from reference_impl.drone import Drone, DroneConfig, RoleError
 from reference_impl.manager import CHALLENGES, Manager, ManagerConfig
 from spec import SPEC
-from spec.profiles import PROFILES
+from spec.profiles import add_protocol_option
 from traceio.grammar import STDIO, add_verbosity, deprecated, epilog, version_text
 
 __all__ = ["build_parser", "main"]
@@ -168,8 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=epilog("Ctrl-C or SIGTERM stops a node: exit 130 or 143, its record written."),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=version_text(PROG), help="print the version and exit")
-    p.add_argument("--protocol", metavar="|".join(PROFILES), help="the protocol the node speaks: mcp (default: "
-                   "these roles) or nsqd (mcp-node --protocol nsqd backend|client --help); first on the line")
+    add_protocol_option(p, "the protocol the node speaks: mcp (default: these roles) or nsqd "
+                           "(mcp-node --protocol nsqd backend|client --help); first on the line")
     sub = p.add_subparsers(dest="role", required=True, metavar="{drone,manager}",
                            parser_class=_OneLineParser)
     d = sub.add_parser("drone", help="a drone application (MCP + MAVLink to its autopilot)",
@@ -202,6 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--ready-timeout", type=_number(0.0, False), metavar="S",
                    help="give up when not every drone is ready after S seconds (default: wait)")
     _common(m, _PORTS["manager"], _PORTS["drone"])
+    d.set_defaults(make=_make_drone)
+    m.set_defaults(make=_make_manager)
     for sp in (d, m):
         sp.epilog, sp.formatter_class = p.epilog, argparse.RawDescriptionHelpFormatter
     return p
@@ -239,18 +241,26 @@ def _setup_logging(args: argparse.Namespace) -> tuple[list[logging.Handler], int
 
 
 def _make_role(args: argparse.Namespace) -> Drone | Manager:
-    if args.role == "drone":
-        bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["drone"], _PORTS["manager"])
-        cfg = DroneConfig(drone_id=args.id, bind_host=bind_host, local_port=bind_port, remote_host=remote_host,
-                          remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
-                          retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
-                          reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
-                          record_path=_record(args), linger=args.linger,
-                          capture_path=args.capture, live=args.live, impair=args.impair_spec)
-        drone = Drone(cfg)
-        if args.mavlink and args.gps_fix_delay:
-            drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
-        return drone
+    """The node of the role the subcommand names (its parser's ``make``)."""
+    make: Callable[[argparse.Namespace], Drone | Manager] = args.make
+    return make(args)
+
+
+def _make_drone(args: argparse.Namespace) -> Drone:
+    bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["drone"], _PORTS["manager"])
+    cfg = DroneConfig(drone_id=args.id, bind_host=bind_host, local_port=bind_port, remote_host=remote_host,
+                      remote_port=remote_port, mavlink_url=args.mavlink, rto=args.rto,
+                      retries=args.retries, gps_fix_delay=args.gps_fix_delay, takeoff_alt=args.takeoff_alt,
+                      reply_to_source=args.reply_to_source, reuse_port=args.reuse_port,
+                      record_path=_record(args), linger=args.linger,
+                      capture_path=args.capture, live=args.live, impair=args.impair_spec)
+    drone = Drone(cfg)
+    if args.mavlink and args.gps_fix_delay:
+        drone.log.warning("--gps-fix-delay applies to the built-in vehicle only; ignored with --mavlink")
+    return drone
+
+
+def _make_manager(args: argparse.Namespace) -> Manager:
     from spec.mission import load_waypoints
 
     bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["manager"], _PORTS["drone"])
@@ -365,14 +375,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _other_protocol(argv: list[str]) -> int:
     """``--protocol NAME``: the reference node its profile names (``spec.profiles``: mcp, the
     default, is this module; nsqd is ``reference_impl.nsqd_cli``), given the other arguments."""
-    from spec.profiles import PROFILES, resolve
+    from spec.profiles import ProfileError, pick, resolve
 
     i = next(i for i, a in enumerate(argv) if a == "--protocol" or a.startswith("--protocol="))
     value = argv[i].split("=", 1)[1] if "=" in argv[i] else (argv[i + 1] if i + 1 < len(argv) else "")
     rest = argv[:i] + argv[i + (1 if "=" in argv[i] else 2):]
-    profile = PROFILES.get(value)
-    if profile is None:
-        print(f"{PROG}: error: --protocol: {value!r} is not one of {', '.join(PROFILES)}", file=sys.stderr)
+    try:
+        profile, _ = pick(value)
+    except ProfileError as exc:
+        print(f"{PROG}: error: --protocol: {exc}", file=sys.stderr)
         return 2
     return int(resolve(profile.reference_cli).main(rest))
 

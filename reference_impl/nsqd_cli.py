@@ -21,7 +21,7 @@ import signal
 import socket
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from reference_impl.nsqd_backend import BackendCore, BackendServer
@@ -62,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     deprecated(c, "--connect", "--target", type=_hostport)
     c.add_argument("--send", nargs="*", default=[], metavar="NAME", help="commands without a body (TAKEOFF, LAND ...)")
     c.add_argument("--duration", type=float, default=2.0, metavar="S", help="how long to listen (2)")
+    b.set_defaults(run=_backend)
+    c.set_defaults(run=_client)
     for sp in (b, c):
         sp.epilog, sp.formatter_class = p.epilog, argparse.RawDescriptionHelpFormatter
     return p
@@ -131,4 +133,5 @@ def _client(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return _backend(args) if args.role == "backend" else _client(args)
+    run: Callable[[argparse.Namespace], int] = args.run  # the subcommand's (its parser's ``run``)
+    return run(args)

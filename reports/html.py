@@ -26,6 +26,7 @@ from reports.chart import trace_svg
 from reports.stream_chart import stream_svg
 from reports.templating import Markup, Template, attrs, fill, join
 from spec import RULES, SPEC
+from spec.profiles import Profile, ProfileError, pick, profile_of_role
 from traceio.reader import Datagram, StreamFrame
 from traceio.trace import Trace, evidence_indexes
 
@@ -223,18 +224,14 @@ def _stream_chart(case: dict[str, Any], frames: Sequence[StreamFrame] | None) ->
     return Markup(stream_svg(window, title=f"{case['id']} · {len(window)} frame(s)")), ""
 
 
-def _framing(doc: dict[str, Any]) -> str:
-    """How the run's protocol carries its messages (``spec.profiles``: datagram, stream), from
-    the report's protocol (else its role, which belongs to one protocol)."""
-    from spec.profiles import PROFILES, ProfileError, profile_of_role
-
+def _profile(doc: dict[str, Any]) -> Profile:
+    """The run's protocol (``spec.profiles``): the report's, else its role's (a role belongs to
+    one protocol), else the default."""
     name = (doc.get("parameters") or {}).get("protocol")
-    if name in PROFILES:
-        return PROFILES[name].framing
     try:
-        return profile_of_role(str(doc.get("role") or "drone")).framing
+        return profile_of_role(str(doc["role"])) if name is None and doc.get("role") else pick(name)[0]
     except ProfileError:
-        return "datagram"
+        return pick()[0]
 
 
 def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
@@ -250,7 +247,10 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     s = doc.get("summary", {})
     target = doc.get("target") or "the embedded reference node"
     tool, spec = doc.get("tool", {}), doc.get("spec", {})
-    body = [fill(_H1, text=f"mcp-conform: {doc.get('role', 'drone')} at {target}"),
+    prof = _profile(doc)
+    #: each case's chart, as the protocol's framing carries its messages: datagrams or a stream's frames
+    chart_of = {"datagram": lambda c: _case_chart(c, trace), "stream": lambda c: _stream_chart(c, frames)}[prof.framing]
+    body = [fill(_H1, text=f"mcp-conform: {doc.get('role') or prof.default_role.name} at {target}"),
             fill(_META, text=f'{_str(tool.get("name"))} {_str(tool.get("version"))} · '
                               f'{_str(spec.get("protocol", "MCP"))} spec {_str(spec.get("version"))} · '
                               f'{s.get("duration_s", 0):.1f} s')]
@@ -270,7 +270,7 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     if not cases:
         body.append(fill(_NONE, text="None."))
     for c in cases:
-        chart, why = _stream_chart(c, frames) if _framing(doc) == "stream" else _case_chart(c, trace)
+        chart, why = chart_of(c)
         rule = c.get("failed_rule") or (c.get("rules") or [None])[0]
         heading = f"{c['outcome'].upper()} {c['id']} · {' '.join(c.get('rules', []))}"
         fields = [("expected", c.get("expected")), ("actual", c.get("actual")), ("reason", c.get("reason")),
@@ -360,4 +360,4 @@ def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:
         except CaptureError:
             datagrams = frames = None
     with open(path, "w", encoding="utf-8") as f:
-        f.write(render_run(doc, datagrams, frames if _framing(doc) == "stream" else None))
+        f.write(render_run(doc, datagrams, frames))

@@ -18,6 +18,9 @@ from traceio.reader import StreamFrame
 
 __all__ = ["stream_svg"]
 
+#: the lifeline of the node under test, named by its role (the spec's first: the backend)
+_NODE = Lifeline("node", NSQD.roles[0])
+
 
 def _label(f: StreamFrame) -> str:
     if f.problem and not f.name:
@@ -33,12 +36,12 @@ def _label(f: StreamFrame) -> str:
 def stream_svg(frames: Sequence[StreamFrame], title: str = "") -> str:
     """The chart of ``frames`` (one case's window, say)."""
     conns = sorted({f.conn for f in frames})
-    lifelines = [Lifeline(f"c{c}", f"runner conn {c}") for c in conns] + [Lifeline("backend", "backend")]
+    lifelines = [Lifeline(f"c{c}", f"runner conn {c}") for c in conns] + [_NODE]
     arrows: list[Arrow] = []
     folded = 0
     for f in frames:
         label = _label(f)
-        if f.direction == "rx" and arrows and arrows[-1].src == "backend" and arrows[-1].dst == f"c{f.conn}" \
+        if f.direction == "rx" and arrows and arrows[-1].src == _NODE.key and arrows[-1].dst == f"c{f.conn}" \
                 and arrows[-1].label.split(" ×")[0] == label:
             folded += 1
             last = arrows[-1]
@@ -46,6 +49,6 @@ def stream_svg(frames: Sequence[StreamFrame], title: str = "") -> str:
             continue
         folded = 0
         kind = "malformed" if f.problem else "msg"
-        src, dst = (f"c{f.conn}", "backend") if f.direction == "tx" else ("backend", f"c{f.conn}")
+        src, dst = (f"c{f.conn}", _NODE.key) if f.direction == "tx" else (_NODE.key, f"c{f.conn}")
         arrows.append(Arrow(f.t_ns, src, dst, label, kind=kind, note=f.raw[:48].hex(" "), index=f.index))
     return render(lifelines, arrows, title=title)

@@ -38,6 +38,7 @@ from typing import Any
 from harness.impair import Impairment, ImpairSpec
 from harness.run_delay import run_delay_ns
 from soak.medium import MANAGER, Medium, view_name
+from spec.profiles import MCP
 from vehicle.ports import free_port
 
 __all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "NodeEnd",
@@ -321,7 +322,7 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
     for v in views:
         node_id = 0 if v == MANAGER else int(v[5:])
         recorders[v] = McapRecorder(parts[v], library="mcp-soak", metadata=run_metadata(
-            "mcp-soak", role="manager" if v == MANAGER else "drone", node_id=node_id, complete="true",
+            "mcp-soak", role=MCP.role_of_id(node_id).name, node_id=node_id, complete="true",
             parameters={"rto": setup.rto}, impair=spec.text(), challenge=challenge),
             live=setup.live.feed(v) if setup.live is not None else None)
     procs: dict[str, subprocess.Popen[bytes]] = {}

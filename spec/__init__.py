@@ -1,7 +1,8 @@
 """The CentMesh MCP spec and everything derived from it.
 
 ``spec.SPEC`` is the loaded, checked ``mcp.yaml``, ``spec.NSQD`` the Nsqd TCP protocol's
-``nsqd.yaml`` (``spec.stream``, ``spec.stream_codec``), ``spec.RULES`` every rule of both; ``spec.codec`` the wire codec built from
+``nsqd.yaml`` (``spec.stream``, ``spec.stream_codec``), both read through one interface
+(``spec.SpecBase``); ``spec.RULES`` every rule of both; ``spec.codec`` the wire codec built from
 it; ``spec.mission`` mission items and waypoint files through pymavlink; ``spec.profiles`` each
 protocol declared once (its spec, codec, framing, and the modules of the floors above that
 serve it, by name). ``spec`` imports no other package of this project.
@@ -15,6 +16,7 @@ from spec._load import (
     Observation,
     Rule,
     Spec,
+    SpecBase,
     SpecError,
     load,
 )
@@ -26,10 +28,8 @@ from spec.stream import StreamSpec, load_stream  # noqa: E402  (after _load, whi
 #: The Nsqd TCP drone protocol's spec (``nsqd.yaml``): the second protocol (``--protocol nsqd``).
 NSQD: StreamSpec = load_stream()
 
-#: Every protocol's spec by its ``--protocol`` name.
-PROTOCOLS: dict[str, Spec | StreamSpec] = {"mcp": SPEC, "nsqd": NSQD}
 
-def spec_for_role(role: str) -> Spec | StreamSpec:
+def spec_for_role(role: str) -> SpecBase:
     """The spec whose roles include ``role`` (backend, client: Nsqd; drone, manager: MCP)."""
     return NSQD if role in NSQD.roles else SPEC
 
@@ -42,7 +42,6 @@ __all__ = [
     "LEVELS",
     "ROLES",
     "NSQD",
-    "PROTOCOLS",
     "RULES",
     "SPEC",
     "ActionSpec",
@@ -50,6 +49,7 @@ __all__ = [
     "Observation",
     "Rule",
     "Spec",
+    "SpecBase",
     "SpecError",
     "StreamSpec",
     "load",

@@ -20,16 +20,15 @@ from collections.abc import Sequence
 from rich.console import Console
 from rich.table import Table
 
-from spec._load import LEVELS, Spec, SpecError, load, read_validated
-from spec.profiles import PROFILES
-from spec.stream import StreamSpec, load_stream
+from spec._load import LEVELS, SpecBase, SpecError, read_validated
+from spec.profiles import PROFILES, add_protocol_option, pick, resolve
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m spec",
                                 description="Validate the MCP spec and print its summary.")
     p.add_argument("--spec", metavar="PATH", help="spec file to load (default: the packaged mcp.yaml and nsqd.yaml)")
-    p.add_argument("--protocol", choices=tuple(PROFILES), help="the packaged spec of this protocol only")
+    add_protocol_option(p, f"the packaged spec of this protocol only ({', '.join(PROFILES)})")
     sub = p.add_subparsers(dest="command")
     d = sub.add_parser("docs", help="write docs/spec.md from the spec (or --check it)")
     d.add_argument("--check", action="store_true", help="fail (exit 1) when the page is stale")
@@ -37,48 +36,39 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_any(path: str | None, protocol: str | None) -> list[Spec | StreamSpec]:
-    """The specs asked for: a file (either kind, by its transport), one protocol, or both."""
+def _load_any(path: str | None, protocol: str | None) -> list[SpecBase]:
+    """The specs asked for: a file (loaded by the profile of its transport), one protocol's,
+    or every protocol's."""
     if path is not None:
         raw, _, _ = read_validated(path)
-        return [load_stream(path) if raw["protocol"]["transport"] == "tcp" else load(path)]
+        transport = raw["protocol"]["transport"]
+        prof = next((p for p in PROFILES.values() if p.transport == transport), None)
+        if prof is None:
+            raise SpecError(f"{path}: protocol.transport: no protocol's spec is carried by {transport!r}")
+        return [resolve(prof.loader)(path)]
     if protocol is not None:
-        return [PROFILES[protocol].spec]
-    return [load(), load_stream()]
+        return [pick(protocol)[0].spec]
+    return [p.spec for p in PROFILES.values()]
 
 
-def print_summary(spec: Spec | StreamSpec, console: Console) -> None:
-    """Header layout, action codes (messages for a stream protocol) and rule counts by group
-    and level, as rich tables."""
-    proto = spec.protocol
-    console.print(f"[bold]{proto['name']}[/bold] v{spec.version} — {spec.path} "
+def print_summary(spec: SpecBase, console: Console) -> None:
+    """The spec's own tables (``summary`` of its page's module: MCP's header and action codes,
+    a stream protocol's messages), then its rule counts by group and level, as rich tables."""
+    from spec import docs
+
+    console.print(f"[bold]{spec.name}[/bold] v{spec.version} — {spec.path} "
                   f"(sha256 {spec.sha256[:12]}…) [green]valid[/green]")
-    if isinstance(spec, StreamSpec):
-        msgs = Table(title=f"Messages (frame: {spec.framing.prefix_struct} length counting itself, id, body)")
-        for col in ("id", "name", "sent by", "fields"):
-            msgs.add_column(col)
-        for m in spec.messages:
-            msgs.add_row(str(m.id), m.name, m.sent_by, ", ".join(f"{f.name}:{f.type}" for f in m.fields))
-        console.print(msgs)
-        _rule_counts(spec, console)
-        return
-    hdr = Table(title=f"Header: {spec.header['size']} bytes, struct {spec.header['struct']}")
-    for col in ("field", "code", "value / meaning"):
-        hdr.add_column(col)
-    for f in spec.header["fields"]:
-        hdr.add_row(f["name"], f["code"], repr(f["const"]) if "const" in f else f.get("doc", ""))
-    console.print(hdr)
-    acts = Table(title="Action codes")
-    for col in ("code", "name", "sent by", "delivery", "payload"):
-        acts.add_column(col)
-    for a in spec.actions:
-        acts.add_row(str(a.code), a.wire_name + ("" if a.on_wire else " (API only)"),
-                     a.sent_by, a.delivery, a.payload)
-    console.print(acts)
+    for title, columns, rows in docs.page(spec).summary(spec):
+        table = Table(title=title)
+        for col in columns:
+            table.add_column(col)
+        for row in rows:
+            table.add_row(*row)
+        console.print(table)
     _rule_counts(spec, console)
 
 
-def _rule_counts(spec: Spec | StreamSpec, console: Console) -> None:
+def _rule_counts(spec: SpecBase, console: Console) -> None:
     rules = Table(title=f"Rules: {len(spec.rules)}")
     rules.add_column("group")
     for level in LEVELS:
@@ -102,24 +92,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         err.print(f"error: {exc}", markup=False)
         return 2
     if args.command == "docs":
-        from spec import docs, docs_stream
+        from spec import docs
 
         if args.output and len(specs) > 1:
             err.print("error: --output: give --protocol or --spec too (one page per spec)", markup=False)
             return 2
         stale = False
         for spec in specs:
-            page = docs_stream if isinstance(spec, StreamSpec) else docs
             out = args.output
             if args.check:
-                if page.check(spec, out):  # type: ignore[arg-type]
-                    print(f"{out or page.default_output()} is current")
+                if docs.check(spec, out):
+                    print(f"{out or docs.default_output(spec)} is current")
                 else:
-                    err.print(f"error: {out or page.default_output()} is stale: run `python -m spec docs`",
+                    err.print(f"error: {out or docs.default_output(spec)} is stale: run `python -m spec docs`",
                               markup=False)
                     stale = True
             else:
-                print(f"wrote {page.write(spec, out)}")  # type: ignore[arg-type]
+                print(f"wrote {docs.write(spec, out)}")
         return 1 if stale else 0
     for spec in specs:
         print_summary(spec, Console())

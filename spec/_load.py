@@ -16,7 +16,7 @@ import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 SPEC_PATH = Path(__file__).with_name("mcp.yaml")
 SCHEMA_PATH = Path(__file__).with_name("spec.schema.json")
@@ -65,6 +65,8 @@ class Rule:
 
 @dataclass(frozen=True)
 class ActionSpec:
+    """One action code: an MCP message (its id the code)."""
+
     code: int
     name: str
     wire_name: str
@@ -74,6 +76,10 @@ class ActionSpec:
     payload_kind: str
     on_wire: bool
     doc: str
+
+    @property
+    def id(self) -> int:
+        return self.code
 
 
 @dataclass(frozen=True)
@@ -87,23 +93,90 @@ class Note:
 
 
 @dataclass(frozen=True)
-class Spec:
-    """The loaded, checked spec. ``raw`` keeps the YAML tree for derived artefacts."""
+class SpecBase:
+    """What every protocol's spec is, the one interface the tools read a spec by (MCP's
+    :class:`Spec`, a stream protocol's ``spec.stream.StreamSpec``): its name and version, its
+    roles and their ports, its messages by id or name, its rules by ID, and the module that
+    draws its page and summary (:attr:`DOCS`). ``raw`` keeps the YAML tree; each subclass adds
+    the fields of its own kind of protocol."""
+
+    #: the module that draws the spec's page (``docs/*.md``): ``render(spec)``, ``write(spec,
+    #: path)``, ``check(spec, path)``, ``default_output()``, and ``summary(spec)`` (the tables
+    #: ``python -m spec`` prints)
+    DOCS: ClassVar[str]
 
     raw: Mapping[str, Any]
     sha256: str
     path: Path
     rules: tuple[Rule, ...]
-    actions: tuple[ActionSpec, ...]
     errata: tuple[Note, ...]
     decisions: tuple[Note, ...]
     params: Mapping[str, float]
     rules_by_id: Mapping[str, Rule] = field(repr=False)
 
-    # -- convenience views -------------------------------------------------------------
     @property
     def protocol(self) -> Mapping[str, Any]:
         return self.raw["protocol"]
+
+    @property
+    def name(self) -> str:
+        return str(self.protocol["name"])
+
+    @property
+    def short_name(self) -> str:
+        return str(self.protocol["short_name"])
+
+    @property
+    def version(self) -> str:
+        return str(self.protocol["document_version"])
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return tuple(self.protocol["roles"])
+
+    @property
+    def groups(self) -> Mapping[str, str]:
+        return self.raw["groups"]
+
+    @property
+    def messages(self) -> tuple[Any, ...]:
+        """Every message, each with its ``id``, ``name`` and ``sent_by``."""
+        raise NotImplementedError
+
+    def message(self, key: int | str) -> Any:
+        """The message with this id or name (``KeyError`` if none)."""
+        for m in self.messages:
+            if key in (m.id, m.name):
+                return m
+        raise KeyError(key)
+
+    def port(self, role: str) -> int:
+        """The role's conventional port (``KeyError``: the spec gives it none)."""
+        return int(self.protocol["ports"][role])
+
+    def rule(self, rule_id: str) -> Rule:
+        return self.rules_by_id[rule_id]
+
+    def rules_for(self, role: str) -> tuple[Rule, ...]:
+        return tuple(r for r in self.rules if r.applies_to(role))
+
+
+@dataclass(frozen=True)
+class Spec(SpecBase):
+    """The loaded, checked MCP spec; its messages are its actions (by code, the message's id)."""
+
+    DOCS: ClassVar[str] = "spec.docs"
+
+    actions: tuple[ActionSpec, ...]
+
+    # -- convenience views -------------------------------------------------------------
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return ROLES
+
+    @property
+    def messages(self) -> tuple[ActionSpec, ...]:
+        return self.actions
 
     @property
     def header(self) -> Mapping[str, Any]:
@@ -118,22 +191,8 @@ class Spec:
         return self.raw["payloads"]
 
     @property
-    def groups(self) -> Mapping[str, str]:
-        return self.raw["groups"]
-
-    @property
-    def version(self) -> str:
-        return str(self.protocol["document_version"])
-
-    @property
     def preamble(self) -> bytes:
         return bytes.fromhex(self.header["preamble_hex"])
-
-    def rule(self, rule_id: str) -> Rule:
-        return self.rules_by_id[rule_id]
-
-    def rules_for(self, role: str) -> tuple[Rule, ...]:
-        return tuple(r for r in self.rules if r.applies_to(role))
 
 
 def _where(path: Any) -> str:

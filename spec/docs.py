@@ -6,29 +6,43 @@ item (MCP-PAY-4, E-1, E-2), parameters, errata and decisions, and the full rule 
 levels, roles, the decisions each rule rests on and how a black-box runner observes it per
 role. ``python -m spec docs`` writes it and ``python -m spec docs --check`` fails when the
 committed page is stale.
+
+:func:`write`, :func:`check` and :func:`default_output` are the one entry point for every
+protocol's page: each draws the page of the spec it is given with the module the spec names
+(``SpecBase.DOCS``: this one for MCP, ``spec.docs_stream`` for Nsqd), whose ``render(spec)``,
+``summary(spec)`` and ``DEFAULT_OUTPUT`` are its own.
 """
 
 from __future__ import annotations
 
+import importlib
 import struct
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from spec._load import ROLES, Spec
+from spec._load import ROLES, Spec, SpecBase
 
-__all__ = ["DEFAULT_OUTPUT", "check", "default_output", "render", "write"]
+__all__ = ["DEFAULT_OUTPUT", "check", "default_output", "SummaryTable", "page", "render", "summary", "write"]
+
+#: A table of ``python -m spec``'s summary: its title, its columns, its rows.
+SummaryTable = tuple[str, Sequence[str], Sequence[Sequence[str]]]
 
 #: Where the page lives, relative to the repository root.
 DEFAULT_OUTPUT = Path("docs") / "spec.md"
 
 
-def default_output() -> Path:
-    """``docs/spec.md`` of the source tree this package sits in, else of the working directory."""
+def page(spec: SpecBase) -> Any:
+    """The module that draws ``spec``'s page (``render``, ``summary``, ``DEFAULT_OUTPUT``)."""
+    return importlib.import_module(spec.DOCS)
+
+
+def default_output(spec: SpecBase | None = None) -> Path:
+    """The page of ``spec`` (default: MCP's, ``docs/spec.md``) in the source tree this
+    package sits in, else in the working directory."""
+    relative: Path = page(spec).DEFAULT_OUTPUT if spec is not None else DEFAULT_OUTPUT
     root = Path(__file__).resolve().parents[1]
-    if (root / "pyproject.toml").is_file():
-        return root / DEFAULT_OUTPUT
-    return DEFAULT_OUTPUT
+    return root / relative if (root / "pyproject.toml").is_file() else relative
 
 
 def _cell(value: Any) -> str:
@@ -190,18 +204,30 @@ def catalogue_sections(spec: Any, roles: Sequence[str], observables: str) -> lis
     return lines
 
 
-def write(spec: Spec, path: str | Path | None = None) -> Path:
-    """Write the page; returns its path."""
-    out = Path(path) if path is not None else default_output()
+def summary(spec: Spec) -> list[SummaryTable]:
+    """The tables ``python -m spec`` prints of MCP's spec (title, columns, rows): the header
+    and the action codes."""
+    header = [(f["name"], f["code"], repr(f["const"]) if "const" in f else f.get("doc", ""))
+              for f in spec.header["fields"]]
+    actions = [(str(a.code), a.wire_name + ("" if a.on_wire else " (API only)"), a.sent_by, a.delivery, a.payload)
+               for a in spec.actions]
+    return [(f"Header: {spec.header['size']} bytes, struct {spec.header['struct']}",
+             ("field", "code", "value / meaning"), header),
+            ("Action codes", ("code", "name", "sent by", "delivery", "payload"), actions)]
+
+
+def write(spec: SpecBase, path: str | Path | None = None) -> Path:
+    """Write the page of ``spec``, whatever its protocol; returns its path."""
+    out = Path(path) if path is not None else default_output(spec)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render(spec), encoding="utf-8")
+    out.write_text(page(spec).render(spec), encoding="utf-8")
     return out
 
 
-def check(spec: Spec, path: str | Path | None = None) -> bool:
-    """True when the page at ``path`` is exactly what :func:`render` gives."""
-    out = Path(path) if path is not None else default_output()
+def check(spec: SpecBase, path: str | Path | None = None) -> bool:
+    """True when the page at ``path`` is exactly what the spec's ``render`` gives."""
+    out = Path(path) if path is not None else default_output(spec)
     try:
-        return out.read_text(encoding="utf-8") == render(spec)
+        return out.read_text(encoding="utf-8") == page(spec).render(spec)
     except OSError:
         return False

@@ -5,24 +5,20 @@ prefix that counts itself: E-1, D-1), the field types ("floats" as the integers 
 carries: E-2), the flight states, every message with its body layout and its effect on the
 flight state (NSQD-MSG-3), then the parameters, errata, decisions and rule tables shared
 with every spec (``spec.docs.catalogue_sections``). ``python -m spec docs`` writes both
-pages; ``--check`` fails when either is stale.
+pages (``spec.docs.write`` and ``check``, the entry point of every protocol's page); ``--check``
+fails when either is stale.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from spec.docs import _table, catalogue_sections
+from spec.docs import SummaryTable, _table, catalogue_sections
 from spec.stream import MessageSpec, StreamSpec
 
-__all__ = ["DEFAULT_OUTPUT", "check", "default_output", "render", "write"]
+__all__ = ["DEFAULT_OUTPUT", "render", "summary"]
 
 DEFAULT_OUTPUT = Path("docs") / "nsqd.md"
-
-
-def default_output() -> Path:
-    root = Path(__file__).resolve().parents[1]
-    return root / DEFAULT_OUTPUT if (root / "pyproject.toml").is_file() else DEFAULT_OUTPUT
 
 
 def _layout(spec: StreamSpec, msg: MessageSpec) -> str:
@@ -90,16 +86,9 @@ def render(spec: StreamSpec) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def write(spec: StreamSpec, path: str | Path | None = None) -> Path:
-    out = Path(path) if path is not None else default_output()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render(spec), encoding="utf-8")
-    return out
-
-
-def check(spec: StreamSpec, path: str | Path | None = None) -> bool:
-    out = Path(path) if path is not None else default_output()
-    try:
-        return out.read_text(encoding="utf-8") == render(spec)
-    except OSError:
-        return False
+def summary(spec: StreamSpec) -> list[SummaryTable]:
+    """The table ``python -m spec`` prints of a stream protocol's spec: its messages."""
+    return [(f"Messages (frame: {spec.framing.prefix_struct} length counting itself, id, body)",
+             ("id", "name", "sent by", "fields"),
+             [(str(m.id), m.name, m.sent_by, ", ".join(f"{f.name}:{f.type}" for f in m.fields))
+              for m in spec.messages])]

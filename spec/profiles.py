@@ -14,14 +14,15 @@ protocol name or a role name turns into behaviour. A new protocol adds its profi
 
 from __future__ import annotations
 
+import argparse
 import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from spec import NSQD, SPEC, Spec, StreamSpec
+from spec import NSQD, SPEC, SpecBase
 
-__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "pick",
-           "profile_of_role", "resolve", "ROLE_NAMES"]
+__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
+           "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
 
 DEFAULT_PROTOCOL = "mcp"
 
@@ -50,6 +51,10 @@ class RoleProfile:
     impairable: bool = False
     #: ``--parallel``: the role's cases are shared out across node instances
     shardable: bool = False
+    #: the role the runner (a replay, a reference node's default address) plays against it
+    peer: str | None = None
+    #: the node's protocol ID when the spec fixes it for the role (MCP's manager: 0), else None
+    fixed_id: int | None = None
 
 
 @dataclass(frozen=True)
@@ -57,7 +62,7 @@ class Profile:
     """One protocol: its spec and everything derived from it, by the floor that owns it."""
 
     name: str
-    spec: Spec | StreamSpec
+    spec: SpecBase
     #: how the wire carries messages: ``datagram`` (one message a datagram) or ``stream``
     #: (frames deframed from a byte stream)
     framing: str
@@ -68,13 +73,15 @@ class Profile:
     #: a capture's records, and whether a capture file holds this protocol's traffic
     capture_reader: str
     capture_detect: str | None
-    #: ``mcp-capture check|show|diff|export`` of its captures, None: the datagram core's own
-    capture_tools: str | None
+    #: ``mcp-capture check|show|diff|export|replay`` of its captures (``captures.cli.CaptureTools``)
+    capture_tools: str
     mutators: str
     oracles: str
     #: the reference node's command line (``mcp-node --protocol NAME``)
     reference_cli: str
     roles: tuple[RoleProfile, ...]
+    #: the loader of a spec file of this protocol (``python -m spec --spec PATH``)
+    loader: str
 
     @property
     def default_role(self) -> RoleProfile:
@@ -94,35 +101,49 @@ class Profile:
                 return r
         raise ProfileError(f"{name!r} is not a role of --protocol {self.name} ({', '.join(self.role_names)})")
 
+    def role_of_id(self, node_id: int | None) -> RoleProfile:
+        """The role of the node with this protocol ID: the role whose ID the spec fixes to it
+        (MCP's manager, 0), else (an unknown ID too) the first role with no fixed ID (MCP's
+        drones)."""
+        for r in self.roles:
+            if r.fixed_id is not None and r.fixed_id == node_id:
+                return r
+        return next(r for r in self.roles if r.fixed_id is None)
+
 
 MCP = Profile(
     name="mcp", spec=SPEC, framing="datagram", transport="udp",
     codec="spec.codec", monitor="judge.run_monitor:RunMonitor",
     dissector="captures.dissector", capture_reader="traceio.reader:open_capture",
-    capture_detect=None, capture_tools=None,
+    capture_detect=None, capture_tools="captures.mcp",
     mutators="fuzz.mutators", oracles="fuzz.oracles", reference_cli="reference_impl.cli",
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
                     cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
-                    reference=("drone",), impairable=True, shardable=True),
+                    reference=("drone",), impairable=True, shardable=True,
+                    peer="manager"),
         RoleProfile("manager", session="harness.manager_session:ManagerSession",
                     context="conformance.manager_case:ManagerCaseContext",
                     cases="conformance.cases_manager", fuzz_target="fuzz.manager_target:ManagerFuzzTarget",
-                    reference=("manager",), parameters=("drones", "challenge", "waypoints")),
+                    reference=("manager",), parameters=("drones", "challenge", "waypoints"),
+                    peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
     ),
+    loader="spec._load:load",
 )
 
 NSQD_PROFILE = Profile(
     name="nsqd", spec=NSQD, framing="stream", transport="tcp",
     codec="spec.stream_codec", monitor="judge.stream_monitor:StreamMonitor",
     dissector="captures.dissector_nsqd", capture_reader="traceio.stream:stream_records",
-    capture_detect="traceio.stream:is_stream_capture", capture_tools="captures.nsqd",
+    capture_detect="captures.nsqd:is_capture", capture_tools="captures.nsqd",
     mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles", reference_cli="reference_impl.nsqd_cli",
     roles=(
         RoleProfile("backend", session="harness.stream_session:StreamSession",
                     context="conformance.stream_case:StreamCaseContext", cases="conformance.cases_nsqd",
-                    fuzz_target=None, reference=("--protocol", "nsqd", "backend")),
+                    fuzz_target=None, reference=("--protocol", "nsqd", "backend"),
+                    peer="client"),
     ),
+    loader="spec.stream:load_stream",
 )
 
 #: Every protocol by its ``--protocol`` name; the first is the default.
@@ -148,6 +169,25 @@ def pick(protocol: str | None = None, role: str | None = None) -> tuple[Profile,
     if prof is None:
         raise ProfileError(f"{protocol!r} is not one of {', '.join(PROFILES)}")
     return prof, prof.role(role)
+
+
+class _ProtocolOption(argparse.Action):
+    """``--protocol NAME`` checked by :func:`pick`: an unknown name is the same one line in
+    every tool (``PROG: error: --protocol: 'x' is not one of mcp, nsqd``)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        try:
+            pick(values)
+        except ProfileError as exc:
+            parser.error(f"{option_string}: {exc}")
+        setattr(namespace, self.dest, values)
+
+
+def add_protocol_option(parser: Any, help: str, default: str | None = None) -> None:
+    """``--protocol`` as every tool takes it: one of :data:`PROFILES`, picked by :func:`pick`."""
+    parser.add_argument("--protocol", action=_ProtocolOption, default=default, metavar="|".join(PROFILES),
+                        help=help)
 
 
 def resolve(path: str) -> Any:

@@ -14,9 +14,9 @@ import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from spec._load import Note, Rule, SpecError, _fail, build_catalogue, read_validated
+from spec._load import SpecBase, SpecError, _fail, build_catalogue, read_validated
 
 __all__ = ["NSQD_PATH", "Effect", "Field", "Framing", "MessageSpec", "StreamSpec", "int_range", "load_stream"]
 
@@ -75,57 +75,21 @@ class Framing:
 
 
 @dataclass(frozen=True)
-class StreamSpec:
-    """The loaded, checked spec of a stream protocol. ``raw`` keeps the YAML tree."""
+class StreamSpec(SpecBase):
+    """The loaded, checked spec of a stream protocol: its framing, field types, flight states
+    and messages."""
 
-    raw: Mapping[str, Any]
-    sha256: str
-    path: Path
-    rules: tuple[Rule, ...]
-    errata: tuple[Note, ...]
-    decisions: tuple[Note, ...]
-    params: Mapping[str, float]
-    rules_by_id: Mapping[str, Rule] = field(repr=False)
+    DOCS: ClassVar[str] = "spec.docs_stream"
+
     framing: Framing = field(repr=False, default=None)  # type: ignore[assignment]
     types: Mapping[str, Mapping[str, Any]] = field(repr=False, default_factory=dict)
     states: Mapping[str, int] = field(repr=False, default_factory=dict)
     messages: tuple[MessageSpec, ...] = ()
 
-    @property
-    def protocol(self) -> Mapping[str, Any]:
-        return self.raw["protocol"]
-
-    @property
-    def short_name(self) -> str:
-        return str(self.protocol["short_name"])
-
-    @property
-    def roles(self) -> tuple[str, ...]:
-        return tuple(self.protocol["roles"])
-
-    @property
-    def groups(self) -> Mapping[str, str]:
-        return self.raw["groups"]
-
-    @property
-    def version(self) -> str:
-        return str(self.protocol["document_version"])
-
-    def port(self, role: str) -> int:
-        return int(self.protocol["ports"][role])
-
-    def rule(self, rule_id: str) -> Rule:
-        return self.rules_by_id[rule_id]
-
-    def rules_for(self, role: str) -> tuple[Rule, ...]:
-        return tuple(r for r in self.rules if r.applies_to(role))
-
     def message(self, key: int | str) -> MessageSpec:
         """The message with this id or name (``KeyError`` if none)."""
-        for m in self.messages:
-            if key in (m.id, m.name):
-                return m
-        raise KeyError(key)
+        found: MessageSpec = super().message(key)
+        return found
 
     def has_message(self, msg_id: int) -> bool:
         return any(m.id == msg_id for m in self.messages)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from spec import NSQD
+from spec.profiles import PROFILES
 from spec.stream_codec import Deframer, Frame
 from traceio.reader import (
     Capture,
@@ -37,6 +38,9 @@ __all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
 
 BACKEND_PORT = NSQD.port("backend")
 _PEEK = 500  # records or packets looked at to tell the protocol
+#: the protocols whose captures this module reads (their profile's ``capture_reader``), as a
+#: run's metadata record names them
+_READ_HERE = frozenset(p.name for p in PROFILES.values() if p.capture_reader == f"{__name__}:stream_records")
 
 
 def _name(raw: bytes) -> str | None:
@@ -67,7 +71,7 @@ def is_stream_capture(path: str | Path) -> bool:
     if cap.format == "mcap":
         for rec in itertools.islice(cap, _PEEK):
             kind = type(rec)
-            if isinstance(rec, Metadata) and rec.data.get("protocol") == "nsqd":
+            if isinstance(rec, Metadata) and rec.data.get("protocol") in _READ_HERE:
                 return True
             if kind in (StreamFrame, StreamEvent):
                 return True

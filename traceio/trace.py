@@ -32,6 +32,7 @@ from spec.codec import (
     peek_header,
 )
 from spec.mavframe import FrameError, parse_frame
+from spec.profiles import MCP
 from traceio.reader import Datagram
 
 __all__ = ["Entry", "Node", "Trace", "action_name", "describe_payload", "lifeline_of", "node_role"]
@@ -51,11 +52,8 @@ def action_name(code: int | None) -> str:
 
 
 def node_role(node_id: int, broadcast_id: int = BROADCAST_ID) -> str:
-    if node_id == MANAGER_ID:
-        return "manager"
-    if node_id == broadcast_id:
-        return "broadcast"
-    return "drone"
+    """The MCP role of the node with this ID (``spec.profiles``), or ``broadcast``."""
+    return "broadcast" if node_id == broadcast_id else MCP.role_of_id(node_id).name
 
 
 def _item(item: MissionItem) -> str:

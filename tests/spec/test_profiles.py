@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from spec import ROLES
+from spec import ROLES, SpecBase
 from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick, profile_of_role, resolve
 
 
@@ -15,12 +15,12 @@ def test_every_name_in_the_table_resolves():
 
     for prof in PROFILES.values():
         for path in (prof.codec, prof.monitor, prof.dissector, prof.capture_reader, prof.mutators,
-                     prof.oracles, prof.reference_cli, prof.capture_detect, prof.capture_tools):
+                     prof.oracles, prof.reference_cli, prof.capture_detect, prof.capture_tools, prof.loader):
             if path is not None:
                 assert resolve(path) is not None, path
         assert hasattr(resolve(prof.dissector), "generate") and resolve(prof.reference_cli).main
         for role in prof.roles:
-            assert role.name in getattr(prof.spec, "roles", ROLES), (prof.name, role.name)
+            assert role.name in prof.spec.roles and role.peer in prof.spec.roles, (prof.name, role.name)
             assert issubclass(resolve(role.session), NodeBase), role.session
             assert issubclass(resolve(role.context), CaseBase), role.context
             assert resolve(role.cases).__path__, role.cases
@@ -36,3 +36,29 @@ def test_pick_names_the_defaults_and_refuses_in_one_line():
     with pytest.raises(ProfileError, match=r"^'xyz' is not one of mcp, nsqd$"):
         pick("xyz")
     assert profile_of_role("backend").framing == "stream" and set(ROLE_NAMES) == {"drone", "manager", "backend"}
+
+
+def test_every_spec_answers_the_one_interface():
+    """Both protocols' specs are read the same way (``SpecBase``): name, version, roles and
+    their ports, messages by id and by name, rules by ID, their page (``spec.docs``)."""
+    from spec import docs
+
+    assert PROFILES["mcp"].spec.roles == ROLES
+    for prof in PROFILES.values():
+        spec = prof.spec
+        assert isinstance(spec, SpecBase) and spec.name and spec.short_name and spec.version
+        assert type(resolve(prof.loader)(spec.path)) is type(spec)
+        for m in spec.messages:
+            assert spec.message(m.id) is m and spec.message(m.name) is m
+        with pytest.raises(KeyError):
+            spec.message("NO_SUCH_MESSAGE")
+        assert all(spec.rule(r.id) is r for r in spec.rules)
+        assert spec.port(prof.default_role.name) > 0
+        assert docs.check(spec), f"{docs.default_output(spec)} is stale: run `python -m spec docs`"
+        assert docs.page(spec).summary(spec)
+
+
+def test_a_node_id_names_its_role():
+    mcp = PROFILES["mcp"]
+    assert [mcp.role_of_id(i).name for i in (0, 1, 7)] == ["manager", "drone", "drone"]
+    assert mcp.role(mcp.role("drone").peer).fixed_id == 0 and mcp.role("drone").fixed_id is None

@@ -161,6 +161,21 @@ def test_every_usage_error_is_one_line_with_one_prefix() -> None:
         assert run.stderr.count("error:") == 1 and run.stderr.count(prog) == 1, (tool, run.stderr)
 
 
+@pytest.mark.parametrize("cmd", [["mcp-conform", "--protocol", "xyz"], ["mcp-node", "--protocol", "xyz", "drone"],
+                                 ["mcp-capture", "check", "x.mcap", "--protocol", "xyz"],
+                                 ["mcp-capture", "dissector", "--protocol", "xyz"],
+                                 [sys.executable, "-m", "spec", "--protocol", "xyz"]], ids=lambda c: " ".join(c[-4:]))
+def test_an_unknown_protocol_is_the_same_line_everywhere(cmd) -> None:
+    """``--protocol`` goes through ``spec.profiles.pick``: the same error, naming every protocol."""
+    from spec.profiles import PROFILES
+
+    run = subprocess.run(cmd, capture_output=True, text=True, env=ENV, timeout=120)
+    assert run.returncode == 2, run.stderr
+    last = run.stderr.splitlines()[-1]
+    assert last.endswith(f"error: {'check: ' if 'check' in cmd else 'dissector: ' if 'dissector' in cmd else ''}"
+                         f"--protocol: 'xyz' is not one of {', '.join(PROFILES)}"), run.stderr
+
+
 def test_version_everywhere() -> None:
     from spec.about import tool_version
 
