@@ -7,7 +7,7 @@ a small client that connects to a backend, sends commands and prints what comes 
     mcp-node --protocol nsqd client --target HOST:PORT [--send NAME ...] [--duration S]
 
 The backend prints ``listening on HOST:PORT`` once it listens, logs one line per event to
-stderr and stops on SIGINT/SIGTERM (exit 0); a bad argument or a port in use is one line
+stderr and stops on SIGINT/SIGTERM (exit 130, 143: 128 + the signal's number); a bad argument or a port in use is one line
 and exit 2. The client prints each frame it receives as JSON, one per line. ``--bind`` and
 ``--connect`` are kept as deprecated aliases of ``--listen`` and ``--target`` (docs/grammar.md).
 """
@@ -47,7 +47,7 @@ def _hostport(text: str) -> tuple[str, int]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="The reference Nsqd backend, or a client of one.",
-                epilog=epilog("The backend stops on Ctrl-C or SIGTERM: exit 0."),
+                epilog=epilog("The backend stops on Ctrl-C or SIGTERM: exit 130 or 143 (128 + the signal's number)."),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="role", required=True)
     b = sub.add_parser("backend", help="serve the Nsqd protocol on a TCP port (one client at a time)")
@@ -81,14 +81,20 @@ def _backend(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"{ERR}: error: --listen {args.listen[0]}:{args.listen[1]}: {exc.strerror}", file=sys.stderr)
         return 2
+    stopped_by: list[int] = []
+
+    def stop(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        server.stop()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: server.stop())
+        signal.signal(sig, stop)
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
     try:
         server.serve()
     finally:
         server.close()
-    return 0
+    return 128 + stopped_by[0] if stopped_by else 0  # the grammar's interrupt: 130, 143
 
 
 def _client(args: argparse.Namespace) -> int:
@@ -107,6 +113,13 @@ def _client(args: argparse.Namespace) -> int:
         print(f"{ERR}: error: --target {args.target[0]}:{args.target[1]}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     deframer = Deframer(NSQD)
+    try:
+        return _listen(sock, deframer, args)
+    except KeyboardInterrupt:  # Ctrl-C while it listens: the grammar's interrupt, no traceback
+        return 130
+
+
+def _listen(sock: socket.socket, deframer: Deframer, args: argparse.Namespace) -> int:
     with sock:
         for name in args.send:
             sock.sendall(encode(NSQD, name.upper()))

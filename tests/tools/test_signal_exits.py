@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -72,6 +73,36 @@ def test_mcp_node(sig: int) -> None:
          "--gps-fix-delay", "1000"], lambda ln: "waiting for a 3D GPS fix" in ln, "stderr", sig)
     _check(code, out, err, sig)
     assert '"outcome": "stopped"' in out, out  # the record, as on any exit
+
+
+@pytest.mark.parametrize("sig", SIGNALS)
+def test_mcp_node_nsqd_backend(sig: int) -> None:
+    code, out, err = _run_until(["mcp-node", "--protocol", "nsqd", "backend", "--listen", "127.0.0.1:0"],
+                                lambda ln: ln.startswith("listening on"), "stdout", sig)
+    _check(code, out, err, sig)
+
+
+def test_mcp_node_nsqd_client_ctrl_c() -> None:
+    """The client listens --duration seconds; Ctrl-C before is an interrupt, not a traceback."""
+    with socket.socket() as backend:
+        backend.bind(("127.0.0.1", 0))
+        backend.listen(1)
+        proc = subprocess.Popen(["mcp-node", "--protocol", "nsqd", "client", "--target",
+                                 f"127.0.0.1:{backend.getsockname()[1]}", "--duration", "60"],
+                                cwd=ROOT, env=ENV, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            backend.settimeout(READY_WITHIN)
+            conn, _ = backend.accept()  # it is connected, so listening
+            with conn:
+                time.sleep(0.3)
+                proc.send_signal(signal.SIGINT)
+                out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    _check(proc.returncode, out, err, signal.SIGINT)
 
 
 @pytest.mark.parametrize("sig", SIGNALS)
