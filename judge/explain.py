@@ -51,7 +51,7 @@ Sans-I/O: no clock, socket, file or thread; times are seconds on the observer's 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 __all__ = [
@@ -235,25 +235,14 @@ def _answers(c: Copy, a: Ack, b: Bounds, most: float) -> bool:
     return _intervals_meet(lo, hi, 0.0, most)
 
 
-def _candidates(copies: Sequence[Copy], acks: Sequence[Ack], pred: Callable[[Copy, Ack], bool],
-                by_copy: bool, span: float) -> list[list[int]]:
-    """For each copy (``by_copy``) or ACK, the indexes on the other side within ``span`` of it
-    for which ``pred`` holds; a sort and a scan, so a trace of hundreds stays cheap."""
+def _candidates(copies: Sequence[Copy], acks: Sequence[Ack], before: float, after: float
+                ) -> list[list[int]]:
+    """For each copy, the ACKs seen from ``before`` ahead of it to ``after`` behind it (a sort
+    and two bisections: a trace of hundreds stays cheap)."""
     order = sorted(range(len(acks)), key=lambda j: acks[j].t)
     times = [acks[j].t for j in order]
-    if by_copy:
-        out = []
-        for c in copies:
-            lo, hi = _bisect(times, c.t - span), _bisect(times, c.t + span, right=True)
-            out.append([order[k] for k in range(lo, hi) if pred(c, acks[order[k]])])
-        return out
-    out = [[] for _ in acks]
-    for ci, c in enumerate(copies):
-        lo, hi = _bisect(times, c.t - span), _bisect(times, c.t + span, right=True)
-        for k in range(lo, hi):
-            if pred(c, acks[order[k]]):
-                out[order[k]].append(ci)
-    return out
+    return [order[_bisect(times, c.t - before):_bisect(times, c.t + after, right=True)]
+            for c in copies]
 
 
 def _bisect(xs: Sequence[float], x: float, right: bool = False) -> int:
@@ -275,6 +264,11 @@ def _fmt_copy(c: Copy) -> str:
 def _fmt_ack(a: Ack) -> str:
     named = "a malformed payload" if a.named is None else f"'{a.named}'"
     return f"ACK {named} from ID {a.src} at {a.t:.3f} s"
+
+
+def _some(items: Sequence[str], limit: int = 6) -> str:
+    more = f", ... {len(items) - limit} more" if len(items) > limit else ""
+    return ", ".join(items[:limit]) + more
 
 
 def _explain(pairs: Sequence[tuple[int, int | None]], copies: Sequence[Copy],
@@ -309,8 +303,9 @@ def _ack1(trace: Trace, b: Bounds) -> Verdict:
         return Verdict(rule, UNOBSERVABLE, "no copy whose ACK window closed within the trace")
     own = _own_acks(trace)
     acks = [trace.acks[j] for j in own]
-    span = b.ack_window + b.copy_early + b.copy_late + b.ack_early + b.ack_late
-    cands = _candidates(due, acks, lambda c, a: _answers(c, a, b, b.ack_window), True, span)
+    # _answers(c, a, b, ack_window) as a range of observed times
+    cands = _candidates(due, acks, b.copy_early + b.ack_late,
+                        b.ack_window + b.copy_late + b.ack_early)
     owner, held = _match(len(due), cands, [1] * len(acks))
     pairs = tuple(sorted((own[a], idx[ci])
                          for ci, a in enumerate(owner) if a is not None))
@@ -319,8 +314,8 @@ def _ack1(trace: Trace, b: Bounds) -> Verdict:
         return Verdict(rule, CONSISTENT, "every copy answered within the window: "
                        + _explain(pairs, trace.copies, trace.acks), pairs)
     lefts, rights = _hall(missing[0], cands, held)
-    names = ", ".join(_fmt_copy(due[ci]) for ci in sorted(lefts, key=lambda i: due[i].t))
-    could = ", ".join(_fmt_ack(acks[r]) for r in sorted(rights, key=lambda r: acks[r].t))
+    names = _some([_fmt_copy(due[ci]) for ci in sorted(lefts, key=lambda i: due[i].t)])
+    could = _some([_fmt_ack(acks[r]) for r in sorted(rights, key=lambda r: acks[r].t)])
     text = (f"{len(lefts)} copies ({names}) and only {len(rights)} ACKs from ID {trace.receiver} "
             f"any of them could have been answered by within {b.ack_window:g} s"
             f" ({could or 'none'}): in every explanation one of them goes unanswered; "
@@ -338,12 +333,14 @@ def _ack2(trace: Trace, b: Bounds) -> Verdict:
     acks = [trace.acks[j] for j in own]
     copies = list(trace.copies)
 
-    def right(c: Copy, a: Ack) -> bool:
-        return a.named == c.seq and _answers(c, a, b, b.horizon)
-
-    span = b.horizon if math.isfinite(b.horizon) else math.inf
-    span += b.copy_early + b.copy_late + b.ack_early + b.ack_late
-    cands = _candidates(copies, acks, right, False, span)
+    naming: dict[int | None, list[int]] = {}
+    for j, a in enumerate(acks):
+        naming.setdefault(a.named, []).append(j)
+    cands: list[list[int]] = [[] for _ in acks]  # an ACK's copies: the number it names
+    for ci, c in enumerate(copies):
+        for j in naming.get(c.seq, ()):
+            if _answers(c, acks[j], b, b.horizon):
+                cands[j].append(ci)
     owner, held = _match(len(acks), cands, [b.copy_capacity] * len(copies))
     pairs = tuple((own[j], owner[j]) for j in range(len(acks)))
     homeless = [j for j, c in enumerate(owner) if c is None]
@@ -356,9 +353,9 @@ def _ack2(trace: Trace, b: Bounds) -> Verdict:
         why = (f"{_fmt_ack(wrong)} names no copy sent to ID {trace.receiver} before it"
                if wrong.named is not None else f"{_fmt_ack(wrong)} names no number")
     else:
-        why = (f"{len(lefts)} ACKs ({', '.join(_fmt_ack(acks[j]) for j in sorted(lefts))}) "
+        why = (f"{len(lefts)} ACKs ({_some([_fmt_ack(acks[j]) for j in sorted(lefts)])}) "
                f"and {len(rights)} datagrams they name "
-               f"({', '.join(_fmt_copy(copies[r]) for r in sorted(rights))}), each answered "
+               f"({_some([_fmt_copy(copies[r]) for r in sorted(rights)])}), each answered "
                f"at most {b.copy_capacity} time(s)")
     # the explanation as a whole: the right matching, the rest answering any copy it can
     return Verdict(rule, PROVEN, f"{why}: in every explanation an ACK answers a copy whose "
@@ -378,7 +375,27 @@ class _Stop:
     how: str
 
 
-def _stops(trace: Trace, b: Bounds, msg: int, own: Sequence[Copy]) -> list[_Stop]:
+@dataclass(frozen=True)
+class _Index:
+    """The sender's trace sorted once: ACK times, and each message's first copy (time, seq)."""
+
+    ack_times: list[float]
+    acks: list[Ack]
+    starts: list[tuple[float, int, int]]  # (first copy's time, seq, msg), in time order
+    start_times: list[float]
+
+
+def _index(trace: Trace) -> _Index:
+    acks = sorted(trace.acks, key=lambda a: a.t)
+    starts: dict[int, tuple[float, int]] = {}
+    for c in trace.copies:
+        if c.ackable and not c.link_copy:
+            starts[c.msg] = min(starts.get(c.msg, (c.t, c.seq)), (c.t, c.seq))
+    ordered = sorted((t, seq, m) for m, (t, seq) in starts.items())
+    return _Index([a.t for a in acks], acks, ordered, [t for t, _, _ in ordered])
+
+
+def _stops(trace: Trace, b: Bounds, ix: _Index, msg: int, own: Sequence[Copy]) -> list[_Stop]:
     """What shows that ``msg``'s retransmission ended, strongest first: a new message seen
     after its last copy (the sender is stop-and-wait, MCP-BLK-1), then a due copy that never
     came on a complete trace."""
@@ -389,15 +406,12 @@ def _stops(trace: Trace, b: Bounds, msg: int, own: Sequence[Copy]) -> list[_Stop
         # above it (MCP-SEQ-1) or surely sent after its first copy (an observer's lag may
         # show an older message's copy late)
         seq = own[0].seq
-        starts: dict[int, tuple[float, int]] = {}
-        for c in trace.copies:
-            if c.msg != msg and c.ackable and not c.link_copy:
-                starts[c.msg] = min(starts.get(c.msg, (c.t, c.seq)), (c.t, c.seq))
-        later = [s for s, n in starts.values() if s > last and (
-            0 < (n - seq) % 0x10000 < 0x8000 or s - b.copy_early > first + b.copy_late)]
+        k = _bisect(ix.start_times, last, right=True)
+        later = [t for t, n, m in ix.starts[k:] if m != msg and (
+            0 < (n - seq) % 0x10000 < 0x8000 or t - b.copy_early > first + b.copy_late)]
         if later:
-            out.append(_Stop(min(later) + b.copy_late,
-                             f"the sender moved on to a new message at {min(later):.3f} s"))
+            out.append(_Stop(later[0] + b.copy_late,
+                             f"the sender moved on to a new message at {later[0]:.3f} s"))
     silent_until = last + b.copy_late + b.rto_max + b.copy_early
     if trace.complete and trace.end >= silent_until:
         out.append(_Stop(last + b.copy_late + b.rto_max,
@@ -406,7 +420,8 @@ def _stops(trace: Trace, b: Bounds, msg: int, own: Sequence[Copy]) -> list[_Stop
     return out
 
 
-def _message(trace: Trace, b: Bounds, msg: int, copies: list[Copy]) -> dict[str, Verdict]:
+def _message(trace: Trace, b: Bounds, ix: _Index, msg: int, copies: list[Copy]
+             ) -> dict[str, Verdict]:
     """RTX-1, RTX-2 and their disjunction for one message."""
     seq = copies[0].seq
     own = [c for c in copies if not c.link_copy] or copies
@@ -414,15 +429,16 @@ def _message(trace: Trace, b: Bounds, msg: int, copies: list[Copy]) -> dict[str,
     first, last = min(c.t for c in own), max(c.t for c in own)
     name = f"seq {seq} (first copy at {first:.3f} s, {k} own copies)"
     rules = ("MCP-RTX-1", "MCP-RTX-2", EITHER_RTX)
-    stops = _stops(trace, b, msg, own)
+    stops = _stops(trace, b, ix, msg, own)
     if not stops:
         status = CONSISTENT if k >= b.min_copies else UNOBSERVABLE
         text = (f"{name}: retransmitted to the end of the trace" if status == CONSISTENT else
                 f"{name}: the trace ends before its retransmission could be seen to end")
         return {r: Verdict(r, status, text) for r in rules}
     for stop in stops:
-        causes = [a for a in trace.acks
-                  if a.t - b.ack_early <= stop.latest and a.t + b.ack_late >= last - b.copy_early]
+        lo = _bisect(ix.ack_times, last - b.copy_early - b.ack_late)
+        hi = _bisect(ix.ack_times, stop.latest + b.ack_early, right=True)
+        causes = ix.acks[lo:hi]  # reached the sender after its last copy, before it stopped
         right = [a for a in causes if a.src == trace.receiver and a.named == seq]
         give_up = last - b.copy_early + b.rto_min <= stop.latest
         if causes or give_up:
@@ -446,7 +462,7 @@ def _message(trace: Trace, b: Bounds, msg: int, copies: list[Copy]) -> dict[str,
             f"{name}: {stop.how}, before a timeout could end it "
             f"({b.rto_min:.3f} s after the last copy at {last:.3f} s); no ACK from ID "
             f"{trace.receiver} naming {seq} reached it by then, so in every explanation it "
-            f"took a wrong one: {', '.join(_fmt_ack(a) for a in wrong)}")
+            f"took a wrong one: {_some([_fmt_ack(a) for a in wrong])}")
     # RTX-1: some explanation ends it on an ACK, or on a give-up after enough copies
     if causes:
         out["MCP-RTX-1"] = Verdict("MCP-RTX-1", CONSISTENT,
@@ -463,7 +479,7 @@ def _message(trace: Trace, b: Bounds, msg: int, copies: list[Copy]) -> dict[str,
     if either_ok:
         out[EITHER_RTX] = Verdict(EITHER_RTX, CONSISTENT, out["MCP-RTX-2"].evidence)
     else:
-        took = ", ".join(_fmt_ack(a) for a in wrong) or "none"
+        took = _some([_fmt_ack(a) for a in wrong]) or "none"
         out[EITHER_RTX] = Verdict(
             EITHER_RTX, PROVEN,
             f"{name}: {stop.how}; no right ACK reached the sender before, so it either took a "
@@ -481,8 +497,9 @@ def decide_sender(trace: Trace, b: Bounds) -> dict[str, Verdict]:
             by_msg.setdefault(c.msg, []).append(c)
     rules = ("MCP-RTX-1", "MCP-RTX-2", EITHER_RTX)
     found: dict[str, Verdict] = {}
+    ix = _index(trace)
     for msg in sorted(by_msg, key=lambda m: min(c.t for c in by_msg[m])):
-        for rule, v in _message(trace, b, msg, by_msg[msg]).items():
+        for rule, v in _message(trace, b, ix, msg, by_msg[msg]).items():
             old = found.get(rule)
             rank = {PROVEN: 2, CONSISTENT: 1, UNOBSERVABLE: 0}
             if old is None or rank[v.status] > rank[old.status]:
