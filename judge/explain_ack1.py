@@ -87,7 +87,10 @@ def ack1(trace: Trace, b: Bounds, right_only: bool = False) -> Verdict:
     for ci, js in enumerate(cands):
         for j in js:
             by_ack[j].append(ci)
-    homed = [bool(by_ack[j]) and acks[j].dst in (None, trace.sender) for j in range(len(acks))]
+    # an ACK to S naming a datagram it could answer answers something (one naming nothing it
+    # could answer may answer nothing: MCP-ACK-2's business, or ACK-5/6's)
+    homed = [acks[j].dst in (None, trace.sender)
+             and any(copies[ci].seq == acks[j].named for ci in by_ack[j]) for j in range(len(acks))]
     # judged: a copy of a message sent while R receives, whose window closed within the trace
     closed = [c.ackable and c.judged and c.t + b.copy_late + b.ack_window + b.ack_early <= trace.end
               for c in copies]

@@ -25,7 +25,9 @@ class Copy:
     one message share it); ``ackable`` is false for one a node must not ACK (an ACK, a
     broadcast: MCP-ACK-4/6), which is in the model only because an ACK may name it;
     ``judged`` says MCP-ACK-1 asks for its answer (sent while ``R`` receives, D-6);
-    ``link_copy`` marks a duplicate the runner's own link made (not the sender's)."""
+    ``link_copy`` marks a duplicate the runner's own link made (not the sender's); ``own`` is
+    false for one the runner sent in ``S``'s name (a script's harness beside its manager):
+    what the sender did with it is not judged."""
 
     seq: int
     msg: int
@@ -33,6 +35,7 @@ class Copy:
     ackable: bool = True
     judged: bool = True
     link_copy: bool = False
+    own: bool = True
 
 
 @dataclass(frozen=True)
@@ -83,8 +86,10 @@ class Bounds:
 
 @dataclass(frozen=True)
 class Trace:
-    """One direction: ``copies`` from ``sender`` to ``receiver``, ``acks`` to ``sender``;
-    ``end`` is when the observation ended; ``complete`` says it holds every datagram."""
+    """One direction: ``copies`` from ``sender`` to ``receiver``, ``acks`` to ``sender`` (and
+    the receiver's to others); ``end`` is when the observation ended; ``complete`` says it
+    holds every datagram; ``elsewhere``: the sender's unicast copies to other nodes, which show
+    it moved on from a message (stop-and-wait is node-wide, MCP-BLK-1)."""
 
     copies: Sequence[Copy]
     acks: Sequence[Ack]
@@ -92,6 +97,7 @@ class Trace:
     sender: int = 0
     receiver: int = 1
     complete: bool = True
+    elsewhere: Sequence[Copy] = ()
 
 
 @dataclass(frozen=True)

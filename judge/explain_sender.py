@@ -46,11 +46,14 @@ class _Index:
 
 def _index(trace: Trace) -> _Index:
     acks = sorted(trace.acks, key=lambda a: a.t)
-    starts: dict[int, tuple[float, int]] = {}
-    for c in trace.copies:
-        if c.ackable and not c.link_copy:
-            starts[c.msg] = min(starts.get(c.msg, (c.t, c.seq)), (c.t, c.seq))
-    ordered = sorted((t, seq, m) for m, (t, seq) in starts.items())
+    starts: dict[tuple[bool, int], tuple[float, int]] = {}  # (elsewhere, msg) -> (t, seq)
+    for away, copies in ((False, trace.copies), (True, trace.elsewhere)):
+        for c in copies:
+            if c.ackable and c.own and not c.link_copy:
+                key = (away, c.msg)
+                starts[key] = min(starts.get(key, (c.t, c.seq)), (c.t, c.seq))
+    # a message elsewhere never equals one here: its msg is put out of range
+    ordered = sorted((t, seq, -1 - m if away else m) for (away, m), (t, seq) in starts.items())
     return _Index([a.t for a in acks], acks, ordered, [t for t, _, _ in ordered])
 
 
@@ -152,7 +155,7 @@ def decide_sender(trace: Trace, b: Bounds) -> dict[str, Verdict]:
     message judged on its own; a rule is proven where one message proves it."""
     by_msg: dict[int, list[Copy]] = {}
     for c in trace.copies:
-        if c.ackable:
+        if c.ackable and c.own:
             by_msg.setdefault(c.msg, []).append(c)
     rules = ("MCP-RTX-1", "MCP-RTX-2", EITHER_RTX)
     found: dict[str, Verdict] = {}
