@@ -397,7 +397,7 @@ class ManagerSession(SessionBase):
         ``address``: where that scenario's manager received (default: the main one's)."""
         if self.monitor is not None:
             self.monitor.begin(kind)
-        address = address or getattr(self, "node_address", None)
+        address = address or self.node_address
         begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
         if begin is not None and address is not None:
             with contextlib.suppress(Exception):

@@ -244,9 +244,13 @@ class SessionBase(NodeBase):
     by the runner (``conformance``), which owns the cases and their verify helpers."""
 
     cfg: RunConfig
-    node: SpawnedNode | None
+    #: the spawned node's process (None: attach mode, or not started yet)
+    node: SpawnedNode | None = None
     driver: TargetDriver | None
     recorder: Any
+    #: the node under test's address, as the run's monitor and the capture know it (None:
+    #: not observed yet, :meth:`observe_run`)
+    node_address: tuple[str, int] | None = None
     #: who is judged, in the words of a report ("the backend process killed by SIGSEGV")
     subject = "the node"
 
@@ -257,7 +261,7 @@ class SessionBase(NodeBase):
 
     def node_run_delay(self) -> int | None:
         """The spawned node's run delay now (``harness.run_delay``); None in attach mode."""
-        node = getattr(self, "node", None)
+        node = self.node
         return run_delay_ns(node.proc.pid) if node is not None else None
 
     def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool,
@@ -290,7 +294,7 @@ class SessionBase(NodeBase):
     def record_node(self, node_id: int | None, *, complete: bool | None = None) -> None:
         """Tell the capture whose traffic it holds (the node under test's ID and address, as
         the run's monitor knows them) and how the monitor judges it."""
-        address = getattr(self, "node_address", None)
+        address = self.node_address
         if self.recorder is None or node_id is None or address is None:
             return
         values: dict[str, Any] = {"id": node_id, "address": f"{address[0]}:{address[1]}"}
