@@ -146,8 +146,6 @@ class Session(SessionBase):
         ACKed by its header (a shard of ``mcp-conform --parallel`` that does not hold the
         startup-phase cases: its cases are skipped on that diagnosis, as in a run of one)."""
         cfg = self.cfg
-        if cfg.role != "drone":
-            raise SetupError(f"{cfg.role} role conformance is not available yet")
         if self.spawned:
             listen = cfg.listen or ("", 0)
             target = cfg.target or ("127.0.0.1", free_port())

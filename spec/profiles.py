@@ -50,6 +50,9 @@ class RoleProfile:
     impairable: bool = False
     #: ``--parallel``: the role's cases are shared out across node instances
     shardable: bool = False
+    #: the runner's schedule runs the role's batchable cases together (``conformance.schedule``);
+    #: False: one after another
+    scheduled: bool = False
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,7 @@ MCP = Profile(
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
                     cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
-                    reference=("drone",), impairable=True, shardable=True),
+                    reference=("drone",), impairable=True, shardable=True, scheduled=True),
         RoleProfile("manager", session="harness.manager_session:ManagerSession",
                     context="conformance.manager_case:ManagerCaseContext",
                     cases="conformance.cases_manager", fuzz_target="fuzz.manager_target:ManagerFuzzTarget",
