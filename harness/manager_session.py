@@ -41,7 +41,7 @@ from typing import Any
 
 from harness.config import RunConfig
 from harness.driver import TargetDriver
-from harness.errors import Inconclusive, SetupError, TargetLost
+from harness.errors import Inconclusive, SetupError
 from harness.interrupts import INTERRUPTS
 from harness.manager_mission import DronePlayers, Mission, MissionScript
 from harness.manager_side import SideScenario, side_by_side_why_not
@@ -255,13 +255,10 @@ class ManagerSession(SessionBase):
 
     def spawn(self) -> None:
         """A fresh manager process (spawn mode), the previous one stopped."""
-        self._spawn()
+        self.respawn()
 
     def _spawn(self) -> None:
         assert self.cfg.spawn is not None
-        if self.node is not None:
-            self.node.close()
-            self.restarts += 1
         self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
         self.node = SpawnedNode(self.argv)
 
@@ -299,7 +296,7 @@ class ManagerSession(SessionBase):
         assert self.driver is not None and self.players is not None
         self._begin_session(kind)
         if self.spawned:
-            self._spawn()
+            self.respawn()
         m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
         self.players.reset(m)
         if kind == "main":
@@ -407,20 +404,11 @@ class ManagerSession(SessionBase):
                              (MISSION_METADATA, mission_metadata(self.cfg.challenge, self._handed_items()))])
 
     # ------------------------------------------------------------------ case API
-    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        """Start a case: the runner's case context (``make_context``, set by the runner to
-        ``conformance.manager_case.ManagerCaseContext``)."""
-        if self.lost is not None:
-            raise TargetLost(self.lost)
-        ctx = self.context_factory()(self, case_id, rules)
-        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
+    def case_started(self, ctx: Any) -> None:
+        """The case's bounds on the run's monitor too (its violations are told by case)."""
         if self.monitor is not None:
             self.monitor.mark(ctx.start_ns)
-        return ctx
 
-    def end_case(self, ctx: Any, outcome: str) -> None:
-        ctx.end_ns = time.time_ns()
+    def case_ending(self, ctx: Any, outcome: str) -> None:
         if self.monitor is not None:
             self.monitor.mark(ctx.end_ns)
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                        evidence=ctx.evidence)
