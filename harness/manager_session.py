@@ -395,11 +395,10 @@ class ManagerSession(SessionBase):
         if self.monitor is not None:
             self.monitor.begin(kind)
         address = address or self.node_address
-        begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
-        if begin is not None and address is not None:
+        if self.recorder is not None and address is not None:  # the capture (McapRecorder, or the runner's tee)
             with contextlib.suppress(Exception):
                 complete = "true" if self.trace_complete else "false"
-                begin(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
+                self.recorder.begin_segment(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
                                               "complete": complete}),
                              (MISSION_METADATA, mission_metadata(self.cfg.challenge, self._handed_items()))])
 
