@@ -49,7 +49,7 @@ from harness.procs import SPAWN_STARTUP_S
 from harness.session_base import (
     EMBEDDED_RTO,
     MANAGER_ID,
-    SessionBase,
+    DatagramSessionBase,
     SpawnedNode,
     fill_placeholders,
     free_port,
@@ -100,7 +100,7 @@ def make_mission_items(seed: int, count: int | None = None) -> tuple[Any, ...]:
     return tuple(items)
 
 
-class ManagerSession(SessionBase):
+class ManagerSession(DatagramSessionBase):
     """One run against one Mission Manager (see the module docstring)."""
 
     first_awaited = "an ACK of the drones' Mission_Ready"

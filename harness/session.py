@@ -41,7 +41,7 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     MANAGER_ID,
     MANAGER_PORT,
     MIN_COPIES,
-    SessionBase,
+    DatagramSessionBase,
     SpawnedNode,
     WithheldCopies,
     _held,
@@ -83,7 +83,7 @@ class Startup(WithheldCopies):
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
 
 
-class Session(SessionBase):
+class Session(DatagramSessionBase):
     """One run against one node (see the module docstring)."""
 
     first_awaited = "its Mission_Ready, or an ACK of a probe"
