@@ -38,6 +38,7 @@ from typing import Any
 
 import pytest
 
+from conformance.case import CaseContext
 from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
 from harness.errors import Inconclusive
 from spec.codec import Action, DecodeError, decode
@@ -50,7 +51,7 @@ _ACK = int(Action.ACK)
 @dataclass
 class _Member:
     item: pytest.Item
-    ctx: Any
+    ctx: CaseContext  # the batch is the drone role's (conformance.schedule)
     exc: BaseException | None = None
     done: threading.Event = field(default_factory=threading.Event)
     sent: int = 0  # datagrams the case sent itself (its thread)
@@ -192,7 +193,7 @@ def unclean(session: Any, members: list[_Member], since: int, sent_since: int = 
             return f"{m.ctx.case_id} ended {type(m.exc).__name__}"
         if m.exc is not None and m.sent:  # skipped on what it saw beside the others
             return f"{m.ctx.case_id} was skipped after sending ({m.exc})"
-        if getattr(m.ctx, "node_silent", False):
+        if m.ctx.node_silent:
             return f"the node went silent in {m.ctx.case_id}"
     if not session.alive():
         return "the node's process exited"

@@ -48,6 +48,11 @@ class CaseBase:
         """Before the run starts: what the role's cases need of its session, from pytest's
         config and the cases collected (``items``); nothing by default."""
 
+    @property
+    def role(self) -> str:
+        """The role of the node under test (``--role``, as its profile names it)."""
+        return str(self.session.cfg.role)
+
     def conclude(self) -> None:
         """Before the case's verdict: what the role proves of the node after every case
         (a stream backend's liveness after the case's last write); nothing by default."""

@@ -30,9 +30,7 @@ from conformance.options import (
 from conformance.report import CaseRecord, RunRecord, name_consequence
 from conformance.terminal import TerminalReport
 from harness.config import RunConfig
-from harness.errors import (
-    SetupError,
-)
+from harness.errors import SetupError, SpawnFailure
 from harness.interrupts import INTERRUPTS
 from harness.node import check_node
 from spec.profiles import resolve
@@ -237,8 +235,8 @@ class McpState:
         except SetupError as exc:
             self.disarm()
             self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
-            self.run.node = getattr(exc, "node", None)
-            self.run.error_detail = list(getattr(exc, "detail", None) or [])
+            self.run.node = exc.node if isinstance(exc, SpawnFailure) else None
+            self.run.error_detail = list(exc.detail)
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
         self.run.target = session.target_desc or self.run.target

@@ -95,10 +95,6 @@ class CaseContext(DatagramCaseBase):
 
     # ------------------------------------------------------------------ facts
     @property
-    def role(self) -> str:
-        return self.session.cfg.role
-
-    @property
     def target_id(self) -> int:
         return self.session.target_id if self.session.target_id is not None else 1
 

@@ -36,7 +36,7 @@ from conformance.baseline import BaselineError, load_baseline
 from conformance.option_names import _FLAGS, _KEYS, env_name
 from conformance.options import ConfigError, make_config
 from conformance.report import RunRecord, write_json
-from harness.config import RunConfig
+from harness.config import DEFAULT_ROLE, RunConfig
 from harness.interrupts import INTERRUPTS
 from spec import SPEC
 from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick
@@ -206,7 +206,7 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
     if json_path:
         cfg = cfg or RunConfig()
         target = f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None
-        run = RunRecord(role=cfg.role if cfg.role in ROLE_NAMES else "drone", target=target,
+        run = RunRecord(role=cfg.role if cfg.role in ROLE_NAMES else DEFAULT_ROLE, target=target,
                         parameters=cfg.parameters(), seed=cfg.seed, strict=cfg.strict, error=message)
         run.finished = run.started
         try:

@@ -18,8 +18,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_failures
-from spec import RULES, spec_for_role
+from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_failures, spec_of
+from spec import RULES
 from spec.about import TOOL_NAME
 
 __all__ = ["as_pytest_error", "junit_xml", "write_junit"]
@@ -103,7 +103,7 @@ def junit_xml(run: RunRecord, family: str = "xunit2") -> str:
         ET.SubElement(parent, "property", {"name": key, "value": "" if value is None else str(value)})
 
     for key, value in (("target", run.target), ("role", run.role), ("seed", run.seed),
-                       ("spec_version", spec_for_role(run.role).version), ("strict", run.strict)):
+                       ("spec_version", spec_of(run.role).version), ("strict", run.strict)):
         prop(props, key, value)
     if run.error is not None:
         prop(props, "error", run.error)

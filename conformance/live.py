@@ -168,7 +168,7 @@ class Tee:
     @property
     def local(self) -> Any:
         """The recorder's ``local`` address (set by the session to its socket's)."""
-        return getattr(self._recorder, "local", None)
+        return self._recorder.local if self._recorder is not None else None
 
     @local.setter
     def local(self, addr: Any) -> None:

@@ -228,10 +228,6 @@ class ManagerCaseContext(DatagramCaseBase):
 
     # ------------------------------------------------------------------ facts
     @property
-    def role(self) -> str:
-        return "manager"
-
-    @property
     def challenge(self) -> int:
         return self.session.cfg.challenge
 
@@ -239,7 +235,7 @@ class ManagerCaseContext(DatagramCaseBase):
         return self.session.mission(kind)
 
     def require_observable(self, rule: str) -> None:
-        obs = SPEC.rule(rule).observe.get("manager")
+        obs = SPEC.rule(rule).observe.get(self.role)
         if obs is None:
             raise Inconclusive(f"{rule} does not apply to a Mission Manager")
         if obs.observable != "mcp":

@@ -25,7 +25,8 @@ from typing import Any, TypeVar
 
 import pytest
 
-from spec import NSQD, RULES, SPEC
+from spec import RULES, SPEC
+from spec.profiles import PROFILES
 
 __all__ = [
     "LEVEL_ORDER",
@@ -145,7 +146,7 @@ def case_group(item: Any) -> str:
     group of the spec, else the group of its first rule."""
     module = getattr(getattr(item, "module", None), "__name__", "") or ""
     base = module.rsplit(".", 1)[-1]
-    if base.startswith("test_") and base[5:].upper() in SPEC.groups or base[5:].upper() in NSQD.groups:
+    if base.startswith("test_") and any(base[5:].upper() in p.spec.groups for p in PROFILES.values()):
         return base[5:].upper()
     ids = case_rules(item)
     if ids and ids[0].count("-") >= 2:

@@ -109,10 +109,18 @@ def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:
 
 
 
+def _default_role() -> str:
+    """The default role's name (``spec.profiles``), imported only when a run names a role."""
+    from harness.config import DEFAULT_ROLE
+
+    return DEFAULT_ROLE
+
+
 def _wanted(config: pytest.Config) -> bool:
     """Did this run ask for the runner (an option, an ini key, an environment variable)?"""
     for key, value in vars(config.option).items():
-        if key.startswith("mcp_") and value not in (None, False, [], "drone", "xunit2"):
+        if key.startswith("mcp_") and value not in (None, False, [], "xunit2") \
+                and not (key == "mcp_role" and value == _default_role()):
             return True
     for key in _KEYS:
         try:

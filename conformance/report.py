@@ -29,8 +29,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from spec import RULES, spec_for_role
+from spec import RULES, Spec, StreamSpec
 from spec.about import TOOL_NAME, tool_version
+from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, profile_of_role
 
 __all__ = [
     "OUTCOMES",
@@ -46,6 +47,7 @@ __all__ = [
     "monitor_failures",
     "rule_outcomes",
     "run_from_json",
+    "spec_of",
     "tool_version",
     "validate_json",
     "write_json",
@@ -133,7 +135,7 @@ def failures_json(cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
 class RunRecord:
     """The whole run: parameters, cases so far, and the error that stopped it, if any."""
 
-    role: str = "drone"
+    role: str = PROFILES[DEFAULT_PROTOCOL].default_role.name
     target: str | None = None
     parameters: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
@@ -204,14 +206,23 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------- JSON
+def spec_of(role: str) -> Spec | StreamSpec:
+    """The spec of the protocol whose nodes take ``role`` (``spec.profiles``); an unknown
+    role (a foreign report's): the default protocol's."""
+    try:
+        return profile_of_role(role).spec
+    except ProfileError:
+        return PROFILES[DEFAULT_PROTOCOL].spec
+
+
 def _spec_json(role: str) -> dict[str, Any]:
-    sp = spec_for_role(role)
+    sp = spec_of(role)
     return {"protocol": sp.protocol["short_name"], "version": sp.version, "sha256": sp.sha256}
 
 
 def _rule_ids_for(role: str) -> list[str]:
     try:
-        return [r.id for r in spec_for_role(role).rules_for(role)]
+        return [r.id for r in spec_of(role).rules_for(role)]
     except Exception:  # noqa: BLE001 - an unknown role: no rules to list
         return []
 
@@ -380,7 +391,7 @@ def run_from_json(doc: dict[str, Any]) -> RunRecord:
     """A ``RunRecord`` from a report document (e.g. the merge of xdist workers' reports),
     so the JUnit and the terminal summary are made from it as from a live run."""
     params = dict(doc.get("parameters") or {})
-    run = RunRecord(role=doc.get("role", "drone"), target=doc.get("target"), parameters=params,
+    run = RunRecord(role=doc.get("role", RunRecord.role), target=doc.get("target"), parameters=params,
                     seed=doc.get("seed"), strict=bool(params.get("strict", False)), error=doc.get("error"))
     run.cases = [case_from_json(c) for c in doc.get("cases", [])]
     run.finished = run.started + float((doc.get("summary") or {}).get("duration_s") or 0.0)

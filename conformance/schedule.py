@@ -55,6 +55,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from spec.profiles import pick, profile_of_role
+
 __all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "estimate", "plan_cases", "shard_plan"]
 
 SILENCE = ("waits out a 'no reply' window (D-6); its probes are told apart from the batch's others "
@@ -192,20 +194,22 @@ class Plan:
         return cls(str(doc["mode"]), str(doc["why"]), steps, doc.get("batch_outcome"), int(doc.get("shards", 1)))
 
 
-def serial_why(role: str, serial: bool, impaired: bool, worker: bool = False) -> str | None:
-    """Why this run is not scheduled, or None when it is."""
+def serial_why(role: str | None, serial: bool, impaired: bool, worker: bool = False) -> str | None:
+    """Why this run is not scheduled, or None when it is (``role``: its name, None: the
+    default's; whether its cases are scheduled is its profile's, ``RoleProfile.scheduled``)."""
     if worker:
         return "a pytest-xdist worker: the workers share the cases out, each runs its share one by one"
     if serial:
         return "--serial: every case alone, in the order of their modules"
-    if role != "drone":
-        return f"the {role} role's cases run one after another (not scheduled yet)"
+    prof = pick()[1] if role is None else profile_of_role(role).role(role)
+    if not prof.scheduled:
+        return f"the {prof.name} role's cases run one after another (not scheduled yet)"
     if impaired:
         return "--impair: a spoiled observation is repeated case by case"
     return None
 
 
-def plan_cases(cases: Sequence[tuple[str, str]], *, role: str = "drone", spawned: bool = True,
+def plan_cases(cases: Sequence[tuple[str, str]], *, role: str | None = None, spawned: bool = True,
                serial: bool = False, impaired: bool = False, worker: bool = False) -> Plan:
     """The plan for ``cases`` (case ID, phase), given in the serial order (by phase, then by
     module): the batch's cases run together where its first one stood, every other case

@@ -22,8 +22,9 @@ from conformance.report import (
     monitor_failures,
     roots_first,
     rule_outcomes,
+    spec_of,
 )
-from spec import RULES, spec_for_role
+from spec import RULES
 from spec.about import TOOL_NAME, tool_version
 
 __all__ = ["TerminalReport", "node_lines"]
@@ -80,7 +81,8 @@ class TerminalReport:
     def header(self, run: RunRecord, mode: str | None = None) -> None:
         what = f"{run.role} at {run.target}" if run.target else run.role
         extra = f" ({mode})" if mode else ""
-        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · {spec_for_role(run.role).protocol['short_name']} spec {spec_for_role(run.role).version} · "
+        sp = spec_of(run.role)
+        self._print(f"[bold]{TOOL_NAME}[/bold] {tool_version()} · {sp.protocol['short_name']} spec {sp.version} · "
                     f"testing {escape(what)}{escape(extra)}", soft_wrap=True)
 
     def case(self, c: CaseRecord) -> None:

@@ -6,9 +6,11 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from spec import SPEC
-from spec.profiles import Profile, RoleProfile, pick
+from spec.profiles import DEFAULT_PROTOCOL, Profile, RoleProfile, pick
 
 DEFAULT_SEED = 20140307  # the description's date: every run sends the same bytes by default
+#: the role of a run that names none: the default protocol's first (``spec.profiles.pick``)
+DEFAULT_ROLE = pick()[1].name
 
 
 def parse_hostport(text: str, what: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -30,8 +32,8 @@ class RunConfig:
     """Everything a run needs to know; defaults are the description's (spec) values."""
 
     #: the protocol the node speaks (``spec.profiles``: every tool's ``--protocol``)
-    protocol: str = "mcp"
-    role: str = "drone"
+    protocol: str = DEFAULT_PROTOCOL
+    role: str = DEFAULT_ROLE
     target: tuple[str, int] | None = None
     listen: tuple[str, int] | None = None  # None: all addresses, the role's convention port
     target_id: int | None = None

@@ -27,6 +27,7 @@ from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any
 
+from harness.errors import NodeLost
 from harness.run_delay import delay_for, takes_run_delay
 from harness.rx_queue import read_backlog
 from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
@@ -520,9 +521,8 @@ class TargetDriver:
             wait = rto if n < copies - 1 else (rto if tail is None else max(rto, tail))
             try:
                 got = self.wait_for(match, wait, since)
-            except Exception as exc:  # NodeLost: say which exchange went unanswered
-                if hasattr(exc, "exchange"):
-                    exc.exchange = ex
+            except NodeLost as exc:  # say which exchange went unanswered
+                exc.exchange = ex
                 raise
             if got is None and n == copies - 1 and self._kernel_times:
                 end = time.monotonic()  # a reply that came by now, read late (``read_backlog``)

@@ -41,7 +41,7 @@ from typing import Any
 
 from harness.config import RunConfig
 from harness.driver import TargetDriver
-from harness.errors import Inconclusive, SetupError, TargetLost
+from harness.errors import Inconclusive, SetupError
 from harness.interrupts import INTERRUPTS
 from harness.manager_mission import DronePlayers, Mission, MissionScript
 from harness.manager_side import SideScenario, side_by_side_why_not
@@ -49,7 +49,7 @@ from harness.procs import SPAWN_STARTUP_S
 from harness.session_base import (
     EMBEDDED_RTO,
     MANAGER_ID,
-    SessionBase,
+    DatagramSessionBase,
     SpawnedNode,
     fill_placeholders,
     free_port,
@@ -100,7 +100,7 @@ def make_mission_items(seed: int, count: int | None = None) -> tuple[Any, ...]:
     return tuple(items)
 
 
-class ManagerSession(SessionBase):
+class ManagerSession(DatagramSessionBase):
     """One run against one Mission Manager (see the module docstring)."""
 
     first_awaited = "an ACK of the drones' Mission_Ready"
@@ -255,13 +255,10 @@ class ManagerSession(SessionBase):
 
     def spawn(self) -> None:
         """A fresh manager process (spawn mode), the previous one stopped."""
-        self._spawn()
+        self.respawn()
 
     def _spawn(self) -> None:
         assert self.cfg.spawn is not None
-        if self.node is not None:
-            self.node.close()
-            self.restarts += 1
         self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
         self.node = SpawnedNode(self.argv)
 
@@ -299,7 +296,7 @@ class ManagerSession(SessionBase):
         assert self.driver is not None and self.players is not None
         self._begin_session(kind)
         if self.spawned:
-            self._spawn()
+            self.respawn()
         m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
         self.players.reset(m)
         if kind == "main":
@@ -397,30 +394,20 @@ class ManagerSession(SessionBase):
         ``address``: where that scenario's manager received (default: the main one's)."""
         if self.monitor is not None:
             self.monitor.begin(kind)
-        address = address or getattr(self, "node_address", None)
-        begin = getattr(self.recorder, "begin_segment", None) if self.recorder is not None else None
-        if begin is not None and address is not None:
+        address = address or self.node_address
+        if self.recorder is not None and address is not None:  # the capture (McapRecorder, or the runner's tee)
             with contextlib.suppress(Exception):
                 complete = "true" if self.trace_complete else "false"
-                begin(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
+                self.recorder.begin_segment(kind, [(NODE_METADATA, {"id": MANAGER_ID, "address": f"{address[0]}:{address[1]}",
                                               "complete": complete}),
                              (MISSION_METADATA, mission_metadata(self.cfg.challenge, self._handed_items()))])
 
     # ------------------------------------------------------------------ case API
-    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        """Start a case: the runner's case context (``make_context``, set by the runner to
-        ``conformance.manager_case.ManagerCaseContext``)."""
-        if self.lost is not None:
-            raise TargetLost(self.lost)
-        ctx = self.context_factory()(self, case_id, rules)
-        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
+    def case_started(self, ctx: Any) -> None:
+        """The case's bounds on the run's monitor too (its violations are told by case)."""
         if self.monitor is not None:
             self.monitor.mark(ctx.start_ns)
-        return ctx
 
-    def end_case(self, ctx: Any, outcome: str) -> None:
-        ctx.end_ns = time.time_ns()
+    def case_ending(self, ctx: Any, outcome: str) -> None:
         if self.monitor is not None:
             self.monitor.mark(ctx.end_ns)
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                        evidence=ctx.evidence)

@@ -5,8 +5,8 @@ context it hands each case, its start, its cases' begin and end, its liveness an
 close, and the run's observations the runner reports when the node has them (the trace
 monitor, the liveness watch, a timing note, an unreadable header, the startup's own words).
 :class:`NodeBase` gives every member its "nothing to say" value, so a session says only
-what it has: the datagram sessions (``harness.session_base.SessionBase``), the stream
-session (``harness.stream_session``) and a session a conftest substitutes through the
+what it has: the datagram sessions (``harness.session_base.DatagramSessionBase``), the stream
+session (``harness.stream_session``, on ``SessionBase``) and a session a conftest substitutes through the
 ``pytest_mcp_make_session`` hook all stand on it. The runner checks the contract once,
 where the session is made (:func:`check_node`), and reads the members plainly after that.
 """

@@ -41,7 +41,7 @@ from harness.session_base import (  # noqa: F401  (re-exported: harness.session 
     MANAGER_ID,
     MANAGER_PORT,
     MIN_COPIES,
-    SessionBase,
+    DatagramSessionBase,
     SpawnedNode,
     WithheldCopies,
     _held,
@@ -83,7 +83,7 @@ class Startup(WithheldCopies):
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
 
 
-class Session(SessionBase):
+class Session(DatagramSessionBase):
     """One run against one node (see the module docstring)."""
 
     first_awaited = "its Mission_Ready, or an ACK of a probe"
@@ -146,8 +146,6 @@ class Session(SessionBase):
         ACKed by its header (a shard of ``mcp-conform --parallel`` that does not hold the
         startup-phase cases: its cases are skipped on that diagnosis, as in a run of one)."""
         cfg = self.cfg
-        if cfg.role != "drone":
-            raise SetupError(f"{cfg.role} role conformance is not available yet")
         if self.spawned:
             listen = cfg.listen or ("", 0)
             target = cfg.target or ("127.0.0.1", free_port())
@@ -244,16 +242,13 @@ class Session(SessionBase):
         self.respawn()
         self._startup_phase(first=False)
 
-    def respawn(self) -> None:
+    def respawn(self, grace: float = 2.0) -> None:
         """Spawn mode: the node closed and started again, before its startup phase (which
         the caller runs: ``restart`` the quick one; the fuzzer its own, then
         ``send_start_mission``)."""
-        if self.node is not None:
-            self.node.close()
-        self.restarts += 1
         self.ended = False
         self.needs_restart = False
-        self._spawn()
+        super().respawn(grace)
 
     def send_start_mission(self) -> None:
         """Start_Mission to the node after a startup phase run by the caller."""
@@ -520,8 +515,7 @@ class Session(SessionBase):
     def before_case(self) -> None:
         """Make sure a live, started node is there (restart in spawn mode)."""
         self._note_loss()
-        if self.lost is not None:
-            raise TargetLost(self.lost)
+        super().before_case()  # a node lost earlier: TargetLost
         if self.spawned and (self.needs_restart or self.ended or not self.alive()):
             self.restart()
         elif self.ended:
@@ -570,18 +564,9 @@ class Session(SessionBase):
         """Kept for callers: the vehicle's frames reach the capture as they pass (its tap)."""
 
     # ------------------------------------------------------------------ case API
-    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        """Start a case: the runner's case context (``make_context``, set by the runner to
-        ``conformance.case.CaseContext``); the session only marks the case's bounds."""
-        self.before_case()
-        ctx = self.context_factory()(self, case_id, rules)
-        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
-        return ctx
-
-    def end_case(self, ctx: Any, outcome: str) -> None:
-        ctx.end_ns = time.time_ns()
+    def case_ending(self, ctx: Any, outcome: str) -> None:
+        """Before the case's end mark: a node the case left unfit is restarted before the
+        next one (spawn mode), a silent one lost (attach mode)."""
         if ctx.restart_if_failed and outcome in ("failed", "warned", "error") and self.spawned:
             self.needs_restart = True
         self.after_case(ctx.node_silent)
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
-                        evidence=ctx.evidence)

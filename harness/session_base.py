@@ -1,9 +1,12 @@
-"""What every role's session shares (``harness.session`` for a drone,
-``harness.manager_session`` for a Mission Manager): the run's constants, the node spawned by
-``--spawn`` with the runner's placeholders (``SpawnedNode``, ``fill_placeholders``), free
-ports, and ``SessionBase`` — the run's timings, liveness of the spawned node, the case marks
-in the capture, the capture's observers held against signals, and the case context the
-runner hands it (``make_context``). Neither role's session imports the other's module."""
+"""What every session shares, whatever its protocol and role: the node spawned by
+``--spawn`` with the runner's placeholders (``SpawnedNode``, ``fill_placeholders``), how it
+died (``Death``), free ports, and ``SessionBase`` — the spawned node's liveness, death and
+revival, the case's bounds and their marks in the capture, the case context the runner hands
+it (``make_context``). What the datagram protocol's two roles (``harness.session`` for a
+drone, ``harness.manager_session`` for a Mission Manager) add is ``DatagramSessionBase``: MCP's
+constants, the run's timings, the capture's observers on the runner's socket held against
+signals, ``--impair``. The stream session (``harness.stream_session``, Nsqd's backend) stands
+on ``SessionBase`` alone. No session imports another's module."""
 
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ from typing import Any
 
 from harness.config import RunConfig
 from harness.driver import Datagram, Sent, TargetDriver
-from harness.errors import SetupError, SpawnFailure
+from harness.errors import SetupError, SpawnFailure, TargetLost
 from harness.interrupts import INTERRUPTS
 from harness.liveness import describe_exit
 from harness.node import NodeBase
@@ -238,17 +241,22 @@ class _HeldRecorder:
 
 
 class SessionBase(NodeBase):
-    """What the drone-role and the manager-role sessions share: the run's timings, the
-    spawned node, the runner's placeholders and the case marks in the capture. The
-    runner's case context for this role, ``make_context(session, case_id, rules)``, is set
-    by the runner (``conformance``), which owns the cases and their verify helpers."""
+    """What every role's session shares, whatever its protocol and transport: the spawned
+    node (its command with the runner's placeholders, its liveness, its death and its
+    revival) and the case's begin and end with their marks in the capture. A session adds
+    how its node is spawned and reached (``_spawn``) and what it does around a case
+    (``before_case``, ``case_started``, ``case_ending``, ``case_ended``). The runner's case
+    context for this role, ``make_context(session, case_id, rules)``, is set by the runner
+    (``conformance``), which owns the cases and their verify helpers."""
 
     cfg: RunConfig
-    node: SpawnedNode | None
-    driver: TargetDriver | None
+    #: the spawned node's process (None: attach mode, or not started yet)
+    node: SpawnedNode | None = None
     recorder: Any
     #: who is judged, in the words of a report ("the backend process killed by SIGSEGV")
     subject = "the node"
+    #: how many times the spawned node's process was replaced (a death, a hang, a fresh mission)
+    restarts: int = 0
 
     def context_factory(self) -> Callable[..., Any]:
         if self.make_context is None:
@@ -257,8 +265,115 @@ class SessionBase(NodeBase):
 
     def node_run_delay(self) -> int | None:
         """The spawned node's run delay now (``harness.run_delay``); None in attach mode."""
-        node = getattr(self, "node", None)
+        node = self.node
         return run_delay_ns(node.proc.pid) if node is not None else None
+
+    # ------------------------------------------------------------------ the spawned node
+    @property
+    def spawn_command(self) -> str | None:
+        """The command the node is spawned with, placeholders unfilled (--spawn, or the role's
+        embedded reference node); None: attached."""
+        return self.cfg.spawn
+
+    @property
+    def spawned(self) -> bool:
+        return self.spawn_command is not None
+
+    def _spawn(self) -> None:
+        """Start the node's process (``spawn_command`` filled in by :func:`fill_placeholders`,
+        run as a :class:`SpawnedNode`), ready for the role's startup."""
+        raise NotImplementedError(f"{type(self).__name__} spawns no node")
+
+    def respawn(self, grace: float = 2.0) -> None:
+        """Spawn mode: the node's process stopped (SIGTERM, SIGKILL after ``grace`` s) and
+        started afresh; a replaced process counts in ``restarts``."""
+        if self.node is not None:
+            self.node.stop(grace)
+            self.restarts += 1
+        self._spawn()
+
+    def revive(self) -> bool:
+        """Spawn mode: a node whose process ended started afresh for the next case (the run
+        goes on); True when it was."""
+        if self.node is None or self.node.alive():
+            return False
+        self.respawn()
+        return True
+
+    def alive(self) -> bool:
+        return self.node.alive() if self.node is not None else True
+
+    def death(self, grace: float = 0.0) -> Death | None:
+        """How the spawned node ended, if it did within ``grace`` s (a sanitizer takes a
+        moment to write its report and exit); None while it runs, or when none was spawned;
+        :meth:`revive` starts it afresh."""
+        node = self.node
+        if node is None:
+            return None
+        end = time.monotonic() + grace
+        while node.alive() and time.monotonic() < end:
+            time.sleep(0.005)
+        return None if node.alive() else death_of(node, self.subject)
+
+    # ------------------------------------------------------------------ case API
+    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
+        """Start a case: the node made ready for it (:meth:`before_case`), the runner's case
+        context (``make_context``), the case's start in the capture."""
+        self.before_case()
+        ctx = self.context_factory()(self, case_id, rules)
+        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
+        self.case_started(ctx)
+        return ctx
+
+    def end_case(self, ctx: Any, outcome: str) -> None:
+        """End a case: what the session does before its end mark (:meth:`case_ending`), the
+        mark in the capture, then what it does for the next case (:meth:`case_ended`)."""
+        ctx.end_ns = time.time_ns()
+        self.case_ending(ctx, outcome)
+        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
+                        evidence=ctx.evidence)
+        self.case_ended(ctx, outcome)
+
+    def before_case(self) -> None:
+        """Before a case's context: a node lost earlier ends the run's cases (TargetLost)."""
+        if self.lost is not None:
+            raise TargetLost(self.lost)
+
+    def case_started(self, ctx: Any) -> None:
+        """After the case's start mark; nothing by default."""
+
+    def case_ending(self, ctx: Any, outcome: str) -> None:
+        """The case's verdict is ``outcome``, before its end mark; nothing by default."""
+
+    def case_ended(self, ctx: Any, outcome: str) -> None:
+        """After the case's end mark (a dead node revived for the next case); nothing by default."""
+
+    def _case_mark(self, case_id: str, phase: str, t_ns: int, **kw: Any) -> None:
+        """The case's start or end in the capture, never cut off by a signal."""
+        if self.recorder is not None:
+            with INTERRUPTS.held():
+                self.recorder.case_mark(case_id, phase, t_ns, **kw)
+
+
+
+class DatagramSessionBase(SessionBase):
+    """What the datagram protocol's roles add (``harness.session`` for a drone,
+    ``harness.manager_session`` for a Mission Manager): the runner's datagram socket
+    (``harness.driver``), the run's timings, the run's observers on it (the capture, the
+    trace monitor), ``--impair``'s link and the address placeholders of both ends."""
+
+    driver: TargetDriver | None
+    #: the node under test's address, as the run's monitor and the capture know it (None:
+    #: not observed yet, :meth:`observe_run`)
+    node_address: tuple[str, int] | None = None
+
+    @property
+    def rto(self) -> float:
+        return self.cfg.rto
+
+    @property
+    def ack_window(self) -> float:
+        return self.cfg.ack_window
 
     def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool,
                     judge: bool = True) -> Any:
@@ -290,7 +405,7 @@ class SessionBase(NodeBase):
     def record_node(self, node_id: int | None, *, complete: bool | None = None) -> None:
         """Tell the capture whose traffic it holds (the node under test's ID and address, as
         the run's monitor knows them) and how the monitor judges it."""
-        address = getattr(self, "node_address", None)
+        address = self.node_address
         if self.recorder is None or node_id is None or address is None:
             return
         values: dict[str, Any] = {"id": node_id, "address": f"{address[0]}:{address[1]}"}
@@ -328,32 +443,6 @@ class SessionBase(NodeBase):
         start = since - 2 * self.cfg.rto if lookback else since
         return [ev.describe() for ev in link.touched(start, until)]
 
-    @property
-    def spawned(self) -> bool:
-        return self.cfg.spawn is not None
-
-    @property
-    def rto(self) -> float:
-        return self.cfg.rto
-
-    @property
-    def ack_window(self) -> float:
-        return self.cfg.ack_window
-
-    def alive(self) -> bool:
-        return self.node.alive() if self.node is not None else True
-
-    def node_death(self, grace: float = 0.0) -> Death | None:
-        """How the spawned node ended, if it did within ``grace`` s (a sanitizer takes a
-        moment to write its report and exit); None while it runs, or when none was spawned."""
-        node = self.node
-        if node is None:
-            return None
-        end = time.monotonic() + grace
-        while node.alive() and time.monotonic() < end:
-            time.sleep(0.005)
-        return None if node.alive() else death_of(node, self.subject)
-
     def _address_placeholders(self, node_id: int, mavlink: str) -> dict[str, str]:
         """{target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}."""
         assert self.driver is not None
@@ -365,9 +454,3 @@ class SessionBase(NodeBase):
             "listen_host": lhost, "listen_port": str(self.driver.listen[1]),
             "broadcast": BROADCAST_ADDRESS, "id": str(node_id), "mavlink": mavlink,
         }
-
-    def _case_mark(self, case_id: str, phase: str, t_ns: int, **kw: Any) -> None:
-        """The case's start or end in the capture, never cut off by a signal."""
-        if self.recorder is not None:
-            with INTERRUPTS.held():
-                self.recorder.case_mark(case_id, phase, t_ns, **kw)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from harness.config import RunConfig
-from harness.errors import SetupError, SpawnFailure, TargetLost
+from harness.errors import SetupError, SpawnFailure
 from harness.procs import SPAWN_STARTUP_S, ManagedProcess
 from harness.session_base import Death, SessionBase, SpawnedNode, fill_placeholders, free_port
 from judge.stream_monitor import Received, SenderViolation, decode_frame, sender_violation
@@ -230,8 +230,8 @@ class StreamSession(SessionBase):
 
     # -- life -------------------------------------------------------------------------
     @property
-    def spawned(self) -> bool:
-        return self._template is not None
+    def spawn_command(self) -> str | None:
+        return self._template
 
     @property
     def proc(self) -> ManagedProcess | None:
@@ -320,17 +320,6 @@ class StreamSession(SessionBase):
         return (self._live_at is not None and self._live_at > last) or any(
             c.opened > last and (c.frames or c.framing_error is not None) for c in self.conns)
 
-    def death(self, grace: float = 0.0) -> Death | None:
-        """How the spawned backend ended, if it did within ``grace`` s (``SessionBase.death``);
-        :meth:`revive` restarts it."""
-        return self.node_death(grace)
-
-    def revive(self) -> None:
-        """Restart a dead spawned backend for the next case (the run goes on)."""
-        if self.node is not None and not self.node.alive():
-            self.node.stop()
-            self._spawn()
-
     def open_fds(self) -> int | None:
         """The spawned backend's open descriptors, from /proc (None when not observable)."""
         if self.node is None:
@@ -367,29 +356,24 @@ class StreamSession(SessionBase):
                 last, since = now, time.monotonic()
         return last
 
-    # -- case API (conformance._plugin_run) ---------------------------------------------
-    def begin_case(self, case_id: str, rules: tuple[str, ...]) -> Any:
-        if self.lost is not None:
-            raise TargetLost(self.lost)
-        factory = self.context_factory()
+    # -- case API (SessionBase.begin_case, end_case) --------------------------------------
+    def before_case(self) -> None:
+        super().before_case()  # a backend lost earlier: TargetLost
         self.sent_log.clear()
-        ctx = factory(self, case_id, rules)
-        self._case_mark(case_id, "start", ctx.start_ns, rules=rules)
-        return ctx
 
-    def end_case(self, ctx: Any, outcome: str) -> None:
-        ctx.end_ns = time.time_ns()
-        self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules, evidence=ctx.evidence)
+    def case_ended(self, ctx: Any, outcome: str) -> None:
+        """The case's connections closed; a dead spawned backend revived, a live one that no
+        longer serves after a failure (a hang) restarted: the next case gets one that serves."""
         for c in list(self.conns):
             c.close()
         self.conns.clear()
-        if self.spawned and self.death() is not None:
-            self.revive()
-        elif self.spawned and outcome in ("failed", "error") and not self.live(float(self.spec.params["update_gap_max_s"])):
-            self.restart()  # alive but not serving (a hang): the next case gets a backend that serves
+        if not self.spawned or self.revive():
+            return
+        if outcome in ("failed", "error") and not self.live(float(self.spec.params["update_gap_max_s"])):
+            self.restart()
 
     def restart(self) -> None:
-        """Stop the spawned backend (SIGTERM, then SIGKILL) and start it afresh."""
+        """Stop the spawned backend (SIGTERM, then SIGKILL soon: a hung backend may ignore
+        SIGTERM) and start it afresh."""
         if self.node is not None:
-            self.node.stop(grace=0.5)
-            self._spawn()
+            self.respawn(grace=0.5)

@@ -55,6 +55,9 @@ class RoleProfile:
     peer: str | None = None
     #: the node's protocol ID when the spec fixes it for the role (MCP's manager: 0), else None
     fixed_id: int | None = None
+    #: the runner's schedule runs the role's batchable cases together (``conformance.schedule``);
+    #: False: one after another
+    scheduled: bool = False
 
 
 @dataclass(frozen=True)
@@ -120,7 +123,7 @@ MCP = Profile(
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
                     cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
-                    reference=("drone",), impairable=True, shardable=True,
+                    reference=("drone",), impairable=True, shardable=True, scheduled=True,
                     peer="manager"),
         RoleProfile("manager", session="harness.manager_session:ManagerSession",
                     context="conformance.manager_case:ManagerCaseContext",

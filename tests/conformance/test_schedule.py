@@ -17,6 +17,7 @@ from harness.driver import Datagram, Sent, read_header
 from harness.errors import CaseFailure, Inconclusive
 from judge.attribution import Attribution
 from spec.codec import Action, Message, encode
+from spec.profiles import ROLE_NAMES, profile_of_role
 
 from .runner_helpers import run_conform
 
@@ -80,6 +81,15 @@ def test_a_serial_plan_keeps_the_order_and_shares_nothing(kw, why):
     assert [s.case for s in plan.steps] == [c for c, _ in CASES]
     assert not plan.batch
     assert not any(s.shared for s in plan.steps)
+
+
+@pytest.mark.parametrize("role", ROLE_NAMES)
+def test_whether_a_role_is_scheduled_is_its_profile_s(role):
+    """Issue 37 item 4: no role name in the schedule; RoleProfile.scheduled says it."""
+    scheduled = profile_of_role(role).role(role).scheduled
+    plan = plan_cases(CASES, role=role)
+    assert (plan.mode != "serial") == scheduled
+    assert scheduled or f"the {role} role's cases run one after another" in plan.why
 
 
 def test_a_batch_of_one_shares_nothing():

@@ -13,7 +13,7 @@ from conformance._impaired import ATTEMPTS, run_impaired
 from harness.errors import CaseFailure, Inconclusive
 from harness.impair import Impairment, parse_impairment
 from harness.impair_link import ImpairedLink
-from harness.session_base import SessionBase
+from harness.session_base import DatagramSessionBase
 from spec.codec import Action, Message, encode
 
 WP_OFF = encode(Message(1, 0, 1000, Action.WP_OFF, None))
@@ -105,7 +105,7 @@ def test_paused_is_a_clean_link(pair):
 
 
 # ---------------------------------------------------------------------- a spoiled case
-class FakeSession(SessionBase):
+class FakeSession(DatagramSessionBase):
     def __init__(self, link: ImpairedLink) -> None:
         self.cfg = SimpleNamespace(rto=0.05, impair=link.spec)
         self.driver = SimpleNamespace(link=link, sent=lambda: [])
