@@ -29,11 +29,6 @@ from spec.stream import StreamSpec, load_stream  # noqa: E402  (after _load, whi
 NSQD: StreamSpec = load_stream()
 
 
-def spec_for_role(role: str) -> SpecBase:
-    """The spec whose roles include ``role`` (backend, client: Nsqd; drone, manager: MCP)."""
-    return NSQD if role in NSQD.roles else SPEC
-
-
 #: Every rule of every protocol by ID (the IDs carry the protocol's prefix: MCP-, NSQD-), for
 #: reports that name a rule whatever protocol the run spoke.
 RULES: dict[str, Rule] = {**SPEC.rules_by_id, **NSQD.rules_by_id}
@@ -54,5 +49,4 @@ __all__ = [
     "StreamSpec",
     "load",
     "load_stream",
-    "spec_for_role",
 ]
