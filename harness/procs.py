@@ -10,7 +10,8 @@ kept, bounded, as evidence.
   still the runner (one that died before the signal was set would not send it: prctl(2)
   advises this check) and execs the command: the pid is the node's own throughout.
   The signal is the forking *thread*'s (prctl(2)): a process started from a thread that
-  ends is killed then (``fuzz.stream_backend``'s spawner thread lives for that reason).
+  ends would be killed then, so every process started off the main thread is forked by one
+  spawner thread that lives as long as the runner (:func:`popen`).
   Without ``setpriv`` (not Linux, util-linux older than 2.33) the reaper alone covers it.
 - **Reaper**: a node's own children (``sh -c "python node.py; ..."``) do not inherit that
   signal, so a tiny watchdog process (its own session, so a signal to the runner's group
@@ -36,7 +37,8 @@ import subprocess
 import sys
 import threading
 import time
-from typing import IO
+from collections.abc import Callable
+from typing import IO, Any, cast
 
 __all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "deathsig_argv", "reaper"]
 
@@ -228,14 +230,62 @@ class _Tail:
         return list(self.lines)[-n:]
 
 
+class _Spawner:
+    """The one thread that forks the processes started off the main thread: it ends only with
+    the runner, so their parent-death signal means the runner's death, not a worker's end."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._jobs: list[tuple[Callable[[], object], list[object], threading.Event]] = []
+        self._wake = threading.Condition(self._lock)
+        self._thread: threading.Thread | None = None
+
+    def run(self, fn: Callable[[], object]) -> object:
+        box: list[object] = []
+        done = threading.Event()
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._loop, name="procs-spawner", daemon=True)
+                self._thread.start()
+            self._jobs.append((fn, box, done))
+            self._wake.notify()
+        done.wait()
+        if isinstance(box[0], BaseException):
+            raise box[0]
+        return box[0]
+
+    def _loop(self) -> None:
+        while True:
+            with self._lock:
+                while not self._jobs:
+                    self._wake.wait()
+                fn, box, done = self._jobs.pop(0)
+            try:
+                box.append(fn())
+            except BaseException as exc:  # handed to the caller, raised there
+                box.append(exc)
+            done.set()
+
+
+_SPAWNER = _Spawner()
+
+
+def popen(argv: list[str], **kwargs: Any) -> subprocess.Popen[bytes]:
+    """``subprocess.Popen(deathsig_argv(argv), **kwargs)``, forked by the main thread or by
+    the spawner thread (see the module docstring), never by a thread that may end first."""
+    argv = deathsig_argv(argv)
+    if threading.current_thread() is threading.main_thread():
+        return subprocess.Popen(argv, **kwargs)
+    return cast("subprocess.Popen[bytes]", _SPAWNER.run(lambda: subprocess.Popen(argv, **kwargs)))
+
+
 class ManagedProcess:
     """A process of the run: own process group, parent-death signal, reaper, output kept."""
 
     def __init__(self, argv: list[str]) -> None:
         self.argv = argv
-        self.proc = subprocess.Popen(deathsig_argv(argv), stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     start_new_session=True)
+        self.proc = popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, start_new_session=True)
         reaper().watch(self.proc.pid)
         assert self.proc.stdout is not None and self.proc.stderr is not None
         self._out = _Tail(self.proc.stdout)
