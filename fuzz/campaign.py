@@ -25,7 +25,7 @@ from fuzz.budget import GRACE_S, campaign_end
 from fuzz.config import FuzzConfig
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.environment import merge_environment
-from fuzz.findings import Finding, FindingStore, write_summary
+from fuzz.findings import Finding, FindingStore, finding_from_json, write_summary
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
@@ -234,12 +234,6 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any
     report.done(asdict(res))
 
 
-def _finding_from_json(d: dict[str, Any]) -> Finding:
-    return Finding(**{k: d[k] for k in Finding.__dataclass_fields__ if k in d})
-
-
-
-
 def run_campaign(cfg: FuzzConfig, store: FindingStore,
                  tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
     """Run the campaign; the summary (also written to ``--out``/summary.json). SIGINT ends it
@@ -289,7 +283,7 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes], tick: Ca
             results[worker] = res
             per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
             for fj, traffic in findings:
-                store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
+                store.add(finding_from_json(fj), [tuple(t) for t in traffic])
         prog.cases = sum(v[0] for v in per.values())
         prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
         prog.findings = len(store)

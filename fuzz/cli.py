@@ -401,9 +401,9 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
         return 2
     for i, f in enumerate(campaign.findings, 1):
-        print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
+        print(f"finding-{i}: {f.signature.describe()} ×{f.occurrences}, replays {f.replays}: {f.note}")
         if ns.verbose:
-            print(f"  {f.detail}")
+            print(f"  {f.actual}")
     for line in environment_lines(summary) if not ns.quiet else ():
         print(line)
     if ns.verbose:

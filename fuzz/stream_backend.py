@@ -33,9 +33,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
-from fuzz.stream_findings import TrafficLog
 from fuzz.stream_mutators import Case, valid_values
 from fuzz.stream_oracles import CLOSE_RULE, Signature, parse_cause, parse_sanitizer, same_finding
+from fuzz.stream_repro import TrafficLog
 from harness.config import RunConfig
 from harness.stream_session import Conn, StreamSession
 from spec import NSQD

@@ -34,7 +34,7 @@ from typing import Any
 
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
-from fuzz.finding_files import finding_dir, write_finding_doc
+from fuzz.findings import Finding, FindingStore, read_finding
 from fuzz.stream_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -56,9 +56,9 @@ from fuzz.stream_blame import (
     leak_check,
     over_budget,
 )
-from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
 from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
+from fuzz.stream_repro import TrafficLog, write_finding_files
 from harness.errors import SetupError
 from spec import NSQD
 from spec.profiles import NSQD_PROFILE
@@ -68,24 +68,28 @@ __all__ = ["StreamCampaign", "replay_stream_finding"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 
-@dataclass
-class Finding:
-    signature: Signature
-    cases: list[Case]
-    detail: str
-    replays: str
-    stderr: tuple[str, ...] = ()
-    count: int = 1
-    note: str = ""
-    traffic: list[Any] = field(default_factory=list)  # the last confirming replay's (repro.mcap, repro.pcap)
-    program: list[dict[str, Any]] | None = None  # the stateful engine's: its ops (fuzz.stream_stateful.Op)
-    no_input: bool = False  # the target's behaviour: a baseline sent nothing showed it (fuzz.stream_blame)
-    probe: bool = False  # a no-input finding's baseline ends with the probe
-
-    def writes(self) -> list[Write]:
-        if self.program is not None:
-            return [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in self.program for w in op["writes"]]
-        return [w for c in self.cases for w in c.writes]
+def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, stderr: tuple[str, ...] = (), *,
+                 note: str = "", traffic: list[Any] | None = None, program: list[dict[str, Any]] | None = None,
+                 no_input: bool = False, probe: bool = False, seed: int = 0, worker: int = 0) -> Finding:
+    """An Nsqd finding as every protocol's is (``fuzz.findings.Finding``): its signature,
+    minimal cases (or a stateful program's ops), the last confirming replay's traffic (its
+    repro.mcap, repro.pcap); ``probe``: its replay ends with the probe command."""
+    writes = ([Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in program for w in op["writes"]]
+              if program is not None else [w for c in cases for w in c.writes])
+    doc: dict[str, Any] = {
+        "oracle": sig.oracle, "kind": sig.kind, "access": sig.access, "frames": list(sig.frames),
+        "description": sig.describe(), "detail": detail, "probe": probe or "probe" in note,
+        "writes": [{"hex": w.data.hex(), "end": w.end} for w in writes],
+        "expect": [list(c.expect) for c in cases if c.check], "or_error": any(c.or_error for c in cases)}
+    if len(cases) > 1:  # each as it was sent (its own watch, its connection kept or not): --replay too
+        doc["cases"] = [{"kind": c.kind, "valid": c.valid, "probe": c.probe, "note": c.note,
+                         "writes": [{"hex": w.data.hex(), "end": w.end} for w in c.writes]} for c in cases]
+    # the shape groups as the signature's key does (its access aside): fuzz.findings.FindingStore
+    shape = Signature(sig.oracle, sig.kind, sig.frames[:3], sig.rule).describe()
+    return Finding(sig.rule, "", detail, [], shape, "stateless" if program is None else "stateful", seed,
+                   level="MUST", evidence=list(stderr), worker=worker, program=program,
+                   protocol=NSQD_PROFILE.name, note=note, replays=replays, no_input=no_input, doc=doc,
+                   signature=sig, cases=list(cases), traffic=list(traffic or []))
 
 
 @dataclass
@@ -99,7 +103,6 @@ class StreamCampaign:
     replays: int = 3
     probe_every: int = 40
     stop_after: int | None = None  # end the campaign once this many findings are confirmed
-    findings: list[Finding] = field(default_factory=list)
     unconfirmed: int = 0
     cases: int = 0
     by_kind: dict[str, int] = field(default_factory=dict)
@@ -129,6 +132,16 @@ class StreamCampaign:
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
     triage_from: float | None = None  # when the triage in progress began (``over_budget``)
+    store: FindingStore = field(init=False)  # the confirmed findings (fuzz.findings), written under ``out``
+
+    def __post_init__(self) -> None:
+        how = ["--spawn", self.spawn] if self.spawn else (
+            ["--target", f"{self.target[0]}:{self.target[1]}"] if self.target else [])
+        self.store = FindingStore(self.out, ["--protocol", NSQD_PROFILE.name, *how], write_finding_files)
+
+    @property
+    def findings(self) -> list[Finding]:
+        return self.store.order
 
     def _over(self, deadline: float) -> bool:
         cap = self.case_cap if self.case_cap is not None else self.max_cases
@@ -189,7 +202,7 @@ class StreamCampaign:
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
         """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
         (repro.mcap, repro.pcap), as a case's finding has it."""
-        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=list(traffic or [])))
+        self._add(nsqd_finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=traffic))
 
     def _stateless(self, backend: Backend, deadline: float) -> Backend:
         rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))
@@ -249,7 +262,7 @@ class StreamCampaign:
         by a program), or any once the triage budget is spent."""
         known = self.known(sig)
         if known is not None:
-            known.count += 1
+            known.occurrences += 1
             return True
         if self.target is not None and self.spawn is None and sig.oracle in ("crash", "hang") \
                 and backend.session.death() is not None:
@@ -293,7 +306,7 @@ class StreamCampaign:
             return True, backend
         found = self.known(base)
         if found is not None:
-            found.count += 1
+            found.occurrences += 1
             self.aliases[hit.signature.key] = found
         return False, backend
 
@@ -323,7 +336,7 @@ class StreamCampaign:
                                   "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
-            self._add(Finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
+            self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
                               note="the target's behaviour, whatever it is sent: no input blamed (" + (
                                   "the probe command with no case before it)" if base.detail.endswith(PROBED)
                                   else "a baseline connection sent nothing)"),
@@ -389,7 +402,7 @@ class StreamCampaign:
             hit = Hit(sig, hit.detail, hit.stderr)
         known = self.known(sig)
         if known is not None:
-            known.count += 1
+            known.occurrences += 1
             self.aliases[hit.signature.key] = known
             return self.restart(backend)
         state = {"b": backend}
@@ -450,9 +463,9 @@ class StreamCampaign:
                 n, cut_traffic, _ = confirm(shorter)
                 if n == self.replays:
                     minimal, traffic = shorter, cut_traffic
-        self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
+        self._add(nsqd_finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
-        self.aliases[hit.signature.key] = self.findings[-1]
+        self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(state["b"])
 
     def restart(self, backend: Backend) -> Backend:
@@ -467,13 +480,12 @@ class StreamCampaign:
 
     def add_found(self, sig: Signature, detail: str, replays: str, note: str) -> None:
         """A finding no input is replayed for (``fuzz.stream_blame.leak_check``'s)."""
-        self._add(Finding(sig, [], detail, replays, (), note=note))
+        self._add(nsqd_finding(sig, [], detail, replays, (), note=note))
 
     def _add(self, f: Finding) -> None:
-        self.findings.append(f)
-        if self.out is not None:
-            write_finding(finding_dir(self.out, len(self.findings)), f, self.spawn, self.target,
-                          probe=f.probe or "probe" in f.note)
+        """A confirmed finding into the store (``finding-N/`` under ``out``)."""
+        f.seed, f.worker = self.seed, self.worker
+        self.store.add(f)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
         """``summary.json``: cases, judged cases/s (triage's replays excluded), findings by
@@ -488,7 +500,7 @@ class StreamCampaign:
              "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
              "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
              "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                           "count": f.count, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
+                           "count": f.occurrences, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
                            else "stateless"} for f in self.findings],
              "unconfirmed": self.unconfirmed, "environment_dependent": self.environment.values(),
              "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
@@ -498,29 +510,9 @@ class StreamCampaign:
         if self.workers is not None:
             s["workers"] = self.workers
         if self.out is not None:
+            self.store.rewrite()  # the occurrences counted since each was written
             (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
         return s
-
-
-def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
-    data = b"".join(w.data for w in f.writes())
-    doc = {"protocol": NSQD_PROFILE.name, "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
-           "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
-           "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
-           "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
-           "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases),
-           "no_input": f.no_input}
-    if len(f.cases) > 1:  # each as it was sent (its own watch, its connection kept or not): --replay too
-        doc["cases"] = [{"kind": c.kind, "valid": c.valid, "probe": c.probe, "note": c.note,
-                         "writes": [{"hex": w.data.hex(), "end": w.end} for w in c.writes]} for c in f.cases]
-    if f.program is not None:
-        doc["program"] = f.program
-    write_stream_repro(d, doc, f.traffic)
-    (d / "input.hex").write_text(data.hex(" ") + "\n")
-    (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
-    (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
-    how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-    write_finding_doc(d, doc, ["--protocol", NSQD_PROFILE.name, "--replay", "{dir}", *how])
 
 
 def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,
@@ -529,7 +521,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
     fresh backend: 1 reproduced, 0 not, 2 unreadable."""
     doc_path = path
     try:
-        doc = load_stream_finding(path)
+        doc = read_finding(path, NSQD_PROFILE.name).to_json()
         writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
         expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
         sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))

@@ -122,9 +122,9 @@ def _merge(parent: StreamCampaign, per: dict[int, dict[str, Any]], done: dict[in
         for f in done[w]["findings"]:
             known = next((g for g in parent.findings if g.signature.key == f.signature.key), None)
             if known is not None:
-                known.count += f.count
+                known.occurrences += f.occurrences
             else:
-                parent._add(f)
+                parent.store.add(f)
     parent.workers = [{"worker": i, "cases": per.get(i, {}).get("cases", 0),
                        "fuzz_s": round(per.get(i, {}).get("fuzz_s", 0.0), 2),
                        "findings": len(done.get(i, {}).get("findings", [])),
