@@ -364,18 +364,16 @@ def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
         if given:
             print(f"{PROG}: error: {opt}: not available with --protocol {cfg.protocol}", file=sys.stderr)
             return 2
-    from fuzz.stream_progress import StreamLive
+    from fuzz.progress import LiveProgress
 
     campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
                               cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
-    live = StreamLive(every=cfg.extra.get("status_every"), quiet=ns.quiet)
+    live = LiveProgress(cfg, every=cfg.extra.get("status_every"), quiet=ns.quiet)
     campaign.tick = live.update
     try:
         with live:
             if cfg.jobs > 1:
-                from fuzz.stream_jobs import run_stream_jobs
-
-                summary = run_stream_jobs(campaign, cfg.jobs, live)
+                summary = campaign.run_jobs(cfg.jobs, live.update)
             else:
                 summary = campaign.run()
         ns.summary = summary

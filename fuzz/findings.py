@@ -145,9 +145,9 @@ def load_finding(path: str | Path, protocol: str | None = None) -> Finding:
         raise ValueError(f"--replay: {exc}") from None
 
 
-#: How a protocol writes a finding's captures into its ``finding-N/``: (directory, finding,
-#: the traffic of its confirming replay, or None).
-Repro = Callable[[Path, "Finding", "list[Any] | None"], None]
+#: How a protocol writes a finding's captures into its ``finding-N/`` (the finding's
+#: ``traffic``: its confirming replay's, empty when unknown).
+Repro = Callable[[Path, "Finding"], None]
 
 
 class FindingStore:
@@ -159,7 +159,7 @@ class FindingStore:
                  repro: Repro | None = None) -> None:
         self.out = Path(out) if out is not None else None
         self.replay_args = replay_args or []
-        self.repro: Repro = repro or (lambda d, f, traffic: write_repro(d / "repro.mcap", f, traffic))
+        self.repro: Repro = repro or (lambda d, f: write_repro(d / "repro.mcap", f, f.traffic or None))
         self._lock = threading.Lock()
         self.groups: dict[tuple[str, str], Finding] = {}
         self.order: list[Finding] = []
@@ -177,7 +177,10 @@ class FindingStore:
                 f.occurrences += 1
 
     def add(self, finding: Finding, traffic: list[Any] | None = None) -> Path | None:
-        """Keep a confirmed finding (or count it in its group); write it under --out."""
+        """Keep a confirmed finding (or count it in its group); write it under --out, with
+        ``traffic`` (its confirming replay's) when given, else its own."""
+        if traffic is not None:
+            finding.traffic = list(traffic)
         with self._lock:
             prev = self.groups.get(finding.key)
             if prev is not None:
@@ -189,7 +192,8 @@ class FindingStore:
         if self.out is None:
             return None
         d = finding_dir(self.out, n)
-        self._write(d, finding, traffic)
+        write_finding_doc(d, finding.to_json(), ["--replay", "{dir}", *self.replay_args])
+        self.repro(d, finding)
         return d
 
     def rewrite(self) -> None:
@@ -200,10 +204,6 @@ class FindingStore:
             p = self.out / f"finding-{n}" / "finding.json"
             if p.parent.is_dir():
                 p.write_text(json.dumps(f.to_json(), indent=2) + "\n")
-
-    def _write(self, d: Path, f: Finding, traffic: list[Any] | None) -> None:
-        write_finding_doc(d, f.to_json(), ["--replay", "{dir}", *self.replay_args])
-        self.repro(d, f, traffic)
 
     def by_rule(self) -> dict[str, int]:
         with self._lock:

@@ -32,9 +32,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from fuzz.budget import campaign_end
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
-from fuzz.findings import Finding, FindingStore, read_finding
+from fuzz.findings import Finding, FindingStore
+from fuzz.progress import Progress
 from fuzz.stream_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -58,13 +60,15 @@ from fuzz.stream_blame import (
 )
 from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
+from fuzz.stream_replay import replay_stream_finding
 from fuzz.stream_repro import TrafficLog, write_finding_files
+from fuzz.workers import Reporter, report, run_jobs, sum_tables
 from harness.errors import SetupError
 from spec import NSQD
 from spec.profiles import NSQD_PROFILE
 from spec.stream_codec import encode
 
-__all__ = ["StreamCampaign", "replay_stream_finding"]
+__all__ = ["StreamCampaign", "nsqd_finding", "replay_stream_finding"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 
@@ -87,7 +91,7 @@ def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, s
     # the shape groups as the signature's key does (its access aside): fuzz.findings.FindingStore
     shape = Signature(sig.oracle, sig.kind, sig.frames[:3], sig.rule).describe()
     return Finding(sig.rule, "", detail, [], shape, "stateless" if program is None else "stateful", seed,
-                   level="MUST", evidence=list(stderr), worker=worker, program=program,
+                   level="MUST", evidence=list(stderr), worker=worker, program=program, source=sig.oracle,
                    protocol=NSQD_PROFILE.name, note=note, replays=replays, no_input=no_input, doc=doc,
                    signature=sig, cases=list(cases), traffic=list(traffic or []))
 
@@ -110,7 +114,7 @@ class StreamCampaign:
     engine: str = "stateless"  # stateless | stateful | both (the duration split between them)
     db: str | None = None  # hypothesis's example database of the stateful engine (--db)
     worker: int = 0  # a --jobs worker's index: its own seed stream
-    tick: Callable[[StreamCampaign], None] | None = None  # live progress (fuzz.stream_progress)
+    tick: Callable[[Progress], None] | None = None  # live progress (fuzz.progress)
     tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases
     fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
     triage_s: float = 0.0  # triage's own: its baselines and replays, the processes they start included
@@ -119,7 +123,7 @@ class StreamCampaign:
     origin: float | None = None  # a --jobs parent's start: --duration counts from it (fuzz.budget)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
-    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
+    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (:meth:`run_jobs`)
     untriaged: dict[str, int] = field(default_factory=dict)  # signature -> hits counted, not triaged
     tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
@@ -156,7 +160,51 @@ class StreamCampaign:
 
     def _tick(self) -> None:
         if self.tick is not None:
-            self.tick(self)
+            self.tick(self.progress())
+
+    def progress(self) -> Progress:
+        """The live figures (``fuzz.progress``): findings by class (the oracle), the kinds x
+        message ids sent."""
+        classes: dict[str, int] = {}
+        for f in self.findings:
+            classes[f.source] = classes.get(f.source, 0) + 1
+        return Progress(self.cases, len(self.findings), self.restarts, self.fuzz_s, self.started, self.engine,
+                        classes, self.tried)
+
+    def report(self, **more: Any) -> dict[str, Any]:
+        """A ``--jobs`` worker's report to its parent (``fuzz.workers.report``)."""
+        return report(self.cases, self.fuzz_s, self.restarts, list(self.findings), tried=self.tried,
+                      triage_s=self.triage_s, restart_s=self.restart_s, environment=self.environment.values(),
+                      unconfirmed=self.unconfirmed, untriaged=self.untriaged, by_kind=self.by_kind, **more)
+
+    def run_jobs(self, jobs: int, tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+        """``--jobs N``: N workers (``fuzz.workers.run_jobs``), each a campaign of its own
+        backend and seed stream, ``--max-cases`` shared out, ``--duration`` from this start;
+        their findings in this campaign's store, their figures merged; the summary."""
+        t0 = self.started = time.monotonic()
+        kw = {**{k: getattr(self, k) for k in _JOB_FIELDS}, "origin": t0}
+        if self.max_cases is not None:  # the budget shared: N workers run max_cases in all
+            kw["max_cases"] = max(1, self.max_cases // jobs)
+        got = run_jobs(_job, lambda i, q, stop: (kw, i, q, stop), jobs, campaign_end(t0, self.duration), self.store,
+                       tick, Progress(started=t0, engine=self.engine), self.stop_after)
+        bodies = list(got.per.values())
+        self.cases, self.restarts = sum(b["cases"] for b in bodies), sum(b["restarts"] for b in bodies)
+        self.fuzz_s = max((b["fuzz_s"] for b in bodies), default=0.0)
+        self.triage_s, self.restart_s = sum(b["triage_s"] for b in bodies), sum(b["restart_s"] for b in bodies)
+        self.unconfirmed = sum(b["unconfirmed"] for b in bodies)
+        for e in (e for b in bodies for e in b["environment"]):
+            self.environment.add(e)
+        self.tried = sum_tables(b["tried"] for b in bodies)
+        self.untriaged = sum_tables({"": b["untriaged"]} for b in bodies).get("", {})
+        self.by_kind = sum_tables({"": b["by_kind"]} for b in bodies).get("", {})
+        self.workers = [{"worker": i, "cases": got.per.get(i, {}).get("cases", 0),
+                         "fuzz_s": round(got.per.get(i, {}).get("fuzz_s", 0.0), 2),
+                         "findings": len(got.done.get(i, {}).get("found", [])),
+                         "error": got.done[i]["error"] if i in got.done else "gave no result"} for i in range(jobs)]
+        summary = self.summary(time.monotonic() - t0)
+        if got.interrupted:
+            summary["interrupted"] = True
+        return summary
 
     def run(self) -> dict[str, Any]:
         self.started = t0 = self.origin if self.origin is not None else time.monotonic()
@@ -515,68 +563,17 @@ class StreamCampaign:
         return s
 
 
-def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,
-                          prog: str = "mcp-fuzz") -> int:
-    """Replay a finding (``finding-N/``, its finding.json, repro.mcap or repro.pcap) once in a
-    fresh backend: 1 reproduced, 0 not, 2 unreadable."""
-    doc_path = path
+_JOB_FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe_every", "engine", "db")
+
+
+def _job(kw: dict[str, Any], worker: int, q: Any, stop: Any) -> None:
+    """A ``--jobs`` worker process: its campaign, its reports (``fuzz.workers.Reporter``)."""
+    reporter = Reporter(q, worker)
+    c = StreamCampaign(**kw, out=None, worker=worker, stop=stop.is_set)
+    c.tick = lambda _: reporter.progress(c.report)
+    error = None
     try:
-        doc = read_finding(path, NSQD_PROFILE.name).to_json()
-        writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
-        expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
-        sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
-        program = None
-        if doc.get("program"):
-            from fuzz.stream_stateful import Op
-
-            program = [Op.from_json(o) for o in doc["program"]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"{prog}: error: {'--replay: ' if prog == 'mcp-fuzz' else ''}cannot read {doc_path}: {exc}")
-        return 2
-    if doc.get("no_input"):
-        from fuzz.stream_blame import baseline
-
-        backend = Backend(target, spawn)
-        try:
-            seen = baseline(backend, sig, probe=bool(doc.get("probe")))
-        finally:
-            backend.close()
-        return _replay_verdict(seen, sig, " with no input")
-    if not writes and program is None:
-        print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
-              "mcp-conform --protocol nsqd --select NSQD-CON-3")
-        return 2
-    backend = Backend(target, spawn)
-    if program is not None:
-        from fuzz.stream_stateful import play_program
-
-        try:
-            seen = play_program(backend, program)  # type: ignore[assignment]  # the player's Hit: .signature as well
-        finally:
-            backend.close()
-        return _replay_verdict(seen, sig)
-    try:
-        cases = [Case(c["kind"], tuple(Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in c["writes"]),
-                      bool(c.get("valid")), c.get("note", ""), probe=bool(c.get("probe", True)))
-                 for c in doc.get("cases") or []]
-        cases = cases or [Case(_replay_kind(sig), tuple(writes), bool(expect), sig.kind if expect else "",
-                               expect=expect, or_error=bool(doc.get("or_error")), check=bool(expect))]
-        ok, backend, hit = _reproduces(backend, cases, sig, probe=bool(doc.get("probe")))
-    finally:
-        backend.close()
-    if ok:
-        print(f"reproduced {sig.rule}: {sig.describe()}")
-        return 1
-    print(f"did not reproduce {sig.describe()}" + (f" (saw {hit.signature.describe()})" if hit else ""))
-    return 0
-
-
-def _replay_verdict(seen: Any, sig: Signature, how: str = "") -> int:
-    """A replay's line and exit code: 1 when what it saw is the finding's signature (``how``:
-    " with no input" for the target's own behaviour), else 0."""
-    if seen is not None and _same(seen.signature, sig):
-        what = " (the target's behaviour)" if how else ""
-        print(f"reproduced {sig.rule}{how}{what}: {sig.describe()}")
-        return 1
-    print(f"did not reproduce {sig.describe()}{how}" + (f" (saw {seen.signature.describe()})" if seen else ""))
-    return 0
+        c.run()
+    except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
+        error = f"worker {worker}: {type(exc).__name__}: {exc}"
+    reporter.done(c.report(findings=list(c.findings), error=error))

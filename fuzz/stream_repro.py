@@ -80,11 +80,11 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
     write_tcp_pcap(d / "repro.pcap", records, NSQD.port(NSQD_PROFILE.default_role.name))
 
 
-def write_finding_files(d: Path, f: Finding, traffic: list[Any] | None = None) -> None:
+def write_finding_files(d: Path, f: Finding) -> None:
     """An Nsqd finding's own files in ``d`` (``fuzz.findings.FindingStore``'s ``repro``):
     repro.mcap and repro.pcap of its confirming replay's traffic, its input as hex and as a
     Python bytes literal, its stderr excerpt."""
-    write_stream_repro(d, f.to_json(), f.traffic if traffic is None else traffic)
+    write_stream_repro(d, f.to_json(), f.traffic)
     data = b"".join(bytes.fromhex(w["hex"]) for w in f.doc.get("writes", []))
     (d / "input.hex").write_text(data.hex(" ") + "\n")
     (d / "input.py").write_text(f"# {f.signature.describe() if f.signature else f.shape}\nINPUT = {data!r}\n")
