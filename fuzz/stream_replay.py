@@ -54,7 +54,7 @@ def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str 
         from fuzz.stream_stateful import play_program
 
         try:
-            seen = play_program(backend, program)  # type: ignore[assignment]  # the player's Hit: .signature as well
+            seen = play_program(backend, program)
         finally:
             backend.close()
         return _replay_verdict(seen, sig)

@@ -80,7 +80,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
             try:
                 p.play(op)
             except Hit as hit:
-                if want is None or not _passing(hit, want):  # type: ignore[arg-type]  # the player's Hit: .signature as well
+                if want is None or not _passing(hit, want):
                     raise
                 passed = hit
         died = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
@@ -89,7 +89,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
         p._judge()
         return passed
     except Hit as hit:
-        return passed if want is not None and _passing(hit, want) else hit  # type: ignore[arg-type]  # as above
+        return passed if want is not None and _passing(hit, want) else hit
     finally:
         if log is not None:
             for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
