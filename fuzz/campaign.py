@@ -15,6 +15,7 @@ same bound, ``--duration`` plus ``GRACE_S``.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
@@ -22,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from fuzz.budget import GRACE_S, campaign_end
-from fuzz.config import FuzzConfig
+from fuzz.config import EXIT_INTERRUPTED, FuzzConfig, exit_code
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.environment import merge_environment
 from fuzz.findings import FindingStore, write_summary
@@ -34,9 +35,8 @@ from fuzz.workers import Reporter, report, run_jobs
 from harness.errors import SetupError
 from spec import SPEC
 
-__all__ = ["Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
+__all__ = ["DatagramCampaign", "Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
 
-DEFAULT_DURATION = 60.0  # s, when neither --duration nor --max-cases is given
 
 
 @dataclass
@@ -121,7 +121,7 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
 
     try:
         engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
-        duration = _duration_limit(cfg)
+        duration = cfg.duration_limit
         base: set[str] | None = None
         for k, name in enumerate(engines):
             if stop():
@@ -234,10 +234,68 @@ def run_campaign(cfg: FuzzConfig, store: FindingStore,
     return summary
 
 
+class DatagramCampaign:
+    """``mcp-fuzz``'s campaign of a datagram protocol (MCP's profile names it,
+    ``fuzz.config.FuzzCampaign``): :func:`run_campaign` over the role's target, its findings
+    in one store (``--live``: also served to Foxglove, ``fuzz.live``)."""
+
+    REFUSED: tuple[str, ...] = ()
+
+    def __init__(self, cfg: FuzzConfig, tick: Callable[[Progress], None] | None = None) -> None:
+        self.cfg, self.tick, self.served = cfg, tick, None
+        if "live" in cfg.extra:  # --live: the campaign on a Foxglove WebSocket server (fuzz.live)
+            from fuzz.live import LiveCampaign, LiveStore
+            from traceio.live import LiveError
+
+            try:
+                self.served = LiveCampaign(cfg, *cfg.extra["live"])
+            except LiveError as exc:
+                raise SetupError(str(exc)) from None
+            self.store: FindingStore = LiveStore(cfg.out, cfg.replay_args(), self.served.recorder)
+            self.served.started(cfg)
+        else:
+            self.store = FindingStore(cfg.out, cfg.replay_args())
+
+    @classmethod
+    def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> DatagramCampaign:
+        return cls(cfg, tick)
+
+    def fuzz(self) -> dict[str, Any]:
+        try:
+            summary = run_campaign(self.cfg, self.store, self.tick)
+            if self.served is not None:
+                self.served.ended(summary)
+            return summary
+        finally:
+            if self.served is not None:  # nothing left listening, however the campaign ended
+                self.served.close()
+
+    def abort(self) -> None:
+        """(:func:`run_campaign` writes summary.json however it ends.)"""
+
+    def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
+        live.final(summary, self.store)
+        if summary.get("interrupted"):
+            where = f"; summary in {str(Path(self.cfg.out) / 'summary.json')!r}" if self.cfg.out else ""
+            print(f"mcp-fuzz: interrupted after {summary['cases']} cases, {summary['findings']} finding(s){where}",
+                  file=sys.stderr)
+            return EXIT_INTERRUPTED
+        if summary.get("node_lost"):
+            print(f"mcp-fuzz: error: {summary['error']}", file=sys.stderr)
+            return 2
+        return exit_code(self.store.order, strict=strict)
+
+    @staticmethod
+    def replay(path: str, cfg: FuzzConfig) -> int:
+        from fuzz.replay_cli import replay_finding
+
+        return replay_finding(path, cfg)
+
+
 def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes], tick: Callable[[Progress], None] | None,
               t0: float) -> tuple[list[WorkerResult], str | None, bool]:
     jobs = run_jobs(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop, t0), cfg.jobs,
-                    campaign_end(t0, _duration_limit(cfg)), store, tick, Progress(started=t0))
+                    campaign_end(t0, cfg.duration_limit), store, tick, Progress(started=t0))
     results = {i: WorkerResult(**b["result"]) for i, b in jobs.done.items()}
     errors = [r.error for r in results.values() if r.error]
     missing = [i for i in range(cfg.jobs) if i not in results]
@@ -251,11 +309,6 @@ def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes], tick: Ca
     if errors and not any(r.cases for r in results.values()) and not jobs.interrupted:
         raise SetupError(errors[0])
     return [results[i] for i in sorted(results)], ("; ".join(errors) or None), jobs.interrupted
-
-
-def _duration_limit(cfg: FuzzConfig) -> float | None:
-    """The campaign's ``--duration``: given, else ``DEFAULT_DURATION`` unless ``--max-cases`` bounds it."""
-    return cfg.duration if cfg.duration is not None else (None if cfg.max_cases is not None else DEFAULT_DURATION)
 
 
 def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
@@ -298,7 +351,7 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "triage_share": round(max((r.triage_seconds for r in results), default=0.0) / duration, 3)
         if duration > 0 else 0.0,
         "grace_s": GRACE_S,
-        "duration_limit_s": _duration_limit(cfg),
+        "duration_limit_s": cfg.duration_limit,
         "untriaged": sum(r.untriaged for r in results),
         "environment_dependent": merge_environment(e for r in results for e in r.environment),
         "unconfirmed": sum(r.unconfirmed for r in results),

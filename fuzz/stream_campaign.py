@@ -24,15 +24,16 @@ Python bytes literal, the stderr excerpt and ``replay.txt``; ``mcp-fuzz --protoc
 
 from __future__ import annotations
 
-import json
 import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+from fuzz import stream_report
 from fuzz.budget import campaign_end
+from fuzz.config import FuzzConfig
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
 from fuzz.findings import Finding, FindingStore
@@ -47,7 +48,6 @@ from fuzz.stream_backend import (
     message_names,
 )
 from fuzz.stream_blame import (
-    GRACE_S,
     PROBED,
     TRIAGE_SHARE,
     UNCONFIRMED_TRIES,
@@ -136,6 +136,7 @@ class StreamCampaign:
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
     triage_from: float | None = None  # when the triage in progress began (``over_budget``)
+    jobs: int = 1  # --jobs: :meth:`fuzz` runs this many workers (:meth:`run_jobs`)
     store: FindingStore = field(init=False)  # the confirmed findings (fuzz.findings), written under ``out``
 
     def __post_init__(self) -> None:
@@ -536,32 +537,30 @@ class StreamCampaign:
         self.store.add(f)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
-        """``summary.json``: cases, judged cases/s (triage's replays excluded), findings by
-        class (the oracle) and each one, which message ids x mutation kinds were sent."""
-        by_class: dict[str, int] = {}
-        for f in self.findings:
-            by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-        s = {"protocol": NSQD_PROFILE.name, "engine": self.engine, "seed": self.seed, "cases": self.cases,
-             "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
-             "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
-             "restart_s": round(self.restart_s, 2),
-             "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
-             "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
-             "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                           "count": f.occurrences, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
-                           else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "environment_dependent": self.environment.values(),
-             "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
-             "duration_s": self.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
-             "triage_share": round(self.triage_s / elapsed, 3) if elapsed else 0.0,
-             "jobs": len(self.workers) if self.workers is not None else 1}
-        if self.workers is not None:
-            s["workers"] = self.workers
-        if self.out is not None:
-            self.store.rewrite()  # the occurrences counted since each was written
-            (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
-        return s
+        """``summary.json`` (``fuzz.stream_report.summary``), written under ``out``."""
+        return stream_report.summary(self, elapsed)
 
+    # -- mcp-fuzz's campaign of the protocol (fuzz.config.FuzzCampaign) ----------------
+    REFUSED: ClassVar[tuple[str, ...]] = ("--mavlink", "--seeds", "--live")
+
+    @classmethod
+    def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> StreamCampaign:
+        return cls(cfg.target, cfg.spawn, cfg.seed, cfg.duration_limit, cfg.max_cases,
+                   Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db, tick=tick, jobs=cfg.jobs)
+
+    def fuzz(self) -> dict[str, Any]:
+        return self.run_jobs(self.jobs, self.tick) if self.jobs > 1 else self.run()
+
+    def abort(self) -> None:
+        if self.out:
+            self.summary(0.0)
+
+    def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
+        return stream_report.final(self, summary, live, strict)
+
+    @staticmethod
+    def replay(path: str, cfg: FuzzConfig) -> int:
+        return replay_stream_finding(path, cfg.target, cfg.spawn)
 
 _JOB_FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe_every", "engine", "db")
 

@@ -56,3 +56,16 @@ def test_the_store_groups_and_writes_an_nsqd_finding_as_an_mcp_one(tmp_path):
     assert doc["protocol"] == "nsqd" and doc["rule_text"] and doc["evidence"] == ["ERROR: AddressSanitizer"]
     assert (d / "input.hex").read_text() == "00 ff\n" and "--protocol nsqd" in (d / "replay.txt").read_text()
     assert read_finding(d, "nsqd").signature is None and read_finding(d / "repro.mcap", "nsqd").rule == "NSQD-ROB-1"
+
+
+def test_every_protocol_names_the_campaign_mcp_fuzz_runs():
+    """``mcp-fuzz`` reaches each protocol's campaign through its profile (``fuzz_campaign``):
+    one command line, no branch on a protocol's name (``fuzz.plugin.FuzzCampaign``)."""
+    from fuzz.plugin import FuzzCampaign
+    from spec.profiles import PROFILES, resolve
+
+    wanted = {n for n in vars(FuzzCampaign) if not n.startswith("_")} | set(FuzzCampaign.__annotations__)
+    for prof in PROFILES.values():
+        cls = resolve(prof.fuzz_campaign)
+        assert wanted - {"store"} <= set(dir(cls)), (prof.name, wanted - set(dir(cls)))
+        assert all(opt.startswith("--") for opt in cls.REFUSED)
