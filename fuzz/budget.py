@@ -8,12 +8,15 @@ ends within ``--duration`` plus :data:`GRACE_S`, the longest one replay takes (a
 restarted, a connection's timeout, a probe's effect windows, a sanitizer's report read
 whole). Both campaigns state the two in ``summary.json`` and on their last line. A ``--jobs``
 parent stops waiting for its workers at that same bound (:func:`campaign_end`): a worker still
-running then is killed and reported as having given no result.
+running then is killed and reported as having given no result. ``--engine both`` shares the
+budget out between its engines, time and cases alike (:func:`engine_turns`).
 """
 
 from __future__ import annotations
 
-__all__ = ["GRACE_S", "Late", "campaign_end"]
+from collections.abc import Iterator
+
+__all__ = ["GRACE_S", "Late", "campaign_end", "engine_turns"]
 
 GRACE_S = 10.0  # s past --duration a campaign may take: the replay under way at the deadline
 
@@ -26,3 +29,16 @@ def campaign_end(started: float, duration: float | None) -> float:
     """The monotonic time by which a campaign started at ``started`` has ended: ``--duration``
     plus :data:`GRACE_S`; no bound (inf) when the campaign has none (``--max-cases`` alone)."""
     return float("inf") if duration is None else started + duration + GRACE_S
+
+
+def engine_turns(engine: str, started: float, duration: float | None, max_cases: int | None,
+                 ) -> Iterator[tuple[str, float, int | None]]:
+    """Each engine ``--engine`` runs (``both``: the stateless one, then the stateful one) with
+    its deadline (the campaign's ``duration`` split evenly, counted from ``started``) and the
+    cases the campaign may have reached by the end of its turn (``max_cases`` split alike,
+    cumulative: an engine that ended early leaves the rest to the next)."""
+    engines = ["stateless", "stateful"] if engine == "both" else [engine]
+    for k, name in enumerate(engines):
+        share = (k + 1) / len(engines)
+        yield (name, float("inf") if duration is None else started + duration * share,
+               None if max_cases is None else max_cases * (k + 1) // len(engines))

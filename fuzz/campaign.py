@@ -22,12 +22,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fuzz.budget import GRACE_S, campaign_end
-from fuzz.config import EXIT_INTERRUPTED, FuzzConfig, exit_code
+from fuzz.budget import GRACE_S, campaign_end, engine_turns
+from fuzz.config import FuzzConfig, exit_code
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.environment import merge_environment
 from fuzz.findings import FindingStore, write_summary
-from fuzz.progress import Progress
+from fuzz.progress import Progress, interrupted
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
@@ -120,20 +120,12 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
         return stop_rule is not None and any(f.rule == stop_rule for f in store.order)
 
     try:
-        engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
         duration = cfg.duration_limit
         base: set[str] | None = None
-        for k, name in enumerate(engines):
+        for name, deadline, cap in engine_turns(cfg.engine, start, duration, cfg.max_cases):
             if stop():
                 break
-            left_engines = len(engines) - k
-            if duration is not None:
-                deadline = start + duration * (k + 1) / len(engines)
-            else:
-                deadline = float("inf")
-            budget = None
-            if cfg.max_cases is not None:
-                budget = max(0, (cfg.max_cases - res.cases) // left_engines)
+            budget = None if cap is None else max(0, cap - res.cases)
             triage = Triage(target, store, name, cfg.seed, cfg.worker)
             if duration is not None:
                 triage.deadline = start + duration  # --duration bounds triage too (GRACE_S)
@@ -276,10 +268,7 @@ class DatagramCampaign:
     def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
         live.final(summary, self.store)
         if summary.get("interrupted"):
-            where = f"; summary in {str(Path(self.cfg.out) / 'summary.json')!r}" if self.cfg.out else ""
-            print(f"mcp-fuzz: interrupted after {summary['cases']} cases, {summary['findings']} finding(s){where}",
-                  file=sys.stderr)
-            return EXIT_INTERRUPTED
+            return interrupted(summary["cases"], summary["findings"], self.cfg.out)
         if summary.get("node_lost"):
             print(f"mcp-fuzz: error: {summary['error']}", file=sys.stderr)
             return 2

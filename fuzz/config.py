@@ -105,7 +105,7 @@ class FuzzConfig:
         """The runner's configuration of the same target (its session drives the node)."""
         from harness import session as session_module
 
-        cfg = RunConfig(role="drone", target=self.target, listen=self.listen,
+        cfg = RunConfig(protocol=self.protocol, role=self.role, target=self.target, listen=self.listen,
                         target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
                         seed=self.seed)
         cfg.impair = self.impair

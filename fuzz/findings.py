@@ -30,7 +30,7 @@ from typing import Any
 from fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
 from fuzz.oracles import Flaw, rule_level
 from spec import RULES
-from spec.profiles import DEFAULT_PROTOCOL
+from spec.profiles import DEFAULT_PROTOCOL, pick
 
 __all__ = ["Finding", "FindingStore", "finding_from_json", "finding_from_metadata", "load_finding",
            "read_finding", "write_summary"]
@@ -249,7 +249,8 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
-    meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,
+    role = f.target.get("role") or pick(f.protocol)[1].name  # a finding written before it was recorded
+    meta = run_metadata(FUZZ_RECORDER, role=role, rule=f.rule, expected=f.expected, actual=f.actual,
                         engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
                         target=f.target or None, datagrams=f.datagrams, shape=f.shape,
                         finding=f.to_json())

@@ -15,14 +15,15 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from fuzz.config import FuzzConfig
+from fuzz.config import EXIT_INTERRUPTED, FuzzConfig
 from fuzz.environment import environment_lines
 from fuzz.findings import FindingStore
 from spec.profiles import pick
 
-__all__ = ["STATUS_S", "LiveProgress", "Progress", "figures_line", "status_line", "summary_line",
+__all__ = ["STATUS_S", "LiveProgress", "Progress", "figures_line", "interrupted", "status_line", "summary_line",
            "tried_table"]
 
 STATUS_S = 10.0  # off a terminal: a plain status line this often
@@ -75,6 +76,13 @@ def budget_line(summary: dict[str, Any]) -> str:
     left = f"; {summary['untriaged']} flaw(s) left untriaged at the deadline" if summary.get("untriaged") else ""
     return (f"mcp-fuzz: triage {summary.get('triage_s', 0):g} s of {summary['duration_s']:.1f} s "
             f"({100 * summary.get('triage_share', 0):.0f} %); {bound}{left}")
+
+
+def interrupted(cases: int, findings: int, out: str | Path | None) -> int:
+    """SIGINT ended the campaign: its one line (stderr), where its summary is; the exit code."""
+    where = f"; summary in {str(Path(out) / 'summary.json')!r}" if out else ""
+    print(f"mcp-fuzz: interrupted after {cases} cases, {findings} finding(s){where}", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def _reasons(by_reason: dict[str, int]) -> str:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from fuzz import stream_report
-from fuzz.budget import campaign_end
+from fuzz.budget import campaign_end, engine_turns
 from fuzz.config import FuzzConfig
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
@@ -137,6 +137,7 @@ class StreamCampaign:
     wait: float = REPLAY_DEATH_S
     triage_from: float | None = None  # when the triage in progress began (``over_budget``)
     jobs: int = 1  # --jobs: :meth:`fuzz` runs this many workers (:meth:`run_jobs`)
+    interrupted: bool = False  # SIGINT ended it (its summary says so)
     store: FindingStore = field(init=False)  # the confirmed findings (fuzz.findings), written under ``out``
 
     def __post_init__(self) -> None:
@@ -202,22 +203,17 @@ class StreamCampaign:
                          "fuzz_s": round(got.per.get(i, {}).get("fuzz_s", 0.0), 2),
                          "findings": len(got.done.get(i, {}).get("found", [])),
                          "error": got.done[i]["error"] if i in got.done else "gave no result"} for i in range(jobs)]
-        summary = self.summary(time.monotonic() - t0)
-        if got.interrupted:
-            summary["interrupted"] = True
-        return summary
+        self.interrupted = got.interrupted
+        return self.summary(time.monotonic() - t0)
 
     def run(self) -> dict[str, Any]:
         self.started = t0 = self.origin if self.origin is not None else time.monotonic()
-        engines = ["stateless", "stateful"] if self.engine == "both" else [self.engine]
         backend = self.current = Backend(self.target, self.spawn)
         try:
             if self.worker == 0:
                 backend = self.current = leak_check(self, backend)
-            for k, name in enumerate(engines):
-                deadline = t0 + self.duration * (k + 1) / len(engines) if self.duration is not None else float("inf")
-                if self.max_cases is not None:
-                    self.case_cap = self.max_cases * (k + 1) // len(engines)
+            for name, deadline, cap in engine_turns(self.engine, t0, self.duration, self.max_cases):
+                self.case_cap = cap
                 if name == "stateful":
                     from fuzz.stream_stateful import StreamStatefulEngine
 
@@ -225,6 +221,8 @@ class StreamCampaign:
                         lambda d=deadline: self._over(d), self._tick)  # type: ignore[misc]  # mypy: a default argument
                 else:
                     backend = self._stateless(backend, deadline)
+        except KeyboardInterrupt:  # SIGINT: the campaign ends with what it has
+            self.interrupted = True
         finally:
             self.current.close()
         return self.summary(time.monotonic() - t0)

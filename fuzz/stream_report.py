@@ -12,6 +12,7 @@ from typing import Any
 from fuzz.budget import GRACE_S
 from fuzz.config import exit_code
 from fuzz.environment import environment_lines
+from fuzz.progress import interrupted
 from fuzz.stream_blame import TRIAGE_SHARE
 from spec.profiles import NSQD_PROFILE
 
@@ -39,7 +40,7 @@ def summary(c: Any, elapsed: float) -> dict[str, Any]:
          "untriaged": c.untriaged, "restarts": c.restarts, "db": c.db,
          "duration_s": c.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
          "triage_share": round(c.triage_s / elapsed, 3) if elapsed else 0.0,
-         "jobs": len(c.workers) if c.workers is not None else 1}
+         "jobs": len(c.workers) if c.workers is not None else 1, "interrupted": c.interrupted}
     if c.workers is not None:
         s["workers"] = c.workers
     if c.out is not None:
@@ -70,6 +71,8 @@ def final(c: Any, summary: dict[str, Any], live: Any, strict: bool) -> int:
           f"cases/s), {len(c.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
           f"engine {c.engine}, {summary['jobs']} job(s), seed {c.seed}")
     print(f"{PROG}: {budget_line(summary)}")
+    if summary.get("interrupted"):
+        return interrupted(summary["cases"], len(c.findings), c.out)
     return exit_code(c.findings, strict=strict)
 
 
