@@ -32,7 +32,15 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from fuzz import stream_report
-from fuzz.budget import campaign_end, engine_turns
+from fuzz.budget import (
+    TRIAGE_SHARE,
+    UNCONFIRMED_TRIES,
+    Late,
+    budget_left,
+    campaign_end,
+    engine_turns,
+    over_budget,
+)
 from fuzz.config import FuzzConfig
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
@@ -47,17 +55,7 @@ from fuzz.stream_backend import (
     _reproduces,
     message_names,
 )
-from fuzz.stream_blame import (
-    PROBED,
-    TRIAGE_SHARE,
-    UNCONFIRMED_TRIES,
-    Late,
-    baseline,
-    budget_left,
-    death_culprit,
-    leak_check,
-    over_budget,
-)
+from fuzz.stream_blame import PROBED, baseline, death_culprit, leak_check
 from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
 from fuzz.stream_replay import replay_stream_finding

@@ -9,11 +9,10 @@ import json
 import sys
 from typing import Any
 
-from fuzz.budget import GRACE_S
+from fuzz.budget import GRACE_S, TRIAGE_SHARE
 from fuzz.config import exit_code
 from fuzz.environment import environment_lines
 from fuzz.progress import interrupted
-from fuzz.stream_blame import TRIAGE_SHARE
 from spec.profiles import NSQD_PROFILE
 
 __all__ = ["budget_line", "final", "summary"]
