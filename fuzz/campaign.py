@@ -15,48 +15,28 @@ same bound, ``--duration`` plus ``GRACE_S``.
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fuzz.budget import GRACE_S, campaign_end
-from fuzz.config import FuzzConfig
+from fuzz.budget import GRACE_S, campaign_end, engine_turns
+from fuzz.config import FuzzConfig, exit_code
 from fuzz.engine_stateless import EngineStats, StatelessEngine
 from fuzz.environment import merge_environment
-from fuzz.findings import Finding, FindingStore, write_summary
+from fuzz.findings import FindingStore, write_summary
+from fuzz.progress import Progress, interrupted
 from fuzz.target_base import TargetLost
 from fuzz.targets import start_target
 from fuzz.triage import Triage
-from fuzz.workers import Reporter, run_workers
+from fuzz.workers import Reporter, report, run_jobs
 from harness.errors import SetupError
 from spec import SPEC
 
-__all__ = ["Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
+__all__ = ["DatagramCampaign", "Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
 
-DEFAULT_DURATION = 60.0  # s, when neither --duration nor --max-cases is given
-
-
-@dataclass
-class Progress:
-    """What the live display shows (summed over workers)."""
-
-    cases: int = 0
-    findings: int = 0
-    restarts: int = 0
-    fuzz_seconds: float = 0.0
-    started: float = field(default_factory=time.monotonic)
-    engine: str = ""
-
-    @property
-    def elapsed(self) -> float:
-        return time.monotonic() - self.started
-
-    @property
-    def judged_rate(self) -> float:
-        """Judged cases per second of fuzzing (triage's replays excluded)."""
-        return self.cases / self.fuzz_seconds if self.fuzz_seconds > 0 else 0.0
 
 
 @dataclass
@@ -69,7 +49,6 @@ class WorkerResult:
     replays: int = 0
     unconfirmed: int = 0
     engines: dict[str, dict[str, Any]] = field(default_factory=dict)
-    findings: list[tuple[dict[str, Any], list[Any]]] = field(default_factory=list)
     error: str | None = None
     monitor: bool = False
     node_period: float | None = None  # the node's retransmission period, measured at start
@@ -101,19 +80,6 @@ def load_seeds(directory: str | None) -> list[bytes]:
     if not out:
         raise SetupError(f"--seeds: no datagrams in the MCAP files of {directory!r}")
     return out
-
-
-class _LocalStore(FindingStore):
-    """A worker's store when findings go back to the parent: keeps the traffic with them."""
-
-    def __init__(self) -> None:
-        super().__init__(None)
-        self.traffic: dict[tuple[str, str], list[Any]] = {}
-
-    def add(self, finding: Finding, traffic: list[Any] | None = None) -> Path | None:
-        if finding.key not in self.groups:
-            self.traffic[finding.key] = list(traffic or [])
-        return super().add(finding, traffic)
 
 
 def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> None:
@@ -154,20 +120,12 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
         return stop_rule is not None and any(f.rule == stop_rule for f in store.order)
 
     try:
-        engines = ["stateless", "stateful"] if cfg.engine == "both" else [cfg.engine]
-        duration = _duration_limit(cfg)
+        duration = cfg.duration_limit
         base: set[str] | None = None
-        for k, name in enumerate(engines):
+        for name, deadline, cap in engine_turns(cfg.engine, start, duration, cfg.max_cases):
             if stop():
                 break
-            left_engines = len(engines) - k
-            if duration is not None:
-                deadline = start + duration * (k + 1) / len(engines)
-            else:
-                deadline = float("inf")
-            budget = None
-            if cfg.max_cases is not None:
-                budget = max(0, (cfg.max_cases - res.cases) // left_engines)
+            budget = None if cap is None else max(0, cap - res.cases)
             triage = Triage(target, store, name, cfg.seed, cfg.worker)
             if duration is not None:
                 triage.deadline = start + duration  # --duration bounds triage too (GRACE_S)
@@ -218,26 +176,20 @@ def _worker_process(cfg: FuzzConfig, seeds: list[bytes], q: Any, stop_event: Any
     """A ``--jobs`` worker process: its result (and findings) go back on ``q``. SIGINT is the
     parent's to handle: it sets ``stop_event``, and the worker ends its round and reports.
     ``started``: the parent's start (the monotonic clock is the machine's), its deadlines'."""
-    report = Reporter(q, cfg.worker)
-    store = _LocalStore()
+    reporter = Reporter(q, cfg.worker)
+    store = FindingStore(None)
 
     def tick(p: Progress) -> None:
-        report.progress(lambda: (p.cases, p.fuzz_seconds, p.findings, p.restarts))
+        reporter.progress(lambda: report(p.cases, p.fuzz_seconds, p.restarts, list(store.order)))
 
     try:
         res = run_worker(cfg, store, tick, seeds, stop_event, started)
-        res.findings = [(f.to_json(), store.traffic.get(f.key, [])) for f in store.order]
     except SetupError as exc:
         res = WorkerResult(cfg.worker, error=str(exc))
     except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
         res = WorkerResult(cfg.worker, error=f"worker {cfg.worker} failed: {type(exc).__name__}: {exc}")
-    report.done(asdict(res))
-
-
-def _finding_from_json(d: dict[str, Any]) -> Finding:
-    return Finding(**{k: d[k] for k in Finding.__dataclass_fields__ if k in d})
-
-
+    reporter.done(report(res.cases, res.fuzz_seconds, res.restarts, store.order, result=asdict(res),
+                         findings=list(store.order)))
 
 
 def run_campaign(cfg: FuzzConfig, store: FindingStore,
@@ -274,48 +226,78 @@ def run_campaign(cfg: FuzzConfig, store: FindingStore,
     return summary
 
 
+class DatagramCampaign:
+    """``mcp-fuzz``'s campaign of a datagram protocol (MCP's profile names it,
+    ``fuzz.config.FuzzCampaign``): :func:`run_campaign` over the role's target, its findings
+    in one store (``--live``: also served to Foxglove, ``fuzz.live``)."""
+
+    REFUSED: tuple[str, ...] = ()
+
+    def __init__(self, cfg: FuzzConfig, tick: Callable[[Progress], None] | None = None) -> None:
+        self.cfg, self.tick, self.served = cfg, tick, None
+        if "live" in cfg.extra:  # --live: the campaign on a Foxglove WebSocket server (fuzz.live)
+            from fuzz.live import LiveCampaign, LiveStore
+            from traceio.live import LiveError
+
+            try:
+                self.served = LiveCampaign(cfg, *cfg.extra["live"])
+            except LiveError as exc:
+                raise SetupError(str(exc)) from None
+            self.store: FindingStore = LiveStore(cfg.out, cfg.replay_args(), self.served.recorder)
+            self.served.started(cfg)
+        else:
+            self.store = FindingStore(cfg.out, cfg.replay_args())
+
+    @classmethod
+    def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> DatagramCampaign:
+        return cls(cfg, tick)
+
+    def fuzz(self) -> dict[str, Any]:
+        try:
+            summary = run_campaign(self.cfg, self.store, self.tick)
+            if self.served is not None:
+                self.served.ended(summary)
+            return summary
+        finally:
+            if self.served is not None:  # nothing left listening, however the campaign ended
+                self.served.close()
+
+    def abort(self) -> None:
+        """(:func:`run_campaign` writes summary.json however it ends.)"""
+
+    def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
+        live.final(summary, self.store)
+        if summary.get("interrupted"):
+            return interrupted(summary["cases"], summary["findings"], self.cfg.out)
+        if summary.get("node_lost"):
+            print(f"mcp-fuzz: error: {summary['error']}", file=sys.stderr)
+            return 2
+        return exit_code(self.store.order, strict=strict)
+
+    @staticmethod
+    def replay(path: str, cfg: FuzzConfig) -> int:
+        from fuzz.replay_cli import replay_finding
+
+        return replay_finding(path, cfg)
+
+
 def _run_jobs(cfg: FuzzConfig, store: FindingStore, seeds: list[bytes], tick: Callable[[Progress], None] | None,
               t0: float) -> tuple[list[WorkerResult], str | None, bool]:
-    prog = Progress()
-    per: dict[int, tuple[int, float, int, int]] = {}
-    results: dict[int, WorkerResult] = {}
-
-    def handle(kind: str, worker: int, body: Any) -> bool:
-        if kind == "progress":
-            per[worker] = body
-        else:
-            findings = body.pop("findings", [])
-            res = WorkerResult(**body)
-            results[worker] = res
-            per[worker] = (res.cases, res.fuzz_seconds, 0, res.restarts)
-            for fj, traffic in findings:
-                store.add(_finding_from_json(fj), [tuple(t) for t in traffic])
-        prog.cases = sum(v[0] for v in per.values())
-        prog.fuzz_seconds = max((v[1] for v in per.values()), default=0.0)
-        prog.findings = len(store)
-        prog.restarts = sum(v[3] for v in per.values())
-        if tick is not None:
-            tick(prog)
-        return False
-
-    interrupted = run_workers(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop, t0), cfg.jobs,
-                              campaign_end(t0, _duration_limit(cfg)), handle, lambda: len(results) >= cfg.jobs)
+    jobs = run_jobs(_worker_process, lambda i, q, stop: (cfg.for_worker(i), seeds, q, stop, t0), cfg.jobs,
+                    campaign_end(t0, cfg.duration_limit), store, tick, Progress(started=t0))
+    results = {i: WorkerResult(**b["result"]) for i, b in jobs.done.items()}
     errors = [r.error for r in results.values() if r.error]
     missing = [i for i in range(cfg.jobs) if i not in results]
     if missing:
         errors.append(f"worker(s) {', '.join(map(str, missing))} gave no result")
         for i in missing:  # what its progress said, at least
-            c, fs, _, rs = per.get(i, (0, 0.0, 0, 0))
-            results[i] = WorkerResult(i, cases=c, fuzz_seconds=fs, restarts=rs, interrupted=interrupted,
+            b = jobs.per.get(i, {})
+            results[i] = WorkerResult(i, cases=b.get("cases", 0), fuzz_seconds=b.get("fuzz_s", 0.0),
+                                      restarts=b.get("restarts", 0), interrupted=jobs.interrupted,
                                       error="gave no result")
-    if errors and not any(r.cases for r in results.values()) and not interrupted:
+    if errors and not any(r.cases for r in results.values()) and not jobs.interrupted:
         raise SetupError(errors[0])
-    return [results[i] for i in sorted(results)], ("; ".join(errors) or None), interrupted
-
-
-def _duration_limit(cfg: FuzzConfig) -> float | None:
-    """The campaign's ``--duration``: given, else ``DEFAULT_DURATION`` unless ``--max-cases`` bounds it."""
-    return cfg.duration if cfg.duration is not None else (None if cfg.max_cases is not None else DEFAULT_DURATION)
+    return [results[i] for i in sorted(results)], ("; ".join(errors) or None), jobs.interrupted
 
 
 def _sum_counts(counts: Iterable[dict[str, int]]) -> dict[str, int]:
@@ -358,7 +340,7 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "triage_share": round(max((r.triage_seconds for r in results), default=0.0) / duration, 3)
         if duration > 0 else 0.0,
         "grace_s": GRACE_S,
-        "duration_limit_s": _duration_limit(cfg),
+        "duration_limit_s": cfg.duration_limit,
         "untriaged": sum(r.untriaged for r in results),
         "environment_dependent": merge_environment(e for r in results for e in r.environment),
         "unconfirmed": sum(r.unconfirmed for r in results),

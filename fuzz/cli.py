@@ -25,10 +25,17 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
-from fuzz.config import ENGINES, FuzzConfig, default_engine, engines
-from fuzz.environment import environment_lines
+from fuzz.config import (
+    ENGINES,
+    EXIT_INTERRUPTED,
+    FuzzConfig,
+    default_engine,
+    engines,
+    exit_code,
+)
+from fuzz.plugin import FuzzCampaign
 from harness.config import DEFAULT_SEED, parse_hostport
 from harness.errors import SetupError
 from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
@@ -37,7 +44,6 @@ from traceio.grammar import add_verbosity, add_version, epilog
 __all__ = ["build_parser", "exit_code", "main"]
 
 PROG = "mcp-fuzz"
-EXIT_INTERRUPTED = 130  # SIGINT: the campaign ended early, summary.json holds the counts so far
 
 
 class UsageError(Exception):
@@ -241,33 +247,15 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         except LiveError as exc:
             raise UsageError(str(exc)) from None
         for given, why in ((cfg.jobs > 1, "one worker's run is served: use --jobs 1"),
-                           (role.fuzz_target is None, f"not available with --protocol {cfg.protocol}"),
                            (ns.replay, "not available with --replay")):
             if given:
                 raise UsageError(f"--live: {why}")
+    from spec.profiles import resolve
+
+    for opt in resolve(prof.fuzz_campaign).REFUSED:  # the options its campaign does not take
+        if getattr(ns, opt[2:].replace("-", "_"), None):
+            raise UsageError(f"{opt}: not available with --protocol {cfg.protocol}")
     return cfg
-
-
-def replay_args(cfg: FuzzConfig) -> list[str]:
-    """The target options a finding's replay command repeats."""
-    out: list[str] = []
-    if cfg.target:
-        out += ["--target", f"{cfg.target[0]}:{cfg.target[1]}"]
-    if cfg.spawn:
-        out += ["--spawn", cfg.spawn]
-    if cfg.mavlink:
-        out.append("--mavlink")
-    if cfg.protocol != DEFAULT_PROTOCOL:
-        out += ["--protocol", cfg.protocol]
-    if cfg.role != pick(cfg.protocol)[1].name:
-        out += ["--role", cfg.role]
-    for opt, v in (("--target-id", cfg.target_id), ("--rto", cfg.rto), ("--ack-window", cfg.ack_window),
-                   ("--broadcast-id", cfg.broadcast_id)):
-        if v is not None:
-            out += [opt, str(v)]
-    if cfg.impair is not None:  # replayed as it was confirmed: through the same link
-        out += ["--impair", cfg.impair.text()]
-    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -298,144 +286,35 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
-    """The campaign or the replay; its summary left in ``ns.summary`` (``--json``)."""
-    if pick(cfg.protocol, cfg.role)[1].fuzz_target is None:  # fuzzed by its own campaign
-        return _stream(ns, cfg)
-    if ns.replay:
-        from fuzz.replay_cli import replay_finding
-
-        return replay_finding(ns.replay, cfg)
-    from fuzz.campaign import run_campaign
-    from fuzz.findings import FindingStore
+    """The campaign or the replay of the protocol's campaign (the profile's ``fuzz_campaign``,
+    ``fuzz.config.FuzzCampaign``); its summary left in ``ns.summary`` (``--json``)."""
     from fuzz.progress import LiveProgress
+    from spec.profiles import resolve
 
-    served = None
-    if "live" in cfg.extra:  # --live: the campaign on a Foxglove WebSocket server (fuzz.live)
-        from fuzz.live import LiveCampaign, LiveStore
-        from traceio.live import LiveError
-
-        try:
-            served = LiveCampaign(cfg, *cfg.extra["live"])
-        except LiveError as exc:
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            return 2
-        store: FindingStore = LiveStore(cfg.out, replay_args(cfg), served.recorder)
-        served.started(cfg)
-    else:
-        store = FindingStore(cfg.out, replay_args(cfg))
-    live = LiveProgress(cfg, every=cfg.extra.get("status_every"), quiet=ns.quiet, verbose=ns.verbose)
-    try:
-        with live:
-            summary = ns.summary = run_campaign(cfg, store, live.update)
-        if served is not None:
-            served.ended(summary)
-    except SetupError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # a second SIGINT while the campaign wound up
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        if served is not None:  # nothing left listening, however the campaign ended
-            served.close()
-    live.final(summary, store)
-    if summary.get("interrupted"):
-        where = f"; summary in {str(Path(cfg.out) / 'summary.json')!r}" if cfg.out else ""
-        print(f"{PROG}: interrupted after {summary['cases']} cases, {summary['findings']} finding(s){where}",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
-    if summary.get("node_lost"):
-        print(f"{PROG}: error: {summary['error']}", file=sys.stderr)
-        return 2
-    return exit_code(store.order, strict=ns.strict)
-
-
-def _stream(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
-    """``--protocol nsqd``: the stream campaign (fuzz.stream_campaign) or a finding's replay."""
-    from fuzz.stream_campaign import StreamCampaign, replay_stream_finding
-
+    kind: type[FuzzCampaign] = resolve(pick(cfg.protocol)[0].fuzz_campaign)
     if ns.replay:
         try:
-            return replay_stream_finding(ns.replay, cfg.target, cfg.spawn)
+            return kind.replay(ns.replay, cfg)
         except SetupError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
-    for opt, given in (("--mavlink", ns.mavlink), ("--seeds", ns.seeds)):
-        if given:
-            print(f"{PROG}: error: {opt}: not available with --protocol {cfg.protocol}", file=sys.stderr)
-            return 2
-    from fuzz.stream_progress import StreamLive
-
-    campaign = StreamCampaign(cfg.target, cfg.spawn, cfg.seed, cfg.duration if cfg.duration or cfg.max_cases else 60.0,
-                              cfg.max_cases, Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db)
-    live = StreamLive(every=cfg.extra.get("status_every"), quiet=ns.quiet)
-    campaign.tick = live.update
+    live = LiveProgress(cfg, every=cfg.extra.get("status_every"), quiet=ns.quiet, verbose=ns.verbose)
+    campaign: FuzzCampaign | None = None
     try:
+        campaign = kind.from_config(cfg, live.update)
         with live:
-            if cfg.jobs > 1:
-                from fuzz.stream_jobs import run_stream_jobs
-
-                summary = run_stream_jobs(campaign, cfg.jobs, live)
-            else:
-                summary = campaign.run()
-        ns.summary = summary
-    except SetupError as exc:
-        if campaign.out:
-            campaign.summary(0.0)
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+            summary = ns.summary = campaign.fuzz()
+    except (SetupError, KeyboardInterrupt, Exception) as exc:  # noqa: BLE001 - our own bug: one line too
+        if campaign is not None:  # summary.json of what it has
+            campaign.abort()
+        if isinstance(exc, KeyboardInterrupt):  # a second SIGINT while the campaign wound up
+            print(f"{PROG}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        print(f"{PROG}: error: {exc}" if isinstance(exc, SetupError) else
+              f"{PROG}: error: internal error ({type(exc).__name__}: {exc}); "
+              f"{len(campaign.store) if campaign else 0} finding(s) written so far", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        if campaign.out:
-            campaign.summary(0.0)
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except Exception as exc:  # noqa: BLE001 - our own bug: one line, the findings so far kept
-        if campaign.out:
-            campaign.summary(0.0)
-        print(f"{PROG}: error: internal error ({type(exc).__name__}: {exc}); {len(campaign.findings)} "
-              "finding(s) written so far", file=sys.stderr)
-        return 2
-    errors = [w["error"] for w in summary.get("workers", []) if w.get("error")]
-    if errors and not summary["cases"]:
-        print(f"{PROG}: {_budget_line(summary)}")  # where it ended: at the bound, if the workers were cut there
-        print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
-        return 2
-    for i, f in enumerate(campaign.findings, 1):
-        print(f"finding-{i}: {f.signature.describe()} ×{f.count}, replays {f.replays}: {f.note}")
-        if ns.verbose:
-            print(f"  {f.detail}")
-    for line in environment_lines(summary) if not ns.quiet else ():
-        print(line)
-    if ns.verbose:
-        for shape, n in sorted(summary.get("untriaged", {}).items(), key=lambda kv: -kv[1]):
-            print(f"  counted, not triaged: {shape} ×{n}")
-    classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
-    print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
-          f"cases/s), {len(campaign.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
-          f"engine {cfg.engine}, {cfg.jobs} job(s), seed {cfg.seed}")
-    print(f"{PROG}: {_budget_line(summary)}")
-    return 1 if campaign.findings else 0
-
-
-def _budget_line(s: dict[str, Any]) -> str:
-    """Where the time went: fuzzing, triage's own replays (its share against its budget) and
-    the restarts to go on fuzzing, the --duration bound and its grace (issue 36 items 2, 5),
-    the hits counted rather than triaged."""
-    bound = (f"--duration {s['duration_s']:g} s + grace {s['grace_s']:g} s" if s.get("duration_s") is not None
-             else "no --duration")
-    untriaged = sum(s.get("untriaged", {}).values())
-    return (f"fuzzing {s['fuzz_s']:g} s, triage {s['triage_s']:g} s ({100 * s.get('triage_share', 0):.0f} %, "
-            f"budget {100 * s.get('triage_share_max', 0):.0f} %), restarts {s.get('restart_s', 0):g} s "
-            f"({s.get('restarts', 0)}) of {s['elapsed_s']:g} s; {bound}"
-            + (f"; {untriaged} hit(s) counted, not triaged (budget or deadline spent, or not reproduced "
-               "twice)" if untriaged else ""))
-
-
-def exit_code(findings: Sequence[Any], *, strict: bool = False) -> int:
-    """1 when a finding counts: a MUST, or a SHOULD under ``--strict`` (the one convention of
-    mcp-conform, mcp-capture check and mcp-fuzz); else 0."""
-    counted = {"MUST", "SHOULD"} if strict else {"MUST"}
-    return 1 if any(str(f.level).upper() in counted for f in findings) else 0
+    return campaign.final(summary, live, ns.strict)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,10 +7,12 @@ runner's own); the rest belong to the campaign.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from harness.config import DEFAULT_SEED, RunConfig
+from spec.profiles import DEFAULT_PROTOCOL, pick
 
 ENGINES = ("stateless", "stateful", "both")
 #: The engine mix when ``--engine`` is not given, for a drone (MCP): the stateless engine's
@@ -19,12 +21,14 @@ ENGINES = ("stateless", "stateful", "both")
 #: MCP-DUP-1), a seq walked to the wrap (MCP-SEQ-3) — are the stateful engine's; pipelined,
 #: it runs about as fast as the stateless one (issue 36 item 4; bench/bench_fuzz.py).
 DEFAULT_ENGINE = "both"
+DEFAULT_DURATION = 60.0  # s, when neither --duration nor --max-cases is given
+EXIT_INTERRUPTED = 130  # SIGINT: the campaign ended early, summary.json holds the counts so far
 
 
 def target_class(protocol: str | None, role: str | None) -> Any:
     """The fuzz target class the role profile names (``spec.profiles``, ``fuzz_target``);
     None: the protocol is fuzzed by its own campaign."""
-    from spec.profiles import pick, resolve
+    from spec.profiles import resolve
 
     path = pick(protocol, role)[1].fuzz_target
     return None if path is None else resolve(path)
@@ -70,8 +74,8 @@ class FuzzConfig:
     worker: int = 0  # which of the --jobs workers this is
     #: the protocol and role of the node under fuzz (``spec.profiles.pick``; manager: the
     #: fuzzer plays drones)
-    protocol: str = "mcp"
-    role: str = "drone"
+    protocol: str = DEFAULT_PROTOCOL
+    role: str = pick()[1].name
     #: ``--impair SPEC``: the fuzzer's own socket edge is a bad link (a ``harness.impair.ImpairSpec``);
     #: an exchange it touched is not judged (``fuzz.oracles.judge_exchange``)
     impair: Any = None
@@ -80,6 +84,11 @@ class FuzzConfig:
     @property
     def embedded(self) -> bool:
         return self.target is None and self.spawn is None
+
+    @property
+    def duration_limit(self) -> float | None:
+        """The campaign's ``--duration``: given, else ``DEFAULT_DURATION`` unless ``--max-cases`` bounds it."""
+        return self.duration if self.duration is not None else (None if self.max_cases is not None else DEFAULT_DURATION)
 
     @property
     def mode(self) -> str:
@@ -96,7 +105,7 @@ class FuzzConfig:
         """The runner's configuration of the same target (its session drives the node)."""
         from harness import session as session_module
 
-        cfg = RunConfig(role="drone", target=self.target, listen=self.listen,
+        cfg = RunConfig(protocol=self.protocol, role=self.role, target=self.target, listen=self.listen,
                         target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
                         seed=self.seed)
         cfg.impair = self.impair
@@ -113,6 +122,27 @@ class FuzzConfig:
             cfg.broadcast_id = self.broadcast_id
         return cfg
 
+    def replay_args(self) -> list[str]:
+        """The target options a finding's replay command repeats (its replay.txt)."""
+        out: list[str] = []
+        if self.target:
+            out += ["--target", f"{self.target[0]}:{self.target[1]}"]
+        if self.spawn:
+            out += ["--spawn", self.spawn]
+        if self.mavlink:
+            out.append("--mavlink")
+        if self.protocol != DEFAULT_PROTOCOL:
+            out += ["--protocol", self.protocol]
+        if self.role != pick(self.protocol)[1].name:
+            out += ["--role", self.role]
+        for opt, v in (("--target-id", self.target_id), ("--rto", self.rto), ("--ack-window", self.ack_window),
+                       ("--broadcast-id", self.broadcast_id)):
+            if v is not None:
+                out += [opt, str(v)]
+        if self.impair is not None:  # replayed as it was confirmed: through the same link
+            out += ["--impair", self.impair.text()]
+        return out
+
 
 def embedded_command(mavlink: bool) -> str:
     """The reference drone as the fuzzer spawns it: the runner's embedded command, quiet
@@ -124,3 +154,12 @@ def embedded_command(mavlink: bool) -> str:
     if not mavlink:
         cmd = cmd.replace(" --mavlink {mavlink}", "")
     return cmd + " --quiet"
+
+
+
+def exit_code(findings: Sequence[Any], *, strict: bool = False) -> int:
+    """1 when a finding counts: a MUST, or a SHOULD under ``--strict`` (the one convention of
+    mcp-conform, mcp-capture check and mcp-fuzz); else 0."""
+    counted = {"MUST", "SHOULD"} if strict else {"MUST"}
+    return 1 if any(str(f.level).upper() in counted for f in findings) else 0
+

@@ -1,14 +1,18 @@
-"""Findings: confirmed, minimal, grouped, and written where a user can replay them.
+"""Findings, whatever the protocol: confirmed, minimal, grouped, and written where a user can
+replay them (issue 37: one ``Finding``, one findings store for MCP and Nsqd alike).
 
-A finding is kept only once it has been confirmed by a replay (fresh node when spawned, the
-same one when attached) and shrunk to a minimal datagram sequence (``fuzz.replay``). Findings
-of the same rule and shape (what kind of input, what the node did) are one group: the first
-is written, the others are counted. Under ``--out DIR`` each group is ``finding-N/``:
+A finding is kept only once it has been confirmed by replays and shrunk to a minimal input
+(MCP: ``fuzz.triage`` over ``fuzz.replay``; Nsqd: ``fuzz.stream_campaign``). Findings of the
+same rule and shape (what kind of input, what the node did) are one group: the first is
+written, the others are counted. Under ``--out DIR`` each group is ``finding-N/``:
 
-- ``finding.json``: rule, level, rule text, expected, actual, evidence, the datagrams in
-  hex, pace, seed, engine, worker, occurrences, the program (stateful engine);
-- ``repro.mcap``: the minimal sequence and the node's answers in the project's capture format;
-- ``replay.txt``: the one-line command that replays it (``mcp-fuzz --replay DIR``).
+- ``finding.json``: one document for every protocol: protocol, rule, level, rule text,
+  expected, actual, evidence, shape, seed, engine, worker, occurrences, the program (stateful
+  engines), note, replays, no_input; MCP's input as ``datagrams`` (hex) with its pace and
+  scenario, a stream protocol's as its own fields (``doc``: Nsqd's signature, writes, cases);
+- the protocol's captures (``repro``: MCP's ``repro.mcap``, :func:`write_repro`; Nsqd's
+  ``repro.mcap``, ``repro.pcap`` and input files, ``fuzz.stream_repro``);
+- ``replay.txt``: the one-line command that replays it (``mcp-fuzz --replay DIR ...``).
 
 ``summary.json`` (:func:`write_summary`) is written at the end of every campaign.
 """
@@ -18,29 +22,37 @@ from __future__ import annotations
 import json
 import threading
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
 from fuzz.oracles import Flaw, rule_level
-from spec import SPEC
+from spec import RULES
+from spec.profiles import DEFAULT_PROTOCOL, pick
 
 __all__ = ["Finding", "FindingStore", "finding_from_json", "finding_from_metadata", "load_finding",
-           "write_summary"]
+           "read_finding", "write_summary"]
 
 FINDING_SCHEMA = 1
 NO_INPUT = "no input: the node's behaviour whatever it is sent"  # a baseline finding's shape (fuzz.triage)
 
 
+#: A finding's fields that live only while the campaign runs (not in finding.json).
+_RUNTIME = ("doc", "signature", "cases", "traffic")
+#: Old finding.json keys read as the new ones (an Nsqd finding written before issue 37).
+_OLD_KEYS = {"actual": "detail", "shape": "description", "occurrences": "count"}
+
+
 @dataclass
 class Finding:
-    """One confirmed, minimised finding (the representative of its group)."""
+    """One confirmed, minimised finding (the representative of its group), of any protocol."""
 
     rule: str
     expected: str
     actual: str
-    datagrams: list[str]  # hex, in sending order
+    datagrams: list[str]  # MCP's input: hex, in sending order (a stream protocol's is in ``doc``)
     shape: str
     engine: str
     seed: int
@@ -49,10 +61,20 @@ class Finding:
     evidence: list[str] = field(default_factory=list)
     worker: int = 0
     occurrences: int = 1
-    program: str | None = None  # the stateful engine's shortest program, as hypothesis printed it
+    #: the stateful engine's shortest program (MCP: as hypothesis printed it; Nsqd: its ops)
+    program: Any = None
     scenario: str | None = None  # how the node is started before the datagrams (fuzz.replay)
     source: str = ""
     target: dict[str, Any] = field(default_factory=dict)  # how the campaign reached the node
+    protocol: str = DEFAULT_PROTOCOL  # its profile's name (``spec.profiles``)
+    note: str = ""  # how the input came to be blamed (Nsqd: the case's mutation, a probe after it)
+    replays: str = ""  # "N of N": the confirming replays that showed it
+    no_input: bool = False  # the target's behaviour: a baseline sent nothing showed it
+    #: the protocol's own finding.json fields (Nsqd: its signature, writes, cases, expect)
+    doc: dict[str, Any] = field(default_factory=dict)
+    signature: Any = None  # a stream protocol's signature (``fuzz.stream_oracles.Signature``)
+    cases: list[Any] = field(default_factory=list)  # a stream protocol's minimal cases
+    traffic: list[Any] = field(default_factory=list)  # a stream protocol's last confirming replay's
 
     def __post_init__(self) -> None:
         self.level = self.level or rule_level(self.rule)
@@ -62,9 +84,11 @@ class Finding:
         return (self.rule, self.shape)
 
     def to_json(self) -> dict[str, Any]:
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _RUNTIME}
+        d = json.loads(json.dumps(d))  # a copy, as finding.json will read
+        d.update(self.doc)
         d["schema_version"] = FINDING_SCHEMA
-        d["rule_text"] = SPEC.rule(self.rule).text if self.rule in SPEC.rules_by_id else ""
+        d["rule_text"] = RULES[self.rule].text if self.rule in RULES else ""
         return d
 
     @classmethod
@@ -87,33 +111,55 @@ def finding_from_json(d: Any) -> Finding:
     if not isinstance(d, dict):
         raise ValueError("not a JSON object")
     try:
-        fields = {k: d[k] for k in Finding.__dataclass_fields__ if k in d}
-        f = Finding(**fields)
+        d = {**{new: d[old] for new, old in _OLD_KEYS.items() if old in d}, **d}
+        names = [f.name for f in fields(Finding) if f.name not in _RUNTIME]
+        kw = {"expected": "", "actual": "", "shape": "", "datagrams": [], "engine": "stateful" if d.get("program") else "stateless",
+              "seed": 0, **{k: d[k] for k in names if k in d}}
+        own = {k: v for k, v in d.items() if k not in names and k not in ("schema_version", "rule_text")}
+        f = Finding(**kw, doc=own)
         [bytes.fromhex(x) for x in f.datagrams]
     except (TypeError, ValueError, KeyError, AttributeError) as exc:
         raise ValueError(str(exc)) from None
     return f
 
 
-def load_finding(path: str | Path) -> Finding:
-    """A finding from ``finding-N/``, its ``finding.json`` or its repro.mcap
-    (``fuzz.finding_files``); ValueError says what is wrong."""
+def read_finding(path: str | Path, protocol: str | None = None) -> Finding:
+    """A finding from ``finding-N/``, its ``finding.json``, its repro.mcap or (a stream
+    protocol's) its repro.pcap (``fuzz.finding_files``), of ``protocol`` when given;
+    ValueError (one line) says what is wrong."""
+    d = read_finding_doc(path)
     try:
-        d = read_finding_doc(path)
+        f = finding_from_json(d)
+    except ValueError as exc:
+        raise ValueError(f"{str(path)!r} is not a finding: {exc}") from None
+    if protocol is not None and f.protocol != protocol:
+        raise ValueError(f"{str(path)!r} is not a finding of --protocol {protocol} (it is {f.protocol}'s)")
+    return f
+
+
+def load_finding(path: str | Path, protocol: str | None = None) -> Finding:
+    """:func:`read_finding` for ``--replay``: its errors say so."""
+    try:
+        return read_finding(path, protocol)
     except ValueError as exc:
         raise ValueError(f"--replay: {exc}") from None
-    try:
-        return finding_from_json(d)
-    except ValueError as exc:
-        raise ValueError(f"--replay: {str(path)!r} is not a finding: {exc}") from None
+
+
+#: How a protocol writes a finding's captures into its ``finding-N/`` (the finding's
+#: ``traffic``: its confirming replay's, empty when unknown).
+Repro = Callable[[Path, "Finding"], None]
 
 
 class FindingStore:
-    """The campaign's findings, grouped by (rule, shape); thread-safe."""
+    """The campaign's findings, grouped by (rule, shape), whatever the protocol; thread-safe.
+    ``replay_args``: ``mcp-fuzz``'s words after ``--replay DIR`` in replay.txt; ``repro``:
+    the protocol's captures of a finding (default: MCP's repro.mcap, :func:`write_repro`)."""
 
-    def __init__(self, out: str | Path | None, replay_args: list[str] | None = None) -> None:
+    def __init__(self, out: str | Path | None, replay_args: list[str] | None = None,
+                 repro: Repro | None = None) -> None:
         self.out = Path(out) if out is not None else None
         self.replay_args = replay_args or []
+        self.repro: Repro = repro or (lambda d, f: write_repro(d / "repro.mcap", f, f.traffic or None))
         self._lock = threading.Lock()
         self.groups: dict[tuple[str, str], Finding] = {}
         self.order: list[Finding] = []
@@ -130,9 +176,11 @@ class FindingStore:
             if f is not None:
                 f.occurrences += 1
 
-    def add(self, finding: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None = None,
-            ) -> Path | None:
-        """Keep a confirmed finding (or count it in its group); write it under --out."""
+    def add(self, finding: Finding, traffic: list[Any] | None = None) -> Path | None:
+        """Keep a confirmed finding (or count it in its group); write it under --out, with
+        ``traffic`` (its confirming replay's) when given, else its own."""
+        if traffic is not None:
+            finding.traffic = list(traffic)
         with self._lock:
             prev = self.groups.get(finding.key)
             if prev is not None:
@@ -144,7 +192,8 @@ class FindingStore:
         if self.out is None:
             return None
         d = finding_dir(self.out, n)
-        self._write(d, finding, traffic)
+        write_finding_doc(d, finding.to_json(), ["--replay", "{dir}", *self.replay_args])
+        self.repro(d, finding)
         return d
 
     def rewrite(self) -> None:
@@ -155,11 +204,6 @@ class FindingStore:
             p = self.out / f"finding-{n}" / "finding.json"
             if p.parent.is_dir():
                 p.write_text(json.dumps(f.to_json(), indent=2) + "\n")
-
-    def _write(self, d: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
-               ) -> None:
-        write_finding_doc(d, f.to_json(), ["--replay", "{dir}", *self.replay_args])
-        write_repro(d / "repro.mcap", f, traffic)
 
     def by_rule(self) -> dict[str, int]:
         with self._lock:
@@ -205,7 +249,8 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
-    meta = run_metadata(FUZZ_RECORDER, role="drone", rule=f.rule, expected=f.expected, actual=f.actual,
+    role = f.target.get("role") or pick(f.protocol)[1].name  # a finding written before it was recorded
+    meta = run_metadata(FUZZ_RECORDER, role=role, rule=f.rule, expected=f.expected, actual=f.actual,
                         engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
                         target=f.target or None, datagrams=f.datagrams, shape=f.shape,
                         finding=f.to_json())

@@ -22,7 +22,7 @@ PROG = "mcp-fuzz"
 
 def replay_finding(path: str, cfg: FuzzConfig) -> int:
     try:
-        f = load_finding(path)
+        f = load_finding(path, cfg.protocol)
     except ValueError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2

@@ -33,9 +33,16 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
-from fuzz.stream_findings import TrafficLog
 from fuzz.stream_mutators import Case, valid_values
-from fuzz.stream_oracles import CLOSE_RULE, Signature, parse_cause, parse_sanitizer, same_finding
+from fuzz.stream_oracles import (
+    CLOSE_RULE,
+    Hit,
+    Signature,
+    parse_cause,
+    parse_sanitizer,
+    same_finding,
+)
+from fuzz.stream_repro import TrafficLog
 from harness.config import RunConfig
 from harness.stream_session import Conn, StreamSession
 from spec import NSQD
@@ -46,17 +53,6 @@ __all__ = ["Backend", "Hit", "message_names"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
-
-
-@dataclass
-class Hit:
-    signature: Signature
-    detail: str
-    stderr: tuple[str, ...] = ()
-    suspects: int = 2  # how many of the latest cases may have caused it (the campaign's triage)
-    #: when its cause showed (time.monotonic(): a sanitizer's report or a "terminate called"
-    #: line read from stderr), None if unknown: the cases sent before it are the suspects
-    at: float | None = None
 
 
 @dataclass

@@ -12,14 +12,9 @@ without its effect), the probe is sent on a fresh backend with no case before it
 target's behaviour: reported under the rule the baseline broke, with no input blamed
 (``finding.json`` ``"no_input": true``, replayed by the same baseline).
 
-The budget: ``--duration`` bounds the whole campaign, triage included. No replay starts after
-the deadline; one under way is not cut, so a campaign ends within ``--duration`` plus
-``fuzz.budget.GRACE_S`` (the longest one replay takes: a backend restarted, a connection's
-timeout, a probe's two effect windows, a sanitizer report read whole), the one bound of both
-protocols' campaigns and of their ``--jobs`` parents. Triage may spend
-:data:`TRIAGE_SHARE` of the campaign (of ``--duration``, or of the time so far under
-``--max-cases``); a new triage starts under 90 % of it, and one that reaches it ends there
-(``over_budget``); once spent, a new signature's hits are counted in the summary
+The budget (``fuzz.budget``): ``--duration`` bounds the whole campaign, triage included, within
+``GRACE_S``; triage may spend ``TRIAGE_SHARE`` of the campaign (``budget_left``,
+``over_budget``); once spent, a new signature's hits are counted in the summary
 (``untriaged``), not replayed.
 
 Two observations of triage live here too: :func:`death_culprit` finds the case a death comes
@@ -33,18 +28,15 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fuzz.budget import GRACE_S, Late
+from fuzz.budget import Late, over_budget
 from fuzz.ddmin import ddmin
 from fuzz.stream_backend import Backend, Hit
 from fuzz.stream_mutators import Case
 from fuzz.stream_oracles import Signature
 from spec import NSQD
 
-__all__ = ["GRACE_S", "PROBED", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "baseline", "death_culprit", "leak_check",
-           "over_budget", "watch_stream"]
+__all__ = ["PROBED", "baseline", "death_culprit", "leak_check", "watch_stream"]
 
-TRIAGE_SHARE = 0.25  # of the campaign's time, triage's budget
-UNCONFIRMED_TRIES = 2  # a signature that did not reproduce this many times is counted, not triaged again
 PROBED = "(the probe with no case before it)"  # a baseline hit's detail ends so when the probe showed it
 STREAM_UPDATES = 3  # UPDATEs a baseline connection reads (mcp-conform's FRM-1 case reads three)
 
@@ -108,27 +100,6 @@ def baseline(b: Backend, sig: Signature, *, probe: bool) -> Hit | None:
         if hit is not None:
             hit = Hit(hit.signature, f"{hit.detail} {PROBED}", hit.stderr)
     return hit
-
-
-def budget_left(campaign: Any, now: float) -> bool:
-    """Whether triage may start on a new signature: its seconds so far under
-    :data:`TRIAGE_SHARE` of the campaign (``--duration``, else the time so far), and the
-    deadline not passed."""
-    if campaign.duration is not None and now >= campaign.started + campaign.duration:
-        return False
-    base = campaign.duration if campaign.duration is not None else max(now - campaign.started, 1.0)
-    # room left for the triage it starts (a real backend's took 5-10 s): the share is a bound
-    # (``over_budget`` ends a triage that would pass it)
-    return campaign.triage_s == 0.0 or campaign.triage_s < 0.9 * TRIAGE_SHARE * base
-
-
-def over_budget(campaign: Any, now: float) -> bool:
-    """Whether the triage in progress (begun at ``campaign.triage_from``) has taken the
-    campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``),
-    unless it is the campaign's first, as :func:`budget_left` lets the first begin."""
-    if campaign.duration is None or campaign.triage_from is None or campaign.triage_s == 0.0:
-        return False  # the campaign's first triage ends as it ends (a 12 s campaign's 3 s of share held none)
-    return campaign.triage_s + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration
 
 
 def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self: the campaign

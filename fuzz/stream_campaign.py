@@ -24,17 +24,28 @@ Python bytes literal, the stderr excerpt and ``replay.txt``; ``mcp-fuzz --protoc
 
 from __future__ import annotations
 
-import json
 import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+from fuzz import stream_report
+from fuzz.budget import (
+    TRIAGE_SHARE,
+    UNCONFIRMED_TRIES,
+    Late,
+    budget_left,
+    campaign_end,
+    engine_turns,
+    over_budget,
+)
+from fuzz.config import FuzzConfig
 from fuzz.ddmin import ddmin
 from fuzz.environment import EnvironmentLog
-from fuzz.finding_files import finding_dir, write_finding_doc
+from fuzz.findings import Finding, FindingStore
+from fuzz.progress import Progress
 from fuzz.stream_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -44,48 +55,43 @@ from fuzz.stream_backend import (
     _reproduces,
     message_names,
 )
-from fuzz.stream_blame import (
-    GRACE_S,
-    PROBED,
-    TRIAGE_SHARE,
-    UNCONFIRMED_TRIES,
-    Late,
-    baseline,
-    budget_left,
-    death_culprit,
-    leak_check,
-    over_budget,
-)
-from fuzz.stream_findings import TrafficLog, load_stream_finding, write_stream_repro
+from fuzz.stream_blame import PROBED, baseline, death_culprit, leak_check
 from fuzz.stream_mutators import Case, Write, draw_case
 from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule, same_finding
+from fuzz.stream_replay import replay_stream_finding
+from fuzz.stream_repro import TrafficLog, write_finding_files
+from fuzz.workers import Reporter, report, run_jobs, sum_tables
 from harness.errors import SetupError
 from spec import NSQD
 from spec.profiles import NSQD_PROFILE
 from spec.stream_codec import encode
 
-__all__ = ["StreamCampaign", "replay_stream_finding"]
+__all__ = ["StreamCampaign", "nsqd_finding", "replay_stream_finding"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE  # their old names (moved for fuzz.stream_stateful)
 
-@dataclass
-class Finding:
-    signature: Signature
-    cases: list[Case]
-    detail: str
-    replays: str
-    stderr: tuple[str, ...] = ()
-    count: int = 1
-    note: str = ""
-    traffic: list[Any] = field(default_factory=list)  # the last confirming replay's (repro.mcap, repro.pcap)
-    program: list[dict[str, Any]] | None = None  # the stateful engine's: its ops (fuzz.stream_stateful.Op)
-    no_input: bool = False  # the target's behaviour: a baseline sent nothing showed it (fuzz.stream_blame)
-    probe: bool = False  # a no-input finding's baseline ends with the probe
-
-    def writes(self) -> list[Write]:
-        if self.program is not None:
-            return [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in self.program for w in op["writes"]]
-        return [w for c in self.cases for w in c.writes]
+def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, stderr: tuple[str, ...] = (), *,
+                 note: str = "", traffic: list[Any] | None = None, program: list[dict[str, Any]] | None = None,
+                 no_input: bool = False, probe: bool = False, seed: int = 0, worker: int = 0) -> Finding:
+    """An Nsqd finding as every protocol's is (``fuzz.findings.Finding``): its signature,
+    minimal cases (or a stateful program's ops), the last confirming replay's traffic (its
+    repro.mcap, repro.pcap); ``probe``: its replay ends with the probe command."""
+    writes = ([Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in program for w in op["writes"]]
+              if program is not None else [w for c in cases for w in c.writes])
+    doc: dict[str, Any] = {
+        "oracle": sig.oracle, "kind": sig.kind, "access": sig.access, "frames": list(sig.frames),
+        "description": sig.describe(), "detail": detail, "probe": probe or "probe" in note,
+        "writes": [{"hex": w.data.hex(), "end": w.end} for w in writes],
+        "expect": [list(c.expect) for c in cases if c.check], "or_error": any(c.or_error for c in cases)}
+    if len(cases) > 1:  # each as it was sent (its own watch, its connection kept or not): --replay too
+        doc["cases"] = [{"kind": c.kind, "valid": c.valid, "probe": c.probe, "note": c.note,
+                         "writes": [{"hex": w.data.hex(), "end": w.end} for w in c.writes]} for c in cases]
+    # the shape groups as the signature's key does (its access aside): fuzz.findings.FindingStore
+    shape = Signature(sig.oracle, sig.kind, sig.frames[:3], sig.rule).describe()
+    return Finding(sig.rule, "", detail, [], shape, "stateless" if program is None else "stateful", seed,
+                   level="MUST", evidence=list(stderr), worker=worker, program=program, source=sig.oracle,
+                   protocol=NSQD_PROFILE.name, note=note, replays=replays, no_input=no_input, doc=doc,
+                   signature=sig, cases=list(cases), traffic=list(traffic or []))
 
 
 @dataclass
@@ -99,7 +105,6 @@ class StreamCampaign:
     replays: int = 3
     probe_every: int = 40
     stop_after: int | None = None  # end the campaign once this many findings are confirmed
-    findings: list[Finding] = field(default_factory=list)
     unconfirmed: int = 0
     cases: int = 0
     by_kind: dict[str, int] = field(default_factory=dict)
@@ -107,7 +112,7 @@ class StreamCampaign:
     engine: str = "stateless"  # stateless | stateful | both (the duration split between them)
     db: str | None = None  # hypothesis's example database of the stateful engine (--db)
     worker: int = 0  # a --jobs worker's index: its own seed stream
-    tick: Callable[[StreamCampaign], None] | None = None  # live progress (fuzz.stream_progress)
+    tick: Callable[[Progress], None] | None = None  # live progress (fuzz.progress)
     tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases
     fuzz_s: float = 0.0  # seconds spent fuzzing (triage's replays excluded)
     triage_s: float = 0.0  # triage's own: its baselines and replays, the processes they start included
@@ -116,7 +121,7 @@ class StreamCampaign:
     origin: float | None = None  # a --jobs parent's start: --duration counts from it (fuzz.budget)
     stop: Callable[[], bool] = lambda: False  # a --jobs parent's stop request
     current: Any = None  # the backend now fuzzed (closed at the end, whatever ends the campaign)
-    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (fuzz.stream_jobs)
+    workers: list[dict[str, Any]] | None = None  # --jobs: each worker's figures (:meth:`run_jobs`)
     untriaged: dict[str, int] = field(default_factory=dict)  # signature -> hits counted, not triaged
     tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
@@ -129,6 +134,18 @@ class StreamCampaign:
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
     triage_from: float | None = None  # when the triage in progress began (``over_budget``)
+    jobs: int = 1  # --jobs: :meth:`fuzz` runs this many workers (:meth:`run_jobs`)
+    interrupted: bool = False  # SIGINT ended it (its summary says so)
+    store: FindingStore = field(init=False)  # the confirmed findings (fuzz.findings), written under ``out``
+
+    def __post_init__(self) -> None:
+        how = ["--spawn", self.spawn] if self.spawn else (
+            ["--target", f"{self.target[0]}:{self.target[1]}"] if self.target else [])
+        self.store = FindingStore(self.out, ["--protocol", NSQD_PROFILE.name, *how], write_finding_files)
+
+    @property
+    def findings(self) -> list[Finding]:
+        return self.store.order
 
     def _over(self, deadline: float) -> bool:
         cap = self.case_cap if self.case_cap is not None else self.max_cases
@@ -143,19 +160,58 @@ class StreamCampaign:
 
     def _tick(self) -> None:
         if self.tick is not None:
-            self.tick(self)
+            self.tick(self.progress())
+
+    def progress(self) -> Progress:
+        """The live figures (``fuzz.progress``): findings by class (the oracle), the kinds x
+        message ids sent."""
+        classes: dict[str, int] = {}
+        for f in self.findings:
+            classes[f.source] = classes.get(f.source, 0) + 1
+        return Progress(self.cases, len(self.findings), self.restarts, self.fuzz_s, self.started, self.engine,
+                        classes, self.tried)
+
+    def report(self, **more: Any) -> dict[str, Any]:
+        """A ``--jobs`` worker's report to its parent (``fuzz.workers.report``)."""
+        return report(self.cases, self.fuzz_s, self.restarts, list(self.findings), tried=self.tried,
+                      triage_s=self.triage_s, restart_s=self.restart_s, environment=self.environment.values(),
+                      unconfirmed=self.unconfirmed, untriaged=self.untriaged, by_kind=self.by_kind, **more)
+
+    def run_jobs(self, jobs: int, tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+        """``--jobs N``: N workers (``fuzz.workers.run_jobs``), each a campaign of its own
+        backend and seed stream, ``--max-cases`` shared out, ``--duration`` from this start;
+        their findings in this campaign's store, their figures merged; the summary."""
+        t0 = self.started = time.monotonic()
+        kw = {**{k: getattr(self, k) for k in _JOB_FIELDS}, "origin": t0}
+        if self.max_cases is not None:  # the budget shared: N workers run max_cases in all
+            kw["max_cases"] = max(1, self.max_cases // jobs)
+        got = run_jobs(_job, lambda i, q, stop: (kw, i, q, stop), jobs, campaign_end(t0, self.duration), self.store,
+                       tick, Progress(started=t0, engine=self.engine), self.stop_after)
+        bodies = list(got.per.values())
+        self.cases, self.restarts = sum(b["cases"] for b in bodies), sum(b["restarts"] for b in bodies)
+        self.fuzz_s = max((b["fuzz_s"] for b in bodies), default=0.0)
+        self.triage_s, self.restart_s = sum(b["triage_s"] for b in bodies), sum(b["restart_s"] for b in bodies)
+        self.unconfirmed = sum(b["unconfirmed"] for b in bodies)
+        for e in (e for b in bodies for e in b["environment"]):
+            self.environment.add(e)
+        self.tried = sum_tables(b["tried"] for b in bodies)
+        self.untriaged = sum_tables({"": b["untriaged"]} for b in bodies).get("", {})
+        self.by_kind = sum_tables({"": b["by_kind"]} for b in bodies).get("", {})
+        self.workers = [{"worker": i, "cases": got.per.get(i, {}).get("cases", 0),
+                         "fuzz_s": round(got.per.get(i, {}).get("fuzz_s", 0.0), 2),
+                         "findings": len(got.done.get(i, {}).get("found", [])),
+                         "error": got.done[i]["error"] if i in got.done else "gave no result"} for i in range(jobs)]
+        self.interrupted = got.interrupted
+        return self.summary(time.monotonic() - t0)
 
     def run(self) -> dict[str, Any]:
         self.started = t0 = self.origin if self.origin is not None else time.monotonic()
-        engines = ["stateless", "stateful"] if self.engine == "both" else [self.engine]
         backend = self.current = Backend(self.target, self.spawn)
         try:
             if self.worker == 0:
                 backend = self.current = leak_check(self, backend)
-            for k, name in enumerate(engines):
-                deadline = t0 + self.duration * (k + 1) / len(engines) if self.duration is not None else float("inf")
-                if self.max_cases is not None:
-                    self.case_cap = self.max_cases * (k + 1) // len(engines)
+            for name, deadline, cap in engine_turns(self.engine, t0, self.duration, self.max_cases):
+                self.case_cap = cap
                 if name == "stateful":
                     from fuzz.stream_stateful import StreamStatefulEngine
 
@@ -163,6 +219,8 @@ class StreamCampaign:
                         lambda d=deadline: self._over(d), self._tick)  # type: ignore[misc]  # mypy: a default argument
                 else:
                     backend = self._stateless(backend, deadline)
+        except KeyboardInterrupt:  # SIGINT: the campaign ends with what it has
+            self.interrupted = True
         finally:
             self.current.close()
         return self.summary(time.monotonic() - t0)
@@ -189,7 +247,7 @@ class StreamCampaign:
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
         """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
         (repro.mcap, repro.pcap), as a case's finding has it."""
-        self._add(Finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=list(traffic or [])))
+        self._add(nsqd_finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=traffic))
 
     def _stateless(self, backend: Backend, deadline: float) -> Backend:
         rng = random.Random(self.seed if not self.worker else hash((self.seed, self.worker)))
@@ -249,7 +307,7 @@ class StreamCampaign:
         by a program), or any once the triage budget is spent."""
         known = self.known(sig)
         if known is not None:
-            known.count += 1
+            known.occurrences += 1
             return True
         if self.target is not None and self.spawn is None and sig.oracle in ("crash", "hang") \
                 and backend.session.death() is not None:
@@ -293,7 +351,7 @@ class StreamCampaign:
             return True, backend
         found = self.known(base)
         if found is not None:
-            found.count += 1
+            found.occurrences += 1
             self.aliases[hit.signature.key] = found
         return False, backend
 
@@ -323,7 +381,7 @@ class StreamCampaign:
                                   "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
-            self._add(Finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
+            self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
                               note="the target's behaviour, whatever it is sent: no input blamed (" + (
                                   "the probe command with no case before it)" if base.detail.endswith(PROBED)
                                   else "a baseline connection sent nothing)"),
@@ -389,7 +447,7 @@ class StreamCampaign:
             hit = Hit(sig, hit.detail, hit.stderr)
         known = self.known(sig)
         if known is not None:
-            known.count += 1
+            known.occurrences += 1
             self.aliases[hit.signature.key] = known
             return self.restart(backend)
         state = {"b": backend}
@@ -450,9 +508,9 @@ class StreamCampaign:
                 n, cut_traffic, _ = confirm(shorter)
                 if n == self.replays:
                     minimal, traffic = shorter, cut_traffic
-        self._add(Finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
+        self._add(nsqd_finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
-        self.aliases[hit.signature.key] = self.findings[-1]
+        self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(state["b"])
 
     def restart(self, backend: Backend) -> Backend:
@@ -467,124 +525,50 @@ class StreamCampaign:
 
     def add_found(self, sig: Signature, detail: str, replays: str, note: str) -> None:
         """A finding no input is replayed for (``fuzz.stream_blame.leak_check``'s)."""
-        self._add(Finding(sig, [], detail, replays, (), note=note))
+        self._add(nsqd_finding(sig, [], detail, replays, (), note=note))
 
     def _add(self, f: Finding) -> None:
-        self.findings.append(f)
-        if self.out is not None:
-            write_finding(finding_dir(self.out, len(self.findings)), f, self.spawn, self.target,
-                          probe=f.probe or "probe" in f.note)
+        """A confirmed finding into the store (``finding-N/`` under ``out``)."""
+        f.seed, f.worker = self.seed, self.worker
+        self.store.add(f)
 
     def summary(self, elapsed: float) -> dict[str, Any]:
-        """``summary.json``: cases, judged cases/s (triage's replays excluded), findings by
-        class (the oracle) and each one, which message ids x mutation kinds were sent."""
-        by_class: dict[str, int] = {}
-        for f in self.findings:
-            by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-        s = {"protocol": NSQD_PROFILE.name, "engine": self.engine, "seed": self.seed, "cases": self.cases,
-             "elapsed_s": round(elapsed, 2), "cases_per_s": round(self.cases / elapsed, 1) if elapsed else 0,
-             "fuzz_s": round(self.fuzz_s, 2), "triage_s": round(self.triage_s, 2),
-             "restart_s": round(self.restart_s, 2),
-             "judged_cases_per_s": round(self.cases / self.fuzz_s, 1) if self.fuzz_s else 0,
-             "by_kind": self.by_kind, "tried": self.tried, "findings_by_class": by_class,
-             "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                           "count": f.count, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
-                           else "stateless"} for f in self.findings],
-             "unconfirmed": self.unconfirmed, "environment_dependent": self.environment.values(),
-             "untriaged": self.untriaged, "restarts": self.restarts, "db": self.db,
-             "duration_s": self.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
-             "triage_share": round(self.triage_s / elapsed, 3) if elapsed else 0.0,
-             "jobs": len(self.workers) if self.workers is not None else 1}
-        if self.workers is not None:
-            s["workers"] = self.workers
-        if self.out is not None:
-            (self.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
-        return s
+        """``summary.json`` (``fuzz.stream_report.summary``), written under ``out``."""
+        return stream_report.summary(self, elapsed)
+
+    # -- mcp-fuzz's campaign of the protocol (fuzz.config.FuzzCampaign) ----------------
+    REFUSED: ClassVar[tuple[str, ...]] = ("--mavlink", "--seeds", "--live")
+
+    @classmethod
+    def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> StreamCampaign:
+        return cls(cfg.target, cfg.spawn, cfg.seed, cfg.duration_limit, cfg.max_cases,
+                   Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db, tick=tick, jobs=cfg.jobs)
+
+    def fuzz(self) -> dict[str, Any]:
+        return self.run_jobs(self.jobs, self.tick) if self.jobs > 1 else self.run()
+
+    def abort(self) -> None:
+        if self.out:
+            self.summary(0.0)
+
+    def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
+        return stream_report.final(self, summary, live, strict)
+
+    @staticmethod
+    def replay(path: str, cfg: FuzzConfig) -> int:
+        return replay_stream_finding(path, cfg.target, cfg.spawn)
+
+_JOB_FIELDS = ("target", "spawn", "seed", "duration", "max_cases", "replays", "probe_every", "engine", "db")
 
 
-def write_finding(d: Path, f: Finding, spawn: str | None, target: tuple[str, int] | None, *, probe: bool) -> None:
-    data = b"".join(w.data for w in f.writes())
-    doc = {"protocol": NSQD_PROFILE.name, "oracle": f.signature.oracle, "kind": f.signature.kind, "access": f.signature.access,
-           "frames": list(f.signature.frames), "rule": f.signature.rule, "level": "MUST",
-           "description": f.signature.describe(), "detail": f.detail, "note": f.note, "replays": f.replays,
-           "probe": probe, "writes": [{"hex": w.data.hex(), "end": w.end} for w in f.writes()],
-           "expect": [list(c.expect) for c in f.cases if c.check], "or_error": any(c.or_error for c in f.cases),
-           "no_input": f.no_input}
-    if len(f.cases) > 1:  # each as it was sent (its own watch, its connection kept or not): --replay too
-        doc["cases"] = [{"kind": c.kind, "valid": c.valid, "probe": c.probe, "note": c.note,
-                         "writes": [{"hex": w.data.hex(), "end": w.end} for w in c.writes]} for c in f.cases]
-    if f.program is not None:
-        doc["program"] = f.program
-    write_stream_repro(d, doc, f.traffic)
-    (d / "input.hex").write_text(data.hex(" ") + "\n")
-    (d / "input.py").write_text(f"# {f.signature.describe()}\nINPUT = {data!r}\n")
-    (d / "stderr.txt").write_text("\n".join(f.stderr) + "\n")
-    how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-    write_finding_doc(d, doc, ["--protocol", NSQD_PROFILE.name, "--replay", "{dir}", *how])
-
-
-def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None,
-                          prog: str = "mcp-fuzz") -> int:
-    """Replay a finding (``finding-N/``, its finding.json, repro.mcap or repro.pcap) once in a
-    fresh backend: 1 reproduced, 0 not, 2 unreadable."""
-    doc_path = path
+def _job(kw: dict[str, Any], worker: int, q: Any, stop: Any) -> None:
+    """A ``--jobs`` worker process: its campaign, its reports (``fuzz.workers.Reporter``)."""
+    reporter = Reporter(q, worker)
+    c = StreamCampaign(**kw, out=None, worker=worker, stop=stop.is_set)
+    c.tick = lambda _: reporter.progress(c.report)
+    error = None
     try:
-        doc = load_stream_finding(path)
-        writes = [Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in doc["writes"]]
-        expect = tuple(doc.get("expect", [[]])[0]) if doc.get("expect") else ()
-        sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
-        program = None
-        if doc.get("program"):
-            from fuzz.stream_stateful import Op
-
-            program = [Op.from_json(o) for o in doc["program"]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"{prog}: error: {'--replay: ' if prog == 'mcp-fuzz' else ''}cannot read {doc_path}: {exc}")
-        return 2
-    if doc.get("no_input"):
-        from fuzz.stream_blame import baseline
-
-        backend = Backend(target, spawn)
-        try:
-            seen = baseline(backend, sig, probe=bool(doc.get("probe")))
-        finally:
-            backend.close()
-        return _replay_verdict(seen, sig, " with no input")
-    if not writes and program is None:
-        print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
-              "mcp-conform --protocol nsqd --select NSQD-CON-3")
-        return 2
-    backend = Backend(target, spawn)
-    if program is not None:
-        from fuzz.stream_stateful import play_program
-
-        try:
-            seen = play_program(backend, program)  # type: ignore[assignment]  # the player's Hit: .signature as well
-        finally:
-            backend.close()
-        return _replay_verdict(seen, sig)
-    try:
-        cases = [Case(c["kind"], tuple(Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in c["writes"]),
-                      bool(c.get("valid")), c.get("note", ""), probe=bool(c.get("probe", True)))
-                 for c in doc.get("cases") or []]
-        cases = cases or [Case(_replay_kind(sig), tuple(writes), bool(expect), sig.kind if expect else "",
-                               expect=expect, or_error=bool(doc.get("or_error")), check=bool(expect))]
-        ok, backend, hit = _reproduces(backend, cases, sig, probe=bool(doc.get("probe")))
-    finally:
-        backend.close()
-    if ok:
-        print(f"reproduced {sig.rule}: {sig.describe()}")
-        return 1
-    print(f"did not reproduce {sig.describe()}" + (f" (saw {hit.signature.describe()})" if hit else ""))
-    return 0
-
-
-def _replay_verdict(seen: Any, sig: Signature, how: str = "") -> int:
-    """A replay's line and exit code: 1 when what it saw is the finding's signature (``how``:
-    " with no input" for the target's own behaviour), else 0."""
-    if seen is not None and _same(seen.signature, sig):
-        what = " (the target's behaviour)" if how else ""
-        print(f"reproduced {sig.rule}{how}{what}: {sig.describe()}")
-        return 1
-    print(f"did not reproduce {sig.describe()}{how}" + (f" (saw {seen.signature.describe()})" if seen else ""))
-    return 0
+        c.run()
+    except Exception as exc:  # noqa: BLE001 - reported by the parent in one line
+        error = f"worker {worker}: {type(exc).__name__}: {exc}"
+    reporter.done(c.report(findings=list(c.findings), error=error))

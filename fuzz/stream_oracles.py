@@ -17,7 +17,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["CLOSE_RULE", "Signature", "desync_rule", "parse_sanitizer", "same_finding"]
+__all__ = ["CLOSE_RULE", "Hit", "Signature", "desync_rule", "parse_sanitizer", "same_finding"]
 
 _ASAN = re.compile(r"ERROR: (\w+Sanitizer): ([\w-]+)")
 _UBSAN = re.compile(r"runtime error: (.*)")
@@ -47,6 +47,26 @@ class Signature:
         where = f" in {' < '.join(self.frames[:3])}" if self.frames else ""
         access = f" ({self.access})" if self.access else ""
         return f"{self.oracle}: {self.kind}{access}{where} [{self.rule}]"
+
+
+@dataclass(eq=False)
+class Hit(Exception):
+    """What an oracle saw: returned by a case's judgement (``fuzz.stream_backend``), raised
+    inside a stateful program's player (``fuzz.stream_player``); the one kind for both."""
+
+    signature: Signature
+    detail: str
+    stderr: tuple[str, ...] = ()
+    suspects: int = 2  # how many of the latest cases may have caused it (the campaign's triage)
+    #: when its cause showed (time.monotonic(): a sanitizer's report or a "terminate called"
+    #: line read from stderr), None if unknown: the cases sent before it are the suspects
+    at: float | None = None
+
+    def __str__(self) -> str:
+        return self.signature.describe()
+
+    def __reduce__(self) -> tuple[type[Hit], tuple[Signature, str, tuple[str, ...], int, float | None]]:
+        return (Hit, (self.signature, self.detail, self.stderr, self.suspects, self.at))
 
 
 def frame_name(text: str) -> str:

@@ -12,7 +12,7 @@ from typing import Any
 
 from fuzz.stream_backend import read_until
 from fuzz.stream_mutators import Write, valid_values
-from fuzz.stream_oracles import CLOSE_RULE, Signature, desync_rule
+from fuzz.stream_oracles import CLOSE_RULE, Hit, Signature, desync_rule
 from harness.stream_session import Conn
 from spec import NSQD
 from spec.stream_codec import encode
@@ -92,14 +92,6 @@ class Client:
     promoted: bool = False  # pipelined: served once the first left, its first UPDATE not yet judged
     sent: bool = False  # anything was sent on it
     pending: tuple[Op, float] | None = None  # pipelined: its last command, judged at the end
-
-
-class Hit(Exception):
-    """What the judge saw after an op (raised inside the player)."""
-
-    def __init__(self, signature: Signature, detail: str, stderr: tuple[str, ...] = ()) -> None:
-        super().__init__(signature.describe())
-        self.signature, self.detail, self.stderr = signature, detail, stderr
 
 
 class Player:
@@ -292,7 +284,7 @@ class Player:
     def _dead(self) -> None:
         hit = self.b.death_hit(0.3)
         if hit is not None:
-            raise Hit(hit.signature, hit.detail, hit.stderr)
+            raise hit
 
     def _judge(self) -> None:
         for c in self.clients.values():
@@ -421,7 +413,7 @@ class Player:
             first = nxt.updates()[:1] if nxt is not None else []
             if not (any(s in effect.to for s in states) or (effect.or_error and old.errors(since))
                     or (first and first[0].values["state"] in effect.to)):  # type: ignore[index]
-                hit = self._lost(served, op, states + [u.values["state"] for u in first])  # type: ignore[misc]
+                hit = self._lost(served, op, states + [u.values["state"] for u in first])
         for c in order:
             c.conn.close()
             self._forget(c)

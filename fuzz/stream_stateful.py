@@ -41,7 +41,6 @@ from typing import Any
 
 from fuzz.ddmin import ddmin
 from fuzz.stream_backend import REPLAY_DEATH_S, _passing
-from fuzz.stream_findings import TrafficLog
 from fuzz.stream_oracles import same_finding
 from fuzz.stream_player import (
     CLIENT_MSGS,
@@ -57,6 +56,7 @@ from fuzz.stream_player import (
     command_bytes,
 )
 from fuzz.stream_programs import StreamStatefulEngine
+from fuzz.stream_repro import TrafficLog
 
 __all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "Client", "Hit", "Op", "Player",
            "StreamStatefulEngine", "_whole_frames", "command_bytes", "play_program", "triage_program"]
@@ -68,7 +68,7 @@ SHRINK_S = 8.0
 
 def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None) -> Hit | None:
     """Play ``ops`` on ``backend`` (a fresh one for a replay): the first hit, if any.
-    ``log`` (a ``fuzz.stream_findings.TrafficLog``): the replay's traffic, for the finding's
+    ``log`` (a ``fuzz.stream_repro.TrafficLog``): the replay's traffic, for the finding's
     repro.mcap and repro.pcap, as a stateless finding's confirming replay keeps it. ``want``
     (a death's signature): a non-fatal sanitizer report on the way is not the verdict, the
     program goes on to the death (``fuzz.stream_backend._passing``, halt_on_error=0)."""
@@ -80,7 +80,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
             try:
                 p.play(op)
             except Hit as hit:
-                if want is None or not _passing(hit, want):  # type: ignore[arg-type]  # the player's Hit: .signature as well
+                if want is None or not _passing(hit, want):
                     raise
                 passed = hit
         died = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
@@ -89,7 +89,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
         p._judge()
         return passed
     except Hit as hit:
-        return passed if want is not None and _passing(hit, want) else hit  # type: ignore[arg-type]  # as above
+        return passed if want is not None and _passing(hit, want) else hit
     finally:
         if log is not None:
             for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
@@ -113,7 +113,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     sig = hit.signature
     known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
     if known is not None:
-        known.count += 1
+        known.occurrences += 1
         return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
     if campaign.target is not None and campaign.spawn is None and sig.oracle in ("crash", "hang") \
             and backend.session.death() is not None:
@@ -141,7 +141,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
         sig, hit = first.signature, first
         known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
         if known is not None:
-            known.count += 1
+            known.occurrences += 1
             return box["b"].fresh()
     box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:

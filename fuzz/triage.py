@@ -157,7 +157,8 @@ class Triage:
         return build_datagram(self.target.node_id, BASELINE_SRC, int(time.monotonic() * 1000) & 0xFFFF, Action.WP_OFF)
 
     def _target_doc(self) -> dict[str, object]:
-        return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink}
+        return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink,
+                "role": self.target.cfg.role}
 
     def _unconfirmed(self, flaw: Flaw) -> None:
         self.unconfirmed += 1

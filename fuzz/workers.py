@@ -1,5 +1,13 @@
-"""``mcp-fuzz --jobs N``: the worker processes both campaigns run (MCP's ``fuzz.campaign``,
-Nsqd's ``fuzz.stream_jobs``), and the parent's loop over what they report.
+"""``mcp-fuzz --jobs N``: the worker processes every campaign runs (MCP's ``fuzz.campaign``,
+Nsqd's ``fuzz.stream_campaign``), and the one parent over what they report (issue 37: one
+jobs layer): :func:`run_jobs` shows their figures summed (:class:`~fuzz.progress.Progress`:
+cases and restarts summed, judged cases/s over the longest fuzzing time, findings distinct
+across workers) and keeps their findings in the campaign's store (grouped, counts summed,
+``finding-N/`` written); what else a worker reported, its campaign merges.
+
+Every report is a dict (:func:`report`): ``cases``, ``fuzz_s``, ``restarts``, ``found`` (each
+finding's class, rule and shape), ``tried`` when counted; the last, ``done``, also holds the
+worker's ``findings`` (``fuzz.findings.Finding``, its traffic with it).
 
 Each worker is a spawned process given the one queue it reports on and the one event that
 asks it to stop; it ignores SIGINT (the parent's to handle). The parent reads the queue until
@@ -16,10 +24,16 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["JOIN_S", "PROGRESS_S", "STOP_GRACE", "Reporter", "run_workers"]
+if TYPE_CHECKING:  # a worker process imports this module first: it stays light
+    from fuzz.findings import Finding, FindingStore
+    from fuzz.progress import Progress
+
+__all__ = ["JOIN_S", "PROGRESS_S", "STOP_GRACE", "Jobs", "Reporter", "report", "run_jobs", "run_workers",
+           "sum_tables"]
 
 STOP_GRACE = 30.0  # s: after SIGINT (or a stop asked for), how long workers get to report
 JOIN_S = 1.0  # s, all workers together: to exit once reported (or be killed at the bound)
@@ -97,3 +111,63 @@ def _drain(q: Any, handle: Callable[[str, int, Any], bool], finished: Callable[[
         except (queue.Empty, OSError, ValueError, EOFError):
             return
         handle(kind, worker, body)
+
+
+def report(cases: int, fuzz_s: float, restarts: int, found: Iterable[Finding], **more: Any) -> dict[str, Any]:
+    """A worker's report to :func:`run_jobs`: its figures, what it found (class, rule, shape),
+    and ``more`` (its campaign's own figures, ``tried``, at the end its ``findings``)."""
+    return {"cases": cases, "fuzz_s": fuzz_s, "restarts": restarts,
+            "found": [(f.source, f.rule, f.shape) for f in found], **more}
+
+
+@dataclass
+class Jobs:
+    """What the ``--jobs`` parent gathered: each worker's last report and its final one."""
+
+    per: dict[int, dict[str, Any]]
+    done: dict[int, dict[str, Any]]
+    interrupted: bool
+
+
+def run_jobs(child: Callable[..., None], args_of: Callable[[int, Any, Any], tuple[Any, ...]], jobs: int,
+             until: float, store: FindingStore, tick: Callable[[Progress], None] | None = None,
+             progress: Progress | None = None, stop_after: int | None = None) -> Jobs:
+    """Run ``jobs`` workers (:func:`run_workers`); their figures summed in ``progress`` for
+    ``tick`` (the live display), their findings added to ``store`` as each ends. The workers
+    are asked to stop once ``stop_after`` distinct findings are known."""
+    from fuzz.progress import Progress
+
+    prog = progress or Progress()
+    per: dict[int, dict[str, Any]] = {}
+    done: dict[int, dict[str, Any]] = {}
+
+    def handle(kind: str, worker: int, body: dict[str, Any]) -> bool:
+        if kind == "done":
+            for f in body.pop("findings", []):
+                store.add(f)
+            done[worker] = body
+        per[worker] = body
+        found = {(r, sh): c for b in per.values() for c, r, sh in b.get("found", ())}
+        prog.cases = sum(b["cases"] for b in per.values())
+        prog.fuzz_seconds = max((b["fuzz_s"] for b in per.values()), default=0.0)
+        prog.restarts = sum(b["restarts"] for b in per.values())
+        prog.findings = len(found)
+        prog.classes = sum_tables([{"": {c: 1}} for c in found.values() if c]).get("", {})
+        prog.tried = sum_tables(b.get("tried", {}) for b in per.values())
+        if tick is not None:
+            tick(prog)
+        return stop_after is not None and prog.findings >= stop_after
+
+    interrupted = run_workers(child, args_of, jobs, until, handle, lambda: len(done) >= jobs)
+    return Jobs(per, done, interrupted)
+
+
+def sum_tables(tables: Iterable[dict[str, dict[str, int]]]) -> dict[str, dict[str, int]]:
+    """Tables of counts (row -> column -> n) summed cell by cell."""
+    out: dict[str, dict[str, int]] = {}
+    for t in tables:
+        for kind, row in t.items():
+            o = out.setdefault(kind, {})
+            for k, n in row.items():
+                o[k] = o.get(k, 0) + n
+    return out

@@ -80,6 +80,9 @@ class Profile:
     capture_tools: str
     mutators: str
     oracles: str
+    #: ``mcp-fuzz``'s campaign of this protocol (``fuzz.config.FuzzCampaign``): its loop over
+    #: the protocol's targets, engines, oracles and triage, and its ``--replay``
+    fuzz_campaign: str
     #: the reference node's command line (``mcp-node --protocol NAME``)
     reference_cli: str
     roles: tuple[RoleProfile, ...]
@@ -119,7 +122,8 @@ MCP = Profile(
     codec="spec.codec", monitor="judge.run_monitor:RunMonitor",
     dissector="captures.dissector", capture_reader="traceio.reader:open_capture",
     capture_detect=None, capture_tools="captures.mcp",
-    mutators="fuzz.mutators", oracles="fuzz.oracles", reference_cli="reference_impl.cli",
+    mutators="fuzz.mutators", oracles="fuzz.oracles", fuzz_campaign="fuzz.campaign:DatagramCampaign",
+    reference_cli="reference_impl.cli",
     roles=(
         RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
                     cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
@@ -139,7 +143,8 @@ NSQD_PROFILE = Profile(
     codec="spec.stream_codec", monitor="judge.stream_monitor:StreamMonitor",
     dissector="captures.dissector_nsqd", capture_reader="traceio.stream:stream_records",
     capture_detect="captures.nsqd:is_capture", capture_tools="captures.nsqd",
-    mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles", reference_cli="reference_impl.nsqd_cli",
+    mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles",
+    fuzz_campaign="fuzz.stream_campaign:StreamCampaign", reference_cli="reference_impl.nsqd_cli",
     roles=(
         RoleProfile("backend", session="harness.stream_session:StreamSession",
                     context="conformance.stream_case:StreamCaseContext", cases="conformance.cases_nsqd",

@@ -16,7 +16,6 @@ import pytest
 from fuzz.budget import GRACE_S
 from fuzz.campaign import run_campaign
 from fuzz.cli import main as fuzz_main
-from fuzz.cli import replay_args
 from fuzz.config import FuzzConfig
 from fuzz.findings import NO_INPUT, FindingStore, load_finding
 from tests.fuzz.test_faulty_nodes import spawn_command
@@ -27,7 +26,7 @@ pytestmark = [pytest.mark.slow]
 def _campaign(tmp_path, fault: str, mavlink: bool, duration: float, rule: str):  # noqa: ANN202
     cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, engine="stateless", seed=7,
                      duration=duration, out=str(tmp_path), rto=0.2, ack_window=0.25, extra={"stop_on_rule": rule})
-    store = FindingStore(tmp_path, replay_args(cfg))
+    store = FindingStore(tmp_path, cfg.replay_args())
     summary = run_campaign(cfg, store)
     print(f"{fault}: {summary['cases']} cases in {summary['duration_s']} s for --duration {duration:g} "
           f"(grace {summary['grace_s']} s), triage {summary['triage_s']} s, findings {store.by_rule()}, "

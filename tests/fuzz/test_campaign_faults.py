@@ -104,18 +104,32 @@ def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path
 def test_sigint_keeps_the_counts_so_far(tmp_path: Path, jobs: int) -> None:
     """Item 6: one SIGINT mid-campaign (embedded reference drone). Before: exit 2 and
     summary.json with "cases": 0, "workers": [] and "error": null."""
-    out_dir = tmp_path / "out"
-    proc = _fuzz([*FAST, *(STATUS if jobs == 1 else STATUS_JOBS), "--duration", "120", "--jobs", str(jobs),
-                  "--out", str(out_dir)])
-    _wait_status(proc)
-    proc.send_signal(signal.SIGINT)
-    rc, out, err = _finish(proc)
-    assert rc == 130, f"rc {rc}\n{out}\n{err}"
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "interrupted" in lines[0], err
-    summary = json.loads((out_dir / "summary.json").read_text())
+    summary = _interrupted([*FAST, *(STATUS if jobs == 1 else STATUS_JOBS), "--duration", "120", "--jobs", str(jobs)],
+                           tmp_path / "out")
     assert summary["interrupted"] is True and "interrupted" in (summary["error"] or ""), summary
     assert summary["cases"] > 0, summary
     assert len(summary["workers"]) == jobs and all(w["cases"] > 0 for w in summary["workers"]), summary
     assert sum(w["cases"] for w in summary["workers"]) == summary["cases"]
     assert summary["duration_s"] < 120, summary
+
+
+@pytest.mark.nsqd
+def test_sigint_ends_an_nsqd_campaign_as_it_ends_an_mcp_one(tmp_path: Path) -> None:
+    """Issue 37: SIGINT is every protocol's the same way (the one campaign path of fuzz.cli):
+    exit 130, one stderr line, summary.json with the counts so far and ``"interrupted": true``.
+    Before, an Nsqd campaign's summary.json was rewritten with an elapsed time of 0."""
+    summary = _interrupted(["--protocol", "nsqd", *STATUS, "--duration", "120"], tmp_path / "out")
+    assert summary["interrupted"] is True and summary["cases"] > 0 and 0 < summary["elapsed_s"] < 120, summary
+
+
+def _interrupted(args: list[str], out_dir: Path) -> dict:
+    """mcp-fuzz ``args`` given one SIGINT once it judged cases: exit 130 and one stderr line
+    that says so; its summary.json."""
+    proc = _fuzz([*args, "--out", str(out_dir)])
+    _wait_status(proc)
+    proc.send_signal(signal.SIGINT)
+    rc, out, err = _finish(proc)
+    assert rc == 130, f"rc {rc}\n{out}\n{err}"
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "interrupted after" in lines[0], err
+    return json.loads((out_dir / "summary.json").read_text())

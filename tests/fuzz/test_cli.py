@@ -97,9 +97,8 @@ def test_progress_off_a_terminal_is_a_plain_status_line_every_few_seconds(
     import io
 
     import fuzz.progress
-    from fuzz.campaign import Progress
     from fuzz.config import FuzzConfig
-    from fuzz.progress import LiveProgress
+    from fuzz.progress import LiveProgress, Progress
 
     clock = [100.0]
     monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
@@ -127,15 +126,14 @@ def test_status_every_sets_the_period_of_the_plain_status_line(monkeypatch: pyte
     import io
 
     import fuzz.progress
-    from fuzz.campaign import Progress
     from fuzz.cli import build_parser, make_config
-    from fuzz.progress import LiveProgress
-    from fuzz.stream_progress import StreamLive
+    from fuzz.progress import LiveProgress, Progress
 
     clock = [100.0]
     monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
     cfg = make_config(build_parser().parse_args(["--status-every", "0.5"]))
-    assert cfg.extra["status_every"] == 0.5 and StreamLive(every=0.5).every == 0.5
+    nsqd = make_config(build_parser().parse_args(["--protocol", "nsqd", "--status-every", "0.5"]))
+    assert cfg.extra["status_every"] == 0.5 and LiveProgress(nsqd, every=nsqd.extra["status_every"]).every == 0.5
     out = io.StringIO()
     with LiveProgress(cfg, out, every=cfg.extra["status_every"]) as live:
         for _ in range(4):

@@ -23,7 +23,7 @@ class _Target:
     """What triage reads of a target: its config, liveness; replays are faked."""
 
     spawned = True
-    cfg = SimpleNamespace(mode="spawn", mavlink=False)
+    cfg = SimpleNamespace(mode="spawn", mavlink=False, role="drone")
     run_cfg = SimpleNamespace(spawn="node")
 
     def check_live(self, why: str) -> None:

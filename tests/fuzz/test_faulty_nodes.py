@@ -17,7 +17,6 @@ import pytest
 
 from fuzz.campaign import run_campaign
 from fuzz.cli import main as fuzz_main
-from fuzz.cli import replay_args
 from fuzz.config import FuzzConfig
 from fuzz.findings import FindingStore
 
@@ -63,7 +62,7 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
                      seed=SEEDS.get(fault, 11),
                      max_cases=MAX_CASES, duration=120.0, out=str(tmp_path), rto=0.2,
                      ack_window=0.25, extra={"stop_on_rule": rule})
-    store = FindingStore(tmp_path, replay_args(cfg))
+    store = FindingStore(tmp_path, cfg.replay_args())
     summary = run_campaign(cfg, store)
     assert summary["cases"] <= MAX_CASES
     found = [f for f in store.order if f.rule == rule]
@@ -96,7 +95,7 @@ def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Pat
     duration = 8.0
     cfg = FuzzConfig(spawn=spawn_command("no-dup-discard", True), mavlink=True, engine="stateful",
                      seed=2, duration=duration, out=str(tmp_path), rto=0.2, ack_window=0.25)
-    summary = run_campaign(cfg, FindingStore(tmp_path, replay_args(cfg)))
+    summary = run_campaign(cfg, FindingStore(tmp_path, cfg.replay_args()))
     eng = summary["workers"][0]["engines"]["stateful"]
     assert eng["flaws_seen"] >= 1 and summary["findings_by_rule"].get("MCP-DUP-1"), summary
     slack = 5.0  # the step under way when the deadline passes, on a loaded machine
@@ -117,7 +116,7 @@ def test_a_node_faster_than_rto_is_fuzzed_at_its_own_pace(tmp_path: Path) -> Non
     by it (before: 63 cases/s, 27 restarts and a false MUST finding)."""
     cfg = FuzzConfig(spawn=spawn_command("none", True).replace(" --fault none", ""), mavlink=True,
                      engine="stateless", seed=3, duration=4.0, out=str(tmp_path), rto=5.0, ack_window=0.25)
-    summary = run_campaign(cfg, FindingStore(tmp_path, replay_args(cfg)))
+    summary = run_campaign(cfg, FindingStore(tmp_path, cfg.replay_args()))
     assert summary["findings"] == 0, summary["findings_by_rule"]
     assert summary["node_period_s"] is not None and 0.1 < summary["node_period_s"] < 1.0, summary
     assert summary["timing"] and "not every 5 s as --rto says" in summary["timing"], summary

@@ -11,72 +11,71 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 
 import fuzz.progress
+from fuzz.config import FuzzConfig
+from fuzz.progress import LiveProgress, Progress, tried_table
 from fuzz.stream_campaign import StreamCampaign
-from fuzz.stream_jobs import run_stream_jobs
-from fuzz.stream_oracles import Signature
-from fuzz.stream_progress import StreamLive, tried_table
+from spec import NSQD
 from tests.nsqd_backends.build import built_or_skip
 
+NSQD_CFG = FuzzConfig(protocol="nsqd", role="backend", engine="both")
 
-def _view(**kw: object) -> SimpleNamespace:
-    base = dict(cases=1200, fuzz_s=10.0, restarts=2, started=time.monotonic() - 12, engine="both",
+
+def _view(**kw: object) -> Progress:
+    base = dict(cases=1200, fuzz_seconds=10.0, restarts=2, started=time.monotonic() - 12, findings=3,
                 tried={"length-lie": {"TAKEOFF": 7, "unknown": 1}, "valid": {"SET_PID": 1500}},
-                findings=[SimpleNamespace(signature=Signature("close", "x", (), "NSQD-CON-2")),
-                          SimpleNamespace(signature=Signature("crash", "SIGABRT", ("f",), "NSQD-ROB-1")),
-                          SimpleNamespace(signature=Signature("crash", "SIGSEGV", ("g",), "NSQD-ROB-1"))])
+                classes={"close": 1, "crash": 2})
     base.update(kw)
-    return SimpleNamespace(**base)
+    return Progress(**base)  # type: ignore[arg-type]
 
 
 def test_off_a_terminal_a_plain_status_line(monkeypatch):
-    monkeypatch.setattr(fuzz.progress, "STATUS_S", 0.0)  # the display both campaigns share
+    monkeypatch.setattr(fuzz.progress, "STATUS_S", 0.0)  # the display every campaign shares
     out = io.StringIO()
-    with StreamLive(out) as live:
+    with LiveProgress(NSQD_CFG, out) as live:
         live._next_status = 0.0
         live.update(_view())
     line = out.getvalue()
     assert line.count("\n") == 1 and "\x1b" not in line
-    assert "cases 1,200" in line and "120 judged cases/s" in line and "findings 3 (close 1, crash 2)" in line
+    assert "nsqd both" in line and "cases 1,200" in line and "120 judged cases/s" in line
+    assert "findings 3 (close 1, crash 2)" in line
 
 
 def test_both_campaigns_share_one_display(monkeypatch):
-    """MCP's and Nsqd's progress are one display (fuzz.progress.LiveDisplay): the status line's
+    """MCP's and Nsqd's progress are one display (fuzz.progress.LiveProgress): the status line's
     period is the one STATUS_S, a line per due update, and on a terminal one rich Live."""
-    from fuzz.config import FuzzConfig
-    from fuzz.progress import LiveDisplay, LiveProgress
-
     clock = [1000.0]
     monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
-    for make, view in ((lambda out: StreamLive(out), _view()),
-                       (lambda out: LiveProgress(FuzzConfig(engine="stateful"), out), fuzz.progress.Progress())):
+    for cfg, view in ((NSQD_CFG, _view()), (FuzzConfig(engine="stateful"), Progress())):
         out = io.StringIO()
-        with make(out) as live:
-            assert isinstance(live, LiveDisplay)
+        with LiveProgress(cfg, out) as live:
             live.update(view)
             assert out.getvalue() == ""  # not yet STATUS_S
             clock[0] += fuzz.progress.STATUS_S
             live.update(view)
             live.update(view)
         assert out.getvalue().count("\n") == 1 and out.getvalue().startswith("mcp-fuzz: ")
+        assert f"{cfg.protocol} {cfg.engine}" in out.getvalue()
 
 
 def test_on_a_terminal_the_table_of_kinds_by_message_ids():
     from rich.console import Console
 
-    cols, rows = tried_table(_view().tried)
+    cols, rows = tried_table(_view().tried, NSQD.messages)
     assert cols[:2] == ["0", "1"] and cols[-2:] == ["?", "-"]
     assert dict(rows)["length-lie"][4] == 7 and dict(rows)["length-lie"][-2] == 1  # TAKEOFF is id 4
     console = Console(record=True, width=120, file=io.StringIO())
-    console.print(StreamLive(io.StringIO()).render(_view()))
+    console.print(LiveProgress(NSQD_CFG, io.StringIO()).render(_view()))
     text = console.export_text()
     assert "findings 3 (close 1, crash 2)" in text and "120 judged cases/s" in text
     row = next(line for line in text.splitlines() if line.strip().startswith("valid"))
     assert "1k" in row and row.count("·") == len(cols) - 1
+    console = Console(record=True, width=120, file=io.StringIO())  # no table when none is counted
+    console.print(LiveProgress(FuzzConfig(), io.StringIO()).render(Progress(cases=3)))
+    assert f"mcp {FuzzConfig().engine}" in console.export_text() and "mutation kind" not in console.export_text()
 
 
 def _spawn(exe: Path, fault: str | None = None) -> str:
@@ -118,7 +117,7 @@ def test_jobs_share_the_example_database(tmp_path, monkeypatch):
     def jobs(database: str, out: Path) -> dict:
         c = StreamCampaign(None, spawn, 11, 60.0, 4, out, engine="stateful", db=database)
         out.mkdir()
-        return run_stream_jobs(c, 2)
+        return c.run_jobs(2)
 
     control = jobs(str(tmp_path / "empty-db"), tmp_path / "control")
     assert control["findings"] == [] and len(control["workers"]) == 2, control

@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 
+from fuzz.finding_files import read_finding_doc
+from fuzz.findings import read_finding
 from fuzz.stream_campaign import StreamCampaign
-from fuzz.stream_findings import load_stream_finding
 from spec import NSQD
 from spec.stream_codec import Deframer, Frame
 from tests.nsqd_backends.build import built_or_skip
@@ -61,7 +62,7 @@ def assert_input_then_commands(sent: bytes, data: bytes) -> None:
 def test_repro_mcap_holds_the_finding_and_its_traffic(finding):
     _, d = finding
     doc = json.loads((d / "finding.json").read_text())
-    assert load_stream_finding(d / "repro.mcap") == doc == load_stream_finding(d)
+    assert read_finding_doc(d / "repro.mcap") == doc == read_finding(d, "nsqd").to_json()
     meta = [r for r in open_capture(d / "repro.mcap") if type(r) is Metadata]
     assert meta[0].data["recorder"] == "mcp-fuzz" and meta[0].data["protocol"] == "nsqd"
     recs = [r for r in stream_records(d / "repro.mcap") if type(r) in (StreamFrame, StreamEvent)]

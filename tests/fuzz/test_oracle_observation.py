@@ -22,7 +22,6 @@ from pathlib import Path
 import pytest
 
 from fuzz.campaign import run_campaign
-from fuzz.cli import replay_args
 from fuzz.config import FuzzConfig
 from fuzz.findings import FindingStore
 from fuzz.oracles import Input, judge_exchange, judge_replies
@@ -115,7 +114,7 @@ def test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign
     drops = tmp_path / "drops.txt"
     cfg = FuzzConfig(spawn=plain_command("--rcvbuf", str(SMALL_RCVBUF), "--drops-file", str(drops)),
                      seed=7, duration=CAMPAIGN_S, out=str(tmp_path / "out"), rto=RTO)
-    store = FindingStore(tmp_path / "out", replay_args(cfg))
+    store = FindingStore(tmp_path / "out", cfg.replay_args())
     summary = run_campaign(cfg, store)
     assert summary["error"] is None, summary["error"]
     assert summary["cases"] > 0
@@ -131,7 +130,7 @@ def test_the_same_campaign_finds_a_node_that_does_not_ack_a_command(tmp_path: Pa
     cfg = FuzzConfig(spawn=plain_command("--rcvbuf", str(SMALL_RCVBUF), "--fault", "no-ack-wp-on"),
                      seed=7, duration=max(CAMPAIGN_S, 30.0), out=str(tmp_path), rto=RTO,
                      extra={"stop_on_rule": "MCP-ACK-1"})
-    store = FindingStore(tmp_path, replay_args(cfg))
+    store = FindingStore(tmp_path, cfg.replay_args())
     run_campaign(cfg, store)
     found = [f for f in store.order if f.rule == "MCP-ACK-1"]
     assert found, store.by_rule()

@@ -20,7 +20,6 @@ from pathlib import Path
 import pytest
 
 from fuzz.campaign import run_campaign
-from fuzz.cli import replay_args
 from fuzz.config import DEFAULT_ENGINE, FuzzConfig, default_engine
 from fuzz.engine_stateful import judge_copies
 from fuzz.findings import FindingStore
@@ -93,7 +92,7 @@ def test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings(
     cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, seed=seed, max_cases=MAX_CASES,
                      duration=120.0, rto=RTO, out=str(tmp_path), extra={"stop_on_rule": rule})  # a bound, not the claim: a CI host at 14 workers gave the stateful half of 60 s no case
     assert cfg.engine == DEFAULT_ENGINE
-    store = FindingStore(tmp_path, replay_args(cfg))
+    store = FindingStore(tmp_path, cfg.replay_args())
     summary = run_campaign(cfg, store)
     assert summary["cases"] <= MAX_CASES
     stateful = summary["workers"][0]["engines"].get("stateful", {})
@@ -105,6 +104,6 @@ def test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings(
 def test_no_finding_on_the_correct_node_at_the_default_settings(tmp_path: Path) -> None:
     cfg = FuzzConfig(spawn=spawn_command(None, True), mavlink=True, seed=1, max_cases=MAX_CASES,
                      duration=30.0, rto=RTO, out=str(tmp_path))
-    summary = run_campaign(cfg, FindingStore(tmp_path, replay_args(cfg)))
+    summary = run_campaign(cfg, FindingStore(tmp_path, cfg.replay_args()))
     assert summary["findings"] == 0, summary["findings_by_rule"]
     assert summary["workers"][0]["engines"]["stateful"]["cases"] > 0, summary
