@@ -293,10 +293,10 @@ def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) ->
 # ---------------------------------------------------------------- replay
 def is_finding(path: str | Path) -> bool:
     """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
-    from fuzz.stream_findings import load_stream_finding
+    from fuzz.findings import read_finding
 
     try:
-        load_stream_finding(path)
+        read_finding(path, "nsqd")
     except (ValueError, OSError):
         return False
     return True
@@ -313,7 +313,7 @@ def is_capture(path: str | Path) -> bool:
 def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
     reproduced, 0: it did not, 2: unreadable, no finding or no backend)."""
-    from fuzz.stream_campaign import replay_stream_finding
+    from fuzz.stream_replay import replay_stream_finding
     from harness.errors import SetupError
 
     err = err or sys.stderr
