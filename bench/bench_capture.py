@@ -36,15 +36,15 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_node import LOOP, NODE_ID, client_loop  # noqa: E402
 
-from spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode  # noqa: E402
 
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
 
 
 # ---------------------------------------------------------------- 1. recording throughput
 def bench_recording(n: int, tmp: Path) -> None:
-    from traceio.background import BackgroundRecorder
-    from traceio.recorder import McapRecorder
+    from mcp_conform.traceio.background import BackgroundRecorder
+    from mcp_conform.traceio.recorder import McapRecorder
 
     wp_list = encode(Message(1, 0, 7, Action.WP_LIST, (ITEM, ITEM._replace(seq=2))))
     ack = encode(Message(0, 1, 8, Action.ACK, 7))
@@ -71,11 +71,11 @@ def bench_recording(n: int, tmp: Path) -> None:
 
 # ---------------------------------------------------------------- 2. cost on the node's ACK rate
 def serve_node(port_file: str, client_port: int, capture: str | None) -> None:
-    from reference_impl import Mcp, MissionMessageHandlerBase
+    from mcp_conform.reference_impl import Mcp, MissionMessageHandlerBase
 
     rec = None
     if capture:
-        from traceio.background import BackgroundRecorder
+        from mcp_conform.traceio.background import BackgroundRecorder
 
         rec = BackgroundRecorder(capture)
     node = Mcp(MissionMessageHandlerBase(), 0, client_port, LOOP, NODE_ID, bind_host=LOOP, max_queued=100,
@@ -197,7 +197,7 @@ def bench_node_cost(count: int, rounds: int, max_seconds: float, tmp: Path) -> N
     print(f"  CPU per round trip: {(cpu_capt - cpu_plain) / cpu_plain * 100 if cpu_plain else float('nan'):+.1f} %")
     cap = tmp / "bench-node.mcap"
     if cap.exists():
-        from traceio.reader import Datagram, open_capture
+        from mcp_conform.traceio.reader import Datagram, open_capture
 
         n = sum(1 for r in open_capture(cap) if type(r) is Datagram)
         print(f"  the capture holds {n} datagrams ({cap.stat().st_size / 1e6:.1f} MB)")
@@ -206,7 +206,7 @@ def bench_node_cost(count: int, rounds: int, max_seconds: float, tmp: Path) -> N
 # ---------------------------------------------------------------- 3. diff throughput
 def _long_mission(path: Path, messages: int, seq0: int, port: int, drop_ack: int | None,
                   change_wp: int | None) -> None:
-    from traceio.recorder import McapRecorder
+    from mcp_conform.traceio.recorder import McapRecorder
 
     drones = (1, 2, 3, 4)
     seq = {0: seq0, **{d: (seq0 * 7 + d * 1000) & 0xFFFF for d in drones}}
@@ -240,7 +240,7 @@ def _long_mission(path: Path, messages: int, seq0: int, port: int, drop_ack: int
 
 
 def bench_diff(messages: int, tmp: Path) -> None:
-    from captures.diff import diff_sides, load_side
+    from mcp_conform.captures.diff import diff_sides, load_side
 
     golden = tmp / f"bench-diff-golden-{messages}.mcap"
     cand = tmp / f"bench-diff-candidate-{messages}.mcap"

@@ -30,9 +30,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from judge.judging import Params, judge  # noqa: E402
-from spec.codec import Action, Message, MissionItem, encode  # noqa: E402
-from traceio.reader import open_capture  # noqa: E402
+from mcp_conform.judge.judging import Params, judge  # noqa: E402
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from mcp_conform.traceio.reader import open_capture  # noqa: E402
 
 DRONES = (1, 2, 3, 4)
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
@@ -119,7 +119,7 @@ def main() -> None:
     params = dict(rto=5.0, ack_window=2.0, challenge=2)
     t_judge, j = timed(lambda: judge(path, Params(**params)))  # type: ignore[arg-type]
 
-    from judge.monitor import Monitor
+    from mcp_conform.judge.monitor import Monitor
 
     def monitor_alone() -> list:
         m = Monitor(**params)  # type: ignore[arg-type]
@@ -132,7 +132,7 @@ def main() -> None:
 
     t_mon, found = timed(monitor_alone)
 
-    from captures.cli import main as capture_main
+    from mcp_conform.captures.cli import main as capture_main
 
     with tempfile.TemporaryDirectory() as out_dir:
         sink = io.StringIO()

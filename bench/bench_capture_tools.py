@@ -34,9 +34,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
-from spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode  # noqa: E402
+from mcp_conform.traceio.recorder import McapRecorder  # noqa: E402
 from tests.captures.noisy import write_noisy  # noqa: E402
-from traceio.recorder import McapRecorder  # noqa: E402
 
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
 TARGET_S, TARGET_MB = 60.0, 1024.0
@@ -88,7 +88,7 @@ def violating_bodies(n: int) -> Iterator[bytes]:
     first two of each drone are checked against the recorder's own)."""
     import base64
 
-    from traceio.recorder import datagram_record, encode_body
+    from mcp_conform.traceio.recorder import datagram_record, encode_body
 
     parts = []
     for d in range(DRONES):
@@ -121,7 +121,7 @@ def violating_bodies(n: int) -> Iterator[bytes]:
 
 
 def run(src: Path, args: list[str]) -> tuple[float, float, float, int]:
-    """(wall s, CPU s, peak RSS MB, exit code) of ``python -m captures ARGS`` from ``src``."""
+    """(wall s, CPU s, peak RSS MB, exit code) of ``python -m mcp_conform.captures ARGS`` from ``src``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     code = subprocess.run([sys.executable, "-c",

@@ -1,5 +1,5 @@
 """Codec benchmark: encode+decode of the 93-byte WP_List with two waypoints, spec codec vs scapy;
-and beside it the Nsqd codec (spec.stream_codec): a 37-byte UPDATE and a 30-byte SET_RPYTFF
+and beside it the Nsqd codec (spec.nsqd_codec): a 37-byte UPDATE and a 30-byte SET_RPYTFF
 encoded, deframed and decoded, against the Nsqd scapy layer.
 
     python bench/bench_codec.py [--rounds N] [--quick]
@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from spec.codec import Action, Message, MissionItem, decode, encode  # noqa: E402
+from mcp_conform.spec.codec import Action, Message, MissionItem, decode, encode  # noqa: E402
 
 TARGET = 300_000
 ITEMS = (
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     data = encode(MESSAGE)
     assert len(data) == 93 and decode(data) == MESSAGE
 
-    from spec.scapy_layer import MCP, MCPItemList, MCPMissionItem
+    from mcp_conform.spec.scapy_mcp import MCP, MCPItemList, MCPMissionItem
 
     item_fields = [it._asdict() for it in ITEMS]
 
@@ -105,10 +105,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def nsqd_results(big: int, small: int, rounds: int) -> list[tuple[str, float]]:
     """The same measurements for the Nsqd codec and its scapy layer, per message."""
-    from spec import NSQD
-    from spec.scapy_nsqd import NSQD_Frame
-    from spec.stream_codec import Deframer, decode_body
-    from spec.stream_codec import encode as nsqd_encode
+    from mcp_conform.spec import NSQD
+    from mcp_conform.spec.nsqd_codec import Deframer, decode_body
+    from mcp_conform.spec.nsqd_codec import encode as nsqd_encode
+    from mcp_conform.spec.scapy_nsqd import NSQD_Frame
 
     values = dict(roll=1, pitch=2, yaw=3, thrust=40, lat=55, lon=10, alt=3, state=2)
     rpytff = dict(roll="1.5", pitch="2", yaw="3", thrust="4", flag=1, file_name="a.csv")
@@ -135,9 +135,9 @@ def nsqd_results(big: int, small: int, rounds: int) -> list[tuple[str, float]]:
             NSQD_Frame(upd)
             NSQD_Frame(rpy)
 
-    return [("stream_codec encode+decode", best_rate(both, big, rounds, big // 10)),
-            ("stream_codec encode", best_rate(enc, big, rounds, big // 10)),
-            ("stream_codec deframe+decode", best_rate(dec, big, rounds, big // 10)),
+    return [("nsqd_codec encode+decode", best_rate(both, big, rounds, big // 10)),
+            ("nsqd_codec encode", best_rate(enc, big, rounds, big // 10)),
+            ("nsqd_codec deframe+decode", best_rate(dec, big, rounds, big // 10)),
             ("scapy_nsqd dissect", best_rate(scapy_dissect, small, rounds, small // 10))]
 
 

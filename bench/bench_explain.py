@@ -7,7 +7,7 @@ from __future__ import annotations
 import random
 import time
 
-from judge.explain import Ack, Bounds, Copy, Trace, decide_receiver, decide_sender
+from mcp_conform.judge.explain import Ack, Bounds, Copy, Trace, decide_receiver, decide_sender
 from tests.judge.test_explain import Link, _receiver_run, _sender_run
 
 

@@ -39,12 +39,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
 from bench.boofuzz_session import timed_session, web_port  # noqa: E402
-from fuzz.config import FuzzConfig  # noqa: E402
-from fuzz.engine_stateless import StatelessEngine  # noqa: E402
-from fuzz.findings import FindingStore  # noqa: E402
-from fuzz.targets import start_target  # noqa: E402
-from fuzz.triage import Triage  # noqa: E402
-from spec.codec import PREAMBLE, Action  # noqa: E402
+from mcp_conform.fuzz.config import FuzzConfig  # noqa: E402
+from mcp_conform.fuzz.engine_stateless import StatelessEngine  # noqa: E402
+from mcp_conform.fuzz.findings import FindingStore  # noqa: E402
+from mcp_conform.fuzz.targets import start_target  # noqa: E402
+from mcp_conform.fuzz.triage import Triage  # noqa: E402
+from mcp_conform.spec.codec import PREAMBLE, Action  # noqa: E402
 
 
 def _request(boofuzz, node_id: int):  # noqa: ANN001, ANN202
@@ -81,7 +81,7 @@ def run_mcp_fuzz(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa:
 
 
 def run_stateful(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa: ANN001
-    from fuzz.engine_stateful import StatefulEngine
+    from mcp_conform.fuzz.engine_stateful import StatefulEngine
 
     cfg = FuzzConfig(engine="stateful", seed=1)
     eng = StatefulEngine(tgt, Triage(tgt, FindingStore(None), "stateful", 1), cfg)

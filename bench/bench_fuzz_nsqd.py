@@ -14,7 +14,7 @@ spawned`` (process oracles on: death, sanitizer reports, descriptors). Rows:
   ``sleep_time=0``; still a new connection per test case (the backend closes the connection
   on a framing error, so a reused one would take the cases after it nowhere);
 - ``mcp-fuzz <engine>``: its stateless engine, its stateful one (programs of two clients,
-  pipelined and judged at their end, ``fuzz.stream_stateful``) and ``both`` (the default mix,
+  pipelined and judged at their end, ``fuzz.nsqd_stateful``) and ``both`` (the default mix,
   the time split), every case judged (the backend's frames, effects, closes, probes for sync
   and liveness).
 
@@ -51,10 +51,10 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
 from bench.boofuzz_session import timed_session, web_port  # noqa: E402
-from fuzz.stream_campaign import StreamCampaign  # noqa: E402
-from fuzz.stream_mutators import valid_values  # noqa: E402
-from harness.stream_session import embedded_command  # noqa: E402
-from spec import NSQD  # noqa: E402
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign  # noqa: E402
+from mcp_conform.fuzz.nsqd_mutators import valid_values  # noqa: E402
+from mcp_conform.harness.nsqd_session import embedded_command  # noqa: E402
+from mcp_conform.spec import NSQD  # noqa: E402
 
 BOOFUZZ_MISSING = "boofuzz not installed (pip install -e '.[bench]'): its rows skipped"
 

@@ -28,9 +28,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from fuzz.campaign import run_campaign  # noqa: E402
-from fuzz.config import FuzzConfig  # noqa: E402
-from fuzz.findings import Finding, FindingStore  # noqa: E402
+from mcp_conform.fuzz.campaign import run_campaign  # noqa: E402
+from mcp_conform.fuzz.config import FuzzConfig  # noqa: E402
+from mcp_conform.fuzz.findings import Finding, FindingStore  # noqa: E402
 from tests.fuzz.test_stateful_finds import RTO, spawn_command  # noqa: E402
 
 MAX_CASES = 20_000
@@ -71,7 +71,7 @@ def mcp_time_to_find(fault: str, engine: str, seed: int) -> float | None:
 
 
 def nsqd_time_to_find(fault: str, engine: str, seed: int) -> float | None:
-    from fuzz.stream_campaign import StreamCampaign
+    from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
     from tests.nsqd_backends.build import FAULTS, built_or_skip
 
     exe = built_or_skip()

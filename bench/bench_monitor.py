@@ -26,8 +26,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a source checkout
 
-from judge.monitor import Monitor  # noqa: E402
-from spec.codec import DecodeError, decode  # noqa: E402
+from mcp_conform.judge.monitor import Monitor  # noqa: E402
+from mcp_conform.spec.codec import DecodeError, decode  # noqa: E402
 from tests.judge.monitor_scripts import WAYPOINTS, Script  # noqa: E402
 
 TARGET = 150_000

@@ -31,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
-from spec.codec import HEADER_SIZE, Action, Message, encode  # noqa: E402
+from mcp_conform.spec.codec import HEADER_SIZE, Action, Message, encode  # noqa: E402
 
 LOOP = "127.0.0.1"
 NODE_ID = 1
@@ -41,7 +41,7 @@ READY = b"ready\n"
 # ---------------------------------------------------------------- servers (child processes)
 def serve_node(port_file: str, client_port: int) -> None:
     """The reference node: ACKs from its network thread; messages go through its handler."""
-    from reference_impl import Mcp, MissionMessageHandlerBase
+    from mcp_conform.reference_impl import Mcp, MissionMessageHandlerBase
 
     node = Mcp(MissionMessageHandlerBase(), 0, client_port, LOOP, NODE_ID, bind_host=LOOP,
                max_queued=100)

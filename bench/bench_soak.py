@@ -3,7 +3,7 @@
 
     python bench/bench_soak.py [--datagrams 1000000] [--impair loss=0.3,dup=0.1,reorder=0.2,seed=1]
 
-Starts ``python -m reference_impl drone`` (a subprocess), answers its Mission_Ready, then
+Starts ``python -m mcp_conform.reference_impl drone`` (a subprocess), answers its Mission_Ready, then
 sends it WP_Off commands with ever new seqs (wrapping) through ``harness.impair`` decisions
 taken in-process (dropped, duplicated, reordered: a held copy goes out after later ones; the
 delays themselves are not waited for), in rounds; after the first round and at the end it
@@ -22,8 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from harness.impair import Impairment, parse_impairment  # noqa: E402
-from spec.codec import Action, Message, decode, encode  # noqa: E402
+from mcp_conform.harness.impair import Impairment, parse_impairment  # noqa: E402
+from mcp_conform.spec.codec import Action, Message, decode, encode  # noqa: E402
 
 
 def rss_kib(pid: int) -> int:
@@ -47,7 +47,7 @@ def main() -> int:
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]
     probe.close()
-    drone = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+    drone = subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1", "--bind",
                               f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{me.getsockname()[1]}",
                               "--rto", "0.5", "-q"], cwd=ROOT, stdin=subprocess.DEVNULL,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from soak.cli import main as soak  # noqa: E402
+from mcp_conform.soak.cli import main as soak  # noqa: E402
 
 
 def run(missions: int, jobs: int, impair: str, seed: int, tmp: Path) -> tuple[float, dict]:

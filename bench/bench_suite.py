@@ -11,7 +11,7 @@ A target is ``embedded`` (the reference node with its short timeouts, the embedd
 or ``NODE@RTO``: a spawned node at ``--rto RTO`` (the node's and the runner's; at ``--rto 5``,
 the description's, with ``--ack-window 2``) and the default 2 s window, NODE one of
 
-- ``reference``: the reference node (``python -m reference_impl drone``);
+- ``reference``: the reference node (``python -m mcp_conform.reference_impl drone``);
 - ``sample``: the independent sample node, threads (tests/conformance/nodes/sample_node.py);
   ``rto0.3`` and ``rto5`` are ``sample@0.3`` and ``sample@5``;
 - ``independent``: the single-threaded ``select``-loop node that remembers only the last seq
@@ -65,7 +65,7 @@ def node_command(name: str, rto: float, custom: str | None = None) -> tuple[str 
     if name == "independent":
         return sample_node(rto).replace(shlex.quote(str(SAMPLE)), shlex.quote(str(INDEPENDENT))), ""
     if name == "reference":
-        return (f"{PY} -m reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
+        return (f"{PY} -m mcp_conform.reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
                 f"--send-to {{listen_host}}:{{listen_port}} --mavlink {{mavlink}} --rto {rto:g}"), ""
     if name in APPS:
         app = APPS[name]
@@ -96,7 +96,7 @@ def target(name: str, custom: str | None = None) -> tuple[list[str] | None, str]
 def run(args: list[str]) -> tuple[float, dict]:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
-        cmd = [sys.executable, "-m", "conformance", *args, "--json", str(path)]
+        cmd = [sys.executable, "-m", "mcp_conform.conformance", *args, "--json", str(path)]
         env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
         t0 = time.monotonic()
         subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=900)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-from vehicle import Decoder, SimVehicle, VehicleConfig, VehicleModel, make_probe
+from mcp_conform.vehicle import Decoder, SimVehicle, VehicleConfig, VehicleModel, make_probe
 
 
 def bench_model(n: int = 20000) -> float:

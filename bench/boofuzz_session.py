@@ -14,7 +14,7 @@ import threading
 import time
 from typing import Any
 
-from vehicle.ports import free_port
+from mcp_conform.vehicle.ports import free_port
 
 
 def web_port() -> int:

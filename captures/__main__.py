@@ -1,7 +1,7 @@
-"""``python -m captures``: the same as the ``mcp-capture`` command."""
+"""``python -m mcp_conform.captures``: the same as the ``mcp-capture`` command."""
 
 import sys
 
-from captures.cli import main
+from mcp_conform.captures.cli import main
 
 sys.exit(main())

@@ -23,7 +23,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from captures.cli import (
+from mcp_conform.captures.cli import (
     UsageError,
     add_protocol_option,
     capture_tools,
@@ -31,13 +31,13 @@ from captures.cli import (
     to_terminal,
     write_output,
 )
-from judge.judging import Judgement, evidence_of, judge
-from judge.params import add_monitor_options, params_from_args, selected
-from spec import SPEC
-from spec.codec import peek_header
-from traceio.grammar import open_output
-from traceio.reader import Datagram
-from traceio.trace import action_name, evidence_indexes
+from mcp_conform.judge.judging import Judgement, evidence_of, judge
+from mcp_conform.judge.params import add_monitor_options, params_from_args, selected
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import peek_header
+from mcp_conform.traceio.grammar import open_output
+from mcp_conform.traceio.reader import Datagram
+from mcp_conform.traceio.trace import action_name, evidence_indexes
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "run_check", "to_json",
            "validate_json"]
@@ -80,7 +80,7 @@ def run_check(ns: argparse.Namespace) -> int:
     if ns.json:  # the files first: an interrupted or piped terminal report loses neither
         write_json(ns.json, j, evidence)
     if ns.html:
-        from reports.html import render_check
+        from mcp_conform.reports.html import render_check
 
         write_output(ns.html, render_check(j, to_json(j, evidence)), "--html")
     to_terminal(lambda: print_report(j, evidence, json_path=ns.json,
@@ -244,7 +244,7 @@ def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[st
 def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = True) -> dict[str, Any]:
     """The ``--json`` document (``check.schema.json``); ``violations=False`` leaves the list
     empty (:func:`write_json` streams it into the file)."""
-    from spec.about import tool_version
+    from mcp_conform.spec.about import tool_version
 
     rules = {str(node): {r: verdict for r, verdict in sorted(by_rule.items()) if selected(r, j.params.select)}
              for node, by_rule in sorted(j.verdicts.items())}

@@ -40,18 +40,18 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, Protocol, TextIO
 
-from spec import profiles
-from spec.profiles import PROFILES, Profile, pick, resolve
-from traceio.files import UsageError, check_writable, write_output
-from traceio.grammar import STDIO, add_verbosity, add_version, epilog, read_path
+from mcp_conform.spec import profiles
+from mcp_conform.spec.profiles import PROFILES, Profile, pick, resolve
+from mcp_conform.traceio.files import UsageError, check_writable, write_output
+from mcp_conform.traceio.grammar import STDIO, add_verbosity, add_version, epilog, read_path
 
 __all__ = ["PROG", "SUBCOMMANDS", "CaptureTools", "UsageError", "add_protocol_option", "build_parser",
            "capture_profile", "capture_tools", "check_writable", "main", "to_terminal", "write_output"]
 
 PROG = "mcp-capture"
 #: The modules that register a subcommand, in the order ``--help`` lists them.
-SUBCOMMANDS: list[str] = ["captures.check", "captures.show", "captures.diff", "captures.replay",
-                           "captures.export", "captures.dissector"]
+SUBCOMMANDS: list[str] = ["mcp_conform.captures.check", "mcp_conform.captures.show", "mcp_conform.captures.diff", "mcp_conform.captures.replay",
+                           "mcp_conform.captures.export", "mcp_conform.captures.dissector"]
 
 
 def add_protocol_option(p: argparse.ArgumentParser) -> None:
@@ -157,7 +157,7 @@ def _error(message: str) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from traceio.reader import CaptureError
+    from mcp_conform.traceio.reader import CaptureError
 
     parser = build_parser()
     try:

@@ -17,7 +17,7 @@ Whether the numbers themselves follow the rules is the monitor's question (MCP-S
 Passthrough probe tokens are normalised the same way. A runner names each probe it sends
 (``vehicle.probe``: a STATUSTEXT frame ``MCPPROBE:<token>`` in a Mav_Passthrough) so the
 vehicle can count its deliveries; the name is the runner's, and part of it changes from run
-to run: ``conformance.case.Case.probe`` names a probe ``<case id>-<n>-<seq>``, the case's
+to run: ``conformance.drone_case.Case.probe`` names a probe ``<case id>-<n>-<seq>``, the case's
 n-th probe and the driver's next seq, which depends on how the cases of a batch interleaved
 (``…-1-1323`` in one run, ``…-1-1322`` in the next). A probe's key holds no token but a
 :class:`ProbeKey`: the token's *stem* (a runner's token without its seq: which case's which
@@ -57,7 +57,7 @@ from collections.abc import Iterable
 from functools import lru_cache
 from typing import Any, NamedTuple
 
-from spec.codec import (
+from mcp_conform.spec.codec import (
     BROADCAST_ID,
     HEADER_SIZE,
     Action,
@@ -73,7 +73,7 @@ __all__ = ["Conversation", "Entry", "ProbeKey", "build_conversations", "describe
 Addr = tuple[str, int] | None
 _ACK = Action.ACK
 _PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
-#: conformance.case.Case.probe's tokens: ``<case id tail>-<n>-<the driver's next seq>``
+#: conformance.drone_case.Case.probe's tokens: ``<case id tail>-<n>-<the driver's next seq>``
 _RUNNER_TOKEN = re.compile(r"(.+-[0-9]+)-[0-9]+")
 _NAMES = {int(a): a.name for a in Action}
 
@@ -112,8 +112,8 @@ class ProbeKey(NamedTuple):
 def probe_frame(frame: bytes) -> tuple[str, int, int, int, int] | None:
     """``(token, version, sysid, compid, mavseq)`` of a probe frame exactly as
     ``vehicle.make_probe`` builds it (so those fields say everything the bytes say), else None."""
-    from spec.mavframe import FrameError, parse_frame
-    from vehicle.probe import PROBE_PREFIX, make_probe, probe_token
+    from mcp_conform.spec.mavframe import FrameError, parse_frame
+    from mcp_conform.vehicle.probe import PROBE_PREFIX, make_probe, probe_token
 
     if PROBE_PREFIX.encode() not in frame:
         return None
@@ -314,7 +314,7 @@ def entry_fields(e: Entry) -> dict[str, Any]:
 
 def peers_text(peers: tuple[Any, Any]) -> str:
     """A conversation's two MCP IDs as text (``0 ↔ 1``, ``0 ↔ broadcast``)."""
-    from spec.codec import BROADCAST_ID
+    from mcp_conform.spec.codec import BROADCAST_ID
 
     if peers == (None, None):
         return "datagrams without an MCP header"

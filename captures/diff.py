@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
-from captures.conversation import (
+from mcp_conform.captures.conversation import (
     Conversation,
     Entry,
     build_conversations,
@@ -45,9 +45,9 @@ from captures.conversation import (
     entry_fields,
     peers_text,
 )
-from captures.overlap import SPAN_EDGES, Span, aligned_order, overlap_spans, spans_text
-from harness.liveness import PROBE_SRC as LIVENESS_ID
-from spec.codec import Action, peek_header
+from mcp_conform.captures.overlap import SPAN_EDGES, Span, aligned_order, overlap_spans, spans_text
+from mcp_conform.harness.liveness import PROBE_SRC as LIVENESS_ID
+from mcp_conform.spec.codec import Action, peek_header
 
 __all__ = ["DiffOptions", "DiffResult", "Divergence", "Side", "diff_captures", "diff_sides",
            "load_side", "print_report", "register", "run", "side_from_datagrams"]
@@ -154,7 +154,7 @@ def in_time_order(datagrams: Iterable[Any]) -> list[Any]:
 
 def load_side(path: str | Path) -> Side:
     """Read a capture (raises ``traceio.reader.CaptureError`` when it cannot)."""
-    from traceio.reader import CaseMark, Datagram, Metadata, Truncated, open_capture
+    from mcp_conform.traceio.reader import CaseMark, Datagram, Metadata, Truncated, open_capture
 
     cap = open_capture(path)
     meta: dict[str, str] = {}
@@ -184,7 +184,7 @@ def _liveness_probe(rec: Any) -> bool:
     the watcher's own MCP ID only when the node has been quiet, so whether a run has any
     depends on the machine's load): not part of what a run exchanges by design, left out of
     the comparison, as a golden re-recorded on a loaded machine showed."""
-    from judge.judging import HARNESSES
+    from mcp_conform.judge.judging import HARNESSES
 
     if rec.recorder not in HARNESSES:
         return False
@@ -483,8 +483,8 @@ def _entry_json(e: Entry | None, t0: int) -> dict[str, Any] | None:
 
 
 def build_json(result: DiffResult) -> dict[str, Any]:
-    from spec import SPEC
-    from spec.about import TOOL_NAME, tool_version
+    from mcp_conform.spec import SPEC
+    from mcp_conform.spec.about import TOOL_NAME, tool_version
 
     g, c = result.golden, result.candidate
 
@@ -524,7 +524,7 @@ def build_json(result: DiffResult) -> dict[str, Any]:
 # ---------------------------------------------------------------- command line
 def register(sub: Any) -> None:
     """Add ``diff`` to ``mcp-capture``'s subparsers."""
-    from captures.cli import add_protocol_option
+    from mcp_conform.captures.cli import add_protocol_option
     p = sub.add_parser("diff", help="compare two captures as MCP conversations",
                        description=__doc__.split("\n\n")[0] if __doc__ else None)
     p.add_argument("golden", metavar="GOLDEN", help="the reference capture (MCAP, pcap, pcapng)")
@@ -569,8 +569,8 @@ def _nonneg_float(text: str) -> float:
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """``mcp-capture diff``: the options checked, then the protocol's diff (the golden's)."""
-    from captures.cli import capture_tools, check_writable
-    from traceio.reader import CaptureError
+    from mcp_conform.captures.cli import capture_tools, check_writable
+    from mcp_conform.traceio.reader import CaptureError
 
     err = err or sys.stderr
     check_writable(args.json, "--json")

@@ -16,11 +16,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from captures.conversation import Entry, describe, peers_text
-from captures.overlap import spans_text
-from reports.chart import Arrow, Lifeline, render
-from reports.templating import Markup, Template, fill, join
-from spec.codec import BROADCAST_ID, MANAGER_ID, Action
+from mcp_conform.captures.conversation import Entry, describe, peers_text
+from mcp_conform.captures.overlap import spans_text
+from mcp_conform.reports.chart import Arrow, Lifeline, render
+from mcp_conform.reports.templating import Markup, Template, fill, join
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action
 
 __all__ = ["html_report", "write_html"]
 

@@ -43,9 +43,9 @@ import sys
 from pathlib import Path
 from typing import Any, TextIO
 
-from captures import dissector_mavlink as dm
-from spec import SPEC
-from spec.profiles import DEFAULT_PROTOCOL, add_protocol_option, pick, resolve
+from mcp_conform.captures import dissector_mavlink as dm
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, add_protocol_option, pick, resolve
 
 __all__ = ["FILENAME", "PROTOCOL", "generate", "plugin_dir", "register", "run"]
 

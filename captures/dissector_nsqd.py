@@ -13,7 +13,7 @@ Fields: ``nsqd.length``, ``nsqd.id``, ``nsqd.<message>.<field>`` (lower case).
 
 from __future__ import annotations
 
-from spec import NSQD
+from mcp_conform.spec import NSQD
 
 __all__ = ["FILENAME", "PROTOCOL", "generate"]
 

@@ -24,9 +24,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from spec import SPEC
-from spec.codec import peek_header
-from spec.profiles import MCP
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import peek_header
+from mcp_conform.spec.profiles import MCP
 
 __all__ = ["export_pcap", "register", "run", "whole_or_none"]
 
@@ -68,8 +68,8 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """Write ``out``; return (packets written, the capture's truncation reason or None).
     Raises ``traceio.reader.CaptureError`` for unreadable input (a datagram the file cannot
     hold included), OSError for ``out``."""
-    from traceio.pcap_out import FrameError, PacketFile, udp_frame
-    from traceio.reader import CaptureError, Datagram, Truncated, open_capture
+    from mcp_conform.traceio.pcap_out import FrameError, PacketFile, udp_frame
+    from mcp_conform.traceio.reader import CaptureError, Datagram, Truncated, open_capture
 
     cap = open_capture(capture)
     out = Path(out)
@@ -102,7 +102,7 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
 
 
 def register(sub: Any) -> None:
-    from captures.cli import add_protocol_option
+    from mcp_conform.captures.cli import add_protocol_option
 
     p = sub.add_parser("export", help="write a capture as pcap or pcapng (for Wireshark, tshark)",
                        description="Write every datagram of CAPTURE, with its addresses and "
@@ -116,8 +116,8 @@ def register(sub: Any) -> None:
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """``mcp-capture export``: the capture's protocol's ``export_pcap``; its errors and
     closing line are the same for every protocol."""
-    from captures.cli import capture_tools
-    from traceio.reader import CaptureError
+    from mcp_conform.captures.cli import capture_tools
+    from mcp_conform.traceio.reader import CaptureError
 
     out = out or sys.stdout
     err = err or sys.stderr

@@ -15,11 +15,11 @@ import json
 import sys
 from typing import Any, TextIO
 
-from captures.check import run_check
-from captures.diff import DiffOptions, build_json, diff_captures, print_report
-from captures.export import export_pcap
-from captures.replay import run_replay
-from captures.show import run_show
+from mcp_conform.captures.check import run_check
+from mcp_conform.captures.diff import DiffOptions, build_json, diff_captures, print_report
+from mcp_conform.captures.export import export_pcap
+from mcp_conform.captures.replay import run_replay
+from mcp_conform.captures.show import run_show
 
 __all__ = ["EXPORTED", "export_pcap", "run_check", "run_diff", "run_replay", "run_show"]
 
@@ -29,8 +29,8 @@ EXPORTED = "datagrams"
 
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """MCP's diff: exit 0 same, 1 different, 2 an output that cannot be written."""
-    from captures.cli import to_terminal
-    from traceio.grammar import write_text
+    from mcp_conform.captures.cli import to_terminal
+    from mcp_conform.traceio.grammar import write_text
 
     err = err or sys.stderr
     opts = DiffOptions(args.copies_tolerance, args.time_tolerance, args.addresses, args.context)
@@ -39,7 +39,7 @@ def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) ->
         if args.json:  # "-": stdout (traceio.grammar)
             write_text(args.json, json.dumps(build_json(result), indent=1) + "\n")
         if args.html:
-            from captures.diff_html import write_html
+            from mcp_conform.captures.diff_html import write_html
 
             write_html(result, args.html)
     except OSError as exc:

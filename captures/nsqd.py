@@ -5,10 +5,10 @@ MCP's are ``captures.mcp``. :func:`is_capture` is how the profile recognises its
 
 The capture is our MCAP (``mcp-conform --protocol nsqd --capture``, a fuzz finding's
 repro.mcap) or a pcap/pcapng of the TCP traffic (tcpdump, Wireshark, a finding's repro.pcap),
-read through ``traceio.stream`` (pcaps reassembled by ``traceio.tcp``: out-of-order and
+read through ``traceio.nsqd`` (pcaps reassembled by ``traceio.tcp``: out-of-order and
 retransmitted segments, both directions, any number of connections, bounded in memory).
 
-- ``check``: every backend's frames judged by ``judge.stream_monitor`` — the judgement the
+- ``check``: every backend's frames judged by ``judge.nsqd_monitor`` — the judgement the
   runner's connections and the fuzzer make live (NSQD-FRM-1: lengths; NSQD-MSG-2: ids,
   layouts, UPDATE.state). Exit 0 no rule broken, 1 broken, 2 unreadable. The rules the
   runner's cases judge by what they send (effects, closes, timing) need the cases; a capture
@@ -32,11 +32,11 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
-from judge.stream_monitor import RULES, StreamMonitor
-from spec import NSQD
-from spec.stream_codec import Deframer, Frame
-from traceio.reader import StreamEvent, StreamFrame, Truncated
-from traceio.stream import StreamGap, is_stream_capture, stream_records
+from mcp_conform.judge.nsqd_monitor import RULES, StreamMonitor
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import Deframer, Frame
+from mcp_conform.traceio.nsqd import StreamGap, is_stream_capture, stream_records
+from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated
 
 __all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "run_check", "run_diff", "run_replay", "run_show"]
 
@@ -132,7 +132,7 @@ def _answer(answers: list[Any], rec: StreamFrame) -> None:
     if rec.problem:
         key = ("frame", f"refused: {rec.problem}")
     elif rec.name == "UPDATE":
-        from spec.stream_codec import decode_body
+        from mcp_conform.spec.nsqd_codec import decode_body
 
         item = Deframer(NSQD).feed(rec.raw)
         state = None
@@ -250,7 +250,7 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
             shown.append(rec)
     out.write(f"{conns} connection(s)\n")
     if getattr(ns, "svg", None):
-        from reports.stream_chart import stream_svg
+        from mcp_conform.reports.nsqd_chart import stream_svg
 
         Path(ns.svg).write_text(stream_svg(shown, title=str(ns.file)))
     return 0
@@ -293,7 +293,7 @@ def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) ->
 # ---------------------------------------------------------------- replay
 def is_finding(path: str | Path) -> bool:
     """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
-    from fuzz.findings import read_finding
+    from mcp_conform.fuzz.findings import read_finding
 
     try:
         read_finding(path, "nsqd")
@@ -303,7 +303,7 @@ def is_finding(path: str | Path) -> bool:
 
 
 def is_capture(path: str | Path) -> bool:
-    """Nsqd's ``capture_detect``: an Nsqd capture (``traceio.stream.is_stream_capture``), or a
+    """Nsqd's ``capture_detect``: an Nsqd capture (``traceio.nsqd.is_stream_capture``), or a
     finding's directory or finding.json (what ``replay`` takes besides its captures)."""
     if Path(path).is_dir() or Path(path).name == "finding.json":
         return is_finding(path)
@@ -313,8 +313,8 @@ def is_capture(path: str | Path) -> bool:
 def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
     reproduced, 0: it did not, 2: unreadable, no finding or no backend)."""
-    from fuzz.stream_replay import replay_stream_finding
-    from harness.errors import SetupError
+    from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
+    from mcp_conform.harness.errors import SetupError
 
     err = err or sys.stderr
     if not is_finding(args.capture):
@@ -332,11 +332,11 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """``mcp-capture export``: an Nsqd capture's TCP conversations (``traceio.tcp_pcap``,
     NSQD-*): (packets written, the capture's truncation reason or None); errors as
     ``captures.export.export_pcap``'s."""
-    from captures.export import whole_or_none
-    from traceio.pcap_out import FrameError
-    from traceio.reader import CaptureError, Truncated
-    from traceio.stream import BACKEND_PORT, stream_records
-    from traceio.tcp_pcap import write_tcp_pcap
+    from mcp_conform.captures.export import whole_or_none
+    from mcp_conform.traceio.nsqd import BACKEND_PORT, stream_records
+    from mcp_conform.traceio.pcap_out import FrameError
+    from mcp_conform.traceio.reader import CaptureError, Truncated
+    from mcp_conform.traceio.tcp_pcap import write_tcp_pcap
 
     truncated: list[str] = []
 

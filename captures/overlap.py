@@ -13,7 +13,7 @@ An *overlap span* (:func:`overlap_spans`) is a stretch of time covered by case i
 overlap one another, at least two cases: the batch. Inside one, each entry of a conversation
 is read in its *lane* (:func:`lane`), what the capture tells of the case it belongs to:
 
-- a runner's passthrough probe: the case its token names (``conformance.case.Case.probe``:
+- a runner's passthrough probe: the case its token names (``conformance.drone_case.Case.probe``:
   ``<case id tail>-<n>-<seq>``; the lane is ``<case id tail>``, so a case's probes #1 and #2
   keep their order);
 - a malformed datagram: the rule it breaks (each MCP-ROB case sends its own kind of malformed
@@ -42,7 +42,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any, NamedTuple
 
-from captures.conversation import Entry, ProbeKey
+from mcp_conform.captures.conversation import Entry, ProbeKey
 
 __all__ = ["BEGIN", "END", "SPAN_EDGES", "Span", "aligned_order", "lane", "overlap_spans", "spans_text"]
 

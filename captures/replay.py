@@ -10,7 +10,7 @@ The node under test has the role ``--role`` (default drone) and, in the capture,
 ``--target-id`` (default: the capture's drone for the drone role, the manager 0 for the
 manager role). Replay plays every other sender of the capture — the manager and any other
 IDs a runner used, or all the drones — from one UDP socket, with the runner's attach, spawn
-and listen semantics and placeholders (it reuses ``harness.session`` and
+and listen semantics and placeholders (it reuses ``harness.drone_session`` and
 ``harness.driver``): ``--listen`` is where it receives and sends from (all addresses on
 the role's conventional port by default, an ephemeral one in spawn mode). For a manager
 under test ``--spawn`` also fills ``{drones}``, ``{challenge}``, ``{waypoints}`` and
@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
 
-from captures.diff import (
+from mcp_conform.captures.diff import (
     DiffOptions,
     DiffResult,
     diff_sides,
@@ -61,9 +61,9 @@ from captures.diff import (
     print_report,
     side_from_datagrams,
 )
-from spec import SPEC
-from spec.codec import HEADER_SIZE, MANAGER_ID, Action, peek_header
-from spec.profiles import MCP
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import HEADER_SIZE, MANAGER_ID, Action, peek_header
+from mcp_conform.spec.profiles import MCP
 
 __all__ = ["ReplayError", "ReplayResult", "Step", "plan", "register", "replay", "run", "run_replay"]
 
@@ -193,7 +193,7 @@ def _remap_ack(data: bytes, node: int, offset: int | None) -> bytes:
 
 def _awaits_ack(data: bytes, node: int) -> bool:
     """A well-formed unicast non-ACK to the node: its sender retransmits it until ACKed."""
-    from spec.codec import DecodeError, decode
+    from mcp_conform.spec.codec import DecodeError, decode
 
     try:
         m = decode(data)
@@ -235,8 +235,8 @@ def _as_records(datagrams: Iterable[Any]) -> list[Rec]:
 def _manager_placeholders(records: Sequence[Rec], node: int, tmp: Path) -> dict[str, str]:
     """{drones}, {challenge}, {waypoints}, {obstacles} for a manager under test, from the
     capture (QGC WPL 110 files of the lists and waypoints the recorded manager sent)."""
-    from spec.codec import DecodeError, decode
-    from spec.mission import save_waypoints
+    from mcp_conform.spec.codec import DecodeError, decode
+    from mcp_conform.spec.mission import save_waypoints
 
     drones: list[int] = []
     lists: dict[int, list[Any]] = {}
@@ -288,9 +288,9 @@ def replay(datagrams: Iterable[Any], target: tuple[str, int] | None = None, **op
 
 def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_total: int, node: int,
               live_id: int, answer_timeout: float, tmp: Path) -> ReplayResult:
-    from harness.driver import TargetDriver
-    from harness.errors import SetupError
-    from harness.session_base import (
+    from mcp_conform.harness.driver import TargetDriver
+    from mcp_conform.harness.errors import SetupError
+    from mcp_conform.harness.session_base import (
         BROADCAST_ADDRESS,
         SpawnedNode,
         fill_placeholders,
@@ -313,7 +313,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
     notes: list[str] = []
     try:
         if cfg.capture:
-            from traceio.recorder import McapRecorder, RecorderError, run_metadata
+            from mcp_conform.traceio.recorder import McapRecorder, RecorderError, run_metadata
 
             try:
                 recorder = McapRecorder(cfg.capture, local=driver.listen, metadata=run_metadata(
@@ -323,7 +323,7 @@ def _run_live(cfg: ReplayConfig, records: list[Rec], steps: list[Step], node_tot
             driver.add_observer(recorder.datagram)
         if cfg.spawn:
             if cfg.mavlink:
-                from vehicle import SimVehicle
+                from mcp_conform.vehicle import SimVehicle
 
                 vehicle = SimVehicle()
                 vehicle.start("127.0.0.1", 0)
@@ -436,7 +436,7 @@ def _monitor(cfg: ReplayConfig, live: list[Rec], node: int) -> tuple[list[Any], 
     """The monitor over the replay's traffic; only the node's violations count (what the
     played side sent is the capture's, deliberate breaches of a runner's cases included)."""
     try:
-        from judge.monitor import Monitor
+        from mcp_conform.judge.monitor import Monitor
     except ImportError:
         return [], "the trace monitor (judge.monitor) is not installed"
     mon = Monitor(rto=cfg.rto, ack_window=cfg.ack_window)
@@ -453,7 +453,9 @@ def _monitor(cfg: ReplayConfig, live: list[Rec], node: int) -> tuple[list[Any], 
 def _hostport(what: str, default_host: str) -> Any:
     import argparse
 
-    from harness.config import parse_hostport  # the runner's HOST:PORT parsing and messages
+    from mcp_conform.harness.config import (
+        parse_hostport,  # the runner's HOST:PORT parsing and messages
+    )
 
     def parse(text: str) -> tuple[str, int]:
         try:
@@ -488,7 +490,7 @@ def register(sub: Any) -> None:
     p.add_argument("--timeout", type=float, default=300.0, metavar="S", help="bound on the whole replay (300)")
     p.add_argument("--copies-tolerance", type=int, default=1, metavar="N", help="as in diff (1)")
     p.add_argument("--capture", dest="capture_out", metavar="FILE.mcap", help="record the replay to an MCAP file")
-    from traceio.grammar import deprecated
+    from mcp_conform.traceio.grammar import deprecated
 
     deprecated(p, "--capture-out", "--capture", dest="capture_out")
     p.add_argument("--json", metavar="OUT", help="write the result as JSON")
@@ -497,8 +499,8 @@ def register(sub: Any) -> None:
 
 def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """``mcp-capture replay``: the options checked, then the capture's protocol's replay."""
-    from captures.cli import capture_tools, check_writable
-    from traceio.reader import CaptureError
+    from mcp_conform.captures.cli import capture_tools, check_writable
+    from mcp_conform.traceio.reader import CaptureError
 
     err = err or sys.stderr
     check_writable(args.json, "--json")
@@ -512,10 +514,10 @@ def run(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
 
 def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     """MCP's replay (``captures.mcp``): :func:`replay`, or a fuzz finding's reproduction."""
-    from captures.cli import to_terminal
-    from captures.diff import build_json
-    from traceio.reader import CaptureError, Datagram, Metadata, open_capture
-    from traceio.recorder import FUZZ_RECORDER
+    from mcp_conform.captures.cli import to_terminal
+    from mcp_conform.captures.diff import build_json
+    from mcp_conform.traceio.reader import CaptureError, Datagram, Metadata, open_capture
+    from mcp_conform.traceio.recorder import FUZZ_RECORDER
 
     out = out or sys.stdout
     err = err or sys.stderr
@@ -545,7 +547,7 @@ def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) 
                 "violations": [{"rule": v.rule, "level": v.level, "node": v.node, "expected": str(v.expected),
                                 "actual": str(v.actual)} for v in result.violations],
                 "ok": result.ok}
-        from traceio.grammar import write_text
+        from mcp_conform.traceio.grammar import write_text
 
         try:
             write_text(args.json, json.dumps(body, indent=1) + "\n")
@@ -576,9 +578,9 @@ def _reproduce_finding(args: Any, meta: dict[str, str], out: TextIO, err: TextIO
     replayed as ``mcp-fuzz --replay`` does (the same pace, scenario and oracles), since a
     diff against the campaign's traffic (probes, restarts) would judge the wrong thing.
     Exit 1 when the finding reproduces (the node still breaks the rule), 0 when not."""
-    from fuzz.config import FuzzConfig
-    from fuzz.findings import finding_from_metadata
-    from fuzz.replay_cli import reproduce
+    from mcp_conform.fuzz.config import FuzzConfig
+    from mcp_conform.fuzz.findings import finding_from_metadata
+    from mcp_conform.fuzz.replay_cli import reproduce
 
     f = finding_from_metadata(meta)
     if f is None:

@@ -1,4 +1,4 @@
-"""The golden scenarios, recorded: ``python -m captures.scenarios challenge N OUT.mcap``.
+"""The golden scenarios, recorded: ``python -m mcp_conform.captures.scenarios challenge N OUT.mcap``.
 
 A challenge scenario is the reference Mission Manager (``mcp-node manager``) running
 challenge N (1: WP_List, 2: WP_On/WP_Off, 3: Obstacles_List) with two reference drones
@@ -39,7 +39,7 @@ def _free_port() -> int:
 def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeout: float = 60.0) -> None:
     """Run challenge ``challenge`` between the reference manager and drones 1 and 2 and
     record the manager's capture to ``out``; RuntimeError (one line) when the run fails."""
-    node = [sys.executable, "-m", "reference_impl"]
+    node = [sys.executable, "-m", "mcp_conform.reference_impl"]
     manager_port, drone_port = _free_port(), _free_port()
     broadcast = "127.255.255.255"
     manager = subprocess.Popen(
@@ -78,7 +78,7 @@ def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeo
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 3 or args[0] != "challenge" or args[1] not in ("1", "2", "3"):
-        print("usage: python -m captures.scenarios challenge {1,2,3} OUT.mcap", file=sys.stderr)
+        print("usage: python -m mcp_conform.captures.scenarios challenge {1,2,3} OUT.mcap", file=sys.stderr)
         return 2
     try:
         record_challenge(int(args[1]), args[2])

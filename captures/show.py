@@ -18,17 +18,17 @@ from typing import Any
 from rich.console import Console
 from rich.text import Text
 
-from captures.cli import (
+from mcp_conform.captures.cli import (
     UsageError,
     add_protocol_option,
     capture_tools,
     check_writable,
     write_output,
 )
-from judge.judging import Judgement, MonitorUnavailable, NoJudge, judge
-from judge.params import add_monitor_options, params_from_args
-from reports.chart import trace_svg
-from traceio.trace import Entry, Trace, action_name, describe_payload
+from mcp_conform.judge.judging import Judgement, MonitorUnavailable, NoJudge, judge
+from mcp_conform.judge.params import add_monitor_options, params_from_args
+from mcp_conform.reports.chart import trace_svg
+from mcp_conform.traceio.trace import Entry, Trace, action_name, describe_payload
 
 __all__ = ["case_window", "entry_line", "register", "run", "run_show"]
 

@@ -1,7 +1,7 @@
-"""``python -m conformance``: the same as the ``mcp-conform`` command."""
+"""``python -m mcp_conform.conformance``: the same as the ``mcp-conform`` command."""
 
 import sys
 
-from conformance._entry import main
+from mcp_conform.conformance._entry import main
 
 sys.exit(main())

@@ -38,10 +38,10 @@ from typing import Any
 
 import pytest
 
-from conformance.case import CaseContext
-from conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
-from harness.errors import Inconclusive
-from spec.codec import Action, DecodeError, decode
+from mcp_conform.conformance.drone_case import CaseContext
+from mcp_conform.conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec.codec import Action, DecodeError, decode
 
 __all__ = ["BatchRun", "InARow", "in_plan_order", "run_batch", "serial_from_here", "unclean"]
 

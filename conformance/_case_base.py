@@ -3,9 +3,9 @@ and outcome fields, INFO notes, the generic verify and the runner's hooks
 (:class:`CaseBase`); and what the datagram protocol's two roles add to it, the session's
 timings and the verify helpers over datagrams (:class:`DatagramCaseBase`).
 
-Each role's context (``conformance.case.CaseContext``,
+Each role's context (``conformance.drone_case.CaseContext``,
 ``conformance.manager_case.ManagerCaseContext`` on :class:`DatagramCaseBase`;
-``conformance.stream_case.StreamCaseContext`` on :class:`CaseBase`) adds its own sends and
+``conformance.nsqd_case.StreamCaseContext`` on :class:`CaseBase`) adds its own sends and
 judgements and its own ``fail`` (which evidence a failure carries: the node's exit, the
 manager's output, the bytes sent to a backend).
 """
@@ -16,10 +16,10 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from harness.driver import Datagram
-from harness.errors import CaseFailure, Inconclusive
-from judge.spacing import judge_spacing
-from spec import SPEC
+from mcp_conform.harness.driver import Datagram
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.judge.spacing import judge_spacing
+from mcp_conform.spec import SPEC
 
 __all__ = ["CaseBase", "DatagramCaseBase"]
 

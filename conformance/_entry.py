@@ -14,7 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from harness.interrupts import INTERRUPTS
+from mcp_conform.harness.interrupts import INTERRUPTS
 
 
 def main(argv: Sequence[str] | None = None, *, exit_process: bool = True) -> int:
@@ -32,10 +32,10 @@ def _run(argv: list[str]) -> int:
     INTERRUPTS.install()
     try:
         with INTERRUPTS.held():  # a signal during the imports stops the run once they are done
-            from conformance import cli
+            from mcp_conform.conformance import cli
     except KeyboardInterrupt:  # interrupted while importing: report that, nothing else
         INTERRUPTS.stop_raising()
-        from conformance import cli
+        from mcp_conform.conformance import cli
 
         return cli.interrupted(argv)
     try:

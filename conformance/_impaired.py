@@ -25,7 +25,7 @@ from typing import Any
 
 import pytest
 
-from harness.errors import CaseFailure, Inconclusive, SilenceUnproven
+from mcp_conform.harness.errors import CaseFailure, Inconclusive, SilenceUnproven
 
 __all__ = ["ATTEMPTS", "SPOILABLE", "run_impaired"]
 

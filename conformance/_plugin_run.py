@@ -22,8 +22,12 @@ from typing import Any
 
 import pytest
 
-from conformance._run_reports import hand_to_controller, merge_worker_reports, write_run_reports
-from conformance._run_state import (
+from mcp_conform.conformance._run_reports import (
+    hand_to_controller,
+    merge_worker_reports,
+    write_run_reports,
+)
+from mcp_conform.conformance._run_state import (
     STATE_KEY,
     CaseTimeLimit,
     McpState,
@@ -31,36 +35,36 @@ from conformance._run_state import (
     _one_line,
     state_of,
 )
-from conformance._verdicts import apply_baseline as _apply_baseline
-from conformance._verdicts import judge_exception as _judge_exception
-from conformance._verdicts import log_evidence as _log_evidence
-from conformance.baseline import BaselineError, load_baseline
-from conformance.junit import as_pytest_error
-from conformance.marks import (
+from mcp_conform.conformance._verdicts import apply_baseline as _apply_baseline
+from mcp_conform.conformance._verdicts import judge_exception as _judge_exception
+from mcp_conform.conformance._verdicts import log_evidence as _log_evidence
+from mcp_conform.conformance.baseline import BaselineError, load_baseline
+from mcp_conform.conformance.junit import as_pytest_error
+from mcp_conform.conformance.marks import (
     PHASES,
     is_case,
     rule_level,
     rule_marker,
 )
-from conformance.options import (
+from mcp_conform.conformance.options import (
     ConfigError,
     make_config,
     matches_select,
     option_values,
     unmatched,
 )
-from conformance.report import (
+from mcp_conform.conformance.report import (
     case_from_json,
     worker_path,
 )
-from harness.config import RunConfig
-from harness.errors import (
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.errors import (
     CaseFailure,
     Inconclusive,
 )
-from harness.interrupts import INTERRUPTS
-from spec import RULES
-from spec.profiles import resolve
+from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.spec import RULES
+from mcp_conform.spec.profiles import resolve
 
 __all__ = ["McpState", "STATE_KEY", "TEARDOWN_GRACE_S"]
 _state = state_of
@@ -199,7 +203,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         state.run.error = f"{opt}: no case matches {what}"
     order = {p: n for n, p in enumerate(PHASES)}
     keep.sort(key=lambda i: order[state.meta[i.nodeid][3]] if i.nodeid in state.meta else order["main"])
-    from conformance._batch import in_plan_order
+    from mcp_conform.conformance._batch import in_plan_order
 
     state.serial_order = list(keep)  # a batch thrown away: the rest of the run goes back to it
     items[:] = in_plan_order(state, keep)
@@ -344,11 +348,11 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
     state = _phase_wrapper(item)
     why = state.session.not_judged(state.meta[item.nodeid][1]) \
         if state is not None and state.session is not None else None
-    if why:  # the node's datagrams cannot be read (harness.session: MCP-HDR-2 at startup)
+    if why:  # the node's datagrams cannot be read (harness.drone_session: MCP-HDR-2 at startup)
         raise Inconclusive(why)
     if state is None or state.cfg.impair is None:
         return (yield from _armed(item, conclude=True))
-    from conformance._impaired import SPOILABLE, run_impaired
+    from mcp_conform.conformance._impaired import SPOILABLE, run_impaired
 
     try:
         return (yield from _armed(item))
@@ -363,7 +367,7 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
     state = _phase_wrapper(pyfuncitem)
     if state is None or pyfuncitem not in state.batch_items:
         return None
-    from conformance import _batch
+    from mcp_conform.conformance import _batch
 
     batch = state.batch
     if batch.kept is None:  # the first case of the batch: all of them, together

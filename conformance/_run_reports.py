@@ -18,17 +18,23 @@ from typing import Any
 
 import pytest
 
-from conformance._run_state import McpState
-from conformance.baseline import write_baseline
-from conformance.junit import write_junit
-from conformance.report import RunRecord, build_json, merge_json, run_from_json, write_json
+from mcp_conform.conformance._run_state import McpState
+from mcp_conform.conformance.baseline import write_baseline
+from mcp_conform.conformance.junit import write_junit
+from mcp_conform.conformance.report import (
+    RunRecord,
+    build_json,
+    merge_json,
+    run_from_json,
+    write_json,
+)
 
 __all__ = ["hand_to_controller", "merge_worker_reports", "write_reports", "write_run_html", "write_run_reports"]
 
 
 def write_run_html(path: str, doc: dict[str, Any], capture: str | None) -> None:
     """--mcp-html: the report with each failed case's traffic charted (reports.html)."""
-    from reports.html import write_run
+    from mcp_conform.reports.html import write_run
 
     write_run(path, doc, capture)
 
@@ -87,11 +93,11 @@ def merge_worker_reports(session: pytest.Session, state: McpState | None) -> Non
         (None if run.error else state.write_baseline_path, lambda p: write_baseline(p, run.cases, run.target)),
     ]
     if state.cfg.capture and state.capture_parts:
-        from traceio.merge import merge_captures
+        from mcp_conform.traceio.merge import merge_captures
 
         writers.append((state.cfg.capture, lambda p: merge_captures(sorted(state.capture_parts), p)))
     elif state.html_path and state.capture_parts:  # the workers recorded for the HTML report only
-        from traceio.merge import merge_captures
+        from mcp_conform.traceio.merge import merge_captures
 
         fd, state.html_capture = tempfile.mkstemp(prefix="mcp-conform-", suffix=".mcap")
         os.close(fd)

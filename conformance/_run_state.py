@@ -17,23 +17,23 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from conformance.baseline import Baseline
-from conformance.marks import (
+from mcp_conform.conformance.baseline import Baseline
+from mcp_conform.conformance.marks import (
     case_id,
     case_phase,
     case_rules,
     strongest_level,
 )
-from conformance.options import (
+from mcp_conform.conformance.options import (
     apply_embedded_defaults,
 )
-from conformance.report import CaseRecord, RunRecord, name_consequence
-from conformance.terminal import TerminalReport
-from harness.config import RunConfig
-from harness.errors import SetupError, SpawnFailure
-from harness.interrupts import INTERRUPTS
-from harness.node import check_node
-from spec.profiles import resolve
+from mcp_conform.conformance.report import CaseRecord, RunRecord, name_consequence
+from mcp_conform.conformance.terminal import TerminalReport
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.harness.node import check_node
+from mcp_conform.spec.profiles import resolve
 
 __all__ = ["STATE_KEY", "CaseTimeLimit", "McpState", "state_of"]
 
@@ -100,13 +100,13 @@ class McpState:
         self._old_term: Any = None
         self._terminal: TerminalReport | None = None
         self._wait_status: Any = None
-        self.first_datagram: Any = None  # conformance.live.FirstDatagram, during the run
-        self.printer: Any = None  # conformance.live.TrafficPrinter under -v
+        self.first_datagram: Any = None  # conformance.run_display.FirstDatagram, during the run
+        self.printer: Any = None  # conformance.run_display.TrafficPrinter under -v
         self.startup_deadline: float | None = None  # until the node's first datagram
         self.plan: Any = None  # conformance.schedule.Plan, once the cases are collected
         self.batch_items: list[pytest.Item] = []  # the plan's batch, in its order
         self.serial_order: list[pytest.Item] = []  # the items as --serial runs them
-        from conformance._batch import BatchRun
+        from mcp_conform.conformance._batch import BatchRun
 
         self.batch = BatchRun()
         self.startup_expired = False
@@ -158,7 +158,7 @@ class McpState:
                 os.close(fd)
             feed = self.start_live()
             if self.cfg.capture or self.html_capture or feed is not None:
-                from traceio.recorder import McapRecorder, RecorderError, run_metadata
+                from mcp_conform.traceio.recorder import McapRecorder, RecorderError, run_metadata
 
                 cfg = self.cfg
                 meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
@@ -172,7 +172,12 @@ class McpState:
                 except RecorderError as exc:
                     raise SetupError(str(exc)) from None
             recorder = self.recorder
-            from conformance.live import FirstDatagram, Tee, TrafficPrinter, listen_text
+            from mcp_conform.conformance.run_display import (
+                FirstDatagram,
+                Tee,
+                TrafficPrinter,
+                listen_text,
+            )
 
             printer = None
             if self.config.getoption("mcp_verbose_traffic"):
@@ -264,7 +269,7 @@ class McpState:
         value = self.config.getoption("mcp_live", None)
         if not value or self.live is not None:
             return None if self.live is None else self.live.feed()
-        from traceio.live import LAYOUT_PATH, LiveError, LiveServer, parse_live
+        from mcp_conform.traceio.live import LAYOUT_PATH, LiveError, LiveServer, parse_live
 
         try:
             host, port = parse_live(value, "--live" if self.frontend else "--mcp-live")
@@ -310,7 +315,7 @@ class McpState:
     def wait_status(self) -> Any:
         """The progress line (frontend on a terminal only; pytest shows its own progress)."""
         if self._wait_status is None:
-            from conformance.live import WaitStatus
+            from mcp_conform.conformance.run_display import WaitStatus
 
             self._wait_status = WaitStatus(self.terminal.console)
             self._wait_status.enabled = self._wait_status.enabled and self.frontend
@@ -351,7 +356,7 @@ class McpState:
     def take_shard(self, items: list[pytest.Item]) -> None:
         """Keep this instance's cases of the plan (``conformance.schedule.shard_plan``), in
         its order; the plan (every instance's) is the report's and the front end's."""
-        from conformance.schedule import shard_plan
+        from mcp_conform.conformance.schedule import shard_plan
 
         assert self.shard is not None and self.plan is not None
         k, n = self.shard

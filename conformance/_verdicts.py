@@ -13,11 +13,17 @@ from typing import Any
 
 import pytest
 
-from conformance._run_state import CaseTimeLimit, McpState, _one_line
-from conformance.marks import rule_level
-from conformance.report import CaseRecord
-from harness.errors import CaseFailure, Inconclusive, NodeLost, SilenceUnproven, TargetLost
-from spec import RULES
+from mcp_conform.conformance._run_state import CaseTimeLimit, McpState, _one_line
+from mcp_conform.conformance.marks import rule_level
+from mcp_conform.conformance.report import CaseRecord
+from mcp_conform.harness.errors import (
+    CaseFailure,
+    Inconclusive,
+    NodeLost,
+    SilenceUnproven,
+    TargetLost,
+)
+from mcp_conform.spec import RULES
 
 __all__ = ["apply_baseline", "judge_exception", "log_evidence", "skip_longrepr"]
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from spec import SPEC
+from mcp_conform.spec import SPEC
 
 __all__ = ["Baseline", "BaselineError", "BaselineEntry", "load_baseline", "write_baseline"]
 

@@ -32,20 +32,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from conformance.baseline import BaselineError, load_baseline
-from conformance.option_names import _FLAGS, _KEYS, env_name
-from conformance.options import ConfigError, make_config
-from conformance.report import RunRecord, write_json
-from harness.config import DEFAULT_ROLE, RunConfig
-from harness.interrupts import INTERRUPTS
-from spec import SPEC
-from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick
-from traceio.grammar import STDIO, add_verbosity, epilog, version_text
+from mcp_conform.conformance.baseline import BaselineError, load_baseline
+from mcp_conform.conformance.option_names import _FLAGS, _KEYS, env_name
+from mcp_conform.conformance.options import ConfigError, make_config
+from mcp_conform.conformance.report import RunRecord, write_json
+from mcp_conform.harness.config import DEFAULT_ROLE, RunConfig
+from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick
+from mcp_conform.traceio.grammar import STDIO, add_verbosity, epilog, version_text
 
 __all__ = ["build_parser", "main", "pytest_args"]
 
 PROG = "mcp-conform"
-PLUGIN_MODULE = "conformance.plugin"
+PLUGIN_MODULE = "mcp_conform.conformance.plugin"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -167,7 +167,7 @@ def _check_writable(path: str | None, option: str) -> None:
 
 def _check_live(value: str) -> None:
     """--live [HOST:]PORT, checked before anything runs (a one-line error, exit 2)."""
-    from traceio.live import LiveError, parse_live
+    from mcp_conform.traceio.live import LiveError, parse_live
 
     try:
         parse_live(value)
@@ -211,7 +211,7 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
         run.finished = run.started
         try:
             if json_path == STDIO:
-                from conformance.report import build_json
+                from mcp_conform.conformance.report import build_json
 
                 print(json.dumps(build_json(run), indent=2), flush=True)
             else:
@@ -238,7 +238,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
     import importlib
 
     package = pick(ns.protocol, ns.role)[1].cases
-    cases_dir = str(Path(importlib.import_module(package).__file__ or "").resolve().parent)
+    cases_dir = str(Path(importlib.import_module(package).__file__ or "").parent)  # not resolved: mcp_conform/ names it
     args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
             "-p", "no:unraisableexception",  # its gc.collect() x 5 at the end: 60 ms a run, for nothing here
@@ -389,7 +389,7 @@ def _main(argv: list[str]) -> int:
     except ConfigError as exc:
         return _fail(str(exc), json_path, cfg)
     if parallel > 1:
-        from conformance.parallel import run_parallel
+        from mcp_conform.conformance.parallel import run_parallel
 
         return run_parallel(ns, cfg, parallel, _fail)
     if ns.list and (ns.capture or ns.html or ns.live):

@@ -18,9 +18,15 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from conformance.report import JUNIT_FAMILIES, CaseRecord, RunRecord, monitor_failures, spec_of
-from spec import RULES
-from spec.about import TOOL_NAME
+from mcp_conform.conformance.report import (
+    JUNIT_FAMILIES,
+    CaseRecord,
+    RunRecord,
+    monitor_failures,
+    spec_of,
+)
+from mcp_conform.spec import RULES
+from mcp_conform.spec.about import TOOL_NAME
 
 __all__ = ["as_pytest_error", "junit_xml", "write_junit"]
 

@@ -4,7 +4,7 @@ over a recorded mission that several rule groups share.
 A case asks for the record of a scenario (``node.mission()``: the main one, run at start;
 ``node.mission("silent")``: run on first use), then calls one verify helper. The helpers
 raise ``CaseFailure(rule, expected, actual, evidence)`` or ``Inconclusive(reason)`` as the
-drone role's do (``conformance.case``).
+drone role's do (``conformance.drone_case``).
 
 Conventions (one fault, one rule):
 - A message *awaits its ACK* from its first copy until the runner's first ACK of it (the
@@ -26,15 +26,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from conformance._case_base import DatagramCaseBase
-from harness.driver import Datagram, read_header
-from harness.errors import CaseFailure, Inconclusive
-from harness.manager_mission import Input, Mission
-from spec import SPEC
-from spec.codec import HEADER_SIZE, ITEM, Action
+from mcp_conform.conformance._case_base import DatagramCaseBase
+from mcp_conform.harness.driver import Datagram, read_header
+from mcp_conform.harness.drone_players import Input, Mission
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import HEADER_SIZE, ITEM, Action
 
 if TYPE_CHECKING:
-    from harness.manager_session import ManagerSession
+    from mcp_conform.harness.manager_session import ManagerSession
 
 F = TypeVar("F", bound=Callable[..., Any])
 _ACK = int(Action.ACK)
@@ -188,7 +188,7 @@ def decode_items(d: Datagram) -> tuple[Any, ...] | None:
 
 
 def unpack_items(region: bytes) -> list[Any]:
-    from spec.codec import MissionItem
+    from mcp_conform.spec.codec import MissionItem
 
     return [MissionItem._make(t) for t in ITEM.iter_unpack(region)]
 

@@ -2,7 +2,7 @@
 
 A case is a pytest test decorated with :func:`rules`::
 
-    from conformance.marks import rules
+    from mcp_conform.conformance.marks import rules
 
     @rules("MCP-ACK-4")
     def test_broadcast_is_not_acked(node):
@@ -25,8 +25,8 @@ from typing import Any, TypeVar
 
 import pytest
 
-from spec import RULES, SPEC
-from spec.profiles import PROFILES
+from mcp_conform.spec import RULES, SPEC
+from mcp_conform.spec.profiles import PROFILES
 
 __all__ = [
     "LEVEL_ORDER",
@@ -77,7 +77,7 @@ def rules(*ids: str, phase: str = "main") -> Callable[[F], F]:
     if phase not in PHASES:
         raise ValueError(f"rules(): unknown phase {phase!r}; expected one of {', '.join(PHASES)}")
 
-    from conformance.plugin import activate
+    from mcp_conform.conformance.plugin import activate
 
     activate()  # a module of cases is being collected: the runner (and its fixtures) is needed
 

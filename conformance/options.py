@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 
-from conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
-from harness.config import DEFAULT_SEED, RunConfig, parse_hostport
-from spec.profiles import PROFILES, ProfileError, pick
+from mcp_conform.conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
+from mcp_conform.harness.config import DEFAULT_SEED, RunConfig, parse_hostport
+from mcp_conform.spec.profiles import PROFILES, ProfileError, pick
 
 __all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select",
            "option_values", "unmatched"]
@@ -78,7 +78,7 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
     mavlink = v.get("mavlink", False)
     cfg.mavlink = bool(mavlink)
     if isinstance(mavlink, str):
-        from vehicle import TRANSPORTS
+        from mcp_conform.vehicle import TRANSPORTS
 
         if mavlink not in TRANSPORTS:
             raise ConfigError(f"{opt('mavlink')}: {mavlink!r} is not one of {', '.join(TRANSPORTS)}")
@@ -103,7 +103,7 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
     cfg.embedded = cfg.target is None and cfg.spawn is None
     _manager_options(cfg, v, opt)
     if "impair" in v:
-        from harness.impair import ImpairmentError, parse_impairment
+        from mcp_conform.harness.impair import ImpairmentError, parse_impairment
 
         try:
             cfg.impair = parse_impairment(str(v["impair"]))
@@ -141,7 +141,7 @@ def apply_embedded_defaults(cfg: RunConfig) -> None:
     (unless --rto / --ack-window were given)."""
     if not cfg.embedded:
         return
-    from harness.session_base import EMBEDDED_ACK_WINDOW, EMBEDDED_RTO
+    from mcp_conform.harness.session_base import EMBEDDED_ACK_WINDOW, EMBEDDED_RTO
 
     explicit = cfg.extra.get("explicit", ())
     if "rto" not in explicit:

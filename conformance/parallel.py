@@ -32,14 +32,20 @@ from typing import IO, Any
 
 from rich.console import Console
 
-from conformance._run_reports import write_reports, write_run_html
-from conformance.baseline import write_baseline
-from conformance.junit import write_junit
-from conformance.report import RULE_RANK, RunRecord, case_from_json, merge_json, run_from_json
-from conformance.schedule import Plan
-from conformance.terminal import TerminalReport
-from harness.config import RunConfig
-from harness.interrupts import INTERRUPTS
+from mcp_conform.conformance._run_reports import write_reports, write_run_html
+from mcp_conform.conformance.baseline import write_baseline
+from mcp_conform.conformance.junit import write_junit
+from mcp_conform.conformance.report import (
+    RULE_RANK,
+    RunRecord,
+    case_from_json,
+    merge_json,
+    run_from_json,
+)
+from mcp_conform.conformance.schedule import Plan
+from mcp_conform.conformance.terminal import TerminalReport
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.interrupts import INTERRUPTS
 
 __all__ = ["child_args", "pick_every", "run_parallel"]
 
@@ -52,7 +58,7 @@ _RANK = {**RULE_RANK, "error": RULE_RANK["failed"]}
 
 
 def child_args(ns: Any, k: int, n: int, tmp: Path, record: bool) -> list[str]:
-    """Instance ``k``'s command line (``python -m conformance`` ...): the run's options, its
+    """Instance ``k``'s command line (``python -m mcp_conform.conformance`` ...): the run's options, its
     own report, capture and events files."""
     args: list[str] = []
     for name in _VALUES:
@@ -112,7 +118,7 @@ class _Run:
 
     def start(self, k: int, n: int) -> None:
         log = (self.tmp / f"{k}.log").open("wb")
-        cmd = [sys.executable, "-m", "conformance", *child_args(self.ns, k, n, self.tmp, self.record)]
+        cmd = [sys.executable, "-m", "mcp_conform.conformance", *child_args(self.ns, k, n, self.tmp, self.record)]
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log,
                                 stderr=None if self.ns.verbose else log)  # -v: the traffic, live
         self.instances.append(_Instance(k, proc, log, self.tmp / f"{k}.events"))
@@ -282,7 +288,7 @@ def _finish(run: _Run, ns: Any, wall: float, fail: Callable[[str, str | None], i
     capture = ns.capture or (str(run.tmp / "all.mcap") if ns.html and parts else None)
     writers: list[tuple[str | None, Any]] = []
     if capture and parts:
-        from traceio.merge import merge_captures
+        from mcp_conform.traceio.merge import merge_captures
 
         writers.append((capture, lambda p: merge_captures(parts, p)))
     writers += [

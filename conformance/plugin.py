@@ -14,7 +14,7 @@ registered only when a run asks for it:
 ``mcp-conform`` is a thin front end that runs ``conformance.cases`` through it;
 ``pytest --mcp-target HOST:PORT`` runs the same suite, and users write their own cases::
 
-    from conformance.marks import rules
+    from mcp_conform.conformance.marks import rules
 
     @rules("MCP-ACK-1")
     def test_my_command_is_acked(node):
@@ -32,22 +32,22 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from conformance.option_names import _FLAGS, _KEYS, env_name
+from mcp_conform.conformance.option_names import _FLAGS, _KEYS, env_name
 
 if TYPE_CHECKING:
-    from harness.config import RunConfig
+    from mcp_conform.harness.config import RunConfig
 
 __all__ = ["activate", "env_name"]  # and, loaded on first use: ConfigError, make_config,
 # matches_select (conformance.options), McpState, STATE_KEY (conformance._plugin_run)
 
-RUN_PLUGIN = "conformance._plugin_run"
+RUN_PLUGIN = "mcp_conform.conformance._plugin_run"
 _CONFIG: dict[str, pytest.Config] = {}
 
 
 class _HookSpecs:
     @pytest.hookspec(firstresult=True)
     def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
-        """Return the session for the run (see ``harness.session.Session``)."""
+        """Return the session for the run (see ``harness.drone_session.Session``)."""
 
 
 
@@ -111,7 +111,7 @@ def pytest_addhooks(pluginmanager: pytest.PytestPluginManager) -> None:
 
 def _default_role() -> str:
     """The default role's name (``spec.profiles``), imported only when a run names a role."""
-    from harness.config import DEFAULT_ROLE
+    from mcp_conform.harness.config import DEFAULT_ROLE
 
     return DEFAULT_ROLE
 
@@ -159,7 +159,7 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 def __getattr__(name: str) -> Any:
     """The runner's public names, loaded on first use (``from conformance.plugin import ...``)."""
     if name in ("ConfigError", "make_config", "matches_select", "apply_embedded_defaults", "option_values"):
-        from conformance import options
+        from mcp_conform.conformance import options
 
         return getattr(options, name)
     if name in ("McpState", "STATE_KEY"):

@@ -29,9 +29,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from spec import RULES, Spec, StreamSpec
-from spec.about import TOOL_NAME, tool_version
-from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, profile_of_role
+from mcp_conform.spec import RULES, SpecBase
+from mcp_conform.spec.about import TOOL_NAME, tool_version
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, profile_of_role
 
 __all__ = [
     "OUTCOMES",
@@ -206,7 +206,7 @@ def monitor_failures(run: RunRecord) -> list[dict[str, Any]]:
 
 
 # ---------------------------------------------------------------------- JSON
-def spec_of(role: str) -> Spec | StreamSpec:
+def spec_of(role: str) -> SpecBase:
     """The spec of the protocol whose nodes take ``role`` (``spec.profiles``); an unknown
     role (a foreign report's): the default protocol's."""
     try:

@@ -55,7 +55,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from spec.profiles import pick, profile_of_role
+from mcp_conform.spec.profiles import pick, profile_of_role
 
 __all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "estimate", "plan_cases", "shard_plan"]
 
@@ -253,7 +253,7 @@ QUICK_CASE_S = 0.15
 
 
 def startup_estimate(observed: bool, rto: float, window: float) -> float:
-    """The startup phase's wall time, estimated (harness.session): the observed one holds
+    """The startup phase's wall time, estimated (harness.drone_session): the observed one holds
     the fix (2 windows, MCP-BLK-5), waits for three retransmissions, one more after the
     wrong ACKs, watches 1.5 timeouts after the right one (MCP-RTX-1, MCP-BLK-4); both then
     send Start_Mission and watch its ACK's window."""

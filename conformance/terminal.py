@@ -14,7 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
-from conformance.report import (
+from mcp_conform.conformance.report import (
     OUTCOMES,
     STYLES,
     CaseRecord,
@@ -24,8 +24,8 @@ from conformance.report import (
     rule_outcomes,
     spec_of,
 )
-from spec import RULES
-from spec.about import TOOL_NAME, tool_version
+from mcp_conform.spec import RULES
+from mcp_conform.spec.about import TOOL_NAME, tool_version
 
 __all__ = ["TerminalReport", "node_lines"]
 

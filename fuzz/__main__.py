@@ -1,7 +1,7 @@
-"""``python -m fuzz``: the same as ``mcp-fuzz``."""
+"""``python -m mcp_conform.fuzz``: the same as ``mcp-fuzz``."""
 
 import sys
 
-from fuzz.cli import main
+from mcp_conform.fuzz.cli import main
 
 sys.exit(main())

@@ -22,18 +22,18 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fuzz.budget import GRACE_S, campaign_end, engine_turns
-from fuzz.config import FuzzConfig, exit_code
-from fuzz.engine_stateless import EngineStats, StatelessEngine
-from fuzz.environment import merge_environment
-from fuzz.findings import FindingStore, write_summary
-from fuzz.progress import Progress, interrupted
-from fuzz.target_base import TargetLost
-from fuzz.targets import start_target
-from fuzz.triage import Triage
-from fuzz.workers import Reporter, report, run_jobs
-from harness.errors import SetupError
-from spec import SPEC
+from mcp_conform.fuzz.budget import GRACE_S, campaign_end, engine_turns
+from mcp_conform.fuzz.config import FuzzConfig, exit_code
+from mcp_conform.fuzz.engine_stateless import EngineStats, StatelessEngine
+from mcp_conform.fuzz.environment import merge_environment
+from mcp_conform.fuzz.findings import FindingStore, write_summary
+from mcp_conform.fuzz.progress import Progress, interrupted
+from mcp_conform.fuzz.target_base import TargetLost
+from mcp_conform.fuzz.targets import start_target
+from mcp_conform.fuzz.triage import Triage
+from mcp_conform.fuzz.workers import Reporter, report, run_jobs
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.spec import SPEC
 
 __all__ = ["DatagramCampaign", "Progress", "WorkerResult", "load_seeds", "run_campaign", "run_worker"]
 
@@ -64,7 +64,7 @@ def load_seeds(directory: str | None) -> list[bytes]:
     """The datagrams the manager side sent in the MCAP captures of ``directory`` (``--seeds``)."""
     if directory is None:
         return []
-    from traceio.reader import CaptureError, Datagram, open_capture
+    from mcp_conform.traceio.reader import CaptureError, Datagram, open_capture
 
     d = Path(directory)
     if not d.is_dir():
@@ -148,8 +148,8 @@ def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], 
                     res.monitor = eng.monitor.available
                     eng.run(deadline, budget, on_tick, stop)
                 else:
-                    from fuzz.engine_stateful import StatefulEngine
-                    from fuzz.target import FuzzTarget
+                    from mcp_conform.fuzz.drone_target import FuzzTarget
+                    from mcp_conform.fuzz.engine_stateful import StatefulEngine
 
                     assert isinstance(target, FuzzTarget)  # a drone (the CLI refuses a manager)
                     eng = StatefulEngine(target, triage, cfg)
@@ -236,8 +236,8 @@ class DatagramCampaign:
     def __init__(self, cfg: FuzzConfig, tick: Callable[[Progress], None] | None = None) -> None:
         self.cfg, self.tick, self.served = cfg, tick, None
         if "live" in cfg.extra:  # --live: the campaign on a Foxglove WebSocket server (fuzz.live)
-            from fuzz.live import LiveCampaign, LiveStore
-            from traceio.live import LiveError
+            from mcp_conform.fuzz.live import LiveCampaign, LiveStore
+            from mcp_conform.traceio.live import LiveError
 
             try:
                 self.served = LiveCampaign(cfg, *cfg.extra["live"])
@@ -276,7 +276,7 @@ class DatagramCampaign:
 
     @staticmethod
     def replay(path: str, cfg: FuzzConfig) -> int:
-        from fuzz.replay_cli import replay_finding
+        from mcp_conform.fuzz.replay_cli import replay_finding
 
         return replay_finding(path, cfg)
 
@@ -313,7 +313,7 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
                  node_lost: bool = False) -> dict[str, Any]:
     """``summary.json``: cases, judged cases/s, findings by rule, seed, duration; whether
     SIGINT ended it (``interrupted``) or the node was lost in attach mode (``node_lost``)."""
-    from spec.about import tool_version
+    from mcp_conform.spec.about import tool_version
 
     cases = sum(r.cases for r in results)
     fuzz_s = max((r.fuzz_seconds for r in results), default=0.0)

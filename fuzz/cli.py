@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from fuzz.config import (
+from mcp_conform.fuzz.config import (
     ENGINES,
     EXIT_INTERRUPTED,
     FuzzConfig,
@@ -35,11 +35,11 @@ from fuzz.config import (
     engines,
     exit_code,
 )
-from fuzz.plugin import FuzzCampaign
-from harness.config import DEFAULT_SEED, parse_hostport
-from harness.errors import SetupError
-from spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
-from traceio.grammar import add_verbosity, add_version, epilog
+from mcp_conform.fuzz.plugin import FuzzCampaign
+from mcp_conform.harness.config import DEFAULT_SEED, parse_hostport
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
+from mcp_conform.traceio.grammar import add_verbosity, add_version, epilog
 
 __all__ = ["build_parser", "exit_code", "main"]
 
@@ -210,7 +210,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         raise UsageError("--jobs: each worker needs its own node; use --spawn (or the embedded default), not --target")
     cfg.db = ns.db
     if cfg.db is not None:
-        from fuzz.engine_stateful import check_database
+        from mcp_conform.fuzz.engine_stateful import check_database
 
         try:
             check_database(cfg.db)
@@ -231,7 +231,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     cfg.rto = _float(ns.rto, "--rto")
     cfg.ack_window = _float(ns.ack_window, "--ack-window")
     cfg.broadcast_id = _int(ns.broadcast_id, "--broadcast-id", 0, 0xFFFF)
-    from harness.impair_link import ImpairmentError, impair_option
+    from mcp_conform.harness.impair_link import ImpairmentError, impair_option
 
     try:
         cfg.impair = impair_option(ns.impair)
@@ -240,7 +240,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
     if cfg.impair is not None and not role.impairable:
         raise UsageError(f"--impair: a {cfg.role} ({cfg.protocol}) is not fuzzed through a bad link yet")
     if ns.live is not None:
-        from traceio.live import LiveError, parse_live
+        from mcp_conform.traceio.live import LiveError, parse_live
 
         try:
             cfg.extra["live"] = parse_live(ns.live)
@@ -250,7 +250,7 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
                            (ns.replay, "not available with --replay")):
             if given:
                 raise UsageError(f"--live: {why}")
-    from spec.profiles import resolve
+    from mcp_conform.spec.profiles import resolve
 
     for opt in resolve(prof.fuzz_campaign).REFUSED:  # the options its campaign does not take
         if getattr(ns, opt[2:].replace("-", "_"), None):
@@ -288,8 +288,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(ns: argparse.Namespace, cfg: FuzzConfig) -> int:
     """The campaign or the replay of the protocol's campaign (the profile's ``fuzz_campaign``,
     ``fuzz.config.FuzzCampaign``); its summary left in ``ns.summary`` (``--json``)."""
-    from fuzz.progress import LiveProgress
-    from spec.profiles import resolve
+    from mcp_conform.fuzz.progress import LiveProgress
+    from mcp_conform.spec.profiles import resolve
 
     kind: type[FuzzCampaign] = resolve(pick(cfg.protocol)[0].fuzz_campaign)
     if ns.replay:

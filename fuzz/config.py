@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from harness.config import DEFAULT_SEED, RunConfig
-from spec.profiles import DEFAULT_PROTOCOL, pick
+from mcp_conform.harness.config import DEFAULT_SEED, RunConfig
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, pick
 
 ENGINES = ("stateless", "stateful", "both")
 #: The engine mix when ``--engine`` is not given, for a drone (MCP): the stateless engine's
@@ -28,7 +28,7 @@ EXIT_INTERRUPTED = 130  # SIGINT: the campaign ended early, summary.json holds t
 def target_class(protocol: str | None, role: str | None) -> Any:
     """The fuzz target class the role profile names (``spec.profiles``, ``fuzz_target``);
     None: the protocol is fuzzed by its own campaign."""
-    from spec.profiles import resolve
+    from mcp_conform.spec.profiles import resolve
 
     path = pick(protocol, role)[1].fuzz_target
     return None if path is None else resolve(path)
@@ -103,7 +103,7 @@ class FuzzConfig:
 
     def run_config(self) -> RunConfig:
         """The runner's configuration of the same target (its session drives the node)."""
-        from harness import session as session_module
+        from mcp_conform.harness import drone_session as session_module
 
         cfg = RunConfig(protocol=self.protocol, role=self.role, target=self.target, listen=self.listen,
                         target_id=self.target_id, spawn=self.spawn, mavlink=self.mavlink,
@@ -148,7 +148,7 @@ def embedded_command(mavlink: bool) -> str:
     """The reference drone as the fuzzer spawns it: the runner's embedded command, quiet
     (its per-datagram log lines would cost more than the fuzzing itself), and without the
     runner's vehicle unless ``--mavlink`` (the drone then flies its built-in one)."""
-    from harness.session import embedded_command as runner_command
+    from mcp_conform.harness.drone_session import embedded_command as runner_command
 
     cmd = runner_command()
     if not mavlink:

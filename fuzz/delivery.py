@@ -26,8 +26,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from fuzz.flaws import Flaw, Input
-from spec.codec import Action
+from mcp_conform.fuzz.flaws import Flaw, Input
+from mcp_conform.spec.codec import Action
 
 __all__ = ["DeliveryLedger"]
 

@@ -35,9 +35,10 @@ from typing import Any
 
 from hypothesis.database import DirectoryBasedExampleDatabase, ExampleDatabase
 
-from fuzz.config import FuzzConfig
-from fuzz.engine_stateless import EngineStats
-from fuzz.oracles import (
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.drone_target import FuzzTarget
+from mcp_conform.fuzz.engine_stateless import EngineStats
+from mcp_conform.fuzz.oracles import (
     DeliveryLedger,
     Flaw,
     Input,
@@ -46,14 +47,13 @@ from fuzz.oracles import (
     judge_exchange,
     judge_withheld,
 )
-from fuzz.programs import Move, ProgramGenerator, dumps, loads, program_text
-from fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
-from fuzz.target import FuzzTarget
-from fuzz.target_base import DIED, MISSION_ENDED
-from fuzz.triage import Triage
-from spec.codec import Action, Message, encode
-from spec.generators import random_malformed, random_message
-from vehicle.probe import make_probe
+from mcp_conform.fuzz.programs import Move, ProgramGenerator, dumps, loads, program_text
+from mcp_conform.fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
+from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED
+from mcp_conform.fuzz.triage import Triage
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.spec.generators import random_malformed, random_message
+from mcp_conform.vehicle.probe import make_probe
 
 __all__ = ["ACK_COPIES", "OutOfBudget", "StatefulEngine", "check_database", "judge_copies",
            "open_database"]
@@ -79,7 +79,7 @@ class OutOfBudget(BaseException):  # noqa: N818 - not an error: a budget is spen
     """Raised from inside a step once the campaign's deadline, its case budget or a stop
     request is reached (``campaign_over``), or once a failure has been shrunk for long
     enough: a ``BaseException``, so hypothesis neither counts it as a failure nor shrinks
-    it, and a run ends within one step (the Nsqd engine's, ``fuzz.stream_stateful``)."""
+    it, and a run ends within one step (the Nsqd engine's, ``fuzz.nsqd_stateful``)."""
 
     def __init__(self, campaign_over: bool) -> None:
         super().__init__("campaign budget spent" if campaign_over else "shrink budget spent")

@@ -16,12 +16,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from fuzz.mutators import CaseGenerator
-from fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_exchange
-from fuzz.replay import frame_token, vehicle_counts
-from fuzz.target_base import DIED, TargetBase
-from fuzz.triage import Triage
-from spec.codec import Action
+from mcp_conform.fuzz.mutators import CaseGenerator
+from mcp_conform.fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_exchange
+from mcp_conform.fuzz.replay import frame_token, vehicle_counts
+from mcp_conform.fuzz.target_base import DIED, TargetBase
+from mcp_conform.fuzz.triage import Triage
+from mcp_conform.spec.codec import Action
 
 __all__ = ["BATCH", "EngineStats", "StatelessEngine"]
 

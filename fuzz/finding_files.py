@@ -1,7 +1,7 @@
 """A finding on disk, whatever its protocol (issue 37 item 2: one findings store).
 
 Every campaign writes a confirmed finding as ``finding-N/`` under ``--out``: its
-``finding.json`` (the protocol's document: ``fuzz.findings`` for MCP, ``fuzz.stream_campaign``
+``finding.json`` (the protocol's document: ``fuzz.findings`` for MCP, ``fuzz.nsqd_campaign``
 for Nsqd), its ``replay.txt`` (the one command that replays it, ``mcp-fuzz [--protocol P]
 --replay DIR ...``) and its captures (the protocol's rendering: ``repro.mcap``, and for a
 stream protocol ``repro.pcap``). A finding is read back by :func:`read_finding_doc` from the
@@ -52,8 +52,8 @@ def read_finding_doc(path: str | Path, *, mcap: bool = True) -> dict[str, Any]:
     if head[:4] in _PCAP_MAGICS and (p.parent / "finding.json").is_file():
         p, head = p.parent / "finding.json", b"{"
     if mcap and head.startswith(b"\x89MCAP"):
-        from traceio.reader import CaptureError, Metadata, open_capture
-        from traceio.recorder import FUZZ_RECORDER
+        from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
+        from mcp_conform.traceio.recorder import FUZZ_RECORDER
 
         try:
             meta = next((r.data for r in open_capture(p) if type(r) is Metadata

@@ -2,7 +2,7 @@
 replay them (issue 37: one ``Finding``, one findings store for MCP and Nsqd alike).
 
 A finding is kept only once it has been confirmed by replays and shrunk to a minimal input
-(MCP: ``fuzz.triage`` over ``fuzz.replay``; Nsqd: ``fuzz.stream_campaign``). Findings of the
+(MCP: ``fuzz.triage`` over ``fuzz.replay``; Nsqd: ``fuzz.nsqd_campaign``). Findings of the
 same rule and shape (what kind of input, what the node did) are one group: the first is
 written, the others are counted. Under ``--out DIR`` each group is ``finding-N/``:
 
@@ -11,7 +11,7 @@ written, the others are counted. Under ``--out DIR`` each group is ``finding-N/`
   engines), note, replays, no_input; MCP's input as ``datagrams`` (hex) with its pace and
   scenario, a stream protocol's as its own fields (``doc``: Nsqd's signature, writes, cases);
 - the protocol's captures (``repro``: MCP's ``repro.mcap``, :func:`write_repro`; Nsqd's
-  ``repro.mcap``, ``repro.pcap`` and input files, ``fuzz.stream_repro``);
+  ``repro.mcap``, ``repro.pcap`` and input files, ``fuzz.nsqd_repro``);
 - ``replay.txt``: the one-line command that replays it (``mcp-fuzz --replay DIR ...``).
 
 ``summary.json`` (:func:`write_summary`) is written at the end of every campaign.
@@ -27,10 +27,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
-from fuzz.oracles import Flaw, rule_level
-from spec import RULES
-from spec.profiles import DEFAULT_PROTOCOL, pick
+from mcp_conform.fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
+from mcp_conform.fuzz.oracles import Flaw, rule_level
+from mcp_conform.spec import RULES
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, pick
 
 __all__ = ["Finding", "FindingStore", "finding_from_json", "finding_from_metadata", "load_finding",
            "read_finding", "write_summary"]
@@ -72,7 +72,7 @@ class Finding:
     no_input: bool = False  # the target's behaviour: a baseline sent nothing showed it
     #: the protocol's own finding.json fields (Nsqd: its signature, writes, cases, expect)
     doc: dict[str, Any] = field(default_factory=dict)
-    signature: Any = None  # a stream protocol's signature (``fuzz.stream_oracles.Signature``)
+    signature: Any = None  # a stream protocol's signature (``fuzz.nsqd_oracles.Signature``)
     cases: list[Any] = field(default_factory=list)  # a stream protocol's minimal cases
     traffic: list[Any] = field(default_factory=list)  # a stream protocol's last confirming replay's
 
@@ -221,7 +221,7 @@ def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
     """The finding a repro.mcap's metadata record describes (its ``finding`` value, read as
     ``finding.json`` is), or None when it is not one (another recorder, or a capture written
     before the record held the finding)."""
-    from traceio.recorder import FUZZ_RECORDER
+    from mcp_conform.traceio.recorder import FUZZ_RECORDER
 
     if meta.get("recorder") != FUZZ_RECORDER:
         return None
@@ -246,7 +246,7 @@ def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tup
     """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
     import time
 
-    from traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
+    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
     role = f.target.get("role") or pick(f.protocol)[1].name  # a finding written before it was recorded

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from spec import SPEC
-from spec.codec import Action, DecodeError, Message, decode
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, DecodeError, Message, decode
 
 __all__ = ["Flaw", "Input", "rule_level"]
 
@@ -53,7 +53,7 @@ class Input:
 
     @classmethod
     def of(cls, data: bytes) -> Input:
-        from harness.driver import read_header
+        from mcp_conform.harness.driver import read_header
 
         try:
             return cls(data, read_header(data), decode(data), None)

@@ -19,12 +19,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from fuzz.config import FuzzConfig
-from fuzz.findings import Finding, FindingStore
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import Finding, FindingStore
 
 __all__ = ["LIVE_RECORDER", "LiveCampaign", "LiveStore"]
 
-#: ``FuzzConfig.extra`` key of the recorder the session writes to (``fuzz.target``)
+#: ``FuzzConfig.extra`` key of the recorder the session writes to (``fuzz.drone_target``)
 LIVE_RECORDER = "live_recorder"
 NAME = "mcp-fuzz"
 
@@ -56,8 +56,8 @@ class LiveCampaign:
     """The live server of a campaign and the recorder its session writes to."""
 
     def __init__(self, cfg: FuzzConfig, host: str, port: int) -> None:
-        from traceio.live import LiveServer
-        from traceio.recorder import FUZZ_RECORDER, McapRecorder
+        from mcp_conform.traceio.live import LiveServer
+        from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder
 
         self.server = LiveServer(host, port, name=NAME)
         self.recorder = McapRecorder(None, library=FUZZ_RECORDER, live=self.server.feed())

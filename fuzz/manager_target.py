@@ -14,12 +14,12 @@ commands to a drone).
 
 from __future__ import annotations
 
-from fuzz.config import FuzzConfig
-from fuzz.target_base import PROBE_COPIES, PROBE_MIN_WAIT, Probe, TargetBase, Traffic
-from harness.config import RunConfig
-from harness.errors import SetupError
-from harness.manager_session import ManagerSession, embedded_command
-from spec.codec import MANAGER_ID, Action
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.target_base import PROBE_COPIES, PROBE_MIN_WAIT, Probe, TargetBase, Traffic
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.harness.manager_session import ManagerSession, embedded_command
+from mcp_conform.spec.codec import MANAGER_ID, Action
 
 __all__ = ["FUZZ_DRONES", "ManagerFuzzTarget"]
 

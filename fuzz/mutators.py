@@ -23,7 +23,7 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from spec.codec import (
+from mcp_conform.spec.codec import (
     HEADER_SIZE,
     ITEM_SIZE,
     MAX_DATAGRAM,
@@ -32,8 +32,13 @@ from spec.codec import (
     Message,
     encode,
 )
-from spec.generators import MALFORMED_KINDS, WIRE_ACTIONS, random_malformed, random_message
-from vehicle.probe import make_probe
+from mcp_conform.spec.generators import (
+    MALFORMED_KINDS,
+    WIRE_ACTIONS,
+    random_malformed,
+    random_message,
+)
+from mcp_conform.vehicle.probe import make_probe
 
 __all__ = ["MUTATORS", "Case", "CaseGenerator"]
 

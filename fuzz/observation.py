@@ -26,8 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from harness.driver import Exchange
-from spec import SPEC
+from mcp_conform.harness.driver import Exchange
+from mcp_conform.spec import SPEC
 
 __all__ = ["MAX_ACK_COPIES", "Retransmitted", "retransmit_unanswered"]
 

@@ -40,12 +40,14 @@ from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from typing import Any
 
-from fuzz.delivery import DeliveryLedger
-from fuzz.flaws import Flaw, Input, rule_level
-from fuzz.observation import retransmit_unanswered
-from harness.driver import Datagram
-from harness.session_base import MIN_COPIES  # the original + MCP-RTX-1's retransmissions
-from spec.codec import HEADER_SIZE, Action
+from mcp_conform.fuzz.delivery import DeliveryLedger
+from mcp_conform.fuzz.flaws import Flaw, Input, rule_level
+from mcp_conform.fuzz.observation import retransmit_unanswered
+from mcp_conform.harness.driver import Datagram
+from mcp_conform.harness.session_base import (
+    MIN_COPIES,  # the original + MCP-RTX-1's retransmissions
+)
+from mcp_conform.spec.codec import HEADER_SIZE, Action
 
 __all__ = [
     "OVERSIZE",
@@ -345,7 +347,7 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
     another seq: it retransmits (MCP-RTX-1), each copy the same bytes (MCP-SEQ-2), and the
     wrong ACK does not end it (MCP-RTX-2). Observed as MCP-RTX-1 says, "at least 3 copies
     while the ACK is withheld" (``wanted`` up to ``MIN_COPIES``), and MCP-RTX-2 over 2.5
-    periods after the wrong ACK (``fuzz.target.FuzzTarget.restart_withholding``)."""
+    periods after the wrong ACK (``fuzz.drone_target.FuzzTarget.restart_withholding``)."""
     if not alive:
         return None  # a death is judge_liveness's
     if len(copies) < min(wanted, MIN_COPIES):
@@ -380,7 +382,7 @@ class MonitorOracle:
         self.datagrams = 0
         self._sent_by_index: dict[int, bytes | None] = {}
         try:
-            from judge.monitor import TESTER, Monitor
+            from mcp_conform.judge.monitor import TESTER, Monitor
         except ImportError:
             self.monitor: Any = None
             self.tester: Any = None

@@ -4,7 +4,7 @@ A protocol's profile (``spec.profiles``, ``fuzz_campaign``) names a class that s
 :class:`FuzzCampaign`; ``fuzz.cli`` runs every protocol's through it, with one store of
 findings (``fuzz.findings``), one live display (``fuzz.progress``) and one ``--jobs``
 parent (``fuzz.workers``): MCP's is ``fuzz.campaign.DatagramCampaign``, Nsqd's
-``fuzz.stream_campaign.StreamCampaign``.
+``fuzz.nsqd_campaign.StreamCampaign``.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from fuzz.config import FuzzConfig
-from fuzz.findings import FindingStore
-from fuzz.progress import LiveProgress, Progress
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.fuzz.progress import LiveProgress, Progress
 
 __all__ = ["FuzzCampaign"]
 

@@ -25,8 +25,8 @@ import json
 import random
 from dataclasses import asdict, dataclass
 
-from spec.codec import Action
-from spec.generators import MALFORMED_KINDS
+from mcp_conform.spec.codec import Action
+from mcp_conform.spec.generators import MALFORMED_KINDS
 
 __all__ = ["COMMANDS", "Move", "ProgramGenerator", "dumps", "loads", "program_text"]
 

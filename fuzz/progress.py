@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fuzz.config import EXIT_INTERRUPTED, FuzzConfig
-from fuzz.environment import environment_lines
-from fuzz.findings import FindingStore
-from spec.profiles import pick
+from mcp_conform.fuzz.config import EXIT_INTERRUPTED, FuzzConfig
+from mcp_conform.fuzz.environment import environment_lines
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.spec.profiles import pick
 
 __all__ = ["STATUS_S", "LiveProgress", "Progress", "figures_line", "interrupted", "status_line", "summary_line",
            "tried_table"]

@@ -14,7 +14,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from fuzz.oracles import (
+from mcp_conform.fuzz.drone_target import FuzzTarget
+from mcp_conform.fuzz.oracles import (
     DeliveryLedger,
     Flaw,
     Input,
@@ -22,10 +23,9 @@ from fuzz.oracles import (
     judge_exchange,
     judge_withheld,
 )
-from fuzz.target import FuzzTarget
-from fuzz.target_base import REPLAY, TargetBase
-from spec.codec import Action
-from vehicle.probe import make_probe, probe_token
+from mcp_conform.fuzz.target_base import REPLAY, TargetBase
+from mcp_conform.spec.codec import Action
+from mcp_conform.vehicle.probe import make_probe, probe_token
 
 __all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence"]
 
@@ -39,8 +39,8 @@ WITHHOLD = "withhold:"
 
 def frame_token(data: bytes) -> str | None:
     """The probe token of a Mav_Passthrough datagram's frame, if it carries one."""
-    from spec.codec import HEADER_SIZE
-    from spec.mavframe import FrameError, parse_frame
+    from mcp_conform.spec.codec import HEADER_SIZE
+    from mcp_conform.spec.mavframe import FrameError, parse_frame
 
     if len(data) <= HEADER_SIZE:
         return None

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import sys
 
-from fuzz.config import FuzzConfig
-from fuzz.findings import Finding, load_finding
-from fuzz.replay import run_sequence
-from fuzz.targets import start_target
-from harness.errors import SetupError
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import Finding, load_finding
+from mcp_conform.fuzz.replay import run_sequence
+from mcp_conform.fuzz.targets import start_target
+from mcp_conform.harness.errors import SetupError
 
 __all__ = ["replay_finding", "reproduce"]
 

@@ -1,4 +1,4 @@
-"""What the node under fuzz is in every role (``fuzz.target`` for a drone,
+"""What the node under fuzz is in every role (``fuzz.drone_target`` for a drone,
 ``fuzz.manager_target`` for a Mission Manager): the runner's session and driver, a record of
 all traffic for the oracles, the liveness probe's outcome, and the spawned process's fate.
 Neither role's target imports the other's; ``fuzz.targets`` picks one.
@@ -16,9 +16,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from harness.driver import Datagram, Sent, TargetDriver
-from harness.errors import SetupError
-from spec import SPEC
+from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.spec import SPEC
 
 __all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
            "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]

@@ -31,14 +31,14 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
-from fuzz.budget import Late
-from fuzz.ddmin import ddmin
-from fuzz.environment import EnvironmentLog
-from fuzz.findings import NO_INPUT, Finding, FindingStore
-from fuzz.oracles import OVERSIZE, Flaw, Input
-from fuzz.replay import run_sequence
-from fuzz.target_base import TargetBase
-from spec.codec import HEADER_SIZE, Action, build_datagram
+from mcp_conform.fuzz.budget import Late
+from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.environment import EnvironmentLog
+from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
+from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
+from mcp_conform.fuzz.replay import run_sequence
+from mcp_conform.fuzz.target_base import TargetBase
+from mcp_conform.spec.codec import HEADER_SIZE, Action, build_datagram
 
 __all__ = ["Triage", "shape_of"]
 

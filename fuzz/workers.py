@@ -1,5 +1,5 @@
 """``mcp-fuzz --jobs N``: the worker processes every campaign runs (MCP's ``fuzz.campaign``,
-Nsqd's ``fuzz.stream_campaign``), and the one parent over what they report (issue 37: one
+Nsqd's ``fuzz.nsqd_campaign``), and the one parent over what they report (issue 37: one
 jobs layer): :func:`run_jobs` shows their figures summed (:class:`~fuzz.progress.Progress`:
 cases and restarts summed, judged cases/s over the longest fuzzing time, findings distinct
 across workers) and keeps their findings in the campaign's store (grouped, counts summed,
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # a worker process imports this module first: it stays light
-    from fuzz.findings import Finding, FindingStore
-    from fuzz.progress import Progress
+    from mcp_conform.fuzz.findings import Finding, FindingStore
+    from mcp_conform.fuzz.progress import Progress
 
 __all__ = ["JOIN_S", "PROGRESS_S", "STOP_GRACE", "Jobs", "Reporter", "report", "run_jobs", "run_workers",
            "sum_tables"]
@@ -135,7 +135,7 @@ def run_jobs(child: Callable[..., None], args_of: Callable[[int, Any, Any], tupl
     """Run ``jobs`` workers (:func:`run_workers`); their figures summed in ``progress`` for
     ``tick`` (the live display), their findings added to ``store`` as each ends. The workers
     are asked to stop once ``stop_after`` distinct findings are known."""
-    from fuzz.progress import Progress
+    from mcp_conform.fuzz.progress import Progress
 
     prog = progress or Progress()
     per: dict[int, dict[str, Any]] = {}

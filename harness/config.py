@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from spec import SPEC
-from spec.profiles import DEFAULT_PROTOCOL, Profile, RoleProfile, pick
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, Profile, RoleProfile, pick
 
 DEFAULT_SEED = 20140307  # the description's date: every run sends the same bytes by default
 #: the role of a run that names none: the default protocol's first (``spec.profiles.pick``)

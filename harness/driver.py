@@ -27,12 +27,12 @@ from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any
 
-from harness.errors import NodeLost
-from harness.run_delay import delay_for, takes_run_delay
-from harness.rx_queue import read_backlog
-from harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
-from judge.attribution import Attribution, Attributor
-from spec.codec import (
+from mcp_conform.harness.errors import NodeLost
+from mcp_conform.harness.run_delay import delay_for, takes_run_delay
+from mcp_conform.harness.rx_queue import read_backlog
+from mcp_conform.harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
+from mcp_conform.judge.attribution import Attribution, Attributor
+from mcp_conform.spec.codec import (
     PREAMBLE,
     Action,
     DecodeError,

@@ -27,7 +27,7 @@ class CaseFailure(AssertionError):
     def dependencies(self) -> tuple[str, ...]:
         if self.relies_on is not None:
             return self.relies_on
-        from spec import RULES
+        from mcp_conform.spec import RULES
 
         rule = RULES.get(self.rule)
         return rule.rule_dependencies if rule is not None else ()
@@ -36,7 +36,7 @@ class CaseFailure(AssertionError):
         AssertionError.__init__(self, self.describe())
 
     def describe(self) -> str:
-        from spec import RULES
+        from mcp_conform.spec import RULES
 
         text = RULES[self.rule].text if self.rule in RULES else ""
         lines = [f"{self.rule}: {text}", f"  expected: {self.expected}", f"  actual:   {self.actual}"]

@@ -50,7 +50,7 @@ from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
-from spec.codec import HEADER_SIZE, Action, peek_header
+from mcp_conform.spec.codec import HEADER_SIZE, Action, peek_header
 
 __all__ = ["DelayQueue", "Decision", "Delivery", "Impairment", "ImpairmentError", "ImpairSpec",
            "parse_impairment"]

@@ -27,7 +27,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from harness.impair import Decision, Impairment, ImpairmentError, ImpairSpec, parse_impairment
+from mcp_conform.harness.impair import (
+    Decision,
+    Impairment,
+    ImpairmentError,
+    ImpairSpec,
+    parse_impairment,
+)
 
 __all__ = ["ImpairEvent", "ImpairedLink", "ImpairmentError", "ImpairSpec", "impair_option"]
 
@@ -47,7 +53,7 @@ def impair_option(text: str | None) -> ImpairSpec | None:
 
 
 def _describe_datagram(data: bytes) -> str:
-    from spec.codec import Action, peek_header
+    from mcp_conform.spec.codec import Action, peek_header
 
     hdr = peek_header(data, require_preamble=False)
     if hdr is None:

@@ -39,8 +39,8 @@ import time
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-from harness.config import parse_hostport
-from harness.impair import (
+from mcp_conform.harness.config import parse_hostport
+from mcp_conform.harness.impair import (
     MAX_HELD,
     MAX_HELD_BYTES,
     DelayQueue,
@@ -49,7 +49,7 @@ from harness.impair import (
     ImpairSpec,
     parse_impairment,
 )
-from traceio.grammar import add_verbosity, add_version, deprecated, epilog
+from mcp_conform.traceio.grammar import add_verbosity, add_version, deprecated, epilog
 
 __all__ = ["ImpairProxy", "main", "resolve"]
 
@@ -253,7 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     recorder = None
     if ns.capture:
-        from traceio.recorder import McapRecorder, RecorderError, run_metadata
+        from mcp_conform.traceio.recorder import McapRecorder, RecorderError, run_metadata
 
         try:
             recorder = McapRecorder(ns.capture, library=PROG, metadata=run_metadata(

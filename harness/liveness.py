@@ -41,9 +41,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from harness.driver import Datagram, Sent, TargetDriver
-from harness.errors import NodeLost
-from spec.codec import HEADER_SIZE, Action
+from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
+from mcp_conform.harness.errors import NodeLost
+from mcp_conform.spec.codec import HEADER_SIZE, Action
 
 LOSS_RTOS = 3.0  # declared lost after this many --rto without an answer to a probe...
 LOSS_MIN_S = 2.0  # ...and never sooner than this (a loaded host, a node deaf while busy)

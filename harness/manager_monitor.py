@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from harness.driver import Sent
-from harness.manager_mission import MANAGER_ID, Mission
-from judge.monitor import TESTER, Monitor, Violation
+from mcp_conform.harness.driver import Sent
+from mcp_conform.harness.drone_players import MANAGER_ID, Mission
+from mcp_conform.judge.monitor import TESTER, Monitor, Violation
 
 __all__ = ["monitor_mission"]
 

@@ -3,7 +3,7 @@ the embedded reference manager.
 
 The runner listens where drones listen (default: all addresses, port 7890, so the manager's
 IP broadcasts reach it) and plays every drone of ``--drones`` from that one socket
-(:mod:`harness.manager_mission`). It hands the manager a QGC WPL 110 waypoint file of
+(:mod:`harness.drone_players`). It hands the manager a QGC WPL 110 waypoint file of
 its own (``{waypoints}``; varied from the seed: several items, non-trivial coordinates,
 altitudes, commands and frames) unless ``--waypoints FILE`` names one, and for challenge 3
 an obstacles file (``{obstacles}``).
@@ -39,14 +39,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from harness.config import RunConfig
-from harness.driver import TargetDriver
-from harness.errors import Inconclusive, SetupError
-from harness.interrupts import INTERRUPTS
-from harness.manager_mission import DronePlayers, Mission, MissionScript
-from harness.manager_side import SideScenario, side_by_side_why_not
-from harness.procs import SPAWN_STARTUP_S
-from harness.session_base import (
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.harness.drone_players import DronePlayers, Mission, MissionScript
+from mcp_conform.harness.errors import Inconclusive, SetupError
+from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.harness.manager_side import SideScenario, side_by_side_why_not
+from mcp_conform.harness.procs import SPAWN_STARTUP_S
+from mcp_conform.harness.session_base import (
     EMBEDDED_RTO,
     MANAGER_ID,
     DatagramSessionBase,
@@ -54,10 +54,10 @@ from harness.session_base import (
     fill_placeholders,
     free_port,
 )
-from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
-from spec import SPEC
-from spec.codec import MissionItem
-from traceio.recorder import NODE_METADATA
+from mcp_conform.judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import MissionItem
+from mcp_conform.traceio.recorder import NODE_METADATA
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
@@ -72,7 +72,7 @@ _FRAMES = (0, 3, 10)  # GLOBAL, GLOBAL_RELATIVE_ALT, GLOBAL_TERRAIN_ALT
 
 def embedded_command() -> str:
     """The reference manager, as the runner spawns it for the embedded default."""
-    return (f"{shlex.quote(sys.executable)} -m reference_impl manager --challenge {{challenge}} "
+    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl manager --challenge {{challenge}} "
             "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
             "--listen {target_host}:{target_port} --target {listen_host}:{listen_port} "
             f"--rto {EMBEDDED_RTO} --retries {EMBEDDED_RETRIES}")
@@ -209,7 +209,7 @@ class ManagerSession(DatagramSessionBase):
         return self.obstacles if self.cfg.challenge == 3 else self.waypoints
 
     def _mission_files(self) -> None:
-        from spec.mission import WaypointFileError, load_waypoints, save_waypoints
+        from mcp_conform.spec.mission import WaypointFileError, load_waypoints, save_waypoints
 
         tmp = Path(self._tmp.name)
         cfg = self.cfg
@@ -327,7 +327,7 @@ class ManagerSession(DatagramSessionBase):
             self.unavailable[kind] = why
             raise Inconclusive(why) if kind != "main" else SetupError(why)
         if kind == "main":
-            from harness.manager_monitor import monitor_mission
+            from mcp_conform.harness.manager_monitor import monitor_mission
 
             assert self.driver is not None
             m.monitor, _, m.monitor_trace = monitor_mission(

@@ -1,12 +1,12 @@
 """A scenario on a manager instance of its own, run beside the main mission
 (``--role manager``, spawn mode and the embedded default; issue 23).
 
-The silent drone's scenario (:meth:`harness.manager_mission.MissionScript.run_silent`)
+The silent drone's scenario (:meth:`harness.drone_players.MissionScript.run_silent`)
 mostly waits: the manager retransmits to a drone that never answers until it gives up or
 the watch ends. Rather than after the main mission, it runs at the same time on a second
 manager process with ports of its own — its own receive port (``{target_port}``) and its
 own drones' socket (``{listen_port}``, a second :class:`~harness.driver.TargetDriver` with
-its own :class:`~harness.manager_mission.DronePlayers`) — so every datagram it sends
+its own :class:`~harness.drone_players.DronePlayers`) — so every datagram it sends
 reaches its own scenario's socket and no other: which instance a datagram belongs to is
 given by the socket it arrived on, exactly, whatever the manager's source ports or its
 destination host (the broadcast address included).
@@ -26,10 +26,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from harness.driver import TargetDriver
-from harness.manager_mission import MANAGER_ID, DronePlayers, Mission, MissionScript
-from harness.run_delay import run_delay_ns
-from harness.session_base import SpawnedNode, fill_placeholders, free_port
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.harness.drone_players import MANAGER_ID, DronePlayers, Mission, MissionScript
+from mcp_conform.harness.run_delay import run_delay_ns
+from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
 
 __all__ = ["SideScenario", "side_by_side_why_not"]
 

@@ -6,7 +6,7 @@ close, and the run's observations the runner reports when the node has them (the
 monitor, the liveness watch, a timing note, an unreadable header, the startup's own words).
 :class:`NodeBase` gives every member its "nothing to say" value, so a session says only
 what it has: the datagram sessions (``harness.session_base.DatagramSessionBase``), the stream
-session (``harness.stream_session``, on ``SessionBase``) and a session a conftest substitutes through the
+session (``harness.nsqd_session``, on ``SessionBase``) and a session a conftest substitutes through the
 ``pytest_mcp_make_session`` hook all stand on it. The runner checks the contract once,
 where the session is made (:func:`check_node`), and reads the members plainly after that.
 """
@@ -16,8 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
-from harness.config import RunConfig
-from harness.errors import SetupError
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.errors import SetupError
 
 __all__ = ["NodeBase", "NodeUnderTest", "check_node"]
 

@@ -14,7 +14,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from spec.codec import PREAMBLE, Action, peek_header
+from mcp_conform.spec.codec import PREAMBLE, Action, peek_header
 
 __all__ = ["delay_for", "run_delay_ns", "takes_run_delay"]
 

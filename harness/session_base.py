@@ -2,10 +2,10 @@
 ``--spawn`` with the runner's placeholders (``SpawnedNode``, ``fill_placeholders``), how it
 died (``Death``), free ports, and ``SessionBase`` — the spawned node's liveness, death and
 revival, the case's bounds and their marks in the capture, the case context the runner hands
-it (``make_context``). What the datagram protocol's two roles (``harness.session`` for a
+it (``make_context``). What the datagram protocol's two roles (``harness.drone_session`` for a
 drone, ``harness.manager_session`` for a Mission Manager) add is ``DatagramSessionBase``: MCP's
 constants, the run's timings, the capture's observers on the runner's socket held against
-signals, ``--impair``. The stream session (``harness.stream_session``, Nsqd's backend) stands
+signals, ``--impair``. The stream session (``harness.nsqd_session``, Nsqd's backend) stands
 on ``SessionBase`` alone. No session imports another's module."""
 
 from __future__ import annotations
@@ -20,17 +20,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from harness.config import RunConfig
-from harness.driver import Datagram, Sent, TargetDriver
-from harness.errors import SetupError, SpawnFailure, TargetLost
-from harness.interrupts import INTERRUPTS
-from harness.liveness import describe_exit
-from harness.node import NodeBase
-from harness.procs import ManagedProcess
-from harness.run_delay import run_delay_ns
-from spec import SPEC
-from traceio.recorder import NODE_METADATA
-from vehicle.ports import free_port  # noqa: F401  (re-exported: the runner's and the tests' ports)
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
+from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
+from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.harness.liveness import describe_exit
+from mcp_conform.harness.node import NodeBase
+from mcp_conform.harness.procs import ManagedProcess
+from mcp_conform.harness.run_delay import run_delay_ns
+from mcp_conform.spec import SPEC
+from mcp_conform.traceio.recorder import NODE_METADATA
+from mcp_conform.vehicle.ports import free_port  # noqa: F401  (re-exported: the runner's and the tests' ports)
 
 MANAGER_ID = int(SPEC.protocol["manager_id"])
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
@@ -357,7 +357,7 @@ class SessionBase(NodeBase):
 
 
 class DatagramSessionBase(SessionBase):
-    """What the datagram protocol's roles add (``harness.session`` for a drone,
+    """What the datagram protocol's roles add (``harness.drone_session`` for a drone,
     ``harness.manager_session`` for a Mission Manager): the runner's datagram socket
     (``harness.driver``), the run's timings, the run's observers on it (the capture, the
     trace monitor), ``--impair``'s link and the address placeholders of both ends."""
@@ -382,7 +382,7 @@ class DatagramSessionBase(SessionBase):
         monitor (``judge.run_monitor``); the capture is told whose traffic it holds and
         whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same.
         ``judge=False``: no run monitor (the fuzzer judges with its own oracles); None."""
-        from judge.run_monitor import RunMonitor
+        from mcp_conform.judge.run_monitor import RunMonitor
 
         driver = self.driver
         assert driver is not None
@@ -424,8 +424,8 @@ class DatagramSessionBase(SessionBase):
     def impaired_link(self, spec: Any) -> Any:
         """The runner's socket edge through ``spec`` (``harness.impair_link``): each
         decision kept, and recorded in the capture (``/impair``)."""
-        from harness.impair import Impairment
-        from harness.impair_link import ImpairedLink
+        from mcp_conform.harness.impair import Impairment
+        from mcp_conform.harness.impair_link import ImpairedLink
 
         recorder = _HeldRecorder(self.recorder) if self.recorder is not None else None
         # a reply later than a quarter of the ACK window may fall outside what a case watches

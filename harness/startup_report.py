@@ -21,7 +21,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from spec.codec import Action
+from mcp_conform.spec.codec import Action
 
 __all__ = ["explain", "explain_session"]
 
@@ -116,7 +116,7 @@ def _vehicle_lines(vehicle: Any, url: str, t0: float, fix_given_at: float | None
 
 
 def _describe(event: Any) -> str:
-    from vehicle.records import describe_request
+    from mcp_conform.vehicle.records import describe_request
 
     return describe_request(event)
 
@@ -157,7 +157,7 @@ def explain(*, vehicle: Any, mavlink_url: str, mavlink: bool, spawned: bool,
 
 
 def explain_session(session: Any, datagrams: Sequence[Any]) -> list[str]:
-    """``explain`` for a ``harness.session.Session`` in its first startup (``datagrams``: what
+    """``explain`` for a ``harness.drone_session.Session`` in its first startup (``datagrams``: what
     reached the runner since it began); never raises: an explanation that cannot be read
     says so in one line, and the error it explains stands."""
     try:

@@ -16,9 +16,9 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from spec import SPEC
-from spec.codec import HEADER, HEADER_SIZE, ITEM, MANAGER_ID, PREAMBLE, Action
-from spec.profiles import MCP
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import HEADER, HEADER_SIZE, ITEM, MANAGER_ID, PREAMBLE, Action
+from mcp_conform.spec.profiles import MCP
 
 __all__ = [
     "byte_order_fault",

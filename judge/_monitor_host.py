@@ -19,7 +19,7 @@ from abc import abstractmethod
 from collections.abc import Iterable
 from typing import Any
 
-from judge._monitor_base import _Exchange, _Node, _Timers
+from mcp_conform.judge._monitor_base import _Exchange, _Node, _Timers
 
 __all__ = ["MonitorHost"]
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from judge._monitor_base import (
+from mcp_conform.judge._monitor_base import (
     ACK_DEADLINE_NS,
     ACK_SAMPLES,
     END,
@@ -41,11 +41,11 @@ from judge._monitor_base import (
     late_ack_wait_ns,
     median,
 )
-from judge._monitor_rtx import F_ACK1, F_FAULTY
-from judge._monitor_sender import _entry_t
+from mcp_conform.judge._monitor_rtx import F_ACK1, F_FAULTY
+from mcp_conform.judge._monitor_sender import _entry_t
 
 if TYPE_CHECKING:
-    from judge._monitor_host import MonitorHost
+    from mcp_conform.judge._monitor_host import MonitorHost
 else:
     MonitorHost = object  # the host's state, declared for the type checker only
 

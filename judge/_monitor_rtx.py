@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from judge._monitor_base import (
+from mcp_conform.judge._monitor_base import (
     HDR,
     JITTER_NS,
     MANAGER,
@@ -27,11 +27,11 @@ from judge._monitor_base import (
     gaps,
     median,
 )
-from judge.spacing import judge_spacing
-from spec import SPEC
+from mcp_conform.judge.spacing import judge_spacing
+from mcp_conform.spec import SPEC
 
 if TYPE_CHECKING:
-    from judge._monitor_host import MonitorHost
+    from mcp_conform.judge._monitor_host import MonitorHost
 else:
     MonitorHost = object  # the host's state, declared for the type checker only
 

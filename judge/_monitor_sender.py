@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from judge._monitor_base import (
+from mcp_conform.judge._monitor_base import (
     DRONE_SENDS,
     END,
     HDR,
@@ -35,7 +35,7 @@ from judge._monitor_base import (
     fmt_ms,
     pack_item,
 )
-from judge._monitor_rtx import (
+from mcp_conform.judge._monitor_rtx import (
     F_FAULTY,
     F_INTERLEAVE,
     F_RTX1,
@@ -44,7 +44,7 @@ from judge._monitor_rtx import (
     F_STORM,
     RetransmissionRules,
 )
-from spec import SPEC
+from mcp_conform.spec import SPEC
 
 #: how long after a new message the numbers its ACKs took may still be read (MCP-SEQ-1): a
 #: node's datagrams to different peers reach a recorder's sockets in an order of the host's

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from judge._monitor_base import (
+from mcp_conform.judge._monitor_base import (
     HDR,
     MANAGER,
     NS,
@@ -36,12 +36,12 @@ from judge._monitor_base import (
     fmt_s,
     late_ack_wait_ns,
 )
-from spec.mavframe import FrameError, is_frame, parse_frame
-from vehicle.probe import probe_token
-from vehicle.records import COPTER_MODE_NAMES, RTL, mode_name
+from mcp_conform.spec.mavframe import FrameError, is_frame, parse_frame
+from mcp_conform.vehicle.probe import probe_token
+from mcp_conform.vehicle.records import COPTER_MODE_NAMES, RTL, mode_name
 
 if TYPE_CHECKING:
-    from judge._monitor_host import MonitorHost
+    from mcp_conform.judge._monitor_host import MonitorHost
 else:
     MonitorHost = object  # the host's state, declared for the type checker only
 

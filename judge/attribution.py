@@ -34,7 +34,14 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from spec.codec import BROADCAST_ID, HEADER_SIZE, Action, DecodeError, decode, peek_header
+from mcp_conform.spec.codec import (
+    BROADCAST_ID,
+    HEADER_SIZE,
+    Action,
+    DecodeError,
+    decode,
+    peek_header,
+)
 
 _ACK = int(Action.ACK)
 _U16BE = struct.Struct("!H")

@@ -54,7 +54,7 @@ Sans-I/O: no clock, socket, file or thread; times are seconds on the observer's 
 
 from __future__ import annotations
 
-from judge.explain_model import (
+from mcp_conform.judge.explain_model import (
     CONSISTENT,
     EITHER_ACK,
     EITHER_RTX,
@@ -66,8 +66,8 @@ from judge.explain_model import (
     Trace,
     Verdict,
 )
-from judge.explain_receiver import decide_receiver
-from judge.explain_sender import decide_sender
+from mcp_conform.judge.explain_receiver import decide_receiver
+from mcp_conform.judge.explain_sender import decide_sender
 
 __all__ = [
     "CONSISTENT",

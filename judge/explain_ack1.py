@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from judge.explain_model import (
+from mcp_conform.judge.explain_model import (
     CONSISTENT,
     EITHER_ACK,
     PROVEN,

@@ -3,8 +3,8 @@ every assignment of ``R``'s ACKs to what ``S`` sent it."""
 
 from __future__ import annotations
 
-from judge.explain_ack1 import ack1
-from judge.explain_model import (
+from mcp_conform.judge.explain_ack1 import ack1
+from mcp_conform.judge.explain_model import (
     CONSISTENT,
     EITHER_ACK,
     PROVEN,

@@ -27,8 +27,24 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from judge.explain import Ack, Bounds, Copy, Trace, Verdict, decide_receiver, decide_sender
-from spec.codec import BROADCAST_ID, HEADER_SIZE, PREAMBLE, Action, DecodeError, decode, peek_header
+from mcp_conform.judge.explain import (
+    Ack,
+    Bounds,
+    Copy,
+    Trace,
+    Verdict,
+    decide_receiver,
+    decide_sender,
+)
+from mcp_conform.spec.codec import (
+    BROADCAST_ID,
+    HEADER_SIZE,
+    PREAMBLE,
+    Action,
+    DecodeError,
+    decode,
+    peek_header,
+)
 
 __all__ = ["node_verdicts", "traces_from_datagrams"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from judge.explain_model import (
+from mcp_conform.judge.explain_model import (
     CONSISTENT,
     EITHER_RTX,
     PROVEN,

@@ -24,12 +24,12 @@ from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
-from judge.params import Params, add_monitor_options, params_from_args, selected
-from judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
-from spec.codec import PREAMBLE, Action, peek_header
-from traceio.files import UsageError
-from traceio.merge import SEGMENT
-from traceio.reader import (
+from mcp_conform.judge.params import Params, add_monitor_options, params_from_args, selected
+from mcp_conform.judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
+from mcp_conform.spec.codec import PREAMBLE, Action, peek_header
+from mcp_conform.traceio.files import UsageError
+from mcp_conform.traceio.merge import SEGMENT
+from mcp_conform.traceio.reader import (
     CaptureError,
     CaseMark,
     Datagram,
@@ -38,8 +38,8 @@ from traceio.reader import (
     VehicleMark,
     open_capture,
 )
-from traceio.recorder import NODE_METADATA
-from traceio.trace import Node, action_name, evidence_indexes
+from mcp_conform.traceio.recorder import NODE_METADATA
+from mcp_conform.traceio.trace import Node, action_name, evidence_indexes
 
 __all__ = ["VERDICT_RANK", "Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
            "evidence_of", "fetch", "judge", "merge_segments", "params_from_args", "selected", "CaptureError"]
@@ -105,7 +105,7 @@ class MonitorUnavailable(UsageError):
 
 def _make_monitor(params: Params, party: int | None = None) -> Any:
     try:
-        from judge.monitor import Monitor
+        from mcp_conform.judge.monitor import Monitor
     except ImportError as exc:
         raise MonitorUnavailable(f"the trace monitor (judge.monitor) is not available: {exc}") from None
 
@@ -456,7 +456,7 @@ RECENT = 4096
 
 def _tester() -> Any:
     try:
-        from judge.monitor import TESTER
+        from mcp_conform.judge.monitor import TESTER
     except ImportError:
         return None
     return TESTER
@@ -499,7 +499,7 @@ def _vehicle(mon: Any, rec: MavlinkFrame | VehicleMark, drone: int, marks: bool)
     run recorded (``/vehicle``), and the frames the drone wrote to its autopilot; without
     recorded events (a node's own capture, older captures) the fix comes from the
     autopilot's GPS_RAW_INT frames."""
-    from judge.monitor import VehicleEvent, events_from_mavlink
+    from mcp_conform.judge.monitor import VehicleEvent, events_from_mavlink
 
     if isinstance(rec, VehicleMark):
         return mon.vehicle(rec.t_ns, drone, VehicleEvent(rec.kind, detail=rec.detail or ""))

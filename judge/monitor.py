@@ -40,7 +40,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any, Literal
 
-from judge._monitor_base import (
+from mcp_conform.judge._monitor_base import (
     ACK,
     HDR,
     LEVEL,
@@ -64,19 +64,19 @@ from judge._monitor_base import (
     role_of,
     unpack_header,
 )
-from judge._monitor_receiver import ReceiverRules
-from judge._monitor_rtx import DESCRIPTION_TIMEOUT_NS
-from judge._monitor_sender import SenderRules
-from judge._monitor_vehicle import (
+from mcp_conform.judge._monitor_receiver import ReceiverRules
+from mcp_conform.judge._monitor_rtx import DESCRIPTION_TIMEOUT_NS
+from mcp_conform.judge._monitor_sender import SenderRules
+from mcp_conform.judge._monitor_vehicle import (
     VehicleRules,
     alteration,
     events_from_mavlink,
     events_from_vehicle,
     frame_hex,
 )
-from spec import SPEC
-from spec.codec import BROADCAST_ID, DecodeError, decode
-from spec.mission import sane_item
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import BROADCAST_ID, DecodeError, decode
+from mcp_conform.spec.mission import sane_item
 
 __all__ = [
     "MONITORED_RULES",

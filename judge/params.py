@@ -14,8 +14,8 @@ import argparse
 from dataclasses import dataclass
 from typing import Any
 
-from spec.codec import BROADCAST_ID, MANAGER_ID
-from traceio.files import UsageError
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID
+from mcp_conform.traceio.files import UsageError
 
 __all__ = ["Params", "add_monitor_options", "params_from_args", "selected"]
 
@@ -137,7 +137,7 @@ def params_from_args(ns: argparse.Namespace) -> Params:
             raise UsageError(f"--drones: IDs must be distinct drone IDs (not 0 or the broadcast ID): {ns.drones!r}")
         p.drones = ids
     if ns.waypoints is not None:
-        from spec.mission import WaypointFileError, load_waypoints
+        from mcp_conform.spec.mission import WaypointFileError, load_waypoints
 
         try:
             p.waypoints = tuple(load_waypoints(ns.waypoints))

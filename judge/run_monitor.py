@@ -21,7 +21,7 @@ import threading
 import time
 from typing import Any
 
-from judge.monitor import (
+from mcp_conform.judge.monitor import (
     TESTER,
     Monitor,
     Violation,
@@ -197,7 +197,7 @@ def recorded_mission(values: dict[str, str]) -> tuple[int | None, tuple[Any, ...
     """(challenge, items) of a ``MISSION_METADATA`` record; None for what is unusable."""
     import json
 
-    from spec.codec import MissionItem
+    from mcp_conform.spec.codec import MissionItem
 
     challenge: int | None = None
     with contextlib.suppress(ValueError):

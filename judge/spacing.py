@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import NamedTuple
 
-from judge._monitor_base import JITTER_NS, RTX_MIN_GAP_NS, RTX_TOLERANCE, median
+from mcp_conform.judge._monitor_base import JITTER_NS, RTX_MIN_GAP_NS, RTX_TOLERANCE, median
 
 __all__ = ["Spacing", "judge_spacing"]
 

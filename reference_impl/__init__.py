@@ -6,10 +6,10 @@ core (:mod:`reference_impl.endpoint`) and the event types are its output
 (:mod:`reference_impl.events`).
 """
 
-from reference_impl._transitions import State
-from reference_impl.api import Mcp, McpException
-from reference_impl.endpoint import Endpoint
-from reference_impl.events import (
+from mcp_conform.reference_impl._transitions import State
+from mcp_conform.reference_impl.api import Mcp, McpException
+from mcp_conform.reference_impl.endpoint import Endpoint
+from mcp_conform.reference_impl.events import (
     AckReceived,
     AckSent,
     DeliveryConfirmed,
@@ -21,8 +21,8 @@ from reference_impl.events import (
     Retransmitted,
     Unexpected,
 )
-from reference_impl.handler import MissionMessageHandlerBase
-from spec.codec import Action, LocalProtocolError, Message, MissionItem
+from mcp_conform.reference_impl.handler import MissionMessageHandlerBase
+from mcp_conform.spec.codec import Action, LocalProtocolError, Message, MissionItem
 
 __all__ = [
     "AckReceived",

@@ -1,8 +1,8 @@
-"""``python -m reference_impl``: the ``mcp-node`` command line (:mod:`reference_impl.cli`)."""
+"""``python -m mcp_conform.reference_impl``: the ``mcp-node`` command line (:mod:`reference_impl.cli`)."""
 
 import sys
 
-from reference_impl.cli import run
+from mcp_conform.reference_impl.cli import run
 
 if __name__ == "__main__":
     sys.exit(run())

@@ -41,12 +41,17 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from reference_impl.endpoint import Endpoint
-from reference_impl.events import DeliveryConfirmed, DeliveryFailed, Event, MessageDelivered
-from reference_impl.handler import dispatch
-from reference_impl.transport import DatagramTap, McpDatagramProtocol, create_transport
-from spec import SPEC
-from spec.codec import BROADCAST_ID, Action, Message
+from mcp_conform.reference_impl.endpoint import Endpoint
+from mcp_conform.reference_impl.events import (
+    DeliveryConfirmed,
+    DeliveryFailed,
+    Event,
+    MessageDelivered,
+)
+from mcp_conform.reference_impl.handler import dispatch
+from mcp_conform.reference_impl.transport import DatagramTap, McpDatagramProtocol, create_transport
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import BROADCAST_ID, Action, Message
 
 __all__ = ["Mcp", "McpException"]
 

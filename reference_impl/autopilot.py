@@ -18,7 +18,7 @@ from typing import Any
 
 from pymavlink import mavutil
 
-from reference_impl.role import RoleError
+from mcp_conform.reference_impl.role import RoleError
 
 _MAV = mavutil.mavlink
 #: Seconds between the drone's HEARTBEATs to its autopilot (MAVLink's 1 Hz).

@@ -1,4 +1,4 @@
-"""``mcp-node``: run the reference drone or Mission Manager (``python -m reference_impl`` too).
+"""``mcp-node``: run the reference drone or Mission Manager (``python -m mcp_conform.reference_impl`` too).
 
 ::
 
@@ -13,7 +13,7 @@ spec (broadcast 127.255.255.255; a drone listens on 7890 and sends to 7889, the 
 other way round, MCP-TRN-1). ``--listen HOST:PORT`` and ``--target HOST:PORT`` override them,
 which is how the conformance runner spawns a node against its own sockets and vehicle::
 
-    python -m reference_impl drone --id 1 --listen 127.0.0.1:40001 --target 127.0.0.1:40002 \\
+    python -m mcp_conform.reference_impl drone --id 1 --listen 127.0.0.1:40001 --target 127.0.0.1:40002 \\
         --mavlink tcp:127.0.0.1:5760 --rto 0.2
 
 Progress goes to stderr, one line per protocol event; a JSON summary of what the node
@@ -39,11 +39,11 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
-from reference_impl.drone import Drone, DroneConfig, RoleError
-from reference_impl.manager import CHALLENGES, Manager, ManagerConfig
-from spec import SPEC
-from spec.profiles import add_protocol_option
-from traceio.grammar import STDIO, add_verbosity, deprecated, epilog, version_text
+from mcp_conform.reference_impl.drone import Drone, DroneConfig, RoleError
+from mcp_conform.reference_impl.manager import CHALLENGES, Manager, ManagerConfig
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.profiles import add_protocol_option
+from mcp_conform.traceio.grammar import STDIO, add_verbosity, deprecated, epilog, version_text
 
 __all__ = ["build_parser", "main"]
 
@@ -101,7 +101,7 @@ def _count(text: str) -> int:
 
 def _live(text: str) -> tuple[str, int]:
     """``--live [HOST:]PORT`` (``traceio.live.parse_live``)."""
-    from traceio.live import LiveError, parse_live
+    from mcp_conform.traceio.live import LiveError, parse_live
 
     try:
         return parse_live(text)
@@ -261,7 +261,7 @@ def _make_drone(args: argparse.Namespace) -> Drone:
 
 
 def _make_manager(args: argparse.Namespace) -> Manager:
-    from spec.mission import load_waypoints
+    from mcp_conform.spec.mission import load_waypoints
 
     bind_host, bind_port, remote_host, remote_port = _addresses(args, _PORTS["manager"], _PORTS["drone"])
     try:
@@ -336,7 +336,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "--protocol" in args_in or any(a.startswith("--protocol=") for a in args_in):
         return _other_protocol(args_in)
     args = build_parser().parse_args(argv)
-    from harness.impair_link import ImpairmentError, impair_option
+    from mcp_conform.harness.impair_link import ImpairmentError, impair_option
 
     try:
         args.impair_spec = impair_option(args.impair)
@@ -375,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _other_protocol(argv: list[str]) -> int:
     """``--protocol NAME``: the reference node its profile names (``spec.profiles``: mcp, the
     default, is this module; nsqd is ``reference_impl.nsqd_cli``), given the other arguments."""
-    from spec.profiles import ProfileError, pick, resolve
+    from mcp_conform.spec.profiles import ProfileError, pick, resolve
 
     i = next(i for i, a in enumerate(argv) if a == "--protocol" or a.startswith("--protocol="))
     value = argv[i].split("=", 1)[1] if "=" in argv[i] else (argv[i + 1] if i + 1 < len(argv) else "")
@@ -389,7 +389,7 @@ def _other_protocol(argv: list[str]) -> int:
 
 
 def run() -> NoReturn:
-    """The process entry point (``mcp-node``, ``python -m reference_impl``): ``main``, then
+    """The process entry point (``mcp-node``, ``python -m mcp_conform.reference_impl``): ``main``, then
     out at once. Everything is closed and written by then (the socket closed, nothing left
     half-sent, the record and the summary flushed); the interpreter's own teardown of a
     hundred modules takes 0.2-0.6 s on a loaded host, and a node must be gone within 200 ms

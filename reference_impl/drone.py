@@ -38,12 +38,18 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
-from reference_impl.api import Mcp, McpException
-from reference_impl.autopilot import AutopilotLink, connect_autopilot
-from reference_impl.handler import MissionMessageHandlerBase
-from reference_impl.role import EventLogger, RoleError, RoleNode, action_name, write_record
-from spec import SPEC
-from spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
+from mcp_conform.reference_impl.api import Mcp, McpException
+from mcp_conform.reference_impl.autopilot import AutopilotLink, connect_autopilot
+from mcp_conform.reference_impl.handler import MissionMessageHandlerBase
+from mcp_conform.reference_impl.role import (
+    EventLogger,
+    RoleError,
+    RoleNode,
+    action_name,
+    write_record,
+)
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
 
 __all__ = ["Drone", "DroneApp", "DroneConfig", "RoleError", "action_name"]
 
@@ -241,7 +247,7 @@ class Drone(RoleNode):
         cfg = self.cfg
         url = cfg.mavlink_url
         if url is None:
-            from vehicle import SimVehicle
+            from mcp_conform.vehicle import SimVehicle
 
             self.vehicle = SimVehicle(sysid=1, gps_fix_delay=cfg.gps_fix_delay)
             self.vehicle.start(host="127.0.0.1", port=0)

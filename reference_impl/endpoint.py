@@ -53,8 +53,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from reference_impl._transitions import FALLBACK_RULE, TRANSITIONS, Input, State
-from reference_impl.events import (
+from mcp_conform.reference_impl._transitions import FALLBACK_RULE, TRANSITIONS, Input, State
+from mcp_conform.reference_impl.events import (
     AckReceived,
     AckSent,
     Address,
@@ -67,8 +67,8 @@ from reference_impl.events import (
     Retransmitted,
     Unexpected,
 )
-from spec import SPEC
-from spec.codec import (
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
     BROADCAST_ID,
     PREAMBLE,
     Action,

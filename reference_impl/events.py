@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from spec.codec import Message
+from mcp_conform.spec.codec import Message
 
 __all__ = [
     "AckReceived",

@@ -21,7 +21,7 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
-from spec.codec import Action, Message, Payload
+from mcp_conform.spec.codec import Action, Message, Payload
 
 __all__ = ["HANDLER_NAMES", "MissionMessageHandlerBase", "dispatch"]
 

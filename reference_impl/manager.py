@@ -27,11 +27,17 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from reference_impl.api import Mcp, McpException
-from reference_impl.handler import MissionMessageHandlerBase
-from reference_impl.role import EventLogger, RoleError, RoleNode, action_name, write_record
-from spec import SPEC
-from spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
+from mcp_conform.reference_impl.api import Mcp, McpException
+from mcp_conform.reference_impl.handler import MissionMessageHandlerBase
+from mcp_conform.reference_impl.role import (
+    EventLogger,
+    RoleError,
+    RoleNode,
+    action_name,
+    write_record,
+)
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message
 
 __all__ = ["CHALLENGES", "Manager", "ManagerConfig", "ManagerHandler"]
 

@@ -20,9 +20,16 @@ import socket
 import time
 from dataclasses import dataclass
 
-from spec import NSQD
-from spec.stream import StreamSpec
-from spec.stream_codec import BodyError, Deframer, Frame, FramingError, decode_body, encode
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd import StreamSpec
+from mcp_conform.spec.nsqd_codec import (
+    BodyError,
+    Deframer,
+    Frame,
+    FramingError,
+    decode_body,
+    encode,
+)
 
 __all__ = ["BackendCore", "BackendServer", "Handled", "Rejected"]
 

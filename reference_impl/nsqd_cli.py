@@ -24,10 +24,10 @@ import time
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from reference_impl.nsqd_backend import BackendCore, BackendServer
-from spec import NSQD
-from spec.stream_codec import BodyError, Deframer, FramingError, decode_body, encode
-from traceio.grammar import add_verbosity, deprecated, epilog
+from mcp_conform.reference_impl.nsqd_backend import BackendCore, BackendServer
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import BodyError, Deframer, FramingError, decode_body, encode
+from mcp_conform.traceio.grammar import add_verbosity, deprecated, epilog
 
 PROG = "mcp-node --protocol nsqd"
 ERR = "mcp-node"  # errors' one prefix, as mcp-node's

@@ -12,8 +12,8 @@ import threading
 import time
 from typing import Any
 
-from reference_impl.api import Mcp
-from reference_impl.events import (
+from mcp_conform.reference_impl.api import Mcp
+from mcp_conform.reference_impl.events import (
     AckSent,
     DeliveryConfirmed,
     DeliveryFailed,
@@ -24,7 +24,7 @@ from reference_impl.events import (
     Retransmitted,
     Unexpected,
 )
-from spec.codec import BROADCAST_ID, Action
+from mcp_conform.spec.codec import BROADCAST_ID, Action
 
 __all__ = ["EventLogger", "RoleError", "RoleNode", "action_name", "write_record"]
 
@@ -131,9 +131,9 @@ class RoleNode:
         ``mcp-capture check`` judges its absences (MCP-RTX-1) with the node's own timing."""
         if not path and live is None:
             return None
-        from spec import SPEC
-        from traceio.background import BackgroundRecorder
-        from traceio.recorder import RecorderError, run_metadata
+        from mcp_conform.spec import SPEC
+        from mcp_conform.traceio.background import BackgroundRecorder
+        from mcp_conform.traceio.recorder import RecorderError, run_metadata
 
         timeout = float(SPEC.params["timeout_s"]) if rto is None else float(rto)
         try:
@@ -155,7 +155,7 @@ class RoleNode:
         """``--impair``: the schedule for this node's socket edge (None: a clean link)."""
         if spec is None:
             return None
-        from harness.impair import Impairment
+        from mcp_conform.harness.impair import Impairment
 
         logging.getLogger(self.__class__.__name__.lower()).info("impaired link: %s", spec.text())
         return Impairment(spec)

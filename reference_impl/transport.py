@@ -30,9 +30,9 @@ import socket
 from collections.abc import Callable
 from typing import Any
 
-from reference_impl.endpoint import Endpoint
-from reference_impl.events import Event
-from spec import SPEC
+from mcp_conform.reference_impl.endpoint import Endpoint
+from mcp_conform.reference_impl.events import Event
+from mcp_conform.spec import SPEC
 
 __all__ = [
     "DEFAULT_RCVBUF",

@@ -193,7 +193,7 @@ def _arrow(a: Arrow, x1: int, x2: int, y: int) -> str:
 # ---------------------------------------------------------------- from a Trace
 def arrow_of(e: Any, broadcast_id: int | None = None) -> Arrow:
     """The arrow of a :class:`traceio.trace.Entry`."""
-    from traceio.trace import describe_payload
+    from mcp_conform.traceio.trace import describe_payload
 
     if e.msg is None:
         kind = "malformed"

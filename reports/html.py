@@ -22,13 +22,13 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from reports.chart import trace_svg
-from reports.stream_chart import stream_svg
-from reports.templating import Markup, Template, attrs, fill, join
-from spec import RULES, SPEC
-from spec.profiles import Profile, ProfileError, pick, profile_of_role
-from traceio.reader import Datagram, StreamFrame
-from traceio.trace import Trace, evidence_indexes
+from mcp_conform.reports.chart import trace_svg
+from mcp_conform.reports.nsqd_chart import stream_svg
+from mcp_conform.reports.templating import Markup, Template, attrs, fill, join
+from mcp_conform.spec import RULES, SPEC
+from mcp_conform.spec.profiles import Profile, ProfileError, pick, profile_of_role
+from mcp_conform.traceio.reader import Datagram, StreamFrame
+from mcp_conform.traceio.trace import Trace, evidence_indexes
 
 __all__ = ["page", "render_check", "render_run", "write_run"]
 
@@ -349,7 +349,7 @@ def _monitor_violations(monitor: dict[str, Any], trace: Trace | None) -> list[_J
 
 def write_run(path: str, doc: dict[str, Any], capture: str | None) -> None:
     """Write the run's page; the charts come from ``capture`` (our MCAP) where it reads."""
-    from traceio.reader import CaptureError, open_capture
+    from mcp_conform.traceio.reader import CaptureError, open_capture
 
     datagrams = frames = None
     if capture:

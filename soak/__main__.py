@@ -1,5 +1,5 @@
 import sys
 
-from soak.cli import main
+from mcp_conform.soak.cli import main
 
 sys.exit(main())

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from typing import Any
 
-from soak.mission import MissionResult
+from mcp_conform.soak.mission import MissionResult
 
 __all__ = ["Stop", "run_missions", "stopping_on_signals"]
 

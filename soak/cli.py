@@ -38,9 +38,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from harness.impair import ImpairmentError, parse_impairment
-from soak.campaign import Stop, run_missions, stopping_on_signals
-from soak.mission import (
+from mcp_conform.harness.impair import ImpairmentError, parse_impairment
+from mcp_conform.soak.campaign import Stop, run_missions, stopping_on_signals
+from mcp_conform.soak.mission import (
     DEFAULT_DRONE,
     DEFAULT_MANAGER,
     MissionResult,
@@ -48,7 +48,7 @@ from soak.mission import (
     placeholders,
     run_mission,
 )
-from traceio.grammar import add_verbosity, add_version, deprecated, epilog
+from mcp_conform.traceio.grammar import add_verbosity, add_version, deprecated, epilog
 
 __all__ = ["build_parser", "main"]
 
@@ -72,7 +72,7 @@ def _ids(text: str, what: str, lo: int, hi: int) -> tuple[int, ...]:
 
 
 def _live(text: str) -> tuple[str, int]:
-    from traceio.live import LiveError, parse_live
+    from mcp_conform.traceio.live import LiveError, parse_live
 
     try:
         return parse_live(text)
@@ -152,7 +152,7 @@ def setup_from_args(ns: argparse.Namespace) -> tuple[MissionSetup, int]:
                          manager_cmd=ns.manager or DEFAULT_MANAGER, drone_cmd=ns.drone or DEFAULT_DRONE,
                          waypoints=ns.waypoints, obstacles=ns.obstacles, workdir=ns.out,
                          strict=ns.strict)
-    from soak.mission import _command
+    from mcp_conform.soak.mission import _command
 
     dummy = {k: "1" for k in placeholders()}
     _command(setup.manager_cmd, dummy)  # a bad placeholder fails now, in one line
@@ -193,7 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     console = Console(stderr=ns.json == "-", quiet=ns.quiet)
     if ns.live is not None:
-        from traceio.live import LiveError, LiveServer
+        from mcp_conform.traceio.live import LiveError, LiveServer
 
         try:
             # every view's channels made before a client can connect (traceio.live)
@@ -213,7 +213,7 @@ def _log(setup: MissionSetup, message: str, level: str = "info") -> None:
     """A line of the campaign's /log (--live): a mission started, complete or failed."""
     if setup.live is None:
         return
-    from traceio.fox import log_body
+    from mcp_conform.traceio.fox import log_body
 
     t = time.time_ns()
     setup.live.feed(None, topics=("/log",)).publish("/log", json.dumps(log_body(t, level, message, PROG)).encode(), t)

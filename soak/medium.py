@@ -31,10 +31,10 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from harness.driver import kernel_timestamps, recv_stamped
-from harness.impair import DelayQueue, Impairment
-from harness.run_delay import delay_for
-from spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
+from mcp_conform.harness.driver import kernel_timestamps, recv_stamped
+from mcp_conform.harness.impair import DelayQueue, Impairment
+from mcp_conform.harness.run_delay import delay_for
+from mcp_conform.spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
 
 __all__ = ["Medium"]
 

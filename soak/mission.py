@@ -10,7 +10,7 @@ then judged twice (issue 22 item 4).
   manager exits 0 within the mission's deadline (the mission completed: every command ACKed).
 
 Nodes are commands with placeholders (``--manager`` / ``--drone``), run as subprocesses; the
-reference ones by default (``python -m reference_impl``), never imported. Each runs in a
+reference ones by default (``python -m mcp_conform.reference_impl``), never imported. Each runs in a
 process group of its own, and each mission names how every node ended (:class:`NodeEnd`:
 exited by itself, with its code and when, exit 0 included; stopped by the soak's SIGTERM;
 killed after the grace; never started). At the mission's end, or when the campaign is stopped
@@ -35,21 +35,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.impair import Impairment, ImpairSpec
-from harness.run_delay import run_delay_ns
-from soak.medium import MANAGER, Medium, view_name
-from spec.profiles import MCP
-from vehicle.ports import free_port
+from mcp_conform.harness.impair import Impairment, ImpairSpec
+from mcp_conform.harness.run_delay import run_delay_ns
+from mcp_conform.soak.medium import MANAGER, Medium, view_name
+from mcp_conform.spec.profiles import MCP
+from mcp_conform.vehicle.ports import free_port
 
 __all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "NodeEnd",
            "expected_commands", "run_mission"]
 
-DEFAULT_MANAGER = ("{python} -m reference_impl manager --challenge {challenge} --drones {drones} "
+DEFAULT_MANAGER = ("{python} -m mcp_conform.reference_impl manager --challenge {challenge} --drones {drones} "
                    "--waypoints {waypoints} --obstacles {obstacles} --listen {target_host}:{target_port} "
                    "--target {listen_host}:{listen_port} --rto {rto} --json {record} -q")
 # --linger: a drone keeps ACKing after End_Mission until the soak ends it (a lost ACK of
 # End_Mission must not leave the manager retransmitting to a drone that is gone)
-DEFAULT_DRONE = ("{python} -m reference_impl drone --id {id} --listen {target_host}:{target_port} "
+DEFAULT_DRONE = ("{python} -m mcp_conform.reference_impl drone --id {id} --listen {target_host}:{target_port} "
                  "--target {listen_host}:{listen_port} --rto {rto} --linger 600 --json {record} -q")
 
 WAYPOINTS = """QGC WPL 110
@@ -300,8 +300,8 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
     ``setup.workdir/mission-<seed>-c<challenge>/``. ``stop`` set (the campaign was stopped):
     its nodes are ended at once, its views merged into its capture unjudged, and its outcome
     is ``interrupted`` (``stop.why``, when the event has one, names the signal)."""
-    from spec.mission import load_waypoints
-    from traceio.recorder import McapRecorder, run_metadata
+    from mcp_conform.spec.mission import load_waypoints
+    from mcp_conform.traceio.recorder import McapRecorder, run_metadata
 
     spec = setup.impair.__class__(**{**setup.impair.__dict__, "seed": seed})
     res = MissionResult(index, seed, challenge, spec.text())
@@ -373,7 +373,7 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
     res.logs = {v: str(out / f"{v}.log") for v in procs}
     if res.outcome == "interrupted":
         with contextlib.suppress(Exception):  # what it has: the views so far, one capture
-            from traceio.merge import merge_captures
+            from mcp_conform.traceio.merge import merge_captures
 
             merge_captures(list(parts.values()), out / "mission.mcap")
             res.capture = str(out / "mission.mcap")
@@ -470,8 +470,8 @@ def _short(names: list[str]) -> str:
 def _judge(res: MissionResult, parts: dict[str, Path], capture: Path, setup: MissionSetup, challenge: int,
            items: tuple[Any, ...]) -> None:
     """The nodes' views merged into one capture (a segment each) and judged by the monitor."""
-    from judge.judging import CaptureError, Params, judge
-    from traceio.merge import merge_captures
+    from mcp_conform.judge.judging import CaptureError, Params, judge
+    from mcp_conform.traceio.merge import merge_captures
 
     try:
         merge_captures(list(parts.values()), capture)

@@ -1,14 +1,14 @@
 """The CentMesh MCP spec and everything derived from it.
 
 ``spec.SPEC`` is the loaded, checked ``mcp.yaml``, ``spec.NSQD`` the Nsqd TCP protocol's
-``nsqd.yaml`` (``spec.stream``, ``spec.stream_codec``), both read through one interface
+``nsqd.yaml`` (``spec.nsqd``, ``spec.nsqd_codec``), both read through one interface
 (``spec.SpecBase``); ``spec.RULES`` every rule of both; ``spec.codec`` the wire codec built from
 it; ``spec.mission`` mission items and waypoint files through pymavlink; ``spec.profiles`` each
 protocol declared once (its spec, codec, framing, and the modules of the floors above that
 serve it, by name). ``spec`` imports no other package of this project.
 """
 
-from spec._load import (
+from mcp_conform.spec._load import (
     LEVELS,
     ROLES,
     ActionSpec,
@@ -23,7 +23,7 @@ from spec._load import (
 
 SPEC: Spec = load()
 
-from spec.stream import StreamSpec, load_stream  # noqa: E402  (after _load, which it builds on)
+from mcp_conform.spec.nsqd import StreamSpec, load_stream  # noqa: E402  (after _load, which it builds on)
 
 #: The Nsqd TCP drone protocol's spec (``nsqd.yaml``): the second protocol (``--protocol nsqd``).
 NSQD: StreamSpec = load_stream()

@@ -1,11 +1,11 @@
-"""``python -m spec``: validate the spec and print its summary; ``python -m spec docs``.
+"""``python -m mcp_conform.spec``: validate the spec and print its summary; ``python -m mcp_conform.spec docs``.
 
-    python -m spec [--spec PATH]                      validate, print header layout, action
+    python -m mcp_conform.spec [--spec PATH]                      validate, print header layout, action
                                                       codes and rule counts by group and level
-    python -m spec [--spec PATH] docs [--check] [--output FILE]
+    python -m mcp_conform.spec [--spec PATH] docs [--check] [--output FILE]
                                                       write (or check) docs/spec.md and
                                                       docs/nsqd.md (one page with --spec)
-    python -m spec --protocol nsqd [docs ...]         the Nsqd TCP protocol's spec
+    python -m mcp_conform.spec --protocol nsqd [docs ...]         the Nsqd TCP protocol's spec
 
 Exit 0 on success; 1 when ``docs --check`` finds the page stale; 2 with a one-line reason
 when the spec is broken or the arguments are wrong.
@@ -20,12 +20,12 @@ from collections.abc import Sequence
 from rich.console import Console
 from rich.table import Table
 
-from spec._load import LEVELS, SpecBase, SpecError, read_validated
-from spec.profiles import PROFILES, add_protocol_option, pick, resolve
+from mcp_conform.spec._load import LEVELS, SpecBase, SpecError, read_validated
+from mcp_conform.spec.profiles import PROFILES, add_protocol_option, pick, resolve
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m spec",
+    p = argparse.ArgumentParser(prog="python -m mcp_conform.spec",
                                 description="Validate the MCP spec and print its summary.")
     p.add_argument("--spec", metavar="PATH", help="spec file to load (default: the packaged mcp.yaml and nsqd.yaml)")
     add_protocol_option(p, f"the packaged spec of this protocol only ({', '.join(PROFILES)})")
@@ -54,7 +54,7 @@ def _load_any(path: str | None, protocol: str | None) -> list[SpecBase]:
 def print_summary(spec: SpecBase, console: Console) -> None:
     """The spec's own tables (``summary`` of its page's module: MCP's header and action codes,
     a stream protocol's messages), then its rule counts by group and level, as rich tables."""
-    from spec import docs
+    from mcp_conform.spec import docs
 
     console.print(f"[bold]{spec.name}[/bold] v{spec.version} — {spec.path} "
                   f"(sha256 {spec.sha256[:12]}…) [green]valid[/green]")
@@ -92,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         err.print(f"error: {exc}", markup=False)
         return 2
     if args.command == "docs":
-        from spec import docs
+        from mcp_conform.spec import docs
 
         if args.output and len(specs) > 1:
             err.print("error: --output: give --protocol or --spec too (one page per spec)", markup=False)
@@ -104,7 +104,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if docs.check(spec, out):
                     print(f"{out or docs.default_output(spec)} is current")
                 else:
-                    err.print(f"error: {out or docs.default_output(spec)} is stale: run `python -m spec docs`",
+                    err.print(f"error: {out or docs.default_output(spec)} is stale: run `python -m mcp_conform.spec docs`",
                               markup=False)
                     stale = True
             else:

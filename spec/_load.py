@@ -95,14 +95,14 @@ class Note:
 @dataclass(frozen=True)
 class SpecBase:
     """What every protocol's spec is, the one interface the tools read a spec by (MCP's
-    :class:`Spec`, a stream protocol's ``spec.stream.StreamSpec``): its name and version, its
+    :class:`Spec`, a stream protocol's ``spec.nsqd.StreamSpec``): its name and version, its
     roles and their ports, its messages by id or name, its rules by ID, and the module that
     draws its page and summary (:attr:`DOCS`). ``raw`` keeps the YAML tree; each subclass adds
     the fields of its own kind of protocol."""
 
     #: the module that draws the spec's page (``docs/*.md``): ``render(spec)``, ``write(spec,
     #: path)``, ``check(spec, path)``, ``default_output()``, and ``summary(spec)`` (the tables
-    #: ``python -m spec`` prints)
+    #: ``python -m mcp_conform.spec`` prints)
     DOCS: ClassVar[str]
 
     raw: Mapping[str, Any]
@@ -165,7 +165,7 @@ class SpecBase:
 class Spec(SpecBase):
     """The loaded, checked MCP spec; its messages are its actions (by code, the message's id)."""
 
-    DOCS: ClassVar[str] = "spec.docs"
+    DOCS: ClassVar[str] = "mcp_conform.spec.docs"
 
     actions: tuple[ActionSpec, ...]
 
@@ -300,7 +300,7 @@ def load(path: str | Path | None = None) -> Spec:
     """Load, validate and check a datagram protocol's spec (default: the packaged ``mcp.yaml``)."""
     raw, sha, src = read_validated(path if path is not None else SPEC_PATH)
     if raw["protocol"]["transport"] != "udp":
-        raise SpecError(f"{src}: protocol.transport: {raw['protocol']['transport']!r}: a stream protocol (spec.stream.load_stream)")
+        raise SpecError(f"{src}: protocol.transport: {raw['protocol']['transport']!r}: a stream protocol (spec.nsqd.load_stream)")
     return _build(raw, sha, src)
 
 

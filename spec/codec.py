@@ -15,8 +15,8 @@ from collections.abc import Callable
 from enum import IntEnum
 from typing import Any, NamedTuple
 
-from spec import SPEC
-from spec.mavframe import FrameError, parse_frame
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.mavframe import FrameError, parse_frame
 
 __all__ = [
     "Action",

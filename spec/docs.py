@@ -4,12 +4,12 @@ The page is derived, never edited: header table (MCP-HDR-1/2), action codes with
 and payload layout (MCP-HDR-3/5), payload layouts (MCP-PAY-1..6, D-2, D-3), the mission
 item (MCP-PAY-4, E-1, E-2), parameters, errata and decisions, and the full rule table with
 levels, roles, the decisions each rule rests on and how a black-box runner observes it per
-role. ``python -m spec docs`` writes it and ``python -m spec docs --check`` fails when the
+role. ``python -m mcp_conform.spec docs`` writes it and ``python -m mcp_conform.spec docs --check`` fails when the
 committed page is stale.
 
 :func:`write`, :func:`check` and :func:`default_output` are the one entry point for every
 protocol's page: each draws the page of the spec it is given with the module the spec names
-(``SpecBase.DOCS``: this one for MCP, ``spec.docs_stream`` for Nsqd), whose ``render(spec)``,
+(``SpecBase.DOCS``: this one for MCP, ``spec.docs_nsqd`` for Nsqd), whose ``render(spec)``,
 ``summary(spec)`` and ``DEFAULT_OUTPUT`` are its own.
 """
 
@@ -21,11 +21,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from spec._load import ROLES, Spec, SpecBase
+from mcp_conform.spec._load import ROLES, Spec, SpecBase
 
 __all__ = ["DEFAULT_OUTPUT", "check", "default_output", "SummaryTable", "page", "render", "summary", "write"]
 
-#: A table of ``python -m spec``'s summary: its title, its columns, its rows.
+#: A table of ``python -m mcp_conform.spec``'s summary: its title, its columns, its rows.
 SummaryTable = tuple[str, Sequence[str], Sequence[Sequence[str]]]
 
 #: Where the page lives, relative to the repository root.
@@ -108,7 +108,7 @@ def render(spec: Spec) -> str:
     lines = [
         f"# {proto['name']} ({proto['short_name']}) — specification",
         "",
-        "<!-- Generated from spec/mcp.yaml by `python -m spec docs`. Do not edit by hand:",
+        "<!-- Generated from spec/mcp.yaml by `python -m mcp_conform.spec docs`. Do not edit by hand:",
         "     edit spec/mcp.yaml and regenerate; a test fails when this page is stale. -->",
         "",
         f"Source document: {proto['document']}, version {proto['document_version']} "
@@ -166,7 +166,7 @@ def render(spec: Spec) -> str:
 
 def catalogue_sections(spec: Any, roles: Sequence[str], observables: str) -> list[str]:
     """Parameters, errata and decisions, and the rule tables: the part of the page every
-    protocol's spec has (``spec`` a ``Spec`` or a ``spec.stream.StreamSpec``)."""
+    protocol's spec has (``spec`` a ``Spec`` or a ``spec.nsqd.StreamSpec``)."""
     lines: list[str] = ["## Parameters", ""]
     lines += _table(("parameter", "default", "meaning"),
                     [(f"`{k}`", v["default"], v.get("doc", ""))
@@ -205,7 +205,7 @@ def catalogue_sections(spec: Any, roles: Sequence[str], observables: str) -> lis
 
 
 def summary(spec: Spec) -> list[SummaryTable]:
-    """The tables ``python -m spec`` prints of MCP's spec (title, columns, rows): the header
+    """The tables ``python -m mcp_conform.spec`` prints of MCP's spec (title, columns, rows): the header
     and the action codes."""
     header = [(f["name"], f["code"], repr(f["const"]) if "const" in f else f.get("doc", ""))
               for f in spec.header["fields"]]

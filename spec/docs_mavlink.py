@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spec.docs import SummaryTable, _table, catalogue_sections
-from spec.mavlink import MavlinkSpec, ServiceMessage, ServiceSpec
+from mcp_conform.spec.docs import SummaryTable, _table, catalogue_sections
+from mcp_conform.spec.mavlink import MavlinkSpec, ServiceMessage, ServiceSpec
 
 __all__ = ["DEFAULT_OUTPUT", "render", "summary"]
 
@@ -50,7 +50,7 @@ def render(spec: MavlinkSpec) -> str:
     lines = [
         f"# {proto['name']} ({proto['short_name']}) — specification",
         "",
-        f"<!-- Generated from spec/{spec.path.name} by `python -m spec docs`. Do not edit by hand:",
+        f"<!-- Generated from spec/{spec.path.name} by `python -m mcp_conform.spec docs`. Do not edit by hand:",
         f"     edit spec/{spec.path.name} and regenerate; a test fails when this page is stale. -->",
         "",
         f"Source: {proto['document']}, as of {proto['document_version']}. Spec file format "
@@ -79,7 +79,7 @@ def render(spec: MavlinkSpec) -> str:
 
 
 def summary(spec: MavlinkSpec) -> list[SummaryTable]:
-    """The table ``python -m spec`` prints of MAVLink's spec: each service's messages."""
+    """The table ``python -m mcp_conform.spec`` prints of MAVLink's spec: each service's messages."""
     return [(f"Messages (dialect {spec.raw['dialect']['module']})",
              ("service", "id", "name", "sent by"),
              [(svc.group, str(m.id), m.name + (" (deprecated)" if m.deprecated else ""), m.sent_by)

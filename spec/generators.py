@@ -19,8 +19,8 @@ from typing import Any, Protocol, TypeVar
 from pymavlink.dialects.v10 import ardupilotmega as mavlink1
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from spec import SPEC
-from spec.codec import (
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
     HEADER_SIZE,
     ITEM_SIZE,
     PREAMBLE,
@@ -31,7 +31,7 @@ from spec.codec import (
     encode,
     encode_payload,
 )
-from spec.mavframe import pack_message
+from mcp_conform.spec.mavframe import pack_message
 
 __all__ = [
     "MALFORMED_KINDS",

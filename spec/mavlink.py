@@ -23,7 +23,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, ClassVar
 
-from spec._load import SpecBase, SpecError, _fail, build_catalogue, read_validated
+from mcp_conform.spec._load import SpecBase, SpecError, _fail, build_catalogue, read_validated
 
 __all__ = ["MAVLINK_PATH", "Citation", "FieldLayout", "MavlinkSpec", "MessageLayout", "ServiceMessage",
            "ServiceSpec", "deprecated_messages", "load_mavlink"]
@@ -99,7 +99,7 @@ class MavlinkSpec(SpecBase):
     """The loaded, checked spec of MAVLink's microservices, with the dialect's layouts of every
     message it names."""
 
-    DOCS: ClassVar[str] = "spec.docs_mavlink"
+    DOCS: ClassVar[str] = "mcp_conform.spec.docs_mavlink"
 
     dialect: ModuleType = field(repr=False, default=None)  # type: ignore[assignment]
     services: tuple[ServiceSpec, ...] = ()
@@ -188,7 +188,7 @@ def load_mavlink(path: str | Path | None = None) -> MavlinkSpec:
     raw, sha, src = read_validated(path if path is not None else MAVLINK_PATH)
     if raw["protocol"]["transport"] != "mavlink":
         raise SpecError(f"{src}: protocol.transport: {raw['protocol']['transport']!r}: not a MAVLink spec "
-                        "(spec.load, spec.stream.load_stream)")
+                        "(spec.load, spec.nsqd.load_stream)")
     roles = tuple(raw["protocol"]["roles"])
     errata, decisions, params, rules, by_id = build_catalogue(raw, src, roles)
     try:

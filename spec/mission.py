@@ -25,8 +25,15 @@ from typing import Any
 from pymavlink import mavwp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from spec import SPEC
-from spec.codec import COUNT_SIZE, HEADER_SIZE, ITEM, ITEM_SIZE, MAX_DATAGRAM, MissionItem
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
+    COUNT_SIZE,
+    HEADER_SIZE,
+    ITEM,
+    ITEM_SIZE,
+    MAX_DATAGRAM,
+    MissionItem,
+)
 
 __all__ = [
     "MAX_FILE_BYTES",

@@ -19,7 +19,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from spec import NSQD, SPEC, SpecBase
+from mcp_conform.spec import NSQD, SPEC, SpecBase
 
 __all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
            "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
@@ -86,7 +86,7 @@ class Profile:
     #: the reference node's command line (``mcp-node --protocol NAME``)
     reference_cli: str
     roles: tuple[RoleProfile, ...]
-    #: the loader of a spec file of this protocol (``python -m spec --spec PATH``)
+    #: the loader of a spec file of this protocol (``python -m mcp_conform.spec --spec PATH``)
     loader: str
 
     @property
@@ -119,39 +119,39 @@ class Profile:
 
 MCP = Profile(
     name="mcp", spec=SPEC, framing="datagram", transport="udp",
-    codec="spec.codec", monitor="judge.run_monitor:RunMonitor",
-    dissector="captures.dissector", capture_reader="traceio.reader:open_capture",
-    capture_detect=None, capture_tools="captures.mcp",
-    mutators="fuzz.mutators", oracles="fuzz.oracles", fuzz_campaign="fuzz.campaign:DatagramCampaign",
-    reference_cli="reference_impl.cli",
+    codec="mcp_conform.spec.codec", monitor="mcp_conform.judge.run_monitor:RunMonitor",
+    dissector="mcp_conform.captures.dissector", capture_reader="mcp_conform.traceio.reader:open_capture",
+    capture_detect=None, capture_tools="mcp_conform.captures.mcp",
+    mutators="mcp_conform.fuzz.mutators", oracles="mcp_conform.fuzz.oracles", fuzz_campaign="mcp_conform.fuzz.campaign:DatagramCampaign",
+    reference_cli="mcp_conform.reference_impl.cli",
     roles=(
-        RoleProfile("drone", session="harness.session:Session", context="conformance.case:CaseContext",
-                    cases="conformance.cases", fuzz_target="fuzz.target:FuzzTarget",
+        RoleProfile("drone", session="mcp_conform.harness.drone_session:Session", context="mcp_conform.conformance.drone_case:CaseContext",
+                    cases="mcp_conform.conformance.cases", fuzz_target="mcp_conform.fuzz.drone_target:FuzzTarget",
                     reference=("drone",), impairable=True, shardable=True, scheduled=True,
                     peer="manager"),
-        RoleProfile("manager", session="harness.manager_session:ManagerSession",
-                    context="conformance.manager_case:ManagerCaseContext",
-                    cases="conformance.cases_manager", fuzz_target="fuzz.manager_target:ManagerFuzzTarget",
+        RoleProfile("manager", session="mcp_conform.harness.manager_session:ManagerSession",
+                    context="mcp_conform.conformance.manager_case:ManagerCaseContext",
+                    cases="mcp_conform.conformance.cases_manager", fuzz_target="mcp_conform.fuzz.manager_target:ManagerFuzzTarget",
                     reference=("manager",), parameters=("drones", "challenge", "waypoints"),
                     peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
     ),
-    loader="spec._load:load",
+    loader="mcp_conform.spec._load:load",
 )
 
 NSQD_PROFILE = Profile(
     name="nsqd", spec=NSQD, framing="stream", transport="tcp",
-    codec="spec.stream_codec", monitor="judge.stream_monitor:StreamMonitor",
-    dissector="captures.dissector_nsqd", capture_reader="traceio.stream:stream_records",
-    capture_detect="captures.nsqd:is_capture", capture_tools="captures.nsqd",
-    mutators="fuzz.stream_mutators", oracles="fuzz.stream_oracles",
-    fuzz_campaign="fuzz.stream_campaign:StreamCampaign", reference_cli="reference_impl.nsqd_cli",
+    codec="mcp_conform.spec.nsqd_codec", monitor="mcp_conform.judge.nsqd_monitor:StreamMonitor",
+    dissector="mcp_conform.captures.dissector_nsqd", capture_reader="mcp_conform.traceio.nsqd:stream_records",
+    capture_detect="mcp_conform.captures.nsqd:is_capture", capture_tools="mcp_conform.captures.nsqd",
+    mutators="mcp_conform.fuzz.nsqd_mutators", oracles="mcp_conform.fuzz.nsqd_oracles",
+    fuzz_campaign="mcp_conform.fuzz.nsqd_campaign:StreamCampaign", reference_cli="mcp_conform.reference_impl.nsqd_cli",
     roles=(
-        RoleProfile("backend", session="harness.stream_session:StreamSession",
-                    context="conformance.stream_case:StreamCaseContext", cases="conformance.cases_nsqd",
+        RoleProfile("backend", session="mcp_conform.harness.nsqd_session:StreamSession",
+                    context="mcp_conform.conformance.nsqd_case:StreamCaseContext", cases="mcp_conform.conformance.cases_nsqd",
                     fuzz_target=None, reference=("--protocol", "nsqd", "backend"),
                     peer="client"),
     ),
-    loader="spec.stream:load_stream",
+    loader="mcp_conform.spec.nsqd:load_stream",
 )
 
 #: Every protocol by its ``--protocol`` name; the first is the default.

@@ -6,7 +6,7 @@ messages table (bool, byte, int16, int32, the integer "float" of E-2, int16-coun
 strings), bound by id. The layer is bound to TCP on the backend's port (8888) both ways,
 and ``NSQD.tcp_reassemble`` lets ``sniff(session=TCPSession)`` / ``sniff(offline=...)``
 give whole frames from a stream cut anywhere (NSQD-FRM-2). For humans and pcaps; the
-runner's hot path is ``spec.stream_codec``.
+runner's hot path is ``spec.nsqd_codec``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from scapy.fields import (
 from scapy.layers.inet import TCP
 from scapy.packet import Packet, bind_layers
 
-from spec import NSQD
+from mcp_conform.spec import NSQD
 
 __all__ = ["BODY_LAYERS", "MESSAGE_NAMES", "NSQD_Frame", "PORT"]
 

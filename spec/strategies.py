@@ -22,13 +22,13 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from spec.codec import (
+from mcp_conform.spec.codec import (
     Action,
     Message,
     MissionItem,
     encode,
 )
-from spec.generators import (
+from mcp_conform.spec.generators import (
     _BUILDERS,
     MALFORMED_KINDS,
     WIRE_ACTIONS,

@@ -23,7 +23,7 @@ def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
     """A port nothing is bound to now, UDP by default, ``socket.SOCK_STREAM`` for TCP: chosen
     as the runner chooses its nodes' ports (``vehicle.ports.free_port``, which takes the host
     first), below the ephemeral range, where no other process's bind(0) can take it first."""
-    from vehicle.ports import free_port as below_ephemeral
+    from mcp_conform.vehicle.ports import free_port as below_ephemeral
 
     return below_ephemeral(host, kind)
 

@@ -1,4 +1,4 @@
-"""A fork server for the tests' ``python -m conformance`` runs: one process per pytest
+"""A fork server for the tests' ``python -m mcp_conform.conformance`` runs: one process per pytest
 process imports the runner once, then forks a child for each run.
 
 Why: the slow tests start the runner about 290 times. A fresh interpreter spends about
@@ -150,7 +150,7 @@ def run_module(module: str, args: list[str], *, cwd: Path | str | None = None, e
 
 
 def _child(request: dict, closing: list[int]) -> None:
-    """In the forked child: become ``python -m conformance ARGS`` and never return."""
+    """In the forked child: become ``python -m mcp_conform.conformance ARGS`` and never return."""
     code = 1
     try:
         for fd in closing:
@@ -169,7 +169,7 @@ def _child(request: dict, closing: list[int]) -> None:
         os.environ.clear()
         os.environ.update(request["env"])
         sys.argv = [str(ROOT / "conformance" / "__main__.py"), *request["argv"]]
-        from conformance._entry import main
+        from mcp_conform.conformance._entry import main
 
         code = main(request["argv"])  # ends the process itself (os._exit), its streams flushed
     except SystemExit as exc:

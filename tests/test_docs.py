@@ -50,17 +50,17 @@ SCRIPTS = _scripts()
 
 def _parser_of(words: list[str]):
     """The argparse parser behind a command line of ours, and the arguments it gets."""
-    if words[:3] == ["python", "-m", "vehicle"]:
-        return importlib.import_module("vehicle.cli").build_parser(), words[3:]
+    if words[:3] == ["python", "-m", "mcp_conform.vehicle"]:
+        return importlib.import_module("mcp_conform.vehicle.cli").build_parser(), words[3:]
     args = words[1:]
     if words[0] == "mcp-node" and "--protocol" in args:
-        from spec.profiles import PROFILES, resolve
+        from mcp_conform.spec.profiles import PROFILES, resolve
 
         i = args.index("--protocol")
         module = resolve(PROFILES[args[i + 1]].reference_cli)
         return module.build_parser(), args[:i] + args[i + 2:]
     module_name = SCRIPTS[words[0]].split(":")[0]
-    for name in (module_name, module_name.split(".")[0] + ".cli"):
+    for name in (module_name, ".".join(module_name.split(".")[:2]) + ".cli"):
         module = importlib.import_module(name)
         if hasattr(module, "build_parser"):
             return module.build_parser(), args
@@ -68,7 +68,7 @@ def _parser_of(words: list[str]):
 
 
 def _ours(words: list[str]) -> bool:
-    return bool(words) and (words[0] in SCRIPTS or words[:3] == ["python", "-m", "vehicle"])
+    return bool(words) and (words[0] in SCRIPTS or words[:3] == ["python", "-m", "mcp_conform.vehicle"])
 
 
 def _command_lines(words: list[str]) -> list[list[str]]:
@@ -107,8 +107,8 @@ COMMANDS = documented_commands()
 
 def test_the_pages_hold_the_commands_of_every_tool() -> None:
     """The extraction finds something of each tool (an empty parametrization proves nothing)."""
-    tools = {words[0] if words[0] != "python" else "python -m vehicle" for _, words in COMMANDS}
-    assert tools >= {*SCRIPTS, "python -m vehicle"}, sorted({*SCRIPTS, "python -m vehicle"} - tools)
+    tools = {words[0] if words[0] != "python" else "mcp-vehicle" for _, words in COMMANDS}
+    assert tools >= {*SCRIPTS, "mcp-vehicle"}, sorted({*SCRIPTS, "mcp-vehicle"} - tools)
 
 
 @pytest.mark.parametrize("where,words", COMMANDS, ids=[w for w, _ in COMMANDS])
@@ -139,7 +139,7 @@ def test_the_readme_failing_run_fails_as_shown() -> None:
     spawn = words.index("--spawn") + 1
     words[spawn] = re.sub(r"^python ", shlex.quote(sys.executable) + " ", words[spawn])
     env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1", COLUMNS="200")
-    proc = subprocess.run([sys.executable, "-m", "conformance", *words[1:]], cwd=ROOT, env=env,
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.conformance", *words[1:]], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=240)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out

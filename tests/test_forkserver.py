@@ -1,4 +1,4 @@
-"""The tests' fork server (tests/forkserver.py) runs ``python -m conformance`` as a fresh
+"""The tests' fork server (tests/forkserver.py) runs ``python -m mcp_conform.conformance`` as a fresh
 interpreter does: same exit status, same output, the caller's working directory and
 environment, its own process, killed at the timeout."""
 
@@ -19,7 +19,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
 
 
 def _both(args: list[str], cwd: Path = ROOT, env: dict[str, str] = ENV) -> tuple[subprocess.CompletedProcess[str], ...]:
-    fresh = subprocess.run([sys.executable, "-m", "conformance", *args], cwd=cwd, env=env, capture_output=True,
+    fresh = subprocess.run([sys.executable, "-m", "mcp_conform.conformance", *args], cwd=cwd, env=env, capture_output=True,
                            text=True, timeout=60)
     forked = forkserver._CLIENT.run(args, cwd=cwd, env=env, timeout=60)
     return fresh, forked

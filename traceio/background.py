@@ -4,7 +4,7 @@ A node records every datagram it sends and receives; decoding, JSON and MCAP cos
 9 µs a record, several times a reference node's work per ACK. So a node does not record
 in-process: each call only timestamps the record and appends it to a deque (well under a
 microsecond); a flusher thread ships the deque every ``FLUSH_S`` seconds, as one
-``marshal``-ed batch, down a pipe to a writer process (``python -m traceio.background
+``marshal``-ed batch, down a pipe to a writer process (``python -m mcp_conform.traceio.background
 FILE``) that runs :class:`~traceio.recorder.McapRecorder` on another core. ``live``
 (``--live``): the writer also serves the records over the Foxglove WebSocket protocol
 (:mod:`traceio.live`), off the node's hot path as well, and stops serving when it ends.
@@ -34,7 +34,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from traceio import recorder as _rec
+from mcp_conform.traceio import recorder as _rec
 
 __all__ = ["BackgroundRecorder"]
 
@@ -69,7 +69,7 @@ class BackgroundRecorder:
                 open(self.path, "wb").close()  # noqa: SIM115 - one-line error now, not in the writer
             except OSError as exc:
                 raise _rec.RecorderError(f"--capture: cannot write {str(self.path)!r}: {exc.strerror}") from None
-        argv = [sys.executable, "-m", "traceio.background", str(self.path) if self.path is not None else "-"]
+        argv = [sys.executable, "-m", "mcp_conform.traceio.background", str(self.path) if self.path is not None else "-"]
         if live is not None:
             argv += ["--live", f"{live[0]}:{live[1]}"]
         try:
@@ -229,7 +229,7 @@ def writer_main(path: str | None, live: str | None = None) -> int:
         signal.signal(sig, signal.SIG_IGN)  # finish the file on EOF, whatever the node gets
     server = None
     if live is not None:
-        from traceio.live import LiveError, LiveServer, parse_live
+        from mcp_conform.traceio.live import LiveError, LiveServer, parse_live
 
         try:
             server = LiveServer(*parse_live(live), name="mcp-node")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from traceio import fox
+from mcp_conform.traceio import fox
 
 __all__ = ["CHANNELS", "HEX_LIMIT", "STREAM_CHANNELS", "foxglove_channels"]
 

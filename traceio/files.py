@@ -32,7 +32,7 @@ def check_writable(path: str | None, option: str) -> None:
 
 def write_output(path: str, text: str, option: str) -> None:
     """Write a text output, or say in one line why it could not be written."""
-    from traceio.grammar import write_text
+    from mcp_conform.traceio.grammar import write_text
 
     try:
         write_text(path, text)

@@ -1,7 +1,7 @@
 """The command-line grammar every tool shares (issue 40; the table is docs/grammar.md, checked
 against each tool's parser by tests/tools/test_grammar.py): the exit-code epilog, ``--version``,
 ``-v``/``-q``, ``-`` for stdin and stdout, and old option names kept as hidden aliases that
-print one warning line. ``python -m vehicle`` keeps a copy of its own (``vehicle`` imports
+print one warning line. ``mcp-vehicle`` keeps a copy of its own (``vehicle`` imports
 nothing of ours).
 """
 
@@ -34,8 +34,8 @@ def epilog(*lines: str) -> str:
 
 def version_text(prog: str) -> str:
     """``PROG VERSION (MCP spec V)``: what every ``--version`` prints."""
-    from spec import SPEC
-    from spec.about import tool_version
+    from mcp_conform.spec import SPEC
+    from mcp_conform.spec.about import tool_version
 
     return f"{prog} {tool_version()} (MCP spec {SPEC.version})"
 

@@ -39,8 +39,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from traceio.channels import CHANNELS, STREAM_CHANNELS, foxglove_channels
-from traceio.files import ClosedAtExit
+from mcp_conform.traceio.channels import CHANNELS, STREAM_CHANNELS, foxglove_channels
+from mcp_conform.traceio.files import ClosedAtExit
 
 __all__ = ["DEFAULT_HOST", "LAYOUT_PATH", "LiveError", "LiveFeed", "LiveServer", "parse_live"]
 

@@ -54,9 +54,9 @@ from typing import IO, Any
 from orjson import JSONDecodeError
 from orjson import loads as _fast_loads
 
-from spec import SPEC
-from spec.codec import PREAMBLE
-from traceio.packets import (
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import PREAMBLE
+from mcp_conform.traceio.packets import (
     FRAGMENT,
     LINKS,
     DecompressionBomb,
@@ -65,7 +65,7 @@ from traceio.packets import (
     Reassembly,
     open_packets,
 )
-from traceio.records import (
+from mcp_conform.traceio.records import (
     CaptureError,
     CaseMark,
     Datagram,
@@ -296,8 +296,8 @@ class Capture:
         from mcap.records import Channel, Chunk, Header, Message
         from mcap.records import Metadata as McapMetadata
 
-        from traceio.mcap_chunks import Message as ChunkMessage
-        from traceio.mcap_chunks import chunk_records, stream_reader
+        from mcp_conform.traceio.mcap_chunks import Message as ChunkMessage
+        from mcp_conform.traceio.mcap_chunks import chunk_records, stream_reader
 
         size = self.path.stat().st_size
         topics: dict[int, str] = {}

@@ -51,11 +51,11 @@ from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
 
-from spec.codec import Action, DecodeError, MissionItem, decode, peek_header
-from traceio import fox
-from traceio.channels import CHANNELS, HEX_LIMIT, STREAM_CHANNELS, foxglove_channels
-from traceio.files import ClosedAtExit
-from traceio.merge import SEGMENT
+from mcp_conform.spec.codec import Action, DecodeError, MissionItem, decode, peek_header
+from mcp_conform.traceio import fox
+from mcp_conform.traceio.channels import CHANNELS, HEX_LIMIT, STREAM_CHANNELS, foxglove_channels
+from mcp_conform.traceio.files import ClosedAtExit
+from mcp_conform.traceio.merge import SEGMENT
 
 __all__ = [
     "CHANNELS",
@@ -177,8 +177,8 @@ def mavlink_type(frame: bytes) -> str | None:
 def run_metadata(recorder: str, **values: Any) -> dict[str, str]:
     """The ``mcp-conform`` metadata record: tool and spec versions, who recorded, and
     ``values`` (target, role, seed, ...; None values are left out), all as strings."""
-    from spec import SPEC
-    from spec.about import TOOL_NAME, tool_version
+    from mcp_conform.spec import SPEC
+    from mcp_conform.spec.about import TOOL_NAME, tool_version
 
     meta = {"tool": TOOL_NAME, "tool_version": tool_version(), "spec_version": SPEC.version,
             "spec_sha256": SPEC.sha256, "recorder": recorder, "host": platform.node(),

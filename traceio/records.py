@@ -1,4 +1,4 @@
-"""The records a capture is read as (``traceio.reader``, ``traceio.stream``): one typed tuple
+"""The records a capture is read as (``traceio.reader``, ``traceio.nsqd``): one typed tuple
 per kind of thing a capture holds, the same whichever file it came from (our MCAP, pcap,
 pcapng), and :class:`CaptureError`, a capture that cannot be read (one line, names the file).
 

@@ -34,7 +34,7 @@ from scapy.config import conf
 from scapy.layers.inet import IP, TCP
 from scapy.layers.inet6 import IPv6
 
-from traceio.reader import Capture, StreamEvent
+from mcp_conform.traceio.reader import Capture, StreamEvent
 
 __all__ = ["MAX_HELD", "MAX_HELD_SEGMENTS", "MAX_OPEN", "WINDOW", "StreamData", "StreamGap", "TcpReassembler",
            "TcpSegment", "tcp_events", "tcp_segments"]

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from traceio.pcap_out import PacketFile, tcp_frame
+from mcp_conform.traceio.pcap_out import PacketFile, tcp_frame
 
 __all__ = ["MSS", "write_tcp_pcap"]
 
@@ -109,8 +109,8 @@ def write_tcp_pcap(path: str | Path, records: Iterable[Any], backend_port: int) 
     when it ends ``.pcapng``); the number of packets written. OSError for ``path``;
     ``traceio.pcap_out.FrameError`` for what a packet or the file cannot hold (a time past a
     pcap's 2^32 s, an address that is not IPv4)."""
-    from traceio.reader import StreamEvent, StreamFrame
-    from traceio.tcp import StreamData
+    from mcp_conform.traceio.reader import StreamEvent, StreamFrame
+    from mcp_conform.traceio.tcp import StreamData
 
     w = _Writer(Path(path), backend_port)
     try:

@@ -21,8 +21,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from spec import SPEC
-from spec.codec import (
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
     BROADCAST_ID,
     MANAGER_ID,
     Action,
@@ -31,9 +31,9 @@ from spec.codec import (
     decode,
     peek_header,
 )
-from spec.mavframe import FrameError, parse_frame
-from spec.profiles import MCP
-from traceio.reader import Datagram
+from mcp_conform.spec.mavframe import FrameError, parse_frame
+from mcp_conform.spec.profiles import MCP
+from mcp_conform.traceio.reader import Datagram
 
 __all__ = ["Entry", "Node", "Trace", "action_name", "describe_payload", "lifeline_of", "node_role"]
 

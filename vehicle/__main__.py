@@ -1,4 +1,4 @@
-"""``python -m vehicle``: serve the simulated vehicle until Ctrl-C."""
+"""``mcp-vehicle``: serve the simulated vehicle until Ctrl-C."""
 
 from .cli import main
 

@@ -1,6 +1,6 @@
 """Command line: serve a simulated vehicle and print one line per recorded event.
 
-``python -m vehicle --listen 127.0.0.1:5760 --fix-delay 3`` listens like ArduPilot SITL on
+``mcp-vehicle --listen 127.0.0.1:5760 --fix-delay 3`` listens like ArduPilot SITL on
 TCP until ``--duration`` (exit 0) or Ctrl-C or SIGTERM (exit 130 or 143: 128 + the signal's
 number, the tools' one convention, docs/grammar.md); ``--udp-out 127.0.0.1:14550`` also
 sends telemetry there over UDP (SITL's ``--out``), ``--udp-in 127.0.0.1:14551`` listens on
@@ -17,7 +17,6 @@ tests/tools/test_grammar.py holds them to the same table. ``--host``, ``--port``
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 import threading
@@ -132,7 +131,7 @@ def _hostport(text: str) -> tuple[str, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    prog = "mcp-vehicle" if os.path.basename(sys.argv[0] or "") == "mcp-vehicle" else "python -m vehicle"
+    prog = "mcp-vehicle"  # also under python -m mcp_conform.vehicle: one name for one tool
     p = _OneLineParser(prog=prog,
                        description="Simulated ArduCopter autopilot on TCP and UDP (like SITL).",
                        epilog=DIFFERENCES + "--duration is its normal end (exit 0); Ctrl-C or SIGTERM stops it "

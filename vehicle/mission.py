@@ -31,7 +31,7 @@ This follows ArduPilot's ``libraries/GCS_MAVLink/MissionItemProtocol.cpp``,
   MAV_MISSION_DENIED. MISSION_CLEAR_ALL is refused (ERROR) during an upload or while the
   mission runs.
 
-Differences from ArduCopter (also in ``python -m vehicle --help``): only the mission type
+Differences from ArduCopter (also in ``mcp-vehicle --help``): only the mission type
 MISSION is stored (fence and rally transfers get MAV_MISSION_UNSUPPORTED, except an empty
 one); at most ``max_items`` items (700).
 """

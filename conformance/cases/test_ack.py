@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import time
 
-from conformance.marks import rules
-from spec import SPEC
-from spec.codec import Action, MissionItem
-from spec.mavframe import heartbeat_frame
+from mcp_conform.conformance.marks import rules
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, MissionItem
+from mcp_conform.spec.mavframe import heartbeat_frame
 
 _ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
 _COMMANDS = (

@@ -8,10 +8,10 @@ currently pending actions (from previously received commands), then execute an R
 
 from __future__ import annotations
 
-from conformance.marks import rules
-from harness.errors import Inconclusive, SilenceUnproven
-from spec.codec import Action
-from vehicle.records import describe_request, is_rtl_request
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive, SilenceUnproven
+from mcp_conform.spec.codec import Action
+from mcp_conform.vehicle.records import describe_request, is_rtl_request
 
 
 @rules("MCP-BLK-1", phase="startup")

@@ -6,9 +6,9 @@ Mav_Passthrough probe reaches the autopilot, so a duplicate delivery shows as a 
 
 from __future__ import annotations
 
-from conformance.case import DELIVERED, NOT_AGAIN
-from conformance.marks import rules
-from harness.errors import Inconclusive
+from mcp_conform.conformance.drone_case import DELIVERED, NOT_AGAIN
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
 
 
 @rules("MCP-DUP-1")

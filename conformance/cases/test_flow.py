@@ -6,8 +6,8 @@ mcp_obj.send_unicast_message(mcp.Action_Codes.Mission_Ready, None, 0)"
 
 from __future__ import annotations
 
-from conformance.marks import rules
-from spec.codec import MANAGER_ID
+from mcp_conform.conformance.marks import rules
+from mcp_conform.spec.codec import MANAGER_ID
 
 
 @rules("MCP-FLOW-1", phase="startup")

@@ -9,8 +9,8 @@ the value of each of the last two bytes is 1."
 
 from __future__ import annotations
 
-from conformance.marks import rules
-from spec.codec import HEADER_SIZE, PREAMBLE, Action
+from mcp_conform.conformance.marks import rules
+from mcp_conform.spec.codec import HEADER_SIZE, PREAMBLE, Action
 
 _ON_WIRE = {int(a) for a in Action if a != Action.ANY}
 _DRONE_SENDS = {int(Action.MISSION_READY), int(Action.ACK)}

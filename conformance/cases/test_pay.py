@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 
 @rules("MCP-PAY-2", phase="startup")

@@ -11,13 +11,13 @@ from __future__ import annotations
 import random
 import time
 
-from conformance.case import Attempt
-from conformance.marks import rules
-from harness.driver import Sent
-from harness.rx_queue import FLOOD_READ_S, wait_read
-from spec import SPEC
-from spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
-from spec.generators import malformed_corpus
+from mcp_conform.conformance.drone_case import Attempt
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.driver import Sent
+from mcp_conform.harness.rx_queue import FLOOD_READ_S, wait_read
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
+from mcp_conform.spec.generators import malformed_corpus
 
 PER_KIND = 6
 
@@ -70,7 +70,7 @@ def test_unexpected_messages_are_survived(node):
     t = node.target_id
 
     def msg(action, payload=None):
-        from spec.codec import Message, encode
+        from mcp_conform.spec.codec import Message, encode
         return encode(Message(t, drv.our_id, drv.next_seq(), action, payload))
     inputs = [("Start_Mission again", msg(Action.START_MISSION)),
               ("Mission_Ready to a drone", msg(Action.MISSION_READY)),

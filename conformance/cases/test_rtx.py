@@ -7,11 +7,11 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-from conformance.link_copies import credited_copy
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec import SPEC
-from spec.codec import Action
+from mcp_conform.conformance.link_copies import credited_copy
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action
 
 MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
 _READY = int(Action.MISSION_READY)

@@ -7,9 +7,9 @@ identified by repeating sequence number."
 
 from __future__ import annotations
 
-from conformance.case import DELIVERED
-from conformance.marks import rules
-from harness.errors import Inconclusive
+from mcp_conform.conformance.drone_case import DELIVERED
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
 
 
 @rules("MCP-SEQ-1")

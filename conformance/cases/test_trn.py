@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import contextlib
 
-from conformance.marks import rules
-from spec import SPEC
-from spec.codec import Action
+from mcp_conform.conformance.marks import rules
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action
 
 
 @rules("MCP-TRN-1", phase="late")

@@ -8,11 +8,11 @@ one with a new seq, liveness probes) and on inputs the runner sends on purpose.
 
 from __future__ import annotations
 
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from judge.monitor import late_ack_wait_s
-from spec import SPEC
-from spec.codec import MANAGER_ID, Action
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.judge.monitor import late_ack_wait_s
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import MANAGER_ID, Action
 
 
 def _exchanges(m):
@@ -26,7 +26,7 @@ def _exchanges(m):
 def _went_on(m):
     """What the manager sent the drones during the mission: the evidence that it heard the
     Mission_Ready it did not ACK (a manager that sends nothing at all never answered)."""
-    from conformance.manager_case import messages
+    from mcp_conform.conformance.manager_case import messages
 
     msgs = messages(m)
     if not msgs:

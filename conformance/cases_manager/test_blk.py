@@ -7,10 +7,15 @@ nothing more.
 
 from __future__ import annotations
 
-from conformance.manager_case import abandoned, awaiting_until, messages, runner_ack_time
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec.codec import Action
+from mcp_conform.conformance.manager_case import (
+    abandoned,
+    awaiting_until,
+    messages,
+    runner_ack_time,
+)
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec.codec import Action
 
 _START = int(Action.START_MISSION)
 _END = int(Action.END_MISSION)

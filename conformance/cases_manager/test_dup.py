@@ -4,7 +4,7 @@ the spec's reason; its ACK of every copy is MCP-ACK-1's (ACK/ cases)."""
 
 from __future__ import annotations
 
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 
 @rules("MCP-DUP-1")

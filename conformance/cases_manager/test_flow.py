@@ -8,10 +8,15 @@ A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the 
 
 from __future__ import annotations
 
-from conformance.manager_case import abandoned, item_differences, messages, needs_scenario
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec.codec import Action
+from mcp_conform.conformance.manager_case import (
+    abandoned,
+    item_differences,
+    messages,
+    needs_scenario,
+)
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec.codec import Action
 
 _START = int(Action.START_MISSION)
 _END = int(Action.END_MISSION)

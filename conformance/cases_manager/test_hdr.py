@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import struct
 
-from conformance.marks import rules
-from spec.codec import HEADER_SIZE, MANAGER_ID, PREAMBLE, Action
+from mcp_conform.conformance.marks import rules
+from mcp_conform.spec.codec import HEADER_SIZE, MANAGER_ID, PREAMBLE, Action
 
 _LE = struct.Struct("<HHHH")
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import struct
 
-from conformance.manager_case import unpack_items
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec.codec import HEADER_SIZE, ITEM_SIZE, Action, DecodeError, decode
-from spec.mission import sane_item
+from mcp_conform.conformance.manager_case import unpack_items
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec.codec import HEADER_SIZE, ITEM_SIZE, Action, DecodeError, decode
+from mcp_conform.spec.mission import sane_item
 
 _E1_ITEM = 33  # the description's struct string '<ffffffHHBBBBB' (erratum E-1)
 _EMPTY = (int(Action.START_MISSION), int(Action.END_MISSION), int(Action.WP_OFF))
@@ -76,7 +76,7 @@ def test_mission_items_are_mavlink_mission_item_payloads(node):
             return None  # the list's length is MCP-PAY-3/5's business
         for le in unpack_items(region):
             be = _BIG_ENDIAN_ITEM.unpack(struct.pack("<fffffffHHBBBBB", *le))
-            from spec.codec import MissionItem
+            from mcp_conform.spec.codec import MissionItem
 
             if sane_item(le) and not sane_item(MissionItem._make(be)):
                 return "items read sanely only big-endian"

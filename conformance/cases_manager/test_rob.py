@@ -7,10 +7,10 @@ across retransmissions (MCP-ROB-5). "No ACK" is judged over the ACK window (D-6)
 
 from __future__ import annotations
 
-from conformance.manager_case import messages
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec.codec import Action
+from mcp_conform.conformance.manager_case import messages
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec.codec import Action
 
 
 @rules("MCP-ROB-1", "MCP-ROB-5")

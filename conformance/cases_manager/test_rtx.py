@@ -8,10 +8,10 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-from conformance.manager_case import messages
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec import SPEC
+from mcp_conform.conformance.manager_case import messages
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec import SPEC
 
 MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
 

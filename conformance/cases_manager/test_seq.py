@@ -6,11 +6,11 @@ the same sequence number as the original."
 
 from __future__ import annotations
 
-from conformance.manager_case import messages
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec import SPEC
-from spec.codec import Action
+from mcp_conform.conformance.manager_case import messages
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action
 
 
 class _New:

@@ -6,9 +6,9 @@ ports 7889 and 7890. At the IP level, they are local subnet IP broadcasts."
 
 from __future__ import annotations
 
-from conformance.marks import rules
-from harness.errors import Inconclusive
-from spec import SPEC
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.spec import SPEC
 
 _MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
 

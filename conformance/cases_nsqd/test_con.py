@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 
 @rules("NSQD-CON-1")

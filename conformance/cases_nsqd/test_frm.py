@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 
 @rules("NSQD-FRM-1", "NSQD-MSG-2")

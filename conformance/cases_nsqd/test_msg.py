@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from conformance.marks import rules
-from harness.errors import CaseFailure
-from spec import NSQD
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import CaseFailure
+from mcp_conform.spec import NSQD
 
 GPX = ('<?xml version="1.0"?><gpx version="1.1" creator="mcp-conform"><rte>'
        '<rtept lat="55.3676" lon="10.4321"/><rtept lat="55.3680" lon="10.4330"/></rte></gpx>')

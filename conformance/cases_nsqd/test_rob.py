@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 GARBAGE_FRAMES = 200
 

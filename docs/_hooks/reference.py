@@ -2,11 +2,11 @@
 
 - ``reference/cli.md``: the ``--help`` of every command, as a user's terminal prints it. The
   commands are the console scripts of ``pyproject.toml`` (``[project.scripts]``), plus
-  ``python -m vehicle`` and ``python -m spec``; each is run in a subprocess with this checkout
+  ``mcp-vehicle`` and ``python -m mcp_conform.spec``; each is run in a subprocess with this checkout
   first on ``PYTHONPATH``. A command whose help fails fails the build.
 - ``spec.md`` and ``nsqd.md``: rendered afresh from ``spec/mcp.yaml`` and ``spec/nsqd.yaml``
-  by ``spec.docs`` and ``spec.docs_stream`` (the committed pages are the same text;
-  ``python -m spec docs --check`` and the spec tests keep them current).
+  by ``spec.docs`` and ``spec.docs_nsqd`` (the committed pages are the same text;
+  ``python -m mcp_conform.spec docs --check`` and the spec tests keep them current).
 
 Registered in ``mkdocs.yml`` under ``hooks:``; ``docs/_hooks/`` itself is excluded from the site.
 """
@@ -26,10 +26,10 @@ SUBCOMMANDS: dict[str, tuple[str, ...]] = {
     "mcp-capture": ("check", "show", "diff", "replay", "export", "dissector"),
     "mcp-node": ("drone", "manager"),
     "mcp-node --protocol nsqd": ("backend", "client"),
-    "python -m spec": ("docs",),
+    "python -m mcp_conform.spec": ("docs",),
 }
 #: commands that are not console scripts, and forms of one that take another protocol
-EXTRA = ("mcp-node --protocol nsqd", "python -m vehicle", "python -m spec")
+EXTRA = ("mcp-node --protocol nsqd", "python -m mcp_conform.spec")
 
 
 def _scripts() -> dict[str, str]:
@@ -79,9 +79,9 @@ def cli_reference() -> str:
 
 def spec_page(name: str) -> str:
     sys.path.insert(0, str(ROOT))
-    from spec import NSQD, SPEC, docs, docs_stream
+    from mcp_conform.spec import NSQD, SPEC, docs, docs_nsqd
 
-    return docs.render(SPEC) if name == "spec.md" else docs_stream.render(NSQD)
+    return docs.render(SPEC) if name == "spec.md" else docs_nsqd.render(NSQD)
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001 (MkDocs' hook signature)

@@ -54,7 +54,7 @@ try:
 except ImportError as _exc:  # pragma: no cover - depends on the environment
     sys.exit(f"dronekit_drone.py: error: DroneKit is not installed ({_exc}): pip install dronekit2")
 
-from reference_impl import Action, Mcp, McpException, MissionMessageHandlerBase
+from mcp_conform.reference_impl import Action, Mcp, McpException, MissionMessageHandlerBase
 
 log = logging.getLogger("dronekit_drone")
 

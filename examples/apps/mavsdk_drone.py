@@ -70,7 +70,7 @@ except ImportError as _exc:  # pragma: no cover - depends on the environment
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from reference_impl import Action, Mcp, McpException, MissionMessageHandlerBase
+from mcp_conform.reference_impl import Action, Mcp, McpException, MissionMessageHandlerBase
 
 log = logging.getLogger("mavsdk_drone")
 

@@ -9,7 +9,7 @@ from scapy.layers.l2 import Ether
 from scapy.packet import Raw
 from scapy.utils import wrpcap
 
-from spec.codec import Action, Message, MissionItem, encode
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode
 
 MANAGER = ("127.0.0.1", 7889)
 BCAST = ("127.255.255.255", 7890)

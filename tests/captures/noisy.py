@@ -13,8 +13,8 @@ from __future__ import annotations
 import random
 from pathlib import Path
 
-from spec.codec import HEADER_SIZE, Action, Message, MissionItem, encode
-from traceio.recorder import McapRecorder
+from mcp_conform.spec.codec import HEADER_SIZE, Action, Message, MissionItem, encode
+from mcp_conform.traceio.recorder import McapRecorder
 
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 1, 16, 1, 1, 3, 0, 1)
 SOURCES = tuple(("127.0.0.1", 41000 + k) for k in range(8))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from spec.codec import Action, Message, MissionItem, encode
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode
 
 WAYPOINTS = tuple(MissionItem(0.0, 0.0, 0.0, 0.0, 35.7711 + i / 1000, -78.6746, 10.0, i, 16, 1, 1, 3, 0, 1)
                   for i in range(3))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from spec import SPEC
+from mcp_conform.spec import SPEC
 from tests.capturing import dropped_by_kernel, start_capture, stop_capture
 from tests.reference_impl.test_e2e import free_port, node, wait_all
 
@@ -40,7 +40,7 @@ pytestmark = pytest.mark.slow
 
 def check(path: Path, tmp_path: Path, *extra: str) -> tuple[int, dict, str]:
     out = tmp_path / f"{path.name}.json"
-    proc = subprocess.run([sys.executable, "-m", "captures.cli", "check", str(path), "--rto", RTO,
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures.cli", "check", str(path), "--rto", RTO,
                            "--ack-window", "0.5", "--json", str(out), *extra],
                           cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))

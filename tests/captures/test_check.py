@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from captures.check import load_schema, validate_json
-from captures.cli import main
-from judge.monitor import Monitor
-from spec import SPEC
-from spec.mission import load_waypoints, save_waypoints
+from mcp_conform.captures.check import load_schema, validate_json
+from mcp_conform.captures.cli import main
+from mcp_conform.judge.monitor import Monitor
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.mission import load_waypoints, save_waypoints
 from tests.judge.monitor_faults import FAULTY
 from tests.judge.monitor_scripts import TESTER, Script, clean_script
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from judge.run_monitor import RunMonitor
-from spec.codec import Action
+from mcp_conform.judge.run_monitor import RunMonitor
+from mcp_conform.spec.codec import Action
 from tests.captures.test_check import check, mission_args
 from tests.judge.monitor_scripts import MANAGER_ADDR, NS, T0_NS, Script
 

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from captures.cli import SUBCOMMANDS, build_parser, main
+from mcp_conform.captures.cli import SUBCOMMANDS, build_parser, main
 
 
 def test_help_exits_zero_and_lists_every_subcommand():
-    proc = subprocess.run([sys.executable, "-m", "captures.cli", "--help"], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures.cli", "--help"], capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
     for module in SUBCOMMANDS:
@@ -84,7 +84,7 @@ def test_a_reader_that_goes_away_loses_neither_the_files_nor_the_verdict(tmp_pat
     """`mcp-capture diff a b | head -1` (issue 18 item 14): the --json and --html files are
     written and the exit code is the verdict's, whatever happens to the terminal report."""
     js, html = tmp_path / "out.json", tmp_path / "out.html"
-    cmd = [sys.executable, "-m", "captures", *argv, "--json", str(js), "--html", str(html)]
+    cmd = [sys.executable, "-m", "mcp_conform.captures", *argv, "--json", str(js), "--html", str(html)]
     script = " ".join(f"'{w}'" for w in cmd) + " | head -c 1 >/dev/null; exit ${PIPESTATUS[0]}"
     proc = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120)
     assert proc.returncode == code, proc.stderr

@@ -9,10 +9,16 @@ import random
 
 import pytest
 
-from captures.diff import DiffOptions, diff_sides, print_report, register, side_from_datagrams
-from spec.codec import Action, Message, decode, encode
+from mcp_conform.captures.diff import (
+    DiffOptions,
+    diff_sides,
+    print_report,
+    register,
+    side_from_datagrams,
+)
+from mcp_conform.spec.codec import Action, Message, decode, encode
+from mcp_conform.traceio.recorder import McapRecorder
 from tests.captures.scenario import D, challenge2, reindex
-from traceio.recorder import McapRecorder
 
 
 def _diff(golden: list[D], candidate: list[D], **opts):
@@ -206,7 +212,7 @@ def test_html_shows_both_sides_side_by_side(tmp_path):
 
 
 def test_unwritable_outputs_are_refused_before_any_work(tmp_path):
-    from captures.cli import main
+    from mcp_conform.captures.cli import main
 
     golden = tmp_path / "golden.mcap"
     _write_mcap(golden, challenge2())
@@ -218,7 +224,7 @@ def test_unwritable_outputs_are_refused_before_any_work(tmp_path):
 def test_every_command_reads_a_cut_capture_up_to_its_last_whole_chunk(tmp_path, capsys):
     """show, check, diff and export on a file cut at arbitrary offsets: no traceback, the
     records before the cut are read, and each says the file was truncated."""
-    from captures.cli import main
+    from mcp_conform.captures.cli import main
 
     whole = tmp_path / "whole.mcap"
     base = challenge2()
@@ -249,7 +255,7 @@ def test_html_gaps_are_placeholders_not_red_arrows_and_times_stay_in_order():
     import re
     import xml.etree.ElementTree as ET
 
-    from captures.diff_html import html_report
+    from mcp_conform.captures.diff_html import html_report
 
     golden = challenge2()
     i = _find(golden, Action.ACK, 5)
@@ -275,8 +281,8 @@ def test_the_harness_liveness_probes_are_not_compared(tmp_path):
     re-recorded on a loaded machine differed by that one exchange. A harness capture's
     probes and their ACKs are left out of the comparison; a node's or anyone's same-looking
     traffic is not."""
-    from captures.diff import load_side
-    from harness.liveness import PROBE_SRC
+    from mcp_conform.captures.diff import load_side
+    from mcp_conform.harness.liveness import PROBE_SRC
 
     plain = challenge2()
     probe = encode(Message(1, PROBE_SRC, 7, Action.WP_OFF))
@@ -303,7 +309,7 @@ def test_the_harness_liveness_probes_are_not_compared(tmp_path):
 def _probe_run(tokens: list[str], seq0: int = 100, port: int = 7889, t0: int = 10**18,
                frame=None) -> list[D]:
     """The manager sends one Mav_Passthrough probe per token to drone 1, each ACKed."""
-    from vehicle.probe import make_probe
+    from mcp_conform.vehicle.probe import make_probe
 
     frame = frame or make_probe
     mgr, drone = ("127.0.0.1", port), ("127.0.0.1", port + 1)
@@ -317,7 +323,7 @@ def _probe_run(tokens: list[str], seq0: int = 100, port: int = 7889, t0: int = 1
     return out
 
 
-# tokens as conformance.case.Case.probe names them: <case id tail>-<n>-<the driver's next seq>,
+# tokens as conformance.drone_case.Case.probe names them: <case id tail>-<n>-<the driver's next seq>,
 # the seq depending on how a batch's cases interleaved (issue 35: -1323 in one run, -1322 next)
 RUN_A = ["ither_acked_nor_acted_on-1-1323", "delivered_once-1-1330", "delivered_once-1-1330",
          "delivered_once-2-1333"]
@@ -329,7 +335,7 @@ def test_probe_tokens_that_differ_only_by_the_runners_seq_are_the_same():
     result = _diff(_probe_run(RUN_A), _probe_run(RUN_B, seq0=4000, port=50000))
     assert result.same, _report(result)
     e = result.golden.conversations[(0, 1)].entries[0]
-    from captures.conversation import describe, entry_fields
+    from mcp_conform.captures.conversation import describe, entry_fields
 
     assert describe(e) == "0→1 MAV_PASSTHROUGH seq+0 probe ither_acked_nor_acted_on-1 #1"
     fields = entry_fields(e)
@@ -377,8 +383,8 @@ def test_a_probe_frame_changed_otherwise_still_differs():
 
     from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-    from spec.mavframe import pack_message
-    from vehicle.probe import PROBE_PREFIX, make_probe
+    from mcp_conform.spec.mavframe import pack_message
+    from mcp_conform.vehicle.probe import PROBE_PREFIX, make_probe
 
     golden = _probe_run(RUN_A)
     for frame in (partial(make_probe, seq=9), partial(make_probe, srcsys=1),
@@ -446,7 +452,7 @@ def test_a_header_cut_short_is_compared_without_its_seq():
     """MCP-ROB-1 sends a header cut at 16 bytes numbered from the runner's counter, whose
     value depends on how the batch's cases drew from it: two runs differ only by that seq.
     Any other byte of it still differs."""
-    from spec.codec import HEADER_SIZE, build_datagram
+    from mcp_conform.spec.codec import HEADER_SIZE, build_datagram
 
     def run(cut: bytes) -> list[D]:
         mgr, drone = ("127.0.0.1", 7889), ("127.0.0.1", 7890)

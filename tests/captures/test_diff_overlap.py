@@ -14,13 +14,19 @@ from __future__ import annotations
 import argparse
 import io
 
-from captures.diff import DiffOptions, diff_sides, print_report, register, side_from_datagrams
-from captures.overlap import Span, lane, overlap_spans
-from spec.codec import Action, Message, build_datagram, decode, encode
+from mcp_conform.captures.diff import (
+    DiffOptions,
+    diff_sides,
+    print_report,
+    register,
+    side_from_datagrams,
+)
+from mcp_conform.captures.overlap import Span, lane, overlap_spans
+from mcp_conform.spec.codec import Action, Message, build_datagram, decode, encode
+from mcp_conform.traceio.recorder import McapRecorder
+from mcp_conform.traceio.records import CaseMark
+from mcp_conform.vehicle.probe import make_probe
 from tests.captures.scenario import D
-from traceio.recorder import McapRecorder
-from traceio.records import CaseMark
-from vehicle.probe import make_probe
 
 MGR, DRONE = ("127.0.0.1", 7889), ("127.0.0.1", 7890)
 T0 = 10**18
@@ -75,7 +81,7 @@ def _run(batch: list[str], before: list[str] = (), after: list[str] = (), *, mar
 
 
 def decode_or_none(data: bytes):
-    from spec.codec import DecodeError
+    from mcp_conform.spec.codec import DecodeError
 
     try:
         return decode(data)
@@ -214,7 +220,7 @@ def test_the_command_reads_the_runners_case_marks(tmp_path):
 
     report = json.loads((tmp_path / "d.json").read_text())
     assert report["golden"]["overlaps"][0]["cases"] == [ROB, DUP]
-    from captures.diff import diff_captures
-    from captures.diff_html import html_report
+    from mcp_conform.captures.diff import diff_captures
+    from mcp_conform.captures.diff_html import html_report
 
     assert "golden: 1 span of cases run side by side" in html_report(diff_captures(golden, raced))

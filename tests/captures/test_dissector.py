@@ -14,14 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from captures import dissector, dissector_mavlink, export
-from captures.scenarios import GOLDEN
-from spec.codec import Action, DecodeError, Message, build_datagram, decode, encode
-from spec.mavframe import heartbeat_frame
+from mcp_conform.captures import dissector, dissector_mavlink, export
+from mcp_conform.captures.scenarios import GOLDEN
+from mcp_conform.spec.codec import Action, DecodeError, Message, build_datagram, decode, encode
+from mcp_conform.spec.mavframe import heartbeat_frame
+from mcp_conform.traceio.recorder import McapRecorder
 from tests.captures.test_export import ITEMS, _tshark
 from tests.capturing import run_subcommand
 from tests.spawned import start_node
-from traceio.recorder import McapRecorder
 
 ROOT = Path(__file__).resolve().parents[2]
 MANAGER = ("127.0.0.1", 7889)
@@ -168,7 +168,7 @@ def test_tracking_retransmissions_names_and_mavlink(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["challenge1", "challenge2", "challenge3", "drone-suite"])
 def test_tshark_on_the_golden_captures(tmp_path, name):
-    from traceio.reader import Datagram, open_capture
+    from mcp_conform.traceio.reader import Datagram, open_capture
 
     datagrams = {n: r.data for n, r in enumerate((r for r in open_capture(GOLDEN / f"{name}.mcap")
                                                   if type(r) is Datagram), 1)}
@@ -184,7 +184,7 @@ def test_tshark_on_the_golden_captures(tmp_path, name):
 def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
     """The reference drone on a port of no convention, fed the stateless fuzzer's cases
     (fuzz.mutators) 2 ms apart, both directions recorded as mcp-fuzz's target sees them."""
-    from fuzz.mutators import CaseGenerator
+    from mcp_conform.fuzz.mutators import CaseGenerator
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))  # ours before the node's port is chosen: no race for it
@@ -207,7 +207,7 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
             t = threading.Thread(target=receive, daemon=True)
             t.start()
             # started again on a fresh port if it exits first; its stderr in the failure
-            node, port = start_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "1",
+            node, port = start_node(lambda p: [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1",
                                                "--bind", f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{us}",
                                                "--rto", "0.3", "-q"], got.wait, cwd=ROOT)
             time.sleep(0.7)  # its Mission_Ready, retransmitted
@@ -232,7 +232,7 @@ def _fuzz_capture(path: Path, cases: int, seed: int) -> int:
 
 @pytest.mark.slow
 def test_tshark_on_a_fuzz_capture(tmp_path):
-    from traceio.reader import Datagram, open_capture
+    from mcp_conform.traceio.reader import Datagram, open_capture
 
     path = tmp_path / "fuzz.mcap"
     node = _fuzz_capture(path, cases=600, seed=24)

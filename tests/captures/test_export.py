@@ -10,9 +10,9 @@ import subprocess
 
 import pytest
 
-from captures import dissector, export
-from spec import SPEC
-from spec.codec import (
+from mcp_conform.captures import dissector, export
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
     HEADER_SIZE,
     ITEM_SIZE,
     Action,
@@ -22,9 +22,9 @@ from spec.codec import (
     decode,
     encode,
 )
-from spec.mavframe import heartbeat_frame
+from mcp_conform.spec.mavframe import heartbeat_frame
+from mcp_conform.traceio.recorder import McapRecorder
 from tests.capturing import run_subcommand
-from traceio.recorder import McapRecorder
 
 ITEMS = (MissionItem(0.5, 1.5, 2.5, 3.5, 35.771103, -78.674659, 12.25, 0, 16, 1, 1, 3, 1, 1),
          MissionItem(0.0, 0.0, 0.0, 0.0, 35.772, -78.675, 30.0, 1, 22, 2, 3, 6, 0, 1))
@@ -105,7 +105,7 @@ def _read_back(reader: str, path) -> list[tuple[int, tuple, tuple, bytes]]:
     """(time in ns, (src host, port), (dst host, port), UDP payload) of every packet of ``path``
     as tshark or our own reader (traceio.reader) reads it."""
     if reader == "traceio":
-        from traceio.reader import Datagram, open_capture
+        from mcp_conform.traceio.reader import Datagram, open_capture
 
         return [(r.t_ns, r.src_addr, r.dst_addr, bytes(r.data)) for r in open_capture(path) if type(r) is Datagram]
     tshark = shutil.which("tshark")

@@ -11,18 +11,18 @@ from pathlib import Path
 
 import pytest
 
-from captures.diff import DiffOptions, diff_captures, print_report
-from captures.replay import replay
-from captures.scenarios import GOLDEN, record_challenge
+from mcp_conform.captures.diff import DiffOptions, diff_captures, print_report
+from mcp_conform.captures.replay import replay
+from mcp_conform.captures.scenarios import GOLDEN, record_challenge
+from mcp_conform.traceio.reader import Datagram, open_capture
 from tests.forkserver import run_module
-from traceio.reader import Datagram, open_capture
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
 PY = shlex.quote(sys.executable)
-DRONE = (f"{PY} -m reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
+DRONE = (f"{PY} -m mcp_conform.reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
          "--send-to {listen_host}:{listen_port} --rto 0.5")
-MANAGER = (f"{PY} -m reference_impl manager --challenge {{challenge}} --drones {{drones}} "
+MANAGER = (f"{PY} -m mcp_conform.reference_impl manager --challenge {{challenge}} --drones {{drones}} "
            "--waypoints {waypoints} --obstacles {obstacles} --bind {target_host}:{target_port} --send-to {listen_host}:{listen_port} "
            "--rto 0.5")
 pytestmark = pytest.mark.slow
@@ -82,7 +82,7 @@ def test_replay_golden_challenge_against_the_reference_drone_and_manager(challen
 
 def test_replay_golden_drone_suite_against_the_reference_drone():
     records = _records(GOLDEN / "drone-suite.mcap")
-    spawn = (f"{PY} -m reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
+    spawn = (f"{PY} -m mcp_conform.reference_impl drone --id {{id}} --bind {{target_host}}:{{target_port}} "
              "--send-to {listen_host}:{listen_port} --mavlink {mavlink} --rto 0.2")
     result = replay(records, role="drone", spawn=spawn, mavlink=True, rto=0.2, ack_window=0.25)
     assert result.ok, _report(result.diff) + result.node_output
@@ -119,7 +119,7 @@ def test_replay_against_the_correct_sample_node_passes():
 def test_replay_command_line(tmp_path):
     out = tmp_path / "replay.json"
     rec = tmp_path / "replay.mcap"
-    proc = subprocess.run([sys.executable, "-m", "captures.cli", "replay", str(GOLDEN / "challenge1.mcap"),
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures.cli", "replay", str(GOLDEN / "challenge1.mcap"),
                            "--spawn", DRONE, "--rto", "0.5", "--ack-window", "0.3", "--json", str(out),
                            "--capture-out", str(rec)], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -133,7 +133,7 @@ def test_replay_command_line(tmp_path):
 
 
 def test_replay_errors_are_one_line(tmp_path):
-    from captures.cli import main
+    from mcp_conform.captures.cli import main
 
     assert main(["replay", str(tmp_path / "none.mcap"), "--target", "127.0.0.1:9"]) == 2
     assert main(["replay", str(GOLDEN / "challenge1.mcap")]) == 2  # neither --target nor --spawn
@@ -142,11 +142,11 @@ def test_replay_errors_are_one_line(tmp_path):
 
 def test_replay_in_attach_mode():
     """A node already running (attach): replay sends to --target and listens on --listen."""
-    from harness.session import free_port
+    from mcp_conform.harness.drone_session import free_port
     from tests.spawned import attached_node
 
     listen = free_port()
-    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+    with attached_node(lambda p: [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1", "--bind",
                                   f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.5", "-q"],
                        listen, kill=False, cwd=ROOT) as (node, target):
         result = replay(_records(GOLDEN / "challenge3.mcap"), ("127.0.0.1", target), role="drone",

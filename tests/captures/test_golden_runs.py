@@ -26,13 +26,13 @@ from pathlib import Path
 
 import pytest
 
-from captures.conversation import ProbeKey, probe_frame
-from captures.diff import load_side
-from spec.codec import Action, DecodeError, decode, encode
+from mcp_conform.captures.conversation import ProbeKey, probe_frame
+from mcp_conform.captures.diff import load_side
+from mcp_conform.spec.codec import Action, DecodeError, decode, encode
+from mcp_conform.traceio.reader import CaseMark, Datagram, Metadata, open_capture
+from mcp_conform.traceio.recorder import McapRecorder
+from mcp_conform.vehicle.probe import make_probe
 from tests.forkserver import run_module
-from traceio.reader import CaseMark, Datagram, Metadata, open_capture
-from traceio.recorder import McapRecorder
-from vehicle.probe import make_probe
 
 pytestmark = pytest.mark.slow
 
@@ -50,7 +50,7 @@ def _record(path: Path) -> Path:
 
 
 def _diff_cli(golden: Path, candidate: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "captures", "diff", str(golden), str(candidate)],
+    return subprocess.run([sys.executable, "-m", "mcp_conform.captures", "diff", str(golden), str(candidate)],
                           capture_output=True, text=True, timeout=120, cwd=ROOT, env=os.environ)
 
 

@@ -24,7 +24,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
 
 
 def _node(argv: list[str]) -> int:
-    from reference_impl.cli import main
+    from mcp_conform.reference_impl.cli import main
 
     try:
         return main(argv)
@@ -33,7 +33,7 @@ def _node(argv: list[str]) -> int:
 
 
 def _soak(argv: list[str]) -> int:
-    from soak.cli import main
+    from mcp_conform.soak.cli import main
 
     try:
         return main(argv)
@@ -42,13 +42,13 @@ def _soak(argv: list[str]) -> int:
 
 
 def _fuzz(argv: list[str]) -> int:
-    from fuzz.cli import main
+    from mcp_conform.fuzz.cli import main
 
     return main(argv)
 
 
 def _conform(argv: list[str]) -> int:
-    from conformance.cli import main
+    from mcp_conform.conformance.cli import main
 
     return main(argv)
 
@@ -90,7 +90,7 @@ def test_a_port_in_use_is_one_line_and_exit_2(tool: str, taken_port: int, tmp_pa
 
 def test_mcp_conform_with_the_port_in_use_stops_at_once(taken_port: int, tmp_path: Path) -> None:
     report = tmp_path / "r.json"
-    proc = subprocess.run([sys.executable, "-m", "conformance", "--live", f"127.0.0.1:{taken_port}",
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.conformance", "--live", f"127.0.0.1:{taken_port}",
                            "--json", str(report)], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert f"--live 127.0.0.1:{taken_port}: cannot serve" in proc.stdout + proc.stderr
@@ -107,7 +107,7 @@ def test_mcp_fuzz_serves_one_workers_mcp_run(argv: list[str], why: str, capsys: 
 def test_mcp_node_streams_its_capture_channels_and_stops_on_sigint() -> None:
     wanted = ("/mcp/tx", "/mavlink", "/vehicle/location", "/vehicle/attitude")
     run = foxglove_ws.watch_tool(  # everything seen: Ctrl-C, as a user ends it
-        [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind", "127.0.0.1:0",
+        [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1", "--bind", "127.0.0.1:0",
          "--send-to", f"127.0.0.1:{free_port()}", "--rto", "0.2"], cwd=ROOT, env=ENV, until=60, wait=30,
         interrupt_when=lambda s: all(s.on(t) for t in wanted))
     seen = run.seen
@@ -126,7 +126,7 @@ def test_mcp_node_streams_its_capture_channels_and_stops_on_sigint() -> None:
 @pytest.mark.slow
 def test_mcp_soak_streams_each_view_and_the_missions_outcomes(tmp_path: Path) -> None:
     run = foxglove_ws.watch_tool(
-        [sys.executable, "-m", "soak", "--missions", "2", "--impair", "loss=0.1,seed=3",
+        [sys.executable, "-m", "mcp_conform.soak", "--missions", "2", "--impair", "loss=0.1,seed=3",
          "--drones", "1,2", "--challenges", "1", "--out", str(tmp_path)], cwd=ROOT, env=ENV, until=120)
     seen = run.seen
     assert run.returncode == 0, run.out + run.err
@@ -141,8 +141,8 @@ def test_mcp_soak_streams_each_view_and_the_missions_outcomes(tmp_path: Path) ->
 
 
 def test_mcp_fuzz_logs_each_new_finding_with_its_rule_and_evidence() -> None:
-    from fuzz.findings import Finding
-    from fuzz.live import LiveStore
+    from mcp_conform.fuzz.findings import Finding
+    from mcp_conform.fuzz.live import LiveStore
 
     lines: list[tuple[str, str, str]] = []
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from spec.codec import Action, Message, decode, encode
+from mcp_conform.spec.codec import Action, Message, decode, encode
 from tests.forkserver import run_module
 from tests.traceio.test_recorder import read_all
 
@@ -31,7 +31,7 @@ def _manager_socket() -> socket.socket:
 
 def _drone(capture: Path, manager_port: int) -> subprocess.Popen[bytes]:
     return subprocess.Popen(
-        [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind", "127.0.0.1:0",
+        [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "3", "--bind", "127.0.0.1:0",
          "--send-to", f"127.0.0.1:{manager_port}", "--rto", "0.2", "--capture", str(capture), "-q"],
         cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
@@ -98,12 +98,12 @@ def test_interrupted_node_leaves_a_valid_capture(tmp_path, how):
 
 def test_a_mission_end_to_end_is_captured_on_every_node(tmp_path):
     """The manager and a drone, each with --capture: each file holds its side of the mission."""
-    from harness.session import free_port
+    from mcp_conform.harness.drone_session import free_port
     from tests.spawned import Node
 
     pm, pd = free_port(), free_port()
     waypoints = ROOT / "tests" / "reference_impl" / "data" / "challenge.waypoints"
-    base = [sys.executable, "-m", "reference_impl"]
+    base = [sys.executable, "-m", "mcp_conform.reference_impl"]
     drone = Node(base + ["drone", "--id", "1", "127.255.255.255", str(pd), str(pm), "--rto", "0.2",
                          "--capture", str(tmp_path / "d.mcap"), "-q"], cwd=ROOT)  # its stderr kept
     try:
@@ -130,7 +130,7 @@ def test_the_runner_capture_is_complete(tmp_path):
 
     from mcap.reader import make_reader
 
-    from traceio.reader import Datagram, open_capture
+    from mcp_conform.traceio.reader import Datagram, open_capture
 
     path = tmp_path / "run.mcap"
     proc = run_module("conformance", ["--select", "MCP-ROB-7", "--capture", str(path)], cwd=ROOT, timeout=300)

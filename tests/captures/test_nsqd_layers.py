@@ -15,10 +15,10 @@ from scapy.sendrecv import sniff
 from scapy.sessions import TCPSession
 from scapy.utils import wrpcap
 
-from captures.dissector_nsqd import generate
-from spec import NSQD
-from spec.scapy_nsqd import BODY_LAYERS, NSQD_Frame
-from spec.stream_codec import encode
+from mcp_conform.captures.dissector_nsqd import generate
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
+from mcp_conform.spec.scapy_nsqd import BODY_LAYERS, NSQD_Frame
 
 CLIENT = (encode(NSQD, "TAKEOFF")
           + encode(NSQD, "SET_RPYTFF", roll="1.5", pitch="2", yaw="3", thrust="4", flag=1, file_name="a.csv")

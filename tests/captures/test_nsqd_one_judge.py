@@ -83,7 +83,7 @@ def _closed_connections(pcap: Path, port: int) -> int:
 
 def _failed(check: Path, tmp: Path) -> tuple[set[str], int]:
     out = tmp / f"{check.name}.json"
-    run = subprocess.run([sys.executable, "-m", "captures", "check", str(check), "--json", str(out)],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "check", str(check), "--json", str(out)],
                          capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
     assert run.returncode in (0, 1), run.stderr
     doc = json.loads(out.read_text())
@@ -127,7 +127,7 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
                            else {"NSQD-FRM-1"} if fault else set()), f"{live.stdout[-2000:]}\nthe backend: {said}"
     conns = report_conns
     assert conns is not None and conns[0] == live_failed and conns[1] > 3
-    exported = subprocess.run([sys.executable, "-m", "captures", "export", str(tmp_path / "live.mcap"),
+    exported = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "export", str(tmp_path / "live.mcap"),
                                "--pcap", str(tmp_path / "exported.pcap")], capture_output=True, text=True,
                               env=ENV, cwd=ROOT, timeout=120)
     assert exported.returncode == 0, exported.stderr

@@ -11,7 +11,7 @@ import os
 
 import pytest
 
-from judge.judging import Params, judge
+from mcp_conform.judge.judging import Params, judge
 from tests.conformance.runner_helpers import (
     FAST,
     run_conform,
@@ -69,7 +69,7 @@ def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_pa
     pytest.importorskip("xdist")
     spawn = sample_node_command("--fault", fault) if fault else reference_node_command()
     select = [] if fault else ["-m", "mcp_ack_1 or mcp_ack_4 or mcp_ack_5 or mcp_hdr_1 or mcp_seq_2 or mcp_rtx_1"]
-    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
            "-n", "2", *select,
            "--mcp-spawn", spawn, "--mcp-mavlink", "--mcp-rto", FAST[1],
            "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
@@ -107,7 +107,7 @@ def test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdict
     pytest.importorskip("xdist")
     spawn = sample_manager_command(*(("--fault", fault) if fault else ()))
     rule, challenge = next(((r, c) for f, r, c in MANAGER_FAULTS if f == fault), (None, 1))
-    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases_manager",
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases_manager",
            "-n", "2", "--mcp-role", "manager", "--mcp-spawn", spawn, "--mcp-challenge", str(challenge),
            "--mcp-rto", FAST[1],
            "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]

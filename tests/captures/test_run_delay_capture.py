@@ -10,14 +10,14 @@ import time
 
 import pytest
 
-from captures.cli import main
-from harness.driver import TargetDriver
-from judge.judging import Params, judge
-from judge.run_monitor import RunMonitor
-from spec import SPEC
-from spec.codec import Action, Message, encode
-from traceio.reader import Datagram, open_capture
-from traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
+from mcp_conform.captures.cli import main
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.judge.run_monitor import RunMonitor
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.reader import Datagram, open_capture
+from mcp_conform.traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
 
 NODE, LISTEN = ("127.0.0.1", 17001), ("127.0.0.1", 17889)
 MS = 10**6

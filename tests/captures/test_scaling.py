@@ -19,15 +19,15 @@ from typing import Any
 
 import pytest
 
-import captures.check as check_mod
-import captures.diff as diff_mod
-import traceio.trace as trace_mod
-from captures.cli import main
-from judge.judging import Params, evidence_of, judge
-from spec.codec import Action, Message, MissionItem, encode
-from traceio.reader import open_capture
-from traceio.recorder import McapRecorder
-from traceio.trace import Trace, evidence_indexes
+import mcp_conform.captures.check as check_mod
+import mcp_conform.captures.diff as diff_mod
+import mcp_conform.traceio.trace as trace_mod
+from mcp_conform.captures.cli import main
+from mcp_conform.judge.judging import Params, evidence_of, judge
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode
+from mcp_conform.traceio.reader import open_capture
+from mcp_conform.traceio.recorder import McapRecorder
+from mcp_conform.traceio.trace import Trace, evidence_indexes
 
 from .noisy import write_noisy
 

@@ -7,12 +7,12 @@ from typing import Any, NamedTuple
 
 import pytest
 
-import judge.judging as judging
-from captures.cli import main
-from reports.chart import Arrow, Lifeline, render, trace_svg
-from spec.codec import Action
-from traceio.reader import open_capture
-from traceio.trace import Trace
+import mcp_conform.judge.judging as judging
+from mcp_conform.captures.cli import main
+from mcp_conform.reports.chart import Arrow, Lifeline, render, trace_svg
+from mcp_conform.spec.codec import Action
+from mcp_conform.traceio.reader import open_capture
+from mcp_conform.traceio.trace import Trace
 
 from .conversation import Script, mission
 
@@ -131,8 +131,8 @@ def test_show_bad_arguments_are_one_line_errors(tmp_path, capsys, args, words):
 
 
 def test_show_case_window_of_an_mcap(tmp_path, capsys):
-    from spec.codec import Message, encode
-    from traceio.recorder import McapRecorder
+    from mcp_conform.spec.codec import Message, encode
+    from mcp_conform.traceio.recorder import McapRecorder
 
     path = tmp_path / "run.mcap"
     start, ack = encode(Message(1, 0, 5, Action.START_MISSION)), encode(Message(0, 1, 9, Action.ACK, 5))
@@ -172,8 +172,8 @@ def test_show_window_times_are_the_same_in_the_listing_and_the_chart(tmp_path, c
 def _runner_capture(path):
     """A run as mcp-conform records it: the runner (bound to all addresses) plays manager 0
     and, in a robustness case, a stranger ID 2; the node under test is drone 1."""
-    from spec.codec import Message, encode
-    from traceio.recorder import McapRecorder
+    from mcp_conform.spec.codec import Message, encode
+    from mcp_conform.traceio.recorder import McapRecorder
 
     node = ("127.0.0.1", 7890)
     with McapRecorder(path, local=("0.0.0.0", 41285)) as rec:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from conformance.report import validate_json
+from mcp_conform.conformance.report import validate_json
 from tests.conformance.runner_helpers import ROOT
 
 CASE_PREFIXES = ("PASSED", "FAILED", "INFO", "SKIPPED", "WARNED", "ERROR")
@@ -75,14 +75,14 @@ def children(pid: int, needle: str) -> list[int]:
 
 @dataclass
 class WatchedRun:
-    """``python -m conformance ARGS``, its stdout lines timestamped as they arrive."""
+    """``python -m mcp_conform.conformance ARGS``, its stdout lines timestamped as they arrive."""
 
     args: list[str]
     mark: str | None = None
     lines: list[tuple[float, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-m", "conformance", *self.args], cwd=ROOT,
+        self.proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.conformance", *self.args], cwd=ROOT,
                                      env=env(self.mark), stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, text=True)
         self._cond = threading.Condition()

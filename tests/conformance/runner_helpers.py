@@ -47,7 +47,7 @@ class RunResult:
 
 
 def run_conform(*args: str, timeout: float = 240.0) -> RunResult:
-    """``python -m conformance ARGS --json FILE`` from the repository root (a child of the
+    """``python -m mcp_conform.conformance ARGS --json FILE`` from the repository root (a child of the
     tests' fork server, ``tests/forkserver.py``, unless ``MCP_TEST_FORKSERVER=0``)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
@@ -65,7 +65,7 @@ def sample_node_command(*extra: str, rto: float = 0.2) -> str:
 
 
 def reference_node_command(rto: float = 0.2) -> str:
-    return (f"{shlex.quote(sys.executable)} -m reference_impl drone --id {{id}} --bind "
+    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl drone --id {{id}} --bind "
             f"{{target_host}}:{{target_port}} --send-to {{listen_host}}:{{listen_port}} "
             f"--mavlink {{mavlink}} --rto {rto}")
 

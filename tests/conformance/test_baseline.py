@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from conformance.baseline import BaselineError, load_baseline, write_baseline
-from conformance.report import CaseRecord
+from mcp_conform.conformance.baseline import BaselineError, load_baseline, write_baseline
+from mcp_conform.conformance.report import CaseRecord
 
 from .runner_helpers import FAST, run_conform, sample_node_command
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from conformance._case_base import CaseBase, DatagramCaseBase
-from harness.errors import CaseFailure, Inconclusive
+from mcp_conform.conformance._case_base import CaseBase, DatagramCaseBase
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
 
 
 def _ctx(subject: str = "the node") -> DatagramCaseBase:

@@ -7,8 +7,9 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-import conformance.cases
-from spec import SPEC
+import mcp_conform.conformance.cases  # noqa: F401  (the attribute the next line's name reaches)
+from mcp_conform import conformance
+from mcp_conform.spec import SPEC
 
 
 def _cases(package: object = conformance.cases) -> dict[str, tuple[str, ...]]:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from conformance.cli import build_parser, main, pytest_args
-from conformance.report import validate_json
+from mcp_conform.conformance.cli import build_parser, main, pytest_args
+from mcp_conform.conformance.report import validate_json
 from tests.capturing import free_port
 from tests.forkserver import run_module
 
@@ -149,7 +149,7 @@ def test_a_silent_target_is_waited_for_visibly_and_briefly(tmp_path):
     assert len(lines) == 1 and "--startup-timeout: no datagram from the node within 2 s" in lines[0], proc.stderr
     assert report(path)["error"].startswith("--startup-timeout: no datagram from the node within 2 s")
     assert "--startup-timeout S" in build_parser().format_help() and "(default 60" in build_parser().format_help()
-    from conformance.options import make_config
+    from mcp_conform.conformance.options import make_config
 
     assert make_config({}).extra["startup_timeout"] == 60.0
 
@@ -168,7 +168,7 @@ def test_pytest_args_are_a_quiet_isolated_run():
     ns = build_parser().parse_args(["--target", "127.0.0.1:7890", "--select", "ACK", "HDR", "--strict",
                                     "--rto", "0.5"])
     args = pytest_args(ns)
-    assert args[-2:] == ["--pyargs", "conformance.cases"]
+    assert args[-2:] == ["--pyargs", "mcp_conform.conformance.cases"]
     for pair in (["-p", "no:cacheprovider"], ["-p", "no:randomly"], ["-p", "no:terminal"]):
         assert any(args[i:i + 2] == pair for i in range(len(args)))
     assert "--mcp-target=127.0.0.1:7890" in args and "--mcp-strict" in args and "--mcp-rto=0.5" in args
@@ -184,7 +184,7 @@ def test_sigterm_leaves_valid_reports(tmp_path):
 
     js, cap = tmp_path / "r.json", tmp_path / "run.mcap"
     env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1", PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "conformance", "--json", str(js), "--capture", str(cap)],
+    proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.conformance", "--json", str(js), "--capture", str(cap)],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert proc.stdout is not None

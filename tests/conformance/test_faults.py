@@ -240,8 +240,8 @@ def test_closed_stdout_ends_quietly(tmp_path):
     'internal error' in the JSON; `--list | head -1` printed an INTERNALERROR."""
     js = tmp_path / "r.json"
     py = sys.executable
-    script = (f"{py} -m conformance --select MCP-ACK-2 MCP-ACK-3 MCP-ACK-4 MCP-HDR --json {js} | head -3; "
-              f"echo rc=${{PIPESTATUS[0]}}; {py} -m conformance --list | head -1; echo rc=${{PIPESTATUS[0]}}")
+    script = (f"{py} -m mcp_conform.conformance --select MCP-ACK-2 MCP-ACK-3 MCP-ACK-4 MCP-HDR --json {js} | head -3; "
+              f"echo rc=${{PIPESTATUS[0]}}; {py} -m mcp_conform.conformance --list | head -1; echo rc=${{PIPESTATUS[0]}}")
     proc = subprocess.run(["bash", "-c", script], cwd=ROOT, env=env(), capture_output=True, text=True, timeout=120)
     out = proc.stdout.splitlines()
     assert out[3] in ("rc=0", "rc=1") and out[-1] == "rc=0", proc.stdout + proc.stderr
@@ -281,7 +281,7 @@ def test_signals_in_quick_succession_leave_valid_reports(tmp_path, attach_node, 
     for rep in range(SIGNAL_RUNS):
         js, cap = tmp_path / f"r{rep}.json", tmp_path / f"r{rep}.mcap"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "conformance", "--target", f"127.0.0.1:{node_port}",
+            [sys.executable, "-m", "mcp_conform.conformance", "--target", f"127.0.0.1:{node_port}",
              "--listen", f"127.0.0.1:{listen_port}", *FAST, "--select", "MCP-ACK", "MCP-ROB-1",
              "--json", str(js), "--capture", str(cap)],
             cwd=ROOT, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

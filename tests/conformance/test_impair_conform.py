@@ -13,9 +13,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from fuzz.oracles import Input, judge_exchange
-from harness.impair import parse_impairment
-from spec.codec import Action, Message, encode
+from mcp_conform.fuzz.oracles import Input, judge_exchange
+from mcp_conform.harness.impair import parse_impairment
+from mcp_conform.spec.codec import Action, Message, encode
 
 from .runner_helpers import FAST, ROOT, run_conform, sample_node_command
 
@@ -24,17 +24,17 @@ BAD = ("loss=2", "--impair: loss=2 is not a probability 0..1")
 
 
 def _conform(argv):
-    from conformance.cli import main
+    from mcp_conform.conformance.cli import main
     return main(argv)
 
 
 def _node(argv):
-    from reference_impl.cli import main
+    from mcp_conform.reference_impl.cli import main
     return main(argv)
 
 
 def _fuzz(argv):
-    from fuzz.cli import main
+    from mcp_conform.fuzz.cli import main
     return main(argv)
 
 
@@ -53,10 +53,10 @@ def test_a_bad_spec_is_the_same_one_line_exit_2_on_every_cli(prog, main, argv, b
 
 
 def test_a_good_spec_is_parsed_the_same_by_conform_and_fuzz():
-    from conformance.cli import _values, build_parser
-    from conformance.options import make_config
-    from fuzz.cli import build_parser as fuzz_parser
-    from fuzz.cli import make_config as fuzz_config
+    from mcp_conform.conformance.cli import _values, build_parser
+    from mcp_conform.conformance.options import make_config
+    from mcp_conform.fuzz.cli import build_parser as fuzz_parser
+    from mcp_conform.fuzz.cli import make_config as fuzz_config
 
     text = f"{SPEC},delay=0-50ms,seed=7"
     want = parse_impairment(text)
@@ -98,7 +98,7 @@ def test_mcp_node_drone_on_a_bad_link_sends_each_datagram_twice():
             probe.close()
             rx.settimeout(20)
             env = dict(os.environ, PYTHONPATH=str(ROOT))
-            proc = subprocess.Popen([sys.executable, "-m", "reference_impl", "drone", "--id", "1", "-q",
+            proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1", "-q",
                                      "--bind", f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{rx.getsockname()[1]}",
                                      *extra], env=env, cwd=ROOT, stdout=subprocess.DEVNULL,
                                     stderr=subprocess.DEVNULL)

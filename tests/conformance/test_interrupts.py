@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from harness.interrupts import Interrupts
+from mcp_conform.harness.interrupts import Interrupts
 
 
 def _frame(filename: str) -> SimpleNamespace:

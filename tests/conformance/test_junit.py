@@ -10,8 +10,8 @@ import pytest
 from junitparser import Error, Failure, JUnitXml, Skipped
 from lxml import etree
 
-from conformance.junit import junit_xml
-from conformance.report import CaseRecord, RunRecord
+from mcp_conform.conformance.junit import junit_xml
+from mcp_conform.conformance.report import CaseRecord, RunRecord
 
 XSD = Path(__file__).parent / "data" / "jenkins-junit10-model.xsd"
 

@@ -1,4 +1,4 @@
-"""What the runner shows as it works (conformance.live): -v traffic lines in time order, the
+"""What the runner shows as it works (conformance.run_display): -v traffic lines in time order, the
 progress of the wait for the node's first datagram."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import threading
 
 from rich.console import Console
 
-from conformance.live import FirstDatagram, TrafficPrinter, WaitStatus
-from spec.codec import Action, Message, encode
+from mcp_conform.conformance.run_display import FirstDatagram, TrafficPrinter, WaitStatus
+from mcp_conform.spec.codec import Action, Message, encode
 
 PEER = ("127.0.0.1", 7890)
 

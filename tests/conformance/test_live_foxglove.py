@@ -19,10 +19,10 @@ import jsonschema
 import pytest
 from mcap.reader import make_reader
 
-from spec.codec import Action, decode
+from mcp_conform.spec.codec import Action, decode
+from mcp_conform.traceio import fox
+from mcp_conform.traceio.recorder import CHANNELS
 from tests import foxglove_ws
-from traceio import fox
-from traceio.recorder import CHANNELS
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
@@ -42,7 +42,7 @@ def test_a_websocket_client_receives_every_channel_of_a_live_run_while_it_runs(t
     capture, report = tmp_path / "run.mcap", tmp_path / "report.json"
     # "while it runs": the runner still going and its report (written at the end) not yet there
     run = foxglove_ws.watch_tool(
-        [sys.executable, "-m", "conformance", "--mavlink", "--capture", str(capture), "--json", str(report)],
+        [sys.executable, "-m", "mcp_conform.conformance", "--mavlink", "--capture", str(capture), "--json", str(report)],
         cwd=ROOT, env=ENV, stderr_to_out=True, wait=240, running=lambda: not report.exists())
     seen, out = run.seen, run.out
     assert run.returncode == 0, out
@@ -93,7 +93,7 @@ def test_an_interrupted_run_stops_serving(tmp_path: Path) -> None:
     the client's connection is closed and nothing is left listening."""
     report = tmp_path / "report.json"
     run = foxglove_ws.watch_tool(  # a few cases in: Ctrl-C
-        [sys.executable, "-m", "conformance", "--json", str(report)], cwd=ROOT, env=ENV, stderr_to_out=True,
+        [sys.executable, "-m", "mcp_conform.conformance", "--json", str(report)], cwd=ROOT, env=ENV, stderr_to_out=True,
         until=120, interrupt_when=lambda s: len(s.on("/conformance/case")) >= 6)
     assert run.returncode == 130, run.out
     assert json.loads(report.read_text())["error"] == "interrupted by SIGINT"

@@ -3,11 +3,16 @@ synthetic traffic (no sockets)."""
 
 from __future__ import annotations
 
-from conformance.manager_case import abandoned, awaiting_until, messages, runner_ack_time
-from harness.driver import Datagram, Sent, read_header
-from harness.manager_mission import Mission
-from harness.manager_monitor import monitor_mission
-from spec.codec import PREAMBLE, Action, DecodeError, Message, decode, encode
+from mcp_conform.conformance.manager_case import (
+    abandoned,
+    awaiting_until,
+    messages,
+    runner_ack_time,
+)
+from mcp_conform.harness.driver import Datagram, Sent, read_header
+from mcp_conform.harness.drone_players import Mission
+from mcp_conform.harness.manager_monitor import monitor_mission
+from mcp_conform.spec.codec import PREAMBLE, Action, DecodeError, Message, decode, encode
 
 ADDR = ("127.0.0.1", 7889)
 
@@ -94,9 +99,11 @@ def test_the_monitor_judges_the_managers_traffic():
 
 def _judge_seq_1(m: Mission) -> str | None:
     """Run the manager-role MCP-SEQ-1 case on ``m``; its failure's actual, or None."""
-    from conformance._case_base import CaseBase
-    from conformance.cases_manager.test_seq import test_each_new_message_takes_the_next_seq
-    from harness.errors import CaseFailure
+    from mcp_conform.conformance._case_base import CaseBase
+    from mcp_conform.conformance.cases_manager.test_seq import (
+        test_each_new_message_takes_the_next_seq,
+    )
+    from mcp_conform.harness.errors import CaseFailure
 
     class Node(CaseBase):
         def mission(self, kind: str = "main") -> Mission:
@@ -130,10 +137,10 @@ def test_a_mission_ready_never_acked_while_the_manager_went_on_is_ack_1_for_case
     """One judge: the manager never ACKs the drones' Mission_Ready (5 copies each) yet sends
     them Start_Mission and End_Mission: the MCP-ACK-1 case fails with that evidence, and the
     trace monitor over the same mission says MCP-ACK-1 too (not MCP-FLOW-2)."""
-    from conformance._case_base import CaseBase
-    from conformance.cases_manager.test_ack import test_every_mission_ready_is_acked
-    from harness.driver import Exchange
-    from harness.errors import CaseFailure
+    from mcp_conform.conformance._case_base import CaseBase
+    from mcp_conform.conformance.cases_manager.test_ack import test_every_mission_ready_is_acked
+    from mcp_conform.harness.driver import Exchange
+    from mcp_conform.harness.errors import CaseFailure
 
     def ready_copies(drone: int, seq: int, t0: float) -> list[Sent]:
         data = encode(Message(0, drone, seq, Action.MISSION_READY))

@@ -5,8 +5,9 @@ on a manager, counts: it reports the spec's reason.)"""
 
 from __future__ import annotations
 
-import conformance.cases_manager
-from spec import SPEC
+import mcp_conform.conformance.cases_manager  # noqa: F401  (the attribute the next line's name reaches)
+from mcp_conform import conformance
+from mcp_conform.spec import SPEC
 
 from .test_case_catalogue import _cases as _collect
 

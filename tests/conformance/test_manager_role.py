@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from spec import SPEC
+from mcp_conform.spec import SPEC
 
 from .runner_helpers import FAST, run_conform, sample_manager_command, verdict_differences
 
@@ -39,7 +39,7 @@ def same_verdicts_offline(res, capture, rule=None) -> None:
     complete; ``mcp-capture check`` of the capture, by default and with ``--complete``, gives
     the live monitor's verdicts rule by rule and its violations; the monitor proves nothing
     but the fault's rule (no false alarm beside it)."""
-    from judge.judging import Params, judge
+    from mcp_conform.judge.judging import Params, judge
 
     mon = res.report["monitor"]
     live = mon["rules"]
@@ -162,8 +162,8 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
     a fresh mission is SKIPPED with the reason."""
     import sys
 
-    from harness.manager_session import make_mission_items
-    from spec.mission import save_waypoints
+    from mcp_conform.harness.manager_session import make_mission_items
+    from mcp_conform.spec.mission import save_waypoints
 
     from .runner_helpers import ROOT, free_port
 
@@ -173,7 +173,7 @@ def test_attach_mode_judges_the_one_mission_and_skips_the_rest(tmp_path):
 
     rport = free_port()
     # a manager speaks only once a drone has: not waited for; its stderr in the failure
-    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "manager", "--challenge", "1",
+    with attached_node(lambda p: [sys.executable, "-m", "mcp_conform.reference_impl", "manager", "--challenge", "1",
                                   "--drones", "1,2,3", "--waypoints", str(wp), "--bind", f"127.0.0.1:{p}",
                                   "--send-to", f"127.0.0.1:{rport}", "--rto", "0.2", "--quiet"],
                        None, cwd=ROOT) as (mgr, mport):

@@ -3,9 +3,9 @@ command and its placeholders (no sockets, no processes)."""
 
 from __future__ import annotations
 
-from harness.manager_session import embedded_command, make_mission_items
-from harness.session import fill_placeholders
-from spec.mission import load_waypoints, sane_item, save_waypoints
+from mcp_conform.harness.drone_session import fill_placeholders
+from mcp_conform.harness.manager_session import embedded_command, make_mission_items
+from mcp_conform.spec.mission import load_waypoints, sane_item, save_waypoints
 
 
 def test_mission_items_vary_with_the_seed_and_are_non_trivial():
@@ -40,4 +40,4 @@ def test_embedded_command_fills_every_manager_placeholder():
     assert "{" not in " ".join(argv)
     assert argv[argv.index("--challenge") + 1] == "2" and argv[argv.index("--drones") + 1] == "1,2"
     assert argv[argv.index("--waypoints") + 1] == "/w" and argv[argv.index("--obstacles") + 1] == "/o"
-    assert "reference_impl" in argv and "manager" in argv
+    assert "mcp_conform.reference_impl" in argv and "manager" in argv

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import pytest
 
-from harness.config import RunConfig
-from harness.manager_session import ManagerSession, embedded_command
-from harness.manager_side import side_by_side_why_not
-from harness.session_base import EMBEDDED_ACK_WINDOW, EMBEDDED_RTO
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.manager_session import ManagerSession, embedded_command
+from mcp_conform.harness.manager_side import side_by_side_why_not
+from mcp_conform.harness.session_base import EMBEDDED_ACK_WINDOW, EMBEDDED_RTO
 
 
 def test_a_second_instance_needs_ports_of_its_own():
@@ -23,9 +23,9 @@ def test_a_second_instance_needs_ports_of_its_own():
 
 
 def test_the_tee_records_a_datagram_with_the_socket_it_reached():
-    """``mcp-conform -v`` wraps the recorder (``conformance.live.Tee``): a datagram of the
+    """``mcp-conform -v`` wraps the recorder (``conformance.run_display.Tee``): a datagram of the
     side instance's socket is recorded with that socket as its ``local``, not the main one's."""
-    from conformance.live import Tee
+    from mcp_conform.conformance.run_display import Tee
 
     got = []
 
@@ -43,8 +43,8 @@ def test_the_tee_records_a_datagram_with_the_socket_it_reached():
 
 
 def _run(tmp_path, overlap: set[str]):
-    from conformance.manager_case import ManagerCaseContext
-    from traceio.recorder import McapRecorder
+    from mcp_conform.conformance.manager_case import ManagerCaseContext
+    from mcp_conform.traceio.recorder import McapRecorder
 
     cfg = RunConfig(role="manager", embedded=True, rto=EMBEDDED_RTO, ack_window=EMBEDDED_ACK_WINDOW, challenge=2)
     capture = tmp_path / "run.mcap"
@@ -65,7 +65,7 @@ def _run(tmp_path, overlap: set[str]):
 
 @pytest.mark.slow
 def test_the_silent_scenario_runs_beside_the_main_one_attributed_by_socket(tmp_path):
-    from judge.judging import Params, judge
+    from mcp_conform.judge.judging import Params, judge
 
     s, main, silent, side_target, capture = _run(tmp_path, {"silent"})
     assert side_target is not None and side_target != s.node_address
@@ -105,8 +105,8 @@ def test_the_held_traffic_and_the_main_managers_reach_capture_and_monitor_in_one
     import time
     from types import SimpleNamespace
 
-    from harness.driver import TargetDriver
-    from harness.manager_side import SideScenario
+    from mcp_conform.harness.driver import TargetDriver
+    from mcp_conform.harness.manager_side import SideScenario
 
     rec, mon = [], []
 

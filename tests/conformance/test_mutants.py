@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from spec import SPEC
+from mcp_conform.spec import SPEC
 
 from .runner_helpers import FAST, run_conform, sample_node_command, verdict_differences
 from .test_parallel import FOLDED as PARALLEL
@@ -145,7 +145,7 @@ CASE_SAYS = {
 def same_verdicts_offline(res, capture) -> None:
     """One judge (issue 18): ``mcp-capture check`` of the run's capture, by default and with
     ``--complete``, gives the live monitor's verdicts rule by rule and its violations."""
-    from judge.judging import Params, judge
+    from mcp_conform.judge.judging import Params, judge
 
     live = res.report["monitor"]["rules"]
     live_violations = sorted((v["rule"], v["node"]) for v in res.report["monitor"]["violations"])

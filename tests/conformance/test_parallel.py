@@ -19,8 +19,15 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from conformance.parallel import pick_every
-from conformance.schedule import BATCH, BATCH_CASES, STARTUP_BOUND, Plan, plan_cases, shard_plan
+from mcp_conform.conformance.parallel import pick_every
+from mcp_conform.conformance.schedule import (
+    BATCH,
+    BATCH_CASES,
+    STARTUP_BOUND,
+    Plan,
+    plan_cases,
+    shard_plan,
+)
 
 from .runner_helpers import FAST, run_conform, sample_node_command
 
@@ -163,7 +170,7 @@ def assert_three_agree_with_one(one, three, tmp_path: Path) -> None:
     assert plan["shards"] > 1 and len({s["case"] for s in plan["steps"]}) == len(plan["steps"])
     assert len(three.report["cases"]) == len(got)  # each case once
     assert three.output.count("suite finished in") == 1
-    from conformance.report import validate_json
+    from mcp_conform.conformance.report import validate_json
 
     validate_json(three.report)
     assert (tmp_path / "three.xml").read_text().count("<testcase ") == len(got)

@@ -12,18 +12,18 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from conformance.cli import _plugin_is_installed
-from conformance.report import validate_json
+from mcp_conform.conformance.cli import _plugin_is_installed
+from mcp_conform.conformance.report import validate_json
 
 pytest_plugins = ("pytester",)
 
-PLUGIN = [] if _plugin_is_installed() else ["-p", "conformance.plugin"]
+PLUGIN = [] if _plugin_is_installed() else ["-p", "mcp_conform.conformance.plugin"]
 
 CONFTEST = """
 import json, time
-from conformance._case_base import CaseBase
-from harness.errors import SetupError, TargetLost
-from harness.node import NodeBase
+from mcp_conform.conformance._case_base import CaseBase
+from mcp_conform.harness.errors import SetupError, TargetLost
+from mcp_conform.harness.node import NodeBase
 
 SETUP_ERROR = {setup_error!r}
 LOST_AFTER = {lost_after!r}
@@ -64,8 +64,8 @@ def pytest_mcp_make_session(cfg, recorder, config):
 
 CASES = """
 import time
-from conformance.marks import rules
-from harness.errors import CaseFailure, Inconclusive
+from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
 
 @rules("MCP-BLK-7", phase="end")
 def test_end(node):
@@ -246,7 +246,7 @@ def test_target_lost_makes_the_remaining_cases_errors(pytester):
 def test_per_case_time_limit(pytester):
     cases = """
     import time
-    from conformance.marks import rules
+    from mcp_conform.conformance.marks import rules
 
     @rules("MCP-ACK-1")
     def test_hangs(node):
@@ -268,7 +268,7 @@ def test_per_case_time_limit(pytester):
 def test_run_deadline(pytester):
     cases = """
     import time
-    from conformance.marks import rules
+    from mcp_conform.conformance.marks import rules
 
     @rules("MCP-ACK-1")
     def test_first(node):
@@ -297,7 +297,7 @@ def test_a_run_deadline_passed_before_the_node_starts_is_a_setup_error(pytester)
     started the node. Now: exit 2, no case, the error saying where the time went. The host's
     stall is a plugin sleeping before the first case."""
     setup_files(pytester, """
-    from conformance.marks import rules
+    from mcp_conform.conformance.marks import rules
 
     @rules("MCP-ACK-1")
     def test_first(node):

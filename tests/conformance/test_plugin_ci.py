@@ -17,7 +17,7 @@ pytest_plugins = ("pytester",)
 
 SLOW_CASES = """
 import time
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 @rules("MCP-ACK-1")
 def test_slow_a(node):
@@ -112,7 +112,7 @@ def test_mcp_node_version():
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-m", "reference_impl", "--version"], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.reference_impl", "--version"], capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stdout.startswith("mcp-node ") and "MCP spec" in proc.stdout
 
 
@@ -122,8 +122,8 @@ import sys
 def pytest_sessionfinish(session):
     pm = session.config.pluginmanager
     with open("inert.txt", "w") as f:
-        f.write(f"{pm.has_plugin('conformance._plugin_run')} {'spec' in sys.modules} "
-                f"{'conformance._plugin_run' in sys.modules}")
+        f.write(f"{pm.has_plugin('mcp_conform.conformance._plugin_run')} {'mcp_conform.spec' in sys.modules} "
+                f"{'mcp_conform.conformance._plugin_run' in sys.modules}")
 """
 
 
@@ -171,7 +171,7 @@ def test_a_timeout_is_an_error_in_pytests_junit_as_in_ours(pytester):
     cases = SLOW_CASES.replace("time.sleep(6)", "time.sleep(8)") + """
 @rules("MCP-ACK-4")
 def test_must_fails(node):
-    from harness.errors import CaseFailure
+    from mcp_conform.harness.errors import CaseFailure
     raise CaseFailure("MCP-ACK-4", "no ACK", "an ACK of seq 3")
 
 @rules("MCP-ROB-1")
@@ -200,7 +200,8 @@ import pytest
 
 START_S, BEGIN_S, END_S, BUSY_S, GRACE_S = {start!r}, {begin!r}, {end!r}, {busy!r}, {grace!r}
 if GRACE_S is not None:
-    import conformance._plugin_run
+    import mcp_conform.conformance._plugin_run  # noqa: F401  (the attribute the next line's name reaches)
+    from mcp_conform import conformance
     conformance._plugin_run.TEARDOWN_GRACE_S = GRACE_S
 _start, _begin, _end = FakeSession.start, FakeSession.begin_case, FakeSession.end_case
 
@@ -230,7 +231,7 @@ def pytest_runtest_teardown(item, nextitem):
 
 TWO_CASES = """
 import time
-from conformance.marks import rules
+from mcp_conform.conformance.marks import rules
 
 @rules("MCP-ACK-1")
 def test_slow(node):

@@ -10,8 +10,8 @@ import jsonschema
 import pytest
 from rich.console import Console
 
-from conformance.junit import junit_xml
-from conformance.report import (
+from mcp_conform.conformance.junit import junit_xml
+from mcp_conform.conformance.report import (
     CaseRecord,
     RunRecord,
     build_json,
@@ -20,8 +20,8 @@ from conformance.report import (
     validate_json,
     write_json,
 )
-from conformance.terminal import TerminalReport
-from spec import SPEC
+from mcp_conform.conformance.terminal import TerminalReport
+from mcp_conform.spec import SPEC
 
 
 def case(cid: str, rules: tuple[str, ...], outcome: str, **kw) -> CaseRecord:
@@ -178,7 +178,7 @@ def test_terminal_listing():
 
 
 def test_merge_json_of_xdist_workers_keeps_the_worst_outcome():
-    from conformance.report import merge_json
+    from mcp_conform.conformance.report import merge_json
 
     def doc(rules, cases, error=None, dur=1.0, target="a"):
         return {"schema_version": "1.0", "target": target, "error": error, "rules": rules,
@@ -196,7 +196,7 @@ def test_merge_json_of_xdist_workers_keeps_the_worst_outcome():
 
 # ---------------------------------------------------------------------- cascades
 def test_a_failure_relying_on_a_rule_that_failed_first_is_named_its_consequence():
-    from conformance.report import name_consequence
+    from mcp_conform.conformance.report import name_consequence
 
     root = case("ACK/test_ack", ("MCP-ACK-1",), "failed", failed_rule="MCP-ACK-1", actual="no reply",
                 reason="MCP-ACK-1: ...")

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.link_copies import credited_copy
-from harness.driver import Datagram, Sent
-from harness.impair import Decision, Delivery
-from harness.impair_link import ImpairEvent
-from spec.codec import Action, Message, encode
+from mcp_conform.conformance.link_copies import credited_copy
+from mcp_conform.harness.driver import Datagram, Sent
+from mcp_conform.harness.impair import Decision, Delivery
+from mcp_conform.harness.impair_link import ImpairEvent
+from mcp_conform.spec.codec import Action, Message, encode
 
 from .runner_helpers import FAST, run_conform, sample_node_command
 

@@ -1,6 +1,6 @@
 """mcp-conform end to end: the reference drone passes in every mode; setup errors exit 2.
 
-These run the runner as a user does (``python -m conformance``, a subprocess) and read the
+These run the runner as a user does (``python -m mcp_conform.conformance``, a subprocess) and read the
 JSON report it writes. Timing figures are printed by the runner, never asserted here.
 """
 
@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from spec import SPEC
+from mcp_conform.spec import SPEC
 from tests.spawned import attached_node
 
 from .runner_helpers import (
@@ -70,7 +70,7 @@ def test_spawn_mode_reference_node_passes_with_the_vehicle_over_udp(transport, t
 def test_attach_mode_reference_node_passes_and_skips_vehicle_rules():
     listen = free_port()
     # attach: the node runs (and speaks) before the runner starts
-    with attached_node(lambda port: [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind",
+    with attached_node(lambda port: [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "3", "--bind",
                                      f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
                        listen, cwd=ROOT) as (_, port):
         res = run_conform("--target", f"127.0.0.1:{port}", "--listen", f"127.0.0.1:{listen}", *FAST)
@@ -100,14 +100,14 @@ def test_pytest_xdist_runs_spawned_targets_in_parallel_and_merges_the_json(tmp_p
     """`pytest --pyargs conformance.cases -n 2 --mcp-spawn ...`: each worker its own node."""
     out = tmp_path / "report.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
          "-n", "2", "--mcp-spawn", reference_node_command(), "--mcp-mavlink", "--mcp-rto", "0.2", "--mcp-ack-window", "0.25",
          "--mcp-json", str(out)],
         cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
     import json
 
-    from conformance.report import validate_json
+    from mcp_conform.conformance.report import validate_json
 
     doc = json.loads(out.read_text())
     validate_json(doc)
@@ -121,7 +121,7 @@ def test_pytest_xdist_runs_spawned_targets_in_parallel_and_merges_the_json(tmp_p
 def test_selection_by_rule_marker(tmp_path):
     out = tmp_path / "report.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
          "-m", "mcp_ack_4 or mcp_ack_6", "--mcp-json", str(out)],
         cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]

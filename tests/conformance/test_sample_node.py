@@ -19,9 +19,17 @@ from pathlib import Path
 
 import pytest
 
-from spec.codec import BROADCAST_ID, Action, DecodeError, Message, build_datagram, decode, encode
+from mcp_conform.spec.codec import (
+    BROADCAST_ID,
+    Action,
+    DecodeError,
+    Message,
+    build_datagram,
+    decode,
+    encode,
+)
+from mcp_conform.vehicle import SimVehicle, make_probe
 from tests.conformance.nodes.sample_node import FAULTS
-from vehicle import SimVehicle, make_probe
 
 ROOT = Path(__file__).resolve().parents[2]
 NODE = ROOT / "tests" / "conformance" / "nodes" / "sample_node.py"
@@ -292,7 +300,7 @@ def test_a_signal_while_the_main_thread_logs_does_not_hang_the_node(mgr):
 
 
 def test_every_fault_names_a_rule_of_the_spec():
-    from spec import SPEC
+    from mcp_conform.spec import SPEC
 
     for name, (rule, _) in FAULTS.items():
         assert SPEC.rule(rule) is not None, name

@@ -11,13 +11,13 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from conformance._batch import _Member, unclean
-from conformance.schedule import BATCH, BATCH_CASES, CRASHABLE, plan_cases
-from harness.driver import Datagram, Sent, read_header
-from harness.errors import CaseFailure, Inconclusive
-from judge.attribution import Attribution
-from spec.codec import Action, Message, encode
-from spec.profiles import ROLE_NAMES, profile_of_role
+from mcp_conform.conformance._batch import _Member, unclean
+from mcp_conform.conformance.schedule import BATCH, BATCH_CASES, CRASHABLE, plan_cases
+from mcp_conform.harness.driver import Datagram, Sent, read_header
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.judge.attribution import Attribution
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.spec.profiles import ROLE_NAMES, profile_of_role
 
 from .runner_helpers import run_conform
 
@@ -114,7 +114,7 @@ class _Drv:
         return s
 
     def reply(self, data: bytes, attribution: Attribution | None) -> None:
-        from spec.codec import decode
+        from mcp_conform.spec.codec import decode
 
         try:
             msg = decode(data)
@@ -209,7 +209,7 @@ def test_a_failure_a_silence_or_another_message_throws_the_batch_away():
 
 
 def test_a_batch_thrown_away_gives_the_rest_of_the_run_the_serial_order():
-    from conformance._batch import serial_from_here
+    from mcp_conform.conformance._batch import serial_from_here
 
     class It:  # an item: hashable, with its session
         session: object = None

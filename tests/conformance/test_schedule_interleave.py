@@ -23,12 +23,12 @@ from types import SimpleNamespace
 
 import pytest
 
-from conformance._batch import BatchRun, run_batch
-from conformance.case import CaseContext
-from conformance.cases.test_dup import test_same_seq_twice_is_delivered_once as dup_1
-from harness.config import RunConfig
-from harness.session import Session
-from spec.codec import Action
+from mcp_conform.conformance._batch import BatchRun, run_batch
+from mcp_conform.conformance.cases.test_dup import test_same_seq_twice_is_delivered_once as dup_1
+from mcp_conform.conformance.drone_case import CaseContext
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.drone_session import Session
+from mcp_conform.spec.codec import Action
 
 from .runner_helpers import FAST, run_conform
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import pytest
 
-from harness.session_base import disagrees, timing_note
-from judge.monitor import Monitor
-from spec.codec import Action, Message, encode
+from mcp_conform.harness.session_base import disagrees, timing_note
+from mcp_conform.judge.monitor import Monitor
+from mcp_conform.spec.codec import Action, Message, encode
 
 from .runner_helpers import run_conform, sample_node_command
 

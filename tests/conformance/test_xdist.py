@@ -12,7 +12,7 @@ import sys
 import pytest
 from mcap.reader import make_reader
 
-from conformance.report import validate_json
+from mcp_conform.conformance.report import validate_json
 
 from .runner_helpers import FAST, ROOT, reference_node_command
 
@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 
 def test_spawn_mode_under_xdist_leaves_one_report_of_each_kind(tmp_path):
     pytest.importorskip("xdist")
-    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "conformance.cases",
+    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
            "-n", "2", "-m", "mcp_ack_1 or mcp_ack_4 or mcp_hdr_1 or mcp_seq_2",
            "--mcp-spawn", reference_node_command(), "--mcp-mavlink",
            "--mcp-rto", FAST[1], "--mcp-ack-window", FAST[3],

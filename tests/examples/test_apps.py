@@ -112,8 +112,8 @@ def test_sigterm_while_waiting_for_the_vehicle(app: str) -> None:
     """A vehicle that reports no GPS fix: the application connects, sends no Mission_Ready
     (MCP-BLK-5) and SIGTERM ends it with exit 0 and no traceback."""
     _need(app)
+    from mcp_conform.vehicle import SimVehicle
     from tests.capturing import free_port
-    from vehicle import SimVehicle
 
     with SimVehicle() as v, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as manager:
         v.withhold_fix()

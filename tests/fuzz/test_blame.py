@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.budget import GRACE_S
+from mcp_conform.fuzz.budget import GRACE_S
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -28,7 +28,7 @@ def _spawn(mode: str) -> str:
 
 
 def _fuzz(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", *args], capture_output=True,
                           text=True, timeout=DURATION + GRACE_S + 120, cwd=ROOT)
 
 

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import pytest
 
-from fuzz.budget import GRACE_S
-from fuzz.campaign import run_campaign
-from fuzz.cli import main as fuzz_main
-from fuzz.config import FuzzConfig
-from fuzz.findings import NO_INPUT, FindingStore, load_finding
+from mcp_conform.fuzz.budget import GRACE_S
+from mcp_conform.fuzz.campaign import run_campaign
+from mcp_conform.fuzz.cli import main as fuzz_main
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import NO_INPUT, FindingStore, load_finding
 from tests.fuzz.test_faulty_nodes import spawn_command
 
 pytestmark = [pytest.mark.slow]

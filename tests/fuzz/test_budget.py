@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.budget import GRACE_S, campaign_end
+from mcp_conform.fuzz.budget import GRACE_S, campaign_end
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -39,7 +39,7 @@ def test_a_jobs_campaign_ends_within_duration_plus_grace(tmp_path):
     spawn = (f"{sys.executable} -m tests.fuzz.servers.misbehaving_backend --bind {{target_host}}:{{target_port}} "
              f"--mode slow-restart --state {tmp_path / 'started'} --restart-delay 22 --lifetime 120")
     t0 = time.monotonic()
-    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--spawn", spawn, "--jobs", "2",
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--spawn", spawn, "--jobs", "2",
                           "--duration", f"{DURATION:g}", "--out", str(tmp_path / "out")],
                          capture_output=True, text=True, timeout=DURATION + GRACE_S + 150, cwd=ROOT)
     wall = time.monotonic() - t0

@@ -42,7 +42,7 @@ def _fuzz(args: list[str]) -> subprocess.Popen[str]:
     """mcp-fuzz in a subprocess with SIGINT at its default (a test runner may ignore it, and
     an ignored signal stays ignored across exec): coreutils' ``env --default-signal``, which
     execs the command, rather than a ``preexec_fn`` in a pytest worker that may run threads."""
-    return subprocess.Popen(["env", "--default-signal=INT", sys.executable, "-m", "fuzz", *args], cwd=ROOT,
+    return subprocess.Popen(["env", "--default-signal=INT", sys.executable, "-m", "mcp_conform.fuzz", *args], cwd=ROOT,
                             env=_env(), text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
@@ -79,7 +79,7 @@ def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path
 
     listen_port = free_port()
     out_dir = tmp_path / "out"
-    with attached_node(lambda port: [sys.executable, "-m", "reference_impl", "drone", "--id", "1", "--bind",
+    with attached_node(lambda port: [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "1", "--bind",
                                      f"127.0.0.1:{port}", "--send-to", f"127.0.0.1:{listen_port}", "--rto", "0.2"],
                        listen_port, cwd=ROOT, env=_env()) as (node, node_port):  # it runs and speaks
         proc = _fuzz(["--target", f"127.0.0.1:{node_port}", "--listen", f"127.0.0.1:{listen_port}",

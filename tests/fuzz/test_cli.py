@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from fuzz.cli import UsageError, main
-from fuzz.ddmin import ddmin
-from fuzz.findings import Finding, FindingStore, load_finding
+from mcp_conform.fuzz.cli import UsageError, main
+from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.findings import Finding, FindingStore, load_finding
 from tests.capturing import free_port
 
 
@@ -39,7 +39,7 @@ def test_bad_arguments_are_one_line_errors(argv: list[str], words: str,
 
 
 def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noqa: ANN001
-    from traceio.reader import Datagram, Metadata, open_capture
+    from mcp_conform.traceio.reader import Datagram, Metadata, open_capture
 
     store = FindingStore(tmp_path, ["--mavlink"])
     f = Finding("MCP-ACK-4", "no ACK", "an ACK", ["4e4353552d434d0101ffff000000010005"], "replies: valid",
@@ -55,7 +55,7 @@ def test_finding_written_and_loaded_with_repro_capture(tmp_path) -> None:  # noq
     meta = [r for r in open_capture(d / "repro.mcap") if isinstance(r, Metadata)]
     assert len(meta) == 1 and meta[0].data["recorder"] == "mcp-fuzz", meta
     assert meta[0].data["rule"] == "MCP-ACK-4" and meta[0].data["seed"] == "5", meta
-    from fuzz.findings import finding_from_metadata
+    from mcp_conform.fuzz.findings import finding_from_metadata
 
     back = finding_from_metadata(meta[0].data)  # what mcp-capture replay reproduces
     assert back is not None and (back.rule, back.datagrams, back.pace) == (f.rule, f.datagrams, f.pace)
@@ -76,9 +76,9 @@ def test_shrink_finds_the_minimal_pair() -> None:
 
 
 def test_seeds_are_the_sent_datagrams_of_mcap_captures(tmp_path) -> None:  # noqa: ANN001
-    from fuzz.campaign import load_seeds
-    from harness.errors import SetupError
-    from traceio.recorder import McapRecorder
+    from mcp_conform.fuzz.campaign import load_seeds
+    from mcp_conform.harness.errors import SetupError
+    from mcp_conform.traceio.recorder import McapRecorder
 
     sent = [bytes.fromhex("4e4353552d434d010100010000000a0005"), b"\x01\x02"]
     with McapRecorder(tmp_path / "a.mcap") as rec:
@@ -96,9 +96,10 @@ def test_progress_off_a_terminal_is_a_plain_status_line_every_few_seconds(
     until the end), a line per ``STATUS_S``, not one per update; then the summary."""
     import io
 
-    import fuzz.progress
-    from fuzz.config import FuzzConfig
-    from fuzz.progress import LiveProgress, Progress
+    import mcp_conform.fuzz.progress  # noqa: F401  (the attribute the next line's name reaches)
+    from mcp_conform import fuzz
+    from mcp_conform.fuzz.config import FuzzConfig
+    from mcp_conform.fuzz.progress import LiveProgress, Progress
 
     clock = [100.0]
     monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
@@ -125,9 +126,10 @@ def test_status_every_sets_the_period_of_the_plain_status_line(monkeypatch: pyte
     period that is not a positive number is a one-line usage error."""
     import io
 
-    import fuzz.progress
-    from fuzz.cli import build_parser, make_config
-    from fuzz.progress import LiveProgress, Progress
+    import mcp_conform.fuzz.progress  # noqa: F401  (the attribute the next line's name reaches)
+    from mcp_conform import fuzz
+    from mcp_conform.fuzz.cli import build_parser, make_config
+    from mcp_conform.fuzz.progress import LiveProgress, Progress
 
     clock = [100.0]
     monkeypatch.setattr(fuzz.progress.time, "monotonic", lambda: clock[0])
@@ -155,8 +157,8 @@ def test_status_every_sets_the_period_of_the_plain_status_line(monkeypatch: pyte
 def test_one_convention_for_should_findings(monkeypatch: pytest.MonkeyPatch, tmp_path,
                                             levels: tuple[str, ...], strict: bool, code: int) -> None:
     """Issue 18 item 12: mcp-fuzz exits 1 on a SHOULD finding only under --strict."""
-    import fuzz.campaign
-
+    import mcp_conform.fuzz.campaign  # noqa: F401  (the attribute the next line's name reaches)
+    from mcp_conform import fuzz
     rules = {"SHOULD": "MCP-ROB-4", "MUST": "MCP-ROB-1"}
 
     def campaign(cfg, store, progress=None):  # a campaign that confirmed these findings
@@ -165,7 +167,7 @@ def test_one_convention_for_should_findings(monkeypatch: pytest.MonkeyPatch, tmp
         return {"cases": 1, "findings": len(store)}
 
     monkeypatch.setattr(fuzz.campaign, "run_campaign", campaign)
-    monkeypatch.setattr("fuzz.progress.LiveProgress.final", lambda self, summary, store: None)
+    monkeypatch.setattr("mcp_conform.fuzz.progress.LiveProgress.final", lambda self, summary, store: None)
     argv = ["--max-cases", "1", "--out", str(tmp_path)] + (["--strict"] if strict else [])
     assert main(argv) == code
 
@@ -199,8 +201,8 @@ def test_repro_capture_holds_the_whole_finding_and_its_marks_in_order(tmp_path) 
     item 13: the start mark came after the end mark)."""
     import time as _time
 
-    from fuzz.findings import finding_from_metadata, write_repro
-    from traceio.reader import CaseMark, Datagram, Metadata, open_capture
+    from mcp_conform.fuzz.findings import finding_from_metadata, write_repro
+    from mcp_conform.traceio.reader import CaseMark, Datagram, Metadata, open_capture
 
     f = Finding("MCP-DUP-1", "once", "twice", ["00ff"], "passthrough", "stateful", 3,
                 program="state.command(...)", evidence=["vehicle: token x delivered 2 times"],

@@ -10,13 +10,14 @@ from types import SimpleNamespace
 
 import pytest
 
-import fuzz.triage
-from fuzz.findings import NO_INPUT, FindingStore
-from fuzz.oracles import Flaw, Input, judge_exchange
-from fuzz.replay import Outcome
-from fuzz.triage import CONFIRM_N, Triage
-from harness.driver import TargetDriver
-from spec.codec import Action, Message, decode, encode
+import mcp_conform.fuzz.triage  # noqa: F401  (the attribute the next line's name reaches)
+from mcp_conform import fuzz
+from mcp_conform.fuzz.findings import NO_INPUT, FindingStore
+from mcp_conform.fuzz.oracles import Flaw, Input, judge_exchange
+from mcp_conform.fuzz.replay import Outcome
+from mcp_conform.fuzz.triage import CONFIRM_N, Triage
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.spec.codec import Action, Message, decode, encode
 
 
 class _Target:

@@ -12,8 +12,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from fuzz.cli import UsageError, _check_reachable
-from vehicle.ports import free_port
+from mcp_conform.fuzz.cli import UsageError, _check_reachable
+from mcp_conform.vehicle.ports import free_port
 
 SECRET = "s3cret-pw"
 
@@ -73,7 +73,7 @@ def test_the_campaigns_database_keeps_the_password(redis_with_password: int) -> 
     """The stateful engines' example database (``fuzz.engine_stateful.open_database``) is opened
     from the same URL by redis-py: what one worker saves, another reads (the hand-written parser
     kept host, port and db only, so a password-protected server refused every save)."""
-    from fuzz.engine_stateful import check_database, open_database
+    from mcp_conform.fuzz.engine_stateful import check_database, open_database
 
     url = f"redis://:{SECRET}@127.0.0.1:{redis_with_password}/0"
     check_database(url)

@@ -9,8 +9,8 @@ import sys
 import textwrap
 import time
 
-from fuzz.stream_oracles import frame_name, parse_cause
-from harness.procs import ManagedProcess
+from mcp_conform.fuzz.nsqd_oracles import frame_name, parse_cause
+from mcp_conform.harness.procs import ManagedProcess
 
 OVERREAD = """\
 ==7==ERROR: AddressSanitizer: heap-buffer-overflow on address 0x602 at pc 0x55 bp 0x7f sp 0x7f

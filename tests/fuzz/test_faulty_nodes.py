@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.campaign import run_campaign
-from fuzz.cli import main as fuzz_main
-from fuzz.config import FuzzConfig
-from fuzz.findings import FindingStore
+from mcp_conform.fuzz.campaign import run_campaign
+from mcp_conform.fuzz.cli import main as fuzz_main
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import FindingStore
 
 SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
 MAX_CASES = 20_000
@@ -80,7 +80,7 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
     repro = str(finding_dir / "repro.mcap")
     common = ["--rto", "0.2", "--ack-window", "0.25", *(["--mavlink"] if mavlink else [])]
     for spawn, want in ((cfg.spawn, 1), (spawn_command(fault, mavlink).replace(f" --fault {fault}", ""), 0)):
-        proc = subprocess.run([sys.executable, "-m", "captures", "replay", repro, "--spawn", spawn, *common],
+        proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", repro, "--spawn", spawn, *common],
                               capture_output=True, text=True, timeout=120)
         assert proc.returncode == want, (spawn, proc.stdout, proc.stderr)
         assert ("reproduced " if want else "did not reproduce") in proc.stdout, proc.stdout
@@ -102,7 +102,7 @@ def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Pat
     assert eng["fuzz_seconds"] <= duration + slack, eng
     assert summary["duration_s"] <= duration + eng["triage_seconds"] + slack, summary
     # every restart says why (issue 18 item 9)
-    from fuzz.target_base import DIED, MISSION_ENDED, REPLAY, WITHHELD_START
+    from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED, REPLAY, WITHHELD_START
 
     reasons = summary["restarts_by_reason"]
     assert sum(reasons.values()) == summary["restarts"] > 0, summary

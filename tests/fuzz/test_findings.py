@@ -8,11 +8,11 @@ import json
 
 import pytest
 
-from fuzz.findings import FindingStore, read_finding
-from fuzz.stream_campaign import nsqd_finding
-from fuzz.stream_mutators import Case, Write
-from fuzz.stream_oracles import Signature
-from fuzz.stream_repro import write_finding_files
+from mcp_conform.fuzz.findings import FindingStore, read_finding
+from mcp_conform.fuzz.nsqd_campaign import nsqd_finding
+from mcp_conform.fuzz.nsqd_mutators import Case, Write
+from mcp_conform.fuzz.nsqd_oracles import Signature
+from mcp_conform.fuzz.nsqd_repro import write_finding_files
 
 #: finding.json as the Nsqd campaign wrote it before issue 37
 OLD_NSQD = {"protocol": "nsqd", "oracle": "crash", "kind": "SIGSEGV", "access": "", "frames": ["f"],
@@ -61,8 +61,8 @@ def test_the_store_groups_and_writes_an_nsqd_finding_as_an_mcp_one(tmp_path):
 def test_every_protocol_names_the_campaign_mcp_fuzz_runs():
     """``mcp-fuzz`` reaches each protocol's campaign through its profile (``fuzz_campaign``):
     one command line, no branch on a protocol's name (``fuzz.plugin.FuzzCampaign``)."""
-    from fuzz.plugin import FuzzCampaign
-    from spec.profiles import PROFILES, resolve
+    from mcp_conform.fuzz.plugin import FuzzCampaign
+    from mcp_conform.spec.profiles import PROFILES, resolve
 
     wanted = {n for n in vars(FuzzCampaign) if not n.startswith("_")} | set(FuzzCampaign.__annotations__)
     for prof in PROFILES.values():

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.campaign import run_campaign, run_worker
-from fuzz.config import FuzzConfig
-from fuzz.findings import FindingStore
+from mcp_conform.fuzz.campaign import run_campaign, run_worker
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import FindingStore
 from tests.capturing import free_port
 from tests.fuzz.test_faulty_nodes import spawn_command
 

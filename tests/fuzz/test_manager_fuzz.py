@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 def fuzz(tmp_path: Path, *args: str) -> tuple[int, dict, str]:
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-    proc = subprocess.run([sys.executable, "-m", "fuzz.cli", "--role", "manager", *args, "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz.cli", "--role", "manager", *args, "--out", str(out)],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else {}
     return proc.returncode, summary, proc.stdout + proc.stderr

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from fuzz.mutators import MUTATORS, CaseGenerator
-from spec.codec import MAX_DATAGRAM, Action, DecodeError, decode
+from mcp_conform.fuzz.mutators import MUTATORS, CaseGenerator
+from mcp_conform.spec.codec import MAX_DATAGRAM, Action, DecodeError, decode
 
 
 def _cases(seed: int, n: int) -> list:

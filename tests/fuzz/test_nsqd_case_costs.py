@@ -10,10 +10,10 @@ import time
 
 import pytest
 
-from fuzz.stream_campaign import Backend
-from fuzz.stream_mutators import Case, Write
-from spec import NSQD
-from spec.stream_codec import encode
+from mcp_conform.fuzz.nsqd_campaign import Backend
+from mcp_conform.fuzz.nsqd_mutators import Case, Write
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
 
 pytestmark = pytest.mark.nsqd
 
@@ -59,7 +59,7 @@ def test_a_valid_case_on_a_kept_connection_is_not_waited_for(backend, monkeypatc
     """A correct backend answers a frame it handles with nothing: a fixed wait after it proved
     nothing. On a kept connection it is sent and what is there read (pump(0)); an answered bad
     frame still ends its watch at the answer."""
-    from harness.stream_session import Conn
+    from mcp_conform.harness.nsqd_session import Conn
 
     waits: list[tuple[str, float]] = []
     real = Conn.pump
@@ -84,7 +84,7 @@ def test_a_probe_ends_at_the_update_that_shows_its_effect():
     end, and the next connection's first UPDATE shows the state it left; the probe does not wait
     for the old connection's next periodic UPDATE (here 30 s away: a loaded host's slow probe
     never meets one by chance)."""
-    from harness.stream_session import embedded_command
+    from mcp_conform.harness.nsqd_session import embedded_command
 
     spawn = embedded_command().replace("--update-period 0.05", "--update-period 30")
     assert "--update-period 30" in spawn
@@ -117,8 +117,8 @@ def test_a_close_after_unwatched_valid_frames_is_still_found_and_replays():
     close window before the next bad frame goes out, and its replay alone shows the close."""
     import random
 
-    from fuzz.stream_backend import _reproduces
-    from fuzz.stream_mutators import _gpx
+    from mcp_conform.fuzz.nsqd_backend import _reproduces
+    from mcp_conform.fuzz.nsqd_mutators import _gpx
     from tests.nsqd_backends.build import built_or_skip
 
     exe = built_or_skip()
@@ -145,7 +145,7 @@ def test_the_sessions_record_of_what_was_sent_is_the_current_cases(backend):
     write since the start (hundreds of MB in minutes at thousands of cases/s)."""
     import random
 
-    from fuzz.stream_mutators import draw_case
+    from mcp_conform.fuzz.nsqd_mutators import draw_case
 
     rng = random.Random(3)
     for _ in range(60):

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_both_engines_share_the_case_budget(tmp_path: Path) -> None:
     out = tmp_path / "fz"
     proc = subprocess.run(
-        [sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--engine", "both", "--max-cases", "400",
+        [sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--engine", "both", "--max-cases", "400",
          "--seed", "3", "--out", str(out)],
         cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.stream_campaign import StreamCampaign
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
 from tests.nsqd_backends.build import built_or_skip
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
@@ -52,7 +52,7 @@ def test_each_class_is_found_confirmed_and_replays(tmp_path, backend, fault):
     if oracle == "leak":
         return  # observed over the campaign's connections: NSQD-CON-3's conformance case replays it
     for spawn, want in ((_spawn(backend, fault), 1), (_spawn(backend), 0)):
-        run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(tmp_path / "finding-1"),
+        run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(tmp_path / "finding-1"),
                               "--spawn", spawn], capture_output=True, text=True, timeout=120)
         assert run.returncode == want, (spawn, run.stdout, run.stderr)
     if oracle == "crash":
@@ -76,7 +76,7 @@ def test_a_bad_id_desync_replays_however_soon_the_close_is_seen(tmp_path, backen
     when not: now it goes on the old one either way, as a connection that had to be kept."""
     import time
 
-    import fuzz.stream_campaign as sc
+    import mcp_conform.fuzz.nsqd_campaign as sc
 
     writes = [{"hex": "0000000991834b4746", "end": ""}]  # id 145, 4 bytes of body
     (tmp_path / "finding.json").write_text(json.dumps({

@@ -1,6 +1,6 @@
 """A backend found dead at a pipelined program's turnover (``Player.finish``: every client's
 FIN, then a new connection) is the program's :class:`Hit`, as a death anywhere else in the
-program is. The backend's own record of a death (``fuzz.stream_backend.Hit``) is no exception:
+program is. The backend's own record of a death (``fuzz.nsqd_backend.Hit``) is no exception:
 raised as it was, it ended a real backend's default campaign with "TypeError: exceptions must
 derive from BaseException" (exit 2) once the engine mix reached the stateful engine."""
 
@@ -11,9 +11,9 @@ import signal
 
 import pytest
 
-from fuzz.stream_backend import Backend
-from fuzz.stream_mutators import Write
-from fuzz.stream_stateful import Hit, Op, Player, command_bytes
+from mcp_conform.fuzz.nsqd_backend import Backend
+from mcp_conform.fuzz.nsqd_mutators import Write
+from mcp_conform.fuzz.nsqd_stateful import Hit, Op, Player, command_bytes
 from tests.nsqd_backends.build import built_or_skip
 
 

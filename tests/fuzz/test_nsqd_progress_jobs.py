@@ -14,11 +14,12 @@ from pathlib import Path
 
 import pytest
 
-import fuzz.progress
-from fuzz.config import FuzzConfig
-from fuzz.progress import LiveProgress, Progress, tried_table
-from fuzz.stream_campaign import StreamCampaign
-from spec import NSQD
+import mcp_conform.fuzz.progress  # noqa: F401  (the attribute the next line's name reaches)
+from mcp_conform import fuzz
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
+from mcp_conform.fuzz.progress import LiveProgress, Progress, tried_table
+from mcp_conform.spec import NSQD
 from tests.nsqd_backends.build import built_or_skip
 
 NSQD_CFG = FuzzConfig(protocol="nsqd", role="backend", engine="both")
@@ -85,7 +86,7 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 @pytest.mark.slow
 @pytest.mark.nsqd
 def test_summary_json_and_plain_progress_from_the_command_line(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--duration", "12", "--out", str(tmp_path),
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--duration", "12", "--out", str(tmp_path),
                           "--engine", "both"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
     status = [line for line in run.stdout.splitlines() if "judged cases/s  findings" in line]
@@ -104,9 +105,9 @@ def test_jobs_share_the_example_database(tmp_path, monkeypatch):
     cases each they find the second-client fault; with an empty database they do not. The
     saved program is two ops when hypothesis shrank it to its end: on a slow host not cut
     short by the campaign's shrinking time."""
-    import fuzz.stream_stateful
-
-    monkeypatch.setattr(fuzz.stream_stateful, "SHRINK_S", 600.0)
+    import mcp_conform.fuzz.nsqd_stateful  # noqa: F401  (the attribute the next line's name reaches)
+    from mcp_conform import fuzz
+    monkeypatch.setattr(fuzz.nsqd_stateful, "SHRINK_S", 600.0)
     exe = built_or_skip()
     spawn, db = _spawn(exe, "second-client-kicks-first"), str(tmp_path / "db")
     first = StreamCampaign(None, spawn, 3, 60.0, None, None, engine="stateful", db=db, stop_after=1)

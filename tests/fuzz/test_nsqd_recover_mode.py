@@ -17,21 +17,21 @@ import sys
 
 import pytest
 
-from fuzz.stream_backend import Backend, _defaults, _reproduces
-from fuzz.stream_campaign import StreamCampaign
-from fuzz.stream_mutators import Case, Write
-from fuzz.stream_oracles import Signature
-from fuzz.stream_player import Op
-from fuzz.stream_stateful import play_program
-from spec import NSQD
-from spec.stream_codec import encode
+from mcp_conform.fuzz.nsqd_backend import Backend, _defaults, _reproduces
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
+from mcp_conform.fuzz.nsqd_mutators import Case, Write
+from mcp_conform.fuzz.nsqd_oracles import Signature
+from mcp_conform.fuzz.nsqd_player import Op
+from mcp_conform.fuzz.nsqd_stateful import play_program
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
 FAKE = r'''
 import argparse, os, sys
-from reference_impl.nsqd_backend import BackendCore, BackendServer
-from spec.stream_codec import BodyError, decode_body, number_problem
+from mcp_conform.reference_impl.nsqd_backend import BackendCore, BackendServer
+from mcp_conform.spec.nsqd_codec import BodyError, decode_body, number_problem
 
 REPORT = """=================================================================
 ==%(pid)d==ERROR: AddressSanitizer: heap-buffer-overflow on address 0x60300000062b at pc 0x7fd3 bp 0x7ffe sp 0x7ffe

@@ -8,8 +8,8 @@ from __future__ import annotations
 import time
 from types import SimpleNamespace
 
-from fuzz.stream_backend import Backend, Traits
-from harness.stream_session import Death
+from mcp_conform.fuzz.nsqd_backend import Backend, Traits
+from mcp_conform.harness.nsqd_session import Death
 
 REPORT = [
     "==1==ERROR: AddressSanitizer: heap-buffer-overflow on address 0x6020 at pc 0x55 bp 0x7f sp 0x7f",
@@ -63,7 +63,7 @@ def test_a_replay_waits_for_a_crash_whose_report_begins_late():
     """A replay has no next case to show a death: it waited 0.5 s, then classed whatever part
     of a report it found as "sanitizer" (CI, loaded: the finding, a crash, "did not
     reproduce"). Now it waits for the death or the report's start, and takes the report whole."""
-    from fuzz.stream_backend import _replay
+    from mcp_conform.fuzz.nsqd_backend import _replay
 
     sig = _backend(exits_after=0.0).report_hit().signature
     assert sig.oracle == "crash"

@@ -18,14 +18,14 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.finding_files import read_finding_doc
-from fuzz.findings import read_finding
-from fuzz.stream_campaign import StreamCampaign
-from spec import NSQD
-from spec.stream_codec import Deframer, Frame
+from mcp_conform.fuzz.finding_files import read_finding_doc
+from mcp_conform.fuzz.findings import read_finding
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import Deframer, Frame
+from mcp_conform.traceio.nsqd import stream_records
+from mcp_conform.traceio.reader import Metadata, StreamEvent, StreamFrame, open_capture
 from tests.nsqd_backends.build import built_or_skip
-from traceio.reader import Metadata, StreamEvent, StreamFrame, open_capture
-from traceio.stream import stream_records
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -94,7 +94,7 @@ def test_repro_pcap_is_a_tcp_conversation_tshark_follows_to_the_input(finding):
 def test_mcp_capture_replay_reproduces_it_or_not(finding, what):
     exe, d = finding
     for spawn, want in ((_spawn(exe, FAULT), 1), (_spawn(exe), 0)):
-        run = subprocess.run([sys.executable, "-m", "captures", "replay", str(d / what), "--spawn", spawn],
+        run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", str(d / what), "--spawn", spawn],
                              capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
         assert run.returncode == want, (spawn, run.stdout, run.stderr)
         assert ("reproduced NSQD-ROB-1" if want else "did not reproduce") in run.stdout
@@ -104,6 +104,6 @@ def test_replay_of_a_file_that_is_no_finding_is_one_line_exit_2(tmp_path):
     bad = tmp_path / "finding-9"
     bad.mkdir()
     (bad / "finding.json").write_text('{"protocol": "nsqd"}')
-    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(bad)],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(bad)],
                          capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
     assert run.returncode == 2 and run.stdout.count("\n") == 1 and "Traceback" not in run.stderr, run

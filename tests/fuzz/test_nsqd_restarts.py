@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.stream_backend import Backend
-from fuzz.stream_campaign import StreamCampaign
+from mcp_conform.fuzz.nsqd_backend import Backend
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
 from tests.nsqd_backends.build import built_or_skip
 
 pytestmark = [pytest.mark.nsqd]
@@ -56,7 +56,7 @@ def test_restarts_after_counted_crashes_are_not_triage(tmp_path, spawn):
 
 @pytest.mark.slow
 def test_the_last_line_gives_fuzzing_triage_and_restarts(tmp_path, spawn):
-    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--spawn", spawn, "--duration", "5"],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--spawn", spawn, "--duration", "5"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     last = run.stdout.strip().splitlines()[-1]
     print(last)

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.stream_campaign import StreamCampaign, message_names
-from fuzz.stream_mutators import Write
-from fuzz.stream_stateful import Op, _whole_frames, command_bytes
+from mcp_conform.fuzz.nsqd_campaign import StreamCampaign, message_names
+from mcp_conform.fuzz.nsqd_mutators import Write
+from mcp_conform.fuzz.nsqd_stateful import Op, _whole_frames, command_bytes
 from tests.nsqd_backends.build import built_or_skip
 
 
@@ -23,7 +23,7 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 
 
 def _replay(finding: Path, spawn: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "fuzz", "--protocol", "nsqd", "--replay", str(finding), "--spawn", spawn],
+    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(finding), "--spawn", spawn],
                           capture_output=True, text=True, timeout=120)
 
 
@@ -89,10 +89,10 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
     replay command and ``mcp-capture replay`` of the MCAP reproduce it (exit 1) or not (0)."""
     import shutil
 
-    from fuzz.stream_backend import Backend
-    from fuzz.stream_stateful import play_program, triage_program
-    from traceio.reader import StreamEvent, StreamFrame
-    from traceio.stream import stream_records
+    from mcp_conform.fuzz.nsqd_backend import Backend
+    from mcp_conform.fuzz.nsqd_stateful import play_program, triage_program
+    from mcp_conform.traceio.nsqd import stream_records
+    from mcp_conform.traceio.reader import StreamEvent, StreamFrame
 
     exe = built_or_skip()
     fault = _spawn(exe, "second-client-kicks-first")
@@ -123,7 +123,7 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
         assert [follow(d / "repro.pcap", i)[0] for i in range(len(opened))] == per_conn
     assert _replay(d, fault).returncode == 1
     assert _replay(d, _spawn(exe)).returncode == 0
-    run = subprocess.run([sys.executable, "-m", "captures", "replay", str(d / "repro.mcap"), "--spawn", fault],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", str(d / "repro.mcap"), "--spawn", fault],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 1 and "reproduced NSQD-CON-2" in run.stdout, run.stdout + run.stderr
 
@@ -137,8 +137,8 @@ def _frozen_while_a_second_client_connects(fault: str | None) -> tuple[Exception
     import threading
     import time
 
-    from fuzz.stream_backend import Backend
-    from fuzz.stream_stateful import Hit, Player
+    from mcp_conform.fuzz.nsqd_backend import Backend
+    from mcp_conform.fuzz.nsqd_stateful import Hit, Player
 
     b = Backend(None, _spawn(built_or_skip(), fault))
     pid = b.process.pid
@@ -179,7 +179,7 @@ def test_a_first_client_kicked_late_is_still_judged_at_the_second_clients_connec
 def test_a_correct_backend_frozen_at_the_second_clients_connect_is_no_finding():
     """The same freeze on the correct backend: no finding; the watch ended by the first's
     UPDATEs since the second connected (the backend's own progress), its connection kept."""
-    from fuzz.stream_stateful import LOOP_UPDATES
+    from mcp_conform.fuzz.nsqd_stateful import LOOP_UPDATES
 
     hit, first, before = _frozen_while_a_second_client_connects(None)
     assert hit is None, hit
@@ -189,8 +189,8 @@ def test_a_correct_backend_frozen_at_the_second_clients_connect_is_no_finding():
 def _pipelined(fault: str | None, ops: list[Op]) -> tuple[object, bool]:
     """``ops`` played pipelined on the C backend (``fault``) and judged at their end
     (``Player.finish``): (the hit or None, whether the turnover left a served connection)."""
-    from fuzz.stream_backend import Backend
-    from fuzz.stream_stateful import Hit, Player
+    from mcp_conform.fuzz.nsqd_backend import Backend
+    from mcp_conform.fuzz.nsqd_stateful import Hit, Player
 
     b = Backend(None, _spawn(built_or_skip(), fault))
     p = Player(b, fast=True)
@@ -231,7 +231,7 @@ def test_programs_are_seeded_and_leave_no_cut_frame_behind():
     """The same seed, the same programs; every frame cut by FIN or RST is followed in its own
     program by a new connection and a command (NSQD-ROB-3 is judged there, never on the next
     program's first bytes); a program round-trips through the example database's form."""
-    from fuzz.stream_programs import StreamProgramGenerator, dumps, loads
+    from mcp_conform.fuzz.nsqd_programs import StreamProgramGenerator, dumps, loads
 
     a, b = StreamProgramGenerator(7), StreamProgramGenerator(7)
     programs = [a.program() for _ in range(200)]

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import collections
 
-from fuzz.stream_backend import REPLAY_DEATH_S, Backend, Hit
-from fuzz.stream_mutators import Case, Write
-from fuzz.stream_oracles import Signature
+from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, Backend, Hit
+from mcp_conform.fuzz.nsqd_mutators import Case, Write
+from mcp_conform.fuzz.nsqd_oracles import Signature
 
 CRASH = Signature("crash", "abort: uncaught std::invalid_argument")
 

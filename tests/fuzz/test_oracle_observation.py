@@ -21,13 +21,13 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.campaign import run_campaign
-from fuzz.config import FuzzConfig
-from fuzz.findings import FindingStore
-from fuzz.oracles import Input, judge_exchange, judge_replies
-from fuzz.target_base import TargetBase
-from fuzz.targets import start_target
-from spec.codec import ITEM, Action, build_datagram
+from mcp_conform.fuzz.campaign import run_campaign
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.fuzz.oracles import Input, judge_exchange, judge_replies
+from mcp_conform.fuzz.target_base import TargetBase
+from mcp_conform.fuzz.targets import start_target
+from mcp_conform.spec.codec import ITEM, Action, build_datagram
 
 PLAIN = Path(__file__).resolve().parent / "nodes" / "plain_node.py"
 RTO = 0.3

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import time
 
-from fuzz.oracles import DeliveryLedger, Input, judge_liveness, judge_replies
-from harness.driver import Datagram, read_header
-from spec.codec import BROADCAST_ID, Action, Message, build_datagram, decode, encode
+from mcp_conform.fuzz.oracles import DeliveryLedger, Input, judge_liveness, judge_replies
+from mcp_conform.harness.driver import Datagram, read_header
+from mcp_conform.spec.codec import BROADCAST_ID, Action, Message, build_datagram, decode, encode
 
 NODE = 1
 
@@ -68,7 +68,7 @@ def test_liveness_blames_short_oversized_and_other_inputs() -> None:
 
 
 def _pt(seq: int, dst: int = NODE, src: int = 0, token: str | None = None) -> Input:
-    from vehicle.probe import make_probe
+    from mcp_conform.vehicle.probe import make_probe
 
     return Input.of(encode(Message(dst, src, seq, Action.MAV_PASSTHROUGH, make_probe(token or f"t{seq}"))))
 
@@ -150,7 +150,7 @@ def _ready(seq: int) -> Datagram:
 
 
 def test_withheld_mission_ready_judged_by_rtx1_seq2_rtx2() -> None:
-    from fuzz.oracles import judge_withheld
+    from mcp_conform.fuzz.oracles import judge_withheld
 
     same = [_ready(7), _ready(7), _ready(7)]
     assert judge_withheld(same, _ready(7), 3, True) is None

@@ -19,14 +19,14 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.campaign import run_campaign
-from fuzz.config import DEFAULT_ENGINE, FuzzConfig, default_engine
-from fuzz.engine_stateful import judge_copies
-from fuzz.findings import FindingStore
-from fuzz.oracles import Input
-from fuzz.programs import ProgramGenerator, dumps, loads
-from harness.driver import Datagram
-from spec.codec import Action, Message, encode
+from mcp_conform.fuzz.campaign import run_campaign
+from mcp_conform.fuzz.config import DEFAULT_ENGINE, FuzzConfig, default_engine
+from mcp_conform.fuzz.engine_stateful import judge_copies
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.fuzz.oracles import Input
+from mcp_conform.fuzz.programs import ProgramGenerator, dumps, loads
+from mcp_conform.harness.driver import Datagram
+from mcp_conform.spec.codec import Action, Message, encode
 
 SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
 MAX_CASES = 20_000
@@ -55,7 +55,7 @@ def test_the_default_engine_mix_has_the_stateful_engine_but_for_a_manager():
     assert DEFAULT_ENGINE == "both" and FuzzConfig().engine == "both"
     assert default_engine("drone", "mcp") == "both"
     assert default_engine("manager", "mcp") == "stateless"  # the stateful programs are a manager's
-    assert default_engine("backend", "nsqd") == "both"  # Nsqd's pipelined programs (fuzz.stream_programs)
+    assert default_engine("backend", "nsqd") == "both"  # Nsqd's pipelined programs (fuzz.nsqd_programs)
 
 
 def test_a_copy_left_unanswered_is_named_and_a_command_answered_every_time_is_not():

@@ -1,5 +1,5 @@
 """``--jobs`` worker processes, as both campaigns run them (``fuzz.workers``: MCP's
-``fuzz.campaign`` and Nsqd's ``fuzz.stream_campaign`` share the one loop, ``fuzz.workers.run_jobs``): a stop asked for
+``fuzz.campaign`` and Nsqd's ``fuzz.nsqd_campaign`` share the one loop, ``fuzz.workers.run_jobs``): a stop asked for
 reaches every worker, which then reports; workers that die without a word do not keep the
 parent waiting for the budget."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from fuzz.workers import run_workers
+from mcp_conform.fuzz.workers import run_workers
 
 
 def _reporting_worker(worker: int, q: Any, stop: Any) -> None:

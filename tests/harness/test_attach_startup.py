@@ -5,10 +5,10 @@ from __future__ import annotations
 import sys
 import time
 
-from harness.config import RunConfig
-from harness.driver import TargetDriver
-from harness.session import Session
-from spec.codec import Action
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.harness.drone_session import Session
+from mcp_conform.spec.codec import Action
 from tests.conformance.runner_helpers import ROOT, free_port
 from tests.spawned import attached_node
 
@@ -29,7 +29,7 @@ def test_a_mission_ready_heard_before_the_startup_phase_is_not_acked(monkeypatch
         time.sleep(0.05)  # whatever the driver does with it is done
         return addr
 
-    with attached_node(lambda p: [sys.executable, "-m", "reference_impl", "drone", "--id", "3", "--bind",
+    with attached_node(lambda p: [sys.executable, "-m", "mcp_conform.reference_impl", "drone", "--id", "3", "--bind",
                                   f"127.0.0.1:{p}", "--send-to", f"127.0.0.1:{listen}", "--rto", "0.2"],
                        listen, cwd=ROOT) as (_, port):  # it has spoken
         session = Session(RunConfig(target=("127.0.0.1", port), listen=("127.0.0.1", listen), rto=0.2,

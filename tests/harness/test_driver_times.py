@@ -12,8 +12,8 @@ import time
 
 import pytest
 
-from harness.driver import SO_TIMESTAMPNS, TargetDriver, arrival_ns, kernel_timestamps
-from spec.codec import Action, Message, encode
+from mcp_conform.harness.driver import SO_TIMESTAMPNS, TargetDriver, arrival_ns, kernel_timestamps
+from mcp_conform.spec.codec import Action, Message, encode
 
 
 def test_the_ancillary_timespec_is_read_and_others_are_not():
@@ -89,7 +89,7 @@ def test_a_preempted_receive_thread_does_not_date_a_datagram_earlier(monkeypatch
     the receive thread is preempted between its clock reads: a manager's reply to the runner's
     ACK was dated before that ACK (a false MCP-BLK-1 under load) when the offset between the
     clocks was read across the pause."""
-    import harness.driver as driver
+    import mcp_conform.harness.driver as driver
 
     clocks = _PreemptedClocks(pause=30_000_000)  # 30 ms off the CPU
     monkeypatch.setattr(driver.time, "monotonic", clocks.monotonic)
@@ -111,7 +111,7 @@ def test_a_reply_read_late_behind_a_backlog_counts_by_its_arrival_time(answers):
     is read ~1.5 s after it came, past the exchange's 0.3 s. It counts: it arrived in time (a
     loaded CI run's flood probe, ACKed in 0.2 ms, said "no ACK after 5 copies", MCP-ROB-7). A
     node that does not answer is still unanswered once the backlog is read."""
-    from harness.driver import read_header
+    from mcp_conform.harness.driver import read_header
 
     node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     node.bind(("127.0.0.1", 0))

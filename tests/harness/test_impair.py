@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from harness.impair import Impairment, ImpairmentError, parse_impairment
-from reference_impl import DeliveryConfirmed, Endpoint, MessageDelivered
-from spec.codec import Action, MissionItem, build_datagram, encode_payload
+from mcp_conform.harness.impair import Impairment, ImpairmentError, parse_impairment
+from mcp_conform.reference_impl import DeliveryConfirmed, Endpoint, MessageDelivered
+from mcp_conform.spec.codec import Action, MissionItem, build_datagram, encode_payload
 from tests.reference_impl.helpers import Link
 
 ITEM = (MissionItem(0, 0, 0, 0, 35.0, -78.0, 10.0, 0, 16, 1, 1, 3, 0, 1),)

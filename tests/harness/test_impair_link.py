@@ -9,12 +9,12 @@ from types import SimpleNamespace
 
 import pytest
 
-from conformance._impaired import ATTEMPTS, run_impaired
-from harness.errors import CaseFailure, Inconclusive
-from harness.impair import Impairment, parse_impairment
-from harness.impair_link import ImpairedLink
-from harness.session_base import DatagramSessionBase
-from spec.codec import Action, Message, encode
+from mcp_conform.conformance._impaired import ATTEMPTS, run_impaired
+from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.harness.impair import Impairment, parse_impairment
+from mcp_conform.harness.impair_link import ImpairedLink
+from mcp_conform.harness.session_base import DatagramSessionBase
+from mcp_conform.spec.codec import Action, Message, encode
 
 WP_OFF = encode(Message(1, 0, 1000, Action.WP_OFF, None))
 

@@ -12,8 +12,8 @@ import time
 
 import pytest
 
-from harness.impair import Impairment, parse_impairment
-from harness.impair_proxy import ImpairProxy, main
+from mcp_conform.harness.impair import Impairment, parse_impairment
+from mcp_conform.harness.impair_proxy import ImpairProxy, main
 
 
 def _echo() -> tuple[socket.socket, threading.Event, list[bytes]]:
@@ -85,8 +85,8 @@ def test_duplication_and_reordering_reach_the_far_side() -> None:
 
 
 def test_every_decision_is_recorded_on_impair(tmp_path) -> None:
-    from traceio.reader import open_capture  # noqa: F401  (the reader still reads the file)
-    from traceio.recorder import McapRecorder
+    from mcp_conform.traceio.reader import open_capture  # noqa: F401  (the reader still reads the file)
+    from mcp_conform.traceio.recorder import McapRecorder
 
     path = tmp_path / "link.mcap"
     with McapRecorder(path) as rec:
@@ -128,7 +128,7 @@ def test_the_command_reports_what_it_did() -> None:
         from tests.capturing import free_port
 
         port = free_port()
-        proc = subprocess.Popen([sys.executable, "-m", "harness.impair_proxy", "--listen",
+        proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.harness.impair_proxy", "--listen",
                                  f"127.0.0.1:{port}", "--target", f"127.0.0.1:{far.getsockname()[1]}",
                                  "--impair", "dup=1,seed=3", "--duration", "60"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

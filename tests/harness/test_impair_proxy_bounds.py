@@ -17,9 +17,15 @@ from pathlib import Path
 
 import pytest
 
-from harness.impair import HELD_OVERHEAD, MAX_HELD_BYTES, DelayQueue, Impairment, parse_impairment
-from harness.impair_proxy import ImpairProxy, main
-from vehicle.ports import free_port
+from mcp_conform.harness.impair import (
+    HELD_OVERHEAD,
+    MAX_HELD_BYTES,
+    DelayQueue,
+    Impairment,
+    parse_impairment,
+)
+from mcp_conform.harness.impair_proxy import ImpairProxy, main
+from mcp_conform.vehicle.ports import free_port
 
 
 def _kib(pid: int, field: str) -> int:
@@ -88,7 +94,7 @@ def test_a_flood_through_a_60_s_delay_with_duplication_stays_within_the_stated_c
             socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as c:
         far.bind(("127.0.0.1", 0))  # never read: nothing is due within the test anyway
         port = free_port()
-        proc = subprocess.Popen([sys.executable, "-m", "harness.impair_proxy", "--listen",
+        proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.harness.impair_proxy", "--listen",
                                  f"127.0.0.1:{port}", "--target", f"127.0.0.1:{far.getsockname()[1]}",
                                  "--impair", "delay=59000-60000ms,dup=1,seed=5", "--duration", "60"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -134,7 +140,7 @@ def test_an_unresolvable_forward_host_is_one_line_exit_2(capsys) -> None:
 
 
 def test_the_command_exits_2_without_a_traceback_on_an_unresolvable_host() -> None:
-    r = subprocess.run([sys.executable, "-m", "harness.impair_proxy", "--listen", "127.0.0.1:0",
+    r = subprocess.run([sys.executable, "-m", "mcp_conform.harness.impair_proxy", "--listen", "127.0.0.1:0",
                         "--target", "nosuchhost.invalid:7"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
 

@@ -9,7 +9,7 @@ import signal
 
 import pytest
 
-from harness.interrupts import Interrupts
+from mcp_conform.harness.interrupts import Interrupts
 
 
 def test_a_signal_while_held_stops_the_run_at_release_not_before():

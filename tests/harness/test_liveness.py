@@ -16,13 +16,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from conformance._impaired import SPOILABLE
-from harness.driver import TargetDriver
-from harness.errors import NodeLost, SilenceUnproven
-from harness.impair import Impairment, parse_impairment
-from harness.impair_link import ImpairedLink
-from harness.liveness import Liveness
-from spec.codec import Action, Message, encode, peek_header
+from mcp_conform.conformance._impaired import SPOILABLE
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.harness.errors import NodeLost, SilenceUnproven
+from mcp_conform.harness.impair import Impairment, parse_impairment
+from mcp_conform.harness.impair_link import ImpairedLink
+from mcp_conform.harness.liveness import Liveness
+from mcp_conform.spec.codec import Action, Message, encode, peek_header
 
 NODE_ID = 1
 RTO = 0.05
@@ -145,7 +145,7 @@ def test_the_end_mission_case_is_repeated_under_impair_not_an_error_at_once(rig)
     ``--impair`` repeats (SPOILABLE: a clean last attempt judges it), naming the node's normal
     end; before the fix it ended in NodeLost ("the node process exited with code 0"), an
     error at once. (Imported here, as ``test_manager_case`` does: a case module loads the runner.)"""
-    from conformance.cases.test_blk import test_end_mission_then_rtl as case
+    from mcp_conform.conformance.cases.test_blk import test_end_mission_then_rtl as case
 
     def command(action):
         sent = rig.driver.send(action, None, NODE_ID)

@@ -7,8 +7,8 @@ import socket
 
 import pytest
 
-from harness.session_base import free_port
-from vehicle.ports import ephemeral_low
+from mcp_conform.harness.session_base import free_port
+from mcp_conform.vehicle.ports import ephemeral_low
 
 
 @pytest.mark.parametrize("kind", [socket.SOCK_DGRAM, socket.SOCK_STREAM], ids=["udp", "tcp"])

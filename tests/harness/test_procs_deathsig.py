@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from harness import procs
+from mcp_conform.harness import procs
 
 ROOT = Path(__file__).resolve().parents[2]
 GONE_WITHIN = 10.0  # s: the kernel sends the signal as the runner exits; generous under load
@@ -43,7 +43,7 @@ NODE = textwrap.dedent("""
 #: line (a node still starting would die of the closed pipe instead), then waits to be killed
 RUNNER = textwrap.dedent("""
     import sys, threading, time
-    from harness import procs
+    from mcp_conform.harness import procs
     procs.Reaper._start = lambda self: None  # the reaper off: the death signal alone
     stop = threading.Event()
     threading.Thread(target=lambda: [time.sleep(0.001) for _ in iter(stop.is_set, True)], daemon=True).start()

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.driver import TargetDriver
-from harness.run_delay import delay_for, run_delay_ns, takes_run_delay
-from spec.codec import Action, Message, encode
+from mcp_conform.harness.driver import TargetDriver
+from mcp_conform.harness.run_delay import delay_for, run_delay_ns, takes_run_delay
+from mcp_conform.spec.codec import Action, Message, encode
 
 NODE = ("127.0.0.1", 9)
 
@@ -76,12 +76,12 @@ def test_the_driver_keeps_it_and_hands_it_to_observers_that_take_it():
 
 
 def test_the_production_observers_take_it():
-    from conformance.live import FirstDatagram, Tee, TrafficPrinter
-    from fuzz.target_base import Traffic
-    from harness.session_base import _held
-    from judge.run_monitor import RunMonitor, SessionMonitors
-    from traceio.background import BackgroundRecorder
-    from traceio.recorder import McapRecorder
+    from mcp_conform.conformance.run_display import FirstDatagram, Tee, TrafficPrinter
+    from mcp_conform.fuzz.target_base import Traffic
+    from mcp_conform.harness.session_base import _held
+    from mcp_conform.judge.run_monitor import RunMonitor, SessionMonitors
+    from mcp_conform.traceio.background import BackgroundRecorder
+    from mcp_conform.traceio.recorder import McapRecorder
 
     for obs in (McapRecorder.datagram, RunMonitor.observe, SessionMonitors.observe, Traffic(),
                 _held(print), Tee.datagram, TrafficPrinter.__call__, FirstDatagram.__call__,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.rx_queue import udp_rx_queue, wait_read
+from mcp_conform.harness.rx_queue import udp_rx_queue, wait_read
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/net/udp is Linux's")
 

@@ -55,7 +55,7 @@ ASKER = """
 #: and its wait for Mission_Ready is what ends the run), then sleeps.
 SPEAKS_ONLY = """
     import socket, sys, time
-    from spec.codec import Action, build_datagram
+    from mcp_conform.spec.codec import Action, build_datagram
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     for i in range(int(sys.argv[3]) if len(sys.argv) > 3 else len(sys.argv) > 1):
         if i:

@@ -11,9 +11,9 @@ import sys
 
 import pytest
 
-from harness.config import RunConfig
-from harness.errors import SetupError, SpawnFailure
-from harness.stream_session import StreamSession
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.nsqd_session import StreamSession
 
 #: listens on the port it is given and sends each connection 8 bytes at once (bytes the
 #: runner cannot parse prove the backend live too: NSQD-FRM-1's to judge)

@@ -9,10 +9,10 @@ import shlex
 import sys
 import time
 
-from harness.config import RunConfig
-from harness.procs import SPAWN_STARTUP_S
-from harness.stream_session import StreamSession
-from spec import NSQD
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.nsqd_session import StreamSession
+from mcp_conform.harness.procs import SPAWN_STARTUP_S
+from mcp_conform.spec import NSQD
 
 #: listens, and sends each connection its first bytes only after ``delay`` seconds (a length
 #: prefix no frame has: bytes the runner cannot parse prove it live too, NSQD-FRM-1's to judge)

@@ -12,9 +12,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-from judge.monitor import TESTER
-from spec.codec import PREAMBLE, Action, Message, MissionItem, build_datagram, encode
-from spec.mavframe import heartbeat_frame
+from mcp_conform.judge.monitor import TESTER
+from mcp_conform.spec.codec import PREAMBLE, Action, Message, MissionItem, build_datagram, encode
+from mcp_conform.spec.mavframe import heartbeat_frame
 from tests.judge.monitor_scripts import Script
 
 __all__ = ["FAULTY", "Fault"]
@@ -147,7 +147,7 @@ def ack2_interleaved_copies_acked_with_the_next_seq() -> Script:
     is answered "A + 1" = B, which also reads as B's copy's ACK. Which ACK answered B's copy is
     not proven, so neither is an ACK of the message to ID 2 (MCP-ACK-5, the CI run's false
     alarm): A's copies answered with another seq are MCP-ACK-2's."""
-    from spec.codec import build_datagram
+    from mcp_conform.spec.codec import build_datagram
 
     s = Script((1,), challenge=1)
     s.ready(1)
@@ -385,7 +385,7 @@ def pay3_then_drops_the_drone() -> Script:
     ends drone 2's mission only. MCP-PAY-3 alone: drone 1's missing End_Mission follows from
     the malformed list it did not ACK, not a second violation (MCP-FLOW-3 fired on a loaded
     host, where the trace ran on 2 s past drone 2's End_Mission)."""
-    from spec.codec import ITEM
+    from mcp_conform.spec.codec import ITEM
 
     s = Script((1, 2), vehicle=False)
     kw = _runner_drones(s)
@@ -573,14 +573,14 @@ def pay2() -> Script:
 
 def pay3() -> Script:
     s = _started()
-    from spec.codec import ITEM
+    from mcp_conform.spec.codec import ITEM
     _bad_command(s, Action.WP_LIST, (2).to_bytes(2, "big") + ITEM.pack(*s.items[0]))
     return _finish(s)
 
 
 def pay5() -> Script:
     s = _started(challenge=2)
-    from spec.codec import ITEM
+    from mcp_conform.spec.codec import ITEM
     _bad_command(s, Action.WP_ON, ITEM.pack(*s.items[0])[:-1])
     return _finish(s)
 

@@ -26,11 +26,11 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from judge.monitor import TESTER, Monitor, VehicleEvent
-from spec import SPEC
-from spec.codec import Action, Message, build_datagram, encode
-from spec.mavframe import heartbeat_frame
-from spec.mission import load_waypoints
+from mcp_conform.judge.monitor import TESTER, Monitor, VehicleEvent
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, Message, build_datagram, encode
+from mcp_conform.spec.mavframe import heartbeat_frame
+from mcp_conform.spec.mission import load_waypoints
 
 __all__ = ["OBSTACLES", "TESTER", "WAYPOINTS", "Record", "Script", "clean_script", "write_pcap"]
 

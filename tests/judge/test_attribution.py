@@ -7,8 +7,8 @@ from typing import NamedTuple
 
 import pytest
 
-from judge.attribution import BY_SEQ, BY_SEQ_LE, BY_TIMING, Attributor
-from spec.codec import Action, Message, build_datagram, encode, peek_header
+from mcp_conform.judge.attribution import BY_SEQ, BY_SEQ_LE, BY_TIMING, Attributor
+from mcp_conform.spec.codec import Action, Message, build_datagram, encode, peek_header
 
 NODE = 1
 
@@ -157,7 +157,7 @@ def test_an_ack_of_a_malformed_input_is_tied_to_it_by_the_seq_it_names():
 
 
 def test_memory_stays_bounded_on_a_long_run():
-    from judge import attribution
+    from mcp_conform.judge import attribution
 
     link = Link()
     for i in range(attribution.MAX_COMMANDS + 10):

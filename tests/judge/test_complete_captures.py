@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import pytest
 
-from judge.judging import Params, judge
-from judge.monitor import Monitor
-from spec.codec import Action, Message, encode
-from traceio.recorder import McapRecorder, run_metadata
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.judge.monitor import Monitor
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.recorder import McapRecorder, run_metadata
 
 DRONE, MANAGER = ("127.0.0.1", 40002), ("127.0.0.1", 40001)
 READY = encode(Message(0, 3, 5, Action.MISSION_READY))

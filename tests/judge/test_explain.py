@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from judge.explain import (
+from mcp_conform.judge.explain import (
     CONSISTENT,
     EITHER_ACK,
     EITHER_RTX,

@@ -16,14 +16,14 @@ from typing import Any
 
 import pytest
 
-from judge.explain import EITHER_ACK, EITHER_RTX, PROVEN, Bounds
-from judge.explain_records import node_verdicts, traces_from_datagrams
-from judge.judging import Params, judge
-from judge.monitor import TESTER
-from spec.codec import peek_header
+from mcp_conform.judge.explain import EITHER_ACK, EITHER_RTX, PROVEN, Bounds
+from mcp_conform.judge.explain_records import node_verdicts, traces_from_datagrams
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.judge.monitor import TESTER
+from mcp_conform.spec.codec import peek_header
+from mcp_conform.traceio.reader import Datagram, Metadata, open_capture
 from tests.judge.monitor_faults import FAULTY
 from tests.judge.monitor_scripts import clean_script
-from traceio.reader import Datagram, Metadata, open_capture
 
 RULES = ("MCP-ACK-1", "MCP-ACK-2", "MCP-RTX-1", "MCP-RTX-2")
 GOLDEN = sorted((Path(__file__).resolve().parents[2] / "captures" / "golden").glob("*.mcap"))

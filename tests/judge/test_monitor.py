@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from judge.monitor import MONITORED_RULES, TESTER, Monitor, Violation
-from spec import SPEC
-from spec.codec import Action, DecodeError, Message, decode, encode
+from mcp_conform.judge.monitor import MONITORED_RULES, TESTER, Monitor, Violation
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, DecodeError, Message, decode, encode
 from tests.judge.monitor_faults import FAULTY
 from tests.judge.monitor_scripts import Script, clean_script
 
@@ -98,7 +98,7 @@ def test_a_list_sent_malformed_is_its_payload_rules_not_a_missing_list():
     End_Mission after it is not "End_Mission without any Obstacles_List" (MCP-FLOW-6)."""
     import struct
 
-    from spec.codec import ITEM, build_datagram
+    from mcp_conform.spec.codec import ITEM, build_datagram
     from tests.judge.monitor_faults import _runner_drones
 
     s = Script((1,), vehicle=False, challenge=3)
@@ -283,7 +283,7 @@ def test_absences_are_not_judged_on_a_lossy_trace():
 
 def test_a_late_copy_of_an_older_message_delivered_again_is_only_reported():
     """MCP-DUP-4 is not specified: A, B, then A's copy delivered again is no DUP-1."""
-    from spec.mavframe import heartbeat_frame
+    from mcp_conform.spec.mavframe import heartbeat_frame
     s = Script((1,), challenge=2)
     s.ready(1)
     s.start(1)
@@ -342,8 +342,8 @@ def test_a_header_written_little_endian_is_hdr2_not_its_misread_fields():
     wrong but not swapped is still MCP-HDR-4."""
     import struct
 
-    from judge.monitor import byte_order_fault
-    from spec.codec import PREAMBLE
+    from mcp_conform.judge.monitor import byte_order_fault
+    from mcp_conform.spec.codec import PREAMBLE
 
     def little(dst: int, src: int, seq: int, action: int, payload: bytes = b"") -> bytes:
         return PREAMBLE + struct.pack("<4H", dst, src, seq, action) + payload
@@ -405,7 +405,7 @@ def test_every_prefix_and_trailing_garbage():
 def test_waypoints_are_compared_on_the_fields_a_waypoint_file_holds_in_order():
     """MCP-FLOW-4 with --waypoints: target_system/component are not in a QGC WPL file, so a
     manager that fills them its own way carries the mission; the items' order does count."""
-    from spec.codec import Action, Message, encode
+    from mcp_conform.spec.codec import Action, Message, encode
 
     from .monitor_faults import _finish, _started
 
@@ -482,8 +482,8 @@ def test_an_ack_read_before_the_message_numbered_before_it_explains_the_gap():
 
 def test_an_altered_form_of_a_frame_is_told_from_unrelated_bytes():
     """MCP-PAY-8's comparison of what arrived with the frame sent (judge.monitor.alteration)."""
-    from judge.monitor import alteration
-    from spec.mavframe import heartbeat_frame
+    from mcp_conform.judge.monitor import alteration
+    from mcp_conform.spec.mavframe import heartbeat_frame
 
     f = heartbeat_frame()
     assert alteration(f, f) is None
@@ -500,7 +500,7 @@ def test_an_altered_form_of_a_frame_is_told_from_unrelated_bytes():
 def test_passthrough_forwarded_intact_or_not_a_frame_is_no_alteration():
     """No false alarm: a payload that is no MAVLink frame, forwarded as it came, arrives as
     unparsed bytes; a frame forwarded intact after unrelated bad bytes is delivered."""
-    from spec.mavframe import heartbeat_frame
+    from mcp_conform.spec.mavframe import heartbeat_frame
 
     s = Script((1, 2))
     for d in s.drones:

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import pytest
 
-from conformance.report import RunRecord, build_json, merge_json, validate_json
-from judge.run_monitor import RunMonitor
-from spec.codec import BROADCAST_ID, PREAMBLE, Action, Message, build_datagram, encode
+from mcp_conform.conformance.report import RunRecord, build_json, merge_json, validate_json
+from mcp_conform.judge.run_monitor import RunMonitor
+from mcp_conform.spec.codec import BROADCAST_ID, PREAMBLE, Action, Message, build_datagram, encode
 
 RUNNER = ("0.0.0.0", 7889)
 NODE = ("127.0.0.1", 45000)

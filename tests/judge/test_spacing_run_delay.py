@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import pytest
 
-from conformance._case_base import DatagramCaseBase
-from harness.errors import CaseFailure
-from judge.spacing import judge_spacing
-from spec.codec import Action, peek_header
+from mcp_conform.conformance._case_base import DatagramCaseBase
+from mcp_conform.harness.errors import CaseFailure
+from mcp_conform.judge.spacing import judge_spacing
+from mcp_conform.spec.codec import Action, peek_header
 from tests.judge.monitor_faults import _finish, _started
 from tests.judge.monitor_scripts import MANAGER_ADDR, Script
 

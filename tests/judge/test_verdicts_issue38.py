@@ -3,9 +3,9 @@
 
 from __future__ import annotations
 
-from judge.monitor import TESTER
-from spec.codec import Action
-from spec.mavframe import heartbeat_frame
+from mcp_conform.judge.monitor import TESTER
+from mcp_conform.spec.codec import Action
+from mcp_conform.spec.mavframe import heartbeat_frame
 from tests.judge.monitor_faults import _finish
 from tests.judge.monitor_scripts import Script
 

@@ -16,7 +16,7 @@ import os
 import sys
 import time
 
-from reference_impl.nsqd_backend import BackendCore, BackendServer, Rejected
+from mcp_conform.reference_impl.nsqd_backend import BackendCore, BackendServer, Rejected
 
 
 class LateDeathServer(BackendServer):

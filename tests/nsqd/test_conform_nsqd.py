@@ -87,7 +87,7 @@ def test_each_fault_fails_its_own_rule_and_no_other(tmp_path, backend, fault):
     assert rc == (1 if flagged[rule] == "failed" else 0), out
     assert (tmp_path / "j.xml").read_text().count("<testcase") == len(doc["cases"])
     if extra:  # the capture stays whole through a death and a restart; the page charts the failure
-        from traceio.reader import CaseMark, open_capture
+        from mcp_conform.traceio.reader import CaseMark, open_capture
 
         cap = open_capture(tmp_path / "run.mcap")
         records = list(cap)
@@ -107,7 +107,7 @@ def test_attach_mode_against_a_running_backend(tmp_path):
     import socket
 
     port = free_port(socket.SOCK_STREAM)
-    node = subprocess.Popen([sys.executable, "-m", "reference_impl", "--protocol", "nsqd", "backend",
+    node = subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", "--protocol", "nsqd", "backend",
                              "--bind", f"127.0.0.1:{port}", "--update-period", "0.1"],
                             stdout=subprocess.PIPE, text=True)
     try:

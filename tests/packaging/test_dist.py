@@ -26,8 +26,8 @@ from pathlib import Path
 
 import pytest
 
-from spec.about import DIST_NAME, __version__
-from tests.packaging.tree import ROOT, module_paths, resource_paths, top_packages
+from mcp_conform.spec.about import DIST_NAME, __version__
+from tests.packaging.tree import NAMESPACE, ROOT, module_paths, resource_paths, top_packages
 
 pytestmark = pytest.mark.slow
 
@@ -75,6 +75,42 @@ def _run(
     return proc.stdout
 
 
+def _venv(venv: Path, tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A fresh venv with no pip of its own that finds this interpreter's packages (the
+    dependencies) after its own: its bin folder, and the environment to run it in."""
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], cwd=tmp_path, timeout=120)
+    bin_ = venv / "bin"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    env["NO_COLOR"] = "1"
+    # the dependencies, from this interpreter's site-packages (this one may itself be a venv,
+    # tox's: --system-site-packages would see its base's), after the venv's own: a directory
+    # named in a .pth is not a site directory, so its .pth files (an editable install of this
+    # checkout among them) do not run in the venv...
+    purelib = _run(
+        [str(bin_ / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        cwd=tmp_path,
+        env=env,
+    ).strip()
+    # ... less this checkout's own install (its metadata names the pytest plugin entry point)
+    dirs = []
+    for i, sp in enumerate(site.getsitepackages()):
+        deps = tmp_path / f"deps{i}"
+        deps.mkdir()
+        for entry in Path(sp).iterdir() if Path(sp).is_dir() else ():
+            if not entry.name.startswith(("centmesh_mcp_conform", "__editable__")):
+                (deps / entry.name).symlink_to(entry)
+        dirs.append(str(deps))
+    (Path(purelib) / "zz-deps.pth").write_text("\n".join(dirs) + "\n")
+    return bin_, env
+
+
+def _install(wheel: Path, bin_: Path, cwd: Path, env: dict[str, str]) -> None:
+    """The wheel alone, by this interpreter's pip (--python: no pip of the venv's own to
+    install, and pip sees no other copy of the distribution there)."""
+    _run([sys.executable, "-m", "pip", "--python", str(bin_ / "python"), "install", "-q",
+          "--no-deps", "--no-index", "--disable-pip-version-check", str(wheel)], cwd=cwd, env=env)
+
+
 @pytest.fixture(scope="module")
 def dists(tmp_path_factory) -> dict[str, Path]:
     """The tree copied as git has it, its sdist, and the wheel built from that sdist."""
@@ -120,7 +156,12 @@ def test_the_sdist_holds_every_file_git_tracks(dists):
 
 def test_the_wheel_holds_every_file_the_code_refers_to(dists):
     with zipfile.ZipFile(dists["wheel"]) as z:
-        names = set(z.namelist())
+        every = set(z.namelist())
+    # one import namespace (issue 37): nothing of ours at the top of site-packages
+    bare = sorted(n for n in every if not n.startswith((f"{NAMESPACE}/", ".dist-info/"))
+                  and ".dist-info/" not in n)
+    assert not bare, f"the wheel installs outside {NAMESPACE}/: {bare[:10]}"
+    names = {n.removeprefix(f"{NAMESPACE}/") for n in every}
     missing = []
     for owner, rel in sorted(module_paths().items()):
         source = ROOT / rel
@@ -162,7 +203,7 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
         [
             sys.executable,
             "-c",
-            "import spec, conformance; print(spec.__file__); print(conformance.__file__)",
+            "import mcp_conform.spec as s, mcp_conform.conformance as c; print(s.__file__); print(c.__file__)",
         ],
         cwd=tree,
         env=env,
@@ -178,44 +219,13 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
     # the wheel in a fresh venv, run from a folder outside the checkout
     venv, away = tmp_path / "venv", tmp_path / "away"
     away.mkdir()
-    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], cwd=tmp_path, timeout=120)
-    bin_ = venv / "bin"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
-    env["NO_COLOR"] = "1"
-    # the wheel alone first, by this interpreter's pip (--python: no pip of the venv's own to
-    # install, and pip sees no other copy of the distribution there)...
-    _run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "--python",
-            str(bin_ / "python"),
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-index",
-            "--disable-pip-version-check",
-            str(wheel),
-        ],
-        cwd=away,
-        env=env,
-    )
-    # then the dependencies, from this interpreter's site-packages (this one may itself be a
-    # venv, tox's: --system-site-packages would see its base's), after the venv's own: a
-    # directory named in a .pth is not a site directory, so its .pth files (an editable
-    # install of this checkout among them) do not run in the venv
-    purelib = _run(
-        [str(bin_ / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        cwd=tmp_path,
-        env=env,
-    ).strip()
-    (Path(purelib) / "zz-deps.pth").write_text("\n".join(site.getsitepackages()) + "\n")
+    bin_, env = _venv(venv, tmp_path)
+    _install(wheel, bin_, away, env)
     where = _run(
         [
             str(bin_ / "python"),
             "-c",
-            "import importlib.metadata as m, spec, conformance, reference_impl, traceio; "
+            "import importlib.metadata as m; from mcp_conform import spec, conformance, reference_impl, traceio; "
             f"print(m.version({DIST_NAME!r})); "
             "print(spec.__file__, conformance.__file__, reference_impl.__file__, traceio.__file__)",
         ],
@@ -235,3 +245,67 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
         r"(\d+) passed, (\d+) failed, \d+ warned, \d+ skipped, \d+ info, (\d+) error", out
     )
     assert summary and int(summary[1]) > 0 and summary[2] == "0" and summary[3] == "0", out[-2000:]
+
+
+#: a user's own top-level packages, named as our folders are (issue 37: no serious library
+#: ships ``import spec``), and a test of theirs that imports them
+USER_PACKAGES = ("spec", "harness", "reports")
+USER_TEST = """
+import sys
+
+import harness
+import reports
+import spec
+
+
+def test_my_packages():
+    assert (spec.WHO, harness.WHO, reports.WHO) == ("user", "user", "user")
+"""
+USER_CONFTEST = """
+import sys
+
+
+def pytest_sessionfinish(session):
+    ours = sorted(m for m in sys.modules if m.split(".")[0] == "mcp_conform")
+    with open("loaded.txt", "w") as f:
+        f.write(" ".join(ours))
+"""
+
+
+def test_a_users_own_spec_harness_and_reports_and_ours_all_import(dists, tmp_path):
+    """A venv that already holds packages named ``spec``, ``harness`` and ``reports``: after our
+    wheel is installed, both theirs and ours import, and the user's pytest run is unchanged (the
+    same outcome; our pytest plugin loads nothing of the runner in it)."""
+    venv, project = tmp_path / "venv", tmp_path / "project"
+    project.mkdir()
+    bin_, env = _venv(venv, tmp_path)
+    purelib = Path(_run([str(bin_ / "python"), "-c",
+                         "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                        cwd=tmp_path, env=env).strip())
+    for name in USER_PACKAGES:
+        (purelib / name).mkdir()
+        (purelib / name / "__init__.py").write_text('WHO = "user"\n')
+    (project / "test_mine.py").write_text(USER_TEST)
+    (project / "conftest.py").write_text(USER_CONFTEST)
+
+    def users_run() -> tuple[str, str]:
+        out = _run([str(bin_ / "python"), "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                    "-p", "no:randomly"], cwd=project, env=env)
+        (summary,) = re.findall(r"^\d+ passed.*$", out, re.M)
+        return re.sub(r" in [\d.]+s.*", "", summary), (project / "loaded.txt").read_text()
+
+    before = users_run()
+    _install(dists["wheel"], bin_, project, env)
+    after = users_run()
+    assert before[0] == after[0] == "1 passed", (before, after)
+    assert "mcp_conform.spec" not in after[1].split(), after[1]  # the plugin stayed inert
+    where = _run([str(bin_ / "python"), "-c",
+                  "import spec, harness, reports, mcp_conform.spec as s, mcp_conform.harness as h, "
+                  "mcp_conform.reports as r; print(spec.WHO, harness.WHO, reports.WHO); "
+                  "print(s.__file__, h.__file__, r.__file__, s.SPEC.version)"],
+                 cwd=project, env=env)
+    theirs, ours = where.splitlines()
+    assert theirs == "user user user", where
+    *files, version = ours.split()
+    assert all(Path(f).is_relative_to(purelib / "mcp_conform") for f in files), where
+    assert version, where

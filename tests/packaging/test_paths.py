@@ -18,7 +18,7 @@ from tests.packaging.tree import ROOT, module_paths, resource_paths, top_package
 OTHER_FILE_USES = {
     "spec/docs.py": "docs/spec.md of the source tree, only when pyproject.toml is beside the "
     "package (a checkout); else the working directory's: a page it writes",
-    "spec/docs_stream.py": "docs/nsqd.md, as spec/docs.py",
+    "spec/docs_nsqd.py": "docs/nsqd.md, as spec/docs.py",
     "conformance/cli.py": "the folder of an imported case package (a package the wheel ships)",
     "captures/dissector_mavlink.py": "pymavlink's own dialect files",
     "vehicle/cli.py": "spec/about.py, the version's one source (a package the wheel ships): read, not imported",
@@ -29,7 +29,7 @@ REPO_FOLDER_STRINGS = {
     (
         "spec/__main__.py",
         "docs/spec.md",
-    ): "python -m spec docs writes the page (a developer's command)",
+    ): "python -m mcp_conform.spec docs writes the page (a developer's command)",
     ("traceio/fox.py", "examples/foxglove-layout.json"): "LAYOUT_FILE: the repository's copy, "
     "which tests/traceio/test_foxglove.py regenerates; the banner names traceio.live.LAYOUT_PATH",
 }

@@ -12,7 +12,7 @@ import subprocess
 
 import pytest
 
-from spec.about import __version__, tool_version
+from mcp_conform.spec.about import __version__, tool_version
 from tests.packaging.tree import ROOT, pyproject, script_argv, scripts, top_packages, tree_env
 
 
@@ -20,7 +20,7 @@ def test_the_build_reads_the_version_from_spec_about():
     doc = pyproject()
     assert "version" not in doc["project"], "pyproject.toml writes a version of its own"
     assert "version" in doc["project"]["dynamic"]
-    assert doc["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "spec.about.__version__"}
+    assert doc["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "mcp_conform.spec.about.__version__"}
     assert tool_version() == __version__
     assert re.fullmatch(r"\d+(\.\d+)*((a|b|rc)\d+)?(\.post\d+)?(\.dev\d+)?", __version__), (
         __version__

@@ -24,9 +24,15 @@ def pyproject() -> dict[str, Any]:
     return tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
 
 
+#: the one import package the distribution ships; the checkout's folders are its subpackages
+NAMESPACE = "mcp_conform"
+
+
 def top_packages() -> list[str]:
-    """The import packages the distribution ships (pyproject.toml, [tool.setuptools] packages)."""
-    return [p for p in pyproject()["tool"]["setuptools"]["packages"] if "." not in p]
+    """The checkout's package folders the distribution ships, each the subpackage of
+    :data:`NAMESPACE` of that name (pyproject.toml, [tool.setuptools] packages)."""
+    return [p.split(".")[1] for p in pyproject()["tool"]["setuptools"]["packages"]
+            if p.count(".") == 1 and p.startswith(NAMESPACE + ".")]
 
 
 def scripts() -> dict[str, str]:
@@ -51,7 +57,8 @@ import importlib, json, pkgutil, sys
 from pathlib import Path
 root = Path(sys.argv[1]).resolve()
 found = {}
-for pkg in sys.argv[2:]:
+ns = sys.argv[2]
+for pkg in (f"{ns}.{p}" for p in sys.argv[3:]):
     mod = importlib.import_module(pkg)
     names = [pkg] + [i.name for i in pkgutil.walk_packages(mod.__path__, pkg + ".")]
     for name in names:
@@ -60,7 +67,7 @@ for pkg in sys.argv[2:]:
         for key, value in vars(importlib.import_module(name)).items():
             if isinstance(value, Path) and value.is_absolute():
                 try:
-                    found[f"{name}.{key}"] = value.resolve().relative_to(root).as_posix()
+                    found[f"{name.removeprefix(ns + '.')}.{key}"] = value.resolve().relative_to(root).as_posix()
                 except ValueError:  # another distribution's file (pymavlink's ...)
                     pass
 print(json.dumps(found))
@@ -72,7 +79,7 @@ def module_paths() -> dict[str, str]:
     """Every module-level ``Path`` of our packages that points into the tree, imported as the
     tools import them: ``module.NAME`` -> path relative to the root (``captures/golden``)."""
     proc = subprocess.run(
-        [sys.executable, "-c", _PATHS_SCRIPT, str(ROOT), *top_packages()],
+        [sys.executable, "-c", _PATHS_SCRIPT, str(ROOT), NAMESPACE, *top_packages()],
         capture_output=True,
         text=True,
         timeout=120,
@@ -92,5 +99,6 @@ def resource_paths() -> set[str]:
     for pkg in top_packages():
         for path in (ROOT / pkg).rglob("*.py"):
             for m in pattern.finditer(path.read_text(encoding="utf-8")):
-                found.add(f"{m.group(1).replace('.', '/')}/{m.group(2)}")
+                name = m.group(1).removeprefix(NAMESPACE + ".")
+                found.add(f"{name.replace('.', '/')}/{m.group(2)}")
     return found

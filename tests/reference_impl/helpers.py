@@ -20,7 +20,7 @@ import random
 from dataclasses import dataclass, field
 from typing import Any
 
-from reference_impl import Endpoint, Event
+from mcp_conform.reference_impl import Endpoint, Event
 
 __all__ = ["Link", "Node"]
 

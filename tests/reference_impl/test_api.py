@@ -11,7 +11,7 @@ import threading
 
 import pytest
 
-from reference_impl import (
+from mcp_conform.reference_impl import (
     Action,
     DeliveryFailed,
     LocalProtocolError,
@@ -20,7 +20,7 @@ from reference_impl import (
     MissionItem,
     MissionMessageHandlerBase,
 )
-from spec.codec import BROADCAST_ID, Message, build_datagram, decode, encode
+from mcp_conform.spec.codec import BROADCAST_ID, Message, build_datagram, decode, encode
 
 RTO = 0.05
 LOOP = "127.0.0.1"

@@ -14,12 +14,12 @@ from typing import Any
 
 import pytest
 
-from reference_impl.cli import _addresses, build_parser, main
-from spec import SPEC
-from spec.codec import MANAGER_ID, Action
+from mcp_conform.reference_impl.cli import _addresses, build_parser, main
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import MANAGER_ID, Action
+from mcp_conform.vehicle import SimVehicle, make_probe
 from tests.capturing import free_port
 from tests.reference_impl.test_drone import FakePeer
-from vehicle import SimVehicle, make_probe
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parent / "data"
@@ -28,7 +28,7 @@ BROADCAST = SPEC.protocol["broadcast_address"]
 
 
 def spawn(*args: str, **kw: Any) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "reference_impl", *args], cwd=ROOT, text=True,
+    return subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", *args], cwd=ROOT, text=True,
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
 
 
@@ -258,7 +258,7 @@ def test_the_waypoint_files_the_docs_name_are_shipped() -> None:
     110 through pymavlink, ``spec.mission``)."""
     import re
 
-    from spec.mission import load_waypoints
+    from mcp_conform.spec.mission import load_waypoints
 
     pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
     names = {n for page in pages for n in re.findall(r"[\w./-]+\.waypoints", page.read_text())}
@@ -278,7 +278,7 @@ def test_a_signal_stops_a_role_blocked_in_a_future_without_touching_its_locks() 
     import concurrent.futures
     import threading
 
-    from reference_impl.cli import _Interrupt, _run_role
+    from mcp_conform.reference_impl.cli import _Interrupt, _run_role
 
     class BlockedRole:
         def __init__(self) -> None:

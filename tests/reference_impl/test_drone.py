@@ -11,10 +11,18 @@ from typing import Any
 
 import pytest
 
-from reference_impl.drone import Drone, DroneConfig, RoleError, action_name
-from spec.codec import MANAGER_ID, Action, DecodeError, Message, MissionItem, decode, encode
+from mcp_conform.reference_impl.drone import Drone, DroneConfig, RoleError, action_name
+from mcp_conform.spec.codec import (
+    MANAGER_ID,
+    Action,
+    DecodeError,
+    Message,
+    MissionItem,
+    decode,
+    encode,
+)
+from mcp_conform.vehicle import SimVehicle, make_probe
 from tests.capturing import free_port
-from vehicle import SimVehicle, make_probe
 
 RTO = 0.2
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.771103, -78.674659, 3.0, 2, 19, 1, 1, 3, 0, 1)
@@ -323,7 +331,7 @@ def test_the_delivery_log_is_bounded_and_counts_the_rest(monkeypatch):
     mcp-soak says a log with omissions cannot prove exactly-once."""
     import logging
 
-    from reference_impl import drone as drone_mod
+    from mcp_conform.reference_impl import drone as drone_mod
 
     monkeypatch.setattr(drone_mod, "MAX_DELIVERIES", 5)
     app = drone_mod.DroneApp(None, logging.getLogger("t"), 10.0)

@@ -8,10 +8,10 @@ from typing import Any
 
 import pytest
 
-from spec.codec import Action
+from mcp_conform.spec.codec import Action
+from mcp_conform.vehicle import start_for_node
 from tests.reference_impl import test_drone as td
 from tests.reference_impl.test_drone import ITEM, FakePeer, ready
-from vehicle import start_for_node
 
 manager = td.manager  # the fixtures, shared
 drone_factory = td.drone_factory

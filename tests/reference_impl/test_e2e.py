@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from spec import SPEC
-from spec.mission import load_waypoints
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.mission import load_waypoints
 from tests.capturing import dropped_by_kernel, free_port, start_capture, stop_capture
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,7 +35,7 @@ pytestmark = pytest.mark.slow
 
 def node(*args: str, log: Path) -> subprocess.Popen[bytes]:
     with open(log, "wb") as err:
-        return subprocess.Popen([sys.executable, "-m", "reference_impl", *args], cwd=ROOT,
+        return subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", *args], cwd=ROOT,
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
 
 
@@ -70,7 +70,7 @@ def judge_own_captures(challenge: int, tmp_path: Path) -> None:
     """Each node's own capture (``mcp-node --capture``, our recorder) judged by the trace
     monitor as ``mcp-capture check`` does: no violation in any of them, and the manager's,
     which holds every exchange of the mission, shows the challenge's flow rule passed."""
-    from judge.judging import Params, judge
+    from mcp_conform.judge.judging import Params, judge
 
     items = tuple(load_waypoints(OBSTACLES if challenge == 3 else WAYPOINTS))
     for name in ("manager", *(f"drone{i}" for i in DRONES)):
@@ -136,7 +136,7 @@ def test_the_trace_monitor_finds_nothing_in_their_traffic(challenge: int, tmp_pa
     capture (judge.judging) with the mission's drones, challenge and items: no violation.
     Every node runs on this host, so the capture holds every datagram (judged as a complete
     trace) unless tcpdump reports drops; then MCP-ACK-1 is not judged on absences."""
-    from judge.judging import Params, judge
+    from mcp_conform.judge.judging import Params, judge
 
     drone_port, manager_port = free_port(), free_port()
     while manager_port == drone_port:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from reference_impl import (
+from mcp_conform.reference_impl import (
     AckReceived,
     AckSent,
     DeliveryConfirmed,
@@ -22,9 +22,9 @@ from reference_impl import (
     State,
     Unexpected,
 )
-from reference_impl._transitions import FALLBACK_RULE, TRANSITIONS, Input
-from spec import SPEC
-from spec.codec import (
+from mcp_conform.reference_impl._transitions import FALLBACK_RULE, TRANSITIONS, Input
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import (
     BROADCAST_ID,
     HEADER_SIZE,
     Action,

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from reference_impl.drone import RoleError
-from reference_impl.manager import Manager, ManagerConfig
-from spec.codec import ITEM, MANAGER_ID, Action, Message, MissionItem
-from spec.mission import load_waypoints
+from mcp_conform.reference_impl.drone import RoleError
+from mcp_conform.reference_impl.manager import Manager, ManagerConfig
+from mcp_conform.spec.codec import ITEM, MANAGER_ID, Action, Message, MissionItem
+from mcp_conform.spec.mission import load_waypoints
 from tests.reference_impl.test_drone import FakePeer
 
 DATA = Path(__file__).parent / "data"

@@ -6,9 +6,9 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from reference_impl.nsqd_backend import BackendCore, Handled, Rejected
-from spec import NSQD
-from spec.stream_codec import Deframer, decode_body, encode
+from mcp_conform.reference_impl.nsqd_backend import BackendCore, Handled, Rejected
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import Deframer, decode_body, encode
 
 
 def _decoded(data: bytes) -> list[tuple[str, dict]]:
@@ -61,9 +61,9 @@ def test_a_framing_error_closes_and_a_new_connection_starts_clean():
 
 
 def test_cli_one_line_errors():
-    run = subprocess.run([sys.executable, "-m", "reference_impl", "--protocol", "nsqd", "backend",
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.reference_impl", "--protocol", "nsqd", "backend",
                           "--bind", "nowhere"], capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1 and "--bind" in run.stderr
-    run = subprocess.run([sys.executable, "-m", "reference_impl", "--protocol", "xyz"],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.reference_impl", "--protocol", "xyz"],
                          capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and "not one of mcp, nsqd" in run.stderr

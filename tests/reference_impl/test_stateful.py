@@ -34,13 +34,13 @@ from hypothesis.stateful import (
     run_state_machine_as_test,
 )
 
-from reference_impl import (
+from mcp_conform.reference_impl import (
     DeliveryConfirmed,
     DeliveryFailed,
     Endpoint,
     MessageDelivered,
 )
-from spec.codec import BROADCAST_ID, Action, DecodeError, MissionItem, decode
+from mcp_conform.spec.codec import BROADCAST_ID, Action, DecodeError, MissionItem, decode
 from tests.reference_impl.helpers import Link
 
 RTO = 1.0

@@ -7,7 +7,7 @@ import socket
 
 import pytest
 
-from reference_impl import (
+from mcp_conform.reference_impl import (
     DeliveryConfirmed,
     DeliveryFailed,
     Endpoint,
@@ -15,8 +15,8 @@ from reference_impl import (
     MessageDelivered,
     Retransmitted,
 )
-from reference_impl.transport import create_transport, open_udp_socket
-from spec.codec import BROADCAST_ID, Action, Message, decode, encode
+from mcp_conform.reference_impl.transport import create_transport, open_udp_socket
+from mcp_conform.spec.codec import BROADCAST_ID, Action, Message, decode, encode
 
 LOOP = "127.0.0.1"
 

@@ -9,11 +9,11 @@ import dataclasses
 
 import lxml.html
 
-from captures.check import to_json
-from judge.judging import Params, evidence_of, judge
-from reports.html import render_check, render_run
-from reports.templating import Markup, Template, attrs, fill, join
-from spec import RULES
+from mcp_conform.captures.check import to_json
+from mcp_conform.judge.judging import Params, evidence_of, judge
+from mcp_conform.reports.html import render_check, render_run
+from mcp_conform.reports.templating import Markup, Template, attrs, fill, join
+from mcp_conform.spec import RULES
 
 from .test_html_report import a_run
 

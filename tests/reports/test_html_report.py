@@ -15,12 +15,12 @@ from pathlib import Path
 import lxml.html
 import pytest
 
-from reports.html import render_run
-from spec import SPEC
-from spec.codec import Action, Message, encode
+from mcp_conform.reports.html import render_run
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.reader import open_capture
+from mcp_conform.traceio.recorder import McapRecorder
 from tests.conformance.runner_helpers import FAST, run_conform, sample_node_command
-from traceio.reader import open_capture
-from traceio.recorder import McapRecorder
 
 from .browser import chromium
 
@@ -118,7 +118,7 @@ def test_mcp_conform_html_of_a_faulty_node_in_chromium(tmp_path):
         assert shot.stat().st_size > 5_000
     print(f"screenshot: {shot}")
     # the run's capture, judged offline by the trace monitor: the same fault, and only it
-    from captures.cli import main
+    from mcp_conform.captures.cli import main
 
     out = tmp_path / "check.json"
     assert main(["check", str(capture), "--rto", FAST[1], "--ack-window", FAST[3], "--json", str(out)]) == 1
@@ -132,8 +132,8 @@ def test_mcp_capture_check_html_in_chromium(tmp_path):
     the violating arrow marked."""
     from selenium.webdriver.common.by import By
 
-    from captures.cli import main
-    from spec.mission import save_waypoints
+    from mcp_conform.captures.cli import main
+    from mcp_conform.spec.mission import save_waypoints
     from tests.judge.monitor_faults import FAULTY
 
     s = FAULTY["ack4-acks-broadcast"].build()

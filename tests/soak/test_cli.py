@@ -7,8 +7,8 @@ import shlex
 
 import pytest
 
-from soak.cli import build_parser, main, percentile, reproduce
-from soak.mission import MissionResult, expected_commands
+from mcp_conform.soak.cli import build_parser, main, percentile, reproduce
+from mcp_conform.soak.mission import MissionResult, expected_commands
 
 
 @pytest.mark.parametrize("argv, words", [

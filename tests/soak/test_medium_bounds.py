@@ -6,9 +6,9 @@ from __future__ import annotations
 import socket
 import time
 
-from harness.impair import DelayQueue, Impairment, parse_impairment
-from soak.medium import Medium
-from spec.codec import Action, Message, encode
+from mcp_conform.harness.impair import DelayQueue, Impairment, parse_impairment
+from mcp_conform.soak.medium import Medium
+from mcp_conform.spec.codec import Action, Message, encode
 
 
 class _Recorder:

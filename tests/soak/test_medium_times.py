@@ -12,9 +12,9 @@ from contextlib import contextmanager
 
 import pytest
 
-from harness.impair import Impairment, parse_impairment
-from soak.medium import Medium
-from spec.codec import Action, Message, encode
+from mcp_conform.harness.impair import Impairment, parse_impairment
+from mcp_conform.soak.medium import Medium
+from mcp_conform.spec.codec import Action, Message, encode
 
 
 class _Recorder:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from soak.cli import main
+from mcp_conform.soak.cli import main
 
 pytestmark = pytest.mark.slow
 

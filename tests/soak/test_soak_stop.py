@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from soak.campaign import Stop, run_missions
-from soak.cli import main
-from soak.mission import MissionResult
+from mcp_conform.soak.campaign import Stop, run_missions
+from mcp_conform.soak.cli import main
+from mcp_conform.soak.mission import MissionResult
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -63,7 +63,7 @@ def test_a_signal_mid_mission_ends_every_node_and_writes_the_json(sig, tmp_path)
     soak by ten minutes), mid-mission: the soak's whole process tree is gone after it exits,
     and its ``--json`` holds the interrupted mission with how each node ended."""
     out = tmp_path / "soak.json"
-    proc = subprocess.Popen([sys.executable, "-m", "soak", "--missions", "3", "--out", str(tmp_path / "out"),
+    proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.soak", "--missions", "3", "--out", str(tmp_path / "out"),
                              "--json", str(out), "--impair", "loss=0.3,delay=0-50ms"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     tree: dict[int, int] = {}

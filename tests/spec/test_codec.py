@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from spec.codec import (
+from mcp_conform.spec.codec import (
     HEADER_SIZE,
     Action,
     DecodeError,
@@ -23,7 +23,7 @@ from spec.codec import (
     encode,
     peek_header,
 )
-from spec.strategies import MALFORMED_KINDS, datagrams, malformed_datagrams, messages
+from mcp_conform.spec.strategies import MALFORMED_KINDS, datagrams, malformed_datagrams, messages
 
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -197,7 +197,7 @@ def test_decode_rejects_non_bytes_with_decode_error() -> None:
 
 
 def test_action_and_mission_item_follow_the_spec() -> None:
-    from spec import SPEC
+    from mcp_conform.spec import SPEC
 
     assert [(a.name, int(a)) for a in Action] == [(a.name, a.code) for a in SPEC.actions]
     assert MissionItem._fields == tuple(f["name"] for f in SPEC.mission_item["fields"])
@@ -206,7 +206,7 @@ def test_action_and_mission_item_follow_the_spec() -> None:
 def test_passthrough_longer_than_any_frame_is_pay6_without_parsing_it_all():
     """A Mav_Passthrough payload longer than one MAVLink frame can be (v1 263, v2 280 bytes)
     is rejected as MCP-PAY-6 up front (the fuzzer sends them up to 65,507 bytes)."""
-    from spec.mavframe import heartbeat_frame
+    from mcp_conform.spec.mavframe import heartbeat_frame
 
     for version in (1, 2):
         frame = heartbeat_frame(version)

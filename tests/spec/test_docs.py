@@ -4,16 +4,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spec import SPEC
-from spec.docs import check, render, write
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.docs import check, render, write
 
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "spec.md"
 
 
 def test_committed_page_is_current() -> None:
-    assert PAGE.is_file(), "docs/spec.md is missing: run `python -m spec docs`"
+    assert PAGE.is_file(), "docs/spec.md is missing: run `python -m mcp_conform.spec docs`"
     assert PAGE.read_text(encoding="utf-8") == render(SPEC), (
-        "docs/spec.md is stale: run `python -m spec docs` and commit it")
+        "docs/spec.md is stale: run `python -m mcp_conform.spec docs` and commit it")
 
 
 def test_page_shows_every_rule_note_action_and_parameter() -> None:

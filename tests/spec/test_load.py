@@ -13,9 +13,9 @@ from typing import Any
 import pytest
 import yaml
 
-import spec
-from spec import SPEC, SpecError, load
-from spec._load import SPEC_PATH
+from mcp_conform import spec
+from mcp_conform.spec import SPEC, SpecError, load
+from mcp_conform.spec._load import SPEC_PATH
 
 # The catalogue (MCP-REQUIREMENTS.md), copied here by hand so that an edit of mcp.yaml that
 # drops, renames or re-levels a rule fails this test: ID, level, roles.

@@ -1,4 +1,4 @@
-"""``python -m spec``: summary, docs --check, and one-line errors with exit 2 on a broken spec."""
+"""``python -m mcp_conform.spec``: summary, docs --check, and one-line errors with exit 2 on a broken spec."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from spec.__main__ import main
+from mcp_conform.spec.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -35,7 +35,7 @@ def test_docs_write_then_check(tmp_path: Path, capsys: pytest.CaptureFixture[str
 def test_broken_spec_is_one_line_and_exit_2(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("spec_version: 1\nprotocol: {}\n", encoding="utf-8")
-    run = subprocess.run([sys.executable, "-m", "spec", "--spec", str(bad)], cwd=ROOT,
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.spec", "--spec", str(bad)], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2
     assert run.stdout == ""

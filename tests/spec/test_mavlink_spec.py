@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from spec import docs
-from spec._load import SpecError, load, read_validated
-from spec.mavlink import MAVLINK_PATH, deprecated_messages, load_mavlink
-from spec.stream import load_stream
+from mcp_conform.spec import docs
+from mcp_conform.spec._load import SpecError, load, read_validated
+from mcp_conform.spec.mavlink import MAVLINK_PATH, deprecated_messages, load_mavlink
+from mcp_conform.spec.nsqd import load_stream
 
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "mavlink.md"
 

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from spec.codec import Action, Message, MissionItem, decode, encode
-from spec.mission import (
+from mcp_conform.spec.codec import Action, Message, MissionItem, decode, encode
+from mcp_conform.spec.mission import (
     WaypointFileError,
     from_mavlink,
     load_waypoints,
@@ -18,7 +18,7 @@ from spec.mission import (
     save_waypoints,
     to_mavlink,
 )
-from spec.strategies import mission_items
+from mcp_conform.spec.strategies import mission_items
 
 # The description's Challenge 1 sample file ("Extracting WayPoint list"), its line wraps
 # undone: one waypoint per line, 12 fields each.
@@ -164,7 +164,7 @@ def test_non_regular_files_are_refused_without_reading(tmp_path: Path) -> None:
 
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)  # reading it would block for ever
-    from spec.mission import WaypointFileError, load_waypoints
+    from mcp_conform.spec.mission import WaypointFileError, load_waypoints
 
     for path in ("/dev/zero", str(tmp_path), str(fifo)):
         with pytest.raises(WaypointFileError, match="not a regular file"):
@@ -172,7 +172,7 @@ def test_non_regular_files_are_refused_without_reading(tmp_path: Path) -> None:
 
 
 def test_values_the_wire_cannot_carry_and_lists_one_datagram_cannot_hold(tmp_path: Path) -> None:
-    from spec.mission import MAX_LIST_ITEMS, WaypointFileError, load_waypoints
+    from mcp_conform.spec.mission import MAX_LIST_ITEMS, WaypointFileError, load_waypoints
 
     big = tmp_path / "big.waypoints"
     big.write_text(_wpl(2, lat="1e39"))
@@ -211,7 +211,7 @@ def test_mcp_capture_refuses_a_hostile_waypoints_file_in_one_line(tmp_path: Path
     golden = Path(__file__).resolve().parents[2] / "captures" / "golden" / "challenge1.mcap"
 
     limit = f"--as={2 << 30}:{2 << 30}"
-    proc = subprocess.run([prlimit, limit, "--", sys.executable, "-m", "captures", "check", str(golden),
+    proc = subprocess.run([prlimit, limit, "--", sys.executable, "-m", "mcp_conform.captures", "check", str(golden),
                            "--waypoints", path], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "--waypoints" in proc.stderr, proc.stderr

@@ -14,9 +14,9 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spec import NSQD, RULES, SPEC, SpecError, load, load_stream
-from spec.docs_stream import render
-from spec.stream_codec import (
+from mcp_conform.spec import NSQD, RULES, SPEC, SpecError, load, load_stream
+from mcp_conform.spec.docs_nsqd import render
+from mcp_conform.spec.nsqd_codec import (
     BodyError,
     Deframer,
     Frame,
@@ -26,7 +26,7 @@ from spec.stream_codec import (
     gpx_problem,
     number_problem,
 )
-from spec.stream_strategies import message_values, streams
+from mcp_conform.spec.nsqd_strategies import message_values, streams
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -61,7 +61,7 @@ def test_loaders_refuse_the_other_kind_and_broken_specs(tmp_path):
 
 def test_committed_page_is_current_and_complete():
     page = (ROOT / "docs" / "nsqd.md").read_text(encoding="utf-8")
-    assert page == render(NSQD), "docs/nsqd.md is stale: run `python -m spec docs`"
+    assert page == render(NSQD), "docs/nsqd.md is stale: run `python -m mcp_conform.spec docs`"
     for rule in NSQD.rules:
         assert f"| {rule.id} " in page
     for m in NSQD.messages:
@@ -134,7 +134,7 @@ def test_text_checks():
 @settings(max_examples=150, deadline=None)
 @given(message_values())
 def test_every_message_round_trips(nv):
-    from spec.stream_codec import Deframer as D
+    from mcp_conform.spec.nsqd_codec import Deframer as D
 
     name, values = nv
     (fr,) = D(NSQD).feed(encode(NSQD, name, **values))

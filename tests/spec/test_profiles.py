@@ -5,13 +5,20 @@ from __future__ import annotations
 
 import pytest
 
-from spec import ROLES, SpecBase
-from spec.profiles import PROFILES, ROLE_NAMES, ProfileError, pick, profile_of_role, resolve
+from mcp_conform.spec import ROLES, SpecBase
+from mcp_conform.spec.profiles import (
+    PROFILES,
+    ROLE_NAMES,
+    ProfileError,
+    pick,
+    profile_of_role,
+    resolve,
+)
 
 
 def test_every_name_in_the_table_resolves():
-    from conformance._case_base import CaseBase
-    from harness.node import NodeBase
+    from mcp_conform.conformance._case_base import CaseBase
+    from mcp_conform.harness.node import NodeBase
 
     for prof in PROFILES.values():
         for path in (prof.codec, prof.monitor, prof.dissector, prof.capture_reader, prof.mutators,
@@ -41,7 +48,7 @@ def test_pick_names_the_defaults_and_refuses_in_one_line():
 def test_every_spec_answers_the_one_interface():
     """Both protocols' specs are read the same way (``SpecBase``): name, version, roles and
     their ports, messages by id and by name, rules by ID, their page (``spec.docs``)."""
-    from spec import docs
+    from mcp_conform.spec import docs
 
     assert PROFILES["mcp"].spec.roles == ROLES
     for prof in PROFILES.values():
@@ -54,7 +61,7 @@ def test_every_spec_answers_the_one_interface():
             spec.message("NO_SUCH_MESSAGE")
         assert all(spec.rule(r.id) is r for r in spec.rules)
         assert spec.port(prof.default_role.name) > 0
-        assert docs.check(spec), f"{docs.default_output(spec)} is stale: run `python -m spec docs`"
+        assert docs.check(spec), f"{docs.default_output(spec)} is stale: run `python -m mcp_conform.spec docs`"
         assert docs.page(spec).summary(spec)
 
 

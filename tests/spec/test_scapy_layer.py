@@ -1,4 +1,4 @@
-"""spec.scapy_layer: a layer built from the spec's header table, pcap dissection, answers()."""
+"""spec.scapy_mcp: a layer built from the spec's header table, pcap dissection, answers()."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from scapy.layers.inet import IP, UDP
 from scapy.packet import Raw
 from scapy.utils import rdpcap, wrpcap
 
-from spec import SPEC
-from spec.codec import Action, Message, MissionItem, encode
-from spec.mavframe import heartbeat_frame
-from spec.scapy_layer import MCP, PORTS, MCPAck, MCPItemList, MCPMissionItem, MCPReadyId
+from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode
+from mcp_conform.spec.mavframe import heartbeat_frame
+from mcp_conform.spec.scapy_mcp import MCP, PORTS, MCPAck, MCPItemList, MCPMissionItem, MCPReadyId
 
 MANAGER_PORT = SPEC.protocol["ports"]["manager"]
 DRONE_PORT = SPEC.protocol["ports"]["drone"]

@@ -8,9 +8,17 @@ import sys
 import pytest
 from hypothesis import given, settings
 
-from spec.codec import HEADER_SIZE, Action, DecodeError, Message, decode, encode, peek_header
-from spec.mavframe import parse_frame
-from spec.strategies import (
+from mcp_conform.spec.codec import (
+    HEADER_SIZE,
+    Action,
+    DecodeError,
+    Message,
+    decode,
+    encode,
+    peek_header,
+)
+from mcp_conform.spec.mavframe import parse_frame
+from mcp_conform.spec.strategies import (
     MALFORMED_KINDS,
     WIRE_ACTIONS,
     malformed_corpus,

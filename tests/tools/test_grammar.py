@@ -22,13 +22,13 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
 
 
 def _builders() -> dict[str, object]:
-    from captures.cli import build_parser as capture
-    from conformance.cli import build_parser as conform
-    from fuzz.cli import build_parser as fuzz
-    from harness.impair_proxy import build_parser as impair
-    from reference_impl.cli import build_parser as node
-    from soak.cli import build_parser as soak
-    from vehicle.cli import build_parser as vehicle
+    from mcp_conform.captures.cli import build_parser as capture
+    from mcp_conform.conformance.cli import build_parser as conform
+    from mcp_conform.fuzz.cli import build_parser as fuzz
+    from mcp_conform.harness.impair_proxy import build_parser as impair
+    from mcp_conform.reference_impl.cli import build_parser as node
+    from mcp_conform.soak.cli import build_parser as soak
+    from mcp_conform.vehicle.cli import build_parser as vehicle
 
     return {"conform": conform, "fuzz": fuzz, "capture": capture, "node": node, "impair": impair,
             "soak": soak, "vehicle": vehicle}
@@ -36,7 +36,7 @@ def _builders() -> dict[str, object]:
 
 TOOLS = list(_builders())
 COMMANDS = {"conform": ["mcp-conform"], "fuzz": ["mcp-fuzz"], "capture": ["mcp-capture"], "node": ["mcp-node"],
-            "impair": ["mcp-impair"], "soak": ["mcp-soak"], "vehicle": [sys.executable, "-m", "vehicle"]}
+            "impair": ["mcp-impair"], "soak": ["mcp-soak"], "vehicle": [sys.executable, "-m", "mcp_conform.vehicle"]}
 
 
 def _subparsers(p: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -142,8 +142,8 @@ def _all_parsers() -> list[tuple[str, argparse.ArgumentParser]]:
 
 
 def test_every_help_ends_with_the_exit_codes() -> None:
-    from traceio.grammar import EXIT_CODES
-    from vehicle.cli import EXIT_CODES as VEHICLE_CODES
+    from mcp_conform.traceio.grammar import EXIT_CODES
+    from mcp_conform.vehicle.cli import EXIT_CODES as VEHICLE_CODES
 
     assert VEHICLE_CODES == EXIT_CODES  # the vehicle's copy (it imports nothing of ours)
     for name, p in _all_parsers():
@@ -155,7 +155,7 @@ def test_every_usage_error_is_one_line_with_one_prefix() -> None:
     mcp-capture doubled its prefix)."""
     for tool, cmd in COMMANDS.items():
         run = subprocess.run([*cmd, "--no-such-option"], capture_output=True, text=True, env=ENV, timeout=120)
-        prog = "python -m vehicle" if tool == "vehicle" else cmd[0]
+        prog = "mcp-vehicle" if tool == "vehicle" else cmd[0]
         assert run.returncode == 2, (tool, run.stderr)
         assert run.stderr.count("\n") == 1 and run.stderr.startswith(f"{prog}: error: "), (tool, run.stderr)
         assert run.stderr.count("error:") == 1 and run.stderr.count(prog) == 1, (tool, run.stderr)
@@ -164,10 +164,10 @@ def test_every_usage_error_is_one_line_with_one_prefix() -> None:
 @pytest.mark.parametrize("cmd", [["mcp-conform", "--protocol", "xyz"], ["mcp-node", "--protocol", "xyz", "drone"],
                                  ["mcp-capture", "check", "x.mcap", "--protocol", "xyz"],
                                  ["mcp-capture", "dissector", "--protocol", "xyz"],
-                                 [sys.executable, "-m", "spec", "--protocol", "xyz"]], ids=lambda c: " ".join(c[-4:]))
+                                 [sys.executable, "-m", "mcp_conform.spec", "--protocol", "xyz"]], ids=lambda c: " ".join(c[-4:]))
 def test_an_unknown_protocol_is_the_same_line_everywhere(cmd) -> None:
     """``--protocol`` goes through ``spec.profiles.pick``: the same error, naming every protocol."""
-    from spec.profiles import PROFILES
+    from mcp_conform.spec.profiles import PROFILES
 
     run = subprocess.run(cmd, capture_output=True, text=True, env=ENV, timeout=120)
     assert run.returncode == 2, run.stderr
@@ -177,7 +177,7 @@ def test_an_unknown_protocol_is_the_same_line_everywhere(cmd) -> None:
 
 
 def test_version_everywhere() -> None:
-    from spec.about import tool_version
+    from mcp_conform.spec.about import tool_version
 
     for tool, cmd in COMMANDS.items():
         run = subprocess.run([*cmd, "--version"], capture_output=True, text=True, env=ENV, timeout=120)
@@ -247,7 +247,7 @@ def test_conform_json_dash_is_stdout(tmp_path) -> None:
 def test_fuzz_json_dash_is_stdout_and_quiet_has_no_progress(tmp_path, protocol) -> None:
     """mcp-fuzz --json - : the summary document on stdout, the campaign's lines on stderr; -q:
     no status line, the last two lines still there."""
-    run = subprocess.run([sys.executable, "-m", "fuzz", "--protocol", protocol, "--max-cases", "150",
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", protocol, "--max-cases", "150",
                           "--duration", "8", "--status-every", "0.1", "-q", "--json", "-"],
                          capture_output=True, text=True, env=ENV, timeout=120, cwd=tmp_path)
     assert run.returncode == 0, run.stderr

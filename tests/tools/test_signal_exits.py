@@ -120,8 +120,8 @@ def test_mcp_impair_duration_is_its_normal_end() -> None:
 
 
 @pytest.mark.parametrize("sig", SIGNALS)
-@pytest.mark.parametrize("command", [[sys.executable, "-m", "vehicle"], ["mcp-vehicle"]],
-                         ids=["python -m vehicle", "mcp-vehicle"])
+@pytest.mark.parametrize("command", [[sys.executable, "-m", "mcp_conform.vehicle"], ["mcp-vehicle"]],
+                         ids=["mcp-vehicle", "mcp-vehicle"])
 def test_the_vehicle(command: list[str], sig: int) -> None:
     code, out, err = _run_until([*command, "--listen", "127.0.0.1:0", "--duration", "120", "-q"],
                                 lambda ln: "listening on" in ln, "stdout", sig)
@@ -129,7 +129,7 @@ def test_the_vehicle(command: list[str], sig: int) -> None:
 
 
 def test_the_vehicle_duration_is_its_normal_end() -> None:
-    run = subprocess.run([sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--duration", "0.5", "-q"],
+    run = subprocess.run([sys.executable, "-m", "mcp_conform.vehicle", "--listen", "127.0.0.1:0", "--duration", "0.5", "-q"],
                          cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
 

@@ -17,12 +17,12 @@ import lz4.frame
 import pytest
 import zstandard
 
-from judge.judging import NoJudge, Params, judge
-from spec.codec import Action, Message, encode
-from traceio.mcap_chunks import Message as ChunkMessage
-from traceio.mcap_chunks import chunk_records
-from traceio.reader import Datagram, open_capture
-from traceio.recorder import McapRecorder
+from mcp_conform.judge.judging import NoJudge, Params, judge
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.mcap_chunks import Message as ChunkMessage
+from mcp_conform.traceio.mcap_chunks import chunk_records
+from mcp_conform.traceio.reader import Datagram, open_capture
+from mcp_conform.traceio.recorder import McapRecorder
 
 
 def _capture(path: Path, n: int = 20) -> Path:
@@ -186,7 +186,7 @@ def test_a_cut_message_index_reads_as_mcap_reads_it(tmp_path: Path, cut: int) ->
     mine = open_capture(short)
     got = [tuple(d) for d in mine]
     plain = open_capture(short)
-    import traceio.mcap_chunks as chunks
+    import mcp_conform.traceio.mcap_chunks as chunks
 
     with pytest.MonkeyPatch.context() as mp:  # mcap's own StreamReader, every entry parsed
         from mcap.stream_reader import StreamReader as Plain
@@ -219,8 +219,8 @@ def test_what_judging_made_goes_to_the_oldest_generation_at_once(tmp_path: Path)
 
 def test_evidence_indexes_of_every_kind_of_evidence() -> None:
     """The monitor's (index, t_ns) pairs first, and every other kind as before."""
-    from traceio.reader import Datagram as D
-    from traceio.trace import evidence_indexes
+    from mcp_conform.traceio.reader import Datagram as D
+    from mcp_conform.traceio.trace import evidence_indexes
 
     class V:
         evidence = ((3, 10), 4, D(5, 1, None, None, b""), {"index": 6}, (True, 1), ("x", 2), (), {"index": "7"})
@@ -234,8 +234,8 @@ def test_each_violation_line_is_json_dumps_of_its_document(tmp_path: Path, monke
     one encoder for the file: before, ``JSONEncoder().encode`` made one per violation."""
     import json
 
-    import captures.check as check_mod
-    from judge.judging import evidence_of
+    import mcp_conform.captures.check as check_mod
+    from mcp_conform.judge.judging import evidence_of
     from tests.captures.noisy import write_noisy
 
     j = judge(write_noisy(tmp_path / "n.mcap", 800), Params())

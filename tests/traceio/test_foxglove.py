@@ -13,11 +13,11 @@ import pytest
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
-from captures.scenarios import GOLDEN
-from traceio import fox
-from traceio.background import BackgroundRecorder
-from traceio.reader import open_capture
-from traceio.recorder import McapRecorder
+from mcp_conform.captures.scenarios import GOLDEN
+from mcp_conform.traceio import fox
+from mcp_conform.traceio.background import BackgroundRecorder
+from mcp_conform.traceio.reader import open_capture
+from mcp_conform.traceio.recorder import McapRecorder
 
 ROOT = Path(__file__).resolve().parents[2]
 

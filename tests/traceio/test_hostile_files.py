@@ -20,9 +20,9 @@ from pathlib import Path
 
 import pytest
 
-from spec.codec import Action, Message, encode
-from traceio.reader import MAX_BURST, MAX_BURST_TOTAL
-from traceio.recorder import McapRecorder
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.reader import MAX_BURST, MAX_BURST_TOTAL
+from mcp_conform.traceio.recorder import McapRecorder
 
 ROOT = Path(__file__).resolve().parents[2]
 MEMORY = 1536 * 2**20  # bytes of address space for each command (python + scapy + mcap fit)

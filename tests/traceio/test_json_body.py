@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from traceio.reader import _datagram_body
+from mcp_conform.traceio.reader import _datagram_body
 
 USED = ("peer", "local", "raw_base64", "run_delay_ns")
 scalars = (st.none() | st.booleans() | st.integers(min_value=-(2**80), max_value=2**80)

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from spec.codec import Action, Message, encode
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio import fox
+from mcp_conform.traceio.background import BackgroundRecorder
+from mcp_conform.traceio.live import LiveError, LiveServer, parse_live
+from mcp_conform.traceio.recorder import CHANNELS, STREAM_CHANNELS, McapRecorder
 from tests import foxglove_ws
-from traceio import fox
-from traceio.background import BackgroundRecorder
-from traceio.live import LiveError, LiveServer, parse_live
-from traceio.recorder import CHANNELS, STREAM_CHANNELS, McapRecorder
 
 #: every channel a live server of one view serves
 ALL = {*CHANNELS, *fox.FOXGLOVE_CHANNELS, *STREAM_CHANNELS}

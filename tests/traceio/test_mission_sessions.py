@@ -12,16 +12,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from judge.judging import Params, judge
-from judge.monitor import TESTER
-from judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
-from spec.codec import Action
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.judge.monitor import TESTER
+from mcp_conform.judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
+from mcp_conform.spec.codec import Action
+from mcp_conform.traceio.merge import merge_captures
+from mcp_conform.traceio.reader import Metadata, open_capture
+from mcp_conform.traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
 from tests.conformance.runner_helpers import verdict_differences
 from tests.judge.monitor_faults import rtx2_moves_on
 from tests.judge.monitor_scripts import Script
-from traceio.merge import merge_captures
-from traceio.reader import Metadata, open_capture
-from traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
 
 RUNNER, MANAGER = ("127.0.0.1", 41001), ("127.0.0.1", 41002)
 
@@ -128,7 +128,7 @@ def test_the_mission_a_session_records_is_what_check_judges_its_lists_by(tmp_pat
     """The challenge and the items the manager was handed, recorded with each session: the
     live monitor and ``check`` compare the WP_List with them alike (a reversed list fails
     MCP-FLOW-4 in both); ``--challenge`` given by the user still wins."""
-    from captures.check import to_json, validate_json
+    from mcp_conform.captures.check import to_json, validate_json
     from tests.judge.monitor_scripts import WAYPOINTS
 
     wrong = tuple(reversed(WAYPOINTS))  # the manager sends the file's items reversed

@@ -17,12 +17,12 @@ from scapy.layers.l2 import Ether
 from scapy.packet import Raw
 from scapy.utils import wrpcap
 
-from captures.cli import main
-from spec import NSQD
-from spec.stream_codec import encode
-from traceio import tcp
-from traceio.reader import StreamEvent, StreamFrame, open_capture
-from traceio.stream import StreamGap, stream_records
+from mcp_conform.captures.cli import main
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
+from mcp_conform.traceio import tcp
+from mcp_conform.traceio.nsqd import StreamGap, stream_records
+from mcp_conform.traceio.reader import StreamEvent, StreamFrame, open_capture
 
 SERVER = ("10.0.0.2", 8888)
 U = dict(roll=0, pitch=0, yaw=0, thrust=0, lat=55, lon=10, alt=3)
@@ -138,9 +138,9 @@ def test_check_judges_the_backends_frames_with_the_runners_judge(tmp_path, capsy
     assert [(v["rule"], v["conn"]) for v in doc["violations"]] == [("NSQD-MSG-2", 2)]
     assert "state 234881024 (0x0e000000)" in out and "verdict: FAILED" in out
     # the same UPDATE through the runner's own connection judgement
-    from harness.stream_session import Conn  # noqa: F401 - Conn.violation calls it
-    from judge.stream_monitor import Received, decode_frame, sender_violation
-    from spec.stream_codec import Deframer
+    from mcp_conform.harness.nsqd_session import Conn  # noqa: F401 - Conn.violation calls it
+    from mcp_conform.judge.nsqd_monitor import Received, decode_frame, sender_violation
+    from mcp_conform.spec.nsqd_codec import Deframer
 
     fr = Deframer(NSQD).feed(BAD_STATE)[0]
     live = sender_violation(NSQD, [Received(0.0, fr, *decode_frame(NSQD, fr))], None)
@@ -274,7 +274,7 @@ def test_other_link_and_network_layers(tmp_path, link):
 
 
 def test_an_mcp_udp_capture_is_still_read_as_mcp(tmp_path):
-    from traceio.stream import is_stream_capture
+    from mcp_conform.traceio.nsqd import is_stream_capture
 
     pk = [Ether() / IP(src="127.0.0.1", dst="127.0.0.1") / TCP(sport=1, dport=2) / Raw(b"not nsqd")] * 3
     from scapy.layers.inet import UDP
@@ -287,7 +287,7 @@ def test_an_mcp_udp_capture_is_still_read_as_mcp(tmp_path):
 def test_a_capture_without_connection_events_exports_a_followable_conversation(tmp_path):
     """An MCAP written before /nsqd/conn: each connection opens with a handshake at its first
     bytes; tshark and our reader follow the same bytes."""
-    from traceio.tcp_pcap import write_tcp_pcap
+    from mcp_conform.traceio.tcp_pcap import write_tcp_pcap
 
     recs = [StreamFrame(0, 10**9, "tx", 5, "TAKEOFF", None, TAKEOFF),
             StreamFrame(1, 10**9 + 10, "rx", 5, "UPDATE", None, UP[0]),
@@ -311,7 +311,7 @@ def test_export_stamps_each_packet_with_the_captures_time(tmp_path, suffix):
     to the nanosecond, a pcapng to the microsecond (cut); scapy's writer went through a float
     and put a time of today's clock up to ~0.2 µs off in the pcap (a microsecond off in the pcapng).
     Packets of one instant are a microsecond apart (the handshake before the first bytes)."""
-    from traceio.tcp_pcap import write_tcp_pcap
+    from mcp_conform.traceio.tcp_pcap import write_tcp_pcap
 
     t0, t1 = 1_795_629_244_661_675_949, 1_795_629_244_671_676_450
     recs = [StreamFrame(0, t0, "tx", 5, "TAKEOFF", None, TAKEOFF), StreamFrame(1, t1, "rx", 5, "UPDATE", None, UP[0])]
@@ -333,7 +333,7 @@ def test_export_stamps_each_packet_with_the_captures_time(tmp_path, suffix):
 def test_export_refuses_a_time_a_pcap_cannot_hold(tmp_path, capsys, suffix, rc):
     """Past 2^32 s a pcap's seconds cannot hold the time: one line, exit 2, no file (scapy's
     struct.error escaped as a traceback); pcapng's 64-bit microseconds hold it."""
-    from traceio.recorder import McapRecorder
+    from mcp_conform.traceio.recorder import McapRecorder
 
     src = tmp_path / "late.mcap"
     with McapRecorder(src) as rec:

@@ -13,9 +13,9 @@ from scapy.layers.inet import IP, UDP
 from scapy.layers.l2 import Ether
 from scapy.utils import wrpcap
 
-from spec.codec import Action, Message, encode
-from traceio.packets import MAX_RECORD
-from traceio.reader import Datagram, open_capture
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.packets import MAX_RECORD
+from mcp_conform.traceio.reader import Datagram, open_capture
 
 START = encode(Message(1, 0, 5, Action.START_MISSION))
 IPV4 = bytes(IP(src="10.0.0.1", dst="10.0.0.2") / UDP(sport=7889, dport=7890) / START)

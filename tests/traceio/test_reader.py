@@ -16,9 +16,9 @@ from scapy.layers.l2 import CookedLinux, CookedLinuxV2, Dot1Q, Ether, Loopback
 from scapy.packet import Raw
 from scapy.utils import wrpcap, wrpcapng
 
-import traceio.recorder as recorder_mod
-from spec.codec import Action, Message, encode
-from traceio.reader import (
+import mcp_conform.traceio.recorder as recorder_mod
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.reader import (
     CaptureError,
     CaseMark,
     Datagram,
@@ -26,7 +26,7 @@ from traceio.reader import (
     Truncated,
     open_capture,
 )
-from traceio.recorder import McapRecorder
+from mcp_conform.traceio.recorder import McapRecorder
 
 START = encode(Message(1, 0, 5, Action.START_MISSION))
 ACK = encode(Message(0, 1, 9, Action.ACK, 5))

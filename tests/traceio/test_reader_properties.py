@@ -27,9 +27,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from captures.cli import main as capture_main
-from spec.codec import Action, Message, encode
-from spec.mission import WaypointFileError, load_waypoints
+from mcp_conform.captures.cli import main as capture_main
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.spec.mission import WaypointFileError, load_waypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 GOLDEN = ROOT / "captures" / "golden"
@@ -68,9 +68,9 @@ def _nsqd_pcap_bytes() -> bytes:
     ``mcp-capture export`` writes it: read back by the TCP reassembly and the Nsqd judge."""
     import tempfile
 
+    from mcp_conform.traceio.reader import StreamFrame
+    from mcp_conform.traceio.tcp_pcap import write_tcp_pcap
     from tests.traceio.test_nsqd_tcp import RPY, TAKEOFF, UP
-    from traceio.reader import StreamFrame
-    from traceio.tcp_pcap import write_tcp_pcap
 
     recs = [StreamFrame(0, 10**9, "tx", 5, "TAKEOFF", None, TAKEOFF),
             StreamFrame(1, 10**9 + 10, "rx", 5, "UPDATE", None, UP[0]),
@@ -202,7 +202,7 @@ def test_export_refuses_a_time_the_output_cannot_hold(tmp_path: Path, suffix: st
     """Found by the property above (a pcapng whose if_tsresol was mutated): a datagram stamped
     past 2^32 s cannot go into a pcap's 32-bit seconds (scapy's struct.error escaped as a
     traceback); pcapng's 64-bit microseconds hold it."""
-    from traceio.recorder import McapRecorder
+    from mcp_conform.traceio.recorder import McapRecorder
 
     path = tmp_path / "late.mcap"
     with McapRecorder(path, local=("127.0.0.1", 4000)) as rec:
@@ -221,8 +221,8 @@ def test_the_fuzzers_seed_reader_survives_mutated_files(blob: bytes) -> None:
     ``SetupError`` (exit 2) naming the file."""
     import tempfile
 
-    from fuzz.campaign import load_seeds
-    from harness.errors import SetupError
+    from mcp_conform.fuzz.campaign import load_seeds
+    from mcp_conform.harness.errors import SetupError
 
     with tempfile.TemporaryDirectory() as d:
         (Path(d) / "s.mcap").write_bytes(blob)

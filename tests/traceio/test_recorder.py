@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from spec.codec import Action, Message, MissionItem, encode
-from spec.mavframe import heartbeat_frame
-from traceio.background import BackgroundRecorder
-from traceio.recorder import (
+from mcp_conform.spec.codec import Action, Message, MissionItem, encode
+from mcp_conform.spec.mavframe import heartbeat_frame
+from mcp_conform.traceio.background import BackgroundRecorder
+from mcp_conform.traceio.recorder import (
     CHANNELS,
     METADATA_NAME,
     McapRecorder,
@@ -181,7 +181,7 @@ def test_background_writer_finishes_the_file_when_its_owner_is_killed(tmp_path):
     path = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
         import os, signal, time
-        from traceio.background import BackgroundRecorder
+        from mcp_conform.traceio.background import BackgroundRecorder
         rec = BackgroundRecorder({str(path)!r})
         for i in range(500):
             rec.datagram("tx", b"NCSU-CM\x01\x01" + bytes(8), ("127.0.0.1", 1), i)
@@ -245,7 +245,7 @@ def test_run_interrupted_by_an_exception_leaves_a_valid_file(tmp_path):
     """The process dies of an uncaught exception without calling close(): atexit does."""
     path = tmp_path / "crash.mcap"
     script = textwrap.dedent(f"""
-        from traceio.recorder import McapRecorder
+        from mcp_conform.traceio.recorder import McapRecorder
         rec = McapRecorder({str(path)!r})
         rec.case_mark("ACK/test_z", "start", 1)
         rec.datagram("tx", b"NCSU-CM\\x01\\x01" + bytes(8), ("127.0.0.1", 1), 2)
@@ -264,7 +264,7 @@ def test_what_a_run_left_open_is_closed_at_exit_though_one_close_fails(tmp_path)
     the others' files from being finished."""
     path = tmp_path / "left.mcap"
     script = textwrap.dedent(f"""
-        from traceio import recorder
+        from mcp_conform.traceio import recorder
         class Broken:
             def close(self):
                 raise OSError("disk gone")
@@ -293,9 +293,9 @@ def test_payload_summary():
 
 
 def test_the_runner_tee_forwards_the_local_address_and_bursts(tmp_path):
-    """``mcp-conform -v`` wraps the recorder (conformance.live.Tee): the session's socket
+    """``mcp-conform -v`` wraps the recorder (conformance.run_display.Tee): the session's socket
     address and the flood's burst still reach the file."""
-    from conformance.live import Tee
+    from mcp_conform.conformance.run_display import Tee
 
     path = tmp_path / "tee.mcap"
     rec = McapRecorder(path)

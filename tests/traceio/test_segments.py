@@ -10,13 +10,13 @@ import json
 import shutil
 from pathlib import Path
 
-from captures.check import to_json, validate_json
-from judge.judging import Params, judge
-from spec.codec import Action, Message, encode
+from mcp_conform.captures.check import to_json, validate_json
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.merge import merge_captures
+from mcp_conform.traceio.reader import Datagram, Metadata, open_capture
+from mcp_conform.traceio.recorder import McapRecorder, run_metadata
 from tests.conformance.runner_helpers import verdict_differences
-from traceio.merge import merge_captures
-from traceio.reader import Datagram, Metadata, open_capture
-from traceio.recorder import McapRecorder, run_metadata
 
 GOLDEN = Path(__file__).resolve().parents[2] / "captures" / "golden" / "drone-suite.mcap"
 RUNNER, NODE = ("127.0.0.1", 40001), ("127.0.0.1", 40002)
@@ -102,7 +102,7 @@ def test_show_lists_and_charts_each_workers_session_apart(tmp_path, capsys):
     """``mcp-capture show`` of a merged capture: each worker's session under its own heading,
     on its own lifelines (before: one chart drew both workers' drone 1 as one node, the faulty
     worker's Start_Mission beside the other's traffic); ``--segment`` picks one."""
-    from captures.cli import main
+    from mcp_conform.captures.cli import main
 
     merged, _ = _merged(tmp_path, second="faulty")
 

@@ -34,8 +34,8 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
-from vehicle import SimVehicle
-from vehicle.links import start_for_node
+from mcp_conform.vehicle import SimVehicle
+from mcp_conform.vehicle.links import start_for_node
 
 MAV = mavutil.mavlink
 TRANSPORTS = ("tcp", "udp")

@@ -9,8 +9,8 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mcp_conform.vehicle.flight import distance_m
 from tests.vehicle.test_model import ACCEPTED, FAILED, ack_of, armed_in_guided, by_type, make
-from vehicle.flight import distance_m
 
 POS_IGNORE = (mav.POSITION_TARGET_TYPEMASK_X_IGNORE | mav.POSITION_TARGET_TYPEMASK_Y_IGNORE
               | mav.POSITION_TARGET_TYPEMASK_Z_IGNORE)

@@ -14,8 +14,8 @@ import time
 
 from pymavlink import mavutil
 
-from vehicle import SimVehicle
-from vehicle.recordfile import RecordFile
+from mcp_conform.vehicle import SimVehicle
+from mcp_conform.vehicle.recordfile import RecordFile
 
 MAV = mavutil.mavlink
 INF, NAN = math.inf, math.nan

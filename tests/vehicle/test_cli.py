@@ -1,4 +1,4 @@
-"""``python -m vehicle``: help, one-line usage errors, and serving until interrupted."""
+"""``mcp-vehicle``: help, one-line usage errors, and serving until interrupted."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from vehicle.cli import main
+from mcp_conform.vehicle.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,7 +36,7 @@ def test_bad_arguments_give_one_line_and_status_2(argv: list[str],
 
 def test_serves_until_interrupted() -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--fix-delay", "0.2"],
+        [sys.executable, "-m", "mcp_conform.vehicle", "--listen", "127.0.0.1:0", "--fix-delay", "0.2"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -64,7 +64,7 @@ def test_record_has_a_line_for_every_request_with_answer_and_reason(tmp_path: Pa
     parameters, mission, message rates, data streams, position targets, FTP)."""
     record = tmp_path / "requests.jsonl"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle", "--listen", "127.0.0.1:0", "--record", str(record)],
+        [sys.executable, "-m", "mcp_conform.vehicle", "--listen", "127.0.0.1:0", "--record", str(record)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -110,7 +110,7 @@ def test_record_has_a_line_for_every_request_with_answer_and_reason(tmp_path: Pa
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    from vehicle.recordfile import read_records
+    from mcp_conform.vehicle.recordfile import read_records
     rows = read_records(str(record))
     got = [(r["request"], r["result"], r["answer"]) for r in rows]
     assert got == [

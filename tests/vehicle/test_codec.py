@@ -5,9 +5,9 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vehicle import Decoder, Encoder, make_probe
-from vehicle.codec import frame_version
-from vehicle.probe import probe_token
+from mcp_conform.vehicle import Decoder, Encoder, make_probe
+from mcp_conform.vehicle.codec import frame_version
+from mcp_conform.vehicle.probe import probe_token
 
 
 @settings(max_examples=200, deadline=None)
@@ -53,7 +53,7 @@ def test_probe_token_parsing() -> None:
 def test_mavlink1_encoder_packs_every_reply_the_model_sends() -> None:
     from pymavlink.dialects.v20 import ardupilotmega as mav
 
-    from vehicle import Encoder, VehicleModel
+    from mcp_conform.vehicle import Encoder, VehicleModel
 
     model = VehicleModel(now=0.0)
     msgs = [*model.snapshot(1.0), mav.MAVLink_statustext_message(2, b"PreArm: Need 3D Fix"),
@@ -71,7 +71,7 @@ def test_mavlink1_encoder_packs_every_reply_the_model_sends() -> None:
 def test_decoder_keeps_the_bytes_that_did_not_parse_once_each() -> None:
     """MCP-PAY-8: a frame altered on its way arrives as unparsed bytes, which are kept (with
     the arrival time of their first byte) to compare with the frame sent."""
-    from vehicle import make_probe
+    from mcp_conform.vehicle import make_probe
 
     frame = make_probe("kept")
     corrupt = bytearray(frame)
@@ -93,8 +93,8 @@ def test_decoder_keeps_the_bytes_that_did_not_parse_once_each() -> None:
 def test_an_incomplete_frame_is_reported_once_when_nothing_follows() -> None:
     """A truncated frame waits in the parser for bytes that never come: reported after
     ``STALE`` s of quiet, once, and still completed by late bytes (valid traffic unchanged)."""
-    from vehicle import make_probe
-    from vehicle.codec import STALE
+    from mcp_conform.vehicle import make_probe
+    from mcp_conform.vehicle.codec import STALE
 
     frame = make_probe("cut")
     dec = Decoder()

@@ -8,9 +8,9 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mcp_conform.vehicle import VehicleConfig, VehicleModel
+from mcp_conform.vehicle.mission import REQUEST_RESEND, UPLOAD_TIMEOUT
 from tests.vehicle.test_model import Gcs, by_type, make
-from vehicle import VehicleConfig, VehicleModel
-from vehicle.mission import REQUEST_RESEND, UPLOAD_TIMEOUT
 
 LAT, LON = 357713320, -786744210  # degE7
 WP, TAKEOFF, RTL_CMD = mav.MAV_CMD_NAV_WAYPOINT, mav.MAV_CMD_NAV_TAKEOFF, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH

@@ -6,8 +6,8 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from vehicle import Decoder, VehicleConfig, VehicleModel, make_probe
-from vehicle.commands import FORCE_DISARM_MAGIC, SET_MODE_ACK_COMMAND
+from mcp_conform.vehicle import Decoder, VehicleConfig, VehicleModel, make_probe
+from mcp_conform.vehicle.commands import FORCE_DISARM_MAGIC, SET_MODE_ACK_COMMAND
 
 ACCEPTED = mav.MAV_RESULT_ACCEPTED
 FAILED = mav.MAV_RESULT_FAILED
@@ -337,7 +337,7 @@ def test_every_arm_request_is_recorded_with_the_vehicles_answer() -> None:
 def test_a_refused_rtl_is_still_an_rtl_request(how: str) -> None:
     """MCP-BLK-7 judges the request: without a fix the vehicle refuses RTL (it needs a
     position), and a SET_MODE without the custom-mode flag is refused as ArduPilot does."""
-    from vehicle.records import describe_request, is_rtl_request
+    from mcp_conform.vehicle.records import describe_request, is_rtl_request
 
     model, gcs = make(fix_withheld=True)
     if how == "nav_rtl":

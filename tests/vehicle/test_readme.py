@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from mcp_conform.vehicle.cli import build_parser
 from tests.capturing import free_port, wait_for_port
-from vehicle.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,11 +32,11 @@ def blocks(lang: str) -> list[str]:
 
 def test_the_commands_parse_and_the_records_have_the_documented_keys() -> None:
     vehicle_cmd = shlex.split(blocks("sh")[0].strip())
-    assert vehicle_cmd[:3] == ["python", "-m", "vehicle"]
-    build_parser().parse_args(vehicle_cmd[3:])  # exits 2 on a bad option
+    assert vehicle_cmd[0] == "mcp-vehicle"
+    build_parser().parse_args(vehicle_cmd[1:])  # exits 2 on a bad option
     c_cmds = blocks("sh")[1].splitlines()
-    assert build_parser().parse_args(shlex.split(c_cmds[1].split("&")[0])[3:]).no_tcp
-    from vehicle.records import REQUESTS
+    assert build_parser().parse_args(shlex.split(c_cmds[1].split("&")[0])[1:]).no_tcp
+    from mcp_conform.vehicle.records import REQUESTS
 
     for line in blocks("json")[0].splitlines():
         rec = json.loads(line)
@@ -48,7 +48,7 @@ def test_the_vehicle_command_and_each_url_of_the_table(tmp_path: Path) -> None:
     tcp, out, udp_in = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
     cmd = (blocks("sh")[0].strip().replace("5760", str(tcp)).replace("14550", str(out))
            .replace("14551", str(udp_in)))
-    argv = [sys.executable, *shlex.split(cmd)[1:]]
+    argv = [sys.executable, "-m", "mcp_conform.vehicle", *shlex.split(cmd)[1:]]  # mcp-vehicle, from this tree
     proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
@@ -78,7 +78,7 @@ def test_help_documents_where_the_vehicle_differs_from_arducopter() -> None:
 @pytest.mark.parametrize("args", [["--udp-out", "nowhere"], ["--udp-in", "127.0.0.1:99999"],
                                   ["--no-tcp"]])
 def test_bad_udp_options_are_one_line_errors(args: list[str], capsys: pytest.CaptureFixture) -> None:
-    from vehicle.cli import main
+    from mcp_conform.vehicle.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main(args)

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 import pytest
 from pymavlink import mavutil
 
-from vehicle import Event, SimVehicle, make_probe
+from mcp_conform.vehicle import Event, SimVehicle, make_probe
 
 WAIT = 5.0  # generous bound for anything that should happen within a few ticks
 
@@ -215,7 +215,7 @@ def test_unparsed_bytes_are_kept_and_tapped(vehicle: SimVehicle) -> None:
     """MCP-PAY-8: what arrived altered (a truncated frame nothing followed, a corrupted one)
     is in ``unparsed()`` and on the frame tap as "rx"; the valid frame after it is answered
     as ever; the record is bounded and reset with the others."""
-    from vehicle.records import MAX_UNPARSED
+    from mcp_conform.vehicle.records import MAX_UNPARSED
 
     taps: list[tuple[str, bytes]] = []
     frame = make_probe("alt")

@@ -14,8 +14,8 @@ import time
 import pytest
 from pymavlink import mavutil
 
+from mcp_conform.vehicle import SimVehicle
 from tests.vehicle.gcs import MAV, WAIT, recv, run_session, upload_mission
-from vehicle import SimVehicle
 
 pytestmark = pytest.mark.slow
 
@@ -93,7 +93,7 @@ def test_cli_udp_out_and_record_file(tmp_path) -> None:
     port = gcs.port.getsockname()[1]
     record = tmp_path / "requests.jsonl"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "vehicle", "--no-tcp", "--udp-out", f"127.0.0.1:{port}",
+        [sys.executable, "-m", "mcp_conform.vehicle", "--no-tcp", "--udp-out", f"127.0.0.1:{port}",
          "--record", str(record)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -162,6 +162,6 @@ def test_one_frame_per_datagram_for_ground_stations_that_read_one() -> None:
 
 
 def test_cli_frame_per_datagram_option() -> None:
-    out = subprocess.run([sys.executable, "-m", "vehicle", "--help"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "mcp_conform.vehicle", "--help"], capture_output=True, text=True,
                          timeout=60).stdout
     assert "--frame-per-datagram" in out

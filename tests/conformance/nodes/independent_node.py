@@ -45,7 +45,7 @@ _ROOT = Path(__file__).resolve().parents[3]
 if str(_ROOT) not in sys.path:  # run as a script: make the project's ``spec`` importable
     sys.path.insert(0, str(_ROOT))
 
-from spec.codec import (  # noqa: E402
+from mcp_conform.spec.codec import (  # noqa: E402
     BROADCAST_ID,
     MANAGER_ID,
     Action,

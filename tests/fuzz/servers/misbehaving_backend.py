@@ -34,8 +34,8 @@ import struct
 import threading
 import time
 
-from spec import NSQD
-from spec.stream_codec import encode
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
 
 MAX_CLIENTS = 64
 STATE = ""  # --state

@@ -1,0 +1,156 @@
+"""The Nsqd stateful engine: programs of clients of a backend (issue 21 item 1, issue 36 item 4).
+
+A program (``fuzz.nsqd_programs``: drawn by a seeded random) is a list of :class:`Op` over
+connections to the backend, its moves derived from ``spec/nsqd.yaml``: open a connection (in
+one of two client slots: a second client while the first is served, NSQD-CON-2, D-4), a
+valid command (the messages table's effect is judged, NSQD-MSG-3), a mutated case of any kind
+of ``fuzz.nsqd_mutators``, a frame cut by FIN or RST (NSQD-ROB-2) and a new connection
+after it (NSQD-ROB-3), a close. :class:`Player` plays ops on a backend
+(``fuzz.nsqd_backend.Backend``) and judges them with the stateless engine's oracles (death,
+sanitizer report, the backend's own frames by ``Conn.violation``, a close after frames a
+backend handles, a command's effect, a stream that stopped), plus what only several
+connections show: a first client closed or disturbed when a second connects, a waiting client
+never served once the first leaves (NSQD-CON-2), a command lost on a new connection after a
+cut frame (NSQD-ROB-3).
+
+Two ways to play (issue 36 item 5: cases per second against a slow-updating backend come from
+overlapping cases, not from waiting out each UPDATE period):
+
+- **careful** (triage's replays, ``--replay``): each op judged as it is played, waiting for
+  what shows it: a command's effect in the next UPDATE, the backend's loop gone round
+  (``LOOP_UPDATES``) when a second client connects;
+- **pipelined** (the campaign, ``Player(fast=True)``): ops written back to back, what is
+  there read after each (death, reports, frames, closes), and the waits done once, at the
+  program's end (:meth:`Player.finish`): the first client's next UPDATE once a second one
+  connected, the promoted client's first, and a turnover -- every client's FIN, then a new
+  connection, whose UPDATE on accept shows the flight state all their bytes left (the backend
+  has read each stream to its end before it serves the next client): the last command's
+  effect judged by it in one round trip instead of an UPDATE period.
+
+The player is ``fuzz.nsqd_player``'s, the programs and the engine that runs them
+``fuzz.nsqd_programs``'s; this module replays and triages. A pipelined program's failure is triaged by careful replays (``StreamCampaign.add_program``):
+replayed in a fresh process, delta-debugged over its ops, confirmed N of N, deduplicated by
+signature; a confirmed program is saved in the example database (``--db``) and played first
+by every worker of the next campaign.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing
+from mcp_conform.fuzz.nsqd_oracles import same_finding
+from mcp_conform.fuzz.nsqd_player import (
+    CLIENT_MSGS,
+    COMMANDS,
+    KICK_WATCH_S,
+    LOOP_UPDATES,
+    SLOTS,
+    Client,
+    Hit,
+    Op,
+    Player,
+    _whole_frames,
+    command_bytes,
+)
+from mcp_conform.fuzz.nsqd_programs import StreamStatefulEngine
+from mcp_conform.fuzz.nsqd_repro import TrafficLog
+
+__all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "Client", "Hit", "Op", "Player",
+           "StreamStatefulEngine", "_whole_frames", "command_bytes", "play_program", "triage_program"]
+
+#: unused since the programs are drawn by ``fuzz.nsqd_programs`` (hypothesis's shrinking is
+#: gone; triage's ddmin minimises a failing program): kept for callers that set it
+SHRINK_S = 8.0
+
+
+def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None) -> Hit | None:
+    """Play ``ops`` on ``backend`` (a fresh one for a replay): the first hit, if any.
+    ``log`` (a ``fuzz.nsqd_repro.TrafficLog``): the replay's traffic, for the finding's
+    repro.mcap and repro.pcap, as a stateless finding's confirming replay keeps it. ``want``
+    (a death's signature): a non-fatal sanitizer report on the way is not the verdict, the
+    program goes on to the death (``fuzz.nsqd_backend._passing``, halt_on_error=0)."""
+    backend.session.recorder = log
+    p = Player(backend)
+    passed: Hit | None = None
+    try:
+        for op in ops:
+            try:
+                p.play(op)
+            except Hit as hit:
+                if want is None or not _passing(hit, want):
+                    raise
+                passed = hit
+        died = backend.death_hit(0.3 if passed is None else REPLAY_DEATH_S)
+        if died is not None:
+            return Hit(died.signature, died.detail, died.stderr)
+        p._judge()
+        return passed
+    except Hit as hit:
+        return passed if want is not None and _passing(hit, want) else hit
+    finally:
+        if log is not None:
+            for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
+                with contextlib.suppress(OSError, ValueError):
+                    c.pump(0)
+        p.close()
+        if log is not None:
+            log.done = True
+        backend.session.recorder = None
+
+
+def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
+    """A failing program: deduplicated, replayed in a fresh process, delta-debugged over its
+    ops, confirmed ``campaign.replays`` of as many times, then a finding (``campaign._add``).
+    The first careful replay names the finding: a pipelined program's verdict (``hit``) is
+    what led to it, read at the program's end, where a close or a lost command may have more
+    than one cause in view (a second client, a cut frame before it); played op by op, the
+    replay sees which op it followed. The backend to go on with."""
+    from mcp_conform.harness.errors import SetupError
+
+    sig = hit.signature
+    known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
+    if known is not None:
+        known.occurrences += 1
+        return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
+    if campaign.target is not None and campaign.spawn is None and sig.oracle in ("crash", "hang") \
+            and backend.session.death() is not None:
+        raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
+    box: dict[str, Any] = {"b": backend, "stderr": hit.stderr, "traffic": []}
+
+    def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
+        box["b"] = campaign.current = box["b"].fresh()
+        campaign.restarts += 1
+        h = play_program(box["b"], o, log, want=sig)
+        if h is not None and h.stderr:
+            box["stderr"] = h.stderr
+        ok = h is not None and same_finding(h.signature, sig)
+        if ok and log is not None:
+            box["traffic"] = log.records  # the last confirming replay's: repro.mcap, repro.pcap
+        return ok
+
+    box["b"] = campaign.current = box["b"].fresh()
+    campaign.restarts += 1
+    first = play_program(box["b"], ops, want=sig)
+    if first is None:
+        campaign.unconfirmed += 1
+        return box["b"].fresh()
+    if not same_finding(first.signature, sig):
+        sig, hit = first.signature, first
+        known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
+        if known is not None:
+            known.occurrences += 1
+            return box["b"].fresh()
+    box["stderr"] = first.stderr or box["stderr"]
+    if len(ops) > 1:
+        ops = ddmin(list(ops), reproduces, budget=16)
+    confirmed = sum(reproduces(ops, TrafficLog()) for _ in range(campaign.replays))
+    if confirmed < campaign.replays:
+        campaign.unconfirmed += 1
+        return box["b"].fresh()
+    campaign.add_program_finding(sig, hit.detail, f"{confirmed} of {campaign.replays}", tuple(box["stderr"]),
+                                 "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops],
+                                 box["traffic"])
+    return box["b"].fresh()

@@ -1,0 +1,141 @@
+"""An Nsqd capture's records, whatever the file: our MCAP or a pcap/pcapng of the TCP traffic.
+
+:func:`stream_records` yields the records ``mcp-capture`` works on for ``--protocol nsqd``:
+``StreamEvent`` (a connection opened or closed), ``StreamFrame`` (``tx`` bytes the client
+wrote, ``rx`` one frame the backend sent, or the bytes its deframer refused), ``StreamGap``
+(bytes of a direction the capture does not hold: what follows on it is not framed),
+``CaseMark``, ``Metadata`` and, last, ``Truncated``. From an MCAP they are the recorder's own
+(``/nsqd/tx``, ``/nsqd/rx``, ``/nsqd/conn``); from a pcap, ``traceio.tcp`` reassembles each
+connection and the backend's bytes go through the spec's deframer as the runner's do.
+
+:func:`is_stream_capture` tells an Nsqd capture from an MCP one by its first records.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import Deframer, Frame
+from mcp_conform.spec.profiles import PROFILES
+from mcp_conform.traceio.reader import (
+    Capture,
+    CaptureError,
+    CaseMark,
+    Datagram,
+    Metadata,
+    StreamEvent,
+    StreamFrame,
+    Truncated,
+    open_capture,
+)
+from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
+
+__all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
+
+BACKEND_PORT = NSQD.port("backend")
+_PEEK = 500  # records or packets looked at to tell the protocol
+#: the protocols whose captures this module reads (their profile's ``capture_reader``), as a
+#: run's metadata record names them
+_READ_HERE = frozenset(p.name for p in PROFILES.values() if p.capture_reader == f"{__name__}:stream_records")
+
+
+def _name(raw: bytes) -> str | None:
+    head = Deframer(NSQD).feed(raw)
+    if len(head) == 1 and isinstance(head[0], Frame) and len(head[0].raw) == len(raw) \
+            and NSQD.has_message(head[0].msg_id):
+        return NSQD.message(head[0].msg_id).name
+    return None
+
+
+_BACKEND_IDS = {NSQD.message("UPDATE").id, NSQD.message("ERROR").id}
+
+
+def _backend_speaks(payload: bytes) -> bool:
+    """A segment that starts with a frame only a backend sends (UPDATE, ERROR)."""
+    return len(payload) >= 5 and 5 <= _frame_len(payload) <= 8192 and payload[4] in _BACKEND_IDS
+
+
+def _frame_len(data: bytes) -> int:
+    return int.from_bytes(data[:4], "big") if len(data) >= 5 else 0
+
+
+def is_stream_capture(path: str | Path) -> bool:
+    """An Nsqd capture: an MCAP whose first records are the stream's (or whose metadata says
+    ``protocol: nsqd``), a pcap among whose first TCP segments one touches the backend's
+    port or starts with a whole Nsqd frame (a backend on another port)."""
+    cap = open_capture(path)
+    if cap.format == "mcap":
+        for rec in itertools.islice(cap, _PEEK):
+            kind = type(rec)
+            if isinstance(rec, Metadata) and rec.data.get("protocol") in _READ_HERE:
+                return True
+            if kind in (StreamFrame, StreamEvent):
+                return True
+            if kind is Datagram:
+                return False
+        return False
+    from mcp_conform.traceio.tcp import tcp_segments
+
+    try:
+        for seg in tcp_segments(cap, _PEEK):
+            if BACKEND_PORT in (seg.src[1], seg.dst[1]) or _name(seg.payload[:_frame_len(seg.payload)]):
+                return True
+        return False
+    finally:
+        if cap._reader is not None:
+            cap._reader.close()
+
+
+def stream_records(path: str | Path, cap: Capture | None = None) -> Iterator[Any]:
+    """The records of an Nsqd capture (see the module docstring); ``cap``: an opened one."""
+    cap = cap or open_capture(path)
+    if cap.format == "mcap":
+        for rec in cap:
+            if type(rec) in (StreamFrame, StreamEvent, CaseMark, Metadata, Truncated):
+                yield rec
+        return
+    try:
+        yield from _pcap_records(cap)
+    finally:
+        if cap._reader is not None:
+            cap._reader.close()
+
+
+def _pcap_records(cap: Capture) -> Iterator[Any]:
+    deframers: dict[int, Deframer] = {}
+    broken: set[int] = set()
+    n = events = 0
+    for ev in tcp_events(cap, BACKEND_PORT, _backend_speaks):
+        events += 1
+        kind = type(ev)
+        if kind is StreamData:
+            if ev.direction == "tx":
+                yield StreamFrame(n, ev.t_ns, "tx", ev.conn, _name(ev.data), None, ev.data)
+                n += 1
+                continue
+            if ev.conn in broken:
+                yield StreamFrame(n, ev.t_ns, "rx", ev.conn, None, "after a gap in the capture: not framed", ev.data)
+                n += 1
+                continue
+            d = deframers.setdefault(ev.conn, Deframer(NSQD))
+            for item in d.feed(ev.data):
+                if isinstance(item, Frame):
+                    name = NSQD.message(item.msg_id).name if NSQD.has_message(item.msg_id) else None
+                    yield StreamFrame(n, ev.t_ns, "rx", ev.conn, name, None, item.raw)
+                else:
+                    yield StreamFrame(n, ev.t_ns, "rx", ev.conn, None, item.reason, item.raw)
+                n += 1
+        elif kind is StreamGap:
+            if ev.direction == "rx":
+                broken.add(ev.conn)
+            yield ev
+        else:
+            yield ev
+    if cap.truncated is not None:
+        if cap.corrupt and not events:
+            raise CaptureError(f"{cap.path}: {cap.format} file corrupt, nothing could be read: {cap.truncated}")
+        yield Truncated(cap.truncated)
