@@ -80,10 +80,17 @@ def _explain(w: World, pid: int, view: list[ViewRecord], window: float, rto: flo
     MCP-RTX-1/2 where it sends. Its own view shows each copy the link delivered to it (a
     duplicate is a copy it must ACK) and each ACK it sent once, so as a receiver one copy draws
     one ACK; as a sender it sees the ACKs the link delivered, so one copy may draw one more
-    for each the link into it duplicated (:attr:`Bounds.copy_capacity`)."""
+    for each the link into it duplicated (:attr:`Bounds.copy_capacity`). Its stalls are the
+    observer's lag (``copy_early`` / ``ack_early``: read late) and its run delay (``rto_slack``:
+    a copy sent late), as ``harness.run_delay`` measures them on a real host (D-7)."""
     dup_in = any(link.duplicates for (_, b), link in w.links.items() if b == pid)
-    as_receiver = Bounds(ack_window=window, rto=rto)
-    as_sender = Bounds(ack_window=window, rto=rto, copy_capacity=2 if dup_in else 1)
+    # a stalled party reads late (what reached its socket is seen when it is read) and sends
+    # late (its timers fire late): the observer's lag and the run delay, D-7, of its stalls
+    lag = max((b - a for a, b in w.stalls[pid]), default=0.0)
+    slack = Bounds.rto_slack + lag
+    as_receiver = Bounds(ack_window=window, rto=rto, copy_early=lag, rto_slack=slack)
+    as_sender = Bounds(ack_window=window, rto=rto, ack_early=lag, rto_slack=slack,
+                       copy_capacity=2 if dup_in else 1)
     # the view goes on to the party's end, not its last datagram: a silence is seen
     end = (w.view_end(pid) * NS - view[0].t_ns) / NS
     mine: dict[str, Verdict] = {}

@@ -22,8 +22,10 @@ __all__ = ["Outcome", "Schedule", "run_schedule"]
 
 @dataclass(frozen=True)
 class Schedule:
-    """One mission's schedule. Times in seconds of virtual time; ``max_rtos``: the run ends
-    after this many timeouts (a sender that never gives up is cut there, its view with it)."""
+    """One mission's schedule. Times in seconds of virtual time; ``retries``: every node's retry
+    limit (MCP-RTX-1: "its retry limit", configurable; 20 lets a manager give a lost drone up
+    and end its mission well inside the run); ``max_rtos``: the run ends after this many
+    timeouts (a sender that never gives up is cut there, its view with it)."""
 
     seed: int
     rto: float = 1.0
@@ -34,8 +36,8 @@ class Schedule:
     up: LinkParams = field(default_factory=LinkParams)
     stalls: StallParams = field(default_factory=StallParams)
     fault: str | None = None
-    retries: int = 1000
-    max_rtos: float = 150.0
+    retries: int = 20
+    max_rtos: float = 400.0
 
     def __post_init__(self) -> None:
         if self.fault is not None and self.fault not in FAULTS:

@@ -126,7 +126,13 @@ class World:
             self._flush(pid, t)
             if not party.closed:
                 self._arm(pid)
-        self.end = self.clock.now if not self.truncated else min(self.max_time, self.clock.now)
+        if self.truncated or any(not p.closed for p in self.parties.values()):
+            # a party still open at the end lives on until the run is cut: its socket (its
+            # view) stays open, silent, to ``max_time``
+            self.truncated = True
+            self.end = self.max_time if self.max_time != math.inf else self.clock.now
+        else:
+            self.end = self.clock.now
         return self
 
     def view_end(self, pid: int) -> float:
