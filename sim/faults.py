@@ -13,8 +13,9 @@ its transition table (``reference_impl._transitions``):
 - ``ack-previous-seq`` (drone), MCP-ACK-2 "An ACK's payload is exactly 2 bytes: the
   acknowledged message's sequence number": it names the number ACKed before (0 at first);
 - ``ack-copies-wrong-seq`` (drone), MCP-ACK-2: a duplicate copy is ACKed with its seq plus 1;
-- ``rtx-none`` (drone), MCP-RTX-1 "The sender of a unicast message retransmits it until it is
-  ACKed or its retry limit is reached": Mission_Ready is sent once;
+- ``rtx-none`` (drone) / ``manager-rtx-none``, MCP-RTX-1 "The sender of a unicast message
+  retransmits it until it is ACKed or its retry limit is reached": each unicast is sent once
+  (the issue's capture: a manager's End_Mission never ACKed and never sent again);
 - ``wrong-seq-ack`` (manager) / ``rtx-stop-on-any-ack`` (drone), MCP-RTX-2 "Only an ACK from
   the message's destination whose payload equals the message's sequence number ends its
   retransmission": any ACK from the destination (any ACK at all) ends it;
@@ -195,6 +196,8 @@ FAULTS: dict[str, Fault] = {f.name: f for f in (
     Fault("rtx-stop-on-any-ack", "drone", "MCP-RTX-2", RtxStopOnAnyAck,
           what="any ACK addressed to it stops the retransmission"),
     Fault("no-dup-discard", "drone", "MCP-DUP-1", NoDupDiscard, what="duplicates are delivered again"),
+    Fault("manager-rtx-none", "manager", "MCP-RTX-1", RtxNone,
+          what="each command is sent once, never retransmitted (nor given up)"),
     Fault("no-ready-ack", "manager", "MCP-ACK-1", NoReadyAck, what="never ACKs a Mission_Ready"),
     Fault("wrong-seq-ack", "manager", "MCP-RTX-2", WrongSeqAck,
           what="any ACK from the destination ends the retransmission, whatever its seq"),

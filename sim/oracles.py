@@ -140,13 +140,20 @@ def _acks_outnumber(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[
 
 
 def _first_copy_then_silence(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
-    """MCP-RTX-1 for a sender of one copy: the ACK withheld past the third copy's latest time."""
-    mine = [(t, h) for t, tx, h, _ in view if tx and h[3] != ACK and h[0] != 0xFFFF]
-    if not mine:
-        return False, "nothing sent"
-    t0, (dst, _, seq, _) = mine[0]
-    copies = [t for t, h in mine if h[2] == seq and h[0] == dst]
-    return _withheld(s, view, dst, seq, copies, end, pid)
+    """MCP-RTX-1 for a sender of one copy: some message's ACK withheld past the third copy's
+    latest time."""
+    sent: dict[tuple[int, int], list[float]] = {}
+    for t, tx, h, _ in view:
+        if tx and h[3] != ACK and h[0] != 0xFFFF:
+            sent.setdefault((h[0], h[2]), []).append(t)
+    verdict: tuple[bool | None, str] = (False, "every message ACKed in time")
+    for (dst, seq), copies in sent.items():
+        got = _withheld(s, view, dst, seq, copies, end, pid)
+        if got[0] is True:
+            return got
+        if got[0] is None:
+            verdict = got
+    return verdict
 
 
 def _withheld(s: Any, view: Any, dst: int, seq: int, copies: list[float], end: float,
@@ -217,6 +224,7 @@ _ORACLES = {
     "ack-previous-seq": _acks_outnumber,
     "ack-copies-wrong-seq": _acks_outnumber,
     "rtx-none": _first_copy_then_silence,
+    "manager-rtx-none": _first_copy_then_silence,
     "give-up-after-two": _gave_up,
     "wrong-seq-ack": _moved_on,
 }

@@ -212,16 +212,21 @@ def digest(o: Outcome) -> str:
     return h.hexdigest()
 
 
-def save_seed(path: Path, s: Schedule, problems: list[Problem], *, reason: str, xfail: bool) -> None:
-    """A regression seed: the schedule, what was found, why, and the digest its replay must give."""
+def save_seed(path: Path, s: Schedule, problems: list[Problem], *, reason: str, xfail: bool,
+              explain_reason: str | None = None) -> None:
+    """A regression seed: the schedule, what was found, why (``reason``: the monitor's false
+    verdict, ``xfail``: the monitor's test is its strict xfail; ``explain_reason``: so is
+    judge.explain's), and the digest its replay must give."""
     o = run_schedule(s)
-    doc = {"schedule": s.to_json(), "found": [p.text() for p in problems], "reason": reason, "xfail": xfail,
-           "digest": digest(o)}
+    doc: dict[str, Any] = {"schedule": s.to_json(), "found": [p.text() for p in problems], "reason": reason,
+                           "xfail": xfail, "digest": digest(o)}
+    if explain_reason:
+        doc["explain_reason"] = explain_reason
     path.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
-def load_seed(path: Path) -> dict[str, Any]:
-    doc: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+def load_seed(path: str | Path) -> dict[str, Any]:
+    doc: dict[str, Any] = json.loads(Path(path).read_text(encoding="utf-8"))
     doc["schedule"] = Schedule.from_json(doc["schedule"])
     return doc
 

@@ -8,7 +8,7 @@ up to 3 x ``--rto``, 1-3 drones, challenges 1-3 -- for the correct models and ea
 2. a faulty party gets its rule where its fault is observable (``sim.oracles``), and no other
    MUST rule.
 
-``judge.explain`` holds both everywhere. The trace monitor holds them for the correct models
+``judge.explain`` holds both everywhere but one miss (``manager-rtx-none``). The trace monitor holds them for the correct models
 and five fault models on links without stalls; where it does not, the test is its strict xfail
 with the reason, and the shrunk counterexamples are in ``tests/sim/seeds/`` (``test_seeds.py``).
 Runs are derandomized: the same examples every run, so a strict xfail cannot flake.
@@ -59,8 +59,21 @@ def _holds(s: Schedule, judges: tuple[str, ...]) -> None:
     assert problems == [], f"{s}\n" + "\n".join(p.text() for p in problems)
 
 
-# ------------------------------------------------------------------ judge.explain: everywhere
-@pytest.mark.parametrize("fault", [None, *FAULTS])
+# ------------------------------------------------------------------ judge.explain
+#: fault model -> why judge.explain breaks a property (seed explain-rtx1-missed-late-ack)
+EXPLAIN_KNOWN = {
+    "manager-rtx-none": "misses MCP-RTX-1 where a command sent once is ACKed late, at the instant the "
+                        "manager moves on: the late ACK is taken as what ended the retransmission",
+}
+
+
+def _explain_case(fault: str | None) -> object:
+    why = EXPLAIN_KNOWN.get(fault or "")
+    marks = [pytest.mark.xfail(strict=True, reason=why)] if why else []
+    return pytest.param(fault, id=fault or "correct", marks=marks)
+
+
+@pytest.mark.parametrize("fault", [_explain_case(f) for f in (None, *FAULTS)])
 def test_explain_holds_both_properties(fault):
     @SETTINGS
     @given(schedules(fault))
@@ -79,6 +92,7 @@ MONITOR_KNOWN = {
                             "for the wrong-source ACK naming its number",
     "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
     "rtx-none": "misses MCP-RTX-1: one copy with the ACK withheld past the third copy's time",
+    "manager-rtx-none": "misses MCP-RTX-1: a command sent once, its ACK withheld past the third copy's time",
     "wrong-seq-ack": "fails MCP-BLK-1 or MCP-RTX-1 where the manager took a stale ACK (MCP-RTX-2, missed)",
 }
 # Rarer than these examples reach (about 1 in 100 of the sweep's give-up-never schedules): MCP-FLOW-3
@@ -116,7 +130,8 @@ def test_the_monitor_holds_for_correct_models_with_stalls():
 def test_a_seeded_sweep_keeps_explain_sound_and_complete():
     st_ = sweep(600, seed=38)
     assert st_.schedules == 600 and len(st_.per_fault) == 1 + len(FAULTS)
-    explain = [(s, [p for p in ps if p.judge == "explain"]) for s, ps in st_.failures]
+    explain = [(s, [p for p in ps if p.judge == "explain"]) for s, ps in st_.failures
+               if s.fault not in EXPLAIN_KNOWN]
     assert [x for x in explain if x[1]] == []
     # every fault model with a rule was observable somewhere in the sweep (else it tests nothing)
     assert set(st_.observable) >= {f for f, x in FAULTS.items()
