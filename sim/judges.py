@@ -1,0 +1,108 @@
+"""The judges on a simulated mission (issue 38, item 3): each party's view (``World.views``)
+fed to the project's trace monitor (:class:`judge.monitor.Monitor`) and to the explanation
+judge (:mod:`judge.explain`, through :mod:`judge.explain_records`), as ``mcp-capture check``
+judges a node's own capture (``judge.judging``: complete for what that node took part in,
+``party`` = its ID, its own datagrams with its run delay) and as ``mcp-soak`` reads the
+verdicts: each node is judged in its own view only, since the other end is seen through the
+link (copies lost, duplicated, held back).
+
+The link's own record goes where the judge takes it: ``judge.explain``'s
+:attr:`Bounds.copy_capacity` ("ACKs one copy may draw: 1 + the copies the link may make of
+it") is 2 for a sender whose incoming link duplicated anything (see :func:`_explain`). The
+monitor takes no link record.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from judge.explain import Bounds, Verdict, decide_receiver, decide_sender
+from judge.explain_model import RANK
+from judge.explain_records import traces_from_datagrams
+from judge.monitor import Monitor, Violation
+from sim.world import NS, ViewRecord, World
+
+__all__ = ["Judged", "judge_world"]
+
+
+@dataclass
+class Judged:
+    """Per party: the monitor's violations blamed on it (in its own view), its verdict table,
+    and the explanation judge's verdicts (MCP-ACK-1/2, MCP-RTX-1/2 and their disjunctions)."""
+
+    violations: dict[int, list[Violation]] = field(default_factory=dict)
+    verdicts: dict[int, dict[str, str]] = field(default_factory=dict)
+    explained: dict[int, dict[str, Verdict]] = field(default_factory=dict)
+
+    def failed(self, pid: int) -> set[str]:
+        """The MUST rules the monitor failed for ``pid``."""
+        return {r for r, v in self.verdicts.get(pid, {}).items() if v == "failed"}
+
+    def warned(self, pid: int) -> set[str]:
+        return {r for r, v in self.verdicts.get(pid, {}).items() if v == "warned"}
+
+    def proven(self, pid: int) -> set[str]:
+        return {r for r, v in self.explained.get(pid, {}).items() if v.status == "proven"}
+
+    def summary(self) -> dict[str, Any]:
+        return {str(p): {"failed": sorted(self.failed(p)), "warned": sorted(self.warned(p)),
+                         "proven": sorted(self.proven(p)),
+                         "violations": [f"{v.rule}: {v.actual}" for v in vs]}
+                for p, vs in sorted(self.violations.items())}
+
+
+def judge_world(w: World, *, rto: float, challenge: int, items: tuple[Any, ...],
+                explain: bool = True) -> Judged:
+    """Judge every party's view of ``w`` (see the module docstring)."""
+    out = Judged()
+    drones = tuple(w.drones)
+    window = max(0.5, 2 * rto)  # mcp-soak's ACK window for a mission's views
+    for pid, view in w.views.items():
+        mon = Monitor(rto=rto, ack_window=window, drones=drones, challenge=challenge, waypoints=items,
+                      complete=True, party=pid)
+        found: list[Violation] = []
+        for r in view:
+            if r.tx:
+                found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay)
+            else:
+                found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
+        found += mon.finish(int(w.view_end(pid) * NS))
+        out.violations[pid] = [v for v in found if v.node == pid]
+        out.verdicts[pid] = mon.verdicts().get(pid, {})
+        if explain and view:
+            out.explained[pid] = _explain(w, pid, view, window, rto)
+    return out
+
+
+def _explain(w: World, pid: int, view: list[ViewRecord], window: float, rto: float) -> dict[str, Verdict]:
+    """``judge.explain``'s verdicts of ``pid`` in its own view: MCP-ACK-1/2 where it receives,
+    MCP-RTX-1/2 where it sends. Its own view shows each copy the link delivered to it (a
+    duplicate is a copy it must ACK) and each ACK it sent once, so as a receiver one copy draws
+    one ACK; as a sender it sees the ACKs the link delivered, so one copy may draw one more
+    for each the link into it duplicated (:attr:`Bounds.copy_capacity`). Its stalls are the
+    observer's lag (``copy_early`` / ``ack_early``: read late) and its run delay (``rto_slack``:
+    a copy sent late), as ``harness.run_delay`` measures them on a real host (D-7)."""
+    dup_in = any(link.duplicates for (_, b), link in w.links.items() if b == pid)
+    # a stalled party reads late (what reached its socket is seen when it is read) and sends
+    # late (its timers fire late): the observer's lag and the run delay, D-7, of its stalls
+    lag = max((b - a for a, b in w.stalls[pid]), default=0.0)
+    slack = Bounds.rto_slack + lag
+    as_receiver = Bounds(ack_window=window, rto=rto, copy_early=lag, rto_slack=slack)
+    as_sender = Bounds(ack_window=window, rto=rto, ack_early=lag, rto_slack=slack,
+                       copy_capacity=2 if dup_in else 1)
+    # the view goes on to the party's end, not its last datagram: a silence is seen
+    end = (w.view_end(pid) * NS - view[0].t_ns) / NS
+    mine: dict[str, Verdict] = {}
+    for (s, r), t in sorted(traces_from_datagrams(view, complete=True).items()):
+        t = replace(t, end=max(t.end, end))
+        found = {}
+        if r == pid:
+            found.update(decide_receiver(t, as_receiver))
+        if s == pid:
+            found.update(decide_sender(t, as_sender))
+        for rule, v in found.items():
+            old = mine.get(rule)
+            if old is None or RANK[v.status] > RANK[old.status]:
+                mine[rule] = v
+    return mine

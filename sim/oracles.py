@@ -1,0 +1,230 @@
+"""Where a fault is observable (issue 38, item 3: "a faulty model gets its rule where its
+fault is observable"): per fault model, from what it did (its deviations) and what its own
+view holds, ``True`` (the trace proves the rule broken: a sound judge must find it),
+``False`` (the trace cannot show it: nothing may be asked) or ``None`` (on a boundary of the
+rule's observed reading, its tolerances: neither asked nor refused). The readings are
+docs/spec.md's:
+
+- MCP-ACK-1 "Observed: each command sent between the node's Mission_Ready and its End_Mission
+  is ACKed, ... up to 5 copies (a node may be deaf while busy, D-6) ..., and every later copy
+  is ACKed again": a message it received 5 times and never ACKed, or a copy it left
+  unanswered after answering one (the copies of End_Mission excepted: D-6 lets a drone stop
+  receiving after its ACK of End_Mission);
+- MCP-ACK-2 "the acknowledged message's sequence number": more ACKs naming a number than
+  datagrams with that number it had received (each copy is answered once);
+- MCP-RTX-1 "Observed: at least 3 copies while the ACK is withheld": copies ``rto`` apart
+  within ±20 % (MCP-RTX-3) plus the jitter allowance, so fewer than 3 with the ACK withheld past
+  the latest time the third was due, and the view going on past it;
+- MCP-RTX-2 "Only an ACK from the message's destination whose payload equals the message's
+  sequence number ends its retransmission": a wrong ACK taken, and the sender seen to move on
+  (its next message at once).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from sim.schedule import Outcome
+from sim.world import NS, ViewRecord
+from spec.codec import Action, peek_header
+
+__all__ = ["observable"]
+
+ACK = int(Action.ACK)
+MAX_ACK_COPIES = 5
+#: the latest a copy is due: rto x 1.2 (MCP-RTX-3's tolerance) plus jitter, with a margin
+LATE, EARLY, MARGIN = 1.25, 0.8, 0.05
+
+
+def s_stalls(o: Any, pid: int) -> list[tuple[float, float]]:
+    """The party's stall windows (``Outcome.world.stalls``), passed along as ``s._stalls``."""
+    return list(getattr(o, "_stalls", {}).get(pid, ()))
+
+
+def _heads(view: list[ViewRecord]) -> list[tuple[float, bool, tuple[int, int, int, int], bytes]]:
+    out = []
+    for r in view:
+        h = peek_header(r.data)
+        if h is not None:
+            out.append((r.t_ns / NS, r.tx, h, r.data))
+    return out
+
+
+def _named(data: bytes) -> int:
+    return int.from_bytes(data[17:19], "big")
+
+
+def observable(o: Outcome) -> tuple[bool | None, str]:
+    """Whether the schedule's fault is observable in its node's view, and why."""
+    s = o.schedule
+    f = s.faulty
+    if f is None or f.rule is None:
+        return False, "no rule broken"
+    pid = s.faulty_party
+    assert pid is not None
+    dev = o.deviations
+    if not dev:
+        return False, "the fault never changed what the node did"
+    view = _heads(o.world.views[pid])
+    end = o.world.view_end(pid)
+    fn = _ORACLES.get(f.name)
+    if fn is None:
+        return False, f"{f.rule} is not observable on the wire (docs/spec.md)"
+    return fn(_WithStalls(s, o.world.stalls), pid, dev, view, end)
+
+
+class _WithStalls:
+    """The schedule, and the stall windows the world drew from it."""
+
+    def __init__(self, s: Any, stalls: dict[int, list[tuple[float, float]]]) -> None:
+        self.rto = s.rto
+        self._stalls = stalls
+
+
+def _unanswered_copies(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-ACK-1, never ACKed: some message received 5 times while receiving."""
+    ready = min((t for t, tx, h, _ in view if tx and h[3] == Action.MISSION_READY), default=None)
+    counts: dict[tuple[int, int], int] = {}
+    window = max(0.5, 2 * s.rto)  # the ACK window the judges are given (sim.judges)
+    for t, tx, (dst, src, seq, action), _ in view:
+        if t + window + MARGIN > end:
+            break  # its answer would be due after the view's end
+        if tx or action == ACK or dst != pid:
+            continue
+        if pid != 0 and (ready is None or t < ready):
+            continue  # a drone receives from its Mission_Ready on (D-6)
+        if pid != 0 and action == Action.END_MISSION:
+            continue
+        counts[(src, seq)] = counts.get((src, seq), 0) + 1
+    most = max(counts.values(), default=0)
+    if most >= MAX_ACK_COPIES:
+        return True, f"{most} copies of one message received, none ACKed"
+    return False, f"at most {most} copies of a message received (a node may miss {MAX_ACK_COPIES - 1})"
+
+
+def _copy_after_answer(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-ACK-1, a copy unanswered after one answered (End_Mission's excepted, D-6)."""
+    window = max(0.5, 2 * s.rto)
+    lag = max((b - a for a, b in s_stalls(s, pid)), default=0.0)  # a copy read late arrived earlier
+    verdict: tuple[bool | None, str] = (False, "only End_Mission copies went unanswered (deaf after its ACK, D-6)")
+    for t, what in dev:
+        if "END_MISSION" in what:
+            continue
+        if t + window + MARGIN > end:
+            verdict = (None, f"at {t:.3f} s: {what}, the view ends within the ACK window")
+        elif any(tx and h[3] == ACK and t - lag - MARGIN <= t2 <= t + window + MARGIN for t2, tx, h, _ in view):
+            # D-6: an ACK of any payload within the window answers the copy as far as MCP-ACK-1
+            # goes (a wrong number is MCP-ACK-2's): only the pair of rules is broken
+            verdict = (None, f"at {t:.3f} s: {what}, another ACK of its within the window")
+        else:
+            return True, f"at {t:.3f} s: {what}, no ACK of its within the window"
+    return verdict
+
+
+def _acks_outnumber(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-ACK-2: more ACKs naming a number than datagrams received with it."""
+    # a judge of times sees datagrams at one instant in any order, and one read late (a stall)
+    # as arrived up to the stall's length before: count what was received by then
+    lag = max((b - a for a, b in s_stalls(s, pid)), default=0.0)
+    received = [(t, (src, seq)) for t, tx, (dst, src, seq, _), _ in view if not tx and dst == pid]
+    named: dict[tuple[int, int], int] = {}
+    for t, tx, (dst, _, _, action), data in view:
+        if tx and action == ACK and len(data) == 19:
+            key = (dst, _named(data))
+            named[key] = named.get(key, 0) + 1
+            got = sum(1 for t2, k in received if k == key and t2 <= t + lag + 1e-9)
+            if named[key] > got:
+                return True, f"at {t:.3f} s: ACK number {named[key]} naming {key[1]}, {got} received"
+    return False, "every wrong number it named was one it had received as often"
+
+
+def _first_copy_then_silence(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-RTX-1 for a sender of one copy: some message's ACK withheld past the third copy's
+    latest time."""
+    sent: dict[tuple[int, int], list[float]] = {}
+    for t, tx, h, _ in view:
+        if tx and h[3] != ACK and h[0] != 0xFFFF:
+            sent.setdefault((h[0], h[2]), []).append(t)
+    verdict: tuple[bool | None, str] = (False, "every message ACKed in time")
+    for (dst, seq), copies in sent.items():
+        got = _withheld(s, view, dst, seq, copies, end, pid)
+        if got[0] is True:
+            return got
+        if got[0] is None:
+            verdict = got
+    return verdict
+
+
+def _withheld(s: Any, view: Any, dst: int, seq: int, copies: list[float], end: float,
+              pid: int) -> tuple[bool | None, str]:
+    if len(copies) >= 3:
+        return False, f"{len(copies)} copies"
+    last = copies[-1]
+    lag = max((b - a for a, b in s_stalls(s, pid)), default=0.0)  # read late, sent late (D-7)
+    # the third copy's latest time: each gap may stretch by a stall, the ACK be read one late
+    due = last + (3 - len(copies)) * (LATE * s.rto + lag) + MARGIN + lag
+    soon = last + (3 - len(copies)) * (EARLY * s.rto - lag) - MARGIN - lag
+    ack = min((t for t, tx, (d, src, _, a), data in view
+               if not tx and a == ACK and src == dst and d == pid and _named(data) == seq), default=None)
+    later = any(t > due for t, *_ in view) or end > due
+    if (ack is None or ack > due) and later:
+        return True, f"{len(copies)} copies of seq {seq}, no ACK by {due:.3f} s, the view goes on"
+    if ack is not None and ack < soon:
+        return False, f"ACKed at {ack:.3f} s, before a third copy was due"
+    return None, f"{len(copies)} copies of seq {seq}, the ACK or the view's end near the third's time"
+
+
+def _gave_up(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-RTX-1 for a sender that gave up after two copies."""
+    verdict: tuple[bool | None, str] = (False, "no give-up")
+    for _t, what in dev:
+        m = re.search(r"seq (\d+) given up", what)
+        if m is None:
+            continue
+        seq = int(m.group(1))
+        copies = [(t, h[0]) for t, tx, h, _ in view if tx and h[3] != ACK and h[2] == seq]
+        got = _withheld(s, view, copies[0][1], seq, [t for t, _ in copies], end, pid)
+        if got[0] is True:
+            return got
+        if got[0] is None:
+            verdict = got
+    return verdict
+
+
+def _moved_on(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-RTX-2: a wrong ACK taken, and the next message sent at once."""
+    for t, what in dev:
+        m = re.search(r"seq (\d+) ended", what)
+        seq = int(m.group(1)) if m else -1
+        copies = [t2 for t2, tx, h, _ in view if tx and h[3] != ACK and h[2] == seq and t2 <= t]
+        lag = max((b - a for a, b in s_stalls(s, pid)), default=0.0)
+        if len(copies) >= 3 and abs(t - copies[-1] - s.rto) <= (LATE - 1) * s.rto + MARGIN + lag:
+            continue  # at a timer's expiry after 3 copies: a give-up (MCP-RTX-1's limit) explains it
+        if any(not tx and h[3] == ACK and _named(d) == seq and t - lag - 1e-6 <= t2 <= t + MARGIN + lag
+               for t2, tx, h, d in view):
+            continue  # the right ACK at (nearly) the same instant: a judge of times may take it
+        if any(tx and abs(t2 - t) < 1e-9 and h[3] != ACK and 0 < ((h[2] - seq) & 0xFFFF) < 0x8000
+               for t2, tx, h, _ in view):
+            if end < t + LATE * s.rto + MARGIN:
+                return None, f"at {t:.3f} s: {what}, the next message sent, the view ends within a timeout"
+            return True, f"at {t:.3f} s: {what}, and the next message sent then"
+    return False, "a wrong ACK taken, but nothing sent after it (the node closed)"
+
+
+def _undecided(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    return None, "a wrong ACK taken by a drone: nothing sent after it shows it (its view may)"
+
+
+_ORACLES = {
+    "rtx-stop-on-any-ack": _undecided,
+    "no-ack": _unanswered_copies,
+    "no-ready-ack": _unanswered_copies,
+    "ack-first-copy-only": _copy_after_answer,
+    "ack-previous-seq": _acks_outnumber,
+    "ack-copies-wrong-seq": _acks_outnumber,
+    "rtx-none": _first_copy_then_silence,
+    "manager-rtx-none": _first_copy_then_silence,
+    "give-up-after-two": _gave_up,
+    "wrong-seq-ack": _moved_on,
+}

@@ -1,0 +1,114 @@
+"""A schedule: everything one simulated mission is a function of (issue 38, item 3) -- the
+seed, the mission's shape, the link's parameters per direction, the stalls and the fault
+model -- and :func:`run_schedule`, which replays it: the same schedule always gives the same
+trace and the same verdicts (``tests/sim/seeds/*.json`` are schedules).
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+from sim.faults import FAULTS, Fault, fault_endpoint
+from sim.judges import Judged, judge_world
+from sim.link import LinkParams
+from sim.models import DroneModel, ManagerModel, mission_items
+from sim.world import StallParams, World
+from spec.codec import MANAGER_ID
+
+__all__ = ["Outcome", "Schedule", "run_schedule"]
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """One mission's schedule. Times in seconds of virtual time; ``retries``: every node's retry
+    limit (MCP-RTX-1: "its retry limit", configurable; 20 lets a manager give a lost drone up
+    and end its mission well inside the run); ``max_rtos``: the run ends after this many
+    timeouts (a sender that never gives up is cut there, its view with it)."""
+
+    seed: int
+    rto: float = 1.0
+    drones: int = 1
+    challenge: int = 1
+    items: int = 2
+    down: LinkParams = field(default_factory=LinkParams)
+    up: LinkParams = field(default_factory=LinkParams)
+    stalls: StallParams = field(default_factory=StallParams)
+    fault: str | None = None
+    retries: int = 20
+    max_rtos: float = 400.0
+
+    def __post_init__(self) -> None:
+        if self.fault is not None and self.fault not in FAULTS:
+            raise ValueError(f"unknown fault {self.fault!r}; known: {', '.join(FAULTS)}")
+        if self.challenge not in (1, 2, 3) or not 1 <= self.drones <= 8 or self.items < 1 or self.rto <= 0:
+            raise ValueError(f"bad mission shape: {self}")
+
+    @property
+    def faulty(self) -> Fault | None:
+        return FAULTS[self.fault] if self.fault else None
+
+    @property
+    def faulty_party(self) -> int | None:
+        """The faulty model's MCP ID: the manager, or drone 1."""
+        f = self.faulty
+        return None if f is None else MANAGER_ID if f.role == "manager" else 1
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> Schedule:
+        d = dict(doc)
+        d["down"] = LinkParams(**d.get("down", {}))
+        d["up"] = LinkParams(**d.get("up", {}))
+        d["stalls"] = StallParams(**d.get("stalls", {}))
+        return cls(**d)
+
+    def but(self, **changes: Any) -> Schedule:
+        return replace(self, **changes)
+
+
+@dataclass
+class Outcome:
+    """A replayed schedule: the world after the run (views, links, parties) and the verdicts."""
+
+    schedule: Schedule
+    world: World
+    items: tuple[Any, ...]
+    judged: Judged | None
+
+    @property
+    def deviations(self) -> list[tuple[float, str]]:
+        """What the fault model did that the correct one would not have (empty: no fault)."""
+        pid = self.schedule.faulty_party
+        if pid is None:
+            return []
+        return list(getattr(self.world.parties[pid].ep, "deviations", []))
+
+
+def build_world(s: Schedule) -> tuple[World, tuple[Any, ...]]:
+    rng = random.Random(s.seed)
+    items = mission_items(s.items, rng.getrandbits(32))
+    fault = s.faulty
+    ids = tuple(range(1, s.drones + 1))
+    mgr_ep = fault_endpoint(fault, s.retries) if fault and fault.role == "manager" else None
+    manager = ManagerModel(ids, s.challenge, items, s.rto, s.retries, random.Random(rng.getrandbits(64)),
+                           endpoint=mgr_ep)
+    drones = []
+    for d in ids:
+        ep = fault_endpoint(fault, s.retries) if fault and fault.role == "drone" and d == 1 else None
+        drones.append(DroneModel(d, s.rto, s.retries, random.Random(rng.getrandbits(64)),
+                                 ready_at=rng.uniform(0.0, 2 * s.rto), endpoint=ep))
+    world = World(manager, drones, s.down, s.up, rng.getrandbits(64), stalls=s.stalls,
+                  max_time=s.max_rtos * s.rto)
+    return world, items
+
+
+def run_schedule(s: Schedule, *, judge: bool = True, explain: bool = True) -> Outcome:
+    """Run ``s`` from scratch and judge it (``judge=False``: the run alone, for the bench)."""
+    world, items = build_world(s)
+    world.run()
+    judged = judge_world(world, rto=s.rto, challenge=s.challenge, items=items, explain=explain) if judge else None
+    return Outcome(s, world, items, judged)
