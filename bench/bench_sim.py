@@ -21,8 +21,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
-from sim.schedule import run_schedule  # noqa: E402
-from sim.search import draw_schedule  # noqa: E402
+from mcp_conform.sim.schedule import run_schedule  # noqa: E402
+from mcp_conform.sim.search import draw_schedule  # noqa: E402
 
 MODES = (("judges off", False, False), ("monitor", True, False), ("monitor + explain", True, True))
 

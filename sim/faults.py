@@ -35,10 +35,10 @@ import random
 from dataclasses import dataclass
 from typing import Any
 
-from reference_impl._transitions import Input
-from reference_impl.endpoint import _ACK_HEAD, Endpoint
-from reference_impl.events import AckSent, DuplicateDiscarded, MessageDelivered
-from spec.codec import PREAMBLE, Action, DecodeError, decode, peek_header
+from mcp_conform.reference_impl._transitions import Input
+from mcp_conform.reference_impl.endpoint import _ACK_HEAD, Endpoint
+from mcp_conform.reference_impl.events import AckSent, DuplicateDiscarded, MessageDelivered
+from mcp_conform.spec.codec import PREAMBLE, Action, DecodeError, decode, peek_header
 
 __all__ = ["FAULTS", "Fault", "FaultMixin", "fault_endpoint"]
 

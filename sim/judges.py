@@ -17,11 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from judge.explain import Bounds, Verdict, decide_receiver, decide_sender
-from judge.explain_model import RANK
-from judge.explain_records import traces_from_datagrams
-from judge.monitor import Monitor, Violation
-from sim.world import NS, ViewRecord, World
+from mcp_conform.judge.explain import Bounds, Verdict, decide_receiver, decide_sender
+from mcp_conform.judge.explain_model import RANK
+from mcp_conform.judge.explain_records import traces_from_datagrams
+from mcp_conform.judge.monitor import Monitor, Violation
+from mcp_conform.sim.world import NS, ViewRecord, World
 
 __all__ = ["Judged", "judge_world"]
 

@@ -25,14 +25,14 @@ import random
 from collections.abc import Callable
 from typing import Any
 
-from reference_impl.endpoint import Endpoint
-from reference_impl.events import (
+from mcp_conform.reference_impl.endpoint import Endpoint
+from mcp_conform.reference_impl.events import (
     DeliveryConfirmed,
     DeliveryFailed,
     DuplicateDiscarded,
     MessageDelivered,
 )
-from spec.codec import BROADCAST_ID, MANAGER_ID, Action, MissionItem
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, MissionItem
 
 __all__ = ["DroneModel", "ManagerModel", "NodeModel", "mission_items"]
 

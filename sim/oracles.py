@@ -25,9 +25,9 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from sim.schedule import Outcome
-from sim.world import NS, ViewRecord
-from spec.codec import Action, peek_header
+from mcp_conform.sim.schedule import Outcome
+from mcp_conform.sim.world import NS, ViewRecord
+from mcp_conform.spec.codec import Action, peek_header
 
 __all__ = ["observable"]
 
@@ -70,7 +70,7 @@ def observable(o: Outcome) -> tuple[bool | None, str]:
     end = o.world.view_end(pid)
     fn = _ORACLES.get(f.name)
     if fn is None:
-        return False, f"{f.rule} is not observable on the wire (docs/spec.md)"
+        return False, f"{f.rule} is not observable on the simulated wire (no oracle of sim.oracles reads it)"
     return fn(_WithStalls(s, o.world.stalls), pid, dev, view, end)
 
 

@@ -10,12 +10,12 @@ import random
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-from sim.faults import FAULTS, Fault, fault_endpoint
-from sim.judges import Judged, judge_world
-from sim.link import LinkParams
-from sim.models import DroneModel, ManagerModel, mission_items
-from sim.world import StallParams, World
-from spec.codec import MANAGER_ID
+from mcp_conform.sim.faults import FAULTS, Fault, fault_endpoint
+from mcp_conform.sim.judges import Judged, judge_world
+from mcp_conform.sim.link import LinkParams
+from mcp_conform.sim.models import DroneModel, ManagerModel, mission_items
+from mcp_conform.sim.world import StallParams, World
+from mcp_conform.spec.codec import MANAGER_ID
 
 __all__ = ["Outcome", "Schedule", "run_schedule"]
 

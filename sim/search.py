@@ -27,11 +27,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sim.faults import FAULTS
-from sim.link import LinkParams
-from sim.oracles import observable
-from sim.schedule import Outcome, Schedule, run_schedule
-from sim.world import StallParams
+from mcp_conform.sim.faults import FAULTS
+from mcp_conform.sim.link import LinkParams
+from mcp_conform.sim.oracles import observable
+from mcp_conform.sim.schedule import Outcome, Schedule, run_schedule
+from mcp_conform.sim.world import StallParams
 
 __all__ = ["Problem", "Stats", "check", "digest", "draw_schedule", "load_seed", "replay", "save_seed", "shrink", "sweep"]
 

@@ -23,10 +23,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from sim.clock import Clock, EventQueue
-from sim.link import Link, LinkParams
-from sim.models import DroneModel, ManagerModel, NodeModel
-from spec.codec import BROADCAST_ID, MANAGER_ID, peek_header
+from mcp_conform.sim.clock import Clock, EventQueue
+from mcp_conform.sim.link import Link, LinkParams
+from mcp_conform.sim.models import DroneModel, ManagerModel, NodeModel
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, peek_header
 
 __all__ = ["StallParams", "ViewRecord", "World"]
 

@@ -13,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "reports", "reference_impl",
-            "conformance", "fuzz", "captures", "soak")
+            "conformance", "fuzz", "captures", "soak", "sim")
 
 #: the one import package (pyproject.toml); the folders above are its subpackages
 NAMESPACE = "mcp_conform"

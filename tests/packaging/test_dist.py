@@ -253,11 +253,9 @@ USER_PACKAGES = ("spec", "harness", "reports")
 USER_TEST = """
 import sys
 
-import harness
-import reports
-import spec
-
-
+from mcp_conform import harness
+from mcp_conform import reports
+from mcp_conform import spec
 def test_my_packages():
     assert (spec.WHO, harness.WHO, reports.WHO) == ("user", "user", "user")
 """

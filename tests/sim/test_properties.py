@@ -20,11 +20,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sim.faults import FAULTS
-from sim.link import LinkParams
-from sim.schedule import Schedule, run_schedule
-from sim.search import check, sweep
-from sim.world import StallParams
+from mcp_conform.sim.faults import FAULTS
+from mcp_conform.sim.link import LinkParams
+from mcp_conform.sim.schedule import Schedule, run_schedule
+from mcp_conform.sim.search import check, sweep
+from mcp_conform.sim.world import StallParams
 
 SETTINGS = settings(max_examples=120, derandomize=True, deadline=None, database=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -115,7 +115,11 @@ def test_the_monitor_holds_both_properties_without_stalls(fault):
     run()
 
 
-@pytest.mark.xfail(strict=True, reason="false MCP-RTX-1 on a correct node starved past its retransmission "
+# not strict: whether 400 drawn schedules include a starved one the monitor misjudges depends on
+# what hypothesis draws, and its draws changed with the modules a worker had imported before
+# (7 of 400 failed alone, 0 after tests/conformance in the same worker); the seeds
+# monitor-rtx1-starved-* replay it exactly, as strict xfails (tests/sim/test_seeds.py)
+@pytest.mark.xfail(strict=False, reason="false MCP-RTX-1 on a correct node starved past its retransmission "
                                        "time (seeds monitor-rtx1-starved-*)")
 def test_the_monitor_holds_for_correct_models_with_stalls():
     @settings(SETTINGS, max_examples=400)

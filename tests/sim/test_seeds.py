@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.search import check, digest, load_seed, replay
+from mcp_conform.sim.search import check, digest, load_seed, replay
 
 SEEDS = sorted((Path(__file__).parent / "seeds").glob("*.json"))
 

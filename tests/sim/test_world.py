@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from sim.link import Link, LinkParams
-from sim.schedule import Schedule, run_schedule
-from sim.world import StallParams
-from spec.codec import Action, peek_header
+from mcp_conform.sim.link import Link, LinkParams
+from mcp_conform.sim.schedule import Schedule, run_schedule
+from mcp_conform.sim.world import StallParams
+from mcp_conform.spec.codec import Action, peek_header
 
 BAD = LinkParams(loss=0.2, dup=0.2, reorder=0.2, delay_min=0.0, delay_max=2.0, reorder_extra=3.0)
 
@@ -85,8 +85,7 @@ def test_the_simulator_touches_no_socket_thread_or_clock():
     import ast
     from pathlib import Path
 
-    import sim
-
+    from mcp_conform import sim
     for path in Path(sim.__file__).parent.glob("*.py"):
         tree = ast.parse(path.read_text())
         names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
