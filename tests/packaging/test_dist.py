@@ -251,11 +251,11 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
 #: ships ``import spec``), and a test of theirs that imports them
 USER_PACKAGES = ("spec", "harness", "reports")
 USER_TEST = """
-import sys
+import harness
+import reports
+import spec
 
-from mcp_conform import harness
-from mcp_conform import reports
-from mcp_conform import spec
+
 def test_my_packages():
     assert (spec.WHO, harness.WHO, reports.WHO) == ("user", "user", "user")
 """
