@@ -29,6 +29,12 @@ the runner's own socket, a capture on the one host where every node runs), and e
 a deadline that falls after the end of the trace judges nothing. Autopilot-link events are
 taken as complete for a drone once any was fed for it.
 
+Its MCP-RTX-1/2 failures stand only where ``judge.explain`` cannot explain the trace without
+them (``judge.veto``, applied at :meth:`Monitor.finish`; what it dropped is in
+:attr:`Monitor.vetoed` with the explanation), so a failure returned before ``finish`` may
+still be withdrawn: :meth:`Monitor.verdicts` and :attr:`Monitor.violations` after it are the
+judgement.
+
 Rules judged (spec/mcp.yaml): HDR-1..5, ACK-1..7, SEQ-1..4, RTX-1..4, BLK-1..7, PAY-1..8,
 ROB-2..4, FLOW-1..6, DUP-1..4 and TRN-2 (a node that ACKs a sender from one address but not
 from another). ROB-1/5/6/7 (liveness after bad input) need a live node and are the runner's;
