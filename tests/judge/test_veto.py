@@ -62,3 +62,28 @@ def test_a_faulty_senders_failure_stands(name: str) -> None:
     fault = FAULTY[name]
     found = fault.build().judge(complete=fault.complete)
     assert fault.rule in {v.rule for v in found}
+
+
+def test_mcp_capture_check_gets_the_veto_and_notes_it(tmp_path: Path) -> None:
+    """The same starved drone's view written as its own capture (``mcp-soak``'s writer, as
+    the simulator's views are) and judged by ``mcp-capture check``'s judge: the monitor's
+    failure is dropped from the violations and named in the notes with its explanation."""
+    from mcp_conform.judge.judging import Params, judge
+    from mcp_conform.traceio.recorder import McapRecorder, run_metadata
+
+    o, _ = replay(SEEDS / "monitor-rtx1-starved-drone.json")
+    w, s = o.world, o.schedule
+    path = tmp_path / "drone2.mcap"
+    meta = run_metadata("mcp-soak", node_id=2, complete="true",
+                        parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
+    with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
+        for r in w.views[2]:
+            if r.tx:
+                rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
+            else:
+                rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
+    j = judge(path, Params())
+    assert j.params.rto == s.rto
+    assert j.verdicts[2]["MCP-RTX-1"] == "passed"
+    assert not [v for v in j.violations if v.rule == "MCP-RTX-1"]
+    assert [n for n in j.notes if n.startswith("MCP-RTX-1 not failed for node 2")]
