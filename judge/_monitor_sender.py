@@ -471,8 +471,14 @@ class SenderRules(RetransmissionRules):
             return
         self._observe(MANAGER, "MCP-FLOW-3")
         last = max(e.acks[0][1] for e in ended)
-        if end - last < 2 * max(self.rto_ns, self.window_ns, NS):
+        settle = 2 * max(self.rto_ns, self.window_ns, NS)
+        if end - last < settle:
             return  # the trace may end while the manager is still ending missions
+        busy = mgr.last_unicast
+        if busy is not None and not busy.acks and end - busy.last_t < settle:
+            return  # still retransmitting (an End_Mission to a drone that has gone): stop-and-
+            # wait holds the next End_Mission, which a trace cut there cannot show (a deadline
+            # after the end of the trace judges nothing)
         for n in drones:
             if n.end is None and self._last_command_acked(n):
                 self._emit("MCP-FLOW-3", MANAGER, end, f"End_Mission as the last command to drone {n.id}",

@@ -438,11 +438,21 @@ class _Session:
                 if inferred else "challenge not inferred: the manager sent no WP_List, WP_On, WP_Off or "
                 "Obstacles_List; MCP-FLOW-4/5/6 were not judged (give --challenge)")
             params.challenge = inferred
-        violations = sorted(self.violations, key=_BY_RULE_AND_TIME)
+        # judge.explain's veto (judge/veto.py) dropped these at the monitor's finish: the
+        # violations collected as they came are filtered, and each one's explanation noted
+        vetoed = list(getattr(mon, "vetoed", ()))
+        gone = {_key(x.violation) for x in vetoed}  # not by identity: evidence may be remapped
+        violations = sorted((v for v in self.violations if _key(v) not in gone) if gone else self.violations,
+                            key=_BY_RULE_AND_TIME)
+        notes = [*cap.notes, *(x.note() for x in vetoed)] if vetoed else cap.notes
         nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
         return Judgement(path, cap.format, params, nodes, violations, mon.verdicts(), self.n, self.first,
-                         self.last, cap.truncated, cap.notes, self.unattributed, self.kept, self.cases, [],
+                         self.last, cap.truncated, notes, self.unattributed, self.kept, self.cases, [],
                          self.drone, self.evidence)
+
+
+def _key(v: Any) -> tuple[Any, ...]:
+    return v.rule, v.node, v.t_ns, v.actual
 
 
 #: The order of a session's violations: by rule, then time (stable).

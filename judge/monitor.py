@@ -29,6 +29,12 @@ the runner's own socket, a capture on the one host where every node runs), and e
 a deadline that falls after the end of the trace judges nothing. Autopilot-link events are
 taken as complete for a drone once any was fed for it.
 
+Its MCP-RTX-1/2 failures stand only where ``judge.explain`` cannot explain the trace without
+them (``judge.veto``, applied at :meth:`Monitor.finish`; what it dropped is in
+:attr:`Monitor.vetoed` with the explanation), so a failure returned before ``finish`` may
+still be withdrawn: :meth:`Monitor.verdicts` and :attr:`Monitor.violations` after it are the
+judgement.
+
 Rules judged (spec/mcp.yaml): HDR-1..5, ACK-1..7, SEQ-1..4, RTX-1..4, BLK-1..7, PAY-1..8,
 ROB-2..4, FLOW-1..6, DUP-1..4 and TRN-2 (a node that ACKs a sender from one address but not
 from another). ROB-1/5/6/7 (liveness after bad input) need a live node and are the runner's;
@@ -74,6 +80,7 @@ from mcp_conform.judge._monitor_vehicle import (
     events_from_vehicle,
     frame_hex,
 )
+from mcp_conform.judge.veto import Recorder, Vetoed, veto
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import BROADCAST_ID, DecodeError, decode
 from mcp_conform.spec.mission import sane_item
@@ -203,6 +210,10 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._node_delivers: set[int] = set()  # drones seen forwarding passthrough frames
         self.inferred_challenge: int | None = None
         self.finished = False
+        #: what the monitor was fed, for judge.explain's veto at ``finish`` (``judge.veto``)
+        self.recorder = Recorder()
+        #: the MCP-RTX-1/2 violations judge.explain explained away, with the explanation
+        self.vetoed: list[Vetoed] = []
         for d in self.drones or ():
             self._node(d)
 
@@ -227,6 +238,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             self._run_timers(t_ns)
         n = len(data)
         tester = origin is TESTER
+        self.recorder.add(t_ns, data, tester, run_delay)
         if n < HDR or not data.startswith(PRE):
             self._unframed(i, t_ns, src_addr, data, n, tester, origin)
             return out
@@ -244,6 +256,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
             self._orphans.append((i, t_ns, src_addr, "MCP-HDR-4", f"has src {src}"))
             tester = True
         if tester:
+            if origin is not TESTER:
+                self.recorder.mark_tester(i)
             self._tester_ids.add(src)
             node = None
         else:
@@ -344,8 +358,26 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._finish_sender(end)
         self._finish_receiver(end)
         self._finish_orphans()
+        self._veto(end, out)
         self.finished = True
         return out
+
+    def _veto(self, end: int, out: list[Violation]) -> None:
+        """MCP-RTX-1/2 failures judge.explain explains away are dropped (``judge.veto``)."""
+        vetoed = veto(self.violations, self.recorder, rto=self.rto_ns / NS,
+                      ack_window=self.window_ns / NS, end_ns=end, broadcast_id=self.broadcast_id,
+                      complete_for=self._complete_for)
+        self.recorder.records = []
+        if not vetoed:
+            return
+        gone = {id(x.violation) for x in vetoed}
+        self.violations[:] = [v for v in self.violations if id(v) not in gone]
+        out[:] = [v for v in out if id(v) not in gone]
+        self.vetoed += vetoed
+        for x in vetoed:
+            key = (x.violation.node, x.violation.rule)
+            if not any((v.node, v.rule) == key for v in self.violations):
+                self._violated.discard(key)
 
     # ------------------------------------------------------------------ output
     def verdicts(self) -> dict[int, dict[str, str]]:

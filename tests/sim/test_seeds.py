@@ -1,7 +1,8 @@
 """The regression seeds (``tests/sim/seeds/*.json``, issue 38 item 3): each one call -- seed and
 parameters in, the same trace and verdicts out (its digest) -- and each a false verdict the
 search found in the existing trace monitor, kept as the monitor's strict xfail with its
-reason (the monitor is not changed here). ``judge.explain`` holds on every one but the seed
+reason while it stands; those that blamed a correct node pass since judge.explain's veto
+(``judge/veto.py``) and the MCP-FLOW-3 fix of a cut view. ``judge.explain`` holds on every one but the seed
 that names its own miss (``explain_reason``), its strict xfail."""
 
 from __future__ import annotations
@@ -47,4 +48,15 @@ def _monitor_case(path: Path) -> object:
 def test_the_monitor_keeps_both_properties_on_the_seed(path):
     o, _ = replay(path)
     problems = check(o, ("monitor",))
+    assert problems == [], "\n".join(p.text() for p in problems)
+
+
+@pytest.mark.parametrize("path", SEEDS, ids=[p.stem for p in SEEDS])
+def test_the_monitor_fails_no_correct_party_on_the_seed(path):
+    """A false verdict on a correct party (every party but the seed's faulty one) is gone:
+    judge.explain's veto (``judge/veto.py``) on MCP-RTX-1/2, and MCP-FLOW-3 on a cut view.
+    The faulty party's misses and wrong rules are the test above's strict xfails."""
+    o, _ = replay(path)
+    faulty = o.schedule.faulty_party if o.schedule.faulty is not None else None
+    problems = [p for p in check(o, ("monitor",)) if p.party != faulty]
     assert problems == [], "\n".join(p.text() for p in problems)

@@ -1,0 +1,231 @@
+"""The explanation judge's veto over the trace monitor's MCP-RTX-1/2 failures (issue 38,
+item 1): a failure stands only where :mod:`judge.explain` cannot explain the trace without it.
+
+The monitor (:mod:`judge.monitor`) judges incrementally, by special cases; some of them blamed
+correct nodes -- a node stalled past its retransmission time (its run delay not weighed), a
+manager that read another drone's ACK, or an ACK sent before its message, naming its number
+(the regression seeds ``tests/sim/seeds/monitor-rtx1-starved-*``,
+``monitor-rtx2-{stale,wrong-source}-ack``). Jepsen's checkers report an anomaly only when no
+valid explanation of the history exists; so does this, in one place, which every consumer
+gets: the monitor's ``finish`` calls :func:`veto`, so the runner's live monitor
+(``judge.run_monitor``), ``mcp-capture check`` (``judge.judging``), the fuzzer and the
+simulator judge alike.
+
+How: the datagrams the monitor was fed (:class:`Recorder`) are made into
+:mod:`judge.explain`'s traces (:func:`judge.explain_records.traces_from_datagrams`), one per
+direction; a violation of MCP-RTX-1 or MCP-RTX-2 by node ``S`` is about the message its first
+evidence datagram is a copy of, sent to ``R``; :func:`judge.explain.decide_sender` decides the
+direction ``(S, R)`` with the bounds the monitor knows (:func:`sender_bounds`: ``--rto``, the
+ACK window, and ``S``'s run delay, D-7). The violation is dropped when the rule is
+``consistent`` there and no disjunction naming it (``MCP-RTX-1 or MCP-RTX-2``) is proven: some
+explanation keeps the rule. It stands when the rule is ``proven`` or ``unobservable`` (explain
+cannot judge what the monitor saw), so the veto never adds a violation and never drops one
+explain does not contradict. A dropped violation is kept with the explanation that keeps the
+rule (:class:`Vetoed`), for the report.
+
+Bounds. ``S``'s run delay (cumulative, ns, fed with each datagram it sent: ``harness.run_delay``
+on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU;
+the largest growth between two of its datagrams bounds one stall: a copy may go that much
+later than its timer (``rto_slack``) and an ACK be read that much after it came
+(``ack_early``). Where no run delay is known the bounds are spec/mcp.yaml's with a perfect
+observer. The link is not known to the monitor: one copy draws one ACK (a link that
+duplicates ACKs may leave a false failure standing, never hide a true one).
+
+Cost: one record per datagram fed, up to :data:`RECORD_CAP`; past it the veto is off for the
+trace (its failures stand, and :attr:`Recorder.note` says why). Explain runs only at
+``finish`` and only for the directions of the violations it may veto.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
+
+from mcp_conform.judge.explain import (
+    CONSISTENT,
+    EITHER_RTX,
+    PROVEN,
+    Bounds,
+    Trace,
+    Verdict,
+    decide_sender,
+)
+from mcp_conform.judge.explain_records import traces_from_datagrams
+from mcp_conform.spec.codec import HEADER_SIZE, Action, peek_header
+
+__all__ = ["RECORD_CAP", "VETOED_RULES", "Record", "Recorder", "Vetoed", "sender_bounds", "veto"]
+
+NS = 1_000_000_000
+#: The rules a violation of which explain may veto, and the disjunction that keeps it standing.
+VETOED_RULES: dict[str, str] = {"MCP-RTX-1": EITHER_RTX, "MCP-RTX-2": EITHER_RTX}
+#: Datagrams recorded per trace at most (a long soak, a million-datagram capture: issue 17).
+RECORD_CAP = 200_000
+
+
+class Record(NamedTuple):
+    """One datagram as the monitor was fed it (what ``traces_from_datagrams`` reads)."""
+
+    t_ns: int
+    data: bytes
+    tester: bool
+    run_delay: int | None
+
+
+class Vetoed(NamedTuple):
+    """A monitor violation dropped, and the explanation that keeps its rule."""
+
+    violation: Any
+    sender: int
+    receiver: int
+    explanation: str
+
+    def note(self) -> str:
+        v = self.violation
+        return (f"{v.rule} not failed for node {v.node} ({v.actual}): judge.explain explains the "
+                f"trace from ID {self.sender} to ID {self.receiver} without it: {self.explanation}")
+
+
+@dataclass
+class Recorder:
+    """The datagrams a monitor was fed (:class:`Record`), up to :data:`RECORD_CAP`."""
+
+    records: list[Record] = field(default_factory=list)
+    note: str | None = None
+
+    def add(self, t_ns: int, data: bytes, tester: bool, run_delay: int | None) -> None:
+        if self.note is not None:
+            return
+        if len(self.records) >= RECORD_CAP:
+            self.note = (f"more than {RECORD_CAP} datagrams: MCP-RTX-1/2 failures are not checked "
+                         "against judge.explain")
+            self.records = []
+            return
+        self.records.append(Record(t_ns, bytes(data), tester, run_delay))
+
+    def mark_tester(self, index: int) -> None:
+        """Datagram ``index`` turned out to be the harness's (a wrong src, an ID outside the
+        mission): input to the others, as the monitor takes it."""
+        if self.note is None and index < len(self.records):
+            self.records[index] = self.records[index]._replace(tester=True)
+
+
+def _lags(records: list[Record]) -> dict[int, float]:
+    """Per node, the largest growth of its run delay between two datagrams it sent (s)."""
+    last: dict[int, int] = {}
+    out: dict[int, float] = {}
+    for r in records:
+        if r.run_delay is None or r.tester:
+            continue
+        head = peek_header(r.data, require_preamble=False)
+        if head is None:
+            continue
+        src = head[1]
+        prev = last.get(src)
+        if prev is not None and r.run_delay > prev:
+            out[src] = max(out.get(src, 0.0), (r.run_delay - prev) / NS)
+        last[src] = r.run_delay
+    return out
+
+
+def sender_bounds(rto: float, ack_window: float, lag: float) -> Bounds:
+    """The bounds of a sender whose largest stall is ``lag`` s (see the module docstring)."""
+    return Bounds(ack_window=ack_window, rto=rto, ack_early=lag, rto_slack=Bounds.rto_slack + lag)
+
+
+def _direction(v: Any, records: list[Record]) -> tuple[int, int] | None:
+    """``(S, R)``: the violation's message, its first evidence datagram that ``S`` sent ``R``
+    (not an ACK)."""
+    for i, _t in v.evidence:
+        if not 0 <= i < len(records):
+            continue
+        head = peek_header(records[i].data, require_preamble=False)
+        if head is not None and head[1] == v.node and head[3] != Action.ACK:
+            return v.node, head[0]
+    return None
+
+
+def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bounds,
+                      broadcast_id: int) -> str | None:
+    """Whether an ACK from ``R`` naming the violation's message came before ``S``'s next
+    copy was overdue (``Bounds.rto_max`` after its last) and ``S`` moved on to another message
+    only once it could have read it (``ack_early``: how late ``S`` may read one). Explain keeps
+    MCP-RTX-2 by other stops too -- a give-up at a retry limit after a wrong ACK (a faulty
+    sender that stops on any ACK), a stop that broke MCP-BLK-1 instead
+    (``tests/judge/test_explain_beside_monitor.py``'s ``rtx2-stops-on-wrong-ack``,
+    ``rtx2-manager-takes-a-stale-ack``): there the monitor's failure stands, a faulty
+    sender's only one. The veto is for a right ACK the monitor did not credit: it is named
+    (None: no such ACK)."""
+    s, r = way
+    first = None
+    for i, _t in v.evidence:
+        h = peek_header(records[i].data, require_preamble=False) if 0 <= i < len(records) else None
+        if h is not None and h[1] == s and h[0] == r and h[3] != Action.ACK:
+            first = i
+            break
+    if first is None:
+        return None
+    seq = peek_header(records[first].data, require_preamble=False)[2]  # type: ignore[index]
+    named = seq.to_bytes(2, "big")
+    last = records[first].t_ns
+    t_ack = None
+    for rec in records[first + 1:]:
+        h = peek_header(rec.data, require_preamble=False)
+        if h is None or rec.tester and h[1] == s:
+            continue
+        dst, src, n, action = h
+        if action == Action.ACK:
+            if t_ack is None and src == r and dst == s and len(rec.data) == HEADER_SIZE + 2 \
+                    and rec.data[HEADER_SIZE:] == named:
+                t_ack = rec.t_ns
+        elif src == s and dst == r and n == seq:
+            last = rec.t_ns
+        elif src == s and dst != broadcast_id:  # S moved on
+            if t_ack is None or rec.t_ns < t_ack - b.ack_early * NS:
+                return None
+            break
+    if t_ack is None or t_ack > last + b.rto_max * NS:
+        return None
+    t0 = records[0].t_ns
+    return (f"the ACK of seq {seq} from ID {r} seen at {(t_ack - t0) / NS:.3f} s, "
+            f"{(t_ack - last) / NS:.3f} s after its last copy (a retransmission may come "
+            f"{b.rto_max:.3f} s after one: --rto, tolerance, run delay), may have ended it")
+
+
+def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: float,
+         end_ns: int, broadcast_id: int, complete_for: Any) -> list[Vetoed]:
+    """The violations of :data:`VETOED_RULES` that :mod:`judge.explain` explains away (see the
+    module docstring). ``complete_for(S, R)``: the trace holds every datagram between them."""
+    mine = [v for v in violations if v.rule in VETOED_RULES]
+    records = recorder.records
+    if not mine or recorder.note is not None or not records:
+        return []
+    traces = traces_from_datagrams(records, complete=True, broadcast_id=broadcast_id,
+                                   tester=lambda r: r.tester)
+    t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
+    end = (end_ns - t0) / NS
+    lags = _lags(records)
+    decided: dict[tuple[int, int], dict[str, Verdict]] = {}
+    bounds: dict[int, Bounds] = {}
+    out: list[Vetoed] = []
+    for v in mine:
+        way = _direction(v, records)
+        trace: Trace | None = traces.get(way) if way is not None else None
+        if way is None or trace is None:
+            continue
+        if way[0] not in bounds:
+            bounds[way[0]] = sender_bounds(rto, ack_window, lags.get(way[0], 0.0))
+        found = decided.get(way)
+        if found is None:
+            t = replace(trace, end=max(trace.end, end), complete=bool(complete_for(*way)))
+            found = decided[way] = decide_sender(t, bounds[way[0]])
+        kept = found.get(v.rule)
+        either = found.get(VETOED_RULES[v.rule])
+        if kept is None or kept.status != CONSISTENT:
+            continue
+        if either is not None and either.status == PROVEN:
+            continue
+        answered = _answered_in_time(v, way, records, bounds[way[0]], broadcast_id)
+        if answered is None:
+            continue
+        out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))
+    return out

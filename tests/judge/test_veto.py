@@ -1,0 +1,89 @@
+"""judge.explain's veto over the monitor's MCP-RTX-1/2 failures (``judge/veto.py``, issue 38
+item 1): on the simulator's seeds that blamed a correct node the failure is dropped and its
+explanation kept; past the record cap it stands; a faulty sender's failure stands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mcp_conform.judge import veto as veto_module
+from mcp_conform.judge.monitor import Monitor
+from mcp_conform.sim.search import replay
+from mcp_conform.sim.world import NS
+from tests.judge.monitor_faults import FAULTY
+
+SEEDS = Path(__file__).resolve().parents[1] / "sim" / "seeds"
+#: seed -> (node, rule) the monitor failed a correct node on, which explain explains away
+VETOED = {
+    "monitor-rtx1-starved-drone": (2, "MCP-RTX-1"),
+    "monitor-rtx1-starved-manager": (0, "MCP-RTX-1"),
+    "monitor-rtx2-stale-ack": (0, "MCP-RTX-2"),
+    "monitor-rtx2-wrong-source-ack": (0, "MCP-RTX-2"),
+}
+
+
+def _monitor_of(name: str, node: int) -> Monitor:
+    """The seed's party ``node`` judged in its own view, as ``sim.judges`` does."""
+    o, _ = replay(SEEDS / f"{name}.json")
+    w, s = o.world, o.schedule
+    mon = Monitor(rto=s.rto, ack_window=max(0.5, 2 * s.rto), drones=tuple(w.drones),
+                  complete=True, party=node)
+    for r in w.views[node]:
+        mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay if r.tx else None)
+    mon.finish(int(w.view_end(node) * NS))
+    return mon
+
+
+@pytest.mark.parametrize("name", sorted(VETOED))
+def test_a_correct_nodes_failure_is_vetoed_with_its_explanation(name: str) -> None:
+    node, rule = VETOED[name]
+    mon = _monitor_of(name, node)
+    assert mon.verdicts()[node][rule] == "passed"
+    assert not [v for v in mon.violations if (v.node, v.rule) == (node, rule)]
+    (x,) = [x for x in mon.vetoed if (x.violation.node, x.violation.rule) == (node, rule)]
+    assert x.sender == node and "judge.explain explains the trace" in x.note()
+    assert "may have ended it" in x.explanation  # the right ACK that explains the stop, named
+
+
+def test_past_the_record_cap_the_failure_stands(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(veto_module, "RECORD_CAP", 10)
+    mon = _monitor_of("monitor-rtx1-starved-drone", 2)
+    assert mon.verdicts()[2]["MCP-RTX-1"] == "failed"
+    assert not mon.vetoed and mon.recorder.note is not None
+
+
+@pytest.mark.parametrize("name", ["rtx2-stops-on-wrong-ack", "rtx2-manager-takes-a-stale-ack",
+                                  "rtx2-manager-moves-on-after-a-wrong-ack", "rtx1-gives-up"])
+def test_a_faulty_senders_failure_stands(name: str) -> None:
+    """Explain keeps RTX-2 here by a give-up at a retry limit or a stop that broke BLK-1
+    (``test_explain_beside_monitor``'s KNOWN): no right ACK explains the stop, so no veto."""
+    fault = FAULTY[name]
+    found = fault.build().judge(complete=fault.complete)
+    assert fault.rule in {v.rule for v in found}
+
+
+def test_mcp_capture_check_gets_the_veto_and_notes_it(tmp_path: Path) -> None:
+    """The same starved drone's view written as its own capture (``mcp-soak``'s writer, as
+    the simulator's views are) and judged by ``mcp-capture check``'s judge: the monitor's
+    failure is dropped from the violations and named in the notes with its explanation."""
+    from mcp_conform.judge.judging import Params, judge
+    from mcp_conform.traceio.recorder import McapRecorder, run_metadata
+
+    o, _ = replay(SEEDS / "monitor-rtx1-starved-drone.json")
+    w, s = o.world, o.schedule
+    path = tmp_path / "drone2.mcap"
+    meta = run_metadata("mcp-soak", node_id=2, complete="true",
+                        parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
+    with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
+        for r in w.views[2]:
+            if r.tx:
+                rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
+            else:
+                rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
+    j = judge(path, Params())
+    assert j.params.rto == s.rto
+    assert j.verdicts[2]["MCP-RTX-1"] == "passed"
+    assert not [v for v in j.violations if v.rule == "MCP-RTX-1"]
+    assert [n for n in j.notes if n.startswith("MCP-RTX-1 not failed for node 2")]
