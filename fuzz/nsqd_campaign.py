@@ -42,6 +42,7 @@ from mcp_conform.fuzz.budget import (
     over_budget,
 )
 from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
@@ -365,20 +366,24 @@ class StreamCampaign:
         base = baseline(b, hit.signature, probe=key)
         if base is None:
             return None
-        sig, confirmed = base.signature, 1
-        for _ in range(self.replays - 1):
+        sig = base.signature
+
+        def once() -> Hit | None:
             if self.duration is not None and time.monotonic() >= self.started + self.duration:
                 raise Late
-            b = self.current = b.fresh()
+            fresh = self.current = self.current.fresh()
             self.restarts += 1
-            again = baseline(b, sig, probe=key)
-            confirmed += again is not None and same_finding(again.signature, sig)
-        self.restart(b)
-        if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
+            again = baseline(fresh, sig, probe=key)
+            return again if again is not None and same_finding(again.signature, sig) else None
+
+        conf = confirm_n(once, self.replays - 1, until_miss=False)  # the first baseline is one of replays
+        confirmed = 1 + len(conf.hits)
+        self.restart(self.current)
+        if not conf.confirmed:  # at times whatever it is sent: no input is to blame either
             self.unconfirmed += 1
-            self.environment.note(sig.rule, f"{sig.describe()}, no input", base.detail, confirmed, self.replays,
-                                  "a baseline sent nothing showed it, then not every confirming baseline did "
-                                  "(timing or load); no input is to blame either")
+            conf.note(self.environment, sig.rule, f"{sig.describe()}, no input", base.detail,
+                      "a baseline sent nothing showed it, then not every confirming baseline did "
+                      "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
             self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
@@ -474,27 +479,26 @@ class StreamCampaign:
             minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                             check=c0.check)]
 
-        def confirm(cases: list[Case]) -> tuple[int, list[Any], Hit | None]:
-            traffic: list[Any]
-            n, traffic, last = 0, [], None
-            for _ in range(self.replays):
+        def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
+            def once() -> tuple[Hit | None, list[Any]] | None:
                 log = TrafficLog()
-                ok, state["b"], last = self.rep(state["b"], cases, sig, probe=probe, log=log,
-                                                wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
-                n += ok
-                traffic = log.records if ok else traffic
-            return n, traffic, last
+                ok, state["b"], h = self.rep(state["b"], cases, sig, probe=probe, log=log,
+                                             wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                return (h, log.records) if ok else None
+            return confirm_n(once, self.replays, until_miss=False)
 
-        confirmed, traffic, last = confirm(minimal)
+        conf = confirm(minimal)
+        last = conf.hits[-1][0] if conf.confirmed else None
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
-        if confirmed < self.replays:
+        if not conf.confirmed:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
-            self.environment.note(sig.rule, sig.describe(), hit.detail, 1 + confirmed, 1 + self.replays,
-                                  f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
-                                  f"{confirmed} of {self.replays} confirming replays did (timing or load)")
+            conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
+                      f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                      f"{len(conf.hits)} of {self.replays} confirming replays did (timing or load)")
             return self.restart(state["b"])
+        traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
             # a shorter tail, once it is confirmed as the whole input was (after it: an input
@@ -505,10 +509,10 @@ class StreamCampaign:
                     data = data[:cut]
             if len(data) < len(writes[0].data):
                 shorter = [replace(minimal[0], writes=(Write(data),))]
-                n, cut_traffic, _ = confirm(shorter)
-                if n == self.replays:
-                    minimal, traffic = shorter, cut_traffic
-        self._add(nsqd_finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
+                again = confirm(shorter)
+                if again.confirmed:
+                    minimal, traffic = shorter, again.hits[-1][1]
+        self._add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(state["b"])
