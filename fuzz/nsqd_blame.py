@@ -176,10 +176,5 @@ def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Ca
     ok, backend, _ = self.rep(backend, suspects[hi - 1:hi], sig, probe=False)
     if ok:
         return suspects[hi - 1:hi], backend
-    box = {"b": backend}
-
-    def still(cs: list[Case]) -> bool:
-        good, box["b"], _ = self.rep(box["b"], cs, sig, probe=False)
-        return good
-
-    return ddmin(suspects[:hi], still, budget=12), box["b"]
+    self.current = backend
+    return ddmin(suspects[:hi], self.shows(sig, probe=False), budget=12), self.current

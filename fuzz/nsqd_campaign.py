@@ -334,6 +334,15 @@ class StreamCampaign:
         self.current = b
         return ok, b, h
 
+    def shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
+        """Nsqd's replay for delta debugging: whether ``cases``, replayed (:meth:`rep`) on the
+        backend now fuzzed (``current``: a fresh process when spawned), still show ``sig``
+        (then the probe command, ``probe``); ``current`` follows each replay's backend."""
+        def still(cases: list[Case]) -> bool:
+            ok, _, _ = self.rep(self.current, cases, sig, probe=probe)
+            return ok
+        return still
+
     def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
         """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame``) on a
         fresh backend, run once per campaign (with the probe or without). A failing baseline is
@@ -421,14 +430,8 @@ class StreamCampaign:
             ok, backend, _ = self.rep(backend, suspects, sig, probe=True)
             self.restarts += 1
             if ok:
-                box = {"b": backend}
-
-                def still(cs: list[Case]) -> bool:
-                    good, box["b"], _ = self.rep(box["b"], cs, sig, probe=True)
-                    return good
-
-                culprit = ddmin(list(suspects), still, budget=20)
-                backend = box["b"]
+                culprit = ddmin(list(suspects), self.shows(sig, probe=True), budget=20)
+                backend = self.current
             suspects = []
         if sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
             culprit, backend = death_culprit(self, backend, sig, suspects)
@@ -455,15 +458,12 @@ class StreamCampaign:
             known.occurrences += 1
             self.aliases[hit.signature.key] = known
             return self.restart(backend)
-        state = {"b": backend}
+        self.current = backend
+
+        test_cases = self.shows(sig, probe=probe)
 
         def test(writes: list[Write]) -> bool:
-            ok, state["b"], _ = self.rep(state["b"], [Case(_replay_kind(sig), tuple(writes))], sig, probe=probe)
-            return ok
-
-        def test_cases(cases: list[Case]) -> bool:
-            ok, state["b"], _ = self.rep(state["b"], cases, sig, probe=probe)
-            return ok
+            return test_cases([Case(_replay_kind(sig), tuple(writes))])
 
         if len(culprit) > 1 and sig.oracle != "desync":
             # several cases, each as it was sent (its own connection or not, its own watch): a
@@ -482,8 +482,8 @@ class StreamCampaign:
         def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
             def once() -> tuple[Hit | None, list[Any]] | None:
                 log = TrafficLog()
-                ok, state["b"], h = self.rep(state["b"], cases, sig, probe=probe, log=log,
-                                             wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                ok, _, h = self.rep(self.current, cases, sig, probe=probe, log=log,
+                                    wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
                 return (h, log.records) if ok else None
             return confirm_n(once, self.replays, until_miss=False)
 
@@ -497,7 +497,7 @@ class StreamCampaign:
             conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
                       f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
                       f"{len(conf.hits)} of {self.replays} confirming replays did (timing or load)")
-            return self.restart(state["b"])
+            return self.restart(self.current)
         traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
@@ -515,7 +515,7 @@ class StreamCampaign:
         self._add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
-        return self.restart(state["b"])
+        return self.restart(self.current)
 
     def restart(self, backend: Backend) -> Backend:
         """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the
