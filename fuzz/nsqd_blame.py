@@ -29,6 +29,7 @@ import time
 from typing import Any
 
 from mcp_conform.fuzz.budget import Late, over_budget
+from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.nsqd_backend import Backend, Hit
 from mcp_conform.fuzz.nsqd_mutators import Case
@@ -125,30 +126,34 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     if first is None or first[0] <= grow_max:
         return backend
     sig = Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3")
-    t0, confirmed, b = time.monotonic(), 0, backend
+    t0 = time.monotonic()
     self.triage_from = t0
+
+    def once() -> tuple[int, str] | None:
+        if self.duration is not None and time.monotonic() >= self.started + self.duration \
+                or over_budget(self, time.monotonic()):
+            raise Late
+        self.current = self.current.fresh()
+        again = grown(self.current)
+        return again if again is not None and again[0] > grow_max else None
+
+    self.current = backend
     try:
-        for _ in range(self.replays):
-            if self.duration is not None and time.monotonic() >= self.started + self.duration \
-                    or over_budget(self, time.monotonic()):
-                raise Late
-            b = self.current = b.fresh()
-            again = grown(b)
-            confirmed += again is not None and again[0] > grow_max
+        conf = confirm_n(once, self.replays, until_miss=False)
     except Late:
         self.untriaged[sig.describe()] = self.untriaged.get(sig.describe(), 0) + 1
         self.triage_s += time.monotonic() - t0
         self.triage_from = None
         return self.current
-    if confirmed < self.replays:
+    if not conf.confirmed:
         self.unconfirmed += 1
-        self.environment.note(sig.rule, sig.describe(), first[1], 1 + confirmed, 1 + self.replays,
-                              "a process's descriptors grew over the cycles, then not on every fresh one")
+        conf.note(self.environment, sig.rule, sig.describe(), first[1],
+                  "a process's descriptors grew over the cycles, then not on every fresh one")
     else:
-        self.add_found(sig, first[1], f"{confirmed} of {self.replays}", "connect/close cycles")
+        self.add_found(sig, first[1], conf.replays, "connect/close cycles")
     self.triage_s += time.monotonic() - t0
     self.triage_from = None
-    return self.restart(b)
+    return self.restart(self.current)
 
 
 def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Case]) -> tuple[list[Case] | None, Backend]:
@@ -171,10 +176,5 @@ def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Ca
     ok, backend, _ = self.rep(backend, suspects[hi - 1:hi], sig, probe=False)
     if ok:
         return suspects[hi - 1:hi], backend
-    box = {"b": backend}
-
-    def still(cs: list[Case]) -> bool:
-        good, box["b"], _ = self.rep(box["b"], cs, sig, probe=False)
-        return good
-
-    return ddmin(suspects[:hi], still, budget=12), box["b"]
+    self.current = backend
+    return ddmin(suspects[:hi], self.shows(sig, probe=False), budget=12), self.current

@@ -42,6 +42,7 @@ from mcp_conform.fuzz.budget import (
     over_budget,
 )
 from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
@@ -333,6 +334,15 @@ class StreamCampaign:
         self.current = b
         return ok, b, h
 
+    def shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
+        """Nsqd's replay for delta debugging: whether ``cases``, replayed (:meth:`rep`) on the
+        backend now fuzzed (``current``: a fresh process when spawned), still show ``sig``
+        (then the probe command, ``probe``); ``current`` follows each replay's backend."""
+        def still(cases: list[Case]) -> bool:
+            ok, _, _ = self.rep(self.current, cases, sig, probe=probe)
+            return ok
+        return still
+
     def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
         """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame``) on a
         fresh backend, run once per campaign (with the probe or without). A failing baseline is
@@ -365,20 +375,24 @@ class StreamCampaign:
         base = baseline(b, hit.signature, probe=key)
         if base is None:
             return None
-        sig, confirmed = base.signature, 1
-        for _ in range(self.replays - 1):
+        sig = base.signature
+
+        def once() -> Hit | None:
             if self.duration is not None and time.monotonic() >= self.started + self.duration:
                 raise Late
-            b = self.current = b.fresh()
+            fresh = self.current = self.current.fresh()
             self.restarts += 1
-            again = baseline(b, sig, probe=key)
-            confirmed += again is not None and same_finding(again.signature, sig)
-        self.restart(b)
-        if confirmed < self.replays:  # at times whatever it is sent: no input is to blame either
+            again = baseline(fresh, sig, probe=key)
+            return again if again is not None and same_finding(again.signature, sig) else None
+
+        conf = confirm_n(once, self.replays - 1, until_miss=False)  # the first baseline is one of replays
+        confirmed = 1 + len(conf.hits)
+        self.restart(self.current)
+        if not conf.confirmed:  # at times whatever it is sent: no input is to blame either
             self.unconfirmed += 1
-            self.environment.note(sig.rule, f"{sig.describe()}, no input", base.detail, confirmed, self.replays,
-                                  "a baseline sent nothing showed it, then not every confirming baseline did "
-                                  "(timing or load); no input is to blame either")
+            conf.note(self.environment, sig.rule, f"{sig.describe()}, no input", base.detail,
+                      "a baseline sent nothing showed it, then not every confirming baseline did "
+                      "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
             self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.replays}", base.stderr,
@@ -416,14 +430,8 @@ class StreamCampaign:
             ok, backend, _ = self.rep(backend, suspects, sig, probe=True)
             self.restarts += 1
             if ok:
-                box = {"b": backend}
-
-                def still(cs: list[Case]) -> bool:
-                    good, box["b"], _ = self.rep(box["b"], cs, sig, probe=True)
-                    return good
-
-                culprit = ddmin(list(suspects), still, budget=20)
-                backend = box["b"]
+                culprit = ddmin(list(suspects), self.shows(sig, probe=True), budget=20)
+                backend = self.current
             suspects = []
         if sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
             culprit, backend = death_culprit(self, backend, sig, suspects)
@@ -450,15 +458,12 @@ class StreamCampaign:
             known.occurrences += 1
             self.aliases[hit.signature.key] = known
             return self.restart(backend)
-        state = {"b": backend}
+        self.current = backend
+
+        test_cases = self.shows(sig, probe=probe)
 
         def test(writes: list[Write]) -> bool:
-            ok, state["b"], _ = self.rep(state["b"], [Case(_replay_kind(sig), tuple(writes))], sig, probe=probe)
-            return ok
-
-        def test_cases(cases: list[Case]) -> bool:
-            ok, state["b"], _ = self.rep(state["b"], cases, sig, probe=probe)
-            return ok
+            return test_cases([Case(_replay_kind(sig), tuple(writes))])
 
         if len(culprit) > 1 and sig.oracle != "desync":
             # several cases, each as it was sent (its own connection or not, its own watch): a
@@ -474,27 +479,26 @@ class StreamCampaign:
             minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                             check=c0.check)]
 
-        def confirm(cases: list[Case]) -> tuple[int, list[Any], Hit | None]:
-            traffic: list[Any]
-            n, traffic, last = 0, [], None
-            for _ in range(self.replays):
+        def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
+            def once() -> tuple[Hit | None, list[Any]] | None:
                 log = TrafficLog()
-                ok, state["b"], last = self.rep(state["b"], cases, sig, probe=probe, log=log,
-                                                wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
-                n += ok
-                traffic = log.records if ok else traffic
-            return n, traffic, last
+                ok, _, h = self.rep(self.current, cases, sig, probe=probe, log=log,
+                                    wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                return (h, log.records) if ok else None
+            return confirm_n(once, self.replays, until_miss=False)
 
-        confirmed, traffic, last = confirm(minimal)
+        conf = confirm(minimal)
+        last = conf.hits[-1][0] if conf.confirmed else None
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
-        if confirmed < self.replays:
+        if not conf.confirmed:
             self.unconfirmed += 1
             self._tried(hit.signature, probe)
-            self.environment.note(sig.rule, sig.describe(), hit.detail, 1 + confirmed, 1 + self.replays,
-                                  f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
-                                  f"{confirmed} of {self.replays} confirming replays did (timing or load)")
-            return self.restart(state["b"])
+            conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
+                      f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                      f"{len(conf.hits)} of {self.replays} confirming replays did (timing or load)")
+            return self.restart(self.current)
+        traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
             # a shorter tail, once it is confirmed as the whole input was (after it: an input
@@ -505,13 +509,13 @@ class StreamCampaign:
                     data = data[:cut]
             if len(data) < len(writes[0].data):
                 shorter = [replace(minimal[0], writes=(Write(data),))]
-                n, cut_traffic, _ = confirm(shorter)
-                if n == self.replays:
-                    minimal, traffic = shorter, cut_traffic
-        self._add(nsqd_finding(sig, minimal, hit.detail, f"{confirmed} of {self.replays}", hit.stderr,
+                again = confirm(shorter)
+                if again.confirmed:
+                    minimal, traffic = shorter, again.hits[-1][1]
+        self._add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
                           note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
-        return self.restart(state["b"])
+        return self.restart(self.current)
 
     def restart(self, backend: Backend) -> Backend:
         """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the

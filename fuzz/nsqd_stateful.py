@@ -39,6 +39,7 @@ from __future__ import annotations
 import contextlib
 from typing import Any
 
+from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing
 from mcp_conform.fuzz.nsqd_oracles import same_finding
@@ -146,11 +147,11 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:
         ops = ddmin(list(ops), reproduces, budget=16)
-    confirmed = sum(reproduces(ops, TrafficLog()) for _ in range(campaign.replays))
-    if confirmed < campaign.replays:
+    conf = confirm_n(lambda: reproduces(ops, TrafficLog()) or None, campaign.replays, until_miss=False)
+    if not conf.confirmed:
         campaign.unconfirmed += 1
         return box["b"].fresh()
-    campaign.add_program_finding(sig, hit.detail, f"{confirmed} of {campaign.replays}", tuple(box["stderr"]),
+    campaign.add_program_finding(sig, hit.detail, conf.replays, tuple(box["stderr"]),
                                  "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops],
                                  box["traffic"])
     return box["b"].fresh()

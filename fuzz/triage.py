@@ -32,11 +32,12 @@ import time
 from collections.abc import Sequence
 
 from mcp_conform.fuzz.budget import Late
+from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
-from mcp_conform.fuzz.replay import run_sequence
+from mcp_conform.fuzz.replay import Outcome, run_sequence
 from mcp_conform.fuzz.target_base import TargetBase
 from mcp_conform.spec.codec import HEADER_SIZE, Action, build_datagram
 
@@ -214,22 +215,28 @@ class Triage:
         # campaign's pace: every one shows the flaw, or there is no finding (issue 18 item 9:
         # findings confirmed once in two tries replayed 0 of 3 afterwards); the first
         # replay's answers are what the finding records
-        seen: Flaw | None = None
-        outcome = None
-        for k in range(CONFIRM_N):
-            out = self._run(minimal, pace, scenario)
+        missed: dict[str, set[str]] = {}
+        seq: list[bytes] = minimal
+
+        def once() -> tuple[Flaw, Outcome] | None:
+            out = self._run(seq, pace, scenario)
             again = next((f for f in out.flaws if f.rule == flaw.rule
                           or (flaw.source in _DEATH and f.source in _DEATH)), None)
             if again is None:
-                self._unconfirmed(flaw)
-                self.environment.note(flaw.rule, shape, flaw.actual, k + 1, k + 2, f"the minimal sequence of {len(minimal)} datagram(s) "
-                                  f"showed it in triage, then not in confirmation replay {k + 1} (pace {pace}; "
-                                  "timing or load)" + (f"; seen instead: {', '.join(sorted(out.rules()))}"
-                                                       if out.rules() else ""))
+                missed["rules"] = out.rules()
                 return None
-            if seen is None:
-                seen, outcome = again, out
-        assert seen is not None and outcome is not None
+            return again, out
+
+        conf = confirm_n(once, CONFIRM_N)
+        if not conf.confirmed:
+            self._unconfirmed(flaw)
+            seen_instead = missed.get("rules")
+            conf.note(self.environment, flaw.rule, shape, flaw.actual, f"the minimal sequence of {len(minimal)} "
+                      f"datagram(s) showed it in triage, then not in confirmation replay {len(conf.results)} "
+                      f"(pace {pace}; timing or load)"
+                      + (f"; seen instead: {', '.join(sorted(seen_instead))}" if seen_instead else ""))
+            return None
+        seen, outcome = conf.hits[0]
         final_shape = shape_of(seen, [Input.of(d) for d in minimal]) if flaw.source in _DEATH else shape
         self.aliases[(flaw.rule, shape)] = (seen.rule, final_shape)
         if self.store.known(seen.rule, final_shape):
