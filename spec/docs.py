@@ -100,17 +100,25 @@ def _observe(rule: Any, role: str) -> str:
     return text + (f": {obs.reason}" if obs.reason else "")
 
 
+def page_head(spec: Any) -> list[str]:
+    """Every spec page's first lines: its title and the note that it is generated."""
+    proto, name = spec.protocol, spec.path.name
+    return [
+        f"# {proto['name']} ({proto['short_name']}) — specification",
+        "",
+        f"<!-- Generated from spec/{name} by `python -m mcp_conform.spec docs`. Do not edit by hand:",
+        f"     edit spec/{name} and regenerate; a test fails when this page is stale. -->",
+        "",
+    ]
+
+
 def render(spec: Spec) -> str:
     """The whole page as Markdown, a pure function of the spec."""
     proto = spec.protocol
     hdr = spec.header
     item = spec.mission_item
     lines = [
-        f"# {proto['name']} ({proto['short_name']}) — specification",
-        "",
-        "<!-- Generated from spec/mcp.yaml by `python -m mcp_conform.spec docs`. Do not edit by hand:",
-        "     edit spec/mcp.yaml and regenerate; a test fails when this page is stale. -->",
-        "",
+        *page_head(spec),
         f"Source document: {proto['document']}, version {proto['document_version']} "
         f"({proto['document_date']}). Spec file format version {spec.raw['spec_version']}.",
         "",

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mcp_conform.spec.docs import SummaryTable, _table, catalogue_sections
+from mcp_conform.spec.docs import SummaryTable, _table, catalogue_sections, page_head
 from mcp_conform.spec.nsqd import MessageSpec, StreamSpec
 
 __all__ = ["DEFAULT_OUTPUT", "render", "summary"]
@@ -47,11 +47,7 @@ def render(spec: StreamSpec) -> str:
     """The whole page as Markdown, a pure function of the spec."""
     proto, fr = spec.protocol, spec.framing
     lines = [
-        f"# {proto['name']} ({proto['short_name']}) — specification",
-        "",
-        f"<!-- Generated from spec/{spec.path.name} by `python -m mcp_conform.spec docs`. Do not edit by hand:",
-        f"     edit spec/{spec.path.name} and regenerate; a test fails when this page is stale. -->",
-        "",
+        *page_head(spec),
         f"Source: {proto['document']}, as of {proto['document_version']}. Spec file format "
         f"version {spec.raw['spec_version']}. Where the blog post and the code differ, the code is "
         "the wire truth and the difference is an erratum.",
