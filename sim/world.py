@@ -5,9 +5,11 @@ The manager's datagrams go down the link to the drone their MCP header names (th
 ID: to every drone; any other ID: nowhere, as on a shared port nobody listens there); a
 drone's go up its own link to the manager. A party may be *stalled* (its process off the
 CPU): inside one of its stall windows it reads nothing and its timers do not fire; both
-happen at the window's end, in the order they fell due. A timer fired late adds its lateness
-to the party's run delay (what ``harness.run_delay`` measures on a real host, D-7), which goes
-with each datagram it sends to the judge (MCP-RTX-3 excuses a copy the host made late).
+happen at the window's end, in the order they fell due. From the first thing that fell due
+inside a window (a datagram to read or a timer) to the window's end the party was runnable but
+not running: that time is added to its run delay (what ``harness.run_delay`` measures on a real
+host from schedstat, D-7), which goes with each datagram it sends to the judge (MCP-RTX-3 and
+the veto excuse what the host made late). A stall with nothing due adds nothing, as on a host.
 
 Each party's *view* is what its own socket saw: what it sent as it entered the link, and what
 the link delivered as the party read it -- the capture of ``mcp-node --capture`` or
@@ -84,6 +86,8 @@ class World:
         self.run_delay_ns = {p: 0 for p in self.parties}
         self._armed: dict[int, float | None] = {p: None for p in self.parties}
         self._gen = {p: 0 for p in self.parties}
+        #: when something first fell due for a stalled party (runnable, not running), by party
+        self._waiting: dict[int, float] = {}
         self.max_time = max_time
         self.max_events = max_events
         self.events = 0
@@ -109,8 +113,12 @@ class World:
                 continue
             resume = self._stalled(pid, t)
             if resume is not None:
+                self._waiting[pid] = min(self._waiting.get(pid, t), t)
                 q.push(resume, kind, *args)
                 continue
+            since = self._waiting.pop(pid, None)
+            if since is not None:
+                self.run_delay_ns[pid] += int((t - since) * NS)
             if kind == "rx":
                 _, data, src_addr = args
                 self.views[pid].append(ViewRecord(round(t * NS), src_addr, party.addr, data, False, None))
@@ -120,8 +128,6 @@ class World:
                 if gen != self._gen[pid]:
                     continue
                 self._armed[pid] = None
-                if t > due:
-                    self.run_delay_ns[pid] += int((t - due) * NS)
                 party.on_timer(t)
             self._flush(pid, t)
             if not party.closed:
