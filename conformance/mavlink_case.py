@@ -220,6 +220,24 @@ class MavlinkCaseContext(CaseBase):
                                min(gap, max(0.0, end - time.monotonic())))
         return [r.msg for r in self.from_vehicle(since, "PARAM_VALUE")]
 
+    def raw_fields(self, r: Received) -> dict[str, Any]:
+        """A frame's fields as its bytes hold them (char arrays as bytes, before any NUL is
+        cut), by the dialect's layout of its message (the payload padded to its full size)."""
+        cls = type(r.msg)
+        payload = r.raw[10:10 + r.raw[1]] if r.version == 2 else r.raw[6:6 + r.raw[1]]
+        payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
+        return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
+
+    def capabilities(self) -> int | None:
+        """AUTOPILOT_VERSION.capabilities, asked for with MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES
+        once a run; None when the vehicle sends none."""
+        got = self.from_vehicle(0.0, "AUTOPILOT_VERSION")
+        if not got:
+            since = self.command_long(DIALECT.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1)
+            self.link.wait_for(lambda: bool(self.from_vehicle(since, "AUTOPILOT_VERSION")), self.ack_max)
+            got = self.from_vehicle(0.0, "AUTOPILOT_VERSION")
+        return int(got[-1].msg.capabilities) if got else None
+
     def command_name(self, command: int) -> str:
         entry = DIALECT.enums["MAV_CMD"].get(command)
         return entry.name if entry is not None else f"command {command}"

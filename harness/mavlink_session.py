@@ -270,12 +270,20 @@ class MavlinkSession(SessionBase):
     def start(self, **_: Any) -> None:
         if self.spawned:
             self._spawn()
-        else:
-            self._open()
+        else:  # attached: a TCP vehicle that is not listening yet is waited for (--startup-timeout)
+            end = time.monotonic() + float(self.cfg.extra.get("startup_timeout", 0.0))
+            while True:
+                try:
+                    self._open()
+                    break
+                except SetupError:
+                    if time.monotonic() >= end:
+                        raise
+                    time.sleep(0.2)
         how = " (spawned)" if self.cfg.spawn else (" (embedded reference vehicle)" if self.spawned else "")
         self.target_desc = self.url + how
-        self._await_heartbeat(max(SPAWN_STARTUP_S, 10.0) if self.spawned
-                              else float(self.params["heartbeat_gap_max_s"]))
+        # the first HEARTBEAT's delay is MAV-HB-1's to judge; the wait is --startup-timeout's
+        self._await_heartbeat(float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S)))
 
     def _open(self) -> None:
         try:
@@ -348,9 +356,17 @@ class MavlinkSession(SessionBase):
         return self.node.alive() if self.node is not None else True
 
     # -- case API -------------------------------------------------------------------------
+    def before_case(self) -> None:
+        """An attached vehicle that closed the TCP link is lost: the run's cases end (TargetLost)."""
+        link = self.link
+        if link is not None and link.closed_at is not None and not self.spawned and self.lost is None:
+            self.lost = f"the vehicle at {self.url} closed the link"
+        super().before_case()
+
     def case_ended(self, ctx: Any, outcome: str) -> None:
-        """A spawned vehicle that died is started afresh, with a new link, for the next case."""
-        if self.node is None or self.node.alive():
+        """A spawned vehicle that died, or closed the link, is started afresh, with a new
+        link, for the next case."""
+        if self.node is None or (self.node.alive() and (self.link is None or self.link.closed_at is None)):
             return
         self.close()
         self.restarts += 1

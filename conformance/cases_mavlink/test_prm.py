@@ -5,6 +5,8 @@ to the value it already has: the vehicle under test is left as it was."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from mcp_conform.conformance.marks import rules
@@ -73,16 +75,59 @@ def test_read_by_name(node, table):
                              f"after PARAM_REQUEST_READ of {name!r}, its PARAM_VALUE within {node.reply_max:g} s")
 
 
-@rules("MAV-PRM-5")
+@rules("MAV-PRM-5", "MAV-PRM-6")
 def test_read_by_index(node, table):
     """MAV-PRM-5: PARAM_REQUEST_READ by index answered with that param_index (param_id
-    ignored: the runner sends a name no vehicle has)."""
+    ignored: the runner sends a name no vehicle has); MAV-PRM-6: the name the list gave it."""
     index, entry = _entry(node, table)
     since = node.send("PARAM_REQUEST_READ", target_system=node.sysid, target_component=node.compid,
                       param_id=UNKNOWN_PARAM.encode(), param_index=index)
-    node.expect_param_values(since, lambda m: m.param_index == index and param_id(m) == param_id(entry),
-                             "MAV-PRM-5", f"after PARAM_REQUEST_READ of index {index}, the PARAM_VALUE of "
-                             f"index {index} ({param_id(entry)!r})")
+    got = node.expect_param_values(since, lambda m: m.param_index == index, "MAV-PRM-5",
+                                   f"after PARAM_REQUEST_READ of index {index}, the PARAM_VALUE of index {index}")
+    node.expect_true(param_id(got[0].msg) == param_id(entry), "MAV-PRM-6",
+                     f"index {index} named {param_id(entry)!r}, as the list gave it", repr(param_id(got[0].msg)))
+
+
+@rules("MAV-PRM-9", "MAV-PRM-10")
+def test_names_and_types_of_the_list(node, table):
+    """MAV-PRM-9: each param_id (read from the frame's bytes by the dialect's layout) is
+    printable ASCII up to its NUL, at most 16 characters; MAV-PRM-10: param_type a
+    MAV_PARAM_TYPE value, one per name in every PARAM_VALUE of the run, and an integer type's
+    value an integer in its range when the vehicle says it casts (AUTOPILOT_VERSION's
+    MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST; bytewise values are not judged)."""
+    if not table.get("values"):
+        _listed(node, table)
+    values = node.from_vehicle(0.0, "PARAM_VALUE")
+
+    def name_problem(r):
+        raw = node.raw_fields(r)["param_id"]
+        name = raw.split(b"\0", 1)[0]
+        if not name or not all(0x20 < b < 0x7F for b in name):
+            return f"param_id {raw!r}"
+        return None
+    node.expect_frames(values, name_problem, "MAV-PRM-9", "param_id printable ASCII up to its NUL, 1..16 characters")
+    types = {v: e.name for v, e in node.mav.enums["MAV_PARAM_TYPE"].items() if not e.name.endswith("_ENUM_END")}
+    caps = node.capabilities()
+    cast = caps is not None and bool(caps & node.mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+    seen: dict[str, int] = {}
+
+    def type_problem(r):
+        m = r.msg
+        t, name = m.param_type, param_id(m)
+        if t not in types:
+            return f"{name}: param_type {t} is no MAV_PARAM_TYPE"
+        if seen.setdefault(name, t) != t:
+            return f"{name}: param_type {types[t]}, earlier {types[seen[name]]}"
+        bits = re.fullmatch(r"MAV_PARAM_TYPE_(U?)INT(\d+)", types[t])
+        if cast and bits:
+            lo, hi = (0, 2 ** int(bits[2]) - 1) if bits[1] else (-(2 ** (int(bits[2]) - 1)), 2 ** (int(bits[2]) - 1) - 1)
+            if m.param_value != int(m.param_value) or not lo <= m.param_value <= hi:
+                return f"{name}: {types[t]} value {m.param_value!r}"
+        return None
+    node.expect_frames(values, type_problem, "MAV-PRM-10",
+                       "param_type a MAV_PARAM_TYPE, one per parameter, an integer type's value an integer in range")
+    if not cast:
+        node.info("MAV-PRM-10: the vehicle does not say it casts integers to floats: their values are not judged")
 
 
 @rules("MAV-PRM-7", "MAV-PRM-8")

@@ -9,7 +9,8 @@ MAV-HB-11 to see); the runner's frames go through as they came unless a fault re
 Faults: none (the proxy alone), no-unsupported-ack (a COMMAND_ACK with MAV_RESULT_UNSUPPORTED
 is dropped: MAV-CMD-5), autopilot-invalid (HEARTBEAT.autopilot MAV_AUTOPILOT_INVALID:
 MAV-HB-3), double-ack (every COMMAND_ACK twice: MAV-CMD-3), acts-for-other-system (a
-command for another system is handed to the vehicle as its own: MAV-CMD-14).
+command for another system is handed to the vehicle as its own: MAV-CMD-14), bad-param-type
+(every PARAM_VALUE's param_type MAV_PARAM_TYPE_ENUM_END, no type: MAV-PRM-10).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "no-unsupported-ack", "autopilot-invalid", "double-ack", "acts-for-other-system")
+FAULTS = ("none", "no-unsupported-ack", "autopilot-invalid", "double-ack", "acts-for-other-system", "bad-param-type")
 VEHICLE_SYSID = 1
 
 
@@ -39,6 +40,8 @@ def from_vehicle(msg, fault):
         msg.autopilot = mav.MAV_AUTOPILOT_INVALID
     if fault == "double-ack" and name == "COMMAND_ACK":
         return [msg, msg]
+    if fault == "bad-param-type" and name == "PARAM_VALUE":
+        msg.param_type = max(mav.enums["MAV_PARAM_TYPE"])  # MAV_PARAM_TYPE_ENUM_END: no type
     return [msg]
 
 

@@ -93,6 +93,7 @@ FAULTS = {
     "double-ack": ("MAV-CMD-3", {"CMD/test_command_long_gets_one_ack", "CMD/test_command_int_gets_one_ack",
                                  "CMD/test_retransmission_is_answered_again"}),
     "acts-for-other-system": ("MAV-CMD-14", {"CMD/test_command_for_another_system_is_left_alone"}),
+    "bad-param-type": ("MAV-PRM-10", {"PRM/test_names_and_types_of_the_list"}),
 }
 
 
