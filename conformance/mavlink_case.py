@@ -238,6 +238,98 @@ class MavlinkCaseContext(CaseBase):
             got = self.from_vehicle(0.0, "AUTOPILOT_VERSION")
         return int(got[-1].msg.capabilities) if got else None
 
+    # -- the mission protocol ---------------------------------------------------------------
+    def plan(self, n: int = 4) -> list[dict[str, Any]]:
+        """``n`` MISSION_ITEM_INT fields (seq 0 a waypoint, as ArduPilot's home; then a takeoff
+        and waypoints 20 m apart), around the vehicle's GLOBAL_POSITION_INT, degE7 in a global
+        relative-altitude integer frame."""
+        pos = [r.msg for r in self.from_vehicle(0.0, "GLOBAL_POSITION_INT") if r.msg.lat or r.msg.lon]
+        lat, lon = (pos[-1].lat, pos[-1].lon) if pos else (473977420, 85455940)
+        items = []
+        for seq in range(n):
+            cmd = DIALECT.MAV_CMD_NAV_TAKEOFF if seq == 1 else DIALECT.MAV_CMD_NAV_WAYPOINT
+            items.append({"seq": seq, "frame": DIALECT.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, "command": cmd,
+                          "current": 0, "autocontinue": 1, "param1": float(seq), "param2": 0.0, "param3": 0.0,
+                          "param4": 0.0, "x": lat + 1800 * seq, "y": lon, "z": 10.0 + seq,
+                          "mission_type": DIALECT.MAV_MISSION_TYPE_MISSION})
+        return items
+
+    def mission_replies(self, since: float) -> list[Received]:
+        return [r for r in self.from_vehicle(since) if r.name in ("MISSION_REQUEST_INT", "MISSION_REQUEST",
+                                                                    "MISSION_ACK")]
+
+    def upload(self, items: list[dict[str, Any]], *, withhold: int | None = None) -> list[Received]:
+        """Upload ``items``: MISSION_COUNT, then each item the vehicle asks for, until its
+        MISSION_ACK or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10
+        answers); ``withhold``: that seq's first request goes unanswered. The vehicle's
+        requests and ACK, in order."""
+        wait = float(self.params["mission_reply_max_s"])
+        if withhold is not None:
+            wait = max(wait, float(self.params["mission_rerequest_max_s"]))
+        since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
+                          count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
+        done = 0
+        for _ in range(3 * len(items) + 10):
+            if not self.link.wait_for(lambda done=done: len(self.mission_replies(since)) > done, wait):
+                break
+            reply = self.mission_replies(since)[done]
+            done += 1
+            if reply.name == "MISSION_ACK":
+                break
+            seq = reply.msg.seq
+            if withhold == seq:
+                withhold = None
+                continue
+            if 0 <= seq < len(items):
+                self.send("MISSION_ITEM_INT", target_system=self.sysid, target_component=self.compid,
+                          **{k: v for k, v in items[seq].items()})
+        return self.mission_replies(since)
+
+    def download(self) -> tuple[int | None, list[Any]]:
+        """Download the mission: MISSION_REQUEST_LIST, then MISSION_REQUEST_INT for each seq,
+        then MISSION_ACK; (the count, or None when no MISSION_COUNT came; the items that came)."""
+        wait = float(self.params["mission_reply_max_s"])
+        since = self.send("MISSION_REQUEST_LIST", target_system=self.sysid, target_component=self.compid,
+                          mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
+        if not self.link.wait_for(lambda: bool(self.from_vehicle(since, "MISSION_COUNT")), wait):
+            return None, []
+        count = int(self.from_vehicle(since, "MISSION_COUNT")[0].msg.count)
+        items = []
+        for seq in range(count):
+            t = self.send("MISSION_REQUEST_INT", target_system=self.sysid, target_component=self.compid, seq=seq,
+                          mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
+            def got(t: float = t, seq: int = seq) -> list[Received]:
+                return [r for r in self.from_vehicle(t)
+                        if r.name in ("MISSION_ITEM_INT", "MISSION_ITEM") and r.msg.seq == seq]
+            if not self.link.wait_for(lambda: bool(got()), wait):
+                break
+            items.append(got()[0].msg)
+        self.send("MISSION_ACK", target_system=self.sysid, target_component=self.compid,
+                  type=DIALECT.MAV_MISSION_ACCEPTED, mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
+        return count, items
+
+    def expect_upload(self, replies: list[Received], count: int, rule: str = "MAV-MIS-1",
+                      order_rule: str = "MAV-MIS-2", rerequested: int | None = None) -> None:
+        """An upload of ``count`` items as MAV-MIS-1 has it: requests 0..count-1, each for the
+        next seq (MAV-MIS-2: in order, none past the end, none again but ``rerequested``'s
+        re-request), then MISSION_ACK MAV_MISSION_ACCEPTED with the mission's mission_type."""
+        seqs = [r.msg.seq for r in replies if r.name != "MISSION_ACK"]
+        acks = [r for r in replies if r.name == "MISSION_ACK"]
+        want = list(range(count))
+        if rerequested is not None:
+            want.insert(rerequested + 1, rerequested)
+        shown = [f"{r.name} {r.msg.seq if r.name != 'MISSION_ACK' else result_name_mission(r.msg.type)}"
+                 for r in replies]
+        if seqs != want[:len(seqs)] or any(s >= count for s in seqs):
+            raise self.fail(order_rule, f"requests for seq {want}", f"requests for seq {seqs}", shown)
+        if not acks or acks[0].msg.type != DIALECT.MAV_MISSION_ACCEPTED or seqs != want:
+            got = f"MISSION_ACK {result_name_mission(acks[0].msg.type)}" if acks else "no MISSION_ACK"
+            raise self.fail(rule, f"requests for seq {want}, then MISSION_ACK MAV_MISSION_ACCEPTED",
+                            f"requests for seq {seqs}, {got}", shown)
+        if acks[0].msg.mission_type != DIALECT.MAV_MISSION_TYPE_MISSION:
+            raise self.fail(rule, "MISSION_ACK.mission_type MAV_MISSION_TYPE_MISSION",
+                            f"mission_type {acks[0].msg.mission_type}", shown)
+
     def command_name(self, command: int) -> str:
         entry = DIALECT.enums["MAV_CMD"].get(command)
         return entry.name if entry is not None else f"command {command}"
@@ -246,6 +338,11 @@ class MavlinkCaseContext(CaseBase):
     def gcs(self) -> tuple[int, int]:
         """The runner's own system and component IDs."""
         return GCS_SYSID, GCS_COMPID
+
+
+def result_name_mission(value: int) -> str:
+    entry = DIALECT.enums["MAV_MISSION_RESULT"].get(value)
+    return entry.name if entry is not None else f"{value} (no MAV_MISSION_RESULT)"
 
 
 def param_id(msg: Any) -> str:

@@ -7,10 +7,12 @@ MAV-HB-11 to see); the runner's frames go through as they came unless a fault re
     python tests/mavlink/faulty_vehicle.py --listen HOST:PORT --fault NAME [--duration S]
 
 Faults: none (the proxy alone), no-unsupported-ack (a COMMAND_ACK with MAV_RESULT_UNSUPPORTED
-is dropped: MAV-CMD-5), autopilot-invalid (HEARTBEAT.autopilot MAV_AUTOPILOT_INVALID:
-MAV-HB-3), double-ack (every COMMAND_ACK twice: MAV-CMD-3), acts-for-other-system (a
-command for another system is handed to the vehicle as its own: MAV-CMD-14), bad-param-type
-(every PARAM_VALUE's param_type MAV_PARAM_TYPE_ENUM_END, no type: MAV-PRM-10).
+is dropped: MAV-CMD-5), type-gcs (HEARTBEAT.type MAV_TYPE_GCS: MAV-HB-3; MAV_AUTOPILOT_INVALID
+would also make its ArduPilot item 0 count against MAV-MIS-9, E-3), double-ack (every
+COMMAND_ACK twice: MAV-CMD-3), acts-for-other-system (a command for another system is handed
+to the vehicle as its own: MAV-CMD-14), bad-param-type (every PARAM_VALUE's param_type
+MAV_PARAM_TYPE_ENUM_END, no type: MAV-PRM-10), download-param1 (every MISSION_ITEM_INT the
+vehicle sends with param1 one more: MAV-MIS-9).
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "no-unsupported-ack", "autopilot-invalid", "double-ack", "acts-for-other-system", "bad-param-type")
+FAULTS = ("none", "no-unsupported-ack", "type-gcs", "double-ack", "acts-for-other-system", "bad-param-type",
+          "download-param1")
 VEHICLE_SYSID = 1
 
 
@@ -36,10 +39,12 @@ def from_vehicle(msg, fault):
     name = msg.get_type()
     if fault == "no-unsupported-ack" and name == "COMMAND_ACK" and msg.result == mav.MAV_RESULT_UNSUPPORTED:
         return []
-    if fault == "autopilot-invalid" and name == "HEARTBEAT":
-        msg.autopilot = mav.MAV_AUTOPILOT_INVALID
+    if fault == "type-gcs" and name == "HEARTBEAT":
+        msg.type = mav.MAV_TYPE_GCS
     if fault == "double-ack" and name == "COMMAND_ACK":
         return [msg, msg]
+    if fault == "download-param1" and name == "MISSION_ITEM_INT":
+        msg.param1 += 1.0
     if fault == "bad-param-type" and name == "PARAM_VALUE":
         msg.param_type = max(mav.enums["MAV_PARAM_TYPE"])  # MAV_PARAM_TYPE_ENUM_END: no type
     return [msg]

@@ -50,7 +50,7 @@ def test_reference_vehicle_passes_every_case(tmp_path, transport):
     assert doc["role"] == "vehicle" and doc["spec"]["protocol"] == "MAV"
     assert {c["outcome"] for c in doc["cases"]} == {"passed"}, out
     assert {r for r, o in doc["rules"].items() if o == "passed"} >= {"MAV-HB-1", "MAV-CMD-1", "MAV-CMD-5",
-                                                                      "MAV-PRM-1"}
+                                                                      "MAV-PRM-1", "MAV-MIS-1", "MAV-MIS-9"}
     from mcap.reader import make_reader
 
     with open(tmp_path / "run.mcap", "rb") as fh:
@@ -89,11 +89,12 @@ def test_reference_vehicle_acts_on_a_command_for_another_component(tmp_path):
 
 FAULTS = {
     "no-unsupported-ack": ("MAV-CMD-5", {"CMD/test_unknown_command_is_unsupported"}),
-    "autopilot-invalid": ("MAV-HB-3", {"HB/test_heartbeat_names_a_vehicle_and_its_flight_stack"}),
+    "type-gcs": ("MAV-HB-3", {"HB/test_heartbeat_names_a_vehicle_and_its_flight_stack"}),
     "double-ack": ("MAV-CMD-3", {"CMD/test_command_long_gets_one_ack", "CMD/test_command_int_gets_one_ack",
                                  "CMD/test_retransmission_is_answered_again"}),
     "acts-for-other-system": ("MAV-CMD-14", {"CMD/test_command_for_another_system_is_left_alone"}),
     "bad-param-type": ("MAV-PRM-10", {"PRM/test_names_and_types_of_the_list"}),
+    "download-param1": ("MAV-MIS-9", {"MIS/test_download_is_the_upload"}),
 }
 
 
