@@ -102,7 +102,7 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=600.0)
     ns = p.parse_args()
     host, port = ns.listen.rsplit(":", 1)
-    vport = free_port()
+    vport = free_port(kind=socket.SOCK_STREAM)
     vehicle = subprocess.Popen([sys.executable, "-m", "mcp_conform.vehicle", "-q", "--listen", f"127.0.0.1:{vport}",
                                 "--sysid", str(VEHICLE_SYSID), "--duration", str(ns.duration)])
     server = socket.create_server((host, int(port)))

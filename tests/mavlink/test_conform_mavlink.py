@@ -12,6 +12,7 @@ route to), where mavlink.io's routing page has only matching IDs and broadcasts 
 from __future__ import annotations
 
 import json
+import socket
 import sys
 from pathlib import Path
 
@@ -62,7 +63,7 @@ def test_attached_vehicle_passes(tmp_path):
     """A vehicle the runner did not start, reached at tcp:HOST:PORT (SITL's way)."""
     import subprocess
 
-    port = free_port()
+    port = free_port(kind=socket.SOCK_STREAM)
     vehicle = subprocess.Popen([sys.executable, "-m", "mcp_conform.vehicle", "-q", "--listen",
                                 f"127.0.0.1:{port}", "--duration", "200"])
     try:
@@ -113,3 +114,15 @@ def test_each_faulty_vehicle_fails_its_rule_and_no_other(tmp_path, fault):
     assert rules == {rule} and cases == want, out
     case = next(c for c in doc["cases"] if c["id"] in want)
     assert case["failed_rule"] == rule and case["expected"] and case["actual"], case
+
+
+@pytest.mark.parametrize(("target", "says"), [
+    ("ftp:127.0.0.1:5760", "'ftp' is not one of tcp, udp, udpin, udpout"),
+    ("udp:127.0.0.1:{port}", "no HEARTBEAT from the vehicle within 1 s (MAV-HB-1)"),
+])
+def test_a_target_that_cannot_be_judged_is_one_line_exit_2(tmp_path, target, says):
+    """A scheme pymavlink has not, and a UDP link nothing sends on: exit 2, the reason in one
+    line, the JSON report written with it."""
+    rc, doc, out = run(tmp_path, "--target", target.format(port=free_port()),
+                       "--startup-timeout", "1")
+    assert rc == 2 and says in doc["error"] and "Traceback" not in out, out
