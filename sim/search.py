@@ -132,11 +132,15 @@ class Stats:
 
 
 def sweep(n: int, seed: int, faults: tuple[str | None, ...] = (None, *FAULTS),
-          on_failure: Callable[[Schedule, list[Problem]], None] | None = None) -> Stats:
-    """``n`` schedules drawn from ``seed``, the fault models in turn, each run, judged, checked."""
+          on_failure: Callable[[Schedule, list[Problem]], None] | None = None,
+          stop: Callable[[], bool] | None = None) -> Stats:
+    """``n`` schedules drawn from ``seed``, the fault models in turn, each run, judged, checked
+    (``stop()`` true: no more; a caller's wall-time bound, the schedules the same first ones)."""
     rng = random.Random(seed)
     st = Stats()
     for i in range(n):
+        if stop is not None and stop():
+            break
         fault = faults[i % len(faults)]
         s = draw_schedule(rng, fault)
         o = run_schedule(s)
@@ -225,11 +229,12 @@ def digest(o: Outcome) -> str:
 
 
 def save_seed(path: Path, s: Schedule, problems: list[Problem], *, reason: str, xfail: bool,
-              explain_reason: str | None = None) -> None:
+              explain_reason: str | None = None, open_reason: str | None = None) -> None:
     """A regression seed: the schedule, what was found, why (``reason``: the monitor's false
     verdict, ``xfail``: the monitor's test is its strict xfail; ``explain_reason``: so is
     judge.explain's), the failures judge.explain's veto dropped (``vetoed``: what the monitor
-    without the veto said), and the digest its replay must give."""
+    without the veto said), ``open_reason``: a false verdict on a correct party the judge still
+    gives (``open``, a strict xfail too), and the digest its replay must give."""
     o = run_schedule(s)
     doc: dict[str, Any] = {"schedule": s.to_json(), "found": [p.text() for p in problems], "reason": reason,
                            "xfail": xfail, "digest": digest(o)}
@@ -239,6 +244,8 @@ def save_seed(path: Path, s: Schedule, problems: list[Problem], *, reason: str, 
         doc["vetoed"] = vetoed
     if explain_reason:
         doc["explain_reason"] = explain_reason
+    if open_reason:
+        doc["open"] = open_reason
     path.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
