@@ -10,7 +10,9 @@ Faults: none (the proxy alone), no-unsupported-ack (a COMMAND_ACK with MAV_RESUL
 is dropped: MAV-CMD-5), type-gcs (HEARTBEAT.type MAV_TYPE_GCS: MAV-HB-3; MAV_AUTOPILOT_INVALID
 would also make its ArduPilot item 0 count against MAV-MIS-9, E-3), double-ack (every
 COMMAND_ACK twice: MAV-CMD-3), acts-for-other-system (a command for another system is handed
-to the vehicle as its own: MAV-CMD-14), bad-param-type (every PARAM_VALUE's param_type
+to the vehicle as its own: MAV-CMD-14), acts-for-other-component (a command for another
+component of the vehicle's system is handed to the vehicle as its own, as ArduPilot 4.x's
+``MAVLink_routing`` processes one it has no route for: MAV-CMD-14), bad-param-type (every PARAM_VALUE's param_type
 MAV_PARAM_TYPE_ENUM_END, no type: MAV-PRM-10), download-param1 (every MISSION_ITEM_INT the
 vehicle sends with param1 one more: MAV-MIS-9).
 """
@@ -29,9 +31,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "no-unsupported-ack", "type-gcs", "double-ack", "acts-for-other-system", "bad-param-type",
-          "download-param1")
+FAULTS = ("none", "no-unsupported-ack", "type-gcs", "double-ack", "acts-for-other-system",
+          "acts-for-other-component", "bad-param-type", "download-param1")
 VEHICLE_SYSID = 1
+VEHICLE_COMPID = mav.MAV_COMP_ID_AUTOPILOT1
 
 
 def from_vehicle(msg, fault):
@@ -52,11 +55,14 @@ def from_vehicle(msg, fault):
 
 def from_runner(msg, raw, fault):
     """The bytes the proxy hands the vehicle for one frame of the runner."""
-    if (fault == "acts-for-other-system" and msg.get_type() in ("COMMAND_LONG", "COMMAND_INT")
-            and msg.target_system not in (0, VEHICLE_SYSID)):
+    command = msg.get_type() in ("COMMAND_LONG", "COMMAND_INT")
+    other_system = fault == "acts-for-other-system" and command and msg.target_system not in (0, VEHICLE_SYSID)
+    other_component = (fault == "acts-for-other-component" and command and msg.target_system == VEHICLE_SYSID
+                       and msg.target_component not in (0, VEHICLE_COMPID))
+    if other_system or other_component:
         enc = mav.MAVLink(None, srcSystem=msg.get_srcSystem(), srcComponent=msg.get_srcComponent())
         enc.seq = msg.get_seq()
-        msg.target_system = VEHICLE_SYSID
+        msg.target_system, msg.target_component = VEHICLE_SYSID, VEHICLE_COMPID
         return bytes(msg.pack(enc))
     return raw
 

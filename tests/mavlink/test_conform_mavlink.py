@@ -3,11 +3,11 @@ vehicle (``mcp-vehicle``) passes every case over TCP and UDP, spawned by the run
 attached; each faulty vehicle (tests/mavlink/faulty_vehicle.py: the reference vehicle behind a
 proxy that changes one thing) fails exactly the rule of its fault and no other.
 
-One case is left out of the pass and fault runs: MAV-CMD-14's command for another component
-of the vehicle's system. Our vehicle acts on it, as ArduPilot 4.x does (MAVLink_routing.cpp:
-``if (!forwarded && match_system) { process_locally = true; }`` for a component it has no
-route to), where mavlink.io's routing page has only matching IDs and broadcasts processed;
-:func:`test_reference_vehicle_acts_on_a_command_for_another_component` pins that finding."""
+MAV-CMD-14's command for another component of the vehicle's system: mavlink.io's routing page
+has only matching IDs and broadcasts processed, and our vehicle leaves it alone; ArduPilot
+4.x acts on it (MAVLink_routing.cpp: ``if (!forwarded && match_system) { process_locally =
+true; }`` for a component it has no route to), which the fault ``acts-for-other-component``
+plays."""
 
 from __future__ import annotations
 
@@ -24,7 +24,6 @@ from tests.forkserver import run_module
 pytestmark = pytest.mark.slow
 
 FAULTY = Path(__file__).with_name("faulty_vehicle.py")
-COMPONENT_CASE = "CMD/test_command_for_another_component_is_left_alone"
 
 
 def run(tmp_path: Path, *args: str, timeout: float = 240) -> tuple[int, dict, str]:
@@ -44,8 +43,7 @@ def failed(doc: dict) -> tuple[set[str], set[str]]:
 @pytest.mark.parametrize("transport", ["tcp", "udp", "udpout"])
 def test_reference_vehicle_passes_every_case(tmp_path, transport):
     """The embedded reference vehicle over each transport: every case passes, none skipped."""
-    rc, doc, out = run(tmp_path, "--mavlink", transport, "--exclude", COMPONENT_CASE,
-                       "--capture", str(tmp_path / "run.mcap"))
+    rc, doc, out = run(tmp_path, "--mavlink", transport, "--capture", str(tmp_path / "run.mcap"))
     assert rc == 0, out
     assert failed(doc) == (set(), set()), out
     assert doc["role"] == "vehicle" and doc["spec"]["protocol"] == "MAV"
@@ -68,24 +66,12 @@ def test_attached_vehicle_passes(tmp_path):
                                 f"127.0.0.1:{port}", "--duration", "200"])
     try:
         rc, doc, out = run(tmp_path, "--target", f"tcp:127.0.0.1:{port}", "--startup-timeout", "10",
-                           "--select", "HB", "CMD", "--exclude", COMPONENT_CASE)
+                           "--select", "HB", "CMD")
         assert rc == 0 and failed(doc) == (set(), set()), out
         assert doc["target"].startswith("tcp:127.0.0.1:"), doc["target"]
     finally:
         vehicle.terminate()
         vehicle.wait(10)
-
-
-def test_reference_vehicle_acts_on_a_command_for_another_component(tmp_path):
-    """The finding the pass runs leave out (see the module's docstring): MAV-CMD-14 names it,
-    with the ACK as evidence."""
-    rc, doc, out = run(tmp_path, "--select", "MAV-CMD-14")
-    assert rc == 1, out
-    case = next(c for c in doc["cases"] if c["id"] == COMPONENT_CASE)
-    assert case["outcome"] == "failed" and case["failed_rule"] == "MAV-CMD-14", case
-    assert "COMMAND_ACK" in case["actual"] and "MAV-CMD-14" in out and "another of its components" in out
-    other = next(c for c in doc["cases"] if c["id"] != COMPONENT_CASE)
-    assert other["outcome"] == "passed", other
 
 
 FAULTS = {
@@ -94,6 +80,7 @@ FAULTS = {
     "double-ack": ("MAV-CMD-3", {"CMD/test_command_long_gets_one_ack", "CMD/test_command_int_gets_one_ack",
                                  "CMD/test_retransmission_is_answered_again"}),
     "acts-for-other-system": ("MAV-CMD-14", {"CMD/test_command_for_another_system_is_left_alone"}),
+    "acts-for-other-component": ("MAV-CMD-14", {"CMD/test_command_for_another_component_is_left_alone"}),
     "bad-param-type": ("MAV-PRM-10", {"PRM/test_names_and_types_of_the_list"}),
     "download-param1": ("MAV-MIS-9", {"MIS/test_download_is_the_upload"}),
 }
@@ -104,7 +91,7 @@ def test_each_faulty_vehicle_fails_its_rule_and_no_other(tmp_path, fault):
     """The whole suite against the reference vehicle behind the proxy: no fault, no failure;
     each fault, its rule's cases and nothing else, the rule's text in the terminal report."""
     spawn = f"{sys.executable} {FAULTY} --listen {{target_host}}:{{target_port}} --fault {fault} --duration 200"
-    rc, doc, out = run(tmp_path, "--spawn", spawn, "--exclude", COMPONENT_CASE)
+    rc, doc, out = run(tmp_path, "--spawn", spawn)
     rules, cases = failed(doc)
     if fault == "none":
         assert rc == 0 and (rules, cases) == (set(), set()), out
