@@ -56,8 +56,9 @@ SUBCOMMANDS: list[str] = ["mcp_conform.captures.check", "mcp_conform.captures.sh
 
 def add_protocol_option(p: argparse.ArgumentParser) -> None:
     """``--protocol``, as every subcommand that reads a capture takes it."""
-    profiles.add_protocol_option(p, f"read the capture as this protocol's traffic ({', '.join(PROFILES)}; "
-                                    "default: as its first records show)")
+    profiles.add_protocol_option(p, f"read the capture as this protocol's traffic "
+                                    f"({', '.join(profiles.having('capture_tools'))}; default: as its first "
+                                    "records show)", needs="capture_tools")
 
 
 class CaptureTools(Protocol):

@@ -474,8 +474,9 @@ def register(sub: Any) -> None:
     p.add_argument("--mavlink", metavar="FILE", dest="mavlink_output",
                    help=f"also write the MAVLink dissector (pymavlink's mavgen --lang=WLua) to FILE; "
                         f"--install writes it as {dm.FILENAME}")
-    add_protocol_option(p, "mcp (default: centmesh.lua) or nsqd (nsqd.lua, the Nsqd TCP protocol): the "
-                           "dissector its profile names", default=DEFAULT_PROTOCOL)
+    add_protocol_option(p, "mcp (default: centmesh.lua), nsqd (nsqd.lua, the Nsqd TCP protocol) or mavlink "
+                           f"({dm.FILENAME}, pymavlink's mavgen --lang=WLua): the dissector its profile names",
+                        default=DEFAULT_PROTOCOL, needs="dissector")
     p.set_defaults(run=run)
 
 

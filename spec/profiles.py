@@ -22,8 +22,8 @@ from typing import Any
 
 from mcp_conform.spec import MAVLINK, NSQD, SPEC, SpecBase
 
-__all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
-           "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
+__all__ = ["DEFAULT_PROTOCOL", "PIECES", "PROFILES", "ProfileError", "Profile", "RoleProfile",
+           "add_protocol_option", "having", "pick", "pick_having", "profile_of_role", "resolve", "ROLE_NAMES"]
 
 DEFAULT_PROTOCOL = "mcp"
 
@@ -158,7 +158,7 @@ NSQD_PROFILE = Profile(
 #: reference vehicle is ``mcp-vehicle``; no fuzz campaign, capture tools or dissector yet.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
-    monitor=None, dissector=None, capture_detect=None, capture_tools=None,
+    monitor=None, dissector="mcp_conform.captures.dissector_mavlink", capture_detect=None, capture_tools=None,
     mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.vehicle.cli",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
                        context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",
@@ -192,23 +192,50 @@ def pick(protocol: str | None = None, role: str | None = None) -> tuple[Profile,
     return prof, prof.role(role)
 
 
+#: what each piece a tool may need is called in a person's words (:func:`add_protocol_option`)
+PIECES = {"capture_tools": "capture tools", "dissector": "Wireshark dissector",
+          "fuzz_campaign": "fuzz campaign", "monitor": "trace monitor"}
+
+
+def having(piece: str | None) -> tuple[str, ...]:
+    """The protocols whose profile has ``piece`` (None: every protocol)."""
+    return tuple(name for name, p in PROFILES.items() if piece is None or getattr(p, piece) is not None)
+
+
+def pick_having(protocol: str | None, piece: str | None) -> Profile:
+    """:func:`pick`'s profile, which must have ``piece``; ProfileError (one line) naming the
+    protocols that do."""
+    prof = pick(protocol)[0]
+    if piece is not None and getattr(prof, piece) is None:
+        raise ProfileError(f"{prof.name!r} has no {PIECES.get(piece, piece)} yet "
+                           f"(protocols with one: {', '.join(having(piece))})")
+    return prof
+
+
 class _ProtocolOption(argparse.Action):
-    """``--protocol NAME`` checked by :func:`pick`: an unknown name is the same one line in
-    every tool (``PROG: error: --protocol: 'x' is not one of mcp, nsqd``)."""
+    """``--protocol NAME`` checked by :func:`pick_having`: an unknown name, or a protocol
+    without the piece the tool needs, is the same one line in every tool (``PROG: error:
+    --protocol: 'x' is not one of mcp, nsqd, mavlink``)."""
+
+    def __init__(self, *args: Any, needs: str | None = None, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.needs = needs
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
         try:
-            pick(values)
+            pick_having(values, self.needs)
         except ProfileError as exc:
             parser.error(f"{option_string}: {exc}")
         setattr(namespace, self.dest, values)
 
 
-def add_protocol_option(parser: Any, help: str, default: str | None = None) -> None:
-    """``--protocol`` as every tool takes it: one of :data:`PROFILES`, picked by :func:`pick`."""
-    parser.add_argument("--protocol", action=_ProtocolOption, default=default, metavar="|".join(PROFILES),
-                        help=help)
+def add_protocol_option(parser: Any, help: str, default: str | None = None, needs: str | None = None) -> None:
+    """``--protocol`` as every tool takes it: one of :data:`PROFILES` that has the profile
+    field ``needs`` (the piece the tool works with: ``capture_tools``, ``dissector``,
+    ``fuzz_campaign``), checked by :func:`pick_having`."""
+    parser.add_argument("--protocol", action=_ProtocolOption, default=default, metavar="|".join(having(needs)),
+                        help=help, needs=needs)
 
 
 def resolve(path: str | None) -> Any:
@@ -216,7 +243,8 @@ def resolve(path: str | None) -> Any:
     profile's name of a thing on a higher floor, imported by the floor that asks for it.
     None (a piece the protocol does not have yet): ProfileError."""
     if path is None:
-        raise ProfileError("this protocol has no such piece yet (spec.profiles)")
+        raise ProfileError("this protocol has no such piece yet (spec.profiles: the tool should ask "
+                           "pick_having first)")
     module, _, attr = path.partition(":")
     mod = importlib.import_module(module)
     return getattr(mod, attr) if attr else mod

@@ -74,3 +74,31 @@ def test_a_node_id_names_its_role():
     mcp = PROFILES["mcp"]
     assert [mcp.role_of_id(i).name for i in (0, 1, 7)] == ["manager", "drone", "drone"]
     assert mcp.role(mcp.role("drone").peer).fixed_id == 0 and mcp.role("drone").fixed_id is None
+
+
+@pytest.mark.parametrize(("argv", "says"), [
+    (["check", "x.mcap", "--protocol", "mavlink"], "check: --protocol: 'mavlink' has no capture tools yet"),
+    (["show", "x.mcap", "--protocol", "mavlink"], "show: --protocol: 'mavlink' has no capture tools yet"),
+    (["dissector", "--protocol", "nope"], "dissector: --protocol: 'nope' is not one of"),
+])
+def test_a_tool_refuses_a_protocol_without_its_piece_in_one_line(argv, says, capsys, tmp_path, monkeypatch):
+    """MAVLink has cases but no capture tools yet: ``mcp-capture check --protocol mavlink`` is a
+    usage error naming the protocols that have them, not a traceback from ``resolve(None)``."""
+    from mcp_conform.captures.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.mcap").write_bytes(b"x")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0] and "Traceback" not in err[0], err
+
+
+def test_the_pieces_a_protocol_has_are_listed_and_picked():
+    from mcp_conform.spec.profiles import PIECES, ProfileError, having, pick_having
+
+    for piece in PIECES:
+        assert "mcp" in having(piece)
+    assert "mavlink" in having("dissector") and "mavlink" not in having("capture_tools")
+    assert pick_having("mavlink", "dissector").name == "mavlink"
+    with pytest.raises(ProfileError, match="protocols with one: mcp, nsqd"):
+        pick_having("mavlink", "fuzz_campaign")
