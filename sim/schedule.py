@@ -18,6 +18,10 @@ from mcp_conform.sim.link import check_spec
 from mcp_conform.sim.models import DroneModel, ManagerModel, mission_items
 from mcp_conform.sim.world import StallParams, World
 from mcp_conform.spec.codec import MANAGER_ID
+from mcp_conform.spec.profiles import pick
+
+#: the protocol the simulator runs (its roles' IDs: ``spec.profiles``)
+PROTOCOL = "mcp"
 
 __all__ = ["Outcome", "Schedule", "run_schedule"]
 
@@ -59,7 +63,10 @@ class Schedule:
     def faulty_party(self) -> int | None:
         """The faulty model's MCP ID: the manager, or drone 1."""
         f = self.faulty
-        return None if f is None else MANAGER_ID if f.role == "manager" else 1
+        if f is None:
+            return None
+        fixed = pick(PROTOCOL, f.role)[1].fixed_id  # the role's ID, where the spec fixes it
+        return fixed if fixed is not None else 1
 
     def to_json(self) -> dict[str, Any]:
         """The schedule as JSON; each link as its ``--impair`` text, which must read back as
@@ -108,12 +115,13 @@ def build_world(s: Schedule) -> tuple[World, tuple[Any, ...]]:
     items = mission_items(s.items, rng.getrandbits(32))
     fault = s.faulty
     ids = tuple(range(1, s.drones + 1))
-    mgr_ep = fault_endpoint(fault, s.retries) if fault and fault.role == "manager" else None
+    faulty = s.faulty_party
+    mgr_ep = fault_endpoint(fault, s.retries) if fault and faulty == MANAGER_ID else None
     manager = ManagerModel(ids, s.challenge, items, s.rto, s.retries, random.Random(rng.getrandbits(64)),
                            endpoint=mgr_ep)
     drones = []
     for d in ids:
-        ep = fault_endpoint(fault, s.retries) if fault and fault.role == "drone" and d == 1 else None
+        ep = fault_endpoint(fault, s.retries) if fault and faulty == d else None
         drones.append(DroneModel(d, s.rto, s.retries, random.Random(rng.getrandbits(64)),
                                  ready_at=rng.uniform(0.0, 2 * s.rto), endpoint=ep))
     world = World(manager, drones, s.down, s.up, rng.getrandbits(64), stalls=s.stalls,
