@@ -54,7 +54,8 @@ def engine_turns(engine: str, started: float, duration: float | None, max_cases:
 
 
 def budget_left(campaign: Any, now: float) -> bool:
-    """Whether triage may start on a new signature: its seconds so far under
+    """Whether triage (``campaign``: its ``seconds`` so far, the campaign's ``started`` and
+    ``duration``) may start on a new signature: its seconds so far under
     :data:`TRIAGE_SHARE` of the campaign (``--duration``, else the time so far), and the
     deadline not passed."""
     if campaign.duration is not None and now >= campaign.started + campaign.duration:
@@ -62,13 +63,13 @@ def budget_left(campaign: Any, now: float) -> bool:
     base = campaign.duration if campaign.duration is not None else max(now - campaign.started, 1.0)
     # room left for the triage it starts (a real backend's took 5-10 s): the share is a bound
     # (``over_budget`` ends a triage that would pass it)
-    return campaign.triage_s == 0.0 or campaign.triage_s < 0.9 * TRIAGE_SHARE * base
+    return campaign.seconds == 0.0 or campaign.seconds < 0.9 * TRIAGE_SHARE * base
 
 
 def over_budget(campaign: Any, now: float) -> bool:
     """Whether the triage in progress (begun at ``campaign.triage_from``) has taken the
     campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``),
     unless it is the campaign's first, as :func:`budget_left` lets the first begin."""
-    if campaign.duration is None or campaign.triage_from is None or campaign.triage_s == 0.0:
+    if campaign.duration is None or campaign.triage_from is None or campaign.seconds == 0.0:
         return False  # the campaign's first triage ends as it ends (a 12 s campaign's 3 s of share held none)
-    return campaign.triage_s + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration
+    return campaign.seconds + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration

@@ -37,7 +37,7 @@ from hypothesis.database import DirectoryBasedExampleDatabase, ExampleDatabase
 
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.drone_target import FuzzTarget
-from mcp_conform.fuzz.engine_stateless import EngineStats
+from mcp_conform.fuzz.loop import EngineStats
 from mcp_conform.fuzz.oracles import (
     DeliveryLedger,
     Flaw,

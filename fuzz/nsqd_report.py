@@ -5,14 +5,16 @@ share against its budget, restarts; ``--duration`` and its grace)."""
 
 from __future__ import annotations
 
-import json
 import sys
 from typing import Any
 
-from mcp_conform.fuzz.budget import GRACE_S, TRIAGE_SHARE
-from mcp_conform.fuzz.config import exit_code
+from mcp_conform.fuzz.budget import TRIAGE_SHARE
+from mcp_conform.fuzz.config import FuzzConfig, exit_code
 from mcp_conform.fuzz.environment import environment_lines
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.fuzz.loop import WorkerResult, common_summary, count
 from mcp_conform.fuzz.progress import interrupted
+from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
 __all__ = ["budget_line", "final", "summary"]
@@ -20,31 +22,30 @@ __all__ = ["budget_line", "final", "summary"]
 PROG = "mcp-fuzz"
 
 
-def summary(c: Any, elapsed: float) -> dict[str, Any]:
-    """``summary.json`` of the campaign ``c`` (``fuzz.nsqd_campaign.StreamCampaign``),
-    written under its ``out``."""
+def summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult], elapsed: float, error: str | None,
+            *, interrupted: bool = False, node_lost: bool = False) -> dict[str, Any]:
+    """``summary.json`` of an Nsqd campaign (``fuzz.loop.run_campaign`` writes it): the keys
+    every protocol's has (``fuzz.loop.common_summary``), then Nsqd's: each finding, by class
+    (the oracle), the kinds x message ids sent, fuzzing and restart seconds, the hits counted
+    and not triaged by signature, the ``--duration`` bound (``duration_s``), each worker's
+    figures under ``--jobs``."""
     by_class: dict[str, int] = {}
-    for f in c.findings:
-        by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-    s = {"protocol": NSQD_PROFILE.name, "engine": c.engine, "seed": c.seed, "cases": c.cases,
-         "elapsed_s": round(elapsed, 2), "cases_per_s": round(c.cases / elapsed, 1) if elapsed else 0,
-         "fuzz_s": round(c.fuzz_s, 2), "triage_s": round(c.triage_s, 2),
-         "restart_s": round(c.restart_s, 2),
-         "judged_cases_per_s": round(c.cases / c.fuzz_s, 1) if c.fuzz_s else 0,
-         "by_kind": c.by_kind, "tried": c.tried, "findings_by_class": by_class,
+    for f in store.order:
+        count(by_class, f.signature.oracle)
+    s = {"protocol": NSQD_PROFILE.name, **common_summary(cfg, results, elapsed, error, interrupted),
+         "elapsed_s": round(elapsed, 2),
+         "fuzz_s": round(max((r.fuzz_seconds for r in results), default=0.0), 2),
+         "restart_s": round(sum(r.restart_seconds for r in results), 2),
+         "by_kind": sum_tables({"": r.by_mutator} for r in results).get("", {}),
+         "tried": sum_tables(r.tried for r in results), "findings_by_class": by_class,
          "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                       "count": f.occurrences, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
-                       else "stateless"} for f in c.findings],
-         "unconfirmed": c.unconfirmed, "environment_dependent": c.environment.values(),
-         "untriaged": c.untriaged, "restarts": c.restarts, "db": c.db,
-         "duration_s": c.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
-         "triage_share": round(c.triage_s / elapsed, 3) if elapsed else 0.0,
-         "jobs": len(c.workers) if c.workers is not None else 1, "interrupted": c.interrupted}
-    if c.workers is not None:
-        s["workers"] = c.workers
-    if c.out is not None:
-        c.store.rewrite()  # the occurrences counted since each was written
-        (c.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
+                       "count": f.occurrences, "replays": f.replays, "no_input": f.no_input,
+                       "engine": "stateful" if f.program is not None else "stateless"} for f in store.order],
+         "untriaged": sum_tables({"": r.untriaged} for r in results).get("", {}), "db": cfg.db,
+         "duration_s": cfg.duration_limit, "triage_share_max": TRIAGE_SHARE, "node_lost": node_lost}
+    if cfg.jobs > 1:
+        s["workers"] = [{"worker": r.worker, "cases": r.cases, "fuzz_s": round(r.fuzz_seconds, 2),
+                         "findings": r.findings, "error": r.error} for r in results]
     return s
 
 

@@ -36,6 +36,7 @@ from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
+from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
 from mcp_conform.fuzz.replay import Outcome, run_sequence
 from mcp_conform.fuzz.target_base import TargetBase
@@ -94,7 +95,9 @@ class Triage:
         self.deadline = float("inf")  # no replay starts after it (the campaign's --duration)
         self.baseline_rules: set[str] | None = None  # rules the node breaks sent no input (once run)
         self.environment = EnvironmentLog()  # flaws that did not replay every time, with why
-        self.untriaged = 0  # flaws left at the deadline
+        self.untriaged: dict[str, int] = {}  # flaws left at the deadline, by rule
+        self.restart_seconds = 0.0  # (MCP's triage times its node's restarts with its replays)
+        self.triage_from: float | None = None
 
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
                  program: str | None = None, scenario: str | None = None) -> Finding | None:
@@ -109,16 +112,11 @@ class Triage:
             return None
         if len(self.store) >= MAX_GROUPS:
             return None
-        t0 = time.monotonic()
-        try:
+        with triage_time(self, flaw.rule):
             if scenario is None and flaw.source not in _DEATH and self._baseline(flaw, pace):
                 return None
             return self._confirm_and_shrink(flaw, inputs, shape, pace, program, scenario)
-        except Late:
-            self.untriaged += 1
-            return None
-        finally:
-            self.seconds += time.monotonic() - t0
+        return None  # past the deadline (Late): counted untriaged
 
     def _run(self, seq: list[bytes], pace: str, scenario: str | None):  # noqa: ANN202
         """One replay (``run_sequence``); none once the deadline passed (``Late``)."""
@@ -163,7 +161,7 @@ class Triage:
 
     def _unconfirmed(self, flaw: Flaw) -> None:
         self.unconfirmed += 1
-        self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
+        count(self.unconfirmed_rules, flaw.rule)
 
     def _still(self, flaw: Flaw, pace: str, scenario: str | None):  # noqa: ANN202
         """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
