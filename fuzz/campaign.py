@@ -71,8 +71,7 @@ class McpPlugin:
     def triage(self, target: Any, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
                prev: Any) -> Triage:
         triage = Triage(target, store, name, cfg.seed, cfg.worker)
-        if cfg.duration_limit is not None:
-            triage.deadline = started + cfg.duration_limit  # --duration bounds triage too (GRACE_S)
+        triage.started, triage.duration = started, cfg.duration_limit  # --duration bounds triage too (GRACE_S)
         if prev is not None:  # the baseline is the worker's, whatever the engine
             triage.baseline_rules = prev.baseline_rules
         return triage
@@ -89,10 +88,12 @@ class McpPlugin:
         return StatefulEngine(target, triage, cfg)
 
     def record(self, res: WorkerResult, name: str, engine: Any) -> None:
+        """The monitor's availability, the node's retransmission period measured at start and
+        what the campaign did when it disagreed with --rto (``res.extra``)."""
         target = engine.target
-        res.node_period, res.timing = target.node_period, target.timing
         monitor = engine.monitor.available if name == "stateless" else engine.monitor_available
-        res.monitor = res.monitor or monitor
+        res.extra.update(node_period=target.node_period, timing=target.timing,
+                         monitor=res.extra.get("monitor", False) or monitor)
 
 
 def run_worker(cfg: FuzzConfig, store: FindingStore, tick: Callable[[Progress], None] | None = None,
@@ -184,9 +185,10 @@ def make_summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResul
         "findings_by_rule": store.by_rule(),
         "duration_limit_s": cfg.duration_limit,
         "untriaged": sum(n for r in results for n in r.untriaged.values()),
-        "monitor": any(r.monitor for r in results),
-        "node_period_s": next((round(r.node_period, 4) for r in results if r.node_period is not None), None),
-        "timing": next((r.timing for r in results if r.timing), None),
+        "monitor": any(r.extra.get("monitor") for r in results),
+        "node_period_s": next((round(r.extra["node_period"], 4) for r in results
+                               if r.extra.get("node_period") is not None), None),
+        "timing": next((r.extra["timing"] for r in results if r.extra.get("timing")), None),
         "workers": [{"worker": r.worker, "cases": r.cases, "engines": r.engines, "error": r.error,
                      "interrupted": r.interrupted} for r in results],
         "node_lost": node_lost,

@@ -135,11 +135,7 @@ class WorkerResult:
     by_mutator: dict[str, int] = field(default_factory=dict)
     tried: dict[str, dict[str, int]] = field(default_factory=dict)
     findings: int = 0  # distinct findings in the worker's own store
-    # MCP's: the monitor's availability, the node's retransmission period measured at start and
-    # what the campaign did when it disagreed with --rto
-    monitor: bool = False
-    node_period: float | None = None
-    timing: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)  # the protocol's own (its Plugin.record)
 
 
 def _record(res: WorkerResult, name: str, st: EngineStats, triage: Triage) -> None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from mcp_conform.fuzz.budget import Late, over_budget
+from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.loop import triage_time
@@ -129,9 +129,7 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     sig = Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3")
 
     def once() -> tuple[int, str] | None:
-        if self.duration is not None and time.monotonic() >= self.started + self.duration \
-                or over_budget(self, time.monotonic()):
-            raise Late
+        check_late(self)
         self.current = self.current.fresh()
         again = grown(self.current)
         return again if again is not None and again[0] > grow_max else None

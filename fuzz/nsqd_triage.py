@@ -25,7 +25,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from mcp_conform.fuzz.budget import TRIAGE_SHARE, UNCONFIRMED_TRIES, Late, budget_left, over_budget
+from mcp_conform.fuzz.budget import (
+    TRIAGE_SHARE,
+    UNCONFIRMED_TRIES,
+    budget_left,
+    check_late,
+    over_budget,
+)
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
@@ -203,9 +209,7 @@ class StreamTriage:
         """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
         triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
         least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
-        if self.duration is not None and time.monotonic() >= self.started + self.duration \
-                or over_budget(self, time.monotonic()):
-            raise Late
+        check_late(self)
         self.replays += 1
         ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log, wait=self.wait if wait is None else wait)
         self.current = b
@@ -245,8 +249,7 @@ class StreamTriage:
     def _baseline(self, backend: Backend, hit: Hit, key: bool) -> Signature | None:
         """The baseline, confirmed ``n_of_n`` times: its signature (a finding, no input
         blamed), or None (clean, or not every time: counted unconfirmed)."""
-        if self.duration is not None and time.monotonic() >= self.started + self.duration:
-            raise Late
+        check_late(self, share=False)
         b = self.current = backend.fresh()
         self.target.count_restart("triage replay")
         base = baseline(b, hit.signature, probe=key)
@@ -255,8 +258,7 @@ class StreamTriage:
         sig = base.signature
 
         def once() -> Hit | None:
-            if self.duration is not None and time.monotonic() >= self.started + self.duration:
-                raise Late
+            check_late(self, share=False)
             fresh = self.current = self.current.fresh()
             self.target.count_restart("triage replay")
             again = baseline(fresh, sig, probe=key)

@@ -22,7 +22,8 @@ before; the copy alone on a fresh node is no duplicate, so it is replayed after 
 but not every time depends on the environment (timing, load): it is not a finding, but it is
 named in the summary (``environment_dependent``) with why, not lost among the unconfirmed.
 
-Budget: no replay starts after the campaign's deadline (``deadline``), so ``--duration``
+Budget: no replay starts after the campaign's deadline (``started`` + ``duration``:
+``fuzz.budget.check_late``), so ``--duration``
 bounds triage too, within ``fuzz.budget.GRACE_S``.
 """
 
@@ -31,7 +32,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
-from mcp_conform.fuzz.budget import Late
+from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.environment import EnvironmentLog
@@ -92,7 +93,9 @@ class Triage:
         # a death is blamed on its input only once shrinking found it: (rule, shape) as first
         # seen -> the group it ended in
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
-        self.deadline = float("inf")  # no replay starts after it (the campaign's --duration)
+        # no replay starts after --duration (counted from ``started``: fuzz.budget.check_late)
+        self.started = time.monotonic()
+        self.duration: float | None = None
         self.baseline_rules: set[str] | None = None  # rules the node breaks sent no input (once run)
         self.environment = EnvironmentLog()  # flaws that did not replay every time, with why
         self.untriaged: dict[str, int] = {}  # flaws left at the deadline, by rule
@@ -120,8 +123,7 @@ class Triage:
 
     def _run(self, seq: list[bytes], pace: str, scenario: str | None):  # noqa: ANN202
         """One replay (``run_sequence``); none once the deadline passed (``Late``)."""
-        if time.monotonic() >= self.deadline:
-            raise Late
+        check_late(self, share=False)  # MCP's triage is bounded by the deadline alone
         self.replays += 1
         return run_sequence(self.target, seq, pace=pace, scenario=scenario)
 
