@@ -61,8 +61,7 @@ class StatelessEngine:
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         """Rounds until ``deadline`` (time.monotonic) or ``max_cases``."""
         st = self.stats
-        while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
-                   and not stop()):
+        while not st.spent(deadline, max_cases, stop):
             left = self.batch if max_cases is None else min(self.batch, max_cases - st.cases)
             t0 = time.monotonic()
             flaws, inputs = self.round(left)

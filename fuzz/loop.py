@@ -51,6 +51,11 @@ class EngineStats:
     by_mutator: dict[str, int] = field(default_factory=dict)  # cases by mutation kind
     tried: dict[str, dict[str, int]] = field(default_factory=dict)  # kind -> message -> cases, when counted
 
+    def spent(self, deadline: float, max_cases: int | None, stop: Callable[[], bool]) -> bool:
+        """Whether an engine's turn is over: its ``deadline`` (time.monotonic) come, its
+        ``max_cases`` judged, or a stop asked for."""
+        return time.monotonic() >= deadline or (max_cases is not None and self.cases >= max_cases) or stop()
+
 
 TICK_S = 0.25  # s: an engine's live figures at most this often
 
@@ -77,17 +82,27 @@ class Target(Protocol):
     def close(self) -> None: ...
 
 
-class Triage(Protocol):
-    """An engine's turn's triage, as the loop counts it."""
+@dataclass(kw_only=True, eq=False)
+class Triage:
+    """What every protocol's triage (an engine's turn's: ``fuzz.triage.Triage``,
+    ``fuzz.nsqd_triage.StreamTriage``) counts, as the loop records it, and the bound it keeps:
+    no replay starts after ``--duration`` counted from ``started`` (``fuzz.budget.check_late``)."""
 
-    replays: int
-    unconfirmed: int
-    unconfirmed_rules: dict[str, int]  # flaws seen, then not again, by rule
-    seconds: float  # triage's own time (its replays, the processes they start)
-    restart_seconds: float  # the target restarted to go on fuzzing after a hit (not triage's)
-    triage_from: float | None  # when the triage under way began
-    untriaged: dict[str, int]  # hits counted, not triaged (deadline, budget), by what they showed
-    environment: EnvironmentLog  # seen, then not on every replay: why
+    started: float = field(default_factory=time.monotonic)
+    duration: float | None = None
+    replays: int = 0  # replays run
+    unconfirmed: int = 0
+    unconfirmed_rules: dict[str, int] = field(default_factory=dict)  # flaws seen, then not again, by rule
+    seconds: float = 0.0  # triage's own time (its replays, the processes they start)
+    restart_seconds: float = 0.0  # the target restarted to go on fuzzing after a hit (not triage's)
+    triage_from: float | None = None  # when the triage under way began (``fuzz.budget.over_budget``)
+    untriaged: dict[str, int] = field(default_factory=dict)  # hits counted, not triaged (deadline, budget)
+    environment: EnvironmentLog = field(default_factory=EnvironmentLog)  # seen, then not on every replay: why
+
+    def count_unconfirmed(self, rule: str) -> None:
+        """A hit of ``rule`` that triage could not confirm."""
+        self.unconfirmed += 1
+        count(self.unconfirmed_rules, rule)
 
 
 class Engine(Protocol):

@@ -138,7 +138,7 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     with triage_time(self, sig.describe()):
         conf = confirm_n(once, self.n_of_n, until_miss=False)
         if not conf.confirmed:
-            self._unconfirmed(sig)
+            self.count_unconfirmed(sig.rule)
             conf.note(self.environment, sig.rule, sig.describe(), first[1],
                       "a process's descriptors grew over the cycles, then not on every fresh one")
         else:

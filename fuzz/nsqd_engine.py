@@ -41,7 +41,7 @@ class StreamStatelessEngine:
         last_tick = 0.0
         t_fuzz = time.monotonic()
         try:
-            while not (time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases) or stop()):
+            while not st.spent(deadline, max_cases, stop):
                 case = draw_case(self.rng)
                 if case.expect and st.cases % 4 == 0:  # one valid command in four is judged by its effect
                     case = replace(case, check=True)

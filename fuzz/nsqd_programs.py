@@ -148,7 +148,7 @@ class StreamStatefulEngine:
         t_fuzz = last_tick = time.monotonic()
 
         def out_of_budget() -> bool:
-            return time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases) or stop()
+            return st.spent(deadline, max_cases, stop)
 
         try:
             while not out_of_budget():

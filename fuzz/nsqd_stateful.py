@@ -138,7 +138,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     campaign.replays += 1
     first = play_program(box["b"], ops, want=sig)
     if first is None:
-        campaign._unconfirmed(sig)
+        campaign.count_unconfirmed(sig.rule)
         return box["b"].fresh()
     if not same_finding(first.signature, sig):
         sig, hit = first.signature, first
@@ -151,7 +151,7 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
         ops = ddmin(list(ops), reproduces, budget=16)
     conf = confirm_n(lambda: reproduces(ops, TrafficLog()) or None, campaign.n_of_n, until_miss=False)
     if not conf.confirmed:
-        campaign._unconfirmed(sig)
+        campaign.count_unconfirmed(sig.rule)
         return box["b"].fresh()
     campaign.add_program_finding(sig, hit.detail, conf.replays, tuple(box["stderr"]),
                                  "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops],

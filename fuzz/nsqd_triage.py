@@ -34,9 +34,8 @@ from mcp_conform.fuzz.budget import (
 )
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
-from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import count, triage_time
+from mcp_conform.fuzz.loop import Triage, count, triage_time
 from mcp_conform.fuzz.nsqd_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -101,36 +100,28 @@ def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, s
 
 
 @dataclass
-class StreamTriage:
+class StreamTriage(Triage):
     """One worker's Nsqd triage (an engine's turn's; what it learnt carried on to the next
-    turn's: :meth:`carry`)."""
+    turn's: :meth:`carry`; its counts and bounds: ``fuzz.loop.Triage``; ``untriaged`` by
+    signature)."""
 
     target: StreamTarget
     store: FindingStore
     seed: int = 0
     worker: int = 0
     n_of_n: int = 3  # a finding's confirming replays, all of which must show it
-    duration: float | None = None  # --duration, counted from ``started`` (fuzz.budget)
-    started: float = field(default_factory=time.monotonic)
-    replays: int = 0  # replays run (fresh processes for them)
-    unconfirmed: int = 0
-    unconfirmed_rules: dict[str, int] = field(default_factory=dict)
-    seconds: float = 0.0  # triage's own: its baselines and replays, the processes they start included
-    restart_seconds: float = 0.0  # the backend restarted to go on fuzzing (after a death, a hang, a triage)
-    untriaged: dict[str, int] = field(default_factory=dict)  # signature -> hits counted, not triaged
-    environment: EnvironmentLog = field(default_factory=EnvironmentLog)  # seen, then not every replay: why
     tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
-    triage_from: float | None = None  # when the triage in progress began (``over_budget``)
 
     def carry(self) -> StreamTriage:
         """The next engine's turn's triage: what this one learnt (aliases, baselines, tries)
         kept, its counts new."""
-        return StreamTriage(self.target, self.store, self.seed, self.worker, self.n_of_n, self.duration,
-                            self.started, tries=self.tries, aliases=self.aliases, base_seen=self.base_seen)
+        return StreamTriage(self.target, self.store, self.seed, self.worker, self.n_of_n, tries=self.tries,
+                            aliases=self.aliases, base_seen=self.base_seen, started=self.started,
+                            duration=self.duration)
 
     @property
     def current(self) -> Backend:
@@ -144,10 +135,6 @@ class StreamTriage:
     @property
     def findings(self) -> list[Finding]:
         return self.store.order
-
-    def _unconfirmed(self, sig: Signature) -> None:
-        self.unconfirmed += 1
-        count(self.unconfirmed_rules, sig.rule)
 
     def consider(self, backend: Backend, hit: Hit, window: list[Case], probe: bool) -> Backend:
         """A hit after the cases of ``window`` (then the probe command, ``probe``) triaged,
@@ -268,7 +255,7 @@ class StreamTriage:
         confirmed = 1 + len(conf.hits)
         self.restart(self.current)
         if not conf.confirmed:  # at times whatever it is sent: no input is to blame either
-            self._unconfirmed(sig)
+            self.count_unconfirmed(sig.rule)
             conf.note(self.environment, sig.rule, f"{sig.describe()}, no input", base.detail,
                       "a baseline sent nothing showed it, then not every confirming baseline did "
                       "(timing or load); no input is to blame either")
@@ -321,7 +308,7 @@ class StreamTriage:
             ok, backend, _ = self.rep(backend, suspects, sig, probe=probe)
             culprit = suspects if ok else None
         if culprit is None:
-            self._unconfirmed(sig)
+            self.count_unconfirmed(sig.rule)
             self._tried(sig, probe)
             return self.restart(backend)
         if sig.oracle == "desync":  # named by what lost the stream its sync
@@ -367,7 +354,7 @@ class StreamTriage:
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
         if not conf.confirmed:
-            self._unconfirmed(sig)
+            self.count_unconfirmed(sig.rule)
             self._tried(hit.signature, probe)
             conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
                       f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
