@@ -90,14 +90,6 @@ class StreamCampaign:
     def findings(self) -> list[Finding]:
         return self.store.order
 
-    @property
-    def engine(self) -> str:
-        return self.cfg.engine
-
-    @property
-    def seed(self) -> int:
-        return self.cfg.seed
-
     def run(self) -> dict[str, Any]:
         """The campaign (``--jobs`` as configured); its summary, summary.json written under ``out``."""
         s = loop.run_campaign(self.plugin, self.cfg, self.store, nsqd_report.summary, self.tick, self.stop)
@@ -125,7 +117,7 @@ class StreamCampaign:
         """(``fuzz.loop.run_campaign`` writes summary.json however it ends.)"""
 
     def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
-        return nsqd_report.final(self, summary, live, strict)
+        return nsqd_report.final(self.store, summary, live, strict)
 
     @staticmethod
     def replay(path: str, cfg: FuzzConfig) -> int:

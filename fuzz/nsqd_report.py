@@ -49,15 +49,15 @@ def summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult], e
     return s
 
 
-def final(c: Any, summary: dict[str, Any], live: Any, strict: bool) -> int:
-    """The closing lines: each finding, the environment-dependent ones, the hits counted and
+def final(store: FindingStore, summary: dict[str, Any], live: Any, strict: bool) -> int:
+    """The closing lines of a campaign of ``summary`` whose findings are in ``store``: each finding, the environment-dependent ones, the hits counted and
     not triaged (``-v``), the summary and where the time went; the exit code."""
     errors = [w["error"] for w in summary.get("workers", []) if w.get("error")]
     if errors and not summary["cases"]:
         print(f"{PROG}: {budget_line(summary)}")  # where it ended: at the bound, if the workers were cut there
         print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
         return 2
-    for i, f in enumerate(c.findings, 1):
+    for i, f in enumerate(store.order, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.occurrences}, replays {f.replays}: {f.note}")
         if live.verbose:
             print(f"  {f.actual}")
@@ -68,12 +68,12 @@ def final(c: Any, summary: dict[str, Any], live: Any, strict: bool) -> int:
             print(f"  counted, not triaged: {shape} ×{n}")
     classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
-          f"cases/s), {len(c.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
-          f"engine {c.engine}, {summary['jobs']} job(s), seed {c.seed}")
+          f"cases/s), {len(store)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
+          f"engine {summary['engine']}, {summary['jobs']} job(s), seed {summary['seed']}")
     print(f"{PROG}: {budget_line(summary)}")
     if summary.get("interrupted"):
-        return interrupted(summary["cases"], len(c.findings), c.out)
-    return exit_code(c.findings, strict=strict)
+        return interrupted(summary["cases"], len(store), store.out)
+    return exit_code(store.order, strict=strict)
 
 
 def budget_line(s: dict[str, Any]) -> str:
