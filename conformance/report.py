@@ -53,7 +53,7 @@ __all__ = [
     "write_json",
 ]
 
-SCHEMA_VERSION = "1.3"  # 1.2: the monitor's violations in failures and rules; 1.3: spec.protocol, role backend (Nsqd)
+SCHEMA_VERSION = "1.4"  # 1.2: the monitor's violations in failures and rules; 1.3: spec.protocol, role backend (Nsqd); 1.4: monitor.vetoed
 OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
 RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",

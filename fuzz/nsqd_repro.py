@@ -49,7 +49,7 @@ class TrafficLog:
                                             problem, bytes(raw)))
 
     def stream_event(self, event: str, *, conn: int, peer: Any = None, local: Any = None, by: str | None = None,
-                     how: str | None = None, t_ns: int | None = None) -> None:
+                     how: str | None = None, t_ns: int | None = None, **_: Any) -> None:
         if not self.done:
             self.records.append(StreamEvent(t_ns or time.time_ns(), event, conn, _addr(local), _addr(peer), by, how))
 
@@ -71,10 +71,10 @@ def write_stream_repro(d: Path, doc: dict[str, Any], records: list[Any]) -> None
         rec.case_mark(case, "start", t0, rules=(rule,))
         for r in records:
             if type(r) is StreamEvent:
-                rec.stream_event(r.event, conn=r.conn, peer=r.backend, local=r.client, by=r.by, how=r.how,
+                rec.stream_event(r.event, protocol=NSQD_PROFILE.name, conn=r.conn, peer=r.backend, local=r.client, by=r.by, how=r.how,
                                  t_ns=r.t_ns)
             else:
-                rec.stream_frame(r.direction, r.raw, conn=r.conn, peer=None, name=r.name, problem=r.problem,
+                rec.stream_frame(r.direction, r.raw, protocol=NSQD_PROFILE.name, conn=r.conn, peer=None, name=r.name, problem=r.problem,
                                  msg_id=r.raw[4] if len(r.raw) > 4 and not r.problem else None, t_ns=r.t_ns)
         rec.case_mark(case, "end", t_end, outcome="failed", rules=(rule,), evidence=doc.get("detail"))
     write_tcp_pcap(d / "repro.pcap", records, NSQD.port(NSQD_PROFILE.default_role.name))

@@ -21,8 +21,6 @@ restarted for the next case, in attach mode the remaining cases are errors.
 from __future__ import annotations
 
 import contextlib
-import shlex
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -48,12 +46,14 @@ from mcp_conform.harness.session_base import (  # noqa: F401  (re-exported: harn
     check_target,
     fill_placeholders,
     free_port,
+    reference_command,
     timing_note,
 )
 from mcp_conform.judge.monitor import byte_order_fault
 from mcp_conform.judge.run_monitor import RunMonitor, from_node, link_events
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action
+from mcp_conform.spec.profiles import pick
 
 _READY = int(Action.MISSION_READY)
 
@@ -64,9 +64,8 @@ FRAMING_RULES = frozenset({"MCP-HDR-1", "MCP-HDR-2"})
 
 def embedded_command() -> str:
     """The reference drone, as the runner spawns it for the embedded default."""
-    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl drone --id {{id}} "
-            "--listen {target_host}:{target_port} --target {listen_host}:{listen_port} "
-            "--mavlink {mavlink} --rto " + str(EMBEDDED_RTO))
+    return reference_command(*pick("mcp", "drone"), "--id {id} --listen {target_host}:{target_port} "
+                             "--target {listen_host}:{listen_port} --mavlink {mavlink} --rto " + str(EMBEDDED_RTO))
 
 
 @dataclass

@@ -31,9 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import random
-import shlex
 import struct
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,10 +51,12 @@ from mcp_conform.harness.session_base import (
     SpawnedNode,
     fill_placeholders,
     free_port,
+    reference_command,
 )
 from mcp_conform.judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import MissionItem
+from mcp_conform.spec.profiles import pick
 from mcp_conform.traceio.recorder import NODE_METADATA
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
@@ -72,10 +72,9 @@ _FRAMES = (0, 3, 10)  # GLOBAL, GLOBAL_RELATIVE_ALT, GLOBAL_TERRAIN_ALT
 
 def embedded_command() -> str:
     """The reference manager, as the runner spawns it for the embedded default."""
-    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl manager --challenge {{challenge}} "
-            "--drones {drones} --waypoints {waypoints} --obstacles {obstacles} "
-            "--listen {target_host}:{target_port} --target {listen_host}:{listen_port} "
-            f"--rto {EMBEDDED_RTO} --retries {EMBEDDED_RETRIES}")
+    return reference_command(*pick("mcp", "manager"), "--challenge {challenge} --drones {drones} "
+                             "--waypoints {waypoints} --obstacles {obstacles} --listen {target_host}:{target_port} "
+                             f"--target {{listen_host}}:{{listen_port}} --rto {EMBEDDED_RTO} --retries {EMBEDDED_RETRIES}")
 
 
 def _f32(x: float) -> float:

@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shlex
 import socket
 import struct
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,11 +31,13 @@ from mcp_conform.harness.session_base import (
     SpawnedNode,
     fill_placeholders,
     free_port,
+    reference_command,
 )
 from mcp_conform.judge.nsqd_monitor import Received, SenderViolation, decode_frame, sender_violation
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd import StreamSpec
 from mcp_conform.spec.nsqd_codec import Deframer, Frame, FramingError
+from mcp_conform.spec.profiles import pick
 
 __all__ = ["Conn", "Death", "Received", "SenderViolation", "StreamSession"]
 
@@ -60,6 +60,7 @@ class Conn:
     log: list[tuple[float, bytes]] | None = None  # the case's record of everything sent
     recorder: Any = None  # the run's capture (traceio.recorder.McapRecorder or a Tee), if any
     index: int = 0  # the connection's number in the run
+    protocol: str = ""  # the protocol's profile name: its stream channels on the capture
     fin_at: float | None = None  # when the runner half-closed it (:meth:`shutdown`)
 
 
@@ -74,11 +75,11 @@ class Conn:
         self._event("open", local=self.sock.getsockname())
 
     def _event(self, event: str, **kw: Any) -> None:
-        """The connection's open and close on the capture (``/nsqd/conn``: a pcap of it shows
-        the handshake and who closed, how)."""
+        """The connection's open and close on the capture (its protocol's ``conn`` channel: a
+        pcap of it shows the handshake and who closed, how)."""
         if self.recorder is not None:
             with contextlib.suppress(OSError, AttributeError):
-                self.recorder.stream_event(event, conn=self.index, peer=self.sock_peer, **kw)
+                self.recorder.stream_event(event, protocol=self.protocol, conn=self.index, peer=self.sock_peer, **kw)
 
     # -- out --------------------------------------------------------------------------
     def send(self, data: bytes, *, split: int | None = None, gap: float = 0.0) -> bool:
@@ -93,7 +94,7 @@ class Conn:
             whole = len(head) == 1 and isinstance(head[0], Frame) and len(head[0].raw) == len(data)
             msg_id = head[0].msg_id if whole else None  # type: ignore[union-attr]
             name = self.spec.message(msg_id).name if msg_id is not None and self.spec.has_message(msg_id) else None
-            self.recorder.stream_frame("tx", data, conn=self.index, peer=self.sock_peer, msg_id=msg_id, name=name)
+            self.recorder.stream_frame("tx", data, protocol=self.protocol, conn=self.index, peer=self.sock_peer, msg_id=msg_id, name=name)
         try:
             for i, c in enumerate(chunks):
                 self.sock.setblocking(True)
@@ -173,13 +174,13 @@ class Conn:
             if isinstance(item, FramingError):
                 self.framing_error = item
                 if self.recorder is not None:
-                    self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer, problem=item.reason)
+                    self.recorder.stream_frame("rx", item.raw, protocol=self.protocol, conn=self.index, peer=self.sock_peer, problem=item.reason)
                 continue
             values, problem = decode_frame(self.spec, item)
             self.frames.append(Received(now, item, values, problem))
             if self.recorder is not None:
                 name = self.spec.message(item.msg_id).name if self.spec.has_message(item.msg_id) else None
-                self.recorder.stream_frame("rx", item.raw, conn=self.index, peer=self.sock_peer,
+                self.recorder.stream_frame("rx", item.raw, protocol=self.protocol, conn=self.index, peer=self.sock_peer,
                                            msg_id=item.msg_id, name=name, fields=values, problem=problem)
 
     def violation(self) -> SenderViolation | None:
@@ -208,8 +209,8 @@ class Conn:
 
 def embedded_command() -> str:
     """The reference backend as the embedded default, at a short UPDATE period."""
-    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl --protocol nsqd backend "
-            f"--listen {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
+    return reference_command(*pick("nsqd", "backend"),
+                             f"--listen {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
 
 
 class StreamSession(SessionBase):
@@ -296,7 +297,8 @@ class StreamSession(SessionBase):
         except OSError:
             return None
         self._conn_count += 1
-        conn = Conn(sock, self.spec, log=self.sent_log, recorder=self.recorder, index=self._conn_count)
+        conn = Conn(sock, self.spec, log=self.sent_log, recorder=self.recorder, index=self._conn_count,
+                    protocol=self.cfg.protocol)
         self.conns.append(conn)
         return conn
 

@@ -15,6 +15,7 @@ import re
 import shlex
 import signal
 import socket
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ from mcp_conform.harness.node import NodeBase
 from mcp_conform.harness.procs import ManagedProcess
 from mcp_conform.harness.run_delay import run_delay_ns
 from mcp_conform.spec import SPEC
+from mcp_conform.spec.profiles import Profile, RoleProfile, resolve
 from mcp_conform.traceio.recorder import NODE_METADATA
 from mcp_conform.vehicle.ports import free_port  # noqa: F401  (re-exported: the runner's and the tests' ports)
 
@@ -66,6 +68,14 @@ def check_target(target: tuple[str, int]) -> tuple[str, int]:
         except OSError as exc:
             raise SetupError(f"--target {host}:{port}: cannot reach {addr[0]}: {exc.strerror}") from None
     return addr
+
+
+def reference_command(profile: Profile, role: RoleProfile, options: str) -> str:
+    """The reference node of ``role`` as the runner spawns it for its embedded default:
+    ``mcp-node --protocol NAME ROLE OPTIONS`` (``python -m mcp_conform.reference_impl``, the
+    interpreter the runner runs on), ``options`` a ``--spawn`` template of the role's own."""
+    return (f"{shlex.quote(sys.executable)} -m mcp_conform.reference_impl --protocol {profile.name} {role.name} "
+            + options)
 
 
 class _Placeholders(dict[str, str]):
@@ -382,8 +392,6 @@ class DatagramSessionBase(SessionBase):
         monitor (``judge.run_monitor``); the capture is told whose traffic it holds and
         whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same.
         ``judge=False``: no run monitor (the fuzzer judges with its own oracles); None."""
-        from mcp_conform.judge.run_monitor import RunMonitor
-
         driver = self.driver
         assert driver is not None
         driver.run_delay = self.node_run_delay  # spawn mode: the node's lateness (MCP-RTX-3)
@@ -394,9 +402,10 @@ class DatagramSessionBase(SessionBase):
         self.node_address = target
         if not judge:
             return None
-        monitor = RunMonitor(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
-                             broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
-                             complete=complete)
+        monitor_class = resolve(self.cfg.profile()[0].monitor)  # the protocol's (MCP: judge.run_monitor)
+        monitor = monitor_class(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
+                                broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
+                                complete=complete)
         monitor.listen = driver.listen
         driver.add_observer(monitor.observe)
         self.record_node(node_id, complete=complete)

@@ -61,6 +61,13 @@ def violation_json(v: Violation) -> dict[str, Any]:
             "actual": v.actual, "evidence": [{"index": i, "t_ns": t} for i, t in v.evidence]}
 
 
+def vetoed_json(x: Any) -> dict[str, Any]:
+    """A failure the monitor dropped at its finish because ``judge.explain`` explains the trace
+    without it (``judge.veto.Vetoed``): the violation as it was, and the explanation."""
+    return {**violation_json(x.violation), "sender": x.sender, "receiver": x.receiver,
+            "explanation": x.explanation}
+
+
 class RunMonitor:
     """A :class:`~judge.monitor.Monitor` fed by the runner (see the module docstring).
 
@@ -173,6 +180,7 @@ class RunMonitor:
                 "nodes": [{"id": n.id, "role": n.role, "addresses": [f"{h}:{p}" for h, p in n.addresses],
                            "datagrams": n.datagrams} for n in m.nodes()],
                 "violations": [violation_json(v) for v in m.violations],
+                "vetoed": [vetoed_json(x) for x in m.vetoed],
                 "rules": {str(k): v for k, v in m.verdicts().items()},
             }
 
@@ -297,6 +305,7 @@ class SessionMonitors:
         sections = [(m.to_json(), m) for m in list(self.parts.values())]
         nodes: dict[int, dict[str, Any]] = {}
         violations: list[dict[str, Any]] = []
+        vetoed: list[dict[str, Any]] = []
         base = 0
         for sec, _ in sections:
             for n in sec["nodes"]:
@@ -306,9 +315,10 @@ class SessionMonitors:
                 else:
                     have["datagrams"] += n["datagrams"]
                     have["addresses"] = sorted({*have["addresses"], *n["addresses"]})
-            for v in sec["violations"]:
-                violations.append({**v, "evidence": [{**e, "index": e["index"] + base} for e in v["evidence"]]})
+            for into, key in ((violations, "violations"), (vetoed, "vetoed")):
+                for v in sec[key]:
+                    into.append({**v, "evidence": [{**e, "index": e["index"] + base} for e in v["evidence"]]})
             base += sec["datagrams"]
         return {"complete": all(sec["complete"] for sec, _ in sections) if sections else True,
                 "datagrams": base, "nodes": [nodes[k] for k in sorted(nodes)], "violations": violations,
-                "rules": {str(k): v for k, v in self.verdicts().items()}}
+                "vetoed": vetoed, "rules": {str(k): v for k, v in self.verdicts().items()}}

@@ -1,8 +1,9 @@
 """Each protocol declared once: its profile, per role (docs/design.md, "A protocol is a plug-in").
 
 A profile names everything the tools need to speak, judge, fuzz and read one protocol: its
-spec, codec and framing (``datagram`` or ``stream``), transport, monitor, dissector and
-capture reader, fuzz mutators and oracles, and per role (the role of the node under test)
+spec and framing (``datagram`` or ``stream``: a stream protocol's capture channels are named
+after it, ``traceio.channels.stream_topics``), transport, monitor, dissector and capture tools
+(its reader, checker and recogniser), fuzz campaign, mutators and oracles, reference node, and per role (the role of the node under test)
 the runner's session and case context, the case package and the reference node. Things
 that live on a higher floor are named by import path (``"package.module:attribute"``), and
 resolved lazily, with :func:`resolve`, by the floor that uses them: ``spec`` imports none
@@ -43,8 +44,6 @@ class RoleProfile:
     cases: str
     #: the fuzz target of the role (``fuzz``), None: fuzzed by the protocol's own campaign
     fuzz_target: str | None
-    #: the reference node of the role: ``mcp-node``'s words before its own options
-    reference: tuple[str, ...]
     #: RunConfig fields only this role reads, reported in the JSON report's parameters
     parameters: tuple[str, ...] = ()
     #: ``--impair``: the runner's socket edge can be a bad link for this role
@@ -70,11 +69,10 @@ class Profile:
     #: (frames deframed from a byte stream)
     framing: str
     transport: str  # udp, tcp
-    codec: str
+    #: the run's trace monitor of a datagram protocol (``harness.session_base.DatagramSessionBase``)
     monitor: str
     dissector: str  # its Wireshark Lua dissector: ``generate()`` and ``FILENAME``
-    #: a capture's records, and whether a capture file holds this protocol's traffic
-    capture_reader: str
+    #: whether a capture file holds this protocol's traffic (None: the default's captures)
     capture_detect: str | None
     #: ``mcp-capture check|show|diff|export|replay`` of its captures (``captures.cli.CaptureTools``)
     capture_tools: str
@@ -83,7 +81,8 @@ class Profile:
     #: ``mcp-fuzz``'s campaign of this protocol (``fuzz.config.FuzzCampaign``): its loop over
     #: the protocol's targets, engines, oracles and triage, and its ``--replay``
     fuzz_campaign: str
-    #: the reference node's command line (``mcp-node --protocol NAME``)
+    #: the reference node's command line (``mcp-node --protocol NAME ROLE``; the runner's
+    #: embedded default: ``harness.session_base.reference_command``)
     reference_cli: str
     roles: tuple[RoleProfile, ...]
     #: the loader of a spec file of this protocol (``python -m mcp_conform.spec --spec PATH``)
@@ -119,20 +118,19 @@ class Profile:
 
 MCP = Profile(
     name="mcp", spec=SPEC, framing="datagram", transport="udp",
-    codec="mcp_conform.spec.codec", monitor="mcp_conform.judge.run_monitor:RunMonitor",
-    dissector="mcp_conform.captures.dissector", capture_reader="mcp_conform.traceio.reader:open_capture",
+    monitor="mcp_conform.judge.run_monitor:RunMonitor", dissector="mcp_conform.captures.dissector",
     capture_detect=None, capture_tools="mcp_conform.captures.mcp",
     mutators="mcp_conform.fuzz.mutators", oracles="mcp_conform.fuzz.oracles", fuzz_campaign="mcp_conform.fuzz.campaign:DatagramCampaign",
     reference_cli="mcp_conform.reference_impl.cli",
     roles=(
         RoleProfile("drone", session="mcp_conform.harness.drone_session:Session", context="mcp_conform.conformance.drone_case:CaseContext",
                     cases="mcp_conform.conformance.cases", fuzz_target="mcp_conform.fuzz.drone_target:FuzzTarget",
-                    reference=("drone",), impairable=True, shardable=True, scheduled=True,
+                    impairable=True, shardable=True, scheduled=True,
                     peer="manager"),
         RoleProfile("manager", session="mcp_conform.harness.manager_session:ManagerSession",
                     context="mcp_conform.conformance.manager_case:ManagerCaseContext",
                     cases="mcp_conform.conformance.cases_manager", fuzz_target="mcp_conform.fuzz.manager_target:ManagerFuzzTarget",
-                    reference=("manager",), parameters=("drones", "challenge", "waypoints"),
+                    parameters=("drones", "challenge", "waypoints"),
                     peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
     ),
     loader="mcp_conform.spec._load:load",
@@ -140,15 +138,14 @@ MCP = Profile(
 
 NSQD_PROFILE = Profile(
     name="nsqd", spec=NSQD, framing="stream", transport="tcp",
-    codec="mcp_conform.spec.nsqd_codec", monitor="mcp_conform.judge.nsqd_monitor:StreamMonitor",
-    dissector="mcp_conform.captures.dissector_nsqd", capture_reader="mcp_conform.traceio.nsqd:stream_records",
+    monitor="mcp_conform.judge.nsqd_monitor:StreamMonitor", dissector="mcp_conform.captures.dissector_nsqd",
     capture_detect="mcp_conform.captures.nsqd:is_capture", capture_tools="mcp_conform.captures.nsqd",
     mutators="mcp_conform.fuzz.nsqd_mutators", oracles="mcp_conform.fuzz.nsqd_oracles",
     fuzz_campaign="mcp_conform.fuzz.nsqd_campaign:StreamCampaign", reference_cli="mcp_conform.reference_impl.nsqd_cli",
     roles=(
         RoleProfile("backend", session="mcp_conform.harness.nsqd_session:StreamSession",
                     context="mcp_conform.conformance.nsqd_case:StreamCaseContext", cases="mcp_conform.conformance.cases_nsqd",
-                    fuzz_target=None, reference=("--protocol", "nsqd", "backend"),
+                    fuzz_target=None,
                     peer="client"),
     ),
     loader="mcp_conform.spec.nsqd:load_stream",

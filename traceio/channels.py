@@ -2,19 +2,22 @@
 ``traceio.recorder`` writes and ``traceio.reader`` reads, written down (docs/design.md "Captures").
 
 ``CHANNELS``: every run's (``/mcp/tx``, ``/mcp/rx``, ``/mcp/burst`` for MCP-ROB-7's flood,
-``/mavlink``, ``/conformance/case``, ``/impair``, ``/vehicle``); ``STREAM_CHANNELS``: a stream
-protocol's (Nsqd: ``/nsqd/tx``, ``/nsqd/rx``, ``/nsqd/conn``, NSQD-*), registered with its first
-frame; :func:`foxglove_channels`: Foxglove's well-known ones where ``foxglove-sdk`` is installed.
+``/mavlink``, ``/conformance/case``, ``/impair``, ``/vehicle``); :func:`stream_channels`: a
+stream protocol's, named after it (Nsqd: ``/nsqd/tx``, ``/nsqd/rx``, ``/nsqd/conn``), registered
+with its first frame, and ``STREAM_CHANNELS`` those of every stream protocol in the profile table
+(``spec.profiles``: framing ``stream``); :func:`foxglove_channels`: Foxglove's well-known ones where ``foxglove-sdk`` is installed.
 ``traceio.live`` serves the same channels to a Foxglove WebSocket client.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
+from mcp_conform.spec.profiles import PROFILES, pick
 from mcp_conform.traceio import fox
 
-__all__ = ["CHANNELS", "HEX_LIMIT", "STREAM_CHANNELS", "foxglove_channels"]
+__all__ = ["CHANNELS", "HEX_LIMIT", "STREAM_CHANNELS", "StreamTopics", "foxglove_channels", "stream_channels",
+           "stream_topics"]
 
 _STR = {"type": "string"}
 _B64 = {"type": "string", "contentEncoding": "base64"}
@@ -134,8 +137,8 @@ _VEHICLE_SCHEMA: dict[str, Any] = {
 
 _STREAM_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "nsqd.Frame",
-    "description": "Bytes on a stream protocol's connection (--protocol nsqd): tx what the runner "
+    "title": "Frame",
+    "description": "Bytes on a stream protocol's connection: tx what the runner "
                    "wrote in one write, rx one frame the backend sent (or the bytes its deframer "
                    "refused), decoded where they decode.",
     "type": "object",
@@ -154,7 +157,7 @@ _STREAM_SCHEMA: dict[str, Any] = {
 }
 _CONN_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "nsqd.Connection",
+    "title": "Connection",
     "description": "A stream protocol's connection opened by the runner, or closed by either side "
                    "(by: client or backend; how: fin or rst), with its addresses.",
     "type": "object",
@@ -168,12 +171,33 @@ _CONN_SCHEMA: dict[str, Any] = {
     },
     "required": ["event", "conn"],
 }
-#: A stream protocol's channels, registered when its first frame is recorded.
+class StreamTopics(NamedTuple):
+    """A stream protocol's three topics: the runner's writes, the node's frames, the connections."""
+
+    tx: str
+    rx: str
+    conn: str
+
+
+def stream_topics(protocol: str) -> StreamTopics:
+    """The topics of ``protocol``'s stream traffic, named after it (``/nsqd/tx``, ...). A
+    protocol whose profile does not frame a stream is our own misuse: ValueError."""
+    if pick(protocol)[0].framing != "stream":
+        raise ValueError(f"--protocol {protocol} is not carried on a stream; it has no stream channels")
+    return StreamTopics(f"/{protocol}/tx", f"/{protocol}/rx", f"/{protocol}/conn")
+
+
+def stream_channels(protocol: str) -> dict[str, tuple[str, dict[str, Any]]]:
+    """``protocol``'s stream channels, topic -> (schema name, JSON schema), registered when
+    its first frame is recorded."""
+    t = stream_topics(protocol)
+    return {t.tx: (f"{protocol}.Frame", _STREAM_SCHEMA), t.rx: (f"{protocol}.Frame", _STREAM_SCHEMA),
+            t.conn: (f"{protocol}.Connection", _CONN_SCHEMA)}
+
+
+#: The stream channels of every stream protocol in the profile table.
 STREAM_CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {
-    "/nsqd/tx": ("nsqd.Frame", _STREAM_SCHEMA),
-    "/nsqd/rx": ("nsqd.Frame", _STREAM_SCHEMA),
-    "/nsqd/conn": ("nsqd.Connection", _CONN_SCHEMA),
-}
+    topic: value for p in PROFILES.values() if p.framing == "stream" for topic, value in stream_channels(p.name).items()}
 
 #: topic -> (schema name, JSON schema)
 CHANNELS: dict[str, tuple[str, dict[str, Any]]] = {

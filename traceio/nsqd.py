@@ -38,9 +38,9 @@ __all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
 
 BACKEND_PORT = NSQD.port("backend")
 _PEEK = 500  # records or packets looked at to tell the protocol
-#: the protocols whose captures this module reads (their profile's ``capture_reader``), as a
-#: run's metadata record names them
-_READ_HERE = frozenset(p.name for p in PROFILES.values() if p.capture_reader == f"{__name__}:stream_records")
+#: the protocols whose captures this module reads (their profile's framing is ``stream``), as
+#: a run's metadata record names them
+_READ_HERE = frozenset(p.name for p in PROFILES.values() if p.framing == "stream")
 
 
 def _name(raw: bytes) -> str | None:

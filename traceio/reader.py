@@ -56,6 +56,7 @@ from orjson import loads as _fast_loads
 
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import PREAMBLE
+from mcp_conform.traceio.channels import STREAM_CHANNELS
 from mcp_conform.traceio.packets import (
     FRAGMENT,
     LINKS,
@@ -94,6 +95,10 @@ __all__ = [
 ]
 
 
+#: every stream protocol's frame topics (-> "tx"/"rx") and connection topics, as
+#: ``traceio.channels.stream_topics`` names them after the protocol
+_STREAM_FRAMES = {t: d for t in STREAM_CHANNELS for d in ("tx", "rx") if t.endswith("/" + d)}
+_STREAM_CONNS = frozenset(t for t in STREAM_CHANNELS if t.endswith("/conn"))
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
 _PCAP_MAGICS = {b"\xa1\xb2\xc3\xd4", b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\x3c\x4d", b"\x4d\x3c\xb2\xa1"}
@@ -370,10 +375,10 @@ class Capture:
                             yield rec.log_time, "v", (str(body["kind"]),
                                                       drone if isinstance(drone, int) else None,
                                                       body.get("detail"), seg)
-                        elif topic == "/nsqd/tx" or topic == "/nsqd/rx":
-                            yield rec.log_time, "s", (topic[-2:], int(body["conn"]), body.get("name"),
+                        elif topic in _STREAM_FRAMES:
+                            yield rec.log_time, "s", (_STREAM_FRAMES[topic], int(body["conn"]), body.get("name"),
                                                       body.get("problem"), b64(body["raw_base64"]))
-                        elif topic == "/nsqd/conn":
+                        elif topic in _STREAM_CONNS:
                             yield rec.log_time, "e", (str(body["event"]), int(body["conn"]),
                                                       _parse_peer(body.get("local")), _parse_peer(body.get("peer")),
                                                       body.get("by"), body.get("how"))

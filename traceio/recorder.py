@@ -53,7 +53,15 @@ from mcap.writer import CompressionType, Writer
 
 from mcp_conform.spec.codec import Action, DecodeError, MissionItem, decode, peek_header
 from mcp_conform.traceio import fox
-from mcp_conform.traceio.channels import CHANNELS, HEX_LIMIT, STREAM_CHANNELS, foxglove_channels
+from mcp_conform.traceio.channels import (
+    CHANNELS,
+    HEX_LIMIT,
+    STREAM_CHANNELS,
+    StreamTopics,
+    foxglove_channels,
+    stream_channels,
+    stream_topics,
+)
 from mcp_conform.traceio.files import ClosedAtExit
 from mcp_conform.traceio.merge import SEGMENT
 
@@ -312,41 +320,45 @@ class McapRecorder:
                 "cycle": datagrams}
         self._write("/mcp/burst", body, first_t_ns)
 
-    def stream_frame(self, direction: str, raw: bytes, *, conn: int, peer: Any, msg_id: int | None = None,
-                     name: str | None = None, fields: Mapping[str, Any] | None = None,
+    def stream_frame(self, direction: str, raw: bytes, *, protocol: str, conn: int, peer: Any,
+                     msg_id: int | None = None, name: str | None = None, fields: Mapping[str, Any] | None = None,
                      problem: str | None = None, t_ns: int | None = None) -> None:
-        """Bytes on a stream connection (``/nsqd/tx``: one write of the runner; ``/nsqd/rx``:
-        one frame of the backend), with what they decode to."""
+        """Bytes on a connection of the stream protocol ``protocol`` (its ``tx``: one write of
+        the runner; ``rx``: one frame of the backend; ``traceio.channels.stream_topics``), with
+        what they decode to."""
         if direction not in ("tx", "rx"):
             raise ValueError(f"stream direction must be 'tx' or 'rx', not {direction!r}")
-        self._stream_channels()
+        topics = self._stream_channels(protocol)
         body = {"direction": direction, "conn": int(conn), "peer": _peer(peer), "msg_id": msg_id, "name": name,
                 "fields": dict(fields) if fields is not None else None, "problem": problem, "length": len(raw),
                 "raw_base64": base64.b64encode(bytes(raw)).decode("ascii")}
-        self._write(f"/nsqd/{direction}", body, t_ns)
+        self._write(topics.tx if direction == "tx" else topics.rx, body, t_ns)
 
-    def stream_event(self, event: str, *, conn: int, peer: Any = None, local: Any = None, by: str | None = None,
-                     how: str | None = None, t_ns: int | None = None) -> None:
-        """A stream connection opened (``open``: its addresses) or closed (``close``: ``by``
-        client or backend, ``how`` fin or rst), on ``/nsqd/conn``."""
+    def stream_event(self, event: str, *, protocol: str, conn: int, peer: Any = None, local: Any = None,
+                     by: str | None = None, how: str | None = None, t_ns: int | None = None) -> None:
+        """A connection of the stream protocol ``protocol`` opened (``open``: its addresses) or
+        closed (``close``: ``by`` client or backend, ``how`` fin or rst), on its ``conn`` topic."""
         if event not in ("open", "close"):
             raise ValueError(f"stream event must be 'open' or 'close', not {event!r}")
-        self._stream_channels()
-        self._write("/nsqd/conn", {"event": event, "conn": int(conn), "peer": _peer(peer),
+        topics = self._stream_channels(protocol)
+        self._write(topics.conn, {"event": event, "conn": int(conn), "peer": _peer(peer),
                                    "local": _peer(local) if local else None, "by": by, "how": how}, t_ns)
 
-    def _stream_channels(self) -> None:
+    def _stream_channels(self, protocol: str) -> StreamTopics:
+        """``protocol``'s stream topics, its channels registered at the first call."""
+        topics = stream_topics(protocol)
         with self._lock:
-            if self._closed or "/nsqd/tx" in self._channels or self._writer is None:
-                return
+            if self._closed or topics.tx in self._channels or self._writer is None:
+                return topics
             schemas: dict[str, int] = {}
-            for t, (sname, schema) in STREAM_CHANNELS.items():
+            for t, (sname, schema) in stream_channels(protocol).items():
                 if sname not in schemas:
                     schemas[sname] = self._writer.register_schema(name=sname, encoding="jsonschema",
                                                                   data=json.dumps(schema).encode())
                 self._channels[t] = self._writer.register_channel(topic=t, message_encoding="json",
                                                                   schema_id=schemas[sname])
                 self.counts.setdefault(t, 0)
+        return topics
 
     def impairment(self, decision: Any, data: bytes, t_ns: int | None = None) -> None:
         """What an impaired link did to ``data`` (a ``harness.impair.Decision``)."""

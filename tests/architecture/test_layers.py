@@ -87,3 +87,64 @@ def test_docs_architecture_names_every_package_of_the_contracts() -> None:
                for p in PACKAGES}
     for upper, lower in zip(floors, floors[1:], strict=False):  # the floors top to bottom
         assert max(heights[p] for p in upper) < min(heights[p] for p in lower), (upper, lower)
+
+
+def _bench_imports(bench: Path) -> dict[str, set[str]]:
+    """Each bench script's imports: module name -> the top-level names it imports (at any depth
+    of its body: the imports inside functions count)."""
+    import ast
+
+    out: dict[str, set[str]] = {}
+    for path in sorted(bench.glob("*.py")):
+        names: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names.add(node.module.split(".")[0])
+        out[path.stem] = names
+    return out
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """A cycle of ``graph`` (a list of its nodes, first repeated last), or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m in graph and not state.get(m):
+                found = visit(m)
+                if found:
+                    return found
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if not state.get(n):
+            found = visit(n)
+            if found:
+                return found
+    return None
+
+
+def test_bench_imports_the_namespace_only_and_has_no_circle() -> None:
+    """Issue 37: no import circle, bench/ included (import-linter sees the package, not the
+    scripts beside it): the bench scripts import each other without a circle, and ours only
+    through ``mcp_conform`` (never a bare ``spec`` or ``harness``)."""
+    imports = _bench_imports(ROOT / "bench")
+    graph = {m: {n for n in names if n in imports} for m, names in imports.items()}
+    assert _cycle(graph) is None, _cycle(graph)
+    bare = {m: sorted(names & set(PACKAGES)) for m, names in imports.items() if names & set(PACKAGES)}
+    assert not bare, bare
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    """(The check above can fail.)"""
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None

@@ -80,7 +80,7 @@ def test_json_follows_the_design_and_the_schema():
     validate_json(doc)
     assert list(doc) == ["schema_version", "tool", "spec", "target", "role", "parameters", "seed",
                          "error", "cases", "failures", "rules", "summary"]
-    assert doc["schema_version"] == "1.3" and doc["tool"]["name"] == "mcp-conform"
+    assert doc["schema_version"] == "1.4" and doc["tool"]["name"] == "mcp-conform"
     assert doc["spec"] == {"protocol": "MCP", "version": SPEC.version, "sha256": SPEC.sha256}
     assert doc["summary"] == {"passed": 1, "failed": 1, "warned": 1, "skipped": 1, "info": 1,
                               "error": 1, "xfailed": 0, "xpassed": 0, "duration_s": 1.25}

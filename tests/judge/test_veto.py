@@ -87,3 +87,27 @@ def test_mcp_capture_check_gets_the_veto_and_notes_it(tmp_path: Path) -> None:
     assert j.verdicts[2]["MCP-RTX-1"] == "passed"
     assert not [v for v in j.violations if v.rule == "MCP-RTX-1"]
     assert [n for n in j.notes if n.startswith("MCP-RTX-1 not failed for node 2")]
+
+
+def test_the_reports_monitor_section_lists_what_was_vetoed() -> None:
+    """A live view shows a failure as the traffic comes; the report, written after the
+    monitor's finish, must let it be reconciled: the vetoed failure is not among the section's
+    violations, and is in its ``vetoed`` list with the explanation (conformance/report.schema.json)."""
+    import json
+
+    import jsonschema
+
+    from mcp_conform.judge.run_monitor import RunMonitor, SessionMonitors
+
+    node, rule = VETOED["monitor-rtx1-starved-drone"]
+    run = RunMonitor(rto=0.2, ack_window=0.5, broadcast_id=0xFFFF, node_id=node, node_addr=None)
+    run.monitor = _monitor_of("monitor-rtx1-starved-drone", node)
+    section = run.to_json()
+    assert not [v for v in section["violations"] if (v["node"], v["rule"]) == (node, rule)]
+    (x,) = [x for x in section["vetoed"] if (x["node"], x["rule"]) == (node, rule)]
+    assert x["sender"] == node and "may have ended it" in x["explanation"]
+    schema = json.loads((Path(__file__).resolve().parents[2] / "conformance" / "report.schema.json").read_text())
+    jsonschema.validate(section, schema["properties"]["monitor"])
+    merged = SessionMonitors(rto=0.2, ack_window=0.5, broadcast_id=0xFFFF, node_id=node, node_addr=None)
+    merged.parts = {"a": run, "b": run}
+    assert len(merged.to_json()["vetoed"]) == 2 * len(section["vetoed"])

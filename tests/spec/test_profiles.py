@@ -21,7 +21,7 @@ def test_every_name_in_the_table_resolves():
     from mcp_conform.harness.node import NodeBase
 
     for prof in PROFILES.values():
-        for path in (prof.codec, prof.monitor, prof.dissector, prof.capture_reader, prof.mutators,
+        for path in (prof.monitor, prof.dissector, prof.mutators,
                      prof.oracles, prof.reference_cli, prof.capture_detect, prof.capture_tools, prof.loader):
             if path is not None:
                 assert resolve(path) is not None, path

@@ -337,7 +337,7 @@ def test_export_refuses_a_time_a_pcap_cannot_hold(tmp_path, capsys, suffix, rc):
 
     src = tmp_path / "late.mcap"
     with McapRecorder(src) as rec:
-        rec.stream_frame("tx", TAKEOFF, conn=1, peer=("127.0.0.1", 8888), t_ns=2**33 * 10**9)
+        rec.stream_frame("tx", TAKEOFF, protocol="nsqd", conn=1, peer=("127.0.0.1", 8888), t_ns=2**33 * 10**9)
     out = tmp_path / f"o.{suffix}"
     assert main(["export", str(src), "--pcap", str(out)]) == rc
     err = capsys.readouterr().err
