@@ -47,10 +47,13 @@ import itertools
 import random
 import re
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
 from mcp_conform.spec.codec import HEADER_SIZE, Action, peek_header
+
+T = TypeVar("T")
 
 __all__ = ["DelayQueue", "Decision", "Delivery", "Impairment", "ImpairmentError", "ImpairSpec",
            "parse_impairment"]
@@ -318,6 +321,17 @@ class Impairment:
             out.append(Delivery(delay, body, tuple(kinds)))
         return self._count(Decision(direction, n, len(data), tuple(out)))
 
+    def carry(self, direction: str, data: bytes, now: float, queue: DelayQueue[T],
+              held: Callable[[Delivery], T]) -> Decision:
+        """:meth:`decide`, then each copy held in ``queue`` until ``now`` plus its delay, as
+        ``held(copy)``; the decision as the link carried it out (:meth:`refused`: the copies a
+        full queue refused are dropped and counted). The whole link of a datagram entering it,
+        on whatever clock ``now`` reads: ``mcp-impair``'s and ``mcp-soak``'s medium, and the
+        simulator's on its virtual clock (``sim.link``)."""
+        decision = self.decide(direction, data, now)
+        kept = tuple(d for d in decision.deliveries if queue.push(now + d.delay_s, len(d.data), held(d)))
+        return self.refused(decision, kept)
+
     def refused(self, decision: Decision, kept: tuple[Delivery, ...]) -> Decision:
         """``decision`` as the link carried it out when its delay queue held only ``kept`` of
         its copies: ``dropped="queue"``, each refused copy counted (``drop:queue``)."""
@@ -368,7 +382,6 @@ MAX_HELD_BYTES = 16 << 20
 #: what holding one copy costs beside its bytes: the heap entry, its tuples, the bytes object's
 #: header (measured with tracemalloc: ~215 bytes on CPython 3.10-3.12, rounded up)
 HELD_OVERHEAD = 256
-T = TypeVar("T")
 
 
 class DelayQueue(Generic[T]):

@@ -249,7 +249,8 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     tool, spec = doc.get("tool", {}), doc.get("spec", {})
     prof = _profile(doc)
     #: each case's chart, as the protocol's framing carries its messages: datagrams or a stream's frames
-    chart_of = {"datagram": lambda c: _case_chart(c, trace), "stream": lambda c: _stream_chart(c, frames)}[prof.framing]
+    chart_of = {"datagram": lambda c: _case_chart(c, trace), "stream": lambda c: _stream_chart(c, frames)}.get(
+        prof.framing, lambda c: (None, f"no sequence chart of {prof.name}'s {prof.framing}s yet"))
     body = [fill(_H1, text=f"mcp-conform: {doc.get('role') or prof.default_role.name} at {target}"),
             fill(_META, text=f'{_str(tool.get("name"))} {_str(tool.get("version"))} · '
                               f'{_str(spec.get("protocol", "MCP"))} spec {_str(spec.get("version"))} · '

@@ -8,8 +8,9 @@ link (copies lost, duplicated, held back).
 
 The link's own record goes where the judge takes it: ``judge.explain``'s
 :attr:`Bounds.copy_capacity` ("ACKs one copy may draw: 1 + the copies the link may make of
-it") is 2 for a sender whose incoming link duplicated anything (see :func:`_explain`). The
-monitor takes no link record.
+it") is 1 + the most extra copies the link into a sender made of one datagram (see
+:func:`_explain`). The monitor takes no link record; what its veto dropped is kept
+(:attr:`Judged.vetoed`: the old judge's verdict, which a regression seed shows).
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ class Judged:
     violations: dict[int, list[Violation]] = field(default_factory=dict)
     verdicts: dict[int, dict[str, str]] = field(default_factory=dict)
     explained: dict[int, dict[str, Verdict]] = field(default_factory=dict)
+    #: the MCP-RTX-1/2 failures judge.explain's veto dropped (``Monitor.vetoed``), per party
+    vetoed: dict[int, list[Violation]] = field(default_factory=dict)
 
     def failed(self, pid: int) -> set[str]:
         """The MUST rules the monitor failed for ``pid``."""
@@ -69,6 +72,7 @@ def judge_world(w: World, *, rto: float, challenge: int, items: tuple[Any, ...],
                 found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
         found += mon.finish(int(w.view_end(pid) * NS))
         out.violations[pid] = [v for v in found if v.node == pid]
+        out.vetoed[pid] = [x.violation for x in mon.vetoed if x.violation.node == pid]
         out.verdicts[pid] = mon.verdicts().get(pid, {})
         if explain and view:
             out.explained[pid] = _explain(w, pid, view, window, rto)
@@ -80,17 +84,17 @@ def _explain(w: World, pid: int, view: list[ViewRecord], window: float, rto: flo
     MCP-RTX-1/2 where it sends. Its own view shows each copy the link delivered to it (a
     duplicate is a copy it must ACK) and each ACK it sent once, so as a receiver one copy draws
     one ACK; as a sender it sees the ACKs the link delivered, so one copy may draw one more
-    for each the link into it duplicated (:attr:`Bounds.copy_capacity`). Its stalls are the
+    for each extra copy the link into it made (:attr:`Bounds.copy_capacity`). Its stalls are the
     observer's lag (``copy_early`` / ``ack_early``: read late) and its run delay (``rto_slack``:
     a copy sent late), as ``harness.run_delay`` measures them on a real host (D-7)."""
-    dup_in = any(link.duplicates for (_, b), link in w.links.items() if b == pid)
+    capacity = max((link.max_copies for (_, b), link in w.links.items() if b == pid), default=1)
     # a stalled party reads late (what reached its socket is seen when it is read) and sends
     # late (its timers fire late): the observer's lag and the run delay, D-7, of its stalls
     lag = max((b - a for a, b in w.stalls[pid]), default=0.0)
     slack = Bounds.rto_slack + lag
     as_receiver = Bounds(ack_window=window, rto=rto, copy_early=lag, rto_slack=slack)
     as_sender = Bounds(ack_window=window, rto=rto, ack_early=lag, rto_slack=slack,
-                       copy_capacity=2 if dup_in else 1)
+                       copy_capacity=capacity)
     # the view goes on to the party's end, not its last datagram: a silence is seen
     end = (w.view_end(pid) * NS - view[0].t_ns) / NS
     mine: dict[str, Verdict] = {}

@@ -1,102 +1,91 @@
-"""A seeded link, one per direction, that delays, reorders, loses and duplicates datagrams
-(issue 38, item 2), and records every copy it made or dropped so a judge can be told.
+"""The simulator's link is the runner's own (issue 38, item 2): each direction's datagrams go
+through ``harness.impair`` -- :class:`Impairment` decides (loss, Gilbert-Elliott bursts, the
+rate limit, duplication into ``copies`` extra copies, delay, reordering), :meth:`Impairment.carry`
+holds each copy in a bounded :class:`DelayQueue` until it is due and records what a full queue
+refused -- exactly as ``mcp-impair`` and ``mcp-soak``'s medium do on a host, only the clock is
+the simulator's virtual one and the seed the schedule's. So the simulator tests the link
+``--impair`` ships, not a second model of it.
 
-The decisions are drawn from the link's own ``random.Random`` in the order datagrams enter
-it, so the same seed and the same traffic give the same fates. Per datagram: ``dup`` is the
-chance of one extra copy (the link's, not the sender's: MCP-RTX-1 counts only the sender's
-copies, ``judge.explain``'s :attr:`Copy.link_copy`); each copy is lost with ``loss``; each
-surviving copy waits a delay drawn uniformly from ``[delay_min, delay_max]`` seconds, and with
-``reorder`` a further ``reorder_extra`` seconds, so later datagrams overtake it. The delays
-may reach several times the retransmission timeout (``--rto``), where every false verdict
-the issue lists lived ("a copy that crossed its ACK, an ACK read late behind a backlog").
+The directions are named as ``mcp-soak``'s medium names them (``drone{N}:down`` from the
+manager, ``drone{N}:up`` to it), and a decision depends on the seed, the direction and the
+datagram's identity (``harness.impair``: the c-th copy of the r-th distinct message), never on
+the timing around it. A spec that would corrupt is refused (:func:`check_spec`): a corrupted
+copy would reach the judges as its sender's bytes, which the UDP checksum (and the runner's own
+link, ``harness.impair_link``) keeps from a node.
+
+Each :class:`Link` keeps its own record (:class:`LinkRecord`: every copy made, when it was
+sent and when due, or dropped and why) so a judge can be told what the link did
+(``judge.explain``'s copy capacity, :mod:`sim.judges`).
 """
 
 from __future__ import annotations
 
-import random
-from dataclasses import asdict, dataclass
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
-__all__ = ["Link", "LinkParams", "LinkRecord"]
+from mcp_conform.harness.impair import Decision, DelayQueue, Impairment, ImpairSpec
+
+__all__ = ["Link", "LinkRecord", "check_spec"]
+
+T = TypeVar("T")
 
 
-@dataclass(frozen=True)
-class LinkParams:
-    """One direction's impairment; every chance in [0, 1], every time in seconds."""
-
-    loss: float = 0.0
-    dup: float = 0.0
-    reorder: float = 0.0
-    delay_min: float = 0.0
-    delay_max: float = 0.0
-    reorder_extra: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("loss", "dup", "reorder"):
-            v = getattr(self, name)
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"link {name} must be within [0, 1], got {v!r}")
-        if not 0.0 <= self.delay_min <= self.delay_max or self.reorder_extra < 0:
-            raise ValueError(f"link delays must satisfy 0 <= delay_min <= delay_max, extra >= 0: {self}")
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @property
-    def clean(self) -> bool:
-        return not (self.loss or self.dup or self.reorder or self.delay_max)
+def check_spec(spec: ImpairSpec) -> ImpairSpec:
+    """``spec`` if the simulator can run it; ValueError in one line if it corrupts."""
+    if spec.corrupt:
+        raise ValueError(f"link {spec.text()!r}: corrupt is not simulated (the judges would read a "
+                         "corrupted copy as its sender's; the UDP checksum keeps it from a node)")
+    return spec
 
 
 @dataclass(frozen=True, slots=True)
 class LinkRecord:
-    """What the link did with copy ``copy`` (0: the sender's own, 1: the link's duplicate) of
-    its ``index``-th datagram, sent at ``t_sent``: delivered at ``t_arrive`` or dropped (None)."""
+    """What the link did with copy ``copy`` (0: the datagram itself, 1..: the link's
+    duplicates) of its ``index``-th datagram, sent at ``t_sent``: due at ``t_arrive``, or
+    dropped (None, ``kinds`` saying why: ``drop:loss``, ``drop:burst``, ``drop:rate``)."""
 
     index: int
     copy: int
     t_sent: float
     t_arrive: float | None
+    kinds: tuple[str, ...] = ()
 
 
 class Link:
-    """One direction's link: :meth:`send` returns the copies that will arrive, and when."""
+    """One direction: :meth:`send` carries a datagram into the world's delay queue."""
 
-    __slots__ = ("name", "params", "records", "_rng", "_n")
+    __slots__ = ("name", "impairment", "queue", "records", "max_copies")
 
-    def __init__(self, name: str, params: LinkParams, seed: int) -> None:
+    def __init__(self, name: str, impairment: Impairment, queue: DelayQueue[Any]) -> None:
         self.name = name
-        self.params = params
-        self._rng = random.Random(seed)
+        self.impairment = impairment
+        self.queue = queue
         self.records: list[LinkRecord] = []
-        self._n = 0
+        self.max_copies = 1  # the most copies the link delivered of one datagram
 
-    def send(self, data: bytes, now: float) -> list[tuple[float, int]]:
-        """The copies of one datagram that arrive: ``(t_arrive, copy)``, in copy order."""
-        p = self.params
-        index = self._n
-        self._n += 1
-        if p.clean:
-            self.records.append(LinkRecord(index, 0, now, now))
-            return [(now, 0)]
-        rng = self._rng
-        n = 2 if p.dup and rng.random() < p.dup else 1
-        out = []
-        for copy in range(n):
-            if p.loss and rng.random() < p.loss:
-                self.records.append(LinkRecord(index, copy, now, None))
-                continue
-            delay = rng.uniform(p.delay_min, p.delay_max) if p.delay_max else 0.0
-            if p.reorder and rng.random() < p.reorder:
-                delay += p.reorder_extra
-            self.records.append(LinkRecord(index, copy, now, now + delay))
-            out.append((now + delay, copy))
-        return out
+    def send(self, data: bytes, now: float, held: Callable[[bytes], T]) -> Decision | None:
+        """Carry ``data`` entering the link at ``now``: each copy held in the queue as
+        ``held(copy's bytes)`` until due; the decision (None: a clean link, passed at once)."""
+        if not self.impairment.spec.active:  # decide() would pass it unchanged, undelayed
+            self.queue.push(now, len(data), held(data))
+            self.records.append(LinkRecord(len(self.records), 0, now, now))
+            return None
+        decision = self.impairment.carry(self.name, data, now, self.queue, lambda d: held(d.data))
+        n = decision.n
+        if not decision.deliveries:
+            self.records.append(LinkRecord(n, 0, now, None, decision.kinds))
+        for copy, d in enumerate(decision.deliveries):
+            self.records.append(LinkRecord(n, copy, now, now + d.delay_s, d.kinds))
+        self.max_copies = max(self.max_copies, len(decision.deliveries))
+        return decision
 
     @property
     def duplicates(self) -> int:
-        """How many extra copies the link made (delivered or not)."""
+        """How many extra copies the link delivered."""
         return sum(1 for r in self.records if r.copy)
 
     @property
     def drops(self) -> int:
+        """How many datagrams the link dropped whole (loss, burst, rate, a full queue)."""
         return sum(1 for r in self.records if r.t_arrive is None)

@@ -35,6 +35,8 @@ ACK = int(Action.ACK)
 MAX_ACK_COPIES = 5
 #: the latest a copy is due: rto x 1.2 (MCP-RTX-3's tolerance) plus jitter, with a margin
 LATE, EARLY, MARGIN = 1.25, 0.8, 0.05
+#: what a party does at one virtual instant, as its stamps show it (``sim.world.STEP_NS`` apart)
+INSTANT = 1e-3
 
 
 def s_stalls(o: Any, pid: int) -> list[tuple[float, float]]:
@@ -204,7 +206,7 @@ def _moved_on(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool |
         if any(not tx and h[3] == ACK and _named(d) == seq and t - lag - 1e-6 <= t2 <= t + MARGIN + lag
                for t2, tx, h, d in view):
             continue  # the right ACK at (nearly) the same instant: a judge of times may take it
-        if any(tx and abs(t2 - t) < 1e-9 and h[3] != ACK and 0 < ((h[2] - seq) & 0xFFFF) < 0x8000
+        if any(tx and -1e-9 <= t2 - t < INSTANT and h[3] != ACK and 0 < ((h[2] - seq) & 0xFFFF) < 0x8000
                for t2, tx, h, _ in view):
             if end < t + LATE * s.rto + MARGIN:
                 return None, f"at {t:.3f} s: {what}, the next message sent, the view ends within a timeout"

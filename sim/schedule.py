@@ -1,6 +1,7 @@
 """A schedule: everything one simulated mission is a function of (issue 38, item 3) -- the
-seed, the mission's shape, the link's parameters per direction, the stalls and the fault
-model -- and :func:`run_schedule`, which replays it: the same schedule always gives the same
+seed, the mission's shape, the link's impairment per direction (an ``--impair`` spec, written
+in seed files as its one-string form: what the runner's ``--impair`` takes), the stalls and
+the fault model -- and :func:`run_schedule`, which replays it: the same schedule always gives the same
 trace and the same verdicts (``tests/sim/seeds/*.json`` are schedules).
 """
 
@@ -10,9 +11,10 @@ import random
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
+from mcp_conform.harness.impair import ImpairSpec, parse_impairment
 from mcp_conform.sim.faults import FAULTS, Fault, fault_endpoint
 from mcp_conform.sim.judges import Judged, judge_world
-from mcp_conform.sim.link import LinkParams
+from mcp_conform.sim.link import check_spec
 from mcp_conform.sim.models import DroneModel, ManagerModel, mission_items
 from mcp_conform.sim.world import StallParams, World
 from mcp_conform.spec.codec import MANAGER_ID
@@ -25,15 +27,17 @@ class Schedule:
     """One mission's schedule. Times in seconds of virtual time; ``retries``: every node's retry
     limit (MCP-RTX-1: "its retry limit", configurable; 20 lets a manager give a lost drone up
     and end its mission well inside the run); ``max_rtos``: the run ends after this many
-    timeouts (a sender that never gives up is cut there, its view with it)."""
+    timeouts (a sender that never gives up is cut there, its view with it). ``down`` and
+    ``up``: each direction's ``--impair`` spec (its ``seed`` unused: the links' seed is drawn
+    from ``seed``)."""
 
     seed: int
     rto: float = 1.0
     drones: int = 1
     challenge: int = 1
     items: int = 2
-    down: LinkParams = field(default_factory=LinkParams)
-    up: LinkParams = field(default_factory=LinkParams)
+    down: ImpairSpec = field(default_factory=ImpairSpec)
+    up: ImpairSpec = field(default_factory=ImpairSpec)
     stalls: StallParams = field(default_factory=StallParams)
     fault: str | None = None
     retries: int = 20
@@ -44,6 +48,8 @@ class Schedule:
             raise ValueError(f"unknown fault {self.fault!r}; known: {', '.join(FAULTS)}")
         if self.challenge not in (1, 2, 3) or not 1 <= self.drones <= 8 or self.items < 1 or self.rto <= 0:
             raise ValueError(f"bad mission shape: {self}")
+        check_spec(self.down)
+        check_spec(self.up)
 
     @property
     def faulty(self) -> Fault | None:
@@ -56,13 +62,22 @@ class Schedule:
         return None if f is None else MANAGER_ID if f.role == "manager" else 1
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        """The schedule as JSON; each link as its ``--impair`` text, which must read back as
+        itself (a drawn delay is whole milliseconds)."""
+        doc = asdict(self)
+        for side in ("down", "up"):
+            spec: ImpairSpec = getattr(self, side)
+            text = spec.text()
+            if parse_impairment(text) != spec:
+                raise ValueError(f"link {side} {spec} does not read back from {text!r}")
+            doc[side] = text
+        return doc
 
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> Schedule:
         d = dict(doc)
-        d["down"] = LinkParams(**d.get("down", {}))
-        d["up"] = LinkParams(**d.get("up", {}))
+        d["down"] = parse_impairment(d.get("down", "seed=0"))
+        d["up"] = parse_impairment(d.get("up", "seed=0"))
         d["stalls"] = StallParams(**d.get("stalls", {}))
         return cls(**d)
 

@@ -23,12 +23,12 @@ import hashlib
 import json
 import random
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from mcp_conform.harness.impair import ImpairSpec
 from mcp_conform.sim.faults import FAULTS
-from mcp_conform.sim.link import LinkParams
 from mcp_conform.sim.oracles import observable
 from mcp_conform.sim.schedule import Outcome, Schedule, run_schedule
 from mcp_conform.sim.world import StallParams
@@ -91,14 +91,23 @@ def check(o: Outcome, judges: tuple[str, ...] = ("monitor", "explain")) -> list[
 RTOS = (0.3, 1.0, 5.0)
 
 
-def draw_link(rng: random.Random, rto: float) -> LinkParams:
-    """A link: clean a fifth of the time, else each impairment drawn, delays up to 3 x rto."""
+def draw_link(rng: random.Random, rto: float) -> ImpairSpec:
+    """An ``--impair`` spec: clean a fifth of the time, else each impairment drawn -- loss,
+    duplication into 1-2 extra copies, reordering, a delay range up to 3 x rto (a reordered
+    copy waits up to 3 times its top: ``harness.impair``), and now and then Gilbert-Elliott
+    bursts and a rate limit; delays in whole milliseconds, so a seed file's text is exact."""
     if rng.random() < 0.2:
-        return LinkParams()
-    hi = rng.choice((0.0, 0.1, 0.5, 1.0, 2.0, 3.0)) * rto
-    return LinkParams(loss=rng.choice((0.0, 0.05, 0.2, 0.4)), dup=rng.choice((0.0, 0.1, 0.3)),
-                      reorder=rng.choice((0.0, 0.1, 0.3)), delay_min=rng.uniform(0.0, hi),
-                      delay_max=hi, reorder_extra=rng.choice((0.0, 0.5, 1.0, 3.0)) * rto)
+        return ImpairSpec()
+    hi_ms = round(rng.choice((0.0, 0.1, 0.5, 1.0, 2.0, 3.0)) * rto * 1000)
+    lo_ms = round(rng.uniform(0.0, hi_ms))
+    dup = rng.choice((0.0, 0.1, 0.3))
+    burst = rng.random() < 0.1
+    return ImpairSpec(loss=rng.choice((0.0, 0.05, 0.2, 0.4)), dup=dup,
+                      copies=rng.choice((1, 1, 2)) if dup else 1, reorder=rng.choice((0.0, 0.1, 0.3)),
+                      delay_lo_s=lo_ms / 1000, delay_hi_s=hi_ms / 1000,
+                      burst_gb=rng.choice((0.05, 0.2)) if burst else 0.0,
+                      burst_bg=rng.choice((0.3, 0.6)) if burst else 0.0,
+                      rate=rng.choice((2.0, 5.0, 20.0)) if rng.random() < 0.1 else None)
 
 
 def draw_schedule(rng: random.Random, fault: str | None = None) -> Schedule:
@@ -123,11 +132,15 @@ class Stats:
 
 
 def sweep(n: int, seed: int, faults: tuple[str | None, ...] = (None, *FAULTS),
-          on_failure: Callable[[Schedule, list[Problem]], None] | None = None) -> Stats:
-    """``n`` schedules drawn from ``seed``, the fault models in turn, each run, judged, checked."""
+          on_failure: Callable[[Schedule, list[Problem]], None] | None = None,
+          stop: Callable[[], bool] | None = None) -> Stats:
+    """``n`` schedules drawn from ``seed``, the fault models in turn, each run, judged, checked
+    (``stop()`` true: no more; a caller's wall-time bound, the schedules the same first ones)."""
     rng = random.Random(seed)
     st = Stats()
     for i in range(n):
+        if stop is not None and stop():
+            break
         fault = faults[i % len(faults)]
         s = draw_schedule(rng, fault)
         o = run_schedule(s)
@@ -160,17 +173,20 @@ def _simpler(s: Schedule) -> Iterator[Schedule]:
     if s.stalls.count:
         yield s.but(stalls=StallParams())
     for side in ("down", "up"):
-        p: LinkParams = getattr(s, side)
-        for name in ("dup", "reorder", "loss", "delay_max"):
+        p: ImpairSpec = getattr(s, side)
+        for name, changes in SIMPLER_LINK:
             if getattr(p, name):
-                changes: dict[str, Any] = {name: 0.0}
-                if name == "delay_max":
-                    changes["delay_min"] = 0.0
-                if name == "reorder":
-                    changes["reorder_extra"] = 0.0
-                yield s.but(**{side: LinkParams(**{**p.to_json(), **changes})})
+                yield s.but(**{side: replace(p, **changes)})
     if s.up != s.down:
         yield s.but(up=s.down)
+
+
+#: each impairment of a link, and the spec without it (``_simpler``)
+SIMPLER_LINK: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("dup", {"dup": 0.0, "copies": 1}), ("reorder", {"reorder": 0.0}), ("loss", {"loss": 0.0}),
+    ("burst_gb", {"burst_gb": 0.0, "burst_bg": 0.0, "burst_loss": 1.0}), ("rate", {"rate": None}),
+    ("delay_hi_s", {"delay_lo_s": 0.0, "delay_hi_s": 0.0}), ("delay_lo_s", {"delay_lo_s": 0.0}),
+)
 
 
 def shrink(s: Schedule, fails: Callable[[Schedule], bool], budget: int = 200) -> Schedule:
@@ -205,7 +221,7 @@ def digest(o: Outcome) -> str:
         for r in view:
             h.update(repr((pid, r.t_ns, r.tx, r.run_delay, r.data)).encode())
     for key, link in sorted(o.world.links.items()):
-        h.update(repr((key, [(r.index, r.copy, r.t_sent, r.t_arrive) for r in link.records])).encode())
+        h.update(repr((key, [(r.index, r.copy, r.t_sent, r.t_arrive, r.kinds) for r in link.records])).encode())
     if o.judged is not None:
         h.update(json.dumps(o.judged.summary(), sort_keys=True).encode())
         h.update(repr(sorted((p, r, v.status) for p, e in o.judged.explained.items() for r, v in e.items())).encode())
@@ -213,15 +229,23 @@ def digest(o: Outcome) -> str:
 
 
 def save_seed(path: Path, s: Schedule, problems: list[Problem], *, reason: str, xfail: bool,
-              explain_reason: str | None = None) -> None:
+              explain_reason: str | None = None, open_reason: str | None = None) -> None:
     """A regression seed: the schedule, what was found, why (``reason``: the monitor's false
     verdict, ``xfail``: the monitor's test is its strict xfail; ``explain_reason``: so is
-    judge.explain's), and the digest its replay must give."""
+    judge.explain's), the failures judge.explain's veto dropped (``vetoed``: what the monitor
+    without the veto said), ``open_reason``: a false verdict on a correct party the judge still
+    gives (``open``, a strict xfail too), and the digest its replay must give."""
     o = run_schedule(s)
     doc: dict[str, Any] = {"schedule": s.to_json(), "found": [p.text() for p in problems], "reason": reason,
                            "xfail": xfail, "digest": digest(o)}
+    assert o.judged is not None
+    vetoed = [f"node {pid} {v.rule}: {v.actual}" for pid, vs in sorted(o.judged.vetoed.items()) for v in vs]
+    if vetoed:  # the old judge's failures, which judge.explain's veto drops
+        doc["vetoed"] = vetoed
     if explain_reason:
         doc["explain_reason"] = explain_reason
+    if open_reason:
+        doc["open"] = open_reason
     path.write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 

@@ -1,9 +1,11 @@
-"""One simulated mission: the parties (:mod:`sim.models`), a seeded link per direction
-(:mod:`sim.link`) and stalls, on one virtual clock (:mod:`sim.clock`) -- issue 38, item 2.
+"""One simulated mission: the parties (:mod:`sim.models`), the runner's seeded link per
+direction (:mod:`sim.link`: ``harness.impair``'s decisions and delay queue) and stalls, on one
+virtual clock (:mod:`sim.clock`) -- issue 38, item 2.
 
 The manager's datagrams go down the link to the drone their MCP header names (the broadcast
 ID: to every drone; any other ID: nowhere, as on a shared port nobody listens there); a
-drone's go up its own link to the manager. A party may be *stalled* (its process off the
+drone's go up its own link to the manager. Every copy the links let through waits in one bounded
+``harness.impair.DelayQueue`` (as in ``mcp-soak``'s medium) until it is due. A party may be *stalled* (its process off the
 CPU): inside one of its stall windows it reads nothing and its timers do not fire; both
 happen at the window's end, in the order they fell due. From the first thing that fell due
 inside a window (a datagram to read or a timer) to the window's end the party was runnable but
@@ -25,14 +27,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from mcp_conform.harness.impair import DelayQueue, Impairment, ImpairSpec, replace_seed
 from mcp_conform.sim.clock import Clock, EventQueue
-from mcp_conform.sim.link import Link, LinkParams
+from mcp_conform.sim.link import Link, check_spec
 from mcp_conform.sim.models import DroneModel, ManagerModel, NodeModel
 from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, peek_header
 
 __all__ = ["StallParams", "ViewRecord", "World"]
 
 NS = 1_000_000_000
+#: the least time between two things one party does, as its capture stamps them: reading a
+#: datagram and sending one take a host some microseconds, so a party's stamps never tie (the
+#: virtual clock lets a stalled party read a backlog at one instant, whose order a tie would hide)
+STEP_NS = 1_000
 
 
 class ViewRecord(NamedTuple):
@@ -68,7 +75,7 @@ class StallParams:
 class World:
     """Run :meth:`run` once; then read ``views``, ``links`` and the parties' outcomes."""
 
-    def __init__(self, manager: ManagerModel, drones: Sequence[DroneModel], down: LinkParams, up: LinkParams,
+    def __init__(self, manager: ManagerModel, drones: Sequence[DroneModel], down: ImpairSpec, up: ImpairSpec,
                  seed: int, *, stalls: StallParams = StallParams(), max_time: float = math.inf,
                  max_events: int = 200_000) -> None:
         self.clock = Clock()
@@ -77,10 +84,16 @@ class World:
         self.drones = {d.node_id: d for d in drones}
         self.parties: dict[int, NodeModel] = {MANAGER_ID: manager, **self.drones}
         rng = random.Random(seed)
+        # one link seed for the mission, as mcp-soak gives each mission one; the spec's own is not used
+        link_seed = rng.getrandbits(64)
+        down_imp = Impairment(replace_seed(check_spec(down), link_seed))
+        up_imp = Impairment(replace_seed(check_spec(up), link_seed))
+        #: the copies on their way: (due, (to, data, src_addr)), one bounded queue for the links
+        self.held: DelayQueue[tuple[int, bytes, Any]] = DelayQueue()
         self.links: dict[tuple[int, int], Link] = {}
         for d in self.drones:
-            self.links[(MANAGER_ID, d)] = Link(f"drone{d}:down", down, rng.getrandbits(64))
-            self.links[(d, MANAGER_ID)] = Link(f"drone{d}:up", up, rng.getrandbits(64))
+            self.links[(MANAGER_ID, d)] = Link(f"drone{d}:down", down_imp, self.held)
+            self.links[(d, MANAGER_ID)] = Link(f"drone{d}:up", up_imp, self.held)
         self.stalls = {p: stalls.windows(random.Random(rng.getrandbits(64))) for p in self.parties}
         self.views: dict[int, list[ViewRecord]] = {p: [] for p in self.parties}
         self.run_delay_ns = {p: 0 for p in self.parties}
@@ -88,6 +101,7 @@ class World:
         self._gen = {p: 0 for p in self.parties}
         #: when something first fell due for a stalled party (runnable, not running), by party
         self._waiting: dict[int, float] = {}
+        self._last_ns = {p: -STEP_NS for p in self.parties}
         self.max_time = max_time
         self.max_events = max_events
         self.events = 0
@@ -96,15 +110,22 @@ class World:
 
     # ------------------------------------------------------------------ running
     def run(self) -> World:
-        q = self.queue
+        q, held = self.queue, self.held
         for pid, party in self.parties.items():
             party.start(0.0)
             self._arm(pid)
-        while len(q):
-            t = q.peek_time()
-            if t is None or t > self.max_time or self.events >= self.max_events:
+        while True:
+            t_ev, t_held = q.peek_time(), held.next_due()
+            t = t_ev if t_held is None or (t_ev is not None and t_ev < t_held) else t_held
+            if t is None:
+                break
+            if t > self.max_time or self.events >= self.max_events:
                 self.truncated = True
                 break
+            if t == t_held:  # copies fall due: each is read as its party's next event
+                for to, data, src_addr in held.pop_due(t):
+                    q.push(t, "rx", to, data, src_addr)
+                continue
             t, kind, args = q.pop()
             self.events += 1
             pid = args[0]
@@ -121,7 +142,7 @@ class World:
                 self.run_delay_ns[pid] += int((t - since) * NS)
             if kind == "rx":
                 _, data, src_addr = args
-                self.views[pid].append(ViewRecord(round(t * NS), src_addr, party.addr, data, False, None))
+                self.views[pid].append(ViewRecord(self._stamp(pid, t), src_addr, party.addr, data, False, None))
                 party.receive(data, src_addr, t)
             else:  # "timer"
                 _, gen, due = args
@@ -145,6 +166,13 @@ class World:
         """When the party's view ends: it closed, or the run did."""
         closed = self.parties[pid].closed_at
         return self.end if closed is None else closed
+
+    def _stamp(self, pid: int, t: float) -> int:
+        """The party's capture time of something it read or sent at ``t``: its own clock's, at
+        least ``STEP_NS`` after its last (one party does one thing at a time)."""
+        ns = max(round(t * NS), self._last_ns[pid] + STEP_NS)
+        self._last_ns[pid] = ns
+        return ns
 
     def _stalled(self, pid: int, t: float) -> float | None:
         for a, b in self.stalls[pid]:
@@ -174,7 +202,8 @@ class World:
             dst_addr = self.drones[dst].addr if dst in self.drones else None
         else:
             targets, dst_addr = [MANAGER_ID], self.manager.addr
-        self.views[pid].append(ViewRecord(round(now * NS), party.addr, dst_addr, data, True, self.run_delay_ns[pid]))
+        self.views[pid].append(ViewRecord(self._stamp(pid, now), party.addr, dst_addr, data, True,
+                                          self.run_delay_ns[pid]))
+        src_addr = party.addr
         for to in targets:
-            for t_arrive, _copy in self.links[(pid, to)].send(data, now):
-                self.queue.push(t_arrive, "rx", to, data, party.addr)
+            self.links[(pid, to)].send(data, now, lambda body, to=to: (to, body, src_addr))  # type: ignore[misc]  # mypy: a default argument

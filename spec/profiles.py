@@ -20,7 +20,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.spec import NSQD, SPEC, SpecBase
+from mcp_conform.spec import MAVLINK, NSQD, SPEC, SpecBase
 
 __all__ = ["DEFAULT_PROTOCOL", "PROFILES", "ProfileError", "Profile", "RoleProfile", "add_protocol_option",
            "pick", "profile_of_role", "resolve", "ROLE_NAMES"]
@@ -65,22 +65,24 @@ class Profile:
 
     name: str
     spec: SpecBase
-    #: how the wire carries messages: ``datagram`` (one message a datagram) or ``stream``
-    #: (frames deframed from a byte stream)
+    #: how the wire carries messages: ``datagram`` (one message a datagram), ``stream``
+    #: (frames deframed from a byte stream, recorded on the protocol's stream channels) or
+    #: ``packet`` (self-delimiting packets over either, as MAVLink's, recorded as its own)
     framing: str
-    transport: str  # udp, tcp
+    transport: str  # udp, tcp; mavlink: either, as the node's address says
+    #: None below: the protocol has no such piece yet (:func:`resolve` says so in one line)
     #: the run's trace monitor of a datagram protocol (``harness.session_base.DatagramSessionBase``)
-    monitor: str
-    dissector: str  # its Wireshark Lua dissector: ``generate()`` and ``FILENAME``
+    monitor: str | None
+    dissector: str | None  # its Wireshark Lua dissector: ``generate()`` and ``FILENAME``
     #: whether a capture file holds this protocol's traffic (None: the default's captures)
     capture_detect: str | None
     #: ``mcp-capture check|show|diff|export|replay`` of its captures (``captures.cli.CaptureTools``)
-    capture_tools: str
-    mutators: str
-    oracles: str
+    capture_tools: str | None
+    mutators: str | None
+    oracles: str | None
     #: ``mcp-fuzz``'s campaign of this protocol (``fuzz.config.FuzzCampaign``): its loop over
     #: the protocol's targets, engines, oracles and triage, and its ``--replay``
-    fuzz_campaign: str
+    fuzz_campaign: str | None
     #: the reference node's command line (``mcp-node --protocol NAME ROLE``; the runner's
     #: embedded default: ``harness.session_base.reference_command``)
     reference_cli: str
@@ -151,8 +153,22 @@ NSQD_PROFILE = Profile(
     loader="mcp_conform.spec.nsqd:load_stream",
 )
 
+#: MAVLink's microservices (issue 39): frames through pymavlink over TCP or UDP, as SITL is
+#: reached; the node under test is an autopilot, the runner its ground station. The
+#: reference vehicle is ``mcp-vehicle``; no fuzz campaign, capture tools or dissector yet.
+MAVLINK_PROFILE = Profile(
+    name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
+    monitor=None, dissector=None, capture_detect=None, capture_tools=None,
+    mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.vehicle.cli",
+    roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
+                       context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",
+                       cases="mcp_conform.conformance.cases_mavlink", fuzz_target=None,
+                       peer="gcs"),),
+    loader="mcp_conform.spec.mavlink:load_mavlink",
+)
+
 #: Every protocol by its ``--protocol`` name; the first is the default.
-PROFILES: dict[str, Profile] = {p.name: p for p in (MCP, NSQD_PROFILE)}
+PROFILES: dict[str, Profile] = {p.name: p for p in (MCP, NSQD_PROFILE, MAVLINK_PROFILE)}
 #: Every role of every protocol (a role name belongs to one protocol).
 ROLE_NAMES: tuple[str, ...] = tuple(r.name for p in PROFILES.values() for r in p.roles)
 
@@ -195,9 +211,12 @@ def add_protocol_option(parser: Any, help: str, default: str | None = None) -> N
                         help=help)
 
 
-def resolve(path: str) -> Any:
+def resolve(path: str | None) -> Any:
     """``"package.module"`` -> the module, ``"package.module:name"`` -> its attribute: a
-    profile's name of a thing on a higher floor, imported by the floor that asks for it."""
+    profile's name of a thing on a higher floor, imported by the floor that asks for it.
+    None (a piece the protocol does not have yet): ProfileError."""
+    if path is None:
+        raise ProfileError("this protocol has no such piece yet (spec.profiles)")
     module, _, attr = path.partition(":")
     mod = importlib.import_module(module)
     return getattr(mod, attr) if attr else mod

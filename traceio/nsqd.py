@@ -38,8 +38,8 @@ __all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
 
 BACKEND_PORT = NSQD.port("backend")
 _PEEK = 500  # records or packets looked at to tell the protocol
-#: the protocols whose captures this module reads (their profile's framing is ``stream``), as
-#: a run's metadata record names them
+#: the protocols whose captures this module reads (their profile's framing is ``stream``: their
+#: frames are on their stream channels), as a run's metadata record names them
 _READ_HERE = frozenset(p.name for p in PROFILES.values() if p.framing == "stream")
 
 

@@ -12,8 +12,10 @@ Behaviour (ArduCopter-like, simplified):
   ``telemetry_hz``.
 * No GPS fix until ``gps_fix_delay`` seconds after start and while withheld: GPS_RAW_INT
   then has fix_type 0 and lat/lon 0; with a fix, fix_type 3 at the home position.
-* COMMAND_LONG / COMMAND_INT addressed to this system (target_system 0 or ``sysid``) get
-  a COMMAND_ACK. Refusals use MAV_RESULT_FAILED, which is what ArduCopter returns when its
+* COMMAND_LONG / COMMAND_INT addressed to this system (target_system 0 or ``sysid``) and
+  to this component (target_component 0 or ``compid``) get a COMMAND_ACK; a message for
+  another component of the system is not acted on (mavlink.io's routing, MAV-CMD-14;
+  ArduPilot 4.x's ``MAVLink_routing`` processes it locally when nothing took it). Refusals use MAV_RESULT_FAILED, which is what ArduCopter returns when its
   checks fail: arming without a fix ("PreArm: Need 3D Fix") or in AUTO/RTL/LAND, disarming
   in flight without the force magic, entering a position mode (GUIDED, LOITER, RTL, AUTO...)
   without a fix, NAV_TAKEOFF unless armed, in GUIDED and on the ground. Commands the model
@@ -480,6 +482,12 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
         target = fields.get("target_system")
         if target is not None and target not in (0, self.config.sysid):
             return []  # addressed to another system: ArduPilot would route, not act
+        component = fields.get("target_component")
+        if target == self.config.sysid and component is not None and component not in (0, self.config.compid):
+            # another component of this system (a camera, a gimbal): mavlink.io's routing
+            # processes a message locally only for a matching system and component, or a
+            # broadcast (https://mavlink.io/en/guide/routing.html; MAV-CMD-14)
+            return []
         return list(handler(msg, fields, now))
 
 

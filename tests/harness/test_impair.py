@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from mcp_conform.harness.impair import Impairment, ImpairmentError, parse_impairment
+from mcp_conform.harness.impair import DelayQueue, Impairment, ImpairmentError, parse_impairment
 from mcp_conform.reference_impl import DeliveryConfirmed, Endpoint, MessageDelivered
 from mcp_conform.spec.codec import Action, MissionItem, build_datagram, encode_payload
 from tests.reference_impl.helpers import Link
@@ -162,3 +162,26 @@ def test_reference_endpoints_deliver_every_command_once_in_order_through_it(seed
     assert [e.handle for e in link.nodes[0].events_of(DeliveryConfirmed)] == handles
     assert [e.msg.payload.seq for e in link.nodes[1].events_of(MessageDelivered)] == list(range(30))
     assert imp.counts.get("drop:loss", 0) > 0 and imp.counts.get("dup", 0) > 0
+
+
+def test_carry_holds_each_copy_until_its_delay_and_records_what_a_full_queue_refused() -> None:
+    """``Impairment.carry``: the decision, each copy held to ``now`` + its delay, and the
+    copies a full queue refused dropped and counted -- what the proxy, the soak medium and the
+    simulator do with a datagram; the same decisions as :meth:`Impairment.decide`'s."""
+    text = "loss=0.2,dup=0.5,reorder=0.2,delay=10-900ms,seed=4"
+    plain, carried = Impairment(parse_impairment(text)), Impairment(parse_impairment(text))
+    q: DelayQueue[tuple[int, bytes]] = DelayQueue()
+    held = []
+    for i in range(300):
+        data = i.to_bytes(4, "big") * 4
+        want = plain.decide("up", data, i * 0.1)
+        got = carried.carry("up", data, i * 0.1, q, lambda d, i=i: (i, d.data))
+        assert got == want
+        held += [(i * 0.1 + d.delay_s, i, d.data) for d in got.deliveries]
+    assert 0 < len(q) == len(held) < 300 * 2 and carried.counts["drop:loss"] > 0
+    assert q.pop_due(1e9) == [(i, data) for _, i, data in sorted(held, key=lambda h: h[0])]
+    small: DelayQueue[int] = DelayQueue(max_count=1)
+    imp = Impairment(parse_impairment("dup=1,delay=50ms,seed=1"))
+    d = imp.carry("up", b"hello", 2.0, small, lambda d: 1)
+    assert d.dropped == "queue" and len(d.deliveries) == 1 and imp.counts["drop:queue"] == 1
+    assert small.next_due() == pytest.approx(2.05)

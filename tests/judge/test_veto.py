@@ -4,6 +4,7 @@ explanation kept; past the record cap it stands; a faulty sender's failure stand
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -15,13 +16,15 @@ from mcp_conform.sim.world import NS
 from tests.judge.monitor_faults import FAULTY
 
 SEEDS = Path(__file__).resolve().parents[1] / "sim" / "seeds"
-#: seed -> (node, rule) the monitor failed a correct node on, which explain explains away
+#: seed -> (node, rule) the monitor failed a correct node on, which explain explains away: as
+#: each seed's ``vetoed`` says (``tests/sim/test_seeds.py`` replays it)
 VETOED = {
-    "monitor-rtx1-starved-drone": (2, "MCP-RTX-1"),
-    "monitor-rtx1-starved-manager": (0, "MCP-RTX-1"),
-    "monitor-rtx2-stale-ack": (0, "MCP-RTX-2"),
-    "monitor-rtx2-wrong-source-ack": (0, "MCP-RTX-2"),
+    name: (int(v.split()[1]), v.split()[2].rstrip(":"))
+    for name in ("monitor-rtx1-starved-drone", "monitor-rtx1-starved-manager", "monitor-rtx2-stale-ack",
+                 "monitor-rtx2-wrong-source-ack")
+    for v in json.loads((SEEDS / f"{name}.json").read_text())["vetoed"][:1]
 }
+STARVED, STARVED_NODE = "monitor-rtx1-starved-drone", VETOED["monitor-rtx1-starved-drone"][0]
 
 
 def _monitor_of(name: str, node: int) -> Monitor:
@@ -49,8 +52,8 @@ def test_a_correct_nodes_failure_is_vetoed_with_its_explanation(name: str) -> No
 
 def test_past_the_record_cap_the_failure_stands(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(veto_module, "RECORD_CAP", 10)
-    mon = _monitor_of("monitor-rtx1-starved-drone", 2)
-    assert mon.verdicts()[2]["MCP-RTX-1"] == "failed"
+    mon = _monitor_of(STARVED, STARVED_NODE)
+    assert mon.verdicts()[STARVED_NODE]["MCP-RTX-1"] == "failed"
     assert not mon.vetoed and mon.recorder.note is not None
 
 
@@ -71,22 +74,22 @@ def test_mcp_capture_check_gets_the_veto_and_notes_it(tmp_path: Path) -> None:
     from mcp_conform.judge.judging import Params, judge
     from mcp_conform.traceio.recorder import McapRecorder, run_metadata
 
-    o, _ = replay(SEEDS / "monitor-rtx1-starved-drone.json")
+    o, _ = replay(SEEDS / f"{STARVED}.json")
     w, s = o.world, o.schedule
-    path = tmp_path / "drone2.mcap"
-    meta = run_metadata("mcp-soak", node_id=2, complete="true",
+    path = tmp_path / f"drone{STARVED_NODE}.mcap"
+    meta = run_metadata("mcp-soak", node_id=STARVED_NODE, complete="true",
                         parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
     with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
-        for r in w.views[2]:
+        for r in w.views[STARVED_NODE]:
             if r.tx:
                 rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
             else:
                 rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
     j = judge(path, Params())
     assert j.params.rto == s.rto
-    assert j.verdicts[2]["MCP-RTX-1"] == "passed"
+    assert j.verdicts[STARVED_NODE]["MCP-RTX-1"] == "passed"
     assert not [v for v in j.violations if v.rule == "MCP-RTX-1"]
-    assert [n for n in j.notes if n.startswith("MCP-RTX-1 not failed for node 2")]
+    assert [n for n in j.notes if n.startswith(f"MCP-RTX-1 not failed for node {STARVED_NODE}")]
 
 
 def test_the_reports_monitor_section_lists_what_was_vetoed() -> None:
@@ -99,9 +102,9 @@ def test_the_reports_monitor_section_lists_what_was_vetoed() -> None:
 
     from mcp_conform.judge.run_monitor import RunMonitor, SessionMonitors
 
-    node, rule = VETOED["monitor-rtx1-starved-drone"]
+    node, rule = VETOED[STARVED]
     run = RunMonitor(rto=0.2, ack_window=0.5, broadcast_id=0xFFFF, node_id=node, node_addr=None)
-    run.monitor = _monitor_of("monitor-rtx1-starved-drone", node)
+    run.monitor = _monitor_of(STARVED, node)
     section = run.to_json()
     assert not [v for v in section["violations"] if (v["node"], v["rule"]) == (node, rule)]
     (x,) = [x for x in section["vetoed"] if (x["node"], x["rule"]) == (node, rule)]

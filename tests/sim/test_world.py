@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import pytest
 
-from mcp_conform.sim.link import Link, LinkParams
+from mcp_conform.harness.impair import DelayQueue, Impairment, ImpairmentError, parse_impairment
+from mcp_conform.sim.link import Link
 from mcp_conform.sim.schedule import Schedule, run_schedule
 from mcp_conform.sim.world import StallParams
 from mcp_conform.spec.codec import Action, peek_header
 
-BAD = LinkParams(loss=0.2, dup=0.2, reorder=0.2, delay_min=0.0, delay_max=2.0, reorder_extra=3.0)
+BAD = parse_impairment("loss=0.2,dup=0.2,reorder=0.2,delay=0-2000ms,seed=0")
 
 
 def _digest(o):  # the whole trace and every verdict
@@ -49,17 +50,41 @@ def test_a_clean_link_carries_the_whole_mission(challenge):
 
 
 def test_the_link_records_every_copy_it_made_and_dropped():
-    link = Link("x", LinkParams(loss=0.3, dup=0.5, delay_max=1.0), seed=5)
-    delivered = sum(len(link.send(b"d%d" % i, float(i))) for i in range(2000))
-    assert link.duplicates > 0 and link.drops > 0
+    link = Link("x", Impairment(parse_impairment("loss=0.3,dup=0.5,delay=0-1000ms,seed=5")), DelayQueue())
+    for i in range(2000):
+        link.send(b"d%d" % i, float(i), lambda body, i=i: (i, body))
+    assert link.duplicates > 0 and link.drops > 0 and link.max_copies == 2
     assert len(link.records) == 2000 + link.duplicates
-    assert delivered == len(link.records) - link.drops
+    assert len(link.queue) == len(link.records) - link.drops
     assert all(r.t_arrive is None or 0.0 <= r.t_arrive - r.t_sent <= 1.0 for r in link.records)
 
 
+def test_the_simulated_link_decides_as_the_runners():
+    """The same spec, seed, direction and datagrams: the simulator's link makes the very
+    decisions ``harness.impair`` makes for ``mcp-impair`` and ``mcp-soak``'s medium."""
+    spec = parse_impairment("loss=0.2,dup=0.3,copies=2,reorder=0.3,delay=10-900ms,burst=0.1/0.5,seed=9")
+    runner, sim = Impairment(spec), Link("drone1:down", Impairment(spec), DelayQueue())
+    for i in range(500):
+        data = b"m%d" % (i % 40)  # copies of the same message: the c-th copy's own stream
+        want = runner.decide("drone1:down", data, i * 0.05)
+        assert sim.send(data, i * 0.05, lambda body: body) == want
+
+
+def test_a_world_delivers_each_copy_when_its_link_said():
+    o = run_schedule(Schedule(seed=5, drones=2, down=BAD, up=BAD), judge=False)
+    w = o.world
+    due = sorted(round(r.t_arrive * 1e9) for (_, to), link in w.links.items() for r in link.records
+                 if r.t_arrive is not None and r.t_arrive <= w.view_end(to))  # by its reader's close
+    read = sorted(r.t_ns for v in w.views.values() for r in v if not r.tx)
+    assert read == due  # no stalls: every copy read the instant it was due, none lost on the way
+    assert any(link.duplicates for link in w.links.values())
+
+
 def test_a_bad_link_value_is_refused():
-    with pytest.raises(ValueError, match="loss"):
-        LinkParams(loss=1.5)
+    with pytest.raises(ImpairmentError, match="loss"):
+        parse_impairment("loss=1.5")
+    with pytest.raises(ValueError, match="corrupt is not simulated"):
+        Schedule(seed=1, down=parse_impairment("corrupt=0.1"))
     with pytest.raises(ValueError, match="unknown fault"):
         Schedule(seed=1, fault="nope")
 

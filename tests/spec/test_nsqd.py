@@ -14,7 +14,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mcp_conform.spec import NSQD, RULES, SPEC, SpecError, load, load_stream
+from mcp_conform.spec import MAVLINK, NSQD, RULES, SPEC, SpecError, load, load_stream
 from mcp_conform.spec.docs_nsqd import render
 from mcp_conform.spec.nsqd_codec import (
     BodyError,
@@ -35,7 +35,7 @@ UPDATE = dict(roll=1, pitch=2, yaw=3, thrust=4, lat=55, lon=10, alt=30, state=2)
 
 def test_one_schema_takes_both_protocols_and_rules_do_not_collide():
     assert SPEC.protocol["transport"] == "udp" and NSQD.protocol["transport"] == "tcp"
-    assert len(RULES) == len(SPEC.rules) + len(NSQD.rules)
+    assert len(RULES) == len(SPEC.rules) + len(NSQD.rules) + len(MAVLINK.rules)
     assert all(r.startswith("NSQD-") for r in NSQD.rules_by_id)
     assert [m.id for m in NSQD.messages] == list(range(15))
     assert NSQD.framing.min_length == 5 and NSQD.framing.max_length == 8192

@@ -25,7 +25,8 @@ def test_every_name_in_the_table_resolves():
                      prof.oracles, prof.reference_cli, prof.capture_detect, prof.capture_tools, prof.loader):
             if path is not None:
                 assert resolve(path) is not None, path
-        assert hasattr(resolve(prof.dissector), "generate") and resolve(prof.reference_cli).main
+        assert prof.dissector is None or hasattr(resolve(prof.dissector), "generate")
+        assert resolve(prof.reference_cli).main
         for role in prof.roles:
             assert role.name in prof.spec.roles and role.peer in prof.spec.roles, (prof.name, role.name)
             assert issubclass(resolve(role.session), NodeBase), role.session
@@ -40,9 +41,13 @@ def test_pick_names_the_defaults_and_refuses_in_one_line():
         ("mcp", "drone"), ("nsqd", "backend"), ("mcp", "manager")]
     with pytest.raises(ProfileError, match=r"^'backend' is not a role of --protocol mcp \(drone, manager\)$"):
         pick("mcp", "backend")
-    with pytest.raises(ProfileError, match=r"^'xyz' is not one of mcp, nsqd$"):
+    with pytest.raises(ProfileError, match=r"^'xyz' is not one of mcp, nsqd, mavlink$"):
         pick("xyz")
-    assert profile_of_role("backend").framing == "stream" and set(ROLE_NAMES) == {"drone", "manager", "backend"}
+    assert profile_of_role("backend").framing == "stream" and set(ROLE_NAMES) == {"drone", "manager", "backend",
+                                                                                  "vehicle"}
+    assert pick("mavlink")[1].name == "vehicle" and pick("mavlink")[1].peer == "gcs"
+    with pytest.raises(ProfileError, match=r"^this protocol has no such piece yet"):
+        resolve(pick("mavlink")[0].fuzz_campaign)
 
 
 def test_every_spec_answers_the_one_interface():
