@@ -19,11 +19,12 @@ alone so far (``fuzz.triage``).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["GRACE_S", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "budget_left", "campaign_end", "engine_turns",
-           "over_budget"]
+__all__ = ["GRACE_S", "TRIAGE_SHARE", "UNCONFIRMED_TRIES", "Late", "budget_left", "campaign_end", "check_late",
+           "engine_turns", "over_budget", "past_deadline"]
 
 GRACE_S = 10.0  # s past --duration a campaign may take: the replay under way at the deadline
 TRIAGE_SHARE = 0.25  # of the campaign's time, triage's budget
@@ -53,22 +54,36 @@ def engine_turns(engine: str, started: float, duration: float | None, max_cases:
                None if max_cases is None else max_cases * (k + 1) // len(engines))
 
 
+def past_deadline(t: Any, now: float) -> bool:
+    """Whether ``--duration`` (``t.duration``, counted from ``t.started``) has passed."""
+    return t.duration is not None and now >= t.started + t.duration
+
+
+def check_late(t: Any, *, share: bool = True) -> None:
+    """Before a replay: :class:`Late` once the campaign's deadline passed, or (``share``) once
+    the triage under way took triage past its budget (:func:`over_budget`)."""
+    now = time.monotonic()
+    if past_deadline(t, now) or (share and over_budget(t, now)):
+        raise Late
+
+
 def budget_left(campaign: Any, now: float) -> bool:
-    """Whether triage may start on a new signature: its seconds so far under
+    """Whether triage (``campaign``: its ``seconds`` so far, the campaign's ``started`` and
+    ``duration``) may start on a new signature: its seconds so far under
     :data:`TRIAGE_SHARE` of the campaign (``--duration``, else the time so far), and the
     deadline not passed."""
-    if campaign.duration is not None and now >= campaign.started + campaign.duration:
+    if past_deadline(campaign, now):
         return False
     base = campaign.duration if campaign.duration is not None else max(now - campaign.started, 1.0)
     # room left for the triage it starts (a real backend's took 5-10 s): the share is a bound
     # (``over_budget`` ends a triage that would pass it)
-    return campaign.triage_s == 0.0 or campaign.triage_s < 0.9 * TRIAGE_SHARE * base
+    return campaign.seconds == 0.0 or campaign.seconds < 0.9 * TRIAGE_SHARE * base
 
 
 def over_budget(campaign: Any, now: float) -> bool:
     """Whether the triage in progress (begun at ``campaign.triage_from``) has taken the
     campaign's triage past :data:`TRIAGE_SHARE` of its ``--duration``: it ends there (``Late``),
     unless it is the campaign's first, as :func:`budget_left` lets the first begin."""
-    if campaign.duration is None or campaign.triage_from is None or campaign.triage_s == 0.0:
+    if campaign.duration is None or campaign.triage_from is None or campaign.seconds == 0.0:
         return False  # the campaign's first triage ends as it ends (a 12 s campaign's 3 s of share held none)
-    return campaign.triage_s + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration
+    return campaign.seconds + (now - campaign.triage_from) > TRIAGE_SHARE * campaign.duration

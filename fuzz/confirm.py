@@ -1,7 +1,7 @@
 """N of N, one rule for both protocols' triage (issue 18 item 9; issue 37: one triage).
 
 The loop every protocol's campaign runs, protocol-neutral (MCP: ``fuzz.campaign`` with
-``fuzz.triage``; Nsqd: ``fuzz.nsqd_campaign`` with ``fuzz.nsqd_blame``):
+``fuzz.triage``; Nsqd: ``fuzz.nsqd_triage`` with ``fuzz.nsqd_blame``):
 
 1. draw a case from an engine (stateless mutators, or a stateful program), play it through
    the target, run the oracles on what it did;

@@ -1,6 +1,6 @@
 """Zeller's delta debugging, the one minimiser of every protocol's findings (issue 21;
 issue 37): MCP's datagrams (``fuzz.triage``), Nsqd's frames, writes and suspects
-(``fuzz.nsqd_campaign``) and a stateful program's moves (``fuzz.nsqd_stateful``)."""
+(``fuzz.nsqd_triage``) and a stateful program's moves (``fuzz.nsqd_stateful``)."""
 
 from __future__ import annotations
 

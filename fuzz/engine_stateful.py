@@ -37,7 +37,7 @@ from hypothesis.database import DirectoryBasedExampleDatabase, ExampleDatabase
 
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.drone_target import FuzzTarget
-from mcp_conform.fuzz.engine_stateless import EngineStats
+from mcp_conform.fuzz.loop import TICK_S, EngineStats
 from mcp_conform.fuzz.oracles import (
     DeliveryLedger,
     Flaw,
@@ -60,7 +60,6 @@ __all__ = ["ACK_COPIES", "OutOfBudget", "StatefulEngine", "check_database", "jud
 
 OTHER_SRC = 0x7777
 SEQ_GAP = 1000  # numbers skipped between programs: one program's never alias another's
-TICK_S = 0.25  # progress updates, at most this often
 #: Copies of a command left unanswered sent in all before its missing ACK is a finding:
 #: MCP-ACK-1's observation ("retransmitting it every --rto as a manager would, up to 5
 #: copies").
@@ -210,8 +209,7 @@ class StatefulEngine:
             tick: Callable[[EngineStats], None] | None = None,
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         st = self.stats
-        self._over = lambda: (time.monotonic() >= deadline or (max_cases is not None and st.cases >= max_cases)
-                              or stop())
+        self._over = lambda: st.spent(deadline, max_cases, stop)
         saved = self._saved_programs()
         reuse_only = bool(self.cfg.extra.get("reuse_only"))
         last_tick = 0.0

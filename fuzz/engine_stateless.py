@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
+from mcp_conform.fuzz.loop import EngineStats
 from mcp_conform.fuzz.mutators import CaseGenerator
 from mcp_conform.fuzz.oracles import DeliveryLedger, Flaw, Input, MonitorOracle, judge_exchange
 from mcp_conform.fuzz.replay import frame_token, vehicle_counts
@@ -29,18 +30,6 @@ BATCH = 64  # cases per probe
 BATCH_BYTES = 192 * 1024  # at most this much per batch, well inside a socket buffer
 VEHICLE_WATCH = 3.0  # s: how long a passthrough frame's forwards are counted
 _PASSTHROUGH = int(Action.MAV_PASSTHROUGH)
-
-
-@dataclass
-class EngineStats:
-    """Counters a campaign reports (shared shape for both engines)."""
-
-    cases: int = 0  # inputs sent and judged
-    batches: int = 0
-    flaws: int = 0
-    restarts: int = 0
-    seconds: float = 0.0  # time spent fuzzing (triage excluded)
-    by_mutator: dict[str, int] = field(default_factory=dict)
 
 
 class StatelessEngine:
@@ -72,8 +61,7 @@ class StatelessEngine:
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         """Rounds until ``deadline`` (time.monotonic) or ``max_cases``."""
         st = self.stats
-        while (time.monotonic() < deadline and (max_cases is None or st.cases < max_cases)
-                   and not stop()):
+        while not st.spent(deadline, max_cases, stop):
             left = self.batch if max_cases is None else min(self.batch, max_cases - st.cases)
             t0 = time.monotonic()
             flaws, inputs = self.round(left)

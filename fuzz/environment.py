@@ -5,7 +5,7 @@ such").
 A flaw that triage reproduced at least once but that a confirming replay then did not show
 is not a finding (a finding replays N of N), yet it is not lost among the unconfirmed either:
 it is recorded here by rule and shape (MCP: ``fuzz.triage``; Nsqd: its signature,
-``fuzz.nsqd_campaign``) with how often it was seen and why it is not a finding, and listed in
+``fuzz.nsqd_triage``) with how often it was seen and why it is not a finding, and listed in
 ``summary.json`` (``environment_dependent``) and after the findings on the campaign's last
 lines. Workers' records are merged by rule and shape.
 """

@@ -1,7 +1,7 @@
 """A finding on disk, whatever its protocol (issue 37 item 2: one findings store).
 
 Every campaign writes a confirmed finding as ``finding-N/`` under ``--out``: its
-``finding.json`` (the protocol's document: ``fuzz.findings`` for MCP, ``fuzz.nsqd_campaign``
+``finding.json`` (the protocol's document: ``fuzz.findings`` for MCP, ``fuzz.nsqd_triage``
 for Nsqd), its ``replay.txt`` (the one command that replays it, ``mcp-fuzz [--protocol P]
 --replay DIR ...``) and its captures (the protocol's rendering: ``repro.mcap``, and for a
 stream protocol ``repro.pcap``). A finding is read back by :func:`read_finding_doc` from the

@@ -2,7 +2,7 @@
 replay them (issue 37: one ``Finding``, one findings store for MCP and Nsqd alike).
 
 A finding is kept only once it has been confirmed by replays and shrunk to a minimal input
-(MCP: ``fuzz.triage`` over ``fuzz.replay``; Nsqd: ``fuzz.nsqd_campaign``). Findings of the
+(MCP: ``fuzz.triage`` over ``fuzz.replay``; Nsqd: ``fuzz.nsqd_triage``). Findings of the
 same rule and shape (what kind of input, what the node did) are one group: the first is
 written, the others are counted. Under ``--out DIR`` each group is ``finding-N/``:
 

@@ -3,7 +3,7 @@
 :class:`Backend` holds a session (spawned, attached or the embedded default) and the current
 connection; ``run`` writes a case and asks the oracles of ``fuzz.nsqd_oracles`` what they
 saw, ``probe`` checks that a command still takes its effect. ``_reproduces`` replays cases in
-a fresh process, as triage and ``--replay`` do (``fuzz.nsqd_campaign``).
+a fresh process, as triage and ``--replay`` do (``fuzz.nsqd_triage``).
 
 What a case waits for (judged cases/s, issue 21): an observation that ends it, never a fixed
 wait that proves nothing. A bad frame's watch ends at the backend's answer (ERROR, close); a

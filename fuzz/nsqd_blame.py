@@ -28,9 +28,10 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from mcp_conform.fuzz.budget import Late, over_budget
+from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.nsqd_backend import Backend, Hit
 from mcp_conform.fuzz.nsqd_mutators import Case
 from mcp_conform.fuzz.nsqd_oracles import Signature
@@ -87,7 +88,7 @@ def watch_stream(b: Backend, updates: int = STREAM_UPDATES) -> Hit | None:
 def needs_probe(sig: Signature) -> bool:
     """What a probe showed (its baseline is the probe on a backend sent nothing before it): a
     hang, a lost stream. (A command's own effect is the command's: its finding is the command
-    alone, ``StreamCampaign._triage``.)"""
+    alone, ``StreamTriage._triage``.)"""
     return sig.oracle in ("hang", "desync")
 
 
@@ -103,11 +104,11 @@ def baseline(b: Backend, sig: Signature, *, probe: bool) -> Hit | None:
     return hit
 
 
-def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self: the campaign
+def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self: the triage
     """NSQD-CON-3 as its rule observes it, before the first case: open descriptors over
     connect/close cycles with nothing sent (``StreamSession.cycle_connections``: twice
     ``fd_growth_max`` + 1, within an eighth of ``--duration``, at most 10 s), on a process of
-    its own; confirmed on ``replays`` fresh ones, within the deadline and triage's share. (Checked
+    its own; confirmed on ``n_of_n`` fresh ones, within the deadline and triage's share. (Checked
     over the campaign, every 400 cases once 50 connections were made, it never showed on a
     real backend that dies every 15 cases or so.)"""
     grow_max = int(NSQD.params["fd_growth_max"])
@@ -126,34 +127,24 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     if first is None or first[0] <= grow_max:
         return backend
     sig = Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3")
-    t0 = time.monotonic()
-    self.triage_from = t0
 
     def once() -> tuple[int, str] | None:
-        if self.duration is not None and time.monotonic() >= self.started + self.duration \
-                or over_budget(self, time.monotonic()):
-            raise Late
+        check_late(self)
         self.current = self.current.fresh()
         again = grown(self.current)
         return again if again is not None and again[0] > grow_max else None
 
     self.current = backend
-    try:
-        conf = confirm_n(once, self.replays, until_miss=False)
-    except Late:
-        self.untriaged[sig.describe()] = self.untriaged.get(sig.describe(), 0) + 1
-        self.triage_s += time.monotonic() - t0
-        self.triage_from = None
-        return self.current
-    if not conf.confirmed:
-        self.unconfirmed += 1
-        conf.note(self.environment, sig.rule, sig.describe(), first[1],
-                  "a process's descriptors grew over the cycles, then not on every fresh one")
-    else:
-        self.add_found(sig, first[1], conf.replays, "connect/close cycles")
-    self.triage_s += time.monotonic() - t0
-    self.triage_from = None
-    return self.restart(self.current)
+    with triage_time(self, sig.describe()):
+        conf = confirm_n(once, self.n_of_n, until_miss=False)
+        if not conf.confirmed:
+            self.count_unconfirmed(sig.rule)
+            conf.note(self.environment, sig.rule, sig.describe(), first[1],
+                      "a process's descriptors grew over the cycles, then not on every fresh one")
+        else:
+            self.add_found(sig, first[1], conf.replays, "connect/close cycles")
+        return self.restart(self.current)
+    return self.current
 
 
 def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Case]) -> tuple[list[Case] | None, Backend]:

@@ -26,6 +26,8 @@ from collections.abc import Callable
 from typing import Any
 
 from mcp_conform.fuzz.engine_stateful import open_database
+from mcp_conform.fuzz.loop import TICK_S, EngineStats, note_tried
+from mcp_conform.fuzz.nsqd_backend import message_names
 from mcp_conform.fuzz.nsqd_mutators import Write, draw_case
 from mcp_conform.fuzz.nsqd_player import CLIENT_MSGS, COMMANDS, Hit, Op, Player, command_bytes
 from mcp_conform.spec import NSQD
@@ -33,7 +35,6 @@ from mcp_conform.spec import NSQD
 __all__ = ["DB_KEY", "StreamProgramGenerator", "StreamStatefulEngine", "dumps", "loads"]
 
 DB_KEY = b"mcp-fuzz/nsqd/stateful-programs"
-TICK_S = 0.25  # the campaign's live progress at most this often
 STEPS = 20  # ops per program at most (the ops a cut brings along excluded)
 #: (move, weight) of the ops after a program's first connect
 _MOVES = (("cmd", 6), ("mutated", 5), ("second", 1), ("close", 1), ("cut", 1), ("reconnect", 1))
@@ -114,16 +115,16 @@ def loads(data: bytes) -> list[Op] | None:
 
 class StreamStatefulEngine:
     """Plays pipelined programs (``fuzz.nsqd_programs``) until the budget is spent: saved
-    ones first (``--db``), then drawn ones; each failure goes to ``campaign.add_program``
+    ones first (``--db``), then drawn ones; each failure goes to ``triage.add_program``
     (triage by careful replays, dedup, finding-N/), and a confirmed one is saved."""
 
-    def __init__(self, campaign: Any, backend: Any, db: str | None = None, worker: int = 0) -> None:
-        self.campaign = campaign
-        self.backend = backend
+    def __init__(self, triage: Any, db: str | None = None, worker: int = 0) -> None:
+        self.triage = triage
+        self.stats = EngineStats()
         self.database = open_database(db)
         self.worker = worker
         self.programs = 0
-        self.generator = StreamProgramGenerator(campaign.seed, worker)
+        self.generator = StreamProgramGenerator(triage.seed, worker)
 
     def _saved(self) -> list[list[Op]]:
         if self.database is None:
@@ -132,22 +133,29 @@ class StreamStatefulEngine:
 
     def _save(self, found: int) -> None:
         """A finding this program added: its minimised program, for the workers to come."""
-        new = self.campaign.findings[found:]
+        new = self.triage.findings[found:]
         if self.database is not None and new and new[-1].program:
             self.database.save(DB_KEY, json.dumps(new[-1].program, separators=(",", ":")).encode())
 
-    def run(self, out_of_budget: Callable[[], bool], tick: Callable[[], None] | None = None) -> Any:
-        """Fuzz until ``out_of_budget()``; the backend (maybe a fresh one) at the end."""
-        c, b = self.campaign, self.backend
+    def run(self, deadline: float, max_cases: int | None, tick: Callable[[EngineStats], None] | None,
+            stop: Callable[[], bool]) -> EngineStats:
+        """Fuzz until ``deadline``, ``max_cases`` ops played or ``stop()``; the backend now
+        fuzzed, maybe a fresh one, is the triage's ``current``."""
+        c, st = self.triage, self.stats
+        b = c.current
         saved, spare = self._saved(), None
         gap = float(NSQD.params["update_gap_max_s"])
         t_fuzz = last_tick = time.monotonic()
+
+        def out_of_budget() -> bool:
+            return st.spent(deadline, max_cases, stop)
+
         try:
             while not out_of_budget():
                 ops = saved.pop(0) if saved else self.generator.program()
                 if spare is None and (b.session.death() is not None or not b.session.live(gap)):
                     b = c.current = b.fresh()
-                    c.restarts += 1
+                    c.target.count_restart("died")
                 player = Player(b, fast=True, spare=spare)
                 spare, hit, played = None, None, []
                 try:
@@ -155,15 +163,16 @@ class StreamStatefulEngine:
                         if out_of_budget():
                             break
                         played.append(op)
-                        c.cases += 1
+                        st.cases += 1
                         if op.what in ("send", "cmd"):
-                            c.note_tried("valid" if op.what == "cmd" else op.kind, b"".join(w.data for w in op.writes))
+                            note_tried(st, "valid" if op.what == "cmd" else op.kind,
+                                       message_names(b"".join(w.data for w in op.writes)))
                         player.play(op)
                         if tick is not None and time.monotonic() - last_tick >= TICK_S:
                             last_tick = time.monotonic()
-                            c.fuzz_s += last_tick - t_fuzz  # the live rate counts this program so far
+                            st.seconds += last_tick - t_fuzz  # the live rate counts this program so far
                             t_fuzz = last_tick
-                            tick()
+                            tick(st)
                     else:
                         spare = player.finish()
                 except Hit as h:
@@ -171,19 +180,20 @@ class StreamStatefulEngine:
                 finally:
                     player.close() if spare is None else None
                 self.programs += 1
+                st.batches += 1
                 if hit is not None:
-                    t1 = time.monotonic()
-                    c.fuzz_s += t1 - t_fuzz
+                    st.flaws += 1
+                    st.seconds += time.monotonic() - t_fuzz
                     found = len(c.findings)
-                    b = c.current = c.add_program(b, hit, played)  # its own triage_s
+                    b = c.current = c.add_program(b, hit, played)  # its own triage time
                     self._save(found)
                     t_fuzz = time.monotonic()
         finally:
-            c.fuzz_s += time.monotonic() - t_fuzz
+            st.seconds += time.monotonic() - t_fuzz
             if spare is not None:
                 spare.close()
                 with contextlib.suppress(ValueError):
                     b.session.conns.remove(spare)
         if tick is not None:
-            tick()
-        return b
+            tick(st)
+        return st

@@ -5,14 +5,16 @@ share against its budget, restarts; ``--duration`` and its grace)."""
 
 from __future__ import annotations
 
-import json
 import sys
 from typing import Any
 
-from mcp_conform.fuzz.budget import GRACE_S, TRIAGE_SHARE
-from mcp_conform.fuzz.config import exit_code
+from mcp_conform.fuzz.budget import TRIAGE_SHARE
+from mcp_conform.fuzz.config import FuzzConfig, exit_code
 from mcp_conform.fuzz.environment import environment_lines
+from mcp_conform.fuzz.findings import FindingStore
+from mcp_conform.fuzz.loop import WorkerResult, common_summary, count
 from mcp_conform.fuzz.progress import interrupted
+from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
 __all__ = ["budget_line", "final", "summary"]
@@ -20,43 +22,42 @@ __all__ = ["budget_line", "final", "summary"]
 PROG = "mcp-fuzz"
 
 
-def summary(c: Any, elapsed: float) -> dict[str, Any]:
-    """``summary.json`` of the campaign ``c`` (``fuzz.nsqd_campaign.StreamCampaign``),
-    written under its ``out``."""
+def summary(cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult], elapsed: float, error: str | None,
+            *, interrupted: bool = False, node_lost: bool = False) -> dict[str, Any]:
+    """``summary.json`` of an Nsqd campaign (``fuzz.loop.run_campaign`` writes it): the keys
+    every protocol's has (``fuzz.loop.common_summary``), then Nsqd's: each finding, by class
+    (the oracle), the kinds x message ids sent, fuzzing and restart seconds, the hits counted
+    and not triaged by signature, the ``--duration`` bound (``duration_s``), each worker's
+    figures under ``--jobs``."""
     by_class: dict[str, int] = {}
-    for f in c.findings:
-        by_class[f.signature.oracle] = by_class.get(f.signature.oracle, 0) + 1
-    s = {"protocol": NSQD_PROFILE.name, "engine": c.engine, "seed": c.seed, "cases": c.cases,
-         "elapsed_s": round(elapsed, 2), "cases_per_s": round(c.cases / elapsed, 1) if elapsed else 0,
-         "fuzz_s": round(c.fuzz_s, 2), "triage_s": round(c.triage_s, 2),
-         "restart_s": round(c.restart_s, 2),
-         "judged_cases_per_s": round(c.cases / c.fuzz_s, 1) if c.fuzz_s else 0,
-         "by_kind": c.by_kind, "tried": c.tried, "findings_by_class": by_class,
+    for f in store.order:
+        count(by_class, f.signature.oracle)
+    s = {"protocol": NSQD_PROFILE.name, **common_summary(cfg, results, elapsed, error, interrupted),
+         "elapsed_s": round(elapsed, 2),
+         "fuzz_s": round(max((r.fuzz_seconds for r in results), default=0.0), 2),
+         "restart_s": round(sum(r.restart_seconds for r in results), 2),
+         "by_kind": sum_tables({"": r.by_mutator} for r in results).get("", {}),
+         "tried": sum_tables(r.tried for r in results), "findings_by_class": by_class,
          "findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle, "rule": f.signature.rule,
-                       "count": f.occurrences, "replays": f.replays, "no_input": f.no_input, "engine": "stateful" if f.program is not None
-                       else "stateless"} for f in c.findings],
-         "unconfirmed": c.unconfirmed, "environment_dependent": c.environment.values(),
-         "untriaged": c.untriaged, "restarts": c.restarts, "db": c.db,
-         "duration_s": c.duration, "grace_s": GRACE_S, "triage_share_max": TRIAGE_SHARE,
-         "triage_share": round(c.triage_s / elapsed, 3) if elapsed else 0.0,
-         "jobs": len(c.workers) if c.workers is not None else 1, "interrupted": c.interrupted}
-    if c.workers is not None:
-        s["workers"] = c.workers
-    if c.out is not None:
-        c.store.rewrite()  # the occurrences counted since each was written
-        (c.out / "summary.json").write_text(json.dumps(s, indent=2) + "\n")
+                       "count": f.occurrences, "replays": f.replays, "no_input": f.no_input,
+                       "engine": "stateful" if f.program is not None else "stateless"} for f in store.order],
+         "untriaged": sum_tables({"": r.untriaged} for r in results).get("", {}), "db": cfg.db,
+         "duration_s": cfg.duration_limit, "triage_share_max": TRIAGE_SHARE, "node_lost": node_lost}
+    if cfg.jobs > 1:
+        s["workers"] = [{"worker": r.worker, "cases": r.cases, "fuzz_s": round(r.fuzz_seconds, 2),
+                         "findings": r.findings, "error": r.error} for r in results]
     return s
 
 
-def final(c: Any, summary: dict[str, Any], live: Any, strict: bool) -> int:
-    """The closing lines: each finding, the environment-dependent ones, the hits counted and
+def final(store: FindingStore, summary: dict[str, Any], live: Any, strict: bool) -> int:
+    """The closing lines of a campaign of ``summary`` whose findings are in ``store``: each finding, the environment-dependent ones, the hits counted and
     not triaged (``-v``), the summary and where the time went; the exit code."""
     errors = [w["error"] for w in summary.get("workers", []) if w.get("error")]
     if errors and not summary["cases"]:
         print(f"{PROG}: {budget_line(summary)}")  # where it ended: at the bound, if the workers were cut there
         print(f"{PROG}: error: {errors[0]}", file=sys.stderr)
         return 2
-    for i, f in enumerate(c.findings, 1):
+    for i, f in enumerate(store.order, 1):
         print(f"finding-{i}: {f.signature.describe()} ×{f.occurrences}, replays {f.replays}: {f.note}")
         if live.verbose:
             print(f"  {f.actual}")
@@ -67,12 +68,12 @@ def final(c: Any, summary: dict[str, Any], live: Any, strict: bool) -> int:
             print(f"  counted, not triaged: {shape} ×{n}")
     classes = ", ".join(f"{k} {n}" for k, n in sorted(summary["findings_by_class"].items())) or "none"
     print(f"{PROG}: {summary['cases']} cases in {summary['elapsed_s']} s ({summary['judged_cases_per_s']} judged "
-          f"cases/s), {len(c.findings)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
-          f"engine {c.engine}, {summary['jobs']} job(s), seed {c.seed}")
+          f"cases/s), {len(store)} finding(s) ({classes}), {summary['unconfirmed']} unconfirmed; "
+          f"engine {summary['engine']}, {summary['jobs']} job(s), seed {summary['seed']}")
     print(f"{PROG}: {budget_line(summary)}")
     if summary.get("interrupted"):
-        return interrupted(summary["cases"], len(c.findings), c.out)
-    return exit_code(c.findings, strict=strict)
+        return interrupted(summary["cases"], len(store), store.out)
+    return exit_code(store.order, strict=strict)
 
 
 def budget_line(s: dict[str, Any]) -> str:

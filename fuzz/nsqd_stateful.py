@@ -28,7 +28,7 @@ overlapping cases, not from waiting out each UPDATE period):
   effect judged by it in one round trip instead of an UPDATE period.
 
 The player is ``fuzz.nsqd_player``'s, the programs and the engine that runs them
-``fuzz.nsqd_programs``'s; this module replays and triages. A pipelined program's failure is triaged by careful replays (``StreamCampaign.add_program``):
+``fuzz.nsqd_programs``'s; this module replays and triages. A pipelined program's failure is triaged by careful replays (``fuzz.nsqd_triage.StreamTriage.add_program``):
 replayed in a fresh process, delta-debugged over its ops, confirmed N of N, deduplicated by
 signature; a confirmed program is saved in the example database (``--db``) and played first
 by every worker of the next campaign.
@@ -104,7 +104,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
 
 def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     """A failing program: deduplicated, replayed in a fresh process, delta-debugged over its
-    ops, confirmed ``campaign.replays`` of as many times, then a finding (``campaign._add``).
+    ops, confirmed ``campaign.n_of_n`` of as many times, then a finding (``campaign._add``; ``campaign``: the worker's ``StreamTriage``).
     The first careful replay names the finding: a pipelined program's verdict (``hit``) is
     what led to it, read at the program's end, where a close or a lost command may have more
     than one cause in view (a second client, a cut frame before it); played op by op, the
@@ -116,14 +116,15 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     if known is not None:
         known.occurrences += 1
         return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
-    if campaign.target is not None and campaign.spawn is None and sig.oracle in ("crash", "hang") \
+    if campaign.target.attached and sig.oracle in ("crash", "hang") \
             and backend.session.death() is not None:
         raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
     box: dict[str, Any] = {"b": backend, "stderr": hit.stderr, "traffic": []}
 
     def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
         box["b"] = campaign.current = box["b"].fresh()
-        campaign.restarts += 1
+        campaign.target.count_restart("triage replay")
+        campaign.replays += 1
         h = play_program(box["b"], o, log, want=sig)
         if h is not None and h.stderr:
             box["stderr"] = h.stderr
@@ -133,10 +134,11 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
         return ok
 
     box["b"] = campaign.current = box["b"].fresh()
-    campaign.restarts += 1
+    campaign.target.count_restart("triage replay")
+    campaign.replays += 1
     first = play_program(box["b"], ops, want=sig)
     if first is None:
-        campaign.unconfirmed += 1
+        campaign.count_unconfirmed(sig.rule)
         return box["b"].fresh()
     if not same_finding(first.signature, sig):
         sig, hit = first.signature, first
@@ -147,9 +149,9 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:
         ops = ddmin(list(ops), reproduces, budget=16)
-    conf = confirm_n(lambda: reproduces(ops, TrafficLog()) or None, campaign.replays, until_miss=False)
+    conf = confirm_n(lambda: reproduces(ops, TrafficLog()) or None, campaign.n_of_n, until_miss=False)
     if not conf.confirmed:
-        campaign.unconfirmed += 1
+        campaign.count_unconfirmed(sig.rule)
         return box["b"].fresh()
     campaign.add_program_finding(sig, hit.detail, conf.replays, tuple(box["stderr"]),
                                  "stateful: " + "; ".join(op.describe() for op in ops), [op.to_json() for op in ops],

@@ -2,8 +2,9 @@
 
 A protocol's profile (``spec.profiles``, ``fuzz_campaign``) names a class that satisfies
 :class:`FuzzCampaign`; ``fuzz.cli`` runs every protocol's through it, with one store of
-findings (``fuzz.findings``), one live display (``fuzz.progress``) and one ``--jobs``
-parent (``fuzz.workers``): MCP's is ``fuzz.campaign.DatagramCampaign``, Nsqd's
+findings (``fuzz.findings``), one live display (``fuzz.progress``), one ``--jobs``
+parent (``fuzz.workers``) and one campaign loop (``fuzz.loop``, over the protocol's
+``fuzz.loop.Plugin``): MCP's is ``fuzz.campaign.DatagramCampaign``, Nsqd's
 ``fuzz.nsqd_campaign.StreamCampaign``.
 """
 

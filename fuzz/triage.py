@@ -22,7 +22,8 @@ before; the copy alone on a fresh node is no duplicate, so it is replayed after 
 but not every time depends on the environment (timing, load): it is not a finding, but it is
 named in the summary (``environment_dependent``) with why, not lost among the unconfirmed.
 
-Budget: no replay starts after the campaign's deadline (``deadline``), so ``--duration``
+Budget: no replay starts after the campaign's deadline (``started`` + ``duration``:
+``fuzz.budget.check_late``), so ``--duration``
 bounds triage too, within ``fuzz.budget.GRACE_S``.
 """
 
@@ -31,11 +32,12 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
-from mcp_conform.fuzz.budget import Late
+from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
-from mcp_conform.fuzz.environment import EnvironmentLog
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
+from mcp_conform.fuzz.loop import Triage as TriageCounts
+from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
 from mcp_conform.fuzz.replay import Outcome, run_sequence
 from mcp_conform.fuzz.target_base import TargetBase
@@ -74,8 +76,8 @@ def shape_of(flaw: Flaw, inputs: Sequence[Input]) -> str:
     return f"{flaw.source}: {what}"
 
 
-class Triage:
-    """Turns flaws into findings for one worker's target."""
+class Triage(TriageCounts):
+    """Turns flaws into findings for one worker's target (its counts: ``fuzz.loop.Triage``)."""
 
     def __init__(self, target: TargetBase, store: FindingStore, engine: str, seed: int,
                  worker: int = 0) -> None:
@@ -84,17 +86,11 @@ class Triage:
         self.engine = engine
         self.seed = seed
         self.worker = worker
-        self.unconfirmed = 0
-        self.unconfirmed_rules: dict[str, int] = {}  # flaws seen once and not again, by rule
-        self.replays = 0
-        self.seconds = 0.0
+        super().__init__()
         # a death is blamed on its input only once shrinking found it: (rule, shape) as first
         # seen -> the group it ended in
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
-        self.deadline = float("inf")  # no replay starts after it (the campaign's --duration)
         self.baseline_rules: set[str] | None = None  # rules the node breaks sent no input (once run)
-        self.environment = EnvironmentLog()  # flaws that did not replay every time, with why
-        self.untriaged = 0  # flaws left at the deadline
 
     def consider(self, flaw: Flaw, inputs: Sequence[Input], pace: str,
                  program: str | None = None, scenario: str | None = None) -> Finding | None:
@@ -109,21 +105,15 @@ class Triage:
             return None
         if len(self.store) >= MAX_GROUPS:
             return None
-        t0 = time.monotonic()
-        try:
+        with triage_time(self, flaw.rule):
             if scenario is None and flaw.source not in _DEATH and self._baseline(flaw, pace):
                 return None
             return self._confirm_and_shrink(flaw, inputs, shape, pace, program, scenario)
-        except Late:
-            self.untriaged += 1
-            return None
-        finally:
-            self.seconds += time.monotonic() - t0
+        return None  # past the deadline (Late): counted untriaged
 
     def _run(self, seq: list[bytes], pace: str, scenario: str | None):  # noqa: ANN202
         """One replay (``run_sequence``); none once the deadline passed (``Late``)."""
-        if time.monotonic() >= self.deadline:
-            raise Late
+        check_late(self, share=False)  # MCP's triage is bounded by the deadline alone
         self.replays += 1
         return run_sequence(self.target, seq, pace=pace, scenario=scenario)
 
@@ -160,10 +150,6 @@ class Triage:
     def _target_doc(self) -> dict[str, object]:
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink,
                 "role": self.target.cfg.role}
-
-    def _unconfirmed(self, flaw: Flaw) -> None:
-        self.unconfirmed += 1
-        self.unconfirmed_rules[flaw.rule] = self.unconfirmed_rules.get(flaw.rule, 0) + 1
 
     def _still(self, flaw: Flaw, pace: str, scenario: str | None):  # noqa: ANN202
         """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
@@ -208,7 +194,7 @@ class Triage:
             minimal = next(([d] for d in suspects[1:] if still([d])), None)
         if minimal is None:
             if not still(candidate):
-                self._unconfirmed(flaw)
+                self.count_unconfirmed(flaw.rule)
                 return None
             minimal = ddmin(candidate, still, SHRINK_BUDGET, singles=min(SHRINK_BUDGET // 2, 8))
         # the minimal sequence CONFIRM_N times more, each on a fresh node when spawned, at the
@@ -229,7 +215,7 @@ class Triage:
 
         conf = confirm_n(once, CONFIRM_N)
         if not conf.confirmed:
-            self._unconfirmed(flaw)
+            self.count_unconfirmed(flaw.rule)
             seen_instead = missed.get("rules")
             conf.note(self.environment, flaw.rule, shape, flaw.actual, f"the minimal sequence of {len(minimal)} "
                       f"datagram(s) showed it in triage, then not in confirmation replay {len(conf.results)} "

@@ -1,5 +1,5 @@
 """``mcp-fuzz --jobs N``: the worker processes every campaign runs (MCP's ``fuzz.campaign``,
-Nsqd's ``fuzz.nsqd_campaign``), and the one parent over what they report (issue 37: one
+Nsqd's, both through ``fuzz.loop``), and the one parent over what they report (issue 37: one
 jobs layer): :func:`run_jobs` shows their figures summed (:class:`~fuzz.progress.Progress`:
 cases and restarts summed, judged cases/s over the longest fuzzing time, findings distinct
 across workers) and keeps their findings in the campaign's store (grouped, counts summed,

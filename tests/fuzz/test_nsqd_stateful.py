@@ -91,6 +91,7 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
 
     from mcp_conform.fuzz.nsqd_backend import Backend
     from mcp_conform.fuzz.nsqd_stateful import play_program, triage_program
+    from mcp_conform.fuzz.nsqd_triage import StreamTarget, StreamTriage
     from mcp_conform.traceio.nsqd import stream_records
     from mcp_conform.traceio.reader import StreamEvent, StreamFrame
 
@@ -101,7 +102,7 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
     hit = play_program(b, ops)
     assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
     c = StreamCampaign(None, fault, 1, 10.0, None, tmp_path, engine="stateful")
-    triage_program(c, b, hit, ops).close()
+    triage_program(StreamTriage(StreamTarget(b), c.store, seed=1, duration=10.0), b, hit, ops).close()
     d = tmp_path / "finding-1"
     assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt", "repro.mcap", "repro.pcap"} \
         <= {p.name for p in d.iterdir()}

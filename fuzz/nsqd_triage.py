@@ -1,0 +1,400 @@
+"""Nsqd's triage (issue 37: the protocol's part of the one campaign loop, ``fuzz.loop``): from
+a hit the engines saw (``fuzz.nsqd_engine``) to a finding, as ``fuzz.triage`` is MCP's.
+
+A hit is triaged: the case (or, for a failed probe, each case since the last good one) is
+replayed in a fresh process until one reproduces alone; it is minimised (delta debugging
+over its writes, then over its bytes); it must then reproduce N of N times (``n_of_n``),
+each in a fresh process, with the same signature, or it is dropped as unconfirmed; its
+signature deduplicates it. Before any replay, the same observation without the input (a
+connection sent nothing; the probe with no case before it) decides whether the input made
+the difference: if the baseline fails too, the finding is the target's behaviour, under the
+rule the baseline broke, with no input blamed (``fuzz.nsqd_blame``, issue 36 item 2). A hit
+whose signature is already a finding (or was one's before minimising) is counted, not
+triaged again; one that did not reproduce ``UNCONFIRMED_TRIES`` times is counted too; triage
+has a budget (``TRIAGE_SHARE`` of the campaign) and ``--duration`` bounds it, within
+``GRACE_S`` (``fuzz.budget``; timed and counted by ``fuzz.loop.triage_time``). A stateful
+program's failure is triaged by careful replays (``fuzz.nsqd_stateful.triage_program``).
+``finding-N/`` holds ``finding.json``, the input as hex and as a Python bytes literal, the
+stderr excerpt, the replay's traffic and ``replay.txt`` (``fuzz.nsqd_repro``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from mcp_conform.fuzz.budget import (
+    TRIAGE_SHARE,
+    UNCONFIRMED_TRIES,
+    budget_left,
+    check_late,
+    over_budget,
+)
+from mcp_conform.fuzz.confirm import Confirmation, confirm_n
+from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.findings import Finding, FindingStore
+from mcp_conform.fuzz.loop import Triage, count, triage_time
+from mcp_conform.fuzz.nsqd_backend import (
+    REPLAY_DEATH_S,
+    Backend,
+    Hit,
+    _defaults,
+    _replay_kind,
+    _reproduces,
+)
+from mcp_conform.fuzz.nsqd_blame import PROBED, baseline, death_culprit
+from mcp_conform.fuzz.nsqd_mutators import Case, Write
+from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
+from mcp_conform.fuzz.nsqd_repro import TrafficLog
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.spec import NSQD
+from mcp_conform.spec.nsqd_codec import encode
+from mcp_conform.spec.profiles import NSQD_PROFILE
+
+__all__ = ["StreamTarget", "StreamTriage", "nsqd_finding"]
+
+
+class StreamTarget:
+    """A worker's Nsqd backend (``fuzz.nsqd_backend.Backend``) as the loop sees a target: the
+    one now fuzzed (``current``: triage's replays and restarts replace it), its restarts
+    counted by reason, closed at the end."""
+
+    def __init__(self, backend: Backend, attached: bool = False) -> None:
+        self.current, self.attached = backend, attached
+        self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
+
+    def count_restart(self, reason: str) -> None:
+        self.restarts += 1
+        count(self.restart_reasons, reason)
+
+    def close(self) -> None:
+        self.current.close()
+
+
+def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, stderr: tuple[str, ...] = (), *,
+                 note: str = "", traffic: list[Any] | None = None, program: list[dict[str, Any]] | None = None,
+                 no_input: bool = False, probe: bool = False, seed: int = 0, worker: int = 0) -> Finding:
+    """An Nsqd finding as every protocol's is (``fuzz.findings.Finding``): its signature,
+    minimal cases (or a stateful program's ops), the last confirming replay's traffic (its
+    repro.mcap, repro.pcap); ``probe``: its replay ends with the probe command."""
+    writes = ([Write(bytes.fromhex(w["hex"]), w.get("end", "")) for op in program for w in op["writes"]]
+              if program is not None else [w for c in cases for w in c.writes])
+    doc: dict[str, Any] = {
+        "oracle": sig.oracle, "kind": sig.kind, "access": sig.access, "frames": list(sig.frames),
+        "description": sig.describe(), "detail": detail, "probe": probe or "probe" in note,
+        "writes": [{"hex": w.data.hex(), "end": w.end} for w in writes],
+        "expect": [list(c.expect) for c in cases if c.check], "or_error": any(c.or_error for c in cases)}
+    if len(cases) > 1:  # each as it was sent (its own watch, its connection kept or not): --replay too
+        doc["cases"] = [{"kind": c.kind, "valid": c.valid, "probe": c.probe, "note": c.note,
+                         "writes": [{"hex": w.data.hex(), "end": w.end} for w in c.writes]} for c in cases]
+    # the shape groups as the signature's key does (its access aside): fuzz.findings.FindingStore
+    shape = Signature(sig.oracle, sig.kind, sig.frames[:3], sig.rule).describe()
+    return Finding(sig.rule, "", detail, [], shape, "stateless" if program is None else "stateful", seed,
+                   level="MUST", evidence=list(stderr), worker=worker, program=program, source=sig.oracle,
+                   protocol=NSQD_PROFILE.name, note=note, replays=replays, no_input=no_input, doc=doc,
+                   signature=sig, cases=list(cases), traffic=list(traffic or []))
+
+
+
+@dataclass
+class StreamTriage(Triage):
+    """One worker's Nsqd triage (an engine's turn's; what it learnt carried on to the next
+    turn's: :meth:`carry`; its counts and bounds: ``fuzz.loop.Triage``; ``untriaged`` by
+    signature)."""
+
+    target: StreamTarget
+    store: FindingStore
+    seed: int = 0
+    worker: int = 0
+    n_of_n: int = 3  # a finding's confirming replays, all of which must show it
+    tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
+    aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
+    base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
+    #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
+    wait: float = REPLAY_DEATH_S
+
+    def carry(self) -> StreamTriage:
+        """The next engine's turn's triage: what this one learnt (aliases, baselines, tries)
+        kept, its counts new."""
+        return StreamTriage(self.target, self.store, self.seed, self.worker, self.n_of_n, tries=self.tries,
+                            aliases=self.aliases, base_seen=self.base_seen, started=self.started,
+                            duration=self.duration)
+
+    @property
+    def current(self) -> Backend:
+        """The backend now fuzzed (the target's)."""
+        return self.target.current
+
+    @current.setter
+    def current(self, b: Backend) -> None:
+        self.target.current = b
+
+    @property
+    def findings(self) -> list[Finding]:
+        return self.store.order
+
+    def consider(self, backend: Backend, hit: Hit, window: list[Case], probe: bool) -> Backend:
+        """A hit after the cases of ``window`` (then the probe command, ``probe``) triaged,
+        timed (``fuzz.loop.triage_time``); the backend to go on with."""
+        with triage_time(self, hit.signature.describe()):
+            # a death may show only at the next case's write: the one before is a suspect too
+            suspects, self.wait = (list(window), REPLAY_DEATH_S) if probe else backend.suspects(hit, window)
+            return self._triage(backend, hit, suspects, probe)
+        return self.current
+
+    def add_program(self, backend: Backend, hit: Any, ops: list[Any]) -> Backend:
+        """A stateful program's failure: triaged like a case's (fuzz.nsqd_stateful)."""
+        from mcp_conform.fuzz.nsqd_stateful import triage_program
+
+        self.wait = REPLAY_DEATH_S
+        with triage_time(self, hit.signature.describe()):
+            if self.skip(hit.signature, backend, "program"):
+                return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
+            blame, backend = self.blamed(backend, hit, False)
+            return triage_program(self, backend, hit, ops) if blame else backend
+        return self.current
+
+    def add_program_finding(self, sig: Signature, detail: str, replays: str, stderr: tuple[str, ...], note: str,
+                            program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
+        """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
+        (repro.mcap, repro.pcap), as a case's finding has it."""
+        self._add(nsqd_finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=traffic))
+
+    def known(self, sig: Signature) -> Finding | None:
+        """The finding a hit of ``sig`` already is: the same signature (a sanitizer's report seen
+        before or after the exit alike: ``same_finding``), or a hit's that became it."""
+        if sig.oracle == "desync":  # named by what lost the stream its sync: only after its triage
+            return None
+        return next((f for f in self.findings if f.signature.key == sig.key or (
+            f.signature.oracle != "desync" and same_finding(sig, f.signature))), None) or self.aliases.get(sig.key)
+
+    def skip(self, sig: Signature, backend: Backend, how: str) -> bool:
+        """Counted, not triaged: a known finding's hit, a signature that did not reproduce
+        ``UNCONFIRMED_TRIES`` times when shown ``how`` (after a case, after a probe window,
+        by a program), or any once the triage budget is spent."""
+        known = self.known(sig)
+        if known is not None:
+            known.occurrences += 1
+            return True
+        if self.target.attached and sig.oracle in ("crash", "hang") \
+                and backend.session.death() is not None:
+            raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
+        if self.tries.get((sig.key, how), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
+            count(self.untriaged, sig.describe())
+            return True
+        return False
+
+    def _tried(self, sig: Signature, probe: bool) -> None:
+        k = (sig.key, "probe" if probe else "case")
+        self.tries[k] = self.tries.get(k, 0) + 1
+
+    def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
+            log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
+        """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
+        triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
+        least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
+        check_late(self)
+        self.replays += 1
+        ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log, wait=self.wait if wait is None else wait)
+        self.current = b
+        return ok, b, h
+
+    def shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
+        """Nsqd's replay for delta debugging: whether ``cases``, replayed (:meth:`rep`) on the
+        backend now fuzzed (``current``: a fresh process when spawned), still show ``sig``
+        (then the probe command, ``probe``); ``current`` follows each replay's backend."""
+        def still(cases: list[Case]) -> bool:
+            ok, _, _ = self.rep(self.current, cases, sig, probe=probe)
+            return ok
+        return still
+
+    def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
+        """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame``) on a
+        fresh backend, run once per campaign (with the probe or without). A failing baseline is
+        confirmed ``n_of_n`` times and kept as the target's behaviour, no input blamed; it
+        explains the hit when it is of its kind (a death for a death, a bad frame for a bad
+        frame; any for what a probe showed): then (False, backend)."""
+        key = probe or hit.signature.oracle in ("hang", "desync")
+        if key not in self.base_seen:
+            self.base_seen[key] = self._baseline(backend, hit, key)
+            backend = self.current
+        base = self.base_seen[key]
+        if base is None:
+            return True, backend
+        h, b = hit.signature.oracle, base.oracle
+        if not (h in ("hang", "desync", "effect") or h == b or {h, b} <= {"crash", "sanitizer"}):
+            return True, backend
+        found = self.known(base)
+        if found is not None:
+            found.occurrences += 1
+            self.aliases[hit.signature.key] = found
+        return False, backend
+
+    def _baseline(self, backend: Backend, hit: Hit, key: bool) -> Signature | None:
+        """The baseline, confirmed ``n_of_n`` times: its signature (a finding, no input
+        blamed), or None (clean, or not every time: counted unconfirmed)."""
+        check_late(self, share=False)
+        b = self.current = backend.fresh()
+        self.target.count_restart("triage replay")
+        base = baseline(b, hit.signature, probe=key)
+        if base is None:
+            return None
+        sig = base.signature
+
+        def once() -> Hit | None:
+            check_late(self, share=False)
+            fresh = self.current = self.current.fresh()
+            self.target.count_restart("triage replay")
+            again = baseline(fresh, sig, probe=key)
+            return again if again is not None and same_finding(again.signature, sig) else None
+
+        conf = confirm_n(once, self.n_of_n - 1, until_miss=False)  # the first baseline is one of replays
+        confirmed = 1 + len(conf.hits)
+        self.restart(self.current)
+        if not conf.confirmed:  # at times whatever it is sent: no input is to blame either
+            self.count_unconfirmed(sig.rule)
+            conf.note(self.environment, sig.rule, f"{sig.describe()}, no input", base.detail,
+                      "a baseline sent nothing showed it, then not every confirming baseline did "
+                      "(timing or load); no input is to blame either")
+            return None
+        if self.known(sig) is None:
+            self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.n_of_n}", base.stderr,
+                              note="the target's behaviour, whatever it is sent: no input blamed (" + (
+                                  "the probe command with no case before it)" if base.detail.endswith(PROBED)
+                                  else "a baseline connection sent nothing)"),
+                              no_input=True, probe=key))
+        return sig
+
+    def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
+        sig = hit.signature
+        if self.skip(sig, backend, "probe" if probe else "case"):
+            return self.restart(backend) if sig.oracle in ("crash", "hang", "sanitizer") else backend
+        blame, backend = self.blamed(backend, hit, probe)
+        if not blame:
+            return backend
+        return self._triage_input(backend, hit, suspects, probe)
+
+    def _triage_input(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
+        sig = hit.signature
+        culprit: list[Case] | None = None
+        if sig.oracle == "effect" and any(m.name == sig.kind for m in NSQD.messages):
+            # a command's own effect: the command alone (plain values), judged by its effect
+            msg = NSQD.message(sig.kind)
+            culprit = [Case("valid", (Write(encode(NSQD, msg.name, **_defaults(msg))),), True, msg.name,
+                            expect=msg.effect.to, or_error=msg.effect.or_error, check=True)]
+            suspects, probe = [], False
+        if probe and len(suspects) > 2:
+            # a failed probe: the cases since the last good one, replayed together, then delta
+            # debugged down to the case(s) that break the stream (log n replays, not n)
+            ok, backend, _ = self.rep(backend, suspects, sig, probe=True)
+            self.target.count_restart("triage replay")
+            if ok:
+                culprit = ddmin(list(suspects), self.shows(sig, probe=True), budget=20)
+                backend = self.current
+            suspects = []
+        if sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
+            culprit, backend = death_culprit(self, backend, sig, suspects)
+            suspects = []
+        for c in reversed(suspects):  # the newest suspect first
+            ok, backend, _ = self.rep(backend, [c], sig, probe=probe)
+            self.target.count_restart("triage replay")
+            if ok:
+                culprit = [c]
+                break
+        if culprit is None and len(suspects) > 1 and sig.oracle != "effect":
+            ok, backend, _ = self.rep(backend, suspects, sig, probe=probe)
+            culprit = suspects if ok else None
+        if culprit is None:
+            self.count_unconfirmed(sig.rule)
+            self._tried(sig, probe)
+            return self.restart(backend)
+        if sig.oracle == "desync":  # named by what lost the stream its sync
+            kind = culprit[-1].kind
+            sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
+            hit = Hit(sig, hit.detail, hit.stderr)
+        known = self.known(sig)
+        if known is not None:
+            known.occurrences += 1
+            self.aliases[hit.signature.key] = known
+            return self.restart(backend)
+        self.current = backend
+
+        test_cases = self.shows(sig, probe=probe)
+
+        def test(writes: list[Write]) -> bool:
+            return test_cases([Case(_replay_kind(sig), tuple(writes))])
+
+        if len(culprit) > 1 and sig.oracle != "desync":
+            # several cases, each as it was sent (its own connection or not, its own watch): a
+            # close after a valid frame that an earlier case set up (Nsqd's E-6: SET_PID's early
+            # return keeps the frame size) is no close once the two are one case of raw writes
+            minimal = ddmin(list(culprit), test_cases, budget=16)
+            writes = [w for c in minimal for w in c.writes]
+        else:
+            writes = [w for c in culprit for w in c.writes]
+            if sig.oracle != "effect":
+                writes = ddmin(writes, test, budget=24)
+            c0 = culprit[0]
+            minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
+                            check=c0.check)]
+
+        def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
+            def once() -> tuple[Hit | None, list[Any]] | None:
+                log = TrafficLog()
+                ok, _, h = self.rep(self.current, cases, sig, probe=probe, log=log,
+                                    wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                return (h, log.records) if ok else None
+            return confirm_n(once, self.n_of_n, until_miss=False)
+
+        conf = confirm(minimal)
+        last = conf.hits[-1][0] if conf.confirmed else None
+        if last is not None and last.stderr:
+            hit = Hit(hit.signature, hit.detail, last.stderr)
+        if not conf.confirmed:
+            self.count_unconfirmed(sig.rule)
+            self._tried(hit.signature, probe)
+            conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
+                      f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                      f"{len(conf.hits)} of {self.n_of_n} confirming replays did (timing or load)")
+            return self.restart(self.current)
+        traffic = conf.hits[-1][1]
+        if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
+                and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
+            # a shorter tail, once it is confirmed as the whole input was (after it: an input
+            # that does not replay spends no time on cuts), while half of triage's share is left
+            data = writes[0].data
+            for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
+                if 0 < cut < len(data) and test([Write(data[:cut])]):
+                    data = data[:cut]
+            if len(data) < len(writes[0].data):
+                shorter = [replace(minimal[0], writes=(Write(data),))]
+                again = confirm(shorter)
+                if again.confirmed:
+                    minimal, traffic = shorter, again.hits[-1][1]
+        self._add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
+                          note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+        self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
+        return self.restart(self.current)
+
+    def restart(self, backend: Backend) -> Backend:
+        """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the
+        background), timed on its own (``restart_seconds``): a restart after a hit counted, not
+        triaged, is no triage."""
+        t0 = time.monotonic()
+        b = self.current = backend.restart()
+        self.target.count_restart("after a hit")
+        self.restart_seconds += time.monotonic() - t0
+        return b
+
+    def add_found(self, sig: Signature, detail: str, replays: str, note: str) -> None:
+        """A finding no input is replayed for (``fuzz.nsqd_blame.leak_check``'s)."""
+        self._add(nsqd_finding(sig, [], detail, replays, (), note=note))
+
+    def _add(self, f: Finding) -> None:
+        """A confirmed finding into the store (``finding-N/`` under ``out``)."""
+        f.seed, f.worker = self.seed, self.worker
+        self.store.add(f)
+
