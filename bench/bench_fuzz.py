@@ -33,6 +33,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,11 +90,22 @@ def run_stateful(tgt, cases: int, seconds: float) -> tuple[int, float]:  # noqa:
     return st.cases, st.seconds
 
 
+
+def _nsqd(args: argparse.Namespace) -> int:
+    from bench.bench_fuzz_nsqd import main_nsqd
+
+    return main_nsqd(args.cases, args.seconds, args.backend, [e for e in args.engines.split(",") if e],
+                     args.probe_every)
+
+
+#: ``--protocol NAME``: the benches of the protocols other than MCP (this module's own rows)
+OTHER_PROTOCOLS: dict[str, Callable[[argparse.Namespace], int]] = {"nsqd": _nsqd}
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=20_000)
     ap.add_argument("--seconds", type=float, default=20.0)
-    ap.add_argument("--protocol", choices=("mcp", "nsqd"), default="mcp",
+    ap.add_argument("--protocol", choices=("mcp", *OTHER_PROTOCOLS), default="mcp",
                     help="nsqd: against an Nsqd backend over TCP (bench/bench_fuzz_nsqd.py)")
     ap.add_argument("--backend", choices=("reference", "c", "both"), default="both",
                     help="nsqd: the Python reference backend, the correct C backend, or both")
@@ -112,11 +124,9 @@ def main() -> int:
         engines = [e for e in args.engines.split(",") if e in ENGINES]
         return main_ttf([int(x) for x in args.seeds.split(",") if x], [f for f in args.faults.split(",") if f] or None,
                         engines, args.nsqd)
-    if args.protocol == "nsqd":
-        from bench.bench_fuzz_nsqd import main_nsqd
-
-        return main_nsqd(args.cases, args.seconds, args.backend, [e for e in args.engines.split(",") if e],
-                         args.probe_every)
+    other = OTHER_PROTOCOLS.get(args.protocol)  # a protocol with a bench of its own
+    if other is not None:
+        return other(args)
     try:
         import boofuzz  # noqa: F401
         have_boofuzz = True

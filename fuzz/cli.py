@@ -38,7 +38,13 @@ from mcp_conform.fuzz.config import (
 from mcp_conform.fuzz.plugin import FuzzCampaign
 from mcp_conform.harness.config import DEFAULT_SEED, parse_hostport
 from mcp_conform.harness.errors import SetupError
-from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, PROFILES, ProfileError, pick
+from mcp_conform.spec.profiles import (
+    DEFAULT_PROTOCOL,
+    ProfileError,
+    add_protocol_option,
+    having,
+    pick,
+)
 from mcp_conform.traceio.grammar import add_verbosity, add_version, epilog
 
 __all__ = ["build_parser", "exit_code", "main"]
@@ -99,9 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replay", metavar="FINDING", help="replay a finding-N directory (or its finding.json) and exit")
     p.add_argument("--status-every", metavar="S", help="off a terminal, a plain status line every S seconds "
                                                        "(default 10)")
-    p.add_argument("--protocol", metavar="|".join(PROFILES), default=DEFAULT_PROTOCOL, choices=tuple(PROFILES),
-                   help=f"{DEFAULT_PROTOCOL} (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
-                        "(--spawn CMD with {target_host} {target_port}, or --target HOST:PORT)")
+    add_protocol_option(p, f"{DEFAULT_PROTOCOL} (default) or nsqd: fuzz a TCP backend of the Nsqd drone protocol "
+                           "(--spawn CMD with {target_host} {target_port}, or --target HOST:PORT); one of "
+                           f"{', '.join(having('fuzz_campaign'))}, the protocols with a fuzz campaign",
+                        default=DEFAULT_PROTOCOL, needs="fuzz_campaign")
     return p
 
 

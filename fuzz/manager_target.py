@@ -61,7 +61,7 @@ class ManagerFuzzTarget(TargetBase):
     def _fresh(self) -> None:
         """A fresh manager (spawn mode) that has heard drone 1 announce itself."""
         if self.spawned:
-            self.session.spawn()  # type: ignore[attr-defined]
+            self.session.respawn()
         limit = max(20.0, 4 * self.rto + 5.0) if self.spawned else 2.5 * self.rto + 1.0
         sent = self.driver.send(Action.MISSION_READY, None, MANAGER_ID, src=FUZZ_DRONES[0])
         ex = self.driver.exchange(sent, rto=self.rto, copies=max(3, int(limit / self.rto) + 1))

@@ -252,10 +252,6 @@ class ManagerSession(DatagramSessionBase):
                 "drones": ",".join(map(str, self.cfg.drones)), "challenge": str(self.cfg.challenge),
                 "waypoints": self.waypoints_path, "obstacles": self.obstacles_path}
 
-    def spawn(self) -> None:
-        """A fresh manager process (spawn mode), the previous one stopped."""
-        self.respawn()
-
     def _spawn(self) -> None:
         assert self.cfg.spawn is not None
         self.argv = fill_placeholders(self.cfg.spawn, self._placeholders())
