@@ -14,14 +14,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol
 
-from mcp_conform.harness.driver import Datagram
 from mcp_conform.harness.errors import CaseFailure, Inconclusive
 from mcp_conform.judge.spacing import judge_spacing
 from mcp_conform.spec import SPEC
 
 __all__ = ["CaseBase", "DatagramCaseBase"]
+
+
+class _Described(Protocol):
+    """What a verify helper's evidence is made of: a datagram, a frame."""
+
+    def describe(self) -> str: ...
 
 
 class CaseBase:
@@ -69,6 +74,18 @@ class CaseBase:
         if not ok:
             raise self.fail(rule, expected, actual, evidence)
 
+    def expect_all(self, items: Sequence[_Described], check: Callable[[Any], str | None],
+                   rule: str, expected: str, noun: str = "datagrams") -> None:
+        """Every item (a datagram, a frame: anything that can ``describe()`` itself) passes
+        ``check`` (which returns a problem or None); the first three that do not are the
+        evidence."""
+        if not items:
+            raise Inconclusive(f"{rule}: {self.subject} sent nothing to judge")
+        bad = [(d, p) for d in items for p in [check(d)] if p is not None]
+        if bad:
+            raise self.fail(rule, expected, f"{len(bad)} of {len(items)} {noun}: {bad[0][1]}",
+                            [d.describe() for d, _ in bad[:3]])
+
 
 class DatagramCaseBase(CaseBase):
     """What the datagram protocol's role contexts add: the session's timings and the verify
@@ -88,15 +105,6 @@ class DatagramCaseBase(CaseBase):
         return int(self.session.cfg.broadcast_id)
 
     # ------------------------------------------------------------------ verify helpers
-    def expect_all(self, datagrams: Sequence[Datagram], check: Callable[[Datagram], str | None],
-                   rule: str, expected: str) -> None:
-        """Every datagram passes ``check`` (which returns a problem or None)."""
-        if not datagrams:
-            raise Inconclusive(f"{rule}: {self.subject} sent nothing to judge")
-        bad = [(d, p) for d in datagrams for p in [check(d)] if p is not None]
-        if bad:
-            raise self.fail(rule, expected, f"{len(bad)} of {len(datagrams)} datagrams: {bad[0][1]}",
-                            [d.describe() for d, _ in bad[:3]])
 
     def expect_even_spacing(self, gaps: Sequence[float], rule: str = "MCP-RTX-3",
                             run_delays: Sequence[int | None] | None = None) -> None:

@@ -134,13 +134,9 @@ class MavlinkCaseContext(CaseBase):
     # -- verify helpers -------------------------------------------------------------------
     def expect_frames(self, frames: Sequence[Received], check: Callable[[Received], str | None],
                       rule: str, expected: str) -> None:
-        """Every frame of ``frames`` passes ``check`` (which returns a problem or None)."""
-        if not frames:
-            raise Inconclusive(f"{rule}: the vehicle sent nothing to judge")
-        bad = [(r, p) for r in frames for p in [check(r)] if p is not None]
-        if bad:
-            raise self.fail(rule, expected, f"{len(bad)} of {len(frames)} frames: {bad[0][1]}",
-                            [r.describe() for r, _ in bad[:3]])
+        """Every frame of ``frames`` passes ``check`` (which returns a problem or None):
+        ``CaseBase.expect_all`` over frames."""
+        self.expect_all(frames, check, rule, expected, noun="frames")
 
     def expect_heartbeats(self, window: float, rule: str = "MAV-HB-1") -> list[Received]:
         """HEARTBEATs of the vehicle over ``window`` s from now: none of the gaps (the window's
