@@ -32,14 +32,14 @@ def _late_copy() -> tuple[Script, float]:
     return s, t_late
 
 
-def _judge(s: Script, rd: Callable[[float], int] | None) -> tuple[dict[str, str], list[str]]:
+def _judge(s: Script, rd: Callable[[float], int] | None, tail: float = 10.0) -> tuple[dict[str, str], list[str]]:
     """The manager's verdicts and the notes of what the veto dropped, its run delay ``rd(t)``
     (ns, at each of its datagrams; None: unknown, attach mode)."""
     m = s.monitor()
     for r in sorted(s.datagrams(), key=lambda r: r.t_ns):
         d = rd((r.t_ns - T0_NS) / NS) if rd is not None and r.src_addr == MANAGER_ADDR else None
         m.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, r.origin, run_delay=d)
-    m.finish(s.end_ns())
+    m.finish(s.end_ns(tail))
     return m.verdicts()[0], [x.note() for x in m.vetoed]
 
 
@@ -97,3 +97,16 @@ def test_an_ack_read_at_the_stalls_end_needs_a_later_datagram_of_the_sender():
     verdicts, notes = _judge(s, _starved(t, 1.9))
     assert verdicts["MCP-RTX-1"] == "passed" and len(notes) == 1
     assert _judge(s, None)[0]["MCP-RTX-1"] == "failed"
+
+
+def test_a_trace_cut_after_the_late_copy_is_judged_to_its_end():
+    s = _started()
+    _seq, data = s.send(0, 1, Action.WP_OFF)
+    for gap in (0.2, LATE):
+        s.tick(gap)
+        s.raw(0, data, to=1)
+    t_late = s.t
+    # three copies, the trace ends 0.1 s after the late one: its next copy was not due yet
+    assert _judge(s, _starved(t_late, 1.9), tail=0.1)[0]["MCP-RTX-1"] != "failed"
+    # ... and 5 s after it, with no copy and no run delay known after it: a give-up
+    assert _judge(s, _starved(t_late, 1.9), tail=5.0)[0]["MCP-RTX-1"] == "failed"
