@@ -20,8 +20,12 @@ ACK window, and ``S``'s run delay, D-7). The violation is dropped when the rule 
 ``consistent`` there and no disjunction naming it (``MCP-RTX-1 or MCP-RTX-2``) is proven: some
 explanation keeps the rule. It stands when the rule is ``proven`` or ``unobservable`` (explain
 cannot judge what the monitor saw), so the veto never adds a violation and never drops one
-explain does not contradict. A dropped violation is kept with the explanation that keeps the
-rule (:class:`Vetoed`), for the report.
+explain does not contradict. Where explain keeps the rule, the monitor's stop is explained by a
+right ACK it did not credit (:func:`_answered_in_time`) or, for MCP-RTX-1's "none for N s", by
+the run delay the sender's own datagrams carry over the silence (:func:`_starved_in_time`: a
+copy sent late because its sender was off the CPU, D-7, as MCP-RTX-3 excuses it; the seed
+``monitor-rtx1-late-copy-carries-its-run-delay``). A dropped violation is kept with the
+explanation that keeps the rule (:class:`Vetoed`), for the report.
 
 Bounds. ``S``'s run delay (cumulative, ns, fed with each datagram it sent: ``harness.run_delay``
 on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU;
@@ -41,6 +45,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
+from mcp_conform.judge._monitor_base import MIN_COPIES, median
+from mcp_conform.judge._monitor_rtx import DESCRIPTION_TIMEOUT_NS
 from mcp_conform.judge.explain import (
     CONSISTENT,
     EITHER_RTX,
@@ -191,6 +197,76 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
             f"{b.rto_max:.3f} s after one: --rto, tolerance, run delay), may have ended it")
 
 
+def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
+                     ack_window: float, end_ns: int) -> str | None:
+    """MCP-RTX-1's silence judged in the sender's running time (D-7, as ``judge.spacing``
+    judges MCP-RTX-3's gaps): the monitor's deadline (``_rtx_deadline``: the last copy + 1.5
+    gaps + the ACK window) counts wall time; a copy that fell due while ``S`` was off the CPU
+    goes out when it runs again, late by the run delay its own datagram carries. The failure
+    is explained (a text; None: it stands) when, each gap between copies less the run delay
+    ``S``'s own datagrams show accrued over it, every copy came within that deadline up to
+    :data:`MIN_COPIES` of them (or the trace's end), and no datagram of ``S`` in between shows
+    it past the deadline. Run delay counts only where a datagram of ``S`` carries it: a copy
+    without one and the time after ``S``'s last datagram excuse nothing (attach mode, pcaps:
+    nothing at all); an ACK of the message is :func:`_answered_in_time`'s. Only the deadline's form of the failure (its
+    evidence all copies of the message), not a sender seen moving on (``_gave_up``)."""
+    s, r = way
+    ev = [i for i, _t in v.evidence if 0 <= i < len(records)]
+    if not ev or len(ev) != len(v.evidence):
+        return None
+    first = records[ev[0]]
+    h0 = peek_header(first.data, require_preamble=False)
+    if h0 is None or h0[:2] != (r, s) or h0[3] == Action.ACK or first.run_delay is None:
+        return None
+    seq = h0[2]
+    if any(records[i].data != first.data for i in ev):
+        return None
+    named = seq.to_bytes(2, "big")
+    window_ns = int(ack_window * NS)
+    t_last, rd_last = first.t_ns, first.run_delay
+    rd_seen = rd_last  # S's run delay at its latest datagram that carried one
+    runs: list[int] = []  # each gap between copies, less the run delay over it
+    copies = 1
+
+    def deadline() -> int:
+        est = median(runs) if runs else max(int(rto * NS), DESCRIPTION_TIMEOUT_NS)
+        return 3 * est // 2 + window_ns
+
+    for rec in records[ev[0] + 1:]:
+        h = peek_header(rec.data, require_preamble=False)
+        if h is None:
+            continue
+        dst, src, n, action = h
+        if src == r and dst == s and action == Action.ACK and rec.data[HEADER_SIZE:] == named:
+            return None  # ACKed: _answered_in_time's to explain
+        if src != s or rec.tester:
+            continue
+        copy = dst == r and n == seq and action != Action.ACK and rec.data == first.data
+        rd = rec.run_delay
+        if rd is None or rd < rd_seen:
+            if copy:
+                return None  # a copy whose run delay is unknown: nothing excused from here
+            continue
+        if (rec.t_ns - t_last) - (rd - rd_last) > deadline():
+            return None  # past the deadline in the time S could run, and no copy
+        rd_seen = rd
+        if copy:
+            runs.append((rec.t_ns - t_last) - (rd - rd_last))
+            copies += 1
+            t_last, rd_last = rec.t_ns, rd
+            if copies >= MIN_COPIES:
+                break
+    else:  # the trace's end, fewer copies: S ran all the time after its last datagram
+        if (max(end_ns, records[-1].t_ns) - t_last) - (rd_seen - rd_last) > deadline():
+            return None
+    starved = rd_seen - first.run_delay
+    if starved <= 0:
+        return None
+    return (f"seq {seq} from ID {s}: {copies} copies, each within its deadline (the last + 1.5 "
+            f"gaps + the ACK window) in the time ID {s} could run: its datagrams carry "
+            f"{starved / NS:.3f} s of run delay over the gaps (D-7)")
+
+
 def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: float,
          end_ns: int, broadcast_id: int, complete_for: Any) -> list[Vetoed]:
     """The violations of :data:`VETOED_RULES` that :mod:`judge.explain` explains away (see the
@@ -225,6 +301,8 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         if either is not None and either.status == PROVEN:
             continue
         answered = _answered_in_time(v, way, records, bounds[way[0]], broadcast_id)
+        if answered is None and v.rule == "MCP-RTX-1":
+            answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns)
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))
