@@ -95,3 +95,16 @@ def test_the_shipped_layout_is_the_examples_one():
     shipped = (ROOT / module_paths()["traceio.live.LAYOUT_PATH"]).read_text(encoding="utf-8")
     assert shipped == (ROOT / "examples" / "foxglove-layout.json").read_text(encoding="utf-8")
     assert json.loads(shipped)
+
+
+def test_every_subpackage_on_disk_is_a_package_the_wheel_ships():
+    """Each folder with an ``__init__.py`` below a shipped package is in pyproject.toml's
+    explicit ``packages`` (a new case package left out installs without its cases: the
+    wheel's ``--protocol mavlink`` found none until cases_mavlink was listed)."""
+    from tests.packaging.tree import NAMESPACE, pyproject
+
+    listed = set(pyproject()["tool"]["setuptools"]["packages"])
+    on_disk = {f"{NAMESPACE}.{top}" + "".join(f".{part}" for part in init.parent.relative_to(ROOT / top).parts)
+               for top in top_packages() for init in (ROOT / top).rglob("__init__.py")
+               if "__pycache__" not in init.parts}
+    assert on_disk - listed == set(), sorted(on_disk - listed)
