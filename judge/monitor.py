@@ -337,6 +337,12 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._vehicle_event(t_ns, drone_id, event)
         return out
 
+    def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
+        """Node ``node`` (its MCP ID) had ``run_delay_ns`` of run delay (D-7) at ``t_ns``, known
+        without a datagram -- read as its view ends, so a stall after its last datagram is
+        known. Judges nothing by itself: the veto (``judge.veto``) counts it as a datagram's."""
+        self.recorder.sample(t_ns, node, run_delay_ns)
+
     def advance(self, t_ns: int) -> list[Violation]:
         """Time has passed: deadlines up to ``t_ns`` fall due."""
         out: list[Violation] = []

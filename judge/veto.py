@@ -31,7 +31,11 @@ Bounds. ``S``'s run delay (cumulative, ns, fed with each datagram it sent: ``har
 on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU;
 the largest growth between two of its datagrams bounds one stall: a copy may go that much
 later than its timer (``rto_slack``) and an ACK be read that much after it came
-(``ack_early``). Where no run delay is known the bounds are spec/mcp.yaml's with a perfect
+(``ack_early``). A run delay known without a datagram counts as one more of ``S``'s
+(:meth:`Recorder.sample`, ``Monitor.run_delay``: read at the end of its view, it shows a stall
+after its last datagram -- a manager off the CPU while its retransmission fell due, which then
+read the ACK and closed, sending nothing; the seed ``monitor-rtx1-starved-then-closed``).
+Where no run delay is known the bounds are spec/mcp.yaml's with a perfect
 observer. The link is not known to the monitor: one copy draws one ACK (a link that
 duplicates ACKs may leave a false failure standing, never hide a true one).
 
@@ -97,6 +101,13 @@ class Recorder:
 
     records: list[Record] = field(default_factory=list)
     note: str | None = None
+    #: per node ID, run delays known without a datagram (``Monitor.run_delay``): ``(t_ns, ns)``
+    samples: dict[int, list[tuple[int, int]]] = field(default_factory=dict)
+
+    def sample(self, t_ns: int, node: int, run_delay: int) -> None:
+        """Node ``node``'s run delay was ``run_delay`` ns at ``t_ns`` (its view's end: a stall
+        after its last datagram, D-7); counted by :func:`_lags` as a datagram's would be."""
+        self.samples.setdefault(node, []).append((t_ns, run_delay))
 
     def add(self, t_ns: int, data: bytes, tester: bool, run_delay: int | None) -> None:
         if self.note is not None:
@@ -115,21 +126,31 @@ class Recorder:
             self.records[index] = self.records[index]._replace(tester=True)
 
 
-def _lags(records: list[Record]) -> dict[int, float]:
-    """Per node, the largest growth of its run delay between two datagrams it sent (s)."""
-    last: dict[int, int] = {}
-    out: dict[int, float] = {}
+def _lags(records: list[Record], samples: dict[int, list[tuple[int, int]]] | None = None
+          ) -> dict[int, float]:
+    """Per node, the largest growth of its run delay between two datagrams it sent (s), or
+    between one and a run delay known without a datagram (``samples``, :meth:`Recorder.sample`:
+    a stall after its last datagram, read at its view's end)."""
+    seen: dict[int, list[tuple[int, int]]] = {}
     for r in records:
         if r.run_delay is None or r.tester:
             continue
         head = peek_header(r.data, require_preamble=False)
-        if head is None:
-            continue
-        src = head[1]
-        prev = last.get(src)
-        if prev is not None and r.run_delay > prev:
-            out[src] = max(out.get(src, 0.0), (r.run_delay - prev) / NS)
-        last[src] = r.run_delay
+        if head is not None:
+            seen.setdefault(head[1], []).append((r.t_ns, r.run_delay))
+    for node, extra in (samples or {}).items():  # each sample after the datagrams up to its time
+        merged: list[tuple[int, int]] = []
+        rest = sorted(extra)
+        for pair in seen.get(node, []):
+            while rest and rest[0][0] < pair[0]:
+                merged.append(rest.pop(0))
+            merged.append(pair)
+        seen[node] = merged + rest
+    out: dict[int, float] = {}
+    for src, known in seen.items():
+        for (_, prev), (_, rd) in zip(known, known[1:], strict=False):
+            if rd > prev:
+                out[src] = max(out.get(src, 0.0), (rd - prev) / NS)
     return out
 
 
@@ -279,7 +300,7 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
                                    tester=lambda r: r.tester)
     t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
     end = (end_ns - t0) / NS
-    lags = _lags(records)
+    lags = _lags(records, recorder.samples)
     decided: dict[tuple[int, int], dict[str, Verdict]] = {}
     bounds: dict[int, Bounds] = {}
     out: list[Vetoed] = []

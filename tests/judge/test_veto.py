@@ -27,16 +27,48 @@ VETOED = {
 STARVED, STARVED_NODE = "monitor-rtx1-starved-drone", VETOED["monitor-rtx1-starved-drone"][0]
 
 
-def _monitor_of(name: str, node: int) -> Monitor:
-    """The seed's party ``node`` judged in its own view, as ``sim.judges`` does."""
+def _monitor_of(name: str, node: int, end_run_delay: bool = False) -> Monitor:
+    """The seed's party ``node`` judged in its own view, as ``sim.judges`` does (its run delay
+    at the view's end fed too with ``end_run_delay``)."""
     o, _ = replay(SEEDS / f"{name}.json")
     w, s = o.world, o.schedule
     mon = Monitor(rto=s.rto, ack_window=max(0.5, 2 * s.rto), drones=tuple(w.drones),
                   complete=True, party=node)
     for r in w.views[node]:
         mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay if r.tx else None)
-    mon.finish(int(w.view_end(node) * NS))
+    end = int(w.view_end(node) * NS)
+    if end_run_delay:
+        mon.run_delay(end, node, w.run_delay_ns[node])
+    mon.finish(end)
     return mon
+
+
+def test_a_stall_after_the_last_datagram_is_known_by_the_run_delay_at_the_views_end() -> None:
+    """The seed ``monitor-rtx1-starved-then-closed``: the manager (correct) is stalled while
+    End_Mission's retransmission falls due, then reads the ACK and closes, sending nothing: no
+    datagram of its carries the stall's run delay (0 at every one), so the ACK is late in
+    wall time and MCP-RTX-1 fails. Its run delay at its view's end (``Monitor.run_delay``,
+    13.98 s) bounds the stall, and the right ACK is named as what ended it."""
+    node = 0
+    without = _monitor_of("monitor-rtx1-starved-then-closed", node)
+    assert without.verdicts()[node]["MCP-RTX-1"] == "failed" and not without.vetoed
+    mon = _monitor_of("monitor-rtx1-starved-then-closed", node, end_run_delay=True)
+    assert mon.verdicts()[node]["MCP-RTX-1"] == "passed"
+    (x,) = [x for x in mon.vetoed if (x.violation.node, x.violation.rule) == (node, "MCP-RTX-1")]
+    assert "End_Mission" in x.violation.actual and "may have ended it" in x.explanation
+
+
+def test_a_run_delay_at_the_end_excuses_no_silence_it_does_not_cover() -> None:
+    """The sample is one more run delay of the node, nothing else: a drone starved in the seed
+    ``monitor-rtx1-starved-drone`` whose run delay at the end is what its last datagram carried
+    (no stall after it) keeps the verdicts it had without the sample."""
+    name, node = STARVED, STARVED_NODE
+    w = replay(SEEDS / f"{name}.json")[0].world
+    assert w.run_delay_ns[node] == [r.run_delay for r in w.views[node] if r.tx][-1] > 0
+    with_end = _monitor_of(name, node, end_run_delay=True)
+    plain = _monitor_of(name, node)
+    assert with_end.verdicts() == plain.verdicts()
+    assert [x.note() for x in with_end.vetoed] == [x.note() for x in plain.vetoed]
 
 
 @pytest.mark.parametrize("name", sorted(VETOED))
