@@ -2,7 +2,8 @@
 fed to the project's trace monitor (:class:`judge.monitor.Monitor`) and to the explanation
 judge (:mod:`judge.explain`, through :mod:`judge.explain_records`), as ``mcp-capture check``
 judges a node's own capture (``judge.judging``: complete for what that node took part in,
-``party`` = its ID, its own datagrams with its run delay) and as ``mcp-soak`` reads the
+``party`` = its ID, its own datagrams with its run delay, and its run delay as its view ends,
+``Monitor.run_delay``) and as ``mcp-soak`` reads the
 verdicts: each node is judged in its own view only, since the other end is seen through the
 link (copies lost, duplicated, held back).
 
@@ -70,7 +71,10 @@ def judge_world(w: World, *, rto: float, challenge: int, items: tuple[Any, ...],
                 found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay)
             else:
                 found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
-        found += mon.finish(int(w.view_end(pid) * NS))
+        end = int(w.view_end(pid) * NS)
+        # its run delay as its view ends (D-7): a stall after its last datagram is known too
+        mon.run_delay(end, pid, w.run_delay_ns[pid])
+        found += mon.finish(end)
         out.violations[pid] = [v for v in found if v.node == pid]
         out.vetoed[pid] = [x.violation for x in mon.vetoed if x.violation.node == pid]
         out.verdicts[pid] = mon.verdicts().get(pid, {})
