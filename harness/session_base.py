@@ -31,7 +31,7 @@ from mcp_conform.harness.procs import ManagedProcess
 from mcp_conform.harness.run_delay import run_delay_ns
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import Profile, RoleProfile, resolve
-from mcp_conform.traceio.recorder import NODE_METADATA
+from mcp_conform.traceio.recorder import NODE_METADATA, RUN_DELAY_METADATA, run_delay_metadata
 from mcp_conform.vehicle.ports import free_port  # noqa: F401  (re-exported: the runner's and the tests' ports)
 
 MANAGER_ID = int(SPEC.protocol["manager_id"])
@@ -113,6 +113,8 @@ class SpawnedNode:
             raise SpawnFailure(f"--spawn: cannot start {argv[0]!r}: {exc.strerror}",
                                {"command": argv, "exit": None, "stdout": [], "stderr": []}) from None
         self.proc = self._p.proc
+        #: called once as the node is stopped, before SIGTERM (its run delay read a last time)
+        self.before_stop: Callable[[], None] | None = None
 
     def alive(self) -> bool:
         return self._p.alive()
@@ -150,6 +152,10 @@ class SpawnedNode:
         return self._p
 
     def stop(self, grace: float = 2.0) -> None:
+        hook, self.before_stop = self.before_stop, None
+        if hook is not None:  # while the process is still there to be read
+            with contextlib.suppress(Exception):
+                hook()
         self._p.stop(grace=0.0 if INTERRUPTS.hurry else grace)
 
     def close(self) -> None:
@@ -260,8 +266,7 @@ class SessionBase(NodeBase):
     (``conformance``), which owns the cases and their verify helpers."""
 
     cfg: RunConfig
-    #: the spawned node's process (None: attach mode, or not started yet)
-    node: SpawnedNode | None = None
+    _node: SpawnedNode | None = None
     recorder: Any
     #: who is judged, in the words of a report ("the backend process killed by SIGSEGV")
     subject = "the node"
@@ -272,6 +277,22 @@ class SessionBase(NodeBase):
         if self.make_context is None:
             raise RuntimeError("begin_case: no case context set (session.make_context)")
         return self.make_context
+
+    @property
+    def node(self) -> SpawnedNode | None:
+        """The spawned node's process (None: attach mode, or not started yet); as it is
+        stopped, :meth:`record_run_delay` runs first."""
+        return self._node
+
+    @node.setter
+    def node(self, node: SpawnedNode | None) -> None:
+        self._node = node
+        if node is not None:
+            node.before_stop = self.record_run_delay
+
+    def record_run_delay(self) -> None:
+        """The spawned node is being stopped: its last run delay to the capture; nothing by
+        default (:class:`DatagramSessionBase` records it)."""
 
     def node_run_delay(self) -> int | None:
         """The spawned node's run delay now (``harness.run_delay``); None in attach mode."""
@@ -373,6 +394,8 @@ class DatagramSessionBase(SessionBase):
     trace monitor), ``--impair``'s link and the address placeholders of both ends."""
 
     driver: TargetDriver | None
+    #: the node under test's ID as the capture knows it (:meth:`record_node`)
+    recorded_node_id: int | None = None
     #: the node under test's address, as the run's monitor and the capture know it (None:
     #: not observed yet, :meth:`observe_run`)
     node_address: tuple[str, int] | None = None
@@ -414,6 +437,8 @@ class DatagramSessionBase(SessionBase):
     def record_node(self, node_id: int | None, *, complete: bool | None = None) -> None:
         """Tell the capture whose traffic it holds (the node under test's ID and address, as
         the run's monitor knows them) and how the monitor judges it."""
+        if node_id is not None:
+            self.recorded_node_id = node_id
         address = self.node_address
         if self.recorder is None or node_id is None or address is None:
             return
@@ -422,6 +447,26 @@ class DatagramSessionBase(SessionBase):
             values["complete"] = "true" if complete else "false"
         with contextlib.suppress(Exception):
             self.recorder.add_metadata(NODE_METADATA, values)
+
+    def record_run_delay(self) -> None:
+        """As the runner stops the spawned node, its run delay (D-7, ``harness.run_delay``)
+        read a last time and written to the capture (``traceio.recorder.RUN_DELAY_METADATA``):
+        a stall after the node's last datagram -- a manager off the CPU while a retransmission
+        fell due, which then read the ACK and closed -- shows nowhere else, and ``mcp-capture
+        check`` feeds it to the monitor's veto (``Monitor.run_delay``). The node's ID: as
+        :meth:`record_node` named it, a manager's its role's; none known, or a process already
+        gone (its run delay unreadable): nothing is written."""
+        node_id = self.recorded_node_id
+        if node_id is None and self.cfg.role == "manager":
+            node_id = MANAGER_ID
+        if self.recorder is None or node_id is None:
+            return
+        ns = self.node_run_delay()
+        if ns is None:
+            return
+        values = run_delay_metadata(node_id, ns, time.time_ns())
+        with INTERRUPTS.held(), contextlib.suppress(Exception):
+            self.recorder.add_metadata(RUN_DELAY_METADATA, values)
 
     # ------------------------------------------------------------------ --impair
     @property

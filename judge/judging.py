@@ -38,7 +38,7 @@ from mcp_conform.traceio.reader import (
     VehicleMark,
     open_capture,
 )
-from mcp_conform.traceio.recorder import NODE_METADATA
+from mcp_conform.traceio.recorder import NODE_METADATA, RUN_DELAY_METADATA, recorded_run_delay
 from mcp_conform.traceio.trace import Node, action_name, evidence_indexes
 
 __all__ = ["VERDICT_RANK", "Judgement", "MonitorUnavailable", "NoJudge", "Params", "UsageError", "add_monitor_options",
@@ -302,6 +302,8 @@ class _Session:
         self.recorded_complete: bool | None = None  # how the run's own monitor judged the trace
         self.recorded_harness = False  # the run's metadata names a harness as its recorder
         self.party: int | None = None  # a node's own capture: that node's ID
+        #: (t_ns, node ID, ns): run delays recorded without a datagram (RUN_DELAY_METADATA)
+        self.run_delays: list[tuple[int, int, int]] = []
         self.marks = False  # the run recorded the link and fix events its monitor judged by
         self.first: int | None = None
         self.last: int | None = None
@@ -309,7 +311,11 @@ class _Session:
 
     def metadata(self, rec: Metadata) -> None:
         recorder = rec.data.get("recorder")
-        if self.mon is None and recorder in HARNESSES:  # before the first datagram
+        if rec.name == RUN_DELAY_METADATA:  # as the runner stopped its node: fed at the finish
+            got = recorded_run_delay(rec.data)
+            if got is not None:
+                self.run_delays.append(got)
+        elif self.mon is None and recorder in HARNESSES:  # before the first datagram
             self.recorded_harness = True
             self.params.adopt(_recorded_parameters(rec))
         elif self.mon is None and recorder in NODE_RECORDERS:
@@ -428,6 +434,12 @@ class _Session:
         if mon is None:  # no datagram at all
             mon = self.mon = _make_monitor(params)
         if self.last is not None:
+            # a node's run delay as the runner stopped it (D-7): a stall after its last
+            # datagram, which the veto weighs as the run monitor's own finish would
+            sample = getattr(mon, "run_delay", None)
+            if sample is not None:
+                for t_ns, node, ns in self.run_delays:
+                    sample(t_ns, node, ns)
             self._found(mon.finish(self.last))
         if params.challenge is None:
             inferred = getattr(mon, "inferred_challenge", None)

@@ -26,7 +26,10 @@ with its rules and evidence, and what a producer logs with :meth:`McapRecorder.l
 
 An MCAP metadata record named ``mcp-conform`` (written first, so a truncated file keeps it)
 holds the tool and spec versions, who recorded (``recorder``: runner, mcp-node, mcp-fuzz),
-the target, role and seed where they apply.
+the target, role and seed where they apply. Where the runner spawned the node, a record
+``mcp-conform run delay`` (:data:`RUN_DELAY_METADATA`) gives the node's run delay (D-7) as it
+stopped it: a stall after the node's last datagram, which no datagram carries; a reader that
+does not know it reads the file as before.
 
 ``log_time`` is the run clock (``time.time_ns()``) given by the caller, so a case's
 ``capture`` range in the JSON report finds its traffic. The recorder is thread-safe (the
@@ -71,12 +74,15 @@ __all__ = [
     "HEX_LIMIT",
     "METADATA_NAME",
     "NODE_METADATA",
+    "RUN_DELAY_METADATA",
     "McapRecorder",
     "RecorderError",
     "STREAM_CHANNELS",
     "datagram_record",
     "foxglove_channels",
     "mavlink_type",
+    "run_delay_metadata",
+    "recorded_run_delay",
     "run_metadata",
     "summarize_payload",
 ]
@@ -87,6 +93,10 @@ METADATA_NAME = "mcp-conform"
 FUZZ_RECORDER = "mcp-fuzz"
 #: The metadata record naming the node under test (``id``, ``address`` host:port) of a run.
 NODE_METADATA = "mcp-conform node"
+#: The metadata record of a node's run delay (D-7) read without a datagram -- as the runner
+#: stops a spawned node (``harness.session_base``): ``id``, ``run_delay_ns``, ``t_ns`` (the run
+#: clock). A stall after the node's last datagram shows only here (``Monitor.run_delay``).
+RUN_DELAY_METADATA = "mcp-conform run delay"
 
 #: case outcome -> foxglove.Log level of its end mark
 _OUTCOME_LEVEL = {"passed": "info", "skipped": "info", "warned": "warning", "failed": "error", "error": "error"}
@@ -195,6 +205,22 @@ def run_metadata(recorder: str, **values: Any) -> dict[str, str]:
         if value is not None:
             meta[key] = value if isinstance(value, str) else json.dumps(value)
     return meta
+
+
+def run_delay_metadata(node_id: int, run_delay_ns: int, t_ns: int) -> dict[str, str]:
+    """The :data:`RUN_DELAY_METADATA` record's values: node ``node_id`` had ``run_delay_ns``
+    of run delay at ``t_ns``."""
+    return {"id": str(int(node_id)), "run_delay_ns": str(int(run_delay_ns)), "t_ns": str(int(t_ns))}
+
+
+def recorded_run_delay(values: Mapping[str, str]) -> tuple[int, int, int] | None:
+    """``(t_ns, node_id, run_delay_ns)`` of a :data:`RUN_DELAY_METADATA` record's values;
+    None where they do not read as one (a record written by something else is ignored)."""
+    try:
+        t_ns, node, ns = int(values["t_ns"]), int(values["id"]), int(values["run_delay_ns"])
+    except (KeyError, ValueError):
+        return None
+    return (t_ns, node, ns) if ns >= 0 else None
 
 
 #: the recorders open, closed at interpreter exit: an interrupted run still leaves valid files

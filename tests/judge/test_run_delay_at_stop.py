@@ -1,0 +1,104 @@
+"""A node's run delay as its capture ends (D-7; issue 38): the runner reads it a last time as
+it stops a spawned node and writes it to the capture (``traceio.recorder.RUN_DELAY_METADATA``,
+``harness.session_base``); ``mcp-capture check``'s judge (``judge.judging``) feeds it to the
+monitor (``Monitor.run_delay``), whose veto weighs it as a datagram's run delay -- so the
+seed ``monitor-rtx1-starved-then-closed``'s manager, stalled after its last datagram, is not
+failed offline either; a capture without the record is judged as before."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.run_delay import run_delay_ns
+from mcp_conform.harness.session_base import DatagramSessionBase, SpawnedNode
+from mcp_conform.judge.judging import Params, judge
+from mcp_conform.sim.search import replay
+from mcp_conform.traceio.reader import open_capture
+from mcp_conform.traceio.recorder import (
+    RUN_DELAY_METADATA,
+    McapRecorder,
+    recorded_run_delay,
+    run_delay_metadata,
+    run_metadata,
+)
+from mcp_conform.traceio.records import Metadata
+
+SEED = Path(__file__).resolve().parents[1] / "sim" / "seeds" / "monitor-rtx1-starved-then-closed.json"
+MANAGER = 0
+
+
+def _capture(path: Path, *, end_run_delay: bool) -> None:
+    """The seed's manager view as its own capture (``mcp-soak``'s writer), with its run delay
+    at its view's end as the runner writes it as it stops a node, or without."""
+    o, _ = replay(SEED)
+    w, s = o.world, o.schedule
+    meta = run_metadata("mcp-soak", node_id=MANAGER, complete="true",
+                        parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
+    with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
+        for r in w.views[MANAGER]:
+            if r.tx:
+                rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
+            else:
+                rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
+        if end_run_delay:
+            end = int(w.view_end(MANAGER) * 1e9)
+            rec.add_metadata(RUN_DELAY_METADATA, run_delay_metadata(MANAGER, w.run_delay_ns[MANAGER], end))
+
+
+def test_check_weighs_the_run_delay_the_capture_ends_with(tmp_path: Path) -> None:
+    without, with_end = tmp_path / "without.mcap", tmp_path / "with.mcap"
+    _capture(without, end_run_delay=False)
+    _capture(with_end, end_run_delay=True)
+    old = judge(without, Params())
+    assert old.verdicts[MANAGER]["MCP-RTX-1"] == "failed"
+    new = judge(with_end, Params())
+    assert new.verdicts[MANAGER]["MCP-RTX-1"] == "passed"
+    assert not [v for v in new.violations if v.rule == "MCP-RTX-1"]
+    (note,) = [n for n in new.notes if n.startswith(f"MCP-RTX-1 not failed for node {MANAGER}")]
+    assert "End_Mission" in note and "may have ended it" in note
+
+
+@pytest.mark.parametrize("values", [{}, {"id": "0", "run_delay_ns": "x", "t_ns": "1"},
+                                    {"id": "0", "run_delay_ns": "-1", "t_ns": "1"}])
+def test_a_record_that_does_not_read_as_a_run_delay_is_ignored(values: dict[str, str]) -> None:
+    assert recorded_run_delay(values) is None
+
+
+class _Session(DatagramSessionBase):
+    """The datagram session's stop path alone: its recorder and the node it spawned."""
+
+    def __init__(self, recorder: McapRecorder, role: str) -> None:
+        self.cfg = RunConfig(role=role)
+        self.recorder = recorder
+        self.driver = None
+
+
+@pytest.mark.skipif(not Path("/proc/self/schedstat").exists(),
+                    reason="no /proc/<pid>/schedstat: a run delay cannot be read on this system")
+@pytest.mark.parametrize(("role", "node_id", "expected"), [("drone", 7, 7), ("manager", None, MANAGER)])
+def test_the_runner_writes_the_run_delay_as_it_stops_its_node(tmp_path: Path, role: str,
+                                                              node_id: int | None, expected: int) -> None:
+    """A real process stopped by the session: its run delay, read before SIGTERM, is in the
+    capture under the ID the capture knows (a drone's as ``record_node`` named it, a manager's
+    its role's), and once only (a second stop writes nothing)."""
+    path = tmp_path / "run.mcap"
+    with McapRecorder(path, metadata=run_metadata("mcp-conform")) as rec:
+        s = _Session(rec, role)
+        s.recorded_node_id = node_id
+        s.node = SpawnedNode([sys.executable, "-c", "import time; time.sleep(30)"])
+        pid = s.node.proc.pid
+        if run_delay_ns(pid) is None:
+            s.node.stop(0.5)
+            pytest.skip("/proc does not give this process's run delay")
+        s.node.stop(0.5)
+        s.node.stop(0.5)
+        assert not s.node.alive()
+    got = [recorded_run_delay(r.data) for r in open_capture(path)
+           if isinstance(r, Metadata) and r.name == RUN_DELAY_METADATA]
+    assert len(got) == 1 and got[0] is not None
+    _t, node, ns = got[0]
+    assert node == expected and ns >= 0
