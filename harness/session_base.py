@@ -396,6 +396,8 @@ class DatagramSessionBase(SessionBase):
     driver: TargetDriver | None
     #: the node under test's ID as the capture knows it (:meth:`record_node`)
     recorded_node_id: int | None = None
+    #: the run's trace monitor (``judge.run_monitor``), once the role's session built it
+    monitor: Any = None
     #: the node under test's address, as the run's monitor and the capture know it (None:
     #: not observed yet, :meth:`observe_run`)
     node_address: tuple[str, int] | None = None
@@ -457,16 +459,19 @@ class DatagramSessionBase(SessionBase):
         :meth:`record_node` named it, a manager's its role's; none known, or a process already
         gone (its run delay unreadable): nothing is written."""
         node_id = self.recorded_node_id
-        if node_id is None and self.cfg.role == "manager":
-            node_id = MANAGER_ID
-        if self.recorder is None or node_id is None:
+        if node_id is None:  # the role's own ID where the spec fixes it (MCP's manager: 0)
+            node_id = self.cfg.profile()[1].fixed_id
+        if node_id is None or (self.recorder is None and self.monitor is None):
             return
         ns = self.node_run_delay()
         if ns is None:
             return
-        values = run_delay_metadata(node_id, ns, time.time_ns())
-        with INTERRUPTS.held(), contextlib.suppress(Exception):
-            self.recorder.add_metadata(RUN_DELAY_METADATA, values)
+        t_ns = time.time_ns()
+        if self.recorder is not None:
+            with INTERRUPTS.held(), contextlib.suppress(Exception):
+                self.recorder.add_metadata(RUN_DELAY_METADATA, run_delay_metadata(node_id, ns, t_ns))
+        if self.monitor is not None:  # the run's own monitor, as mcp-capture check's: one judge
+            self.monitor.run_delay(t_ns, node_id, ns)
 
     # ------------------------------------------------------------------ --impair
     @property

@@ -126,6 +126,11 @@ class RunMonitor:
             return None
         return self.node_id if from_node(addr, self.node_addr) else None
 
+    def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
+        """The spawned node's run delay read as the runner stops it (``Monitor.run_delay``): a
+        stall after its last datagram, as ``mcp-capture check`` reads it from the capture."""
+        self._push(t_ns, self.monitor.run_delay, node, run_delay_ns)
+
     def vehicle_frame(self, t_ns: int, direction: str, raw: bytes) -> None:
         """A frame the node wrote to its autopilot ("rx"); the autopilot's own ("tx") are
         left out: the vehicle's fix events say the same, before the frames leave."""
@@ -268,6 +273,12 @@ class SessionMonitors:
             if name is not None and self.current is not None:
                 self._last[name] = max(self._last.get(name, t_ns), t_ns)
                 self.current.observe(direction, data, addr, t_ns, run_delay)
+
+    def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
+        """To the session current when the node was stopped (:meth:`RunMonitor.run_delay`)."""
+        with self._lock:
+            if self.current is not None:
+                self.current.run_delay(t_ns, node, run_delay_ns)
 
     def mark(self, t_ns: int) -> None:
         """A record of the current session that is not a datagram (a case mark)."""

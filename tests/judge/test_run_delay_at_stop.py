@@ -102,3 +102,26 @@ def test_the_runner_writes_the_run_delay_as_it_stops_its_node(tmp_path: Path, ro
     assert len(got) == 1 and got[0] is not None
     _t, node, ns = got[0]
     assert node == expected and ns >= 0
+
+
+@pytest.mark.parametrize("end_run_delay", [False, True])
+def test_the_live_monitor_gets_the_same_sample_and_verdict(end_run_delay: bool) -> None:
+    """One judge: the runner's own monitor (``judge.run_monitor``, fed as the session stops the
+    node) weighs the run delay at the stop as ``mcp-capture check`` weighs the capture's record."""
+    from mcp_conform.judge.run_monitor import SessionMonitors
+
+    o, _ = replay(SEED)
+    w, s = o.world, o.schedule
+    mons = SessionMonitors(rto=s.rto, ack_window=max(0.5, 2 * s.rto), broadcast_id=0xFFFF, node_id=MANAGER,
+                           node_addr=None, complete=True, drones=tuple(w.drones))
+    mons.begin("mission")
+    run = mons.current
+    assert run is not None
+    for r in w.views[MANAGER]:  # the runner's monitor sees the manager's view, as its capture holds it
+        run._push(r.t_ns, run.monitor.datagram, r.src_addr, r.dst_addr, r.data, None,
+                  r.run_delay if r.tx else None)
+    end = int(w.view_end(MANAGER) * 1e9)
+    if end_run_delay:
+        mons.run_delay(end, MANAGER, w.run_delay_ns[MANAGER])
+    run.finish(end)
+    assert mons.verdicts()[MANAGER]["MCP-RTX-1"] == ("passed" if end_run_delay else "failed")
