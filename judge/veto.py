@@ -126,11 +126,8 @@ class Recorder:
             self.records[index] = self.records[index]._replace(tester=True)
 
 
-def _lags(records: list[Record], samples: dict[int, list[tuple[int, int]]] | None = None
-          ) -> dict[int, float]:
-    """Per node, the largest growth of its run delay between two datagrams it sent (s), or
-    between one and a run delay known without a datagram (``samples``, :meth:`Recorder.sample`:
-    a stall after its last datagram, read at its view's end)."""
+def _sent(records: list[Record]) -> dict[int, list[tuple[int, int]]]:
+    """Per node, (t_ns, run delay) of each datagram it sent that carries its run delay."""
     seen: dict[int, list[tuple[int, int]]] = {}
     for r in records:
         if r.run_delay is None or r.tester:
@@ -138,19 +135,35 @@ def _lags(records: list[Record], samples: dict[int, list[tuple[int, int]]] | Non
         head = peek_header(r.data, require_preamble=False)
         if head is not None:
             seen.setdefault(head[1], []).append((r.t_ns, r.run_delay))
-    for node, extra in (samples or {}).items():  # each sample after the datagrams up to its time
-        merged: list[tuple[int, int]] = []
-        rest = sorted(extra)
-        for pair in seen.get(node, []):
-            while rest and rest[0][0] < pair[0]:
-                merged.append(rest.pop(0))
-            merged.append(pair)
-        seen[node] = merged + rest
+    return seen
+
+
+def _lags(records: list[Record]) -> dict[int, float]:
+    """Per node, the largest growth of its run delay between two datagrams it sent (s)."""
     out: dict[int, float] = {}
-    for src, known in seen.items():
+    for src, known in _sent(records).items():
         for (_, prev), (_, rd) in zip(known, known[1:], strict=False):
             if rd > prev:
                 out[src] = max(out.get(src, 0.0), (rd - prev) / NS)
+    return out
+
+
+def _tail_lags(records: list[Record], samples: dict[int, list[tuple[int, int]]]) -> dict[int, tuple[int, float]]:
+    """Per node, its last datagram's time and the growth of its run delay from that datagram
+    to a run delay known without one after it (``samples``, :meth:`Recorder.sample`: read as
+    its view ended or as the runner stopped it). It speaks of the time after the node's last
+    datagram only, so it is weighed only for a failure whose copies end there: a stall late in
+    a run excuses nothing of a message sent long before it."""
+    out: dict[int, tuple[int, float]] = {}
+    sent = _sent(records)
+    for node, extra in samples.items():
+        known = sent.get(node)
+        if not known:
+            continue  # no run delay on any datagram: no growth to measure from
+        t_last, rd_last = known[-1]
+        growth = max((rd - rd_last for t, rd in extra if t >= t_last), default=0)
+        if growth > 0:
+            out[node] = (t_last, growth / NS)
     return out
 
 
@@ -300,28 +313,35 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
                                    tester=lambda r: r.tester)
     t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
     end = (end_ns - t0) / NS
-    lags = _lags(records, recorder.samples)
-    decided: dict[tuple[int, int], dict[str, Verdict]] = {}
-    bounds: dict[int, Bounds] = {}
+    lags = _lags(records)
+    tails = _tail_lags(records, recorder.samples)
+    decided: dict[tuple[int, int, float], dict[str, Verdict]] = {}
+    bounds: dict[tuple[int, float], Bounds] = {}
     out: list[Vetoed] = []
     for v in mine:
         way = _direction(v, records)
         trace: Trace | None = traces.get(way) if way is not None else None
         if way is None or trace is None:
             continue
-        if way[0] not in bounds:
-            bounds[way[0]] = sender_bounds(rto, ack_window, lags.get(way[0], 0.0))
-        found = decided.get(way)
+        lag = lags.get(way[0], 0.0)
+        tail = tails.get(way[0])
+        last_copy = max((records[i].t_ns for i, _t in v.evidence if 0 <= i < len(records)), default=None)
+        if tail is not None and last_copy is not None and last_copy >= tail[0]:
+            lag = max(lag, tail[1])  # the sender sent nothing after this message's last copy
+        key = (way[0], lag)
+        if key not in bounds:
+            bounds[key] = sender_bounds(rto, ack_window, lag)
+        found = decided.get((way[0], way[1], lag))
         if found is None:
             t = replace(trace, end=max(trace.end, end), complete=bool(complete_for(*way)))
-            found = decided[way] = decide_sender(t, bounds[way[0]])
+            found = decided[(way[0], way[1], lag)] = decide_sender(t, bounds[key])
         kept = found.get(v.rule)
         either = found.get(VETOED_RULES[v.rule])
         if kept is None or kept.status != CONSISTENT:
             continue
         if either is not None and either.status == PROVEN:
             continue
-        answered = _answered_in_time(v, way, records, bounds[way[0]], broadcast_id)
+        answered = _answered_in_time(v, way, records, bounds[key], broadcast_id)
         if answered is None and v.rule == "MCP-RTX-1":
             answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns)
         if answered is None:
