@@ -22,31 +22,19 @@ from mcp_conform.traceio.recorder import (
     RUN_DELAY_METADATA,
     McapRecorder,
     recorded_run_delay,
-    run_delay_metadata,
     run_metadata,
 )
 from mcp_conform.traceio.records import Metadata
+from tests.judge.sim_views import write_view
 
 SEED = Path(__file__).resolve().parents[1] / "sim" / "seeds" / "monitor-rtx1-starved-then-closed.json"
 MANAGER = 0
 
 
 def _capture(path: Path, *, end_run_delay: bool) -> None:
-    """The seed's manager view as its own capture (``mcp-soak``'s writer), with its run delay
-    at its view's end as the runner writes it as it stops a node, or without."""
-    o, _ = replay(SEED)
-    w, s = o.world, o.schedule
-    meta = run_metadata("mcp-soak", node_id=MANAGER, complete="true",
-                        parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
-    with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
-        for r in w.views[MANAGER]:
-            if r.tx:
-                rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
-            else:
-                rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
-        if end_run_delay:
-            end = int(w.view_end(MANAGER) * 1e9)
-            rec.add_metadata(RUN_DELAY_METADATA, run_delay_metadata(MANAGER, w.run_delay_ns[MANAGER], end))
+    """The seed's manager view as its own capture, with its run delay at its view's end as the
+    runner writes it as it stops a node, or without."""
+    write_view(path, replay(SEED)[0], MANAGER, end_run_delay=end_run_delay)
 
 
 def test_check_weighs_the_run_delay_the_capture_ends_with(tmp_path: Path) -> None:

@@ -104,19 +104,11 @@ def test_mcp_capture_check_gets_the_veto_and_notes_it(tmp_path: Path) -> None:
     the simulator's views are) and judged by ``mcp-capture check``'s judge: the monitor's
     failure is dropped from the violations and named in the notes with its explanation."""
     from mcp_conform.judge.judging import Params, judge
-    from mcp_conform.traceio.recorder import McapRecorder, run_metadata
+    from tests.judge.sim_views import write_view
 
     o, _ = replay(SEEDS / f"{STARVED}.json")
-    w, s = o.world, o.schedule
-    path = tmp_path / f"drone{STARVED_NODE}.mcap"
-    meta = run_metadata("mcp-soak", node_id=STARVED_NODE, complete="true",
-                        parameters={"rto": s.rto, "ack_window": max(0.5, 2 * s.rto)})
-    with McapRecorder(path, library="mcp-soak", metadata=meta) as rec:
-        for r in w.views[STARVED_NODE]:
-            if r.tx:
-                rec.datagram("tx", r.data, r.dst_addr, r.t_ns, local=r.src_addr, run_delay=r.run_delay)
-            else:
-                rec.datagram("rx", r.data, r.src_addr, r.t_ns, local=r.dst_addr)
+    s = o.schedule
+    path = write_view(tmp_path / f"drone{STARVED_NODE}.mcap", o, STARVED_NODE)
     j = judge(path, Params())
     assert j.params.rto == s.rto
     assert j.verdicts[STARVED_NODE]["MCP-RTX-1"] == "passed"

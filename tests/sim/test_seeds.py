@@ -26,38 +26,30 @@ def test_a_seed_replays_to_the_same_trace_and_verdicts(path):
     assert digest(o) == load_seed(path)["digest"]
 
 
-def _explain_case(path: Path) -> object:
-    why = load_seed(path).get("explain_reason")
+def _seed_case(path: Path, why_key: str) -> object:
+    """The seed as a test parameter, a strict xfail with its reason where the seed's
+    ``why_key`` says the judge still gets it wrong (``explain_reason``, ``open``; the
+    monitor's: ``reason`` when ``xfail``)."""
+    doc = load_seed(path)
+    why = (doc["reason"] if doc["xfail"] else None) if why_key == "reason" else doc.get(why_key)
     marks = [pytest.mark.xfail(strict=True, reason=why)] if why else []
     return pytest.param(path, id=path.stem, marks=marks)
 
 
-@pytest.mark.parametrize("path", [_explain_case(p) for p in SEEDS])
+@pytest.mark.parametrize("path", [_seed_case(p, "explain_reason") for p in SEEDS])
 def test_explain_keeps_both_properties_on_the_seed(path):
     o, _ = replay(path)
     assert check(o, ("explain",)) == []
 
 
-def _monitor_case(path: Path) -> object:
-    doc = load_seed(path)
-    marks = [pytest.mark.xfail(strict=True, reason=doc["reason"])] if doc["xfail"] else []
-    return pytest.param(path, id=path.stem, marks=marks)
-
-
-@pytest.mark.parametrize("path", [_monitor_case(p) for p in SEEDS])
+@pytest.mark.parametrize("path", [_seed_case(p, "reason") for p in SEEDS])
 def test_the_monitor_keeps_both_properties_on_the_seed(path):
     o, _ = replay(path)
     problems = check(o, ("monitor",))
     assert problems == [], "\n".join(p.text() for p in problems)
 
 
-def _correct_case(path: Path) -> object:
-    why = load_seed(path).get("open")
-    marks = [pytest.mark.xfail(strict=True, reason=why)] if why else []
-    return pytest.param(path, id=path.stem, marks=marks)
-
-
-@pytest.mark.parametrize("path", [_correct_case(p) for p in SEEDS])
+@pytest.mark.parametrize("path", [_seed_case(p, "open") for p in SEEDS])
 def test_the_monitor_fails_no_correct_party_on_the_seed(path):
     """A false verdict on a correct party (every party but the seed's faulty one) is gone:
     judge.explain's veto (``judge/veto.py``) on MCP-RTX-1/2, and MCP-FLOW-3 on a cut view.
