@@ -149,21 +149,28 @@ def _lags(records: list[Record]) -> dict[int, float]:
 
 
 def _tail_lags(records: list[Record], samples: dict[int, list[tuple[int, int]]]) -> dict[int, tuple[int, float]]:
-    """Per node, its last datagram's time and the growth of its run delay from that datagram
-    to a run delay known without one after it (``samples``, :meth:`Recorder.sample`: read as
-    its view ended or as the runner stopped it). It speaks of the time after the node's last
-    datagram only, so it is weighed only for a failure whose copies end there: a stall late in
-    a run excuses nothing of a message sent long before it."""
+    """Per node, the time of its last datagram (of any kind: an ACK carries no run delay,
+    ``harness.run_delay.delay_for``) and the growth of its run delay from the last datagram
+    that carried one to a run delay known without a datagram after it (``samples``,
+    :meth:`Recorder.sample`: read as its view ended or as the runner stopped it). It speaks of
+    the time after the node's last datagram only, so it is weighed only for a failure whose
+    copies are the last the node sent: a stall late in a run excuses nothing of a message sent
+    long before it, however much the node only ACKed since."""
+    last_any: dict[int, int] = {}
+    for r in records:
+        head = peek_header(r.data, require_preamble=False) if not r.tester else None
+        if head is not None:
+            last_any[head[1]] = max(last_any.get(head[1], r.t_ns), r.t_ns)
     out: dict[int, tuple[int, float]] = {}
     sent = _sent(records)
     for node, extra in samples.items():
         known = sent.get(node)
-        if not known:
+        if not known or node not in last_any:
             continue  # no run delay on any datagram: no growth to measure from
         t_last, rd_last = known[-1]
         growth = max((rd - rd_last for t, rd in extra if t >= t_last), default=0)
         if growth > 0:
-            out[node] = (t_last, growth / NS)
+            out[node] = (last_any[node], growth / NS)
     return out
 
 

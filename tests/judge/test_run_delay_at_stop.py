@@ -131,3 +131,7 @@ def test_a_stall_after_the_last_datagram_speaks_only_of_the_tail() -> None:
     assert _tail_lags(sent, {1: [(10 * s, 3 * s)]}) == {1: (2 * s, 2.9)}
     assert _tail_lags(sent, {1: [(10 * s, s // 10)]}) == {}  # no growth after the last datagram
     assert _tail_lags([r._replace(run_delay=None) for r in sent], {1: [(10 * s, 3 * s)]}) == {}
+    # an ACK after them carries no run delay (harness.run_delay.delay_for), yet the node sent
+    # it: the tail begins there, after both messages' copies (CI's second failure of the mutant)
+    acked = [*sent, Record(5 * s, build_datagram(0, 1, 3, Action.ACK, (9).to_bytes(2, "big")), False, None)]
+    assert _tail_lags(acked, {1: [(10 * s, 3 * s)]}) == {1: (5 * s, 2.9)}
