@@ -50,4 +50,9 @@ def test_a_jobs_campaign_ends_within_duration_plus_grace(tmp_path):
     assert summary["grace_s"] == GRACE_S
     assert summary["elapsed_s"] <= DURATION + GRACE_S + WIND_UP_S, summary
     assert wall <= DURATION + GRACE_S + START_MARGIN_S, wall
+    if run.returncode == 2 and "gave no result" in run.stderr:
+        # a loaded host: no worker fuzzed a case before the bound (see the docstring); the bound
+        # held all the same (asserted above), and the summary says which workers were cut off
+        assert summary["error"] and "gave no result" in summary["error"], summary
+        return
     assert f"--duration {DURATION:g} s + grace {GRACE_S:g} s" in run.stdout, run.stdout
