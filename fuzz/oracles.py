@@ -45,7 +45,7 @@ from mcp_conform.fuzz.flaws import Flaw, Input, rule_level
 from mcp_conform.fuzz.observation import retransmit_unanswered
 from mcp_conform.harness.driver import Datagram
 from mcp_conform.harness.session_base import (
-    MIN_COPIES,  # the original + MCP-RTX-1's retransmissions
+    MIN_COPIES,  # MCP-RTX-1: at least 3 copies while the ACK is withheld
 )
 from mcp_conform.spec.codec import HEADER_SIZE, Action
 

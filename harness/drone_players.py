@@ -50,7 +50,7 @@ from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import HEADER_SIZE, MAX_DATAGRAM, PREAMBLE, Action, build_datagram
 from mcp_conform.spec.generators import malformed_corpus
 
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+MIN_COPIES = int(SPEC.params["min_copies"])
 MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])
 FLOOD_COUNT = int(SPEC.params["flood_count"])
 MANAGER_ID = int(SPEC.protocol["manager_id"])

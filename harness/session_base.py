@@ -38,7 +38,7 @@ MANAGER_ID = int(SPEC.protocol["manager_id"])
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
 BROADCAST_ADDRESS = str(SPEC.protocol["broadcast_address"])
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])  # the original + 3 retransmissions
+MIN_COPIES = int(SPEC.params["min_copies"])  # MCP-RTX-1: "at least 3 copies while the ACK is withheld"
 EMBEDDED_RTO = 0.2
 EMBEDDED_ACK_WINDOW = 0.25
 

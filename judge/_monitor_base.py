@@ -31,7 +31,7 @@ __all__ = [
 # ---------------------------------------------------------------- spec-derived constants
 NS = 1_000_000_000
 PARAMS = SPEC.params
-MIN_COPIES = 1 + int(PARAMS["min_retransmissions"])  # the original + 3 retransmissions (MCP-RTX-1)
+MIN_COPIES = int(PARAMS["min_copies"])  # MCP-RTX-1: "at least 3 copies while the ACK is withheld"
 MAX_ACK_COPIES = int(PARAMS["max_ack_copies"])  # copies a command may go unACKed (MCP-ACK-1)
 RTX_TOLERANCE = float(PARAMS["rtx_spacing_tolerance"])  # ±20 % of the median gap (MCP-RTX-3)
 RTX_MIN_GAP_NS = int(float(PARAMS["rtx_min_gap_s"]) * NS)  # no storm (MCP-RTX-3)

@@ -57,7 +57,7 @@ class Bounds:
     reached the sender (an ACK) at a true time in ``[t - *_early, t + *_late]``: ``*_early``
     is the observer's lag (a receive backlog, a run delay), ``*_late`` the time from the
     observer's stamp to the datagram's departure or arrival (a link's delay). The defaults
-    are spec/mcp.yaml's parameters (timeout_s, ack_window_s, min_retransmissions,
+    are spec/mcp.yaml's parameters (timeout_s, ack_window_s, min_copies,
     rtx_spacing_tolerance, timing_jitter_s) with a perfect observer."""
 
     copy_early: float = 0.0

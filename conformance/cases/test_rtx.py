@@ -13,7 +13,7 @@ from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action
 
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+MIN_COPIES = int(SPEC.params["min_copies"])
 _READY = int(Action.MISSION_READY)
 
 

@@ -13,7 +13,7 @@ from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
 
-MIN_COPIES = 1 + int(SPEC.params["min_retransmissions"])
+MIN_COPIES = int(SPEC.params["min_copies"])
 
 
 def _withheld(node, rule):

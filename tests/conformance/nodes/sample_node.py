@@ -109,7 +109,7 @@ FAULTS: dict[str, tuple[str, str]] = {
     "dup-key-content": ("MCP-DUP-1", "a duplicate is a message whose action and payload equal the last "
                                      "delivered from that src (seq never looked at): a late copy of an older "
                                      "one is delivered again"),
-    "rtx-gives-up": ("MCP-RTX-1", "each unicast is sent 3 times at most, then given up (Mission_Ready too)"),
+    "rtx-gives-up": ("MCP-RTX-1", "each unicast is sent twice at most, then given up (Mission_Ready too): fewer than MCP-RTX-1's 3 copies"),
     "ack-before-accept": ("MCP-ACK-1", "ACKs a command as it arrives, but drops it unread while its own "
                                        "Mission_Ready is unACKed (the ACK promised a delivery)"),
 }
@@ -126,7 +126,7 @@ FLOOD_HANG_AFTER = 5000
 FLOOD_HANG_FOR = 30.0
 CRASH_BIG_ABOVE = 8192
 DUP_WINDOW = 64  # seqs remembered per src for duplicate discard
-GIVE_UP_AFTER = 3  # copies of a unicast under the rtx-gives-up fault
+GIVE_UP_AFTER = 2  # copies of a unicast under the rtx-gives-up fault (MCP-RTX-1 asks for 3)
 
 _log_lock = threading.Lock()
 _t0 = time.monotonic()
