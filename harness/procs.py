@@ -19,6 +19,13 @@ kept, bounded, as evidence.
   group it starts. When the pipe closes, the runner is gone: the reaper kills every group
   it was told about, then exits. A runner that closes normally tells it first
   (``forget``).
+- **Run delay at the end**: a process's run delay (D-7, ``harness.run_delay``) lives in
+  ``/proc/<pid>`` only until it is reaped. A node that ends by itself (a manager that closes
+  once its mission is done) is reaped by the first ``poll`` or ``wait`` that finds it gone,
+  before the runner stops it; so each of them first asks ``waitid(..., WEXITED | WNOWAIT)``
+  (waitid(2): the child is left waitable, a zombie whose ``/proc/<pid>`` is still there),
+  reads the run delay then, and only then reaps (:class:`_Popen`): a stall after its last
+  datagram stays known (:meth:`ManagedProcess.run_delay`).
 - **Output**: stdout and stderr are read by two threads into bounded line buffers (the
   last ``TAIL_LINES`` lines of each, lines cut at ``LINE_CHARS``), so a chatty node can
   run for hours without filling a disk or the runner's memory.
@@ -39,6 +46,8 @@ import threading
 import time
 from collections.abc import Callable
 from typing import IO, Any, cast
+
+from mcp_conform.harness.run_delay import run_delay_ns
 
 __all__ = ["SPAWN_STARTUP_S", "Reaper", "ManagedProcess", "deathsig_argv", "reaper"]
 
@@ -270,13 +279,75 @@ class _Spawner:
 _SPAWNER = _Spawner()
 
 
+#: waitid(2) with WNOWAIT: an ended child looked at without reaping it (Linux, most Unixes)
+_PEEK = hasattr(os, "waitid") and hasattr(os, "WNOWAIT") and hasattr(os, "P_PID")
+
+
+class _Popen(subprocess.Popen[bytes]):
+    """A ``Popen`` that reads its process's run delay between its exit and its reaping
+    (``end_run_delay``; see the module docstring): every ``poll`` and ``wait`` -- the runner's
+    liveness checks, a stop's wait, a caller's ``proc.wait`` -- first looks for the exit with
+    ``WNOWAIT``. Where waitid cannot leave a child waitable, a plain ``Popen``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.end_run_delay: int | None = None
+        self._end_lock = threading.Lock()
+        super().__init__(*args, **kwargs)
+
+    def _ended(self, block: bool = False) -> bool:
+        """Whether the process has ended (not necessarily reaped yet); its run delay is read the
+        first time it is found so, while its zombie still has ``/proc/<pid>``."""
+        if self.returncode is not None or not _PEEK:
+            return self.returncode is not None
+        flags = os.WEXITED | os.WNOWAIT | (0 if block else os.WNOHANG)
+        try:
+            info = os.waitid(os.P_PID, self.pid, flags)
+        except ChildProcessError:
+            return True  # already reaped (by another waiter)
+        if info is None:
+            return False
+        with self._end_lock:
+            if self.end_run_delay is None and self.returncode is None:
+                self.end_run_delay = run_delay_ns(self.pid)
+        return True
+
+    def poll(self) -> int | None:
+        self._ended()
+        return super().poll()
+
+    def wait(self, timeout: float | None = None) -> int:
+        if self.returncode is None and _PEEK:
+            try:
+                timeout = self._until_ended(timeout)
+            except KeyboardInterrupt:  # as Popen.wait: a moment for the child, which got ^C too
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    super().wait(0.25)
+                raise
+        return super().wait(timeout)
+
+    def _until_ended(self, timeout: float | None) -> float | None:
+        """Wait for the end without reaping (up to ``timeout`` s: TimeoutExpired past it);
+        the timeout left for the reaping, which is at once."""
+        if timeout is None:
+            self._ended(block=True)
+            return None
+        end, pause = time.monotonic() + timeout, 0.0005
+        while not self._ended():
+            left = end - time.monotonic()
+            if left <= 0:
+                raise subprocess.TimeoutExpired(self.args, timeout)
+            time.sleep(min(pause, left))
+            pause = min(2 * pause, 0.05)  # as Popen.wait's own polling
+        return max(end - time.monotonic(), 0.05)
+
+
 def popen(argv: list[str], **kwargs: Any) -> subprocess.Popen[bytes]:
-    """``subprocess.Popen(deathsig_argv(argv), **kwargs)``, forked by the main thread or by
-    the spawner thread (see the module docstring), never by a thread that may end first."""
+    """``_Popen(deathsig_argv(argv), **kwargs)``, forked by the main thread or by the spawner
+    thread (see the module docstring), never by a thread that may end first."""
     argv = deathsig_argv(argv)
     if threading.current_thread() is threading.main_thread():
-        return subprocess.Popen(argv, **kwargs)
-    return cast("subprocess.Popen[bytes]", _SPAWNER.run(lambda: subprocess.Popen(argv, **kwargs)))
+        return _Popen(argv, **kwargs)
+    return cast("subprocess.Popen[bytes]", _SPAWNER.run(lambda: _Popen(argv, **kwargs)))
 
 
 class ManagedProcess:
@@ -297,6 +368,17 @@ class ManagedProcess:
 
     def alive(self) -> bool:
         return self.proc.poll() is None
+
+    def run_delay(self) -> int | None:
+        """Its run delay (ns, D-7, ``harness.run_delay``): now while it runs; once it has ended,
+        as it was between its exit and its reaping (:class:`_Popen`: a process that ended by
+        itself before the runner stopped it is known too, never a later process with its
+        pid); None where ``/proc`` does not say."""
+        if self.proc.returncode is None:
+            now = run_delay_ns(self.proc.pid)
+            if now is not None and self.proc.returncode is None:
+                return now
+        return getattr(self.proc, "end_run_delay", None)
 
     @property
     def returncode(self) -> int | None:

@@ -28,13 +28,17 @@ copy sent late because its sender was off the CPU, D-7, as MCP-RTX-3 excuses it;
 explanation that keeps the rule (:class:`Vetoed`), for the report.
 
 Bounds. ``S``'s run delay (cumulative, ns, fed with each datagram it sent: ``harness.run_delay``
-on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU;
-the largest growth between two of its datagrams bounds one stall: a copy may go that much
-later than its timer (``rto_slack``) and an ACK be read that much after it came
-(``ack_early``). A run delay known without a datagram counts as one more of ``S``'s
-(:meth:`Recorder.sample`, ``Monitor.run_delay``: read at the end of its view, it shows a stall
-after its last datagram -- a manager off the CPU while its retransmission fell due, which then
-read the ACK and closed, sending nothing; the seed ``monitor-rtx1-starved-then-closed``).
+on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU.
+A failure's lag is the growth over its own window (:func:`_window_lag`): from ``S``'s last
+datagram at or before the failure's first evidence to its first datagram after the last; a
+copy may go that much later than its timer (``rto_slack``) and an ACK be read that much after
+it came (``ack_early``). Where ``S`` sent nothing after the evidence, the run delay known
+without a datagram (:meth:`Recorder.sample`, ``Monitor.run_delay``: read at the end of its
+view, or as the runner stopped it) ends the window (:func:`_tail_lags`): it shows a stall
+after its last datagram -- a manager off the CPU while its retransmission fell due, which
+then read the ACK and closed, sending nothing; the seed ``monitor-rtx1-starved-then-closed``.
+A stall outside the window excuses nothing: a long one late in a loaded run does not explain
+an early stop after a wrong ACK.
 Where no run delay is known the bounds are spec/mcp.yaml's with a perfect
 observer. The link is not known to the monitor: one copy draws one ACK (a link that
 duplicates ACKs may leave a false failure standing, never hide a true one).
@@ -46,6 +50,7 @@ trace (its failures stand, and :attr:`Recorder.note` says why). Explain runs onl
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -106,7 +111,8 @@ class Recorder:
 
     def sample(self, t_ns: int, node: int, run_delay: int) -> None:
         """Node ``node``'s run delay was ``run_delay`` ns at ``t_ns`` (its view's end: a stall
-        after its last datagram, D-7); counted by :func:`_lags` as a datagram's would be."""
+        after its last datagram, D-7); it ends the window of a failure whose evidence comes
+        after the node's last datagram (:func:`_tail_lags`)."""
         self.samples.setdefault(node, []).append((t_ns, run_delay))
 
     def add(self, t_ns: int, data: bytes, tester: bool, run_delay: int | None) -> None:
@@ -138,14 +144,27 @@ def _sent(records: list[Record]) -> dict[int, list[tuple[int, int]]]:
     return seen
 
 
-def _lags(records: list[Record]) -> dict[int, float]:
-    """Per node, the largest growth of its run delay between two datagrams it sent (s)."""
-    out: dict[int, float] = {}
-    for src, known in _sent(records).items():
-        for (_, prev), (_, rd) in zip(known, known[1:], strict=False):
-            if rd > prev:
-                out[src] = max(out.get(src, 0.0), (rd - prev) / NS)
-    return out
+def _window_lag(known: list[tuple[int, int]], t_first: int, t_last: int,
+                tail: tuple[int, float] | None) -> float:
+    """The run delay a node's datagrams ``known`` (:func:`_sent`: ``(t_ns, run delay)``, in
+    order) show it accrued over one failure's window (s): from its last datagram at or before
+    ``t_first`` (the failure's first evidence; its first datagram when none is) to its first
+    after ``t_last`` (the last evidence), or, when none came after, to the run delay known
+    after its last datagram (``tail``, :func:`_tail_lags`, when the failure's evidence ends at
+    or after the node's last datagram of any kind). The whole growth, not its largest step:
+    one stall or several inside the window, the time the node could not run there. A stall
+    outside the window -- a long one late in a loaded run -- excuses nothing of the failure."""
+    if not known:
+        return 0.0
+    times = [t for t, _ in known]
+    start = max(bisect_right(times, t_first) - 1, 0)
+    after = bisect_right(times, t_last)
+    stop = min(after, len(known) - 1)
+    growth = sum(max(b - a, 0) for (_, a), (_, b) in zip(known[start:stop], known[start + 1:stop + 1], strict=True))
+    lag = growth / NS
+    if after == len(known) and tail is not None and t_last >= tail[0]:
+        lag += tail[1]  # none after the evidence: the growth read after the node's last datagram
+    return lag
 
 
 def _tail_lags(records: list[Record], samples: dict[int, list[tuple[int, int]]]) -> dict[int, tuple[int, float]]:
@@ -175,7 +194,8 @@ def _tail_lags(records: list[Record], samples: dict[int, list[tuple[int, int]]])
 
 
 def sender_bounds(rto: float, ack_window: float, lag: float) -> Bounds:
-    """The bounds of a sender whose largest stall is ``lag`` s (see the module docstring)."""
+    """The bounds of a sender off the CPU for ``lag`` s in a failure's window (see the module
+    docstring)."""
     return Bounds(ack_window=ack_window, rto=rto, ack_early=lag, rto_slack=Bounds.rto_slack + lag)
 
 
@@ -320,7 +340,7 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
                                    tester=lambda r: r.tester)
     t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
     end = (end_ns - t0) / NS
-    lags = _lags(records)
+    sent = _sent(records)
     tails = _tail_lags(records, recorder.samples)
     decided: dict[tuple[int, int, float], dict[str, Verdict]] = {}
     bounds: dict[tuple[int, float], Bounds] = {}
@@ -330,11 +350,8 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         trace: Trace | None = traces.get(way) if way is not None else None
         if way is None or trace is None:
             continue
-        lag = lags.get(way[0], 0.0)
-        tail = tails.get(way[0])
-        last_copy = max((records[i].t_ns for i, _t in v.evidence if 0 <= i < len(records)), default=None)
-        if tail is not None and last_copy is not None and last_copy >= tail[0]:
-            lag = max(lag, tail[1])  # the sender sent nothing after this message's last copy
+        seen = [records[i].t_ns for i, _t in v.evidence if 0 <= i < len(records)]
+        lag = _window_lag(sent.get(way[0], []), min(seen), max(seen), tails.get(way[0])) if seen else 0.0
         key = (way[0], lag)
         if key not in bounds:
             bounds[key] = sender_bounds(rto, ack_window, lag)

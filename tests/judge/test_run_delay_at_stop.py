@@ -121,13 +121,13 @@ def test_a_stall_after_the_last_datagram_speaks_only_of_the_tail() -> None:
     node that stopped on a wrong ACK early in a run, then kept sending for many cases: the CI
     mutant rtx-stop-on-any-ack lost its MCP-RTX-2 to a whole run's CPU wait while the stop
     sample counted as one more datagram's)."""
-    from mcp_conform.judge.veto import Record, _lags, _tail_lags
+    from mcp_conform.judge.veto import Record, _sent, _tail_lags, _window_lag
     from mcp_conform.spec.codec import Action, build_datagram
 
     s = 10 ** 9
     sent = [Record(1 * s, build_datagram(0, 1, 1, Action.MISSION_READY), False, 0),
             Record(2 * s, build_datagram(0, 1, 2, Action.WP_OFF), False, s // 10)]
-    assert _lags(sent) == {1: 0.1}
+    assert _window_lag(_sent(sent)[1], 1 * s, 1 * s, None) == 0.1
     assert _tail_lags(sent, {1: [(10 * s, 3 * s)]}) == {1: (2 * s, 2.9)}
     assert _tail_lags(sent, {1: [(10 * s, s // 10)]}) == {}  # no growth after the last datagram
     assert _tail_lags([r._replace(run_delay=None) for r in sent], {1: [(10 * s, 3 * s)]}) == {}
