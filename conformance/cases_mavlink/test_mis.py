@@ -51,15 +51,22 @@ def expect_plan(node, items, got, rule, *, fields=FIELDS):
 
 
 def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=None):
-    """MISSION_COUNT ``count`` of ``mission_type``, then ``answer(request)`` for each
+    """MISSION_COUNT ``count`` of ``mission_type`` (resent, as a ground station must, up to
+    mission_retries times while nothing answers it), then ``answer(request)`` for each
     MISSION_REQUEST_INT or MISSION_REQUEST the vehicle sends, until a MISSION_ACK that ends
     the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1) or ``wait``
     s (mission_reply_max_s) with nothing new, or ``until()`` holds after an answer; bounded
-    by 3 x count + 10 replies. The
-    MISSION_COUNT's send time and the vehicle's requests and ACKs, in order."""
+    by 3 x count + 10 replies. The first MISSION_COUNT's send time and the vehicle's
+    requests and ACKs, in order."""
     wait = float(node.params["mission_reply_max_s"]) if wait is None else wait
-    since = node.send("MISSION_COUNT", target_system=node.sysid, target_component=node.compid, count=count,
+    since = 0.0
+    for _ in range(1 + int(node.params["mission_retries"])):
+        t = node.send("MISSION_COUNT", target_system=node.sysid, target_component=node.compid, count=count,
                       mission_type=mission_type)
+        since = since or t
+        if node.link.wait_for(lambda since=since: bool(node.mission_replies(since)),
+                              float(node.params["mission_reply_max_s"])):
+            break
     done = 0
     for _ in range(3 * count + 10):
         if not node.link.wait_for(lambda done=done: len(node.mission_replies(since)) > done, wait):
@@ -82,29 +89,43 @@ def send_item(node, item, **changes):
                      **{**item, **changes})
 
 
+def ask(node, name, answered, **fields):
+    """``name`` with ``fields`` sent to the vehicle, and sent again (a ground station's
+    resend: mavlink.io's "the request must be resent") up to mission_retries times, each
+    after mission_reply_max_s with no frame for which ``answered(frame)`` holds; those
+    frames (none: unanswered) and how many resends it took."""
+    wait = float(node.params["mission_reply_max_s"])
+    for resends in range(1 + int(node.params["mission_retries"])):
+        t = node.send(name, target_system=node.sysid, target_component=node.compid, **fields)
+
+        def got(t=t):
+            return [r for r in node.from_vehicle(t) if answered(r)]
+        if node.link.wait_for(lambda got=got: bool(got()), wait):
+            return got(), resends
+    return [], resends
+
+
 def download(node, *, mission_type=MISSION, request="MISSION_REQUEST_INT"):
     """A download of ``mission_type``, each item asked for with ``request``
-    (MISSION_REQUEST_INT, or the deprecated MISSION_REQUEST): (the MISSION_COUNT frame or
-    None, the items that came, MISSION_ITEM_INT or MISSION_ITEM frames); MISSION_ACK
-    ACCEPTED sent at the end."""
-    wait = float(node.params["mission_reply_max_s"])
-    since = node.send("MISSION_REQUEST_LIST", target_system=node.sysid, target_component=node.compid,
-                      mission_type=mission_type)
-    if not node.link.wait_for(lambda: bool(node.from_vehicle(since, "MISSION_COUNT")), wait):
+    (MISSION_REQUEST_INT, or the deprecated MISSION_REQUEST), each request resent as a
+    ground station resends it (``ask``): (the MISSION_COUNT frame or None, the items that
+    came, MISSION_ITEM_INT or MISSION_ITEM frames); MISSION_ACK ACCEPTED sent at the end. A
+    request answered only when resent is noted."""
+    got, resent = ask(node, "MISSION_REQUEST_LIST", lambda r: r.name == "MISSION_COUNT", mission_type=mission_type)
+    if not got:
         return None, []
-    head = node.from_vehicle(since, "MISSION_COUNT")[0]
-    items = []
+    head, items = got[0], []
     for seq in range(int(head.msg.count)):
-        t = node.send(request, target_system=node.sysid, target_component=node.compid, seq=seq,
-                      mission_type=mission_type)
-
-        def got(t=t, seq=seq):
-            return [r for r in node.from_vehicle(t) if r.name in ITEMS and r.msg.seq == seq]
-        if not node.link.wait_for(lambda got=got: bool(got()), wait):
+        item, again = ask(node, request, lambda r, seq=seq: r.name in ITEMS and r.msg.seq == seq, seq=seq,
+                          mission_type=mission_type)
+        resent += again
+        if not item:
             break
-        items.append(got()[0])
+        items.append(item[0])
     node.send("MISSION_ACK", target_system=node.sysid, target_component=node.compid,
               type=MAV.MAV_MISSION_ACCEPTED, mission_type=mission_type)
+    if resent:
+        node.info(f"a download of mission_type {mission_type} needed {resent} resend(s) of its requests")
     return head, items
 
 
@@ -400,7 +421,8 @@ def test_plan_types_are_kept_apart(node):
                          "a rally download: MISSION_COUNT 1 of mission_type RALLY",
                          f"MISSION_COUNT {head.msg.count} of mission_type {head.msg.mission_type}" if head
                          else "no MISSION_COUNT")
-        node.send("MISSION_CLEAR_ALL", target_system=node.sysid, target_component=node.compid, mission_type=rally)
+        ask(node, "MISSION_CLEAR_ALL", lambda r: r.name == "MISSION_ACK" and r.msg.mission_type == rally,
+            mission_type=rally)  # its MISSION_ACK awaited, not left to the next case's upload
     else:
         node.info(f"MAV-MIS-16: rally points refused, {result_name_mission(acks[-1].msg.type)}")
 
