@@ -10,7 +10,8 @@ The protocol, as ``libraries/GCS_MAVLink/GCS_Param.cpp`` answers it (and mavlink
 "Parameter Protocol" page describes it):
 
 * PARAM_REQUEST_LIST: every parameter as PARAM_VALUE, index 0..count-1, after the banner
-  STATUSTEXTs ArduPilot sends first (``send_banner``).
+  STATUSTEXTs ArduPilot sends first (``send_banner``); the server paces them on the link
+  (``vehicle.server``: PARAM_BATCH every PARAM_PERIOD, as ``queued_param_send`` does).
 * PARAM_REQUEST_READ: by ``param_index`` unless it is -1, else by name; an index out of range
   or an unknown name gets no answer. The reply carries the request's index (-1 reads as
   65535 in the unsigned field, as ArduPilot sends it).

@@ -14,6 +14,13 @@ as connected once a frame arrived from it (``connected``, ``connections``).
 Every peer is answered in MAVLink 2 unless it speaks only MAVLink 1 (then in MAVLink 1), or
 ``mavlink1=True`` starts every link in MAVLink 1 (ArduPilot's SERIALn_PROTOCOL 1).
 
+A parameter list (PARAM_REQUEST_LIST) is paced as ArduPilot paces it: its STATUSTEXT banner
+at once, then its PARAM_VALUEs PARAM_BATCH at a time, one batch every PARAM_PERIOD s per link
+(``GCS_Param.cpp`` ``queued_param_send``: "use at most 30% of bandwidth on parameters", and
+without flow control at most 5 per update; mavlink.io's parameter page: "The drone should
+allow a pause after sending each parameter"). A new list request restarts the list. Reads
+and sets are answered at once.
+
 Threads (all daemon): one accepting, one ticking telemetry, one reading per TCP client and
 one per UDP socket. All access to the model goes through one re-entrant lock, so every
 public method and property is thread-safe. Timestamps are ``time.monotonic()`` seconds.
@@ -39,6 +46,10 @@ from .udp import Address, UdpEndpoint
 SEND_TIMEOUT = 2.0
 #: Poll interval of the accepting and reading threads (bounds ``close()`` latency).
 POLL = 0.05
+#: A parameter list's pace: PARAM_VALUEs per batch (ArduPilot's 5 per update without flow
+#: control) and seconds between batches.
+PARAM_BATCH = 5
+PARAM_PERIOD = 0.01
 
 FrameTap = Callable[[float, str, int, bytes], None]
 
@@ -61,6 +72,9 @@ class _Client:
         self.heard = udp is None
         self.seen_v2 = False
         self.thread: threading.Thread | None = None
+        #: PARAM_VALUEs of a list still to send, and when the next batch is due
+        self.params: list[MAVLinkMessage] = []
+        self.params_due = 0.0
 
     @property
     def transport(self) -> str:
@@ -417,12 +431,35 @@ class SimVehicle:
                     self._on_frame(now, "rx", client.number, raw)
                 try:
                     replies = self._model.handle(msg, now, raw=raw, conn=client.number)
+                    if msg.get_type() == "PARAM_REQUEST_LIST":
+                        replies = self._queue_params(client, replies, now)
                     self._send(client, replies)
                 except Exception as exc:  # noqa: BLE001 - a vehicle bug must not stop the link
                     self._model.record(now, "error", conn=client.number, type=msg.get_type(),
                                        error=f"{type(exc).__name__}: {exc}")
             self._flush_outbox()
             self._cond.notify_all()
+
+    def _queue_params(self, client: _Client, replies: list[MAVLinkMessage],
+                      now: float) -> list[MAVLinkMessage]:
+        """A list's replies to send now (the banner, the first batch); its other
+        PARAM_VALUEs queued for the tick loop (a list in progress restarts)."""
+        values = [m for m in replies if m.get_type() == "PARAM_VALUE"]
+        client.params = values[PARAM_BATCH:]
+        client.params_due = now + PARAM_PERIOD
+        return [m for m in replies if m.get_type() != "PARAM_VALUE"] + values[:PARAM_BATCH]
+
+    def _send_params(self, now: float) -> bool:
+        """The due batch of every link's list sent; whether a list is still in progress
+        (called with the lock held)."""
+        pending = False
+        for client in list(self._clients.values()):
+            if client.params and now >= client.params_due:
+                batch, client.params = client.params[:PARAM_BATCH], client.params[PARAM_BATCH:]
+                client.params_due = now + PARAM_PERIOD
+                self._send(client, batch)
+            pending = pending or bool(client.params)
+        return pending
 
     def _keep_unparsed(self, client: _Client, found: list[UnparsedBytes], now: float) -> None:
         """Record bytes that did not parse, and tap them as received (an unknown message id
@@ -472,9 +509,10 @@ class SimVehicle:
                     if client.heard or client.udp is None or client.udp.mode == "out":
                         self._send(client, msgs)
                 self._flush_outbox()
+                pacing = self._send_params(now)
                 self._cond.notify_all()
                 delay = self._model.next_deadline() - time.monotonic()
-            self._stop.wait(min(max(delay, 0.001), POLL))
+            self._stop.wait(min(max(delay, 0.001), PARAM_PERIOD if pacing else POLL))
 
     def _send(self, client: _Client, msgs: list[MAVLinkMessage]) -> None:
         """Encode and send ``msgs`` to ``client`` (called with the lock held)."""

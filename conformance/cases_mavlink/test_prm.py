@@ -1,7 +1,8 @@
 """PRM — the parameter protocol (https://mavlink.io/en/services/parameter.html): the whole
 list with its count and indices, one parameter read by name and by index, a write echoed by
-PARAM_VALUE and read back, and a name the vehicle does not have. The write sets a parameter
-to the value it already has: the vehicle under test is left as it was."""
+PARAM_VALUE and read back, a name and an index the vehicle does not have, and the list's
+pacing. The write sets a parameter to the value it already has: the vehicle under test is
+left as it was."""
 
 from __future__ import annotations
 
@@ -15,6 +16,9 @@ from mcp_conform.harness.errors import Inconclusive
 
 #: no vehicle has a parameter of this name (16 characters, MAV-PRM-9's longest)
 UNKNOWN_PARAM = "MCPCONF_NO_SUCH_"
+#: the shortest list MAV-PRM-3 judges, and the pause it looks for
+PACED_MIN = 20
+PAUSE_S = 0.001
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +156,8 @@ def test_set_is_echoed_and_read_back(node, table):
 @rules("MAV-PRM-11")
 def test_unknown_name_creates_nothing(node, table):
     """MAV-PRM-11: PARAM_SET and PARAM_REQUEST_READ of a name the vehicle has not: no
-    PARAM_VALUE names it, and a list afterwards has the count it had."""
+    PARAM_VALUE names it, and a list afterwards has the count it had; a read of the index
+    param_count (one past the last) gets no PARAM_VALUE of that index."""
     values = table.get("values") or _listed(node, table)
     since = node.send("PARAM_SET", target_system=node.sysid, target_component=node.compid,
                       param_id=UNKNOWN_PARAM.encode(), param_value=1.0, param_type=node.mav.MAV_PARAM_TYPE_REAL32)
@@ -166,6 +171,48 @@ def test_unknown_name_creates_nothing(node, table):
     before_count, after_count = values[0].param_count, after[0].param_count if after else None
     node.expect_true(after_count == before_count, "MAV-PRM-11", f"param_count {before_count} after it",
                      f"param_count {after_count}")
+    since = node.send("PARAM_REQUEST_READ", target_system=node.sysid, target_component=node.compid,
+                      param_id=b"", param_index=before_count)
+    node.watch(node.reply_max)
+    past = [r for r in node.from_vehicle(since, "PARAM_VALUE") if r.msg.param_index == before_count]
+    node.expect_true(not past, "MAV-PRM-11", f"no PARAM_VALUE for index {before_count} (past param_count)",
+                     f"{len(past)} PARAM_VALUE(s): {past[0].describe()}" if past else "")
+
+
+@rules("MAV-PRM-12")
+def test_unknown_name_is_said(node, table):
+    """MAV-PRM-12 (SHOULD): PARAM_REQUEST_READ of a name the vehicle has not answered with a
+    STATUSTEXT (ArduPilot says nothing: GCS_Param.cpp's param_io_timer, "vp =
+    AP_Param::find(req.param_name, &reply.p_type); if (vp == nullptr) { return; }")."""
+    since = node.send("PARAM_REQUEST_READ", target_system=node.sysid, target_component=node.compid,
+                      param_id=UNKNOWN_PARAM.encode(), param_index=-1)
+    node.link.wait_for(lambda: bool(node.from_vehicle(since, "STATUSTEXT")), node.reply_max)
+    said = node.from_vehicle(since, "STATUSTEXT")
+    node.expect_true(bool(said), "MAV-PRM-12", f"a STATUSTEXT after PARAM_REQUEST_READ of {UNKNOWN_PARAM!r}",
+                     "no STATUSTEXT")
+    node.info(f"MAV-PRM-12: {said[0].msg.text!r}")
+
+
+@rules("MAV-PRM-3")
+def test_list_is_paced(node, table):
+    """MAV-PRM-3 (SHOULD): a list of at least PACED_MIN parameters does not come in one
+    burst: somewhere between two of its PARAM_VALUEs the vehicle pauses PAUSE_S or more
+    (ArduPilot sends at most 30 % of the link's bandwidth, 5 at a time without flow
+    control: GCS_Param.cpp queued_param_send). On loopback the bandwidth is not the
+    link's, so only a list sent whole at once is judged."""
+    since = node.send("PARAM_REQUEST_LIST", target_system=node.sysid, target_component=node.compid)
+    node.expect_param_values(since, lambda m: True, "MAV-PRM-1", "after PARAM_REQUEST_LIST, PARAM_VALUEs")
+    node.param_list(since)
+    frames = node.from_vehicle(since, "PARAM_VALUE")
+    count = frames[0].msg.param_count
+    listed = [r for r in frames if r.msg.param_index < count]
+    if len(listed) < PACED_MIN:
+        raise Inconclusive(f"MAV-PRM-3: a list of {len(listed)} parameters is too short to judge its pacing")
+    gaps = [b.t - a.t for a, b in zip(listed, listed[1:], strict=False)]
+    node.expect_true(max(gaps) >= PAUSE_S, "MAV-PRM-3",
+                     f"a pause of {PAUSE_S * 1e3:g} ms or more somewhere in a list of {len(listed)}",
+                     f"all {len(listed)} PARAM_VALUEs within {(listed[-1].t - listed[0].t) * 1e3:.1f} ms, "
+                     f"longest pause {max(gaps) * 1e3:.2f} ms")
 
 
 @rules("MAV-PRM-13")

@@ -1,7 +1,9 @@
 """``mcp-conform --protocol mavlink`` (role vehicle, issue 39) end to end: our reference
-vehicle (``mcp-vehicle``) passes every case over TCP and UDP, spawned by the runner and
-attached; each faulty vehicle (tests/mavlink/faulty_vehicle.py: the reference vehicle behind a
-proxy that changes one thing) fails exactly the rule of its fault and no other.
+vehicle (``mcp-vehicle``) fails no MUST rule over TCP and UDP, spawned by the runner and
+attached, and warns exactly the SHOULD rules it breaks as ArduCopter does (``KNOWN_WARNINGS``,
+each with its erratum); each faulty vehicle (tests/mavlink/faulty_vehicle.py: the reference
+vehicle behind a proxy that changes one thing) fails exactly the MUST rule of its fault and no
+other, its warnings among the known ones.
 
 MAV-CMD-14's command for another component of the vehicle's system: mavlink.io's routing page
 has only matching IDs and broadcasts processed, and our vehicle leaves it alone; ArduPilot
@@ -33,23 +35,55 @@ def run(tmp_path: Path, *args: str, timeout: float = 240) -> tuple[int, dict, st
     return proc.returncode, json.loads(out.read_text()), proc.stdout + proc.stderr
 
 
+#: the SHOULD rules our vehicle breaks as ArduCopter does (the spec's errata and ArduPilot's
+#: sources): warned, never failed
+KNOWN_WARNINGS = {
+    "MAV-MIS-5": "E-1: ArduPilot answers an item out of sequence with MAV_MISSION_INVALID_SEQUENCE",
+    "MAV-MIS-7": "E-2: ArduPilot's uploads are not atomic",
+    "MAV-MIS-18": "E-2: ArduPilot cannot be cancelled",
+    "MAV-MIS-11": "E-6: ArduPilot answers MISSION_REQUEST with MISSION_ITEM",
+    "MAV-MIS-12": "E-9: ArduPilot requests upload items with MISSION_REQUEST",
+    "MAV-PRM-12": "GCS_Param.cpp's param_io_timer returns in silence for an unknown name",
+}
+#: cases that cannot judge our vehicle, which runs no command long enough for IN_PROGRESS
+CANNOT_JUDGE = {"CMD/test_command_in_progress_ends", "CMD/test_command_again_while_in_progress_is_busy"}
+
+
 def failed(doc: dict) -> tuple[set[str], set[str]]:
-    """The failed and warned rules, and the failed cases."""
-    rules = {r for r, o in doc["rules"].items() if o in ("failed", "warned", "error")}
-    cases = {c["id"] for c in doc["cases"] if c["outcome"] not in ("passed", "info")}
+    """The failed (or errored) rules, and the failed (or errored) cases."""
+    rules = {r for r, o in doc["rules"].items() if o in ("failed", "error")}
+    cases = {c["id"] for c in doc["cases"] if c["outcome"] in ("failed", "error")}
     return rules, cases
+
+
+def warned(doc: dict) -> set[str]:
+    return {r for r, o in doc["rules"].items() if o == "warned"}
+
+
+def skipped(doc: dict) -> dict[str, str]:
+    return {c["id"]: c["reason"] for c in doc["cases"] if c["outcome"] == "skipped"}
+
+
+def expect_reference(doc: dict, out: str) -> None:
+    """No MUST rule failed, the known warnings exactly, only the IN_PROGRESS cases skipped
+    (with the reason)."""
+    assert failed(doc) == (set(), set()), out
+    assert warned(doc) == set(KNOWN_WARNINGS), out
+    skips = skipped(doc)
+    assert set(skips) == CANNOT_JUDGE and all("no command in progress" in r for r in skips.values()), skips
 
 
 @pytest.mark.parametrize("transport", ["tcp", "udp", "udpout"])
 def test_reference_vehicle_passes_every_case(tmp_path, transport):
-    """The embedded reference vehicle over each transport: every case passes, none skipped."""
+    """The embedded reference vehicle over each transport: exit 0, no MUST rule failed, the
+    known SHOULD warnings, only the IN_PROGRESS cases skipped."""
     rc, doc, out = run(tmp_path, "--mavlink", transport, "--capture", str(tmp_path / "run.mcap"))
     assert rc == 0, out
-    assert failed(doc) == (set(), set()), out
+    expect_reference(doc, out)
     assert doc["role"] == "vehicle" and doc["spec"]["protocol"] == "MAV"
-    assert {c["outcome"] for c in doc["cases"]} == {"passed"}, out
-    assert {r for r, o in doc["rules"].items() if o == "passed"} >= {"MAV-HB-1", "MAV-CMD-1", "MAV-CMD-5",
-                                                                      "MAV-PRM-1", "MAV-MIS-1", "MAV-MIS-9"}
+    assert {r for r, o in doc["rules"].items() if o == "passed"} >= {
+        "MAV-HB-1", "MAV-CMD-1", "MAV-CMD-5", "MAV-PRM-1", "MAV-PRM-3", "MAV-PRM-11", "MAV-MIS-1", "MAV-MIS-4", "MAV-MIS-6",
+        "MAV-MIS-9", "MAV-MIS-10", "MAV-MIS-16", "MAV-MIS-17", "MAV-MIS-19"}
     from mcap.reader import make_reader
 
     with open(tmp_path / "run.mcap", "rb") as fh:
@@ -83,22 +117,35 @@ FAULTS = {
     "acts-for-other-component": ("MAV-CMD-14", {"CMD/test_command_for_another_component_is_left_alone"}),
     "bad-param-type": ("MAV-PRM-10", {"PRM/test_names_and_types_of_the_list"}),
     "download-param1": ("MAV-MIS-9", {"MIS/test_download_is_the_upload"}),
+    "creates-unknown-param": ("MAV-PRM-11", {"PRM/test_unknown_name_creates_nothing"}),
+    "clear-keeps-plan": ("MAV-MIS-13", {"MIS/test_clear_all"}),
+    "out-of-sequence-stalls": ("MAV-MIS-4", {"MIS/test_out_of_sequence_item_is_recovered"}),
+    "ignores-mission-request": ("MAV-MIS-10", {"MIS/test_deprecated_item_messages_still_work"}),
+    "mission-type-lost": ("MAV-MIS-16", {"MIS/test_plan_types_are_kept_apart"}),
+    "set-current-ignored": ("MAV-MIS-15", {"MIS/test_set_current"}),
+    "untruncated": ("MAV-HB-12", {"HB/test_mavlink2_payloads_are_truncated"}),
+    "seq-gaps": ("MAV-HB-11", {"HB/test_sequence_numbers_count_up"}),
+    "abandoned-stays-busy": ("MAV-MIS-6", {"MIS/test_abandoned_upload_ends"}),
+    "clear-ack-type-all": ("MAV-MIS-17", {"MIS/test_mission_types_are_mav_mission_types"}),
 }
 
 
 @pytest.mark.parametrize("fault", ["none", *FAULTS])
 def test_each_faulty_vehicle_fails_its_rule_and_no_other(tmp_path, fault):
-    """The whole suite against the reference vehicle behind the proxy: no fault, no failure;
-    each fault, its rule's cases and nothing else, the rule's text in the terminal report."""
+    """The whole suite against the reference vehicle behind the proxy: no fault, the
+    reference's outcome; each fault, its rule's cases and no other MUST rule, no warning but
+    the known ones, the rule's text in the terminal report."""
     spawn = f"{sys.executable} {FAULTY} --listen {{target_host}}:{{target_port}} --fault {fault} --duration 200"
     rc, doc, out = run(tmp_path, "--spawn", spawn)
     rules, cases = failed(doc)
     if fault == "none":
-        assert rc == 0 and (rules, cases) == (set(), set()), out
+        assert rc == 0, out
+        expect_reference(doc, out)
         return
     rule, want = FAULTS[fault]
     assert rc == 1, out
     assert rules == {rule} and cases == want, out
+    assert warned(doc) <= set(KNOWN_WARNINGS), out
     case = next(c for c in doc["cases"] if c["id"] in want)
     assert case["failed_rule"] == rule and case["expected"] and case["actual"], case
 

@@ -7,6 +7,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 from pymavlink import mavutil
@@ -240,3 +241,43 @@ def test_unparsed_bytes_are_kept_and_tapped(vehicle: SimVehicle) -> None:
         v.reset_observations()
         assert v.unparsed() == []
     assert MAX_UNPARSED <= 1000
+
+
+def test_parameter_list_is_paced_in_batches() -> None:
+    """MAV-PRM-3 (GCS_Param.cpp ``queued_param_send``): a PARAM_REQUEST_LIST's PARAM_VALUEs
+    leave the server PARAM_BATCH at a time, each batch its own send (the tap's time), every
+    index once; a second request gets the whole list again. Structural, no speed asserted."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from mcp_conform.vehicle.server import PARAM_BATCH
+
+    parser = mav.MAVLink(None)
+    sends: dict[float, int] = {}
+
+    def tap(t: float, direction: str, conn: int, raw: bytes) -> None:
+        if direction == "tx" and parser.decode(bytearray(raw)).get_type() == "PARAM_VALUE":
+            sends[t] = sends.get(t, 0) + 1
+
+    def listed(conn: mavutil.mavfile) -> dict[int, Any]:
+        conn.mav.param_request_list_send(1, 1)
+        got: dict[int, Any] = {}
+        deadline = time.monotonic() + WAIT
+        while time.monotonic() < deadline and (not got or len(got) < next(iter(got.values())).param_count):
+            m = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+            if m is not None:
+                got[m.param_index] = m
+        return got
+
+    with SimVehicle(on_frame=tap) as v:
+        conn = connect(v)
+        try:
+            got = listed(conn)
+            count = next(iter(got.values())).param_count
+            assert sorted(got) == list(range(count)) and count > 2 * PARAM_BATCH
+            assert v.wait_for(lambda: sum(sends.values()) >= count, WAIT)
+            first = dict(sends)
+            assert sorted(listed(conn)) == list(range(count))
+        finally:
+            conn.close()
+    assert max(first.values()) <= PARAM_BATCH and sum(first.values()) == count
+    assert len(first) >= -(-count // PARAM_BATCH)
