@@ -69,9 +69,10 @@ _FLOATS = (math.nan, math.inf, -math.inf, 0.0, -0.0, 3.4028234e38, -3.4028234e38
 
 @dataclass(frozen=True)
 class Expect:
-    """An answer the case must (``ack``, ``param``, ``param-index``) or must not (``no-ack``,
-    ``no-param``) get before the probe's answer; ``key``: the command id, the parameter name
-    (its bytes as hex) or index; ``result``: the MAV_RESULT an ``ack`` must carry, if one."""
+    """An answer the case must (``ack``, ``param``, ``param-index``, ``msg``) or must not
+    (``no-ack``, ``no-param``) get before the probe's answer; ``key``: the command id, the
+    parameter name (its bytes as hex) or index, the messages (``|``-separated) one of which
+    answers; ``result``: the MAV_RESULT an ``ack`` must carry, if one."""
 
     what: str
     key: int | str
@@ -445,7 +446,9 @@ class CaseMaker:
         frames = [self.pack(self._count_msg(count, mtype))]
         if count and self.rng.random() < 0.5:
             frames.append(self.pack(self._item(0, mtype, limits=True)))
-        return Case("mission-count", "MAV-MIS-14" if count == 0 else "MAV-MIS-1", tuple(frames),
+        # an upload of none is answered with MISSION_ACK at once (MAV-MIS-14)
+        expect = (Expect("msg", "MISSION_ACK", "MAV-MIS-14"),) if count == 0 else ()
+        return Case("mission-count", "MAV-MIS-14" if count == 0 else "MAV-MIS-1", tuple(frames), expect,
                     messages=("MISSION_COUNT", "MISSION_ITEM_INT")[:len(frames)],
                     note=f"MISSION_COUNT {count}, mission_type {mtype}")
 
@@ -464,8 +467,12 @@ class CaseMaker:
                "MISSION_ACK": lambda: D.MAVLink_mission_ack_message(
                    self.v.sysid, self.v.compid, self.rng.choice((0, 2, 15, 255)), mtype)}[name]()
         rule = {"MISSION_SET_CURRENT": "MAV-MIS-15", "MISSION_ACK": "MAV-MIS-18",
-                "MISSION_CLEAR_ALL": "MAV-MIS-17"}.get(name, "MAV-MIS-8")
-        return Case("mission-request", rule, (self.pack(msg),), messages=(name,),
+                "MISSION_CLEAR_ALL": "MAV-MIS-13"}.get(name, "MAV-MIS-8")
+        # answered, whatever the type and the vehicle's state: a clear with MISSION_ACK
+        # (MAV-MIS-13), a download's start with MISSION_COUNT or an error MISSION_ACK (MAV-MIS-8, -16)
+        expect = {"MISSION_CLEAR_ALL": (Expect("msg", "MISSION_ACK", "MAV-MIS-13"),),
+                  "MISSION_REQUEST_LIST": (Expect("msg", "MISSION_COUNT|MISSION_ACK", "MAV-MIS-8"),)}.get(name, ())
+        return Case("mission-request", rule, (self.pack(msg),), expect, messages=(name,),
                     note=f"{name} seq {seq}, mission_type {mtype}")
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import select
 import socket
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -345,6 +346,8 @@ class MavVehicle:
     def _answers(self, e: Expect, frames: list[Any]) -> list[Any]:
         if e.what in ("ack", "no-ack"):
             return [m for m in frames if m.get_type() == "COMMAND_ACK" and m.command == e.key]
+        if e.what == "msg":
+            return [m for m in frames if m.get_type() in str(e.key).split("|")]
         if e.what == "param-index":
             return [m for m in frames if m.get_type() == "PARAM_VALUE" and raw_fields(m)["param_index"] == e.key]
         key = bytes.fromhex(str(e.key))
@@ -388,6 +391,8 @@ def _expected(e: Expect) -> str:
         return f"{'no ' if e.what == 'no-ack' else 'a '}COMMAND_ACK of command {e.key}"
     if e.what == "param-index":
         return f"the PARAM_VALUE of index {e.key}"
+    if e.what == "msg":
+        return "a " + str(e.key).replace("|", " or ")
     return f"{'no' if e.what == 'no-param' else 'a'} PARAM_VALUE of {_name(e.key)}"
 
 
@@ -420,6 +425,8 @@ class MavTarget:
         self.info = self.current.info
         self.restarts = 0
         self.restart_reasons: dict[str, int] = {}
+        self._spare: tuple[threading.Thread, dict[str, Any]] | None = None
+        self._left: list[tuple[threading.Thread, dict[str, Any]]] = []
 
     @property
     def attached(self) -> bool:
@@ -427,15 +434,54 @@ class MavTarget:
 
     def fresh(self, log: list[Any] | None = None) -> MavVehicle:
         """Another vehicle (spawned: a new process; attached: a new link), built for the same
-        cases (the first one's IDs, parameters and probe)."""
-        return MavVehicle(self.how, self.info, log)
+        cases (the first one's IDs, parameters and probe). Spawned, it is the spare started in
+        the background at the previous call (a replay then waits for no process to start),
+        and the next spare is started."""
+        v = self._take_spare()
+        if v is None:
+            v = MavVehicle(self.how, self.info, log)
+        v.log = log
+        if not self.attached:
+            self._start_spare()
+        return v
+
+    def _start_spare(self) -> None:
+        box: dict[str, Any] = {}
+
+        def make() -> None:
+            try:
+                box["v"] = MavVehicle(self.how, self.info)
+            except Exception as exc:  # noqa: BLE001 - a spare that did not start: started again when needed
+                box["error"] = exc
+
+        t = threading.Thread(target=make, name="mavlink-spare", daemon=True)
+        t.start()
+        self._spare = (t, box)
+
+    def _take_spare(self) -> MavVehicle | None:
+        if self._spare is None:
+            return None
+        (t, box), self._spare = self._spare, None
+        t.join(30.0)
+        if t.is_alive():  # still starting: closed at the end
+            self._left.append((t, box))
+            return None
+        return box.get("v")
 
     def restart(self, reason: str) -> MavVehicle:
         self.current.close()
-        self.current = MavVehicle(self.how, self.info, late=LATE_S)
+        self.current = self.fresh()
+        self.current.late = LATE_S
         self.restarts += 1
         count(self.restart_reasons, reason)
         return self.current
 
     def close(self) -> None:
         self.current.close()
+        spare = self._take_spare()
+        if spare is not None:
+            spare.close()
+        for t, box in self._left:
+            t.join(10.0)
+            if box.get("v") is not None:
+                box["v"].close()

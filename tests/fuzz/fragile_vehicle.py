@@ -8,8 +8,10 @@ Faults: none (the proxy alone); param16-crash (a PARAM_SET whose param_id fills 
 with no NUL -- legal, MAV-PRM-9 -- kills the process, as a C vehicle that strcpy's the name
 would); mission-seq-hang (a MISSION_ITEM_INT whose seq is at or past the count of the last
 MISSION_COUNT stops the vehicle's HEARTBEAT for good, while it goes on answering: MAV-MIS-4,
-MAV-HB-1). The proxy parses the ground station's frames with pymavlink and passes every byte
-on as it came; the vehicle's frames pass as they came but for the HEARTBEATs it withholds.
+MAV-HB-1); ignores-clear-all (MISSION_CLEAR_ALL never reaches the vehicle, so it is never
+answered: MAV-MIS-13). The proxy parses the ground station's frames with pymavlink and passes
+every byte on as it came (but the frames it drops); the vehicle's frames pass as they came but
+for the HEARTBEATs it withholds.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "param16-crash", "mission-seq-hang")
+FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all")
 
 
 class State:
@@ -78,8 +80,10 @@ def pump(src, dst, state: State, vehicle_side: bool, stop: threading.Event) -> N
                     continue
                 if not vehicle_side:
                     from_gcs(msg, state)
+                    if state.fault == "ignores-clear-all" and msg.get_type() == "MISSION_CLEAR_ALL":
+                        continue
             out += raw
-        if not vehicle_side:  # the ground station's bytes pass as they came (parsed for the fault only)
+        if not vehicle_side and state.fault != "ignores-clear-all":  # the ground station's bytes as they came
             out = bytearray(data)
         try:
             dst.sendall(bytes(out))
