@@ -9,7 +9,8 @@ with no NUL -- legal, MAV-PRM-9 -- kills the process, as a C vehicle that strcpy
 would); mission-seq-hang (a MISSION_ITEM_INT whose seq is at or past the count of the last
 MISSION_COUNT stops the vehicle's HEARTBEAT for good, while it goes on answering: MAV-MIS-4,
 MAV-HB-1); ignores-clear-all (MISSION_CLEAR_ALL never reaches the vehicle, so it is never
-answered: MAV-MIS-13). The proxy parses the ground station's frames with pymavlink and passes
+answered: MAV-MIS-13); deaf-after-bad-crc (after a frame with a bad checksum nothing more
+reaches the vehicle, which beats on: MAV-HB-14, "the next good frame is handled"). The proxy parses the ground station's frames with pymavlink and passes
 every byte on as it came (but the frames it drops); the vehicle's frames pass as they came but
 for the HEARTBEATs it withholds.
 """
@@ -29,7 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all")
+FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all", "deaf-after-bad-crc")
 
 
 class State:
@@ -37,6 +38,7 @@ class State:
         self.fault, self.vehicle = fault, vehicle
         self.count: int | None = None
         self.silent = False  # HEARTBEATs withheld
+        self.deaf = False  # nothing more passed on to the vehicle
 
 
 def param_id(msg) -> bytes:
@@ -75,6 +77,9 @@ def pump(src, dst, state: State, vehicle_side: bool, stop: threading.Event) -> N
         out = bytearray()
         for msg in parser.parse_buffer(data) or []:
             raw = bytes(msg.get_msgbuf())
+            if not vehicle_side and state.fault == "deaf-after-bad-crc" and msg.get_type() == "BAD_DATA" \
+                    and "CRC" in str(msg.reason):
+                state.deaf = True
             if msg.get_type() != "BAD_DATA":
                 if vehicle_side and state.silent and msg.get_type() == "HEARTBEAT":
                     continue
@@ -85,6 +90,8 @@ def pump(src, dst, state: State, vehicle_side: bool, stop: threading.Event) -> N
             out += raw
         if not vehicle_side and state.fault != "ignores-clear-all":  # the ground station's bytes as they came
             out = bytearray(data)
+        if not vehicle_side and state.deaf:
+            continue
         try:
             dst.sendall(bytes(out))
         except OSError:

@@ -103,6 +103,7 @@ FAULTS = {
     "param16-crash": (FRAGILE, "crash", "MAV-PRM-9"),
     "mission-seq-hang": (FRAGILE, "hang", "MAV-MIS-4"),
     "ignores-clear-all": (FRAGILE, "answer", "MAV-MIS-13"),
+    "deaf-after-bad-crc": (FRAGILE, "unanswered", "MAV-HB-14"),
     "double-ack": (FAULTY, "answer", "MAV-CMD-3"),
     "acts-for-other-system": (FAULTY, "answer", "MAV-CMD-14"),
     "no-unsupported-ack": (FAULTY, "answer", "MAV-CMD-5"),
