@@ -79,9 +79,9 @@ class MavlinkEngine:
                     continue
                 st.flaws += 1
                 st.seconds += time.monotonic() - t_fuzz
-                if hit.signature.oracle == "hang":  # any case since a period before its last beat
-                    since = vehicle.last_beat - BEAT_S
-                    suspects = [c for t, c in sent if t >= since]
+                if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
+                    since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
+                    suspects = [c for t, c in sent if since <= t <= until]
                 else:
                     suspects = [c for _, c in list(sent)[-WINDOW:]]
                 vehicle = self.triage.consider(hit, suspects)
@@ -104,7 +104,8 @@ class MavlinkPlugin:
     def triage(self, target: MavTarget, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
                prev: MavTriage | None) -> MavTriage:
         return MavTriage(target=target, store=store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n,
-                         started=started, duration=cfg.duration_limit, tries=prev.tries if prev else {})
+                         started=started, duration=cfg.duration_limit, tries=prev.tries if prev else {},
+                         quiet_hangs=prev.quiet_hangs if prev else None)
 
     def engine(self, name: str, target: MavTarget, triage: MavTriage, cfg: FuzzConfig) -> MavlinkEngine:
         return MavlinkEngine(target, triage, cfg.seed, cfg.worker)

@@ -42,14 +42,21 @@ def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] |
     """``cases`` sent to a fresh vehicle (``fresh(log)``), each judged as in the campaign;
     the hit that shows ``sig`` (a stopped heartbeat: watched after the last case), else None."""
     v: MavVehicle = fresh(log)
+    given = bool(cases)
     try:
+        if sig.oracle == "hang" and len(cases) > 1:  # back to back, then watched
+            if not v.run_all(cases):
+                return None
+            cases = []
         for c in cases:
             h = v.run(c)
             if h is not None and h.signature.same(sig):
                 return h
             if h is not None and h.signature.oracle in ("crash", "hang"):
                 return None
-        if sig.oracle == "hang" and cases:
+        if sig.oracle == "hang" and not given:  # a finding with no input blamed
+            return v.beats_on()
+        if sig.oracle == "hang":
             h = v.watch(time.monotonic())
             if h is not None:
                 return Hit(replace(h.signature, rule=sig.rule, kind=sig.kind), h.expected, h.actual, h.evidence)
@@ -63,10 +70,12 @@ def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, 
     """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``)."""
     sig = hit.signature
     rule = MAVLINK.rules_by_id.get(sig.rule)
-    shape = sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
+    shape = (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
+             if cases else f"{sig.oracle} whatever it is sent ({sig.rule})")
     return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames], shape,
                    "stateless", seed, level=rule.level if rule is not None else "MUST", evidence=list(hit.evidence),
                    worker=worker, source=sig.oracle, protocol=MAVLINK_PROFILE.name, note=note, replays=replays,
+                   no_input=not cases,
                    doc={"oracle": sig.oracle, "kind": sig.kind, "probe": probe.decode(errors="replace"),
                         "probe_hex": probe.hex(), "cases": [c.to_json() for c in cases]},
                    cases=list(cases), traffic=list(traffic or []))
@@ -82,6 +91,8 @@ class MavTriage(Triage):
     worker: int = 0
     n_of_n: int = 3
     tries: dict[tuple[str, str, str], int] = field(default_factory=dict)
+    #: whether a fresh vehicle sent nothing stops its heartbeat too (None: not yet known)
+    quiet_hangs: bool | None = None
 
     def consider(self, hit: Hit, suspects: list[Case]) -> MavVehicle:
         """A hit after ``suspects`` (the newest last), triaged and timed; the vehicle to go on with."""
@@ -118,6 +129,8 @@ class MavTriage(Triage):
         if self.tries.get(self._key(sig, kind), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
             count(self.untriaged, sig.describe())
             return
+        if sig.oracle == "hang" and self._hangs_anyway(hit):
+            return
         # the case that showed it, confirmed at once (the usual culprit: three fresh vehicles,
         # none more); else the fewest of its suspects that show it, confirmed then
         conf = self._confirm(sig, suspects[-1:], until_miss=True)
@@ -151,6 +164,35 @@ class MavTriage(Triage):
         f = mavlink_finding(found, minimal, conf.replays, self.target.info.probe, seed=self.seed,
                             worker=self.worker, traffic=traffic, note=note)
         self.store.add(f)
+
+    def _hangs_anyway(self, hit: Hit) -> bool:
+        """Whether the heartbeat stops with no case sent (the baseline, once a worker): a fresh
+        vehicle watched for its next HEARTBEAT, N of N times; then the stop is the vehicle's
+        own (a finding with no input blamed, MAV-HB-1) and no case is blamed for it."""
+        if self.quiet_hangs is None:
+            def once() -> tuple[Hit, list[Any]] | None:
+                check_late(self, share=False)
+                self.replays += 1
+                log: list[Any] = []
+                v = self._fresh(log)
+                try:
+                    h = v.beats_on()
+                    return None if h is None else (h, log)
+                finally:
+                    v.close()
+
+            conf = confirm_n(once, self.n_of_n, until_miss=True)
+            self.quiet_hangs = conf.confirmed
+            if conf.confirmed:
+                h, log = conf.hits[-1]
+                self.store.add(mavlink_finding(h, [], conf.replays, self.target.info.probe, traffic=log,
+                    seed=self.seed, worker=self.worker, note="the vehicle's behaviour whatever it is sent: "
+                                                            "no input blamed (a fresh vehicle sent nothing)"))
+        if self.quiet_hangs:
+            found = next((f for f in self.store.order if f.no_input and f.source == "hang"), None)
+            if found is not None:
+                found.occurrences += 1
+        return bool(self.quiet_hangs)
 
     def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
         """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""
@@ -215,9 +257,9 @@ def write_repro(d: Path, f: Finding) -> None:
                         rule=f.rule, expected=f.expected, actual=f.actual, finding=f.to_json())
     traffic = f.traffic or [("rx", time.time_ns() + i, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
     with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER, metadata=meta) as rec:
-        t0 = min(t for _, t, _ in traffic) - 1
+        t0 = min((t for _, t, _ in traffic), default=time.time_ns()) - 1
         rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
         for direction, t_ns, data in traffic:
             rec.mavlink(direction, data, t_ns, msg_type=mavlink_type(data))
-        rec.case_mark(f"finding:{f.rule}", "end", max(t for _, t, _ in traffic) + 1, outcome="failed",
+        rec.case_mark(f"finding:{f.rule}", "end", max((t for _, t, _ in traffic), default=t0) + 1, outcome="failed",
                       rules=(f.rule,))

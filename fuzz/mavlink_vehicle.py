@@ -293,6 +293,18 @@ class MavVehicle:
         del self.frames[:upto + 1]
         return hit
 
+    def run_all(self, cases: list[Case]) -> bool:
+        """Send ``cases`` back to back, then the probe (a stopped heartbeat's replays: no answer
+        is judged, and thousands of suspects take one write); whether the probe was answered."""
+        self._beat()
+        self.frames.clear()
+        probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
+                                                                self.info.probe, -1))
+        self.send(b"".join(c.wire() for c in cases) + probe)
+        answered = self._until(self._is_probe_answer, REPLY_S + 0.002 * len(cases)) is not None
+        self.frames.clear()
+        return answered
+
     def _lost(self, case: Case, answered: bool = False) -> Hit | None:
         """The probe went unanswered (or the heartbeat is late): dead, hung, deaf, or late only."""
         sent = time.monotonic()
@@ -335,6 +347,21 @@ class MavVehicle:
             return None
         return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
                    f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s after the replay")
+
+    def beats_on(self) -> Hit | None:
+        """With nothing sent (the baseline of a stopped heartbeat): what the link holds read
+        first, then the next two HEARTBEATs each within ``heartbeat_gap_max_s``, or a hang."""
+        while True:
+            n = len(self.frames)
+            self._read(0.0)
+            if len(self.frames) == n or self.closed:
+                break
+        for which in ("first", "second"):
+            t0 = self.last_beat = time.monotonic()
+            if not self._wait_beat(t0):
+                return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
+                           f"no {which} HEARTBEAT within {GAP_S:g} s with nothing sent")
+        return None
 
     def _judge(self, case: Case, upto: int) -> Hit | None:
         for e in case.expect:

@@ -10,7 +10,9 @@ would); mission-seq-hang (a MISSION_ITEM_INT whose seq is at or past the count o
 MISSION_COUNT stops the vehicle's HEARTBEAT for good, while it goes on answering: MAV-MIS-4,
 MAV-HB-1); ignores-clear-all (MISSION_CLEAR_ALL never reaches the vehicle, so it is never
 answered: MAV-MIS-13); deaf-after-bad-crc (after a frame with a bad checksum nothing more
-reaches the vehicle, which beats on: MAV-HB-14, "the next good frame is handled"). The proxy parses the ground station's frames with pymavlink and passes
+reaches the vehicle, which beats on: MAV-HB-14, "the next good frame is handled");
+slow-heartbeat (one HEARTBEAT of four passed on, whatever is sent: MAV-HB-1 with no input to
+blame). The proxy parses the ground station's frames with pymavlink and passes
 every byte on as it came (but the frames it drops); the vehicle's frames pass as they came but
 for the HEARTBEATs it withholds.
 """
@@ -30,7 +32,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mcp_conform.vehicle.ports import free_port
 
-FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all", "deaf-after-bad-crc")
+FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all", "deaf-after-bad-crc",
+          "slow-heartbeat")
 
 
 class State:
@@ -39,6 +42,7 @@ class State:
         self.count: int | None = None
         self.silent = False  # HEARTBEATs withheld
         self.deaf = False  # nothing more passed on to the vehicle
+        self.beats = 0  # the vehicle's HEARTBEATs so far
 
 
 def param_id(msg) -> bytes:
@@ -81,8 +85,10 @@ def pump(src, dst, state: State, vehicle_side: bool, stop: threading.Event) -> N
                     and "CRC" in str(msg.reason):
                 state.deaf = True
             if msg.get_type() != "BAD_DATA":
-                if vehicle_side and state.silent and msg.get_type() == "HEARTBEAT":
-                    continue
+                if vehicle_side and msg.get_type() == "HEARTBEAT":
+                    state.beats += 1
+                    if state.silent or (state.fault == "slow-heartbeat" and state.beats % 4):
+                        continue
                 if not vehicle_side:
                     from_gcs(msg, state)
                     if state.fault == "ignores-clear-all" and msg.get_type() == "MISSION_CLEAR_ALL":

@@ -104,6 +104,7 @@ FAULTS = {
     "mission-seq-hang": (FRAGILE, "hang", "MAV-MIS-4"),
     "ignores-clear-all": (FRAGILE, "answer", "MAV-MIS-13"),
     "deaf-after-bad-crc": (FRAGILE, "unanswered", "MAV-HB-14"),
+    "slow-heartbeat": (FRAGILE, "hang", "MAV-HB-1"),  # the vehicle's own: no input blamed
     "double-ack": (FAULTY, "answer", "MAV-CMD-3"),
     "acts-for-other-system": (FAULTY, "answer", "MAV-CMD-14"),
     "no-unsupported-ack": (FAULTY, "answer", "MAV-CMD-5"),
@@ -127,8 +128,11 @@ def test_a_fragile_vehicle_is_found_confirmed_and_replays(tmp_path, fault):
     n = c.store.order.index(f) + 1
     d = tmp_path / f"finding-{n}"
     doc = json.loads((d / "finding.json").read_text())
-    assert doc["rule"] == rule and doc["rule_text"] and doc["cases"] and doc["probe"] == "FORMAT_VERSION"
-    assert len(doc["cases"]) == 1, doc["cases"]  # minimised to the one case
+    assert doc["rule"] == rule and doc["rule_text"] and doc["probe"] == "FORMAT_VERSION"
+    if fault == "slow-heartbeat":  # a fresh vehicle sent nothing shows it: no case is blamed
+        assert doc["no_input"] and doc["cases"] == [] and [g.rule for g in c.store.order] == [rule], doc
+    else:
+        assert len(doc["cases"]) == 1 and not doc["no_input"], doc["cases"]  # minimised to the one case
     assert read_finding(d / "repro.mcap").rule == rule
     for args, want in ((["--spawn", spawn], 1), ([], 0)):
         run = fuzz("--replay", str(d), *args, timeout=120)
