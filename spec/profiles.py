@@ -155,14 +155,16 @@ NSQD_PROFILE = Profile(
 
 #: MAVLink's microservices (issue 39): frames through pymavlink over TCP or UDP, as SITL is
 #: reached; the node under test is an autopilot, the runner its ground station. The
-#: reference vehicle is ``mcp-vehicle``; no fuzz campaign, capture tools or dissector yet.
+#: reference vehicle is ``mcp-vehicle``; no capture tools yet.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
     monitor=None, dissector="mcp_conform.captures.dissector_mavlink", capture_detect=None, capture_tools=None,
-    mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.vehicle.cli",
+    mutators=None, oracles=None, fuzz_campaign="mcp_conform.fuzz.mavlink_campaign:MavlinkCampaign",
+    reference_cli="mcp_conform.vehicle.cli",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
                        context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",
-                       cases="mcp_conform.conformance.cases_mavlink", fuzz_target=None,
+                       cases="mcp_conform.conformance.cases_mavlink",
+                       fuzz_target="mcp_conform.fuzz.mavlink_vehicle:MavTarget",
                        peer="gcs"),),
     loader="mcp_conform.spec.mavlink:load_mavlink",
 )

@@ -47,7 +47,7 @@ def test_pick_names_the_defaults_and_refuses_in_one_line():
                                                                                   "vehicle"}
     assert pick("mavlink")[1].name == "vehicle" and pick("mavlink")[1].peer == "gcs"
     with pytest.raises(ProfileError, match=r"^this protocol has no such piece yet"):
-        resolve(pick("mavlink")[0].fuzz_campaign)
+        resolve(pick("mavlink")[0].capture_tools)
 
 
 def test_every_spec_answers_the_one_interface():
@@ -101,4 +101,4 @@ def test_the_pieces_a_protocol_has_are_listed_and_picked():
     assert "mavlink" in having("dissector") and "mavlink" not in having("capture_tools")
     assert pick_having("mavlink", "dissector").name == "mavlink"
     with pytest.raises(ProfileError, match="protocols with one: mcp, nsqd"):
-        pick_having("mavlink", "fuzz_campaign")
+        pick_having("mavlink", "capture_tools")

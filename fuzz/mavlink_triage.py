@@ -1,0 +1,265 @@
+"""MAVLink's triage (issue 39 item 4: the protocol's part of the one campaign loop, ``fuzz.loop``,
+as ``fuzz.nsqd_triage`` is Nsqd's): from a hit the engine saw to a confirmed, minimal finding.
+
+A hit is counted, not triaged, when its group (rule and shape) is already a finding, when its
+signature did not reproduce ``UNCONFIRMED_TRIES`` times, or once triage's share of the campaign
+is spent (``fuzz.budget``). Otherwise its suspects are replayed on a fresh vehicle (spawn mode:
+a new process; attach mode: a new link): the case that showed it alone, else every suspect
+(the cases since the last one proven harmless; for a heartbeat that stopped, those since a
+period before its last HEARTBEAT), those of one kind at a time, then delta debugging
+(``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a multi-frame case.
+The minimal input is confirmed N of N (``fuzz.confirm``), each on a fresh vehicle, or counted
+unconfirmed (named environment-dependent: ``fuzz.environment``). The finding is every
+protocol's (``fuzz.findings.Finding``): the rule of its signature, the cases as ``finding.json``
+holds them (``cases``, ``probe``), their frames as ``datagrams`` (hex), the last confirming
+replay's traffic in ``repro.mcap`` (its ``/mavlink`` channel: :func:`write_repro`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
+from mcp_conform.fuzz.confirm import confirm_n
+from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.findings import Finding, FindingStore
+from mcp_conform.fuzz.loop import Triage, count, triage_time
+from mcp_conform.fuzz.mavlink_cases import Case
+from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.spec import MAVLINK
+from mcp_conform.spec.profiles import MAVLINK_PROFILE
+
+__all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
+
+DEATHS = ("crash", "hang", "unanswered")
+
+
+def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] | None = None) -> Hit | None:
+    """``cases`` sent to a fresh vehicle (``fresh(log)``), each judged as in the campaign;
+    the hit that shows ``sig`` (a stopped heartbeat: watched after the last case), else None."""
+    v: MavVehicle = fresh(log)
+    given = bool(cases)
+    try:
+        if sig.oracle == "hang" and len(cases) > 1:  # back to back, then watched
+            if not v.run_all(cases):
+                return None
+            cases = []
+        for c in cases:
+            h = v.run(c)
+            if h is not None and h.signature.same(sig):
+                return h
+            if h is not None and h.signature.oracle in ("crash", "hang"):
+                return None
+        if sig.oracle == "hang" and not given:  # a finding with no input blamed
+            return v.beats_on()
+        if sig.oracle == "hang":
+            h = v.watch(time.monotonic())
+            if h is not None:
+                return Hit(replace(h.signature, rule=sig.rule, kind=sig.kind), h.expected, h.actual, h.evidence)
+        return None
+    finally:
+        v.close()
+
+
+def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, seed: int, worker: int,
+                    traffic: list[Any] | None = None, note: str = "") -> Finding:
+    """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``)."""
+    sig = hit.signature
+    rule = MAVLINK.rules_by_id.get(sig.rule)
+    shape = (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
+             if cases else f"{sig.oracle} whatever it is sent ({sig.rule})")
+    return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames], shape,
+                   "stateless", seed, level=rule.level if rule is not None else "MUST", evidence=list(hit.evidence),
+                   worker=worker, source=sig.oracle, protocol=MAVLINK_PROFILE.name, note=note, replays=replays,
+                   no_input=not cases,
+                   doc={"oracle": sig.oracle, "kind": sig.kind, "probe": probe.decode(errors="replace"),
+                        "probe_hex": probe.hex(), "cases": [c.to_json() for c in cases]},
+                   cases=list(cases), traffic=list(traffic or []))
+
+
+@dataclass(kw_only=True, eq=False)
+class MavTriage(Triage):
+    """One worker's MAVLink triage (what it learnt carried to the next engine turn's: ``tries``)."""
+
+    target: MavTarget
+    store: FindingStore
+    seed: int = 0
+    worker: int = 0
+    n_of_n: int = 3
+    tries: dict[tuple[str, str, str], int] = field(default_factory=dict)
+    #: whether a fresh vehicle sent nothing stops its heartbeat too (None: not yet known)
+    quiet_hangs: bool | None = None
+
+    def consider(self, hit: Hit, suspects: list[Case]) -> MavVehicle:
+        """A hit after ``suspects`` (the newest last), triaged and timed; the vehicle to go on with."""
+        sig = hit.signature
+        death = sig.oracle in DEATHS
+        if death and self.target.attached and sig.oracle != "unanswered":
+            from mcp_conform.fuzz.target_base import TargetLost
+
+            raise TargetLost(f"the attached vehicle at {self.target.how.describe()}: {hit.actual}; "
+                             "findings so far are kept")
+        with triage_time(self, sig.describe()):
+            self._triage(hit, suspects)
+        if death:
+            t0 = time.monotonic()
+            self.target.restart("after a hit")
+            self.restart_seconds += time.monotonic() - t0
+        return self.target.current
+
+    def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
+        return (sig.oracle, sig.rule, kind)
+
+    def _known(self, sig: Signature, kind: str) -> Finding | None:
+        return next((f for f in self.store.order if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
+                     and (f.doc.get("kind") == sig.kind or (sig.oracle in DEATHS and f.cases
+                                                            and f.cases[-1].kind == kind))), None)
+
+    def _triage(self, hit: Hit, suspects: list[Case]) -> None:
+        sig = hit.signature
+        kind = suspects[-1].kind if suspects else ""
+        known = self._known(sig, kind)
+        if known is not None:
+            known.occurrences += 1
+            return
+        if self.tries.get(self._key(sig, kind), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
+            count(self.untriaged, sig.describe())
+            return
+        if sig.oracle == "hang" and self._hangs_anyway(hit):
+            return
+        # the case that showed it, confirmed at once (the usual culprit: three fresh vehicles,
+        # none more); else the fewest of its suspects that show it, confirmed then
+        conf = self._confirm(sig, suspects[-1:], until_miss=True)
+        minimal = suspects[-1:]
+        if not conf.confirmed:
+            fewest = self._minimise(sig, suspects) if len(suspects) > 1 else None
+            if fewest is None:
+                self.count_unconfirmed(sig.rule)
+                self.tries[self._key(sig, kind)] = self.tries.get(self._key(sig, kind), 0) + 1
+                return
+            minimal = fewest
+            conf = self._confirm(sig, minimal, until_miss=False)
+        elif len(minimal[0].frames) > 1:  # a handshake's frames: the fewest that show it
+            fewer = self._fewer_frames(sig, minimal[0])
+            if fewer is not minimal[0]:
+                again = self._confirm(sig, [fewer], until_miss=False)
+                if again.confirmed:
+                    minimal, conf = [fewer], again
+        if sig.oracle in DEATHS:  # named by the case that makes it
+            sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
+        if not conf.confirmed:
+            self.count_unconfirmed(sig.rule)
+            self.tries[self._key(sig, kind)] = self.tries.get(self._key(sig, kind), 0) + 1
+            conf.note(self.environment, sig.rule, sig.describe(), hit.actual,
+                      f"the minimal input ({len(minimal)} case(s)) showed it in triage, then {len(conf.hits)} of "
+                      f"{self.n_of_n} confirming replays on a fresh vehicle did (timing or load)")
+            return
+        last, traffic = conf.hits[-1]
+        found = Hit(sig, last.expected, last.actual, last.evidence or hit.evidence)
+        note = f"{len(minimal)} case(s) of {len(suspects)} suspect(s), replayed on a fresh vehicle"
+        f = mavlink_finding(found, minimal, conf.replays, self.target.info.probe, seed=self.seed,
+                            worker=self.worker, traffic=traffic, note=note)
+        self.store.add(f)
+
+    def _hangs_anyway(self, hit: Hit) -> bool:
+        """Whether the heartbeat stops with no case sent (the baseline, once a worker): a fresh
+        vehicle watched for its next HEARTBEAT, N of N times; then the stop is the vehicle's
+        own (a finding with no input blamed, MAV-HB-1) and no case is blamed for it."""
+        if self.quiet_hangs is None:
+            def once() -> tuple[Hit, list[Any]] | None:
+                check_late(self, share=False)
+                self.replays += 1
+                log: list[Any] = []
+                v = self._fresh(log)
+                try:
+                    h = v.beats_on()
+                    return None if h is None else (h, log)
+                finally:
+                    v.close()
+
+            conf = confirm_n(once, self.n_of_n, until_miss=True)
+            self.quiet_hangs = conf.confirmed
+            if conf.confirmed:
+                h, log = conf.hits[-1]
+                self.store.add(mavlink_finding(h, [], conf.replays, self.target.info.probe, traffic=log,
+                    seed=self.seed, worker=self.worker, note="the vehicle's behaviour whatever it is sent: "
+                                                            "no input blamed (a fresh vehicle sent nothing)"))
+        if self.quiet_hangs:
+            found = next((f for f in self.store.order if f.no_input and f.source == "hang"), None)
+            if found is not None:
+                found.occurrences += 1
+        return bool(self.quiet_hangs)
+
+    def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
+        """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""
+        def once() -> tuple[Hit, list[Any]] | None:
+            check_late(self)
+            self.replays += 1
+            log: list[Any] = []
+            h = replay_cases(self._fresh, cases, sig, log)
+            return None if h is None else (h, log)
+
+        return confirm_n(once, self.n_of_n, until_miss=until_miss)
+
+    def _fewer_frames(self, sig: Signature, c: Case) -> Case:
+        test = self._shows(sig)
+        frames = ddmin(list(c.frames), lambda fs: test([replace(c, frames=tuple(fs))]), budget=8)
+        return c if len(frames) == len(c.frames) else replace(c, frames=tuple(frames))
+
+    def _fresh(self, log: list[Any] | None = None) -> MavVehicle:
+        try:
+            return self.target.fresh(log)
+        finally:
+            count(self.target.restart_reasons, "triage replay")
+            self.target.restarts += 1
+
+    def _shows(self, sig: Signature) -> Any:
+        def test(cases: list[Case]) -> bool:
+            check_late(self)
+            self.replays += 1
+            try:
+                return replay_cases(self._fresh, cases, sig) is not None
+            except SetupError:
+                return False
+        return test
+
+    def _minimise(self, sig: Signature, suspects: list[Case]) -> list[Case] | None:
+        """The fewest cases (then frames) of ``suspects`` that still show ``sig`` on a fresh
+        vehicle, None when even all of them do not."""
+        test = self._shows(sig)
+        if not suspects or not test(suspects):
+            return None
+        cases = suspects
+        kinds = list(dict.fromkeys(c.kind for c in reversed(suspects)))
+        if len(kinds) > 1 and len(suspects) > 8:  # one kind alone first (a heartbeat's suspects are many)
+            for k in kinds:
+                some = [c for c in suspects if c.kind == k]
+                if len(some) < len(cases) and test(some):
+                    cases = some
+                    break
+        cases = ddmin(cases, test, budget=24, singles=2)
+        if len(cases) == 1 and len(cases[0].frames) > 1:
+            cases = [self._fewer_frames(sig, cases[0])]
+        return cases
+
+
+def write_repro(d: Path, f: Finding) -> None:
+    """``repro.mcap``: the finding's last confirming replay (or its frames) on ``/mavlink``,
+    from the vehicle's side (``rx``: the fuzzer's frames, ``tx``: the vehicle's), with the
+    finding in the ``mcp-fuzz`` metadata record (``fuzz.findings.read_finding`` reads it)."""
+    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, mavlink_type, run_metadata
+
+    meta = run_metadata(FUZZ_RECORDER, role=MAVLINK_PROFILE.default_role.name, protocol=MAVLINK_PROFILE.name,
+                        rule=f.rule, expected=f.expected, actual=f.actual, finding=f.to_json())
+    traffic = f.traffic or [("rx", time.time_ns() + i, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
+    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER, metadata=meta) as rec:
+        t0 = min((t for _, t, _ in traffic), default=time.time_ns()) - 1
+        rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
+        for direction, t_ns, data in traffic:
+            rec.mavlink(direction, data, t_ns, msg_type=mavlink_type(data))
+        rec.case_mark(f"finding:{f.rule}", "end", max((t for _, t, _ in traffic), default=t0) + 1, outcome="failed",
+                      rules=(f.rule,))

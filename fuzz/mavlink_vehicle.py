@@ -1,0 +1,514 @@
+"""The vehicle under ``mcp-fuzz --protocol mavlink`` and its oracles (issue 39 item 4).
+
+A :class:`MavVehicle` is one vehicle process (spawned with ``--spawn CMD``, ``{target_host}``
+``{target_port}`` and ``{mavlink}`` -- ``tcp:HOST:PORT`` -- filled in; the reference vehicle,
+``mcp-vehicle``, when neither ``--spawn`` nor ``--target`` is given) or one reached at
+``--target tcp:HOST:PORT``, and the fuzzer's TCP link to it, read synchronously: the fuzzer is
+its ground station (system 255, MAV_COMP_ID_MISSIONPLANNER, a HEARTBEAT a second: MAV-HB-2).
+
+Each case (``fuzz.mavlink_cases.Case``) is written with the probe right behind it: a
+PARAM_REQUEST_READ by name of a parameter no case touches, which the vehicle answers with a
+PARAM_VALUE of that name (MAV-PRM-4). A vehicle handles a link's frames in order, so the
+frames before the probe's answer are the case's answers, and the oracles judge them:
+
+- the probe is not answered within ``param_reply_max_s``: the vehicle died (the process
+  exited, or closed the link: ``crash``), its HEARTBEAT stopped for ``heartbeat_gap_max_s``
+  (``hang``, MAV-HB-1's bound), or it beats on but no longer answers (``unanswered``; MAV-HB-14
+  after a malformed frame: "the next good frame is handled"); each named by the case's rule;
+- its HEARTBEAT stops while it still answers (``hang``);
+- an answer the case must get (a COMMAND_ACK of its command, with MAV_RESULT_UNSUPPORTED for
+  an unknown one; a PARAM_VALUE of its name or index) does not come within ``command_ack_max_s``
+  / ``param_reply_max_s``, or one it must not get comes (an ACK for a command to another
+  system, or of a frame with a bad checksum; a PARAM_VALUE naming a parameter that does not
+  exist), or two final COMMAND_ACKs answer one command (MAV-CMD-3): ``answer``, named by the
+  expectation's rule.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from mcp_conform.fuzz.loop import count
+from mcp_conform.fuzz.mavlink_cases import (
+    GCS_COMPID,
+    GCS_SYSID,
+    Case,
+    D,
+    Expect,
+    Vehicle,
+    name_key,
+    raw_fields,
+)
+from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.mavlink_session import embedded_command, parse_address
+from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
+from mcp_conform.spec import MAVLINK
+
+__all__ = ["Hit", "MavTarget", "MavVehicle", "Signature", "VehicleSpec"]
+
+P = MAVLINK.params
+REPLY_S = float(P["param_reply_max_s"])
+ACK_S = float(P["command_ack_max_s"])
+GAP_S = float(P["heartbeat_gap_max_s"])
+BEAT_S = float(P["heartbeat_period_s"])
+LATE_S = 0.1  # s: an answer missing at the probe's answer, waited for while fuzzing (replays: the spec's bound)
+LIST_S = 10.0  # s: the parameter list the cases are built from, read at the start for at most this long
+FINAL = frozenset(r for r in D.enums["MAV_RESULT"] if r != D.MAV_RESULT_IN_PROGRESS)
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What a hit showed: the oracle (crash, hang, unanswered, answer), the rule it names and
+    what it is about (the case's kind, or for an answer what was wrong with it)."""
+
+    oracle: str
+    rule: str
+    kind: str
+
+    def describe(self) -> str:
+        return f"{self.oracle}: {self.kind} ({self.rule})"
+
+    def same(self, other: Signature) -> bool:
+        """A replay shows this hit: the same oracle (an answer: also the same rule and what
+        was wrong; a death is named by the case that makes it once that is known)."""
+        return self.oracle == other.oracle and (self.oracle != "answer" or (self.rule, self.kind) == (
+            other.rule, other.kind))
+
+
+@dataclass(frozen=True)
+class Hit:
+    signature: Signature
+    expected: str
+    actual: str
+    evidence: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    """How to reach a vehicle: a ``--spawn`` template (or the embedded one), or an address."""
+
+    spawn: str | None = None
+    target: tuple[str, int] | None = None
+
+    @classmethod
+    def of(cls, target: tuple[str, int] | None, spawn: str | None) -> VehicleSpec:
+        if target is not None:
+            transport, address = parse_address(*target)
+            if transport != "tcp":
+                raise SetupError(f"--target {target[0]}:{target[1]}: the MAVLink fuzzer reaches a vehicle over "
+                                 "TCP only so far (tcp:HOST:PORT)")
+            return cls(None, address)
+        return cls(spawn or embedded_command("tcp"), None)
+
+    def describe(self) -> str:
+        return f"tcp:{self.target[0]}:{self.target[1]}" if self.target else "spawned"
+
+
+class MavVehicle:
+    """One vehicle and the fuzzer's link to it (see the module's docstring)."""
+
+    def __init__(self, how: VehicleSpec, info: Vehicle | None = None, log: list[Any] | None = None,
+                 late: float | None = None) -> None:
+        self.how, self.log = how, log
+        #: how long an answer missing at the probe's answer is still waited for (None: the
+        #: spec's bound, as replays wait; the campaign's own vehicle: a short while, its hits
+        #: then confirmed, or not, by replays that wait the whole bound)
+        self.late = late
+        self.node: SpawnedNode | None = None
+        self.sock: socket.socket | None = None
+        self.parser = D.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.frames: list[tuple[float, Any]] = []
+        self.closed = False
+        self.last_beat = 0.0  # the vehicle's last HEARTBEAT (time.monotonic)
+        self.gcs_beat = 0.0
+        self._start(info)
+
+    # -- life -----------------------------------------------------------------------------
+    def _start(self, info: Vehicle | None) -> None:
+        host, port = self.how.target or ("127.0.0.1", free_port("127.0.0.1", socket.SOCK_STREAM))
+        if self.how.spawn is not None:
+            argv = fill_placeholders(self.how.spawn, {"target_host": host, "target_port": str(port),
+                                                      "mavlink": f"tcp:{host}:{port}"})
+            self.node = SpawnedNode(argv)
+        deadline = time.monotonic() + 10.0
+        while self.sock is None:
+            try:
+                self.sock = socket.create_connection((host, port), timeout=1.0)
+            except OSError as exc:
+                if self.node is not None and not self.node.alive():
+                    raise SpawnFailure(f"the spawned vehicle {self.node.details()['exit']} before it listened on "
+                                       f"{host}:{port}", self.node.details(20)) from None
+                if time.monotonic() >= deadline:
+                    self.close()
+                    raise SetupError(f"tcp:{host}:{port}: cannot reach the vehicle: {exc.strerror or exc}") from None
+                time.sleep(0.05)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock.setblocking(False)
+        self.address = (host, port)
+        self._beat()
+        hb = self._until(lambda f: f.get_type() == "HEARTBEAT", 10.0)
+        if hb is None:
+            self.close()
+            raise SetupError(f"tcp:{host}:{port}: no HEARTBEAT from the vehicle within 10 s (MAV-HB-1)")
+        self.frames.clear()
+        if info is None:
+            info = self._learn(hb.get_srcSystem(), hb.get_srcComponent())
+        self.info = info
+
+    def _learn(self, sysid: int, compid: int) -> Vehicle:
+        """The vehicle's IDs and parameter list (PARAM_REQUEST_LIST, read for at most LIST_S);
+        the probe reads the first parameter of the list."""
+        v = Vehicle(sysid, compid)
+        self.send(self._pack(D.MAVLink_param_request_list_message(sysid, compid)))
+        end, total, seen = time.monotonic() + LIST_S, None, 0
+        while time.monotonic() < end and (total is None or len(v.params) < total):
+            if self._until(lambda f: f.get_type() == "PARAM_VALUE", min(2.0, end - time.monotonic()), seen) is None:
+                break
+            for _, m in self.frames[seen:]:
+                f = raw_fields(m) if m.get_type() == "PARAM_VALUE" else None
+                if f is not None and f["param_index"] < f["param_count"]:
+                    total = f["param_count"]
+                    v.params.setdefault(name_key(f["param_id"]), (int(f["param_index"]), int(f["param_type"])))
+            seen = len(self.frames)
+        self.frames.clear()
+        if not v.params:
+            self.close()
+            raise SetupError("the vehicle sent no PARAM_VALUE for PARAM_REQUEST_LIST within "
+                             f"{LIST_S:g} s: the fuzzer has no probe (MAV-PRM-1)")
+        v.probe = min(v.params, key=lambda n: v.params[n][0])
+        return v
+
+    def close(self) -> None:
+        if self.sock is not None:
+            with contextlib.suppress(OSError):
+                self.sock.close()
+        if self.node is not None:
+            self.node.stop(grace=0.5)
+
+    def alive(self) -> bool:
+        return not self.closed and (self.node is None or self.node.alive())
+
+    # -- the link -----------------------------------------------------------------------------
+    def _pack(self, msg: Any) -> bytes:
+        data = bytes(msg.pack(self.enc))
+        self.enc.seq = (self.enc.seq + 1) % 256
+        return data
+
+    def send(self, data: bytes) -> None:
+        assert self.sock is not None
+        if self.log is not None:
+            self.log.append(("rx", time.time_ns(), data))
+        try:
+            self.sock.setblocking(True)
+            self.sock.settimeout(2.0)
+            self.sock.sendall(data)
+        except OSError:
+            self.closed = True
+        finally:
+            with contextlib.suppress(OSError):
+                self.sock.setblocking(False)
+
+    def _beat(self) -> None:
+        """The fuzzer's own HEARTBEAT, as a ground station's, once a second."""
+        now = time.monotonic()
+        if now - self.gcs_beat >= BEAT_S:
+            self.gcs_beat = now
+            self.send(self._pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                             D.MAV_STATE_ACTIVE, 3)))
+
+    def _read(self, timeout: float) -> None:
+        """What the vehicle sent within ``timeout`` s (at once when something is there)."""
+        assert self.sock is not None
+        if self.closed:
+            return
+        try:
+            ready, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+            if not ready:
+                return
+            data = self.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.closed = True
+            return
+        now = time.monotonic()
+        for m in self.parser.parse_buffer(data) or []:
+            if m.get_type() == "BAD_DATA":
+                continue
+            if self.log is not None:
+                self.log.append(("tx", time.time_ns(), bytes(m.get_msgbuf())))
+            if m.get_type() == "HEARTBEAT" and self._from_vehicle(m):
+                self.last_beat = now
+            self.frames.append((now, m))
+
+    def _from_vehicle(self, m: Any) -> bool:
+        info = getattr(self, "info", None)
+        return info is None or (m.get_srcSystem(), m.get_srcComponent()) == (info.sysid, info.compid)
+
+    def _until(self, pred: Any, timeout: float, start: int = 0) -> Any:
+        """The first frame from ``start`` on that ``pred`` holds for, read for up to ``timeout``
+        s (None: none came, or the link closed)."""
+        end = time.monotonic() + timeout
+        i = start
+        while True:
+            while i < len(self.frames):
+                m = self.frames[i][1]
+                i += 1
+                if pred(m):
+                    return m
+            left = end - time.monotonic()
+            if left <= 0 or self.closed:
+                return None
+            self._read(min(left, 0.1))
+
+    # -- a case --------------------------------------------------------------------------------
+    def _is_probe_answer(self, m: Any) -> bool:
+        return m.get_type() == "PARAM_VALUE" and self._from_vehicle(m) and \
+            name_key(raw_fields(m)["param_id"]) == self.info.probe
+
+    def run(self, case: Case) -> Hit | None:
+        """Send ``case`` and the probe; judge what came (see the module's docstring)."""
+        self._beat()
+        self.frames.clear()
+        probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
+                                                                self.info.probe, -1))
+        self.send(case.wire() + probe)
+        answer = self._until(self._is_probe_answer, REPLY_S)
+        if answer is None:
+            return self._lost(case)
+        upto = next(i for i, (_, m) in enumerate(self.frames) if m is answer)
+        hit = self._judge(case, upto)
+        if hit is None and time.monotonic() - self.last_beat > GAP_S:
+            hit = self._lost(case, answered=True)
+        del self.frames[:upto + 1]
+        return hit
+
+    def run_all(self, cases: list[Case]) -> bool:
+        """Send ``cases`` back to back, then the probe (a stopped heartbeat's replays: no answer
+        is judged, and thousands of suspects take one write); whether the probe was answered."""
+        self._beat()
+        self.frames.clear()
+        probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
+                                                                self.info.probe, -1))
+        self.send(b"".join(c.wire() for c in cases) + probe)
+        answered = self._until(self._is_probe_answer, REPLY_S + 0.002 * len(cases)) is not None
+        self.frames.clear()
+        return answered
+
+    def _lost(self, case: Case, answered: bool = False) -> Hit | None:
+        """The probe went unanswered (or the heartbeat is late): dead, hung, deaf, or late only."""
+        sent = time.monotonic()
+        what = f"after {case.describe()}"
+        if not self.alive() or (not answered and not self._wait_beat(sent)):
+            if not self.alive():
+                end = time.monotonic() + 1.0  # a closed link: the process's exit, when it is exiting
+                while self.node is not None and self.node.alive() and time.monotonic() < end:
+                    time.sleep(0.02)
+                ev = tuple(self.node.evidence()) if self.node is not None else ()
+                how = (f"the vehicle process {self.node.details()['exit']}" if self.node is not None and
+                       not self.node.alive() else "the vehicle closed the link")
+                return Hit(Signature("crash", case.rule, case.kind), "the vehicle goes on", f"{how} {what}", ev)
+            return Hit(Signature("hang", case.rule, case.kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
+                       f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s {what}")
+        if answered:
+            if self._wait_beat(sent):
+                return None
+            return Hit(Signature("hang", case.rule, case.kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
+                       f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s {what} (it still answers)")
+        if self._until(self._is_probe_answer, 0.0) is not None:
+            return None  # late, not lost (a loaded host)
+        return Hit(Signature("unanswered", case.rule, case.kind),
+                   f"PARAM_REQUEST_READ of {self.info.probe.decode(errors='replace')} answered within {REPLY_S:g} s "
+                   "(MAV-PRM-4), as before the case", f"no PARAM_VALUE {what}; its HEARTBEAT goes on")
+
+    def _wait_beat(self, since: float) -> bool:
+        """Whether a HEARTBEAT comes after ``since`` before the gap since the last one passes
+        ``heartbeat_gap_max_s``."""
+        while self.last_beat <= since:
+            left = self.last_beat + GAP_S - time.monotonic()
+            if left <= 0 or self.closed:
+                return False
+            self._read(min(left, 0.1))
+        return True
+
+    def watch(self, since: float) -> Hit | None:
+        """After a replay: a HEARTBEAT after ``since`` (nothing), or the gap past its bound."""
+        if self._wait_beat(since):
+            return None
+        return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
+                   f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s after the replay")
+
+    def beats_on(self) -> Hit | None:
+        """With nothing sent (the baseline of a stopped heartbeat): what the link holds read
+        first, then the next two HEARTBEATs each within ``heartbeat_gap_max_s``, or a hang."""
+        while True:
+            n = len(self.frames)
+            self._read(0.0)
+            if len(self.frames) == n or self.closed:
+                break
+        for which in ("first", "second"):
+            t0 = self.last_beat = time.monotonic()
+            if not self._wait_beat(t0):
+                return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
+                           f"no {which} HEARTBEAT within {GAP_S:g} s with nothing sent")
+        return None
+
+    def _judge(self, case: Case, upto: int) -> Hit | None:
+        for e in case.expect:
+            hit = self._expect(case, e, upto)
+            if hit is not None:
+                return hit
+        return None
+
+    def _answers(self, e: Expect, frames: list[Any]) -> list[Any]:
+        if e.what in ("ack", "no-ack"):
+            return [m for m in frames if m.get_type() == "COMMAND_ACK" and m.command == e.key]
+        if e.what == "msg":
+            return [m for m in frames if m.get_type() in str(e.key).split("|")]
+        if e.what == "param-index":
+            return [m for m in frames if m.get_type() == "PARAM_VALUE" and raw_fields(m)["param_index"] == e.key]
+        key = bytes.fromhex(str(e.key))
+        return [m for m in frames if m.get_type() == "PARAM_VALUE" and name_key(raw_fields(m)["param_id"]) == key]
+
+    def _late(self, e: Expect) -> float:
+        return self.late if self.late is not None else ACK_S if e.what == "ack" else REPLY_S
+
+    def _expect(self, case: Case, e: Expect, upto: int) -> Hit | None:
+        frames = [m for _, m in self.frames[:upto] if self._from_vehicle(m)]
+        got = self._answers(e, frames)
+        what = _expected(e)
+        where = f"in answer to {case.describe()}"
+        if e.what.startswith("no-"):
+            if got:
+                return Hit(Signature("answer", e.rule, f"{e.what} broken by {case.kind}"), f"{what} {where}",
+                           f"the vehicle answered: {_show(got[0])}")
+            return None
+        if not got:  # late, perhaps: a vehicle that defers it (ArduPilot queues some answers)
+            m = self._until(lambda m: self._from_vehicle(m) and bool(self._answers(e, [m])),
+                            self._late(e), start=upto + 1)
+            if m is not None:
+                return None
+            others = [m for m in frames if m.get_type() == "COMMAND_ACK"] if e.what == "ack" else []
+            actual = (f"only a COMMAND_ACK for another command: {_show(others[0])}" if others
+                      else f"no answer before the probe's PARAM_VALUE, nor within {self._late(e):g} s")
+            return Hit(Signature("answer", e.rule, f"{e.what} missing after {case.kind}"), f"{what} {where}", actual)
+        if e.what == "ack":
+            finals = [m for m in got if m.result in FINAL]
+            if len(finals) > 1:
+                return Hit(Signature("answer", "MAV-CMD-3", f"two final acks after {case.kind}"),
+                           f"one final COMMAND_ACK {where}", f"{len(finals)}: " + "; ".join(_show(m) for m in finals))
+            if e.result is not None and not any(m.result == e.result for m in got):
+                return Hit(Signature("answer", e.rule, f"ack result after {case.kind}"),
+                           f"{what} with result {_result(e.result)} {where}", f"result {_result(got[0].result)}")
+        return None
+
+
+def _expected(e: Expect) -> str:
+    if e.what in ("ack", "no-ack"):
+        return f"{'no ' if e.what == 'no-ack' else 'a '}COMMAND_ACK of command {e.key}"
+    if e.what == "param-index":
+        return f"the PARAM_VALUE of index {e.key}"
+    if e.what == "msg":
+        return "a " + str(e.key).replace("|", " or ")
+    return f"{'no' if e.what == 'no-param' else 'a'} PARAM_VALUE of {_name(e.key)}"
+
+
+def _name(key: Any) -> str:
+    return repr(bytes.fromhex(str(key)))
+
+
+def _result(r: int) -> str:
+    entry = D.enums["MAV_RESULT"].get(r)
+    return f"{entry.name} ({r})" if entry is not None else str(r)
+
+
+def _show(m: Any) -> str:
+    fields = {k: v for k, v in m.to_dict().items() if k != "mavpackettype"}
+    return f"{m.get_type()} {fields}"
+
+
+class MavTarget:
+    """A worker's vehicle as the loop sees a target (``fuzz.loop.Target``; the profile's
+    ``fuzz_target`` of the vehicle role): the one now fuzzed (``current``: a death replaces
+    it), its restarts counted by reason."""
+
+    #: the engines that fuzz a vehicle (``fuzz.config.engines``): its cases are frames and
+    #: handshakes, each judged by the probe behind it
+    ENGINES = ("stateless",)
+
+    def __init__(self, how: VehicleSpec) -> None:
+        self.how = how
+        self.current = MavVehicle(how, late=LATE_S)
+        self.info = self.current.info
+        self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
+        self._spare: tuple[threading.Thread, dict[str, Any]] | None = None
+        self._left: list[tuple[threading.Thread, dict[str, Any]]] = []
+
+    @property
+    def attached(self) -> bool:
+        return self.how.target is not None
+
+    def fresh(self, log: list[Any] | None = None) -> MavVehicle:
+        """Another vehicle (spawned: a new process; attached: a new link), built for the same
+        cases (the first one's IDs, parameters and probe). Spawned, it is the spare started in
+        the background at the previous call (a replay then waits for no process to start),
+        and the next spare is started."""
+        v = self._take_spare()
+        if v is None:
+            v = MavVehicle(self.how, self.info, log)
+        v.log = log
+        if not self.attached:
+            self._start_spare()
+        return v
+
+    def _start_spare(self) -> None:
+        box: dict[str, Any] = {}
+
+        def make() -> None:
+            try:
+                box["v"] = MavVehicle(self.how, self.info)
+            except Exception as exc:  # noqa: BLE001 - a spare that did not start: started again when needed
+                box["error"] = exc
+
+        t = threading.Thread(target=make, name="mavlink-spare", daemon=True)
+        t.start()
+        self._spare = (t, box)
+
+    def _take_spare(self) -> MavVehicle | None:
+        if self._spare is None:
+            return None
+        (t, box), self._spare = self._spare, None
+        t.join(30.0)
+        if t.is_alive():  # still starting: closed at the end
+            self._left.append((t, box))
+            return None
+        return box.get("v")
+
+    def restart(self, reason: str) -> MavVehicle:
+        self.current.close()
+        self.current = self.fresh()
+        self.current.late = LATE_S
+        self.restarts += 1
+        count(self.restart_reasons, reason)
+        return self.current
+
+    def close(self) -> None:
+        self.current.close()
+        spare = self._take_spare()
+        if spare is not None:
+            spare.close()
+        for t, box in self._left:
+            t.join(10.0)
+            if box.get("v") is not None:
+                box["v"].close()

@@ -1,0 +1,140 @@
+"""``mcp-fuzz --protocol mavlink`` (issue 39 item 4): the cases are pymavlink's frames, the
+profile's vehicle role names the fuzz target, our reference vehicle gives no finding, and each
+fragile vehicle (tests/fuzz/fragile_vehicle.py; tests/mavlink/faulty_vehicle.py's answer faults)
+is found, confirmed 3 of 3 on fresh processes, minimised, named by its rule, and replays
+against itself (exit 1) and not against the reference vehicle (exit 0)."""
+
+from __future__ import annotations
+
+import json
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mcp_conform.fuzz.config import FuzzConfig
+from mcp_conform.fuzz.findings import read_finding
+from mcp_conform.fuzz.mavlink_campaign import MavlinkCampaign
+from mcp_conform.fuzz.mavlink_cases import KINDS, CaseMaker, D, Vehicle, case_from_json, frame_name
+
+FRAGILE = Path(__file__).with_name("fragile_vehicle.py")
+FAULTY = Path(__file__).parents[1] / "mavlink" / "faulty_vehicle.py"
+
+
+def fuzz(*args: str, timeout: float = 200) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "mavlink", *args],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def proxy(path: Path, fault: str) -> str:
+    return f"{sys.executable} {path} --listen {{target_host}}:{{target_port}} --fault {fault} --duration 400"
+
+
+def _vehicle() -> Vehicle:
+    return Vehicle(1, 1, {b"FORMAT_VERSION": (0, D.MAV_PARAM_TYPE_INT16), b"RTL_ALT": (1, D.MAV_PARAM_TYPE_INT32)},
+                   b"FORMAT_VERSION")
+
+
+def test_cases_are_the_dialects_frames():
+    """Every kind is drawn; a well-formed case's frames are pymavlink's frames of the messages
+    it names; malformed framing does not parse as the frame it spoiled; a case survives its
+    finding.json form; no case touches the probe's parameter."""
+    maker = CaseMaker(random.Random(7), _vehicle())
+    seen = set()
+    parser = D.MAVLink(None)
+    parser.robust_parsing = True
+    for _ in range(3000):
+        c = maker.draw()
+        seen.add(c.kind)
+        assert case_from_json(json.loads(json.dumps(c.to_json()))) == c
+        assert c.rule.startswith("MAV-") and c.frames
+        assert b"FORMAT_VERSION" not in b"".join(c.frames)
+        if c.kind in ("command-long", "command-int", "param-set", "mission-seq", "any-message", "v1-frame",
+                      "untruncated"):
+            got = [m.get_type() for m in parser.parse_buffer(b"".join(c.frames)) or []]
+            assert got == [frame_name(f) for f in c.frames] == list(c.messages), c
+        if c.kind == "bad-crc":
+            assert [m.get_type() for m in parser.parse_buffer(c.frames[0]) or []] == ["BAD_DATA"]
+    assert seen == set(KINDS)
+
+
+def test_the_vehicle_role_names_its_fuzz_target():
+    """spec.profiles: the vehicle role's fuzz target, its one engine, and mcp-fuzz's one-line
+    refusals of what a MAVLink campaign does not take."""
+    from mcp_conform.fuzz.config import default_engine, engines
+    from mcp_conform.fuzz.mavlink_vehicle import MavTarget
+    from mcp_conform.spec.profiles import pick, resolve
+
+    assert resolve(pick("mavlink")[1].fuzz_target) is MavTarget
+    assert engines("mavlink", "vehicle") == ("stateless",) and default_engine("vehicle", "mavlink") == "stateless"
+    for args, says in ((["--engine", "stateful"], "--engine: a vehicle is fuzzed by the stateless engine only"),
+                       (["--seeds", "x"], "--seeds: not available with --protocol mavlink"),
+                       (["--target", "udp:127.0.0.1:14550"], "TCP only")):
+        run = fuzz(*args, "--max-cases", "1", timeout=60)
+        assert run.returncode == 2 and says in run.stderr and "Traceback" not in run.stderr, run.stderr
+        assert len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+def test_a_short_campaign_on_the_reference_vehicle_finds_nothing(tmp_path):
+    run = fuzz("--max-cases", "400", "--out", str(tmp_path), "-q", timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["protocol"] == "mavlink" and s["cases"] == 400 and s["findings"] == 0, s
+    assert s["target"]["probe"] == "FORMAT_VERSION" and s["target"]["vehicle"] == "1/1"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spawn", ["reference", "proxy"])
+def test_our_vehicle_gives_no_finding(tmp_path, spawn):
+    """Our vehicle, alone and behind the fragile proxy with no fault: no finding (a false
+    alarm is as bad as a missed fault; a hit a loaded host made, not confirmed by the replays,
+    is counted unconfirmed, no finding)."""
+    args = [] if spawn == "reference" else ["--spawn", proxy(FRAGILE, "none")]
+    run = fuzz("--duration", "20", "--out", str(tmp_path), *args)
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert run.returncode == 0 and s["findings"] == 0, run.stdout + run.stderr
+    assert s["cases"] > 1000 and set(s["by_kind"]) == set(KINDS), s["by_kind"]
+
+
+#: fault -> (vehicle, oracle, rule): a death of each kind and the answers the conformance
+#: suite's faulty vehicles give
+FAULTS = {
+    "param16-crash": (FRAGILE, "crash", "MAV-PRM-9"),
+    "mission-seq-hang": (FRAGILE, "hang", "MAV-MIS-4"),
+    "ignores-clear-all": (FRAGILE, "answer", "MAV-MIS-13"),
+    "deaf-after-bad-crc": (FRAGILE, "unanswered", "MAV-HB-14"),
+    "slow-heartbeat": (FRAGILE, "hang", "MAV-HB-1"),  # the vehicle's own: no input blamed
+    "double-ack": (FAULTY, "answer", "MAV-CMD-3"),
+    "acts-for-other-system": (FAULTY, "answer", "MAV-CMD-14"),
+    "no-unsupported-ack": (FAULTY, "answer", "MAV-CMD-5"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_a_fragile_vehicle_is_found_confirmed_and_replays(tmp_path, fault):
+    path, oracle, rule = FAULTS[fault]
+    spawn = proxy(path, fault)
+    cfg = FuzzConfig(spawn=spawn, seed=7, duration=240.0, engine="stateless", out=str(tmp_path),
+                     protocol="mavlink", role="vehicle")
+    cfg.extra["stop_on_rule"] = rule
+    c = MavlinkCampaign(cfg)
+    s = c.fuzz()
+    found = [f for f in c.store.order if f.rule == rule]
+    assert found, s
+    f = found[0]
+    assert f.source == oracle and f.replays == "3 of 3" and f.protocol == "mavlink", f
+    n = c.store.order.index(f) + 1
+    d = tmp_path / f"finding-{n}"
+    doc = json.loads((d / "finding.json").read_text())
+    assert doc["rule"] == rule and doc["rule_text"] and doc["probe"] == "FORMAT_VERSION"
+    if fault == "slow-heartbeat":  # a fresh vehicle sent nothing shows it: no case is blamed
+        assert doc["no_input"] and doc["cases"] == [] and [g.rule for g in c.store.order] == [rule], doc
+    else:
+        assert len(doc["cases"]) == 1 and not doc["no_input"], doc["cases"]  # minimised to the one case
+    assert read_finding(d / "repro.mcap").rule == rule
+    for args, want in ((["--spawn", spawn], 1), ([], 0)):
+        run = fuzz("--replay", str(d), *args, timeout=120)
+        assert run.returncode == want, (args, run.stdout, run.stderr)
