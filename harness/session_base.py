@@ -28,7 +28,6 @@ from mcp_conform.harness.interrupts import INTERRUPTS
 from mcp_conform.harness.liveness import describe_exit
 from mcp_conform.harness.node import NodeBase
 from mcp_conform.harness.procs import ManagedProcess
-from mcp_conform.harness.run_delay import run_delay_ns
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import Profile, RoleProfile, resolve
 from mcp_conform.traceio.recorder import NODE_METADATA, RUN_DELAY_METADATA, run_delay_metadata
@@ -118,6 +117,11 @@ class SpawnedNode:
 
     def alive(self) -> bool:
         return self._p.alive()
+
+    def run_delay(self) -> int | None:
+        """Its run delay (ns, D-7): now, or as it was between its exit and its reaping when it
+        ended by itself (``harness.procs.ManagedProcess.run_delay``)."""
+        return self._p.run_delay()
 
     @property
     def returncode(self) -> int | None:
@@ -295,9 +299,10 @@ class SessionBase(NodeBase):
         default (:class:`DatagramSessionBase` records it)."""
 
     def node_run_delay(self) -> int | None:
-        """The spawned node's run delay now (``harness.run_delay``); None in attach mode."""
+        """The spawned node's run delay now, or at its exit when it has ended by itself
+        (``SpawnedNode.run_delay``); None in attach mode."""
         node = self.node
-        return run_delay_ns(node.proc.pid) if node is not None else None
+        return node.run_delay() if node is not None else None
 
     # ------------------------------------------------------------------ the spawned node
     @property
@@ -456,8 +461,9 @@ class DatagramSessionBase(SessionBase):
         a stall after the node's last datagram -- a manager off the CPU while a retransmission
         fell due, which then read the ACK and closed -- shows nowhere else, and ``mcp-capture
         check`` feeds it to the monitor's veto (``Monitor.run_delay``). The node's ID: as
-        :meth:`record_node` named it, a manager's its role's; none known, or a process already
-        gone (its run delay unreadable): nothing is written."""
+        :meth:`record_node` named it, a manager's its role's. A node that closed itself and was
+        reaped before the stop has the run delay read between its exit and its reaping
+        (``harness.procs``); none known, or none readable: nothing is written."""
         node_id = self.recorded_node_id
         if node_id is None:  # the role's own ID where the spec fixes it (MCP's manager: 0)
             node_id = self.cfg.profile()[1].fixed_id

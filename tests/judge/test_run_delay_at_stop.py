@@ -8,6 +8,7 @@ failed offline either; a capture without the record is judged as before."""
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -90,6 +91,28 @@ def test_the_runner_writes_the_run_delay_as_it_stops_its_node(tmp_path: Path, ro
     assert len(got) == 1 and got[0] is not None
     _t, node, ns = got[0]
     assert node == expected and ns >= 0
+
+
+@pytest.mark.skipif(not Path("/proc/self/schedstat").exists(),
+                    reason="no /proc/<pid>/schedstat: a run delay cannot be read on this system")
+def test_a_node_that_closed_itself_and_was_reaped_still_leaves_its_run_delay(tmp_path: Path) -> None:
+    """A manager that closes itself is reaped by the runner's liveness check before the stop:
+    its run delay, read between its exit and its reaping (``harness.procs``), is still written
+    as the session stops it (before: no /proc entry left, no record)."""
+    path = tmp_path / "run.mcap"
+    with McapRecorder(path, metadata=run_metadata("mcp-conform")) as rec:
+        s = _Session(rec, "manager")
+        s.recorded_node_id = None
+        s.node = SpawnedNode([sys.executable, "-c", "pass"])
+        deadline = time.monotonic() + 30
+        while s.node.alive() and time.monotonic() < deadline:  # alive() polls: it reaps
+            time.sleep(0.02)
+        assert not s.node.alive() and s.node.returncode == 0
+        assert run_delay_ns(s.node.proc.pid) is None or s.node.run_delay() is not None
+        s.node.stop(0.5)
+    got = [recorded_run_delay(r.data) for r in open_capture(path)
+           if isinstance(r, Metadata) and r.name == RUN_DELAY_METADATA]
+    assert len(got) == 1 and got[0] is not None and got[0][1] == MANAGER
 
 
 @pytest.mark.parametrize("end_run_delay", [False, True])
