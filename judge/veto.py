@@ -60,6 +60,7 @@ from mcp_conform.judge.explain import (
     CONSISTENT,
     EITHER_RTX,
     PROVEN,
+    UNOBSERVABLE,
     Bounds,
     Trace,
     Verdict,
@@ -259,7 +260,8 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
 
 
 def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
-                     ack_window: float, end_ns: int) -> str | None:
+                     ack_window: float, end_ns: int,
+                     samples: list[tuple[int, int]] | None = None) -> str | None:
     """MCP-RTX-1's silence judged in the sender's running time (D-7, as ``judge.spacing``
     judges MCP-RTX-3's gaps): the monitor's deadline (``_rtx_deadline``: the last copy + 1.5
     gaps + the ACK window) counts wall time; a copy that fell due while ``S`` was off the CPU
@@ -267,9 +269,11 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
     is explained (a text; None: it stands) when, each gap between copies less the run delay
     ``S``'s own datagrams show accrued over it, every copy came within that deadline up to
     :data:`MIN_COPIES` of them (or the trace's end), and no datagram of ``S`` in between shows
-    it past the deadline. Run delay counts only where a datagram of ``S`` carries it: a copy
-    without one and the time after ``S``'s last datagram excuse nothing (attach mode, pcaps:
-    nothing at all); an ACK of the message is :func:`_answered_in_time`'s. Only the deadline's form of the failure (its
+    it past the deadline. Run delay counts only where a datagram of ``S`` carries it, or, for
+    the silence from its last copy to the trace's end, a run delay read without a datagram
+    before that end (``samples``: at its stop, at a view's end): a copy without one and a
+    silence no reading covers excuse nothing (attach mode, pcaps: nothing at all); an ACK of
+    the message is :func:`_answered_in_time`'s. Only the deadline's form of the failure (its
     evidence all copies of the message), not a sender seen moving on (``_gave_up``)."""
     s, r = way
     ev = [i for i, _t in v.evidence if 0 <= i < len(records)]
@@ -286,6 +290,7 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
     window_ns = int(ack_window * NS)
     t_last, rd_last = first.t_ns, first.run_delay
     rd_seen = rd_last  # S's run delay at its latest datagram that carried one
+    t_seen = t_last
     runs: list[int] = []  # each gap between copies, less the run delay over it
     copies = 1
 
@@ -310,15 +315,19 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
             continue
         if (rec.t_ns - t_last) - (rd - rd_last) > deadline():
             return None  # past the deadline in the time S could run, and no copy
-        rd_seen = rd
+        rd_seen, t_seen = rd, rec.t_ns
         if copy:
             runs.append((rec.t_ns - t_last) - (rd - rd_last))
             copies += 1
             t_last, rd_last = rec.t_ns, rd
             if copies >= MIN_COPIES:
                 break
-    else:  # the trace's end, fewer copies: S ran all the time after its last datagram
-        if (max(end_ns, records[-1].t_ns) - t_last) - (rd_seen - rd_last) > deadline():
+    else:  # the trace's end, fewer copies: S ran all the time after its last datagram, but
+        # for the run delay a reading without a datagram shows accrued since (the stall a
+        # view's end or the node's stop found it in), read no later than the end
+        end = max(end_ns, records[-1].t_ns)
+        rd_seen = max((rd for t, rd in samples or () if t_seen <= t <= end), default=rd_seen)
+        if (end - t_last) - (rd_seen - rd_last) > deadline():
             return None
     starved = rd_seen - first.run_delay
     if starved <= 0:
@@ -361,13 +370,17 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
             found = decided[(way[0], way[1], lag)] = decide_sender(t, bounds[key])
         kept = found.get(v.rule)
         either = found.get(VETOED_RULES[v.rule])
-        if kept is None or kept.status != CONSISTENT:
+        if kept is None or kept.status not in (CONSISTENT, UNOBSERVABLE):
             continue
         if either is not None and either.status == PROVEN:
             continue
-        answered = _answered_in_time(v, way, records, bounds[key], broadcast_id)
+        # explain finds no proof either way where the trace ends before a retransmission could
+        # be seen (UNOBSERVABLE): only the sender's own measured starvation explains that one
+        answered = (_answered_in_time(v, way, records, bounds[key], broadcast_id)
+                    if kept.status == CONSISTENT else None)
         if answered is None and v.rule == "MCP-RTX-1":
-            answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns)
+            answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns,
+                                        samples=recorder.samples.get(way[0]))
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))

@@ -111,3 +111,38 @@ def test_a_trace_cut_after_the_late_copy_is_judged_to_its_end():
     # ... and 10 s after it, with no copy and no run delay known after it: a give-up (past even
     # the description's 5 s timeout's deadline, no gap being known to pace it)
     assert _judge(s, _starved(t_late, 1.9), tail=10.0)[0]["MCP-RTX-1"] == "failed"
+
+
+def _silence_to_the_end(sample: tuple[float, float] | None, tail: float = 10.0) -> tuple[dict[str, str], list[str]]:
+    """The manager's WP_Off to drone 1, two copies 0.2 s apart, then nothing for ``tail`` s to
+    the trace's end; ``sample``: a run delay read without a datagram, (when, s after the last
+    copy; how much, s), as a view's end or the node's stop reads it (``Monitor.run_delay``)."""
+    s = _started()
+    _seq, data = s.send(0, 1, Action.WP_OFF)
+    s.tick(0.2)
+    s.raw(0, data, to=1)
+    t_last = s.t
+    m = s.monitor()
+    for r in sorted(s.datagrams(), key=lambda r: r.t_ns):
+        m.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, r.origin,
+                   run_delay=1_000_000 if r.src_addr == MANAGER_ADDR else None)
+    if sample is not None:
+        at, rd = sample
+        m.run_delay(T0_NS + int((t_last + at) * NS), 0, 1_000_000 + int(rd * NS))
+    m.finish(s.end_ns(tail))
+    return m.verdicts()[0], [x.note() for x in m.vetoed]
+
+
+def test_a_silence_to_the_end_that_a_reading_shows_starved_is_no_give_up():
+    """A stalled manager (a view's end or its stop reads 9.9 s of run delay after its last
+    copy, D-7) could run 0.1 s of the 10 s silence: less than its deadline (0.55 s). The
+    sweep's false MCP-RTX-1 on a correct drone stalled to its view's end (judge.explain: the
+    trace ends before the retransmission could be seen, UNOBSERVABLE)."""
+    verdicts, notes = _silence_to_the_end((9.95, 9.9))
+    assert verdicts["MCP-RTX-1"] == "passed" and len(notes) == 1 and "9.900 s of run delay" in notes[0]
+
+
+def test_a_silence_to_the_end_is_a_give_up_unless_a_reading_before_the_end_covers_it():
+    assert _silence_to_the_end(None)[0]["MCP-RTX-1"] == "failed"  # nothing read: it gave up
+    assert _silence_to_the_end((9.95, 5.0))[0]["MCP-RTX-1"] == "failed"  # ran 5 s of it
+    assert _silence_to_the_end((10.5, 9.9))[0]["MCP-RTX-1"] == "failed"  # read after the end
