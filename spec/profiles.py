@@ -158,7 +158,8 @@ NSQD_PROFILE = Profile(
 #: reference vehicle is ``mcp-vehicle``; no fuzz campaign, capture tools or dissector yet.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
-    monitor=None, dissector="mcp_conform.captures.dissector_mavlink", capture_detect=None, capture_tools=None,
+    monitor="mcp_conform.judge.mavlink_monitor:MavlinkMonitor", dissector="mcp_conform.captures.dissector_mavlink",
+    capture_detect="mcp_conform.captures.mavlink:is_capture", capture_tools="mcp_conform.captures.mavlink",
     mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.vehicle.cli",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
                        context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",

@@ -77,13 +77,13 @@ def test_a_node_id_names_its_role():
 
 
 @pytest.mark.parametrize(("argv", "says"), [
-    (["check", "x.mcap", "--protocol", "mavlink"], "check: --protocol: 'mavlink' has no capture tools yet"),
-    (["show", "x.mcap", "--protocol", "mavlink"], "show: --protocol: 'mavlink' has no capture tools yet"),
+    (["check", "x.mcap", "--protocol", "nope"], "check: --protocol: 'nope' is not one of"),
+    (["show", "x.mcap", "--protocol", "nope"], "show: --protocol: 'nope' is not one of"),
     (["dissector", "--protocol", "nope"], "dissector: --protocol: 'nope' is not one of"),
 ])
 def test_a_tool_refuses_a_protocol_without_its_piece_in_one_line(argv, says, capsys, tmp_path, monkeypatch):
-    """MAVLink has cases but no capture tools yet: ``mcp-capture check --protocol mavlink`` is a
-    usage error naming the protocols that have them, not a traceback from ``resolve(None)``."""
+    """A protocol a tool does not know (or one without the tool's piece) is a usage error in
+    one line naming the protocols that have it, not a traceback from ``resolve(None)``."""
     from mcp_conform.captures.cli import main
 
     monkeypatch.chdir(tmp_path)
@@ -98,7 +98,7 @@ def test_the_pieces_a_protocol_has_are_listed_and_picked():
 
     for piece in PIECES:
         assert "mcp" in having(piece)
-    assert "mavlink" in having("dissector") and "mavlink" not in having("capture_tools")
+    assert "mavlink" in having("dissector") and "mavlink" in having("capture_tools")
     assert pick_having("mavlink", "dissector").name == "mavlink"
     with pytest.raises(ProfileError, match="protocols with one: mcp, nsqd"):
         pick_having("mavlink", "fuzz_campaign")
