@@ -251,8 +251,8 @@ class CommandService(Service):
         self.progress_ns = int(float(self.p["in_progress_final_max_s"]) * 1e9)
         self.resend_ns = int(float(self.p["command_resend_window_s"]) * 1e9)
         self.sent: dict[int, deque[Sent]] = {}
-        #: (vehicle, command) -> the time of its last final ACK (a second one: MAV-CMD-3)
-        self.acked: dict[tuple[tuple[int, int], int], int] = {}
+        #: (vehicle, command) -> the times of its last final ACKs that answered a transmission
+        self.acked: dict[tuple[tuple[int, int], int], deque[int]] = {}
         #: (ground station, command) -> its last transmission (MAV-CMD-7/8)
         self.last: dict[tuple[tuple[int, int], int], Sent] = {}
         #: final ACKs that answered no transmission yet: their command may be stamped after
@@ -287,10 +287,12 @@ class CommandService(Service):
                 self.mon.judge("MAV-CMD-8", n, conf == prev.confirmation + 1, t,  # type: ignore[union-attr]
                                f"confirmation {prev.confirmation + 1} on a resend", f"confirmation {conf}", *ev)  # type: ignore[union-attr]
         self.last[(n.key, s.command)] = s
-        for v, a in list(self.held):
-            if int(a.msg.command) == s.command and a.t_ns >= t - self.mon.slack_ns:
-                self.held.remove((v, a))
-                self.ack(v, a)
+        for v, a in list(self.held):  # an ACK stamped before this, its command (ORDER_SLACK_S)?
+            if int(a.msg.command) == s.command and a.t_ns >= t - self.mon.slack_ns and self.addressed(s, v):
+                other = self._other(v, a)
+                if other is None or abs(a.t_ns - other.t_ns) > t - a.t_ns:  # no nearer command for it
+                    self.held.remove((v, a))
+                    self.ack(v, a)
 
     @staticmethod
     def addressed(s: Sent, v: Node) -> bool:
@@ -312,11 +314,12 @@ class CommandService(Service):
                     s.in_progress, s.deadline = True, t + self.progress_ns
                     break
             return
-        to_me = [s for s in mine if self.addressed(s, v)]
+        to_me = ([s for s in mine if not s.expired and self.addressed(s, v)]
+                 or [s for s in mine if s.expired and self.addressed(s, v)])  # a late ACK: an expired one
         if to_me:
             s = to_me[0]
             q.remove(s)
-            self.acked[(v.key, command)] = t
+            self.acked.setdefault((v.key, command), deque(maxlen=8)).append(t)
             frames = (s.index, f.index)
             if s.expired:
                 return  # late: its rule was broken at its deadline
@@ -335,27 +338,46 @@ class CommandService(Service):
                           f"COMMAND_ACK.target_system/component {s.sender[0]}/{s.sender[1]} (the sender)",
                           f"{asker[0]}/{asker[1]}", ev, frames)
             return
-        other = next(iter(mine), None)
-        if other is not None:
+        self.held.append((v, f))  # its command may be stamped after it (mavlink_monitor.ORDER_SLACK_S)
+        mon.later(t + mon.slack_ns, lambda: self._unmatched(v, f))
+
+    def _explain(self, v: Node, f: MavFrame) -> None:
+        """A final ACK that answered no transmission to ``v``, put on the nearer in time of: a
+        command of it to another system or component, still owed an answer, sent before it (or
+        stamped at most ORDER_SLACK_S after it): the vehicle acting for that one (MAV-CMD-14);
+        and the vehicle's last final ACK of the command before it (a second one for one
+        transmission: MAV-CMD-3). Neither: an ACK for a command the trace does not hold (sent
+        before it began, or on another link), not judged."""
+        mon, t = self.mon, f.t_ns
+        command, result = int(f.msg.command), int(f.msg.result)
+        last = max((x for x in self.acked.get((v.key, command), ()) if x <= t), default=None)
+        q = self.sent.get(command, deque())
+        other = self._other(v, f)
+        ev = (describe(f),)
+        if other is not None and (last is None or abs(t - other.t_ns) < t - last):
             q.remove(other)
             mon.judge("MAV-CMD-14", v, False, t, f"no COMMAND_ACK for a command to {other.target[0]}/{other.target[1]}",
                       f"COMMAND_ACK {name_of(RESULTS, result)} from {v.name}", ev, (other.index, f.index))
-            return
-        self.held.append((v, f))
-        mon.later(t + mon.slack_ns, lambda: self._unmatched(v, f))
+        elif last is not None:
+            mon.judge("MAV-CMD-3", v, False, t, f"one final COMMAND_ACK per transmission of command {command}",
+                      f"another COMMAND_ACK {name_of(RESULTS, result)} with no transmission left to answer",
+                      ev, (f.index,))
+
+    def _other(self, v: Node, f: MavFrame) -> Sent | None:
+        """The transmission of ``f``'s command to another system or component than ``v``,
+        still owed an answer, nearest ``f`` in time (stamped at most ORDER_SLACK_S after it)."""
+        t = f.t_ns
+        asker = (int(getattr(f.msg, "target_system", 0)), int(getattr(f.msg, "target_component", 0)))
+        others = [s for s in self.sent.get(int(f.msg.command), ()) if not s.expired and not self.addressed(s, v)
+                  and s.t_ns <= t + self.mon.slack_ns and asker[0] in (0, s.sender[0])
+                  and asker[1] in (0, s.sender[1])]
+        return min(others, key=lambda s: abs(t - s.t_ns)) if others else None
 
     def _unmatched(self, v: Node, f: MavFrame) -> None:
-        """A final ACK that answered no transmission: a second one for a command (MAV-CMD-3)
-        when the vehicle acknowledged that command before, else one for a command the trace
-        does not hold (sent before it began, or on another link): not judged."""
-        if (v, f) not in self.held:
-            return
-        self.held.remove((v, f))
-        command, result = int(f.msg.command), int(f.msg.result)
-        if (v.key, command) in self.acked:
-            self.mon.judge("MAV-CMD-3", v, False, f.t_ns, f"one final COMMAND_ACK per transmission of command {command}",
-                           f"another COMMAND_ACK {name_of(RESULTS, result)} with no transmission left to answer",
-                           (describe(f),), (f.index,))
+        """A held ACK whose slack is over, no transmission to ``v`` having come for it."""
+        if (v, f) in self.held:
+            self.held.remove((v, f))
+            self._explain(v, f)
 
     def advance(self, t_ns: int) -> None:
         for q in self.sent.values():

@@ -267,6 +267,7 @@ class Upload:
     rerequested: set[int] = field(default_factory=set)
     watched: set[int] = field(default_factory=set)
     ended: bool = False  # the vehicle's MISSION_ACK came
+    accepted: bool = False  # ... and accepted it
 
 
 @dataclass
@@ -299,7 +300,7 @@ class MissionService(Service):
     @staticmethod
     def state(v: Node) -> dict[str, Any]:
         return v.state.setdefault("mis", {"upload": None, "download": None, "plans": {}, "clear": None,
-                                          "used": deque(maxlen=16)})
+                                          "used": deque(maxlen=256)})  # >= the monitor's recent frames
 
     def _targets(self, f: MavFrame) -> list[Node]:
         return [v for v in self.mon.vehicles() if addressed(f.msg, v)]
@@ -318,6 +319,7 @@ class MissionService(Service):
             dl = self.state(n)["download"]
             if dl is not None:
                 dl.count = int(m.count)
+                self._whole(n, f)
             return
         for v in self._targets(f):
             st = self.state(v)
@@ -341,8 +343,8 @@ class MissionService(Service):
         seq = int(m.seq)
         if n.role == "vehicle":
             up: Upload | None = self.state(n)["upload"]
-            if up is None:
-                return
+            if up is None or up.ended:
+                return  # a new upload's, whose MISSION_COUNT is stamped after it: taken up by count()
             self.state(n)["used"].append(f.index)
             ok = seq < up.count and (seq == 0 if up.last_req is None else seq in (up.last_req, up.last_req + 1))
             mon.judge("MAV-MIS-2", n, ok, t, f"requests in order 0..{up.count - 1} (the last one again, or the next)",
@@ -372,9 +374,11 @@ class MissionService(Service):
         m, t, mon = f.msg, f.t_ns, self.mon
         seq = int(m.seq)
         if n.role == "vehicle":
-            dl = self.state(n)["download"]
+            st = self.state(n)
+            dl = st["download"]
             if dl is not None:
                 dl.items.setdefault(seq, item_of(m))
+                self._whole(n, f)
             return
         for v in self._targets(f):
             up: Upload | None = self.state(v)["upload"]
@@ -412,7 +416,10 @@ class MissionService(Service):
             up: Upload | None = st["upload"]
             if up is not None and not up.ended:
                 up.ended = True  # its last item may be stamped after this (mavlink_monitor.ORDER_SLACK_S)
+                up.accepted = int(f.msg.type) == ACCEPTED
                 st["used"].append(f.index)
+                if int(f.msg.type) == ACCEPTED and all(s in up.items for s in range(up.count)):
+                    st["plans"][up.mtype] = up.items  # now: a download may follow at once
                 mon.later(t + mon.slack_ns, lambda up=up: self._uploaded(n, up, f))
             elif st["clear"] is not None:
                 self._cleared(st, f)
@@ -423,14 +430,14 @@ class MissionService(Service):
             if up is not None and up.gcs == n.key:
                 st["upload"] = None  # the ground station ended (cancelled) it
             dl: Download | None = st["download"]
-            if dl is not None and dl.gcs == n.key:
+            if dl is not None and dl.gcs == n.key:  # ended before it was whole: not compared
                 st["download"] = None
-                self._round_trip(v, dl, st["plans"].get(dl.mtype), f)
 
     def _uploaded(self, v: Node, up: Upload, f: MavFrame) -> None:
         """The vehicle's MISSION_ACK ended ``up``: MAV-MIS-1 on what came before it."""
         st = self.state(v)
-        if st["upload"] is up:
+        current = st["upload"] is up  # not superseded meanwhile (a clear, another upload)
+        if current:
             st["upload"] = None
         result, mtype = int(f.msg.type), int(getattr(f.msg, "mission_type", 0))
         whole = all(s in up.items for s in range(up.count))
@@ -440,8 +447,20 @@ class MissionService(Service):
                            f"after all {up.count} items", f"MISSION_ACK {name_of(MISSION_RESULTS, result)} "
                            f"(mission_type {name_of(MISSION_TYPES, mtype)}) after items {sorted(up.items)[:10]}",
                            *_ev(f))
-        if whole and result == ACCEPTED:
+        if whole and result == ACCEPTED and current:
             st["plans"][up.mtype] = up.items
+
+    def _whole(self, v: Node, f: MavFrame) -> None:
+        """A download with every item: its round trip judged now (a ground station need not
+        send its MISSION_ACK: MAVProxy 1.8 sends none after ``wp list``)."""
+        st = self.state(v)
+        dl: Download | None = st["download"]
+        if dl is not None and dl.count is not None and all(s in dl.items for s in range(dl.count)):
+            st["download"] = None
+            up: Upload | None = st["upload"]  # accepted, its last item stamped after the ACK?
+            if up is not None and up.accepted and up.mtype == dl.mtype and all(s in up.items for s in range(up.count)):
+                st["plans"][up.mtype] = up.items
+            self._round_trip(v, dl, st["plans"].get(dl.mtype), f)
 
     def _round_trip(self, v: Node, dl: Download, plan: dict[int, Any] | None, f: MavFrame) -> None:
         """MAV-MIS-9: the plan downloaded is the last one accepted (E-3: from seq 1 on an ArduPilot)."""
@@ -470,6 +489,7 @@ class MissionService(Service):
             for r in self.mon.recent_from(v, f.t_ns):  # an answer stamped first (ORDER_SLACK_S)
                 if r.name == "MISSION_COUNT":
                     dl.count = int(r.msg.count)
+                    self._whole(v, r)
             self.mon.expect(v, self.reply, "MAV-MIS-8", lambda r: r.name == "MISSION_COUNT",
                             f"after MISSION_REQUEST_LIST (#{f.index}), MISSION_COUNT within {self.reply:g} s",
                             (f.index,), f.t_ns)
@@ -490,6 +510,8 @@ class MissionService(Service):
         if int(ack.msg.type) == ACCEPTED:
             for k in (list(MISSION_TYPES) if st["clear"] == TYPE_ALL else [st["clear"]]):
                 st["plans"][k] = {}
+            if st["upload"] is not None and st["upload"].ended:
+                st["upload"] = None  # the upload before it is over: its plan cleared
         st["clear"] = None
 
     def clear_all(self, g: Node, f: MavFrame) -> None:
