@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.judge.mavlink_monitor import RULES, MavlinkMonitor, Violation
-from mcp_conform.judge.params import selected
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Metadata, Truncated, open_capture
@@ -123,6 +122,14 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
     return j
 
 
+def picked(rule: str, chosen: tuple[str, ...], left_out: tuple[str, ...]) -> bool:
+    """``--select``/``--exclude`` as for MCP's rules: prefixes of the rule's ID, with or
+    without its ``MAV-`` (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
+    names = (rule, rule.removeprefix("MAV-"))
+    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
+            and not any(n.startswith(x) for n in names for x in left_out))
+
+
 def _node_line(n: Any) -> str:
     what = ""
     if n.heartbeat is not None:
@@ -145,8 +152,8 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
         sys.stderr.write("mcp-capture check: note: --html is not written for a MAVLink trace (use --json)\n")
     j = judge_trace(ns.file)
     mon = j.monitor
-    select = tuple(getattr(ns, "select", None) or ()) + tuple("!" + x for x in getattr(ns, "exclude", None) or ())
-    rules = [r for r in RULES if selected(r, select)]
+    chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
+    rules = [r for r in RULES if picked(r, chosen, left_out)]
     verdicts = mon.verdicts()
     strict = bool(getattr(ns, "strict", False))
     failed = [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]

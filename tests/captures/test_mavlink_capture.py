@@ -313,3 +313,19 @@ def test_a_live_mavproxy_session_writes_a_tlog_checked_clean(tmp_path):
     assert judged >= {"MAV-HB-1", "MAV-HB-2", "MAV-CMD-1", "MAV-PRM-2", "MAV-PRM-7", "MAV-MIS-1", "MAV-MIS-2",
                       "MAV-MIS-9"}, doc["rules"]
     assert judge_trace(tlog).format == "tlog"
+
+
+def test_select_and_exclude_pick_the_rules_judged(tmp_path):
+    """``--select``/``--exclude`` take prefixes of the rule IDs, with or without ``MAV-``."""
+    gap = tmp_path / "gap.tlog"
+    how, pick, rule = FAULTS["heartbeat-gap"]
+    gap.write_bytes(b"".join(raw for f, raw in records(TLOG) if not pick(f)))
+    for args, rc_want, kept in ((("--select", "CMD"), 0, "MAV-CMD-"), (("--exclude", "HB"), 0, None),
+                                (("--select", "MAV-HB"), 1, "MAV-HB-"), (("--select", "HB-1"), 1, "MAV-HB-1"),
+                                (("--select", "HB", "--exclude", "HB-1"), 0, "MAV-HB-")):
+        rc, doc, out, _ = check(tmp_path, gap, *args)
+        assert rc == rc_want and doc["rules"], (args, out)
+        if kept is None:
+            assert not any(r.startswith("MAV-HB-") for r in doc["rules"]), doc["rules"]
+        else:
+            assert all(r.startswith(kept) for r in doc["rules"]), doc["rules"]
