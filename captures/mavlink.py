@@ -16,9 +16,10 @@ Mission Planner), read by ``traceio.mavlink``.
   and reads INCOMPLETE, never OK.
 - ``show``: one line per frame (``--from``/``--to`` seconds, ``--case ID`` of our MCAP), the
   monitor's violations marked on their frames.
-- ``diff``: the two traces' microservice conversations (commands, parameters, missions: who
-  sent which message with which values; heartbeats and telemetry streams left out, as are
-  sequence numbers and times), aligned by ``difflib``. Exit 0 same, 1 different.
+- ``diff``: the two traces' microservice conversations (commands, parameters, missions: which
+  message with which values; heartbeats and telemetry streams left out, as are sequence
+  numbers, target IDs and times), sender by sender (the vehicle's, the ground station's),
+  aligned by ``difflib``. Exit 0 same, 1 different.
 - ``export`` and ``replay`` are not MAVLink's (one line, exit 2).
 """
 
@@ -254,45 +255,51 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
 
 
 # ---------------------------------------------------------------- diff
-def conversation(j: Judged) -> list[tuple[str, str]]:
-    """The microservice messages of a trace, in order: (key compared, line shown)."""
-    steps = []
+def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
+    """The microservice messages of a trace by the role of their sender, each role's in order:
+    (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
+    between the two sides is the recorder's (an answer may be stamped before its request,
+    ``judge.mavlink_monitor.ORDER_SLACK_S``), each side's own order is the sender's."""
+    steps: dict[str, list[tuple[str, str]]] = {}
     for f in j.frames:
         if f.bad or f.name not in CONVERSATION:
             continue
         n = j.monitor.nodes.get(f.source)
         role = n.role if n is not None and n.role else "?"
         fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
-        text = f"{role} {f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
-        steps.append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {text}"))
+        text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
+        steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
     return steps
 
 
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
     out = out or sys.stdout
     g, c = judge_trace(args.golden, keep=True), judge_trace(args.candidate, keep=True)
-    a, b = conversation(g), conversation(c)
-    sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
+    ga, ca = conversation(g), conversation(c)
     diffs = []
-    for op, i1, i2, j1, j2 in sm.get_opcodes():
-        if op == "equal":
-            continue
-        kind = {"delete": "missing", "insert": "extra", "replace": "changed"}[op]
-        diffs.append({"kind": kind, "golden": [line for _, line in a[i1:i2]], "candidate": [line for _, line in b[j1:j2]]})
+    for role in sorted({*ga, *ca}):
+        a, b = ga.get(role, []), ca.get(role, [])
+        sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
+        for op, i1, i2, j1, j2 in sm.get_opcodes():
+            if op != "equal":
+                diffs.append({"kind": {"delete": "missing", "insert": "extra", "replace": "changed"}[op], "role": role,
+                              "golden": [line for _, line in a[i1:i2]], "candidate": [line for _, line in b[j1:j2]]})
+    n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
     for side in (g, c):
         if side.truncated:
             out.write(f"note: {side.path} is TRUNCATED: {side.truncated}\n")
     if getattr(args, "json", None):
         from mcp_conform.traceio.grammar import write_text
 
-        write_text(args.json, json.dumps({"protocol": "mavlink", "same": not diffs, "golden_steps": len(a),
-                                          "candidate_steps": len(b), "divergences": diffs}, indent=1) + "\n")
+        write_text(args.json, json.dumps({"protocol": "mavlink", "same": not diffs, "golden_steps": n_g,
+                                          "candidate_steps": n_c, "divergences": diffs}, indent=1) + "\n")
     if not diffs:
-        out.write(f"same: {len(a)} microservice message(s) alike, in order (heartbeats and telemetry not compared)\n")
+        out.write(f"same: {n_g} microservice message(s) alike, each sender's in order (heartbeats and telemetry "
+                  "not compared)\n")
         return 0
-    out.write(f"different: {len(diffs)} divergence(s) over {len(a)} and {len(b)} microservice message(s)\n")
+    out.write(f"different: {len(diffs)} divergence(s) over {n_g} and {n_c} microservice message(s)\n")
     for d in diffs[:20]:
-        out.write(f"  {d['kind']}:\n")
+        out.write(f"  {d['kind']} ({d['role']}'s messages):\n")
         for line in d["golden"][:3]:
             out.write(f"    golden    {line[:150]}\n")
         for line in d["candidate"][:3]:

@@ -164,7 +164,7 @@ def test_show_lists_the_frames_and_diff_compares_the_conversations(tmp_path, cap
     gone.write_bytes(b"".join(raw for f, raw in recs if not _ack_of(MAV.MAV_CMD_DO_SET_MODE)(f)))
     assert main(["diff", "--protocol", "mavlink", str(TLOG), str(gone)]) == 1
     out = capsys.readouterr().out
-    assert "missing:" in out and "vehicle COMMAND_ACK command=176" in out
+    assert "missing (vehicle's messages):" in out and "vehicle COMMAND_ACK command=176" in out
 
 
 # ---------------------------------------------------------------- the monitor, frame by frame
