@@ -90,13 +90,16 @@ class Judged:
 
 
 def _role_under_test(trace: MavTrace) -> str | None:
-    """The role an MCAP's run judged (``mcp-conform --role``), if it is one of MAVLink's."""
+    """The role whose rules an MCAP is judged by: its run's (``mcp-conform --role``) when the
+    run was MAVLink's; the vehicle's when it was another protocol's (the autopilot link of an
+    MCP drone run: its other side is the node under test and the runner's own probes, which
+    MAVLink's rules do not judge); None for a tlog (every node by its role)."""
     if trace.format != "mcap":
         return None
     for rec in itertools.islice(open_capture(trace.path), 500):
         if isinstance(rec, Metadata) and rec.data.get("role"):
             role = rec.data["role"]
-            return role if role in MAVLINK.roles else None
+            return role if role in MAVLINK.roles else "vehicle"
     return None
 
 
@@ -175,7 +178,7 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
 
     def report() -> None:
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
-        who = f"the {j.role}'s rules (the role under test)" if j.role else "every node by its role"
+        who = f"the {j.role}'s rules" if j.role else "every node by its role"
         out.write(f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}\n")
         for n in list(mon.nodes.values())[:30]:
             out.write(_node_line(n) + "\n")

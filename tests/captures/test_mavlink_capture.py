@@ -329,3 +329,16 @@ def test_select_and_exclude_pick_the_rules_judged(tmp_path):
             assert not any(r.startswith("MAV-HB-") for r in doc["rules"]), doc["rules"]
         else:
             assert all(r.startswith(kept) for r in doc["rules"]), doc["rules"]
+
+
+def test_an_mcp_drone_runs_autopilot_link_is_judged_as_the_vehicles(tmp_path):
+    """An MCP drone run's capture holds its autopilot link on ``/mavlink`` too: it stays MCP's
+    (no --protocol: not recognised as MAVLink's); with ``--protocol mavlink`` the simulated
+    vehicle's rules are judged, not its other side (the drone application and the runner's
+    own liveness probes, sent as STATUSTEXT with sequence number 0)."""
+    golden = Path(__file__).parents[2] / "captures" / "golden" / "drone-suite.mcap"
+    assert not is_mavlink_capture(golden)
+    rc, doc, out, err = check(tmp_path, golden)
+    assert rc == 0 and doc["roles"] == ["vehicle"] and not bad_rules(doc), out + err
+    assert {n["id"]: n["role"] for n in doc["nodes"]}["1/1"] == "vehicle"
+    assert doc["rules"]["MAV-HB-1"] == doc["rules"]["MAV-HB-11"] == "passed"
