@@ -155,10 +155,11 @@ NSQD_PROFILE = Profile(
 
 #: MAVLink's microservices (issue 39): frames through pymavlink over TCP or UDP, as SITL is
 #: reached; the node under test is an autopilot, the runner its ground station. The
-#: reference vehicle is ``mcp-vehicle``; no capture tools yet.
+#: reference vehicle is ``mcp-vehicle``.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
-    monitor=None, dissector="mcp_conform.captures.dissector_mavlink", capture_detect=None, capture_tools=None,
+    monitor="mcp_conform.judge.mavlink_monitor:MavlinkMonitor", dissector="mcp_conform.captures.dissector_mavlink",
+    capture_detect="mcp_conform.captures.mavlink:is_capture", capture_tools="mcp_conform.captures.mavlink",
     mutators=None, oracles=None, fuzz_campaign="mcp_conform.fuzz.mavlink_campaign:MavlinkCampaign",
     reference_cli="mcp_conform.vehicle.cli",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",

@@ -1,0 +1,256 @@
+"""A MAVLink trace's frames, whatever the file: our MCAP's ``/mavlink`` channel or a ``.tlog``.
+
+:func:`mavlink_records` yields what ``mcp-capture --protocol mavlink`` and the MAVLink trace
+monitor (``judge.mavlink_monitor``) work on: :class:`MavFrame` (one frame, parsed by
+pymavlink's dialect, ``spec.MAVLINK.dialect``: ardupilotmega, MAVLink 1 and 2), and from an
+MCAP the run's ``CaseMark`` and ``Metadata`` records; last, and only when the file ends early,
+``Truncated``.
+
+- Our MCAP (``mcp-conform --protocol mavlink --capture``, and the autopilot link of an MCP
+  drone run): each ``/mavlink`` record is one frame, recorded from the autopilot's side
+  (``direction`` ``tx``: the vehicle sent it, ``rx``: the vehicle received it), bytes that
+  were no good frame as pymavlink's ``BAD_DATA``. The runner records every frame of its one
+  link (:attr:`MavTrace.complete`).
+- A telemetry log (``.tlog``), the field capture format of MAVLink that MAVProxy, QGroundControl
+  and Mission Planner write: records of an 8-byte big-endian microsecond timestamp and one
+  MAVLink frame, read by pymavlink's own reader (``mavutil.mavlogfile``), with the dialect's
+  parser put in for pymavlink's default one, so that reading a log changes none of
+  pymavlink's process-wide settings (its MAVLink 1/2 switch: ``MAVLINK20``). The reader
+  never opens a connection, whatever the file is named (``mavutil.mavlink_connection``
+  would take ``tcp:HOST:PORT`` as one). A tlog says neither who sent a frame (its source
+  IDs do) nor whether it holds every frame of the link (a ground station logs what it
+  received and what it chose to log of what it sent).
+
+Unreadable input raises ``CaptureError`` with one line naming the file: an empty file, a file
+that is neither our MCAP nor a tlog (its first record is no MAVLink frame), an MCAP without
+MAVLink frames. A cut file yields its whole records and then ``Truncated``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from mcp_conform.spec import MAVLINK
+from mcp_conform.traceio.reader import (
+    CaptureError,
+    CaseMark,
+    Datagram,
+    MavlinkFrame,
+    Metadata,
+    StreamFrame,
+    Truncated,
+    open_capture,
+)
+
+__all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "is_tlog", "mavlink_records", "open_trace", "parse_frame"]
+
+DIALECT: Any = MAVLINK.dialect
+#: the start markers of a MAVLink 1 and a MAVLink 2 frame (the dialect's)
+MARKERS = frozenset({int(DIALECT.PROTOCOL_MARKER_V1), int(DIALECT.PROTOCOL_MARKER_V2)})
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_PEEK = 500  # MCAP records looked at to tell a MAVLink run's capture from an MCP or Nsqd one
+#: timestamps a tlog's first record may carry (µs since 1970: 1990 .. 2100): a file whose
+#: first 8 bytes are no such time is not a tlog, whatever byte follows them
+_PLAUSIBLE_US = (631152000 * 10**6, 4102444800 * 10**6)
+
+
+class MavFrame(NamedTuple):
+    """One MAVLink frame of a trace: ``index`` 0, 1, 2, ... over the trace's frames (the
+    evidence of a violation names it), ``t_ns`` (the MCAP's log time, the tlog's timestamp),
+    ``direction`` as recorded (``tx`` sent by the vehicle under test, ``rx`` received by it;
+    None in a tlog), the frame's bytes and pymavlink's message (``BAD_DATA`` for bytes that
+    are no good frame)."""
+
+    index: int  # type: ignore[assignment]  # (shadows tuple.index, as the other records do)
+    t_ns: int
+    direction: str | None
+    raw: bytes
+    msg: Any
+    segment: str | None = None
+
+    @property
+    def name(self) -> str:
+        return str(self.msg.get_type())
+
+    @property
+    def bad(self) -> bool:
+        return self.name == "BAD_DATA"
+
+    @property
+    def source(self) -> tuple[int, int]:
+        return int(self.msg.get_srcSystem()), int(self.msg.get_srcComponent())
+
+    @property
+    def version(self) -> int:
+        return 2 if self.raw[:1] == bytes([DIALECT.PROTOCOL_MARKER_V2]) else 1
+
+
+def parse_frame(raw: bytes, parser: Any = None) -> Any:
+    """pymavlink's message for the bytes of one frame (``BAD_DATA`` when they are none)."""
+    parser = parser or _parser()
+    msgs = parser.parse_buffer(bytes(raw)) or []
+    if len(msgs) == 1:
+        return msgs[0]
+    return DIALECT.MAVLink_bad_data(bytearray(raw), "not one whole frame" if msgs else "no frame")
+
+
+def _parser() -> Any:
+    p = DIALECT.MAVLink(None)
+    p.robust_parsing = True  # bad bytes come out as BAD_DATA, never raised
+    return p
+
+
+class MavTrace:
+    """An opened MAVLink trace; iterate it once for its records (see the module docstring).
+    ``format``: ``mcap`` or ``tlog``; ``complete``: the trace holds every frame of its link
+    (our MCAP) rather than what one party logged (a tlog); after iteration ``truncated``."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.truncated: str | None = None
+        name = str(self.path)
+        try:
+            size = os.path.getsize(self.path)
+            with open(self.path, "rb") as f:
+                head = f.read(17)
+        except OSError as exc:
+            raise CaptureError(f"{name}: cannot read: {exc.strerror or exc}") from None
+        if size == 0:
+            raise CaptureError(f"{name}: empty file, not a MAVLink trace (a .tlog or an MCAP of mcp-conform)")
+        self.size = size
+        if head[:8] == _MCAP_MAGIC or (len(head) < 8 and _MCAP_MAGIC.startswith(head)):
+            self.format = "mcap"
+        elif _tlog_head(head):
+            self.format = "tlog"
+        else:
+            raise CaptureError(f"{name}: not a MAVLink trace (starts {head[:9].hex(' ')}): a .tlog's "
+                               "records are an 8-byte big-endian microsecond time and a MAVLink frame")
+        self.complete = self.format == "mcap"
+
+    def __iter__(self) -> Iterator[Any]:
+        return self._mcap() if self.format == "mcap" else self._tlog()
+
+    # -- MCAP -----------------------------------------------------------------------------
+    def _mcap(self) -> Iterator[Any]:
+        cap = open_capture(self.path)
+        parsers: dict[Any, Any] = {}
+        n = 0
+        for rec in cap:
+            if isinstance(rec, MavlinkFrame):
+                p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, _parser())
+                yield MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
+                n += 1
+            elif isinstance(rec, Truncated):
+                self.truncated = rec.reason
+                if not n and cap.corrupt:
+                    raise CaptureError(f"{self.path}: MCAP file corrupt, nothing could be read: {rec.reason}")
+                yield rec
+            elif isinstance(rec, (CaseMark, Metadata)):
+                yield rec
+
+    # -- tlog -----------------------------------------------------------------------------
+    def _tlog(self) -> Iterator[Any]:
+        from pymavlink import mavutil
+
+        with contextlib.redirect_stdout(io.StringIO()):  # pymavlink prints nothing we want
+            log = mavutil.mavlogfile(str(self.path), robust_parsing=True)
+        log.mav = _parser()  # the dialect's, which reads MAVLink 1 and 2 (see the module)
+        log.first_byte = False  # ... so pymavlink's version switch never runs
+        consumed = n = 0
+        try:
+            while True:
+                try:
+                    msg = log.recv_msg()
+                except Exception as exc:  # noqa: BLE001 - whatever pymavlink makes of a corrupt tail
+                    self.truncated = f"record {n + 1} unreadable ({type(exc).__name__}: {exc})"
+                    break
+                if msg is None:
+                    break
+                raw = bytes(msg.get_msgbuf())
+                consumed += 8 + len(raw)
+                if n == 0 and msg.get_type() == "BAD_DATA":
+                    raise CaptureError(f"{self.path}: not a MAVLink telemetry log: its first record holds "
+                                       f"no MAVLink frame ({getattr(msg, 'reason', 'bad data')})")
+                t_us = int(round(float(msg._timestamp) * 1e6))
+                yield MavFrame(n, t_us * 1000, None, raw, msg)
+                n += 1
+        finally:
+            log.close()
+        if self.truncated is None and consumed < self.size:
+            left = self.size - consumed
+            self.truncated = f"{left} byte(s) after the last whole record (a cut or damaged file)"
+        if self.truncated is not None:
+            if not n:
+                raise CaptureError(f"{self.path}: not a MAVLink telemetry log: no whole record ({self.truncated})")
+            yield Truncated(self.truncated)
+
+
+def _tlog_head(head: bytes) -> bool:
+    """A tlog's first record: a plausible microsecond time, then a frame's start marker."""
+    if len(head) < 9 or head[8] not in MARKERS:
+        return False
+    return _PLAUSIBLE_US[0] <= int.from_bytes(head[:8], "big") <= _PLAUSIBLE_US[1]
+
+
+def open_trace(path: str | Path) -> MavTrace:
+    """``path`` opened as a MAVLink trace; CaptureError (one line) when it is none."""
+    return MavTrace(path)
+
+
+def mavlink_records(path: str | Path) -> Iterator[Any]:
+    """The records of a MAVLink trace (see the module docstring)."""
+    return iter(MavTrace(path))
+
+
+def is_tlog(path: str | Path) -> bool:
+    """``path`` starts as a telemetry log does, and its first record is a MAVLink frame."""
+    try:
+        with open(path, "rb") as f:
+            if not _tlog_head(f.read(17)):
+                return False
+        first = next(iter(MavTrace(path)), None)
+    except (CaptureError, OSError):
+        return False
+    return isinstance(first, MavFrame) and not first.bad
+
+
+def is_mavlink_capture(path: str | Path) -> bool:
+    """A MAVLink trace: a tlog, or an MCAP whose run was ``--protocol mavlink`` (its metadata
+    says so) or whose first records are MAVLink frames with no MCP datagram or Nsqd frame
+    among them (an MCP drone run's capture holds its autopilot link too, but is MCP's)."""
+    try:
+        trace = MavTrace(path)
+    except CaptureError:
+        return False
+    if trace.format == "tlog":
+        return is_tlog(path)
+    frames = False
+    try:
+        for rec in itertools.islice(open_capture(path), _PEEK):
+            if isinstance(rec, Metadata):
+                protocol = _protocol_of(rec)
+                if protocol is not None:
+                    return protocol == "mavlink"
+            elif isinstance(rec, (Datagram, StreamFrame)):
+                return False
+            elif isinstance(rec, MavlinkFrame):
+                frames = True
+    except CaptureError:
+        return False
+    return frames
+
+
+def _protocol_of(meta: Metadata) -> str | None:
+    """The ``--protocol`` of the run a capture's metadata record describes, if it says."""
+    try:
+        value = json.loads(meta.data.get("parameters", "{}")).get("protocol")
+    except (ValueError, AttributeError):
+        return None
+    return value if isinstance(value, str) else None
