@@ -154,16 +154,24 @@ NSQD_PROFILE = Profile(
 )
 
 #: MAVLink's microservices (issue 39): frames through pymavlink over TCP or UDP, as SITL is
-#: reached; the node under test is an autopilot, the runner its ground station. The
-#: reference vehicle is ``mcp-vehicle``; no fuzz campaign, capture tools or dissector yet.
+#: reached; the node under test is an autopilot (the runner its ground station) or a ground
+#: station (the runner its vehicle). The reference vehicle is ``mcp-vehicle``, the reference
+#: ground station ``reference_impl.mavlink_gcs``; no fuzz campaign or capture tools yet.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
     monitor=None, dissector="mcp_conform.captures.dissector_mavlink", capture_detect=None, capture_tools=None,
-    mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.vehicle.cli",
+    mutators=None, oracles=None, fuzz_campaign=None, reference_cli="mcp_conform.reference_impl.mavlink_gcs",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
                        context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",
                        cases="mcp_conform.conformance.cases_mavlink", fuzz_target=None,
-                       peer="gcs"),),
+                       peer="gcs"),
+           # the runner is the vehicle, a ground station is judged (its reference:
+           # ``mcp-node --protocol mavlink gcs {mavlink}``; ``mcp-node --protocol mavlink``
+           # otherwise runs mcp-vehicle, as before)
+           RoleProfile("gcs", session="mcp_conform.harness.mavlink_gcs_session:MavlinkGcsSession",
+                       context="mcp_conform.conformance.mavlink_gcs_case:MavlinkGcsCaseContext",
+                       cases="mcp_conform.conformance.cases_mavlink_gcs", fuzz_target=None,
+                       peer="vehicle")),
     loader="mcp_conform.spec.mavlink:load_mavlink",
 )
 
