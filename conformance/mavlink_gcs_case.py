@@ -73,16 +73,21 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         self.link.wait_for(lambda: bool(pred()) or self.ended(), max(0.0, timeout))
         return bool(pred())
 
+    def quiet(self) -> bool:
+        """The ground station sent nothing but HEARTBEATs for ``SETTLE_QUIET_S``."""
+        work = [r.t for r in self.from_gcs() if r.name != "HEARTBEAT"]
+        return time.monotonic() - (work[-1] if work else self.since) >= SETTLE_QUIET_S
+
     def settle(self) -> None:
-        """Wait until the ground station has done its work: it ended, or it sent nothing but
-        HEARTBEATs for ``SETTLE_QUIET_S`` (at most ``SETTLE_MAX_S``)."""
-        end = time.monotonic() + SETTLE_MAX_S
-        while time.monotonic() < end and not self.ended():
-            work = [r.t for r in self.from_gcs() if r.name != "HEARTBEAT"]
-            last = work[-1] if work else self.since
-            if time.monotonic() - last >= SETTLE_QUIET_S:
-                return
-            self.watch(0.1)
+        """Wait until the ground station has done its work: it ended, or it is :meth:`quiet`
+        (at most ``SETTLE_MAX_S``)."""
+        self.wait(self.quiet, SETTLE_MAX_S)
+
+    def await_work(self, pred: Callable[[], Any]) -> bool:
+        """Wait until ``pred()`` holds, or the ground station ended or is :meth:`quiet` (at
+        most ``SETTLE_MAX_S``); ``pred()``."""
+        self.wait(lambda: bool(pred()) or self.quiet(), SETTLE_MAX_S)
+        return bool(pred())
 
     def resends(self, frames: Callable[[], list[Received]], bound: int, quiet: float, total: float) -> list[Received]:
         """Watch ``frames()`` (a message and its copies) grow until more than ``1 + bound``
@@ -122,9 +127,9 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         """The COMMAND_LONGs (or COMMAND_INTs) carrying ``command``, in order."""
         return [r for r in self.from_gcs("COMMAND_LONG", "COMMAND_INT") if r.msg.command == command]
 
-    def first_command(self, within: float = SETTLE_MAX_S) -> int:
+    def first_command(self) -> int:
         """The first command the ground station sent (waited for); SKIPPED when none came."""
-        self.wait(lambda: self.from_gcs("COMMAND_LONG", "COMMAND_INT"), within)
+        self.await_work(lambda: self.from_gcs("COMMAND_LONG", "COMMAND_INT"))
         first = self.need(self.from_gcs("COMMAND_LONG", "COMMAND_INT"), "COMMAND_LONG or COMMAND_INT")[0]
         return int(first.msg.command)
 

@@ -65,12 +65,17 @@ class ReferenceGcs:
     param_timeout, param_retries = 1.0, 5
     #: how long after MAV_RESULT_IN_PROGRESS the final result is awaited (no resend meanwhile)
     in_progress_timeout = 30.0
+    #: MAVLink 2 from the first frame (see ``__init__``)
+    mavlink2_first = True
 
     def __init__(self, url: str, log: Any = None) -> None:
         # MAVLink 2 from the first frame: pymavlink starts in MAVLink 1 and, on the first
         # MAVLink 2 frame it hears, replaces its encoder, whose sequence numbers start again
         # at 0 (mavutil.mavfile.auto_mavlink_version; MAV-HB-11 sees the jump)
-        os.environ["MAVLINK20"] = "1"
+        if self.mavlink2_first:
+            os.environ["MAVLINK20"] = "1"
+        else:
+            os.environ.pop("MAVLINK20", None)
         mavutil.set_dialect("ardupilotmega")
         self.conn = mavutil.mavlink_connection(url, source_system=255, source_component=mav.MAV_COMP_ID_MISSIONPLANNER,
                                                autoreconnect=False)

@@ -55,6 +55,9 @@ def test_upload_handshake(node):
         elif name in ITEMS and not done and m.seq != requested:
             bad.append(f"item {m.seq} sent" + (f" when {requested} was requested" if requested is not None
                                                 else " before any request"))
+    last = timeline[-1]
+    if not bad and last[1] == "vehicle" and last[2].get_type() in REQUESTS:
+        bad.append(f"item {last[2].seq} requested, never sent (no MISSION_ACK ended the upload)")
     node.expect_true(not bad, "MAV-MIS-20", "each item sent with the seq the vehicle requested",
                      f"{len(bad)} item(s) not requested: {bad[0]}" if bad else "",
                      [", ".join(_step(w, m) for _, w, m in timeline[:12])])
@@ -67,12 +70,16 @@ def test_rerequested_item_sent_again(node):
     node.run(DROP_ITEM)
     node.settle()
     node.need(node.from_gcs("MISSION_COUNT"), "MISSION_COUNT (no upload)")
-    asks = [t for t, m in node.runner_sent(*REQUESTS) if m.seq == 1]
-    if len(asks) < 2:
-        raise Inconclusive("the upload never reached item 1, or the vehicle had no need to request it again")
-    first = [r for r in node.from_gcs(*ITEMS) if r.msg.seq == 1 and r.t < asks[1]]
-    again = [r for r in node.from_gcs(*ITEMS) if r.msg.seq == 1 and r.t > asks[1]]
-    same = bool(again) and bool(first) and again[0].msg.to_dict() | {"seq": 1} == first[0].msg.to_dict() | {"seq": 1}
+    first = [r for r in node.from_gcs(*ITEMS) if r.msg.seq == 1]
+    if not first:
+        raise Inconclusive("the ground station never sent item 1: nothing was dropped to be requested again")
+    dropped = first[0].t
+    asks = [t for t, m in node.runner_sent(*REQUESTS) if m.seq == 1 and t > dropped]
+    ended = [t for t, _ in node.runner_sent("MISSION_ACK") if t > dropped]
+    if not asks or (ended and ended[0] < asks[0]):
+        raise Inconclusive("the upload ended before the vehicle requested item 1 again")
+    again = [r for r in first if r.t > asks[0]]
+    same = bool(again) and again[0].msg.to_dict() == first[0].msg.to_dict()
     node.expect_true(same, "MAV-MIS-20", "item 1 sent again, the same, when the vehicle requests it again",
                      "not sent again" if not again else "a different item 1")
 
@@ -87,9 +94,9 @@ def test_items_seq_and_mission_type(node):
     problems = [f"item {m.seq} of {count.count}" for m in items if not 0 <= m.seq < count.count]
     problems += [f"item {m.seq} with mission_type {m.mission_type}, the count's {count.mission_type}"
                  for m in items if m.mission_type != count.mission_type]
-    node.expect_true(bool(items) and not problems, "MAV-MIS-21",
-                     f"items seq 0..{count.count - 1} with mission_type {count.mission_type}",
-                     problems[0] if problems else "no item sent")
+    node.need(items, "mission item (MAV-MIS-20 judges an upload that sent none)")
+    node.expect_true(not problems, "MAV-MIS-21", f"items seq 0..{count.count - 1} with mission_type "
+                     f"{count.mission_type}", problems[0] if problems else "")
 
 
 @rules("MAV-MIS-26")
@@ -129,7 +136,7 @@ def test_no_deprecated_messages_and_mission_types(node):
 
 def _counts(node):
     window = 3 * float(node.params["mission_timeout_s"])
-    node.wait(lambda: node.from_gcs("MISSION_COUNT"), 30.0)
+    node.await_work(lambda: node.from_gcs("MISSION_COUNT"))
     node.need(node.from_gcs("MISSION_COUNT"), "MISSION_COUNT (no upload)")
     return window
 
@@ -163,7 +170,7 @@ def test_error_ack_ends_the_upload(node):
     of that upload (until a new MISSION_COUNT) within 3 x mission_timeout_s."""
     node.run(ERROR_ACK)
     window = _counts(node)
-    node.wait(lambda: node.runner_sent("MISSION_ACK"), 30.0)
+    node.await_work(lambda: node.runner_sent("MISSION_ACK"))
     errors = [t for t, m in node.runner_sent("MISSION_ACK") if m.type == mav.MAV_MISSION_ERROR]
     if not errors:
         raise Inconclusive("the upload never reached item 0: no error MISSION_ACK went out")

@@ -53,7 +53,7 @@ def test_param_set_resent(node):
     param_resend_window_s."""
     node.run(WITHHOLD)
     window = float(node.params["param_resend_window_s"])
-    node.wait(lambda: node.from_gcs("PARAM_SET"), 30.0)
+    node.await_work(lambda: node.from_gcs("PARAM_SET"))
     first = node.need(node.from_gcs("PARAM_SET"), "PARAM_SET")[0]
     name = param_id(first.msg)
     node.wait(lambda: len([r for r in node.from_gcs("PARAM_SET") if param_id(r.msg) == name]) > 1, window)
