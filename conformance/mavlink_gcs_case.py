@@ -18,7 +18,8 @@ from typing import Any
 
 from mcp_conform.conformance.mavlink_case import MavlinkCaseBase
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_session import ARDUPILOT, Behaviour, MavlinkGcsSession
+from mcp_conform.harness.mavlink_gcs_session import MavlinkGcsSession
+from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, command_key
 from mcp_conform.harness.mavlink_session import DIALECT, Link, Received
 
 __all__ = ["GLOBAL_FRAMES", "MavlinkGcsCaseContext", "degrees_sent"]
@@ -76,7 +77,8 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
     def quiet(self) -> bool:
         """The ground station sent nothing but HEARTBEATs for ``SETTLE_QUIET_S``."""
         work = [r.t for r in self.from_gcs() if r.name != "HEARTBEAT"]
-        return time.monotonic() - (work[-1] if work else self.since) >= SETTLE_QUIET_S
+        last = work[-1] if work else (self.session.first_frame or time.monotonic())
+        return time.monotonic() - last >= SETTLE_QUIET_S
 
     def settle(self) -> None:
         """Wait until the ground station has done its work: it ended, or it is :meth:`quiet`
@@ -124,8 +126,10 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         return frames
 
     def transmissions(self, command: int) -> list[Received]:
-        """The COMMAND_LONGs (or COMMAND_INTs) carrying ``command``, in order."""
-        return [r for r in self.from_gcs("COMMAND_LONG", "COMMAND_INT") if r.msg.command == command]
+        """The first command carrying ``command`` and its retransmissions (``command_key``:
+        the same message and parameters), in order."""
+        sent = [r for r in self.from_gcs("COMMAND_LONG", "COMMAND_INT") if r.msg.command == command]
+        return [r for r in sent if command_key(r.msg) == command_key(sent[0].msg)]
 
     def first_command(self) -> int:
         """The first command the ground station sent (waited for); SKIPPED when none came."""

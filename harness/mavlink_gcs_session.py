@@ -1,14 +1,7 @@
 """The runner's session with a ground station (``--protocol mavlink --role gcs``): the runner
-is the vehicle, and the ground station (a GCS, an SDK, a drone application) connects to it.
-
-The vehicle is the project's simulated ArduCopter (``vehicle.model.VehicleModel``, sans-I/O:
-each frame of the ground station in, the autopilot's answers out, telemetry and HEARTBEAT on
-its clock), driven in-process on the runner's :class:`~harness.mavlink_session.Link`, asking
-for items with MISSION_REQUEST_INT. A run's :class:`Behaviour` makes it depart from ArduPilot
-on purpose, to see what the ground station does then: withhold the first command's
-COMMAND_ACK, answer it MAV_RESULT_IN_PROGRESS, acknowledge another command, withhold the
-first PARAM_SET's PARAM_VALUE, ignore MISSION_COUNT, end an upload with an error MISSION_ACK,
-drop an item so that it is requested again (MAV-CMD-6..17, MAV-PRM-16, MAV-MIS-20..24).
+is the vehicle (``harness.mavlink_gcs_vehicle``: the simulated ArduCopter with a run's
+``Behaviour``), driven in-process on the runner's :class:`~harness.mavlink_session.Link`, and
+the ground station (a GCS, an SDK, a drone application) connects to it.
 
 A ground station does its work once (a mission, a parameter, a command), so every behaviour
 gets its own run: :meth:`MavlinkGcsSession.run` starts the ground station afresh (``--spawn
@@ -28,12 +21,12 @@ import contextlib
 import socket
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any
 
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
-from mcp_conform.harness.mavlink_session import DIALECT, Link, Received
+from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, RunnerVehicle
+from mcp_conform.harness.mavlink_session import Link, Received
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import (
     Death,
@@ -45,104 +38,10 @@ from mcp_conform.harness.session_base import (
 )
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
-from mcp_conform.vehicle.model import VehicleConfig, VehicleModel
 
-__all__ = ["ARDUPILOT", "Behaviour", "MavlinkGcsSession", "RunnerVehicle"]
+__all__ = ["MavlinkGcsSession"]
 
-COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
-ITEMS = ("MISSION_ITEM_INT", "MISSION_ITEM")
 TICK_S = 0.02
-
-
-@dataclass(frozen=True)
-class Behaviour:
-    """How the runner's vehicle departs from ArduPilot's answers over one run (the defaults:
-    it does not). "The first command" is the first COMMAND_LONG/COMMAND_INT's command id:
-    its every transmission is treated alike, later commands are answered as ArduPilot does."""
-
-    name: str = "ardupilot"
-    #: no COMMAND_ACK for the first command (MAV-CMD-6, MAV-CMD-8, MAV-CMD-9)
-    withhold_command_ack: bool = False
-    #: the first command answered MAV_RESULT_IN_PROGRESS, its final ACK this many seconds later (MAV-CMD-10)
-    in_progress_s: float = 0.0
-    #: the first command's ACKs name another command (MAV-CMD-17)
-    wrong_command_ack: bool = False
-    #: no PARAM_VALUE for the first PARAM_SET (MAV-PRM-16)
-    withhold_param_value: bool = False
-    #: every MISSION_COUNT left unanswered (MAV-MIS-22, MAV-MIS-23)
-    ignore_mission_count: bool = False
-    #: the first upload's item with this seq answered MISSION_ACK MAV_MISSION_ERROR (MAV-MIS-24)
-    error_ack_item: int | None = None
-    #: the first item with this seq not taken: ArduPilot requests it again after its timeout (MAV-MIS-20)
-    drop_item: int | None = None
-
-
-ARDUPILOT = Behaviour()
-
-
-class RunnerVehicle:
-    """The simulated ArduCopter answering the ground station with one :class:`Behaviour`;
-    :meth:`answer` and :meth:`tick` return the messages to send (called under ``lock``)."""
-
-    def __init__(self, behaviour: Behaviour) -> None:
-        self.behaviour = behaviour
-        self.lock = threading.Lock()
-        self.model = VehicleModel(VehicleConfig(mission_request_int=True), now=time.monotonic())
-        self.ids = (self.model.config.sysid, self.model.config.compid)
-        self.first_command: int | None = None
-        self._done: set[str] = set()  # the one-off departures already made
-        self._held: list[tuple[float, Any]] = []  # (due, message): final ACKs held back
-
-    def _once(self, what: str) -> bool:
-        fresh = what not in self._done
-        self._done.add(what)
-        return fresh
-
-    def answer(self, msg: Any, now: float) -> list[Any]:
-        b, name = self.behaviour, msg.get_type()
-        if name == "MISSION_COUNT" and b.ignore_mission_count:
-            return []
-        if name in ITEMS and msg.seq == b.drop_item and self._once("drop"):
-            return []
-        if (name in ITEMS and msg.seq == b.error_ack_item and self.model.missions.upload is not None
-                and self._once("error-ack")):
-            self.model.missions.upload = None  # ArduPilot ends the transfer on a bad item
-            return [DIALECT.MAVLink_mission_ack_message(msg.get_srcSystem(), msg.get_srcComponent(),
-                                                        DIALECT.MAV_MISSION_ERROR, msg.mission_type)]
-        replies = list(self.model.handle(msg, now))
-        if name in COMMANDS:
-            if self.first_command is None:
-                self.first_command = msg.command
-            if msg.command == self.first_command:
-                replies = self._first_command(msg, replies, now)
-        if name == "PARAM_SET" and b.withhold_param_value and self._once("param"):
-            replies = [r for r in replies if r.get_type() != "PARAM_VALUE"]
-        return replies
-
-    def _first_command(self, msg: Any, replies: list[Any], now: float) -> list[Any]:
-        b = self.behaviour
-        acks = [r for r in replies if r.get_type() == "COMMAND_ACK"]
-        others = [r for r in replies if r.get_type() != "COMMAND_ACK"]
-        if b.withhold_command_ack:
-            return others
-        if b.wrong_command_ack:
-            for a in acks:  # the ACK of another command: MAV_CMD_REQUEST_MESSAGE, or DO_SET_MODE
-                a.command = (DIALECT.MAV_CMD_DO_SET_MODE if msg.command == DIALECT.MAV_CMD_REQUEST_MESSAGE
-                             else DIALECT.MAV_CMD_REQUEST_MESSAGE)
-            return others + acks
-        if b.in_progress_s > 0 and acks:
-            progress = DIALECT.MAVLink_command_ack_message(msg.command, DIALECT.MAV_RESULT_IN_PROGRESS, 0, 0,
-                                                          msg.get_srcSystem(), msg.get_srcComponent())
-            if self._once("in-progress"):
-                self._held += [(now + b.in_progress_s, a) for a in acks]
-            return [*others, progress]
-        return replies
-
-    def tick(self, now: float) -> list[Any]:
-        out = list(self.model.tick(now)) + [m for _, m in self.model.take_outbox()]
-        due = [m for t, m in self._held if t <= now]
-        self._held = [(t, m) for t, m in self._held if t > now]
-        return out + due
 
 
 class MavlinkGcsSession(SessionBase):

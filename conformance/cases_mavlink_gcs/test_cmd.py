@@ -10,7 +10,7 @@ from __future__ import annotations
 from mcp_conform.conformance.marks import rules
 from mcp_conform.conformance.mavlink_gcs_case import GLOBAL_FRAMES, degrees_sent
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_session import Behaviour
+from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 from mcp_conform.spec import MAVLINK
 
 WITHHOLD = Behaviour("withhold-command-ack", withhold_command_ack=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from mcp_conform.conformance.marks import rules
 from mcp_conform.conformance.mavlink_gcs_case import GLOBAL_FRAMES, degrees_sent
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_session import Behaviour
+from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 from mcp_conform.spec import MAVLINK
 
 mav = MAVLINK.dialect
@@ -50,7 +50,8 @@ def test_upload_handshake(node):
     for _, who, m in timeline:
         name = m.get_type()
         if who == "vehicle":
-            done = done or name == "MISSION_ACK"
+            # an ACK ends the upload, but not an ACCEPTED before any request: another operation's (a clear's)
+            done = done or (name == "MISSION_ACK" and (requested is not None or m.type != mav.MAV_MISSION_ACCEPTED))
             requested = m.seq if name in REQUESTS else requested
         elif name in ITEMS and not done and m.seq != requested:
             bad.append(f"item {m.seq} sent" + (f" when {requested} was requested" if requested is not None
@@ -59,7 +60,7 @@ def test_upload_handshake(node):
     if not bad and last[1] == "vehicle" and last[2].get_type() in REQUESTS:
         bad.append(f"item {last[2].seq} requested, never sent (no MISSION_ACK ended the upload)")
     node.expect_true(not bad, "MAV-MIS-20", "each item sent with the seq the vehicle requested",
-                     f"{len(bad)} item(s) not requested: {bad[0]}" if bad else "",
+                     f"{len(bad)} departure(s): {bad[0]}" if bad else "",
                      [", ".join(_step(w, m) for _, w, m in timeline[:12])])
 
 
@@ -170,8 +171,11 @@ def test_error_ack_ends_the_upload(node):
     of that upload (until a new MISSION_COUNT) within 3 x mission_timeout_s."""
     node.run(ERROR_ACK)
     window = _counts(node)
-    node.await_work(lambda: node.runner_sent("MISSION_ACK"))
-    errors = [t for t, m in node.runner_sent("MISSION_ACK") if m.type == mav.MAV_MISSION_ERROR]
+
+    def error_acks():
+        return [t for t, m in node.runner_sent("MISSION_ACK") if m.type == mav.MAV_MISSION_ERROR]
+    node.await_work(error_acks)
+    errors = error_acks()
     if not errors:
         raise Inconclusive("the upload never reached item 0: no error MISSION_ACK went out")
     node.wait(lambda: False, window)

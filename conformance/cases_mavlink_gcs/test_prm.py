@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from mcp_conform.conformance.marks import rules
 from mcp_conform.conformance.mavlink_case import param_id
-from mcp_conform.harness.mavlink_gcs_session import Behaviour
+from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 
 WITHHOLD = Behaviour("withhold-param-value", withhold_param_value=True)
 
