@@ -89,3 +89,41 @@ def test_a_gcs_that_never_connects_is_one_line_exit_2(tmp_path):
     """A ground station that exits at once: exit 2, the reason in one line, no traceback."""
     rc, doc, out = run(tmp_path, "--spawn", f"{sys.executable} -c pass", "--startup-timeout", "2", timeout=60)
     assert rc == 2 and "the ground station" in doc["error"] and "Traceback" not in out, out
+
+
+REAL = Path(__file__).with_name("real_gcs.py")
+#: what each ground station no one here wrote gets (docs/guide/mavlink-gcs.md's table): its
+#: failed and warned rules, pinned so that a change in the library or in the suite shows
+REAL_GCS = {
+    "mavwp": {"MAV-HB-6", "MAV-CMD-6", "MAV-MIS-12", "MAV-MIS-22", "MAV-PRM-16", "MAV-PRM-17"},
+    "dronekit": {"MAV-HB-6", "MAV-HB-11", "MAV-CMD-6", "MAV-CMD-16", "MAV-MIS-20", "MAV-MIS-22"},
+    "mavsdk": {"MAV-CMD-8"},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("client", sorted(REAL_GCS))
+def test_real_ground_stations(tmp_path, client):
+    """pymavlink's mavwp upload idiom, dronekit2 and MAVSDK's client side, each in its own
+    idiom (tests/mavlink/real_gcs.py): the rules each fails, each failure with its evidence."""
+    rc, doc, out = run(tmp_path, "--spawn", f"{sys.executable} {REAL} --client {client} {{mavlink}}")
+    rules, _ = failed(doc)
+    assert rules == REAL_GCS[client], out
+    assert all(c["expected"] and c["actual"] for c in doc["cases"] if c["outcome"] in ("failed", "warned")), out
+
+
+@pytest.mark.slow
+def test_mavproxy_wp_load(tmp_path):
+    """MAVProxy headless: ``wp load`` and ``long`` from --cmd; it never resends an unanswered
+    MISSION_COUNT (its wp module copes with loss on download only) nor a ``long`` command."""
+    import shutil
+
+    mavproxy = shutil.which("mavproxy.py")
+    if mavproxy is None:
+        pytest.skip("MAVProxy is not installed")
+    mission = Path(__file__).resolve().parents[2] / "examples" / "mission.waypoints"
+    spawn = (f"{sys.executable} {mavproxy} --master={{mavlink}} --non-interactive --target-system=1 "
+             f"--target-component=1 --state-basedir={tmp_path} "
+             f"--cmd='wp load {mission}; long REQUEST_MESSAGE 148'")
+    rc, doc, out = run(tmp_path, "--spawn", spawn)
+    assert failed(doc)[0] == {"MAV-CMD-6", "MAV-MIS-22"}, out
