@@ -2,7 +2,7 @@
 (``vehicle.model.VehicleModel``, sans-I/O: each frame of the ground station in, the autopilot's
 answers out, telemetry and HEARTBEAT on its clock), asking for items with MISSION_REQUEST_INT,
 and the :class:`Behaviour` by which it departs from ArduPilot on purpose for one run, to see
-what the ground station does then (MAV-CMD-6..17, MAV-PRM-16, MAV-MIS-20..24). The session
+what the ground station does then (MAV-CMD-6..17, MAV-PRM-14..16, MAV-MIS-20..24). The session
 (``harness.mavlink_gcs_session``) drives it on the link."""
 
 from __future__ import annotations
@@ -42,6 +42,10 @@ class Behaviour:
     error_ack_item: int | None = None
     #: the first item with this seq not taken: ArduPilot requests it again after its timeout (MAV-MIS-20)
     drop_item: int | None = None
+    #: the first parameter list without the PARAM_VALUEs of these indices (MAV-PRM-14)
+    list_gaps: tuple[int, ...] = ()
+    #: the first parameter list backwards, every third PARAM_VALUE twice (MAV-PRM-15, D-5)
+    list_shuffled: bool = False
 
 
 ARDUPILOT = Behaviour()
@@ -91,6 +95,11 @@ class RunnerVehicle:
                 self.first_command = command_key(msg)
             if command_key(msg) == self.first_command:
                 replies = self._first_command(msg, replies, now)
+        if name == "PARAM_REQUEST_LIST" and (b.list_gaps or b.list_shuffled) and self._once("list"):
+            values = [r for r in replies if r.get_type() == "PARAM_VALUE" and r.param_index not in b.list_gaps]
+            if b.list_shuffled:
+                values = [w for i, v in enumerate(reversed(values)) for w in ([v, v] if i % 3 == 0 else [v])]
+            replies = [r for r in replies if r.get_type() != "PARAM_VALUE"] + values
         if name == "PARAM_SET" and b.withhold_param_value and self._once("param"):
             replies = [r for r in replies if r.get_type() != "PARAM_VALUE"]
         return replies

@@ -15,9 +15,10 @@ runner's ``{mavlink}``). In order, it
    MISSION_COUNT, each MISSION_ITEM_INT (degE7) the vehicle requests, until its MISSION_ACK;
    the message awaiting an answer resent after 1.5 s, at most 5 times ("Timeout (default):
    1500 ms", "Retries (max): 5"; MAV-MIS-20..24, -26);
-3. reads the parameter by name, then writes it with PARAM_SET of the type the vehicle gave,
-   resent until the PARAM_VALUE comes (https://mavlink.io/en/services/parameter.html;
-   MAV-PRM-16, -17);
+3. reads every parameter (PARAM_REQUEST_LIST; the indices that did not come read by index:
+   MAV-PRM-14, -15), reads the parameter by name, then writes it with PARAM_SET of the type
+   the vehicle gave, resent until the PARAM_VALUE comes
+   (https://mavlink.io/en/services/parameter.html; MAV-PRM-16, -17);
 4. sends the command as COMMAND_LONG (default MAV_CMD_REQUEST_MESSAGE for AUTOPILOT_VERSION),
    resent with ``confirmation`` 1, 2, ... until a COMMAND_ACK for it, at most 5 times, and
    after MAV_RESULT_IN_PROGRESS waits for the final result without resending
@@ -100,6 +101,10 @@ class ReferenceGcs:
     def answers(self, ack: Any, command: int) -> bool:
         """A COMMAND_ACK that answers ``command``."""
         return bool(ack.command == command)
+
+    def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
+        """The indices to read one by one after a list (``order``: as they came): the missing."""
+        return sorted(set(range(count)) - set(got))
 
     def ends_upload(self, ack: Any) -> bool:
         """A MISSION_ACK ends the upload, whatever its result (MAV-MIS-24)."""
@@ -187,6 +192,29 @@ class ReferenceGcs:
                 self.send(last)
         self.log("upload: too many exchanges: given up")
         return False
+
+    def fetch_params(self) -> dict[int, Any]:
+        """PARAM_REQUEST_LIST, every PARAM_VALUE until none comes for a timeout, then each
+        missing index read by index (resent), as QGroundControl does (MAV-PRM-14, MAV-PRM-15:
+        any order, duplicates counted once); the PARAM_VALUEs by index."""
+        self.send(self.encode("PARAM_REQUEST_LIST"))
+        got: dict[int, Any] = {}
+        count, order = None, []
+        for _ in range(65536):
+            if (msg := self.recv(["PARAM_VALUE"], self.param_timeout)) is None:
+                break
+            if msg.param_index < msg.param_count:  # 65535: the answer to a set or a read by name
+                count, got[msg.param_index] = msg.param_count, msg
+                order.append(msg.param_index)
+        for index in self.to_read(got, count or 0, order):
+            read = self.encode("PARAM_REQUEST_READ", param_id=b"", param_index=index)
+            for _ in range(1 + self.param_retries):
+                self.send(read)
+                if (msg := self.recv(["PARAM_VALUE"], self.param_timeout, lambda m, i=index: m.param_index == i)):
+                    got[index] = msg
+                    break
+        self.log(f"params: {len(got)} of {count}")
+        return got
 
     def set_param(self, name: str, value: float) -> bool:
         """PARAM_REQUEST_READ by name (its type), then PARAM_SET until its PARAM_VALUE comes."""
@@ -317,6 +345,7 @@ def main(argv: Sequence[str] | None = None, gcs_class: type[ReferenceGcs] = Refe
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
         gcs.upload(items)
+        gcs.fetch_params()
         gcs.set_param(name, value)
         gcs.command(int(command[0]), command[1:])
         gcs.command_int()

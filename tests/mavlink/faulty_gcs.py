@@ -22,7 +22,9 @@ Faults (the rule each breaks):
 - confirmation-not-incremented: every transmission with confirmation 0 (MAV-CMD-8, SHOULD);
 - ignores-in-progress: MAV_RESULT_IN_PROGRESS taken as no answer: resent (MAV-CMD-10, SHOULD);
 - accepts-any-ack: a COMMAND_ACK of any command taken as the answer (MAV-CMD-17);
-- no-param-resend: a PARAM_SET never resent (MAV-PRM-16, SHOULD).
+- no-param-resend: a PARAM_SET never resent (MAV-PRM-16, SHOULD);
+- relists-on-gap: a list with indices missing asked for whole again (MAV-PRM-14, SHOULD);
+- rereads-out-of-order: every parameter that came out of order read again by index (MAV-PRM-15).
 """
 
 from __future__ import annotations
@@ -110,6 +112,23 @@ class NoParamResend(ReferenceGcs):
     param_retries = 0
 
 
+class RelistsOnGap(ReferenceGcs):
+    def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
+        if len(got) < count:  # the whole list again, not the missing ones
+            self.send(self.encode("PARAM_REQUEST_LIST"))
+            for _ in range(4 * count):
+                if (msg := self.recv(["PARAM_VALUE"], self.param_timeout)) is None:
+                    break
+                got.setdefault(msg.param_index, msg)
+        return []
+
+
+class RereadsOutOfOrder(ReferenceGcs):
+    def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
+        late = {b for a, b in zip(order, order[1:], strict=False) if b != a + 1}  # a list taken as ordered
+        return sorted(late | (set(range(count)) - set(got)))
+
+
 FAULTS: dict[str, type[ReferenceGcs]] = {
     "none": ReferenceGcs, "no-heartbeat": NoHeartbeat, "type-quadrotor": TypeQuadrotor,
     "mavlink1-start": Mavlink1Start, "items-out-of-order": ItemsOutOfOrder, "degrees": Degrees,
@@ -117,6 +136,7 @@ FAULTS: dict[str, type[ReferenceGcs]] = {
     "ignores-error-ack": IgnoresErrorAck, "no-command-resend": NoCommandResend,
     "command-never-gives-up": CommandNeverGivesUp, "confirmation-not-incremented": ConfirmationNotIncremented,
     "ignores-in-progress": IgnoresInProgress, "accepts-any-ack": AcceptsAnyAck, "no-param-resend": NoParamResend,
+    "relists-on-gap": RelistsOnGap, "rereads-out-of-order": RereadsOutOfOrder,
 }
 
 

@@ -64,6 +64,8 @@ FAULTS = {
     "ignores-in-progress": "MAV-CMD-10",
     "accepts-any-ack": "MAV-CMD-17",
     "no-param-resend": "MAV-PRM-16",
+    "relists-on-gap": "MAV-PRM-14",
+    "rereads-out-of-order": "MAV-PRM-15",
 }
 
 
