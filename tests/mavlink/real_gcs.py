@@ -11,8 +11,8 @@ the runner's vehicle's home (home, takeoff, two waypoints), the parameter RTL_AL
   examples (``waypoint_count_send``, then ``wp.wp(msg.seq)`` for each MISSION_REQUEST),
   ``param_set_send``, ``command_long_send`` (MAV_CMD_REQUEST_MESSAGE): nothing resent, no
   HEARTBEAT of its own, as the examples go;
-- dronekit: dronekit2's ``connect(wait_ready=True)``, ``vehicle.commands.upload()``,
-  ``vehicle.parameters['RTL_ALT'] = 1500``, ``vehicle.armed = True``;
+- dronekit: dronekit2's ``connect(wait_ready=True)``, ``vehicle.parameters['RTL_ALT'] = 1500``,
+  ``vehicle.armed = True``, ``vehicle.commands.upload()``;
 - mavsdk: MAVSDK's client side (``mavsdk`` 4.x, the native binding over the C++ core) as a
   ground station: ``MissionRaw.upload_mission``, ``Param.set_param_int``, ``Action.arm``.
 
@@ -63,19 +63,27 @@ def dronekit_client(url: str, linger: float) -> None:
     from dronekit import Command, connect
 
     vehicle = connect(url, wait_ready=True, timeout=30, heartbeat_timeout=30)
-    try:
+
+    def upload():
         cmds = vehicle.commands
         cmds.clear()
         for frame, cmd, lat, lon, alt in PLAN[1:]:  # dronekit puts home at 0 itself
             cmds.add(Command(0, 0, 0, frame, cmd, 0, 1, 0, 0, 0, 0, lat, lon, alt))
         cmds.upload(timeout=30)
-        say("dronekit: uploaded")
+
+    def param():
         vehicle.parameters["RTL_ALT"] = 1500
-        say(f"dronekit: RTL_ALT {vehicle.parameters['RTL_ALT']}")
+        return vehicle.parameters["RTL_ALT"]
+
+    def arm():
         vehicle.armed = True
+    try:
+        for name, step in (("param", param), ("arm", arm), ("upload", upload)):
+            try:
+                say(f"dronekit: {name}: {step()}")
+            except Exception as exc:  # noqa: BLE001 - the library's own failure, reported
+                say(f"dronekit: {name}: {type(exc).__name__}: {exc}")
         time.sleep(linger)
-    except Exception as exc:  # noqa: BLE001 - the library's own failure, reported
-        say(f"dronekit: {type(exc).__name__}: {exc}")
     finally:
         vehicle.close()
 

@@ -98,7 +98,8 @@ REAL = Path(__file__).with_name("real_gcs.py")
 #: failed and warned rules, pinned so that a change in the library or in the suite shows
 REAL_GCS = {
     "mavwp": {"MAV-HB-6", "MAV-CMD-6", "MAV-MIS-12", "MAV-MIS-22", "MAV-PRM-16", "MAV-PRM-17"},
-    "dronekit": {"MAV-HB-6", "MAV-HB-11", "MAV-CMD-6", "MAV-CMD-16", "MAV-MIS-20", "MAV-MIS-22"},
+    "dronekit": {"MAV-HB-6", "MAV-HB-11", "MAV-CMD-6", "MAV-CMD-16", "MAV-MIS-20", "MAV-MIS-22", "MAV-PRM-16",
+                 "MAV-PRM-17"},
     "mavsdk": {"MAV-CMD-8"},
 }
 
