@@ -24,7 +24,7 @@ from mcp_conform.harness.mavlink_session import (
     Received,
 )
 
-__all__ = ["MavlinkCaseContext"]
+__all__ = ["MavlinkCaseBase", "MavlinkCaseContext"]
 
 #: MAV_RESULT's entries by value, as the dialect has them
 RESULTS: dict[int, str] = {v: e.name for v, e in DIALECT.enums["MAV_RESULT"].items()
@@ -40,7 +40,64 @@ def result_name(value: int) -> str:
     return RESULTS.get(value, f"{value} (no MAV_RESULT)")
 
 
-class MavlinkCaseContext(CaseBase):
+class MavlinkCaseBase(CaseBase):
+    """What a case of either MAVLink role has (``--role vehicle``: :class:`MavlinkCaseContext`;
+    ``--role gcs``: ``conformance.mavlink_gcs_case``): the spec's parameters, the dialect, the
+    session's link (``link``: the subclass's), sending a message on it, letting time pass, and
+    failures carrying the case's traffic."""
+
+    link: Link
+    #: the periodic messages a failure's traffic leaves out
+    QUIET = frozenset({"HEARTBEAT", "ATTITUDE", "GLOBAL_POSITION_INT", "VFR_HUD", "SYS_STATUS", "GPS_RAW_INT"})
+
+    def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
+        super().__init__(session, case_id, rules)
+        self.spec = session.spec
+        self.params = self.spec.params
+        self.mav = DIALECT
+        self.t0 = time.monotonic()
+
+    def message(self, name: str, **fields: Any) -> Any:
+        """The dialect's message ``name`` with ``fields`` (the others as the encoder's defaults)."""
+        return getattr(self.link.encoder, name.lower() + "_encode")(**fields)
+
+    def send(self, name: str, **fields: Any) -> float:
+        """Send message ``name`` to the node under test; its send time (``time.monotonic()``)."""
+        return self.link.send(self.message(name, **fields))
+
+    def watch(self, seconds: float) -> None:
+        """Let ``seconds`` pass, the link read meanwhile."""
+        self.link.wait_for(lambda: False, seconds)
+
+    def _traffic(self) -> list[str]:
+        sent = [f"sent {name} ({len(data)} B, +{t - self.t0:.3f} s): {data[:48].hex(' ')}"
+                for t, name, data in self.link.sent if t >= self.t0 and name not in self.QUIET][-4:]
+        got = [f"got +{r.t - self.t0:.3f} s: {r.describe()}" for r in self.link.received(self.t0)
+               if r.name not in self.QUIET][-4:]
+        return sent + got
+
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        """The failure to raise; a spawned node that died is said first."""
+        death = self.session.death(grace=0.05)
+        ev = [death.describe()] if death is not None else []
+        return CaseFailure(rule, expected, actual, ev + list(evidence) + self._traffic())
+
+    def expect_frames(self, frames: Sequence[Received], check: Callable[[Received], str | None],
+                      rule: str, expected: str) -> None:
+        """Every frame of ``frames`` passes ``check`` (which returns a problem or None):
+        ``CaseBase.expect_all`` over frames."""
+        self.expect_all(frames, check, rule, expected, noun="frames")
+
+    def raw_fields(self, r: Received) -> dict[str, Any]:
+        """A frame's fields as its bytes hold them (char arrays as bytes, before any NUL is
+        cut), by the dialect's layout of its message (the payload padded to its full size)."""
+        cls = type(r.msg)
+        payload = r.raw[10:10 + r.raw[1]] if r.version == 2 else r.raw[6:6 + r.raw[1]]
+        payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
+        return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
+
+
+class MavlinkCaseContext(MavlinkCaseBase):
     """What a vehicle case sees (see the module docstring)."""
 
     subject = "the vehicle"
@@ -48,25 +105,14 @@ class MavlinkCaseContext(CaseBase):
 
     def __init__(self, session: MavlinkSession, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
-        self.spec = session.spec
-        self.params = self.spec.params
-        self.mav = DIALECT
         if session.link is None:
             raise Inconclusive("no link to the vehicle")
         self.link: Link = session.link
         self.sysid, self.compid = session.vehicle
         self.ack_max = float(self.params["command_ack_max_s"])
         self.reply_max = float(self.params["param_reply_max_s"])
-        self.t0 = time.monotonic()
 
     # -- sending --------------------------------------------------------------------------
-    def message(self, name: str, **fields: Any) -> Any:
-        """The dialect's message ``name`` with ``fields`` (the others as the encoder's defaults)."""
-        return getattr(self.link.encoder, name.lower() + "_encode")(**fields)
-
-    def send(self, name: str, **fields: Any) -> float:
-        """Send message ``name`` to the vehicle; its send time (``time.monotonic()``)."""
-        return self.link.send(self.message(name, **fields))
 
     def command_long(self, command: int, *params: float, confirmation: int = 0,
                      target_system: int | None = None, target_component: int | None = None) -> float:
@@ -112,32 +158,7 @@ class MavlinkCaseContext(CaseBase):
     def acks(self, since: float, command: int) -> list[Received]:
         return [r for r in self.from_vehicle(since, "COMMAND_ACK") if r.msg.command == command]
 
-    def watch(self, seconds: float) -> None:
-        """Let ``seconds`` pass, the link read meanwhile."""
-        self.link.wait_for(lambda: False, seconds)
-
-    # -- failures -------------------------------------------------------------------------
-    def _traffic(self) -> list[str]:
-        sent = [f"sent {name} ({len(data)} B, +{t - self.t0:.3f} s): {data[:48].hex(' ')}"
-                for t, name, data in self.link.sent if t >= self.t0 and name != "HEARTBEAT"][-4:]
-        got = [f"got +{r.t - self.t0:.3f} s: {r.describe()}" for r in self.link.received(self.t0)
-               if r.name not in ("HEARTBEAT", "ATTITUDE", "GLOBAL_POSITION_INT", "VFR_HUD", "SYS_STATUS",
-                                 "GPS_RAW_INT")][-4:]
-        return sent + got
-
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
-        """The failure to raise; a spawned vehicle that died is said first."""
-        death = self.session.death(grace=0.05)
-        ev = [death.describe()] if death is not None else []
-        return CaseFailure(rule, expected, actual, ev + list(evidence) + self._traffic())
-
     # -- verify helpers -------------------------------------------------------------------
-    def expect_frames(self, frames: Sequence[Received], check: Callable[[Received], str | None],
-                      rule: str, expected: str) -> None:
-        """Every frame of ``frames`` passes ``check`` (which returns a problem or None):
-        ``CaseBase.expect_all`` over frames."""
-        self.expect_all(frames, check, rule, expected, noun="frames")
-
     def expect_heartbeats(self, window: float, rule: str = "MAV-HB-1") -> list[Received]:
         """HEARTBEATs of the vehicle over ``window`` s from now: none of the gaps (the window's
         start to the first, between two, the last to the window's end) over
@@ -215,14 +236,6 @@ class MavlinkCaseContext(CaseBase):
             self.link.wait_for(lambda n=n: len(self.from_vehicle(since, "PARAM_VALUE")) > n,
                                min(gap, max(0.0, end - time.monotonic())))
         return [r.msg for r in self.from_vehicle(since, "PARAM_VALUE")]
-
-    def raw_fields(self, r: Received) -> dict[str, Any]:
-        """A frame's fields as its bytes hold them (char arrays as bytes, before any NUL is
-        cut), by the dialect's layout of its message (the payload padded to its full size)."""
-        cls = type(r.msg)
-        payload = r.raw[10:10 + r.raw[1]] if r.version == 2 else r.raw[6:6 + r.raw[1]]
-        payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
-        return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
 
     def capabilities(self) -> int | None:
         """AUTOPILOT_VERSION.capabilities, asked for with MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES

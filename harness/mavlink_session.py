@@ -93,11 +93,20 @@ class Received:
 
 
 class Link:
-    """The runner's one MAVLink link to the vehicle (TCP, or UDP either way)."""
+    """The runner's one MAVLink link to the node under test (TCP, or UDP either way), shared by
+    both roles: ``ids`` are the runner's own system and component (a ground station's by
+    default); ``sent_as``/``got_as`` the capture's directions of what the runner sends and
+    gets, always from the autopilot's side (the runner's ground station: ``rx``/``tx``; the
+    runner's vehicle, ``--role gcs``: ``tx``/``rx``); ``sock``: a TCP connection the runner
+    accepted (its vehicle listens); ``on_frames``: called on the reader thread with each
+    batch of frames that came (the runner's vehicle answers them)."""
 
-    def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None) -> None:
+    def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, *,
+                 ids: tuple[int, int] = (GCS_SYSID, GCS_COMPID), sent_as: str = "rx", got_as: str = "tx",
+                 sock: socket.socket | None = None, on_frames: Any = None) -> None:
         self.transport, self.address, self.recorder = transport, address, recorder
-        self.encoder = DIALECT.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
+        self.encoder = DIALECT.MAVLink(None, srcSystem=ids[0], srcComponent=ids[1])
         self.parser = DIALECT.MAVLink(None)
         self.parser.robust_parsing = True  # bad bytes are kept as BAD_DATA, never raised
         self.frames: list[Received] = []
@@ -107,7 +116,9 @@ class Link:
         self._send_lock = threading.Lock()
         self._stop = threading.Event()
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
-        if transport == "tcp":
+        if sock is not None:
+            self.sock = sock
+        elif transport == "tcp":
             self.sock = socket.create_connection(address, timeout=2.0)
             self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         else:
@@ -158,7 +169,7 @@ class Link:
         self.sent.append((t, name, data))
         if self.recorder is not None:
             with contextlib.suppress(Exception):
-                self.recorder.mavlink("rx", data, msg_type=name if name != "raw" else None)
+                self.recorder.mavlink(self.sent_as, data, msg_type=name if name != "raw" else None)
         return t
 
     # -- in -------------------------------------------------------------------------------
@@ -200,10 +211,12 @@ class Link:
         for r in got:
             if self.recorder is not None:
                 with contextlib.suppress(Exception):
-                    self.recorder.mavlink("tx", r.raw, msg_type=None if r.bad else r.name)
+                    self.recorder.mavlink(self.got_as, r.raw, msg_type=None if r.bad else r.name)
         with self._cond:
             self.frames.extend(got)
             self._cond.notify_all()
+        if self.on_frames is not None and got:
+            self.on_frames(got)
 
     def received(self, since: float = 0.0, name: str | None = None) -> list[Received]:
         with self._cond:

@@ -154,19 +154,27 @@ NSQD_PROFILE = Profile(
 )
 
 #: MAVLink's microservices (issue 39): frames through pymavlink over TCP or UDP, as SITL is
-#: reached; the node under test is an autopilot, the runner its ground station. The
-#: reference vehicle is ``mcp-vehicle``.
+#: reached; the node under test is an autopilot (the runner its ground station) or a ground
+#: station (the runner its vehicle). The reference vehicle is ``mcp-vehicle``, the reference
+#: ground station ``reference_impl.mavlink_gcs``.
 MAVLINK_PROFILE = Profile(
     name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
     monitor="mcp_conform.judge.mavlink_monitor:MavlinkMonitor", dissector="mcp_conform.captures.dissector_mavlink",
     capture_detect="mcp_conform.captures.mavlink:is_capture", capture_tools="mcp_conform.captures.mavlink",
     mutators=None, oracles=None, fuzz_campaign="mcp_conform.fuzz.mavlink_campaign:MavlinkCampaign",
-    reference_cli="mcp_conform.vehicle.cli",
+    reference_cli="mcp_conform.reference_impl.mavlink_gcs",
     roles=(RoleProfile("vehicle", session="mcp_conform.harness.mavlink_session:MavlinkSession",
                        context="mcp_conform.conformance.mavlink_case:MavlinkCaseContext",
                        cases="mcp_conform.conformance.cases_mavlink",
                        fuzz_target="mcp_conform.fuzz.mavlink_vehicle:MavTarget",
-                       peer="gcs"),),
+                       peer="gcs"),
+           # the runner is the vehicle, a ground station is judged (its reference:
+           # ``mcp-node --protocol mavlink gcs {mavlink}``; ``mcp-node --protocol mavlink``
+           # otherwise runs mcp-vehicle, as before)
+           RoleProfile("gcs", session="mcp_conform.harness.mavlink_gcs_session:MavlinkGcsSession",
+                       context="mcp_conform.conformance.mavlink_gcs_case:MavlinkGcsCaseContext",
+                       cases="mcp_conform.conformance.cases_mavlink_gcs", fuzz_target=None,
+                       peer="vehicle")),
     loader="mcp_conform.spec.mavlink:load_mavlink",
 )
 

@@ -44,7 +44,7 @@ def test_pick_names_the_defaults_and_refuses_in_one_line():
     with pytest.raises(ProfileError, match=r"^'xyz' is not one of mcp, nsqd, mavlink$"):
         pick("xyz")
     assert profile_of_role("backend").framing == "stream" and set(ROLE_NAMES) == {"drone", "manager", "backend",
-                                                                                  "vehicle"}
+                                                                                  "vehicle", "gcs"}
     assert pick("mavlink")[1].name == "vehicle" and pick("mavlink")[1].peer == "gcs"
     with pytest.raises(ProfileError, match=r"^this protocol has no such piece yet"):
         resolve(None)  # a piece a protocol's profile does not name

@@ -1,0 +1,114 @@
+"""PRM — the ground station's side of the parameter protocol
+(https://mavlink.io/en/services/parameter.html): param_id's encoding, PARAM_SET naming a
+parameter the vehicle has with the type the vehicle reported, and PARAM_SET resent when its
+PARAM_VALUE does not come (the runner withholds the first one)."""
+
+from __future__ import annotations
+
+from mcp_conform.conformance.marks import rules
+from mcp_conform.conformance.mavlink_case import param_id
+from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
+
+WITHHOLD = Behaviour("withhold-param-value", withhold_param_value=True)
+
+
+@rules("MAV-PRM-9")
+def test_param_id_terminated(node):
+    """MAV-PRM-9: param_id of PARAM_SET and PARAM_REQUEST_READ: at most 16 characters, nothing
+    but NULs after the first NUL (the field as its bytes hold it)."""
+    node.run()
+    node.settle()
+    frames = node.need(node.from_gcs("PARAM_SET", "PARAM_REQUEST_READ"), "PARAM_SET or PARAM_REQUEST_READ")
+
+    def check(r):
+        raw = node.raw_fields(r)["param_id"]
+        text, nul, rest = raw.partition(b"\0")
+        return f"param_id {raw!r}: bytes after its terminator" if nul and rest.strip(b"\0") else None
+    node.expect_frames(frames, check, "MAV-PRM-9", "param_id NUL-terminated below 16 characters, nothing after")
+
+
+@rules("MAV-PRM-17")
+def test_param_set_names_a_parameter_with_its_type(node):
+    """MAV-PRM-17: PARAM_SET names a parameter of the vehicle, with the MAV_PARAM_TYPE the
+    vehicle reports for it."""
+    node.run()
+    node.settle()
+    table = node.session.vehicle.model.params
+    types = node.mav.enums["MAV_PARAM_TYPE"]
+
+    def check(r):
+        name = param_id(r.msg)
+        if name not in table:
+            return f"PARAM_SET {name!r}: no such parameter"
+        want = table.type_of(name)
+        return None if r.msg.param_type == want else (
+            f"PARAM_SET {name} with param_type {r.msg.param_type}, the vehicle's is {types[want].name}")
+    node.expect_frames(node.need(node.from_gcs("PARAM_SET"), "PARAM_SET"), check, "MAV-PRM-17",
+                       "PARAM_SET of an existing parameter with its param_type")
+
+
+@rules("MAV-PRM-16")
+def test_param_set_resent(node):
+    """MAV-PRM-16 (SHOULD, D-8): a PARAM_SET whose PARAM_VALUE does not come is resent within
+    param_resend_window_s."""
+    node.run(WITHHOLD)
+    window = float(node.params["param_resend_window_s"])
+    node.await_work(lambda: node.from_gcs("PARAM_SET"))
+    first = node.need(node.from_gcs("PARAM_SET"), "PARAM_SET")[0]
+    name = param_id(first.msg)
+    node.wait(lambda: len([r for r in node.from_gcs("PARAM_SET") if param_id(r.msg) == name]) > 1, window)
+    again = [r for r in node.from_gcs("PARAM_SET") if param_id(r.msg) == name][1:]
+    node.expect_true(bool(again), "MAV-PRM-16", f"PARAM_SET {name} resent within {window:g} s without PARAM_VALUE",
+                     "not resent")
+
+
+GAPS = Behaviour("param-list-gaps", list_gaps=(2, 7))
+SHUFFLED = Behaviour("param-list-shuffled", list_shuffled=True)
+
+
+def _list(node):
+    """The ground station's first PARAM_REQUEST_LIST (SKIPPED when it asks for none) and the
+    window in which it deals with the list's end: 3 x param_list_gap_max_s."""
+    node.await_work(lambda: node.from_gcs("PARAM_REQUEST_LIST"))
+    first = node.need(node.from_gcs("PARAM_REQUEST_LIST"), "PARAM_REQUEST_LIST")[0]
+    return first, 3 * float(node.params["param_list_gap_max_s"])
+
+
+def _repairs(node, since):
+    """After ``since``: the indices the ground station read by index, the names it read, and
+    how many whole lists it asked for again."""
+    reads = [r.msg for r in node.from_gcs("PARAM_REQUEST_READ") if r.t > since]
+    return ({m.param_index for m in reads if m.param_index >= 0}, {param_id(m) for m in reads if m.param_index < 0},
+            len([r for r in node.from_gcs("PARAM_REQUEST_LIST") if r.t > since]))
+
+
+@rules("MAV-PRM-14")
+def test_missing_parameters_read_one_by_one(node):
+    """MAV-PRM-14 (SHOULD): a list with indices 2 and 7 missing: the ground station reads those
+    two (by index or by name), not the whole list again."""
+    node.run(GAPS)
+    first, window = _list(node)
+    names = node.session.vehicle.model.params.names()
+    missing = {i: names[i] for i in GAPS.list_gaps}
+
+    def asked():
+        by_index, by_name, _ = _repairs(node, first.t)
+        return {i for i, n in missing.items() if i in by_index or n in by_name}
+    node.wait(lambda: asked() == set(missing), window)
+    relists = _repairs(node, first.t)[2]
+    node.expect_true(asked() == set(missing), "MAV-PRM-14", f"the missing {', '.join(missing.values())} read "
+                     f"(by index {sorted(missing)} or by name)", f"read {sorted(asked()) or 'none'}, "
+                     f"the whole list asked again {relists} time(s)")
+
+
+@rules("MAV-PRM-15")
+def test_list_in_any_order_with_duplicates(node):
+    """MAV-PRM-15 (D-5): a complete list sent backwards with every third PARAM_VALUE twice: the
+    ground station asks for nothing more (no read by index, no list again). A read by name is
+    an application reading one parameter, not list repair."""
+    node.run(SHUFFLED)
+    first, window = _list(node)
+    node.wait(lambda: any(_repairs(node, first.t)[0::2]), window)
+    by_index, _, relists = _repairs(node, first.t)
+    node.expect_true(not by_index and not relists, "MAV-PRM-15", "nothing asked for after a complete list",
+                     f"indices {sorted(by_index)} read again, the whole list asked again {relists} time(s)")
