@@ -90,17 +90,24 @@ def run_mission(challenge: int, tmp_path: Path, drone_port: int, manager_port: i
     ``records``) every drone's application gets each command exactly once, arms and RTLs."""
     procs: dict[str, subprocess.Popen[bytes]] = {}
     try:
-        for i in DRONES:
-            procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
-                                      "--reuse-port", "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
-                                      *(("--capture", str(tmp_path / f"drone{i}.mcap")) if capture else ()),
-                                      log=tmp_path / f"drone{i}.log")
+        # the manager first, its socket bound before any drone sends: a drone's own capture
+        # holds every Mission_Ready copy it sent, and copies sent before the manager listened
+        # (a loaded host took 1.9 s to start it) read as a manager that ACKed none of 6 (MCP-ACK-1)
         procs["manager"] = node("manager", "--challenge", str(challenge), "--drones", ",".join(map(str, DRONES)),
                                 "--waypoints", str(WAYPOINTS), "--obstacles", str(OBSTACLES),
                                 BROADCAST, str(manager_port), str(drone_port), "--rto", RTO,
                                 "--record", str(tmp_path / "manager.json"),
                                 *(("--capture", str(tmp_path / "manager.mcap")) if capture else ()),
                                 log=tmp_path / "manager.log")
+        listening = time.monotonic() + 60
+        while (time.monotonic() < listening and procs["manager"].poll() is None
+               and "manager listening on" not in (tmp_path / "manager.log").read_text(errors="replace")):
+            time.sleep(0.05)
+        for i in DRONES:
+            procs[f"drone{i}"] = node("drone", "--id", str(i), BROADCAST, str(drone_port), str(manager_port),
+                                      "--reuse-port", "--rto", RTO, "--record", str(tmp_path / f"drone{i}.json"),
+                                      *(("--capture", str(tmp_path / f"drone{i}.mcap")) if capture else ()),
+                                      log=tmp_path / f"drone{i}.log")
         codes = wait_all(procs, DEADLINE)
         logs = {name: (tmp_path / f"{name}.log").read_text(errors="replace")[-1500:] for name in procs}
         assert codes == {name: 0 for name in procs}, logs
