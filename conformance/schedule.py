@@ -254,12 +254,12 @@ QUICK_CASE_S = 0.15
 
 def startup_estimate(observed: bool, rto: float, window: float) -> float:
     """The startup phase's wall time, estimated (harness.drone_session): the observed one holds
-    the fix (2 windows, MCP-BLK-5), waits for three retransmissions, one more after the
-    wrong ACKs, watches 1.5 timeouts after the right one (MCP-RTX-1, MCP-BLK-4); both then
-    send Start_Mission and watch its ACK's window."""
+    the fix (2 windows, MCP-BLK-5), waits for MCP-RTX-1's 3 copies (two retransmissions),
+    one more after the wrong ACKs, watches 1.5 timeouts after the right one (MCP-RTX-1,
+    MCP-BLK-4); both then send Start_Mission and watch its ACK's window."""
     if not observed:
         return NODE_START_S + window
-    return max(2 * window, 0.5) + NODE_START_S + 4 * rto + max(window, 1.5 * rto) + window
+    return max(2 * window, 0.5) + NODE_START_S + 3 * rto + max(window, 1.5 * rto) + window
 
 
 def estimate(step: Step, rto: float, window: float) -> float:
