@@ -138,13 +138,16 @@ class VirtualClock(Clock):
     """The cooperative scheduler on virtual time (see the module docstring).
 
     ``start``: the virtual ``monotonic()`` at the start; ``epoch_ns``: what ``time_ns()`` reads
-    then; ``limit``: virtual seconds after which the run is stopped (:class:`Deadlock`)."""
+    then; ``limit``: virtual seconds after which the run is stopped (:class:`Deadlock`); ``step``:
+    virtual seconds each handoff of the baton to another thread takes (a host's context switch:
+    a reply read and the send it wakes are then never stamped at one instant, as on a host)."""
 
     virtual = True
 
     def __init__(self, start: float = 1000.0, epoch_ns: int = 1_700_000_000 * 10**9,
-                 limit: float = 86_400.0) -> None:
+                 limit: float = 86_400.0, step: float = 0.0) -> None:
         self.now = start
+        self.step = step
         self._epoch_ns = epoch_ns - int(start * 1e9)
         self._limit = start + limit
         self._lock = threading.RLock()
@@ -260,6 +263,8 @@ class VirtualClock(Clock):
         with self._lock:
             nxt = self._next()
             self.switches += 1
+            if nxt is not me:
+                self.now += self.step
         if nxt is not me:
             nxt.baton.release()
             if leaving:
