@@ -7,10 +7,10 @@ fault of :mod:`sim.faults`) through the runner's seeded link. Every wait of the 
 every timer of the model are events on the clock: a run at the description's 5 s timings
 costs the wall time of its computation, not of its waits, and a seed gives the same run.
 
-:func:`run_cases` runs the suite (``--serial``) and returns the JSON report's verdicts
-(:class:`SimRun`). Not simulated yet: the vehicle (``--mavlink``: the cases observed on the
-autopilot link are skipped as in a run without one) and the schedule's batches (threads of
-their own: ``conformance._batch``).
+:func:`run_cases` runs the suite (``--serial``, or the default schedule with its batch) and
+returns the JSON report's verdicts (:class:`SimRun`). Not simulated yet: the vehicle
+(``--mavlink``: the cases observed on the autopilot link are skipped as in a run without one),
+``--parallel`` (node instances in processes of their own: ``conformance.parallel``).
 """
 
 from __future__ import annotations
@@ -151,8 +151,10 @@ class SimRun:
 
 def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: float = 0.2,
               ack_window: float = 0.25, node_rto: float | None = None, link: str | ImpairSpec | None = None,
-              select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = ()) -> SimRun:
-    """The drone cases (``--serial``) against ``model`` -- None: the reference drone; a name of
+              select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
+              serial: bool = True) -> SimRun:
+    """The drone cases (``--serial``; ``serial=False``: the default schedule, its batch's cases
+    in threads of their own on the virtual clock) against ``model`` -- None: the reference drone; a name of
     :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the node's
     own timeout ``node_rto``, default ``rto``), ``link`` the runner's link both ways
     (``harness.impair`` spec), ``seed`` the run's and the link's."""
@@ -168,8 +170,8 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     transport = SimTransport(clock, spec, spec, link_seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
-        argv = ["--spawn", f"sim:{name}", "--rto", str(rto), "--ack-window", str(ack_window), "--serial",
-                "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
+        argv = ["--spawn", f"sim:{name}", "--rto", str(rto), "--ack-window", str(ack_window),
+                *(["--serial"] if serial else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mcp", "drone"))

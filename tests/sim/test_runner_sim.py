@@ -84,3 +84,16 @@ def test_the_runners_impaired_link_runs_on_the_virtual_clock():
     run = run_cases(None, seed=5, extra=("--impair", "loss=0.1,dup=0.05,reorder=0.1,seed=5"))
     assert not run.rules_with("failed", "warned"), run.explain()
     assert not [c for c in _bad(run).values() if c != "skipped"], run.explain()
+
+
+@pytest.mark.parametrize("model", [None, "ack-previous-seq", "rtx-none", "ack-first-copy-only"])
+def test_the_schedule_gives_the_serial_verdicts(model):
+    """The default schedule (its batch's cases in threads of their own, on the virtual clock:
+    conformance._batch) gives every case the ``--serial`` run's outcome (test_schedule_verdicts'
+    property, issue 23), kept batch or thrown away."""
+    serial = run_cases(model, seed=6, **SHORT)
+    scheduled = run_cases(model, seed=6, serial=False, **SHORT)
+    assert scheduled.cases() == serial.cases(), scheduled.explain()
+    assert scheduled.rules == serial.rules
+    if model is None:
+        assert scheduled.virtual_s < serial.virtual_s  # the batch's windows were watched once
