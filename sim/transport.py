@@ -93,7 +93,10 @@ class SimNode:
     def returncode(self) -> int | None:
         if not self.model.closed:
             return None
-        return 0 if self.model.outcome in ("end_mission", "stopped") else 1
+        outcome = self.model.outcome
+        if outcome.startswith("exit:"):  # a mutant's own exit code (sim.mutants)
+            return int(outcome[5:])
+        return 0 if outcome in ("end_mission", "stopped") else 1
 
     def wait(self, timeout: float | None = None) -> int | None:
         return self.returncode
@@ -237,6 +240,8 @@ class SimTransport(Transport):
         self.model = model
         self._gen += 1
         self._armed = None
+        if hasattr(model, "send_to"):
+            model.send_to = self.listen  # where the node was told to send (source-port-filter)
         model.start(self.clock.now)
         self._after(model, self.clock.now)
 
@@ -247,8 +252,13 @@ class SimTransport(Transport):
 
     def _after(self, model: DroneModel, now: float) -> None:
         """The model's datagrams up the link, and its next timer armed."""
-        for data, dst in model.ep.datagrams_to_send(now):
-            self._up(model, data, dst)
+        drain = getattr(model, "drain", None)  # a mutant's wire (sim.mutants): (bytes, addr, delay)
+        items = drain(now) if drain is not None else [(d, a, 0.0) for d, a in model.ep.datagrams_to_send(now)]
+        for data, dst, delay in items:
+            if delay > 0:
+                self.clock.call_later(delay, lambda data=data, dst=dst: self._up(model, data, dst))  # type: ignore[misc]  # mypy: a default argument
+            else:
+                self._up(model, data, dst)
         if model.closed:
             return
         t = model.timer()
@@ -265,6 +275,8 @@ class SimTransport(Transport):
         self._after(model, self.clock.now)
 
     def _up(self, model: DroneModel, data: bytes, dst: Any) -> None:
+        if model is not self.model:
+            return  # a datagram a stopped node held back (a mutant's late ACK) never leaves
         # the reference drone sends everything to its --target, ACKs included (its transport's
         # reply_to_source off); ``reply_to_source``: an ACK to the datagram's source instead
         addr = (str(dst[0]), int(dst[1])) if dst is not None and self.reply_to_source else self.listen
