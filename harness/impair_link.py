@@ -103,6 +103,7 @@ class ImpairedLink:
         self._order = itertools.count()
         self._thread: Any = None
         self._closed = False
+        self.dropped_held = 0  # copies dropped as the node they were for was replaced
 
     @property
     def spec(self) -> ImpairSpec:
@@ -206,6 +207,18 @@ class ImpairedLink:
                 fn()
             except Exception:  # noqa: BLE001 - a delivery problem must not stop the link
                 pass
+
+    def drop_held(self) -> int:
+        """Drop every copy held for later; how many. The session calls it as it replaces the
+        node (``DatagramSessionBase.respawn``): a delayed copy of a command to the old process
+        must not reach the new one on the same port (a late End_Mission copy ended a fresh
+        reference drone's mission before its Start_Mission: found in the simulator, the
+        seed in tests/sim/test_runner_sim.py)."""
+        with self._cond:
+            n = len(self._queue)
+            self._queue.clear()
+            self.dropped_held += n
+        return n
 
     def close(self) -> None:
         """Stop delivering (copies still held are dropped, as a link going down would)."""

@@ -475,6 +475,15 @@ class DatagramSessionBase(SessionBase):
         if self.monitor is not None:  # the run's own monitor, as mcp-capture check's: one judge
             self.monitor.run_delay(t_ns, node_id, ns)
 
+    def respawn(self, grace: float = 2.0) -> None:
+        """Spawn mode: the node replaced (``SessionBase.respawn``), and what the runner's own
+        ``--impair`` link still held for later dropped first: copies to or from the old
+        process (``ImpairedLink.drop_held``)."""
+        link = self.driver.link if self.driver is not None else None
+        if link is not None:
+            link.drop_held()
+        super().respawn(grace)
+
     # ------------------------------------------------------------------ --impair
     @property
     def trace_complete(self) -> bool:

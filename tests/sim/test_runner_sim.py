@@ -97,3 +97,14 @@ def test_the_schedule_gives_the_serial_verdicts(model):
     assert scheduled.rules == serial.rules
     if model is None:
         assert scheduled.virtual_s < serial.virtual_s  # the batch's windows were watched once
+
+
+def test_a_copy_delayed_by_the_runners_link_never_reaches_the_next_node():
+    """Found by a sweep of --impair schedules over the reference drone: an End_Mission copy the
+    runner's link held 0.16 s past the restart before MCP-BLK-7's case reached the fresh node,
+    which ended its mission before Start_Mission (an error: 'the node exited with code 0 after
+    Start_Mission'). The session drops what the link holds as it replaces the node."""
+    spec = "loss=0.2,dup=0.05,reorder=0.1,delay=0-250ms,seed=986724"
+    run = run_cases(None, seed=986724, extra=("--impair", spec))
+    assert run.rc == 0, run.explain()
+    assert not _bad(run), run.explain()
