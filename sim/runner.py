@@ -31,6 +31,7 @@ from mcp_conform.harness.drone_session import DRONE_PORT, Session
 from mcp_conform.harness.impair import ImpairSpec, parse_impairment
 from mcp_conform.sim.faults import FAULTS, fault_endpoint
 from mcp_conform.sim.models import DroneModel
+from mcp_conform.sim.stalls import StallingClock
 from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import pick
@@ -152,12 +153,13 @@ class SimRun:
 def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: float = 0.2,
               ack_window: float = 0.25, node_rto: float | None = None, link: str | ImpairSpec | None = None,
               select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-              serial: bool = True) -> SimRun:
+              serial: bool = True, stalls: tuple[float, float] | None = None) -> SimRun:
     """The drone cases (``--serial``; ``serial=False``: the default schedule, its batch's cases
     in threads of their own on the virtual clock) against ``model`` -- None: the reference drone; a name of
     :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the node's
     own timeout ``node_rto``, default ``rto``), ``link`` the runner's link both ways
-    (``harness.impair`` spec), ``seed`` the run's and the link's."""
+    (``harness.impair`` spec), ``seed`` the run's and the link's; ``stalls`` ``(p, max_s)``: the
+    runner's own threads stalled (:class:`sim.stalls.StallingClock`, by ``seed``)."""
     from mcp_conform.conformance import cli
 
     if model is None or isinstance(model, str):
@@ -166,7 +168,8 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     else:
         name, factory = getattr(model, "__name__", "model"), model
     spec = parse_impairment(link) if isinstance(link, str) else link
-    clock = VirtualClock(step=STEP_S)
+    clock = (VirtualClock(step=STEP_S) if stalls is None
+             else StallingClock(seed, stalls[0], stalls[1], step=STEP_S))
     transport = SimTransport(clock, spec, spec, link_seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"

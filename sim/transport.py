@@ -39,12 +39,14 @@ class _Inbox:
     def __init__(self, clock: VirtualClock, addr: Address) -> None:
         self.clock, self.addr = clock, addr
         self.cond = clock.condition()
-        self.queue: deque[tuple[bytes, Address]] = deque()
+        self.queue: deque[tuple[bytes, Address, int]] = deque()
         self.closed = False
 
     def put(self, data: bytes, src: Address) -> None:
+        """A datagram due here, stamped now: the kernel's receive time, which a receiver thread
+        stalled before it reads it does not change (``harness.stamps``)."""
         with self.cond:
-            self.queue.append((data, src))
+            self.queue.append((data, src, self.clock.time_ns()))
             self.cond.notify_all()
 
 
@@ -63,7 +65,8 @@ class SimSideSocket:
         with self._inbox.cond:
             if not self._inbox.queue:
                 raise BlockingIOError("nothing due")
-            return self._inbox.queue.popleft()
+            data, src, _ = self._inbox.queue.popleft()
+            return data, src
 
     def getsockname(self) -> Address:
         return self._inbox.addr
@@ -179,8 +182,8 @@ class SimTransport(Transport):
                 box.cond.wait()
             if box.closed:
                 raise OSError("transport closed")
-            data, src = box.queue.popleft()
-        return data, src, None
+            data, src, arrived = box.queue.popleft()
+        return data, src, arrived
 
     def getsockname(self) -> Address:
         return self.listen
