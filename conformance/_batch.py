@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import inspect
 import threading
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,6 +39,7 @@ import pytest
 
 from mcp_conform.conformance.drone_case import CaseContext
 from mcp_conform.conformance.schedule import BATCH, BATCH_CASES, PASSTHROUGH_CASES, plan_cases
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec.codec import Action, DecodeError, decode
 
@@ -76,8 +76,8 @@ class InARow:
     batch (the receiver's ACKs, the liveness watcher's probes from an MCP ID of their own)
     are never held."""
 
-    def __init__(self, members: dict[int, _Member]) -> None:
-        self._cond = threading.Condition()
+    def __init__(self, members: dict[int, _Member], clock: Clock = REAL) -> None:
+        self._cond = clock.condition()  # the session's (harness.clock)
         self._members = members  # thread id -> member
         self._holder: int | None = None
         self._sending = 0  # sends of other case threads in progress
@@ -223,6 +223,7 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
     """Run the batch's cases together (``leader``'s context is its fixture's); decide
     whether it is kept. Later cases' contexts wait in ``batch.pending`` for their fixtures."""
     session = state.session
+    clock = session.clock  # the run's (harness.clock): the host's, or the simulator's virtual time
     members: list[_Member] = []
     since = session.driver.mark()
     sent_since = len(session.driver.sent())
@@ -233,7 +234,7 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
             rec = state.record(item)
             ctx = session.begin_case(rec.id, rec.rules)
             batch.pending[item.nodeid] = ctx
-        members.append(_Member(item, ctx))
+        members.append(_Member(item, ctx, done=clock.event()))
         batch.members[item.nodeid] = members[-1]
     try:
         why = _learn_first(session, members)
@@ -251,14 +252,12 @@ def run_batch(state: Any, leader: pytest.Item, items: list[pytest.Item], batch: 
             m.sent += 1
     drv = session.driver
     drv.tx_hooks.append(count)
-    in_a_row = InARow(by_thread)
+    in_a_row = InARow(by_thread, clock)
     for m in members:
         m.ctx.hold_others = in_a_row.held
     drv.tx_gate = in_a_row.gate
-    threads = [threading.Thread(target=_run_one, args=(m, by_thread), name=f"mcp-batch-{n}", daemon=True)
-               for n, m in enumerate(members)]
-    for t in threads:
-        t.start()
+    for n, m in enumerate(members):
+        clock.start_thread(lambda m=m: _run_one(m, by_thread), f"mcp-batch-{n}")  # type: ignore[misc]  # mypy: a default argument
     try:
         for m in members:
             while not m.done.wait(0.05):  # a signal (the time limit, SIGINT) still reaches the main thread
@@ -312,7 +311,7 @@ def _throw_away(session: Any, batch: BatchRun, leader: pytest.Item, members: lis
         session.driver.settle_attribution(4 * horizon)
     for m in members:
         if m.item is not leader and batch.pending.pop(m.item.nodeid, None) is not None:
-            m.ctx.end_ns = time.time_ns()
+            m.ctx.end_ns = session.clock.time_ns()
             session.end_case(m.ctx, "rerun")
 
 

@@ -12,10 +12,10 @@ manager's output, the bytes sent to a backend).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
+from mcp_conform.harness.clock import REAL as _REAL
 from mcp_conform.harness.errors import CaseFailure, Inconclusive
 from mcp_conform.judge.spacing import judge_spacing
 from mcp_conform.spec import SPEC
@@ -39,8 +39,9 @@ class CaseBase:
         self.session = session
         self.case_id = case_id
         self.rules = rules
-        self.start_ns = time.time_ns()
-        self.start_t = time.monotonic()  # the same instant, on the clock of the impaired link
+        clock = getattr(session, "clock", None) or _REAL  # the run's (harness.clock)
+        self.start_ns = clock.time_ns()
+        self.start_t = clock.monotonic()  # the same instant, on the clock of the impaired link
         self.end_ns: int | None = None
         self.notes: list[str] = []
         self.node_silent = False

@@ -54,11 +54,12 @@ def _sent_since(session: Any, since: float) -> bool:
 def _settle(session: Any, link: Any) -> None:
     """Before a repeat: wait out what the link still holds and the node's retransmissions
     of the spoiled attempt (bounded), so the attempt starts settled."""
-    deadline = time.monotonic() + max(2 * session.cfg.rto, 0.5)
-    while time.monotonic() < deadline:
-        if not link.touched(time.monotonic() - session.cfg.rto):
+    clock = session.clock
+    deadline = clock.monotonic() + max(2 * session.cfg.rto, 0.5)
+    while clock.monotonic() < deadline:
+        if not link.touched(clock.monotonic() - session.cfg.rto):
             break
-        time.sleep(0.05)
+        clock.sleep(0.05)
 
 
 def run_impaired(state: Any, item: pytest.Item, first: BaseException) -> None:

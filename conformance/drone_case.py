@@ -250,9 +250,9 @@ class CaseContext(DatagramCaseBase):
             self.driver.pause(self.ack_window)
         else:  # a count that must grow: returns as soon as it did; patient, since a node may
             # queue the forward behind slow autopilot work (arming, takeoff) after its ACK
-            deadline = time.monotonic() + max(2 * self.ack_window, 1.0, self.rto)
+            deadline = self.session.clock.monotonic() + max(2 * self.ack_window, 1.0, self.rto)
             while (not all(v.probe_count(d.probe.token) > d.before for d in deliveries)
-                   and time.monotonic() < deadline):
+                   and self.session.clock.monotonic() < deadline):
                 self.driver.pause(0.02)  # a node lost meanwhile ends the wait at once
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
@@ -262,14 +262,14 @@ class CaseContext(DatagramCaseBase):
         (at most one ACK window in all)."""
         v = self.vehicle
         stable = max(self.ack_window / 2, 0.1)
-        deadline = time.monotonic() + max(self.ack_window, 2 * stable)
-        count, since = v.probe_count(token), time.monotonic()
-        while time.monotonic() < deadline:
+        deadline = self.session.clock.monotonic() + max(self.ack_window, 2 * stable)
+        count, since = v.probe_count(token), self.session.clock.monotonic()
+        while self.session.clock.monotonic() < deadline:
             self.driver.pause(0.02)
             now_count = v.probe_count(token)
             if now_count != count:
-                count, since = now_count, time.monotonic()
-            elif time.monotonic() - since >= stable:
+                count, since = now_count, self.session.clock.monotonic()
+            elif self.session.clock.monotonic() - since >= stable:
                 break
         return count
 
@@ -420,7 +420,7 @@ class CaseContext(DatagramCaseBase):
         forwarded."""
         window = self.ack_window if within is None else within
         since = min(self.driver.mark_before(s) for s in sents)
-        self.driver.pause(max(0.0, sents[-1].t + window - time.monotonic()))
+        self.driver.pause(max(0.0, sents[-1].t + window - self.session.clock.monotonic()))
         answers = self.driver.answers(sents, since)
         for _, a in answers:
             if a.ambiguous:
@@ -466,7 +466,7 @@ class CaseContext(DatagramCaseBase):
         if not silent:
             return
         since = self.driver.mark_before(attempts[0].input)
-        self.driver.pause(max(0.0, attempts[-1].input.t + self.ack_window - time.monotonic()))
+        self.driver.pause(max(0.0, attempts[-1].input.t + self.ack_window - self.session.clock.monotonic()))
         for a in attempts:
             hdr = read_header(a.input.data)
             if hdr is None:
@@ -557,9 +557,9 @@ class CaseContext(DatagramCaseBase):
         first = self.driver.send(action, payload, self.target_id, sock=sock)
         match = self.driver.answered(first)
         for n in range(MAX_ACK_COPIES):
-            deadline = time.monotonic() + self.rto
+            deadline = self.session.clock.monotonic() + self.rto
             since = self.driver.mark_before(first)
-            while time.monotonic() < deadline:
+            while self.session.clock.monotonic() < deadline:
                 got = self.driver.wait_for(match, 0.02, since)
                 if got is not None:
                     return first, got
@@ -567,7 +567,7 @@ class CaseContext(DatagramCaseBase):
                     data, addr = sock.recvfrom(65535)
                 except (TimeoutError, BlockingIOError):
                     continue
-                d = Datagram(-1, time.monotonic(), time.time_ns(), data, addr, None, None, read_header(data))
+                d = Datagram(-1, self.session.clock.monotonic(), self.session.clock.time_ns(), data, addr, None, None, read_header(data))
                 a = self.driver.attribute_external(d)
                 if a is not None and a.command == first.command:
                     return first, d

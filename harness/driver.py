@@ -21,16 +21,17 @@ import dataclasses
 import socket
 import struct
 import threading
-import time
 from collections.abc import Callable, Iterable
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock, clock_offset_ns  # noqa: F401 (its old home)
 from mcp_conform.harness.errors import NodeLost
 from mcp_conform.harness.run_delay import delay_for, takes_run_delay
 from mcp_conform.harness.rx_queue import read_backlog
 from mcp_conform.harness.stamps import SO_TIMESTAMPNS, arrival_ns, kernel_timestamps, recv_stamped  # noqa: F401 (their old home)
+from mcp_conform.harness.transport import Transport, UdpTransport
 from mcp_conform.judge.attribution import Attribution, Attributor
 from mcp_conform.spec.codec import (
     PREAMBLE,
@@ -53,25 +54,6 @@ PREAMBLE_LEN = len(PREAMBLE)
 MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
 
 
-def clock_offset_ns(tries: int = 5) -> int:
-    """CLOCK_REALTIME minus CLOCK_MONOTONIC, read so that a preemption between the two reads
-    cannot skew it: each try brackets one monotonic read between two wall-clock reads, and the
-    tightest bracket wins. Reading the two clocks one after the other instead (as a kernel
-    receive time was converted before) puts a preempted thread's whole pause into the offset,
-    so a datagram could be dated before the ACK the runner had sent before it arrived (a false
-    MCP-BLK-1 under load)."""
-    best_width, best = None, 0
-    for _ in range(tries):
-        r1 = time.time_ns()
-        m = time.monotonic_ns()
-        r2 = time.time_ns()
-        if best_width is None or r2 - r1 < best_width:
-            best_width, best = r2 - r1, (r1 + r2) // 2 - m
-            if best_width < 20_000:
-                break
-    return best
-
-
 _U16BE = struct.Struct("!H")
 _U16LE = struct.Struct("<H")
 
@@ -86,8 +68,8 @@ class Datagram:
     """One datagram the runner received, as it arrived."""
 
     index: int
-    t: float  # time.monotonic() at arrival
-    t_ns: int  # time.time_ns() at arrival: the run clock of captures and reports
+    t: float  # the driver's clock's monotonic() at arrival
+    t_ns: int  # its time_ns() at arrival: the run clock of captures and reports
     data: bytes
     addr: Address
     msg: Message | None  # decoded, when well-formed
@@ -172,19 +154,23 @@ class Exchange:
 
 
 class TargetDriver:
-    """UDP endpoint of the runner facing one node under test."""
+    """The runner's endpoint facing one node under test: a UDP socket on the host's clock by
+    default; ``clock`` and ``transport`` (``harness.clock``, ``harness.transport``) another
+    clock and far end (the simulator's: a node model on virtual time)."""
 
     def __init__(self, target: Address, listen: Address, *, our_id: int = 0,
-                 rcvbuf: int = 8 * 1024 * 1024) -> None:
+                 rcvbuf: int = 8 * 1024 * 1024, clock: Clock = REAL,
+                 transport: Transport | None = None) -> None:
         self.target = target
         self.listen = listen
         self.our_id = our_id
-        self._rcvbuf = rcvbuf
+        self.clock = clock
+        self._transport = transport or UdpTransport(rcvbuf)
         self._kernel_times = False  # the kernel timestamps what this socket receives
-        self._sock: socket.socket | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._cond = threading.Condition()
+        self._sock: Transport | None = None
+        self._thread: Any = None
+        self._stop = clock.event()
+        self._cond = clock.condition()
         self._rx: list[Datagram] = []
         self._tx: list[Sent] = []
         self._rx_attr: list[Attribution | None] = []  # parallel to _rx
@@ -215,24 +201,11 @@ class TargetDriver:
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Address:
         """Bind the listen address (all addresses when its host is empty); return it."""
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
-        except OSError:
-            pass
-        try:
-            sock.bind(self.listen)
-        except OSError as exc:
-            sock.close()
-            host = self.listen[0] or "*"
-            raise OSError(f"cannot listen on {host}:{self.listen[1]}: {exc.strerror}") from None
-        sock.settimeout(0.05)
-        self._kernel_times = kernel_timestamps(sock)
-        self._sock = sock
-        self.listen = (self.listen[0], sock.getsockname()[1])
-        self._thread = threading.Thread(target=self._receive_loop, name="mcp-conform-rx", daemon=True)
-        self._thread.start()
+        tr = self._transport
+        self.listen = tr.bind(self.listen)
+        self._kernel_times = tr.kernel_times
+        self._sock = tr
+        self._thread = self.clock.start_thread(self._receive_loop, "mcp-conform-rx")
         return self.listen
 
     def close(self) -> None:
@@ -260,21 +233,20 @@ class TargetDriver:
     def _receive_loop(self) -> None:
         assert self._sock is not None
         sock = self._sock
-        stamped = self._kernel_times
         while not self._stop.is_set():
             try:
-                data, addr, arrived = recv_stamped(sock, stamped)
+                data, addr, arrived = sock.recv()
             except TimeoutError:
                 continue
             except OSError:
                 if self._stop.is_set():
                     return
-                time.sleep(0.01)
+                self.clock.sleep(0.01)
                 continue
             if self.link is not None:
                 # observers (the capture, the run's monitor) hold the node's side of the
                 # link: what it sent, once, as it sent it; the cases what the runner got
-                self._notify("rx", data, addr, arrived or time.time_ns(), delay_for(data, self.run_delay))
+                self._notify("rx", data, addr, arrived or self.clock.time_ns(), delay_for(data, self.run_delay))
                 self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive)
             else:
                 self._arrive(data, addr, arrived)
@@ -285,9 +257,9 @@ class TargetDriver:
         ``arrived``: the kernel's receive time (ns, the wall clock), when it gave one."""
         if self._stop.is_set():
             return
-        t, t_ns = time.monotonic(), time.time_ns()
+        t, t_ns = self.clock.monotonic(), self.clock.time_ns()
         if arrived is not None and 0 <= t_ns - arrived < MAX_QUEUED_NS:
-            t, t_ns = (arrived - clock_offset_ns()) / 1e9, arrived
+            t, t_ns = (arrived - self.clock.offset_ns()) / 1e9, arrived
         try:
             msg: Message | None = decode(data)
             err = None
@@ -335,9 +307,9 @@ class TargetDriver:
     def settle_attribution(self, limit: float) -> None:
         """Wait (at most ``limit`` s) until no command with a copy unanswered can still take a
         reply (``Attributor.answerable_until``); replies meanwhile are tied as they come."""
-        deadline = time.monotonic() + limit
+        deadline = self.clock.monotonic() + limit
         while True:
-            now = time.monotonic()
+            now = self.clock.monotonic()
             with self._cond:
                 until = self.attributor.answerable_until(now)
             if until <= now or now >= deadline:
@@ -364,7 +336,7 @@ class TargetDriver:
                  since: int = 0) -> Datagram | None:
         """First datagram at index >= ``since`` matching ``predicate``, waiting up to
         ``timeout`` seconds. None is an observation (nothing came), not an error."""
-        deadline = time.monotonic() + max(0.0, timeout)
+        deadline = self.clock.monotonic() + max(0.0, timeout)
         i = since
         with self._cond:
             while True:
@@ -373,7 +345,7 @@ class TargetDriver:
                         return self._rx[i]
                     i += 1
                 self.check()
-                left = deadline - time.monotonic()
+                left = deadline - self.clock.monotonic()
                 if left <= 0:
                     return None
                 self._cond.wait(min(left, 0.05))
@@ -389,24 +361,24 @@ class TargetDriver:
 
     def pause(self, seconds: float) -> None:
         """Sleep ``seconds``, but raise at once (``check``) if the node is declared lost."""
-        deadline = time.monotonic() + max(0.0, seconds)
+        deadline = self.clock.monotonic() + max(0.0, seconds)
         with self._cond:
             while True:
                 self.check()
-                left = deadline - time.monotonic()
+                left = deadline - self.clock.monotonic()
                 if left <= 0:
                     return
                 self._cond.wait(min(left, 0.05))
 
     def quiet(self, gap: float = 0.05, limit: float = 1.0) -> int:
         """Wait until nothing has arrived for ``gap`` s (at most ``limit`` s); return a mark."""
-        deadline = time.monotonic() + limit
-        while time.monotonic() < deadline:
+        deadline = self.clock.monotonic() + limit
+        while self.clock.monotonic() < deadline:
             with self._cond:
                 last = self._rx[-1].t if self._rx else 0.0
-            if time.monotonic() - last >= gap:
+            if self.clock.monotonic() - last >= gap:
                 break
-            time.sleep(gap / 2)
+            self.clock.sleep(gap / 2)
         return self.mark()
 
     # ------------------------------------------------------------------ sending
@@ -446,7 +418,7 @@ class TargetDriver:
             dst, src, seq, action = hdr
         with self._cond:
             # logged (and stamped) before it leaves: a reply within the same tick must find it
-            t, t_ns = time.monotonic(), time.time_ns()
+            t, t_ns = self.clock.monotonic(), self.clock.time_ns()
             index = len(self._tx)
             s = Sent(t, t_ns, data, addr, dst, src, seq, action, index)
             command = self.attributor.sent(index, s, copy_of.command if copy_of is not None else None)
@@ -457,9 +429,9 @@ class TargetDriver:
                 hook(s)
         if self.link is not None:  # observed as the node is sent each copy (see _receive_loop)
             self.link.send(sock or self._sock, data, addr,
-                           lambda body: self._notify("tx", body, addr, time.time_ns()))
+                           lambda body: self._notify("tx", body, addr, self.clock.time_ns()))
         else:
-            (sock or self._sock).sendto(data, addr)
+            (sock or self._sock).sendto(data, addr)  # type: ignore[union-attr]  # asserted above
             self._notify("tx", data, addr, t_ns)
         return s
 
@@ -525,7 +497,7 @@ class TargetDriver:
                 exc.exchange = ex
                 raise
             if got is None and n == copies - 1 and self._kernel_times:
-                end = time.monotonic()  # a reply that came by now, read late (``read_backlog``)
+                end = self.clock.monotonic()  # a reply that came by now, read late (``read_backlog``)
                 if read_backlog(self.listen[0] or "0.0.0.0", self.listen[1]):
                     got = self.wait_for(lambda d, end=end: d.t <= end and match(d), 0.2, since)  # type: ignore[misc]  # mypy: a default argument
             if got is not None:
@@ -552,15 +524,15 @@ class TargetDriver:
         assert self._sock is not None, "driver not open"
         out = sock or self._sock
         addr = self.target
-        deadline = time.monotonic() + limit
-        first_ns, sent, n = time.time_ns(), 0, len(datagrams)
-        while sent < count and n and time.monotonic() < deadline:
+        deadline = self.clock.monotonic() + limit
+        first_ns, sent, n = self.clock.time_ns(), 0, len(datagrams)
+        while sent < count and n and self.clock.monotonic() < deadline:
             try:
                 out.sendto(datagrams[sent % n], addr)
                 sent += 1
             except OSError:  # BlockingIOError included: the buffer is full, let it drain
-                time.sleep(0.001)
-        last_ns = time.time_ns()
+                self.clock.sleep(0.001)
+        last_ns = self.clock.time_ns()
         local = out.getsockname()[:2]
         for obs in self._burst_observers:
             try:
@@ -571,7 +543,4 @@ class TargetDriver:
 
     def open_side_socket(self, host: str = "127.0.0.1") -> socket.socket:
         """A second socket on another source port (MCP-TRN-2). Caller closes it."""
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.bind((host, 0))
-        s.settimeout(0.05)
-        return s
+        return self._transport.side_socket(host)  # type: ignore[no-any-return]  # a socket, or the transport's

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
-from mcp_conform.harness.driver import Datagram, Exchange, TargetDriver, clock_offset_ns
+from mcp_conform.harness.driver import Datagram, Exchange, TargetDriver
 from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
 from mcp_conform.harness.liveness import Liveness
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
@@ -49,6 +49,7 @@ from mcp_conform.harness.session_base import (  # noqa: F401  (re-exported: harn
     reference_command,
     timing_note,
 )
+from mcp_conform.harness.transport import Transport
 from mcp_conform.judge.monitor import byte_order_fault
 from mcp_conform.judge.run_monitor import RunMonitor, from_node, link_events
 from mcp_conform.spec import SPEC
@@ -87,9 +88,13 @@ class Session(DatagramSessionBase):
 
     first_awaited = "its Mission_Ready, or an ACK of a probe"
 
-    def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any = None, *, clock: Clock = REAL,
+                 transport: Transport | None = None) -> None:
         self.cfg = cfg
         self.recorder = recorder
+        #: the run's clock and the driver's far end (``harness.clock``, ``harness.transport``):
+        #: the host's and a UDP socket, or the simulator's (``mcp_conform.sim.runner``)
+        self.clock, self.transport = clock, transport
         if cfg.embedded:
             cfg.spawn = cfg.spawn or embedded_command()
             cfg.mavlink = True
@@ -111,9 +116,9 @@ class Session(DatagramSessionBase):
         self.passthrough_forwarded: bool | None = None  # learnt by the first probe
         self.passthrough_altered = False  # the first probe reached the autopilot altered (MCP-PAY-8)
         self.other_src_accepted: bool | None = None
-        self._t0_ns = clock_offset_ns()  # monotonic -> run clock (read so a preemption cannot skew it)
+        self._t0_ns = clock.offset_ns()  # monotonic -> run clock (read so a preemption cannot skew it)
         self.monitor: RunMonitor | None = None  # the trace monitor over the whole run
-        #: when the observed startup phase ran (``time.monotonic()``): what spoils it
+        #: when the observed startup phase ran (the clock's ``monotonic()``): what spoils it
         self.startup_window: tuple[float, float | None] = (0.0, None)
         #: (rule, why): the startup phase found the node's header unreadable in network order
         self.unreadable: tuple[str, str] | None = None
@@ -155,7 +160,8 @@ class Session(DatagramSessionBase):
                 raise SetupError("no --target and no --spawn")
             listen = cfg.listen or ("", MANAGER_PORT)
             target = check_target(cfg.target)
-        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
+        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID, clock=self.clock,
+                                   transport=self.transport)
         # the startup phase decides when Mission_Ready is ACKed: one that lands before it (an
         # attached node speaks before the runner binds) ACKed here would stop its copies
         # unseen, and the startup would wait for one in vain
@@ -182,9 +188,9 @@ class Session(DatagramSessionBase):
             self._start_vehicle()
         if self.spawned:
             self._spawn()
-        self.startup_window = (time.monotonic(), None)
+        self.startup_window = (self.clock.monotonic(), None)
         self._startup_phase(first=observe_startup, measure=measure, diagnose=diagnose, initial=True)
-        self.startup_window = (self.startup_window[0], time.monotonic())
+        self.startup_window = (self.startup_window[0], self.clock.monotonic())
         self._startup_mark = None  # started: later failures are the cases' to explain
 
     def close(self) -> None:
@@ -335,7 +341,7 @@ class Session(DatagramSessionBase):
         deadline = None if limit is None else self.startup_window[0] + limit
 
         def left(default: float) -> float:
-            return default if deadline is None else max(deadline - time.monotonic(), 0.0)
+            return default if deadline is None else max(deadline - self.clock.monotonic(), 0.0)
 
         def is_ready(d: Datagram) -> bool:
             return d.action == _READY
@@ -355,7 +361,7 @@ class Session(DatagramSessionBase):
                 hold = self.fix_hold
                 drv.wait_for(is_ready, hold, mark)
             st.ready_before_fix = [d for d in drv.received(mark) if is_ready(d)]
-            st.fix_given_at = self.startup_fix_at = time.monotonic()
+            st.fix_given_at = self.startup_fix_at = self.clock.monotonic()
             v.give_fix()
         elif self.vehicle is not None:
             self.vehicle.give_fix()
@@ -431,7 +437,7 @@ class Session(DatagramSessionBase):
         drv = self.driver
         assert drv is not None
         wait = max(self.rto, float(SPEC.params["timeout_s"])) * 1.5 + 1.0
-        second = drv.wait_for(lambda d: d.action == _READY, wait - (time.monotonic() - first_ready.t),
+        second = drv.wait_for(lambda d: d.action == _READY, wait - (self.clock.monotonic() - first_ready.t),
                               first_ready.index + 1)
         last = second or first_ready
         if second is not None:
@@ -459,7 +465,7 @@ class Session(DatagramSessionBase):
                 deadline = first_ready.t + MIN_COPIES * max(self.rto, copies[1].t - copies[0].t) * 1.5 + 1.0
             else:
                 deadline = first_ready.t + max(MIN_COPIES * self.rto, slowest) * 1.5 + 1.0
-            if len(copies) >= MIN_COPIES or time.monotonic() >= deadline or not self.alive():
+            if len(copies) >= MIN_COPIES or self.clock.monotonic() >= deadline or not self.alive():
                 break
             drv.wait_for(lambda d: d.action == _READY, 0.05, drv.mark())
         st.copies = [d for d in drv.received(i) if d.action == _READY]
@@ -483,7 +489,7 @@ class Session(DatagramSessionBase):
         rseq = latest.header[2] if latest.header else seq
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
         st.stop_watch = max(self.ack_window, 1.5 * gap)
-        time.sleep(st.stop_watch)
+        self.clock.sleep(st.stop_watch)
         grace = 0.05
         st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
                                      and d.t > st.right_ack.t + grace]

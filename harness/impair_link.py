@@ -22,11 +22,11 @@ import heapq
 import itertools
 import socket
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.impair import (
     Decision,
     Impairment,
@@ -70,7 +70,7 @@ def _describe_datagram(data: bytes) -> str:
 class ImpairEvent:
     """One decision that did something to a datagram (a clean pass is not kept)."""
 
-    t: float  # time.monotonic() when the datagram reached the link
+    t: float  # the link's clock's monotonic() when the datagram reached the link
     t_ns: int
     decision: Decision
     what: str  # the datagram, for a person ("ACK seq 12 1->0")
@@ -90,18 +90,20 @@ class ImpairedLink:
     """
 
     def __init__(self, impairment: Impairment, *, recorder: Any = None,
-                 spoil_delay_s: float = 0.05) -> None:
+                 spoil_delay_s: float = 0.05, clock: Clock = REAL) -> None:
         self.impairment = impairment
+        self.clock = clock  # the owner's (``harness.clock``): the host's, or virtual time
         self.recorder = recorder
         self.spoil_delay_s = spoil_delay_s
         self.paused = False  # a clean link for the while (a case's last attempt)
         self.events: list[ImpairEvent] = []
         self._lock = threading.Lock()
-        self._cond = threading.Condition(self._lock)
+        self._cond = clock.condition(self._lock)
         self._queue: list[tuple[float, int, Callable[[], None]]] = []
         self._order = itertools.count()
-        self._thread: threading.Thread | None = None
+        self._thread: Any = None
         self._closed = False
+        self.dropped_held = 0  # copies dropped as the node they were for was replaced
 
     @property
     def spec(self) -> ImpairSpec:
@@ -148,7 +150,7 @@ class ImpairedLink:
 
     # ------------------------------------------------------------------ decisions
     def _decide(self, direction: str, data: bytes) -> Decision:
-        t, t_ns = time.monotonic(), time.time_ns()
+        t, t_ns = self.clock.monotonic(), self.clock.time_ns()
         with self._lock:
             decision = self.impairment.decide(direction, data, t)
         kinds = decision.kinds
@@ -167,7 +169,7 @@ class ImpairedLink:
 
     def touched(self, since: float, until: float | None = None) -> list[ImpairEvent]:
         """The decisions able to spoil an observation taken between ``since`` and ``until``
-        (``time.monotonic()``; None: now): a copy delayed into the window counts too."""
+        (the link's clock's ``monotonic()``; None: now): a copy delayed into the window counts too."""
         with self._lock:
             events = list(self.events)
         out = []
@@ -187,17 +189,16 @@ class ImpairedLink:
         with self._cond:
             if self._closed:
                 return
-            heapq.heappush(self._queue, (time.monotonic() + delay_s, next(self._order), fn))
+            heapq.heappush(self._queue, (self.clock.monotonic() + delay_s, next(self._order), fn))
             if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name="impair-link", daemon=True)
-                self._thread.start()
+                self._thread = self.clock.start_thread(self._run, "impair-link")
             self._cond.notify()
 
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._closed and (not self._queue or self._queue[0][0] > time.monotonic()):
-                    wait = None if not self._queue else self._queue[0][0] - time.monotonic()
+                while not self._closed and (not self._queue or self._queue[0][0] > self.clock.monotonic()):
+                    wait = None if not self._queue else self._queue[0][0] - self.clock.monotonic()
                     self._cond.wait(wait)
                 if self._closed:
                     return
@@ -207,11 +208,23 @@ class ImpairedLink:
             except Exception:  # noqa: BLE001 - a delivery problem must not stop the link
                 pass
 
+    def drop_held(self) -> int:
+        """Drop every copy held for later; how many. The session calls it as it replaces the
+        node (``DatagramSessionBase.respawn``): a delayed copy of a command to the old process
+        must not reach the new one on the same port (a late End_Mission copy ended a fresh
+        reference drone's mission before its Start_Mission: found in the simulator, the
+        seed in tests/sim/test_runner_sim.py)."""
+        with self._cond:
+            n = len(self._queue)
+            self._queue.clear()
+            self.dropped_held += n
+        return n
+
     def close(self) -> None:
         """Stop delivering (copies still held are dropped, as a link going down would)."""
         with self._cond:
             self._closed = True
             self._queue.clear()
             self._cond.notify_all()
-        if self._thread is not None and self._thread is not threading.current_thread():
+        if self._thread is not None and getattr(self._thread, "ident", None) != threading.get_ident():
             self._thread.join(timeout=1.0)

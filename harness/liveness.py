@@ -37,7 +37,6 @@ for the description's timings and the embedded default's.
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -88,6 +87,7 @@ class Liveness:
 
     def __init__(self, driver: TargetDriver, rto: float, target_id: Callable[[], int]) -> None:
         self.driver = driver
+        self.clock = driver.clock  # the driver's (``harness.clock``): the host's, or virtual time
         self.rto = rto
         self.loss_after = loss_after(rto)
         self._target_id = target_id
@@ -95,7 +95,7 @@ class Liveness:
         self.enabled = False  # probing: only between Start_Mission's ACK and End_Mission
         self.lost: NodeLost | None = None
         self.last_heard: Datagram | None = None
-        self.last_heard_t = time.monotonic()
+        self.last_heard_t = self.clock.monotonic()
         self.owed: Sent | None = None  # the oldest command sent since the node was last heard
         self.probe: Sent | None = None  # the watcher's probe in flight
         #: the runner's first well-formed End_Mission to this node: from then on an exit with
@@ -105,27 +105,26 @@ class Liveness:
         self._probe_last = 0.0
         self._probe_copies = 0
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = self.clock.event()
+        self._thread: Any = None
         driver.rx_hooks.append(self._on_rx)
         driver.tx_hooks.append(self._on_tx)
         driver.check = self.check
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="mcp-conform-liveness", daemon=True)
-        self._thread.start()
+        self._thread = self.clock.start_thread(self._run, "mcp-conform-liveness")
 
     def close(self) -> None:
         self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
+        if self._thread is not None and getattr(self._thread, "ident", None) != threading.get_ident():
             self._thread.join(timeout=1.0)
 
     def enable(self) -> None:
         """The node is receiving (its mission started): watch it from now on."""
         with self._lock:
             self.enabled = True
-            self.last_heard_t = max(self.last_heard_t, time.monotonic() - self.rto)
+            self.last_heard_t = max(self.last_heard_t, self.clock.monotonic() - self.rto)
 
     def reset(self, process: Any = None) -> None:
         """A fresh node (spawn mode restart): forget the old one's fate."""
@@ -134,7 +133,7 @@ class Liveness:
             self.enabled = False
             self.lost = None
             self.owed = self.probe = self.end_sent = None
-            self.last_heard_t = time.monotonic()
+            self.last_heard_t = self.clock.monotonic()
 
     def probe_src(self) -> int:
         """The probes' src: an ID no case uses (not the manager's, the node's, the broadcast
@@ -175,7 +174,7 @@ class Liveness:
     def _run(self) -> None:
         while not self._stop.wait(WATCH_INTERVAL):
             try:
-                self.tick(time.monotonic())
+                self.tick(self.clock.monotonic())
             except OSError:
                 pass  # the socket closed under us at the end of the run
 

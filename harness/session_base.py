@@ -16,11 +16,11 @@ import shlex
 import signal
 import socket
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
 from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
@@ -276,6 +276,8 @@ class SessionBase(NodeBase):
     subject = "the node"
     #: how many times the spawned node's process was replaced (a death, a hang, a fresh mission)
     restarts: int = 0
+    #: the run's clock (``harness.clock``): the host's, or the simulator's virtual time
+    clock: Clock = REAL
 
     def context_factory(self) -> Callable[..., Any]:
         if self.make_context is None:
@@ -346,9 +348,9 @@ class SessionBase(NodeBase):
         node = self.node
         if node is None:
             return None
-        end = time.monotonic() + grace
-        while node.alive() and time.monotonic() < end:
-            time.sleep(0.005)
+        end = self.clock.monotonic() + grace
+        while node.alive() and self.clock.monotonic() < end:
+            self.clock.sleep(0.005)
         return None if node.alive() else death_of(node, self.subject)
 
     # ------------------------------------------------------------------ case API
@@ -364,7 +366,7 @@ class SessionBase(NodeBase):
     def end_case(self, ctx: Any, outcome: str) -> None:
         """End a case: what the session does before its end mark (:meth:`case_ending`), the
         mark in the capture, then what it does for the next case (:meth:`case_ended`)."""
-        ctx.end_ns = time.time_ns()
+        ctx.end_ns = self.clock.time_ns()
         self.case_ending(ctx, outcome)
         self._case_mark(ctx.case_id, "end", ctx.end_ns, outcome=outcome, rules=ctx.rules,
                         evidence=ctx.evidence)
@@ -472,12 +474,21 @@ class DatagramSessionBase(SessionBase):
         ns = self.node_run_delay()
         if ns is None:
             return
-        t_ns = time.time_ns()
+        t_ns = self.clock.time_ns()
         if self.recorder is not None:
             with INTERRUPTS.held(), contextlib.suppress(Exception):
                 self.recorder.add_metadata(RUN_DELAY_METADATA, run_delay_metadata(node_id, ns, t_ns))
         if self.monitor is not None:  # the run's own monitor, as mcp-capture check's: one judge
             self.monitor.run_delay(t_ns, node_id, ns)
+
+    def respawn(self, grace: float = 2.0) -> None:
+        """Spawn mode: the node replaced (``SessionBase.respawn``), and what the runner's own
+        ``--impair`` link still held for later dropped first: copies to or from the old
+        process (``ImpairedLink.drop_held``)."""
+        link = self.driver.link if self.driver is not None else None
+        if link is not None:
+            link.drop_held()
+        super().respawn(grace)
 
     # ------------------------------------------------------------------ --impair
     @property
@@ -495,11 +506,11 @@ class DatagramSessionBase(SessionBase):
         recorder = _HeldRecorder(self.recorder) if self.recorder is not None else None
         # a reply later than a quarter of the ACK window may fall outside what a case watches
         return ImpairedLink(Impairment(spec), recorder=recorder,
-                            spoil_delay_s=min(0.25 * self.cfg.ack_window, 0.5))
+                            spoil_delay_s=min(0.25 * self.cfg.ack_window, 0.5), clock=self.clock)
 
     def spoiled_by_impairment(self, since: float, until: float | None = None, *,
                               lookback: bool = True) -> list[str]:
-        """What the impaired link did between ``since`` and ``until`` (``time.monotonic()``)
+        """What the impaired link did between ``since`` and ``until`` (the run clock's ``monotonic()``)
         that can spoil an observation, for a person; [] on a clean link. ``lookback``: the
         window reaches back over the node's retransmissions of an earlier exchange (2 x --rto)."""
         link = self.driver.link if self.driver is not None else None

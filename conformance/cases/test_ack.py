@@ -7,8 +7,6 @@ received." — "if the message is destined for itself, ACK, otherwise no ACKing.
 
 from __future__ import annotations
 
-import time
-
 from mcp_conform.conformance.marks import rules
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action, MissionItem
@@ -87,5 +85,5 @@ def test_ack_leaves_within_the_deadline(node):
             samples.append(lat)
         else:
             node.info("one sample was ambiguous (retransmitted before its ACK) and is left out")
-        time.sleep(0.02)
+        node.session.clock.sleep(0.02)
     node.expect_median_latency(samples, float(SPEC.params["ack_deadline_s"]), "MCP-ACK-7")

@@ -9,7 +9,6 @@ retransmissions, MCP-ROB-5); "no ACK" is judged over the ACK window (D-6).
 from __future__ import annotations
 
 import random
-import time
 
 from mcp_conform.conformance.drone_case import Attempt
 from mcp_conform.conformance.marks import rules
@@ -118,7 +117,7 @@ def test_flood_of_malformed_datagrams(node):
     if took is not None:
         node.info(f"the node read the flood's backlog {took:.2f} s after it")
     probe, died = node.probe_after_input()
-    flood = Sent(time.monotonic(), time.time_ns(), corpus[0], node.driver.target, -1, -1, -1, -1)
+    flood = Sent(node.session.clock.monotonic(), node.session.clock.time_ns(), corpus[0], node.driver.target, -1, -1, -1, -1)
     attempts = [Attempt(f"flood of {sent} malformed datagrams", flood, probe, died or probe is None)]
     if probe is None or not probe.acked:
         node.node_silent = not died

@@ -89,12 +89,12 @@ def test_a_preempted_receive_thread_does_not_date_a_datagram_earlier(monkeypatch
     the receive thread is preempted between its clock reads: a manager's reply to the runner's
     ACK was dated before that ACK (a false MCP-BLK-1 under load) when the offset between the
     clocks was read across the pause."""
-    import mcp_conform.harness.driver as driver
+    import mcp_conform.harness.clock as clock  # the driver's clock reads the host's through it
 
     clocks = _PreemptedClocks(pause=30_000_000)  # 30 ms off the CPU
-    monkeypatch.setattr(driver.time, "monotonic", clocks.monotonic)
-    monkeypatch.setattr(driver.time, "monotonic_ns", clocks.monotonic_ns)
-    monkeypatch.setattr(driver.time, "time_ns", clocks.time_ns)
+    monkeypatch.setattr(clock.time, "monotonic", clocks.monotonic)
+    monkeypatch.setattr(clock.time, "monotonic_ns", clocks.monotonic_ns)
+    monkeypatch.setattr(clock.time, "time_ns", clocks.time_ns)
     drv = TargetDriver(("127.0.0.1", 9), ("127.0.0.1", 0))
     arrived = clocks.now + clocks.OFFSET - 1_000_000  # 1 ms before the receive thread woke
     drv._arrive(encode(Message(0, 1, 5, Action.ACK, 4)), ("127.0.0.1", 9), arrived)
