@@ -15,7 +15,8 @@ SERIALn_PROTOCOL is 1 (vehicle/codec.py's ``Encoder`` does the same). A relay on
 then stands between them: the program's datagrams go to the runner byte for byte (what the
 runner judges is what the program sent), the runner's frames go to the program re-packed in
 MAVLink 1 (same source IDs and sequence numbers; a message MAVLink 1 cannot carry is dropped).
-It lasts while the program runs, at most ``RELAY_MAX_S``. Over udpout the program sends to
+It lasts while the program runs, at most ``RELAY_MAX_S`` (and passes on what the program
+sent just before it exited). Over udpout the program sends to
 the relay (``-v``); over udp/udpin the runner sends to the relay, which sends to the program's
 port (``-l``, or ``--fixed-port N`` for a program that listens on a port of its own, with no
 options: seed 001's upstream programs bind 14550).
@@ -34,6 +35,8 @@ import sys
 import time
 
 RELAY_MAX_S = 600.0
+#: after the program exits, its datagrams still in the relay's socket are passed on for this long
+DRAIN_S = 0.5
 
 
 def split(url: str) -> tuple[str, str, int]:
@@ -97,6 +100,9 @@ def relay(url: str, argv: list[str], fixed_port: int | None = None) -> int:
                     values = [v.encode("latin-1", "replace") if isinstance(v, str) else v for v in values]
                     with contextlib.suppress(ConnectionRefusedError):  # not listening yet
                         near.sendto(bytes(cls(*values).pack(enc)), program)
+        drain = time.monotonic() + DRAIN_S  # what it sent just before it exited still goes
+        while runner is not None and time.monotonic() < drain and select.select([near], [], [], 0.05)[0]:
+            far.sendto(near.recv(65535), runner)
     finally:
         if proc.poll() is None:
             proc.terminate()
