@@ -114,6 +114,8 @@ class Link:
         self.closed_at: float | None = None
         self._cond = threading.Condition()
         self._send_lock = threading.Lock()
+        #: held while a frame is stamped and recorded: the capture's order is its times'
+        self._record_lock = threading.Lock()
         self._stop = threading.Event()
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
         if sock is not None:
@@ -150,27 +152,36 @@ class Link:
         self.encoder.seq = (self.encoder.seq + 1) % 256
 
     def _send_locked(self, data: bytes, name: str) -> float:
-        t = time.monotonic()
-        try:
-            if self.transport == "tcp":
-                self.sock.setblocking(True)
-                self.sock.settimeout(2.0)
-                try:
-                    self.sock.sendall(data)
-                finally:
-                    self.sock.setblocking(False)
-            elif self.peer is not None:
-                self.sock.sendto(data, self.peer)
-            else:
-                return t  # udpin: nobody to send to until the vehicle has sent
-        except OSError:
-            self.closed_at = self.closed_at or time.monotonic()
-            return t
-        self.sent.append((t, name, data))
+        """Stamped before it is sent and recorded under the record lock (:meth:`_record`): the
+        answer, stamped once it came, is always after its request, in the capture as in the
+        live monitor, however long the sending thread waits for the GIL."""
+        with self._record_lock:
+            t, t_ns = time.monotonic(), time.time_ns()
+            try:
+                if self.transport == "tcp":
+                    self.sock.setblocking(True)
+                    self.sock.settimeout(2.0)
+                    try:
+                        self.sock.sendall(data)
+                    finally:
+                        self.sock.setblocking(False)
+                elif self.peer is not None:
+                    self.sock.sendto(data, self.peer)
+                else:
+                    return t  # udpin: nobody to send to until the vehicle has sent
+            except OSError:
+                self.closed_at = self.closed_at or time.monotonic()
+                return t
+            self.sent.append((t, name, data))
+            self._record(self.sent_as, data, t_ns, name if name != "raw" else None)
+        return t
+
+    def _record(self, direction: str, raw: bytes, t_ns: int, msg_type: str | None) -> None:
+        """One frame to the capture (the caller holds the record lock: the frames are recorded
+        in the order of their times)."""
         if self.recorder is not None:
             with contextlib.suppress(Exception):
-                self.recorder.mavlink(self.sent_as, data, msg_type=name if name != "raw" else None)
-        return t
+                self.recorder.mavlink(direction, raw, t_ns, msg_type=msg_type)
 
     # -- in -------------------------------------------------------------------------------
     def _read(self) -> None:
@@ -205,13 +216,12 @@ class Link:
             self._take(data)
 
     def _take(self, data: bytes) -> None:
-        now = time.monotonic()
-        msgs = self.parser.parse_buffer(data) or []
-        got = [Received(now, m, bytes(m.get_msgbuf())) for m in msgs]
-        for r in got:
-            if self.recorder is not None:
-                with contextlib.suppress(Exception):
-                    self.recorder.mavlink(self.got_as, r.raw, msg_type=None if r.bad else r.name)
+        with self._record_lock:  # stamped after any frame sent before (:meth:`_send_locked`)
+            now, t_ns = time.monotonic(), time.time_ns()
+            msgs = self.parser.parse_buffer(data) or []
+            got = [Received(now, m, bytes(m.get_msgbuf())) for m in msgs]
+            for r in got:
+                self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
         with self._cond:
             self.frames.extend(got)
             self._cond.notify_all()
