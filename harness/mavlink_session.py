@@ -35,6 +35,7 @@ from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import SessionBase, SpawnedNode, fill_placeholders, free_port
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
 
@@ -99,12 +100,14 @@ class Link:
     gets, always from the autopilot's side (the runner's ground station: ``rx``/``tx``; the
     runner's vehicle, ``--role gcs``: ``tx``/``rx``); ``sock``: a TCP connection the runner
     accepted (its vehicle listens); ``on_frames``: called on the reader thread with each
-    batch of frames that came (the runner's vehicle answers them)."""
+    batch of frames that came (the runner's vehicle answers them); ``monitor``: the run's
+    trace monitor (``judge.mavlink_monitor``), fed each frame both ways as it is recorded,
+    with the capture's time and in the capture's order (one judge, live and offline)."""
 
     def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, *,
                  ids: tuple[int, int] = (GCS_SYSID, GCS_COMPID), sent_as: str = "rx", got_as: str = "tx",
-                 sock: socket.socket | None = None, on_frames: Any = None) -> None:
-        self.transport, self.address, self.recorder = transport, address, recorder
+                 sock: socket.socket | None = None, on_frames: Any = None, monitor: Any = None) -> None:
+        self.transport, self.address, self.recorder, self.monitor = transport, address, recorder, monitor
         self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
         self.encoder = DIALECT.MAVLink(None, srcSystem=ids[0], srcComponent=ids[1])
         self.parser = DIALECT.MAVLink(None)
@@ -114,7 +117,8 @@ class Link:
         self.closed_at: float | None = None
         self._cond = threading.Condition()
         self._send_lock = threading.Lock()
-        #: held while a frame is stamped and recorded: the capture's order is its times'
+        #: held while a frame is stamped and recorded: the capture and the monitor get frames in
+        #: the order of their times
         self._record_lock = threading.Lock()
         self._stop = threading.Event()
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
@@ -177,11 +181,13 @@ class Link:
         return t
 
     def _record(self, direction: str, raw: bytes, t_ns: int, msg_type: str | None) -> None:
-        """One frame to the capture (the caller holds the record lock: the frames are recorded
-        in the order of their times)."""
+        """One frame to the capture and the run's monitor, with the same time (the caller holds
+        the record lock: both see the frames in the order of their times)."""
         if self.recorder is not None:
             with contextlib.suppress(Exception):
                 self.recorder.mavlink(direction, raw, t_ns, msg_type=msg_type)
+        if self.monitor is not None:
+            self.monitor.frame(t_ns, raw, direction)
 
     # -- in -------------------------------------------------------------------------------
     def _read(self) -> None:
@@ -267,6 +273,10 @@ class MavlinkSession(SessionBase):
         self.params = spec.params
         self.node: SpawnedNode | None = None
         self.link: Link | None = None
+        #: the run's trace monitor, fed by every link of the run, the vehicle's rules judged on
+        #: a complete trace as ``mcp-capture check`` judges the run's capture; the report's
+        #: monitor section (the runner finishes it once the session closed)
+        self.monitor: Any = MavlinkMonitor(spec, roles=("vehicle",), complete=True)
         if cfg.target is not None:
             self.transport, self.address = parse_address(cfg.target[0], cfg.target[1])
         else:
@@ -310,7 +320,7 @@ class MavlinkSession(SessionBase):
 
     def _open(self) -> None:
         try:
-            self.link = Link(self.transport, self.address, self.recorder)
+            self.link = Link(self.transport, self.address, self.recorder, monitor=self.monitor)
         except OSError as exc:
             raise SetupError(f"{self.url}: cannot open the link: {exc.strerror or exc}") from None
         self.link_opened = time.monotonic()
