@@ -35,6 +35,7 @@ from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import SessionBase, SpawnedNode, fill_placeholders, free_port
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
 
@@ -99,12 +100,14 @@ class Link:
     gets, always from the autopilot's side (the runner's ground station: ``rx``/``tx``; the
     runner's vehicle, ``--role gcs``: ``tx``/``rx``); ``sock``: a TCP connection the runner
     accepted (its vehicle listens); ``on_frames``: called on the reader thread with each
-    batch of frames that came (the runner's vehicle answers them)."""
+    batch of frames that came (the runner's vehicle answers them); ``monitor``: the run's
+    trace monitor (``judge.mavlink_monitor``), fed each frame both ways as it is recorded,
+    with the capture's time and in the capture's order (one judge, live and offline)."""
 
     def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, *,
                  ids: tuple[int, int] = (GCS_SYSID, GCS_COMPID), sent_as: str = "rx", got_as: str = "tx",
-                 sock: socket.socket | None = None, on_frames: Any = None) -> None:
-        self.transport, self.address, self.recorder = transport, address, recorder
+                 sock: socket.socket | None = None, on_frames: Any = None, monitor: Any = None) -> None:
+        self.transport, self.address, self.recorder, self.monitor = transport, address, recorder, monitor
         self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
         self.encoder = DIALECT.MAVLink(None, srcSystem=ids[0], srcComponent=ids[1])
         self.parser = DIALECT.MAVLink(None)
@@ -114,6 +117,9 @@ class Link:
         self.closed_at: float | None = None
         self._cond = threading.Condition()
         self._send_lock = threading.Lock()
+        #: held while a frame is stamped and recorded: the capture and the monitor get frames in
+        #: the order of their times
+        self._record_lock = threading.Lock()
         self._stop = threading.Event()
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
         if sock is not None:
@@ -150,27 +156,38 @@ class Link:
         self.encoder.seq = (self.encoder.seq + 1) % 256
 
     def _send_locked(self, data: bytes, name: str) -> float:
-        t = time.monotonic()
-        try:
-            if self.transport == "tcp":
-                self.sock.setblocking(True)
-                self.sock.settimeout(2.0)
-                try:
-                    self.sock.sendall(data)
-                finally:
-                    self.sock.setblocking(False)
-            elif self.peer is not None:
-                self.sock.sendto(data, self.peer)
-            else:
-                return t  # udpin: nobody to send to until the vehicle has sent
-        except OSError:
-            self.closed_at = self.closed_at or time.monotonic()
-            return t
-        self.sent.append((t, name, data))
+        """Stamped before it is sent and recorded under the record lock (:meth:`_record`): the
+        answer, stamped once it came, is always after its request, in the capture as in the
+        live monitor, however long the sending thread waits for the GIL."""
+        with self._record_lock:
+            t, t_ns = time.monotonic(), time.time_ns()
+            try:
+                if self.transport == "tcp":
+                    self.sock.setblocking(True)
+                    self.sock.settimeout(2.0)
+                    try:
+                        self.sock.sendall(data)
+                    finally:
+                        self.sock.setblocking(False)
+                elif self.peer is not None:
+                    self.sock.sendto(data, self.peer)
+                else:
+                    return t  # udpin: nobody to send to until the vehicle has sent
+            except OSError:
+                self.closed_at = self.closed_at or time.monotonic()
+                return t
+            self.sent.append((t, name, data))
+            self._record(self.sent_as, data, t_ns, name if name != "raw" else None)
+        return t
+
+    def _record(self, direction: str, raw: bytes, t_ns: int, msg_type: str | None) -> None:
+        """One frame to the capture and the run's monitor, with the same time (the caller holds
+        the record lock: both see the frames in the order of their times)."""
         if self.recorder is not None:
             with contextlib.suppress(Exception):
-                self.recorder.mavlink(self.sent_as, data, msg_type=name if name != "raw" else None)
-        return t
+                self.recorder.mavlink(direction, raw, t_ns, msg_type=msg_type)
+        if self.monitor is not None:
+            self.monitor.frame(t_ns, raw, direction)
 
     # -- in -------------------------------------------------------------------------------
     def _read(self) -> None:
@@ -205,13 +222,12 @@ class Link:
             self._take(data)
 
     def _take(self, data: bytes) -> None:
-        now = time.monotonic()
-        msgs = self.parser.parse_buffer(data) or []
-        got = [Received(now, m, bytes(m.get_msgbuf())) for m in msgs]
-        for r in got:
-            if self.recorder is not None:
-                with contextlib.suppress(Exception):
-                    self.recorder.mavlink(self.got_as, r.raw, msg_type=None if r.bad else r.name)
+        with self._record_lock:  # stamped after any frame sent before (:meth:`_send_locked`)
+            now, t_ns = time.monotonic(), time.time_ns()
+            msgs = self.parser.parse_buffer(data) or []
+            got = [Received(now, m, bytes(m.get_msgbuf())) for m in msgs]
+            for r in got:
+                self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
         with self._cond:
             self.frames.extend(got)
             self._cond.notify_all()
@@ -257,6 +273,10 @@ class MavlinkSession(SessionBase):
         self.params = spec.params
         self.node: SpawnedNode | None = None
         self.link: Link | None = None
+        #: the run's trace monitor, fed by every link of the run, the vehicle's rules judged on
+        #: a complete trace as ``mcp-capture check`` judges the run's capture; the report's
+        #: monitor section (the runner finishes it once the session closed)
+        self.monitor: Any = MavlinkMonitor(spec, roles=("vehicle",), complete=True)
         if cfg.target is not None:
             self.transport, self.address = parse_address(cfg.target[0], cfg.target[1])
         else:
@@ -300,7 +320,7 @@ class MavlinkSession(SessionBase):
 
     def _open(self) -> None:
         try:
-            self.link = Link(self.transport, self.address, self.recorder)
+            self.link = Link(self.transport, self.address, self.recorder, monitor=self.monitor)
         except OSError as exc:
             raise SetupError(f"{self.url}: cannot open the link: {exc.strerror or exc}") from None
         self.link_opened = time.monotonic()
