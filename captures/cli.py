@@ -84,13 +84,23 @@ class CaptureTools(Protocol):
 
 def capture_profile(ns: Any, path: str) -> Profile:
     """The protocol a capture is read as: ``--protocol``, else the first whose profile
-    recognises the file (``capture_detect``), else the default."""
+    recognises the file (``capture_detect``), else the default. A detector that cannot read
+    the file as its protocol's (CaptureError, OSError) says "not mine": the next one is asked
+    (Nsqd's reads a tlog as no capture at all; MAVLink's, after it, recognises it), and a file
+    nobody recognises gets the default's one-line error."""
+    from mcp_conform.traceio.reader import CaptureError
+
     name = getattr(ns, "protocol", None)
     if name is not None:
         return pick(name)[0]
     for prof in PROFILES.values():
-        if prof.capture_detect is not None and resolve(prof.capture_detect)(path):
-            return prof
+        if prof.capture_detect is None:
+            continue
+        try:
+            if resolve(prof.capture_detect)(path):
+                return prof
+        except (CaptureError, OSError):
+            continue
     return pick()[0]
 
 

@@ -117,6 +117,22 @@ def test_one_fault_injected_fails_its_rule_and_no_other(tmp_path, fault):
     assert f"{rule} MUST" in out and "expected" in out
 
 
+def test_a_tlog_is_recognised_without_protocol(tmp_path, capsys):
+    """``mcp-capture check FILE.tlog``, no --protocol: each profile's detector is asked in turn
+    and one that cannot read the file (Nsqd's: CaptureError) says "not mine", so MAVLink's
+    recognises it; a file no protocol reads keeps the one-line error, exit 2."""
+    out = tmp_path / "auto.json"
+    assert main(["check", str(TLOG), "--json", str(out)]) == 0, capsys.readouterr()
+    doc = json.loads(out.read_text())
+    assert doc["protocol"] == "mavlink" and doc["format"] == "tlog" and doc["frames"] == 164
+    text = tmp_path / "notes.txt"
+    text.write_text("hello, this is no capture\n")
+    capsys.readouterr()
+    assert main(["check", str(text)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a capture" in err[0] and "Traceback" not in err[0], err
+
+
 # ---------------------------------------------------------------- bad input
 @pytest.mark.parametrize(("content", "says"), [
     (b"", "empty file, not a MAVLink trace"),
