@@ -18,6 +18,8 @@ same node and runner options, to check the fault's rule: those (``FOLDED``) are 
 there, in the same test, its scheduled run being the first of the ``MCP_SCHEDULE_RUNS``
 (``test_every_node_is_compared_here_or_in_test_mutants``), not run a second time here. At
 ``MCP_MUTANTS_TIMING=real`` test_mutants runs other timings, and every node is compared here.
+The mutants test_mutants leaves to the simulator (``SIM_COVERS``) are compared there, serial
+against scheduled on virtual time (tests/sim/test_mutants_sim.py).
 """
 
 from __future__ import annotations

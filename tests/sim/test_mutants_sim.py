@@ -40,3 +40,25 @@ def test_mutants_at_the_descriptions_timings(mutant):
     a run on real timers: here the waits are virtual."""
     run = run_cases(mutant_factory(mutant, rto=5.0, seed=8), seed=8, rto=5.0, ack_window=2.0)
     assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
+
+
+def _schedule_folded() -> list[str]:
+    """The mutants whose serial and scheduled runs test_schedule_verdicts folds into the real
+    matrix (the real runs of those moved here: test_mutants.SIM_COVERS)."""
+    from tests.conformance.test_mutants import SIM_COVERS
+    from tests.conformance.test_schedule_verdicts import FOLDED
+
+    return sorted(a[1] for a in FOLDED if len(a) > 1 and a[0] == "--fault" and a[1] in SIM_COVERS)
+
+
+@pytest.mark.parametrize("mutant", _schedule_folded())
+def test_a_mutants_verdicts_do_not_depend_on_the_schedule(mutant):
+    """test_schedule_verdicts' property (issue 23) for the mutants whose real runs moved here: the
+    default schedule (the batch's cases in threads on the virtual clock) gives every case the
+    ``--serial`` run's outcome, and both catch the mutant with its rule and nothing else."""
+    runs = [run_cases(mutant_factory(mutant, rto=SHORT["rto"], seed=9), seed=9, serial=serial, **SHORT)
+            for serial in (True, False)]
+    outcomes = [{c["id"]: c["outcome"] for c in r.report["cases"]} for r in runs]
+    assert outcomes[0] == outcomes[1], (runs[0].explain(), runs[1].explain())
+    for r in runs:
+        assert r.rules_with("failed", "warned") == _expected(mutant), r.explain()
