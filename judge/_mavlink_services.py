@@ -429,6 +429,8 @@ class MissionService(Service):
             up = st["upload"]
             if up is not None and up.gcs == n.key:
                 st["upload"] = None  # the ground station ended (cancelled) it
+                if v.ardupilot and up.items:  # part of it taken (E-2): the plan is not known
+                    st["plans"].pop(up.mtype, None)
             dl: Download | None = st["download"]
             if dl is not None and dl.gcs == n.key:  # ended before it was whole: not compared
                 st["download"] = None
@@ -441,7 +443,15 @@ class MissionService(Service):
             st["upload"] = None
         result, mtype = int(f.msg.type), int(getattr(f.msg, "mission_type", 0))
         whole = all(s in up.items for s in range(up.count))
-        if result == ACCEPTED or whole:
+        if result != ACCEPTED:
+            # an error ends an upload as the protocol allows ("If an error is sent, both ends
+            # ... reset themselves to the idle state"): not MAV-MIS-1's to judge but MAV-MIS-7's;
+            # on an ArduPilot the plan is then what the items it took made of it (E-2: uploads
+            # are not atomic), so no round trip is compared until the next accepted upload
+            if v.ardupilot:
+                st["plans"].pop(up.mtype, None)
+            return
+        if result == ACCEPTED:
             self.mon.judge("MAV-MIS-1", v, whole and result == ACCEPTED and mtype == up.mtype, f.t_ns,
                            f"MISSION_ACK MAV_MISSION_ACCEPTED, mission_type {name_of(MISSION_TYPES, up.mtype)}, "
                            f"after all {up.count} items", f"MISSION_ACK {name_of(MISSION_RESULTS, result)} "

@@ -258,7 +258,7 @@ def test_our_capture_is_clean_and_agrees_with_the_cases(tmp_path):
 #: that judge it (--select)
 OFFLINE_FAULTS = {
     "double-ack": ("MAV-CMD-3", "CMD"),
-    "no-unsupported-ack": ("MAV-CMD-5", "CMD"),
+    "no-unsupported-ack": ("MAV-CMD-5", "CMD"),  # offline also MAV-CMD-1: below
     "acts-for-other-system": ("MAV-CMD-14", "CMD"),
     "acts-for-other-component": ("MAV-CMD-14", "CMD"),
     "type-gcs": ("MAV-HB-3", "HB"),
@@ -273,11 +273,17 @@ def test_a_faulty_vehicle_fails_the_same_rule_offline_as_live(tmp_path, fault):
     rule, group = OFFLINE_FAULTS[fault]
     spawn = f"{sys.executable} {FAULTY} --listen {{target_host}}:{{target_port}} --fault {fault} --duration 200"
     rc, run, capture, out = _conform(tmp_path, "--spawn", spawn, "--select", group)
-    live = {r for r, v in run["rules"].items() if v in ("failed", "warned")}
+    # failed rules only: our vehicle's own SHOULD warnings (ArduCopter's, docs/guide/mavlink-vehicle.md)
+    # come with every group's run
+    live = {r for r, v in run["rules"].items() if v == "failed"}
     assert rc == 1 and live == {rule}, out
     crc, doc, cout, cerr = check(tmp_path, capture)
-    assert crc == 1 and bad_rules(doc) == {rule}, cout + cerr
-    assert not _agreement(run, doc)[1]
+    # the proxy drops every COMMAND_ACK whose result is UNSUPPORTED: also our vehicle's answer
+    # to the calibration the IN_PROGRESS case sends, a known command left unanswered (MAV-CMD-1,
+    # which the monitor proves; the case itself skips, having no answer to judge)
+    also = {"MAV-CMD-1"} if fault == "no-unsupported-ack" else set()
+    assert crc == 1 and bad_rules(doc) == {rule} | also, cout + cerr
+    assert not [r for r in _agreement(run, doc)[1] if r not in also]
 
 
 @pytest.mark.slow
