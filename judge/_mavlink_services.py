@@ -268,6 +268,10 @@ class Upload:
     watched: set[int] = field(default_factory=set)
     ended: bool = False  # the vehicle's MISSION_ACK came
     accepted: bool = False  # ... and accepted it
+    t_ns: int = 0  # its MISSION_COUNT's time
+    #: the upload still in progress its MISSION_COUNT replaced: a request of that one may cross
+    #: this one's count on the link (:meth:`MissionService.crossed`)
+    before: Upload | None = None
 
 
 @dataclass
@@ -324,7 +328,10 @@ class MissionService(Service):
         for v in self._targets(f):
             st = self.state(v)
             count, mtype = int(m.count), int(getattr(m, "mission_type", 0))
-            st["upload"] = Upload(n.key, count, mtype, f.index) if count > 0 else None
+            prev: Upload | None = st["upload"]
+            st["upload"] = (Upload(n.key, count, mtype, f.index, t_ns=t,
+                                   before=prev if prev is not None and not prev.ended else None)
+                            if count > 0 else None)
             if count > 0:
                 for r in self.mon.recent_from(v, t):  # its first request stamped first (ORDER_SLACK_S)
                     if r.name in REQUESTS and r.index not in st["used"]:
@@ -338,6 +345,22 @@ class MissionService(Service):
                                 or r.name == "MISSION_ACK", f"after MISSION_COUNT {count} (#{f.index}), a request "
                                 f"for seq 0 within {self.reply:g} s", (f.index,), t)
 
+    def crossed(self, up: Upload, seq: int, t: int) -> bool:
+        """A request that is the replaced upload's, not ``up``'s: the first after ``up``'s
+        MISSION_COUNT, sent before the vehicle could have read that count (within its answer
+        time, ``reply``), and what the replaced upload in progress asked or asks next (its last
+        request again, on a timeout, or the next). ArduPilot re-requests an unanswered item
+        each second: one crossed a new upload's count and was judged as the new upload's first
+        request out of order (MAV-MIS-2, "seq 3 after none", a fresh-clone CI run against our
+        vehicle)."""
+        old = up.before
+        if up.last_req is not None or old is None or old.last_req is None or t - up.t_ns > self.reply * 1e9:
+            return False
+        if seq in (old.last_req, old.last_req + 1) and seq < old.count:
+            old.last_req = seq
+            return True
+        return False
+
     def request(self, n: Node, f: MavFrame) -> None:
         m, t, mon = f.msg, f.t_ns, self.mon
         seq = int(m.seq)
@@ -346,6 +369,8 @@ class MissionService(Service):
             if up is None or up.ended:
                 return  # a new upload's, whose MISSION_COUNT is stamped after it: taken up by count()
             self.state(n)["used"].append(f.index)
+            if self.crossed(up, seq, t):
+                return
             ok = seq < up.count and (seq == 0 if up.last_req is None else seq in (up.last_req, up.last_req + 1))
             mon.judge("MAV-MIS-2", n, ok, t, f"requests in order 0..{up.count - 1} (the last one again, or the next)",
                       f"{f.name} seq {seq} after "

@@ -224,6 +224,40 @@ def test_an_answer_stamped_just_before_its_request_is_its_answer(ack_at, verdict
     assert v["MAV-HB-1"] == v["MAV-HB-2"] == "passed"
 
 
+def _mission_upload_crossed(gap: float) -> dict[str, str]:
+    """An upload of 5 items the ground station leaves after item 2 (ArduPilot then re-requests
+    seq 3 each second), a new upload's MISSION_COUNT, and the old re-request ``gap`` s after it
+    before the new upload's request for seq 0."""
+    gcs, to_v = (255, 190), {"target_system": 1, "target_component": 1, "mission_type": 0}
+    req = lambda seq: (VEHICLE, "MISSION_REQUEST_INT",  # noqa: E731
+                       {"target_system": 255, "target_component": 190, "seq": seq, "mission_type": 0})
+    item = lambda seq: (gcs, "MISSION_ITEM_INT", {**to_v, "seq": seq, "frame": 3, "command": 16,  # noqa: E731
+                                                   "current": 0, "autocontinue": 1, "param1": 0, "param2": 0,
+                                                   "param3": 0, "param4": 0, "x": 357713000, "y": -786744000, "z": 10})
+    t = 1.0
+    items = [(t, gcs, "MISSION_COUNT", {**to_v, "count": 5})]
+    for seq in range(3):
+        items += [(t + 0.1 + 0.2 * seq, *req(seq)), (t + 0.15 + 0.2 * seq, *item(seq))]
+    items += [(2.0, *req(3)), (3.0, *req(3)), (3.5, gcs, "MISSION_COUNT", {**to_v, "count": 2}),
+              (3.5 + gap, *req(3)), (3.6 + gap, *req(0)), (3.65 + gap, *item(0)), (3.7 + gap, *req(1)),
+              (3.75 + gap, *item(1)),
+              (3.8 + gap, VEHICLE, "MISSION_ACK", {"target_system": 255, "target_component": 190, "type": 0,
+                                                    "mission_type": 0})]
+    mon = MavlinkMonitor()
+    for t_ns, raw in _frames(*sorted([*_beats(6), *items], key=lambda x: x[0])):
+        mon.frame(t_ns, raw)
+    mon.finish()
+    return mon.verdicts()
+
+
+def test_a_request_of_the_upload_a_new_count_replaced_is_not_the_new_ones():
+    """A re-request of the left upload that crossed the new upload's MISSION_COUNT (sent before
+    the vehicle read it) is the old upload's, not the new one's first request out of order
+    (MAV-MIS-2); one sent long after the count is the new upload's, out of order."""
+    assert _mission_upload_crossed(0.02)["MAV-MIS-2"] == "passed"
+    assert _mission_upload_crossed(2.0)["MAV-MIS-2"] == "failed"
+
+
 # ---------------------------------------------------------------- slow: real sessions
 def _conform(tmp_path: Path, *args: str) -> tuple[int, dict, Path, str]:
     from tests.forkserver import run_module
