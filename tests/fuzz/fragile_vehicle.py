@@ -19,18 +19,17 @@ for the HEARTBEATs it withholds.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import socket
 import subprocess
 import sys
 import threading
-import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mcp_conform.vehicle.ports import free_port
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[2]))  # run as a script
+from tests.mavlink.vehicle_proxy import serve  # noqa: E402
 
 FAULTS = ("none", "param16-crash", "mission-seq-hang", "ignores-clear-all", "deaf-after-bad-crc",
           "slow-heartbeat")
@@ -109,47 +108,7 @@ def pump(src, dst, state: State, vehicle_side: bool, stop: threading.Event) -> N
 
 
 def main() -> int:
-    p = argparse.ArgumentParser()
-    p.add_argument("--listen", required=True)
-    p.add_argument("--fault", choices=FAULTS, default="none")
-    p.add_argument("--duration", type=float, default=600.0)
-    ns = p.parse_args()
-    host, port = ns.listen.rsplit(":", 1)
-    vport = free_port(kind=socket.SOCK_STREAM)
-    vehicle = subprocess.Popen([sys.executable, "-m", "mcp_conform.vehicle", "-q", "--listen", f"127.0.0.1:{vport}",
-                                "--duration", str(ns.duration)])
-    server = socket.create_server((host, int(port)))
-    server.settimeout(0.5)
-    end = time.monotonic() + ns.duration
-    try:
-        while time.monotonic() < end and vehicle.poll() is None:
-            try:
-                client, _ = server.accept()
-            except TimeoutError:
-                continue
-            upstream = None
-            while upstream is None and time.monotonic() < end:
-                try:
-                    upstream = socket.create_connection(("127.0.0.1", vport), timeout=1.0)
-                except OSError:
-                    time.sleep(0.05)
-            if upstream is None:
-                break
-            upstream.settimeout(None)
-            for s in (client, upstream):
-                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            stop = threading.Event()
-            state = State(ns.fault, vehicle)
-            threads = [threading.Thread(target=pump, args=(upstream, client, state, True, stop), daemon=True),
-                       threading.Thread(target=pump, args=(client, upstream, state, False, stop), daemon=True)]
-            for t in threads:
-                t.start()
-            while not stop.wait(0.5) and time.monotonic() < end:
-                pass
-    finally:
-        vehicle.terminate()
-        vehicle.wait(5)
-    return 0
+    return serve(None, FAULTS, pump, lambda client, vehicle, fault: State(fault, vehicle), ())
 
 
 if __name__ == "__main__":
