@@ -10,19 +10,20 @@ programs' datagrams unchanged, the vehicle's re-packed in MAVLink 1 (``--mavlink
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from tests.examples import test_mavlink_c as examples
 from tests.mavlink.test_conform_gcs import failed, run
 
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 WRAP = Path(__file__).with_name("udp_args.py")
+build = examples.build  # the examples built by their Makefile and checked, once a module
 
 #: the failed and warned rules of each program, as docs/guide/mavlink-gcs.md's table says why
 SEED_GCS = {
@@ -35,18 +36,6 @@ SEED_GCS = {
     "mission_takeoff -b": {"MAV-HB-2", "MAV-CMD-8", "MAV-CMD-9", "MAV-CMD-10", "MAV-MIS-12", "MAV-MIS-20"},
     "arm_disarm": {"MAV-CMD-8", "MAV-CMD-9", "MAV-CMD-10"},
 }
-
-
-@pytest.fixture(scope="module")
-def build(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    missing = [t for t in ("cc", "make") if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"{' and '.join(missing)} not installed (.ci/apt-tools installs gcc, make)")
-    out = tmp_path_factory.mktemp("mavlink_c")
-    proc = subprocess.run(["make", "-C", str(ROOT / "examples" / "mavlink_c"), f"PYTHON={sys.executable}",
-                           f"BUILD={out}"], capture_output=True, text=True, timeout=180)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return out
 
 
 @pytest.mark.parametrize(("program", "transport"), [("mission_takeoff -b", "udpout"), ("arm_disarm", "udp")])
