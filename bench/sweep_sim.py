@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import signal
 import sys
 import time
 from pathlib import Path
@@ -56,6 +57,15 @@ def _worker(i: int, n: int, seed: int, faults: bool, deadline: float, every: int
     return totals
 
 
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _worker_signals() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--schedules", type=int, default=100_000, help="in all, split over the jobs")
@@ -74,7 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     share = [ns.schedules // ns.jobs + (1 if i < ns.schedules % ns.jobs else 0) for i in range(ns.jobs)]
     results: list[dict] = []
     interrupted = False
-    with mp.get_context("fork").Pool(ns.jobs) as pool:
+    # Ctrl-C or SIGTERM: the parent stops the workers and writes the summary from their last
+    # progress lines (set here: a shell starts a background job with SIGINT ignored); the
+    # workers leave SIGINT to it (Ctrl-C reaches the whole process group)
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+    with mp.get_context("fork").Pool(ns.jobs, initializer=_worker_signals) as pool:
         pending = [pool.apply_async(_worker, (i, share[i], ns.seed * 101 + i, ns.faults, deadline, ns.every,
                                               str(ns.out))) for i in range(ns.jobs)]
         try:
