@@ -21,7 +21,8 @@ else a worker records, and its own summary keys and closing lines.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -35,7 +36,7 @@ from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.fuzz.workers import Reporter, report, run_jobs, sum_tables
 from mcp_conform.harness.errors import SetupError
 
-__all__ = ["TICK_S", "Engine", "EngineStats", "Plugin", "Target", "Triage", "WorkerResult", "common_summary", "count",
+__all__ = ["TICK_S", "Engine", "EngineStats", "FuzzClock", "Plugin", "Target", "Triage", "WorkerResult", "common_summary", "count",
            "note_tried", "run_campaign", "run_worker", "triage_time"]
 
 
@@ -71,6 +72,50 @@ def note_tried(st: EngineStats, kind: str, messages: Iterable[str]) -> None:
     row = st.tried.setdefault(kind, {})
     for name in messages:
         count(row, name)
+
+
+class FuzzClock:
+    """An engine's turn as the loop counts it: each case drawn (:meth:`case`: cases, kinds and
+    messages tried, the live figures every :data:`TICK_S`), the time spent fuzzing
+    (``EngineStats.seconds``), paused while a hit is triaged (:meth:`triage`)."""
+
+    def __init__(self, st: EngineStats, tick: Callable[[EngineStats], None] | None) -> None:
+        self.st, self.tick = st, tick
+        self.last_tick = 0.0
+        self.t_fuzz = time.monotonic()
+
+    def case(self, kind: str, messages: Iterable[str]) -> None:
+        st = self.st
+        st.cases += 1
+        count(st.by_mutator, kind)
+        note_tried(st, kind, messages)
+        now = time.monotonic()
+        if now - self.last_tick >= TICK_S:
+            self.last_tick = now
+            st.seconds += now - self.t_fuzz
+            self.t_fuzz = now
+            if self.tick is not None:
+                self.tick(st)
+
+    def triage(self) -> AbstractContextManager[None]:
+        """A flaw: counted; its triage's time is not fuzzing time."""
+        self.st.flaws += 1
+        self.stop()
+        return _resume(self)
+
+    def stop(self) -> None:
+        """The fuzzing time so far into the stats (at a triage, at the turn's end)."""
+        now = time.monotonic()
+        self.st.seconds += now - self.t_fuzz
+        self.t_fuzz = now
+
+
+@contextmanager
+def _resume(clock: FuzzClock) -> Iterator[None]:
+    try:
+        yield
+    finally:
+        clock.t_fuzz = time.monotonic()
 
 
 class Target(Protocol):

@@ -25,12 +25,11 @@ from mcp_conform.fuzz.config import FuzzConfig, exit_code
 from mcp_conform.fuzz.environment import environment_lines
 from mcp_conform.fuzz.findings import FindingStore, load_finding
 from mcp_conform.fuzz.loop import (
-    TICK_S,
     EngineStats,
+    FuzzClock,
     WorkerResult,
     common_summary,
     count,
-    note_tried,
 )
 from mcp_conform.fuzz.mavlink_cases import Case, CaseMaker, Vehicle, case_from_json
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
@@ -58,37 +57,26 @@ class MavlinkEngine:
             stop: Callable[[], bool]) -> EngineStats:
         st = self.stats
         sent: deque[tuple[float, Case]] = deque(maxlen=5000)
-        last_tick = 0.0
-        t_fuzz = time.monotonic()
+        clock = FuzzClock(st, tick)
         vehicle = self.target.current
         try:
             while not st.spent(deadline, max_cases, stop):
                 case = self.maker.draw()
-                st.cases += 1
-                count(st.by_mutator, case.kind)
-                note_tried(st, case.kind, case.messages or ("-",))
-                if time.monotonic() - last_tick >= TICK_S:
-                    last_tick = time.monotonic()
-                    st.seconds += last_tick - t_fuzz
-                    t_fuzz = last_tick
-                    if tick is not None:
-                        tick(st)
+                clock.case(case.kind, case.messages or ("-",))
                 sent.append((time.monotonic(), case))
                 hit = vehicle.run(case)
                 if hit is None:
                     continue
-                st.flaws += 1
-                st.seconds += time.monotonic() - t_fuzz
-                if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
-                    since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
-                    suspects = [c for t, c in sent if since <= t <= until]
-                else:
-                    suspects = [c for _, c in list(sent)[-WINDOW:]]
-                vehicle = self.triage.consider(hit, suspects)
-                sent.clear()
-                t_fuzz = time.monotonic()
+                with clock.triage():
+                    if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
+                        since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
+                        suspects = [c for t, c in sent if since <= t <= until]
+                    else:
+                        suspects = [c for _, c in list(sent)[-WINDOW:]]
+                    vehicle = self.triage.consider(hit, suspects)
+                    sent.clear()
         finally:
-            st.seconds += time.monotonic() - t_fuzz
+            clock.stop()
         return st
 
 

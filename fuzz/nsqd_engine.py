@@ -13,11 +13,10 @@ since the stream was last proven in sync.
 from __future__ import annotations
 
 import random
-import time
 from collections.abc import Callable
 from dataclasses import replace
 
-from mcp_conform.fuzz.loop import TICK_S, EngineStats, count, note_tried
+from mcp_conform.fuzz.loop import EngineStats, FuzzClock
 from mcp_conform.fuzz.nsqd_backend import message_names
 from mcp_conform.fuzz.nsqd_mutators import Case, draw_case
 from mcp_conform.fuzz.nsqd_triage import StreamTriage
@@ -38,22 +37,13 @@ class StreamStatelessEngine:
         st, triage = self.stats, self.triage
         backend = triage.current
         window: list[Case] = []
-        last_tick = 0.0
-        t_fuzz = time.monotonic()
+        clock = FuzzClock(st, tick)
         try:
             while not st.spent(deadline, max_cases, stop):
                 case = draw_case(self.rng)
                 if case.expect and st.cases % 4 == 0:  # one valid command in four is judged by its effect
                     case = replace(case, check=True)
-                st.cases += 1
-                count(st.by_mutator, case.kind)
-                note_tried(st, case.kind, message_names(case.data))
-                if time.monotonic() - last_tick >= TICK_S:
-                    last_tick = time.monotonic()
-                    st.seconds += last_tick - t_fuzz
-                    t_fuzz = last_tick
-                    if tick is not None:
-                        tick(st)
+                clock.case(case.kind, message_names(case.data))
                 window.append(case)
                 hit = backend.run(case)
                 probe = False
@@ -65,11 +55,9 @@ class StreamStatelessEngine:
                     if hit is None:
                         window.clear()
                 if hit is not None:
-                    st.flaws += 1
-                    st.seconds += time.monotonic() - t_fuzz
-                    backend = triage.current = triage.consider(backend, hit, window, probe)
-                    t_fuzz = time.monotonic()
+                    with clock.triage():
+                        backend = triage.current = triage.consider(backend, hit, window, probe)
                     window.clear()
         finally:
-            st.seconds += time.monotonic() - t_fuzz
+            clock.stop()
         return st
