@@ -79,7 +79,9 @@ def settle_vehicle(target: TargetBase, ledger: DeliveryLedger | None, tag: str) 
         return False
     drv = target.driver
     # from a source of its own first: the manager's numbering may be what the node gets wrong
-    for src, wait in ((SENTINEL_SRC, SENTINEL_WAIT / 2), (drv.our_id, SENTINEL_WAIT / 2)):
+    # (a node that takes a wrapped seq for a duplicate drops the second sentinel), so the first
+    # has the whole wait: on a loaded host its forward can take over a second
+    for src, wait in ((SENTINEL_SRC, SENTINEL_WAIT), (drv.our_id, SENTINEL_WAIT / 2)):
         token = f"sent{tag}{time.monotonic_ns() % 10**9}"
         sent = drv.send(Action.MAV_PASSTHROUGH, make_probe(token), target.node_id, src=src)
         if ledger is not None:
