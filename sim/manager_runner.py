@@ -5,7 +5,7 @@ plugin, its report), its session :class:`harness.manager_session.ManagerSession`
 the run's clock a :class:`harness.clock.VirtualClock` and its drones' socket's far end a
 :class:`sim.transport.SimTransport` to a :class:`sim.models.ManagerModel` -- the reference
 manager (``reference_impl.manager``'s steps over ``reference_impl.endpoint``, at the embedded
-manager's retry limit) or a manager fault of :mod:`sim.faults` -- through the runner's seeded
+manager's retry limit) or a manager fault of :mod:`sim.manager_faults` -- through the runner's seeded
 link. Every wait of the runner's drones (``harness.mission_script``) and every timer of the
 model are events on the clock: a suite at the description's 5 s timings costs the wall time of
 its computation, and a seed gives the same run.
@@ -14,7 +14,7 @@ Each scenario's fresh manager is a fresh model (spawn mode: ``ManagerSession.res
 silent drone's scenario runs beside the main one (the default schedule) on a model of its own
 behind a link of its own (``harness.manager_side.SideScenario`` with the simulated transport),
 or after it (``serial``). :func:`run_manager_cases` returns the JSON report's verdicts
-(:class:`sim.runner.SimRun`). Not simulated: attach mode (one running manager), ``--parallel``.
+(:class:`ManagerSimRun`). Not simulated: attach mode (one running manager), ``--parallel``.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import json
 import random
 import tempfile
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,8 @@ from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.impair import ImpairSpec, parse_impairment
 from mcp_conform.harness.manager_session import EMBEDDED_RETRIES, MANAGER_PORT, ManagerSession
 from mcp_conform.harness.manager_side import SideScenario
-from mcp_conform.sim.faults import FAULTS, fault_endpoint
+from mcp_conform.sim.faults import Fault, fault_endpoint
+from mcp_conform.sim.manager_faults import MANAGER_FAULTS
 from mcp_conform.sim.models import ManagerModel
 from mcp_conform.sim.runner import STEP_S, SimRun
 from mcp_conform.sim.stalls import StallingClock
@@ -41,7 +43,7 @@ from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import pick
 
-__all__ = ["SimManagerSession", "manager_factory", "run_manager_cases"]
+__all__ = ["ManagerSimRun", "SimManagerSession", "manager_factory", "run_manager_cases"]
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 #: where the main scenario's manager model receives, and the drones' socket listens
@@ -58,20 +60,20 @@ ManagerFactory = Callable[[tuple[int, ...], int, tuple[Any, ...], float], Manage
 def manager_factory(fault: str | None = None, *, rto: float = 0.2, seed: int = 0,
                     retries: int = EMBEDDED_RETRIES) -> ManagerFactory:
     """The reference manager (``fault`` None) or the manager fault ``fault`` of
-    :data:`sim.faults.FAULTS`, its endpoint at ``rto`` with ``retries`` retries (the embedded
-    manager's: enough for the copies the main scenario withholds)."""
-    endpoint = None
+    :data:`sim.manager_faults.MANAGER_FAULTS`, its endpoint at ``rto`` with ``retries`` retries
+    (the embedded manager's: enough for the copies the main scenario withholds)."""
+    endpoint, cls = None, ManagerModel
     if fault is not None:
-        f = FAULTS.get(fault)
-        if f is None or f.role != "manager":
-            known = sorted(n for n, g in FAULTS.items() if g.role == "manager")
-            raise ValueError(f"{fault}: not a manager fault (known: {', '.join(known)})")
-        endpoint = fault_endpoint(f, retries)
+        f = MANAGER_FAULTS.get(fault)
+        if f is None:
+            raise ValueError(f"{fault}: not a manager fault (known: {', '.join(sorted(MANAGER_FAULTS))})")
+        cls = f.model
+        if f.endpoint is not None:
+            endpoint = fault_endpoint(Fault(f.name, "manager", f.rule, f.endpoint, f.retries), retries)
     spawns = random.Random(seed)
 
     def make(drones: tuple[int, ...], challenge: int, items: tuple[Any, ...], now: float) -> ManagerModel:
-        return ManagerModel(drones, challenge, items, rto, retries, random.Random(spawns.getrandbits(64)),
-                            endpoint=endpoint)
+        return cls(drones, challenge, items, rto, retries, random.Random(spawns.getrandbits(64)), endpoint=endpoint)
 
     return make
 
@@ -123,6 +125,14 @@ class SimManagerSession(ManagerSession):
                             run_delay_of=lambda node: 0)
 
 
+@dataclass
+class ManagerSimRun(SimRun):
+    """A run's report and costs (:class:`sim.runner.SimRun`), and its manager models (each
+    scenario's, in the order spawned: what each did)."""
+
+    managers: list[ManagerModel] = field(default_factory=list)
+
+
 class _SimManagerPlugin:
     """Makes the run's session the simulated one (``pytest_mcp_make_session``, first)."""
 
@@ -151,10 +161,10 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
                       ack_window: float = 0.25, node_rto: float | None = None, retries: int = EMBEDDED_RETRIES,
                       link: str | ImpairSpec | None = None, challenge: int = 1, drones: str = "1,2,3",
                       select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-                      serial: bool = False, stalls: tuple[float, float] | None = None) -> SimRun:
+                      serial: bool = False, stalls: tuple[float, float] | None = None) -> ManagerSimRun:
     """The manager-role cases (``serial``: ``--serial``; else the default, the silent drone's
     scenario beside the main one) against ``model`` -- None: the reference manager; a name of
-    :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the
+    :data:`sim.manager_faults.MANAGER_FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the
     manager's own timeout ``node_rto``, default ``rto``, and retry limit ``retries``),
     ``--challenge challenge --drones drones``; ``link`` the runner's link both ways, for each
     scenario's manager (``harness.impair`` spec); ``seed`` the run's, the models' and the links';
@@ -193,5 +203,5 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
         with cli._quiet(True):
             rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
         report = json.loads(path.read_text()) if path.exists() else {}
-    models = len(plugin.session.models) if plugin.session is not None else 0
-    return SimRun(report, rc, clock.monotonic() - start, clock.switches, models)
+    managers = list(plugin.session.models) if plugin.session is not None else []
+    return ManagerSimRun(report, rc, clock.monotonic() - start, clock.switches, len(managers), managers)

