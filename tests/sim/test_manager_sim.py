@@ -98,8 +98,8 @@ CONTROLS = sorted(name for name, f in MANAGER_FAULTS.items() if f.rule is None)
 
 
 @functools.cache  # a seed gives the same run: each fault's is run once per worker
-def _fault_run(fault):
-    return run_manager_cases(fault, seed=2, challenge=MANAGER_FAULTS[fault].challenge, **SHORT)
+def _fault_run(fault, serial=False):
+    return run_manager_cases(fault, seed=2, challenge=MANAGER_FAULTS[fault].challenge, serial=serial, **SHORT)
 
 
 @pytest.mark.parametrize("fault", FAULTY)
@@ -112,6 +112,22 @@ def test_each_manager_fault_fails_its_rule(fault):
     assert "error" not in run.cases().values(), run.explain()
     if fault not in MONITOR_MISSES:
         assert _monitor(run).get(rule) == want, run.report["monitor"]
+    assert _decided(_fault_run(fault, serial=True)) == _decided(run)  # serial and side by side alike
+
+
+def test_a_manager_that_never_acks_mission_ready_is_judged_on_what_it_did():
+    """no-ready-ack goes on with the mission without ACKing: MCP-ACK-1's evidence names the
+    Mission_Ready (seq, copies, no ACK) and what the manager sent meanwhile; the cases whose
+    inputs need an ACKed Mission_Ready are skipped with the reason; the rest is judged."""
+    run = _fault_run("no-ready-ack")
+    case = next(c for c in run.report["cases"] if c["id"].endswith("test_every_mission_ready_is_acked"))
+    ev = "\n".join(case["evidence"])
+    assert "Mission_Ready of drone 1: seq" in ev and "copies, no ACK" in ev, case
+    assert "went on with the mission" in ev and "START_MISSION to 1" in ev, case
+    rob = next(c for c in run.report["cases"] if "MCP-ROB-2" in c["rules"])
+    assert rob["outcome"] == "skipped" and "did not ACK drone 1's Mission_Ready" in rob["reason"], rob
+    assert run.report.get("error") is None, run.explain()
+    assert run.rules["MCP-FLOW-4"] == "passed" and run.rules["MCP-RTX-1"] == "passed", run.explain()
 
 
 @pytest.mark.parametrize("fault", [pytest.param(f, marks=pytest.mark.xfail(
