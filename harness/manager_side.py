@@ -19,8 +19,9 @@ ran after the main mission (``--serial``, or a spawn command without ``{target_p
 ``{listen_port}``, where two instances would share ports).
 
 The scenario runs on the session's clock (``harness.clock``: a thread it starts, its waits);
-``transport``, ``target`` and ``spawn_node`` put its drones' socket, its manager's address and
-its manager elsewhere than a UDP socket, a free port and a process (the simulator's:
+``transport``, ``target``, ``spawn_node`` and ``backlog`` put its drones' socket, its manager's
+address, its manager and the socket's unread datagrams elsewhere than a UDP socket, a free port,
+a process and the kernel's receive queue (the simulator's:
 ``sim.manager_runner``, a manager model on a link of its own).
 """
 
@@ -73,14 +74,15 @@ class SideScenario:
                  ready_limit: float, clock: Clock = REAL, transport: Transport | None = None,
                  target: tuple[str, int] | None = None,
                  spawn_node: Callable[[list[str]], Any] = SpawnedNode,
-                 run_delay_of: Callable[[Any], int | None] = _process_run_delay) -> None:
+                 run_delay_of: Callable[[Any], int | None] = _process_run_delay,
+                 backlog: Callable[[], bool] | None = None) -> None:
         self.kind = kind
         self.clock = clock
         self._spawn = spawn
         self._placeholders = placeholders
         self.mission = Mission(kind, drones, challenge, waypoints, obstacles)
         self._script_kw = dict(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id, seed=seed,
-                               ready_limit=ready_limit)
+                               ready_limit=ready_limit, backlog=backlog)
         target = target or (target_host, free_port(target_host or "127.0.0.1"))
         self.driver = TargetDriver(target, (listen_host, 0), our_id=MANAGER_ID, clock=clock, transport=transport)
         self.players = DronePlayers(self.driver, drones, seq_base)

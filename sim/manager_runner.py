@@ -78,6 +78,15 @@ def manager_factory(fault: str | None = None, *, rto: float = 0.2, seed: int = 0
     return make
 
 
+def _unread(transport: SimTransport) -> Callable[[], bool]:
+    """Whether the transport holds datagrams due at the runner's socket that its receiver
+    thread has not read (a stalled thread: ``sim.stalls``), as the kernel's receive queue."""
+    def unread() -> bool:
+        box = getattr(transport, "_inbox", None)  # SimTransport has no public reading of it yet
+        return bool(box is not None and box.queue)
+    return unread
+
+
 class SimManagerSession(ManagerSession):
     """The manager session with each scenario's manager a model on the simulated link."""
 
@@ -108,6 +117,9 @@ class SimManagerSession(ManagerSession):
     def node_run_delay(self) -> int | None:
         return 0  # a model never waits for a CPU (stalls are the clock's)
 
+    def backlog(self) -> Callable[[], bool]:
+        return _unread(self.sim_transport)
+
     def side_why_not(self) -> str | None:
         if len(self.cfg.drones) < 2:
             return "a silent drone's effect on the others needs at least two drones"
@@ -122,7 +134,7 @@ class SimManagerSession(ManagerSession):
                             ack_window=self.ack_window, broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed,
                             ready_limit=self.ready_limit, clock=self.clock, transport=tr, target=SIDE_MANAGER_ADDR,
                             spawn_node=lambda argv: self._model_node(tr, SIDE_MANAGER_ADDR),
-                            run_delay_of=lambda node: 0)
+                            run_delay_of=lambda node: 0, backlog=_unread(tr))
 
 
 @dataclass

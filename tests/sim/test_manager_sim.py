@@ -78,6 +78,20 @@ def test_the_reference_manager_passes_at_the_descriptions_5_s(serial):
     assert run.virtual_s > 30.0  # the waits of a 5 s timeout, on the virtual clock
 
 
+#: seeds of runner-thread stalls up to 5 x --rto (p 0.2, 1 s) that gave the reference manager
+#: false verdicts: a Start_Mission of the main mission read late into the silent drone's session
+#: (MCP-BLK-2, SEQ-1), a mission cut short as "idle" while the receiver was behind (FLOW-2/3/4),
+#: a copy after the wrong ACKs arrived in time and was read late (MCP-RTX-2)
+STALL_SEEDS = [102, 111]
+
+
+@pytest.mark.parametrize("seed", STALL_SEEDS)
+def test_a_receiver_behind_is_waited_for_not_taken_for_silence(seed):
+    run = run_manager_cases(None, seed=seed, challenge=1 + seed % 3, serial=bool(seed % 2), stalls=(0.2, 1.0),
+                            **SHORT)
+    _clean(run)
+
+
 def test_the_reference_manager_passes_with_the_runners_threads_stalled():
     """The runner's receiver, drone players and case thread left off the CPU at random (up to
     half an --rto, issue 38 item 2's "stall any party"): late, never wrong."""
