@@ -25,6 +25,12 @@ Each scenario's mission is a session of its own, of the run's trace monitor
 with the node's record and the mission the manager was handed), judged as a complete trace:
 the runner plays every drone, so its socket is party to every exchange. ``mcp-capture check``
 judges the capture's sessions the same way.
+
+The run's clock and the drones' socket's far end are the host's by default (``harness.clock``,
+``harness.transport``); ``sim.manager_runner`` runs the same session on virtual time against a
+manager model (``_spawn``, ``new_side``, ``backlog`` overridden). Before a scenario's session
+begins, what the previous scenario's manager sent is read (the socket's backlog, then a quiet
+gap), so a loaded receiver never tells the next session of it.
 """
 
 from __future__ import annotations
