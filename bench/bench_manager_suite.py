@@ -37,11 +37,10 @@ FAST = ["--rto", "0.2", "--ack-window", "0.25"]
 def faults() -> dict[str, int]:
     """Every fault of the sample manager, with the challenge its test runs it at (1 if none)."""
     sys.path.insert(0, str(ROOT))
+    from mcp_conform.sim.manager_faults import MANAGER_FAULTS  # the simulator's models, same names
     from tests.conformance.nodes.sample_manager import FAULTS
-    from tests.conformance.test_manager_role import MANAGER_FAULTS
 
-    at = {f: c for f, _, c in MANAGER_FAULTS}
-    return {f: at.get(f, 1) for f in FAULTS}
+    return {f: MANAGER_FAULTS[f].challenge if f in MANAGER_FAULTS else 1 for f in FAULTS}
 
 
 def sample_manager(fault: str) -> str:

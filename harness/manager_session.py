@@ -25,6 +25,12 @@ Each scenario's mission is a session of its own, of the run's trace monitor
 with the node's record and the mission the manager was handed), judged as a complete trace:
 the runner plays every drone, so its socket is party to every exchange. ``mcp-capture check``
 judges the capture's sessions the same way.
+
+The run's clock and the drones' socket's far end are the host's by default (``harness.clock``,
+``harness.transport``); ``sim.manager_runner`` runs the same session on virtual time against a
+manager model (``_spawn``, ``new_side``, ``backlog`` overridden). Before a scenario's session
+begins, what the previous scenario's manager sent is read (the socket's backlog, then a quiet
+gap), so a loaded receiver never tells the next session of it.
 """
 
 from __future__ import annotations
@@ -33,16 +39,17 @@ import contextlib
 import random
 import struct
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.driver import TargetDriver
-from mcp_conform.harness.drone_players import DronePlayers, Mission, MissionScript
+from mcp_conform.harness.drone_players import DronePlayers, Mission
 from mcp_conform.harness.errors import Inconclusive, SetupError
 from mcp_conform.harness.interrupts import INTERRUPTS
 from mcp_conform.harness.manager_side import SideScenario, side_by_side_why_not
+from mcp_conform.harness.mission_script import MissionScript
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import (
     EMBEDDED_RTO,
@@ -53,6 +60,7 @@ from mcp_conform.harness.session_base import (
     free_port,
     reference_command,
 )
+from mcp_conform.harness.transport import Transport
 from mcp_conform.judge.run_monitor import MISSION_METADATA, SessionMonitors, mission_metadata
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import MissionItem
@@ -104,9 +112,13 @@ class ManagerSession(DatagramSessionBase):
 
     first_awaited = "an ACK of the drones' Mission_Ready"
 
-    def __init__(self, cfg: RunConfig, recorder: Any = None) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any = None, *, clock: Clock = REAL,
+                 transport: Transport | None = None) -> None:
         self.cfg = cfg
         self.recorder = recorder
+        #: the run's clock and the drones' socket's far end (``harness.clock``,
+        #: ``harness.transport``): the host's by default, the simulator's in ``sim.manager_runner``
+        self.clock, self.transport = clock, transport
         if cfg.embedded:
             cfg.spawn = cfg.spawn or embedded_command()
         self.driver: TargetDriver | None = None
@@ -153,7 +165,7 @@ class ManagerSession(DatagramSessionBase):
                 f"announces Mission_Ready, retransmitted every {self.rto:g} s (--rto) until the manager ACKs it "
                 f"(up to {self.ready_limit:g} s), then the others; the main mission is watched to its End_Mission")
         if "silent" in self.overlap:
-            why = side_by_side_why_not(cfg.spawn, cfg.drones)
+            why = self.side_why_not()
             line += ("; the silent drone's scenario runs beside it, on a second manager instance with ports of "
                      "its own" if why is None else f"; the silent drone's scenario runs after it ({why})")
         return line, "startup: the drones' Mission_Ready and the main mission"
@@ -180,7 +192,7 @@ class ManagerSession(DatagramSessionBase):
             listen = cfg.listen or ("", DRONE_PORT)
             target = cfg.target
         self._mission_files()
-        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID)
+        self.driver = TargetDriver(target, listen, our_id=MANAGER_ID, clock=self.clock, transport=self.transport)
         self.driver.auto_ack = lambda d: False  # the drone players answer (DronePlayers)
         try:
             self.driver.open()
@@ -289,18 +301,22 @@ class ManagerSession(DatagramSessionBase):
             self.unavailable[kind] = why
             raise Inconclusive(why)
         assert self.driver is not None and self.players is not None
+        m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
+        script = MissionScript(self.driver, self.players, m, rto=self.rto, ack_window=self.ack_window,
+                               broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed, alive=self.alive,
+                               ready_limit=self.ready_limit, backlog=self.backlog())
+        # what the stopped manager of the scenario before sent is read, and told, before this
+        # scenario's session begins (a loaded receiver read a last Start_Mission of the main
+        # mission into the silent drone's session: a false MCP-BLK-2 there)
+        script.drain()
+        self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
         self._begin_session(kind)
         if self.spawned:
             self.respawn()
-        m = Mission(kind, self.cfg.drones, self.cfg.challenge, self.waypoints, self.obstacles)
         self.players.reset(m)
         if kind == "main":
             self.players.withhold_first_start = True
         self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
-        ready_limit = self.ready_limit
-        script = MissionScript(self.driver, self.players, m, rto=self.rto, ack_window=self.ack_window,
-                               broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed, alive=self.alive,
-                               ready_limit=ready_limit)
         ok = script.run_main() if kind == "main" else script.run_silent()
         if self.node is not None:
             m.exit_code = self.node.returncode
@@ -308,7 +324,7 @@ class ManagerSession(DatagramSessionBase):
             self.node.stop()
             if m.exit_code is None:
                 m.notes.append("the manager was still running at the end of the scenario (stopped)")
-        return self._settle(m, ok, time.monotonic() - m.t0)
+        return self._settle(m, ok, self.clock.monotonic() - m.t0)
 
     def _settle(self, m: Mission, ok: bool, elapsed: float) -> Mission:
         """The scenario's record kept, or why the manager never answered in it."""
@@ -338,22 +354,36 @@ class ManagerSession(DatagramSessionBase):
         for kind in sorted(self.overlap):
             if kind != "silent" or kind in self.side:
                 continue
-            if side_by_side_why_not(self.cfg.spawn, self.cfg.drones) is not None:
+            if self.side_why_not() is not None:
                 continue  # it runs after the main one (the header says why)
-            listen = self.cfg.listen[0] if self.cfg.listen else ""
-            target_host = self.cfg.target[0] if self.cfg.target else "127.0.0.1"
-            side = SideScenario(kind, spawn=self.cfg.spawn or "", placeholders=self._placeholders(),
-                                listen_host=listen, target_host=target_host, drones=self.cfg.drones,
-                                challenge=self.cfg.challenge, waypoints=self.waypoints, obstacles=self.obstacles,
-                                seq_base=1000 + self.cfg.seed % 5000, rto=self.rto, ack_window=self.ack_window,
-                                broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed,
-                                ready_limit=self.ready_limit)
+            side = self.new_side(kind)
             try:
                 side.start()
             except OSError:
                 side.close()
                 continue  # no socket of its own: it runs after the main one
             self.side[kind] = side
+
+    def backlog(self) -> Any:
+        """What tells whether the drones' socket holds unread datagrams (None: the kernel's
+        receive queue, ``harness.mission_script``)."""
+        return None
+
+    def side_why_not(self) -> str | None:
+        """Why the silent scenario cannot run beside the main one (None: it can)."""
+        return side_by_side_why_not(self.cfg.spawn, self.cfg.drones)
+
+    def new_side(self, kind: str) -> SideScenario:
+        """Scenario ``kind`` on a manager instance of its own (not started yet): a second
+        process of the ``--spawn`` command on ports of its own."""
+        listen = self.cfg.listen[0] if self.cfg.listen else ""
+        target_host = self.cfg.target[0] if self.cfg.target else "127.0.0.1"
+        return SideScenario(kind, spawn=self.cfg.spawn or "", placeholders=self._placeholders(),
+                            listen_host=listen, target_host=target_host, drones=self.cfg.drones,
+                            challenge=self.cfg.challenge, waypoints=self.waypoints, obstacles=self.obstacles,
+                            seq_base=1000 + self.cfg.seed % 5000, rto=self.rto, ack_window=self.ack_window,
+                            broadcast_id=self.cfg.broadcast_id, seed=self.cfg.seed,
+                            ready_limit=self.ready_limit, clock=self.clock)
 
     def _side_mission(self, side: SideScenario) -> Mission:
         """The scenario that ran beside the main one: awaited, then its traffic written to the

@@ -17,24 +17,37 @@ capture and fed to the run's trace monitor as the scenario's own session, with t
 instance's address: the same session, the same records and the same verdicts as when it
 ran after the main mission (``--serial``, or a spawn command without ``{target_port}`` and
 ``{listen_port}``, where two instances would share ports).
+
+The scenario runs on the session's clock (``harness.clock``: a thread it starts, its waits);
+``transport``, ``target``, ``spawn_node`` and ``backlog`` put its drones' socket, its manager's
+address, its manager and the socket's unread datagrams elsewhere than a UDP socket, a free port,
+a process and the kernel's receive queue (the simulator's:
+``sim.manager_runner``, a manager model on a link of its own).
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.driver import TargetDriver
-from mcp_conform.harness.drone_players import MANAGER_ID, DronePlayers, Mission, MissionScript
+from mcp_conform.harness.drone_players import MANAGER_ID, DronePlayers, Mission
+from mcp_conform.harness.mission_script import MissionScript
 from mcp_conform.harness.run_delay import run_delay_ns
 from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
+from mcp_conform.harness.transport import Transport
 
 __all__ = ["SideScenario", "side_by_side_why_not"]
 
 #: the placeholders a spawn command needs for a second instance on ports of its own
 NEEDED = ("{target_port}", "{listen_port}")
+
+
+def _process_run_delay(node: Any) -> int | None:
+    """A spawned manager's run delay now (D-7, ``harness.run_delay``)."""
+    return run_delay_ns(node.proc.pid)
 
 
 def side_by_side_why_not(spawn: str | None, drones: tuple[int, ...]) -> str | None:
@@ -58,24 +71,31 @@ class SideScenario:
     def __init__(self, kind: str, *, spawn: str, placeholders: dict[str, str], listen_host: str,
                  target_host: str, drones: tuple[int, ...], challenge: int, waypoints: Any, obstacles: Any,
                  seq_base: int, rto: float, ack_window: float, broadcast_id: int, seed: int,
-                 ready_limit: float) -> None:
+                 ready_limit: float, clock: Clock = REAL, transport: Transport | None = None,
+                 target: tuple[str, int] | None = None,
+                 spawn_node: Callable[[list[str]], Any] = SpawnedNode,
+                 run_delay_of: Callable[[Any], int | None] = _process_run_delay,
+                 backlog: Callable[[], bool] | None = None) -> None:
         self.kind = kind
+        self.clock = clock
         self._spawn = spawn
         self._placeholders = placeholders
         self.mission = Mission(kind, drones, challenge, waypoints, obstacles)
         self._script_kw = dict(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id, seed=seed,
-                               ready_limit=ready_limit)
-        self.driver = TargetDriver((target_host, free_port(target_host or "127.0.0.1")), (listen_host, 0),
-                                   our_id=MANAGER_ID)
+                               ready_limit=ready_limit, backlog=backlog)
+        target = target or (target_host, free_port(target_host or "127.0.0.1"))
+        self.driver = TargetDriver(target, (listen_host, 0), our_id=MANAGER_ID, clock=clock, transport=transport)
         self.players = DronePlayers(self.driver, drones, seq_base)
-        self.node: SpawnedNode | None = None
+        self._spawn_node = spawn_node
+        self._run_delay_of = run_delay_of
+        self.node: Any = None  # a SpawnedNode (or what ``spawn_node`` made)
         self.ok = False
         self.error: BaseException | None = None
         self.elapsed = 0.0  # from the scenario's start to the end of its watch
         self._held: list[tuple[str, bytes, Any, int, int | None]] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = clock.event()
+        self._thread: Any = None
 
     @property
     def target(self) -> tuple[str, int]:
@@ -90,7 +110,7 @@ class SideScenario:
         return not self._stop.is_set() and self.node is not None and self.node.alive()
 
     def _run_delay(self) -> int | None:
-        return run_delay_ns(self.node.proc.pid) if self.node is not None else None
+        return self._run_delay_of(self.node) if self.node is not None else None
 
     def _hold(self, direction: str, data: bytes, addr: Any, t_ns: int, run_delay: int | None = None) -> None:
         with self._lock:
@@ -111,20 +131,19 @@ class SideScenario:
         values = {**self._placeholders, "target_host": drv.target[0], "target_port": str(drv.target[1]),
                   "listen_host": "127.0.0.1" if host == "0.0.0.0" else host, "listen_port": str(drv.listen[1])}
         self.players.reset(self.mission)
-        self.node = SpawnedNode(fill_placeholders(self._spawn, values))
-        self._thread = threading.Thread(target=self._run, name=f"mcp-conform-{self.kind}", daemon=True)
-        self._thread.start()
+        self.node = self._spawn_node(fill_placeholders(self._spawn, values))
+        self._thread = self.clock.start_thread(self._run, f"mcp-conform-{self.kind}")
 
     def _run(self) -> None:
         m = self.mission
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
         try:
             script = MissionScript(self.driver, self.players, m, alive=self.alive, **self._script_kw)  # type: ignore[arg-type]
             self.ok = script.run_silent()
         except BaseException as exc:  # noqa: BLE001 - handed to the case that asks (join)
             self.error = exc
         finally:
-            self.elapsed = time.monotonic() - t0
+            self.elapsed = self.clock.monotonic() - t0
             node = self.node
             if node is not None:
                 m.exit_code = node.returncode

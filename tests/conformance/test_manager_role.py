@@ -1,7 +1,31 @@
-"""``mcp-conform --role manager`` against managers: the reference manager for every
-challenge, deliberately faulty ones (the independent sample manager,
-tests/conformance/nodes/sample_manager.py, one fault each: caught with exactly its rule and
-nothing else failed or warned), and correct managers unlike ours (no false alarm)."""
+"""``mcp-conform --role manager`` against real manager processes on real sockets and timers:
+the smoke runs of what the simulator cannot check.
+
+The verdict matrix runs in the simulator (tests/sim/test_manager_sim.py, issue 38: the same
+suite, session, drone players and monitor on virtual time against manager models): the
+reference manager at every challenge, serial and side by side, at --rto 0.2 and at the
+description's 5 s; each fault of the sample manager's list (sim.manager_faults) caught with its
+rule and no other; a manager that ACKs copies late. What stays here, and why:
+
+- the reference manager (``mcp-node manager``, challenges 1 and 3), serial and side by side,
+  with ``mcp-capture check`` of its capture: the real process, its sockets and its files
+  (``{waypoints}``, ``{obstacles}``), the capture judged offline alike -- the model is its
+  steps, not its code;
+- two sample-manager faults: ``no-wait-start-ack`` (MCP-BLK-3: two unicasts in flight, which
+  the reference endpoint the models stand on cannot hold) and ``wrong-seq-ack`` (MCP-RTX-2,
+  modelled too: the independent implementation against its model's verdicts);
+- a manager that sends nothing at all (a real process: the setup error and the header);
+- correct managers unlike ours whose difference is the host's: unicasts to the broadcast
+  address, ACKs from another socket or to the source address (the simulated link has one
+  address per party), a slow reader of the flood (the kernel's receive queue, read_backlog);
+- the description's 5 s timings once (challenge 2: the real manager's WP_On/WP_Off path);
+- attach mode (a manager already running: the one mission, the rest skipped).
+
+A manager judged on what it did (``no-ready-ack``: its evidence, the skip reasons) is checked
+in the simulator, where the runner's code writes them as here. Serial and side by side decide alike for every fault model in the simulator (the sample
+manager's ``dup-seq-only`` run, kept for that, is gone with the matrix).
+
+Slow tests: 26 before the simulator took the matrix, 11 now."""
 
 from __future__ import annotations
 
@@ -15,22 +39,10 @@ from .runner_helpers import FAST, run_conform, sample_manager_command, verdict_d
 
 pytestmark = pytest.mark.slow
 
-# fault -> (rule, challenge)
+# fault -> (rule, challenge): the real runs (the rest: sim.manager_faults, tests/sim)
 MANAGER_FAULTS = [
-    ("start-early", "MCP-BLK-2", 1),
-    ("count-duplicates", "MCP-BLK-2", 1),
     ("no-wait-start-ack", "MCP-BLK-3", 1),
     ("wrong-seq-ack", "MCP-RTX-2", 1),
-    ("rtx-new-seq", "MCP-SEQ-2", 1),
-    ("give-up-after-two", "MCP-RTX-1", 1),
-    ("wrong-count", "MCP-PAY-3", 1),
-    ("le-count", "MCP-PAY-3", 3),
-    ("out-of-order", "MCP-FLOW-4", 1),
-    ("field-changed", "MCP-FLOW-4", 1),
-    ("wp-off-first", "MCP-FLOW-5", 2),
-    ("after-end", "MCP-BLK-6", 2),
-    ("ack-ack", "MCP-ACK-6", 1),
-    ("no-ready-ack", "MCP-ACK-1", 1),
 ]
 
 
@@ -60,7 +72,7 @@ def _no_other_findings(res, rule=None):
     assert not res.cases_with("error"), res.explain()
 
 
-@pytest.mark.parametrize("challenge", [1, 2, 3])
+@pytest.mark.parametrize("challenge", [1, 3])
 def test_reference_manager_passes_every_must_and_should(challenge, tmp_path):
     capture = tmp_path / "run.mcap"
     res = side_by_side_and_serial("--role", "manager", "--challenge", str(challenge), "--capture", str(capture))
@@ -86,25 +98,6 @@ def test_faulty_manager_is_caught_with_its_rule(fault, rule, challenge, tmp_path
     # proven from the mission's traffic too, live and offline alike (the monitor is given, and
     # the capture records, the challenge and the items the manager was handed)
     assert res.report["monitor"]["rules"]["0"][rule] == want, res.report["monitor"]
-    if fault == "no-ready-ack":
-        _judged_on_what_it_did(res)
-
-
-def _judged_on_what_it_did(res):
-    """A manager that never ACKs a Mission_Ready but goes on with the mission: MCP-ACK-1's
-    evidence names the Mission_Ready (seq, copies, no ACK) and what the manager sent
-    meanwhile; the cases whose inputs need an ACKed Mission_Ready are skipped with the reason;
-    the run's monitor and ``mcp-capture check`` of its capture agree (a lossy trace: an
-    absence is not judged there, so never "passed")."""
-    case = next(c for c in res.report["cases"] if c["id"].endswith("test_every_mission_ready_is_acked"))
-    ev = "\n".join(case["evidence"])
-    assert "Mission_Ready of drone 1: seq" in ev and "copies, no ACK" in ev, case
-    assert "went on with the mission" in ev and "START_MISSION to 1" in ev, case
-    rob = next(c for c in res.report["cases"] if "MCP-ROB-2" in c["rules"])
-    assert rob["outcome"] == "skipped" and "did not ACK drone 1's Mission_Ready" in rob["reason"], rob
-    assert "never answered" not in res.output, res.explain()
-    assert res.rules["MCP-FLOW-4"] == "passed" and res.rules["MCP-RTX-1"] == "passed", res.explain()
-    assert res.report["monitor"]["rules"]["0"]["MCP-ACK-1"] != "passed", res.report["monitor"]
 
 
 def test_a_manager_that_sends_nothing_never_answered():
@@ -129,11 +122,9 @@ CORRECT_MANAGERS = [
     # 0.3 ms per malformed datagram: the flood's backlog takes it ~3 s to read, the probe's five
     # copies 1 s (without the wait for the backlog: a false MCP-ACK-1 beside MCP-ROB-7)
     ("reads-malformed-input-slowly", {}, ("--read-delay", "0.0003")),
-    # 0.3 s, past the 0.2 s --rto: a copy is "ACKed again, however late" (MCP-ACK-1; latency is
-    # MCP-ACK-7's), for the case as for the monitor (a loaded CI host's manager ACKed the
-    # runner's copy of a Mission_Ready 287 ms late: the case alone said MCP-ACK-1 failed)
-    ("acks-copies-late", {}, ("--copy-ack-delay", "0.3")),
 ]
+# acks-copies-late (a copy ACKed 0.3 s late, past the 0.2 s --rto) runs in the simulator:
+# tests/sim/test_manager_sim.py, sim.manager_faults.AcksCopiesLate
 
 
 @pytest.mark.parametrize("label,kw,extra", CORRECT_MANAGERS, ids=[c[0] for c in CORRECT_MANAGERS])
@@ -227,8 +218,3 @@ def _serial_capture(args: tuple[str, ...]) -> tuple[str, ...]:
             capture = True
         out.append(a)
     return tuple(out)
-
-
-def test_dup_seq_only_decides_the_same_serial_and_side_by_side():
-    side_by_side_and_serial("--role", "manager", "--challenge", "1",
-                            "--spawn", sample_manager_command("--fault", "dup-seq-only"), *FAST)

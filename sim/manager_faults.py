@@ -1,0 +1,273 @@
+"""Manager fault models for the manager role's suite in the simulator (:mod:`sim.manager_runner`):
+the independent sample manager's ``--fault`` list (``tests/conformance/nodes/sample_manager.py``)
+as :class:`sim.models.ManagerModel` variants, each breaking the one rule the sample's does
+(docs/spec.md), so that the real-time matrix of ``tests/conformance/test_manager_role.py`` keeps
+only what the simulator cannot check.
+
+Where the sample's fault is in how a message is sent, it is an endpoint fault
+(:class:`sim.faults.FaultMixin`, one handler of ``reference_impl._transitions`` changed); where
+it is in what the mission sends, a ``ManagerModel`` whose plan or readiness differs:
+
+- ``start-early``, MCP-BLK-2 "The manager sends Start_Mission (or any command) to no drone
+  before it has received Mission_Ready from every drone": starts once every drone but one is
+  ready;
+- ``count-duplicates``, MCP-BLK-2: counts delivered Mission_Ready messages, not drones (the
+  runner's second Mission_Ready with a new seq starts it early);
+- ``rtx-new-seq``, MCP-SEQ-2 "A retransmission repeats the original's sequence number and
+  bytes exactly": each copy takes a new seq, and an ACK of any of them ends it;
+- ``wrong-count`` / ``le-count``, MCP-PAY-3 "a u16 big-endian count, then exactly that many
+  37-byte mission items": the count one more than the items / packed little-endian;
+- ``out-of-order`` / ``field-changed``, MCP-FLOW-4 "the mission's waypoints as one WP_List":
+  reversed / the second waypoint 1 m higher than the file's;
+- ``wp-off-first``, MCP-FLOW-5 "WP_Off follows a WP_On" (challenge 2): a WP_Off to each drone
+  before the first WP_On;
+- ``after-end``, MCP-BLK-6 "no command to a drone after that drone's End_Mission": a WP_Off
+  to the first drone after its End_Mission;
+- ``ack-ack``, MCP-ACK-6 "A node never ACKs an ACK": every ACK addressed to it is ACKed;
+
+and, breaking no rule (controls: no verdict may fall on them), ``acks-copies-late`` (a copy
+ACKed again 0.3 s late, past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1), and the
+manager faults of :data:`sim.faults.FAULTS` (``manager-rtx-none``, ``no-ready-ack``,
+``wrong-seq-ack``, ``give-up-after-two``, the ``give-up-never`` control). Not modelled:
+``no-wait-start-ack`` (MCP-BLK-3: two unicasts in flight at once, which the reference
+endpoint's one in-flight slot cannot hold) and ``dup-seq-only`` (no rule a clean link shows).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+from mcp_conform.reference_impl._transitions import Input
+from mcp_conform.reference_impl.endpoint import _HEAD
+from mcp_conform.sim.faults import FAULTS, FaultMixin
+from mcp_conform.sim.models import ManagerModel
+from mcp_conform.spec.codec import PREAMBLE, Action, DecodeError, decode, peek_header
+
+__all__ = ["MANAGER_FAULTS", "ManagerFault"]
+
+_U16BE, _U16LE = struct.Struct("!H"), struct.Struct("<H")
+_LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
+
+
+# ---------------------------------------------------------------------- endpoint faults
+class RtxNewSeq(FaultMixin):
+    """Each copy a new seq; an ACK of any of the message's seqs ends it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._old_seqs: set[int] = set()  # the in-flight message's earlier seqs
+
+    def _on_retransmit(self, msg: Any, addr: Any, now: float, u: Any) -> None:
+        old = u.seq
+        self._old_seqs.add(old)
+        u.seq = self._take_seq()
+        u.data = PREAMBLE + _HEAD.pack(u.dst, self.node_id, u.seq, u.action) + u.payload
+        self.deviations.append((now, f"copy of seq {old} sent as seq {u.seq}"))
+        super()._on_retransmit(msg, addr, now, u)
+
+    def _on_transmit(self, msg: Any, addr: Any, now: float, u: Any) -> None:
+        self._old_seqs = set()
+        super()._on_transmit(msg, addr, now, u)
+
+    def receive_datagram(self, data: bytes, addr: Any, now: float) -> None:
+        self.now = now
+        u = self._in_flight
+        head = peek_header(data)
+        if u is not None and head is not None and head[3] == Action.ACK and self._old_seqs:
+            try:
+                m = decode(data)
+            except DecodeError:
+                m = None
+            if m is not None and m.dst == self.node_id and m.src == u.dst and m.payload in self._old_seqs:
+                self._step(Input.ACK_MATCHING, m, addr, now, None)
+                return
+        super().receive_datagram(data, addr, now)
+
+
+class _ListPayload(FaultMixin):
+    """A WP_List's or Obstacles_List's payload changed as it first goes on the wire."""
+
+    def change(self, body: bytes) -> bytes:
+        raise NotImplementedError
+
+    def _on_transmit(self, msg: Any, addr: Any, now: float, u: Any) -> None:
+        if u.action in _LISTS and len(u.payload) >= 2:
+            u.payload = self.change(u.payload)
+            self.deviations.append((now, f"{Action(u.action).name} to {u.dst}: payload changed"))
+        super()._on_transmit(msg, addr, now, u)
+
+
+class WrongCount(_ListPayload):
+    def change(self, body: bytes) -> bytes:
+        return _U16BE.pack((_U16BE.unpack(body[:2])[0] + 1) & 0xFFFF) + body[2:]
+
+
+class LeCount(_ListPayload):
+    def change(self, body: bytes) -> bytes:
+        return _U16LE.pack(_U16BE.unpack(body[:2])[0]) + body[2:]
+
+
+class AckAck(FaultMixin):
+    """Every ACK addressed to it is ACKed too (then taken as an ACK)."""
+
+    def receive_datagram(self, data: bytes, addr: Any, now: float) -> None:
+        self.now = now
+        head = peek_header(data)
+        if head is not None and head[3] == Action.ACK and head[0] == self.node_id:
+            try:
+                m = decode(data)
+            except DecodeError:
+                m = None
+            if m is not None and m.src != self.node_id:
+                self._ack(m, addr, m.seq)
+                self.deviations.append((now, f"ACK of ACK seq {m.seq} from {m.src}"))
+        super().receive_datagram(data, addr, now)
+
+
+# ---------------------------------------------------------------------- mission faults
+class StartEarly(ManagerModel):
+    """Starts once every drone but one is ready."""
+
+    def _delivered(self, action: int, src: int, now: float) -> None:
+        if action != Action.MISSION_READY or src not in self.drones or src in self.ready:
+            return
+        self.ready.append(src)
+        if len(self.ready) >= max(1, len(self.drones) - 1) and not self._plan and self._handle is None \
+                and not self.sent:
+            self._plan = self.plan()
+            self._next(now)
+
+
+class CountDuplicates(ManagerModel):
+    """Counts delivered Mission_Ready messages, not drones."""
+
+    def _delivered(self, action: int, src: int, now: float) -> None:
+        if action != Action.MISSION_READY:
+            return
+        self.ready.append(src)
+        if len(self.ready) >= len(self.drones) and not self._plan and self._handle is None and not self.sent:
+            self._plan = self.plan()
+            self._next(now)
+
+
+class _ChangedItems(ManagerModel):
+    """The WP_List carries other items than the file's."""
+
+    def items_sent(self) -> tuple[Any, ...]:
+        raise NotImplementedError
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        out = super().plan()
+        return [(d, a, self.items_sent() if a == Action.WP_LIST else p) for d, a, p in out]
+
+
+class OutOfOrder(_ChangedItems):
+    def items_sent(self) -> tuple[Any, ...]:
+        return tuple(reversed(self.items))
+
+
+class FieldChanged(_ChangedItems):
+    def items_sent(self) -> tuple[Any, ...]:
+        items = list(self.items)
+        if len(items) > 1:
+            items[1] = items[1]._replace(z=items[1].z + 1.0)
+        return tuple(items)
+
+
+class WpOffFirst(ManagerModel):
+    """Challenge 2: a WP_Off to each drone before its first WP_On."""
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        out = super().plan()
+        first = next((i for i, (_, a, _) in enumerate(out) if a == Action.WP_ON), None)
+        if first is None:
+            return out
+        return out[:first] + [(d, Action.WP_OFF, None) for d in self.drones] + out[first:]
+
+
+class AcksCopiesLate(ManagerModel):
+    """Correct: a copy of a message it ACKed already is ACKed again, ``COPY_ACK_DELAY`` s late
+    (past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1; latency is MCP-ACK-7's)."""
+
+    COPY_ACK_DELAY = 0.3
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._acked: set[tuple[int, int]] = set()  # (src, seq) of the messages it ACKed
+        self._late: set[tuple[int, int]] = set()  # (drone, seq) whose next ACK goes late
+        self.late_acks = 0  # how many ACKs went late (a run that made none proved nothing)
+
+    def receive(self, data: bytes, addr: Any, now: float) -> None:
+        head = peek_header(data)
+        super().receive(data, addr, now)
+        if head is not None and head[0] == self.node_id and head[3] != Action.ACK:
+            key = (head[1], head[2])
+            if key in self._acked:
+                self._late.add(key)
+            self._acked.add(key)
+
+    def drain(self, now: float) -> list[tuple[bytes, Any, float]]:
+        """What goes on the wire, each with its delay (``sim.transport``'s wire of a model)."""
+        out = []
+        for data, addr in self.ep.datagrams_to_send(now):
+            delay = 0.0
+            try:
+                m = decode(data)
+            except DecodeError:
+                m = None
+            if m is not None and m.action == Action.ACK and (m.dst, m.payload) in self._late:
+                self._late.discard((m.dst, m.payload))
+                delay = self.COPY_ACK_DELAY
+                self.late_acks += 1
+            out.append((data, addr, delay))
+        return out
+
+
+class AfterEnd(ManagerModel):
+    """A WP_Off to the first drone after its End_Mission."""
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        return [*super().plan(), (self.drones[0], Action.WP_OFF, None)]
+
+
+@dataclass(frozen=True)
+class ManagerFault:
+    """A manager fault: the rule it breaks (None: none), the challenge its rule is observed at,
+    the model class and its endpoint class (None: the reference endpoint), its retry limit
+    (None: the model's)."""
+
+    name: str
+    rule: str | None
+    challenge: int = 1
+    model: type[ManagerModel] = ManagerModel
+    endpoint: type[FaultMixin] | None = None
+    retries: int | None = None
+    what: str = ""
+
+
+def _from_faults() -> dict[str, ManagerFault]:
+    return {f.name: ManagerFault(f.name, f.rule, 1, ManagerModel, f.cls, f.retries, f.what)
+            for f in FAULTS.values() if f.role == "manager"}
+
+
+MANAGER_FAULTS: dict[str, ManagerFault] = {**_from_faults(), **{f.name: f for f in (
+    ManagerFault("start-early", "MCP-BLK-2", 1, StartEarly, what="starts once every drone but one is ready"),
+    ManagerFault("count-duplicates", "MCP-BLK-2", 1, CountDuplicates,
+                 what="counts Mission_Ready messages, not drones"),
+    ManagerFault("rtx-new-seq", "MCP-SEQ-2", 1, endpoint=RtxNewSeq,
+                 what="each retransmission takes a new seq (an ACK of any of them ends it)"),
+    ManagerFault("wrong-count", "MCP-PAY-3", 1, endpoint=WrongCount,
+                 what="WP_List/Obstacles_List count is one more than the items"),
+    ManagerFault("le-count", "MCP-PAY-3", 3, endpoint=LeCount,
+                 what="WP_List/Obstacles_List count packed little-endian"),
+    ManagerFault("out-of-order", "MCP-FLOW-4", 1, OutOfOrder, what="WP_List carries the waypoints reversed"),
+    ManagerFault("field-changed", "MCP-FLOW-4", 1, FieldChanged,
+                 what="WP_List's second waypoint is 1 m higher than the file's"),
+    ManagerFault("wp-off-first", "MCP-FLOW-5", 2, WpOffFirst, what="a WP_Off before the first WP_On to each drone"),
+    ManagerFault("after-end", "MCP-BLK-6", 2, AfterEnd, what="a WP_Off to the first drone after its End_Mission"),
+    ManagerFault("ack-ack", "MCP-ACK-6", 1, endpoint=AckAck, what="ACKs the ACKs addressed to it"),
+    # correct managers unlike the reference one: no rule broken
+    ManagerFault("acks-copies-late", None, 1, AcksCopiesLate, what="a copy is ACKed again 0.3 s late"),
+)}}
