@@ -48,8 +48,8 @@ def test_the_reference_drone_passes_every_case(timing):
 
 
 DRONE_FAULTS = sorted(name for name, f in FAULTS.items() if f.role == "drone")
-#: faults the runner cannot observe without a vehicle model (docs/spec.md: on the autopilot link)
-UNOBSERVED = {"no-dup-discard": "MCP-DUP-1 is observed on the vehicle link, not simulated yet"}
+#: faults the runner cannot observe without the vehicle (docs/spec.md: on the autopilot link)
+UNOBSERVED = {"no-dup-discard": "MCP-DUP-1 is observed on the vehicle link (test_runner_vehicle_sim)"}
 
 
 @pytest.mark.parametrize("fault", DRONE_FAULTS)

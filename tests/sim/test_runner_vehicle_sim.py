@@ -14,6 +14,7 @@ import pytest
 
 from mcp_conform.harness.clock import VirtualClock
 from mcp_conform.sim.autopilot import AutopilotClient
+from mcp_conform.sim.faults import FAULTS
 from mcp_conform.sim.runner import run_cases
 from mcp_conform.sim.vehicle import SimVehicleNet, start_vehicle
 
@@ -104,3 +105,24 @@ def test_the_vehicle_runs_on_the_virtual_clock():
 
     clock.run(main)
     assert 30.0 <= seen["fix"] - seen["t0"] < 31.5
+
+
+@pytest.mark.parametrize("fault", sorted(n for n, f in FAULTS.items() if f.role == "drone"))
+def test_each_drone_fault_with_the_vehicle_fails_its_rule_and_no_other(fault):
+    """sim.faults' drone faults with the vehicle: ``no-dup-discard`` (MCP-DUP-1, which a run
+    without a vehicle cannot observe: test_runner_sim's UNOBSERVED) is caught with its rule."""
+    run = run_cases(fault, seed=2, mavlink=True, **SHORT)
+    assert run.rules_with("failed", "warned") == {FAULTS[fault].rule: "failed"}, run.explain()
+
+
+def test_the_live_monitor_judges_as_the_capture_check_does(tmp_path):
+    """The run's monitor ends at the run's clock (harness.drone_session ``close``): ended at the
+    host's instead -- years after a virtual run's epoch -- it let MCP-BLK-7's deadline (3 s after
+    End_Mission's ACK, past the run's end) pass, and judged 'passed' what ``mcp-capture check``
+    of the same run's capture, rightly, leaves not observed."""
+    from tests.conformance.test_mutants import same_verdicts_offline
+
+    capture = tmp_path / "run.mcap"
+    run = run_cases(None, seed=7, mavlink=True, extra=("--capture", str(capture)), **SHORT)
+    assert run.report["monitor"]["rules"]["1"]["MCP-BLK-7"] == "not_observed"
+    same_verdicts_offline(run, capture)
