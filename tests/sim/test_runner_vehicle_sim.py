@@ -126,3 +126,12 @@ def test_the_live_monitor_judges_as_the_capture_check_does(tmp_path):
     run = run_cases(None, seed=7, mavlink=True, extra=("--capture", str(capture)), **SHORT)
     assert run.report["monitor"]["rules"]["1"]["MCP-BLK-7"] == "not_observed"
     same_verdicts_offline(run, capture)
+
+
+@pytest.mark.parametrize("serial", [True, False], ids=["serial", "scheduled"])
+def test_the_runners_threads_stalled_with_the_vehicle(serial):
+    """sim.stalls with the vehicle: the runner's and the vehicle's threads left off the CPU for up
+    to 0.3 s at one handoff in ten; no failed or warned verdict."""
+    run = run_cases(None, seed=0, serial=serial, mavlink=True, stalls=(0.1, 0.3))
+    assert not run.rules_with("failed", "warned"), run.explain()
+    assert not _bad(run), run.explain()
