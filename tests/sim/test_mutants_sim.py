@@ -1,8 +1,9 @@
 """The sample node's mutants (tests/conformance/test_mutants.py) as drone models in the simulator
 (sim.mutants, issue 38 item 4): the runner's cases and its trace monitor, on virtual time, catch
 each with its rule (failed for a MUST, warned for a SHOULD) and nothing else fails or warns --
-test_mutants' property, without a process, a socket or a real timer. The mutants observed on the
-vehicle's link (``NEEDS_VEHICLE``) run with the runner's vehicle (``mavlink=True``: sim.vehicle).
+test_mutants' property, without a process, a socket or a real timer. Every mutant runs with the
+runner's vehicle (``mavlink=True``: sim.vehicle), as test_mutants runs each with ``--mavlink``;
+those observed on the vehicle's link (``NEEDS_VEHICLE``) need it.
 
 For the mutants whose real runs moved here (test_mutants.SIM_COVERS) the checks those runs made
 are made here too: the report's diagnosis (test_mutants.DIAGNOSIS, in the JSON report's case texts and
@@ -29,10 +30,9 @@ def _expected(mutant: str) -> dict[str, str]:
 
 
 def _run(mutant: str, seed: int, rto: float = SHORT["rto"], **kwargs):
-    """``mutant``'s run at ``rto`` (the node's and the runner's), with the vehicle if it needs one."""
+    """``mutant``'s run at ``rto`` (the node's and the runner's), with the vehicle."""
     kwargs.setdefault("ack_window", SHORT["ack_window"] if rto == SHORT["rto"] else 2.0)
-    return run_cases(mutant_factory(mutant, rto=rto, seed=seed), seed=seed, rto=rto,
-                     mavlink=mutant in NEEDS_VEHICLE, **kwargs)
+    return run_cases(mutant_factory(mutant, rto=rto, seed=seed), seed=seed, rto=rto, mavlink=True, **kwargs)
 
 
 def test_every_mutant_of_the_real_matrix_is_here():
