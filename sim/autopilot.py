@@ -83,11 +83,14 @@ class Steps:
 
 
 class AutopilotClient:
-    """The reference drone's autopilot link (module docstring); ``addr``: its UDP address."""
+    """The reference drone's autopilot link (module docstring); ``addr``: its address;
+    ``heartbeat_period`` None: no HEARTBEAT (the sample node's link, :mod:`sim.mutants`)."""
 
     def __init__(self, addr: tuple[str, int], *, sysid: int = 255, compid: int = 191,
-                 step_timeout: float = 3.0, settle_timeout: float = 2.0) -> None:
+                 step_timeout: float = 3.0, settle_timeout: float = 2.0,
+                 heartbeat_period: float | None = HEARTBEAT_PERIOD) -> None:
         self.addr = addr
+        self.heartbeat_period = heartbeat_period
         self.step_timeout, self.settle_timeout = step_timeout, settle_timeout
         self._mav = _MAV.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._enc = Encoder(sysid, compid)
@@ -111,7 +114,7 @@ class AutopilotClient:
         self._sys, self._comp = 1, 1
         self._jobs: deque[tuple[str, Any]] = deque()
         self._job = Steps()
-        self._next_heartbeat = 0.0
+        self._next_heartbeat = 0.0 if heartbeat_period is not None else math.inf
 
     # ------------------------------------------------------------------ the model's side
     def start(self, now: float) -> None:
@@ -148,7 +151,7 @@ class AutopilotClient:
     def _run(self, now: float) -> None:
         self.now = now
         if now >= self._next_heartbeat:
-            self._next_heartbeat = now + HEARTBEAT_PERIOD
+            self._next_heartbeat = now + (self.heartbeat_period or math.inf)
             self._send(self._mav.heartbeat_encode(_MAV.MAV_TYPE_ONBOARD_CONTROLLER, _MAV.MAV_AUTOPILOT_INVALID,
                                                   0, 0, _MAV.MAV_STATE_ACTIVE))
         while True:

@@ -24,7 +24,8 @@ connecting; ``arm-early``: after the fix, before Mission_Ready; ``arm-before-sta
 Mission_Ready is ACKed; ``ready-without-fix``: Mission_Ready without waiting for the fix;
 ``no-rtl``: no RTL on End_Mission; ``passthrough-twice``, ``-truncated`` (its last 3 bytes cut),
 ``-corrupt`` (bit 0 of its byte 11, a payload byte, flipped; the CRC unchanged): the frame written
-so), on the reference drone's autopilot client (:mod:`sim.autopilot`).
+so), on the reference drone's autopilot client (:mod:`sim.autopilot`) without its HEARTBEATs, as the
+sample node's link sends none.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from typing import Any
 
 from mcp_conform.reference_impl.endpoint import Endpoint
 from mcp_conform.reference_impl.events import DuplicateDiscarded, MessageDelivered
-from mcp_conform.sim.autopilot import Flow
+from mcp_conform.sim.autopilot import AutopilotClient, Flow
 from mcp_conform.sim.faults import FAULTS, fault_endpoint
 from mcp_conform.sim.models import DroneModel
 from mcp_conform.spec import SPEC
@@ -209,6 +210,12 @@ class MutantDrone(DroneModel):
             self.ep.send(Action.WP_LIST, (), MANAGER_ID, now=now)
 
     # ------------------------------------------------------------------ the autopilot
+    def make_autopilot(self, addr: tuple[str, int]) -> AutopilotClient:
+        """The sample node's link: no HEARTBEAT of its own (``sample_node.Autopilot`` writes
+        only its jobs' frames), so over TCP an altered frame is followed by nothing for a while,
+        and a UDP vehicle that waits to hear from it never does (test_mutants runs it over TCP)."""
+        return AutopilotClient(addr, heartbeat_period=None)
+
     def main(self) -> Flow:
         """``sample_node.Node.run``'s order where its fault changes it (else the reference's)."""
         f, ap = self.fault, self.autopilot

@@ -9,12 +9,11 @@ costs the wall time of its computation, not of its waits, and a seed gives the s
 
 :func:`run_cases` runs the suite (``--serial``, or the default schedule with its batch) and
 returns the JSON report's verdicts (:class:`SimRun`). ``mavlink=True`` is the run with
-``--mavlink``: the session's vehicle is ``vehicle.SimVehicle`` on the same clock
-(:mod:`sim.vehicle`), and each node model talks MAVLink to it through its autopilot client
-(:mod:`sim.autopilot`), so the cases observed on the autopilot link (MCP-DUP-*, MCP-BLK-4/5/7,
-MCP-PAY-8, MCP-SEQ-3) are judged; the vehicle listens on UDP (``udpout``) whatever the
-transport asked. Not simulated yet: ``--parallel`` (node instances in processes of their own:
-``conformance.parallel``).
+``--mavlink`` (``mavlink="udpout"``: ``--mavlink udpout``): the session's vehicle is
+``vehicle.SimVehicle`` on the same clock (:mod:`sim.vehicle`, over TCP or UDP), and each node
+model talks MAVLink to it through its autopilot client (:mod:`sim.autopilot`), so the cases
+observed on the autopilot link (MCP-DUP-*, MCP-BLK-4/5/7, MCP-PAY-8, MCP-SEQ-3) are judged. Not
+simulated yet: ``--parallel`` (node instances in processes of their own: ``conformance.parallel``).
 """
 
 from __future__ import annotations
@@ -90,8 +89,8 @@ class SimSession(Session):
         on the session's clock and the simulated link (:mod:`sim.vehicle`)."""
         net = self.sim_transport.vehicle_net = SimVehicleNet(self.clock)  # type: ignore[arg-type]
         self.vehicle, self.mavlink_url = start_vehicle(
-            self.clock, net, fix_withheld=True, on_frame=self._vehicle_frame,  # type: ignore[arg-type]
-            on_event=self._vehicle_event)
+            self.clock, net, self.cfg.mavlink_transport, fix_withheld=True,  # type: ignore[arg-type]
+            on_frame=self._vehicle_frame, on_event=self._vehicle_event)
 
     def _spawn(self) -> None:
         assert self.driver is not None
@@ -168,14 +167,15 @@ class SimRun:
 def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: float = 0.2,
               ack_window: float = 0.25, node_rto: float | None = None, link: str | ImpairSpec | None = None,
               select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-              serial: bool = True, stalls: tuple[float, float] | None = None, mavlink: bool = False) -> SimRun:
+              serial: bool = True, stalls: tuple[float, float] | None = None, mavlink: bool | str = False) -> SimRun:
     """The drone cases (``--serial``; ``serial=False``: the default schedule, its batch's cases
     in threads of their own on the virtual clock) against ``model`` -- None: the reference drone; a name of
     :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the node's
     own timeout ``node_rto``, default ``rto``), ``link`` the runner's link both ways
     (``harness.impair`` spec), ``seed`` the run's and the link's; ``stalls`` ``(p, max_s)``: the
     runner's own threads stalled (:class:`sim.stalls.StallingClock`, by ``seed``); ``mavlink``:
-    the run's vehicle (``--mavlink``, module docstring)."""
+    the run's vehicle (``--mavlink``: True its TCP, or a transport of
+    :data:`sim.vehicle.SIM_TRANSPORTS`; module docstring)."""
     from mcp_conform.conformance import cli
 
     if model is None or isinstance(model, str):
@@ -190,7 +190,7 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
         argv = ["--spawn", f"sim:{name}", "--rto", str(rto), "--ack-window", str(ack_window),
-                *(["--serial"] if serial else []), *(["--mavlink", "udpout"] if mavlink else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
+                *(["--serial"] if serial else []), *(["--mavlink", "tcp" if mavlink is True else str(mavlink)] if mavlink else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mcp", "drone"))

@@ -284,6 +284,8 @@ class SimTransport(Transport):
         if ap is not None and self.vehicle_net is not None:
             for frame in ap.take_output():
                 self.vehicle_net.from_node(frame, ap.addr)
+            if model.closed:  # the process ended: its autopilot connection with it
+                self.vehicle_net.detach(ap.addr)
         if model.closed:
             return
         t = model.timer()

@@ -7,14 +7,20 @@ vehicle built without them behaves exactly as before the seam.
 A clock has ``monotonic()`` (seconds), ``sleep(s)``, ``condition(lock)`` and ``event()`` (objects
 with ``threading.Condition``'s and ``threading.Event``'s methods, whose waits block on that
 clock) and ``start_thread(target, name)`` (a daemon thread; its handle has ``join(timeout)`` and
-``ident``). A net has ``open_out(destinations)`` and ``open_in(host, port)``, returning what
-``vehicle.udp.UdpEndpoint``'s class methods return: ``mode``, ``destinations``, ``port``,
-``sock.getsockname()``, ``receive(timeout)``, ``sendto(data, addr)``, ``close()``. TCP stays on
-the host's sockets: a vehicle on another net serves UDP only.
+``ident``). A net (:class:`HostNet`'s methods) opens the vehicle's UDP endpoints
+(``open_out(destinations)``, ``open_in(host, port)``: what ``vehicle.udp.UdpEndpoint``'s class
+methods return, ``mode``, ``destinations``, ``port``, ``sock.getsockname()``,
+``receive(timeout)``, ``sendto(data, addr)``, ``close()``) and its TCP listener
+(``listen(host, port)``: ``getsockname()``, ``close()``), accepts a connection
+(``accept(listener, timeout)``: ``(conn, peer)`` or None) and reads one (``recv(conn,
+timeout)``: bytes, b"" at its end, None when nothing came); a connection has ``sendall``,
+``settimeout``, ``setsockopt``, ``shutdown`` and ``close``, as a socket.
 """
 
 from __future__ import annotations
 
+import select
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -46,6 +52,35 @@ class RealClock:
         return thread
 
 
-#: The defaults of every vehicle: the host's clock, and UDP sockets of the host.
+class HostNet:
+    """The host's sockets: UDP by ``vehicle.udp``, TCP by ``socket`` and ``select``."""
+
+    open_out = staticmethod(UdpEndpoint.open_out)
+    open_in = staticmethod(UdpEndpoint.open_in)
+
+    @staticmethod
+    def listen(host: str, port: int) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+            sock.listen(8)
+        except OSError:
+            sock.close()
+            raise
+        return sock
+
+    @staticmethod
+    def accept(listener: socket.socket, timeout: float) -> tuple[socket.socket, Any] | None:
+        readable, _, _ = select.select([listener], [], [], timeout)
+        return listener.accept() if readable else None
+
+    @staticmethod
+    def recv(sock: socket.socket, timeout: float) -> bytes | None:
+        readable, _, _ = select.select([sock], [], [], timeout)
+        return sock.recv(65536) if readable else None
+
+
+#: The defaults of every vehicle: the host's clock and sockets.
 REAL_CLOCK = RealClock()
-HOST_NET = UdpEndpoint
+HOST_NET = HostNet()

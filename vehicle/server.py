@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import select
 import socket
 import threading
 from collections.abc import Callable
@@ -60,7 +59,7 @@ FrameTap = Callable[[float, str, int, bytes], None]
 class _Client:
     """One link: a TCP connection or a UDP peer address; decoder, encoder, send lock."""
 
-    def __init__(self, number: int, sock: socket.socket | None, peer: Any, sysid: int,
+    def __init__(self, number: int, sock: Any, peer: Any, sysid: int,
                  compid: int, *, version: int = 2, udp: UdpEndpoint | None = None):
         self.number = number
         self.sock = sock
@@ -121,7 +120,7 @@ class SimVehicle:
         self._model.listener = on_event
         self._on_frame = on_frame
         self._stop = self._clock.event()
-        self._listener: socket.socket | None = None
+        self._listener: Any = None
         self._threads: list[Any] = []
         self._clients: dict[int, _Client] = {}
         self._connections = 0
@@ -151,18 +150,13 @@ class SimVehicle:
         """
         if self._started:
             raise RuntimeError("vehicle already started")
-        if port is not None and self._net is not HOST_NET:
-            raise ValueError("a vehicle on another net than the host's serves UDP only (port=None)")
         self._version = 1 if mavlink1 else 2
         self._frame_per_datagram = frame_per_datagram
         endpoints: list[UdpEndpoint] = []
         sock = None
         try:
             if port is not None:
-                sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                sock.bind((host, port))
-                sock.listen(8)
+                sock = self._net.listen(host, port)
             if udp_out:
                 endpoints.append(self._net.open_out(list(udp_out)))
             if udp_in is not None:
@@ -364,18 +358,16 @@ class SimVehicle:
         assert listener is not None
         while not self._stop.is_set():
             try:
-                readable, _, _ = select.select([listener], [], [], POLL)
-                if not readable:
-                    continue
-                sock, peer = listener.accept()
+                got = self._net.accept(listener, POLL)
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return
                 self._clock.sleep(POLL)
                 continue
-            self._serve(sock, peer)
+            if got is not None:
+                self._serve(*got)
 
-    def _serve(self, sock: socket.socket, peer: Any) -> None:
+    def _serve(self, sock: Any, peer: Any) -> None:
         sock.settimeout(SEND_TIMEOUT)
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -399,12 +391,11 @@ class SimVehicle:
         assert sock is not None  # TCP clients only
         while client.alive and not self._stop.is_set():
             try:
-                readable, _, _ = select.select([sock], [], [], POLL)
-                if not readable:
-                    continue
-                data = sock.recv(65536)
+                data = self._net.recv(sock, POLL)
             except (OSError, ValueError):
                 break
+            if data is None:
+                continue
             if not data:
                 break
             self._receive(client, data)

@@ -1,7 +1,8 @@
 """The runner's drone cases with its vehicle in the simulator (``sim.runner.run_cases(...,
 mavlink=True)``, issue 38): ``vehicle.SimVehicle`` on the session's virtual clock (its seam,
-``vehicle.seam``; sim.vehicle), and the drone model's MAVLink client (sim.autopilot) talking to
-it, so the cases observed on the autopilot link are judged instead of skipped.
+``vehicle.seam``; sim.vehicle) over TCP (``--mavlink``'s default) or UDP, and the drone model's
+MAVLink client (sim.autopilot) talking to it, so the cases observed on the autopilot link are
+judged instead of skipped.
 
 Correct: the reference drone with the vehicle gets no failed or warned verdict (cases or
 monitor) at the short timings and at the description's 5 s ones, serial and scheduled, through
@@ -15,6 +16,7 @@ import pytest
 from mcp_conform.harness.clock import VirtualClock
 from mcp_conform.sim.autopilot import AutopilotClient
 from mcp_conform.sim.faults import FAULTS
+from mcp_conform.sim.mutants import mutant_factory
 from mcp_conform.sim.runner import run_cases
 from mcp_conform.sim.vehicle import SimVehicleNet, start_vehicle
 
@@ -53,6 +55,24 @@ def test_the_reference_drone_with_the_vehicle_passes_every_case(timing, serial):
     assert run.models == 1
 
 
+def test_the_vehicle_over_udp():
+    """``--mavlink udpout``: the vehicle listens on UDP and learns the node from its HEARTBEAT."""
+    run = run_cases(None, seed=1, mavlink="udpout", **SHORT)
+    assert not _bad(run) and not run.rules_with("failed", "warned"), run.explain()
+    cases = run.cases()
+    assert {c: cases.get(c) for c in VEHICLE_CASES} == VEHICLE_CASES, run.explain()
+
+
+def test_a_restarted_node_connects_again():
+    """A node that crashes (MCP-ROB-1's sample fault) is started again for the next case: its
+    client connects anew, and the vehicle's cases after it are judged on the new connection."""
+    run = run_cases(mutant_factory("crash-on-short", rto=0.2, seed=3), seed=3, mavlink=True, **SHORT)
+    assert run.rules_with("failed", "warned") == {"MCP-ROB-1": "failed"}, run.explain()
+    assert run.models >= 2
+    cases = run.cases()
+    assert cases["BLK/test_end_mission_then_rtl"] == "passed", run.explain()
+
+
 @pytest.mark.parametrize("serial", [True, False], ids=["serial", "scheduled"])
 def test_the_vehicle_cases_through_the_runners_impaired_link(serial):
     """The MCP link impaired (the autopilot link is the host's loopback in a real run: clean):
@@ -72,11 +92,13 @@ def test_a_seed_gives_the_same_run_with_the_vehicle():
     assert (a.virtual_s, a.switches) == (b.virtual_s, b.switches)
 
 
-def test_the_vehicle_runs_on_the_virtual_clock():
-    """The vehicle's seam: its threads, waits and timestamps on the virtual clock, its socket
-    the simulated net. A client that sends its HEARTBEAT is heard (``connected``), gets the
-    vehicle's HEARTBEAT and, ``gps_fix_delay`` virtual seconds after the start, the 3D fix --
-    in no wall time to speak of."""
+@pytest.mark.parametrize("transport", ["tcp", "udpout"])
+def test_the_vehicle_runs_on_the_virtual_clock(transport):
+    """The vehicle's seam: its threads, waits and timestamps on the virtual clock, its sockets
+    the simulated net. A client that connects (TCP) or sends its HEARTBEAT (UDP) is on the link
+    (``connected``), gets the vehicle's HEARTBEAT and, ``gps_fix_delay`` virtual seconds after
+    the start, the 3D fix -- in no wall time to speak of; over TCP its end is the vehicle's
+    ``disconnect``."""
     clock = VirtualClock(step=1e-6)
     net = SimVehicleNet(clock)
     client = AutopilotClient(("127.0.0.1", 41000))
@@ -90,17 +112,21 @@ def test_the_vehicle_runs_on_the_virtual_clock():
             net.from_node(frame, client.addr)
 
     def main() -> None:
-        vehicle, url = start_vehicle(clock, net, gps_fix_delay=30.0)
+        vehicle, url = start_vehicle(clock, net, transport, gps_fix_delay=30.0)
         t0 = clock.monotonic()
         net.attach(client.addr, deliver)
         client.start(clock.now)
         for frame in client.take_output():
             net.from_node(frame, client.addr)
-        assert url.startswith("udpout:127.0.0.1:")
+        assert url.startswith(f"{transport}:127.0.0.1:")
         assert vehicle.wait_for(lambda: vehicle.connected, 1.0)
         assert vehicle.wait_for(lambda: "fix" in seen, 60.0)
         seen["t0"] = t0
         assert client.heartbeat and vehicle.connections == 1
+        net.detach(client.addr)
+        if transport == "tcp":
+            assert vehicle.wait_for(lambda: not vehicle.connected, 1.0)
+            assert [e.detail["peer"] for e in vehicle.events("disconnect")] == ["127.0.0.1:41000"]
         vehicle.close()
 
     clock.run(main)
