@@ -1,8 +1,11 @@
 """The runner's drone cases in the simulator (``mcp_conform.sim.runner``, issue 38 item 2): wall
 and CPU time per run, virtual time, and runs a minute, for the reference drone and the drone
-faults of ``sim.faults``, at the short timings and the description's 5 s ones.
+faults of ``sim.faults``, at the short timings and the description's 5 s ones; ``--mavlink``: with
+the runner's vehicle on the same clock (``run_cases(..., mavlink=True)``, sim.vehicle), the
+models the sample node's mutants of ``sim.mutants`` may name too (``--models arm-early,...``;
+``--models vehicle``: the reference and the 12 mutants observed on the vehicle's link).
 
-    python bench/bench_sim_runner.py [--runs 3] [--impair SPEC]
+    python bench/bench_sim_runner.py [--runs 3] [--impair SPEC] [--mavlink] [--models ...]
 
 Each row: the model, the timing, the verdicts that failed or warned (cases and monitor), the
 run's length on the virtual clock, its wall and CPU time in this process (the median of
@@ -17,6 +20,7 @@ import statistics
 import time
 
 from mcp_conform.sim.faults import FAULTS
+from mcp_conform.sim.mutants import MUTANTS, NEEDS_VEHICLE, mutant_factory
 from mcp_conform.sim.runner import run_cases
 
 TIMINGS = {"short": {"rto": 0.2, "ack_window": 0.25}, "5s": {"rto": 5.0, "ack_window": 2.0}}
@@ -27,16 +31,20 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--impair", default=None, help="the runner's --impair for every run")
     ap.add_argument("--models", default="reference," + ",".join(n for n, f in FAULTS.items() if f.role == "drone"))
+    ap.add_argument("--mavlink", action="store_true", help="with the runner's vehicle")
     a = ap.parse_args()
     extra = ("--impair", a.impair) if a.impair else ()
+    if a.models == "vehicle":
+        a.models, a.mavlink = "reference," + ",".join(NEEDS_VEHICLE), True
     print(f"{'model':24} {'timing':6} {'verdicts':34} {'virtual':>8} {'wall':>7} {'cpu':>7} {'runs/min':>8}")
     for name in a.models.split(","):
-        model = None if name == "reference" else name
         for label, timing in TIMINGS.items():
             walls, cpus = [], []
             for seed in range(a.runs):
+                model = (None if name == "reference" else name if name in FAULTS
+                         else mutant_factory(name, rto=timing["rto"], seed=seed) if name in MUTANTS else name)
                 w0, c0 = time.perf_counter(), time.process_time()
-                run = run_cases(model, seed=seed, extra=extra, **timing)
+                run = run_cases(model, seed=seed, extra=extra, mavlink=a.mavlink, **timing)
                 walls.append(time.perf_counter() - w0)
                 cpus.append(time.process_time() - c0)
             wall, cpu = statistics.median(walls), statistics.median(cpus)

@@ -207,8 +207,8 @@ class Session(DatagramSessionBase):
         if self.driver is not None:
             self.driver.close()
             self.driver = None
-        if self.monitor is not None:
-            self.monitor.finish()
+        if self.monitor is not None:  # on the run's clock: the simulator's is not the host's
+            self.monitor.finish(self.clock.time_ns())
 
     def _start_vehicle(self) -> None:
         from mcp_conform.vehicle import start_for_node

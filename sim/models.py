@@ -16,6 +16,13 @@ A model is a party of :class:`sim.world.World`: bytes and ``now`` in (:meth:`Nod
   blocks: MCP-BLK-1/3): Start_Mission to each drone, the challenge (MCP-FLOW-4/5/6), End_Mission
   to each (MCP-FLOW-3, BLK-6); a drone whose command is given up gets nothing more; then it
   closes.
+
+With an autopilot (:meth:`DroneModel.use_autopilot`: the runner's vehicle, :mod:`sim.vehicle`)
+the drone is ``reference_impl.drone``'s with its MAVLink link (:mod:`sim.autopilot`): it waits
+for the autopilot's HEARTBEAT, then its 3D fix (MCP-BLK-5), then sends Mission_Ready; it hands
+Start_Mission (GUIDED, arm, take off: MCP-BLK-4), WP_List (the mission upload), Mav_Passthrough
+(the frame forwarded once: MCP-PAY-8) and End_Mission (RTL: MCP-BLK-7) to the client's jobs,
+and after End_Mission waits for them (``drain_timeout``) before its linger.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import random
 from collections.abc import Callable
 from typing import Any
 
+from mcp_conform.reference_impl.drone import DroneConfig
 from mcp_conform.reference_impl.endpoint import Endpoint
 from mcp_conform.reference_impl.events import (
     DeliveryConfirmed,
@@ -32,7 +40,8 @@ from mcp_conform.reference_impl.events import (
     DuplicateDiscarded,
     MessageDelivered,
 )
-from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, MissionItem
+from mcp_conform.sim.autopilot import AutopilotClient, Flow, Steps
+from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message, MissionItem
 
 __all__ = ["DroneModel", "ManagerModel", "NodeModel", "mission_items"]
 
@@ -72,6 +81,7 @@ class NodeModel:
         self.outcome = "running"
         #: (action, src, seq) of every message delivered to the application (MCP-DUP-1's truth)
         self.delivered: list[tuple[int, int, int]] = []
+        self.last_delivered: Message | None = None  # the message ``_delivered`` is called for
 
     def start(self, now: float) -> None:
         """The node's process starts (its socket is open from here)."""
@@ -96,7 +106,7 @@ class NodeModel:
     def _events(self, now: float) -> None:
         for ev in self.ep.events():
             if isinstance(ev, MessageDelivered):
-                m = ev.msg
+                m = self.last_delivered = ev.msg
                 self.delivered.append((m.action, m.src, m.seq))
                 self._delivered(m.action, m.src, now)
             elif isinstance(ev, (DeliveryConfirmed, DeliveryFailed)):
@@ -111,8 +121,16 @@ class NodeModel:
         """One of our unicasts was ACKed or given up."""
 
 
+_DRONE = DroneConfig(drone_id=1)
+
+
 class DroneModel(NodeModel):
-    """The drone role (see the module docstring); ``ready_at``: when its GPS fix comes."""
+    """The drone role (see the module docstring); ``ready_at``: when its GPS fix comes (without
+    an autopilot; with one, when the autopilot reports it)."""
+
+    takeoff_alt = _DRONE.takeoff_alt
+    drain_timeout = _DRONE.drain_timeout
+    heartbeat_timeout = _DRONE.heartbeat_timeout
 
     def __init__(self, drone_id: int, rto: float, retries: int, rng: random.Random, *, ready_at: float,
                  linger: float | None = None, endpoint: EndpointFactory | None = None) -> None:
@@ -123,36 +141,122 @@ class DroneModel(NodeModel):
         self._ready_sent = False
         self.started = False
         self.ended = False
+        self.ready_acked = False
+        self.autopilot: AutopilotClient | None = None
+        self._main = Steps()
+        self.now = 0.0
+
+    # ------------------------------------------------------------------ the autopilot
+    def use_autopilot(self, addr: tuple[str, int]) -> None:
+        """Before :meth:`start`: the node reaches the runner's vehicle from ``addr``."""
+        self.autopilot = self.make_autopilot(addr)
+
+    def make_autopilot(self, addr: tuple[str, int]) -> AutopilotClient:
+        return AutopilotClient(addr)
+
+    def start(self, now: float) -> None:
+        self.now = now
+        if self.autopilot is not None:
+            self.autopilot.start(now)
+            self._main = Steps(self.main())
+            self._progress(now)
+
+    def receive_autopilot(self, data: bytes, now: float) -> None:
+        """Bytes from the vehicle."""
+        if self.autopilot is not None and not self.closed:
+            self.autopilot.receive(data, now)
+            self._progress(now)
+
+    def _until(self, pred: Callable[[], bool], timeout: float) -> Flow:
+        return (yield (pred, self.now + timeout))
+
+    def main(self) -> Flow:
+        """``reference_impl.drone.Drone._run`` with an autopilot, after the sockets open."""
+        ap = self.autopilot
+        assert ap is not None
+        if not (yield from self._until(lambda: ap.heartbeat, self.heartbeat_timeout)):
+            self.close(self.now, "exit:2")  # RoleError: no HEARTBEAT from the autopilot
+            return
+        yield from self._until(lambda: ap.fix, math.inf)  # MCP-BLK-5
+        self.send_ready(self.now)
+        yield from self._until(lambda: self.ended, math.inf)
+        yield from self._until(ap.idle, self.drain_timeout)  # the RTL and the work before it
+        self.close_at = self.now + self.linger
+
+    def submit(self, kind: str, arg: Any = None) -> None:
+        if self.autopilot is not None:
+            self.autopilot.submit(kind, arg, self.now)
+
+    def _progress(self, now: float) -> None:
+        self.now = now
+        if not self.closed:
+            self._main.advance(now)
+
+    # ------------------------------------------------------------------ MCP
+    def send_ready(self, now: float) -> None:
+        self._ready_sent = True
+        # MCP-FLOW-1 / MCP-PAY-2: "Mission_Ready carries no payload ... it is unicast to ID 0"
+        self.ep.send(Action.MISSION_READY, None, MANAGER_ID, now=now)
+
+    def receive(self, data: bytes, addr: Any, now: float) -> None:
+        self.now = now
+        super().receive(data, addr, now)
+        self._progress(now)
 
     def timer(self) -> float | None:
         t = self.ep.get_timer()
         nxt = self.close_at if t is None else min(t, self.close_at)
-        if not self._ready_sent:
+        if self.autopilot is not None:
+            nxt = min(nxt, self.autopilot.timer(), self._main.deadline())
+        elif not self._ready_sent:
             nxt = min(nxt, self.ready_at)
         return None if nxt == math.inf else nxt
 
     def on_timer(self, now: float) -> None:
-        if not self._ready_sent and now >= self.ready_at:
-            self._ready_sent = True
-            # MCP-FLOW-1 / MCP-PAY-2: "Mission_Ready carries no payload ... it is unicast to ID 0"
-            self.ep.send(Action.MISSION_READY, None, MANAGER_ID, now=now)
+        self.now = now
+        if self.autopilot is None and not self._ready_sent and now >= self.ready_at:
+            self.send_ready(now)
         if now >= self.close_at:
             self.close(now, "end_mission")
             return
+        if self.autopilot is not None:
+            self.autopilot.on_timer(now)
         super().on_timer(now)
+        self._progress(now)
 
     def _delivered(self, action: int, src: int, now: float) -> None:
         if self.ended:
             return  # after End_Mission: recorded, not acted on
+        msg = self.last_delivered
         if action == Action.START_MISSION:
+            if not self.started:
+                self.submit("takeoff", self.takeoff_alt)
             self.started = True
+        elif action == Action.WP_LIST and msg is not None and msg.payload:
+            self.submit("mission", tuple(msg.payload))
+        elif action == Action.MAV_PASSTHROUGH and msg is not None and isinstance(msg.payload, (bytes, bytearray)):
+            self.forward(bytes(msg.payload))
         elif action == Action.END_MISSION:
             self.ended = True
-            self.close_at = now + self.linger  # MCP-BLK-7's RTL, then ACKing for the linger
+            self.end_mission(now)
+
+    def forward(self, frame: bytes) -> None:
+        """A delivered Mav_Passthrough frame to the autopilot (MCP-PAY-8)."""
+        self.submit("forward", frame)
+
+    def end_mission(self, now: float) -> None:
+        """End_Mission: the RTL (MCP-BLK-7), then ACKing for the linger (with an autopilot:
+        once its work is done, :meth:`main`)."""
+        if self.autopilot is None:
+            self.close_at = now + self.linger
+        else:
+            self.submit("rtl")
 
     def _outcome(self, ev: DeliveryConfirmed | DeliveryFailed, now: float) -> None:
         if isinstance(ev, DeliveryFailed):
             self.close(now, "mission_ready_failed")
+        else:
+            self.ready_acked = True
 
 
 class ManagerModel(NodeModel):

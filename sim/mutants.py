@@ -11,17 +11,34 @@ reads filtered or answered beyond the rule (:meth:`MutantDrone.receive`: a datag
 source port dropped, an ACK of a broadcast, of another ID's message, of an ACK, of a malformed
 datagram; an exit on a short or a huge datagram; deafness after a flood), or its timer changed
 (``rtx-storm``). The faults the sim already models on the endpoint (:mod:`sim.faults`) are
-taken from there. The mutants observed on the vehicle's link (DUP, BLK-4/5/7, PAY-8, SEQ-3) are
-not here: the simulator has no vehicle model yet (:data:`NEEDS_VEHICLE`).
+taken from there.
+
+The mutants observed on the vehicle's link (:data:`NEEDS_VEHICLE`: DUP, BLK-4/5/7, PAY-8,
+SEQ-3) are caught in a run with the vehicle (``sim.runner.run_cases(..., mavlink=True)``). Their
+faults are the sample node's: its duplicate test (``Node.is_duplicate``: ``seq-no-wrap`` takes a
+seq at or below the last delivered from that src, as plain integers, for a duplicate;
+``dup-by-content`` a message equal in action and payload to that src's last; ``dup-ignores-src``
+keeps one last seq for every src; ``no-dup-discard`` delivers every copy, :mod:`sim.faults`), and
+what its ``Node.run`` and handlers ask of the autopilot (``arm-before-fix``: an arm request on
+connecting; ``arm-early``: after the fix, before Mission_Ready; ``arm-before-start``: once
+Mission_Ready is ACKed; ``ready-without-fix``: Mission_Ready without waiting for the fix;
+``no-rtl``: no RTL on End_Mission; ``passthrough-twice``, ``-truncated`` (its last 3 bytes cut),
+``-corrupt`` (bit 0 of its byte 11, a payload byte, flipped; the CRC unchanged): the frame written
+so), on the reference drone's autopilot client (:mod:`sim.autopilot`) without its HEARTBEATs, as the
+sample node's link sends none.
 """
 
 from __future__ import annotations
 
+import math
 import random
 import struct
 from collections.abc import Callable
 from typing import Any
 
+from mcp_conform.reference_impl.endpoint import Endpoint
+from mcp_conform.reference_impl.events import DuplicateDiscarded, MessageDelivered
+from mcp_conform.sim.autopilot import AutopilotClient, Flow
 from mcp_conform.sim.faults import FAULTS, fault_endpoint
 from mcp_conform.sim.models import DroneModel
 from mcp_conform.spec import SPEC
@@ -46,10 +63,12 @@ STORM_INTERVAL = 0.01
 FLOOD_HANG_AFTER = 5000
 FLOOD_HANG_FOR = 30.0
 CRASH_BIG_ABOVE = 8192
+DUP_WINDOW = 64  # sample_node.DUP_WINDOW
+ARM_WAIT = 5.0  # how long sample_node's run waits for its arm job
 _HDR = struct.Struct("!4H")
 _HDR_LE = struct.Struct("<4H")
 
-#: mutant -> the rule it breaks (test_mutants' MUTANTS, the ones without a vehicle)
+#: mutant -> the rule it breaks (test_mutants' MUTANTS)
 MUTANTS: dict[str, str] = {
     "bad-preamble": "MCP-HDR-1", "header-little-endian": "MCP-HDR-2", "send-action-9": "MCP-HDR-3",
     "mission-ready-wrong-src": "MCP-HDR-4", "send-wp-list": "MCP-HDR-5",
@@ -61,11 +80,61 @@ MUTANTS: dict[str, str] = {
     "crash-on-short": "MCP-ROB-1", "ack-bad-preamble": "MCP-ROB-2", "ack-unknown-action": "MCP-ROB-3",
     "ack-bad-length": "MCP-ROB-4", "crash-on-big": "MCP-ROB-6", "flood-hang": "MCP-ROB-7",
     "ready-to-wrong-id": "MCP-FLOW-1", "source-port-filter": "MCP-TRN-2",
+    "seq-no-wrap": "MCP-SEQ-3", "no-dup-discard": "MCP-DUP-1", "dup-by-content": "MCP-DUP-2",
+    "dup-ignores-src": "MCP-DUP-3", "arm-early": "MCP-BLK-4", "arm-before-fix": "MCP-BLK-4",
+    "arm-before-start": "MCP-BLK-4", "ready-without-fix": "MCP-BLK-5", "no-rtl": "MCP-BLK-7",
+    "passthrough-twice": "MCP-PAY-8", "passthrough-truncated": "MCP-PAY-8", "passthrough-corrupt": "MCP-PAY-8",
 }
-#: test_mutants' mutants observed on the vehicle's link: not simulated yet
+#: test_mutants' mutants observed on the vehicle's link: caught in a run with the vehicle
 NEEDS_VEHICLE = ("seq-no-wrap", "no-dup-discard", "dup-by-content", "dup-ignores-src", "arm-early",
                  "arm-before-fix", "arm-before-start", "ready-without-fix", "no-rtl", "passthrough-twice",
                  "passthrough-truncated", "passthrough-corrupt")
+_SAMPLE_DUP = ("seq-no-wrap", "dup-by-content", "dup-ignores-src")
+
+
+class SampleDup(Endpoint):
+    """The reference endpoint with the sample node's duplicate test (module docstring) in
+    place of its own; the ACK of every copy is the reference's (the sample node's too)."""
+
+    fault = ""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._raw = b""
+        self._last: dict[Any, int] = {}
+        self._seen: dict[Any, list[int]] = {}
+        self._content: dict[int, tuple[int, bytes]] = {}
+
+    def receive_datagram(self, data: bytes, addr: Any, now: float) -> None:
+        self._raw = bytes(data)
+        super().receive_datagram(data, addr, now)
+
+    def _deliver(self, msg: Any, addr: Any) -> None:
+        f = self.fault
+        key = "all" if f == "dup-ignores-src" else msg.src
+        content = (int(msg.action), self._raw[HEADER_SIZE:])
+        last = self._last.get(key)
+        dup = last is not None and (msg.seq <= last if f == "seq-no-wrap" else msg.seq == last)
+        if not dup and f != "seq-no-wrap" and msg.seq in self._seen.get(key, ()):
+            dup = True
+        if not dup and f == "dup-by-content":
+            dup = self._content.get(msg.src) == content
+        if dup:
+            self._events.append(DuplicateDiscarded(msg, addr))
+            return
+        self._last[key] = msg.seq
+        self._seen[key] = [*self._seen.get(key, ()), msg.seq][-DUP_WINDOW:]
+        self._content[msg.src] = content
+        self._events.append(MessageDelivered(msg, addr))
+
+
+def _sample_dup(fault: str) -> Callable[[int, float, int, random.Random], Endpoint]:
+    cls = type(f"SampleDup[{fault}]", (SampleDup,), {"fault": fault})
+
+    def make(node_id: int, rto: float, retries: int, rng: random.Random) -> Endpoint:
+        return cls(node_id, timeout=rto, retries=retries, rng=rng)
+
+    return make
 
 
 class MutantDrone(DroneModel):
@@ -140,6 +209,50 @@ class MutantDrone(DroneModel):
         elif self.fault == "send-wp-list":
             self.ep.send(Action.WP_LIST, (), MANAGER_ID, now=now)
 
+    # ------------------------------------------------------------------ the autopilot
+    def make_autopilot(self, addr: tuple[str, int]) -> AutopilotClient:
+        """The sample node's link: no HEARTBEAT of its own (``sample_node.Autopilot`` writes
+        only its jobs' frames), so over TCP an altered frame is followed by nothing for a while,
+        and a UDP vehicle that waits to hear from it never does (test_mutants runs it over TCP)."""
+        return AutopilotClient(addr, heartbeat_period=None)
+
+    def main(self) -> Flow:
+        """``sample_node.Node.run``'s order where its fault changes it (else the reference's)."""
+        f, ap = self.fault, self.autopilot
+        if f not in ("arm-before-fix", "arm-early", "arm-before-start", "ready-without-fix"):
+            return (yield from super().main())
+        assert ap is not None
+        if f == "arm-before-fix":
+            self.submit("arm")
+            yield from self._until(ap.idle, ARM_WAIT)
+        if f != "ready-without-fix":
+            yield from self._until(lambda: ap.fix, math.inf)
+        if f == "arm-early":
+            self.submit("arm")
+            yield from self._until(ap.idle, ARM_WAIT)
+        self.send_ready(self.now)
+        if f == "arm-before-start":
+            yield from self._until(lambda: self.ready_acked, math.inf)
+            if not self.started:
+                self.submit("arm")
+        yield from self._until(lambda: self.ended, math.inf)
+        yield from self._until(ap.idle, self.drain_timeout)
+        self.close_at = self.now + self.linger
+
+    def forward(self, frame: bytes) -> None:
+        f = self.fault
+        if f == "passthrough-truncated":
+            frame = frame[:-3]
+        elif f == "passthrough-corrupt" and len(frame) > 12:
+            frame = frame[:11] + bytes([frame[11] ^ 0x01]) + frame[12:]
+        for _ in range(2 if f == "passthrough-twice" else 1):
+            super().forward(frame)
+
+    def end_mission(self, now: float) -> None:
+        if self.fault == "no-rtl" and self.autopilot is not None:
+            return  # no RTL; main() still waits for the work queued before, then lingers
+        super().end_mission(now)
+
     def _ack(self, dst: int, seq: int, addr: Any) -> None:
         """An ACK the correct drone would not send (its own seq taken, as every ACK takes one)."""
         self._extra.append((PREAMBLE + _HDR.pack(dst, self.node_id, self.ep._take_seq(), _ACK)
@@ -191,10 +304,11 @@ class MutantDrone(DroneModel):
 def mutant_factory(mutant: str, *, rto: float = 0.2, seed: int = 0, ready_after: float = 0.05) -> Callable[[float], DroneModel]:
     """A fresh model of ``mutant`` (:data:`MUTANTS`) for each spawn (``sim.runner``'s factory)."""
     if mutant not in MUTANTS:
-        why = "observed on the vehicle link (not simulated yet)" if mutant in NEEDS_VEHICLE else "unknown"
-        raise ValueError(f"mutant {mutant!r}: {why}")
+        raise ValueError(f"mutant {mutant!r}: unknown")
     retries = int(SPEC.params["retries"])
     endpoint = fault_endpoint(FAULTS[mutant], retries) if mutant in FAULTS else None
+    if mutant in _SAMPLE_DUP:
+        endpoint = _sample_dup(mutant)
     node_rto = STORM_INTERVAL if mutant == "rtx-storm" else rto
     spawns = random.Random(seed)
 

@@ -8,9 +8,12 @@ every timer of the model are events on the clock: a run at the description's 5 s
 costs the wall time of its computation, not of its waits, and a seed gives the same run.
 
 :func:`run_cases` runs the suite (``--serial``, or the default schedule with its batch) and
-returns the JSON report's verdicts (:class:`SimRun`). Not simulated yet: the vehicle
-(``--mavlink``: the cases observed on the autopilot link are skipped as in a run without one),
-``--parallel`` (node instances in processes of their own: ``conformance.parallel``).
+returns the JSON report's verdicts (:class:`SimRun`). ``mavlink=True`` is the run with
+``--mavlink`` (``mavlink="udpout"``: ``--mavlink udpout``): the session's vehicle is
+``vehicle.SimVehicle`` on the same clock (:mod:`sim.vehicle`, over TCP or UDP), and each node
+model talks MAVLink to it through its autopilot client (:mod:`sim.autopilot`), so the cases
+observed on the autopilot link (MCP-DUP-*, MCP-BLK-4/5/7, MCP-PAY-8, MCP-SEQ-3) are judged. Not
+simulated yet: ``--parallel`` (node instances in processes of their own: ``conformance.parallel``).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from mcp_conform.sim.faults import FAULTS, fault_endpoint
 from mcp_conform.sim.models import DroneModel
 from mcp_conform.sim.stalls import StallingClock
 from mcp_conform.sim.transport import SimNode, SimTransport
+from mcp_conform.sim.vehicle import SimVehicleNet, start_vehicle
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import pick
 
@@ -80,10 +84,20 @@ class SimSession(Session):
         self.model_name = name
         self.models: list[DroneModel] = []
 
+    def _start_vehicle(self) -> None:
+        """The real session's vehicle (``fix_withheld``, its taps to the monitor and capture),
+        on the session's clock and the simulated link (:mod:`sim.vehicle`)."""
+        net = self.sim_transport.vehicle_net = SimVehicleNet(self.clock)  # type: ignore[arg-type]
+        self.vehicle, self.mavlink_url = start_vehicle(
+            self.clock, net, self.cfg.mavlink_transport, fix_withheld=True,  # type: ignore[arg-type]
+            on_frame=self._vehicle_frame, on_event=self._vehicle_event)
+
     def _spawn(self) -> None:
         assert self.driver is not None
         model = self.make_model(self.clock.monotonic())
         model.addr = self.driver.target  # the node listens where the runner sends
+        if self.vehicle is not None:  # each spawn's client on a port of its own
+            model.use_autopilot(("127.0.0.1", 41000 + len(self.models)))
         self.models.append(model)
         self.sim_transport.attach(model)
         self.node = SimNode(model, self.model_name, self.sim_transport)  # type: ignore[assignment]  # a process's reading
@@ -153,13 +167,15 @@ class SimRun:
 def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: float = 0.2,
               ack_window: float = 0.25, node_rto: float | None = None, link: str | ImpairSpec | None = None,
               select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-              serial: bool = True, stalls: tuple[float, float] | None = None) -> SimRun:
+              serial: bool = True, stalls: tuple[float, float] | None = None, mavlink: bool | str = False) -> SimRun:
     """The drone cases (``--serial``; ``serial=False``: the default schedule, its batch's cases
     in threads of their own on the virtual clock) against ``model`` -- None: the reference drone; a name of
     :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the node's
     own timeout ``node_rto``, default ``rto``), ``link`` the runner's link both ways
     (``harness.impair`` spec), ``seed`` the run's and the link's; ``stalls`` ``(p, max_s)``: the
-    runner's own threads stalled (:class:`sim.stalls.StallingClock`, by ``seed``)."""
+    runner's own threads stalled (:class:`sim.stalls.StallingClock`, by ``seed``); ``mavlink``:
+    the run's vehicle (``--mavlink``: True its TCP, or a transport of
+    :data:`sim.vehicle.SIM_TRANSPORTS`; module docstring)."""
     from mcp_conform.conformance import cli
 
     if model is None or isinstance(model, str):
@@ -174,7 +190,7 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
         argv = ["--spawn", f"sim:{name}", "--rto", str(rto), "--ack-window", str(ack_window),
-                *(["--serial"] if serial else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
+                *(["--serial"] if serial else []), *(["--mavlink", "tcp" if mavlink is True else str(mavlink)] if mavlink else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mcp", "drone"))

@@ -12,6 +12,10 @@ it falls due. The model's own timer (its retransmissions, its GPS fix, its linge
 callback on the clock. A model that closes (its mission's end, a give-up) is a process that
 exited: :class:`SimNode` says so as ``SpawnedNode`` would (exit code 0 after End_Mission, 1 for a
 give-up).
+
+With the runner's vehicle (``vehicle_net``, :mod:`sim.vehicle`) a model's autopilot client
+(:mod:`sim.autopilot`) is attached to the vehicle's net at its own address while the model runs:
+its frames go to the vehicle, the vehicle's to it, on the same clock.
 """
 
 from __future__ import annotations
@@ -165,6 +169,7 @@ class SimTransport(Transport):
         self.reply_to_source = False
         self._next_ports = 40000
         self._side_inboxes: list[_Inbox] = []
+        self.vehicle_net: Any = None  # sim.vehicle.SimVehicleNet: the runner's vehicle
 
     # ------------------------------------------------------------------ the runner's side
     def bind(self, listen: Address) -> Address:
@@ -245,6 +250,10 @@ class SimTransport(Transport):
         self._armed = None
         if hasattr(model, "send_to"):
             model.send_to = self.listen  # where the node was told to send (source-port-filter)
+        ap = model.autopilot
+        if ap is not None and self.vehicle_net is not None:
+            gen = self._gen
+            self.vehicle_net.attach(ap.addr, lambda data: self._to_autopilot(model, gen, data))
         model.start(self.clock.now)
         self._after(model, self.clock.now)
 
@@ -252,6 +261,15 @@ class SimTransport(Transport):
         if model is not None and model is self.model:
             self._gen += 1
             self.model = None
+            if model.autopilot is not None and self.vehicle_net is not None:
+                self.vehicle_net.detach(model.autopilot.addr)
+
+    def _to_autopilot(self, model: DroneModel, gen: int, data: bytes) -> None:
+        if gen != self._gen or model is not self.model or model.closed:
+            return
+        now = self.clock.now
+        model.receive_autopilot(data, now)
+        self._after(model, now)
 
     def _after(self, model: DroneModel, now: float) -> None:
         """The model's datagrams up the link, and its next timer armed."""
@@ -262,6 +280,12 @@ class SimTransport(Transport):
                 self.clock.call_later(delay, lambda data=data, dst=dst: self._up(model, data, dst))  # type: ignore[misc]  # mypy: a default argument
             else:
                 self._up(model, data, dst)
+        ap = model.autopilot
+        if ap is not None and self.vehicle_net is not None:
+            for frame in ap.take_output():
+                self.vehicle_net.from_node(frame, ap.addr)
+            if model.closed:  # the process ended: its autopilot connection with it
+                self.vehicle_net.detach(ap.addr)
         if model.closed:
             return
         t = model.timer()

@@ -23,23 +23,25 @@ and sets are answered at once.
 
 Threads (all daemon): one accepting, one ticking telemetry, one reading per TCP client and
 one per UDP socket. All access to the model goes through one re-entrant lock, so every
-public method and property is thread-safe. Timestamps are ``time.monotonic()`` seconds.
+public method and property is thread-safe. Timestamps are the clock's ``monotonic()`` seconds:
+the host's, unless ``clock`` and ``net`` (``vehicle.seam``) put the vehicle on a simulator's
+clock and link.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import select
+import functools
 import socket
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 from .codec import STALE, Decoder, Encoder, MAVLinkMessage, UnparsedBytes
 from .model import VehicleConfig, VehicleModel
 from .records import Event, Frame, Unparsed
+from .seam import HOST_NET, REAL_CLOCK
 from .udp import Address, UdpEndpoint
 
 #: Seconds a blocked send may take before the client is considered dead.
@@ -57,7 +59,7 @@ FrameTap = Callable[[float, str, int, bytes], None]
 class _Client:
     """One link: a TCP connection or a UDP peer address; decoder, encoder, send lock."""
 
-    def __init__(self, number: int, sock: socket.socket | None, peer: Any, sysid: int,
+    def __init__(self, number: int, sock: Any, peer: Any, sysid: int,
                  compid: int, *, version: int = 2, udp: UdpEndpoint | None = None):
         self.number = number
         self.sock = sock
@@ -71,7 +73,7 @@ class _Client:
         #: A frame arrived from it (TCP clients count from the connection).
         self.heard = udp is None
         self.seen_v2 = False
-        self.thread: threading.Thread | None = None
+        self.thread: Any = None
         #: PARAM_VALUEs of a list still to send, and when the next batch is due
         self.params: list[MAVLinkMessage] = []
         self.params_due = 0.0
@@ -96,7 +98,8 @@ class SimVehicle:
     conn, raw)`` for every frame sent ("tx") or received ("rx"), and for the received bytes
     that did not parse (``unparsed()``; "rx", their ``seen`` time); both run on a vehicle
     thread with the vehicle's lock held, so they must be quick and must not wait for
-    other vehicle threads (reading the vehicle's properties is fine).
+    other vehicle threads (reading the vehicle's properties is fine). ``clock``, ``net``: the
+    seam of ``vehicle.seam`` (default: the host's clock and sockets).
     """
 
     def __init__(
@@ -105,16 +108,20 @@ class SimVehicle:
         *,
         on_event: Callable[[Event], None] | None = None,
         on_frame: FrameTap | None = None,
+        clock: Any = None,
+        net: Any = None,
         **settings: Any,
     ) -> None:
         cfg = dataclasses.replace(config or VehicleConfig(), **settings)
-        self._cond = threading.Condition(threading.RLock())
-        self._model = VehicleModel(cfg, now=time.monotonic())
+        self._clock = clock or REAL_CLOCK
+        self._net = net or HOST_NET
+        self._cond = self._clock.condition(threading.RLock())
+        self._model = VehicleModel(cfg, now=self._clock.monotonic())
         self._model.listener = on_event
         self._on_frame = on_frame
-        self._stop = threading.Event()
-        self._listener: socket.socket | None = None
-        self._threads: list[threading.Thread] = []
+        self._stop = self._clock.event()
+        self._listener: Any = None
+        self._threads: list[Any] = []
         self._clients: dict[int, _Client] = {}
         self._connections = 0
         self._numbers = 0
@@ -149,14 +156,11 @@ class SimVehicle:
         sock = None
         try:
             if port is not None:
-                sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                sock.bind((host, port))
-                sock.listen(8)
+                sock = self._net.listen(host, port)
             if udp_out:
-                endpoints.append(UdpEndpoint.open_out(list(udp_out)))
+                endpoints.append(self._net.open_out(list(udp_out)))
             if udp_in is not None:
-                endpoints.append(UdpEndpoint.open_in(*udp_in))
+                endpoints.append(self._net.open_in(*udp_in))
         except OSError:
             if sock is not None:
                 sock.close()
@@ -169,21 +173,17 @@ class SimVehicle:
         self._host = "127.0.0.1" if host in ("", "0.0.0.0") else host
         self._port = sock.getsockname()[1] if sock is not None else None
         with self._cond:
-            now = time.monotonic()
+            now = self._clock.monotonic()
             self._model.restart_fix_clock(now)
             for ep in endpoints:
                 for dest in ep.destinations:
                     self._udp_peer(ep, dest)
-        loops: list[tuple[Callable[..., None], tuple[Any, ...], str]] = [
-            (self._tick_loop, (), "tick")]
+        loops: list[tuple[Callable[[], None], str]] = [(self._tick_loop, "tick")]
         if sock is not None:
-            loops.append((self._accept_loop, (), "accept"))
-        loops += [(self._udp_loop, (ep,), f"udp-{ep.mode}") for ep in endpoints]
-        for target, args, name in loops:
-            thread = threading.Thread(target=target, args=args, name=f"vehicle-{name}",
-                                      daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            loops.append((self._accept_loop, "accept"))
+        loops += [(functools.partial(self._udp_loop, ep), f"udp-{ep.mode}") for ep in endpoints]
+        for target, name in loops:
+            self._threads.append(self._clock.start_thread(target, f"vehicle-{name}"))
         return self._port
 
     def close(self) -> None:
@@ -198,10 +198,10 @@ class SimVehicle:
             clients = list(self._clients.values())
         for client in clients:
             self._drop(client)
-        deadline = time.monotonic() + 1.0
+        deadline = self._clock.monotonic() + 1.0
         for thread in self._threads + [c.thread for c in clients if c.thread]:
-            if thread is not threading.current_thread():
-                thread.join(max(0.0, deadline - time.monotonic()))
+            if thread.ident != threading.get_ident():
+                thread.join(max(0.0, deadline - self._clock.monotonic()))
         with self._cond:
             self._cond.notify_all()
 
@@ -244,13 +244,13 @@ class SimVehicle:
     def withhold_fix(self, duration: float | None = None) -> None:
         """Report no GPS fix: until ``give_fix()``, or for ``duration`` seconds."""
         with self._cond:
-            self._model.withhold_fix(time.monotonic(), duration)
+            self._model.withhold_fix(self._clock.monotonic(), duration)
             self._cond.notify_all()
 
     def give_fix(self) -> None:
         """Report a 3D fix from now on."""
         with self._cond:
-            self._model.give_fix(time.monotonic())
+            self._model.give_fix(self._clock.monotonic())
             self._cond.notify_all()
 
     def reset_observations(self) -> None:
@@ -266,7 +266,7 @@ class SimVehicle:
     @property
     def has_fix(self) -> bool:
         """Whether the vehicle currently reports a 3D fix."""
-        return bool(self._read(lambda m: m.has_fix(time.monotonic())))
+        return bool(self._read(lambda m: m.has_fix(self._clock.monotonic())))
 
     @property
     def armed(self) -> bool:
@@ -326,7 +326,7 @@ class SimVehicle:
             return sum(c.decoder.holding() for c in self._clients.values())
 
     def first_time(self, kind: str) -> float | None:
-        """``time.monotonic()`` of the first ``kind`` event since the last reset."""
+        """The clock's ``monotonic()`` of the first ``kind`` event since the last reset."""
         return self._read(lambda m: m.first_time(kind))
 
     def probe_count(self, token: str) -> int:
@@ -342,12 +342,12 @@ class SimVehicle:
 
         Returns its last value; never waits longer than ``timeout`` seconds.
         """
-        deadline = time.monotonic() + timeout
+        deadline = self._clock.monotonic() + timeout
         with self._cond:
             while True:
                 if predicate():
                     return True
-                remaining = deadline - time.monotonic()
+                remaining = deadline - self._clock.monotonic()
                 if remaining <= 0 or self._stop.is_set():
                     return bool(predicate())
                 self._cond.wait(min(remaining, POLL))
@@ -358,18 +358,16 @@ class SimVehicle:
         assert listener is not None
         while not self._stop.is_set():
             try:
-                readable, _, _ = select.select([listener], [], [], POLL)
-                if not readable:
-                    continue
-                sock, peer = listener.accept()
+                got = self._net.accept(listener, POLL)
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return
-                time.sleep(POLL)
+                self._clock.sleep(POLL)
                 continue
-            self._serve(sock, peer)
+            if got is not None:
+                self._serve(*got)
 
-    def _serve(self, sock: socket.socket, peer: Any) -> None:
+    def _serve(self, sock: Any, peer: Any) -> None:
         sock.settimeout(SEND_TIMEOUT)
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -380,28 +378,24 @@ class SimVehicle:
             client = _Client(self._numbers, sock, peer, cfg.sysid, cfg.compid,
                              version=self._version)
             self._clients[client.number] = client
-            now = time.monotonic()
+            now = self._clock.monotonic()
             self._model.record(now, "connect", conn=client.number, peer=client.peer,
                                transport="tcp")
             self._send(client, self._model.snapshot(now))
             self._cond.notify_all()
-        client.thread = threading.Thread(
-            target=self._read_loop, args=(client,), name=f"vehicle-conn{client.number}",
-            daemon=True,
-        )
-        client.thread.start()
+        client.thread = self._clock.start_thread(lambda: self._read_loop(client),
+                                                 f"vehicle-conn{client.number}")
 
     def _read_loop(self, client: _Client) -> None:
         sock = client.sock
         assert sock is not None  # TCP clients only
         while client.alive and not self._stop.is_set():
             try:
-                readable, _, _ = select.select([sock], [], [], POLL)
-                if not readable:
-                    continue
-                data = sock.recv(65536)
+                data = self._net.recv(sock, POLL)
             except (OSError, ValueError):
                 break
+            if data is None:
+                continue
             if not data:
                 break
             self._receive(client, data)
@@ -409,9 +403,9 @@ class SimVehicle:
 
     def _receive(self, client: _Client, data: bytes) -> None:
         """Decode bytes from ``client``, let the model answer, send the replies."""
-        msgs, bad, reason = client.decoder.feed(data, time.monotonic())
+        msgs, bad, reason = client.decoder.feed(data, self._clock.monotonic())
         with self._cond:
-            now = time.monotonic()
+            now = self._clock.monotonic()
             if bad:
                 self._model.record_bad_data(now, bad, reason, client.number)
             self._keep_unparsed(client, client.decoder.take_unparsed(), now)
@@ -502,7 +496,7 @@ class SimVehicle:
     def _tick_loop(self) -> None:
         while not self._stop.is_set():
             with self._cond:
-                now = time.monotonic()
+                now = self._clock.monotonic()
                 msgs = self._model.tick(now)
                 for client in list(self._clients.values()):
                     self._keep_unparsed(client, client.decoder.stale(now, STALE), now)
@@ -511,7 +505,7 @@ class SimVehicle:
                 self._flush_outbox()
                 pacing = self._send_params(now)
                 self._cond.notify_all()
-                delay = self._model.next_deadline() - time.monotonic()
+                delay = self._model.next_deadline() - self._clock.monotonic()
             self._stop.wait(min(max(delay, 0.001), PARAM_PERIOD if pacing else POLL))
 
     def _send(self, client: _Client, msgs: list[MAVLinkMessage]) -> None:
@@ -531,7 +525,7 @@ class SimVehicle:
                     client.alive = False
                 return
         if self._on_frame is not None:
-            now = time.monotonic()
+            now = self._clock.monotonic()
             for raw in frames:
                 self._on_frame(now, "tx", client.number, raw)
 
@@ -545,6 +539,6 @@ class SimVehicle:
                 client.sock.close()
         with self._cond:
             if self._clients.pop(client.number, None) is not None:
-                self._model.record(time.monotonic(), "disconnect", conn=client.number,
+                self._model.record(self._clock.monotonic(), "disconnect", conn=client.number,
                                    peer=client.peer)
             self._cond.notify_all()

@@ -6,10 +6,28 @@ must catch it with that rule ID (failed for a MUST, warned for a SHOULD) and not
 may fail or warn. Then nodes that are correct but differ from ours: none may have a MUST
 failure (a false alarm is as bad as a missed fault).
 
-On real processes and sockets run the mutants whose run checks what the simulator cannot yet
-(``_real_checks``: the vehicle link, ``--parallel``, the report's texts, the live monitor
-against ``mcp-capture check``); the others (``SIM_COVERS``) are caught by the same cases and
-monitor on virtual time in tests/sim/test_mutants_sim.py (issue 38 item 4).
+Every mutant is caught by the same cases and monitor on virtual time, the vehicle's link
+included, in tests/sim/test_mutants_sim.py (issue 38 item 4), with the checks of this module's
+runs (the diagnosis, a case's texts, the monitor's violations, the live monitor against
+``mcp-capture check``) and serial against scheduled. On real processes and sockets stay the
+runs the simulator cannot make (``REAL_MUTANTS``, 11 of the 41):
+
+- the mutants test_parallel folds here (``_real_checks``): ``--parallel 3`` runs node instances
+  in processes of their own, which the simulator does not model; beside the run they each make,
+  the 3-instance run must give every case its outcome (so they keep ``--mavlink``'s TCP, as
+  the 3-instance run has it);
+- the real smoke of the vehicle link: ``arm-early``, ``ready-without-fix`` and ``seq-no-wrap``
+  (among those) over TCP, and ``arm-before-fix`` over UDP (``TRANSPORT``: the vehicle sends to
+  the node, as SITL's ``--out``; of the sample node's faults the one that writes to the vehicle
+  before its fix, which a UDP vehicle needs to hear from a node that sends no HEARTBEAT, for
+  MCP-BLK-5 to be observed); the sample node is an independent program on pymavlink, where the
+  simulator's drone is ours (sim.autopilot);
+- on each: the report's terminal text (DIAGNOSIS: ``arm-early``, ``arm-before-fix``), the
+  monitor's violations (MONITOR_SEES) and ``mcp-capture check`` of a capture a real recorder
+  wrote on real clocks; serial against scheduled where test_schedule_verdicts folds it here.
+
+The correct variants, the 5 s timings, the header diagnosis and the crashing node's capture
+below stay real too (processes that read slowly, exit, or differ from ours).
 
 By default the node and the runner use short timings (node --rto 0.2, runner --rto 0.2
 --ack-window 0.25). ``MCP_MUTANTS_TIMING=real`` runs the same matrix at the description's
@@ -161,19 +179,19 @@ def same_verdicts_offline(res, capture) -> None:
         assert sorted((v.rule, v.node) for v in j.violations) == live_violations, complete
 
 
+#: the vehicle transport of a real run other than ``--mavlink``'s TCP (the link's smoke over UDP)
+TRANSPORT = {"arm-before-fix": "udp"}
+
+
 def _real_checks() -> set[str]:
-    """The mutants whose real run checks what the simulator does not: the vehicle link
-    (``sim.mutants.NEEDS_VEHICLE``), ``--parallel 3`` beside the run (test_parallel's fold), the
-    report's diagnosis, a case's texts and the live monitor against ``mcp-capture check``."""
-    from mcp_conform.sim.mutants import NEEDS_VEHICLE
-
-    par = {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"}
-    return set(NEEDS_VEHICLE) | par | set(DIAGNOSIS) | set(CASE_SAYS) | set(MONITOR_SEES)
+    """The mutants whose real run checks what the simulator does not: ``--parallel 3`` beside
+    the run (test_parallel's fold), the vehicle link over UDP (the module docstring)."""
+    return {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"} | set(TRANSPORT)
 
 
-#: Mutants caught on virtual time instead (issue 38 item 4: tests/sim/test_mutants_sim.py runs
-#: the runner's own cases and monitor against each as a model, serial and scheduled where the
-#: schedule's fold had them here): 19 of the 41, about 50 real runs of the slow suite.
+#: Mutants caught on virtual time only (issue 38 item 4: tests/sim/test_mutants_sim.py runs the
+#: runner's own cases and monitor against each as a model, with the vehicle where it needs one,
+#: serial and scheduled where the schedule's fold had them here): 30 of the 41.
 SIM_COVERS = frozenset(f for f, _ in MUTANTS if f not in _real_checks())
 REAL_MUTANTS = [(f, r) for f, r in MUTANTS if f not in SIM_COVERS]
 
@@ -181,7 +199,8 @@ REAL_MUTANTS = [(f, r) for f, r in MUTANTS if f not in SIM_COVERS]
 @pytest.mark.parametrize("fault,rule", REAL_MUTANTS, ids=[f for f, _ in REAL_MUTANTS])
 def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
     capture = tmp_path / "run.mcap"
-    res = conform("--fault", fault, extra=("--capture", str(capture)), tmp_path=tmp_path)
+    transport = ("--mavlink", TRANSPORT[fault]) if fault in TRANSPORT else ()
+    res = conform("--fault", fault, extra=("--capture", str(capture), *transport), tmp_path=tmp_path)
     want = "failed" if SPEC.rule(rule).level == "MUST" else "warned"
     assert res.rules.get(rule) == want, res.explain()
     others = {r: o for r, o in res.rules_with("failed", "warned").items() if r != rule}

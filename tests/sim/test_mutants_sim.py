@@ -1,9 +1,19 @@
 """The sample node's mutants (tests/conformance/test_mutants.py) as drone models in the simulator
 (sim.mutants, issue 38 item 4): the runner's cases and its trace monitor, on virtual time, catch
 each with its rule (failed for a MUST, warned for a SHOULD) and nothing else fails or warns --
-test_mutants' property, without a process, a socket or a real timer."""
+test_mutants' property, without a process, a socket or a real timer. Every mutant runs with the
+runner's vehicle (``mavlink=True``: sim.vehicle), as test_mutants runs each with ``--mavlink``;
+those observed on the vehicle's link (``NEEDS_VEHICLE``) need it.
+
+For the mutants whose real runs moved here (test_mutants.SIM_COVERS) the checks those runs made
+are made here too: the report's diagnosis (test_mutants.DIAGNOSIS, in the JSON report's case texts and
+evidence, where the real run reads the terminal's), a case's expected and actual (CASE_SAYS), the trace
+monitor's violations (MONITOR_SEES), and the live monitor against ``mcp-capture check``'s
+judgement of the run's capture."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 
@@ -19,26 +29,33 @@ def _expected(mutant: str) -> dict[str, str]:
     return {rule: "failed" if RULES[rule].level == "MUST" else "warned"}
 
 
-def test_every_mutant_of_the_real_matrix_is_here_or_needs_the_vehicle():
+def _run(mutant: str, seed: int, rto: float = SHORT["rto"], **kwargs):
+    """``mutant``'s run at ``rto`` (the node's and the runner's), with the vehicle."""
+    kwargs.setdefault("ack_window", SHORT["ack_window"] if rto == SHORT["rto"] else 2.0)
+    return run_cases(mutant_factory(mutant, rto=rto, seed=seed), seed=seed, rto=rto, mavlink=True, **kwargs)
+
+
+def test_every_mutant_of_the_real_matrix_is_here():
     from tests.conformance.test_mutants import MUTANTS as REAL
 
-    assert {m: r for m, r in REAL if m not in NEEDS_VEHICLE} == MUTANTS
-    assert {m for m, _ in REAL} >= set(NEEDS_VEHICLE)
+    assert dict(REAL) == MUTANTS
+    assert set(MUTANTS) >= set(NEEDS_VEHICLE)
 
 
 @pytest.mark.parametrize("mutant", sorted(MUTANTS))
 def test_each_mutant_is_caught_with_its_rule_and_nothing_else(mutant):
-    run = run_cases(mutant_factory(mutant, rto=SHORT["rto"], seed=7), seed=7, **SHORT)
+    run = _run(mutant, 7)
     assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
     assert not [c for c in run.report["cases"] if c["outcome"] == "error"
                 and not run.rules_with("failed", "warned").keys() & set(c["rules"])], run.explain()
 
 
-@pytest.mark.parametrize("mutant", ["bad-preamble", "ack-zero", "slow-ack", "rtx-new-seq", "source-port-filter"])
+@pytest.mark.parametrize("mutant", ["bad-preamble", "ack-zero", "slow-ack", "rtx-new-seq", "source-port-filter",
+                                    "dup-ignores-src", "arm-before-start", "no-rtl", "passthrough-corrupt"])
 def test_mutants_at_the_descriptions_timings(mutant):
     """MCP_MUTANTS_TIMING=real's matrix (node --rto 5, the runner's defaults), which takes 30-130 s
     a run on real timers: here the waits are virtual."""
-    run = run_cases(mutant_factory(mutant, rto=5.0, seed=8), seed=8, rto=5.0, ack_window=2.0)
+    run = _run(mutant, 8, rto=5.0)
     assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
 
 
@@ -56,9 +73,45 @@ def test_a_mutants_verdicts_do_not_depend_on_the_schedule(mutant):
     """test_schedule_verdicts' property (issue 23) for the mutants whose real runs moved here: the
     default schedule (the batch's cases in threads on the virtual clock) gives every case the
     ``--serial`` run's outcome, and both catch the mutant with its rule and nothing else."""
-    runs = [run_cases(mutant_factory(mutant, rto=SHORT["rto"], seed=9), seed=9, serial=serial, **SHORT)
-            for serial in (True, False)]
+    runs = [_run(mutant, 9, serial=serial) for serial in (True, False)]
     outcomes = [{c["id"]: c["outcome"] for c in r.report["cases"]} for r in runs]
     assert outcomes[0] == outcomes[1], (runs[0].explain(), runs[1].explain())
     for r in runs:
         assert r.rules_with("failed", "warned") == _expected(mutant), r.explain()
+
+
+def _moved_with_checks() -> list[str]:
+    from tests.conformance.test_mutants import CASE_SAYS, DIAGNOSIS, MONITOR_SEES, SIM_COVERS
+
+    return sorted(SIM_COVERS & (set(DIAGNOSIS) | set(CASE_SAYS) | set(MONITOR_SEES) | set(NEEDS_VEHICLE)))
+
+
+@pytest.mark.parametrize("mutant", _moved_with_checks())
+def test_a_moved_mutants_report_monitor_and_capture(mutant, tmp_path: Path):
+    """What test_mutant_is_caught_with_its_rule checks of a real run, on this one: the diagnosis
+    in the report, the case's expected and actual, the monitor's violations of the mutant's rule
+    alone, and the live monitor's verdicts and violations equal to the capture's judgement
+    (``same_verdicts_offline``, by default and ``--complete``)."""
+    from tests.conformance.test_mutants import (
+        CASE_SAYS,
+        DIAGNOSIS,
+        MONITOR_SEES,
+        same_verdicts_offline,
+    )
+
+    capture = tmp_path / "run.mcap"
+    run = _run(mutant, 10, extra=("--capture", str(capture)))
+    rule = MUTANTS[mutant]
+    assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
+    if mutant in DIAGNOSIS:
+        says = DIAGNOSIS[mutant]
+        texts = [f"{c.get('expected')} {c.get('actual')} {c.get('reason')} {c.get('evidence')}"
+                 for c in run.report["cases"]]
+        assert any(w in t for t in texts for w in ((says,) if isinstance(says, str) else says)), run.explain()
+    if mutant in CASE_SAYS:
+        (case,) = [c for c in run.report["cases"] if rule in c["rules"]]
+        assert CASE_SAYS[mutant][0] in case["expected"] and CASE_SAYS[mutant][1] in case["actual"], case
+    if mutant in MONITOR_SEES:
+        mon = run.report["monitor"]
+        assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
+    same_verdicts_offline(run, capture)

@@ -2,8 +2,9 @@
 suite and its trace monitor against node models on a virtual clock, through the runner's link.
 
 Correct: the reference drone model passes every case it can be judged by (the vehicle's cases
-are skipped: the simulator has no vehicle yet) at the short timings and at the description's 5 s
-ones (which cost no wall time here), with nothing failed or warned by the monitor either.
+are skipped: these runs have no ``--mavlink``; with it: test_runner_vehicle_sim.py) at the short
+timings and at the description's 5 s ones (which cost no wall time here), with nothing failed or
+warned by the monitor either.
 Faulty: each drone fault of sim.faults fails its rule and no other rule.
 """
 
@@ -16,7 +17,7 @@ from mcp_conform.sim.runner import run_cases
 
 SHORT = {"rto": 0.2, "ack_window": 0.25}
 DESCRIPTION = {"rto": 5.0, "ack_window": 2.0}  # the runner's defaults, the description's timeout
-#: the cases the simulator cannot judge yet: observed on the vehicle's link (no vehicle model)
+#: the cases observed on the vehicle's link (these runs have no vehicle)
 VEHICLE_RULES = {"MCP-BLK-4", "MCP-BLK-5", "MCP-BLK-7", "MCP-DUP-1", "MCP-DUP-2", "MCP-DUP-3",
                  "MCP-DUP-4", "MCP-PAY-8", "MCP-SEQ-3"}
 #: judged by a case against the reference drone, without a vehicle
@@ -47,8 +48,8 @@ def test_the_reference_drone_passes_every_case(timing):
 
 
 DRONE_FAULTS = sorted(name for name, f in FAULTS.items() if f.role == "drone")
-#: faults the runner cannot observe without a vehicle model (docs/spec.md: on the autopilot link)
-UNOBSERVED = {"no-dup-discard": "MCP-DUP-1 is observed on the vehicle link, not simulated yet"}
+#: faults the runner cannot observe without the vehicle (docs/spec.md: on the autopilot link)
+UNOBSERVED = {"no-dup-discard": "MCP-DUP-1 is observed on the vehicle link (test_runner_vehicle_sim)"}
 
 
 @pytest.mark.parametrize("fault", DRONE_FAULTS)
