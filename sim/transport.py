@@ -250,7 +250,7 @@ class SimTransport(Transport):
         self._armed = None
         if hasattr(model, "send_to"):
             model.send_to = self.listen  # where the node was told to send (source-port-filter)
-        ap = model.autopilot
+        ap = getattr(model, "autopilot", None)  # a manager model has no autopilot
         if ap is not None and self.vehicle_net is not None:
             gen = self._gen
             self.vehicle_net.attach(ap.addr, lambda data: self._to_autopilot(model, gen, data))
@@ -261,8 +261,9 @@ class SimTransport(Transport):
         if model is not None and model is self.model:
             self._gen += 1
             self.model = None
-            if model.autopilot is not None and self.vehicle_net is not None:
-                self.vehicle_net.detach(model.autopilot.addr)
+            ap = getattr(model, "autopilot", None)
+            if ap is not None and self.vehicle_net is not None:
+                self.vehicle_net.detach(ap.addr)
 
     def _to_autopilot(self, model: DroneModel, gen: int, data: bytes) -> None:
         if gen != self._gen or model is not self.model or model.closed:
@@ -280,7 +281,7 @@ class SimTransport(Transport):
                 self.clock.call_later(delay, lambda data=data, dst=dst: self._up(model, data, dst))  # type: ignore[misc]  # mypy: a default argument
             else:
                 self._up(model, data, dst)
-        ap = model.autopilot
+        ap = getattr(model, "autopilot", None)
         if ap is not None and self.vehicle_net is not None:
             for frame in ap.take_output():
                 self.vehicle_net.from_node(frame, ap.addr)
