@@ -87,7 +87,7 @@ def measure(text: str) -> tuple[int, set[int]]:
 
 def figures(names: tuple[str, ...]) -> dict[str, dict[str, Any]]:
     files = tracked()
-    owned = {n: [p for p in files if n in p.rsplit("/", 1)[-1]] for n in names}
+    owned = {n: [p for p in files if n in p.rsplit("/", 1)[-1]] for n in PROTOCOLS}
     every_owned = {p for ps in owned.values() for p in ps}
     result: dict[str, dict[str, Any]] = {}
     for name in names:
