@@ -88,6 +88,10 @@ class MavlinkCaseBase(CaseBase):
         ``CaseBase.expect_all`` over frames."""
         self.expect_all(frames, check, rule, expected, noun="frames")
 
+    def command_name(self, command: int) -> str:
+        entry = DIALECT.enums["MAV_CMD"].get(command)
+        return entry.name if entry is not None else f"command {command}"
+
     def raw_fields(self, r: Received) -> dict[str, Any]:
         """A frame's fields as its bytes hold them (char arrays as bytes, before any NUL is
         cut), by the dialect's layout of its message (the payload padded to its full size)."""
@@ -338,10 +342,6 @@ class MavlinkCaseContext(MavlinkCaseBase):
         if acks[0].msg.mission_type != DIALECT.MAV_MISSION_TYPE_MISSION:
             raise self.fail(rule, "MISSION_ACK.mission_type MAV_MISSION_TYPE_MISSION",
                             f"mission_type {acks[0].msg.mission_type}", shown)
-
-    def command_name(self, command: int) -> str:
-        entry = DIALECT.enums["MAV_CMD"].get(command)
-        return entry.name if entry is not None else f"command {command}"
 
     @property
     def gcs(self) -> tuple[int, int]:

@@ -136,7 +136,3 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         self.await_work(lambda: self.from_gcs("COMMAND_LONG", "COMMAND_INT"))
         first = self.need(self.from_gcs("COMMAND_LONG", "COMMAND_INT"), "COMMAND_LONG or COMMAND_INT")[0]
         return int(first.msg.command)
-
-    def command_name(self, command: int) -> str:
-        entry = DIALECT.enums["MAV_CMD"].get(command)
-        return entry.name if entry is not None else f"command {command}"

@@ -30,12 +30,12 @@ from mcp_conform.harness.mavlink_session import Link, Received
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import (
     Death,
-    SessionBase,
     SpawnedNode,
     fill_placeholders,
     free_port,
     reference_command,
 )
+from mcp_conform.harness.stream_session import StreamSessionBase
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
 
@@ -44,10 +44,11 @@ __all__ = ["MavlinkGcsSession"]
 TICK_S = 0.02
 
 
-class MavlinkGcsSession(SessionBase):
+class MavlinkGcsSession(StreamSessionBase):
     """The ground station under test, run afresh for each behaviour of the runner's vehicle."""
 
     subject = "the ground station"
+    _template: str  # always a command: the ground station is spawned for every run
     startup_note = ("startup: the runner is the vehicle (system 1, an ArduCopter) and starts the ground station "
                     "against it", "startup: waiting for the ground station's first frame")
 
@@ -68,10 +69,6 @@ class MavlinkGcsSession(SessionBase):
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
         self._listener: socket.socket | None = None
-
-    @property
-    def spawn_command(self) -> str | None:
-        return self._template
 
     # -- life -----------------------------------------------------------------------------
     def start(self, **_: Any) -> None:
@@ -123,25 +120,10 @@ class MavlinkGcsSession(SessionBase):
             self.url = f"{self.scheme}:{host}:{port}"
         self.node = SpawnedNode(fill_placeholders(self._template, {"mavlink": self.url}))
         if self.scheme == "tcp":
-            self._accept(float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S)))
-
-    def _accept(self, wait: float) -> None:
-        lst = self._listener
-        assert lst is not None and self.node is not None
-        lst.settimeout(0.1)
-        end = time.monotonic() + wait
-        while time.monotonic() < end:
-            if not self.node.alive():
-                raise SpawnFailure(f"the ground station {self.node_exit()} before it connected to {self.url}",
-                                   self.node.details(20))
-            try:
-                conn, _ = lst.accept()
-            except TimeoutError:
-                continue
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            assert self._listener is not None
+            conn = self.accept_from_node(self._listener, float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S)),
+                                         self.url)
             self._open("tcp", conn.getpeername(), conn)
-            return
-        raise SetupError(f"the ground station did not connect to {self.url} within {wait:g} s")
 
     def _open(self, transport: str, address: tuple[str, int], sock: socket.socket | None = None) -> None:
         assert self.vehicle is not None
@@ -197,9 +179,6 @@ class MavlinkGcsSession(SessionBase):
     # -- the ground station's process ---------------------------------------------------
     def alive_process(self) -> bool:
         return self.node is None or self.node.alive()
-
-    def node_exit(self) -> str:
-        return str(self.node.details()["exit"]) if self.node is not None else "ended"
 
     def alive(self) -> bool:
         """A ground station that did its work and exited is not lost: each case starts the run it needs."""

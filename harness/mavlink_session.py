@@ -34,7 +34,8 @@ from typing import Any
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
-from mcp_conform.harness.session_base import SessionBase, SpawnedNode, fill_placeholders, free_port
+from mcp_conform.harness.session_base import SpawnedNode
+from mcp_conform.harness.stream_session import StreamSessionBase
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
@@ -261,7 +262,7 @@ def embedded_command(transport: str) -> str:
     return f"{shlex.quote(sys.executable)} -m mcp_conform.vehicle -q {_VEHICLE_LINK[transport]}"
 
 
-class MavlinkSession(SessionBase):
+class MavlinkSession(StreamSessionBase):
     """The vehicle under test over the whole run, and the runner's link to it."""
 
     subject = "the vehicle"
@@ -290,10 +291,6 @@ class MavlinkSession(SessionBase):
         self.first_heartbeat: float | None = None
         self._beat_stop = threading.Event()
         self._beater: threading.Thread | None = None
-
-    @property
-    def spawn_command(self) -> str | None:
-        return self._template
 
     @property
     def url(self) -> str:
@@ -331,26 +328,17 @@ class MavlinkSession(SessionBase):
     def _spawn(self) -> None:
         """The vehicle started with a free loopback port; TCP: connected once it listens;
         UDP: the runner's socket opened first (udpin) or sending to it (udpout)."""
-        assert self._template is not None
-        host = "127.0.0.1"
-        port = free_port(host, socket.SOCK_STREAM if self.transport == "tcp" else socket.SOCK_DGRAM)
-        self.address = (host, port)
-        argv = fill_placeholders(self._template, {"target_host": host, "target_port": str(port)})
         if self.transport != "tcp":
-            self._open()
-        node = self.node = SpawnedNode(argv)
-        if self.transport != "tcp":
+            self.spawn_at_free_port(socket.SOCK_DGRAM, before=self._open)
             return
-        deadline = time.monotonic() + max(SPAWN_STARTUP_S, 10.0)
-        while time.monotonic() < deadline:
-            if not node.alive():
-                raise SpawnFailure(f"the spawned vehicle {node.details()['exit']} before it listened on "
-                                   f"{host}:{port}", node.details(20))
+        self.spawn_at_free_port()
+
+        def connect() -> bool:
             with contextlib.suppress(SetupError):
                 self._open()
-                return
-            time.sleep(0.1)
-        raise SetupError(f"the spawned vehicle did not listen on {host}:{port} within {max(SPAWN_STARTUP_S, 10.0):g} s")
+                return True
+            return False
+        self.await_listening(connect, within=max(SPAWN_STARTUP_S, 10.0), pause=0.1)
 
     def _await_heartbeat(self, timeout: float) -> None:
         link = self.link
@@ -382,11 +370,7 @@ class MavlinkSession(SessionBase):
             self._beater.join(timeout=1.0)
         if self.link is not None:
             self.link.close()
-        if self.node is not None:
-            self.node.stop(grace=0.5)
-
-    def alive(self) -> bool:
-        return self.node.alive() if self.node is not None else True
+        super().close()
 
     # -- case API -------------------------------------------------------------------------
     def before_case(self) -> None:

@@ -23,16 +23,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mcp_conform.harness.config import RunConfig
-from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.procs import SPAWN_STARTUP_S, ManagedProcess
-from mcp_conform.harness.session_base import (
-    Death,
-    SessionBase,
-    SpawnedNode,
-    fill_placeholders,
-    free_port,
-    reference_command,
-)
+from mcp_conform.harness.session_base import Death, SpawnedNode, reference_command
+from mcp_conform.harness.stream_session import StreamSessionBase, accepts
 from mcp_conform.judge.nsqd_monitor import Received, SenderViolation, decode_frame, sender_violation
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd import StreamSpec
@@ -213,7 +207,7 @@ def embedded_command() -> str:
                              f"--listen {{target_host}}:{{target_port}} --update-period {EMBEDDED_UPDATE_PERIOD:g}")
 
 
-class StreamSession(SessionBase):
+class StreamSession(StreamSessionBase):
     """The node under test over the whole run, and the connections of its cases."""
 
     subject = "the backend"
@@ -237,10 +231,6 @@ class StreamSession(SessionBase):
 
     # -- life -------------------------------------------------------------------------
     @property
-    def spawn_command(self) -> str | None:
-        return self._template
-
-    @property
     def proc(self) -> ManagedProcess | None:
         """The spawned backend's process (its output, its sanitizer report), None when attached."""
         return self.node.process if self.node is not None else None
@@ -263,30 +253,14 @@ class StreamSession(SessionBase):
     def _spawn(self) -> None:
         """The backend started on a free loopback port (``{target_host}`` ``{target_port}``
         filled in by the runner's one placeholder helper), and listening."""
-        assert self._template is not None
-        host = "127.0.0.1"
-        port = free_port(host, socket.SOCK_STREAM)
-        self.address = (host, port)
-        argv = fill_placeholders(self._template, {"target_host": host, "target_port": str(port)})
-        node = self.node = SpawnedNode(argv)
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline:
-            if not node.alive():
-                raise SpawnFailure(f"the spawned backend {node.details()['exit']} before it listened on "
-                                   f"{host}:{port}", node.details(20))
-            with socket.socket() as s, contextlib.suppress(OSError):
-                s.settimeout(0.2)
-                s.connect(self.address)
-                return
-            time.sleep(0.05)
-        raise SetupError(f"the spawned backend did not listen on {host}:{port} within 10 s")
+        self.spawn_at_free_port()
+        self.await_listening(lambda: accepts(self.address), within=10.0, pause=0.05)
 
     def close(self) -> None:
         for c in self.conns:
             c.close()
         self.conns.clear()
-        if self.node is not None:
-            self.node.stop(grace=0.5)  # a hung backend may ignore SIGTERM: SIGKILL soon after
+        super().close()
 
     # -- connections --------------------------------------------------------------------
     def connect(self, timeout: float | None = None) -> Conn | None:
