@@ -41,6 +41,9 @@ MISSION_TYPES = {int(v): e.name for v, e in DIALECT.enums["MAV_MISSION_TYPE"].it
 MISSION_RESULTS = {int(v): e.name for v, e in DIALECT.enums["MAV_MISSION_RESULT"].items()
                    if not e.name.endswith("_ENUM_END")}
 ACCEPTED = int(DIALECT.MAV_MISSION_ACCEPTED)
+#: E-1: "A MISSION_ACK returning an error value (NACK) does not terminate the upload" when it is
+#: ArduPilot's answer to an item out of sequence (it then re-requests the expected item)
+INVALID_SEQUENCE = int(DIALECT.MAV_MISSION_INVALID_SEQUENCE)
 TYPE_ALL = int(DIALECT.MAV_MISSION_TYPE_ALL)
 REQUESTS = ("MISSION_REQUEST_INT", "MISSION_REQUEST")
 ITEMS = ("MISSION_ITEM_INT", "MISSION_ITEM")
@@ -439,6 +442,9 @@ class MissionService(Service):
         if n.role == "vehicle":
             st = self.state(n)
             up: Upload | None = st["upload"]
+            if up is not None and not up.ended and int(f.msg.type) == INVALID_SEQUENCE:
+                st["used"].append(f.index)
+                return  # E-1: ArduPilot's answer to an item out of sequence; the upload goes on
             if up is not None and not up.ended:
                 up.ended = True  # its last item may be stamped after this (mavlink_monitor.ORDER_SLACK_S)
                 up.accepted = int(f.msg.type) == ACCEPTED

@@ -258,6 +258,36 @@ def test_a_request_of_the_upload_a_new_count_replaced_is_not_the_new_ones():
     assert _mission_upload_crossed(2.0)["MAV-MIS-2"] == "failed"
 
 
+@pytest.mark.parametrize("step", [0.0005, 0.05])
+def test_an_item_out_of_sequence_answered_invalid_sequence_leaves_the_upload_going_on(step):
+    """E-1: ArduPilot answers an item out of sequence with MISSION_ACK MAV_MISSION_INVALID_SEQUENCE
+    and re-requests the expected item on its 1-s timer; the upload goes on ("A MISSION_ACK
+    returning an error value (NACK) does not terminate the upload"). Its re-requests are that
+    upload's, not the next upload's first requests stamped before its MISSION_COUNT when the
+    frames come ``step`` apart, within ORDER_SLACK_S (before: MAV-MIS-2 "seq 1 after none" and
+    "seq 0 after seq 3" against our vehicle, a capture of the live monitor's false verdict)."""
+    gcs, to_v = (255, 190), {"target_system": 1, "target_component": 1, "mission_type": 0}
+    req = lambda seq: (VEHICLE, "MISSION_REQUEST_INT",  # noqa: E731
+                       {"target_system": 255, "target_component": 190, "seq": seq, "mission_type": 0})
+    item = lambda seq: (gcs, "MISSION_ITEM_INT", {**to_v, "seq": seq, "frame": 3, "command": 16,  # noqa: E731
+                                                   "current": 0, "autocontinue": 1, "param1": 0, "param2": 0,
+                                                   "param3": 0, "param4": 0, "x": 357713000, "y": -786744000, "z": 10})
+    ack = lambda kind: (VEHICLE, "MISSION_ACK", {"target_system": 255, "target_component": 190,  # noqa: E731
+                                                 "type": kind, "mission_type": 0})
+    first = [(gcs, "MISSION_COUNT", {**to_v, "count": 3}), req(0), item(0), req(1), item(2),
+             ack(MAV.MAV_MISSION_INVALID_SEQUENCE)]
+    again = [req(1), item(1), req(2), item(2), ack(MAV.MAV_MISSION_ACCEPTED),
+             (gcs, "MISSION_COUNT", {**to_v, "count": 2}), req(0), item(0), req(1), item(1),
+             ack(MAV.MAV_MISSION_ACCEPTED)]
+    items = [(1.0 + k * step, *x) for k, x in enumerate(first)] + [(2.2 + k * step, *x) for k, x in enumerate(again)]
+    mon = MavlinkMonitor()
+    for t_ns, raw in _frames(*sorted([*_beats(5), *items], key=lambda x: x[0])):
+        mon.frame(t_ns, raw)
+    mon.finish()
+    v = mon.verdicts()
+    assert v["MAV-MIS-2"] == "passed" and v["MAV-MIS-1"] == "passed", mon.violations
+
+
 # ---------------------------------------------------------------- slow: real sessions
 def _conform(tmp_path: Path, *args: str) -> tuple[int, dict, Path, str]:
     from tests.forkserver import run_module
