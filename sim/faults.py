@@ -25,7 +25,7 @@ its transition table (``reference_impl._transitions``):
   configurable, so this breaks no rule: a control that must get no MUST verdict;
 - ``no-dup-discard`` (drone), MCP-DUP-1 "ACKed again ... but not delivered to the application
   again": duplicates are delivered (not on the wire: docs/spec.md observes it on the vehicle
-  link, which the simulator does not model yet).
+  link, which the simulator models since the vehicle runs on its clock: sim.vehicle).
 """
 
 from __future__ import annotations
