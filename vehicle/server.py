@@ -194,14 +194,21 @@ class SimVehicle:
                 self._listener.close()
         for ep in self._udp:
             ep.close()
+        deadline = self._clock.monotonic() + 1.0
+
+        def join(threads: list[Any]) -> None:
+            for thread in threads:
+                if thread is not None and thread.ident != threading.get_ident():
+                    thread.join(max(0.0, deadline - self._clock.monotonic()))
+
+        # the accepting thread first: a connection it took just now is then a client with its
+        # reading thread, not one whose thread starts after the clients were read (and is left)
+        join(self._threads)
         with self._cond:
             clients = list(self._clients.values())
         for client in clients:
             self._drop(client)
-        deadline = self._clock.monotonic() + 1.0
-        for thread in self._threads + [c.thread for c in clients if c.thread]:
-            if thread.ident != threading.get_ident():
-                thread.join(max(0.0, deadline - self._clock.monotonic()))
+        join([c.thread for c in clients])
         with self._cond:
             self._cond.notify_all()
 
