@@ -2,8 +2,9 @@
 run's live monitor verdicts, rule by rule, for every node — by default and with
 ``--complete`` — on the reference node, and merged from pytest-xdist workers for both roles.
 (The faulty drones, each with its own fault, are held to it in
-tests/conformance/test_mutants.py, and the reference manager, challenges 1-3, and every faulty
-manager in tests/conformance/test_manager_role.py, in the run that catches their fault.)"""
+tests/conformance/test_mutants.py, and the reference manager and the faulty managers kept on
+real sockets in tests/conformance/test_manager_role.py, in the run that catches their fault; the
+other manager faults, by case and monitor, in the simulator: tests/sim/test_manager_sim.py.)"""
 
 from __future__ import annotations
 
@@ -12,13 +13,14 @@ import os
 import pytest
 
 from mcp_conform.judge.judging import Params, judge
+from mcp_conform.sim.manager_faults import MANAGER_FAULTS
+from tests.conformance.nodes.sample_manager import FAULTS as SAMPLE_FAULTS
 from tests.conformance.runner_helpers import (
     FAST,
     run_conform,
     sample_manager_command,
     verdict_differences,
 )
-from tests.conformance.test_manager_role import MANAGER_FAULTS
 from tests.conformance.test_mutants import MUTANTS
 
 pytestmark = pytest.mark.slow
@@ -87,7 +89,7 @@ def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_pa
     assert fault or [n["id"] for n in live["nodes"]] == [1]
 
 
-MERGED_MANAGERS = ([f for f, _, _ in MANAGER_FAULTS] if MERGED_ALL else ["wrong-seq-ack", "no-ready-ack", "le-count"]) + [None]
+MERGED_MANAGERS = ([f for f in SAMPLE_FAULTS if f in MANAGER_FAULTS and MANAGER_FAULTS[f].rule] if MERGED_ALL else ["wrong-seq-ack", "no-ready-ack", "le-count"]) + [None]
 
 
 @pytest.mark.parametrize("fault", MERGED_MANAGERS, ids=[f or "reference-manager" for f in MERGED_MANAGERS])
@@ -106,7 +108,7 @@ def test_check_of_a_merged_xdist_manager_capture_gives_each_workers_live_verdict
 
     pytest.importorskip("xdist")
     spawn = sample_manager_command(*(("--fault", fault) if fault else ()))
-    rule, challenge = next(((r, c) for f, r, c in MANAGER_FAULTS if f == fault), (None, 1))
+    rule, challenge = (MANAGER_FAULTS[fault].rule, MANAGER_FAULTS[fault].challenge) if fault else (None, 1)
     cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases_manager",
            "-n", "2", "--mcp-role", "manager", "--mcp-spawn", spawn, "--mcp-challenge", str(challenge),
            "--mcp-rto", FAST[1],
