@@ -191,6 +191,8 @@ def build_conversations(datagrams: Iterable[Any]) -> tuple[dict[tuple[Any, Any],
                 ack_of = pos
                 conv = convs.get(peers)
                 what = conv.entries[pos].key if (pos is not None and conv is not None) else None
+                if what is not None and what[2] == _ACK:  # an ACK is never ACKed: one that names an
+                    pos = ack_of = what = None  # ACK's number names nothing, as one naming no message
                 key = (src, dst, action, ("ack", what))
                 fold = (src, dst, action, acked)
             else:

@@ -464,3 +464,21 @@ def test_a_header_cut_short_is_compared_without_its_seq():
     result = _diff(run(cut(0x533)), run(cut(0x533, dst=2)))
     assert [d.kind for d in result.divergences] == ["changed"], _report(result)
     assert result.divergences[0].fields[0][0] == "bytes"
+
+
+def test_an_ack_naming_an_acks_number_names_nothing_as_one_naming_no_message():
+    """MCP-ACK-6's probe, an ACK naming a number the runner never sent: an ACK is never ACKed,
+    so one that happens to name one of the node's ACKs (their numbers share the node's space)
+    names nothing ackable, as one naming no message at all. Two whole-suite captures of the
+    reference node differed only there (a fresh-clone CI run: "ACK of seq+71 (ACK)" against
+    "ACK of seq+11526 (no such message)")."""
+    golden = challenge2()
+    drone_ack = next(decode(d.data) for d in golden if decode(d.data).action == Action.ACK and decode(d.data).src == 1)
+    last = golden[-1]
+
+    def probe(named: int) -> list[D]:
+        data = encode(Message(1, 0, 60000, Action.ACK, named))
+        return reindex([*golden, last._replace(t_ns=last.t_ns + 1_000_000, src_addr=last.dst_addr,
+                                               dst_addr=last.src_addr, data=data)])
+    result = _diff(probe(drone_ack.seq), probe((drone_ack.seq + 0x4000) & 0xFFFF))
+    assert result.same, _report(result)
