@@ -37,7 +37,7 @@ from mcp_conform.harness.manager_side import SideScenario
 from mcp_conform.sim.faults import Fault, fault_endpoint
 from mcp_conform.sim.manager_faults import MANAGER_FAULTS
 from mcp_conform.sim.models import ManagerModel
-from mcp_conform.sim.runner import STEP_S, SimRun
+from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
 from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.spec import SPEC
@@ -145,28 +145,10 @@ class ManagerSimRun(SimRun):
     managers: list[ManagerModel] = field(default_factory=list)
 
 
-class _SimManagerPlugin:
-    """Makes the run's session the simulated one (``pytest_mcp_make_session``, first)."""
-
-    def __init__(self, make: Callable[[RunConfig, Any], SimManagerSession]) -> None:
-        self.make = make
-        self.session: SimManagerSession | None = None
-
-    @pytest.hookimpl(tryfirst=True)
-    def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
-        from mcp_conform.conformance._run_state import state_of
-        from mcp_conform.spec.profiles import resolve
-
-        role = cfg.profile()[1]
-        if role.name != "manager":
-            raise pytest.UsageError("sim.manager_runner runs the manager role's cases only")
-        context = resolve(role.context)
-        session = self.make(cfg, recorder)
-        session.make_context = context
-        state = state_of(config)
-        context.prepare_session(session, config, state.items if state is not None else [])
-        self.session = session
-        return session
+def _SimManagerPlugin(make: Callable[[RunConfig, Any], SimManagerSession]) -> Any:  # noqa: N802
+    """Makes the run's session the simulated manager session (``sim.runner``'s plugin, for the
+    manager role)."""
+    return _SimPlugin(make, role="manager")
 
 
 def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 0, rto: float = 0.2,

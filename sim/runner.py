@@ -111,9 +111,10 @@ class SimSession(Session):
 class _SimPlugin:
     """Makes the run's session the simulated one (``pytest_mcp_make_session``, first)."""
 
-    def __init__(self, make: Callable[[RunConfig, Any], SimSession]) -> None:
+    def __init__(self, make: Callable[[RunConfig, Any], Any], role: str = "drone") -> None:
         self.make = make
-        self.session: SimSession | None = None
+        self.role = role  # the role whose cases the simulated session runs
+        self.session: Any = None
 
     @pytest.hookimpl(tryfirst=True)
     def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
@@ -121,8 +122,8 @@ class _SimPlugin:
         from mcp_conform.spec.profiles import resolve
 
         role = cfg.profile()[1]
-        if role.name != "drone":
-            raise pytest.UsageError("the simulator runs the drone role's cases only")
+        if role.name != self.role:
+            raise pytest.UsageError(f"this simulated session runs the {self.role} role's cases only")
         context = resolve(role.context)
         session = self.make(cfg, recorder)
         session.make_context = context
