@@ -65,6 +65,17 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         """The ground station's run against a vehicle that behaves so (see the session)."""
         self.since = self.session.run(behaviour)
 
+    @property
+    def on_link(self) -> float:
+        """When the ground station was first seen on this run's link: its TCP connection
+        accepted; over UDP, where its start cannot be seen, its first frame. The time its
+        process takes to start (an interpreter and its imports: seconds on a loaded host) is
+        no gap in its heartbeat (MAV-HB-2): over UDP the link is open before it is spawned."""
+        first = self.session.first_frame
+        if self.session.scheme == "tcp" or first is None:
+            return self.since
+        return max(self.since, first)
+
     def ended(self) -> bool:
         """The ground station's process ended, or it closed the TCP link."""
         return not self.session.alive_process() or self.link.closed_at is not None
