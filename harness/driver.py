@@ -398,6 +398,10 @@ class TargetDriver:
     def peek_seq(self, src: int | None = None) -> int:
         return self._seq.get(self.our_id if src is None else src, 0)
 
+    def sent_as(self, src: int) -> bool:
+        """Whether the runner has numbered messages as ``src`` in this run (its seq set or taken)."""
+        return src in self._seq
+
     def set_seq(self, value: int, src: int | None = None) -> None:
         self._seq[self.our_id if src is None else src] = value & 0xFFFF
 

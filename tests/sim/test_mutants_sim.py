@@ -115,3 +115,19 @@ def test_a_moved_mutants_report_monitor_and_capture(mutant, tmp_path: Path):
         mon = run.report["monitor"]
         assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
     same_verdicts_offline(run, capture)
+
+
+@pytest.mark.parametrize("seed", [25, 31, 36])
+def test_dup_ignores_src_is_found_through_the_runners_impaired_link(seed):
+    """``--impair`` retries a case whose attempt the link spoiled; MCP-DUP-3's second attempt set
+    the other src's numbers afresh, so it repeated that src's own seqs of the first, a node
+    with one window for every src discarded them as duplicates of its own, and the case was
+    skipped as "the node does not accept commands from src 2" (3 of these 15 seeds, 25-39,
+    found it before; all 15 since). The reference drone passes it on the same links."""
+    imp = ("--impair", f"loss=0.1,dup=0.05,reorder=0.1,seed={seed}")
+    run = _run("dup-ignores-src", seed, extra=imp, select=("DUP",))
+    assert run.rules_with("failed", "warned") == _expected("dup-ignores-src"), run.explain()
+    ref = run_cases(None, seed=seed, rto=SHORT["rto"], ack_window=SHORT["ack_window"], mavlink=True, extra=imp,
+                    select=("DUP",))
+    assert ref.rules_with("failed", "warned") == {}, ref.explain()
+    assert [c["outcome"] for c in ref.report["cases"] if "MCP-DUP-3" in c["rules"]] == ["passed"], ref.explain()
