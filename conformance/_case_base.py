@@ -44,6 +44,10 @@ class CaseBase:
         self.start_t = clock.monotonic()  # the same instant, on the clock of the impaired link
         self.end_ns: int | None = None
         self.notes: list[str] = []
+        #: observations the case could not judge (a reply whose command is ambiguous): under
+        #: ``--impair`` a passed attempt the link touched that left some is repeated too
+        #: (``conformance._impaired``), as a failed one is
+        self.unjudged: list[str] = []
         self.node_silent = False
         self.restart_if_failed = False
         #: what the capture's case mark carries beside the verdict (None: nothing)
@@ -66,6 +70,11 @@ class CaseBase:
     def info(self, text: str) -> None:
         """Record an observation (INFO rules; shown in every report)."""
         self.notes.append(text)
+
+    def not_judged(self, text: str) -> None:
+        """Record an observation the case could not judge (shown as a note; ``unjudged``)."""
+        self.unjudged.append(text)
+        self.info(text)
 
     def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
         return CaseFailure(rule, expected, actual, list(evidence))

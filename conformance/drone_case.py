@@ -391,7 +391,7 @@ class CaseContext(DatagramCaseBase):
         for ex in acked:
             if ex not in clear:
                 assert ex.attribution is not None
-                self.info(f"the reply to seq {ex.seq} was not judged: {ex.attribution.describe()}")
+                self.not_judged(f"the reply to seq {ex.seq} was not judged: {ex.attribution.describe()}")
         if not clear:
             raise Inconclusive(f"{rule}: which command each reply answers is ambiguous, so no ACK's "
                                f"form could be judged ({len(acked)} replies)")
@@ -424,7 +424,7 @@ class CaseContext(DatagramCaseBase):
         answers = self.driver.answers(sents, since)
         for _, a in answers:
             if a.ambiguous:
-                self.info(f"a reply was not judged: {a.describe()}")
+                self.not_judged(f"a reply was not judged: {a.describe()}")
         answers = [(d, a) for d, a in answers if not a.ambiguous]
         if answers:
             d, a = answers[0]

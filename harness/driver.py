@@ -247,9 +247,21 @@ class TargetDriver:
                 # observers (the capture, the run's monitor) hold the node's side of the
                 # link: what it sent, once, as it sent it; the cases what the runner got
                 self._notify("rx", data, addr, arrived or self.clock.time_ns(), delay_for(data, self.run_delay))
-                self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive)
+                if not self.link.receive(data, (str(addr[0]), int(addr[1])), self._arrive):
+                    self._lost(data)
             else:
                 self._arrive(data, addr, arrived)
+
+    def _lost(self, data: bytes) -> None:
+        """A datagram the node sent that the runner's own impaired link dropped: the cases
+        never see it, but a reply the node made still answered a copy (``judge.attribution``
+        credits it), so a later reply naming that command is not taken for its late answer:
+        a node whose every ACK names the command before (ack-previous-seq) had those ACKs
+        explained so, and passed MCP-ACK-2 through ``--impair``."""
+        t, t_ns = self.clock.monotonic(), self.clock.time_ns()
+        with self._cond:
+            self.attributor.received(Datagram(-1, t, t_ns, data, self.target, None, None, read_header(data),
+                                              data[:PREAMBLE_LEN] == PREAMBLE, None))
 
     def _arrive(self, data: bytes, addr: Address, arrived: int | None = None) -> None:
         """One datagram reaches the runner (from the socket, or from the impaired link's
@@ -432,8 +444,11 @@ class TargetDriver:
             for hook in self.tx_hooks:
                 hook(s)
         if self.link is not None:  # observed as the node is sent each copy (see _receive_loop)
-            self.link.send(sock or self._sock, data, addr,
-                           lambda body: self._notify("tx", body, addr, self.clock.time_ns()))
+            delays = self.link.send(sock or self._sock, data, addr,
+                                    lambda body: self._notify("tx", body, addr, self.clock.time_ns()))
+            if delays != [0.0]:  # the runner's own link knows which copies the node was sent
+                with self._cond:
+                    self.attributor.on_wire(index, t, delays)
         else:
             (sock or self._sock).sendto(data, addr)  # type: ignore[union-attr]  # asserted above
             self._notify("tx", data, addr, t_ns)

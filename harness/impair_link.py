@@ -111,9 +111,10 @@ class ImpairedLink:
 
     # ------------------------------------------------------------------ the two edges
     def send(self, sock: socket.socket, data: bytes, addr: Address,
-             on_wire: Callable[[bytes], None] | None = None) -> None:
+             on_wire: Callable[[bytes], None] | None = None) -> list[float]:
         """``sock.sendto(data, addr)`` through the link (a drop sends nothing);
-        ``on_wire(copy)`` for each copy as it leaves (what the far end is sent)."""
+        ``on_wire(copy)`` for each copy as it leaves (what the far end is sent). Returns each
+        copy's delay (s) from now: none when the link dropped it, two when it duplicated it."""
         def out(body: bytes) -> Callable[[], None]:
             def go() -> None:
                 with contextlib.suppress(OSError):
@@ -124,29 +125,34 @@ class ImpairedLink:
 
         if self.paused:
             out(data)()
-            return
+            return [0.0]
         decision = self._decide("tx", data)
         for d in decision.deliveries:
             if d.delay_s <= 0:
                 out(d.data)()
             else:
                 self._later(d.delay_s, out(d.data))
+        return [max(0.0, d.delay_s) for d in decision.deliveries]
 
-    def receive(self, data: bytes, addr: Address, deliver: Callable[[bytes, Address], None]) -> None:
+    def receive(self, data: bytes, addr: Address, deliver: Callable[[bytes, Address], None]) -> int:
         """A datagram read from the socket: ``deliver(data, addr)`` for each copy the link
-        lets through, now or later (from the link's timer thread)."""
+        lets through, now or later (from the link's timer thread); how many it lets through
+        (0: the link dropped it)."""
         if self.paused:
             deliver(data, addr)
-            return
+            return 1
         decision = self._decide("rx", data)
+        handed = 0
         for d in decision.deliveries:
             if "corrupt" in d.kinds or "cut" in d.kinds:
                 continue  # the UDP checksum's business: never handed to the owner
+            handed += 1
             if d.delay_s <= 0:
                 deliver(d.data, addr)
             else:
                 body = d.data
                 self._later(d.delay_s, lambda body=body: deliver(body, addr))  # type: ignore[misc]  # mypy: a default argument
+        return handed
 
     # ------------------------------------------------------------------ decisions
     def _decide(self, direction: str, data: bytes) -> Decision:

@@ -31,6 +31,7 @@ Sans-I/O: the driver feeds it every datagram sent and received, in order, under 
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -175,6 +176,19 @@ class Attributor:
             self._latest = cmd
         return cmd.id
 
+    def on_wire(self, tx_index: int, t: float, delays: Sequence[float]) -> None:
+        """The runner's own impaired link (``--impair``) on copy ``tx_index``, sent at ``t``:
+        the copies of it that left, each ``delay`` s later -- none when the link dropped it,
+        two when it duplicated it. A command is open while fewer replies were attributed to it
+        than copies of it reached the node's side, so a dropped copy is owed no reply: the
+        runner's link knows what it made (issue 38), as a node on it cannot."""
+        cmd = self._by_tx.get(tx_index)
+        if cmd is None or t not in cmd.copies:
+            return
+        cmd.copies.remove(t)
+        cmd.copies.extend(t + d for d in delays)
+        cmd.copies.sort()
+
     def received(self, d: _ReceivedLike) -> Attribution | None:
         """Attribute one datagram that arrived (None: not ACK-like, or nothing to tie it to)."""
         if d.header is None or d.header[3] != _ACK:
@@ -196,6 +210,8 @@ class Attributor:
         cmd.answers += 1
         others = []
         for c in reversed(self._commands):  # newest first; stop long before the horizon
+            if not c.copies:
+                continue  # every copy dropped by the runner's own link: nothing to answer
             if d.t - c.copies[0] > SCAN_HORIZONS * self.horizon:
                 break
             if c is not cmd and c.expects_reply and c.open_at(d.t) and d.t - c.copies[-1] <= self.horizon:

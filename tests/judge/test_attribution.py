@@ -186,3 +186,41 @@ def test_a_command_left_open_stays_answerable_for_three_horizons_then_not():
     new = link.send(7.0, 1002)
     a = link.ack(7.01, 1001)  # names the earlier, expired command's seq
     assert (a.command, a.how) == (new, BY_TIMING)
+
+
+def test_a_copy_the_runners_own_link_dropped_is_owed_no_reply():
+    """``--impair``: the runner's link dropped a copy (``on_wire`` with no delays), so the node
+    was sent none of it and no reply is owed to it; a stale ACK naming it is then the latest
+    command's wrong answer, not an ambiguous late answer of the dropped one (issue 38)."""
+    link = Link(horizon=1.0)
+    link.send(0.0, 1000)
+    link.att.on_wire(0, 0.0, [])  # dropped on the way out
+    cmd = link.send(0.1, 1001)
+    a = link.ack(0.15, 1000)
+    assert (a.command, a.how, a.ambiguous) == (cmd, BY_TIMING, None)
+    # without the link's word the same reply could be 1000's late answer: tied to it by seq
+    plain = Link(horizon=1.0)
+    first = plain.send(0.0, 1000)
+    plain.send(0.1, 1001)
+    assert plain.ack(0.15, 1000).command == first
+
+
+def test_a_copy_the_runners_own_link_duplicated_is_owed_two_replies():
+    link = Link(horizon=1.0)
+    cmd = link.send(0.0, 1000)
+    link.att.on_wire(0, 0.0, [0.0, 0.05])  # two copies left, the second 50 ms late
+    assert link.ack(0.01, 1000).command == cmd
+    assert link.ack(0.06, 1000).command == cmd  # the second copy's ACK, by seq
+    assert link.ack(0.07, 1000) is None  # more answers than copies on the wire
+
+
+def test_a_reply_the_runners_own_link_dropped_still_answered_its_command():
+    """The node's ACK of 1000 dropped by the runner's link on the way in is fed all the same
+    (``harness.driver``'s ``_lost``): 1000 is answered, so the node's next ACK naming 1000 is
+    the latest command's wrong answer, not 1000's (ack-previous-seq through ``--impair``)."""
+    link = Link(horizon=1.0)
+    link.send(0.0, 1000)
+    link.ack(0.01, 1000)  # read by the attribution, never by the cases
+    cmd = link.send(0.1, 1001)
+    a = link.ack(0.11, 1000)
+    assert (a.command, a.how, a.ambiguous) == (cmd, BY_TIMING, None)

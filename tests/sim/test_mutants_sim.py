@@ -131,3 +131,17 @@ def test_dup_ignores_src_is_found_through_the_runners_impaired_link(seed):
                     select=("DUP",))
     assert ref.rules_with("failed", "warned") == {}, ref.explain()
     assert [c["outcome"] for c in ref.report["cases"] if "MCP-DUP-3" in c["rules"]] == ["passed"], ref.explain()
+
+
+@pytest.mark.parametrize("mutant", ["ack-previous-seq", "ack-zero"])
+@pytest.mark.parametrize("seed", [41, 42])
+def test_a_wrong_ack_payload_is_found_through_the_runners_impaired_link(mutant, seed):
+    """Through ``--impair`` these passed MCP-ACK-2 (or skipped it): their wrong ACKs were
+    explained as late answers of commands the link had made look open -- a copy it dropped
+    on the way out (owed no reply: ``Attributor.on_wire``), an ACK it dropped on the way in
+    (an answer all the same: ``Driver._lost``) -- or a passed attempt judged only the ACK of a
+    copy the link duplicated, leaving the others unjudged (now repeated, as a spoiled failure
+    is: ``conformance._impaired``)."""
+    imp = ("--impair", f"loss=0.1,dup=0.05,reorder=0.1,seed={seed}")
+    run = _run(mutant, seed, extra=imp, select=("ACK",))
+    assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
