@@ -134,13 +134,14 @@ def picked(rule: str, chosen: tuple[str, ...], left_out: tuple[str, ...]) -> boo
             and not any(n.startswith(x) for n in names for x in left_out))
 
 
-def _node_line(n: Any) -> str:
+def _node_line(n: dict[str, Any]) -> str:
+    """One node of ``MavlinkMonitor.to_json()`` (its sessions summed)."""
     what = ""
-    if n.heartbeat is not None:
-        t, a = n.heartbeat
+    if n["type"] is not None:
+        t, a = n["type"], n["autopilot"]
         types, stacks = DIALECT.enums["MAV_TYPE"], DIALECT.enums["MAV_AUTOPILOT"]
         what = f" {types[t].name if t in types else t}, {stacks[a].name if a in stacks else a},"
-    return f"  {n.name} {n.role or '?'}{what} {n.frames} frame(s), {n.beats} HEARTBEAT(s)"
+    return f"  {n['id']} {n['role'] or '?'}{what} {n['frames']} frame(s), {n['heartbeats']} HEARTBEAT(s)"
 
 
 def _violation_line(j: Judged, v: Violation) -> str:
@@ -180,7 +181,7 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
         who = f"the {j.role}'s rules" if j.role else "every node by its role"
         out.write(f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}\n")
-        for n in list(mon.nodes.values())[:30]:
+        for n in mon.to_json()["nodes"][:30]:
             out.write(_node_line(n) + "\n")
         if j.truncated:
             out.write(f"TRUNCATED: {j.truncated} (judged up to there)\n")
@@ -214,8 +215,7 @@ def frame_line(f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
     mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
     if f.bad:
         return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
-    n = j.monitor.nodes.get(f.source)
-    role = n.role if n is not None and n.role else "?"
+    role = j.monitor.role_of(f.source) or "?"
     fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
     text = ", ".join(f"{k}={v}" for k, v in fields.items())
     return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
@@ -267,8 +267,7 @@ def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
     for f in j.frames:
         if f.bad or f.name not in CONVERSATION:
             continue
-        n = j.monitor.nodes.get(f.source)
-        role = n.role if n is not None and n.role else "?"
+        role = j.monitor.role_of(f.source) or "?"
         fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
         text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
         steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))

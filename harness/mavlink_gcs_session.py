@@ -24,6 +24,7 @@ import time
 from typing import Any
 
 from mcp_conform.harness.config import RunConfig
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, RunnerVehicle
 from mcp_conform.harness.mavlink_session import Link, Received
@@ -65,6 +66,9 @@ class MavlinkGcsSession(StreamSessionBase):
         #: when the current run's link opened, and when the ground station's first frame came
         self.run_started = 0.0
         self.first_frame: float | None = None
+        #: the run's trace monitor, fed by each run's link, the ground station's rules judged
+        #: on it (the report's monitor section; each run a session of its own)
+        self.monitor: Any = MavlinkMonitor(spec, roles=("gcs",), complete=True)
         self.runs = 0
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
@@ -89,6 +93,11 @@ class MavlinkGcsSession(StreamSessionBase):
         self.behaviour, self.vehicle = behaviour, RunnerVehicle(behaviour)
         self.first_frame = None
         self.runs += 1
+        segment = f"gcs-run-{self.runs}"  # each run a session of the capture and the monitor
+        self.monitor.begin_segment(segment)  # (its parties start anew: judge.mavlink_monitor)
+        if self.recorder is not None:
+            with contextlib.suppress(Exception):  # a recorder without sessions records them as one
+                self.recorder.begin_segment(segment)
         self._spawn()
         wait = float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S))
         link = self.link
@@ -128,7 +137,7 @@ class MavlinkGcsSession(StreamSessionBase):
     def _open(self, transport: str, address: tuple[str, int], sock: socket.socket | None = None) -> None:
         assert self.vehicle is not None
         self.link = Link(transport, address, self.recorder, ids=self.vehicle.ids, sent_as="tx", got_as="rx",
-                         sock=sock, on_frames=self._answer)
+                         sock=sock, on_frames=self._answer, monitor=self.monitor)
         self.run_started = time.monotonic()
         self._stop.clear()
         self._ticker = threading.Thread(target=self._tick, name="mavlink-vehicle", daemon=True)

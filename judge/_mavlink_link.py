@@ -211,8 +211,10 @@ class LinkService(Service):
                       "HEARTBEAT.autopilot MAV_AUTOPILOT_INVALID", f"autopilot {name_of(STACKS, m.autopilot)}", *ev)
 
     def finish(self, end_ns: int) -> None:
-        """The tail: the last HEARTBEAT of each node to the trace's end."""
+        """The tail: the last HEARTBEAT of each node to the trace's end (at a session's end,
+        to the node's own last frame: ``MavlinkMonitor._next_segment``)."""
         for n in list(self.mon.nodes.values()):
+            end_ns = n.last_ns if self.mon.segment_ending else end_ns
             rule = "MAV-HB-1" if n.role == "vehicle" else "MAV-HB-2"
             if n.last_beat_ns is not None and end_ns - n.last_beat_ns > self.gap_ns:
                 self.mon.judge(rule, n, False, end_ns, f"a HEARTBEAT at least every {self.gap_ns / 1e9:g} s",

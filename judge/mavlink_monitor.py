@@ -114,13 +114,64 @@ class MavlinkMonitor:
         #: the last frames, for an answer stamped before its request (:data:`ORDER_SLACK_S`)
         self.recent: deque[MavFrame] = deque(maxlen=256)
         self._later: list[tuple[int, Callable[[], None]]] = []
+        #: the trace's session the frames come from (``MavFrame.segment``), and the nodes of
+        #: the sessions before it (:meth:`_next_segment`)
+        self.segment: str | None = None
+        self._live_segment: str | None = None
+        self.retired: list[Node] = []
+        #: a session is ending: each node's heartbeat is judged up to its own last frame
+        self.segment_ending = False
+        self._start_services()
+
+    def _start_services(self) -> None:
         self.services = (LinkService(self), CommandService(self), ParamService(self), MissionService(self))
         self._handlers: dict[str, list[Callable[[Node, MavFrame], None]]] = {}
         for svc in self.services:
             for name, handler in svc.handlers().items():
                 self._handlers.setdefault(name, []).append(handler)
 
+    def _next_segment(self) -> None:
+        """The trace's next session (``McapRecorder.begin_segment``: the gcs role's runner
+        starts each ground station afresh, and its vehicle with it): what was owed in the
+        session that ended is judged at its last frame, what was owed later is not (the
+        runner stopped its parties), and every party starts anew -- a new process numbers
+        its frames from 0 and its first command has confirmation 0, no gap in MAV-HB-11's
+        count, no resend of MAV-CMD-8's. A node's heartbeat is judged up to its own last
+        frame: its silence after it is the stopping's, not its own (MAV-HB-2 "while it
+        commands nothing": while it is on the link)."""
+        end = self.last_ns or 0
+        later, self._later = self._later, []
+        for _, fn in later:
+            fn()
+        self.advance(end + 1)
+        self.segment_ending = True
+        try:
+            for svc in self.services:
+                svc.finish(end)
+        finally:
+            self.segment_ending = False
+        self.expects = []
+        self.retired.extend(self.nodes.values())
+        self.nodes = {}
+        self.recent.clear()
+        self._start_services()
+
+    def all_nodes(self) -> list[Node]:
+        """Every node of the trace, the earlier sessions' first."""
+        return [*self.retired, *self.nodes.values()]
+
+    def role_of(self, source: tuple[int, int]) -> str | None:
+        """The role of the node with these IDs (its latest session's), None: not known."""
+        roles = [n.role for n in self.all_nodes() if n.key == source and n.role]
+        return roles[-1] if roles else None
+
     # -- feeding --------------------------------------------------------------------------
+    def begin_segment(self, name: str) -> None:
+        """A live link's next session (the capture's ``McapRecorder.begin_segment`` of the
+        same name): the frames from now on are its, judged as :meth:`_next_segment` says."""
+        self._live_segment = name
+        self._parsers = {}  # a new link: no bytes of the last one's half-read frames
+
     def frame(self, t_ns: int, raw: bytes, direction: str | None = None, msg: Any = None) -> None:
         """One frame of a live link (``msg``: pymavlink's, when already parsed)."""
         if msg is None:
@@ -129,10 +180,14 @@ class MavlinkMonitor:
                 p = self._parsers[direction] = DIALECT.MAVLink(None)
                 p.robust_parsing = True
             msg = parse_frame(raw, p)
-        self.feed(MavFrame(self.count, int(t_ns), direction, bytes(raw), msg))
+        self.feed(MavFrame(self.count, int(t_ns), direction, bytes(raw), msg, self._live_segment))
 
     def feed(self, f: MavFrame) -> None:
         """The trace's next frame, in time order."""
+        if f.segment != self.segment:
+            if self.count:
+                self._next_segment()
+            self.segment = f.segment
         t = f.t_ns
         self.advance(t)
         self.count += 1
@@ -277,14 +332,26 @@ class MavlinkMonitor:
     def violations(self) -> list[Violation]:
         return sorted((v for r in RULES for v in self.failed[r]), key=lambda v: (v.t_ns, v.rule))
 
+    def _nodes_json(self) -> list[dict[str, Any]]:
+        """One entry per node, its sessions' counts summed (a ground station started afresh
+        for each case is one node of the report)."""
+        out: dict[str, dict[str, Any]] = {}
+        for n in self.all_nodes():
+            e = out.setdefault(n.name, {"id": n.name, "role": n.role, "frames": 0, "heartbeats": 0,
+                                        "type": None, "autopilot": None})
+            e["frames"] += n.frames
+            e["heartbeats"] += n.beats
+            e["role"] = e["role"] or n.role
+            if n.heartbeat:
+                e["type"], e["autopilot"] = n.heartbeat
+        return list(out.values())
+
     def to_json(self) -> dict[str, Any]:
         """The monitor's judgement as a report's ``monitor`` section has it."""
         return {
             "complete": self.complete,
             "frames": self.count,
-            "nodes": [{"id": n.name, "role": n.role, "frames": n.frames, "heartbeats": n.beats,
-                       "type": n.heartbeat[0] if n.heartbeat else None,
-                       "autopilot": n.heartbeat[1] if n.heartbeat else None} for n in self.nodes.values()],
+            "nodes": self._nodes_json(),
             "violations": [{"rule": v.rule, "node": v.node, "role": v.role, "t_ns": v.t_ns, "expected": v.expected,
                             "actual": v.actual, "evidence": list(v.evidence), "frames": list(v.frames)}
                            for v in self.violations],

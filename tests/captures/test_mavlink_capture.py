@@ -428,3 +428,27 @@ def test_an_mcp_drone_runs_autopilot_link_is_judged_as_the_vehicles(tmp_path):
     assert rc == 0 and doc["roles"] == ["vehicle"] and not bad_rules(doc), out + err
     assert {n["id"]: n["role"] for n in doc["nodes"]}["1/1"] == "vehicle"
     assert doc["rules"]["MAV-HB-1"] == doc["rules"]["MAV-HB-11"] == "passed"
+
+
+@pytest.mark.parametrize(("segments", "hb11"), [(True, "passed"), (False, "failed")])
+def test_a_ground_station_started_afresh_in_a_new_session_numbers_its_frames_anew(segments, hb11):
+    """The gcs role's runner starts each ground station afresh, and its capture marks each run a
+    session (``McapRecorder.begin_segment``): there its sequence numbers restart from 0 as a
+    new process's do, no gap for MAV-HB-11, and its first command's confirmation 0 is no resend
+    for MAV-CMD-8. In one session the same restart is a gap (the monitor judged the reference
+    GCS's captures so, and warned MAV-CMD-8)."""
+    cmd = {"target_system": 1, "target_component": 1, "command": MAV.MAV_CMD_DO_SET_MODE, "confirmation": 0,
+           "param1": 1, "param2": 4, "param3": 0, "param4": 0, "param5": 0, "param6": 0, "param7": 0}
+    # the runner withholds the ACK (MAV-CMD-6's case), then starts the next run
+    run = sorted([*_beats(1), (1.2, (255, 190), "COMMAND_LONG", cmd)], key=lambda x: x[0])
+    mon = MavlinkMonitor(roles=("gcs",), complete=True)
+    for n in (1, 2):  # the same run twice, its parties' numbers from 0 each time
+        for t, raw in _frames(*run):
+            seg = f"gcs-run-{n}" if segments else None
+            mon.feed(MavFrame(mon.count, t + (n - 1) * 1_600_000_000, "rx" if raw[5:7] == b"\xff\xbe" else "tx",
+                              raw, MAV.MAVLink(None).parse_char(raw), seg))
+    mon.finish()
+    v = mon.verdicts()
+    assert v["MAV-HB-11"] == hb11 and v["MAV-HB-2"] == "passed", mon.violations
+    assert v["MAV-CMD-8"] == ("not_observed" if segments else "warned"), mon.violations  # no resend in a session
+    assert [n["id"] for n in mon.to_json()["nodes"]] == ["1/1", "255/190"]

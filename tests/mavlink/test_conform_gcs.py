@@ -117,6 +117,28 @@ def test_a_ground_station_slow_to_start_over_udp_has_no_heartbeat_gap(tmp_path, 
     assert rc == 0 and doc["rules"]["MAV-HB-2"] == "passed", out
 
 
+@pytest.mark.slow
+def test_a_gcs_runs_capture_checks_as_the_run_judged_it(tmp_path):
+    """Each case starts the ground station afresh (and the runner's vehicle with it): each
+    run is a session of the capture (``McapRecorder.begin_segment``), and ``mcp-capture
+    check`` judges each party anew there -- a new process numbers its frames from 0 and its
+    first command has confirmation 0. Judged as one session, the reference GCS's capture
+    failed MAV-HB-11 ("expected seq 20, actual HEARTBEAT with seq 0") and warned MAV-CMD-8.
+    The run's live monitor (the report's monitor section) judges each run so too, and gives
+    every rule the verdict the capture's check gives it."""
+    cap = tmp_path / "run.mcap"
+    rc, doc, out = run(tmp_path, "--select", "MAV-CMD-6", "--select", "MAV-CMD-17", "--select", "MAV-HB-11",
+                       "--capture", str(cap))
+    assert rc == 0, out
+    proc = run_module("mcp_conform.captures", ["check", "--protocol", "mavlink", str(cap), "--json", str(tmp_path / "c.json")],
+                      timeout=120)
+    judged = json.loads((tmp_path / "c.json").read_text())
+    assert proc.returncode == 0 and judged["verdict"] == "OK", proc.stdout + proc.stderr
+    assert judged["rules"]["MAV-HB-11"] == "passed" and judged["rules"]["MAV-CMD-7"] == "passed", judged["rules"]
+    assert sorted(n["id"] for n in judged["nodes"]) == ["1/1", "255/190"], judged["nodes"]  # each one node
+    assert judged["rules"] == doc["monitor"]["rules"], (judged["rules"], doc["monitor"])  # live = offline
+
+
 REAL = Path(__file__).with_name("real_gcs.py")
 #: what each ground station no one here wrote gets (docs/guide/mavlink-gcs.md's table): its
 #: failed and warned rules, pinned so that a change in the library or in the suite shows
