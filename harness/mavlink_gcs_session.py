@@ -24,7 +24,6 @@ import time
 from typing import Any
 
 from mcp_conform.harness.config import RunConfig
-from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, RunnerVehicle
 from mcp_conform.harness.mavlink_session import Link, Received
@@ -37,6 +36,7 @@ from mcp_conform.harness.session_base import (
     reference_command,
 )
 from mcp_conform.harness.stream_session import StreamSessionBase
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
 
