@@ -301,15 +301,15 @@ class Backend:
                            f"the backend closed the connection after frames it handles ({case.note})")
         return None
 
-    def _close_window(self, kind: str, note: str) -> Hit | None:
-        """The close window (3 ms, ended by the backend's close) after frames the backend
-        handles, sent on a connection that only carried such frames: a close in it is a finding
-        (NSQD-FRM-2/3/5, by the last case's ``kind``)."""
+    def _close_window(self, kind: str, note: str, within: float = 0.003) -> Hit | None:
+        """The close window (``within``: 3 ms in a campaign, ended by the backend's close)
+        after frames the backend handles, sent on a connection that only carried such frames:
+        a close in it is a finding (NSQD-FRM-2/3/5, by the last case's ``kind``)."""
         conn = self.conn
         self.unwatched = ""
         if conn is None or conn.closed_at is not None or not self.clean:
             return None
-        conn.wait_for(lambda: False, 0.003)
+        conn.wait_for(lambda: False, within)
         if conn.closed_at is None:
             return None
         hit = self.death_hit(0.03)
@@ -520,6 +520,10 @@ SUSPECTS_MAX = 16
 #: How long a replay of a crash waits, after its last case, for the process's death or a
 #: sanitizer's report to begin (a correct backend's replay waits it out).
 REPLAY_DEATH_S = 2.0
+#: how long a replay watches for the close it confirms: the campaign's 3-ms window, with no
+#: next case to show it, missed a backend closing 6 kB frames on a loaded host (CI, load 9:
+#: test_nsqd_case_costs); ended by the close, so a replay that shows it takes no longer
+REPLAY_CLOSE_S = 0.5
 
 
 def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: bool,
@@ -581,8 +585,8 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
         parsed = parse_sanitizer(first) if first else None
         if parsed and (parsed[0], parsed[2][:3]) == (sig.kind, sig.frames[:3]):
             hit = Hit(Signature("sanitizer", parsed[0], parsed[2], sig.rule), hit.detail, tuple(first[:20]))
-    if hit is None and sig.oracle == "close" and cases:
-        hit = b._close_window(cases[-1].kind, cases[-1].note)  # a replay has no next case to show a close
+    if hit is None and sig.oracle == "close" and cases:  # a replay has no next case to show a close:
+        hit = b._close_window(cases[-1].kind, cases[-1].note, REPLAY_CLOSE_S)  # a longer window, ended by it
     if hit is None and probe:
         hit = b.probe()
     hit = hit or passed
