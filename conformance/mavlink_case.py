@@ -9,7 +9,6 @@ dialect (``spec.MAVLINK.dialect``); the times from ``spec/mavlink.yaml``'s param
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -55,14 +54,20 @@ class MavlinkCaseBase(CaseBase):
         self.spec = session.spec
         self.params = self.spec.params
         self.mav = DIALECT
-        self.t0 = time.monotonic()
+        #: the run's clock (``harness.clock``): the host's, or the simulator's virtual one
+        self.clock = session.clock
+        self.t0 = self.clock.monotonic()
+
+    def now(self) -> float:
+        """The run clock's ``monotonic()``: the time of a send, of a frame's arrival."""
+        return self.clock.monotonic()
 
     def message(self, name: str, **fields: Any) -> Any:
         """The dialect's message ``name`` with ``fields`` (the others as the encoder's defaults)."""
         return getattr(self.link.encoder, name.lower() + "_encode")(**fields)
 
     def send(self, name: str, **fields: Any) -> float:
-        """Send message ``name`` to the node under test; its send time (``time.monotonic()``)."""
+        """Send message ``name`` to the node under test; its send time (:meth:`now`'s clock)."""
         return self.link.send(self.message(name, **fields))
 
     def watch(self, seconds: float) -> None:
@@ -168,9 +173,9 @@ class MavlinkCaseContext(MavlinkCaseBase):
         start to the first, between two, the last to the window's end) over
         ``heartbeat_gap_max_s``; the HEARTBEATs seen."""
         gap_max = float(self.params["heartbeat_gap_max_s"])
-        start = time.monotonic()
+        start = self.now()
         self.watch(window)
-        end = time.monotonic()
+        end = self.now()
         beats = [r.t for r in self.from_vehicle(start, "HEARTBEAT")]
         edges = [start, *beats, end]
         gaps = [b - a for a, b in zip(edges, edges[1:], strict=False)]
@@ -199,7 +204,7 @@ class MavlinkCaseContext(MavlinkCaseBase):
             wanted = " or ".join(result_name(r) for r in results) if results is not None else "a MAV_RESULT"
             raise self.fail(rule, f"after {what}, COMMAND_ACK.result {wanted}", f"{result_name(result)}")
         if once_rule is not None:
-            self.watch(max(0.0, ack.t + SECOND_ACK_WATCH_S - time.monotonic()))
+            self.watch(max(0.0, ack.t + SECOND_ACK_WATCH_S - self.now()))
             final = [a for a in self.acks(since, command) if a.msg.result != DIALECT.MAV_RESULT_IN_PROGRESS]
             if len(final) > 1:
                 raise self.fail(once_rule, f"after {what}, one final COMMAND_ACK",
@@ -230,15 +235,15 @@ class MavlinkCaseContext(MavlinkCaseBase):
     def param_list(self, since: float) -> list[Any]:
         """The PARAM_VALUEs after ``since`` until ``param_list_gap_max_s`` passes with none
         (at most ``param_list_max_s``)."""
-        gap, end = float(self.params["param_list_gap_max_s"]), time.monotonic() + float(self.params["param_list_max_s"])
+        gap, end = float(self.params["param_list_gap_max_s"]), self.now() + float(self.params["param_list_max_s"])
         count = -1
-        while time.monotonic() < end:
+        while self.now() < end:
             n = len(self.from_vehicle(since, "PARAM_VALUE"))
             if n == count:
                 break
             count = n
             self.link.wait_for(lambda n=n: len(self.from_vehicle(since, "PARAM_VALUE")) > n,
-                               min(gap, max(0.0, end - time.monotonic())))
+                               min(gap, max(0.0, end - self.now())))
         return [r.msg for r in self.from_vehicle(since, "PARAM_VALUE")]
 
     def capabilities(self) -> int | None:

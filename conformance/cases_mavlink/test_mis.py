@@ -8,8 +8,6 @@ is replaced, and the last case leaves it empty."""
 
 from __future__ import annotations
 
-import time
-
 from mcp_conform.conformance.marks import rules
 from mcp_conform.conformance.mavlink_case import UNKNOWN_COMMAND, result_name_mission
 from mcp_conform.harness.errors import Inconclusive
@@ -138,15 +136,15 @@ def idle_again(node, since, deadline):
     """Downloads tried until one is answered with MISSION_COUNT or ``deadline`` passes
     (a vehicle still in an upload refuses them: MAV_MISSION_DENIED); the time the
     MISSION_COUNT came, or None."""
-    while time.monotonic() < deadline:
+    while node.now() < deadline:
         t = node.send("MISSION_REQUEST_LIST", target_system=node.sysid, target_component=node.compid,
                       mission_type=MISSION)
         if node.link.wait_for(lambda t=t: bool(node.from_vehicle(t, "MISSION_COUNT")),
-                              min(1.0, max(0.0, deadline - time.monotonic()))):
+                              min(1.0, max(0.0, deadline - node.now()))):
             node.send("MISSION_ACK", target_system=node.sysid, target_component=node.compid,
                       type=MAV.MAV_MISSION_ACCEPTED, mission_type=MISSION)
             return node.from_vehicle(t, "MISSION_COUNT")[0].t
-        node.watch(min(0.5, max(0.0, deadline - time.monotonic())))
+        node.watch(min(0.5, max(0.0, deadline - node.now())))
     return None
 
 
@@ -258,7 +256,7 @@ def test_abandoned_upload_ends(node):
 
     def ended():
         reqs, acks = requests(), [r for r in node.mission_replies(since) if r.name == "MISSION_ACK"]
-        return bool(acks) or time.monotonic() - (reqs[-1].t if reqs else since) > quiet
+        return bool(acks) or node.now() - (reqs[-1].t if reqs else since) > quiet
     node.link.wait_for(ended, abandon)
     idle = idle_again(node, since, deadline)
     late = [r for r in requests() if idle is not None and r.t > idle]
