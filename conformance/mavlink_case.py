@@ -278,30 +278,46 @@ class MavlinkCaseContext(MavlinkCaseBase):
 
     def upload(self, items: list[dict[str, Any]], *, withhold: int | None = None) -> list[Received]:
         """Upload ``items``: MISSION_COUNT, then each item the vehicle asks for, until its
-        MISSION_ACK or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10
-        answers); ``withhold``: that seq's first request goes unanswered. The vehicle's
-        requests and ACK, in order."""
+        MISSION_ACK (but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not end the upload:
+        E-1) or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10 answers);
+        ``withhold``: that seq's first request goes unanswered; a request already answered
+        after it came is not answered again (:meth:`answered_since`). The vehicle's requests and
+        ACKs, in order."""
         wait = float(self.params["mission_reply_max_s"])
         if withhold is not None:
             wait = max(wait, float(self.params["mission_rerequest_max_s"]))
         since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
                           count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
         done = 0
+        answered: dict[int, float] = {}
         for _ in range(3 * len(items) + 10):
             if not self.link.wait_for(lambda done=done: len(self.mission_replies(since)) > done, wait):
                 break
             reply = self.mission_replies(since)[done]
             done += 1
             if reply.name == "MISSION_ACK":
+                if reply.msg.type == DIALECT.MAV_MISSION_INVALID_SEQUENCE:
+                    continue
                 break
             seq = reply.msg.seq
             if withhold == seq:
                 withhold = None
                 continue
-            if 0 <= seq < len(items):
-                self.send("MISSION_ITEM_INT", target_system=self.sysid, target_component=self.compid,
-                          **{k: v for k, v in items[seq].items()})
+            if 0 <= seq < len(items) and not self.answered_since(reply, answered):
+                answered[seq] = self.send("MISSION_ITEM_INT", target_system=self.sysid, target_component=self.compid,
+                                          **{k: v for k, v in items[seq].items()})
         return self.mission_replies(since)
+
+    @staticmethod
+    def answered_since(request: Received, answered: dict[int, float]) -> bool:
+        """Whether the runner's answer to an earlier request for ``request``'s seq (``answered``:
+        seq -> when its last answer was sent) went out at or after ``request`` came: the
+        vehicle sent it again before it could have had that answer (ArduPilot re-requests an
+        unanswered item each second: a runner stalled on a loaded host, its reader or its case
+        thread, reads both requests late), and the answer already sent answers both. A request
+        that came after the answer is answered again (the item may have been lost)."""
+        t = answered.get(int(request.msg.seq))
+        return t is not None and t >= request.t
 
     def download(self) -> tuple[int | None, list[Any]]:
         """Download the mission: MISSION_REQUEST_LIST, then MISSION_REQUEST_INT for each seq,
@@ -328,19 +344,26 @@ class MavlinkCaseContext(MavlinkCaseBase):
 
     def expect_upload(self, replies: list[Received], count: int, rule: str = "MAV-MIS-1",
                       order_rule: str = "MAV-MIS-2", rerequested: int | None = None) -> None:
-        """An upload of ``count`` items as MAV-MIS-1 has it: requests 0..count-1, each for the
-        next seq (MAV-MIS-2: in order, none past the end, none again but ``rerequested``'s
-        re-request), then MISSION_ACK MAV_MISSION_ACCEPTED with the mission's mission_type."""
+        """An upload of ``count`` items as MAV-MIS-1 has it: requests for 0..count-1, then
+        MISSION_ACK MAV_MISSION_ACCEPTED with the mission's mission_type (a
+        MAV_MISSION_INVALID_SEQUENCE before it is a NACK that does not end the upload: E-1);
+        MAV-MIS-2: in order, each request the last one again (a re-request) or the next, none
+        past the end -- as the trace monitor reads it (``judge._mavlink_services``); with
+        ``rerequested``, that seq requested again (MAV-MIS-3)."""
         seqs = [r.msg.seq for r in replies if r.name != "MISSION_ACK"]
-        acks = [r for r in replies if r.name == "MISSION_ACK"]
+        acks = [r for r in replies if r.name == "MISSION_ACK" and r.msg.type != DIALECT.MAV_MISSION_INVALID_SEQUENCE]
         want = list(range(count))
         if rerequested is not None:
             want.insert(rerequested + 1, rerequested)
         shown = [f"{r.name} {r.msg.seq if r.name != 'MISSION_ACK' else result_name_mission(r.msg.type)}"
                  for r in replies]
-        if seqs != want[:len(seqs)] or any(s >= count for s in seqs):
-            raise self.fail(order_rule, f"requests for seq {want}", f"requests for seq {seqs}", shown)
-        if not acks or acks[0].msg.type != DIALECT.MAV_MISSION_ACCEPTED or seqs != want:
+        steps = zip([-1, *seqs], seqs, strict=False)
+        if any(s >= count for s in seqs) or not all(b in (a, a + 1) and b >= 0 for a, b in steps):
+            raise self.fail(order_rule, f"requests for seq {want} (each the last one again, or the next)",
+                            f"requests for seq {seqs}", shown)
+        distinct = [s for i, s in enumerate(seqs) if i == 0 or s != seqs[i - 1]]
+        again = rerequested is None or seqs.count(rerequested) > 1
+        if not acks or acks[0].msg.type != DIALECT.MAV_MISSION_ACCEPTED or distinct != list(range(count)) or not again:
             got = f"MISSION_ACK {result_name_mission(acks[0].msg.type)}" if acks else "no MISSION_ACK"
             raise self.fail(rule, f"requests for seq {want}, then MISSION_ACK MAV_MISSION_ACCEPTED",
                             f"requests for seq {seqs}, {got}", shown)

@@ -54,8 +54,9 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
     MISSION_REQUEST_INT or MISSION_REQUEST the vehicle sends, until a MISSION_ACK that ends
     the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1) or ``wait``
     s (mission_reply_max_s) with nothing new, or ``until()`` holds after an answer; bounded
-    by 3 x count + 10 replies. The first MISSION_COUNT's send time and the vehicle's
-    requests and ACKs, in order."""
+    by 3 x count + 10 replies; a request already answered after it came is not answered
+    again (``answered_since``: the vehicle re-requested while the runner was late). The
+    first MISSION_COUNT's send time and the vehicle's requests and ACKs, in order."""
     wait = float(node.params["mission_reply_max_s"]) if wait is None else wait
     since = 0.0
     for _ in range(1 + int(node.params["mission_retries"])):
@@ -65,7 +66,7 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
         if node.link.wait_for(lambda since=since: bool(node.mission_replies(since)),
                               float(node.params["mission_reply_max_s"])):
             break
-    done = 0
+    done, answered = 0, {}
     for _ in range(3 * count + 10):
         if not node.link.wait_for(lambda done=done: len(node.mission_replies(since)) > done, wait):
             break
@@ -75,7 +76,12 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
             if reply.msg.type == MAV.MAV_MISSION_INVALID_SEQUENCE:
                 continue
             break
+        if node.answered_since(reply, answered):
+            continue
+        sent = len(node.link.sent)
         answer(reply)
+        if len(node.link.sent) > sent:
+            answered[reply.msg.seq] = node.link.sent[-1][0]
         if until is not None and until():
             break
     return since, node.mission_replies(since)

@@ -5,11 +5,12 @@ sockets and timers (about 50 s a run) until now.
 
 Correct: the reference vehicle fails no MUST rule over TCP and UDP, and warns exactly the
 SHOULD rules it breaks as ArduCopter does (``KNOWN_WARNINGS``, each with its erratum) -- with
-the runner's threads stalled, and through a delaying UDP link (delays only: a UDP link that
-reorders or loses spoils MAV-HB-11's count of sequence numbers, which the suite reads as
-loopback's). Faulty: each fault of sim.vehicle_faults (the same rewrites the real
+the runner's and the vehicle's threads stalled, and through a lossy, duplicating, reordering,
+delaying TCP link (what TCP makes of it: bytes late, in order) or a delaying UDP one (delays
+only: a UDP link that reorders or loses spoils MAV-HB-11's count of sequence numbers, which the
+suite reads as loopback's). Faulty: each fault of sim.vehicle_faults (the same rewrites the real
 proxy, tests/mavlink/faulty_vehicle.py, makes) fails exactly its MUST rule's cases and no other
-MUST rule, its warnings among the known ones. The live
+MUST rule, its warnings among the known ones; ``unpaced-list`` warns its SHOULD rule. The live
 monitor judges as ``mcp-capture check`` of the run's capture does. A seed gives the same report.
 
 What stays on real sockets: tests/mavlink/test_conform_mavlink.py (its docstring says which runs
@@ -61,6 +62,8 @@ FAULTS = {
     "abandoned-stays-busy": ("MAV-MIS-6", {"MIS/test_abandoned_upload_ends"}),
     "clear-ack-type-all": ("MAV-MIS-17", {"MIS/test_mission_types_are_mav_mission_types"}),
 }
+#: a lossy TCP link: what the impairment loses TCP sends again, what it duplicates TCP discards
+LOSSY = "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms"
 
 
 def failed(doc: dict) -> tuple[set[str], set[str]]:
@@ -124,11 +127,43 @@ def test_each_faulty_vehicle_fails_its_rule_and_no_other(fault):
     assert case["failed_rule"] == rule and case["expected"] and case["actual"], case
 
 
-@pytest.mark.parametrize(("seed", "stalls"), [(0, (0.1, 0.3)), (1, (0.1, 0.3)), (9, (0.2, 0.5))])
+def test_a_vehicle_that_sends_its_list_in_one_burst_is_warned():
+    """``unpaced-list``: every list in one burst (MAV-PRM-3, a SHOULD), the three lists the case
+    asks for included; nothing failed."""
+    run = run_vehicle_cases("unpaced-list", seed=2)
+    assert failed(run.report) == (set(), set()), run.explain()
+    assert warned(run.report) == set(KNOWN_WARNINGS) | {WARNS["unpaced-list"]}, run.explain()
+    case = next(c for c in run.report["cases"] if c["id"] == "PRM/test_list_is_paced")
+    assert "in one of 3 lists" in case["expected"] and "within 0.0 ms" in case["actual"], case
+
+
+@pytest.mark.parametrize(("seed", "stalls"), [(0, (0.1, 0.3)), (1, (0.1, 0.3)), (9, (0.2, 0.5)), (3, (0.05, 1.0)),
+                                              (5, (0.1, 1.0)), (6, (0.05, 1.5))])
 def test_the_reference_vehicle_with_the_runners_threads_stalled(seed, stalls):
     """sim.stalls: the runner's threads (its cases, its reader, its heartbeat) left off the CPU
-    for up to ``max_s`` at a handoff in ``1/p``: late, never a false verdict."""
+    for up to ``max_s`` at a handoff in ``1/p``: late, never a false verdict. Up to 1 s (the
+    reference vehicle's own re-request time, ArduPilot's wp_recv_timeout_ms) these seeds gave
+    false MAV-MIS-1/2/16 verdicts before the upload drivers answered a request only once when
+    its re-request came before the answer went out (``answered_since``), and before the
+    upload's order was read as the monitor reads it (the last one again, or the next)."""
     run = run_vehicle_cases(None, seed=seed, stalls=stalls)
+    expect_reference(run.report, run.explain())
+
+
+@pytest.mark.xfail(strict=True, reason="open: a reader stalled past the suite's 1.5 s reply bounds (command_ack_max_s, "
+                   "mission_reply_max_s) reads a prompt answer late; over TCP the runner has no receive time per "
+                   "frame to tell it from a late vehicle (false MAV-CMD-1, MAV-MIS-3, MAV-MIS-8)")
+def test_the_reference_vehicle_with_the_runners_threads_stalled_2s():
+    run = run_vehicle_cases(None, seed=3, stalls=(0.05, 2.0))
+    expect_reference(run.report, run.explain())
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_reference_vehicle_through_a_lossy_tcp_link(seed):
+    """Seeds 1 and 2 warned MAV-PRM-3 before its case asked for a list again: a lost segment
+    sent again held the rest of the list behind it, and the runner read the paced list in one
+    burst."""
+    run = run_vehicle_cases(None, seed=seed, link=LOSSY)
     expect_reference(run.report, run.explain())
 
 
@@ -138,8 +173,16 @@ def test_the_reference_vehicle_through_a_delaying_udp_link(seed):
     expect_reference(run.report, run.explain())
 
 
+@pytest.mark.parametrize("fault", ["double-ack", "seq-gaps", "abandoned-stays-busy"])
+def test_a_faulty_vehicle_through_a_lossy_link_with_stalls(fault):
+    """A fault is found with its rule when the link is lossy and the threads stalled too."""
+    run = run_vehicle_cases(fault, seed=4, link=LOSSY, stalls=(0.05, 0.5))
+    assert failed(run.report)[0] == {FAULTS[fault][0]}, run.explain()
+    assert warned(run.report) <= set(KNOWN_WARNINGS), run.explain()
+
+
 def test_a_seed_gives_the_same_run():
-    a, b = (run_vehicle_cases("double-ack", seed=5, link="delay=0-50ms", stalls=(0.05, 0.5)) for _ in range(2))
+    a, b = (run_vehicle_cases("double-ack", seed=5, link=LOSSY, stalls=(0.05, 0.5)) for _ in range(2))
     assert a.report["cases"] == b.report["cases"]
     assert a.report["monitor"] == b.report["monitor"]
     assert (a.virtual_s, a.switches) == (b.virtual_s, b.switches)
