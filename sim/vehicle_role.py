@@ -169,14 +169,11 @@ class SimLinks:
     def __init__(self, clock: VirtualClock, impairment: Impairment, fault: str | None = None) -> None:
         self.clock, self.impairment, self.fault = clock, impairment, fault
         self.vnet: SimVehicleNet | None = None
-        self.ends: list[_SimEnd] = []
 
     def open(self, transport: str, address: Address, sock: Any = None) -> _SimEnd:
         if transport not in SERVES:
             raise OSError(f"{transport}: the simulated vehicle serves {' or '.join(SERVES)}")
-        end = _SimEnd(self, transport, address)
-        self.ends.append(end)
-        return end
+        return _SimEnd(self, transport, address)
 
 
 class SimVehicleNode:
