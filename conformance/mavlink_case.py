@@ -23,7 +23,7 @@ from mcp_conform.harness.mavlink_session import (
     Received,
 )
 
-__all__ = ["MavlinkCaseBase", "MavlinkCaseContext"]
+__all__ = ["ItemAnswers", "MavlinkCaseBase", "MavlinkCaseContext", "upload_replies"]
 
 #: MAV_RESULT's entries by value, as the dialect has them
 RESULTS: dict[int, str] = {v: e.name for v, e in DIALECT.enums["MAV_RESULT"].items()
@@ -104,6 +104,28 @@ class MavlinkCaseBase(CaseBase):
         payload = r.raw[10:10 + r.raw[1]] if r.version == 2 else r.raw[6:6 + r.raw[1]]
         payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
         return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
+
+
+class ItemAnswers:
+    """The items the runner sent in one upload, by seq: when each was last sent, and how many
+    were sent again. A request for a seq whose item went out at or after the request came
+    (:meth:`due` False) was sent again by the vehicle before it could have had that item
+    (ArduPilot re-requests an unanswered item each second: a runner stalled on a loaded host,
+    its reader or its case thread, reads both requests late), and the item already sent answers
+    both; a request that came after it is answered again (the item may have been lost)."""
+
+    def __init__(self) -> None:
+        self.at: dict[int, float] = {}
+        self.again: set[int] = set()
+
+    def due(self, request: Received) -> bool:
+        t = self.at.get(int(request.msg.seq))
+        return t is None or t < request.t
+
+    def sent(self, seq: int, t: float) -> None:
+        if seq in self.at:
+            self.again.add(seq)
+        self.at[seq] = t
 
 
 class MavlinkCaseContext(MavlinkCaseBase):
@@ -281,15 +303,14 @@ class MavlinkCaseContext(MavlinkCaseBase):
         MISSION_ACK (but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not end the upload:
         E-1) or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10 answers);
         ``withhold``: that seq's first request goes unanswered; a request already answered
-        after it came is not answered again (:meth:`answered_since`). The vehicle's requests and
+        after it came is not answered again (:class:`ItemAnswers`). The vehicle's requests and
         ACKs, in order."""
         wait = float(self.params["mission_reply_max_s"])
         if withhold is not None:
             wait = max(wait, float(self.params["mission_rerequest_max_s"]))
         since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
                           count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
-        done = 0
-        answered: dict[int, float] = {}
+        done, answers = 0, ItemAnswers()
         for _ in range(3 * len(items) + 10):
             if not self.link.wait_for(lambda done=done: len(self.mission_replies(since)) > done, wait):
                 break
@@ -303,21 +324,18 @@ class MavlinkCaseContext(MavlinkCaseBase):
             if withhold == seq:
                 withhold = None
                 continue
-            if 0 <= seq < len(items) and not self.answered_since(reply, answered):
-                answered[seq] = self.send("MISSION_ITEM_INT", target_system=self.sysid, target_component=self.compid,
-                                          **{k: v for k, v in items[seq].items()})
-        return self.mission_replies(since)
+            if 0 <= seq < len(items) and answers.due(reply):
+                answers.sent(seq, self.send("MISSION_ITEM_INT", target_system=self.sysid,
+                                            target_component=self.compid, **{k: v for k, v in items[seq].items()}))
+        self.settle(answers, len(items) - 1)
+        return upload_replies(self.mission_replies(since))
 
-    @staticmethod
-    def answered_since(request: Received, answered: dict[int, float]) -> bool:
-        """Whether the runner's answer to an earlier request for ``request``'s seq (``answered``:
-        seq -> when its last answer was sent) went out at or after ``request`` came: the
-        vehicle sent it again before it could have had that answer (ArduPilot re-requests an
-        unanswered item each second: a runner stalled on a loaded host, its reader or its case
-        thread, reads both requests late), and the answer already sent answers both. A request
-        that came after the answer is answered again (the item may have been lost)."""
-        t = answered.get(int(request.msg.seq))
-        return t is not None and t >= request.t
+    def settle(self, answers: ItemAnswers, last: int) -> None:
+        """After an upload in which the runner sent its last item (seq ``last``) again:
+        ``mission_reply_max_s`` for the vehicle's answer to it (an error MISSION_ACK: the item
+        came after the upload ended), so that it falls in this exchange, not in the next one's."""
+        if last in answers.again:
+            self.watch(float(self.params["mission_reply_max_s"]))
 
     def download(self) -> tuple[int | None, list[Any]]:
         """Download the mission: MISSION_REQUEST_LIST, then MISSION_REQUEST_INT for each seq,
@@ -375,6 +393,16 @@ class MavlinkCaseContext(MavlinkCaseBase):
     def gcs(self) -> tuple[int, int]:
         """The runner's own system and component IDs."""
         return GCS_SYSID, GCS_COMPID
+
+
+def upload_replies(replies: list[Received]) -> list[Received]:
+    """An upload's replies up to the MISSION_ACK that ended it (the first but
+    MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1): what came after it answers
+    something else (an item the runner sent again)."""
+    for i, r in enumerate(replies):
+        if r.name == "MISSION_ACK" and r.msg.type != DIALECT.MAV_MISSION_INVALID_SEQUENCE:
+            return replies[:i + 1]
+    return replies
 
 
 def result_name_mission(value: int) -> str:

@@ -9,7 +9,12 @@ is replaced, and the last case leaves it empty."""
 from __future__ import annotations
 
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import UNKNOWN_COMMAND, result_name_mission
+from mcp_conform.conformance.mavlink_case import (
+    UNKNOWN_COMMAND,
+    ItemAnswers,
+    result_name_mission,
+    upload_replies,
+)
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import MAVLINK
 
@@ -55,8 +60,10 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
     the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1) or ``wait``
     s (mission_reply_max_s) with nothing new, or ``until()`` holds after an answer; bounded
     by 3 x count + 10 replies; a request already answered after it came is not answered
-    again (``answered_since``: the vehicle re-requested while the runner was late). The
-    first MISSION_COUNT's send time and the vehicle's requests and ACKs, in order."""
+    again (``ItemAnswers``: the vehicle re-requested while the runner was late), and after
+    an upload in which its last item went again, the vehicle's answer to it is waited for
+    (``settle``). The first MISSION_COUNT's send time and the vehicle's requests and ACKs
+    up to the one that ended the upload (``upload_replies``), in order."""
     wait = float(node.params["mission_reply_max_s"]) if wait is None else wait
     since = 0.0
     for _ in range(1 + int(node.params["mission_retries"])):
@@ -66,7 +73,7 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
         if node.link.wait_for(lambda since=since: bool(node.mission_replies(since)),
                               float(node.params["mission_reply_max_s"])):
             break
-    done, answered = 0, {}
+    done, answers = 0, ItemAnswers()
     for _ in range(3 * count + 10):
         if not node.link.wait_for(lambda done=done: len(node.mission_replies(since)) > done, wait):
             break
@@ -76,15 +83,16 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
             if reply.msg.type == MAV.MAV_MISSION_INVALID_SEQUENCE:
                 continue
             break
-        if node.answered_since(reply, answered):
+        if not answers.due(reply):
             continue
         sent = len(node.link.sent)
         answer(reply)
         if len(node.link.sent) > sent:
-            answered[reply.msg.seq] = node.link.sent[-1][0]
+            answers.sent(reply.msg.seq, node.link.sent[-1][0])
         if until is not None and until():
             break
-    return since, node.mission_replies(since)
+    node.settle(answers, count - 1)
+    return since, upload_replies(node.mission_replies(since))
 
 
 def send_item(node, item, **changes):

@@ -20,7 +20,7 @@ UNKNOWN_PARAM = "MCPCONF_NO_SUCH_"
 PACED_MIN = 20
 PAUSE_S = 0.001
 #: how many lists MAV-PRM-3 asks for before it says the vehicle does not pace them
-LIST_TRIES = 3
+LIST_TRIES = 5
 
 
 @pytest.fixture(scope="module")

@@ -128,13 +128,13 @@ def test_each_faulty_vehicle_fails_its_rule_and_no_other(fault):
 
 
 def test_a_vehicle_that_sends_its_list_in_one_burst_is_warned():
-    """``unpaced-list``: every list in one burst (MAV-PRM-3, a SHOULD), the three lists the case
+    """``unpaced-list``: every list in one burst (MAV-PRM-3, a SHOULD), the five lists the case
     asks for included; nothing failed."""
     run = run_vehicle_cases("unpaced-list", seed=2)
     assert failed(run.report) == (set(), set()), run.explain()
     assert warned(run.report) == set(KNOWN_WARNINGS) | {WARNS["unpaced-list"]}, run.explain()
     case = next(c for c in run.report["cases"] if c["id"] == "PRM/test_list_is_paced")
-    assert "in one of 3 lists" in case["expected"] and "within 0.0 ms" in case["actual"], case
+    assert "in one of 5 lists" in case["expected"] and "within 0.0 ms" in case["actual"], case
 
 
 @pytest.mark.parametrize(("seed", "stalls"), [(0, (0.1, 0.3)), (1, (0.1, 0.3)), (9, (0.2, 0.5)), (3, (0.05, 1.0)),
@@ -144,7 +144,7 @@ def test_the_reference_vehicle_with_the_runners_threads_stalled(seed, stalls):
     for up to ``max_s`` at a handoff in ``1/p``: late, never a false verdict. Up to 1 s (the
     reference vehicle's own re-request time, ArduPilot's wp_recv_timeout_ms) these seeds gave
     false MAV-MIS-1/2/16 verdicts before the upload drivers answered a request only once when
-    its re-request came before the answer went out (``answered_since``), and before the
+    its re-request came before the answer went out (``ItemAnswers``), and before the
     upload's order was read as the monitor reads it (the last one again, or the next)."""
     run = run_vehicle_cases(None, seed=seed, stalls=stalls)
     expect_reference(run.report, run.explain())
@@ -164,6 +164,21 @@ def test_the_reference_vehicle_through_a_lossy_tcp_link(seed):
     sent again held the rest of the list behind it, and the runner read the paced list in one
     burst."""
     run = run_vehicle_cases(None, seed=seed, link=LOSSY)
+    expect_reference(run.report, run.explain())
+
+
+@pytest.mark.parametrize("seed", [150, 159, 167])
+def test_the_reference_vehicle_through_a_lossy_tcp_link_with_the_runners_threads_stalled(seed):
+    """Both at once, within the suite's bounds (the runner late by up to 1 s, a lost segment
+    0.2 s more). Seeds 150 and 167 failed MAV-MIS-10, 159 MAV-MIS-13, before the upload
+    drivers waited for the vehicle's answer to a last item they sent again (``settle``) and
+    judged an upload by the replies up to the MISSION_ACK that ended it (``upload_replies``):
+    the vehicle's error MISSION_ACK for the item sent again, which came after the upload had
+    ended, was read as the upload's end, or as the next case's MISSION_CLEAR_ALL's answer.
+    Past the bounds (the runner late 1.5 s and more, or each way's delay to 300 ms) the cases'
+    1.5 s reply times are spent before the vehicle's answer is read: not a correct vehicle's
+    fault, not judged here."""
+    run = run_vehicle_cases(None, seed=seed, stalls=(0.1, 1.0), link=LOSSY)
     expect_reference(run.report, run.explain())
 
 
