@@ -5,10 +5,12 @@ sockets and timers (about 50 s a run) until now.
 
 Correct: the reference vehicle fails no MUST rule over TCP and UDP, and warns exactly the
 SHOULD rules it breaks as ArduCopter does (``KNOWN_WARNINGS``, each with its erratum) -- with
-the runner's and the vehicle's threads stalled, and through a lossy, duplicating, reordering,
-delaying TCP link (what TCP makes of it: bytes late, in order) or a delaying UDP one (delays
-only: a UDP link that reorders or loses spoils MAV-HB-11's count of sequence numbers, which the
-suite reads as loopback's). Faulty: each fault of sim.vehicle_faults (the same rewrites the real
+the runner's threads stalled (the vehicle's are spared: its own lateness is its own), and
+through a lossy, duplicating, reordering, delaying TCP link (what TCP makes of it: bytes late,
+in order) or a delaying UDP one (delays only: a UDP link that reorders or loses spoils
+MAV-HB-11's count of sequence numbers, which the suite reads as loopback's), within the suite's
+bounds: the runner late by up to ~1 s, the vehicle's re-request time, under its 1.5 s reply
+times (past them, a strict xfail keeps the open case). Faulty: each fault of sim.vehicle_faults (the same rewrites the real
 proxy, tests/mavlink/faulty_vehicle.py, makes) fails exactly its MUST rule's cases and no other
 MUST rule, its warnings among the known ones; ``unpaced-list`` warns its SHOULD rule. The live
 monitor judges as ``mcp-capture check`` of the run's capture does. A seed gives the same report.
