@@ -9,7 +9,6 @@ dialect (``spec.MAVLINK.dialect``); the times from ``spec/mavlink.yaml``'s param
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -24,7 +23,7 @@ from mcp_conform.harness.mavlink_session import (
     Received,
 )
 
-__all__ = ["MavlinkCaseBase", "MavlinkCaseContext"]
+__all__ = ["ItemAnswers", "MavlinkCaseBase", "MavlinkCaseContext", "upload_replies"]
 
 #: MAV_RESULT's entries by value, as the dialect has them
 RESULTS: dict[int, str] = {v: e.name for v, e in DIALECT.enums["MAV_RESULT"].items()
@@ -55,14 +54,20 @@ class MavlinkCaseBase(CaseBase):
         self.spec = session.spec
         self.params = self.spec.params
         self.mav = DIALECT
-        self.t0 = time.monotonic()
+        #: the run's clock (``harness.clock``): the host's, or the simulator's virtual one
+        self.clock = session.clock
+        self.t0 = self.clock.monotonic()
+
+    def now(self) -> float:
+        """The run clock's ``monotonic()``: the time of a send, of a frame's arrival."""
+        return self.clock.monotonic()
 
     def message(self, name: str, **fields: Any) -> Any:
         """The dialect's message ``name`` with ``fields`` (the others as the encoder's defaults)."""
         return getattr(self.link.encoder, name.lower() + "_encode")(**fields)
 
     def send(self, name: str, **fields: Any) -> float:
-        """Send message ``name`` to the node under test; its send time (``time.monotonic()``)."""
+        """Send message ``name`` to the node under test; its send time (:meth:`now`'s clock)."""
         return self.link.send(self.message(name, **fields))
 
     def watch(self, seconds: float) -> None:
@@ -99,6 +104,28 @@ class MavlinkCaseBase(CaseBase):
         payload = r.raw[10:10 + r.raw[1]] if r.version == 2 else r.raw[6:6 + r.raw[1]]
         payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
         return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
+
+
+class ItemAnswers:
+    """The items the runner sent in one upload, by seq: when each was last sent, and how many
+    were sent again. A request for a seq whose item went out at or after the request came
+    (:meth:`due` False) was sent again by the vehicle before it could have had that item
+    (ArduPilot re-requests an unanswered item each second: a runner stalled on a loaded host,
+    its reader or its case thread, reads both requests late), and the item already sent answers
+    both; a request that came after it is answered again (the item may have been lost)."""
+
+    def __init__(self) -> None:
+        self.at: dict[int, float] = {}
+        self.again: set[int] = set()
+
+    def due(self, request: Received) -> bool:
+        t = self.at.get(int(request.msg.seq))
+        return t is None or t < request.t
+
+    def sent(self, seq: int, t: float) -> None:
+        if seq in self.at:
+            self.again.add(seq)
+        self.at[seq] = t
 
 
 class MavlinkCaseContext(MavlinkCaseBase):
@@ -168,9 +195,9 @@ class MavlinkCaseContext(MavlinkCaseBase):
         start to the first, between two, the last to the window's end) over
         ``heartbeat_gap_max_s``; the HEARTBEATs seen."""
         gap_max = float(self.params["heartbeat_gap_max_s"])
-        start = time.monotonic()
+        start = self.now()
         self.watch(window)
-        end = time.monotonic()
+        end = self.now()
         beats = [r.t for r in self.from_vehicle(start, "HEARTBEAT")]
         edges = [start, *beats, end]
         gaps = [b - a for a, b in zip(edges, edges[1:], strict=False)]
@@ -199,7 +226,7 @@ class MavlinkCaseContext(MavlinkCaseBase):
             wanted = " or ".join(result_name(r) for r in results) if results is not None else "a MAV_RESULT"
             raise self.fail(rule, f"after {what}, COMMAND_ACK.result {wanted}", f"{result_name(result)}")
         if once_rule is not None:
-            self.watch(max(0.0, ack.t + SECOND_ACK_WATCH_S - time.monotonic()))
+            self.watch(max(0.0, ack.t + SECOND_ACK_WATCH_S - self.now()))
             final = [a for a in self.acks(since, command) if a.msg.result != DIALECT.MAV_RESULT_IN_PROGRESS]
             if len(final) > 1:
                 raise self.fail(once_rule, f"after {what}, one final COMMAND_ACK",
@@ -230,15 +257,15 @@ class MavlinkCaseContext(MavlinkCaseBase):
     def param_list(self, since: float) -> list[Any]:
         """The PARAM_VALUEs after ``since`` until ``param_list_gap_max_s`` passes with none
         (at most ``param_list_max_s``)."""
-        gap, end = float(self.params["param_list_gap_max_s"]), time.monotonic() + float(self.params["param_list_max_s"])
+        gap, end = float(self.params["param_list_gap_max_s"]), self.now() + float(self.params["param_list_max_s"])
         count = -1
-        while time.monotonic() < end:
+        while self.now() < end:
             n = len(self.from_vehicle(since, "PARAM_VALUE"))
             if n == count:
                 break
             count = n
             self.link.wait_for(lambda n=n: len(self.from_vehicle(since, "PARAM_VALUE")) > n,
-                               min(gap, max(0.0, end - time.monotonic())))
+                               min(gap, max(0.0, end - self.now())))
         return [r.msg for r in self.from_vehicle(since, "PARAM_VALUE")]
 
     def capabilities(self) -> int | None:
@@ -273,30 +300,42 @@ class MavlinkCaseContext(MavlinkCaseBase):
 
     def upload(self, items: list[dict[str, Any]], *, withhold: int | None = None) -> list[Received]:
         """Upload ``items``: MISSION_COUNT, then each item the vehicle asks for, until its
-        MISSION_ACK or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10
-        answers); ``withhold``: that seq's first request goes unanswered. The vehicle's
-        requests and ACK, in order."""
+        MISSION_ACK (but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not end the upload:
+        E-1) or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10 answers);
+        ``withhold``: that seq's first request goes unanswered; a request already answered
+        after it came is not answered again (:class:`ItemAnswers`). The vehicle's requests and
+        ACKs, in order."""
         wait = float(self.params["mission_reply_max_s"])
         if withhold is not None:
             wait = max(wait, float(self.params["mission_rerequest_max_s"]))
         since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
                           count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
-        done = 0
+        done, answers = 0, ItemAnswers()
         for _ in range(3 * len(items) + 10):
             if not self.link.wait_for(lambda done=done: len(self.mission_replies(since)) > done, wait):
                 break
             reply = self.mission_replies(since)[done]
             done += 1
             if reply.name == "MISSION_ACK":
+                if reply.msg.type == DIALECT.MAV_MISSION_INVALID_SEQUENCE:
+                    continue
                 break
             seq = reply.msg.seq
             if withhold == seq:
                 withhold = None
                 continue
-            if 0 <= seq < len(items):
-                self.send("MISSION_ITEM_INT", target_system=self.sysid, target_component=self.compid,
-                          **{k: v for k, v in items[seq].items()})
-        return self.mission_replies(since)
+            if 0 <= seq < len(items) and answers.due(reply):
+                answers.sent(seq, self.send("MISSION_ITEM_INT", target_system=self.sysid,
+                                            target_component=self.compid, **{k: v for k, v in items[seq].items()}))
+        self.settle(answers, len(items) - 1)
+        return upload_replies(self.mission_replies(since))
+
+    def settle(self, answers: ItemAnswers, last: int) -> None:
+        """After an upload in which the runner sent its last item (seq ``last``) again:
+        ``mission_reply_max_s`` for the vehicle's answer to it (an error MISSION_ACK: the item
+        came after the upload ended), so that it falls in this exchange, not in the next one's."""
+        if last in answers.again:
+            self.watch(float(self.params["mission_reply_max_s"]))
 
     def download(self) -> tuple[int | None, list[Any]]:
         """Download the mission: MISSION_REQUEST_LIST, then MISSION_REQUEST_INT for each seq,
@@ -323,19 +362,26 @@ class MavlinkCaseContext(MavlinkCaseBase):
 
     def expect_upload(self, replies: list[Received], count: int, rule: str = "MAV-MIS-1",
                       order_rule: str = "MAV-MIS-2", rerequested: int | None = None) -> None:
-        """An upload of ``count`` items as MAV-MIS-1 has it: requests 0..count-1, each for the
-        next seq (MAV-MIS-2: in order, none past the end, none again but ``rerequested``'s
-        re-request), then MISSION_ACK MAV_MISSION_ACCEPTED with the mission's mission_type."""
+        """An upload of ``count`` items as MAV-MIS-1 has it: requests for 0..count-1, then
+        MISSION_ACK MAV_MISSION_ACCEPTED with the mission's mission_type (a
+        MAV_MISSION_INVALID_SEQUENCE before it is a NACK that does not end the upload: E-1);
+        MAV-MIS-2: in order, each request the last one again (a re-request) or the next, none
+        past the end -- as the trace monitor reads it (``judge._mavlink_services``); with
+        ``rerequested``, that seq requested again (MAV-MIS-3)."""
         seqs = [r.msg.seq for r in replies if r.name != "MISSION_ACK"]
-        acks = [r for r in replies if r.name == "MISSION_ACK"]
+        acks = [r for r in replies if r.name == "MISSION_ACK" and r.msg.type != DIALECT.MAV_MISSION_INVALID_SEQUENCE]
         want = list(range(count))
         if rerequested is not None:
             want.insert(rerequested + 1, rerequested)
         shown = [f"{r.name} {r.msg.seq if r.name != 'MISSION_ACK' else result_name_mission(r.msg.type)}"
                  for r in replies]
-        if seqs != want[:len(seqs)] or any(s >= count for s in seqs):
-            raise self.fail(order_rule, f"requests for seq {want}", f"requests for seq {seqs}", shown)
-        if not acks or acks[0].msg.type != DIALECT.MAV_MISSION_ACCEPTED or seqs != want:
+        steps = zip([-1, *seqs], seqs, strict=False)
+        if any(s >= count for s in seqs) or not all(b in (a, a + 1) and b >= 0 for a, b in steps):
+            raise self.fail(order_rule, f"requests for seq {want} (each the last one again, or the next)",
+                            f"requests for seq {seqs}", shown)
+        distinct = [s for i, s in enumerate(seqs) if i == 0 or s != seqs[i - 1]]
+        again = rerequested is None or seqs.count(rerequested) > 1
+        if not acks or acks[0].msg.type != DIALECT.MAV_MISSION_ACCEPTED or distinct != list(range(count)) or not again:
             got = f"MISSION_ACK {result_name_mission(acks[0].msg.type)}" if acks else "no MISSION_ACK"
             raise self.fail(rule, f"requests for seq {want}, then MISSION_ACK MAV_MISSION_ACCEPTED",
                             f"requests for seq {seqs}, {got}", shown)
@@ -347,6 +393,16 @@ class MavlinkCaseContext(MavlinkCaseBase):
     def gcs(self) -> tuple[int, int]:
         """The runner's own system and component IDs."""
         return GCS_SYSID, GCS_COMPID
+
+
+def upload_replies(replies: list[Received]) -> list[Received]:
+    """An upload's replies up to the MISSION_ACK that ended it (the first but
+    MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1): what came after it answers
+    something else (an item the runner sent again)."""
+    for i, r in enumerate(replies):
+        if r.name == "MISSION_ACK" and r.msg.type != DIALECT.MAV_MISSION_INVALID_SEQUENCE:
+            return replies[:i + 1]
+    return replies
 
 
 def result_name_mission(value: int) -> str:

@@ -27,10 +27,10 @@ import shlex
 import socket
 import sys
 import threading
-import time
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
@@ -40,7 +40,7 @@ from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
 
-__all__ = ["Link", "MavlinkSession", "Received", "parse_address"]
+__all__ = ["HOST_LINKS", "HostLinks", "Link", "MavlinkSession", "Received", "parse_address"]
 
 DIALECT: Any = MAVLINK.dialect
 GCS_SYSID = 255
@@ -67,7 +67,7 @@ def parse_address(host: str, port: int, default: str = "tcp") -> tuple[str, tupl
 
 @dataclass(frozen=True)
 class Received:
-    """One frame the vehicle sent: when it arrived (``time.monotonic()``), pymavlink's message
+    """One frame the vehicle sent: when it arrived (the run clock's ``monotonic()``), pymavlink's message
     (``MAVLink_bad_data`` for bytes that are no good frame) and its raw bytes."""
 
     t: float
@@ -94,6 +94,66 @@ class Received:
                 f"seq {self.msg.get_seq()}: {fields}")
 
 
+class _SocketEnd:
+    """The runner's end of a link on the host: a TCP connection or a UDP socket, as
+    :meth:`HostLinks.open` made it (``sock``: the socket, non-blocking)."""
+
+    def __init__(self, transport: str, address: tuple[str, int], sock: socket.socket | None) -> None:
+        self.transport = transport
+        if sock is None:
+            if transport == "tcp":
+                sock = socket.create_connection(address, timeout=2.0)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            else:
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                sock.bind(address if transport == "udpin" else ("127.0.0.1", 0))
+        sock.setblocking(False)
+        self.sock = sock
+
+    def send(self, data: bytes, peer: tuple[str, int]) -> None:
+        """``data`` to the peer (TCP: all of it, within 2 s); OSError when it cannot."""
+        if self.transport == "tcp":
+            self.sock.setblocking(True)
+            self.sock.settimeout(2.0)
+            try:
+                self.sock.sendall(data)
+            finally:
+                self.sock.setblocking(False)
+        else:
+            self.sock.sendto(data, peer)
+
+    def ready(self, timeout: float) -> bool:
+        """Whether something can be read within ``timeout`` s (OSError, ValueError: closed)."""
+        readable, _, _ = select.select([self.sock], [], [], timeout)
+        return bool(readable)
+
+    def read(self) -> tuple[bytes, Any]:
+        """What came and from where (TCP: b"" at the connection's end); BlockingIOError:
+        nothing after all."""
+        if self.transport == "tcp":
+            return self.sock.recv(65536), None
+        data, addr = self.sock.recvfrom(65536)
+        return data, addr
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+
+class HostLinks:
+    """Where a :class:`Link` opens its end: the host's sockets (the default; the simulator's
+    net is ``mcp_conform.sim.vehicle_role``'s). ``open(transport, address, sock)`` returns an
+    end with ``send(data, peer)``, ``ready(timeout)``, ``read()``, ``close()`` and ``sock``
+    (what ``getsockname()`` reads); OSError when it cannot be opened."""
+
+    def open(self, transport: str, address: tuple[str, int], sock: socket.socket | None = None) -> Any:
+        return _SocketEnd(transport, address, sock)
+
+
+#: The host's sockets, every link's default.
+HOST_LINKS = HostLinks()
+
+
 class Link:
     """The runner's one MAVLink link to the node under test (TCP, or UDP either way), shared by
     both roles: ``ids`` are the runner's own system and component (a ground station's by
@@ -103,37 +163,34 @@ class Link:
     accepted (its vehicle listens); ``on_frames``: called on the reader thread with each
     batch of frames that came (the runner's vehicle answers them); ``monitor``: the run's
     trace monitor (``judge.mavlink_monitor``), fed each frame both ways as it is recorded,
-    with the capture's time and in the capture's order (one judge, live and offline)."""
+    with the capture's time and in the capture's order (one judge, live and offline).
+    ``clock``, ``net``: the run's clock (``harness.clock``) and where the link's end is opened
+    (:class:`HostLinks`): the host's by default, the simulator's virtual ones in
+    ``mcp_conform.sim.vehicle_role`` (issue 38)."""
 
     def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, *,
                  ids: tuple[int, int] = (GCS_SYSID, GCS_COMPID), sent_as: str = "rx", got_as: str = "tx",
-                 sock: socket.socket | None = None, on_frames: Any = None, monitor: Any = None) -> None:
+                 sock: socket.socket | None = None, on_frames: Any = None, monitor: Any = None,
+                 clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
         self.transport, self.address, self.recorder, self.monitor = transport, address, recorder, monitor
         self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
+        self.clock = clock
         self.encoder = DIALECT.MAVLink(None, srcSystem=ids[0], srcComponent=ids[1])
         self.parser = DIALECT.MAVLink(None)
         self.parser.robust_parsing = True  # bad bytes are kept as BAD_DATA, never raised
         self.frames: list[Received] = []
         self.sent: list[tuple[float, str, bytes]] = []
         self.closed_at: float | None = None
-        self._cond = threading.Condition()
+        self._cond = clock.condition()
         self._send_lock = threading.Lock()
         #: held while a frame is stamped and recorded: the capture and the monitor get frames in
         #: the order of their times
         self._record_lock = threading.Lock()
-        self._stop = threading.Event()
+        self._stop = clock.event()
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
-        if sock is not None:
-            self.sock = sock
-        elif transport == "tcp":
-            self.sock = socket.create_connection(address, timeout=2.0)
-            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        else:
-            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self.sock.bind(address if transport == "udpin" else ("127.0.0.1", 0))
-        self.sock.setblocking(False)
-        self._reader = threading.Thread(target=self._read, name="mavlink-link", daemon=True)
-        self._reader.start()
+        self._end = net.open(transport, address, sock)
+        self.sock = self._end.sock
+        self._reader = clock.start_thread(self._read, "mavlink-link")
 
     # -- out ------------------------------------------------------------------------------
     def send(self, msg: Any) -> float:
@@ -161,21 +218,13 @@ class Link:
         answer, stamped once it came, is always after its request, in the capture as in the
         live monitor, however long the sending thread waits for the GIL."""
         with self._record_lock:
-            t, t_ns = time.monotonic(), time.time_ns()
+            t, t_ns = self.clock.monotonic(), self.clock.time_ns()
+            if self.peer is None:
+                return t  # udpin: nobody to send to until the vehicle has sent
             try:
-                if self.transport == "tcp":
-                    self.sock.setblocking(True)
-                    self.sock.settimeout(2.0)
-                    try:
-                        self.sock.sendall(data)
-                    finally:
-                        self.sock.setblocking(False)
-                elif self.peer is not None:
-                    self.sock.sendto(data, self.peer)
-                else:
-                    return t  # udpin: nobody to send to until the vehicle has sent
+                self._end.send(data, self.peer)
             except OSError:
-                self.closed_at = self.closed_at or time.monotonic()
+                self.closed_at = self.closed_at or self.clock.monotonic()
                 return t
             self.sent.append((t, name, data))
             self._record(self.sent_as, data, t_ns, name if name != "raw" else None)
@@ -194,37 +243,34 @@ class Link:
     def _read(self) -> None:
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self.sock], [], [], 0.05)
+                if not self._end.ready(0.05):
+                    continue
             except (OSError, ValueError):
                 return
-            if not ready:
-                continue
             try:
+                data, addr = self._end.read()
                 if self.transport == "tcp":
-                    data = self.sock.recv(65536)
                     if not data:
-                        self.closed_at = time.monotonic()
+                        self.closed_at = self.clock.monotonic()
                         with self._cond:
                             self._cond.notify_all()
                         return
-                else:
-                    data, addr = self.sock.recvfrom(65536)
-                    if self.transport == "udpin" and self.peer is None:
-                        self.peer = addr  # the vehicle's socket: where replies go
-                    elif addr != self.peer:
-                        continue  # another sender: not the vehicle under test
+                elif self.transport == "udpin" and self.peer is None:
+                    self.peer = addr  # the vehicle's socket: where replies go
+                elif addr != self.peer:
+                    continue  # another sender: not the vehicle under test
             except (BlockingIOError, InterruptedError):
                 continue
             except OSError:
                 if self.transport == "tcp":
-                    self.closed_at = time.monotonic()
+                    self.closed_at = self.clock.monotonic()
                     return
                 continue
             self._take(data)
 
     def _take(self, data: bytes) -> None:
         with self._record_lock:  # stamped after any frame sent before (:meth:`_send_locked`)
-            now, t_ns = time.monotonic(), time.time_ns()
+            now, t_ns = self.clock.monotonic(), self.clock.time_ns()
             msgs = self.parser.parse_buffer(data) or []
             got = [Received(now, m, bytes(m.get_msgbuf())) for m in msgs]
             for r in got:
@@ -241,10 +287,10 @@ class Link:
 
     def wait_for(self, pred: Any, timeout: float) -> bool:
         """Wait until ``pred()`` holds or ``timeout`` s pass (or a TCP link closes)."""
-        end = time.monotonic() + timeout
+        end = self.clock.monotonic() + timeout
         with self._cond:
             while not pred():
-                left = end - time.monotonic()
+                left = end - self.clock.monotonic()
                 if left <= 0 or self.closed_at is not None:
                     return bool(pred())
                 self._cond.wait(min(left, 0.05))
@@ -253,8 +299,7 @@ class Link:
     def close(self) -> None:
         self._stop.set()
         self._reader.join(timeout=1.0)
-        with contextlib.suppress(OSError):
-            self.sock.close()
+        self._end.close()
 
 
 def embedded_command(transport: str) -> str:
@@ -269,8 +314,12 @@ class MavlinkSession(StreamSessionBase):
     startup_note = ("startup: the runner joins the vehicle's link as a ground station (system 255) "
                     "and waits for its first HEARTBEAT", "startup: waiting for the vehicle's HEARTBEAT")
 
-    def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK, *,
+                 clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
         self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        #: the run's clock and where its link is opened (:class:`Link`): the host's, or the
+        #: simulator's (``mcp_conform.sim.vehicle_role``)
+        self.clock, self.net = clock, net
         self.params = spec.params
         self.node: SpawnedNode | None = None
         self.link: Link | None = None
@@ -289,8 +338,8 @@ class MavlinkSession(StreamSessionBase):
         #: when the link opened, when the first HEARTBEAT came (MAV-HB-1)
         self.link_opened = 0.0
         self.first_heartbeat: float | None = None
-        self._beat_stop = threading.Event()
-        self._beater: threading.Thread | None = None
+        self._beat_stop = clock.event()
+        self._beater: Any = None
 
     @property
     def url(self) -> str:
@@ -301,15 +350,15 @@ class MavlinkSession(StreamSessionBase):
         if self.spawned:
             self._spawn()
         else:  # attached: a TCP vehicle that is not listening yet is waited for (--startup-timeout)
-            end = time.monotonic() + float(self.cfg.extra.get("startup_timeout", 0.0))
+            end = self.clock.monotonic() + float(self.cfg.extra.get("startup_timeout", 0.0))
             while True:
                 try:
                     self._open()
                     break
                 except SetupError:
-                    if time.monotonic() >= end:
+                    if self.clock.monotonic() >= end:
                         raise
-                    time.sleep(0.2)
+                    self.clock.sleep(0.2)
         how = " (spawned)" if self.cfg.spawn else (" (embedded reference vehicle)" if self.spawned else "")
         self.target_desc = self.url + how
         # the first HEARTBEAT's delay is MAV-HB-1's to judge; the wait is --startup-timeout's
@@ -317,13 +366,13 @@ class MavlinkSession(StreamSessionBase):
 
     def _open(self) -> None:
         try:
-            self.link = Link(self.transport, self.address, self.recorder, monitor=self.monitor)
+            self.link = Link(self.transport, self.address, self.recorder, monitor=self.monitor, clock=self.clock,
+                             net=self.net)
         except OSError as exc:
             raise SetupError(f"{self.url}: cannot open the link: {exc.strerror or exc}") from None
-        self.link_opened = time.monotonic()
+        self.link_opened = self.clock.monotonic()
         self._beat_stop.clear()
-        self._beater = threading.Thread(target=self._beat, name="mavlink-heartbeat", daemon=True)
-        self._beater.start()
+        self._beater = self.clock.start_thread(self._beat, "mavlink-heartbeat")
 
     def _spawn(self) -> None:
         """The vehicle started with a free loopback port; TCP: connected once it listens;
@@ -357,9 +406,9 @@ class MavlinkSession(StreamSessionBase):
         every ``heartbeat_period_s`` (quicker until the vehicle is heard, so a UDP vehicle
         learns the runner's address at once), until the link closes or the run's --timeout."""
         period = float(self.params["heartbeat_period_s"])
-        end = time.monotonic() + self.cfg.timeout
+        end = self.clock.monotonic() + self.cfg.timeout
         link = self.link
-        while link is not None and not self._beat_stop.is_set() and time.monotonic() < end:
+        while link is not None and not self._beat_stop.is_set() and self.clock.monotonic() < end:
             link.send(link.encoder.heartbeat_encode(DIALECT.MAV_TYPE_GCS, DIALECT.MAV_AUTOPILOT_INVALID,
                                                     0, 0, DIALECT.MAV_STATE_ACTIVE))
             self._beat_stop.wait(period if self.first_heartbeat is not None else 0.2)

@@ -20,12 +20,14 @@ __all__ = ["StallingClock"]
 
 class StallingClock(VirtualClock):
     """A virtual clock that stalls a thread about to run with probability ``p`` for up to
-    ``max_s`` virtual seconds (uniform), by ``seed``; a thread just back from a stall runs."""
+    ``max_s`` virtual seconds (uniform), by ``seed``; a thread just back from a stall runs.
+    ``spare``: the names of threads never stalled (the party under test's own, when only the
+    runner's are to be), by prefix; none by default."""
 
-    def __init__(self, seed: int, p: float, max_s: float, **kwargs: Any) -> None:
+    def __init__(self, seed: int, p: float, max_s: float, *, spare: tuple[str, ...] = (), **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self._rng = random.Random(seed)
-        self.p, self.max_s = p, max_s
+        self.p, self.max_s, self.spare = p, max_s, spare
         self._back: set[int] = set()  # threads back from a stall (id of their record)
         self.stalls = 0
 
@@ -34,7 +36,7 @@ class StallingClock(VirtualClock):
             v = super()._next()
             if v is self._root and self._failure is not None:
                 return v
-            if id(v) in self._back or self._rng.random() >= self.p:
+            if id(v) in self._back or v.name.startswith(self.spare) or self._rng.random() >= self.p:
                 self._back.discard(id(v))
                 return v
             self._back.add(id(v))

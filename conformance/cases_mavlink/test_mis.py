@@ -8,10 +8,13 @@ is replaced, and the last case leaves it empty."""
 
 from __future__ import annotations
 
-import time
-
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import UNKNOWN_COMMAND, result_name_mission
+from mcp_conform.conformance.mavlink_case import (
+    UNKNOWN_COMMAND,
+    ItemAnswers,
+    result_name_mission,
+    upload_replies,
+)
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import MAVLINK
 
@@ -56,8 +59,11 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
     MISSION_REQUEST_INT or MISSION_REQUEST the vehicle sends, until a MISSION_ACK that ends
     the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1) or ``wait``
     s (mission_reply_max_s) with nothing new, or ``until()`` holds after an answer; bounded
-    by 3 x count + 10 replies. The first MISSION_COUNT's send time and the vehicle's
-    requests and ACKs, in order."""
+    by 3 x count + 10 replies; a request already answered after it came is not answered
+    again (``ItemAnswers``: the vehicle re-requested while the runner was late), and after
+    an upload in which its last item went again, the vehicle's answer to it is waited for
+    (``settle``). The first MISSION_COUNT's send time and the vehicle's requests and ACKs
+    up to the one that ended the upload (``upload_replies``), in order."""
     wait = float(node.params["mission_reply_max_s"]) if wait is None else wait
     since = 0.0
     for _ in range(1 + int(node.params["mission_retries"])):
@@ -67,7 +73,7 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
         if node.link.wait_for(lambda since=since: bool(node.mission_replies(since)),
                               float(node.params["mission_reply_max_s"])):
             break
-    done = 0
+    done, answers = 0, ItemAnswers()
     for _ in range(3 * count + 10):
         if not node.link.wait_for(lambda done=done: len(node.mission_replies(since)) > done, wait):
             break
@@ -77,10 +83,16 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
             if reply.msg.type == MAV.MAV_MISSION_INVALID_SEQUENCE:
                 continue
             break
+        if not answers.due(reply):
+            continue
+        sent = len(node.link.sent)
         answer(reply)
+        if len(node.link.sent) > sent:
+            answers.sent(reply.msg.seq, node.link.sent[-1][0])
         if until is not None and until():
             break
-    return since, node.mission_replies(since)
+    node.settle(answers, count - 1)
+    return since, upload_replies(node.mission_replies(since))
 
 
 def send_item(node, item, **changes):
@@ -138,15 +150,15 @@ def idle_again(node, since, deadline):
     """Downloads tried until one is answered with MISSION_COUNT or ``deadline`` passes
     (a vehicle still in an upload refuses them: MAV_MISSION_DENIED); the time the
     MISSION_COUNT came, or None."""
-    while time.monotonic() < deadline:
+    while node.now() < deadline:
         t = node.send("MISSION_REQUEST_LIST", target_system=node.sysid, target_component=node.compid,
                       mission_type=MISSION)
         if node.link.wait_for(lambda t=t: bool(node.from_vehicle(t, "MISSION_COUNT")),
-                              min(1.0, max(0.0, deadline - time.monotonic()))):
+                              min(1.0, max(0.0, deadline - node.now()))):
             node.send("MISSION_ACK", target_system=node.sysid, target_component=node.compid,
                       type=MAV.MAV_MISSION_ACCEPTED, mission_type=MISSION)
             return node.from_vehicle(t, "MISSION_COUNT")[0].t
-        node.watch(min(0.5, max(0.0, deadline - time.monotonic())))
+        node.watch(min(0.5, max(0.0, deadline - node.now())))
     return None
 
 
@@ -258,7 +270,7 @@ def test_abandoned_upload_ends(node):
 
     def ended():
         reqs, acks = requests(), [r for r in node.mission_replies(since) if r.name == "MISSION_ACK"]
-        return bool(acks) or time.monotonic() - (reqs[-1].t if reqs else since) > quiet
+        return bool(acks) or node.now() - (reqs[-1].t if reqs else since) > quiet
     node.link.wait_for(ended, abandon)
     idle = idle_again(node, since, deadline)
     late = [r for r in requests() if idle is not None and r.t > idle]

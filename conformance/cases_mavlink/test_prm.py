@@ -19,6 +19,8 @@ UNKNOWN_PARAM = "MCPCONF_NO_SUCH_"
 #: the shortest list MAV-PRM-3 judges, and the pause it looks for
 PACED_MIN = 20
 PAUSE_S = 0.001
+#: how many lists MAV-PRM-3 asks for before it says the vehicle does not pace them
+LIST_TRIES = 5
 
 
 @pytest.fixture(scope="module")
@@ -199,20 +201,28 @@ def test_list_is_paced(node, table):
     burst: somewhere between two of its PARAM_VALUEs the vehicle pauses PAUSE_S or more
     (ArduPilot sends at most 30 % of the link's bandwidth, 5 at a time without flow
     control: GCS_Param.cpp queued_param_send). On loopback the bandwidth is not the
-    link's, so only a list sent whole at once is judged."""
-    since = node.send("PARAM_REQUEST_LIST", target_system=node.sysid, target_component=node.compid)
-    node.expect_param_values(since, lambda m: True, "MAV-PRM-1", "after PARAM_REQUEST_LIST, PARAM_VALUEs")
-    node.param_list(since)
-    frames = node.from_vehicle(since, "PARAM_VALUE")
-    count = frames[0].msg.param_count
-    listed = [r for r in frames if r.msg.param_index < count]
-    if len(listed) < PACED_MIN:
-        raise Inconclusive(f"MAV-PRM-3: a list of {len(listed)} parameters is too short to judge its pacing")
-    gaps = [b.t - a.t for a, b in zip(listed, listed[1:], strict=False)]
-    node.expect_true(max(gaps) >= PAUSE_S, "MAV-PRM-3",
-                     f"a pause of {PAUSE_S * 1e3:g} ms or more somewhere in a list of {len(listed)}",
-                     f"all {len(listed)} PARAM_VALUEs within {(listed[-1].t - listed[0].t) * 1e3:.1f} ms, "
-                     f"longest pause {max(gaps) * 1e3:.2f} ms")
+    link's, so only a list sent whole at once is judged. A paced list read late comes in one
+    read as a burst does -- the runner's reader stalled on a loaded host, or a TCP segment
+    sent again holding the rest of the list behind it (the simulator's lossy TCP link,
+    sim.vehicle_role) -- so a list seen in one burst is asked for again, up to LIST_TRIES
+    lists: the vehicle is warned only when every one came in a burst."""
+    seen = []
+    for _ in range(LIST_TRIES):
+        since = node.send("PARAM_REQUEST_LIST", target_system=node.sysid, target_component=node.compid)
+        node.expect_param_values(since, lambda m: True, "MAV-PRM-1", "after PARAM_REQUEST_LIST, PARAM_VALUEs")
+        node.param_list(since)
+        frames = node.from_vehicle(since, "PARAM_VALUE")
+        count = frames[0].msg.param_count
+        listed = [r for r in frames if r.msg.param_index < count]
+        if len(listed) < PACED_MIN:
+            raise Inconclusive(f"MAV-PRM-3: a list of {len(listed)} parameters is too short to judge its pacing")
+        gaps = [b.t - a.t for a, b in zip(listed, listed[1:], strict=False)]
+        if max(gaps) >= PAUSE_S:
+            return
+        seen.append(f"all {len(listed)} PARAM_VALUEs within {(listed[-1].t - listed[0].t) * 1e3:.1f} ms, "
+                    f"longest pause {max(gaps) * 1e3:.2f} ms")
+    raise node.fail("MAV-PRM-3", f"a pause of {PAUSE_S * 1e3:g} ms or more somewhere in a list of {PACED_MIN} "
+                    f"or more, in one of {LIST_TRIES} lists", seen[0], [f"list {i + 1}: {s}" for i, s in enumerate(seen)])
 
 
 @rules("MAV-PRM-13")
