@@ -205,7 +205,7 @@ def test_a_seed_gives_the_same_run():
     assert (a.virtual_s, a.switches) == (b.virtual_s, b.switches)
 
 
-@pytest.mark.parametrize("fault", [None, "double-ack", "type-gcs"])
+@pytest.mark.parametrize("fault", [None, "double-ack", "type-gcs", "acts-for-other-system"])
 def test_the_live_monitor_judges_as_the_capture_check_does(tmp_path, fault):
     """The run's monitor (fed each frame on the virtual clock) and ``mcp-capture check`` of the
     run's capture: the same verdict on every rule, the same violations at the same times; the
