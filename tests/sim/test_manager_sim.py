@@ -81,8 +81,12 @@ def test_the_reference_manager_passes_at_the_descriptions_5_s(serial):
 #: seeds of runner-thread stalls up to 5 x --rto (p 0.2, 1 s) that gave the reference manager
 #: false verdicts: a Start_Mission of the main mission read late into the silent drone's session
 #: (MCP-BLK-2, SEQ-1), a mission cut short as "idle" while the receiver was behind (FLOW-2/3/4),
-#: a copy after the wrong ACKs arrived in time and was read late (MCP-RTX-2)
-STALL_SEEDS = [102, 111]
+#: a copy after the wrong ACKs arrived in time and was read late (MCP-RTX-2); the runner's ACKs
+#: of the withheld Start_Mission sent past the manager's retry limit (12): 107, the wrong ACKs
+#: 1.8 s after its last copy, MCP-RTX-2 failed where nothing could be seen (now inconclusive),
+#: 118, the right ACK after it gave the drone up, the wrong ones (which it retransmitted after)
+#: taken for its answer, MCP-FLOW-3/5 failed on the drone it gave up (now excused)
+STALL_SEEDS = [102, 107, 111, 118]
 
 
 @pytest.mark.parametrize("seed", STALL_SEEDS)
