@@ -107,10 +107,6 @@ def test_the_reference_manager_passes_with_the_runners_threads_stalled():
 #: the monitor misses it: a manager's command sent once, its ACK withheld, never sent again --
 #: the issue's capture (its second verdict); the case proves it (judge/, not the simulator)
 MONITOR_MISSES = {"manager-rtx-none"}
-#: a second rule falls on it: the monitor takes the silent drone's WP_List copy with a new seq
-#: for MCP-SEQ-2 and for "a second WP_List" (MCP-FLOW-4) at once (judge/_monitor_sender.py);
-#: the sample manager's rtx-new-seq never showed it: it dies at its first list retransmission
-DOUBLE_COUNTED = {"rtx-new-seq": "MCP-FLOW-4"}
 FAULTY = sorted(name for name, f in MANAGER_FAULTS.items() if f.rule is not None)
 CONTROLS = sorted(name for name, f in MANAGER_FAULTS.items() if f.rule is None)
 
@@ -148,10 +144,12 @@ def test_a_manager_that_never_acks_mission_ready_is_judged_on_what_it_did():
     assert run.rules["MCP-FLOW-4"] == "passed" and run.rules["MCP-RTX-1"] == "passed", run.explain()
 
 
-@pytest.mark.parametrize("fault", [pytest.param(f, marks=pytest.mark.xfail(
-    reason=f"the monitor also fails {DOUBLE_COUNTED[f]} (see DOUBLE_COUNTED)", strict=True))
-    if f in DOUBLE_COUNTED else f for f in FAULTY])
+@pytest.mark.parametrize("fault", FAULTY)
 def test_each_manager_fault_fails_no_other_rule(fault):
+    """rtx-new-seq too: its WP_List to the silent drone, again under a new number while
+    unACKed, is MCP-SEQ-2's and not also "a second WP_List" (MCP-FLOW-4: the monitor took it
+    for both; the sample manager's rtx-new-seq never showed it, dying at its first list
+    retransmission)."""
     rule = MANAGER_FAULTS[fault].rule
     run = _fault_run(fault)
     assert set(run.rules_with("failed", "warned")) == {rule}, run.explain()
