@@ -105,33 +105,28 @@ class Trace:
 
 
 def run_delay_over(readings: Sequence[tuple[float, float]], t_a: float, t_b: float,
-                   times: Sequence[float] | None = None) -> tuple[float, float]:
-    """The run delay (D-7) a sender accrued from ``t_a`` to ``t_b``, as its ``readings`` bound it:
-    ``(least, most)``. ``readings``: ``(t, cumulative run delay)`` in time order (its datagrams
-    carry them, ``harness.run_delay``; a reading without a datagram at its view's end), in any
-    one unit. The run delay grows by at most the time that passes, so a pair of readings that
-    overhangs the span by ``o`` shows at least its growth less ``o`` inside it (``least``: a
-    silence is excused by no more than that); ``most`` is the growth between the readings that
-    bracket the span (the last at or before ``t_a``, the first at or after ``t_b``), where no
-    reading comes after ``t_b`` the last before it (nothing unmeasured is assumed: a perfect
-    observer, as where no run delay is known at all). No readings: ``(0, 0)``. ``times``: the
+                   times: Sequence[float] | None = None) -> float:
+    """The run delay (D-7) a sender may have accrued from ``t_a`` to ``t_b``, as its
+    ``readings`` bound it: ``(t, cumulative run delay)`` in time order (its datagrams carry
+    them, ``harness.run_delay``; a reading without a datagram at its view's end), in any one
+    unit. It is the growth between the readings that bracket the span -- the last at or
+    before ``t_a``, the first at or after ``t_b`` -- since nothing tells where between them
+    the sender waited for a CPU: an explanation that puts it inside the span is consistent
+    with the trace (a node that read an ACK as a stall ended and sent its next datagram later
+    shows its stall only then). A stall outside the bracket -- before the reading at or before
+    ``t_a``, after the one at or after ``t_b`` -- counts nothing. Where no reading comes at or
+    after ``t_b``, only the growth up to the last one before it (nothing unmeasured is assumed:
+    a perfect observer, as where no run delay is known at all). No readings: 0. ``times``: the
     readings' times, where the caller keeps them (a long trace's many spans)."""
     if not readings or t_b < t_a:
-        return 0, 0
+        return 0
     if times is None:
         times = [t for t, _ in readings]
-    i_a, j_a = bisect_right(times, t_a) - 1, bisect_left(times, t_a)  # last <= t_a, first >= t_a
-    i_b, j_b = bisect_right(times, t_b) - 1, bisect_left(times, t_b)  # last <= t_b, first >= t_b
-    least: float = 0
-    for i in {i_a, j_a}:
-        for j in {i_b, j_b}:
-            if 0 <= i <= j < len(readings):
-                (t1, r1), (t2, r2) = readings[i], readings[j]
-                least = max(least, r2 - r1 - max(0, t_a - t1) - max(0, t2 - t_b))
-    lo = i_a if i_a >= 0 else j_a
-    hi = j_b if j_b < len(readings) else i_b
-    most = readings[hi][1] - readings[lo][1] if 0 <= lo <= hi < len(readings) else 0
-    return least, max(least, most)
+    i_a = bisect_right(times, t_a) - 1  # the last at or before t_a
+    j_b = bisect_left(times, t_b)  # the first at or after t_b
+    lo = i_a if i_a >= 0 else 0
+    hi = j_b if j_b < len(readings) else bisect_right(times, t_b) - 1
+    return max(readings[hi][1] - readings[lo][1], 0) if 0 <= lo <= hi < len(readings) else 0
 
 
 @dataclass(frozen=True)

@@ -78,8 +78,9 @@ def _stops(trace: Trace, b: Bounds, ix: _Index, msg: int, own: Sequence[Copy]) -
             out.append(_Stop(later[0] + b.copy_late,
                              f"the sender moved on to a new message at {later[0]:.3f} s"))
     # the silence in the time the sender could run: a copy due while it was off the CPU goes
-    # out late by its run delay (D-7), as far as its readings bound it (the most they allow)
-    starved = run_delay_over(trace.run_delay, last, trace.end, ix.rd_times)[1]
+    # out late by its run delay (D-7), as far as its readings bound it
+    seen = _bisect(ix.rd_times, trace.end, right=True)  # a reading after the trace is not in it
+    starved = run_delay_over(trace.run_delay[:seen], last, trace.end, ix.rd_times[:seen])
     silent_until = last + b.copy_late + b.rto_max + b.copy_early + starved
     if trace.complete and trace.end >= silent_until:
         ran = f", {starved:.3f} s of it off the CPU (run delay, D-7)" if starved else ""

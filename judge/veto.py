@@ -32,11 +32,12 @@ datagram ``S`` sent that carries it, and without a datagram (:meth:`Recorder.sam
 ``Monitor.run_delay``: at the end of its view, or as the runner stopped it -- a stall after
 its last datagram, the seed ``monitor-rtx1-starved-then-closed``). A silence -- between two
 copies, from the last copy to the ACK, or to the trace's end -- is judged in the time ``S``
-could run (:func:`_ran`): its span less the least run delay the readings show accrued inside it
-(``judge.explain_model.run_delay_over``: a reading outside the span counts less the time it
-overhangs), so a stall elsewhere in the run excuses nothing (a long one late in a loaded run
-does not explain an early stop after a wrong ACK, nor a 24-s pause between copies of an
-unstalled sender), and a silence no reading covers is judged as it was seen.
+could run (:func:`_ran`): its span less the growth between the readings that bracket that
+span (``judge.explain_model.run_delay_over``: where between them ``S`` waited is not known, and
+an explanation that puts it inside the silence is consistent with the trace), so a stall
+outside them excuses nothing (a long one late in a loaded run does not explain an early stop
+after a wrong ACK, nor does one before a message's first copy a 24-s pause between its copies)
+and a silence no reading covers is judged as it was seen.
 ``judge.explain`` judges the silence after each message's last copy the same way
 (:attr:`judge.explain.Trace.run_delay`). How late ``S`` may have read an ACK (``ack_early``) is
 the growth over the failure's window (:func:`_window_lag`, :func:`_tail_lags`). Where no run
@@ -208,28 +209,31 @@ class _Readings(NamedTuple):
     at: list[tuple[int, int]]
     times: list[int]
 
-    def least(self, t_a: int, t_b: int) -> int:
-        """The least run delay (ns) the readings show accrued from ``t_a`` to ``t_b``."""
-        return int(run_delay_over(self.at, t_a, t_b, self.times)[0])
+    def over(self, t_a: int, t_b: int) -> int:
+        """The run delay (ns) the readings bound from ``t_a`` to ``t_b`` (``run_delay_over``)."""
+        return int(run_delay_over(self.at, t_a, t_b, self.times))
 
 
 NO_READINGS = _Readings([], [])
 
 
-def _readings(records: list[Record], samples: dict[int, list[tuple[int, int]]]) -> dict[int, _Readings]:
-    """Per node, its run delay as read: off each datagram it sent that carries one
-    (:func:`_sent`), and without a datagram (:meth:`Recorder.sample`)."""
+def _readings(records: list[Record], samples: dict[int, list[tuple[int, int]]], end_ns: int
+              ) -> dict[int, _Readings]:
+    """Per node, its run delay as read up to the trace's end ``end_ns`` (a reading after it is
+    not part of the trace): off each datagram it sent that carries one (:func:`_sent`), and
+    without a datagram (:meth:`Recorder.sample`)."""
     out = {node: list(known) for node, known in _sent(records).items()}
     for node, extra in samples.items():
         out.setdefault(node, []).extend(extra)
-    return {node: _Readings(sorted(known), [t for t, _ in sorted(known)]) for node, known in out.items()}
+    kept = {node: sorted(r for r in known if r[0] <= end_ns) for node, known in out.items()}
+    return {node: _Readings(known, [t for t, _ in known]) for node, known in kept.items()}
 
 
 def _ran(readings: _Readings, t_a: int, t_b: int) -> int:
-    """The most time (ns) the node could have run from ``t_a`` to ``t_b``: the span less the
-    least run delay its readings show accrued in it (``judge.explain_model.run_delay_over``):
-    what excuses a silence, never more than was measured."""
-    return (t_b - t_a) - readings.least(t_a, t_b)
+    """The time (ns) the node could run from ``t_a`` to ``t_b`` in some explanation: the span
+    less the run delay its readings that bracket it show (``judge.explain_model.run_delay_over``):
+    what excuses a silence, never more than was measured around it."""
+    return (t_b - t_a) - readings.over(t_a, t_b)
 
 
 def _direction(v: Any, records: list[Record]) -> tuple[int, int] | None:
@@ -297,7 +301,7 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
     if t_ack is None or t_ack > last and _ran(readings, last, t_ack) > most:
         return None
     t0 = records[0].t_ns
-    off = readings.least(records[first].t_ns, max(t_ack, last)) / NS
+    off = readings.over(records[first].t_ns, max(t_ack, last)) / NS
     ran = (f"; each copy within that of the one before, the ACK within it of the last, in the "
            f"time ID {s} could run ({off:.3f} s of run delay over them, D-7)") if off > 0 else ""
     return (f"the ACK of seq {seq} from ID {r} seen at {(t_ack - t0) / NS:.3f} s, "
@@ -312,7 +316,7 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
     gaps + the ACK window) counts wall time; a copy that fell due while ``S`` was off the CPU
     goes out when it runs again, late by the run delay its own datagram carries. The failure
     is explained (a text; None: it stands) when, each span in the time ``S`` could run
-    (:func:`_ran`: less the least run delay its ``readings`` show accrued there), every copy
+    (:func:`_ran`: less the run delay its ``readings`` bracketing it show), every copy
     came within that deadline of the one before up to :data:`MIN_COPIES` of them, or up to a
     right ACK (from ``R``, naming the message) or the trace's end within it, and no datagram of
     ``S`` in between shows it past the deadline -- and some run delay was needed for it. Run
@@ -369,7 +373,7 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
         t_stop = max(end_ns, records[-1].t_ns)
         if _ran(readings, t_last, t_stop) > deadline():
             return None
-    starved = readings.least(first.t_ns, t_stop)
+    starved = readings.over(first.t_ns, t_stop)
     if starved <= 0:
         return None
     return (f"seq {seq} from ID {s}: {copies} cop{'y' if copies == 1 else 'ies'}, each within its "
@@ -390,7 +394,7 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
     t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
     end = (end_ns - t0) / NS
     sent = _sent(records)
-    readings = _readings(records, recorder.samples)
+    readings = _readings(records, recorder.samples, max(end_ns, records[-1].t_ns))
     tails = _tail_lags(records, recorder.samples)
     out: list[Vetoed] = []
     for v in mine:
