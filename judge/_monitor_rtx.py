@@ -51,8 +51,7 @@ class RetransmissionRules(MonitorHost):
         """MCP-BLK-1 (and MCP-BLK-3, MCP-SEQ-2): a new unicast while the previous one still
         awaits its ACK. Proven on a complete trace when the previous is unACKed and its next
         copy was due later; on any trace when a copy of the previous follows (``_copy``)."""
-        if (prev.dst == ex.dst and prev.action == ex.action and prev.data[HDR:] == ex.data[HDR:]
-                and (len(prev.copies) < MIN_COPIES or prev.flags & F_SEQ2)):
+        if self._renumbered(prev, ex):
             # the same message again, unACKed, before a sender that retries could have given
             # up: a retransmission under a new number
             chained = prev.flags & F_SEQ2
@@ -79,6 +78,16 @@ class RetransmissionRules(MonitorHost):
             self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
             return
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
+
+    @staticmethod
+    def _renumbered(prev: _Exchange, ex: _Exchange) -> bool:
+        """``ex`` repeats the sender's unACKed ``prev`` -- same destination, action and payload
+        -- under a new number, before a sender that retries could have given it up (fewer than
+        MIN_COPIES copies, or a chain of such): one message retransmitted, MCP-SEQ-2's fault,
+        not a new one (no second list, MCP-FLOW-4/6)."""
+        return (not prev.acks and prev.dst == ex.dst and prev.action == ex.action
+                and prev.data[HDR:] == ex.data[HDR:]
+                and (len(prev.copies) < MIN_COPIES or bool(prev.flags & F_SEQ2)))
 
     def _gave_up(self, ex: _Exchange, newer: _Exchange, i: int, t: int) -> None:
         """MCP-RTX-1 (complete trace): the sender moved on to a new unicast when the next copy

@@ -364,6 +364,9 @@ class SenderRules(RetransmissionRules):
             rule, number = _LIST_FLOW[action]
             if challenge == number:
                 earlier = d.lists.get(action)
+                last = self._nodes[MANAGER].last_unicast
+                if earlier is not None and last is not None and self._renumbered(last, ex):
+                    return  # the list again under a new number, unACKed: MCP-SEQ-2's, not a second list
                 if earlier is not None and earlier is not ex:
                     self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(action)}",
                                f"a second {action_name(action)} to drone {d.id}", [earlier.first, (i, t)])

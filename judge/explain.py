@@ -44,7 +44,9 @@ Rules decided (docs/spec.md, spec/mcp.yaml):
   except, perhaps, by ACKs naming other numbers violates one of them in every explanation.
 - MCP-RTX-1 (sender): a sender that stops retransmitting with no ACK reaching it has sent
   at least ``min_copies`` copies of its own (copies the link made, :attr:`Copy.link_copy`,
-  are not retransmissions).
+  are not retransmissions). A silence after its last copy shows a stop only when it is past
+  the timeout in the time the sender could run: less the run delay (D-7) its readings
+  (:attr:`Trace.run_delay`) allow over it, since a copy due while it was off the CPU goes late.
 - MCP-RTX-2 (sender): what ended a message's retransmission is an ACK from ``R`` naming its
   number. ``MCP-RTX-1 or MCP-RTX-2`` is reported too: where a stop could be either a give-up
   too early or a wrong ACK taken, every explanation violates one of them.
@@ -67,7 +69,7 @@ from mcp_conform.judge.explain_model import (
     Verdict,
 )
 from mcp_conform.judge.explain_receiver import decide_receiver
-from mcp_conform.judge.explain_sender import decide_sender
+from mcp_conform.judge.explain_sender import decide_message, decide_sender
 
 __all__ = [
     "CONSISTENT",
@@ -81,6 +83,7 @@ __all__ = [
     "Trace",
     "Verdict",
     "decide",
+    "decide_message",
     "decide_receiver",
     "decide_sender",
 ]

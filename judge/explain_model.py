@@ -10,6 +10,7 @@ Sans-I/O: no clock, socket, file or thread; times are seconds on the observer's 
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -89,7 +90,9 @@ class Trace:
     """One direction: ``copies`` from ``sender`` to ``receiver``, ``acks`` to ``sender`` (and
     the receiver's to others); ``end`` is when the observation ended; ``complete`` says it
     holds every datagram; ``elsewhere``: the sender's unicast copies to other nodes, which show
-    it moved on from a message (stop-and-wait is node-wide, MCP-BLK-1)."""
+    it moved on from a message (stop-and-wait is node-wide, MCP-BLK-1); ``run_delay``: the
+    sender's run delay (D-7) as read at times, ``(t, s)`` in time order (:func:`run_delay_over`):
+    a silence is judged in the time it could run."""
 
     copies: Sequence[Copy]
     acks: Sequence[Ack]
@@ -98,6 +101,32 @@ class Trace:
     receiver: int = 1
     complete: bool = True
     elsewhere: Sequence[Copy] = ()
+    run_delay: Sequence[tuple[float, float]] = ()
+
+
+def run_delay_over(readings: Sequence[tuple[float, float]], t_a: float, t_b: float,
+                   times: Sequence[float] | None = None) -> float:
+    """The run delay (D-7) a sender may have accrued from ``t_a`` to ``t_b``, as its
+    ``readings`` bound it: ``(t, cumulative run delay)`` in time order (its datagrams carry
+    them, ``harness.run_delay``; a reading without a datagram at its view's end), in any one
+    unit. It is the growth between the readings that bracket the span -- the last at or
+    before ``t_a``, the first at or after ``t_b`` -- since nothing tells where between them
+    the sender waited for a CPU: an explanation that puts it inside the span is consistent
+    with the trace (a node that read an ACK as a stall ended and sent its next datagram later
+    shows its stall only then). A stall outside the bracket -- before the reading at or before
+    ``t_a``, after the one at or after ``t_b`` -- counts nothing. Where no reading comes at or
+    after ``t_b``, only the growth up to the last one before it (nothing unmeasured is assumed:
+    a perfect observer, as where no run delay is known at all). No readings: 0. ``times``: the
+    readings' times, where the caller keeps them (a long trace's many spans)."""
+    if not readings or t_b < t_a:
+        return 0
+    if times is None:
+        times = [t for t, _ in readings]
+    i_a = bisect_right(times, t_a) - 1  # the last at or before t_a
+    j_b = bisect_left(times, t_b)  # the first at or after t_b
+    lo = i_a if i_a >= 0 else 0
+    hi = j_b if j_b < len(readings) else bisect_right(times, t_b) - 1
+    return max(readings[hi][1] - readings[lo][1], 0) if 0 <= lo <= hi < len(readings) else 0
 
 
 @dataclass(frozen=True)

@@ -17,13 +17,16 @@ each one's sender and destination, so addresses are not needed. Output: one
   destination"), naming the 2-byte payload's number, or None for a payload of another size;
   and ``R``'s ACKs to other nodes (:attr:`Ack.dst`: it may have answered ``S``'s copy to the
   wrong ID, MCP-ACK-3).
+- ``S``'s run delay (D-7, :attr:`Trace.run_delay`): read off each datagram ``S`` sent that
+  carries one (a ``run_delay`` in ns, ``harness.run_delay``), and from ``samples``, read
+  without a datagram (at its view's end, as the runner stopped it).
 
 Sans-I/O like :mod:`judge.explain`; imports ``spec`` only.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,12 +68,14 @@ def _ack_named(data: bytes) -> int | None:
 
 def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
                           broadcast_id: int = BROADCAST_ID,
-                          tester: Callable[[Any], bool] | None = None
+                          tester: Callable[[Any], bool] | None = None,
+                          samples: Mapping[int, Iterable[tuple[int, int]]] | None = None
                           ) -> dict[tuple[int, int], Trace]:
     """Each direction's trace (see the module docstring); times in seconds from the first
     datagram. Datagrams without a whole header are left out (nothing to attribute).
     ``tester(datagram)`` says the runner sent it (in its own name or a node's): what its
-    sender did with it is not judged (:attr:`Copy.own`)."""
+    sender did with it is not judged (:attr:`Copy.own`). ``samples``: per node ID, its run
+    delay read without a datagram, ``(t_ns, ns)``."""
     # one number per message, trace-wide: a sender's numbers do not repeat within a window,
     # so copies with its number are copies of it (MCP-SEQ-2 judges whether their bytes agree)
     msgs: dict[tuple[int, int, int], tuple[int, float]] = {}
@@ -85,6 +90,7 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
     t0: float | None = None
     last = 0.0
     raw: list[tuple[float, int, int, int, int, bytes, bool, bool]] = []
+    readings: dict[int, list[tuple[float, float]]] = {}  # per sender, its run delay (s)
     for d in datagrams:
         data = bytes(d.data)
         head = peek_header(data, require_preamble=False)
@@ -99,7 +105,11 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
             ok = True
         except DecodeError:
             ok = False
-        raw.append((t, dst, src, seq, action, data, ok, tester is None or not tester(d)))
+        own = tester is None or not tester(d)
+        raw.append((t, dst, src, seq, action, data, ok, own))
+        rd = getattr(d, "run_delay", None)
+        if rd is not None and own:
+            readings.setdefault(src, []).append((t, rd / NS))
         if ok and action == Action.MISSION_READY:
             ready_at.setdefault(src, t)
         if ok and action == Action.END_MISSION:
@@ -134,6 +144,10 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
         receiving = (dst not in ready_at or ready_at[dst] <= t) and t <= deaf_at.get(
             (src, dst), float("inf"))
         way.copies.append(Copy(seq, msg, t, judged=receiving, own=own))
+    for node, extra in (samples or {}).items():
+        readings.setdefault(node, []).extend(((t_ns - (t0 or 0)) / NS, rd / NS) for t_ns, rd in extra)
+    for got in readings.values():
+        got.sort()
     out = {}
     for (s, r), way in dirs.items():
         if not any(c.ackable for c in way.copies):
@@ -143,7 +157,8 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
         out[(s, r)] = Trace(sorted(way.copies + broadcasts.get(s, []), key=lambda c: c.t),
                             sorted(acks_to.get(s, []) + [a for a in acks_from.get(r, [])
                                                          if a.dst != s], key=lambda a: a.t),
-                            last, s, r, complete, sorted(elsewhere, key=lambda c: c.t))
+                            last, s, r, complete, sorted(elsewhere, key=lambda c: c.t),
+                            tuple(readings.get(s, ())))
     return out
 
 

@@ -20,6 +20,7 @@ from mcp_conform.judge.explain_model import (
     _bisect,
     _fmt_ack,
     _some,
+    run_delay_over,
 )
 
 # ------------------------------------------------------------------ sender: RTX-1, RTX-2
@@ -42,6 +43,7 @@ class _Index:
     acks: list[Ack]
     starts: list[tuple[float, int, int]]  # (first copy's time, seq, msg), in time order
     start_times: list[float]
+    rd_times: list[float]  # the times of the sender's run delay readings (Trace.run_delay)
 
 
 def _index(trace: Trace) -> _Index:
@@ -54,7 +56,8 @@ def _index(trace: Trace) -> _Index:
                 starts[key] = min(starts.get(key, (c.t, c.seq)), (c.t, c.seq))
     # a message elsewhere never equals one here: its msg is put out of range
     ordered = sorted((t, seq, -1 - m if away else m) for (away, m), (t, seq) in starts.items())
-    return _Index([a.t for a in acks], acks, ordered, [t for t, _, _ in ordered])
+    return _Index([a.t for a in acks], acks, ordered, [t for t, _, _ in ordered],
+                  [t for t, _ in trace.run_delay])
 
 
 def _stops(trace: Trace, b: Bounds, ix: _Index, msg: int, own: Sequence[Copy]) -> list[_Stop]:
@@ -74,10 +77,15 @@ def _stops(trace: Trace, b: Bounds, ix: _Index, msg: int, own: Sequence[Copy]) -
         if later:
             out.append(_Stop(later[0] + b.copy_late,
                              f"the sender moved on to a new message at {later[0]:.3f} s"))
-    silent_until = last + b.copy_late + b.rto_max + b.copy_early
+    # the silence in the time the sender could run: a copy due while it was off the CPU goes
+    # out late by its run delay (D-7), as far as its readings bound it
+    seen = _bisect(ix.rd_times, trace.end, right=True)  # a reading after the trace is not in it
+    starved = run_delay_over(trace.run_delay[:seen], last, trace.end, ix.rd_times[:seen])
+    silent_until = last + b.copy_late + b.rto_max + b.copy_early + starved
     if trace.complete and trace.end >= silent_until:
-        out.append(_Stop(last + b.copy_late + b.rto_max,
-                         f"no copy came in the {trace.end - last:.3f} s after the last, "
+        ran = f", {starved:.3f} s of it off the CPU (run delay, D-7)" if starved else ""
+        out.append(_Stop(last + b.copy_late + b.rto_max + starved,
+                         f"no copy came in the {trace.end - last:.3f} s after the last{ran}, "
                          f"longer than the timeout allows ({b.rto_max:.3f} s)"))
     return out
 
@@ -166,3 +174,19 @@ def decide_sender(trace: Trace, b: Bounds) -> dict[str, Verdict]:
             if old is None or RANK[v.status] > RANK[old.status]:
                 found[rule] = v
     return {r: found.get(r, Verdict(r, UNOBSERVABLE, "no unicast message sent")) for r in rules}
+
+
+def decide_message(trace: Trace, b: Bounds, seq: int, t: float) -> dict[str, Verdict] | None:
+    """MCP-RTX-1, MCP-RTX-2 (and their disjunction) of one message of ``trace.sender``: the one
+    with an own copy numbered ``seq`` seen nearest ``t`` (None: no such copy) -- what a monitor
+    failure about that message is weighed against (``judge.veto``), where
+    :func:`decide_sender` reports the worst of every message."""
+    by_msg: dict[int, list[Copy]] = {}
+    for c in trace.copies:
+        if c.ackable and c.own:
+            by_msg.setdefault(c.msg, []).append(c)
+    near = [(abs(c.t - t), c.msg) for c in trace.copies if c.ackable and c.own and c.seq == seq]
+    if not near:
+        return None
+    msg = min(near)[1]
+    return _message(trace, b, _index(trace), msg, by_msg[msg])

@@ -13,35 +13,37 @@ simulator judge alike.
 
 How: the datagrams the monitor was fed (:class:`Recorder`) are made into
 :mod:`judge.explain`'s traces (:func:`judge.explain_records.traces_from_datagrams`), one per
-direction; a violation of MCP-RTX-1 or MCP-RTX-2 by node ``S`` is about the message its first
-evidence datagram is a copy of, sent to ``R``; :func:`judge.explain.decide_sender` decides the
-direction ``(S, R)`` with the bounds the monitor knows (:func:`sender_bounds`: ``--rto``, the
-ACK window, and ``S``'s run delay, D-7). The violation is dropped when the rule is
-``consistent`` there and no disjunction naming it (``MCP-RTX-1 or MCP-RTX-2``) is proven: some
-explanation keeps the rule. It stands when the rule is ``proven`` or ``unobservable`` (explain
-cannot judge what the monitor saw), so the veto never adds a violation and never drops one
-explain does not contradict. Where explain keeps the rule, the monitor's stop is explained by a
-right ACK it did not credit (:func:`_answered_in_time`) or, for MCP-RTX-1's "none for N s", by
-the run delay the sender's own datagrams carry over the silence (:func:`_starved_in_time`: a
-copy sent late because its sender was off the CPU, D-7, as MCP-RTX-3 excuses it; the seed
-``monitor-rtx1-late-copy-carries-its-run-delay``). A dropped violation is kept with the
-explanation that keeps the rule (:class:`Vetoed`), for the report.
+direction, with each sender's run delay readings (D-7); a violation of MCP-RTX-1 or MCP-RTX-2
+by node ``S`` is about the message its first evidence datagram is a copy of, sent to ``R``,
+and :func:`judge.explain.decide_message` decides that message -- not the direction's worst
+(another message's proof does not make this failure right) -- with the bounds the monitor knows
+(:func:`sender_bounds`: ``--rto``, the ACK window). The violation is dropped when the rule is
+``consistent`` or ``unobservable`` there and no disjunction naming it (``MCP-RTX-1 or
+MCP-RTX-2``) is proven, and the monitor's stop is explained: by a right ACK it did not credit
+(:func:`_answered_in_time`) or, for MCP-RTX-1's "none for N s", by the run delay over the
+silence (:func:`_starved_in_time`: a copy sent late because its sender was off the CPU, D-7, as
+MCP-RTX-3 excuses it; the seed ``monitor-rtx1-late-copy-carries-its-run-delay``). So the veto
+never adds a violation and never drops one explain proves. A dropped violation is kept with
+the explanation that keeps the rule (:class:`Vetoed`), for the report.
 
-Bounds. ``S``'s run delay (cumulative, ns, fed with each datagram it sent: ``harness.run_delay``
-on a real host, the simulator's stalls) grows by the time ``S`` was runnable but off the CPU.
-A failure's lag is the growth over its own window (:func:`_window_lag`): from ``S``'s last
-datagram at or before the failure's first evidence to its first datagram after the last; a
-copy may go that much later than its timer (``rto_slack``) and an ACK be read that much after
-it came (``ack_early``). Where ``S`` sent nothing after the evidence, the run delay known
-without a datagram (:meth:`Recorder.sample`, ``Monitor.run_delay``: read at the end of its
-view, or as the runner stopped it) ends the window (:func:`_tail_lags`): it shows a stall
-after its last datagram -- a manager off the CPU while its retransmission fell due, which
-then read the ACK and closed, sending nothing; the seed ``monitor-rtx1-starved-then-closed``.
-A stall outside the window excuses nothing: a long one late in a loaded run does not explain
-an early stop after a wrong ACK.
-Where no run delay is known the bounds are spec/mcp.yaml's with a perfect
-observer. The link is not known to the monitor: one copy draws one ACK (a link that
-duplicates ACKs may leave a false failure standing, never hide a true one).
+Run delay. ``S``'s run delay (cumulative, ns: ``harness.run_delay`` on a real host, the
+simulator's stalls) grows by the time ``S`` was runnable but off the CPU; it is read off each
+datagram ``S`` sent that carries it, and without a datagram (:meth:`Recorder.sample`,
+``Monitor.run_delay``: at the end of its view, or as the runner stopped it -- a stall after
+its last datagram, the seed ``monitor-rtx1-starved-then-closed``). A silence -- between two
+copies, from the last copy to the ACK, or to the trace's end -- is judged in the time ``S``
+could run (:func:`_ran`): its span less the growth between the readings that bracket that
+span (``judge.explain_model.run_delay_over``: where between them ``S`` waited is not known, and
+an explanation that puts it inside the silence is consistent with the trace), so a stall
+outside them excuses nothing (a long one late in a loaded run does not explain an early stop
+after a wrong ACK, nor does one before a message's first copy a 24-s pause between its copies)
+and a silence no reading covers is judged as it was seen.
+``judge.explain`` judges the silence after each message's last copy the same way
+(:attr:`judge.explain.Trace.run_delay`). How late ``S`` may have read an ACK (``ack_early``) is
+the growth over the failure's window (:func:`_window_lag`, :func:`_tail_lags`). Where no run
+delay is known the bounds are spec/mcp.yaml's with a perfect observer. The link is not known
+to the monitor: one copy draws one ACK (a link that duplicates ACKs may leave a false failure
+standing, never hide a true one).
 
 Cost: one record per datagram fed, up to :data:`RECORD_CAP`; past it the veto is off for the
 trace (its failures stand, and :attr:`Recorder.note` says why). Explain runs only at
@@ -63,9 +65,9 @@ from mcp_conform.judge.explain import (
     UNOBSERVABLE,
     Bounds,
     Trace,
-    Verdict,
-    decide_sender,
+    decide_message,
 )
+from mcp_conform.judge.explain_model import run_delay_over
 from mcp_conform.judge.explain_records import traces_from_datagrams
 from mcp_conform.spec.codec import HEADER_SIZE, Action, peek_header
 
@@ -195,9 +197,43 @@ def _tail_lags(records: list[Record], samples: dict[int, list[tuple[int, int]]])
 
 
 def sender_bounds(rto: float, ack_window: float, lag: float) -> Bounds:
-    """The bounds of a sender off the CPU for ``lag`` s in a failure's window (see the module
-    docstring)."""
-    return Bounds(ack_window=ack_window, rto=rto, ack_early=lag, rto_slack=Bounds.rto_slack + lag)
+    """The bounds of a sender off the CPU for ``lag`` s in a failure's window: it may read an
+    ACK that much late (``ack_early``). How late its copies went is not a bound: each silence
+    is judged in the time it could run, by its readings (:attr:`Trace.run_delay`)."""
+    return Bounds(ack_window=ack_window, rto=rto, ack_early=lag)
+
+
+class _Readings(NamedTuple):
+    """A node's run delay as read, ``(t_ns, ns)`` in time order, and their times."""
+
+    at: list[tuple[int, int]]
+    times: list[int]
+
+    def over(self, t_a: int, t_b: int) -> int:
+        """The run delay (ns) the readings bound from ``t_a`` to ``t_b`` (``run_delay_over``)."""
+        return int(run_delay_over(self.at, t_a, t_b, self.times))
+
+
+NO_READINGS = _Readings([], [])
+
+
+def _readings(records: list[Record], samples: dict[int, list[tuple[int, int]]], end_ns: int
+              ) -> dict[int, _Readings]:
+    """Per node, its run delay as read up to the trace's end ``end_ns`` (a reading after it is
+    not part of the trace): off each datagram it sent that carries one (:func:`_sent`), and
+    without a datagram (:meth:`Recorder.sample`)."""
+    out = {node: list(known) for node, known in _sent(records).items()}
+    for node, extra in samples.items():
+        out.setdefault(node, []).extend(extra)
+    kept = {node: sorted(r for r in known if r[0] <= end_ns) for node, known in out.items()}
+    return {node: _Readings(known, [t for t, _ in known]) for node, known in kept.items()}
+
+
+def _ran(readings: _Readings, t_a: int, t_b: int) -> int:
+    """The time (ns) the node could run from ``t_a`` to ``t_b`` in some explanation: the span
+    less the run delay its readings that bracket it show (``judge.explain_model.run_delay_over``):
+    what excuses a silence, never more than was measured around it."""
+    return (t_b - t_a) - readings.over(t_a, t_b)
 
 
 def _direction(v: Any, records: list[Record]) -> tuple[int, int] | None:
@@ -212,11 +248,24 @@ def _direction(v: Any, records: list[Record]) -> tuple[int, int] | None:
     return None
 
 
+def _first_copy(v: Any, way: tuple[int, int], records: list[Record]) -> int | None:
+    """The index of the violation's first evidence datagram that ``S`` sent ``R`` (not an
+    ACK): a copy of the message the violation is about."""
+    s, r = way
+    for i, _t in v.evidence:
+        h = peek_header(records[i].data, require_preamble=False) if 0 <= i < len(records) else None
+        if h is not None and h[1] == s and h[0] == r and h[3] != Action.ACK:
+            return i
+    return None
+
+
 def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bounds,
-                      broadcast_id: int) -> str | None:
+                      broadcast_id: int, readings: _Readings) -> str | None:
     """Whether an ACK from ``R`` naming the violation's message came before ``S``'s next
-    copy was overdue (``Bounds.rto_max`` after its last) and ``S`` moved on to another message
-    only once it could have read it (``ack_early``: how late ``S`` may read one). Explain keeps
+    copy was overdue (``Bounds.rto_max`` after its last, and each copy from the first evidence
+    on within that of the one before, in the time ``S`` could run: :func:`_ran`, its
+    ``readings``) and ``S`` moved on to another message only once it could have read it
+    (``ack_early``: how late ``S`` may read one). Explain keeps
     MCP-RTX-2 by other stops too -- a give-up at a retry limit after a wrong ACK (a faulty
     sender that stops on any ACK), a stop that broke MCP-BLK-1 instead
     (``tests/judge/test_explain_beside_monitor.py``'s ``rtx2-stops-on-wrong-ack``,
@@ -224,18 +273,14 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
     sender's only one. The veto is for a right ACK the monitor did not credit: it is named
     (None: no such ACK)."""
     s, r = way
-    first = None
-    for i, _t in v.evidence:
-        h = peek_header(records[i].data, require_preamble=False) if 0 <= i < len(records) else None
-        if h is not None and h[1] == s and h[0] == r and h[3] != Action.ACK:
-            first = i
-            break
+    first = _first_copy(v, way, records)
     if first is None:
         return None
     seq = peek_header(records[first].data, require_preamble=False)[2]  # type: ignore[index]
     named = seq.to_bytes(2, "big")
     last = records[first].t_ns
     t_ack = None
+    most = int(b.rto_max * NS)
     for rec in records[first + 1:]:
         h = peek_header(rec.data, require_preamble=False)
         if h is None or rec.tester and h[1] == s:
@@ -246,34 +291,38 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
                     and rec.data[HEADER_SIZE:] == named:
                 t_ack = rec.t_ns
         elif src == s and dst == r and n == seq:
+            if t_ack is None and _ran(readings, last, rec.t_ns) > most:
+                return None  # a copy overdue in the time S could run: it stopped a while
             last = rec.t_ns
         elif src == s and dst != broadcast_id:  # S moved on
             if t_ack is None or rec.t_ns < t_ack - b.ack_early * NS:
                 return None
             break
-    if t_ack is None or t_ack > last + b.rto_max * NS:
+    if t_ack is None or t_ack > last and _ran(readings, last, t_ack) > most:
         return None
     t0 = records[0].t_ns
+    off = readings.over(records[first].t_ns, max(t_ack, last)) / NS
+    ran = (f"; each copy within that of the one before, the ACK within it of the last, in the "
+           f"time ID {s} could run ({off:.3f} s of run delay over them, D-7)") if off > 0 else ""
     return (f"the ACK of seq {seq} from ID {r} seen at {(t_ack - t0) / NS:.3f} s, "
             f"{(t_ack - last) / NS:.3f} s after its last copy (a retransmission may come "
-            f"{b.rto_max:.3f} s after one: --rto, tolerance, run delay), may have ended it")
+            f"{b.rto_max:.3f} s after one: --rto, tolerance){ran}, may have ended it")
 
 
 def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
-                     ack_window: float, end_ns: int,
-                     samples: list[tuple[int, int]] | None = None) -> str | None:
+                     ack_window: float, end_ns: int, readings: _Readings) -> str | None:
     """MCP-RTX-1's silence judged in the sender's running time (D-7, as ``judge.spacing``
     judges MCP-RTX-3's gaps): the monitor's deadline (``_rtx_deadline``: the last copy + 1.5
     gaps + the ACK window) counts wall time; a copy that fell due while ``S`` was off the CPU
     goes out when it runs again, late by the run delay its own datagram carries. The failure
-    is explained (a text; None: it stands) when, each gap between copies less the run delay
-    ``S``'s own datagrams show accrued over it, every copy came within that deadline up to
-    :data:`MIN_COPIES` of them (or the trace's end), and no datagram of ``S`` in between shows
-    it past the deadline. Run delay counts only where a datagram of ``S`` carries it, or, for
-    the silence from its last copy to the trace's end, a run delay read without a datagram
-    before that end (``samples``: at its stop, at a view's end): a copy without one and a
-    silence no reading covers excuse nothing (attach mode, pcaps: nothing at all); an ACK of
-    the message is :func:`_answered_in_time`'s. Only the deadline's form of the failure (its
+    is explained (a text; None: it stands) when, each span in the time ``S`` could run
+    (:func:`_ran`: less the run delay its ``readings`` bracketing it show), every copy
+    came within that deadline of the one before up to :data:`MIN_COPIES` of them, or up to a
+    right ACK (from ``R``, naming the message) or the trace's end within it, and no datagram of
+    ``S`` in between shows it past the deadline -- and some run delay was needed for it. Run
+    delay counts only where a reading shows it: a datagram of ``S`` that carries it, or one read
+    without a datagram (at its stop, at a view's end); a silence no reading covers excuses
+    nothing (attach mode, pcaps: nothing at all). Only the deadline's form of the failure (its
     evidence all copies of the message), not a sender seen moving on (``_gave_up``)."""
     s, r = way
     ev = [i for i, _t in v.evidence if 0 <= i < len(records)]
@@ -281,18 +330,17 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
         return None
     first = records[ev[0]]
     h0 = peek_header(first.data, require_preamble=False)
-    if h0 is None or h0[:2] != (r, s) or h0[3] == Action.ACK or first.run_delay is None:
+    if h0 is None or h0[:2] != (r, s) or h0[3] == Action.ACK:
         return None
     seq = h0[2]
     if any(records[i].data != first.data for i in ev):
         return None
     named = seq.to_bytes(2, "big")
     window_ns = int(ack_window * NS)
-    t_last, rd_last = first.t_ns, first.run_delay
-    rd_seen = rd_last  # S's run delay at its latest datagram that carried one
-    t_seen = t_last
-    runs: list[int] = []  # each gap between copies, less the run delay over it
+    t_last = first.t_ns
+    runs: list[int] = []  # each gap between copies, in the time S could run
     copies = 1
+    how = ""
 
     def deadline() -> int:
         est = median(runs) if runs else max(int(rto * NS), DESCRIPTION_TIMEOUT_NS)
@@ -304,37 +352,33 @@ def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
             continue
         dst, src, n, action = h
         if src == r and dst == s and action == Action.ACK and rec.data[HEADER_SIZE:] == named:
-            return None  # ACKed: _answered_in_time's to explain
+            if _ran(readings, t_last, rec.t_ns) > deadline():
+                return None  # the ACK came after a copy was overdue in the time S could run
+            t_stop = rec.t_ns
+            how = f", and the ACK from ID {r} seen at {(t_stop - records[0].t_ns) / NS:.3f} s may have ended it"
+            break
         if src != s or rec.tester:
             continue
-        copy = dst == r and n == seq and action != Action.ACK and rec.data == first.data
-        rd = rec.run_delay
-        if rd is None or rd < rd_seen:
-            if copy:
-                return None  # a copy whose run delay is unknown: nothing excused from here
-            continue
-        if (rec.t_ns - t_last) - (rd - rd_last) > deadline():
+        if _ran(readings, t_last, rec.t_ns) > deadline():
             return None  # past the deadline in the time S could run, and no copy
-        rd_seen, t_seen = rd, rec.t_ns
-        if copy:
-            runs.append((rec.t_ns - t_last) - (rd - rd_last))
+        if dst == r and n == seq and action != Action.ACK and rec.data == first.data:
+            runs.append(_ran(readings, t_last, rec.t_ns))
             copies += 1
-            t_last, rd_last = rec.t_ns, rd
+            t_last = rec.t_ns
             if copies >= MIN_COPIES:
+                t_stop = rec.t_ns
                 break
-    else:  # the trace's end, fewer copies: S ran all the time after its last datagram, but
-        # for the run delay a reading without a datagram shows accrued since (the stall a
-        # view's end or the node's stop found it in), read no later than the end
-        end = max(end_ns, records[-1].t_ns)
-        rd_seen = max((rd for t, rd in samples or () if t_seen <= t <= end), default=rd_seen)
-        if (end - t_last) - (rd_seen - rd_last) > deadline():
+    else:  # the trace's end, fewer copies: the silence since the last, less the run delay read
+        # by then (a reading without a datagram: the stall a view's end or its stop found)
+        t_stop = max(end_ns, records[-1].t_ns)
+        if _ran(readings, t_last, t_stop) > deadline():
             return None
-    starved = rd_seen - first.run_delay
+    starved = readings.over(first.t_ns, t_stop)
     if starved <= 0:
         return None
-    return (f"seq {seq} from ID {s}: {copies} copies, each within its deadline (the last + 1.5 "
-            f"gaps + the ACK window) in the time ID {s} could run: its datagrams carry "
-            f"{starved / NS:.3f} s of run delay over the gaps (D-7)")
+    return (f"seq {seq} from ID {s}: {copies} cop{'y' if copies == 1 else 'ies'}, each within its "
+            f"deadline (the last + 1.5 gaps + the ACK window) in the time ID {s} could run: its "
+            f"readings show {starved / NS:.3f} s of run delay over the gaps (D-7){how}")
 
 
 def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: float,
@@ -346,13 +390,12 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
     if not mine or recorder.note is not None or not records:
         return []
     traces = traces_from_datagrams(records, complete=True, broadcast_id=broadcast_id,
-                                   tester=lambda r: r.tester)
+                                   tester=lambda r: r.tester, samples=recorder.samples)
     t0 = next((r.t_ns for r in records if peek_header(r.data, require_preamble=False)), 0)
     end = (end_ns - t0) / NS
     sent = _sent(records)
+    readings = _readings(records, recorder.samples, max(end_ns, records[-1].t_ns))
     tails = _tail_lags(records, recorder.samples)
-    decided: dict[tuple[int, int, float], dict[str, Verdict]] = {}
-    bounds: dict[tuple[int, float], Bounds] = {}
     out: list[Vetoed] = []
     for v in mine:
         way = _direction(v, records)
@@ -361,13 +404,14 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
             continue
         seen = [records[i].t_ns for i, _t in v.evidence if 0 <= i < len(records)]
         lag = _window_lag(sent.get(way[0], []), min(seen), max(seen), tails.get(way[0])) if seen else 0.0
-        key = (way[0], lag)
-        if key not in bounds:
-            bounds[key] = sender_bounds(rto, ack_window, lag)
-        found = decided.get((way[0], way[1], lag))
+        b = sender_bounds(rto, ack_window, lag)
+        t = replace(trace, end=max(trace.end, end), complete=bool(complete_for(*way)))
+        # the violation's own message: another message's proof does not make this one right
+        i0 = _first_copy(v, way, records)
+        head = peek_header(records[i0].data, require_preamble=False) if i0 is not None else None
+        found = decide_message(t, b, head[2], (records[i0].t_ns - t0) / NS) if head and i0 is not None else None
         if found is None:
-            t = replace(trace, end=max(trace.end, end), complete=bool(complete_for(*way)))
-            found = decided[(way[0], way[1], lag)] = decide_sender(t, bounds[key])
+            continue
         kept = found.get(v.rule)
         either = found.get(VETOED_RULES[v.rule])
         if kept is None or kept.status not in (CONSISTENT, UNOBSERVABLE):
@@ -376,11 +420,12 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
             continue
         # explain finds no proof either way where the trace ends before a retransmission could
         # be seen (UNOBSERVABLE): only the sender's own measured starvation explains that one
-        answered = (_answered_in_time(v, way, records, bounds[key], broadcast_id)
+        mine_rd = readings.get(way[0], NO_READINGS)
+        answered = (_answered_in_time(v, way, records, b, broadcast_id, mine_rd)
                     if kept.status == CONSISTENT else None)
         if answered is None and v.rule == "MCP-RTX-1":
             answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns,
-                                        samples=recorder.samples.get(way[0]))
+                                        readings=mine_rd)
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))

@@ -90,19 +90,23 @@ def _explain(w: World, pid: int, view: list[ViewRecord], window: float, rto: flo
     one ACK; as a sender it sees the ACKs the link delivered, so one copy may draw one more
     for each extra copy the link into it made (:attr:`Bounds.copy_capacity`). Its stalls are the
     observer's lag (``copy_early`` / ``ack_early``: read late) and its run delay (``rto_slack``:
-    a copy sent late), as ``harness.run_delay`` measures them on a real host (D-7)."""
+    a copy sent late), as ``harness.run_delay`` measures them on a real host (D-7): the run
+    delay its own datagrams carry and the one read as its view ends (as ``Monitor.run_delay``
+    takes it), over which ``judge.explain`` judges a silence (:attr:`Trace.run_delay`)."""
     capacity = max((link.max_copies for (_, b), link in w.links.items() if b == pid), default=1)
-    # a stalled party reads late (what reached its socket is seen when it is read) and sends
-    # late (its timers fire late): the observer's lag and the run delay, D-7, of its stalls
+    # a stalled party reads late (what reached its socket is seen when it is read): the
+    # observer's lag; it sends late (its timers fire late) by its run delay, which its readings
+    # carry to judge.explain, not a bound here
     lag = max((b - a for a, b in w.stalls[pid]), default=0.0)
     slack = Bounds.rto_slack + lag
     as_receiver = Bounds(ack_window=window, rto=rto, copy_early=lag, rto_slack=slack)
-    as_sender = Bounds(ack_window=window, rto=rto, ack_early=lag, rto_slack=slack,
-                       copy_capacity=capacity)
+    as_sender = Bounds(ack_window=window, rto=rto, ack_early=lag, copy_capacity=capacity)
     # the view goes on to the party's end, not its last datagram: a silence is seen
-    end = (w.view_end(pid) * NS - view[0].t_ns) / NS
+    end_ns = int(w.view_end(pid) * NS)
+    end = (end_ns - view[0].t_ns) / NS
+    samples = {pid: [(end_ns, w.run_delay_ns[pid])]}
     mine: dict[str, Verdict] = {}
-    for (s, r), t in sorted(traces_from_datagrams(view, complete=True).items()):
+    for (s, r), t in sorted(traces_from_datagrams(view, complete=True, samples=samples).items()):
         t = replace(t, end=max(t.end, end))
         found = {}
         if r == pid:

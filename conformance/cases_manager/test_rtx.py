@@ -12,8 +12,10 @@ from mcp_conform.conformance.manager_case import messages
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action
 
 MIN_COPIES = int(SPEC.params["min_copies"])
+_START = int(Action.START_MISSION)
 
 
 def _withheld(node, rule):
@@ -21,6 +23,29 @@ def _withheld(node, rule):
     if w.drone is None:
         raise Inconclusive(f"{rule}: the manager sent no Start_Mission (see MCP-FLOW-2)")
     return w
+
+
+def _stopped_before_wrong_acks(m, w):
+    """Why the manager's next copy was already overdue when the runner's wrong ACKs went out
+    (None: it was not): its last copy before them (by the time each reached the runner's
+    socket, whenever the runner read it) came more than ``wrong_ack_wait`` -- the time the case
+    waits for a copy after them -- before them. A runner held off the CPU sends them late
+    (issue 38: its threads stalled up to 5 x --rto), after a correct manager reached its retry
+    limit; what it does with a wrong ACK is then not seen. A manager that stops on any ACK
+    retransmits until one comes: its last copy is within a gap of them."""
+    if not w.wrong_acks or not w.copies:
+        return None
+    t_wrong = w.wrong_acks[0].t
+    seqs = {c.header[2] for c in w.copies if c.header is not None}
+    before = [c.t for x in messages(m) if x.dst == w.drone and x.action == _START and x.seq in seqs
+              for c in x.copies if c.t <= t_wrong]
+    if not before:
+        return None
+    late = t_wrong - max(before)
+    if late <= w.wrong_ack_wait:
+        return None
+    return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
+            f"{w.wrong_ack_wait:.2f} s watched after them")
 
 
 @rules("MCP-RTX-1")
@@ -40,6 +65,11 @@ def test_only_the_right_ack_ends_retransmission(node):
     if len(w.copies) < MIN_COPIES:
         raise Inconclusive("MCP-RTX-2: the manager had stopped retransmitting before the wrong ACKs "
                            "were sent (see MCP-RTX-1)")
+    stopped = _stopped_before_wrong_acks(node.mission(), w)
+    if stopped is not None:
+        raise Inconclusive(f"MCP-RTX-2: the manager had stopped retransmitting before the wrong ACKs were "
+                           f"sent ({stopped}): sent late, past its retry limit, they show nothing of what "
+                           "it does with a wrong ACK")
     node.expect_true(w.copy_after_wrong_acks is not None, "MCP-RTX-2",
                      "retransmission goes on after an ACK with the wrong seq and one from another drone",
                      f"no copy within {w.wrong_ack_wait:.2f} s after them",
