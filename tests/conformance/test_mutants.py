@@ -215,9 +215,15 @@ def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
         assert case["outcome"] == want, res.explain()
         assert CASE_SAYS[fault][0] in case["expected"] and CASE_SAYS[fault][1] in case["actual"], case
     if fault in MONITOR_SEES:
+        # the monitor proves the rule, or says why it does not: a violation the explanation
+        # judge dropped because the node's measured run delay explains the trace without it
+        # (judge.veto; a loaded host: CI run 12's rtx-stop-on-any-ack, its case failed RTX-2)
         mon = res.report["monitor"]
-        assert {(v["rule"], v["node"]) for v in mon["violations"]} == {(rule, 1)}, mon["violations"]
-        assert mon["rules"]["1"][rule] in ("failed", "warned")
+        seen = {(v["rule"], v["node"]) for v in mon["violations"]}
+        vetoed = {(v["rule"], v["node"]) for v in mon.get("vetoed", ())}
+        assert seen == {(rule, 1)} or (not seen and (rule, 1) in vetoed), (mon["violations"], mon.get("vetoed"))
+        if seen:
+            assert mon["rules"]["1"][rule] in ("failed", "warned")
     same_verdicts_offline(res, capture)
 
 
