@@ -156,6 +156,11 @@ REAL_GCS = {
                  "MAV-PRM-17"},
     "mavsdk": {"MAV-CMD-8"},
 }
+#: of those, the rules a ground station breaks only in its first moments, depending on what it
+#: heard by then: dronekit2's pymavlink starts in MAVLink 1 and switches at the first MAVLink 2
+#: frame it hears, its numbers starting again (MAV-HB-11) only if it sent before that; its
+#: start-up requests to component 0 (MAV-CMD-16) likewise (fresh-clone CI run 14: neither)
+STARTUP_DEPENDENT = {"dronekit": {"MAV-HB-11", "MAV-CMD-16"}}
 
 
 @pytest.mark.slow
@@ -165,7 +170,7 @@ def test_real_ground_stations(tmp_path, client):
     idiom (tests/mavlink/real_gcs.py): the rules each fails, each failure with its evidence."""
     rc, doc, out = run(tmp_path, "--spawn", f"{sys.executable} {REAL} --client {client} {{mavlink}}")
     rules, _ = failed(doc)
-    assert rules == REAL_GCS[client], out
+    assert REAL_GCS[client] - STARTUP_DEPENDENT.get(client, set()) <= rules <= REAL_GCS[client], out
     assert all(c["expected"] and c["actual"] for c in doc["cases"] if c["outcome"] in ("failed", "warned")), out
 
 
