@@ -437,10 +437,16 @@ class _Session:
             # a node's run delay as the runner stopped it (D-7): a stall after its last
             # datagram, which the veto weighs as the run monitor's own finish would
             sample = getattr(mon, "run_delay", None)
+            end = self.last
             if sample is not None:
                 for t_ns, node, ns in self.run_delays:
                     sample(t_ns, node, ns)
-            self._found(mon.finish(self.last))
+                    end = max(end, t_ns)
+            # the view ends where the runner stopped the node (its reading's time), as the run
+            # monitor's own finish comes after that stop: a view ended at the last datagram
+            # left that reading outside it (judge.veto weighs none after the view's end), and
+            # check failed MCP-RTX-2 where the live monitor, weighing it, had vetoed it
+            self._found(mon.finish(end))
         if params.challenge is None:
             inferred = getattr(mon, "inferred_challenge", None)
             params.challenge_source = "inferred" if inferred else "unknown"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 
 import pytest
 
@@ -90,3 +91,23 @@ def test_a_soak_nodes_view_is_judged_with_its_run_delay(tmp_path, starved_ms, rt
     rec.close()
     j = judge(path, Params(rto=0.2, ack_window=0.25))
     assert any(v.rule == "MCP-RTX-3" and v.node == 1 for v in j.violations) is rtx3, j.violations
+
+
+DATA = Path(__file__).with_name("data")
+
+
+@pytest.mark.parametrize("complete", [False, True])
+def test_the_run_delay_read_as_the_node_was_stopped_is_weighed_offline_as_live(complete):
+    """A real run of the sample node's rtx-stop-on-any-ack beside 14 CPU burners (the matrix's
+    test_mutants, which failed so in fresh-clone CI runs 12, 14 and 15): its Mission_Ready's
+    third copy went unretransmitted for 0.705 s after the wrong ACKs, and the node's run delay,
+    read as the runner stopped it (``RUN_DELAY_METADATA``, after its last datagram), explains
+    that (judge.veto): the live monitor vetoed MCP-RTX-2. ``check`` ended its view at the last
+    datagram, left that reading outside it and failed MCP-RTX-2; its view now ends at the
+    reading, and it gives the live monitor's verdict on every rule (the file's .live.json)."""
+    live = json.loads((DATA / "rtx2-stop-reading.live.json").read_text())
+    j = judge(DATA / "rtx2-stop-reading.mcap", Params(complete=complete))
+    assert {str(n): v for n, v in j.verdicts.items()} == live["rules"]
+    assert j.verdicts[1]["MCP-RTX-2"] == "passed" and ["MCP-RTX-2", 1] in live["vetoed"]
+    assert sorted([v.rule, v.node] for v in j.violations) == sorted(live["violations"])
+    assert any("MCP-RTX-2 not failed" in n for n in j.notes), j.notes
