@@ -128,12 +128,19 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     ``msg`` awaited its ACK, or sent earlier and still unanswered by any other command to that
     drone (the wrong-source ACK from drone B, sent while the manager awaits drone A's ACK,
     reaches a manager that takes any ACK from the destination when it next sends to B: taking
-    it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1)."""
+    it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1). Not the wrong ACKs of a
+    message the manager was seen to retransmit after them (``copy_after_wrong_acks``): they did
+    not end it, and its answer is the right ACK (a runner held off the CPU may send that past
+    the manager's retry limit: seed 118's drone, given up, looked answered by them)."""
     times = [m.acks[(msg.dst, c.header[2])].t for c in msg.copies
              if c.header is not None and (msg.dst, c.header[2]) in m.acks]
+    after = m.withheld.copy_after_wrong_acks
     for a in m.withheld.wrong_acks:
         if a.src != msg.dst:
             continue
+        if after is not None and after.header is not None and after.header[0] == msg.dst and any(
+                c.header is not None and c.header[2] == after.header[2] for c in msg.copies):
+            continue  # the manager retransmitted ``msg`` after them: they did not end it (seed 118)
         if a.t >= msg.first.t:
             times.append(a.t)
         elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):

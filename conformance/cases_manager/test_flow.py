@@ -8,8 +8,6 @@ A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the 
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from mcp_conform.conformance.manager_case import (
     abandoned,
     item_differences,
@@ -30,21 +28,6 @@ def _name(action):
     return Action(action).name if 0 <= action <= 9 else str(action)
 
 
-def _gone(m, rto):
-    """The drones the manager gave up on (``abandoned``), where the runner's wrong ACKs of the
-    withheld Start_Mission are not taken for its answer when the manager was seen to retransmit
-    after them (``copy_after_wrong_acks``: they did not end it). A runner held off the CPU
-    (issue 38: its threads stalled up to 5 x --rto) may send the right ACK past the manager's
-    retry limit: the manager gives that drone up and goes on with the others, as a correct one
-    does, and the rest of that drone's mission is not the manager's to be judged on -- but the
-    wrong ACK, counted as an answer (what a manager that takes any ACK would have ended on),
-    made it look answered before the retransmission stopped (seed 118)."""
-    w = m.withheld
-    if w.wrong_acks and w.copy_after_wrong_acks is not None:
-        m = replace(m, withheld=replace(w, wrong_acks=[]))
-    return abandoned(m, rto)
-
-
 @rules("MCP-FLOW-2")
 def test_start_mission_to_each_drone_first(node):
     m = node.mission()
@@ -60,7 +43,7 @@ def test_start_mission_to_each_drone_first(node):
 @rules("MCP-FLOW-3")
 def test_end_mission_to_each_drone(node):
     m = node.mission()
-    gone = _gone(m, node.rto)
+    gone = abandoned(m, node.rto)
     ended = {x.dst for x in messages(m) if x.action == _END}
     missing = [d for d in m.drones if d not in ended and d not in gone]
     if gone:
@@ -73,7 +56,7 @@ def test_end_mission_to_each_drone(node):
 def _one_list(node, rule, action, want, what):
     """Exactly one new list of ``action`` per drone, equal to ``want`` (count, order, every field)."""
     m = node.mission()
-    gone = _gone(m, node.rto)
+    gone = abandoned(m, node.rto)
     msgs = messages(m)
     for d in m.drones:
         lists = [x for x in msgs if x.dst == d and x.action == action]
@@ -109,7 +92,7 @@ def test_challenge_2_wp_off_follows_wp_on(node):
     file's waypoints, and every waypoint of the file is sent."""
     node.require_challenge("MCP-FLOW-5", 2)
     m = node.mission()
-    gone = _gone(m, node.rto)
+    gone = abandoned(m, node.rto)
     want = m.waypoints
     msgs = messages(m)
     for d in m.drones:
@@ -153,7 +136,7 @@ def test_a_silent_drone_and_the_others(node):
     msgs = messages(m)
     to_silent = [x for x in msgs if x.dst == s and m.silent_from is not None and x.first.t > m.silent_from]
     copies = sum(len(x.copies) for x in to_silent)
-    gave_up = s in _gone(m, node.rto)
+    gave_up = s in abandoned(m, node.rto)
     others = [d for d in m.drones if d != s]
     ended = {x.dst: x.first.t for x in msgs if x.action == _END}
     got_end = [d for d in others if d in ended]
