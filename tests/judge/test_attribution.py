@@ -215,9 +215,11 @@ def test_a_copy_the_runners_own_link_duplicated_is_owed_two_replies():
 
 
 def test_a_reply_the_runners_own_link_dropped_still_answered_its_command():
-    """The node's ACK of 1000 dropped by the runner's link on the way in is fed all the same
-    (``harness.driver``'s ``_lost``): 1000 is answered, so the node's next ACK naming 1000 is
-    the latest command's wrong answer, not 1000's (ack-previous-seq through ``--impair``)."""
+    """What ``harness.driver``'s ``_lost`` relies on: an ACK of 1000 fed to the attribution
+    (there, one the runner's link dropped on the way in, never shown to the cases) answers 1000,
+    so the node's next ACK naming 1000 is the latest command's wrong answer, not 1000's
+    (ack-previous-seq through ``--impair``; the driver's part is tests/sim/test_mutants_sim.py's
+    test_a_wrong_ack_payload_is_found_through_the_runners_impaired_link)."""
     link = Link(horizon=1.0)
     link.send(0.0, 1000)
     link.ack(0.01, 1000)  # read by the attribution, never by the cases

@@ -111,6 +111,7 @@ def test_a_gcs_that_never_connects_is_one_line_exit_2(tmp_path):
     assert rc == 2 and "the ground station" in doc["error"] and "Traceback" not in out, out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", ["udp", "udpout"])
 def test_a_ground_station_slow_to_start_over_udp_has_no_heartbeat_gap(tmp_path, transport):
     """Over UDP the runner's link is open before the ground station is spawned; a station
