@@ -197,6 +197,9 @@ def make_config(ns: argparse.Namespace) -> FuzzConfig:
         prof, role = pick(ns.protocol, ns.role)
     except ProfileError as exc:
         raise UsageError(f"--role: {exc}") from None
+    if not role.fuzzed:
+        fuzzed = ", ".join(r.name for r in prof.roles if r.fuzzed)
+        raise UsageError(f"--role: a {role.name} ({prof.name}) is not fuzzed yet (roles fuzzed: {fuzzed})")
     cfg.protocol, cfg.role = prof.name, role.name
     cfg.mavlink = ns.mavlink
     seed = _int(ns.seed, "--seed", 0, 2**63 - 1)

@@ -57,6 +57,9 @@ class RoleProfile:
     #: the runner's schedule runs the role's batchable cases together (``conformance.schedule``);
     #: False: one after another
     scheduled: bool = False
+    #: ``mcp-fuzz`` fuzzes a node in this role (by its fuzz target or the protocol's own
+    #: campaign); False: ``--role`` names it in a one-line usage error
+    fuzzed: bool = True
 
 
 @dataclass(frozen=True)
@@ -174,7 +177,7 @@ MAVLINK_PROFILE = Profile(
            RoleProfile("gcs", session="mcp_conform.harness.mavlink_gcs_session:MavlinkGcsSession",
                        context="mcp_conform.conformance.mavlink_gcs_case:MavlinkGcsCaseContext",
                        cases="mcp_conform.conformance.cases_mavlink_gcs", fuzz_target=None,
-                       peer="vehicle")),
+                       peer="vehicle", fuzzed=False)),
     loader="mcp_conform.spec.mavlink:load_mavlink",
 )
 

@@ -235,3 +235,15 @@ def test_ddmin_tries_the_last_items_alone_first_then_complements() -> None:
     tried.clear()
     assert ddmin(list(range(10)), fails, 40) == [1, 8] and len(tried[0]) == 5  # a half first
     assert ddmin(list(range(10)), lambda xs: 7 in xs, 40, singles=8) == [7]
+
+
+def test_a_role_no_fuzzer_drives_is_refused_in_one_line() -> None:
+    """``--role gcs`` of MAVLink: the profile says no campaign fuzzes a ground station
+    (``RoleProfile.fuzzed``), so ``mcp-fuzz`` refuses it in one line naming the roles it does
+    fuzz, rather than fuzz the command given as a vehicle; the roles it fuzzes still pass."""
+    from mcp_conform.fuzz.cli import build_parser, make_config
+
+    with pytest.raises(UsageError, match=r"--role: a gcs \(mavlink\) is not fuzzed yet \(roles fuzzed: vehicle\)"):
+        make_config(build_parser().parse_args(["--protocol", "mavlink", "--role", "gcs"]))
+    assert make_config(build_parser().parse_args(["--protocol", "mavlink", "--role", "vehicle"])).role == "vehicle"
+    assert make_config(build_parser().parse_args(["--role", "manager"])).role == "manager"
