@@ -489,10 +489,10 @@ class Session(DatagramSessionBase):
         rseq = latest.header[2] if latest.header else seq
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
         st.stop_watch = max(self.ack_window, 1.5 * gap)
-        self.clock.sleep(st.stop_watch)
         grace = 0.05
-        st.copies_after_right_ack = [d for d in drv.received(i) if d.action == _READY
-                                     and d.t > st.right_ack.t + grace]
+        right = st.right_ack
+        st.watch_after_right_ack(lambda: [d for d in drv.received(i) if d.action == _READY
+                                          and d.t > right.t + grace], gap, self.clock.sleep)
         # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
         st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
                                    if d.header is not None and d.action not in (_READY, int(Action.ACK))

@@ -393,13 +393,16 @@ class MissionScript:
         m.acks.setdefault((w.drone, rseq), w.right_ack)
         self.players.acked_actions.setdefault(w.drone, set()).add(_START)
         w.stop_watch = max(self.ack_window, 1.5 * gap)
-        self.clock.sleep(w.stop_watch)
-        self.drain()  # a copy the watch saw arrive, read late, is seen
         grace = 0.05
-        w.copies_after_right_ack = [d for d in drv.received(m.start) if is_copy(d)
-                                    and d.t > w.right_ack.t + grace
-                                    and (d.header is None or (w.drone, d.header[2]) not in m.acks
-                                         or m.acks[(w.drone, d.header[2])].t > w.right_ack.t + grace)]
+        right, drone = w.right_ack, w.drone
+
+        def past_right() -> list[Datagram]:
+            self.drain()  # a copy the watch saw arrive, read late, is seen
+            return [d for d in drv.received(m.start) if is_copy(d) and d.t > right.t + grace
+                    and (d.header is None or (drone, d.header[2]) not in m.acks
+                         or m.acks[(drone, d.header[2])].t > right.t + grace)]
+
+        w.watch_after_right_ack(past_right, gap, self.clock.sleep)
 
     # ------------------------------------------------------------------ the end
     def _await_end(self, expect: tuple[int, ...] | None = None, cap: float | None = None) -> None:

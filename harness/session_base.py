@@ -215,8 +215,30 @@ class WithheldCopies:
     copy_after_wrong_acks: Datagram | None = None
     wrong_ack_wait: float = 0.0
     right_ack: Sent | None = None
-    copies_after_right_ack: list[Datagram] = field(default_factory=list)
+    copies_after_right_ack: list[Datagram] = field(default_factory=list)  # proven: more than one
+    crossed_copy: Datagram | None = None  # a lone copy after the right ACK: it may have crossed it
     stop_watch: float = 0.0
+
+    def watch_after_right_ack(self, after: Callable[[], list[Datagram]], gap: float,
+                              sleep: Callable[[float], None]) -> None:
+        """MCP-RTX-1's "retransmits it until it is ACKed", observed after the right ACK:
+        ``after()`` gives the copies that came after it (past the runner's grace), read once
+        :attr:`stop_watch` has passed. A copy that came after the right ACK may have crossed
+        it, sent before the node read the ACK (its timer fired first; a loaded host kept its
+        reader off the CPU past the grace): that node stops, and one copy proves nothing. A
+        node that goes on retransmitting sends another a period later, so when one copy came,
+        the watch goes on one more period (``gap``, the node's own) and a second copy at least
+        half a period after the first proves the rule broken (:attr:`copies_after_right_ack`);
+        a lone one is kept as :attr:`crossed_copy`."""
+        sleep(self.stop_watch)
+        late = after()
+        if len(late) == 1:
+            sleep(gap)
+            self.stop_watch += gap
+            late = after()
+        proven = [d for d in late[1:] if d.t - late[0].t >= 0.5 * gap]
+        self.copies_after_right_ack = [late[0], *proven] if proven else []
+        self.crossed_copy = late[0] if late and not proven else None
 
     def gaps(self) -> list[float]:
         ts = [d.t for d in self.copies]
