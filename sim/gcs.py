@@ -239,7 +239,8 @@ class GcsProcess:
         code = 1
         try:
             if gcs.connect():
-                gcs.upload(gcs.plan(ns.mission))
+                items = gcs.plan(ns.mission)
+                gcs.upload(items)
                 gcs.fetch_params()
                 gcs.set_param(name, float(text))
                 gcs.command(int(command[0]), command[1:])
