@@ -12,7 +12,6 @@ Every message, field and constant comes from pymavlink's dialect; the times from
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -88,8 +87,8 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
     def quiet(self) -> bool:
         """The ground station sent nothing but HEARTBEATs for ``SETTLE_QUIET_S``."""
         work = [r.t for r in self.from_gcs() if r.name != "HEARTBEAT"]
-        last = work[-1] if work else (self.session.first_frame or time.monotonic())
-        return time.monotonic() - last >= SETTLE_QUIET_S
+        last = work[-1] if work else (self.session.first_frame or self.now())
+        return self.now() - last >= SETTLE_QUIET_S
 
     def settle(self) -> None:
         """Wait until the ground station has done its work: it ended, or it is :meth:`quiet`
@@ -106,14 +105,14 @@ class MavlinkGcsCaseContext(MavlinkCaseBase):
         """Watch ``frames()`` (a message and its copies) grow until more than ``1 + bound``
         came, ``quiet`` s passed after the last, the ground station ended, or ``total`` s
         passed; the frames then."""
-        end = time.monotonic() + total
-        while time.monotonic() < end:
+        end = self.now() + total
+        while self.now() < end:
             got = frames()
             last = got[-1].t if got else self.since
-            if len(got) > 1 + bound or time.monotonic() - last >= quiet or self.ended():
+            if len(got) > 1 + bound or self.now() - last >= quiet or self.ended():
                 break
             n = len(got)
-            self.link.wait_for(lambda n=n: len(frames()) > n or self.ended(), min(quiet, end - time.monotonic()))
+            self.link.wait_for(lambda n=n: len(frames()) > n or self.ended(), min(quiet, end - self.now()))
         return frames()
 
     # -- what came and what went --------------------------------------------------------------

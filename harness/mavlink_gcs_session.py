@@ -13,20 +13,24 @@ tcp (default, the runner listens as SITL's port 5760 does), udp/udpin (the runne
 the ground station's port, as SITL's ``--out``), udpout (the runner listens on UDP and
 answers the sender). Every frame goes to the capture's ``/mavlink`` channel from the
 autopilot's side, which is now the runner's (``tx``: the runner sent it).
+
+``clock`` and ``net`` are the run's clock (``harness.clock``) and where its links open
+(``harness.mavlink_session.HostLinks``): the host's by default; the simulator's virtual ones
+in ``mcp_conform.sim.gcs_role`` (issue 38), whose session spawns a ground-station model in
+place of a process (:meth:`MavlinkGcsSession._spawn`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import socket
-import threading
-import time
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, RunnerVehicle
-from mcp_conform.harness.mavlink_session import Link, Received
+from mcp_conform.harness.mavlink_session import HOST_LINKS, Link, Received
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import (
     Death,
@@ -53,8 +57,10 @@ class MavlinkGcsSession(StreamSessionBase):
     startup_note = ("startup: the runner is the vehicle (system 1, an ArduCopter) and starts the ground station "
                     "against it", "startup: waiting for the ground station's first frame")
 
-    def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK, *,
+                 clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
         self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        self.clock, self.net = clock, net
         self.params = spec.params
         self.scheme = cfg.mavlink_transport if cfg.mavlink else "tcp"
         profile, role = cfg.profile()
@@ -70,8 +76,8 @@ class MavlinkGcsSession(StreamSessionBase):
         #: on it (the report's monitor section; each run a session of its own)
         self.monitor: Any = MavlinkMonitor(spec, roles=("gcs",), complete=True)
         self.runs = 0
-        self._stop = threading.Event()
-        self._ticker: threading.Thread | None = None
+        self._stop = clock.event()
+        self._ticker: Any = None
         self._listener: socket.socket | None = None
 
     # -- life -----------------------------------------------------------------------------
@@ -86,11 +92,11 @@ class MavlinkGcsSession(StreamSessionBase):
     def run(self, behaviour: Behaviour, *, fresh: bool = False) -> float:
         """The ground station's run against a vehicle that behaves so: the current one when it
         has this behaviour (unless ``fresh``), else the ground station started afresh; when
-        the run's link opened (``time.monotonic()``)."""
+        the run's link opened (the run clock's ``monotonic()``)."""
         if not fresh and behaviour == self.behaviour and self.link is not None:
             return self.run_started
         self._end_run()
-        self.behaviour, self.vehicle = behaviour, RunnerVehicle(behaviour)
+        self.behaviour, self.vehicle = behaviour, RunnerVehicle(behaviour, self.clock.monotonic())
         self.first_frame = None
         self.runs += 1
         segment = f"gcs-run-{self.runs}"  # each run a session of the capture and the monitor
@@ -134,14 +140,13 @@ class MavlinkGcsSession(StreamSessionBase):
                                          self.url)
             self._open("tcp", conn.getpeername(), conn)
 
-    def _open(self, transport: str, address: tuple[str, int], sock: socket.socket | None = None) -> None:
+    def _open(self, transport: str, address: tuple[str, int], sock: Any = None) -> None:
         assert self.vehicle is not None
         self.link = Link(transport, address, self.recorder, ids=self.vehicle.ids, sent_as="tx", got_as="rx",
-                         sock=sock, on_frames=self._answer, monitor=self.monitor)
-        self.run_started = time.monotonic()
+                         sock=sock, on_frames=self._answer, monitor=self.monitor, clock=self.clock, net=self.net)
+        self.run_started = self.clock.monotonic()
         self._stop.clear()
-        self._ticker = threading.Thread(target=self._tick, name="mavlink-vehicle", daemon=True)
-        self._ticker.start()
+        self._ticker = self.clock.start_thread(self._tick, "mavlink-vehicle")
 
     def _answer(self, frames: list[Received]) -> None:
         """On the link's reader thread: the vehicle's answers to what the ground station sent."""
@@ -154,17 +159,17 @@ class MavlinkGcsSession(StreamSessionBase):
             if self.first_frame is None:
                 self.first_frame = r.t
             with vehicle.lock:
-                replies = vehicle.answer(r.msg, time.monotonic())
+                replies = vehicle.answer(r.msg, self.clock.monotonic())
             for m in replies:
                 link.send(m)
 
     def _tick(self) -> None:
         """The vehicle's telemetry, HEARTBEAT and held answers, until the run ends or --timeout."""
         vehicle, link = self.vehicle, self.link
-        end = time.monotonic() + self.cfg.timeout
-        while vehicle is not None and link is not None and not self._stop.is_set() and time.monotonic() < end:
+        end = self.clock.monotonic() + self.cfg.timeout
+        while vehicle is not None and link is not None and not self._stop.is_set() and self.clock.monotonic() < end:
             with vehicle.lock:
-                out = vehicle.tick(time.monotonic())
+                out = vehicle.tick(self.clock.monotonic())
             for m in out:
                 link.send(m)
             self._stop.wait(TICK_S)

@@ -62,12 +62,14 @@ def command_key(msg: Any) -> tuple[Any, ...]:
 
 class RunnerVehicle:
     """The simulated ArduCopter answering the ground station with one :class:`Behaviour`;
-    :meth:`answer` and :meth:`tick` return the messages to send (called under ``lock``)."""
+    :meth:`answer` and :meth:`tick` return the messages to send (called under ``lock``), at
+    ``now``, the run clock's (``harness.clock``; the host's ``time.monotonic()`` by default)."""
 
-    def __init__(self, behaviour: Behaviour) -> None:
+    def __init__(self, behaviour: Behaviour, now: float | None = None) -> None:
         self.behaviour = behaviour
         self.lock = threading.Lock()
-        self.model = VehicleModel(VehicleConfig(mission_request_int=True), now=time.monotonic())
+        self.model = VehicleModel(VehicleConfig(mission_request_int=True),
+                                  now=time.monotonic() if now is None else now)
         self.ids = (self.model.config.sysid, self.model.config.compid)
         self.first_command: tuple[Any, ...] | None = None  # its command_key
         self._done: set[str] = set()  # the one-off departures already made

@@ -5,7 +5,6 @@ ArduPilot: the frames it sends from connecting until it has done its work."""
 from __future__ import annotations
 
 import inspect
-import time
 
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
@@ -46,13 +45,13 @@ def test_heartbeat_is_regular(node):
         return [r.t for r in node.from_gcs("HEARTBEAT") if r.t <= end]
 
     def gap_proven():
-        got = beats_until(time.monotonic())
-        return time.monotonic() - (got[-1] if got else start) > gap_max
+        got = beats_until(node.now())
+        return node.now() - (got[-1] if got else start) > gap_max
 
-    node.wait(lambda: False, start + window - time.monotonic())
+    node.wait(lambda: False, start + window - node.now())
     if not node.ended() and not node.quiet():
-        node.wait(gap_proven, start + longest - time.monotonic())
-    end = min(time.monotonic(), start + longest)
+        node.wait(gap_proven, start + longest - node.now())
+    end = min(node.now(), start + longest)
     beats = beats_until(end)
     if end - start < gap_max and not beats:
         raise Inconclusive(f"the ground station was on the link only {end - start:.1f} s, with no HEARTBEAT")

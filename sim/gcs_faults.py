@@ -1,0 +1,146 @@
+"""The faulty ground stations of ``--protocol mavlink --role gcs`` (issue 39's matrix; issue 38,
+item 3: its faults as models): the reference GCS (``reference_impl.mavlink_gcs.ReferenceGcs``)
+with one hook changed, each breaking one rule of ``spec/mavlink.yaml``. The same classes run as
+processes (``tests/mavlink/faulty_gcs.py``, the real-socket smoke runs) and in the simulator
+(:mod:`sim.gcs`, on the virtual clock), so a fault is one definition.
+
+- ``no-heartbeat``: no HEARTBEAT at all (MAV-HB-2);
+- ``type-quadrotor``: HEARTBEAT.type MAV_TYPE_QUADROTOR (MAV-HB-4);
+- ``mavlink1-start``: pymavlink as it comes, starting in MAVLink 1 and switching on the
+  vehicle's first MAVLink 2 frame, its sequence numbers starting again at 0 (MAV-HB-11);
+- ``items-out-of-order``: the first request for item 1 answered with item 2 (MAV-MIS-20);
+- ``degrees``: the mission's latitude and longitude in degrees, not degE7, as seed 001 sends
+  them (MAV-MIS-26);
+- ``no-count-resend``: an unanswered MISSION_COUNT never resent (MAV-MIS-22);
+- ``mission-never-gives-up``: an unanswered MISSION_COUNT resent 50 times (MAV-MIS-23);
+- ``ignores-error-ack``: an error MISSION_ACK does not end the upload (MAV-MIS-24);
+- ``no-command-resend``: a command never resent (MAV-CMD-6);
+- ``command-never-gives-up``: a command resent 50 times (MAV-CMD-9);
+- ``confirmation-not-incremented``: every transmission with confirmation 0 (MAV-CMD-8, SHOULD);
+- ``ignores-in-progress``: MAV_RESULT_IN_PROGRESS taken as no answer: resent (MAV-CMD-10, SHOULD);
+- ``accepts-any-ack``: a COMMAND_ACK of any command taken as the answer (MAV-CMD-17);
+- ``no-param-resend``: a PARAM_SET never resent (MAV-PRM-16, SHOULD);
+- ``relists-on-gap``: a list with indices missing asked for whole again (MAV-PRM-14, SHOULD);
+- ``rereads-out-of-order``: every parameter that came out of order read again by index (MAV-PRM-15).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from mcp_conform.reference_impl.mavlink_gcs import ReferenceGcs, mav
+
+__all__ = ["FAULTS", "RULES"]
+
+
+class NoHeartbeat(ReferenceGcs):
+    def heartbeat(self) -> Any | None:
+        return None
+
+
+class TypeQuadrotor(ReferenceGcs):
+    def heartbeat(self) -> Any | None:
+        hb = super().heartbeat()
+        if hb is not None:
+            hb.type = mav.MAV_TYPE_QUADROTOR
+        return hb
+
+
+class Mavlink1Start(ReferenceGcs):
+    mavlink2_first = False  # pymavlink's default: MAVLink 1 until it hears 2
+
+
+class ItemsOutOfOrder(ReferenceGcs):
+    swapped = False
+
+    def item_for(self, seq: int, items: list[Any]) -> Any:
+        if seq == 1 and len(items) > 2 and not self.swapped:
+            self.swapped = True
+            return items[2]
+        return items[seq]
+
+
+class Degrees(ReferenceGcs):
+    def plan(self, path: str | None) -> list[Any]:
+        items = super().plan(path)
+        for item in items:
+            item.x, item.y = round(item.x / 1e7), round(item.y / 1e7)
+        return items
+
+
+class NoCountResend(ReferenceGcs):
+    mission_retries = 0
+
+
+class MissionNeverGivesUp(ReferenceGcs):
+    mission_retries = 50
+
+
+class IgnoresErrorAck(ReferenceGcs):
+    def ends_upload(self, ack: Any) -> bool:
+        return bool(ack.type == mav.MAV_MISSION_ACCEPTED)
+
+
+class NoCommandResend(ReferenceGcs):
+    command_retries = 0
+
+
+class CommandNeverGivesUp(ReferenceGcs):
+    command_retries = 50
+
+
+class ConfirmationNotIncremented(ReferenceGcs):
+    def confirmation(self, transmission: int) -> int:
+        return 0
+
+
+class IgnoresInProgress(ReferenceGcs):
+    def answers(self, ack: Any, command: int) -> bool:
+        return bool(ack.command == command and ack.result != mav.MAV_RESULT_IN_PROGRESS)
+
+
+class AcceptsAnyAck(ReferenceGcs):
+    def answers(self, ack: Any, command: int) -> bool:
+        return True
+
+
+class NoParamResend(ReferenceGcs):
+    param_retries = 0
+
+
+class RelistsOnGap(ReferenceGcs):
+    def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
+        if len(got) < count:  # the whole list again, not the missing ones
+            self.send(self.encode("PARAM_REQUEST_LIST"))
+            for _ in range(4 * count):
+                if (msg := self.recv(["PARAM_VALUE"], self.param_timeout)) is None:
+                    break
+                got.setdefault(msg.param_index, msg)
+        return []
+
+
+class RereadsOutOfOrder(ReferenceGcs):
+    def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
+        late = {b for a, b in zip(order, order[1:], strict=False) if b != a + 1}  # a list taken as ordered
+        return sorted(late | (set(range(count)) - set(got)))
+
+
+#: each fault's ground station (``none``: the reference itself)
+FAULTS: dict[str, type[ReferenceGcs]] = {
+    "none": ReferenceGcs, "no-heartbeat": NoHeartbeat, "type-quadrotor": TypeQuadrotor,
+    "mavlink1-start": Mavlink1Start, "items-out-of-order": ItemsOutOfOrder, "degrees": Degrees,
+    "no-count-resend": NoCountResend, "mission-never-gives-up": MissionNeverGivesUp,
+    "ignores-error-ack": IgnoresErrorAck, "no-command-resend": NoCommandResend,
+    "command-never-gives-up": CommandNeverGivesUp, "confirmation-not-incremented": ConfirmationNotIncremented,
+    "ignores-in-progress": IgnoresInProgress, "accepts-any-ack": AcceptsAnyAck, "no-param-resend": NoParamResend,
+    "relists-on-gap": RelistsOnGap, "rereads-out-of-order": RereadsOutOfOrder,
+}
+#: the rule each fault breaks (a SHOULD rule's is warned)
+RULES: dict[str, str] = {
+    "no-heartbeat": "MAV-HB-2", "type-quadrotor": "MAV-HB-4", "mavlink1-start": "MAV-HB-11",
+    "items-out-of-order": "MAV-MIS-20", "degrees": "MAV-MIS-26", "no-count-resend": "MAV-MIS-22",
+    "mission-never-gives-up": "MAV-MIS-23", "ignores-error-ack": "MAV-MIS-24", "no-command-resend": "MAV-CMD-6",
+    "command-never-gives-up": "MAV-CMD-9", "confirmation-not-incremented": "MAV-CMD-8",
+    "ignores-in-progress": "MAV-CMD-10", "accepts-any-ack": "MAV-CMD-17", "no-param-resend": "MAV-PRM-16",
+    "relists-on-gap": "MAV-PRM-14", "rereads-out-of-order": "MAV-PRM-15",
+}
