@@ -121,7 +121,14 @@ def test_no_resend_while_in_progress(node):
     if not said or not final:
         raise Inconclusive("the runner's IN_PROGRESS and final COMMAND_ACK did not both go out")
     again = [r for r in node.transmissions(command) if said[0] < r.t < final[0]]
-    node.expect_true(not again, "MAV-CMD-10", "no resend between MAV_RESULT_IN_PROGRESS and the final COMMAND_ACK",
+    # one resend soon after IN_PROGRESS went out may have crossed it (sent before the ground
+    # station had it: its timer first, a segment the link lost): it proves the rule broken
+    # once another follows, or once it came later than an answer's way may take
+    # (command_ack_max_s); a ground station that ignores IN_PROGRESS resends all through the
+    # runner's hold (command_resend_window_s), a few times
+    crossed = len(again) == 1 and again[0].t - said[0] <= float(node.params["command_ack_max_s"])
+    node.expect_true(not again or crossed, "MAV-CMD-10",
+                     "no resend between MAV_RESULT_IN_PROGRESS and the final COMMAND_ACK",
                      f"{len(again)} resend(s), the first {again[0].t - said[0]:.2f} s after IN_PROGRESS" if again else "")
 
 
