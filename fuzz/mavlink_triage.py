@@ -109,9 +109,7 @@ class MavTriage(HitTriage):
         with triage_time(self, sig.describe()):
             self._triage(hit, suspects)
         if death:
-            t0 = time.monotonic()
-            self.target.restart("after a hit")
-            self.restart_seconds += time.monotonic() - t0
+            self.restarted(lambda: self.target.restart("after a hit"))
         return self.target.current
 
     def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
@@ -187,10 +185,7 @@ class MavTriage(HitTriage):
                 finally:
                     v.close()
 
-            def once() -> tuple[Hit, list[Any]] | None:
-                return self.replay(quiet, share=False)
-
-            conf = confirm_n(once, self.n_of_n, until_miss=True)
+            conf = confirm_n(lambda: self.replay(quiet, share=False), self.n_of_n, until_miss=True)
             self.quiet_hangs = conf.confirmed
             if conf.confirmed:
                 h, log = conf.hits[-1]

@@ -64,6 +64,15 @@ class HitTriage(Triage):
         self.replays += 1
         return run()
 
+    def restarted(self, restart: Callable[[], T]) -> T:
+        """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own
+        (``restart_seconds``): a restart after a hit counted, not triaged, is no triage."""
+        t0 = time.monotonic()
+        try:
+            return restart()
+        finally:
+            self.restart_seconds += time.monotonic() - t0
+
     def not_confirmed(self, rule: str, key: Hashable, conf: Confirmation[Any] | None = None, *, shape: str = "",
                     actual: str = "", why: str = "") -> None:
         """Step 4's miss: counted unconfirmed under ``rule``, ``key`` tried once more; with

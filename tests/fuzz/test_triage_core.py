@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import random
+import time
 
 import pytest
 
@@ -96,3 +97,9 @@ def test_a_replay_is_counted_and_an_unconfirmed_one_named_with_why():
     t.not_confirmed("MAV-MIS-4", "k", conf, shape="hang: mission-seq", actual="no HEARTBEAT", why="load")
     (entry,) = t.environment.values()
     assert entry["rule"] == "MAV-MIS-4" and entry["why"] == "reproduced 3 of 4 replays: load" and t.tries == {"k": 1}
+
+
+def test_a_restart_after_a_hit_is_timed_apart_from_triage():
+    t = HitTriage()
+    assert t.restarted(lambda: time.sleep(0.01) or "fresh") == "fresh"
+    assert t.restart_seconds >= 0.01 and t.seconds == 0.0
