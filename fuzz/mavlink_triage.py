@@ -9,7 +9,7 @@ a new process; attach mode: a new link): the case that showed it alone, else eve
 (the cases since the last one proven harmless), those of one kind at a time, then delta
 debugging (``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a
 multi-frame case. A heartbeat that stopped stays stopped: its suspects (those since a period
-before its last HEARTBEAT) are searched by bisection over their prefixes
+before its last HEARTBEAT) are searched over their prefixes
 (``fuzz.triage_core.earliest_prefix``: a vehicle that beats on after a prefix is sent the next
 cases as it is), and the last case of the shortest prefix that stops it stands for the case
 that showed it. The minimal input is confirmed N of N (``fuzz.confirm``), each on a fresh
@@ -42,6 +42,7 @@ from mcp_conform.spec.profiles import MAVLINK_PROFILE
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
 
 DEATHS = ("crash", "hang", "unanswered")
+SPLIT = 1 / 3  # a stopped heartbeat's prefix search: the share of the suspects in doubt each replay adds
 
 
 def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] | None = None) -> Hit | None:
@@ -130,9 +131,11 @@ class MavTriage(HitTriage):
         rest = suspects  # where the fewest cases that show it are searched
         if sig.oracle == "hang" and len(suspects) > 1:
             # a stopped heartbeat stays stopped: its culprit ends the shortest prefix of the
-            # suspects that stops it (bisection, log2 n replays), confirmed alone then
+            # suspects that stops it, confirmed alone then. A replay that stops it costs
+            # heartbeat_gap_max_s (3 s) and a fresh vehicle, one that beats on a period (1 s):
+            # each prefix adds a third of the range in doubt (the most certainty per second)
             try:
-                n = earliest_prefix(suspects, self._fresh, self._stops, MavVehicle.close)
+                n = earliest_prefix(suspects, self._fresh, self._stops, MavVehicle.close, split=SPLIT)
             except SetupError:  # a fresh vehicle that did not start: no verdict
                 n = None
             if n is None:

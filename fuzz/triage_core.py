@@ -85,7 +85,7 @@ class HitTriage(Triage):
 
 
 def earliest_prefix(items: Sequence[T], fresh: Callable[[], H], extend: Callable[[H, Sequence[T]], bool | None],
-                    close: Callable[[H], None]) -> int | None:
+                    close: Callable[[H], None], split: float = 0.5) -> int | None:
     """Step 3 for a hit that lasts once shown: the length of the shortest prefix of ``items``
     after which a target shows it (its last item the culprit, or the one that completes it), by
     bisection; None when all of them do not show it, or a target is lost.
@@ -94,14 +94,16 @@ def earliest_prefix(items: Sequence[T], fresh: Callable[[], H], extend: Callable
     was sent before, True when it then shows the hit (the target is spent), False when not
     (the target, in the state those items left it, is sent the next ones: no fresh target and
     no wait for the hit), None when it is lost (no verdict). A target that showed it is
-    replaced by a fresh one sent the shorter prefix at once. About log2(n) replays."""
+    replaced by a fresh one sent the shorter prefix at once. ``split``: the share of the
+    range still in doubt that the next prefix adds (0.5: bisection, log2(n) replays; less when
+    a replay that shows the hit costs more than one that does not: more replays, less time)."""
     if not items:
         return None
     lo, hi, shown = 0, len(items), False  # items[:lo] did not show it; items[:hi] did once ``shown``
     target: H | None = None  # sent items[:lo], still clean
     try:
         while not (shown and hi - lo <= 1):
-            mid = (lo + hi + 1) // 2 if hi - lo > 1 else hi
+            mid = min(hi, lo + max(1, round(split * (hi - lo))))
             if target is None:
                 target, more = fresh(), items[:mid]
             else:

@@ -114,8 +114,8 @@ FAULTS = {
 
 #: a campaign's bound: long enough for its first triage (which the budget never cuts), far
 #: shorter than the 240 s a failure took before; the longest, mission-seq-hang (a stopped
-#: heartbeat: 1 case among 1,000-2,000 suspects), is found by bisection over the suspects'
-#: prefixes (fuzz.triage_core.earliest_prefix) in about 11 replays
+#: heartbeat: 1 case among 500-2,500 suspects), is found by a search over the suspects'
+#: prefixes (fuzz.triage_core.earliest_prefix) in 9-11 replays, 34-42 s of triage at load 4
 DURATION_S = 120.0
 
 

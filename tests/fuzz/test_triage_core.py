@@ -49,6 +49,15 @@ def test_the_culprit_ends_the_shortest_prefix_in_log_n_sends(n):
         assert m.closed == m.started  # every target it started is closed
 
 
+@pytest.mark.parametrize("n", [2, 100, 1707])
+def test_a_smaller_split_sends_more_and_shows_it_less_often(n):
+    for culprit in (0, n // 3, n - 1):
+        m = Model({culprit})
+        assert earliest_prefix(list(range(n)), m.fresh, m.extend, m.close, split=1 / 3) == culprit + 1
+        assert m.sends <= math.ceil(math.log(n, 1.5)) + 1, (n, culprit, m.sends)
+        assert m.closed == m.started
+
+
 def test_a_target_that_did_not_show_it_is_sent_the_next_items_not_replaced():
     m = Model({90})
     assert earliest_prefix(list(range(100)), m.fresh, m.extend, m.close) == 91
