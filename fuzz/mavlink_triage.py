@@ -1,34 +1,40 @@
 """MAVLink's triage (issue 39 item 4: the protocol's part of the one campaign loop, ``fuzz.loop``,
 as ``fuzz.nsqd_triage`` is Nsqd's): from a hit the engine saw to a confirmed, minimal finding.
 
-A hit is counted, not triaged, when its group (rule and shape) is already a finding, when its
+The steps are every protocol's (``fuzz.triage_core``); this module declares MAVLink's: a hit
+is counted, not triaged, when its group (rule and shape) is already a finding, when its
 signature did not reproduce ``UNCONFIRMED_TRIES`` times, or once triage's share of the campaign
 is spent (``fuzz.budget``). Otherwise its suspects are replayed on a fresh vehicle (spawn mode:
 a new process; attach mode: a new link): the case that showed it alone, else every suspect
-(the cases since the last one proven harmless; for a heartbeat that stopped, those since a
-period before its last HEARTBEAT), those of one kind at a time, then delta debugging
-(``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a multi-frame case.
-The minimal input is confirmed N of N (``fuzz.confirm``), each on a fresh vehicle, or counted
-unconfirmed (named environment-dependent: ``fuzz.environment``). The finding is every
-protocol's (``fuzz.findings.Finding``): the rule of its signature, the cases as ``finding.json``
-holds them (``cases``, ``probe``), their frames as ``datagrams`` (hex), the last confirming
-replay's traffic in ``repro.mcap`` (its ``/mavlink`` channel: :func:`write_repro`).
+(the cases since the last one proven harmless), those of one kind at a time, then delta
+debugging (``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a
+multi-frame case. A heartbeat that stopped stays stopped: its suspects (those since a period
+before its last HEARTBEAT) are searched over their prefixes
+(``fuzz.triage_core.earliest_prefix``: a vehicle that beats on after a prefix is sent the next
+cases as it is), and the last case of the shortest prefix that stops it stands for the case
+that showed it. The minimal input is confirmed N of N (``fuzz.confirm``), each on a fresh
+vehicle, or counted unconfirmed (named environment-dependent: ``fuzz.environment``). The
+finding is every protocol's (``fuzz.findings.Finding``): the rule of its signature, the cases
+as ``finding.json`` holds them (``cases``, ``probe``), their frames as ``datagrams`` (hex),
+the last confirming replay's traffic in ``repro.mcap`` (its ``/mavlink`` channel:
+:func:`write_repro`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import Triage, count, triage_time
+from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
+from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
@@ -36,6 +42,7 @@ from mcp_conform.spec.profiles import MAVLINK_PROFILE
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
 
 DEATHS = ("crash", "hang", "unanswered")
+SPLIT = 1 / 3  # a stopped heartbeat's prefix search: the share of the suspects in doubt each replay adds
 
 
 def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] | None = None) -> Hit | None:
@@ -82,15 +89,12 @@ def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, 
 
 
 @dataclass(kw_only=True, eq=False)
-class MavTriage(Triage):
-    """One worker's MAVLink triage (what it learnt carried to the next engine turn's: ``tries``)."""
+class MavTriage(HitTriage):
+    """One worker's MAVLink triage (``fuzz.triage_core``'s steps; what it learnt carried to the
+    next engine turn's: ``tries``, ``quiet_hangs``)."""
 
     target: MavTarget
     store: FindingStore
-    seed: int = 0
-    worker: int = 0
-    n_of_n: int = 3
-    tries: dict[tuple[str, str, str], int] = field(default_factory=dict)
     #: whether a fresh vehicle sent nothing stops its heartbeat too (None: not yet known)
     quiet_hangs: bool | None = None
 
@@ -106,9 +110,7 @@ class MavTriage(Triage):
         with triage_time(self, sig.describe()):
             self._triage(hit, suspects)
         if death:
-            t0 = time.monotonic()
-            self.target.restart("after a hit")
-            self.restart_seconds += time.monotonic() - t0
+            self.restarted(lambda: self.target.restart("after a hit"))
         return self.target.current
 
     def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
@@ -122,24 +124,32 @@ class MavTriage(Triage):
     def _triage(self, hit: Hit, suspects: list[Case]) -> None:
         sig = hit.signature
         kind = suspects[-1].kind if suspects else ""
-        known = self._known(sig, kind)
-        if known is not None:
-            known.occurrences += 1
-            return
-        if self.tries.get(self._key(sig, kind), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
-            count(self.untriaged, sig.describe())
+        if self.counted(self._known(sig, kind), self._key(sig, kind), sig.describe()):
             return
         if sig.oracle == "hang" and self._hangs_anyway(hit):
             return
-        # the case that showed it, confirmed at once (the usual culprit: three fresh vehicles,
-        # none more); else the fewest of its suspects that show it, confirmed then
-        conf = self._confirm(sig, suspects[-1:], until_miss=True)
-        minimal = suspects[-1:]
+        rest = suspects  # where the fewest cases that show it are searched
+        if sig.oracle == "hang" and len(suspects) > 1:
+            # a stopped heartbeat stays stopped: its culprit ends the shortest prefix of the
+            # suspects that stops it, confirmed alone then. A replay that stops it costs
+            # heartbeat_gap_max_s (3 s) and a fresh vehicle, one that beats on a period (1 s):
+            # each prefix adds a third of the range in doubt (the most certainty per second)
+            try:
+                n = earliest_prefix(suspects, self._fresh, self._stops, MavVehicle.close, split=SPLIT)
+            except SetupError:  # a fresh vehicle that did not start: no verdict
+                n = None
+            if n is None:
+                self.not_confirmed(sig.rule, self._key(sig, kind))
+                return
+            rest = suspects[:n]
+        # the case that showed it (a hang's: its prefix's last), confirmed at once (the usual
+        # culprit: three fresh vehicles, none more); else the fewest of its suspects that show it
+        minimal = rest[-1:]
+        conf = self._confirm(sig, minimal, until_miss=True)
         if not conf.confirmed:
-            fewest = self._minimise(sig, suspects) if len(suspects) > 1 else None
+            fewest = self._minimise(sig, rest) if len(rest) > 1 else None
             if fewest is None:
-                self.count_unconfirmed(sig.rule)
-                self.tries[self._key(sig, kind)] = self.tries.get(self._key(sig, kind), 0) + 1
+                self.not_confirmed(sig.rule, self._key(sig, kind))
                 return
             minimal = fewest
             conf = self._confirm(sig, minimal, until_miss=False)
@@ -152,11 +162,10 @@ class MavTriage(Triage):
         if sig.oracle in DEATHS:  # named by the case that makes it
             sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
         if not conf.confirmed:
-            self.count_unconfirmed(sig.rule)
-            self.tries[self._key(sig, kind)] = self.tries.get(self._key(sig, kind), 0) + 1
-            conf.note(self.environment, sig.rule, sig.describe(), hit.actual,
-                      f"the minimal input ({len(minimal)} case(s)) showed it in triage, then {len(conf.hits)} of "
-                      f"{self.n_of_n} confirming replays on a fresh vehicle did (timing or load)")
+            self.not_confirmed(sig.rule, self._key(sig, kind), conf, shape=sig.describe(), actual=hit.actual,
+                             why=f"the minimal input ({len(minimal)} case(s)) showed it in triage, then "
+                                 f"{len(conf.hits)} of {self.n_of_n} confirming replays on a fresh vehicle did "
+                                 "(timing or load)")
             return
         last, traffic = conf.hits[-1]
         found = Hit(sig, last.expected, last.actual, last.evidence or hit.evidence)
@@ -170,9 +179,7 @@ class MavTriage(Triage):
         vehicle watched for its next HEARTBEAT, N of N times; then the stop is the vehicle's
         own (a finding with no input blamed, MAV-HB-1) and no case is blamed for it."""
         if self.quiet_hangs is None:
-            def once() -> tuple[Hit, list[Any]] | None:
-                check_late(self, share=False)
-                self.replays += 1
+            def quiet() -> tuple[Hit, list[Any]] | None:
                 log: list[Any] = []
                 v = self._fresh(log)
                 try:
@@ -181,7 +188,7 @@ class MavTriage(Triage):
                 finally:
                     v.close()
 
-            conf = confirm_n(once, self.n_of_n, until_miss=True)
+            conf = confirm_n(lambda: self.replay(quiet, share=False), self.n_of_n, until_miss=True)
             self.quiet_hangs = conf.confirmed
             if conf.confirmed:
                 h, log = conf.hits[-1]
@@ -197,10 +204,8 @@ class MavTriage(Triage):
     def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
         """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""
         def once() -> tuple[Hit, list[Any]] | None:
-            check_late(self)
-            self.replays += 1
             log: list[Any] = []
-            h = replay_cases(self._fresh, cases, sig, log)
+            h = self.replay(lambda: replay_cases(self._fresh, cases, sig, log))
             return None if h is None else (h, log)
 
         return confirm_n(once, self.n_of_n, until_miss=until_miss)
@@ -219,13 +224,22 @@ class MavTriage(Triage):
 
     def _shows(self, sig: Signature) -> Any:
         def test(cases: list[Case]) -> bool:
-            check_late(self)
-            self.replays += 1
             try:
-                return replay_cases(self._fresh, cases, sig) is not None
+                return self.replay(lambda: replay_cases(self._fresh, cases, sig)) is not None
             except SetupError:
                 return False
         return test
+
+    def _stops(self, v: MavVehicle, cases: Sequence[Case]) -> bool | None:
+        """``cases`` sent to ``v`` back to back after what it was sent before (a hang's prefix
+        search: ``fuzz.triage_core.earliest_prefix``): whether its heartbeat then stops (no
+        HEARTBEAT after the probe's answer within ``heartbeat_gap_max_s`` of the last);
+        None: the probe went unanswered (a death, not this hang)."""
+        def send() -> bool | None:
+            if not v.run_all(list(cases)):
+                return None
+            return v.watch(time.monotonic()) is not None
+        return self.replay(send)
 
     def _minimise(self, sig: Signature, suspects: list[Case]) -> list[Case] | None:
         """The fewest cases (then frames) of ``suspects`` that still show ``sig`` on a fresh

@@ -42,7 +42,7 @@ class NsqdPlugin:
                prev: StreamTriage | None) -> StreamTriage:
         if prev is not None:
             return prev.carry()
-        triage = StreamTriage(target, store, cfg.seed, cfg.worker, self.n_of_n, started=started,
+        triage = StreamTriage(target, store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n, started=started,
                               duration=cfg.duration_limit)
         if cfg.worker == 0:
             from mcp_conform.fuzz.nsqd_blame import leak_check

@@ -25,17 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from mcp_conform.fuzz.budget import (
-    TRIAGE_SHARE,
-    UNCONFIRMED_TRIES,
-    budget_left,
-    check_late,
-    over_budget,
-)
+from mcp_conform.fuzz.budget import TRIAGE_SHARE, check_late, over_budget
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import Triage, count, triage_time
+from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.nsqd_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -48,6 +42,7 @@ from mcp_conform.fuzz.nsqd_blame import PROBED, baseline, death_culprit
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
 from mcp_conform.fuzz.nsqd_repro import TrafficLog
+from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
@@ -100,17 +95,13 @@ def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, s
 
 
 @dataclass
-class StreamTriage(Triage):
+class StreamTriage(HitTriage):
     """One worker's Nsqd triage (an engine's turn's; what it learnt carried on to the next
-    turn's: :meth:`carry`; its counts and bounds: ``fuzz.loop.Triage``; ``untriaged`` by
-    signature)."""
+    turn's: :meth:`carry`; its steps, counts and bounds: ``fuzz.triage_core.HitTriage``;
+    ``untriaged`` by signature, ``tries`` by (signature key, how))."""
 
     target: StreamTarget
     store: FindingStore
-    seed: int = 0
-    worker: int = 0
-    n_of_n: int = 3  # a finding's confirming replays, all of which must show it
-    tries: dict[Any, int] = field(default_factory=dict)  # (signature key, how) -> triages that did not reproduce
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
@@ -119,8 +110,8 @@ class StreamTriage(Triage):
     def carry(self) -> StreamTriage:
         """The next engine's turn's triage: what this one learnt (aliases, baselines, tries)
         kept, its counts new."""
-        return StreamTriage(self.target, self.store, self.seed, self.worker, self.n_of_n, tries=self.tries,
-                            aliases=self.aliases, base_seen=self.base_seen, started=self.started,
+        return StreamTriage(self.target, self.store, seed=self.seed, worker=self.worker, n_of_n=self.n_of_n,
+                            tries=self.tries, aliases=self.aliases, base_seen=self.base_seen, started=self.started,
                             duration=self.duration)
 
     @property
@@ -176,29 +167,18 @@ class StreamTriage(Triage):
         ``UNCONFIRMED_TRIES`` times when shown ``how`` (after a case, after a probe window,
         by a program), or any once the triage budget is spent."""
         known = self.known(sig)
-        if known is not None:
-            known.occurrences += 1
-            return True
-        if self.target.attached and sig.oracle in ("crash", "hang") \
+        if known is None and self.target.attached and sig.oracle in ("crash", "hang") \
                 and backend.session.death() is not None:
             raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
-        if self.tries.get((sig.key, how), 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
-            count(self.untriaged, sig.describe())
-            return True
-        return False
-
-    def _tried(self, sig: Signature, probe: bool) -> None:
-        k = (sig.key, "probe" if probe else "case")
-        self.tries[k] = self.tries.get(k, 0) + 1
+        return self.counted(known, (sig.key, how), sig.describe())
 
     def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
             log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
         """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
         triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
         least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
-        check_late(self)
-        self.replays += 1
-        ok, b, h = _reproduces(b, cases, sig, probe=probe, log=log, wait=self.wait if wait is None else wait)
+        ok, b, h = self.replay(lambda: _reproduces(b, cases, sig, probe=probe, log=log,
+                                                    wait=self.wait if wait is None else wait))
         self.current = b
         return ok, b, h
 
@@ -308,8 +288,7 @@ class StreamTriage(Triage):
             ok, backend, _ = self.rep(backend, suspects, sig, probe=probe)
             culprit = suspects if ok else None
         if culprit is None:
-            self.count_unconfirmed(sig.rule)
-            self._tried(sig, probe)
+            self.not_confirmed(sig.rule, (sig.key, "probe" if probe else "case"))
             return self.restart(backend)
         if sig.oracle == "desync":  # named by what lost the stream its sync
             kind = culprit[-1].kind
@@ -354,11 +333,10 @@ class StreamTriage(Triage):
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
         if not conf.confirmed:
-            self.count_unconfirmed(sig.rule)
-            self._tried(hit.signature, probe)
-            conf.note(self.environment, sig.rule, sig.describe(), hit.detail,
-                      f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
-                      f"{len(conf.hits)} of {self.n_of_n} confirming replays did (timing or load)")
+            self.not_confirmed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf,
+                               shape=sig.describe(), actual=hit.detail,
+                               why=f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
+                                   f"{len(conf.hits)} of {self.n_of_n} confirming replays did (timing or load)")
             return self.restart(self.current)
         traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
@@ -383,10 +361,8 @@ class StreamTriage(Triage):
         """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the
         background), timed on its own (``restart_seconds``): a restart after a hit counted, not
         triaged, is no triage."""
-        t0 = time.monotonic()
-        b = self.current = backend.restart()
+        b = self.current = self.restarted(backend.restart)
         self.target.count_restart("after a hit")
-        self.restart_seconds += time.monotonic() - t0
         return b
 
     def add_found(self, sig: Signature, detail: str, replays: str, note: str) -> None:

@@ -32,15 +32,14 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
-from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
-from mcp_conform.fuzz.loop import Triage as TriageCounts
 from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
 from mcp_conform.fuzz.replay import Outcome, run_sequence
 from mcp_conform.fuzz.target_base import TargetBase
+from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.spec.codec import HEADER_SIZE, Action, build_datagram
 
 __all__ = ["Triage", "shape_of"]
@@ -76,17 +75,16 @@ def shape_of(flaw: Flaw, inputs: Sequence[Input]) -> str:
     return f"{flaw.source}: {what}"
 
 
-class Triage(TriageCounts):
-    """Turns flaws into findings for one worker's target (its counts: ``fuzz.loop.Triage``)."""
+class Triage(HitTriage):
+    """Turns flaws into findings for one worker's target (its steps and counts:
+    ``fuzz.triage_core.HitTriage``)."""
 
     def __init__(self, target: TargetBase, store: FindingStore, engine: str, seed: int,
                  worker: int = 0) -> None:
         self.target = target
         self.store = store
         self.engine = engine
-        self.seed = seed
-        self.worker = worker
-        super().__init__()
+        super().__init__(seed=seed, worker=worker, n_of_n=CONFIRM_N)
         # a death is blamed on its input only once shrinking found it: (rule, shape) as first
         # seen -> the group it ended in
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}
@@ -113,9 +111,8 @@ class Triage(TriageCounts):
 
     def _run(self, seq: list[bytes], pace: str, scenario: str | None):  # noqa: ANN202
         """One replay (``run_sequence``); none once the deadline passed (``Late``)."""
-        check_late(self, share=False)  # MCP's triage is bounded by the deadline alone
-        self.replays += 1
-        return run_sequence(self.target, seq, pace=pace, scenario=scenario)
+        # MCP's triage is bounded by the deadline alone
+        return self.replay(lambda: run_sequence(self.target, seq, pace=pace, scenario=scenario), share=False)
 
     def _baseline(self, flaw: Flaw, pace: str) -> bool:
         """Whether ``flaw``'s rule is the node's behaviour whatever it is sent: its liveness

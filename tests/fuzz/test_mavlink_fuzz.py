@@ -112,19 +112,19 @@ FAULTS = {
 }
 
 
-#: found in 49-54 s on a quiet host (1 case among 1,200-2,400 heartbeat-stop suspects, each
-#: replayed on a fresh vehicle); in a fresh-clone CI run beside 11 other workers its 240-s
-#: campaign ended with the hang untriaged (1 of 2 runs): kept, not a strict expectation there
-SLOW_TRIAGE = {"mission-seq-hang": "its hang's triage can outlast a 240-s campaign on a loaded host"}
+#: a campaign's bound: long enough for its first triage (which the budget never cuts), far
+#: shorter than the 240 s a failure took before; the longest, mission-seq-hang (a stopped
+#: heartbeat: 1 case among 500-2,500 suspects), is found by a search over the suspects'
+#: prefixes (fuzz.triage_core.earliest_prefix) in 9-11 replays, 34-42 s of triage at load 4
+DURATION_S = 120.0
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fault", [pytest.param(f, marks=pytest.mark.xfail(strict=False, reason=SLOW_TRIAGE[f]))
-                                   if f in SLOW_TRIAGE else f for f in sorted(FAULTS)])
+@pytest.mark.parametrize("fault", sorted(FAULTS))
 def test_a_fragile_vehicle_is_found_confirmed_and_replays(tmp_path, fault):
     path, oracle, rule = FAULTS[fault]
     spawn = proxy(path, fault)
-    cfg = FuzzConfig(spawn=spawn, seed=7, duration=240.0, engine="stateless", out=str(tmp_path),
+    cfg = FuzzConfig(spawn=spawn, seed=7, duration=DURATION_S, engine="stateless", out=str(tmp_path),
                      protocol="mavlink", role="vehicle")
     cfg.extra["stop_on_rule"] = rule
     c = MavlinkCampaign(cfg)

@@ -1,0 +1,125 @@
+"""The protocol-neutral steps of every protocol's triage (issue 37: one triage; issue 39: a
+protocol's plumbing near zero), written once: MAVLink's (``fuzz.mavlink_triage``) and Nsqd's
+(``fuzz.nsqd_triage``) declare only what is their own -- how a fresh target starts, how one
+input is replayed, what their oracles observe, how a finding is written.
+
+From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
+
+1. counted, not triaged (:meth:`HitTriage.counted`): its group is already a finding (its
+   ``occurrences`` counted), its signature did not reproduce ``UNCONFIRMED_TRIES`` times, or
+   triage's budget is spent (``fuzz.budget``: counted ``untriaged``);
+2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
+3. the suspects searched for the fewest that show it: one alone, all, delta debugging
+   (``fuzz.ddmin``); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
+   by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n replays, not n);
+4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``), or not a
+   finding (:meth:`HitTriage.not_confirmed`: counted, its tries noted, and named
+   environment-dependent with why when it showed in triage).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Hashable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
+from mcp_conform.fuzz.confirm import Confirmation
+from mcp_conform.fuzz.findings import Finding
+from mcp_conform.fuzz.loop import Triage, count
+
+__all__ = ["HitTriage", "earliest_prefix"]
+
+T = TypeVar("T")
+H = TypeVar("H")
+
+
+@dataclass(kw_only=True, eq=False)
+class HitTriage(Triage):
+    """A worker's triage state every protocol keeps (its counts: ``fuzz.loop.Triage``): its
+    seed and worker (a finding's), the N of N, and the signatures that did not reproduce."""
+
+    seed: int = 0
+    worker: int = 0
+    n_of_n: int = 3  # a finding's confirming replays, all of which must show it
+    tries: dict[Any, int] = field(default_factory=dict)  # a hit's key -> triages that did not reproduce
+
+    def counted(self, known: Finding | None, key: Hashable, describe: str) -> bool:
+        """Step 1: counted, not triaged -- ``known`` (the finding the hit already is: one more
+        occurrence), a ``key`` tried ``UNCONFIRMED_TRIES`` times, or the budget spent (counted
+        untriaged as ``describe``)."""
+        if known is not None:
+            known.occurrences += 1
+            return True
+        if self.tries.get(key, 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
+            count(self.untriaged, describe)
+            return True
+        return False
+
+    def replay(self, run: Callable[[], T], *, share: bool = True) -> T:
+        """Step 2: one replay, counted; none once the deadline passed (or, ``share``, triage's
+        share of the campaign: ``Late``)."""
+        check_late(self, share=share)
+        self.replays += 1
+        return run()
+
+    def restarted(self, restart: Callable[[], T]) -> T:
+        """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own
+        (``restart_seconds``): a restart after a hit counted, not triaged, is no triage."""
+        t0 = time.monotonic()
+        try:
+            return restart()
+        finally:
+            self.restart_seconds += time.monotonic() - t0
+
+    def not_confirmed(self, rule: str, key: Hashable, conf: Confirmation[Any] | None = None, *, shape: str = "",
+                    actual: str = "", why: str = "") -> None:
+        """Step 4's miss: counted unconfirmed under ``rule``, ``key`` tried once more; with
+        ``conf`` (the confirming replays of an input that showed it in triage) named
+        environment-dependent, with ``why``."""
+        self.count_unconfirmed(rule)
+        self.tries[key] = self.tries.get(key, 0) + 1
+        if conf is not None:
+            conf.note(self.environment, rule, shape, actual, why)
+
+
+def earliest_prefix(items: Sequence[T], fresh: Callable[[], H], extend: Callable[[H, Sequence[T]], bool | None],
+                    close: Callable[[H], None], split: float = 0.5) -> int | None:
+    """Step 3 for a hit that lasts once shown: the length of the shortest prefix of ``items``
+    after which a target shows it (its last item the culprit, or the one that completes it), by
+    bisection; None when all of them do not show it, or a target is lost.
+
+    ``fresh()``: a fresh target; ``extend(target, more)``: ``more`` sent to it after what it
+    was sent before, True when it then shows the hit (the target is spent), False when not
+    (the target, in the state those items left it, is sent the next ones: no fresh target and
+    no wait for the hit), None when it is lost (no verdict). A target that showed it is
+    replaced by a fresh one sent the shorter prefix at once. ``split``: the share of the
+    range still in doubt that the next prefix adds (0.5: bisection, log2(n) replays; less when
+    a replay that shows the hit costs more than one that does not: more replays, less time)."""
+    if not items:
+        return None
+    lo, hi, shown = 0, len(items), False  # items[:lo] did not show it; items[:hi] did once ``shown``
+    target: H | None = None  # sent items[:lo], still clean
+    try:
+        while not (shown and hi - lo <= 1):
+            mid = min(hi, lo + max(1, round(split * (hi - lo))))
+            if target is None:
+                target, more = fresh(), items[:mid]
+            else:
+                more = items[lo:mid]
+            verdict = extend(target, more)
+            if verdict is None:
+                return None
+            if verdict:
+                hi, shown = mid, True
+                close(target)
+                target = None
+            else:
+                lo = mid
+                if lo >= hi:  # everything sent, and it did not show
+                    return None
+        return hi
+    finally:
+        if target is not None:
+            close(target)
