@@ -22,7 +22,6 @@ the program ``mcp-node --protocol mavlink gcs`` runs) or one of its faults
 
 from __future__ import annotations
 
-import threading
 import traceback
 from collections import deque
 from collections.abc import Callable
@@ -166,7 +165,7 @@ class SimGcsSeam(ReferenceGcs):
         self.conn, self.clock, self.log = conn, clock, log
         self.target = (0, 0)
         self.position = (0, 0)
-        self._lock = threading.Lock()  # held only while a frame is packed: never across a wait
+        self._lock = clock.condition()  # type: ignore[assignment]  # a mutex, held only while a frame is packed
         self._stop = clock.event()
         self._beater = _ClockThread(clock, self._beat, "gcs-heartbeat")  # type: ignore[assignment]
 
