@@ -88,7 +88,9 @@ class SenderRules(RetransmissionRules):
         pair = src << 16 | dst
         last_to = self._last_to.get(pair)
         self._last_to[pair] = t
-        if ex is not None and t - ex.last_t <= self.horizon_ns:
+        if ex is None or t - ex.last_t > self.horizon_ns:
+            ex = self._late_copy(pair, key, seq, data, tester)
+        if ex is not None:
             self._copy(ex, i, t, data, tester)
             return
         bcast = dst == self.broadcast_id
@@ -99,6 +101,8 @@ class SenderRules(RetransmissionRules):
             ex.stale_ack = stale  # an ACK from dst already there, that nothing since answered
         self._ex[key] = ex
         self._by_seq[src << 16 | seq] = ex
+        if not tester:
+            self._latest_to[pair] = ex
         if bcast:
             self._bcast_srcs.add(src)
         else:
@@ -110,6 +114,29 @@ class SenderRules(RetransmissionRules):
         if not tester:
             self._judge_new(ex, i, t)
         self._track_mission(ex)
+
+    def _late_copy(self, pair: int, key: int, seq: int, data: bytes, tester: bool) -> _Exchange | None:
+        """The message a datagram past the horizon is a copy of, if any: its sender's latest
+        message to that receiver when the datagram repeats its number and bytes, however late
+        (MCP-DUP-1: "the same (src, seq) as the one last delivered from that src is a
+        duplicate", with no time limit; MCP-SEQ-2: a retransmission repeats them). A new
+        message can take a number again only after its sender took others for that receiver
+        (the numbers wrapped, or it restarted); until then the copy is the explanation the
+        trace cannot exclude -- its sender retransmits for its retry limit, which the monitor
+        does not know, and the link may hold each copy several seconds: at ``--rto 5``, 20
+        retries and 2.5-10 s delays a drone's last Mission_Ready reached the manager 115 s
+        after its first, and taken for a restart it made the manager's Start_Mission, sent
+        between the two, a false MCP-BLK-2 (seed monitor-blk2-manager-long-delays). The
+        harness's own datagrams are recorded as sent: none comes late. The message is the
+        monitor's again (its ACKs are matched, its copies judged)."""
+        ex = self._latest_to.get(pair)
+        if tester or ex is None or ex.seq != seq or ex.data != data:
+            return None
+        self._ex[key] = ex
+        self._by_seq[ex.src << 16 | seq] = ex
+        if not ex.bcast and self._complete_for(ex.src, ex.dst):
+            self._to_seq[ex.dst << 16 | seq] = ex
+        return ex
 
     def _copy(self, ex: _Exchange, i: int, t: int, data: bytes, tester: bool) -> None:
         """Another datagram with the same (src, dst, seq): a retransmission (MCP-SEQ-2)."""

@@ -160,7 +160,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._ack_horizon = max(10 * NS, 2 * (self.window_ns + self.rto_ns))
         self._waypoint_set: frozenset[bytes] = frozenset()
         #: How long a (src, dst, seq) stays the same message: copies closer than this are
-        #: retransmissions, a later one is a new message after the numbers wrapped.
+        #: retransmissions, a later one is a new message after the numbers wrapped -- unless it
+        #: repeats its sender's latest message to that receiver (``_late_copy``: a copy).
         self.horizon_ns = max(60 * NS, 20 * self.rto_ns)
         self._next_prune = 0  # trace time of the next pruning of old messages
         self.count = 0  # datagrams fed
@@ -198,6 +199,10 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._doubtful: set[int] = set()
         #: src << 16 | dst -> when src last sent dst a (non-ACK) message, any copy
         self._last_to: dict[int, int] = {}
+        #: src << 16 | dst -> src's latest new message to dst (not the harness's), kept past the
+        #: horizon: a copy of it is one however late (``_late_copy``); one per pair, as
+        #: ``_acked_addrs``
+        self._latest_to: dict[int, Any] = {}
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it
         #: (the harness's too: MCP-RTX-2's deliberate wrong ACKs), for ``stale_ack``
         self._unmatched_acks: dict[tuple[int, int], tuple[int, int]] = {}

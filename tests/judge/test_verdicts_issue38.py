@@ -56,3 +56,39 @@ def test_a_copy_never_answered_is_still_unacked():
     found = _interleaved_copies("none").judge()
     assert [v.actual for v in found if v.rule == "MCP-ACK-1"] == [
         "copy of Mav_Passthrough seq 1326 from ID 0 to ID 1 after its ACK was not ACKed"], found
+
+
+def _late_ready(payload: object) -> Script:
+    """The manager's own view (seed monitor-blk2-manager-long-delays, shrunk): drone 2's
+    Mission_Ready ACKed, the ACK lost, and of the drone's copies only one more reaches the
+    manager, 70 s later (past the monitor's 60 s horizon at --rto 0.2), after the manager
+    started drone 1; it is ACKed again. ``payload``: what that late datagram carries (None:
+    the message's bytes, a copy; else the same number with other bytes)."""
+    s = Script((1, 2), challenge=1)
+    s.ready(1)
+    seq = s.ready(2)
+    s.start(1)
+    s.tick(70.0)
+    s.send(2, 0, Action.MISSION_READY, payload, seq=seq)
+    s.tick(0.004)
+    s.ack(0, 2, seq)
+    s.tick(0.02)
+    s.start(2)
+    return _finish(s)
+
+
+def test_a_copy_of_a_drones_last_message_however_late_is_no_new_mission_ready():
+    """MCP-DUP-1: the same (src, seq) as the last message from that src is a duplicate, with
+    no time limit. Taken for a restart, the late copy made the Start_Mission before it a false
+    MCP-BLK-2 (the monitor's 100 s horizon at --rto 5; 1 in 600,000 correct schedules)."""
+    s = _late_ready(None)
+    mine = [v for v in s.judge(party=0) if v.node == 0]
+    assert mine == [], mine
+    assert s.last_monitor.verdicts()[0]["MCP-BLK-2"] == "passed"
+
+
+def test_the_same_number_with_other_bytes_past_the_horizon_is_still_a_new_message():
+    """Not a copy (MCP-SEQ-2: a copy repeats the bytes): a new Mission_Ready, after the
+    manager's first command (MCP-BLK-2 fails, as before)."""
+    s = _late_ready(2)
+    assert "MCP-BLK-2" in {v.rule for v in s.judge(party=0) if v.node == 0}
