@@ -238,6 +238,7 @@ class Sent:
     deadline: int
     in_progress: bool = False
     expired: bool = False
+    acked_ns: int | None = None  # when a final COMMAND_ACK answered it
 
 
 class CommandService(Service):
@@ -278,16 +279,8 @@ class CommandService(Service):
         if len(q) >= self.MAX_SENT:
             q.popleft()
         q.append(s)
-        if f.name == "COMMAND_LONG":  # the ground station's numbering of its resends
-            prev = self.last.get((n.key, s.command))
-            resend = prev is not None and any(x is prev for x in q) and t - prev.t_ns <= self.resend_ns
-            ev = ((describe(f),), (f.index,))
-            if not resend:
-                self.mon.judge("MAV-CMD-7", n, conf == 0, t, "confirmation 0 on a command's first transmission",
-                               f"confirmation {conf}", *ev)
-            else:
-                self.mon.judge("MAV-CMD-8", n, conf == prev.confirmation + 1, t,  # type: ignore[union-attr]
-                               f"confirmation {prev.confirmation + 1} on a resend", f"confirmation {conf}", *ev)  # type: ignore[union-attr]
+        if f.name == "COMMAND_LONG":
+            self._numbering(n, f, s, q)
         self.last[(n.key, s.command)] = s
         for v, a in list(self.held):  # an ACK stamped before this, its command (ORDER_SLACK_S)?
             if int(a.msg.command) == s.command and a.t_ns >= t - self.mon.slack_ns and self.addressed(s, v):
@@ -295,6 +288,36 @@ class CommandService(Service):
                 if other is None or abs(a.t_ns - other.t_ns) > t - a.t_ns:  # no nearer command for it
                     self.held.remove((v, a))
                     self.ack(v, a)
+
+    def _numbering(self, n: Node, f: MavFrame, s: Sent, q: deque[Sent]) -> None:
+        """The ground station's numbering of a COMMAND_LONG's transmissions: confirmation 0 on
+        a first one (MAV-CMD-7), the last one's + 1 on a resend (MAV-CMD-8). A transmission
+        is a resend when the ground station's last one of the command, within
+        command_resend_window_s, is still owed its ACK; or when that one was answered but this
+        one crossed the ACK -- sent before the ground station read it, it numbers it a resend
+        (confirmation > 0), arriving within command_resend_window_s of the ACK going out (a
+        lossy link, a reader off the CPU). A crossed copy numbered neither the last one's + 1
+        nor 0 is a first transmission misnumbered (MAV-CMD-7) or a resend misnumbered
+        (MAV-CMD-8): the trace cannot tell which, and neither rule is judged on it."""
+        t, conf = s.t_ns, s.confirmation
+        prev = self.last.get((n.key, s.command))
+        ev = ((describe(f),), (f.index,))
+        if prev is None or t - prev.t_ns > self.resend_ns:
+            resend = False
+        elif any(x is prev for x in q):
+            resend = True
+        elif prev.acked_ns is not None and conf > 0 and t - prev.acked_ns <= self.resend_ns:
+            if conf != prev.confirmation + 1:
+                return  # a crossed resend or a new command, misnumbered either way: not which rule
+            resend = True
+        else:
+            resend = False
+        if not resend:
+            self.mon.judge("MAV-CMD-7", n, conf == 0, t, "confirmation 0 on a command's first transmission",
+                           f"confirmation {conf}", *ev)
+        else:
+            self.mon.judge("MAV-CMD-8", n, conf == prev.confirmation + 1, t,  # type: ignore[union-attr]
+                           f"confirmation {prev.confirmation + 1} on a resend", f"confirmation {conf}", *ev)  # type: ignore[union-attr]
 
     @staticmethod
     def addressed(s: Sent, v: Node) -> bool:
@@ -321,6 +344,7 @@ class CommandService(Service):
         if to_me:
             s = to_me[0]
             q.remove(s)
+            s.acked_ns = t
             self.acked.setdefault((v.key, command), deque(maxlen=8)).append(t)
             frames = (s.index, f.index)
             if s.expired:

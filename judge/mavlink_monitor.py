@@ -35,7 +35,8 @@ What is judged (the rest needs what the runner's cases send, or the node's own s
   MAV_CMD has: MAV_RESULT_UNSUPPORTED), CMD-11 (IN_PROGRESS ended within
   in_progress_final_max_s), CMD-12 (progress), CMD-14 (a command for another system or
   component not acknowledged), CMD-15 (SHOULD: component 0 answered); the ground station's
-  CMD-7 (a first transmission has confirmation 0), CMD-8 (SHOULD: a resend increments it);
+  CMD-7 (a first transmission has confirmation 0), CMD-8 (SHOULD: a resend increments it; a
+  resend that crossed the ACK of the transmission before it is still a resend);
 - parameters and missions (``judge._mavlink_services``).
 
 The same frames get the same verdicts wherever they were seen: the runner's cases judge a

@@ -12,9 +12,11 @@ runner's ``{mavlink}``). In order, it
    vehicle's (its target: MAV-CMD-16);
 2. uploads the mission of ``--mission`` (a QGC WPL 110 file; default: home, takeoff and two
    waypoints around the vehicle) with the handshake of https://mavlink.io/en/services/mission.html:
-   MISSION_COUNT, each MISSION_ITEM_INT (degE7) the vehicle requests, until its MISSION_ACK;
-   the message awaiting an answer resent after 1.5 s, at most 5 times ("Timeout (default):
-   1500 ms", "Retries (max): 5"; MAV-MIS-20..24, -26);
+   MISSION_COUNT, each MISSION_ITEM_INT (degE7) the vehicle requests, until its MISSION_ACK
+   (but MAV_MISSION_INVALID_SEQUENCE, ArduPilot's recoverable NACK of an item out of
+   sequence: the vehicle's requests still answered, E-1); the message awaiting an answer
+   resent after 1.5 s, at most 5 times ("Timeout (default): 1500 ms", "Retries (max): 5";
+   MAV-MIS-20..24, -26);
 3. reads every parameter (PARAM_REQUEST_LIST; the indices that did not come read by index:
    MAV-PRM-14, -15), reads the parameter by name, then writes it with PARAM_SET of the type
    the vehicle gave, resent until the PARAM_VALUE comes
@@ -107,8 +109,16 @@ class ReferenceGcs:
         return sorted(set(range(count)) - set(got))
 
     def ends_upload(self, ack: Any) -> bool:
-        """A MISSION_ACK ends the upload, whatever its result (MAV-MIS-24)."""
-        return True
+        """A MISSION_ACK ends the upload, whatever its result (MAV-MIS-24: "An error can be
+        signaled in response to any request using a MISSION_ACK ... This must cancel the
+        operation"), but MAV_MISSION_INVALID_SEQUENCE: an item out of sequence is recoverable
+        ("Out-of-sequence messages in mission upload/download are recoverable, and are not
+        treated as errors", https://mavlink.io/en/services/mission.html), ArduPilot's answer to
+        one (a copy of an item that came late) before it re-requests the item it expects, the
+        upload going on ("A MISSION_ACK returning an error value (NACK) does not terminate the
+        upload", the same page's ArduPilot section; the spec's erratum E-1). Ended there, the
+        ground station would leave the vehicle mid-upload, re-requesting an item no one sends."""
+        return bool(ack.type != mav.MAV_MISSION_INVALID_SEQUENCE)
 
     # -- the link -----------------------------------------------------------------------------
     def send(self, msg: Any) -> None:

@@ -11,6 +11,31 @@ from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 
 WITHHOLD = Behaviour("withhold-param-value", withhold_param_value=True)
+#: How long a PARAM_VALUE may take to reach the ground station (a lossy link's TCP
+#: retransmission, 0.2 s, and its delay; the ground station's reader): one the runner sent less
+#: than this before the ground station's last request for the parameter came may have crossed
+#: that request, and answered it in the ground station's eyes (MAV-PRM-16).
+CROSSED_S = 0.5
+
+
+def _asks(value):
+    """Which of the ground station's frames ``value`` (a PARAM_VALUE) can answer: a list or a
+    read by index (its index), a read by name or a PARAM_SET (index 65535)."""
+    if value.param_index < value.param_count:
+        return lambda r: r.name == "PARAM_REQUEST_LIST" or (r.name == "PARAM_REQUEST_READ" and r.msg.param_index >= 0)
+    return lambda r: r.name == "PARAM_SET" or (r.name == "PARAM_REQUEST_READ" and r.msg.param_index < 0)
+
+
+def _answered_late(node, sent_t: float, value) -> bool:
+    """The runner's PARAM_VALUE ``value`` sent at ``sent_t`` answered a request it read late: a
+    later frame of the ground station (one it sent after that request: a HEARTBEAT of its own
+    clock, its next work) had come by then, both read from one backlog (the runner's reader kept
+    off the CPU, a lossy link's segment sent again). The ground station may have stopped waiting
+    for the answer before it went out -- a list given up on, a read by name sent meanwhile --
+    and then take it as the answer to a later request of its own."""
+    frames, asks = node.from_gcs(), _asks(value)
+    asked = [i for i, r in enumerate(frames) if asks(r) and r.t <= sent_t]
+    return bool(asked) and any(r.t <= sent_t for r in frames[asked[-1] + 1:])
 
 
 @rules("MAV-PRM-9")
@@ -63,10 +88,23 @@ def test_param_set_resent(node):
     name = param_id(first.msg)
     node.wait(lambda: len([r for r in node.from_gcs("PARAM_SET") if param_id(r.msg) == name]) > 1, window)
     again = [r for r in node.from_gcs("PARAM_SET") if param_id(r.msg) == name][1:]
-    strays = [m for t, m in node.runner_sent("PARAM_VALUE") if t >= first.t and param_id(m) == name]
+    values = [(t, m) for t, m in node.runner_sent("PARAM_VALUE") if param_id(m) == name]
+    strays = [m for t, m in values if t >= first.t]
     if not again and strays:
         raise Inconclusive(f"a PARAM_VALUE of {name} (index {strays[0].param_index}) went out after the PARAM_SET "
                            "came: its answer for the ground station")
+    asks = [r.t for r in node.from_gcs("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")
+            if r.t < first.t and (r.name == "PARAM_REQUEST_LIST" or param_id(r.msg) == name or r.msg.param_index >= 0)]
+    crossed = [m for t, m in values if asks and t < asks[-1] < t + CROSSED_S]
+    if not again and crossed:
+        raise Inconclusive(f"a PARAM_VALUE of {name} (index {crossed[0].param_index}) went out less than "
+                           f"{CROSSED_S:g} s before the ground station's last request for it came: it may have crossed "
+                           "that request and answered it, the request's own answer then the PARAM_SET's")
+    late = [m for t, m in values if t < first.t and _answered_late(node, t, m)]
+    if not again and late:
+        raise Inconclusive(f"a PARAM_VALUE of {name} (index {late[0].param_index}) answered a request the runner read "
+                           "late: the next one may have reached the ground station after its PARAM_SET, its answer "
+                           "there")
     node.expect_true(bool(again), "MAV-PRM-16", f"PARAM_SET {name} resent within {window:g} s without PARAM_VALUE",
                      "not resent")
 
@@ -105,6 +143,14 @@ def test_missing_parameters_read_one_by_one(node):
         return {i for i, n in missing.items() if i in by_index or n in by_name}
     node.wait(lambda: asked() == set(missing), window)
     relists = _repairs(node, first.t)[2]
+    listed = [(t, m) for t, m in node.runner_sent("PARAM_VALUE") if t >= first.t and m.param_index < m.param_count]
+    if asked() != set(missing) and not relists and listed:
+        work = [r.t for r in node.from_gcs() if r.t >= first.t and r.name not in ("HEARTBEAT", "PARAM_REQUEST_LIST")]
+        end = max((t for t, _ in listed if not work or t <= work[0] + CROSSED_S), default=listed[0][0])
+        if _answered_late(node, *listed[0]) or (work and work[0] < end + CROSSED_S):
+            raise Inconclusive("the runner sent the list late (a later frame of the ground station had come by then, "
+                               f"or its next work less than {CROSSED_S:g} s after the list's end): the ground station "
+                               "may have given up on it before it came")
     node.expect_true(asked() == set(missing), "MAV-PRM-14", f"the missing {', '.join(missing.values())} read "
                      f"(by index {sorted(missing)} or by name)", f"read {sorted(asked()) or 'none'}, "
                      f"the whole list asked again {relists} time(s)")
