@@ -99,16 +99,18 @@ def test_a_signal_mid_mission_ends_every_node_and_writes_the_json(sig, tmp_path)
 @pytest.mark.parametrize(("drone", "code"), [("{python} -c pass", 0), ("{python} -c 'raise SystemExit(3)'", 3)])
 def test_a_drone_that_exits_is_named_with_its_code(drone, code, tmp_path, capsys) -> None:
     """A drone that exits at once, with 0 or not: the mission (which cannot complete) names it
-    ``exited`` with its code; a code other than 0 is a reason of its own."""
+    ``exited`` with its code; a code other than 0 is a reason of its own. The mission's 6 s:
+    an interpreter that starts and exits took over 3 s beside the quick suite's six workers
+    (the drone, still starting, was stopped by the soak: 'ended by signal 15')."""
     out = tmp_path / "soak.json"
-    rc = main(["--missions", "1", "--drones", "1", "--mission-timeout", "3", "--drone", drone,
+    rc = main(["--missions", "1", "--drones", "1", "--mission-timeout", "6", "--drone", drone,
                "--out", str(tmp_path / "out"), "--json", str(out), "--impair", "seed=0"])
     assert rc == 1
     r = json.loads(out.read_text())["results"][0]
     assert r["ended"]["drone1"]["how"] == "exited" and r["ended"]["drone1"]["code"] == code
-    assert r["ended"]["drone1"]["at_s"] < 3
+    assert r["ended"]["drone1"]["at_s"] < 6
     assert r["ended"]["manager"]["how"] in ("stopped", "killed")  # it never ended by itself
-    assert any("did not end within 3 s" in x for x in r["reasons"])
+    assert any("did not end within 6 s" in x for x in r["reasons"])
     assert any("drone1 exited with 3" in x for x in r["reasons"]) == (code == 3)
     assert f"drone1 exited with {code} at" in capsys.readouterr().out
 
