@@ -62,6 +62,7 @@ class MonitorHost:
     _ambiguous: dict[int, tuple[Any, list[tuple[Any, int, int, int]]]]
     _doubtful: set[int]
     _last_to: dict[int, int]
+    _latest_to: dict[int, Any]
     _unmatched_acks: dict[tuple[int, int], tuple[int, int]]
     _bcast_srcs: set[int]
     _unicast_dsts: set[int]
