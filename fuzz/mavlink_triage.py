@@ -3,8 +3,10 @@ as ``fuzz.nsqd_triage`` is Nsqd's): from a hit the engine saw to a confirmed, mi
 
 The steps are every protocol's (``fuzz.triage_core``); this module declares MAVLink's: a hit
 is counted, not triaged, when its group (rule and shape) is already a finding, when its
-signature did not reproduce ``UNCONFIRMED_TRIES`` times, or once triage's share of the campaign
-is spent (``fuzz.budget``). Otherwise its suspects are replayed on a fresh vehicle (spawn mode:
+signature did not reproduce ``UNCONFIRMED_TRIES`` times, once triage's share of the campaign
+is spent (``fuzz.budget``), or when it is a stopped heartbeat one of whose suspects asked for
+it (MAV_CMD_SET_MESSAGE_INTERVAL on the HEARTBEAT, ``fuzz.mavlink_cases.stops_heartbeat``: the
+command's documented effect, ``STOP_ASKED``). Otherwise its suspects are replayed on a fresh vehicle (spawn mode:
 a new process; attach mode: a new link): the case that showed it alone, else every suspect
 (the cases since the last one proven harmless), those of one kind at a time, then delta
 debugging (``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a
@@ -32,7 +34,7 @@ from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
-from mcp_conform.fuzz.mavlink_cases import Case
+from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
 from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix
 from mcp_conform.harness.errors import SetupError
@@ -42,6 +44,9 @@ from mcp_conform.spec.profiles import MAVLINK_PROFILE
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
 
 DEATHS = ("crash", "hang", "unanswered")
+#: A stopped heartbeat after a case that asked it stopped (``fuzz.mavlink_cases.stops_heartbeat``):
+#: counted under this, not triaged, not a finding
+STOP_ASKED = "hang: a suspect asked the HEARTBEAT stopped (MAV_CMD_SET_MESSAGE_INTERVAL)"
 SPLIT = 1 / 3  # a stopped heartbeat's prefix search: the share of the suspects in doubt each replay adds
 
 
@@ -125,6 +130,9 @@ class MavTriage(HitTriage):
         sig = hit.signature
         kind = suspects[-1].kind if suspects else ""
         if self.counted(self._known(sig, kind), self._key(sig, kind), sig.describe()):
+            return
+        if sig.oracle == "hang" and any(asks_heartbeat_stop(c) for c in suspects):
+            count(self.untriaged, STOP_ASKED)  # the command's documented effect: no defect, no triage
             return
         if sig.oracle == "hang" and self._hangs_anyway(hit):
             return
