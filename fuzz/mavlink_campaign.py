@@ -6,7 +6,8 @@ its engine (:class:`MavlinkEngine`: the cases of ``fuzz.mavlink_cases``, each ju
 probe behind it and the oracles of ``fuzz.mavlink_vehicle``), its triage
 (``fuzz.mavlink_triage``: replays on a fresh vehicle, ddmin, N of N), its summary and closing
 lines. ``mcp-fuzz --protocol mavlink --replay finding-N`` replays a finding's cases on a
-fresh vehicle: exit 1 when it shows again, 0 when not.
+fresh vehicle: exit 1 when it shows again, 0 when not (a stopped heartbeat after a case that
+asked for it, ``fuzz.mavlink_cases.asks_heartbeat_stop``: 0, not replayed).
 """
 
 from __future__ import annotations
@@ -31,7 +32,13 @@ from mcp_conform.fuzz.loop import (
     common_summary,
     count,
 )
-from mcp_conform.fuzz.mavlink_cases import Case, CaseMaker, Vehicle, case_from_json
+from mcp_conform.fuzz.mavlink_cases import (
+    Case,
+    CaseMaker,
+    Vehicle,
+    asks_heartbeat_stop,
+    case_from_json,
+)
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
 from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, MavTarget, Signature, VehicleSpec
 from mcp_conform.fuzz.progress import Progress, interrupted
@@ -194,6 +201,11 @@ class MavlinkCampaign:
         except ValueError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 2
+        asked = next((i for i, c in enumerate(cases, 1) if asks_heartbeat_stop(c)), None)
+        if f.doc.get("oracle") == "hang" and asked is not None:
+            print(f"{PROG}: finding {f.rule} ({f.shape}) is no finding: its case {asked} asks the vehicle to "
+                  "stop its HEARTBEAT (MAV_CMD_SET_MESSAGE_INTERVAL), which it may do; not replayed")
+            return 0
         target = MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
         try:
             info = target.info

@@ -38,8 +38,8 @@ from typing import Any
 
 from mcp_conform.spec import MAVLINK
 
-__all__ = ["FILLER", "KINDS", "Case", "CaseMaker", "Expect", "Vehicle", "case_from_json", "frame_name",
-           "raw_fields"]
+__all__ = ["FILLER", "KINDS", "Case", "CaseMaker", "Expect", "Vehicle", "asks_heartbeat_stop", "case_from_json",
+           "frame_name", "raw_fields", "spare_heartbeat", "stops_heartbeat"]
 
 D: Any = MAVLINK.dialect
 GCS_SYSID = 255
@@ -55,6 +55,15 @@ MALFORMED_COMMAND = int(D.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES)
 NEVER_SENT = frozenset(int(getattr(D, n)) for n in (
     "MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN", "MAV_CMD_PREFLIGHT_STORAGE", "MAV_CMD_DO_FLIGHTTERMINATION",
     "MAV_CMD_PREFLIGHT_UAVCAN", "MAV_CMD_DO_SEND_BANNER") if hasattr(D, n))
+#: MAV_CMD_SET_MESSAGE_INTERVAL may name the HEARTBEAT (param1), and -1 (param2) then stops it:
+#: ACCEPTED by ArduPilot (``GCS_MAVLINK::set_message_interval``: ``vehicle.telemetry``) as
+#: mavlink.io's message-rates page has it ("To silence a message, set param2 ... to -1"), an
+#: interval past the oracle's gap (up to 60 s) as good as stops it. That stop is the input's
+#: documented effect, not a hang: a case never asks it (:func:`spare_heartbeat`), and a hang
+#: after a case that does is not blamed on the vehicle (:func:`asks_heartbeat_stop`).
+SET_INTERVAL = int(D.MAV_CMD_SET_MESSAGE_INTERVAL)
+#: The longest HEARTBEAT interval a case may ask (µs): its usual period (MAV-HB-1).
+BEAT_US = float(MAVLINK.params["heartbeat_period_s"]) * 1e6
 #: Messages the any-message kind does not send: those of the services' own kinds below, and
 #: SETUP_SIGNING (a vehicle that obeys it then drops every unsigned frame) and SERIAL_CONTROL
 #: (it can take the link over as a serial passthrough).
@@ -139,6 +148,40 @@ def raw_fields(msg: Any) -> dict[str, Any]:
     cls = type(msg)
     payload = payload + bytes(max(0, cls.unpacker.size - len(payload)))
     return dict(zip(cls.ordered_fieldnames, cls.unpacker.unpack(payload[:cls.unpacker.size]), strict=True))
+
+
+def stops_heartbeat(command: int, param1: float, param2: float) -> bool:
+    """Whether a command may stop the HEARTBEAT by request: MAV_CMD_SET_MESSAGE_INTERVAL whose
+    param1 may name it (anything but a finite id 1 .. 2**24-1: a C cast of 0, of a fraction,
+    of NaN, of a negative or huge value may give HEARTBEAT's id 0) and whose param2 is no
+    interval up to the HEARTBEAT's period (-1, one past the oracle's gap, NaN, infinite)."""
+    names_it = not (math.isfinite(param1) and 1 <= param1 < 2**24)
+    keeps = math.isfinite(param2) and -1 < param2 <= BEAT_US
+    return command == SET_INTERVAL and names_it and not keeps
+
+
+def spare_heartbeat(msg: Any) -> str:
+    """A COMMAND_LONG / COMMAND_INT that :func:`stops_heartbeat` made to ask the HEARTBEAT's
+    default interval instead (param2 0; its path in the vehicle exercised, the beat kept);
+    what was changed, for the case's note."""
+    if not stops_heartbeat(msg.command, msg.param1, msg.param2):
+        return ""
+    was, msg.param2 = msg.param2, 0.0
+    return f", param2 {was!r} -> 0 (would stop the HEARTBEAT)"
+
+
+def asks_heartbeat_stop(case: Case) -> bool:
+    """Whether a frame of ``case`` is a command that may stop the HEARTBEAT by request
+    (:func:`stops_heartbeat`; whatever its target: a finding's cases, judged without the vehicle)."""
+    parser = D.MAVLink(None)
+    for frame in case.frames:
+        try:
+            m = parser.decode(bytearray(frame))
+        except Exception:  # a malformed frame: no command a vehicle acts on
+            continue
+        if m.get_type() in ("COMMAND_LONG", "COMMAND_INT") and stops_heartbeat(m.command, m.param1, m.param2):
+            return True
+    return False
 
 
 def name_key(raw: bytes) -> bytes:
@@ -331,6 +374,7 @@ class CaseMaker:
         return (sys_, comp), how
 
     def _commanded(self, kind: str, msg: Any, command: int, known: bool, how: str, rule: str) -> Case:
+        spared = spare_heartbeat(msg)
         if how.startswith("other"):
             expect = Expect("no-ack", command, "MAV-CMD-14")
         elif not known:
@@ -339,7 +383,7 @@ class CaseMaker:
             expect = Expect("ack", command, "MAV-CMD-15" if how == "system" else rule)
         return Case(kind, expect.rule, (self.pack(msg),), (expect,),
                     messages=(msg.get_type(),), note=f"command {command} ({'known' if known else 'unknown'}), "
-                                                     f"to {how}")
+                                                     f"to {how}{spared}")
 
     def _command_long(self) -> Case:
         command, known = self._command_id()

@@ -2,13 +2,17 @@
 as ``fuzz.nsqd_triage`` is Nsqd's): from a hit the engine saw to a confirmed, minimal finding.
 
 The steps are every protocol's (``fuzz.triage_core``); this module declares MAVLink's: a hit
-is counted, not triaged, when its group (rule and shape) is already a finding, when its
-signature did not reproduce ``UNCONFIRMED_TRIES`` times, or once triage's share of the campaign
-is spent (``fuzz.budget``). Otherwise its suspects are replayed on a fresh vehicle (spawn mode:
-a new process; attach mode: a new link): the case that showed it alone, else every suspect
-(the cases since the last one proven harmless), those of one kind at a time, then delta
-debugging (``fuzz.ddmin``) down to the fewest cases, then to the fewest frames of a
-multi-frame case. A heartbeat that stopped stays stopped: its suspects (those since a period
+is counted, not triaged, when its group (rule and shape) is already a finding (a stopped
+heartbeat: when a suspect like a hang finding's confirmed case is its culprit, two sends to one
+fresh vehicle, ``fuzz.triage_core.known_lasting_hit``), when its signature did not reproduce
+``UNCONFIRMED_TRIES`` times, once triage's share of the campaign is spent (``fuzz.budget``),
+or when it is a stopped heartbeat one of whose suspects asked for it
+(MAV_CMD_SET_MESSAGE_INTERVAL on the HEARTBEAT, ``fuzz.mavlink_cases.stops_heartbeat``: the
+command's documented effect, ``STOP_ASKED``). Otherwise its suspects are replayed on a fresh
+vehicle (spawn mode: a new process; attach mode: a new link): the case that showed it alone,
+else every suspect (the cases since the last one proven harmless), those of one kind at a
+time, then delta debugging (``fuzz.ddmin``) down to the fewest cases, then to the fewest
+frames of a multi-frame case. A heartbeat that stopped stays stopped: its suspects (those since a period
 before its last HEARTBEAT) are searched over their prefixes
 (``fuzz.triage_core.earliest_prefix``: a vehicle that beats on after a prefix is sent the next
 cases as it is), and the last case of the shortest prefix that stops it stands for the case
@@ -32,9 +36,9 @@ from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
-from mcp_conform.fuzz.mavlink_cases import Case
+from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
-from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix
+from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix, known_lasting_hit
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
@@ -42,7 +46,15 @@ from mcp_conform.spec.profiles import MAVLINK_PROFILE
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
 
 DEATHS = ("crash", "hang", "unanswered")
+#: A stopped heartbeat after a case that asked it stopped (``fuzz.mavlink_cases.stops_heartbeat``):
+#: counted under this, not triaged, not a finding
+STOP_ASKED = "hang: a suspect asked the HEARTBEAT stopped (MAV_CMD_SET_MESSAGE_INTERVAL)"
 SPLIT = 1 / 3  # a stopped heartbeat's prefix search: the share of the suspects in doubt each replay adds
+
+
+def _like(c: Case) -> tuple[str, str, tuple[str, ...]]:
+    """What makes cases alike for a known hang (``MavTriage._known_hang``)."""
+    return (c.kind, c.rule, c.messages)
 
 
 def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] | None = None) -> Hit | None:
@@ -117,17 +129,43 @@ class MavTriage(HitTriage):
         return (sig.oracle, sig.rule, kind)
 
     def _known(self, sig: Signature, kind: str) -> Finding | None:
+        """The finding a hit already is, by the case it showed after (a crash, an unanswered
+        probe: that case; a hang is not: whatever case ran when the beat was missed,
+        :meth:`_known_hang`)."""
+        if sig.oracle == "hang":
+            return None
         return next((f for f in self.store.order if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
                      and (f.doc.get("kind") == sig.kind or (sig.oracle in DEATHS and f.cases
                                                             and f.cases[-1].kind == kind))), None)
 
+    def _known_hang(self, suspects: list[Case]) -> Finding | None:
+        """The known hang finding a stopped heartbeat repeats: one of its suspects like its
+        confirmed case (kind, rule, messages) is the culprit, as the prefix search would find
+        it, checked on one fresh vehicle in two sends (``fuzz.triage_core.known_lasting_hit``);
+        None: triage it."""
+        knowns = [(f, _like(f.cases[-1])) for f in self.store.order if f.source == "hang" and f.cases]
+        if not knowns:
+            return None
+        try:
+            return known_lasting_hit(suspects, knowns, _like, self._fresh, self._stops, MavVehicle.close)
+        except SetupError:  # a fresh vehicle that did not start: triage it
+            return None
+
     def _triage(self, hit: Hit, suspects: list[Case]) -> None:
         sig = hit.signature
         kind = suspects[-1].kind if suspects else ""
+        if sig.oracle == "hang" and any(asks_heartbeat_stop(c) for c in suspects):
+            count(self.untriaged, STOP_ASKED)  # the command's documented effect: no defect, no triage
+            return
         if self.counted(self._known(sig, kind), self._key(sig, kind), sig.describe()):
             return
         if sig.oracle == "hang" and self._hangs_anyway(hit):
             return
+        if sig.oracle == "hang":
+            again = self._known_hang(suspects)
+            if again is not None:
+                again.occurrences += 1
+                return
         rest = suspects  # where the fewest cases that show it are searched
         if sig.oracle == "hang" and len(suspects) > 1:
             # a stopped heartbeat stays stopped: its culprit ends the shortest prefix of the

@@ -7,7 +7,9 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
 
 1. counted, not triaged (:meth:`HitTriage.counted`): its group is already a finding (its
    ``occurrences`` counted), its signature did not reproduce ``UNCONFIRMED_TRIES`` times, or
-   triage's budget is spent (``fuzz.budget``: counted ``untriaged``);
+   triage's budget is spent (``fuzz.budget``: counted ``untriaged``); a hit that lasts once
+   shown is a known finding's when one of its suspects like that finding's confirmed input is
+   its culprit (:func:`known_lasting_hit`: two sends to one fresh target, not a search);
 2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
 3. the suspects searched for the fewest that show it: one alone, all, delta debugging
    (``fuzz.ddmin``); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
@@ -29,10 +31,11 @@ from mcp_conform.fuzz.confirm import Confirmation
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
 
-__all__ = ["HitTriage", "earliest_prefix"]
+__all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit"]
 
 T = TypeVar("T")
 H = TypeVar("H")
+K = TypeVar("K")
 
 
 @dataclass(kw_only=True, eq=False)
@@ -82,6 +85,47 @@ class HitTriage(Triage):
         self.tries[key] = self.tries.get(key, 0) + 1
         if conf is not None:
             conf.note(self.environment, rule, shape, actual, why)
+
+
+def known_lasting_hit(items: Sequence[T], knowns: Sequence[tuple[K, Hashable]], signature: Callable[[T], Hashable],
+                      fresh: Callable[[], H], extend: Callable[[H, Sequence[T]], bool | None],
+                      close: Callable[[H], None], most: int = 3) -> K | None:
+    """Step 1 for a hit that lasts once shown (a stopped heartbeat), whose suspects ``items``
+    are every input of a while, not the one that showed it: the first of ``knowns`` (a finding,
+    the ``signature`` of the input its triage confirmed) whose like input is the culprit, None
+    when none is (triage it). The culprit is what :func:`earliest_prefix` would find (the last
+    item of the shortest prefix after which a target shows it), checked, not searched: one
+    fresh target is sent the items before the first like one (False: they do not show it), then
+    that one (True: it is the culprit, the known finding again), then those up to the next like
+    one, ... for at most ``most`` like items. A repeat of a known hit costs two sends, not a
+    search; a new hit is triaged even when inputs like a known one were among its suspects
+    (an unlike item shows it first), and so is one no like item shows within ``most``.
+    ``fresh``, ``extend``, ``close``: as for :func:`earliest_prefix`."""
+    for known, sig in knowns:
+        at = [i for i, item in enumerate(items) if signature(item) == sig][:most]
+        if at and _culprit_among(items, at, fresh, extend, close):
+            return known
+    return None
+
+
+def _culprit_among(items: Sequence[T], at: list[int], fresh: Callable[[], H],
+                   extend: Callable[[H, Sequence[T]], bool | None], close: Callable[[H], None]) -> bool:
+    """Whether one of ``items[i]``, ``i`` in ``at``, is the first after which one fresh target
+    shows the hit (the items between sent in order, none of which may show it first)."""
+    target = fresh()
+    try:
+        lo = 0
+        for i in at:
+            for more, its in ((items[lo:i], False), (items[i:i + 1], True)):
+                verdict = extend(target, more) if more else False
+                if verdict is None:  # the target is lost: no verdict
+                    return False
+                if verdict:  # shown: by the like item (the known culprit), or by one before it
+                    return its
+            lo = i + 1
+        return False
+    finally:
+        close(target)
 
 
 def earliest_prefix(items: Sequence[T], fresh: Callable[[], H], extend: Callable[[H, Sequence[T]], bool | None],

@@ -25,13 +25,21 @@ nothing to say):
 * GPS_RAW_INT, GLOBAL_POSITION_INT (alt AMSL, relative_alt), LOCAL_POSITION_NED (from home),
   VFR_HUD, ATTITUDE, MISSION_CURRENT, POSITION_TARGET_GLOBAL_INT (while GUIDED has a target).
 
-``Streams`` schedules them: the HEARTBEAT at ``heartbeat_hz`` always (a GCS cannot stop it),
-the rest at ``telemetry_hz`` as if every SRn_ stream rate were set to it. MAV_CMD_SET_MESSAGE_
-INTERVAL sets one message's interval as ``GCS_MAVLINK::set_message_interval`` does (0: the
-default, -1: stop, under 1 ms: 1 ms, over 60 s: 60 s; a message the vehicle cannot send:
-MAV_RESULT_FAILED); REQUEST_DATA_STREAM sets every message of a stream
+``Streams`` schedules them: the HEARTBEAT at ``heartbeat_hz`` (no stream holds it, so no
+REQUEST_DATA_STREAM touches it), the rest at ``telemetry_hz`` as if every SRn_ stream rate were
+set to it. MAV_CMD_SET_MESSAGE_INTERVAL sets one message's interval as
+``GCS_MAVLINK::set_message_interval`` does (0: the default, -1: stop, under 1 ms: 1 ms, over
+60 s: 60 s; a message the vehicle cannot send: MAV_RESULT_FAILED), the HEARTBEAT's included:
+ArduPilot maps MAVLINK_MSG_ID_HEARTBEAT to MSG_HEARTBEAT (``mavlink_id_to_ap_message_id``), a
+deferred message whose interval ``set_ap_message_interval`` sets like any other (1 s at start,
+``initialise_message_intervals_from_streamrates``; 0 restores it, 1 s,
+``get_default_interval_for_ap_message``) and which ``deferred_message_to_send_index`` skips
+while its interval is 0: -1 is ACCEPTED and the HEARTBEAT stops until an interval is set
+again, as mavlink.io's message-rates page has it for any message ("To silence a message, set
+param2 ... to -1"). REQUEST_DATA_STREAM sets every message of a stream
 (``handle_request_data_stream``: start_stop 0 stops, 1 sets the rate in Hz, anything else is
-ignored; ArduCopter's stream lists below). Rates are the vehicle's, not per link.
+ignored; ArduCopter's stream lists below). Rates are the vehicle's, not per link (ArduPilot's
+are per link: there a HEARTBEAT stopped on one link still goes out on the others).
 """
 
 from __future__ import annotations
@@ -108,7 +116,8 @@ class Streams:
         return msgid in self._defaults
 
     def set_interval(self, msgid: int, interval_us: float, now: float) -> tuple[int, str]:
-        """MAV_CMD_SET_MESSAGE_INTERVAL: (MAV_RESULT, why when refused)."""
+        """MAV_CMD_SET_MESSAGE_INTERVAL: (MAV_RESULT, why when refused); the HEARTBEAT's too
+        (-1 stops it, as ArduPilot's ``set_message_interval``: see the module docstring)."""
         if msgid not in self._defaults:
             return mav.MAV_RESULT_FAILED, f"{message_name(msgid)} is not sent by this vehicle"
         if not math.isfinite(interval_us):

@@ -7,9 +7,11 @@ against itself (exit 1) and not against the reference vehicle (exit 0)."""
 from __future__ import annotations
 
 import json
+import math
 import random
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -17,7 +19,17 @@ import pytest
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import read_finding
 from mcp_conform.fuzz.mavlink_campaign import MavlinkCampaign
-from mcp_conform.fuzz.mavlink_cases import KINDS, CaseMaker, D, Vehicle, case_from_json, frame_name
+from mcp_conform.fuzz.mavlink_cases import (
+    KINDS,
+    SET_INTERVAL,
+    Case,
+    CaseMaker,
+    D,
+    Vehicle,
+    asks_heartbeat_stop,
+    case_from_json,
+    frame_name,
+)
 
 FRAGILE = Path(__file__).with_name("fragile_vehicle.py")
 FAULTY = Path(__file__).parents[1] / "mavlink" / "faulty_vehicle.py"
@@ -58,6 +70,64 @@ def test_cases_are_the_dialects_frames():
         if c.kind == "bad-crc":
             assert [m.get_type() for m in parser.parse_buffer(c.frames[0]) or []] == ["BAD_DATA"]
     assert seen == set(KINDS)
+
+
+def _stop_case(cls: str, param1: float, param2: float, target: tuple[int, int] = (1, 1)) -> Case:
+    enc = D.MAVLink(None, srcSystem=255, srcComponent=190)
+    if cls == "COMMAND_LONG":
+        msg = D.MAVLink_command_long_message(*target, SET_INTERVAL, 0, param1, param2, 0, 0, 0, 0, 0)
+    else:
+        msg = D.MAVLink_command_int_message(*target, 0, SET_INTERVAL, 0, 0, param1, param2, 0, 0, 0, 0, 0)
+    return Case("command-long", "MAV-CMD-1", (bytes(msg.pack(enc)),), messages=(cls,))
+
+
+def test_a_case_asking_the_heartbeat_stopped_is_told_apart():
+    """MAV_CMD_SET_MESSAGE_INTERVAL with param1 HEARTBEAT (0, or what a C cast may make 0) and
+    param2 -1 or past the oracle's gap asks the stop (ArduPilot: ACCEPTED, the HEARTBEAT stops);
+    another message, or an interval up to a second, does not."""
+    for cls in ("COMMAND_LONG", "COMMAND_INT"):
+        for p1, p2 in ((0, -1), (-0.0, -1), (1e-45, 3.4028234e38), (math.nan, -1), (0, 5e6), (0, math.inf)):
+            assert asks_heartbeat_stop(_stop_case(cls, p1, p2)), (cls, p1, p2)
+        for p1, p2 in ((30, -1), (1, -1), (0, 0), (0, 1e6), (0, 1e-45), (0, -0.5)):
+            assert not asks_heartbeat_stop(_stop_case(cls, p1, p2)), (cls, p1, p2)
+    spoiled = _stop_case("COMMAND_LONG", 0, -1)
+    assert not asks_heartbeat_stop(replace(spoiled, frames=(spoiled.frames[0][:-1] + b"\0",)))  # bad checksum
+
+
+def test_no_case_asks_the_heartbeat_stopped():
+    """The command kinds' MAV_CMD_SET_MESSAGE_INTERVAL keeps the HEARTBEAT: a param2 that would
+    stop it is sent as 0 (its default). Before, 249 of these 600 cases asked the stop, and a
+    campaign on our vehicle that drew one reported a hang (the input's documented effect)."""
+    maker = CaseMaker(random.Random(11), _vehicle())
+    maker._command_id = lambda: (SET_INTERVAL, True)  # type: ignore[method-assign]
+    parser = D.MAVLink(None)
+    spared = 0
+    for i in range(600):
+        c = maker._command_long() if i % 2 else maker._command_int()
+        assert not asks_heartbeat_stop(c), c
+        m = parser.decode(bytearray(c.frames[0]))
+        assert m.command == SET_INTERVAL
+        spared += "would stop the HEARTBEAT" in c.note
+    assert spared > 50, spared  # the rewrite was needed, and its cases still go to the HEARTBEAT
+
+
+def test_a_hang_after_a_case_that_asked_it_is_no_finding(tmp_path):
+    """Triage does not blame the vehicle for a heartbeat a suspect asked stopped (counted, not
+    triaged), and ``--replay`` of such a finding (one written before) says so, exit 0, without
+    replaying it."""
+    from mcp_conform.fuzz.findings import FindingStore
+    from mcp_conform.fuzz.mavlink_triage import STOP_ASKED, MavTriage, mavlink_finding, write_repro
+    from mcp_conform.fuzz.mavlink_vehicle import Hit, Signature
+
+    case = _stop_case("COMMAND_LONG", 0, -1)
+    hit = Hit(Signature("hang", case.rule, case.kind), "a HEARTBEAT at least every 3 s", "none for 3 s", [])
+    store = FindingStore(tmp_path, ["--protocol", "mavlink"], write_repro)
+    triage = MavTriage(target=None, store=store)  # type: ignore[arg-type]  # no replay may start
+    triage._triage(hit, [_stop_case("COMMAND_LONG", 30, 1e6), case])
+    assert triage.untriaged == {STOP_ASKED: 1} and triage.replays == 0 and not store.order
+    store.add(mavlink_finding(hit, [case], "3 of 3", b"FORMAT_VERSION", seed=0, worker=0))
+    run = fuzz("--replay", str(tmp_path / "finding-1"), timeout=60)
+    assert run.returncode == 0 and "is no finding" in run.stdout and "not replayed" in run.stdout, run
 
 
 def test_the_vehicle_role_names_its_fuzz_target():

@@ -1,5 +1,5 @@
 """The protocol-neutral steps of triage (``fuzz.triage_core``): the prefix search a lasting hit
-(a stopped heartbeat) is found by, and what a hit counted, not triaged, or not confirmed
+(a stopped heartbeat) is found by, a repeat of a known one told in two sends, and what a hit counted, not triaged, or not confirmed
 leaves in a worker's counts. The targets here are models: what a real vehicle does with the
 search is tests/fuzz/test_mavlink_fuzz.py's."""
 
@@ -14,14 +14,14 @@ import pytest
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.findings import Finding
-from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix
+from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix, known_lasting_hit
 
 
 class Model:
     """Targets that show the hit for good once every item of ``needs`` reached them."""
 
-    def __init__(self, needs: set[int], lose_at: int | None = None) -> None:
-        self.needs, self.lose_at = needs, lose_at
+    def __init__(self, needs: set[int], lose_at: int | None = None, any_of: frozenset[int] = frozenset()) -> None:
+        self.needs, self.lose_at, self.any_of = needs, lose_at, any_of  # or any one of ``any_of``
         self.started = self.closed = self.sends = 0
 
     def fresh(self) -> list[int]:
@@ -33,7 +33,7 @@ class Model:
         target.extend(more)
         if self.lose_at is not None and self.lose_at in target:
             return None
-        return self.needs <= set(target)
+        return self.needs <= set(target) or bool(self.any_of & set(target))
 
     def close(self, target: list[int]) -> None:
         self.closed += 1
@@ -78,6 +78,60 @@ def test_no_prefix_shows_it_or_a_target_is_lost():
     assert earliest_prefix(list(range(100)), m.fresh, m.extend, m.close) is None
     assert m.closed == m.started
     assert earliest_prefix([], m.fresh, m.extend, m.close) is None
+
+
+def _kind(item: int) -> int:
+    """A model input's kind (what a known finding's confirmed input is matched by)."""
+    return item % 10
+
+
+def _known(items, knowns, m: Model, most: int = 3):
+    return known_lasting_hit(items, knowns, _kind, m.fresh, m.extend, m.close, most=most)
+
+
+def test_a_repeat_of_a_known_lasting_hit_costs_two_sends():
+    """The hit the known finding's input (kind 3) makes, seen again among 2,000 suspects while
+    an input of kind 8 ran: its finding in two sends to one target (the items before the first
+    of kind 3, then it), where the prefix search takes 8 to 12 sends and 4 to 7 targets."""
+    suspects = list(range(1404, 3404)) + [3408]
+    m = Model({1413})
+    assert _known(suspects, [("F", 3)], m) == "F"
+    assert (m.started, m.sends, m.closed) == (1, 2, 1)
+    m = Model({1423})  # the second of kind 3: two more sends
+    assert _known(suspects, [("F", 3)], m) == "F" and m.sends == 4
+    for culprit, sends in ((1413, 8), (1503, 11), (2003, 12)):
+        m = Model({culprit})
+        assert earliest_prefix(suspects, m.fresh, m.extend, m.close, split=1 / 3) == culprit - 1403
+        assert m.sends == sends
+
+
+def test_a_new_hit_among_known_kinds_is_not_the_known_finding():
+    """A culprit of kind 7 before the first of kind 3 (or between two of them), or one that needs
+    items of both: triaged, though inputs like the known one's were among the suspects and a
+    kind-3 input ran when it was seen (the old key counted such a hit as the known one)."""
+    suspects = list(range(30, 64))  # the last, 63, is of the known finding's kind
+    for needs in ({31}, {37}, {47}, {33, 37}):
+        m = Model(needs)
+        assert _known(suspects, [("F", 3)], m) is None, needs
+        assert m.closed == m.started == 1
+    m = Model({47})
+    assert earliest_prefix(suspects, m.fresh, m.extend, m.close) == suspects.index(47) + 1  # triage finds it
+    # items like the known one's that show it too, alone, but after the new culprit: not masked
+    m = Model({37}, any_of=frozenset({43, 53}))
+    assert _known(suspects, [("F", 3)], m) is None
+    assert m.extend(m.fresh(), [43, 53])  # (what sending the like items alone would have shown)
+
+
+def test_a_known_finding_is_checked_on_its_first_like_items_only():
+    m = Model({53})  # the third of kind 3: past ``most`` 2
+    assert _known(list(range(30, 64)), [("F", 3)], m, most=2) is None and m.sends == 4
+    m = Model({25})
+    assert _known(list(range(20, 30)), [("A", 3), ("B", 42), ("C", 5)], m) == "C"
+    assert m.started == 2  # A's target (its kind-3 item never showed it), none for B, C's
+    m = Model({25})
+    assert _known(list(range(20, 30)), [], m) is None and m.started == 0
+    m = Model({25}, lose_at=21)
+    assert _known(list(range(20, 30)), [("C", 5)], m) is None and m.closed == m.started == 1
 
 
 def _finding() -> Finding:
