@@ -238,7 +238,8 @@ class SessionMonitors:
     verdict first, as the judgement of the file is (``judge.judging.merge_segments``).
 
     A session's monitor is finished where the capture's session ends: at its last record (a
-    datagram, or a case mark: :meth:`mark`)."""
+    datagram, a case mark -- :meth:`mark` -- or the node's run delay read as it was stopped:
+    :meth:`run_delay`)."""
 
     def __init__(self, **kw: Any) -> None:
         self._kw = kw
@@ -275,10 +276,14 @@ class SessionMonitors:
                 self.current.observe(direction, data, addr, t_ns, run_delay)
 
     def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
-        """To the session current when the node was stopped (:meth:`RunMonitor.run_delay`)."""
+        """To the session current when the node was stopped (:meth:`RunMonitor.run_delay`):
+        a record of that session, as the capture's reading is (``RUN_DELAY_METADATA``), so the
+        session ends no earlier (``mcp-capture check`` ends a run's view at its readings)."""
         with self._lock:
             if self.current is not None:
                 self.current.run_delay(t_ns, node, run_delay_ns)
+                if self._name is not None:
+                    self._last[self._name] = max(self._last.get(self._name, t_ns), t_ns)
 
     def mark(self, t_ns: int) -> None:
         """A record of the current session that is not a datagram (a case mark)."""
