@@ -132,10 +132,14 @@ class ReferenceGcs:
                 self.send(hb)
             self._stop.wait(1.0)
 
+    def now(self) -> float:
+        """The clock of its timeouts (the simulator's seam: ``sim.gcs.SimGcsSeam``)."""
+        return time.monotonic()
+
     def recv(self, types: list[str], timeout: float, where: Any = None) -> Any | None:
         """The next message of ``types`` from the vehicle (and ``where(msg)``) within ``timeout`` s."""
-        end = time.monotonic() + timeout
-        while (left := end - time.monotonic()) > 0:
+        end = self.now() + timeout
+        while (left := end - self.now()) > 0:
             msg = self.conn.recv_match(type=types, blocking=True, timeout=min(left, 0.2))
             if msg is None or (self.target[0] and msg.get_srcSystem() != self.target[0]):
                 continue
@@ -262,8 +266,8 @@ class ReferenceGcs:
                 if ack.result != mav.MAV_RESULT_IN_PROGRESS:
                     self.log(f"command {command}: {mav.enums['MAV_RESULT'][ack.result].name}")
                     return int(ack.result)
-                deadline = deadline or time.monotonic() + self.in_progress_timeout
-                timeout = max(0.0, deadline - time.monotonic())  # in progress: wait, never resend
+                deadline = deadline or self.now() + self.in_progress_timeout
+                timeout = max(0.0, deadline - self.now())  # in progress: wait, never resend
             if deadline is not None:
                 break
         self.log(f"command {command}: no COMMAND_ACK: given up")

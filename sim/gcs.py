@@ -11,9 +11,8 @@ the program ``mcp-node --protocol mavlink gcs`` runs) or one of its faults
   numbers from 0 again, when the first bytes it reads start a MAVLink 2 frame
   (``mavfile.auto_mavlink_version``); as pymavlink's ``udpin`` it sends nothing until it has
   heard a peer (``mavudp.write``);
-- its clock: ``recv``'s timeout and ``command``'s wait after MAV_RESULT_IN_PROGRESS
-  (:class:`SimGcsSeam`; ``command`` is the reference's, its ``time.monotonic()`` read from the
-  clock -- tests/sim/test_mavlink_gcs_sim.py holds the two texts equal but for that);
+- its clock: ``recv``'s timeout and ``command``'s wait after MAV_RESULT_IN_PROGRESS read
+  ``ReferenceGcs.now``, the clock's here (:class:`SimGcsSeam`);
 - its threads (the heartbeat's) and its ``main``: :class:`GcsProcess` runs ``main``'s steps
   in order with ``build_parser``'s defaults, in a clock thread, and reads as the session's
   spawned process (``alive``, ``returncode``, ``stop``); a stop is SIGTERM: the model's next
@@ -169,36 +168,8 @@ class SimGcsSeam(ReferenceGcs):
         self._stop = clock.event()
         self._beater = _ClockThread(clock, self._beat, "gcs-heartbeat")  # type: ignore[assignment]
 
-    def recv(self, types: list[str], timeout: float, where: Any = None) -> Any | None:
-        """The next message of ``types`` from the vehicle (and ``where(msg)``) within ``timeout`` s."""
-        end = self.clock.monotonic() + timeout
-        while (left := end - self.clock.monotonic()) > 0:
-            msg = self.conn.recv_match(type=types, blocking=True, timeout=min(left, 0.2))
-            if msg is None or (self.target[0] and msg.get_srcSystem() != self.target[0]):
-                continue
-            if where is None or where(msg):
-                return msg
-        return None
-
-    def command(self, command: int, params: Any) -> int | None:
-        """COMMAND_LONG, resent with confirmation incremented until its final COMMAND_ACK; its result."""
-        p = [*params, *[0.0] * (7 - len(params))][:7]
-        deadline = None
-        for n in range(1 + self.command_retries):
-            self.send(self.encode("COMMAND_LONG", command=command, confirmation=self.confirmation(n),
-                                  param1=p[0], param2=p[1], param3=p[2], param4=p[3], param5=p[4], param6=p[5],
-                                  param7=p[6]))
-            timeout = self.command_timeout
-            while (ack := self.recv(["COMMAND_ACK"], timeout, lambda m: self.answers(m, command))) is not None:
-                if ack.result != mav.MAV_RESULT_IN_PROGRESS:
-                    self.log(f"command {command}: {mav.enums['MAV_RESULT'][ack.result].name}")
-                    return int(ack.result)
-                deadline = deadline or self.clock.monotonic() + self.in_progress_timeout
-                timeout = max(0.0, deadline - self.clock.monotonic())  # in progress: wait, never resend
-            if deadline is not None:
-                break
-        self.log(f"command {command}: no COMMAND_ACK: given up")
-        return None
+    def now(self) -> float:
+        return self.clock.monotonic()
 
 
 def gcs_class(fault: str | None) -> type[SimGcsSeam]:
