@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import tempfile
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -43,7 +42,7 @@ from mcp_conform.sim.gcs import GcsProcess, SimMavConn, gcs_class
 from mcp_conform.sim.link import check_spec
 from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
-from mcp_conform.sim.vehicle_role import _Lane
+from mcp_conform.sim.vehicle_role import RunnerEnd, _Lane
 from mcp_conform.spec.profiles import pick
 
 __all__ = ["GCS_ADDR", "RUNNER_ADDR", "GcsLinks", "SimGcsSession", "run_gcs_cases"]
@@ -59,17 +58,14 @@ SCHEMES = ("tcp", "udp", "udpin", "udpout")
 LATENCY_S = 50e-6
 
 
-class _RunnerEnd:
+class _RunnerEnd(RunnerEnd):
     """The runner's end of one run's link (``HostLinks.open``'s: ``send``, ``ready``,
     ``read``, ``close``, ``sock``), to :attr:`conn`, the ground station's connection."""
 
     def __init__(self, links: GcsLinks, transport: str, address: Address) -> None:
         clock = links.clock
-        self.links, self.transport, self.clock = links, transport, clock
-        self.sock = self
-        self._cond = clock.condition()
-        self._queue: deque[bytes] = deque()
-        self.closed = False
+        super().__init__(clock, transport, GCS_ADDR)
+        self.links = links
         links.runs += 1
         stream = transport == "tcp"
         run = links.runs
@@ -92,21 +88,6 @@ class _RunnerEnd:
         if conn is not None:
             self.down.carry(data, conn.arrive)
 
-    def ready(self, timeout: float) -> bool:
-        with self._cond:
-            if not self._queue and not self.closed:
-                self._cond.wait(timeout)
-            if self.closed:
-                raise ValueError("closed")
-            return bool(self._queue)
-
-    def read(self) -> tuple[bytes, Any]:
-        with self._cond:
-            if not self._queue:
-                raise BlockingIOError
-            data = self._queue.popleft()
-        return data, (None if self.transport == "tcp" else GCS_ADDR)
-
     def close(self) -> None:
         with self._cond:
             self.closed = True
@@ -123,12 +104,6 @@ class _RunnerEnd:
         """The ground station closed its end: over TCP the runner reads the end (b"")."""
         if self.transport == "tcp":
             self.up.carry(b"", self._arrive)
-
-    def _arrive(self, data: bytes) -> None:
-        with self._cond:
-            if not self.closed:
-                self._queue.append(data)
-                self._cond.notify_all()
 
 
 class GcsLinks:

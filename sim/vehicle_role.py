@@ -84,34 +84,18 @@ class _Lane:
             self.clock.call_at(t, lambda: deliver(data))
 
 
-class _SimEnd:
-    """The runner's end of the link on the simulated net (``harness.mavlink_session``'s
-    ``HostLinks.open`` end: ``send``, ``ready``, ``read``, ``close``, ``sock``)."""
+class RunnerEnd:
+    """What the runner's end of a simulated link is in either MAVLink role (``harness.
+    mavlink_session``'s ``HostLinks.open`` end: ``ready``, ``read``, ``sock``; its subclass
+    adds ``send`` and ``close``): the chunks that came, queued on the clock, read in order;
+    ``peer``: where a datagram comes from (over UDP; over TCP none)."""
 
-    def __init__(self, links: SimLinks, transport: str, address: Address) -> None:
-        vnet = links.vnet
-        if vnet is None or (transport == "tcp" and (vnet.listener is None or vnet.listener.closed)):
-            raise ConnectionRefusedError(111, "Connection refused")
-        self.links, self.transport, self.address, self.vnet = links, transport, address, vnet
-        clock = links.clock
+    def __init__(self, clock: VirtualClock, transport: str, peer: Address) -> None:
+        self.clock, self.transport, self.peer = clock, transport, peer
         self.sock = self
         self._cond = clock.condition()
         self._queue: deque[bytes] = deque()
         self.closed = False
-        self.proxy = FaultProxy(links.fault) if links.fault is not None else None
-        stream = transport == "tcp"
-        self.down = _Lane(clock, links.impairment, "runner:down", stream, vnet.latency)
-        self.up = _Lane(clock, links.impairment, "runner:up", stream, vnet.latency)
-        vnet.attach(RUNNER_ADDR, self._from_vehicle)
-
-    def getsockname(self) -> Address:
-        return RUNNER_ADDR
-
-    # -- the runner's side ----------------------------------------------------------------
-    def send(self, data: bytes, peer: Address) -> None:
-        if self.closed:
-            raise BrokenPipeError(32, "Broken pipe")
-        self.down.carry(data, self._to_vehicle)
 
     def ready(self, timeout: float) -> bool:
         with self._cond:
@@ -126,7 +110,40 @@ class _SimEnd:
             if not self._queue:
                 raise BlockingIOError
             data = self._queue.popleft()
-        return data, (None if self.transport == "tcp" else self.address)
+        return data, (None if self.transport == "tcp" else self.peer)
+
+    def _arrive(self, data: bytes) -> None:
+        with self._cond:
+            if not self.closed:
+                self._queue.append(data)
+                self._cond.notify_all()
+
+
+class _SimEnd(RunnerEnd):
+    """The runner's end of the link on the simulated net (``harness.mavlink_session``'s
+    ``HostLinks.open`` end: ``send``, ``ready``, ``read``, ``close``, ``sock``)."""
+
+    def __init__(self, links: SimLinks, transport: str, address: Address) -> None:
+        vnet = links.vnet
+        if vnet is None or (transport == "tcp" and (vnet.listener is None or vnet.listener.closed)):
+            raise ConnectionRefusedError(111, "Connection refused")
+        super().__init__(links.clock, transport, address)
+        self.links, self.address, self.vnet = links, address, vnet
+        clock = links.clock
+        self.proxy = FaultProxy(links.fault) if links.fault is not None else None
+        stream = transport == "tcp"
+        self.down = _Lane(clock, links.impairment, "runner:down", stream, vnet.latency)
+        self.up = _Lane(clock, links.impairment, "runner:up", stream, vnet.latency)
+        vnet.attach(RUNNER_ADDR, self._from_vehicle)
+
+    def getsockname(self) -> Address:
+        return RUNNER_ADDR
+
+    # -- the runner's side ----------------------------------------------------------------
+    def send(self, data: bytes, peer: Address) -> None:
+        if self.closed:
+            raise BrokenPipeError(32, "Broken pipe")
+        self.down.carry(data, self._to_vehicle)
 
     def close(self) -> None:
         with self._cond:
@@ -152,12 +169,6 @@ class _SimEnd:
             data = self.proxy.up(data)
         if data:
             self.up.carry(data, self._arrive)
-
-    def _arrive(self, data: bytes) -> None:
-        with self._cond:
-            if not self.closed:
-                self._queue.append(data)
-                self._cond.notify_all()
 
 
 class SimLinks:
