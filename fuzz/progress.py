@@ -44,6 +44,9 @@ class Progress:
     classes: dict[str, int] = field(default_factory=dict)
     #: mutation kind -> message name -> cases sent, when the campaign counts them
     tried: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: ``--jobs``: the workers, and how many of them have judged a case (0: one process)
+    workers: int = 0
+    workers_judging: int = 0
 
     @property
     def elapsed(self) -> float:
@@ -90,16 +93,19 @@ def _reasons(by_reason: dict[str, int]) -> str:
     return f" ({'; '.join(f'{n} {why}' for why, n in by_reason.items())})" if by_reason else ""
 
 
-def figures_line(label: str, elapsed: float, cases: int, rate: float, findings: str, restarts: int) -> str:
+def figures_line(label: str, elapsed: float, cases: int, rate: float, findings: str, restarts: int,
+                 workers: str = "") -> str:
     """A campaign's live figures as one plain line (a CI log's progress), whatever its
-    protocol: ``label`` its engine (and protocol), ``findings`` their count (and classes)."""
+    protocol: ``label`` its engine (and protocol), ``findings`` their count (and classes),
+    ``workers`` (``--jobs``) how many workers have judged a case of how many."""
     return (f"mcp-fuzz: {elapsed:,.0f} s  {label}  cases {cases:,}  {rate:,.0f} judged cases/s  "
-            f"findings {findings}  restarts {restarts}")
+            f"findings {findings}  restarts {restarts}" + (f"  workers judging {workers}" if workers else ""))
 
 
 def status_line(label: str, p: Progress) -> str:
     """The live figures as one plain line."""
-    return figures_line(label, p.elapsed, p.cases, p.judged_rate, p.found(), p.restarts)
+    workers = f"{p.workers_judging}/{p.workers}" if p.workers else ""
+    return figures_line(label, p.elapsed, p.cases, p.judged_rate, p.found(), p.restarts, workers)
 
 
 def tried_table(tried: dict[str, dict[str, int]], messages: Any,

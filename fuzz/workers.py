@@ -151,6 +151,7 @@ def run_jobs(child: Callable[..., None], args_of: Callable[[int, Any, Any], tupl
         prog.cases = sum(b["cases"] for b in per.values())
         prog.fuzz_seconds = max((b["fuzz_s"] for b in per.values()), default=0.0)
         prog.restarts = sum(b["restarts"] for b in per.values())
+        prog.workers, prog.workers_judging = jobs, sum(1 for b in per.values() if b["cases"] > 0)
         prog.findings = len(found)
         prog.classes = sum_tables([{"": {c: 1}} for c in found.values() if c]).get("", {})
         prog.tried = sum_tables(b.get("tried", {}) for b in per.values())
