@@ -28,8 +28,10 @@ nothing to say):
 ``Streams`` schedules them: the HEARTBEAT at ``heartbeat_hz`` (no stream holds it, so no
 REQUEST_DATA_STREAM touches it), the rest at ``telemetry_hz`` as if every SRn_ stream rate were
 set to it. MAV_CMD_SET_MESSAGE_INTERVAL sets one message's interval as
-``GCS_MAVLINK::set_message_interval`` does (0: the default, -1: stop, under 1 ms: 1 ms, over
-60 s: 60 s; a message the vehicle cannot send: MAV_RESULT_FAILED), the HEARTBEAT's included:
+``GCS_MAVLINK::set_message_interval`` does (0: the default, -1: stop, over 60 s: 60 s; a message
+the vehicle cannot send: MAV_RESULT_FAILED; an interval under 80 % of the main loop's period is
+that, ``cap_message_interval``: "It can't be greater than 0.8 * SCHED_LOOP_RATE", i.e.
+``loop_period_us/800`` ms, 3 ms at ArduCopter's 400 Hz), the HEARTBEAT's included:
 ArduPilot maps MAVLINK_MSG_ID_HEARTBEAT to MSG_HEARTBEAT (``mavlink_id_to_ap_message_id``), a
 deferred message whose interval ``set_ap_message_interval`` sets like any other (1 s at start,
 ``initialise_message_intervals_from_streamrates``; 0 restores it, 1 s,
@@ -51,6 +53,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from .codec import MAVLinkMessage
 
+#: ArduCopter's main loop period (SCHED_LOOP_RATE 400 Hz), which caps a message's rate.
+LOOP_PERIOD_US = 2500
+#: The shortest interval a message gets (``cap_message_interval``: ``loop_period_us/800.0f``
+#: stored in a uint16_t of milliseconds: 3 ms at 400 Hz).
+MIN_INTERVAL_MS = int(LOOP_PERIOD_US / 800)
 #: Seconds between HOME_POSITION messages once home is set.
 HOME_INTERVAL = 5.0
 #: The version the vehicle reports (AUTOPILOT_VERSION, banner).
@@ -130,7 +137,8 @@ class Streams:
         elif us < 0:
             return mav.MAV_RESULT_FAILED, f"interval {us} us is negative (only -1 stops)"
         else:
-            seconds = min(max(us, 1000), 60_000_000) / 1e6
+            ms = min(us, 60_000_000) / 1000
+            seconds = (MIN_INTERVAL_MS if ms * 800 < LOOP_PERIOD_US else ms) / 1000
         self.interval[msgid] = seconds
         self._due[msgid] = now + seconds if seconds else math.inf
         return mav.MAV_RESULT_ACCEPTED, ""

@@ -48,3 +48,20 @@ def test_no_stream_request_stops_the_heartbeat() -> None:
     model.tick(0.0)
     gcs.send(mav.MAVLink_request_data_stream_message(1, 1, mav.MAV_DATA_STREAM_ALL, 0, 0), 0.0)
     assert beats(model, 0.05, 3.0) == 3
+
+
+def test_an_interval_under_80_percent_of_the_loop_period_is_capped_at_3_ms() -> None:
+    """Issue 39's note: SET_MESSAGE_INTERVAL of 1 us made the vehicle beat at 1 kHz (it capped at
+    1 ms). ArduPilot's ``cap_message_interval``: an interval whose ms x 800 is under the loop
+    period (2,500 us at ArduCopter's 400 Hz) is ``loop_period_us/800`` = 3 ms, as
+    GET_MESSAGE_INTERVAL then reports."""
+    for asked in (1, 1000, 3000):
+        model, gcs = make()
+        model.tick(0.0)
+        assert ack_of(gcs.command(SET, HB, asked, now=0.0), SET) == ACCEPTED
+        assert by_type(gcs.command(GET, HB, now=0.0), "MESSAGE_INTERVAL").interval_us == 3000, asked
+        assert beats(model, 0.001, 0.301, step=0.001) == 100, asked  # every 3 ms, 0.3 s
+    model, gcs = make()
+    model.tick(0.0)
+    assert ack_of(gcs.command(SET, HB, 4000, now=0.0), SET) == ACCEPTED  # 4 ms x 800 > 2,500 us: kept
+    assert by_type(gcs.command(GET, HB, now=0.0), "MESSAGE_INTERVAL").interval_us == 4000
