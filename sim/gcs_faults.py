@@ -11,6 +11,9 @@ processes (``tests/mavlink/faulty_gcs.py``, the real-socket smoke runs) and in t
 - ``items-out-of-order``: the first request for item 1 answered with item 2 (MAV-MIS-20);
 - ``degrees``: the mission's latitude and longitude in degrees, not degE7, as seed 001 sends
   them (MAV-MIS-26);
+- ``degE7-in-float-item``: the items as the deprecated MISSION_ITEM with the degE7 integers in
+  its degrees fields, the defect of seed 001's ``mavlink_send_take_off`` (MAV-MIS-26; the
+  deprecated message is MAV-MIS-12's too, a SHOULD: ``ALSO``);
 - ``no-count-resend``: an unanswered MISSION_COUNT never resent (MAV-MIS-22);
 - ``mission-never-gives-up``: an unanswered MISSION_COUNT resent 50 times (MAV-MIS-23);
 - ``ignores-error-ack``: an error MISSION_ACK does not end the upload (MAV-MIS-24);
@@ -30,7 +33,7 @@ from typing import Any
 
 from mcp_conform.reference_impl.mavlink_gcs import ReferenceGcs, mav
 
-__all__ = ["FAULTS", "RULES"]
+__all__ = ["ALSO", "FAULTS", "RULES"]
 
 
 class NoHeartbeat(ReferenceGcs):
@@ -66,6 +69,14 @@ class Degrees(ReferenceGcs):
         for item in items:
             item.x, item.y = round(item.x / 1e7), round(item.y / 1e7)
         return items
+
+
+class DegE7InFloatItem(ReferenceGcs):
+    def plan(self, path: str | None) -> list[Any]:
+        return [self.encode("MISSION_ITEM", seq=i.seq, frame=i.frame, command=i.command, current=0, autocontinue=1,
+                            param1=i.param1, param2=i.param2, param3=i.param3, param4=i.param4, x=float(i.x),
+                            y=float(i.y), z=i.z, mission_type=i.mission_type)
+                for i in super().plan(path)]
 
 
 class NoCountResend(ReferenceGcs):
@@ -129,7 +140,7 @@ class RereadsOutOfOrder(ReferenceGcs):
 FAULTS: dict[str, type[ReferenceGcs]] = {
     "none": ReferenceGcs, "no-heartbeat": NoHeartbeat, "type-quadrotor": TypeQuadrotor,
     "mavlink1-start": Mavlink1Start, "items-out-of-order": ItemsOutOfOrder, "degrees": Degrees,
-    "no-count-resend": NoCountResend, "mission-never-gives-up": MissionNeverGivesUp,
+    "degE7-in-float-item": DegE7InFloatItem, "no-count-resend": NoCountResend, "mission-never-gives-up": MissionNeverGivesUp,
     "ignores-error-ack": IgnoresErrorAck, "no-command-resend": NoCommandResend,
     "command-never-gives-up": CommandNeverGivesUp, "confirmation-not-incremented": ConfirmationNotIncremented,
     "ignores-in-progress": IgnoresInProgress, "accepts-any-ack": AcceptsAnyAck, "no-param-resend": NoParamResend,
@@ -142,5 +153,7 @@ RULES: dict[str, str] = {
     "mission-never-gives-up": "MAV-MIS-23", "ignores-error-ack": "MAV-MIS-24", "no-command-resend": "MAV-CMD-6",
     "command-never-gives-up": "MAV-CMD-9", "confirmation-not-incremented": "MAV-CMD-8",
     "ignores-in-progress": "MAV-CMD-10", "accepts-any-ack": "MAV-CMD-17", "no-param-resend": "MAV-PRM-16",
-    "relists-on-gap": "MAV-PRM-14", "rereads-out-of-order": "MAV-PRM-15",
+    "relists-on-gap": "MAV-PRM-14", "rereads-out-of-order": "MAV-PRM-15", "degE7-in-float-item": "MAV-MIS-26",
 }
+#: the SHOULD rules a fault breaks besides its own, by what it is (warned, never failed)
+ALSO: dict[str, frozenset[str]] = {"degE7-in-float-item": frozenset({"MAV-MIS-12"})}

@@ -7,6 +7,7 @@ MISSION_REQUEST_INT, as ArduPilot does once a ground station has sent MISSION_IT
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 
 from mcp_conform.conformance.marks import rules
@@ -137,22 +138,34 @@ def test_items_seq_and_mission_type(node):
                      f"{count.mission_type}", problems[0] if problems else "")
 
 
+def degrees_float(x: float, y: float) -> bool:
+    """D-6, the deprecated MISSION_ITEM: x a latitude and y a longitude in degrees, or NaN
+    (common.xml: "NaN may be used to indicate an optional/default value")."""
+    return (math.isnan(x) or -90 <= x <= 90) and (math.isnan(y) or -180 <= y <= 180)
+
+
 @rules("MAV-MIS-26")
 def test_item_positions_in_degE7(node):
-    """MAV-MIS-26 (D-6): MISSION_ITEM_INT x, y in degrees * 1E7 in a global frame; a
-    navigation item with a position not in MAV_FRAME_MISSION."""
+    """MAV-MIS-26 (D-6): MISSION_ITEM_INT x, y in degrees * 1E7 in a global frame; the
+    deprecated MISSION_ITEM's x, y in degrees (a latitude within -90..90, a longitude within
+    -180..180: a degE7 integer there is no latitude; NaN, "an optional/default value", not
+    judged); a navigation item with a position not in MAV_FRAME_MISSION."""
     node.run()
     node.settle()
 
     def check(r):
         m = r.msg
-        if m.frame in GLOBAL_FRAMES and degrees_sent(m.x, m.y):
+        if m.frame in GLOBAL_FRAMES and r.name == "MISSION_ITEM_INT" and degrees_sent(m.x, m.y):
             return f"item {m.seq}: x {m.x}, y {m.y}: degrees, not degE7"
+        if m.frame in GLOBAL_FRAMES and r.name == "MISSION_ITEM" and not degrees_float(m.x, m.y):
+            return f"MISSION_ITEM {m.seq}: x {m.x}, y {m.y}: not degrees (degE7 in a float field?)"
         if m.command in POSITIONED and m.frame == mav.MAV_FRAME_MISSION:
             return f"item {m.seq}: command {m.command} in MAV_FRAME_MISSION"
         return None
-    node.expect_frames(node.need(node.from_gcs("MISSION_ITEM_INT"), "MISSION_ITEM_INT"), check, "MAV-MIS-26",
-                       "global positions in degrees * 1E7, positioned items in a global frame")
+    items = [r for r in node.from_gcs() if r.name in ITEMS]
+    node.expect_frames(node.need(items, "MISSION_ITEM_INT or MISSION_ITEM"), check, "MAV-MIS-26",
+                       "global positions in degrees * 1E7 (MISSION_ITEM: in degrees), positioned items in a "
+                       "global frame")
 
 
 @rules("MAV-MIS-12", "MAV-MIS-17")

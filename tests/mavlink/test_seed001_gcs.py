@@ -29,11 +29,12 @@ build = examples.build  # the examples built by their Makefile and checked, once
 SEED_GCS = {
     # the seed's defect (-b: item 1 first as a MISSION_ITEM with the degE7 integer in its
     # degrees field) shows as the deprecated MISSION_ITEM (MIS-12) and as a re-requested item 1
-    # that differs from the first (MIS-20: the program sends the corrected item the second time);
-    # MAV-MIS-26 judges MISSION_ITEM_INT only and passes. Arm is retried until accepted or the
+    # that differs from the first (MIS-20: the program sends the corrected item the second time),
+    # and as MAV-MIS-26 (D-6): a latitude of 357713312.0 degrees. Arm is retried until accepted or the
     # program's -t deadline: more than 10 resends (CMD-9), confirmation back to 0 every three (CMD-8), resent
     # through IN_PROGRESS (CMD-10); no HEARTBEAT after the vehicle's first (HB-2)
-    "mission_takeoff -b": {"MAV-HB-2", "MAV-CMD-8", "MAV-CMD-9", "MAV-CMD-10", "MAV-MIS-12", "MAV-MIS-20"},
+    "mission_takeoff -b": {"MAV-HB-2", "MAV-CMD-8", "MAV-CMD-9", "MAV-CMD-10", "MAV-MIS-12", "MAV-MIS-20",
+                           "MAV-MIS-26"},
     "arm_disarm": {"MAV-CMD-8", "MAV-CMD-9", "MAV-CMD-10"},
 }
 
