@@ -220,7 +220,7 @@ class PlayedNodeSession(_LinkRole):
         super().__init__(cfg, recorder, spec, monitor, clock=clock, net=net)
         self.scheme, self._template = scheme, template
         self.link: Link | None = None
-        self.vehicle: Any = None  # the played node's model (MAVLink's: the runner's vehicle)
+        self.model: Any = None  # the played node
         self.behaviour: Any = None
         self.url = ""
         #: when the current run's link opened, and when the peer's first frame came
@@ -243,7 +243,7 @@ class PlayedNodeSession(_LinkRole):
         if not fresh and behaviour == self.behaviour and self.link is not None:
             return self.run_started
         self._end_run()
-        self.behaviour, self.vehicle = behaviour, self.make_model(behaviour, self.clock.monotonic())
+        self.behaviour, self.model = behaviour, self.make_model(behaviour, self.clock.monotonic())
         self.first_frame = None
         self.runs += 1
         segment = f"{self.segment}-{self.runs}"  # each run a session of the capture and the monitor
@@ -287,8 +287,8 @@ class PlayedNodeSession(_LinkRole):
             self._open("tcp", conn.getpeername(), conn)
 
     def _open(self, transport: str, address: tuple[str, int], sock: Any = None) -> None:
-        assert self.vehicle is not None
-        self.link = self.make_link(transport, address, sock, ids=self.vehicle.ids, sent_as="tx", got_as="rx",
+        assert self.model is not None
+        self.link = self.make_link(transport, address, sock, ids=self.model.ids, sent_as="tx", got_as="rx",
                                    on_frames=self._answer, monitor=self.monitor, clock=self.clock, net=self.net)
         self.run_started = self.clock.monotonic()
         self._stop.clear()
@@ -296,7 +296,7 @@ class PlayedNodeSession(_LinkRole):
 
     def _answer(self, frames: list[Any]) -> None:
         """On the link's reader thread: the played node's answers to what the peer sent."""
-        model, link = self.vehicle, self.link
+        model, link = self.model, self.link
         if model is None or link is None:
             return
         for r in frames:
@@ -312,7 +312,7 @@ class PlayedNodeSession(_LinkRole):
     def _tick(self) -> None:
         """The played node's own messages (telemetry, its beat, held answers), until the run
         ends or --timeout."""
-        model, link = self.vehicle, self.link
+        model, link = self.model, self.link
         end = self.clock.monotonic() + self.cfg.timeout
         while model is not None and link is not None and not self._stop.is_set() and self.clock.monotonic() < end:
             with model.lock:

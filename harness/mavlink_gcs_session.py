@@ -48,7 +48,7 @@ class MavlinkGcsSession(PlayedNodeSession):
                     "against it", "startup: waiting for the ground station's first frame")
     placeholder, tick_thread, segment = "mavlink", "mavlink-vehicle", "gcs-run"
     link: Link | None
-    vehicle: RunnerVehicle | None
+    model: RunnerVehicle | None  # the runner's vehicle
     behaviour: Behaviour | None
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK, *,
@@ -63,6 +63,11 @@ class MavlinkGcsSession(PlayedNodeSession):
 
     def make_model(self, behaviour: Behaviour, now: float) -> RunnerVehicle:
         return RunnerVehicle(behaviour, now)
+
+    @property
+    def vehicle(self) -> RunnerVehicle | None:
+        """The runner's vehicle: the played node (``model``), as the cases read it."""
+        return self.model
 
     def start(self, **_: Any) -> None:
         if self.cfg.target is not None:

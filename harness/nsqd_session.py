@@ -84,6 +84,8 @@ class Conn(StreamConn):
     def errors(self, since: float = 0.0) -> list[Received]:
         return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("ERROR").id]
 
+    signs = updates  # the frame that shows the backend serving (NSQD-CON-1)
+
 
 def embedded_command() -> str:
     """The reference backend as the embedded default, at a short UPDATE period."""

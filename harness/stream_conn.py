@@ -164,6 +164,16 @@ class StreamConn:
             if self.recorder is not None:
                 self._record("rx", item.raw, **fields)
 
+    def signs(self, since: float = 0.0) -> list[Any]:
+        """The frames since ``since`` that show the node serving (its session's first frame,
+        ``ConnSessionBase.first_sign``): every frame, unless the protocol says which."""
+        return [r for r in self.frames if r.t >= since]
+
+    def violation(self) -> Any:
+        """The first of the protocol's sender rules the node's frames on this connection
+        break, with ``rule``, ``expected``, ``actual``, ``evidence``; None: none (or no such rules)."""
+        return None
+
     def wait_for(self, pred: Any, timeout: float) -> bool:
         """Pump until ``pred()`` holds or ``timeout`` s pass (or the node closes)."""
         end = time.monotonic() + timeout
