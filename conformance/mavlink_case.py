@@ -12,8 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from mcp_conform.conformance._case_base import CaseBase
-from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.conformance._link_case import LinkCaseBase
+from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.harness.mavlink_session import (
     DIALECT,
     GCS_COMPID,
@@ -39,59 +39,21 @@ def result_name(value: int) -> str:
     return RESULTS.get(value, f"{value} (no MAV_RESULT)")
 
 
-class MavlinkCaseBase(CaseBase):
+class MavlinkCaseBase(LinkCaseBase):
     """What a case of either MAVLink role has (``--role vehicle``: :class:`MavlinkCaseContext`;
-    ``--role gcs``: ``conformance.mavlink_gcs_case``): the spec's parameters, the dialect, the
-    session's link (``link``: the subclass's), sending a message on it, letting time pass, and
-    failures carrying the case's traffic."""
+    ``--role gcs``: ``conformance.mavlink_gcs_case``): the shared core's case on a link
+    (``conformance._link_case.LinkCaseBase``: the clock, sending, letting time pass, failures
+    carrying the case's traffic) with MAVLink's messages, built by the link's pymavlink encoder,
+    and the dialect."""
 
     link: Link
     #: the periodic messages a failure's traffic leaves out
     QUIET = frozenset({"HEARTBEAT", "ATTITUDE", "GLOBAL_POSITION_INT", "VFR_HUD", "SYS_STATUS", "GPS_RAW_INT"})
-
-    def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
-        super().__init__(session, case_id, rules)
-        self.spec = session.spec
-        self.params = self.spec.params
-        self.mav = DIALECT
-        #: the run's clock (``harness.clock``): the host's, or the simulator's virtual one
-        self.clock = session.clock
-        self.t0 = self.clock.monotonic()
-
-    def now(self) -> float:
-        """The run clock's ``monotonic()``: the time of a send, of a frame's arrival."""
-        return self.clock.monotonic()
+    mav = DIALECT
 
     def message(self, name: str, **fields: Any) -> Any:
         """The dialect's message ``name`` with ``fields`` (the others as the encoder's defaults)."""
         return getattr(self.link.encoder, name.lower() + "_encode")(**fields)
-
-    def send(self, name: str, **fields: Any) -> float:
-        """Send message ``name`` to the node under test; its send time (:meth:`now`'s clock)."""
-        return self.link.send(self.message(name, **fields))
-
-    def watch(self, seconds: float) -> None:
-        """Let ``seconds`` pass, the link read meanwhile."""
-        self.link.wait_for(lambda: False, seconds)
-
-    def _traffic(self) -> list[str]:
-        sent = [f"sent {name} ({len(data)} B, +{t - self.t0:.3f} s): {data[:48].hex(' ')}"
-                for t, name, data in self.link.sent if t >= self.t0 and name not in self.QUIET][-4:]
-        got = [f"got +{r.t - self.t0:.3f} s: {r.describe()}" for r in self.link.received(self.t0)
-               if r.name not in self.QUIET][-4:]
-        return sent + got
-
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
-        """The failure to raise; a spawned node that died is said first."""
-        death = self.session.death(grace=0.05)
-        ev = [death.describe()] if death is not None else []
-        return CaseFailure(rule, expected, actual, ev + list(evidence) + self._traffic())
-
-    def expect_frames(self, frames: Sequence[Received], check: Callable[[Received], str | None],
-                      rule: str, expected: str) -> None:
-        """Every frame of ``frames`` passes ``check`` (which returns a problem or None):
-        ``CaseBase.expect_all`` over frames."""
-        self.expect_all(frames, check, rule, expected, noun="frames")
 
     def command_name(self, command: int) -> str:
         entry = DIALECT.enums["MAV_CMD"].get(command)

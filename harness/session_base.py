@@ -5,8 +5,10 @@ revival, the case's bounds and their marks in the capture, the case context the 
 it (``make_context``). What the datagram protocol's two roles (``harness.drone_session`` for a
 drone, ``harness.manager_session`` for a Mission Manager) add is ``DatagramSessionBase``: MCP's
 constants, the run's timings, the capture's observers on the runner's socket held against
-signals, ``--impair``. The stream session (``harness.nsqd_session``, Nsqd's backend) stands
-on ``SessionBase`` alone. No session imports another's module."""
+signals, ``--impair``. The sessions over a connection or a link stand on
+``harness.stream_session`` (a node serving connections: ``ConnSessionBase``, Nsqd's backend)
+and ``harness.link_session`` (one link: MAVLink's two roles), the protocol their declared
+parameter. No session imports another's module but a role's own protocol's."""
 
 from __future__ import annotations
 

@@ -1,22 +1,34 @@
 """What the sessions of the protocols the runner reaches over a connection or a link share
 (Nsqd's ``harness.nsqd_session``, MAVLink's ``harness.mavlink_session`` and
-``harness.mavlink_gcs_session``), beside every session's ``harness.session_base``: the
-command their node is spawned with (``--spawn``, or the role's embedded reference node), the
-node started on a free loopback port and waited for until it listens (or dies: its exit and
-the tail of its output said), and its stop at the end of the run.
+``harness.mavlink_gcs_session``, on ``harness.link_session``), beside every session's
+``harness.session_base``: the command their node is spawned with (``--spawn``, or the role's
+embedded reference node), the node started on a free loopback port and waited for until it
+listens (or dies: its exit and the tail of its output said), and its stop at the end of the run.
+
+:class:`ConnSessionBase` is the session with a node that serves connections, whatever its
+stream protocol (the runner its client): a connection of the protocol's
+(``harness.stream_conn.StreamConn``) opened per case, the node live when a new connection is
+accepted and sent its first frame, its descriptors watched, a dead or hung spawned node
+restarted for the next case. A protocol declares its connection (``make_conn``), its first
+frame and the rule asking for it, and the parameter that bounds the gap between its frames.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import time
 from collections.abc import Callable
+from typing import Any
 
+from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.procs import SPAWN_STARTUP_S, ManagedProcess
 from mcp_conform.harness.session_base import SessionBase, SpawnedNode, fill_placeholders, free_port
+from mcp_conform.harness.stream_conn import StreamConn
 
-__all__ = ["StreamSessionBase", "accepts"]
+__all__ = ["ConnSessionBase", "StreamSessionBase", "accepts"]
 
 HOST = "127.0.0.1"
 
@@ -99,3 +111,160 @@ class StreamSessionBase(SessionBase):
         """The spawned node stopped (SIGTERM, SIGKILL soon after: a hung node may ignore SIGTERM)."""
         if self.node is not None:
             self.node.stop(grace=0.5)
+
+
+class ConnSessionBase(StreamSessionBase):
+    """The node under test over the whole run, and the connections of its cases (see the
+    module docstring). A protocol declares ``first_sign`` (its node's first frame on a new
+    connection), ``first_rule`` (the rule asking for it), ``gap_param`` (the spec's parameter
+    bounding the gap between its frames) and :meth:`make_conn`."""
+
+    first_sign = ""
+    first_rule = ""
+    gap_param = ""
+
+    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, embedded: Callable[[], str]) -> None:
+        self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        self.node: SpawnedNode | None = None
+        self.driver = None  # no datagram socket: the cases' connections
+        #: the command the node is spawned with: --spawn, or the reference node when nothing is
+        #: attached (the embedded default); None in attach mode
+        self._template: str | None = cfg.spawn or (embedded() if cfg.target is None else None)
+        self.address: tuple[str, int] = cfg.target or (HOST, 0)
+        self.conns: list[Any] = []
+        self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
+        self._conn_count = 0
+        self._live_at: float | None = None  # when the last connection that proved it live opened
+
+    def make_conn(self, sock: socket.socket, index: int) -> StreamConn:
+        """The protocol's connection on ``sock``, the run's ``index``-th."""
+        raise NotImplementedError
+
+    # -- life -------------------------------------------------------------------------
+    @property
+    def proc(self) -> ManagedProcess | None:
+        """The spawned node's process (its output, its sanitizer report), None when attached."""
+        return self.node.process if self.node is not None else None
+
+    def start(self) -> None:
+        if self.spawned:
+            self._spawn()
+            how = " (spawned)" if self.cfg.spawn else f" (embedded reference {self.subject.removeprefix('the ')})"
+        else:
+            how = ""
+        self.target_desc = f"{self.address[0]}:{self.address[1]}{how}"
+        # attached: the protocol's allowance; spawned: also the time a just-started process takes
+        # on a loaded host (a CI run beside a fuzz campaign: the embedded reference backend missed
+        # 3.5 s). How soon the first frame follows accepting is the cases' to judge
+        allowance = float(self.spec.params["connect_timeout_s"]) + float(self.spec.params[self.gap_param])
+        if not self.live(max(allowance, SPAWN_STARTUP_S) if self.spawned else allowance):
+            raise SetupError(f"{self.subject} at {self.address[0]}:{self.address[1]} accepted no connection "
+                             f"or sent no {self.first_sign} ({self.first_rule})")
+
+    def _spawn(self) -> None:
+        """The node started on a free loopback port (``{target_host}`` ``{target_port}``
+        filled in by the runner's one placeholder helper), and listening."""
+        self.spawn_at_free_port()
+        self.await_listening(lambda: accepts(self.address), within=10.0, pause=0.05)
+
+    def close(self) -> None:
+        for c in self.conns:
+            c.close()
+        self.conns.clear()
+        super().close()
+
+    # -- connections --------------------------------------------------------------------
+    def connect(self, timeout: float | None = None) -> Any:
+        """A new connection (None: refused or not accepted within ``timeout``)."""
+        timeout = timeout if timeout is not None else float(self.spec.params["connect_timeout_s"])
+        try:
+            sock = socket.create_connection(self.address, timeout=timeout)
+        except OSError:
+            return None
+        self._conn_count += 1
+        conn = self.make_conn(sock, self._conn_count)
+        self.conns.append(conn)
+        return conn
+
+    def live(self, timeout: float) -> bool:
+        """The node accepts a new connection and sends on it within ``timeout``."""
+        conn = self.connect(min(timeout, float(self.spec.params["connect_timeout_s"])))
+        if conn is None:
+            return False
+        try:
+            # any bytes prove it live: frames the runner cannot parse are the framing rule's to judge
+            ok = conn.wait_for(lambda: bool(conn.frames) or conn.framing_error is not None, timeout)
+            if ok:
+                self._live_at = conn.opened
+            return ok
+        finally:
+            conn.close()
+            self.conns.remove(conn)
+
+    def proven_alive(self) -> bool:
+        """A round trip after the case's last write: a connection opened after it was
+        accepted and sent something (a node serves a new client once it has read what the
+        old ones sent; one that dies on a write never gets there). Nothing sent: nothing to
+        prove."""
+        if not self.sent_log:
+            return True
+        last = self.sent_log[-1][0]
+        return (self._live_at is not None and self._live_at > last) or any(
+            c.opened > last and (c.frames or c.framing_error is not None) for c in self.conns)
+
+    def open_fds(self) -> int | None:
+        """The spawned node's open descriptors, from /proc (None when not observable)."""
+        if self.node is None:
+            return None
+        try:
+            return len(os.listdir(f"/proc/{self.node.proc.pid}/fd"))
+        except OSError:
+            return None
+
+    def cycle_connections(self, cycles: int, within: float) -> int:
+        """Connections opened and closed with nothing sent, up to ``cycles`` within ``within``
+        s (a SYN a full listen backlog dropped is retried, not counted); how many were made."""
+        done, deadline = 0, time.monotonic() + within
+        while done < cycles and time.monotonic() < deadline:
+            try:
+                with socket.create_connection(self.address, timeout=0.1):
+                    pass
+            except OSError:
+                time.sleep(0.02)
+                continue
+            done += 1
+            time.sleep(0.0005)  # yields: an embedded node shares this process
+        return done
+
+    def settled_fds(self, quiet: float = 0.3, limit: float = 2.0) -> int | None:
+        """:meth:`open_fds` once it held for ``quiet`` s (the node has handled the closes
+        before it), or at ``limit`` s."""
+        last, since, end = self.open_fds(), time.monotonic(), time.monotonic() + limit
+        while last is not None and time.monotonic() < end and time.monotonic() - since < quiet:
+            time.sleep(0.02)
+            now = self.open_fds()
+            if now != last:
+                last, since = now, time.monotonic()
+        return last
+
+    # -- case API (SessionBase.begin_case, end_case) --------------------------------------
+    def before_case(self) -> None:
+        super().before_case()  # a node lost earlier: TargetLost
+        self.sent_log.clear()
+
+    def case_ended(self, ctx: Any, outcome: str) -> None:
+        """The case's connections closed; a dead spawned node revived, a live one that no
+        longer serves after a failure (a hang) restarted: the next case gets one that serves."""
+        for c in list(self.conns):
+            c.close()
+        self.conns.clear()
+        if not self.spawned or self.revive():
+            return
+        if outcome in ("failed", "error") and not self.live(float(self.spec.params[self.gap_param])):
+            self.restart()
+
+    def restart(self) -> None:
+        """Stop the spawned node (SIGTERM, then SIGKILL soon: a hung node may ignore SIGTERM)
+        and start it afresh."""
+        if self.node is not None:
+            self.respawn(grace=0.5)

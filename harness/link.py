@@ -1,0 +1,234 @@
+"""The runner's one link to a node under test, whatever its protocol: the end it opens (a TCP
+connection, a UDP socket either way: :class:`HostLinks`, or the simulator's net), a reader
+thread that cuts what comes into frames by the protocol's :class:`Framing`, every frame both
+ways stamped on the run's clock and recorded, under one lock, to the capture and to the run's
+trace monitor (one judge, live and offline), and waits on predicates over what came.
+
+The protocol is a parameter, never a copy: its :class:`Framing` says how bytes become frames
+and how a frame is written to the capture; a protocol's link adds only how it packs what the
+runner sends (MAVLink's: ``harness.mavlink_session.Link``, pymavlink's encoder). Transports
+are named as pymavlink names them: ``tcp`` connects (or takes a connection the runner
+accepted), ``udpin`` binds and answers whoever sent first, ``udpout`` sends to an address.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+import threading
+from typing import Any, Protocol
+
+from mcp_conform.harness.clock import REAL, Clock
+
+__all__ = ["HOST_LINKS", "Framing", "HostLinks", "Link", "SocketEnd"]
+
+
+class Framing(Protocol):
+    """A protocol as a link's parameter. ``thread``: the reader thread's name;
+    ``deframe(data, t)``: the frames in ``data`` (arrived at ``t``), each with ``t``, ``raw``,
+    ``name`` and ``bad`` (bytes that are no good frame, kept, never raised); ``record``: one
+    frame written to the capture (``direction`` from the node's side, ``name`` None when unknown)."""
+
+    thread: str
+
+    def deframe(self, data: bytes, t: float) -> list[Any]: ...
+
+    def record(self, recorder: Any, direction: str, raw: bytes, t_ns: int, name: str | None) -> None: ...
+
+
+class SocketEnd:
+    """The runner's end of a link on the host: a TCP connection or a UDP socket, as
+    :meth:`HostLinks.open` made it (``sock``: the socket, non-blocking)."""
+
+    def __init__(self, transport: str, address: tuple[str, int], sock: socket.socket | None) -> None:
+        self.transport = transport
+        if sock is None:
+            if transport == "tcp":
+                sock = socket.create_connection(address, timeout=2.0)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            else:
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                sock.bind(address if transport == "udpin" else ("127.0.0.1", 0))
+        sock.setblocking(False)
+        self.sock = sock
+
+    def send(self, data: bytes, peer: tuple[str, int]) -> None:
+        """``data`` to the peer (TCP: all of it, within 2 s); OSError when it cannot."""
+        if self.transport == "tcp":
+            self.sock.setblocking(True)
+            self.sock.settimeout(2.0)
+            try:
+                self.sock.sendall(data)
+            finally:
+                self.sock.setblocking(False)
+        else:
+            self.sock.sendto(data, peer)
+
+    def ready(self, timeout: float) -> bool:
+        """Whether something can be read within ``timeout`` s (OSError, ValueError: closed)."""
+        readable, _, _ = select.select([self.sock], [], [], timeout)
+        return bool(readable)
+
+    def read(self) -> tuple[bytes, Any]:
+        """What came and from where (TCP: b"" at the connection's end); BlockingIOError:
+        nothing after all."""
+        if self.transport == "tcp":
+            return self.sock.recv(65536), None
+        data, addr = self.sock.recvfrom(65536)
+        return data, addr
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+
+class HostLinks:
+    """Where a :class:`Link` opens its end: the host's sockets (the default; the simulator's
+    nets are ``mcp_conform.sim``'s). ``open(transport, address, sock)`` returns an end with
+    ``send(data, peer)``, ``ready(timeout)``, ``read()``, ``close()`` and ``sock`` (what
+    ``getsockname()`` reads); OSError when it cannot be opened."""
+
+    def open(self, transport: str, address: tuple[str, int], sock: socket.socket | None = None) -> Any:
+        return SocketEnd(transport, address, sock)
+
+
+#: The host's sockets, every link's default.
+HOST_LINKS = HostLinks()
+
+
+class Link:
+    """The runner's link to the node under test over ``transport`` at ``address``, its frames
+    cut by ``framing``: ``sent_as``/``got_as`` are the capture's directions of what the runner
+    sends and gets, from the node's side; ``sock``: a TCP connection the runner accepted;
+    ``on_frames``: called on the reader thread with each batch of frames that came (a node the
+    runner plays answers them); ``monitor``: the run's trace monitor, fed each frame both ways
+    as it is recorded (``monitor.frame(t_ns, raw, direction)``), with the capture's time and in
+    the capture's order. ``clock``, ``net``: the run's clock (``harness.clock``) and where the
+    link's end is opened (:class:`HostLinks`: the host's by default, the simulator's virtual
+    ones in ``mcp_conform.sim``, issue 38)."""
+
+    def __init__(self, framing: Framing, transport: str, address: tuple[str, int], recorder: Any = None, *,
+                 sent_as: str = "rx", got_as: str = "tx", sock: socket.socket | None = None, on_frames: Any = None,
+                 monitor: Any = None, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
+        self.framing = framing
+        self.transport, self.address, self.recorder, self.monitor = transport, address, recorder, monitor
+        self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
+        self.clock = clock
+        self.frames: list[Any] = []
+        self.sent: list[tuple[float, str, bytes]] = []
+        self.closed_at: float | None = None
+        self._cond = clock.condition()
+        self._send_lock = threading.Lock()
+        #: held while a frame is stamped and recorded: the capture and the monitor get frames in
+        #: the order of their times
+        self._record_lock = threading.Lock()
+        self._stop = clock.event()
+        self.peer: tuple[str, int] | None = None if transport == "udpin" else address
+        self._end = net.open(transport, address, sock)
+        self.sock = self._end.sock
+        self._reader = clock.start_thread(self._read, framing.thread)
+
+    # -- out ------------------------------------------------------------------------------
+    def pack(self, msg: Any) -> tuple[bytes, str]:
+        """``msg`` as the bytes of its frame and its name (the protocol's link packs)."""
+        raise NotImplementedError(f"{type(self).__name__} packs no message")
+
+    def send(self, msg: Any) -> float:
+        """Pack ``msg`` (:meth:`pack`) and send it; its send time."""
+        with self._send_lock:
+            return self._send_locked(*self.pack(msg))
+
+    def send_raw(self, data: bytes, name: str = "raw") -> float:
+        """Send ``data`` as it is (``name``: what the capture calls it; "raw": nothing); its
+        send time."""
+        with self._send_lock:
+            return self._send_locked(data, name)
+
+    def _send_locked(self, data: bytes, name: str) -> float:
+        """Stamped before it is sent and recorded under the record lock (:meth:`_record`): the
+        answer, stamped once it came, is always after its request, in the capture as in the
+        live monitor, however long the sending thread waits for the GIL."""
+        with self._record_lock:
+            t, t_ns = self.clock.monotonic(), self.clock.time_ns()
+            if self.peer is None:
+                return t  # udpin: nobody to send to until the node has sent
+            try:
+                self._end.send(data, self.peer)
+            except OSError:
+                self.closed_at = self.closed_at or self.clock.monotonic()
+                return t
+            self.sent.append((t, name, data))
+            self._record(self.sent_as, data, t_ns, name if name != "raw" else None)
+        return t
+
+    def _record(self, direction: str, raw: bytes, t_ns: int, name: str | None) -> None:
+        """One frame to the capture and the run's monitor, with the same time (the caller holds
+        the record lock: both see the frames in the order of their times)."""
+        if self.recorder is not None:
+            with contextlib.suppress(Exception):
+                self.framing.record(self.recorder, direction, raw, t_ns, name)
+        if self.monitor is not None:
+            self.monitor.frame(t_ns, raw, direction)
+
+    # -- in -------------------------------------------------------------------------------
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                if not self._end.ready(0.05):
+                    continue
+            except (OSError, ValueError):
+                return
+            try:
+                data, addr = self._end.read()
+                if self.transport == "tcp":
+                    if not data:
+                        self.closed_at = self.clock.monotonic()
+                        with self._cond:
+                            self._cond.notify_all()
+                        return
+                elif self.transport == "udpin" and self.peer is None:
+                    self.peer = addr  # the node's socket: where replies go
+                elif addr != self.peer:
+                    continue  # another sender: not the node under test
+            except (BlockingIOError, InterruptedError):
+                continue
+            except OSError:
+                if self.transport == "tcp":
+                    self.closed_at = self.clock.monotonic()
+                    return
+                continue
+            self._take(data)
+
+    def _take(self, data: bytes) -> None:
+        with self._record_lock:  # stamped after any frame sent before (:meth:`_send_locked`)
+            now, t_ns = self.clock.monotonic(), self.clock.time_ns()
+            got = self.framing.deframe(data, now)
+            for r in got:
+                self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
+        with self._cond:
+            self.frames.extend(got)
+            self._cond.notify_all()
+        if self.on_frames is not None and got:
+            self.on_frames(got)
+
+    def received(self, since: float = 0.0, name: str | None = None) -> list[Any]:
+        """The frames that came at or after ``since`` (of message ``name``, when given)."""
+        with self._cond:
+            return [r for r in self.frames if r.t >= since and (name is None or r.name == name)]
+
+    def wait_for(self, pred: Any, timeout: float) -> bool:
+        """Wait until ``pred()`` holds or ``timeout`` s pass (or a TCP link closes)."""
+        end = self.clock.monotonic() + timeout
+        with self._cond:
+            while not pred():
+                left = end - self.clock.monotonic()
+                if left <= 0 or self.closed_at is not None:
+                    return bool(pred())
+                self._cond.wait(min(left, 0.05))
+            return True
+
+    def close(self) -> None:
+        self._stop.set()
+        self._reader.join(timeout=1.0)
+        self._end.close()

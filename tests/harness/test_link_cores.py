@@ -1,0 +1,137 @@
+"""The protocol is a parameter of the runner's link cores, not a copy of them: a protocol that
+is none of ours (lines ending in a newline) runs on ``harness.link.Link`` (a reader thread,
+UDP both ways on loopback) and on ``harness.stream_conn.StreamConn`` (a TCP connection read in
+the caller's thread), its frames cut by its own framing and recorded in the order they went
+and came."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+from mcp_conform.harness.link import Link
+from mcp_conform.harness.stream_conn import StreamConn
+
+
+@dataclass(frozen=True)
+class Line:
+    t: float
+    raw: bytes
+
+    @property
+    def name(self) -> str:
+        return self.raw.split(b" ", 1)[0].decode()
+
+    @property
+    def bad(self) -> bool:
+        return not self.raw.endswith(b"\n")
+
+
+class LineFraming:
+    """Each datagram or stream chunk cut at newlines; what has none is bad."""
+
+    thread = "line-link"
+
+    def __init__(self) -> None:
+        self.records: list[tuple[str, bytes, str | None]] = []
+
+    # harness.link.Framing
+    def deframe(self, data: bytes, t: float) -> list[Line]:
+        return [Line(t, part) for part in data.splitlines(keepends=True)]
+
+    def record(self, recorder: Any, direction: str, raw: bytes, t_ns: int, name: str | None) -> None:
+        recorder.append((direction, raw, name))
+
+    # harness.stream_conn.StreamFraming
+    def deframer(self) -> Any:
+        return self
+
+    def feed(self, data: bytes) -> list[Line]:
+        return self.deframe(data, 0.0)
+
+    def sent(self, data: bytes) -> dict[str, Any]:
+        return {"name": Line(0.0, data).name}
+
+    def received(self, item: Line, t: float) -> tuple[Any, dict[str, Any]]:
+        return (None if item.bad else Line(t, item.raw)), {"name": None if item.bad else item.name}
+
+
+class Monitor:
+    def __init__(self) -> None:
+        self.frames: list[tuple[bytes, str]] = []
+
+    def frame(self, t_ns: int, raw: bytes, direction: str) -> None:
+        self.frames.append((raw, direction))
+
+
+class LineLink(Link):
+    def pack(self, msg: Any) -> tuple[bytes, str]:
+        return f"{msg}\n".encode(), str(msg).split(" ", 1)[0]
+
+
+def test_a_packet_protocol_of_its_own_runs_on_the_threaded_link() -> None:
+    node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    node.bind(("127.0.0.1", 0))
+    node.settimeout(5.0)
+    recorder: list[tuple[str, bytes, str | None]] = []
+    monitor = Monitor()
+    link = LineLink(LineFraming(), "udpout", node.getsockname(), recorder, monitor=monitor)
+    try:
+        link.send("PING 1")
+        data, addr = node.recvfrom(100)
+        assert data == b"PING 1\n"
+        node.sendto(b"PONG 1\nPONG 2\nhalf", addr)
+        assert link.wait_for(lambda: len(link.received()) == 3, 5.0)
+        assert [r.name for r in link.received(name="PONG")] == ["PONG", "PONG"]
+        assert link.received()[-1].bad
+        assert recorder == [("rx", b"PING 1\n", "PING"), ("tx", b"PONG 1\n", "PONG"),
+                            ("tx", b"PONG 2\n", "PONG"), ("tx", b"half", None)]
+        assert [d for _, d in monitor.frames] == ["rx", "tx", "tx", "tx"]
+        assert [name for _, name, _ in link.sent] == ["PING"]
+    finally:
+        link.close()
+        node.close()
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.records: list[tuple[Any, ...]] = []
+
+    def stream_frame(self, direction: str, raw: bytes, **kw: Any) -> None:
+        self.records.append(("frame", direction, raw, kw["name"]))
+
+    def stream_event(self, event: str, **kw: Any) -> None:
+        self.records.append(("event", event, kw.get("by"), kw.get("how")))
+
+
+def test_a_stream_protocol_of_its_own_runs_on_the_pumped_connection() -> None:
+    listener = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+    server = threading.Thread(target=lambda: accepted.append(listener.accept()[0]))
+    server.start()
+    rec = Recorder()
+    log: list[tuple[float, bytes]] = []
+    conn = StreamConn(socket.create_connection(listener.getsockname()), LineFraming(), log=log, recorder=rec,
+                      index=1, protocol="lines")
+    server.join(5.0)
+    peer = accepted[0]
+    try:
+        assert conn.send(b"HELLO there\n", split=3, gap=0.001)
+        got = b""
+        peer.settimeout(5.0)
+        while len(got) < 12:
+            got += peer.recv(100)
+        assert got == b"HELLO there\n" and len(log) == 1
+        peer.sendall(b"WORLD 1\nnoise")
+        peer.close()
+        assert conn.wait_for(lambda: conn.closed_at is not None, 5.0)
+        assert [f.name for f in conn.frames] == ["WORLD"]
+        assert conn.framing_error is not None and conn.framing_error.raw == b"noise"
+        assert rec.records == [("event", "open", None, None), ("frame", "tx", b"HELLO there\n", "HELLO"),
+                               ("frame", "rx", b"WORLD 1\n", "WORLD"), ("frame", "rx", b"noise", None),
+                               ("event", "close", "backend", "fin")]
+    finally:
+        conn.close()
+        listener.close()
