@@ -64,6 +64,10 @@ class MonitorHost:
     _last_to: dict[int, int]
     _latest_to: dict[int, Any]
     _unmatched_acks: dict[tuple[int, int], tuple[int, int]]
+    _carried: bytearray
+    _nothing: dict[int, tuple[int, int, int, int]]
+    party: int | None
+    complete: bool
     _bcast_srcs: set[int]
     _unicast_dsts: set[int]
     _rob_dsts: dict[str, set[int]]

@@ -111,6 +111,8 @@ MONITORED_RULES: frozenset[str] = frozenset(
         "DUP-1 DUP-2 DUP-3 DUP-4 TRN-2").split())
 
 _ACK_LEN = HDR + 2
+#: where a header's seq field ends: the preamble, dst and src before it (``spec.codec.HEADER``)
+_SEQ_END = PRE_LEN + 6
 #: (rule, role) -> whether the rule binds a node of that role (``Monitor._judged``)
 _BINDS: dict[tuple[str, str], bool] = {}
 _KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
@@ -206,6 +208,10 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it
         #: (the harness's too: MCP-RTX-2's deliberate wrong ACKs), for ``stale_ack``
         self._unmatched_acks: dict[tuple[int, int], tuple[int, int]] = {}
+        #: the sequence numbers any datagram fed so far carried (a flag per number): an ACK
+        #: naming none of them acknowledges no message (MCP-ACK-2, ``_ack_of_nothing``)
+        self._carried = bytearray(0x10000)
+        self._nothing: dict[int, tuple[int, int, int, int]] = {}  # index -> (src, dst, named, t)
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
         self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
         self._rob_dsts: dict[str, set[int]] = {r: set() for r in ("MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4")}
@@ -244,6 +250,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         n = len(data)
         tester = origin is TESTER
         self.recorder.add(t_ns, data, tester, run_delay)
+        if n >= _SEQ_END:  # its number, framed or not: what an ACK may name (``_carried``)
+            self._carried[data[_SEQ_END - 2] << 8 | data[_SEQ_END - 1]] = 1
         if n < HDR or not data.startswith(PRE):
             self._unframed(i, t_ns, src_addr, data, n, tester, origin)
             return out

@@ -124,8 +124,6 @@ def test_explain_holds_both_properties(fault):
 # ------------------------------------------------------------------ the trace monitor
 #: fault model -> why the monitor breaks a property on links without stalls (seeds: test_seeds.py)
 MONITOR_KNOWN = {
-    "ack-previous-seq": "misses MCP-ACK-2: an ACK naming a number never received passes (an ACK of "
-                        "nothing is left alone); a correct manager is failed MCP-RTX-2 by the early ACK",
     "ack-copies-wrong-seq": "misses MCP-ACK-2 or calls it MCP-ACK-6; a correct manager is failed MCP-RTX-2 "
                             "for the wrong-source ACK naming its number",
     "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
