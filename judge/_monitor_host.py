@@ -29,6 +29,9 @@ class MonitorHost:
 
     # the run's assumptions (Monitor's arguments)
     rto_ns: int
+    lone_rto_ns: int
+    lone_due_ns: int
+    rto_declared: bool
     window_ns: int
     broadcast_id: int
     drones: tuple[int, ...] | None

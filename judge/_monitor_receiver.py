@@ -69,6 +69,9 @@ class ReceiverRules(MonitorHost):
             self._ack_seq[src << 16 | own_seq] = (dst, i, t)
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
+            # an ACK of another message of dst's (a late or duplicated one) is, to dst's pending
+            # message to src, an ACK of the wrong seq from its destination: MCP-RTX-2's input
+            self._wrong_for_pending(dst, src, named, i, t)
             acks = match.acks
             if (node is not None and acks and len(acks) >= len(match.copies)
                     and self._complete_for(src, dst)):
@@ -246,6 +249,11 @@ class ReceiverRules(MonitorHost):
         """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
         message's destination, or its seq from another node (input of MCP-RTX-2)."""
         self._unmatched_acks[(src, dst)] = (i, t)  # what a later message to src may take (stale_ack)
+        self._wrong_for_pending(dst, src, named, i, t)
+
+    def _wrong_for_pending(self, dst: int, src: int, named: int, i: int, t: int) -> None:
+        """An ACK from ``src`` naming ``named`` that must not end ``dst``'s pending message,
+        noted on it (``_Exchange.wrong_at``) with its MCP-RTX-2 deadline."""
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
         if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:
