@@ -8,14 +8,25 @@ run set the node's timeout itself -- the runner's embedded reference node, the s
 models -- it declares it (``Monitor(rto_declared=True)``, the capture's run parameters
 ``rto_declared``), and a lone copy whose ACK is withheld past the time its third copy was due
 at that pace (two gaps of ``rto`` and MCP-RTX-3's tolerance, plus the timestamp jitter) is
-the sender's MCP-RTX-1."""
+the sender's MCP-RTX-1. ``mcp-capture check`` of the run's capture gives the live verdict
+(one judge): the declaration comes back out of the capture's parameters."""
 
 from __future__ import annotations
 
+import json
+import time
+from pathlib import Path
+
 import pytest
 
+from mcp_conform.captures.cli import main
+from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import TargetDriver
 from mcp_conform.judge.monitor import TESTER, Monitor
+from mcp_conform.judge.run_monitor import RunMonitor
+from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action, Message, encode
+from mcp_conform.traceio.recorder import NODE_METADATA, McapRecorder, run_metadata
 
 NS, MS = 10**9, 10**6
 RTO, WINDOW = 0.2, 0.25
@@ -71,3 +82,52 @@ def test_an_ack_after_it_does_not_undo_it():
 def test_a_trace_that_ends_before_then_proves_nothing():
     m = _monitor(_lone_ready(None, end_s=0.5), declared=True)
     assert m.violations == []
+
+
+def test_the_runner_declares_only_the_timeout_it_gave_its_embedded_node():
+    from mcp_conform.harness.session_base import EMBEDDED_RTO
+
+    assert RunConfig(embedded=True, rto=EMBEDDED_RTO).rto_declared
+    assert RunConfig(embedded=True, rto=EMBEDDED_RTO).parameters()["rto_declared"] is True
+    assert not RunConfig(embedded=True, rto=1.0).rto_declared  # --rto 1 given: only assumed
+    assert not RunConfig(spawn="node --rto 0.2", rto=EMBEDDED_RTO).rto_declared  # the runner cannot know
+    assert "rto_declared" not in RunConfig(spawn="node", rto=EMBEDDED_RTO).parameters()
+
+
+def _run(path: Path, declared: bool) -> list[tuple[str, int]]:
+    """The run: the driver's datagrams to its capture (the run's parameters in its metadata,
+    as ``RunConfig.parameters`` writes them) and to its monitor; the live violations."""
+    params = {"rto": RTO, "ack_window": WINDOW, **({"rto_declared": True} if declared else {})}
+    rec = McapRecorder(path, metadata=run_metadata("mcp-conform", role="drone", parameters=params),
+                       local=LISTEN)
+    rec.add_metadata(NODE_METADATA, {"id": 1, "address": f"{NODE[0]}:{NODE[1]}", "complete": "true"})
+    mon = RunMonitor(rto=RTO, ack_window=WINDOW, broadcast_id=int(SPEC.protocol["broadcast_id"]),
+                     node_id=1, node_addr=NODE, rto_declared=declared)
+    mon.listen = LISTEN
+    drv = TargetDriver(NODE, LISTEN)
+    drv.auto_ack = lambda d: False
+    drv.add_observer(rec.datagram)
+    drv.add_observer(mon.observe)
+    t0 = time.time_ns() - 5 * NS  # kernel receive times the driver believes (recent)
+    last = t0
+    for t, way, data in _lone_ready(None):
+        last = t0 + t - 100 * NS
+        if way == "rx":
+            drv._arrive(data, NODE, last)
+        else:
+            drv._notify("tx", data, NODE, last)
+    mon.finish(last)
+    rec.close()
+    return sorted((v.rule, v.node) for v in mon.violations())
+
+
+@pytest.mark.parametrize("declared", [True, False], ids=["declared", "assumed"])
+def test_check_of_the_capture_gives_the_live_verdict(tmp_path: Path, declared: bool):
+    path = tmp_path / "run.mcap"
+    live = _run(path, declared)
+    assert live == ([("MCP-RTX-1", 1)] if declared else [])
+    out = tmp_path / "check.json"
+    main(["check", str(path), "--json", str(out)])  # the rto, and whether declared: the capture's
+    doc = json.loads(out.read_text())
+    assert sorted((v["rule"], v["node"]) for v in doc["violations"]) == live
+    assert doc["parameters"]["rto"] == RTO
