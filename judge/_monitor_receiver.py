@@ -71,7 +71,9 @@ class ReceiverRules(MonitorHost):
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             # an ACK of another message of dst's (a late or duplicated one) is, to dst's pending
             # message to src, an ACK of the wrong seq from its destination: MCP-RTX-2's input
-            self._wrong_for_pending(dst, src, named, i, t)
+            # where dst moves on at once after it; a silence after it is not judged by it (a
+            # re-ACK while dst was off the CPU, a stalled manager's End_Mission: no-ready-ack)
+            self._wrong_for_pending(dst, src, named, i, t, silence=False)
             acks = match.acks
             if (node is not None and acks and len(acks) >= len(match.copies)
                     and self._complete_for(src, dst)):
@@ -251,9 +253,10 @@ class ReceiverRules(MonitorHost):
         self._unmatched_acks[(src, dst)] = (i, t)  # what a later message to src may take (stale_ack)
         self._wrong_for_pending(dst, src, named, i, t)
 
-    def _wrong_for_pending(self, dst: int, src: int, named: int, i: int, t: int) -> None:
+    def _wrong_for_pending(self, dst: int, src: int, named: int, i: int, t: int, silence: bool = True) -> None:
         """An ACK from ``src`` naming ``named`` that must not end ``dst``'s pending message,
-        noted on it (``_Exchange.wrong_at``) with its MCP-RTX-2 deadline."""
+        noted on it (``_Exchange.wrong_at``: what a sender moving on at once took) and, with
+        ``silence``, its MCP-RTX-2 deadline (no copy after it)."""
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
         if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:
@@ -261,7 +264,7 @@ class ReceiverRules(MonitorHost):
         if (pending.dst == src) == (pending.seq == named):
             return
         pending.wrong_at = {**(pending.wrong_at or {}), WRONG_SEQ if pending.dst == src else WRONG_SRC: (i, t)}
-        if self._complete_for(pending.src, pending.dst):
+        if silence and self._complete_for(pending.src, pending.dst):
             g = gaps(pending.copies)
             est = median(g) if g else self.rto_ns
             self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._wrong_ack_deadline, pending, (i, t))

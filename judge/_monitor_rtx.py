@@ -194,9 +194,10 @@ class RetransmissionRules(MonitorHost):
         if later:
             self._observe(ex.src, "MCP-RTX-2")
             return
-        if right or ex.flags & F_RTX2 or self._stopped_before(ex, wrong[1]) or len(ex.copies) == 1:
+        if right or ex.flags & (F_RTX2 | F_RTX1) or self._stopped_before(ex, wrong[1]) or len(ex.copies) == 1:
             return  # the right ACK came before the next copy was due (inconclusive), or it
-            # had stopped before the wrong ACK came (MCP-RTX-1's), or it was never seen
+            # had stopped before the wrong ACK came or gave up at its timer after it (MCP-RTX-1's,
+            # ``_gave_up``: a give-up-after-two manager read a re-ACK between), or it was never seen
             # retransmitting: a sender that never does falls silent the same way, and the
             # right ACK withheld past its copies' time is MCP-RTX-1's (``_rtx_deadline``)
         ex.flags |= F_RTX2
