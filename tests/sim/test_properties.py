@@ -10,8 +10,9 @@ up to 3 x ``--rto``, 1-3 drones, challenges 1-3 -- for the correct models and ea
    MUST rule.
 
 ``judge.explain`` holds both everywhere but one miss (``manager-rtx-none``). The trace monitor holds them for the correct models
-(with stalls too, since judge.explain's veto, judge/veto.py) and five fault models on links
-without stalls; where it does not, the test is its strict xfail
+(with stalls too, since judge.explain's veto, judge/veto.py) and ten of the twelve fault models
+on links without stalls (judged as ``sim.judges`` does: every model's timeout is ``rto``, declared,
+``Monitor(rto_declared=True)``); where it does not, the test is its strict xfail
 with the reason, and the shrunk counterexamples are in ``tests/sim/seeds/`` (``test_seeds.py``).
 Runs are derandomized: the same examples every run, so a strict xfail cannot flake.
 """
