@@ -8,6 +8,9 @@ from typing import Any
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, Profile, RoleProfile, pick
 
+#: the embedded reference node's retransmission timeout, which the runner starts it with
+#: (``harness.session_base``) and so declares (``RunConfig.rto_declared``)
+EMBEDDED_RTO = 0.2
 DEFAULT_SEED = 20140307  # the description's date: every run sends the same bytes by default
 #: the role of a run that names none: the default protocol's first (``spec.profiles.pick``)
 DEFAULT_ROLE = pick()[1].name
@@ -68,6 +71,13 @@ class RunConfig:
     def mode(self) -> str:
         return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
 
+    @property
+    def rto_declared(self) -> bool:
+        """--rto is the node's own retransmission timeout, not only assumed: the embedded MCP
+        reference node, which the runner starts with it (``EMBEDDED_RTO``). The
+        run's monitor and the capture's parameters say so (``Monitor(rto_declared=)``)."""
+        return self.embedded and self.protocol == "mcp" and self.rto == EMBEDDED_RTO
+
     def per_case_limit(self) -> float:
         """A bound on one case's wall time, generous against the node's own timeouts: a case
         may await several commands, each across up to 5 copies one --rto apart, from a node
@@ -82,6 +92,8 @@ class RunConfig:
         out = {k: d[k] for k in ("protocol", "role", "target_id", "spawn", "mavlink", "strict", "rto",
                                  "ack_window", "broadcast_id", "timeout", "seed")}
         out["mode"] = self.mode
+        if self.rto_declared:
+            out["rto_declared"] = True
         for name in self.profile()[1].parameters:  # the role's own (--role manager: its drones)
             value = d[name]
             out[name] = list(value) if isinstance(value, tuple) else value

@@ -207,7 +207,8 @@ class ManagerSession(DatagramSessionBase):
         self.monitor = SessionMonitors(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                                        broadcast_id=self.cfg.broadcast_id, node_id=MANAGER_ID,
                                        node_addr=target, complete=self.trace_complete,
-                                       challenge=cfg.challenge, waypoints=self._handed_items())
+                                       challenge=cfg.challenge, waypoints=self._handed_items(),
+                                       rto_declared=cfg.rto_declared)
         self.monitor.listen = self.driver.listen
         self.driver.add_observer(self.monitor.observe)
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)

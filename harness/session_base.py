@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mcp_conform.harness.clock import REAL, Clock
-from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.config import EMBEDDED_RTO, RunConfig  # noqa: F401 - EMBEDDED_RTO: its users import it here
 from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
 from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
 from mcp_conform.harness.interrupts import INTERRUPTS
@@ -40,7 +40,6 @@ DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
 BROADCAST_ADDRESS = str(SPEC.protocol["broadcast_address"])
 MIN_COPIES = int(SPEC.params["min_copies"])  # MCP-RTX-1: "at least 3 copies while the ACK is withheld"
-EMBEDDED_RTO = 0.2
 EMBEDDED_ACK_WINDOW = 0.25
 
 def _held(write: Any) -> Any:
@@ -461,7 +460,7 @@ class DatagramSessionBase(SessionBase):
         monitor_class = resolve(self.cfg.profile()[0].monitor)  # the protocol's (MCP: judge.run_monitor)
         monitor = monitor_class(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                                 broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
-                                complete=complete)
+                                complete=complete, **({"rto_declared": True} if self.cfg.rto_declared else {}))
         monitor.listen = driver.listen
         driver.add_observer(monitor.observe)
         self.record_node(node_id, complete=complete)

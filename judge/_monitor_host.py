@@ -29,6 +29,9 @@ class MonitorHost:
 
     # the run's assumptions (Monitor's arguments)
     rto_ns: int
+    lone_rto_ns: int
+    lone_due_ns: int
+    rto_declared: bool
     window_ns: int
     broadcast_id: int
     drones: tuple[int, ...] | None
@@ -64,6 +67,10 @@ class MonitorHost:
     _last_to: dict[int, int]
     _latest_to: dict[int, Any]
     _unmatched_acks: dict[tuple[int, int], tuple[int, int]]
+    _carried: bytearray
+    _nothing: dict[int, tuple[int, int, int, int]]
+    party: int | None
+    complete: bool
     _bcast_srcs: set[int]
     _unicast_dsts: set[int]
     _rob_dsts: dict[str, set[int]]

@@ -42,7 +42,7 @@ from mcp_conform.judge._monitor_base import (
     median,
 )
 from mcp_conform.judge._monitor_rtx import F_ACK1, F_FAULTY
-from mcp_conform.judge._monitor_sender import _entry_t
+from mcp_conform.judge._monitor_sender import SEQ_GAP_GRACE_NS, _entry_t
 
 if TYPE_CHECKING:
     from mcp_conform.judge._monitor_host import MonitorHost
@@ -69,6 +69,11 @@ class ReceiverRules(MonitorHost):
             self._ack_seq[src << 16 | own_seq] = (dst, i, t)
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
+            # an ACK of another message of dst's (a late or duplicated one) is, to dst's pending
+            # message to src, an ACK of the wrong seq from its destination: MCP-RTX-2's input
+            # where dst moves on at once after it; a silence after it is not judged by it (a
+            # re-ACK while dst was off the CPU, a stalled manager's End_Mission: no-ready-ack)
+            self._wrong_for_pending(dst, src, named, i, t, silence=False)
             acks = match.acks
             if (node is not None and acks and len(acks) >= len(match.copies)
                     and self._complete_for(src, dst)):
@@ -146,6 +151,30 @@ class ReceiverRules(MonitorHost):
                 return
         if node is not None:  # an ACK naming nothing dst sent: a wrong payload, if a copy waits
             self._stray_acks[(src, dst)] = (i, t, named)
+            if not self._carried[named] and self.party in (None, src):
+                # nor anything at all, so far: an ACK of nothing, unless a datagram with that
+                # number is read within the reorder grace (``_ack_of_nothing``)
+                self._nothing[i] = (src, dst, named, t)
+                self._timers.at(t + SEQ_GAP_GRACE_NS, self._ack_of_nothing, i)
+
+    def _ack_of_nothing(self, now: int, i: int) -> None:
+        """MCP-ACK-2 ("the acknowledged message's sequence number"), on a trace complete for
+        the ACK's sender (its own, or every node's): ACK ``i`` names a number that no datagram
+        in the trace carried up to the ACK's reorder grace (``seq_reorder_grace_s``: a copy
+        read just after the ACK may be what it answers) or, where the trace ends sooner, up to
+        its end (a complete trace holds every datagram, however it was recorded), so it
+        acknowledges no message. A number some datagram carried -- another node's message, an
+        ACK, a malformed one -- is not proven so: the ACK may answer that, wrongly addressed
+        (MCP-ACK-3/4/5/6's)."""
+        pending = self._nothing.pop(i, None)
+        if pending is None:
+            return
+        src, dst, named, t = pending
+        if self._carried[named]:
+            return
+        self._emit("MCP-ACK-2", src, now, "the ACK names the acknowledged message's seq (D-2)",
+                   f"ACK to ID {dst} names {named}: no datagram in the trace carried that number "
+                   f"(it acknowledges no message)", [(i, t)])
 
     def _ack_of_what_is_not_acked(self, node: int, other: Any, named: int, i: int, t: int) -> None:
         if isinstance(other, _Exchange):
@@ -222,6 +251,12 @@ class ReceiverRules(MonitorHost):
         """An ACK to ``dst`` that must not end its pending message: the wrong seq from the
         message's destination, or its seq from another node (input of MCP-RTX-2)."""
         self._unmatched_acks[(src, dst)] = (i, t)  # what a later message to src may take (stale_ack)
+        self._wrong_for_pending(dst, src, named, i, t)
+
+    def _wrong_for_pending(self, dst: int, src: int, named: int, i: int, t: int, silence: bool = True) -> None:
+        """An ACK from ``src`` naming ``named`` that must not end ``dst``'s pending message,
+        noted on it (``_Exchange.wrong_at``: what a sender moving on at once took) and, with
+        ``silence``, its MCP-RTX-2 deadline (no copy after it)."""
         node = self._nodes.get(dst)
         pending = node.last_unicast if node is not None else None
         if pending is None or pending.acks or pending.tester or pending.flags & F_FAULTY:
@@ -229,7 +264,7 @@ class ReceiverRules(MonitorHost):
         if (pending.dst == src) == (pending.seq == named):
             return
         pending.wrong_at = {**(pending.wrong_at or {}), WRONG_SEQ if pending.dst == src else WRONG_SRC: (i, t)}
-        if self._complete_for(pending.src, pending.dst):
+        if silence and self._complete_for(pending.src, pending.dst):
             g = gaps(pending.copies)
             est = median(g) if g else self.rto_ns
             self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._wrong_ack_deadline, pending, (i, t))
@@ -355,6 +390,8 @@ class ReceiverRules(MonitorHost):
 
     def _finish_receiver(self, end: int) -> None:
         """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
+        for i in list(self._nothing):  # ACKs of nothing within the grace of the trace's end
+            self._ack_of_nothing(end, i)
         for ex, _ in list(self._ambiguous.values()):  # the trace ended before a copy's deadline
             self._decide_ambiguous(ex, ex.dst, wrong=False)
         for node in self._nodes.values():

@@ -65,11 +65,15 @@ class RetransmissionRules(MonitorHost):
             return
         g = gaps(prev.copies)
         est = median(g) if g else self.rto_ns
-        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
-            if g and len(prev.copies) < MIN_COPIES:
-                self._gave_up(prev, ex, i, t)
-            return  # it gave up (retry limit)
         wrong = self._taken_ack(prev)
+        if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
+            # at its timer's time: it gave up (retry limit) -- unless it moved at once after a
+            # wrong ACK with fewer copies than any retry limit stops at: a give-up then breaks
+            # MCP-RTX-1 as taking the ACK breaks MCP-RTX-2, and the ACK is what it moved on
+            if wrong is None or len(prev.copies) >= MIN_COPIES or t - wrong[1] > JITTER_NS:
+                if g and len(prev.copies) < MIN_COPIES:
+                    self._gave_up(prev, ex, i, t)
+                return
         if wrong is not None:
             # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
             # since: the sender took it for ``prev``'s ACK (MCP-RTX-2), unless a copy of
@@ -150,19 +154,27 @@ class RetransmissionRules(MonitorHost):
 
     def _rtx_deadline(self, now: int, ex: _Exchange) -> None:
         """MCP-RTX-1 (complete trace): an unACKed unicast has MIN_COPIES copies by the time
-        its retransmissions were due."""
+        its retransmissions were due. Where the nodes' timeout is declared (``rto_declared``),
+        a lone copy is judged as the rule is observed, "at least 3 copies while the ACK is
+        withheld": no ACK in the trace by the time the third copy was due at the latest (each
+        gap ``rto`` and MCP-RTX-3's tolerance, plus the timestamp jitter, ``lone_due_ns``),
+        and the trace going on to then; it is ``now`` that time, so every ACK fed is before it."""
         if ex.flags & F_RTX1:
             return  # reported when it gave up (``_gave_up``)
         if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
             self._nodes[ex.src].seen.add("MCP-RTX-1")
             return  # (retransmitted under new numbers: MCP-SEQ-2's)
         g = gaps(ex.copies)
-        est = median(g) if g else max(self.rto_ns, DESCRIPTION_TIMEOUT_NS)
-        due = ex.last_t + 3 * est // 2 + self.window_ns
+        if g or not self.rto_declared:
+            est = median(g) if g else self.lone_rto_ns
+            due = ex.last_t + 3 * est // 2 + self.window_ns
+        else:  # a lone copy at the declared pace: its ACK withheld past the last copy's latest time
+            due = ex.last_t + self.lone_due_ns
         if now < due:
             self._timers.at(due, self._rtx_deadline, ex)
             return
-        if ex.moved_on is not None or (ex.wrong_ack is not None and not self._stopped_before(ex, ex.wrong_ack[1])):
+        if ex.moved_on is not None or (len(ex.copies) > 1 and ex.wrong_ack is not None
+                                       and not self._stopped_before(ex, ex.wrong_ack[1])):
             return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
         n = len(ex.copies)
         self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
@@ -182,9 +194,12 @@ class RetransmissionRules(MonitorHost):
         if later:
             self._observe(ex.src, "MCP-RTX-2")
             return
-        if right or ex.flags & F_RTX2 or self._stopped_before(ex, wrong[1]):
+        if right or ex.flags & (F_RTX2 | F_RTX1) or self._stopped_before(ex, wrong[1]) or len(ex.copies) == 1:
             return  # the right ACK came before the next copy was due (inconclusive), or it
-            # had stopped before the wrong ACK came (MCP-RTX-1's)
+            # had stopped before the wrong ACK came or gave up at its timer after it (MCP-RTX-1's,
+            # ``_gave_up``: a give-up-after-two manager read a re-ACK between), or it was never seen
+            # retransmitting: a sender that never does falls silent the same way, and the
+            # right ACK withheld past its copies' time is MCP-RTX-1's (``_rtx_deadline``)
         ex.flags |= F_RTX2
         self._emit("MCP-RTX-2", ex.src, now, "retransmission goes on until the right ACK",
                    f"{ex.describe()} not retransmitted for {fmt_s(now - wrong[1])} after a wrong ACK",

@@ -112,7 +112,7 @@ def _make_monitor(params: Params, party: int | None = None) -> Any:
     return Monitor(rto=params.rto, ack_window=params.ack_window, broadcast_id=params.broadcast_id,
                    drones=list(params.drones) if params.drones is not None else None,
                    challenge=params.challenge, waypoints=params.waypoints, complete=params.complete,
-                   party=party)
+                   party=party, rto_declared=params.rto_declared)
 
 
 class NoJudge:

@@ -49,6 +49,7 @@ from typing import Any, Literal
 from mcp_conform.judge._monitor_base import (
     ACK,
     HDR,
+    JITTER_NS,
     LEVEL,
     MIN_COPIES,
     N_ACTIONS,
@@ -56,6 +57,7 @@ from mcp_conform.judge._monitor_base import (
     PASSTHROUGH,
     PRE,
     PRE_LEN,
+    RTX_TOLERANCE,
     TESTER,
     VEHICLE_KINDS,
     VERDICT_OF_LEVEL,
@@ -111,6 +113,8 @@ MONITORED_RULES: frozenset[str] = frozenset(
         "DUP-1 DUP-2 DUP-3 DUP-4 TRN-2").split())
 
 _ACK_LEN = HDR + 2
+#: where a header's seq field ends: the preamble, dst and src before it (``spec.codec.HEADER``)
+_SEQ_END = PRE_LEN + 6
 #: (rule, role) -> whether the rule binds a node of that role (``Monitor._judged``)
 _BINDS: dict[tuple[str, str], bool] = {}
 _KINDS = tuple(SPEC.actions[a].payload_kind for a in range(N_ACTIONS))
@@ -129,13 +133,21 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
     with ``party`` (a node's own capture, ``mcp-node --capture``) only every datagram that
     node sent or received: what it overheard between others (a manager's commands to the
     other drones on a shared port, without their ACKs) is judged as a lossy trace would be.
+    ``rto_declared``: ``rto`` is the nodes' own retransmission timeout, as the run that set
+    them up knows it (the runner's embedded reference node, the simulator's models), not only
+    assumed: a lone copy's next one is overdue one and a half ``rto`` after it, where an
+    assumed ``rto`` waits for the description's timeout (MCP-RTX-1, ``_rtx_deadline``).
     """
 
     def __init__(self, rto: float = 5.0, ack_window: float = 2.0, broadcast_id: int = BROADCAST_ID,
                  drones: Iterable[int] | None = None, challenge: int | None = None,
                  waypoints: Iterable[Any] | None = None, *, complete: bool = False,
-                 party: int | None = None) -> None:
+                 party: int | None = None, rto_declared: bool = False) -> None:
         self.rto_ns = int(rto * NS)
+        self.rto_declared = rto_declared
+        #: a lone copy's next one is due this long after it, at the latest (``_rtx_deadline``):
+        #: the declared timeout, else the assumed one but never before the description's
+        self.lone_rto_ns = self.rto_ns if rto_declared else max(self.rto_ns, DESCRIPTION_TIMEOUT_NS)
         self.window_ns = int(ack_window * NS)
         self.broadcast_id = broadcast_id
         self.drones = tuple(drones) if drones is not None else None
@@ -153,8 +165,13 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: there while copies come. At --rto 5 the first look came 32 s after the copy, so a
         #: complete capture of a manager's End_Mission sent once, with nothing more for six
         #: timeouts (30 s), ended unjudged though its next copy was overdue at 9.5 s (issue 38)
-        self._rtx_delay = min(MIN_COPIES * 3 * self.rto_ns // 2,
-                              3 * max(self.rto_ns, DESCRIPTION_TIMEOUT_NS) // 2) + self.window_ns
+        self._rtx_delay = min(MIN_COPIES * 3 * self.rto_ns // 2, 3 * self.lone_rto_ns // 2) + self.window_ns
+        #: a declared timeout: a lone copy's third was due this long after it at the latest
+        #: (MIN_COPIES - 1 gaps of rto and MCP-RTX-3's tolerance, and the timestamp jitter), the
+        #: first look at every unicast then (``_rtx_deadline`` waits on from there for the others)
+        self.lone_due_ns = (MIN_COPIES - 1) * int(self.rto_ns * (1 + RTX_TOLERANCE)) + 3 * JITTER_NS
+        if rto_declared:
+            self._rtx_delay = self.lone_due_ns
         #: how late an ACK is still taken to answer something other than the message it
         #: names exactly (a broadcast, a malformed datagram: numbers do not repeat that soon)
         self._ack_horizon = max(10 * NS, 2 * (self.window_ns + self.rto_ns))
@@ -206,6 +223,10 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t) of the acker's latest ACK to dst naming nothing dst sent it
         #: (the harness's too: MCP-RTX-2's deliberate wrong ACKs), for ``stale_ack``
         self._unmatched_acks: dict[tuple[int, int], tuple[int, int]] = {}
+        #: the sequence numbers any datagram fed so far carried (a flag per number): an ACK
+        #: naming none of them acknowledges no message (MCP-ACK-2, ``_ack_of_nothing``)
+        self._carried = bytearray(0x10000)
+        self._nothing: dict[int, tuple[int, int, int, int]] = {}  # index -> (src, dst, named, t)
         self._bcast_srcs: set[int] = set()  # senders of broadcasts (MCP-ACK-4 observed)
         self._unicast_dsts: set[int] = set()  # unicast destinations (MCP-ACK-5 observed)
         self._rob_dsts: dict[str, set[int]] = {r: set() for r in ("MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4")}
@@ -244,6 +265,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         n = len(data)
         tester = origin is TESTER
         self.recorder.add(t_ns, data, tester, run_delay)
+        if n >= _SEQ_END:  # its number, framed or not: what an ACK may name (``_carried``)
+            self._carried[data[_SEQ_END - 2] << 8 | data[_SEQ_END - 1]] = 1
         if n < HDR or not data.startswith(PRE):
             self._unframed(i, t_ns, src_addr, data, n, tester, origin)
             return out

@@ -36,6 +36,9 @@ class Params:
     select: tuple[str, ...] = ()
     strict: bool = False
     complete: bool = False  # the trace holds every datagram the nodes exchanged
+    #: ``rto`` is the nodes' own timeout, as the run that set them up declared it with the rto
+    #: it recorded (``Monitor(rto_declared=)``; not in the check report's parameters)
+    rto_declared: bool = False
     #: the parameters the user gave; the others are taken from the capture's own record of
     #: the run (our MCAP captures), so that a run is judged offline with its live timings
     given: frozenset[str] = frozenset()
@@ -43,13 +46,16 @@ class Params:
 
     def adopt(self, recorded: dict[str, Any]) -> None:
         """Take the run's recorded ``rto``, ``ack_window`` and ``broadcast_id`` where the user
-        gave none (an unusable value is left alone): what the run's own monitor judged with."""
+        gave none (an unusable value is left alone): what the run's own monitor judged with --
+        the rto as the nodes' declared timeout where the run said so (``rto_declared``)."""
         taken = []
         for key in ("rto", "ack_window"):
             v = recorded.get(key)
             if key not in self.given and isinstance(v, (int, float)) and 0 < v < 1e6:
                 setattr(self, key, float(v))
                 taken.append(key)
+        if "rto" in taken and recorded.get("rto_declared") is True:  # the run's own, declared
+            self.rto_declared = True
         v = recorded.get("broadcast_id")
         if "broadcast_id" not in self.given and isinstance(v, int) and 1 <= v <= 0xFFFF:
             self.broadcast_id = v

@@ -78,9 +78,11 @@ class RunMonitor:
 
     def __init__(self, *, rto: float, ack_window: float, broadcast_id: int, node_id: int | None,
                  node_addr: tuple[str, int] | None, complete: bool = True,
-                 drones: Any = None, challenge: int | None = None, waypoints: Any = None) -> None:
+                 drones: Any = None, challenge: int | None = None, waypoints: Any = None,
+                 rto_declared: bool = False) -> None:
         self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id,
-                               drones=drones, challenge=challenge, waypoints=waypoints, complete=complete)
+                               drones=drones, challenge=challenge, waypoints=waypoints, complete=complete,
+                               rto_declared=rto_declared)
         self.node_id = node_id
         self.node_addr = node_addr
         self.listen: tuple[str, int] | None = None

@@ -64,7 +64,7 @@ def judge_world(w: World, *, rto: float, challenge: int, items: tuple[Any, ...],
     window = max(0.5, 2 * rto)  # mcp-soak's ACK window for a mission's views
     for pid, view in w.views.items():
         mon = Monitor(rto=rto, ack_window=window, drones=drones, challenge=challenge, waypoints=items,
-                      complete=True, party=pid)
+                      complete=True, party=pid, rto_declared=True)  # every model's timeout is rto
         found: list[Violation] = []
         for r in view:
             if r.tx:

@@ -35,7 +35,9 @@ def _lone_end_mission(silence: float) -> Script:
     s.tick(silence)
     s.end(2)
     s.tick(0.5)
-    s.ack(2, 0, 4242)  # more traffic: the capture goes on
+    # more traffic, the capture going on: drone 2's ACK of End_Mission again, as a link
+    # duplicates it (an ACK naming a number nobody sent would be drone 2's MCP-ACK-2)
+    s.raw(2, [r.data for r in s.records if r.src_addr == s.addr(2)][-1])
     return s
 
 

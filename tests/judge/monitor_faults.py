@@ -195,10 +195,17 @@ def ack5() -> Script:
 
 
 def ack6() -> Script:
-    s = _started()
+    s = Script((1, 2))
+    ready = {d: s.ready(d) for d in s.drones}
+    for d in s.drones:
+        s.start(d)
     s.tick(0.05)
+    # a late copy of drone 1's Mission_Ready, which the manager rightly ACKs again (its ACK's
+    # own number is ``own``; an ACK naming a number nobody sent would be MCP-ACK-2's)
+    s.raw(1, encode(Message(0, 1, ready[1], Action.MISSION_READY, None)))
+    s.tick(0.004)
     own = s.seq[0]
-    s.ack(0, 1, 4242)  # the manager ACKs something (its own number is ``own``)
+    s.ack(0, 1, ready[1])
     s.tick(0.004)
     s.ack(1, 0, own)  # drone 1 ACKs that ACK
     return _finish(s)

@@ -39,10 +39,6 @@ KNOWN: dict[tuple[str, int, str], str] = {
         "little-endian. explain: on a lossy trace an ACK may answer a copy the capture missed "
         "(the byte-swap reading is not in the model)"),
     ("ack2-little-endian", 1, EITHER_ACK): "the same",
-    ("ack6-acks-ack", 0, "MCP-ACK-2"): (
-        "explain: the script's manager ACKs 4242, a number nobody sent it, on a complete trace "
-        "(the script's filler; the monitor leaves an ACK of nothing alone)"),
-    ("ack6-acks-ack", 0, EITHER_ACK): "the same",
     ("rtx1-gives-up", 0, "MCP-RTX-1"): (
         "explain: drone 2's ACK reached the manager at the instant of the copy, so 'it took "
         "another node's ACK' (RTX-2) explains the stop too: 'RTX-1 or RTX-2' is proven"),
