@@ -129,6 +129,9 @@ MONITOR_KNOWN = {
     "ack-copies-wrong-seq": "misses MCP-ACK-2 or calls it MCP-ACK-6; a correct manager is failed MCP-RTX-2 "
                             "for the wrong-source ACK naming its number",
     "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
+    "wrong-seq-ack": "misses MCP-RTX-2 on a link that reorders and delays (seed "
+                     "monitor-rtx2-missed-reordered-link) and under stalls: the ACK of the previous seq "
+                     "taken as answering nothing pending",
 }
 # Rarer than these examples reach (about 1 in 100 of the sweep's give-up-never schedules), fixed:
 # MCP-FLOW-3 failed on a manager still retransmitting End_Mission when its view is cut (seed
