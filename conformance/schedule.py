@@ -293,7 +293,7 @@ FLOOD_S = 0.5
 #: how much later than the first instance the others start their node: the first one's own
 #: start and collection (they are started once it has planned, ``conformance.parallel``), and
 #: theirs beside its work (4 to 6 s on a loaded 2-core host, bench/bench_suite.py)
-STAGGER_S = 5.0
+STAGGER_S = 4.0
 
 
 def startup_estimate(parts: Collection[str], rto: float, window: float) -> float:

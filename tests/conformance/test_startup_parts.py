@@ -9,6 +9,8 @@ that stops retransmitting on any ACK, whose fault only the wrong ACKs' part show
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import pytest
 
 from mcp_conform.conformance.schedule import (
@@ -22,7 +24,7 @@ from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.drone_session import STARTUP_PARTS, Session
 from mcp_conform.spec import SPEC
 
-from .runner_helpers import sample_node_command
+from .runner_helpers import run_conform, sample_node_command
 
 MIN_COPIES = int(SPEC.params["min_copies"])
 RTO = 0.2
@@ -91,3 +93,37 @@ def test_the_fix_part_holds_the_fix_then_acks_the_first_mission_ready():
         assert session.start_mission is not None and session.start_mission.acked
     finally:
         session.close()
+
+
+# ---------------------------------------------------------------------- end to end (slow)
+#: the cases judged on the observed startup, and one judged on the whole run's traffic
+STARTUP_CASES = ("BLK/test_nothing_new_while_mission_ready_awaits_its_ack", "BLK/test_no_mission_ready_without_a_gps_fix",
+                 "FLOW/test_mission_ready_is_unicast_to_the_manager", "PAY/test_mission_ready_payload",
+                 "RTX/test_mission_ready_is_retransmitted_until_acked",
+                 "RTX/test_only_the_right_ack_ends_retransmission", "RTX/test_copies_are_evenly_spaced",
+                 "SEQ/test_retransmission_repeats_seq_and_bytes", "SEQ/test_initial_sequence_number_is_recorded",
+                 "BLK/test_no_arming_before_start_mission", "HDR/test_src_is_the_node_id")
+#: timings at which the plan puts each part on an instance of its own (the copies' part, 3.5
+#: timeouts, longer than another instance's start): the tests' short ones keep them together
+SPLIT = ("--rto", "2.5", "--ack-window", "1")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label,node_args", [
+    ("sample", ()),
+    ("rtx-stop-on-any-ack", ("--fault", "rtx-stop-on-any-ack")),  # MCP-RTX-2: the wrong ACKs' part
+    ("ready-without-fix", ("--fault", "ready-without-fix")),  # MCP-BLK-5: the fix's part
+    ("arm-early", ("--fault", "arm-early")),  # MCP-BLK-4: armed during the copies' part's watch
+], ids=["sample", "rtx-stop-on-any-ack", "ready-without-fix", "arm-early"])
+def test_the_parts_on_three_instances_give_the_whole_startups_verdicts(label, node_args):
+    spawn = sample_node_command(*node_args, rto=2.5)
+    args = ("--spawn", spawn, "--mavlink", *SPLIT, *(f"--select={c}" for c in STARTUP_CASES))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        one, three = pool.map(lambda n: run_conform(*args, "--parallel", n, timeout=300), ["1", "3"])
+    plan = three.report.get("schedule") or {}
+    observers = {s["shard"] for s in plan.get("steps", []) if s["case"] in STARTUP_CASES[:-1]}
+    assert len(observers) == 3, (plan, three.explain())  # each part on an instance of its own
+    want = {c["id"]: c["outcome"] for c in one.report.get("cases", [])}
+    got = {c["id"]: c["outcome"] for c in three.report.get("cases", [])}
+    assert want and want == got, f"{label}: one instance {want}\nthree {got}\n{three.explain()}"
+    assert three.rc == one.rc, three.explain()
