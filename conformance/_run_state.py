@@ -112,7 +112,9 @@ class McpState:
         self.startup_expired = False
         self.shard: tuple[int, int] | None = None  # (K, N): mcp-conform --parallel's instance K of N
         self.events_path: str | None = None  # where that instance tells the front end its progress
-        self.observe_startup = True  # the observed startup phase, or the quick one (a shard)
+        # the observed startup phase's parts this instance observes (a shard: the plan's, none
+        # is the quick startup; None: all of them, a run of one)
+        self.startup_parts: frozenset[str] | None = None
 
     @property
     def startup_timeout(self) -> float:
@@ -216,10 +218,10 @@ class McpState:
                 self.startup_deadline = time.monotonic() + self.startup_timeout
             self.arm()
             try:
-                if self.observe_startup:
+                if self.startup_parts is None:
                     session.start()
-                else:  # a shard without the startup's cases: the quick startup, still diagnosed
-                    session.start(observe_startup=False, diagnose=True)
+                else:  # a shard: its parts of the observed startup (none: the quick one), still diagnosed
+                    session.start(diagnose=True, parts=self.startup_parts)
             except CaseTimeLimit:
                 # the run's deadline (or --startup-timeout) fell in the startup phase: the node
                 # never became ready
@@ -371,7 +373,7 @@ class McpState:
             self.config.hook.pytest_deselected(items=drop)
             self.batch_items = [i for i in self.batch_items if i not in gone]
             self.serial_order = [i for i in self.serial_order if i not in gone]
-        self.observe_startup = plan.observes_startup(k)
+        self.startup_parts = plan.startup_parts(k)
         self.emit({"plan": plan.to_json()})
 
     def emit(self, event: dict[str, Any]) -> None:

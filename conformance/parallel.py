@@ -28,13 +28,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from rich.console import Console
-
-from mcp_conform.conformance._run_reports import write_reports, write_run_html
 from mcp_conform.conformance.baseline import write_baseline
-from mcp_conform.conformance.junit import write_junit
 from mcp_conform.conformance.report import (
     RULE_RANK,
     RunRecord,
@@ -43,9 +39,11 @@ from mcp_conform.conformance.report import (
     run_from_json,
 )
 from mcp_conform.conformance.schedule import Plan
-from mcp_conform.conformance.terminal import TerminalReport
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.interrupts import INTERRUPTS
+
+if TYPE_CHECKING:  # imported once the first instance is started (its start is the run's longest path)
+    from mcp_conform.conformance.terminal import TerminalReport
 
 __all__ = ["child_args", "pick_every", "run_parallel"]
 
@@ -241,15 +239,20 @@ def _instance_error(run: _Run, inst: _Instance) -> str:
 def run_parallel(ns: Any, cfg: RunConfig, n: int, fail: Callable[[str, str | None], int]) -> int:
     """Run the suite across up to ``n`` node instances; the contract's exit code (``fail``:
     the front end's one-line error, exit 2, for a run no instance reported on)."""
-    terminal = TerminalReport(Console(highlight=False))
     t0 = time.monotonic()
-    terminal.header(RunRecord(role=cfg.role, target=None, parameters={}, seed=cfg.seed, strict=cfg.strict),
-                    cfg.mode)
     tmp = Path(tempfile.mkdtemp(prefix="mcp-conform-parallel-"))
-    run = _Run(ns, n, tmp, terminal)
+    run = _Run(ns, n, tmp, None)  # type: ignore[arg-type]  # set once the first instance is started
     try:
-        run.start(0, n)
+        run.start(0, n)  # first: the front end's own imports (rich, the report writers) come after
         try:  # the first instance's plan says how many more to start
+            with INTERRUPTS.held():  # a signal meanwhile stops the instances once the header is out
+                from rich.console import Console
+
+                from mcp_conform.conformance.terminal import TerminalReport
+
+                run.terminal = TerminalReport(Console(highlight=False))
+                run.terminal.header(RunRecord(role=cfg.role, target=None, parameters={}, seed=cfg.seed,
+                                              strict=cfg.strict), cfg.mode)
             while run.plan is None and run.running():
                 run.poll()
                 time.sleep(0.05)
@@ -269,6 +272,9 @@ def run_parallel(ns: Any, cfg: RunConfig, n: int, fail: Callable[[str, str | Non
 
 def _finish(run: _Run, ns: Any, wall: float, fail: Callable[[str, str | None], int]) -> int:
     INTERRUPTS.stop_raising()
+    from mcp_conform.conformance._run_reports import write_reports, write_run_html
+    from mcp_conform.conformance.junit import write_junit
+
     docs: dict[int, dict[str, Any]] = {}
     errors: list[str] = []
     for inst in run.instances:

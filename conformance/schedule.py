@@ -38,12 +38,21 @@ had before; the comparison of the two is ``bench/bench_suite.py`` and
 case alone, the batch as one) are shared out across up to N node instances, each spawned on
 ports of its own, longest first onto the instance that would finish first, by an estimate in
 units of the node's timeout (``--rto``) and the ACK window where those are what a unit waits
-(``estimate``). Each instance runs its own startup phase: the observed one (the fix held for
-MCP-BLK-5, Mission_Ready's copies, the wrong ACKs, the watch after the right one) only on the
-instance that holds the startup-phase cases and MCP-BLK-4 (judged on that startup's
-Start_Mission; ``STARTUP_BOUND``), all on one; the others the quick one of a restart (the
-first Mission_Ready ACKed at once, a header that reads right only byte-swapped still
-diagnosed). Within an instance, cases that run alone still run alone and the batch stays
+(``estimate``; the batch's window once). Each instance runs its own startup phase. The
+observed one is made of three waits (``PARTS``, harness.drone_session.STARTUP_PARTS): the fix
+held (MCP-BLK-5), Mission_Ready's copies while the ACK is withheld with the watch after the
+right ACK (MCP-RTX-1's two halves; that watch is also MCP-BLK-4's time to arm, so MCP-BLK-4,
+``STARTUP_BOUND``, goes with it), and the wrong ACKs (MCP-RTX-2: two copies, which show the
+node's period, then the wrong ACKs and a copy awaited). Each part is observed on one
+instance, as in the whole phase but without the others' waits, and each case judged on a
+part (``part_of``) runs there; the parts go together or apart, whichever way leaves the
+instances' estimates, longest first, the least (at ``--rto 5``: the copies and the watch,
+17.5 s, alone; the wrong ACKs, 10 s, and the fix, 4 s, elsewhere). The instance with the
+longest startup is the first (started first; the others ``STAGGER_S`` later). Nothing of a
+startup is overlapped with cases on its instance (D-6: a node may be deaf while its
+Mission_Ready's ACK is withheld). An instance that observes no part runs the quick startup
+of a restart (the first Mission_Ready ACKed at once, a header that reads right only
+byte-swapped still diagnosed). Within an instance, cases that run alone still run alone and the batch stays
 whole. The cases judged on the whole run's traffic (the ``late`` phase's observations) run
 on every instance, each on its own node's traffic (``shard`` None), and the worst verdict
 is the case's: the run's traffic is the union of the instances'. Nothing else changes what
@@ -52,12 +61,17 @@ a case sees, so its verdict is the run of one's (``tests/conformance/test_parall
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
+from mcp_conform.spec import SPEC
 from mcp_conform.spec.profiles import pick, profile_of_role
 
-__all__ = ["BATCH", "PASSTHROUGH_CASES", "Plan", "Step", "estimate", "plan_cases", "shard_plan"]
+__all__ = ["BATCH", "PARTS", "PASSTHROUGH_CASES", "Plan", "Step", "estimate", "part_of", "plan_cases",
+           "shard_plan"]
+
+#: MCP-RTX-1's copies while the ACK is withheld (the spec's ``min_copies``)
+MIN_COPIES = int(SPEC.params["min_copies"])
 
 SILENCE = ("waits out a 'no reply' window (D-6); its probes are told apart from the batch's others "
            "by the seq each reply names")
@@ -131,6 +145,20 @@ STARTUP_BOUND = {
 }
 EVERY = ("judged on the whole run's traffic: on every instance, each on its own node's traffic; "
          "the worst verdict is the case's")
+#: the observed startup's parts (harness.drone_session.STARTUP_PARTS): the fix withheld
+#: (MCP-BLK-5), Mission_Ready's copies and the watch after the right ACK (MCP-RTX-1, ...,
+#: MCP-BLK-4's time to arm), the wrong ACKs (MCP-RTX-2)
+PARTS = ("fix", "copies", "wrong")
+#: the part a startup-bound case is judged on, where it is not ``copies``
+PART_OF = {
+    "BLK/test_no_mission_ready_without_a_gps_fix": "fix",
+    "RTX/test_only_the_right_ack_ends_retransmission": "wrong",
+}
+
+
+def part_of(case: str) -> str:
+    """The observed startup's part a startup-bound case is judged on (``PARTS``)."""
+    return PART_OF.get(case, "copies")
 
 
 @dataclass(frozen=True)
@@ -182,10 +210,16 @@ class Plan:
         """The cases instance ``shard`` runs, in the plan's order."""
         return [s.case for s in self.steps if s.shard is None or s.shard == shard]
 
+    def startup_parts(self, shard: int) -> frozenset[str]:
+        """The parts of the observed startup phase instance ``shard`` observes (``PARTS``: the
+        parts its startup-bound cases are judged on); none: the quick startup."""
+        return frozenset(part_of(s.case) for s in self.steps
+                         if s.shard == shard and (s.group == "startup" or s.case in STARTUP_BOUND))
+
     def observes_startup(self, shard: int) -> bool:
-        """Whether instance ``shard`` runs the observed startup phase (it holds a case judged
-        on it), else the quick one."""
-        return any(s.shard == shard and (s.group == "startup" or s.case in STARTUP_BOUND) for s in self.steps)
+        """Whether instance ``shard`` observes (a part of) the startup phase, else runs the
+        quick one."""
+        return bool(self.startup_parts(shard))
 
     @classmethod
     def from_json(cls, doc: dict) -> Plan:
@@ -250,36 +284,85 @@ def plan_cases(cases: Sequence[tuple[str, str]], *, role: str | None = None, spa
 NODE_START_S = 1.0
 #: a case that only exchanges a few datagrams with a node that answers at once
 QUICK_CASE_S = 0.15
+#: a window's cases beyond the window: the probes before it (whether the node forwards
+#: Mav_Passthrough frames), the sends, the proof of life after it (4.1 to 4.4 s in all at a
+#: 2 s window, bench/bench_suite.py)
+BATCH_EXTRA_S = 1.0
+#: the flood of malformed datagrams, sent and survived (0.3 to 0.4 s, bench/bench_suite.py)
+FLOOD_S = 0.5
+#: how much later than the first instance the others start their node: the first one's own
+#: start and collection (they are started once it has planned, ``conformance.parallel``), and
+#: theirs beside its work (4 to 6 s on a loaded 2-core host, bench/bench_suite.py)
+STAGGER_S = 4.0
 
 
-def startup_estimate(observed: bool, rto: float, window: float) -> float:
-    """The startup phase's wall time, estimated (harness.drone_session): the observed one holds
-    the fix (2 windows, MCP-BLK-5), waits for MCP-RTX-1's 3 copies (two retransmissions),
-    one more after the wrong ACKs, watches 1.5 timeouts after the right one (MCP-RTX-1,
-    MCP-BLK-4); both then send Start_Mission and watch its ACK's window."""
-    if not observed:
-        return NODE_START_S + window
-    return max(2 * window, 0.5) + NODE_START_S + 3 * rto + max(window, 1.5 * rto) + window
+def startup_estimate(parts: Collection[str], rto: float, window: float) -> float:
+    """The startup phase's wall time, estimated (harness.drone_session) for the observed
+    startup's ``parts`` (none: the quick one): the fix held (2 windows, MCP-BLK-5); the
+    copies awaited (MCP-RTX-1's 3: two retransmissions) and the watch after the right ACK (1.5
+    timeouts, MCP-RTX-1, MCP-BLK-4); the wrong ACKs (MCP-RTX-2) one more copy after the
+    copies, or two alone (the second shows the node's period); then Start_Mission, ACKed
+    at once."""
+    t = NODE_START_S
+    if "fix" in parts:
+        t += max(2 * window, 0.5)
+    if "copies" in parts:
+        t += (MIN_COPIES - 1) * rto + max(window, 1.5 * rto)
+    if "wrong" in parts:
+        t += rto if "copies" in parts else 2 * rto
+    return t
 
 
 def estimate(step: Step, rto: float, window: float) -> float:
     """A step's wall time, estimated in units of what it waits: a silence or count window
-    (the batch's, shared), else the few exchanges of a quick case."""
-    if step.group == BATCH:
-        return 1.5 * window + 0.2
-    if step.case in BATCH_CASES:  # run alone: its own window
-        return 1.5 * window + 0.2
+    (the batch's, shared), else the few exchanges of a quick case; a case judged on the
+    startup's observation, nothing."""
+    if step.group == "startup" or step.case in STARTUP_BOUND:
+        return 0.0
+    if step.group == BATCH or step.case in BATCH_CASES:  # (alone: its own window)
+        return 1.5 * window + BATCH_EXTRA_S
     if step.case == "ROB/test_flood_of_malformed_datagrams":
-        return 0.5 + window
+        return FLOOD_S
     return QUICK_CASE_S
+
+
+def _partitions(items: list[str]) -> list[list[list[str]]]:
+    """Every way to split ``items`` into groups (the order of the items kept in each)."""
+    if not items:
+        return [[]]
+    first, out = items[0], []
+    for rest in _partitions(items[1:]):
+        out.append([[first], *rest])
+        out += [[*rest[:i], [first, *rest[i]], *rest[i + 1:]] for i in range(len(rest))]
+    return out
+
+
+def _unit_estimate(unit: list[Step], rto: float, window: float) -> float:
+    """A unit's wall time: the batch's window once (its cases share it), else its case's."""
+    return estimate(unit[0], rto, window) if unit[0].group == BATCH else sum(estimate(s, rto, window) for s in unit)
+
+
+def _spread(units: list[list[Step]], loads: list[float], rto: float, window: float) -> dict[str, int]:
+    """Each unit onto the instance estimated to finish first, longest first (``loads``
+    updated); ties keep the plan's order (a stable sort), so the plan is the same in every
+    process that makes it."""
+    where: dict[str, int] = {}
+    for unit in sorted(units, key=lambda u: -_unit_estimate(u, rto, window)):
+        k = min(range(len(loads)), key=lambda i: (loads[i], i))
+        loads[k] += _unit_estimate(unit, rto, window)
+        for s in unit:
+            where[s.case] = k
+    return where
 
 
 def shard_plan(plan: Plan, shards: int, rto: float, window: float) -> Plan:
     """``plan`` shared out across at most ``shards`` node instances (see the module's
-    docstring): the startup-bound cases on instance 0, the whole run's observations on every
+    docstring): the observed startup's parts (``PARTS``) together or on instances of their
+    own, each startup-bound case with its part, the whole run's observations on every
     instance, the rest unit by unit (the batch one unit), longest first, each onto the
-    instance estimated to finish first. Instances left with nothing of their own are not
-    used; the instances are numbered in the order they are started."""
+    instance estimated to finish first. Of the ways to share the parts out, the one whose
+    instances' estimates, longest first, are the least. The longest startup goes on the
+    first instance (started first); instances left with nothing of their own are not used."""
     if shards <= 1:
         return plan
     steps = plan.steps
@@ -290,18 +373,23 @@ def shard_plan(plan: Plan, shards: int, rto: float, window: float) -> Plan:
     if batch:
         units.append(batch)
     units += [[s] for s in steps if s.group != BATCH and s not in bound and s.case not in every]
-    loads = [startup_estimate(bool(bound) and k == 0, rto, window) for k in range(shards)]
-    loads[0] += sum(estimate(s, rto, window) for s in bound)
-    where: dict[str, int] = {s.case: 0 for s in bound}
-    # longest first; ties keep the plan's order (a stable sort), so the plan is the same in
-    # every process that makes it
-    for unit in sorted(units, key=lambda u: -sum(estimate(s, rto, window) for s in u)):
-        k = min(range(shards), key=lambda i: (loads[i], i))
-        loads[k] += sum(estimate(s, rto, window) for s in unit)
-        for s in unit:
-            where[s.case] = k
-    used = sorted(set(where.values()) or {0})
-    number = {k: n for n, k in enumerate(used)}
+    needed = [p for p in PARTS if any(part_of(s.case) == p for s in bound)]
+    best: tuple[list[float], dict[str, int]] | None = None
+    for blocks in sorted(_partitions(needed), key=len):
+        if len(blocks) > shards:
+            continue
+        blocks.sort(key=lambda b: -startup_estimate(b, rto, window))  # stable: the parts' order on a tie
+        loads = [startup_estimate(blocks[k] if k < len(blocks) else (), rto, window) + (STAGGER_S if k else 0.0)
+                 for k in range(shards)]
+        where = {s.case: next(k for k, b in enumerate(blocks) if part_of(s.case) in b) for s in bound}
+        where.update(_spread(units, loads, rto, window))
+        used = set(where.values()) or {0}
+        key = sorted((round(2 * loads[k]) / 2 for k in used), reverse=True)  # to half a second
+        if best is None or key < best[0]:  # (fewer groups first: a tie keeps the parts together)
+            best = (key, where)
+    assert best is not None
+    where = best[1]
+    number = {k: n for n, k in enumerate(sorted(set(where.values()) or {0}))}
     out = [Step(s.case, s.group, s.shared, EVERY if s.case in every else s.why,
                 None if s.case in every else number[where[s.case]]) for s in steps]
-    return Plan(plan.mode, plan.why, out, plan.batch_outcome, len(used))
+    return Plan(plan.mode, plan.why, out, plan.batch_outcome, len(number))

@@ -62,6 +62,12 @@ _READY = int(Action.MISSION_READY)
 #: not on the values of its header fields: still judged when those cannot be read.
 FRAMING_RULES = frozenset({"MCP-HDR-1", "MCP-HDR-2"})
 
+#: The observed startup's parts (a shard of ``mcp-conform --parallel`` may observe some,
+#: conformance.schedule.shard_plan), each as in the whole: the fix withheld (MCP-BLK-5); the
+#: copies while the ACK is withheld, then the watch after the right ACK (MCP-RTX-1's halves,
+#: MCP-RTX-3, MCP-SEQ-2, MCP-BLK-1, MCP-BLK-4's time to arm); the wrong ACKs (MCP-RTX-2).
+STARTUP_PARTS = frozenset({"fix", "copies", "wrong"})
+
 
 def embedded_command() -> str:
     """The reference drone, as the runner spawns it for the embedded default."""
@@ -137,7 +143,7 @@ class Session(DatagramSessionBase):
 
     # ------------------------------------------------------------------ start / stop
     def start(self, observe_startup: bool = True, watch: bool = True, measure: bool = False,
-              diagnose: bool = False) -> None:
+              diagnose: bool = False, parts: frozenset[str] | None = None) -> None:
         """Open the driver, start the vehicle and the node, run the startup phase (observed
         for the startup-phase cases unless ``observe_startup`` is False: then it is the quick
         one of a restart, as the fuzzer wants it). ``watch=False``: no background liveness
@@ -148,7 +154,8 @@ class Session(DatagramSessionBase):
         node as the observed one does: a header that reads right only byte-swapped is still
         diagnosed (MCP-HDR-2, ``unreadable``), a Mission_Ready the driver could not decode still
         ACKed by its header (a shard of ``mcp-conform --parallel`` that does not hold the
-        startup-phase cases: its cases are skipped on that diagnosis, as in a run of one)."""
+        startup-phase cases: its cases are skipped on that diagnosis, as in a run of one).
+        ``parts``: the observed startup's parts to observe (``STARTUP_PARTS``; None: by ``observe_startup``)."""
         cfg = self.cfg
         if self.spawned:
             listen = cfg.listen or ("", 0)
@@ -189,7 +196,8 @@ class Session(DatagramSessionBase):
         if self.spawned:
             self._spawn()
         self.startup_window = (self.clock.monotonic(), None)
-        self._startup_phase(first=observe_startup, measure=measure, diagnose=diagnose, initial=True)
+        parts = (STARTUP_PARTS if observe_startup else frozenset()) if parts is None else parts & STARTUP_PARTS
+        self._startup_phase(first=bool(parts), measure=measure, diagnose=diagnose, initial=True, parts=parts)
         self.startup_window = (self.startup_window[0], self.clock.monotonic())
         self._startup_mark = None  # started: later failures are the cases' to explain
 
@@ -323,16 +331,18 @@ class Session(DatagramSessionBase):
                                 "(no Mission_Ready, no ACK of a probe)")
 
     def _startup_phase(self, first: bool, measure: bool = False, diagnose: bool = False,
-                       initial: bool = False) -> None:
+                       initial: bool = False, parts: frozenset[str] = STARTUP_PARTS) -> None:
         """``initial``: the run's first startup (``start``), bounded by ``startup_limit`` and
-        explained when the node never announces (``startup_unanswered``)."""
+        explained when the node never announces (``startup_unanswered``); ``first``: its ``parts`` observed."""
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
         mark = drv.mark()
         self._startup_mark = mark if initial else None
         self.startup_fix_at = None
-        withhold = first or measure
+        parts = parts if first else frozenset()
+        withheld = bool(parts & {"copies", "wrong"})  # the parts that withhold Mission_Ready's ACK
+        withhold = withheld or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
         ready_limit = max(SPAWN_STARTUP_S, 4 * self.rto + 5.0)
         # the run's first startup waits as long as --startup-timeout says, counted from the
@@ -349,7 +359,7 @@ class Session(DatagramSessionBase):
         def ready_or_unreadable(d: Datagram) -> bool:
             return is_ready(d) or ((first or diagnose) and self._byte_order(d) is not None)
 
-        if self.vehicle is not None and first:
+        if self.vehicle is not None and "fix" in parts:
             v = self.vehicle
             st.node_connected_to_vehicle = v.wait_for(lambda: v.connected or not self.alive(),
                                                       timeout=min(ready_limit, left(ready_limit))
@@ -400,17 +410,18 @@ class Session(DatagramSessionBase):
             st.reason = f"MCP-HDR-2: {self.unreadable[1]}"
             self.startup = st
             return
-        if first:
-            self._observe_retransmissions(st, first_ready)
+        if withheld:
+            self._observe_retransmissions(st, first_ready, parts)
         elif measure:
             self._measure_period(first_ready)
-        elif diagnose and first_ready.msg is None and first_ready.header is not None:
+        elif (first or diagnose) and first_ready.msg is None and first_ready.header is not None:
             # the driver ACKs only what it decodes: a Mission_Ready it could not (a bad
             # preamble) is ACKed as the observed startup ACKs it, by its header
             drv.send_ack(first_ready.header[2], dst=self.target_id if self.target_id is not None
                          else first_ready.header[1])
         withhold = False
         if first:
+            st.observed = True  # (the fix's part alone: the first Mission_Ready ACKed at once)
             self.startup = st
         self._start_mission(first)
 
@@ -445,8 +456,10 @@ class Session(DatagramSessionBase):
         if last.header is not None:
             drv.send_ack(last.header[2], dst=last.header[1])
 
-    def _observe_retransmissions(self, st: Startup, first_ready: Datagram) -> None:
-        """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one."""
+    def _observe_retransmissions(self, st: Startup, first_ready: Datagram,
+                                 parts: frozenset[str] = STARTUP_PARTS) -> None:
+        """Withhold the ACK (MCP-RTX-1/3, SEQ-2), then wrong ACKs (RTX-2), then the right one
+        and the watch (RTX-1); the wrong ACKs' part alone: two copies (the node's period), no watch."""
         drv = self.driver
         assert drv is not None
         st.observed = True
@@ -459,22 +472,44 @@ class Session(DatagramSessionBase):
         # is awaited up to the description's timeout
         slowest = max(self.rto, float(SPEC.params["timeout_s"]))
         i = first_ready.index
+        wanted = MIN_COPIES if "copies" in parts else 2
         while True:
             copies = [d for d in drv.received(i) if d.action == _READY]
             if len(copies) >= 2:
                 deadline = first_ready.t + MIN_COPIES * max(self.rto, copies[1].t - copies[0].t) * 1.5 + 1.0
             else:
                 deadline = first_ready.t + max(MIN_COPIES * self.rto, slowest) * 1.5 + 1.0
-            if len(copies) >= MIN_COPIES or self.clock.monotonic() >= deadline or not self.alive():
+            if len(copies) >= wanted or self.clock.monotonic() >= deadline or not self.alive():
                 break
             drv.wait_for(lambda d: d.action == _READY, 0.05, drv.mark())
         st.copies = [d for d in drv.received(i) if d.action == _READY]
         self.period = st.period()
-        self.timing = timing_note(st.period(), self.rto, len(st.copies),
-                                  "the node is judged by its copies' own spacing")
+        if "copies" in parts:
+            self.timing = timing_note(st.period(), self.rto, len(st.copies),
+                                      "the node is judged by its copies' own spacing")
         gaps = st.gaps()
         gap = sorted(gaps)[len(gaps) // 2] if gaps else self.rto
-        # an ACK with the wrong seq, and the right seq from the wrong source (MCP-RTX-2)
+        if "wrong" in parts:
+            self._send_wrong_acks(st, i, ready_src, gap)
+        latest = [d for d in drv.received(i) if d.action == _READY][-1]  # (an MR: its header was read)
+        rseq = latest.header[2] if latest.header else 0
+        st.right_ack = drv.send_ack(rseq, dst=ready_src)
+        if "copies" in parts:
+            st.stop_watch = max(self.ack_window, 1.5 * gap)
+            grace = 0.05
+            right = st.right_ack
+            st.watch_after_right_ack(lambda: [d for d in drv.received(i) if d.action == _READY
+                                              and d.t > right.t + grace], gap, self.clock.sleep)
+        # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
+        st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
+                                   if d.header is not None and d.action not in (_READY, int(Action.ACK))
+                                   and d.header[0] != self.cfg.broadcast_id]
+
+    def _send_wrong_acks(self, st: Startup, i: int, ready_src: int, gap: float) -> None:
+        """MCP-RTX-2: an ACK with the wrong seq and one with the right seq from the wrong
+        source, then a copy awaited (2.5 of the node's periods)."""
+        drv = self.driver
+        assert drv is not None
         last = st.copies[-1]
         seq = last.header[2] if last.header else 0
         wrong_src = (ready_src + 0x100) & 0xFFFF or 0x7777
@@ -485,18 +520,6 @@ class Session(DatagramSessionBase):
         after = drv.mark()
         st.wrong_ack_wait = max(2.5 * gap, 0.3) + 0.2
         st.copy_after_wrong_acks = drv.wait_for(lambda d: d.action == _READY, st.wrong_ack_wait, after)
-        latest = [d for d in drv.received(i) if d.action == _READY][-1]
-        rseq = latest.header[2] if latest.header else seq
-        st.right_ack = drv.send_ack(rseq, dst=ready_src)
-        st.stop_watch = max(self.ack_window, 1.5 * gap)
-        grace = 0.05
-        right = st.right_ack
-        st.watch_after_right_ack(lambda: [d for d in drv.received(i) if d.action == _READY
-                                          and d.t > right.t + grace], gap, self.clock.sleep)
-        # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
-        st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
-                                   if d.header is not None and d.action not in (_READY, int(Action.ACK))
-                                   and d.header[0] != self.cfg.broadcast_id]
 
     def _start_mission(self, first: bool) -> None:
         drv = self.driver
