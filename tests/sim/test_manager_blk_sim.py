@@ -17,18 +17,24 @@ now reads every ACK the drones sent).
 ``preempt`` (sim.manager_runner.Preemption) takes a runner thread off the CPU at those two
 points; ``sim.stalls`` holds a thread only before it runs, where this interleaving cannot
 happen. Seeds 9 and 13 of ``preempt=(0.5, 0.05)`` over the BLK cases failed MCP-BLK-1 this way
-on the judge before (0 of 40 seeds after). On real sockets: 1 run of 43 (beside two CPU hogs)
-showed the double answer; none of 150 showed the false verdict itself.
+on the judge before (0 of 40 seeds after). On real sockets (the sample manager unicasting to
+the broadcast address, 6 runs side by side beside two CPU hogs) the double answer showed in 4
+of about 260 runs, the false verdict itself in none: the simulator's seeds are the regression.
+A manager that does send a second unicast while one awaits its ACK still fails, case and
+monitor (``NoWaitSecondStart``).
 """
 
 from __future__ import annotations
 
+import random
 import struct
 
 import pytest
 
+from mcp_conform.harness.manager_session import EMBEDDED_RETRIES
 from mcp_conform.sim.manager_runner import run_manager_cases
-from mcp_conform.spec.codec import HEADER_SIZE, Action
+from mcp_conform.sim.models import ManagerModel
+from mcp_conform.spec.codec import HEADER_SIZE, Action, build_datagram, peek_header
 
 SHORT = {"rto": 0.2, "ack_window": 0.25}
 PREEMPT = (0.5, 0.05)  # p, up to a quarter of --rto
@@ -62,3 +68,39 @@ def test_a_start_mission_answered_twice_is_answered_by_the_first_ack(seed):
     assert not run.rules_with("failed", "warned"), run.explain()
     assert not {r: o for r, o in run.report["monitor"]["rules"].get("0", {}).items() if o in ("failed", "warned")}
     assert run.preemptions > 0
+
+
+class NoWaitSecondStart(ManagerModel):
+    """A manager that really breaks MCP-BLK-1: the second drone's Start_Mission 1 ms after the
+    first drone's, before that one is ACKed (to another drone: not MCP-BLK-3's), sent once; the
+    rest as the reference plan. Not in sim.manager_faults: the monitor also fails MCP-SEQ-1 on it
+    (not yet explained), so it would not pass "its rule and no other"."""
+
+    def plan(self):
+        return [c for c in super().plan() if c[:2] != (self.drones[1], Action.START_MISSION)]
+
+    def drain(self, now):
+        out = []
+        for data, addr in self.ep.datagrams_to_send(now):
+            out.append((data, addr, 0.0))
+            head = peek_header(data)
+            if (head is not None and head[0] == self.drones[0] and head[3] == Action.START_MISSION
+                    and not getattr(self, "_early", False)):
+                self._early = True
+                early = build_datagram(self.drones[1], self.node_id, self.ep._take_seq(), int(Action.START_MISSION))
+                out.append((early, addr, 0.001))
+        return out
+
+
+@pytest.mark.parametrize("preempt", [None, PREEMPT], ids=["clean", "preempted"])
+def test_a_manager_that_does_not_wait_still_fails(preempt):
+    """Reading every ACK the drones sent does not excuse a real second unicast in flight."""
+    def make(drones, challenge, items, now):
+        return NoWaitSecondStart(drones, challenge, items, 0.2, EMBEDDED_RETRIES, random.Random(1))
+    make.__name__ = "no-wait-second-start"
+    for seed in PREEMPT_SEEDS:
+        run = run_manager_cases(make, seed=seed, challenge=1, preempt=preempt, select=["MCP-BLK"], **SHORT)
+        assert run.rules["MCP-BLK-1"] == "failed", run.explain()
+        case = next(c for c in run.report["cases"] if c["id"].endswith("test_stop_and_wait"))
+        assert "START_MISSION" in case["actual"] and "to drone 2 0.001 s after it" in case["actual"], case
+        assert run.report["monitor"]["rules"]["0"]["MCP-BLK-1"] == "failed", run.report["monitor"]
