@@ -15,6 +15,12 @@ silent drone's scenario runs beside the main one (the default schedule) on a mod
 behind a link of its own (``harness.manager_side.SideScenario`` with the simulated transport),
 or after it (``serial``). :func:`run_manager_cases` returns the JSON report's verdicts
 (:class:`ManagerSimRun`). Not simulated: attach mode (one running manager), ``--parallel``.
+
+A stall of :class:`sim.stalls.StallingClock` holds a thread before it runs; a host also takes the
+CPU from a thread in the middle of its step. ``preempt`` does that at the two points of the
+drone players' answers where it changes what the runner records (:class:`Preemption`): right
+after an ACK the runner sent has left, before the sender records it; and after the receiver
+thread has logged a datagram and woken its waiters, before the drone players answer it.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import pytest
 
 from mcp_conform.harness.clock import VirtualClock
 from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import read_header
 from mcp_conform.harness.impair import ImpairSpec, parse_impairment
 from mcp_conform.harness.manager_session import EMBEDDED_RETRIES, MANAGER_PORT, ManagerSession
 from mcp_conform.harness.manager_side import SideScenario
@@ -41,9 +48,10 @@ from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
 from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.spec import SPEC
+from mcp_conform.spec.codec import Action
 from mcp_conform.spec.profiles import pick
 
-__all__ = ["ManagerSimRun", "SimManagerSession", "manager_factory", "run_manager_cases"]
+__all__ = ["ManagerSimRun", "Preemption", "SimManagerSession", "manager_factory", "run_manager_cases"]
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 #: where the main scenario's manager model receives, and the drones' socket listens
@@ -78,6 +86,42 @@ def manager_factory(fault: str | None = None, *, rto: float = 0.2, seed: int = 0
     return make
 
 
+class Preemption:
+    """A runner thread taken off the CPU mid-step, seeded: with probability ``p`` it waits up to
+    ``max_s`` virtual seconds (uniform) where :meth:`point` is called. It holds no lock there
+    (the driver's condition is released before a datagram leaves and before the drone players
+    answer), so the other threads run meanwhile, as on a loaded host: the case thread's ACK left
+    but is not yet recorded in the mission while the receiver thread answers a copy of the same
+    command (the drone players ACK it again once the case thread has released it)."""
+
+    def __init__(self, clock: VirtualClock, seed: int, p: float, max_s: float) -> None:
+        self.clock, self.p, self.max_s = clock, p, max_s
+        self._rng = random.Random(seed)
+        self.count = 0
+
+    def point(self) -> None:
+        if self._rng.random() < self.p:
+            self.count += 1
+            self.clock.sleep(self._rng.uniform(0.0, self.max_s))
+
+
+class PreemptedTransport(SimTransport):
+    """The runner's simulated socket whose sender may be preempted right after an ACK leaves
+    (``Preemption``): the kernel took the datagram, the thread has not yet recorded it."""
+
+    preemption: Preemption | None = None
+
+    def sendto(self, data: bytes, addr: tuple[str, int]) -> int:
+        n = super().sendto(data, addr)
+        hdr = read_header(data) if self.preemption is not None else None
+        if hdr is not None and hdr[3] == _ACK:
+            self.preemption.point()  # type: ignore[union-attr]  # hdr is None without one
+        return n
+
+
+_ACK = int(Action.ACK)
+
+
 def _unread(transport: SimTransport) -> Callable[[], bool]:
     """Whether the transport holds datagrams due at the runner's socket that its receiver
     thread has not read (a stalled thread: ``sim.stalls``), as the kernel's receive queue."""
@@ -100,6 +144,18 @@ class SimManagerSession(ManagerSession):
         self.make_model = make_model
         self.model_name = name
         self.models: list[ManagerModel] = []
+        self.preemption: Preemption | None = getattr(transport, "preemption", None)
+
+    def open(self) -> None:
+        super().open()
+        assert self.driver is not None and self.driver.on_datagram is not None
+        preemption, answer = self.preemption, self.driver.on_datagram
+        if preemption is not None:  # the receiver thread preempted before the drone players answer
+
+            def answer_late(d: Any) -> None:
+                preemption.point()
+                answer(d)
+            self.driver.on_datagram = answer_late
 
     def _model_node(self, transport: SimTransport, addr: tuple[str, int]) -> SimNode:
         items = self._handed_items()
@@ -139,10 +195,13 @@ class SimManagerSession(ManagerSession):
 
 @dataclass
 class ManagerSimRun(SimRun):
-    """A run's report and costs (:class:`sim.runner.SimRun`), and its manager models (each
-    scenario's, in the order spawned: what each did)."""
+    """A run's report and costs (:class:`sim.runner.SimRun`), its manager models (each
+    scenario's, in the order spawned: what each did), and the session's mission records (what
+    the cases judged: ``harness.drone_players.Mission`` by scenario) and preemptions made."""
 
     managers: list[ManagerModel] = field(default_factory=list)
+    missions: dict[str, Any] = field(default_factory=dict)
+    preemptions: int = 0
 
 
 def _SimManagerPlugin(make: Callable[[RunConfig, Any], SimManagerSession]) -> Any:  # noqa: N802
@@ -155,14 +214,16 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
                       ack_window: float = 0.25, node_rto: float | None = None, retries: int = EMBEDDED_RETRIES,
                       link: str | ImpairSpec | None = None, challenge: int = 1, drones: str = "1,2,3",
                       select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-                      serial: bool = False, stalls: tuple[float, float] | None = None) -> ManagerSimRun:
+                      serial: bool = False, stalls: tuple[float, float] | None = None,
+                      preempt: tuple[float, float] | None = None) -> ManagerSimRun:
     """The manager-role cases (``serial``: ``--serial``; else the default, the silent drone's
     scenario beside the main one) against ``model`` -- None: the reference manager; a name of
     :data:`sim.manager_faults.MANAGER_FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the
     manager's own timeout ``node_rto``, default ``rto``, and retry limit ``retries``),
     ``--challenge challenge --drones drones``; ``link`` the runner's link both ways, for each
     scenario's manager (``harness.impair`` spec); ``seed`` the run's, the models' and the links';
-    ``stalls`` ``(p, max_s)``: the runner's own threads stalled (:class:`sim.stalls.StallingClock`)."""
+    ``stalls`` ``(p, max_s)``: the runner's own threads stalled (:class:`sim.stalls.StallingClock`);
+    ``preempt`` ``(p, max_s)``: the main scenario's runner threads preempted mid-step (:class:`Preemption`)."""
     from mcp_conform.conformance import cli
 
     if model is None or isinstance(model, str):
@@ -173,7 +234,9 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
     spec = parse_impairment(link) if isinstance(link, str) else link
     clock = (VirtualClock(step=STEP_S) if stalls is None
              else StallingClock(seed, stalls[0], stalls[1], step=STEP_S))
-    transport = SimTransport(clock, spec, spec, link_seed=seed, listen=DRONES_ADDR)
+    transport = PreemptedTransport(clock, spec, spec, link_seed=seed, listen=DRONES_ADDR)
+    if preempt is not None:
+        transport.preemption = Preemption(clock, seed + 104729, *preempt)
     sides = iter(range(1, 1000))
 
     def side_transport() -> SimTransport:
@@ -198,4 +261,7 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
             rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
         report = json.loads(path.read_text()) if path.exists() else {}
     managers = list(plugin.session.models) if plugin.session is not None else []
-    return ManagerSimRun(report, rc, clock.monotonic() - start, clock.switches, len(managers), managers)
+    missions = dict(plugin.session.missions) if plugin.session is not None else {}
+    made = transport.preemption.count if transport.preemption is not None else 0
+    return ManagerSimRun(report, rc, clock.monotonic() - start, clock.switches, len(managers), managers,
+                         missions, made)
