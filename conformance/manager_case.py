@@ -162,8 +162,10 @@ def _right_acks(m: Mission, msg: Message) -> list[float]:
     looked sent while Start_Mission awaited its ACK (a false MCP-BLK-1 of a correct manager:
     seeds 9 and 13 of tests/sim/test_manager_blk_sim.py)."""
     first = _first_answers(m)
-    return [first[(msg.dst, c.header[2])] for c in msg.copies
-            if c.header is not None and (msg.dst, c.header[2]) in first]
+    keys = [(msg.dst, c.header[2]) for c in msg.copies if c.header is not None]
+    # ``acks``' own too: a record built without ``sent_by_drones`` (a scripted mission) has only those
+    return [min(t for t in (first.get(k), m.acks[k].t if k in m.acks else None) if t is not None)
+            for k in keys if k in first or k in m.acks]
 
 
 def _first_answers(m: Mission) -> dict[tuple[int, int], float]:
