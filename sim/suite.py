@@ -22,12 +22,15 @@ costs besides the cases is paid on every run, and two shares of it serve nobody 
   lines and the per-rule table were rendered by rich for nobody, some 15-25 ms a run.
   :class:`SilentTerminal` renders nothing; its errors still go to stderr (``TerminalReport.error``).
 
-Neither touches what is judged: the JSON report (cases, outcomes, evidence, monitor verdicts)
+- and each run let go of at its end (:func:`_let_go`: ``atexit`` held every run's state).
+
+None of these touches what is judged: the JSON report (cases, outcomes, evidence, monitor verdicts)
 is the same, seed for seed (``bench/sim_report_check.py``).
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import os
@@ -89,9 +92,22 @@ def run_suite(clock: VirtualClock, args: list[str], plugin: Any) -> int:
 
 
 def silence(config: pytest.Config) -> None:
-    """The run's terminal report made a :class:`SilentTerminal` (``config``: the nested session's)."""
+    """The run's terminal report made a :class:`SilentTerminal` (``config``: the nested
+    session's), and the run let go of when it ends (:func:`_let_go`)."""
     from mcp_conform.conformance._run_state import state_of
 
     state = state_of(config)
     if state is not None:
         state._terminal = SilentTerminal()
+        config.add_cleanup(lambda: _let_go(state))
+
+
+def _let_go(state: Any) -> None:
+    """The run's state off ``atexit``'s list. ``McpState.start_session`` registers its
+    ``close_session`` there (a process killed mid-run still closes its capture) and nothing
+    takes it off: in a process that runs many suites each run -- its config, session, cases,
+    monitors, link records, some 15,000 objects for a drone run -- stayed reachable to the
+    end, every full collection of the garbage collector walked them all again, and a worker
+    of the quick tests grew to 600 MB. The session is closed by then (the plugin's
+    ``pytest_sessionfinish`` called it); the call is harmless if it was never registered."""
+    atexit.unregister(state.close_session)
