@@ -42,6 +42,7 @@ from mcp_conform.sim.gcs import GcsProcess, SimMavConn, gcs_class
 from mcp_conform.sim.link import check_spec
 from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
+from mcp_conform.sim.suite import run_suite, suite_args
 from mcp_conform.sim.vehicle_role import RunnerEnd, _Lane
 from mcp_conform.spec.profiles import pick
 
@@ -187,12 +188,11 @@ def run_gcs_cases(fault: str | None = None, *, seed: int = 0, transport: str = "
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mavlink", "gcs"))
-        args = cli.pytest_args(ns)
+        args = suite_args(ns)
         plugin = _SimPlugin(lambda cfg, rec: SimGcsSession(cfg, rec, clock=clock, links=links, fault=fault, name=name),
                             role="gcs")
         start = clock.monotonic()
-        with cli._quiet(True):
-            rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
+        rc = run_suite(clock, args, plugin)
         report = json.loads(path.read_text()) if path.exists() else {}
     runs = len(plugin.session.processes) if plugin.session is not None else 0
     return SimRun(report, rc, clock.monotonic() - start, clock.switches, runs)

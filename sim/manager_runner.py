@@ -33,8 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 from mcp_conform.harness.clock import VirtualClock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.driver import read_header
@@ -46,6 +44,7 @@ from mcp_conform.sim.manager_faults import MANAGER_FAULTS
 from mcp_conform.sim.models import ManagerModel
 from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
+from mcp_conform.sim.suite import run_suite, suite_args
 from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action
@@ -252,13 +251,12 @@ def run_manager_cases(model: str | None | ManagerFactory = None, *, seed: int = 
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mcp", "manager"))
-        args = cli.pytest_args(ns)
+        args = suite_args(ns)
         plugin = _SimManagerPlugin(lambda cfg, rec: SimManagerSession(
             cfg, rec, clock=clock, transport=transport, side_transport=side_transport, make_model=factory,
             name=name))
         start = clock.monotonic()
-        with cli._quiet(True):
-            rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
+        rc = run_suite(clock, args, plugin)
         report = json.loads(path.read_text()) if path.exists() else {}
     managers = list(plugin.session.models) if plugin.session is not None else []
     missions = dict(plugin.session.missions) if plugin.session is not None else {}

@@ -35,6 +35,7 @@ from mcp_conform.harness.impair import ImpairSpec, parse_impairment
 from mcp_conform.sim.faults import FAULTS, fault_endpoint
 from mcp_conform.sim.models import DroneModel
 from mcp_conform.sim.stalls import StallingClock
+from mcp_conform.sim.suite import run_suite, silence, suite_args
 from mcp_conform.sim.transport import SimNode, SimTransport
 from mcp_conform.sim.vehicle import SimVehicleNet, start_vehicle
 from mcp_conform.spec import SPEC
@@ -116,6 +117,10 @@ class _SimPlugin:
         self.role = role  # the role whose cases the simulated session runs
         self.session: Any = None
 
+    @pytest.hookimpl(trylast=True)
+    def pytest_configure(self, config: pytest.Config) -> None:
+        silence(config)  # a simulated run's stdout is /dev/null (sim.suite)
+
     @pytest.hookimpl(tryfirst=True)
     def pytest_mcp_make_session(self, cfg: RunConfig, recorder: Any, config: pytest.Config) -> Any:
         from mcp_conform.conformance._run_state import state_of
@@ -195,12 +200,11 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mcp", "drone"))
-        args = cli.pytest_args(ns)
+        args = suite_args(ns)
         plugin = _SimPlugin(lambda cfg, rec: SimSession(cfg, rec, clock=clock, transport=transport,
                                                         make_model=factory, name=name))
         start = clock.monotonic()
-        with cli._quiet(True):
-            rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
+        rc = run_suite(clock, args, plugin)
         report = json.loads(path.read_text()) if path.exists() else {}
     models = len(plugin.session.models) if plugin.session is not None else 0
     return SimRun(report, rc, clock.monotonic() - start, clock.switches, models)

@@ -43,6 +43,7 @@ from mcp_conform.harness.mavlink_session import MavlinkSession
 from mcp_conform.sim.link import check_spec
 from mcp_conform.sim.runner import STEP_S, SimRun, _SimPlugin
 from mcp_conform.sim.stalls import StallingClock
+from mcp_conform.sim.suite import run_suite, suite_args
 from mcp_conform.sim.vehicle import VEHICLE_ADDR, VEHICLE_TCP, SimVehicleNet, start_vehicle
 from mcp_conform.sim.vehicle_faults import VEHICLE_SYSID, FaultProxy
 from mcp_conform.spec.profiles import pick
@@ -270,11 +271,10 @@ def run_vehicle_cases(fault: str | None = None, *, seed: int = 0, transport: str
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])
         ns.protocol, ns.role = (p.name for p in pick("mavlink", "vehicle"))
-        args = cli.pytest_args(ns)
+        args = suite_args(ns)
         plugin = _SimPlugin(lambda cfg, rec: SimVehicleSession(cfg, rec, clock=clock, links=links, name=name),
                             role="vehicle")
         start = clock.monotonic()
-        with cli._quiet(True):
-            rc = int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
+        rc = run_suite(clock, args, plugin)
         report = json.loads(path.read_text()) if path.exists() else {}
     return SimRun(report, rc, clock.monotonic() - start, clock.switches, 1 if plugin.session is not None else 0)
