@@ -283,6 +283,7 @@ class McpState:
         return self.live.feed()
 
     def close_session(self) -> None:
+        atexit.unregister(self.close_session)  # closed: an in-process run (the simulator's) is released
         session, self.session = self.session, None
         if session is not None:
             with contextlib.suppress(Exception):
