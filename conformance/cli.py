@@ -221,16 +221,13 @@ def _fail(message: str, json_path: str | None, cfg: RunConfig | None = None) -> 
     return 2
 
 
-def _plugin_is_installed() -> bool:
-    """True when pytest will load our plugin through its ``pytest11`` entry point."""
-    if os.environ.get("PYTEST_DISABLE_PLUGIN_AUTOLOAD"):
-        return False
-    try:
-        from importlib.metadata import entry_points
+def run_pytest(args: list[str], plugins: Sequence[Any] = ()) -> int:
+    """``pytest.main(args)`` (:func:`pytest_args`) with the runner's plugin and ``plugins``."""
+    import importlib
 
-        return any(ep.value.strip() == PLUGIN_MODULE for ep in entry_points(group="pytest11"))
-    except Exception:  # noqa: BLE001 - a broken metadata install: load it explicitly
-        return False
+    import pytest
+
+    return int(pytest.main(args, plugins=[importlib.import_module(PLUGIN_MODULE), *plugins]))
 
 
 def pytest_args(ns: argparse.Namespace) -> list[str]:
@@ -239,13 +236,18 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
 
     package = pick(ns.protocol, ns.role)[1].cases
     cases_dir = str(Path(importlib.import_module(package).__file__ or "").parent)  # not resolved: mcp_conform/ names it
-    args = ["-c", os.devnull, "--rootdir", cases_dir, "-p", "no:cacheprovider", "-p", "no:randomly",
+    # An isolated session: no plugin but ours, registered as an object (:func:`run_pytest`;
+    # ``--disable-plugin-autoload``: pytest walks no installed distribution's entry points, as
+    # ``-p NAME`` would to look the name up, and a user's pytest plugins take no part in a run),
+    # and no ``conftest.py`` of the directory it runs in (the cases are named by package, so
+    # pytest would load the working directory's ``test*/conftest.py``: a user's own test hooks
+    # inside the run). The cases' packages have no conftest.
+    args = ["-c", os.devnull, "--rootdir", cases_dir, "--noconftest", "--disable-plugin-autoload",
+            "-p", "no:cacheprovider", "-p", "no:randomly",
             "-p", "no:terminal", "-p", "no:xdist", "-p", "no:timeout",
             "-p", "no:unraisableexception",  # its gc.collect() x 5 at the end: 60 ms a run, for nothing here
             "--capture=no",  # the runner's own live output (progress, -v traffic) reaches the terminal
             "-W", "ignore::pytest.PytestAssertRewriteWarning", "-W", "ignore::pytest.PytestConfigWarning"]
-    if not _plugin_is_installed():
-        args += ["-p", PLUGIN_MODULE]
     args += ["--mcp-frontend", "--mcp-protocol", ns.protocol, "--mcp-role", ns.role]
     for name in ("target", "listen", "target_id", "spawn", "json", "junit", "capture", "live", "html", "rto",
                  "ack_window", "broadcast_id", "timeout", "seed", "baseline", "write_baseline",
@@ -394,13 +396,12 @@ def _main(argv: list[str]) -> int:
         return run_parallel(ns, cfg, parallel, _fail)
     if ns.list and (ns.capture or ns.html or ns.live):
         ns.capture = ns.html = ns.live = None  # nothing runs: no capture file, no HTML report, no server
-    import pytest
 
     if ns.json:
         Path(ns.json).unlink(missing_ok=True)  # rewritten below; its absence shows a pytest failure
     INTERRUPTS.hold()  # until the plugin is configured (``_plugin_run.pytest_configure``)
     with _quiet(ns.quiet):
-        rc = int(pytest.main(pytest_args(ns)))
+        rc = run_pytest(pytest_args(ns))
     INTERRUPTS.stop_raising()
     INTERRUPTS.release()  # pytest ended before it configured the plugin: nothing left to raise
     if INTERRUPTS.interrupted:

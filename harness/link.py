@@ -17,6 +17,7 @@ import contextlib
 import select
 import socket
 import threading
+from bisect import bisect_left
 from typing import Any, Protocol
 
 from mcp_conform.harness.clock import REAL, Clock
@@ -116,6 +117,11 @@ class Link:
         self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
         self.clock = clock
         self.frames: list[Any] = []
+        #: :attr:`frames` indexed for :meth:`received` (its cases ask thousands of times a run,
+        #: each for the few frames since a moment): their times (in arrival order, so sorted) and,
+        #: per message name, the frames of that name and their times
+        self._times: list[float] = []
+        self._by_name: dict[str, tuple[list[float], list[Any]]] = {}
         self.sent: list[tuple[float, str, bytes]] = []
         self.closed_at: float | None = None
         self._cond = clock.condition()
@@ -208,6 +214,11 @@ class Link:
                 self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
         with self._cond:
             self.frames.extend(got)
+            for r in got:
+                self._times.append(r.t)
+                times, frames = self._by_name.setdefault(r.name, ([], []))
+                times.append(r.t)
+                frames.append(r)
             self._cond.notify_all()
         if self.on_frames is not None and got:
             self.on_frames(got)
@@ -215,7 +226,8 @@ class Link:
     def received(self, since: float = 0.0, name: str | None = None) -> list[Any]:
         """The frames that came at or after ``since`` (of message ``name``, when given)."""
         with self._cond:
-            return [r for r in self.frames if r.t >= since and (name is None or r.name == name)]
+            times, frames = (self._times, self.frames) if name is None else self._by_name.get(name, ([], []))
+            return frames[bisect_left(times, since):]
 
     def wait_for(self, pred: Any, timeout: float) -> bool:
         """Wait until ``pred()`` holds or ``timeout`` s pass (or a TCP link closes)."""

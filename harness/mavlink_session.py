@@ -28,6 +28,7 @@ from __future__ import annotations
 import shlex
 import sys
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 from mcp_conform.harness.clock import REAL, Clock
@@ -59,11 +60,11 @@ class Received:
     msg: Any
     raw: bytes
 
-    @property
+    @cached_property  # read many times a frame (the cases' scans, the monitor)
     def name(self) -> str:
         return str(self.msg.get_type())
 
-    @property
+    @cached_property
     def bad(self) -> bool:
         return self.name == "BAD_DATA"
 

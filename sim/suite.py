@@ -4,20 +4,12 @@ tests run several hundred simulated suites). Each entry point of the simulator
 runs ``mcp-conform``'s own pytest session, nested, on its virtual clock; what that session
 costs besides the cases is paid on every run, and two shares of it serve nobody here:
 
-- pytest's plugin autoload. Each ``pytest.main`` walks every installed distribution's entry
-  points (``pluggy``'s ``load_setuptools_entrypoints``, pytest's ``_mark_plugins_for_rewrite``)
-  and ``conformance.cli.pytest_args`` walks them once more to see whether the ``conformance``
-  plugin is among them: some 25-40 ms a run. Under :func:`no_autoload`
-  (``PYTEST_DISABLE_PLUGIN_AUTOLOAD``, pytest's own switch) the session loads the plugin by
-  name (``-p mcp_conform.conformance.plugin``, as ``pytest_args`` adds it then) and no other:
-  the others of the ``pytest11`` group here (xdist, timeout, hypothesis, platformdirs) are
-  turned off by the runner's arguments or take no part in a run of the cases.
-- the conftest files of the directory it runs in. Its cases are named by package
-  (``--pyargs``), so pytest takes the working directory and its ``test*`` folders as where to
-  look for ``conftest.py`` (``_set_initial_conftests``): run from this repository, each nested
-  session loaded ``tests/conftest.py`` -- the test suite's own hooks (its collection order,
-  its ``MCP_TEST_CPU`` recorder, which so counted each case a second time inside the test
-  that ran the suite). The cases' packages have no conftest: ``--noconftest``.
+- pytest's plugin autoload and the conftest files of the directory it runs in: off in every
+  run of the suite, simulated or real (``conformance.cli.pytest_args``:
+  ``--disable-plugin-autoload`` with the plugin named, ``--noconftest``). Before, each
+  ``pytest.main`` walked every installed distribution's entry points, some 25-40 ms a run, and
+  run from this repository each nested session loaded ``tests/conftest.py`` (the test suite's
+  own hooks, its ``MCP_TEST_CPU`` recorder among them).
 - the terminal report. A simulated run is ``--quiet`` (its stdout is /dev/null): the case
   lines and the per-rule table were rendered by rich for nobody, some 15-25 ms a run.
   :class:`SilentTerminal` renders nothing; its errors still go to stderr (``TerminalReport.error``).
@@ -31,10 +23,7 @@ is the same, seed for seed (``bench/sim_report_check.py``).
 from __future__ import annotations
 
 import atexit
-import contextlib
 import io
-import os
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -43,24 +32,7 @@ from rich.console import Console
 from mcp_conform.conformance.terminal import TerminalReport
 from mcp_conform.harness.clock import VirtualClock
 
-__all__ = ["SilentTerminal", "no_autoload", "run_suite", "suite_args"]
-
-_AUTOLOAD = "PYTEST_DISABLE_PLUGIN_AUTOLOAD"
-
-
-@contextlib.contextmanager
-def no_autoload() -> Iterator[None]:
-    """pytest's plugin autoload off for the block (the environment as it was after)."""
-    saved = os.environ.get(_AUTOLOAD)
-    os.environ[_AUTOLOAD] = "1"
-    try:
-        yield
-    finally:
-        if saved is None:
-            os.environ.pop(_AUTOLOAD, None)
-        else:
-            os.environ[_AUTOLOAD] = saved
-
+__all__ = ["SilentTerminal", "run_suite", "suite_args"]
 
 class SilentTerminal(TerminalReport):
     """The run's live report, rendered for nobody: a simulated run's stdout is /dev/null."""
@@ -73,22 +45,20 @@ class SilentTerminal(TerminalReport):
 
 
 def suite_args(ns: Any) -> list[str]:
-    """``conformance.cli.pytest_args`` for ``ns``, the plugin named (:func:`no_autoload`), and
-    no ``conftest.py`` loaded (``--noconftest``; module docstring)."""
+    """``conformance.cli.pytest_args`` for ``ns``: the session a real run has (isolated: no
+    plugin autoload, no conftest; module docstring)."""
     from mcp_conform.conformance import cli
 
-    with no_autoload():
-        args = cli.pytest_args(ns)
-    return ["--noconftest", *args]
+    return cli.pytest_args(ns)
 
 
 def run_suite(clock: VirtualClock, args: list[str], plugin: Any) -> int:
-    """``pytest.main(args)`` with ``plugin`` on ``clock`` (:meth:`VirtualClock.run`), quiet
-    and without the plugin autoload; its exit code."""
+    """``pytest.main(args)`` with ``plugin`` on ``clock`` (:meth:`VirtualClock.run`), quiet;
+    its exit code."""
     from mcp_conform.conformance import cli
 
-    with cli._quiet(True), no_autoload():
-        return int(clock.run(lambda: pytest.main(args, plugins=[plugin])))
+    with cli._quiet(True):
+        return int(clock.run(lambda: cli.run_pytest(args, [plugin])))
 
 
 def silence(config: pytest.Config) -> None:

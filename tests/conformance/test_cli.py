@@ -106,6 +106,17 @@ def test_list_with_select(tmp_path):
     assert "ACK/test_broadcast_is_not_acked" in ids
 
 
+def test_a_conftest_in_the_working_directory_takes_no_part(tmp_path):
+    """The cases are named by package, so pytest would load the working directory's
+    ``test*/conftest.py`` into the run: a user's own test hooks (here one that raises at import)
+    broke ``mcp-conform`` run from their project. ``--noconftest`` keeps the run isolated."""
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "conftest.py").write_text('raise RuntimeError("the user\'s conftest was loaded")\n')
+    proc = conform("--list", "--select", "MCP-HDR", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "conftest" not in proc.stderr and proc.stdout.splitlines()[0].startswith("HDR/")
+
+
 def test_select_matching_nothing_is_exit_2(tmp_path):
     path = tmp_path / "r.json"
     proc = conform("--select", "MCP-NOPE", "--json", str(path), cwd=tmp_path)

@@ -7,15 +7,27 @@ conftest; tiny cases pass, fail a MUST, fail a SHOULD, are inconclusive, record 
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 import xml.etree.ElementTree as ET
 
 import pytest
 
-from mcp_conform.conformance.cli import _plugin_is_installed
 from mcp_conform.conformance.report import validate_json
 
 pytest_plugins = ("pytester",)
+
+
+
+def _plugin_is_installed() -> bool:
+    """True when pytest loads the plugin through its ``pytest11`` entry point (the pytester
+    sessions here are plain pytest runs, autoload on, as a user's ``pytest --pyargs`` is)."""
+    if os.environ.get("PYTEST_DISABLE_PLUGIN_AUTOLOAD"):
+        return False
+    from importlib.metadata import entry_points
+
+    return any(ep.value.strip() == "mcp_conform.conformance.plugin" for ep in entry_points(group="pytest11"))
+
 
 PLUGIN = [] if _plugin_is_installed() else ["-p", "mcp_conform.conformance.plugin"]
 
