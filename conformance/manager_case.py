@@ -38,7 +38,6 @@ if TYPE_CHECKING:
 
 F = TypeVar("F", bound=Callable[..., Any])
 _ACK = int(Action.ACK)
-_U16 = struct.Struct("!H")  # an ACK's payload: the seq it names (spec.codec, big-endian)
 _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
 _WP_ON = int(Action.WP_ON)
@@ -124,8 +123,8 @@ def messages(m: Mission) -> list[Message]:
 
 
 def runner_ack_time(m: Mission, msg: Message) -> float | None:
-    """When the runner first answered ``msg``: an ACK of any copy's seq (the first of all its
-    drone sent, ``_right_acks``), or one of MCP-RTX-2's
+    """When the runner first answered ``msg``: its earliest ACK of any copy's seq (``Mission.acks``,
+    one ACK per copy, the earliest per seq kept: ``harness.drone_players``), or one of MCP-RTX-2's
     deliberate wrong ACKs from ``msg``'s drone that the manager could take for it — sent while
     ``msg`` awaited its ACK, or sent earlier and still unanswered by any other command to that
     drone (the wrong-source ACK from drone B, sent while the manager awaits drone A's ACK,
@@ -134,7 +133,7 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     message the manager was seen to retransmit after them (``copy_after_wrong_acks``): they did
     not end it, and its answer is the right ACK (a runner held off the CPU may send that past
     the manager's retry limit: seed 118's drone, given up, looked answered by them)."""
-    times = _right_acks(m, msg)
+    times = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
     after = m.withheld.copy_after_wrong_acks
     for a in m.withheld.wrong_acks:
         if a.src != msg.dst:
@@ -147,42 +146,6 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
         elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):
             times.append(msg.first.t)
     return min(times) if times else None
-
-
-def _right_acks(m: Mission, msg: Message) -> list[float]:
-    """When ``msg``'s drone answered it: the first ACK naming each of its copies' seqs among all
-    the runner sent (``sent_by_drones``; not its receiver-side inputs, nor MCP-RTX-2's wrong
-    ACKs), not the one ``acks`` holds. ``acks`` keeps the ACK whose thread recorded it first, and
-    two threads may answer one copy: the case thread's right ACK of the withheld Start_Mission,
-    and the drone players' ACK of the copy whose arrival woke the case thread, when the receiver
-    thread lets the players answer it only after the case thread released the drone
-    (``harness.mission_script``, ``harness.driver``'s ``_arrive``). On a loaded host the case
-    thread, taken off the CPU after its ACK left, recorded it after the players' ACK, stamped
-    later -- after the manager's next command, sent on the first ACK, had arrived: that command
-    looked sent while Start_Mission awaited its ACK (a false MCP-BLK-1 of a correct manager:
-    seeds 9 and 13 of tests/sim/test_manager_blk_sim.py)."""
-    first = _first_answers(m)
-    keys = [(msg.dst, c.header[2]) for c in msg.copies if c.header is not None]
-    # ``acks``' own too: a record built without ``sent_by_drones`` (a scripted mission) has only those
-    return [min(t for t in (first.get(k), m.acks[k].t if k in m.acks else None) if t is not None)
-            for k in keys if k in first or k in m.acks]
-
-
-def _first_answers(m: Mission) -> dict[tuple[int, int], float]:
-    """(drone, seq named) -> the first ACK the runner's drone sent naming it (see ``_right_acks``),
-    computed once per state of the record."""
-    key = (len(m.sent_by_drones), len(m.inputs), len(m.withheld.wrong_acks))
-    cached = getattr(m, "_first_answers", None)
-    if cached is not None and cached[0] == key:
-        return cached[1]  # type: ignore[no-any-return]
-    not_answers = {id(a) for a in m.withheld.wrong_acks} | {id(i.sent) for i in m.inputs}
-    first: dict[tuple[int, int], float] = {}
-    for s in m.sent_by_drones.values():
-        if s.action == _ACK and id(s) not in not_answers and len(s.data) >= HEADER_SIZE + 2:
-            k = (s.src, _U16.unpack_from(s.data, HEADER_SIZE)[0])
-            first[k] = min(first.get(k, s.t), s.t)
-    m._first_answers = (key, first)  # type: ignore[attr-defined]  # a cache on the record
-    return first
 
 
 def _acked_before(m: Mission, msg: Message, t: float) -> bool:

@@ -9,6 +9,17 @@ still be judged (the payload itself is judged by MCP-PAY-3/5) — except where a
 withholds an ACK on purpose or a drone has gone silent. It never ACKs an ACK or a
 broadcast.
 
+One answer per copy: each datagram of the manager is ACKed at most once by the runner,
+whichever thread answers it — the drone players from the driver's receiver thread, or the
+case thread that withheld a Start_Mission and answers its latest copy (:meth:`DronePlayers.
+answer`). The copy is claimed under the players' lock before its ACK leaves, so the other
+thread, however late it runs, finds it answered. ``Mission.acks`` keeps, per (drone, seq
+named), the earliest ACK sent, whichever thread recorded its ACK first: a thread taken off
+the CPU after its ACK left records it late, and the record is still the one the manager got
+first (MCP-BLK-1's "its ACK"; issue 38's false MCP-BLK-1, ``tests/sim/test_manager_blk_sim.py``).
+The lock is never held while a datagram leaves (the simulator's scheduler switches threads
+only where one blocks on its clock, a send among those places).
+
 A *scenario* is one mission from the manager's first Mission_Ready to its last
 End_Mission, recorded in a :class:`Mission`; the cases judge those records.
 :mod:`harness.mission_script` drives the scenarios (``main``, ``silent``). Everything here
@@ -81,8 +92,12 @@ class Mission:
     withheld: Withheld = field(default_factory=Withheld)
     silent_drone: int | None = None
     silent_from: float | None = None
-    acks: dict[tuple[int, int], Sent] = field(default_factory=dict)  # (drone, seq) -> our first ACK
+    #: (drone, seq named) -> the earliest ACK the runner sent of a copy with that seq
+    #: (``DronePlayers.answer``; not RTX-2's wrong ACKs nor the receiver-side inputs)
+    acks: dict[tuple[int, int], Sent] = field(default_factory=dict)
     sent_by_drones: dict[tuple[int, int], Sent] = field(default_factory=dict)  # (drone, seq) -> what we sent
+    #: copies the drone players found answered already by the case thread (``DronePlayers.answer``)
+    declined: int = 0
     ended_by: str = ""
     exit_code: int | None = None
     output: str = ""
@@ -125,6 +140,7 @@ class DronePlayers:
         self.silent_after_start: int | None = None
         self.silent: set[int] = set()
         self.acked_actions: dict[int, set[int]] = {d: set() for d in drones}
+        self._answered: set[int] = set()  # driver indexes of the copies answered (one ACK each)
 
     def reset(self, mission: Mission) -> None:
         with self._lock:
@@ -135,6 +151,7 @@ class DronePlayers:
             self.silent_after_start = None
             self.silent = set()
             self.acked_actions = {d: set() for d in self.drones}
+            self._answered = set()
 
     def next_seq(self, drone: int) -> int:
         with self._lock:
@@ -163,6 +180,44 @@ class DronePlayers:
         with self._lock:
             self.released = True
 
+    def answer(self, d: Datagram, *, release: bool = False) -> Sent | None:
+        """The runner's one ACK of the manager's datagram ``d`` (MCP-ACK-1), from its
+        destination drone to its source: sent unless ``d`` was answered already (then None).
+        ``release``: the withheld Start_Mission's drone is released in the same step (the case
+        thread's right ACK of its latest copy): the receiver thread, answering that copy after
+        the release, finds it answered."""
+        h = d.header
+        assert h is not None
+        dst, src, seq, action = h
+        with self._lock:
+            if release:
+                self.released = True
+            if not self._claim(d):
+                return None
+        return self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action)
+
+    def _claim(self, d: Datagram) -> bool:
+        """``d`` is to be answered by the caller (the players' lock held): False when it was."""
+        if d.index in self._answered:
+            return False
+        self._answered.add(d.index)
+        return True
+
+    def _answered_with(self, sent: Sent, drone: int, seq: int, action: int, *, go_silent: bool = False) -> Sent:
+        """Record ``sent``, the ACK of a copy: ``Mission.acks`` keeps the earliest per (drone,
+        seq) whatever the order the threads record them in."""
+        with self._lock:
+            if self.mission is not None:
+                had = self.mission.acks.get((drone, seq))
+                if had is None or sent.t < had.t:
+                    self.mission.acks[(drone, seq)] = sent
+            self.acked_actions.setdefault(drone, set()).add(action)
+            if go_silent:
+                self.silent.add(drone)
+                if self.mission is not None:
+                    self.mission.silent_from = sent.t
+        return sent
+
     def on_datagram(self, d: Datagram) -> None:
         h = d.header
         if h is None or not d.preamble_ok:
@@ -178,13 +233,9 @@ class DronePlayers:
                     self.start_drone = dst
                 if self.start_drone == dst:
                     return
-            go_silent = action == _START and self.silent_after_start == dst
-        sent = self.ack(dst, seq, dst=src)
-        with self._lock:
-            if self.mission is not None:
-                self.mission.acks.setdefault((dst, seq), sent)
-            self.acked_actions.setdefault(dst, set()).add(action)
-            if go_silent:
-                self.silent.add(dst)
+            if not self._claim(d):
                 if self.mission is not None:
-                    self.mission.silent_from = sent.t
+                    self.mission.declined += 1
+                return
+            go_silent = action == _START and self.silent_after_start == dst
+        self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action, go_silent=go_silent)

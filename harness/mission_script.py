@@ -387,14 +387,14 @@ class MissionScript:
         w.wrong_ack_wait = max(2.5 * gap, 0.3) + 0.2
         w.copy_after_wrong_acks = self.wait_for(is_copy, w.wrong_ack_wait, after)
         latest = [d for d in drv.received(m.start) if is_copy(d)][-1]
-        rseq = latest.header[2] if latest.header else seq
-        self.players.release()
-        w.right_ack = self.players.ack(w.drone, rseq)
-        m.acks.setdefault((w.drone, rseq), w.right_ack)
-        self.players.acked_actions.setdefault(w.drone, set()).add(_START)
+        # released and answered in one step: the one ACK of the latest copy, whichever thread
+        # runs first, and ``acks`` keeps the earliest (``DronePlayers.answer``)
+        right = self.players.answer(latest, release=True)
+        assert right is not None, "the drone players withhold each copy of it until the release"
+        w.right_ack = right
         w.stop_watch = max(self.ack_window, 1.5 * gap)
         grace = 0.05
-        right, drone = w.right_ack, w.drone
+        drone = w.drone
 
         def past_right() -> list[Datagram]:
             self.drain()  # a copy the watch saw arrive, read late, is seen

@@ -2,7 +2,9 @@
 item 3: its faults as models): the reference GCS (``reference_impl.mavlink_gcs.ReferenceGcs``)
 with one hook changed, each breaking one rule of ``spec/mavlink.yaml``. The same classes run as
 processes (``tests/mavlink/faulty_gcs.py``, the real-socket smoke runs) and in the simulator
-(:mod:`sim.gcs`, on the virtual clock), so a fault is one definition.
+(:mod:`sim.gcs`, on the virtual clock), so a fault is one definition, and what it breaks is
+declared on it (:class:`Breaks`: its rule, and the SHOULD rules it breaks besides by its
+nature); ``RULES`` and ``BROKEN`` are read from those declarations.
 
 - ``no-heartbeat``: no HEARTBEAT at all (MAV-HB-2);
 - ``type-quadrotor``: HEARTBEAT.type MAV_TYPE_QUADROTOR (MAV-HB-4);
@@ -13,7 +15,7 @@ processes (``tests/mavlink/faulty_gcs.py``, the real-socket smoke runs) and in t
   them (MAV-MIS-26);
 - ``degE7-in-float-item``: the items as the deprecated MISSION_ITEM with the degE7 integers in
   its degrees fields, the defect of seed 001's ``mavlink_send_take_off`` (MAV-MIS-26; the
-  deprecated message is MAV-MIS-12's too, a SHOULD: ``ALSO``);
+  deprecated message is MAV-MIS-12's too, a SHOULD: ``Breaks.also``);
 - ``no-count-resend``: an unanswered MISSION_COUNT never resent (MAV-MIS-22);
 - ``mission-never-gives-up``: an unanswered MISSION_COUNT resent 50 times (MAV-MIS-23);
 - ``ignores-error-ack``: an error MISSION_ACK does not end the upload (MAV-MIS-24);
@@ -29,19 +31,46 @@ processes (``tests/mavlink/faulty_gcs.py``, the real-socket smoke runs) and in t
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from mcp_conform.reference_impl.mavlink_gcs import ReferenceGcs, mav
 
-__all__ = ["ALSO", "FAULTS", "RULES"]
+__all__ = ["BROKEN", "FAULTS", "RULES", "Breaks", "Fault"]
 
 
-class NoHeartbeat(ReferenceGcs):
+@dataclass(frozen=True)
+class Breaks:
+    """What a fault breaks: ``rule``, the one of its fault (failed, or warned for a SHOULD; the
+    case that judges it names it), and ``also``, SHOULD rules it breaks besides by what it is
+    (warned, never failed: the deprecated MISSION_ITEM of ``degE7-in-float-item`` is
+    MAV-MIS-12's)."""
+
+    rule: str
+    also: tuple[str, ...] = ()
+
+    @property
+    def rules(self) -> frozenset[str]:
+        """Every rule a run against the fault fails or warns, and no other."""
+        return frozenset({self.rule, *self.also})
+
+
+class Fault(ReferenceGcs):
+    """The reference ground station with one hook changed; ``breaks`` says what that breaks."""
+
+    breaks: ClassVar[Breaks]
+
+
+class NoHeartbeat(Fault):
+    breaks = Breaks("MAV-HB-2")
+
     def heartbeat(self) -> Any | None:
         return None
 
 
-class TypeQuadrotor(ReferenceGcs):
+class TypeQuadrotor(Fault):
+    breaks = Breaks("MAV-HB-4")
+
     def heartbeat(self) -> Any | None:
         hb = super().heartbeat()
         if hb is not None:
@@ -49,11 +78,13 @@ class TypeQuadrotor(ReferenceGcs):
         return hb
 
 
-class Mavlink1Start(ReferenceGcs):
+class Mavlink1Start(Fault):
+    breaks = Breaks("MAV-HB-11")
     mavlink2_first = False  # pymavlink's default: MAVLink 1 until it hears 2
 
 
-class ItemsOutOfOrder(ReferenceGcs):
+class ItemsOutOfOrder(Fault):
+    breaks = Breaks("MAV-MIS-20")
     swapped = False
 
     def item_for(self, seq: int, items: list[Any]) -> Any:
@@ -63,7 +94,9 @@ class ItemsOutOfOrder(ReferenceGcs):
         return items[seq]
 
 
-class Degrees(ReferenceGcs):
+class Degrees(Fault):
+    breaks = Breaks("MAV-MIS-26")
+
     def plan(self, path: str | None) -> list[Any]:
         items = super().plan(path)
         for item in items:
@@ -71,7 +104,9 @@ class Degrees(ReferenceGcs):
         return items
 
 
-class DegE7InFloatItem(ReferenceGcs):
+class DegE7InFloatItem(Fault):
+    breaks = Breaks("MAV-MIS-26", also=("MAV-MIS-12",))
+
     def plan(self, path: str | None) -> list[Any]:
         return [self.encode("MISSION_ITEM", seq=i.seq, frame=i.frame, command=i.command, current=0, autocontinue=1,
                             param1=i.param1, param2=i.param2, param3=i.param3, param4=i.param4, x=float(i.x),
@@ -79,47 +114,62 @@ class DegE7InFloatItem(ReferenceGcs):
                 for i in super().plan(path)]
 
 
-class NoCountResend(ReferenceGcs):
+class NoCountResend(Fault):
+    breaks = Breaks("MAV-MIS-22")
     mission_retries = 0
 
 
-class MissionNeverGivesUp(ReferenceGcs):
+class MissionNeverGivesUp(Fault):
+    breaks = Breaks("MAV-MIS-23")
     mission_retries = 50
 
 
-class IgnoresErrorAck(ReferenceGcs):
+class IgnoresErrorAck(Fault):
+    breaks = Breaks("MAV-MIS-24")
+
     def ends_upload(self, ack: Any) -> bool:
         return bool(ack.type == mav.MAV_MISSION_ACCEPTED)
 
 
-class NoCommandResend(ReferenceGcs):
+class NoCommandResend(Fault):
+    breaks = Breaks("MAV-CMD-6")
     command_retries = 0
 
 
-class CommandNeverGivesUp(ReferenceGcs):
+class CommandNeverGivesUp(Fault):
+    breaks = Breaks("MAV-CMD-9")
     command_retries = 50
 
 
-class ConfirmationNotIncremented(ReferenceGcs):
+class ConfirmationNotIncremented(Fault):
+    breaks = Breaks("MAV-CMD-8")
+
     def confirmation(self, transmission: int) -> int:
         return 0
 
 
-class IgnoresInProgress(ReferenceGcs):
+class IgnoresInProgress(Fault):
+    breaks = Breaks("MAV-CMD-10")
+
     def answers(self, ack: Any, command: int) -> bool:
         return bool(ack.command == command and ack.result != mav.MAV_RESULT_IN_PROGRESS)
 
 
-class AcceptsAnyAck(ReferenceGcs):
+class AcceptsAnyAck(Fault):
+    breaks = Breaks("MAV-CMD-17")
+
     def answers(self, ack: Any, command: int) -> bool:
         return True
 
 
-class NoParamResend(ReferenceGcs):
+class NoParamResend(Fault):
+    breaks = Breaks("MAV-PRM-16")
     param_retries = 0
 
 
-class RelistsOnGap(ReferenceGcs):
+class RelistsOnGap(Fault):
+    breaks = Breaks("MAV-PRM-14")
+
     def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
         if len(got) < count:  # the whole list again, not the missing ones
             self.send(self.encode("PARAM_REQUEST_LIST"))
@@ -130,7 +180,9 @@ class RelistsOnGap(ReferenceGcs):
         return []
 
 
-class RereadsOutOfOrder(ReferenceGcs):
+class RereadsOutOfOrder(Fault):
+    breaks = Breaks("MAV-PRM-15")
+
     def to_read(self, got: dict[int, Any], count: int, order: list[int]) -> list[int]:
         late = {b for a, b in zip(order, order[1:], strict=False) if b != a + 1}  # a list taken as ordered
         return sorted(late | (set(range(count)) - set(got)))
@@ -146,14 +198,8 @@ FAULTS: dict[str, type[ReferenceGcs]] = {
     "ignores-in-progress": IgnoresInProgress, "accepts-any-ack": AcceptsAnyAck, "no-param-resend": NoParamResend,
     "relists-on-gap": RelistsOnGap, "rereads-out-of-order": RereadsOutOfOrder,
 }
-#: the rule each fault breaks (a SHOULD rule's is warned)
-RULES: dict[str, str] = {
-    "no-heartbeat": "MAV-HB-2", "type-quadrotor": "MAV-HB-4", "mavlink1-start": "MAV-HB-11",
-    "items-out-of-order": "MAV-MIS-20", "degrees": "MAV-MIS-26", "no-count-resend": "MAV-MIS-22",
-    "mission-never-gives-up": "MAV-MIS-23", "ignores-error-ack": "MAV-MIS-24", "no-command-resend": "MAV-CMD-6",
-    "command-never-gives-up": "MAV-CMD-9", "confirmation-not-incremented": "MAV-CMD-8",
-    "ignores-in-progress": "MAV-CMD-10", "accepts-any-ack": "MAV-CMD-17", "no-param-resend": "MAV-PRM-16",
-    "relists-on-gap": "MAV-PRM-14", "rereads-out-of-order": "MAV-PRM-15", "degE7-in-float-item": "MAV-MIS-26",
-}
-#: the SHOULD rules a fault breaks besides its own, by what it is (warned, never failed)
-ALSO: dict[str, frozenset[str]] = {"degE7-in-float-item": frozenset({"MAV-MIS-12"})}
+_FAULTY: dict[str, type[Fault]] = {n: c for n, c in FAULTS.items() if issubclass(c, Fault)}
+#: the rule each fault breaks (its ``Breaks.rule``; a SHOULD rule's is warned)
+RULES: dict[str, str] = {n: c.breaks.rule for n, c in _FAULTY.items()}
+#: every rule a run against each fault fails or warns, and no other (its ``Breaks.rules``)
+BROKEN: dict[str, frozenset[str]] = {n: c.breaks.rules for n, c in _FAULTY.items()}

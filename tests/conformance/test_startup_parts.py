@@ -63,23 +63,20 @@ def test_the_copies_part_withholds_the_ack_for_the_copies_and_watches_after_the_
         session.close()
 
 
-def test_the_wrong_acks_part_withholds_for_two_copies_then_sees_one_after_them():
-    session = _started(frozenset({"wrong"}))
+@pytest.mark.parametrize("node_args,goes_on", [((), True), (("--fault", "rtx-stop-on-any-ack"), False)],
+                         ids=["sample", "rtx-stop-on-any-ack"])
+def test_the_wrong_acks_part_withholds_for_two_copies_then_watches_for_one_after_them(node_args, goes_on):
+    """The wrong ACKs' part alone: the ACK withheld for two copies (the node's period), the two
+    wrong ACKs (MCP-RTX-2), then a copy after them from a node that goes on retransmitting, and
+    none from one that stops on any ACK (its fault only this part shows); the right ACK either
+    way, the watch after it the copies' part's."""
+    session = _started(frozenset({"wrong"}), *node_args)
     try:
         st = session.startup
         assert st.observed and len(st.copies) == 2, (st.reason, st.copies)
-        assert len(st.wrong_acks) == 2 and st.copy_after_wrong_acks is not None
-        assert st.right_ack is not None and st.stop_watch == 0  # the watch is the copies' part's
+        assert len(st.wrong_acks) == 2 and (st.copy_after_wrong_acks is not None) == goes_on, st.copy_after_wrong_acks
+        assert st.right_ack is not None and st.stop_watch == 0
         assert session.start_mission is not None and session.start_mission.acked
-    finally:
-        session.close()
-
-
-def test_the_wrong_acks_part_alone_shows_a_node_that_stops_on_any_ack():
-    session = _started(frozenset({"wrong"}), "--fault", "rtx-stop-on-any-ack")
-    try:
-        st = session.startup
-        assert len(st.copies) == 2 and st.copy_after_wrong_acks is None, st.copies
     finally:
         session.close()
 
