@@ -19,8 +19,9 @@ environment-dependent flaws, the hits counted and not triaged under ``-v``, the 
 
 from __future__ import annotations
 
+import random
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz import loop
@@ -28,14 +29,58 @@ from mcp_conform.fuzz.budget import TRIAGE_SHARE
 from mcp_conform.fuzz.config import FuzzConfig, exit_code
 from mcp_conform.fuzz.environment import environment_lines
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import WorkerResult, common_summary, count
+from mcp_conform.fuzz.loop import EngineStats, FuzzClock, WorkerResult, common_summary, count
 from mcp_conform.fuzz.progress import Progress, interrupted
 from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import Profile
 
-__all__ = ["PROG", "ProtocolCampaign", "budget_line"]
+__all__ = ["PROG", "CaseEngine", "ProtocolCampaign", "budget_line"]
 
 PROG = "mcp-fuzz"
+
+
+class CaseEngine:
+    """A protocol's stateless engine (``fuzz.loop.Engine``): cases drawn from the worker's
+    seeded stream (:meth:`draw`), each sent and judged at once (:meth:`send`: the hit its
+    oracles saw, or None), counted by kind and message (:meth:`tried`), until the budget is
+    spent; a hit goes to triage (:meth:`triage_hit`), its time not fuzzing time."""
+
+    def __init__(self, triage: Any, seed: int, worker: int = 0) -> None:
+        self.triage = triage
+        self.stats = EngineStats()
+        self.rng = random.Random(seed if not worker else hash((seed, worker)))
+
+    def run(self, deadline: float, max_cases: int | None, tick: Callable[[EngineStats], None] | None,
+            stop: Callable[[], bool]) -> EngineStats:
+        st = self.stats
+        clock = FuzzClock(st, tick)
+        try:
+            while not st.spent(deadline, max_cases, stop):
+                case = self.draw()
+                clock.case(*self.tried(case))
+                hit = self.send(case)
+                if hit is not None:
+                    with clock.triage():
+                        self.triage_hit(hit)
+        finally:
+            clock.stop()
+        return st
+
+    def draw(self) -> Any:
+        """The next case."""
+        raise NotImplementedError
+
+    def tried(self, case: Any) -> tuple[str, Iterable[str]]:
+        """The case's kind and the messages it sends (``summary.json``'s ``tried``)."""
+        raise NotImplementedError
+
+    def send(self, case: Any) -> Any:
+        """The case sent and judged: the hit its oracles saw, or None."""
+        raise NotImplementedError
+
+    def triage_hit(self, hit: Any) -> None:
+        """The hit to the worker's triage, with its suspects."""
+        raise NotImplementedError
 
 
 class ProtocolCampaign:

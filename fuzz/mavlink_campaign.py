@@ -12,7 +12,6 @@ asked for it, ``fuzz.mavlink_cases.asks_heartbeat_stop``: 0, not replayed).
 
 from __future__ import annotations
 
-import random
 import sys
 import time
 from collections import deque
@@ -20,10 +19,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from mcp_conform.fuzz.campaign_core import PROG, ProtocolCampaign
+from mcp_conform.fuzz.campaign_core import PROG, CaseEngine, ProtocolCampaign
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore, load_finding
-from mcp_conform.fuzz.loop import EngineStats, FuzzClock, WorkerResult
+from mcp_conform.fuzz.loop import WorkerResult
 from mcp_conform.fuzz.mavlink_cases import (
     Case,
     CaseMaker,
@@ -32,7 +31,7 @@ from mcp_conform.fuzz.mavlink_cases import (
     case_from_json,
 )
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
-from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, MavTarget, Signature, VehicleSpec
+from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, Hit, MavTarget, Signature, VehicleSpec
 from mcp_conform.fuzz.progress import Progress
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
@@ -41,40 +40,35 @@ __all__ = ["MavlinkCampaign", "MavlinkEngine", "MavlinkPlugin"]
 WINDOW = 16  # the cases before a hit that are its suspects (a stopped heartbeat: those since its last beat)
 
 
-class MavlinkEngine:
-    """Cases on the worker's vehicle until the budget is spent; a hit goes to triage."""
+class MavlinkEngine(CaseEngine):
+    """Cases on the worker's vehicle until the budget is spent (``fuzz.campaign_core``)."""
+
+    triage: MavTriage
 
     def __init__(self, target: MavTarget, triage: MavTriage, seed: int, worker: int = 0) -> None:
-        self.target, self.triage = target, triage
-        self.stats = EngineStats()
-        self.rng = random.Random(seed if not worker else hash((seed, worker)))
-        self.maker = CaseMaker(self.rng, target.info)
+        super().__init__(triage, seed, worker)
+        self.target, self.maker = target, CaseMaker(self.rng, target.info)
+        self.sent: deque[tuple[float, Case]] = deque(maxlen=5000)
 
-    def run(self, deadline: float, max_cases: int | None, tick: Callable[[EngineStats], None] | None,
-            stop: Callable[[], bool]) -> EngineStats:
-        st = self.stats
-        sent: deque[tuple[float, Case]] = deque(maxlen=5000)
-        clock = FuzzClock(st, tick)
-        vehicle = self.target.current
-        try:
-            while not st.spent(deadline, max_cases, stop):
-                case = self.maker.draw()
-                clock.case(case.kind, case.messages or ("-",))
-                sent.append((time.monotonic(), case))
-                hit = vehicle.run(case)
-                if hit is None:
-                    continue
-                with clock.triage():
-                    if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
-                        since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
-                        suspects = [c for t, c in sent if since <= t <= until]
-                    else:
-                        suspects = [c for _, c in list(sent)[-WINDOW:]]
-                    vehicle = self.triage.consider(hit, suspects)
-                    sent.clear()
-        finally:
-            clock.stop()
-        return st
+    def draw(self) -> Case:
+        return self.maker.draw()
+
+    def tried(self, case: Case) -> tuple[str, tuple[str, ...]]:
+        return case.kind, case.messages or ("-",)
+
+    def send(self, case: Case) -> Hit | None:
+        self.sent.append((time.monotonic(), case))
+        return self.target.current.run(case)
+
+    def triage_hit(self, hit: Hit) -> None:
+        vehicle, sent = self.target.current, self.sent
+        if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
+            since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
+            suspects = [c for t, c in sent if since <= t <= until]
+        else:
+            suspects = [c for _, c in list(sent)[-WINDOW:]]
+        self.triage.consider(hit, suspects)
+        sent.clear()
 
 
 @dataclass
@@ -88,9 +82,10 @@ class MavlinkPlugin:
 
     def triage(self, target: MavTarget, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
                prev: MavTriage | None) -> MavTriage:
+        if prev is not None:
+            return prev.carry()
         return MavTriage(target=target, store=store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n,
-                         started=started, duration=cfg.duration_limit, tries=prev.tries if prev else {},
-                         quiet_hangs=prev.quiet_hangs if prev else None)
+                         started=started, duration=cfg.duration_limit)
 
     def engine(self, name: str, target: MavTarget, triage: MavTriage, cfg: FuzzConfig) -> MavlinkEngine:
         return MavlinkEngine(target, triage, cfg.seed, cfg.worker)

@@ -29,12 +29,11 @@ from __future__ import annotations
 import contextlib
 import select
 import socket
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.fuzz.loop import count
+from mcp_conform.fuzz.loop import WorkerTarget
 from mcp_conform.fuzz.mavlink_cases import (
     GCS_COMPID,
     GCS_SYSID,
@@ -45,6 +44,7 @@ from mcp_conform.fuzz.mavlink_cases import (
     name_key,
     raw_fields,
 )
+from mcp_conform.fuzz.spares import Spare
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_session import embedded_command, parse_address
 from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
@@ -437,7 +437,7 @@ def _show(m: Any) -> str:
     return f"{m.get_type()} {fields}"
 
 
-class MavTarget:
+class MavTarget(WorkerTarget):
     """A worker's vehicle as the loop sees a target (``fuzz.loop.Target``; the profile's
     ``fuzz_target`` of the vehicle role): the one now fuzzed (``current``: a death replaces
     it), its restarts counted by reason."""
@@ -446,18 +446,13 @@ class MavTarget:
     #: handshakes, each judged by the probe behind it
     ENGINES = ("stateless",)
 
+    current: MavVehicle
+
     def __init__(self, how: VehicleSpec) -> None:
         self.how = how
-        self.current = MavVehicle(how, late=LATE_S)
+        super().__init__(MavVehicle(how, late=LATE_S), attached=how.target is not None)
         self.info = self.current.info
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-        self._spare: tuple[threading.Thread, dict[str, Any]] | None = None
-        self._left: list[tuple[threading.Thread, dict[str, Any]]] = []
-
-    @property
-    def attached(self) -> bool:
-        return self.how.target is not None
+        self._spare: Spare[MavVehicle] | None = None
 
     def fresh(self, log: list[Any] | None = None) -> MavVehicle:
         """Another vehicle (spawned: a new process; attached: a new link), built for the same
@@ -469,46 +464,21 @@ class MavTarget:
             v = MavVehicle(self.how, self.info, log)
         v.log = log
         if not self.attached:
-            self._start_spare()
+            self._spare = Spare(lambda: MavVehicle(self.how, self.info), MavVehicle.close)
         return v
 
-    def _start_spare(self) -> None:
-        box: dict[str, Any] = {}
-
-        def make() -> None:
-            try:
-                box["v"] = MavVehicle(self.how, self.info)
-            except Exception as exc:  # noqa: BLE001 - a spare that did not start: started again when needed
-                box["error"] = exc
-
-        t = threading.Thread(target=make, name="mavlink-spare", daemon=True)
-        t.start()
-        self._spare = (t, box)
-
     def _take_spare(self) -> MavVehicle | None:
-        if self._spare is None:
-            return None
-        (t, box), self._spare = self._spare, None
-        t.join(30.0)
-        if t.is_alive():  # still starting: closed at the end
-            self._left.append((t, box))
-            return None
-        return box.get("v")
+        spare, self._spare = self._spare, None
+        return spare.take(30.0) if spare is not None else None
 
     def restart(self, reason: str) -> MavVehicle:
         self.current.close()
         self.current = self.fresh()
         self.current.late = LATE_S
-        self.restarts += 1
-        count(self.restart_reasons, reason)
+        self.count_restart(reason)
         return self.current
 
     def close(self) -> None:
         self.current.close()
-        spare = self._take_spare()
-        if spare is not None:
-            spare.close()
-        for t, box in self._left:
-            t.join(10.0)
-            if box.get("v") is not None:
-                box["v"].close()
+        if self._spare is not None:
+            self._spare.discard()
