@@ -22,6 +22,7 @@ from __future__ import annotations
 import random
 import sys
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz import loop
@@ -31,12 +32,39 @@ from mcp_conform.fuzz.environment import environment_lines
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import EngineStats, FuzzClock, WorkerResult, common_summary, count
 from mcp_conform.fuzz.progress import Progress, interrupted
+from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import Profile
 
-__all__ = ["PROG", "CaseEngine", "ProtocolCampaign", "budget_line"]
+__all__ = ["PROG", "CaseEngine", "ProtocolCampaign", "ProtocolPlugin", "budget_line"]
 
 PROG = "mcp-fuzz"
+
+
+@dataclass
+class ProtocolPlugin:
+    """A protocol's parts of the one campaign loop (``fuzz.loop.Plugin``): how its target
+    starts and its engines are made are its own; its triage is its ``TRIAGE`` (a
+    ``fuzz.triage_core.HitTriage``), made once a worker (:meth:`first`: what it does before
+    the first case) and carried on from one engine's turn to the next (``HitTriage.carry``)."""
+
+    TRIAGE: ClassVar[type[HitTriage]]
+    n_of_n: int = 3  # a finding's confirming replays
+
+    def triage(self, target: Any, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
+               prev: HitTriage | None) -> HitTriage:
+        if prev is not None:
+            return prev.carry()
+        triage = self.TRIAGE(target=target, store=store, seed=cfg.seed, worker=cfg.worker,  # type: ignore[call-arg]
+                             n_of_n=self.n_of_n, started=started, duration=cfg.duration_limit)
+        self.first(triage, cfg)
+        return triage
+
+    def first(self, triage: Any, cfg: FuzzConfig) -> None:
+        """What a worker's triage does before its first case (nothing, unless the protocol says)."""
+
+    def record(self, res: WorkerResult, name: str, engine: Any) -> None:
+        """What else the worker's result keeps of an engine's turn (nothing, unless the protocol says)."""
 
 
 class CaseEngine:

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from mcp_conform.fuzz.campaign_core import PROG, CaseEngine, ProtocolCampaign
+from mcp_conform.fuzz.campaign_core import PROG, CaseEngine, ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore, load_finding
 from mcp_conform.fuzz.loop import WorkerResult
@@ -72,20 +72,13 @@ class MavlinkEngine(CaseEngine):
 
 
 @dataclass
-class MavlinkPlugin:
-    """MAVLink's parts of the one campaign loop (``fuzz.loop.Plugin``)."""
+class MavlinkPlugin(ProtocolPlugin):
+    """MAVLink's parts of the one campaign loop (``fuzz.campaign_core.ProtocolPlugin``)."""
 
-    n_of_n: int = 3  # a finding's confirming replays
+    TRIAGE = MavTriage
 
     def start(self, cfg: FuzzConfig) -> MavTarget:
         return MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
-
-    def triage(self, target: MavTarget, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
-               prev: MavTriage | None) -> MavTriage:
-        if prev is not None:
-            return prev.carry()
-        return MavTriage(target=target, store=store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n,
-                         started=started, duration=cfg.duration_limit)
 
     def engine(self, name: str, target: MavTarget, triage: MavTriage, cfg: FuzzConfig) -> MavlinkEngine:
         return MavlinkEngine(target, triage, cfg.seed, cfg.worker)

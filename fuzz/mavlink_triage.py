@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.finding_files import write_repro_mcap
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
@@ -294,16 +295,14 @@ class MavTriage(HitTriage):
 def write_repro(d: Path, f: Finding) -> None:
     """``repro.mcap``: the finding's last confirming replay (or its frames) on ``/mavlink``,
     from the vehicle's side (``rx``: the fuzzer's frames, ``tx``: the vehicle's), with the
-    finding in the ``mcp-fuzz`` metadata record (``fuzz.findings.read_finding`` reads it)."""
-    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, mavlink_type, run_metadata
+    finding in the ``mcp-fuzz`` metadata record (``fuzz.finding_files.write_repro_mcap``)."""
+    from mcp_conform.traceio.recorder import mavlink_type
 
-    meta = run_metadata(FUZZ_RECORDER, role=MAVLINK_PROFILE.default_role.name, protocol=MAVLINK_PROFILE.name,
-                        rule=f.rule, expected=f.expected, actual=f.actual, finding=f.to_json())
     traffic = f.traffic or [("rx", time.time_ns() + i, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
-    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER, metadata=meta) as rec:
-        t0 = min((t for _, t, _ in traffic), default=time.time_ns()) - 1
-        rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
+
+    def write(rec: Any) -> None:
         for direction, t_ns, data in traffic:
             rec.mavlink(direction, data, t_ns, msg_type=mavlink_type(data))
-        rec.case_mark(f"finding:{f.rule}", "end", max((t for _, t, _ in traffic), default=t0) + 1, outcome="failed",
-                      rules=(f.rule,))
+
+    write_repro_mcap(d, f.to_json(), MAVLINK_PROFILE.default_role.name, (t for _, t, _ in traffic), write,
+                     protocol=MAVLINK_PROFILE.name, expected=f.expected, actual=f.actual)

@@ -32,6 +32,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.nsqd_mutators import Case, valid_values
 from mcp_conform.fuzz.nsqd_oracles import (
     CLOSE_RULE,
@@ -41,7 +42,6 @@ from mcp_conform.fuzz.nsqd_oracles import (
     parse_sanitizer,
     same_finding,
 )
-from mcp_conform.fuzz.nsqd_repro import TrafficLog
 from mcp_conform.fuzz.spares import SPARES, Spare
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz import loop
-from mcp_conform.fuzz.campaign_core import ProtocolCampaign
+from mcp_conform.fuzz.campaign_core import ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.nsqd_backend import Backend, message_names
@@ -30,26 +30,21 @@ __all__ = ["Backend", "NsqdPlugin", "StreamCampaign", "message_names", "nsqd_fin
 
 
 @dataclass
-class NsqdPlugin:
-    """Nsqd's parts of the one campaign loop (``fuzz.loop.Plugin``)."""
+class NsqdPlugin(ProtocolPlugin):
+    """Nsqd's parts of the one campaign loop (``fuzz.campaign_core.ProtocolPlugin``); before
+    the first case, worker 0 counts the backend's descriptors (``fuzz.nsqd_blame.leak_check``)."""
 
-    n_of_n: int = 3  # a finding's confirming replays
+    TRIAGE = StreamTriage
     probe_every: int = 40  # cases between two probe commands
 
     def start(self, cfg: FuzzConfig) -> StreamTarget:
         return StreamTarget(Backend(cfg.target, cfg.spawn), attached=cfg.target is not None and cfg.spawn is None)
 
-    def triage(self, target: StreamTarget, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
-               prev: StreamTriage | None) -> StreamTriage:
-        if prev is not None:
-            return prev.carry()
-        triage = StreamTriage(target, store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n, started=started,
-                              duration=cfg.duration_limit)
+    def first(self, triage: StreamTriage, cfg: FuzzConfig) -> None:
         if cfg.worker == 0:
             from mcp_conform.fuzz.nsqd_blame import leak_check
 
-            target.current = leak_check(triage, target.current)
-        return triage
+            triage.target.current = leak_check(triage, triage.target.current)
 
     def engine(self, name: str, target: StreamTarget, triage: StreamTriage, cfg: FuzzConfig) -> Any:
         if name == "stateful":
@@ -59,9 +54,6 @@ class NsqdPlugin:
         from mcp_conform.fuzz.nsqd_engine import StreamStatelessEngine
 
         return StreamStatelessEngine(triage, cfg.seed, cfg.worker, self.probe_every)
-
-    def record(self, res: loop.WorkerResult, name: str, engine: Any) -> None:
-        """(Nothing of Nsqd's own: its engines' and triage's counts are the loop's.)"""
 
 
 class StreamCampaign(ProtocolCampaign):

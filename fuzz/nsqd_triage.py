@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 from mcp_conform.fuzz.budget import TRIAGE_SHARE, check_late, over_budget
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import WorkerTarget, triage_time
 from mcp_conform.fuzz.nsqd_backend import (
@@ -41,7 +42,6 @@ from mcp_conform.fuzz.nsqd_backend import (
 from mcp_conform.fuzz.nsqd_blame import PROBED, baseline, death_culprit
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
-from mcp_conform.fuzz.nsqd_repro import TrafficLog
 from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
@@ -222,10 +222,10 @@ class StreamTriage(HitTriage):
             return None
         if self.known(sig) is None:
             self.add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.n_of_n}", base.stderr,
-                              note="the target's behaviour, whatever it is sent: no input blamed (" + (
-                                  "the probe command with no case before it)" if base.detail.endswith(PROBED)
-                                  else "a baseline connection sent nothing)"),
-                              no_input=True, probe=key))
+                                  note="the target's behaviour, whatever it is sent: no input blamed (" + (
+                                      "the probe command with no case before it)" if base.detail.endswith(PROBED)
+                                      else "a baseline connection sent nothing)"),
+                                  no_input=True, probe=key))
         return sig
 
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
@@ -331,7 +331,7 @@ class StreamTriage(HitTriage):
                 if again.confirmed:
                     minimal, traffic = shorter, again.hits[-1][1]
         self.add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
-                          note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+                              note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(self.current)
 
