@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import json
 import shlex
+import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["finding_dir", "read_finding_doc", "write_finding_doc"]
+__all__ = ["TrafficLog", "finding_dir", "read_finding_doc", "write_finding_doc", "write_repro_mcap"]
 
 _PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
 
@@ -75,3 +77,55 @@ def read_finding_doc(path: str | Path, *, mcap: bool = True) -> dict[str, Any]:
     if not isinstance(doc, dict):
         raise ValueError(f"{str(p)!r} is not a finding: not a JSON object")
     return doc
+
+
+def write_repro_mcap(d: Path, doc: dict[str, Any], role: str, times: Iterable[int], write: Callable[[Any], None],
+                     *, evidence: Any = None, **meta: Any) -> None:
+    """``d/repro.mcap`` of a finding (``doc``: its finding.json, whole in the ``mcp-fuzz``
+    metadata record, which :func:`read_finding_doc` reads back; ``meta``: that record's other
+    keys, the protocol among them): the traffic of its last confirming replay, written by
+    ``write(recorder)`` at ``times`` (ns), between the finding's case marks (its ``rule``;
+    ``evidence``: the end mark's)."""
+    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
+
+    rule = str(doc.get("rule", ""))
+    ts = list(times)
+    t0 = (min(ts) - 1) if ts else time.time_ns()
+    t_end = (max(ts) + 1) if ts else t0 + 1
+    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER,
+                      metadata=run_metadata(FUZZ_RECORDER, role=role, rule=rule, finding=doc, **meta)) as rec:
+        rec.case_mark(f"finding:{rule}", "start", t0, rules=(rule,))
+        write(rec)
+        rec.case_mark(f"finding:{rule}", "end", t_end, outcome="failed", rules=(rule,), evidence=evidence)
+
+
+def _addr(a: Any) -> tuple[str, int] | None:
+    return (str(a[0]), int(a[1])) if isinstance(a, (tuple, list)) and len(a) >= 2 else None
+
+
+class TrafficLog:
+    """A stream session's recorder (``Conn.recorder``) that keeps its records in memory: the
+    traffic of a stream protocol's confirming replay, for its finding's repro files."""
+
+    def __init__(self) -> None:
+        self.records: list[Any] = []
+        self.peers: dict[int, Any] = {}
+        self.done = False
+
+    def stream_frame(self, direction: str, raw: bytes, *, conn: int, peer: Any = None, problem: str | None = None,
+                     name: str | None = None, t_ns: int | None = None, **_: Any) -> None:
+        from mcp_conform.traceio.reader import StreamFrame
+
+        if not self.done:
+            self.records.append(StreamFrame(len(self.records), t_ns or time.time_ns(), direction, conn, name,
+                                            problem, bytes(raw)))
+
+    def stream_event(self, event: str, *, conn: int, peer: Any = None, local: Any = None, by: str | None = None,
+                     how: str | None = None, t_ns: int | None = None, **_: Any) -> None:
+        from mcp_conform.traceio.reader import StreamEvent
+
+        if not self.done:
+            self.records.append(StreamEvent(t_ns or time.time_ns(), event, conn, _addr(local), _addr(peer), by, how))
+
+    def case_mark(self, *a: Any, **kw: Any) -> None:
+        """(The session's case marks are not this log's: the finding writes its own.)"""

@@ -36,7 +36,7 @@ from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.fuzz.workers import Reporter, report, run_jobs, sum_tables
 from mcp_conform.harness.errors import SetupError
 
-__all__ = ["TICK_S", "Engine", "EngineStats", "FuzzClock", "Plugin", "Target", "Triage", "WorkerResult", "common_summary", "count",
+__all__ = ["TICK_S", "Engine", "EngineStats", "FuzzClock", "Plugin", "Target", "Triage", "WorkerResult", "WorkerTarget", "common_summary", "count",
            "note_tried", "run_campaign", "run_worker", "triage_time"]
 
 
@@ -125,6 +125,24 @@ class Target(Protocol):
     restart_reasons: dict[str, int]
 
     def close(self) -> None: ...
+
+
+class WorkerTarget:
+    """A worker's target as the loop sees one (:class:`Target`): the one now fuzzed
+    (``current``: triage's replays and restarts replace it), whether it is attached (a death
+    is then the target lost, not a finding), its restarts counted by reason."""
+
+    def __init__(self, current: Any, attached: bool = False) -> None:
+        self.current, self.attached = current, attached
+        self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
+
+    def count_restart(self, reason: str) -> None:
+        self.restarts += 1
+        count(self.restart_reasons, reason)
+
+    def close(self) -> None:
+        self.current.close()
 
 
 @dataclass(kw_only=True, eq=False)

@@ -4,7 +4,7 @@ re-typed here), then mutated.
 
 A :class:`Case` is one or more frames sent together to the vehicle, the rule it exercises
 (a death, a hang or an unanswered probe after it is named by it), what answer it must or must
-not get (:class:`Expect`, judged by ``fuzz.mavlink_vehicle``) and whether it may leave the
+not get (:class:`Expect`, judged by ``fuzz.mavlink_oracles``) and whether it may leave the
 vehicle's parser inside a frame (``resync``: the fuzzer then sends filler bytes before its
 probe, as any MAVLink parser loses the bytes of a frame it gave up on).
 

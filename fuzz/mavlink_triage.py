@@ -30,10 +30,10 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.finding_files import write_repro_mcap
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
@@ -104,6 +104,8 @@ def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, 
 class MavTriage(HitTriage):
     """One worker's MAVLink triage (``fuzz.triage_core``'s steps; what it learnt carried to the
     next engine turn's: ``tries``, ``quiet_hangs``)."""
+
+    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "quiet_hangs")
 
     target: MavTarget
     store: FindingStore
@@ -200,10 +202,8 @@ class MavTriage(HitTriage):
         if sig.oracle in DEATHS:  # named by the case that makes it
             sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
         if not conf.confirmed:
-            self.not_confirmed(sig.rule, self._key(sig, kind), conf, shape=sig.describe(), actual=hit.actual,
-                             why=f"the minimal input ({len(minimal)} case(s)) showed it in triage, then "
-                                 f"{len(conf.hits)} of {self.n_of_n} confirming replays on a fresh vehicle did "
-                                 "(timing or load)")
+            self.missed(sig.rule, self._key(sig, kind), conf, shape=sig.describe(), actual=hit.actual,
+                        size=f"{len(minimal)} case(s)", where=" on a fresh vehicle")
             return
         last, traffic = conf.hits[-1]
         found = Hit(sig, last.expected, last.actual, last.evidence or hit.evidence)
@@ -217,16 +217,14 @@ class MavTriage(HitTriage):
         vehicle watched for its next HEARTBEAT, N of N times; then the stop is the vehicle's
         own (a finding with no input blamed, MAV-HB-1) and no case is blamed for it."""
         if self.quiet_hangs is None:
-            def quiet() -> tuple[Hit, list[Any]] | None:
-                log: list[Any] = []
+            def quiet(log: list[Any]) -> Hit | None:
                 v = self._fresh(log)
                 try:
-                    h = v.beats_on()
-                    return None if h is None else (h, log)
+                    return v.beats_on()
                 finally:
                     v.close()
 
-            conf = confirm_n(lambda: self.replay(quiet, share=False), self.n_of_n, until_miss=True)
+            conf = self.confirm_logged(lambda log: self.replay(lambda: quiet(log), share=False), until_miss=True)
             self.quiet_hangs = conf.confirmed
             if conf.confirmed:
                 h, log = conf.hits[-1]
@@ -241,12 +239,8 @@ class MavTriage(HitTriage):
 
     def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
         """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""
-        def once() -> tuple[Hit, list[Any]] | None:
-            log: list[Any] = []
-            h = self.replay(lambda: replay_cases(self._fresh, cases, sig, log))
-            return None if h is None else (h, log)
-
-        return confirm_n(once, self.n_of_n, until_miss=until_miss)
+        return self.confirm_logged(lambda log: self.replay(lambda: replay_cases(self._fresh, cases, sig, log)),
+                                   until_miss=until_miss)
 
     def _fewer_frames(self, sig: Signature, c: Case) -> Case:
         test = self._shows(sig)
@@ -257,8 +251,7 @@ class MavTriage(HitTriage):
         try:
             return self.target.fresh(log)
         finally:
-            count(self.target.restart_reasons, "triage replay")
-            self.target.restarts += 1
+            self.target.count_restart("triage replay")
 
     def _shows(self, sig: Signature) -> Any:
         def test(cases: list[Case]) -> bool:
@@ -302,16 +295,14 @@ class MavTriage(HitTriage):
 def write_repro(d: Path, f: Finding) -> None:
     """``repro.mcap``: the finding's last confirming replay (or its frames) on ``/mavlink``,
     from the vehicle's side (``rx``: the fuzzer's frames, ``tx``: the vehicle's), with the
-    finding in the ``mcp-fuzz`` metadata record (``fuzz.findings.read_finding`` reads it)."""
-    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, mavlink_type, run_metadata
+    finding in the ``mcp-fuzz`` metadata record (``fuzz.finding_files.write_repro_mcap``)."""
+    from mcp_conform.traceio.recorder import mavlink_type
 
-    meta = run_metadata(FUZZ_RECORDER, role=MAVLINK_PROFILE.default_role.name, protocol=MAVLINK_PROFILE.name,
-                        rule=f.rule, expected=f.expected, actual=f.actual, finding=f.to_json())
     traffic = f.traffic or [("rx", time.time_ns() + i, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
-    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER, metadata=meta) as rec:
-        t0 = min((t for _, t, _ in traffic), default=time.time_ns()) - 1
-        rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
+
+    def write(rec: Any) -> None:
         for direction, t_ns, data in traffic:
             rec.mavlink(direction, data, t_ns, msg_type=mavlink_type(data))
-        rec.case_mark(f"finding:{f.rule}", "end", max((t for _, t, _ in traffic), default=t0) + 1, outcome="failed",
-                      rules=(f.rule,))
+
+    write_repro_mcap(d, f.to_json(), MAVLINK_PROFILE.default_role.name, (t for _, t, _ in traffic), write,
+                     protocol=MAVLINK_PROFILE.name, expected=f.expected, actual=f.actual)

@@ -1,4 +1,4 @@
-"""The vehicle under ``mcp-fuzz --protocol mavlink`` and its oracles (issue 39 item 4).
+"""The vehicle under ``mcp-fuzz --protocol mavlink`` (issue 39 item 4).
 
 A :class:`MavVehicle` is one vehicle process (spawned with ``--spawn CMD``, ``{target_host}``
 ``{target_port}`` and ``{mavlink}`` -- ``tcp:HOST:PORT`` -- filled in; the reference vehicle,
@@ -16,12 +16,9 @@ frames before the probe's answer are the case's answers, and the oracles judge t
   (``hang``, MAV-HB-1's bound), or it beats on but no longer answers (``unanswered``; MAV-HB-14
   after a malformed frame: "the next good frame is handled"); each named by the case's rule;
 - its HEARTBEAT stops while it still answers (``hang``);
-- an answer the case must get (a COMMAND_ACK of its command, with MAV_RESULT_UNSUPPORTED for
-  an unknown one; a PARAM_VALUE of its name or index) does not come within ``command_ack_max_s``
-  / ``param_reply_max_s``, or one it must not get comes (an ACK for a command to another
-  system, or of a frame with a bad checksum; a PARAM_VALUE naming a parameter that does not
-  exist), or two final COMMAND_ACKs answer one command (MAV-CMD-3): ``answer``, named by the
-  expectation's rule.
+- an answer the case must get does not come, one it must not get comes, or two final
+  COMMAND_ACKs answer one command: ``answer``, named by the expectation's rule
+  (``fuzz.mavlink_oracles.judge``).
 """
 
 from __future__ import annotations
@@ -29,12 +26,11 @@ from __future__ import annotations
 import contextlib
 import select
 import socket
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.fuzz.loop import count
+from mcp_conform.fuzz.loop import WorkerTarget
 from mcp_conform.fuzz.mavlink_cases import (
     GCS_COMPID,
     GCS_SYSID,
@@ -45,6 +41,8 @@ from mcp_conform.fuzz.mavlink_cases import (
     name_key,
     raw_fields,
 )
+from mcp_conform.fuzz.mavlink_oracles import Hit, Signature, answers, judge
+from mcp_conform.fuzz.spares import Spare
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_session import embedded_command, parse_address
 from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
@@ -59,34 +57,6 @@ GAP_S = float(P["heartbeat_gap_max_s"])
 BEAT_S = float(P["heartbeat_period_s"])
 LATE_S = 0.1  # s: an answer missing at the probe's answer, waited for while fuzzing (replays: the spec's bound)
 LIST_S = 10.0  # s: the parameter list the cases are built from, read at the start for at most this long
-FINAL = frozenset(r for r in D.enums["MAV_RESULT"] if r != D.MAV_RESULT_IN_PROGRESS)
-
-
-@dataclass(frozen=True)
-class Signature:
-    """What a hit showed: the oracle (crash, hang, unanswered, answer), the rule it names and
-    what it is about (the case's kind, or for an answer what was wrong with it)."""
-
-    oracle: str
-    rule: str
-    kind: str
-
-    def describe(self) -> str:
-        return f"{self.oracle}: {self.kind} ({self.rule})"
-
-    def same(self, other: Signature) -> bool:
-        """A replay shows this hit: the same oracle (an answer: also the same rule and what
-        was wrong; a death is named by the case that makes it once that is known)."""
-        return self.oracle == other.oracle and (self.oracle != "answer" or (self.rule, self.kind) == (
-            other.rule, other.kind))
-
-
-@dataclass(frozen=True)
-class Hit:
-    signature: Signature
-    expected: str
-    actual: str
-    evidence: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -370,74 +340,19 @@ class MavVehicle:
                 return hit
         return None
 
-    def _answers(self, e: Expect, frames: list[Any]) -> list[Any]:
-        if e.what in ("ack", "no-ack"):
-            return [m for m in frames if m.get_type() == "COMMAND_ACK" and m.command == e.key]
-        if e.what == "msg":
-            return [m for m in frames if m.get_type() in str(e.key).split("|")]
-        if e.what == "param-index":
-            return [m for m in frames if m.get_type() == "PARAM_VALUE" and raw_fields(m)["param_index"] == e.key]
-        key = bytes.fromhex(str(e.key))
-        return [m for m in frames if m.get_type() == "PARAM_VALUE" and name_key(raw_fields(m)["param_id"]) == key]
-
     def _late(self, e: Expect) -> float:
         return self.late if self.late is not None else ACK_S if e.what == "ack" else REPLY_S
 
     def _expect(self, case: Case, e: Expect, upto: int) -> Hit | None:
-        frames = [m for _, m in self.frames[:upto] if self._from_vehicle(m)]
-        got = self._answers(e, frames)
-        what = _expected(e)
-        where = f"in answer to {case.describe()}"
-        if e.what.startswith("no-"):
-            if got:
-                return Hit(Signature("answer", e.rule, f"{e.what} broken by {case.kind}"), f"{what} {where}",
-                           f"the vehicle answered: {_show(got[0])}")
-            return None
-        if not got:  # late, perhaps: a vehicle that defers it (ArduPilot queues some answers)
-            m = self._until(lambda m: self._from_vehicle(m) and bool(self._answers(e, [m])),
-                            self._late(e), start=upto + 1)
-            if m is not None:
-                return None
-            others = [m for m in frames if m.get_type() == "COMMAND_ACK"] if e.what == "ack" else []
-            actual = (f"only a COMMAND_ACK for another command: {_show(others[0])}" if others
-                      else f"no answer before the probe's PARAM_VALUE, nor within {self._late(e):g} s")
-            return Hit(Signature("answer", e.rule, f"{e.what} missing after {case.kind}"), f"{what} {where}", actual)
-        if e.what == "ack":
-            finals = [m for m in got if m.result in FINAL]
-            if len(finals) > 1:
-                return Hit(Signature("answer", "MAV-CMD-3", f"two final acks after {case.kind}"),
-                           f"one final COMMAND_ACK {where}", f"{len(finals)}: " + "; ".join(_show(m) for m in finals))
-            if e.result is not None and not any(m.result == e.result for m in got):
-                return Hit(Signature("answer", e.rule, f"ack result after {case.kind}"),
-                           f"{what} with result {_result(e.result)} {where}", f"result {_result(got[0].result)}")
-        return None
+        """``e`` judged over the vehicle's frames before the probe's answer (``upto``); an
+        answer missing there waited for up to :meth:`_late` (``fuzz.mavlink_oracles.judge``)."""
+        def late() -> bool:
+            return self._until(lambda m: self._from_vehicle(m) and bool(answers(e, [m])), self._late(e),
+                               start=upto + 1) is not None
+        return judge(case, e, [m for _, m in self.frames[:upto] if self._from_vehicle(m)], late, self._late(e))
 
 
-def _expected(e: Expect) -> str:
-    if e.what in ("ack", "no-ack"):
-        return f"{'no ' if e.what == 'no-ack' else 'a '}COMMAND_ACK of command {e.key}"
-    if e.what == "param-index":
-        return f"the PARAM_VALUE of index {e.key}"
-    if e.what == "msg":
-        return "a " + str(e.key).replace("|", " or ")
-    return f"{'no' if e.what == 'no-param' else 'a'} PARAM_VALUE of {_name(e.key)}"
-
-
-def _name(key: Any) -> str:
-    return repr(bytes.fromhex(str(key)))
-
-
-def _result(r: int) -> str:
-    entry = D.enums["MAV_RESULT"].get(r)
-    return f"{entry.name} ({r})" if entry is not None else str(r)
-
-
-def _show(m: Any) -> str:
-    fields = {k: v for k, v in m.to_dict().items() if k != "mavpackettype"}
-    return f"{m.get_type()} {fields}"
-
-
-class MavTarget:
+class MavTarget(WorkerTarget):
     """A worker's vehicle as the loop sees a target (``fuzz.loop.Target``; the profile's
     ``fuzz_target`` of the vehicle role): the one now fuzzed (``current``: a death replaces
     it), its restarts counted by reason."""
@@ -446,18 +361,13 @@ class MavTarget:
     #: handshakes, each judged by the probe behind it
     ENGINES = ("stateless",)
 
+    current: MavVehicle
+
     def __init__(self, how: VehicleSpec) -> None:
         self.how = how
-        self.current = MavVehicle(how, late=LATE_S)
+        super().__init__(MavVehicle(how, late=LATE_S), attached=how.target is not None)
         self.info = self.current.info
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-        self._spare: tuple[threading.Thread, dict[str, Any]] | None = None
-        self._left: list[tuple[threading.Thread, dict[str, Any]]] = []
-
-    @property
-    def attached(self) -> bool:
-        return self.how.target is not None
+        self._spare: Spare[MavVehicle] | None = None
 
     def fresh(self, log: list[Any] | None = None) -> MavVehicle:
         """Another vehicle (spawned: a new process; attached: a new link), built for the same
@@ -469,46 +379,21 @@ class MavTarget:
             v = MavVehicle(self.how, self.info, log)
         v.log = log
         if not self.attached:
-            self._start_spare()
+            self._spare = Spare(lambda: MavVehicle(self.how, self.info), MavVehicle.close)
         return v
 
-    def _start_spare(self) -> None:
-        box: dict[str, Any] = {}
-
-        def make() -> None:
-            try:
-                box["v"] = MavVehicle(self.how, self.info)
-            except Exception as exc:  # noqa: BLE001 - a spare that did not start: started again when needed
-                box["error"] = exc
-
-        t = threading.Thread(target=make, name="mavlink-spare", daemon=True)
-        t.start()
-        self._spare = (t, box)
-
     def _take_spare(self) -> MavVehicle | None:
-        if self._spare is None:
-            return None
-        (t, box), self._spare = self._spare, None
-        t.join(30.0)
-        if t.is_alive():  # still starting: closed at the end
-            self._left.append((t, box))
-            return None
-        return box.get("v")
+        spare, self._spare = self._spare, None
+        return spare.take(30.0) if spare is not None else None
 
     def restart(self, reason: str) -> MavVehicle:
         self.current.close()
         self.current = self.fresh()
         self.current.late = LATE_S
-        self.restarts += 1
-        count(self.restart_reasons, reason)
+        self.count_restart(reason)
         return self.current
 
     def close(self) -> None:
         self.current.close()
-        spare = self._take_spare()
-        if spare is not None:
-            spare.close()
-        for t, box in self._left:
-            t.join(10.0)
-            if box.get("v") is not None:
-                box["v"].close()
+        if self._spare is not None:
+            self._spare.discard()

@@ -29,10 +29,10 @@ import contextlib
 import random
 import select
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.nsqd_mutators import Case, valid_values
 from mcp_conform.fuzz.nsqd_oracles import (
     CLOSE_RULE,
@@ -42,7 +42,7 @@ from mcp_conform.fuzz.nsqd_oracles import (
     parse_sanitizer,
     same_finding,
 )
-from mcp_conform.fuzz.nsqd_repro import TrafficLog
+from mcp_conform.fuzz.spares import SPARES, Spare
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
 from mcp_conform.spec import NSQD
@@ -95,8 +95,8 @@ class Backend:
         self.synced = False  # the last case's judged effect showed the stream in sync
         self.unwatched = ""  # the kind of the last valid case sent without its close window
         self.unwatched_n = 0  # how many cases in a row before this one were
-        #: the next processes, started in the background (:data:`SPARES` of them)
-        self.spares: list[_Spare] = []
+        #: the next processes, started in the background (``fuzz.spares``: SPARES of them)
+        self.spares: list[Spare[Backend]] = []
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -120,7 +120,8 @@ class Backend:
         b.traits = self.traits
         b.spares = spares[1:]
         while len(b.spares) < SPARES:
-            b.spares.append(_Spare(self.target, self.spawn, self.traits))
+            b.spares.append(Spare(lambda: Backend(self.target, self.spawn, self.traits), Backend.close,
+                                  lambda b: b.process is None or b.process.alive()))
         return b
 
     restart = fresh  #: the process the campaign goes on fuzzing with
@@ -437,46 +438,6 @@ class Backend:
 
     def fds(self) -> int | None:
         return self.session.open_fds()
-
-
-class _Spare:
-    """A :class:`Backend` started in the background, for the next :meth:`Backend.restart`.
-
-    Started on the one spawner thread that lives as long as the campaign's process
-    (:data:`_SPAWNER`): a spawned backend gets SIGKILL when the thread that started it ends
-    (``harness.procs``' parent-death signal is the thread's, prctl(2) PR_SET_PDEATHSIG), so
-    a thread of its own, ended once started, killed every spare before it was used."""
-
-    def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits) -> None:
-        self.future = _SPAWNER.submit(Backend, target, spawn, traits)
-
-    def take(self) -> Backend | None:
-        """The started backend, once ready; None if it failed to start (the restart then
-        starts one itself and reports its error) or has ended since (a backend that dies on
-        its own is not handed to a case)."""
-        try:
-            b = self.future.result()
-        except Exception:  # noqa: BLE001 - see above
-            return None
-        if b.process is not None and not b.process.alive():
-            b.close()
-            return None
-        return b
-
-    def discard(self) -> None:
-        """Not needed: closed now, or as soon as its start ends (no wait for it)."""
-        def close(f: Future[Backend]) -> None:
-            if not f.cancelled() and f.exception() is None:
-                f.result().close()
-        self.future.add_done_callback(close)
-
-
-#: how many processes are started ahead: two, as a replay of triage may take less time than a
-#: real backend's start (1.2-1.4 s)
-SPARES = 2
-
-#: the threads every spare backend is started on (they live with the process)
-_SPAWNER = ThreadPoolExecutor(max_workers=SPARES, thread_name_prefix="nsqd-spare")
 
 
 def read_until(conns: list[Conn], pred: Any, timeout: float) -> bool:

@@ -4,7 +4,7 @@ run by the one campaign loop (``fuzz.loop``, issue 37) with Nsqd's parts: its ta
 stateless one, ``fuzz.nsqd_engine``; the stateful one, ``fuzz.nsqd_programs``), its triage
 (``fuzz.nsqd_triage``; before the first case, worker 0 counts the backend's descriptors over
 connect/close cycles: ``fuzz.nsqd_blame.leak_check``), its summary and closing lines
-(``fuzz.nsqd_report``). ``mcp-fuzz --protocol nsqd --replay finding-N`` reproduces a finding
+(``fuzz.campaign_core``). ``mcp-fuzz --protocol nsqd --replay finding-N`` reproduces a finding
 (exit 1) or not (exit 0): ``fuzz.nsqd_replay``.
 """
 
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from mcp_conform.fuzz import loop, nsqd_report
+from mcp_conform.fuzz import loop
+from mcp_conform.fuzz.campaign_core import ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.nsqd_backend import Backend, message_names
@@ -29,26 +30,21 @@ __all__ = ["Backend", "NsqdPlugin", "StreamCampaign", "message_names", "nsqd_fin
 
 
 @dataclass
-class NsqdPlugin:
-    """Nsqd's parts of the one campaign loop (``fuzz.loop.Plugin``)."""
+class NsqdPlugin(ProtocolPlugin):
+    """Nsqd's parts of the one campaign loop (``fuzz.campaign_core.ProtocolPlugin``); before
+    the first case, worker 0 counts the backend's descriptors (``fuzz.nsqd_blame.leak_check``)."""
 
-    n_of_n: int = 3  # a finding's confirming replays
+    TRIAGE = StreamTriage
     probe_every: int = 40  # cases between two probe commands
 
     def start(self, cfg: FuzzConfig) -> StreamTarget:
         return StreamTarget(Backend(cfg.target, cfg.spawn), attached=cfg.target is not None and cfg.spawn is None)
 
-    def triage(self, target: StreamTarget, store: FindingStore, name: str, cfg: FuzzConfig, started: float,
-               prev: StreamTriage | None) -> StreamTriage:
-        if prev is not None:
-            return prev.carry()
-        triage = StreamTriage(target, store, seed=cfg.seed, worker=cfg.worker, n_of_n=self.n_of_n, started=started,
-                              duration=cfg.duration_limit)
+    def first(self, triage: StreamTriage, cfg: FuzzConfig) -> None:
         if cfg.worker == 0:
             from mcp_conform.fuzz.nsqd_blame import leak_check
 
-            target.current = leak_check(triage, target.current)
-        return triage
+            triage.target.current = leak_check(triage, triage.target.current)
 
     def engine(self, name: str, target: StreamTarget, triage: StreamTriage, cfg: FuzzConfig) -> Any:
         if name == "stateful":
@@ -59,65 +55,59 @@ class NsqdPlugin:
 
         return StreamStatelessEngine(triage, cfg.seed, cfg.worker, self.probe_every)
 
-    def record(self, res: loop.WorkerResult, name: str, engine: Any) -> None:
-        """(Nothing of Nsqd's own: its engines' and triage's counts are the loop's.)"""
 
+class StreamCampaign(ProtocolCampaign):
+    """An Nsqd campaign (``mcp-fuzz --protocol nsqd``: the profile's ``fuzz_campaign``):
+    ``fuzz.campaign_core``'s over :class:`NsqdPlugin`, its findings' files written by
+    ``fuzz.nsqd_repro``; ``stop_after``: the campaign ends once this many are confirmed."""
 
-class StreamCampaign:
-    """An Nsqd campaign (``mcp-fuzz --protocol nsqd``: the profile's ``fuzz_campaign``,
-    ``fuzz.plugin.FuzzCampaign``): ``fuzz.loop``'s over :class:`NsqdPlugin`, its findings in
-    one store written under ``out``."""
-
+    PROFILE = NSQD_PROFILE
     REFUSED: ClassVar[tuple[str, ...]] = ("--mavlink", "--seeds", "--live")
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None, seed: int, duration: float | None,
                  max_cases: int | None, out: Path | None, replays: int = 3, probe_every: int = 40,
                  stop_after: int | None = None, engine: str = "stateless", db: str | None = None,
                  tick: Callable[[Progress], None] | None = None, jobs: int = 1) -> None:
-        self.out, self.replays, self.tick = (Path(out) if out is not None else None), replays, tick
-        self.cfg = FuzzConfig(target=target, spawn=spawn, seed=seed, duration=duration, max_cases=max_cases,
-                              engine=engine, db=db, jobs=jobs, out=str(out) if out is not None else None,
-                              protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.roles[0].name)
-        if stop_after is not None:  # end the campaign once this many findings are confirmed
-            self.cfg.extra["stop_after"] = stop_after
-        self.plugin = NsqdPlugin(replays, probe_every)
-        self.stop: Callable[[], bool] = lambda: False  # a caller's own reason to stop (one worker)
+        cfg = FuzzConfig(target=target, spawn=spawn, seed=seed, duration=duration, max_cases=max_cases,
+                         engine=engine, db=db, jobs=jobs, out=str(out) if out is not None else None,
+                         protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.roles[0].name)
+        if stop_after is not None:
+            cfg.extra["stop_after"] = stop_after
+        super().__init__(cfg, NsqdPlugin(replays, probe_every), write_finding_files, tick)
+        self.out, self.replays = (Path(out) if out is not None else None), replays
         self.cases, self.fuzz_s = 0, 0.0  # the last run's (its summary's)
-        how = ["--spawn", spawn] if spawn else (["--target", f"{target[0]}:{target[1]}"] if target else [])
-        self.store = FindingStore(self.out, ["--protocol", NSQD_PROFILE.name, *how], write_finding_files)
 
-    @property
-    def findings(self) -> list[Finding]:
-        return self.store.order
-
-    def run(self) -> dict[str, Any]:
-        """The campaign (``--jobs`` as configured); its summary, summary.json written under ``out``."""
-        s = loop.run_campaign(self.plugin, self.cfg, self.store, nsqd_report.summary, self.tick, self.stop)
-        self.cases, self.fuzz_s = s["cases"], s["fuzz_s"]
-        return s
-
-    def run_jobs(self, jobs: int, tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
-        """``--jobs N``: N workers, each a campaign of its own backend and seed stream,
-        ``--max-cases`` shared out, ``--duration`` from this start; the summary."""
-        self.cfg.jobs, self.tick = jobs, tick or self.tick
-        if self.cfg.max_cases is not None and jobs > 1:  # the budget shared: N workers run max_cases in all
-            self.cfg.max_cases = max(1, self.cfg.max_cases // jobs)
-        return self.run()
-
-    # -- mcp-fuzz's campaign of the protocol (fuzz.plugin.FuzzCampaign) ----------------
     @classmethod
     def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> StreamCampaign:
         return cls(cfg.target, cfg.spawn, cfg.seed, cfg.duration_limit, cfg.max_cases,
                    Path(cfg.out) if cfg.out else None, engine=cfg.engine, db=cfg.db, tick=tick, jobs=cfg.jobs)
 
     def fuzz(self) -> dict[str, Any]:
-        return self.run_jobs(self.cfg.jobs) if self.cfg.jobs > 1 else self.run()
+        s = super().fuzz()
+        self.cases, self.fuzz_s = s["cases"], s["fuzz_s"]
+        return s
 
-    def abort(self) -> None:
-        """(``fuzz.loop.run_campaign`` writes summary.json however it ends.)"""
+    run = fuzz
 
-    def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
-        return nsqd_report.final(self.store, summary, live, strict)
+    def run_jobs(self, jobs: int, tick: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+        """``--jobs N``: N workers, each a campaign of its own backend and seed stream."""
+        self.cfg.jobs, self.tick = jobs, tick or self.tick
+        return self.fuzz()
+
+    def own_summary(self, cfg: FuzzConfig, store: FindingStore, results: list[loop.WorkerResult]) -> dict[str, Any]:
+        """Each finding (its signature), the stateful engine's database."""
+        return {"findings": [{"signature": f.signature.describe(), "oracle": f.signature.oracle,
+                              "rule": f.signature.rule, "count": f.occurrences, "replays": f.replays,
+                              "no_input": f.no_input, "engine": "stateful" if f.program is not None else "stateless"}
+                             for f in store.order], "db": cfg.db}
+
+    def finding_lines(self, i: int, f: Finding, verbose: bool) -> list[str]:
+        return [f"finding-{i}: {f.signature.describe()} ×{f.occurrences}, replays {f.replays}: {f.note}",
+                *([f"  {f.actual}"] if verbose else [])]
+
+    def totals(self, s: dict[str, Any]) -> tuple[str, str]:
+        return (", ".join(f"{k} {n}" for k, n in sorted(s["findings_by_class"].items())),
+                f"engine {s['engine']}, {s['jobs']} job(s)")
 
     @staticmethod
     def replay(path: str, cfg: FuzzConfig) -> int:

@@ -12,52 +12,51 @@ since the stream was last proven in sync.
 
 from __future__ import annotations
 
-import random
-from collections.abc import Callable
 from dataclasses import replace
 
-from mcp_conform.fuzz.loop import EngineStats, FuzzClock
-from mcp_conform.fuzz.nsqd_backend import message_names
+from mcp_conform.fuzz.campaign_core import CaseEngine
+from mcp_conform.fuzz.nsqd_backend import Hit, message_names
 from mcp_conform.fuzz.nsqd_mutators import Case, draw_case
 from mcp_conform.fuzz.nsqd_triage import StreamTriage
 
 __all__ = ["StreamStatelessEngine"]
 
 
-class StreamStatelessEngine:
-    """Cases on one connection at a time until the budget is spent."""
+class StreamStatelessEngine(CaseEngine):
+    """Cases on one connection at a time until the budget is spent (``fuzz.campaign_core``)."""
+
+    triage: StreamTriage
 
     def __init__(self, triage: StreamTriage, seed: int, worker: int = 0, probe_every: int = 40) -> None:
-        self.triage, self.probe_every = triage, probe_every
-        self.stats = EngineStats()
-        self.rng = random.Random(seed if not worker else hash((seed, worker)))
+        super().__init__(triage, seed, worker)
+        self.probe_every = probe_every
+        self.window: list[Case] = []  # the cases since the stream was last proven in sync
+        self.probed = False  # the hit now triaged is the probe's
 
-    def run(self, deadline: float, max_cases: int | None, tick: Callable[[EngineStats], None] | None,
-            stop: Callable[[], bool]) -> EngineStats:
-        st, triage = self.stats, self.triage
-        backend = triage.current
-        window: list[Case] = []
-        clock = FuzzClock(st, tick)
-        try:
-            while not st.spent(deadline, max_cases, stop):
-                case = draw_case(self.rng)
-                if case.expect and st.cases % 4 == 0:  # one valid command in four is judged by its effect
-                    case = replace(case, check=True)
-                clock.case(case.kind, message_names(case.data))
-                window.append(case)
-                hit = backend.run(case)
-                probe = False
-                if hit is None and backend.synced:  # a judged effect proved the stream in sync
-                    backend.synced = False
-                    window.clear()
-                if hit is None and len(window) >= self.probe_every:
-                    hit, probe = backend.probe(), True
-                    if hit is None:
-                        window.clear()
-                if hit is not None:
-                    with clock.triage():
-                        backend = triage.current = triage.consider(backend, hit, window, probe)
-                    window.clear()
-        finally:
-            clock.stop()
-        return st
+    def draw(self) -> Case:
+        case = draw_case(self.rng)
+        if case.expect and self.stats.cases % 4 == 0:  # one valid command in four is judged by its effect
+            case = replace(case, check=True)
+        return case
+
+    def tried(self, case: Case) -> tuple[str, list[str]]:
+        return case.kind, message_names(case.data)
+
+    def send(self, case: Case) -> Hit | None:
+        backend, window = self.triage.current, self.window
+        window.append(case)
+        hit = backend.run(case)
+        self.probed = False
+        if hit is None and backend.synced:  # a judged effect proved the stream in sync
+            backend.synced = False
+            window.clear()
+        if hit is None and len(window) >= self.probe_every:
+            hit, self.probed = backend.probe(), True
+            if hit is None:
+                window.clear()
+        return hit
+
+    def triage_hit(self, hit: Hit) -> None:
+        t = self.triage
+        t.current = t.consider(t.current, hit, self.window, self.probed)
+        self.window.clear()

@@ -41,6 +41,7 @@ from typing import Any
 
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing
 from mcp_conform.fuzz.nsqd_oracles import same_finding
 from mcp_conform.fuzz.nsqd_player import (
@@ -57,7 +58,6 @@ from mcp_conform.fuzz.nsqd_player import (
     command_bytes,
 )
 from mcp_conform.fuzz.nsqd_programs import StreamStatefulEngine
-from mcp_conform.fuzz.nsqd_repro import TrafficLog
 
 __all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "Client", "Hit", "Op", "Player",
            "StreamStatefulEngine", "_whole_frames", "command_bytes", "play_program", "triage_program"]

@@ -23,13 +23,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 from mcp_conform.fuzz.budget import TRIAGE_SHARE, check_late, over_budget
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
+from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import count, triage_time
+from mcp_conform.fuzz.loop import WorkerTarget, triage_time
 from mcp_conform.fuzz.nsqd_backend import (
     REPLAY_DEATH_S,
     Backend,
@@ -41,7 +42,6 @@ from mcp_conform.fuzz.nsqd_backend import (
 from mcp_conform.fuzz.nsqd_blame import PROBED, baseline, death_culprit
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
-from mcp_conform.fuzz.nsqd_repro import TrafficLog
 from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
@@ -51,22 +51,8 @@ from mcp_conform.spec.profiles import NSQD_PROFILE
 __all__ = ["StreamTarget", "StreamTriage", "nsqd_finding"]
 
 
-class StreamTarget:
-    """A worker's Nsqd backend (``fuzz.nsqd_backend.Backend``) as the loop sees a target: the
-    one now fuzzed (``current``: triage's replays and restarts replace it), its restarts
-    counted by reason, closed at the end."""
-
-    def __init__(self, backend: Backend, attached: bool = False) -> None:
-        self.current, self.attached = backend, attached
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-
-    def count_restart(self, reason: str) -> None:
-        self.restarts += 1
-        count(self.restart_reasons, reason)
-
-    def close(self) -> None:
-        self.current.close()
+#: a worker's Nsqd backend (``fuzz.nsqd_backend.Backend``) as the loop sees a target
+StreamTarget = WorkerTarget
 
 
 def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, stderr: tuple[str, ...] = (), *,
@@ -96,23 +82,17 @@ def nsqd_finding(sig: Signature, cases: list[Case], detail: str, replays: str, s
 
 @dataclass
 class StreamTriage(HitTriage):
-    """One worker's Nsqd triage (an engine's turn's; what it learnt carried on to the next
-    turn's: :meth:`carry`; its steps, counts and bounds: ``fuzz.triage_core.HitTriage``;
+    """One worker's Nsqd triage (an engine's turn's; what it learnt, ``LEARNT``, carried on to
+    the next turn's; its steps, counts and bounds: ``fuzz.triage_core.HitTriage``;
     ``untriaged`` by signature, ``tries`` by (signature key, how))."""
 
-    target: StreamTarget
+    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "aliases", "base_seen")
+    target: WorkerTarget
     store: FindingStore
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
-
-    def carry(self) -> StreamTriage:
-        """The next engine's turn's triage: what this one learnt (aliases, baselines, tries)
-        kept, its counts new."""
-        return StreamTriage(self.target, self.store, seed=self.seed, worker=self.worker, n_of_n=self.n_of_n,
-                            tries=self.tries, aliases=self.aliases, base_seen=self.base_seen, started=self.started,
-                            duration=self.duration)
 
     @property
     def current(self) -> Backend:
@@ -152,7 +132,7 @@ class StreamTriage(HitTriage):
                             program: list[dict[str, Any]], traffic: list[Any] | None = None) -> None:
         """A stateful program's confirmed finding; ``traffic``: its last confirming replay's
         (repro.mcap, repro.pcap), as a case's finding has it."""
-        self._add(nsqd_finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=traffic))
+        self.add(nsqd_finding(sig, [], detail, replays, stderr, note=note, program=program, traffic=traffic))
 
     def known(self, sig: Signature) -> Finding | None:
         """The finding a hit of ``sig`` already is: the same signature (a sanitizer's report seen
@@ -241,11 +221,11 @@ class StreamTriage(HitTriage):
                       "(timing or load); no input is to blame either")
             return None
         if self.known(sig) is None:
-            self._add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.n_of_n}", base.stderr,
-                              note="the target's behaviour, whatever it is sent: no input blamed (" + (
-                                  "the probe command with no case before it)" if base.detail.endswith(PROBED)
-                                  else "a baseline connection sent nothing)"),
-                              no_input=True, probe=key))
+            self.add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.n_of_n}", base.stderr,
+                                  note="the target's behaviour, whatever it is sent: no input blamed (" + (
+                                      "the probe command with no case before it)" if base.detail.endswith(PROBED)
+                                      else "a baseline connection sent nothing)"),
+                                  no_input=True, probe=key))
         return sig
 
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
@@ -333,10 +313,8 @@ class StreamTriage(HitTriage):
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
         if not conf.confirmed:
-            self.not_confirmed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf,
-                               shape=sig.describe(), actual=hit.detail,
-                               why=f"the minimal input ({len(writes)} write(s)) showed it in triage, then "
-                                   f"{len(conf.hits)} of {self.n_of_n} confirming replays did (timing or load)")
+            self.missed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf, shape=sig.describe(),
+                        actual=hit.detail, size=f"{len(writes)} write(s)")
             return self.restart(self.current)
         traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
@@ -352,8 +330,8 @@ class StreamTriage(HitTriage):
                 again = confirm(shorter)
                 if again.confirmed:
                     minimal, traffic = shorter, again.hits[-1][1]
-        self._add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
-                          note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+        self.add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
+                              note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(self.current)
 
@@ -367,10 +345,4 @@ class StreamTriage(HitTriage):
 
     def add_found(self, sig: Signature, detail: str, replays: str, note: str) -> None:
         """A finding no input is replayed for (``fuzz.nsqd_blame.leak_check``'s)."""
-        self._add(nsqd_finding(sig, [], detail, replays, (), note=note))
-
-    def _add(self, f: Finding) -> None:
-        """A confirmed finding into the store (``finding-N/`` under ``out``)."""
-        f.seed, f.worker = self.seed, self.worker
-        self.store.add(f)
-
+        self.add(nsqd_finding(sig, [], detail, replays, (), note=note))

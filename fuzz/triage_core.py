@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, TypeVar
 
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
-from mcp_conform.fuzz.confirm import Confirmation
+from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
 
@@ -36,17 +36,36 @@ __all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit"]
 T = TypeVar("T")
 H = TypeVar("H")
 K = TypeVar("K")
+C = TypeVar("C", bound="HitTriage")
 
 
 @dataclass(kw_only=True, eq=False)
 class HitTriage(Triage):
     """A worker's triage state every protocol keeps (its counts: ``fuzz.loop.Triage``): its
-    seed and worker (a finding's), the N of N, and the signatures that did not reproduce."""
+    seed and worker (a finding's), the N of N, and the signatures that did not reproduce;
+    what an engine's turn learnt is carried to the next one's (:meth:`carry`: the fields
+    ``LEARNT`` names, ``tries`` among them)."""
+
+    LEARNT: ClassVar[tuple[str, ...]] = ("tries",)
 
     seed: int = 0
     worker: int = 0
     n_of_n: int = 3  # a finding's confirming replays, all of which must show it
     tries: dict[Any, int] = field(default_factory=dict)  # a hit's key -> triages that did not reproduce
+
+    def carry(self: C) -> C:
+        """The next engine's turn's triage: what this one learnt (``LEARNT``) kept, with its
+        target, store, seed, worker, N of N and the campaign's bound; its counts new."""
+        kept = {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name in self.LEARNT or f.name in ("seed", "worker", "n_of_n", "started", "duration")
+                or f.name in ("target", "store")}
+        return type(self)(**kept)
+
+    def add(self, finding: Finding, *args: Any) -> None:
+        """A confirmed finding into the store (``finding-N/`` under its ``out``), this
+        worker's and seed's."""
+        finding.seed, finding.worker = self.seed, self.worker
+        self.store.add(finding, *args)  # type: ignore[attr-defined]  # a protocol's triage holds its store
 
     def counted(self, known: Finding | None, key: Hashable, describe: str) -> bool:
         """Step 1: counted, not triaged -- ``known`` (the finding the hit already is: one more
@@ -75,6 +94,24 @@ class HitTriage(Triage):
             return restart()
         finally:
             self.restart_seconds += time.monotonic() - t0
+
+    def confirm_logged(self, replay: Callable[[list[Any]], H | None], *, until_miss: bool) -> Confirmation[tuple[H, list[Any]]]:
+        """Step 4: ``replay(log)`` run ``n_of_n`` times (``fuzz.confirm``; ``until_miss``: none
+        after the first miss), each with a log of its own for the traffic it saw (a finding's
+        repro files keep the last one's); a hit: (what it showed, its log)."""
+        def once() -> tuple[H, list[Any]] | None:
+            log: list[Any] = []
+            h = replay(log)
+            return None if h is None else (h, log)
+        return confirm_n(once, self.n_of_n, until_miss=until_miss)
+
+    def missed(self, rule: str, key: Hashable, conf: Confirmation[Any], *, shape: str, actual: str, size: str,
+               where: str = "") -> None:
+        """Step 4's miss of an input that showed it in triage (``size``: how much of it):
+        :meth:`not_confirmed`, named environment-dependent (timing or load)."""
+        self.not_confirmed(rule, key, conf, shape=shape, actual=actual,
+                           why=f"the minimal input ({size}) showed it in triage, then {len(conf.hits)} of "
+                               f"{self.n_of_n} confirming replays{where} did (timing or load)")
 
     def not_confirmed(self, rule: str, key: Hashable, conf: Confirmation[Any] | None = None, *, shape: str = "",
                     actual: str = "", why: str = "") -> None:
