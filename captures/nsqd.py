@@ -26,12 +26,14 @@ retransmitted segments, both directions, any number of connections, bounded in m
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
+from mcp_conform.captures import trace_tools as core
+from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
 from mcp_conform.judge.nsqd_monitor import RULES, StreamMonitor
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import Deframer, Frame
@@ -53,6 +55,7 @@ def _addr(a: Any) -> str:
 MAX_LISTED = 10000
 MAX_STEPS = 100000
 MAX_GAPS = 1000
+ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
 
 
 class _Conns:
@@ -148,50 +151,36 @@ def _answer(answers: list[Any], rec: StreamFrame) -> None:
         answers.append(key)
 
 
-# ---------------------------------------------------------------- check
-ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
+class _Nsqd(core.CapturePlugin):
+    name, spec, a_capture, html_instead = "nsqd", NSQD, "an Nsqd capture", "use show --svg"
+    json_when_same = False
 
-
-def run_check(ns: Any, out: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    if getattr(ns, "html", None):
-        sys.stderr.write("mcp-capture check: note: --html is not written for an Nsqd capture (use show --svg)\n")
-    seen = _Conns(ns.file).read()
-    verdicts = seen.monitor.verdicts()
-    failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
-    broke = {c.conn: r for r in failed for c in verdicts[r][1]}
-    out.write(f"{ns.file}: Nsqd capture, {seen.n_conns} connection(s)\n")
-    if seen.truncated:
-        out.write(f"TRUNCATED: {seen.truncated} (judged up to there)\n")
-    for g in seen.gaps[:20]:
-        out.write(f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}\n")
-    if seen.n_gaps > 20:
-        out.write(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture\n")
-    for n, c in sorted(seen.conns.items())[:ROWS]:
-        rules = [broke[n]] if n in broke else []
-        out.write(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
-                  f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
-                  f"{'; BROKE ' + ', '.join(rules) if rules else ''}\n")
-    if seen.n_conns > ROWS:
-        out.write(f"  ... and {seen.n_conns - ROWS} more connection(s)\n")
-    for rule in failed:
-        bad, n_bad = verdicts[rule][1], verdicts[rule][2]
-        r = NSQD.rule(rule)
-        out.write(f"{rule} {r.level}: {r.text}\n")
-        for cv in bad[:3]:
-            v, t = cv.violation  # type: ignore[misc]
-            rel = (t - (seen.first_ns or t)) / 1e9
-            out.write(f"  conn {cv.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
-            for e in v.evidence:
-                out.write(f"    {e}\n")
-        if n_bad > 3:
-            out.write(f"  ... and {n_bad - 3} more connection(s)\n")
-    out.write("rules: " + ", ".join(f"{r} {verdicts[r][0]}" for r in RULES) + "\n")
-    out.write("(the rules judged by what the runner's cases send need mcp-conform --protocol nsqd)\n")
-    verdict = "FAILED" if failed else ("INCOMPLETE" if seen.truncated else "OK")
-    out.write(f"verdict: {verdict}\n")
-    if getattr(ns, "json", None):
-        doc = {"protocol": "nsqd", "file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
+    def check(self, ns: Any) -> Checked:
+        seen = _Conns(ns.file).read()
+        verdicts = seen.monitor.verdicts()
+        failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
+        broke = {c.conn: r for r in failed for c in verdicts[r][1]}
+        head = [f"{ns.file}: Nsqd capture, {seen.n_conns} connection(s)"]
+        if seen.truncated:
+            head.append(f"TRUNCATED: {seen.truncated} (judged up to there)")
+        head += [f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}"
+                 for g in seen.gaps[:20]]
+        if seen.n_gaps > 20:
+            head.append(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture")
+        for n, c in sorted(seen.conns.items())[:ROWS]:
+            head.append(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
+                        f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
+                        f"{'; BROKE ' + broke[n] if n in broke else ''}")
+        if seen.n_conns > ROWS:
+            head.append(f"  ... and {seen.n_conns - ROWS} more connection(s)")
+        blocks = []
+        for rule in failed:
+            rel = [(cv, (cv.violation[1] - (seen.first_ns or cv.violation[1])) / 1e9)  # type: ignore[index]
+                   for cv in verdicts[rule][1][:3]]
+            blocks.append(RuleBlock(rule, [(f"conn {cv.conn} at +{t:.6f}s: expected {cv.violation[0].expected}; "  # type: ignore[index]
+                                            f"actual {cv.violation[0].actual}", cv.violation[0].evidence)  # type: ignore[index]
+                                           for cv, t in rel], verdicts[rule][2] - 3, " connection(s)"))
+        doc = {"file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
                "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
                                 "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
                                for n, c in sorted(seen.conns.items())],
@@ -201,9 +190,35 @@ def run_check(ns: Any, out: TextIO | None = None) -> int:
                                "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
                                "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
                               for r in failed for c in verdicts[r][1]],
-               "gaps": [g._asdict() for g in seen.gaps], "verdict": verdict}
-        Path(ns.json).write_text(json.dumps(doc, indent=1) + "\n")
-    return 1 if failed else 0
+               "gaps": [g._asdict() for g in seen.gaps]}
+        return Checked(head, blocks, [(r, verdicts[r][0]) for r in RULES], bool(failed), seen.truncated, doc,
+                       ["(the rules judged by what the runner's cases send need mcp-conform --protocol nsqd)"])
+
+    def compare(self, golden: str, candidate: str) -> Compared:
+        g, c = _Conns(golden, steps=True).read(), _Conns(candidate, steps=True).read()
+        diffs: list[str] = []
+        if g.n_conns != c.n_conns:
+            diffs.append(f"connections: {g.n_conns} in the golden, {c.n_conns} in the candidate")
+        for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
+            ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
+            for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
+                if x != y:
+                    diffs.append(f"conn {gn}/{cn} step {i + 1}: golden {x[0]} {x[1][:80]}; candidate {y[0]} {y[1][:80]}")
+                    break
+            else:
+                if len(ga) != len(ca):
+                    longer, which = (ga, "golden") if len(ga) > len(ca) else (ca, "candidate")
+                    nxt = longer[min(len(ga), len(ca))]
+                    diffs.append(f"conn {gn}/{cn}: only the {which} goes on: {nxt[0]} {nxt[1][:80]}")
+        notes = [f"only the first {MAX_LISTED} connections of each are compared"] \
+            if max(g.n_conns, c.n_conns) > MAX_LISTED else []
+        return Compared(diffs, [f"  {d}" for d in diffs[:50]],
+                        f"{g.n_conns} connection(s), the client's writes and the backend's answers alike", "",
+                        [(g.path, g.truncated), (c.path, c.truncated)], notes)
+
+
+PLUGIN = _Nsqd()
+run_check = partial(core.run_check, PLUGIN)
 
 
 # ---------------------------------------------------------------- show
@@ -227,8 +242,7 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
     """Each record a line as it is read (nothing kept but the chart's frames, up to
     ``--max-rows``)."""
     out = out or sys.stdout
-    lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
-    hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
+    in_window = core.window(ns)
     rows = int(getattr(ns, "max_rows", 400) or 400)
     out.write(f"{ns.file}: Nsqd capture\n")
     shown: list[StreamFrame] = []
@@ -242,8 +256,7 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
             continue
         first = rec.t_ns if first is None else first
         conns = max(conns, rec.conn)
-        rel = (rec.t_ns - first) / 1e9
-        if (lo is not None and rel < lo) or (hi is not None and rel > hi):
+        if not in_window((rec.t_ns - first) / 1e9):
             continue
         out.write(_line(rec, first) + "\n")
         if type(rec) is StreamFrame and len(shown) < rows:
@@ -256,38 +269,8 @@ def run_show(ns: Any, out: TextIO | None = None) -> int:
     return 0
 
 
-# ---------------------------------------------------------------- diff
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    g, c = _Conns(args.golden, steps=True).read(), _Conns(args.candidate, steps=True).read()
-    diffs: list[str] = []
-    if g.n_conns != c.n_conns:
-        diffs.append(f"connections: {g.n_conns} in the golden, {c.n_conns} in the candidate")
-    if max(g.n_conns, c.n_conns) > MAX_LISTED:
-        out.write(f"note: only the first {MAX_LISTED} connections of each are compared\n")
-    for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
-        ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
-        for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
-            if x != y:
-                diffs.append(f"conn {gn}/{cn} step {i + 1}: golden {x[0]} {x[1][:80]}; candidate {y[0]} {y[1][:80]}")
-                break
-        else:
-            if len(ga) != len(ca):
-                longer, which = (ga, "golden") if len(ga) > len(ca) else (ca, "candidate")
-                nxt = longer[min(len(ga), len(ca))]
-                diffs.append(f"conn {gn}/{cn}: only the {which} goes on: {nxt[0]} {nxt[1][:80]}")
-    for s in (g, c):
-        if s.truncated:
-            out.write(f"note: {s.path} is TRUNCATED: {s.truncated}\n")
-    if not diffs:
-        out.write(f"same: {g.n_conns} connection(s), the client's writes and the backend's answers alike\n")
-        return 0
-    out.write(f"different: {len(diffs)} divergence(s)\n")
-    for d in diffs[:50]:
-        out.write(f"  {d}\n")
-    if getattr(args, "json", None):
-        Path(args.json).write_text(json.dumps({"protocol": "nsqd", "same": False, "divergences": diffs}, indent=1) + "\n")
-    return 1
+    return core.run_diff(PLUGIN, args, out)
 
 
 # ---------------------------------------------------------------- replay
