@@ -83,7 +83,7 @@ class CapturePlugin:
 
     name: str  # its --protocol
     spec: Any  # its spec: each rule's level and text (``spec.rule(ID)``)
-    a_capture: str  # what one capture is called ("an Nsqd capture")
+    a_capture: str  # what one capture is called, with its article (check --html is not written for it)
     html_instead: str  # what check --html is told to use instead
     json_when_same = True  # diff --json is written when the captures are alike too
 
