@@ -25,20 +25,18 @@ Mission Planner), read by ``traceio.mavlink``.
 
 from __future__ import annotations
 
-import difflib
 import itertools
 import sys
-from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock, case_at
+from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
 from mcp_conform.judge.mavlink_monitor import RULES, MavlinkMonitor, Violation
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
-from mcp_conform.traceio.reader import CaptureError, CaseMark, Metadata, Truncated, open_capture
+from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
 
 __all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "judge_trace", "run_check", "run_diff",
            "run_replay", "run_show"]
@@ -62,26 +60,7 @@ def is_finding(path: str | Path) -> bool:
     return False  # no MAVLink fuzz campaign yet: nothing to replay
 
 
-@dataclass
-class Judged:
-    """A trace read through the monitor: what ``check``, ``show`` and ``diff`` print."""
-
-    path: str
-    format: str
-    monitor: MavlinkMonitor
-    role: str | None  # the role under test the capture names, None: every role
-    frames: list[MavFrame] = field(default_factory=list)  # kept for show and diff only
-    cases: list[CaseMark] = field(default_factory=list)
-    truncated: str | None = None
-    count: int = 0
-
-    @property
-    def first_ns(self) -> int:
-        return self.monitor.first_ns or 0
-
-    def case_at(self, t_ns: int) -> str | None:
-        """The case whose marks hold ``t_ns`` (our MCAP), else None."""
-        return case_at(self.cases, t_ns)
+Judged = core.Judged
 
 
 def _role_under_test(trace: MavTrace) -> str | None:
@@ -103,17 +82,7 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
     trace = open_trace(path)
     role = _role_under_test(trace)
     mon = MavlinkMonitor(roles=(role,) if role else ("vehicle", "gcs"), complete=trace.complete)
-    j = Judged(str(path), trace.format, mon, role)
-    for rec in trace:
-        if isinstance(rec, MavFrame):
-            mon.feed(rec)
-            j.count += 1
-            if keep:
-                j.frames.append(rec)
-        elif isinstance(rec, CaseMark):
-            j.cases.append(rec)
-        elif isinstance(rec, Truncated):
-            j.truncated = rec.reason
+    j = core.judge_records(Judged(str(path), trace.format, mon, role), trace, MavFrame, keep=keep)
     if not j.count:
         raise CaptureError(f"{path}: no MAVLink frame in it (an MCAP of mcp-conform --protocol mavlink, "
                            "or a .tlog, holds them)")
@@ -122,11 +91,8 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
 
 
 def picked(rule: str, chosen: tuple[str, ...], left_out: tuple[str, ...]) -> bool:
-    """``--select``/``--exclude`` as for MCP's rules: prefixes of the rule's ID, with or
-    without its ``MAV-`` (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
-    names = (rule, rule.removeprefix("MAV-"))
-    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
-            and not any(n.startswith(x) for n in names for x in left_out))
+    """``--select``/``--exclude`` as for MCP's rules, with or without ``MAV-``."""
+    return core.picked(rule, chosen, left_out, "MAV-")
 
 
 def _node_line(n: dict[str, Any]) -> str:
@@ -186,23 +152,8 @@ class _Mavlink(core.CapturePlugin):
     def compare(self, golden: str, candidate: str) -> Compared:
         g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)
         ga, ca = conversation(g), conversation(c)
-        diffs = []
-        for role in sorted({*ga, *ca}):
-            a, b = ga.get(role, []), ca.get(role, [])
-            sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
-            for op, i1, i2, j1, j2 in sm.get_opcodes():
-                if op != "equal":
-                    diffs.append({"kind": {"delete": "missing", "insert": "extra", "replace": "changed"}[op],
-                                  "role": role, "golden": [line for _, line in a[i1:i2]],
-                                  "candidate": [line for _, line in b[j1:j2]]})
+        diffs, lines = core.align(ga, ca)
         n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
-        lines = []
-        for d in diffs[:20]:
-            lines.append(f"  {d['kind']} ({d['role']}'s messages):")
-            lines += [f"    golden    {line[:150]}" for line in d["golden"][:3]]
-            lines += [f"    candidate {line[:150]}" for line in d["candidate"][:3]]
-        if len(diffs) > 20:
-            lines.append(f"  ... and {len(diffs) - 20} more")
         return Compared(diffs, lines, f"{n_g} microservice message(s) alike, each sender's in order (heartbeats "
                         "and telemetry not compared)", f" over {n_g} and {n_c} microservice message(s)",
                         [(g.path, g.truncated), (c.path, c.truncated)],
@@ -228,21 +179,9 @@ def frame_line(f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
 
 def run_show(ns: Any, out: TextIO | None = None) -> int:
     core.note("show", ns, "svg", "is not drawn for a MAVLink trace")
-    out = out or sys.stdout
     j = judge_trace(ns.file, keep=True)
-    shown = core.window(ns)
-    span = core.case_window(j.cases, ns.case, j.path) if getattr(ns, "case", None) else None
-    marks: dict[int, list[str]] = {}
-    for v in j.monitor.violations:
-        for i in v.frames:
-            marks.setdefault(i, []).append(v.rule)
-    out.write(f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)\n")
-    for f in j.frames:
-        if shown((f.t_ns - j.first_ns) / 1e9) and (span is None or span[0] <= f.t_ns <= span[1]):
-            out.write(frame_line(f, j, marks) + "\n")
-    if j.truncated:
-        out.write(f"TRUNCATED: {j.truncated}\n")
-    return 0
+    return core.show_frames(j, ns, out or sys.stdout, f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)",
+                            lambda f, marks: frame_line(f, j, marks))
 
 
 # ---------------------------------------------------------------- diff

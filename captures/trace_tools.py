@@ -11,10 +11,14 @@ and takes each subcommand's frame from here:
   verdict), the terminal report (the plug-in's lines, then each rule broken with its level,
   text, examples and how many more, the rules line, the verdict) and the exit code (0 none
   broken, 1 broken);
-- ``show``: the time window (:func:`window`), the case window (:func:`case_window`,
-  :func:`case_at`: a run's case marks);
+- ``show`` (:func:`show_frames`, of a capture read through its monitor: :class:`Judged`,
+  :func:`judge_records`): the time window (:func:`window`), the case window
+  (:func:`case_window`, :func:`case_at`: a run's case marks), each frame a line with the rules
+  its violations name it in, the truncation;
 - ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
-  (exit 0) or each divergence (exit 1);
+  (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
+  (:func:`align`);
+- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`);
 - the one-line notes and refusals of what a protocol does not do (:func:`note`,
   :func:`not_exported`, :func:`not_replayed`).
 
@@ -23,18 +27,20 @@ The text a protocol's records are shown in is its own.
 
 from __future__ import annotations
 
+import difflib
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.traceio.grammar import write_text
-from mcp_conform.traceio.reader import CaptureError, CaseMark
+from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
-__all__ = ["CapturePlugin", "Checked", "Compared", "RuleBlock", "case_at", "case_window", "not_exported",
-           "not_replayed", "note", "run_check", "run_diff", "window"]
+__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window",
+           "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
+           "window"]
 
 
 @dataclass
@@ -200,3 +206,93 @@ def not_replayed(err: TextIO | None, capture: str | Path, why: str) -> int:
     """``replay`` of a capture whose protocol is not replayed: one line, exit 2."""
     (err or sys.stderr).write(f"mcp-capture: error: replay: {capture}: {why}\n")
     return 2
+
+
+def picked(rule: str, chosen: Sequence[str], left_out: Sequence[str], prefix: str = "") -> bool:
+    """``--select``/``--exclude``: prefixes of the rule's ID, with or without the protocol's
+    ``prefix`` of its rules (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
+    names = (rule, rule.removeprefix(prefix))
+    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
+            and not any(n.startswith(x) for n in names for x in left_out))
+
+
+@dataclass
+class Judged:
+    """A capture read through its monitor (fed each frame in order): what ``check``, ``show``
+    and ``diff`` print. ``role``: the role under test the capture names, None: every role."""
+
+    path: str
+    format: str
+    monitor: Any
+    role: str | None
+    frames: list[Any] = field(default_factory=list)  # kept for show and diff only
+    cases: list[CaseMark] = field(default_factory=list)
+    truncated: str | None = None
+    count: int = 0
+
+    @property
+    def first_ns(self) -> int:
+        return int(self.monitor.first_ns or 0)
+
+    def case_at(self, t_ns: int) -> str | None:
+        """The case whose marks hold ``t_ns`` (a run's capture), else None."""
+        return case_at(self.cases, t_ns)
+
+
+def judge_records(j: Judged, records: Iterable[Any], frame: type, *, keep: bool = False) -> Judged:
+    """``records`` read into ``j``: each ``frame`` fed to its monitor (and kept: ``keep``),
+    the case marks, the truncation."""
+    for rec in records:
+        if isinstance(rec, frame):
+            j.monitor.feed(rec)
+            j.count += 1
+            if keep:
+                j.frames.append(rec)
+        elif isinstance(rec, CaseMark):
+            j.cases.append(rec)
+        elif isinstance(rec, Truncated):
+            j.truncated = rec.reason
+    return j
+
+
+def show_frames(j: Judged, ns: Any, out: TextIO, header: str, line: Callable[[Any, dict[int, list[str]]], str]) -> int:
+    """``show`` of a judged capture's kept frames: those in ``--from``/``--to`` and ``--case``,
+    each its ``line`` (given the rules whose violations name each frame index), then the
+    truncation."""
+    shown = window(ns)
+    span = case_window(j.cases, ns.case, j.path) if getattr(ns, "case", None) else None
+    marks: dict[int, list[str]] = {}
+    for v in j.monitor.violations:
+        for i in v.frames:
+            marks.setdefault(i, []).append(v.rule)
+    out.write(header + "\n")
+    for f in j.frames:
+        if shown((f.t_ns - j.first_ns) / 1e9) and (span is None or span[0] <= f.t_ns <= span[1]):
+            out.write(line(f, marks) + "\n")
+    if j.truncated:
+        out.write(f"TRUNCATED: {j.truncated}\n")
+    return 0
+
+
+def align(golden: dict[str, list[tuple[str, str]]], candidate: dict[str, list[tuple[str, str]]], *,
+          shown: int = 20) -> tuple[list[dict[str, Any]], list[str]]:
+    """Two captures' steps, sender by sender ((key compared, line shown), each sender's in its
+    order), aligned by ``difflib``: the divergences (missing, extra, changed) and the
+    terminal's lines of the first ``shown``."""
+    diffs: list[dict[str, Any]] = []
+    for role in sorted({*golden, *candidate}):
+        a, b = golden.get(role, []), candidate.get(role, [])
+        sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
+        for op, i1, i2, j1, j2 in sm.get_opcodes():
+            if op != "equal":
+                diffs.append({"kind": {"delete": "missing", "insert": "extra", "replace": "changed"}[op],
+                              "role": role, "golden": [line for _, line in a[i1:i2]],
+                              "candidate": [line for _, line in b[j1:j2]]})
+    lines = []
+    for d in diffs[:shown]:
+        lines.append(f"  {d['kind']} ({d['role']}'s messages):")
+        lines += [f"    golden    {line[:150]}" for line in d["golden"][:3]]
+        lines += [f"    candidate {line[:150]}" for line in d["candidate"][:3]]
+    if len(diffs) > shown:
+        lines.append(f"  ... and {len(diffs) - shown} more")
+    return diffs, lines
