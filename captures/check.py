@@ -42,8 +42,9 @@ from mcp_conform.traceio.trace import action_name, evidence_indexes
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "run_check", "to_json",
            "validate_json"]
 
-SCHEMA_VERSION = "1.3"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures); 1.3: the
-# challenge and waypoints recorded by a manager-role run (challenge_source "recorded")
+SCHEMA_VERSION = "1.4"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures); 1.3: the
+# challenge and waypoints recorded by a manager-role run (challenge_source "recorded"); 1.4:
+# parameters.rto_declared (the run declared its rto the nodes' own: judge.params.Params.adopt)
 EXAMPLES = 3  # violations shown in full per rule; the rest are counted (all of them in --json)
 NODE_ROWS = 30  # rows of the terminal's nodes table at most (a noisy capture's random IDs)
 NODE_COLUMNS = 6  # node columns of the terminal's rules table at most
@@ -265,7 +266,7 @@ def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = T
         "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
         "file": {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": list(j.notes),
                  "datagrams": j.datagrams, "unattributed": j.unattributed, "duration_s": round(duration, 9)},
-        "parameters": j.params.to_json(),
+        "parameters": {**j.params.to_json(), **({"rto_declared": True} if j.params.rto_declared else {})},
         "nodes": [n.to_json() for n in j.nodes.values()],
         "violations": list(_violations_json(j, evidence)) if violations else [],
         "rules": rules,

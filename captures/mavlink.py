@@ -25,18 +25,18 @@ Mission Planner), read by ``traceio.mavlink``.
 
 from __future__ import annotations
 
-import difflib
 import itertools
-import json
 import sys
-from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
+from mcp_conform.captures import trace_tools as core
+from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
 from mcp_conform.judge.mavlink_monitor import RULES, MavlinkMonitor, Violation
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
-from mcp_conform.traceio.reader import CaptureError, CaseMark, Metadata, Truncated, open_capture
+from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
 
 __all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "judge_trace", "run_check", "run_diff",
            "run_replay", "run_show"]
@@ -60,33 +60,7 @@ def is_finding(path: str | Path) -> bool:
     return False  # no MAVLink fuzz campaign yet: nothing to replay
 
 
-@dataclass
-class Judged:
-    """A trace read through the monitor: what ``check``, ``show`` and ``diff`` print."""
-
-    path: str
-    format: str
-    monitor: MavlinkMonitor
-    role: str | None  # the role under test the capture names, None: every role
-    frames: list[MavFrame] = field(default_factory=list)  # kept for show and diff only
-    cases: list[CaseMark] = field(default_factory=list)
-    truncated: str | None = None
-    count: int = 0
-
-    @property
-    def first_ns(self) -> int:
-        return self.monitor.first_ns or 0
-
-    def case_at(self, t_ns: int) -> str | None:
-        """The case whose marks hold ``t_ns`` (our MCAP), else None."""
-        open_: dict[str, int] = {}
-        found = None
-        for m in self.cases:
-            if m.event == "start":
-                open_[m.case] = m.t_ns
-            elif m.case in open_ and open_[m.case] <= t_ns <= m.t_ns:
-                found = m.case
-        return found
+Judged = core.Judged
 
 
 def _role_under_test(trace: MavTrace) -> str | None:
@@ -108,17 +82,7 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
     trace = open_trace(path)
     role = _role_under_test(trace)
     mon = MavlinkMonitor(roles=(role,) if role else ("vehicle", "gcs"), complete=trace.complete)
-    j = Judged(str(path), trace.format, mon, role)
-    for rec in trace:
-        if isinstance(rec, MavFrame):
-            mon.feed(rec)
-            j.count += 1
-            if keep:
-                j.frames.append(rec)
-        elif isinstance(rec, CaseMark):
-            j.cases.append(rec)
-        elif isinstance(rec, Truncated):
-            j.truncated = rec.reason
+    j = core.judge_records(Judged(str(path), trace.format, mon, role), trace, MavFrame, keep=keep)
     if not j.count:
         raise CaptureError(f"{path}: no MAVLink frame in it (an MCAP of mcp-conform --protocol mavlink, "
                            "or a .tlog, holds them)")
@@ -127,11 +91,8 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
 
 
 def picked(rule: str, chosen: tuple[str, ...], left_out: tuple[str, ...]) -> bool:
-    """``--select``/``--exclude`` as for MCP's rules: prefixes of the rule's ID, with or
-    without its ``MAV-`` (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
-    names = (rule, rule.removeprefix("MAV-"))
-    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
-            and not any(n.startswith(x) for n in names for x in left_out))
+    """``--select``/``--exclude`` as for MCP's rules, with or without ``MAV-``."""
+    return core.picked(rule, chosen, left_out, "MAV-")
 
 
 def _node_line(n: dict[str, Any]) -> str:
@@ -146,67 +107,61 @@ def _node_line(n: dict[str, Any]) -> str:
 
 def _violation_line(j: Judged, v: Violation) -> str:
     case = j.case_at(v.t_ns)
-    return (f"  node {v.node} ({v.role}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
+    return (f"node {v.node} ({v.role}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
             f"{f' in {case}' if case else ''}: expected {v.expected}; actual {v.actual}")
 
 
-# ---------------------------------------------------------------- check
-def run_check(ns: Any, out: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    if getattr(ns, "html", None):
-        sys.stderr.write("mcp-capture check: note: --html is not written for a MAVLink trace (use --json)\n")
-    j = judge_trace(ns.file)
-    mon = j.monitor
-    chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
-    rules = [r for r in RULES if picked(r, chosen, left_out)]
-    verdicts = mon.verdicts()
-    strict = bool(getattr(ns, "strict", False))
-    failed = [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
-    shown = [r for r in rules if verdicts[r] in ("failed", "warned")]
-    verdict = "FAILED" if failed else ("INCOMPLETE" if j.truncated else "OK")
-    if getattr(ns, "json", None):
-        from mcp_conform.traceio.grammar import write_text
+class _Mavlink(core.CapturePlugin):
+    name, spec, a_capture, html_instead = "mavlink", MAVLINK, "a MAVLink trace", "use --json"
 
-        doc = {"protocol": "mavlink", "file": j.path, "format": j.format, "truncated": j.truncated,
+    def check(self, ns: Any) -> Checked:
+        j = judge_trace(ns.file)
+        mon = j.monitor
+        chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
+        rules = [r for r in RULES if picked(r, chosen, left_out)]
+        verdicts = mon.verdicts()
+        strict = bool(getattr(ns, "strict", False))
+        failed = [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
+        examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
+        doc = {"file": j.path, "format": j.format, "truncated": j.truncated,
                "frames": j.count, "roles": list(mon.roles), "complete": mon.complete,
                "nodes": mon.to_json()["nodes"], "rules": {r: verdicts[r] for r in rules},
                "failed_count": {r: mon.failed_count[r] for r in rules if mon.failed_count[r]},
                "violations": [{**{k: (list(x) if isinstance(x, tuple) else x) for k, x in v._asdict().items()},
                                "case": j.case_at(v.t_ns)} for v in mon.violations if v.rule in rules],
-               "unattributed_bad_frames": mon.unattributed_bad, "verdict": verdict}
-        write_text(ns.json, json.dumps(doc, indent=1) + "\n")
-    examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
-
-    def report() -> None:
+               "unattributed_bad_frames": mon.unattributed_bad}
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
         who = f"the {j.role}'s rules" if j.role else "every node by its role"
-        out.write(f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}\n")
-        for n in mon.to_json()["nodes"][:30]:
-            out.write(_node_line(n) + "\n")
+        head = [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}",
+                *(_node_line(n) for n in mon.to_json()["nodes"][:30])]
         if j.truncated:
-            out.write(f"TRUNCATED: {j.truncated} (judged up to there)\n")
+            head.append(f"TRUNCATED: {j.truncated} (judged up to there)")
         if mon.unattributed_bad:
-            out.write(f"note: {mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say "
-                      "who sent them: not judged)\n")
+            head.append(f"note: {mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say "
+                        "who sent them: not judged)")
         if not mon.complete:
-            out.write("note: MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame of "
-                      "its link (our MCAP): a tlog's gap may be a frame lost on the way\n")
-        for rule in shown:
-            r = MAVLINK.rule(rule)
-            out.write(f"{rule} {r.level}: {r.text}\n")
+            head.append("note: MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame of "
+                        "its link (our MCAP): a tlog's gap may be a frame lost on the way")
+        blocks = []
+        for rule in (r for r in rules if verdicts[r] in ("failed", "warned")):
             vs = [v for v in mon.violations if v.rule == rule]
-            for v in vs[:examples]:
-                out.write(_violation_line(j, v) + "\n")
-                for e in v.evidence:
-                    out.write(f"    {e}\n")
-            if mon.failed_count[rule] > min(len(vs), examples):
-                out.write(f"  ... and {mon.failed_count[rule] - min(len(vs), examples)} more\n")
-        out.write("rules: " + ", ".join(f"{r} {verdicts[r]}" for r in rules) + "\n")
-        out.write(f"verdict: {verdict}\n")
-    from mcp_conform.captures.cli import to_terminal
+            blocks.append(RuleBlock(rule, [(_violation_line(j, v), v.evidence) for v in vs[:examples]],
+                                    mon.failed_count[rule] - min(len(vs), examples)))
+        return Checked(head, blocks, [(r, verdicts[r]) for r in rules], bool(failed), j.truncated, doc)
 
-    to_terminal(report)
-    return 1 if failed else 0
+    def compare(self, golden: str, candidate: str) -> Compared:
+        g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)
+        ga, ca = conversation(g), conversation(c)
+        diffs, lines = core.align(ga, ca)
+        n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
+        return Compared(diffs, lines, f"{n_g} microservice message(s) alike, each sender's in order (heartbeats "
+                        "and telemetry not compared)", f" over {n_g} and {n_c} microservice message(s)",
+                        [(g.path, g.truncated), (c.path, c.truncated)],
+                        doc={"golden_steps": n_g, "candidate_steps": n_c})
+
+
+PLUGIN = _Mavlink()
+run_check = partial(core.run_check, PLUGIN)
 
 
 # ---------------------------------------------------------------- show
@@ -223,38 +178,10 @@ def frame_line(f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
 
 
 def run_show(ns: Any, out: TextIO | None = None) -> int:
-    from mcp_conform.captures.cli import UsageError
-
-    out = out or sys.stdout
-    if getattr(ns, "svg", None):
-        sys.stderr.write("mcp-capture show: note: --svg is not drawn for a MAVLink trace\n")
+    core.note("show", ns, "svg", "is not drawn for a MAVLink trace")
     j = judge_trace(ns.file, keep=True)
-    lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
-    hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
-    window = None
-    if getattr(ns, "case", None):
-        ids = list(dict.fromkeys(m.case for m in j.cases))
-        match = [c for c in ids if c == ns.case] or [c for c in ids if c.startswith(ns.case)]
-        if len(match) != 1:
-            what = "has no case marks" if not ids else ("matches several cases" if match else "is not a case of it")
-            raise UsageError(f"--case: {ns.case!r}: {j.path} {what}")
-        marks_of = [m.t_ns for m in j.cases if m.case == match[0]]
-        window = (min(marks_of), max(marks_of))
-    marks: dict[int, list[str]] = {}
-    for v in j.monitor.violations:
-        for i in v.frames:
-            marks.setdefault(i, []).append(v.rule)
-    out.write(f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)\n")
-    for f in j.frames:
-        rel = (f.t_ns - j.first_ns) / 1e9
-        if (lo is not None and rel < lo) or (hi is not None and rel > hi):
-            continue
-        if window is not None and not window[0] <= f.t_ns <= window[1]:
-            continue
-        out.write(frame_line(f, j, marks) + "\n")
-    if j.truncated:
-        out.write(f"TRUNCATED: {j.truncated}\n")
-    return 0
+    return core.show_frames(j, ns, out or sys.stdout, f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)",
+                            lambda f, marks: frame_line(f, j, marks))
 
 
 # ---------------------------------------------------------------- diff
@@ -275,49 +202,15 @@ def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
 
 
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    g, c = judge_trace(args.golden, keep=True), judge_trace(args.candidate, keep=True)
-    ga, ca = conversation(g), conversation(c)
-    diffs = []
-    for role in sorted({*ga, *ca}):
-        a, b = ga.get(role, []), ca.get(role, [])
-        sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
-        for op, i1, i2, j1, j2 in sm.get_opcodes():
-            if op != "equal":
-                diffs.append({"kind": {"delete": "missing", "insert": "extra", "replace": "changed"}[op], "role": role,
-                              "golden": [line for _, line in a[i1:i2]], "candidate": [line for _, line in b[j1:j2]]})
-    n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
-    for side in (g, c):
-        if side.truncated:
-            out.write(f"note: {side.path} is TRUNCATED: {side.truncated}\n")
-    if getattr(args, "json", None):
-        from mcp_conform.traceio.grammar import write_text
-
-        write_text(args.json, json.dumps({"protocol": "mavlink", "same": not diffs, "golden_steps": n_g,
-                                          "candidate_steps": n_c, "divergences": diffs}, indent=1) + "\n")
-    if not diffs:
-        out.write(f"same: {n_g} microservice message(s) alike, each sender's in order (heartbeats and telemetry "
-                  "not compared)\n")
-        return 0
-    out.write(f"different: {len(diffs)} divergence(s) over {n_g} and {n_c} microservice message(s)\n")
-    for d in diffs[:20]:
-        out.write(f"  {d['kind']} ({d['role']}'s messages):\n")
-        for line in d["golden"][:3]:
-            out.write(f"    golden    {line[:150]}\n")
-        for line in d["candidate"][:3]:
-            out.write(f"    candidate {line[:150]}\n")
-    if len(diffs) > 20:
-        out.write(f"  ... and {len(diffs) - 20} more\n")
-    return 1
+    return core.run_diff(PLUGIN, args, out)
 
 
 # ---------------------------------------------------------------- not MAVLink's
 def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
-    raise CaptureError(f"{capture}: a MAVLink trace is not exported as pcap (its frames have no UDP "
-                       "datagrams of their own; show and diff read it as it is)")
+    raise core.not_exported(capture, "a MAVLink trace is not exported as pcap (its frames have no UDP "
+                            "datagrams of their own; show and diff read it as it is)")
 
 
 def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    (err or sys.stderr).write(f"mcp-capture: error: replay: {args.capture}: a MAVLink trace is not replayed "
-                              "(no MAVLink fuzz findings yet: judge it with check)\n")
-    return 2
+    return core.not_replayed(err, args.capture, "a MAVLink trace is not replayed (no MAVLink fuzz findings "
+                             "yet: judge it with check)")

@@ -26,17 +26,18 @@ retransmitted segments, both directions, any number of connections, bounded in m
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
-from mcp_conform.judge.nsqd_monitor import RULES, StreamMonitor
+from mcp_conform.captures import stream_tools, trace_tools
+from mcp_conform.judge.nsqd_monitor import StreamMonitor
 from mcp_conform.spec import NSQD
-from mcp_conform.spec.nsqd_codec import Deframer, Frame
-from mcp_conform.traceio.nsqd import StreamGap, is_stream_capture, stream_records
-from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated
+from mcp_conform.spec.nsqd_codec import Deframer, Frame, decode_body
+from mcp_conform.traceio.nsqd import BACKEND_PORT, is_stream_capture, stream_records
+from mcp_conform.traceio.reader import StreamFrame
 
 __all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "run_check", "run_diff", "run_replay", "run_show"]
 
@@ -44,96 +45,26 @@ __all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "run_check", "
 EXPORTED = "TCP packets"
 
 
-def _addr(a: Any) -> str:
-    return f"{a[0]}:{a[1]}" if a else "?"
+class _Nsqd(stream_tools.StreamPlugin):
+    name, spec, a_capture, html_instead, title = "nsqd", NSQD, "an Nsqd capture", "use show --svg", "Nsqd capture"
+    monitor, port = StreamMonitor, BACKEND_PORT
 
+    def records(self, path: str) -> Iterator[Any]:
+        return stream_records(path)
 
-#: Connections listed (and compared by diff) at most; the rest are counted (a hostile capture's
-#: flood of connections stays bounded in memory). Steps kept per connection for diff, likewise.
-MAX_LISTED = 10000
-MAX_STEPS = 100000
-MAX_GAPS = 1000
+    def deframer(self) -> Deframer:
+        return Deframer(NSQD)
 
+    def client_step(self, item: Any) -> str:
+        return str(item.raw.hex()) if isinstance(item, Frame) else f"unframed: {item.reason}"
 
-class _Conns:
-    """What a capture holds, per connection (the first :data:`MAX_LISTED`), with the monitor's
-    judgement of every connection."""
-
-    def __init__(self, path: str, *, steps: bool = False) -> None:
-        self.path = path
-        self.steps = steps  # keep each connection's steps (diff)
-        self.monitor = StreamMonitor(NSQD)
-        self.conns: dict[int, dict[str, Any]] = {}
-        self.n_conns = 0  # connections are numbered 1, 2, ... in both kinds of capture
-        self.truncated: str | None = None
-        self.gaps: list[StreamGap] = []
-        self.n_gaps = 0
-        self.first_ns: int | None = None
-
-    def conn(self, n: int) -> dict[str, Any] | None:
-        c = self.conns.get(n)
-        if c is None:
-            self.n_conns = max(self.n_conns, n)
-            if len(self.conns) >= MAX_LISTED:
-                return None
-            c = self.conns[n] = {"client": None, "backend": None, "tx": 0, "rx": 0, "end": [], "answers": []}
-        return c
-
-    def _step(self, c: dict[str, Any], step: tuple[str, str]) -> None:
-        if self.steps and len(c["answers"]) < MAX_STEPS:
-            c["answers"].append(step)
-
-    def read(self) -> _Conns:
-        for rec in stream_records(self.path):
-            kind = type(rec)
-            if kind is Truncated:
-                self.truncated = rec.reason
-                continue
-            t = getattr(rec, "t_ns", None)
-            if t is not None and self.first_ns is None:
-                self.first_ns = t
-            if kind is StreamFrame:
-                c = self.conn(rec.conn)
-                if rec.direction == "rx":
-                    self.monitor.backend_bytes(rec.conn, rec.raw, rec.t_ns)
-                if c is None:
-                    continue
-                if rec.direction == "tx":  # compared as frames: writes and segments cut them differently
-                    c["tx"] += len(rec.raw)
-                    if self.steps:
-                        d = c.setdefault("deframer", Deframer(NSQD))
-                        for item in d.feed(rec.raw):
-                            self._step(c, ("client", item.raw.hex() if isinstance(item, Frame)
-                                           else f"unframed: {item.reason}"))
-                    continue
-                c["rx"] += 1
-                if self.steps and len(c["answers"]) < MAX_STEPS:
-                    _answer(c["answers"], rec)
-            elif kind is StreamEvent:
-                c = self.conn(rec.conn)
-                if c is None:
-                    continue
-                if rec.event == "open":
-                    c["client"], c["backend"] = rec.client, rec.backend
-                else:
-                    c["end"].append(f"{rec.by} {rec.how}")
-                    self._step(c, ("close", f"{rec.by} {rec.how}"))
-            elif kind is StreamGap:
-                self.n_gaps += 1
-                if len(self.gaps) < MAX_GAPS:
-                    self.gaps.append(rec)
-                if rec.direction == "rx":
-                    self.monitor.unjudgeable(rec.conn, rec.reason)
-        return self
-
-
-def _answer(answers: list[Any], rec: StreamFrame) -> None:
-    """The backend's frame as the diff compares it; identical neighbours folded."""
-    if rec.problem:
-        key = ("frame", f"refused: {rec.problem}")
-    elif rec.name == "UPDATE":
-        from mcp_conform.spec.nsqd_codec import decode_body
-
+    def answer(self, rec: StreamFrame) -> tuple[str, str]:
+        """The backend's frame as the diff compares it: UPDATE by its state (its period differs
+        run to run, and repeated identical ones are folded)."""
+        if rec.problem:
+            return "frame", f"refused: {rec.problem}"
+        if rec.name != "UPDATE":
+            return "frame", rec.name or f"id {rec.raw[4] if len(rec.raw) > 4 else '?'}"
         item = Deframer(NSQD).feed(rec.raw)
         state = None
         if item and isinstance(item[0], Frame):
@@ -141,153 +72,21 @@ def _answer(answers: list[Any], rec: StreamFrame) -> None:
                 state = decode_body(NSQD, item[0].msg_id, item[0].body, check_text=False).as_dict().get("state")
             except ValueError:
                 state = None
-        key = ("frame", f"UPDATE state {NSQD.state_name(state) if state is not None else '?'}")
-    else:
-        key = ("frame", rec.name or f"id {rec.raw[4] if len(rec.raw) > 4 else '?'}")
-    if not answers or answers[-1] != key:
-        answers.append(key)
+        return "frame", f"UPDATE state {NSQD.state_name(state) if state is not None else '?'}"
 
-
-# ---------------------------------------------------------------- check
-ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
-
-
-def run_check(ns: Any, out: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    if getattr(ns, "html", None):
-        sys.stderr.write("mcp-capture check: note: --html is not written for an Nsqd capture (use show --svg)\n")
-    seen = _Conns(ns.file).read()
-    verdicts = seen.monitor.verdicts()
-    failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
-    broke = {c.conn: r for r in failed for c in verdicts[r][1]}
-    out.write(f"{ns.file}: Nsqd capture, {seen.n_conns} connection(s)\n")
-    if seen.truncated:
-        out.write(f"TRUNCATED: {seen.truncated} (judged up to there)\n")
-    for g in seen.gaps[:20]:
-        out.write(f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}\n")
-    if seen.n_gaps > 20:
-        out.write(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture\n")
-    for n, c in sorted(seen.conns.items())[:ROWS]:
-        rules = [broke[n]] if n in broke else []
-        out.write(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
-                  f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
-                  f"{'; BROKE ' + ', '.join(rules) if rules else ''}\n")
-    if seen.n_conns > ROWS:
-        out.write(f"  ... and {seen.n_conns - ROWS} more connection(s)\n")
-    for rule in failed:
-        bad, n_bad = verdicts[rule][1], verdicts[rule][2]
-        r = NSQD.rule(rule)
-        out.write(f"{rule} {r.level}: {r.text}\n")
-        for cv in bad[:3]:
-            v, t = cv.violation  # type: ignore[misc]
-            rel = (t - (seen.first_ns or t)) / 1e9
-            out.write(f"  conn {cv.conn} at +{rel:.6f}s: expected {v.expected}; actual {v.actual}\n")
-            for e in v.evidence:
-                out.write(f"    {e}\n")
-        if n_bad > 3:
-            out.write(f"  ... and {n_bad - 3} more connection(s)\n")
-    out.write("rules: " + ", ".join(f"{r} {verdicts[r][0]}" for r in RULES) + "\n")
-    out.write("(the rules judged by what the runner's cases send need mcp-conform --protocol nsqd)\n")
-    verdict = "FAILED" if failed else ("INCOMPLETE" if seen.truncated else "OK")
-    out.write(f"verdict: {verdict}\n")
-    if getattr(ns, "json", None):
-        doc = {"protocol": "nsqd", "file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
-               "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
-                                "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
-                               for n, c in sorted(seen.conns.items())],
-               "rules": {r: verdicts[r][0] for r in RULES},
-               "failed_connections": {r: verdicts[r][2] for r in RULES},
-               "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violation[1],  # type: ignore[index]
-                               "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
-                               "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
-                              for r in failed for c in verdicts[r][1]],
-               "gaps": [g._asdict() for g in seen.gaps], "verdict": verdict}
-        Path(ns.json).write_text(json.dumps(doc, indent=1) + "\n")
-    return 1 if failed else 0
-
-
-# ---------------------------------------------------------------- show
-def _line(rec: Any, first: int) -> str:
-    t = f"+{(rec.t_ns - first) / 1e9:.6f}s"
-    kind = type(rec)
-    if kind is StreamEvent:
-        if rec.event == "open":
-            return f"{t} conn {rec.conn} opened {_addr(rec.client)} -> {_addr(rec.backend)}"
-        return f"{t} conn {rec.conn} closed by the {rec.by} ({(rec.how or '').upper()})"
-    if kind is StreamGap:
-        return f"{t} conn {rec.conn} {rec.direction} GAP: {rec.reason}"
-    arrow = "client -> backend" if rec.direction == "tx" else "backend -> client"
-    what = rec.name or ("bytes" if rec.direction == "tx" else "?")
-    problem = f" [{rec.problem}]" if rec.problem else ""
-    return f"{t} conn {rec.conn} {arrow} {what} {len(rec.raw)} B: {rec.raw[:24].hex(' ')}" \
-           f"{' …' if len(rec.raw) > 24 else ''}{problem}"
-
-
-def run_show(ns: Any, out: TextIO | None = None) -> int:
-    """Each record a line as it is read (nothing kept but the chart's frames, up to
-    ``--max-rows``)."""
-    out = out or sys.stdout
-    lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
-    hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
-    rows = int(getattr(ns, "max_rows", 400) or 400)
-    out.write(f"{ns.file}: Nsqd capture\n")
-    shown: list[StreamFrame] = []
-    first: int | None = None
-    conns = 0
-    for rec in stream_records(ns.file):
-        if type(rec) is Truncated:
-            out.write(f"TRUNCATED: {rec.reason}\n")
-            continue
-        if type(rec) not in (StreamFrame, StreamEvent, StreamGap):
-            continue
-        first = rec.t_ns if first is None else first
-        conns = max(conns, rec.conn)
-        rel = (rec.t_ns - first) / 1e9
-        if (lo is not None and rel < lo) or (hi is not None and rel > hi):
-            continue
-        out.write(_line(rec, first) + "\n")
-        if type(rec) is StreamFrame and len(shown) < rows:
-            shown.append(rec)
-    out.write(f"{conns} connection(s)\n")
-    if getattr(ns, "svg", None):
+    def chart(self, frames: list[StreamFrame], title: str) -> str:
         from mcp_conform.reports.nsqd_chart import stream_svg
 
-        Path(ns.svg).write_text(stream_svg(shown, title=str(ns.file)))
-    return 0
+        return stream_svg(frames, title=title)
 
 
-# ---------------------------------------------------------------- diff
+PLUGIN = _Nsqd()
+run_check = partial(trace_tools.run_check, PLUGIN)
+run_show = partial(stream_tools.run_show, PLUGIN)
+
+
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    out = out or sys.stdout
-    g, c = _Conns(args.golden, steps=True).read(), _Conns(args.candidate, steps=True).read()
-    diffs: list[str] = []
-    if g.n_conns != c.n_conns:
-        diffs.append(f"connections: {g.n_conns} in the golden, {c.n_conns} in the candidate")
-    if max(g.n_conns, c.n_conns) > MAX_LISTED:
-        out.write(f"note: only the first {MAX_LISTED} connections of each are compared\n")
-    for (gn, gc), (cn, cc) in zip(sorted(g.conns.items()), sorted(c.conns.items()), strict=False):
-        ga, ca = gc["answers"] + [("client bytes", str(gc["tx"]))], cc["answers"] + [("client bytes", str(cc["tx"]))]
-        for i, (x, y) in enumerate(zip(ga, ca, strict=False)):
-            if x != y:
-                diffs.append(f"conn {gn}/{cn} step {i + 1}: golden {x[0]} {x[1][:80]}; candidate {y[0]} {y[1][:80]}")
-                break
-        else:
-            if len(ga) != len(ca):
-                longer, which = (ga, "golden") if len(ga) > len(ca) else (ca, "candidate")
-                nxt = longer[min(len(ga), len(ca))]
-                diffs.append(f"conn {gn}/{cn}: only the {which} goes on: {nxt[0]} {nxt[1][:80]}")
-    for s in (g, c):
-        if s.truncated:
-            out.write(f"note: {s.path} is TRUNCATED: {s.truncated}\n")
-    if not diffs:
-        out.write(f"same: {g.n_conns} connection(s), the client's writes and the backend's answers alike\n")
-        return 0
-    out.write(f"different: {len(diffs)} divergence(s)\n")
-    for d in diffs[:50]:
-        out.write(f"  {d}\n")
-    if getattr(args, "json", None):
-        Path(args.json).write_text(json.dumps({"protocol": "nsqd", "same": False, "divergences": diffs}, indent=1) + "\n")
-    return 1
+    return trace_tools.run_diff(PLUGIN, args, out)
 
 
 # ---------------------------------------------------------------- replay
@@ -316,15 +115,13 @@ def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) 
     from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
     from mcp_conform.harness.errors import SetupError
 
-    err = err or sys.stderr
     if not is_finding(args.capture):
-        err.write(f"mcp-capture: error: replay: {args.capture}: an Nsqd capture is replayed as a fuzz "
-                  "finding only (its directory, finding.json, repro.mcap or repro.pcap)\n")
-        return 2
+        return trace_tools.not_replayed(err, args.capture, "an Nsqd capture is replayed as a fuzz finding only "
+                                        "(its directory, finding.json, repro.mcap or repro.pcap)")
     try:
         return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
     except SetupError as exc:
-        err.write(f"mcp-capture: error: replay: {exc}\n")
+        (err or sys.stderr).write(f"mcp-capture: error: replay: {exc}\n")
         return 2
 
 
@@ -332,24 +129,4 @@ def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
     """``mcp-capture export``: an Nsqd capture's TCP conversations (``traceio.tcp_pcap``,
     NSQD-*): (packets written, the capture's truncation reason or None); errors as
     ``captures.export.export_pcap``'s."""
-    from mcp_conform.captures.export import whole_or_none
-    from mcp_conform.traceio.nsqd import BACKEND_PORT, stream_records
-    from mcp_conform.traceio.pcap_out import FrameError
-    from mcp_conform.traceio.reader import CaptureError, Truncated
-    from mcp_conform.traceio.tcp_pcap import write_tcp_pcap
-
-    truncated: list[str] = []
-
-    with whole_or_none(Path(out)) as output:
-        def records() -> Iterator[Any]:
-            output.opened = True  # write_tcp_pcap asks for the first record once its writer is open
-            for rec in stream_records(capture):
-                if type(rec) is Truncated:
-                    truncated.append(rec.reason)
-                yield rec
-
-        try:
-            n = write_tcp_pcap(out, records(), BACKEND_PORT)
-        except FrameError as exc:  # a time a pcap cannot hold, an address not IPv4
-            raise CaptureError(f"{capture}: {exc}") from None
-    return n, truncated[0] if truncated else None
+    return stream_tools.export_pcap(PLUGIN, capture, out)

@@ -30,9 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import itertools
-import json
-import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -48,14 +45,13 @@ from mcp_conform.traceio.reader import (
     Truncated,
     open_capture,
 )
+from mcp_conform.traceio.traces import claims, corrupt, head_of, is_mcap_head, recorded_protocol
 
 __all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "is_tlog", "mavlink_records", "open_trace", "parse_frame"]
 
 DIALECT: Any = MAVLINK.dialect
 #: the start markers of a MAVLink 1 and a MAVLink 2 frame (the dialect's)
 MARKERS = frozenset({int(DIALECT.PROTOCOL_MARKER_V1), int(DIALECT.PROTOCOL_MARKER_V2)})
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
-_PEEK = 500  # MCAP records looked at to tell a MAVLink run's capture from an MCP or Nsqd one
 #: timestamps a tlog's first record may carry (µs since 1970: 1990 .. 2100): a file whose
 #: first 8 bytes are no such time is not a tlog, whatever byte follows them
 _PLAUSIBLE_US = (631152000 * 10**6, 4102444800 * 10**6)
@@ -115,22 +111,13 @@ class MavTrace:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.truncated: str | None = None
-        name = str(self.path)
-        try:
-            size = os.path.getsize(self.path)
-            with open(self.path, "rb") as f:
-                head = f.read(17)
-        except OSError as exc:
-            raise CaptureError(f"{name}: cannot read: {exc.strerror or exc}") from None
-        if size == 0:
-            raise CaptureError(f"{name}: empty file, not a MAVLink trace (a .tlog or an MCAP of mcp-conform)")
-        self.size = size
-        if head[:8] == _MCAP_MAGIC or (len(head) < 8 and _MCAP_MAGIC.startswith(head)):
+        self.size, head = head_of(self.path, 17, "a MAVLink trace (a .tlog or an MCAP of mcp-conform)")
+        if is_mcap_head(head):
             self.format = "mcap"
         elif _tlog_head(head):
             self.format = "tlog"
         else:
-            raise CaptureError(f"{name}: not a MAVLink trace (starts {head[:9].hex(' ')}): a .tlog's "
+            raise CaptureError(f"{self.path}: not a MAVLink trace (starts {head[:9].hex(' ')}): a .tlog's "
                                "records are an 8-byte big-endian microsecond time and a MAVLink frame")
         self.complete = self.format == "mcap"
 
@@ -150,7 +137,7 @@ class MavTrace:
             elif isinstance(rec, Truncated):
                 self.truncated = rec.reason
                 if not n and cap.corrupt:
-                    raise CaptureError(f"{self.path}: MCAP file corrupt, nothing could be read: {rec.reason}")
+                    raise corrupt(self.path, "MCAP", rec.reason)
                 yield rec
             elif isinstance(rec, (CaseMark, Metadata)):
                 yield rec
@@ -231,26 +218,12 @@ def is_mavlink_capture(path: str | Path) -> bool:
         return False
     if trace.format == "tlog":
         return is_tlog(path)
-    frames = False
     try:
-        for rec in itertools.islice(open_capture(path), _PEEK):
-            if isinstance(rec, Metadata):
-                protocol = _protocol_of(rec)
-                if protocol is not None:
-                    return protocol == "mavlink"
-            elif isinstance(rec, (Datagram, StreamFrame)):
-                return False
-            elif isinstance(rec, MavlinkFrame):
-                frames = True
+        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), _says, first=False)
     except CaptureError:
         return False
-    return frames
 
 
-def _protocol_of(meta: Metadata) -> str | None:
-    """The ``--protocol`` of the run a capture's metadata record describes, if it says."""
-    try:
-        value = json.loads(meta.data.get("parameters", "{}")).get("protocol")
-    except (ValueError, AttributeError):
-        return None
-    return value if isinstance(value, str) else None
+def _says(meta: Metadata) -> bool | None:
+    protocol = recorded_protocol(meta)
+    return None if protocol is None else protocol == "mavlink"

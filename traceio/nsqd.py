@@ -13,7 +13,6 @@ connection and the backend's bytes go through the spec's deframer as the runner'
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,6 @@ from mcp_conform.spec.nsqd_codec import Deframer, Frame
 from mcp_conform.spec.profiles import PROFILES
 from mcp_conform.traceio.reader import (
     Capture,
-    CaptureError,
     CaseMark,
     Datagram,
     Metadata,
@@ -32,12 +30,12 @@ from mcp_conform.traceio.reader import (
     Truncated,
     open_capture,
 )
-from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
+from mcp_conform.traceio.tcp import StreamGap
+from mcp_conform.traceio.traces import PEEK, claims, closing, records_of, stream_pcap_records
 
 __all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
 
 BACKEND_PORT = NSQD.port("backend")
-_PEEK = 500  # records or packets looked at to tell the protocol
 #: the protocols whose captures this module reads (their profile's framing is ``stream``: their
 #: frames are on their stream channels), as a run's metadata record names them
 _READ_HERE = frozenset(p.name for p in PROFILES.values() if p.framing == "stream")
@@ -49,6 +47,13 @@ def _name(raw: bytes) -> str | None:
             and NSQD.has_message(head[0].msg_id):
         return NSQD.message(head[0].msg_id).name
     return None
+
+
+def _frame(item: Any) -> tuple[str | None, str | None]:
+    """(name, problem) of what the backend's deframer gave: a frame, or bytes it refused."""
+    if isinstance(item, Frame):
+        return (NSQD.message(item.msg_id).name if NSQD.has_message(item.msg_id) else None), None
+    return None, item.reason
 
 
 _BACKEND_IDS = {NSQD.message("UPDATE").id, NSQD.message("ERROR").id}
@@ -69,73 +74,20 @@ def is_stream_capture(path: str | Path) -> bool:
     port or starts with a whole Nsqd frame (a backend on another port)."""
     cap = open_capture(path)
     if cap.format == "mcap":
-        for rec in itertools.islice(cap, _PEEK):
-            kind = type(rec)
-            if isinstance(rec, Metadata) and rec.data.get("protocol") in _READ_HERE:
-                return True
-            if kind in (StreamFrame, StreamEvent):
-                return True
-            if kind is Datagram:
-                return False
-        return False
+        return claims(cap, (StreamFrame, StreamEvent), (Datagram,),
+                      lambda m: True if m.data.get("protocol") in _READ_HERE else None, first=True)
     from mcp_conform.traceio.tcp import tcp_segments
 
-    try:
-        for seg in tcp_segments(cap, _PEEK):
-            if BACKEND_PORT in (seg.src[1], seg.dst[1]) or _name(seg.payload[:_frame_len(seg.payload)]):
-                return True
-        return False
-    finally:
-        if cap._reader is not None:
-            cap._reader.close()
+    with closing(cap):
+        return any(BACKEND_PORT in (seg.src[1], seg.dst[1]) or _name(seg.payload[:_frame_len(seg.payload)])
+                   for seg in tcp_segments(cap, PEEK))
 
 
 def stream_records(path: str | Path, cap: Capture | None = None) -> Iterator[Any]:
     """The records of an Nsqd capture (see the module docstring); ``cap``: an opened one."""
     cap = cap or open_capture(path)
     if cap.format == "mcap":
-        for rec in cap:
-            if type(rec) in (StreamFrame, StreamEvent, CaseMark, Metadata, Truncated):
-                yield rec
+        yield from records_of(cap, (StreamFrame, StreamEvent, CaseMark, Metadata, Truncated))
         return
-    try:
-        yield from _pcap_records(cap)
-    finally:
-        if cap._reader is not None:
-            cap._reader.close()
-
-
-def _pcap_records(cap: Capture) -> Iterator[Any]:
-    deframers: dict[int, Deframer] = {}
-    broken: set[int] = set()
-    n = events = 0
-    for ev in tcp_events(cap, BACKEND_PORT, _backend_speaks):
-        events += 1
-        kind = type(ev)
-        if kind is StreamData:
-            if ev.direction == "tx":
-                yield StreamFrame(n, ev.t_ns, "tx", ev.conn, _name(ev.data), None, ev.data)
-                n += 1
-                continue
-            if ev.conn in broken:
-                yield StreamFrame(n, ev.t_ns, "rx", ev.conn, None, "after a gap in the capture: not framed", ev.data)
-                n += 1
-                continue
-            d = deframers.setdefault(ev.conn, Deframer(NSQD))
-            for item in d.feed(ev.data):
-                if isinstance(item, Frame):
-                    name = NSQD.message(item.msg_id).name if NSQD.has_message(item.msg_id) else None
-                    yield StreamFrame(n, ev.t_ns, "rx", ev.conn, name, None, item.raw)
-                else:
-                    yield StreamFrame(n, ev.t_ns, "rx", ev.conn, None, item.reason, item.raw)
-                n += 1
-        elif kind is StreamGap:
-            if ev.direction == "rx":
-                broken.add(ev.conn)
-            yield ev
-        else:
-            yield ev
-    if cap.truncated is not None:
-        if cap.corrupt and not events:
-            raise CaptureError(f"{cap.path}: {cap.format} file corrupt, nothing could be read: {cap.truncated}")
-        yield Truncated(cap.truncated)
+    with closing(cap):
+        yield from stream_pcap_records(cap, BACKEND_PORT, _backend_speaks, lambda: Deframer(NSQD), _name, _frame)

@@ -164,3 +164,28 @@ def test_html_report_of_a_faulty_pcap(tmp_path):
     no_external_assets(html)
     assert html.count('<section class="finding') == 1 and 'data-rule="MCP-ACK-6"' in html
     assert 'class="arrow ack violation"' in html or "violation" in html.split('data-rule="MCP-ACK-6"', 1)[1]
+
+
+@pytest.mark.parametrize("declared", [True, False], ids=["declared", "assumed"])
+def test_a_capture_declaring_its_rto_says_so_in_a_report_the_schema_takes(tmp_path, declared):
+    """A run that set the nodes' timeout itself records its rto as declared (the run
+    parameters' ``rto_declared``, ``judge.params.Params.adopt``): ``check --json`` says the
+    monitor judged with it declared (``parameters.rto_declared``, schema 1.4), and the report
+    follows check.schema.json; a run that only assumed its rto says nothing of it."""
+    from mcp_conform.spec.codec import Action, Message, encode
+    from mcp_conform.traceio.recorder import McapRecorder, run_metadata
+
+    node, runner = ("127.0.0.1", 17011), ("127.0.0.1", 17899)
+    params = {"rto": 0.2, "ack_window": 0.25, **({"rto_declared": True} if declared else {})}
+    path = tmp_path / "run.mcap"
+    rec = McapRecorder(path, metadata=run_metadata("mcp-conform", role="drone", parameters=params), local=runner)
+    t = 10**18
+    rec.datagram("rx", encode(Message(0, 1, 7, Action.MISSION_READY)), node, t)
+    rec.datagram("tx", encode(Message(1, 0, 3, Action.ACK, 7)), node, t + 10**7)
+    rec.close()
+    out = tmp_path / "check.json"
+    assert main(["check", str(path), "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    validate_json(doc)
+    assert doc["schema_version"] == "1.4" and doc["parameters"]["rto"] == 0.2
+    assert doc["parameters"].get("rto_declared") is (True if declared else None)

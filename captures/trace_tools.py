@@ -1,0 +1,298 @@
+"""``mcp-capture check|show|diff|export|replay`` of a protocol whose captures a monitor judges
+record by record, declared once, the protocol a parameter (docs/design.md "A protocol is a
+plug-in"). A protocol's capture tools module (its profile's ``capture_tools``:
+``captures.mavlink``, ``captures.nsqd``) declares a :class:`CapturePlugin` -- its name and
+spec, what its captures are called, how it reads and judges one (its reader, framing and
+monitor: :meth:`CapturePlugin.check`) and compares two (:meth:`CapturePlugin.compare`) --
+and takes each subcommand's frame from here:
+
+- ``check`` (:func:`run_check`): the verdict (FAILED, else INCOMPLETE for a capture cut
+  short, else OK), the JSON report (``--json``: the protocol, the plug-in's document, the
+  verdict), the terminal report (the plug-in's lines, then each rule broken with its level,
+  text, examples and how many more, the rules line, the verdict) and the exit code (0 none
+  broken, 1 broken);
+- ``show`` (:func:`show_frames`, of a capture read through its monitor: :class:`Judged`,
+  :func:`judge_records`): the time window (:func:`window`), the case window
+  (:func:`case_window`, :func:`case_at`: a run's case marks), each frame a line with the rules
+  its violations name it in, the truncation;
+- ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
+  (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
+  (:func:`align`);
+- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`);
+- the one-line notes and refusals of what a protocol does not do (:func:`note`,
+  :func:`not_exported`, :func:`not_replayed`).
+
+The text a protocol's records are shown in is its own.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from mcp_conform.traceio.grammar import write_text
+from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
+
+__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window",
+           "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
+           "window"]
+
+
+@dataclass
+class RuleBlock:
+    """A broken rule in the terminal report: its examples (a line, its evidence lines) and
+    how many more there are (``unit``: what they are, after the count)."""
+
+    rule: str
+    examples: list[tuple[str, Sequence[str]]]
+    more: int = 0
+    unit: str = ""
+
+
+@dataclass
+class Checked:
+    """A capture judged: the report's lines before the rules (``head``) and after the rules
+    line (``tail``), the broken rules' blocks, each rule's verdict in order, whether one
+    counts against the exit code, the truncation, and the JSON document."""
+
+    head: list[str]
+    blocks: list[RuleBlock]
+    rules: list[tuple[str, str]]
+    failed: bool
+    truncated: str | None
+    doc: dict[str, Any]
+    tail: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Compared:
+    """Two captures compared: each divergence (for ``--json``) and the terminal's lines of
+    them, what ``same:`` and ``different: N divergence(s)`` go on to say, the notes, each
+    side's (path, truncation), and the JSON document beside ``same`` and the divergences."""
+
+    divergences: list[Any]
+    lines: list[str]
+    same: str
+    over: str
+    sides: list[tuple[str, str | None]]
+    notes: list[str] = field(default_factory=list)
+    doc: dict[str, Any] = field(default_factory=dict)
+
+
+class CapturePlugin:
+    """A protocol's captures as ``mcp-capture`` reads them (see the module docstring)."""
+
+    name: str  # its --protocol
+    spec: Any  # its spec: each rule's level and text (``spec.rule(ID)``)
+    a_capture: str  # what one capture is called, with its article (check --html is not written for it)
+    html_instead: str  # what check --html is told to use instead
+    json_when_same = True  # diff --json is written when the captures are alike too
+
+    def check(self, ns: Any) -> Checked:
+        raise NotImplementedError
+
+    def compare(self, golden: str, candidate: str) -> Compared:
+        raise NotImplementedError
+
+
+def note(command: str, ns: Any, option: str, text: str) -> None:
+    """One line on stderr where ``--OPTION`` was given to what does not take it."""
+    if getattr(ns, option, None):
+        sys.stderr.write(f"mcp-capture {command}: note: --{option} {text}\n")
+
+
+def verdict_of(failed: bool, truncated: str | None) -> str:
+    return "FAILED" if failed else ("INCOMPLETE" if truncated else "OK")
+
+
+def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
+    """``mcp-capture check`` of a capture of ``plugin``'s (see the module docstring)."""
+    from mcp_conform.captures.cli import to_terminal
+
+    note("check", ns, "html", f"is not written for {plugin.a_capture} ({plugin.html_instead})")
+    c = plugin.check(ns)
+    verdict = verdict_of(c.failed, c.truncated)
+    if getattr(ns, "json", None):  # the file first: a piped terminal report loses nothing of it
+        write_text(ns.json, json.dumps({"protocol": plugin.name, **c.doc, "verdict": verdict}, indent=1) + "\n")
+
+    def report() -> None:
+        write = (out or sys.stdout).write
+        for line in c.head:
+            write(line + "\n")
+        for b in c.blocks:
+            r = plugin.spec.rule(b.rule)
+            write(f"{b.rule} {r.level}: {r.text}\n")
+            for line, evidence in b.examples:
+                write(f"  {line}\n")
+                for e in evidence:
+                    write(f"    {e}\n")
+            if b.more > 0:
+                write(f"  ... and {b.more} more{b.unit}\n")
+        write("rules: " + ", ".join(f"{r} {v}" for r, v in c.rules) + "\n")
+        for line in c.tail:
+            write(line + "\n")
+        write(f"verdict: {verdict}\n")
+
+    to_terminal(report)
+    return 1 if c.failed else 0
+
+
+def run_diff(plugin: CapturePlugin, args: Any, out: TextIO | None = None) -> int:
+    """``mcp-capture diff`` of two captures of ``plugin``'s: exit 0 same, 1 different."""
+    out = out or sys.stdout
+    c = plugin.compare(args.golden, args.candidate)
+    for line in c.notes:
+        out.write(f"note: {line}\n")
+    for path, truncated in c.sides:
+        if truncated:
+            out.write(f"note: {path} is TRUNCATED: {truncated}\n")
+    same = not c.divergences
+    if getattr(args, "json", None) and (plugin.json_when_same or not same):
+        write_text(args.json, json.dumps({"protocol": plugin.name, "same": same, **c.doc,
+                                          "divergences": c.divergences}, indent=1) + "\n")
+    if same:
+        out.write(f"same: {c.same}\n")
+        return 0
+    out.write(f"different: {len(c.divergences)} divergence(s){c.over}\n")
+    for line in c.lines:
+        out.write(line + "\n")
+    return 1
+
+
+def window(ns: Any) -> Callable[[float], bool]:
+    """``--from``/``--to`` (seconds since a capture's first record): whether a time is in."""
+    lo = float(ns.t_from) if getattr(ns, "t_from", None) else None
+    hi = float(ns.t_to) if getattr(ns, "t_to", None) else None
+    return lambda rel: not ((lo is not None and rel < lo) or (hi is not None and rel > hi))
+
+
+def case_window(cases: Sequence[CaseMark], case: str, path: str) -> tuple[int, int]:
+    """``--case ID`` (or the one case ID starts): the span of its marks; UsageError when the
+    capture has no case marks, or ID names none or several."""
+    from mcp_conform.captures.cli import UsageError
+
+    ids = list(dict.fromkeys(m.case for m in cases))
+    match = [c for c in ids if c == case] or [c for c in ids if c.startswith(case)]
+    if len(match) != 1:
+        what = "has no case marks" if not ids else ("matches several cases" if match else "is not a case of it")
+        raise UsageError(f"--case: {case!r}: {path} {what}")
+    marks = [m.t_ns for m in cases if m.case == match[0]]
+    return min(marks), max(marks)
+
+
+def case_at(cases: Sequence[CaseMark], t_ns: int) -> str | None:
+    """The case whose marks hold ``t_ns`` (a run's capture), else None."""
+    open_: dict[str, int] = {}
+    found = None
+    for m in cases:
+        if m.event == "start":
+            open_[m.case] = m.t_ns
+        elif m.case in open_ and open_[m.case] <= t_ns <= m.t_ns:
+            found = m.case
+    return found
+
+
+def not_exported(capture: str | Path, why: str) -> CaptureError:
+    """``export`` of a capture whose protocol is not exported as pcap: one line, exit 2."""
+    return CaptureError(f"{capture}: {why}")
+
+
+def not_replayed(err: TextIO | None, capture: str | Path, why: str) -> int:
+    """``replay`` of a capture whose protocol is not replayed: one line, exit 2."""
+    (err or sys.stderr).write(f"mcp-capture: error: replay: {capture}: {why}\n")
+    return 2
+
+
+def picked(rule: str, chosen: Sequence[str], left_out: Sequence[str], prefix: str = "") -> bool:
+    """``--select``/``--exclude``: prefixes of the rule's ID, with or without the protocol's
+    ``prefix`` of its rules (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
+    names = (rule, rule.removeprefix(prefix))
+    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
+            and not any(n.startswith(x) for n in names for x in left_out))
+
+
+@dataclass
+class Judged:
+    """A capture read through its monitor (fed each frame in order): what ``check``, ``show``
+    and ``diff`` print. ``role``: the role under test the capture names, None: every role."""
+
+    path: str
+    format: str
+    monitor: Any
+    role: str | None
+    frames: list[Any] = field(default_factory=list)  # kept for show and diff only
+    cases: list[CaseMark] = field(default_factory=list)
+    truncated: str | None = None
+    count: int = 0
+
+    @property
+    def first_ns(self) -> int:
+        return int(self.monitor.first_ns or 0)
+
+    def case_at(self, t_ns: int) -> str | None:
+        """The case whose marks hold ``t_ns`` (a run's capture), else None."""
+        return case_at(self.cases, t_ns)
+
+
+def judge_records(j: Judged, records: Iterable[Any], frame: type, *, keep: bool = False) -> Judged:
+    """``records`` read into ``j``: each ``frame`` fed to its monitor (and kept: ``keep``),
+    the case marks, the truncation."""
+    for rec in records:
+        if isinstance(rec, frame):
+            j.monitor.feed(rec)
+            j.count += 1
+            if keep:
+                j.frames.append(rec)
+        elif isinstance(rec, CaseMark):
+            j.cases.append(rec)
+        elif isinstance(rec, Truncated):
+            j.truncated = rec.reason
+    return j
+
+
+def show_frames(j: Judged, ns: Any, out: TextIO, header: str, line: Callable[[Any, dict[int, list[str]]], str]) -> int:
+    """``show`` of a judged capture's kept frames: those in ``--from``/``--to`` and ``--case``,
+    each its ``line`` (given the rules whose violations name each frame index), then the
+    truncation."""
+    shown = window(ns)
+    span = case_window(j.cases, ns.case, j.path) if getattr(ns, "case", None) else None
+    marks: dict[int, list[str]] = {}
+    for v in j.monitor.violations:
+        for i in v.frames:
+            marks.setdefault(i, []).append(v.rule)
+    out.write(header + "\n")
+    for f in j.frames:
+        if shown((f.t_ns - j.first_ns) / 1e9) and (span is None or span[0] <= f.t_ns <= span[1]):
+            out.write(line(f, marks) + "\n")
+    if j.truncated:
+        out.write(f"TRUNCATED: {j.truncated}\n")
+    return 0
+
+
+def align(golden: dict[str, list[tuple[str, str]]], candidate: dict[str, list[tuple[str, str]]], *,
+          shown: int = 20) -> tuple[list[dict[str, Any]], list[str]]:
+    """Two captures' steps, sender by sender ((key compared, line shown), each sender's in its
+    order), aligned by ``difflib``: the divergences (missing, extra, changed) and the
+    terminal's lines of the first ``shown``."""
+    diffs: list[dict[str, Any]] = []
+    for role in sorted({*golden, *candidate}):
+        a, b = golden.get(role, []), candidate.get(role, [])
+        sm = difflib.SequenceMatcher(a=[k for k, _ in a], b=[k for k, _ in b], autojunk=False)
+        for op, i1, i2, j1, j2 in sm.get_opcodes():
+            if op != "equal":
+                diffs.append({"kind": {"delete": "missing", "insert": "extra", "replace": "changed"}[op],
+                              "role": role, "golden": [line for _, line in a[i1:i2]],
+                              "candidate": [line for _, line in b[j1:j2]]})
+    lines = []
+    for d in diffs[:shown]:
+        lines.append(f"  {d['kind']} ({d['role']}'s messages):")
+        lines += [f"    golden    {line[:150]}" for line in d["golden"][:3]]
+        lines += [f"    candidate {line[:150]}" for line in d["candidate"][:3]]
+    if len(diffs) > shown:
+        lines.append(f"  ... and {len(diffs) - shown} more")
+    return diffs, lines

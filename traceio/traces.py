@@ -1,0 +1,147 @@
+"""What every protocol's trace reader does alike (``traceio.nsqd``, ``traceio.mavlink``: a
+capture plug-in's reader, docs/design.md "A protocol is a plug-in"), the protocol a parameter:
+which run a capture's metadata says it was (:func:`recorded_protocol`), whether a capture's
+first records are a protocol's (:func:`claims`), the records an MCAP holds of it
+(:func:`records_of`), a capture's packet reader closed however the reading ends
+(:func:`closing`), and the one-line error of a file corrupt before its first record
+(:func:`corrupt`), a file's head (:func:`head_of`, :func:`is_mcap_head`), a pcap's TCP connections as a stream protocol's records
+(:func:`stream_pcap_records`). A protocol's own module keeps its content: its records, its framing, its
+own file format (a tlog).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import os
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from mcp_conform.traceio.reader import (
+    _MCAP_MAGIC,
+    Capture,
+    CaptureError,
+    Metadata,
+    StreamFrame,
+    Truncated,
+)
+from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
+
+__all__ = ["PEEK", "claims", "closing", "corrupt", "head_of", "is_mcap_head", "recorded_protocol", "records_of",
+           "stream_pcap_records"]
+
+#: records (or packets) looked at to tell which protocol's a capture is
+PEEK = 500
+
+
+def head_of(path: str | Path, n: int, what: str) -> tuple[int, bytes]:
+    """(size, first ``n`` bytes) of a file read as ``what``; CaptureError (one line naming the
+    file) when it cannot be read or is empty."""
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as f:
+            head = f.read(n)
+    except OSError as exc:
+        raise CaptureError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if size == 0:
+        raise CaptureError(f"{path}: empty file, not {what}")
+    return size, head
+
+
+def is_mcap_head(head: bytes) -> bool:
+    """A file's first bytes are an MCAP's magic (or all there is of it)."""
+    return head[:8] == _MCAP_MAGIC or (len(head) < 8 and _MCAP_MAGIC.startswith(head))
+
+
+def recorded_protocol(meta: Metadata) -> str | None:
+    """The ``--protocol`` of the run a capture's metadata record describes (its run
+    parameters, ``traceio.recorder.run_metadata``), if it says."""
+    try:
+        value = json.loads(meta.data.get("parameters", "{}")).get("protocol")
+    except (ValueError, AttributeError):
+        return None
+    return value if isinstance(value, str) else None
+
+
+def claims(records: Iterable[Any], own: tuple[type, ...], foreign: tuple[type, ...],
+           says: Callable[[Metadata], bool | None], *, first: bool) -> bool:
+    """Whether a capture's first :data:`PEEK` records are a protocol's: a metadata record
+    that ``says`` (True, False; None: says nothing) decides; a ``foreign`` record (another
+    protocol's) is a no; an ``own`` one a yes at once (``first``), else when nothing said no."""
+    seen = False
+    for rec in itertools.islice(records, PEEK):
+        if isinstance(rec, Metadata):
+            said = says(rec)
+            if said is not None:
+                return said
+        elif isinstance(rec, foreign):
+            return False
+        elif isinstance(rec, own):
+            if first:
+                return True
+            seen = True
+    return seen
+
+
+def records_of(cap: Capture, kinds: tuple[type, ...]) -> Iterator[Any]:
+    """An opened capture's records of these kinds, in order."""
+    for rec in cap:
+        if type(rec) in kinds:
+            yield rec
+
+
+@contextlib.contextmanager
+def closing(cap: Capture) -> Iterator[Capture]:
+    """``cap`` whose packet reader (a pcap's) is closed however the reading ends."""
+    try:
+        yield cap
+    finally:
+        if cap._reader is not None:
+            cap._reader.close()
+
+
+def corrupt(path: str | Path, fmt: str, reason: str) -> CaptureError:
+    """The error of a file corrupt before anything of it could be read (never an empty OK)."""
+    return CaptureError(f"{path}: {fmt} file corrupt, nothing could be read: {reason}")
+
+
+
+def stream_pcap_records(cap: Capture, port: int, speaks: Callable[[bytes], bool], deframer: Callable[[], Any],
+                        name: Callable[[bytes], str | None], frame: Callable[[Any], tuple[str | None, str | None]]
+                        ) -> Iterator[Any]:
+    """A pcap's TCP connections to the node's ``port`` (or whose segments it ``speaks``:
+    ``traceio.tcp``) as a stream protocol's records: ``StreamEvent``; ``StreamFrame`` ``tx``
+    each write of the client (``name``: the frame it is, if one), ``rx`` each item of the
+    node's bytes through its ``deframer`` (``frame``: a frame's name, or None and why the
+    deframer refused the bytes), unframed after a gap of the node's direction; ``StreamGap``;
+    last ``Truncated``. A file corrupt before its first packet is :func:`corrupt`."""
+    deframers: dict[int, Any] = {}
+    broken: set[int] = set()
+    n = events = 0
+    for ev in tcp_events(cap, port, speaks):
+        events += 1
+        kind = type(ev)
+        if kind is StreamData:
+            if ev.direction == "tx":
+                yield StreamFrame(n, ev.t_ns, "tx", ev.conn, name(ev.data), None, ev.data)
+                n += 1
+                continue
+            if ev.conn in broken:
+                yield StreamFrame(n, ev.t_ns, "rx", ev.conn, None, "after a gap in the capture: not framed", ev.data)
+                n += 1
+                continue
+            if ev.conn not in deframers:
+                deframers[ev.conn] = deframer()
+            for item in deframers[ev.conn].feed(ev.data):
+                yield StreamFrame(n, ev.t_ns, "rx", ev.conn, *frame(item), item.raw)
+                n += 1
+        else:
+            if kind is StreamGap and ev.direction == "rx":
+                broken.add(ev.conn)
+            yield ev
+    if cap.truncated is not None:
+        if cap.corrupt and not events:
+            raise corrupt(cap.path, cap.format, cap.truncated)
+        yield Truncated(cap.truncated)
