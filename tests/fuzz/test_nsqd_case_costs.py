@@ -47,12 +47,24 @@ def test_no_death_grace_after_a_close_the_spec_allows(backend, monkeypatch):
 
 def test_a_judged_effect_that_moved_the_state_is_a_passed_probe(backend):
     takeoff, land = encode(NSQD, "TAKEOFF"), encode(NSQD, "LAND")
-    for data, name in ((takeoff, "TAKEOFF"), (land, "LAND"), (takeoff, "TAKEOFF")):
+
+    def run(data: bytes, name: str) -> None:
         msg = NSQD.message(name)
         case = Case("valid", (Write(data),), True, name, expect=msg.effect.to, or_error=msg.effect.or_error,
                     check=True, msg=name)
         assert backend.run(case) is None
-    assert backend.synced  # GROUNDED -> HOVER: the stream was in sync
+
+    run(takeoff, "TAKEOFF")
+    # GROUNDED -> HOVER seen on the stream: it was in sync. A move counts only when an UPDATE
+    # came before the command on the same connection; on a loaded host the backend's first
+    # UPDATE, or the connection a late effect was verified on, may not have had one yet, so the
+    # land-and-take-off is tried up to 3 times (each try could show it)
+    for _ in range(3):
+        run(land, "LAND")
+        run(takeoff, "TAKEOFF")
+        if backend.synced:
+            break
+    assert backend.synced
     msg = NSQD.message("TAKEOFF")
     again = Case("valid", (Write(takeoff),), True, "TAKEOFF", expect=msg.effect.to, check=True, msg="TAKEOFF")
     assert backend.run(again) is None and not backend.synced  # already HOVER: proves nothing

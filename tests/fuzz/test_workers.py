@@ -51,9 +51,11 @@ def test_the_parent_stops_waiting_at_the_campaigns_bound():
     with no further wait (before: --duration + 120 s, then 5 s of join per worker)."""
     got: list[Any] = []
     t0 = time.monotonic()
-    run_workers(_stuck_worker, lambda i, q, stop: (i, q, stop), 2, t0 + 2.0, lambda *m: got.append(m) or False,
+    # a bound the workers reach on a loaded host (each is a spawned interpreter that reports
+    # once, then hangs); the slack tells "stops at the bound" from the old 120 s + 5 s a worker
+    run_workers(_stuck_worker, lambda i, q, stop: (i, q, stop), 2, t0 + 5.0, lambda *m: got.append(m) or False,
                 lambda: False)
     took = time.monotonic() - t0
-    print(f"returned {took:.2f} s after the start, bound 2 s")
-    assert took < 2.0 + 1.0, took
+    print(f"returned {took:.2f} s after the start, bound 5 s")
+    assert took < 5.0 + 10.0, took
     assert sorted(w for _, w, _ in got) == [0, 1]  # what they reported was handled
