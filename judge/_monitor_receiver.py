@@ -66,7 +66,12 @@ class ReceiverRules(MonitorHost):
         if node is not None:
             self._seq_number_taken(node, own_seq, t)  # D-5: an ACK may take a number (MCP-SEQ-1)
         if self._complete_for(src, dst):  # MCP-ACK-6: what an ACK to this node would answer
-            self._ack_seq[src << 16 | own_seq] = (dst, i, t)
+            key = src << 16 | own_seq
+            seen = self._ack_seq.get(key)
+            if seen is not None and seen[0] == dst and t - seen[2] <= self._ack_horizon:
+                seen[1:4] = i, t, seen[3] + 1  # a copy of it (the link duplicated it)
+            else:  # [dst, i, t, copies of it, ACKs naming it counted as its answers]
+                self._ack_seq[key] = [dst, i, t, 1, 0]
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             # an ACK of another message of dst's (a late or duplicated one) is, to dst's pending
@@ -115,7 +120,12 @@ class ReceiverRules(MonitorHost):
             other = None
         if other is None and self._complete_for(src, dst):
             a = self._ack_seq.get(dst << 16 | named)
-            if a is not None and t - a[2] <= horizon:
+            if a is not None and t - a[2] <= horizon and a[4] < a[3]:
+                # an ACK of that ACK, if any: a node answers each datagram it reads once, so
+                # once every copy of the ACK has drawn an answer, an ACK naming it answers
+                # something else -- a copy's wrong ACK, MCP-ACK-2 (the ack-copies-wrong-seq
+                # drone's eleven ACKs naming 15568, the number of one ACK of the manager's)
+                a[4] += 1
                 other = ("ack", a[0], a[1], a[2], 0)
         self._maybe_wrong_ack(dst, src, named, i, t)
         if tester:
@@ -123,7 +133,7 @@ class ReceiverRules(MonitorHost):
         if other is not None:
             w = self._waiting_copy.get((src, dst))
             if (w is not None and w.acks and (w.acks[-1][1] < w.last_t or len(w.acks) < w.owed)
-                    and not w.flags & F_ACK1 and t - w.last_t <= horizon):
+                    and t - w.last_t <= horizon):
                 # a copy of an ACKed message waits for its ACK (sent after the first ACK, or
                 # before it came back: ``owed``): this may be that copy's wrong ACK
                 # (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the broadcast
@@ -280,6 +290,10 @@ class ReceiverRules(MonitorHost):
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
             self._waiting_copy[(ex.dst, ex.src)] = ex
             self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._ack_deadline, ex, (i, t))
+        else:  # D-6: no MCP-ACK-1 for End_Mission's copies after its ACK, yet an ACK while one
+            # waits, naming what the node must not ACK, may be its wrong ACK (``_ack``)
+            self._waiting_copy[(ex.dst, ex.src)] = ex
+            self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._undecided_deadline, ex, (i, t))
 
     def _ack_rearm(self, now: int, ex: _Exchange) -> None:
         """``ex``'s receiver showed itself only at ``now``, after ``ex``'s ACK-1 deadline: it
@@ -309,7 +323,8 @@ class ReceiverRules(MonitorHost):
             return
         if not self._receiving(node, ex):
             return
-        if ex.flags & F_ACK1:
+        if ex.flags & F_ACK1:  # reported: the ACKs that came while this copy waited are decided
+            self._undecided_deadline(now, ex, copy)  # only, never reported as its wrong ACKs again
             return
         if copy is None:
             if ex.acks:
@@ -372,6 +387,20 @@ class ReceiverRules(MonitorHost):
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
 
+    def _undecided_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int] | None) -> None:
+        """The ACKs naming what the node must not ACK that came while a copy of ``ex`` waited,
+        where no rule of the copy's is judged (End_Mission's copies after its ACK, D-6; a copy
+        of a message already reported, F_ACK1): the copy answered by an ACK naming its seq,
+        they named what they ACKed (MCP-ACK-4/5/6); else each may be the copy's wrong ACK
+        (MCP-ACK-2) as well as an ACK of what it named, and neither is proven."""
+        if id(ex) not in self._ambiguous:
+            return
+        since = copy[1] if copy is not None else ex.last_t
+        if any(a[1] >= since and a[0] not in self._doubtful for a in ex.acks):
+            self._decide_ambiguous(ex, ex.dst, wrong=False)
+        else:
+            self._ambiguous.pop(id(ex), None)
+
     def _owed_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int]) -> None:
         """The ACKs owed to ``ex``'s copies sent before its first ACK came back: all came, so an
         ACK naming something else meanwhile was an ACK of that; or not (a copy's wrong ACK, or
@@ -393,7 +422,11 @@ class ReceiverRules(MonitorHost):
         for i in list(self._nothing):  # ACKs of nothing within the grace of the trace's end
             self._ack_of_nothing(end, i)
         for ex, _ in list(self._ambiguous.values()):  # the trace ended before a copy's deadline
-            self._decide_ambiguous(ex, ex.dst, wrong=False)
+            # undecided unless the copy was answered: one of the ACKs may be its wrong ACK (the
+            # ack-copies-wrong-seq drone ACKed a copy of 20357 naming 20358, the number the
+            # manager's ACK read 0.4 s before had taken, and was failed MCP-ACK-6 with the
+            # copy's ACK never judged: seed monitor-ack6-ack-before-its-number)
+            self._undecided_deadline(end, ex, None)
         for node in self._nodes.values():
             if not node.real:
                 continue

@@ -40,8 +40,10 @@ else:
 #: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
 DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 
-# bits of _Exchange.flags: a rule already reported on that exchange
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1 = (1 << k for k in range(9))
+# bits of _Exchange.flags: a rule already reported on that exchange (F_GAVE_UP: its sender
+# moved on at its timer's time after MIN_COPIES copies or more, a retry limit's give-up)
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1, F_GAVE_UP = (
+    1 << k for k in range(10))
 
 
 class RetransmissionRules(MonitorHost):
@@ -73,6 +75,12 @@ class RetransmissionRules(MonitorHost):
             if wrong is None or len(prev.copies) >= MIN_COPIES or t - wrong[1] > JITTER_NS:
                 if g and len(prev.copies) < MIN_COPIES:
                     self._gave_up(prev, ex, i, t)
+                elif len(prev.copies) >= MIN_COPIES:
+                    # its retry limit reached (MCP-RTX-1: configurable): the silence since
+                    # its last copy is the limit's, whatever ACK came in it -- a wrong ACK
+                    # read after the last copy proves no MCP-RTX-2 (``_wrong_ack_deadline``;
+                    # the ack-copies-wrong-seq drone's "seq + 1" ACKs of a manager's 21st copy)
+                    prev.flags |= F_GAVE_UP
                 return
         if wrong is not None:
             # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
@@ -194,10 +202,12 @@ class RetransmissionRules(MonitorHost):
         if later:
             self._observe(ex.src, "MCP-RTX-2")
             return
-        if right or ex.flags & (F_RTX2 | F_RTX1) or self._stopped_before(ex, wrong[1]) or len(ex.copies) == 1:
+        if (right or ex.flags & (F_RTX2 | F_RTX1 | F_GAVE_UP) or self._stopped_before(ex, wrong[1])
+                or len(ex.copies) == 1):
             return  # the right ACK came before the next copy was due (inconclusive), or it
             # had stopped before the wrong ACK came or gave up at its timer after it (MCP-RTX-1's,
-            # ``_gave_up``: a give-up-after-two manager read a re-ACK between), or it was never seen
+            # ``_gave_up``: a give-up-after-two manager read a re-ACK between; after MIN_COPIES
+            # copies, its retry limit: F_GAVE_UP), or it was never seen
             # retransmitting: a sender that never does falls silent the same way, and the
             # right ACK withheld past its copies' time is MCP-RTX-1's (``_rtx_deadline``)
         ex.flags |= F_RTX2

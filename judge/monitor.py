@@ -192,7 +192,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._orphans: list[tuple[int, int, Any, str, str]] = []  # malformed, sender unknown yet
         self._ex: dict[int, Any] = {}  # src << 32 | dst << 16 | seq -> the message
         self._by_seq: dict[int, Any] = {}  # src << 16 | seq -> what src last sent with it
-        self._ack_seq: dict[int, Any] = {}  # src << 16 | own seq -> (dst, i, t) of its ACK
+        self._ack_seq: dict[int, Any] = {}  # src << 16 | own seq -> [dst, i, t, copies, answers] of its ACK
         self._to_seq: dict[int, Any] = {}  # dst << 16 | seq -> the latest message to dst
         self._timers = _Timers()
         self._violated: set[tuple[int, str]] = set()

@@ -126,16 +126,20 @@ def test_explain_holds_both_properties(fault):
 # ------------------------------------------------------------------ the trace monitor
 #: fault model -> why the monitor breaks a property on links without stalls (seeds: test_seeds.py)
 MONITOR_KNOWN = {
-    "ack-copies-wrong-seq": "misses MCP-ACK-2 or calls it MCP-ACK-6; a correct manager is failed MCP-RTX-2 "
-                            "for the wrong-source ACK naming its number",
+    "ack-copies-wrong-seq": "misses MCP-ACK-2 where its only proof is a count (more ACKs naming a number "
+                            "than datagrams with it) and the waiting copy's ACK-1 deadline lies past the "
+                            "view's end",
     "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
     "wrong-seq-ack": "misses MCP-RTX-2 on a link that reorders and delays (seed "
                      "monitor-rtx2-missed-reordered-link) and under stalls: the ACK of the previous seq "
                      "taken as answering nothing pending",
 }
-# Rarer than these examples reach (about 1 in 100 of the sweep's give-up-never schedules), fixed:
-# MCP-FLOW-3 failed on a manager still retransmitting End_Mission when its view is cut (seed
-# monitor-flow3-cut-view).
+# Fixed (session 26): the correct manager failed MCP-RTX-2 at its retry limit after the
+# ack-copies-wrong-seq drone's wrong ACK (seed monitor-rtx2-give-up-at-the-retry-limit) and
+# after a stall (monitor-rtx2-stalled-then-retransmitted), and that drone's wrong ACKs called
+# MCP-ACK-6 (monitor-ack6-*). Rarer than these examples reach (about 1 in 100 of the sweep's
+# give-up-never schedules), fixed: MCP-FLOW-3 failed on a manager still retransmitting End_Mission
+# when its view is cut (seed monitor-flow3-cut-view).
 
 
 def _monitor_case(fault: str | None) -> object:
