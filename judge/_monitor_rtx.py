@@ -87,7 +87,19 @@ class RetransmissionRules(MonitorHost):
             # since: the sender took it for ``prev``'s ACK (MCP-RTX-2), unless a copy of
             # ``prev`` follows (then it does not wait at all: MCP-BLK-1, ``_copy``)
             prev.moved_on = (i, t)
-            self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
+            # judged when ``prev``'s next copy is overdue, counted from its last copy where its
+            # pace is known -- not from the move, which a view that ends a timeout later never
+            # reached (the wrong-seq-ack manager's move 0.3 s after its lone copy, its view
+            # ending 1.3 s after the move: seed monitor-rtx2-missed-reordered-link): where the
+            # nodes' timeout is declared, MCP-RTX-3's latest (rto + 20 % + the jitter) as
+            # MCP-RTX-1's ``lone_due_ns``; by its gaps, 1.5 of them (``_stopped_before``)
+            if self.rto_declared:
+                due = prev.last_t + int(self.rto_ns * (1 + RTX_TOLERANCE)) + 3 * JITTER_NS
+            elif g:
+                due = prev.last_t + 3 * est // 2 + 3 * JITTER_NS
+            else:
+                due = t + 3 * est // 2 + 3 * JITTER_NS
+            self._timers.at(max(due, t), self._moved_on_deadline, prev, wrong, ex)
             return
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
 

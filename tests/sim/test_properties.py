@@ -130,14 +130,12 @@ MONITOR_KNOWN = {
                             "than datagrams with it) and the waiting copy's ACK-1 deadline lies past the "
                             "view's end",
     "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
-    "wrong-seq-ack": "misses MCP-RTX-2 on a link that reorders and delays (seed "
-                     "monitor-rtx2-missed-reordered-link) and under stalls: the ACK of the previous seq "
-                     "taken as answering nothing pending",
 }
 # Fixed (session 26): the correct manager failed MCP-RTX-2 at its retry limit after the
 # ack-copies-wrong-seq drone's wrong ACK (seed monitor-rtx2-give-up-at-the-retry-limit) and
 # after a stall (monitor-rtx2-stalled-then-retransmitted), and that drone's wrong ACKs called
-# MCP-ACK-6 (monitor-ack6-*). Rarer than these examples reach (about 1 in 100 of the sweep's
+# MCP-ACK-6 (monitor-ack6-*); the wrong-seq-ack manager's MCP-RTX-2 missed where its view ends
+# within 1.5 timeouts of its move (monitor-rtx2-missed-reordered-link). Rarer than these examples reach (about 1 in 100 of the sweep's
 # give-up-never schedules), fixed: MCP-FLOW-3 failed on a manager still retransmitting End_Mission
 # when its view is cut (seed monitor-flow3-cut-view).
 
