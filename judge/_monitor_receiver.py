@@ -100,6 +100,12 @@ class ReceiverRules(MonitorHost):
                     node.seen.add("MCP-DUP-1")
             else:
                 self._acked(match, src, i, t, tester)
+            if node is not None and i not in self._doubtful:
+                # the n-th ACK of a message answers a copy no earlier than its n-th: the node
+                # had read that far (``_answered_later``)
+                n = min(len(match.acks), len(match.copies))
+                pair = (src, dst)
+                self._answered_to[pair] = max(self._answered_to.get(pair, 0), match.copies[n - 1][1])
             return
         horizon = self._ack_horizon
         if node is not None:
@@ -417,8 +423,24 @@ class ReceiverRules(MonitorHost):
             if not wrong:
                 self._ack_of_what_is_not_acked(node, other, named, i, t)
 
+    def _answered_later(self, end: int) -> None:
+        """MCP-ACK-1 ("every later copy is ACKed again") of a copy whose deadline
+        (``late_ack_wait_ns``: an ACK however late) lies past the trace's end: judged at the end
+        when its ACK window passed before it and the node answered, meanwhile, a datagram from
+        the same sender that reached it after the copy -- it had read past the copy (a socket
+        is read in order) and answered what came next, not the copy (the ack-first-copy-only
+        drone's copies of Start_Mission and WP_List, its view ending 0.6 s after its last ACK:
+        seed monitor-ack1-missed-copy-after-answer). Else the trace may just end too soon."""
+        waiting = [args for _t, _o, fn, args in self._timers.heap
+                   if fn == self._ack_deadline and args[1] is not None]
+        for ex, copy in sorted(waiting, key=lambda a: a[1][1]):
+            if (end - copy[1] >= self.window_ns
+                    and self._answered_to.get((ex.dst, ex.src), -1) > copy[1]):
+                self._ack_deadline(end, ex, copy)
+
     def _finish_receiver(self, end: int) -> None:
         """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
+        self._answered_later(end)
         for i in list(self._nothing):  # ACKs of nothing within the grace of the trace's end
             self._ack_of_nothing(end, i)
         for ex, _ in list(self._ambiguous.values()):  # the trace ended before a copy's deadline

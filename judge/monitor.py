@@ -206,6 +206,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing
         #: it was sent: a copy whose ACK-1 deadline finds one after it was ACKed wrongly (ACK-2)
         self._stray_acks: dict[tuple[int, int], tuple[int, int, int]] = {}
+        #: (acker, sender) -> the latest arrival a right ACK of the acker's answered (MCP-ACK-1)
+        self._answered_to: dict[tuple[int, int], int] = {}
         #: (receiver, sender) -> the latest message a copy of which came after its ACK, and
         #: the ACKs naming what the receiver must not ACK (a broadcast ...) while that copy
         #: waited: the copy's wrong ACKs or what they name, decided at its ACK-1 deadline

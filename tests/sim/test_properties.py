@@ -10,7 +10,7 @@ up to 3 x ``--rto``, 1-3 drones, challenges 1-3 -- for the correct models and ea
    MUST rule.
 
 ``judge.explain`` holds both everywhere but one miss (``manager-rtx-none``). The trace monitor holds them for the correct models
-(with stalls too, since judge.explain's veto, judge/veto.py) and ten of the twelve fault models
+(with stalls too, since judge.explain's veto, judge/veto.py) and eleven of the twelve fault models
 on links without stalls (judged as ``sim.judges`` does: every model's timeout is ``rto``, declared,
 ``Monitor(rto_declared=True)``); where it does not, the test is its strict xfail
 with the reason, and the shrunk counterexamples are in ``tests/sim/seeds/`` (``test_seeds.py``).
@@ -129,13 +129,14 @@ MONITOR_KNOWN = {
     "ack-copies-wrong-seq": "misses MCP-ACK-2 where its only proof is a count (more ACKs naming a number "
                             "than datagrams with it) and the waiting copy's ACK-1 deadline lies past the "
                             "view's end",
-    "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
 }
 # Fixed (session 26): the correct manager failed MCP-RTX-2 at its retry limit after the
 # ack-copies-wrong-seq drone's wrong ACK (seed monitor-rtx2-give-up-at-the-retry-limit) and
 # after a stall (monitor-rtx2-stalled-then-retransmitted), and that drone's wrong ACKs called
 # MCP-ACK-6 (monitor-ack6-*); the wrong-seq-ack manager's MCP-RTX-2 missed where its view ends
-# within 1.5 timeouts of its move (monitor-rtx2-missed-reordered-link). Rarer than these examples reach (about 1 in 100 of the sweep's
+# within 1.5 timeouts of its move (monitor-rtx2-missed-reordered-link); the ack-first-copy-only
+# drone's MCP-ACK-1 missed where the copy's deadline lay past its view's end
+# (monitor-ack1-missed-copy-after-answer). Rarer than these examples reach (about 1 in 100 of the sweep's
 # give-up-never schedules), fixed: MCP-FLOW-3 failed on a manager still retransmitting End_Mission
 # when its view is cut (seed monitor-flow3-cut-view).
 
