@@ -46,6 +46,23 @@ F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1,
     1 << k for k in range(10))
 
 
+def _running_gaps(ex: _Exchange) -> list[int]:
+    """The gaps between ``ex``'s copies in the time its sender could run (D-7): each less the
+    growth of the run delay its two copies carry, where both carry one -- the pace of its timer,
+    which a stall between two copies stretches on the wire (the give-up-after-two manager's
+    second copy 1.54 s after its first, 0.54 s of it off the CPU, then its move on at its
+    timer's time 1 s later, taken for a message sent before its ACK: seed
+    monitor-blk1-after-give-up)."""
+    out = []
+    for (a, b), ra, rb in zip(zip(ex.copies, ex.copies[1:], strict=False), ex.run_delays,
+                              ex.run_delays[1:], strict=False):
+        gap = b[1] - a[1]
+        if ra is not None and rb is not None and rb > ra:
+            gap = max(gap - (rb - ra), 0)
+        out.append(gap)
+    return out
+
+
 class RetransmissionRules(MonitorHost):
     """Mixin of :class:`judge.monitor.Monitor` (through ``SenderRules``)."""
 
@@ -66,7 +83,7 @@ class RetransmissionRules(MonitorHost):
                        [prev.copies[-1], (i, t)])
             return
         g = gaps(prev.copies)
-        est = median(g) if g else self.rto_ns
+        est = median(_running_gaps(prev)) if g else self.rto_ns
         wrong = self._taken_ack(prev)
         if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
             # at its timer's time: it gave up (retry limit) -- unless it moved at once after a
