@@ -466,8 +466,12 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         either = found.get(VETOED_RULES[v.rule])
         if kept is None or kept.status not in (CONSISTENT, UNOBSERVABLE):
             continue
-        if either is not None and either.status == PROVEN:
-            continue
+        if either is not None and either.status == PROVEN and not (
+                v.rule == "MCP-RTX-1" and found.get("MCP-RTX-2") is not None
+                and found["MCP-RTX-2"].status == PROVEN):
+            continue  # the disjunction proven may rest on this rule; not where explain proves
+            # MCP-RTX-2 itself for the message (the wrong-seq-ack manager that took a wrong ACK
+            # as it woke from a stall: its lone copy's MCP-RTX-1 deadline fell in the stall)
         # explain finds no proof either way where the trace ends before a retransmission could
         # be seen (UNOBSERVABLE): only the sender's own measured starvation explains that one
         mine_rd = readings.get(way[0], NO_READINGS)
