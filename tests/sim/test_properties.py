@@ -9,7 +9,7 @@ up to 3 x ``--rto``, 1-3 drones, challenges 1-3 -- for the correct models and ea
 2. a faulty party gets its rule where its fault is observable (``sim.oracles``), and no other
    MUST rule.
 
-``judge.explain`` holds both everywhere but one miss (``manager-rtx-none``). The trace monitor holds them for the correct models
+``judge.explain`` holds both everywhere. The trace monitor holds them for the correct models
 (with stalls too, since judge.explain's veto, judge/veto.py) and eleven of the twelve fault models
 on links without stalls (judged as ``sim.judges`` does: every model's timeout is ``rto``, declared,
 ``Monitor(rto_declared=True)``); where it does not, the test is its strict xfail
@@ -100,11 +100,10 @@ def _holds(s: Schedule, judges: tuple[str, ...]) -> None:
 
 
 # ------------------------------------------------------------------ judge.explain
-#: fault model -> why judge.explain breaks a property (seed explain-rtx1-missed-late-ack)
-EXPLAIN_KNOWN = {
-    "manager-rtx-none": "misses MCP-RTX-1 where a command sent once is ACKed late, at the instant the "
-                        "manager moves on: the late ACK is taken as what ended the retransmission",
-}
+#: fault model -> why judge.explain breaks a property (its seeds: explain-*.json with explain_reason)
+#: (empty since session 26: manager-rtx-none's MCP-RTX-1, a late ACK at the instant the manager
+#: moved on taken as what ended its retransmission -- seed explain-rtx1-missed-late-ack, fixed)
+EXPLAIN_KNOWN: dict[str, str] = {}
 
 
 def _explain_case(fault: str | None) -> object:
