@@ -41,9 +41,10 @@ else:
 DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 
 # bits of _Exchange.flags: a rule already reported on that exchange (F_GAVE_UP: its sender
-# moved on at its timer's time after MIN_COPIES copies or more, a retry limit's give-up)
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1, F_GAVE_UP = (
-    1 << k for k in range(10))
+# moved on at its timer's time after MIN_COPIES copies or more, a retry limit's give-up;
+# F_SILENT: MCP-RTX-1 failed on it by its deadline, its copies stopped with no ACK)
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1, F_GAVE_UP, F_SILENT = (
+    1 << k for k in range(11))
 
 
 def _running_gaps(ex: _Exchange) -> list[int]:
@@ -214,6 +215,7 @@ class RetransmissionRules(MonitorHost):
                                        and not self._stopped_before(ex, ex.wrong_ack[1])):
             return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
         n = len(ex.copies)
+        ex.flags |= F_SILENT
         self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
                    f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, "
                    f"none for {fmt_s(now - ex.last_t)}", ex.copies[:MIN_COPIES])
