@@ -66,7 +66,12 @@ class ReceiverRules(MonitorHost):
         if node is not None:
             self._seq_number_taken(node, own_seq, t)  # D-5: an ACK may take a number (MCP-SEQ-1)
         if self._complete_for(src, dst):  # MCP-ACK-6: what an ACK to this node would answer
-            self._ack_seq[src << 16 | own_seq] = (dst, i, t)
+            key = src << 16 | own_seq
+            seen = self._ack_seq.get(key)
+            if seen is not None and seen[0] == dst and t - seen[2] <= self._ack_horizon:
+                seen[1:4] = i, t, seen[3] + 1  # a copy of it (the link duplicated it)
+            else:  # [dst, i, t, copies of it, ACKs naming it counted as its answers]
+                self._ack_seq[key] = [dst, i, t, 1, 0]
         match = self._ex.get(dst << 32 | src << 16 | named)
         if match is not None and t - match.last_t <= self.horizon_ns:  # however late
             # an ACK of another message of dst's (a late or duplicated one) is, to dst's pending
@@ -95,6 +100,12 @@ class ReceiverRules(MonitorHost):
                     node.seen.add("MCP-DUP-1")
             else:
                 self._acked(match, src, i, t, tester)
+            if node is not None and i not in self._doubtful:
+                # the n-th ACK of a message answers a copy no earlier than its n-th: the node
+                # had read that far (``_answered_later``)
+                n = min(len(match.acks), len(match.copies))
+                pair = (src, dst)
+                self._answered_to[pair] = max(self._answered_to.get(pair, 0), match.copies[n - 1][1])
             return
         horizon = self._ack_horizon
         if node is not None:
@@ -115,7 +126,12 @@ class ReceiverRules(MonitorHost):
             other = None
         if other is None and self._complete_for(src, dst):
             a = self._ack_seq.get(dst << 16 | named)
-            if a is not None and t - a[2] <= horizon:
+            if a is not None and t - a[2] <= horizon and a[4] < a[3]:
+                # an ACK of that ACK, if any: a node answers each datagram it reads once, so
+                # once every copy of the ACK has drawn an answer, an ACK naming it answers
+                # something else -- a copy's wrong ACK, MCP-ACK-2 (the ack-copies-wrong-seq
+                # drone's eleven ACKs naming 15568, the number of one ACK of the manager's)
+                a[4] += 1
                 other = ("ack", a[0], a[1], a[2], 0)
         self._maybe_wrong_ack(dst, src, named, i, t)
         if tester:
@@ -123,7 +139,7 @@ class ReceiverRules(MonitorHost):
         if other is not None:
             w = self._waiting_copy.get((src, dst))
             if (w is not None and w.acks and (w.acks[-1][1] < w.last_t or len(w.acks) < w.owed)
-                    and not w.flags & F_ACK1 and t - w.last_t <= horizon):
+                    and t - w.last_t <= horizon):
                 # a copy of an ACKed message waits for its ACK (sent after the first ACK, or
                 # before it came back: ``owed``): this may be that copy's wrong ACK
                 # (MCP-ACK-2: the copy of seq 1339 ACKed with 1340, the seq of the broadcast
@@ -280,6 +296,10 @@ class ReceiverRules(MonitorHost):
         elif ex.action != END:  # ACKed again, however late (latency is MCP-ACK-7's business)
             self._waiting_copy[(ex.dst, ex.src)] = ex
             self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._ack_deadline, ex, (i, t))
+        else:  # D-6: no MCP-ACK-1 for End_Mission's copies after its ACK, yet an ACK while one
+            # waits, naming what the node must not ACK, may be its wrong ACK (``_ack``)
+            self._waiting_copy[(ex.dst, ex.src)] = ex
+            self._timers.at(t + late_ack_wait_ns(self.rto_ns, self.window_ns), self._undecided_deadline, ex, (i, t))
 
     def _ack_rearm(self, now: int, ex: _Exchange) -> None:
         """``ex``'s receiver showed itself only at ``now``, after ``ex``'s ACK-1 deadline: it
@@ -309,7 +329,8 @@ class ReceiverRules(MonitorHost):
             return
         if not self._receiving(node, ex):
             return
-        if ex.flags & F_ACK1:
+        if ex.flags & F_ACK1:  # reported: the ACKs that came while this copy waited are decided
+            self._undecided_deadline(now, ex, copy)  # only, never reported as its wrong ACKs again
             return
         if copy is None:
             if ex.acks:
@@ -372,6 +393,20 @@ class ReceiverRules(MonitorHost):
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
 
+    def _undecided_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int] | None) -> None:
+        """The ACKs naming what the node must not ACK that came while a copy of ``ex`` waited,
+        where no rule of the copy's is judged (End_Mission's copies after its ACK, D-6; a copy
+        of a message already reported, F_ACK1): the copy answered by an ACK naming its seq,
+        they named what they ACKed (MCP-ACK-4/5/6); else each may be the copy's wrong ACK
+        (MCP-ACK-2) as well as an ACK of what it named, and neither is proven."""
+        if id(ex) not in self._ambiguous:
+            return
+        since = copy[1] if copy is not None else ex.last_t
+        if any(a[1] >= since and a[0] not in self._doubtful for a in ex.acks):
+            self._decide_ambiguous(ex, ex.dst, wrong=False)
+        else:
+            self._ambiguous.pop(id(ex), None)
+
     def _owed_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int]) -> None:
         """The ACKs owed to ``ex``'s copies sent before its first ACK came back: all came, so an
         ACK naming something else meanwhile was an ACK of that; or not (a copy's wrong ACK, or
@@ -388,12 +423,32 @@ class ReceiverRules(MonitorHost):
             if not wrong:
                 self._ack_of_what_is_not_acked(node, other, named, i, t)
 
+    def _answered_later(self, end: int) -> None:
+        """MCP-ACK-1 ("every later copy is ACKed again") of a copy whose deadline
+        (``late_ack_wait_ns``: an ACK however late) lies past the trace's end: judged at the end
+        when its ACK window passed before it and the node answered, meanwhile, a datagram from
+        the same sender that reached it after the copy -- it had read past the copy (a socket
+        is read in order) and answered what came next, not the copy (the ack-first-copy-only
+        drone's copies of Start_Mission and WP_List, its view ending 0.6 s after its last ACK:
+        seed monitor-ack1-missed-copy-after-answer). Else the trace may just end too soon."""
+        waiting = [args for _t, _o, fn, args in self._timers.heap
+                   if fn == self._ack_deadline and args[1] is not None]
+        for ex, copy in sorted(waiting, key=lambda a: a[1][1]):
+            if (end - copy[1] >= self.window_ns
+                    and self._answered_to.get((ex.dst, ex.src), -1) > copy[1]):
+                self._ack_deadline(end, ex, copy)
+
     def _finish_receiver(self, end: int) -> None:
         """Observations of the receiver-side rules, and MCP-ACK-7's medians."""
+        self._answered_later(end)
         for i in list(self._nothing):  # ACKs of nothing within the grace of the trace's end
             self._ack_of_nothing(end, i)
         for ex, _ in list(self._ambiguous.values()):  # the trace ended before a copy's deadline
-            self._decide_ambiguous(ex, ex.dst, wrong=False)
+            # undecided unless the copy was answered: one of the ACKs may be its wrong ACK (the
+            # ack-copies-wrong-seq drone ACKed a copy of 20357 naming 20358, the number the
+            # manager's ACK read 0.4 s before had taken, and was failed MCP-ACK-6 with the
+            # copy's ACK never judged: seed monitor-ack6-ack-before-its-number)
+            self._undecided_deadline(end, ex, None)
         for node in self._nodes.values():
             if not node.real:
                 continue

@@ -40,8 +40,28 @@ else:
 #: 1.5 s failed MCP-RTX-1 under --rto 0.2 after its first copy; its next copies would come)
 DESCRIPTION_TIMEOUT_NS = int(float(SPEC.params["timeout_s"]) * NS)
 
-# bits of _Exchange.flags: a rule already reported on that exchange
-F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1 = (1 << k for k in range(9))
+# bits of _Exchange.flags: a rule already reported on that exchange (F_GAVE_UP: its sender
+# moved on at its timer's time after MIN_COPIES copies or more, a retry limit's give-up;
+# F_SILENT: MCP-RTX-1 failed on it by its deadline, its copies stopped with no ACK)
+F_STORM, F_RTX4, F_INTERLEAVE, F_RTX3, F_RTX2, F_ACK1, F_SEQ2, F_FAULTY, F_RTX1, F_GAVE_UP, F_SILENT = (
+    1 << k for k in range(11))
+
+
+def _running_gaps(ex: _Exchange) -> list[int]:
+    """The gaps between ``ex``'s copies in the time its sender could run (D-7): each less the
+    growth of the run delay its two copies carry, where both carry one -- the pace of its timer,
+    which a stall between two copies stretches on the wire (the give-up-after-two manager's
+    second copy 1.54 s after its first, 0.54 s of it off the CPU, then its move on at its
+    timer's time 1 s later, taken for a message sent before its ACK: seed
+    monitor-blk1-after-give-up)."""
+    out = []
+    for (a, b), ra, rb in zip(zip(ex.copies, ex.copies[1:], strict=False), ex.run_delays,
+                              ex.run_delays[1:], strict=False):
+        gap = b[1] - a[1]
+        if ra is not None and rb is not None and rb > ra:
+            gap = max(gap - (rb - ra), 0)
+        out.append(gap)
+    return out
 
 
 class RetransmissionRules(MonitorHost):
@@ -64,7 +84,7 @@ class RetransmissionRules(MonitorHost):
                        [prev.copies[-1], (i, t)])
             return
         g = gaps(prev.copies)
-        est = median(g) if g else self.rto_ns
+        est = median(_running_gaps(prev)) if g else self.rto_ns
         wrong = self._taken_ack(prev)
         if t - prev.last_t >= est * (1 - RTX_TOLERANCE) - JITTER_NS:
             # at its timer's time: it gave up (retry limit) -- unless it moved at once after a
@@ -73,13 +93,31 @@ class RetransmissionRules(MonitorHost):
             if wrong is None or len(prev.copies) >= MIN_COPIES or t - wrong[1] > JITTER_NS:
                 if g and len(prev.copies) < MIN_COPIES:
                     self._gave_up(prev, ex, i, t)
+                elif len(prev.copies) >= MIN_COPIES:
+                    # its retry limit reached (MCP-RTX-1: configurable): the silence since
+                    # its last copy is the limit's, whatever ACK came in it -- a wrong ACK
+                    # read after the last copy proves no MCP-RTX-2 (``_wrong_ack_deadline``;
+                    # the ack-copies-wrong-seq drone's "seq + 1" ACKs of a manager's 21st copy)
+                    prev.flags |= F_GAVE_UP
                 return
         if wrong is not None:
             # sent at once after an ACK that must not end ``prev``, with no copy of ``prev``
             # since: the sender took it for ``prev``'s ACK (MCP-RTX-2), unless a copy of
             # ``prev`` follows (then it does not wait at all: MCP-BLK-1, ``_copy``)
             prev.moved_on = (i, t)
-            self._timers.at(t + 3 * est // 2 + 3 * JITTER_NS, self._moved_on_deadline, prev, wrong, ex)
+            # judged when ``prev``'s next copy is overdue, counted from its last copy where its
+            # pace is known -- not from the move, which a view that ends a timeout later never
+            # reached (the wrong-seq-ack manager's move 0.3 s after its lone copy, its view
+            # ending 1.3 s after the move: seed monitor-rtx2-missed-reordered-link): where the
+            # nodes' timeout is declared, MCP-RTX-3's latest (rto + 20 % + the jitter) as
+            # MCP-RTX-1's ``lone_due_ns``; by its gaps, 1.5 of them (``_stopped_before``)
+            if self.rto_declared:
+                due = prev.last_t + int(self.rto_ns * (1 + RTX_TOLERANCE)) + 3 * JITTER_NS
+            elif g:
+                due = prev.last_t + 3 * est // 2 + 3 * JITTER_NS
+            else:
+                due = t + 3 * est // 2 + 3 * JITTER_NS
+            self._timers.at(max(due, t), self._moved_on_deadline, prev, wrong, ex)
             return
         self._stop_and_wait(prev, ex, t, [prev.copies[-1], (i, t)], "before its ACK")
 
@@ -177,6 +215,7 @@ class RetransmissionRules(MonitorHost):
                                        and not self._stopped_before(ex, ex.wrong_ack[1])):
             return  # stopped after a wrong ACK: MCP-RTX-2's (``_wrong_ack_deadline``)
         n = len(ex.copies)
+        ex.flags |= F_SILENT
         self._emit("MCP-RTX-1", ex.src, now, f"at least {MIN_COPIES} copies until it is ACKed",
                    f"{n} cop{'y' if n == 1 else 'ies'} of {ex.describe()}, no ACK, "
                    f"none for {fmt_s(now - ex.last_t)}", ex.copies[:MIN_COPIES])
@@ -194,10 +233,12 @@ class RetransmissionRules(MonitorHost):
         if later:
             self._observe(ex.src, "MCP-RTX-2")
             return
-        if right or ex.flags & (F_RTX2 | F_RTX1) or self._stopped_before(ex, wrong[1]) or len(ex.copies) == 1:
+        if (right or ex.flags & (F_RTX2 | F_RTX1 | F_GAVE_UP) or self._stopped_before(ex, wrong[1])
+                or len(ex.copies) == 1):
             return  # the right ACK came before the next copy was due (inconclusive), or it
             # had stopped before the wrong ACK came or gave up at its timer after it (MCP-RTX-1's,
-            # ``_gave_up``: a give-up-after-two manager read a re-ACK between), or it was never seen
+            # ``_gave_up``: a give-up-after-two manager read a re-ACK between; after MIN_COPIES
+            # copies, its retry limit: F_GAVE_UP), or it was never seen
             # retransmitting: a sender that never does falls silent the same way, and the
             # right ACK withheld past its copies' time is MCP-RTX-1's (``_rtx_deadline``)
         ex.flags |= F_RTX2

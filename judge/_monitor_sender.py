@@ -41,6 +41,7 @@ from mcp_conform.judge._monitor_rtx import (
     F_RTX1,
     F_RTX3,
     F_RTX4,
+    F_SILENT,
     F_STORM,
     RetransmissionRules,
 )
@@ -505,10 +506,13 @@ class SenderRules(RetransmissionRules):
         if end - last < settle:
             return  # the trace may end while the manager is still ending missions
         busy = mgr.last_unicast
-        if busy is not None and not busy.acks and end - busy.last_t < settle:
+        if busy is not None and not busy.acks and (end - busy.last_t < settle or busy.flags & F_SILENT):
             return  # still retransmitting (an End_Mission to a drone that has gone): stop-and-
             # wait holds the next End_Mission, which a trace cut there cannot show (a deadline
-            # after the end of the trace judges nothing)
+            # after the end of the trace judges nothing); or it stopped retransmitting its
+            # latest unicast and waits for that ACK still -- MCP-RTX-1, failed on it, and the
+            # drones it never reached are stop-and-wait's consequence (the manager-rtx-none
+            # manager's End_Mission to drone 2, lost, held drone 3's for 1,897 s)
         for n in drones:
             if n.end is None and self._last_command_acked(n):
                 self._emit("MCP-FLOW-3", MANAGER, end, f"End_Mission as the last command to drone {n.id}",

@@ -118,6 +118,7 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
             named = _ack_named(data)
             if named in end_seqs.get((dst, src), ()):
                 deaf_at.setdefault((dst, src), t)
+    latest: dict[tuple[int, int], tuple[int, bytes]] = {}  # (src, dst) -> its latest message
     for t, dst, src, seq, action, data, ok, own in raw:
         if dst == broadcast_id:
             broadcasts.setdefault(src, []).append(Copy(seq, -1, t, ackable=False, judged=False))
@@ -136,11 +137,17 @@ def traces_from_datagrams(datagrams: Iterable[Any], *, complete: bool = True,
             continue
         key = (src, dst, seq)
         known = msgs.get(key)
-        if known is None or t - known[1] > SAME_MESSAGE_S:  # new, or the number came round
+        if known is None or (t - known[1] > SAME_MESSAGE_S and (
+                latest.get((src, dst)) != (seq, data))):
+            # new, or the number came round -- not a copy of the sender's latest message to
+            # that receiver, same number and bytes, however late (MCP-DUP-1; the monitor's
+            # ``_late_copy``): a lossy link held a no-ack drone's fifth copy of Start_Mission
+            # 60.02 s after its fourth, and taken for a new message it hid MCP-ACK-1
             known = (n_msgs, t)
             n_msgs += 1
         msg = known[0]
         msgs[key] = (msg, t)
+        latest[(src, dst)] = (seq, data)
         receiving = (dst not in ready_at or ready_at[dst] <= t) and t <= deaf_at.get(
             (src, dst), float("inf"))
         way.copies.append(Copy(seq, msg, t, judged=receiving, own=own))

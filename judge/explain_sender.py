@@ -105,7 +105,11 @@ def _message(trace: Trace, b: Bounds, ix: _Index, msg: int, copies: list[Copy]
         text = (f"{name}: retransmitted to the end of the trace" if status == CONSISTENT else
                 f"{name}: the trace ends before its retransmission could be seen to end")
         return {r: Verdict(r, status, text) for r in rules}
-    for stop in stops:
+    # each stop is a fact (the retransmission had ended by its ``latest``): the earliest binds.
+    # A move on at the instant a late ACK came does not let that ACK end a retransmission
+    # already over -- no copy when the next was due, the ACK withheld (seed
+    # explain-rtx1-missed-late-ack: a manager-rtx-none manager's lone Start_Mission)
+    for stop in sorted(stops, key=lambda x: x.latest):
         lo = _bisect(ix.ack_times, last - b.copy_early - b.ack_late)
         hi = _bisect(ix.ack_times, stop.latest + b.ack_early, right=True)
         causes = ix.acks[lo:hi]  # reached the sender after its last copy, before it stopped

@@ -192,7 +192,7 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         self._orphans: list[tuple[int, int, Any, str, str]] = []  # malformed, sender unknown yet
         self._ex: dict[int, Any] = {}  # src << 32 | dst << 16 | seq -> the message
         self._by_seq: dict[int, Any] = {}  # src << 16 | seq -> what src last sent with it
-        self._ack_seq: dict[int, Any] = {}  # src << 16 | own seq -> (dst, i, t) of its ACK
+        self._ack_seq: dict[int, Any] = {}  # src << 16 | own seq -> [dst, i, t, copies, answers] of its ACK
         self._to_seq: dict[int, Any] = {}  # dst << 16 | seq -> the latest message to dst
         self._timers = _Timers()
         self._violated: set[tuple[int, str]] = set()
@@ -206,6 +206,8 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing
         #: it was sent: a copy whose ACK-1 deadline finds one after it was ACKed wrongly (ACK-2)
         self._stray_acks: dict[tuple[int, int], tuple[int, int, int]] = {}
+        #: (acker, sender) -> the latest arrival a right ACK of the acker's answered (MCP-ACK-1)
+        self._answered_to: dict[tuple[int, int], int] = {}
         #: (receiver, sender) -> the latest message a copy of which came after its ACK, and
         #: the ACKs naming what the receiver must not ACK (a broadcast ...) while that copy
         #: waited: the copy's wrong ACKs or what they name, decided at its ACK-1 deadline

@@ -56,7 +56,7 @@ from bisect import bisect_right
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
-from mcp_conform.judge._monitor_base import MIN_COPIES, median
+from mcp_conform.judge._monitor_base import JITTER_NS, MIN_COPIES, median
 from mcp_conform.judge._monitor_rtx import DESCRIPTION_TIMEOUT_NS
 from mcp_conform.judge.explain import (
     CONSISTENT,
@@ -309,6 +309,56 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
             f"{b.rto_max:.3f} s after one: --rto, tolerance){ran}, may have ended it")
 
 
+def _resumed_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
+                     readings: _Readings) -> str | None:
+    """MCP-RTX-2's silence after a wrong ACK (``_wrong_ack_deadline``: "not retransmitted for
+    N s after a wrong ACK") judged in the sender's running time (D-7): the monitor's deadline
+    (the wrong ACK + 1.5 gaps + 3 x the jitter) counts wall time, and a copy that fell due
+    while ``S`` was off the CPU goes out when it runs again. The failure is explained (a text;
+    None: it stands) when ``S``'s next datagram after the wrong ACK other than an ACK is a copy
+    of the same message (the retransmission went on: the wrong ACK did not end it), sent
+    within that deadline in the time ``S`` could run (:func:`_ran`: less the run delay its
+    ``readings`` bracketing the silence show) -- and some run delay was needed for it. A
+    sender that moved on first, or stayed silent past the deadline in its running time, is
+    not explained (the seed monitor-rtx2-stalled-then-retransmitted: the ack-copies-wrong-seq
+    drone's "seq + 1" ACK read just before the manager stalled)."""
+    s, r = way
+    first = _first_copy(v, way, records)
+    if first is None or len(v.evidence) < 2:
+        return None
+    i_wrong = v.evidence[1][0]
+    if not first < i_wrong < len(records):
+        return None
+    h0 = peek_header(records[first].data, require_preamble=False)
+    hw = peek_header(records[i_wrong].data, require_preamble=False)
+    if h0 is None or hw is None or hw[3] != Action.ACK or hw[0] != s:
+        return None
+    seq = h0[2]
+    copies = []
+    for rec in records[:first + 1]:
+        h = peek_header(rec.data, require_preamble=False)
+        if h is not None and not rec.tester and h[:3] == (r, s, seq) and h[3] != Action.ACK:
+            copies.append(rec.t_ns)
+    g = [b - a for a, b in zip(copies, copies[1:], strict=False)]
+    est = median(g) if g else int(rto * NS)
+    due = 3 * est // 2 + 3 * JITTER_NS
+    t_wrong = records[i_wrong].t_ns
+    for rec in records[i_wrong + 1:]:
+        h = peek_header(rec.data, require_preamble=False)
+        if h is None or rec.tester or h[1] != s or h[3] == Action.ACK:
+            continue
+        if h[:3] != (r, s, seq) or rec.data != records[first].data:
+            return None  # it moved on (or sent another message) first
+        ran = _ran(readings, t_wrong, rec.t_ns)
+        if ran > due or rec.t_ns - t_wrong <= due:
+            return None  # overdue in the time it could run, or not late at all
+        off = readings.over(t_wrong, rec.t_ns)
+        return (f"seq {seq} from ID {s}: its next copy came {(rec.t_ns - t_wrong) / NS:.3f} s after "
+                f"the wrong ACK, {ran / NS:.3f} s in the time ID {s} could run ({off / NS:.3f} s of "
+                f"run delay over the silence, D-7): the retransmission went on")
+    return None
+
+
 def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
                      ack_window: float, end_ns: int, readings: _Readings) -> str | None:
     """MCP-RTX-1's silence judged in the sender's running time (D-7, as ``judge.spacing``
@@ -416,8 +466,12 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         either = found.get(VETOED_RULES[v.rule])
         if kept is None or kept.status not in (CONSISTENT, UNOBSERVABLE):
             continue
-        if either is not None and either.status == PROVEN:
-            continue
+        if either is not None and either.status == PROVEN and not (
+                v.rule == "MCP-RTX-1" and found.get("MCP-RTX-2") is not None
+                and found["MCP-RTX-2"].status == PROVEN):
+            continue  # the disjunction proven may rest on this rule; not where explain proves
+            # MCP-RTX-2 itself for the message (the wrong-seq-ack manager that took a wrong ACK
+            # as it woke from a stall: its lone copy's MCP-RTX-1 deadline fell in the stall)
         # explain finds no proof either way where the trace ends before a retransmission could
         # be seen (UNOBSERVABLE): only the sender's own measured starvation explains that one
         mine_rd = readings.get(way[0], NO_READINGS)
@@ -426,6 +480,8 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         if answered is None and v.rule == "MCP-RTX-1":
             answered = _starved_in_time(v, way, records, rto=rto, ack_window=ack_window, end_ns=end_ns,
                                         readings=mine_rd)
+        if answered is None and v.rule == "MCP-RTX-2":
+            answered = _resumed_in_time(v, way, records, rto=rto, readings=mine_rd)
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))

@@ -9,8 +9,8 @@ up to 3 x ``--rto``, 1-3 drones, challenges 1-3 -- for the correct models and ea
 2. a faulty party gets its rule where its fault is observable (``sim.oracles``), and no other
    MUST rule.
 
-``judge.explain`` holds both everywhere but one miss (``manager-rtx-none``). The trace monitor holds them for the correct models
-(with stalls too, since judge.explain's veto, judge/veto.py) and ten of the twelve fault models
+``judge.explain`` holds both everywhere. The trace monitor holds them for the correct models
+(with stalls too, since judge.explain's veto, judge/veto.py) and eleven of the twelve fault models
 on links without stalls (judged as ``sim.judges`` does: every model's timeout is ``rto``, declared,
 ``Monitor(rto_declared=True)``); where it does not, the test is its strict xfail
 with the reason, and the shrunk counterexamples are in ``tests/sim/seeds/`` (``test_seeds.py``).
@@ -100,11 +100,10 @@ def _holds(s: Schedule, judges: tuple[str, ...]) -> None:
 
 
 # ------------------------------------------------------------------ judge.explain
-#: fault model -> why judge.explain breaks a property (seed explain-rtx1-missed-late-ack)
-EXPLAIN_KNOWN = {
-    "manager-rtx-none": "misses MCP-RTX-1 where a command sent once is ACKed late, at the instant the "
-                        "manager moves on: the late ACK is taken as what ended the retransmission",
-}
+#: fault model -> why judge.explain breaks a property (its seeds: explain-*.json with explain_reason)
+#: (empty since session 26: manager-rtx-none's MCP-RTX-1, a late ACK at the instant the manager
+#: moved on taken as what ended its retransmission -- seed explain-rtx1-missed-late-ack, fixed)
+EXPLAIN_KNOWN: dict[str, str] = {}
 
 
 def _explain_case(fault: str | None) -> object:
@@ -126,16 +125,19 @@ def test_explain_holds_both_properties(fault):
 # ------------------------------------------------------------------ the trace monitor
 #: fault model -> why the monitor breaks a property on links without stalls (seeds: test_seeds.py)
 MONITOR_KNOWN = {
-    "ack-copies-wrong-seq": "misses MCP-ACK-2 or calls it MCP-ACK-6; a correct manager is failed MCP-RTX-2 "
-                            "for the wrong-source ACK naming its number",
-    "ack-first-copy-only": "misses MCP-ACK-1: a copy left unanswered after one answered",
-    "wrong-seq-ack": "misses MCP-RTX-2 on a link that reorders and delays (seed "
-                     "monitor-rtx2-missed-reordered-link) and under stalls: the ACK of the previous seq "
-                     "taken as answering nothing pending",
+    "ack-copies-wrong-seq": "misses MCP-ACK-2 where its only proof is a count (more ACKs naming a number "
+                            "than datagrams with it) and the waiting copy's ACK-1 deadline lies past the "
+                            "view's end",
 }
-# Rarer than these examples reach (about 1 in 100 of the sweep's give-up-never schedules), fixed:
-# MCP-FLOW-3 failed on a manager still retransmitting End_Mission when its view is cut (seed
-# monitor-flow3-cut-view).
+# Fixed (session 26): the correct manager failed MCP-RTX-2 at its retry limit after the
+# ack-copies-wrong-seq drone's wrong ACK (seed monitor-rtx2-give-up-at-the-retry-limit) and
+# after a stall (monitor-rtx2-stalled-then-retransmitted), and that drone's wrong ACKs called
+# MCP-ACK-6 (monitor-ack6-*); the wrong-seq-ack manager's MCP-RTX-2 missed where its view ends
+# within 1.5 timeouts of its move (monitor-rtx2-missed-reordered-link); the ack-first-copy-only
+# drone's MCP-ACK-1 missed where the copy's deadline lay past its view's end
+# (monitor-ack1-missed-copy-after-answer). Rarer than these examples reach (about 1 in 100 of the sweep's
+# give-up-never schedules), fixed: MCP-FLOW-3 failed on a manager still retransmitting End_Mission
+# when its view is cut (seed monitor-flow3-cut-view).
 
 
 def _monitor_case(fault: str | None) -> object:
