@@ -37,7 +37,7 @@ class Params:
     strict: bool = False
     complete: bool = False  # the trace holds every datagram the nodes exchanged
     #: ``rto`` is the nodes' own timeout, as the run that set them up declared it with the rto
-    #: it recorded (``Monitor(rto_declared=)``; not in the check report's parameters)
+    #: it recorded (``Monitor(rto_declared=)``; the check report's parameters carry it, schema 1.4)
     rto_declared: bool = False
     #: the parameters the user gave; the others are taken from the capture's own record of
     #: the run (our MCAP captures), so that a run is judged offline with its live timings
