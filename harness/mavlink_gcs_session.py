@@ -47,6 +47,7 @@ class MavlinkGcsSession(PlayedNodeSession):
     startup_note = ("startup: the runner is the vehicle (system 1, an ArduCopter) and starts the ground station "
                     "against it", "startup: waiting for the ground station's first frame")
     placeholder, tick_thread, segment = "mavlink", "mavlink-vehicle", "gcs-run"
+    link_class = Link
     link: Link | None
     model: RunnerVehicle | None  # the runner's vehicle
     behaviour: Behaviour | None
@@ -57,9 +58,6 @@ class MavlinkGcsSession(PlayedNodeSession):
         super().__init__(cfg, recorder, spec, MavlinkMonitor(spec, roles=("gcs",), complete=True),
                          scheme=cfg.mavlink_transport if cfg.mavlink else "tcp",
                          template=cfg.spawn or reference_command(profile, role, "{mavlink}"), clock=clock, net=net)
-
-    def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Link:
-        return Link(transport, address, self.recorder, sock=sock, **kw)
 
     def make_model(self, behaviour: Behaviour, now: float) -> RunnerVehicle:
         return RunnerVehicle(behaviour, now)
