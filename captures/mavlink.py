@@ -90,11 +90,6 @@ def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
     return j
 
 
-def picked(rule: str, chosen: tuple[str, ...], left_out: tuple[str, ...]) -> bool:
-    """``--select``/``--exclude`` as for MCP's rules, with or without ``MAV-``."""
-    return core.picked(rule, chosen, left_out, "MAV-")
-
-
 def _node_line(n: dict[str, Any]) -> str:
     """One node of ``MavlinkMonitor.to_json()`` (its sessions summed)."""
     what = ""
@@ -117,11 +112,9 @@ class _Mavlink(core.CapturePlugin):
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
         mon = j.monitor
-        chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
-        rules = [r for r in RULES if picked(r, chosen, left_out)]
+        rules = core.chosen_rules(ns, RULES, "MAV-")
         verdicts = mon.verdicts()
-        strict = bool(getattr(ns, "strict", False))
-        failed = [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
+        failed = core.broken(rules, verdicts, ns)
         examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
         doc = {"file": j.path, "format": j.format, "truncated": j.truncated,
                "frames": j.count, "roles": list(mon.roles), "complete": mon.complete,

@@ -18,7 +18,8 @@ and takes each subcommand's frame from here:
 - ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
   (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
   (:func:`align`);
-- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`);
+- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`, :func:`chosen_rules`) and
+  those that count against the exit code (:func:`broken`, ``--strict``);
 - the one-line notes and refusals of what a protocol does not do (:func:`note`,
   :func:`not_exported`, :func:`not_replayed`).
 
@@ -38,8 +39,8 @@ from typing import Any, TextIO
 from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
-__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window",
-           "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
+__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "broken", "case_at", "case_window",
+           "chosen_rules", "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
            "window"]
 
 
@@ -214,6 +215,18 @@ def picked(rule: str, chosen: Sequence[str], left_out: Sequence[str], prefix: st
     names = (rule, rule.removeprefix(prefix))
     return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
             and not any(n.startswith(x) for n in names for x in left_out))
+
+
+def chosen_rules(ns: Any, rules: Iterable[str], prefix: str = "") -> list[str]:
+    """The rules of ``rules`` that ``--select``/``--exclude`` keep (:func:`picked`), in order."""
+    chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
+    return [r for r in rules if picked(r, chosen, left_out, prefix)]
+
+
+def broken(rules: Iterable[str], verdicts: dict[str, str], ns: Any) -> list[str]:
+    """The rules that count against ``check``'s exit code: failed, or warned under ``--strict``."""
+    strict = bool(getattr(ns, "strict", False))
+    return [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
 
 
 @dataclass

@@ -4,7 +4,7 @@ of its roles: the runner is the judged node's peer over the whole run
 of life and sends its own periodic beat), or the runner plays a node in-process and starts
 the judged peer afresh against it for each behaviour of that node (:class:`PlayedNodeSession`).
 
-A protocol declares, never copies: its link (``make_link``), its node's first sign and the
+A protocol declares, never copies: its link (``link_class``), its node's first sign and the
 rule that asks for it, the beat it sends, the model it plays and the ``--spawn`` placeholder
 that carries the runner's URL. MAVLink's ``harness.mavlink_session.MavlinkSession`` (the
 runner a ground station, a vehicle judged) and ``harness.mavlink_gcs_session.MavlinkGcsSession``
@@ -51,6 +51,9 @@ class _LinkRole(StreamSessionBase):
     monitor, and the protocol's link."""
 
     link: Link | None = None
+    #: the protocol's link: ``harness.link.Link`` with its framing, made as
+    #: ``link_class(transport, address, recorder, sock=sock, **kw)`` (``kw``: the core's)
+    link_class: Any = None
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, clock: Clock = REAL,
                  net: Any = HOST_LINKS) -> None:
@@ -66,8 +69,8 @@ class _LinkRole(StreamSessionBase):
         self.monitor = monitor
 
     def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Link:
-        """The protocol's link (``harness.link.Link`` with its framing), ``kw`` the core's."""
-        raise NotImplementedError
+        """The protocol's link (:attr:`link_class`), ``kw`` the core's."""
+        return self.link_class(transport, address, self.recorder, sock=sock, **kw)  # type: ignore[no-any-return]
 
 
 class LinkSessionBase(_LinkRole):

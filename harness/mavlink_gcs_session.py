@@ -1,5 +1,5 @@
 """The runner's session with a ground station (``--protocol mavlink --role gcs``): the runner
-is the vehicle (``harness.mavlink_gcs_vehicle``: the simulated ArduCopter with a run's
+is the vehicle (``vehicle.behaviour``: the simulated ArduCopter with a run's
 ``Behaviour``), driven in-process on the runner's :class:`~harness.mavlink_session.Link`, and
 the ground station (a GCS, an SDK, a drone application) connects to it.
 
@@ -30,12 +30,12 @@ from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.link_session import PlayedNodeSession
-from mcp_conform.harness.mavlink_gcs_vehicle import ARDUPILOT, Behaviour, RunnerVehicle
 from mcp_conform.harness.mavlink_session import HOST_LINKS, Link
 from mcp_conform.harness.session_base import reference_command
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
+from mcp_conform.vehicle.behaviour import ARDUPILOT, Behaviour, RunnerVehicle
 
 __all__ = ["MavlinkGcsSession"]
 
@@ -47,6 +47,7 @@ class MavlinkGcsSession(PlayedNodeSession):
     startup_note = ("startup: the runner is the vehicle (system 1, an ArduCopter) and starts the ground station "
                     "against it", "startup: waiting for the ground station's first frame")
     placeholder, tick_thread, segment = "mavlink", "mavlink-vehicle", "gcs-run"
+    link_class = Link
     link: Link | None
     model: RunnerVehicle | None  # the runner's vehicle
     behaviour: Behaviour | None
@@ -57,9 +58,6 @@ class MavlinkGcsSession(PlayedNodeSession):
         super().__init__(cfg, recorder, spec, MavlinkMonitor(spec, roles=("gcs",), complete=True),
                          scheme=cfg.mavlink_transport if cfg.mavlink else "tcp",
                          template=cfg.spawn or reference_command(profile, role, "{mavlink}"), clock=clock, net=net)
-
-    def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Link:
-        return Link(transport, address, self.recorder, sock=sock, **kw)
 
     def make_model(self, behaviour: Behaviour, now: float) -> RunnerVehicle:
         return RunnerVehicle(behaviour, now)

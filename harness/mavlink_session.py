@@ -136,6 +136,7 @@ class MavlinkSession(LinkSessionBase):
     startup_note = ("startup: the runner joins the vehicle's link as a ground station (system 255) "
                     "and waits for its first HEARTBEAT", "startup: waiting for the vehicle's HEARTBEAT")
     first_sign, first_rule, beat_thread = "HEARTBEAT", "MAV-HB-1", "mavlink-heartbeat"
+    link_class = Link
     link: Link | None
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK, *,
@@ -145,9 +146,6 @@ class MavlinkSession(LinkSessionBase):
                          clock=clock, net=net)
         #: the vehicle's system and component IDs (its first HEARTBEAT's)
         self.vehicle: tuple[int, int] = (0, 0)
-
-    def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Link:
-        return Link(transport, address, self.recorder, sock=sock, **kw)
 
     def identified(self, first: Any) -> None:
         self.vehicle = (first.msg.get_srcSystem(), first.msg.get_srcComponent())

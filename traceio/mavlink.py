@@ -37,15 +37,13 @@ from typing import Any, NamedTuple
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.reader import (
     CaptureError,
-    CaseMark,
     Datagram,
     MavlinkFrame,
-    Metadata,
     StreamFrame,
     Truncated,
     open_capture,
 )
-from mcp_conform.traceio.traces import claims, corrupt, head_of, is_mcap_head, recorded_protocol
+from mcp_conform.traceio.traces import claims, head_of, is_mcap_head, packet_records, said_by
 
 __all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "is_tlog", "mavlink_records", "open_trace", "parse_frame"]
 
@@ -126,21 +124,15 @@ class MavTrace:
 
     # -- MCAP -----------------------------------------------------------------------------
     def _mcap(self) -> Iterator[Any]:
-        cap = open_capture(self.path)
         parsers: dict[Any, Any] = {}
-        n = 0
-        for rec in cap:
-            if isinstance(rec, MavlinkFrame):
-                p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, _parser())
-                yield MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
-                n += 1
-            elif isinstance(rec, Truncated):
+
+        def frame(n: int, rec: MavlinkFrame) -> MavFrame:
+            p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, _parser())
+            return MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
+        for rec in packet_records(open_capture(self.path), MavlinkFrame, frame):
+            if isinstance(rec, Truncated):
                 self.truncated = rec.reason
-                if not n and cap.corrupt:
-                    raise corrupt(self.path, "MCAP", rec.reason)
-                yield rec
-            elif isinstance(rec, (CaseMark, Metadata)):
-                yield rec
+            yield rec
 
     # -- tlog -----------------------------------------------------------------------------
     def _tlog(self) -> Iterator[Any]:
@@ -219,11 +211,6 @@ def is_mavlink_capture(path: str | Path) -> bool:
     if trace.format == "tlog":
         return is_tlog(path)
     try:
-        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), _says, first=False)
+        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
     except CaptureError:
         return False
-
-
-def _says(meta: Metadata) -> bool | None:
-    protocol = recorded_protocol(meta)
-    return None if protocol is None else protocol == "mavlink"

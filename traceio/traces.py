@@ -1,8 +1,8 @@
 """What every protocol's trace reader does alike (``traceio.nsqd``, ``traceio.mavlink``: a
 capture plug-in's reader, docs/design.md "A protocol is a plug-in"), the protocol a parameter:
-which run a capture's metadata says it was (:func:`recorded_protocol`), whether a capture's
-first records are a protocol's (:func:`claims`), the records an MCAP holds of it
-(:func:`records_of`), a capture's packet reader closed however the reading ends
+which run a capture's metadata says it was (:func:`recorded_protocol`, :func:`said_by`), whether
+a capture's first records are a protocol's (:func:`claims`), the records an MCAP holds of it
+(:func:`records_of`; a packet protocol's frames numbered, :func:`packet_records`), a capture's packet reader closed however the reading ends
 (:func:`closing`), and the one-line error of a file corrupt before its first record
 (:func:`corrupt`), a file's head (:func:`head_of`, :func:`is_mcap_head`), a pcap's TCP connections as a stream protocol's records
 (:func:`stream_pcap_records`). A protocol's own module keeps its content: its records, its framing, its
@@ -23,14 +23,15 @@ from mcp_conform.traceio.reader import (
     _MCAP_MAGIC,
     Capture,
     CaptureError,
+    CaseMark,
     Metadata,
     StreamFrame,
     Truncated,
 )
 from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
 
-__all__ = ["PEEK", "claims", "closing", "corrupt", "head_of", "is_mcap_head", "recorded_protocol", "records_of",
-           "stream_pcap_records"]
+__all__ = ["PEEK", "claims", "closing", "corrupt", "head_of", "is_mcap_head", "packet_records", "recorded_protocol",
+           "records_of", "said_by", "stream_pcap_records"]
 
 #: records (or packets) looked at to tell which protocol's a capture is
 PEEK = 500
@@ -65,6 +66,15 @@ def recorded_protocol(meta: Metadata) -> str | None:
     return value if isinstance(value, str) else None
 
 
+def said_by(name: str) -> Callable[[Metadata], bool | None]:
+    """:func:`claims`'s ``says`` of protocol ``name``: the run's metadata names it, or another
+    (None: it names none)."""
+    def says(meta: Metadata) -> bool | None:
+        protocol = recorded_protocol(meta)
+        return None if protocol is None else protocol == name
+    return says
+
+
 def claims(records: Iterable[Any], own: tuple[type, ...], foreign: tuple[type, ...],
            says: Callable[[Metadata], bool | None], *, first: bool) -> bool:
     """Whether a capture's first :data:`PEEK` records are a protocol's: a metadata record
@@ -89,6 +99,24 @@ def records_of(cap: Capture, kinds: tuple[type, ...]) -> Iterator[Any]:
     """An opened capture's records of these kinds, in order."""
     for rec in cap:
         if type(rec) in kinds:
+            yield rec
+
+
+def packet_records(cap: Capture, kind: type, make: Callable[[int, Any], Any]) -> Iterator[Any]:
+    """An opened MCAP's records of a packet protocol: each of its frames (records of ``kind``)
+    as ``make(n, rec)`` makes it, ``n`` 0, 1, 2, ... over them; the run's ``CaseMark`` and
+    ``Metadata`` records; last, when the file ends early, ``Truncated`` (:func:`corrupt` when
+    no frame came before)."""
+    n = 0
+    for rec in cap:
+        if isinstance(rec, kind):
+            yield make(n, rec)
+            n += 1
+        elif isinstance(rec, Truncated):
+            if not n and cap.corrupt:
+                raise corrupt(cap.path, "MCAP", rec.reason)
+            yield rec
+        elif isinstance(rec, (CaseMark, Metadata)):
             yield rec
 
 

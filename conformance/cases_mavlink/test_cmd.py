@@ -7,8 +7,8 @@ is an answer; the long-running one is the barometer's calibration, harmless on t
 
 from __future__ import annotations
 
+from mcp_conform.conformance.cases_mavlink.mavlink_services import UNKNOWN_COMMAND, result_name
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import UNKNOWN_COMMAND, result_name
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import MAVLINK
 

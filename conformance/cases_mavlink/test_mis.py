@@ -8,13 +8,13 @@ is replaced, and the last case leaves it empty."""
 
 from __future__ import annotations
 
-from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import (
+from mcp_conform.conformance.cases_mavlink.mavlink_services import (
     UNKNOWN_COMMAND,
     ItemAnswers,
     result_name_mission,
     upload_replies,
 )
+from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import MAVLINK
 

@@ -10,8 +10,8 @@ import re
 
 import pytest
 
+from mcp_conform.conformance.cases_mavlink.mavlink_services import param_id
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import param_id
 from mcp_conform.harness.errors import Inconclusive
 
 #: no vehicle has a parameter of this name (16 characters, MAV-PRM-9's longest)

@@ -7,11 +7,14 @@ from ArduPilot for the first command the ground station sends (``Behaviour``).""
 
 from __future__ import annotations
 
+from mcp_conform.conformance.cases_mavlink_gcs.mavlink_gcs_services import (
+    GLOBAL_FRAMES,
+    degrees_sent,
+)
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_gcs_case import GLOBAL_FRAMES, degrees_sent
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 from mcp_conform.spec import MAVLINK
+from mcp_conform.vehicle.behaviour import Behaviour
 
 WITHHOLD = Behaviour("withhold-command-ack", withhold_command_ack=True)
 WRONG_ACK = Behaviour("wrong-command-ack", wrong_command_ack=True)

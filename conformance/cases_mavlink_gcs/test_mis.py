@@ -10,11 +10,14 @@ from __future__ import annotations
 import math
 from collections import Counter
 
+from mcp_conform.conformance.cases_mavlink_gcs.mavlink_gcs_services import (
+    GLOBAL_FRAMES,
+    degrees_sent,
+)
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_gcs_case import GLOBAL_FRAMES, degrees_sent
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
 from mcp_conform.spec import MAVLINK
+from mcp_conform.vehicle.behaviour import Behaviour
 
 mav = MAVLINK.dialect
 ITEMS = ("MISSION_ITEM_INT", "MISSION_ITEM")

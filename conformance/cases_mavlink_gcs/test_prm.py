@@ -5,10 +5,10 @@ PARAM_VALUE does not come (the runner withholds the first one)."""
 
 from __future__ import annotations
 
+from mcp_conform.conformance.cases_mavlink.mavlink_services import param_id
 from mcp_conform.conformance.marks import rules
-from mcp_conform.conformance.mavlink_case import param_id
 from mcp_conform.harness.errors import Inconclusive
-from mcp_conform.harness.mavlink_gcs_vehicle import Behaviour
+from mcp_conform.vehicle.behaviour import Behaviour
 
 WITHHOLD = Behaviour("withhold-param-value", withhold_param_value=True)
 #: How long a PARAM_VALUE may take to reach the ground station (a lossy link's TCP

@@ -2,7 +2,8 @@
 is none of ours (lines ending in a newline) runs on ``harness.link.Link`` (a reader thread,
 UDP both ways on loopback) and on ``harness.stream_conn.StreamConn`` (a TCP connection read in
 the caller's thread), its frames cut by its own framing and recorded in the order they went
-and came."""
+and came; and ``harness.link_session.LinkSessionBase`` makes the link it declares
+(``link_class``) and awaits its first sign."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.link import Link
+from mcp_conform.harness.link_session import LinkSessionBase
 from mcp_conform.harness.stream_conn import StreamConn
 
 
@@ -135,3 +138,55 @@ def test_a_stream_protocol_of_its_own_runs_on_the_pumped_connection() -> None:
     finally:
         conn.close()
         listener.close()
+
+
+class LineSessionLink(LineLink):
+    """The line protocol's link as a session makes it (``link_class``): its framing its own."""
+
+    def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, **kw: Any) -> None:
+        super().__init__(LineFraming(), transport, address, recorder, **kw)
+
+
+class LineSession(LinkSessionBase):
+    """A session of the line protocol on the core: its link, first sign and beat declared."""
+
+    subject = "the line node"
+    first_sign, first_rule, beat_thread = "HELLO", "LINE-1", "line-beat"
+    link_class = LineSessionLink
+
+    def beat_message(self, link: Any) -> str:
+        return "BEAT"
+
+    def identified(self, first: Any) -> None:
+        self.node_name = first.raw.split()[1].decode()
+
+
+class LineSpec:
+    params = {"heartbeat_period_s": 0.05}
+
+
+def test_a_session_makes_the_link_its_protocol_declares_and_awaits_its_first_sign() -> None:
+    node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    node.bind(("127.0.0.1", 0))
+    node.settimeout(5.0)
+    recorder: list[tuple[str, bytes, str | None]] = []
+    cfg = RunConfig(target=("udpout:127.0.0.1", node.getsockname()[1]), timeout=5.0,
+                    extra={"startup_timeout": 5.0})
+    session = LineSession(cfg, recorder, LineSpec(), Monitor(), scheme="tcp", embedded=None)
+
+    def answer() -> None:  # the node answers the runner's first beat with its first sign
+        data, addr = node.recvfrom(100)
+        if data == b"BEAT\n":
+            node.sendto(b"HELLO seven\n", addr)
+    t = threading.Thread(target=answer)
+    t.start()
+    try:
+        session.start()
+        assert isinstance(session.link, LineSessionLink) and session.link.transport == "udpout"
+        assert session.node_name == "seven" and session.first_heartbeat is not None
+        assert session.url == f"udpout:127.0.0.1:{node.getsockname()[1]}"
+        assert recorder[:2] == [("rx", b"BEAT\n", "BEAT"), ("tx", b"HELLO seven\n", "HELLO")]
+    finally:
+        t.join(5.0)
+        session.close()
+        node.close()

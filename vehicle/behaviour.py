@@ -1,9 +1,11 @@
-"""The runner's vehicle of ``--protocol mavlink --role gcs``: the project's simulated ArduCopter
-(``vehicle.model.VehicleModel``, sans-I/O: each frame of the ground station in, the autopilot's
-answers out, telemetry and HEARTBEAT on its clock), asking for items with MISSION_REQUEST_INT,
+"""The vehicle the runner plays in ``--protocol mavlink --role gcs``: the reference vehicle's
+model, the project's simulated ArduCopter (``vehicle.model.VehicleModel``, sans-I/O: each frame
+of the ground station in, the autopilot's answers out, telemetry and HEARTBEAT on its clock),
+asking for items with MISSION_REQUEST_INT,
 and the :class:`Behaviour` by which it departs from ArduPilot on purpose for one run, to see
-what the ground station does then (MAV-CMD-6..17, MAV-PRM-14..16, MAV-MIS-20..24). The session
-(``harness.mavlink_gcs_session``) drives it on the link."""
+what the ground station does then (MAV-CMD-6..17, MAV-PRM-14..16, MAV-MIS-20..24). A reference
+node like ``mcp-vehicle``, driven in-process: the session (``harness.mavlink_gcs_session``) runs
+it on the runner's link."""
 
 from __future__ import annotations
 
@@ -12,11 +14,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.harness.mavlink_session import DIALECT
+from mcp_conform.spec import MAVLINK
 from mcp_conform.vehicle.model import VehicleConfig, VehicleModel
 
 __all__ = ["ARDUPILOT", "Behaviour", "RunnerVehicle", "command_key"]
 
+DIALECT: Any = MAVLINK.dialect
 COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
 ITEMS = ("MISSION_ITEM_INT", "MISSION_ITEM")
 
