@@ -12,27 +12,26 @@ asked for it, ``fuzz.mavlink_cases.asks_heartbeat_stop``: 0, not replayed).
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz.campaign_core import PROG, CaseEngine, ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
-from mcp_conform.fuzz.findings import Finding, FindingStore, load_finding
+from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import WorkerResult
 from mcp_conform.fuzz.mavlink_cases import (
     Case,
     CaseMaker,
-    Vehicle,
     asks_heartbeat_stop,
     case_from_json,
 )
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
 from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, Hit, MavTarget, Signature, VehicleSpec
 from mcp_conform.fuzz.progress import Progress
+from mcp_conform.fuzz.replay_core import Replayed, replay_command
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
 __all__ = ["MavlinkCampaign", "MavlinkEngine", "MavlinkPlugin"]
@@ -119,31 +118,31 @@ class MavlinkCampaign(ProtocolCampaign):
 
     @staticmethod
     def replay(path: str, cfg: FuzzConfig) -> int:
-        """``--replay finding-N``: its cases on a fresh vehicle (``--spawn``/``--target``, else
-        the reference vehicle); 1 when its signature shows again, 0 when not, 2 unreadable."""
-        try:
-            f = load_finding(path, MAVLINK_PROFILE.name)
-            cases = [case_from_json(c) for c in f.doc.get("cases", [])]
-            probe = bytes.fromhex(str(f.doc.get("probe_hex", "")))
-        except ValueError as exc:
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            return 2
-        asked = next((i for i, c in enumerate(cases, 1) if asks_heartbeat_stop(c)), None)
-        if f.doc.get("oracle") == "hang" and asked is not None:
-            print(f"{PROG}: finding {f.rule} ({f.shape}) is no finding: its case {asked} asks the vehicle to "
-                  "stop its HEARTBEAT (MAV_CMD_SET_MESSAGE_INTERVAL), which it may do; not replayed")
-            return 0
-        target = MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
-        try:
-            info = target.info
-            if probe and probe in info.params:
-                target.info = Vehicle(info.sysid, info.compid, info.params, probe)
-            sig = Signature(str(f.doc.get("oracle", "answer")), f.rule, str(f.doc.get("kind", "")))
-            h = replay_cases(target.fresh, cases, sig)
-        finally:
-            target.close()
-        shown = h is not None
-        print(f"{PROG}: finding {f.rule} ({f.shape}) {'reproduced' if shown else 'not reproduced'}"
-              + (f": {h.actual}" if h is not None else ""))
-        return 1 if shown else 0
+        """``--replay finding-N`` (``fuzz.replay_core``): its cases on a fresh vehicle
+        (``--spawn``/``--target``, else the reference vehicle); 1 when its signature shows
+        again, 0 when not, 2 unreadable."""
+        return replay_command(path, MAVLINK_PROFILE.name, _replayed_cases, lambda f, cases: _replay(f, cases, cfg))
 
+
+def _replayed_cases(f: Finding) -> list[Case]:
+    return [case_from_json(c) for c in f.doc.get("cases", [])]
+
+
+def _replay(f: Finding, cases: list[Case], cfg: FuzzConfig) -> Replayed | int:
+    """A finding's cases on a fresh vehicle, the probe its campaign's (a stopped heartbeat
+    after a case that asked for it: no finding, not replayed, 0)."""
+    asked = next((i for i, c in enumerate(cases, 1) if asks_heartbeat_stop(c)), None)
+    if f.doc.get("oracle") == "hang" and asked is not None:
+        print(f"{PROG}: finding {f.rule} ({f.shape}) is no finding: its case {asked} asks the vehicle to "
+              "stop its HEARTBEAT (MAV_CMD_SET_MESSAGE_INTERVAL), which it may do; not replayed")
+        return 0
+    probe = bytes.fromhex(str(f.doc.get("probe_hex", "")))
+    target = MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
+    try:
+        if probe and probe in target.info.params:
+            target.info = replace(target.info, probe=probe)
+        h = replay_cases(target.fresh, cases, Signature(str(f.doc.get("oracle", "answer")), f.rule,
+                                                        str(f.doc.get("kind", ""))))
+    finally:
+        target.close()
+    return Replayed(h is not None, h.actual if h is not None else "")

@@ -30,7 +30,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import write_repro_mcap
@@ -103,14 +103,11 @@ def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, 
 @dataclass(kw_only=True, eq=False)
 class MavTriage(HitTriage):
     """One worker's MAVLink triage (``fuzz.triage_core``'s steps; what it learnt carried to the
-    next engine turn's: ``tries``, ``quiet_hangs``)."""
+    next engine turn's: ``tries``, ``baselines``)."""
 
-    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "quiet_hangs")
 
     target: MavTarget
     store: FindingStore
-    #: whether a fresh vehicle sent nothing stops its heartbeat too (None: not yet known)
-    quiet_hangs: bool | None = None
 
     def consider(self, hit: Hit, suspects: list[Case]) -> MavVehicle:
         """A hit after ``suspects`` (the newest last), triaged and timed; the vehicle to go on with."""
@@ -213,29 +210,28 @@ class MavTriage(HitTriage):
         self.store.add(f)
 
     def _hangs_anyway(self, hit: Hit) -> bool:
-        """Whether the heartbeat stops with no case sent (the baseline, once a worker): a fresh
-        vehicle watched for its next HEARTBEAT, N of N times; then the stop is the vehicle's
-        own (a finding with no input blamed, MAV-HB-1) and no case is blamed for it."""
-        if self.quiet_hangs is None:
-            def quiet(log: list[Any]) -> Hit | None:
-                v = self._fresh(log)
-                try:
-                    return v.beats_on()
-                finally:
-                    v.close()
+        """Whether the heartbeat stops with no case sent (``HitTriage.baseline``: a fresh
+        vehicle watched for its next HEARTBEATs); then the stop is the vehicle's own (a finding
+        with no input blamed, MAV-HB-1) and no case is blamed for it."""
+        def quiet(log: list[Any], first: Hit | None) -> Hit | None:
+            v = self._fresh(log)
+            try:
+                return v.beats_on()
+            finally:
+                v.close()
 
-            conf = self.confirm_logged(lambda log: self.replay(lambda: quiet(log), share=False), until_miss=True)
-            self.quiet_hangs = conf.confirmed
-            if conf.confirmed:
-                h, log = conf.hits[-1]
-                self.store.add(mavlink_finding(h, [], conf.replays, self.target.info.probe, traffic=log,
-                    seed=self.seed, worker=self.worker, note="the vehicle's behaviour whatever it is sent: "
-                                                            "no input blamed (a fresh vehicle sent nothing)"))
-        if self.quiet_hangs:
-            found = next((f for f in self.store.order if f.no_input and f.source == "hang"), None)
-            if found is not None:
-                found.occurrences += 1
-        return bool(self.quiet_hangs)
+        def found(first: Hit, last: Hit, log: list[Any], replays: str) -> None:
+            self.store.add(mavlink_finding(last, [], replays, self.target.info.probe, traffic=log, seed=self.seed,
+                                           worker=self.worker, note="the vehicle's behaviour whatever it is sent: "
+                                                                    "no input blamed (a fresh vehicle sent nothing)"))
+
+        if self.baseline("hang", quiet, lambda a, b: True, found,
+                         lambda h: (h.signature.rule, h.signature.describe(), h.actual)) is None:
+            return False
+        known = next((f for f in self.store.order if f.no_input and f.source == "hang"), None)
+        if known is not None:
+            known.occurrences += 1
+        return True
 
     def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
         """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""

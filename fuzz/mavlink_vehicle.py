@@ -42,7 +42,7 @@ from mcp_conform.fuzz.mavlink_cases import (
     raw_fields,
 )
 from mcp_conform.fuzz.mavlink_oracles import Hit, Signature, answers, judge
-from mcp_conform.fuzz.spares import Spare
+from mcp_conform.fuzz.spares import Spares
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.mavlink_session import embedded_command, parse_address
 from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
@@ -367,24 +367,17 @@ class MavTarget(WorkerTarget):
         self.how = how
         super().__init__(MavVehicle(how, late=LATE_S), attached=how.target is not None)
         self.info = self.current.info
-        self._spare: Spare[MavVehicle] | None = None
+        self.spares: Spares[MavVehicle] = Spares(lambda: MavVehicle(self.how, self.info), MavVehicle.close,
+                                                 n=0 if self.attached else 1, timeout=30.0)
 
     def fresh(self, log: list[Any] | None = None) -> MavVehicle:
         """Another vehicle (spawned: a new process; attached: a new link), built for the same
         cases (the first one's IDs, parameters and probe). Spawned, it is the spare started in
         the background at the previous call (a replay then waits for no process to start),
         and the next spare is started."""
-        v = self._take_spare()
-        if v is None:
-            v = MavVehicle(self.how, self.info, log)
+        v = self.spares.next(lambda: MavVehicle(self.how, self.info, log))
         v.log = log
-        if not self.attached:
-            self._spare = Spare(lambda: MavVehicle(self.how, self.info), MavVehicle.close)
         return v
-
-    def _take_spare(self) -> MavVehicle | None:
-        spare, self._spare = self._spare, None
-        return spare.take(30.0) if spare is not None else None
 
     def restart(self, reason: str) -> MavVehicle:
         self.current.close()
@@ -395,5 +388,4 @@ class MavTarget(WorkerTarget):
 
     def close(self) -> None:
         self.current.close()
-        if self._spare is not None:
-            self._spare.discard()
+        self.spares.discard()

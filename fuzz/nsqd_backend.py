@@ -42,7 +42,7 @@ from mcp_conform.fuzz.nsqd_oracles import (
     parse_sanitizer,
     same_finding,
 )
-from mcp_conform.fuzz.spares import SPARES, Spare
+from mcp_conform.fuzz.spares import Spares
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
 from mcp_conform.spec import NSQD
@@ -96,14 +96,13 @@ class Backend:
         self.unwatched = ""  # the kind of the last valid case sent without its close window
         self.unwatched_n = 0  # how many cases in a row before this one were
         #: the next processes, started in the background (``fuzz.spares``: SPARES of them)
-        self.spares: list[Spare[Backend]] = []
+        self.spares: Spares[Backend] = Spares(lambda: Backend(target, spawn, self.traits), Backend.close,
+                                              lambda b: b.process is None or b.process.alive())
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self.session.close()
-        for spare in self.spares:
-            spare.discard()
-        self.spares = []
+        self.spares.discard()
 
     def fresh(self) -> Backend:
         """A new process (spawn mode and the embedded default): the spare started in the
@@ -114,14 +113,10 @@ class Backend:
         if self.target is not None and self.spawn is None:
             self._drop()
             return self
-        spares, self.spares = self.spares, []
+        spares, self.spares = self.spares, Spares(self.spares.start, Backend.close)
         self.close()
-        b = (spares[0].take() if spares else None) or Backend(self.target, self.spawn, self.traits)
-        b.traits = self.traits
-        b.spares = spares[1:]
-        while len(b.spares) < SPARES:
-            b.spares.append(Spare(lambda: Backend(self.target, self.spawn, self.traits), Backend.close,
-                                  lambda b: b.process is None or b.process.alive()))
+        b = spares.next()
+        b.traits, b.spares = self.traits, spares
         return b
 
     restart = fresh  #: the process the campaign goes on fuzzing with

@@ -17,9 +17,7 @@ The budget (``fuzz.budget``): ``--duration`` bounds the whole campaign, triage i
 ``over_budget``); once spent, a new signature's hits are counted in the summary
 (``untriaged``), not replayed.
 
-Two observations of triage live here too: :func:`death_culprit` finds the case a death comes
-of among every case its process was sent before the death's cause showed (bisection over
-prefixes), and :func:`leak_check` observes NSQD-CON-3 as its rule does (descriptors over
+One observation of triage lives here too: :func:`leak_check` observes NSQD-CON-3 as its rule does (descriptors over
 connect/close cycles with nothing sent) before the first case.
 """
 
@@ -30,14 +28,12 @@ from typing import Any
 
 from mcp_conform.fuzz.budget import check_late
 from mcp_conform.fuzz.confirm import confirm_n
-from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.nsqd_backend import Backend, Hit
-from mcp_conform.fuzz.nsqd_mutators import Case
 from mcp_conform.fuzz.nsqd_oracles import Signature
 from mcp_conform.spec import NSQD
 
-__all__ = ["PROBED", "baseline", "death_culprit", "leak_check", "watch_stream"]
+__all__ = ["PROBED", "baseline", "leak_check", "watch_stream"]
 
 PROBED = "(the probe with no case before it)"  # a baseline hit's detail ends so when the probe showed it
 STREAM_UPDATES = 3  # UPDATEs a baseline connection reads (mcp-conform's FRM-1 case reads three)
@@ -145,27 +141,3 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
             self.add_found(sig, first[1], conf.replays, "connect/close cycles")
         return self.restart(self.current)
     return self.current
-
-
-def death_culprit(self: Any, backend: Backend, sig: Signature, suspects: list[Case]) -> tuple[list[Case] | None, Backend]:
-    """The case(s) a death or a report comes of, among ``suspects`` (every case the process
-    was sent before its cause showed, oldest first; ``Backend.suspects``): the newest alone;
-    else the shortest prefix that shows it, by bisection (a real backend handles one frame
-    per 20 ms loop and lagged a dozen cases behind the fuzzer: its culprit was seldom among
-    the last two), then its last case alone, else that prefix delta-debugged."""
-    ok, backend, _ = self.rep(backend, suspects[-1:], sig, probe=False)
-    if ok:
-        return suspects[-1:], backend
-    ok, backend, _ = self.rep(backend, suspects, sig, probe=False)
-    if not ok:
-        return None, backend
-    lo, hi = 0, len(suspects)  # the prefix of hi cases shows it, of lo does not
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        ok, backend, _ = self.rep(backend, suspects[:mid], sig, probe=False)
-        lo, hi = (lo, mid) if ok else (mid, hi)
-    ok, backend, _ = self.rep(backend, suspects[hi - 1:hi], sig, probe=False)
-    if ok:
-        return suspects[hi - 1:hi], backend
-    self.current = backend
-    return ddmin(suspects[:hi], self.shows(sig, probe=False), budget=12), self.current

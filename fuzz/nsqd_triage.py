@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
-from mcp_conform.fuzz.budget import TRIAGE_SHARE, check_late, over_budget
+from mcp_conform.fuzz.budget import TRIAGE_SHARE, over_budget
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import TrafficLog
@@ -39,10 +39,10 @@ from mcp_conform.fuzz.nsqd_backend import (
     _replay_kind,
     _reproduces,
 )
-from mcp_conform.fuzz.nsqd_blame import PROBED, baseline, death_culprit
+from mcp_conform.fuzz.nsqd_blame import PROBED, baseline
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
-from mcp_conform.fuzz.triage_core import HitTriage
+from mcp_conform.fuzz.triage_core import HitTriage, prefix_culprit
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
@@ -86,11 +86,10 @@ class StreamTriage(HitTriage):
     the next turn's; its steps, counts and bounds: ``fuzz.triage_core.HitTriage``;
     ``untriaged`` by signature, ``tries`` by (signature key, how))."""
 
-    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "aliases", "base_seen")
+    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "aliases", "baselines")
     target: WorkerTarget
     store: FindingStore
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
-    base_seen: dict[bool, Signature | None] = field(default_factory=dict)  # baseline (probe or not) -> what it showed
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
 
@@ -172,61 +171,43 @@ class StreamTriage(HitTriage):
         return still
 
     def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
-        """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame``) on a
-        fresh backend, run once per campaign (with the probe or without). A failing baseline is
-        confirmed ``n_of_n`` times and kept as the target's behaviour, no input blamed; it
-        explains the hit when it is of its kind (a death for a death, a bad frame for a bad
-        frame; any for what a probe showed): then (False, backend)."""
+        """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame.baseline``,
+        ``HitTriage.baseline``) on fresh backends, once a worker (with the probe or without).
+        A failing baseline, confirmed ``n_of_n`` times, is kept as the target's behaviour, no
+        input blamed; it explains the hit when it is of its kind (a death for a death, a bad
+        frame for a bad frame; any for what a probe showed): then (False, backend)."""
         key = probe or hit.signature.oracle in ("hang", "desync")
-        if key not in self.base_seen:
-            self.base_seen[key] = self._baseline(backend, hit, key)
-            backend = self.current
-        base = self.base_seen[key]
+        ran = key not in self.baselines
+        if ran:
+            self.current = backend
+
+        def observe(log: list[Any], first: Hit | None) -> Hit | None:
+            b = self.current = self.current.fresh()
+            self.target.count_restart("triage replay")
+            return baseline(b, (first or hit).signature, probe=key)
+
+        def found(first: Hit, last: Hit, log: list[Any], replays: str) -> None:
+            if self.known(first.signature) is None:
+                how = ("the probe command with no case before it)" if first.detail.endswith(PROBED)
+                       else "a baseline connection sent nothing)")
+                self.add(nsqd_finding(first.signature, [], first.detail, replays, first.stderr, no_input=True,
+                                      probe=key, note="the target's behaviour, whatever it is sent: no input "
+                                                      f"blamed ({how}"))
+
+        base = self.baseline(key, observe, lambda a, b: same_finding(a.signature, b.signature), found,
+                             lambda h: (h.signature.rule, f"{h.signature.describe()}, no input", h.detail),
+                             lambda: self.restart(self.current))
+        backend = self.current if ran else backend
         if base is None:
             return True, backend
-        h, b = hit.signature.oracle, base.oracle
+        h, b = hit.signature.oracle, base.signature.oracle
         if not (h in ("hang", "desync", "effect") or h == b or {h, b} <= {"crash", "sanitizer"}):
             return True, backend
-        found = self.known(base)
-        if found is not None:
-            found.occurrences += 1
-            self.aliases[hit.signature.key] = found
+        found_ = self.known(base.signature)
+        if found_ is not None:
+            found_.occurrences += 1
+            self.aliases[hit.signature.key] = found_
         return False, backend
-
-    def _baseline(self, backend: Backend, hit: Hit, key: bool) -> Signature | None:
-        """The baseline, confirmed ``n_of_n`` times: its signature (a finding, no input
-        blamed), or None (clean, or not every time: counted unconfirmed)."""
-        check_late(self, share=False)
-        b = self.current = backend.fresh()
-        self.target.count_restart("triage replay")
-        base = baseline(b, hit.signature, probe=key)
-        if base is None:
-            return None
-        sig = base.signature
-
-        def once() -> Hit | None:
-            check_late(self, share=False)
-            fresh = self.current = self.current.fresh()
-            self.target.count_restart("triage replay")
-            again = baseline(fresh, sig, probe=key)
-            return again if again is not None and same_finding(again.signature, sig) else None
-
-        conf = confirm_n(once, self.n_of_n - 1, until_miss=False)  # the first baseline is one of replays
-        confirmed = 1 + len(conf.hits)
-        self.restart(self.current)
-        if not conf.confirmed:  # at times whatever it is sent: no input is to blame either
-            self.count_unconfirmed(sig.rule)
-            conf.note(self.environment, sig.rule, f"{sig.describe()}, no input", base.detail,
-                      "a baseline sent nothing showed it, then not every confirming baseline did "
-                      "(timing or load); no input is to blame either")
-            return None
-        if self.known(sig) is None:
-            self.add(nsqd_finding(sig, [], base.detail, f"{confirmed} of {self.n_of_n}", base.stderr,
-                                  note="the target's behaviour, whatever it is sent: no input blamed (" + (
-                                      "the probe command with no case before it)" if base.detail.endswith(PROBED)
-                                      else "a baseline connection sent nothing)"),
-                                  no_input=True, probe=key))
-        return sig
 
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
@@ -256,7 +237,11 @@ class StreamTriage(HitTriage):
                 backend = self.current
             suspects = []
         if sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
-            culprit, backend = death_culprit(self, backend, sig, suspects)
+            # every case its process was sent before the death's cause showed (a real backend
+            # handles one frame per 20 ms loop and lagged a dozen cases behind the fuzzer: its
+            # culprit was seldom among the last two)
+            self.current = backend
+            culprit, backend = prefix_culprit(suspects, self.shows(sig, probe=False)), self.current
             suspects = []
         for c in reversed(suspects):  # the newest suspect first
             ok, backend, _ = self.rep(backend, [c], sig, probe=probe)

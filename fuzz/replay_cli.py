@@ -1,5 +1,6 @@
 """``mcp-fuzz --replay finding-N``: replay a finding's minimal sequence and say whether it
-reproduces (exit 1, the finding is there) or not (exit 0); 2 on a bad finding or target.
+reproduces (exit 1, the finding is there) or not (exit 0); 2 on a bad finding or target, as
+every protocol's replay does (``fuzz.replay_core``).
 
 The target is the one given on the command line, else the one the campaign recorded in the
 finding (its spawn command, or the embedded default).
@@ -10,34 +11,32 @@ from __future__ import annotations
 import sys
 
 from mcp_conform.fuzz.config import FuzzConfig
-from mcp_conform.fuzz.findings import Finding, load_finding
+from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.replay import run_sequence
+from mcp_conform.fuzz.replay_core import PROG, Replayed, replay_command, verdict
 from mcp_conform.fuzz.targets import start_target
 from mcp_conform.harness.errors import SetupError
 
 __all__ = ["replay_finding", "reproduce"]
 
-PROG = "mcp-fuzz"
-
 
 def replay_finding(path: str, cfg: FuzzConfig) -> int:
-    try:
-        f = load_finding(path, cfg.protocol)
-    except ValueError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    if cfg.embedded:
-        # the campaign's own target unless told otherwise
-        if f.target.get("mode") == "spawn" and f.target.get("spawn"):
-            cfg.spawn = f.target["spawn"]
-        cfg.mavlink = cfg.mavlink or bool(f.target.get("mavlink"))
-    return reproduce(f, cfg)
+    def run(f: Finding, datagrams: list[bytes]) -> Replayed | int:
+        if cfg.embedded:  # the campaign's own target unless told otherwise
+            if f.target.get("mode") == "spawn" and f.target.get("spawn"):
+                cfg.spawn = f.target["spawn"]
+            cfg.mavlink = cfg.mavlink or bool(f.target.get("mavlink"))
+        return _replay(f, datagrams, cfg, PROG)
+    return replay_command(path, cfg.protocol, lambda f: [bytes.fromhex(h) for h in f.datagrams], run)
 
 
 def reproduce(f: Finding, cfg: FuzzConfig, prog: str = PROG) -> int:
     """Replay ``f``'s sequence against ``cfg``'s target: 1 when it reproduces, 0 when not,
     2 when the target cannot be reached (said in one line)."""
-    datagrams = [bytes.fromhex(h) for h in f.datagrams]
+    return verdict(f, _replay(f, [bytes.fromhex(h) for h in f.datagrams], cfg, prog), prog)
+
+
+def _replay(f: Finding, datagrams: list[bytes], cfg: FuzzConfig, prog: str) -> Replayed | int:
     try:
         target = start_target(cfg)
     except SetupError as exc:
@@ -52,8 +51,5 @@ def reproduce(f: Finding, cfg: FuzzConfig, prog: str = PROG) -> int:
         target.close()
     same = [x for x in outcome.flaws if x.rule == f.rule]
     if same:
-        print(f"{prog}: reproduced {f.rule} ({f.level}) with {len(datagrams)} datagram(s): {same[0].actual}")
-        return 1
-    others = sorted(outcome.rules())
-    print(f"{prog}: {f.rule} did not reproduce" + (f" (seen instead: {', '.join(others)})" if others else ""))
-    return 0
+        return Replayed(True, f"{same[0].actual} ({len(datagrams)} datagram(s))")
+    return Replayed(False, ", ".join(sorted(outcome.rules())))

@@ -5,6 +5,10 @@ fuzzed or replayed, so that neither waits for a process to start (a real backend
 Nsqd's ``fuzz.nsqd_backend``): the protocol declares how one starts, closes and (if it can
 tell) whether it is still alive.
 
+A target keeps its spares in :class:`Spares`: :meth:`Spares.next` hands on the first ready one
+(or starts one then, when none is: its start's own error is then the caller's) and starts the
+next ones.
+
 Spares start on one pool of threads that lives as long as the process (:data:`_SPAWNER`): a
 process is forked off the main thread by ``harness.procs``' one spawner thread, whatever
 thread asks for it, so a spare's process lives on after its start.
@@ -17,7 +21,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Generic, TypeVar
 
-__all__ = ["SPARES", "Spare"]
+__all__ = ["SPARES", "Spare", "Spares"]
 
 T = TypeVar("T")
 
@@ -60,3 +64,28 @@ class Spare(Generic[T]):
             if not f.cancelled() and f.exception() is None:
                 self.close(f.result())
         self.future.add_done_callback(close)
+
+
+class Spares(Generic[T]):
+    """A target's spares (``n`` of them, none when ``n`` is 0: an attached target), started by
+    ``start``, ended by ``close``, told alive by ``alive``; one waited for up to ``timeout`` s."""
+
+    def __init__(self, start: Callable[[], T], close: Callable[[T], None], alive: Callable[[T], bool] | None = None,
+                 *, n: int = SPARES, timeout: float | None = None) -> None:
+        self.start, self.close, self.alive, self.n, self.timeout = start, close, alive, n, timeout
+        self.queue: list[Spare[T]] = []
+
+    def next(self, start: Callable[[], T] | None = None) -> T:
+        """The first spare, once ready (else one started now, by ``start`` when given), and the
+        next ones started."""
+        first = self.queue.pop(0).take(self.timeout) if self.queue else None
+        t = first if first is not None else (start or self.start)()
+        while len(self.queue) < self.n:
+            self.queue.append(Spare(self.start, self.close, self.alive))
+        return t
+
+    def discard(self) -> None:
+        """None needed any more: each closed (now, or once started)."""
+        for spare in self.queue:
+            spare.discard()
+        self.queue = []

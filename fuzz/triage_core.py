@@ -12,7 +12,8 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
    its culprit (:func:`known_lasting_hit`: two sends to one fresh target, not a search);
 2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
 3. the suspects searched for the fewest that show it: one alone, all, delta debugging
-   (``fuzz.ddmin``); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
+   (``fuzz.ddmin``); a death whose cause shows late, among every input its target was sent
+   (:func:`prefix_culprit`: the shortest prefix that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
    by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n replays, not n);
 4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``), or not a
    finding (:meth:`HitTriage.not_confirmed`: counted, its tries noted, and named
@@ -28,10 +29,11 @@ from typing import Any, ClassVar, TypeVar
 
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
+from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
 
-__all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit"]
+__all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit", "prefix_culprit"]
 
 T = TypeVar("T")
 H = TypeVar("H")
@@ -46,12 +48,14 @@ class HitTriage(Triage):
     what an engine's turn learnt is carried to the next one's (:meth:`carry`: the fields
     ``LEARNT`` names, ``tries`` among them)."""
 
-    LEARNT: ClassVar[tuple[str, ...]] = ("tries",)
+    LEARNT: ClassVar[tuple[str, ...]] = ("tries", "baselines")
 
     seed: int = 0
     worker: int = 0
     n_of_n: int = 3  # a finding's confirming replays, all of which must show it
     tries: dict[Any, int] = field(default_factory=dict)  # a hit's key -> triages that did not reproduce
+    #: what each baseline of the worker showed, confirmed (:meth:`baseline`; None: nothing)
+    baselines: dict[Any, Any] = field(default_factory=dict)
 
     def carry(self: C) -> C:
         """The next engine's turn's triage: what this one learnt (``LEARNT``) kept, with its
@@ -104,6 +108,48 @@ class HitTriage(Triage):
             h = replay(log)
             return None if h is None else (h, log)
         return confirm_n(once, self.n_of_n, until_miss=until_miss)
+
+    def baseline(self, key: Hashable, observe: Callable[[list[Any], H | None], H | None], same: Callable[[H, H], bool],
+                 found: Callable[[H, H, list[Any], str], None], describe: Callable[[H], tuple[str, str, str]],
+                 shown: Callable[[], object] | None = None) -> H | None:
+        """Blame (issue 36 item 2): the same observation without the input, on a fresh target
+        sent nothing, run once a worker for each ``key`` (what it showed kept in ``baselines``
+        for the next hits and engine turns). ``observe(log, first)``: one baseline on a fresh
+        target, its traffic into ``log`` (``first``: what the first showed, None for the first);
+        nothing shown: None, the input is to blame. Shown, it is confirmed by ``n_of_n - 1``
+        more baselines, all of them (``until_miss`` off: how often it shows), each ``same`` as
+        the first: then the target's behaviour, a finding with no input blamed
+        (``found(first, last, last's log, "N of N")``), and the first's hit returned; not every
+        time: counted unconfirmed under its rule, named environment-dependent
+        (``describe(first)``: rule, shape, actual), and None (no input is to blame either).
+        ``shown()``: after a baseline that showed something (the target to go on with). Each
+        baseline a replay of triage's (counted, none after the deadline; triage's share aside)."""
+        if key in self.baselines:
+            return self.baselines[key]  # type: ignore[no-any-return]
+        log: list[Any] = []
+        first = self.replay(lambda: observe(log, None), share=False)
+        if first is not None:
+            shown_first: H = first
+
+            def once() -> tuple[H, list[Any]] | None:
+                more: list[Any] = []
+                h = self.replay(lambda: observe(more, shown_first), share=False)
+                return (h, more) if h is not None and same(h, shown_first) else None
+
+            conf = confirm_n(once, self.n_of_n - 1, until_miss=False)  # the first is one of the N
+            if conf.confirmed:
+                last, last_log = conf.hits[-1] if conf.hits else (first, log)
+                found(first, last, last_log, f"{1 + len(conf.hits)} of {self.n_of_n}")
+            else:
+                rule, shape, actual = describe(first)
+                self.count_unconfirmed(rule)
+                conf.note(self.environment, rule, shape, actual, "a baseline sent nothing showed it, then not "
+                          "every confirming baseline did (timing or load); no input is to blame either")
+                first = None
+            if shown is not None:
+                shown()
+        self.baselines[key] = first
+        return first
 
     def missed(self, rule: str, key: Hashable, conf: Confirmation[Any], *, shape: str, actual: str, size: str,
                where: str = "") -> None:
@@ -204,3 +250,22 @@ def earliest_prefix(items: Sequence[T], fresh: Callable[[], H], extend: Callable
     finally:
         if target is not None:
             close(target)
+
+
+def prefix_culprit(items: Sequence[T], shows: Callable[[list[T]], bool], budget: int = 12) -> list[T] | None:
+    """Step 3 for a death whose cause may show well after its input (a backend that handles
+    its input behind the fuzzer): the input(s) of ``items`` (oldest first) it comes of, each
+    try a replay on a fresh target (``shows``): the newest alone; else, when all of them show
+    it, the shortest prefix that does, by bisection (log2 n replays), then its last item alone,
+    else that prefix delta-debugged (``budget`` replays); None when all of them do not show it."""
+    if shows(list(items[-1:])):
+        return list(items[-1:])
+    if not shows(list(items)):
+        return None
+    lo, hi = 0, len(items)  # the prefix of hi items shows it, of lo does not
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if shows(list(items[:mid])) else (mid, hi)
+    if shows(list(items[hi - 1:hi])):
+        return list(items[hi - 1:hi])
+    return ddmin(list(items[:hi]), shows, budget=budget)

@@ -1,6 +1,7 @@
 """The protocol-neutral steps of triage (``fuzz.triage_core``): the prefix search a lasting hit
 (a stopped heartbeat) is found by, a repeat of a known one told in two sends, and what a hit counted, not triaged, or not confirmed
-leaves in a worker's counts. The targets here are models: what a real vehicle does with the
+leaves in a worker's counts; a late death's culprit among every input before its cause
+(bisection over prefixes); the no-input baseline, once a worker, N of N. The targets here are models: what a real vehicle does with the
 search is tests/fuzz/test_mavlink_fuzz.py's."""
 
 from __future__ import annotations
@@ -14,7 +15,12 @@ import pytest
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.findings import Finding
-from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix, known_lasting_hit
+from mcp_conform.fuzz.triage_core import (
+    HitTriage,
+    earliest_prefix,
+    known_lasting_hit,
+    prefix_culprit,
+)
 
 
 class Model:
@@ -166,3 +172,74 @@ def test_a_restart_after_a_hit_is_timed_apart_from_triage():
     t = HitTriage()
     assert t.restarted(lambda: time.sleep(0.01) or "fresh") == "fresh"
     assert t.restart_seconds >= 0.01 and t.seconds == 0.0
+
+
+def _dies_of(culprits: set[int], tries: list[list[int]]):  # noqa: ANN202
+    """A model replay: the target dies when any of ``culprits`` reaches it; each try noted."""
+    def shows(items: list[int]) -> bool:
+        tries.append(list(items))
+        return bool(culprits & set(items))
+    return shows
+
+
+@pytest.mark.parametrize("n", [2, 16, 64])
+def test_a_late_deaths_culprit_is_the_last_of_the_shortest_prefix(n):
+    """The newest alone first; then all, bisection over prefixes (log2 n), the prefix's last alone."""
+    culprit = n // 3
+    tries: list[list[int]] = []
+    assert prefix_culprit(list(range(n)), _dies_of({culprit}, tries)) == [culprit]
+    assert tries[0] == [n - 1] and tries[1] == list(range(n)) and tries[-1] == [culprit]
+    assert len(tries) <= 3 + math.ceil(math.log2(n))
+    tries.clear()
+    assert prefix_culprit(list(range(n)), _dies_of({n - 1}, tries)) == [n - 1] and tries == [[n - 1]]
+
+
+def test_a_death_no_suspect_shows_and_one_two_inputs_make():
+    tries: list[list[int]] = []
+    assert prefix_culprit(list(range(8)), _dies_of(set(), tries)) is None and len(tries) == 2
+
+    def needs_both(items: list[int]) -> bool:  # a death only after 2 and then 5
+        return {2, 5} <= set(items)
+    assert prefix_culprit(list(range(8)), needs_both) == [2, 5]  # the prefix's last alone does not: ddmin
+
+
+class _Base:
+    """A model baseline: what each fresh target sent nothing shows (None: nothing), in turn."""
+
+    def __init__(self, *shows: str | None) -> None:
+        self.shows, self.firsts, self.found = list(shows), [], []
+
+    def observe(self, log: list, first: str | None) -> str | None:
+        self.firsts.append(first)
+        log.append(len(self.firsts))
+        return self.shows.pop(0)
+
+    def run(self, t: HitTriage, key: str = "k", same=lambda a, b: a == b) -> str | None:  # noqa: ANN001
+        return t.baseline(key, self.observe, same, lambda first, last, log, replays: self.found.append(
+            (first, last, log, replays)), lambda h: ("MAV-HB-1", f"shape {h}", h))
+
+
+def test_a_clean_baseline_costs_one_replay_once_a_worker():
+    t, b = HitTriage(duration=100.0), _Base(None)
+    assert b.run(t) is None and t.replays == 1 and b.firsts == [None] and not b.found
+    assert b.run(t) is None and t.replays == 1  # known: not run again, nor after an engine's turn
+    assert t.carry().baselines == {"k": None}
+
+
+def test_a_failing_baseline_confirmed_n_of_n_is_a_finding_with_no_input():
+    t, b = HitTriage(duration=100.0), _Base("hang a", "hang b", "hang c")
+    shown: list[int] = []
+    assert t.baseline("k", b.observe, lambda x, y: x[:4] == y[:4], lambda *a: b.found.append(a),
+                      lambda h: ("MAV-HB-1", h, h), lambda: shown.append(1)) == "hang a"
+    assert t.replays == 3 and b.firsts == [None, "hang a", "hang a"] and shown == [1]
+    assert b.found == [("hang a", "hang c", [3], "3 of 3")] and t.unconfirmed == 0
+    assert b.run(t) == "hang a" and t.replays == 3
+
+
+def test_a_baseline_shown_then_not_every_time_blames_nothing_and_is_named():
+    t, b = HitTriage(duration=100.0), _Base("hang a", None, "hang a")
+    assert b.run(t) is None and t.replays == 3 and not b.found  # all N run: how often it shows
+    assert t.unconfirmed_rules == {"MAV-HB-1": 1}
+    (entry,) = t.environment.values()
+    assert entry["shape"] == "shape hang a" and entry["why"].startswith("reproduced 2 of 3 replays")
+    assert _Base("hang a").run(t) is None and t.replays == 3  # once a worker: the miss is kept too
