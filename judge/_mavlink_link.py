@@ -5,7 +5,7 @@ serialization page (https://mavlink.io/en/guide/serialization.html) and routing 
 (https://mavlink.io/en/guide/routing.html) have them. :class:`CommandService`: the command
 protocol (https://mavlink.io/en/services/command.html): "The recipient ... should respond
 with a COMMAND_ACK", matched to the transmissions of its command first in, first out, as
-the runner's case context waits for them (``conformance.mavlink_case.expect_ack``).
+the runner's case context waits for them (``conformance.cases_mavlink.mavlink_services.expect_ack``).
 Every constant is the dialect's (``spec.MAVLINK.dialect``).
 """
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import socket
 import subprocess
@@ -83,22 +84,44 @@ def test_mcp_node_nsqd_backend(sig: int) -> None:
 
 
 def test_mcp_node_nsqd_client_ctrl_c() -> None:
-    """The client listens --duration seconds; Ctrl-C before is an interrupt, not a traceback."""
+    """The client listens --duration seconds; Ctrl-C before is an interrupt, not a traceback.
+
+    It is signalled once it has printed a frame the backend sent it: then it is listening, past
+    its imports, on our connection. Signalled 0.3 s after a connection was accepted, it ran its
+    whole 60 s and exited 0 in 3 of 4 full quick runs here (never alone; its SIGINT handling was
+    in place, /proc's SigCgt): the signal was lost, and the likely way is that the connection
+    accepted was not its own (another test's process reaching a port it had freed, which this
+    one then bound) and the SIGINT came during its start. Not proven; this test no longer
+    depends on it."""
+    from mcp_conform.spec import NSQD
+    from mcp_conform.spec.nsqd_codec import encode
+
     with socket.socket() as backend:
         backend.bind(("127.0.0.1", 0))
-        backend.listen(1)
+        backend.listen(4)
         proc = subprocess.Popen(["mcp-node", "--protocol", "nsqd", "client", "--target",
                                  f"127.0.0.1:{backend.getsockname()[1]}", "--duration", "60"],
                                 cwd=ROOT, env=ENV, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
+        conns: list[socket.socket] = []
         try:
-            backend.settimeout(READY_WITHIN)
-            conn, _ = backend.accept()  # it is connected, so listening
-            with conn:
-                time.sleep(0.3)
-                proc.send_signal(signal.SIGINT)
-                out, err = proc.communicate(timeout=60)
+            assert proc.stdout is not None
+            end = time.monotonic() + READY_WITHIN
+            line = ""
+            while not line and time.monotonic() < end:
+                ready, _, _ = select.select([backend, proc.stdout], [], [], 0.5)
+                if backend in ready:  # each connection gets a frame; only the client's prints
+                    conn, _ = backend.accept()
+                    conns.append(conn)
+                    conn.sendall(encode(NSQD, "TAKEOFF"))
+                if proc.stdout in ready:
+                    line = proc.stdout.readline()
+            assert '"TAKEOFF"' in line, (line, proc.poll())
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=60)
         finally:
+            for c in conns:
+                c.close()
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
