@@ -20,9 +20,15 @@ asserts rewritten, as in a user's run.
 
 Set ``MCP_TEST_FORKSERVER=0`` to run each run in a fresh interpreter instead.
 
+``MCP_TEST_RUNS=FILE`` (opt-in, for measuring CI): each run appends a line to FILE,
+"cpu<TAB>wall<TAB>nodeid<TAB>argv" -- cpu: the run's user + system seconds with its waited-for
+children's (the node it spawned), from ``os.wait4`` in the server or the fresh interpreter's
+``RUSAGE_CHILDREN``; nodeid: the calling test (``PYTEST_CURRENT_TEST``). These runs are no
+children of the pytest worker: ``MCP_TEST_CPU`` (tests/conftest.py) does not count them.
+
 The server: ``python -m tests.forkserver SOCKET`` listens on a Unix socket. A request is one
 JSON line (argv, cwd, env, the two output paths); the reply is a line with the child's pid,
-then a line with its exit status once the server has reaped it. One thread, a select loop.
+then a line with its exit status and CPU seconds (with its children's) once the server has reaped it. One thread, a select loop.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,6 +117,7 @@ class _Client:
 
     def run(self, argv: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> subprocess.CompletedProcess[str]:
         path = self._server(env)
+        start = time.monotonic()
         with tempfile.TemporaryDirectory() as tmp:
             out, err = os.path.join(tmp, "stdout"), os.path.join(tmp, "stderr")
             request = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": out, "stderr": err}
@@ -126,12 +134,29 @@ class _Client:
                     raise subprocess.TimeoutExpired(argv, timeout) from None
                 if not line:
                     raise RuntimeError(f"the test fork server died while running {argv}")
-                rc = int(line)
-            return subprocess.CompletedProcess(argv, rc, Path(out).read_text(errors="replace"),
+                rc, cpu = line.split()
+            _record(float(cpu), time.monotonic() - start, argv)
+            return subprocess.CompletedProcess(argv, int(rc), Path(out).read_text(errors="replace"),
                                                Path(err).read_text(errors="replace"))
 
 
 _CLIENT = _Client()
+
+
+def _record(cpu: float, wall: float, argv: list[str]) -> None:
+    """``MCP_TEST_RUNS=FILE``: one line for this run (see the module's docstring)."""
+    path = os.environ.get("MCP_TEST_RUNS")
+    if path:
+        test = os.environ.get("PYTEST_CURRENT_TEST", "-").rsplit(" ", 1)[0]
+        with open(path, "a", encoding="utf-8") as f:
+            f.write(f"{cpu:.3f}\t{wall:.3f}\t{test}\t{' '.join(argv)[:300]}\n")
+
+
+def _children_cpu() -> float:
+    import resource
+
+    c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return c.ru_utime + c.ru_stime
 
 
 def run_module(module: str, args: list[str], *, cwd: Path | str | None = None, env: dict[str, str] | None = None,
@@ -140,8 +165,12 @@ def run_module(module: str, args: list[str], *, cwd: Path | str | None = None, e
     ``capture_output=True, text=True``: in a child of the fork server when it is enabled. The
     working directory and the environment default to the caller's, as subprocess's do."""
     if module != "conformance" or not enabled():
-        return subprocess.run([sys.executable, "-m", module, *args], cwd=cwd, env=env, capture_output=True,
+        before, start = _children_cpu(), time.monotonic()  # a test's other threads' children: counted too
+        proc = subprocess.run([sys.executable, "-m", module, *args], cwd=cwd, env=env, capture_output=True,
                               text=True, timeout=timeout)
+        if module == "conformance":
+            _record(_children_cpu() - before, time.monotonic() - start, list(args))
+        return proc
     return _CLIENT.run(list(args), cwd=Path(cwd or os.getcwd()), env=dict(os.environ if env is None else env),
                        timeout=timeout)
 
@@ -222,14 +251,14 @@ def serve(path: str) -> None:
             conn.sendall(b"%d\n" % pid)
             waiting[pid] = conn
         while waiting:
-            pid, status = os.waitpid(-1, os.WNOHANG)
+            pid, status, usage = os.wait4(-1, os.WNOHANG)
             if pid == 0:
                 break
             conn = waiting.pop(pid, None)
             if conn is not None:
                 rc = os.waitstatus_to_exitcode(status)
                 try:
-                    conn.sendall(b"%d\n" % rc)
+                    conn.sendall(b"%d %.3f\n" % (rc, usage.ru_utime + usage.ru_stime))
                 except OSError:
                     pass
                 conn.close()

@@ -10,14 +10,18 @@ Every mutant is caught by the same cases and monitor on virtual time, the vehicl
 included, in tests/sim/test_mutants_sim.py (issue 38 item 4), with the checks of this module's
 runs (the diagnosis, a case's texts, the monitor's violations, the live monitor against
 ``mcp-capture check``) and serial against scheduled. On real processes and sockets stay the
-runs the simulator cannot make (``REAL_MUTANTS``, 11 of the 41):
+runs the simulator cannot make (``REAL_MUTANTS``, 9 of the 41):
 
 - the mutants test_parallel folds here (``_real_checks``): ``--parallel 3`` runs node instances
   in processes of their own, which the simulator does not model; beside the run they each make,
   the 3-instance run must give every case its outcome (so they keep ``--mavlink``'s TCP, as
-  the 3-instance run has it);
-- the real smoke of the vehicle link: ``arm-early``, ``ready-without-fix`` and ``seq-no-wrap``
-  (among those) over TCP, and ``arm-before-fix`` over UDP (``TRANSPORT``: the vehicle sends to
+  the 3-instance run has it): header-little-endian, bad-preamble, ack-broadcast, crash-on-short,
+  flood-hang, seq-no-wrap (test_parallel.NODES; the startup's faults, rtx-stop-on-any-ack,
+  ready-without-fix and arm-early, are compared on 3 instances in test_startup_parts, with each
+  part of the startup on an instance of its own; send-action-9's path is bad-preamble's:
+  test_parallel.ELSEWHERE);
+- the real smoke of the vehicle link: ``arm-early`` and ``ready-without-fix`` (``VEHICLE_SMOKE``)
+  and ``seq-no-wrap`` over TCP, and ``arm-before-fix`` over UDP (``TRANSPORT``: the vehicle sends to
   the node, as SITL's ``--out``; of the sample node's faults the one that writes to the vehicle
   before its fix, which a UDP vehicle needs to hear from a node that sends no HEARTBEAT, for
   MCP-BLK-5 to be observed); the sample node is an independent program on pymavlink, where the
@@ -25,6 +29,10 @@ runs the simulator cannot make (``REAL_MUTANTS``, 11 of the 41):
 - on each: the report's terminal text (DIAGNOSIS: ``arm-early``, ``arm-before-fix``), the
   monitor's violations (MONITOR_SEES) and ``mcp-capture check`` of a capture a real recorder
   wrote on real clocks; serial against scheduled where test_schedule_verdicts folds it here.
+
+``rtx-stop-on-any-ack`` and ``send-action-9`` were real for test_parallel's fold alone (3 and 2
+runs, 6 CPU s): their rule, monitor violations, capture judgement and serial against scheduled
+are tests/sim/test_mutants_sim.py's now, their 3-instance comparison test_parallel.ELSEWHERE's.
 
 The correct variants, the 5 s timings, the header diagnosis and the crashing node's capture
 below stay real too (processes that read slowly, exit, or differ from ours).
@@ -181,17 +189,20 @@ def same_verdicts_offline(res, capture) -> None:
 
 #: the vehicle transport of a real run other than ``--mavlink``'s TCP (the link's smoke over UDP)
 TRANSPORT = {"arm-before-fix": "udp"}
+#: the real smoke of the vehicle link over TCP (the sample node, pymavlink's, against the
+#: runner's vehicle): its fix withheld (MCP-BLK-5) and its arming answered (MCP-BLK-4)
+VEHICLE_SMOKE = {"arm-early", "ready-without-fix"}
 
 
 def _real_checks() -> set[str]:
     """The mutants whose real run checks what the simulator does not: ``--parallel 3`` beside
-    the run (test_parallel's fold), the vehicle link over UDP (the module docstring)."""
-    return {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"} | set(TRANSPORT)
+    the run (test_parallel's fold), the vehicle link over TCP and over UDP (the module docstring)."""
+    return {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"} | set(TRANSPORT) | VEHICLE_SMOKE
 
 
 #: Mutants caught on virtual time only (issue 38 item 4: tests/sim/test_mutants_sim.py runs the
 #: runner's own cases and monitor against each as a model, with the vehicle where it needs one,
-#: serial and scheduled where the schedule's fold had them here): 30 of the 41.
+#: serial and scheduled where the schedule's fold had them here): 32 of the 41.
 SIM_COVERS = frozenset(f for f, _ in MUTANTS if f not in _real_checks())
 REAL_MUTANTS = [(f, r) for f, r in MUTANTS if f not in SIM_COVERS]
 

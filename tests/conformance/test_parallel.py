@@ -5,8 +5,11 @@ The plan as data (which instance runs which case; the startup-bound cases togeth
 batch whole, the whole run's observations on every instance), the options refused with one
 line, and — slow — the verdicts: every case the same outcome with ``--parallel 1`` and
 ``--parallel 3`` against the reference node and faulty sample nodes whose faults fall in the
-startup, the batch, the whole run's traffic, a crash, a flood and the seq wrap (each compared
-beside a run made for other checks, ``FOLDED`` and ``IN_SCHEDULE``, where there is one).
+batch, the whole run's traffic, a crash, a flood and the seq wrap (each compared beside a run
+made for other checks, ``FOLDED`` and ``IN_SCHEDULE``, where there is one). The observed
+startup's parts on instances of their own, with the faults that show in them, are
+tests/conformance/test_startup_parts.py's (``ELSEWHERE``: what covers the nodes this matrix
+had before issue 38's cut).
 """
 
 from __future__ import annotations
@@ -140,27 +143,38 @@ def test_parallel_is_refused_where_there_is_no_instance_to_share_to(tmp_path, ar
 # ---------------------------------------------------------------------- verdicts (slow)
 NODES = [
     ("reference", None),
-    ("sample", ()),
-    ("rtx-stop-on-any-ack", ("--fault", "rtx-stop-on-any-ack")),  # the observed startup
-    ("ready-without-fix", ("--fault", "ready-without-fix")),
-    ("arm-early", ("--fault", "arm-early")),  # MCP-BLK-4, and the monitor on every instance
     ("header-little-endian", ("--fault", "header-little-endian")),  # diagnosed on every instance
-    ("bad-preamble", ("--fault", "bad-preamble")),  # the whole run's traffic
-    ("send-action-9", ("--fault", "send-action-9")),
+    ("bad-preamble", ("--fault", "bad-preamble")),  # the whole run's traffic, on every instance
     ("ack-broadcast", ("--fault", "ack-broadcast")),  # the batch
     ("crash-on-short", ("--fault", "crash-on-short")),  # a crash in the batch: run again alone
-    ("flood-hang", ("--fault", "flood-hang")),
-    ("seq-no-wrap", ("--fault", "seq-no-wrap")),
+    ("flood-hang", ("--fault", "flood-hang")),  # a case alone: the flood
+    ("seq-no-wrap", ("--fault", "seq-no-wrap")),  # a case alone: the wrap, a fresh node after it
 ]
+
+#: Nodes compared elsewhere, and where (``test_every_node_is_compared_...`` holds the list): the
+#: observed startup's faults, whose verdicts differ from a correct node's only in the startup's
+#: cases, in tests/conformance/test_startup_parts.py, which runs each with ``--parallel 1`` and
+#: ``3`` at timings that put each part of the startup on an instance of its own (here, at FAST,
+#: the parts stay together on one instance, as with one instance); a second fault of the whole
+#: run's traffic with bad-preamble's (the same path: ``EVERY``, the worst verdict of the
+#: instances); the sample node, correct, with the reference node (the rest of the suite) and in
+#: test_startup_parts (the startup). Each was a ``--parallel 3`` run of 2.6 CPU s (3 nodes).
+ELSEWHERE = {
+    "sample": "test_startup_parts[sample] (the startup's parts), reference here (the rest)",
+    "rtx-stop-on-any-ack": "test_startup_parts[rtx-stop-on-any-ack] (the wrong ACKs' part)",
+    "ready-without-fix": "test_startup_parts[ready-without-fix] (the fix's part)",
+    "arm-early": "test_startup_parts[arm-early] (MCP-BLK-4, startup-bound: the copies' part)",
+    "send-action-9": "bad-preamble here (MCP-HDR-3 as MCP-HDR-1: judged on every instance's traffic)",
+}
 
 #: Nodes whose ``--parallel 3`` run goes beside a run of the same node and options (``--parallel
 #: 1`` is the plan as it was, test_one_instance_is_the_plan_as_it_was) made elsewhere for its
 #: own checks, and is compared with it there by ``assert_three_agree_with_one``, not a second
-#: ``--parallel 1`` run here (12 whole-suite runs fewer in CI): the reference and the sample node
-#: in test_schedule_verdicts (its scheduled run, FAST), the faulty ones in test_mutants (sample
+#: ``--parallel 1`` run here (7 whole-suite runs fewer in CI): the reference node in
+#: test_schedule_verdicts (its scheduled run, FAST), the faulty ones in test_mutants (sample
 #: node at --rto 0.2, FAST). At ``MCP_MUTANTS_TIMING=real`` test_mutants runs other timings, and
 #: the faulty nodes are compared here.
-IN_SCHEDULE: dict[tuple[str, ...] | None, str] = {None: "reference", (): "sample"}
+IN_SCHEDULE: dict[tuple[str, ...] | None, str] = {None: "reference"}
 FOLDED: dict[tuple[str, ...], str] = (
     {} if os.environ.get("MCP_MUTANTS_TIMING", "short") == "real"
     else {args: label for label, args in NODES if args not in IN_SCHEDULE})
@@ -222,3 +236,9 @@ def test_every_node_is_compared_here_or_in_test_mutants_or_test_schedule_verdict
     assert {a: label for label, a in test_schedule_verdicts.HERE if a in IN_SCHEDULE} == IN_SCHEDULE
     assert {label for label, _ in HERE} | set(FOLDED.values()) | set(IN_SCHEDULE.values()) == \
         {label for label, _ in NODES}
+    assert not set(ELSEWHERE) & {label for label, _ in NODES}
+    from . import test_startup_parts
+
+    started = test_startup_parts.test_the_parts_on_three_instances_give_the_whole_startups_verdicts
+    parts = {p[0] for m in started.pytestmark if m.name == "parametrize" for p in m.args[1]}
+    assert {k for k, v in ELSEWHERE.items() if v.startswith("test_startup_parts")} <= parts, parts

@@ -2,6 +2,8 @@
 
 These run the runner as a user does (``python -m mcp_conform.conformance``, a subprocess) and read the
 JSON report it writes. Timing figures are printed by the runner, never asserted here.
+The spawned reference node with the vehicle on TCP is one run for two tests (``tcp_vehicle``);
+the suite under pytest-xdist (each worker its own node, one JSON) is test_xdist.py's run.
 """
 
 from __future__ import annotations
@@ -43,18 +45,23 @@ def test_embedded_default_passes_every_must_and_should():
     assert res.report["parameters"]["mode"] == "embedded"
 
 
-def test_spawn_mode_reference_node_passes():
-    res = run_conform("--spawn", reference_node_command(), "--mavlink", *FAST)
-    _assert_clean_pass(res)
-    assert res.rules["MCP-BLK-5"] == "passed", res.explain()
+@pytest.fixture(scope="module")
+def tcp_vehicle():
+    """The drone-role suite against the spawned reference node with the vehicle on TCP
+    (``--mavlink``'s default): one run for the spawn-mode test and the UDP tests' comparison."""
+    return run_conform("--spawn", reference_node_command(), "--mavlink", "tcp", *FAST)
+
+
+def test_spawn_mode_reference_node_passes(tcp_vehicle):
+    _assert_clean_pass(tcp_vehicle)
+    assert tcp_vehicle.rules["MCP-BLK-5"] == "passed", tcp_vehicle.explain()
 
 
 @pytest.fixture(scope="module")
-def tcp_vehicle_rules():
+def tcp_vehicle_rules(tcp_vehicle):
     """The per-rule outcomes of the drone-role suite with the vehicle on TCP."""
-    res = run_conform("--spawn", reference_node_command(), "--mavlink", "tcp", *FAST)
-    _assert_clean_pass(res)
-    return res.rules
+    _assert_clean_pass(tcp_vehicle)
+    return tcp_vehicle.rules
 
 
 @pytest.mark.parametrize("transport", ["udp", "udpout"])
@@ -94,28 +101,6 @@ def test_spawn_command_that_fails_is_a_setup_error():
     res = run_conform("--spawn", f"{sys.executable} -c 'import sys; sys.exit(3)'", *FAST, timeout=60)
     assert res.rc == 2, res.explain()
     assert "exited" in (res.report["error"] or ""), res.explain()
-
-
-def test_pytest_xdist_runs_spawned_targets_in_parallel_and_merges_the_json(tmp_path):
-    """`pytest --pyargs conformance.cases -n 2 --mcp-spawn ...`: each worker its own node."""
-    out = tmp_path / "report.json"
-    proc = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
-         "-n", "2", "--mcp-spawn", reference_node_command(), "--mcp-mavlink", "--mcp-rto", "0.2", "--mcp-ack-window", "0.25",
-         "--mcp-json", str(out)],
-        cwd=tmp_path, capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
-    import json
-
-    from mcp_conform.conformance.report import validate_json
-
-    doc = json.loads(out.read_text())
-    validate_json(doc)
-    assert len(doc["target"].split(", ")) == 2, doc["target"]  # two nodes were spawned
-    ids = [c["id"] for c in doc["cases"]]
-    assert len(ids) == len(set(ids)) and len(ids) >= 40
-    assert doc["rules"]["MCP-ACK-1"] == "passed"
-    assert not list(tmp_path.glob("report.json.gw*"))
 
 
 def test_selection_by_rule_marker(tmp_path):

@@ -108,9 +108,9 @@ def assert_same_verdicts(serial: RunResult, scheduled: list[RunResult]) -> None:
 
 @pytest.mark.parametrize("label,node_args", HERE, ids=[n for n, _ in HERE])
 def test_serial_and_scheduled_give_the_same_verdicts(label, node_args, tmp_path):
-    """And for a node test_parallel folds here (``IN_SCHEDULE``: the reference and the sample
-    node), its ``--parallel 3`` run at once beside them, every case the outcome of the first
-    scheduled run (that is ``--parallel 1``)."""
+    """And for a node test_parallel folds here (``IN_SCHEDULE``: the reference node; the sample
+    node's is test_parallel.ELSEWHERE's), its ``--parallel 3`` run at once beside them, every
+    case the outcome of the first scheduled run (that is ``--parallel 1``)."""
     from .test_parallel import IN_SCHEDULE, assert_three_agree_with_one, three_instances
 
     spawn = reference_node_command() if node_args is None else sample_node_command(*node_args)

@@ -1,6 +1,8 @@
 """Under pytest-xdist the run still leaves ONE JSON report, ONE JUnit file and ONE valid
 MCAP capture, merged by the controller from its workers, and prints the mcp summary once
-(issue 13)."""
+(issue 13). The whole suite, each worker spawning its own node: this run also holds
+test_runner's former xdist test's checks (its own whole-suite run under ``-n 2``, the same
+node and timings, gone: one run of 4.6 CPU s fewer)."""
 
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ pytestmark = pytest.mark.slow
 def test_spawn_mode_under_xdist_leaves_one_report_of_each_kind(tmp_path):
     pytest.importorskip("xdist")
     cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
-           "-n", "2", "-m", "mcp_ack_1 or mcp_ack_4 or mcp_hdr_1 or mcp_seq_2",
+           "-n", "2",
            "--mcp-spawn", reference_node_command(), "--mcp-mavlink",
            "--mcp-rto", FAST[1], "--mcp-ack-window", FAST[3],
            "--mcp-json", "r.json", "--mcp-junit", "j.xml", "--mcp-capture", "c.mcap"]
@@ -34,6 +36,10 @@ def test_spawn_mode_under_xdist_leaves_one_report_of_each_kind(tmp_path):
     doc = json.loads((tmp_path / "r.json").read_text())
     validate_json(doc)
     assert doc["summary"]["passed"] >= 5 and doc["summary"]["failed"] == 0
+    assert len(doc["target"].split(", ")) == 2, doc["target"]  # each worker spawned its node
+    ids = [c["id"] for c in doc["cases"]]
+    assert len(ids) == len(set(ids)) and len(ids) >= 40
+    assert doc["rules"]["MCP-ACK-1"] == "passed"
     junit = (tmp_path / "j.xml").read_text()
     assert junit.count("<testcase ") == len(doc["cases"])
     with open(tmp_path / "c.mcap", "rb") as f:
