@@ -115,6 +115,24 @@ def dealt(items: list, long: int, workers: int, waits: Callable[[Any], bool] = l
     return out + list(rest)
 
 
+#: Tests bound by CPU alone, on virtual time or pure computation: no protocol timer, no real
+#: socket wait, so load changes how long they take and nothing else (the simulator's runs, a
+#: million-datagram check, a capture cut at every byte). Marked ``cpu``: the README's quick run
+#: (``-m "not slow and not cpu"``) leaves them out, and CI runs them niced beside the slow
+#: tests, on the CPU those leave idle while they wait on timers (``.ci/run``). Node-ID prefixes.
+CPU_BOUND = (
+    "tests/sim/",
+    "tests/traceio/test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",
+    "tests/traceio/test_reader.py::test_mcap_cut_at_every_byte",
+)
+
+
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """``cpu`` on the tests of ``CPU_BOUND`` (before ``-m`` selects: collection time)."""
+    if item.nodeid.startswith(CPU_BOUND):
+        item.add_marker(pytest.mark.cpu)
+
+
 @pytest.hookimpl(trylast=True)  # after -m's deselection: the shares are of the tests that run
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=_rank)  # stable: everything else keeps its order

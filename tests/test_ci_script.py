@@ -19,7 +19,16 @@ def _readme_test_command() -> str:
     return lines[1]
 
 
+def _marker_expression(step: str) -> str:
+    """The ``-m`` expression of a pytest step (quoted or one word)."""
+    found = re.findall(r""" -m (?:"([^"]+)"|'([^']+)'|(\S+))""", step.split("python -m pytest", 1)[-1])
+    assert found, step
+    return next(g for g in found[-1] if g)
+
+
 def test_ci_runs_the_readme_test_command_verbatim_the_slow_tests_and_the_main_job() -> None:
+    from _pytest.mark.expression import Expression
+
     steps = [ln.split("#")[0].strip() for ln in (ROOT / ".ci" / "run").read_text().splitlines()
              if ln.strip() and not ln.lstrip().startswith("#")]
     cmd = _readme_test_command()
@@ -27,8 +36,17 @@ def test_ci_runs_the_readme_test_command_verbatim_the_slow_tests_and_the_main_jo
     after = steps[steps.index(cmd) + 1:]
     assert "lint-imports" in after
     assert any(s.startswith("mcp-conform") for s in after), after
-    slow = [s for s in steps if s.startswith("python -m pytest") and "slow" in s and s != cmd]
-    # every slow test, the Nsqd ones among them: no marker expression that leaves some out
-    assert len(slow) == 1 and slow[0].split(" -m ")[-1].split()[0].strip("'\"") == "slow", slow
-    if slow[0].endswith("&"):  # started in the background: waited for, its status the build's
-        assert 'wait "$slow" || rc=$?' in after and after[-1] == 'exit "$rc"', after
+    runs = [s for s in steps if "python -m pytest" in s]
+    # every test runs exactly once: the README's quick ones, the slow ones, the CPU-bound ones
+    for slow in (False, True):
+        for cpu in (False, True):
+            marks = {"slow": slow, "cpu": cpu, "nsqd": slow}
+            chosen = [s for s in runs if Expression.compile(_marker_expression(s)).evaluate(
+                lambda name, m=marks, **kw: m.get(name, False))]
+            assert len(chosen) == 1, (marks, chosen)
+    background = [s for s in steps if s.endswith("&")]
+    for s in background:  # started in the background: waited for, its status the build's
+        var = steps[steps.index(s) + 1].split("=")[0]
+        assert f'wait "${var}" || rc=$?' in steps, (var, steps)
+    if background:
+        assert steps[-1] == 'exit "$rc"', steps
