@@ -32,8 +32,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.captures import trace_tools as core
+from mcp_conform.captures.check_doc import document, violation_json
 from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
-from mcp_conform.judge.mavlink_monitor import RULES, MavlinkMonitor, Violation
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
+from mcp_conform.judge.verdicts import Found, of_mavlink
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
 from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
@@ -100,9 +102,9 @@ def _node_line(n: dict[str, Any]) -> str:
     return f"  {n['id']} {n['role'] or '?'}{what} {n['frames']} frame(s), {n['heartbeats']} HEARTBEAT(s)"
 
 
-def _violation_line(j: Judged, v: Violation) -> str:
+def _violation_line(j: Judged, v: Found) -> str:
     case = j.case_at(v.t_ns)
-    return (f"node {v.node} ({v.role}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
+    return (f"node {v.node} ({dict(v.more)['role']}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
             f"{f' in {case}' if case else ''}: expected {v.expected}; actual {v.actual}")
 
 
@@ -112,35 +114,32 @@ class _Mavlink(core.CapturePlugin):
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
         mon = j.monitor
-        rules = core.chosen_rules(ns, RULES, "MAV-")
-        verdicts = mon.verdicts()
-        failed = core.broken(rules, verdicts, ns)
+        v = of_mavlink(mon, core.selection(ns), strict=bool(getattr(ns, "strict", False)), truncated=j.truncated)
         examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
-        doc = {"file": j.path, "format": j.format, "truncated": j.truncated,
-               "frames": j.count, "roles": list(mon.roles), "complete": mon.complete,
-               "nodes": mon.to_json()["nodes"], "rules": {r: verdicts[r] for r in rules},
-               "failed_count": {r: mon.failed_count[r] for r in rules if mon.failed_count[r]},
-               "violations": [{**{k: (list(x) if isinstance(x, tuple) else x) for k, x in v._asdict().items()},
-                               "case": j.case_at(v.t_ns)} for v in mon.violations if v.rule in rules],
-               "unattributed_bad_frames": mon.unattributed_bad}
+        nodes = mon.to_json()["nodes"]
+        notes = ([f"{mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say who sent "
+                  "them: not judged)"] if mon.unattributed_bad else []) + \
+            ([] if mon.complete else ["MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame "
+                                      "of its link (our MCAP): a tlog's gap may be a frame lost on the way"])
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
+        doc = document(v, MAVLINK, {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": notes,
+                                    "unattributed": mon.unattributed_bad, "duration_s": round(seconds, 9)},
+                       {"select": list(core.selection(ns)), "strict": bool(getattr(ns, "strict", False)),
+                        "complete": mon.complete, "roles": list(mon.roles)}, nodes,
+                       [{**violation_json(f, MAVLINK, j.first_ns), "case": j.case_at(f.t_ns)} for f in v.found],
+                       {"frames": j.count, "failed_count": v.counts})
         who = f"the {j.role}'s rules" if j.role else "every node by its role"
         head = [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}",
-                *(_node_line(n) for n in mon.to_json()["nodes"][:30])]
+                *(_node_line(n) for n in nodes[:30])]
         if j.truncated:
             head.append(f"TRUNCATED: {j.truncated} (judged up to there)")
-        if mon.unattributed_bad:
-            head.append(f"note: {mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say "
-                        "who sent them: not judged)")
-        if not mon.complete:
-            head.append("note: MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame of "
-                        "its link (our MCAP): a tlog's gap may be a frame lost on the way")
+        head += [f"note: {n}" for n in notes]
         blocks = []
-        for rule in (r for r in rules if verdicts[r] in ("failed", "warned")):
-            vs = [v for v in mon.violations if v.rule == rule]
-            blocks.append(RuleBlock(rule, [(_violation_line(j, v), v.evidence) for v in vs[:examples]],
-                                    mon.failed_count[rule] - min(len(vs), examples)))
-        return Checked(head, blocks, [(r, verdicts[r]) for r in rules], bool(failed), j.truncated, doc)
+        for rule in (r for r, verdict in v.rules.items() if verdict in ("failed", "warned")):
+            vs = [f for f in v.found if f.rule == rule]
+            blocks.append(RuleBlock(rule, [(_violation_line(j, f), f.evidence) for f in vs[:examples]],
+                                    v.counts[rule] - min(len(vs), examples)))
+        return Checked(head, blocks, v, doc)
 
     def compare(self, golden: str, candidate: str) -> Compared:
         g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)

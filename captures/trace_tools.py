@@ -6,9 +6,10 @@ spec, what its captures are called, how it reads and judges one (its reader, fra
 monitor: :meth:`CapturePlugin.check`) and compares two (:meth:`CapturePlugin.compare`) --
 and takes each subcommand's frame from here:
 
-- ``check`` (:func:`run_check`): the verdict (FAILED, else INCOMPLETE for a capture cut
-  short, else OK), the JSON report (``--json``: the protocol, the plug-in's document, the
-  verdict), the terminal report (the plug-in's lines, then each rule broken with its level,
+- ``check`` (:func:`run_check`): the verdict (the monitors' one verdict interface,
+  ``judge.verdicts``: FAILED, else INCOMPLETE for a capture cut short, else OK), the JSON
+  report (``--json``: the one document of every protocol, ``captures.check_doc``), the terminal
+  report (the plug-in's lines, then each rule broken with its level,
   text, examples and how many more, the rules line, the verdict) and the exit code (0 none
   broken, 1 broken);
 - ``show`` (:func:`show_frames`, of a capture read through its monitor: :class:`Judged`,
@@ -18,8 +19,8 @@ and takes each subcommand's frame from here:
 - ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
   (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
   (:func:`align`);
-- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`, :func:`chosen_rules`) and
-  those that count against the exit code (:func:`broken`, ``--strict``);
+- ``--select``/``--exclude`` of a protocol's rules (:func:`selection`, as the monitors' one
+  verdict interface takes them: ``judge.verdicts``);
 - the one-line notes and refusals of what a protocol does not do (:func:`note`,
   :func:`not_exported`, :func:`not_replayed`).
 
@@ -36,11 +37,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from mcp_conform.judge.verdicts import Verdicts
 from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
-__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "broken", "case_at", "case_window",
-           "chosen_rules", "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
+__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window",
+           "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames",
            "window"]
 
 
@@ -58,14 +60,12 @@ class RuleBlock:
 @dataclass
 class Checked:
     """A capture judged: the report's lines before the rules (``head``) and after the rules
-    line (``tail``), the broken rules' blocks, each rule's verdict in order, whether one
-    counts against the exit code, the truncation, and the JSON document."""
+    line (``tail``), the broken rules' blocks, the monitor's verdicts (``judge.verdicts``) and
+    the document (``captures.check_doc``)."""
 
     head: list[str]
     blocks: list[RuleBlock]
-    rules: list[tuple[str, str]]
-    failed: bool
-    truncated: str | None
+    verdicts: Verdicts
     doc: dict[str, Any]
     tail: list[str] = field(default_factory=list)
 
@@ -107,19 +107,15 @@ def note(command: str, ns: Any, option: str, text: str) -> None:
         sys.stderr.write(f"mcp-capture {command}: note: --{option} {text}\n")
 
 
-def verdict_of(failed: bool, truncated: str | None) -> str:
-    return "FAILED" if failed else ("INCOMPLETE" if truncated else "OK")
-
-
 def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
     """``mcp-capture check`` of a capture of ``plugin``'s (see the module docstring)."""
     from mcp_conform.captures.cli import to_terminal
 
     note("check", ns, "html", f"is not written for {plugin.a_capture} ({plugin.html_instead})")
     c = plugin.check(ns)
-    verdict = verdict_of(c.failed, c.truncated)
+    verdict = c.verdicts.verdict
     if getattr(ns, "json", None):  # the file first: a piped terminal report loses nothing of it
-        write_text(ns.json, json.dumps({"protocol": plugin.name, **c.doc, "verdict": verdict}, indent=1) + "\n")
+        write_text(ns.json, json.dumps(c.doc, indent=2) + "\n")
 
     def report() -> None:
         write = (out or sys.stdout).write
@@ -134,13 +130,13 @@ def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
                     write(f"    {e}\n")
             if b.more > 0:
                 write(f"  ... and {b.more} more{b.unit}\n")
-        write("rules: " + ", ".join(f"{r} {v}" for r, v in c.rules) + "\n")
+        write("rules: " + ", ".join(f"{r} {v}" for r, v in c.verdicts.rules.items()) + "\n")
         for line in c.tail:
             write(line + "\n")
         write(f"verdict: {verdict}\n")
 
     to_terminal(report)
-    return 1 if c.failed else 0
+    return c.verdicts.exit_code
 
 
 def run_diff(plugin: CapturePlugin, args: Any, out: TextIO | None = None) -> int:
@@ -209,24 +205,9 @@ def not_replayed(err: TextIO | None, capture: str | Path, why: str) -> int:
     return 2
 
 
-def picked(rule: str, chosen: Sequence[str], left_out: Sequence[str], prefix: str = "") -> bool:
-    """``--select``/``--exclude``: prefixes of the rule's ID, with or without the protocol's
-    ``prefix`` of its rules (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
-    names = (rule, rule.removeprefix(prefix))
-    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
-            and not any(n.startswith(x) for n in names for x in left_out))
-
-
-def chosen_rules(ns: Any, rules: Iterable[str], prefix: str = "") -> list[str]:
-    """The rules of ``rules`` that ``--select``/``--exclude`` keep (:func:`picked`), in order."""
-    chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
-    return [r for r in rules if picked(r, chosen, left_out, prefix)]
-
-
-def broken(rules: Iterable[str], verdicts: dict[str, str], ns: Any) -> list[str]:
-    """The rules that count against ``check``'s exit code: failed, or warned under ``--strict``."""
-    strict = bool(getattr(ns, "strict", False))
-    return [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
+def selection(ns: Any) -> tuple[str, ...]:
+    """``--select``/``--exclude`` as ``judge.verdicts.picked`` takes them (``!PREFIX``: left out)."""
+    return tuple(getattr(ns, "select", None) or ()) + tuple("!" + x for x in getattr(ns, "exclude", None) or ())
 
 
 @dataclass
