@@ -26,10 +26,8 @@ Mission Planner), read by ``traceio.mavlink``.
 from __future__ import annotations
 
 import itertools
-import sys
-from functools import partial
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from mcp_conform.captures import trace_tools as core
 from mcp_conform.captures.check_doc import document, violation_json
@@ -40,10 +38,8 @@ from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
 from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
 
-__all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "judge_trace", "run_check", "run_diff",
-           "run_replay", "run_show"]
+__all__ = ["PLUGIN", "is_capture", "judge_trace"]
 
-EXPORTED = "frames"
 DIALECT: Any = MAVLINK.dialect
 EXAMPLES = 3  # violations shown in full per rule (all of them with -v and in --json)
 #: the messages of the microservices a diff compares (the spec's services, HEARTBEAT and the
@@ -56,10 +52,6 @@ _NOT_COMPARED = {"mavpackettype", "target_system", "target_component"}
 def is_capture(path: str | Path) -> bool:
     """MAVLink's ``capture_detect``: a tlog, or our MCAP of a MAVLink run."""
     return is_mavlink_capture(path)
-
-
-def is_finding(path: str | Path) -> bool:
-    return False  # no MAVLink fuzz campaign yet: nothing to replay
 
 
 Judged = core.Judged
@@ -109,7 +101,11 @@ def _violation_line(j: Judged, v: Found) -> str:
 
 
 class _Mavlink(core.CapturePlugin):
-    name, spec, a_capture, html_instead = "mavlink", MAVLINK, "a MAVLink trace", "use --json"
+    name, spec, a_capture, html_instead, EXPORTED = "mavlink", MAVLINK, "a MAVLink trace", "use --json", "frames"
+    unchartered = "is not drawn for a MAVLink trace"
+    unexported = ("a MAVLink trace is not exported as pcap (its frames have no UDP datagrams of their own; show and "
+                  "diff read it as it is)")
+    unreplayed = "a MAVLink trace is not replayed (no MAVLink fuzz findings yet: judge it with check)"
 
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
@@ -151,29 +147,25 @@ class _Mavlink(core.CapturePlugin):
                         [(g.path, g.truncated), (c.path, c.truncated)],
                         doc={"golden_steps": n_g, "candidate_steps": n_c})
 
+    def judged(self, path: str, *, keep: bool = False) -> Judged:
+        return judge_trace(path, keep=keep)
+
+    def header(self, j: Judged) -> str:
+        return f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)"
+
+    def frame_line(self, f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
+        t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
+        mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
+        if f.bad:
+            return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
+        role = j.monitor.role_of(f.source) or "?"
+        fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
+        text = ", ".join(f"{k}={v}" for k, v in fields.items())
+        return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
+               f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
+
 
 PLUGIN = _Mavlink()
-run_check = partial(core.run_check, PLUGIN)
-
-
-# ---------------------------------------------------------------- show
-def frame_line(f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
-    t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
-    mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
-    if f.bad:
-        return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
-    role = j.monitor.role_of(f.source) or "?"
-    fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
-    text = ", ".join(f"{k}={v}" for k, v in fields.items())
-    return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
-           f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
-
-
-def run_show(ns: Any, out: TextIO | None = None) -> int:
-    core.note("show", ns, "svg", "is not drawn for a MAVLink trace")
-    j = judge_trace(ns.file, keep=True)
-    return core.show_frames(j, ns, out or sys.stdout, f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)",
-                            lambda f, marks: frame_line(f, j, marks))
 
 
 # ---------------------------------------------------------------- diff
@@ -191,18 +183,3 @@ def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
         text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
         steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
     return steps
-
-
-def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    return core.run_diff(PLUGIN, args, out)
-
-
-# ---------------------------------------------------------------- not MAVLink's
-def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
-    raise core.not_exported(capture, "a MAVLink trace is not exported as pcap (its frames have no UDP "
-                            "datagrams of their own; show and diff read it as it is)")
-
-
-def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    return core.not_replayed(err, args.capture, "a MAVLink trace is not replayed (no MAVLink fuzz findings "
-                             "yet: judge it with check)")

@@ -76,6 +76,12 @@ class StreamPlugin(core.CapturePlugin):
         """``show --svg``: the sequence chart of ``frames``."""
         raise NotImplementedError
 
+    def run_show(self, ns: Any, out: TextIO | None = None) -> int:
+        return run_show(self, ns, out)
+
+    def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+        return export_pcap(self, capture, out)
+
     def check(self, ns: Any) -> Checked:
         seen = _Conns(self, ns.file).read()
         strict = bool(getattr(ns, "strict", False))

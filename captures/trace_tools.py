@@ -24,6 +24,10 @@ and takes each subcommand's frame from here:
 - the one-line notes and refusals of what a protocol does not do (:func:`note`,
   :func:`not_exported`, :func:`not_replayed`).
 
+The plug-in is what ``captures.cli.capture_tools`` hands each subcommand (its module's
+``PLUGIN``): every protocol's ``check``, ``show``, ``diff``, ``export`` and ``replay`` go the one
+path, the protocol a parameter; MCP's plug-in (``captures.mcp``) gives each its own module's.
+
 The text a protocol's records are shown in is its own.
 """
 
@@ -86,19 +90,60 @@ class Compared:
 
 
 class CapturePlugin:
-    """A protocol's captures as ``mcp-capture`` reads them (see the module docstring)."""
+    """A protocol's captures as ``mcp-capture`` reads them (see the module docstring): its
+    content (:meth:`check`, :meth:`compare`, :meth:`judged` and :meth:`frame_line` for
+    ``show``) and each subcommand's work (``captures.cli.CaptureTools``), the core's with the
+    protocol a parameter unless the protocol has its own."""
 
     name: str  # its --protocol
     spec: Any  # its spec: each rule's level and text (``spec.rule(ID)``)
     a_capture: str  # what one capture is called, with its article (check --html is not written for it)
     html_instead: str  # what check --html is told to use instead
     json_when_same = True  # diff --json is written when the captures are alike too
+    EXPORTED = "records"  # what ``export`` writes, as its closing line counts them
+    unexported = "is not exported as pcap"  # why export refuses one of its captures
+    unreplayed = "is not replayed"  # why replay refuses one
+    unchartered = "is not drawn"  # what show says of --svg
 
     def check(self, ns: Any) -> Checked:
         raise NotImplementedError
 
     def compare(self, golden: str, candidate: str) -> Compared:
         raise NotImplementedError
+
+    def judged(self, path: str, *, keep: bool = False) -> Judged:
+        """A capture read through its monitor (``keep``: its frames kept, for show)."""
+        raise NotImplementedError
+
+    def header(self, j: Judged) -> str:
+        """``show``'s first line."""
+        raise NotImplementedError
+
+    def frame_line(self, f: Any, j: Judged, marks: dict[int, list[str]]) -> str:
+        """``show``'s line of one frame (``marks``: the rules whose violations name each frame)."""
+        raise NotImplementedError
+
+    # -- the subcommands (captures.cli.CaptureTools) ------------------------------------
+    def run_check(self, ns: Any, out: TextIO | None = None) -> int:
+        return run_check(self, ns, out)
+
+    def run_show(self, ns: Any, out: TextIO | None = None) -> int:
+        """``show`` of a capture read through its monitor: :func:`show_frames`."""
+        note("show", ns, "svg", self.unchartered)
+        j = self.judged(ns.file, keep=True)
+        return show_frames(j, ns, out or sys.stdout, self.header(j), lambda f, marks: self.frame_line(f, j, marks))
+
+    def run_diff(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return run_diff(self, ns, out)
+
+    def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+        raise not_exported(capture, self.unexported)
+
+    def is_finding(self, path: str) -> bool:
+        return False  # no fuzz campaign of its own: nothing to replay
+
+    def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return not_replayed(err, ns.capture, self.unreplayed)
 
 
 def note(command: str, ns: Any, option: str, text: str) -> None:
