@@ -25,23 +25,22 @@ Mission Planner), read by ``traceio.mavlink``.
 
 from __future__ import annotations
 
-import itertools
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.check_doc import document, violation_json
-from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
+from mcp_conform.captures.trace_tools import Checked, Compared
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.judge.verdicts import Found, of_mavlink
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
-from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
+from mcp_conform.traceio.reader import CaptureError
+from mcp_conform.traceio.traces import recorded
 
 __all__ = ["PLUGIN", "is_capture", "judge_trace"]
 
 DIALECT: Any = MAVLINK.dialect
-EXAMPLES = 3  # violations shown in full per rule (all of them with -v and in --json)
 #: the messages of the microservices a diff compares (the spec's services, HEARTBEAT and the
 #: vehicle's periodic reports left out)
 CONVERSATION = frozenset(m.name for m in MAVLINK.messages) - {"HEARTBEAT", "MISSION_CURRENT", "STATUSTEXT",
@@ -62,13 +61,8 @@ def _role_under_test(trace: MavTrace) -> str | None:
     run was MAVLink's; the vehicle's when it was another protocol's (the autopilot link of an
     MCP drone run: its other side is the node under test and the runner's own probes, which
     MAVLink's rules do not judge); None for a tlog (every node by its role)."""
-    if trace.format != "mcap":
-        return None
-    for rec in itertools.islice(open_capture(trace.path), 500):
-        if isinstance(rec, Metadata) and rec.data.get("role"):
-            role = rec.data["role"]
-            return role if role in MAVLINK.roles else "vehicle"
-    return None
+    role = recorded(trace.path, "role") if trace.format == "mcap" else None
+    return role if role is None or role in MAVLINK.roles else "vehicle"
 
 
 def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
@@ -110,32 +104,21 @@ class _Mavlink(core.CapturePlugin):
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
         mon = j.monitor
-        v = of_mavlink(mon, core.selection(ns), strict=bool(getattr(ns, "strict", False)), truncated=j.truncated)
-        examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
+        v = of_mavlink(mon, core.selection(ns), strict=core.strict(ns), truncated=j.truncated)
         nodes = mon.to_json()["nodes"]
         notes = ([f"{mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say who sent "
                   "them: not judged)"] if mon.unattributed_bad else []) + \
             ([] if mon.complete else ["MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame "
                                       "of its link (our MCAP): a tlog's gap may be a frame lost on the way"])
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
-        doc = document(v, MAVLINK, {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": notes,
-                                    "unattributed": mon.unattributed_bad, "duration_s": round(seconds, 9)},
-                       {"select": list(core.selection(ns)), "strict": bool(getattr(ns, "strict", False)),
-                        "complete": mon.complete, "roles": list(mon.roles)}, nodes,
-                       [{**violation_json(f, MAVLINK, j.first_ns), "case": j.case_at(f.t_ns)} for f in v.found],
-                       {"frames": j.count, "failed_count": v.counts})
         who = f"the {j.role}'s rules" if j.role else "every node by its role"
-        head = [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}",
-                *(_node_line(n) for n in nodes[:30])]
-        if j.truncated:
-            head.append(f"TRUNCATED: {j.truncated} (judged up to there)")
-        head += [f"note: {n}" for n in notes]
-        blocks = []
-        for rule in (r for r, verdict in v.rules.items() if verdict in ("failed", "warned")):
-            vs = [f for f in v.found if f.rule == rule]
-            blocks.append(RuleBlock(rule, [(_violation_line(j, f), f.evidence) for f in vs[:examples]],
-                                    v.counts[rule] - min(len(vs), examples)))
-        return Checked(head, blocks, v, doc)
+        return core.checked(self, ns, v, [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over "
+                                          f"{seconds:.1f} s; judged: {who}", *(_node_line(n) for n in nodes[:30])],
+                            {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": notes,
+                             "unattributed": mon.unattributed_bad, "duration_s": round(seconds, 9)},
+                            {"complete": mon.complete, "roles": list(mon.roles)}, nodes, first_ns=j.first_ns,
+                            own={"frames": j.count, "failed_count": v.counts}, line=partial(_violation_line, j),
+                            more=lambda f: {"case": j.case_at(f.t_ns)})
 
     def compare(self, golden: str, candidate: str) -> Compared:
         g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)

@@ -28,9 +28,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.check_doc import document, violation_json
-from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
-from mcp_conform.judge.verdicts import of_nsqd
+from mcp_conform.captures.trace_tools import Checked, Compared
+from mcp_conform.judge.verdicts import Found, of_nsqd
 from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated, open_capture
 from mcp_conform.traceio.tcp import StreamGap
@@ -84,48 +83,39 @@ class StreamPlugin(core.CapturePlugin):
 
     def check(self, ns: Any) -> Checked:
         seen = _Conns(self, ns.file).read()
-        strict = bool(getattr(ns, "strict", False))
-        v = of_nsqd(seen.monitor, core.selection(ns), strict=strict, truncated=seen.truncated)
+        v = of_nsqd(seen.monitor, core.selection(ns), strict=core.strict(ns), truncated=seen.truncated)
         failed = [r for r, verdict in v.rules.items() if verdict == "failed"]
-        conn_of = [dict(f.more)["conn"] for f in v.found]
-        broke = {conn: f.rule for f, conn in zip(v.found, conn_of, strict=True) if f.rule in failed}
-        head = [f"{ns.file}: {self.title}, {seen.n_conns} connection(s)"]
-        if seen.truncated:
-            head.append(f"TRUNCATED: {seen.truncated} (judged up to there)")
+        broke = {dict(f.more)["conn"]: f.rule for f in v.found if f.rule in failed}
         notes = [f"connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}"
                  for g in seen.gaps[:20]]
         if seen.n_gaps > 20:
             notes.append(f"... and {seen.n_gaps - 20} more gap(s) in the capture")
-        head += [f"note: {n}" for n in notes]
-        for n, c in sorted(seen.conns.items())[:ROWS]:
-            head.append(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
-                        f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
-                        f"{'; BROKE ' + broke[n] if n in broke else ''}")
+        conns = [f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, backend sent "
+                 f"{c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
+                 f"{'; BROKE ' + broke[n] if n in broke else ''}" for n, c in sorted(seen.conns.items())[:ROWS]]
         if seen.n_conns > ROWS:
-            head.append(f"  ... and {seen.n_conns - ROWS} more connection(s)")
-        blocks = []
-        for rule in failed:
-            shown = [(conn, f) for f, conn in zip(v.found, conn_of, strict=True) if f.rule == rule][:3]
-            blocks.append(RuleBlock(rule, [(f"conn {conn} at +{(f.t_ns - (seen.first_ns or f.t_ns)) / 1e9:.6f}s: "
-                                            f"expected {f.expected}; actual {f.actual}", f.evidence) for conn, f in shown],
-                                    v.counts[rule] - 3, " connection(s)"))
+            conns.append(f"  ... and {seen.n_conns - ROWS} more connection(s)")
         backends: dict[str, dict[str, Any]] = {}
         for c in seen.conns.values():
             b = backends.setdefault(_addr(c["backend"]), {"id": _addr(c["backend"]), "role": "backend", "connections": 0,
                                                           "frames": 0})
             b["connections"] += 1
             b["frames"] += c["rx"]
-        doc = document(v, self.spec, {"path": str(ns.file), "format": seen.format, "truncated": seen.truncated,
-                                      "notes": notes, "duration_s": round(seen.duration_s, 9)},
-                       {"select": list(core.selection(ns)), "strict": strict, "complete": not seen.n_gaps},
-                       list(backends.values()), [violation_json(f, self.spec, seen.first_ns) for f in v.found],
-                       {"connection_count": seen.n_conns,
-                        "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
-                                         "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
-                                        for n, c in sorted(seen.conns.items())],
-                        "gaps": [g._asdict() for g in seen.gaps], "failed_count": v.counts})
-        return Checked(head, blocks, v, doc,
-                       [f"(the rules judged by what the runner's cases send need mcp-conform --protocol {self.name})"])
+
+        def line(f: Found) -> str:
+            return (f"conn {dict(f.more)['conn']} at +{(f.t_ns - (seen.first_ns or f.t_ns)) / 1e9:.6f}s: expected "
+                    f"{f.expected}; actual {f.actual}")
+        return core.checked(
+            self, ns, v, [f"{ns.file}: {self.title}, {seen.n_conns} connection(s)"],
+            {"path": str(ns.file), "format": seen.format, "truncated": seen.truncated, "notes": notes,
+             "duration_s": round(seen.duration_s, 9)}, {"complete": not seen.n_gaps}, list(backends.values()),
+            first_ns=seen.first_ns, after=conns, line=line, unit=" connection(s)",
+            own={"connection_count": seen.n_conns,
+                 "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
+                                  "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
+                                 for n, c in sorted(seen.conns.items())],
+                 "gaps": [g._asdict() for g in seen.gaps], "failed_count": v.counts},
+            tail=[f"(the rules judged by what the runner's cases send need mcp-conform --protocol {self.name})"])
 
     def compare(self, golden: str, candidate: str) -> Compared:
         g, c = _Conns(self, golden, steps=True).read(), _Conns(self, candidate, steps=True).read()

@@ -41,13 +41,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from mcp_conform.judge.verdicts import Verdicts
+from mcp_conform.judge.verdicts import Found, Verdicts
 from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
-__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window",
-           "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames",
+__all__ = ["EXAMPLES", "CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window", "checked",
+           "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames", "strict",
            "window"]
+
+
+EXAMPLES = 3  # violations shown in full per rule in the terminal (all of them with -v and in --json)
 
 
 @dataclass
@@ -144,6 +147,35 @@ class CapturePlugin:
 
     def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         return not_replayed(err, ns.capture, self.unreplayed)
+
+
+def checked(plugin: CapturePlugin, ns: Any, v: Verdicts, first: list[str], file: dict[str, Any],
+            parameters: dict[str, Any], nodes: list[Any], *, first_ns: int | None, after: Sequence[str] = (),
+            own: dict[str, Any] | None = None, line: Callable[[Found], str] = str, unit: str = "",
+            more: Callable[[Found], dict[str, Any]] = lambda f: {}, tail: Sequence[str] = ()) -> Checked:
+    """A capture judged by a monitor that gives one verdict per rule (``judge.verdicts``): the
+    terminal's head (``first``, the truncation, the file's notes, ``after``), each broken rule's
+    examples (``line`` each; all of them with ``-v``, else :data:`EXAMPLES`; ``unit``: what the
+    rest are) and the document (``captures.check_doc``: ``file``, ``parameters`` beside
+    ``--select`` and ``--strict``, ``nodes``, each violation with ``more`` of it, ``own``)."""
+    from mcp_conform.captures.check_doc import document, violation_json
+
+    head = [*first, *([f"TRUNCATED: {v.truncated} (judged up to there)"] if v.truncated else []),
+            *(f"note: {n}" for n in file["notes"]), *after]
+    examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
+    blocks = []
+    for rule in (r for r, verdict in v.rules.items() if verdict in ("failed", "warned")):
+        found = [f for f in v.found if f.rule == rule]
+        blocks.append(RuleBlock(rule, [(line(f), f.evidence) for f in found[:examples]],
+                                v.counts[rule] - min(len(found), examples), unit))
+    doc = document(v, plugin.spec, file, {"select": list(selection(ns)), "strict": strict(ns), **parameters}, nodes,
+                   [{**violation_json(f, plugin.spec, first_ns), **more(f)} for f in v.found], own)
+    return Checked(head, blocks, v, doc, list(tail))
+
+
+def strict(ns: Any) -> bool:
+    """``--strict``: a SHOULD broken counts against the exit code too."""
+    return bool(getattr(ns, "strict", False))
 
 
 def note(command: str, ns: Any, option: str, text: str) -> None:
