@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.trace_tools import Checked, Compared
+from mcp_conform.captures.trace_tools import Checked
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.judge.verdicts import Found, of_mavlink
 from mcp_conform.spec import MAVLINK
@@ -100,6 +100,7 @@ class _Mavlink(core.CapturePlugin):
     unexported = ("a MAVLink trace is not exported as pcap (its frames have no UDP datagrams of their own; show and "
                   "diff read it as it is)")
     unreplayed = "a MAVLink trace is not replayed (no MAVLink fuzz findings yet: judge it with check)"
+    steps_called, steps_aside = "microservice message(s)", " (heartbeats and telemetry not compared)"
 
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
@@ -120,16 +121,6 @@ class _Mavlink(core.CapturePlugin):
                             own={"frames": j.count, "failed_count": v.counts}, line=partial(_violation_line, j),
                             more=lambda f: {"case": j.case_at(f.t_ns)})
 
-    def compare(self, golden: str, candidate: str) -> Compared:
-        g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)
-        ga, ca = conversation(g), conversation(c)
-        diffs, lines = core.align(ga, ca)
-        n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
-        return Compared(diffs, lines, f"{n_g} microservice message(s) alike, each sender's in order (heartbeats "
-                        "and telemetry not compared)", f" over {n_g} and {n_c} microservice message(s)",
-                        [(g.path, g.truncated), (c.path, c.truncated)],
-                        doc={"golden_steps": n_g, "candidate_steps": n_c})
-
     def judged(self, path: str, *, keep: bool = False) -> Judged:
         return judge_trace(path, keep=keep)
 
@@ -147,22 +138,20 @@ class _Mavlink(core.CapturePlugin):
         return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
                f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
 
+    def steps(self, j: Judged) -> dict[str, list[tuple[str, str]]]:
+        """The microservice messages of a trace by the role of their sender, each role's in order:
+        (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
+        between the two sides is the recorder's (an answer may be stamped before its request,
+        ``judge.mavlink_monitor.ORDER_SLACK_S``), each side's own order is the sender's."""
+        steps: dict[str, list[tuple[str, str]]] = {}
+        for f in j.frames:
+            if f.bad or f.name not in CONVERSATION:
+                continue
+            role = j.monitor.role_of(f.source) or "?"
+            fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
+            text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
+            steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
+        return steps
+
 
 PLUGIN = _Mavlink()
-
-
-# ---------------------------------------------------------------- diff
-def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
-    """The microservice messages of a trace by the role of their sender, each role's in order:
-    (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
-    between the two sides is the recorder's (an answer may be stamped before its request,
-    ``judge.mavlink_monitor.ORDER_SLACK_S``), each side's own order is the sender's."""
-    steps: dict[str, list[tuple[str, str]]] = {}
-    for f in j.frames:
-        if f.bad or f.name not in CONVERSATION:
-            continue
-        role = j.monitor.role_of(f.source) or "?"
-        fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
-        text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
-        steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
-    return steps

@@ -111,7 +111,23 @@ class CapturePlugin:
     def check(self, ns: Any) -> Checked:
         raise NotImplementedError
 
+    #: what diff's steps are (its words: "same: N STEPS alike, each sender's in order ...")
+    steps_called, steps_aside = "step(s)", ""
+
     def compare(self, golden: str, candidate: str) -> Compared:
+        """Two captures read through their monitors, their :meth:`steps` compared sender by
+        sender (:func:`align`)."""
+        g, c = self.judged(golden, keep=True), self.judged(candidate, keep=True)
+        ga, ca = self.steps(g), self.steps(c)
+        diffs, lines = align(ga, ca)
+        n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
+        return Compared(diffs, lines, f"{n_g} {self.steps_called} alike, each sender's in order{self.steps_aside}",
+                        f" over {n_g} and {n_c} {self.steps_called}", [(g.path, g.truncated), (c.path, c.truncated)],
+                        doc={"golden_steps": n_g, "candidate_steps": n_c})
+
+    def steps(self, j: Judged) -> dict[str, list[tuple[str, str]]]:
+        """What diff compares of a judged capture: each sender's steps in order, (key compared,
+        line shown)."""
         raise NotImplementedError
 
     def judged(self, path: str, *, keep: bool = False) -> Judged:
