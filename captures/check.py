@@ -14,15 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections import Counter
 from collections.abc import Iterator
-from importlib import resources
-from typing import Any, NamedTuple
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from mcp_conform.captures.check_doc import SCHEMA_VERSION, document, load_schema, validate_json
 from mcp_conform.captures.cli import (
     UsageError,
     add_protocol_option,
@@ -33,6 +32,7 @@ from mcp_conform.captures.cli import (
 )
 from mcp_conform.judge.judging import Judgement, evidence_of, judge
 from mcp_conform.judge.params import add_monitor_options, params_from_args, selected
+from mcp_conform.judge.verdicts import of_judgement
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import peek_header
 from mcp_conform.traceio.grammar import open_output
@@ -42,9 +42,6 @@ from mcp_conform.traceio.trace import action_name, evidence_indexes
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "run_check", "to_json",
            "validate_json"]
 
-SCHEMA_VERSION = "1.4"  # 1.1: parameters.from_capture; 1.2: segments (merged xdist captures); 1.3: the
-# challenge and waypoints recorded by a manager-role run (challenge_source "recorded"); 1.4:
-# parameters.rto_declared (the run declared its rto the nodes' own: judge.params.Params.adopt)
 EXAMPLES = 3  # violations shown in full per rule; the rest are counted (all of them in --json)
 NODE_ROWS = 30  # rows of the terminal's nodes table at most (a noisy capture's random IDs)
 NODE_COLUMNS = 6  # node columns of the terminal's rules table at most
@@ -135,13 +132,6 @@ def _level(v: Any) -> str:
         return str(level).upper()
     r = SPEC.rules_by_id.get(v.rule)
     return r.level if r else "?"
-
-
-class _RuleLevel(NamedTuple):
-    """What :func:`_level` reads of a violation."""
-
-    rule: str
-    level: Any
 
 
 def _pairs(evidence: Any) -> bool:
@@ -243,38 +233,18 @@ def _violation_lines(j: Judgement, evidence: dict[int, Datagram]) -> Iterator[st
 
 
 def to_json(j: Judgement, evidence: dict[int, Datagram], *, violations: bool = True) -> dict[str, Any]:
-    """The ``--json`` document (``check.schema.json``); ``violations=False`` leaves the list
-    empty (:func:`write_json` streams it into the file)."""
-    from mcp_conform.spec.about import tool_version
-
-    rules = {str(node): {r: verdict for r, verdict in sorted(by_rule.items()) if selected(r, j.params.select)}
-             for node, by_rule in sorted(j.verdicts.items())}
-    counts: dict[str, int] = {}
-    for by_rule in rules.values():
-        for verdict in by_rule.values():
-            counts[verdict] = counts.get(verdict, 0) + 1
-    shown = j.shown_violations
-    levels: Counter[str] = Counter()
-    for (rule, level), n in Counter((v.rule, getattr(v, "level", None)) for v in shown).items():
-        levels[_level(_RuleLevel(rule, level))] += n  # per rule and level: a million violations, few kinds
+    """The ``--json`` document (``check.schema.json``, ``captures.check_doc``) of MCP's judgement;
+    ``violations=False`` leaves the list empty (:func:`write_json` streams it into the file)."""
+    v = of_judgement(j)
     duration = (j.last_ns - j.first_ns) / 1e9 if j.first_ns is not None and j.last_ns is not None else 0.0
     segments = {"segments": [_segment_json(name, s, j.params.select) for name, s in j.segments.items()]} \
         if j.segments else {}
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "tool": {"name": "mcp-capture", "version": tool_version()},
-        "spec": {"version": SPEC.version, "sha256": SPEC.sha256},
-        "file": {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": list(j.notes),
-                 "datagrams": j.datagrams, "unattributed": j.unattributed, "duration_s": round(duration, 9)},
-        "parameters": {**j.params.to_json(), **({"rto_declared": True} if j.params.rto_declared else {})},
-        "nodes": [n.to_json() for n in j.nodes.values()],
-        "violations": list(_violations_json(j, evidence)) if violations else [],
-        "rules": rules,
-        **segments,
-        "summary": {"violations": len(shown), "must": levels["MUST"],
-                    "should": levels["SHOULD"], "info": levels["INFO"],
-                    "failing": len(j.failing()), "verdicts": counts, "exit_code": j.exit_code()},
-    }
+    return document(v, SPEC, {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": list(j.notes),
+                              "datagrams": j.datagrams, "unattributed": j.unattributed,
+                              "duration_s": round(duration, 9)},
+                    {**j.params.to_json(), **({"rto_declared": True} if j.params.rto_declared else {})},
+                    [n.to_json() for n in j.nodes.values()],
+                    list(_violations_json(j, evidence)) if violations else [], segments)
 
 
 def write_json(path: str, j: Judgement, evidence: dict[int, Datagram]) -> None:
@@ -332,17 +302,6 @@ def _segment_json(name: str, s: Judgement, select: tuple[str, ...]) -> dict[str,
 
 def _str(value: Any) -> str | None:
     return None if value is None else str(value)
-
-
-def load_schema() -> dict[str, Any]:
-    return json.loads(resources.files("captures").joinpath("check.schema.json").read_text())
-
-
-def validate_json(doc: dict[str, Any]) -> None:
-    """Raises ``jsonschema.ValidationError`` when ``doc`` does not follow the schema."""
-    import jsonschema
-
-    jsonschema.validate(doc, load_schema())
 
 
 # ---------------------------------------------------------------- terminal

@@ -12,8 +12,9 @@
 Every subcommand that reads a capture picks its protocol once and hands the work to that
 protocol's capture tools: ``--protocol``, else the first protocol whose profile recognises
 the file (``capture_profile``: each profile in ``spec.profiles`` names its ``capture_detect``),
-else the default; the profile's ``capture_tools`` module (:class:`CaptureTools`: MCP's
-``captures.mcp``, Nsqd's ``captures.nsqd``) then checks, shows, diffs, exports or replays it.
+else the default; the plug-in of the profile's ``capture_tools`` module (:class:`CaptureTools`,
+``captures.trace_tools.CapturePlugin``: MCP's ``captures.mcp``, MAVLink's ``captures.mavlink``,
+Nsqd's ``captures.nsqd``) then checks, shows, diffs, exports or replays it.
 A subcommand's own module keeps what is the same for every protocol: its options, their
 checks, its errors.
 
@@ -69,15 +70,15 @@ class CaptureTools(Protocol):
     #: what ``export`` writes, as its closing line counts them ("datagrams", "TCP packets")
     EXPORTED: str
 
-    def run_check(self, ns: argparse.Namespace) -> int: ...
+    def run_check(self, ns: argparse.Namespace, out: TextIO | None = None) -> int: ...
 
-    def run_show(self, ns: argparse.Namespace) -> int: ...
+    def run_show(self, ns: argparse.Namespace, out: TextIO | None = None) -> int: ...
 
     def run_diff(self, ns: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int: ...
 
     def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]: ...
 
-    def is_finding(self, path: str) -> bool: ...
+    def is_finding(self, path: str) -> bool: ...  # a fuzz finding replay reproduces
 
     def run_replay(self, ns: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int: ...
 
@@ -105,8 +106,10 @@ def capture_profile(ns: Any, path: str) -> Profile:
 
 
 def capture_tools(ns: Any, path: str) -> CaptureTools:
-    """The capture tools of the protocol ``path`` is read as (:func:`capture_profile`)."""
-    tools: CaptureTools = resolve(capture_profile(ns, path).capture_tools)
+    """The capture tools of the protocol ``path`` is read as (:func:`capture_profile`): the
+    plug-in its profile's ``capture_tools`` module declares (``PLUGIN``, a
+    ``captures.trace_tools.CapturePlugin``), every subcommand's one path."""
+    tools: CaptureTools = resolve(capture_profile(ns, path).capture_tools).PLUGIN
     return tools
 
 

@@ -25,25 +25,22 @@ Mission Planner), read by ``traceio.mavlink``.
 
 from __future__ import annotations
 
-import itertools
-import sys
 from functools import partial
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
-from mcp_conform.judge.mavlink_monitor import RULES, MavlinkMonitor, Violation
+from mcp_conform.captures.trace_tools import Checked
+from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
+from mcp_conform.judge.verdicts import Found, of_mavlink
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
-from mcp_conform.traceio.reader import CaptureError, Metadata, open_capture
+from mcp_conform.traceio.reader import CaptureError
+from mcp_conform.traceio.traces import recorded
 
-__all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "judge_trace", "run_check", "run_diff",
-           "run_replay", "run_show"]
+__all__ = ["PLUGIN", "is_capture", "judge_trace"]
 
-EXPORTED = "frames"
 DIALECT: Any = MAVLINK.dialect
-EXAMPLES = 3  # violations shown in full per rule (all of them with -v and in --json)
 #: the messages of the microservices a diff compares (the spec's services, HEARTBEAT and the
 #: vehicle's periodic reports left out)
 CONVERSATION = frozenset(m.name for m in MAVLINK.messages) - {"HEARTBEAT", "MISSION_CURRENT", "STATUSTEXT",
@@ -56,10 +53,6 @@ def is_capture(path: str | Path) -> bool:
     return is_mavlink_capture(path)
 
 
-def is_finding(path: str | Path) -> bool:
-    return False  # no MAVLink fuzz campaign yet: nothing to replay
-
-
 Judged = core.Judged
 
 
@@ -68,13 +61,8 @@ def _role_under_test(trace: MavTrace) -> str | None:
     run was MAVLink's; the vehicle's when it was another protocol's (the autopilot link of an
     MCP drone run: its other side is the node under test and the runner's own probes, which
     MAVLink's rules do not judge); None for a tlog (every node by its role)."""
-    if trace.format != "mcap":
-        return None
-    for rec in itertools.islice(open_capture(trace.path), 500):
-        if isinstance(rec, Metadata) and rec.data.get("role"):
-            role = rec.data["role"]
-            return role if role in MAVLINK.roles else "vehicle"
-    return None
+    role = recorded(trace.path, "role") if trace.format == "mcap" else None
+    return role if role is None or role in MAVLINK.roles else "vehicle"
 
 
 def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
@@ -100,110 +88,70 @@ def _node_line(n: dict[str, Any]) -> str:
     return f"  {n['id']} {n['role'] or '?'}{what} {n['frames']} frame(s), {n['heartbeats']} HEARTBEAT(s)"
 
 
-def _violation_line(j: Judged, v: Violation) -> str:
+def _violation_line(j: Judged, v: Found) -> str:
     case = j.case_at(v.t_ns)
-    return (f"node {v.node} ({v.role}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
+    return (f"node {v.node} ({dict(v.more)['role']}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
             f"{f' in {case}' if case else ''}: expected {v.expected}; actual {v.actual}")
 
 
 class _Mavlink(core.CapturePlugin):
-    name, spec, a_capture, html_instead = "mavlink", MAVLINK, "a MAVLink trace", "use --json"
+    name, spec, a_capture, html_instead, EXPORTED = "mavlink", MAVLINK, "a MAVLink trace", "use --json", "frames"
+    unchartered = "is not drawn for a MAVLink trace"
+    unexported = ("a MAVLink trace is not exported as pcap (its frames have no UDP datagrams of their own; show and "
+                  "diff read it as it is)")
+    unreplayed = "a MAVLink trace is not replayed (no MAVLink fuzz findings yet: judge it with check)"
+    steps_called, steps_aside = "microservice message(s)", " (heartbeats and telemetry not compared)"
 
     def check(self, ns: Any) -> Checked:
         j = judge_trace(ns.file)
         mon = j.monitor
-        rules = core.chosen_rules(ns, RULES, "MAV-")
-        verdicts = mon.verdicts()
-        failed = core.broken(rules, verdicts, ns)
-        examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
-        doc = {"file": j.path, "format": j.format, "truncated": j.truncated,
-               "frames": j.count, "roles": list(mon.roles), "complete": mon.complete,
-               "nodes": mon.to_json()["nodes"], "rules": {r: verdicts[r] for r in rules},
-               "failed_count": {r: mon.failed_count[r] for r in rules if mon.failed_count[r]},
-               "violations": [{**{k: (list(x) if isinstance(x, tuple) else x) for k, x in v._asdict().items()},
-                               "case": j.case_at(v.t_ns)} for v in mon.violations if v.rule in rules],
-               "unattributed_bad_frames": mon.unattributed_bad}
+        v = of_mavlink(mon, core.selection(ns), strict=core.strict(ns), truncated=j.truncated)
+        nodes = mon.to_json()["nodes"]
+        notes = ([f"{mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say who sent "
+                  "them: not judged)"] if mon.unattributed_bad else []) + \
+            ([] if mon.complete else ["MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame "
+                                      "of its link (our MCAP): a tlog's gap may be a frame lost on the way"])
         seconds = ((mon.last_ns or 0) - j.first_ns) / 1e9
         who = f"the {j.role}'s rules" if j.role else "every node by its role"
-        head = [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over {seconds:.1f} s; judged: {who}",
-                *(_node_line(n) for n in mon.to_json()["nodes"][:30])]
-        if j.truncated:
-            head.append(f"TRUNCATED: {j.truncated} (judged up to there)")
-        if mon.unattributed_bad:
-            head.append(f"note: {mon.unattributed_bad} stretch(es) of bytes that are no frame (a tlog does not say "
-                        "who sent them: not judged)")
-        if not mon.complete:
-            head.append("note: MAV-HB-11 (sequence numbers) is judged only on a trace that holds every frame of "
-                        "its link (our MCAP): a tlog's gap may be a frame lost on the way")
-        blocks = []
-        for rule in (r for r in rules if verdicts[r] in ("failed", "warned")):
-            vs = [v for v in mon.violations if v.rule == rule]
-            blocks.append(RuleBlock(rule, [(_violation_line(j, v), v.evidence) for v in vs[:examples]],
-                                    mon.failed_count[rule] - min(len(vs), examples)))
-        return Checked(head, blocks, [(r, verdicts[r]) for r in rules], bool(failed), j.truncated, doc)
+        return core.checked(self, ns, v, [f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s) over "
+                                          f"{seconds:.1f} s; judged: {who}", *(_node_line(n) for n in nodes[:30])],
+                            {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": notes,
+                             "unattributed": mon.unattributed_bad, "duration_s": round(seconds, 9)},
+                            {"complete": mon.complete, "roles": list(mon.roles)}, nodes, first_ns=j.first_ns,
+                            own={"frames": j.count, "failed_count": v.counts}, line=partial(_violation_line, j),
+                            more=lambda f: {"case": j.case_at(f.t_ns)})
 
-    def compare(self, golden: str, candidate: str) -> Compared:
-        g, c = judge_trace(golden, keep=True), judge_trace(candidate, keep=True)
-        ga, ca = conversation(g), conversation(c)
-        diffs, lines = core.align(ga, ca)
-        n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
-        return Compared(diffs, lines, f"{n_g} microservice message(s) alike, each sender's in order (heartbeats "
-                        "and telemetry not compared)", f" over {n_g} and {n_c} microservice message(s)",
-                        [(g.path, g.truncated), (c.path, c.truncated)],
-                        doc={"golden_steps": n_g, "candidate_steps": n_c})
+    def judged(self, path: str, *, keep: bool = False) -> Judged:
+        return judge_trace(path, keep=keep)
+
+    def header(self, j: Judged) -> str:
+        return f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)"
+
+    def frame_line(self, f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
+        t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
+        mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
+        if f.bad:
+            return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
+        role = j.monitor.role_of(f.source) or "?"
+        fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
+        text = ", ".join(f"{k}={v}" for k, v in fields.items())
+        return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
+               f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
+
+    def steps(self, j: Judged) -> dict[str, list[tuple[str, str]]]:
+        """The microservice messages of a trace by the role of their sender, each role's in order:
+        (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
+        between the two sides is the recorder's (an answer may be stamped before its request,
+        ``judge.mavlink_monitor.ORDER_SLACK_S``), each side's own order is the sender's."""
+        steps: dict[str, list[tuple[str, str]]] = {}
+        for f in j.frames:
+            if f.bad or f.name not in CONVERSATION:
+                continue
+            role = j.monitor.role_of(f.source) or "?"
+            fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
+            text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
+            steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
+        return steps
 
 
 PLUGIN = _Mavlink()
-run_check = partial(core.run_check, PLUGIN)
-
-
-# ---------------------------------------------------------------- show
-def frame_line(f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
-    t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
-    mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
-    if f.bad:
-        return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
-    role = j.monitor.role_of(f.source) or "?"
-    fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
-    text = ", ".join(f"{k}={v}" for k, v in fields.items())
-    return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
-           f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
-
-
-def run_show(ns: Any, out: TextIO | None = None) -> int:
-    core.note("show", ns, "svg", "is not drawn for a MAVLink trace")
-    j = judge_trace(ns.file, keep=True)
-    return core.show_frames(j, ns, out or sys.stdout, f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)",
-                            lambda f, marks: frame_line(f, j, marks))
-
-
-# ---------------------------------------------------------------- diff
-def conversation(j: Judged) -> dict[str, list[tuple[str, str]]]:
-    """The microservice messages of a trace by the role of their sender, each role's in order:
-    (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
-    between the two sides is the recorder's (an answer may be stamped before its request,
-    ``judge.mavlink_monitor.ORDER_SLACK_S``), each side's own order is the sender's."""
-    steps: dict[str, list[tuple[str, str]]] = {}
-    for f in j.frames:
-        if f.bad or f.name not in CONVERSATION:
-            continue
-        role = j.monitor.role_of(f.source) or "?"
-        fields = {k: v for k, v in f.msg.to_dict().items() if k not in _NOT_COMPARED}
-        text = f"{f.name} " + ", ".join(f"{k}={v}" for k, v in fields.items())
-        steps.setdefault(role, []).append((text, f"#{f.index} +{(f.t_ns - j.first_ns) / 1e9:.3f}s {role} {text}"))
-    return steps
-
-
-def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    return core.run_diff(PLUGIN, args, out)
-
-
-# ---------------------------------------------------------------- not MAVLink's
-def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
-    raise core.not_exported(capture, "a MAVLink trace is not exported as pcap (its frames have no UDP "
-                            "datagrams of their own; show and diff read it as it is)")
-
-
-def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    return core.not_replayed(err, args.capture, "a MAVLink trace is not replayed (no MAVLink fuzz findings "
-                             "yet: judge it with check)")

@@ -2,7 +2,8 @@
 profile names (``spec.profiles``), which ``captures.cli.capture_tools`` hands each subcommand
 (``captures.cli.CaptureTools``), as Nsqd's are ``captures.nsqd``.
 
-Each is the datagram core's own, in the subcommand's module: ``check`` the trace monitor's
+Its plug-in (:data:`PLUGIN`, a ``captures.trace_tools.CapturePlugin`` as every protocol's
+is) gives each subcommand the datagram core's own, in the subcommand's module: ``check`` the trace monitor's
 judgement (``captures.check``), ``show`` the listing and chart (``captures.show``), ``export``
 one UDP packet a datagram (``captures.export``), ``replay`` one side played against a live
 node (``captures.replay``); ``diff`` (here) the two captures as conversations, sender by
@@ -15,16 +16,12 @@ import json
 import sys
 from typing import Any, TextIO
 
-from mcp_conform.captures.check import run_check
+from mcp_conform.captures import check, export, replay, show
 from mcp_conform.captures.diff import DiffOptions, build_json, diff_captures, print_report
-from mcp_conform.captures.export import export_pcap
-from mcp_conform.captures.replay import run_replay
-from mcp_conform.captures.show import run_show
+from mcp_conform.captures.trace_tools import CapturePlugin
+from mcp_conform.spec import SPEC
 
-__all__ = ["EXPORTED", "export_pcap", "run_check", "run_diff", "run_replay", "run_show"]
-
-#: what ``export`` writes (``captures.export``'s closing line)
-EXPORTED = "datagrams"
+__all__ = ["PLUGIN", "run_diff"]
 
 
 def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
@@ -47,3 +44,25 @@ def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) ->
         return 2
     to_terminal(lambda: print_report(result, out or sys.stdout))
     return 0 if result.same else 1
+
+
+class _Mcp(CapturePlugin):
+    name, spec, EXPORTED = "mcp", SPEC, "datagrams"
+
+    def run_check(self, ns: Any, out: TextIO | None = None) -> int:
+        return check.run_check(ns)
+
+    def run_show(self, ns: Any, out: TextIO | None = None) -> int:
+        return show.run_show(ns)
+
+    def run_diff(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return run_diff(ns, out, err)
+
+    def export_pcap(self, capture: Any, out: Any) -> tuple[int, str | None]:
+        return export.export_pcap(capture, out)
+
+    def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return replay.run_replay(ns, out, err)
+
+
+PLUGIN = _Mcp()

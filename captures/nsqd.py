@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Iterator
-from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -39,15 +38,26 @@ from mcp_conform.spec.nsqd_codec import Deframer, Frame, decode_body
 from mcp_conform.traceio.nsqd import BACKEND_PORT, is_stream_capture, stream_records
 from mcp_conform.traceio.reader import StreamFrame
 
-__all__ = ["EXPORTED", "export_pcap", "is_capture", "is_finding", "run_check", "run_diff", "run_replay", "run_show"]
+__all__ = ["PLUGIN", "is_capture", "is_finding"]
 
-#: what ``export`` writes (``captures.export``'s closing line)
-EXPORTED = "TCP packets"
+
+def is_finding(path: str | Path) -> bool:
+    """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
+    from mcp_conform.fuzz.findings import read_finding
+
+    try:
+        read_finding(path, "nsqd")
+    except (ValueError, OSError):
+        return False
+    return True
+
 
 
 class _Nsqd(stream_tools.StreamPlugin):
     name, spec, a_capture, html_instead, title = "nsqd", NSQD, "an Nsqd capture", "use show --svg", "Nsqd capture"
-    monitor, port = StreamMonitor, BACKEND_PORT
+    monitor, port, EXPORTED = StreamMonitor, BACKEND_PORT, "TCP packets"
+    unreplayed = "an Nsqd capture is replayed as a fuzz finding only (its directory, finding.json, repro.mcap or repro.pcap)"
+    is_finding = staticmethod(is_finding)
 
     def records(self, path: str) -> Iterator[Any]:
         return stream_records(path)
@@ -79,26 +89,19 @@ class _Nsqd(stream_tools.StreamPlugin):
 
         return stream_svg(frames, title=title)
 
+    def run_replay(self, args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
+        reproduced, 0: it did not, 2: unreadable, no finding or no backend)."""
+        from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
+        from mcp_conform.harness.errors import SetupError
 
-PLUGIN = _Nsqd()
-run_check = partial(trace_tools.run_check, PLUGIN)
-run_show = partial(stream_tools.run_show, PLUGIN)
-
-
-def run_diff(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    return trace_tools.run_diff(PLUGIN, args, out)
-
-
-# ---------------------------------------------------------------- replay
-def is_finding(path: str | Path) -> bool:
-    """``path`` is an Nsqd fuzz finding: its directory, finding.json, repro.mcap or repro.pcap."""
-    from mcp_conform.fuzz.findings import read_finding
-
-    try:
-        read_finding(path, "nsqd")
-    except (ValueError, OSError):
-        return False
-    return True
+        if not is_finding(args.capture):
+            return trace_tools.not_replayed(err, args.capture, self.unreplayed)
+        try:
+            return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
+        except SetupError as exc:
+            (err or sys.stderr).write(f"mcp-capture: error: replay: {exc}\n")
+            return 2
 
 
 def is_capture(path: str | Path) -> bool:
@@ -109,24 +112,4 @@ def is_capture(path: str | Path) -> bool:
     return is_stream_capture(path)
 
 
-def run_replay(args: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
-    """Replay an Nsqd finding as ``mcp-fuzz --protocol nsqd --replay`` does (exit 1: it
-    reproduced, 0: it did not, 2: unreadable, no finding or no backend)."""
-    from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
-    from mcp_conform.harness.errors import SetupError
-
-    if not is_finding(args.capture):
-        return trace_tools.not_replayed(err, args.capture, "an Nsqd capture is replayed as a fuzz finding only "
-                                        "(its directory, finding.json, repro.mcap or repro.pcap)")
-    try:
-        return replay_stream_finding(str(args.capture), args.target, args.spawn, prog="mcp-capture replay")
-    except SetupError as exc:
-        (err or sys.stderr).write(f"mcp-capture: error: replay: {exc}\n")
-        return 2
-
-
-def export_pcap(capture: str | Path, out: str | Path) -> tuple[int, str | None]:
-    """``mcp-capture export``: an Nsqd capture's TCP conversations (``traceio.tcp_pcap``,
-    NSQD-*): (packets written, the capture's truncation reason or None); errors as
-    ``captures.export.export_pcap``'s."""
-    return stream_tools.export_pcap(PLUGIN, capture, out)
+PLUGIN = _Nsqd()

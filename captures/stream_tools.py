@@ -28,9 +28,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from mcp_conform.captures import trace_tools as core
-from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
+from mcp_conform.captures.trace_tools import Checked, Compared
+from mcp_conform.judge.verdicts import Found, of_nsqd
 from mcp_conform.traceio.grammar import write_text
-from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated
+from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated, open_capture
 from mcp_conform.traceio.tcp import StreamGap
 
 __all__ = ["MAX_GAPS", "MAX_LISTED", "MAX_STEPS", "ROWS", "StreamPlugin", "export_pcap", "run_show"]
@@ -74,44 +75,47 @@ class StreamPlugin(core.CapturePlugin):
         """``show --svg``: the sequence chart of ``frames``."""
         raise NotImplementedError
 
+    def run_show(self, ns: Any, out: TextIO | None = None) -> int:
+        return run_show(self, ns, out)
+
+    def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+        return export_pcap(self, capture, out)
+
     def check(self, ns: Any) -> Checked:
         seen = _Conns(self, ns.file).read()
-        verdicts = seen.monitor.verdicts()
-        failed = [r for r, (v, _, _) in verdicts.items() if v == "failed"]
-        broke = {c.conn: r for r in failed for c in verdicts[r][1]}
-        head = [f"{ns.file}: {self.title}, {seen.n_conns} connection(s)"]
-        if seen.truncated:
-            head.append(f"TRUNCATED: {seen.truncated} (judged up to there)")
-        head += [f"note: connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}"
+        v = of_nsqd(seen.monitor, core.selection(ns), strict=core.strict(ns), truncated=seen.truncated)
+        failed = [r for r, verdict in v.rules.items() if verdict == "failed"]
+        broke = {dict(f.more)["conn"]: f.rule for f in v.found if f.rule in failed}
+        notes = [f"connection {g.conn} {'backend' if g.direction == 'rx' else 'client'} bytes: {g.reason}"
                  for g in seen.gaps[:20]]
         if seen.n_gaps > 20:
-            head.append(f"note: ... and {seen.n_gaps - 20} more gap(s) in the capture")
-        for n, c in sorted(seen.conns.items())[:ROWS]:
-            head.append(f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, "
-                        f"backend sent {c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
-                        f"{'; BROKE ' + broke[n] if n in broke else ''}")
+            notes.append(f"... and {seen.n_gaps - 20} more gap(s) in the capture")
+        conns = [f"  conn {n}: {_addr(c['client'])} -> {_addr(c['backend'])}: client wrote {c['tx']} B, backend sent "
+                 f"{c['rx']} frame(s); {'closed ' + ', '.join(c['end']) if c['end'] else 'open'}"
+                 f"{'; BROKE ' + broke[n] if n in broke else ''}" for n, c in sorted(seen.conns.items())[:ROWS]]
         if seen.n_conns > ROWS:
-            head.append(f"  ... and {seen.n_conns - ROWS} more connection(s)")
-        blocks = []
-        for rule in failed:
-            shown = [(cv.conn, *cv.violation) for cv in verdicts[rule][1][:3]]  # type: ignore[misc]
-            blocks.append(RuleBlock(rule, [(f"conn {conn} at +{(t - (seen.first_ns or t)) / 1e9:.6f}s: expected "
-                                            f"{v.expected}; actual {v.actual}", v.evidence) for conn, v, t in shown],
-                                    verdicts[rule][2] - 3, " connection(s)"))
-        rules = list(verdicts)
-        doc = {"file": str(ns.file), "truncated": seen.truncated, "connection_count": seen.n_conns,
-               "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
-                                "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
-                               for n, c in sorted(seen.conns.items())],
-               "rules": {r: verdicts[r][0] for r in rules},
-               "failed_connections": {r: verdicts[r][2] for r in rules},
-               "violations": [{"rule": r, "conn": c.conn, "t_ns": c.violation[1],  # type: ignore[index]
-                               "expected": c.violation[0].expected, "actual": c.violation[0].actual,  # type: ignore[index]
-                               "evidence": list(c.violation[0].evidence)}  # type: ignore[index]
-                              for r in failed for c in verdicts[r][1]],
-               "gaps": [g._asdict() for g in seen.gaps]}
-        return Checked(head, blocks, [(r, verdicts[r][0]) for r in rules], bool(failed), seen.truncated, doc,
-                       [f"(the rules judged by what the runner's cases send need mcp-conform --protocol {self.name})"])
+            conns.append(f"  ... and {seen.n_conns - ROWS} more connection(s)")
+        backends: dict[str, dict[str, Any]] = {}
+        for c in seen.conns.values():
+            b = backends.setdefault(_addr(c["backend"]), {"id": _addr(c["backend"]), "role": "backend", "connections": 0,
+                                                          "frames": 0})
+            b["connections"] += 1
+            b["frames"] += c["rx"]
+
+        def line(f: Found) -> str:
+            return (f"conn {dict(f.more)['conn']} at +{(f.t_ns - (seen.first_ns or f.t_ns)) / 1e9:.6f}s: expected "
+                    f"{f.expected}; actual {f.actual}")
+        return core.checked(
+            self, ns, v, [f"{ns.file}: {self.title}, {seen.n_conns} connection(s)"],
+            {"path": str(ns.file), "format": seen.format, "truncated": seen.truncated, "notes": notes,
+             "duration_s": round(seen.duration_s, 9)}, {"complete": not seen.n_gaps}, list(backends.values()),
+            first_ns=seen.first_ns, after=conns, line=line, unit=" connection(s)",
+            own={"connection_count": seen.n_conns,
+                 "connections": [{"conn": n, "client": _addr(c["client"]), "backend": _addr(c["backend"]),
+                                  "client_bytes": c["tx"], "backend_frames": c["rx"], "end": c["end"]}
+                                 for n, c in sorted(seen.conns.items())],
+                 "gaps": [g._asdict() for g in seen.gaps], "failed_count": v.counts},
+            tail=[f"(the rules judged by what the runner's cases send need mcp-conform --protocol {self.name})"])
 
     def compare(self, golden: str, candidate: str) -> Compared:
         g, c = _Conns(self, golden, steps=True).read(), _Conns(self, candidate, steps=True).read()
@@ -150,6 +154,12 @@ class _Conns:
         self.gaps: list[StreamGap] = []
         self.n_gaps = 0
         self.first_ns: int | None = None
+        self.last_ns: int | None = None
+        self.format = open_capture(path).format
+
+    @property
+    def duration_s(self) -> float:
+        return ((self.last_ns or 0) - (self.first_ns or 0)) / 1e9
 
     def conn(self, n: int) -> dict[str, Any] | None:
         c = self.conns.get(n)
@@ -171,8 +181,10 @@ class _Conns:
                 self.truncated = rec.reason
                 continue
             t = getattr(rec, "t_ns", None)
-            if t is not None and self.first_ns is None:
-                self.first_ns = t
+            if t is not None:
+                self.last_ns = t
+                if self.first_ns is None:
+                    self.first_ns = t
             if kind is StreamFrame:
                 c = self.conn(rec.conn)
                 if rec.direction == "rx":

@@ -6,9 +6,10 @@ spec, what its captures are called, how it reads and judges one (its reader, fra
 monitor: :meth:`CapturePlugin.check`) and compares two (:meth:`CapturePlugin.compare`) --
 and takes each subcommand's frame from here:
 
-- ``check`` (:func:`run_check`): the verdict (FAILED, else INCOMPLETE for a capture cut
-  short, else OK), the JSON report (``--json``: the protocol, the plug-in's document, the
-  verdict), the terminal report (the plug-in's lines, then each rule broken with its level,
+- ``check`` (:func:`run_check`): the verdict (the monitors' one verdict interface,
+  ``judge.verdicts``: FAILED, else INCOMPLETE for a capture cut short, else OK), the JSON
+  report (``--json``: the one document of every protocol, ``captures.check_doc``), the terminal
+  report (the plug-in's lines, then each rule broken with its level,
   text, examples and how many more, the rules line, the verdict) and the exit code (0 none
   broken, 1 broken);
 - ``show`` (:func:`show_frames`, of a capture read through its monitor: :class:`Judged`,
@@ -18,10 +19,14 @@ and takes each subcommand's frame from here:
 - ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
   (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
   (:func:`align`);
-- ``--select``/``--exclude`` of a protocol's rules (:func:`picked`, :func:`chosen_rules`) and
-  those that count against the exit code (:func:`broken`, ``--strict``);
+- ``--select``/``--exclude`` of a protocol's rules (:func:`selection`, as the monitors' one
+  verdict interface takes them: ``judge.verdicts``);
 - the one-line notes and refusals of what a protocol does not do (:func:`note`,
   :func:`not_exported`, :func:`not_replayed`).
+
+The plug-in is what ``captures.cli.capture_tools`` hands each subcommand (its module's
+``PLUGIN``): every protocol's ``check``, ``show``, ``diff``, ``export`` and ``replay`` go the one
+path, the protocol a parameter; MCP's plug-in (``captures.mcp``) gives each its own module's.
 
 The text a protocol's records are shown in is its own.
 """
@@ -36,12 +41,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+from mcp_conform.judge.verdicts import Found, Verdicts
 from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
-__all__ = ["CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "broken", "case_at", "case_window",
-           "chosen_rules", "judge_records", "not_exported", "not_replayed", "note", "picked", "run_check", "run_diff", "show_frames",
+__all__ = ["EXAMPLES", "CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window", "checked",
+           "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames", "strict",
            "window"]
+
+
+EXAMPLES = 3  # violations shown in full per rule in the terminal (all of them with -v and in --json)
 
 
 @dataclass
@@ -58,14 +67,12 @@ class RuleBlock:
 @dataclass
 class Checked:
     """A capture judged: the report's lines before the rules (``head``) and after the rules
-    line (``tail``), the broken rules' blocks, each rule's verdict in order, whether one
-    counts against the exit code, the truncation, and the JSON document."""
+    line (``tail``), the broken rules' blocks, the monitor's verdicts (``judge.verdicts``) and
+    the document (``captures.check_doc``)."""
 
     head: list[str]
     blocks: list[RuleBlock]
-    rules: list[tuple[str, str]]
-    failed: bool
-    truncated: str | None
+    verdicts: Verdicts
     doc: dict[str, Any]
     tail: list[str] = field(default_factory=list)
 
@@ -86,19 +93,105 @@ class Compared:
 
 
 class CapturePlugin:
-    """A protocol's captures as ``mcp-capture`` reads them (see the module docstring)."""
+    """A protocol's captures as ``mcp-capture`` reads them (see the module docstring): its
+    content (:meth:`check`, :meth:`compare`, :meth:`judged` and :meth:`frame_line` for
+    ``show``) and each subcommand's work (``captures.cli.CaptureTools``), the core's with the
+    protocol a parameter unless the protocol has its own."""
 
     name: str  # its --protocol
     spec: Any  # its spec: each rule's level and text (``spec.rule(ID)``)
     a_capture: str  # what one capture is called, with its article (check --html is not written for it)
     html_instead: str  # what check --html is told to use instead
     json_when_same = True  # diff --json is written when the captures are alike too
+    EXPORTED = "records"  # what ``export`` writes, as its closing line counts them
+    unexported = "is not exported as pcap"  # why export refuses one of its captures
+    unreplayed = "is not replayed"  # why replay refuses one
+    unchartered = "is not drawn"  # what show says of --svg
 
     def check(self, ns: Any) -> Checked:
         raise NotImplementedError
 
+    #: what diff's steps are (its words: "same: N STEPS alike, each sender's in order ...")
+    steps_called, steps_aside = "step(s)", ""
+
     def compare(self, golden: str, candidate: str) -> Compared:
+        """Two captures read through their monitors, their :meth:`steps` compared sender by
+        sender (:func:`align`)."""
+        g, c = self.judged(golden, keep=True), self.judged(candidate, keep=True)
+        ga, ca = self.steps(g), self.steps(c)
+        diffs, lines = align(ga, ca)
+        n_g, n_c = sum(map(len, ga.values())), sum(map(len, ca.values()))
+        return Compared(diffs, lines, f"{n_g} {self.steps_called} alike, each sender's in order{self.steps_aside}",
+                        f" over {n_g} and {n_c} {self.steps_called}", [(g.path, g.truncated), (c.path, c.truncated)],
+                        doc={"golden_steps": n_g, "candidate_steps": n_c})
+
+    def steps(self, j: Judged) -> dict[str, list[tuple[str, str]]]:
+        """What diff compares of a judged capture: each sender's steps in order, (key compared,
+        line shown)."""
         raise NotImplementedError
+
+    def judged(self, path: str, *, keep: bool = False) -> Judged:
+        """A capture read through its monitor (``keep``: its frames kept, for show)."""
+        raise NotImplementedError
+
+    def header(self, j: Judged) -> str:
+        """``show``'s first line."""
+        raise NotImplementedError
+
+    def frame_line(self, f: Any, j: Judged, marks: dict[int, list[str]]) -> str:
+        """``show``'s line of one frame (``marks``: the rules whose violations name each frame)."""
+        raise NotImplementedError
+
+    # -- the subcommands (captures.cli.CaptureTools) ------------------------------------
+    def run_check(self, ns: Any, out: TextIO | None = None) -> int:
+        return run_check(self, ns, out)
+
+    def run_show(self, ns: Any, out: TextIO | None = None) -> int:
+        """``show`` of a capture read through its monitor: :func:`show_frames`."""
+        note("show", ns, "svg", self.unchartered)
+        j = self.judged(ns.file, keep=True)
+        return show_frames(j, ns, out or sys.stdout, self.header(j), lambda f, marks: self.frame_line(f, j, marks))
+
+    def run_diff(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return run_diff(self, ns, out)
+
+    def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
+        raise not_exported(capture, self.unexported)
+
+    def is_finding(self, path: str) -> bool:
+        return False  # no fuzz campaign of its own: nothing to replay
+
+    def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
+        return not_replayed(err, ns.capture, self.unreplayed)
+
+
+def checked(plugin: CapturePlugin, ns: Any, v: Verdicts, first: list[str], file: dict[str, Any],
+            parameters: dict[str, Any], nodes: list[Any], *, first_ns: int | None, after: Sequence[str] = (),
+            own: dict[str, Any] | None = None, line: Callable[[Found], str] = str, unit: str = "",
+            more: Callable[[Found], dict[str, Any]] = lambda f: {}, tail: Sequence[str] = ()) -> Checked:
+    """A capture judged by a monitor that gives one verdict per rule (``judge.verdicts``): the
+    terminal's head (``first``, the truncation, the file's notes, ``after``), each broken rule's
+    examples (``line`` each; all of them with ``-v``, else :data:`EXAMPLES`; ``unit``: what the
+    rest are) and the document (``captures.check_doc``: ``file``, ``parameters`` beside
+    ``--select`` and ``--strict``, ``nodes``, each violation with ``more`` of it, ``own``)."""
+    from mcp_conform.captures.check_doc import document, violation_json
+
+    head = [*first, *([f"TRUNCATED: {v.truncated} (judged up to there)"] if v.truncated else []),
+            *(f"note: {n}" for n in file["notes"]), *after]
+    examples = 10**9 if getattr(ns, "verbose", False) else EXAMPLES
+    blocks = []
+    for rule in (r for r, verdict in v.rules.items() if verdict in ("failed", "warned")):
+        found = [f for f in v.found if f.rule == rule]
+        blocks.append(RuleBlock(rule, [(line(f), f.evidence) for f in found[:examples]],
+                                v.counts[rule] - min(len(found), examples), unit))
+    doc = document(v, plugin.spec, file, {"select": list(selection(ns)), "strict": strict(ns), **parameters}, nodes,
+                   [{**violation_json(f, plugin.spec, first_ns), **more(f)} for f in v.found], own)
+    return Checked(head, blocks, v, doc, list(tail))
+
+
+def strict(ns: Any) -> bool:
+    """``--strict``: a SHOULD broken counts against the exit code too."""
+    return bool(getattr(ns, "strict", False))
 
 
 def note(command: str, ns: Any, option: str, text: str) -> None:
@@ -107,19 +200,15 @@ def note(command: str, ns: Any, option: str, text: str) -> None:
         sys.stderr.write(f"mcp-capture {command}: note: --{option} {text}\n")
 
 
-def verdict_of(failed: bool, truncated: str | None) -> str:
-    return "FAILED" if failed else ("INCOMPLETE" if truncated else "OK")
-
-
 def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
     """``mcp-capture check`` of a capture of ``plugin``'s (see the module docstring)."""
     from mcp_conform.captures.cli import to_terminal
 
     note("check", ns, "html", f"is not written for {plugin.a_capture} ({plugin.html_instead})")
     c = plugin.check(ns)
-    verdict = verdict_of(c.failed, c.truncated)
+    verdict = c.verdicts.verdict
     if getattr(ns, "json", None):  # the file first: a piped terminal report loses nothing of it
-        write_text(ns.json, json.dumps({"protocol": plugin.name, **c.doc, "verdict": verdict}, indent=1) + "\n")
+        write_text(ns.json, json.dumps(c.doc, indent=2) + "\n")
 
     def report() -> None:
         write = (out or sys.stdout).write
@@ -134,13 +223,13 @@ def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
                     write(f"    {e}\n")
             if b.more > 0:
                 write(f"  ... and {b.more} more{b.unit}\n")
-        write("rules: " + ", ".join(f"{r} {v}" for r, v in c.rules) + "\n")
+        write("rules: " + ", ".join(f"{r} {v}" for r, v in c.verdicts.rules.items()) + "\n")
         for line in c.tail:
             write(line + "\n")
         write(f"verdict: {verdict}\n")
 
     to_terminal(report)
-    return 1 if c.failed else 0
+    return c.verdicts.exit_code
 
 
 def run_diff(plugin: CapturePlugin, args: Any, out: TextIO | None = None) -> int:
@@ -209,24 +298,9 @@ def not_replayed(err: TextIO | None, capture: str | Path, why: str) -> int:
     return 2
 
 
-def picked(rule: str, chosen: Sequence[str], left_out: Sequence[str], prefix: str = "") -> bool:
-    """``--select``/``--exclude``: prefixes of the rule's ID, with or without the protocol's
-    ``prefix`` of its rules (``MAV-CMD``, ``CMD-1``, ``CMD``)."""
-    names = (rule, rule.removeprefix(prefix))
-    return ((not chosen or any(n.startswith(c) for n in names for c in chosen))
-            and not any(n.startswith(x) for n in names for x in left_out))
-
-
-def chosen_rules(ns: Any, rules: Iterable[str], prefix: str = "") -> list[str]:
-    """The rules of ``rules`` that ``--select``/``--exclude`` keep (:func:`picked`), in order."""
-    chosen, left_out = tuple(getattr(ns, "select", None) or ()), tuple(getattr(ns, "exclude", None) or ())
-    return [r for r in rules if picked(r, chosen, left_out, prefix)]
-
-
-def broken(rules: Iterable[str], verdicts: dict[str, str], ns: Any) -> list[str]:
-    """The rules that count against ``check``'s exit code: failed, or warned under ``--strict``."""
-    strict = bool(getattr(ns, "strict", False))
-    return [r for r in rules if verdicts[r] == "failed" or (strict and verdicts[r] == "warned")]
+def selection(ns: Any) -> tuple[str, ...]:
+    """``--select``/``--exclude`` as ``judge.verdicts.picked`` takes them (``!PREFIX``: left out)."""
+    return tuple(getattr(ns, "select", None) or ()) + tuple("!" + x for x in getattr(ns, "exclude", None) or ())
 
 
 @dataclass

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from mcp_conform.spec import NSQD
-from mcp_conform.spec.nsqd_codec import Deframer, Frame
+from mcp_conform.spec.nsqd_codec import Deframer
 from mcp_conform.spec.profiles import PROFILES
 from mcp_conform.traceio.reader import (
     Capture,
@@ -31,7 +31,14 @@ from mcp_conform.traceio.reader import (
     open_capture,
 )
 from mcp_conform.traceio.tcp import StreamGap
-from mcp_conform.traceio.traces import PEEK, claims, closing, records_of, stream_pcap_records
+from mcp_conform.traceio.traces import (
+    PEEK,
+    claims,
+    closing,
+    frame_names,
+    records_of,
+    stream_pcap_records,
+)
 
 __all__ = ["BACKEND_PORT", "StreamGap", "is_stream_capture", "stream_records"]
 
@@ -41,21 +48,7 @@ BACKEND_PORT = NSQD.port("backend")
 _READ_HERE = frozenset(p.name for p in PROFILES.values() if p.framing == "stream")
 
 
-def _name(raw: bytes) -> str | None:
-    head = Deframer(NSQD).feed(raw)
-    if len(head) == 1 and isinstance(head[0], Frame) and len(head[0].raw) == len(raw) \
-            and NSQD.has_message(head[0].msg_id):
-        return NSQD.message(head[0].msg_id).name
-    return None
-
-
-def _frame(item: Any) -> tuple[str | None, str | None]:
-    """(name, problem) of what the backend's deframer gave: a frame, or bytes it refused."""
-    if isinstance(item, Frame):
-        return (NSQD.message(item.msg_id).name if NSQD.has_message(item.msg_id) else None), None
-    return None, item.reason
-
-
+_name = frame_names(NSQD, lambda: Deframer(NSQD))[0]
 _BACKEND_IDS = {NSQD.message("UPDATE").id, NSQD.message("ERROR").id}
 
 
@@ -90,4 +83,4 @@ def stream_records(path: str | Path, cap: Capture | None = None) -> Iterator[Any
         yield from records_of(cap, (StreamFrame, StreamEvent, CaseMark, Metadata, Truncated))
         return
     with closing(cap):
-        yield from stream_pcap_records(cap, BACKEND_PORT, _backend_speaks, lambda: Deframer(NSQD), _name, _frame)
+        yield from stream_pcap_records(cap, BACKEND_PORT, _backend_speaks, lambda: Deframer(NSQD), NSQD)

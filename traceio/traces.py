@@ -1,11 +1,12 @@
 """What every protocol's trace reader does alike (``traceio.nsqd``, ``traceio.mavlink``: a
 capture plug-in's reader, docs/design.md "A protocol is a plug-in"), the protocol a parameter:
-which run a capture's metadata says it was (:func:`recorded_protocol`, :func:`said_by`), whether
+which run a capture's metadata says it was (:func:`recorded_protocol`, :func:`said_by`,
+:func:`recorded`: its role under test), whether
 a capture's first records are a protocol's (:func:`claims`), the records an MCAP holds of it
 (:func:`records_of`; a packet protocol's frames numbered, :func:`packet_records`), a capture's packet reader closed however the reading ends
 (:func:`closing`), and the one-line error of a file corrupt before its first record
 (:func:`corrupt`), a file's head (:func:`head_of`, :func:`is_mcap_head`), a pcap's TCP connections as a stream protocol's records
-(:func:`stream_pcap_records`). A protocol's own module keeps its content: its records, its framing, its
+(:func:`stream_pcap_records`, its frames named by the spec: :func:`frame_names`). A protocol's own module keeps its content: its records, its framing, its
 own file format (a tlog).
 """
 
@@ -27,14 +28,25 @@ from mcp_conform.traceio.reader import (
     Metadata,
     StreamFrame,
     Truncated,
+    open_capture,
 )
 from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
 
-__all__ = ["PEEK", "claims", "closing", "corrupt", "head_of", "is_mcap_head", "packet_records", "recorded_protocol",
+__all__ = ["PEEK", "claims", "closing", "corrupt", "frame_names", "head_of", "is_mcap_head", "packet_records", "recorded",
+           "recorded_protocol",
            "records_of", "said_by", "stream_pcap_records"]
 
 #: records (or packets) looked at to tell which protocol's a capture is
 PEEK = 500
+
+
+def recorded(path: str | Path, key: str) -> str | None:
+    """What the run's metadata record of an MCAP says of ``key`` (``role``: ``mcp-conform
+    --role``) among its first :data:`PEEK` records; None: nothing."""
+    for rec in itertools.islice(open_capture(path), PEEK):
+        if isinstance(rec, Metadata) and rec.data.get(key):
+            return str(rec.data[key])
+    return None
 
 
 def head_of(path: str | Path, n: int, what: str) -> tuple[int, bytes]:
@@ -136,15 +148,36 @@ def corrupt(path: str | Path, fmt: str, reason: str) -> CaptureError:
 
 
 
+def frame_names(spec: Any, deframer: Callable[[], Any]) -> tuple[Callable[[bytes], str | None],
+                                                                  Callable[[Any], tuple[str | None, str | None]]]:
+    """How a stream protocol's records name what its ``deframer`` gives (an item with a
+    ``msg_id`` is a frame, any other bytes it refused, with their ``reason``), by its ``spec``'s
+    messages: (the message a client's write is, when it is one whole frame of a known id;
+    (name, problem) of an item of the node's bytes: a frame's message name, None for an id the
+    spec has not, or None and why the bytes were refused)."""
+    def name_of(item: Any) -> str | None:
+        return str(spec.message(item.msg_id).name) if spec.has_message(item.msg_id) else None
+
+    def write(raw: bytes) -> str | None:
+        head = deframer().feed(raw)
+        whole = len(head) == 1 and hasattr(head[0], "msg_id") and len(head[0].raw) == len(raw)
+        return name_of(head[0]) if whole else None
+
+    def frame(item: Any) -> tuple[str | None, str | None]:
+        return (name_of(item), None) if hasattr(item, "msg_id") else (None, item.reason)
+    return write, frame
+
+
 def stream_pcap_records(cap: Capture, port: int, speaks: Callable[[bytes], bool], deframer: Callable[[], Any],
-                        name: Callable[[bytes], str | None], frame: Callable[[Any], tuple[str | None, str | None]]
-                        ) -> Iterator[Any]:
+                        spec: Any) -> Iterator[Any]:
     """A pcap's TCP connections to the node's ``port`` (or whose segments it ``speaks``:
     ``traceio.tcp``) as a stream protocol's records: ``StreamEvent``; ``StreamFrame`` ``tx``
-    each write of the client (``name``: the frame it is, if one), ``rx`` each item of the
-    node's bytes through its ``deframer`` (``frame``: a frame's name, or None and why the
-    deframer refused the bytes), unframed after a gap of the node's direction; ``StreamGap``;
-    last ``Truncated``. A file corrupt before its first packet is :func:`corrupt`."""
+    each write of the client (named: the frame it is, if one, :func:`frame_names`), ``rx``
+    each item of the node's bytes through its ``deframer`` (a frame's name, or None and why
+    the deframer refused the bytes), unframed after a gap of the node's direction;
+    ``StreamGap``; last ``Truncated``. A file corrupt before its first packet is
+    :func:`corrupt`."""
+    name, frame = frame_names(spec, deframer)
     deframers: dict[int, Any] = {}
     broken: set[int] = set()
     n = events = 0

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from mcp_conform.captures.check import load_schema, validate_json
+from mcp_conform.captures.check import SCHEMA_VERSION, load_schema, validate_json
 from mcp_conform.captures.cli import main
 from mcp_conform.judge.monitor import Monitor
 from mcp_conform.spec import SPEC
@@ -47,6 +47,48 @@ def test_schema_is_a_valid_json_schema():
     import jsonschema
 
     jsonschema.Draft202012Validator.check_schema(load_schema())
+
+
+def _capture(protocol: str, tmp_path: Path) -> Path:
+    """A capture of each protocol that breaks a MUST."""
+    if protocol == "nsqd":
+        from tests.traceio.test_nsqd_tcp import interleaved
+
+        return interleaved(tmp_path / "nsqd.pcap")  # a backend's UPDATE with a bad state
+    if protocol == "mavlink":
+        from tests.captures.test_mavlink_capture import FAULTS, TLOG, records
+
+        pick = FAULTS["heartbeat-gap"][1]
+        gap = tmp_path / "gap.tlog"
+        gap.write_bytes(b"".join(raw for f, raw in records(TLOG) if not pick(f)))
+        return gap
+    return FAULTY["hdr2-short"].build().write_pcap(tmp_path / "mcp.pcap")  # a datagram shorter than its header
+
+
+@pytest.mark.parametrize("protocol", ["mcp", "mavlink", "nsqd"])
+def test_every_protocols_check_writes_the_one_document(tmp_path, capsys, protocol):
+    """MCP's, MAVLink's and Nsqd's check write one document (check.schema.json): the protocol,
+    the rules' verdicts, the violations with the rule's level and text, the summary and the
+    verdict, the same verdict and exit code the terminal says; a document of another
+    protocol's read as MCP's (no protocol) does not pass the schema."""
+    import jsonschema
+
+    out = tmp_path / "check.json"
+    rc = main(["check", "--protocol", protocol, str(_capture(protocol, tmp_path)), "--json", str(out)])
+    doc = json.loads(out.read_text())
+    validate_json(doc)
+    text = capsys.readouterr().out
+    assert doc["protocol"] == protocol and doc["schema_version"] == SCHEMA_VERSION
+    assert rc == doc["summary"]["exit_code"] == 1 and doc["verdict"] == "FAILED" and "FAILED" in text.splitlines()[-1]
+    assert doc["violations"] and all(v["rule"].startswith({"mcp": "MCP-", "mavlink": "MAV-", "nsqd": "NSQD-"}[protocol])
+                                     and v["text"] and v["level"] == "MUST" for v in doc["violations"])
+    assert doc["summary"]["failing"] == doc["summary"]["must"] >= len(doc["violations"])
+    if protocol != "mcp":
+        assert doc["summary"]["violations"] == sum(doc["failed_count"].values())
+        assert {r for r, v in doc["rules"].items() if v == "failed"} == set(doc["failed_count"])
+        del doc["protocol"]
+        with pytest.raises(jsonschema.ValidationError):
+            validate_json(doc)
 
 
 @pytest.mark.parametrize("challenge", [1, 2, 3])
@@ -187,5 +229,5 @@ def test_a_capture_declaring_its_rto_says_so_in_a_report_the_schema_takes(tmp_pa
     assert main(["check", str(path), "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
     validate_json(doc)
-    assert doc["schema_version"] == "1.4" and doc["parameters"]["rto"] == 0.2
+    assert doc["schema_version"] == SCHEMA_VERSION == "1.5" and doc["parameters"]["rto"] == 0.2
     assert doc["parameters"].get("rto_declared") is (True if declared else None)

@@ -74,7 +74,7 @@ def test_mavproxy_tlog_is_checked_clean(tmp_path):
                       "MAV-MIS-8", "MAV-MIS-9", "MAV-MIS-20", "MAV-MIS-21"}, doc["rules"]
     assert doc["rules"]["MAV-HB-11"] == "not_observed"  # a tlog cannot tell a lost frame from a skipped seq
     assert {n["id"]: n["role"] for n in doc["nodes"]} == {"1/1": "vehicle", "255/230": "gcs"}
-    assert doc["format"] == "tlog" and doc["frames"] == 164 and is_mavlink_capture(TLOG)
+    assert doc["file"]["format"] == "tlog" and doc["frames"] == 164 and is_mavlink_capture(TLOG)
 
 
 FIRST_NS = next(iter(open_trace(TLOG))).t_ns
@@ -124,7 +124,7 @@ def test_a_tlog_is_recognised_without_protocol(tmp_path, capsys):
     out = tmp_path / "auto.json"
     assert main(["check", str(TLOG), "--json", str(out)]) == 0, capsys.readouterr()
     doc = json.loads(out.read_text())
-    assert doc["protocol"] == "mavlink" and doc["format"] == "tlog" and doc["frames"] == 164
+    assert doc["protocol"] == "mavlink" and doc["file"]["format"] == "tlog" and doc["frames"] == 164
     text = tmp_path / "notes.txt"
     text.write_text("hello, this is no capture\n")
     capsys.readouterr()
@@ -152,7 +152,7 @@ def test_a_cut_tlog_is_judged_up_to_its_last_record(tmp_path):
     cut.write_bytes(TLOG.read_bytes()[:3001])
     rc, doc, out, err = check(tmp_path, cut)
     assert rc == 0 and doc["verdict"] == "INCOMPLETE" and "TRUNCATED: " in out, out + err
-    assert doc["truncated"].endswith("after the last whole record (a cut or damaged file)")
+    assert doc["file"]["truncated"].endswith("after the last whole record (a cut or damaged file)")
     assert 0 < doc["frames"] < 164
 
 
@@ -313,7 +313,7 @@ def test_our_capture_is_clean_and_agrees_with_the_cases(tmp_path):
     assert rc == 0, out
     crc, doc, cout, cerr = check(tmp_path, capture)
     assert crc == 0 and doc["verdict"] == "OK" and not bad_rules(doc), cout + cerr
-    assert doc["roles"] == ["vehicle"] and doc["complete"] and doc["rules"]["MAV-HB-11"] == "passed"
+    assert doc["parameters"]["roles"] == ["vehicle"] and doc["parameters"]["complete"] and doc["rules"]["MAV-HB-11"] == "passed"
     both, differ = _agreement(run, doc)
     assert len(both) >= 25 and not differ, (both, differ)
 
@@ -425,7 +425,7 @@ def test_an_mcp_drone_runs_autopilot_link_is_judged_as_the_vehicles(tmp_path):
     golden = Path(__file__).parents[2] / "captures" / "golden" / "drone-suite.mcap"
     assert not is_mavlink_capture(golden)
     rc, doc, out, err = check(tmp_path, golden)
-    assert rc == 0 and doc["roles"] == ["vehicle"] and not bad_rules(doc), out + err
+    assert rc == 0 and doc["parameters"]["roles"] == ["vehicle"] and not bad_rules(doc), out + err
     assert {n["id"]: n["role"] for n in doc["nodes"]}["1/1"] == "vehicle"
     assert doc["rules"]["MAV-HB-1"] == doc["rules"]["MAV-HB-11"] == "passed"
 

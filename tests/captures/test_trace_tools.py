@@ -7,12 +7,14 @@ from __future__ import annotations
 import io
 import json
 from argparse import Namespace
+from collections import Counter
 from types import SimpleNamespace
 
 import pytest
 
 from mcp_conform.captures import trace_tools as core
 from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
+from mcp_conform.judge import verdicts
 from mcp_conform.traceio.files import UsageError
 from mcp_conform.traceio.reader import CaseMark
 
@@ -31,6 +33,10 @@ class _Plugin(core.CapturePlugin):
         return self.compared
 
 
+def _verdicts(rules: dict[str, str], failing: int, truncated: str | None = None) -> verdicts.Verdicts:
+    return verdicts.Verdicts("toy", rules, [], Counter(MUST=failing), failing, truncated)
+
+
 def _check(checked: Checked, tmp_path, **kw) -> tuple[int, str, dict]:
     out, path = io.StringIO(), tmp_path / "c.json"
     rc = core.run_check(_Plugin(checked), Namespace(json=str(path), **kw), out)
@@ -41,9 +47,10 @@ def _check(checked: Checked, tmp_path, **kw) -> tuple[int, str, dict]:
     (True, "cut", "FAILED", 1), (False, "cut", "INCOMPLETE", 0), (False, None, "OK", 0), (True, None, "FAILED", 1)])
 def test_check_says_its_verdict_in_the_report_the_json_and_the_exit_code(tmp_path, failed, truncated, verdict, rc):
     blocks = [RuleBlock("R-1", [("at +1s: expected a", ("#3", "#4")), ("at +2s: expected b", ())], 5, " link(s)")]
-    got, text, doc = _check(Checked(["head line"], blocks if failed else [], [("R-1", "failed" if failed else "passed")],
-                                     failed, truncated, {"file": "f"}, ["tail line"]), tmp_path)
-    assert got == rc and list(doc) == ["protocol", "file", "verdict"] and doc["verdict"] == verdict
+    v = _verdicts({"R-1": "failed" if failed else "passed"}, 6 if failed else 0, truncated)
+    got, text, doc = _check(Checked(["head line"], blocks if failed else [], v, {"file": "f", "verdict": v.verdict},
+                                    ["tail line"]), tmp_path)
+    assert got == rc and doc == {"file": "f", "verdict": verdict}
     expected = ["head line", *(["R-1 MUST: the text of R-1", "  at +1s: expected a", "    #3", "    #4",
                                 "  at +2s: expected b", "  ... and 5 more link(s)"] if failed else []),
                 f"rules: R-1 {'failed' if failed else 'passed'}", "tail line", f"verdict: {verdict}"]
@@ -51,7 +58,7 @@ def test_check_says_its_verdict_in_the_report_the_json_and_the_exit_code(tmp_pat
 
 
 def test_check_says_no_more_when_every_example_is_shown(tmp_path):
-    _, text, _ = _check(Checked([], [RuleBlock("R-1", [("x", ())], 0)], [("R-1", "failed")], True, None, {}), tmp_path)
+    _, text, _ = _check(Checked([], [RuleBlock("R-1", [("x", ())], 0)], _verdicts({"R-1": "failed"}, 1), {}), tmp_path)
     assert "more" not in text
 
 
@@ -84,7 +91,7 @@ def test_diff_says_same_or_each_divergence(tmp_path, divergences, json_when_same
     ("MAV-CMD-1", ("MIS",), (), False), ("MAV-CMD-1", (), ("CMD-1",), False), ("MAV-CMD-2", (), ("CMD-1",), True),
     ("MAV-CMD-1", ("CMD",), ("MAV-CMD-1",), False)])
 def test_select_and_exclude_take_a_rule_with_or_without_its_prefix(rule, chosen, left_out, picked):
-    assert core.picked(rule, chosen, left_out, "MAV-") is picked
+    assert verdicts.picked(rule, (*chosen, *("!" + x for x in left_out)), "MAV-") is picked
 
 
 MARKS = [CaseMark(10, "CMD/a", "start", None, ()), CaseMark(20, "CMD/a", "end", "passed", ()),

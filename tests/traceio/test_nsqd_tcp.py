@@ -346,3 +346,33 @@ def test_export_refuses_a_time_a_pcap_cannot_hold(tmp_path, capsys, suffix, rc):
         assert not out.exists()
     else:
         assert err == "" and [type(r) for r in stream_records(out)][-1] is StreamFrame
+
+
+@pytest.mark.parametrize(("args", "rules", "rc"), [
+    (("--select", "NSQD-FRM"), {"NSQD-FRM-1": "passed"}, 0), (("--exclude", "MSG"), {"NSQD-FRM-1": "passed"}, 0),
+    (("--select", "MSG-2"), {"NSQD-MSG-2": "failed"}, 1)])
+def test_check_judges_only_the_rules_select_and_exclude_keep(tmp_path, capsys, args, rules, rc):
+    """``--select``/``--exclude`` pick Nsqd's rules as MCP's and MAVLink's (with or without
+    ``NSQD-``): a broken rule left out is neither reported nor counted in the exit code."""
+    path = interleaved(tmp_path / "x.pcap")
+    assert main(["check", str(path), "--json", str(tmp_path / "c.json"), *args]) == rc
+    doc = json.loads((tmp_path / "c.json").read_text())
+    assert doc["rules"] == rules and doc["verdict"] == ("FAILED" if rc else "OK")
+    assert [v["rule"] for v in doc["violations"]] == (["NSQD-MSG-2"] if rc else [])
+    assert ("BROKE NSQD-MSG-2" in capsys.readouterr().out) == bool(rc)
+
+
+@pytest.mark.parametrize("verbose", [False, True])
+def test_check_shows_three_violations_a_rule_and_every_one_with_v(tmp_path, capsys, verbose):
+    """Five backends' connections each with a bad UPDATE state: the terminal shows 3 and says
+    how many more; ``-v`` every one, as MCP's and MAVLink's check do."""
+    pk = []
+    for i in range(5):
+        conv = Conv(41000 + i, 1000 * i, 9000 * i)
+        pk += conv.handshake() + conv.segments("s", BAD_STATE, []) + [conv.fin("c")]
+    wrpcap(str(tmp_path / "five.pcap"), pk)
+    assert main(["check", str(tmp_path / "five.pcap"), *(["-v"] if verbose else [])]) == 1
+    out = capsys.readouterr().out
+    shown = [line for line in out.splitlines() if line.startswith("  conn ") and " at +" in line]
+    assert len(shown) == (5 if verbose else 3), out
+    assert ("... and 2 more connection(s)" in out) != verbose

@@ -11,8 +11,10 @@ from mcp_conform.traceio.traces import (
     PEEK,
     claims,
     corrupt,
+    frame_names,
     head_of,
     is_mcap_head,
+    recorded,
     recorded_protocol,
 )
 
@@ -63,3 +65,31 @@ def test_a_file_that_cannot_be_read_or_is_empty_is_one_line(tmp_path):
     assert head_of(some, 8, "x") == (12, b"\x89MCAP0\r\n") and is_mcap_head(b"\x89MCAP0\r\n")
     assert is_mcap_head(b"\x89MC") and not is_mcap_head(b"\x89MX") and not is_mcap_head(b"\x00" * 9)
     assert str(corrupt("f.pcap", "pcap", "bad CRC")) == "f.pcap: pcap file corrupt, nothing could be read: bad CRC"
+
+
+def test_the_role_a_runs_metadata_records():
+    """``recorded``: what the run's metadata says (an MCP drone run's, a MAVLink vehicle run's
+    role under test); nothing for a capture with no such key."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    assert recorded(root / "captures" / "golden" / "drone-suite.mcap", "role") == "drone"
+    assert recorded(root / "captures" / "golden" / "drone-suite.mcap", "no such key") is None
+
+
+def test_a_stream_protocols_frames_are_named_by_its_spec():
+    """``frame_names``: a client's write is named only when it is one whole frame of an id the
+    spec has; an item of the node's bytes is a frame's name, or why the deframer refused them."""
+    from mcp_conform.spec import NSQD
+    from mcp_conform.spec.nsqd_codec import Deframer, Frame, FramingError
+
+    write, frame = frame_names(NSQD, lambda: Deframer(NSQD))
+    update = NSQD.message("UPDATE")
+    whole = (5 + 32).to_bytes(4, "big") + bytes([update.id]) + bytes(32)
+    assert write(whole) == "UPDATE"
+    assert write(whole[:-1]) is None and write(whole + whole) is None  # part of one, or two
+    unknown = (5).to_bytes(4, "big") + bytes([0xEE])
+    assert not NSQD.has_message(0xEE) and write(unknown) is None
+    assert frame(Frame(update.id, bytes(32), whole)) == ("UPDATE", None)
+    assert frame(Frame(0xEE, b"", unknown)) == (None, None)
+    assert frame(FramingError(3, b"\0\0\0\3", "length 3 below 5")) == (None, "length 3 below 5")
