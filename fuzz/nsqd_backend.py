@@ -2,7 +2,9 @@
 
 :class:`Backend` holds a session (spawned, attached or the embedded default) and the current
 connection; ``run`` writes a case and asks the oracles of ``fuzz.nsqd_oracles`` what they
-saw, ``probe`` checks that a command still takes its effect. ``_reproduces`` replays cases in
+saw, ``probe`` checks that a command still takes its effect. Its process and its end are
+the shared core's (``fuzz.target_core.ProcessTarget``: the one MAVLink's vehicle has), as is
+the read of several connections at once (``read_until``). ``_reproduces`` replays cases in
 a fresh process, as triage and ``--replay`` do (``fuzz.nsqd_triage``).
 
 What a case waits for (judged cases/s, issue 21): an observation that ends it, never a fixed
@@ -27,7 +29,6 @@ from __future__ import annotations
 import collections
 import contextlib
 import random
-import select
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -43,13 +44,15 @@ from mcp_conform.fuzz.nsqd_oracles import (
     same_finding,
 )
 from mcp_conform.fuzz.spares import Spares
+from mcp_conform.fuzz.target_core import ProcessTarget, read_until
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
+from mcp_conform.harness.session_base import SpawnedNode
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["Backend", "Hit", "message_names"]
+__all__ = ["Backend", "Hit", "message_names", "read_until"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
@@ -67,9 +70,12 @@ class Traits:
     reports_fatal: bool | None = None
 
 
-class Backend:
+class Backend(ProcessTarget):
     """The backend under fuzz: a session (spawned, attached or the embedded default) and the
-    fuzzer's current connection."""
+    fuzzer's current connection; its process and its end the shared core's
+    (``fuzz.target_core.ProcessTarget``)."""
+
+    subject = StreamSession.subject
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None) -> None:
         self.target, self.spawn = target, spawn
@@ -97,7 +103,7 @@ class Backend:
         self.unwatched_n = 0  # how many cases in a row before this one were
         #: the next processes, started in the background (``fuzz.spares``: SPARES of them)
         self.spares: Spares[Backend] = Spares(lambda: Backend(target, spawn, self.traits), Backend.close,
-                                              lambda b: b.process is None or b.process.alive())
+                                              Backend.process_alive)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -136,21 +142,21 @@ class Backend:
         return self.conn
 
     @property
-    def process(self) -> Any:
-        """The spawned backend's process (``harness.process.ManagedProcess``), None: attached."""
-        node = self.session.node
-        return node.process if node is not None else None
+    def node(self) -> SpawnedNode | None:
+        """The spawned backend (the session's), None: attached."""
+        return self.session.node
 
     def death_hit(self, grace: float) -> Hit | None:
         d = self.session.death(grace=grace)
         if d is None:
             return None
         proc = self.process
-        report = proc.sanitizer_report() if proc is not None else []
+        assert proc is not None  # a death: of a spawned process
+        report = proc.sanitizer_report()
         # named by what killed it: under halt_on_error=0 the first report is seldom that (a
         # real backend's over-read on every frame hid its aborting number parse, its negative
         # string length and its GPX parser's SEGV under one finding)
-        cause = proc.last_cause() if proc is not None else []
+        cause = proc.last_cause()
         parsed = parse_cause(cause) if cause else (parse_sanitizer(report) if report else None)
         at = None
         if parsed:
@@ -168,12 +174,7 @@ class Backend:
         the report of a process still running (halt_on_error=0)."""
         proc = self.process
         assert proc is not None
-        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
-        while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
-            time.sleep(0.01)
-            now = proc.sanitizer_report()
-            if len(now) > len(report):
-                report, quiet = now, time.monotonic() + 1.0
+        report = self.whole_report()
         self.reports_seen = len(report)
         # a loaded CI host took over 0.3 s between lines of a report, and between its SUMMARY
         # and the exit: shorter waits classed a crash as a report of a process still running
@@ -431,24 +432,6 @@ class Backend:
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
                    f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen_states)}")
 
-    def fds(self) -> int | None:
-        return self.session.open_fds()
-
-
-def read_until(conns: list[Conn], pred: Any, timeout: float) -> bool:
-    """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
-    end = time.monotonic() + timeout
-    while True:
-        if pred():
-            return True
-        live = [c for c in conns if c.closed_at is None]
-        left = end - time.monotonic()
-        if left <= 0 or not live:
-            return bool(pred())
-        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
-        for c in live:
-            if c.sock in ready:
-                c.pump(0)
 
 
 def message_names(data: bytes) -> list[str]:

@@ -10,9 +10,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from mcp_conform.fuzz.nsqd_backend import read_until
 from mcp_conform.fuzz.nsqd_mutators import Write, valid_values
 from mcp_conform.fuzz.nsqd_oracles import CLOSE_RULE, Hit, Signature, desync_rule
+from mcp_conform.fuzz.target_core import read_until
 from mcp_conform.harness.nsqd_session import Conn
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
