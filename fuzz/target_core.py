@@ -194,7 +194,9 @@ class SyncLink:
                  sent_as: str = "rx", got_as: str = "tx", beat: Callable[[Any], bool] | None = None) -> None:
         self.framing, self.traffic, self.sent_as, self.got_as, self.beat = framing, traffic, sent_as, got_as, beat
         self.last_beat = 0.0  # the target's last beat (time.monotonic)
-        self.peer: tuple[str, int] = sock.getpeername()
+        self.peer: tuple[str, int] = ("", 0)  # TCP: the connection's (a peer that reset it at once: unnamed)
+        with contextlib.suppress(OSError):
+            self.peer = sock.getpeername()
         self.end = SocketEnd("tcp", self.peer, sock)
         self.frames: list[Any] = []
         self.closed = False  # the target closed it, or a write failed

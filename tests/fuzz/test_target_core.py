@@ -6,6 +6,7 @@ the gap after it, its end, and a write to a target that reads nothing bounded.""
 from __future__ import annotations
 
 import socket
+import struct
 import sys
 import threading
 import time
@@ -116,3 +117,17 @@ def test_a_write_to_a_target_that_reads_nothing_is_bounded():
     finally:
         link.close()
         peer.close()
+
+
+def test_a_target_that_resets_the_connection_at_once_ends_the_link():
+    """Accepted, then reset before the fuzzer's first read: the link opens, and is closed at
+    its first read (the vehicle's start then fails in one line: no HEARTBEAT), no error."""
+    client, peer = _pair()
+    peer.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    peer.close()
+    time.sleep(0.1)
+    link = SyncLink(client, MavlinkFraming())
+    try:
+        assert link.until(lambda r: True, 2.0) is None and link.closed
+    finally:
+        link.close()
