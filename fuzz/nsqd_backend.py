@@ -30,6 +30,7 @@ import collections
 import contextlib
 import random
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,7 +53,7 @@ from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["Backend", "Hit", "message_names", "read_until"]
+__all__ = ["Backend", "Hit", "message_names", "read_until", "violation_hit"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
@@ -167,6 +168,15 @@ class Backend(ProcessTarget):
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(),
                    tuple(report[:20]) or d.stderr, at=at)
 
+    def end_hit(self, grace: float) -> Hit | None:
+        """The process's death within ``grace`` s, else what a new sanitizer report on its
+        stderr shows (:meth:`report_hit`), else None (the stateful player's check after each op)."""
+        hit = self.death_hit(grace)
+        proc = self.process
+        if hit is None and proc is not None and len(proc.sanitizer_report()) > self.reports_seen:
+            return self.report_hit()
+        return hit
+
     def report_hit(self) -> Hit | None:
         """A new sanitizer report on stderr: once it is whole (its SUMMARY line, which ASan
         writes last; up to 5 s, or 1 s without a new line: symbolising its stacks takes a
@@ -279,14 +289,11 @@ class Backend(ProcessTarget):
         if hit is not None:
             return hit
         proc = self.process
-        if proc is not None:
-            report = proc.sanitizer_report()
-            if len(report) > self.reports_seen:  # a report: the process may be on its way out
-                return self.report_hit()
-        if self.conn is not None:  # the backend's own frames first: an effect is read from them
-            v = self.conn.violation()
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if proc is not None and len(proc.sanitizer_report()) > self.reports_seen:
+            return self.report_hit()  # a report: the process may be on its way out
+        hit = violation_hit([self.conn])  # the backend's own frames first: an effect is read from them
+        if hit is not None:
+            return hit
         if case.check and case.expect and self.conn is not None and self.conn.closed_at is None:
             hit = self._effect(case)
             if hit is not None:
@@ -360,10 +367,9 @@ class Backend(ProcessTarget):
         self.synced = ok and bool(before) and before[-1] not in case.expect and \
             any(u.values["state"] in case.expect for u in ups)  # type: ignore[index]
         self._adopt(fresh)
-        for c in (conn, fresh):
-            v = c.violation() if c is not None else None
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        hit = violation_hit((conn, fresh))
+        if hit is not None:
+            return hit
         if ok:
             return None
         if conn.reset or (not clean and conn.closed_at is not None):
@@ -397,13 +403,9 @@ class Backend(ProcessTarget):
         conn.send(encode(NSQD, name))
         seen, fresh = self._verify(conn, (state,), False, since)
         self._adopt(fresh)
-        hit = self.death_hit(0.0 if seen else 0.3)
+        hit = self.death_hit(0.0 if seen else 0.3) or violation_hit((conn, fresh))
         if hit is not None:
             return hit
-        for c in (conn, fresh):
-            v = c.violation() if c is not None else None
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
         if seen:
             return None
         if conn.closed_at is None and not conn.updates(since) and (fresh is None or not fresh.updates()):
@@ -432,6 +434,15 @@ class Backend(ProcessTarget):
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
                    f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen_states)}")
 
+
+
+def violation_hit(conns: Iterable[Conn | None]) -> Hit | None:
+    """The first rule the backend's frames on ``conns`` break (``Conn.violation``), as a hit."""
+    for c in conns:
+        v = c.violation() if c is not None else None
+        if v is not None:
+            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+    return None
 
 
 def message_names(data: bytes) -> list[str]:
