@@ -5,6 +5,10 @@ A :class:`MavVehicle` is one vehicle process (spawned with ``--spawn CMD``, ``{t
 ``mcp-vehicle``, when neither ``--spawn`` nor ``--target`` is given) or one reached at
 ``--target tcp:HOST:PORT``, and the fuzzer's TCP link to it, read synchronously: the fuzzer is
 its ground station (system 255, MAV_COMP_ID_MISSIONPLANNER, a HEARTBEAT a second: MAV-HB-2).
+The process, its end and the link read synchronously are the shared core's
+(``fuzz.target_core``: ``ProcessTarget``, ``SyncLink``); MAVLink declares its framing
+(``harness.mavlink_session.MavlinkFraming``), its ``{mavlink}`` placeholder and its beat (the
+vehicle's HEARTBEAT, bounded by MAV-HB-1).
 
 Each case (``fuzz.mavlink_cases.Case``) is written with the probe right behind it: a
 PARAM_REQUEST_READ by name of a parameter no case touches, which the vehicle answers with a
@@ -23,9 +27,6 @@ frames before the probe's answer are the case's answers, and the oracles judge t
 
 from __future__ import annotations
 
-import contextlib
-import select
-import socket
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -43,9 +44,9 @@ from mcp_conform.fuzz.mavlink_cases import (
 )
 from mcp_conform.fuzz.mavlink_oracles import Hit, Signature, answers, judge
 from mcp_conform.fuzz.spares import Spares
-from mcp_conform.harness.errors import SetupError, SpawnFailure
-from mcp_conform.harness.mavlink_session import embedded_command, parse_address
-from mcp_conform.harness.session_base import SpawnedNode, fill_placeholders, free_port
+from mcp_conform.fuzz.target_core import ProcessTarget, SyncLink, TargetSpec
+from mcp_conform.harness.errors import SetupError
+from mcp_conform.harness.mavlink_session import MavlinkFraming, embedded_command, parse_address
 from mcp_conform.spec import MAVLINK
 
 __all__ = ["Hit", "MavTarget", "MavVehicle", "Signature", "VehicleSpec"]
@@ -60,11 +61,9 @@ LIST_S = 10.0  # s: the parameter list the cases are built from, read at the sta
 
 
 @dataclass(frozen=True)
-class VehicleSpec:
-    """How to reach a vehicle: a ``--spawn`` template (or the embedded one), or an address."""
-
-    spawn: str | None = None
-    target: tuple[str, int] | None = None
+class VehicleSpec(TargetSpec):
+    """How to reach a vehicle (``fuzz.target_core.TargetSpec``): a ``--spawn`` template (or the
+    embedded one), or an address, over TCP."""
 
     @classmethod
     def of(cls, target: tuple[str, int] | None, spawn: str | None) -> VehicleSpec:
@@ -76,62 +75,58 @@ class VehicleSpec:
             return cls(None, address)
         return cls(spawn or embedded_command("tcp"), None)
 
-    def describe(self) -> str:
-        return f"tcp:{self.target[0]}:{self.target[1]}" if self.target else "spawned"
 
+class MavVehicle(ProcessTarget):
+    """One vehicle and the fuzzer's link to it (see the module's docstring): the shared
+    core's process and link (``fuzz.target_core``), MAVLink's framing on it."""
 
-class MavVehicle:
-    """One vehicle and the fuzzer's link to it (see the module's docstring)."""
+    subject = "the vehicle"
 
     def __init__(self, how: VehicleSpec, info: Vehicle | None = None, log: list[Any] | None = None,
                  late: float | None = None) -> None:
-        self.how, self.log = how, log
+        self.how = how
         #: how long an answer missing at the probe's answer is still waited for (None: the
         #: spec's bound, as replays wait; the campaign's own vehicle: a short while, its hits
         #: then confirmed, or not, by replays that wait the whole bound)
         self.late = late
-        self.node: SpawnedNode | None = None
-        self.sock: socket.socket | None = None
-        self.parser = D.MAVLink(None)
-        self.parser.robust_parsing = True
         self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
-        self.frames: list[tuple[float, Any]] = []
-        self.closed = False
-        self.last_beat = 0.0  # the vehicle's last HEARTBEAT (time.monotonic)
         self.gcs_beat = 0.0
-        self._start(info)
-
-    # -- life -----------------------------------------------------------------------------
-    def _start(self, info: Vehicle | None) -> None:
-        host, port = self.how.target or ("127.0.0.1", free_port("127.0.0.1", socket.SOCK_STREAM))
-        if self.how.spawn is not None:
-            argv = fill_placeholders(self.how.spawn, {"target_host": host, "target_port": str(port),
-                                                      "mavlink": f"tcp:{host}:{port}"})
-            self.node = SpawnedNode(argv)
-        deadline = time.monotonic() + 10.0
-        while self.sock is None:
-            try:
-                self.sock = socket.create_connection((host, port), timeout=1.0)
-            except OSError as exc:
-                if self.node is not None and not self.node.alive():
-                    raise SpawnFailure(f"the spawned vehicle {self.node.details()['exit']} before it listened on "
-                                       f"{host}:{port}", self.node.details(20)) from None
-                if time.monotonic() >= deadline:
-                    self.close()
-                    raise SetupError(f"tcp:{host}:{port}: cannot reach the vehicle: {exc.strerror or exc}") from None
-                time.sleep(0.05)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.sock.setblocking(False)
-        self.address = (host, port)
+        sock = self.open(how, lambda host, port: {"mavlink": f"tcp:{host}:{port}"})
+        self.link = SyncLink(sock, MavlinkFraming(), traffic=log,
+                             beat=lambda r: r.name == "HEARTBEAT" and self._from_vehicle(r.msg))
+        self.frames = self.link.frames
         self._beat()
         hb = self._until(lambda f: f.get_type() == "HEARTBEAT", 10.0)
         if hb is None:
             self.close()
-            raise SetupError(f"tcp:{host}:{port}: no HEARTBEAT from the vehicle within 10 s (MAV-HB-1)")
+            raise SetupError(f"tcp:{self.address[0]}:{self.address[1]}: no HEARTBEAT from the vehicle within 10 s "
+                             "(MAV-HB-1)")
         self.frames.clear()
         if info is None:
             info = self._learn(hb.get_srcSystem(), hb.get_srcComponent())
         self.info = info
+
+    @property
+    def log(self) -> list[Any] | None:
+        """The traffic both ways, for a finding's repro files (None: not kept)."""
+        return self.link.traffic
+
+    @log.setter
+    def log(self, log: list[Any] | None) -> None:
+        self.link.traffic = log
+
+    @property
+    def closed(self) -> bool:
+        return self.link.closed
+
+    @property
+    def last_beat(self) -> float:
+        """The vehicle's last HEARTBEAT (time.monotonic)."""
+        return self.link.last_beat
+
+    @last_beat.setter
+    def last_beat(self, t: float) -> None:
+        self.link.last_beat = t
 
     def _learn(self, sysid: int, compid: int) -> Vehicle:
         """The vehicle's IDs and parameter list (PARAM_REQUEST_LIST, read for at most LIST_S);
@@ -142,8 +137,8 @@ class MavVehicle:
         while time.monotonic() < end and (total is None or len(v.params) < total):
             if self._until(lambda f: f.get_type() == "PARAM_VALUE", min(2.0, end - time.monotonic()), seen) is None:
                 break
-            for _, m in self.frames[seen:]:
-                f = raw_fields(m) if m.get_type() == "PARAM_VALUE" else None
+            for r in self.frames[seen:]:
+                f = raw_fields(r.msg) if r.name == "PARAM_VALUE" else None
                 if f is not None and f["param_index"] < f["param_count"]:
                     total = f["param_count"]
                     v.params.setdefault(name_key(f["param_id"]), (int(f["param_index"]), int(f["param_type"])))
@@ -157,14 +152,12 @@ class MavVehicle:
         return v
 
     def close(self) -> None:
-        if self.sock is not None:
-            with contextlib.suppress(OSError):
-                self.sock.close()
-        if self.node is not None:
-            self.node.stop(grace=0.5)
+        if hasattr(self, "link"):
+            self.link.close()
+        self.stop()
 
     def alive(self) -> bool:
-        return not self.closed and (self.node is None or self.node.alive())
+        return not self.closed and self.process_alive()
 
     # -- the link -----------------------------------------------------------------------------
     def _pack(self, msg: Any) -> bytes:
@@ -173,18 +166,7 @@ class MavVehicle:
         return data
 
     def send(self, data: bytes) -> None:
-        assert self.sock is not None
-        if self.log is not None:
-            self.log.append(("rx", time.time_ns(), data))
-        try:
-            self.sock.setblocking(True)
-            self.sock.settimeout(2.0)
-            self.sock.sendall(data)
-        except OSError:
-            self.closed = True
-        finally:
-            with contextlib.suppress(OSError):
-                self.sock.setblocking(False)
+        self.link.send(data)
 
     def _beat(self) -> None:
         """The fuzzer's own HEARTBEAT, as a ground station's, once a second."""
@@ -194,52 +176,15 @@ class MavVehicle:
             self.send(self._pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
                                                              D.MAV_STATE_ACTIVE, 3)))
 
-    def _read(self, timeout: float) -> None:
-        """What the vehicle sent within ``timeout`` s (at once when something is there)."""
-        assert self.sock is not None
-        if self.closed:
-            return
-        try:
-            ready, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
-            if not ready:
-                return
-            data = self.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self.closed = True
-            return
-        now = time.monotonic()
-        for m in self.parser.parse_buffer(data) or []:
-            if m.get_type() == "BAD_DATA":
-                continue
-            if self.log is not None:
-                self.log.append(("tx", time.time_ns(), bytes(m.get_msgbuf())))
-            if m.get_type() == "HEARTBEAT" and self._from_vehicle(m):
-                self.last_beat = now
-            self.frames.append((now, m))
-
     def _from_vehicle(self, m: Any) -> bool:
         info = getattr(self, "info", None)
         return info is None or (m.get_srcSystem(), m.get_srcComponent()) == (info.sysid, info.compid)
 
     def _until(self, pred: Any, timeout: float, start: int = 0) -> Any:
-        """The first frame from ``start`` on that ``pred`` holds for, read for up to ``timeout``
-        s (None: none came, or the link closed)."""
-        end = time.monotonic() + timeout
-        i = start
-        while True:
-            while i < len(self.frames):
-                m = self.frames[i][1]
-                i += 1
-                if pred(m):
-                    return m
-            left = end - time.monotonic()
-            if left <= 0 or self.closed:
-                return None
-            self._read(min(left, 0.1))
+        """The first message from ``start`` on that ``pred`` holds for, read for up to
+        ``timeout`` s (None: none came, or the link closed)."""
+        r = self.link.until(lambda r: pred(r.msg), timeout, start)
+        return r.msg if r is not None else None
 
     # -- a case --------------------------------------------------------------------------------
     def _is_probe_answer(self, m: Any) -> bool:
@@ -256,7 +201,7 @@ class MavVehicle:
         answer = self._until(self._is_probe_answer, REPLY_S)
         if answer is None:
             return self._lost(case)
-        upto = next(i for i, (_, m) in enumerate(self.frames) if m is answer)
+        upto = next(i for i, r in enumerate(self.frames) if r.msg is answer)
         hit = self._judge(case, upto)
         if hit is None and time.monotonic() - self.last_beat > GAP_S:
             hit = self._lost(case, answered=True)
@@ -281,12 +226,8 @@ class MavVehicle:
         what = f"after {case.describe()}"
         if not self.alive() or (not answered and not self._wait_beat(sent)):
             if not self.alive():
-                end = time.monotonic() + 1.0  # a closed link: the process's exit, when it is exiting
-                while self.node is not None and self.node.alive() and time.monotonic() < end:
-                    time.sleep(0.02)
-                ev = tuple(self.node.evidence()) if self.node is not None else ()
-                how = (f"the vehicle process {self.node.details()['exit']}" if self.node is not None and
-                       not self.node.alive() else "the vehicle closed the link")
+                how, ev = self.ending(1.0)  # a closed link: the process's exit, when it is exiting
+                how = how or "the vehicle closed the link"
                 return Hit(Signature("crash", case.rule, case.kind), "the vehicle goes on", f"{how} {what}", ev)
             return Hit(Signature("hang", case.rule, case.kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
                        f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s {what}")
@@ -304,12 +245,7 @@ class MavVehicle:
     def _wait_beat(self, since: float) -> bool:
         """Whether a HEARTBEAT comes after ``since`` before the gap since the last one passes
         ``heartbeat_gap_max_s``."""
-        while self.last_beat <= since:
-            left = self.last_beat + GAP_S - time.monotonic()
-            if left <= 0 or self.closed:
-                return False
-            self._read(min(left, 0.1))
-        return True
+        return self.link.wait_beat(since, GAP_S)
 
     def watch(self, since: float) -> Hit | None:
         """After a replay: a HEARTBEAT after ``since`` (nothing), or the gap past its bound."""
@@ -321,11 +257,7 @@ class MavVehicle:
     def beats_on(self) -> Hit | None:
         """With nothing sent (the baseline of a stopped heartbeat): what the link holds read
         first, then the next two HEARTBEATs each within ``heartbeat_gap_max_s``, or a hang."""
-        while True:
-            n = len(self.frames)
-            self._read(0.0)
-            if len(self.frames) == n or self.closed:
-                break
+        self.link.drain()
         for which in ("first", "second"):
             t0 = self.last_beat = time.monotonic()
             if not self._wait_beat(t0):
@@ -349,7 +281,7 @@ class MavVehicle:
         def late() -> bool:
             return self._until(lambda m: self._from_vehicle(m) and bool(answers(e, [m])), self._late(e),
                                start=upto + 1) is not None
-        return judge(case, e, [m for _, m in self.frames[:upto] if self._from_vehicle(m)], late, self._late(e))
+        return judge(case, e, [r.msg for r in self.frames[:upto] if self._from_vehicle(r.msg)], late, self._late(e))
 
 
 class MavTarget(WorkerTarget):

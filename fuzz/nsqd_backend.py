@@ -2,7 +2,9 @@
 
 :class:`Backend` holds a session (spawned, attached or the embedded default) and the current
 connection; ``run`` writes a case and asks the oracles of ``fuzz.nsqd_oracles`` what they
-saw, ``probe`` checks that a command still takes its effect. ``_reproduces`` replays cases in
+saw, ``probe`` checks that a command still takes its effect. Its process and its end are
+the shared core's (``fuzz.target_core.ProcessTarget``: the one MAVLink's vehicle has), as is
+the read of several connections at once (``read_until``). ``_reproduces`` replays cases in
 a fresh process, as triage and ``--replay`` do (``fuzz.nsqd_triage``).
 
 What a case waits for (judged cases/s, issue 21): an observation that ends it, never a fixed
@@ -27,8 +29,8 @@ from __future__ import annotations
 import collections
 import contextlib
 import random
-import select
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,13 +45,15 @@ from mcp_conform.fuzz.nsqd_oracles import (
     same_finding,
 )
 from mcp_conform.fuzz.spares import Spares
+from mcp_conform.fuzz.target_core import ProcessTarget, read_until
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
+from mcp_conform.harness.session_base import SpawnedNode
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["Backend", "Hit", "message_names"]
+__all__ = ["Backend", "Hit", "message_names", "read_until", "violation_hit"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
@@ -67,9 +71,12 @@ class Traits:
     reports_fatal: bool | None = None
 
 
-class Backend:
+class Backend(ProcessTarget):
     """The backend under fuzz: a session (spawned, attached or the embedded default) and the
-    fuzzer's current connection."""
+    fuzzer's current connection; its process and its end the shared core's
+    (``fuzz.target_core.ProcessTarget``)."""
+
+    subject = StreamSession.subject
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None) -> None:
         self.target, self.spawn = target, spawn
@@ -97,7 +104,7 @@ class Backend:
         self.unwatched_n = 0  # how many cases in a row before this one were
         #: the next processes, started in the background (``fuzz.spares``: SPARES of them)
         self.spares: Spares[Backend] = Spares(lambda: Backend(target, spawn, self.traits), Backend.close,
-                                              lambda b: b.process is None or b.process.alive())
+                                              Backend.process_alive)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -136,21 +143,21 @@ class Backend:
         return self.conn
 
     @property
-    def process(self) -> Any:
-        """The spawned backend's process (``harness.process.ManagedProcess``), None: attached."""
-        node = self.session.node
-        return node.process if node is not None else None
+    def node(self) -> SpawnedNode | None:
+        """The spawned backend (the session's), None: attached."""
+        return self.session.node
 
     def death_hit(self, grace: float) -> Hit | None:
         d = self.session.death(grace=grace)
         if d is None:
             return None
         proc = self.process
-        report = proc.sanitizer_report() if proc is not None else []
+        assert proc is not None  # a death: of a spawned process
+        report = proc.sanitizer_report()
         # named by what killed it: under halt_on_error=0 the first report is seldom that (a
         # real backend's over-read on every frame hid its aborting number parse, its negative
         # string length and its GPX parser's SEGV under one finding)
-        cause = proc.last_cause() if proc is not None else []
+        cause = proc.last_cause()
         parsed = parse_cause(cause) if cause else (parse_sanitizer(report) if report else None)
         at = None
         if parsed:
@@ -161,6 +168,15 @@ class Backend:
         return Hit(Signature("crash", kind, frames, "NSQD-ROB-1", access), d.describe(),
                    tuple(report[:20]) or d.stderr, at=at)
 
+    def end_hit(self, grace: float) -> Hit | None:
+        """The process's death within ``grace`` s, else what a new sanitizer report on its
+        stderr shows (:meth:`report_hit`), else None (the stateful player's check after each op)."""
+        hit = self.death_hit(grace)
+        proc = self.process
+        if hit is None and proc is not None and len(proc.sanitizer_report()) > self.reports_seen:
+            return self.report_hit()
+        return hit
+
     def report_hit(self) -> Hit | None:
         """A new sanitizer report on stderr: once it is whole (its SUMMARY line, which ASan
         writes last; up to 5 s, or 1 s without a new line: symbolising its stacks takes a
@@ -168,12 +184,7 @@ class Backend:
         the report of a process still running (halt_on_error=0)."""
         proc = self.process
         assert proc is not None
-        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
-        while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
-            time.sleep(0.01)
-            now = proc.sanitizer_report()
-            if len(now) > len(report):
-                report, quiet = now, time.monotonic() + 1.0
+        report = self.whole_report()
         self.reports_seen = len(report)
         # a loaded CI host took over 0.3 s between lines of a report, and between its SUMMARY
         # and the exit: shorter waits classed a crash as a report of a process still running
@@ -278,14 +289,11 @@ class Backend:
         if hit is not None:
             return hit
         proc = self.process
-        if proc is not None:
-            report = proc.sanitizer_report()
-            if len(report) > self.reports_seen:  # a report: the process may be on its way out
-                return self.report_hit()
-        if self.conn is not None:  # the backend's own frames first: an effect is read from them
-            v = self.conn.violation()
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        if proc is not None and len(proc.sanitizer_report()) > self.reports_seen:
+            return self.report_hit()  # a report: the process may be on its way out
+        hit = violation_hit([self.conn])  # the backend's own frames first: an effect is read from them
+        if hit is not None:
+            return hit
         if case.check and case.expect and self.conn is not None and self.conn.closed_at is None:
             hit = self._effect(case)
             if hit is not None:
@@ -359,10 +367,9 @@ class Backend:
         self.synced = ok and bool(before) and before[-1] not in case.expect and \
             any(u.values["state"] in case.expect for u in ups)  # type: ignore[index]
         self._adopt(fresh)
-        for c in (conn, fresh):
-            v = c.violation() if c is not None else None
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        hit = violation_hit((conn, fresh))
+        if hit is not None:
+            return hit
         if ok:
             return None
         if conn.reset or (not clean and conn.closed_at is not None):
@@ -396,13 +403,9 @@ class Backend:
         conn.send(encode(NSQD, name))
         seen, fresh = self._verify(conn, (state,), False, since)
         self._adopt(fresh)
-        hit = self.death_hit(0.0 if seen else 0.3)
+        hit = self.death_hit(0.0 if seen else 0.3) or violation_hit((conn, fresh))
         if hit is not None:
             return hit
-        for c in (conn, fresh):
-            v = c.violation() if c is not None else None
-            if v is not None:
-                return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
         if seen:
             return None
         if conn.closed_at is None and not conn.updates(since) and (fresh is None or not fresh.updates()):
@@ -431,24 +434,15 @@ class Backend:
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
                    f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen_states)}")
 
-    def fds(self) -> int | None:
-        return self.session.open_fds()
 
 
-def read_until(conns: list[Conn], pred: Any, timeout: float) -> bool:
-    """Read every one of ``conns`` until ``pred()`` holds or ``timeout`` s pass (or all closed)."""
-    end = time.monotonic() + timeout
-    while True:
-        if pred():
-            return True
-        live = [c for c in conns if c.closed_at is None]
-        left = end - time.monotonic()
-        if left <= 0 or not live:
-            return bool(pred())
-        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
-        for c in live:
-            if c.sock in ready:
-                c.pump(0)
+def violation_hit(conns: Iterable[Conn | None]) -> Hit | None:
+    """The first rule the backend's frames on ``conns`` break (``Conn.violation``), as a hit."""
+    for c in conns:
+        v = c.violation() if c is not None else None
+        if v is not None:
+            return Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+    return None
 
 
 def message_names(data: bytes) -> list[str]:

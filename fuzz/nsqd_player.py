@@ -10,9 +10,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from mcp_conform.fuzz.nsqd_backend import read_until
+from mcp_conform.fuzz.nsqd_backend import violation_hit
 from mcp_conform.fuzz.nsqd_mutators import Write, valid_values
 from mcp_conform.fuzz.nsqd_oracles import CLOSE_RULE, Hit, Signature, desync_rule
+from mcp_conform.fuzz.target_core import read_until
 from mcp_conform.harness.nsqd_session import Conn
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
@@ -293,19 +294,12 @@ class Player:
         # (pipelined: only where a close would be a finding, as the stateless engine does)
         closed = any(c.conn.closed_at is not None and (not self.fast or (c.clean and not c.second))
                      for c in self.clients.values())
-        hit = self.b.death_hit(0.03 if closed else 0.0)
+        hit = self.b.end_hit(0.03 if closed else 0.0)
         if hit is not None:
             raise Hit(hit.signature, hit.detail, hit.stderr)
-        proc = self.b.process
-        if proc is not None:
-            if len(proc.sanitizer_report()) > self.b.reports_seen:
-                hit = self.b.report_hit()
-                if hit is not None:
-                    raise Hit(hit.signature, hit.detail, hit.stderr)
-        for c in self.clients.values():
-            v = c.conn.violation()
-            if v is not None:
-                raise Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        hit = violation_hit(c.conn for c in self.clients.values())
+        if hit is not None:
+            raise hit
         for slot, c in list(self.clients.items()):
             if c.conn.closed_at is None:
                 continue
@@ -400,10 +394,7 @@ class Player:
         read_until(conns, shown, self.window)
         died = self.b.death_hit(0.0)  # the backend's record of a death, raised as the player's Hit
         hit = Hit(died.signature, died.detail, died.stderr) if died is not None else None
-        for conn in conns:
-            v = conn.violation()
-            if hit is None and v is not None:
-                hit = Hit(Signature("protocol", v.rule, (), v.rule), f"{v.expected}; {v.actual}")
+        hit = hit or violation_hit(conns)
         if hit is None and pending is not None and served is not None and served.conn.closed_at is not None \
                 and not served.conn.reset:
             op, since = pending

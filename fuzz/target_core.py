@@ -1,0 +1,289 @@
+"""The node under fuzz over TCP, whatever its protocol (issue 39: MAVLink's vehicle,
+``fuzz.mavlink_vehicle``; Nsqd's backend, ``fuzz.nsqd_backend`` and its stateful player
+``fuzz.nsqd_player``): what a protocol's fuzz target does alike, so that each keeps only what is
+its own (its framing, its probe, its liveness oracle's rule).
+
+- :class:`TargetSpec`: how the target is reached, a command template spawned on a free loopback
+  port (``--spawn CMD``, or the role's embedded reference node) or an address (``--target``);
+- :class:`ProcessTarget`: the spawned process (none when attached), started from the template
+  with ``{target_host}`` ``{target_port}`` and the protocol's own placeholders filled in and
+  reached by the fuzzer's first connection (the connect itself is the readiness check: a node
+  that serves one client at a time sees no other), and its end reported: how it ended (exit
+  code or signal), the sanitizer's line and its output's tail (``harness.session_base.Death``),
+  its evidence, its open descriptors;
+- :class:`SyncLink`: one TCP connection read in the fuzzer's own thread, its frames cut by the
+  protocol's ``harness.link.Framing`` on ``harness.link.SocketEnd`` (a write bounded by its 2 s),
+  the traffic both ways kept for a finding's repro files;
+- :func:`read_until`: several connections read until a predicate holds.
+
+The protocol and the role are the parameters (a framing, a subject, the placeholders), never a
+copy of this code.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.link import Framing, SocketEnd
+from mcp_conform.harness.procs import ManagedProcess
+from mcp_conform.harness.session_base import (
+    Death,
+    SpawnedNode,
+    death_of,
+    fill_placeholders,
+    free_port,
+)
+
+__all__ = ["HOST", "ProcessTarget", "SyncLink", "TargetSpec", "connect_when_listening", "read_until"]
+
+HOST = "127.0.0.1"
+#: how long a spawned (or attached) target is given to accept the fuzzer's connection
+LISTEN_S = 10.0
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """How to reach a target: a spawn template (``spawn``: ``--spawn CMD`` or the embedded
+    reference node's command), or an address (``target``: attached)."""
+
+    spawn: str | None = None
+    target: tuple[str, int] | None = None
+
+    @property
+    def attached(self) -> bool:
+        return self.spawn is None
+
+    def describe(self) -> str:
+        return f"tcp:{self.target[0]}:{self.target[1]}" if self.target else "spawned"
+
+
+def connect_when_listening(address: tuple[str, int], node: SpawnedNode | None, subject: str,
+                           within: float = LISTEN_S) -> socket.socket:
+    """The fuzzer's TCP connection to ``address`` (Nagle off), tried every 50 ms for up to
+    ``within`` s: a spawned ``node`` that ended first is a ``SpawnFailure`` (its exit, its
+    output's tail), no connection by then a ``SetupError``."""
+    host, port = address
+    deadline = time.monotonic() + within
+    while True:
+        try:
+            sock = socket.create_connection(address, timeout=1.0)
+            break
+        except OSError as exc:
+            if node is not None and not node.alive():
+                raise SpawnFailure(f"the spawned {subject.removeprefix('the ')} {node.details()['exit']} before it "
+                                   f"listened on {host}:{port}", node.details(20)) from None
+            if time.monotonic() >= deadline:
+                raise SetupError(f"tcp:{host}:{port}: cannot reach {subject}: {exc.strerror or exc}") from None
+            time.sleep(0.05)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
+
+class ProcessTarget:
+    """A fuzz target's process (``node``: None when attached) and its end. ``subject``: who is
+    judged, in a report's words ("the vehicle", "the backend")."""
+
+    subject = "the node"
+    _node: SpawnedNode | None = None
+
+    @property
+    def node(self) -> SpawnedNode | None:
+        """The spawned process (None: attached, or not started)."""
+        return self._node
+
+    def open(self, how: TargetSpec, placeholders: Callable[[str, int], dict[str, str]] | None = None) -> socket.socket:
+        """The target spawned from ``how.spawn`` on a free loopback port (``{target_host}``
+        ``{target_port}`` and the protocol's ``placeholders(host, port)`` filled in) or reached
+        at ``how.target``, and the fuzzer's connection to it (:func:`connect_when_listening`;
+        the process stopped when it fails). ``address``: where it listens."""
+        host, port = how.target or (HOST, free_port(HOST, socket.SOCK_STREAM))
+        if how.spawn is not None:
+            extra = placeholders(host, port) if placeholders is not None else {}
+            self._node = SpawnedNode(fill_placeholders(how.spawn, {"target_host": host, "target_port": str(port),
+                                                                   **extra}))
+        self.address = (host, port)
+        try:
+            return connect_when_listening(self.address, self._node, self.subject)
+        except SetupError:
+            self.stop()
+            raise
+
+    def stop(self) -> None:
+        """The spawned process stopped (SIGTERM, SIGKILL after 0.5 s: a hung one may ignore SIGTERM)."""
+        if self.node is not None:
+            self.node.stop(grace=0.5)
+
+    @property
+    def process(self) -> ManagedProcess | None:
+        """The spawned process (``harness.procs.ManagedProcess``: its output, its sanitizer
+        report), None: attached."""
+        node = self.node
+        return node.process if node is not None else None
+
+    def process_alive(self) -> bool:
+        """The spawned process runs (attached: nothing to tell, True)."""
+        proc = self.process
+        return proc is None or proc.alive()
+
+    def death(self, grace: float = 0.0) -> Death | None:
+        """How the spawned process ended, if it did within ``grace`` s (a sanitizer takes a
+        moment to write its report and exit; a closed connection may be the process exiting);
+        None while it runs, or when none was spawned."""
+        node = self.node
+        if node is None:
+            return None
+        end = time.monotonic() + grace
+        while node.alive() and time.monotonic() < end:
+            time.sleep(0.005)
+        return None if node.alive() else death_of(node, self.subject)
+
+    def ending(self, grace: float = 0.0) -> tuple[str | None, tuple[str, ...]]:
+        """How the spawned process ended, once it did within ``grace`` s ("the vehicle process
+        killed by signal SIGSEGV"; None: it runs, or none was spawned), and its evidence (its
+        command, its exit, its output's tails)."""
+        node = self.node
+        if node is None:
+            return None, ()
+        ended = self.death(grace) is not None
+        return (f"{self.subject} process {node.details()['exit']}" if ended else None), tuple(node.evidence())
+
+    def whole_report(self) -> list[str]:
+        """The spawned process's sanitizer report (``harness.procs.ManagedProcess.
+        sanitizer_report``) once it is whole: its SUMMARY line, which ASan writes last, or the
+        process's end; up to 5 s, or 1 s without a new line (symbolising its stacks takes a
+        while on a loaded machine)."""
+        proc = self.process
+        assert proc is not None
+        report, end, quiet = proc.sanitizer_report(), time.monotonic() + 5.0, time.monotonic() + 1.0
+        while time.monotonic() < min(end, quiet) and proc.alive() and not any("SUMMARY:" in x for x in report):
+            time.sleep(0.01)
+            now = proc.sanitizer_report()
+            if len(now) > len(report):
+                report, quiet = now, time.monotonic() + 1.0
+        return report
+
+    def fds(self) -> int | None:
+        """The spawned process's open descriptors, from /proc (None when not observable)."""
+        node = self.node
+        if node is None:
+            return None
+        try:
+            return len(os.listdir(f"/proc/{node.proc.pid}/fd"))
+        except OSError:
+            return None
+
+
+class SyncLink:
+    """One TCP connection (``sock``, connected) to the target, read in the caller's thread:
+    its frames cut by ``framing`` (``harness.link.Framing``; bytes that are no good frame are
+    dropped), each stamped with ``time.monotonic()`` as it came; ``traffic``: a list the
+    traffic both ways goes to, ``(direction, time_ns, bytes)`` with the directions from the
+    target's side (``sent_as``: what the fuzzer sent, ``got_as``: what the target did);
+    ``beat``: which frames are the target's beat, the periodic frame its liveness rule bounds
+    the gap between (:attr:`last_beat`, :meth:`wait_beat`)."""
+
+    def __init__(self, sock: socket.socket, framing: Framing, *, traffic: list[Any] | None = None,
+                 sent_as: str = "rx", got_as: str = "tx", beat: Callable[[Any], bool] | None = None) -> None:
+        self.framing, self.traffic, self.sent_as, self.got_as, self.beat = framing, traffic, sent_as, got_as, beat
+        self.last_beat = 0.0  # the target's last beat (time.monotonic)
+        self.peer: tuple[str, int] = ("", 0)  # TCP: the connection's (a peer that reset it at once: unnamed)
+        with contextlib.suppress(OSError):
+            self.peer = sock.getpeername()
+        self.end = SocketEnd("tcp", self.peer, sock)
+        self.frames: list[Any] = []
+        self.closed = False  # the target closed it, or a write failed
+
+    def send(self, data: bytes) -> None:
+        """``data`` written whole (within 2 s: a target that reads nothing ends the link, not the fuzzer)."""
+        if self.traffic is not None:
+            self.traffic.append((self.sent_as, time.time_ns(), data))
+        try:
+            self.end.send(data, self.peer)
+        except OSError:
+            self.closed = True
+
+    def pump(self, timeout: float) -> None:
+        """What the target sent within ``timeout`` s (at once when something is there)."""
+        if self.closed:
+            return
+        try:
+            if not self.end.ready(max(0.0, timeout)):
+                return
+            data, _ = self.end.read()
+        except (BlockingIOError, InterruptedError):
+            return
+        except (OSError, ValueError):
+            data = b""
+        if not data:
+            self.closed = True
+            return
+        for r in self.framing.deframe(data, time.monotonic()):
+            if r.bad:
+                continue
+            if self.traffic is not None:
+                self.traffic.append((self.got_as, time.time_ns(), r.raw))
+            if self.beat is not None and self.beat(r):
+                self.last_beat = r.t
+            self.frames.append(r)
+
+    def drain(self) -> None:
+        """Everything the link holds now, read."""
+        while True:
+            n = len(self.frames)
+            self.pump(0.0)
+            if len(self.frames) == n or self.closed:
+                return
+
+    def until(self, pred: Callable[[Any], bool], timeout: float, start: int = 0) -> Any:
+        """The first frame from ``start`` on that ``pred`` holds for, read for up to ``timeout``
+        s (None: none came, or the link closed)."""
+        end = time.monotonic() + timeout
+        i = start
+        while True:
+            while i < len(self.frames):
+                r = self.frames[i]
+                i += 1
+                if pred(r):
+                    return r
+            left = end - time.monotonic()
+            if left <= 0 or self.closed:
+                return None
+            self.pump(min(left, 0.1))
+
+    def wait_beat(self, since: float, gap: float) -> bool:
+        """Whether a beat comes after ``since`` before ``gap`` s have passed since the last one."""
+        while self.last_beat <= since:
+            left = self.last_beat + gap - time.monotonic()
+            if left <= 0 or self.closed:
+                return False
+            self.pump(min(left, 0.1))
+        return True
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.end.close()
+
+
+def read_until(conns: list[Any], pred: Callable[..., bool], timeout: float) -> bool:
+    """Read every one of ``conns`` (``harness.stream_conn.StreamConn``s) until ``pred()``
+    holds or ``timeout`` s pass (or all closed)."""
+    end = time.monotonic() + timeout
+    while True:
+        if pred():
+            return True
+        live = [c for c in conns if c.closed_at is None]
+        left = end - time.monotonic()
+        if left <= 0 or not live:
+            return bool(pred())
+        ready, _, _ = select.select([c.sock for c in live], [], [], min(left, 0.05))
+        for c in live:
+            if c.sock in ready:
+                c.pump(0)

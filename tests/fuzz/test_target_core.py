@@ -1,0 +1,133 @@
+"""``fuzz.target_core``, the fuzz target's process and link whatever its protocol (issue 39):
+a spawned target's start, failure and end as reported; the synchronous link's frames (cut by
+the protocol's framing, bad bytes dropped), its traffic from the target's side, its beat and
+the gap after it, its end, and a write to a target that reads nothing bounded."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import sys
+import threading
+import time
+
+import pytest
+
+from mcp_conform.fuzz.target_core import ProcessTarget, SyncLink, TargetSpec, connect_when_listening
+from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.mavlink_session import DIALECT, MavlinkFraming
+from mcp_conform.harness.session_base import free_port
+
+
+def _frame(msg: object, seq: int = 0) -> bytes:
+    enc = DIALECT.MAVLink(None, srcSystem=1, srcComponent=1)
+    enc.seq = seq
+    return bytes(msg.pack(enc))  # type: ignore[attr-defined]
+
+
+def _heartbeat(seq: int = 0) -> bytes:
+    return _frame(DIALECT.MAVLink_heartbeat_message(1, 3, 0, 0, 4, 3), seq)
+
+
+def _pair() -> tuple[socket.socket, socket.socket]:
+    server = socket.create_server(("127.0.0.1", 0))
+    client = socket.create_connection(server.getsockname())
+    peer, _ = server.accept()
+    server.close()
+    return client, peer
+
+
+def test_a_spawned_target_is_reached_and_its_end_reported():
+    """Spawned from a template with its placeholders filled in (the protocol's own too), reached
+    by the first connection; killed, its end says how, with its command as evidence."""
+    script = ("import socket,sys,time; s=socket.create_server((sys.argv[1], int(sys.argv[2]))); "
+              "c,_=s.accept(); c.sendall(sys.argv[3].encode()); time.sleep(30)")
+    t = ProcessTarget()
+    sock = t.open(TargetSpec(f"{sys.executable} -c '{script}' {{target_host}} {{target_port}} {{greeting}}"),
+                  lambda host, port: {"greeting": f"hello-{port}"})
+    try:
+        sock.settimeout(5.0)
+        assert sock.recv(100) == f"hello-{t.address[1]}".encode()
+        assert t.process_alive() and t.death() is None and t.ending() == (None, tuple(t.node.evidence()))
+        assert (t.fds() or 0) >= 3
+        t.process.proc.kill()
+        how, evidence = t.ending(5.0)
+        assert how == "the node process killed by signal SIGKILL", how
+        assert any(line.startswith("node command: ") for line in evidence), evidence
+        assert not t.process_alive() and t.death().signal_name == "SIGKILL"
+    finally:
+        sock.close()
+        t.stop()
+
+
+def test_a_target_that_dies_before_it_listens_or_is_not_there_fails_in_one_line():
+    t = ProcessTarget()
+    with pytest.raises(SpawnFailure, match=r"the spawned node exited with code 3 before it listened on"):
+        t.open(TargetSpec(f"{sys.executable} -c 'raise SystemExit(3)'"))
+    port = free_port("127.0.0.1", socket.SOCK_STREAM)
+    t0 = time.monotonic()
+    with pytest.raises(SetupError, match=rf"tcp:127.0.0.1:{port}: cannot reach the node"):
+        connect_when_listening(("127.0.0.1", port), None, "the node", within=0.3)
+    assert time.monotonic() - t0 < 3.0
+    assert ProcessTarget().ending() == (None, ()) and ProcessTarget().process_alive()  # attached: nothing to tell
+
+
+def test_the_link_cuts_frames_keeps_its_traffic_and_times_the_beat():
+    client, peer = _pair()
+    traffic: list[tuple[str, int, bytes]] = []
+    link = SyncLink(client, MavlinkFraming(), traffic=traffic, beat=lambda r: r.name == "HEARTBEAT")
+    try:
+        ping = _frame(DIALECT.MAVLink_param_request_read_message(1, 1, b"X", -1))
+        link.send(ping)
+        peer.settimeout(2.0)
+        assert peer.recv(100) == ping
+        t0 = time.monotonic()
+        param = _frame(DIALECT.MAVLink_param_value_message(b"X", 1.0, 9, 1, 0), 1)
+        peer.sendall(b"garbage!" + param + _heartbeat(2))
+        got = link.until(lambda r: r.name == "HEARTBEAT", 2.0)
+        assert got is not None and [r.name for r in link.frames] == ["PARAM_VALUE", "HEARTBEAT"]
+        assert link.until(lambda r: r.name == "PARAM_VALUE", 0.0, start=1) is None  # from ``start`` on
+        assert link.last_beat == got.t >= t0
+        assert [(d, raw) for d, _, raw in traffic] == [("rx", ping), ("tx", param), ("tx", _heartbeat(2))]
+        assert link.wait_beat(t0 - 1.0, 1.0)  # a beat after the moment asked
+        t1 = time.monotonic()
+        assert not link.wait_beat(t1, 0.3) and time.monotonic() - t1 < 0.5  # none within the gap
+        threading.Timer(0.1, lambda: peer.sendall(_heartbeat(3))).start()
+        assert link.wait_beat(link.last_beat, 2.0) and len(link.frames) == 3
+        peer.close()
+        link.drain()
+        assert link.closed and link.until(lambda r: True, 1.0, start=3) is None
+    finally:
+        link.close()
+        peer.close()
+
+
+def test_a_write_to_a_target_that_reads_nothing_is_bounded():
+    """A target that stopped reading: the write ends within its bound and the link is closed,
+    the fuzzer never hangs on it."""
+    client, peer = _pair()
+    link = SyncLink(client, MavlinkFraming())
+    try:
+        t0 = time.monotonic()
+        for _ in range(64):
+            link.send(b"\0" * (1 << 20))
+            if link.closed:
+                break
+        assert link.closed and time.monotonic() - t0 < 10.0
+    finally:
+        link.close()
+        peer.close()
+
+
+def test_a_target_that_resets_the_connection_at_once_ends_the_link():
+    """Accepted, then reset before the fuzzer's first read: the link opens, and is closed at
+    its first read (the vehicle's start then fails in one line: no HEARTBEAT), no error."""
+    client, peer = _pair()
+    peer.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    peer.close()
+    time.sleep(0.1)
+    link = SyncLink(client, MavlinkFraming())
+    try:
+        assert link.until(lambda r: True, 2.0) is None and link.closed
+    finally:
+        link.close()
