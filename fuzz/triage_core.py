@@ -25,7 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
@@ -33,9 +33,10 @@ from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
 
-__all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit", "prefix_culprit"]
+__all__ = ["Parts", "HitTriage", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
 
 T = TypeVar("T")
+P = TypeVar("P")
 H = TypeVar("H")
 K = TypeVar("K")
 C = TypeVar("C", bound="HitTriage")
@@ -89,6 +90,17 @@ class HitTriage(Triage):
         check_late(self, share=share)
         self.replays += 1
         return run()
+
+    def shows(self, replay: Callable[[list[T]], H | None], same: Callable[[H], bool] = lambda h: True,
+              *, share: bool = True) -> Callable[[list[T]], bool]:
+        """Step 3's one predicate, over a protocol's ``replay(inputs)``: what the inputs showed
+        replayed on a fresh target (its signature; None: nothing, or a target that did not
+        start), each replay counted and bounded (:meth:`replay`); whether it is ``same`` as the
+        hit triaged. What a replay shows is not thereby a finding: step 4 confirms it."""
+        def test(inputs: list[T]) -> bool:
+            h = self.replay(lambda: replay(list(inputs)), share=share)
+            return h is not None and same(h)
+        return test
 
     def restarted(self, restart: Callable[[], T]) -> T:
         """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own
@@ -168,6 +180,83 @@ class HitTriage(Triage):
         self.tries[key] = self.tries.get(key, 0) + 1
         if conf is not None:
             conf.note(self.environment, rule, shape, actual, why)
+
+
+@dataclass(frozen=True)
+class Parts(Generic[T, P]):
+    """What one input is made of, for :func:`fewest`'s last step (a MAVLink case's frames,
+    an Nsqd case's writes): ``split(input)``, ``join(input, parts)`` (the input with only
+    those parts), at most ``budget`` replays."""
+
+    split: Callable[[T], Sequence[P]]
+    join: Callable[[T, list[P]], T]
+    budget: int
+
+
+def culprit(suspects: Sequence[T], shows: Callable[[list[T]], bool], *, tries: Sequence[Sequence[T]] | None = None,
+            whole: bool = True) -> list[T] | None:
+    """Step 3, first half: the input(s) among ``suspects`` (oldest first) that show the hit,
+    each try a replay (``shows``: :meth:`HitTriage.shows`). The ``tries`` in order (default:
+    each suspect alone, the newest first: the usual culprit), the first that shows it; else
+    every suspect together (``whole``, unless it was one of the tries: they are the culprit,
+    for :func:`fewest`); None when none of them shows it."""
+    return _culprit(suspects, shows, tries, whole)[0]
+
+
+def _culprit(suspects: Sequence[T], shows: Callable[[list[T]], bool], tries: Sequence[Sequence[T]] | None,
+             whole: bool) -> tuple[list[T] | None, bool]:
+    """:func:`culprit`, and whether it is every suspect together (the whole)."""
+    tried = [list(t) for t in ([[s] for s in reversed(suspects)] if tries is None else tries)]
+    for t in tried:
+        if shows(t):
+            return t, False
+    if whole and suspects and list(suspects) not in tried and shows(list(suspects)):
+        return list(suspects), True
+    return None, False
+
+
+def fewest(inputs: list[T], shows: Callable[[list[T]], bool], *, budget: int, singles: int = 0,
+           group: Callable[[T], Hashable] | None = None, parts: Parts[T, Any] | None = None) -> list[T]:
+    """Step 3, second half: the fewest of ``inputs`` (which show the hit) that still show it,
+    each try a replay (``shows``). ``group``: with more than 8 inputs of several groups, the
+    inputs of one group alone first (the newest input's group first: a heartbeat's suspects
+    are many, one kind makes it); then delta debugging (``fuzz.ddmin``: ``budget`` replays,
+    ``singles`` of the newest alone first); one input left, its fewest ``parts``. An input
+    returned is one that showed it, or ``inputs`` themselves."""
+    if group is not None and len(inputs) > 8:
+        keys = list(dict.fromkeys(group(i) for i in reversed(inputs)))
+        for k in keys if len(keys) > 1 else []:
+            some = [i for i in inputs if group(i) == k]
+            if len(some) < len(inputs) and shows(some):
+                inputs = some
+                break
+    if budget:
+        inputs = ddmin(list(inputs), shows, budget=budget, singles=singles)
+    if parts is not None and len(inputs) == 1:
+        inputs = [fewer_parts(inputs[0], shows, parts)]
+    return inputs
+
+
+def fewer_parts(item: T, shows: Callable[[list[T]], bool], parts: Parts[T, Any]) -> T:
+    """The fewest ``parts`` of one input that still show the hit (delta debugging within
+    ``parts.budget`` replays); ``item`` itself when none can go."""
+    whole = list(parts.split(item))
+    if len(whole) < 2:
+        return item
+    kept = ddmin(whole, lambda ps: shows([parts.join(item, ps)]), budget=parts.budget)
+    return item if len(kept) == len(whole) else parts.join(item, kept)
+
+
+def search(suspects: Sequence[T], shows: Callable[[list[T]], bool], *, tries: Sequence[Sequence[T]] | None = None,
+           whole: bool = True, budget: int, singles: int = 0, group: Callable[[T], Hashable] | None = None,
+           parts: Parts[T, Any] | None = None) -> list[T] | None:
+    """Step 3 whole, the one search every protocol's triage runs: :func:`culprit`, then its
+    :func:`fewest` (every suspect together delta debugged, a try as it is; one input left,
+    its parts); None when none of them shows it."""
+    found, every = _culprit(suspects, shows, tries, whole)
+    if found is None:
+        return None
+    return fewest(found, shows, budget=budget if every else 0, singles=singles, group=group, parts=parts)
 
 
 def known_lasting_hit(items: Sequence[T], knowns: Sequence[tuple[K, Hashable]], signature: Callable[[T], Hashable],
