@@ -37,14 +37,7 @@ from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
-from mcp_conform.fuzz.triage_core import (
-    HitTriage,
-    Parts,
-    earliest_prefix,
-    fewer_parts,
-    known_lasting_hit,
-    search,
-)
+from mcp_conform.fuzz.triage_core import HitTriage, Parts, known_lasting_hit
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
@@ -179,40 +172,19 @@ class MavTriage(HitTriage):
             if again is not None:
                 again.occurrences += 1
                 return
-        rest = suspects  # where the fewest cases that show it are searched
-        if sig.oracle == "hang" and len(suspects) > 1:
-            # a stopped heartbeat stays stopped: its culprit ends the shortest prefix of the
-            # suspects that stops it, confirmed alone then. A replay that stops it costs
-            # heartbeat_gap_max_s (3 s) and a fresh vehicle, one that beats on a period (1 s):
-            # each prefix adds a third of the range in doubt (the most certainty per second)
-            try:
-                n = earliest_prefix(suspects, self._fresh, self._stops, MavVehicle.close, split=SPLIT)
-            except SetupError:  # a fresh vehicle that did not start: no verdict
-                n = None
-            if n is None:
-                self.not_confirmed(sig.rule, self._key(sig, kind))
-                return
-            rest = suspects[:n]
-        # the case that showed it (a hang's: its prefix's last), confirmed at once (the usual
-        # culprit: three fresh vehicles, none more); else the fewest of its suspects that show it
-        minimal = rest[-1:]
-        conf = self._confirm(sig, minimal, until_miss=True)
-        shows = self.shows(self._replay(sig))
-        if not conf.confirmed:
-            # the fewest cases (a kind alone first), then frames, of all of them that show it
-            fewest = search(rest, shows, tries=[], budget=24, singles=2, group=_kind, parts=FRAMES) \
-                if len(rest) > 1 else None
-            if fewest is None:
-                self.not_confirmed(sig.rule, self._key(sig, kind))
-                return
-            minimal = fewest
-            conf = self._confirm(sig, minimal, until_miss=False)
-        else:  # a handshake's frames: the fewest that show it
-            fewer = fewer_parts(minimal[0], shows, FRAMES)
-            if fewer is not minimal[0]:
-                again = self._confirm(sig, [fewer], until_miss=False)
-                if again.confirmed:
-                    minimal, conf = [fewer], again
+        # the case that showed it (a hang's: the last of the shortest prefix of the suspects
+        # that stops the heartbeat: it stays stopped) confirmed at once, then its fewest frames;
+        # else the fewest cases of them that show it (fuzz.triage_core: HitTriage.minimal). A
+        # replay that stops it costs heartbeat_gap_max_s (3 s) and a fresh vehicle, one that
+        # beats on a period (1 s): each prefix adds a third of the range in doubt (SPLIT)
+        lasting = (self._fresh, self._stops, MavVehicle.close, SPLIT) if sig.oracle == "hang" else None
+        searched = self.minimal(suspects, self.shows(self._replay(sig)),
+                                lambda cases, until_miss: self._confirm(sig, cases, until_miss), lasting=lasting,
+                                group=_kind, parts=FRAMES, budget=24, singles=2)
+        if searched is None:
+            self.not_confirmed(sig.rule, self._key(sig, kind))
+            return
+        minimal, conf = searched
         if sig.oracle in DEATHS:  # named by the case that makes it
             sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
         if not conf.confirmed:

@@ -299,22 +299,21 @@ class StreamTriage(HitTriage):
             self.missed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf, shape=sig.describe(),
                         actual=hit.detail, size=f"{len(writes)} write(s)")
             return self.restart(self.current)
-        traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
             # a shorter tail, once it is confirmed as the whole input was (after it: an input
-            # that does not replay spends no time on cuts), while half of triage's share is left
-            data = writes[0].data
-            for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
-                if 0 < cut < len(data) and test([Write(data[:cut])]):
-                    data = data[:cut]
-            if len(data) < len(writes[0].data):
-                shorter = [replace(minimal[0], writes=(Write(data),))]
-                again = confirm(shorter)
-                if again.confirmed:
-                    minimal, traffic = shorter, again.hits[-1][1]
+            # that does not replay spends no time on cuts), while half of triage's share is left;
+            # kept when it is confirmed too (HitTriage.shorter)
+            def tail() -> list[Case]:
+                data = writes[0].data
+                for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
+                    if 0 < cut < len(data) and test([Write(data[:cut])]):
+                        data = data[:cut]
+                return [replace(minimal[0], writes=(Write(data),))] if len(data) < len(writes[0].data) else minimal
+            minimal, conf = self.shorter(minimal, conf, tail, lambda cases, _: confirm(cases))
         self.add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
-                              note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+                              note=culprit[0].note + (" (then a probe command)" if probe else ""),
+                              traffic=conf.hits[-1][1]))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(self.current)
 

@@ -32,6 +32,7 @@ from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
+from mcp_conform.harness.errors import SetupError
 
 __all__ = ["Parts", "HitTriage", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
 
@@ -101,6 +102,53 @@ class HitTriage(Triage):
             h = self.replay(lambda: replay(list(inputs)), share=share)
             return h is not None and same(h)
         return test
+
+    def minimal(self, suspects: list[T], shows: Callable[[list[T]], bool],
+                confirm: Callable[[list[T], bool], Confirmation[Any]], *,
+                lasting: tuple[Callable[[], Any], Callable[[Any, Sequence[T]], bool | None], Callable[[Any], None],
+                               float] | None = None,
+                group: Callable[[T], Hashable] | None = None, parts: Parts[T, Any] | None = None,
+                budget: int = 24, singles: int = 0) -> tuple[list[T], Confirmation[Any]] | None:
+        """Steps 3 and 4 when the newest suspect is the usual culprit: it is confirmed at once
+        (``confirm(inputs, until_miss)``, until the first miss: N replays, none more), then its
+        fewest ``parts`` (kept when confirmed again: :meth:`shorter`); when it is not, the fewest
+        of every suspect that show it (:func:`search`: no tries, every suspect together, a
+        ``group`` alone first, delta debugging within ``budget``, ``singles``; then ``parts``),
+        confirmed (all N: how often it shows). ``lasting`` (``fresh``, ``extend``, ``close``,
+        ``split``): a hit that lasts once shown, its suspects first cut to their shortest prefix
+        that shows it (:func:`earliest_prefix`; a target that did not start: no verdict). The
+        minimal input and its confirmation (a miss too: the caller names it); None when no
+        input showed it in the search (not confirmed either)."""
+        if lasting is not None and len(suspects) > 1:
+            fresh, extend, close, split = lasting
+            try:
+                n = earliest_prefix(suspects, fresh, extend, close, split=split)
+            except SetupError:
+                n = None
+            if n is None:
+                return None
+            suspects = suspects[:n]
+        first = suspects[-1:]
+        conf = confirm(first, True)
+        if conf.confirmed:
+            return self.shorter(first, conf, lambda: [fewer_parts(first[0], shows, parts)] if parts and first else first,
+                                confirm)
+        found = search(suspects, shows, tries=[], whole=len(suspects) > 1, budget=budget, singles=singles, group=group,
+                       parts=parts)
+        return None if found is None else (found, confirm(found, False))
+
+    @staticmethod
+    def shorter(minimal: list[T], conf: Confirmation[Any], cut: Callable[[], list[T]],
+                confirm: Callable[[list[T], bool], Confirmation[Any]]) -> tuple[list[T], Confirmation[Any]]:
+        """A confirmed minimal input cut shorter (``cut()``: its fewest parts, a shorter tail),
+        kept only when it is confirmed as the whole was (all N: ``confirm(inputs, False)``);
+        else the input as it was, with its own confirmation."""
+        fewer = cut()
+        if fewer != minimal:
+            again = confirm(fewer, False)
+            if again.confirmed:
+                return fewer, again
+        return minimal, conf
 
     def restarted(self, restart: Callable[[], T]) -> T:
         """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own

@@ -121,3 +121,61 @@ def test_the_predicate_counts_each_replay_and_asks_its_signature_be_the_same():
     with pytest.raises(Late):
         late.shows(m.replay, share=False)([1])
     assert late.replays == 0 and len(m.seen) == 3
+
+
+def _confirmer(shows, log: list[tuple[list[Msg], bool]], n: int = 3):
+    """``confirm(inputs, until_miss)`` over a model: N replays (none after a miss when asked)."""
+    from mcp_conform.fuzz.confirm import confirm_n
+
+    def confirm(inputs: list[Msg], until_miss: bool):
+        log.append((inputs, until_miss))
+        return confirm_n(lambda: inputs if shows(inputs) else None, n, until_miss=until_miss)
+    return confirm
+
+
+def test_the_newest_confirmed_at_once_then_its_parts_confirmed_again():
+    """The usual culprit (the newest suspect) confirmed at once: no search; its fewest parts
+    kept only when confirmed N of N too; a miss of its parts keeps the whole."""
+    cases = [Msg("a", (1,)), Msg("b", (2, 3, 4))]
+    needs_3 = lambda ms: any(3 in m.parts for m in ms)  # noqa: E731
+    log: list[tuple[list[Msg], bool]] = []
+    minimal, conf = Tri().minimal(cases, needs_3, _confirmer(needs_3, log), parts=PARTS)
+    assert minimal == [Msg("b", (3,))] and conf.confirmed
+    assert log == [([cases[1]], True), ([Msg("b", (3,))], False)]
+    flaky = iter([True] * 3 + [True, False, True])  # the cut's confirmation (all N) misses once
+    log.clear()
+    minimal, conf = Tri().minimal(cases, needs_3, _confirmer(lambda ms: next(flaky), log), parts=PARTS)
+    assert minimal == [cases[1]] and conf.confirmed and len(log) == 2
+
+
+def test_a_newest_that_does_not_confirm_is_searched_among_them_all():
+    """The newest alone misses: the fewest of all the suspects that show it, confirmed all N
+    times (how often it shows); none show it: None (not confirmed, no input named)."""
+    cases = [Msg("a", (i,)) for i in range(6)]
+    needs = lambda ms: Msg("a", (1,)) in ms and Msg("a", (4,)) in ms  # noqa: E731
+    log: list[tuple[list[Msg], bool]] = []
+    minimal, conf = Tri().minimal(cases, needs, _confirmer(needs, log), budget=40)
+    assert minimal == [Msg("a", (1,)), Msg("a", (4,))] and conf.confirmed
+    assert log[0] == ([cases[-1]], True) and log[-1] == (minimal, False)
+    log.clear()
+    assert Tri().minimal(cases, lambda ms: False, _confirmer(lambda ms: False, log)) is None
+    assert log == [([cases[-1]], True)]
+    assert Tri().minimal(cases[:1], lambda ms: pytest.fail("searched"), _confirmer(lambda ms: False, [])) is None
+
+
+def test_a_lasting_hit_is_cut_to_its_shortest_prefix_first():
+    """A hit that lasts once shown: the suspects' shortest prefix that shows it (a model target
+    that shows it for good once item 4 reached it), its last item the culprit confirmed."""
+    cases = [Msg("a", (i,)) for i in range(10)]
+    culprit_4 = lambda ms: Msg("a", (4,)) in ms  # noqa: E731
+
+    def extend(target: list[Msg], more) -> bool:
+        target.extend(more)
+        return culprit_4(target)
+
+    log: list[tuple[list[Msg], bool]] = []
+    minimal, conf = Tri().minimal(cases, culprit_4, _confirmer(culprit_4, log),
+                                  lasting=(list, extend, lambda t: None, 0.5))
+    assert minimal == [Msg("a", (4,))] and conf.confirmed and log == [([Msg("a", (4,))], True)]
+    assert Tri().minimal(cases, culprit_4, _confirmer(culprit_4, []),
+                         lasting=(list, lambda t, more: None, lambda t: None, 0.5)) is None  # lost: no verdict
