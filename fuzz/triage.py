@@ -5,7 +5,8 @@ the datagrams that led to it are replayed (``fuzz.replay``) on a fresh node when
 the same node when attached, once its liveness probe is ACKed (a node lost in attach mode
 ends the campaign: ``TargetLost``, issue 19 item 1): not reproduced, it is dropped (counted as unconfirmed in the
 summary, never reported); reproduced, it is shrunk to the minimal sequence that still shows
-the same rule, and that sequence must show it again in each of ``CONFIRM_N`` more replays
+the same rule (every protocol's one search, ``fuzz.triage_core.search``: the suspects alone,
+then every input before it delta debugged), and that sequence must show it again in each of ``CONFIRM_N`` more replays
 (N of N) before it is kept.
 
 Blame (issue 36 item 2): a flaw is tied to its input only when the input makes the

@@ -1,7 +1,9 @@
 """The protocol-neutral steps of every protocol's triage (issue 37: one triage; issue 39: a
-protocol's plumbing near zero), written once: MAVLink's (``fuzz.mavlink_triage``) and Nsqd's
-(``fuzz.nsqd_triage``) declare only what is their own -- how a fresh target starts, how one
-input is replayed, what their oracles observe, how a finding is written.
+protocol's plumbing near zero), written once: MCP's (``fuzz.triage``), MAVLink's
+(``fuzz.mavlink_triage``) and Nsqd's (``fuzz.nsqd_triage``) declare only what is their own --
+how a fresh target starts, how inputs are replayed (``replay(inputs) -> signature | None``,
+:meth:`HitTriage.shows`), what their oracles observe, which tries come first, what one input
+is made of (:class:`Parts`), how a finding is written.
 
 From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
 
@@ -11,10 +13,14 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
    shown is a known finding's when one of its suspects like that finding's confirmed input is
    its culprit (:func:`known_lasting_hit`: two sends to one fresh target, not a search);
 2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
-3. the suspects searched for the fewest that show it: one alone, all, delta debugging
-   (``fuzz.ddmin``); a death whose cause shows late, among every input its target was sent
-   (:func:`prefix_culprit`: the shortest prefix that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
-   by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n replays, not n);
+3. the suspects searched for the fewest that show it, one search (:func:`search`): the tries
+   in order (each suspect alone, the newest first, unless a protocol names others), else all
+   of them, delta debugged (``fuzz.ddmin``), then one input's parts; the newest confirmed at
+   once where it is the usual culprit (:meth:`HitTriage.minimal`); a death whose cause shows
+   late, among every input its target was sent (:func:`prefix_culprit`: the shortest prefix
+   that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream
+   that stays lost) by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n
+   replays, not n). What a replay shows is no finding yet: step 4;
 4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``), or not a
    finding (:meth:`HitTriage.not_confirmed`: counted, its tries noted, and named
    environment-dependent with why when it showed in triage).
