@@ -157,16 +157,6 @@ class StreamTriage(HitTriage):
             raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
         return self.counted(known, (sig.key, how), sig.describe())
 
-    def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
-            log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
-        """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
-        triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
-        least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
-        ok, b, h = self.replay(lambda: _reproduces(b, cases, sig, probe=probe, log=log,
-                                                    wait=self.wait if wait is None else wait))
-        self.current = b
-        return ok, b, h
-
     def _shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
         """The search's predicate (``HitTriage.shows``): ``cases`` replayed (``_reproduces``) on
         a fresh process of the backend now fuzzed (``current``, which follows each replay's
@@ -285,9 +275,11 @@ class StreamTriage(HitTriage):
 
         def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
             def once() -> tuple[Hit | None, list[Any]] | None:
+                # each waits twice the triaged hit's own wait, at least 1 s (``self.wait``: a
+                # loaded host's slow death is no reason to call it unconfirmed), its traffic logged
                 log = TrafficLog()
-                ok, _, h = self.rep(self.current, cases, sig, probe=probe, log=log,
-                                    wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                ok, self.current, h = self.replay(lambda: _reproduces(
+                    self.current, cases, sig, probe=probe, log=log, wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait))))
                 return (h, log.records) if ok else None
             return confirm_n(once, self.n_of_n, until_miss=False)
 
