@@ -276,10 +276,12 @@ class StreamTriage(HitTriage):
         def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
             def once() -> tuple[Hit | None, list[Any]] | None:
                 # each waits twice the triaged hit's own wait, at least 1 s (``self.wait``: a
-                # loaded host's slow death is no reason to call it unconfirmed), its traffic logged
+                # loaded host's slow death is no reason to call it unconfirmed), its traffic
+                # logged, its fresh process counted as every triage replay's is
                 log = TrafficLog()
                 ok, self.current, h = self.replay(lambda: _reproduces(
                     self.current, cases, sig, probe=probe, log=log, wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait))))
+                self.target.count_restart("triage replay")
                 return (h, log.records) if ok else None
             return confirm_n(once, self.n_of_n, until_miss=False)
 
