@@ -27,18 +27,17 @@ the last confirming replay's traffic in ``repro.mcap`` (its ``/mavlink`` channel
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import write_repro_mcap
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
-from mcp_conform.fuzz.triage_core import HitTriage, earliest_prefix, known_lasting_hit
+from mcp_conform.fuzz.triage_core import HitTriage, Parts, known_lasting_hit
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
@@ -50,6 +49,14 @@ DEATHS = ("crash", "hang", "unanswered")
 #: counted under this, not triaged, not a finding
 STOP_ASKED = "hang: a suspect asked the HEARTBEAT stopped (MAV_CMD_SET_MESSAGE_INTERVAL)"
 SPLIT = 1 / 3  # a stopped heartbeat's prefix search: the share of the suspects in doubt each replay adds
+
+
+def _kind(c: Case) -> str:
+    return c.kind
+
+
+#: a case's frames, the fewest that show it (``fuzz.triage_core.fewest``: 8 replays)
+FRAMES: Parts[Case, bytes] = Parts(lambda c: c.frames, lambda c, fs: replace(c, frames=tuple(fs)), 8)
 
 
 def _like(c: Case) -> tuple[str, str, tuple[str, ...]]:
@@ -165,37 +172,19 @@ class MavTriage(HitTriage):
             if again is not None:
                 again.occurrences += 1
                 return
-        rest = suspects  # where the fewest cases that show it are searched
-        if sig.oracle == "hang" and len(suspects) > 1:
-            # a stopped heartbeat stays stopped: its culprit ends the shortest prefix of the
-            # suspects that stops it, confirmed alone then. A replay that stops it costs
-            # heartbeat_gap_max_s (3 s) and a fresh vehicle, one that beats on a period (1 s):
-            # each prefix adds a third of the range in doubt (the most certainty per second)
-            try:
-                n = earliest_prefix(suspects, self._fresh, self._stops, MavVehicle.close, split=SPLIT)
-            except SetupError:  # a fresh vehicle that did not start: no verdict
-                n = None
-            if n is None:
-                self.not_confirmed(sig.rule, self._key(sig, kind))
-                return
-            rest = suspects[:n]
-        # the case that showed it (a hang's: its prefix's last), confirmed at once (the usual
-        # culprit: three fresh vehicles, none more); else the fewest of its suspects that show it
-        minimal = rest[-1:]
-        conf = self._confirm(sig, minimal, until_miss=True)
-        if not conf.confirmed:
-            fewest = self._minimise(sig, rest) if len(rest) > 1 else None
-            if fewest is None:
-                self.not_confirmed(sig.rule, self._key(sig, kind))
-                return
-            minimal = fewest
-            conf = self._confirm(sig, minimal, until_miss=False)
-        elif len(minimal[0].frames) > 1:  # a handshake's frames: the fewest that show it
-            fewer = self._fewer_frames(sig, minimal[0])
-            if fewer is not minimal[0]:
-                again = self._confirm(sig, [fewer], until_miss=False)
-                if again.confirmed:
-                    minimal, conf = [fewer], again
+        # the case that showed it (a hang's: the last of the shortest prefix of the suspects
+        # that stops the heartbeat: it stays stopped) confirmed at once, then its fewest frames;
+        # else the fewest cases of them that show it (fuzz.triage_core: HitTriage.minimal). A
+        # replay that stops it costs heartbeat_gap_max_s (3 s) and a fresh vehicle, one that
+        # beats on a period (1 s): each prefix adds a third of the range in doubt (SPLIT)
+        lasting = (self._fresh, self._stops, MavVehicle.close, SPLIT) if sig.oracle == "hang" else None
+        searched = self.minimal(suspects, self.shows(self._replay(sig)),
+                                lambda cases, until_miss: self._confirm(sig, cases, until_miss), lasting=lasting,
+                                group=_kind, parts=FRAMES, budget=24, singles=2)
+        if searched is None:
+            self.not_confirmed(sig.rule, self._key(sig, kind))
+            return
+        minimal, conf = searched
         if sig.oracle in DEATHS:  # named by the case that makes it
             sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
         if not conf.confirmed:
@@ -238,24 +227,21 @@ class MavTriage(HitTriage):
         return self.confirm_logged(lambda log: self.replay(lambda: replay_cases(self._fresh, cases, sig, log)),
                                    until_miss=until_miss)
 
-    def _fewer_frames(self, sig: Signature, c: Case) -> Case:
-        test = self._shows(sig)
-        frames = ddmin(list(c.frames), lambda fs: test([replace(c, frames=tuple(fs))]), budget=8)
-        return c if len(frames) == len(c.frames) else replace(c, frames=tuple(frames))
-
     def _fresh(self, log: list[Any] | None = None) -> MavVehicle:
         try:
             return self.target.fresh(log)
         finally:
             self.target.count_restart("triage replay")
 
-    def _shows(self, sig: Signature) -> Any:
-        def test(cases: list[Case]) -> bool:
+    def _replay(self, sig: Signature) -> Callable[[list[Case]], Hit | None]:
+        """The search's replay (``HitTriage.shows``): ``cases`` on a fresh vehicle, the hit
+        that shows ``sig`` (``replay_cases``); None too when the vehicle did not start."""
+        def replay(cases: list[Case]) -> Hit | None:
             try:
-                return self.replay(lambda: replay_cases(self._fresh, cases, sig)) is not None
+                return replay_cases(self._fresh, cases, sig)
             except SetupError:
-                return False
-        return test
+                return None
+        return replay
 
     def _stops(self, v: MavVehicle, cases: Sequence[Case]) -> bool | None:
         """``cases`` sent to ``v`` back to back after what it was sent before (a hang's prefix
@@ -267,25 +253,6 @@ class MavTriage(HitTriage):
                 return None
             return v.watch(time.monotonic()) is not None
         return self.replay(send)
-
-    def _minimise(self, sig: Signature, suspects: list[Case]) -> list[Case] | None:
-        """The fewest cases (then frames) of ``suspects`` that still show ``sig`` on a fresh
-        vehicle, None when even all of them do not."""
-        test = self._shows(sig)
-        if not suspects or not test(suspects):
-            return None
-        cases = suspects
-        kinds = list(dict.fromkeys(c.kind for c in reversed(suspects)))
-        if len(kinds) > 1 and len(suspects) > 8:  # one kind alone first (a heartbeat's suspects are many)
-            for k in kinds:
-                some = [c for c in suspects if c.kind == k]
-                if len(some) < len(cases) and test(some):
-                    cases = some
-                    break
-        cases = ddmin(cases, test, budget=24, singles=2)
-        if len(cases) == 1 and len(cases[0].frames) > 1:
-            cases = [self._fewer_frames(sig, cases[0])]
-        return cases
 
 
 def write_repro(d: Path, f: Finding) -> None:

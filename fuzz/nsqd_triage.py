@@ -27,7 +27,6 @@ from typing import Any, ClassVar
 
 from mcp_conform.fuzz.budget import TRIAGE_SHARE, over_budget
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
-from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import WorkerTarget, triage_time
@@ -42,7 +41,14 @@ from mcp_conform.fuzz.nsqd_backend import (
 from mcp_conform.fuzz.nsqd_blame import PROBED, baseline
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, desync_rule, same_finding
-from mcp_conform.fuzz.triage_core import HitTriage, prefix_culprit
+from mcp_conform.fuzz.triage_core import (
+    HitTriage,
+    Parts,
+    fewer_parts,
+    fewest,
+    prefix_culprit,
+    search,
+)
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
@@ -151,24 +157,16 @@ class StreamTriage(HitTriage):
             raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
         return self.counted(known, (sig.key, how), sig.describe())
 
-    def rep(self, b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
-            log: TrafficLog | None = None, wait: float | None = None) -> tuple[bool, Backend, Hit | None]:
-        """One replay (``_reproduces``), none once the deadline passed (``Late``); ``wait``: the
-        triaged hit's own (``self.wait``) unless given (a confirming replay waits twice that, at
-        least 1 s: a loaded host's slow death is no reason to call it unconfirmed)."""
-        ok, b, h = self.replay(lambda: _reproduces(b, cases, sig, probe=probe, log=log,
-                                                    wait=self.wait if wait is None else wait))
-        self.current = b
-        return ok, b, h
-
-    def shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
-        """Nsqd's replay for delta debugging: whether ``cases``, replayed (:meth:`rep`) on the
-        backend now fuzzed (``current``: a fresh process when spawned), still show ``sig``
-        (then the probe command, ``probe``); ``current`` follows each replay's backend."""
-        def still(cases: list[Case]) -> bool:
-            ok, _, _ = self.rep(self.current, cases, sig, probe=probe)
-            return ok
-        return still
+    def _shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
+        """The search's predicate (``HitTriage.shows``): ``cases`` replayed (``_reproduces``) on
+        a fresh process of the backend now fuzzed (``current``, which follows each replay's
+        backend) still show ``sig`` (then the probe command, ``probe``); each replay a restart
+        counted (``triage replay``)."""
+        def replay(cases: list[Case]) -> Signature | None:
+            ok, self.current, _ = _reproduces(self.current, cases, sig, probe=probe, wait=self.wait)
+            self.target.count_restart("triage replay")
+            return sig if ok else None
+        return self.shows(replay)
 
     def blamed(self, backend: Backend, hit: Hit, probe: bool) -> tuple[bool, Backend]:
         """Whether the input makes the difference: the baseline (``fuzz.nsqd_blame.baseline``,
@@ -227,31 +225,19 @@ class StreamTriage(HitTriage):
             culprit = [Case("valid", (Write(encode(NSQD, msg.name, **_defaults(msg))),), True, msg.name,
                             expect=msg.effect.to, or_error=msg.effect.or_error, check=True)]
             suspects, probe = [], False
+        self.current = backend
         if probe and len(suspects) > 2:
             # a failed probe: the cases since the last good one, replayed together, then delta
             # debugged down to the case(s) that break the stream (log n replays, not n)
-            ok, backend, _ = self.rep(backend, suspects, sig, probe=True)
-            self.target.count_restart("triage replay")
-            if ok:
-                culprit = ddmin(list(suspects), self.shows(sig, probe=True), budget=20)
-                backend = self.current
-            suspects = []
-        if sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
+            culprit = search(suspects, self._shows(sig, probe=True), tries=[], budget=20)
+        elif sig.oracle in ("crash", "sanitizer") and len(suspects) > 2 and not probe:
             # every case its process was sent before the death's cause showed (a real backend
             # handles one frame per 20 ms loop and lagged a dozen cases behind the fuzzer: its
             # culprit was seldom among the last two)
-            self.current = backend
-            culprit, backend = prefix_culprit(suspects, self.shows(sig, probe=False)), self.current
-            suspects = []
-        for c in reversed(suspects):  # the newest suspect first
-            ok, backend, _ = self.rep(backend, [c], sig, probe=probe)
-            self.target.count_restart("triage replay")
-            if ok:
-                culprit = [c]
-                break
-        if culprit is None and len(suspects) > 1 and sig.oracle != "effect":
-            ok, backend, _ = self.rep(backend, suspects, sig, probe=probe)
-            culprit = suspects if ok else None
+            culprit = prefix_culprit(suspects, self._shows(sig, probe=False))
+        elif culprit is None:  # the newest suspect alone first, then all of them
+            culprit = search(suspects, self._shows(sig, probe=probe), whole=sig.oracle != "effect", budget=0)
+        backend = self.current
         if culprit is None:
             self.not_confirmed(sig.rule, (sig.key, "probe" if probe else "case"))
             return self.restart(backend)
@@ -266,7 +252,7 @@ class StreamTriage(HitTriage):
             return self.restart(backend)
         self.current = backend
 
-        test_cases = self.shows(sig, probe=probe)
+        test_cases = self._shows(sig, probe=probe)
 
         def test(writes: list[Write]) -> bool:
             return test_cases([Case(_replay_kind(sig), tuple(writes))])
@@ -275,21 +261,27 @@ class StreamTriage(HitTriage):
             # several cases, each as it was sent (its own connection or not, its own watch): a
             # close after a valid frame that an earlier case set up (Nsqd's E-6: SET_PID's early
             # return keeps the frame size) is no close once the two are one case of raw writes
-            minimal = ddmin(list(culprit), test_cases, budget=16)
+            minimal = fewest(list(culprit), test_cases, budget=16)
             writes = [w for c in minimal for w in c.writes]
-        else:
+        else:  # one case of them all, its fewest writes (each replay a case of the signature's kind)
             writes = [w for c in culprit for w in c.writes]
             if sig.oracle != "effect":
-                writes = ddmin(writes, test, budget=24)
+                one = Case(_replay_kind(sig), tuple(writes))
+                writes = list(fewer_parts(one, test_cases, Parts(lambda c: c.writes, lambda c, ws: replace(
+                    c, writes=tuple(ws)), 24)).writes)
             c0 = culprit[0]
             minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                             check=c0.check)]
 
         def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
             def once() -> tuple[Hit | None, list[Any]] | None:
+                # each waits twice the triaged hit's own wait, at least 1 s (``self.wait``: a
+                # loaded host's slow death is no reason to call it unconfirmed), its traffic
+                # logged, its fresh process counted as every triage replay's is
                 log = TrafficLog()
-                ok, _, h = self.rep(self.current, cases, sig, probe=probe, log=log,
-                                    wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait)))
+                ok, self.current, h = self.replay(lambda: _reproduces(
+                    self.current, cases, sig, probe=probe, log=log, wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait))))
+                self.target.count_restart("triage replay")
                 return (h, log.records) if ok else None
             return confirm_n(once, self.n_of_n, until_miss=False)
 
@@ -301,22 +293,21 @@ class StreamTriage(HitTriage):
             self.missed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf, shape=sig.describe(),
                         actual=hit.detail, size=f"{len(writes)} write(s)")
             return self.restart(self.current)
-        traffic = conf.hits[-1][1]
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
             # a shorter tail, once it is confirmed as the whole input was (after it: an input
-            # that does not replay spends no time on cuts), while half of triage's share is left
-            data = writes[0].data
-            for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
-                if 0 < cut < len(data) and test([Write(data[:cut])]):
-                    data = data[:cut]
-            if len(data) < len(writes[0].data):
-                shorter = [replace(minimal[0], writes=(Write(data),))]
-                again = confirm(shorter)
-                if again.confirmed:
-                    minimal, traffic = shorter, again.hits[-1][1]
+            # that does not replay spends no time on cuts), while half of triage's share is left;
+            # kept when it is confirmed too (HitTriage.shorter)
+            def tail() -> list[Case]:
+                data = writes[0].data
+                for cut in (len(data) // 2, len(data) * 3 // 4, len(data) - 1):
+                    if 0 < cut < len(data) and test([Write(data[:cut])]):
+                        data = data[:cut]
+                return [replace(minimal[0], writes=(Write(data),))] if len(data) < len(writes[0].data) else minimal
+            minimal, conf = self.shorter(minimal, conf, tail, lambda cases, _: confirm(cases))
         self.add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
-                              note=culprit[0].note + (" (then a probe command)" if probe else ""), traffic=traffic))
+                              note=culprit[0].note + (" (then a probe command)" if probe else ""),
+                              traffic=conf.hits[-1][1]))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(self.current)
 

@@ -5,7 +5,8 @@ the datagrams that led to it are replayed (``fuzz.replay``) on a fresh node when
 the same node when attached, once its liveness probe is ACKed (a node lost in attach mode
 ends the campaign: ``TargetLost``, issue 19 item 1): not reproduced, it is dropped (counted as unconfirmed in the
 summary, never reported); reproduced, it is shrunk to the minimal sequence that still shows
-the same rule, and that sequence must show it again in each of ``CONFIRM_N`` more replays
+the same rule (every protocol's one search, ``fuzz.triage_core.search``: the suspects alone,
+then every input before it delta debugged), and that sequence must show it again in each of ``CONFIRM_N`` more replays
 (N of N) before it is kept.
 
 Blame (issue 36 item 2): a flaw is tied to its input only when the input makes the
@@ -30,16 +31,15 @@ bounds triage too, within ``fuzz.budget.GRACE_S``.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from mcp_conform.fuzz.confirm import confirm_n
-from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
 from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
 from mcp_conform.fuzz.replay import Outcome, run_sequence
 from mcp_conform.fuzz.target_base import TargetBase
-from mcp_conform.fuzz.triage_core import HitTriage
+from mcp_conform.fuzz.triage_core import HitTriage, search
 from mcp_conform.spec.codec import HEADER_SIZE, Action, build_datagram
 
 __all__ = ["Triage", "shape_of"]
@@ -148,14 +148,14 @@ class Triage(HitTriage):
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink,
                 "role": self.target.cfg.role}
 
-    def _still(self, flaw: Flaw, pace: str, scenario: str | None):  # noqa: ANN202
-        """Predicate: a sequence still shows the flaw (a death of any cause for a death)."""
-        def still_fails(seq: list[bytes]) -> bool:
-            out = self._run(seq, pace, scenario)
-            if flaw.source in _DEATH:
-                return any(f.source in _DEATH for f in out.flaws)
-            return flaw.rule in out.rules()
-        return still_fails
+    def _still(self, flaw: Flaw, pace: str, scenario: str | None) -> Callable[[list[bytes]], bool]:
+        """The search's predicate (``fuzz.triage_core.HitTriage.shows``): a sequence replayed
+        (``run_sequence``) still shows the flaw: its rule, or a death of any cause for a death."""
+        def replay(seq: list[bytes]) -> Flaw | None:
+            out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
+            death = flaw.source in _DEATH
+            return next((f for f in out.flaws if (f.source in _DEATH if death else f.rule == flaw.rule)), None)
+        return self.shows(replay, share=False)  # MCP's triage is bounded by the deadline alone
 
     @staticmethod
     def _suspects(flaw: Flaw, inputs: Sequence[Input]) -> list[bytes]:
@@ -180,20 +180,17 @@ class Triage(HitTriage):
                             program: str | None, scenario: str | None) -> Finding | None:
         end = flaw.culprit + 1 if flaw.culprit is not None and flaw.source not in _DEATH else len(inputs)
         candidate = [i.data for i in inputs[:end]]
-        still = self._still(flaw, pace, scenario)
-        minimal: list[bytes] | None = [] if scenario is not None and still([]) else None
-        suspects = self._suspects(flaw, inputs)
-        if minimal is None:
-            minimal = next(([d] for d in suspects[:1] if still([d])), None)
-        if minimal is None and flaw.source == "vehicle" and suspects:
-            minimal = [suspects[0]] * 2 if still([suspects[0]] * 2) else None
-        if minimal is None:
-            minimal = next(([d] for d in suspects[1:] if still([d])), None)
-        if minimal is None:
-            if not still(candidate):
-                self.count_unconfirmed(flaw.rule)
-                return None
-            minimal = ddmin(candidate, still, SHRINK_BUDGET, singles=min(SHRINK_BUDGET // 2, 8))
+        # the one search (fuzz.triage_core.search): a scenario alone, the suspects alone (a copy
+        # after its original), then every input before it together, delta debugged
+        s = self._suspects(flaw, inputs)
+        tries: list[list[bytes]] = ([[]] if scenario is not None else []) + [[d] for d in s[:1]] \
+            + ([[s[0]] * 2] if flaw.source == "vehicle" and s else []) + [[d] for d in s[1:]]
+        found = search(candidate, self._still(flaw, pace, scenario), tries=tries, budget=SHRINK_BUDGET,
+                       singles=min(SHRINK_BUDGET // 2, 8))
+        if found is None:
+            self.count_unconfirmed(flaw.rule)
+            return None
+        minimal: list[bytes] = found
         # the minimal sequence CONFIRM_N times more, each on a fresh node when spawned, at the
         # campaign's pace: every one shows the flaw, or there is no finding (issue 18 item 9:
         # findings confirmed once in two tries replayed 0 of 3 afterwards); the first

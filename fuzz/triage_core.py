@@ -1,7 +1,9 @@
 """The protocol-neutral steps of every protocol's triage (issue 37: one triage; issue 39: a
-protocol's plumbing near zero), written once: MAVLink's (``fuzz.mavlink_triage``) and Nsqd's
-(``fuzz.nsqd_triage``) declare only what is their own -- how a fresh target starts, how one
-input is replayed, what their oracles observe, how a finding is written.
+protocol's plumbing near zero), written once: MCP's (``fuzz.triage``), MAVLink's
+(``fuzz.mavlink_triage``) and Nsqd's (``fuzz.nsqd_triage``) declare only what is their own --
+how a fresh target starts, how inputs are replayed (``replay(inputs) -> signature | None``,
+:meth:`HitTriage.shows`), what their oracles observe, which tries come first, what one input
+is made of (:class:`Parts`), how a finding is written.
 
 From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
 
@@ -11,10 +13,14 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
    shown is a known finding's when one of its suspects like that finding's confirmed input is
    its culprit (:func:`known_lasting_hit`: two sends to one fresh target, not a search);
 2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
-3. the suspects searched for the fewest that show it: one alone, all, delta debugging
-   (``fuzz.ddmin``); a death whose cause shows late, among every input its target was sent
-   (:func:`prefix_culprit`: the shortest prefix that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream that stays lost)
-   by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n replays, not n);
+3. the suspects searched for the fewest that show it, one search (:func:`search`): the tries
+   in order (each suspect alone, the newest first, unless a protocol names others), else all
+   of them, delta debugged (``fuzz.ddmin``), then one input's parts; the newest confirmed at
+   once where it is the usual culprit (:meth:`HitTriage.minimal`); a death whose cause shows
+   late, among every input its target was sent (:func:`prefix_culprit`: the shortest prefix
+   that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream
+   that stays lost) by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n
+   replays, not n). What a replay shows is no finding yet: step 4;
 4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``), or not a
    finding (:meth:`HitTriage.not_confirmed`: counted, its tries noted, and named
    environment-dependent with why when it showed in triage).
@@ -25,17 +31,19 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
+from mcp_conform.harness.errors import SetupError
 
-__all__ = ["HitTriage", "earliest_prefix", "known_lasting_hit", "prefix_culprit"]
+__all__ = ["Parts", "HitTriage", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
 
 T = TypeVar("T")
+P = TypeVar("P")
 H = TypeVar("H")
 K = TypeVar("K")
 C = TypeVar("C", bound="HitTriage")
@@ -89,6 +97,64 @@ class HitTriage(Triage):
         check_late(self, share=share)
         self.replays += 1
         return run()
+
+    def shows(self, replay: Callable[[list[T]], H | None], same: Callable[[H], bool] = lambda h: True,
+              *, share: bool = True) -> Callable[[list[T]], bool]:
+        """Step 3's one predicate, over a protocol's ``replay(inputs)``: what the inputs showed
+        replayed on a fresh target (its signature; None: nothing, or a target that did not
+        start), each replay counted and bounded (:meth:`replay`); whether it is ``same`` as the
+        hit triaged. What a replay shows is not thereby a finding: step 4 confirms it."""
+        def test(inputs: list[T]) -> bool:
+            h = self.replay(lambda: replay(list(inputs)), share=share)
+            return h is not None and same(h)
+        return test
+
+    def minimal(self, suspects: list[T], shows: Callable[[list[T]], bool],
+                confirm: Callable[[list[T], bool], Confirmation[Any]], *,
+                lasting: tuple[Callable[[], Any], Callable[[Any, Sequence[T]], bool | None], Callable[[Any], None],
+                               float] | None = None,
+                group: Callable[[T], Hashable] | None = None, parts: Parts[T, Any] | None = None,
+                budget: int = 24, singles: int = 0) -> tuple[list[T], Confirmation[Any]] | None:
+        """Steps 3 and 4 when the newest suspect is the usual culprit: it is confirmed at once
+        (``confirm(inputs, until_miss)``, until the first miss: N replays, none more), then its
+        fewest ``parts`` (kept when confirmed again: :meth:`shorter`); when it is not, the fewest
+        of every suspect that show it (:func:`search`: no tries, every suspect together, a
+        ``group`` alone first, delta debugging within ``budget``, ``singles``; then ``parts``),
+        confirmed (all N: how often it shows). ``lasting`` (``fresh``, ``extend``, ``close``,
+        ``split``): a hit that lasts once shown, its suspects first cut to their shortest prefix
+        that shows it (:func:`earliest_prefix`; a target that did not start: no verdict). The
+        minimal input and its confirmation (a miss too: the caller names it); None when no
+        input showed it in the search (not confirmed either)."""
+        if lasting is not None and len(suspects) > 1:
+            fresh, extend, close, split = lasting
+            try:
+                n = earliest_prefix(suspects, fresh, extend, close, split=split)
+            except SetupError:
+                n = None
+            if n is None:
+                return None
+            suspects = suspects[:n]
+        first = suspects[-1:]
+        conf = confirm(first, True)
+        if conf.confirmed:
+            return self.shorter(first, conf, lambda: [fewer_parts(first[0], shows, parts)] if parts and first else first,
+                                confirm)
+        found = search(suspects, shows, tries=[], whole=len(suspects) > 1, budget=budget, singles=singles, group=group,
+                       parts=parts)
+        return None if found is None else (found, confirm(found, False))
+
+    @staticmethod
+    def shorter(minimal: list[T], conf: Confirmation[Any], cut: Callable[[], list[T]],
+                confirm: Callable[[list[T], bool], Confirmation[Any]]) -> tuple[list[T], Confirmation[Any]]:
+        """A confirmed minimal input cut shorter (``cut()``: its fewest parts, a shorter tail),
+        kept only when it is confirmed as the whole was (all N: ``confirm(inputs, False)``);
+        else the input as it was, with its own confirmation."""
+        fewer = cut()
+        if fewer != minimal:
+            again = confirm(fewer, False)
+            if again.confirmed:
+                return fewer, again
+        return minimal, conf
 
     def restarted(self, restart: Callable[[], T]) -> T:
         """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own
@@ -168,6 +234,83 @@ class HitTriage(Triage):
         self.tries[key] = self.tries.get(key, 0) + 1
         if conf is not None:
             conf.note(self.environment, rule, shape, actual, why)
+
+
+@dataclass(frozen=True)
+class Parts(Generic[T, P]):
+    """What one input is made of, for :func:`fewest`'s last step (a MAVLink case's frames,
+    an Nsqd case's writes): ``split(input)``, ``join(input, parts)`` (the input with only
+    those parts), at most ``budget`` replays."""
+
+    split: Callable[[T], Sequence[P]]
+    join: Callable[[T, list[P]], T]
+    budget: int
+
+
+def culprit(suspects: Sequence[T], shows: Callable[[list[T]], bool], *, tries: Sequence[Sequence[T]] | None = None,
+            whole: bool = True) -> list[T] | None:
+    """Step 3, first half: the input(s) among ``suspects`` (oldest first) that show the hit,
+    each try a replay (``shows``: :meth:`HitTriage.shows`). The ``tries`` in order (default:
+    each suspect alone, the newest first: the usual culprit), the first that shows it; else
+    every suspect together (``whole``, unless it was one of the tries: they are the culprit,
+    for :func:`fewest`); None when none of them shows it."""
+    return _culprit(suspects, shows, tries, whole)[0]
+
+
+def _culprit(suspects: Sequence[T], shows: Callable[[list[T]], bool], tries: Sequence[Sequence[T]] | None,
+             whole: bool) -> tuple[list[T] | None, bool]:
+    """:func:`culprit`, and whether it is every suspect together (the whole)."""
+    tried = [list(t) for t in ([[s] for s in reversed(suspects)] if tries is None else tries)]
+    for t in tried:
+        if shows(t):
+            return t, False
+    if whole and suspects and list(suspects) not in tried and shows(list(suspects)):
+        return list(suspects), True
+    return None, False
+
+
+def fewest(inputs: list[T], shows: Callable[[list[T]], bool], *, budget: int, singles: int = 0,
+           group: Callable[[T], Hashable] | None = None, parts: Parts[T, Any] | None = None) -> list[T]:
+    """Step 3, second half: the fewest of ``inputs`` (which show the hit) that still show it,
+    each try a replay (``shows``). ``group``: with more than 8 inputs of several groups, the
+    inputs of one group alone first (the newest input's group first: a heartbeat's suspects
+    are many, one kind makes it); then delta debugging (``fuzz.ddmin``: ``budget`` replays,
+    ``singles`` of the newest alone first); one input left, its fewest ``parts``. An input
+    returned is one that showed it, or ``inputs`` themselves."""
+    if group is not None and len(inputs) > 8:
+        keys = list(dict.fromkeys(group(i) for i in reversed(inputs)))
+        for k in keys if len(keys) > 1 else []:
+            some = [i for i in inputs if group(i) == k]
+            if len(some) < len(inputs) and shows(some):
+                inputs = some
+                break
+    if budget:
+        inputs = ddmin(list(inputs), shows, budget=budget, singles=singles)
+    if parts is not None and len(inputs) == 1:
+        inputs = [fewer_parts(inputs[0], shows, parts)]
+    return inputs
+
+
+def fewer_parts(item: T, shows: Callable[[list[T]], bool], parts: Parts[T, Any]) -> T:
+    """The fewest ``parts`` of one input that still show the hit (delta debugging within
+    ``parts.budget`` replays); ``item`` itself when none can go."""
+    whole = list(parts.split(item))
+    if len(whole) < 2:
+        return item
+    kept = ddmin(whole, lambda ps: shows([parts.join(item, ps)]), budget=parts.budget)
+    return item if len(kept) == len(whole) else parts.join(item, kept)
+
+
+def search(suspects: Sequence[T], shows: Callable[[list[T]], bool], *, tries: Sequence[Sequence[T]] | None = None,
+           whole: bool = True, budget: int, singles: int = 0, group: Callable[[T], Hashable] | None = None,
+           parts: Parts[T, Any] | None = None) -> list[T] | None:
+    """Step 3 whole, the one search every protocol's triage runs: :func:`culprit`, then its
+    :func:`fewest` (every suspect together delta debugged, a try as it is; one input left,
+    its parts); None when none of them shows it."""
+    found, every = _culprit(suspects, shows, tries, whole)
+    if found is None:
+        return None
+    return fewest(found, shows, budget=budget if every else 0, singles=singles, group=group, parts=parts)
 
 
 def known_lasting_hit(items: Sequence[T], knowns: Sequence[tuple[K, Hashable]], signature: Callable[[T], Hashable],
