@@ -7,7 +7,8 @@ docs/spec.md's:
 
 - MCP-ACK-1 "Observed: each command sent between the node's Mission_Ready and its End_Mission
   is ACKed, ... up to 5 copies (a node may be deaf while busy, D-6) ..., and every later copy
-  is ACKed again": a message it received 5 times and never ACKed, or a copy it left
+  is ACKed again": a message it received 5 times and never ACKed (of the copies before its
+  first datagram, only the last: a node's capture does not show it running before), or a copy it left
   unanswered after answering one (the copies of End_Mission excepted: D-6 lets a drone stop
   receiving after its ACK of End_Mission);
 - MCP-ACK-2 "the acknowledged message's sequence number": an ACK naming a number that no
@@ -94,6 +95,12 @@ class _WithStalls:
 def _unanswered_copies(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
     """MCP-ACK-1, never ACKed: some message received 5 times while receiving."""
     ready = min((t for t, tx, h, _ in view if tx and h[3] == Action.MISSION_READY), default=None)
+    # a judge of the node's capture knows it runs from its first datagram on: of the copies
+    # before, only the last may have been heard (``Monitor._ack_rearm``)
+    shown = min((t for t, tx, *_ in view if tx), default=None)
+    if shown is None:
+        return False, "the node sent nothing: no judge knows it was running"
+    before: set[tuple[int, int]] = set()
     counts: dict[tuple[int, int], int] = {}
     window = max(0.5, 2 * s.rto)  # the ACK window the judges are given (sim.judges)
     for t, tx, (dst, src, seq, action), _ in view:
@@ -105,8 +112,11 @@ def _unanswered_copies(s: Any, pid: int, dev: Any, view: Any, end: float) -> tup
             continue  # a drone receives from its Mission_Ready on (D-6)
         if pid != 0 and action == Action.END_MISSION:
             continue
+        if t <= shown + INSTANT:
+            before.add((src, seq))
+            continue
         counts[(src, seq)] = counts.get((src, seq), 0) + 1
-    most = max(counts.values(), default=0)
+    most = max((n + ((k in before) if n else 0) for k, n in counts.items()), default=0)
     if most >= MAX_ACK_COPIES:
         return True, f"{most} copies of one message received, none ACKed"
     return False, f"at most {most} copies of a message received (a node may miss {MAX_ACK_COPIES - 1})"
