@@ -61,6 +61,7 @@ class MonitorHost:
     _acked_addrs: dict[tuple[int, int], set[Any]]
     _acks_to: set[int]
     _stray_acks: dict[tuple[int, int], tuple[int, int, int]]
+    _reacks: dict[tuple[int, int], tuple[int, int]]
     _answered_to: dict[tuple[int, int], int]
     _waiting_copy: dict[tuple[int, int], Any]
     _ambiguous: dict[int, tuple[Any, list[tuple[Any, int, int, int]]]]

@@ -82,10 +82,12 @@ class ReceiverRules(MonitorHost):
             acks = match.acks
             if (node is not None and acks and len(acks) >= len(match.copies)
                     and self._complete_for(src, dst)):
-                # every copy of it is ACKed already, and a node ACKs each copy once: this ACK
-                # answers something else -- a wrong payload if a copy waits (MCP-ACK-2: a node
-                # that ACKs a copy of seq 1339 with 1340, just after 1340 itself)
-                self._stray_acks[(src, dst)] = (i, t, named)
+                # every copy of it drew an ACK already: a re-ACK, which no rule forbids (D-9: a
+                # node may answer one datagram more than once), or a waiting copy's wrong ACK
+                # (a node that ACKs a copy of seq 1339 with 1340, just after 1340 itself). A
+                # count proves neither: a copy waiting since before it is judged by neither
+                # MCP-ACK-1 nor MCP-ACK-2 (``_reacks``)
+                self._reacks[(src, dst)] = (i, t)
                 return
             if acks:  # an ACK of a later copy
                 acks.append((i, t))
@@ -101,11 +103,11 @@ class ReceiverRules(MonitorHost):
             else:
                 self._acked(match, src, i, t, tester)
             if node is not None and i not in self._doubtful:
-                # the n-th ACK of a message answers a copy no earlier than its n-th: the node
-                # had read that far (``_answered_later``)
-                n = min(len(match.acks), len(match.copies))
+                # an ACK of a message answers one of its copies, the first at the earliest:
+                # the node had read that far (``_answered_later``). Not its n-th copy for its
+                # n-th ACK: a node may answer one copy more than once (D-9)
                 pair = (src, dst)
-                self._answered_to[pair] = max(self._answered_to.get(pair, 0), match.copies[n - 1][1])
+                self._answered_to[pair] = max(self._answered_to.get(pair, 0), match.copies[0][1])
             return
         horizon = self._ack_horizon
         if node is not None:
@@ -350,6 +352,8 @@ class ReceiverRules(MonitorHost):
                            f"{len(ex.copies)} copies of {ex.describe()} answered by ACKs naming "
                            f"another seq (the last: {stray[2]})", [ex.copies[0], (stray[0], stray[1])])
                 return
+            if self._reacked_since(node.id, ex.src, ex.first[1]):
+                return  # a re-ACK of another message came: the copies' wrong ACK, or none (D-9)
             # a Mission_Ready the manager never ACKs is MCP-ACK-1's too, as the manager-role
             # case judges it (one judge); MCP-FLOW-2 judges the Start_Mission that follows
             heard = ex.copies[ex.heard:]
@@ -378,6 +382,12 @@ class ReceiverRules(MonitorHost):
                        f"the copy of {ex.describe()} was answered by an ACK naming {stray[2]}",
                        [copy, (stray[0], stray[1])])
             return
+        if self._reacked_since(node.id, ex.src, copy[1]):
+            # a re-ACK of another message came after the copy (D-9: no rule forbids it): it may
+            # be the copy's wrong ACK (MCP-ACK-2) or the copy went unanswered (MCP-ACK-1);
+            # neither is proven, nor what the ACKs that came while it waited answered
+            self._ambiguous.pop(id(ex), None)
+            return
         maybe = ex.maybe_answered
         if maybe is not None and maybe[1] >= copy[1]:
             # an ACK came after the copy that was counted as another message's copy's (its
@@ -392,6 +402,12 @@ class ReceiverRules(MonitorHost):
         self._decide_ambiguous(ex, node.id, wrong=False)
         self._emit("MCP-ACK-1", node.id, now, "every later copy is ACKed again",
                    f"copy of {ex.describe()} after its ACK was not ACKed", [ex.acks[0], copy])
+
+    def _reacked_since(self, node: int, dst: int, since: int) -> bool:
+        """``node`` sent ``dst`` a re-ACK at or after ``since``: an ACK naming a message every copy
+        of which had drawn an ACK (``_ack``)."""
+        r = self._reacks.get((node, dst))
+        return r is not None and r[1] >= since
 
     def _undecided_deadline(self, now: int, ex: _Exchange, copy: tuple[int, int] | None) -> None:
         """The ACKs naming what the node must not ACK that came while a copy of ``ex`` waited,

@@ -11,8 +11,9 @@ window, ``--ack-window``, D-6) and when a sender retransmits (``--rto`` and RTX-
 tolerance).
 
 An *explanation* assigns each ACK to at most one copy it could answer -- with a latency of
-at least zero and within the bounds -- each copy drawing at most ``copy_capacity`` ACKs (a
-node ACKs each copy it receives once; the link may duplicate), or, for the sender's
+at least zero and within the bounds -- each copy drawing any number of ACKs (D-9: every copy
+is ACKed, and nothing forbids answering one more than once, so a count of ACKs above the
+copies proves nothing), or, for the sender's
 retransmission, assigns the end of a message's retransmission a cause: an ACK that reached
 the sender before it, or a give-up at a timer's expiry. A rule is:
 
@@ -39,7 +40,8 @@ Rules decided (docs/spec.md, spec/mcp.yaml):
   to ``S`` answers something. Only on a complete trace.
 - MCP-ACK-2 (receiver): every ACK from ``R`` to ``S`` answers a copy whose number it names (or
   a datagram ``S`` sent that a node must not ACK, :attr:`Copy.ackable` false: MCP-ACK-4/6's
-  business, not ACK-2's). Only on a complete trace, where an ACK cannot answer a copy the
+  business, not ACK-2's): proven where an ACK names a number no copy before it carried
+  (D-9). Only on a complete trace, where an ACK cannot answer a copy the
   capture missed. ``MCP-ACK-1 or MCP-ACK-2`` is reported too: a message never answered
   except, perhaps, by ACKs naming other numbers violates one of them in every explanation.
 - MCP-RTX-1 (sender): a sender that stops retransmitting with no ACK reaching it has sent

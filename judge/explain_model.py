@@ -10,6 +10,7 @@ Sans-I/O: no clock, socket, file or thread; times are seconds on the observer's 
 from __future__ import annotations
 
 import math
+import sys
 from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -52,6 +53,10 @@ class Ack:
     dst: int | None = None
 
 
+#: no bound on the ACKs one copy may draw (:attr:`Bounds.copy_capacity`, D-9)
+UNBOUNDED = sys.maxsize
+
+
 @dataclass(frozen=True)
 class Bounds:
     """What the trace is judged with. A datagram observed at ``t`` was sent (a copy) or
@@ -71,7 +76,10 @@ class Bounds:
     rto_tolerance: float = 0.2  # gaps within this fraction of the timeout (MCP-RTX-3)
     rto_slack: float = 0.015  # scheduling allowance: jitter plus any measured run delay (D-7)
     min_copies: int = 3  # the least retry limit (MCP-RTX-1: at least 3 copies while withheld)
-    copy_capacity: int = 1  # ACKs one copy may draw: 1 + the copies the link may make of it
+    #: ACKs one copy may draw: any number (D-9: the spec asks every copy ACKed and nowhere
+    #: forbids answering one datagram more than once, so a count of ACKs above the copies
+    #: proves nothing); a caller may bound it only for a node it knows answers each copy once
+    copy_capacity: int = UNBOUNDED
     max_ack_copies: int = 5  # copies a node may miss while busy before its first ACK (D-6)
     #: a new message (numbered above, MCP-SEQ-1) ends the previous one's retransmission (BLK-1)
     stop_and_wait: bool = True

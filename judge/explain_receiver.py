@@ -70,7 +70,7 @@ def _ack2(trace: Trace, b: Bounds) -> Verdict:
     if not rights:
         why = (f"{_fmt_ack(wrong)} names no copy sent to ID {trace.receiver} before it"
                if wrong.named is not None else f"{_fmt_ack(wrong)} names no number")
-    else:
+    else:  # only with a bounded copy_capacity, which D-9 gives no node of the spec's
         why = (f"{len(lefts)} ACKs ({_some([_fmt_ack(acks[j]) for j in sorted(lefts)])}) "
                f"and {len(rights)} datagrams they name "
                f"({_some([_fmt_copy(copies[r]) for r in sorted(rights)])}), each answered "

@@ -206,6 +206,9 @@ class Monitor(SenderRules, ReceiverRules, VehicleRules):
         #: (acker, dst) -> (index, t, named) of the acker's last ACK to dst that named nothing
         #: it was sent: a copy whose ACK-1 deadline finds one after it was ACKed wrongly (ACK-2)
         self._stray_acks: dict[tuple[int, int], tuple[int, int, int]] = {}
+        #: (acker, dst) -> (index, t) of the acker's last re-ACK to dst: an ACK naming a message
+        #: every copy of which had drawn one (D-9: legal; a waiting copy's wrong ACK, or not)
+        self._reacks: dict[tuple[int, int], tuple[int, int]] = {}
         #: (acker, sender) -> the latest arrival a right ACK of the acker's answered (MCP-ACK-1)
         self._answered_to: dict[tuple[int, int], int] = {}
         #: (receiver, sender) -> the latest message a copy of which came after its ACK, and

@@ -76,6 +76,8 @@ __all__ = ["RECORD_CAP", "VETOED_RULES", "Record", "Recorder", "Vetoed", "sender
 NS = 1_000_000_000
 #: The rules a violation of which explain may veto, and the disjunction that keeps it standing.
 VETOED_RULES: dict[str, str] = {"MCP-RTX-1": EITHER_RTX, "MCP-RTX-2": EITHER_RTX}
+#: Each of them, and the other rule of the disjunction (``_reported_by_the_other``).
+OTHER_RTX: dict[str, str] = {"MCP-RTX-1": "MCP-RTX-2", "MCP-RTX-2": "MCP-RTX-1"}
 #: Datagrams recorded per trace at most (a long soak, a million-datagram capture: issue 17).
 RECORD_CAP = 200_000
 
@@ -447,6 +449,9 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
     readings = _readings(records, recorder.samples, max(end_ns, records[-1].t_ns))
     tails = _tail_lags(records, recorder.samples)
     out: list[Vetoed] = []
+    #: MCP-RTX-1 failures that stand only on a proven disjunction ("MCP-RTX-1 or MCP-RTX-2") or
+    #: on explain's MCP-RTX-2 of their message: (violation, its direction, its message's seq, why)
+    paired: list[tuple[Any, tuple[int, int], int, str]] = []
     for v in mine:
         way = _direction(v, records)
         trace: Trace | None = traces.get(way) if way is not None else None
@@ -466,9 +471,18 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         either = found.get(VETOED_RULES[v.rule])
         if kept is None or kept.status not in (CONSISTENT, UNOBSERVABLE):
             continue
+        other = found.get(OTHER_RTX[v.rule])
+        if head is not None and (either is not None and either.status == PROVEN
+                                 or v.rule == "MCP-RTX-1" and other is not None and other.status == PROVEN):
+            # the rule itself is not proven for the message (an explanation keeps it), only the
+            # pair is (or MCP-RTX-2 alone): a standing failure of the other rule may report it
+            # (``_reported_by_the_other``)
+            how = other if other is not None and other.status == PROVEN else either
+            assert how is not None
+            paired.append((v, way, head[2], f"{how.rule} proven for the message, {v.rule} {kept.status}: "
+                                            f"{how.evidence}"))
         if either is not None and either.status == PROVEN and not (
-                v.rule == "MCP-RTX-1" and found.get("MCP-RTX-2") is not None
-                and found["MCP-RTX-2"].status == PROVEN):
+                v.rule == "MCP-RTX-1" and other is not None and other.status == PROVEN):
             continue  # the disjunction proven may rest on this rule; not where explain proves
             # MCP-RTX-2 itself for the message (the wrong-seq-ack manager that took a wrong ACK
             # as it woke from a stall: its lone copy's MCP-RTX-1 deadline fell in the stall)
@@ -485,4 +499,48 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))
-    return out
+    return out + _reported_by_the_other(paired, mine, out, records)
+
+
+def _reported_by_the_other(paired: list[tuple[Any, tuple[int, int], int, str]], mine: list[Any],
+                           vetoed: list[Vetoed], records: list[Record]) -> list[Vetoed]:
+    """The failures of ``paired`` -- a rule explain does not prove for its message, where it
+    proves "MCP-RTX-1 or MCP-RTX-2" (or MCP-RTX-2 alone, for an MCP-RTX-1 failure) -- that a
+    standing failure of the other rule reports. A rule fails only where every explanation
+    breaks it: the stop is a wrong ACK taken or a give-up too early, one violation, not two.
+
+    - An MCP-RTX-1 failure whose message has a standing MCP-RTX-2 failure too: the MCP-RTX-2
+      one reports the stop (the wrong-seq-ack manager whose lone copy fell due in a stall, that
+      took a wrong ACK as it woke and moved on at once: seeds
+      monitor-rtx1-beside-rtx2-after-a-stall, monitor-rtx1-beside-either-rtx-after-a-stall).
+    - Then an MCP-RTX-2 failure of a node with a standing MCP-RTX-1 failure (of any message): the
+      node's MCP-RTX-1 verdict covers the pair (the give-up-after-two manager whose timer
+      expired as it read a wrong ACK: seed monitor-rtx2-beside-a-give-up).
+
+    Without such a failure the paired one stands: the disjunction may rest on it."""
+    gone = {id(x.violation) for x in vetoed}
+
+    def standing(rule: str) -> set[tuple[int, int, int]]:
+        out: set[tuple[int, int, int]] = set()
+        for v in mine:
+            if v.rule != rule or id(v) in gone:
+                continue
+            way = _direction(v, records)
+            i0 = _first_copy(v, way, records) if way is not None else None
+            head = peek_header(records[i0].data, require_preamble=False) if i0 is not None else None
+            if way is not None and head is not None:
+                out.add((*way, head[2]))
+        return out
+
+    dropped: list[Vetoed] = []
+    rtx2 = standing("MCP-RTX-2")
+    for v, way, seq, why in paired:
+        if v.rule == "MCP-RTX-1" and id(v) not in gone and (*way, seq) in rtx2:
+            dropped.append(Vetoed(v, way[0], way[1], f"reported as MCP-RTX-2 of the same message: {why}"))
+            gone.add(id(v))
+    failing_rtx1 = {s for s, _r, _q in standing("MCP-RTX-1")}
+    for v, way, _seq, why in paired:
+        if v.rule == "MCP-RTX-2" and id(v) not in gone and way[0] in failing_rtx1:
+            dropped.append(Vetoed(v, way[0], way[1], f"the node's MCP-RTX-1 failure reports it: {why}"))
+            gone.add(id(v))
+    return dropped

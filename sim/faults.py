@@ -23,6 +23,9 @@ its transition table (``reference_impl._transitions``):
   observed as "at least 3 copies while the ACK is withheld");
 - ``give-up-never`` (manager): retries without limit -- the rule's "retry limit" is
   configurable, so this breaks no rule: a control that must get no MUST verdict;
+- ``ack-twice`` (drone): ACKs each duplicate copy twice, and the message before each new one
+  (from the same sender) once more -- every copy ACKed, nothing forbids answering one more
+  than once (D-9), so it breaks no rule: a control for a judge that counts ACKs;
 - ``no-dup-discard`` (drone), MCP-DUP-1 "ACKed again ... but not delivered to the application
   again": duplicates are delivered (not on the wire: docs/spec.md observes it on the vehicle
   link, which the simulator models since the vehicle runs on its clock: sim.vehicle).
@@ -121,6 +124,26 @@ class AckCopiesWrongSeq(FaultMixin):
         self._deliver(msg, addr)
 
 
+class AckTwice(FaultMixin):
+    """Correct (D-9): every copy ACKed; some answered twice, some again later."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._last: dict[int, int] = {}  # sender -> the number of its last message read
+
+    def _on_ack_and_deliver(self, msg: Any, addr: Any, now: float, arg: Any) -> None:
+        dup = self._is_dup(msg)
+        prev = self._last.get(msg.src)
+        super()._on_ack_and_deliver(msg, addr, now, arg)
+        if dup:
+            self.deviations.append((now, f"copy of seq {msg.seq} ACKed twice"))
+            self._ack(msg, addr, msg.seq)
+        elif prev is not None and prev != msg.seq:
+            self.deviations.append((now, f"seq {prev} ACKed again on reading seq {msg.seq}"))
+            self._ack(msg, addr, prev)
+        self._last[msg.src] = msg.seq
+
+
 class RtxNone(FaultMixin):
     def _on_retransmit(self, msg: Any, addr: Any, now: float, u: Any) -> None:
         self.deviations.append((now, f"seq {u.seq} not retransmitted"))
@@ -205,6 +228,8 @@ FAULTS: dict[str, Fault] = {f.name: f for f in (
           what="sends each unicast twice at most, then drops the drone"),
     Fault("give-up-never", "manager", None, GiveUpAfterTwo, retries=NEVER,
           what="retransmits without limit (a configurable retry limit: no rule broken)"),
+    Fault("ack-twice", "drone", None, AckTwice,
+          what="ACKs duplicates twice and the message before each new one again (D-9: no rule broken)"),
 )}
 
 

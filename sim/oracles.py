@@ -7,11 +7,16 @@ docs/spec.md's:
 
 - MCP-ACK-1 "Observed: each command sent between the node's Mission_Ready and its End_Mission
   is ACKed, ... up to 5 copies (a node may be deaf while busy, D-6) ..., and every later copy
-  is ACKed again": a message it received 5 times and never ACKed, or a copy it left
+  is ACKed again": a message it received 5 times and never ACKed (of the copies before its
+  first datagram, only the last: a node's capture does not show it running before), or a copy it left
   unanswered after answering one (the copies of End_Mission excepted: D-6 lets a drone stop
   receiving after its ACK of End_Mission);
-- MCP-ACK-2 "the acknowledged message's sequence number": more ACKs naming a number than
-  datagrams with that number it had received (each copy is answered once);
+- MCP-ACK-2 "the acknowledged message's sequence number": an ACK naming a number that no
+  datagram in the node's view carried up to the judge's reorder grace after the ACK
+  (``seq_reorder_grace_s``: a judge of times sees one instant in any order, and a datagram read
+  just after the ACK may be what it answers) -- it acknowledges no message. A count (more ACKs
+  naming a number than datagrams carrying it) proves nothing: a node may ACK one datagram more
+  than once (D-9), and the link's record of which copies it made is no judge's to read;
 - MCP-RTX-1 "Observed: at least 3 copies while the ACK is withheld": copies ``rto`` apart
   within ±20 % (MCP-RTX-3) plus the jitter allowance, so fewer than 3 with the ACK withheld past
   the latest time the third was due, and the view going on past it;
@@ -27,6 +32,7 @@ from typing import Any
 
 from mcp_conform.sim.schedule import Outcome
 from mcp_conform.sim.world import NS, ViewRecord
+from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action, peek_header
 
 __all__ = ["observable"]
@@ -35,6 +41,8 @@ ACK = int(Action.ACK)
 MAX_ACK_COPIES = 5
 #: the latest a copy is due: rto x 1.2 (MCP-RTX-3's tolerance) plus jitter, with a margin
 LATE, EARLY, MARGIN = 1.25, 0.8, 0.05
+#: the judge's reorder grace (a datagram read this long after an ACK may be what it answers)
+GRACE = float(SPEC.params["seq_reorder_grace_s"])
 #: what a party does at one virtual instant, as its stamps show it (``sim.world.STEP_NS`` apart)
 INSTANT = 1e-3
 
@@ -87,6 +95,12 @@ class _WithStalls:
 def _unanswered_copies(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
     """MCP-ACK-1, never ACKed: some message received 5 times while receiving."""
     ready = min((t for t, tx, h, _ in view if tx and h[3] == Action.MISSION_READY), default=None)
+    # a judge of the node's capture knows it runs from its first datagram on: of the copies
+    # before, only the last may have been heard (``Monitor._ack_rearm``)
+    shown = min((t for t, tx, *_ in view if tx), default=None)
+    if shown is None:
+        return False, "the node sent nothing: no judge knows it was running"
+    before: set[tuple[int, int]] = set()
     counts: dict[tuple[int, int], int] = {}
     window = max(0.5, 2 * s.rto)  # the ACK window the judges are given (sim.judges)
     for t, tx, (dst, src, seq, action), _ in view:
@@ -98,8 +112,11 @@ def _unanswered_copies(s: Any, pid: int, dev: Any, view: Any, end: float) -> tup
             continue  # a drone receives from its Mission_Ready on (D-6)
         if pid != 0 and action == Action.END_MISSION:
             continue
+        if t <= shown + INSTANT:
+            before.add((src, seq))
+            continue
         counts[(src, seq)] = counts.get((src, seq), 0) + 1
-    most = max(counts.values(), default=0)
+    most = max((n + ((k in before) if n else 0) for k, n in counts.items()), default=0)
     if most >= MAX_ACK_COPIES:
         return True, f"{most} copies of one message received, none ACKed"
     return False, f"at most {most} copies of a message received (a node may miss {MAX_ACK_COPIES - 1})"
@@ -124,21 +141,24 @@ def _copy_after_answer(s: Any, pid: int, dev: Any, view: Any, end: float) -> tup
     return verdict
 
 
-def _acks_outnumber(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
-    """MCP-ACK-2: more ACKs naming a number than datagrams received with it."""
-    # a judge of times sees datagrams at one instant in any order, and one read late (a stall)
-    # as arrived up to the stall's length before: count what was received by then
-    lag = max((b - a for a, b in s_stalls(s, pid)), default=0.0)
-    received = [(t, (src, seq)) for t, tx, (dst, src, seq, _), _ in view if not tx and dst == pid]
-    named: dict[tuple[int, int], int] = {}
-    for t, tx, (dst, _, _, action), data in view:
+def _names_what_none_carried(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
+    """MCP-ACK-2: an ACK naming a number no datagram of the view carried by the reorder grace
+    after it (D-9: never a count of ACKs against copies)."""
+    carried: dict[int, float] = {}  # number -> the first time a datagram of the view carried it
+    for t, _tx, h, _ in view:
+        carried.setdefault(h[2], t)
+    verdict: tuple[bool | None, str] = (
+        False, "every number it named was carried by a datagram within the ACK's reorder grace "
+               "(D-9: a count proves nothing)")
+    for t, tx, (_dst, _, _, action), data in view:
         if tx and action == ACK and len(data) == 19:
-            key = (dst, _named(data))
-            named[key] = named.get(key, 0) + 1
-            got = sum(1 for t2, k in received if k == key and t2 <= t + lag + 1e-9)
-            if named[key] > got:
-                return True, f"at {t:.3f} s: ACK number {named[key]} naming {key[1]}, {got} received"
-    return False, "every wrong number it named was one it had received as often"
+            named = _named(data)
+            first = carried.get(named)
+            if first is None or first > t + GRACE + MARGIN:
+                return True, f"at {t:.3f} s: an ACK naming {named}, which no datagram carried by then"
+            if first > t + GRACE - MARGIN:
+                verdict = None, f"at {t:.3f} s: an ACK naming {named}, first carried at the grace's end"
+    return verdict
 
 
 def _first_copy_then_silence(s: Any, pid: int, dev: Any, view: Any, end: float) -> tuple[bool | None, str]:
@@ -223,8 +243,8 @@ _ORACLES = {
     "no-ack": _unanswered_copies,
     "no-ready-ack": _unanswered_copies,
     "ack-first-copy-only": _copy_after_answer,
-    "ack-previous-seq": _acks_outnumber,
-    "ack-copies-wrong-seq": _acks_outnumber,
+    "ack-previous-seq": _names_what_none_carried,
+    "ack-copies-wrong-seq": _names_what_none_carried,
     "rtx-none": _first_copy_then_silence,
     "manager-rtx-none": _first_copy_then_silence,
     "give-up-after-two": _gave_up,

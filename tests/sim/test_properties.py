@@ -124,11 +124,11 @@ def test_explain_holds_both_properties(fault):
 
 # ------------------------------------------------------------------ the trace monitor
 #: fault model -> why the monitor breaks a property on links without stalls (seeds: test_seeds.py)
-MONITOR_KNOWN = {
-    "ack-copies-wrong-seq": "misses MCP-ACK-2 where its only proof is a count (more ACKs naming a number "
-                            "than datagrams with it) and the waiting copy's ACK-1 deadline lies past the "
-                            "view's end",
-}
+MONITOR_KNOWN: dict[str, str] = {}
+# Left (session 27): ack-copies-wrong-seq's MCP-ACK-2 "missed" where its only proof was a count
+# (more ACKs naming a number than datagrams with it): D-9 lets a node ACK one datagram more than
+# once, so the count proves nothing and sim.oracles no longer asks for it (seed
+# monitor-ack2-missed-excess-acks); the ack-twice control model checks no judge counts.
 # Fixed (session 26): the correct manager failed MCP-RTX-2 at its retry limit after the
 # ack-copies-wrong-seq drone's wrong ACK (seed monitor-rtx2-give-up-at-the-retry-limit) and
 # after a stall (monitor-rtx2-stalled-then-retransmitted), and that drone's wrong ACKs called

@@ -57,7 +57,7 @@ def test_each_drone_fault_fails_its_rule_and_no_other(fault):
     rule = FAULTS[fault].rule
     run = run_cases(fault, seed=2, **SHORT)
     failed = run.rules_with("failed", "warned")
-    if fault in UNOBSERVED:
+    if fault in UNOBSERVED or rule is None:  # ack-twice breaks no rule (D-9): no verdict
         assert not failed, run.explain()
         return
     assert failed == {rule: "failed"}, run.explain()
