@@ -69,6 +69,12 @@ class SimSideSocket:
         self._t.deliver_down(data, addr, self._inbox.addr)
         return len(data)
 
+    def sendto_many(self, datagrams: list[bytes], count: int, addr: Address) -> int:
+        """``count`` datagrams cycling through ``datagrams`` to ``addr`` at this virtual instant:
+        ``harness.driver.flood``'s loop of ``sendto`` (MCP-ROB-7), each datagram as
+        :meth:`sendto` carries it; how many left (all: the simulated socket never refuses)."""
+        return self._t.deliver_down_many(datagrams, count, addr, self._inbox.addr)
+
     def recvfrom(self, _n: int) -> tuple[bytes, Address]:
         with self._inbox.cond:
             if not self._inbox.queue:
@@ -239,6 +245,30 @@ class SimTransport(Transport):
             return
         gen = self._gen
         self._carry(self.down, data, lambda body: (SimTransport._to_model, self, src, gen, body))
+
+    def deliver_down_many(self, datagrams: list[bytes], count: int, addr: Address, src: Address) -> int:
+        """:meth:`deliver_down` of ``datagrams[i % len(datagrams)]`` for i < ``count``, in
+        order, at this instant: the same copies, decisions, records and delivery calls (each
+        one's ``_arm_due``), without a call and a closure per datagram. The model's state, and
+        so whether it takes them, cannot change before the first one is due (the latency)."""
+        n = len(datagrams)
+        if not n or count <= 0:
+            return 0
+        model = self.model
+        if model is None or model.closed or addr[1] != model.addr[1]:
+            return count
+        if addr[0] not in (model.addr[0], "255.255.255.255", "<broadcast>"):
+            return count
+        gen = self._gen
+
+        def held(body: bytes) -> tuple[Any, ...]:
+            return (SimTransport._to_model, self, src, gen, body)
+
+        send, arm, t = self.down.send, self._arm_due, self.clock.now + self.latency
+        for i in range(count):
+            send(datagrams[i % n], t, held)
+            arm()
+        return count
 
     def _to_model(self, src: Address, gen: int, data: bytes) -> None:
         model = self.model
