@@ -5,7 +5,18 @@ gcs roles -- the CPU seconds of one run in a warm process (the median of ``--run
 run of a process, which imports everything, is left out and shown apart), split by the phases of
 its nested pytest session, and the virtual clock's thread switches::
 
-    python bench/bench_sim_run.py [--runs 5] [--kinds drone,mutant,...]
+    python bench/bench_sim_run.py [--runs 5] [--kinds drone,mutant,...] [--src CHECKOUT]
+    python bench/bench_sim_run.py --flood [--runs 7] [--src CHECKOUT]
+
+``--src``: import ``mcp_conform`` from another checkout (``git archive <commit> | tar -x -C
+DIR``): the same bench before and after a change, run alternately so host noise hits both.
+
+``--flood``: the simulator's per-datagram path alone, MCP-ROB-7's flood (issue 38): 10,000 of
+the case's malformed datagrams (``flood_count``) from a side socket through the runner's
+transport (:mod:`sim.transport`: the clean link, the delay queue) to the ``ack-zero`` mutant and
+the reference drone model, CPU us a datagram (the median of ``--runs`` floods); and the lead's
+recipe, a whole mutant run (``run_cases(mutant_factory("ack-zero", ...), mavlink=True)``) at
+``flood_count`` and at 100, CPU s a run and the flood's share.
 
 Phases (CPU ms a run): ``args`` the runner's command line made; ``start`` pytest's configuration
 and plugins, to the session's start; ``collect`` the case modules collected; ``cases`` the run
@@ -27,6 +38,8 @@ from typing import Any
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+if "--src" in sys.argv:  # another checkout's code (before/after): before anything imports it
+    ROOT = Path(sys.argv[sys.argv.index("--src") + 1]).resolve()
 sys.path.insert(0, str(ROOT))  # run from a source checkout
 
 PHASES = ("args", "start", "collect", "cases", "report")
@@ -75,11 +88,86 @@ def _kinds() -> dict[str, Callable[[int], Any]]:
     }
 
 
+def _flood_once(make_model: Callable[[float], Any], count: int) -> float:
+    """CPU s of ``count`` flood datagrams sent and read by the model, on a fresh clock."""
+    from mcp_conform.harness.clock import VirtualClock
+    from mcp_conform.sim.transport import SimTransport
+    from mcp_conform.spec.generators import malformed_corpus
+
+    clock = VirtualClock()
+    t = SimTransport(clock)
+    t.bind(("127.0.0.1", 0))
+    corpus = [d for _, d in malformed_corpus(1, 20, dst=1, src=0, first_seq=100,
+                                              kinds=["bad_preamble", "unknown_action", "count_mismatch"])]
+    out: list[float] = []
+
+    def body() -> None:
+        t.attach(make_model(clock.now))
+        clock.sleep(0.5)  # the model started, its Mission_Ready sent
+        sock = t.side_socket("127.0.0.1")
+        target = t.model.addr
+        c0 = time.process_time()
+        many = getattr(sock, "sendto_many", None)
+        if many is not None:  # harness.driver.flood on a virtual clock
+            many(corpus, count, target)
+        else:  # its loop, as the simulated case ran it before sendto_many
+            for i in range(count):
+                sock.sendto(corpus[i % len(corpus)], target)
+        clock.sleep(0.01)  # every copy due and read
+        out.append(time.process_time() - c0)
+        sock.close()
+
+    clock.run(body)
+    return out[0]
+
+
+def flood(runs: int) -> None:
+    import random as _random
+
+    from mcp_conform.sim.models import DroneModel
+    from mcp_conform.sim.mutants import mutant_factory
+    from mcp_conform.sim.runner import run_cases
+    from mcp_conform.spec import SPEC
+
+    count = int(SPEC.params["flood_count"])
+    models = {"mutant ack-zero": lambda s: mutant_factory("ack-zero", rto=0.2, seed=s),
+              "reference drone": lambda s: (lambda now: DroneModel(1, 0.2, 3, _random.Random(s), ready_at=now + 0.05))}
+    print(f"flood of {count} datagrams through the sim transport (CPU us a datagram, median of {runs}) "
+          f"[{ROOT}]")
+    for name, make in models.items():
+        _flood_once(make(0), count)
+        per = [_flood_once(make(s), count) / count * 1e6 for s in range(1, runs + 1)]
+        print(f"  {name:16} {statistics.median(per):6.2f} us  (min {min(per):.2f})", flush=True)
+
+    def one(s: int) -> Any:
+        return run_cases(mutant_factory("ack-zero", rto=0.2, seed=s), seed=s, rto=0.2, mavlink=True,
+                         ack_window=0.25)
+
+    one(0)
+    res = {}
+    for fc in (count, 100):
+        SPEC.params["flood_count"] = fc
+        cpus = []
+        for s in range(1, runs + 1):
+            c0 = time.process_time()
+            one(s)
+            cpus.append(time.process_time() - c0)
+        res[fc] = statistics.median(cpus)
+    SPEC.params["flood_count"] = count
+    print(f"mutant run (ack-zero, mavlink): {res[count]:.3f} CPU s a run; at flood_count 100 {res[100]:.3f} s; "
+          f"the flood {(res[count] - res[100]) / (count - 100) * 1e6:.1f} us a datagram in a run")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--kinds", default="drone,drone-mavlink,mutant,manager,vehicle,gcs")
+    ap.add_argument("--src", default="", help="a checkout to import mcp_conform from (before/after)")
+    ap.add_argument("--flood", action="store_true", help="the per-datagram path: MCP-ROB-7's flood")
     a = ap.parse_args()
+    if a.flood:
+        flood(a.runs)
+        return
     kinds = _kinds()
     phases = _Phases()
     real_main = pytest.main

@@ -387,7 +387,14 @@ HELD_OVERHEAD = 256
 class DelayQueue(Generic[T]):
     """Copies held until they are due, in due order (ties: the order pushed), bounded:
     :meth:`push` refuses a copy past ``max_count`` copies or ``max_bytes`` bytes held and
-    counts it (``refused``, ``refused_bytes``); the caller records the drop."""
+    counts it (``refused``, ``refused_bytes``); the caller records the drop.
+
+    Held as two runs keyed ``(due, order pushed)``: a FIFO of the copies pushed in due order
+    (a clean or constant-delay link's every copy: an append and a popleft, not a heap's log n
+    compares of tuples -- the simulated MCP-ROB-7 flood holds 10,000 at one instant), kept as
+    parallel deques (due, order, cost, item: no tuple per copy for the garbage collector to
+    walk while it is held), and a heap of the others; :meth:`pop_due` takes the lesser key of
+    the two heads, so the order out is the one heap's it replaces."""
 
     def __init__(self, max_count: int = MAX_HELD, max_bytes: int = MAX_HELD_BYTES) -> None:
         if max_count < 1 or max_bytes < 1:
@@ -397,10 +404,15 @@ class DelayQueue(Generic[T]):
         self.peak_count = self.peak_bytes = 0
         self.refused = self.refused_bytes = 0
         self._heap: list[tuple[float, int, int, T]] = []
+        # the FIFO run, due (then order) ascending
+        self._due: deque[float] = deque()
+        self._ord: deque[int] = deque()
+        self._cost: deque[int] = deque()
+        self._item: deque[T] = deque()
         self._order = itertools.count()
 
     def __len__(self) -> int:
-        return len(self._heap)
+        return len(self._heap) + len(self._due)
 
     def cap_text(self) -> str:
         return f"{self.max_count} copies, {self.max_bytes / (1 << 20):g} MiB"
@@ -408,31 +420,60 @@ class DelayQueue(Generic[T]):
     def push(self, due: float, size: int, item: T) -> bool:
         """Hold ``item`` (a copy of ``size`` bytes) until ``due``; False: the queue is full."""
         cost = size + HELD_OVERHEAD
-        if len(self._heap) >= self.max_count or self.held_bytes + cost > self.max_bytes:
+        dues = self._due
+        count = len(self._heap) + len(dues)
+        held = self.held_bytes + cost
+        if count >= self.max_count or held > self.max_bytes:
             self.refused += 1
             self.refused_bytes += size
             return False
-        heapq.heappush(self._heap, (due, next(self._order), cost, item))
-        self.held_bytes += cost
-        self.peak_count = max(self.peak_count, len(self._heap))
-        self.peak_bytes = max(self.peak_bytes, self.held_bytes)
+        if not dues or dues[-1] <= due:  # in due order: the FIFO's tail (its order is the latest)
+            dues.append(due)
+            self._ord.append(next(self._order))
+            self._cost.append(cost)
+            self._item.append(item)
+        else:
+            heapq.heappush(self._heap, (due, next(self._order), cost, item))
+        self.held_bytes = held
+        count += 1
+        if count > self.peak_count:
+            self.peak_count = count
+        if held > self.peak_bytes:
+            self.peak_bytes = held
         return True
 
     def next_due(self) -> float | None:
-        return self._heap[0][0] if self._heap else None
+        heap, dues = self._heap, self._due
+        if heap:
+            return heap[0][0] if not dues or heap[0][0] <= dues[0] else dues[0]
+        return dues[0] if dues else None
 
     def pop_due(self, now: float) -> list[T]:
         """Every copy due by ``now``, in order."""
-        out = []
-        heap = self._heap
-        while heap and heap[0][0] <= now:
-            _, _, cost, item = heapq.heappop(heap)
-            self.held_bytes -= cost
-            out.append(item)
+        out: list[T] = []
+        heap, dues, ords, costs, items = self._heap, self._due, self._ord, self._cost, self._item
+        held = self.held_bytes
+        while dues or heap:
+            if dues and (not heap or dues[0] < heap[0][0] or (dues[0] == heap[0][0] and ords[0] < heap[0][1])):
+                if dues[0] > now:
+                    break
+                dues.popleft()
+                ords.popleft()
+                held -= costs.popleft()
+                out.append(items.popleft())
+            else:
+                if heap[0][0] > now:
+                    break
+                _, _, cost, item = heapq.heappop(heap)
+                held -= cost
+                out.append(item)
+        self.held_bytes = held
         return out
 
     def clear(self) -> None:
         self._heap.clear()
+        for run in (self._due, self._ord, self._cost, self._item):
+            run.clear()
         self.held_bytes = 0
 
 

@@ -286,10 +286,13 @@ class MissionScript:
                    lambda: pl.send(Action.START_MISSION, None, p), False),
                   ("WP_List from a drone", "MCP-ROB-5", lambda: pl.send(Action.WP_LIST, (), p), False)]
         head = build_datagram(MANAGER_ID, p, seq(), _READY, b"\x00\x01")
-        big = head + bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM - len(head)))
+        # bytes(rnd.getrandbits(8) for _ in range(n)), the same bytes and draws, ~30x cheaper
+        # (the top byte of each 32-bit draw: tests/sim/test_random_bytes.py)
+        big = head + rnd.getrandbits(32 * (MAX_DATAGRAM - len(head))).to_bytes(
+            4 * (MAX_DATAGRAM - len(head)), "little")[3::4]
         steps += [(f"{len(big)}-byte Mission_Ready", "MCP-ROB-6", raw(big), False),
                   (f"{MAX_DATAGRAM} random bytes", "MCP-ROB-6",
-                   raw(bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM))), False)]
+                   raw(rnd.getrandbits(32 * MAX_DATAGRAM).to_bytes(4 * MAX_DATAGRAM, "little")[3::4]), False)]
         for label, rule, make, expect in steps:
             if not self._input(label, rule, make(), p, expect_ack=expect):
                 return

@@ -261,7 +261,10 @@ class MutantDrone(DroneModel):
     # ------------------------------------------------------------------ sending
     def drain(self, now: float) -> list[tuple[bytes, Any, float]]:
         """What goes on the wire now: ``(bytes, addr or None, delay s)``, the fault applied."""
-        out = [(d, a, 0.0) for d, a in self.ep.datagrams_to_send(now)]
+        sends = self.ep.datagrams_to_send(now)
+        if not sends and not self._extra:
+            return []  # the common case (a flood's datagram dropped): no lists made
+        out = [(d, a, 0.0) for d, a in sends]
         out, self._extra = [*self._extra, *out], []
         return [self._rewrite(d, a, delay) for d, a, delay in out]
 

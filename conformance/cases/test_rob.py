@@ -21,6 +21,13 @@ from mcp_conform.spec.generators import malformed_corpus
 PER_KIND = 6
 
 
+def _random_bytes(rnd: random.Random, n: int) -> bytes:
+    """``bytes(rnd.getrandbits(8) for _ in range(n))``, the same bytes and ``rnd`` left in the
+    same state, ~30x cheaper: ``getrandbits(8)`` is the top byte of one 32-bit draw, and
+    ``getrandbits(32 * n)`` is n draws, the first lowest (tests/sim/test_random_bytes.py)."""
+    return rnd.getrandbits(32 * n).to_bytes(4 * n, "little")[3::4]
+
+
 def _corpus(node, *kinds: str) -> list[tuple[str, bytes]]:
     """Seeded entries addressed to the node, with seqs reserved from the runner's counter."""
     drv = node.driver
@@ -86,8 +93,8 @@ def test_datagrams_of_0_and_65507_bytes_are_survived(node):
     drv = node.driver
     rnd = random.Random(node.session.cfg.seed)
     head = build_datagram(node.target_id, drv.our_id, drv.next_seq(), int(Action.WP_LIST), b"\x00\x01")
-    big = head + bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM - len(head)))
-    junk = bytes(rnd.getrandbits(8) for _ in range(MAX_DATAGRAM))
+    big = head + _random_bytes(rnd, MAX_DATAGRAM - len(head))
+    junk = _random_bytes(rnd, MAX_DATAGRAM)
     attempts = node.try_inputs([("0 bytes", b"", "MCP-ROB-1"), (f"{len(big)}-byte WP_List", big),
                                 (f"{len(junk)} random bytes", junk)])
     node.expect_discarded(attempts, "MCP-ROB-6", died_rule="MCP-ROB-6", live_rule="MCP-ROB-6", silent=False)
