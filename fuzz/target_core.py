@@ -13,7 +13,13 @@ its own (its framing, its probe, its liveness oracle's rule).
   its evidence, its open descriptors;
 - :class:`SyncLink`: one TCP connection read in the fuzzer's own thread, its frames cut by the
   protocol's ``harness.link.Framing`` on ``harness.link.SocketEnd`` (a write bounded by its 2 s),
-  the traffic both ways kept for a finding's repro files;
+  the traffic both ways kept for a finding's repro files, and the synchronous case runner's
+  step (:meth:`SyncLink.exchange`: a case written with the protocol's probe right behind it,
+  read until the probe's answer);
+- :class:`LinkedTarget`: a target reached by one such link: its traffic, whether it is still
+  there, its last beat, the fuzzer's own keep-alive sent once a period;
+- :class:`SpareTarget`: a worker's target (``fuzz.loop.WorkerTarget``) with a spare started
+  ahead (``fuzz.spares``; none when attached), restarted on it after a death;
 - :func:`read_until`: several connections read until a predicate holds.
 
 The protocol and the role are the parameters (a framing, a subject, the placeholders), never a
