@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import random
 import sys
+import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -71,12 +73,14 @@ class CaseEngine:
     """A protocol's stateless engine (``fuzz.loop.Engine``): cases drawn from the worker's
     seeded stream (:meth:`draw`), each sent and judged at once (:meth:`send`: the hit its
     oracles saw, or None), counted by kind and message (:meth:`tried`), until the budget is
-    spent; a hit goes to triage (:meth:`triage_hit`), its time not fuzzing time."""
+    spent; a hit goes to triage (:meth:`triage_hit`), its time not fuzzing time. ``history``:
+    how many of the cases sent it keeps, each with its time (``sent``: a hit's suspects)."""
 
-    def __init__(self, triage: Any, seed: int, worker: int = 0) -> None:
+    def __init__(self, triage: Any, seed: int, worker: int = 0, history: int = 0) -> None:
         self.triage = triage
         self.stats = EngineStats()
         self.rng = random.Random(seed if not worker else hash((seed, worker)))
+        self.sent: deque[tuple[float, Any]] = deque(maxlen=history)
 
     def run(self, deadline: float, max_cases: int | None, tick: Callable[[EngineStats], None] | None,
             stop: Callable[[], bool]) -> EngineStats:
@@ -86,6 +90,8 @@ class CaseEngine:
             while not st.spent(deadline, max_cases, stop):
                 case = self.draw()
                 clock.case(*self.tried(case))
+                if self.sent.maxlen:
+                    self.sent.append((time.monotonic(), case))
                 hit = self.send(case)
                 if hit is not None:
                     with clock.triage():

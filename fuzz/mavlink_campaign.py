@@ -12,8 +12,6 @@ asked for it, ``fuzz.mavlink_cases.asks_heartbeat_stop``: 0, not replayed).
 
 from __future__ import annotations
 
-import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
@@ -45,9 +43,8 @@ class MavlinkEngine(CaseEngine):
     triage: MavTriage
 
     def __init__(self, target: MavTarget, triage: MavTriage, seed: int, worker: int = 0) -> None:
-        super().__init__(triage, seed, worker)
+        super().__init__(triage, seed, worker, history=5000)
         self.target, self.maker = target, CaseMaker(self.rng, target.info)
-        self.sent: deque[tuple[float, Case]] = deque(maxlen=5000)
 
     def draw(self) -> Case:
         return self.maker.draw()
@@ -56,7 +53,6 @@ class MavlinkEngine(CaseEngine):
         return case.kind, case.messages or ("-",)
 
     def send(self, case: Case) -> Hit | None:
-        self.sent.append((time.monotonic(), case))
         return self.target.current.run(case)
 
     def triage_hit(self, hit: Hit) -> None:

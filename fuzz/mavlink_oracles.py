@@ -6,21 +6,30 @@ a handshake) does not come before the probe's answer, nor within its bound
 (``command_ack_max_s`` / ``param_reply_max_s``), or one it must not get comes (an ACK for a
 command to another system, or of a frame with a bad checksum; a PARAM_VALUE naming a
 parameter that does not exist), or two final COMMAND_ACKs answer one command (MAV-CMD-3).
-The deaths (``crash``, ``hang``, ``unanswered``) are observed on the link by
-``fuzz.mavlink_vehicle``.
+The deaths are judged here too, over what ``fuzz.mavlink_vehicle`` observes on its link
+(:class:`Observed`): the probe behind a case unanswered within ``param_reply_max_s`` is a
+``crash`` (the process exited or the link closed), a ``hang`` (the vehicle's HEARTBEAT stopped
+for ``heartbeat_gap_max_s``: MAV-HB-1) or ``unanswered`` (it beats on and no longer answers:
+MAV-PRM-4 / MAV-HB-14), each named by the case's rule (:func:`lost`); a HEARTBEAT that stops
+while the vehicle answers is a ``hang`` too (:func:`lost`, :func:`silent`, :func:`beats_on`).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from functools import partial
+from typing import Any, Protocol
 
 from mcp_conform.fuzz.mavlink_cases import Case, D, Expect, name_key, raw_fields
+from mcp_conform.spec import MAVLINK
 
-__all__ = ["FINAL", "Hit", "Signature", "answers", "judge"]
+__all__ = ["FINAL", "Hit", "Observed", "Signature", "answers", "beats_on", "judge", "judge_case", "lost", "silent"]
 
 FINAL = frozenset(r for r in D.enums["MAV_RESULT"] if r != D.MAV_RESULT_IN_PROGRESS)
+REPLY_S = float(MAVLINK.params["param_reply_max_s"])
+GAP_S = float(MAVLINK.params["heartbeat_gap_max_s"])
 
 
 @dataclass(frozen=True)
@@ -48,6 +57,75 @@ class Hit:
     expected: str
     actual: str
     evidence: tuple[str, ...] = ()
+
+
+class Observed(Protocol):
+    """What the oracles of a vehicle's death read of it (``fuzz.mavlink_vehicle.MavVehicle``)."""
+
+    last_beat: float
+
+    @property
+    def probe_name(self) -> str: ...
+    def alive(self) -> bool: ...
+    def ending(self, grace: float = 0.0) -> tuple[str | None, tuple[str, ...]]: ...
+    def wait_beat(self, since: float) -> bool: ...
+    def probe_answered(self, timeout: float) -> bool: ...
+
+
+def _hang(rule: str, kind: str, actual: str) -> Hit:
+    return Hit(Signature("hang", rule, kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)", actual)
+
+
+def lost(v: Observed, case: Case, answered: bool = False) -> Hit | None:
+    """The probe behind ``case`` went unanswered (``answered``: it was, but the HEARTBEAT is
+    late): dead (``crash``), hung (``hang``), deaf (``unanswered``), or late only (None)."""
+    sent = time.monotonic()
+    what = f"after {case.describe()}"
+    if not v.alive() or (not answered and not v.wait_beat(sent)):
+        if not v.alive():
+            how, ev = v.ending(1.0)  # a closed link: the process's exit, when it is exiting
+            how = how or "the vehicle closed the link"
+            return Hit(Signature("crash", case.rule, case.kind), "the vehicle goes on", f"{how} {what}", ev)
+        return _hang(case.rule, case.kind, f"no HEARTBEAT for {time.monotonic() - v.last_beat:.1f} s {what}")
+    if answered:
+        if v.wait_beat(sent):
+            return None
+        return _hang(case.rule, case.kind,
+                     f"no HEARTBEAT for {time.monotonic() - v.last_beat:.1f} s {what} (it still answers)")
+    if v.probe_answered(0.0):
+        return None  # late, not lost (a loaded host)
+    return Hit(Signature("unanswered", case.rule, case.kind),
+               f"PARAM_REQUEST_READ of {v.probe_name} answered within {REPLY_S:g} s (MAV-PRM-4), as before the case",
+               f"no PARAM_VALUE {what}; its HEARTBEAT goes on")
+
+
+def silent(v: Observed, since: float) -> Hit | None:
+    """After a replay: a HEARTBEAT after ``since`` (nothing), or the gap past its bound (MAV-HB-1)."""
+    if v.wait_beat(since):
+        return None
+    return _hang("MAV-HB-1", "", f"no HEARTBEAT for {time.monotonic() - v.last_beat:.1f} s after the replay")
+
+
+def beats_on(v: Observed) -> Hit | None:
+    """With nothing sent (the baseline of a stopped heartbeat; what the link held read
+    first): the next two HEARTBEATs each within ``heartbeat_gap_max_s``, or a hang."""
+    for which in ("first", "second"):
+        t0 = v.last_beat = time.monotonic()
+        if not v.wait_beat(t0):
+            return _hang("MAV-HB-1", "", f"no {which} HEARTBEAT within {GAP_S:g} s with nothing sent")
+    return None
+
+
+def judge_case(case: Case, frames: list[Any], late: Callable[[Expect, float], bool],
+               late_s: Callable[[Expect], float]) -> Hit | None:
+    """Each expectation of ``case`` judged over the vehicle's ``frames`` before the probe's
+    answer (:func:`judge`): the first broken, or None; an answer missing there may come
+    ``late(e, late_s(e))``."""
+    for e in case.expect:
+        hit = judge(case, e, frames, partial(late, e, late_s(e)), late_s(e))
+        if hit is not None:
+            return hit
+    return None
 
 
 def answers(e: Expect, frames: list[Any]) -> list[Any]:

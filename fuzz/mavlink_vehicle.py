@@ -5,10 +5,11 @@ A :class:`MavVehicle` is one vehicle process (spawned with ``--spawn CMD``, ``{t
 ``mcp-vehicle``, when neither ``--spawn`` nor ``--target`` is given) or one reached at
 ``--target tcp:HOST:PORT``, and the fuzzer's TCP link to it, read synchronously: the fuzzer is
 its ground station (system 255, MAV_COMP_ID_MISSIONPLANNER, a HEARTBEAT a second: MAV-HB-2).
-The process, its end and the link read synchronously are the shared core's
-(``fuzz.target_core``: ``ProcessTarget``, ``SyncLink``); MAVLink declares its framing
-(``harness.mavlink_session.MavlinkFraming``), its ``{mavlink}`` placeholder and its beat (the
-vehicle's HEARTBEAT, bounded by MAV-HB-1).
+The process, its end, the link read synchronously, the fuzzer's own keep-alive, the case
+runner and the worker's spare are the shared core's (``fuzz.target_core``: ``LinkedTarget``,
+``SyncLink.exchange``, ``SpareTarget``); MAVLink declares its framing
+(``harness.mavlink_session.MavlinkFraming``), its ``{mavlink}`` placeholder, its beat (the
+vehicle's HEARTBEAT, bounded by MAV-HB-1) and its probe.
 
 Each case (``fuzz.mavlink_cases.Case``) is written with the probe right behind it: a
 PARAM_REQUEST_READ by name of a parameter no case touches, which the vehicle answers with a
@@ -19,10 +20,10 @@ frames before the probe's answer are the case's answers, and the oracles judge t
   exited, or closed the link: ``crash``), its HEARTBEAT stopped for ``heartbeat_gap_max_s``
   (``hang``, MAV-HB-1's bound), or it beats on but no longer answers (``unanswered``; MAV-HB-14
   after a malformed frame: "the next good frame is handled"); each named by the case's rule;
-- its HEARTBEAT stops while it still answers (``hang``);
+- its HEARTBEAT stops while it still answers (``hang``) (``fuzz.mavlink_oracles.lost``);
 - an answer the case must get does not come, one it must not get comes, or two final
   COMMAND_ACKs answer one command: ``answer``, named by the expectation's rule
-  (``fuzz.mavlink_oracles.judge``).
+  (``fuzz.mavlink_oracles.judge_case``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.fuzz.loop import WorkerTarget
+from mcp_conform.fuzz import mavlink_oracles as oracles
 from mcp_conform.fuzz.mavlink_cases import (
     GCS_COMPID,
     GCS_SYSID,
@@ -42,9 +43,8 @@ from mcp_conform.fuzz.mavlink_cases import (
     name_key,
     raw_fields,
 )
-from mcp_conform.fuzz.mavlink_oracles import Hit, Signature, answers, judge
-from mcp_conform.fuzz.spares import Spares
-from mcp_conform.fuzz.target_core import ProcessTarget, SyncLink, TargetSpec
+from mcp_conform.fuzz.mavlink_oracles import Hit, Signature
+from mcp_conform.fuzz.target_core import LinkedTarget, SpareTarget, SyncLink, TargetSpec
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.mavlink_session import MavlinkFraming, embedded_command, parse_address
 from mcp_conform.spec import MAVLINK
@@ -76,9 +76,9 @@ class VehicleSpec(TargetSpec):
         return cls(spawn or embedded_command("tcp"), None)
 
 
-class MavVehicle(ProcessTarget):
+class MavVehicle(LinkedTarget):
     """One vehicle and the fuzzer's link to it (see the module's docstring): the shared
-    core's process and link (``fuzz.target_core``), MAVLink's framing on it."""
+    core's process and link (``fuzz.target_core.LinkedTarget``), MAVLink's framing on it."""
 
     subject = "the vehicle"
 
@@ -90,11 +90,9 @@ class MavVehicle(ProcessTarget):
         #: then confirmed, or not, by replays that wait the whole bound)
         self.late = late
         self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
-        self.gcs_beat = 0.0
         sock = self.open(how, lambda host, port: {"mavlink": f"tcp:{host}:{port}"})
         self.link = SyncLink(sock, MavlinkFraming(), traffic=log,
                              beat=lambda r: r.name == "HEARTBEAT" and self._from_vehicle(r.msg))
-        self.frames = self.link.frames
         self._beat()
         hb = self._until(lambda f: f.get_type() == "HEARTBEAT", 10.0)
         if hb is None:
@@ -105,28 +103,6 @@ class MavVehicle(ProcessTarget):
         if info is None:
             info = self._learn(hb.get_srcSystem(), hb.get_srcComponent())
         self.info = info
-
-    @property
-    def log(self) -> list[Any] | None:
-        """The traffic both ways, for a finding's repro files (None: not kept)."""
-        return self.link.traffic
-
-    @log.setter
-    def log(self, log: list[Any] | None) -> None:
-        self.link.traffic = log
-
-    @property
-    def closed(self) -> bool:
-        return self.link.closed
-
-    @property
-    def last_beat(self) -> float:
-        """The vehicle's last HEARTBEAT (time.monotonic)."""
-        return self.link.last_beat
-
-    @last_beat.setter
-    def last_beat(self, t: float) -> None:
-        self.link.last_beat = t
 
     def _learn(self, sysid: int, compid: int) -> Vehicle:
         """The vehicle's IDs and parameter list (PARAM_REQUEST_LIST, read for at most LIST_S);
@@ -151,30 +127,16 @@ class MavVehicle(ProcessTarget):
         v.probe = min(v.params, key=lambda n: v.params[n][0])
         return v
 
-    def close(self) -> None:
-        if hasattr(self, "link"):
-            self.link.close()
-        self.stop()
-
-    def alive(self) -> bool:
-        return not self.closed and self.process_alive()
-
     # -- the link -----------------------------------------------------------------------------
     def _pack(self, msg: Any) -> bytes:
         data = bytes(msg.pack(self.enc))
         self.enc.seq = (self.enc.seq + 1) % 256
         return data
 
-    def send(self, data: bytes) -> None:
-        self.link.send(data)
-
     def _beat(self) -> None:
-        """The fuzzer's own HEARTBEAT, as a ground station's, once a second."""
-        now = time.monotonic()
-        if now - self.gcs_beat >= BEAT_S:
-            self.gcs_beat = now
-            self.send(self._pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
-                                                             D.MAV_STATE_ACTIVE, 3)))
+        """The fuzzer's own HEARTBEAT, as a ground station's, once a second (MAV-HB-2)."""
+        self.keepalive(BEAT_S, lambda: self._pack(D.MAVLink_heartbeat_message(
+            D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0, D.MAV_STATE_ACTIVE, 3)))
 
     def _from_vehicle(self, m: Any) -> bool:
         info = getattr(self, "info", None)
@@ -186,108 +148,69 @@ class MavVehicle(ProcessTarget):
         r = self.link.until(lambda r: pred(r.msg), timeout, start)
         return r.msg if r is not None else None
 
+    # -- what the oracles read (``fuzz.mavlink_oracles.Observed``) ----------------------------
+    @property
+    def probe_name(self) -> str:
+        return self.info.probe.decode(errors="replace")
+
+    def wait_beat(self, since: float) -> bool:
+        """Whether a HEARTBEAT comes after ``since`` before the gap since the last one passes
+        ``heartbeat_gap_max_s``."""
+        return self.link.wait_beat(since, GAP_S)
+
+    def probe_answered(self, timeout: float) -> bool:
+        return self._until(self._is_probe_answer, timeout) is not None
+
     # -- a case --------------------------------------------------------------------------------
     def _is_probe_answer(self, m: Any) -> bool:
         return m.get_type() == "PARAM_VALUE" and self._from_vehicle(m) and \
             name_key(raw_fields(m)["param_id"]) == self.info.probe
 
-    def run(self, case: Case) -> Hit | None:
-        """Send ``case`` and the probe; judge what came (see the module's docstring)."""
+    def _exchange(self, cases: bytes, timeout: float) -> int | None:
+        """``cases`` and the probe written (``SyncLink.exchange``); the probe's answer's index."""
         self._beat()
-        self.frames.clear()
         probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
                                                                 self.info.probe, -1))
-        self.send(case.wire() + probe)
-        answer = self._until(self._is_probe_answer, REPLY_S)
-        if answer is None:
-            return self._lost(case)
-        upto = next(i for i, r in enumerate(self.frames) if r.msg is answer)
-        hit = self._judge(case, upto)
+        return self.link.exchange(cases + probe, lambda r: self._is_probe_answer(r.msg), timeout)
+
+    def run(self, case: Case) -> Hit | None:
+        """Send ``case`` and the probe; judge what came (see the module's docstring)."""
+        upto = self._exchange(case.wire(), REPLY_S)
+        if upto is None:
+            return oracles.lost(self, case)
+        hit = oracles.judge_case(case, [r.msg for r in self.frames[:upto] if self._from_vehicle(r.msg)],
+                         lambda e, wait: self._until(lambda m: self._from_vehicle(m) and bool(oracles.answers(e, [m])), wait,
+                                                     start=upto + 1) is not None, self._late)
         if hit is None and time.monotonic() - self.last_beat > GAP_S:
-            hit = self._lost(case, answered=True)
+            hit = oracles.lost(self, case, answered=True)
         del self.frames[:upto + 1]
         return hit
 
     def run_all(self, cases: list[Case]) -> bool:
         """Send ``cases`` back to back, then the probe (a stopped heartbeat's replays: no answer
         is judged, and thousands of suspects take one write); whether the probe was answered."""
-        self._beat()
-        self.frames.clear()
-        probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
-                                                                self.info.probe, -1))
-        self.send(b"".join(c.wire() for c in cases) + probe)
-        answered = self._until(self._is_probe_answer, REPLY_S + 0.002 * len(cases)) is not None
+        answered = self._exchange(b"".join(c.wire() for c in cases), REPLY_S + 0.002 * len(cases)) is not None
         self.frames.clear()
         return answered
 
-    def _lost(self, case: Case, answered: bool = False) -> Hit | None:
-        """The probe went unanswered (or the heartbeat is late): dead, hung, deaf, or late only."""
-        sent = time.monotonic()
-        what = f"after {case.describe()}"
-        if not self.alive() or (not answered and not self._wait_beat(sent)):
-            if not self.alive():
-                how, ev = self.ending(1.0)  # a closed link: the process's exit, when it is exiting
-                how = how or "the vehicle closed the link"
-                return Hit(Signature("crash", case.rule, case.kind), "the vehicle goes on", f"{how} {what}", ev)
-            return Hit(Signature("hang", case.rule, case.kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
-                       f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s {what}")
-        if answered:
-            if self._wait_beat(sent):
-                return None
-            return Hit(Signature("hang", case.rule, case.kind), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
-                       f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s {what} (it still answers)")
-        if self._until(self._is_probe_answer, 0.0) is not None:
-            return None  # late, not lost (a loaded host)
-        return Hit(Signature("unanswered", case.rule, case.kind),
-                   f"PARAM_REQUEST_READ of {self.info.probe.decode(errors='replace')} answered within {REPLY_S:g} s "
-                   "(MAV-PRM-4), as before the case", f"no PARAM_VALUE {what}; its HEARTBEAT goes on")
-
-    def _wait_beat(self, since: float) -> bool:
-        """Whether a HEARTBEAT comes after ``since`` before the gap since the last one passes
-        ``heartbeat_gap_max_s``."""
-        return self.link.wait_beat(since, GAP_S)
-
     def watch(self, since: float) -> Hit | None:
-        """After a replay: a HEARTBEAT after ``since`` (nothing), or the gap past its bound."""
-        if self._wait_beat(since):
-            return None
-        return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
-                   f"no HEARTBEAT for {time.monotonic() - self.last_beat:.1f} s after the replay")
+        """After a replay: a HEARTBEAT after ``since`` (nothing), or a hang (``fuzz.mavlink_oracles.silent``)."""
+        return oracles.silent(self, since)
 
     def beats_on(self) -> Hit | None:
-        """With nothing sent (the baseline of a stopped heartbeat): what the link holds read
-        first, then the next two HEARTBEATs each within ``heartbeat_gap_max_s``, or a hang."""
+        """With nothing sent: what the link holds read, then ``fuzz.mavlink_oracles.beats_on``."""
         self.link.drain()
-        for which in ("first", "second"):
-            t0 = self.last_beat = time.monotonic()
-            if not self._wait_beat(t0):
-                return Hit(Signature("hang", "MAV-HB-1", ""), f"a HEARTBEAT at least every {GAP_S:g} s (MAV-HB-1)",
-                           f"no {which} HEARTBEAT within {GAP_S:g} s with nothing sent")
-        return None
-
-    def _judge(self, case: Case, upto: int) -> Hit | None:
-        for e in case.expect:
-            hit = self._expect(case, e, upto)
-            if hit is not None:
-                return hit
-        return None
+        return oracles.beats_on(self)
 
     def _late(self, e: Expect) -> float:
         return self.late if self.late is not None else ACK_S if e.what == "ack" else REPLY_S
 
-    def _expect(self, case: Case, e: Expect, upto: int) -> Hit | None:
-        """``e`` judged over the vehicle's frames before the probe's answer (``upto``); an
-        answer missing there waited for up to :meth:`_late` (``fuzz.mavlink_oracles.judge``)."""
-        def late() -> bool:
-            return self._until(lambda m: self._from_vehicle(m) and bool(answers(e, [m])), self._late(e),
-                               start=upto + 1) is not None
-        return judge(case, e, [r.msg for r in self.frames[:upto] if self._from_vehicle(r.msg)], late, self._late(e))
 
-
-class MavTarget(WorkerTarget):
-    """A worker's vehicle as the loop sees a target (``fuzz.loop.Target``; the profile's
-    ``fuzz_target`` of the vehicle role): the one now fuzzed (``current``: a death replaces
-    it), its restarts counted by reason."""
+class MavTarget(SpareTarget):
+    """A worker's vehicle as the loop sees a target (``fuzz.target_core.SpareTarget``; the
+    profile's ``fuzz_target`` of the vehicle role): the one now fuzzed (``current``: a death
+    replaces it), a spare started ahead, each built for the first one's cases (its IDs,
+    parameters and probe); the campaign's own waits ``LATE_S`` for a late answer."""
 
     #: the engines that fuzz a vehicle (``fuzz.config.engines``): its cases are frames and
     #: handshakes, each judged by the probe behind it
@@ -297,27 +220,11 @@ class MavTarget(WorkerTarget):
 
     def __init__(self, how: VehicleSpec) -> None:
         self.how = how
-        super().__init__(MavVehicle(how, late=LATE_S), attached=how.target is not None)
-        self.info = self.current.info
-        self.spares: Spares[MavVehicle] = Spares(lambda: MavVehicle(self.how, self.info), MavVehicle.close,
-                                                 n=0 if self.attached else 1, timeout=30.0)
+        first = MavVehicle(how, late=LATE_S)
+        self.info = first.info
+        super().__init__(first, lambda log: MavVehicle(self.how, self.info, log), MavVehicle.close,
+                         attached=how.target is not None)
 
-    def fresh(self, log: list[Any] | None = None) -> MavVehicle:
-        """Another vehicle (spawned: a new process; attached: a new link), built for the same
-        cases (the first one's IDs, parameters and probe). Spawned, it is the spare started in
-        the background at the previous call (a replay then waits for no process to start),
-        and the next spare is started."""
-        v = self.spares.next(lambda: MavVehicle(self.how, self.info, log))
-        v.log = log
+    def adopt(self, v: MavVehicle) -> MavVehicle:
+        v.late = LATE_S
         return v
-
-    def restart(self, reason: str) -> MavVehicle:
-        self.current.close()
-        self.current = self.fresh()
-        self.current.late = LATE_S
-        self.count_restart(reason)
-        return self.current
-
-    def close(self) -> None:
-        self.current.close()
-        self.spares.discard()

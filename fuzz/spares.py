@@ -1,9 +1,10 @@
 """Targets started ahead (issue 36 item 5): a fresh target for triage's next replay, or for the
 campaign to go on with after a death, started in the background while the current one is
 fuzzed or replayed, so that neither waits for a process to start (a real backend takes
-1.2-1.4 s). Every protocol's target keeps its spares so (MAVLink's ``fuzz.mavlink_vehicle``,
-Nsqd's ``fuzz.nsqd_backend``): the protocol declares how one starts, closes and (if it can
-tell) whether it is still alive.
+1.2-1.4 s). Every protocol's target keeps its spares so (a worker's target of
+``fuzz.target_core.SpareTarget``, MAVLink's vehicle; Nsqd's ``fuzz.nsqd_backend``, which hands
+its spares on from one backend to the next): the protocol declares how one starts, closes and
+(if it can tell) whether it is still alive.
 
 A target keeps its spares in :class:`Spares`: :meth:`Spares.next` hands on the first ready one
 (or starts one then, when none is: its start's own error is then the caller's) and starts the

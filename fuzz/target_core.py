@@ -13,7 +13,13 @@ its own (its framing, its probe, its liveness oracle's rule).
   its evidence, its open descriptors;
 - :class:`SyncLink`: one TCP connection read in the fuzzer's own thread, its frames cut by the
   protocol's ``harness.link.Framing`` on ``harness.link.SocketEnd`` (a write bounded by its 2 s),
-  the traffic both ways kept for a finding's repro files;
+  the traffic both ways kept for a finding's repro files, and the synchronous case runner's
+  step (:meth:`SyncLink.exchange`: a case written with the protocol's probe right behind it,
+  read until the probe's answer);
+- :class:`LinkedTarget`: a target reached by one such link: its traffic, whether it is still
+  there, its last beat, the fuzzer's own keep-alive sent once a period;
+- :class:`SpareTarget`: a worker's target (``fuzz.loop.WorkerTarget``) with a spare started
+  ahead (``fuzz.spares``; none when attached), restarted on it after a death;
 - :func:`read_until`: several connections read until a predicate holds.
 
 The protocol and the role are the parameters (a framing, a subject, the placeholders), never a
@@ -31,6 +37,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from mcp_conform.fuzz.loop import WorkerTarget
+from mcp_conform.fuzz.spares import Spares
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.link import Framing, SocketEnd
 from mcp_conform.harness.procs import ManagedProcess
@@ -42,7 +50,8 @@ from mcp_conform.harness.session_base import (
     free_port,
 )
 
-__all__ = ["HOST", "ProcessTarget", "SyncLink", "TargetSpec", "connect_when_listening", "read_until"]
+__all__ = ["HOST", "LinkedTarget", "ProcessTarget", "SpareTarget", "SyncLink", "TargetSpec", "connect_when_listening",
+           "read_until"]
 
 HOST = "127.0.0.1"
 #: how long a spawned (or attached) target is given to accept the fuzzer's connection
@@ -245,18 +254,31 @@ class SyncLink:
     def until(self, pred: Callable[[Any], bool], timeout: float, start: int = 0) -> Any:
         """The first frame from ``start`` on that ``pred`` holds for, read for up to ``timeout``
         s (None: none came, or the link closed)."""
+        i = self.index_until(pred, timeout, start)
+        return self.frames[i] if i is not None else None
+
+    def index_until(self, pred: Callable[[Any], bool], timeout: float, start: int = 0) -> int | None:
+        """:meth:`until`'s frame's index in :attr:`frames` (None: none came, or the link closed)."""
         end = time.monotonic() + timeout
         i = start
         while True:
             while i < len(self.frames):
-                r = self.frames[i]
                 i += 1
-                if pred(r):
-                    return r
+                if pred(self.frames[i - 1]):
+                    return i - 1
             left = end - time.monotonic()
             if left <= 0 or self.closed:
                 return None
             self.pump(min(left, 0.1))
+
+    def exchange(self, data: bytes, answered: Callable[[Any], bool], timeout: float) -> int | None:
+        """The synchronous case runner's step: what the link held dropped, ``data`` (a case
+        with the probe right behind it) written, then read until the probe's answer
+        (``answered``), for up to ``timeout`` s; its index in :attr:`frames` (a target handles a
+        link's frames in order: the frames before it answer the case), None: no answer."""
+        self.frames.clear()
+        self.send(data)
+        return self.index_until(answered, timeout)
 
     def wait_beat(self, since: float, gap: float) -> bool:
         """Whether a beat comes after ``since`` before ``gap`` s have passed since the last one."""
@@ -270,6 +292,95 @@ class SyncLink:
     def close(self) -> None:
         with contextlib.suppress(OSError):
             self.end.close()
+
+
+class LinkedTarget(ProcessTarget):
+    """A :class:`ProcessTarget` the fuzzer reaches by one :class:`SyncLink` (``link``): the
+    traffic it keeps, whether the target is still there (its process runs, the link is
+    open), the target's last beat, the fuzzer's own keep-alive, and its end."""
+
+    link: SyncLink
+    _keepalive_at = 0.0
+
+    @property
+    def log(self) -> list[Any] | None:
+        """The traffic both ways, for a finding's repro files (None: not kept)."""
+        return self.link.traffic
+
+    @log.setter
+    def log(self, log: list[Any] | None) -> None:
+        self.link.traffic = log
+
+    @property
+    def closed(self) -> bool:
+        return self.link.closed
+
+    @property
+    def frames(self) -> list[Any]:
+        return self.link.frames
+
+    @property
+    def last_beat(self) -> float:
+        """The target's last beat (time.monotonic)."""
+        return self.link.last_beat
+
+    @last_beat.setter
+    def last_beat(self, t: float) -> None:
+        self.link.last_beat = t
+
+    def send(self, data: bytes) -> None:
+        self.link.send(data)
+
+    def keepalive(self, period: float, frame: Callable[[], bytes]) -> None:
+        """The fuzzer's own periodic frame (``frame()``), sent when ``period`` s have passed
+        since the last one (at a case's start: a peer that bounds the gap between ours)."""
+        now = time.monotonic()
+        if now - self._keepalive_at >= period:
+            self._keepalive_at = now
+            self.send(frame())
+
+    def alive(self) -> bool:
+        return not self.closed and self.process_alive()
+
+    def close(self) -> None:
+        if hasattr(self, "link"):
+            self.link.close()
+        self.stop()
+
+
+class SpareTarget(WorkerTarget):
+    """A worker's target (``fuzz.loop.WorkerTarget``) kept with a spare started in the
+    background (``fuzz.spares``; none when attached): ``make(log)`` starts another like the
+    first (spawned: a new process; attached: a new link), its traffic to ``log``; the one now
+    fuzzed (``current``) is replaced after a death (:meth:`restart`), made the campaign's own
+    by :meth:`adopt`."""
+
+    def __init__(self, first: Any, make: Callable[[list[Any] | None], Any], close: Callable[[Any], None], *,
+                 attached: bool, timeout: float = 30.0) -> None:
+        super().__init__(first, attached=attached)
+        self.make = make
+        self.spares: Spares[Any] = Spares(lambda: make(None), close, n=0 if attached else 1, timeout=timeout)
+
+    def fresh(self, log: list[Any] | None = None) -> Any:
+        """Another target, the spare started in the background at the previous call (a
+        replay then waits for no process to start), and the next spare started."""
+        t = self.spares.next(lambda: self.make(log))
+        t.log = log
+        return t
+
+    def adopt(self, t: Any) -> Any:
+        """``t`` made the one the campaign fuzzes (nothing to do, unless the protocol says)."""
+        return t
+
+    def restart(self, reason: str) -> Any:
+        self.current.close()
+        self.current = self.adopt(self.fresh())
+        self.count_restart(reason)
+        return self.current
+
+    def close(self) -> None:
+        self.current.close()
+        self.spares.discard()
 
 
 def read_until(conns: list[Any], pred: Callable[..., bool], timeout: float) -> bool:

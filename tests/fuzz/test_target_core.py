@@ -131,3 +131,99 @@ def test_a_target_that_resets_the_connection_at_once_ends_the_link():
         assert link.until(lambda r: True, 2.0) is None and link.closed
     finally:
         link.close()
+
+
+def test_the_case_runner_drops_what_was_held_writes_the_case_and_its_probe_and_reads_to_its_answer():
+    """``SyncLink.exchange``: what the link held before is dropped; the case and its probe go
+    out in one write; the answer's index counts only the frames after that write (the case's
+    answers before it, what came after it not yet read); no answer: None, within the bound."""
+    client, peer = _pair()
+    link = SyncLink(client, MavlinkFraming())
+    try:
+        peer.sendall(_heartbeat(0))
+        assert link.until(lambda r: True, 2.0) is not None and len(link.frames) == 1
+        answered = lambda r: r.name == "PARAM_VALUE"  # noqa: E731
+        case_and_probe = b"case" + _frame(DIALECT.MAVLink_param_request_read_message(1, 1, b"X", -1))
+
+        def serve() -> None:
+            peer.settimeout(2.0)
+            got = b""
+            while len(got) < len(case_and_probe):
+                got += peer.recv(1000)
+            assert got == case_and_probe
+            peer.sendall(_heartbeat(1) + _heartbeat(2)
+                         + _frame(DIALECT.MAVLink_param_value_message(b"X", 1.0, 9, 1, 0), 3) + _heartbeat(4))
+
+        threading.Thread(target=serve).start()
+        i = link.exchange(case_and_probe, answered, 2.0)
+        assert i == 2 and [r.name for r in link.frames[:3]] == ["HEARTBEAT", "HEARTBEAT", "PARAM_VALUE"]
+        t0 = time.monotonic()
+        assert link.exchange(b"again", answered, 0.3) is None and 0.25 <= time.monotonic() - t0 < 1.0
+        assert all(r.name == "HEARTBEAT" for r in link.frames)  # the answer of before was dropped
+    finally:
+        link.close()
+        peer.close()
+
+
+class _Fake:
+    """A target as ``SpareTarget`` makes one: started, closed, its traffic kept."""
+
+    made: list[_Fake] = []
+
+    def __init__(self, log: list | None = None) -> None:
+        self.log, self.closed, self.late = log, False, None
+        _Fake.made.append(self)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_a_worker_target_restarts_on_its_spare_counts_why_and_keeps_none_when_attached():
+    from mcp_conform.fuzz.target_core import SpareTarget
+
+    class Own(SpareTarget):
+        def adopt(self, t):
+            t.late = 0.1  # the campaign's own, told apart from a replay's
+            return t
+
+    _Fake.made = []
+    t = Own(_Fake(), _Fake, _Fake.close, attached=False)
+    first = t.current
+    log: list = []
+    replay = t.fresh(log)  # no spare yet: one made now, with the log, and a spare started
+    assert replay.log is log and replay.late is None and len(t.spares.queue) == 1
+    again = t.restart("after a hit")
+    assert first.closed and again is t.current and again.late == 0.1 and again.log is None
+    assert again is not replay and t.restarts == 1 and t.restart_reasons == {"after a hit": 1}
+    t.close()
+    assert again.closed and t.spares.queue == []
+    attached = Own(_Fake(), _Fake, _Fake.close, attached=True)
+    attached.fresh()
+    assert attached.spares.queue == []  # a target reached at an address has no spare
+    attached.close()
+
+
+def test_a_linked_target_sends_its_keepalive_once_a_period_and_tells_a_closed_link_dead():
+    from mcp_conform.fuzz.target_core import LinkedTarget
+
+    client, peer = _pair()
+    t = LinkedTarget()
+    t.link = SyncLink(client, MavlinkFraming())
+    try:
+        sent: list[int] = []
+        for _ in range(3):
+            t.keepalive(0.2, lambda: (sent.append(1), _heartbeat(0))[1])
+        assert len(sent) == 1 and t.alive()
+        time.sleep(0.25)
+        t.keepalive(0.2, lambda: (sent.append(1), _heartbeat(1))[1])
+        peer.settimeout(2.0)
+        got = b""
+        while len(got) < 2 * len(_heartbeat(0)):
+            got += peer.recv(1000)
+        assert len(sent) == 2 and got == _heartbeat(0) + _heartbeat(1)
+        peer.close()
+        t.link.drain()
+        assert t.closed and not t.alive()
+    finally:
+        t.close()
+
