@@ -25,14 +25,13 @@ Mission Planner), read by ``traceio.mavlink``.
 
 from __future__ import annotations
 
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 from mcp_conform.captures import trace_tools as core
 from mcp_conform.captures.trace_tools import Checked
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
-from mcp_conform.judge.verdicts import Found, of_mavlink
+from mcp_conform.judge.verdicts import of_mavlink
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame, MavTrace, is_mavlink_capture, open_trace
 from mcp_conform.traceio.reader import CaptureError
@@ -48,9 +47,8 @@ CONVERSATION = frozenset(m.name for m in MAVLINK.messages) - {"HEARTBEAT", "MISS
 _NOT_COMPARED = {"mavpackettype", "target_system", "target_component"}
 
 
-def is_capture(path: str | Path) -> bool:
-    """MAVLink's ``capture_detect``: a tlog, or our MCAP of a MAVLink run."""
-    return is_mavlink_capture(path)
+#: MAVLink's ``capture_detect``: a tlog, or our MCAP of a MAVLink run
+is_capture = is_mavlink_capture
 
 
 Judged = core.Judged
@@ -88,12 +86,6 @@ def _node_line(n: dict[str, Any]) -> str:
     return f"  {n['id']} {n['role'] or '?'}{what} {n['frames']} frame(s), {n['heartbeats']} HEARTBEAT(s)"
 
 
-def _violation_line(j: Judged, v: Found) -> str:
-    case = j.case_at(v.t_ns)
-    return (f"node {v.node} ({dict(v.more)['role']}) at +{(v.t_ns - j.first_ns) / 1e9:.6f}s"
-            f"{f' in {case}' if case else ''}: expected {v.expected}; actual {v.actual}")
-
-
 class _Mavlink(core.CapturePlugin):
     name, spec, a_capture, html_instead, EXPORTED = "mavlink", MAVLINK, "a MAVLink trace", "use --json", "frames"
     unchartered = "is not drawn for a MAVLink trace"
@@ -118,8 +110,9 @@ class _Mavlink(core.CapturePlugin):
                             {"path": j.path, "format": j.format, "truncated": j.truncated, "notes": notes,
                              "unattributed": mon.unattributed_bad, "duration_s": round(seconds, 9)},
                             {"complete": mon.complete, "roles": list(mon.roles)}, nodes, first_ns=j.first_ns,
-                            own={"frames": j.count, "failed_count": v.counts}, line=partial(_violation_line, j),
-                            more=lambda f: {"case": j.case_at(f.t_ns)})
+                            own={"frames": j.count, "failed_count": v.counts}, more=lambda f: {"case": j.case_at(f.t_ns)},
+                            line=lambda f: core.found_line(f"node {f.node} ({dict(f.more)['role']})", f, j.first_ns,
+                                                           j.case_at(f.t_ns)))
 
     def judged(self, path: str, *, keep: bool = False) -> Judged:
         return judge_trace(path, keep=keep)

@@ -103,8 +103,7 @@ class StreamPlugin(core.CapturePlugin):
             b["frames"] += c["rx"]
 
         def line(f: Found) -> str:
-            return (f"conn {dict(f.more)['conn']} at +{(f.t_ns - (seen.first_ns or f.t_ns)) / 1e9:.6f}s: expected "
-                    f"{f.expected}; actual {f.actual}")
+            return core.found_line(f"conn {dict(f.more)['conn']}", f, seen.first_ns or f.t_ns)
         return core.checked(
             self, ns, v, [f"{ns.file}: {self.title}, {seen.n_conns} connection(s)"],
             {"path": str(ns.file), "format": seen.format, "truncated": seen.truncated, "notes": notes,

@@ -46,7 +46,7 @@ from mcp_conform.traceio.grammar import write_text
 from mcp_conform.traceio.reader import CaptureError, CaseMark, Truncated
 
 __all__ = ["EXAMPLES", "CapturePlugin", "Checked", "Compared", "Judged", "RuleBlock", "align", "case_at", "case_window", "checked",
-           "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames", "strict",
+           "found_line", "judge_records", "not_exported", "not_replayed", "note", "run_check", "run_diff", "selection", "show_frames", "strict",
            "window"]
 
 
@@ -187,6 +187,14 @@ def checked(plugin: CapturePlugin, ns: Any, v: Verdicts, first: list[str], file:
     doc = document(v, plugin.spec, file, {"select": list(selection(ns)), "strict": strict(ns), **parameters}, nodes,
                    [{**violation_json(f, plugin.spec, first_ns), **more(f)} for f in v.found], own)
     return Checked(head, blocks, v, doc, list(tail))
+
+
+def found_line(who: str, f: Found, first_ns: int, case: str | None = None) -> str:
+    """A violation's line in the terminal report: ``who`` broke it (a node, a connection), when
+    (seconds since the capture's first record, ``first_ns``), in which ``case`` of a run's
+    capture, what was expected and what was seen."""
+    return (f"{who} at +{(f.t_ns - first_ns) / 1e9:.6f}s{f' in {case}' if case else ''}: expected {f.expected}; "
+            f"actual {f.actual}")
 
 
 def strict(ns: Any) -> bool:

@@ -98,9 +98,10 @@ class PlayedPeerCaseBase(LinkCaseBase):
             raise Inconclusive(f"no link to {self.subject}")
         return self.session.link
 
-    def run(self, behaviour: Any) -> None:
-        """The peer's run against a played node that behaves so (see the session)."""
-        self.since = self.session.run(behaviour)
+    def run(self, behaviour: Any = None) -> None:
+        """The peer's run against a played node that behaves so (see the session; None: as the
+        session's first run, ``first_behaviour``)."""
+        self.since = self.session.run(self.session.first_behaviour if behaviour is None else behaviour)
 
     @property
     def on_link(self) -> float:

@@ -3,13 +3,13 @@ the ``node`` fixture, on the shared core's case against a peer the runner starts
 behaviour of the node it plays (``conformance._link_case.PlayedPeerCaseBase``: the runs, the
 waits, SKIPPED when the rule is never exercised) and :class:`~conformance.mavlink_case.MavlinkCaseBase`.
 
-A case asks for the run it observes (:meth:`MavlinkGcsCaseContext.run`: the ground station
-against the runner's vehicle with a ``Behaviour``), waits for what the ground station does
-(``wait``, ``settle``, ``resends``), then judges its frames (:meth:`from_gcs`) and what the
-runner's vehicle sent (``runner_sent``). A case whose rule the ground station never
-exercises (it sent no command, no PARAM_SET, no mission) is SKIPPED (``need``). What the
-cases read of MAVLink's microservices is MAVLink's content, beside its cases
-(``conformance.cases_mavlink_gcs.mavlink_gcs_services``).
+A case asks for the run it observes (``run``: the ground station against the runner's vehicle
+with a ``Behaviour``, ArduPilot's by default: the session's ``first_behaviour``), waits for
+what the ground station does (``wait``, ``settle``, ``resends``), then judges its frames
+(:meth:`from_gcs`) and what the runner's vehicle sent (``runner_sent``). A case whose rule
+the ground station never exercises (it sent no command, no PARAM_SET, no mission) is SKIPPED
+(``need``). What the cases read of MAVLink's microservices is MAVLink's content, beside its
+cases (``conformance.cases_mavlink_gcs.mavlink_gcs_services``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from mcp_conform.conformance.cases_mavlink_gcs.mavlink_gcs_services import GcsSe
 from mcp_conform.conformance.mavlink_case import MavlinkCaseBase
 from mcp_conform.harness.mavlink_gcs_session import MavlinkGcsSession
 from mcp_conform.harness.mavlink_session import Link, Received
-from mcp_conform.vehicle.behaviour import ARDUPILOT, Behaviour
 
 __all__ = ["MavlinkGcsCaseContext"]
 
@@ -35,10 +34,6 @@ class MavlinkGcsCaseContext(GcsServices, MavlinkCaseBase):
     def vehicle_ids(self) -> tuple[int, int]:
         """The runner's vehicle's system and component IDs."""
         return self.session.vehicle.ids if self.session.vehicle is not None else (1, 1)
-
-    def run(self, behaviour: Behaviour = ARDUPILOT) -> None:
-        """The ground station's run against a vehicle that behaves so (see the session)."""
-        super().run(behaviour)
 
     def from_gcs(self, *names: str) -> list[Received]:
         """The ground station's frames of this run (of messages ``names``, when given)."""

@@ -23,7 +23,13 @@ from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
 from mcp_conform.harness.link import HOST_LINKS, Link
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
-from mcp_conform.harness.session_base import Death, SpawnedNode, fill_placeholders, free_port
+from mcp_conform.harness.session_base import (
+    Death,
+    SpawnedNode,
+    fill_placeholders,
+    free_port,
+    reference_command,
+)
 from mcp_conform.harness.stream_session import HOST, StreamSessionBase
 
 __all__ = ["SCHEMES", "LinkSessionBase", "PlayedNodeSession", "parse_address"]
@@ -209,19 +215,24 @@ class PlayedNodeSession(_LinkRole):
     """The runner plays a node in-process (a model with ``lock``, ``ids``, ``answer(msg,
     now)`` and ``tick(now)``: the messages to send) on a fresh link for each run, and the judged
     peer is started afresh against it (``--spawn CMD`` with ``{placeholder}``: the URL it
-    reaches the runner by), its run kept while the cases ask for the same behaviour. A role
-    declares ``placeholder``, ``tick_thread`` and :meth:`make_model`."""
+    reaches the runner by; without ``--spawn``, the role's reference node, ``mcp-node``), its
+    run kept while the cases ask for the same behaviour. A role declares ``placeholder``,
+    ``tick_thread``, :meth:`make_model`, the behaviour of its first run (``first_behaviour``),
+    what the node it plays is called (``played``) and its reference peer (``reference``)."""
 
     _template: str  # always a command: the peer is spawned for every run
     placeholder = ""
     tick_thread = "link-node"
     #: each run's session of the capture and the monitor: ``{segment}-N``
     segment = "run"
+    first_behaviour: Any = None
+    played = reference = "node"
 
-    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, scheme: str, template: str,
-                 clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, scheme: str,
+                 template: str | None = None, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
         super().__init__(cfg, recorder, spec, monitor, clock=clock, net=net)
-        self.scheme, self._template = scheme, template
+        self.scheme = scheme
+        self._template = template or cfg.spawn or reference_command(*cfg.profile(), f"{{{self.placeholder}}}")
         self.link: Link | None = None
         self.model: Any = None  # the played node
         self.behaviour: Any = None
@@ -239,6 +250,17 @@ class PlayedNodeSession(_LinkRole):
         raise NotImplementedError
 
     # -- life -----------------------------------------------------------------------------
+    def start(self, **_: Any) -> None:
+        """The peer's first run, against ``first_behaviour``; attach mode is refused in one line
+        (the peer is started afresh for each behaviour)."""
+        if self.cfg.target is not None:
+            raise SetupError(f"--role {self.cfg.profile()[1].name}: attach mode is not supported: the runner starts "
+                             f"{self.subject} for each behaviour of its {self.played} "
+                             f"(--spawn 'CMD ... {{{self.placeholder}}}')")
+        self.run(self.first_behaviour)
+        how = " (spawned)" if self.cfg.spawn else f" (embedded reference {self.reference})"
+        self.target_desc = f"{self.url}{how}"
+
     def run(self, behaviour: Any, *, fresh: bool = False) -> float:
         """The peer's run against a played node that behaves so: the current one when it has
         this behaviour (unless ``fresh``), else the peer started afresh; when the run's link

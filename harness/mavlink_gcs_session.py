@@ -28,10 +28,8 @@ from typing import Any
 
 from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
-from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.link_session import PlayedNodeSession
 from mcp_conform.harness.mavlink_session import HOST_LINKS, Link
-from mcp_conform.harness.session_base import reference_command
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
@@ -41,12 +39,14 @@ __all__ = ["MavlinkGcsSession"]
 
 
 class MavlinkGcsSession(PlayedNodeSession):
-    """The ground station under test, run afresh for each behaviour of the runner's vehicle."""
+    """The ground station under test, run afresh for each behaviour of the runner's vehicle
+    (attach mode refused), first against ArduPilot's."""
 
     subject = "the ground station"
     startup_note = ("startup: the runner is the vehicle (system 1, an ArduCopter) and starts the ground station "
                     "against it", "startup: waiting for the ground station's first frame")
     placeholder, tick_thread, segment = "mavlink", "mavlink-vehicle", "gcs-run"
+    first_behaviour, played, reference = ARDUPILOT, "vehicle", "GCS"
     link_class = Link
     link: Link | None
     model: RunnerVehicle | None  # the runner's vehicle
@@ -54,10 +54,8 @@ class MavlinkGcsSession(PlayedNodeSession):
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: MavlinkSpec = MAVLINK, *,
                  clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
-        profile, role = cfg.profile()
         super().__init__(cfg, recorder, spec, MavlinkMonitor(spec, roles=("gcs",), complete=True),
-                         scheme=cfg.mavlink_transport if cfg.mavlink else "tcp",
-                         template=cfg.spawn or reference_command(profile, role, "{mavlink}"), clock=clock, net=net)
+                         scheme=cfg.mavlink_transport if cfg.mavlink else "tcp", clock=clock, net=net)
 
     def make_model(self, behaviour: Behaviour, now: float) -> RunnerVehicle:
         return RunnerVehicle(behaviour, now)
@@ -66,11 +64,3 @@ class MavlinkGcsSession(PlayedNodeSession):
     def vehicle(self) -> RunnerVehicle | None:
         """The runner's vehicle: the played node (``model``), as the cases read it."""
         return self.model
-
-    def start(self, **_: Any) -> None:
-        if self.cfg.target is not None:
-            raise SetupError("--role gcs: attach mode is not supported: the runner starts the ground station "
-                             "for each behaviour of its vehicle (--spawn 'CMD ... {mavlink}')")
-        self.run(ARDUPILOT)
-        how = " (spawned)" if self.cfg.spawn else " (embedded reference GCS)"
-        self.target_desc = f"{self.url}{how}"

@@ -39,6 +39,7 @@ from mcp_conform.harness.link_session import LinkSessionBase, parse_address
 from mcp_conform.judge.mavlink_monitor import MavlinkMonitor
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
+from mcp_conform.traceio.mavlink import robust_parser, version_of
 
 __all__ = ["HOST_LINKS", "HostLinks", "Link", "MavlinkSession", "Received", "parse_address"]
 
@@ -70,7 +71,7 @@ class Received:
 
     @property
     def version(self) -> int:
-        return 2 if self.raw[:1] == bytes([DIALECT.PROTOCOL_MARKER_V2]) else 1
+        return version_of(self.raw)
 
     def describe(self) -> str:
         if self.bad:
@@ -82,13 +83,13 @@ class Received:
 
 class MavlinkFraming:
     """MAVLink as the link's protocol (``harness.link.Framing``): pymavlink's parser, robust
-    (bad bytes kept as BAD_DATA, never raised), and the capture's ``/mavlink`` channel."""
+    (bad bytes kept as BAD_DATA, never raised: ``traceio.mavlink.robust_parser``, the trace
+    reader's), and the capture's ``/mavlink`` channel."""
 
     thread = "mavlink-link"
 
     def __init__(self) -> None:
-        self.parser = DIALECT.MAVLink(None)
-        self.parser.robust_parsing = True
+        self.parser = robust_parser()
 
     def deframe(self, data: bytes, t: float) -> list[Received]:
         return [Received(t, m, bytes(m.get_msgbuf())) for m in self.parser.parse_buffer(data) or []]

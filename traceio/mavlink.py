@@ -1,6 +1,6 @@
 """A MAVLink trace's frames, whatever the file: our MCAP's ``/mavlink`` channel or a ``.tlog``.
 
-:func:`mavlink_records` yields what ``mcp-capture --protocol mavlink`` and the MAVLink trace
+:func:`open_trace` yields what ``mcp-capture --protocol mavlink`` and the MAVLink trace
 monitor (``judge.mavlink_monitor``) work on: :class:`MavFrame` (one frame, parsed by
 pymavlink's dialect, ``spec.MAVLINK.dialect``: ardupilotmega, MAVLink 1 and 2), and from an
 MCAP the run's ``CaseMark`` and ``Metadata`` records; last, and only when the file ends early,
@@ -45,7 +45,7 @@ from mcp_conform.traceio.reader import (
 )
 from mcp_conform.traceio.traces import claims, head_of, is_mcap_head, packet_records, said_by
 
-__all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "is_tlog", "mavlink_records", "open_trace", "parse_frame"]
+__all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "open_trace", "parse_frame", "robust_parser", "version_of"]
 
 DIALECT: Any = MAVLINK.dialect
 #: the start markers of a MAVLink 1 and a MAVLink 2 frame (the dialect's)
@@ -83,19 +83,25 @@ class MavFrame(NamedTuple):
 
     @property
     def version(self) -> int:
-        return 2 if self.raw[:1] == bytes([DIALECT.PROTOCOL_MARKER_V2]) else 1
+        return version_of(self.raw)
+
+
+def version_of(raw: bytes) -> int:
+    """The MAVLink version of a frame's bytes (its start marker: 2 for MAVLink 2's, else 1)."""
+    return 2 if raw[:1] == bytes([DIALECT.PROTOCOL_MARKER_V2]) else 1
 
 
 def parse_frame(raw: bytes, parser: Any = None) -> Any:
     """pymavlink's message for the bytes of one frame (``BAD_DATA`` when they are none)."""
-    parser = parser or _parser()
+    parser = parser or robust_parser()
     msgs = parser.parse_buffer(bytes(raw)) or []
     if len(msgs) == 1:
         return msgs[0]
     return DIALECT.MAVLink_bad_data(bytearray(raw), "not one whole frame" if msgs else "no frame")
 
 
-def _parser() -> Any:
+def robust_parser() -> Any:
+    """The dialect's parser (MAVLink 1 and 2), bad bytes coming out as ``BAD_DATA``."""
     p = DIALECT.MAVLink(None)
     p.robust_parsing = True  # bad bytes come out as BAD_DATA, never raised
     return p
@@ -127,7 +133,7 @@ class MavTrace:
         parsers: dict[Any, Any] = {}
 
         def frame(n: int, rec: MavlinkFrame) -> MavFrame:
-            p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, _parser())
+            p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, robust_parser())
             return MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
         for rec in packet_records(open_capture(self.path), MavlinkFrame, frame):
             if isinstance(rec, Truncated):
@@ -140,7 +146,7 @@ class MavTrace:
 
         with contextlib.redirect_stdout(io.StringIO()):  # pymavlink prints nothing we want
             log = mavutil.mavlogfile(str(self.path), robust_parsing=True)
-        log.mav = _parser()  # the dialect's, which reads MAVLink 1 and 2 (see the module)
+        log.mav = robust_parser()  # the dialect's, which reads MAVLink 1 and 2 (see the module)
         log.first_byte = False  # ... so pymavlink's version switch never runs
         consumed = n = 0
         try:
@@ -183,34 +189,16 @@ def open_trace(path: str | Path) -> MavTrace:
     return MavTrace(path)
 
 
-def mavlink_records(path: str | Path) -> Iterator[Any]:
-    """The records of a MAVLink trace (see the module docstring)."""
-    return iter(MavTrace(path))
-
-
-def is_tlog(path: str | Path) -> bool:
-    """``path`` starts as a telemetry log does, and its first record is a MAVLink frame."""
+def is_mavlink_capture(path: str | Path) -> bool:
+    """A MAVLink trace: a tlog whose first record is a good MAVLink frame, or an MCAP whose run
+    was ``--protocol mavlink`` (its metadata says so) or whose first records are MAVLink frames
+    with no MCP datagram or Nsqd frame among them (an MCP drone run's capture holds its
+    autopilot link too, but is MCP's)."""
     try:
-        with open(path, "rb") as f:
-            if not _tlog_head(f.read(17)):
-                return False
-        first = next(iter(MavTrace(path)), None)
+        trace = MavTrace(path)
+        if trace.format == "mcap":
+            return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
+        first = next(iter(trace), None)
     except (CaptureError, OSError):
         return False
     return isinstance(first, MavFrame) and not first.bad
-
-
-def is_mavlink_capture(path: str | Path) -> bool:
-    """A MAVLink trace: a tlog, or an MCAP whose run was ``--protocol mavlink`` (its metadata
-    says so) or whose first records are MAVLink frames with no MCP datagram or Nsqd frame
-    among them (an MCP drone run's capture holds its autopilot link too, but is MCP's)."""
-    try:
-        trace = MavTrace(path)
-    except CaptureError:
-        return False
-    if trace.format == "tlog":
-        return is_tlog(path)
-    try:
-        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
-    except CaptureError:
-        return False
