@@ -19,9 +19,13 @@ a run still differ.
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
 import subprocess
 import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -38,6 +42,9 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[2]
 PAIRS = 3
+#: runs recorded at once (each its own runner, embedded drone and ports: no run sees
+#: another's datagrams, and what is compared is each capture's own conversation order)
+AT_ONCE = 3
 #: the issue's run: MCP-ACK (ACK-5's probe to another ID, its token's seq set by the batch)
 SELECT = ["MCP-ACK"]
 
@@ -95,10 +102,32 @@ def _rewrite(src: Path, dst: Path, change) -> int:
     return changed
 
 
+def _once(tmp_path_factory, name: str, record, count: int) -> list[Path]:
+    """``count`` captures made by ``record(path)``, AT_ONCE at a time, once per test session:
+    under pytest-xdist each worker that runs one of this module's tests would otherwise make
+    its own (CI ran each set twice, in two workers); the first makes them in the session's
+    directory shared by the workers, under a lock, the others wait for it and read them. A
+    set whose making failed is made again by the next (its asserts fail there too)."""
+    def make(d: Path) -> list[Path]:
+        with ThreadPoolExecutor(AT_ONCE) as pool:
+            return list(pool.map(record, [d / f"{name}{n}.mcap" for n in range(count)]))
+
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        return make(tmp_path_factory.mktemp(name))
+    shared = tmp_path_factory.getbasetemp().parent / f"golden-{name}"  # this session's, all workers'
+    shared.mkdir(exist_ok=True)
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when closed, also if make() raises
+        done = shared / "done.json"
+        if not done.exists():
+            attempt = Path(tempfile.mkdtemp(dir=shared))
+            done.write_text(json.dumps([str(p) for p in make(attempt)]))
+        return [Path(p) for p in json.loads(done.read_text())]
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> list[Path]:
-    d = tmp_path_factory.mktemp("golden-runs")
-    return [_record(d / f"run{n}.mcap") for n in range(2 * PAIRS)]
+    return _once(tmp_path_factory, "run", _record, 2 * PAIRS)
 
 
 def test_pairs_of_runs_of_the_same_cases_are_the_same(runs):
@@ -172,6 +201,9 @@ def test_an_mcp_field_changed_in_a_copy_of_a_run_differs(runs, tmp_path):
 
 # ---------------------------------------------------------------- whole-suite runs
 SUITE_PAIRS = 3
+#: runs recorded at once (each its own runner, embedded drone and ports: no run sees
+#: another's datagrams, and what is compared is each capture's own conversation order)
+AT_ONCE = 3
 
 
 def _record_suite(path: Path) -> Path:
@@ -183,8 +215,7 @@ def _record_suite(path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def suite_runs(tmp_path_factory) -> list[Path]:
-    d = tmp_path_factory.mktemp("suite-runs")
-    return [_record_suite(d / f"suite{n}.mcap") for n in range(2 * SUITE_PAIRS)]
+    return _once(tmp_path_factory, "suite", _record_suite, 2 * SUITE_PAIRS)
 
 
 def test_pairs_of_whole_suite_runs_are_the_same(suite_runs):
