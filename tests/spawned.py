@@ -74,16 +74,36 @@ def heard_on(sock: socket.socket) -> Callable[[float], bool]:
     return heard
 
 
+def udp_bound(port: int) -> bool | None:
+    """Whether a UDP socket is bound to ``port`` (Linux's /proc/net/udp and udp6); None where
+    those tables cannot be read."""
+    lines: list[str] = []
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table, encoding="ascii") as f:
+                lines += f.read().splitlines()[1:]
+        except OSError:
+            pass
+    if not lines:
+        return None
+    want = f":{port:04X}"
+    return any(len(fields) > 1 and fields[1].endswith(want) for fields in map(str.split, lines))
+
+
 def start_node(argv_for: Callable[[int], list[str]], heard: Callable[[float], bool] | None,
                timeout: float = 60.0, settle: float = 0.0, **popen: Any) -> tuple[Node, int]:
     """``argv_for(port)`` started on a fresh ``free_port`` until ``heard(seconds)`` says it
     spoke; one that exits first is started again on another port (``TRIES`` starts). With
-    ``heard`` None (a node that speaks only when spoken to) it is started once and must still
-    run after ``settle`` s. AssertionError with its stderr when it never speaks."""
+    ``heard`` None (a node that speaks only when spoken to) it is started once, waited for
+    until its socket is bound to the port (``udp_bound``, up to ``timeout``: on a loaded host
+    an interpreter takes seconds to get there, and what is sent before is lost; where that
+    cannot be seen, not waited for) and must still run after ``settle`` s. AssertionError with
+    its stderr when it never speaks."""
     for attempt in range(1, TRIES + 1):
         port = free_port()
         node = Node(argv_for(port), **popen)
-        deadline = time.monotonic() + (settle if heard is None else timeout)
+        start = time.monotonic()
+        deadline = start + (settle if heard is None else timeout)
         spoke = False
         while node.proc.poll() is None and time.monotonic() < deadline:
             if heard is None:
@@ -91,6 +111,10 @@ def start_node(argv_for: Callable[[int], list[str]], heard: Callable[[float], bo
             elif heard(min(0.1, max(0.0, deadline - time.monotonic()))):
                 spoke = True
                 break
+        while heard is None and node.proc.poll() is None and time.monotonic() < start + timeout:
+            if udp_bound(port) is not False:
+                break
+            time.sleep(0.05)
         if spoke or (heard is None and node.proc.poll() is None):
             return node, port
         why = node.explain()

@@ -98,7 +98,7 @@ def test_cli_udp_out_and_record_file(tmp_path) -> None:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
-        hb = recv(gcs, ["HEARTBEAT"], "vehicle heartbeat")
+        hb = recv(gcs, ["HEARTBEAT"], "vehicle heartbeat", timeout=30)  # a process start: seconds on a loaded host
         target = (hb.get_srcSystem(), hb.get_srcComponent())
         bad = [(MAV.MAV_CMD_NAV_WAYPOINT, 357713320, -786744210, 0.0)]
         gcs.mav.mission_count_send(*target, 1)
