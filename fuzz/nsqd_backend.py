@@ -21,7 +21,8 @@ and sends on it (``harness.nsqd_session``'s own check, polled every 50 ms: a san
 start takes a few ms, so nearly every start waited one poll; a real backend takes 1.2-1.4 s).
 :meth:`Backend.fresh`, the process a replay or the campaign goes on with, takes a spare started
 in the background after the previous one, already through that check, and starts the next
-spare: the wait is gone from the campaign and from triage.
+spare: the wait is gone from the campaign and from triage. The spares are the worker's target's
+(:class:`BackendTarget`, the shared core's ``fuzz.target_core.SpareTarget``, as MAVLink's are).
 """
 
 from __future__ import annotations
