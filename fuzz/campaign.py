@@ -15,17 +15,17 @@ same bound, ``--duration`` plus ``GRACE_S``.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from mcp_conform.fuzz import loop
-from mcp_conform.fuzz.config import FuzzConfig, exit_code
+from mcp_conform.fuzz.campaign_core import exit_status
+from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import FindingStore
 from mcp_conform.fuzz.loop import WorkerResult
-from mcp_conform.fuzz.progress import Progress, interrupted
+from mcp_conform.fuzz.progress import Progress
 from mcp_conform.fuzz.targets import start_target
 from mcp_conform.fuzz.triage import Triage
 from mcp_conform.harness.errors import SetupError
@@ -151,12 +151,7 @@ class DatagramCampaign:
 
     def final(self, summary: dict[str, Any], live: Any, strict: bool) -> int:
         live.final(summary, self.store)
-        if summary.get("interrupted"):
-            return interrupted(summary["cases"], summary["findings"], self.cfg.out)
-        if summary.get("node_lost"):
-            print(f"mcp-fuzz: error: {summary['error']}", file=sys.stderr)
-            return 2
-        return exit_code(self.store.order, strict=strict)
+        return exit_status(summary, self.store, strict)
 
     @staticmethod
     def replay(path: str, cfg: FuzzConfig) -> int:

@@ -38,7 +38,7 @@ from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import Profile
 
-__all__ = ["PROG", "CaseEngine", "ProtocolCampaign", "ProtocolPlugin", "budget_line"]
+__all__ = ["PROG", "CaseEngine", "ProtocolCampaign", "ProtocolPlugin", "budget_line", "exit_status"]
 
 PROG = "mcp-fuzz"
 
@@ -74,10 +74,12 @@ class CaseEngine:
     seeded stream (:meth:`draw`), each sent and judged at once (:meth:`send`: the hit its
     oracles saw, or None), counted by kind and message (:meth:`tried`), until the budget is
     spent; a hit goes to triage (:meth:`triage_hit`), its time not fuzzing time. ``history``:
-    how many of the cases sent it keeps, each with its time (``sent``: a hit's suspects)."""
+    how many of the cases sent it keeps, each with its time (``sent``: a hit's suspects,
+    :meth:`taken`); ``target``: the worker's (``fuzz.loop.WorkerTarget``), whose ``current``
+    runs each case (:meth:`send`), unless the protocol sends its own way."""
 
-    def __init__(self, triage: Any, seed: int, worker: int = 0, history: int = 0) -> None:
-        self.triage = triage
+    def __init__(self, triage: Any, seed: int, worker: int = 0, history: int = 0, target: Any = None) -> None:
+        self.triage, self.target = triage, target
         self.stats = EngineStats()
         self.rng = random.Random(seed if not worker else hash((seed, worker)))
         self.sent: deque[tuple[float, Any]] = deque(maxlen=history)
@@ -109,8 +111,15 @@ class CaseEngine:
         raise NotImplementedError
 
     def send(self, case: Any) -> Any:
-        """The case sent and judged: the hit its oracles saw, or None."""
-        raise NotImplementedError
+        """The case sent and judged: the hit its oracles saw, or None (the target's ``current.run``)."""
+        return self.target.current.run(case)
+
+    def taken(self, since: float | None = None, until: float | None = None, last: int | None = None) -> list[Any]:
+        """The cases kept (``history``) sent from ``since`` to ``until`` (time.monotonic), or
+        the ``last`` ones, oldest first; the kept ones then dropped (a hit's suspects)."""
+        got = [c for t, c in self.sent if (since is None or since <= t) and (until is None or t <= until)]
+        self.sent.clear()
+        return got[-last:] if last else got
 
     def triage_hit(self, hit: Any) -> None:
         """The hit to the worker's triage, with its suspects."""
@@ -205,12 +214,7 @@ class ProtocolCampaign:
               f"{len(self.store)} finding(s) ({found or 'none'}), {s['unconfirmed']} unconfirmed; {target}, "
               f"seed {s['seed']}")
         print(f"{PROG}: {budget_line(s)}")
-        if s.get("interrupted"):
-            return interrupted(s["cases"], len(self.store), self.store.out)
-        if s.get("node_lost"):
-            print(f"{PROG}: error: {s['error']}", file=sys.stderr)
-            return 2
-        return exit_code(self.store.order, strict=strict)
+        return exit_status(s, self.store, strict)
 
     def finding_lines(self, i: int, f: Finding, verbose: bool) -> list[str]:
         """Finding ``i``'s closing line (and, ``verbose``, what it expected)."""
@@ -219,6 +223,18 @@ class ProtocolCampaign:
     def totals(self, s: dict[str, Any]) -> tuple[str, str]:
         """The totals line's findings (by rule) and what was fuzzed."""
         return ", ".join(f"{r} {n}" for r, n in s["findings_by_rule"].items()), f"engine {s['engine']}"
+
+
+def exit_status(s: dict[str, Any], store: FindingStore, strict: bool) -> int:
+    """A campaign's exit code, after its closing lines (every protocol's): SIGINT's
+    (``fuzz.progress.interrupted``: its line), 2 when the attached target was lost (its error
+    said), else by its findings (``fuzz.config.exit_code``, ``--strict``)."""
+    if s.get("interrupted"):
+        return interrupted(s["cases"], len(store), store.out)
+    if s.get("node_lost"):
+        print(f"{PROG}: error: {s['error']}", file=sys.stderr)
+        return 2
+    return exit_code(store.order, strict=strict)
 
 
 def budget_line(s: dict[str, Any]) -> str:

@@ -16,9 +16,8 @@ from mcp_conform.fuzz.target_base import (
     WITHHELD_START,
     Probe,
     TargetBase,
-    Traffic,
 )
-from mcp_conform.harness.driver import Datagram
+from mcp_conform.harness.driver import Datagram, Sent
 from mcp_conform.harness.drone_session import Session
 from mcp_conform.harness.session_base import timing_note
 from mcp_conform.spec.codec import Action
@@ -41,15 +40,8 @@ class FuzzTarget(TargetBase):
     """One drone under fuzz (one per ``--jobs`` worker)."""
 
     def __init__(self, cfg: FuzzConfig) -> None:
-        self.cfg = cfg
-        self.run_cfg = cfg.run_config()
-        self.session = Session(self.run_cfg, recorder=cfg.extra.get("live_recorder"))  # --live (fuzz.live)
-        self.traffic = Traffic()
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-        self.observations: dict[str, int] = {}
-        self.node_period: float | None = None  # measured at the first start (spawn mode)
-        self.timing: str | None = None  # the node's period disagrees with --rto: what was done
+        run_cfg = cfg.run_config()
+        super().__init__(cfg, run_cfg, Session(run_cfg, recorder=cfg.extra.get("live_recorder")))  # --live (fuzz.live)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -72,13 +64,8 @@ class FuzzTarget(TargetBase):
         if self.session.target_id is None:
             self.session.target_id = 1
 
-    def restart(self, reason: str) -> None:
-        """A fresh node (spawn mode), for ``reason``; in attach mode the same node is all
-        there is."""
-        if not self.spawned:
-            return
+    def respawn(self) -> None:
         self.session.restart()
-        self.count_restart(reason)
 
     def restart_withholding(self, copies: int) -> Withheld:
         """Spawn mode: a fresh node whose Mission_Ready is left unACKed for ``copies`` copies,
@@ -119,14 +106,16 @@ class FuzzTarget(TargetBase):
 
     # ------------------------------------------------------------------ probing
     def probe(self, copies: int = PROBE_COPIES) -> Probe:
-        """A WP_Off unicast to the node, retransmitted every --rto, until ACKed."""
-        drv = self.driver
-        sent = drv.send(Action.WP_OFF, None, self.node_id)
-        ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
-        if ex.ack is not None and acked_seq(ex.ack) != sent.seq:
+        """A WP_Off unicast to the node, retransmitted every --rto, until ACKed
+        (``TargetBase.probe``)."""
+        p = super().probe(copies)
+        if p.ack is not None and acked_seq(p.ack) != p.sent.seq:
             # the reply taken for the probe's ACK does not name the probe (judge.attribution
             # ties it by arrival: a wrong payload, or an earlier input's ACK arriving late);
             # let the node's other replies arrive too, so the judge sees every ACK it sent
-            drv.quiet(gap=0.05, limit=max(self.rto, PROBE_MIN_WAIT))
-        return Probe(ex.acked, sent, len(ex.copies), ex.ack)
+            self.driver.quiet(gap=0.05, limit=max(self.rto, PROBE_MIN_WAIT))
+        return p
+
+    def probe_send(self) -> Sent:
+        return self.driver.send(Action.WP_OFF, None, self.node_id)
 

@@ -32,7 +32,7 @@ from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.environment import EnvironmentLog, merge_environment
 from mcp_conform.fuzz.findings import FindingStore, write_summary
 from mcp_conform.fuzz.progress import Progress
-from mcp_conform.fuzz.target_base import TargetLost
+from mcp_conform.fuzz.target_base import Restarts, TargetLost
 from mcp_conform.fuzz.workers import Reporter, report, run_jobs, sum_tables
 from mcp_conform.harness.errors import SetupError
 
@@ -127,19 +127,15 @@ class Target(Protocol):
     def close(self) -> None: ...
 
 
-class WorkerTarget:
+class WorkerTarget(Restarts):
     """A worker's target as the loop sees one (:class:`Target`): the one now fuzzed
     (``current``: triage's replays and restarts replace it), whether it is attached (a death
-    is then the target lost, not a finding), its restarts counted by reason."""
+    is then the target lost, not a finding), its restarts counted by reason
+    (``fuzz.target_base.Restarts``, as MCP's targets count theirs)."""
 
     def __init__(self, current: Any, attached: bool = False) -> None:
+        super().__init__()
         self.current, self.attached = current, attached
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-
-    def count_restart(self, reason: str) -> None:
-        self.restarts += 1
-        count(self.restart_reasons, reason)
 
     def close(self) -> None:
         self.current.close()

@@ -15,8 +15,9 @@ commands to a drone).
 from __future__ import annotations
 
 from mcp_conform.fuzz.config import FuzzConfig
-from mcp_conform.fuzz.target_base import PROBE_COPIES, PROBE_MIN_WAIT, Probe, TargetBase, Traffic
+from mcp_conform.fuzz.target_base import TargetBase
 from mcp_conform.harness.config import RunConfig
+from mcp_conform.harness.driver import Sent
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.manager_session import ManagerSession, embedded_command
 from mcp_conform.spec.codec import MANAGER_ID, Action
@@ -44,21 +45,16 @@ class ManagerFuzzTarget(TargetBase):
     ENGINES = ("stateless",)
 
     def __init__(self, cfg: FuzzConfig) -> None:  # noqa: D107 - no drone session
-        self.cfg = cfg
-        self.run_cfg = run_config(cfg)
-        self.session = ManagerSession(self.run_cfg, recorder=cfg.extra.get("live_recorder"))  # type: ignore[assignment]
-        self.traffic = Traffic()
-        self.restarts = 0
-        self.restart_reasons: dict[str, int] = {}
-        self.observations: dict[str, int] = {}
+        run_cfg = run_config(cfg)
+        super().__init__(cfg, run_cfg, ManagerSession(run_cfg, recorder=cfg.extra.get("live_recorder")))
 
     def start(self) -> None:
         self.session.open()  # type: ignore[attr-defined]
         self.driver.our_id = FUZZ_DRONES[0]  # the generator's source: a ready drone
         self.driver.add_observer(self.traffic)
-        self._fresh()
+        self.respawn()
 
-    def _fresh(self) -> None:
+    def respawn(self) -> None:
         """A fresh manager (spawn mode) that has heard drone 1 announce itself."""
         if self.spawned:
             self.session.respawn()
@@ -71,15 +67,6 @@ class ManagerFuzzTarget(TargetBase):
                              + (f"; {ev[0]}" if ev else ""))
         self.driver.quiet(gap=0.05, limit=min(1.0, self.ack_window))
 
-    def restart(self, reason: str) -> None:
-        if not self.spawned:
-            return
-        self._fresh()
-        self.count_restart(reason)
-
-    def probe(self, copies: int = PROBE_COPIES) -> Probe:
-        """A fresh Mission_Ready from drone 1, retransmitted every --rto, until ACKed."""
-        drv = self.driver
-        sent = drv.send(Action.MISSION_READY, None, MANAGER_ID, src=FUZZ_DRONES[0])
-        ex = drv.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
-        return Probe(ex.acked, sent, len(ex.copies), ex.ack)
+    def probe_send(self) -> Sent:
+        """A fresh Mission_Ready from drone 1 (``TargetBase.probe``: retransmitted every --rto, until ACKed)."""
+        return self.driver.send(Action.MISSION_READY, None, MANAGER_ID, src=FUZZ_DRONES[0])

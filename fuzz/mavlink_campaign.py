@@ -43,8 +43,8 @@ class MavlinkEngine(CaseEngine):
     triage: MavTriage
 
     def __init__(self, target: MavTarget, triage: MavTriage, seed: int, worker: int = 0) -> None:
-        super().__init__(triage, seed, worker, history=5000)
-        self.target, self.maker = target, CaseMaker(self.rng, target.info)
+        super().__init__(triage, seed, worker, history=5000, target=target)
+        self.maker = CaseMaker(self.rng, target.info)
 
     def draw(self) -> Case:
         return self.maker.draw()
@@ -52,18 +52,10 @@ class MavlinkEngine(CaseEngine):
     def tried(self, case: Case) -> tuple[str, tuple[str, ...]]:
         return case.kind, case.messages or ("-",)
 
-    def send(self, case: Case) -> Hit | None:
-        return self.target.current.run(case)
-
     def triage_hit(self, hit: Hit) -> None:
-        vehicle, sent = self.target.current, self.sent
-        if hit.signature.oracle == "hang":  # the cases about its last beat, before the first it missed
-            since, until = vehicle.last_beat - BEAT_S, vehicle.last_beat + 1.5 * BEAT_S
-            suspects = [c for t, c in sent if since <= t <= until]
-        else:
-            suspects = [c for _, c in list(sent)[-WINDOW:]]
-        self.triage.consider(hit, suspects)
-        sent.clear()
+        beat = self.target.current.last_beat  # a hang: the cases about its last beat, before the first it missed
+        self.triage.consider(hit, self.taken(beat - BEAT_S, beat + 1.5 * BEAT_S) if hit.signature.oracle == "hang"
+                             else self.taken(last=WINDOW))
 
 
 @dataclass

@@ -6,10 +6,11 @@ A :class:`MavVehicle` is one vehicle process (spawned with ``--spawn CMD``, ``{t
 ``--target tcp:HOST:PORT``, and the fuzzer's TCP link to it, read synchronously: the fuzzer is
 its ground station (system 255, MAV_COMP_ID_MISSIONPLANNER, a HEARTBEAT a second: MAV-HB-2).
 The process, its end, the link read synchronously, the fuzzer's own keep-alive, the case
-runner and the worker's spare are the shared core's (``fuzz.target_core``: ``LinkedTarget``,
-``SyncLink.exchange``, ``SpareTarget``); MAVLink declares its framing
-(``harness.mavlink_session.MavlinkFraming``), its ``{mavlink}`` placeholder, its beat (the
-vehicle's HEARTBEAT, bounded by MAV-HB-1) and its probe.
+runner (a case and the probe written, read to the probe's answer, judged) and the worker's
+spare are the shared core's (``fuzz.target_core``: ``LinkedTarget``, ``SpareTarget``);
+MAVLink declares its framing (``harness.mavlink_session.MavlinkFraming``), its ``{mavlink}``
+placeholder, its beat (the vehicle's HEARTBEAT, bounded by MAV-HB-1), its keep-alive, its
+probe, how a case's answers are judged and its liveness oracles (``fuzz.mavlink_oracles``).
 
 Each case (``fuzz.mavlink_cases.Case``) is written with the probe right behind it: a
 PARAM_REQUEST_READ by name of a parameter no case touches, which the vehicle answers with a
@@ -44,7 +45,7 @@ from mcp_conform.fuzz.mavlink_cases import (
     raw_fields,
 )
 from mcp_conform.fuzz.mavlink_oracles import Hit, Signature
-from mcp_conform.fuzz.target_core import LinkedTarget, SpareTarget, SyncLink, TargetSpec
+from mcp_conform.fuzz.target_core import LinkedTarget, SpareTarget, TargetSpec
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.mavlink_session import MavlinkFraming, embedded_command, parse_address
 from mcp_conform.spec import MAVLINK
@@ -78,9 +79,15 @@ class VehicleSpec(TargetSpec):
 
 class MavVehicle(LinkedTarget):
     """One vehicle and the fuzzer's link to it (see the module's docstring): the shared
-    core's process and link (``fuzz.target_core.LinkedTarget``), MAVLink's framing on it."""
+    core's process, link and case runner (``fuzz.target_core.LinkedTarget``), MAVLink's
+    framing, beat, keep-alive, probe and judgement on it."""
 
     subject = "the vehicle"
+    BEAT_GAP_S = GAP_S
+    KEEPALIVE_S = BEAT_S
+    REPLY_S = REPLY_S
+    BEAT = ("HEARTBEAT", "MAV-HB-1")
+    oracles = oracles
 
     def __init__(self, how: VehicleSpec, info: Vehicle | None = None, log: list[Any] | None = None,
                  late: float | None = None) -> None:
@@ -90,19 +97,8 @@ class MavVehicle(LinkedTarget):
         #: then confirmed, or not, by replays that wait the whole bound)
         self.late = late
         self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
-        sock = self.open(how, lambda host, port: {"mavlink": f"tcp:{host}:{port}"})
-        self.link = SyncLink(sock, MavlinkFraming(), traffic=log,
-                             beat=lambda r: r.name == "HEARTBEAT" and self._from_vehicle(r.msg))
-        self._beat()
-        hb = self._until(lambda f: f.get_type() == "HEARTBEAT", 10.0)
-        if hb is None:
-            self.close()
-            raise SetupError(f"tcp:{self.address[0]}:{self.address[1]}: no HEARTBEAT from the vehicle within 10 s "
-                             "(MAV-HB-1)")
-        self.frames.clear()
-        if info is None:
-            info = self._learn(hb.get_srcSystem(), hb.get_srcComponent())
-        self.info = info
+        hb = self.connect(how, MavlinkFraming(), log, lambda host, port: {"mavlink": f"tcp:{host}:{port}"}).msg
+        self.info = info if info is not None else self._learn(hb.get_srcSystem(), hb.get_srcComponent())
 
     def _learn(self, sysid: int, compid: int) -> Vehicle:
         """The vehicle's IDs and parameter list (PARAM_REQUEST_LIST, read for at most LIST_S);
@@ -111,7 +107,7 @@ class MavVehicle(LinkedTarget):
         self.send(self._pack(D.MAVLink_param_request_list_message(sysid, compid)))
         end, total, seen = time.monotonic() + LIST_S, None, 0
         while time.monotonic() < end and (total is None or len(v.params) < total):
-            if self._until(lambda f: f.get_type() == "PARAM_VALUE", min(2.0, end - time.monotonic()), seen) is None:
+            if self.link.until(lambda r: r.name == "PARAM_VALUE", min(2.0, end - time.monotonic()), seen) is None:
                 break
             for r in self.frames[seen:]:
                 f = raw_fields(r.msg) if r.name == "PARAM_VALUE" else None
@@ -127,83 +123,43 @@ class MavVehicle(LinkedTarget):
         v.probe = min(v.params, key=lambda n: v.params[n][0])
         return v
 
-    # -- the link -----------------------------------------------------------------------------
     def _pack(self, msg: Any) -> bytes:
         data = bytes(msg.pack(self.enc))
         self.enc.seq = (self.enc.seq + 1) % 256
         return data
 
-    def _beat(self) -> None:
-        """The fuzzer's own HEARTBEAT, as a ground station's, once a second (MAV-HB-2)."""
-        self.keepalive(BEAT_S, lambda: self._pack(D.MAVLink_heartbeat_message(
-            D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0, D.MAV_STATE_ACTIVE, 3)))
-
     def _from_vehicle(self, m: Any) -> bool:
         info = getattr(self, "info", None)
         return info is None or (m.get_srcSystem(), m.get_srcComponent()) == (info.sysid, info.compid)
 
-    def _until(self, pred: Any, timeout: float, start: int = 0) -> Any:
-        """The first message from ``start`` on that ``pred`` holds for, read for up to
-        ``timeout`` s (None: none came, or the link closed)."""
-        r = self.link.until(lambda r: pred(r.msg), timeout, start)
-        return r.msg if r is not None else None
+    # -- what the shared core's runner asks of MAVLink (``fuzz.target_core.LinkedTarget``) -----
+    def is_beat(self, r: Any) -> bool:
+        return r.name == "HEARTBEAT" and self._from_vehicle(r.msg)
 
-    # -- what the oracles read (``fuzz.mavlink_oracles.Observed``) ----------------------------
+    def keepalive_frame(self) -> bytes:
+        """The fuzzer's own HEARTBEAT, as a ground station's, once a second (MAV-HB-2)."""
+        return self._pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                      D.MAV_STATE_ACTIVE, 3))
+
+    def probe_frame(self) -> bytes:
+        return self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid, self.info.probe, -1))
+
+    def is_probe_answer(self, r: Any) -> bool:
+        return r.name == "PARAM_VALUE" and self._from_vehicle(r.msg) and \
+            name_key(raw_fields(r.msg)["param_id"]) == self.info.probe
+
     @property
     def probe_name(self) -> str:
         return self.info.probe.decode(errors="replace")
 
-    def wait_beat(self, since: float) -> bool:
-        """Whether a HEARTBEAT comes after ``since`` before the gap since the last one passes
-        ``heartbeat_gap_max_s``."""
-        return self.link.wait_beat(since, GAP_S)
-
-    def probe_answered(self, timeout: float) -> bool:
-        return self._until(self._is_probe_answer, timeout) is not None
-
-    # -- a case --------------------------------------------------------------------------------
-    def _is_probe_answer(self, m: Any) -> bool:
-        return m.get_type() == "PARAM_VALUE" and self._from_vehicle(m) and \
-            name_key(raw_fields(m)["param_id"]) == self.info.probe
-
-    def _exchange(self, cases: bytes, timeout: float) -> int | None:
-        """``cases`` and the probe written (``SyncLink.exchange``); the probe's answer's index."""
-        self._beat()
-        probe = self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid,
-                                                                self.info.probe, -1))
-        return self.link.exchange(cases + probe, lambda r: self._is_probe_answer(r.msg), timeout)
-
-    def run(self, case: Case) -> Hit | None:
-        """Send ``case`` and the probe; judge what came (see the module's docstring)."""
-        upto = self._exchange(case.wire(), REPLY_S)
-        if upto is None:
-            return oracles.lost(self, case)
-        hit = oracles.judge_case(case, [r.msg for r in self.frames[:upto] if self._from_vehicle(r.msg)],
-                         lambda e, wait: self._until(lambda m: self._from_vehicle(m) and bool(oracles.answers(e, [m])), wait,
-                                                     start=upto + 1) is not None, self._late)
-        if hit is None and time.monotonic() - self.last_beat > GAP_S:
-            hit = oracles.lost(self, case, answered=True)
-        del self.frames[:upto + 1]
-        return hit
-
-    def run_all(self, cases: list[Case]) -> bool:
-        """Send ``cases`` back to back, then the probe (a stopped heartbeat's replays: no answer
-        is judged, and thousands of suspects take one write); whether the probe was answered."""
-        answered = self._exchange(b"".join(c.wire() for c in cases), REPLY_S + 0.002 * len(cases)) is not None
-        self.frames.clear()
-        return answered
-
-    def watch(self, since: float) -> Hit | None:
-        """After a replay: a HEARTBEAT after ``since`` (nothing), or a hang (``fuzz.mavlink_oracles.silent``)."""
-        return oracles.silent(self, since)
-
-    def beats_on(self) -> Hit | None:
-        """With nothing sent: what the link holds read, then ``fuzz.mavlink_oracles.beats_on``."""
-        self.link.drain()
-        return oracles.beats_on(self)
-
-    def _late(self, e: Expect) -> float:
-        return self.late if self.late is not None else ACK_S if e.what == "ack" else REPLY_S
+    def judge(self, case: Case, upto: int) -> Hit | None:
+        """The answers before the probe's (``fuzz.mavlink_oracles.judge_case``), one missing
+        waited for after it (``late``)."""
+        def later(e: Expect, wait: float) -> bool:
+            return self.link.until(lambda r: self._from_vehicle(r.msg) and bool(oracles.answers(e, [r.msg])), wait,
+                                   upto + 1) is not None
+        return oracles.judge_case(case, [r.msg for r in self.frames[:upto] if self._from_vehicle(r.msg)], later,
+                                  lambda e: self.late if self.late is not None else ACK_S if e.what == "ack" else REPLY_S)
 
 
 class MavTarget(SpareTarget):

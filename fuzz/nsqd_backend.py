@@ -21,7 +21,8 @@ and sends on it (``harness.nsqd_session``'s own check, polled every 50 ms: a san
 start takes a few ms, so nearly every start waited one poll; a real backend takes 1.2-1.4 s).
 :meth:`Backend.fresh`, the process a replay or the campaign goes on with, takes a spare started
 in the background after the previous one, already through that check, and starts the next
-spare: the wait is gone from the campaign and from triage.
+spare: the wait is gone from the campaign and from triage. The spares are the worker's target's
+(:class:`BackendTarget`, the shared core's ``fuzz.target_core.SpareTarget``, as MAVLink's are).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ from mcp_conform.fuzz.nsqd_oracles import (
     parse_sanitizer,
     same_finding,
 )
-from mcp_conform.fuzz.spares import Spares
-from mcp_conform.fuzz.target_core import ProcessTarget, read_until
+from mcp_conform.fuzz.spares import SPARES
+from mcp_conform.fuzz.target_core import ProcessTarget, SpareTarget, read_until
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
 from mcp_conform.harness.session_base import SpawnedNode
@@ -53,7 +54,7 @@ from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["Backend", "Hit", "message_names", "read_until", "violation_hit"]
+__all__ = ["Backend", "BackendTarget", "Hit", "message_names", "read_until", "violation_hit"]
 
 _same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
@@ -78,7 +79,8 @@ class Backend(ProcessTarget):
 
     subject = StreamSession.subject
 
-    def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None) -> None:
+    def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None,
+                 pool: BackendTarget | None = None) -> None:
         self.target, self.spawn = target, spawn
         self.traits = traits if traits is not None else Traits()
         #: (time.monotonic() at its first write, case) for each case this process was sent
@@ -102,28 +104,34 @@ class Backend(ProcessTarget):
         self.synced = False  # the last case's judged effect showed the stream in sync
         self.unwatched = ""  # the kind of the last valid case sent without its close window
         self.unwatched_n = 0  # how many cases in a row before this one were
-        #: the next processes, started in the background (``fuzz.spares``: SPARES of them)
-        self.spares: Spares[Backend] = Spares(lambda: Backend(target, spawn, self.traits), Backend.close,
-                                              Backend.process_alive)
+        #: the worker's target this backend is one of, whose spares its :meth:`fresh` takes
+        #: (``fuzz.target_core.SpareTarget``); ``handed_on``: a fresh one has taken its place
+        self.pool = pool if pool is not None else BackendTarget(self)
+        self.handed_on = False
 
-    def close(self) -> None:
+    def end(self) -> None:
+        """The session closed (its process stopped, spawned)."""
         with contextlib.suppress(Exception):
             self.session.close()
-        self.spares.discard()
+
+    def close(self) -> None:
+        """The session closed, and the spares with it unless a fresh backend took its place."""
+        self.end()
+        if not self.handed_on:
+            self.pool.spares.discard()
 
     def fresh(self) -> Backend:
-        """A new process (spawn mode and the embedded default): the spare started in the
-        background after the previous one (a fresh start if it failed: its error is then the
-        start's own), and the next spare started; attach mode: the same target. A replay's and
-        a restart's alike: a real backend takes 1.2-1.4 s to start, and every replay of triage
-        waited for it."""
+        """A new process (spawn mode and the embedded default): this one closed, then its
+        target's (``SpareTarget.fresh``: the spare started in the background at the previous
+        call, a fresh start if it failed: its error is then the start's own; the next spare
+        started); attach mode: the same target. A replay's and a restart's alike: a real
+        backend takes 1.2-1.4 s to start, and every replay of triage waited for it."""
         if self.target is not None and self.spawn is None:
             self._drop()
             return self
-        spares, self.spares = self.spares, Spares(self.spares.start, Backend.close)
-        self.close()
-        b = spares.next()
-        b.traits, b.spares = self.traits, spares
+        self.handed_on = True
+        self.end()
+        b: Backend = self.pool.fresh()
         return b
 
     restart = fresh  #: the process the campaign goes on fuzzing with
@@ -434,6 +442,20 @@ class Backend(ProcessTarget):
         return Hit(Signature("effect", name, (), "NSQD-MSG-3"),
                    f"{name}: UPDATE.state {NSQD.state_name(state)} expected, saw {', '.join(seen_states)}")
 
+
+
+class BackendTarget(SpareTarget):
+    """A worker's backend as the loop sees a target (``fuzz.target_core.SpareTarget``): the
+    one now fuzzed (``current``), ``SPARES`` started ahead (none attached), each sharing the
+    first one's :class:`Traits`."""
+
+    current: Backend
+
+    def __init__(self, first: Backend) -> None:
+        target, spawn, traits = first.target, first.spawn, first.traits
+        super().__init__(first, lambda log: Backend(target, spawn, traits, self), Backend.end,
+                         attached=target is not None and spawn is None, timeout=None, n=SPARES,
+                         alive=Backend.process_alive)
 
 
 def violation_hit(conns: Iterable[Conn | None]) -> Hit | None:

@@ -1,6 +1,6 @@
 """``mcp-fuzz --protocol nsqd``: a campaign against a TCP backend until it breaks (issue 21),
 run by the one campaign loop (``fuzz.loop``, issue 37) with Nsqd's parts: its target
-(``fuzz.nsqd_triage.StreamTarget``, a backend spawned or attached), its engines (the
+(``fuzz.nsqd_backend.BackendTarget``, a backend spawned or attached), its engines (the
 stateless one, ``fuzz.nsqd_engine``; the stateful one, ``fuzz.nsqd_programs``), its triage
 (``fuzz.nsqd_triage``; before the first case, worker 0 counts the backend's descriptors over
 connect/close cycles: ``fuzz.nsqd_blame.leak_check``), its summary and closing lines
@@ -19,7 +19,7 @@ from mcp_conform.fuzz import loop
 from mcp_conform.fuzz.campaign_core import ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.nsqd_backend import Backend, message_names
+from mcp_conform.fuzz.nsqd_backend import Backend, BackendTarget, message_names
 from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
 from mcp_conform.fuzz.nsqd_repro import write_finding_files
 from mcp_conform.fuzz.nsqd_triage import StreamTarget, StreamTriage, nsqd_finding
@@ -37,8 +37,8 @@ class NsqdPlugin(ProtocolPlugin):
     TRIAGE = StreamTriage
     probe_every: int = 40  # cases between two probe commands
 
-    def start(self, cfg: FuzzConfig) -> StreamTarget:
-        return StreamTarget(Backend(cfg.target, cfg.spawn), attached=cfg.target is not None and cfg.spawn is None)
+    def start(self, cfg: FuzzConfig) -> BackendTarget:
+        return Backend(cfg.target, cfg.spawn).pool
 
     def first(self, triage: StreamTriage, cfg: FuzzConfig) -> None:
         if cfg.worker == 0:

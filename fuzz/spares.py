@@ -2,9 +2,8 @@
 campaign to go on with after a death, started in the background while the current one is
 fuzzed or replayed, so that neither waits for a process to start (a real backend takes
 1.2-1.4 s). Every protocol's target keeps its spares so (a worker's target of
-``fuzz.target_core.SpareTarget``, MAVLink's vehicle; Nsqd's ``fuzz.nsqd_backend``, which hands
-its spares on from one backend to the next): the protocol declares how one starts, closes and
-(if it can tell) whether it is still alive.
+``fuzz.target_core.SpareTarget``: MAVLink's vehicle, Nsqd's backend): the protocol declares how
+one starts, closes and (if it can tell) whether it is still alive.
 
 A target keeps its spares in :class:`Spares`: :meth:`Spares.next` hands on the first ready one
 (or starts one then, when none is: its start's own error is then the caller's) and starts the

@@ -21,7 +21,7 @@ from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import SPEC
 
 __all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
-           "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
+           "Restarts", "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
 
 #: The probe and its retransmissions, one --rto apart, before "not live": MCP-ROB-5/6 ("it
 #: still ACKs the next valid unicast") depend on MCP-ACK-1, observed across up to 5 copies
@@ -75,6 +75,22 @@ MISSION_ENDED = "its mission ended (End_Mission)"
 WITHHELD_START = "a startup with Mission_Ready's ACK withheld"
 
 
+class Restarts:
+    """A worker's target's restarts, counted by reason (summary.json's ``restarts_by_reason``,
+    the last line; issue 18 item 9: a campaign that restarted a correct node 34-86 times in
+    30 s did not say why): every protocol's (MCP's :class:`TargetBase`, MAVLink's and Nsqd's
+    ``fuzz.loop.WorkerTarget``)."""
+
+    def __init__(self) -> None:
+        self.restarts = 0
+        self.restart_reasons: dict[str, int] = {}
+
+    def count_restart(self, reason: str) -> None:
+        """One more restart, and why."""
+        self.restarts += 1
+        self.restart_reasons[reason] = self.restart_reasons.get(reason, 0) + 1
+
+
 @dataclass(frozen=True)
 class Probe:
     """The outcome of one liveness probe."""
@@ -85,19 +101,19 @@ class Probe:
     ack: Datagram | None
 
 
-class TargetBase:
+class TargetBase(Restarts):
     """The node under fuzz, whatever its role: ``session`` (the runner's, of that role),
-    ``run_cfg``, ``traffic``; the role's subclass starts it, restarts it and probes it."""
+    ``run_cfg``, ``traffic``, its restarts counted by reason (:class:`Restarts`); the role's
+    subclass starts it (:meth:`start`), gives a fresh node (:meth:`respawn`) and its probe
+    (:meth:`probe_send`)."""
 
-    cfg: Any
-    run_cfg: Any
-    session: Any
-    traffic: Traffic
-    restarts: int
-    restart_reasons: dict[str, int]  # why the node was restarted (issue 18 item 9), counted
-    #: what the oracles had to do to observe as the rules say, counted (``fuzz.oracles``:
-    #: missing ACKs retransmitted, and answered on a retransmission)
-    observations: dict[str, int]
+    def __init__(self, cfg: Any, run_cfg: Any, session: Any) -> None:
+        super().__init__()
+        self.cfg, self.run_cfg, self.session = cfg, run_cfg, session
+        self.traffic = Traffic()
+        #: what the oracles had to do to observe as the rules say, counted (``fuzz.oracles``:
+        #: missing ACKs retransmitted, and answered on a retransmission)
+        self.observations: dict[str, int] = {}
     #: the engines that fuzz this role (``--engine``; the first is its default when
     #: it cannot take ``both``)
     ENGINES: tuple[str, ...] = ("stateless", "stateful", "both")
@@ -105,11 +121,6 @@ class TargetBase:
     #: and the sentence saying it disagrees with --rto (None: it agrees)
     node_period: float | None = None
     timing: str | None = None
-
-    def count_restart(self, reason: str) -> None:
-        """One more restart, and why (summary.json's ``restarts_by_reason``, the last line)."""
-        self.restarts += 1
-        self.restart_reasons[reason] = self.restart_reasons.get(reason, 0) + 1
 
     def start(self) -> None:
         """Start (or attach to) the node; SetupError with a one-line reason otherwise."""
@@ -133,12 +144,26 @@ class TargetBase:
         return spoiled
 
     def restart(self, reason: str) -> None:
-        """A fresh node (spawn mode), for ``reason``; in attach mode the same node is all
-        there is."""
+        """A fresh node (spawn mode: :meth:`respawn`), for ``reason``, counted; in attach mode
+        the same node is all there is."""
+        if not self.spawned:
+            return
+        self.respawn()
+        self.count_restart(reason)
+
+    def respawn(self) -> None:
+        """The role's fresh node, started (spawn mode)."""
         raise NotImplementedError
 
     def probe(self, copies: int = PROBE_COPIES) -> Probe:
-        """The role's valid unicast, retransmitted every --rto until ACKed: proof of life."""
+        """The role's valid unicast (:meth:`probe_send`), retransmitted every --rto (at least
+        ``PROBE_MIN_WAIT``) until ACKed: proof of life."""
+        sent = self.probe_send()
+        ex = self.driver.exchange(sent, rto=max(self.rto, PROBE_MIN_WAIT), copies=copies)
+        return Probe(ex.acked, sent, len(ex.copies), ex.ack)
+
+    def probe_send(self) -> Sent:
+        """The role's probe, sent once."""
         raise NotImplementedError
 
     def close(self) -> None:

@@ -17,9 +17,12 @@ its own (its framing, its probe, its liveness oracle's rule).
   step (:meth:`SyncLink.exchange`: a case written with the protocol's probe right behind it,
   read until the probe's answer);
 - :class:`LinkedTarget`: a target reached by one such link: its traffic, whether it is still
-  there, its last beat, the fuzzer's own keep-alive sent once a period;
-- :class:`SpareTarget`: a worker's target (``fuzz.loop.WorkerTarget``) with a spare started
-  ahead (``fuzz.spares``; none when attached), restarted on it after a death;
+  there, its last beat, the fuzzer's own keep-alive sent once a period, and the synchronous
+  case runner (a case and the probe written, read to the probe's answer, what came before it
+  judged by the protocol; the protocol's liveness oracles when no answer or no beat comes);
+- :class:`SpareTarget`: a worker's target (``fuzz.loop.WorkerTarget``) with spares started
+  ahead (``fuzz.spares``; none when attached), restarted on one after a death (MAVLink's
+  vehicle, Nsqd's backend);
 - :func:`read_until`: several connections read until a predicate holds.
 
 The protocol and the role are the parameters (a framing, a subject, the placeholders), never a
@@ -35,7 +38,7 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from mcp_conform.fuzz.loop import WorkerTarget
 from mcp_conform.fuzz.spares import Spares
@@ -297,10 +300,41 @@ class SyncLink:
 class LinkedTarget(ProcessTarget):
     """A :class:`ProcessTarget` the fuzzer reaches by one :class:`SyncLink` (``link``): the
     traffic it keeps, whether the target is still there (its process runs, the link is
-    open), the target's last beat, the fuzzer's own keep-alive, and its end."""
+    open), the target's last beat, the fuzzer's own keep-alive, and its end; and the
+    synchronous case runner (:meth:`run`: a case written with the probe right behind it, what
+    came before the probe's answer judged; :meth:`run_all`, :meth:`watch`, :meth:`beats_on`).
+
+    The protocol declares what is its own: its beat (:meth:`is_beat`) and the gap its liveness
+    rule allows between two (``BEAT_GAP_S``; 0: not watched), the fuzzer's keep-alive (its
+    period ``KEEPALIVE_S``, :meth:`keepalive_frame`), its probe (:meth:`probe_frame`,
+    :meth:`is_probe_answer`, answered within ``REPLY_S``), how a case's answers are judged
+    (:meth:`judge`) and its liveness oracles (``oracles``: ``lost(target, case, answered=)``,
+    ``silent(target, since)``, ``beats_on(target)``). A case is what ``wire()`` writes."""
 
     link: SyncLink
     _keepalive_at = 0.0
+    BEAT_GAP_S: ClassVar[float] = 0.0
+    KEEPALIVE_S: ClassVar[float] = 0.0
+    REPLY_S: ClassVar[float] = 1.0
+    #: the beat's name in a report ("HEARTBEAT"), and the rule that bounds its first one
+    BEAT: ClassVar[tuple[str, str]] = ("beat", "")
+    oracles: Any  # a module or an object: the protocol's liveness oracles
+
+    def connect(self, how: TargetSpec, framing: Framing, log: list[Any] | None,
+                placeholders: Callable[[str, int], dict[str, str]] | None = None, first_beat_s: float = 10.0) -> Any:
+        """The target started or reached (:meth:`ProcessTarget.open`), its link, the fuzzer's
+        keep-alive sent and the target's first beat read within ``first_beat_s`` s (its frame;
+        none: the target closed, ``SetupError``); what the link held then, dropped."""
+        self.link = SyncLink(self.open(how, placeholders), framing, traffic=log, beat=self.is_beat)
+        self.keep_alive()
+        first = self.link.until(lambda r: self.is_beat(r), first_beat_s)
+        if first is None:
+            self.close()
+            name, rule = self.BEAT
+            raise SetupError(f"tcp:{self.address[0]}:{self.address[1]}: no {name} from {self.subject} within "
+                             f"{first_beat_s:g} s ({rule})")
+        self.frames.clear()
+        return first
 
     @property
     def log(self) -> list[Any] | None:
@@ -339,6 +373,11 @@ class LinkedTarget(ProcessTarget):
             self._keepalive_at = now
             self.send(frame())
 
+    def keep_alive(self) -> None:
+        """The protocol's keep-alive (:meth:`keepalive` of ``KEEPALIVE_S``; none when 0)."""
+        if self.KEEPALIVE_S:
+            self.keepalive(self.KEEPALIVE_S, self.keepalive_frame)
+
     def alive(self) -> bool:
         return not self.closed and self.process_alive()
 
@@ -347,25 +386,92 @@ class LinkedTarget(ProcessTarget):
             self.link.close()
         self.stop()
 
+    # -- what the protocol declares ----------------------------------------------------------
+    def is_beat(self, r: Any) -> bool:
+        """Whether frame ``r`` is the target's beat."""
+        return False
+
+    def keepalive_frame(self) -> bytes:
+        raise NotImplementedError
+
+    def probe_frame(self) -> bytes:
+        """The probe written behind a case (built anew each time: a sequence number may count)."""
+        raise NotImplementedError
+
+    def is_probe_answer(self, r: Any) -> bool:
+        raise NotImplementedError
+
+    def judge(self, case: Any, upto: int) -> Any:
+        """The hit (or None) the frames before the probe's answer (``frames[:upto]``) show."""
+        raise NotImplementedError
+
+    # -- the synchronous case runner ---------------------------------------------------------
+    def exchange(self, data: bytes, timeout: float) -> int | None:
+        """The keep-alive, then ``data`` and the probe written (``SyncLink.exchange``); the
+        probe's answer's index (None: no answer within ``timeout`` s)."""
+        self.keep_alive()
+        return self.link.exchange(data + self.probe_frame(), self.is_probe_answer, timeout)
+
+    def run(self, case: Any) -> Any:
+        """``case`` and the probe sent, what came judged: no answer, ``oracles.lost``; else
+        :meth:`judge`, then a beat missing longer than ``BEAT_GAP_S`` (``oracles.lost``, answered)."""
+        upto = self.exchange(case.wire(), self.REPLY_S)
+        if upto is None:
+            return self.oracles.lost(self, case)
+        hit = self.judge(case, upto)
+        if hit is None and self.BEAT_GAP_S and time.monotonic() - self.last_beat > self.BEAT_GAP_S:
+            hit = self.oracles.lost(self, case, answered=True)
+        del self.frames[:upto + 1]
+        return hit
+
+    def run_all(self, cases: list[Any]) -> bool:
+        """``cases`` sent back to back, then the probe (no answer is judged: thousands of
+        suspects take one write); whether the probe was answered."""
+        answered = self.exchange(b"".join(c.wire() for c in cases), self.REPLY_S + 0.002 * len(cases)) is not None
+        self.frames.clear()
+        return answered
+
+    def probe_answered(self, timeout: float) -> bool:
+        return self.link.until(self.is_probe_answer, timeout) is not None
+
+    def wait_beat(self, since: float) -> bool:
+        """Whether a beat comes after ``since`` before the gap since the last one passes ``BEAT_GAP_S``."""
+        return self.link.wait_beat(since, self.BEAT_GAP_S)
+
+    def watch(self, since: float) -> Any:
+        """After a replay: a beat after ``since`` (nothing), or ``oracles.silent``'s hang."""
+        return self.oracles.silent(self, since)
+
+    def beats_on(self) -> Any:
+        """With nothing sent: what the link holds read, then ``oracles.beats_on``."""
+        self.link.drain()
+        return self.oracles.beats_on(self)
+
 
 class SpareTarget(WorkerTarget):
-    """A worker's target (``fuzz.loop.WorkerTarget``) kept with a spare started in the
-    background (``fuzz.spares``; none when attached): ``make(log)`` starts another like the
-    first (spawned: a new process; attached: a new link), its traffic to ``log``; the one now
-    fuzzed (``current``) is replaced after a death (:meth:`restart`), made the campaign's own
-    by :meth:`adopt`."""
+    """A worker's target (``fuzz.loop.WorkerTarget``) kept with spares started in the
+    background (``fuzz.spares``: ``n`` of them, none when attached; one waited for up to
+    ``timeout`` s, one that ``alive`` tells has ended never handed on): ``make(log)`` starts
+    another like the first (spawned: a new process; attached: a new link), its traffic to
+    ``log`` (the target's ``log``), ``close`` ends one; the one now fuzzed (``current``) is
+    replaced after a death (:meth:`restart`), made the campaign's own by :meth:`adopt`. Every
+    protocol's worker target is one (MAVLink's ``fuzz.mavlink_vehicle.MavTarget``, Nsqd's
+    ``fuzz.nsqd_backend.BackendTarget``)."""
 
     def __init__(self, first: Any, make: Callable[[list[Any] | None], Any], close: Callable[[Any], None], *,
-                 attached: bool, timeout: float = 30.0) -> None:
+                 attached: bool, timeout: float | None = 30.0, n: int = 1,
+                 alive: Callable[[Any], bool] | None = None) -> None:
         super().__init__(first, attached=attached)
         self.make = make
-        self.spares: Spares[Any] = Spares(lambda: make(None), close, n=0 if attached else 1, timeout=timeout)
+        self.spares: Spares[Any] = Spares(lambda: make(None), close, alive, n=0 if attached else n, timeout=timeout)
 
     def fresh(self, log: list[Any] | None = None) -> Any:
         """Another target, the spare started in the background at the previous call (a
-        replay then waits for no process to start), and the next spare started."""
+        replay then waits for no process to start), and the next spare started; its traffic
+        to ``log`` (its ``log``; a spare's is None)."""
         t = self.spares.next(lambda: self.make(log))
-        t.log = log
+        if log is not None:
+            t.log = log
         return t
 
     def adopt(self, t: Any) -> Any:

@@ -35,3 +35,24 @@ def test_a_case_engine_keeps_the_cases_it_sent_with_their_times_when_asked():
     none = Count(0)
     none.run(time.monotonic() + 5.0, 2, None, lambda: False)
     assert list(none.sent) == [] and none.n == 2
+
+
+def test_a_hits_suspects_are_the_cases_kept_in_a_window_or_the_last_n():
+    """``CaseEngine.taken``: the cases kept sent within a time window, or the last N, oldest
+    first; then none kept (the next hit's suspects start afresh). ``send``: the worker's
+    target's current one runs the case."""
+    class Current:
+        def run(self, case):
+            return f"hit {case}"
+
+    class Target:
+        current = Current()
+
+    e = CaseEngine(None, seed=1, history=10, target=Target())
+    for i in range(6):
+        e.sent.append((10.0 + i, i))
+    assert e.taken(12.0, 14.0) == [2, 3, 4] and list(e.sent) == []
+    for i in range(6):
+        e.sent.append((10.0 + i, i))
+    assert e.taken(last=2) == [4, 5] and e.taken() == []
+    assert e.send("c") == "hit c"

@@ -32,8 +32,8 @@ def test_a_restart_takes_the_spare_started_before_it(spawn):
     b = Backend(None, spawn)
     try:
         b = b.restart()
-        assert len(b.spares.queue) == 2  # a replay may take less than a real backend's start: two ahead
-        spare = b.spares.queue[0].future.result(timeout=30)
+        assert len(b.pool.spares.queue) == 2  # a replay may take less than a real backend's start: two ahead
+        spare = b.pool.spares.queue[0].future.result(timeout=30)
         b = b.restart()
         assert b is spare and b.process is not None and b.process.alive()
         assert b.session.live(2.0)  # it serves

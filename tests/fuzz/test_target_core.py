@@ -227,3 +227,81 @@ def test_a_linked_target_sends_its_keepalive_once_a_period_and_tells_a_closed_li
     finally:
         t.close()
 
+
+
+class _Toy:
+    """A protocol declared to the shared case runner (``LinkedTarget``): a HEARTBEAT its beat,
+    a PARAM_REQUEST_READ its probe, a PARAM_VALUE its answer; what the runner asked recorded."""
+
+    @staticmethod
+    def target(client: socket.socket, gap: float) -> object:
+        from mcp_conform.fuzz.target_core import LinkedTarget
+
+        asked: list[tuple] = []
+
+        class Oracles:
+            @staticmethod
+            def lost(t, case, answered=False):  # noqa: ANN001, ANN205
+                asked.append(("lost", case, answered))
+                return "lost"
+
+        class Toy(LinkedTarget):
+            BEAT_GAP_S, REPLY_S, oracles = gap, 0.5, Oracles  # noqa: RUF012
+
+            def is_beat(self, r):  # noqa: ANN001, ANN202
+                return r.name == "HEARTBEAT"
+
+            def probe_frame(self) -> bytes:
+                return _frame(DIALECT.MAVLink_param_request_read_message(1, 1, b"PROBE", -1))
+
+            def is_probe_answer(self, r) -> bool:  # noqa: ANN001
+                return r.name == "PARAM_VALUE"
+
+            def judge(self, case, upto):  # noqa: ANN001, ANN202
+                asked.append(("judge", case, [r.name for r in self.frames[:upto]]))
+                return None
+
+        t = Toy()
+        t.link = SyncLink(client, MavlinkFraming(), beat=t.is_beat)
+        t.asked = asked  # type: ignore[attr-defined]
+        return t
+
+
+class _Case:
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def wire(self) -> bytes:
+        return self.data
+
+
+def test_the_shared_case_runner_judges_what_came_before_the_probes_answer():
+    """``LinkedTarget.run``: the case written with the protocol's probe behind it; the frames
+    before the probe's answer judged by the protocol, the answer and those before it dropped;
+    no answer within ``REPLY_S``, or a beat missing longer than ``BEAT_GAP_S``: its ``lost``."""
+    client, peer = _pair()
+    t = _Toy.target(client, gap=5.0)
+    try:
+        case = _Case(_heartbeat(7))
+        peer.sendall(_heartbeat(0) + _frame(DIALECT.MAVLink_param_value_message(b"PROBE", 1.0, 9, 1, 0))
+                     + _heartbeat(1))
+        assert t.run(case) is None
+        assert t.asked == [("judge", case, ["HEARTBEAT"])]  # type: ignore[attr-defined]
+        peer.settimeout(2.0)
+        got = peer.recv(1000)
+        assert got.startswith(_heartbeat(7)) and got.endswith(t.probe_frame())  # the case, then the probe
+        assert len(t.frames) <= 1 and all(r.name == "HEARTBEAT" for r in t.frames)  # the answer's and before: dropped
+        assert t.last_beat > 0
+        t.asked.clear()  # type: ignore[attr-defined]
+        assert t.run(case) == "lost" and t.asked == [("lost", case, False)]  # no answer  # type: ignore[attr-defined]
+    finally:
+        peer.close()
+        t.close()
+    client, peer = _pair()
+    t = _Toy.target(client, gap=0.01)  # the beat's bound passed while the probe was answered
+    try:
+        peer.sendall(_frame(DIALECT.MAVLink_param_value_message(b"PROBE", 1.0, 9, 1, 0)))
+        assert t.run(_Case(b"")) == "lost" and t.asked[-1][0] == "lost" and t.asked[-1][2] is True  # type: ignore[attr-defined]
+    finally:
+        peer.close()
+        t.close()
