@@ -188,12 +188,10 @@ def is_mavlink_capture(path: str | Path) -> bool:
     """A MAVLink trace: a tlog whose first record is a good MAVLink frame, or an MCAP whose run
     was ``--protocol mavlink`` (its metadata says so) or whose first records are MAVLink frames
     with no MCP datagram or Nsqd frame among them (an MCP drone run's capture holds its
-    autopilot link too, but is MCP's)."""
-    try:
-        trace = MavTrace(path)
-        if trace.format == "mcap":
-            return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
-        first = next(iter(trace), None)
-    except (CaptureError, OSError):
-        return False
-    return isinstance(first, MavFrame) and not first.bad
+    autopilot link too, but is MCP's). A file it cannot read as one raises ``CaptureError``
+    (or ``OSError``), which ``captures.cli.capture_profile`` takes for "not mine", as of every
+    protocol's detector."""
+    trace = MavTrace(path)
+    if trace.format == "mcap":
+        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
+    return isinstance(next(iter(trace), None), MavFrame)  # the tlog reader refuses a first record that is none
