@@ -51,9 +51,6 @@ _NOT_COMPARED = {"mavpackettype", "target_system", "target_component"}
 is_capture = is_mavlink_capture
 
 
-Judged = core.Judged
-
-
 def _role_under_test(trace: MavTrace) -> str | None:
     """The role whose rules an MCAP is judged by: its run's (``mcp-conform --role``) when the
     run was MAVLink's; the vehicle's when it was another protocol's (the autopilot link of an
@@ -63,12 +60,12 @@ def _role_under_test(trace: MavTrace) -> str | None:
     return role if role is None or role in MAVLINK.roles else "vehicle"
 
 
-def judge_trace(path: str | Path, *, keep: bool = False) -> Judged:
+def judge_trace(path: str | Path, *, keep: bool = False) -> core.Judged:
     """``path`` read and judged (``keep``: its frames kept, for show and diff)."""
     trace = open_trace(path)
     role = _role_under_test(trace)
     mon = MavlinkMonitor(roles=(role,) if role else ("vehicle", "gcs"), complete=trace.complete)
-    j = core.judge_records(Judged(str(path), trace.format, mon, role), trace, MavFrame, keep=keep)
+    j = core.judge_records(core.Judged(str(path), trace.format, mon, role), trace, MavFrame, keep=keep)
     if not j.count:
         raise CaptureError(f"{path}: no MAVLink frame in it (an MCAP of mcp-conform --protocol mavlink, "
                            "or a .tlog, holds them)")
@@ -114,13 +111,12 @@ class _Mavlink(core.CapturePlugin):
                             line=lambda f: core.found_line(f"node {f.node} ({dict(f.more)['role']})", f, j.first_ns,
                                                            j.case_at(f.t_ns)))
 
-    def judged(self, path: str, *, keep: bool = False) -> Judged:
-        return judge_trace(path, keep=keep)
+    judged = staticmethod(judge_trace)
 
-    def header(self, j: Judged) -> str:
+    def header(self, j: core.Judged) -> str:
         return f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)"
 
-    def frame_line(self, f: MavFrame, j: Judged, marks: dict[int, list[str]]) -> str:
+    def frame_line(self, f: MavFrame, j: core.Judged, marks: dict[int, list[str]]) -> str:
         t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
         mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
         if f.bad:
@@ -131,7 +127,7 @@ class _Mavlink(core.CapturePlugin):
         return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
                f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
 
-    def steps(self, j: Judged) -> dict[str, list[tuple[str, str]]]:
+    def steps(self, j: core.Judged) -> dict[str, list[tuple[str, str]]]:
         """The microservice messages of a trace by the role of their sender, each role's in order:
         (key compared, line shown). Compared sender by sender, as MCP's diff does: the order
         between the two sides is the recorder's (an answer may be stamped before its request,

@@ -110,17 +110,14 @@ def robust_parser() -> Any:
 class MavTrace:
     """An opened MAVLink trace; iterate it once for its records (see the module docstring).
     ``format``: ``mcap`` or ``tlog``; ``complete``: the trace holds every frame of its link
-    (our MCAP) rather than what one party logged (a tlog); after iteration ``truncated``."""
+    (our MCAP) rather than what one party logged (a tlog). A cut trace's last record is
+    ``Truncated`` (an MCAP's: ``traces.packet_records``')."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.truncated: str | None = None
         self.size, head = head_of(self.path, 17, "a MAVLink trace (a .tlog or an MCAP of mcp-conform)")
-        if is_mcap_head(head):
-            self.format = "mcap"
-        elif _tlog_head(head):
-            self.format = "tlog"
-        else:
+        self.format = "mcap" if is_mcap_head(head) else "tlog" if _tlog_head(head) else ""
+        if not self.format:
             raise CaptureError(f"{self.path}: not a MAVLink trace (starts {head[:9].hex(' ')}): a .tlog's "
                                "records are an 8-byte big-endian microsecond time and a MAVLink frame")
         self.complete = self.format == "mcap"
@@ -135,10 +132,7 @@ class MavTrace:
         def frame(n: int, rec: MavlinkFrame) -> MavFrame:
             p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, robust_parser())
             return MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
-        for rec in packet_records(open_capture(self.path), MavlinkFrame, frame):
-            if isinstance(rec, Truncated):
-                self.truncated = rec.reason
-            yield rec
+        return packet_records(open_capture(self.path), MavlinkFrame, frame)
 
     # -- tlog -----------------------------------------------------------------------------
     def _tlog(self) -> Iterator[Any]:
@@ -149,12 +143,13 @@ class MavTrace:
         log.mav = robust_parser()  # the dialect's, which reads MAVLink 1 and 2 (see the module)
         log.first_byte = False  # ... so pymavlink's version switch never runs
         consumed = n = 0
+        truncated: str | None = None
         try:
             while True:
                 try:
                     msg = log.recv_msg()
                 except Exception as exc:  # noqa: BLE001 - whatever pymavlink makes of a corrupt tail
-                    self.truncated = f"record {n + 1} unreadable ({type(exc).__name__}: {exc})"
+                    truncated = f"record {n + 1} unreadable ({type(exc).__name__}: {exc})"
                     break
                 if msg is None:
                     break
@@ -168,13 +163,13 @@ class MavTrace:
                 n += 1
         finally:
             log.close()
-        if self.truncated is None and consumed < self.size:
+        if truncated is None and consumed < self.size:
             left = self.size - consumed
-            self.truncated = f"{left} byte(s) after the last whole record (a cut or damaged file)"
-        if self.truncated is not None:
+            truncated = f"{left} byte(s) after the last whole record (a cut or damaged file)"
+        if truncated is not None:
             if not n:
-                raise CaptureError(f"{self.path}: not a MAVLink telemetry log: no whole record ({self.truncated})")
-            yield Truncated(self.truncated)
+                raise CaptureError(f"{self.path}: not a MAVLink telemetry log: no whole record ({truncated})")
+            yield Truncated(truncated)
 
 
 def _tlog_head(head: bytes) -> bool:
@@ -193,12 +188,10 @@ def is_mavlink_capture(path: str | Path) -> bool:
     """A MAVLink trace: a tlog whose first record is a good MAVLink frame, or an MCAP whose run
     was ``--protocol mavlink`` (its metadata says so) or whose first records are MAVLink frames
     with no MCP datagram or Nsqd frame among them (an MCP drone run's capture holds its
-    autopilot link too, but is MCP's)."""
-    try:
-        trace = MavTrace(path)
-        if trace.format == "mcap":
-            return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
-        first = next(iter(trace), None)
-    except (CaptureError, OSError):
-        return False
-    return isinstance(first, MavFrame) and not first.bad
+    autopilot link too, but is MCP's). A file it cannot read as one raises ``CaptureError``
+    (or ``OSError``), which ``captures.cli.capture_profile`` takes for "not mine", as of every
+    protocol's detector."""
+    trace = MavTrace(path)
+    if trace.format == "mcap":
+        return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
+    return isinstance(next(iter(trace), None), MavFrame)  # the tlog reader refuses a first record that is none

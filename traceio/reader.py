@@ -43,6 +43,7 @@ from __future__ import annotations
 import gzip
 import heapq
 import json
+import os
 import zlib
 from binascii import a2b_base64
 from collections import Counter
@@ -91,6 +92,8 @@ __all__ = [
     "StreamFrame",
     "Truncated",
     "VehicleMark",
+    "head_of",
+    "is_mcap_head",
     "open_capture",
 ]
 
@@ -115,6 +118,26 @@ _SEGMENT_FIELD = {"d": 6, "m": 3, "v": 3, "c": 4}
 MAX_BURST = 10 * int(SPEC.params["flood_count"])
 #: The most datagrams all the bursts of one file may stand for together.
 MAX_BURST_TOTAL = 100 * int(SPEC.params["flood_count"])
+
+
+def head_of(path: str | Path, n: int, what: str) -> tuple[int, bytes]:
+    """(size, first ``n`` bytes) of a file read as ``what`` (a capture; a protocol's own trace
+    file, ``traceio.mavlink``'s tlog); CaptureError (one line naming the file) when it cannot
+    be read or is empty."""
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as f:
+            head = f.read(n)
+    except OSError as exc:
+        raise CaptureError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if size == 0:
+        raise CaptureError(f"{path}: empty file, not {what}")
+    return size, head
+
+
+def is_mcap_head(head: bytes) -> bool:
+    """A file's first bytes are an MCAP's magic (or all there is of it)."""
+    return head[:8] == _MCAP_MAGIC or (len(head) < 8 and _MCAP_MAGIC.startswith(head))
 
 
 def open_capture(path: str | Path, segment: str | None = None) -> Capture:
@@ -148,13 +171,7 @@ class Capture:
         self.linktypes: set[int] = set()
         self._fragments_open = 0
         name = str(self.path)
-        try:
-            with open(self.path, "rb") as f:
-                head = f.read(8)
-        except OSError as exc:
-            raise CaptureError(f"{name}: cannot read: {exc.strerror or exc}") from None
-        if not head:
-            raise CaptureError(f"{name}: empty file, not a capture")
+        head = head_of(self.path, 8, "a capture")[1]
         if head.startswith(_GZIP_MAGIC):
             try:
                 with gzip.open(self.path, "rb") as g:

@@ -5,7 +5,8 @@ which run a capture's metadata says it was (:func:`recorded_protocol`, :func:`sa
 a capture's first records are a protocol's (:func:`claims`), the records an MCAP holds of it
 (:func:`records_of`; a packet protocol's frames numbered, :func:`packet_records`), a capture's packet reader closed however the reading ends
 (:func:`closing`), and the one-line error of a file corrupt before its first record
-(:func:`corrupt`), a file's head (:func:`head_of`, :func:`is_mcap_head`), a pcap's TCP connections as a stream protocol's records
+(:func:`corrupt`), a file's head (:func:`head_of`, :func:`is_mcap_head`: ``traceio.reader``'s,
+which every capture's reading starts with), a pcap's TCP connections as a stream protocol's records
 (:func:`stream_pcap_records`, its frames named by the spec: :func:`frame_names`). A protocol's own module keeps its content: its records, its framing, its
 own file format (a tlog).
 """
@@ -15,19 +16,19 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
-import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 from mcp_conform.traceio.reader import (
-    _MCAP_MAGIC,
     Capture,
     CaptureError,
     CaseMark,
     Metadata,
     StreamFrame,
     Truncated,
+    head_of,
+    is_mcap_head,
     open_capture,
 )
 from mcp_conform.traceio.tcp import StreamData, StreamGap, tcp_events
@@ -47,25 +48,6 @@ def recorded(path: str | Path, key: str) -> str | None:
         if isinstance(rec, Metadata) and rec.data.get(key):
             return str(rec.data[key])
     return None
-
-
-def head_of(path: str | Path, n: int, what: str) -> tuple[int, bytes]:
-    """(size, first ``n`` bytes) of a file read as ``what``; CaptureError (one line naming the
-    file) when it cannot be read or is empty."""
-    try:
-        size = os.path.getsize(path)
-        with open(path, "rb") as f:
-            head = f.read(n)
-    except OSError as exc:
-        raise CaptureError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if size == 0:
-        raise CaptureError(f"{path}: empty file, not {what}")
-    return size, head
-
-
-def is_mcap_head(head: bytes) -> bool:
-    """A file's first bytes are an MCAP's magic (or all there is of it)."""
-    return head[:8] == _MCAP_MAGIC or (len(head) < 8 and _MCAP_MAGIC.startswith(head))
 
 
 def recorded_protocol(meta: Metadata) -> str | None:
