@@ -33,7 +33,7 @@ from mcp_conform.fuzz.finding_files import (
     write_finding_doc,
     write_packets_repro,
 )
-from mcp_conform.fuzz.oracles import Flaw, rule_level
+from mcp_conform.fuzz.oracles import Flaw
 from mcp_conform.spec import RULES
 from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, pick
 
@@ -82,7 +82,8 @@ class Finding:
     traffic: list[Any] = field(default_factory=list)  # a stream protocol's last confirming replay's
 
     def __post_init__(self) -> None:
-        self.level = self.level or rule_level(self.rule)
+        # its rule's level in its protocol's spec (``spec.RULES``: every protocol's); MUST when unknown
+        self.level = self.level or (RULES[self.rule].level if self.rule in RULES else "MUST")
 
     @property
     def key(self) -> tuple[str, str]:

@@ -38,7 +38,6 @@ from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
 from mcp_conform.fuzz.triage_core import HitTriage, Parts
-from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
@@ -92,14 +91,13 @@ def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] |
 
 def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, seed: int = 0, worker: int = 0,
                     traffic: list[Any] | None = None, note: str = "") -> Finding:
-    """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``; its seed and worker
-    are the triage's, ``HitTriage.add``)."""
+    """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``: its level its rule's;
+    its seed and worker the triage's, ``HitTriage.add``)."""
     sig = hit.signature
-    rule = MAVLINK.rules_by_id.get(sig.rule)
     shape = (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
              if cases else f"{sig.oracle} whatever it is sent ({sig.rule})")
     return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames], shape,
-                   "stateless", seed, level=rule.level if rule is not None else "MUST", evidence=list(hit.evidence),
+                   "stateless", seed, evidence=list(hit.evidence),
                    worker=worker, source=sig.oracle, protocol=MAVLINK_PROFILE.name, note=note, replays=replays,
                    no_input=not cases,
                    doc={"oracle": sig.oracle, "kind": sig.kind, "probe": probe.decode(errors="replace"),
