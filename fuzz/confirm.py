@@ -21,9 +21,9 @@ The loop every protocol's campaign runs, protocol-neutral (MCP: ``fuzz.campaign`
 6. the finding kept in the store (``fuzz.findings``), progress ticked, and on a signal or the
    budget's end the campaign writes what it has.
 
-Steps 1-4 are still each protocol's own code; step 5 is this module's, used by MCP's triage
-(its minimal sequence), Nsqd's (its minimal cases, its baseline, its descriptor leak, a
-stateful program's ops).
+Steps 2-5 are ``fuzz.triage_core``'s, each protocol's triage declaring its parts; step 5 is
+this module's, run by ``fuzz.triage_core.HitTriage.confirm_logged`` for MCP's minimal sequence,
+MAVLink's minimal cases and Nsqd's, and by Nsqd's descriptor leak and a stateful program's ops.
 """
 
 from __future__ import annotations

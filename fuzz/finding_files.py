@@ -19,7 +19,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["TrafficLog", "finding_dir", "read_finding_doc", "write_finding_doc", "write_repro_mcap"]
+__all__ = ["TrafficLog", "finding_dir", "read_finding_doc", "write_finding_doc", "write_packets_repro",
+           "write_repro_mcap"]
 
 _PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
 
@@ -80,23 +81,39 @@ def read_finding_doc(path: str | Path, *, mcap: bool = True) -> dict[str, Any]:
 
 
 def write_repro_mcap(d: Path, doc: dict[str, Any], role: str, times: Iterable[int], write: Callable[[Any], None],
-                     *, evidence: Any = None, **meta: Any) -> None:
-    """``d/repro.mcap`` of a finding (``doc``: its finding.json, whole in the ``mcp-fuzz``
-    metadata record, which :func:`read_finding_doc` reads back; ``meta``: that record's other
-    keys, the protocol among them): the traffic of its last confirming replay, written by
-    ``write(recorder)`` at ``times`` (ns), between the finding's case marks (its ``rule``;
-    ``evidence``: the end mark's)."""
+                     *, evidence: Any = None, name: str = "repro.mcap", **meta: Any) -> None:
+    """``d/repro.mcap`` (``name``) of a finding (``doc``: its finding.json, whole in the
+    ``mcp-fuzz`` metadata record, which :func:`read_finding_doc` reads back; ``meta``: that
+    record's other keys, the protocol among them): the traffic of its last confirming replay,
+    written by ``write(recorder)`` at ``times`` (ns), between the finding's case marks (its
+    ``rule``; ``evidence``: the end mark's)."""
     from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
 
     rule = str(doc.get("rule", ""))
     ts = list(times)
     t0 = (min(ts) - 1) if ts else time.time_ns()
     t_end = (max(ts) + 1) if ts else t0 + 1
-    with McapRecorder(d / "repro.mcap", library=FUZZ_RECORDER,
+    with McapRecorder(d / name, library=FUZZ_RECORDER,
                       metadata=run_metadata(FUZZ_RECORDER, role=role, rule=rule, finding=doc, **meta)) as rec:
         rec.case_mark(f"finding:{rule}", "start", t0, rules=(rule,))
         write(rec)
         rec.case_mark(f"finding:{rule}", "end", t_end, outcome="failed", rules=(rule,), evidence=evidence)
+
+
+def write_packets_repro(path: Path, f: Any, role: str, traffic: list[Any] | None, sent: str,
+                        write: Callable[[Any, tuple[Any, ...]], None], **meta: Any) -> None:
+    """``path`` (a ``repro.mcap``, :func:`write_repro_mcap`) of a finding ``f`` of a datagram or
+    packet protocol (MCP's, MAVLink's): the records (direction, t_ns, data, ...) of its
+    confirming replay's ``traffic``, else its input (``f.datagrams``, hex) as the fuzzer sent it
+    (direction ``sent``, a microsecond apart), each written by ``write(recorder, record)``."""
+    t0 = time.time_ns()
+    records = traffic or [(sent, t0 + i * 1000, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
+
+    def write_all(rec: Any) -> None:
+        for r in records:
+            write(rec, r)
+
+    write_repro_mcap(path.parent, f.to_json(), role, (r[1] for r in records), write_all, name=path.name, **meta)
 
 
 def _addr(a: Any) -> tuple[str, int] | None:

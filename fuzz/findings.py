@@ -27,8 +27,13 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from mcp_conform.fuzz.finding_files import finding_dir, read_finding_doc, write_finding_doc
-from mcp_conform.fuzz.oracles import Flaw, rule_level
+from mcp_conform.fuzz.finding_files import (
+    finding_dir,
+    read_finding_doc,
+    write_finding_doc,
+    write_packets_repro,
+)
+from mcp_conform.fuzz.oracles import Flaw
 from mcp_conform.spec import RULES
 from mcp_conform.spec.profiles import DEFAULT_PROTOCOL, pick
 
@@ -77,7 +82,8 @@ class Finding:
     traffic: list[Any] = field(default_factory=list)  # a stream protocol's last confirming replay's
 
     def __post_init__(self) -> None:
-        self.level = self.level or rule_level(self.rule)
+        # its rule's level in its protocol's spec (``spec.RULES``: every protocol's); MUST when unknown
+        self.level = self.level or (RULES[self.rule].level if self.rule in RULES else "MUST")
 
     @property
     def key(self) -> tuple[str, str]:
@@ -243,30 +249,14 @@ def finding_from_metadata(meta: dict[str, str]) -> Finding | None:
 
 def write_repro(path: Path, f: Finding, traffic: list[tuple[str, int, bytes, tuple[str, int]]] | None,
                 ) -> None:
-    """The minimal sequence (and, when known, the node's answers) as an MCAP capture."""
-    import time
-
-    from mcp_conform.traceio.recorder import FUZZ_RECORDER, McapRecorder, run_metadata
-
-    # what `mcp-capture replay` needs to reproduce the finding as `mcp-fuzz --replay` does
+    """The minimal sequence (and, when known, the node's answers) as an MCAP capture
+    (``fuzz.finding_files.write_packets_repro``), with what ``mcp-capture replay`` needs to
+    reproduce the finding as ``mcp-fuzz --replay`` does."""
     role = f.target.get("role") or pick(f.protocol)[1].name  # a finding written before it was recorded
-    meta = run_metadata(FUZZ_RECORDER, role=role, rule=f.rule, expected=f.expected, actual=f.actual,
-                        engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario,
-                        target=f.target or None, datagrams=f.datagrams, shape=f.shape,
-                        finding=f.to_json())
-    with McapRecorder(path, library=FUZZ_RECORDER, metadata=meta) as rec:
-        # the case's marks around its traffic: the start before the first datagram
-        t0 = (min(t for _, t, _, _ in traffic) - 1) if traffic else time.time_ns()
-        rec.case_mark(f"finding:{f.rule}", "start", t0, rules=(f.rule,))
-        if traffic:
-            for direction, t_ns, data, addr in traffic:
-                rec.datagram(direction, data, addr, t_ns)
-            t_end = max(t for _, t, _, _ in traffic) + 1
-        else:
-            for i, h in enumerate(f.datagrams):
-                rec.datagram("tx", bytes.fromhex(h), ("127.0.0.1", 0), t0 + i * 1000)
-            t_end = t0 + len(f.datagrams) * 1000
-        rec.case_mark(f"finding:{f.rule}", "end", t_end, outcome="failed", rules=(f.rule,))
+    write_packets_repro(path, f, role, traffic, "tx", lambda rec, r: rec.datagram(
+        r[0], r[2], r[3] if len(r) > 3 else ("127.0.0.1", 0), r[1]), expected=f.expected, actual=f.actual,
+        engine=f.engine, seed=f.seed, pace=f.pace, scenario=f.scenario, target=f.target or None,
+        datagrams=f.datagrams, shape=f.shape)
 
 
 def write_summary(path: Path, summary: dict[str, Any]) -> None:

@@ -27,19 +27,17 @@ the last confirming replay's traffic in ``repro.mcap`` (its ``/mavlink`` channel
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from mcp_conform.fuzz.finding_files import write_repro_mcap
+from mcp_conform.fuzz.finding_files import write_packets_repro
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import count, triage_time
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
-from mcp_conform.fuzz.triage_core import HitTriage, Parts, known_lasting_hit
-from mcp_conform.harness.errors import SetupError
-from mcp_conform.spec import MAVLINK
+from mcp_conform.fuzz.triage_core import HitTriage, Parts
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
 __all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
@@ -60,7 +58,7 @@ FRAMES: Parts[Case, bytes] = Parts(lambda c: c.frames, lambda c, fs: replace(c, 
 
 
 def _like(c: Case) -> tuple[str, str, tuple[str, ...]]:
-    """What makes cases alike for a known hang (``MavTriage._known_hang``)."""
+    """What makes cases alike for a known hang (``HitTriage.known_lasting``)."""
     return (c.kind, c.rule, c.messages)
 
 
@@ -91,15 +89,15 @@ def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] |
         v.close()
 
 
-def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, seed: int, worker: int,
+def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, seed: int = 0, worker: int = 0,
                     traffic: list[Any] | None = None, note: str = "") -> Finding:
-    """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``)."""
+    """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``: its level its rule's;
+    its seed and worker the triage's, ``HitTriage.add``)."""
     sig = hit.signature
-    rule = MAVLINK.rules_by_id.get(sig.rule)
     shape = (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
              if cases else f"{sig.oracle} whatever it is sent ({sig.rule})")
     return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames], shape,
-                   "stateless", seed, level=rule.level if rule is not None else "MUST", evidence=list(hit.evidence),
+                   "stateless", seed, evidence=list(hit.evidence),
                    worker=worker, source=sig.oracle, protocol=MAVLINK_PROFILE.name, note=note, replays=replays,
                    no_input=not cases,
                    doc={"oracle": sig.oracle, "kind": sig.kind, "probe": probe.decode(errors="replace"),
@@ -112,7 +110,7 @@ class MavTriage(HitTriage):
     """One worker's MAVLink triage (``fuzz.triage_core``'s steps; what it learnt carried to the
     next engine turn's: ``tries``, ``baselines``)."""
 
-
+    DEATHS = DEATHS
     target: MavTarget
     store: FindingStore
 
@@ -136,26 +134,13 @@ class MavTriage(HitTriage):
 
     def _known(self, sig: Signature, kind: str) -> Finding | None:
         """The finding a hit already is, by the case it showed after (a crash, an unanswered
-        probe: that case; a hang is not: whatever case ran when the beat was missed,
-        :meth:`_known_hang`)."""
+        probe: that case; a hang is not: whatever case ran when the beat was missed, one of
+        its suspects like a hang finding's case is its culprit, ``HitTriage.known_lasting``)."""
         if sig.oracle == "hang":
             return None
         return next((f for f in self.store.order if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
                      and (f.doc.get("kind") == sig.kind or (sig.oracle in DEATHS and f.cases
                                                             and f.cases[-1].kind == kind))), None)
-
-    def _known_hang(self, suspects: list[Case]) -> Finding | None:
-        """The known hang finding a stopped heartbeat repeats: one of its suspects like its
-        confirmed case (kind, rule, messages) is the culprit, as the prefix search would find
-        it, checked on one fresh vehicle in two sends (``fuzz.triage_core.known_lasting_hit``);
-        None: triage it."""
-        knowns = [(f, _like(f.cases[-1])) for f in self.store.order if f.source == "hang" and f.cases]
-        if not knowns:
-            return None
-        try:
-            return known_lasting_hit(suspects, knowns, _like, self._fresh, self._stops, MavVehicle.close)
-        except SetupError:  # a fresh vehicle that did not start: triage it
-            return None
 
     def _triage(self, hit: Hit, suspects: list[Case]) -> None:
         sig = hit.signature
@@ -165,83 +150,48 @@ class MavTriage(HitTriage):
             return
         if self.counted(self._known(sig, kind), self._key(sig, kind), sig.describe()):
             return
-        if sig.oracle == "hang" and self._hangs_anyway(hit):
+        if sig.oracle == "hang" and (self._hangs_anyway(sig) or self.known_lasting(
+                suspects, "hang", _like, self._fresh, self._stops, MavVehicle.close)):
             return
-        if sig.oracle == "hang":
-            again = self._known_hang(suspects)
-            if again is not None:
-                again.occurrences += 1
-                return
         # the case that showed it (a hang's: the last of the shortest prefix of the suspects
         # that stops the heartbeat: it stays stopped) confirmed at once, then its fewest frames;
         # else the fewest cases of them that show it (fuzz.triage_core: HitTriage.minimal). A
         # replay that stops it costs heartbeat_gap_max_s (3 s) and a fresh vehicle, one that
         # beats on a period (1 s): each prefix adds a third of the range in doubt (SPLIT)
         lasting = (self._fresh, self._stops, MavVehicle.close, SPLIT) if sig.oracle == "hang" else None
-        searched = self.minimal(suspects, self.shows(self._replay(sig)),
-                                lambda cases, until_miss: self._confirm(sig, cases, until_miss), lasting=lasting,
-                                group=_kind, parts=FRAMES, budget=24, singles=2)
+        searched = self.minimal(suspects, self.shows(lambda cases: replay_cases(self._fresh, cases, sig), unstarted=True),
+                                lambda cases, until_miss: self.confirm_logged(
+                                    lambda log: replay_cases(self._fresh, cases, sig, log), until_miss=until_miss),
+                                lasting=lasting, group=_kind, parts=FRAMES, budget=24, singles=2)
         if searched is None:
             self.not_confirmed(sig.rule, self._key(sig, kind))
             return
         minimal, conf = searched
         if sig.oracle in DEATHS:  # named by the case that makes it
             sig = replace(sig, rule=minimal[-1].rule, kind=minimal[-1].kind)
-        if not conf.confirmed:
-            self.missed(sig.rule, self._key(sig, kind), conf, shape=sig.describe(), actual=hit.actual,
-                        size=f"{len(minimal)} case(s)", where=" on a fresh vehicle")
+        if self.missed(sig.rule, self._key(sig, kind), conf, shape=sig.describe(), actual=hit.actual,
+                       size=f"{len(minimal)} case(s)", where=" on a fresh vehicle"):
             return
         last, traffic = conf.hits[-1]
         found = Hit(sig, last.expected, last.actual, last.evidence or hit.evidence)
-        note = f"{len(minimal)} case(s) of {len(suspects)} suspect(s), replayed on a fresh vehicle"
-        f = mavlink_finding(found, minimal, conf.replays, self.target.info.probe, seed=self.seed,
-                            worker=self.worker, traffic=traffic, note=note)
-        self.store.add(f)
+        self.add(mavlink_finding(found, minimal, conf.replays, self.target.info.probe, traffic=traffic,
+                                 note=f"{len(minimal)} case(s) of {len(suspects)} suspect(s), replayed on a fresh vehicle"))
 
-    def _hangs_anyway(self, hit: Hit) -> bool:
-        """Whether the heartbeat stops with no case sent (``HitTriage.baseline``: a fresh
-        vehicle watched for its next HEARTBEATs); then the stop is the vehicle's own (a finding
-        with no input blamed, MAV-HB-1) and no case is blamed for it."""
-        def quiet(log: list[Any], first: Hit | None) -> Hit | None:
-            v = self._fresh(log)
-            try:
-                return v.beats_on()
-            finally:
-                v.close()
-
-        def found(first: Hit, last: Hit, log: list[Any], replays: str) -> None:
-            self.store.add(mavlink_finding(last, [], replays, self.target.info.probe, traffic=log, seed=self.seed,
-                                           worker=self.worker, note="the vehicle's behaviour whatever it is sent: "
-                                                                    "no input blamed (a fresh vehicle sent nothing)"))
-
-        if self.baseline("hang", quiet, lambda a, b: True, found,
-                         lambda h: (h.signature.rule, h.signature.describe(), h.actual)) is None:
+    def _hangs_anyway(self, sig: Signature) -> bool:
+        """Whether the heartbeat stops with no case sent (``HitTriage.no_input``: a fresh
+        vehicle watched for its next HEARTBEATs, ``replay_cases`` of none); then the stop is
+        the vehicle's own (a finding with no input blamed, MAV-HB-1, one more occurrence of it)
+        and no case is blamed for it."""
+        if self.no_input("hang", lambda log, first: replay_cases(self._fresh, [], sig, log), lambda a, b: True, lambda first, last, log, replays: mavlink_finding(
+                last, [], replays, self.target.info.probe, traffic=log, note="the vehicle's behaviour whatever it "
+                "is sent: no input blamed (a fresh vehicle sent nothing)"),
+                lambda h: (h.signature.rule, h.signature.describe(), h.actual)) is None:
             return False
-        known = next((f for f in self.store.order if f.no_input and f.source == "hang"), None)
-        if known is not None:
-            known.occurrences += 1
+        self.again(next((f for f in self.store.order if f.no_input and f.source == "hang"), None))
         return True
 
-    def _confirm(self, sig: Signature, cases: list[Case], until_miss: bool) -> Any:
-        """``cases`` replayed ``n_of_n`` times, each on a fresh vehicle (``fuzz.confirm``)."""
-        return self.confirm_logged(lambda log: self.replay(lambda: replay_cases(self._fresh, cases, sig, log)),
-                                   until_miss=until_miss)
-
     def _fresh(self, log: list[Any] | None = None) -> MavVehicle:
-        try:
-            return self.target.fresh(log)
-        finally:
-            self.target.count_restart("triage replay")
-
-    def _replay(self, sig: Signature) -> Callable[[list[Case]], Hit | None]:
-        """The search's replay (``HitTriage.shows``): ``cases`` on a fresh vehicle, the hit
-        that shows ``sig`` (``replay_cases``); None too when the vehicle did not start."""
-        def replay(cases: list[Case]) -> Hit | None:
-            try:
-                return replay_cases(self._fresh, cases, sig)
-            except SetupError:
-                return None
-        return replay
+        return self.fresh(lambda: self.target.fresh(log))
 
     def _stops(self, v: MavVehicle, cases: Sequence[Case]) -> bool | None:
         """``cases`` sent to ``v`` back to back after what it was sent before (a hang's prefix
@@ -258,14 +208,8 @@ class MavTriage(HitTriage):
 def write_repro(d: Path, f: Finding) -> None:
     """``repro.mcap``: the finding's last confirming replay (or its frames) on ``/mavlink``,
     from the vehicle's side (``rx``: the fuzzer's frames, ``tx``: the vehicle's), with the
-    finding in the ``mcp-fuzz`` metadata record (``fuzz.finding_files.write_repro_mcap``)."""
+    finding in the ``mcp-fuzz`` metadata record (``fuzz.finding_files.write_packets_repro``)."""
     from mcp_conform.traceio.recorder import mavlink_type
 
-    traffic = f.traffic or [("rx", time.time_ns() + i, bytes.fromhex(h)) for i, h in enumerate(f.datagrams)]
-
-    def write(rec: Any) -> None:
-        for direction, t_ns, data in traffic:
-            rec.mavlink(direction, data, t_ns, msg_type=mavlink_type(data))
-
-    write_repro_mcap(d, f.to_json(), MAVLINK_PROFILE.default_role.name, (t for _, t, _ in traffic), write,
-                     protocol=MAVLINK_PROFILE.name, expected=f.expected, actual=f.actual)
+    write_packets_repro(d / "repro.mcap", f, MAVLINK_PROFILE.default_role.name, f.traffic, "rx", lambda rec, r: rec.mavlink(
+        r[0], r[2], r[1], msg_type=mavlink_type(r[2])), protocol=MAVLINK_PROFILE.name, expected=f.expected, actual=f.actual)

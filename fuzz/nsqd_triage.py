@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from mcp_conform.fuzz.budget import TRIAGE_SHARE, over_budget
-from mcp_conform.fuzz.confirm import Confirmation, confirm_n
+from mcp_conform.fuzz.confirm import Confirmation
 from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import WorkerTarget, triage_time
@@ -93,6 +93,7 @@ class StreamTriage(HitTriage):
     ``untriaged`` by signature, ``tries`` by (signature key, how))."""
 
     LEARNT: ClassVar[tuple[str, ...]] = ("tries", "aliases", "baselines")
+    DEATHS: ClassVar[tuple[str, ...]] = ("crash", "hang", "sanitizer")
     target: WorkerTarget
     store: FindingStore
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
@@ -128,7 +129,7 @@ class StreamTriage(HitTriage):
         self.wait = REPLAY_DEATH_S
         with triage_time(self, hit.signature.describe()):
             if self.skip(hit.signature, backend, "program"):
-                return self.restart(backend) if hit.signature.oracle in ("crash", "hang", "sanitizer") else backend
+                return self.restart(backend) if hit.signature.oracle in self.DEATHS else backend
             blame, backend = self.blamed(backend, hit, False)
             return triage_program(self, backend, hit, ops) if blame else backend
         return self.current
@@ -163,8 +164,7 @@ class StreamTriage(HitTriage):
         backend) still show ``sig`` (then the probe command, ``probe``); each replay a restart
         counted (``triage replay``)."""
         def replay(cases: list[Case]) -> Signature | None:
-            ok, self.current, _ = _reproduces(self.current, cases, sig, probe=probe, wait=self.wait)
-            self.target.count_restart("triage replay")
+            ok, self.current, _ = self.fresh(lambda: _reproduces(self.current, cases, sig, probe=probe, wait=self.wait))
             return sig if ok else None
         return self.shows(replay)
 
@@ -180,19 +180,17 @@ class StreamTriage(HitTriage):
             self.current = backend
 
         def observe(log: list[Any], first: Hit | None) -> Hit | None:
-            b = self.current = self.current.fresh()
-            self.target.count_restart("triage replay")
+            b = self.current = self.fresh(self.current.fresh)
             return baseline(b, (first or hit).signature, probe=key)
 
-        def found(first: Hit, last: Hit, log: list[Any], replays: str) -> None:
-            if self.known(first.signature) is None:
-                how = ("the probe command with no case before it)" if first.detail.endswith(PROBED)
-                       else "a baseline connection sent nothing)")
-                self.add(nsqd_finding(first.signature, [], first.detail, replays, first.stderr, no_input=True,
-                                      probe=key, note="the target's behaviour, whatever it is sent: no input "
-                                                      f"blamed ({how}"))
+        def found(first: Hit, last: Hit, log: list[Any], replays: str) -> Finding | None:
+            how = ("the probe command with no case before it)" if first.detail.endswith(PROBED)
+                   else "a baseline connection sent nothing)")
+            return None if self.known(first.signature) is not None else nsqd_finding(
+                first.signature, [], first.detail, replays, first.stderr, no_input=True, probe=key,
+                note=f"the target's behaviour, whatever it is sent: no input blamed ({how}")
 
-        base = self.baseline(key, observe, lambda a, b: same_finding(a.signature, b.signature), found,
+        base = self.no_input(key, observe, lambda a, b: same_finding(a.signature, b.signature), found,
                              lambda h: (h.signature.rule, f"{h.signature.describe()}, no input", h.detail),
                              lambda: self.restart(self.current))
         backend = self.current if ran else backend
@@ -201,16 +199,13 @@ class StreamTriage(HitTriage):
         h, b = hit.signature.oracle, base.signature.oracle
         if not (h in ("hang", "desync", "effect") or h == b or {h, b} <= {"crash", "sanitizer"}):
             return True, backend
-        found_ = self.known(base.signature)
-        if found_ is not None:
-            found_.occurrences += 1
-            self.aliases[hit.signature.key] = found_
+        self.again_as(hit, self.known(base.signature))
         return False, backend
 
     def _triage(self, backend: Backend, hit: Hit, suspects: list[Case], probe: bool) -> Backend:
         sig = hit.signature
         if self.skip(sig, backend, "probe" if probe else "case"):
-            return self.restart(backend) if sig.oracle in ("crash", "hang", "sanitizer") else backend
+            return self.restart(backend) if sig.oracle in self.DEATHS else backend
         blame, backend = self.blamed(backend, hit, probe)
         if not blame:
             return backend
@@ -245,10 +240,7 @@ class StreamTriage(HitTriage):
             kind = culprit[-1].kind
             sig = Signature("desync", f"stream lost after {kind}", (), desync_rule(kind))
             hit = Hit(sig, hit.detail, hit.stderr)
-        known = self.known(sig)
-        if known is not None:
-            known.occurrences += 1
-            self.aliases[hit.signature.key] = known
+        if self.again_as(hit, self.known(sig)):
             return self.restart(backend)
         self.current = backend
 
@@ -273,25 +265,22 @@ class StreamTriage(HitTriage):
             minimal = [Case(c0.kind, tuple(writes), c0.valid, c0.note, expect=c0.expect, or_error=c0.or_error,
                             check=c0.check)]
 
-        def confirm(cases: list[Case]) -> Confirmation[tuple[Hit | None, list[Any]]]:
-            def once() -> tuple[Hit | None, list[Any]] | None:
+        def confirm(cases: list[Case]) -> Confirmation[tuple[Hit, TrafficLog]]:
+            def once(log: TrafficLog) -> Hit | None:
                 # each waits twice the triaged hit's own wait, at least 1 s (``self.wait``: a
                 # loaded host's slow death is no reason to call it unconfirmed), its traffic
                 # logged, its fresh process counted as every triage replay's is
-                log = TrafficLog()
-                ok, self.current, h = self.replay(lambda: _reproduces(
+                ok, self.current, h = self.fresh(lambda: _reproduces(
                     self.current, cases, sig, probe=probe, log=log, wait=min(REPLAY_DEATH_S, max(1.0, 2 * self.wait))))
-                self.target.count_restart("triage replay")
-                return (h, log.records) if ok else None
-            return confirm_n(once, self.n_of_n, until_miss=False)
+                return h if ok else None
+            return self.confirm_logged(once, until_miss=False, log=TrafficLog)
 
         conf = confirm(minimal)
         last = conf.hits[-1][0] if conf.confirmed else None
         if last is not None and last.stderr:
             hit = Hit(hit.signature, hit.detail, last.stderr)
-        if not conf.confirmed:
-            self.missed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf, shape=sig.describe(),
-                        actual=hit.detail, size=f"{len(writes)} write(s)")
+        if self.missed(sig.rule, (hit.signature.key, "probe" if probe else "case"), conf, shape=sig.describe(),
+                       actual=hit.detail, size=f"{len(writes)} write(s)"):
             return self.restart(self.current)
         if len(minimal) == 1 and len(writes) == 1 and not writes[0].end and sig.oracle in ("crash", "sanitizer") \
                 and not over_budget(self, time.monotonic() + 0.5 * TRIAGE_SHARE * (self.duration or 0.0)):
@@ -307,9 +296,15 @@ class StreamTriage(HitTriage):
             minimal, conf = self.shorter(minimal, conf, tail, lambda cases, _: confirm(cases))
         self.add(nsqd_finding(sig, minimal, hit.detail, conf.replays, hit.stderr,
                               note=culprit[0].note + (" (then a probe command)" if probe else ""),
-                              traffic=conf.hits[-1][1]))
+                              traffic=conf.hits[-1][1].records))
         self.aliases[hit.signature.key] = self.store.groups[self.findings[-1].key]
         return self.restart(self.current)
+
+    def again_as(self, hit: Hit, known: Finding | None) -> bool:
+        """Whether ``hit`` is ``known``'s (``HitTriage.again``): then also its key's alias."""
+        if known is not None:
+            self.aliases[hit.signature.key] = known
+        return self.again(known)
 
     def restart(self, backend: Backend) -> Backend:
         """The backend restarted to go on fuzzing (``Backend.restart``: a spare started in the

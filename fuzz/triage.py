@@ -33,7 +33,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
-from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
 from mcp_conform.fuzz.loop import triage_time
 from mcp_conform.fuzz.oracles import OVERSIZE, Flaw, Input
@@ -198,8 +197,8 @@ class Triage(HitTriage):
         missed: dict[str, set[str]] = {}
         seq: list[bytes] = minimal
 
-        def once() -> tuple[Flaw, Outcome] | None:
-            out = self._run(seq, pace, scenario)
+        def once(log: list[object]) -> tuple[Flaw, Outcome] | None:
+            out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
             again = next((f for f in out.flaws if f.rule == flaw.rule
                           or (flaw.source in _DEATH and f.source in _DEATH)), None)
             if again is None:
@@ -207,16 +206,15 @@ class Triage(HitTriage):
                 return None
             return again, out
 
-        conf = confirm_n(once, CONFIRM_N)
+        conf = self.confirm_logged(once, until_miss=True, share=False)  # bounded by the deadline alone
         if not conf.confirmed:
-            self.count_unconfirmed(flaw.rule)
             seen_instead = missed.get("rules")
-            conf.note(self.environment, flaw.rule, shape, flaw.actual, f"the minimal sequence of {len(minimal)} "
-                      f"datagram(s) showed it in triage, then not in confirmation replay {len(conf.results)} "
-                      f"(pace {pace}; timing or load)"
-                      + (f"; seen instead: {', '.join(sorted(seen_instead))}" if seen_instead else ""))
+            self.not_confirmed(flaw.rule, None, conf, shape=shape, actual=flaw.actual, why=(
+                f"the minimal sequence of {len(minimal)} datagram(s) showed it in triage, then not in confirmation "
+                f"replay {len(conf.results)} (pace {pace}; timing or load)"
+                + (f"; seen instead: {', '.join(sorted(seen_instead))}" if seen_instead else "")))
             return None
-        seen, outcome = conf.hits[0]
+        (seen, outcome), _ = conf.hits[0]
         final_shape = shape_of(seen, [Input.of(d) for d in minimal]) if flaw.source in _DEATH else shape
         self.aliases[(flaw.rule, shape)] = (seen.rule, final_shape)
         if self.store.known(seen.rule, final_shape):

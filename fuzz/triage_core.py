@@ -1,9 +1,11 @@
 """The protocol-neutral steps of every protocol's triage (issue 37: one triage; issue 39: a
 protocol's plumbing near zero), written once: MCP's (``fuzz.triage``), MAVLink's
 (``fuzz.mavlink_triage``) and Nsqd's (``fuzz.nsqd_triage``) declare only what is their own --
-how a fresh target starts, how inputs are replayed (``replay(inputs) -> signature | None``,
-:meth:`HitTriage.shows`), what their oracles observe, which tries come first, what one input
-is made of (:class:`Parts`), how a finding is written.
+how a fresh target starts (each counted a ``triage replay`` restart: :meth:`HitTriage.fresh`),
+how inputs are replayed (``replay(inputs) -> signature | None``, :meth:`HitTriage.shows`;
+``replay(log)`` for step 4, :meth:`HitTriage.confirm_logged`), what their oracles observe,
+which oracles end a target (``DEATHS``), which tries come first, what one input is made of
+(:class:`Parts`), how a finding is written.
 
 From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
 
@@ -11,7 +13,10 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
    ``occurrences`` counted), its signature did not reproduce ``UNCONFIRMED_TRIES`` times, or
    triage's budget is spent (``fuzz.budget``: counted ``untriaged``); a hit that lasts once
    shown is a known finding's when one of its suspects like that finding's confirmed input is
-   its culprit (:func:`known_lasting_hit`: two sends to one fresh target, not a search);
+   its culprit (:meth:`HitTriage.known_lasting`, :func:`known_lasting_hit`: two sends to one
+   fresh target, not a search); a known finding's hit is one more occurrence of it
+   (:meth:`HitTriage.again`); the same observation with no input, once a worker, confirmed, is
+   a finding with no input blamed (:meth:`HitTriage.no_input`, :meth:`HitTriage.baseline`);
 2. each replay counted and bounded (:meth:`HitTriage.replay`: none after the deadline, ``Late``);
 3. the suspects searched for the fewest that show it, one search (:func:`search`): the tries
    in order (each suspect alone, the newest first, unless a protocol names others), else all
@@ -21,9 +26,10 @@ From a hit to a finding (``fuzz.confirm`` lists the loop's steps):
    that shows it, by bisection); a hit that lasts once shown (a stopped heartbeat, a stream
    that stays lost) by bisection over the suspects' prefixes (:func:`earliest_prefix`: log2 n
    replays, not n). What a replay shows is no finding yet: step 4;
-4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``), or not a
-   finding (:meth:`HitTriage.not_confirmed`: counted, its tries noted, and named
-   environment-dependent with why when it showed in triage).
+4. the minimal input replayed N more times, each on a fresh target (``fuzz.confirm``,
+   :meth:`HitTriage.confirm_logged`), or not a finding (:meth:`HitTriage.missed`,
+   :meth:`HitTriage.not_confirmed`: counted, its tries noted, and named environment-dependent
+   with why when it showed in triage).
 """
 
 from __future__ import annotations
@@ -57,6 +63,9 @@ class HitTriage(Triage):
     ``LEARNT`` names, ``tries`` among them)."""
 
     LEARNT: ClassVar[tuple[str, ...]] = ("tries", "baselines")
+    #: the oracles of a hit that ended its target (it died, hung or stopped answering): the
+    #: target is restarted after one, and its finding named by the input that makes it
+    DEATHS: ClassVar[tuple[str, ...]] = ()
 
     seed: int = 0
     worker: int = 0
@@ -79,12 +88,17 @@ class HitTriage(Triage):
         finding.seed, finding.worker = self.seed, self.worker
         self.store.add(finding, *args)  # type: ignore[attr-defined]  # a protocol's triage holds its store
 
-    def counted(self, known: Finding | None, key: Hashable, describe: str) -> bool:
-        """Step 1: counted, not triaged -- ``known`` (the finding the hit already is: one more
-        occurrence), a ``key`` tried ``UNCONFIRMED_TRIES`` times, or the budget spent (counted
-        untriaged as ``describe``)."""
+    def again(self, known: Finding | None) -> bool:
+        """Whether a hit is ``known`` (the finding it already is): then one more occurrence of it."""
         if known is not None:
             known.occurrences += 1
+        return known is not None
+
+    def counted(self, known: Finding | None, key: Hashable, describe: str) -> bool:
+        """Step 1: counted, not triaged -- ``known`` (the finding the hit already is: one more
+        occurrence, :meth:`again`), a ``key`` tried ``UNCONFIRMED_TRIES`` times, or the budget
+        spent (counted untriaged as ``describe``)."""
+        if self.again(known):
             return True
         if self.tries.get(key, 0) >= UNCONFIRMED_TRIES or not budget_left(self, time.monotonic()):
             count(self.untriaged, describe)
@@ -98,14 +112,31 @@ class HitTriage(Triage):
         self.replays += 1
         return run()
 
+    def fresh(self, make: Callable[[], T]) -> T:
+        """A fresh target for a replay of triage's (``make()``: a new process, or a new link
+        when attached), counted as the target's ``triage replay`` restart."""
+        try:
+            return make()
+        finally:
+            self.target.count_restart("triage replay")  # type: ignore[attr-defined]  # a protocol's triage holds its target
+
     def shows(self, replay: Callable[[list[T]], H | None], same: Callable[[H], bool] = lambda h: True,
-              *, share: bool = True) -> Callable[[list[T]], bool]:
+              *, share: bool = True, unstarted: bool = False) -> Callable[[list[T]], bool]:
         """Step 3's one predicate, over a protocol's ``replay(inputs)``: what the inputs showed
-        replayed on a fresh target (its signature; None: nothing, or a target that did not
-        start), each replay counted and bounded (:meth:`replay`); whether it is ``same`` as the
-        hit triaged. What a replay shows is not thereby a finding: step 4 confirms it."""
+        replayed on a fresh target (its signature; None: nothing, or, ``unstarted``, a target
+        that did not start: SetupError), each replay counted and bounded (:meth:`replay`);
+        whether it is ``same`` as the hit triaged. What a replay shows is not thereby a
+        finding: step 4 confirms it."""
+        def run(inputs: list[T]) -> H | None:
+            try:
+                return replay(list(inputs))
+            except SetupError:
+                if not unstarted:
+                    raise
+                return None
+
         def test(inputs: list[T]) -> bool:
-            h = self.replay(lambda: replay(list(inputs)), share=share)
+            h = self.replay(lambda: run(inputs), share=share)
             return h is not None and same(h)
         return test
 
@@ -165,14 +196,16 @@ class HitTriage(Triage):
         finally:
             self.restart_seconds += time.monotonic() - t0
 
-    def confirm_logged(self, replay: Callable[[list[Any]], H | None], *, until_miss: bool) -> Confirmation[tuple[H, list[Any]]]:
+    def confirm_logged(self, replay: Callable[[Any], H | None], *, until_miss: bool, log: Callable[[], Any] = list,
+                       share: bool = True) -> Confirmation[tuple[H, Any]]:
         """Step 4: ``replay(log)`` run ``n_of_n`` times (``fuzz.confirm``; ``until_miss``: none
-        after the first miss), each with a log of its own for the traffic it saw (a finding's
-        repro files keep the last one's); a hit: (what it showed, its log)."""
-        def once() -> tuple[H, list[Any]] | None:
-            log: list[Any] = []
-            h = replay(log)
-            return None if h is None else (h, log)
+        after the first miss), each a replay of triage's (:meth:`replay`: counted, bounded;
+        ``share``), each with a ``log()`` of its own for the traffic it saw (a finding's repro
+        files keep the last one's); a hit: (what it showed, its log)."""
+        def once() -> tuple[H, Any] | None:
+            seen = log()
+            h = self.replay(lambda: replay(seen), share=share)
+            return None if h is None else (h, seen)
         return confirm_n(once, self.n_of_n, until_miss=until_miss)
 
     def baseline(self, key: Hashable, observe: Callable[[list[Any], H | None], H | None], same: Callable[[H, H], bool],
@@ -217,21 +250,49 @@ class HitTriage(Triage):
         self.baselines[key] = first
         return first
 
+    def no_input(self, key: Hashable, observe: Callable[[list[Any], H | None], H | None], same: Callable[[H, H], bool],
+                 finding: Callable[[H, H, list[Any], str], Finding | None], describe: Callable[[H], tuple[str, str, str]],
+                 shown: Callable[[], object] | None = None) -> H | None:
+        """:meth:`baseline`, its confirmed behaviour kept as a finding with no input blamed:
+        ``finding(first, last, last's log, "N of N")`` (None: none new), added (:meth:`add`)."""
+        def found(first: H, last: H, log: list[Any], replays: str) -> None:
+            f = finding(first, last, log, replays)
+            if f is not None:
+                self.add(f)
+        return self.baseline(key, observe, same, found, describe, shown)
+
+    def known_lasting(self, suspects: Sequence[T], source: str, like: Callable[[T], Hashable], fresh: Callable[[], Any],
+                      extend: Callable[[Any, Sequence[T]], bool | None], close: Callable[[Any], None]) -> bool:
+        """Step 1 for a hit that lasts once shown (of oracle ``source``): whether it repeats a
+        finding of that oracle, one of the ``suspects`` ``like`` its confirmed input's last
+        the culprit (:func:`known_lasting_hit`, on fresh targets; one that did not start: no);
+        then one more occurrence of it (:meth:`again`)."""
+        knowns = [(f, like(f.cases[-1])) for f in self.store.order if f.source == source and f.cases]  # type: ignore[attr-defined]
+        try:
+            return bool(knowns) and self.again(known_lasting_hit(suspects, knowns, like, fresh, extend, close))
+        except SetupError:  # a fresh target that did not start: triage it
+            return False
+
     def missed(self, rule: str, key: Hashable, conf: Confirmation[Any], *, shape: str, actual: str, size: str,
-               where: str = "") -> None:
-        """Step 4's miss of an input that showed it in triage (``size``: how much of it):
-        :meth:`not_confirmed`, named environment-dependent (timing or load)."""
+               where: str = "") -> bool:
+        """Step 4's verdict on an input that showed it in triage (``size``: how much of it):
+        whether its confirming replays missed it (not N of N); then :meth:`not_confirmed`,
+        named environment-dependent (timing or load)."""
+        if conf.confirmed:
+            return False
         self.not_confirmed(rule, key, conf, shape=shape, actual=actual,
                            why=f"the minimal input ({size}) showed it in triage, then {len(conf.hits)} of "
                                f"{self.n_of_n} confirming replays{where} did (timing or load)")
+        return True
 
-    def not_confirmed(self, rule: str, key: Hashable, conf: Confirmation[Any] | None = None, *, shape: str = "",
-                    actual: str = "", why: str = "") -> None:
-        """Step 4's miss: counted unconfirmed under ``rule``, ``key`` tried once more; with
-        ``conf`` (the confirming replays of an input that showed it in triage) named
-        environment-dependent, with ``why``."""
+    def not_confirmed(self, rule: str, key: Hashable | None, conf: Confirmation[Any] | None = None, *, shape: str = "",
+                      actual: str = "", why: str = "") -> None:
+        """Step 4's miss: counted unconfirmed under ``rule``, ``key`` tried once more (None: a
+        triage that keeps no tries); with ``conf`` (the confirming replays of an input that
+        showed it in triage) named environment-dependent, with ``why``."""
         self.count_unconfirmed(rule)
-        self.tries[key] = self.tries.get(key, 0) + 1
+        if key is not None:
+            self.tries[key] = self.tries.get(key, 0) + 1
         if conf is not None:
             conf.note(self.environment, rule, shape, actual, why)
 

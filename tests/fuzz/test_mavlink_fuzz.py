@@ -126,6 +126,12 @@ def test_a_hang_after_a_case_that_asked_it_is_no_finding(tmp_path):
     triage._triage(hit, [_stop_case("COMMAND_LONG", 30, 1e6), case])
     assert triage.untriaged == {STOP_ASKED: 1} and triage.replays == 0 and not store.order
     store.add(mavlink_finding(hit, [case], "3 of 3", b"FORMAT_VERSION", seed=0, worker=0))
+    # no replay's traffic: repro.mcap holds its frames as the vehicle received them, and the finding
+    from mcp_conform.traceio.reader import MavlinkFrame, open_capture
+
+    repro = tmp_path / "finding-1" / "repro.mcap"
+    assert read_finding(repro).doc["cases"] == [case.to_json()]
+    assert [(r.direction, r.data) for r in open_capture(repro) if isinstance(r, MavlinkFrame)] == [("rx", case.frames[0])]
     run = fuzz("--replay", str(tmp_path / "finding-1"), timeout=60)
     assert run.returncode == 0 and "is no finding" in run.stdout and "not replayed" in run.stdout, run
 

@@ -243,3 +243,104 @@ def test_a_baseline_shown_then_not_every_time_blames_nothing_and_is_named():
     (entry,) = t.environment.values()
     assert entry["shape"] == "shape hang a" and entry["why"].startswith("reproduced 2 of 3 replays")
     assert _Base("hang a").run(t) is None and t.replays == 3  # once a worker: the miss is kept too
+
+
+class _Target:
+    """A model worker target: its restarts counted by reason (``fuzz.loop.WorkerTarget``)."""
+
+    def __init__(self) -> None:
+        self.restart_reasons: dict[str, int] = {}
+
+    def count_restart(self, reason: str) -> None:
+        self.restart_reasons[reason] = self.restart_reasons.get(reason, 0) + 1
+
+
+class _Store:
+    def __init__(self, *findings: Finding) -> None:
+        self.order, self.added = list(findings), []
+
+    def add(self, f: Finding, *args) -> None:  # noqa: ANN002
+        self.added.append(f)
+        self.order.append(f)
+
+
+def _triage(*findings: Finding) -> HitTriage:
+    t = HitTriage(duration=100.0, seed=7, worker=2)
+    t.target, t.store = _Target(), _Store(*findings)  # type: ignore[attr-defined]  # a protocol's triage holds them
+    return t
+
+
+def test_a_fresh_target_is_a_triage_replay_restart_even_one_that_did_not_start():
+    from mcp_conform.harness.errors import SetupError
+
+    t = _triage()
+    assert t.fresh(lambda: "target") == "target"
+
+    def fails() -> str:
+        raise SetupError("did not start")
+    with pytest.raises(SetupError):
+        t.fresh(fails)
+    assert t.target.restart_reasons == {"triage replay": 2}  # type: ignore[attr-defined]
+
+
+def test_confirming_replays_are_counted_each_with_a_log_of_its_own():
+    """``HitTriage.confirm_logged``: N replays (triage's, counted), each given a new log (a
+    protocol's own kind: ``log``), a hit paired with its log; until the first miss, or all N."""
+    t = _triage()
+    shows = iter(["a", None, "c"])
+
+    def replay(log: list[str]) -> str | None:
+        log.append(f"traffic {t.replays}")
+        return next(shows)
+    conf = t.confirm_logged(replay, until_miss=False)
+    assert t.replays == 3 and conf.replays == "2 of 3" and conf.hits == [("a", ["traffic 1"]), ("c", ["traffic 3"])]
+    assert t.missed("R", "k", conf, shape="s", actual="x", size="1 case(s)") and t.tries == {"k": 1}
+    shows = iter(["a", None, "c"])
+    conf = t.confirm_logged(replay, until_miss=True, log=lambda: ["own"])
+    assert t.replays == 5 and len(conf.results) == 2 and conf.hits == [("a", ["own", "traffic 4"])]
+    ok = t.confirm_logged(lambda log: "shown", until_miss=True)
+    assert ok.confirmed and not t.missed("R", "k", ok, shape="s", actual="x", size="1 case(s)")
+    assert t.tries == {"k": 1} and t.unconfirmed == 1  # a confirmed input is no miss
+
+
+def test_a_target_that_did_not_start_shows_nothing_only_when_asked():
+    from mcp_conform.harness.errors import SetupError
+
+    def replay(inputs: list[int]) -> str:
+        raise SetupError("did not start")
+    t = _triage()
+    assert t.shows(replay, unstarted=True)([1]) is False and t.replays == 1
+    with pytest.raises(SetupError):
+        t.shows(replay)([1])
+
+
+def test_a_no_input_baseline_keeps_its_finding_with_the_triages_seed_and_worker():
+    t, b = _triage(), _Base("hang a", "hang a", "hang a")
+    f = _finding()
+    assert t.no_input("k", b.observe, lambda x, y: True, lambda first, last, log, replays: f,
+                      lambda h: ("MAV-HB-1", h, h)) == "hang a"
+    assert t.store.added == [f] and (f.seed, f.worker) == (7, 2)  # type: ignore[attr-defined]
+    t2, b2 = _triage(), _Base("hang a", "hang a", "hang a")
+    assert t2.no_input("k", b2.observe, lambda x, y: True, lambda *a: None, lambda h: ("R", h, h)) == "hang a"
+    assert t2.store.added == []  # type: ignore[attr-defined]  # none new (already a finding)
+
+
+def test_a_known_lasting_hit_is_one_more_occurrence_of_its_finding():
+    """``HitTriage.known_lasting``: the findings of the hit's oracle with an input, matched by
+    their last input's likeness (:func:`known_lasting_hit`); a repeat counted there; none of
+    that oracle, or a target that did not start: triaged."""
+    from mcp_conform.harness.errors import SetupError
+
+    hang = Finding("MAV-MIS-4", "", "", [], "hang", "stateless", 7, source="hang", cases=[13])
+    crash = Finding("MAV-PRM-9", "", "", [], "crash", "stateless", 7, source="crash", cases=[23])
+    t, m = _triage(crash, hang), Model({13})
+    assert t.known_lasting(list(range(10, 20)), "hang", _kind, m.fresh, m.extend, m.close)
+    assert hang.occurrences == 2 and crash.occurrences == 1 and m.sends == 2
+    m = Model({17})
+    assert not t.known_lasting(list(range(10, 20)), "hang", _kind, m.fresh, m.extend, m.close)
+    assert not t.known_lasting(list(range(10, 20)), "stop", _kind, m.fresh, m.extend, m.close)
+
+    def unstarted() -> list[int]:
+        raise SetupError("did not start")
+    assert not t.known_lasting(list(range(10, 20)), "hang", _kind, unstarted, m.extend, m.close)
+    assert hang.occurrences == 2 and t.again(None) is False and t.again(hang) and hang.occurrences == 3
