@@ -17,7 +17,6 @@ module adds Nsqd's frames, flight states and verify helpers.
 from __future__ import annotations
 
 import time
-import weakref
 from typing import Any
 
 from mcp_conform.conformance._conn_case import ConnCaseBase
@@ -29,9 +28,6 @@ __all__ = ["SETTLE_COMMANDS", "StreamCaseContext"]
 
 #: The commands :meth:`StreamCaseContext.settle` brings the backend to a known state with, in order.
 SETTLE_COMMANDS = ("CAPTURE_IMAGES", "STOP_TEST", "TAKEOFF")
-
-#: Per run (its session): the settle commands seen not to take their effect, tried last.
-_MISSED: weakref.WeakKeyDictionary[StreamSession, list[str]] = weakref.WeakKeyDictionary()
 
 
 class StreamCaseContext(ConnCaseBase):
@@ -67,7 +63,7 @@ class StreamCaseContext(ConnCaseBase):
         the rest of the run (never dropped: it goes back in line once seen to land), so a
         backend whose CAPTURE_IMAGES lands elsewhere (NSQD-MSG-3's failure, judged by its own
         case) costs one window per run, not one per case."""
-        missed = _MISSED.setdefault(self.session, [])
+        missed = self.session.settle_missed
         order = [n for n in SETTLE_COMMANDS if n not in missed] + [n for n in missed]
         for name in order:
             target = self.spec.message(name).effect.to[0]

@@ -106,6 +106,9 @@ class StreamSession(ConnSessionBase):
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: StreamSpec = NSQD) -> None:
         super().__init__(cfg, recorder, spec, embedded_command)
+        #: the commands ``StreamCaseContext.settle`` saw not to take their effect on this backend,
+        #: tried after the others for the rest of the run (until seen to land)
+        self.settle_missed: list[str] = []
 
     def make_conn(self, sock: socket.socket, index: int) -> Conn:
         return Conn(sock, self.spec, log=self.sent_log, recorder=self.recorder, index=index,

@@ -62,7 +62,7 @@ from mcp_conform.judge._mavlink_link import (
 from mcp_conform.judge._mavlink_services import MissionService, ParamService
 from mcp_conform.spec import MAVLINK
 from mcp_conform.spec.mavlink import MavlinkSpec
-from mcp_conform.traceio.mavlink import MavFrame, parse_frame
+from mcp_conform.traceio.mavlink import MavFrame, parse_frame, robust_parser
 
 __all__ = ["RULES", "MavlinkMonitor", "Node", "Violation"]
 
@@ -178,8 +178,7 @@ class MavlinkMonitor:
         if msg is None:
             p = self._parsers.get(direction)
             if p is None:
-                p = self._parsers[direction] = DIALECT.MAVLink(None)
-                p.robust_parsing = True
+                p = self._parsers[direction] = robust_parser()
             msg = parse_frame(raw, p)
         self.feed(MavFrame(self.count, int(t_ns), direction, bytes(raw), msg, self._live_segment))
 

@@ -32,11 +32,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mcp_conform.harness.clock import VirtualClock
 from mcp_conform.reference_impl.mavlink_gcs import ReferenceGcs, build_parser, mav
 from mcp_conform.sim.gcs_faults import FAULTS
+from mcp_conform.traceio.mavlink import MARKERS, version_of
 
 __all__ = ["GcsProcess", "Killed", "SimGcsSeam", "SimMavConn", "gcs_class"]
 
-#: MAVLink 1 and 2 frames' first byte (``mavfile.auto_mavlink_version``)
-MAGIC_V1, MAGIC_V2 = 254, 253
 #: the source IDs ``ReferenceGcs`` opens its connection with
 SOURCE = (255, int(mav.MAV_COMP_ID_MISSIONPLANNER))
 
@@ -54,6 +53,8 @@ class SimMavConn:
     def __init__(self, clock: VirtualClock, send_bytes: Callable[[bytes], None], *, mavlink2_first: bool = True,
                  listens: bool = False, on_close: Callable[[], None] | None = None) -> None:
         self.clock, self.send_bytes, self.listens, self.on_close = clock, send_bytes, listens, on_close
+        # mavfile's own MAVLink object, not traceio's robust_parser: the encoder and parser at once
+        # (written to this connection, with the GCS's source IDs), of MAVLink 1's or 2's dialect
         self.mav = (mavlink2 if mavlink2_first else mavlink1).MAVLink(self, srcSystem=SOURCE[0], srcComponent=SOURCE[1])
         self.mav.robust_parsing = True
         self.version = 2 if mavlink2_first else 1
@@ -90,9 +91,9 @@ class SimMavConn:
         while self._chunks:
             data = self._chunks.popleft()
             self.heard = True
-            if self.first_byte and data[:1] and data[0] in (MAGIC_V1, MAGIC_V2):
+            if self.first_byte and data[:1] and data[0] in MARKERS:
                 self.first_byte = False
-                if data[0] == MAGIC_V2 and self.version != 2:  # auto_mavlink_version: a fresh encoder
+                if version_of(data) == 2 and self.version != 2:  # auto_mavlink_version: a fresh encoder
                     self.version = 2
                     self.mav = mavlink2.MAVLink(self, srcSystem=SOURCE[0], srcComponent=SOURCE[1])
                     self.mav.robust_parsing = True

@@ -56,6 +56,7 @@ from __future__ import annotations
 from typing import Any
 
 from mcp_conform.spec import MAVLINK
+from mcp_conform.traceio.mavlink import robust_parser, version_of
 
 __all__ = ["FAULTS", "RULES", "VEHICLE_COMPID", "WARNS", "VEHICLE_SYSID", "FaultProxy", "FaultState", "from_runner",
            "from_vehicle", "param_name", "untruncated"]
@@ -121,7 +122,7 @@ class FaultState:
 def untruncated(raw: bytes, msg: Any) -> bytes:
     """A MAVLink 2 frame with its payload padded back to the message's full size and the
     checksum computed again (what MAV-HB-12 forbids a sender)."""
-    if raw[:1] != bytes([MAV.PROTOCOL_MARKER_V2]):
+    if version_of(raw) != 2:
         return raw
     head, payload = bytearray(raw[:10]), raw[10:10 + raw[1]]
     payload = payload + bytes(type(msg).unpacker.size - len(payload))
@@ -220,9 +221,7 @@ class FaultProxy:
 
     def __init__(self, fault: str) -> None:
         self.state = FaultState(fault)
-        self._parsers = {side: MAV.MAVLink(None) for side in ("runner", "vehicle")}
-        for parser in self._parsers.values():
-            parser.robust_parsing = True
+        self._parsers = {side: robust_parser() for side in ("runner", "vehicle")}
 
     def down(self, data: bytes) -> tuple[bytes, bytes]:
         """The ground station's bytes: (what goes on to the vehicle, what the fault answers the

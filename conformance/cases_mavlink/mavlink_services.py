@@ -20,7 +20,7 @@ the times from ``spec/mavlink.yaml``'s parameters.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from mcp_conform.conformance._link_case import LinkCaseBase
@@ -240,28 +240,37 @@ class VehicleServices(MavlinkServices):
         return [r for r in self.from_vehicle(since) if r.name in ("MISSION_REQUEST_INT", "MISSION_REQUEST",
                                                                     "MISSION_ACK")]
 
-    def upload(self, items: list[dict[str, Any]], *, withhold: int | None = None) -> list[Received]:
-        """Upload ``items``: MISSION_COUNT, then each item the vehicle asks for, until its
-        MISSION_ACK (but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not end the upload:
-        E-1) or ``mission_reply_max_s`` with nothing new (bounded: 3 x count + 10 answers);
-        ``withhold``: that seq's first request goes unanswered; a request already answered
-        after it came is not answered again (:class:`ItemAnswers`). The vehicle's requests and
-        ACKs, in order."""
-        wait = float(self.params["mission_reply_max_s"])
-        if withhold is not None:
-            wait = max(wait, float(self.params["mission_rerequest_max_s"]))
-        since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
-                          count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
-        done, answers = 0, ItemAnswers()
-        for _ in range(3 * len(items) + 10):
+    def mission_requests(self, since: float, bound: int, wait: float) -> Iterator[Received]:
+        """The vehicle's mission replies after ``since`` in order, each as it comes, for an
+        upload's runner to answer (MAV-MIS-1/2): its MISSION_REQUEST_INTs and MISSION_REQUESTs,
+        until a MISSION_ACK that ends the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK
+        that does not: E-1, read past) or ``wait`` s with no reply after the last one read;
+        at most ``bound`` replies read (ACKs included)."""
+        done = 0
+        for _ in range(bound):
             if not self.link.wait_for(lambda done=done: len(self.mission_replies(since)) > done, wait):
-                break
+                return
             reply = self.mission_replies(since)[done]
             done += 1
             if reply.name == "MISSION_ACK":
                 if reply.msg.type == DIALECT.MAV_MISSION_INVALID_SEQUENCE:
                     continue
-                break
+                return
+            yield reply
+
+    def upload(self, items: list[dict[str, Any]], *, withhold: int | None = None) -> list[Received]:
+        """Upload ``items``: MISSION_COUNT, then each item the vehicle asks for
+        (:meth:`mission_requests`: until its MISSION_ACK, or ``mission_reply_max_s`` with
+        nothing new; bounded: 3 x count + 10 replies); ``withhold``: that seq's first request
+        goes unanswered; a request already answered after it came is not answered again
+        (:class:`ItemAnswers`). The vehicle's requests and ACKs, in order."""
+        wait = float(self.params["mission_reply_max_s"])
+        if withhold is not None:
+            wait = max(wait, float(self.params["mission_rerequest_max_s"]))
+        since = self.send("MISSION_COUNT", target_system=self.sysid, target_component=self.compid,
+                          count=len(items), mission_type=DIALECT.MAV_MISSION_TYPE_MISSION)
+        answers = ItemAnswers()
+        for reply in self.mission_requests(since, 3 * len(items) + 10, wait):
             seq = reply.msg.seq
             if withhold == seq:
                 withhold = None

@@ -56,10 +56,10 @@ def expect_plan(node, items, got, rule, *, fields=FIELDS):
 def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=None):
     """MISSION_COUNT ``count`` of ``mission_type`` (resent, as a ground station must, up to
     mission_retries times while nothing answers it), then ``answer(request)`` for each
-    MISSION_REQUEST_INT or MISSION_REQUEST the vehicle sends, until a MISSION_ACK that ends
-    the upload (any but MAV_MISSION_INVALID_SEQUENCE, a NACK that does not: E-1) or ``wait``
-    s (mission_reply_max_s) with nothing new, or ``until()`` holds after an answer; bounded
-    by 3 x count + 10 replies; a request already answered after it came is not answered
+    MISSION_REQUEST_INT or MISSION_REQUEST the vehicle sends (``node.mission_requests``: until
+    a MISSION_ACK that ends the upload, any but MAV_MISSION_INVALID_SEQUENCE: E-1, or ``wait``
+    s (mission_reply_max_s) with nothing new; bounded by 3 x count + 10 replies), or until
+    ``until()`` holds after an answer; a request already answered after it came is not answered
     again (``ItemAnswers``: the vehicle re-requested while the runner was late), and after
     an upload in which its last item went again, the vehicle's answer to it is waited for
     (``settle``). The first MISSION_COUNT's send time and the vehicle's requests and ACKs
@@ -73,16 +73,8 @@ def drive_upload(node, count, answer, *, mission_type=MISSION, wait=None, until=
         if node.link.wait_for(lambda since=since: bool(node.mission_replies(since)),
                               float(node.params["mission_reply_max_s"])):
             break
-    done, answers = 0, ItemAnswers()
-    for _ in range(3 * count + 10):
-        if not node.link.wait_for(lambda done=done: len(node.mission_replies(since)) > done, wait):
-            break
-        reply = node.mission_replies(since)[done]
-        done += 1
-        if reply.name == "MISSION_ACK":
-            if reply.msg.type == MAV.MAV_MISSION_INVALID_SEQUENCE:
-                continue
-            break
+    answers = ItemAnswers()
+    for reply in node.mission_requests(since, 3 * count + 10, wait):
         if not answers.due(reply):
             continue
         sent = len(node.link.sent)
