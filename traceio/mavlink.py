@@ -144,6 +144,7 @@ class MavTrace:
         log.first_byte = False  # ... so pymavlink's version switch never runs
         consumed = n = 0
         truncated: str | None = None
+        last_us: int | None = None
         try:
             while True:
                 try:
@@ -159,6 +160,9 @@ class MavTrace:
                     raise CaptureError(f"{self.path}: not a MAVLink telemetry log: its first record holds "
                                        f"no MAVLink frame ({getattr(msg, 'reason', 'bad data')})")
                 t_us = int(round(float(msg._timestamp) * 1e6))
+                if not _PLAUSIBLE_US[0] <= t_us <= _PLAUSIBLE_US[1] and last_us is not None:
+                    t_us = last_us  # bytes of a damaged record read as its time: no time, not a jump of ages
+                last_us = t_us
                 yield MavFrame(n, t_us * 1000, None, raw, msg)
                 n += 1
         finally:

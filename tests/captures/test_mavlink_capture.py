@@ -167,6 +167,21 @@ def test_garbage_between_records_is_survived(tmp_path):
     assert rc in (0, 1) and "Traceback" not in out + err and doc["frames"] >= 150, out + err
 
 
+def test_a_damaged_records_bytes_are_not_read_as_a_time_of_ages(tmp_path):
+    """A record whose frame is junk after a start marker: pymavlink's robust reader takes bytes
+    of the junk for the next records' times (a session of 3455895529195.7 s was reported). A
+    time no tlog can hold is no time: such a record keeps the last good one, so the trace spans
+    what its good records span."""
+    good = [r.t_ns for r in open_trace(TLOG) if isinstance(r, MavFrame)]
+    damaged = tmp_path / "damaged-first.tlog"
+    damaged.write_bytes(TLOG.read_bytes()[:8] + b"\xfd" + bytes(range(40)) + TLOG.read_bytes())
+    times = [r.t_ns for r in open_trace(damaged) if isinstance(r, MavFrame)]
+    assert len(times) > len(good) and min(good) <= min(times) and max(times) <= max(good), (min(times), max(times))
+    rc, doc, out, err = check(tmp_path, damaged)
+    span = (max(good) - min(good)) / 1e9
+    assert rc in (0, 1) and "Traceback" not in out + err and f" over {span:.1f} s" in out.splitlines()[0], out + err
+
+
 # ---------------------------------------------------------------- show and diff
 def test_show_lists_the_frames_and_diff_compares_the_conversations(tmp_path, capsys):
     assert main(["show", "--protocol", "mavlink", str(TLOG), "--from", "3", "--to", "4"]) == 0
