@@ -125,6 +125,8 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     sig = Signature("leak", "open descriptors grow with connections", (), "NSQD-CON-3")
 
     def once() -> tuple[int, str] | None:
+        # not HitTriage.confirm_logged's replay nor HitTriage.fresh: these cycles have never been
+        # counted as triage's replays or its "triage replay" restarts (summary.json's counts)
         check_late(self)
         self.current = self.current.fresh()
         again = grown(self.current)
@@ -134,9 +136,8 @@ def leak_check(self: Any, backend: Backend) -> Backend:  # noqa: PLR0914 - self:
     with triage_time(self, sig.describe()):
         conf = confirm_n(once, self.n_of_n, until_miss=False)
         if not conf.confirmed:
-            self.count_unconfirmed(sig.rule)
-            conf.note(self.environment, sig.rule, sig.describe(), first[1],
-                      "a process's descriptors grew over the cycles, then not on every fresh one")
+            self.not_confirmed(sig.rule, None, conf, shape=sig.describe(), actual=first[1],
+                               why="a process's descriptors grew over the cycles, then not on every fresh one")
         else:
             self.add_found(sig, first[1], conf.replays, "connect/close cycles")
         return self.restart(self.current)

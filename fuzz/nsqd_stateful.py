@@ -104,7 +104,9 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
 
 def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     """A failing program: deduplicated, replayed in a fresh process, delta-debugged over its
-    ops, confirmed ``campaign.n_of_n`` of as many times, then a finding (``campaign._add``; ``campaign``: the worker's ``StreamTriage``).
+    ops, confirmed ``campaign.n_of_n`` of as many times, then a finding
+    (``campaign.add_program_finding``; ``campaign``: the worker's ``StreamTriage``, whose
+    ``HitTriage.again`` counts a known finding's hit and ``HitTriage.fresh`` each replay's process).
     The first careful replay names the finding: a pipelined program's verdict (``hit``) is
     what led to it, read at the program's end, where a close or a lost command may have more
     than one cause in view (a second client, a cut frame before it); played op by op, the
@@ -113,19 +115,23 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
 
     sig = hit.signature
     known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
-    if known is not None:
-        known.occurrences += 1
+    if campaign.again(known):
         return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
     if campaign.target.attached and sig.oracle in ("crash", "hang") \
             and backend.session.death() is not None:
         raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
     box: dict[str, Any] = {"b": backend, "stderr": hit.stderr, "traffic": []}
 
-    def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
-        box["b"] = campaign.current = box["b"].fresh()
-        campaign.target.count_restart("triage replay")
+    def play(o: list[Op], log: TrafficLog | None = None) -> Hit | None:
+        # a careful replay on a fresh process (HitTriage.fresh: a "triage replay" restart),
+        # counted by hand: HitTriage.replay would also end it past the deadline (Late), which
+        # this triage's replays have never done
+        box["b"] = campaign.current = campaign.fresh(box["b"].fresh)
         campaign.replays += 1
-        h = play_program(box["b"], o, log, want=sig)
+        return play_program(box["b"], o, log, want=sig)
+
+    def reproduces(o: list[Op], log: TrafficLog | None = None) -> bool:
+        h = play(o, log)
         if h is not None and h.stderr:
             box["stderr"] = h.stderr
         ok = h is not None and same_finding(h.signature, sig)
@@ -133,18 +139,14 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
             box["traffic"] = log.records  # the last confirming replay's: repro.mcap, repro.pcap
         return ok
 
-    box["b"] = campaign.current = box["b"].fresh()
-    campaign.target.count_restart("triage replay")
-    campaign.replays += 1
-    first = play_program(box["b"], ops, want=sig)
+    first = play(ops)
     if first is None:
         campaign.count_unconfirmed(sig.rule)
         return box["b"].fresh()
     if not same_finding(first.signature, sig):
         sig, hit = first.signature, first
         known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
-        if known is not None:
-            known.occurrences += 1
+        if campaign.again(known):
             return box["b"].fresh()
     box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:
