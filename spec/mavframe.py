@@ -19,6 +19,14 @@ _BAD = mavlink2.MAVLink_bad_data
 _MAX_FRAME = {mavlink2.PROTOCOL_MARKER_V1: 6 + 255 + 2, mavlink2.PROTOCOL_MARKER_V2: 10 + 255 + 2 + 13}
 
 
+def robust_parser() -> Any:
+    """The dialect's parser (MAVLink 1 and 2), bad bytes coming out as ``BAD_DATA`` (never
+    raised): every reader of MAVLink bytes that must survive what it is given uses this one."""
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    return parser
+
+
 class FrameError(ValueError):
     """The bytes are not exactly one valid MAVLink frame; ``str()`` says why."""
 
@@ -32,8 +40,7 @@ def parse_frame(data: bytes) -> Any:
     longest = _MAX_FRAME[data[0]]
     if len(data) > longest:
         raise FrameError(f"{len(data)} bytes: more than one MAVLink frame can hold ({longest})")
-    parser = mavlink2.MAVLink(None)
-    parser.robust_parsing = True
+    parser = robust_parser()
     try:
         msgs = parser.parse_buffer(data) or []
     except Exception as exc:  # pymavlink raises assorted errors on odd input

@@ -184,8 +184,9 @@ class _Decoder:
     def __init__(self) -> None:
         from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-        self.mav = mavlink2.MAVLink(None)
-        self.mav.robust_parsing = True
+        from mcp_conform.spec.mavframe import robust_parser
+
+        self.mav = robust_parser()
         self.error = mavlink2.MAVError
 
 

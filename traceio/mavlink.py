@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from mcp_conform.spec import MAVLINK
+from mcp_conform.spec.mavframe import robust_parser  # the dialect's, which reads MAVLink 1 and 2
 from mcp_conform.traceio.reader import (
     CaptureError,
     Datagram,
@@ -98,13 +99,6 @@ def parse_frame(raw: bytes, parser: Any = None) -> Any:
     if len(msgs) == 1:
         return msgs[0]
     return DIALECT.MAVLink_bad_data(bytearray(raw), "not one whole frame" if msgs else "no frame")
-
-
-def robust_parser() -> Any:
-    """The dialect's parser (MAVLink 1 and 2), bad bytes coming out as ``BAD_DATA``."""
-    p = DIALECT.MAVLink(None)
-    p.robust_parsing = True  # bad bytes come out as BAD_DATA, never raised
-    return p
 
 
 class MavTrace:

@@ -17,6 +17,8 @@ from pymavlink.dialects.v10 import ardupilotmega as mavlink1
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from pymavlink.dialects.v20.ardupilotmega import MAVLink_message as MAVLinkMessage
 
+from mcp_conform.spec.mavframe import robust_parser
+
 __all__ = ["STALE", "Decoder", "Encoder", "MAVLinkMessage", "UnparsedBytes", "frame_version"]
 
 #: Seconds an incomplete frame waits for its remaining bytes before it is reported as
@@ -57,9 +59,7 @@ class Decoder:
 
     @staticmethod
     def _new_parser() -> mavlink2.MAVLink:
-        mav = mavlink2.MAVLink(None)
-        mav.robust_parsing = True
-        return mav
+        return robust_parser()
 
     def feed(self, data: bytes, now: float | None = None) -> tuple[list[MAVLinkMessage], int, str | None]:
         """Decode ``data`` (arrived at ``now``, ``time.monotonic()`` by default); return
