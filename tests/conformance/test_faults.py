@@ -36,9 +36,10 @@ pytestmark = pytest.mark.slow
 
 RTO = 0.2
 #: The loss is reported within 3 x --rto + the 2-s liveness window of the death, plus HOST_SLACK
-#: for a loaded host's late timers and lines (a fresh-clone CI reported it 2.66 s after, at 2.6):
+#: for a loaded host's late timers and lines (a fresh-clone CI reported it 2.66 s after, at 2.6;
+#: beside a bench, four helpers and the slow tier, load average 13-20 on 2 cores, 3.65 s at 3.6):
 #: the bound tells "at once" from the "minutes late" of the bug, not the host's speed.
-HOST_SLACK = 1.0
+HOST_SLACK = 3.0
 
 
 def _budget(rto: float) -> float:
