@@ -2,7 +2,7 @@
 "The runner's contract").
 
     mcp-conform [--target HOST:PORT] [--listen HOST:PORT] [--target-id N] [--role drone|manager]
-                [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--strict] [--select PREFIX ...] [--list]
+                [--spawn CMD] [--mavlink [tcp|udp|udpin|udpout]] [--mavlink1] [--strict] [--select PREFIX ...] [--list]
                 [--json FILE] [--junit FILE] [--capture FILE.mcap] [--live [HOST:]PORT] [--html FILE]
                 [--rto S] [--ack-window S] [--broadcast-id N] [--timeout S] [--startup-timeout S] [--seed N]
                 [--impair loss=P,dup=P,reorder=P,delay=LO-HI,corrupt=P,seed=N] [--serial] [--parallel N]
@@ -71,6 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
                         "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens)")
+    p.add_argument("--mavlink1", action="store_true",
+                   help="--protocol mavlink --role gcs: the runner's vehicle speaks MAVLink 1 on every link from the "
+                        "start (as mcp-vehicle --mavlink1; ArduPilot's SERIALn_PROTOCOL 1), for a ground station "
+                        "built on MAVLink 1 headers")
     p.add_argument("--strict", action="store_true", help="a failed SHOULD is a failure")
     p.add_argument("--select", metavar="PREFIX", nargs="+", action="extend", default=[], help="run only cases whose rule ID or case ID starts with PREFIX")
     p.add_argument("--exclude", metavar="PREFIX", nargs="+", action="extend", default=[], help="leave out cases whose rule ID or case ID starts with PREFIX")
@@ -131,7 +135,7 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
     same one-line error as a bad option."""
     given = {"target": ns.target, "listen": ns.listen, "target_id": ns.target_id,
             "protocol": ns.protocol, "role": ns.role,
-            "spawn": ns.spawn, "mavlink": ns.mavlink, "strict": ns.strict, "rto": ns.rto,
+            "spawn": ns.spawn, "mavlink": ns.mavlink, "mavlink1": ns.mavlink1, "strict": ns.strict, "rto": ns.rto,
             "ack_window": ns.ack_window, "broadcast_id": ns.broadcast_id, "timeout": ns.timeout,
             "seed": ns.seed, "capture": ns.capture, "json": ns.json, "junit": ns.junit,
             "case_timeout": ns.case_timeout, "startup_timeout": ns.startup_timeout,
@@ -141,6 +145,8 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
         env = os.environ.get(env_name(key), "")
         if key not in _FLAGS and key != "mavlink" and given.get(key) is None and env != "":
             given[key] = env
+        elif key == "mavlink1" and not given[key] and env != "":  # a flag checked as its option is
+            given[key] = env
     return given
 
 
@@ -148,7 +154,7 @@ def _spelling(ns: argparse.Namespace) -> Any:
     """How make_config names an option in an error: ``--rto``, or ``MCP_CONFORM_RTO`` when
     only the variable gave it."""
     def opt(name: str) -> str:
-        from_env = getattr(ns, name, None) is None and os.environ.get(env_name(name), "") != ""
+        from_env = getattr(ns, name, None) in (None, False) and os.environ.get(env_name(name), "") != ""
         return env_name(name) if from_env else "--" + name.replace("_", "-")
     return opt
 
@@ -262,7 +268,7 @@ def pytest_args(ns: argparse.Namespace) -> list[str]:
         args.append(f"--mcp-shard={ns.shard}")
     if ns.shard_events is not None:
         args.append(f"--mcp-shard-events={ns.shard_events}")
-    for flag in ("strict", "list", "serial"):
+    for flag in ("strict", "mavlink1", "list", "serial"):
         if getattr(ns, flag):
             args.append(f"--mcp-{flag}")
     if ns.verbose:

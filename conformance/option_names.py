@@ -9,8 +9,8 @@ __all__ = ["env_name"]
 
 _KEYS = ("target", "listen", "target_id", "protocol", "role", "spawn", "mavlink", "strict", "rto", "ack_window",
          "broadcast_id", "timeout", "seed", "capture", "json", "junit", "case_timeout",
-         "drones", "challenge", "waypoints", "startup_timeout", "impair")
-_FLAGS = ("strict",)
+         "drones", "challenge", "waypoints", "startup_timeout", "impair", "mavlink1")
+_FLAGS = ("strict", "mavlink1")
 _TRUE = ("1", "true", "yes", "on")
 
 

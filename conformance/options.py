@@ -83,6 +83,7 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         if mavlink not in TRANSPORTS:
             raise ConfigError(f"{opt('mavlink')}: {mavlink!r} is not one of {', '.join(TRANSPORTS)}")
         cfg.mavlink_transport = mavlink
+    _mavlink1_option(cfg, v, opt)
     cfg.strict = bool(v.get("strict", False))
     if "rto" in v:
         cfg.rto = _float(v["rto"], opt("rto"))
@@ -112,8 +113,21 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         if not role_prof.impairable:
             raise ConfigError(f"{opt('impair')}: the {role} role is not run through a bad link yet "
                               "(the drone role is)")
-    cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "strict"))
+    cfg.extra["explicit"] = sorted(k for k in v if k in _KEYS and k not in ("mavlink", "mavlink1", "strict"))
     return cfg
+
+
+def _mavlink1_option(cfg: RunConfig, v: Mapping[str, Any], opt: Callable[[str], str]) -> None:
+    """--mavlink1: the node the runner plays speaks MAVLink 1 from the start, so only in a role
+    whose parameters have it (``spec.profiles``: the gcs role, the runner the vehicle);
+    elsewhere a one-line error naming the roles that take it."""
+    on = v.get("mavlink1", False)
+    cfg.mavlink1 = on.strip().lower() in _TRUE if isinstance(on, str) else bool(on)
+    if cfg.mavlink1 and "mavlink1" not in cfg.profile()[1].parameters:
+        where = " or ".join(f"--protocol {p.name} --role {r.name}" for p in PROFILES.values() for r in p.roles
+                            if "mavlink1" in r.parameters)
+        raise ConfigError(f"{opt('mavlink1')}: the runner speaks MAVLink 1 only as the vehicle of {where}, "
+                          f"not with --protocol {cfg.protocol} --role {cfg.role}")
 
 
 def _manager_options(cfg: RunConfig, v: Mapping[str, Any], opt: Callable[[str], str]) -> None:

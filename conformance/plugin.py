@@ -65,6 +65,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     g.addoption("--mcp-spawn", metavar="CMD", help="start the node under test with CMD ({target_port} ... placeholders)")
     g.addoption("--mcp-mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                 help="start the simulated vehicle and pass {mavlink} (a pymavlink URL of that transport; default tcp)")
+    g.addoption("--mcp-mavlink1", action="store_true", help="--role gcs: the runner's vehicle speaks MAVLink 1 from the start")
     g.addoption("--mcp-strict", action="store_true", help="a failed SHOULD is a failure")
     g.addoption("--mcp-select", metavar="PREFIX", action="append", default=[], help="run cases whose rule ID or case ID starts with PREFIX (repeatable)")
     g.addoption("--mcp-json", metavar="FILE", help="write the JSON report")

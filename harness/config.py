@@ -44,6 +44,8 @@ class RunConfig:
     mavlink: bool = False
     #: How the node reaches the vehicle: tcp, udp/udpin (the node listens), udpout.
     mavlink_transport: str = "tcp"
+    #: ``--mavlink1`` (--role gcs): the runner's vehicle speaks MAVLink 1 from the start
+    mavlink1: bool = False
     embedded: bool = False  # no --target and no --spawn: the reference node
     strict: bool = False
     rto: float = float(SPEC.params["timeout_s"])

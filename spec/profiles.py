@@ -177,7 +177,7 @@ MAVLINK_PROFILE = Profile(
            RoleProfile("gcs", session="mcp_conform.harness.mavlink_gcs_session:MavlinkGcsSession",
                        context="mcp_conform.conformance.mavlink_gcs_case:MavlinkGcsCaseContext",
                        cases="mcp_conform.conformance.cases_mavlink_gcs", fuzz_target=None,
-                       peer="vehicle", fuzzed=False)),
+                       peer="vehicle", fuzzed=False, parameters=("mavlink1",))),
     loader="mcp_conform.spec.mavlink:load_mavlink",
 )
 

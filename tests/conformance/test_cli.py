@@ -45,6 +45,8 @@ def report(path: Path) -> dict:
     (["--bogus"], "unrecognized arguments: --bogus"),
     (["--rto"], "argument --rto: expected one argument"),
     (["--capture", "/nonexistent-dir/x.mcap"], "--capture: directory"),
+    (["--mavlink1"], "--mavlink1: the runner speaks MAVLink 1 only as the vehicle of --protocol mavlink --role gcs, "
+                     "not with --protocol mcp --role drone"),
 ])
 def test_bad_arguments_exit_2_with_one_line_and_json(tmp_path, args, needle):
     path = tmp_path / "r.json"
@@ -173,6 +175,36 @@ def test_version():
 def test_main_in_process_returns_2_for_bad_args(capsys):
     assert main(["--strict", "--rto", "x"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+@pytest.mark.parametrize(("protocol", "role"), [("mavlink", "vehicle"), ("nsqd", "backend"), ("mcp", "manager")])
+def test_mavlink1_is_the_gcs_role_s_alone(tmp_path, protocol, role):
+    """--mavlink1 where the runner plays no MAVLink vehicle: one line naming the role that takes it,
+    exit 2, the error in the JSON report (not schema-checked: report.schema.json knows MCP and
+    Nsqd's error reports only)."""
+    path = tmp_path / "r.json"
+    proc = conform("--protocol", protocol, "--role", role, "--mavlink1", "--json", str(path))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    line = ("--mavlink1: the runner speaks MAVLink 1 only as the vehicle of --protocol mavlink --role gcs, "
+            f"not with --protocol {protocol} --role {role}")
+    assert proc.stderr == f"mcp-conform: error: {line}\n"
+    assert json.loads(path.read_text())["error"] == line
+
+
+def test_mavlink1_from_the_environment_is_checked_as_the_option(tmp_path):
+    """MCP_CONFORM_MAVLINK1 is --mavlink1: a role without it is the one line naming the variable;
+    the gcs role takes it, and the runner's pytest options carry it."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1", MCP_CONFORM_MAVLINK1="1")
+    proc = run_module("conformance", ["--protocol", "mavlink", "--list"], cwd=tmp_path, env=env, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert proc.stderr.startswith("mcp-conform: error: MCP_CONFORM_MAVLINK1: the runner speaks MAVLink 1 only"), proc.stderr
+    proc = run_module("conformance", ["--protocol", "mavlink", "--role", "gcs", "--list"], cwd=tmp_path, env=env,
+                      timeout=120)
+    assert proc.returncode == 0 and "MAV-HB-2" in proc.stdout, proc.stderr
+    ns = build_parser().parse_args(["--protocol", "mavlink", "--role", "gcs", "--mavlink", "udp", "--mavlink1"])
+    args = pytest_args(ns)
+    assert "--mcp-mavlink1" in args and "--mcp-mavlink=udp" in args
+    assert "--mcp-mavlink1" not in pytest_args(build_parser().parse_args(["--protocol", "mavlink", "--role", "gcs"]))
 
 
 def test_pytest_args_are_a_quiet_isolated_run():

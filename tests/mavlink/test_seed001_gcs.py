@@ -4,9 +4,10 @@ headers from pymavlink's mavgen) run as the ground station for every behaviour o
 vehicle, each failure named under its rule with evidence; the outcome pinned like the other
 real ground stations' (tests/mavlink/test_conform_gcs.py, docs/guide/mavlink-gcs.md's table).
 
-The programs speak UDP with ``-v/-l/-H`` and parse MAVLink 1 only, the runner's vehicle
-MAVLink 2: tests/mavlink/udp_args.py turns ``{mavlink}`` into their options and relays, the
-programs' datagrams unchanged, the vehicle's re-packed in MAVLink 1 (``--mavlink1``)."""
+The programs speak UDP with ``-v/-l/-H`` and parse MAVLink 1 only: the runner's vehicle speaks
+MAVLink 1 from the start (``mcp-conform --mavlink1``), and tests/mavlink/udp_args.py only turns
+``{mavlink}`` into their options (no relay: the runner and the program exchange datagrams
+directly)."""
 
 from __future__ import annotations
 
@@ -44,8 +45,8 @@ def test_seed_programs_through_the_gcs_suite(tmp_path, build, program, transport
     """Each program as the ground station over UDP (udpout: it sends to the runner's port, -v;
     udp: the runner sends to its port, -l): the rules it fails, each failure with what was
     expected and what came."""
-    spawn = f"{sys.executable} {WRAP} --mavlink1 {{mavlink}} {build / program}"
-    rc, doc, out = run(tmp_path, "--mavlink", transport, "--spawn", spawn)
+    spawn = f"{sys.executable} {WRAP} {{mavlink}} {build / program}"
+    rc, doc, out = run(tmp_path, "--mavlink", transport, "--mavlink1", "--spawn", spawn)
     rules, _ = failed(doc)
     assert rules == SEED_GCS[program], out
     assert rc == 1 and doc["summary"]["error"] == 0, out
@@ -58,3 +59,10 @@ def test_wrapper_refuses_tcp_in_one_line(build):
     proc = subprocess.run([sys.executable, str(WRAP), "tcp:127.0.0.1:5760", str(build / "heartbeat")],
                           capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "UDP only" in proc.stderr, proc.stderr
+
+
+def test_wrapper_leaves_mavlink1_to_the_runner():
+    """The wrapper re-packs nothing: its old ``--mavlink1`` is one line naming the runner's, exit 2."""
+    proc = subprocess.run([sys.executable, str(WRAP), "--mavlink1", "udp:127.0.0.1:14550", "true"],
+                          capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "mcp-conform" in proc.stderr, proc.stderr
