@@ -63,7 +63,7 @@ def violation_json(f: Found, spec: Any, first_ns: int | None) -> dict[str, Any]:
 
 
 def load_schema() -> dict[str, Any]:
-    return json.loads(resources.files("captures").joinpath("check.schema.json").read_text())
+    return json.loads(resources.files("mcp_conform.captures").joinpath("check.schema.json").read_text())
 
 
 def validate_json(doc: dict[str, Any]) -> None:

@@ -312,7 +312,7 @@ def merge_monitor(sections: list[dict[str, Any]]) -> dict[str, Any]:
 
 def load_schema() -> dict[str, Any]:
     """The shipped JSON Schema of the report."""
-    text = resources.files("conformance").joinpath("report.schema.json").read_text("utf-8")
+    text = resources.files("mcp_conform.conformance").joinpath("report.schema.json").read_text("utf-8")
     return dict(json.loads(text))
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from mcp_conform.conformance.report import validate_json
 from tests.capturing import free_port
 from tests.forkserver import run_module
 from tests.nsqd_backends.build import FAULTS, built_or_skip
@@ -58,6 +59,7 @@ def test_reference_backend_passes_every_rule(tmp_path):
         assert rc == 0, out
         assert not rules_with(doc, "failed", "warned"), out
         assert doc["spec"]["protocol"] == "NSQD" and doc["role"] == "backend"
+        validate_json(doc)  # the shipped report.schema.json (NSQD- rule IDs)
         outcomes.add(tuple(sorted((c["id"], c["outcome"]) for c in doc["cases"])))
         if i == 0:
             from mcap.reader import make_reader

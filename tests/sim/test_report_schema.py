@@ -1,0 +1,32 @@
+"""Every protocol's and role's run report follows the shipped ``report.schema.json``
+(``conformance.report.validate_json``), its monitor section included: MAVLink's reports of
+both roles did not (role ``vehicle``/``gcs``, ``MAV`` and ``MAV-`` rule IDs, a monitor of frames
+by SYSID/COMPID). The runs are the simulator's (the same cases and monitor as a real run, on
+virtual time); Nsqd's real runs are checked in tests/nsqd/test_conform_nsqd.py, the loading of
+the schema from an installed package in tests/conformance/test_report_schema.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from mcp_conform.conformance.report import validate_json
+from mcp_conform.sim.gcs_faults import RULES as GCS_FAULTS
+from mcp_conform.sim.gcs_role import run_gcs_cases
+from mcp_conform.sim.vehicle_faults import RULES as VEHICLE_FAULTS
+from mcp_conform.sim.vehicle_role import run_vehicle_cases
+
+
+@pytest.mark.parametrize("fault", [None, next(iter(GCS_FAULTS))])
+def test_a_gcs_role_report_follows_the_schema(fault):
+    doc = run_gcs_cases(fault, seed=1).report
+    assert doc["role"] == "gcs" and doc["spec"]["protocol"] == "MAV" and doc["monitor"]["nodes"], doc["monitor"]
+    validate_json(doc)
+
+
+@pytest.mark.parametrize("fault", [None, next(iter(VEHICLE_FAULTS))])
+def test_a_vehicle_role_report_follows_the_schema(fault):
+    doc = run_vehicle_cases(fault, seed=1).report
+    assert doc["role"] == "vehicle" and doc["monitor"]["nodes"], doc["monitor"]
+    if fault is not None:
+        assert doc["monitor"]["violations"] or any(o == "failed" for o in doc["rules"].values()), doc["rules"]
+    validate_json(doc)
