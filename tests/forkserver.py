@@ -1,5 +1,6 @@
-"""A fork server for the tests' ``python -m mcp_conform.conformance`` runs: one process per pytest
-process imports the runner once, then forks a child for each run.
+"""A fork server for the tests' ``python -m mcp_conform.conformance`` runs (and ``captures``'s and
+``fuzz``'s: ``SERVED``): one process per pytest process imports the runner once, then forks a
+child for each run.
 
 Why: the slow tests start the runner about 290 times. A fresh interpreter spends about
 0.35 CPU s of each run importing pytest, the runner, the judge, the vehicle and pymavlink's
@@ -36,6 +37,7 @@ from __future__ import annotations
 import json
 import os
 import select
+import shutil
 import signal
 import socket
 import subprocess
@@ -47,6 +49,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("spec", "vehicle", "traceio", "judge", "harness", "conformance")  # the runner and the floors below
+#: What each served ``python -m NAME`` runs: the function its ``__main__`` exits with. The runner's
+#: ends the process itself; the others return the exit status (``sys.exit(main())``).
+SERVED = {"conformance": "mcp_conform.conformance._entry", "captures": "mcp_conform.captures.cli",
+          "fuzz": "mcp_conform.fuzz.cli"}
 THIRD_PARTY = ("pytest", "_pytest.pytester", "pymavlink.mavutil", "pymavlink.dialects.v10.ardupilotmega",
                "pymavlink.dialects.v20.ardupilotmega", "rich.console", "rich.table", "foxglove.messages", "mcap.writer",
                "mcap.reader", "orjson", "execnet", "xdist.plugin", "unittest", "xml.etree.ElementTree", "pdb")
@@ -59,9 +65,9 @@ def _preload() -> None:
 
     for name in THIRD_PARTY:
         importlib.import_module(name)
-    for package in PACKAGES:
-        path = importlib.import_module(package).__path__
-        for info in pkgutil.walk_packages(path, package + "."):
+    for package in PACKAGES:  # as the entry points import them (one namespace: never as a bare "spec")
+        path = importlib.import_module("mcp_conform." + package).__path__
+        for info in pkgutil.walk_packages(path, "mcp_conform." + package + "."):
             if ".cases" not in info.name and not info.name.endswith("__main__"):
                 importlib.import_module(info.name)
 
@@ -115,12 +121,14 @@ class _Client:
                 server = self._servers[_key(env)] = _Server(env)
             return server.path
 
-    def run(self, argv: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> subprocess.CompletedProcess[str]:
+    def run(self, argv: list[str], *, cwd: Path, env: dict[str, str], timeout: float, module: str = "conformance",
+            limit_as: int | None = None) -> subprocess.CompletedProcess[str]:
         path = self._server(env)
         start = time.monotonic()
         with tempfile.TemporaryDirectory() as tmp:
             out, err = os.path.join(tmp, "stdout"), os.path.join(tmp, "stderr")
-            request = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": out, "stderr": err}
+            request = {"argv": argv, "cwd": str(cwd), "env": env, "stdout": out, "stderr": err,
+                       "module": _served(module), "limit_as": limit_as}
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
                 s.connect(path)
                 s.sendall(json.dumps(request).encode() + b"\n")
@@ -159,29 +167,57 @@ def _children_cpu() -> float:
     return c.ru_utime + c.ru_stime
 
 
+def _served(module: str) -> str:
+    """``SERVED``'s key for ``python -m MODULE`` (the bare name or under ``mcp_conform.``)."""
+    name = module.removeprefix("mcp_conform.")
+    if name not in SERVED:
+        raise ValueError(f"the fork server runs only {', '.join(SERVED)}, not {module}")
+    return name
+
+
 def run_module(module: str, args: list[str], *, cwd: Path | str | None = None, env: dict[str, str] | None = None,
-               timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
-    """``python -m MODULE ARGS`` (only ``conformance`` is served), as ``subprocess.run`` with
+               timeout: float = 300.0, limit_as: int | None = None) -> subprocess.CompletedProcess[str]:
+    """``python -m MODULE ARGS`` (``SERVED``'s are served), as ``subprocess.run`` with
     ``capture_output=True, text=True``: in a child of the fork server when it is enabled. The
-    working directory and the environment default to the caller's, as subprocess's do."""
-    if module != "conformance" or not enabled():
+    working directory and the environment default to the caller's, as subprocess's do.
+
+    ``limit_as``: bytes of address space (``RLIMIT_AS``, soft and hard, as ``prlimit --as``):
+    set by the forked child on itself before it runs the module; for a fresh interpreter
+    util-linux's prlimit(1) execs it (no ``preexec_fn`` in a process that may run threads)."""
+    served = module.removeprefix("mcp_conform.") in SERVED
+    if not served or not enabled():
+        prefix: list[str] = []
+        if limit_as is not None:
+            prlimit = shutil.which("prlimit")
+            if prlimit is None:
+                raise RuntimeError("no prlimit(1): the address-space limit cannot be set")
+            prefix = [prlimit, f"--as={limit_as}:{limit_as}", "--"]
         before, start = _children_cpu(), time.monotonic()  # a test's other threads' children: counted too
-        proc = subprocess.run([sys.executable, "-m", module, *args], cwd=cwd, env=env, capture_output=True,
+        proc = subprocess.run([*prefix, sys.executable, "-m", module, *args], cwd=cwd, env=env, capture_output=True,
                               text=True, timeout=timeout)
-        if module == "conformance":
-            _record(_children_cpu() - before, time.monotonic() - start, list(args))
+        if served:
+            _record(_children_cpu() - before, time.monotonic() - start, [module, *args])
         return proc
     return _CLIENT.run(list(args), cwd=Path(cwd or os.getcwd()), env=dict(os.environ if env is None else env),
-                       timeout=timeout)
+                       timeout=timeout, module=module, limit_as=limit_as)
 
 
 # ---- the server --------------------------------------------------------------------------
 
 
 def _child(request: dict, closing: list[int]) -> None:
-    """In the forked child: become ``python -m mcp_conform.conformance ARGS`` and never return."""
+    """In the forked child: become ``python -m mcp_conform.MODULE ARGS`` and never return."""
+    import atexit
+    import importlib
+
     code = 1
+    module = request.get("module", "conformance")
+    atexit._clear()  # the server's (its imports'): a fresh interpreter has none of them
     try:
+        if request.get("limit_as") is not None:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_AS, (request["limit_as"], request["limit_as"]))
         for fd in closing:
             os.close(fd)
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
@@ -197,17 +233,23 @@ def _child(request: dict, closing: list[int]) -> None:
         sys.path[:] = [request["cwd"], *extra, *(p for p in sys.path[1:] if p not in extra)]  # as python -m has it
         os.environ.clear()
         os.environ.update(request["env"])
-        sys.argv = [str(ROOT / "conformance" / "__main__.py"), *request["argv"]]
-        from mcp_conform.conformance._entry import main
-
-        code = main(request["argv"])  # ends the process itself (os._exit), its streams flushed
+        sys.argv = [str(ROOT / module / "__main__.py"), *request["argv"]]
+        main = importlib.import_module(SERVED[module]).main
+        # the runner's ends the process itself (os._exit), its streams flushed; the others return
+        raise SystemExit(main(request["argv"]))  # as ``sys.exit(main())``
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if not isinstance(exc.code, int | None):  # the interpreter prints any other value
+            print(exc.code, file=sys.stderr)
     except BaseException:
         import traceback
 
         traceback.print_exc()
     finally:
+        try:
+            atexit._run_exitfuncs()  # those the run registered, as the interpreter's exit runs them
+        except BaseException:
+            pass
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()

@@ -1,10 +1,11 @@
-"""The tests' fork server (tests/forkserver.py) runs ``python -m mcp_conform.conformance`` as a fresh
-interpreter does: same exit status, same output, the caller's working directory and
+"""The tests' fork server (tests/forkserver.py) runs ``python -m mcp_conform.conformance`` (and
+``captures``, ``fuzz``) as a fresh interpreter does: same exit status, same output, the caller's working directory and
 environment, its own process, killed at the timeout."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -32,6 +33,39 @@ def test_a_forked_run_matches_a_fresh_interpreter(args: list[str]) -> None:
     fresh, forked = _both(args)
     assert (forked.returncode, forked.stdout, forked.stderr) == (fresh.returncode, fresh.stdout, fresh.stderr)
     assert fresh.stdout or fresh.stderr  # the comparison compared something
+
+
+GOLDEN = ROOT / "captures" / "golden" / "challenge1.mcap"
+
+
+@pytest.mark.parametrize(("module", "args"), [("captures", ["check", str(GOLDEN)]),
+                                              ("captures", ["show", "/nonexistent/x.mcap"]),
+                                              ("fuzz", ["--max-cases", "many"])],
+                         ids=["capture-check", "capture-missing-file", "fuzz-bad-option"])
+def test_a_forked_capture_or_fuzz_run_matches_a_fresh_interpreter(module: str, args: list[str]) -> None:
+    """The other served modules (``SERVED``): what their ``__main__`` exits with, as it prints it."""
+    fresh = subprocess.run([sys.executable, "-m", f"mcp_conform.{module}", *args], cwd=ROOT, env=ENV,
+                           capture_output=True, text=True, timeout=60)
+    forked = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module=module)
+    assert (forked.returncode, forked.stdout, forked.stderr) == (fresh.returncode, fresh.stdout, fresh.stderr)
+    assert fresh.stdout or fresh.stderr
+
+
+def test_an_address_space_limit_is_the_childs_as_prlimit_sets_it() -> None:
+    """``limit_as``: under 64 MiB the check cannot load its modules (a MemoryError, exit 1) as
+    under prlimit(1) in a fresh interpreter; the next run, unlimited, passes: the server and
+    its later children are not limited."""
+    small = 64 * 2**20
+    args = ["check", str(GOLDEN)]
+    forked = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures", limit_as=small)
+    assert forked.returncode == 1 and forked.stderr.rstrip().endswith("MemoryError"), forked.stderr[-2000:]
+    again = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures")
+    assert again.returncode == 0 and again.stdout.rstrip().splitlines()[-1].startswith("OK"), again.stderr
+    if shutil.which("prlimit") is not None:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv("MCP_TEST_FORKSERVER", "0")
+            fresh = forkserver.run_module("captures", args, cwd=ROOT, env=ENV, timeout=60, limit_as=small)
+        assert fresh.returncode == 1 and fresh.stderr.rstrip().endswith("MemoryError"), fresh.stderr[-2000:]
 
 
 def test_the_callers_directory_and_environment_are_the_childs(tmp_path: Path) -> None:

@@ -30,14 +30,16 @@ from mcp_conform.fuzz.mavlink_cases import (
     case_from_json,
     frame_name,
 )
+from tests.forkserver import run_module
 
 FRAGILE = Path(__file__).with_name("fragile_vehicle.py")
 FAULTY = Path(__file__).parents[1] / "mavlink" / "faulty_vehicle.py"
 
 
 def fuzz(*args: str, timeout: float = 200) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "mavlink", *args],
-                          capture_output=True, text=True, timeout=timeout)
+    """``python -m mcp_conform.fuzz --protocol mavlink ARGS``: a child of the tests' fork server
+    (tests/forkserver.py: its own process, the modules imported once)."""
+    return run_module("mcp_conform.fuzz", ["--protocol", "mavlink", *args], timeout=timeout)
 
 
 def proxy(path: Path, fault: str) -> str:

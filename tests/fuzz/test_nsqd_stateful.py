@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -15,6 +14,7 @@ import pytest
 from mcp_conform.fuzz.nsqd_campaign import StreamCampaign, message_names
 from mcp_conform.fuzz.nsqd_mutators import Write
 from mcp_conform.fuzz.nsqd_stateful import Op, _whole_frames, command_bytes
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 
 
@@ -23,8 +23,8 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 
 
 def _replay(finding: Path, spawn: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(finding), "--spawn", spawn],
-                          capture_output=True, text=True, timeout=120)
+    """``mcp-fuzz --replay``: a child of the tests' fork server (tests/forkserver.py)."""
+    return run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--replay", str(finding), "--spawn", spawn], timeout=120)
 
 
 def test_an_op_round_trips_through_finding_json():
@@ -124,8 +124,7 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
         assert [follow(d / "repro.pcap", i)[0] for i in range(len(opened))] == per_conn
     assert _replay(d, fault).returncode == 1
     assert _replay(d, _spawn(exe)).returncode == 0
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", str(d / "repro.mcap"), "--spawn", fault],
-                         capture_output=True, text=True, timeout=120)
+    run = run_module("mcp_conform.captures", ["replay", str(d / "repro.mcap"), "--spawn", fault], timeout=120)
     assert run.returncode == 1 and "reproduced NSQD-CON-2" in run.stdout, run.stdout + run.stderr
 
 

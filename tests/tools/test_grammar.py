@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.forkserver import run_module
+
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "docs" / "grammar.md"
 GOLDEN = ROOT / "captures" / "golden"
@@ -246,10 +248,11 @@ def test_conform_json_dash_is_stdout(tmp_path) -> None:
 @pytest.mark.parametrize("protocol", ["mcp", "nsqd"])
 def test_fuzz_json_dash_is_stdout_and_quiet_has_no_progress(tmp_path, protocol) -> None:
     """mcp-fuzz --json - : the summary document on stdout, the campaign's lines on stderr; -q:
-    no status line, the last two lines still there."""
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", protocol, "--max-cases", "150",
-                          "--duration", "8", "--status-every", "0.1", "-q", "--json", "-"],
-                         capture_output=True, text=True, env=ENV, timeout=120, cwd=tmp_path)
+    no status line, the last two lines still there. (A child of the tests' fork server,
+    tests/forkserver.py: its own process, stdout and stderr files as a pipe is, no terminal.)"""
+    run = run_module("mcp_conform.fuzz", ["--protocol", protocol, "--max-cases", "150", "--duration", "8",
+                                          "--status-every", "0.1", "-q", "--json", "-"],
+                     env=ENV, timeout=120, cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     summary = json.loads(run.stdout)
     assert summary["cases"] >= 1 and summary["findings"] in ([], 0), summary

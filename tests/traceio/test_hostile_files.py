@@ -2,10 +2,14 @@
 bounded time under a memory limit with one line and exit 2 (or a warning naming what was
 read), never a traceback, never "OK" over corruption.
 
-Every command runs in a subprocess under ``RLIMIT_AS`` (``MEMORY``) and a timeout: before
-the fix the huge burst grew by ~20 MB/s until the limit killed it (a MemoryError traceback)
-or the timeout did. The limit is set by util-linux's prlimit(1), which execs the command: no
-``preexec_fn`` in a pytest worker that may run threads (documented unsafe).
+Every command runs in a process of its own under ``RLIMIT_AS`` (``MEMORY``) and a timeout:
+before the fix the huge burst grew by ~20 MB/s until the limit killed it (a MemoryError
+traceback) or the timeout did. The process is a child of the tests' fork server
+(tests/forkserver.py ``run_module``: the modules imported once, the limit set by the child on
+itself before it runs the command; ~0.05 CPU s a run where a fresh interpreter spent ~0.5 on
+its imports), or (the million's, or with ``MCP_TEST_FORKSERVER=0``) a fresh interpreter that
+util-linux's prlimit(1) execs under the limit: no ``preexec_fn`` in a pytest worker that may
+run threads (documented unsafe).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import pytest
 from mcp_conform.spec.codec import Action, Message, encode
 from mcp_conform.traceio.reader import MAX_BURST, MAX_BURST_TOTAL
 from mcp_conform.traceio.recorder import McapRecorder
+from tests import forkserver
 
 ROOT = Path(__file__).resolve().parents[2]
 MEMORY = 1536 * 2**20  # bytes of address space for each command (python + scapy + mcap fit)
@@ -31,14 +36,20 @@ PEER = ("127.0.0.1", 7890)
 PRLIMIT = shutil.which("prlimit")  # util-linux
 
 
-def run(*argv: str, module: str = "captures", limit: int = MEMORY, timeout: float = TIMEOUT) -> tuple[int, str, str]:
-    """``python -m module argv`` under the memory limit (address space) and the timeout."""
-    if PRLIMIT is None:
-        pytest.skip("no prlimit(1): the address-space limit cannot be set")
+def run(*argv: str, module: str = "captures", limit: int = MEMORY, timeout: float = TIMEOUT,
+        fresh: bool = False) -> tuple[int, str, str]:
+    """``python -m module argv`` under the memory limit (address space) and the timeout;
+    ``fresh``: in a fresh interpreter (its address space only its own imports: the million's
+    bench-sized limit)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:
-        p = subprocess.run([PRLIMIT, f"--as={limit}:{limit}", "--", sys.executable, "-m", module, *argv],
-                           cwd=ROOT, env=env, text=True, capture_output=True, timeout=timeout)
+        if not fresh and forkserver.enabled():
+            p = forkserver.run_module(module, list(argv), cwd=ROOT, env=env, timeout=timeout, limit_as=limit)
+        elif PRLIMIT is None:
+            pytest.skip("no prlimit(1): the address-space limit cannot be set")
+        else:
+            p = subprocess.run([PRLIMIT, f"--as={limit}:{limit}", "--", sys.executable, "-m", module, *argv],
+                               cwd=ROOT, env=env, text=True, capture_output=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise AssertionError(f"{module} {' '.join(argv)}: still running after {timeout:g} s") from None
     return p.returncode, p.stdout, p.stderr
@@ -203,7 +214,7 @@ def test_check_of_a_million_violating_datagrams_finishes_under_the_limit(tmp_pat
     out = tmp_path / "c.json"
     # bounded, not timed: ~50 s on a quiet host (the bench's figure), over 120 s beside six
     # CI workers and other jobs on two cores; the speed is the bench's business
-    rc, _, err = run("check", str(path), "--json", str(out), limit=MILLION_MEMORY, timeout=900)
+    rc, _, err = run("check", str(path), "--json", str(out), limit=MILLION_MEMORY, timeout=900, fresh=True)
     assert rc == 1 and "Traceback" not in err, err
     # read as check writes it, one violation per line, not as one 1-GB document (json.load of
     # it alone outlasted pytest-timeout's 300 s beside six CI workers and a fuzz campaign):
