@@ -19,12 +19,9 @@ a run still differ.
 
 from __future__ import annotations
 
-import fcntl
-import json
 import os
 import subprocess
 import sys
-import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -37,6 +34,7 @@ from mcp_conform.traceio.reader import CaseMark, Datagram, Metadata, open_captur
 from mcp_conform.traceio.recorder import McapRecorder
 from mcp_conform.vehicle.probe import make_probe
 from tests.forkserver import run_module
+from tests.xdist_once import once
 
 pytestmark = pytest.mark.slow
 
@@ -106,26 +104,14 @@ def _rewrite(src: Path, dst: Path, change) -> int:
 
 
 def _once(tmp_path_factory, name: str, record, count: int) -> list[Path]:
-    """``count`` captures made by ``record(path)``, AT_ONCE at a time, once per test session:
-    under pytest-xdist each worker that runs one of this module's tests would otherwise make
-    its own (CI ran each set twice, in two workers); the first makes them in the session's
-    directory shared by the workers, under a lock, the others wait for it and read them. A
-    set whose making failed is made again by the next (its asserts fail there too)."""
+    """``count`` captures made by ``record(path)``, AT_ONCE at a time, once per test session
+    (tests/xdist_once.py: under pytest-xdist each worker that runs one of this module's tests
+    would otherwise make its own; CI ran each set twice, in two workers)."""
     def make(d: Path) -> list[Path]:
         with ThreadPoolExecutor(AT_ONCE) as pool:
             return list(pool.map(record, [d / f"{name}{n}.mcap" for n in range(count)]))
 
-    if os.environ.get("PYTEST_XDIST_WORKER") is None:
-        return make(tmp_path_factory.mktemp(name))
-    shared = tmp_path_factory.getbasetemp().parent / f"golden-{name}"  # this session's, all workers'
-    shared.mkdir(exist_ok=True)
-    with open(shared / "lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when closed, also if make() raises
-        done = shared / "done.json"
-        if not done.exists():
-            attempt = Path(tempfile.mkdtemp(dir=shared))
-            done.write_text(json.dumps([str(p) for p in make(attempt)]))
-        return [Path(p) for p in json.loads(done.read_text())]
+    return once(tmp_path_factory, f"golden-{name}", make)
 
 
 @pytest.fixture(scope="module")

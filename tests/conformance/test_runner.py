@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from mcp_conform.spec import SPEC
 from tests.spawned import attached_node
+from tests.xdist_once import once
 
 from .runner_helpers import (
     FAST,
     ROOT,
+    RunResult,
     free_port,
     reference_node_command,
     run_conform,
@@ -46,10 +49,17 @@ def test_embedded_default_passes_every_must_and_should():
 
 
 @pytest.fixture(scope="module")
-def tcp_vehicle():
+def tcp_vehicle(tmp_path_factory) -> RunResult:
     """The drone-role suite against the spawned reference node with the vehicle on TCP
-    (``--mavlink``'s default): one run for the spawn-mode test and the UDP tests' comparison."""
-    return run_conform("--spawn", reference_node_command(), "--mavlink", "tcp", *FAST)
+    (``--mavlink``'s default): one run for the spawn-mode test and the UDP tests' comparison,
+    once per test session (tests/xdist_once.py: its exit status, report and output are shared
+    by the xdist workers; the node itself is gone by then)."""
+    def run(_: Path) -> list:
+        res = run_conform("--spawn", reference_node_command(), "--mavlink", "tcp", *FAST)
+        return [res.rc, res.report, res.output]
+
+    rc, report, output = once(tmp_path_factory, "tcp-vehicle", run)
+    return RunResult(rc, report, output)
 
 
 def test_spawn_mode_reference_node_passes(tcp_vehicle):

@@ -19,6 +19,7 @@ import pytest
 
 from mcp_conform.vehicle.recordfile import read_records
 from tests.capturing import free_port
+from tests.xdist_once import once
 
 pytestmark = pytest.mark.slow
 
@@ -31,35 +32,24 @@ SEED_HEARTBEAT = bytes.fromhex("FE 09 00 FF 00 00 00 00 00 00 06 03 C0 04 03 F5 
 def build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The examples built by their Makefile and checked, once a test session: the build
     (1.6 CPU s, minutes of wall on a loaded host) is shared by this module, test_seed001_gcs and
-    every xdist worker (``_shared_dir``: the session's base directory, built under a lock by the
-    first that needs it; ``ok`` written once its checks have passed)."""
+    every xdist worker (tests/xdist_once.py: made by the first that needs it, read-only)."""
     missing = [t for t in ("cc", "make") if shutil.which(t) is None]
     if missing:
         pytest.skip(f"{' and '.join(missing)} not installed (.ci/apt-tools installs gcc, make)")
-    import fcntl
 
-    out = _shared_dir(tmp_path_factory) / "mavlink_c"
-    out.mkdir(exist_ok=True)
-    with open(out.parent / "mavlink_c.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (out / "ok").is_file():
-            proc = subprocess.run(["make", "-C", str(EXAMPLES), f"PYTHON={sys.executable}", f"BUILD={out}"],
-                                  capture_output=True, text=True, timeout=180)
-            assert proc.returncode == 0, proc.stdout + proc.stderr
-            assert "warning" not in proc.stderr, proc.stderr
-            (out / "ok").write_text("built and checked\n")
+    def make(out: Path) -> Path:
+        proc = subprocess.run(["make", "-C", str(EXAMPLES), f"PYTHON={sys.executable}", f"BUILD={out}"],
+                              capture_output=True, text=True, timeout=180)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        assert "warning" not in proc.stderr, proc.stderr
+        return out
+
+    out = once(tmp_path_factory, "mavlink_c", make)
     for name in ("heartbeat", "arm_disarm", "mission_takeoff", "receiver"):
         assert (out / name).is_file(), name
     assert (out / "include" / "ardupilotmega" / "mavlink.h").is_file()
     assert not list(EXAMPLES.rglob("mavlink.h")), "generated headers must not be in the source tree"
     return out
-
-
-def _shared_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A directory of this test session's: under xdist the base directory every worker's own
-    lies in (``pytest-N``, new each session), else the worker's own base directory."""
-    base = tmp_path_factory.getbasetemp()
-    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") and base.name.startswith("popen-gw") else base
 
 
 class Vehicle:

@@ -26,6 +26,7 @@ from mcp_conform.spec.nsqd_codec import Deframer, Frame
 from mcp_conform.traceio.nsqd import stream_records
 from mcp_conform.traceio.reader import Metadata, StreamEvent, StreamFrame, open_capture
 from tests.nsqd_backends.build import built_or_skip
+from tests.xdist_once import once
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -40,12 +41,17 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 
 @pytest.fixture(scope="module")
 def finding(tmp_path_factory) -> tuple[Path, Path]:
+    """The backend and the campaign's finding directory, found once per test session
+    (tests/xdist_once.py; CI's slow run ran the campaign on three workers): read-only."""
     exe = built_or_skip()
-    out = tmp_path_factory.mktemp("nsqd-finding")
-    c = StreamCampaign(None, _spawn(exe, FAULT), 20140307, 90.0, None, out, stop_after=1)
-    c.run()
-    assert [f.signature.oracle for f in c.findings] == ["crash"]
-    return exe, out / "finding-1"
+
+    def campaign(out: Path) -> Path:
+        c = StreamCampaign(None, _spawn(exe, FAULT), 20140307, 90.0, None, out, stop_after=1)
+        c.run()
+        assert [f.signature.oracle for f in c.findings] == ["crash"]
+        return out / "finding-1"
+
+    return exe, once(tmp_path_factory, "nsqd-finding", campaign)
 
 
 def assert_input_then_commands(sent: bytes, data: bytes) -> None:

@@ -28,6 +28,7 @@ import pytest
 
 from mcp_conform.spec.about import DIST_NAME, __version__
 from tests.packaging.tree import NAMESPACE, ROOT, module_paths, resource_paths, top_packages
+from tests.xdist_once import once
 
 pytestmark = pytest.mark.slow
 
@@ -113,11 +114,15 @@ def _install(wheel: Path, bin_: Path, cwd: Path, env: dict[str, str]) -> None:
 
 @pytest.fixture(scope="module")
 def dists(tmp_path_factory) -> dict[str, Path]:
-    """The tree copied as git has it, its sdist, and the wheel built from that sdist."""
+    """The tree copied as git has it, its sdist, and the wheel built from that sdist: built once
+    per test session (tests/xdist_once.py; CI's slow run built them on two workers), read-only."""
     for module, why in (("build", "build"), ("twine", "twine"), ("setuptools", "setuptools>=77")):
         if importlib.util.find_spec(module) is None:
             pytest.skip(f"{why} is not installed (pip install -e '.[test]')")
-    base = tmp_path_factory.mktemp("dist")
+    return once(tmp_path_factory, "dist", _build)
+
+
+def _build(base: Path) -> dict[str, Path]:
     src = base / "src"
     files = _tracked()
     if files is None:
