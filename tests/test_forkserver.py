@@ -36,6 +36,7 @@ def test_a_forked_run_matches_a_fresh_interpreter(args: list[str]) -> None:
 
 
 GOLDEN = ROOT / "captures" / "golden" / "challenge1.mcap"
+SUITE = ROOT / "captures" / "golden" / "drone-suite.mcap"
 
 
 @pytest.mark.parametrize(("module", "args"), [("captures", ["check", str(GOLDEN)]),
@@ -51,21 +52,28 @@ def test_a_forked_capture_or_fuzz_run_matches_a_fresh_interpreter(module: str, a
     assert fresh.stdout or fresh.stderr
 
 
+def _out_of_memory(text: str) -> bool:
+    """An allocation refused, as Python (MemoryError) or a C library (lz4's decompressor) says it."""
+    return "MemoryError" in text or "allocation_failed" in text or "Cannot allocate memory" in text
+
+
 def test_an_address_space_limit_is_the_childs_as_prlimit_sets_it() -> None:
-    """``limit_as``: under 64 MiB the check cannot load its modules (a MemoryError, exit 1) as
-    under prlimit(1) in a fresh interpreter; the next run, unlimited, passes: the server and
-    its later children are not limited."""
+    """``limit_as``: under 64 MiB a check of the drone suite's capture runs out of memory (a
+    MemoryError), as under prlimit(1) in a fresh interpreter; the next run, unlimited, does
+    not: the server and its later children are not limited. (A forked child starts with the
+    server's modules loaded and may check a small capture from the heap it already has: the
+    capture read here is larger, 245 KB, than a fresh allocation the limit leaves room for.)"""
     small = 64 * 2**20
-    args = ["check", str(GOLDEN)]
+    args = ["check", str(SUITE)]
     forked = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures", limit_as=small)
-    assert forked.returncode == 1 and forked.stderr.rstrip().endswith("MemoryError"), forked.stderr[-2000:]
+    assert forked.returncode != 0 and _out_of_memory(forked.stderr), forked.stderr[-2000:]
     again = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures")
-    assert again.returncode == 0 and again.stdout.rstrip().splitlines()[-1].startswith("OK"), again.stderr
+    assert again.returncode in (0, 1) and not _out_of_memory(again.stderr + again.stdout), again.stderr
     if shutil.which("prlimit") is not None:
         with pytest.MonkeyPatch.context() as mp:
             mp.setenv("MCP_TEST_FORKSERVER", "0")
             fresh = forkserver.run_module("captures", args, cwd=ROOT, env=ENV, timeout=60, limit_as=small)
-        assert fresh.returncode == 1 and fresh.stderr.rstrip().endswith("MemoryError"), fresh.stderr[-2000:]
+        assert fresh.returncode != 0 and _out_of_memory(fresh.stderr), fresh.stderr[-2000:]
 
 
 def test_the_callers_directory_and_environment_are_the_childs(tmp_path: Path) -> None:
