@@ -66,7 +66,8 @@ def test_an_address_space_limit_is_the_childs_as_prlimit_sets_it() -> None:
     small = 64 * 2**20
     args = ["check", str(SUITE)]
     forked = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures", limit_as=small)
-    assert forked.returncode != 0 and _out_of_memory(forked.stderr), forked.stderr[-2000:]
+    assert forked.returncode == 2 and _out_of_memory(forked.stderr), forked.stderr[-2000:]
+    assert "out of memory reading it" in forked.stderr and "corrupt" not in forked.stderr, forked.stderr[-2000:]
     again = forkserver._CLIENT.run(args, cwd=ROOT, env=ENV, timeout=60, module="captures")
     assert again.returncode in (0, 1) and not _out_of_memory(again.stderr + again.stdout), again.stderr
     if shutil.which("prlimit") is not None:

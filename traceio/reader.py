@@ -352,6 +352,9 @@ class Capture:
                             self.counts["trailing_bytes"] += rest
                         break
                     except Exception as exc:  # noqa: BLE001 - any failure past the magic is a cut or corrupt tail
+                        if _out_of_memory(exc):  # the machine's limit, not the file's fault
+                            raise CaptureError(f"{self.path}: out of memory reading it near byte {f.tell()} of {size} "
+                                               f"({type(exc).__name__}: {exc})") from None
                         self.truncated, self.corrupt = _mcap_reason(exc, f.tell(), size)
                         break
                 kind = type(rec)
@@ -523,6 +526,12 @@ class Capture:
             index += 1
         self._packets_read()
         self._fragments_open = frag.open_groups()
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """An allocation refused: Python's MemoryError, or a C decompressor's (lz4:
+    ``ERROR_allocation_failed``) -- no evidence of a corrupt file."""
+    return isinstance(exc, MemoryError) or "allocation_failed" in str(exc) or "Allocation error" in str(exc)
 
 
 def _mcap_reason(exc: Exception, pos: int, size: int) -> tuple[str, bool]:
