@@ -90,7 +90,9 @@ def test_the_callers_directory_and_environment_are_the_childs(tmp_path: Path) ->
 def test_a_run_past_its_timeout_is_killed(tmp_path: Path) -> None:
     """As ``subprocess.run(timeout=...)``: TimeoutExpired raised and the child killed (the
     server has no child left, where the run itself would wait 30 s for its target)."""
-    hang = ["--target", "127.0.0.1:9", "--startup-timeout", "30", "--timeout", "60"]
+    # a port of its own: the default (7889) may be another run's on a shared host, and a run
+    # that cannot bind it ends at once instead of waiting
+    hang = ["--target", "127.0.0.1:9", "--listen", "127.0.0.1:0", "--startup-timeout", "30", "--timeout", "60"]
     with pytest.raises(subprocess.TimeoutExpired):
         forkserver._CLIENT.run(hang, cwd=tmp_path, env=ENV, timeout=1.0)
     server = forkserver._CLIENT._servers[forkserver._key(ENV)].proc.pid
