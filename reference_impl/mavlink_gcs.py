@@ -148,6 +148,15 @@ class ReferenceGcs:
         return None
 
     def encode(self, name: str, **fields: Any) -> Any:
+        """The message ``name`` to the vehicle, in the dialect the link speaks now. A MAVLink 1
+        link (pymavlink stays in MAVLink 1 while the vehicle never sends MAVLink 2) carries no
+        extension fields: they are left out (``mission_type``: MAVLink 1 implies MISSION)."""
+        link = sys.modules[type(self.conn.mav).__module__]
+        if link is not mav:
+            kind = f"MAVLink_{name.lower()}_message"
+            carried = set(getattr(link, kind).fieldnames)
+            extensions = set(getattr(mav, kind).fieldnames) - carried
+            fields = {k: v for k, v in fields.items() if k not in extensions}
         return getattr(self.conn.mav, name.lower() + "_encode")(*self.target, **fields)
 
     # -- the steps ----------------------------------------------------------------------------
