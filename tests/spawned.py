@@ -11,6 +11,7 @@ With its stderr sent to DEVNULL a CI run said only "the reference drone sent not
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import tempfile
@@ -19,6 +20,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import IO, Any
 
+from mcp_conform.harness.rx_queue import udp_rx_queue
 from tests.capturing import free_port
 
 #: Starts of a node that exited before speaking, each on a fresh port, before the test fails.
@@ -74,28 +76,12 @@ def heard_on(sock: socket.socket) -> Callable[[float], bool]:
     return heard
 
 
-def udp_bound(port: int) -> bool | None:
-    """Whether a UDP socket is bound to ``port`` (Linux's /proc/net/udp and udp6); None where
-    those tables cannot be read."""
-    lines: list[str] = []
-    for table in ("/proc/net/udp", "/proc/net/udp6"):
-        try:
-            with open(table, encoding="ascii") as f:
-                lines += f.read().splitlines()[1:]
-        except OSError:
-            pass
-    if not lines:
-        return None
-    want = f":{port:04X}"
-    return any(len(fields) > 1 and fields[1].endswith(want) for fields in map(str.split, lines))
-
-
 def start_node(argv_for: Callable[[int], list[str]], heard: Callable[[float], bool] | None,
                timeout: float = 60.0, settle: float = 0.0, **popen: Any) -> tuple[Node, int]:
     """``argv_for(port)`` started on a fresh ``free_port`` until ``heard(seconds)`` says it
     spoke; one that exits first is started again on another port (``TRIES`` starts). With
     ``heard`` None (a node that speaks only when spoken to) it is started once, waited for
-    until its socket is bound to the port (``udp_bound``, up to ``timeout``: on a loaded host
+    until its socket is bound to the port (``harness.rx_queue.udp_rx_queue`` lists it, up to ``timeout``: on a loaded host
     an interpreter takes seconds to get there, and what is sent before is lost; where that
     cannot be seen, not waited for) and must still run after ``settle`` s. AssertionError with
     its stderr when it never speaks."""
@@ -112,8 +98,8 @@ def start_node(argv_for: Callable[[int], list[str]], heard: Callable[[float], bo
                 spoke = True
                 break
         while heard is None and node.proc.poll() is None and time.monotonic() < start + timeout:
-            if udp_bound(port) is not False:
-                break
+            if not os.path.exists("/proc/net/udp") or udp_rx_queue("127.0.0.1", port) is not None:
+                break  # bound to it or to the wildcard (or not to be seen here: not waited for)
             time.sleep(0.05)
         if spoke or (heard is None and node.proc.poll() is None):
             return node, port
