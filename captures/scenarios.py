@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mcp_conform.vehicle.ports import free_port
+
 __all__ = ["GOLDEN", "record_challenge"]
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
@@ -31,9 +33,7 @@ RTO = 0.5
 
 
 def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    return free_port("127.0.0.1", socket.SOCK_DGRAM)  # reserved host-wide (vehicle.ports)
 
 
 def record_challenge(challenge: int, out: str | Path, *, rto: float = RTO, timeout: float = 60.0) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from mcp_conform.vehicle.ports import free_port
 from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 from tests.spawned import Node
@@ -31,9 +32,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHO
 
 
 def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    return free_port("127.0.0.1", socket.SOCK_STREAM)  # reserved host-wide (vehicle.ports)
 
 
 def _tcpdump(path: Path, port: int) -> subprocess.Popen | None:
