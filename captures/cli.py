@@ -171,6 +171,16 @@ def _error(message: str) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The tools' entry point: the exit code. Out of memory anywhere (a module to import under
+    ``ulimit -v``, a capture too large) is one line and exit 2, as a bad file is; the reader
+    says where in the capture it ran out ("out of memory reading it near byte N")."""
+    try:
+        return _main(argv)
+    except MemoryError:
+        return _error("out of memory (the host's, or an address-space limit such as ulimit -v)")
+
+
+def _main(argv: Sequence[str] | None) -> int:
     from mcp_conform.traceio.reader import CaptureError
 
     parser = build_parser()
