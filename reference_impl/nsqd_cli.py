@@ -7,7 +7,7 @@ a small client that connects to a backend, sends commands and prints what comes 
     mcp-node --protocol nsqd client --target HOST:PORT [--send NAME ...] [--duration S]
 
 The backend prints ``listening on HOST:PORT`` once it listens, logs one line per event to
-stderr and stops on SIGINT/SIGTERM (exit 130, 143: 128 + the signal's number); a bad argument or a port in use is one line
+stderr and stops on SIGINT/SIGTERM (exit 130, 143: 128 + the signal's number), as the client does; a bad argument or a port in use is one line
 and exit 2. The client prints each frame it receives as JSON, one per line. ``--bind`` and
 ``--connect`` are kept as deprecated aliases of ``--listen`` and ``--target`` (docs/grammar.md).
 """
@@ -113,10 +113,25 @@ def _client(args: argparse.Namespace) -> int:
         print(f"{ERR}: error: --target {args.target[0]}:{args.target[1]}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     deframer = Deframer(NSQD)
+    stopped_by: list[int] = []
+
+    def stop(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        raise _Stopped
+
+    # its own handlers, as the backend's: Python's KeyboardInterrupt is not installed when the
+    # shell started it with SIGINT ignored (a background job of a script), and SIGTERM's
+    # default is no exit code of the grammar's
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, stop)
     try:
         return _listen(sock, deframer, args)
-    except KeyboardInterrupt:  # Ctrl-C while it listens: the grammar's interrupt, no traceback
-        return 130
+    except _Stopped:  # stopped while it listens: the grammar's interrupt (130, 143), no traceback
+        return 128 + stopped_by[0]
+
+
+class _Stopped(Exception):
+    """SIGINT or SIGTERM arrived while the client listened."""
 
 
 def _listen(sock: socket.socket, deframer: Deframer, args: argparse.Namespace) -> int:
