@@ -14,7 +14,8 @@ over ``fuzz.loop.run_campaign`` (``--jobs N``: ``--max-cases`` shared out among 
 findings by class, what was counted and not triaged, each worker's figures), and the closing
 lines with the exit code (:meth:`ProtocolCampaign.final`: each finding, the
 environment-dependent flaws, the hits counted and not triaged under ``-v``, the totals and
-:func:`budget_line`).
+:func:`budget_line`), and ``--replay``'s one replay of a finding on a fresh target started as
+the campaign's is (:meth:`ProtocolCampaign.replay`, over ``fuzz.replay_core``).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from mcp_conform.fuzz.environment import environment_lines
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import EngineStats, FuzzClock, WorkerResult, common_summary, count
 from mcp_conform.fuzz.progress import Progress, interrupted
+from mcp_conform.fuzz.replay_core import Replayed, replay_fresh
 from mcp_conform.fuzz.triage_core import HitTriage
 from mcp_conform.fuzz.workers import sum_tables
 from mcp_conform.spec.profiles import Profile
@@ -61,6 +63,11 @@ class ProtocolPlugin:
                              n_of_n=self.n_of_n, started=started, duration=cfg.duration_limit)
         self.first(triage, cfg)
         return triage
+
+    def start(self, cfg: FuzzConfig) -> Any:
+        """The worker's target (``fuzz.loop.WorkerTarget``), started as ``cfg`` says: ``--spawn``,
+        ``--target``, else the protocol's reference node (a campaign's, and ``--replay``'s)."""
+        raise NotImplementedError
 
     def first(self, triage: Any, cfg: FuzzConfig) -> None:
         """What a worker's triage does before its first case (nothing, unless the protocol says)."""
@@ -128,24 +135,28 @@ class CaseEngine:
 
 class ProtocolCampaign:
     """A protocol's campaign (``fuzz.plugin.FuzzCampaign``, the profile's ``fuzz_campaign``):
-    ``PROFILE`` names it; ``plugin`` is its part of the one loop; ``write_files`` writes a
-    finding's own files beside ``finding.json`` (``fuzz.findings.FindingStore``)."""
+    ``PROFILE`` names it; ``PLUGIN`` makes its part of the one loop (``plugin``: one made
+    otherwise); ``WRITE_FILES`` writes a finding's own files beside ``finding.json``
+    (``fuzz.findings.FindingStore``)."""
 
     PROFILE: ClassVar[Profile]
     #: the options of ``mcp-fuzz`` this campaign does not take (a one-line usage error)
     REFUSED: ClassVar[tuple[str, ...]] = ()
+    PLUGIN: ClassVar[type[ProtocolPlugin]]
+    WRITE_FILES: ClassVar[Callable[..., None] | None] = None
 
-    def __init__(self, cfg: FuzzConfig, plugin: loop.Plugin, write_files: Callable[..., None] | None,
-                 tick: Callable[[Progress], None] | None = None) -> None:
-        self.cfg, self.plugin, self.tick = cfg, plugin, tick
+    def __init__(self, cfg: FuzzConfig, tick: Callable[[Progress], None] | None = None,
+                 plugin: loop.Plugin | None = None) -> None:
+        self.cfg, self.tick = cfg, tick
+        self.plugin: Any = plugin if plugin is not None else self.PLUGIN()
         self.stop: Callable[[], bool] = lambda: False  # a caller's own reason to stop (one worker)
         how = ["--spawn", cfg.spawn] if cfg.spawn else (["--target", f"{cfg.target[0]}:{cfg.target[1]}"]
                                                          if cfg.target else [])
-        self.store = FindingStore(cfg.out, ["--protocol", self.PROFILE.name, *how], write_files)
+        self.store = FindingStore(cfg.out, ["--protocol", self.PROFILE.name, *how], type(self).WRITE_FILES)
 
     @classmethod
     def from_config(cls, cfg: FuzzConfig, tick: Callable[[Progress], None] | None) -> Any:
-        return cls(cfg, tick)  # type: ignore[arg-type, call-arg]  # a protocol's own __init__(cfg, tick)
+        return cls(cfg, tick)
 
     @property
     def findings(self) -> list[Finding]:
@@ -223,6 +234,31 @@ class ProtocolCampaign:
     def totals(self, s: dict[str, Any]) -> tuple[str, str]:
         """The totals line's findings (by rule) and what was fuzzed."""
         return ", ".join(f"{r} {n}" for r, n in s["findings_by_rule"].items()), f"engine {s['engine']}"
+
+    # -- --replay -----------------------------------------------------------------------
+    @classmethod
+    def replay(cls, path: str, cfg: FuzzConfig, prog: str = PROG) -> int:
+        """``--replay finding-N`` (``fuzz.replay_core.replay_fresh``): what the finding holds to
+        replay (:meth:`replay_inputs`), unless the protocol declines it (:meth:`declined`: its
+        line and exit code), replayed once (:meth:`replay_on`) on a fresh target started as the
+        campaign's (``PLUGIN().start``), closed after; 1 it reproduced, 0 not, 2 unreadable."""
+        return replay_fresh(path, cls.PROFILE.name, cls.replay_inputs, lambda: cls.PLUGIN().start(cfg), cls.replay_on,
+                            cls.declined, prog)
+
+    @staticmethod
+    def replay_inputs(f: Finding) -> Any:
+        """What finding ``f`` holds to replay (ValueError, KeyError, TypeError: unreadable)."""
+        raise NotImplementedError
+
+    @staticmethod
+    def declined(f: Finding, inputs: Any, prog: str) -> int | None:
+        """A finding the protocol's replay cannot show: its line said, its exit code (None: replay it)."""
+        return None
+
+    @staticmethod
+    def replay_on(target: Any, f: Finding, inputs: Any) -> Replayed:
+        """``inputs`` replayed on ``target`` (the worker's, ``PLUGIN().start``): what it showed."""
+        raise NotImplementedError
 
 
 def exit_status(s: dict[str, Any], store: FindingStore, strict: bool) -> int:

@@ -12,11 +12,10 @@ asked for it, ``fuzz.mavlink_cases.asks_heartbeat_stop``: 0, not replayed).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
-from mcp_conform.fuzz.campaign_core import PROG, CaseEngine, ProtocolCampaign, ProtocolPlugin
+from mcp_conform.fuzz.campaign_core import CaseEngine, ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.loop import WorkerResult
@@ -28,8 +27,7 @@ from mcp_conform.fuzz.mavlink_cases import (
 )
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
 from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, Hit, MavTarget, Signature, VehicleSpec
-from mcp_conform.fuzz.progress import Progress
-from mcp_conform.fuzz.replay_core import Replayed, replay_command
+from mcp_conform.fuzz.replay_core import Replayed
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
 __all__ = ["MavlinkCampaign", "MavlinkEngine", "MavlinkPlugin"]
@@ -81,12 +79,9 @@ class MavlinkCampaign(ProtocolCampaign):
     """A MAVLink campaign (the profile's ``fuzz_campaign``): ``fuzz.campaign_core``'s over
     :class:`MavlinkPlugin`, its findings' ``repro.mcap`` written by ``fuzz.mavlink_triage``."""
 
-    PROFILE = MAVLINK_PROFILE
+    PROFILE, PLUGIN, WRITE_FILES = MAVLINK_PROFILE, MavlinkPlugin, write_repro
     REFUSED: ClassVar[tuple[str, ...]] = ("--mavlink", "--seeds", "--live", "--listen", "--target-id", "--db",
                                           "--rto", "--ack-window", "--broadcast-id")
-
-    def __init__(self, cfg: FuzzConfig, tick: Callable[[Progress], None] | None = None) -> None:
-        super().__init__(cfg, MavlinkPlugin(), write_repro, tick)
 
     def own_summary(self, cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult]) -> dict[str, Any]:
         """The target (how it ran, the vehicle's IDs, the probe's parameter) and each finding."""
@@ -105,32 +100,25 @@ class MavlinkCampaign(ProtocolCampaign):
                 f"vehicle {s['target'].get('vehicle', '?')}, probe {s['target'].get('probe', '?')}")
 
     @staticmethod
-    def replay(path: str, cfg: FuzzConfig) -> int:
-        """``--replay finding-N`` (``fuzz.replay_core``): its cases on a fresh vehicle
-        (``--spawn``/``--target``, else the reference vehicle); 1 when its signature shows
-        again, 0 when not, 2 unreadable."""
-        return replay_command(path, MAVLINK_PROFILE.name, _replayed_cases, lambda f, cases: _replay(f, cases, cfg))
+    def replay_inputs(f: Finding) -> list[Case]:
+        return [case_from_json(c) for c in f.doc.get("cases", [])]
 
-
-def _replayed_cases(f: Finding) -> list[Case]:
-    return [case_from_json(c) for c in f.doc.get("cases", [])]
-
-
-def _replay(f: Finding, cases: list[Case], cfg: FuzzConfig) -> Replayed | int:
-    """A finding's cases on a fresh vehicle, the probe its campaign's (a stopped heartbeat
-    after a case that asked for it: no finding, not replayed, 0)."""
-    asked = next((i for i, c in enumerate(cases, 1) if asks_heartbeat_stop(c)), None)
-    if f.doc.get("oracle") == "hang" and asked is not None:
-        print(f"{PROG}: finding {f.rule} ({f.shape}) is no finding: its case {asked} asks the vehicle to "
+    @staticmethod
+    def declined(f: Finding, cases: list[Case], prog: str) -> int | None:
+        """A stopped heartbeat after a case that asked for it: no finding, not replayed, 0."""
+        asked = next((i for i, c in enumerate(cases, 1) if asks_heartbeat_stop(c)), None)
+        if f.doc.get("oracle") != "hang" or asked is None:
+            return None
+        print(f"{prog}: finding {f.rule} ({f.shape}) is no finding: its case {asked} asks the vehicle to "
               "stop its HEARTBEAT (MAV_CMD_SET_MESSAGE_INTERVAL), which it may do; not replayed")
         return 0
-    probe = bytes.fromhex(str(f.doc.get("probe_hex", "")))
-    target = MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
-    try:
+
+    @staticmethod
+    def replay_on(target: MavTarget, f: Finding, cases: list[Case]) -> Replayed:
+        """A finding's cases on a fresh vehicle, the probe its campaign's."""
+        probe = bytes.fromhex(str(f.doc.get("probe_hex", "")))
         if probe and probe in target.info.params:
             target.info = replace(target.info, probe=probe)
         h = replay_cases(target.fresh, cases, Signature(str(f.doc.get("oracle", "answer")), f.rule,
                                                         str(f.doc.get("kind", ""))))
-    finally:
-        target.close()
-    return Replayed(h is not None, h.actual if h is not None else "")
+        return Replayed(h is not None, h.actual if h is not None else "")

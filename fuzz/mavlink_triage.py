@@ -127,7 +127,7 @@ class MavTriage(HitTriage):
             self._triage(hit, suspects)
         if death:
             self.restarted(lambda: self.target.restart("after a hit"))
-        return self.target.current
+        return self.current
 
     def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
         return (sig.oracle, sig.rule, kind)
@@ -138,7 +138,7 @@ class MavTriage(HitTriage):
         its suspects like a hang finding's case is its culprit, ``HitTriage.known_lasting``)."""
         if sig.oracle == "hang":
             return None
-        return next((f for f in self.store.order if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
+        return next((f for f in self.findings if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
                      and (f.doc.get("kind") == sig.kind or (sig.oracle in DEATHS and f.cases
                                                             and f.cases[-1].kind == kind))), None)
 
@@ -187,7 +187,7 @@ class MavTriage(HitTriage):
                 "is sent: no input blamed (a fresh vehicle sent nothing)"),
                 lambda h: (h.signature.rule, h.signature.describe(), h.actual)) is None:
             return False
-        self.again(next((f for f in self.store.order if f.no_input and f.source == "hang"), None))
+        self.again(next((f for f in self.findings if f.no_input and f.source == "hang"), None))
         return True
 
     def _fresh(self, log: list[Any] | None = None) -> MavVehicle:

@@ -5,7 +5,7 @@ stateless one, ``fuzz.nsqd_engine``; the stateful one, ``fuzz.nsqd_programs``), 
 (``fuzz.nsqd_triage``; before the first case, worker 0 counts the backend's descriptors over
 connect/close cycles: ``fuzz.nsqd_blame.leak_check``), its summary and closing lines
 (``fuzz.campaign_core``). ``mcp-fuzz --protocol nsqd --replay finding-N`` reproduces a finding
-(exit 1) or not (exit 0): ``fuzz.nsqd_replay``.
+(exit 1) or not (exit 0): ``fuzz.campaign_core``'s replay over ``fuzz.nsqd_replay``'s parts.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from mcp_conform.fuzz.campaign_core import ProtocolCampaign, ProtocolPlugin
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import Finding, FindingStore
 from mcp_conform.fuzz.nsqd_backend import Backend, BackendTarget, message_names
-from mcp_conform.fuzz.nsqd_replay import replay_stream_finding
+from mcp_conform.fuzz.nsqd_replay import declined, read, replay_on, replay_stream_finding
 from mcp_conform.fuzz.nsqd_repro import write_finding_files
 from mcp_conform.fuzz.nsqd_triage import StreamTarget, StreamTriage, nsqd_finding
 from mcp_conform.fuzz.progress import Progress
@@ -61,7 +61,8 @@ class StreamCampaign(ProtocolCampaign):
     ``fuzz.campaign_core``'s over :class:`NsqdPlugin`, its findings' files written by
     ``fuzz.nsqd_repro``; ``stop_after``: the campaign ends once this many are confirmed."""
 
-    PROFILE = NSQD_PROFILE
+    PROFILE, PLUGIN, WRITE_FILES = NSQD_PROFILE, NsqdPlugin, write_finding_files
+    replay_inputs, declined, replay_on = staticmethod(read), staticmethod(declined), staticmethod(replay_on)
     REFUSED: ClassVar[tuple[str, ...]] = ("--mavlink", "--seeds", "--live")
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None, seed: int, duration: float | None,
@@ -73,7 +74,7 @@ class StreamCampaign(ProtocolCampaign):
                          protocol=NSQD_PROFILE.name, role=NSQD_PROFILE.roles[0].name)
         if stop_after is not None:
             cfg.extra["stop_after"] = stop_after
-        super().__init__(cfg, NsqdPlugin(replays, probe_every), write_finding_files, tick)
+        super().__init__(cfg, tick, NsqdPlugin(replays, probe_every))
         self.out, self.replays = (Path(out) if out is not None else None), replays
         self.cases, self.fuzz_s = 0, 0.0  # the last run's (its summary's)
 
@@ -108,7 +109,3 @@ class StreamCampaign(ProtocolCampaign):
     def totals(self, s: dict[str, Any]) -> tuple[str, str]:
         return (", ".join(f"{k} {n}" for k, n in sorted(s["findings_by_class"].items())),
                 f"engine {s['engine']}, {s['jobs']} job(s)")
-
-    @staticmethod
-    def replay(path: str, cfg: FuzzConfig) -> int:
-        return replay_stream_finding(path, cfg.target, cfg.spawn)

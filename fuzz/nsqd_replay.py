@@ -3,27 +3,29 @@ backend (issue 21), as every protocol's is (``fuzz.replay_core``): its minimal c
 stateful program (``fuzz.nsqd_stateful.play_program``) or, for the target's own behaviour,
 the baseline that showed it (``fuzz.nsqd_blame.baseline``). Exit 1: it reproduced (the same
 signature, ``fuzz.nsqd_oracles.same_finding``); 0: it did not; 2: unreadable, or observed over
-a campaign (NSQD-CON-3's connect/close cycles: its conformance case replays it)."""
+a campaign (NSQD-CON-3's connect/close cycles: its conformance case replays it). The steps are
+every protocol's (``fuzz.replay_core.replay_fresh``, as MAVLink's: a fresh backend started as
+the campaign's, ``fuzz.nsqd_campaign.NsqdPlugin.start``); these are Nsqd's parts of it."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from mcp_conform.fuzz.findings import Finding
-from mcp_conform.fuzz.nsqd_backend import Backend, _replay_kind, _reproduces
+from mcp_conform.fuzz.nsqd_backend import Backend, BackendTarget, _replay_kind, _reproduces
 from mcp_conform.fuzz.nsqd_mutators import Case, Write
 from mcp_conform.fuzz.nsqd_oracles import Signature, same_finding
-from mcp_conform.fuzz.replay_core import PROG, Replayed, replay_command
+from mcp_conform.fuzz.replay_core import PROG, Replayed, replay_fresh
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["replay_stream_finding"]
+__all__ = ["declined", "read", "replay_on", "replay_stream_finding"]
 
 
 def _writes(ws: list[dict[str, Any]]) -> tuple[Write, ...]:
     return tuple(Write(bytes.fromhex(w["hex"]), w.get("end", "")) for w in ws)
 
 
-def _read(f: Finding) -> tuple[Signature, Any, list[Case]]:
+def read(f: Finding) -> tuple[Signature, Any, list[Case]]:
     """The finding's signature, its program (or None) and its cases (the minimal writes as one
     case when it kept no cases of their own)."""
     doc = f.to_json()
@@ -43,31 +45,37 @@ def _read(f: Finding) -> tuple[Signature, Any, list[Case]]:
     return sig, program, cases
 
 
+def declined(f: Finding, inputs: tuple[Signature, Any, list[Case]], prog: str) -> int | None:
+    """A finding observed over a campaign (no input, no program, not the target's own
+    behaviour): its line, exit 2 (NSQD-CON-3's conformance case replays it)."""
+    sig, program, cases = inputs
+    if f.no_input or cases or program is not None:
+        return None
+    print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
+          "mcp-conform --protocol nsqd --select NSQD-CON-3")
+    return 2
+
+
+def replay_on(target: BackendTarget, f: Finding, inputs: tuple[Signature, Any, list[Case]]) -> Replayed:
+    """The finding once on ``target``'s fresh backend: its baseline, its program or its cases."""
+    sig, program, cases = inputs
+    probe = bool(f.doc.get("probe"))
+    if f.no_input:
+        from mcp_conform.fuzz.nsqd_blame import baseline
+
+        seen = baseline(target.current, sig, probe=probe)
+    elif program is not None:
+        from mcp_conform.fuzz.nsqd_stateful import play_program
+
+        seen = play_program(target.current, program)
+    else:
+        _, target.current, seen = _reproduces(target.current, cases, sig, probe=probe)
+    shown = seen is not None and same_finding(seen.signature, sig)
+    return Replayed(shown, sig.describe() if shown else seen.signature.describe() if seen else "",
+                    " with no input (the target's behaviour)" if f.no_input else "")
+
+
 def replay_stream_finding(path: str, target: tuple[str, int] | None, spawn: str | None, prog: str = PROG) -> int:
     """Replay a finding (``finding-N/``, its finding.json, repro.mcap or repro.pcap) once in a
     fresh backend: 1 reproduced, 0 not, 2 unreadable."""
-    def run(f: Finding, read: tuple[Signature, Any, list[Case]]) -> Replayed | int:
-        sig, program, cases = read
-        if not f.no_input and not cases and program is None:
-            print(f"{prog}: {sig.describe()}: observed over a campaign (connect/close cycles); replay it with "
-                  "mcp-conform --protocol nsqd --select NSQD-CON-3")
-            return 2
-        probe = bool(f.doc.get("probe"))
-        backend = Backend(target, spawn)
-        try:
-            if f.no_input:
-                from mcp_conform.fuzz.nsqd_blame import baseline
-
-                seen = baseline(backend, sig, probe=probe)
-            elif program is not None:
-                from mcp_conform.fuzz.nsqd_stateful import play_program
-
-                seen = play_program(backend, program)
-            else:
-                _, backend, seen = _reproduces(backend, cases, sig, probe=probe)
-        finally:
-            backend.close()
-        shown = seen is not None and same_finding(seen.signature, sig)
-        return Replayed(shown, sig.describe() if shown else seen.signature.describe() if seen else "",
-                        " with no input (the target's behaviour)" if f.no_input else "")
-    return replay_command(path, NSQD_PROFILE.name, _read, run, prog)
+    return replay_fresh(path, NSQD_PROFILE.name, read, lambda: Backend(target, spawn).pool, replay_on, declined, prog)

@@ -100,19 +100,6 @@ class StreamTriage(HitTriage):
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
 
-    @property
-    def current(self) -> Backend:
-        """The backend now fuzzed (the target's)."""
-        return self.target.current
-
-    @current.setter
-    def current(self, b: Backend) -> None:
-        self.target.current = b
-
-    @property
-    def findings(self) -> list[Finding]:
-        return self.store.order
-
     def consider(self, backend: Backend, hit: Hit, window: list[Case], probe: bool) -> Backend:
         """A hit after the cases of ``window`` (then the probe command, ``probe``) triaged,
         timed (``fuzz.loop.triage_time``); the backend to go on with."""

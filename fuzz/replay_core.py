@@ -9,7 +9,8 @@ error reading it, or what it holds, is one line and exit 2); replayed once on th
 ``--spawn``/``--target`` name (or the protocol's default); one line says whether it
 reproduced, and the exit code: 1 it did (the finding is there), 0 it did not (what the replay
 saw instead, if anything). A protocol may decline a finding its replay cannot show (its own
-line and exit code: ``run`` returns an ``int``).
+line and exit code: ``run`` returns an ``int``). A stream or link protocol's (MAVLink's, Nsqd's:
+:func:`replay_fresh`) replays on a fresh target it starts as its campaign does, closed after.
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from mcp_conform.fuzz.findings import Finding, read_finding
 
-__all__ = ["PROG", "Replayed", "replay_command", "verdict"]
+__all__ = ["PROG", "Replayed", "replay_command", "replay_fresh", "verdict"]
 
 PROG = "mcp-fuzz"
 I = TypeVar("I")  # noqa: E741 - what a finding holds to replay
@@ -56,6 +57,26 @@ def replay_command(path: str, protocol: str, read: Callable[[Finding], I],
         print(f"{prog}: error: {opt}cannot read {path}: {exc!r}", file=sys.stderr)
         return 2
     return verdict(f, run(f, inputs), prog)
+
+
+def replay_fresh(path: str, protocol: str, read: Callable[[Finding], I], start: Callable[[], Any],
+                 replay_on: Callable[[Any, Finding, I], Replayed], declined: Callable[[Finding, I, str], int | None],
+                 prog: str = PROG) -> int:
+    """:func:`replay_command` on a fresh target: unless the protocol declines the finding
+    (``declined(f, inputs, prog)``: its line said, its exit code; None: replay it), a target
+    started (``start()``: as the campaign's, ``--spawn``/``--target`` or the reference node;
+    SetupError: the caller's), what it holds replayed on it (``replay_on(target, f, inputs)``),
+    the target closed after."""
+    def run(f: Finding, inputs: I) -> Replayed | int:
+        said = declined(f, inputs, prog)
+        if said is not None:
+            return said
+        target = start()
+        try:
+            return replay_on(target, f, inputs)
+        finally:
+            target.close()
+    return replay_command(path, protocol, read, run, prog)
 
 
 def verdict(f: Finding, r: Replayed | int, prog: str = PROG) -> int:

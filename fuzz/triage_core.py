@@ -60,7 +60,8 @@ class HitTriage(Triage):
     """A worker's triage state every protocol keeps (its counts: ``fuzz.loop.Triage``): its
     seed and worker (a finding's), the N of N, and the signatures that did not reproduce;
     what an engine's turn learnt is carried to the next one's (:meth:`carry`: the fields
-    ``LEARNT`` names, ``tries`` among them)."""
+    ``LEARNT`` names, ``tries`` among them); its findings (:attr:`findings`) and the target now
+    fuzzed (:attr:`current`) are its store's and its worker target's."""
 
     LEARNT: ClassVar[tuple[str, ...]] = ("tries", "baselines")
     #: the oracles of a hit that ended its target (it died, hung or stopped answering): the
@@ -81,6 +82,21 @@ class HitTriage(Triage):
                 if f.name in self.LEARNT or f.name in ("seed", "worker", "n_of_n", "started", "duration")
                 or f.name in ("target", "store")}
         return type(self)(**kept)
+
+    @property
+    def findings(self) -> list[Finding]:
+        """The worker's findings so far, in the order kept (its store's)."""
+        return self.store.order  # type: ignore[attr-defined, no-any-return]  # a protocol's triage holds its store
+
+    @property
+    def current(self) -> Any:
+        """The target now fuzzed (the worker target's ``current``, ``fuzz.loop.WorkerTarget``:
+        a replay or a restart replaces it)."""
+        return self.target.current  # type: ignore[attr-defined]  # a protocol's triage holds its target
+
+    @current.setter
+    def current(self, t: Any) -> None:
+        self.target.current = t  # type: ignore[attr-defined]
 
     def add(self, finding: Finding, *args: Any) -> None:
         """A confirmed finding into the store (``finding-N/`` under its ``out``), this
@@ -267,7 +283,7 @@ class HitTriage(Triage):
         finding of that oracle, one of the ``suspects`` ``like`` its confirmed input's last
         the culprit (:func:`known_lasting_hit`, on fresh targets; one that did not start: no);
         then one more occurrence of it (:meth:`again`)."""
-        knowns = [(f, like(f.cases[-1])) for f in self.store.order if f.source == source and f.cases]  # type: ignore[attr-defined]
+        knowns = [(f, like(f.cases[-1])) for f in self.findings if f.source == source and f.cases]
         try:
             return bool(knowns) and self.again(known_lasting_hit(suspects, knowns, like, fresh, extend, close))
         except SetupError:  # a fresh target that did not start: triage it
