@@ -215,10 +215,19 @@ def test_a_pipelined_program_is_judged_at_its_end_by_the_turnover():
     """Ops written back to back, judged once: the last command's effect by the new
     connection's first UPDATE (NSQD-MSG-3), a first client kicked by a second (NSQD-CON-2);
     on the correct backend, a waiting client's command then its close (bytes the backend
-    reads once the first leaves) void the judgement instead of failing it."""
+    reads once the first leaves) void the judgement instead of failing it.
+
+    A kick is watched for ``KICK_WATCH_S`` at most in a pipelined program: "the search's
+    chance", never a misjudgement (a backend that kicks after that escapes this program; the
+    careful replay's ``LOOP_UPDATES`` proves it). On a loaded host its UPDATE of the loop turn
+    under way can end the watch before the turn that kicks: the kick is asked for within 3
+    programs, as a campaign would meet it again (one try failed once, NSQD-CON-2 not seen)."""
     hit, _ = _pipelined("wrong-stop-test-state", [Op("open", 0), _cmd(0, "TAKEOFF"), _cmd(0, "STOP_TEST")])
     assert hit is not None and hit.signature.rule == "NSQD-MSG-3", hit
-    hit, _ = _pipelined("second-client-kicks-first", [Op("open", 0), Op("open", 1), _cmd(0, "TAKEOFF")])
+    for _ in range(3):
+        hit, _ = _pipelined("second-client-kicks-first", [Op("open", 0), Op("open", 1), _cmd(0, "TAKEOFF")])
+        if hit is not None:
+            break
     assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
     ops = [Op("open", 0), Op("open", 1), _cmd(1, "CAPTURE_IMAGES"), Op("close", 1), _cmd(0, "TAKEOFF")]
     for program in (ops, [Op("open", 0), _cmd(0, "STOP_TEST")], [Op("open", 0), Op("open", 1), Op("close", 0),
