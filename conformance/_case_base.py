@@ -1,13 +1,16 @@
 """What every case context shares, whatever the protocol and the role: the case's identity
 and outcome fields, INFO notes, the generic verify and the runner's hooks
-(:class:`CaseBase`); and what the datagram protocol's two roles add to it, the session's
-timings and the verify helpers over datagrams (:class:`DatagramCaseBase`).
+(:class:`CaseBase`); what the datagram protocol's two roles add to it, the session's
+timings and the verify helpers over datagrams (:class:`DatagramCaseBase`); and what a case of
+a protocol whose session carries its spec adds, the spec's parameters and a failure that
+carries the node's death and the case's traffic (:class:`SpecCaseBase`, the protocol its
+declared parameter: Nsqd's ``conformance._conn_case``, MAVLink's ``conformance._link_case``).
 
 Each role's context (``conformance.drone_case.CaseContext``,
 ``conformance.manager_case.ManagerCaseContext`` on :class:`DatagramCaseBase`;
-``conformance.nsqd_case.StreamCaseContext`` on :class:`CaseBase`) adds its own sends and
-judgements and its own ``fail`` (which evidence a failure carries: the node's exit, the
-manager's output, the bytes sent to a backend).
+``conformance.nsqd_case.StreamCaseContext`` and MAVLink's on :class:`SpecCaseBase`) adds its
+own sends and judgements; MCP's roles their own ``fail`` (which evidence a failure carries:
+the node's exit, the manager's output).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from mcp_conform.harness.errors import CaseFailure, Inconclusive
 from mcp_conform.judge.spacing import judge_spacing
 from mcp_conform.spec import SPEC
 
-__all__ = ["CaseBase", "DatagramCaseBase"]
+__all__ = ["CaseBase", "DatagramCaseBase", "SpecCaseBase"]
 
 
 class _Described(Protocol):
@@ -138,3 +141,41 @@ class DatagramCaseBase(CaseBase):
                          evidence + ([excused] if excused else []))
         if excused:
             self.info(f"{rule}: {excused}")
+
+
+class SpecCaseBase(CaseBase):
+    """A case of a protocol whose session carries its spec (``session.spec``: Nsqd's,
+    MAVLink's): its parameters (``params``), and a failure that says a spawned node's death
+    and ends with the case's traffic (:meth:`traffic`). A protocol declares its robustness
+    rule (``death_rule``: a death is reported under it, "no input ends the node", whatever
+    the case tested, with the node's sanitizer line and output; "": the death is said first
+    in the failure of the rule the case judged) and how long a dying node may take to be seen
+    dead (:meth:`death_grace`)."""
+
+    death_rule = ""
+
+    def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
+        super().__init__(session, case_id, rules)
+        self.spec = session.spec
+        self.params = self.spec.params
+
+    def traffic(self) -> list[str]:
+        """The case's traffic, the last of a failure's evidence."""
+        return []
+
+    def death_grace(self) -> float:
+        """How long a failure waits for the spawned node's death (a sanitizer takes a moment)."""
+        return 0.05
+
+    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
+        """The failure to raise: the rule's, a spawned node that died said first; or, under
+        :attr:`death_rule`, the death (one fault, one root: the evidence names the case's
+        rules and what it sent)."""
+        death = self.session.death(grace=self.death_grace())
+        if death is None or not self.death_rule:
+            return CaseFailure(rule, expected, actual, ([death.describe()] if death is not None else [])
+                               + list(evidence) + self.traffic())
+        ev = ([death.sanitizer] if death.sanitizer else []) + self.traffic() + [f"stderr: {line}" for line in death.stderr[-6:]]
+        ev.append(f"while testing {', '.join(self.rules)} ({self.case_id})")
+        return CaseFailure(self.death_rule, f"{self.subject} survives the input and keeps serving",
+                           death.describe(), ev, relies_on=())

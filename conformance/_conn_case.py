@@ -13,11 +13,10 @@ its session's (``first_sign``) and its connection says which frames are that sig
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
-from mcp_conform.conformance._case_base import CaseBase
-from mcp_conform.harness.errors import CaseFailure, NodeLost
+from mcp_conform.conformance._case_base import SpecCaseBase
+from mcp_conform.harness.errors import NodeLost
 
 __all__ = ["DYING_S", "ConnCaseBase"]
 
@@ -29,37 +28,24 @@ __all__ = ["DYING_S", "ConnCaseBase"]
 DYING_S = 3.0
 
 
-class ConnCaseBase(CaseBase):
+class ConnCaseBase(SpecCaseBase):
     """A case on connections to the node (see the module docstring); ``gap_max``: the
-    session's bound on the gap between the node's frames."""
-
-    #: the rule every death is reported under ("no input ends the node")
-    death_rule = ""
+    session's bound on the gap between the node's frames. Every death is reported under
+    ``death_rule`` (the shared core's ``fail``), with the bytes the case sent."""
 
     def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
-        self.spec = session.spec
-        self.params = self.spec.params
         self.gap_max = float(self.params[session.gap_param])
 
     # -- failures -----------------------------------------------------------------------
-    def _sent_hex(self) -> list[str]:
+    def traffic(self) -> list[str]:
+        """The bytes the case sent, the last six writes."""
         return [f"sent {len(data)} B: {data[:64].hex(' ')}{' …' if len(data) > 64 else ''}"
                 for _, data in self.session.sent_log[-6:]]
 
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
-        """The failure to raise; a dead node is reported instead, under :attr:`death_rule`
-        (a connection the node closed may be its death on the way: a moment's grace)."""
-        closed = any(c.closed_at is not None for c in self.session.conns)
-        death = self.session.death(grace=0.5 if closed else 0.05)
-        if death is not None:
-            ev = ([death.sanitizer] if death.sanitizer else []) + self._sent_hex() + [f"stderr: {line}" for line in death.stderr[-6:]]
-            # one fault, one root: a death is the robustness rule's ("no input ends the
-            # node"), whatever the case was testing, which the evidence names with the bytes sent
-            ev.append(f"while testing {', '.join(self.rules)} ({self.case_id})")
-            return CaseFailure(self.death_rule, f"{self.subject} survives the input and keeps serving",
-                               death.describe(), ev, relies_on=())
-        return CaseFailure(rule, expected, actual, list(evidence) + self._sent_hex())
+    def death_grace(self) -> float:
+        """A connection the node closed may be its death on the way: a moment's grace."""
+        return 0.5 if any(c.closed_at is not None for c in self.session.conns) else 0.05
 
     def check_stream(self, conn: Any) -> None:
         """What the node sent on ``conn`` so far obeys the protocol's sender rules."""

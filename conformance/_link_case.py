@@ -16,8 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from mcp_conform.conformance._case_base import CaseBase
-from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.conformance._case_base import SpecCaseBase
+from mcp_conform.harness.errors import Inconclusive
 
 __all__ = ["LinkCaseBase", "PlayedPeerCaseBase"]
 
@@ -27,8 +27,9 @@ SETTLE_MAX_S = 30.0
 SETTLE_QUIET_S = 2.0
 
 
-class LinkCaseBase(CaseBase):
-    """A case on the session's link (``link``: the subclass's)."""
+class LinkCaseBase(SpecCaseBase):
+    """A case on the session's link (``link``: the subclass's); a failure says a spawned node
+    that died first, and ends with the case's traffic both ways (the shared core's ``fail``)."""
 
     link: Any
     #: the periodic messages a failure's traffic leaves out
@@ -36,8 +37,6 @@ class LinkCaseBase(CaseBase):
 
     def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
-        self.spec = session.spec
-        self.params = self.spec.params
         #: the run's clock (``harness.clock``): the host's, or the simulator's virtual one
         self.clock = session.clock
         self.t0 = self.clock.monotonic()
@@ -58,18 +57,13 @@ class LinkCaseBase(CaseBase):
         """Let ``seconds`` pass, the link read meanwhile."""
         self.link.wait_for(lambda: False, seconds)
 
-    def _traffic(self) -> list[str]:
+    def traffic(self) -> list[str]:
+        """The case's last four frames each way, the periodic ones (``QUIET``) left out."""
         sent = [f"sent {name} ({len(data)} B, +{t - self.t0:.3f} s): {data[:48].hex(' ')}"
                 for t, name, data in self.link.sent if t >= self.t0 and name not in self.QUIET][-4:]
         got = [f"got +{r.t - self.t0:.3f} s: {r.describe()}" for r in self.link.received(self.t0)
                if r.name not in self.QUIET][-4:]
         return sent + got
-
-    def fail(self, rule: str, expected: str, actual: str, evidence: Sequence[str] = ()) -> CaseFailure:
-        """The failure to raise; a spawned node that died is said first."""
-        death = self.session.death(grace=0.05)
-        ev = [death.describe()] if death is not None else []
-        return CaseFailure(rule, expected, actual, ev + list(evidence) + self._traffic())
 
     def expect_frames(self, frames: Sequence[Any], check: Callable[[Any], str | None],
                       rule: str, expected: str) -> None:

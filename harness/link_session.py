@@ -63,12 +63,11 @@ class _LinkRole(StreamSessionBase):
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, clock: Clock = REAL,
                  net: Any = HOST_LINKS) -> None:
-        self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        super().__init__(cfg, recorder, spec)
         #: the run's clock and where its links are opened (``harness.link``): the host's, or
         #: the simulator's (``mcp_conform.sim``)
         self.clock, self.net = clock, net
         self.params = spec.params
-        self.node: SpawnedNode | None = None
         #: the run's trace monitor, fed by every link of the run, the judged role's rules judged
         #: on a complete trace as ``mcp-capture check`` judges the run's capture; the report's
         #: monitor section (the runner finishes it once the session closed)
@@ -86,9 +85,8 @@ class LinkSessionBase(_LinkRole):
     periodic message, every ``heartbeat_period_s``) and :meth:`identified` (what the first
     sign tells of the node)."""
 
-    first_sign = ""
-    first_rule = ""
     beat_thread = "link-beat"
+    listen_within, listen_pause = max(SPAWN_STARTUP_S, 10.0), 0.1
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, scheme: str,
                  embedded: Any, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
@@ -98,7 +96,7 @@ class LinkSessionBase(_LinkRole):
             self.transport, self.address = parse_address(cfg.target[0], cfg.target[1])
         else:
             self.transport, self.address = ("udpin" if scheme == "udp" else scheme), (HOST, 0)
-        self._template = cfg.spawn or (embedded(self.transport) if cfg.target is None else None)
+        self._template = self.command(lambda: embedded(self.transport))
         #: when the link opened, when the first sign came
         self.link_opened = 0.0
         self.first_heartbeat: float | None = None
@@ -130,9 +128,7 @@ class LinkSessionBase(_LinkRole):
                     if self.clock.monotonic() >= end:
                         raise
                     self.clock.sleep(0.2)
-        noun = self.subject.removeprefix("the ")
-        how = " (spawned)" if self.cfg.spawn else (f" (embedded reference {noun})" if self.spawned else "")
-        self.target_desc = self.url + how
+        self.target_desc = self.url + self.started_as()
         # the first sign's delay is its rule's to judge; the wait is --startup-timeout's
         self._await_first(float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S)))
 
@@ -151,15 +147,15 @@ class LinkSessionBase(_LinkRole):
         UDP: the runner's socket opened first (udpin) or sending to it (udpout)."""
         if self.transport != "tcp":
             self.spawn_at_free_port(socket.SOCK_DGRAM, before=self._open)
-            return
-        self.spawn_at_free_port()
+        else:
+            super()._spawn()
 
-        def connect() -> bool:
-            with contextlib.suppress(SetupError):
-                self._open()
-                return True
-            return False
-        self.await_listening(connect, within=max(SPAWN_STARTUP_S, 10.0), pause=0.1)
+    def reach(self) -> bool:
+        """The link to the spawned node opened (it listens)."""
+        with contextlib.suppress(SetupError):
+            self._open()
+            return True
+        return False
 
     def _await_first(self, timeout: float) -> None:
         link, sign = self.link, self.first_sign
@@ -258,8 +254,7 @@ class PlayedNodeSession(_LinkRole):
                              f"{self.subject} for each behaviour of its {self.played} "
                              f"(--spawn 'CMD ... {{{self.placeholder}}}')")
         self.run(self.first_behaviour)
-        how = " (spawned)" if self.cfg.spawn else f" (embedded reference {self.reference})"
-        self.target_desc = f"{self.url}{how}"
+        self.target_desc = f"{self.url}{self.started_as(self.reference)}"
 
     def run(self, behaviour: Any, *, fresh: bool = False) -> float:
         """The peer's run against a played node that behaves so: the current one when it has

@@ -44,14 +44,47 @@ def accepts(address: tuple[str, int], timeout: float = 0.2) -> bool:
 
 class StreamSessionBase(SessionBase):
     """A session whose node is reached at ``address`` over TCP (or UDP), spawned from
-    ``_template`` with ``{target_host}`` ``{target_port}`` (None: attached)."""
+    ``_template`` with ``{target_host}`` ``{target_port}`` (None: attached): Nsqd's
+    (:class:`ConnSessionBase`) and MAVLink's (``harness.link_session``). A protocol declares
+    its node's first sign of life (``first_sign``: the frame whose arrival proves it there) and
+    the rule asking for it (``first_rule``); a spawned node is reached once it listens
+    (:meth:`reach`, tried every ``listen_pause`` s for ``listen_within`` s)."""
 
     _template: str | None = None
     address: tuple[str, int] = (HOST, 0)
+    first_sign = ""
+    first_rule = ""
+    listen_within, listen_pause = 10.0, 0.05
+
+    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any) -> None:
+        self.cfg, self.recorder, self.spec = cfg, recorder, spec
+        self.node: SpawnedNode | None = None
+
+    def command(self, embedded: Callable[[], str]) -> str | None:
+        """The command the node is spawned with: --spawn, or the role's reference node when
+        nothing is attached (``embedded()``, the embedded default); None in attach mode."""
+        return self.cfg.spawn or (embedded() if self.cfg.target is None else None)
+
+    def started_as(self, reference: str = "") -> str:
+        """What the report's target says after the node's address: " (spawned)" (--spawn),
+        " (embedded reference NODE)" (``reference``, else the subject), nothing when attached."""
+        if self.cfg.spawn:
+            return " (spawned)"
+        return f" (embedded reference {reference or self.subject.removeprefix('the ')})" if self.spawned else ""
 
     @property
     def spawn_command(self) -> str | None:
         return self._template
+
+    def _spawn(self) -> None:
+        """The node started on a free loopback port (``{target_host}`` ``{target_port}`` filled
+        in by the runner's one placeholder helper), and reached once it listens."""
+        self.spawn_at_free_port()
+        self.await_listening(self.reach, within=self.listen_within, pause=self.listen_pause)
+
+    def reach(self) -> bool:
+        """Whether the spawned node listens: a connection to it accepted (closed at once)."""
+        return accepts(self.address)
 
     def spawn_at_free_port(self, kind: int = socket.SOCK_STREAM,
                            before: Callable[[], None] | None = None) -> SpawnedNode:
@@ -119,17 +152,12 @@ class ConnSessionBase(StreamSessionBase):
     connection), ``first_rule`` (the rule asking for it), ``gap_param`` (the spec's parameter
     bounding the gap between its frames) and :meth:`make_conn`."""
 
-    first_sign = ""
-    first_rule = ""
     gap_param = ""
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, embedded: Callable[[], str]) -> None:
-        self.cfg, self.recorder, self.spec = cfg, recorder, spec
-        self.node: SpawnedNode | None = None
+        super().__init__(cfg, recorder, spec)
         self.driver = None  # no datagram socket: the cases' connections
-        #: the command the node is spawned with: --spawn, or the reference node when nothing is
-        #: attached (the embedded default); None in attach mode
-        self._template: str | None = cfg.spawn or (embedded() if cfg.target is None else None)
+        self._template = self.command(embedded)
         self.address: tuple[str, int] = cfg.target or (HOST, 0)
         self.conns: list[Any] = []
         self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
@@ -149,10 +177,7 @@ class ConnSessionBase(StreamSessionBase):
     def start(self) -> None:
         if self.spawned:
             self._spawn()
-            how = " (spawned)" if self.cfg.spawn else f" (embedded reference {self.subject.removeprefix('the ')})"
-        else:
-            how = ""
-        self.target_desc = f"{self.address[0]}:{self.address[1]}{how}"
+        self.target_desc = f"{self.address[0]}:{self.address[1]}{self.started_as()}"
         # attached: the protocol's allowance; spawned: also the time a just-started process takes
         # on a loaded host (a CI run beside a fuzz campaign: the embedded reference backend missed
         # 3.5 s). How soon the first frame follows accepting is the cases' to judge
@@ -160,12 +185,6 @@ class ConnSessionBase(StreamSessionBase):
         if not self.live(max(allowance, SPAWN_STARTUP_S) if self.spawned else allowance):
             raise SetupError(f"{self.subject} at {self.address[0]}:{self.address[1]} accepted no connection "
                              f"or sent no {self.first_sign} ({self.first_rule})")
-
-    def _spawn(self) -> None:
-        """The node started on a free loopback port (``{target_host}`` ``{target_port}``
-        filled in by the runner's one placeholder helper), and listening."""
-        self.spawn_at_free_port()
-        self.await_listening(lambda: accepts(self.address), within=10.0, pause=0.05)
 
     def close(self) -> None:
         for c in self.conns:

@@ -1,12 +1,17 @@
 """conformance._case_base: the verify helpers both datagram roles' cases share, on the part
-every protocol's case context shares."""
+every protocol's case context shares; and the failure Nsqd's and MAVLink's case contexts share
+(``SpecCaseBase``: the node's death and the case's traffic, the robustness rule declared)."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+from typing import Any
+
 import pytest
 
-from mcp_conform.conformance._case_base import CaseBase, DatagramCaseBase
+from mcp_conform.conformance._case_base import CaseBase, DatagramCaseBase, SpecCaseBase
 from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.harness.session_base import Death
 
 
 def _ctx(subject: str = "the node") -> DatagramCaseBase:
@@ -40,3 +45,49 @@ def test_the_protocol_neutral_part_has_the_runners_hooks_and_the_generic_verify(
         ctx.expect_true(False, "NSQD-ROB-1", "alive", "dead", ["stderr: boom"])
     assert exc.value.rule == "NSQD-ROB-1" and exc.value.evidence == ["stderr: boom"]
     assert not hasattr(ctx, "expect_even_spacing")  # the datagram helpers are DatagramCaseBase's
+
+
+class _Spec(SpecCaseBase):
+    """A protocol's case as its context declares it: its traffic, its grace."""
+
+    subject = "the backend"
+
+    def traffic(self) -> list[str]:
+        return ["sent 3 B: 01 02 03"]
+
+    def death_grace(self) -> float:
+        return 0.25
+
+
+def _spec_ctx(death: Death | None, death_rule: str) -> tuple[_Spec, list[float]]:
+    graces: list[float] = []
+
+    def died(grace: float = 0.0) -> Death | None:
+        graces.append(grace)
+        return death
+
+    session: Any = SimpleNamespace(spec=SimpleNamespace(params={"gap_s": 1.5}), death=died)
+    ctx = _Spec(session, "ROB/x", ("X-MSG-2", "X-MSG-3"))
+    ctx.death_rule = death_rule
+    return ctx, graces
+
+
+def test_a_spec_case_fails_its_rule_with_its_traffic_last_and_its_spec_at_hand() -> None:
+    ctx, graces = _spec_ctx(None, "X-ROB-1")
+    assert ctx.params == {"gap_s": 1.5}
+    f = ctx.fail("X-MSG-2", "an UPDATE", "none", ["conn 1 open"])
+    assert (f.rule, f.expected, f.actual) == ("X-MSG-2", "an UPDATE", "none")
+    assert f.evidence == ["conn 1 open", "sent 3 B: 01 02 03"] and graces == [0.25]
+
+
+def test_a_death_is_the_robustness_rules_when_the_protocol_declares_one_else_said_first() -> None:
+    death = Death(None, "SIGSEGV", "SUMMARY: AddressSanitizer: SEGV", ("boom", "tail"), "the backend")
+    ctx, _ = _spec_ctx(death, "X-ROB-1")
+    f = ctx.fail("X-MSG-2", "an UPDATE", "none", ["conn 1 open"])
+    assert (f.rule, f.actual, f.relies_on) == ("X-ROB-1", death.describe(), ())
+    assert f.evidence == ["SUMMARY: AddressSanitizer: SEGV", "sent 3 B: 01 02 03", "stderr: boom", "stderr: tail",
+                          "while testing X-MSG-2, X-MSG-3 (ROB/x)"]
+    ctx, _ = _spec_ctx(death, "")  # no robustness rule: the rule judged, the death its first evidence
+    f = ctx.fail("X-MSG-2", "an UPDATE", "none", ["conn 1 open"])
+    assert (f.rule, f.expected) == ("X-MSG-2", "an UPDATE")
+    assert f.evidence == [death.describe(), "conn 1 open", "sent 3 B: 01 02 03"]
