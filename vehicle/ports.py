@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import fcntl
 import os
 import random
 import socket
@@ -26,6 +25,11 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # no POSIX locks (Windows): the pick's bind check and _RECENT still hold
+    fcntl = None  # type: ignore[assignment]
 
 _PICK = random.SystemRandom()
 #: the ports this process handed out last: a port is free until its new owner binds it, so
@@ -100,7 +104,7 @@ def reserve(port: int, kind: int = socket.SOCK_DGRAM, now: float | None = None) 
     """Reserve ``port`` host-wide for ``RESERVE_S`` s: False when another call (any process)
     reserved it less than that ago. Where no reservation can be written, True (the pick's own
     bind check and ``_RECENT`` still hold)."""
-    where = _reservations()
+    where = _reservations() if fcntl is not None else None
     if where is None:
         return True
     name = where / f"{'tcp' if kind == socket.SOCK_STREAM else 'udp'}-{port}"
