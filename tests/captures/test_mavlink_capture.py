@@ -323,8 +323,12 @@ def _agreement(run: dict, doc: dict) -> tuple[list[str], list[str]]:
 
 
 @pytest.mark.slow
-def test_our_capture_is_clean_and_agrees_with_the_cases(tmp_path):
-    rc, run, capture, out = _conform(tmp_path)
+def test_our_capture_is_clean_and_agrees_with_the_cases(tmp_path, tmp_path_factory):
+    """Our vehicle's whole suite over TCP (the session's one run, tests/mavlink/reference_run.py):
+    its capture checked clean offline, each rule the cases judged judged the same there."""
+    from tests.mavlink.reference_run import reference_vehicle_run
+
+    rc, run, capture, out = reference_vehicle_run(tmp_path_factory)
     assert rc == 0, out
     crc, doc, cout, cerr = check(tmp_path, capture)
     assert crc == 0 and doc["verdict"] == "OK" and not bad_rules(doc), cout + cerr

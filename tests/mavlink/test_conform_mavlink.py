@@ -34,6 +34,7 @@ import pytest
 from mcp_conform.sim.vehicle_role import run_vehicle_cases
 from mcp_conform.vehicle.ports import free_port
 from tests.forkserver import run_module
+from tests.mavlink.reference_run import reference_vehicle_run
 from tests.sim.test_mavlink_vehicle_sim import (
     FAULTS,
     KNOWN_WARNINGS,
@@ -66,16 +67,22 @@ def same_as_simulated(doc: dict, fault: str | None = None, transport: str = "tcp
 
 
 @pytest.mark.parametrize("transport", ["tcp", "udp", "udpout"])
-def test_reference_vehicle_passes_every_case(tmp_path, transport):
+def test_reference_vehicle_passes_every_case(tmp_path, tmp_path_factory, transport):
     """The embedded reference vehicle over each transport: exit 0, no MUST rule failed, the
-    known SHOULD warnings, only the IN_PROGRESS cases skipped; the simulator's verdicts."""
-    rc, doc, out = run(tmp_path, "--mavlink", transport, "--capture", str(tmp_path / "run.mcap"))
+    known SHOULD warnings, only the IN_PROGRESS cases skipped; the simulator's verdicts. Over
+    tcp the session's one run that the capture's and the live monitor's tests judge too
+    (tests/mavlink/reference_run.py)."""
+    if transport == "tcp":
+        rc, doc, capture, out = reference_vehicle_run(tmp_path_factory)
+    else:
+        capture = tmp_path / "run.mcap"
+        rc, doc, out = run(tmp_path, "--mavlink", transport, "--capture", str(capture))
     assert rc == 0, out
     expect_reference(doc, out)
     assert doc["role"] == "vehicle" and doc["spec"]["protocol"] == "MAV"
     from mcap.reader import make_reader
 
-    with open(tmp_path / "run.mcap", "rb") as fh:
+    with open(capture, "rb") as fh:
         topics = {ch.topic for _, ch, _ in make_reader(fh).iter_messages()}
     assert "/mavlink" in topics and "/conformance/case" in topics, topics
     if transport != "udp":

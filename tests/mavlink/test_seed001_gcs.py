@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from tests.examples import test_mavlink_c as examples
-from tests.mavlink.test_conform_gcs import failed, run
+from tests.mavlink.test_conform_gcs import failed, merged, run_parts
 
 pytestmark = pytest.mark.slow
 
@@ -46,7 +46,7 @@ def test_seed_programs_through_the_gcs_suite(tmp_path, build, program, transport
     udp: the runner sends to its port, -l): the rules it fails, each failure with what was
     expected and what came."""
     spawn = f"{sys.executable} {WRAP} {{mavlink}} {build / program}"
-    rc, doc, out = run(tmp_path, "--mavlink", transport, "--mavlink1", "--spawn", spawn)
+    rc, doc, out = merged(run_parts(tmp_path, "--mavlink", transport, "--mavlink1", "--spawn", spawn))
     rules, _ = failed(doc)
     assert rules == SEED_GCS[program], out
     assert rc == 1 and doc["summary"]["error"] == 0, out
