@@ -76,7 +76,6 @@ class StreamCaseContext(ConnCaseBase):
                 if name in missed:
                     missed.remove(name)
                 self.check_stream(conn)
-                conn.pump(0.05)
                 return target
             if name not in missed:
                 missed.append(name)

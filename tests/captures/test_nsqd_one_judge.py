@@ -13,7 +13,6 @@ import shutil
 import signal
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -82,8 +81,7 @@ def _closed_connections(pcap: Path, port: int) -> int:
 
 def _failed(check: Path, tmp: Path) -> tuple[set[str], int]:
     out = tmp / f"{check.name}.json"
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "check", str(check), "--json", str(out)],
-                         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+    run = run_module("captures", ["check", str(check), "--json", str(out)], env=ENV, cwd=ROOT, timeout=120)
     assert run.returncode in (0, 1), run.stderr
     doc = json.loads(out.read_text())
     assert doc["protocol"] == "nsqd"
@@ -126,9 +124,8 @@ def test_live_and_offline_verdicts_agree(tmp_path, fault):
                            else {"NSQD-FRM-1"} if fault else set()), f"{live.stdout[-2000:]}\nthe backend: {said}"
     conns = report_conns
     assert conns is not None and conns[0] == live_failed and conns[1] > 3
-    exported = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "export", str(tmp_path / "live.mcap"),
-                               "--pcap", str(tmp_path / "exported.pcap")], capture_output=True, text=True,
-                              env=ENV, cwd=ROOT, timeout=120)
+    exported = run_module("captures", ["export", str(tmp_path / "live.mcap"), "--pcap", str(tmp_path / "exported.pcap")],
+                          env=ENV, cwd=ROOT, timeout=120)
     assert exported.returncode == 0, exported.stderr
     assert _failed(tmp_path / "exported.pcap", tmp_path) == report_conns
     if dump is None:

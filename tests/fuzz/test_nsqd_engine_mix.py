@@ -5,11 +5,11 @@ two engines as ``--duration`` is, so the stateful engine is reached under a case
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from tests.forkserver import run_module
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -17,10 +17,8 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.mark.slow
 def test_both_engines_share_the_case_budget(tmp_path: Path) -> None:
     out = tmp_path / "fz"
-    proc = subprocess.run(
-        [sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--engine", "both", "--max-cases", "400",
-         "--seed", "3", "--out", str(out)],
-        cwd=ROOT, capture_output=True, text=True, timeout=120)
+    proc = run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--engine", "both", "--max-cases", "400", "--seed", "3",
+                                           "--out", str(out)], cwd=ROOT, timeout=120)  # tests/forkserver.py
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["engine"] == "both" and summary["cases"] == 400, summary

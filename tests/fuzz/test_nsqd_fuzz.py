@@ -6,14 +6,15 @@ faulty backend and not (exit 0) against the correct one; the reference backend g
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
+from tests.nsqd_backends.findings import class_finding
+from tests.nsqd_backends.findings import spawn as _spawn
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -35,25 +36,24 @@ def backend() -> Path:
     return built_or_skip()
 
 
-def _spawn(exe: Path, fault: str | None = None) -> str:
-    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
-
-
 @pytest.mark.parametrize("fault", sorted(CLASSES))
-def test_each_class_is_found_confirmed_and_replays(tmp_path, backend, fault):
+def test_each_class_is_found_confirmed_and_replays(tmp_path_factory, backend, fault):
+    """The campaign (seed 20140307, stopped at its first confirmed finding) is made once per
+    session: tests/fuzz/test_nsqd_repro.py reads crash-on-negative-string's too
+    (tests/nsqd_backends/findings.py); its files are read only."""
     oracle, rule = CLASSES[fault]
-    c = StreamCampaign(None, _spawn(backend, fault), 20140307, 90.0, None, tmp_path, stop_after=1)
-    summary = c.run()
-    assert [f.signature.oracle for f in c.findings] == [oracle], summary
-    assert c.findings[0].signature.rule == rule
-    doc = json.loads((tmp_path / "finding-1" / "finding.json").read_text())
+    made = class_finding(tmp_path_factory, backend, fault)
+    summary, out = made["summary"], made["dir"]
+    assert made["oracles"] == [oracle], summary
+    assert made["rules"][0] == rule
+    doc = json.loads((out / "finding-1" / "finding.json").read_text())
     assert doc["rule"] == rule and doc["replays"] == "3 of 3"  # a leak: its cycles on 3 fresh processes
-    assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt"} <= {p.name for p in (tmp_path / "finding-1").iterdir()}
+    assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt"} <= {p.name for p in (out / "finding-1").iterdir()}
     if oracle == "leak":
         return  # observed over the campaign's connections: NSQD-CON-3's conformance case replays it
     for spawn, want in ((_spawn(backend, fault), 1), (_spawn(backend), 0)):
-        run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(tmp_path / "finding-1"),
-                              "--spawn", spawn], capture_output=True, text=True, timeout=120)
+        run = run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--replay", str(out / "finding-1"),
+                                              "--spawn", spawn], timeout=120)  # a child of tests/forkserver.py
         assert run.returncode == want, (spawn, run.stdout, run.stderr)
     if oracle == "crash":
         # a sanitizer report names its kind and frames; a death without one its signal, or the

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import io
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
 from mcp_conform.fuzz.progress import LiveProgress, Progress, tried_table
 from mcp_conform.spec import NSQD
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 
 NSQD_CFG = FuzzConfig(protocol="nsqd", role="backend", engine="both")
@@ -86,8 +85,10 @@ def _spawn(exe: Path, fault: str | None = None) -> str:
 @pytest.mark.slow
 @pytest.mark.nsqd
 def test_summary_json_and_plain_progress_from_the_command_line(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--duration", "12", "--out", str(tmp_path),
-                          "--engine", "both"], capture_output=True, text=True, timeout=120)
+    """A plain status line each ``--status-every`` s off a terminal (default 10 s: a 12 s
+    campaign was run for it), summary.json."""
+    run = run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--duration", "4", "--status-every", "1", "--out",
+                                          str(tmp_path), "--engine", "both"], timeout=120)  # tests/forkserver.py
     assert run.returncode == 0, run.stdout + run.stderr
     status = [line for line in run.stdout.splitlines() if "judged cases/s  findings" in line]
     assert status and "nsqd both" in status[0], run.stdout

@@ -20,13 +20,14 @@ import pytest
 
 from mcp_conform.fuzz.finding_files import read_finding_doc
 from mcp_conform.fuzz.findings import read_finding
-from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import Deframer, Frame
 from mcp_conform.traceio.nsqd import stream_records
 from mcp_conform.traceio.reader import Metadata, StreamEvent, StreamFrame, open_capture
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
-from tests.xdist_once import once
+from tests.nsqd_backends.findings import class_finding
+from tests.nsqd_backends.findings import spawn as _spawn
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -35,23 +36,15 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHO
 FAULT = "crash-on-negative-string"
 
 
-def _spawn(exe: Path, fault: str | None = None) -> str:
-    return f"{exe} --host {{target_host}} --port {{target_port}} --update-period 0.1" + (f" --fault {fault}" if fault else "")
-
-
 @pytest.fixture(scope="module")
 def finding(tmp_path_factory) -> tuple[Path, Path]:
     """The backend and the campaign's finding directory, found once per test session
-    (tests/xdist_once.py; CI's slow run ran the campaign on three workers): read-only."""
+    (tests/nsqd_backends/findings.py: tests/fuzz/test_nsqd_fuzz.py's campaign against this
+    fault; CI's slow run ran it on three workers, and once more there): read-only."""
     exe = built_or_skip()
-
-    def campaign(out: Path) -> Path:
-        c = StreamCampaign(None, _spawn(exe, FAULT), 20140307, 90.0, None, out, stop_after=1)
-        c.run()
-        assert [f.signature.oracle for f in c.findings] == ["crash"]
-        return out / "finding-1"
-
-    return exe, once(tmp_path_factory, "nsqd-finding", campaign)
+    made = class_finding(tmp_path_factory, exe, FAULT)
+    assert made["oracles"] == ["crash"], made["summary"]
+    return exe, made["dir"] / "finding-1"
 
 
 def assert_input_then_commands(sent: bytes, data: bytes) -> None:
@@ -100,8 +93,8 @@ def test_repro_pcap_is_a_tcp_conversation_tshark_follows_to_the_input(finding):
 def test_mcp_capture_replay_reproduces_it_or_not(finding, what):
     exe, d = finding
     for spawn, want in ((_spawn(exe, FAULT), 1), (_spawn(exe), 0)):
-        run = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", str(d / what), "--spawn", spawn],
-                             capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+        run = run_module("mcp_conform.captures", ["replay", str(d / what), "--spawn", spawn], env=ENV, cwd=ROOT,
+                         timeout=120)  # a child of tests/forkserver.py
         assert run.returncode == want, (spawn, run.stdout, run.stderr)
         assert ("reproduced NSQD-ROB-1" if want else "did not reproduce") in run.stdout
 

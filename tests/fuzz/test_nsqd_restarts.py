@@ -7,14 +7,13 @@ campaign's summary and last line give fuzzing, triage and restarts apart."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from mcp_conform.fuzz.nsqd_backend import Backend
 from mcp_conform.fuzz.nsqd_campaign import StreamCampaign
+from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 
 pytestmark = [pytest.mark.nsqd]
@@ -56,8 +55,8 @@ def test_restarts_after_counted_crashes_are_not_triage(tmp_path, spawn):
 
 @pytest.mark.slow
 def test_the_last_line_gives_fuzzing_triage_and_restarts(tmp_path, spawn):
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--spawn", spawn, "--duration", "5"],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    run = run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--spawn", spawn, "--duration", "5"], timeout=120,
+                     cwd=ROOT)  # a child of tests/forkserver.py
     last = run.stdout.strip().splitlines()[-1]
     print(last)
     assert "fuzzing " in last and "triage " in last and "restarts " in last and "grace" in last, last

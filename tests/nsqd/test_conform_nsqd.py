@@ -40,12 +40,20 @@ def backend() -> Path:
     return built_or_skip()
 
 
+#: The UPDATE period of a backend whose run is no test of timing (CI time): a faulty C backend,
+#: the attached reference backend; the embedded reference backend's
+#: (``harness.nsqd_session.EMBEDDED_UPDATE_PERIOD``).
+CI_PERIOD = "0.05"
+
+
 def spawn(exe: Path, fault: str | None = None) -> list[str]:
-    """The C backend; a faulty one at a 0.1 s UPDATE period (CI time), but update-stops at the
-    description's 0.4 s (its stream stops 3 s into a connection)."""
+    """The C backend; the correct one at the description's 0.4 s UPDATE period, a faulty one
+    at :data:`CI_PERIOD` (CI time: every fault is one of a verdict, not of timing), but
+    update-stops at the description's 0.4 s (its stream stops 3 s into a connection, and
+    NSQD-MSG-1's case watches twelve periods)."""
     cmd = f"{exe} --host {{target_host}} --port {{target_port}}"
     if fault and fault != "update-stops":
-        cmd += " --update-period 0.1"
+        cmd += f" --update-period {CI_PERIOD}"
     return ["--spawn", cmd + (f" --fault {fault}" if fault else "")]
 
 
@@ -110,7 +118,7 @@ def test_attach_mode_against_a_running_backend(tmp_path):
 
     port = free_port(socket.SOCK_STREAM)
     node = subprocess.Popen([sys.executable, "-m", "mcp_conform.reference_impl", "--protocol", "nsqd", "backend",
-                             "--bind", f"127.0.0.1:{port}", "--update-period", "0.1"],
+                             "--bind", f"127.0.0.1:{port}", "--update-period", CI_PERIOD],
                             stdout=subprocess.PIPE, text=True)
     try:
         assert node.stdout is not None and node.stdout.readline().startswith("listening on")
