@@ -27,6 +27,21 @@ LONG_FIRST = (
     "test_reader.py::test_mcap_cut_at_every_byte[1]",  # 106 s (9 s alone)
     "test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",  # 92 s
     "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",  # 71 s
+    # MAVLink's whole suites on real processes (session 29's profile, -n 12, 2 cores): the vehicle
+    # role's runs stay whole; the gcs role's run as three parts at once (~30-45 s each now)
+    "test_conform_mavlink.py::test_a_faulty_vehicle_through_the_real_proxy[abandoned-stays-busy]",  # 51 s
+    "test_mavsdk_vehicle.py::test_mavsdk_server_fails_the_unknown_command_and_the_deprecated_items[tcp]",  # 51 s
+    "test_mavsdk_vehicle.py::test_mavsdk_server_fails_the_unknown_command_and_the_deprecated_items[udp]",  # 50 s
+    "test_conform_mavlink.py::test_reference_vehicle_passes_every_case[tcp]",  # 48 s, shared by two more
+    "test_conform_gcs.py::test_reference_gcs_passes_every_case",  # 45 s (84 s whole)
+    "test_conform_mavlink.py::test_reference_vehicle_passes_every_case[udpout]",  # 44 s
+    "test_conform_mavlink.py::test_a_faulty_vehicle_through_the_real_proxy[double-ack]",  # 43 s
+    "test_conform_mavlink.py::test_reference_vehicle_passes_every_case[udp]",  # 42 s
+    "test_mavlink_fuzz.py::test_a_fragile_vehicle_is_found_confirmed_and_replays[mission-seq-hang]",  # 42 s
+    "test_mavlink_fuzz.py::test_a_fragile_vehicle_is_found_confirmed_and_replays[slow-heartbeat]",  # 38 s
+    "test_conform_gcs.py::test_mavproxy_wp_load",  # 31 s (73 s whole)
+    "test_seed001_gcs.py::test_seed_programs_through_the_gcs_suite[mission_takeoff -b-udpout]",  # 30 s (91 s whole)
+    "test_conform_gcs.py::test_real_ground_stations[dronekit]",  # 28 s (61 s whole)
     "test_dissector.py::test_tshark_on_the_golden_captures[drone-suite]",  # 60 s
     "test_oracle_observation.py::test_a_correct_node_with_a_small_receive_buffer_has_no_finding_in_a_campaign",  # 61 s
     "test_conform_nsqd.py::test_each_fault_fails_its_own_rule_and_no_other[switch-fallthrough]",  # 56 s
