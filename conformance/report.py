@@ -289,7 +289,11 @@ _MONITOR_RANK = {"not_observed": 0, "info": 1, "passed": 2, "warned": 3, "failed
 
 def merge_monitor(sections: list[dict[str, Any]]) -> dict[str, Any]:
     """The ``monitor`` sections of several workers' runs (each against its own node) as one:
-    datagrams summed, violations concatenated, each node's verdicts worst-first."""
+    datagrams summed, violations concatenated, each node's verdicts worst-first. A frame
+    monitor's sections (MAVLink's: frames, nodes by SYSID/COMPID, one rule table) merge as
+    :func:`_merge_frame_monitor` says."""
+    if any("frames" in m for m in sections):
+        return _merge_frame_monitor(sections)
     out = {"complete": all(m.get("complete", True) for m in sections),
            "datagrams": sum(m.get("datagrams", 0) for m in sections),
            "nodes": [], "violations": [v for m in sections for v in m.get("violations", [])], "rules": {}}
@@ -306,6 +310,31 @@ def merge_monitor(sections: list[dict[str, Any]]) -> dict[str, Any]:
             for rule, verdict in table.items():
                 if _MONITOR_RANK[verdict] >= _MONITOR_RANK.get(merged.get(rule, "not_observed"), 0):
                     merged[rule] = verdict
+    out["nodes"] = [seen[k] for k in sorted(seen)]
+    return out
+
+
+def _merge_frame_monitor(sections: list[dict[str, Any]]) -> dict[str, Any]:
+    """A frame monitor's sections as one: frames summed, each node's (SYSID/COMPID) frame and
+    heartbeat counts summed, violations concatenated, each rule's verdict worst-first, the
+    failure counts summed."""
+    out: dict[str, Any] = {"complete": all(m.get("complete", True) for m in sections),
+                           "frames": sum(m.get("frames", 0) for m in sections), "nodes": [],
+                           "violations": [v for m in sections for v in m.get("violations", [])],
+                           "failed_count": {}, "rules": {}}
+    seen: dict[str, dict[str, Any]] = {}
+    for m in sections:
+        for n in m.get("nodes", []):
+            if n["id"] in seen:
+                for k in ("frames", "heartbeats"):
+                    seen[n["id"]][k] = seen[n["id"]].get(k, 0) + n.get(k, 0)
+            else:
+                seen[n["id"]] = dict(n)
+        for rule, count in m.get("failed_count", {}).items():
+            out["failed_count"][rule] = out["failed_count"].get(rule, 0) + count
+        for rule, verdict in m.get("rules", {}).items():
+            if _MONITOR_RANK[verdict] >= _MONITOR_RANK.get(out["rules"].get(rule, "not_observed"), 0):
+                out["rules"][rule] = verdict
     out["nodes"] = [seen[k] for k in sorted(seen)]
     return out
 

@@ -42,3 +42,22 @@ def test_a_ground_station_that_stays_in_mavlink1_runs_the_whole_suite():
     doc = run_gcs_cases("mavlink1-start", extra=("--mavlink1",)).report
     assert doc["error"] is None and {c["outcome"] for c in doc["cases"]} == {"passed"}, doc["summary"]
     validate_json(doc)
+
+
+def test_reports_of_a_vehicle_role_merge_into_one_that_follows_the_schema():
+    """``report.merge_json`` (xdist workers, ``--parallel`` instances) of MAVLink reports: it
+    raised AttributeError on the frame monitor's section (one rule table, nodes by SYSID/COMPID,
+    frames), which it read as MCP's per-node tables. Frames summed, the faulty run's failures
+    kept, valid against the schema."""
+    from mcp_conform.conformance.report import merge_json
+
+    good = run_vehicle_cases(None, seed=1).report
+    bad = run_vehicle_cases("double-ack", seed=1).report
+    doc = merge_json([good, bad])
+    assert validate_json(doc) is None
+    assert doc["monitor"]["frames"] == good["monitor"]["frames"] + bad["monitor"]["frames"]
+    failed = {r for r, v in bad["rules"].items() if v == "failed"}
+    assert failed and failed <= {r for r, v in doc["rules"].items() if v == "failed"}
+    assert len(doc["cases"]) == len(good["cases"]) + len(bad["cases"])
+    ids = [n["id"] for n in doc["monitor"]["nodes"]]
+    assert len(ids) == len(set(ids)) == len({n["id"] for n in good["monitor"]["nodes"]})
