@@ -4,7 +4,8 @@ under its rule, with no input blamed.
 
 ``--mode slow``: on accept one valid UPDATE at once, then the next UPDATEs one byte a second
 (NSQD-MSG-1: "no gap longer than update_gap_max_s"; mcp-conform names it in
-MSG/test_update_stream_keeps_its_period). ``--mode bad-frames``: an UPDATE every update
+MSG/test_update_stream_keeps_its_period). ``--mode stops``: valid UPDATEs every 0.05 s (a fast period) for the first 0.6 s of a
+connection, then none (NSQD-MSG-1: a stream that stops). ``--mode bad-frames``: an UPDATE every update
 period whose 32-bit length is written little-endian (a missing ``htonl``, E-1), so every
 frame it sends breaks NSQD-FRM-1 (mcp-conform: FRM/test_backend_frames_are_well_formed).
 Both read and discard whatever a client sends, serve up to ``MAX_CLIENTS`` clients at once
@@ -20,7 +21,7 @@ update period; the first two times any of its processes is sent bytes (counted i
 FILE``) it exits (status 1), and never again: the campaign sees it, one replay of triage
 reproduces it, the confirming replays do not.
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|bad-frames|slow-restart|flaky-crash
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash
 [--lifetime S] [--state FILE --restart-delay S]``
 """
 
@@ -39,6 +40,9 @@ from mcp_conform.spec.nsqd_codec import encode
 
 MAX_CLIENTS = 64
 STATE = ""  # --state
+#: ``--mode stops``: its fast period, and how long into a connection its stream stops
+FAST_PERIOD = 0.05
+STOPS_AFTER_S = 0.6
 PERIOD = float(NSQD.params["update_period_s"])
 
 
@@ -67,6 +71,9 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
         if mode in ("slow-restart", "flaky-crash"):
             _crash_on_input(c, end, ready, STATE if mode == "flaky-crash" else None)
             return
+        if mode == "stops":
+            _stop_after(c, end, FAST_PERIOD, STOPS_AFTER_S)
+            return
         if mode == "slow":
             c.sendall(update())
             pending, step = b"", 1.0
@@ -92,6 +99,18 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
     finally:
         with contextlib.suppress(OSError):
             c.close()
+
+
+def _stop_after(c: socket.socket, end: float, period: float, after: float) -> None:
+    """UPDATEs every ``period`` for ``after`` s from accept, then none; reads what it is sent."""
+    stop, nxt = time.monotonic() + after, time.monotonic()
+    while time.monotonic() < end:
+        if not _drain(c):
+            return
+        if nxt <= time.monotonic() < stop:
+            c.sendall(update())
+            nxt += period
+        time.sleep(0.005)
 
 
 def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | None) -> None:
@@ -123,7 +142,7 @@ def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | Non
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "bad-frames", "slow-restart", "flaky-crash"), required=True)
+    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash"), required=True)
     ap.add_argument("--lifetime", type=float, default=300.0)
     ap.add_argument("--state", help="slow-restart: marks that the first start happened")
     ap.add_argument("--restart-delay", type=float, default=0.0)
