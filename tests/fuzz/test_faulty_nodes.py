@@ -9,8 +9,8 @@ only for the search.
 from __future__ import annotations
 
 import shlex
-import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -19,6 +19,7 @@ from mcp_conform.fuzz.campaign import run_campaign
 from mcp_conform.fuzz.cli import main as fuzz_main
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import FindingStore
+from tests.forkserver import run_module
 
 SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
 MAX_CASES = 20_000
@@ -72,19 +73,23 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
     assert {"finding.json", "repro.mcap", "replay.txt"} <= {p.name for p in finding_dir.iterdir()}
     command = shlex.split((finding_dir / "replay.txt").read_text())
     assert command[:3] == ["mcp-fuzz", "--replay", str(finding_dir.resolve())]
-    capsys.readouterr()
-    assert fuzz_main(command[1:]) == 1
-    assert f"reproduced {rule}" in capsys.readouterr().out
-    # the finding's capture alone reproduces it too (issue 10: "this is also how a fuzz
-    # finding is reproduced"), against the faulty node and not against the correct one
+    # the finding's replay command, and the finding's capture alone (issue 10: "this is also
+    # how a fuzz finding is reproduced"), against the faulty node and not against the correct
+    # one: the command in this process, the captures as two ``mcp-capture replay`` processes
+    # (children of the tests' fork server, tests/forkserver.py: the modules imported once),
+    # the three side by side, each on a node and ports of its own
     repro = str(finding_dir / "repro.mcap")
     common = ["--rto", "0.2", "--ack-window", "0.25", *(["--mavlink"] if mavlink else [])]
-    for spawn, want in ((cfg.spawn, 1), (spawn_command(fault, mavlink).replace(f" --fault {fault}", ""), 0)):
-        proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures", "replay", repro, "--spawn", spawn, *common],
-                              capture_output=True, text=True, timeout=120)
-        assert proc.returncode == want, (spawn, proc.stdout, proc.stderr)
-        assert ("reproduced " if want else "did not reproduce") in proc.stdout, proc.stdout
-
+    runs = ((cfg.spawn, 1), (spawn_command(fault, mavlink).replace(f" --fault {fault}", ""), 0))
+    with ThreadPoolExecutor(len(runs)) as pool:
+        procs = pool.map(lambda r: run_module("mcp_conform.captures", ["replay", repro, "--spawn", r[0], *common],
+                                              timeout=120), runs)
+        capsys.readouterr()
+        assert fuzz_main(command[1:]) == 1
+        assert f"reproduced {rule}" in capsys.readouterr().out
+        for (spawn, want), proc in zip(runs, procs, strict=True):
+            assert proc.returncode == want, (spawn, proc.stdout, proc.stderr)
+            assert ("reproduced " if want else "did not reproduce") in proc.stdout, proc.stdout
 
 @pytest.mark.slow
 def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Path) -> None:
