@@ -30,7 +30,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from mcp_conform.judge._mavlink_link import Node, Service, describe, name_of
+from mcp_conform.judge._mavlink_link import Evidence, Node, Service, name_of
 from mcp_conform.spec import MAVLINK
 from mcp_conform.traceio.mavlink import MavFrame
 
@@ -71,8 +71,8 @@ def addressed(msg: Any, v: Node) -> bool:
     return int(msg.target_system) == v.sysid and int(msg.target_component) in (0, v.compid)
 
 
-def _ev(f: MavFrame) -> tuple[tuple[str, ...], tuple[int, ...]]:
-    return (describe(f),), (f.index,)
+def _ev(f: MavFrame) -> tuple[Evidence, tuple[int, ...]]:
+    return Evidence(f), (f.index,)
 
 
 @dataclass

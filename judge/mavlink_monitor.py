@@ -48,7 +48,7 @@ with the cases' on the rules both judge (tests/captures/test_mavlink_capture.py)
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from mcp_conform.judge._mavlink_link import (
@@ -306,8 +306,9 @@ class MavlinkMonitor:
         return node.role in self.roles and ("any" in r.roles or node.role in r.roles)
 
     def judge(self, rule: str, node: Node, ok: bool, t_ns: int, expected: str = "", actual: str = "",
-              evidence: tuple[str, ...] = (), frames: tuple[int, ...] = ()) -> None:
-        """One observation of ``rule`` on ``node``: held (``ok``) or broken."""
+              evidence: Iterable[str] = (), frames: tuple[int, ...] = ()) -> None:
+        """One observation of ``rule`` on ``node``: held (``ok``) or broken. ``evidence``: its
+        lines, made into a tuple only when kept (``_mavlink_link.Evidence``: described then)."""
         if not self.judges(rule, node):
             return
         self.judged[rule] += 1
@@ -316,7 +317,7 @@ class MavlinkMonitor:
         self.failed_count[rule] += 1
         if len(self.failed[rule]) < self.MAX_EXAMPLES:
             self.failed[rule].append(Violation(rule, node.name, node.role or "?", t_ns, expected, actual,
-                                               evidence, frames))
+                                               evidence if type(evidence) is tuple else tuple(evidence), frames))
 
     def verdicts(self) -> dict[str, str]:
         """rule -> failed (a MUST broken), warned (a SHOULD), passed or not_observed."""

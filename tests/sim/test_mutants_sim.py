@@ -42,14 +42,6 @@ def test_every_mutant_of_the_real_matrix_is_here():
     assert set(MUTANTS) >= set(NEEDS_VEHICLE)
 
 
-@pytest.mark.parametrize("mutant", sorted(MUTANTS))
-def test_each_mutant_is_caught_with_its_rule_and_nothing_else(mutant):
-    run = _run(mutant, 7)
-    assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
-    assert not [c for c in run.report["cases"] if c["outcome"] == "error"
-                and not run.rules_with("failed", "warned").keys() & set(c["rules"])], run.explain()
-
-
 @pytest.mark.parametrize("mutant", ["bad-preamble", "ack-zero", "slow-ack", "rtx-new-seq", "source-port-filter",
                                     "dup-ignores-src", "arm-before-start", "no-rtl", "passthrough-corrupt"])
 def test_mutants_at_the_descriptions_timings(mutant):
@@ -77,13 +69,44 @@ def test_a_mutants_verdicts_do_not_depend_on_the_schedule(mutant):
     outcomes = [{c["id"]: c["outcome"] for c in r.report["cases"]} for r in runs]
     assert outcomes[0] == outcomes[1], (runs[0].explain(), runs[1].explain())
     for r in runs:
-        assert r.rules_with("failed", "warned") == _expected(mutant), r.explain()
+        _caught(r, mutant)
 
 
 def _moved_with_checks() -> list[str]:
     from tests.conformance.test_mutants import CASE_SAYS, DIAGNOSIS, MONITOR_SEES, SIM_COVERS
 
     return sorted(SIM_COVERS & (set(DIAGNOSIS) | set(CASE_SAYS) | set(MONITOR_SEES) | set(NEEDS_VEHICLE)))
+
+
+def _caught(run, mutant: str) -> None:
+    """The mutant's rule fails (warns, for a SHOULD) and nothing else does; no case errs but
+    one of that rule."""
+    assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
+    assert not [c for c in run.report["cases"] if c["outcome"] == "error"
+                and not run.rules_with("failed", "warned").keys() & set(c["rules"])], run.explain()
+
+
+def _caught_elsewhere() -> set[str]:
+    """The mutants whose whole-suite runs below (test_a_mutants_verdicts_do_not_depend_on_the_schedule's
+    two, test_a_moved_mutants_report_monitor_and_capture's one) check :func:`_caught` already, on
+    the same clean link at another seed: a third run of theirs here proved nothing more (issue
+    38: 22 of the 41 suite runs, ~9 of the tier's CPU s)."""
+    return set(_schedule_folded()) | set(_moved_with_checks())
+
+
+def _caught_here() -> list[str]:
+    return sorted(set(MUTANTS) - _caught_elsewhere())
+
+
+@pytest.mark.parametrize("mutant", _caught_here())
+def test_each_mutant_is_caught_with_its_rule_and_nothing_else(mutant):
+    """Each mutant by one test or another (:func:`_caught_elsewhere`): its rule and nothing else."""
+    _caught(_run(mutant, 7), mutant)
+
+
+def test_every_mutant_is_caught_by_one_test_or_another():
+    assert set(_caught_here()) | _caught_elsewhere() == set(MUTANTS)
+    assert _caught_elsewhere() <= set(MUTANTS)
 
 
 @pytest.mark.parametrize("mutant", _moved_with_checks())
@@ -102,7 +125,7 @@ def test_a_moved_mutants_report_monitor_and_capture(mutant, tmp_path: Path):
     capture = tmp_path / "run.mcap"
     run = _run(mutant, 10, extra=("--capture", str(capture)))
     rule = MUTANTS[mutant]
-    assert run.rules_with("failed", "warned") == _expected(mutant), run.explain()
+    _caught(run, mutant)
     if mutant in DIAGNOSIS:
         says = DIAGNOSIS[mutant]
         texts = [f"{c.get('expected')} {c.get('actual')} {c.get('reason')} {c.get('evidence')}"

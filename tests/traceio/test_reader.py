@@ -247,22 +247,36 @@ def test_mcap_records(tmp_path):
 
 @pytest.mark.parametrize("stride", [11, pytest.param(1, marks=pytest.mark.slow)])
 def test_mcap_cut_at_every_byte(tmp_path, monkeypatch, stride):
-    """A file cut anywhere (every byte with the slow tests, every 11th in the quick ones)."""
+    """A file cut anywhere (every byte with the slow tests, every 11th in the quick ones);
+    every 37th of those cuts read as ``mcap``'s own StreamReader reads it too (each record
+    parsed field by field, traceio.mcap_chunks): the same records and the same reason."""
+    from mcap.stream_reader import StreamReader
+
+    import mcp_conform.traceio.mcap_chunks as chunks
+
     small_chunks(monkeypatch)
     path = write_mcap(tmp_path / "r.mcap")
     whole = path.read_bytes()
     full, cap = records(path)
     assert cap.truncated is None and len(full) == 27
     cut = tmp_path / "cut.mcap"
-    seen = set()
-    for n in growing(cut, whole, [*range(9), *range(9, len(whole), stride)]):
+    seen, compared = set(), set()
+    for k, n in enumerate(growing(cut, whole, [*range(9), *range(9, len(whole), stride)])):
         got, cap = records(cut)
+        if k % 37 == 0:
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(chunks, "stream_reader", lambda f, limit: StreamReader(
+                    f, validate_crcs=True, record_size_limit=limit, emit_chunks=True))
+                plain, plain_cap = records(cut)
+            assert plain == got and getattr(plain_cap, "truncated", None) == getattr(cap, "truncated", None), n
+            compared.add(cap.truncated if cap is not None else None)
         if got is None:
             assert n < 8, n  # only an empty file or one cut inside the magic
             continue
         assert got[-1] == Truncated(cap.truncated), n
         assert got[:-1] == full[:len(got) - 1], n
         seen.add(len(got) - 1)
+    assert len(compared) >= 3, compared  # cut inside a chunk, inside the summary, ...
     assert len(seen) > 4  # several whole chunks were recovered along the way
     cut.write_bytes(whole + b"garbage")
     got, cap = records(cut)
