@@ -7,7 +7,8 @@
 - The README's failing run fails as the README shows it (a real run against the faulty
   sample node).
 - The docs site builds with ``mkdocs build --strict`` (broken links and anchors fail it);
-  skipped, with the line that installs it, where MkDocs Material is not installed.
+  skipped, with the line that installs it, where MkDocs Material is not installed. A whole
+  site build (about 7 CPU s): in the slow tier, not the README's quick run.
 
 The guides' longer sections are run as written in their own tests: tests/test_readme_ci.py
 (docs/guide/ci.md), tests/vehicle/test_readme.py (docs/guide/vehicle.md).
@@ -155,6 +156,7 @@ def test_the_readme_failing_run_fails_as_shown() -> None:
     assert summary in out, (summary, out)
 
 
+@pytest.mark.slow  # a whole site build: MkDocs, and a fresh interpreter for each command's --help
 def test_docs_site_builds_strict(tmp_path: Path) -> None:
     pytest.importorskip("mkdocs", reason="MkDocs is not installed: pip install -e '.[docs]'")
     pytest.importorskip("material", reason="MkDocs Material is not installed: pip install -e '.[docs]'")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.packaging.tree import ROOT, pyproject, script_argv, top_packages
+from tests.packaging.tree import ROOT, pyproject, script_argv, sources
 
 OPTIONAL = {"redis": "redis", "foxglove": "viewers"}  # import name -> extra
 
@@ -52,23 +52,21 @@ def test_the_optional_packages_are_imported_only_where_they_are_used():
     """No module imports redis or foxglove when it is imported itself: a function does, where
     the feature is asked for (so ``mcp-conform``, ``mcp-capture`` ... start without them)."""
     top_level = []
-    for pkg in top_packages():
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            tree = ast.parse(path.read_text(encoding="utf-8"))
-            for node in tree.body:  # module level, and under a module-level if/try
-                for sub in ast.walk(node) if isinstance(node, (ast.If, ast.Try)) else (node,):
-                    names = (
-                        [a.name for a in sub.names]
-                        if isinstance(sub, ast.Import)
-                        else [sub.module or ""]
-                        if isinstance(sub, ast.ImportFrom)
-                        else []
-                    )
-                    top_level += [
-                        f"{path.relative_to(ROOT)}:{sub.lineno}: {n}"
-                        for n in names
-                        if n.split(".")[0] in OPTIONAL or n.startswith("hypothesis.extra.redis")
-                    ]
+    for rel, _, tree in sources():
+        for node in tree.body:  # module level, and under a module-level if/try
+            for sub in ast.walk(node) if isinstance(node, (ast.If, ast.Try)) else (node,):
+                names = (
+                    [a.name for a in sub.names]
+                    if isinstance(sub, ast.Import)
+                    else [sub.module or ""]
+                    if isinstance(sub, ast.ImportFrom)
+                    else []
+                )
+                top_level += [
+                    f"{rel}:{sub.lineno}: {n}"
+                    for n in names
+                    if n.split(".")[0] in OPTIONAL or n.startswith("hypothesis.extra.redis")
+                ]
     assert not top_level, "\n".join(top_level)
 
 

@@ -10,7 +10,7 @@ import ast
 import json
 import re
 
-from tests.packaging.tree import ROOT, module_paths, resource_paths, top_packages
+from tests.packaging.tree import ROOT, module_paths, resource_paths, sources, top_packages
 
 #: Modules that use ``__file__`` for something other than a file of their own shipped beside
 #: them (those are module-level Path constants, found by ``module_paths``), and why that holds
@@ -37,9 +37,8 @@ REPO_FOLDER = re.compile(r"(?<![\w./-])(examples|docs|bench|tests|captures/golde
 
 
 def _sources():
-    for pkg in top_packages():
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            yield path.relative_to(ROOT).as_posix(), path.read_text(encoding="utf-8")
+    for rel, text, _ in sources():
+        yield rel, text
 
 
 def test_every_file_the_code_finds_beside_itself_is_accounted_for():
@@ -67,8 +66,7 @@ def test_every_file_the_code_finds_beside_itself_is_accounted_for():
 
 def test_no_message_or_default_names_a_folder_the_wheel_does_not_have():
     named = []
-    for rel, text in _sources():
-        tree = ast.parse(text)
+    for rel, _, tree in sources():
         docstrings = {
             id(n.body[0].value)
             for n in ast.walk(tree)

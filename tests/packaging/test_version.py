@@ -13,7 +13,7 @@ import subprocess
 import pytest
 
 from mcp_conform.spec.about import __version__, tool_version
-from tests.packaging.tree import ROOT, pyproject, script_argv, scripts, top_packages, tree_env
+from tests.packaging.tree import ROOT, pyproject, script_argv, scripts, sources, tree_env
 
 
 def test_the_build_reads_the_version_from_spec_about():
@@ -31,25 +31,22 @@ def test_no_other_module_writes_or_looks_up_a_version():
     """No second literal of the version, and no lookup of the installed distribution's (which
     names another checkout's code under PYTHONPATH, or none from an unpacked sdist)."""
     found = []
-    for pkg in top_packages():
-        for path in sorted((ROOT / pkg).rglob("*.py")):
-            rel = path.relative_to(ROOT).as_posix()
-            if rel == "spec/about.py":
-                continue
-            text = path.read_text(encoding="utf-8")
-            for node in ast.walk(ast.parse(text)):
-                if isinstance(node, ast.Constant) and node.value == __version__:
-                    found.append(f"{rel}:{node.lineno}: the literal {__version__!r}")
-                elif (
-                    isinstance(node, ast.ImportFrom)
-                    and node.module == "importlib.metadata"
-                    and any(a.name == "version" for a in node.names)
-                ):
-                    found.append(f"{rel}:{node.lineno}: importlib.metadata.version")
-                elif isinstance(node, ast.Assign) and any(
-                    isinstance(t, ast.Name) and t.id == "__version__" for t in node.targets
-                ):
-                    found.append(f"{rel}:{node.lineno}: a __version__ of its own")
+    for rel, _, tree in sources():
+        if rel == "spec/about.py":
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and node.value == __version__:
+                found.append(f"{rel}:{node.lineno}: the literal {__version__!r}")
+            elif (
+                isinstance(node, ast.ImportFrom)
+                and node.module == "importlib.metadata"
+                and any(a.name == "version" for a in node.names)
+            ):
+                found.append(f"{rel}:{node.lineno}: importlib.metadata.version")
+            elif isinstance(node, ast.Assign) and any(
+                isinstance(t, ast.Name) and t.id == "__version__" for t in node.targets
+            ):
+                found.append(f"{rel}:{node.lineno}: a __version__ of its own")
     assert not found, "use spec.about.tool_version():\n" + "\n".join(found)
 
 

@@ -15,8 +15,9 @@ and the passing of (virtual) time, and checks after every step:
 
 and at the end, once the link is quiet: every unicast was either confirmed and delivered
 exactly once, or reported failed (MCP-RTX-1) and delivered at most once.
-Deterministic (derandomized) and bounded: 300 programs of at most 30 steps, and the same
-programs whichever other modules share the process (see ``_pinned_constants``).
+Deterministic (derandomized) and bounded: 300 programs of at most 30 steps (75 in the quick
+run, tests/tiers.py), and the same programs whichever other modules share the process (see
+``_pinned_constants``).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from mcp_conform.reference_impl import (
 )
 from mcp_conform.spec.codec import BROADCAST_ID, Action, DecodeError, MissionItem, decode
 from tests.reference_impl.helpers import Link
+from tests.tiers import examples
 
 RTO = 1.0
 ITEM = MissionItem(0.0, 0.0, 0.0, 0.0, 35.5, -78.25, 10.0, 1, 16, 1, 1, 3, 0, 1)
@@ -194,8 +196,9 @@ def _pinned_constants(monkeypatch):
     cache.clear()  # entries computed from the empty pool must not serve later tests
 
 
-def test_two_endpoints_over_lossy_link(_pinned_constants):
-    run_state_machine_as_test(TwoEndpointsOverLossyLink, settings=SETTINGS)
+@pytest.mark.parametrize("count", examples(full=300, quick=75))
+def test_two_endpoints_over_lossy_link(_pinned_constants, count):
+    run_state_machine_as_test(TwoEndpointsOverLossyLink, settings=settings(SETTINGS, max_examples=count))
 
 
 # Programs Hypothesis once found when other modules' constants reached its generator (the

@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mcp_conform.traceio.reader import _datagram_body
+from tests.tiers import examples
 
 USED = ("peer", "local", "raw_base64", "run_delay_ns")
 scalars = (st.none() | st.booleans() | st.integers(min_value=-(2**80), max_value=2**80)
@@ -56,10 +57,14 @@ def _check(data: bytes) -> None:
     assert _same(_used(got), _used(want)), data
 
 
-@settings(max_examples=400, deadline=None)
-@given(bodies, st.booleans())
-def test_any_json_body_reads_as_json_reads_it(value: object, ascii_only: bool) -> None:
-    _check(json.dumps(value, ensure_ascii=ascii_only).encode("utf-8", "surrogatepass"))
+@pytest.mark.parametrize("count", examples(full=400, quick=100))
+def test_any_json_body_reads_as_json_reads_it(count: int) -> None:
+    @settings(max_examples=count, deadline=None)
+    @given(bodies, st.booleans())
+    def prop(value: object, ascii_only: bool) -> None:
+        _check(json.dumps(value, ensure_ascii=ascii_only).encode("utf-8", "surrogatepass"))
+
+    prop()
 
 
 @pytest.mark.parametrize("data", [

@@ -30,6 +30,7 @@ from hypothesis import strategies as st
 from mcp_conform.captures.cli import main as capture_main
 from mcp_conform.spec.codec import Action, Message, encode
 from mcp_conform.spec.mission import WaypointFileError, load_waypoints
+from tests.tiers import examples
 
 ROOT = Path(__file__).resolve().parents[2]
 GOLDEN = ROOT / "captures" / "golden"
@@ -150,12 +151,13 @@ _SETTINGS = settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
                                             HealthCheck.data_too_large])
 
 
+@pytest.mark.parametrize("count", examples(full=EXAMPLES, quick=max(1, EXAMPLES // 4)))
 @pytest.mark.parametrize("kind", ["mcap", "pcap", "pcapng", "pcap.gz", "nsqd.pcap"])
 @pytest.mark.parametrize("command", ["check", "show", "export", "diff"])
-def test_capture_readers_survive_mutated_files(kind: str, command: str, tmp_path: Path) -> None:
+def test_capture_readers_survive_mutated_files(kind: str, command: str, count: int, tmp_path: Path) -> None:
     suffix, data = seed(kind)
 
-    @_SETTINGS
+    @settings(_SETTINGS, max_examples=count)
     @given(mutated(data))
     def prop(blob: bytes) -> None:
         path = tmp_path / f"in{suffix}"
