@@ -27,6 +27,7 @@ LONG_FIRST = (
     "test_reader.py::test_mcap_cut_at_every_byte[1]",  # 106 s (9 s alone)
     "test_hostile_files.py::test_check_of_a_million_violating_datagrams_finishes_under_the_limit",  # 92 s
     "test_faults.py::test_spawn_node_killed_mid_run_at_the_descriptions_timings",  # 71 s
+    "test_docs.py::test_docs_site_builds_strict",  # 59 s in the slow run (moved from the quick one)
     # MAVLink's whole suites on real processes (session 29's profile, -n 12, 2 cores): the vehicle
     # role's runs stay whole; the gcs role's run as three parts at once (~30-45 s each now)
     "test_conform_mavlink.py::test_a_faulty_vehicle_through_the_real_proxy[abandoned-stays-busy]",  # 51 s
