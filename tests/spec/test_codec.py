@@ -24,11 +24,9 @@ from mcp_conform.spec.codec import (
     peek_header,
 )
 from mcp_conform.spec.strategies import MALFORMED_KINDS, datagrams, malformed_datagrams, messages
-from tests.tiers import examples
+from tests.tiers import tiered_property
 
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-#: the properties that cost most: FAST's 150 examples in the cpu tier, 40 in the quick run (tests/tiers.py)
-TIERED = examples(full=150, quick=40)
 
 PRE = "4E4353552D434D0101"  # "NCSU-CM", 0x01, 0x01 (MCP-HDR-1)
 
@@ -114,26 +112,16 @@ def test_encode_refuses_what_the_spec_forbids(msg: Message, why: str) -> None:
 
 
 # ---------------------------------------------------------------- properties
-@pytest.mark.parametrize("count", TIERED)
-def test_round_trip_message(count: int) -> None:
-    @settings(FAST, max_examples=count)
-    @given(messages())
-    def prop(msg: Message) -> None:
-        data = encode(msg)
-        assert decode(data) == msg
-        assert encode(decode(data)) == data
-
-    prop()
+@tiered_property(150, 40, messages(), base=FAST)
+def test_round_trip_message(msg: Message) -> None:
+    data = encode(msg)
+    assert decode(data) == msg
+    assert encode(decode(data)) == data
 
 
-@pytest.mark.parametrize("count", TIERED)
-def test_round_trip_bytes(count: int) -> None:
-    @settings(FAST, max_examples=count)
-    @given(datagrams())
-    def prop(data: bytes) -> None:
-        assert encode(decode(data)) == data
-
-    prop()
+@tiered_property(150, 40, datagrams(), base=FAST)
+def test_round_trip_bytes(data: bytes) -> None:
+    assert encode(decode(data)) == data
 
 
 @FAST
@@ -169,38 +157,28 @@ def _expected_rule(action: int) -> str:
     return "MCP-PAY-6" if action == Action.MAV_PASSTHROUGH else "MCP-ROB-4"
 
 
-@pytest.mark.parametrize("count", TIERED)
-def test_every_proper_prefix_is_rejected(count: int) -> None:
-    @settings(FAST, max_examples=count)
-    @given(messages())
-    def prop(msg: Message) -> None:
-        data = encode(msg)
-        for n in range(len(data)):
-            prefix = data[:n]
-            if (n == HEADER_SIZE and msg.action == Action.MISSION_READY and msg.payload is not None):
-                # D-3: a Mission_Ready cut after its header is the empty-payload form, still valid.
-                assert decode(prefix) == msg._replace(payload=None)
-                continue
-            with pytest.raises(DecodeError) as info:
-                decode(prefix)
-            want = "MCP-ROB-1" if n < HEADER_SIZE else _expected_rule(msg.action)
-            assert info.value.rule == want, (n, info.value)
-
-    prop()
-
-
-@pytest.mark.parametrize("count", TIERED)
-def test_trailing_garbage_is_rejected(count: int) -> None:
-    @settings(FAST, max_examples=count)
-    @given(messages(), st.binary(min_size=1, max_size=80))
-    def prop(msg: Message, garbage: bytes) -> None:
-        if msg.action == Action.MISSION_READY and msg.payload is None:
-            assume(garbage != msg.src.to_bytes(2, "big"))  # that is the valid D-3 ID form
+@tiered_property(150, 40, messages(), base=FAST)
+def test_every_proper_prefix_is_rejected(msg: Message) -> None:
+    data = encode(msg)
+    for n in range(len(data)):
+        prefix = data[:n]
+        if (n == HEADER_SIZE and msg.action == Action.MISSION_READY and msg.payload is not None):
+            # D-3: a Mission_Ready cut after its header is the empty-payload form, still valid.
+            assert decode(prefix) == msg._replace(payload=None)
+            continue
         with pytest.raises(DecodeError) as info:
-            decode(encode(msg) + garbage)
-        assert info.value.rule == _expected_rule(msg.action)
+            decode(prefix)
+        want = "MCP-ROB-1" if n < HEADER_SIZE else _expected_rule(msg.action)
+        assert info.value.rule == want, (n, info.value)
 
-    prop()
+
+@tiered_property(150, 40, messages(), st.binary(min_size=1, max_size=80), base=FAST)
+def test_trailing_garbage_is_rejected(msg: Message, garbage: bytes) -> None:
+    if msg.action == Action.MISSION_READY and msg.payload is None:
+        assume(garbage != msg.src.to_bytes(2, "big"))  # that is the valid D-3 ID form
+    with pytest.raises(DecodeError) as info:
+        decode(encode(msg) + garbage)
+    assert info.value.rule == _expected_rule(msg.action)
 
 
 def test_decode_survives_the_largest_datagram() -> None:
