@@ -77,21 +77,18 @@ def run_parts(tmp_path: Path, *args: str, capture: bool = False,
 
 
 def merged(parts: list[tuple[tuple[str, ...], int, dict, str]]) -> tuple[int, dict, str]:
-    """The parts as one run's (exit code, report, output): the cases of all, each rule's worst
-    outcome in any (``conformance.report.RULE_RANK``: a part's report has the rules of the other
-    parts' groups skipped, and the failures its monitor found folded in, as one run's has), the
-    counts summed, the failures of all."""
-    from mcp_conform.conformance.report import RULE_RANK
+    """The parts as one run's (exit code, report, output): the runner's own merge of several
+    runs' reports (``conformance.report.merge_json``, as for xdist workers and ``--parallel``
+    instances: the cases of all, each rule's worst outcome -- a part's report has the rules of
+    the other parts' groups skipped -- the monitors' sections merged and their failures folded
+    in as one run's)."""
+    from mcp_conform.conformance.report import merge_json
 
     assert all(rc in (0, 1) and doc["error"] is None for _, rc, doc, _ in parts), [out for *_, out in parts]
     docs = [doc for _, _, doc, _ in parts]
     assert all(set(d["rules"]) == set(docs[0]["rules"]) for d in docs), [sorted(d["rules"]) for d in docs]
-    rules = {r: max((d["rules"][r] for d in docs), key=lambda v: RULE_RANK.get(v, len(RULE_RANK)))
-             for r in docs[0]["rules"]}
-    summary = {k: sum(d["summary"][k] for d in docs) for k in docs[0]["summary"]}
-    doc = {**docs[0], "rules": rules, "cases": [c for d in docs for c in d["cases"]], "summary": summary,
-           "failures": [f for d in docs for f in d["failures"]]}
-    return max(rc for _, rc, _, _ in parts), doc, "\n".join(f"--select {' '.join(g)}:\n{out}" for g, _, _, out in parts)
+    return (max(rc for _, rc, _, _ in parts), merge_json(docs),
+            "\n".join(f"--select {' '.join(g)}:\n{out}" for g, _, _, out in parts))
 
 
 def failed(doc: dict) -> tuple[set[str], set[str]]:
