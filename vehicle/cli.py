@@ -222,6 +222,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if event.kind != "frame" or args.verbose:
             print(format_event(event, t0), flush=True)
 
+    stop: list[int] = []  # a flag the handler appends to: a signal handler takes no lock
+    if threading.current_thread() is threading.main_thread():
+        # SIGINT too, explicitly: a process started in the background by a non-interactive
+        # shell inherits SIGINT ignored, and Ctrl-C must still stop it. Before the vehicle starts:
+        # once it beats a peer may act and stop it (a loaded CI host's SIGTERM came before the
+        # handlers were in place: exit -15); from then on a signal is an exit 130 or 143
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda signum, _frame: stop.append(signum))
     try:
         vehicle = SimVehicle(
             on_event=show, sysid=args.sysid, gps_fix_delay=args.fix_delay,
@@ -243,13 +251,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         where += [f"udp-out {h}:{p} (from port {vehicle.udp_out_port})" for h, p in args.udp_out]
     if args.udp_in is not None:
         where.append(f"udp-in {vehicle.udp_in_url.removeprefix('udpout:')}")
-    stop: list[int] = []  # a flag the handler appends to: a signal handler takes no lock
-    if threading.current_thread() is threading.main_thread():
-        # SIGINT too, explicitly: a process started in the background by a non-interactive
-        # shell inherits SIGINT ignored, and Ctrl-C must still stop it. Before the line that
-        # says it listens: from that line on, a signal is an exit 130 or 143, not a traceback
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda signum, _frame: stop.append(signum))
     print(f"vehicle sysid {args.sysid} listening on {', '.join(where)}", flush=True)
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
