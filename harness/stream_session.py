@@ -163,6 +163,7 @@ class ConnSessionBase(StreamSessionBase):
         self.sent_log: list[tuple[float, bytes]] = []  # what the current case sent, on any connection
         self._conn_count = 0
         self._live_at: float | None = None  # when the last connection that proved it live opened
+        self.cycles_stalled = False  # the last cycle_connections ended on a node that stopped accepting
 
     def make_conn(self, sock: socket.socket, index: int) -> StreamConn:
         """The protocol's connection on ``sock``, the run's ``index``-th."""
@@ -240,20 +241,39 @@ class ConnSessionBase(StreamSessionBase):
         except OSError:
             return None
 
-    def cycle_connections(self, cycles: int, within: float) -> int:
+    def cycle_connections(self, cycles: int, within: float, stall: float | None = None) -> int:
         """Connections opened and closed with nothing sent, up to ``cycles`` within ``within``
-        s (a SYN a full listen backlog dropped is retried, not counted); how many were made."""
-        done, deadline = 0, time.monotonic() + within
-        while done < cycles and time.monotonic() < deadline:
+        s (a SYN a full listen backlog dropped is retried, not counted); how many were made.
+        ``stall``: stop early once no connection has been accepted for that long;
+        :attr:`cycles_stalled` says whether that ended it (a node that stopped accepting),
+        as against ``within`` running out while every attempt still got through (a slow host)."""
+        done, now = 0, time.monotonic()
+        deadline, last = now + within, now
+        self.cycles_stalled = False
+        while done < cycles and now < deadline:
             try:
                 with socket.create_connection(self.address, timeout=0.1):
                     pass
             except OSError:
                 time.sleep(0.02)
+                now = time.monotonic()
+                if stall is not None and now - last >= stall:
+                    self.cycles_stalled = True
+                    break
                 continue
             done += 1
             time.sleep(0.0005)  # yields: an embedded node shares this process
+            now = last = time.monotonic()
         return done
+
+    def fds_down_to(self, bound: int, limit: float) -> int | None:
+        """:meth:`open_fds` once it is at most ``bound`` (the node has handled the closes it was
+        sent; a loaded host handles them late), or what it is at ``limit`` s."""
+        fds, end = self.open_fds(), time.monotonic() + limit
+        while fds is not None and fds > bound and time.monotonic() < end:
+            time.sleep(0.05)
+            fds = self.open_fds()
+        return fds
 
     def settled_fds(self, quiet: float = 0.3, limit: float = 2.0) -> int | None:
         """:meth:`open_fds` once it held for ``quiet`` s (the node has handled the closes
