@@ -175,6 +175,8 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
         return
     for item in cases:
         item.repr_failure = _verdict_repr(item.repr_failure)  # type: ignore[method-assign]
+        if state.frontend:  # setup's and teardown's exceptions too (pytest calls this for them)
+            item._repr_failure_py = _exception_only  # type: ignore[method-assign,assignment]  # a str: as repr_failure's
         cid, ids, level, phase = _meta(item)
         unknown = [r for r in ids if r not in RULES]
         if unknown:
@@ -216,12 +218,22 @@ def _verdict_repr(original: Any) -> Any:
     """A case's verdict (a :class:`CaseFailure`, an :class:`Inconclusive`) gets its report's
     text from the verdict itself (``judge_exception``), so pytest's long traceback of it, with
     the source of every frame parsed, is not made only to be thrown away (about 10 ms a case,
-    a fifth of a short run's CPU); any other exception (a bug, a lost node) keeps it."""
+    a fifth of a short run's CPU); any other exception (a bug, a lost node) keeps it under pytest
+    itself (under ``mcp-conform`` no case gets one: :func:`_exception_only`)."""
     def repr_failure(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> Any:
         if isinstance(excinfo.value, (CaseFailure, Inconclusive)):
             return excinfo.exconly()
         return original(excinfo) if style is None else original(excinfo, style)
     return repr_failure
+
+
+def _exception_only(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
+    """A case's exception as pytest's report text under ``mcp-conform``, whatever it is:
+    nothing there shows a case's traceback (no terminal plugin; a case's reason and evidence
+    come from the exception itself, ``judge_exception``). Pytest would parse the source of
+    every frame of it: a node lost in attach mode makes every later case an error in its
+    setup, about 30 ms of CPU each, 1 of a 2 CPU s run against a node killed mid-run."""
+    return excinfo.exconly()
 
 
 @pytest.hookimpl(tryfirst=True)

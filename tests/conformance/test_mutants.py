@@ -35,7 +35,9 @@ runs, 6 CPU s): their rule, monitor violations, capture judgement and serial aga
 are tests/sim/test_mutants_sim.py's now, their 3-instance comparison test_parallel.ELSEWHERE's.
 
 The correct variants, the 5 s timings, the header diagnosis and the crashing node's capture
-below stay real too (processes that read slowly, exit, or differ from ours).
+stay real too (processes that read slowly, exit, or differ from ours); the last two are checked
+on ``header-little-endian``'s and ``crash-on-short``'s runs above (``ALSO``), not on second runs
+of the same nodes.
 
 By default the node and the runner use short timings (node --rto 0.2, runner --rto 0.2
 --ack-window 0.25). ``MCP_MUTANTS_TIMING=real`` runs the same matrix at the description's
@@ -194,10 +196,16 @@ TRANSPORT = {"arm-before-fix": "udp"}
 VEHICLE_SMOKE = {"arm-early", "ready-without-fix"}
 
 
+#: More checks on a mutant's run, each once a test of its own with a second run of the same node
+#: (defined below): the header diagnosis, and the capture of a node that crashes on input.
+ALSO = {"header-little-endian": lambda res, _cap: diagnosed_in_its_startup_phase(res),
+        "crash-on-short": lambda res, cap: capture_stays_valid_when_the_node_dies(res, cap)}
+
+
 def _real_checks() -> set[str]:
     """The mutants whose real run checks what the simulator does not: ``--parallel 3`` beside
     the run (test_parallel's fold), the vehicle link over TCP and over UDP (the module docstring)."""
-    return {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"} | set(TRANSPORT) | VEHICLE_SMOKE
+    return {a[1] for a in PARALLEL if len(a) > 1 and a[0] == "--fault"} | set(TRANSPORT) | VEHICLE_SMOKE | set(ALSO)
 
 
 #: Mutants caught on virtual time only (issue 38 item 4: tests/sim/test_mutants_sim.py runs the
@@ -236,14 +244,17 @@ def test_mutant_is_caught_with_its_rule(fault, rule, tmp_path):
         if seen:
             assert mon["rules"]["1"][rule] in ("failed", "warned")
     same_verdicts_offline(res, capture)
+    if fault in ALSO:
+        ALSO[fault](res, capture)
 
 
-def test_a_node_whose_header_cannot_be_read_is_diagnosed_in_its_startup_phase():
+def diagnosed_in_its_startup_phase(res) -> None:
     """One fault, one root (issue 18): a node writing its header little-endian is diagnosed on
     its first datagram (MCP-HDR-2); no mission is started and every case that would read its
     header fields is skipped with that diagnosis instead of waiting out its timeouts, or
-    failing other rules (MCP-RTX-1, MCP-TRN-2, MCP-HDR-3/4) on misread fields."""
-    res = conform("--fault", "header-little-endian")
+    failing other rules (MCP-RTX-1, MCP-TRN-2, MCP-HDR-3/4) on misread fields. Checked on
+    ``header-little-endian``'s run in test_mutant_is_caught_with_its_rule (``ALSO``), which was
+    a second run of the same node here."""
     assert {f["rule"] for f in res.report["failures"]} == {"MCP-HDR-2"}, res.explain()
     judged = {c["id"] for c in res.report["cases"] if c["outcome"] != "skipped"}
     assert judged == {"HDR/test_every_datagram_starts_with_the_preamble",
@@ -288,16 +299,16 @@ def test_no_false_alarm_with_the_descriptions_5_s_timeout():
     assert not res.cases_with("failed", "error"), res.explain()
 
 
-def test_capture_stays_valid_when_the_node_dies(tmp_path):
+def capture_stays_valid_when_the_node_dies(res, cap) -> None:
     """--capture against a node that crashes on input: the MCAP file reads back with CRCs
-    checked, has every channel, and a start and end mark for every case of the JSON."""
+    checked, has every channel, and a start and end mark for every case of the JSON. Checked
+    on ``crash-on-short``'s run in test_mutant_is_caught_with_its_rule (``ALSO``: its whole
+    suite, where this was a second run of the same node with ``--select ROB/ --select
+    MCP-DUP-1``)."""
     import json
 
     from mcap.reader import make_reader
 
-    cap = tmp_path / "run.mcap"
-    res = run_conform("--spawn", sample_node_command("--fault", "crash-on-short"), "--mavlink", *FAST,
-                      "--select", "ROB/", "--select", "MCP-DUP-1", "--capture", str(cap))
     assert res.rules.get("MCP-ROB-1") == "failed", res.explain()
     topics: dict[str, int] = {}
     marks = []
@@ -313,4 +324,3 @@ def test_capture_stays_valid_when_the_node_dies(tmp_path):
     assert ends == {c["id"]: c["outcome"] for c in res.report["cases"]}, (ends, res.explain())
     for case in res.report["cases"]:
         assert case["capture"]["start_ns"] <= case["capture"]["end_ns"]
-
