@@ -46,7 +46,7 @@ from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count
 from mcp_conform.harness.errors import SetupError
 
-__all__ = ["Parts", "HitTriage", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
+__all__ = ["Parts", "HitTriage", "answered", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
 
 T = TypeVar("T")
 P = TypeVar("P")
@@ -383,11 +383,32 @@ def search(suspects: Sequence[T], shows: Callable[[list[T]], bool], *, tries: Se
            parts: Parts[T, Any] | None = None) -> list[T] | None:
     """Step 3 whole, the one search every protocol's triage runs: :func:`culprit`, then its
     :func:`fewest` (every suspect together delta debugged, a try as it is; one input left,
-    its parts); None when none of them shows it."""
+    its parts); None when none of them shows it. Each input list is replayed once in a
+    search (:func:`answered`): a try asked again -- a suspect that is also a try of its own
+    (MCP's vehicle flaw), delta debugging's singles after the same single tried as a
+    suspect -- has its answer already."""
+    shows = answered(shows)
     found, every = _culprit(suspects, shows, tries, whole)
     if found is None:
         return None
     return fewest(found, shows, budget=budget if every else 0, singles=singles, group=group, parts=parts)
+
+
+def answered(shows: Callable[[list[T]], bool]) -> Callable[[list[T]], bool]:
+    """``shows`` asked each input list once: a list asked again (equal to one asked before)
+    gets the answer its replay gave, no second replay. The search (delta debugging) takes a
+    replay's answer as the answer for that list; confirmation (step 4), which asks how often
+    an input shows it, replays every time and never goes through this."""
+    asked: list[tuple[list[T], bool]] = []
+
+    def test(inputs: list[T]) -> bool:
+        for before, verdict in asked:
+            if before == inputs:
+                return verdict
+        verdict = shows(inputs)
+        asked.append((list(inputs), verdict))
+        return verdict
+    return test
 
 
 def known_lasting_hit(items: Sequence[T], knowns: Sequence[tuple[K, Hashable]], signature: Callable[[T], Hashable],

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from mcp_conform.fuzz.budget import GRACE_S
+from tests.forkserver import run_module
 
 pytestmark = [pytest.mark.slow, pytest.mark.nsqd]
 
@@ -28,8 +29,10 @@ def _spawn(mode: str) -> str:
 
 
 def _fuzz(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", *args], capture_output=True,
-                          text=True, timeout=DURATION + GRACE_S + 120, cwd=ROOT)
+    """``mcp-fuzz --protocol nsqd ARGS`` in its own process: a child of the tests' fork server
+    (tests/forkserver.py), the modules below the fuzzer imported once, not a fresh interpreter's
+    ~0.8 CPU s of imports per run (hypothesis, the judge, pymavlink's dialects)."""
+    return run_module("mcp_conform.fuzz", ["--protocol", "nsqd", *args], timeout=DURATION + GRACE_S + 120, cwd=ROOT)
 
 
 @pytest.mark.parametrize("mode,rule", [("slow", "NSQD-MSG-1"), ("bad-frames", "NSQD-FRM-1")])

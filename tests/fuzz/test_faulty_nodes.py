@@ -20,6 +20,7 @@ from mcp_conform.fuzz.cli import main as fuzz_main
 from mcp_conform.fuzz.config import FuzzConfig
 from mcp_conform.fuzz.findings import FindingStore
 from tests.forkserver import run_module
+from tests.fuzz import test_stateful_finds as sequence
 
 SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
 MAX_CASES = 20_000
@@ -44,6 +45,14 @@ FAULTS = [
 #: it in fewer cases than 11 does (measured: no-dup-discard 6,129 cases against ~20,000,
 #: seq-no-wrap 112 against ~2,000), so CI spends its time on more faults, not on one.
 SEEDS = {"no-dup-discard": 6, "seq-no-wrap": 1}
+#: Faults whose campaign is tests/fuzz/test_stateful_finds.py's at the default settings with
+#: seed 1 (the default engine mix, --rto 0.3), run once in the session for both modules
+#: (``sequence_campaign``): that test asserts it found the fault, this one that the finding's
+#: reproducers replay, and that the finding is the stateful engine's, as FAULTS says (the
+#: stateless half of the mix cannot wrap the runner's seq). seq-no-wrap's campaign is ~30 node
+#: starts of triage (~5-10 CPU s): run once, not twice. (Not no-dup-discard: the stateless
+#: half can find a duplicate, tests/fuzz/test_blame_mcp.py; its campaign here stays stateful.)
+SHARED = {"seq-no-wrap"}
 
 
 def spawn_command(fault: str, mavlink: bool) -> str:
@@ -55,21 +64,31 @@ def spawn_command(fault: str, mavlink: bool) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(sequence.DURATION_S + 180)  # a shared campaign's bound (SHARED), as its own test's
 @pytest.mark.parametrize("fault, engine, mavlink, rule", FAULTS, ids=[f[0] for f in FAULTS])
 def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
-        tmp_path: Path, fault: str, engine: str, mavlink: bool, rule: str,
+        tmp_path: Path, tmp_path_factory: pytest.TempPathFactory, fault: str, engine: str, mavlink: bool, rule: str,
         capsys: pytest.CaptureFixture[str]) -> None:
-    cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, engine=engine,
-                     seed=SEEDS.get(fault, 11),
-                     max_cases=MAX_CASES, duration=120.0, out=str(tmp_path), rto=0.2,
-                     ack_window=0.25, extra={"stop_on_rule": rule})
-    store = FindingStore(tmp_path, cfg.replay_args())
-    summary = run_campaign(cfg, store)
-    assert summary["cases"] <= MAX_CASES
-    found = [f for f in store.order if f.rule == rule]
-    assert found, f"{fault}: no {rule} finding in {summary['cases']} cases; found {store.by_rule()}"
-    n = store.order.index(found[0]) + 1
-    finding_dir = tmp_path / f"finding-{n}"
+    if fault in SHARED:
+        run = sequence.sequence_campaign(tmp_path_factory, fault, mavlink, rule, 1)
+        cases, by_rule, out, spawn = run["cases"], run["by_rule"], run["out"], run["spawn"]
+        found = [(f["n"], f["engine"]) for f in run["findings"] if f["rule"] == rule]
+        common = ["--rto", str(sequence.RTO)]
+    else:
+        cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, engine=engine,
+                         seed=SEEDS.get(fault, 11),
+                         max_cases=MAX_CASES, duration=120.0, out=str(tmp_path), rto=0.2,
+                         ack_window=0.25, extra={"stop_on_rule": rule})
+        store = FindingStore(tmp_path, cfg.replay_args())
+        cases = run_campaign(cfg, store)["cases"]
+        by_rule, out, spawn = store.by_rule(), tmp_path, cfg.spawn
+        found = [(n, f.engine) for n, f in enumerate(store.order, 1) if f.rule == rule]
+        common = ["--rto", "0.2", "--ack-window", "0.25"]
+    assert cases <= MAX_CASES
+    assert found, f"{fault}: no {rule} finding in {cases} cases; found {by_rule}"
+    n, by = found[0]
+    assert by == engine, f"{fault}: its {rule} finding is the {by} engine's, not the {engine} one's"
+    finding_dir = out / f"finding-{n}"
     assert {"finding.json", "repro.mcap", "replay.txt"} <= {p.name for p in finding_dir.iterdir()}
     command = shlex.split((finding_dir / "replay.txt").read_text())
     assert command[:3] == ["mcp-fuzz", "--replay", str(finding_dir.resolve())]
@@ -79,8 +98,10 @@ def test_seeded_campaign_finds_the_fault_and_its_reproducer_replays(
     # (children of the tests' fork server, tests/forkserver.py: the modules imported once),
     # the three side by side, each on a node and ports of its own
     repro = str(finding_dir / "repro.mcap")
-    common = ["--rto", "0.2", "--ack-window", "0.25", *(["--mavlink"] if mavlink else [])]
-    runs = ((cfg.spawn, 1), (spawn_command(fault, mavlink).replace(f" --fault {fault}", ""), 0))
+    common += ["--mavlink"] if mavlink else []
+    correct = spawn.replace(f" --fault {fault}", "")
+    assert correct != spawn
+    runs = ((spawn, 1), (correct, 0))
     with ThreadPoolExecutor(len(runs)) as pool:
         procs = pool.map(lambda r: run_module("mcp_conform.captures", ["replay", repro, "--spawn", r[0], *common],
                                               timeout=120), runs)

@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from tests.conformance.runner_helpers import ROOT, sample_manager_command
+from tests.forkserver import run_module
 
 pytestmark = pytest.mark.slow
 
@@ -21,8 +20,10 @@ pytestmark = pytest.mark.slow
 def fuzz(tmp_path: Path, *args: str) -> tuple[int, dict, str]:
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1")
-    proc = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz.cli", "--role", "manager", *args, "--out", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    # a child of the tests' fork server (tests/forkserver.py): the modules imported once, not a
+    # fresh interpreter's imports per run; the same entry point (``mcp-fuzz``: fuzz.cli.main)
+    proc = run_module("mcp_conform.fuzz", ["--role", "manager", *args, "--out", str(out)], cwd=ROOT, env=env,
+                      timeout=300)
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else {}
     return proc.returncode, summary, proc.stdout + proc.stderr
 

@@ -13,7 +13,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -103,8 +102,7 @@ def test_replay_of_a_file_that_is_no_finding_is_one_line_exit_2(tmp_path):
     bad = tmp_path / "finding-9"
     bad.mkdir()
     (bad / "finding.json").write_text('{"protocol": "nsqd"}')
-    run = subprocess.run([sys.executable, "-m", "mcp_conform.fuzz", "--protocol", "nsqd", "--replay", str(bad)],
-                         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=120)
+    run = run_module("mcp_conform.fuzz", ["--protocol", "nsqd", "--replay", str(bad)], env=ENV, cwd=ROOT, timeout=120)
     # one line on stderr, as every protocol's replay says an unreadable finding (fuzz.replay_core)
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and "is not a finding" in run.stderr, run
     assert "Traceback" not in run.stderr and not run.stdout, run

@@ -16,6 +16,7 @@ import os
 import shlex
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -27,6 +28,7 @@ from mcp_conform.fuzz.oracles import Input
 from mcp_conform.fuzz.programs import ProgramGenerator, dumps, loads
 from mcp_conform.harness.driver import Datagram
 from mcp_conform.spec.codec import Action, Message, encode
+from tests.xdist_once import once
 
 SAMPLE = Path(__file__).resolve().parents[1] / "conformance" / "nodes" / "sample_node.py"
 MAX_CASES = 20_000
@@ -89,21 +91,41 @@ def test_programs_are_the_seeds_and_round_trip_through_the_database():
     assert loads(b"not a program") is None
 
 
+def sequence_campaign(tmp_path_factory: pytest.TempPathFactory, fault: str, mavlink: bool, rule: str,
+                      seed: int) -> dict[str, Any]:
+    """The campaign of ``fault`` at the default settings with ``seed`` (stopped at its ``rule``),
+    run once per test session (``tests.xdist_once``): this module's test asserts what it found;
+    tests/fuzz/test_faulty_nodes.py's asserts that its finding's reproducers replay (one run's
+    record, two claims about it). Its ``out`` (the finding directories) is read-only."""
+    def make(out: Path) -> dict[str, Any]:
+        cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, seed=seed, max_cases=MAX_CASES,
+                         duration=DURATION_S, rto=RTO, out=str(out), extra={"stop_on_rule": rule})
+        assert cfg.engine == DEFAULT_ENGINE
+        store = FindingStore(out, cfg.replay_args())
+        summary = run_campaign(cfg, store)
+        return {"out": out, "spawn": cfg.spawn, "cases": summary["cases"], "by_rule": store.by_rule(),
+                "stateful": summary["workers"][0]["engines"].get("stateful", {}),
+                "findings": [{"n": n, "rule": f.rule, "engine": f.engine} for n, f in enumerate(store.order, 1)]}
+    key = (fault, seed)
+    if key not in _MADE:  # without xdist, once() makes it anew for each caller
+        _MADE[key] = once(tmp_path_factory, f"mcp-sequence-fault-{fault}-{seed}", make)
+    return _MADE[key]
+
+
+_MADE: dict[tuple[str, int], dict[str, Any]] = {}
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(DURATION_S + 180)
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("fault, mavlink, rule", SEQUENCE_FAULTS, ids=[f[0] for f in SEQUENCE_FAULTS])
 def test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings(
-        tmp_path: Path, fault: str, mavlink: bool, rule: str, seed: int) -> None:
-    cfg = FuzzConfig(spawn=spawn_command(fault, mavlink), mavlink=mavlink, seed=seed, max_cases=MAX_CASES,
-                     duration=DURATION_S, rto=RTO, out=str(tmp_path), extra={"stop_on_rule": rule})
-    assert cfg.engine == DEFAULT_ENGINE
-    store = FindingStore(tmp_path, cfg.replay_args())
-    summary = run_campaign(cfg, store)
-    assert summary["cases"] <= MAX_CASES
-    stateful = summary["workers"][0]["engines"].get("stateful", {})
-    found = [f for f in store.order if f.rule == rule]
-    assert found, f"{fault} seed {seed}: no confirmed {rule} in {summary['cases']} cases; {store.by_rule()}, {stateful}"
+        tmp_path_factory: pytest.TempPathFactory, fault: str, mavlink: bool, rule: str, seed: int) -> None:
+    run = sequence_campaign(tmp_path_factory, fault, mavlink, rule, seed)
+    assert run["cases"] <= MAX_CASES
+    found = [f for f in run["findings"] if f["rule"] == rule]
+    assert found, (f"{fault} seed {seed}: no confirmed {rule} in {run['cases']} cases; {run['by_rule']}, "
+                   f"{run['stateful']}")
 
 
 @pytest.mark.slow

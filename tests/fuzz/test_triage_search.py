@@ -61,6 +61,18 @@ def test_every_suspect_together_is_delta_debugged_and_a_try_is_kept_as_it_is():
     assert search([1, 2], Replays(9).shows, budget=40) is None
 
 
+def test_a_search_replays_each_input_list_once():
+    """A try asked again in one search -- MCP's vehicle flaw has its culprit as a suspect and
+    as a try of its own, then delta debugging's singles ask the same single -- is answered
+    by the replay that ran (a replay is a fresh node: ~0.2 CPU s, ~0.6 s); the answers, and
+    so the minimal input, are the search's as before."""
+    m = Replays(3, 7)
+    assert search(list(range(10)), m.shows, tries=[[9], [9, 9], [9]], budget=40, singles=4) == [3, 7]
+    assert m.seen[:3] == [[9], [9, 9], list(range(10))]  # the second [9] not replayed
+    assert len(m.seen) == len({tuple(s) for s in m.seen})  # no list replayed twice
+    assert [9] in m.seen and [8] in m.seen  # the singles that were not asked before, asked
+
+
 @dataclass(frozen=True)
 class Msg:
     kind: str
