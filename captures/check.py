@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -30,7 +30,6 @@ from mcp_conform.captures.cli import (
     to_terminal,
     write_output,
 )
-from mcp_conform.judge.judging import Judgement, evidence_of, judge
 from mcp_conform.judge.params import add_monitor_options, params_from_args, selected
 from mcp_conform.judge.verdicts import of_judgement
 from mcp_conform.spec import SPEC
@@ -38,6 +37,9 @@ from mcp_conform.spec.codec import peek_header
 from mcp_conform.traceio.grammar import open_output
 from mcp_conform.traceio.reader import Datagram
 from mcp_conform.traceio.trace import action_name, evidence_indexes
+
+if TYPE_CHECKING:
+    from mcp_conform.judge.judging import Judgement
 
 __all__ = ["SCHEMA_VERSION", "describe_datagram", "load_schema", "register", "run", "run_check", "to_json",
            "validate_json"]
@@ -72,6 +74,9 @@ def run(ns: argparse.Namespace) -> int:
 
 def run_check(ns: argparse.Namespace) -> int:
     """MCP's check (``captures.mcp``): the trace monitor's judgement of every datagram."""
+    # imported here: mcp-capture's other subcommands, --help and --version never load the judge
+    from mcp_conform.judge.judging import evidence_of, judge
+
     params = params_from_args(ns)
     j = judge(ns.file, params, keep=bool(ns.html))
     evidence = evidence_of(j)

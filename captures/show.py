@@ -13,7 +13,7 @@ writes the window's message-sequence chart (``reports.chart``).
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.text import Text
@@ -25,10 +25,12 @@ from mcp_conform.captures.cli import (
     check_writable,
     write_output,
 )
-from mcp_conform.judge.judging import Judgement, MonitorUnavailable, NoJudge, judge
 from mcp_conform.judge.params import add_monitor_options, params_from_args
 from mcp_conform.reports.chart import trace_svg
 from mcp_conform.traceio.trace import Entry, Trace, action_name, describe_payload
+
+if TYPE_CHECKING:
+    from mcp_conform.judge.judging import Judgement
 
 __all__ = ["case_window", "entry_line", "register", "run", "run_show"]
 
@@ -98,6 +100,9 @@ def run(ns: argparse.Namespace) -> int:
 
 def run_show(ns: argparse.Namespace) -> int:
     """MCP's show (``captures.mcp``): the datagrams, marked by the trace monitor."""
+    # imported here: see check.run_check
+    from mcp_conform.judge.judging import MonitorUnavailable, NoJudge, judge
+
     params = params_from_args(ns)
     t_from, t_to = _seconds("--from", ns.t_from), _seconds("--to", ns.t_to)
     max_rows = int(ns.max_rows)

@@ -18,7 +18,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import pytest
 
 from mcp_conform.spec import SPEC
 from tests.capturing import dropped_by_kernel, start_capture, stop_capture
+from tests.forkserver import run_module
 from tests.reference_impl.test_e2e import free_port, node, wait_all
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,10 +40,9 @@ pytestmark = pytest.mark.slow
 
 def check(path: Path, tmp_path: Path, *extra: str) -> tuple[int, dict, str]:
     out = tmp_path / f"{path.name}.json"
-    proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures.cli", "check", str(path), "--rto", RTO,
-                           "--ack-window", "0.5", "--json", str(out), *extra],
-                          cwd=ROOT, capture_output=True, text=True, timeout=120,
-                          env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
+    # the mcp-capture command (python -m mcp_conform.captures), served by the tests' fork server
+    proc = run_module("captures", ["check", str(path), "--rto", RTO, "--ack-window", "0.5", "--json", str(out), *extra],
+                      cwd=ROOT, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
     doc = json.loads(out.read_text()) if out.exists() else {}
     return proc.returncode, doc, proc.stdout + proc.stderr
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import shlex
-import subprocess
 import sys
 from pathlib import Path
 
@@ -119,9 +118,10 @@ def test_replay_against_the_correct_sample_node_passes():
 def test_replay_command_line(tmp_path):
     out = tmp_path / "replay.json"
     rec = tmp_path / "replay.mcap"
-    proc = subprocess.run([sys.executable, "-m", "mcp_conform.captures.cli", "replay", str(GOLDEN / "challenge1.mcap"),
-                           "--spawn", DRONE, "--rto", "0.5", "--ack-window", "0.3", "--json", str(out),
-                           "--capture-out", str(rec)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # the mcp-capture command (python -m mcp_conform.captures), served by the tests' fork server
+    proc = run_module("captures", ["replay", str(GOLDEN / "challenge1.mcap"), "--spawn", DRONE, "--rto", "0.5",
+                                   "--ack-window", "0.3", "--json", str(out), "--capture-out", str(rec)],
+                      cwd=ROOT, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "same: every conversation matches" in proc.stdout and "monitor: 0 violation(s)" in proc.stdout
     import json

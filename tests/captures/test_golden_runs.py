@@ -19,9 +19,7 @@ a run still differ.
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -58,8 +56,9 @@ def _record(path: Path) -> Path:
 
 
 def _diff_cli(golden: Path, candidate: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mcp_conform.captures", "diff", str(golden), str(candidate)],
-                          capture_output=True, text=True, timeout=120, cwd=ROOT, env=os.environ)
+    """``mcp-capture diff GOLDEN CANDIDATE``, the command itself (``python -m mcp_conform.captures``,
+    served by the tests' fork server: its imports done once, not once per diff)."""
+    return run_module("captures", ["diff", str(golden), str(candidate)], cwd=ROOT, timeout=120)
 
 
 def _decoded(r: Datagram):

@@ -204,7 +204,9 @@ def test_the_sdist_tests_itself_and_the_wheel_runs_outside_the_checkout(dists, t
             tmp_path / "sdist", **({"filter": "data"} if hasattr(tarfile, "data_filter") else {})
         )
     (tree,) = (tmp_path / "sdist").iterdir()
-    env = dict(os.environ, PYTHONPATH=str(tree), NO_COLOR="1")
+    # (not MCP_TEST_CPU/MCP_TEST_RUNS: those tests' CPU is this test's own, its child's)
+    env = {k: v for k, v in os.environ.items() if k not in ("MCP_TEST_CPU", "MCP_TEST_RUNS")}
+    env.update(PYTHONPATH=str(tree), NO_COLOR="1")
     where = _run(
         [
             sys.executable,
