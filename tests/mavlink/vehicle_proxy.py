@@ -21,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -46,6 +47,8 @@ class ForkedVehicle:
                 code = cli.main(self.args)
             except SystemExit as exc:  # argparse's usage errors
                 code = exc.code if isinstance(exc.code, int) else 1
+            except BaseException:  # as the interpreter ends on one: its traceback, exit 1
+                traceback.print_exc()
             finally:
                 for stream in (sys.stdout, sys.stderr):
                     stream.flush()
