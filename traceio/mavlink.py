@@ -44,7 +44,10 @@ from mcp_conform.traceio.reader import (
     Truncated,
     open_capture,
 )
-from mcp_conform.traceio.traces import claims, head_of, is_mcap_head, packet_records, said_by
+
+# ``traceio.traces`` is imported where a file is read, not here: it brings scapy (its TCP
+# reassembly, ~0.3 CPU s of imports), which a process that only parses frames -- the runner's
+# link, a proxy rewriting a vehicle's frames, the live monitor -- never uses
 
 __all__ = ["MavFrame", "MavTrace", "is_mavlink_capture", "open_trace", "parse_frame", "robust_parser", "version_of"]
 
@@ -108,6 +111,8 @@ class MavTrace:
     ``Truncated`` (an MCAP's: ``traces.packet_records``')."""
 
     def __init__(self, path: str | Path) -> None:
+        from mcp_conform.traceio.traces import head_of, is_mcap_head
+
         self.path = Path(path)
         self.size, head = head_of(self.path, 17, "a MAVLink trace (a .tlog or an MCAP of mcp-conform)")
         self.format = "mcap" if is_mcap_head(head) else "tlog" if _tlog_head(head) else ""
@@ -126,6 +131,8 @@ class MavTrace:
         def frame(n: int, rec: MavlinkFrame) -> MavFrame:
             p = parsers.get(rec.direction) or parsers.setdefault(rec.direction, robust_parser())
             return MavFrame(n, rec.t_ns, rec.direction, bytes(rec.data), parse_frame(rec.data, p), rec.segment)
+        from mcp_conform.traceio.traces import packet_records
+
         return packet_records(open_capture(self.path), MavlinkFrame, frame)
 
     # -- tlog -----------------------------------------------------------------------------
@@ -191,5 +198,7 @@ def is_mavlink_capture(path: str | Path) -> bool:
     protocol's detector."""
     trace = MavTrace(path)
     if trace.format == "mcap":
+        from mcp_conform.traceio.traces import claims, said_by
+
         return claims(open_capture(path), (MavlinkFrame,), (Datagram, StreamFrame), said_by("mavlink"), first=False)
     return isinstance(next(iter(trace), None), MavFrame)  # the tlog reader refuses a first record that is none

@@ -46,8 +46,14 @@ from .udp import Address, UdpEndpoint
 
 #: Seconds a blocked send may take before the client is considered dead.
 SEND_TIMEOUT = 2.0
-#: Poll interval of the accepting and reading threads (bounds ``close()`` latency).
+#: Poll interval of the accepting and reading threads on a simulator's net (``vehicle.seam``),
+#: and of ``wait_for``.
 POLL = 0.05
+#: How long the accepting and reading threads wait on the host's sockets between looks at the
+#: stop flag. ``close()`` wakes them at once (each socket is shut down before it is closed: a
+#: reader's select returns), so this bounds only a wake that went missing; a poll every
+#: ``POLL`` s cost an idle vehicle about 40 wakeups a second, half of its CPU between frames.
+IDLE_WAIT = 1.0
 #: A parameter list's pace: PARAM_VALUEs per batch (ArduPilot's 5 per update without flow
 #: control) and seconds between batches.
 PARAM_BATCH = 5
@@ -115,6 +121,8 @@ class SimVehicle:
         cfg = dataclasses.replace(config or VehicleConfig(), **settings)
         self._clock = clock or REAL_CLOCK
         self._net = net or HOST_NET
+        #: how long a reading or accepting thread blocks: the host's sockets are woken by close()
+        self._idle = IDLE_WAIT if self._net is HOST_NET else POLL
         self._cond = self._clock.condition(threading.RLock())
         self._model = VehicleModel(cfg, now=self._clock.monotonic())
         self._model.listener = on_event
@@ -187,9 +195,13 @@ class SimVehicle:
         return self._port
 
     def close(self) -> None:
-        """Stop serving: close every socket and join the threads (about ``POLL`` s)."""
+        """Stop serving: close every socket and join the threads (at once: a socket is shut
+        down before it is closed, which wakes the thread reading it)."""
         self._stop.set()
         if self._listener is not None:
+            if self._net is HOST_NET:  # wakes the accepting thread's select (accept: EINVAL)
+                with contextlib.suppress(OSError):
+                    self._listener.shutdown(socket.SHUT_RDWR)
             with contextlib.suppress(OSError):
                 self._listener.close()
         for ep in self._udp:
@@ -365,7 +377,7 @@ class SimVehicle:
         assert listener is not None
         while not self._stop.is_set():
             try:
-                got = self._net.accept(listener, POLL)
+                got = self._net.accept(listener, self._idle)
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return
@@ -398,7 +410,7 @@ class SimVehicle:
         assert sock is not None  # TCP clients only
         while client.alive and not self._stop.is_set():
             try:
-                data = self._net.recv(sock, POLL)
+                data = self._net.recv(sock, self._idle)
             except (OSError, ValueError):
                 break
             if data is None:
@@ -492,7 +504,7 @@ class SimVehicle:
 
     def _udp_loop(self, ep: UdpEndpoint) -> None:
         while not self._stop.is_set():
-            got = ep.receive(POLL)
+            got = ep.receive(self._idle)
             if got is None:
                 continue
             data, addr = got

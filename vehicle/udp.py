@@ -75,6 +75,8 @@ class UdpEndpoint:
             data, addr = self.sock.recvfrom(65535)
         except (OSError, ValueError):
             return None
+        if addr is None:  # shut down by close(): no datagram
+            return None
         return data, (str(addr[0]), int(addr[1]))
 
     def sendto(self, data: bytes, addr: Address) -> None:
@@ -83,5 +85,9 @@ class UdpEndpoint:
             self.sock.sendto(data, addr)
 
     def close(self) -> None:
+        """Close the socket, a thread blocked in :meth:`receive` woken first (Linux: a UDP
+        socket's shutdown wakes its readers, though it says ENOTCONN)."""
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
         with contextlib.suppress(OSError):
             self.sock.close()

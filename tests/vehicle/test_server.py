@@ -198,10 +198,16 @@ def test_callbacks_and_reset(vehicle: SimVehicle) -> None:
         assert v.probe_count("cb") == 0 and v.frames() == [] and v.first_time("probe") is None
 
 
-def test_close_stops_threads_and_port_in_use_is_an_error() -> None:
+def test_close_stops_threads_and_port_in_use_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """close() ends every thread of the vehicle, the accepting, reading and UDP ones woken by
+    their sockets' shutdown: with their wait between looks at the stop flag made longer than
+    close() waits for them (``IDLE_WAIT``), none is left."""
+    from mcp_conform.vehicle import server
+
+    monkeypatch.setattr(server, "IDLE_WAIT", 60.0)
     before = set(threading.enumerate())
     v = SimVehicle()
-    port = v.start()
+    port = v.start(udp_in=("127.0.0.1", 0))
     conn = connect(v)
     with pytest.raises(OSError):
         SimVehicle().start(port=port)
