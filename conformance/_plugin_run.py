@@ -36,8 +36,10 @@ from mcp_conform.conformance._run_state import (
     state_of,
 )
 from mcp_conform.conformance._verdicts import apply_baseline as _apply_baseline
+from mcp_conform.conformance._verdicts import exception_only as _exception_only
 from mcp_conform.conformance._verdicts import judge_exception as _judge_exception
 from mcp_conform.conformance._verdicts import log_evidence as _log_evidence
+from mcp_conform.conformance._verdicts import verdict_repr as _verdict_repr
 from mcp_conform.conformance.baseline import BaselineError, load_baseline
 from mcp_conform.conformance.junit import as_pytest_error
 from mcp_conform.conformance.marks import (
@@ -212,28 +214,6 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     if state.shard is not None:  # mcp-conform --parallel: this instance's share of the plan
         state.take_shard(items)
     state.items = [i for i in items if i.nodeid in state.meta]
-
-
-def _verdict_repr(original: Any) -> Any:
-    """A case's verdict (a :class:`CaseFailure`, an :class:`Inconclusive`) gets its report's
-    text from the verdict itself (``judge_exception``), so pytest's long traceback of it, with
-    the source of every frame parsed, is not made only to be thrown away (about 10 ms a case,
-    a fifth of a short run's CPU); any other exception (a bug, a lost node) keeps it under pytest
-    itself (under ``mcp-conform`` no case gets one: :func:`_exception_only`)."""
-    def repr_failure(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> Any:
-        if isinstance(excinfo.value, (CaseFailure, Inconclusive)):
-            return excinfo.exconly()
-        return original(excinfo) if style is None else original(excinfo, style)
-    return repr_failure
-
-
-def _exception_only(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
-    """A case's exception as pytest's report text under ``mcp-conform``, whatever it is:
-    nothing there shows a case's traceback (no terminal plugin; a case's reason and evidence
-    come from the exception itself, ``judge_exception``). Pytest would parse the source of
-    every frame of it: a node lost in attach mode makes every later case an error in its
-    setup, about 30 ms of CPU each, 1 of a 2 CPU s run against a node killed mid-run."""
-    return excinfo.exconly()
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -25,7 +25,7 @@ from mcp_conform.harness.errors import (
 )
 from mcp_conform.spec import RULES
 
-__all__ = ["apply_baseline", "judge_exception", "log_evidence", "skip_longrepr"]
+__all__ = ["apply_baseline", "exception_only", "judge_exception", "log_evidence", "skip_longrepr", "verdict_repr"]
 
 
 def skip_longrepr(item: pytest.Item, reason: str) -> tuple[str, int, str]:
@@ -108,3 +108,23 @@ def log_evidence(rec: Any) -> str | None:
                          f"expected {rec.expected}, got {rec.actual}" if rec.expected or rec.actual else None,
                          *list(rec.evidence)[:3]) if p]
     return "; ".join(str(p) for p in parts)[:2000] or None
+
+
+def verdict_repr(original: Any) -> Any:
+    """A case's verdict (a :class:`CaseFailure`, an :class:`Inconclusive`) gets its report's
+    text from the verdict itself (``judge_exception``), so pytest's long traceback of it, with
+    the source of every frame parsed, is not made only to be thrown away (about 10 ms a case,
+    a fifth of a short run's CPU); any other exception (a bug, a lost node) keeps it under pytest
+    itself (under ``mcp-conform`` no case gets one: :func:`exception_only`)."""
+    def repr_failure(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> Any:
+        if isinstance(excinfo.value, (CaseFailure, Inconclusive)):
+            return excinfo.exconly()
+        return original(excinfo) if style is None else original(excinfo, style)
+    return repr_failure
+
+
+def exception_only(excinfo: pytest.ExceptionInfo[BaseException], style: Any = None) -> str:
+    """A case's exception as its report text under ``mcp-conform``, which shows no traceback
+    (reason and evidence come from the exception, ``judge_exception``): pytest's would parse
+    every frame's source, ~30 ms a case (a node lost in attach mode errs every later case)."""
+    return excinfo.exconly()
