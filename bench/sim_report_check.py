@@ -49,6 +49,10 @@ def _kinds() -> dict[str, Callable[[int], Any]]:
         "drone-fault": lambda s: run_cases("rtx-stop-on-any-ack" if s % 2 else "ack-previous-seq", seed=s),
         "mutant-ack-zero": mutant("ack-zero"),
         "mutant-rtx-none": mutant("rtx-none"),
+        # the MCP-ROB-7 flood's datagrams answered (an ACK of each), or taken as a hang
+        "mutant-ack-unknown-action": mutant("ack-unknown-action"),
+        "mutant-flood-hang": mutant("flood-hang"),
+        "mutant-crash-on-short": mutant("crash-on-short"),
         "manager": lambda s: run_manager_cases(None, seed=s),
         "manager-serial-lossy": lambda s: run_manager_cases(None, seed=s, serial=True, link=LOSSY),
         "vehicle-tcp": lambda s: run_vehicle_cases(None, seed=s),

@@ -26,6 +26,11 @@ import struct
 import zlib
 from typing import Any, NamedTuple
 
+from mcap import records
+from mcap.exceptions import EndOfFile, UnsupportedCompressionError
+from mcap.opcode import Opcode
+from mcap.stream_reader import CRCValidationError, StreamReader, lz4, zstandard
+
 __all__ = ["Message", "chunk_records", "stream_reader"]
 
 _HEAD = struct.Struct("<BQ")  # opcode, record length
@@ -47,9 +52,6 @@ class Message(NamedTuple):
 
 def _uncompressed(chunk: Any) -> bytes:
     """The chunk's records as ``mcap.stream_reader.get_chunk_data_stream`` has them, CRC checked."""
-    from mcap.exceptions import UnsupportedCompressionError
-    from mcap.stream_reader import CRCValidationError, lz4, zstandard
-
     if chunk.compression == "zstd":
         if zstandard is None:
             raise UnsupportedCompressionError("zstandard")
@@ -80,7 +82,6 @@ def _read_whole(kind: str, raw: bytes) -> Any:
     more (as it then reads it in the chunk); else None."""
     from io import BytesIO
 
-    from mcap import records
     from mcap.data_stream import ReadDataStream
 
     stream = ReadDataStream(BytesIO(raw))
@@ -135,8 +136,6 @@ def _parse(op: int, b: bytes, pos: int, end: int) -> tuple[Any, int]:
     """The record of opcode ``op`` in ``b[pos:end]`` as ``mcap.records`` reads it from those
     bytes, and where it stops; :class:`_Odd` (or a decode error) where ``mcap`` would read past
     ``end`` or fail: then ``mcap`` reads it, so that an odd record reads exactly as before."""
-    from mcap import records
-
     if op == 0x06:  # Chunk
         if pos + 28 > end:
             raise _Odd
@@ -222,6 +221,49 @@ def chunk_records(chunk: Any) -> list[Any]:
     return out
 
 
+_OP_INDEX = int(Opcode.MESSAGE_INDEX)
+
+
+class _Reader(StreamReader):
+    """:func:`stream_reader`'s reader (one class for every file read, not one made per file)."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode in _FAST:
+            s = self._stream
+            count, crc, raw = s._count, s._crc, s._stream
+            body = raw.read(length)
+            if len(body) == length:  # the whole record is there
+                if opcode == _OP_INDEX:
+                    entries = _U32(body, 2)[0] if length >= 6 else -1
+                    rec, whole = None, entries == length - 6 and entries % 16 == 0
+                else:
+                    try:
+                        rec, stop = _parse(opcode, body, 0, length)
+                        whole = True  # mcap reads what is left of the record as padding
+                    except (_Odd, UnicodeDecodeError):
+                        rec, whole = None, False
+                if whole:  # the bytes mcap's reading consumes, counted and CRC'd as it does
+                    s._count = count + length
+                    if crc is not None:
+                        s._crc = zlib.crc32(body, crc)
+                    return rec
+            raw.seek(-len(body), 1)  # mcap reads it, from where it starts
+        if opcode != _OP_INDEX:
+            return super()._read_record(opcode, length)
+        s = self._stream
+        s.read2()  # channel id
+        entries = s.read4()
+        if entries == length - 6 and entries % 16 == 0:
+            if entries and len(s.read(entries)) < entries:
+                raise EndOfFile()
+            return None
+        end = s.count + entries
+        while s.count < end:
+            s.read8()
+            s.read8()
+        return None
+
+
 def stream_reader(f: Any, size_limit: int) -> Any:
     """``mcap``'s StreamReader over ``f`` (CRCs validated, chunks emitted whole, records up to
     ``size_limit`` bytes) that reads a well-formed message index without parsing its entries:
@@ -229,52 +271,9 @@ def stream_reader(f: Any, size_limit: int) -> Any:
     this does (a malformed one is read entry by entry, as ``mcap`` reads it). Its records
     are not returned (nothing here uses them); an ``mcap`` without the private hook this
     uses is used as it is."""
-    from mcap.exceptions import EndOfFile
-    from mcap.opcode import Opcode
-    from mcap.stream_reader import StreamReader
-
-    index = int(Opcode.MESSAGE_INDEX)
-
-    class Reader(StreamReader):
-        def _read_record(self, opcode: int, length: int) -> Any:
-            if opcode in _FAST:
-                s = self._stream
-                count, crc, raw = s._count, s._crc, s._stream
-                body = raw.read(length)
-                if len(body) == length:  # the whole record is there
-                    if opcode == index:
-                        entries = _U32(body, 2)[0] if length >= 6 else -1
-                        rec, whole = None, entries == length - 6 and entries % 16 == 0
-                    else:
-                        try:
-                            rec, stop = _parse(opcode, body, 0, length)
-                            whole = True  # mcap reads what is left of the record as padding
-                        except (_Odd, UnicodeDecodeError):
-                            rec, whole = None, False
-                    if whole:  # the bytes mcap's reading consumes, counted and CRC'd as it does
-                        s._count = count + length
-                        if crc is not None:
-                            s._crc = zlib.crc32(body, crc)
-                        return rec
-                raw.seek(-len(body), 1)  # mcap reads it, from where it starts
-            if opcode != index:
-                return super()._read_record(opcode, length)
-            s = self._stream
-            s.read2()  # channel id
-            entries = s.read4()
-            if entries == length - 6 and entries % 16 == 0:
-                if entries and len(s.read(entries)) < entries:
-                    raise EndOfFile()
-                return None
-            end = s.count + entries
-            while s.count < end:
-                s.read8()
-                s.read8()
-            return None
-
     seekable = getattr(f, "seekable", lambda: False)()
-    cls = Reader if seekable and callable(getattr(StreamReader, "_read_record", None)) else StreamReader
+    cls = _Reader if seekable and callable(getattr(StreamReader, "_read_record", None)) else StreamReader
     reader = cls(f, validate_crcs=True, record_size_limit=size_limit, emit_chunks=True)
-    if cls is Reader and not hasattr(reader, "_stream"):
+    if cls is _Reader and not hasattr(reader, "_stream"):
         reader = StreamReader(f, validate_crcs=True, record_size_limit=size_limit, emit_chunks=True)
     return reader
