@@ -11,12 +11,12 @@ aborts: the death shows only after the case that killed it has seen the close.
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
 
 from mcp_conform.reference_impl.nsqd_backend import BackendCore, BackendServer, Rejected
+from tests.nsqd.backend_cli import serve
 
 
 class LateDeathServer(BackendServer):
@@ -48,17 +48,9 @@ class LateDeathServer(BackendServer):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--bind", required=True)
-    ap.add_argument("--delay", type=float, default=0.6)
-    ap.add_argument("--update-period", type=float, default=0.05)
-    ap.add_argument("--close-listener", action="store_true")
-    ns = ap.parse_args()
-    host, _, port = ns.bind.rpartition(":")
-    server = LateDeathServer(host, int(port), delay=ns.delay, update_period=ns.update_period,
-                             close_listener=ns.close_listener)
-    print(f"listening on {host}:{port}", flush=True)
-    server.serve()
+    serve(lambda host, port, ns: LateDeathServer(host, port, delay=ns.delay, update_period=ns.update_period,
+                                                 close_listener=ns.close_listener),
+          ("--delay", {"type": float, "default": 0.6}), ("--close-listener", {"action": "store_true"}))
 
 
 if __name__ == "__main__":

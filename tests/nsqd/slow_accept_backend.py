@@ -9,10 +9,10 @@ unanswered (a backend that stopped accepting).
 
 from __future__ import annotations
 
-import argparse
 import time
 
 from mcp_conform.reference_impl.nsqd_backend import BackendCore, BackendServer
+from tests.nsqd.backend_cli import serve
 
 
 class SlowAcceptServer(BackendServer):
@@ -31,17 +31,9 @@ class SlowAcceptServer(BackendServer):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--bind", required=True)
-    ap.add_argument("--accept-delay", type=float, default=0.0)
-    ap.add_argument("--stop-after", type=int)
-    ap.add_argument("--update-period", type=float, default=0.05)
-    ns = ap.parse_args()
-    host, _, port = ns.bind.rpartition(":")
-    server = SlowAcceptServer(host, int(port), accept_delay=ns.accept_delay, stop_after=ns.stop_after,
-                              update_period=ns.update_period)
-    print(f"listening on {host}:{port}", flush=True)
-    server.serve()
+    serve(lambda host, port, ns: SlowAcceptServer(host, port, accept_delay=ns.accept_delay, stop_after=ns.stop_after,
+                                                  update_period=ns.update_period),
+          ("--accept-delay", {"type": float, "default": 0.0}), ("--stop-after", {"type": int}))
 
 
 if __name__ == "__main__":
