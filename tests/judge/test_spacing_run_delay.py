@@ -42,6 +42,22 @@ def test_a_short_catch_up_gap_right_after_an_excused_late_copy_is_excused():
     assert judge_spacing(over, [0, 0, 0, 90 * MS, 90 * MS, 90 * MS]).bad == [100 * MS]
 
 
+def test_a_node_kept_off_the_cpu_before_most_copies_is_held_to_its_own_schedule():
+    """Most copies late by the host (their gaps' median stretched from the node's 200 ms to
+    300 ms) and one on time: the on-time gap is no short gap (a false MCP-RTX-3 warning at load
+    ~16 in test_schedule_interleave); the median the gaps are held to is the one of the gaps
+    less their run delay, where that leaves fewer outliers."""
+    gaps = [300 * MS, 300 * MS, 300 * MS, 200 * MS, 300 * MS]
+    assert judge_spacing(gaps).bad == [200 * MS]  # no run delays: the plain rule
+    sp = judge_spacing(gaps, [0, 100 * MS, 200 * MS, 300 * MS, 300 * MS, 400 * MS])
+    assert sp.bad == [] and sp.median == 200 * MS and sp.excused == 4 and sp.starved == 400 * MS
+    # starvation too small to bring the long gaps to the short one's schedule excuses nothing
+    assert judge_spacing(gaps, [0, 20 * MS, 40 * MS, 60 * MS, 60 * MS, 80 * MS]).bad == [200 * MS]
+    # an uneven node the host did not hold back stays uneven whatever the median
+    uneven = [300 * MS, 200 * MS, 300 * MS, 200 * MS, 300 * MS]
+    assert judge_spacing(uneven, [0, 0, 0, 0, 0, 0]).bad == [200 * MS, 200 * MS]
+
+
 def test_the_floor_is_never_excused():
     gaps = [60 * MS, 40 * MS, 60 * MS]  # 40 ms: a storm, however starved the node was
     assert judge_spacing(gaps, [0, 10**9, 2 * 10**9, 3 * 10**9]).bad == [40 * MS]
