@@ -168,9 +168,6 @@ class CapturePlugin:
     def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
         raise not_exported(capture, self.unexported)
 
-    def is_finding(self, path: str) -> bool:
-        return False  # no fuzz campaign of its own: nothing to replay
-
     def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         return not_replayed(err, ns.capture, self.unreplayed)
 
