@@ -78,8 +78,6 @@ class CaptureTools(Protocol):
 
     def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]: ...
 
-    def is_finding(self, path: str) -> bool: ...  # a fuzz finding replay reproduces
-
     def run_replay(self, ns: argparse.Namespace, out: TextIO | None = None, err: TextIO | None = None) -> int: ...
 
 

@@ -116,16 +116,14 @@ class _Mavlink(core.CapturePlugin):
     def header(self, j: core.Judged) -> str:
         return f"{j.path}: MAVLink trace ({j.format}), {j.count} frame(s)"
 
-    def frame_line(self, f: MavFrame, j: core.Judged, marks: dict[int, list[str]]) -> str:
-        t = f"+{(f.t_ns - j.first_ns) / 1e9:.6f}s"
-        mark = f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else ""
+    def frame_line(self, f: MavFrame, j: core.Judged) -> str:
         if f.bad:
-            return f"{t} #{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}{mark}"
+            return f"#{f.index} bad data ({getattr(f.msg, 'reason', '?')}): {f.raw[:24].hex(' ')}"
         role = j.monitor.role_of(f.source) or "?"
         fields = {k: v for k, v in f.msg.to_dict().items() if k != "mavpackettype"}
         text = ", ".join(f"{k}={v}" for k, v in fields.items())
-        return f"{t} #{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
-               f"{text[:160]}{'…' if len(text) > 160 else ''}{mark}"
+        return f"#{f.index} {f.source[0]}/{f.source[1]} {role} {f.name} v{f.version} seq {f.msg.get_seq()}: " \
+               f"{text[:160]}{'…' if len(text) > 160 else ''}"
 
     def steps(self, j: core.Judged) -> dict[str, list[tuple[str, str]]]:
         """The microservice messages of a trace by the role of their sender, each role's in order:

@@ -57,7 +57,6 @@ class _Nsqd(stream_tools.StreamPlugin):
     name, spec, a_capture, html_instead, title = "nsqd", NSQD, "an Nsqd capture", "use show --svg", "Nsqd capture"
     monitor, port, EXPORTED = StreamMonitor, BACKEND_PORT, "TCP packets"
     unreplayed = "an Nsqd capture is replayed as a fuzz finding only (its directory, finding.json, repro.mcap or repro.pcap)"
-    is_finding = staticmethod(is_finding)
 
     def records(self, path: str) -> Iterator[Any]:
         return stream_records(path)

@@ -42,6 +42,9 @@ MAX_GAPS = 1000
 ROWS = 200  # connections listed in the terminal report at most (all of them in --json, up to MAX_LISTED)
 
 
+_SHOWN = (StreamFrame, StreamEvent, StreamGap)  # the records show lists
+
+
 def _addr(a: Any) -> str:
     return f"{a[0]}:{a[1]}" if a else "?"
 
@@ -219,45 +222,40 @@ class _Conns:
         return self
 
 
-def _line(rec: Any, first: int) -> str:
-    t = f"+{(rec.t_ns - first) / 1e9:.6f}s"
+def _line(rec: Any) -> str:
     kind = type(rec)
     if kind is StreamEvent:
         if rec.event == "open":
-            return f"{t} conn {rec.conn} opened {_addr(rec.client)} -> {_addr(rec.backend)}"
-        return f"{t} conn {rec.conn} closed by the {rec.by} ({(rec.how or '').upper()})"
+            return f"conn {rec.conn} opened {_addr(rec.client)} -> {_addr(rec.backend)}"
+        return f"conn {rec.conn} closed by the {rec.by} ({(rec.how or '').upper()})"
     if kind is StreamGap:
-        return f"{t} conn {rec.conn} {rec.direction} GAP: {rec.reason}"
+        return f"conn {rec.conn} {rec.direction} GAP: {rec.reason}"
     arrow = "client -> backend" if rec.direction == "tx" else "backend -> client"
     what = rec.name or ("bytes" if rec.direction == "tx" else "?")
     problem = f" [{rec.problem}]" if rec.problem else ""
-    return f"{t} conn {rec.conn} {arrow} {what} {len(rec.raw)} B: {rec.raw[:24].hex(' ')}" \
+    return f"conn {rec.conn} {arrow} {what} {len(rec.raw)} B: {rec.raw[:24].hex(' ')}" \
            f"{' …' if len(rec.raw) > 24 else ''}{problem}"
 
 
 def run_show(plugin: StreamPlugin, ns: Any, out: TextIO | None = None) -> int:
-    """Each record a line as it is read (nothing kept but the chart's frames, up to
-    ``--max-rows``)."""
+    """Each record a line as it is read (``trace_tools.show_frames``; nothing kept but the
+    chart's frames, up to ``--max-rows``), then how many connections the capture holds."""
     out = out or sys.stdout
-    in_window = core.window(ns)
     rows = int(getattr(ns, "max_rows", 400) or 400)
-    out.write(f"{ns.file}: {plugin.title}\n")
     shown: list[StreamFrame] = []
-    first: int | None = None
     conns = 0
-    for rec in plugin.records(ns.file):
-        if type(rec) is Truncated:
-            out.write(f"TRUNCATED: {rec.reason}\n")
-            continue
-        if type(rec) not in (StreamFrame, StreamEvent, StreamGap):
-            continue
-        first = rec.t_ns if first is None else first
-        conns = max(conns, rec.conn)
-        if not in_window((rec.t_ns - first) / 1e9):
-            continue
-        out.write(_line(rec, first) + "\n")
+
+    def counted() -> Iterator[Any]:
+        nonlocal conns
+        for rec in plugin.records(ns.file):
+            conns = max(conns, rec.conn) if type(rec) in _SHOWN else conns
+            yield rec
+
+    def line(rec: Any) -> str:
         if type(rec) is StreamFrame and len(shown) < rows:
             shown.append(rec)
+        return _line(rec)
+    core.show_frames(ns, out, f"{ns.file}: {plugin.title}", counted(), line, kinds=_SHOWN)
     out.write(f"{conns} connection(s)\n")
     if getattr(ns, "svg", None):
         write_text(ns.svg, plugin.chart(shown, str(ns.file)))

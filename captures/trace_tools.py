@@ -12,10 +12,11 @@ and takes each subcommand's frame from here:
   report (the plug-in's lines, then each rule broken with its level,
   text, examples and how many more, the rules line, the verdict) and the exit code (0 none
   broken, 1 broken);
-- ``show`` (:func:`show_frames`, of a capture read through its monitor: :class:`Judged`,
-  :func:`judge_records`): the time window (:func:`window`), the case window
-  (:func:`case_window`, :func:`case_at`: a run's case marks), each frame a line with the rules
-  its violations name it in, the truncation;
+- ``show`` (:func:`show_frames`, every protocol's but MCP's: of a capture read through its
+  monitor, :class:`Judged`, :func:`judge_records`, or of a stream capture's records as they are
+  read, ``captures.stream_tools``): the time window (:func:`window`), the case window
+  (:func:`case_window`, :func:`case_at`: a run's case marks), each frame a line with its time
+  (and the rules its violations name it in), the truncation;
 - ``diff`` (:func:`run_diff`): the notes, each capture's truncation, the JSON report, same
   (exit 0) or each divergence (exit 1); two captures' steps compared sender by sender
   (:func:`align`);
@@ -138,8 +139,8 @@ class CapturePlugin:
         """``show``'s first line."""
         raise NotImplementedError
 
-    def frame_line(self, f: Any, j: Judged, marks: dict[int, list[str]]) -> str:
-        """``show``'s line of one frame (``marks``: the rules whose violations name each frame)."""
+    def frame_line(self, f: Any, j: Judged) -> str:
+        """``show``'s line of one frame, after its time (:func:`show_frames`) and before its marks."""
         raise NotImplementedError
 
     # -- the subcommands (captures.cli.CaptureTools) ------------------------------------
@@ -147,19 +148,25 @@ class CapturePlugin:
         return run_check(self, ns, out)
 
     def run_show(self, ns: Any, out: TextIO | None = None) -> int:
-        """``show`` of a capture read through its monitor: :func:`show_frames`."""
+        """``show`` of a capture read through its monitor: :func:`show_frames` of its kept
+        frames, each marked with the rules whose violations name it (``✗ RULE, ...``)."""
         note("show", ns, "svg", self.unchartered)
         j = self.judged(ns.file, keep=True)
-        return show_frames(j, ns, out or sys.stdout, self.header(j), lambda f, marks: self.frame_line(f, j, marks))
+        marks: dict[int, list[str]] = {}
+        for v in j.monitor.violations:
+            for i in v.frames:
+                marks.setdefault(i, []).append(v.rule)
+
+        def line(f: Any) -> str:
+            return self.frame_line(f, j) + (f"  ✗ {', '.join(marks[f.index])}" if f.index in marks else "")
+        tail = [Truncated(j.truncated)] if j.truncated else []
+        return show_frames(ns, out or sys.stdout, self.header(j), [*j.frames, *tail], line, path=j.path, cases=j.cases)
 
     def run_diff(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         return run_diff(self, ns, out)
 
     def export_pcap(self, capture: str | Path, out: str | Path) -> tuple[int, str | None]:
         raise not_exported(capture, self.unexported)
-
-    def is_finding(self, path: str) -> bool:
-        return False  # no fuzz campaign of its own: nothing to replay
 
     def run_replay(self, ns: Any, out: TextIO | None = None, err: TextIO | None = None) -> int:
         return not_replayed(err, ns.capture, self.unreplayed)
@@ -350,22 +357,26 @@ def judge_records(j: Judged, records: Iterable[Any], frame: type, *, keep: bool 
     return j
 
 
-def show_frames(j: Judged, ns: Any, out: TextIO, header: str, line: Callable[[Any, dict[int, list[str]]], str]) -> int:
-    """``show`` of a judged capture's kept frames: those in ``--from``/``--to`` and ``--case``,
-    each its ``line`` (given the rules whose violations name each frame index), then the
-    truncation."""
+def show_frames(ns: Any, out: TextIO, header: str, records: Iterable[Any], line: Callable[[Any], str], *,
+                path: str = "", cases: Sequence[CaseMark] | None = None, kinds: tuple[type, ...] = ()) -> int:
+    """``show`` of a capture's records as they come (MAVLink's frames, kept and marked: ``CapturePlugin.
+    run_show``; a stream protocol's writes, frames, events and gaps, read on: ``captures.stream_tools``):
+    ``header``, then each record (of ``kinds``; all: none given) in ``--from``/``--to`` (seconds since
+    the first such record) and ``--case`` (of ``cases``, a capture's case marks; None: not looked at) a
+    line, its time and its ``line``; ``Truncated`` (the records' last) its line where it comes."""
     shown = window(ns)
-    span = case_window(j.cases, ns.case, j.path) if getattr(ns, "case", None) else None
-    marks: dict[int, list[str]] = {}
-    for v in j.monitor.violations:
-        for i in v.frames:
-            marks.setdefault(i, []).append(v.rule)
+    span = case_window(cases, ns.case, path) if cases is not None and getattr(ns, "case", None) else None
     out.write(header + "\n")
-    for f in j.frames:
-        if shown((f.t_ns - j.first_ns) / 1e9) and (span is None or span[0] <= f.t_ns <= span[1]):
-            out.write(line(f, marks) + "\n")
-    if j.truncated:
-        out.write(f"TRUNCATED: {j.truncated}\n")
+    first: int | None = None
+    for rec in records:
+        if type(rec) is Truncated:
+            out.write(f"TRUNCATED: {rec.reason}\n")
+            continue
+        if kinds and type(rec) not in kinds:
+            continue
+        first = rec.t_ns if first is None else first
+        if shown((rec.t_ns - first) / 1e9) and (span is None or span[0] <= rec.t_ns <= span[1]):
+            out.write(f"+{(rec.t_ns - first) / 1e9:.6f}s {line(rec)}\n")
     return 0
 
 

@@ -13,6 +13,8 @@ run's cases: the same traffic, the same rule failed offline as live.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import sys
 import time
@@ -115,6 +117,11 @@ def test_one_fault_injected_fails_its_rule_and_no_other(tmp_path, fault):
     assert rc == 1 and doc["verdict"] == "FAILED", out + err
     assert bad_rules(doc) == {rule}, out
     assert f"{rule} MUST" in out and "expected" in out
+    so = io.StringIO()
+    with contextlib.redirect_stdout(so):
+        assert main(["show", "--protocol", "mavlink", str(faulty)]) == 0
+    marked = {int(line.split()[1][1:]) for line in so.getvalue().splitlines() if line.endswith(f"✗ {rule}")}
+    assert marked == {i for v in doc["violations"] for i in v["frames"]}, so.getvalue()  # show marks its evidence
 
 
 def test_a_tlog_is_recognised_without_protocol(tmp_path, capsys):

@@ -9,6 +9,7 @@ import json
 from argparse import Namespace
 from collections import Counter
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import pytest
 
@@ -16,7 +17,7 @@ from mcp_conform.captures import trace_tools as core
 from mcp_conform.captures.trace_tools import Checked, Compared, RuleBlock
 from mcp_conform.judge import verdicts
 from mcp_conform.traceio.files import UsageError
-from mcp_conform.traceio.reader import CaseMark
+from mcp_conform.traceio.reader import CaseMark, Truncated
 
 
 class _Plugin(core.CapturePlugin):
@@ -115,6 +116,31 @@ def test_time_window():
     inside = core.window(Namespace(t_from="1", t_to="2.5"))
     assert [inside(t) for t in (0.5, 1.0, 2.5, 3.0)] == [False, True, True, False]
     assert core.window(Namespace())(1e9)
+
+
+class _Rec(NamedTuple):
+    t_ns: int
+    text: str
+
+
+def test_show_lists_the_records_in_the_windows_each_with_its_time_and_the_truncation_where_it_comes():
+    """One show for every protocol's records (MAVLink's kept frames, Nsqd's as they are read):
+    times since the first listed kind's record (a case mark before it counts for nothing)."""
+    recs = [CaseMark(1, "CMD/a", "start", None, ()), _Rec(10, "a"), _Rec(15, "b"), _Rec(1_000_000_010, "c"),
+            _Rec(2_500_000_011, "d"), Truncated("cut at byte 9")]
+
+    def show(ns: Namespace, cases: list[CaseMark] | None = None) -> str:
+        out = io.StringIO()
+        assert core.show_frames(ns, out, "the header", recs, lambda r: r.text.upper(), path="f", cases=cases,
+                                kinds=(_Rec,)) == 0
+        return out.getvalue()
+    assert show(Namespace()) == ("the header\n+0.000000s A\n+0.000000s B\n+1.000000s C\n+2.500000s D\n"
+                                 "TRUNCATED: cut at byte 9\n")
+    assert show(Namespace(t_from="0.5", t_to="2.5")) == "the header\n+1.000000s C\nTRUNCATED: cut at byte 9\n"
+    assert show(Namespace(case="CMD/a"), MARKS) == "the header\n+0.000000s A\n+0.000000s B\nTRUNCATED: cut at byte 9\n"
+    assert show(Namespace(case="CMD/a")).count("\n") == 6  # no case marks looked at (None): every record
+    with pytest.raises(UsageError, match="matches several cases"):
+        show(Namespace(case="CMD"), MARKS)
 
 
 def test_steps_are_aligned_sender_by_sender():
