@@ -53,6 +53,11 @@ def test_a_node_kept_off_the_cpu_before_most_copies_is_held_to_its_own_schedule(
     assert sp.bad == [] and sp.median == 200 * MS and sp.excused == 4 and sp.starved == 400 * MS
     # starvation too small to bring the long gaps to the short one's schedule excuses nothing
     assert judge_spacing(gaps, [0, 20 * MS, 40 * MS, 60 * MS, 60 * MS, 80 * MS]).bad == [200 * MS]
+    # more run delay than lateness (the node ran late at other work too): the gaps no run delay
+    # accrued over keep the schedule (a sweep's correct manager: 5,000 and 17,011 ms, 14,760 ms
+    # of run delay over the second)
+    assert judge_spacing([5000 * MS, 17011 * MS], [0, 0, 14760 * MS]).bad == []
+    assert judge_spacing([5000 * MS, 17011 * MS], [0, 0, 0]).bad == [5000 * MS, 17011 * MS]
     # an uneven node the host did not hold back stays uneven whatever the median
     uneven = [300 * MS, 200 * MS, 300 * MS, 200 * MS, 300 * MS]
     assert judge_spacing(uneven, [0, 0, 0, 0, 0, 0]).bad == [200 * MS, 200 * MS]
