@@ -38,6 +38,9 @@ class Judged:
     explained: dict[int, dict[str, Verdict]] = field(default_factory=dict)
     #: the MCP-RTX-1/2 failures judge.explain's veto dropped (``Monitor.vetoed``), per party
     vetoed: dict[int, list[Violation]] = field(default_factory=dict)
+    #: the judges that ran (``monitor``, ``explain``): one left out has no verdict here, and
+    #: ``sim.search.check`` refuses to read a property of it
+    judges: tuple[str, ...] = ("monitor", "explain")
 
     def failed(self, pid: int) -> set[str]:
         """The MUST rules the monitor failed for ``pid``."""
@@ -57,30 +60,39 @@ class Judged:
 
 
 def judge_world(w: World, *, rto: float, challenge: int, items: tuple[Any, ...],
-                explain: bool = True) -> Judged:
-    """Judge every party's view of ``w`` (see the module docstring)."""
-    out = Judged()
+                explain: bool = True, monitor: bool = True) -> Judged:
+    """Judge every party's view of ``w`` (see the module docstring) by the monitor and
+    ``judge.explain``, or one of them (``monitor=False`` / ``explain=False``: a caller that
+    reads one judge's verdicts does not pay for the other's; neither reads the other's)."""
+    out = Judged(judges=tuple(name for name, on in (("monitor", monitor), ("explain", explain)) if on))
     drones = tuple(w.drones)
     window = max(0.5, 2 * rto)  # mcp-soak's ACK window for a mission's views
     for pid, view in w.views.items():
-        mon = Monitor(rto=rto, ack_window=window, drones=drones, challenge=challenge, waypoints=items,
-                      complete=True, party=pid, rto_declared=True)  # every model's timeout is rto
-        found: list[Violation] = []
-        for r in view:
-            if r.tx:
-                found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay)
-            else:
-                found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
-        end = int(w.view_end(pid) * NS)
-        # its run delay as its view ends (D-7): a stall after its last datagram is known too
-        mon.run_delay(end, pid, w.run_delay_ns[pid])
-        found += mon.finish(end)
-        out.violations[pid] = [v for v in found if v.node == pid]
-        out.vetoed[pid] = [x.violation for x in mon.vetoed if x.violation.node == pid]
-        out.verdicts[pid] = mon.verdicts().get(pid, {})
+        if monitor:
+            _monitor(out, w, pid, view, rto=rto, window=window, drones=drones, challenge=challenge, items=items)
         if explain and view:
             out.explained[pid] = _explain(w, pid, view, window, rto)
     return out
+
+
+def _monitor(out: Judged, w: World, pid: int, view: list[ViewRecord], *, rto: float, window: float,
+             drones: tuple[int, ...], challenge: int, items: tuple[Any, ...]) -> None:
+    """The trace monitor on ``pid``'s own view: its violations, vetoed failures and verdicts into ``out``."""
+    mon = Monitor(rto=rto, ack_window=window, drones=drones, challenge=challenge, waypoints=items,
+                  complete=True, party=pid, rto_declared=True)  # every model's timeout is rto
+    found: list[Violation] = []
+    for r in view:
+        if r.tx:
+            found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data, run_delay=r.run_delay)
+        else:
+            found += mon.datagram(r.t_ns, r.src_addr, r.dst_addr, r.data)
+    end = int(w.view_end(pid) * NS)
+    # its run delay as its view ends (D-7): a stall after its last datagram is known too
+    mon.run_delay(end, pid, w.run_delay_ns[pid])
+    found += mon.finish(end)
+    out.violations[pid] = [v for v in found if v.node == pid]
+    out.vetoed[pid] = [x.violation for x in mon.vetoed if x.violation.node == pid]
+    out.verdicts[pid] = mon.verdicts().get(pid, {})
 
 
 def _explain(w: World, pid: int, view: list[ViewRecord], window: float, rto: float) -> dict[str, Verdict]:

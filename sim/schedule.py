@@ -129,9 +129,11 @@ def build_world(s: Schedule) -> tuple[World, tuple[Any, ...]]:
     return world, items
 
 
-def run_schedule(s: Schedule, *, judge: bool = True, explain: bool = True) -> Outcome:
-    """Run ``s`` from scratch and judge it (``judge=False``: the run alone, for the bench)."""
+def run_schedule(s: Schedule, *, judge: bool = True, explain: bool = True, monitor: bool = True) -> Outcome:
+    """Run ``s`` from scratch and judge it (``judge=False``: the run alone, for the bench;
+    ``explain`` / ``monitor`` False: that judge left out, :func:`sim.judges.judge_world`)."""
     world, items = build_world(s)
     world.run()
-    judged = judge_world(world, rto=s.rto, challenge=s.challenge, items=items, explain=explain) if judge else None
+    judged = (judge_world(world, rto=s.rto, challenge=s.challenge, items=items, explain=explain, monitor=monitor)
+              if judge else None)
     return Outcome(s, world, items, judged)

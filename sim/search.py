@@ -58,9 +58,14 @@ def _names(rule: str, found: str) -> bool:
 
 
 def check(o: Outcome, judges: tuple[str, ...] = ("monitor", "explain")) -> list[Problem]:
-    """The properties on ``o`` (see the module docstring) by ``judges``; empty when they hold."""
+    """The properties on ``o`` (see the module docstring) by ``judges``; empty when they hold.
+    Each of ``judges`` must have judged ``o`` (``run_schedule``'s ``monitor`` / ``explain``): a
+    judge left out has no verdicts, and its property must not read as held."""
     j = o.judged
     assert j is not None, "check needs a judged outcome"
+    unjudged = [name for name in judges if name not in j.judges]
+    if unjudged:
+        raise ValueError(f"check by {', '.join(unjudged)}: that judge did not judge this outcome (judged by {j.judges})")
     s = o.schedule
     faulty = s.faulty_party
     fault = s.faulty
@@ -133,9 +138,11 @@ class Stats:
 
 def sweep(n: int, seed: int, faults: tuple[str | None, ...] = (None, *FAULTS),
           on_failure: Callable[[Schedule, list[Problem]], None] | None = None,
-          stop: Callable[[], bool] | None = None) -> Stats:
+          stop: Callable[[], bool] | None = None,
+          judges: tuple[str, ...] = ("monitor", "explain")) -> Stats:
     """``n`` schedules drawn from ``seed``, the fault models in turn, each run, judged, checked
-    (``stop()`` true: no more; a caller's wall-time bound, the schedules the same first ones)."""
+    (``stop()`` true: no more; a caller's wall-time bound, the schedules the same first ones)
+    by ``judges`` alone (the other judge not run; ``warned`` counts the monitor's verdicts)."""
     rng = random.Random(seed)
     st = Stats()
     for i in range(n):
@@ -143,7 +150,7 @@ def sweep(n: int, seed: int, faults: tuple[str | None, ...] = (None, *FAULTS),
             break
         fault = faults[i % len(faults)]
         s = draw_schedule(rng, fault)
-        o = run_schedule(s)
+        o = run_schedule(s, monitor="monitor" in judges, explain="explain" in judges)
         key = fault or "correct"
         st.schedules += 1
         st.per_fault[key] = st.per_fault.get(key, 0) + 1
@@ -153,7 +160,7 @@ def sweep(n: int, seed: int, faults: tuple[str | None, ...] = (None, *FAULTS),
         for pid in o.world.parties:
             for r in o.judged.warned(pid):
                 st.warned[r] = st.warned.get(r, 0) + 1
-        problems = check(o)
+        problems = check(o, judges)
         if problems:
             st.failures.append((s, problems))
             if on_failure is not None:

@@ -31,6 +31,7 @@ from mcp_conform.sim.gcs import GcsProcess, SimGcsSeam
 from mcp_conform.sim.gcs_faults import BROKEN, FAULTS, RULES, Fault
 from mcp_conform.sim.gcs_role import run_gcs_cases
 from mcp_conform.spec import RULES as SPEC_RULES
+from tests.sim.shared_runs import gcs_run
 
 #: a lossy TCP link: what the impairment loses TCP sends again, what it duplicates TCP discards
 LOSSY = "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms"
@@ -98,7 +99,7 @@ def test_the_seams_run_the_references_code():
 
 @pytest.mark.parametrize("transport", ["tcp", "udp", "udpin", "udpout"])
 def test_the_reference_gcs_passes_every_case(transport):
-    run = run_gcs_cases(None, seed=1, transport=transport)
+    run = gcs_run(None, 1, transport)  # over TCP, test_report_schema's too (tests/sim/shared_runs.py)
     expect_reference(run)
     doc = run.report
     assert doc["role"] == "gcs" and doc["spec"]["protocol"] == "MAV"
@@ -111,7 +112,7 @@ def test_each_faulty_gcs_fails_its_rule_and_no_other(fault):
     """The whole suite against the ground station with the fault: its rule and nothing else
     fails (warned, for a SHOULD: exit 0), the case naming it with what was expected and seen;
     the monitor fails nothing but that rule."""
-    run = run_gcs_cases(fault, seed=2)
+    run = gcs_run(fault, 2)  # some test_report_schema's too
     rule = RULES[fault]
     rules, cases = failed(run.report)
     assert rules == BROKEN[fault], run.explain()

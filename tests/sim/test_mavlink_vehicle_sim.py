@@ -30,6 +30,7 @@ import pytest
 from mcp_conform.sim.vehicle_faults import FAULTS as FAULT_NAMES
 from mcp_conform.sim.vehicle_faults import RULES, WARNS
 from mcp_conform.sim.vehicle_role import run_vehicle_cases
+from tests.sim.shared_runs import vehicle_run
 
 #: the SHOULD rules our vehicle breaks as ArduCopter does (the spec's errata and ArduPilot's
 #: sources): warned, never failed
@@ -101,7 +102,7 @@ def test_the_fault_tables_agree():
 
 @pytest.mark.parametrize("transport", ["tcp", "udpout"])
 def test_the_reference_vehicle_passes_every_case(transport):
-    run = run_vehicle_cases(None, seed=1, transport=transport)
+    run = vehicle_run(None, 1, transport)  # over TCP, test_report_schema's too (tests/sim/shared_runs.py)
     assert run.rc == 0, run.explain()
     expect_reference(run.report, run.explain())
     assert run.report["role"] == "vehicle" and run.report["target"].startswith(transport)
@@ -116,7 +117,7 @@ def test_each_faulty_vehicle_fails_its_rule_and_no_other(fault):
     """The whole suite against the vehicle behind the fault: no fault (the rewriting alone), the
     reference's outcome; each fault, its rule's cases and no other MUST rule, no warning but the
     known ones, the rule's expectation and what was seen in the report."""
-    run = run_vehicle_cases(None if fault == "none" else fault, seed=2)
+    run = vehicle_run(None if fault == "none" else fault, 2)  # some test_report_schema's too
     if fault == "none":
         assert run.rc == 0, run.explain()
         expect_reference(run.report, run.explain())

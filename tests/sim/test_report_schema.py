@@ -14,19 +14,23 @@ from mcp_conform.conformance.report import validate_json
 from mcp_conform.sim.gcs_faults import RULES as GCS_FAULTS
 from mcp_conform.sim.gcs_role import run_gcs_cases
 from mcp_conform.sim.vehicle_faults import RULES as VEHICLE_FAULTS
-from mcp_conform.sim.vehicle_role import run_vehicle_cases
+from tests.sim.shared_runs import gcs_run, vehicle_run
+
+#: the runs are the ones tests/sim/test_mavlink_*_sim.py judge (tests/sim/shared_runs.py): the
+#: reference's at seed 1, a fault's at seed 2
+REFERENCE_SEED, FAULT_SEED = 1, 2
 
 
 @pytest.mark.parametrize("fault", [None, next(iter(GCS_FAULTS))])
 def test_a_gcs_role_report_follows_the_schema(fault):
-    doc = run_gcs_cases(fault, seed=1).report
+    doc = gcs_run(fault, REFERENCE_SEED if fault is None else FAULT_SEED).report
     assert doc["role"] == "gcs" and doc["spec"]["protocol"] == "MAV" and doc["monitor"]["nodes"], doc["monitor"]
     validate_json(doc)
 
 
 @pytest.mark.parametrize("fault", [None, next(iter(VEHICLE_FAULTS))])
 def test_a_vehicle_role_report_follows_the_schema(fault):
-    doc = run_vehicle_cases(fault, seed=1).report
+    doc = vehicle_run(fault, REFERENCE_SEED if fault is None else FAULT_SEED).report
     assert doc["role"] == "vehicle" and doc["monitor"]["nodes"], doc["monitor"]
     if fault is not None:
         assert doc["monitor"]["violations"] or any(o == "failed" for o in doc["rules"].values()), doc["rules"]
@@ -51,8 +55,8 @@ def test_reports_of_a_vehicle_role_merge_into_one_that_follows_the_schema():
     kept, valid against the schema."""
     from mcp_conform.conformance.report import merge_json
 
-    good = run_vehicle_cases(None, seed=1).report
-    bad = run_vehicle_cases("double-ack", seed=1).report
+    good = vehicle_run(None, REFERENCE_SEED).report
+    bad = vehicle_run("double-ack", FAULT_SEED).report
     doc = merge_json([good, bad])
     assert validate_json(doc) is None
     assert doc["monitor"]["frames"] == good["monitor"]["frames"] + bad["monitor"]["frames"]

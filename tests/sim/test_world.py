@@ -116,3 +116,25 @@ def test_the_simulator_touches_no_socket_thread_or_clock():
         names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         assert not names & {"socket", "threading", "time", "asyncio", "selectors"}, path.name
+
+
+@pytest.mark.parametrize("fault", [None, "no-ack", "wrong-seq-ack"])
+def test_one_judge_alone_gives_its_verdicts_of_both(fault):
+    """``run_schedule(monitor=False)`` / ``(explain=False)`` (test_properties' searches check one
+    judge each): the judge that ran gives what it gives beside the other, and ``check`` refuses to
+    read the property of the one left out, where it would find nothing."""
+    from mcp_conform.sim.search import check
+
+    s = Schedule(seed=7, drones=2, challenge=2, items=2, down=BAD, up=BAD, fault=fault,
+                 stalls=StallParams(count=2, max_len=2.0, span=20.0))
+    both, mon, exp = run_schedule(s), run_schedule(s, explain=False), run_schedule(s, monitor=False)
+    assert (mon.judged.violations, mon.judged.verdicts, mon.judged.vetoed, mon.judged.explained) == (
+        both.judged.violations, both.judged.verdicts, both.judged.vetoed, {})
+    assert {p: {r: (v.status, v.evidence) for r, v in e.items()} for p, e in exp.judged.explained.items()} == {
+        p: {r: (v.status, v.evidence) for r, v in e.items()} for p, e in both.judged.explained.items()}
+    assert (exp.judged.violations, exp.judged.verdicts) == ({}, {})
+    assert check(mon, ("monitor",)) == check(both, ("monitor",))
+    assert check(exp, ("explain",)) == check(both, ("explain",))
+    for o, other in ((mon, "explain"), (exp, "monitor")):
+        with pytest.raises(ValueError, match=f"check by {other}"):
+            check(o, (other,))
