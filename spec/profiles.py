@@ -20,7 +20,8 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from mcp_conform.spec import MAVLINK, NSQD, SPEC, SpecBase
+import mcp_conform.spec as _spec
+from mcp_conform.spec import SPEC, SpecBase
 
 __all__ = ["DEFAULT_PROTOCOL", "PIECES", "PROFILES", "ProfileError", "Profile", "RoleProfile",
            "add_protocol_option", "having", "pick", "pick_having", "profile_of_role", "resolve", "ROLE_NAMES"]
@@ -67,7 +68,9 @@ class Profile:
     """One protocol: its spec and everything derived from it, by the floor that owns it."""
 
     name: str
-    spec: SpecBase
+    #: the name in ``spec`` of its loaded spec (``SPEC``, ``NSQD``, ``MAVLINK``): :attr:`spec`,
+    #: loaded on first use (a process that speaks one protocol reads no other's spec)
+    spec_name: str
     #: how the wire carries messages: ``datagram`` (one message a datagram), ``stream``
     #: (frames deframed from a byte stream, recorded on the protocol's stream channels) or
     #: ``packet`` (self-delimiting packets over either, as MAVLink's, recorded as its own)
@@ -92,6 +95,11 @@ class Profile:
     roles: tuple[RoleProfile, ...]
     #: the loader of a spec file of this protocol (``python -m mcp_conform.spec --spec PATH``)
     loader: str
+
+    @property
+    def spec(self) -> SpecBase:
+        """Its spec, loaded (``spec.SPEC``, ``spec.NSQD``, ``spec.MAVLINK``)."""
+        return getattr(_spec, self.spec_name)  # type: ignore[no-any-return]
 
     @property
     def default_role(self) -> RoleProfile:
@@ -122,7 +130,7 @@ class Profile:
 
 
 MCP = Profile(
-    name="mcp", spec=SPEC, framing="datagram", transport="udp",
+    name="mcp", spec_name="SPEC", framing="datagram", transport="udp",
     monitor="mcp_conform.judge.run_monitor:RunMonitor", dissector="mcp_conform.captures.dissector",
     capture_detect=None, capture_tools="mcp_conform.captures.mcp",
     mutators="mcp_conform.fuzz.mutators", oracles="mcp_conform.fuzz.oracles", fuzz_campaign="mcp_conform.fuzz.campaign:DatagramCampaign",
@@ -142,7 +150,7 @@ MCP = Profile(
 )
 
 NSQD_PROFILE = Profile(
-    name="nsqd", spec=NSQD, framing="stream", transport="tcp",
+    name="nsqd", spec_name="NSQD", framing="stream", transport="tcp",
     monitor="mcp_conform.judge.nsqd_monitor:StreamMonitor", dissector="mcp_conform.captures.dissector_nsqd",
     capture_detect="mcp_conform.captures.nsqd:is_capture", capture_tools="mcp_conform.captures.nsqd",
     mutators="mcp_conform.fuzz.nsqd_mutators", oracles="mcp_conform.fuzz.nsqd_oracles",
@@ -161,7 +169,7 @@ NSQD_PROFILE = Profile(
 #: station (the runner its vehicle). The reference vehicle is ``mcp-vehicle``, the reference
 #: ground station ``reference_impl.mavlink_gcs``.
 MAVLINK_PROFILE = Profile(
-    name="mavlink", spec=MAVLINK, framing="packet", transport="mavlink",
+    name="mavlink", spec_name="MAVLINK", framing="packet", transport="mavlink",
     monitor="mcp_conform.judge.mavlink_monitor:MavlinkMonitor", dissector="mcp_conform.captures.dissector_mavlink",
     capture_detect="mcp_conform.captures.mavlink:is_capture", capture_tools="mcp_conform.captures.mavlink",
     mutators=None, oracles=None, fuzz_campaign="mcp_conform.fuzz.mavlink_campaign:MavlinkCampaign",
