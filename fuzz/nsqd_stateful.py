@@ -44,27 +44,9 @@ from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import TrafficLog
 from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing
 from mcp_conform.fuzz.nsqd_oracles import same_finding
-from mcp_conform.fuzz.nsqd_player import (
-    CLIENT_MSGS,
-    COMMANDS,
-    KICK_WATCH_S,
-    LOOP_UPDATES,
-    SLOTS,
-    Client,
-    Hit,
-    Op,
-    Player,
-    _whole_frames,
-    command_bytes,
-)
-from mcp_conform.fuzz.nsqd_programs import StreamStatefulEngine
+from mcp_conform.fuzz.nsqd_player import Hit, Op, Player
 
-__all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "Client", "Hit", "Op", "Player",
-           "StreamStatefulEngine", "_whole_frames", "command_bytes", "play_program", "triage_program"]
-
-#: unused since the programs are drawn by ``fuzz.nsqd_programs`` (hypothesis's shrinking is
-#: gone; triage's ddmin minimises a failing program): kept for callers that set it
-SHRINK_S = 8.0
+__all__ = ["play_program", "triage_program"]
 
 
 def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None) -> Hit | None:
