@@ -94,6 +94,12 @@ class FuzzConfig:
     def mode(self) -> str:
         return "embedded" if self.embedded else ("spawn" if self.spawn else "attach")
 
+    def target_summary(self) -> dict[str, Any]:
+        """How the campaign reached its target, as summary.json's ``target`` says (every
+        protocol's): ``mode`` (embedded, spawn, attach), the ``--target`` address, the ``--spawn`` template."""
+        return {"mode": self.mode, "target": f"{self.target[0]}:{self.target[1]}" if self.target else None,
+                "spawn": self.spawn}
+
     def for_worker(self, worker: int) -> FuzzConfig:
         """The configuration of worker ``worker``: its own seed stream and its own ports."""
         cfg = replace(self, worker=worker, jobs=1, extra=dict(self.extra))

@@ -84,11 +84,15 @@ class FuzzClock:
         self.last_tick = 0.0
         self.t_fuzz = time.monotonic()
 
-    def case(self, kind: str, messages: Iterable[str]) -> None:
+    def case(self, kind: str | None, messages: Iterable[str] = (), *, mutation: bool = True) -> None:
+        """A case (an op of a stateful program: ``kind`` None when it sends nothing), its kind
+        counted (``mutation``: as a mutation's, ``by_mutator``) and its messages tried."""
         st = self.st
         st.cases += 1
-        count(st.by_mutator, kind)
-        note_tried(st, kind, messages)
+        if kind is not None:
+            if mutation:
+                count(st.by_mutator, kind)
+            note_tried(st, kind, messages)
         now = time.monotonic()
         if now - self.last_tick >= TICK_S:
             self.last_tick = now

@@ -86,9 +86,7 @@ class MavlinkCampaign(ProtocolCampaign):
     def own_summary(self, cfg: FuzzConfig, store: FindingStore, results: list[WorkerResult]) -> dict[str, Any]:
         """The target (how it ran, the vehicle's IDs, the probe's parameter) and each finding."""
         extra = next((r.extra for r in results if r.extra), {})
-        return {"target": {"mode": cfg.mode, "spawn": cfg.spawn,
-                           "target": f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None, **extra},
-                "findings": len(store),
+        return {"target": {**cfg.target_summary(), **extra}, "findings": len(store),
                 "finding_list": [{"rule": f.rule, "level": f.level, "shape": f.shape, "count": f.occurrences,
                                   "replays": f.replays, "cases": len(f.cases)} for f in store.order]}
 

@@ -33,10 +33,10 @@ from pathlib import Path
 from typing import Any
 
 from mcp_conform.fuzz.finding_files import write_packets_repro
-from mcp_conform.fuzz.findings import Finding, FindingStore
-from mcp_conform.fuzz.loop import count, triage_time
+from mcp_conform.fuzz.findings import Finding
+from mcp_conform.fuzz.loop import count
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
-from mcp_conform.fuzz.mavlink_vehicle import Hit, MavTarget, MavVehicle, Signature
+from mcp_conform.fuzz.mavlink_vehicle import Hit, MavVehicle, Signature
 from mcp_conform.fuzz.triage_core import HitTriage, Parts
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
@@ -111,8 +111,6 @@ class MavTriage(HitTriage):
     next engine turn's: ``tries``, ``baselines``)."""
 
     DEATHS = DEATHS
-    target: MavTarget
-    store: FindingStore
 
     def consider(self, hit: Hit, suspects: list[Case]) -> MavVehicle:
         """A hit after ``suspects`` (the newest last), triaged and timed; the vehicle to go on with."""
@@ -123,11 +121,8 @@ class MavTriage(HitTriage):
 
             raise TargetLost(f"the attached vehicle at {self.target.how.describe()}: {hit.actual}; "
                              "findings so far are kept")
-        with triage_time(self, sig.describe()):
-            self._triage(hit, suspects)
-        if death:
-            self.restarted(lambda: self.target.restart("after a hit"))
-        return self.current
+        return self.triaged(sig.describe(), lambda: self._triage(hit, suspects),
+                            (lambda: self.target.restart("after a hit")) if death else None)
 
     def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
         return (sig.oracle, sig.rule, kind)

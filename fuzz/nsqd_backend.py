@@ -31,7 +31,7 @@ import collections
 import contextlib
 import random
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,9 +54,8 @@ from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
 
-__all__ = ["Backend", "BackendTarget", "Hit", "message_names", "read_until", "violation_hit"]
+__all__ = ["Backend", "BackendTarget", "Hit", "end_log", "message_names", "read_until", "violation_hit"]
 
-_same, _CLOSE_RULE = same_finding, CLOSE_RULE
 _PROBES = (("STOP_TEST", NSQD.states["STOP_TEST"]), ("CAPTURE_IMAGES", NSQD.states["CAPTURE_IMAGES"]))
 
 
@@ -308,7 +307,7 @@ class Backend(ProcessTarget):
                 return hit
         if self.conn is not None:
             if self.conn.closed_at is not None and self.clean:
-                rule = _CLOSE_RULE.get(case.kind, "NSQD-FRM-5")
+                rule = CLOSE_RULE.get(case.kind, "NSQD-FRM-5")
                 return Hit(Signature("close", case.kind, (), rule),
                            f"the backend closed the connection after frames it handles ({case.note})")
         return None
@@ -327,7 +326,7 @@ class Backend(ProcessTarget):
         hit = self.death_hit(0.03)
         if hit is not None:
             return hit
-        return Hit(Signature("close", kind, (), _CLOSE_RULE.get(kind, "NSQD-FRM-5")),
+        return Hit(Signature("close", kind, (), CLOSE_RULE.get(kind, "NSQD-FRM-5")),
                    f"the backend closed the connection after frames it handles{f' ({note})' if note else ''}")
 
     def _verify(self, conn: Conn, states: tuple[int, ...], or_error: bool, since: float) -> tuple[bool, Conn | None]:
@@ -507,12 +506,21 @@ def _reproduces(backend: Backend, cases: list[Case], sig: Signature, *, probe: b
     try:
         return _replay(b, cases, sig, probe=probe, wait=wait)
     finally:
-        if log is not None:
-            for c in list(b.session.conns):  # how the connections stand at the end: a dead backend's close
-                with contextlib.suppress(OSError, ValueError):
-                    c.pump(0)
-            log.done = True
-        b.session.recorder = None
+        end_log(b, log)
+
+
+def end_log(b: Backend, log: TrafficLog | None, close: Callable[[], object] = lambda: None) -> None:
+    """A replay's traffic log (``log``, its ``b.session.recorder``) ended: how the connections
+    stand at the end read into it (a dead backend's close), then ``close()`` (the replay's own
+    closes, logged too), and no more (a stateless replay's and a program's alike)."""
+    if log is not None:
+        for c in list(b.session.conns):
+            with contextlib.suppress(OSError, ValueError):
+                c.pump(0)
+    close()
+    if log is not None:
+        log.done = True
+    b.session.recorder = None
 
 
 def _passing(hit: Hit | None, sig: Signature) -> bool:
@@ -520,7 +528,7 @@ def _passing(hit: Hit | None, sig: Signature) -> bool:
     (under halt_on_error=0 a real backend over-reads on every frame, then dies of its
     aborting number parse; the replay stopped at the report and "did not reproduce")."""
     return (hit is not None and sig.oracle == "crash" and hit.signature.oracle == "sanitizer"
-            and not _same(hit.signature, sig))
+            and not same_finding(hit.signature, sig))
 
 
 def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
@@ -550,7 +558,7 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
                 if not _passing(hit, sig):
                     break
                 passed, hit = hit, None
-    if sig.oracle == "sanitizer" and hit is not None and not _same(hit.signature, sig):
+    if sig.oracle == "sanitizer" and hit is not None and not same_finding(hit.signature, sig):
         # a non-fatal report's verdict is the report, whatever the process did after it (the
         # first report of this fresh process: the replay's own)
         first = b.process.sanitizer_report() if b.process is not None else []
@@ -562,7 +570,7 @@ def _replay(b: Backend, cases: list[Case], sig: Signature, *, probe: bool,
     if hit is None and probe:
         hit = b.probe()
     hit = hit or passed
-    return (hit is not None and _same(hit.signature, sig)), b, hit
+    return (hit is not None and same_finding(hit.signature, sig)), b, hit
 
 
 def _replay_kind(sig: Signature) -> str:

@@ -28,9 +28,10 @@ class StreamStatelessEngine(CaseEngine):
     triage: StreamTriage
 
     def __init__(self, triage: StreamTriage, seed: int, worker: int = 0, probe_every: int = 40) -> None:
-        super().__init__(triage, seed, worker)
+        # the cases kept (``CaseEngine.sent``): those since the stream was last proven in sync,
+        # at most ``probe_every`` (the probe then proves it, or its hit takes them)
+        super().__init__(triage, seed, worker, history=max(1, probe_every))
         self.probe_every = probe_every
-        self.window: list[Case] = []  # the cases since the stream was last proven in sync
         self.probed = False  # the hit now triaged is the probe's
 
     def draw(self) -> Case:
@@ -43,20 +44,18 @@ class StreamStatelessEngine(CaseEngine):
         return case.kind, message_names(case.data)
 
     def send(self, case: Case) -> Hit | None:
-        backend, window = self.triage.current, self.window
-        window.append(case)
+        backend = self.triage.current
         hit = backend.run(case)
         self.probed = False
         if hit is None and backend.synced:  # a judged effect proved the stream in sync
             backend.synced = False
-            window.clear()
-        if hit is None and len(window) >= self.probe_every:
+            self.sent.clear()
+        if hit is None and len(self.sent) >= self.probe_every:
             hit, self.probed = backend.probe(), True
             if hit is None:
-                window.clear()
+                self.sent.clear()
         return hit
 
     def triage_hit(self, hit: Hit) -> None:
         t = self.triage
-        t.current = t.consider(t.current, hit, self.window, self.probed)
-        self.window.clear()
+        t.current = t.consider(t.current, hit, self.taken(), self.probed)

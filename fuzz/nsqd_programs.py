@@ -21,12 +21,11 @@ from __future__ import annotations
 import contextlib
 import json
 import random
-import time
 from collections.abc import Callable
 from typing import Any
 
 from mcp_conform.fuzz.engine_stateful import open_database
-from mcp_conform.fuzz.loop import TICK_S, EngineStats, note_tried
+from mcp_conform.fuzz.loop import EngineStats, FuzzClock
 from mcp_conform.fuzz.nsqd_backend import message_names
 from mcp_conform.fuzz.nsqd_mutators import Write, draw_case
 from mcp_conform.fuzz.nsqd_player import CLIENT_MSGS, COMMANDS, Hit, Op, Player, command_bytes
@@ -145,7 +144,7 @@ class StreamStatefulEngine:
         b = c.current
         saved, spare = self._saved(), None
         gap = float(NSQD.params["update_gap_max_s"])
-        t_fuzz = last_tick = time.monotonic()
+        clock = FuzzClock(st, tick)  # the live figures every TICK_S, a program's triage not fuzzing time
 
         def out_of_budget() -> bool:
             return st.spent(deadline, max_cases, stop)
@@ -163,16 +162,9 @@ class StreamStatefulEngine:
                         if out_of_budget():
                             break
                         played.append(op)
-                        st.cases += 1
-                        if op.what in ("send", "cmd"):
-                            note_tried(st, "valid" if op.what == "cmd" else op.kind,
-                                       message_names(b"".join(w.data for w in op.writes)))
+                        clock.case(("valid" if op.what == "cmd" else op.kind) if op.what in ("send", "cmd") else None,
+                                   message_names(b"".join(w.data for w in op.writes)), mutation=False)
                         player.play(op)
-                        if tick is not None and time.monotonic() - last_tick >= TICK_S:
-                            last_tick = time.monotonic()
-                            st.seconds += last_tick - t_fuzz  # the live rate counts this program so far
-                            t_fuzz = last_tick
-                            tick(st)
                     else:
                         spare = player.finish()
                 except Hit as h:
@@ -182,14 +174,12 @@ class StreamStatefulEngine:
                 self.programs += 1
                 st.batches += 1
                 if hit is not None:
-                    st.flaws += 1
-                    st.seconds += time.monotonic() - t_fuzz
-                    found = len(c.findings)
-                    b = c.current = c.add_program(b, hit, played)  # its own triage time
-                    self._save(found)
-                    t_fuzz = time.monotonic()
+                    with clock.triage():  # its own triage time
+                        found = len(c.findings)
+                        b = c.current = c.add_program(b, hit, played)
+                        self._save(found)
         finally:
-            st.seconds += time.monotonic() - t_fuzz
+            clock.stop()
             if spare is not None:
                 spare.close()
                 with contextlib.suppress(ValueError):

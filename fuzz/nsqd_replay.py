@@ -32,7 +32,7 @@ def read(f: Finding) -> tuple[Signature, Any, list[Case]]:
     sig = Signature(doc["oracle"], doc["kind"], tuple(doc.get("frames", [])), doc["rule"], doc.get("access", ""))
     program = None
     if doc.get("program"):
-        from mcp_conform.fuzz.nsqd_stateful import Op
+        from mcp_conform.fuzz.nsqd_player import Op
 
         program = [Op.from_json(o) for o in doc["program"]]
     expect = tuple(doc["expect"][0]) if doc.get("expect") else ()

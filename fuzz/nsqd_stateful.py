@@ -36,35 +36,16 @@ by every worker of the next campaign.
 
 from __future__ import annotations
 
-import contextlib
 from typing import Any
 
 from mcp_conform.fuzz.confirm import confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.finding_files import TrafficLog
-from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing
+from mcp_conform.fuzz.nsqd_backend import REPLAY_DEATH_S, _passing, end_log
 from mcp_conform.fuzz.nsqd_oracles import same_finding
-from mcp_conform.fuzz.nsqd_player import (
-    CLIENT_MSGS,
-    COMMANDS,
-    KICK_WATCH_S,
-    LOOP_UPDATES,
-    SLOTS,
-    Client,
-    Hit,
-    Op,
-    Player,
-    _whole_frames,
-    command_bytes,
-)
-from mcp_conform.fuzz.nsqd_programs import StreamStatefulEngine
+from mcp_conform.fuzz.nsqd_player import Hit, Op, Player
 
-__all__ = ["CLIENT_MSGS", "COMMANDS", "KICK_WATCH_S", "LOOP_UPDATES", "SLOTS", "Client", "Hit", "Op", "Player",
-           "StreamStatefulEngine", "_whole_frames", "command_bytes", "play_program", "triage_program"]
-
-#: unused since the programs are drawn by ``fuzz.nsqd_programs`` (hypothesis's shrinking is
-#: gone; triage's ddmin minimises a failing program): kept for callers that set it
-SHRINK_S = 8.0
+__all__ = ["play_program", "triage_program"]
 
 
 def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None) -> Hit | None:
@@ -96,14 +77,7 @@ def play_program(backend: Any, ops: list[Op], log: Any = None, want: Any = None)
         # report is first seen at the end (it returned None then: a loaded host, CI run 6)
         return (passed or hit) if want is not None and _passing(hit, want) else hit
     finally:
-        if log is not None:
-            for c in list(backend.session.conns):  # how the connections stand at the end: a dead backend's close
-                with contextlib.suppress(OSError, ValueError):
-                    c.pump(0)
-        p.close()
-        if log is not None:
-            log.done = True
-        backend.session.recorder = None
+        end_log(backend, log, p.close)
 
 
 def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:

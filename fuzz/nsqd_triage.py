@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 from mcp_conform.fuzz.budget import TRIAGE_SHARE, over_budget
 from mcp_conform.fuzz.confirm import Confirmation
 from mcp_conform.fuzz.finding_files import TrafficLog
-from mcp_conform.fuzz.findings import Finding, FindingStore
+from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import WorkerTarget, triage_time
 from mcp_conform.fuzz.nsqd_backend import (
     REPLAY_DEATH_S,
@@ -94,8 +94,6 @@ class StreamTriage(HitTriage):
 
     LEARNT: ClassVar[tuple[str, ...]] = ("tries", "aliases", "baselines")
     DEATHS: ClassVar[tuple[str, ...]] = ("crash", "hang", "sanitizer")
-    target: WorkerTarget
-    store: FindingStore
     aliases: dict[Any, Finding] = field(default_factory=dict)  # a hit's key -> the finding it became
     #: how long a replay of the hit now triaged waits for it to show (``Backend.suspects``)
     wait: float = REPLAY_DEATH_S
@@ -103,11 +101,11 @@ class StreamTriage(HitTriage):
     def consider(self, backend: Backend, hit: Hit, window: list[Case], probe: bool) -> Backend:
         """A hit after the cases of ``window`` (then the probe command, ``probe``) triaged,
         timed (``fuzz.loop.triage_time``); the backend to go on with."""
-        with triage_time(self, hit.signature.describe()):
+        def triage() -> None:
             # a death may show only at the next case's write: the one before is a suspect too
             suspects, self.wait = (list(window), REPLAY_DEATH_S) if probe else backend.suspects(hit, window)
-            return self._triage(backend, hit, suspects, probe)
-        return self.current
+            self._triage(backend, hit, suspects, probe)
+        return self.triaged(hit.signature.describe(), triage)  # _triage's backend is the one now fuzzed
 
     def add_program(self, backend: Backend, hit: Any, ops: list[Any]) -> Backend:
         """A stateful program's failure: triaged like a case's (fuzz.nsqd_stateful)."""

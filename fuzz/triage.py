@@ -82,10 +82,8 @@ class Triage(HitTriage):
 
     def __init__(self, target: TargetBase, store: FindingStore, engine: str, seed: int,
                  worker: int = 0) -> None:
-        self.target = target
-        self.store = store
         self.engine = engine
-        super().__init__(seed=seed, worker=worker, n_of_n=CONFIRM_N)
+        super().__init__(target=target, store=store, seed=seed, worker=worker, n_of_n=CONFIRM_N)
         # a death is blamed on its input only once shrinking found it: (rule, shape) as first
         # seen -> the group it ended in
         self.aliases: dict[tuple[str, str], tuple[str, str]] = {}

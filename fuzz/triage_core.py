@@ -43,7 +43,7 @@ from mcp_conform.fuzz.budget import UNCONFIRMED_TRIES, budget_left, check_late
 from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
-from mcp_conform.fuzz.loop import Triage, count
+from mcp_conform.fuzz.loop import Triage, count, triage_time
 from mcp_conform.harness.errors import SetupError
 
 __all__ = ["Parts", "HitTriage", "answered", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
@@ -68,6 +68,10 @@ class HitTriage(Triage):
     #: target is restarted after one, and its finding named by the input that makes it
     DEATHS: ClassVar[tuple[str, ...]] = ()
 
+    #: the worker's target (``fuzz.loop.WorkerTarget``, MCP's ``fuzz.target_base.TargetBase``)
+    #: and the campaign's findings (``fuzz.findings.FindingStore``)
+    target: Any = None
+    store: Any = None
     seed: int = 0
     worker: int = 0
     n_of_n: int = 3  # a finding's confirming replays, all of which must show it
@@ -86,23 +90,23 @@ class HitTriage(Triage):
     @property
     def findings(self) -> list[Finding]:
         """The worker's findings so far, in the order kept (its store's)."""
-        return self.store.order  # type: ignore[attr-defined, no-any-return]  # a protocol's triage holds its store
+        return self.store.order  # type: ignore[no-any-return]
 
     @property
     def current(self) -> Any:
         """The target now fuzzed (the worker target's ``current``, ``fuzz.loop.WorkerTarget``:
         a replay or a restart replaces it)."""
-        return self.target.current  # type: ignore[attr-defined]  # a protocol's triage holds its target
+        return self.target.current
 
     @current.setter
     def current(self, t: Any) -> None:
-        self.target.current = t  # type: ignore[attr-defined]
+        self.target.current = t
 
     def add(self, finding: Finding, *args: Any) -> None:
         """A confirmed finding into the store (``finding-N/`` under its ``out``), this
         worker's and seed's."""
         finding.seed, finding.worker = self.seed, self.worker
-        self.store.add(finding, *args)  # type: ignore[attr-defined]  # a protocol's triage holds its store
+        self.store.add(finding, *args)
 
     def again(self, known: Finding | None) -> bool:
         """Whether a hit is ``known`` (the finding it already is): then one more occurrence of it."""
@@ -134,7 +138,7 @@ class HitTriage(Triage):
         try:
             return make()
         finally:
-            self.target.count_restart("triage replay")  # type: ignore[attr-defined]  # a protocol's triage holds its target
+            self.target.count_restart("triage replay")
 
     def shows(self, replay: Callable[[list[T]], H | None], same: Callable[[H], bool] = lambda h: True,
               *, share: bool = True, unstarted: bool = False) -> Callable[[list[T]], bool]:
@@ -202,6 +206,17 @@ class HitTriage(Triage):
             if again.confirmed:
                 return fewer, again
         return minimal, conf
+
+    def triaged(self, describe: str, triage: Callable[[], object], restart: Callable[[], object] | None = None) -> Any:
+        """One hit's triage (``triage()``), timed (``fuzz.loop.triage_time``: past the deadline
+        or the budget it ends there, counted untriaged as ``describe``); ``restart``: the hit
+        ended its target, restarted after it to go on fuzzing (:meth:`restarted`). The target now
+        fuzzed (:attr:`current`), which triage's replays and restarts replace."""
+        with triage_time(self, describe):
+            triage()
+        if restart is not None:
+            self.restarted(restart)
+        return self.current
 
     def restarted(self, restart: Callable[[], T]) -> T:
         """The target restarted to go on fuzzing after a hit (``restart()``), timed on its own

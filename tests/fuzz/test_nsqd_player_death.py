@@ -13,7 +13,7 @@ import pytest
 
 from mcp_conform.fuzz.nsqd_backend import Backend
 from mcp_conform.fuzz.nsqd_mutators import Write
-from mcp_conform.fuzz.nsqd_stateful import Hit, Op, Player, command_bytes
+from mcp_conform.fuzz.nsqd_player import Hit, Op, Player, command_bytes
 from tests.nsqd_backends.build import built_or_skip
 
 

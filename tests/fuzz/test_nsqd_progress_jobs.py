@@ -101,14 +101,9 @@ def test_summary_json_and_plain_progress_from_the_command_line(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.nsqd
-def test_jobs_share_the_example_database(tmp_path, monkeypatch):
+def test_jobs_share_the_example_database(tmp_path):
     """A program saved by one campaign is the first the workers of the next replay: with two
-    cases each they find the second-client fault; with an empty database they do not. The
-    saved program is two ops when hypothesis shrank it to its end: on a slow host not cut
-    short by the campaign's shrinking time."""
-    import mcp_conform.fuzz.nsqd_stateful  # noqa: F401  (the attribute the next line's name reaches)
-    from mcp_conform import fuzz
-    monkeypatch.setattr(fuzz.nsqd_stateful, "SHRINK_S", 600.0)
+    cases each they find the second-client fault; with an empty database they do not."""
     exe = built_or_skip()
     spawn, db = _spawn(exe, "second-client-kicks-first"), str(tmp_path / "db")
     first = StreamCampaign(None, spawn, 3, 60.0, None, None, engine="stateful", db=db, stop_after=1)

@@ -13,7 +13,7 @@ import pytest
 
 from mcp_conform.fuzz.nsqd_campaign import StreamCampaign, message_names
 from mcp_conform.fuzz.nsqd_mutators import Write
-from mcp_conform.fuzz.nsqd_stateful import Op, _whole_frames, command_bytes
+from mcp_conform.fuzz.nsqd_player import Op, _whole_frames, command_bytes
 from tests.forkserver import run_module
 from tests.nsqd_backends.build import built_or_skip
 
@@ -102,7 +102,7 @@ def test_a_program_finding_carries_what_a_case_finding_carries(tmp_path):
     hit = play_program(b, ops)
     assert hit is not None and hit.signature.rule == "NSQD-CON-2", hit
     c = StreamCampaign(None, fault, 1, 10.0, None, tmp_path, engine="stateful")
-    triage_program(StreamTriage(StreamTarget(b), c.store, seed=1, duration=10.0), b, hit, ops).close()
+    triage_program(StreamTriage(target=StreamTarget(b), store=c.store, seed=1, duration=10.0), b, hit, ops).close()
     d = tmp_path / "finding-1"
     assert {"finding.json", "input.hex", "input.py", "stderr.txt", "replay.txt", "repro.mcap", "repro.pcap"} \
         <= {p.name for p in d.iterdir()}
@@ -138,7 +138,7 @@ def _frozen_while_a_second_client_connects(fault: str | None) -> tuple[Exception
     import time
 
     from mcp_conform.fuzz.nsqd_backend import Backend
-    from mcp_conform.fuzz.nsqd_stateful import Hit, Player
+    from mcp_conform.fuzz.nsqd_player import Hit, Player
 
     b = Backend(None, _spawn(built_or_skip(), fault))
     pid = b.process.pid
@@ -179,7 +179,7 @@ def test_a_first_client_kicked_late_is_still_judged_at_the_second_clients_connec
 def test_a_correct_backend_frozen_at_the_second_clients_connect_is_no_finding():
     """The same freeze on the correct backend: no finding; the watch ended by the first's
     UPDATEs since the second connected (the backend's own progress), its connection kept."""
-    from mcp_conform.fuzz.nsqd_stateful import LOOP_UPDATES
+    from mcp_conform.fuzz.nsqd_player import LOOP_UPDATES
 
     hit, first, before = _frozen_while_a_second_client_connects(None)
     assert hit is None, hit
@@ -190,7 +190,7 @@ def _pipelined(fault: str | None, ops: list[Op]) -> tuple[object, bool]:
     """``ops`` played pipelined on the C backend (``fault``) and judged at their end
     (``Player.finish``): (the hit or None, whether the turnover left a served connection)."""
     from mcp_conform.fuzz.nsqd_backend import Backend
-    from mcp_conform.fuzz.nsqd_stateful import Hit, Player
+    from mcp_conform.fuzz.nsqd_player import Hit, Player
 
     b = Backend(None, _spawn(built_or_skip(), fault))
     p = Player(b, fast=True)
