@@ -46,6 +46,7 @@ from mcp_conform.fuzz.nsqd_oracles import (
     same_finding,
 )
 from mcp_conform.fuzz.spares import SPARES
+from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.fuzz.target_core import ProcessTarget, SpareTarget, read_until
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
@@ -123,10 +124,12 @@ class Backend(ProcessTarget):
         """A new process (spawn mode and the embedded default): this one closed, then its
         target's (``SpareTarget.fresh``: the spare started in the background at the previous
         call, a fresh start if it failed: its error is then the start's own; the next spare
-        started); attach mode: the same target. A replay's and a restart's alike: a real
-        backend takes 1.2-1.4 s to start, and every replay of triage waited for it."""
+        started); attach mode: the same target, found live (:meth:`check_live`). A replay's and a
+        restart's alike: a real backend takes 1.2-1.4 s to start, and every replay of triage
+        waited for it."""
         if self.target is not None and self.spawn is None:
             self._drop()
+            self.check_live("before a replay on it")  # a replay needs a live backend before its input
             return self
         self.handed_on = True
         self.end()
@@ -134,6 +137,21 @@ class Backend(ProcessTarget):
         return b
 
     restart = fresh  #: the process the campaign goes on fuzzing with
+
+    def check_live(self, why: str) -> None:
+        """Attach mode: the backend accepts a new connection and sends its first frame within
+        the protocol's allowance (NSQD-CON-1, as at the start), or ``TargetLost`` naming it and
+        ``why`` it was looked at. Attach mode has no other backend to replay on: replays on the
+        same dead one "confirm" whatever it showed last (a backend killed mid-campaign was a
+        confirmed NSQD-ROB-1 hang, 53,452 times, 3 of 3 replays), as ``fuzz.target_base``'s
+        check ends an MCP campaign and ``fuzz.mavlink_triage`` a MAVLink one."""
+        s = self.session
+        if self.target is None or self.spawn is not None:
+            return
+        if not s.live(float(NSQD.params["connect_timeout_s"]) + float(NSQD.params[s.gap_param])):
+            host, port = s.address
+            raise TargetLost(f"the backend at {host}:{port} accepts no connection or sends no {s.first_sign} "
+                             f"({s.first_rule}) {why}; attach mode has no other backend, so the campaign ends here")
 
     def _drop(self) -> None:
         if self.conn is not None:

@@ -89,15 +89,13 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     what led to it, read at the program's end, where a close or a lost command may have more
     than one cause in view (a second client, a cut frame before it); played op by op, the
     replay sees which op it followed. The backend to go on with."""
-    from mcp_conform.harness.errors import SetupError
 
     sig = hit.signature
+    if campaign.target.attached and sig.oracle in ("crash", "hang"):
+        backend.check_live(f"after {hit.detail}")  # findings so far are kept
     known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
     if campaign.again(known):
         return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend
-    if campaign.target.attached and sig.oracle in ("crash", "hang") \
-            and backend.session.death() is not None:
-        raise SetupError(f"the attached backend is gone ({hit.detail}); findings so far are kept")
     box: dict[str, Any] = {"b": backend, "stderr": hit.stderr, "traffic": []}
 
     def play(o: list[Op], log: TrafficLog | None = None) -> Hit | None:

@@ -49,7 +49,6 @@ from mcp_conform.fuzz.triage_core import (
     prefix_culprit,
     search,
 )
-from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import NSQD
 from mcp_conform.spec.nsqd_codec import encode
 from mcp_conform.spec.profiles import NSQD_PROFILE
@@ -137,11 +136,9 @@ class StreamTriage(HitTriage):
         """Counted, not triaged: a known finding's hit, a signature that did not reproduce
         ``UNCONFIRMED_TRIES`` times when shown ``how`` (after a case, after a probe window,
         by a program), or any once the triage budget is spent."""
-        known = self.known(sig)
-        if known is None and self.target.attached and sig.oracle in ("crash", "hang") \
-                and backend.session.death() is not None:
-            raise SetupError(f"the attached backend is gone; findings so far are kept ({sig.describe()})")
-        return self.counted(known, (sig.key, how), sig.describe())
+        if self.target.attached and sig.oracle in ("crash", "hang"):
+            backend.check_live(f"after {sig.describe()}")  # findings so far are kept
+        return self.counted(self.known(sig), (sig.key, how), sig.describe())
 
     def _shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:
         """The search's predicate (``HitTriage.shows``): ``cases`` replayed (``_reproduces``) on
