@@ -31,7 +31,7 @@ from mcp_conform.captures import trace_tools as core
 from mcp_conform.captures.trace_tools import Checked, Compared
 from mcp_conform.judge.verdicts import Found, of_nsqd
 from mcp_conform.traceio.grammar import write_text
-from mcp_conform.traceio.reader import StreamEvent, StreamFrame, Truncated, open_capture
+from mcp_conform.traceio.reader import CaseMark, StreamEvent, StreamFrame, Truncated, open_capture
 from mcp_conform.traceio.tcp import StreamGap
 
 __all__ = ["MAX_GAPS", "MAX_LISTED", "MAX_STEPS", "ROWS", "StreamPlugin", "export_pcap", "run_show"]
@@ -255,7 +255,12 @@ def run_show(plugin: StreamPlugin, ns: Any, out: TextIO | None = None) -> int:
         if type(rec) is StreamFrame and len(shown) < rows:
             shown.append(rec)
         return _line(rec)
-    core.show_frames(ns, out, f"{ns.file}: {plugin.title}", counted(), line, kinds=_SHOWN)
+    # --case: the capture's case marks read first (a case's end mark comes after its records),
+    # then its records shown as they are read; before, --case was not looked at and every
+    # record was shown, an unknown case's too
+    cases = [r for r in plugin.records(ns.file) if type(r) is CaseMark] if getattr(ns, "case", None) else None
+    core.show_frames(ns, out, f"{ns.file}: {plugin.title}", counted(), line, path=str(ns.file), cases=cases,
+                     kinds=_SHOWN)
     out.write(f"{conns} connection(s)\n")
     if getattr(ns, "svg", None):
         write_text(ns.svg, plugin.chart(shown, str(ns.file)))
