@@ -277,8 +277,9 @@ def window(ns: Any) -> Callable[[float], bool]:
 
 
 def case_window(cases: Sequence[CaseMark], case: str, path: str) -> tuple[int, int]:
-    """``--case ID`` (or the one case ID starts): the span of its marks; UsageError when the
-    capture has no case marks, or ID names none or several."""
+    """``--case ID`` (or the one case ID starts): the span of its marks (to the end of a
+    capture cut before its end mark); UsageError when the capture has no case marks, or ID
+    names none or several."""
     from mcp_conform.captures.cli import UsageError
 
     ids = list(dict.fromkeys(m.case for m in cases))
@@ -286,8 +287,10 @@ def case_window(cases: Sequence[CaseMark], case: str, path: str) -> tuple[int, i
     if len(match) != 1:
         what = "has no case marks" if not ids else ("matches several cases" if match else "is not a case of it")
         raise UsageError(f"--case: {case!r}: {path} {what}")
-    marks = [m.t_ns for m in cases if m.case == match[0]]
-    return min(marks), max(marks)
+    marks = [m for m in cases if m.case == match[0]]
+    start = min(m.t_ns for m in marks)
+    # a case the capture was cut in (no end mark): to the capture's end, as MCP's show has it
+    return start, max(m.t_ns for m in marks) if any(m.event == "end" for m in marks) else sys.maxsize
 
 
 def case_at(cases: Sequence[CaseMark], t_ns: int) -> str | None:

@@ -110,6 +110,10 @@ def test_a_case_is_named_whole_or_by_the_one_it_starts():
     with pytest.raises(UsageError, match="has no case marks"):
         core.case_window([], "CMD", "f")
     assert [core.case_at(MARKS, t) for t in (5, 15, 25, 45, 55)] == [None, "CMD/a", None, "CMD/ab", "MIS/x"]
+    # a capture cut inside a case (its start mark, no end): the case runs to the capture's end
+    cut = [*MARKS[:4], CaseMark(50, "MIS/x", "start", None, ())]
+    lo, hi = core.case_window(cut, "MIS", "f")
+    assert lo == 50 and hi > 10**18
 
 
 def test_time_window():
