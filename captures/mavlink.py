@@ -88,7 +88,8 @@ class _Mavlink(core.CapturePlugin):
     unchartered = "is not drawn for a MAVLink trace"
     unexported = ("a MAVLink trace is not exported as pcap (its frames have no UDP datagrams of their own; show and "
                   "diff read it as it is)")
-    unreplayed = "a MAVLink trace is not replayed (no MAVLink fuzz findings yet: judge it with check)"
+    unreplayed = ("a MAVLink trace is not replayed here (judge it with check; a MAVLink fuzz finding replays with "
+                  "mcp-fuzz --protocol mavlink --replay FINDING)")
     steps_called, steps_aside = "microservice message(s)", " (heartbeats and telemetry not compared)"
 
     def check(self, ns: Any) -> Checked:
