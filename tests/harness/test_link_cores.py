@@ -47,18 +47,17 @@ class LineFraming:
     def record(self, recorder: Any, direction: str, raw: bytes, t_ns: int, name: str | None) -> None:
         recorder.append((direction, raw, name))
 
-    # harness.stream_conn.StreamFraming
-    def deframer(self) -> Any:
-        return self
 
-    def feed(self, data: bytes) -> list[Line]:
-        return self.deframe(data, 0.0)
+
+class LineStreamFraming(LineFraming):
+    """The same lines as a connection's protocol (``harness.stream_conn.StreamFraming``)."""
+
+    def deframe(self, data: bytes, t: float) -> list[Any]:  # type: ignore[override]
+        return [(line, None if line.bad else line, {"name": None if line.bad else line.name})
+                for line in super().deframe(data, t)]
 
     def sent(self, data: bytes) -> dict[str, Any]:
         return {"name": Line(0.0, data).name}
-
-    def received(self, item: Line, t: float) -> tuple[Any, dict[str, Any]]:
-        return (None if item.bad else Line(t, item.raw)), {"name": None if item.bad else item.name}
 
 
 class Monitor:
@@ -116,8 +115,8 @@ def test_a_stream_protocol_of_its_own_runs_on_the_pumped_connection() -> None:
     server.start()
     rec = Recorder()
     log: list[tuple[float, bytes]] = []
-    conn = StreamConn(socket.create_connection(listener.getsockname()), LineFraming(), log=log, recorder=rec,
-                      index=1, protocol="lines")
+    conn = StreamConn(LineStreamFraming(), "tcp", listener.getsockname(), rec,
+                      sock=socket.create_connection(listener.getsockname()), log=log, index=1, protocol="lines")
     server.join(5.0)
     peer = accepted[0]
     try:
