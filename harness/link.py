@@ -127,7 +127,7 @@ class Link:
         #: each for the few frames since a moment): their times (in arrival order, so sorted) and,
         #: per message name, the frames of that name and their times
         self._times: list[float] = []
-        self._by_name: dict[str, tuple[list[float], list[Any]]] = {}
+        self._by_name: dict[str | None, tuple[list[float], list[Any]]] = {}
         self.sent: list[tuple[float, str, bytes]] = []
         self.closed_at: float | None = None
         self._cond = clock.condition()
@@ -241,13 +241,17 @@ class Link:
     def _keep(self, got: list[Any]) -> None:
         """The frames that came, kept for :meth:`received`; the waits told."""
         with self._cond:
-            self.frames.extend(got)
             for r in got:
-                self._times.append(r.t)
-                times, frames = self._by_name.setdefault(r.name, ([], []))
-                times.append(r.t)
-                frames.append(r)
+                self._add(r, r.name)
             self._cond.notify_all()
+
+    def _add(self, r: Any, name: str | None) -> None:
+        """Frame ``r`` (message ``name``) kept, indexed by its time and its name."""
+        self.frames.append(r)
+        self._times.append(r.t)
+        times, frames = self._by_name.setdefault(name, ([], []))
+        times.append(r.t)
+        frames.append(r)
 
     def received(self, since: float = 0.0, name: str | None = None) -> list[Any]:
         """The frames that came at or after ``since`` (of message ``name``, when given)."""

@@ -81,11 +81,10 @@ class Conn(StreamConn):
         return sender_violation(self.spec, self.frames, self.framing_error)
 
     def updates(self, since: float = 0.0) -> list[Received]:
-        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id
-                and r.values is not None]
+        return [r for r in self.received(since, "UPDATE") if r.values is not None]
 
     def errors(self, since: float = 0.0) -> list[Received]:
-        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("ERROR").id]
+        return self.received(since, "ERROR")
 
     signs = updates  # the frame that shows the backend serving (NSQD-CON-1)
 

@@ -129,19 +129,18 @@ class StreamConn(Link):
             self._stream_record(self.got_as, r[0].raw, r[2])
 
     def _keep(self, got: list[Any]) -> None:
-        """The frames kept (for :meth:`received` by time; the protocol's readers pick them by
-        message), bytes that were none in :attr:`framing_error`."""
-        for item, frame, _ in got:
+        """The frames kept, by their time and their message's name (the record's: :meth:`received`),
+        bytes that were none in :attr:`framing_error` (read in this one thread: no waits to tell)."""
+        for item, frame, fields in got:
             if frame is None:
                 self.framing_error = item
             else:
-                self.frames.append(frame)
-                self._times.append(frame.t)
+                self._add(frame, fields.get("name"))
 
     def signs(self, since: float = 0.0) -> list[Any]:
         """The frames since ``since`` that show the node serving (its session's first frame,
         ``ConnSessionBase.first_sign``): every frame, unless the protocol says which."""
-        return [r for r in self.frames if r.t >= since]
+        return self.received(since)
 
     def violation(self) -> Any:
         """The first of the protocol's sender rules the node's frames on this connection
