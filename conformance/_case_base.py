@@ -145,7 +145,8 @@ class DatagramCaseBase(CaseBase):
 
 class SpecCaseBase(CaseBase):
     """A case of a protocol whose session carries its spec (``session.spec``: Nsqd's,
-    MAVLink's): its parameters (``params``), and a failure that says a spawned node's death
+    MAVLink's): its parameters (``params``), the run's clock (``clock``: the host's, or the
+    simulator's virtual one; ``t0``: the case's start, :meth:`now`), and a failure that says a spawned node's death
     and ends with the case's traffic (:meth:`traffic`). A protocol declares its robustness
     rule (``death_rule``: a death is reported under it, "no input ends the node", whatever
     the case tested, with the node's sanitizer line and output; "": the death is said first
@@ -158,6 +159,12 @@ class SpecCaseBase(CaseBase):
         super().__init__(session, case_id, rules)
         self.spec = session.spec
         self.params = self.spec.params
+        self.clock = session.clock
+        self.t0 = self.clock.monotonic()
+
+    def now(self) -> float:
+        """The run clock's ``monotonic()``: the time of a send, of a frame's arrival."""
+        return float(self.clock.monotonic())
 
     def traffic(self) -> list[str]:
         """The case's traffic, the last of a failure's evidence."""

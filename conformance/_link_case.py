@@ -1,7 +1,8 @@
 """What a case on the runner's link shares, whatever the protocol (``harness.link.Link``; the
-sessions of ``harness.link_session``): the run's clock and the case's start, sending a
-protocol message, letting time pass with the link read, failures carrying the node's death
-and the case's traffic both ways (:class:`LinkCaseBase`); and, where the runner plays a node
+sessions of ``harness.link_session``): sending a protocol message, letting time pass with the
+link read, failures carrying the node's death and the case's traffic both ways
+(:class:`LinkCaseBase`, on ``conformance._case_base.SpecCaseBase``: the run's clock and the
+case's start, as Nsqd's); and, where the runner plays a node
 and the judged peer is started afresh for each behaviour of it
 (``harness.link_session.PlayedNodeSession``), the peer's run and the waits for what it does
 (:class:`PlayedPeerCaseBase`: a peer does its work once, then goes quiet or ends).
@@ -35,16 +36,6 @@ class LinkCaseBase(SpecCaseBase):
     #: the periodic messages a failure's traffic leaves out
     QUIET: frozenset[str] = frozenset()
 
-    def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
-        super().__init__(session, case_id, rules)
-        #: the run's clock (``harness.clock``): the host's, or the simulator's virtual one
-        self.clock = session.clock
-        self.t0 = self.clock.monotonic()
-
-    def now(self) -> float:
-        """The run clock's ``monotonic()``: the time of a send, of a frame's arrival."""
-        return self.clock.monotonic()
-
     def message(self, name: str, **fields: Any) -> Any:
         """The protocol's message ``name`` with ``fields``."""
         raise NotImplementedError
@@ -55,7 +46,7 @@ class LinkCaseBase(SpecCaseBase):
 
     def watch(self, seconds: float) -> None:
         """Let ``seconds`` pass, the link read meanwhile."""
-        self.link.wait_for(lambda: False, seconds)
+        self.link.watch(seconds)
 
     def traffic(self) -> list[str]:
         """The case's last four frames each way, the periodic ones (``QUIET``) left out."""

@@ -16,7 +16,6 @@ module adds Nsqd's frames, flight states and verify helpers.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from mcp_conform.conformance._conn_case import ConnCaseBase
@@ -69,7 +68,7 @@ class StreamCaseContext(ConnCaseBase):
             target = self.spec.message(name).effect.to[0]
             if target in avoid:
                 continue
-            since = time.monotonic()
+            since = self.now()
             conn.send(self.encode(name))
             if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
                              self.window):
@@ -95,7 +94,7 @@ class StreamCaseContext(ConnCaseBase):
                     self.settle(conn, avoid=(target,))
                 except Inconclusive:
                     continue
-                since = time.monotonic()
+                since = self.now()
                 conn.send(self.encode(name))
                 if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
                                  self.window):

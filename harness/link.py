@@ -1,12 +1,16 @@
-"""The runner's one link to a node under test, whatever its protocol: the end it opens (a TCP
-connection, a UDP socket either way: :class:`HostLinks`, or the simulator's net), a reader
-thread that cuts what comes into frames by the protocol's :class:`Framing`, every frame both
-ways stamped on the run's clock and recorded, under one lock, to the capture and to the run's
-trace monitor (one judge, live and offline), and waits on predicates over what came.
+"""The runner's one link core to a node under test, whatever its protocol: the end it opens (a
+TCP connection, a UDP socket either way: :class:`HostLinks`, or the simulator's net), read by
+a thread of its own or in the caller's thread (:meth:`Link.pump`), what comes cut into frames
+by the protocol's :class:`Framing`, every frame both ways stamped on the run's clock and
+recorded, under one lock, to the capture and to the run's trace monitor (one judge, live and
+offline), a node's close of the TCP link seen, and waits on predicates over what came.
 
 The protocol is a parameter, never a copy: its :class:`Framing` says how bytes become frames
 and how a frame is written to the capture; a protocol's link adds only how it packs what the
-runner sends (MAVLink's: ``harness.mavlink_session.Link``, pymavlink's encoder). Transports
+runner sends (MAVLink's: ``harness.mavlink_session.Link``, pymavlink's encoder, its reader a
+thread). A stream protocol's connection (``harness.stream_conn.StreamConn``: Nsqd's, read in
+the caller's thread) is this core with its writes, its half-close and reset, and its stream
+channels on the capture. Transports
 are named as pymavlink names them: ``tcp`` connects (or takes a connection the runner
 accepted), ``udpin`` binds and answers whoever sent first, ``udpout`` sends to an address.
 """
@@ -68,8 +72,9 @@ class SocketEnd:
 
     def ready(self, timeout: float) -> bool:
         """Whether something can be read within ``timeout`` s (OSError, ValueError: closed)."""
-        readable, _, _ = select.select([self.sock], [], [], timeout)
-        return bool(readable)
+        poll = select.poll()  # not select(): a descriptor above 1023 is no error
+        poll.register(self.sock, select.POLLIN)
+        return bool(poll.poll(timeout * 1000.0))
 
     def read(self) -> tuple[bytes, Any]:
         """What came and from where (TCP: b"" at the connection's end); BlockingIOError:
@@ -107,11 +112,12 @@ class Link:
     as it is recorded (``monitor.frame(t_ns, raw, direction)``), with the capture's time and in
     the capture's order. ``clock``, ``net``: the run's clock (``harness.clock``) and where the
     link's end is opened (:class:`HostLinks`: the host's by default, the simulator's virtual
-    ones in ``mcp_conform.sim``, issue 38)."""
+    ones in ``mcp_conform.sim``, issue 38); ``threaded``: read by a thread of its own (False:
+    in the caller's, by :meth:`pump` and the waits)."""
 
     def __init__(self, framing: Framing, transport: str, address: tuple[str, int], recorder: Any = None, *,
                  sent_as: str = "rx", got_as: str = "tx", sock: socket.socket | None = None, on_frames: Any = None,
-                 monitor: Any = None, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
+                 monitor: Any = None, clock: Clock = REAL, net: Any = HOST_LINKS, threaded: bool = True) -> None:
         self.framing = framing
         self.transport, self.address, self.recorder, self.monitor = transport, address, recorder, monitor
         self.sent_as, self.got_as, self.on_frames = sent_as, got_as, on_frames
@@ -121,7 +127,7 @@ class Link:
         #: each for the few frames since a moment): their times (in arrival order, so sorted) and,
         #: per message name, the frames of that name and their times
         self._times: list[float] = []
-        self._by_name: dict[str, tuple[list[float], list[Any]]] = {}
+        self._by_name: dict[str | None, tuple[list[float], list[Any]]] = {}
         self.sent: list[tuple[float, str, bytes]] = []
         self.closed_at: float | None = None
         self._cond = clock.condition()
@@ -133,7 +139,7 @@ class Link:
         self.peer: tuple[str, int] | None = None if transport == "udpin" else address
         self._end = net.open(transport, address, sock)
         self.sock = self._end.sock
-        self._reader = clock.start_thread(self._read, framing.thread)
+        self._reader = clock.start_thread(self._read, framing.thread) if threaded else None
 
     # -- out ------------------------------------------------------------------------------
     def pack(self, msg: Any) -> tuple[bytes, str]:
@@ -179,49 +185,73 @@ class Link:
 
     # -- in -------------------------------------------------------------------------------
     def _read(self) -> None:
-        while not self._stop.is_set():
-            try:
-                if not self._end.ready(0.05):
-                    continue
-            except (OSError, ValueError):
-                return
-            try:
-                data, addr = self._end.read()
-                if self.transport == "tcp":
-                    if not data:
-                        self.closed_at = self.clock.monotonic()
-                        with self._cond:
-                            self._cond.notify_all()
-                        return
-                elif self.transport == "udpin" and self.peer is None:
-                    self.peer = addr  # the node's socket: where replies go
-                elif addr != self.peer:
-                    continue  # another sender: not the node under test
-            except (BlockingIOError, InterruptedError):
-                continue
-            except OSError:
-                if self.transport == "tcp":
-                    self.closed_at = self.clock.monotonic()
-                    return
-                continue
-            self._take(data)
+        """The reader thread: the link read until it closes or :meth:`close`."""
+        while not self._stop.is_set() and self._read_once(0.05) is not False:
+            pass
+
+    def _read_once(self, timeout: float) -> bool | None:
+        """One read of the link's end, in whichever thread reads it: what came within
+        ``timeout`` s taken (True); nothing (None: not yet, or not the node's); the link can no
+        longer be read (False: the node closed the TCP link, :meth:`_ended`, or the end is closed)."""
+        try:
+            if not self._end.ready(timeout):
+                return None
+        except (OSError, ValueError):
+            return False
+        try:
+            data, addr = self._end.read()
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError as exc:
+            if self.transport != "tcp":
+                return None
+            self._ended("rst" if isinstance(exc, ConnectionResetError) else None)
+            return False
+        if self.transport == "tcp":
+            if not data:
+                self._ended("fin")
+                return False
+        elif self.transport == "udpin" and self.peer is None:
+            self.peer = addr  # the node's socket: where replies go
+        elif addr != self.peer:
+            return None  # another sender: not the node under test
+        self._take(data)
+        return True
+
+    def _ended(self, how: str | None) -> None:
+        """The node closed the TCP link (``how``: "fin", "rst"; None: it failed): the waits end."""
+        self.closed_at = self.closed_at or self.clock.monotonic()
+        with self._cond:
+            self._cond.notify_all()
 
     def _take(self, data: bytes) -> None:
         with self._record_lock:  # stamped after any frame sent before (:meth:`_send_locked`)
             now, t_ns = self.clock.monotonic(), self.clock.time_ns()
             got = self.framing.deframe(data, now)
             for r in got:
-                self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
-        with self._cond:
-            self.frames.extend(got)
-            for r in got:
-                self._times.append(r.t)
-                times, frames = self._by_name.setdefault(r.name, ([], []))
-                times.append(r.t)
-                frames.append(r)
-            self._cond.notify_all()
+                self._record_frame(r, t_ns)
+        self._keep(got)
         if self.on_frames is not None and got:
             self.on_frames(got)
+
+    def _record_frame(self, r: Any, t_ns: int) -> None:
+        """A frame that came, to the capture and the monitor (the record lock held)."""
+        self._record(self.got_as, r.raw, t_ns, None if r.bad else r.name)
+
+    def _keep(self, got: list[Any]) -> None:
+        """The frames that came, kept for :meth:`received`; the waits told."""
+        with self._cond:
+            for r in got:
+                self._add(r, r.name)
+            self._cond.notify_all()
+
+    def _add(self, r: Any, name: str | None) -> None:
+        """Frame ``r`` (message ``name``) kept, indexed by its time and its name."""
+        self.frames.append(r)
+        self._times.append(r.t)
+        times, frames = self._by_name.setdefault(name, ([], []))
+        times.append(r.t)
+        frames.append(r)
 
     def received(self, since: float = 0.0, name: str | None = None) -> list[Any]:
         """The frames that came at or after ``since`` (of message ``name``, when given)."""
@@ -229,9 +259,33 @@ class Link:
             times, frames = (self._times, self.frames) if name is None else self._by_name.get(name, ([], []))
             return frames[bisect_left(times, since):]
 
-    def wait_for(self, pred: Any, timeout: float) -> bool:
-        """Wait until ``pred()`` holds or ``timeout`` s pass (or a TCP link closes)."""
+    def pump(self, timeout: float) -> None:
+        """A link read in the caller's thread (``threaded=False``): read what arrives within
+        ``timeout`` s, returning once something came (0: read all that is there now)."""
         end = self.clock.monotonic() + timeout
+        while self.closed_at is None:
+            got = self._read_once(max(0.0, end - self.clock.monotonic()))
+            if got is False:
+                self.closed_at = self.closed_at or self.clock.monotonic()  # its end closed: nothing more
+                break
+            if got is None:
+                if self.clock.monotonic() >= end:
+                    break
+                continue
+            if timeout > 0:  # something came: let the caller look at it
+                break
+
+    def wait_for(self, pred: Any, timeout: float) -> bool:
+        """Wait until ``pred()`` holds or ``timeout`` s pass (or a TCP link closes); a link read
+        in the caller's thread is pumped meanwhile."""
+        end = self.clock.monotonic() + timeout
+        if self._reader is None:
+            while not pred():
+                left = end - self.clock.monotonic()
+                if left <= 0 or self.closed_at is not None:
+                    return bool(pred())
+                self.pump(min(left, 0.05))
+            return True
         with self._cond:
             while not pred():
                 left = end - self.clock.monotonic()
@@ -240,7 +294,12 @@ class Link:
                 self._cond.wait(min(left, 0.05))
             return True
 
+    def watch(self, duration: float) -> None:
+        """Let ``duration`` s pass (or the TCP link close), what arrives read meanwhile."""
+        self.wait_for(lambda: False, duration)
+
     def close(self) -> None:
         self._stop.set()
-        self._reader.join(timeout=1.0)
+        if self._reader is not None:
+            self._reader.join(timeout=1.0)
         self._end.close()

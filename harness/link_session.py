@@ -52,33 +52,7 @@ def parse_address(host: str, port: int, default: str = "tcp") -> tuple[str, tupl
     return ("udpin" if scheme == "udp" else scheme), (bare or HOST, port)
 
 
-class _LinkRole(StreamSessionBase):
-    """What both roles on a link share: the run's parameters, clock and net, the run's trace
-    monitor, and the protocol's link."""
-
-    link: Link | None = None
-    #: the protocol's link: ``harness.link.Link`` with its framing, made as
-    #: ``link_class(transport, address, recorder, sock=sock, **kw)`` (``kw``: the core's)
-    link_class: Any = None
-
-    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, clock: Clock = REAL,
-                 net: Any = HOST_LINKS) -> None:
-        super().__init__(cfg, recorder, spec)
-        #: the run's clock and where its links are opened (``harness.link``): the host's, or
-        #: the simulator's (``mcp_conform.sim``)
-        self.clock, self.net = clock, net
-        self.params = spec.params
-        #: the run's trace monitor, fed by every link of the run, the judged role's rules judged
-        #: on a complete trace as ``mcp-capture check`` judges the run's capture; the report's
-        #: monitor section (the runner finishes it once the session closed)
-        self.monitor = monitor
-
-    def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Link:
-        """The protocol's link (:attr:`link_class`), ``kw`` the core's."""
-        return self.link_class(transport, address, self.recorder, sock=sock, **kw)  # type: ignore[no-any-return]
-
-
-class LinkSessionBase(_LinkRole):
+class LinkSessionBase(StreamSessionBase):
     """The node under test over the whole run, and the runner's link to it. A role declares
     ``first_sign`` (the message whose first arrival proves the node there) and ``first_rule``
     (the rule that asks for it), ``beat_thread`` and :meth:`beat_message` (the runner's own
@@ -90,7 +64,7 @@ class LinkSessionBase(_LinkRole):
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, scheme: str,
                  embedded: Any, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
-        super().__init__(cfg, recorder, spec, monitor, clock=clock, net=net)
+        super().__init__(cfg, recorder, spec, monitor=monitor, clock=clock, net=net)
         self.link: Link | None = None
         if cfg.target is not None:
             self.transport, self.address = parse_address(cfg.target[0], cfg.target[1])
@@ -134,8 +108,7 @@ class LinkSessionBase(_LinkRole):
 
     def _open(self) -> None:
         try:
-            self.link = self.make_link(self.transport, self.address, monitor=self.monitor, clock=self.clock,
-                                       net=self.net)
+            self.link = self.make_link(self.transport, self.address)
         except OSError as exc:
             raise SetupError(f"{self.url}: cannot open the link: {exc.strerror or exc}") from None
         self.link_opened = self.clock.monotonic()
@@ -207,7 +180,7 @@ class LinkSessionBase(_LinkRole):
         self.start()
 
 
-class PlayedNodeSession(_LinkRole):
+class PlayedNodeSession(StreamSessionBase):
     """The runner plays a node in-process (a model with ``lock``, ``ids``, ``answer(msg,
     now)`` and ``tick(now)``: the messages to send) on a fresh link for each run, and the judged
     peer is started afresh against it (``--spawn CMD`` with ``{placeholder}``: the URL it
@@ -226,7 +199,7 @@ class PlayedNodeSession(_LinkRole):
 
     def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, monitor: Any, *, scheme: str,
                  template: str | None = None, clock: Clock = REAL, net: Any = HOST_LINKS) -> None:
-        super().__init__(cfg, recorder, spec, monitor, clock=clock, net=net)
+        super().__init__(cfg, recorder, spec, monitor=monitor, clock=clock, net=net)
         self.scheme = scheme
         self._template = template or cfg.spawn or reference_command(*cfg.profile(), f"{{{self.placeholder}}}")
         self.link: Link | None = None
@@ -309,7 +282,7 @@ class PlayedNodeSession(_LinkRole):
     def _open(self, transport: str, address: tuple[str, int], sock: Any = None) -> None:
         assert self.model is not None
         self.link = self.make_link(transport, address, sock, ids=self.model.ids, sent_as="tx", got_as="rx",
-                                   on_frames=self._answer, monitor=self.monitor, clock=self.clock, net=self.net)
+                                   on_frames=self._answer)
         self.run_started = self.clock.monotonic()
         self._stop.clear()
         self._ticker = self.clock.start_thread(self._tick, self.tick_thread)

@@ -14,7 +14,7 @@ Nsqd's framing (:class:`NsqdFraming`: the spec's deframer) and Nsqd's reading of
 
 from __future__ import annotations
 
-import socket
+from functools import partial
 from typing import Any
 
 from mcp_conform.harness.config import RunConfig
@@ -40,9 +40,7 @@ class NsqdFraming:
 
     def __init__(self, spec: StreamSpec) -> None:
         self.spec = spec
-
-    def deframer(self) -> Deframer:
-        return Deframer(self.spec)
+        self.deframer = Deframer(spec)  # the connection's: what a read cut short waits for the next
 
     def _name(self, msg_id: int | None) -> str | None:
         return self.spec.message(msg_id).name if msg_id is not None and self.spec.has_message(msg_id) else None
@@ -53,12 +51,16 @@ class NsqdFraming:
         msg_id = head[0].msg_id if whole else None  # type: ignore[union-attr]
         return {"msg_id": msg_id, "name": self._name(msg_id)}
 
-    def received(self, item: Frame | FramingError, t: float) -> tuple[Received | None, dict[str, Any]]:
+    def deframe(self, data: bytes, t: float) -> list[tuple[Frame | FramingError, Received | None, dict[str, Any]]]:
+        return [self._received(item, t) for item in self.deframer.feed(data)]
+
+    def _received(self, item: Frame | FramingError, t: float) -> tuple[Frame | FramingError, Received | None,
+                                                                       dict[str, Any]]:
         if isinstance(item, FramingError):
-            return None, {"problem": item.reason}
+            return item, None, {"problem": item.reason}
         values, problem = decode_frame(self.spec, item)
-        return Received(t, item, values, problem), {"msg_id": item.msg_id, "name": self._name(item.msg_id),
-                                                    "fields": values, "problem": problem}
+        return item, Received(t, item, values, problem), {"msg_id": item.msg_id, "name": self._name(item.msg_id),
+                                                          "fields": values, "problem": problem}
 
 
 class Conn(StreamConn):
@@ -68,9 +70,10 @@ class Conn(StreamConn):
     frames: list[Received]
     framing_error: FramingError | None
 
-    def __init__(self, sock: socket.socket, spec: StreamSpec, **kw: Any) -> None:
+    def __init__(self, transport: str, address: tuple[str, int], recorder: Any = None, *, spec: StreamSpec = NSQD,
+                 **kw: Any) -> None:
         self.spec = spec
-        super().__init__(sock, NsqdFraming(spec), **kw)
+        super().__init__(NsqdFraming(spec), transport, address, recorder, **kw)
 
     def violation(self) -> SenderViolation | None:
         """The first rule the backend's frames on this connection break, if any (the one
@@ -78,11 +81,10 @@ class Conn(StreamConn):
         return sender_violation(self.spec, self.frames, self.framing_error)
 
     def updates(self, since: float = 0.0) -> list[Received]:
-        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("UPDATE").id
-                and r.values is not None]
+        return [r for r in self.received(since, "UPDATE") if r.values is not None]
 
     def errors(self, since: float = 0.0) -> list[Received]:
-        return [r for r in self.frames if r.t >= since and r.frame.msg_id == self.spec.message("ERROR").id]
+        return self.received(since, "ERROR")
 
     signs = updates  # the frame that shows the backend serving (NSQD-CON-1)
 
@@ -106,10 +108,7 @@ class StreamSession(ConnSessionBase):
 
     def __init__(self, cfg: RunConfig, recorder: Any = None, spec: StreamSpec = NSQD) -> None:
         super().__init__(cfg, recorder, spec, embedded_command)
+        self.link_class = partial(Conn, spec=spec)
         #: the commands ``StreamCaseContext.settle`` saw not to take their effect on this backend,
         #: tried after the others for the rest of the run (until seen to land)
         self.settle_missed: list[str] = []
-
-    def make_conn(self, sock: socket.socket, index: int) -> Conn:
-        return Conn(sock, self.spec, log=self.sent_log, recorder=self.recorder, index=index,
-                    protocol=self.cfg.protocol)

@@ -7,10 +7,10 @@ listens (or dies: its exit and the tail of its output said), and its stop at the
 
 :class:`ConnSessionBase` is the session with a node that serves connections, whatever its
 stream protocol (the runner its client): a connection of the protocol's
-(``harness.stream_conn.StreamConn``) opened per case, the node live when a new connection is
-accepted and sent its first frame, its descriptors watched, a dead or hung spawned node
-restarted for the next case. A protocol declares its connection (``make_conn``), its first
-frame and the rule asking for it, and the parameter that bounds the gap between its frames.
+(``harness.stream_conn.StreamConn``, its ``link_class``) opened per case, the node live when a
+new connection is accepted and sent its first frame, its descriptors watched, a dead or hung
+spawned node restarted for the next case. A protocol declares its connection, its first frame
+and the rule asking for it, and the parameter that bounds the gap between its frames.
 """
 
 from __future__ import annotations
@@ -22,11 +22,12 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.errors import SetupError, SpawnFailure
+from mcp_conform.harness.link import HOST_LINKS
 from mcp_conform.harness.procs import SPAWN_STARTUP_S, ManagedProcess
 from mcp_conform.harness.session_base import SessionBase, SpawnedNode, fill_placeholders, free_port
-from mcp_conform.harness.stream_conn import StreamConn
 
 __all__ = ["ConnSessionBase", "StreamSessionBase", "accepts"]
 
@@ -44,21 +45,37 @@ def accepts(address: tuple[str, int], timeout: float = 0.2) -> bool:
 
 class StreamSessionBase(SessionBase):
     """A session whose node is reached at ``address`` over TCP (or UDP), spawned from
-    ``_template`` with ``{target_host}`` ``{target_port}`` (None: attached): Nsqd's
-    (:class:`ConnSessionBase`) and MAVLink's (``harness.link_session``). A protocol declares
+    ``_template`` with ``{target_host}`` ``{target_port}`` (None: attached), on the links of
+    the runner's one link core (``harness.link.Link``: Nsqd's connections, :class:`ConnSessionBase`;
+    MAVLink's link, ``harness.link_session``). A protocol declares its link (``link_class``),
     its node's first sign of life (``first_sign``: the frame whose arrival proves it there) and
     the rule asking for it (``first_rule``); a spawned node is reached once it listens
-    (:meth:`reach`, tried every ``listen_pause`` s for ``listen_within`` s)."""
+    (:meth:`reach`, tried every ``listen_pause`` s for ``listen_within`` s). ``monitor``: the
+    run's trace monitor every link feeds (None: the protocol judges its frames otherwise);
+    ``clock``, ``net``: the run's clock (``harness.clock``) and where its links are opened
+    (``harness.link.HostLinks``: the host's, or the simulator's in ``mcp_conform.sim``)."""
 
     _template: str | None = None
     address: tuple[str, int] = (HOST, 0)
     first_sign = ""
     first_rule = ""
     listen_within, listen_pause = 10.0, 0.05
+    #: the protocol's link (``harness.link.Link`` with its framing), made as
+    #: ``link_class(transport, address, recorder, sock=sock, monitor=, clock=, net=, **kw)``
+    link_class: Any = None
 
-    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any) -> None:
+    def __init__(self, cfg: RunConfig, recorder: Any, spec: Any, *, monitor: Any = None, clock: Clock = REAL,
+                 net: Any = HOST_LINKS) -> None:
         self.cfg, self.recorder, self.spec = cfg, recorder, spec
         self.node: SpawnedNode | None = None
+        self.params = spec.params
+        self.monitor, self.clock, self.net = monitor, clock, net
+
+    def make_link(self, transport: str, address: tuple[str, int], sock: Any = None, **kw: Any) -> Any:
+        """The protocol's link (:attr:`link_class`) to ``address``, on the run's clock and net,
+        feeding its monitor; ``kw``: the link's own."""
+        return self.link_class(transport, address, self.recorder, sock=sock, monitor=self.monitor, clock=self.clock,
+                               net=self.net, **kw)
 
     def command(self, embedded: Callable[[], str]) -> str | None:
         """The command the node is spawned with: --spawn, or the role's reference node when
@@ -150,7 +167,8 @@ class ConnSessionBase(StreamSessionBase):
     """The node under test over the whole run, and the connections of its cases (see the
     module docstring). A protocol declares ``first_sign`` (its node's first frame on a new
     connection), ``first_rule`` (the rule asking for it), ``gap_param`` (the spec's parameter
-    bounding the gap between its frames) and :meth:`make_conn`."""
+    bounding the gap between its frames) and its connection (``link_class``: a
+    ``harness.stream_conn.StreamConn``)."""
 
     gap_param = ""
 
@@ -164,10 +182,6 @@ class ConnSessionBase(StreamSessionBase):
         self._conn_count = 0
         self._live_at: float | None = None  # when the last connection that proved it live opened
         self.cycles_stalled = False  # the last cycle_connections ended on a node that stopped accepting
-
-    def make_conn(self, sock: socket.socket, index: int) -> StreamConn:
-        """The protocol's connection on ``sock``, the run's ``index``-th."""
-        raise NotImplementedError
 
     # -- life -------------------------------------------------------------------------
     @property
@@ -202,7 +216,8 @@ class ConnSessionBase(StreamSessionBase):
         except OSError:
             return None
         self._conn_count += 1
-        conn = self.make_conn(sock, self._conn_count)
+        conn = self.make_link("tcp", self.address, sock, log=self.sent_log, index=self._conn_count,
+                              protocol=self.cfg.protocol)
         self.conns.append(conn)
         return conn
 

@@ -7,10 +7,15 @@ and came; and ``harness.link_session.LinkSessionBase`` makes the link it declare
 
 from __future__ import annotations
 
+import os
+import resource
 import socket
+import struct
 import threading
 from dataclasses import dataclass
 from typing import Any
+
+import pytest
 
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.link import Link
@@ -47,18 +52,17 @@ class LineFraming:
     def record(self, recorder: Any, direction: str, raw: bytes, t_ns: int, name: str | None) -> None:
         recorder.append((direction, raw, name))
 
-    # harness.stream_conn.StreamFraming
-    def deframer(self) -> Any:
-        return self
 
-    def feed(self, data: bytes) -> list[Line]:
-        return self.deframe(data, 0.0)
+
+class LineStreamFraming(LineFraming):
+    """The same lines as a connection's protocol (``harness.stream_conn.StreamFraming``)."""
+
+    def deframe(self, data: bytes, t: float) -> list[Any]:  # type: ignore[override]
+        return [(line, None if line.bad else line, {"name": None if line.bad else line.name})
+                for line in super().deframe(data, t)]
 
     def sent(self, data: bytes) -> dict[str, Any]:
         return {"name": Line(0.0, data).name}
-
-    def received(self, item: Line, t: float) -> tuple[Any, dict[str, Any]]:
-        return (None if item.bad else Line(t, item.raw)), {"name": None if item.bad else item.name}
 
 
 class Monitor:
@@ -116,8 +120,8 @@ def test_a_stream_protocol_of_its_own_runs_on_the_pumped_connection() -> None:
     server.start()
     rec = Recorder()
     log: list[tuple[float, bytes]] = []
-    conn = StreamConn(socket.create_connection(listener.getsockname()), LineFraming(), log=log, recorder=rec,
-                      index=1, protocol="lines")
+    conn = StreamConn(LineStreamFraming(), "tcp", listener.getsockname(), rec,
+                      sock=socket.create_connection(listener.getsockname()), log=log, index=1, protocol="lines")
     server.join(5.0)
     peer = accepted[0]
     try:
@@ -139,6 +143,36 @@ def test_a_stream_protocol_of_its_own_runs_on_the_pumped_connection() -> None:
         conn.close()
         listener.close()
 
+
+
+def test_the_pumped_connection_sees_a_reset_and_reads_a_descriptor_above_1023() -> None:
+    """The core's read (``harness.link.Link._read_once``) polls its end: a connection whose
+    descriptor is above select()'s 1023 (a run with many open) is read like any other, and the
+    node's RST is the connection's reset, on the capture as the backend's."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < 1200:
+        pytest.skip(f"the descriptor limit ({soft}) is below 1200")
+    listener = socket.create_server(("127.0.0.1", 0))
+    filler = [os.dup(listener.fileno()) for _ in range(1100)]  # the next descriptors are above 1023
+    try:
+        client = socket.create_connection(listener.getsockname())
+        peer, _ = listener.accept()
+        assert client.fileno() > 1023
+        rec = Recorder()
+        conn = StreamConn(LineStreamFraming(), "tcp", listener.getsockname(), rec, sock=client, index=2,
+                          protocol="lines")
+        peer.sendall(b"WORLD 2\n")
+        assert conn.wait_for(lambda: bool(conn.frames), 5.0)
+        assert [f.name for f in conn.frames] == ["WORLD"] and conn.closed_at is None
+        peer.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        peer.close()  # an RST
+        assert conn.wait_for(lambda: conn.closed_at is not None, 5.0)
+        assert conn.reset and rec.records[-1] == ("event", "close", "backend", "rst")
+        conn.close()
+    finally:
+        for fd in filler:
+            os.close(fd)
+        listener.close()
 
 class LineSessionLink(LineLink):
     """The line protocol's link as a session makes it (``link_class``): its framing its own."""
