@@ -22,6 +22,7 @@ from mcp_conform.spec.codec import (
     decode,
     encode,
     peek_header,
+    try_decode,
 )
 from mcp_conform.spec.strategies import MALFORMED_KINDS, datagrams, malformed_datagrams, messages
 from tests.tiers import tiered_property
@@ -191,6 +192,29 @@ def test_decode_survives_the_largest_datagram() -> None:
 def test_decode_rejects_non_bytes_with_decode_error() -> None:
     with pytest.raises(DecodeError):
         decode(None)  # type: ignore[arg-type]
+
+
+def _decode_outcome(data: bytes) -> tuple[Message | None, tuple[str, str] | None]:
+    try:
+        return decode(data), None
+    except DecodeError as exc:
+        assert str(exc) == f"{exc.rule}: {exc.reason}"
+        return None, (exc.rule, exc.reason)
+
+
+@FAST
+@given(st.one_of(datagrams(), st.binary(max_size=120),
+                 st.sampled_from(sorted(MALFORMED_KINDS)).flatmap(malformed_datagrams)))
+def test_try_decode_is_decode_without_the_raise(data: bytes) -> None:
+    """The endpoint's hot path (try_decode) answers what decode does: the message, or the
+    rule and reason decode's DecodeError carries; each read first, then again from the codec's
+    last-datagram memory (the same object), then from an equal but new object."""
+    first = try_decode(data)
+    assert _decode_outcome(data) == first == try_decode(data)
+    other = bytes(bytearray(data))
+    assert _decode_outcome(other) == first
+    assert try_decode(bytearray(data)) == first  # not remembered: not immutable
+    assert (first[0] is None) != (first[1] is None)
 
 
 def test_action_and_mission_item_follow_the_spec() -> None:
