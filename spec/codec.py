@@ -271,18 +271,23 @@ _PRE_LEN = len(PREAMBLE)
 # ---------------------------------------------------------------- public API
 #: ``(message, None)`` or ``(None, (rule, reason))``: what :func:`try_decode` returns.
 Decoded = tuple[Message | None, tuple[str, str] | None]
-#: the last ``bytes`` object decoded and what it decoded to, ``(data, (message, None))`` or
-#: ``(data, (None, (rule, reason)))``. An immutable object is decoded once however many readers
-#: it passes (the simulator's mutant drone reads a datagram, then its endpoint does: the
-#: MCP-ROB-7 flood's 10,000 twice each); a hit is the same object (``is``), never an equal one.
-_last: tuple[Any, Decoded] = (object(), (None, None))  # (a key no caller holds, -)
+#: malformed datagrams already decoded, ``bytes -> (None, (rule, reason))``: decode is a
+#: function of the bytes, so one seen again is answered from here (the MCP-ROB-7 flood's
+#: 10,000 cycle through a few dozen). At most ``_MEMO_MAX`` of at most ``_MEMO_BYTES``, all
+#: forgotten when full.
+_memo: dict[bytes, Decoded] = {}
+_MEMO_MAX = 64
+_MEMO_BYTES = 1024
+#: the last well-formed ``bytes`` object decoded and its answer: the same object read again is
+#: answered from here (``is``, never an equal one: well-formed datagrams rarely repeat), e.g. by
+#: the simulator's mutant drone and then its endpoint. Its first key is one no caller holds.
+_last: tuple[Any, Decoded] = (object(), (None, None))
 _PREAMBLE_HEX = PREAMBLE.hex(" ")
 
 
 def decode(data: bytes) -> Message:
     """Decode one datagram. Raises only :class:`DecodeError` (with ``.rule``)."""
-    last = _last
-    msg, bad = last[1] if data is last[0] else try_decode(data)
+    msg, bad = try_decode(data)
     if bad is not None:
         raise DecodeError(*bad)
     return msg  # type: ignore[return-value]  # (message, None)
@@ -291,14 +296,23 @@ def decode(data: bytes) -> Message:
 def try_decode(data: bytes) -> Decoded:
     """Decode one datagram without raising: ``(message, None)``, or ``(None, (rule, reason))``
     where :func:`decode` would raise ``DecodeError(rule, reason)`` (the node's hot path: a
-    malformed datagram, MCP-ROB-1..4 and PAY-6, costs no exception)."""
+    malformed datagram, MCP-ROB-1..4 and PAY-6, costs no exception). Answers are immutable."""
     global _last
     last = _last
     if data is last[0]:
         return last[1]
+    if type(data) is not bytes:  # a bytearray may change: not remembered
+        return _decode(data)
+    small = len(data) <= _MEMO_BYTES
+    if small and (out := _memo.get(data)) is not None:
+        return out
     out = _decode(data)
-    if type(data) is bytes:
+    if out[1] is None:
         _last = (data, out)
+    elif small:
+        if len(_memo) >= _MEMO_MAX:
+            _memo.clear()  # (one call: other threads may decode meanwhile)
+        _memo[data] = out
     return out
 
 

@@ -217,6 +217,20 @@ def test_try_decode_is_decode_without_the_raise(data: bytes) -> None:
     assert (first[0] is None) != (first[1] is None)
 
 
+def test_the_memory_of_malformed_datagrams_is_bounded() -> None:
+    """try_decode remembers malformed datagrams (a flood repeats a few), at most _MEMO_MAX of
+    at most _MEMO_BYTES each: a flood of distinct ones, or of big ones, holds no more."""
+    from mcp_conform.spec import codec
+
+    for i in range(3 * codec._MEMO_MAX):
+        data = build_datagram(1, 0, i, 200)  # MCP-ROB-3, each different
+        assert try_decode(data) == (None, ("MCP-ROB-3", "action code 200 is not 0-8"))
+        assert 0 < len(codec._memo) <= codec._MEMO_MAX
+    big = build_datagram(1, 0, 1, Action.WP_LIST, b"\x00\x09" + bytes(codec._MEMO_BYTES))
+    assert try_decode(big)[1][0] == "MCP-ROB-4"  # type: ignore[index]
+    assert big not in codec._memo
+
+
 def test_action_and_mission_item_follow_the_spec() -> None:
     from mcp_conform.spec import SPEC
 
