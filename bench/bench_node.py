@@ -1,6 +1,7 @@
 """Reference node ACK round trips on loopback, beside a plain-Python UDP echo server.
 
     python bench/bench_node.py [--count N] [--max-seconds S] [--rounds R]
+    python bench/bench_node.py --endpoint [--count N] [--rounds R]
 
 Two servers run as separate processes on 127.0.0.1, one after the other:
 
@@ -12,8 +13,15 @@ The same client loop measures both: it sends a unicast command (WP_Off, ID 0 -> 
 new sequence number, waits for the reply (for the node: the ACK whose payload is that
 seq, MCP-ACK-2; for the echo: the datagram itself), and repeats, bounded by ``--count``
 round trips and ``--max-seconds`` per round. It prints round trips per second and p50/p99
-latency for each, and the node's rate as a fraction of the echo's (docs/design.md's target:
-within 2x, i.e. at least 0.5). Figures only: nothing here asserts a timing.
+latency for each, the servers' CPU per round trip (from ``/proc``, where there is one), and
+the node's rate as a fraction of the echo's (docs/design.md's target: within 2x, i.e. at
+least 0.5).
+
+``--endpoint``: no sockets, no threads; the sans-I/O ``Endpoint`` alone, its CPU per datagram
+(best of the rounds) for a unicast it ACKs and delivers, for a malformed datagram (MCP-ROB-7's
+flood corpus: bad preamble, unknown action, count mismatch), and for the same malformed
+datagram decoded first by its reader (the simulator's mutant drone reads each datagram, then
+hands it to the endpoint). Figures only: nothing here asserts a timing.
 """
 
 from __future__ import annotations
@@ -99,6 +107,15 @@ def client_loop(sock: socket.socket, server: tuple[str, int], count: int, max_se
     return lat, lost, perf() - start
 
 
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of process ``pid`` (all its threads) so far; None without /proc."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _spawn(args: list[str], tmp: Path) -> tuple[subprocess.Popen[bytes], int]:
     port_file = tmp / f"port-{args[0]}-{os.getpid()}"
     port_file.unlink(missing_ok=True)
@@ -125,13 +142,17 @@ def measure(kind: str, count: int, max_seconds: float, rounds: int, tmp: Path) -
         client_loop(client, (LOOP, port), min(500, count), max_seconds, kind == "node", 60000)  # warm-up
         best: dict[str, float] = {}
         for r in range(rounds):
+            cpu0 = _cpu_s(proc.pid)
             lat, lost, elapsed = client_loop(client, (LOOP, port), count, max_seconds, kind == "node", r * count)
+            cpu1 = _cpu_s(proc.pid)
             if not lat:
                 continue
             rate = len(lat) / elapsed
             if rate > best.get("rate", 0.0):
                 q = statistics.quantiles(lat, n=100)
                 best = {"rate": rate, "p50": q[49], "p99": q[98], "n": len(lat), "lost": lost}
+                if cpu0 is not None and cpu1 is not None:
+                    best["cpu"] = (cpu1 - cpu0) / (len(lat) + lost)
         return best
     finally:
         proc.terminate()
@@ -147,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--count", type=int, default=5000, help="round trips per round (default 5000)")
     ap.add_argument("--max-seconds", type=float, default=5.0, help="time limit per round (default 5)")
     ap.add_argument("--rounds", type=int, default=3, help="rounds; the best is reported (default 3)")
+    ap.add_argument("--endpoint", action="store_true", help="the sans-I/O endpoint alone: CPU per datagram")
     ap.add_argument("--serve", choices=["node", "echo"], help=argparse.SUPPRESS)
     ap.add_argument("--port-file", help=argparse.SUPPRESS)
     ap.add_argument("--client-port", type=int, default=0, help=argparse.SUPPRESS)
@@ -159,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.count < 1 or args.rounds < 1 or args.max_seconds <= 0:
         ap.error("--count, --rounds and --max-seconds must be positive")
+    if args.endpoint:
+        return endpoint_cpu(args.count, args.rounds)
     tmp = Path(os.environ.get("TMPDIR", "/tmp"))
     print(f"python {platform.python_version()} on {platform.machine()}, {os.cpu_count()} CPUs; "
           f"{args.count} round trips x {args.rounds} rounds (best), loopback")
@@ -168,12 +192,60 @@ def main(argv: list[str] | None = None) -> int:
         if not r:
             print(f"{label:24s}: no round trip completed")
             continue
+        cpu = f"   server CPU {r['cpu'] * 1e6:5.1f} us/rt" if "cpu" in r else ""
         print(f"{label:24s}: {r['rate']:9.0f} rt/s   p50 {r['p50'] * 1e6:7.1f} us   "
-              f"p99 {r['p99'] * 1e6:7.1f} us   ({r['n']:.0f} rt, {r['lost']:.0f} lost)")
+              f"p99 {r['p99'] * 1e6:7.1f} us   ({r['n']:.0f} rt, {r['lost']:.0f} lost){cpu}")
     if results["echo"] and results["node"]:
         ratio = results["node"]["rate"] / results["echo"]["rate"]
         verdict = "meets" if ratio >= 0.5 else "MISSES"
         print(f"node / echo rate: {ratio:.2f}  ({verdict} the target of >= 0.50)")
+    return 0
+
+
+# ---------------------------------------------------------------- --endpoint
+def endpoint_cpu(count: int, rounds: int) -> int:
+    """CPU per datagram of the sans-I/O endpoint alone (module docstring, ``--endpoint``)."""
+    from mcp_conform.reference_impl.endpoint import Endpoint
+    from mcp_conform.spec.codec import DecodeError, decode
+    from mcp_conform.spec.generators import malformed_corpus
+
+    addr = (LOOP, 14550)
+    flood = [d for _, d in malformed_corpus(1, 8, dst=NODE_ID, src=0, first_seq=100,
+                                            kinds=["bad_preamble", "unknown_action", "count_mismatch"])]
+    unicasts = [encode(Message(NODE_ID, 0, i & 0xFFFF, Action.WP_OFF, None)) for i in range(count)]
+    malformed = [flood[i % len(flood)] for i in range(count)]
+
+    def endpoint_alone(datagrams: list[bytes]) -> float:
+        ep = Endpoint(NODE_ID, initial_seq=0)
+        receive, events, out, cpu = ep.receive_datagram, ep.events, ep.datagrams_to_send, time.process_time
+        t0 = cpu()
+        for data in datagrams:
+            receive(data, addr, 0.0)
+            events()
+            out()
+        return (cpu() - t0) / len(datagrams)
+
+    def read_then_endpoint(datagrams: list[bytes]) -> float:
+        ep = Endpoint(NODE_ID, initial_seq=0)
+        receive, events, out, cpu = ep.receive_datagram, ep.events, ep.datagrams_to_send, time.process_time
+        t0 = cpu()
+        for data in datagrams:
+            try:
+                decode(data)
+            except DecodeError:
+                pass
+            receive(data, addr, 0.0)
+            events()
+            out()
+        return (cpu() - t0) / len(datagrams)
+
+    print(f"python {platform.python_version()} on {platform.machine()}; the sans-I/O endpoint alone, "
+          f"{count} datagrams x {rounds} rounds (best), CPU per datagram")
+    for label, run, data in (("unicast, ACKed and delivered", endpoint_alone, unicasts),
+                             ("malformed (MCP-ROB-7 flood)", endpoint_alone, malformed),
+                             ("malformed, read, then endpoint", read_then_endpoint, malformed)):
+        best = min(run(data) for _ in range(rounds))
+        print(f"{label:32s}: {best * 1e6:6.2f} us")
     return 0
 
 

@@ -27,12 +27,18 @@ __all__ = ["FALLBACK_RULE", "Input", "State", "TRANSITIONS", "Transition", "look
 class State(Enum):
     """Sender state of one endpoint (MCP-BLK-1 stop-and-wait)."""
 
+    # members compare by identity (Enum has no __eq__), so they may hash by it too: the
+    # endpoint looks one up per datagram, and Enum.__hash__ (hash of the name) is Python code
+    __hash__ = object.__hash__
+
     IDLE = "idle"                  # no unicast of ours awaits an ACK
     AWAITING_ACK = "awaiting_ack"  # one unicast in flight; others wait in the queue
 
 
 class Input(Enum):
     """What happened, as the endpoint classifies it before looking up the table."""
+
+    __hash__ = object.__hash__  # as State's
 
     UNICAST = "unicast"                  # well-formed, dst = our ID, not an ACK
     BROADCAST = "broadcast"              # well-formed, dst = broadcast ID, not an ACK

@@ -72,16 +72,18 @@ from mcp_conform.spec.codec import (
     BROADCAST_ID,
     PREAMBLE,
     Action,
-    DecodeError,
     LocalProtocolError,
     Message,
-    decode,
     encode_payload,
+    try_decode,
 )
 
 __all__ = ["Endpoint", "State"]
 
 _ACK = int(Action.ACK)
+_IDLE, _MALFORMED = State.IDLE, Input.MALFORMED
+#: one state's transitions: input kind -> (handler, next state, the next state's row)
+_Row = dict[Input, tuple[Callable[..., None], State, Any]]
 _SEQ_MOD = 0x10000
 _SERIAL_HALF = 0x8000  # serial-number arithmetic: "behind" means less than half the space back
 #: The header after the preamble (dst, src, seq, action), from the spec's header table.
@@ -146,11 +148,16 @@ class Endpoint:
         self._recent: dict[int, deque[int]] = {}
         # src -> the highest seq delivered from it, in serial arithmetic (see ``_deliver``)
         self._highest: dict[int, int] = {}
+        # src -> a bound on how far (serial) its remembered seqs lie behind its highest (never
+        # less than the farthest): ``_deliver`` looks for seqs to forget only once it reaches half the space
+        self._far: dict[int, int] = {}
         self._events: deque[Event] = deque()
         self._outgoing: list[tuple[bytes, Address | None]] = []
-        self._table: dict[tuple[State, Input], tuple[Callable[..., None], State]] = {
-            key: (getattr(self, "_on_" + t.handler), t.next_state) for key, t in TRANSITIONS.items()
-        }
+        # TRANSITIONS as one row per state: kind -> (handler, next state, the next state's row)
+        rows: dict[State, _Row] = {s: {} for s in State}
+        for (state, kind), t in TRANSITIONS.items():
+            rows[state][kind] = (getattr(self, "_on_" + t.handler), t.next_state, rows[t.next_state])
+        self._row = rows[self._state]  # the current state's
 
     # ------------------------------------------------------------------ inspection
     @property
@@ -203,12 +210,12 @@ class Endpoint:
     def receive_datagram(self, data: bytes, addr: Address, now: float) -> None:
         """Take one datagram that arrived at ``now`` from ``addr``. Never raises."""
         try:
-            msg = decode(data)
-        except DecodeError as exc:
-            self._step(Input.MALFORMED, None, addr, now, (data, exc.rule, exc.reason))
-            return
+            msg, bad = try_decode(data)
         except Exception as exc:  # noqa: BLE001 - a codec bug must not stop the node (ROB-5)
-            self._step(Input.MALFORMED, None, addr, now, (data, FALLBACK_RULE, f"codec error: {exc!r}"))
+            self._step(_MALFORMED, None, addr, now, (data, (FALLBACK_RULE, f"codec error: {exc!r}")))
+            return
+        if msg is None:  # MCP-ROB-1..4, PAY-6: bad is (rule, reason)
+            self._step(_MALFORMED, None, addr, now, (data, bad))
             return
         if msg.src == self.node_id:
             kind = Input.FROM_SELF
@@ -281,16 +288,16 @@ class Endpoint:
         return seq
 
     def _step(self, kind: Input, msg: Message | None, addr: Address, now: float, arg: Any) -> None:
-        entry = self._table.get((self._state, kind))
+        entry = self._row.get(kind)
         if entry is None:
             self._events.append(Unexpected(
                 msg, addr, FALLBACK_RULE,
                 f"input {kind.value} is not allowed in state {self._state.value}; ignored"))
             return
-        handler, next_state = entry
+        handler, next_state, row = entry
         handler(msg, addr, now, arg)
-        self._state = next_state
-        if next_state is State.IDLE and self._queue:
+        self._state, self._row = next_state, row
+        if next_state is _IDLE and self._queue:
             self._step(Input.DEQUEUE, None, None, now, None)
 
     # ------------------------------------------------------------------ handlers (table)
@@ -320,7 +327,10 @@ class Endpoint:
         next is "ahead of the last" yet already delivered. A seq ahead of the highest is
         always new, so 0 after 65535 is new (MCP-SEQ-3), and so is any seq never delivered
         (DUP-2, per src: DUP-3). When the highest moves, remembered seqs half the space or
-        more behind it are forgotten, so an old 0 can never shadow the 0 after 65535.
+        more behind it are forgotten, so an old 0 can never shadow the 0 after 65535. (Looking
+        for them is a scan of the window; ``_far`` bounds how far behind the remembered seqs
+        lie, so the scan runs only when the bound reaches half the space: once in ~32,000
+        messages of a sequential peer, instead of each time the highest moves.)
         """
         src, seq = msg.src, msg.seq
         recent = self._recent.get(src)
@@ -335,12 +345,23 @@ class Endpoint:
             if ((highest - seq) & 0xFFFF) < _SERIAL_HALF and seq in recent:
                 self._events.append(DuplicateDiscarded(msg, addr, "MCP-DUP-4"))
                 return
-        if highest is None or 0 < ((seq - highest) & 0xFFFF) < _SERIAL_HALF:
+        if highest is None:
             self._highest[src] = seq
-            if any(((seq - s) & 0xFFFF) >= _SERIAL_HALF for s in recent):
-                kept = [s for s in recent if ((seq - s) & 0xFFFF) < _SERIAL_HALF]
-                recent.clear()
-                recent.extend(kept)
+            far = 0
+        elif 0 < (ahead := (seq - highest) & 0xFFFF) < _SERIAL_HALF:
+            self._highest[src] = seq
+            # every remembered seq is now ``ahead`` further behind; none can be half the space
+            # behind unless the bound says so (then it is checked, and made exact again)
+            far = self._far[src] + ahead
+            if far >= _SERIAL_HALF:
+                if any(((seq - s) & 0xFFFF) >= _SERIAL_HALF for s in recent):
+                    kept = [s for s in recent if ((seq - s) & 0xFFFF) < _SERIAL_HALF]
+                    recent.clear()
+                    recent.extend(kept)
+                far = max([(seq - s) & 0xFFFF for s in recent], default=0)
+        else:  # a late seq, remembered behind the highest
+            far = max(self._far[src], (highest - seq) & 0xFFFF)
+        self._far[src] = far
         recent.append(seq)
         self._events.append(MessageDelivered(msg, addr))
 
@@ -361,7 +382,7 @@ class Endpoint:
                                     "broadcast; neither ACKed nor acted on"))
 
     def _on_drop_malformed(self, msg: None, addr: Address, now: float, arg: Any) -> None:
-        data, rule, reason = arg
+        data, (rule, reason) = arg
         self._events.append(Malformed(bytes(data), addr, rule, reason))
 
     def _on_confirm(self, msg: Message, addr: Address, now: float, arg: Any) -> None:

@@ -4,7 +4,8 @@
 ``struct.Struct`` tables are compiled from the spec's struct strings; each action code's
 payload codec is chosen by the payload *kind* the spec gives it, so no message type has
 hand-written packing. ``decode`` raises only :class:`DecodeError`, whose ``rule`` is the
-violated rule ID (MCP-ROB-1/2/3/4, MCP-PAY-6); ``encode`` raises
+violated rule ID (MCP-ROB-1/2/3/4, MCP-PAY-6), and ``try_decode`` returns that rule and
+reason instead of raising; ``encode`` raises
 :class:`LocalProtocolError` when our own caller builds a message the spec does not allow.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 from enum import IntEnum
+from functools import partial
 from typing import Any, NamedTuple
 
 from mcp_conform.spec import SPEC
@@ -22,6 +24,7 @@ __all__ = [
     "Action",
     "BROADCAST_ID",
     "DecodeError",
+    "Decoded",
     "HEADER",
     "HEADER_SIZE",
     "ITEM",
@@ -39,6 +42,7 @@ __all__ = [
     "encode",
     "encode_payload",
     "peek_header",
+    "try_decode",
 ]
 
 # ---------------------------------------------------------------- derived constants
@@ -149,50 +153,59 @@ _make_item = MissionItem._make
 _iter_items = ITEM.iter_unpack
 
 
-def _dec_empty(data: bytes, n: int, src: int) -> None:
+class _Reject(tuple[str, str]):
+    """``(rule, reason)``: a payload decoder's verdict on a malformed payload, returned (not
+    raised: a flood of malformed datagrams costs no exception per datagram). No payload a
+    decoder returns is of this type, so ``type(p) is _Reject`` tells them apart."""
+
+    __slots__ = ()
+
+
+def _dec_empty(data: bytes, n: int, src: int) -> _Reject | None:
     if n != HEADER_SIZE:
-        raise DecodeError("MCP-ROB-4", f"payload of {n - HEADER_SIZE} bytes where this action has none")
+        return _Reject(("MCP-ROB-4", f"payload of {n - HEADER_SIZE} bytes where this action has none"))
+    return None
 
 
-def _dec_optional_id(data: bytes, n: int, src: int) -> int | None:
+def _dec_optional_id(data: bytes, n: int, src: int) -> int | _Reject | None:
     if n == HEADER_SIZE:
         return None
     if n != HEADER_SIZE + 2:
-        raise DecodeError("MCP-ROB-4", f"Mission_Ready payload of {n - HEADER_SIZE} bytes (0 or 2 allowed, D-3)")
+        return _Reject(("MCP-ROB-4", f"Mission_Ready payload of {n - HEADER_SIZE} bytes (0 or 2 allowed, D-3)"))
     (ident,) = _U16.unpack_from(data, HEADER_SIZE)
     if ident != src:
-        raise DecodeError("MCP-ROB-4", f"Mission_Ready carries ID {ident} but src is {src} (D-3)")
+        return _Reject(("MCP-ROB-4", f"Mission_Ready carries ID {ident} but src is {src} (D-3)"))
     return ident
 
 
-def _dec_seq(data: bytes, n: int, src: int) -> int:
+def _dec_seq(data: bytes, n: int, src: int) -> int | _Reject:
     if n != HEADER_SIZE + 2:
-        raise DecodeError("MCP-ROB-4", f"ACK payload of {n - HEADER_SIZE} bytes (exactly 2 required)")
+        return _Reject(("MCP-ROB-4", f"ACK payload of {n - HEADER_SIZE} bytes (exactly 2 required)"))
     return _U16.unpack_from(data, HEADER_SIZE)[0]
 
 
 def _dec_items(data: bytes, n: int, src: int) -> tuple[Any, ...]:
     if n < HEADER_SIZE + COUNT_SIZE:
-        raise DecodeError("MCP-ROB-4", f"list payload of {n - HEADER_SIZE} bytes has no {COUNT_SIZE}-byte count")
+        return _Reject(("MCP-ROB-4", f"list payload of {n - HEADER_SIZE} bytes has no {COUNT_SIZE}-byte count"))
     (count,) = _COUNT.unpack_from(data, HEADER_SIZE)
     want = HEADER_SIZE + COUNT_SIZE + ITEM_SIZE * count
     if n != want:
-        raise DecodeError("MCP-ROB-4", f"count {count} needs {want} bytes, datagram has {n}")
+        return _Reject(("MCP-ROB-4", f"count {count} needs {want} bytes, datagram has {n}"))
     return tuple(map(_make_item, _iter_items(memoryview(data)[HEADER_SIZE + COUNT_SIZE:])))
 
 
 def _dec_item(data: bytes, n: int, src: int) -> Any:
     if n != HEADER_SIZE + ITEM_SIZE:
-        raise DecodeError("MCP-ROB-4", f"WP_On payload of {n - HEADER_SIZE} bytes (exactly {ITEM_SIZE} required)")
+        return _Reject(("MCP-ROB-4", f"WP_On payload of {n - HEADER_SIZE} bytes (exactly {ITEM_SIZE} required)"))
     return _make_item(ITEM.unpack_from(data, HEADER_SIZE))
 
 
-def _dec_frame(data: bytes, n: int, src: int) -> bytes:
+def _dec_frame(data: bytes, n: int, src: int) -> bytes | _Reject:
     frame = bytes(data[HEADER_SIZE:])
     try:
         parse_frame(frame)
     except FrameError as exc:
-        raise DecodeError("MCP-PAY-6", str(exc)) from None
+        return _Reject(("MCP-PAY-6", str(exc)))
     return frame
 
 
@@ -248,52 +261,77 @@ _DECODERS = tuple(_KINDS[SPEC.actions[a].payload_kind][0] for a in _ACTIONS)
 _ENCODERS = tuple(_KINDS[SPEC.actions[a].payload_kind][1] for a in _ACTIONS)
 _N_ACTIONS = len(_ACTIONS)
 _unpack_header = HEADER.unpack_from
+#: ``Message`` from a 5-tuple without the Python-level ``__new__`` a NamedTuple call runs
+_new_message = partial(tuple.__new__, Message)
 _pack_header = HEADER.pack
 _P0, _P1, _P2 = _PREAMBLE_CONSTS
 _PRE_LEN = len(PREAMBLE)
 
 
 # ---------------------------------------------------------------- public API
-#: the last ``bytes`` object decoded and what it decoded to: (data, message, None) or (data,
-#: None, (rule, reason)). An immutable object is decoded once however many readers it passes
-#: (the simulator's mutant drone reads a datagram, then its endpoint does: the MCP-ROB-7
-#: flood's 10,000 twice each); a hit is the same object (``is``), never an equal one.
-_last: tuple[Any, Message | None, tuple[str, str] | None] = (None, None, None)
+#: ``(message, None)`` or ``(None, (rule, reason))``: what :func:`try_decode` returns.
+Decoded = tuple[Message | None, tuple[str, str] | None]
+#: malformed datagrams already decoded, ``bytes -> (None, (rule, reason))``: decode is a
+#: function of the bytes, so one seen again is answered from here (the MCP-ROB-7 flood's
+#: 10,000 cycle through a few dozen). At most ``_MEMO_MAX`` of at most ``_MEMO_BYTES``, all
+#: forgotten when full.
+_memo: dict[bytes, Decoded] = {}
+_MEMO_MAX = 64
+_MEMO_BYTES = 1024
+#: the last well-formed ``bytes`` object decoded and its answer: the same object read again is
+#: answered from here (``is``, never an equal one: well-formed datagrams rarely repeat), e.g. by
+#: the simulator's mutant drone and then its endpoint. Its first key is one no caller holds.
+_last: tuple[Any, Decoded] = (object(), (None, None))
 _PREAMBLE_HEX = PREAMBLE.hex(" ")
 
 
 def decode(data: bytes) -> Message:
     """Decode one datagram. Raises only :class:`DecodeError` (with ``.rule``)."""
+    msg, bad = try_decode(data)
+    if bad is not None:
+        raise DecodeError(*bad)
+    return msg  # type: ignore[return-value]  # (message, None)
+
+
+def try_decode(data: bytes) -> Decoded:
+    """Decode one datagram without raising: ``(message, None)``, or ``(None, (rule, reason))``
+    where :func:`decode` would raise ``DecodeError(rule, reason)`` (the node's hot path: a
+    malformed datagram, MCP-ROB-1..4 and PAY-6, costs no exception). Answers are immutable."""
     global _last
     last = _last
     if data is last[0]:
-        if last[2] is not None:
-            raise DecodeError(*last[2])
-        return last[1]  # type: ignore[return-value]  # (data, message, None)
-    try:
-        msg = _decode(data)
-    except DecodeError as exc:
-        if type(data) is bytes:
-            _last = (data, None, (exc.rule, exc.reason))
-        raise
-    if type(data) is bytes:
-        _last = (data, msg, None)
-    return msg
+        return last[1]
+    if type(data) is not bytes:  # a bytearray may change: not remembered
+        return _decode(data)
+    small = len(data) <= _MEMO_BYTES
+    if small and (out := _memo.get(data)) is not None:
+        return out
+    out = _decode(data)
+    if out[1] is None:
+        _last = (data, out)
+    elif small:
+        if len(_memo) >= _MEMO_MAX:
+            _memo.clear()  # (one call: other threads may decode meanwhile)
+        _memo[data] = out
+    return out
 
 
-def _decode(data: bytes) -> Message:
+def _decode(data: bytes) -> Decoded:
     try:
         n = len(data)
     except TypeError:
-        raise DecodeError("MCP-ROB-1", f"not a datagram: {type(data).__name__}") from None
+        return None, ("MCP-ROB-1", f"not a datagram: {type(data).__name__}")
     if n < HEADER_SIZE:
-        raise DecodeError("MCP-ROB-1", f"datagram of {n} bytes is shorter than the {HEADER_SIZE}-byte header")
+        return None, ("MCP-ROB-1", f"datagram of {n} bytes is shorter than the {HEADER_SIZE}-byte header")
     if data[:_PRE_LEN] != PREAMBLE:
-        raise DecodeError("MCP-ROB-2", f"preamble {bytes(data[:_PRE_LEN]).hex(' ')} is not {_PREAMBLE_HEX}")
+        return None, ("MCP-ROB-2", f"preamble {bytes(data[:_PRE_LEN]).hex(' ')} is not {_PREAMBLE_HEX}")
     _, _, _, dst, src, seq, action = _unpack_header(data)
     if action >= _N_ACTIONS:
-        raise DecodeError("MCP-ROB-3", f"action code {action} is not 0-{_N_ACTIONS - 1}")
-    return Message(dst, src, seq, _ACTIONS[action], _DECODERS[action](data, n, src))
+        return None, ("MCP-ROB-3", f"action code {action} is not 0-{_N_ACTIONS - 1}")
+    payload = _DECODERS[action](data, n, src)
+    if type(payload) is _Reject:
+        return None, payload
+    return _new_message((dst, src, seq, _ACTIONS[action], payload)), None
 
 
 def encode_payload(action: int, payload: Any) -> bytes:

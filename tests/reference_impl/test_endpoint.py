@@ -153,6 +153,58 @@ def test_copy_of_the_highest_after_a_late_older_message_is_not_delivered_again()
     assert any(isinstance(e, MessageDelivered) for e in evs)
 
 
+def _window_model(seqs: list[int], window: int) -> list[str]:
+    """The duplicate window as ``Endpoint._deliver``'s docstring states it, done the plain
+    way (every seq half the space or more behind a new highest forgotten at once): per seq,
+    "new", "MCP-DUP-1" or "MCP-DUP-4"."""
+    from collections import deque
+
+    recent: deque[int] = deque(maxlen=window)
+    highest: int | None = None
+    out = []
+    for seq in seqs:
+        if recent and seq == recent[-1]:
+            out.append("MCP-DUP-1")
+            continue
+        if recent and ((highest - seq) & 0xFFFF) < 0x8000 and seq in recent:
+            out.append("MCP-DUP-4")
+            continue
+        if highest is None or 0 < ((seq - highest) & 0xFFFF) < 0x8000:
+            highest = seq
+            kept = [s for s in recent if ((seq - s) & 0xFFFF) < 0x8000]
+            recent.clear()
+            recent.extend(kept)
+        recent.append(seq)
+        out.append("new")
+    return out
+
+
+@pytest.mark.parametrize("window", [1, 2, 5, 64])
+def test_duplicate_window_forgets_what_the_plain_scan_forgets(window):
+    """MCP-DUP-1/4, SEQ-3: the endpoint looks for seqs to forget only when a bound says some
+    may be half the space behind; its verdicts must be those of looking every time. Walks
+    with steps at the boundaries (half the space, one either side), late and repeated seqs
+    and sequential runs, across the wrap, per seed."""
+    steps = [0, 1, 1, 1, 1, 2, -1, -2, -5, 0x7FFF, 0x8000, 0x8001, 0x7FF0, -0x7FFF, -0x8000]
+    for seed in range(20):
+        rng = random.Random(seed)
+        seq, seqs = rng.randrange(0x10000), []
+        for _ in range(300):
+            if rng.random() < 0.03:  # a sequential run, as a live peer sends
+                for _ in range(rng.randrange(20, 200)):
+                    seq = (seq + 1) & 0xFFFF
+                    seqs.append(seq)
+            seq = (seq + rng.choice(steps)) & 0xFFFF
+            seqs.append(seq)
+        ep = drone(dup_window=window)
+        got = []
+        for s in seqs:
+            _, evs = feed(ep, Message(BROADCAST_ID, 0, s, Action.WP_OFF, None))
+            (ev,) = evs
+            got.append("new" if isinstance(ev, MessageDelivered) else ev.rule)
+        assert got == _window_model(seqs, window), seed
+
+
 def test_late_copy_of_an_older_message_is_not_delivered_again():
     """MCP-DUP-4 (open): a retransmission overtaken by a newer message is discarded."""
     ep = drone()

@@ -22,6 +22,7 @@ from mcp_conform.spec.codec import (
     decode,
     encode,
     peek_header,
+    try_decode,
 )
 from mcp_conform.spec.strategies import MALFORMED_KINDS, datagrams, malformed_datagrams, messages
 from tests.tiers import tiered_property
@@ -191,6 +192,43 @@ def test_decode_survives_the_largest_datagram() -> None:
 def test_decode_rejects_non_bytes_with_decode_error() -> None:
     with pytest.raises(DecodeError):
         decode(None)  # type: ignore[arg-type]
+
+
+def _decode_outcome(data: bytes) -> tuple[Message | None, tuple[str, str] | None]:
+    try:
+        return decode(data), None
+    except DecodeError as exc:
+        assert str(exc) == f"{exc.rule}: {exc.reason}"
+        return None, (exc.rule, exc.reason)
+
+
+@FAST
+@given(st.one_of(datagrams(), st.binary(max_size=120),
+                 st.sampled_from(sorted(MALFORMED_KINDS)).flatmap(malformed_datagrams)))
+def test_try_decode_is_decode_without_the_raise(data: bytes) -> None:
+    """The endpoint's hot path (try_decode) answers what decode does: the message, or the
+    rule and reason decode's DecodeError carries; each read first, then again from the codec's
+    last-datagram memory (the same object), then from an equal but new object."""
+    first = try_decode(data)
+    assert _decode_outcome(data) == first == try_decode(data)
+    other = bytes(bytearray(data))
+    assert _decode_outcome(other) == first
+    assert try_decode(bytearray(data)) == first  # not remembered: not immutable
+    assert (first[0] is None) != (first[1] is None)
+
+
+def test_the_memory_of_malformed_datagrams_is_bounded() -> None:
+    """try_decode remembers malformed datagrams (a flood repeats a few), at most _MEMO_MAX of
+    at most _MEMO_BYTES each: a flood of distinct ones, or of big ones, holds no more."""
+    from mcp_conform.spec import codec
+
+    for i in range(3 * codec._MEMO_MAX):
+        data = build_datagram(1, 0, i, 200)  # MCP-ROB-3, each different
+        assert try_decode(data) == (None, ("MCP-ROB-3", "action code 200 is not 0-8"))
+        assert 0 < len(codec._memo) <= codec._MEMO_MAX
+    big = build_datagram(1, 0, 1, Action.WP_LIST, b"\x00\x09" + bytes(codec._MEMO_BYTES))
+    assert try_decode(big)[1][0] == "MCP-ROB-4"  # type: ignore[index]
+    assert big not in codec._memo
 
 
 def test_action_and_mission_item_follow_the_spec() -> None:
