@@ -129,7 +129,7 @@ class Backend(ProcessTarget):
         waited for it."""
         if self.target is not None and self.spawn is None:
             self._drop()
-            self.check_live("before a replay on it")  # a replay needs a live backend before its input
+            self.check_live("when the fuzzer came back to it (a replay, or a restart after a hit)")
             return self
         self.handed_on = True
         self.end()
@@ -141,7 +141,8 @@ class Backend(ProcessTarget):
     def check_live(self, why: str) -> None:
         """Attach mode: the backend accepts a new connection and sends its first frame within
         the protocol's allowance (NSQD-CON-1, as at the start), or ``TargetLost`` naming it and
-        ``why`` it was looked at. Attach mode has no other backend to replay on: replays on the
+        ``why`` it was looked at (:meth:`fresh`, which every replay and every restart after a
+        crash or hang calls). Attach mode has no other backend to replay on: replays on the
         same dead one "confirm" whatever it showed last (a backend killed mid-campaign was a
         confirmed NSQD-ROB-1 hang, 53,452 times, 3 of 3 replays), as ``fuzz.target_base``'s
         check ends an MCP campaign and ``fuzz.mavlink_triage`` a MAVLink one."""

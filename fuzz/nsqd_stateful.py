@@ -91,8 +91,6 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     replay sees which op it followed. The backend to go on with."""
 
     sig = hit.signature
-    if campaign.target.attached and sig.oracle in ("crash", "hang"):
-        backend.check_live(f"after {hit.detail}")  # findings so far are kept
     known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
     if campaign.again(known):
         return backend.fresh() if sig.oracle in ("crash", "hang", "sanitizer") else backend

@@ -136,8 +136,6 @@ class StreamTriage(HitTriage):
         """Counted, not triaged: a known finding's hit, a signature that did not reproduce
         ``UNCONFIRMED_TRIES`` times when shown ``how`` (after a case, after a probe window,
         by a program), or any once the triage budget is spent."""
-        if self.target.attached and sig.oracle in ("crash", "hang"):
-            backend.check_live(f"after {sig.describe()}")  # findings so far are kept
         return self.counted(self.known(sig), (sig.key, how), sig.describe())
 
     def _shows(self, sig: Signature, *, probe: bool) -> Callable[[list[Case]], bool]:

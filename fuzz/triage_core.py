@@ -44,6 +44,7 @@ from mcp_conform.fuzz.confirm import Confirmation, confirm_n
 from mcp_conform.fuzz.ddmin import ddmin
 from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import Triage, count, triage_time
+from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.harness.errors import SetupError
 
 __all__ = ["Parts", "HitTriage", "answered", "culprit", "earliest_prefix", "fewest", "known_lasting_hit", "prefix_culprit", "search"]
@@ -150,6 +151,8 @@ class HitTriage(Triage):
         def run(inputs: list[T]) -> H | None:
             try:
                 return replay(list(inputs))
+            except TargetLost:
+                raise  # attach mode's only target gone: the campaign ends (never "did not start")
             except SetupError:
                 if not unstarted:
                     raise
@@ -180,6 +183,8 @@ class HitTriage(Triage):
             fresh, extend, close, split = lasting
             try:
                 n = earliest_prefix(suspects, fresh, extend, close, split=split)
+            except TargetLost:
+                raise
             except SetupError:
                 n = None
             if n is None:
@@ -301,6 +306,8 @@ class HitTriage(Triage):
         knowns = [(f, like(f.cases[-1])) for f in self.findings if f.source == source and f.cases]
         try:
             return bool(knowns) and self.again(known_lasting_hit(suspects, knowns, like, fresh, extend, close))
+        except TargetLost:
+            raise
         except SetupError:  # a fresh target that did not start: triage it
             return False
 

@@ -74,6 +74,18 @@ def _finish(proc: subprocess.Popen[str], timeout: float = 90.0) -> tuple[int, st
     return proc.returncode, out, err
 
 
+def assert_lost(rc: int, out: str, err: str, out_dir: Path, address: str, why: str) -> dict:
+    """A campaign ended by its attached target's loss: exit 2, one line naming ``address`` and
+    ``why``, and summary.json saying so (its error that line); the summary."""
+    lines = err.strip().splitlines()
+    assert rc == 2, f"rc {rc}\n{out}\n{err}"
+    assert len(lines) == 1 and lines[0].startswith("mcp-fuzz: error: "), err
+    assert address in lines[0] and why in lines[0], err
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert summary["node_lost"] is True and summary["error"] == lines[0].removeprefix("mcp-fuzz: error: ")
+    return summary
+
+
 def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path: Path) -> None:
     """Item 1: SIGKILL to the attached reference drone mid-campaign. Before: the campaign
     ran on to its end against nothing and kept MCP-ROB-* 'hung after ...' as confirmed."""
@@ -89,12 +101,7 @@ def test_node_killed_in_attach_mode_ends_the_campaign_without_a_finding(tmp_path
         _wait_status(proc)
         node.proc.send_signal(signal.SIGKILL)
         rc, out, err = _finish(proc)
-    lines = err.strip().splitlines()
-    assert rc == 2, f"rc {rc}\n{out}\n{err}"
-    assert len(lines) == 1 and lines[0].startswith("mcp-fuzz: error: "), err
-    assert f"127.0.0.1:{node_port}" in lines[0] and "stopped answering" in lines[0], err
-    summary = json.loads((out_dir / "summary.json").read_text())
-    assert summary["node_lost"] is True and summary["error"] == lines[0].removeprefix("mcp-fuzz: error: ")
+    summary = assert_lost(rc, out, err, out_dir, f"127.0.0.1:{node_port}", "stopped answering")
     assert summary["cases"] > 0 and summary["workers"][0]["cases"] == summary["cases"], summary
     assert summary["duration_s"] < 120, summary  # it ended at the loss, not at --duration
     # the reference drone has no fault: whatever was found, none of it is the dead node's silence

@@ -9,7 +9,6 @@ the backend live (``fuzz.nsqd_backend.Backend.check_live``)."""
 
 from __future__ import annotations
 
-import json
 import signal
 import socket
 import subprocess
@@ -19,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from mcp_conform.vehicle.ports import free_port
-from tests.fuzz.test_campaign_faults import ROOT, STATUS, _finish, _fuzz, _wait_status
+from tests.fuzz.test_campaign_faults import ROOT, STATUS, _finish, _fuzz, _wait_status, assert_lost
 
 pytestmark = pytest.mark.slow
 
@@ -41,11 +40,6 @@ def test_a_killed_attached_backend_ends_the_campaign_without_a_finding(tmp_path:
     finally:
         backend.kill()
         backend.wait(timeout=10)
-    lines = err.strip().splitlines()
-    assert rc == 2, f"rc {rc}\n{out}\n{err}"
-    assert len(lines) == 1 and lines[0].startswith("mcp-fuzz: error: "), err
-    assert f"127.0.0.1:{port}" in lines[0] and "accepts no connection" in lines[0], err
-    summary = json.loads((out_dir / "summary.json").read_text())
-    assert summary["node_lost"] is True and summary["error"] == lines[0].removeprefix("mcp-fuzz: error: ")
+    summary = assert_lost(rc, out, err, out_dir, f"127.0.0.1:{port}", "accepts no connection")
     assert summary["cases"] > 0 and summary["elapsed_s"] < 120, summary  # ended at the loss
     assert summary["findings"] == [] and not list(out_dir.glob("finding-*")), summary["findings"]
