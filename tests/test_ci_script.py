@@ -44,6 +44,11 @@ def test_ci_runs_the_readme_test_command_verbatim_the_slow_tests_and_the_main_jo
             chosen = [s for s in runs if Expression.compile(_marker_expression(s)).evaluate(
                 lambda name, m=marks, **kw: m.get(name, False))]
             assert len(chosen) == 1, (marks, chosen)
+            # a step given its tier's files (tests/conftest.py ``tier``, MCP_TEST_TIERS) selects
+            # only that tier's tests: none of another tier's is left in a file it is not given
+            for s in chosen:
+                given = re.search(r"\$\(files (\w+)\)", s)
+                assert given is None or given.group(1) == ("cpu" if cpu else "slow" if slow else "quick"), (marks, s)
     background = [s for s in steps if s.endswith("&")]
     for s in background:  # started in the background: waited for, its status the build's
         var = steps[steps.index(s) + 1].split("=")[0]
