@@ -242,12 +242,6 @@ class Capture:
                                    f"{self.truncated}")
             yield Truncated(self.truncated)
 
-    def stream_frames(self) -> Iterator[StreamFrame]:
-        """Only the stream protocol's frames (an Nsqd run's capture)."""
-        for rec in self:
-            if type(rec) is StreamFrame:
-                yield rec
-
     def datagrams(self) -> Iterator[Datagram]:
         """Only the datagrams."""
         for rec in self:
