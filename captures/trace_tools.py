@@ -248,25 +248,33 @@ def run_check(plugin: CapturePlugin, ns: Any, out: TextIO | None = None) -> int:
 
 
 def run_diff(plugin: CapturePlugin, args: Any, out: TextIO | None = None) -> int:
-    """``mcp-capture diff`` of two captures of ``plugin``'s: exit 0 same, 1 different."""
-    out = out or sys.stdout
+    """``mcp-capture diff`` of two captures of ``plugin``'s: exit 0 same, 1 different. The
+    ``--json`` file first, then the terminal report as every command writes it
+    (``captures.cli.to_terminal``: none with ``-q``, on stderr when the JSON goes to stdout)."""
+    from mcp_conform.captures.cli import to_terminal
+
     c = plugin.compare(args.golden, args.candidate)
-    for line in c.notes:
-        out.write(f"note: {line}\n")
-    for path, truncated in c.sides:
-        if truncated:
-            out.write(f"note: {path} is TRUNCATED: {truncated}\n")
     same = not c.divergences
     if getattr(args, "json", None) and (plugin.json_when_same or not same):
         write_text(args.json, json.dumps({"protocol": plugin.name, "same": same, **c.doc,
                                           "divergences": c.divergences}, indent=1) + "\n")
-    if same:
-        out.write(f"same: {c.same}\n")
-        return 0
-    out.write(f"different: {len(c.divergences)} divergence(s){c.over}\n")
-    for line in c.lines:
-        out.write(line + "\n")
-    return 1
+
+    def report() -> None:
+        o = out or sys.stdout  # looked up here: to_terminal may have put stderr in its place
+        for line in c.notes:
+            o.write(f"note: {line}\n")
+        for path, truncated in c.sides:
+            if truncated:
+                o.write(f"note: {path} is TRUNCATED: {truncated}\n")
+        if same:
+            o.write(f"same: {c.same}\n")
+            return
+        o.write(f"different: {len(c.divergences)} divergence(s){c.over}\n")
+        for line in c.lines:
+            o.write(line + "\n")
+
+    to_terminal(report)
+    return 0 if same else 1
 
 
 def window(ns: Any) -> Callable[[float], bool]:

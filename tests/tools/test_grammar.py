@@ -233,6 +233,19 @@ def test_capture_diff_and_show_take_stdin_and_stdout(tmp_path) -> None:
     assert run.returncode == 2 and run.stderr.count(b"\n") == 1
 
 
+def test_a_trace_diff_is_quiet_with_q_and_its_json_alone_on_stdout_with_json_dash() -> None:
+    """``mcp-capture diff`` of a MAVLink trace (and an Nsqd one: the same
+    ``captures.trace_tools.run_diff``) writes its report as every command does: nothing with
+    ``-q``; on stderr when ``--json -`` puts the document on stdout (docs/grammar.md). Before,
+    the report went to stdout whatever was asked, the JSON and the text mixed."""
+    tlog = str(ROOT / "tests" / "captures" / "data" / "mavproxy-vehicle.tlog")
+    quiet = run_module("captures", ["diff", "--protocol", "mavlink", tlog, tlog, "-q"], timeout=120)
+    assert (quiet.returncode, quiet.stdout, quiet.stderr) == (0, "", "")
+    dash = run_module("captures", ["diff", "--protocol", "mavlink", tlog, tlog, "--json", "-"], timeout=120)
+    assert dash.returncode == 0 and json.loads(dash.stdout)["same"] is True, dash.stdout
+    assert dash.stderr.startswith("same: "), dash.stderr
+
+
 def test_conform_json_dash_is_stdout(tmp_path) -> None:
     run = subprocess.run(["mcp-conform", "--rto", "abc", "--json", "-"], capture_output=True, text=True,
                          env=ENV, timeout=120, cwd=tmp_path)
