@@ -57,6 +57,15 @@ class StreamPlugin(core.CapturePlugin):
     port: int  # the node's TCP port (export: the conversations' server side)
     json_when_same = False
 
+    def nothing_in(self, path: str | Path) -> Exception:
+        """The one-line error of a file with no connection of this protocol in it (an MCP
+        capture given ``--protocol nsqd``, a pcap of other traffic): nothing to judge, never a
+        verdict of OK, as MAVLink's tools refuse a file without a MAVLink frame."""
+        from mcp_conform.traceio.reader import CaptureError
+
+        return CaptureError(f"{path}: no {self.title.removesuffix(' capture')} connection in it (an MCAP of "
+                            f"mcp-conform --protocol {self.name}, or a pcap of its TCP traffic, holds them)")
+
     def records(self, path: str) -> Iterator[Any]:
         """The capture's records (``StreamFrame``, ``StreamEvent``, ``StreamGap``, ...)."""
         raise NotImplementedError
@@ -219,6 +228,8 @@ class _Conns:
                     self.gaps.append(rec)
                 if rec.direction == "rx":
                     self.monitor.unjudgeable(rec.conn, rec.reason)
+        if not self.n_conns:
+            raise self.plugin.nothing_in(self.path)
         return self
 
 
@@ -261,6 +272,8 @@ def run_show(plugin: StreamPlugin, ns: Any, out: TextIO | None = None) -> int:
     cases = [r for r in plugin.records(ns.file) if type(r) is CaseMark] if getattr(ns, "case", None) else None
     core.show_frames(ns, out, f"{ns.file}: {plugin.title}", counted(), line, path=str(ns.file), cases=cases,
                      kinds=_SHOWN)
+    if not conns:
+        raise plugin.nothing_in(ns.file)
     out.write(f"{conns} connection(s)\n")
     if getattr(ns, "svg", None):
         write_text(ns.svg, plugin.chart(shown, str(ns.file)))

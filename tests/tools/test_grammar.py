@@ -246,6 +246,19 @@ def test_a_trace_diff_is_quiet_with_q_and_its_json_alone_on_stdout_with_json_das
     assert dash.stderr.startswith("same: "), dash.stderr
 
 
+@pytest.mark.parametrize("command", ["check", "show", "diff"])
+def test_a_file_without_an_nsqd_connection_is_refused_as_nsqd_in_one_line(command) -> None:
+    """``--protocol nsqd`` on a capture with no Nsqd connection in it (an MCP run's) is a
+    one-line error, exit 2, as MAVLink's tools refuse a file without a MAVLink frame; before,
+    ``check`` said "0 connection(s) ... verdict: OK" and exit 0 (H-trace39b noticed)."""
+    mcp = str(GOLDEN / "challenge1.mcap")
+    run = run_module("captures", [command, "--protocol", "nsqd", mcp, *([mcp] if command == "diff" else [])],
+                     timeout=120)
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert run.stderr.count("\n") == 1 and "no Nsqd connection in it" in run.stderr, run.stderr
+    assert "verdict" not in run.stdout, run.stdout
+
+
 def test_conform_json_dash_is_stdout(tmp_path) -> None:
     run = subprocess.run(["mcp-conform", "--rto", "abc", "--json", "-"], capture_output=True, text=True,
                          env=ENV, timeout=120, cwd=tmp_path)
