@@ -40,7 +40,6 @@ class MavlinkCaseBase(LinkCaseBase):
 class MavlinkCaseContext(MavlinkCaseBase, VehicleServices):
     """What a vehicle case sees (see the module docstring)."""
 
-    subject = "the vehicle"
     session: MavlinkSession
 
     def __init__(self, session: MavlinkSession, case_id: str, rules: tuple[str, ...]) -> None:
