@@ -145,7 +145,7 @@ class DatagramCaseBase(CaseBase):
 
 class SpecCaseBase(CaseBase):
     """A case of a protocol whose session carries its spec (``session.spec``: Nsqd's,
-    MAVLink's): its parameters (``params``), the run's clock (``clock``: the host's, or the
+    MAVLink's) and names who is judged (``subject``): its parameters (``params``), the run's clock (``clock``: the host's, or the
     simulator's virtual one; ``t0``: the case's start, :meth:`now`), and a failure that says a spawned node's death
     and ends with the case's traffic (:meth:`traffic`). A protocol declares its robustness
     rule (``death_rule``: a death is reported under it, "no input ends the node", whatever
@@ -157,6 +157,7 @@ class SpecCaseBase(CaseBase):
 
     def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
+        self.subject = getattr(session, "subject", self.subject)  # who is judged: its session's
         self.spec = session.spec
         self.params = self.spec.params
         self.clock = getattr(session, "clock", None) or _REAL  # as CaseBase takes it

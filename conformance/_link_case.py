@@ -29,12 +29,18 @@ SETTLE_QUIET_S = 2.0
 
 
 class LinkCaseBase(SpecCaseBase):
-    """A case on the session's link (``link``: the subclass's); a failure says a spawned node
+    """A case on the session's link (:attr:`link`); a failure says a spawned node
     that died first, and ends with the case's traffic both ways (the shared core's ``fail``)."""
 
-    link: Any
     #: the periodic messages a failure's traffic leaves out
     QUIET: frozenset[str] = frozenset()
+
+    @property
+    def link(self) -> Any:
+        """The session's link (a peer's: the current run's); Inconclusive without one."""
+        if self.session.link is None:
+            raise Inconclusive(f"no link to {self.subject}")
+        return self.session.link
 
     def message(self, name: str, **fields: Any) -> Any:
         """The protocol's message ``name`` with ``fields``."""
@@ -75,13 +81,6 @@ class PlayedPeerCaseBase(LinkCaseBase):
     def __init__(self, session: Any, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
         self.since = session.run_started
-
-    @property
-    def link(self) -> Any:
-        """The current run's link."""
-        if self.session.link is None:
-            raise Inconclusive(f"no link to {self.subject}")
-        return self.session.link
 
     def run(self, behaviour: Any = None) -> None:
         """The peer's run against a played node that behaves so (see the session; None: as the

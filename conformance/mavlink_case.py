@@ -17,7 +17,6 @@ from typing import Any
 
 from mcp_conform.conformance._link_case import LinkCaseBase
 from mcp_conform.conformance.cases_mavlink.mavlink_services import VehicleServices
-from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.harness.mavlink_session import DIALECT, Link, MavlinkSession, Received
 
 __all__ = ["MavlinkCaseBase", "MavlinkCaseContext"]
@@ -41,14 +40,10 @@ class MavlinkCaseBase(LinkCaseBase):
 class MavlinkCaseContext(MavlinkCaseBase, VehicleServices):
     """What a vehicle case sees (see the module docstring)."""
 
-    subject = "the vehicle"
     session: MavlinkSession
 
     def __init__(self, session: MavlinkSession, case_id: str, rules: tuple[str, ...]) -> None:
         super().__init__(session, case_id, rules)
-        if session.link is None:
-            raise Inconclusive("no link to the vehicle")
-        self.link: Link = session.link
         self.sysid, self.compid = session.vehicle
         self.ack_max = float(self.params["command_ack_max_s"])
         self.reply_max = float(self.params["param_reply_max_s"])

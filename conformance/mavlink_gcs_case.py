@@ -25,7 +25,6 @@ __all__ = ["MavlinkGcsCaseContext"]
 class MavlinkGcsCaseContext(GcsServices, MavlinkCaseBase):
     """What a ground-station case sees (see the module docstring)."""
 
-    subject = "the ground station"
     beat = "HEARTBEAT"
     session: MavlinkGcsSession
     link: Link

@@ -32,7 +32,6 @@ SETTLE_COMMANDS = ("CAPTURE_IMAGES", "STOP_TEST", "TAKEOFF")
 class StreamCaseContext(ConnCaseBase):
     """What a backend case sees (see the module docstring)."""
 
-    subject = "the backend"
     death_rule = "NSQD-ROB-1"
     session: StreamSession
 
@@ -55,6 +54,14 @@ class StreamCaseContext(ConnCaseBase):
         ups = conn.updates()
         return ups[-1].values["state"] if ups else None  # type: ignore[index]
 
+    def lands(self, conn: Conn, name: str, target: int) -> bool:
+        """Command ``name`` sent whole, and its effect (an UPDATE showing state ``target``)
+        seen within the effect window."""
+        since = self.now()
+        conn.send(self.encode(name))
+        return conn.wait_for(lambda: any(u.values["state"] == target for u in conn.updates(since)),  # type: ignore[index]
+                             self.window)
+
     def settle(self, conn: Conn, *, avoid: tuple[int, ...] = ()) -> int:
         """Bring the backend to a known state outside ``avoid`` (CAPTURE_IMAGES, else STOP_TEST,
         else TAKEOFF) and return it; Inconclusive when it does not get there. A command this
@@ -68,10 +75,7 @@ class StreamCaseContext(ConnCaseBase):
             target = self.spec.message(name).effect.to[0]
             if target in avoid:
                 continue
-            since = self.now()
-            conn.send(self.encode(name))
-            if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
-                             self.window):
+            if self.lands(conn, name, target):
                 if name in missed:
                     missed.remove(name)
                 self.check_stream(conn)
@@ -94,10 +98,7 @@ class StreamCaseContext(ConnCaseBase):
                     self.settle(conn, avoid=(target,))
                 except Inconclusive:
                     continue
-                since = self.now()
-                conn.send(self.encode(name))
-                if conn.wait_for(lambda t=target, s=since: any(u.values["state"] == t for u in conn.updates(s)),  # type: ignore[index]
-                                 self.window):
+                if self.lands(conn, name, target):
                     found = (name, target)
                     break
             self.check_stream(conn)

@@ -91,3 +91,14 @@ def test_a_death_is_the_robustness_rules_when_the_protocol_declares_one_else_sai
     f = ctx.fail("X-MSG-2", "an UPDATE", "none", ["conn 1 open"])
     assert (f.rule, f.expected) == ("X-MSG-2", "an UPDATE")
     assert f.evidence == [death.describe(), "conn 1 open", "sent 3 B: 01 02 03"]
+
+
+def test_a_spec_case_names_who_is_judged_as_its_session_does() -> None:
+    """Who is judged is declared once, by the session (``SessionBase.subject``): its case
+    contexts' words are the session's."""
+    session: Any = SimpleNamespace(spec=SimpleNamespace(params={}), subject="the ground station",
+                                   death=lambda grace=0.0: None)
+    ctx = SpecCaseBase(session, "HB/x", ("MAV-HB-1",))
+    assert ctx.subject == "the ground station"
+    with pytest.raises(Inconclusive, match="the ground station sent nothing"):
+        ctx.expect_all([], lambda d: None, "MAV-HB-1", "a HEARTBEAT")
