@@ -38,6 +38,8 @@ __all__ = ["SCHEMES", "LinkSessionBase", "PlayedNodeSession", "parse_address"]
 SCHEMES = ("tcp", "udp", "udpin", "udpout")
 #: how often the played node's clock ticks (its telemetry, its held answers)
 TICK_S = 0.02
+#: how long the frames a peer sent before it ended are read for, once it has ended
+DRAIN_S = 0.5
 
 
 def parse_address(host: str, port: int, default: str = "tcp") -> tuple[str, tuple[str, int]]:
@@ -248,8 +250,12 @@ class PlayedNodeSession(StreamSessionBase):
         wait = float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S))
         link = self.link
         assert link is not None
-        if not link.wait_for(lambda: self.first_frame is not None or not self.alive_process(), wait):
-            if not self.alive_process():
+        link.wait_for(lambda: self.first_frame is not None or not self.alive_process(), wait)
+        if self.first_frame is None and not self.alive_process():  # what it sent before it ended is read first
+            link.wait_for(lambda: self.first_frame is not None, DRAIN_S)
+        if self.first_frame is None:  # a peer that ended without a frame: its death, in either transport
+            self.behaviour = None  # and the next case that needs this behaviour starts it afresh
+            if not self.alive_process():  # (before, over UDP, its cases were skipped as "never exercised")
                 raise SpawnFailure(f"{self.subject} {self.node_exit()} before it sent a frame to "
                                    f"{self.url}", self.node.details(20) if self.node else {})
             raise SetupError(f"{self.url}: no frame from {self.subject} within {wait:g} s")

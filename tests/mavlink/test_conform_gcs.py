@@ -218,3 +218,26 @@ def test_mavproxy_wp_load(tmp_path):
              f"--cmd='wp load {mission}; long REQUEST_MESSAGE 148'")
     rc, doc, out = merged(run_parts(tmp_path, "--spawn", spawn))
     assert failed(doc)[0] == {"MAV-CMD-6", "MAV-MIS-22"}, out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_a_ground_station_that_dies_before_its_first_frame_is_an_error_not_a_skip(tmp_path, transport):
+    """A ground station started afresh for a behaviour (``harness.link_session.PlayedNodeSession.run``)
+    that ends before it sends a frame: each case of that behaviour is an error naming its death,
+    over UDP as over TCP. Before, over UDP, the wait for its first frame ended at its death and
+    the run went on: its cases were skipped as "the ground station sent no ... (it never
+    exercised the rule)", the crash nowhere (H-harness39b noticed)."""
+    count = tmp_path / "starts"
+    script = tmp_path / "dies_after_first.sh"
+    script.write_text(f"#!/bin/sh\nn=$(cat {count} 2>/dev/null || echo 0)\necho $((n + 1)) > {count}\n"
+                      f'[ "$n" -ge 1 ] && {{ echo "crashed on start $((n + 1))" >&2; exit 3; }}\n'
+                      f'exec {sys.executable} {REAL} --client mavwp "$1"\n')
+    script.chmod(0o755)
+    rc, doc, out = run(tmp_path, "--mavlink", transport, "--select", "MIS", "--spawn", f"{script} {{mavlink}}")
+    cases = doc["cases"]  # in the order they ran: those of its first start, then the later ones
+    first = next((i for i, c in enumerate(cases) if c["outcome"] == "error"), len(cases))
+    assert int(count.read_text()) > 1 and cases[first:], out  # the suite started it again: an error
+    for c in cases[first:]:  # each case after its first start: the death named (TCP: before it connected)
+        said = c.get("reason") or c.get("actual") or ""
+        assert c["outcome"] == "error" and "exited with code 3 before it" in said, (c, out)
