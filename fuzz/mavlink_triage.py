@@ -37,6 +37,7 @@ from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import count
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavVehicle, Signature
+from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.fuzz.triage_core import HitTriage, Parts
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
@@ -123,8 +124,6 @@ class MavTriage(HitTriage):
         sig = hit.signature
         death = sig.oracle in DEATHS
         if death and self.target.attached and sig.oracle != "unanswered":
-            from mcp_conform.fuzz.target_base import TargetLost
-
             raise TargetLost(f"the attached vehicle at {self.target.how.describe()}: {hit.actual}; "
                              "findings so far are kept")
         return self.triaged(sig.describe(), lambda: self._triage(hit, suspects),

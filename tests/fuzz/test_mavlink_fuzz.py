@@ -163,6 +163,28 @@ def test_a_known_findings_hit_is_counted_by_its_group():
         assert triage._known(sig) is None, sig
 
 
+def test_a_death_of_the_attached_vehicle_ends_the_campaign():
+    """Attach mode: a vehicle that crashed or hung is the only one there is (no fresh vehicle to
+    replay on): ``TargetLost`` names it and what it did, and triage replays nothing."""
+    from types import SimpleNamespace
+
+    from mcp_conform.fuzz.findings import FindingStore
+    from mcp_conform.fuzz.mavlink_triage import MavTriage
+    from mcp_conform.fuzz.mavlink_vehicle import Hit, Signature
+    from mcp_conform.fuzz.target_base import TargetLost
+    from mcp_conform.fuzz.target_core import TargetSpec
+
+    how = TargetSpec(None, ("127.0.0.1", 5790))
+    assert how.attached and not TargetSpec("mcp-vehicle", None).attached and not TargetSpec().attached
+    target = SimpleNamespace(attached=how.attached, how=how)
+    triage = MavTriage(target=target, store=FindingStore(None, ["--protocol", "mavlink"]))
+    for oracle in ("crash", "hang"):
+        with pytest.raises(TargetLost, match=f"the attached vehicle at tcp:127.0.0.1:5790: it {oracle}ed"):
+            triage.consider(Hit(Signature(oracle, "MAV-CMD-1", "command-long"), "the vehicle goes on",
+                                f"it {oracle}ed"), [])
+    assert triage.replays == 0
+
+
 def test_the_vehicle_role_names_its_fuzz_target():
     """spec.profiles: the vehicle role's fuzz target, its one engine, and mcp-fuzz's one-line
     refusals of what a MAVLink campaign does not take."""
