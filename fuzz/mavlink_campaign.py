@@ -26,7 +26,7 @@ from mcp_conform.fuzz.mavlink_cases import (
     case_from_json,
 )
 from mcp_conform.fuzz.mavlink_triage import MavTriage, replay_cases, write_repro
-from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, Hit, MavTarget, Signature, VehicleSpec
+from mcp_conform.fuzz.mavlink_vehicle import BEAT_S, Hit, MavTarget, Signature, vehicle_spec
 from mcp_conform.fuzz.replay_core import Replayed
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
@@ -63,7 +63,7 @@ class MavlinkPlugin(ProtocolPlugin):
     TRIAGE = MavTriage
 
     def start(self, cfg: FuzzConfig) -> MavTarget:
-        return MavTarget(VehicleSpec.of(cfg.target, cfg.spawn))
+        return MavTarget(vehicle_spec(cfg.target, cfg.spawn))
 
     def engine(self, name: str, target: MavTarget, triage: MavTriage, cfg: FuzzConfig) -> MavlinkEngine:
         return MavlinkEngine(target, triage, cfg.seed, cfg.worker)

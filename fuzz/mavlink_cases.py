@@ -38,7 +38,7 @@ from typing import Any
 
 from mcp_conform.spec import MAVLINK
 
-__all__ = ["FILLER", "KINDS", "Case", "CaseMaker", "Expect", "Vehicle", "asks_heartbeat_stop", "case_from_json",
+__all__ = ["FILLER", "KINDS", "Case", "CaseMaker", "Expect", "Packer", "Vehicle", "asks_heartbeat_stop", "case_from_json",
            "frame_name", "raw_fields", "spare_heartbeat", "stops_heartbeat"]
 
 D: Any = MAVLINK.dialect
@@ -208,12 +208,26 @@ class Vehicle:
         return self.params[self.probe][0] if self.probe in self.params else -1
 
 
-class CaseMaker:
+class Packer:
+    """The fuzzer's frames, a ground station's (system ``GCS_SYSID``, component ``GCS_COMPID``),
+    each with the next sequence number: a case's (:class:`CaseMaker`) and the fuzzer's own
+    keep-alive and probe (``fuzz.mavlink_vehicle.MavVehicle``)."""
+
+    def __init__(self) -> None:
+        self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+
+    def pack(self, msg: Any) -> bytes:
+        data = bytes(msg.pack(self.enc))
+        self.enc.seq = (self.enc.seq + 1) % 256
+        return data
+
+
+class CaseMaker(Packer):
     """Cases drawn from a seeded ``random.Random``, built for one :class:`Vehicle`."""
 
     def __init__(self, rng: random.Random, vehicle: Vehicle) -> None:
+        super().__init__()
         self.rng, self.v = rng, vehicle
-        self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
         self.known_cmds = sorted(c for c in D.enums["MAV_CMD"] if c not in NEVER_SENT
                                  and not D.enums["MAV_CMD"][c].name.endswith("_ENUM_END"))
         self.any_msgs = sorted((cls for cls in D.mavlink_map.values() if cls.msgname not in NOT_ANY),
@@ -225,11 +239,6 @@ class CaseMaker:
         return self.kinds[kind]()
 
     # -- building ------------------------------------------------------------------------
-    def pack(self, msg: Any) -> bytes:
-        data = bytes(msg.pack(self.enc))
-        self.enc.seq = (self.enc.seq + 1) % 256
-        return data
-
     def limit(self, ctype: str) -> Any:
         """A value of the C type at or near its limits."""
         if ctype in ("float", "double"):

@@ -37,10 +37,11 @@ from mcp_conform.fuzz.findings import Finding
 from mcp_conform.fuzz.loop import count
 from mcp_conform.fuzz.mavlink_cases import Case, asks_heartbeat_stop
 from mcp_conform.fuzz.mavlink_vehicle import Hit, MavVehicle, Signature
+from mcp_conform.fuzz.target_base import TargetLost
 from mcp_conform.fuzz.triage_core import HitTriage, Parts
 from mcp_conform.spec.profiles import MAVLINK_PROFILE
 
-__all__ = ["MavTriage", "mavlink_finding", "replay_cases", "write_repro"]
+__all__ = ["MavTriage", "mavlink_finding", "replay_cases", "shape", "write_repro"]
 
 DEATHS = ("crash", "hang", "unanswered")
 #: A stopped heartbeat after a case that asked it stopped (``fuzz.mavlink_cases.stops_heartbeat``):
@@ -89,14 +90,20 @@ def replay_cases(fresh: Any, cases: list[Case], sig: Signature, log: list[Any] |
         v.close()
 
 
+def shape(sig: Signature, last: str | None) -> str:
+    """A finding's shape, its group with its rule (``fuzz.findings.FindingStore``): an answer's
+    signature; a death's or a hang's oracle after the ``last`` case's kind (None: no input)."""
+    return (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {last} ({sig.rule})"
+            if last is not None else f"{sig.oracle} whatever it is sent ({sig.rule})")
+
+
 def mavlink_finding(hit: Hit, cases: list[Case], replays: str, probe: bytes, *, seed: int = 0, worker: int = 0,
                     traffic: list[Any] | None = None, note: str = "") -> Finding:
     """A MAVLink finding as every protocol's is (``fuzz.findings.Finding``: its level its rule's;
     its seed and worker the triage's, ``HitTriage.add``)."""
     sig = hit.signature
-    shape = (sig.describe() if sig.oracle == "answer" else f"{sig.oracle} after {cases[-1].kind} ({sig.rule})"
-             if cases else f"{sig.oracle} whatever it is sent ({sig.rule})")
-    return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames], shape,
+    return Finding(sig.rule, hit.expected, hit.actual, [f.hex() for c in cases for f in c.frames],
+                   shape(sig, cases[-1].kind if cases else None),
                    "stateless", seed, evidence=list(hit.evidence),
                    worker=worker, source=sig.oracle, protocol=MAVLINK_PROFILE.name, note=note, replays=replays,
                    no_input=not cases,
@@ -117,8 +124,6 @@ class MavTriage(HitTriage):
         sig = hit.signature
         death = sig.oracle in DEATHS
         if death and self.target.attached and sig.oracle != "unanswered":
-            from mcp_conform.fuzz.target_base import TargetLost
-
             raise TargetLost(f"the attached vehicle at {self.target.how.describe()}: {hit.actual}; "
                              "findings so far are kept")
         return self.triaged(sig.describe(), lambda: self._triage(hit, suspects),
@@ -127,15 +132,12 @@ class MavTriage(HitTriage):
     def _key(self, sig: Signature, kind: str) -> tuple[str, str, str]:
         return (sig.oracle, sig.rule, kind)
 
-    def _known(self, sig: Signature, kind: str) -> Finding | None:
-        """The finding a hit already is, by the case it showed after (a crash, an unanswered
-        probe: that case; a hang is not: whatever case ran when the beat was missed, one of
-        its suspects like a hang finding's case is its culprit, ``HitTriage.known_lasting``)."""
-        if sig.oracle == "hang":
-            return None
-        return next((f for f in self.findings if f.doc.get("oracle") == sig.oracle and f.rule == sig.rule
-                     and (f.doc.get("kind") == sig.kind or (sig.oracle in DEATHS and f.cases
-                                                            and f.cases[-1].kind == kind))), None)
+    def _known(self, sig: Signature) -> Finding | None:
+        """The finding a hit already is: its group in the store (its rule and :func:`shape`,
+        ``fuzz.findings.FindingStore``), a death's by the case it showed after (its signature's
+        kind); a hang's is not: whatever case ran when the beat was missed, one of its suspects
+        like a hang finding's case is its culprit (``HitTriage.known_lasting``)."""
+        return None if sig.oracle == "hang" else self.store.groups.get((sig.rule, shape(sig, sig.kind)))
 
     def _triage(self, hit: Hit, suspects: list[Case]) -> None:
         sig = hit.signature
@@ -143,7 +145,7 @@ class MavTriage(HitTriage):
         if sig.oracle == "hang" and any(asks_heartbeat_stop(c) for c in suspects):
             count(self.untriaged, STOP_ASKED)  # the command's documented effect: no defect, no triage
             return
-        if self.counted(self._known(sig, kind), self._key(sig, kind), sig.describe()):
+        if self.counted(self._known(sig), self._key(sig, kind), sig.describe()):
             return
         if sig.oracle == "hang" and (self._hangs_anyway(sig) or self.known_lasting(
                 suspects, "hang", _like, self._fresh, self._stops, MavVehicle.close)):

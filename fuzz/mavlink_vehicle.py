@@ -30,16 +30,14 @@ frames before the probe's answer are the case's answers, and the oracles judge t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
 from mcp_conform.fuzz import mavlink_oracles as oracles
 from mcp_conform.fuzz.mavlink_cases import (
-    GCS_COMPID,
-    GCS_SYSID,
     Case,
     D,
     Expect,
+    Packer,
     Vehicle,
     name_key,
     raw_fields,
@@ -50,7 +48,7 @@ from mcp_conform.harness.errors import SetupError
 from mcp_conform.harness.mavlink_session import MavlinkFraming, embedded_command, parse_address
 from mcp_conform.spec import MAVLINK
 
-__all__ = ["Hit", "MavTarget", "MavVehicle", "Signature", "VehicleSpec"]
+__all__ = ["Hit", "MavTarget", "MavVehicle", "Signature", "vehicle_spec"]
 
 P = MAVLINK.params
 REPLY_S = float(P["param_reply_max_s"])
@@ -61,20 +59,16 @@ LATE_S = 0.1  # s: an answer missing at the probe's answer, waited for while fuz
 LIST_S = 10.0  # s: the parameter list the cases are built from, read at the start for at most this long
 
 
-@dataclass(frozen=True)
-class VehicleSpec(TargetSpec):
-    """How to reach a vehicle (``fuzz.target_core.TargetSpec``): a ``--spawn`` template (or the
-    embedded one), or an address, over TCP."""
-
-    @classmethod
-    def of(cls, target: tuple[str, int] | None, spawn: str | None) -> VehicleSpec:
-        if target is not None:
-            transport, address = parse_address(*target)
-            if transport != "tcp":
-                raise SetupError(f"--target {target[0]}:{target[1]}: the MAVLink fuzzer reaches a vehicle over "
-                                 "TCP only so far (tcp:HOST:PORT)")
-            return cls(None, address)
-        return cls(spawn or embedded_command("tcp"), None)
+def vehicle_spec(target: tuple[str, int] | None, spawn: str | None) -> TargetSpec:
+    """How to reach a vehicle (``fuzz.target_core.TargetSpec.of``): a ``--spawn`` template (or
+    the embedded one), or an address, over TCP."""
+    def tcp(host: str, port: int) -> tuple[str, int]:
+        transport, address = parse_address(host, port)
+        if transport != "tcp":
+            raise SetupError(f"--target {host}:{port}: the MAVLink fuzzer reaches a vehicle over "
+                             "TCP only so far (tcp:HOST:PORT)")
+        return address
+    return TargetSpec.of(target, spawn, lambda: embedded_command("tcp"), tcp)
 
 
 class MavVehicle(LinkedTarget):
@@ -89,14 +83,14 @@ class MavVehicle(LinkedTarget):
     BEAT = ("HEARTBEAT", "MAV-HB-1")
     oracles = oracles
 
-    def __init__(self, how: VehicleSpec, info: Vehicle | None = None, log: list[Any] | None = None,
+    def __init__(self, how: TargetSpec, info: Vehicle | None = None, log: list[Any] | None = None,
                  late: float | None = None) -> None:
         self.how = how
         #: how long an answer missing at the probe's answer is still waited for (None: the
         #: spec's bound, as replays wait; the campaign's own vehicle: a short while, its hits
         #: then confirmed, or not, by replays that wait the whole bound)
         self.late = late
-        self.enc = D.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.pack = Packer().pack  # its keep-alive and probe (a sequence of their own)
         hb = self.connect(how, MavlinkFraming(), log, lambda host, port: {"mavlink": f"tcp:{host}:{port}"}).msg
         self.info = info if info is not None else self._learn(hb.get_srcSystem(), hb.get_srcComponent())
 
@@ -104,7 +98,7 @@ class MavVehicle(LinkedTarget):
         """The vehicle's IDs and parameter list (PARAM_REQUEST_LIST, read for at most LIST_S);
         the probe reads the first parameter of the list."""
         v = Vehicle(sysid, compid)
-        self.send(self._pack(D.MAVLink_param_request_list_message(sysid, compid)))
+        self.send(self.pack(D.MAVLink_param_request_list_message(sysid, compid)))
         end, total, seen = time.monotonic() + LIST_S, None, 0
         while time.monotonic() < end and (total is None or len(v.params) < total):
             if self.link.until(lambda r: r.name == "PARAM_VALUE", min(2.0, end - time.monotonic()), seen) is None:
@@ -123,11 +117,6 @@ class MavVehicle(LinkedTarget):
         v.probe = min(v.params, key=lambda n: v.params[n][0])
         return v
 
-    def _pack(self, msg: Any) -> bytes:
-        data = bytes(msg.pack(self.enc))
-        self.enc.seq = (self.enc.seq + 1) % 256
-        return data
-
     def _from_vehicle(self, m: Any) -> bool:
         info = getattr(self, "info", None)
         return info is None or (m.get_srcSystem(), m.get_srcComponent()) == (info.sysid, info.compid)
@@ -138,11 +127,11 @@ class MavVehicle(LinkedTarget):
 
     def keepalive_frame(self) -> bytes:
         """The fuzzer's own HEARTBEAT, as a ground station's, once a second (MAV-HB-2)."""
-        return self._pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
+        return self.pack(D.MAVLink_heartbeat_message(D.MAV_TYPE_GCS, D.MAV_AUTOPILOT_INVALID, 0, 0,
                                                       D.MAV_STATE_ACTIVE, 3))
 
     def probe_frame(self) -> bytes:
-        return self._pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid, self.info.probe, -1))
+        return self.pack(D.MAVLink_param_request_read_message(self.info.sysid, self.info.compid, self.info.probe, -1))
 
     def is_probe_answer(self, r: Any) -> bool:
         return r.name == "PARAM_VALUE" and self._from_vehicle(r.msg) and \
@@ -174,12 +163,12 @@ class MavTarget(SpareTarget):
 
     current: MavVehicle
 
-    def __init__(self, how: VehicleSpec) -> None:
+    def __init__(self, how: TargetSpec) -> None:
         self.how = how
         first = MavVehicle(how, late=LATE_S)
         self.info = first.info
         super().__init__(first, lambda log: MavVehicle(self.how, self.info, log), MavVehicle.close,
-                         attached=how.target is not None)
+                         attached=how.attached)
 
     def adopt(self, v: MavVehicle) -> MavVehicle:
         v.late = LATE_S

@@ -47,7 +47,7 @@ from mcp_conform.fuzz.nsqd_oracles import (
 )
 from mcp_conform.fuzz.spares import SPARES
 from mcp_conform.fuzz.target_base import TargetLost
-from mcp_conform.fuzz.target_core import ProcessTarget, SpareTarget, read_until
+from mcp_conform.fuzz.target_core import ProcessTarget, SpareTarget, TargetSpec, read_until
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.nsqd_session import Conn, StreamSession
 from mcp_conform.harness.session_base import SpawnedNode
@@ -81,7 +81,7 @@ class Backend(ProcessTarget):
 
     def __init__(self, target: tuple[str, int] | None, spawn: str | None, traits: Traits | None = None,
                  pool: BackendTarget | None = None) -> None:
-        self.target, self.spawn = target, spawn
+        self.how = TargetSpec(spawn, target)  # attached: an address and no --spawn
         self.traits = traits if traits is not None else Traits()
         #: (time.monotonic() at its first write, case) for each case this process was sent
         #: (bounded): a death's suspects are the ones sent before its cause showed
@@ -127,7 +127,7 @@ class Backend(ProcessTarget):
         started); attach mode: the same target, found live (:meth:`check_live`). A replay's and a
         restart's alike: a real backend takes 1.2-1.4 s to start, and every replay of triage
         waited for it."""
-        if self.target is not None and self.spawn is None:
+        if self.how.attached:
             self._drop()
             self.check_live("when the fuzzer came back to it (a replay, or a restart after a hit)")
             return self
@@ -147,7 +147,7 @@ class Backend(ProcessTarget):
         confirmed NSQD-ROB-1 hang, 53,452 times, 3 of 3 replays), as ``fuzz.target_base``'s
         check ends an MCP campaign and ``fuzz.mavlink_triage`` a MAVLink one."""
         s = self.session
-        if self.target is None or self.spawn is not None:
+        if not self.how.attached:
             return
         if not s.live(float(NSQD.params["connect_timeout_s"]) + float(NSQD.params[s.gap_param])):
             host, port = s.address
@@ -470,9 +470,9 @@ class BackendTarget(SpareTarget):
     current: Backend
 
     def __init__(self, first: Backend) -> None:
-        target, spawn, traits = first.target, first.spawn, first.traits
-        super().__init__(first, lambda log: Backend(target, spawn, traits, self), Backend.end,
-                         attached=target is not None and spawn is None, timeout=None, n=SPARES,
+        how, traits = first.how, first.traits
+        super().__init__(first, lambda log: Backend(how.target, how.spawn, traits, self), Backend.end,
+                         attached=how.attached, timeout=None, n=SPARES,
                          alive=Backend.process_alive)
 
 

@@ -64,14 +64,25 @@ LISTEN_S = 10.0
 @dataclass(frozen=True)
 class TargetSpec:
     """How to reach a target: a spawn template (``spawn``: ``--spawn CMD`` or the embedded
-    reference node's command), or an address (``target``: attached)."""
+    reference node's command), or an address (``target``: attached); neither: the protocol's
+    session starts its reference node (Nsqd's, ``fuzz.nsqd_backend.Backend``)."""
 
     spawn: str | None = None
     target: tuple[str, int] | None = None
 
+    @classmethod
+    def of(cls, target: tuple[str, int] | None, spawn: str | None, embedded: Callable[[], str],
+           address: Callable[[str, int], tuple[str, int]]) -> TargetSpec:
+        """``--target`` read by the protocol (``address(host, port)``: where it listens;
+        SetupError: an address it cannot reach), else ``--spawn``, else its reference node
+        (``embedded()``: the command)."""
+        if target is not None:
+            return cls(None, address(*target))
+        return cls(spawn or embedded(), None)
+
     @property
     def attached(self) -> bool:
-        return self.spawn is None
+        return self.target is not None and self.spawn is None
 
     def describe(self) -> str:
         return f"tcp:{self.target[0]}:{self.target[1]}" if self.target else "spawned"

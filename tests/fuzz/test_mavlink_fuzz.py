@@ -138,6 +138,53 @@ def test_a_hang_after_a_case_that_asked_it_is_no_finding(tmp_path):
     assert run.returncode == 0 and "is no finding" in run.stdout and "not replayed" in run.stdout, run
 
 
+def test_a_known_findings_hit_is_counted_by_its_group():
+    """A hit whose group (rule and shape) is a finding already is one more occurrence of it,
+    with no replay: an answer by its signature, a death by the case it showed after; one of
+    another kind or signature is not that finding's, and a hang is never known this way (its
+    culprit is among its suspects: ``HitTriage.known_lasting``)."""
+    from mcp_conform.fuzz.findings import FindingStore
+    from mcp_conform.fuzz.mavlink_triage import MavTriage, mavlink_finding
+    from mcp_conform.fuzz.mavlink_vehicle import Hit, Signature
+
+    case = CaseMaker(random.Random(3), _vehicle()).draw()
+    answer = Hit(Signature("answer", "MAV-CMD-1", "no COMMAND_ACK"), "one COMMAND_ACK", "none")
+    crash = Hit(Signature("crash", case.rule, case.kind), "the vehicle goes on", "it exited")
+    store = FindingStore(None, ["--protocol", "mavlink"])
+    for hit in (answer, crash):
+        store.add(mavlink_finding(hit, [case], "3 of 3", b"FORMAT_VERSION"))
+    triage = MavTriage(target=None, store=store)  # type: ignore[arg-type]  # no replay may start
+    triage._triage(answer, [case])
+    triage._triage(crash, [case])
+    assert [f.occurrences for f in store.order] == [2, 2] and triage.replays == 0
+    for sig in (Signature("answer", "MAV-CMD-1", "two COMMAND_ACKs"), Signature("answer", "MAV-CMD-2", "no COMMAND_ACK"),
+                Signature("crash", case.rule, case.kind + "-other"), Signature("unanswered", case.rule, case.kind),
+                Signature("hang", case.rule, case.kind)):
+        assert triage._known(sig) is None, sig
+
+
+def test_a_death_of_the_attached_vehicle_ends_the_campaign():
+    """Attach mode: a vehicle that crashed or hung is the only one there is (no fresh vehicle to
+    replay on): ``TargetLost`` names it and what it did, and triage replays nothing."""
+    from types import SimpleNamespace
+
+    from mcp_conform.fuzz.findings import FindingStore
+    from mcp_conform.fuzz.mavlink_triage import MavTriage
+    from mcp_conform.fuzz.mavlink_vehicle import Hit, Signature
+    from mcp_conform.fuzz.target_base import TargetLost
+    from mcp_conform.fuzz.target_core import TargetSpec
+
+    how = TargetSpec(None, ("127.0.0.1", 5790))
+    assert how.attached and not TargetSpec("mcp-vehicle", None).attached and not TargetSpec().attached
+    target = SimpleNamespace(attached=how.attached, how=how)
+    triage = MavTriage(target=target, store=FindingStore(None, ["--protocol", "mavlink"]))
+    for oracle in ("crash", "hang"):
+        with pytest.raises(TargetLost, match=f"the attached vehicle at tcp:127.0.0.1:5790: it {oracle}ed"):
+            triage.consider(Hit(Signature(oracle, "MAV-CMD-1", "command-long"), "the vehicle goes on",
+                                f"it {oracle}ed"), [])
+    assert triage.replays == 0
+
+
 def test_the_vehicle_role_names_its_fuzz_target():
     """spec.profiles: the vehicle role's fuzz target, its one engine, and mcp-fuzz's one-line
     refusals of what a MAVLink campaign does not take."""
