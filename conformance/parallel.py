@@ -195,13 +195,14 @@ class _Run:
         log = (self.tmp / f"{k}.log").open("wb")
         args = child_args(self.ns, k, n, self.tmp, self.record)
         proc: _Forked | subprocess.Popen[bytes]
-        if self.run_one is not None:
-            proc = _Forked(args, log, self.ns.verbose, self.run_one)
-        else:
-            proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.conformance", *args],
-                                    stdin=subprocess.DEVNULL, stdout=log,
-                                    stderr=None if self.ns.verbose else log)  # -v: the traffic, live
-        self.instances.append(_Instance(k, proc, log, self.tmp / f"{k}.events"))
+        with INTERRUPTS.held():  # a signal meanwhile stops the run once the instance is known (and stopped)
+            if self.run_one is not None:
+                proc = _Forked(args, log, self.ns.verbose, self.run_one)
+            else:
+                proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.conformance", *args],
+                                        stdin=subprocess.DEVNULL, stdout=log,
+                                        stderr=None if self.ns.verbose else log)  # -v: the traffic, live
+            self.instances.append(_Instance(k, proc, log, self.tmp / f"{k}.events"))
 
     def poll(self) -> None:
         """Print what the instances told since the last poll."""
