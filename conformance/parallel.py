@@ -107,11 +107,16 @@ class _Forked:
             with contextlib.suppress(Exception):
                 stream.flush()
         self.returncode: int | None = None
+        seen = len(INTERRUPTS.signals)
         self.pid = os.fork()
         if self.pid == 0:  # the instance: it never returns
             code = 2
             try:
+                early = INTERRUPTS.signals[seen:]  # taken by the parent's handler, forked (held) with it
                 INTERRUPTS.forked()
+                if early:  # stopped before it began, as a fresh interpreter's default action would
+                    code = 128 + int(getattr(signal, early[0], signal.SIGTERM))
+                    return
                 INTERRUPTS.install()  # as conformance._entry does first: kept until the process ends
                 devnull = os.open(os.devnull, os.O_RDONLY)
                 os.dup2(devnull, 0)
