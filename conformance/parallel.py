@@ -1,9 +1,11 @@
 """``mcp-conform --parallel N`` (issue 23): the suite shared out across N node instances.
 
 In spawn mode (an embedded or ``--spawn`` node) the front end starts up to N runs of
-itself, each an instance (``--shard K/N``): its own node spawned on ports of its own, its
-own startup phase, its share of the plan (``conformance.schedule.shard_plan``: the
-startup-bound cases on the first, the batch whole, the whole run's observations on each).
+itself (each a fork of it, with the runner's modules loaded once: :class:`_Forked`; without
+``os.fork``, ``python -m mcp_conform.conformance``), each an instance (``--shard K/N``): its
+own node spawned on ports of its own, its own startup phase, its share of the plan
+(``conformance.schedule.shard_plan``: the startup-bound cases on the first, the batch whole,
+the whole run's observations on each).
 The first instance starts first and tells its plan; the others are started once it has (so
 an instance the plan leaves idle is never started) and must plan alike. Each appends its
 plan, its notes and each case's record to a file of its own (``--shard-events``), which the
