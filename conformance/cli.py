@@ -399,7 +399,7 @@ def _main(argv: list[str]) -> int:
     if parallel > 1:
         from mcp_conform.conformance.parallel import run_parallel
 
-        return run_parallel(ns, cfg, parallel, _fail)
+        return run_parallel(ns, cfg, parallel, _fail, main)
     if ns.list and (ns.capture or ns.html or ns.live):
         ns.capture = ns.html = ns.live = None  # nothing runs: no capture file, no HTML report, no server
 

@@ -1,9 +1,11 @@
 """``mcp-conform --parallel N`` (issue 23): the suite shared out across N node instances.
 
 In spawn mode (an embedded or ``--spawn`` node) the front end starts up to N runs of
-itself, each an instance (``--shard K/N``): its own node spawned on ports of its own, its
-own startup phase, its share of the plan (``conformance.schedule.shard_plan``: the
-startup-bound cases on the first, the batch whole, the whole run's observations on each).
+itself (each a fork of it, with the runner's modules loaded once: :class:`_Forked`; without
+``os.fork``, ``python -m mcp_conform.conformance``), each an instance (``--shard K/N``): its
+own node spawned on ports of its own, its own startup phase, its share of the plan
+(``conformance.schedule.shard_plan``: the startup-bound cases on the first, the batch whole,
+the whole run's observations on each).
 The first instance starts first and tells its plan; the others are started once it has (so
 an instance the plan leaves idle is never started) and must plan alike. Each appends its
 plan, its notes and each case's record to a file of its own (``--shard-events``), which the
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -41,6 +44,7 @@ from mcp_conform.conformance.report import (
 from mcp_conform.conformance.schedule import Plan
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.interrupts import INTERRUPTS
+from mcp_conform.spec.profiles import pick
 
 if TYPE_CHECKING:  # imported once the first instance is started (its start is the run's longest path)
     from mcp_conform.conformance.terminal import TerminalReport
@@ -75,10 +79,88 @@ def child_args(ns: Any, k: int, n: int, tmp: Path, record: bool) -> list[str]:
     return args
 
 
+def preload(profile: Any, role: Any) -> None:
+    """Import what each instance's run imports before its first case (the runner's pytest
+    plugin, the role's session, case context and monitor), once, in the front end: each
+    instance is forked from it (:class:`_Forked`) with them loaded. The cases' modules are
+    left to pytest in each instance, which imports them with its asserts rewritten."""
+    import importlib
+
+    from mcp_conform.conformance.plugin import RUN_PLUGIN
+    from mcp_conform.spec.profiles import resolve
+
+    importlib.import_module(RUN_PLUGIN)
+    for name in (role.session, role.context, profile.monitor):
+        if name is not None:
+            resolve(name)
+
+
+class _Forked:
+    """One instance: a child forked from the front end that runs ``mcp-conform`` with the
+    instance's arguments (``cli.main``, as ``python -m mcp_conform.conformance`` would, its
+    signal handlers kept to the end as ``conformance._entry`` keeps them), its standard input
+    /dev/null, its output (and, but under ``-v``, its errors) to its log; waited for as a ``subprocess.Popen`` is (``poll``, ``returncode``: a signal as a
+    negative number). Measured: a fresh interpreter per instance spent about 0.3 CPU s of its
+    run importing the runner, the judge, the vehicle and pytest, which a fork has loaded
+    (``preload``)."""
+
+    def __init__(self, args: list[str], log: IO[bytes], verbose: bool, run_one: Callable[[list[str]], int]) -> None:
+        for stream in (sys.stdout, sys.stderr):  # nothing buffered is written twice
+            with contextlib.suppress(Exception):
+                stream.flush()
+        self.returncode: int | None = None
+        seen = len(INTERRUPTS.signals)
+        self.pid = os.fork()
+        if self.pid == 0:  # the instance: it never returns
+            code = 2
+            try:
+                early = INTERRUPTS.signals[seen:]  # taken by the parent's handler, forked (held) with it
+                INTERRUPTS.forked()
+                if early:  # stopped before it began, as a fresh interpreter's default action would
+                    code = 128 + int(getattr(signal, early[0], signal.SIGTERM))
+                    return
+                INTERRUPTS.install()  # as conformance._entry does first: kept until the process ends
+                devnull = os.open(os.devnull, os.O_RDONLY)
+                os.dup2(devnull, 0)
+                os.close(devnull)
+                os.dup2(log.fileno(), 1)
+                if not verbose:  # -v: the traffic, live, on the front end's stderr
+                    os.dup2(log.fileno(), 2)
+                code = run_one(args)
+                INTERRUPTS.stop_raising()
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else 2
+            except BaseException:  # noqa: BLE001  # what a fresh interpreter would print
+                with contextlib.suppress(Exception):
+                    import traceback
+
+                    traceback.print_exc()
+            finally:
+                for stream in (sys.stdout, sys.stderr):
+                    with contextlib.suppress(Exception):
+                        stream.flush()
+                os._exit(code)
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # reaped elsewhere: ended, its status unknown (as Popen says)
+                self.returncode = 0
+            else:
+                if pid:
+                    self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        if self.poll() is None:
+            os.kill(self.pid, sig)
+
+
 @dataclass
 class _Instance:
     k: int
-    proc: subprocess.Popen[bytes]
+    proc: _Forked | subprocess.Popen[bytes]
     log: IO[bytes]
     events: Path
     offset: int = 0
@@ -105,8 +187,10 @@ class _Instance:
 class _Run:
     """The instances of one run and what the front end printed of them."""
 
-    def __init__(self, ns: Any, n: int, tmp: Path, terminal: TerminalReport) -> None:
+    def __init__(self, ns: Any, n: int, tmp: Path, terminal: TerminalReport,
+                 run_one: Callable[[list[str]], int] | None = None) -> None:
         self.ns, self.n, self.tmp, self.terminal = ns, n, tmp, terminal
+        self.run_one = run_one  # a forked instance's run (``cli.main``); None: a fresh interpreter each
         self.record = bool(ns.capture or ns.html)
         self.instances: list[_Instance] = []
         self.plan: Plan | None = None
@@ -116,10 +200,16 @@ class _Run:
 
     def start(self, k: int, n: int) -> None:
         log = (self.tmp / f"{k}.log").open("wb")
-        cmd = [sys.executable, "-m", "mcp_conform.conformance", *child_args(self.ns, k, n, self.tmp, self.record)]
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log,
-                                stderr=None if self.ns.verbose else log)  # -v: the traffic, live
-        self.instances.append(_Instance(k, proc, log, self.tmp / f"{k}.events"))
+        args = child_args(self.ns, k, n, self.tmp, self.record)
+        proc: _Forked | subprocess.Popen[bytes]
+        with INTERRUPTS.held():  # a signal meanwhile stops the run once the instance is known (and stopped)
+            if self.run_one is not None:
+                proc = _Forked(args, log, self.ns.verbose, self.run_one)
+            else:
+                proc = subprocess.Popen([sys.executable, "-m", "mcp_conform.conformance", *args],
+                                        stdin=subprocess.DEVNULL, stdout=log,
+                                        stderr=None if self.ns.verbose else log)  # -v: the traffic, live
+            self.instances.append(_Instance(k, proc, log, self.tmp / f"{k}.events"))
 
     def poll(self) -> None:
         """Print what the instances told since the last poll."""
@@ -236,13 +326,20 @@ def _instance_error(run: _Run, inst: _Instance) -> str:
     return f"node instance {inst.k + 1} ended without a report (exit code {inst.proc.returncode})"
 
 
-def run_parallel(ns: Any, cfg: RunConfig, n: int, fail: Callable[[str, str | None], int]) -> int:
+def run_parallel(ns: Any, cfg: RunConfig, n: int, fail: Callable[[str, str | None], int],
+                 run_one: Callable[[list[str]], int] | None = None) -> int:
     """Run the suite across up to ``n`` node instances; the contract's exit code (``fail``:
-    the front end's one-line error, exit 2, for a run no instance reported on)."""
+    the front end's one-line error, exit 2, for a run no instance reported on). ``run_one``
+    (``cli.main``): each instance is a fork of this process that runs it (where ``os.fork``
+    is); None: each is ``python -m mcp_conform.conformance``."""
     t0 = time.monotonic()
     tmp = Path(tempfile.mkdtemp(prefix="mcp-conform-parallel-"))
-    run = _Run(ns, n, tmp, None)  # type: ignore[arg-type]  # set once the first instance is started
+    run_one = run_one if hasattr(os, "fork") else None
+    run = _Run(ns, n, tmp, None, run_one)  # type: ignore[arg-type]  # set once the first instance is started
     try:
+        if run_one is not None:
+            with INTERRUPTS.held():  # a signal meanwhile stops the run before any instance starts
+                preload(*pick(cfg.protocol, cfg.role))
         run.start(0, n)  # first: the front end's own imports (rich, the report writers) come after
         try:  # the first instance's plan says how many more to start
             with INTERRUPTS.held():  # a signal meanwhile stops the instances once the header is out

@@ -63,6 +63,13 @@ class Interrupts:
                 signal.signal(sig, old)
         self._old.clear()
 
+    def forked(self) -> None:
+        """In a child forked from a process that installed these handlers (an instance of
+        ``--parallel``): the handlers the process had before, and no state of the parent's run,
+        as a process just started has; its own run installs them again."""
+        self.restore()
+        self.signals, self.hurry, self._raising, self._held, self._pending = [], False, True, False, False
+
     def _handle(self, signum: int, frame: Any) -> None:
         try:
             name = signal.Signals(signum).name

@@ -55,29 +55,34 @@ MERGED_DRONES = [None] + ([f for f, _ in MUTANTS] if MERGED_ALL else [])
 
 
 @pytest.mark.parametrize("fault", MERGED_DRONES, ids=[f or "reference-node" for f in MERGED_DRONES])
-def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_path, fault):
+def test_check_of_a_merged_xdist_capture_gives_each_workers_live_verdicts(tmp_path, tmp_path_factory, fault):
     """Issue 18 item 7: under ``pytest -n 2`` each worker runs its cases against its own
     spawned node, with its own run monitor; the controller merges their captures. ``check``
     of the merged file judges each worker's session on its own and gives, rule by rule, the
     merged report's monitor section (the workers' sections, worst first per node); the two
-    workers' traffic mixed would give false MCP-ACK-5 (on the runner's ID), BLK-1, RTX-3."""
+    workers' traffic mixed would give false MCP-ACK-5 (on the runner's ID), BLK-1, RTX-3.
+    The reference node's run is the whole suite's, shared with tests/conformance/test_xdist.py
+    (``xdist_reference_run``: one run, made once a session)."""
     import json
     import os
     import subprocess
     import sys
 
-    from tests.conformance.runner_helpers import ROOT, reference_node_command, sample_node_command
+    from tests.conformance.runner_helpers import ROOT, sample_node_command
+    from tests.conformance.test_xdist import xdist_reference_run
 
     pytest.importorskip("xdist")
-    spawn = sample_node_command("--fault", fault) if fault else reference_node_command()
-    select = [] if fault else ["-m", "mcp_ack_1 or mcp_ack_4 or mcp_ack_5 or mcp_hdr_1 or mcp_seq_2 or mcp_rtx_1"]
-    cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
-           "-n", "2", *select,
-           "--mcp-spawn", spawn, "--mcp-mavlink", "--mcp-rto", FAST[1],
-           "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
-    assert proc.returncode in ((0, 1) if fault else (0,)), proc.stdout + proc.stderr
+    if fault is None:
+        run = xdist_reference_run(tmp_path_factory)
+        tmp_path = run["dir"]  # read only
+        assert run["rc"] == 0, run["out"]
+    else:
+        cmd = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "--pyargs", "mcp_conform.conformance.cases",
+               "-n", "2", "--mcp-spawn", sample_node_command("--fault", fault), "--mcp-mavlink", "--mcp-rto", FAST[1],
+               "--mcp-ack-window", FAST[3], "--mcp-json", "r.json", "--mcp-capture", "c.mcap"]
+        proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                              env=dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1"))
+        assert proc.returncode in (0, 1), proc.stdout + proc.stderr
     live = json.loads((tmp_path / "r.json").read_text())["monitor"]
     j = judge(tmp_path / "c.mcap", Params())
     assert sorted(j.segments) == ["gw0", "gw1"]  # both workers ran cases, each its own session
