@@ -133,9 +133,20 @@ class LinkSessionBase(StreamSessionBase):
         return False
 
     def _await_first(self, timeout: float) -> None:
+        """The node's first sign within ``timeout``; a spawned node that ended with an error
+        (an exit code but 0, a signal) is not waited for to the end: no sign will come (over
+        UDP, where no connection is awaited, a vehicle that failed at once was waited for a
+        minute). One that ended with 0 is, as a launcher that starts its node and exits."""
         link, sign = self.link, self.first_sign
         assert link is not None
-        if not link.wait_for(lambda: bool(link.received(name=sign)), timeout):
+
+        def failed() -> bool:
+            return self.node is not None and not self.node.alive() and self.node.returncode != 0
+
+        link.wait_for(lambda: bool(link.received(name=sign)) or failed(), timeout)
+        if not link.received(name=sign) and failed():  # what it sent before it ended is read first
+            link.wait_for(lambda: bool(link.received(name=sign)), DRAIN_S)
+        if not link.received(name=sign):
             if self.node is not None and not self.node.alive():
                 raise SpawnFailure(f"the spawned {self.subject.removeprefix('the ')} {self.node.details()['exit']} "
                                    f"before its first {sign}", self.node.details(20))

@@ -131,3 +131,15 @@ def test_a_target_that_cannot_be_judged_is_one_line_exit_2(tmp_path, target, say
     rc, doc, out = run(tmp_path, "--target", target.format(port=free_port()),
                        "--startup-timeout", "1")
     assert rc == 2 and says in doc["error"] and "Traceback" not in out, out
+
+
+@pytest.mark.parametrize("transport", ["udp", "udpout", "tcp"])
+def test_a_spawned_vehicle_that_fails_at_once_ends_the_run_at_its_death(tmp_path, transport):
+    """A vehicle that exits with an error before its first HEARTBEAT: exit 2, its exit code and
+    output in the error, the run ended at its death, not at ``--startup-timeout`` (600 s here:
+    the run's own bound, 120 s, would end it first). Before, over UDP (no connection awaited),
+    the runner waited the whole startup timeout for a HEARTBEAT that could not come."""
+    vehicle = f"{sys.executable} -c \"import sys; print('bad option'); sys.exit(3)\""
+    rc, doc, out = run(tmp_path, "--mavlink", transport, "--spawn", vehicle, "--startup-timeout", "600", timeout=120)
+    assert rc == 2 and "exited with code 3" in doc["error"] and "Traceback" not in out, out
+    assert "bad option" in out, out
