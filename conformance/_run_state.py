@@ -239,11 +239,12 @@ class McpState:
                     self.wait_status.begin(resume)  # the first case, which started the node
             self.case_deadline = time.monotonic() + self.current_limit()
             self.arm()
-        except SetupError as exc:
+        except (SetupError, CaseTimeLimit) as caught:
+            err = caught if isinstance(caught, SetupError) else self._deadline_before_startup()
             self.disarm()
-            self.run.error = str(exc).strip().splitlines()[0] if str(exc).strip() else "setup error"
-            self.run.node = exc.node if isinstance(exc, SpawnFailure) else None
-            self.run.error_detail = list(exc.detail)
+            self.run.error = str(err).strip().splitlines()[0] if str(err).strip() else "setup error"
+            self.run.node = err.node if isinstance(err, SpawnFailure) else None
+            self.run.error_detail = list(getattr(err, "detail", ()))
             self.close_session()
             pytest.exit(self.run.error, returncode=2)
         self.run.target = session.target_desc or self.run.target
@@ -385,6 +386,17 @@ class McpState:
 
         with open(self.events_path, "a", encoding="utf-8") as f:
             f.write(json.dumps(event) + "\n")
+
+    def _deadline_before_startup(self) -> Exception:
+        """The error of a time limit that fell while the runner made its session, before the
+        node's startup began (its recorder, its sockets, the modules it imports: on a loaded
+        host the run's 3-s --timeout passed there, and each of the 44 cases was an error, "run
+        deadline exceeded", CI run 50): a setup error as one in the startup is, never case errors."""
+        self.deadline_hit = False
+        if self.session is not None:
+            return self.session.startup_timed_out(self.cfg.timeout)
+        return SetupError(f"the run's --timeout of {self.cfg.timeout:g} s passed before the runner reached the "
+                          "target (its own start-up took all of it)")
 
     # ------------------------------------------------------------------ time limits
     def current_limit(self) -> float:
