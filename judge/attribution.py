@@ -122,6 +122,7 @@ class _Command:
     is_ack: bool
     copies: list[float] = field(default_factory=list)  # send times
     answers: int = 0  # replies attributed to it
+    live: bool = True  # in ``Attributor._live``: a reply may still name it (``Attributor._named_by``)
 
     def open_at(self, t: float) -> bool:
         """A copy sent by ``t`` has no reply attributed to it yet."""
@@ -150,6 +151,13 @@ class Attributor:
         self._commands: list[_Command] = []
         self._by_tx: dict[int, _Command] = {}  # tx index of each copy -> its command
         self._by_seq: dict[int, list[_Command]] = {}
+        #: per seq, the commands of ``_by_seq`` a reply may still name (``_named_by``): a fuzz
+        #: campaign's programs send hundreds of commands with each seq near the wrap (65535,
+        #: 0, 1, ...), and scanning them all for each ACK took as much CPU as the campaign's
+        #: cases (``_named_by`` drops the ones that can no longer be named)
+        self._live: dict[int, list[_Command]] = {}
+        self._dropped_t = float("-inf")  # the latest reply time at which ``_named_by`` dropped one
+        self._dropped_h = float("inf")  # the shortest horizon it dropped one at
         self._latest: _Command | None = None  # the latest non-ACK datagram sent
 
     # ------------------------------------------------------------------ input
@@ -168,9 +176,11 @@ class Attributor:
             self._commands.append(cmd)
             if seq >= 0:
                 self._by_seq.setdefault(seq, []).append(cmd)
+                self._live.setdefault(seq, []).append(cmd)
             if len(self._commands) > MAX_COMMANDS:
                 self._forget_oldest()
         cmd.copies.append(sent.t)
+        self._relive(cmd)
         self._by_tx[tx_index] = cmd
         if not cmd.is_ack:
             self._latest = cmd
@@ -188,6 +198,7 @@ class Attributor:
         cmd.copies.remove(t)
         cmd.copies.extend(t + d for d in delays)
         cmd.copies.sort()
+        self._relive(cmd)
 
     def received(self, d: _ReceivedLike) -> Attribution | None:
         """Attribute one datagram that arrived (None: not ACK-like, or nothing to tie it to)."""
@@ -198,7 +209,7 @@ class Attributor:
             seq = payload_seq(d.data, order)
             if seq is None:
                 break
-            cands = [c for c in self._by_seq.get(seq, ())
+            cands = [c for c in self._named_by(seq, d.t)
                      if c.open_at(d.t) and c.recent(d.t, self.horizon) and self._addressed(c, d)]
             if cands:  # the one sent from the src the reply is addressed to, else the latest
                 cmd = max(cands, key=lambda c: (c.src == d.header[0], c.id))  # type: ignore[index]  # header: not None (above)
@@ -236,6 +247,38 @@ class Attributor:
         return end
 
     # ------------------------------------------------------------------ helpers
+    def _named_by(self, seq: int, t: float) -> Sequence[_Command]:
+        """The commands with ``seq`` a reply at ``t`` may be tied to by seq: every one of
+        ``_by_seq`` but those dropped here, which no reply at ``t`` or later can be tied to
+        while their copies stay as they are (every copy answered: ``open_at`` is False
+        whatever the time; no copy within its horizon by ``t``: ``recent`` is False at every
+        later time, the horizon no larger). A new copy puts a command back (``_relive``: a
+        retransmission, the runner's link's copies); a reply time before the latest drop, or a
+        horizon grown since, is answered from every command, as before the drops."""
+        if self.horizon > self._dropped_h:  # every command back: a drop was for a shorter horizon
+            self._dropped_h, self._dropped_t = float("inf"), float("-inf")
+            self._live = {s: list(cmds) for s, cmds in self._by_seq.items()}
+            for c in self._commands:
+                c.live = True
+        if t < self._dropped_t:
+            return self._by_seq.get(seq, ())
+        live = self._live.get(seq, [])
+        keep = [c for c in live if c.copies and len(c.copies) > c.answers and c.recent(t, self.horizon)]
+        if len(keep) < len(live):
+            for c in live:
+                c.live = False
+            for c in keep:
+                c.live = True
+            self._live[seq] = keep
+            self._dropped_t, self._dropped_h = max(self._dropped_t, t), min(self._dropped_h, self.horizon)
+        return keep
+
+    def _relive(self, cmd: _Command) -> None:
+        """``cmd``'s copies changed: a reply may name it again (``_named_by``)."""
+        if not cmd.live and cmd.seq >= 0:
+            cmd.live = True
+            self._live.setdefault(cmd.seq, []).append(cmd)
+
     def _forget_oldest(self) -> None:
         """Keep memory and lookups bounded on long runs (a fuzz campaign): the older half of
         the commands can no longer be answered (they are far beyond every horizon)."""
@@ -247,6 +290,7 @@ class Attributor:
         for c in keep:
             if c.seq >= 0:
                 self._by_seq.setdefault(c.seq, []).append(c)
+        self._live = {s: [c for c in cmds if c.live] for s, cmds in self._by_seq.items()}
 
     def _expects_reply(self, sent: _SentLike, is_ack: bool) -> bool:
         if is_ack or sent.dst == self.broadcast_id:
