@@ -63,9 +63,10 @@ def build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def conform(binary: Path, *, mavlink: bool) -> RunResult:
+def conform(binary: Path, *node_args: str, mavlink: bool) -> RunResult:
     node = (f"{shlex.quote(str(binary))} --id {{id}} --bind {{target_host}}:{{target_port}} "
-            f"--manager {{listen_host}}:{{listen_port}} --rto {RTO:g}" + (" --autopilot {mavlink}" if mavlink else ""))
+            f"--manager {{listen_host}}:{{listen_port}} --rto {RTO:g}" + (" --autopilot {mavlink}" if mavlink else "")
+            + "".join(f" {shlex.quote(a)}" for a in node_args))
     return run_conform(*(["--mavlink"] if mavlink else []), "--spawn", node, "--rto", f"{RTO:g}",
                        "--ack-window", f"{RTO:g}", "--timeout", "200", timeout=240)
 
@@ -101,3 +102,16 @@ def test_each_fault_fails_its_rule_and_no_other_must(build: Path, fault: str) ->
     failed = {r for r, o in res.rules.items() if o == "failed"}
     assert failed == {rule}, res.explain()
     assert not res.rules_with("error"), res.explain()
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    "tool: a retry limit of 2 (3 copies), which spec/mcp.yaml's min_copies calls 'the rule's "
+    "configurable limit, no violation', fails MCP-RTX-2: the startup sends its wrong ACKs after "
+    "the 3rd copy and awaits a 4th, which the limit, not the wrong ACK, withholds (case and monitor)"))
+def test_a_retry_limit_of_2_is_no_violation(build: Path) -> None:
+    """MCP-RTX-1: 'until it is ACKed or its retry limit is reached (... both configurable).
+    Observed: at least 3 copies while the ACK is withheld'; the node's ``--retries 2`` sends 3."""
+    res = conform(build / "drone-asan", "--retries", "2", mavlink=True)
+    assert res.rc == 0 and res.report["error"] is None, res.explain()
+    assert not res.rules_with("failed", "error"), res.explain()
+    assert res.report["monitor"]["violations"] == [], res.report["monitor"]["violations"]
