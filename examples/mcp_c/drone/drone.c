@@ -194,14 +194,14 @@ static void unpack_item(const uint8_t *p, mission_item *it)
 
 enum link_kind { LINK_NONE, LINK_TCP, LINK_UDPIN, LINK_UDPOUT };
 
-enum job_kind { JOB_MODE, JOB_COMMAND, JOB_UPLOAD };
+enum job_kind { JOB_MODE, JOB_COMMAND, JOB_UPLOAD, JOB_GOTO };
 
 typedef struct {
     enum job_kind kind;
     uint32_t mode;            /* JOB_MODE */
     uint16_t command;         /* JOB_COMMAND */
     float p[7];
-    mission_item *items;      /* JOB_UPLOAD (owned) */
+    mission_item *items;      /* JOB_UPLOAD (owned); JOB_GOTO: its one item */
     uint16_t count;
     int then_auto;
 } job;
@@ -349,6 +349,8 @@ static void job_command(uint16_t command, float p1, float p7)
     ap_enqueue(&j);
 }
 
+static void job_done(const char *how);
+
 /* (Re)send the job at the head of the queue. */
 static void job_send(void)
 {
@@ -366,17 +368,29 @@ static void job_send(void)
                                       j->p[3], j->p[4], j->p[5], j->p[6]);
         logf_("autopilot: COMMAND_LONG %u (%g)", j->command, (double)j->p[0]);
         break;
-    case JOB_UPLOAD:
-    {
+    case JOB_GOTO: {
+        /* no answer comes to a position target: sent, done */
+        const mission_item *it = j->items;
+        mavlink_msg_set_position_target_global_int_pack(
+            OUR_SYSID, OUR_COMPID, &msg, 0, ap.target_sys, ap.target_comp,
+            MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0x0FF8, (int32_t)lround((double)it->x * 1e7),
+            (int32_t)lround((double)it->y * 1e7), it->z, 0, 0, 0, 0, 0, 0, 0, 0);
+        logf_("autopilot: position target %.7f %.7f %.1f", (double)it->x, (double)it->y, (double)it->z);
+        ap_send(&msg);
+        ap.busy = 1;
+        job_done(NULL);
+        return;
+    }
+    case JOB_UPLOAD: {
         /* the struct, not _pack(): newer dialects add fields (opaque_id) to MISSION_COUNT */
         mavlink_mission_count_t count = {.target_system = ap.target_sys,
                                          .target_component = ap.target_comp,
                                          .count = j->count,
                                          .mission_type = MAV_MISSION_TYPE_MISSION};
         mavlink_msg_mission_count_encode(OUR_SYSID, OUR_COMPID, &msg, &count);
-    }
         logf_("autopilot: MISSION_COUNT %u", j->count);
         break;
+    }
     }
     ap_send(&msg);
     ap.busy = 1;
@@ -422,31 +436,21 @@ static void jobs_tick(double now)
     job_send();
 }
 
-static void send_mission_item(const job *j, uint16_t seq, int as_int)
+static void send_mission_item(const job *j, uint16_t seq)
 {
     const mission_item *it = &j->items[seq];
     mavlink_message_t msg;
-    /* structs, not _pack(): the fields' list differs between MAVLink releases */
-    if (as_int) {
-        mavlink_mission_item_int_t m = {
-            .param1 = it->param[0], .param2 = it->param[1], .param3 = it->param[2],
-            .param4 = it->param[3], .x = (int32_t)lround((double)it->x * 1e7),
-            .y = (int32_t)lround((double)it->y * 1e7), .z = it->z, .seq = seq,
-            .command = it->command, .target_system = ap.target_sys,
-            .target_component = ap.target_comp, .frame = it->frame,
-            .current = seq == 0 ? 0 : it->current, .autocontinue = it->autocontinue,
-            .mission_type = MAV_MISSION_TYPE_MISSION};
-        mavlink_msg_mission_item_int_encode(OUR_SYSID, OUR_COMPID, &msg, &m);
-    } else {
-        mavlink_mission_item_t m = {
-            .param1 = it->param[0], .param2 = it->param[1], .param3 = it->param[2],
-            .param4 = it->param[3], .x = it->x, .y = it->y, .z = it->z, .seq = seq,
-            .command = it->command, .target_system = ap.target_sys,
-            .target_component = ap.target_comp, .frame = it->frame,
-            .current = seq == 0 ? 0 : it->current, .autocontinue = it->autocontinue,
-            .mission_type = MAV_MISSION_TYPE_MISSION};
-        mavlink_msg_mission_item_encode(OUR_SYSID, OUR_COMPID, &msg, &m);
-    }
+    /* MISSION_ITEM_INT (degE7), as ArduPilot prefers; the struct, not _pack(): the fields'
+     * list differs between MAVLink releases */
+    mavlink_mission_item_int_t m = {
+        .param1 = it->param[0], .param2 = it->param[1], .param3 = it->param[2],
+        .param4 = it->param[3], .x = (int32_t)lround((double)it->x * 1e7),
+        .y = (int32_t)lround((double)it->y * 1e7), .z = it->z, .seq = seq,
+        .command = it->command, .target_system = ap.target_sys,
+        .target_component = ap.target_comp, .frame = it->frame,
+        .current = seq == 0 ? 0 : it->current, .autocontinue = it->autocontinue,
+        .mission_type = MAV_MISSION_TYPE_MISSION};
+    mavlink_msg_mission_item_int_encode(OUR_SYSID, OUR_COMPID, &msg, &m);
     ap_send(&msg);
 }
 
@@ -505,12 +509,12 @@ static void on_mavlink(const mavlink_message_t *msg)
         if (ap.n == 0 || !ap.busy || ap.jobs[ap.head].kind != JOB_UPLOAD)
             break;
         job *j = &ap.jobs[ap.head];
-        int as_int = msg->msgid == MAVLINK_MSG_ID_MISSION_REQUEST_INT;
-        uint16_t seq = as_int ? mavlink_msg_mission_request_int_get_seq(msg)
-                              : mavlink_msg_mission_request_get_seq(msg);
+        uint16_t seq = msg->msgid == MAVLINK_MSG_ID_MISSION_REQUEST_INT
+                           ? mavlink_msg_mission_request_int_get_seq(msg)
+                           : mavlink_msg_mission_request_get_seq(msg);
         if (seq >= j->count)
             break;
-        send_mission_item(j, seq, as_int);
+        send_mission_item(j, seq);
         ap.job_deadline = now_s() + 2.0;
         ap.attempts = 0;
         break;
@@ -750,13 +754,10 @@ static void deliver(uint16_t src, uint16_t seq, uint16_t action, const uint8_t *
         mission_item it;
         unpack_item(p, &it);
         logf_("waypoint on: %.7f %.7f %.1f", (double)it.x, (double)it.y, (double)it.z);
-        if (ap.kind != LINK_NONE && node.started) {
-            mavlink_message_t msg;
-            mavlink_msg_set_position_target_global_int_pack(
-                OUR_SYSID, OUR_COMPID, &msg, 0, ap.target_sys, ap.target_comp,
-                MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0x0FF8, (int32_t)lround((double)it.x * 1e7),
-                (int32_t)lround((double)it.y * 1e7), it.z, 0, 0, 0, 0, 0, 0, 0, 0);
-            ap_send(&msg);
+        if (node.started) { /* fly there in GUIDED (a position target is ignored in AUTO) */
+            job_mode(COPTER_GUIDED);
+            job j = {.kind = JOB_GOTO, .items = items_of(p, 1)};
+            ap_enqueue(&j);
         }
         break;
     }
