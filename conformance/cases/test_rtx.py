@@ -29,11 +29,36 @@ def test_mission_ready_is_retransmitted_until_acked(node):
                      [d.describe() for d in (st.copies_after_right_ack or st.copies)[:3]])
 
 
+def _stopped_before_wrong_acks(node, st):
+    """Why the node's next copy was already overdue when the runner's wrong ACKs went out
+    (None: it was not): its last copy before them came more than ``wrong_ack_wait`` -- the time
+    the case waits for a copy after them -- before them, as the manager role's case has it
+    (``cases_manager/test_rtx.py``). The runner sends them once it has the copies MCP-RTX-1
+    asks for, or once it has waited for them in vain: a node whose retry limit ended its copies
+    before (a C drone's ``--retries 1``: two copies, the wrong ACKs 2.1 s after the last at
+    --rto 0.3) shows nothing of what it does with a wrong ACK; MCP-RTX-1 judges it. A node that
+    stops on any ACK retransmits until one comes: its last copy is within a gap of them."""
+    if not st.wrong_acks or not st.copies:
+        return None
+    t_wrong = st.wrong_acks[0].t
+    before = [d.t for d in node.driver.received(st.copies[0].index) if d.action == _READY and d.t <= t_wrong]
+    late = t_wrong - max(before, default=t_wrong)
+    if late <= st.wrong_ack_wait:
+        return None
+    return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
+            f"{st.wrong_ack_wait:.2f} s watched after them")
+
+
 @rules("MCP-RTX-2", phase="startup")
 def test_only_the_right_ack_ends_retransmission(node):
     st = node.require_startup("MCP-RTX-2")
     if len(st.copies) < 2:
         raise Inconclusive("MCP-RTX-2: the node did not retransmit at all (see MCP-RTX-1)")
+    stopped = _stopped_before_wrong_acks(node, st)
+    if stopped is not None:
+        raise Inconclusive(f"MCP-RTX-2: the node had stopped retransmitting before the wrong ACKs were "
+                           f"sent ({stopped}): they show nothing of what it does with a wrong ACK "
+                           "(see MCP-RTX-1)")
     first = st.copy_after_wrong_acks
     if first is not None and node.driver.link is not None:
         # through --impair: a copy proves it only if the node had both wrong ACKs when it sent

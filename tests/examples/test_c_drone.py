@@ -110,12 +110,18 @@ def test_each_fault_fails_its_rule_and_no_other_must(build: Path, fault: str) ->
 RETRY_LIMITS = {2: set(), 1: {"MCP-RTX-1"}}
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "tool: RTX/test_only_the_right_ack_ends_retransmission fails MCP-RTX-2 when the node's retry limit, not "
-    "a wrong ACK, ended its copies: --retries 2, the wrong ACKs go 1 ms after the 3rd copy and a 4th is "
-    "awaited ('no copy within 0.95 s after them'; the monitor too); --retries 1, they go 2.1 s after the "
-    "node's last copy ('no copy within 0.97 s after them'), where --retries 0 is skipped 'see MCP-RTX-1'"))
-@pytest.mark.parametrize("retries", sorted(RETRY_LIMITS))
+#: a retry limit of 2 still gets a false MCP-RTX-2 (the tool's, left for a redesign of the startup's
+#: observation): the wrong ACKs go 1 ms after the 3rd copy and a 4th
+#: is awaited ('no copy within 0.95 s after them'; the monitor too), so the limit, not the wrong
+#: ACK, ends the copies there; a node that stops on any ACK (rtx-stop-on-any-ack) looks the same.
+#: A limit of 1 is judged right since session 32: its copies had ended before the wrong ACKs went
+#: (2.06 s after its last), RTX-2 skipped 'see MCP-RTX-1' (it failed before, 'no copy within 0.95 s')
+LIMIT_2 = pytest.mark.xfail(strict=False, reason=(
+    "tool: RTX/test_only_the_right_ack_ends_retransmission fails MCP-RTX-2 when a retry limit of 2 ended the "
+    "node's copies at the 3rd, after which the startup's wrong ACKs go and a 4th copy is awaited"))
+
+
+@pytest.mark.parametrize("retries", [pytest.param(2, marks=LIMIT_2), 1])
 def test_a_retry_limit_fails_only_what_it_breaks(build: Path, retries: int) -> None:
     """MCP-RTX-1: 'until it is ACKed or its retry limit is reached (... both configurable)'."""
     res = conform(build / "drone-asan", "--retries", str(retries), mavlink=True)
