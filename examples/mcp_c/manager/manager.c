@@ -25,6 +25,15 @@
  *   FAULT_ACK_HOST_ORDER  the ACK's payload in host byte order (breaks MCP-ACK-2)
  *   FAULT_NO_RETRANSMIT   a unicast is sent once and never repeated (breaks MCP-RTX-1)
  *   FAULT_ANY_ACK         any ACK from the destination ends a retransmission (MCP-RTX-2)
+ *
+ * Compile-time variants, other readings the documents allow (make VARIANT=...), none a fault:
+ *   VARIANT_ACK_NO_SEQ     an ACK carries the current number without taking one (D-5)
+ *   VARIANT_PER_DRONE      each drone's whole mission (Start .. End) before the next one's Start
+ *   VARIANT_BROADCAST      the mission's lists and waypoints go once to the broadcast ID, to all
+ *                          drones at once, unACKed and not retransmitted (delivery 'any', RTX-4)
+ *   VARIANT_OBSTACLES_ONLY challenge 3 sends the Obstacles_List alone, no WP_List
+ *   VARIANT_TWO_SOCKETS    sends from a second, unbound socket (another source port)
+ *   VARIANT_REPLY_TO_SOURCE an ACK goes back to the address the message came from
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -97,7 +106,11 @@ static int verbose;
 static double rto = MCP_DEFAULT_RTO;
 static long retries = MCP_DEFAULT_RETRIES;
 
-static int sock = -1;
+static int sock = -1;     /* receives (and sends, but with VARIANT_TWO_SOCKETS) */
+static int out_sock = -1; /* sends */
+static double hold = 0;   /* challenge 2: how long a waypoint stays active before its WP_Off */
+static double linger = 0; /* how long to go on ACKing after the mission (< 0: until stopped) */
+static struct sockaddr_in last_source; /* where the datagram being handled came from */
 static struct sockaddr_in send_to; /* where the drones listen (broadcast or unicast) */
 static uint16_t next_seq;          /* the sender's sequence number (arbitrary start, SEQ-4) */
 
@@ -126,6 +139,7 @@ static struct {
 
 /* the queue of unicast commands still to send, in order */
 struct command {
+    double hold; /* seconds to wait before sending it */
     int drone;
     uint16_t action;
     uint8_t *payload;
@@ -328,24 +342,49 @@ static struct item_list read_waypoints(const char *path)
 
 /* ---- sending ------------------------------------------------------------------------------- */
 
+static void send_datagram_to(const uint8_t *buf, size_t len, const struct sockaddr_in *to)
+{
+    if (sendto(out_sock, buf, len, 0, (const struct sockaddr *)to, sizeof *to) < 0)
+        fprintf(stderr, "manager: sendto: %s\n", strerror(errno));
+}
+
 static void send_datagram(const uint8_t *buf, size_t len)
 {
-    if (sendto(sock, buf, len, 0, (const struct sockaddr *)&send_to, sizeof send_to) < 0)
-        fprintf(stderr, "manager: sendto: %s\n", strerror(errno));
+    send_datagram_to(buf, len, &send_to);
 }
 
 static void send_ack(uint16_t to, uint16_t acked_seq)
 {
     uint8_t buf[MCP_HDR_LEN + 2];
+#ifdef VARIANT_ACK_NO_SEQ
+    struct mcp_hdr h = {to, MCP_MANAGER_ID, next_seq, MCP_ACK}; /* the number, not taken (D-5) */
+#else
     struct mcp_hdr h = {to, MCP_MANAGER_ID, next_seq++, MCP_ACK}; /* an ACK takes a number too (D-5) */
+#endif
     pack_header(buf, &h);
 #ifdef FAULT_ACK_HOST_ORDER
     memcpy(buf + MCP_HDR_LEN, &acked_seq, 2);
 #else
     put_u16be(buf + MCP_HDR_LEN, acked_seq);
 #endif
+#ifdef VARIANT_REPLY_TO_SOURCE
+    send_datagram_to(buf, sizeof buf, &last_source);
+#else
     send_datagram(buf, sizeof buf);
+#endif
     logf_("-> ACK %u to %u", acked_seq, to);
+}
+
+/* a broadcast (drone -1): sent once, no ACK awaited (MCP-RTX-4) */
+static void send_broadcast(const struct command *c)
+{
+    uint8_t buf[MCP_MAX_DGRAM];
+    struct mcp_hdr h = {MCP_BROADCAST_ID, MCP_MANAGER_ID, next_seq++, c->action};
+    pack_header(buf, &h);
+    if (c->len)
+        memcpy(buf + MCP_HDR_LEN, c->payload, c->len);
+    send_datagram(buf, MCP_HDR_LEN + c->len);
+    logf_("-> %s seq %u broadcast (%zu bytes)", action_name(h.action), h.seq, MCP_HDR_LEN + c->len);
 }
 
 static void send_unicast(const struct command *c)
@@ -482,7 +521,8 @@ static void drain_socket(void)
 {
     static uint8_t buf[65536];
     for (;;) {
-        ssize_t n = recv(sock, buf, sizeof buf, MSG_DONTWAIT);
+        socklen_t alen = sizeof last_source;
+        ssize_t n = recvfrom(sock, buf, sizeof buf, MSG_DONTWAIT, (struct sockaddr *)&last_source, &alen);
         if (n < 0) {
             if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
                 fprintf(stderr, "manager: recv: %s\n", strerror(errno));
@@ -504,6 +544,7 @@ static void enqueue(int drone, uint16_t action, const uint8_t *payload, size_t l
             die("out of memory");
     }
     struct command *c = &queue[queue_len++];
+    c->hold = 0;
     c->drone = drone;
     c->action = action;
     c->len = len;
@@ -529,31 +570,51 @@ static void enqueue_list(int drone, uint16_t action, const struct item_list *l)
     free(p);
 }
 
+/* the mission of one drone (d >= 0), or of all at once by broadcast (d = -1) */
+static void plan_drone(int d, int challenge, const struct item_list *wps, const struct item_list *obst)
+{
+    switch (challenge) {
+    case 1:
+        enqueue_list(d, MCP_WP_LIST, wps);
+        break;
+    case 2:
+        for (size_t i = 0; i < wps->n; i++) {
+            uint8_t item[MCP_ITEM_LEN];
+            pack_item(item, &wps->v[i]);
+            enqueue(d, MCP_WP_ON, item, sizeof item);
+            enqueue(d, MCP_WP_OFF, NULL, 0);
+            queue[queue_len - 1].hold = hold;
+        }
+        break;
+    case 3:
+        enqueue_list(d, MCP_OBSTACLES_LIST, obst);
+#ifndef VARIANT_OBSTACLES_ONLY
+        enqueue_list(d, MCP_WP_LIST, wps);
+#endif
+        break;
+    }
+}
+
 static void plan_mission(int challenge, const struct item_list *wps, const struct item_list *obst)
 {
+#if defined(VARIANT_PER_DRONE)
+    for (int d = 0; d < ndrones; d++) {
+        enqueue(d, MCP_START_MISSION, NULL, 0);
+        plan_drone(d, challenge, wps, obst);
+        enqueue(d, MCP_END_MISSION, NULL, 0);
+    }
+#else
     for (int d = 0; d < ndrones; d++)
         enqueue(d, MCP_START_MISSION, NULL, 0);
-    for (int d = 0; d < ndrones; d++) {
-        switch (challenge) {
-        case 1:
-            enqueue_list(d, MCP_WP_LIST, wps);
-            break;
-        case 2:
-            for (size_t i = 0; i < wps->n; i++) {
-                uint8_t item[MCP_ITEM_LEN];
-                pack_item(item, &wps->v[i]);
-                enqueue(d, MCP_WP_ON, item, sizeof item);
-                enqueue(d, MCP_WP_OFF, NULL, 0);
-            }
-            break;
-        case 3:
-            enqueue_list(d, MCP_OBSTACLES_LIST, obst);
-            enqueue_list(d, MCP_WP_LIST, wps);
-            break;
-        }
-    }
+#ifdef VARIANT_BROADCAST
+    plan_drone(-1, challenge, wps, obst);
+#else
+    for (int d = 0; d < ndrones; d++)
+        plan_drone(d, challenge, wps, obst);
+#endif
     for (int d = 0; d < ndrones; d++)
         enqueue(d, MCP_END_MISSION, NULL, 0);
+#endif
 }
 
 static int all_ready(void)
@@ -569,7 +630,7 @@ static const struct command *next_command(void)
 {
     while (queue_next < queue_len) {
         const struct command *c = &queue[queue_next++];
-        if (!lost[c->drone])
+        if (c->drone < 0 || !lost[c->drone])
             return c;
     }
     return NULL;
@@ -579,7 +640,8 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: manager [--challenge 1|2|3] --drones 1,2,3 --waypoints FILE [--obstacles FILE]\n"
-            "               [--bind HOST:PORT] [--send-to HOST:PORT] [--rto SECONDS] [--retries N] [-v]\n"
+            "               [--bind HOST:PORT] [--send-to HOST:PORT] [--rto SECONDS] [--retries N]\n"
+            "               [--hold SECONDS] [--linger SECONDS] [-v]\n"
             "  --challenge N    1 WP_List, 2 WP_On/WP_Off, 3 Obstacles_List (default 1; also positional)\n"
             "  --drones LIST    the drones' MCP IDs (default 1)\n"
             "  --waypoints FILE the mission, a QGC WPL 110 file\n"
@@ -588,6 +650,8 @@ static void usage(FILE *out)
             "  --send-to HOST:PORT where the drones listen (default 127.255.255.255:7890)\n"
             "  --rto SECONDS    retransmission timeout (default 5)\n"
             "  --retries N      retransmissions before a drone is given up (default 1000)\n"
+            "  --hold SECONDS   challenge 2: how long a waypoint stays active before WP_Off (0)\n"
+            "  --linger SECONDS go on ACKing this long after the mission (-1: until stopped; 0)\n"
             "exit: 0 mission done, 1 a drone was given up, 2 usage or setup error\n");
 }
 
@@ -619,6 +683,7 @@ int main(int argc, char **argv)
         {"waypoints", required_argument, NULL, 'w'}, {"obstacles", required_argument, NULL, 'o'},
         {"bind", required_argument, NULL, 'b'},      {"send-to", required_argument, NULL, 's'},
         {"rto", required_argument, NULL, 't'},       {"retries", required_argument, NULL, 'r'},
+        {"hold", required_argument, NULL, 'H'},      {"linger", required_argument, NULL, 'L'},
         {"verbose", no_argument, NULL, 'v'},         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0}};
     int challenge = 0;
@@ -630,7 +695,7 @@ int main(int argc, char **argv)
     parse_drones("1");
     parse_hostport("0.0.0.0:7889", &bind_addr);
     parse_hostport("127.255.255.255:7890", &send_to);
-    for (int c; (c = getopt_long(argc, argv, "c:d:w:o:b:s:t:r:vh", opts, NULL)) != -1;) {
+    for (int c; (c = getopt_long(argc, argv, "c:d:w:o:b:s:t:r:H:L:vh", opts, NULL)) != -1;) {
         switch (c) {
         case 'c':
             challenge = atoi(optarg);
@@ -659,6 +724,16 @@ int main(int argc, char **argv)
             retries = strtol(optarg, &end, 10);
             if (*end != '\0' || retries < 0)
                 die("--retries: '%s' is not a count", optarg);
+            break;
+        case 'H':
+            hold = strtod(optarg, &end);
+            if (*end != '\0' || !(hold >= 0) || !isfinite(hold))
+                die("--hold: '%s' is not a number of seconds", optarg);
+            break;
+        case 'L':
+            linger = strtod(optarg, &end);
+            if (*end != '\0' || isnan(linger))
+                die("--linger: '%s' is not a number of seconds", optarg);
             break;
         case 'v':
             verbose = 1;
@@ -697,6 +772,12 @@ int main(int argc, char **argv)
     int one = 1;
     if (setsockopt(sock, SOL_SOCKET, SO_BROADCAST, &one, sizeof one) < 0)
         die("SO_BROADCAST: %s", strerror(errno));
+    out_sock = sock;
+#ifdef VARIANT_TWO_SOCKETS
+    out_sock = socket(AF_INET, SOCK_DGRAM, 0);
+    if (out_sock < 0 || setsockopt(out_sock, SOL_SOCKET, SO_BROADCAST, &one, sizeof one) < 0)
+        die("the sending socket: %s", strerror(errno));
+#endif
     if (bind(sock, (struct sockaddr *)&bind_addr, sizeof bind_addr) < 0)
         die("bind %s:%u: %s", inet_ntoa(bind_addr.sin_addr), ntohs(bind_addr.sin_port),
             strerror(errno));
@@ -712,21 +793,46 @@ int main(int argc, char **argv)
           inet_ntoa(bind_addr.sin_addr), ntohs(bind_addr.sin_port), challenge, ndrones, wps.n, rto);
 
     int planned = 0;
+    double send_at = -1; /* a held command goes out then */
+    double done_at = -1; /* the mission ended then (lingering) */
+    const struct command *c = NULL;
     for (;;) {
+        double now = now_s();
         if (!planned && all_ready()) {
             plan_mission(challenge, &wps, &obst);
             planned = 1;
             logf_("every drone is ready: the mission starts");
         }
-        if (planned && !pending.active) {
-            const struct command *c = next_command();
-            if (c == NULL)
+        while (planned && !pending.active && done_at < 0) {
+            if (c == NULL) {
+                c = next_command();
+                if (c == NULL) {
+                    done_at = now;
+                    logf_("mission done");
+                    break;
+                }
+                send_at = now + c->hold;
+            }
+            if (now < send_at)
                 break;
-            send_unicast(c);
+            if (c->drone < 0)
+                send_broadcast(c);
+            else
+                send_unicast(c);
+            c = NULL;
         }
+        if (done_at >= 0 && linger >= 0 && now >= done_at + linger)
+            break;
+        double wake = -1;
+        if (pending.active)
+            wake = pending.deadline;
+        else if (c != NULL)
+            wake = send_at;
+        else if (done_at >= 0 && linger >= 0)
+            wake = done_at + linger;
         int timeout_ms = -1;
-        if (pending.active) {
-            double left = pending.deadline - now_s();
+        if (wake >= 0) {
+            double left = wake - now;
             timeout_ms = left <= 0 ? 0 : (int)(left * 1000.0) + 1;
         }
         struct pollfd pfd = {sock, POLLIN, 0};
@@ -742,7 +848,10 @@ int main(int argc, char **argv)
     int given_up = 0;
     for (int d = 0; d < ndrones; d++)
         given_up |= lost[d];
-    logf_("mission done%s", given_up ? " (some drone given up)" : "");
+    if (given_up)
+        logf_("some drone was given up");
+    if (out_sock != sock)
+        close(out_sock);
     close(sock);
     for (size_t i = 0; i < queue_len; i++)
         free(queue[i].payload);
