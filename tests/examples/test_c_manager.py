@@ -151,6 +151,7 @@ READINGS = [
     ("ok", 2, "127.0.0.1:{listen_port}", ()),  # unicast at the IP level
     ("ok", 1, None, ("--linger", "-1")),   # never exits: stopped by the runner
     ("ok", 1, None, ("--retries", "5")),   # the silent drone given up, the others' missions end
+    ("ok", 2, None, ("--seq", "65491")),   # its numbers wrap from 65535 to 0 mid-mission (SEQ-1)
 ]
 
 
@@ -167,6 +168,9 @@ def test_other_readings_of_the_documents_earn_every_rule(
     if options == ("--retries", "5"):
         flow7 = next(c for c in doc["cases"] if c["rules"] == ["MCP-FLOW-7"])
         assert any("then gave up" in n and "got End_Mission" in n for n in flow7["notes"]), flow7
+    if options[:1] == ("--seq",):  # the run began where asked, so its numbers wrapped
+        seq4 = next(c for c in doc["cases"] if c["rules"] == ["MCP-SEQ-4"])
+        assert any(f"first datagram carries seq {options[1]} " in n for n in seq4["notes"]), seq4
 
 
 @pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(

@@ -641,7 +641,7 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: manager [--challenge 1|2|3] --drones 1,2,3 --waypoints FILE [--obstacles FILE]\n"
             "               [--bind HOST:PORT] [--send-to HOST:PORT] [--rto SECONDS] [--retries N]\n"
-            "               [--hold SECONDS] [--linger SECONDS] [-v]\n"
+            "               [--hold SECONDS] [--linger SECONDS] [--seq N] [-v]\n"
             "  --challenge N    1 WP_List, 2 WP_On/WP_Off, 3 Obstacles_List (default 1; also positional)\n"
             "  --drones LIST    the drones' MCP IDs (default 1)\n"
             "  --waypoints FILE the mission, a QGC WPL 110 file\n"
@@ -652,6 +652,7 @@ static void usage(FILE *out)
             "  --retries N      retransmissions before a drone is given up (default 1000)\n"
             "  --hold SECONDS   challenge 2: how long a waypoint stays active before WP_Off (0)\n"
             "  --linger SECONDS go on ACKing this long after the mission (-1: until stopped; 0)\n"
+            "  --seq N          the first sequence number (default: a random one)\n"
             "exit: 0 mission done, 1 a drone was given up, 2 usage or setup error\n");
 }
 
@@ -684,10 +685,12 @@ int main(int argc, char **argv)
         {"bind", required_argument, NULL, 'b'},      {"send-to", required_argument, NULL, 's'},
         {"rto", required_argument, NULL, 't'},       {"retries", required_argument, NULL, 'r'},
         {"hold", required_argument, NULL, 'H'},      {"linger", required_argument, NULL, 'L'},
+        {"seq", required_argument, NULL, 'S'},
         {"verbose", no_argument, NULL, 'v'},         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0}};
     int challenge = 0;
     const char *waypoints = NULL, *obstacles = NULL;
+    long first_seq = -1;
     struct sockaddr_in bind_addr;
     char *end;
 
@@ -695,7 +698,7 @@ int main(int argc, char **argv)
     parse_drones("1");
     parse_hostport("0.0.0.0:7889", &bind_addr);
     parse_hostport("127.255.255.255:7890", &send_to);
-    for (int c; (c = getopt_long(argc, argv, "c:d:w:o:b:s:t:r:H:L:vh", opts, NULL)) != -1;) {
+    for (int c; (c = getopt_long(argc, argv, "c:d:w:o:b:s:t:r:H:L:S:vh", opts, NULL)) != -1;) {
         switch (c) {
         case 'c':
             challenge = atoi(optarg);
@@ -734,6 +737,11 @@ int main(int argc, char **argv)
             linger = strtod(optarg, &end);
             if (*end != '\0' || isnan(linger))
                 die("--linger: '%s' is not a number of seconds", optarg);
+            break;
+        case 'S':
+            first_seq = strtol(optarg, &end, 10);
+            if (*end != '\0' || first_seq < 0 || first_seq > 65535)
+                die("--seq: '%s' is not a sequence number (0..65535)", optarg);
             break;
         case 'v':
             verbose = 1;
@@ -788,6 +796,8 @@ int main(int argc, char **argv)
         next_seq = (uint16_t)(time(NULL) ^ getpid());
     if (rnd >= 0)
         close(rnd);
+    if (first_seq >= 0)
+        next_seq = (uint16_t)first_seq;
     setvbuf(stderr, NULL, _IOLBF, 0);
     logf_("listening on %s:%u, challenge %d, %d drone(s), %zu waypoint(s), rto %.3f s",
           inet_ntoa(bind_addr.sin_addr), ntohs(bind_addr.sin_port), challenge, ndrones, wps.n, rto);
