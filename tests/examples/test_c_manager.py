@@ -1,0 +1,221 @@
+"""The C Mission Manager (examples/mcp_c/manager/) built now and judged by ``mcp-conform --role
+manager``: an MCP node no one here wrote in Python, from the protocol's documents only.
+
+The correct manager (built under AddressSanitizer) earns, challenge by challenge, every rule the
+manager role observes at that challenge (MCP-FLOW-4, -5, -6 each at its own) with no failure,
+warning or error, in the report and in the trace monitor; so do its variants (``make
+VARIANT=...``: other readings the documents allow) and options. Each faulty build (``make
+FAULT=...``) fails the one rule its fault breaks, found by the rule's text, and no other.
+Short timings: the node's --rto and the runner's are both 0.3 s (--ack-window 0.3).
+
+Three runs draw verdicts the node does not earn (the suite's fault, reported to the lead): they
+assert every other rule, and the suite's false verdicts are an xfail (``SuiteFault``) until the
+suite is fixed.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mcp_conform.spec import RULES
+from tests.forkserver import run_module
+from tests.xdist_once import once
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[2]
+SOURCE = ROOT / "examples" / "mcp_c" / "manager"
+RTO = "0.3"
+FAULTS = ("ACK_HOST_ORDER", "NO_RETRANSMIT", "ANY_ACK")
+VARIANTS = ("ACK_NO_SEQ", "PER_DRONE", "BROADCAST", "OBSTACLES_ONLY", "TWO_SOCKETS",
+            "REPLY_TO_SOURCE")
+
+
+class SuiteFault(AssertionError):
+    """A verdict the node does not earn: the suite's fault (the xfail's reason says which)."""
+
+#: the manager role's rules no manager can show on the wire (the spec's observe: none), or
+#: that this manager never exercises: it sends no broadcast (MCP-RTX-4) and no
+#: Mav_Passthrough (MCP-PAY-6)
+NOT_OBSERVED = {"MCP-SEQ-3", "MCP-DUP-1", "MCP-DUP-2", "MCP-DUP-3", "MCP-DUP-4",
+                "MCP-RTX-4", "MCP-PAY-6"}
+INFO = {"MCP-SEQ-4", "MCP-TRN-1", "MCP-FLOW-7"}
+#: the rules of one challenge only: (challenge 1, 2, 3) -> the rules it exercises
+BY_CHALLENGE = {1: {"MCP-FLOW-4", "MCP-PAY-3"}, 2: {"MCP-FLOW-5", "MCP-PAY-5"},
+                3: {"MCP-FLOW-6", "MCP-PAY-3"}}
+
+
+def rule_by_text(words: str) -> str:
+    """The ID of the one rule whose text holds ``words``."""
+    found = [r.id for r in RULES.values() if words in r.text]
+    assert len(found) == 1, (words, found)
+    return found[0]
+
+
+#: each fault and the rule it breaks, by the rule's text
+BROKEN = {
+    "ACK_HOST_ORDER": rule_by_text("An ACK's payload is exactly 2 bytes"),
+    "NO_RETRANSMIT": rule_by_text("retransmits it until it is ACKed or its retry limit"),
+    "ANY_ACK": rule_by_text("Only an ACK from the message's destination whose payload equals"),
+}
+
+
+@pytest.fixture(scope="module")
+def builds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The correct manager (ASan) and each faulty one, built by the Makefile once a test
+    session (tests/xdist_once.py), the MAVLink headers generated once for all."""
+    missing = [t for t in ("cc", "make") if shutil.which(t) is None]
+    if missing:
+        pytest.skip(f"{' and '.join(missing)} not installed (.ci/apt-tools installs gcc, make)")
+
+    def make(out: Path) -> dict[str, Path]:
+        made = {}
+        builds = [("ok", ["ASAN=1"]), *((f, [f"FAULT={f}"]) for f in FAULTS),
+                  *((v, [f"VARIANT={v}", "ASAN=1"]) for v in VARIANTS)]
+        for name, flags in builds:
+            proc = subprocess.run(["make", "-C", str(SOURCE), f"PYTHON={sys.executable}",
+                                   f"BUILD={out / name}", f"INCLUDE={out / 'include'}", *flags],
+                                  capture_output=True, text=True, timeout=300)
+            assert proc.returncode == 0, proc.stdout + proc.stderr
+            assert "warning:" not in proc.stderr, proc.stderr
+            made[name] = out / name / "manager"
+        return made
+
+    made = once(tmp_path_factory, "mcp_c_manager", make)
+    assert all(p.is_file() for p in made.values()), made
+    assert not list(SOURCE.rglob("mavlink.h")), "generated headers must not be in the source tree"
+    return made
+
+
+def run(tmp_path: Path, manager: Path, challenge: int,
+        send_to: str = "{broadcast}:{listen_port}", *options: str) -> tuple[int, dict, str]:
+    spawn = (f"{shlex.quote(str(manager))} --challenge {{challenge}} --drones {{drones}}"
+             " --waypoints {waypoints} --obstacles {obstacles}"
+             f" --bind {{target_host}}:{{target_port}} --send-to {send_to} --rto {RTO}"
+             + "".join(f" {o}" for o in options))
+    out = tmp_path / "r.json"
+    proc = run_module("conformance", ["--role", "manager", "--challenge", str(challenge),
+                                      "--rto", RTO, "--ack-window", RTO, "--json", str(out),
+                                      "--spawn", spawn], timeout=300)
+    assert out.exists(), proc.stdout + proc.stderr
+    return proc.returncode, json.loads(out.read_text()), proc.stdout + proc.stderr
+
+
+def expected_rules(doc: dict, challenge: int, broadcast: bool = False) -> dict[str, str]:
+    """Each rule of the report as a correct manager of ``challenge`` earns it."""
+    other = set().union(*BY_CHALLENGE.values()) - BY_CHALLENGE[challenge]
+    unseen = NOT_OBSERVED - ({"MCP-RTX-4"} if broadcast else set())
+    return {rule: "info" if rule in INFO else "skipped" if rule in unseen | other else "passed"
+            for rule in doc["rules"]}
+
+
+def judge(doc: dict, out: str, expected: dict[str, str], suite_faults: tuple[str, ...] = ()) -> None:
+    """The report's verdicts are ``expected`` and the trace monitor finds no violation, those
+    of the rules of ``suite_faults`` aside: they raise SuiteFault when they are not (after
+    everything else is asserted)."""
+    got = {r: v for r, v in doc["rules"].items() if r not in suite_faults}
+    assert got == {r: v for r, v in expected.items() if r not in suite_faults}, out
+    assert "ERROR: AddressSanitizer" not in out, out
+    violations = doc["monitor"]["violations"]
+    assert [v for v in violations if v["rule"] not in suite_faults] == [], doc["monitor"]
+    wrong = {r: doc["rules"][r] for r in suite_faults if doc["rules"][r] != expected[r]}
+    wrong.update({f"monitor {v['rule']}": v["actual"] for v in violations})
+    if wrong:
+        raise SuiteFault(f"{wrong}\n{out}")
+
+
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_the_c_manager_earns_every_rule_it_shows(tmp_path: Path, builds: dict[str, Path],
+                                                 challenge: int) -> None:
+    rc, doc, out = run(tmp_path, builds["ok"], challenge)
+    assert rc == 0, out
+    judge(doc, out, expected_rules(doc, challenge))
+    assert {k: v for k, v in doc["summary"].items() if k in ("failed", "warned", "error")} \
+        == {"failed": 0, "warned": 0, "error": 0}, out
+
+
+#: (build, challenge, --send-to, options): the variants and options a correct manager may have
+READINGS = [
+    ("ACK_NO_SEQ", 1, None, ()),           # D-5: an ACK takes no number
+    ("PER_DRONE", 2, None, ()),            # each drone's mission, Start to End, one after another
+    ("OBSTACLES_ONLY", 3, None, ()),       # challenge 3 without a WP_List
+    ("TWO_SOCKETS", 1, None, ()),          # sends from another port than it receives on
+    ("REPLY_TO_SOURCE", 1, None, ()),      # ACKs to the sender's address
+    ("ok", 2, "127.0.0.1:{listen_port}", ()),  # unicast at the IP level
+    ("ok", 1, None, ("--linger", "-1")),   # never exits: stopped by the runner
+    ("ok", 1, None, ("--retries", "5")),   # the silent drone given up, the others' missions end
+    ("ok", 2, None, ("--seq", "65491")),   # its numbers wrap from 65535 to 0 mid-mission (SEQ-1)
+]
+
+
+@pytest.mark.parametrize(("build", "challenge", "send_to", "options"), READINGS,
+                         ids=[f"{b}-{c}{'-' + '_'.join(o) if o else ''}{'-unicast' if s else ''}"
+                              for b, c, s, o in READINGS])
+def test_other_readings_of_the_documents_earn_every_rule(
+        tmp_path: Path, builds: dict[str, Path], build: str, challenge: int, send_to: str | None,
+        options: tuple[str, ...]) -> None:
+    rc, doc, out = run(tmp_path, builds[build], challenge, send_to or "{broadcast}:{listen_port}",
+                       *options)
+    assert rc == 0, out
+    judge(doc, out, expected_rules(doc, challenge))
+    if options == ("--retries", "5"):
+        flow7 = next(c for c in doc["cases"] if c["rules"] == ["MCP-FLOW-7"])
+        assert any("then gave up" in n and "got End_Mission" in n for n in flow7["notes"]), flow7
+    if options[:1] == ("--seq",):  # the run began where asked, so its numbers wrapped
+        seq4 = next(c for c in doc["cases"] if c["rules"] == ["MCP-SEQ-4"])
+        assert any(f"first datagram carries seq {options[1]} " in n for n in seq4["notes"]), seq4
+
+
+@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
+    "the suite's: conformance.manager_case.messages groups a broadcast WP_Off with the earlier "
+    "ones (same dst and empty payload, never ACKed) as its copies: MCP-RTX-4 warns 'sent 6 "
+    "times' of six WP_Off each sent once with its own seq. And the documents are ambiguous: "
+    "WP_List, WP_On and Obstacles_List have delivery 'any', yet the FLOW cases (and the "
+    "monitor's MCP-FLOW-4/6, not its FLOW-5) count only those unicast to each drone, so a "
+    "mission broadcast once to every drone fails MCP-FLOW-4/5/6"))
+@pytest.mark.parametrize("challenge", [1, 2, 3])
+def test_a_mission_broadcast_to_every_drone(tmp_path: Path, builds: dict[str, Path],
+                                            challenge: int) -> None:
+    rc, doc, out = run(tmp_path, builds["BROADCAST"], challenge)
+    flow = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}[challenge]
+    judge(doc, out, expected_rules(doc, challenge, broadcast=True), (flow, "MCP-RTX-4"))
+    assert rc == 0, out
+
+
+@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
+    "the suite's: a retry limit of 2 (3 copies: spec parameter min_copies calls it no "
+    "violation) ends Start_Mission's retransmission one --rto after the third copy, 300 ms "
+    "after the runner's wrong ACKs; conformance.manager_case.gave_up counts those wrong ACKs as "
+    "the answer, so the give-up is not recognised: MCP-RTX-2 fails ('no copy within 0.95 s "
+    "after them') and the given-up drone is not excused from MCP-FLOW-3 and MCP-FLOW-4"))
+def test_a_retry_limit_of_two(tmp_path: Path, builds: dict[str, Path]) -> None:
+    rc, doc, out = run(tmp_path, builds["ok"], 1, "{broadcast}:{listen_port}", "--retries", "2")
+    judge(doc, out, expected_rules(doc, 1), ("MCP-RTX-2", "MCP-FLOW-3", "MCP-FLOW-4"))
+
+
+@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
+    "the suite's: harness.mission_script._await_end ends the mission record after "
+    "max(2.5 rto, 2 ack-window, 1 s) without a datagram from the manager ('idle'), though the "
+    "manager is alive and mid-mission (a waypoint kept active 2 s before its WP_Off); "
+    "MCP-FLOW-3 and MCP-FLOW-5 then fail on the commands not yet sent, and MCP-BLK-6 is "
+    "skipped (no End_Mission seen)"))
+def test_a_waypoint_held_active(tmp_path: Path, builds: dict[str, Path]) -> None:
+    rc, doc, out = run(tmp_path, builds["ok"], 2, "{broadcast}:{listen_port}", "--hold", "2")
+    judge(doc, out, expected_rules(doc, 2), ("MCP-FLOW-3", "MCP-FLOW-5", "MCP-BLK-6"))
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_faulty_c_manager_fails_its_rule_and_no_other(tmp_path: Path, builds: dict[str, Path],
+                                                        fault: str) -> None:
+    rc, doc, out = run(tmp_path, builds[fault], 1)
+    assert rc == 1, out
+    bad = {rule for rule, outcome in doc["rules"].items() if outcome in ("failed", "warned", "error")}
+    assert bad == {BROKEN[fault]}, out
+    assert doc["rules"][BROKEN[fault]] == "failed", out
