@@ -100,15 +100,18 @@ class Message:
 
 def messages(m: Mission) -> list[Message]:
     """The manager's non-ACK messages in order of first arrival, copies grouped with the
-    message they repeat: same (dst, seq), or same (dst, action, payload) while the earlier
-    one has not been ACKed (a retransmission with a new seq, MCP-SEQ-2's business)."""
+    message they repeat: same (dst, seq), or, to a mission drone (whose ACK it awaits), same
+    (dst, action, payload) while the earlier one has not been ACKed (a retransmission with a
+    new seq, MCP-SEQ-2's business). A broadcast is never ACKed: one with a new seq is a new
+    message (MCP-DUP-2), however like the last it is (a mission of broadcast WP_Offs, each its
+    own seq, was six "copies" of the first, MCP-RTX-4 warned: H-cmanager's C manager)."""
     out: list[Message] = []
     by_key: dict[tuple[int, int], Message] = {}
     for d in m.commands():
         h = d.header
         assert h is not None
         msg = by_key.get((h[0], h[2]))
-        if msg is None:
+        if msg is None and h[0] in m.drones:
             for cand in reversed(out):
                 if (cand.dst == h[0] and cand.action == h[3] and cand.first.data[HEADER_SIZE:] == d.data[HEADER_SIZE:]
                         and not _acked_before(m, cand, d.t)):
@@ -161,11 +164,17 @@ def gave_up(m: Mission, msg: Message, rto: float) -> bool:
     gap = statistics.median(gaps) if gaps else rto
     slack = 1.5 * gap + 0.05
     # moved on: a new unicast to a drone when the next copy was due (its retry limit), before
-    # any ACK of it, and no copy after that (one still awaiting would be retransmitted later:
-    # MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went out.
+    # any right ACK of it, and no copy after that (one still awaiting would be retransmitted
+    # later: MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went
+    # out. MCP-RTX-2's wrong ACKs do not count here: a manager that takes one moves on when it
+    # reads it, one whose retry limit ended the copies when the next was due (a C manager's
+    # --retries 2: its third copy, the wrong ACKs 1 ms after it, the next drone's Start_Mission
+    # one --rto later, was taken as answered by them and failed MCP-RTX-2 and MCP-FLOW-3/4)
+    right = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
+    answered = min(right) if right else None
     for y in messages(m):
         if (y is not msg and y.dst in m.drones and y.first.t >= msg.last.t + 0.8 * gap - 0.015
-                and (acked is None or y.first.t < acked)):
+                and (answered is None or y.first.t < answered)):
             return True
     if acked is None:
         return m.t_end - msg.last.t > slack

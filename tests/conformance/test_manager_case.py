@@ -57,6 +57,16 @@ def test_a_retransmission_with_a_new_seq_is_a_copy_until_acked():
     assert len(messages(m)) == 2  # after the ACK, the same bytes again are a new message
 
 
+def test_broadcasts_with_new_seqs_are_new_messages_not_copies():
+    """A broadcast is never ACKed: the same bytes again with a new seq are a new message (MCP-DUP-2),
+    not a copy (MCP-RTX-4 warned 'sent 6 times' of six broadcast WP_Offs, each sent once with
+    its own seq: H-cmanager's C manager); a broadcast sent again with its seq is a copy."""
+    bcast = 0xFFFF
+    offs = [cmd(bcast, 20 + n, Action.WP_OFF) for n in range(3)]
+    m = mission([*offs, offs[2]], [0.0, 0.2, 0.4, 0.6])
+    assert [len(x.copies) for x in messages(m)] == [1, 1, 2]
+
+
 def test_a_wrong_source_ack_taken_by_the_next_unicast_is_rtx_2s_not_blk_1():
     """The runner withholds drone 1's Start_Mission, then sends the wrong-seq ACK from drone 1
     and a wrong-source ACK from drone 2 (naming drone 1's seq). A manager that takes any ACK
