@@ -250,3 +250,17 @@ def test_passthrough_longer_than_any_frame_is_pay6_without_parsing_it_all():
             with pytest.raises(DecodeError) as exc:
                 decode(data)
             assert exc.value.rule == "MCP-PAY-6"
+
+
+def test_a_frame_of_an_id_the_dialect_has_not_is_pay6():
+    """MCP-PAY-6: "exactly one complete MAVLink v1 or v2 frame with a valid checksum under the
+    ardupilotmega dialect". pymavlink hands a frame of an unknown id over unchecked (there is no
+    CRC extra to check its checksum by): it is no valid frame, v1 or v2, so a node built on the
+    dialect's C headers, which drops it, is not owed an ACK (mcp-fuzz --role manager found
+    "MCP-ACK-1" on a C manager with such a frame, msgid 0x20FD, checksum 0x3412)."""
+    for frame in (bytes([0xFD, 3, 0, 0, 5, 1, 1]) + (0x20FD).to_bytes(3, "little") + b"\x01\x02\x03\x12\x34",
+                  bytes([0xFE, 3, 5, 1, 1, 3]) + b"\x01\x02\x03\x12\x34"):  # id 3: none in the dialect
+        data = build_datagram(1, 0, 1, int(Action.MAV_PASSTHROUGH), frame)
+        with pytest.raises(DecodeError) as exc:
+            decode(data)
+        assert exc.value.rule == "MCP-PAY-6" and "not in the ardupilotmega dialect" in str(exc.value), exc.value
