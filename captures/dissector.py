@@ -126,9 +126,9 @@ local function track(tvb, pinfo, t, src, dst, seq, ack_seq)
 end
 """
 
-#: MCP-PAY-6 as spec.mavframe.parse_frame judges it: one whole MAVLink v1/v2 frame, with a good
-#: CRC (X.25 with the message's CRC_EXTRA) where the dialect knows the message (pymavlink
-#: accepts a message of another dialect unchecked)
+#: MCP-PAY-6 as spec.mavframe.parse_frame judges it: one whole MAVLink v1/v2 frame of a message
+#: the dialect knows, with a good CRC (X.25 with the message's CRC_EXTRA); a message of another
+#: dialect has no checksum valid "under the ardupilotmega dialect" (pymavlink passes it unchecked)
 _FRAME_CHECK = """
 local function x25(tvb, from, to, extra)
   local crc = 0xFFFF
@@ -160,7 +160,9 @@ local function frame_problem(frame)
   if n < want then return "incomplete MAVLink frame: " .. n .. " of " .. want .. " bytes" end
   if n > want then return (n - want) .. " byte(s) after the MAVLink frame" end
   local extra = mav_crc_extra[msgid]
-  if extra == nil then return nil end  -- a message of another dialect: no CRC_EXTRA to check with
+  if extra == nil then  -- a message of another dialect: no CRC_EXTRA, so no checksum of it is valid
+    return "MAVLink message id " .. msgid .. " is not in the ardupilotmega dialect: no checksum of it is valid"
+  end
   if x25(frame, 1, hlen + plen, extra) ~= frame(hlen + plen, 2):le_uint() then
     return "bad MAVLink frame: CRC mismatch (" .. (mav_msg[msgid] or msgid) .. ")"
   end

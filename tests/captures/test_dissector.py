@@ -150,6 +150,9 @@ def test_tracking_retransmissions_names_and_mavlink(tmp_path, scripts):
         (1210, False, bytes(bad_crc)),                              # 8: MCP-PAY-6
         (1220, True, build_datagram(0, 1, 102, int(Action.MISSION_READY), b"\x00\x02")),  # ID 2 from 1
         (1230, True, encode(Message(0, 1, 103, Action.ACK, 999))),  # 10: ACK of nothing here
+        # 11: MCP-PAY-6, a frame of an id the dialect has not (32765): no checksum of it is valid
+        (1240, False, build_datagram(1, 0, 202, int(Action.MAV_PASSTHROUGH),
+                                     bytes([0xFD, 3, 0, 0, 5, 1, 1]) + (32765).to_bytes(3, "little") + b"\x01\x02\x03\x12\x34")),
     ]
     path = tmp_path / "t.mcap"
     with McapRecorder(path) as rec:
@@ -171,6 +174,7 @@ def test_tracking_retransmissions_names_and_mavlink(tmp_path, scripts):
     assert "CRC" in r[8]["_ws.expert.message"]
     assert r[9]["centmesh.rule"] == "MCP-ROB-4" and "(D-3)" in r[9]["_ws.expert.message"]
     assert r[10]["centmesh.acks"] == "" and "ACK of seq 999" in r[10]["_ws.expert.message"]
+    assert r[11]["centmesh.rule"] == "MCP-PAY-6" and "not in the ardupilotmega dialect" in r[11]["_ws.expert.message"]
     _check_rules(rows, {n: d for n, (_, _, d) in enumerate(traffic, 1)})
     # the names, as tshark prints them
     verbose = subprocess.run([_tshark(), "-2", "-n", "-X", f"lua_script:{scripts[1]}", "-X",
