@@ -164,17 +164,11 @@ def gave_up(m: Mission, msg: Message, rto: float) -> bool:
     gap = statistics.median(gaps) if gaps else rto
     slack = 1.5 * gap + 0.05
     # moved on: a new unicast to a drone when the next copy was due (its retry limit), before
-    # any right ACK of it, and no copy after that (one still awaiting would be retransmitted
-    # later: MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went
-    # out. MCP-RTX-2's wrong ACKs do not count here: a manager that takes one moves on when it
-    # reads it, one whose retry limit ended the copies when the next was due (a C manager's
-    # --retries 2: its third copy, the wrong ACKs 1 ms after it, the next drone's Start_Mission
-    # one --rto later, was taken as answered by them and failed MCP-RTX-2 and MCP-FLOW-3/4)
-    right = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
-    answered = min(right) if right else None
+    # any ACK of it, and no copy after that (one still awaiting would be retransmitted later:
+    # MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went out.
     for y in messages(m):
         if (y is not msg and y.dst in m.drones and y.first.t >= msg.last.t + 0.8 * gap - 0.015
-                and (answered is None or y.first.t < answered)):
+                and (acked is None or y.first.t < acked)):
             return True
     if acked is None:
         return m.t_end - msg.last.t > slack

@@ -8,10 +8,10 @@ VARIANT=...``: other readings the documents allow) and options. Each faulty buil
 FAULT=...``) fails the one rule its fault breaks, found by the rule's text, and no other.
 Short timings: the node's --rto and the runner's are both 0.3 s (--ack-window 0.3).
 
-Two kinds of run still draw verdicts the node does not earn (a mission broadcast to every drone:
-the documents are ambiguous; a waypoint held active: the suite's): they assert every other
-rule, and those verdicts are an xfail (``SuiteFault``) until the documents or the suite are
-settled. A retry limit of 2, a third such run, is judged right since session 32.
+Three kinds of run still draw verdicts the node does not earn (a mission broadcast to every drone:
+the documents are ambiguous; a waypoint held active, a retry limit of 2: the suite's): they
+assert every other rule, and those verdicts are an xfail (``SuiteFault``) until the documents or
+the suite are settled.
 """
 
 from __future__ import annotations
@@ -189,19 +189,18 @@ def test_a_mission_broadcast_to_every_drone(tmp_path: Path, builds: dict[str, Pa
     assert rc == 0, out
 
 
+@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
+    "the suite's: a retry limit of 2 (3 copies: spec parameter min_copies calls it no "
+    "violation) ends Start_Mission's retransmission one --rto after the third copy, 300 ms "
+    "after the runner's wrong ACKs; conformance.manager_case.gave_up counts those wrong ACKs as "
+    "the answer, so the give-up is not recognised: MCP-RTX-2 fails ('no copy within 0.95 s "
+    "after them') and the given-up drone is not excused from MCP-FLOW-3 and MCP-FLOW-4. Telling "
+    "the two apart by when the manager moves on (a give-up when its next copy was due) was tried "
+    "in session 32 and reverted: a manager that takes the wrong ACK, held off the CPU, moves on as "
+    "late (CI run 54: sample_manager --fault wrong-seq-ack's MCP-RTX-2 skipped in one of two runs)"))
 def test_a_retry_limit_of_two(tmp_path: Path, builds: dict[str, Path]) -> None:
-    """A retry limit of 2 (3 copies: the spec's min_copies calls it no violation) ends Start_Mission's
-    retransmission one --rto after the third copy, 300 ms after the runner's wrong ACKs: the manager
-    moves on when its next copy was due, not when it read them, so its retry limit, not a wrong
-    ACK, may have ended the copies. MCP-RTX-2 is SKIPPED with that reason, the given-up drone is
-    excused from MCP-FLOW-3/4, nothing fails. Before session 32 (an xfail here): the wrong ACKs
-    were taken for the answer (``conformance.manager_case.gave_up``), MCP-RTX-2 failed ('no copy
-    within 0.95 s after them') and MCP-FLOW-3 and MCP-FLOW-4 with it."""
     rc, doc, out = run(tmp_path, builds["ok"], 1, "{broadcast}:{listen_port}", "--retries", "2")
-    judge(doc, out, {**expected_rules(doc, 1), "MCP-RTX-2": "skipped"})
-    (rtx2,) = [c for c in doc["cases"] if c["rules"] == ["MCP-RTX-2"]]
-    assert "when its next copy of Start_Mission was due" in rtx2["reason"], rtx2
-    assert rc == 0, out
+    judge(doc, out, expected_rules(doc, 1), ("MCP-RTX-2", "MCP-FLOW-3", "MCP-FLOW-4"))
 
 
 @pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
