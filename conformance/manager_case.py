@@ -156,9 +156,11 @@ def _acked_before(m: Mission, msg: Message, t: float) -> bool:
     return at is not None and at < t
 
 
-def gave_up(m: Mission, msg: Message, rto: float) -> bool:
+def gave_up(m: Mission, msg: Message, rto: float, msgs: list[Message] | None = None) -> bool:
     """The manager stopped retransmitting ``msg`` well before any ACK of it (a retry limit,
-    MCP-RTX-1's business) — not merely because the mission record ends."""
+    MCP-RTX-1's business) — not merely because the mission record ends. ``msgs``: ``messages(m)``
+    when the caller has it (a caller asking of every message made it again for each: a
+    150-waypoint mission's cases outlasted their time limit)."""
     acked = runner_ack_time(m, msg)
     gaps = [b.t - a.t for a, b in zip(msg.copies, msg.copies[1:], strict=False)]
     gap = statistics.median(gaps) if gaps else rto
@@ -166,7 +168,7 @@ def gave_up(m: Mission, msg: Message, rto: float) -> bool:
     # moved on: a new unicast to a drone when the next copy was due (its retry limit), before
     # any ACK of it, and no copy after that (one still awaiting would be retransmitted later:
     # MCP-BLK-1's). Judged on what the manager did, not on when the runner's ACK went out.
-    for y in messages(m):
+    for y in messages(m) if msgs is None else msgs:
         if (y is not msg and y.dst in m.drones and y.first.t >= msg.last.t + 0.8 * gap - 0.015
                 and (acked is None or y.first.t < acked)):
             return True
@@ -175,17 +177,19 @@ def gave_up(m: Mission, msg: Message, rto: float) -> bool:
     return acked > msg.last.t + slack
 
 
-def awaiting_until(m: Mission, msg: Message, rto: float) -> float:
-    """The end of the time ``msg`` awaited its ACK (see the module docstring)."""
+def awaiting_until(m: Mission, msg: Message, rto: float, msgs: list[Message] | None = None) -> float:
+    """The end of the time ``msg`` awaited its ACK (see the module docstring; ``msgs`` as
+    :func:`gave_up` takes it)."""
     acked = runner_ack_time(m, msg)
-    if acked is None or gave_up(m, msg, rto):
+    if acked is None or gave_up(m, msg, rto, msgs):
         return msg.last.t
     return acked
 
 
 def abandoned(m: Mission, rto: float) -> set[int]:
     """Drones with a command whose retransmission stopped before any ACK of it."""
-    return {msg.dst for msg in messages(m) if msg.dst in m.drones and gave_up(m, msg, rto)}
+    msgs = messages(m)
+    return {msg.dst for msg in msgs if msg.dst in m.drones and gave_up(m, msg, rto, msgs)}
 
 
 def decode_items(d: Datagram) -> tuple[Any, ...] | None:

@@ -49,11 +49,12 @@ def test_stop_and_wait(node):
     """No new unicast while one awaits its ACK (a command to the same drone while its
     Start_Mission is unACKed is MCP-BLK-3's; a copy with a new seq is MCP-SEQ-2's)."""
     m = node.mission()
-    msgs = [x for x in messages(m) if x.dst != node.broadcast_id]
+    every = messages(m)
+    msgs = [x for x in every if x.dst != node.broadcast_id]
     if not msgs:
         raise Inconclusive("MCP-BLK-1: the manager sent no unicast message")
     for x in msgs:
-        until = awaiting_until(m, x, node.rto)
+        until = awaiting_until(m, x, node.rto, every)
         for y in msgs:
             if y is x or not x.first.t < y.first.t < until:
                 continue
