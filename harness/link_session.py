@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import socket
+from collections.abc import Callable
 from typing import Any
 
 from mcp_conform.harness.clock import REAL, Clock
@@ -40,6 +41,15 @@ SCHEMES = ("tcp", "udp", "udpin", "udpout")
 TICK_S = 0.02
 #: how long the frames a peer sent before it ended are read for, once it has ended
 DRAIN_S = 0.5
+
+
+def await_sign(link: Link, seen: Callable[[], bool], ended: Callable[[], bool], timeout: float) -> bool:
+    """Whether the peer's first sign came (``seen``) within ``timeout``, the wait ending early
+    when it has ``ended``: what it sent before it ended is read for :data:`DRAIN_S` first."""
+    link.wait_for(lambda: seen() or ended(), timeout)
+    if not seen() and ended():
+        link.wait_for(seen, DRAIN_S)
+    return seen()
 
 
 def parse_address(host: str, port: int, default: str = "tcp") -> tuple[str, tuple[str, int]]:
@@ -143,10 +153,7 @@ class LinkSessionBase(StreamSessionBase):
         def failed() -> bool:
             return self.node is not None and not self.node.alive() and self.node.returncode != 0
 
-        link.wait_for(lambda: bool(link.received(name=sign)) or failed(), timeout)
-        if not link.received(name=sign) and failed():  # what it sent before it ended is read first
-            link.wait_for(lambda: bool(link.received(name=sign)), DRAIN_S)
-        if not link.received(name=sign):
+        if not await_sign(link, lambda: bool(link.received(name=sign)), failed, timeout):
             if self.node is not None and not self.node.alive():
                 raise SpawnFailure(f"the spawned {self.subject.removeprefix('the ')} {self.node.details()['exit']} "
                                    f"before its first {sign}", self.node.details(20))
@@ -261,10 +268,8 @@ class PlayedNodeSession(StreamSessionBase):
         wait = float(self.cfg.extra.get("startup_timeout", SPAWN_STARTUP_S))
         link = self.link
         assert link is not None
-        link.wait_for(lambda: self.first_frame is not None or not self.alive_process(), wait)
-        if self.first_frame is None and not self.alive_process():  # what it sent before it ended is read first
-            link.wait_for(lambda: self.first_frame is not None, DRAIN_S)
-        if self.first_frame is None:  # a peer that ended without a frame: its death, in either transport
+        if not await_sign(link, lambda: self.first_frame is not None, lambda: not self.alive_process(), wait):
+            # a peer that ended without a frame: its death, in either transport
             self.behaviour = None  # and the next case that needs this behaviour starts it afresh
             if not self.alive_process():  # (before, over UDP, its cases were skipped as "never exercised")
                 raise SpawnFailure(f"{self.subject} {self.node_exit()} before it sent a frame to "

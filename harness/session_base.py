@@ -241,6 +241,21 @@ class WithheldCopies:
         self.copies_after_right_ack = [late[0], *proven] if proven else []
         self.crossed_copy = late[0] if late and not proven else None
 
+    def ended_before_wrong_acks(self, before: list[float]) -> str | None:
+        """Why the sender's next copy was already overdue when the runner's wrong ACKs went out
+        (None: it was not): ``before``, when its copies reached the runner up to them; the last
+        came more than ``wrong_ack_wait`` -- the time the RTX-2 case waits for a copy after them
+        -- before them. Its retry limit ended its copies first (or a runner held off the CPU sent
+        them late): what it does with a wrong ACK is not seen. A sender that stops on any ACK
+        retransmits until one comes: its last copy is within a gap of them."""
+        if not self.wrong_acks or not before:
+            return None
+        late = self.wrong_acks[0].t - max(before)
+        if late <= self.wrong_ack_wait:
+            return None
+        return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
+                f"{self.wrong_ack_wait:.2f} s watched after them")
+
     def gaps(self) -> list[float]:
         ts = [d.t for d in self.copies]
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]

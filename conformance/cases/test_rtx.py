@@ -30,23 +30,16 @@ def test_mission_ready_is_retransmitted_until_acked(node):
 
 
 def _stopped_before_wrong_acks(node, st):
-    """Why the node's next copy was already overdue when the runner's wrong ACKs went out
-    (None: it was not): its last copy before them came more than ``wrong_ack_wait`` -- the time
-    the case waits for a copy after them -- before them, as the manager role's case has it
-    (``cases_manager/test_rtx.py``). The runner sends them once it has the copies MCP-RTX-1
-    asks for, or once it has waited for them in vain: a node whose retry limit ended its copies
-    before (a C drone's ``--retries 1``: two copies, the wrong ACKs 2.1 s after the last at
-    --rto 0.3) shows nothing of what it does with a wrong ACK; MCP-RTX-1 judges it. A node that
-    stops on any ACK retransmits until one comes: its last copy is within a gap of them."""
+    """Why the node's next copy was overdue when the runner's wrong ACKs went out
+    (``WithheldCopies.ended_before_wrong_acks``, as the manager role's case asks it), by its
+    Mission_Ready copies that reached the runner before them. The runner sends them once it has
+    the copies MCP-RTX-1 asks for, or once it waited for them in vain: a C drone's ``--retries 1``
+    (two copies, the wrong ACKs 2.06 s after the last at --rto 0.3) failed MCP-RTX-2 before."""
     if not st.wrong_acks or not st.copies:
         return None
     t_wrong = st.wrong_acks[0].t
-    before = [d.t for d in node.driver.received(st.copies[0].index) if d.action == _READY and d.t <= t_wrong]
-    late = t_wrong - max(before, default=t_wrong)
-    if late <= st.wrong_ack_wait:
-        return None
-    return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
-            f"{st.wrong_ack_wait:.2f} s watched after them")
+    return st.ended_before_wrong_acks([d.t for d in node.driver.received(st.copies[0].index)
+                                       if d.action == _READY and d.t <= t_wrong])
 
 
 @rules("MCP-RTX-2", phase="startup")

@@ -26,26 +26,16 @@ def _withheld(node, rule):
 
 
 def _stopped_before_wrong_acks(m, w):
-    """Why the manager's next copy was already overdue when the runner's wrong ACKs went out
-    (None: it was not): its last copy before them (by the time each reached the runner's
-    socket, whenever the runner read it) came more than ``wrong_ack_wait`` -- the time the case
-    waits for a copy after them -- before them. A runner held off the CPU sends them late
-    (issue 38: its threads stalled up to 5 x --rto), after a correct manager reached its retry
-    limit; what it does with a wrong ACK is then not seen. A manager that stops on any ACK
-    retransmits until one comes: its last copy is within a gap of them."""
-    if not w.wrong_acks or not w.copies:
+    """Why the manager's next copy was overdue when the runner's wrong ACKs went out
+    (``WithheldCopies.ended_before_wrong_acks``), by its copies of Start_Mission to the withheld
+    drone, whatever their seq, that reached the runner's socket before them (issue 38: a
+    runner held off the CPU sends them late, after a correct manager reached its retry limit)."""
+    if not w.wrong_acks:
         return None
     t_wrong = w.wrong_acks[0].t
     seqs = {c.header[2] for c in w.copies if c.header is not None}
-    before = [c.t for x in messages(m) if x.dst == w.drone and x.action == _START and x.seq in seqs
-              for c in x.copies if c.t <= t_wrong]
-    if not before:
-        return None
-    late = t_wrong - max(before)
-    if late <= w.wrong_ack_wait:
-        return None
-    return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
-            f"{w.wrong_ack_wait:.2f} s watched after them")
+    return w.ended_before_wrong_acks([c.t for x in messages(m) if x.dst == w.drone and x.action == _START
+                                      and x.seq in seqs for c in x.copies if c.t <= t_wrong])
 
 
 @rules("MCP-RTX-1")

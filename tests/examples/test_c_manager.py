@@ -189,29 +189,36 @@ def test_a_mission_broadcast_to_every_drone(tmp_path: Path, builds: dict[str, Pa
     assert rc == 0, out
 
 
-@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
-    "the suite's: a retry limit of 2 (3 copies: spec parameter min_copies calls it no "
-    "violation) ends Start_Mission's retransmission one --rto after the third copy, 300 ms "
-    "after the runner's wrong ACKs; conformance.manager_case.gave_up counts those wrong ACKs as "
-    "the answer, so the give-up is not recognised: MCP-RTX-2 fails ('no copy within 0.95 s "
-    "after them') and the given-up drone is not excused from MCP-FLOW-3 and MCP-FLOW-4. Telling "
-    "the two apart by when the manager moves on (a give-up when its next copy was due) was tried "
-    "in session 32 and reverted: a manager that takes the wrong ACK, held off the CPU, moves on as "
-    "late (CI run 54: sample_manager --fault wrong-seq-ack's MCP-RTX-2 skipped in one of two runs)"))
-def test_a_retry_limit_of_two(tmp_path: Path, builds: dict[str, Path]) -> None:
-    rc, doc, out = run(tmp_path, builds["ok"], 1, "{broadcast}:{listen_port}", "--retries", "2")
-    judge(doc, out, expected_rules(doc, 1), ("MCP-RTX-2", "MCP-FLOW-3", "MCP-FLOW-4"))
+def _suite_fault(reason: str) -> pytest.MarkDecorator:
+    return pytest.mark.xfail(raises=SuiteFault, strict=False, reason=reason)
 
 
-@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
-    "the suite's: harness.mission_script._await_end ends the mission record after "
-    "max(2.5 rto, 2 ack-window, 1 s) without a datagram from the manager ('idle'), though the "
-    "manager is alive and mid-mission (a waypoint kept active 2 s before its WP_Off); "
-    "MCP-FLOW-3 and MCP-FLOW-5 then fail on the commands not yet sent, and MCP-BLK-6 is "
-    "skipped (no End_Mission seen)"))
-def test_a_waypoint_held_active(tmp_path: Path, builds: dict[str, Path]) -> None:
-    rc, doc, out = run(tmp_path, builds["ok"], 2, "{broadcast}:{listen_port}", "--hold", "2")
-    judge(doc, out, expected_rules(doc, 2), ("MCP-FLOW-3", "MCP-FLOW-5", "MCP-BLK-6"))
+#: runs of the correct manager whose verdicts the suite gets wrong: (challenge, the manager's
+#: options, the rules it gets wrong), each an xfail naming why
+SUITE_FAULT_RUNS = [
+    pytest.param(1, ("--retries", "2"), ("MCP-RTX-2", "MCP-FLOW-3", "MCP-FLOW-4"), id="retry-limit-of-two", marks=_suite_fault(
+        "the suite's: a retry limit of 2 (3 copies: spec parameter min_copies calls it no "
+        "violation) ends Start_Mission's retransmission one --rto after the third copy, 300 ms "
+        "after the runner's wrong ACKs; conformance.manager_case.gave_up counts those wrong ACKs as "
+        "the answer, so the give-up is not recognised: MCP-RTX-2 fails ('no copy within 0.95 s "
+        "after them') and the given-up drone is not excused from MCP-FLOW-3 and MCP-FLOW-4. Telling "
+        "the two apart by when the manager moves on (a give-up when its next copy was due) was tried "
+        "in session 32 and reverted: a manager that takes the wrong ACK, held off the CPU, moves on as "
+        "late (CI run 54: sample_manager --fault wrong-seq-ack's MCP-RTX-2 skipped in one of two runs)")),
+    pytest.param(2, ("--hold", "2"), ("MCP-FLOW-3", "MCP-FLOW-5", "MCP-BLK-6"), id="waypoint-held-active", marks=_suite_fault(
+        "the suite's: harness.mission_script._await_end ends the mission record after "
+        "max(2.5 rto, 2 ack-window, 1 s) without a datagram from the manager ('idle'), though the "
+        "manager is alive and mid-mission (a waypoint kept active 2 s before its WP_Off); "
+        "MCP-FLOW-3 and MCP-FLOW-5 then fail on the commands not yet sent, and MCP-BLK-6 is "
+        "skipped (no End_Mission seen)")),
+]
+
+
+@pytest.mark.parametrize(("challenge", "options", "suite_faults"), SUITE_FAULT_RUNS)
+def test_runs_the_suite_judges_wrong(tmp_path: Path, builds: dict[str, Path], challenge: int,
+                                     options: tuple[str, ...], suite_faults: tuple[str, ...]) -> None:
+    rc, doc, out = run(tmp_path, builds["ok"], challenge, "{broadcast}:{listen_port}", *options)
+    judge(doc, out, expected_rules(doc, challenge), suite_faults)
 
 
 @pytest.mark.parametrize("fault", FAULTS)

@@ -16,30 +16,14 @@ from __future__ import annotations
 
 import random
 import struct
-from dataclasses import dataclass
 
 import pytest
 
 from mcp_conform.judge import attribution
 from mcp_conform.judge.attribution import Attributor
 from mcp_conform.spec.codec import Action, build_datagram, peek_header
-
-
-@dataclass(frozen=True)
-class _Sent:
-    t: float
-    data: bytes
-    dst: int
-    src: int
-    seq: int
-    action: int
-
-
-@dataclass(frozen=True)
-class _Got:
-    t: float
-    data: bytes
-    header: tuple[int, int, int, int] | None
+from tests.judge.test_attribution import Rx as _Got
+from tests.judge.test_attribution import Sent as _Sent
 
 
 class _Scan(Attributor):
