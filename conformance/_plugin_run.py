@@ -251,10 +251,8 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     if INTERRUPTS.interrupted:  # a swallowed KeyboardInterrupt must still stop the run
         raise KeyboardInterrupt(INTERRUPTS.signals[0])
     if state.deadline_hit or (state.run_deadline is not None and time.monotonic() >= state.run_deadline):
-        if state.session is None and not state.done and state.run.error is None:  # no node started yet
-            state.run.error = (f"the run's --timeout of {state.cfg.timeout:g} s passed before the runner "
-                               "reached the target (its own start-up took all of it)")
-            pytest.exit(state.run.error, returncode=2)
+        if not state.started:  # the node's startup never ended: a setup error, no case
+            state.fail_setup(CaseTimeLimit("run deadline exceeded"))
         state.deadline_hit = True
         rec = state.record(item)
         rec.outcome, rec.reason = "error", "run deadline exceeded"
@@ -312,6 +310,10 @@ def _armed(item: pytest.Item, *, teardown: bool = False, conclude: bool = False)
     try:
         try:
             out = yield
+        except CaseTimeLimit as exc:  # the run's deadline in the first case's setup: a setup error
+            if not teardown and not state.started and state.deadline_hit:
+                state.fail_setup(exc)
+            raise
         except Inconclusive:
             if conclude:
                 _conclude(state, item)
@@ -449,12 +451,10 @@ def mcp_session(pytestconfig: pytest.Config) -> Generator[Any, None, None]:
     # the node's startup is bounded by the run deadline, not by the first case's limit
     saved, state.case_deadline = state.case_deadline, None
     state.arm()
-    try:
-        session = state.start_session()
-    finally:
-        if saved is not None:
-            state.case_deadline = time.monotonic() + state.current_limit()
-        state.arm()
+    session = state.start_session()  # never re-armed after a setup error: its alarm struck the exit
+    if saved is not None:
+        state.case_deadline = time.monotonic() + state.current_limit()
+    state.arm()
     yield session
     state.close_session()
 
@@ -500,7 +500,9 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     state.close_session()
     run = state.run
     run.finished = time.monotonic()
-    if state.deadline_hit:
+    if state.deadline_hit and not state.started and run.error is None:  # it struck before the startup ended
+        run.error = str(state._deadline_before_startup())
+    if state.deadline_hit and state.started:
         for item in state.items:
             if item.nodeid not in state.done:
                 rec = state.record(item)

@@ -12,7 +12,8 @@ import signal
 import tempfile
 import threading
 import time
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, NoReturn
 
 import pytest
 from rich.console import Console
@@ -95,6 +96,11 @@ class McpState:
         self.grace_deadline: float | None = None  # a case's teardown: at least this long
         self.grace_s = 0.0
         self.deadline_hit = False
+        # the node's startup ended (its session.start() returned): from here the run's deadline
+        # ends the cases not run; before, it is a setup error and the report holds no case
+        self.started = False
+        self._alarm_held = False  # the run's SIGALRM waits for alarm_held()'s block to end
+        self._alarm_pending = False
         self.interrupted: str | None = None
         self._old_alarm: Any = None
         self._old_term: Any = None
@@ -166,8 +172,8 @@ class McpState:
                 meta = run_metadata("mcp-conform", mode=cfg.mode, role=cfg.role, seed=cfg.seed,
                                     target=f"{cfg.target[0]}:{cfg.target[1]}" if cfg.target else None,
                                     spawn=cfg.spawn, parameters=self.run.parameters)
-                try:
-                    with INTERRUPTS.held():  # never a file cut off after its header
+                try:  # never a file cut off after its header (a signal, the run's deadline)
+                    with INTERRUPTS.held(), self.alarm_held():
                         # --live without a file: a recorder of no file feeds the live server
                         self.recorder = McapRecorder(self.cfg.capture or self.html_capture, metadata=meta,
                                                      live=feed)
@@ -237,16 +243,13 @@ class McpState:
                 self.wait_status.end()
                 if resume:
                     self.wait_status.begin(resume)  # the first case, which started the node
+            self.started = True
             self.case_deadline = time.monotonic() + self.current_limit()
             self.arm()
         except (SetupError, CaseTimeLimit) as caught:
-            err = caught if isinstance(caught, SetupError) else self._deadline_before_startup()
-            self.disarm()
-            self.run.error = str(err).strip().splitlines()[0] if str(err).strip() else "setup error"
-            self.run.node = err.node if isinstance(err, SpawnFailure) else None
-            self.run.error_detail = list(getattr(err, "detail", ()))
-            self.close_session()
-            pytest.exit(self.run.error, returncode=2)
+            if self.started:  # the deadline once the node is up: the cases not run end
+                raise
+            self.fail_setup(caught)
         self.run.target = session.target_desc or self.run.target
         unreadable = session.unreadable
         if unreadable is not None:
@@ -331,6 +334,8 @@ class McpState:
         self.wait_status.end()
         self.done.add(item.nodeid)
         ctx = self.ctx.pop(item.nodeid, None)
+        if self.ended_in_setup():  # a case the run's setup error cut short never ran: no record
+            return
         if ctx is not None:
             rec.notes = list(ctx.notes)
             rec.start_ns, rec.end_ns = ctx.start_ns, ctx.end_ns
@@ -386,6 +391,28 @@ class McpState:
 
         with open(self.events_path, "a", encoding="utf-8") as f:
             f.write(json.dumps(event) + "\n")
+
+    def fail_setup(self, caught: BaseException) -> NoReturn:
+        """End the run with a setup error (exit 2, its one line): ``caught`` a ``SetupError``, or
+        the run's deadline (``CaseTimeLimit``) before the node's startup ended, wherever it struck
+        (the first case's setup, the session's making, the startup; a SetupError it cut short is
+        the one said). The first error stands; the report holds no case (``ended_in_setup``)."""
+        self.disarm()
+        err = caught
+        if not isinstance(err, SetupError):
+            err = caught.__context__ if isinstance(caught.__context__, SetupError) else self._deadline_before_startup()
+        if self.run.error is None:
+            self.run.error = str(err).strip().splitlines()[0] if str(err).strip() else "setup error"
+            self.run.node = err.node if isinstance(err, SpawnFailure) else None
+            self.run.error_detail = list(getattr(err, "detail", ()))
+        self.close_session()
+        pytest.exit(self.run.error, returncode=2)
+
+    def ended_in_setup(self) -> bool:
+        """The run ends in a setup error: its node's startup never ended and the run has an
+        error or its deadline passed. Its cases never ran, so none is recorded (docs/design.md,
+        exit code 2: a setup error is its one line), wherever the deadline's SIGALRM struck."""
+        return not self.started and (self.run.error is not None or self.deadline_hit)
 
     def _deadline_before_startup(self) -> Exception:
         """The error of a time limit that fell while the runner made its session, before the
@@ -444,7 +471,25 @@ class McpState:
             signal.signal(signal.SIGALRM, self._old_alarm)
             self._old_alarm = None
 
+    @contextlib.contextmanager
+    def alarm_held(self) -> Iterator[None]:
+        """Within: the run's SIGALRM waits for the block to end (the capture's recorder is made
+        whole, never left without its footer), then strikes; not after an exception."""
+        saved, self._alarm_held = self._alarm_held, True
+        try:
+            yield
+        except BaseException:
+            self._alarm_held, self._alarm_pending = saved, saved and self._alarm_pending
+            raise
+        self._alarm_held = saved
+        if not saved and self._alarm_pending:
+            self._alarm_pending = False
+            self._on_alarm(signal.SIGALRM, None)
+
     def _on_alarm(self, signum: int, frame: Any) -> None:
+        if self._alarm_held:
+            self._alarm_pending = True
+            return
         now = time.monotonic()
         if self.startup_deadline is not None and now >= self.startup_deadline - 0.002 and not (
                 self.run_deadline is not None and now >= self.run_deadline - 0.002):
