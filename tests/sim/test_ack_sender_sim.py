@@ -85,3 +85,14 @@ def test_the_reference_drone_passes_it_from_both_sources(mavlink):
     run = run_cases(None, seed=7, mavlink=mavlink, **SHORT)
     assert _case(run)["outcome"] == "passed", run.explain()
     assert not run.rules_with("failed", "warned"), run.explain()
+
+
+def test_a_drone_deaf_to_other_source_ports_gets_mcp_ack_1_as_mcp_trn_2s_consequence():
+    """The sample node's source-port-filter (a drone on a connect()ed socket): MCP-TRN-2 fails,
+    and the monitor's MCP-ACK-1 violation on the datagrams it dropped is TRN-2's consequence in
+    the failures and in the rules table alike (it was "passed" there), no failure of its own."""
+    run = run_cases(mutant_factory("source-port-filter", rto=SHORT["rto"], seed=3), seed=3, **SHORT)
+    assert run.rules_with("failed", "warned") == {"MCP-TRN-2": "failed"}, run.explain()
+    mon = [f for f in run.report["failures"] if f.get("source") == "monitor"]
+    assert [(f["rule"], f["consequence_of"]) for f in mon] == [("MCP-ACK-1", ["MCP-TRN-2"])], run.report["failures"]
+    assert run.rules["MCP-ACK-1"] == "consequence", run.explain()
