@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
                         "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens); "
-                        "the drone role's and MAVLink's (the manager and nsqd roles have no MAVLink link: an error)")
+                        "in a role with no such link to start or choose (--role manager) a one-line error")
     p.add_argument("--mavlink1", action="store_true",
                    help="--protocol mavlink --role gcs: the runner's vehicle speaks MAVLink 1 on every link from the "
                         "start (as mcp-vehicle --mavlink1; ArduPilot's SERIALn_PROTOCOL 1), for a ground station "
