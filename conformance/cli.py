@@ -34,7 +34,7 @@ from typing import Any, NoReturn
 
 from mcp_conform.conformance.baseline import BaselineError, load_baseline
 from mcp_conform.conformance.option_names import _FLAGS, _KEYS, env_name
-from mcp_conform.conformance.options import ConfigError, make_config
+from mcp_conform.conformance.options import ConfigError, make_config, mavlink_value
 from mcp_conform.conformance.report import RunRecord, write_json
 from mcp_conform.harness.config import DEFAULT_ROLE, RunConfig
 from mcp_conform.harness.interrupts import INTERRUPTS
@@ -70,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
-                        "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens)")
+                        "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens); "
+                        "in a role with no such link to start or choose (--role manager) a one-line error")
     p.add_argument("--mavlink1", action="store_true",
                    help="--protocol mavlink --role gcs: the runner's vehicle speaks MAVLink 1 on every link from the "
                         "start (as mcp-vehicle --mavlink1; ArduPilot's SERIALn_PROTOCOL 1), for a ground station "
@@ -147,6 +148,8 @@ def _values(ns: argparse.Namespace) -> dict[str, Any]:
             given[key] = env
         elif key == "mavlink1" and not given[key] and env != "":  # a flag checked as its option is
             given[key] = env
+        elif key == "mavlink" and given[key] is None and env != "":  # as the plugin reads it
+            given[key] = mavlink_value(env)
     return given
 
 

@@ -16,7 +16,7 @@ from mcp_conform.conformance.option_names import _FLAGS, _KEYS, _TRUE, env_name
 from mcp_conform.harness.config import DEFAULT_SEED, RunConfig, parse_hostport
 from mcp_conform.spec.profiles import PROFILES, ProfileError, pick
 
-__all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select",
+__all__ = ["DEFAULT_STARTUP_TIMEOUT", "ConfigError", "apply_embedded_defaults", "make_config", "matches_select", "mavlink_value",
            "option_values", "unmatched"]
 
 #: How long the runner waits for the node's first datagram (``--startup-timeout``): a silent
@@ -83,6 +83,11 @@ def make_config(values: Mapping[str, Any], opt: Callable[[str], str] = lambda n:
         if mavlink not in TRANSPORTS:
             raise ConfigError(f"{opt('mavlink')}: {mavlink!r} is not one of {', '.join(TRANSPORTS)}")
         cfg.mavlink_transport = mavlink
+    if cfg.mavlink and not role_prof.mavlink:  # as --mavlink1: one line, not an option ignored
+        where = " or ".join(f"--protocol {p.name} --role {r.name}" for p in PROFILES.values() for r in p.roles
+                            if r.mavlink)
+        raise ConfigError(f"{opt('mavlink')}: the runner starts or chooses a MAVLink link only with {where}, "
+                          f"not with --protocol {cfg.protocol} --role {role}")
     _mavlink1_option(cfg, v, opt)
     cfg.strict = bool(v.get("strict", False))
     if "rto" in v:
@@ -183,7 +188,7 @@ def unmatched(prefixes: list[str], cases: Iterable[tuple[str, tuple[str, ...]]])
     return [p for p in prefixes if not any(matches_select([p], cid, ids) for cid, ids in cases)]
 
 
-def _mavlink_value(text: str) -> Any:
+def mavlink_value(text: str) -> Any:
     """``--mcp-mavlink`` from the ini file or the environment: a transport (tcp, udp,
     udpin, udpout), a yes (tcp) or a no (off)."""
     word = text.strip().lower()
@@ -209,7 +214,7 @@ def option_values(config: pytest.Config) -> dict[str, Any]:
         if key in _FLAGS and isinstance(value, str):
             value = value.strip().lower() in _TRUE
         elif key == "mavlink" and isinstance(value, str):
-            value = _mavlink_value(value)
+            value = mavlink_value(value)
         out[key] = value
     return out
 

@@ -53,11 +53,16 @@ __all__ = [
     "write_json",
 ]
 
-SCHEMA_VERSION = "1.4"  # 1.2: the monitor's violations in failures and rules; 1.3: spec.protocol, role backend (Nsqd); 1.4: monitor.vetoed
+SCHEMA_VERSION = "1.5"  # 1.2: the monitor's violations in failures and rules; 1.3: spec.protocol, role backend (Nsqd); 1.4: monitor.vetoed; 1.5: rule outcome consequence
 OUTCOMES: tuple[str, ...] = ("passed", "failed", "warned", "skipped", "info", "error", "xfailed", "xpassed")
-RULE_RANK = {"failed": 5, "warned": 4, "xfailed": 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
+#: a rule's outcome in the rules table: a case's (OUTCOMES but error), or ``consequence``: the
+#: trace monitor proved it violated after another rule failed, as that failure's consequence
+#: (``failures`` names the root; neither passed nor a failure of its own)
+CONSEQUENCE = "consequence"
+RULE_RANK = {"failed": 6, "warned": 5, "xfailed": 4, CONSEQUENCE: 3, "passed": 2, "xpassed": 2, "info": 1, "skipped": 0}
 STYLES = {"passed": "green", "failed": "bold red", "warned": "yellow", "skipped": "blue",
-          "info": "cyan", "error": "bold magenta", "xfailed": "dim yellow", "xpassed": "bold yellow"}
+          "info": "cyan", "error": "bold magenta", "xfailed": "dim yellow", "xpassed": "bold yellow",
+          CONSEQUENCE: "dim red"}
 JUNIT_FAMILIES = ("xunit2", "xunit1")
 
 
@@ -227,10 +232,30 @@ def _rule_ids_for(role: str) -> list[str]:
         return []
 
 
+def monitor_outcome(f: dict[str, Any]) -> str:
+    """A ``monitor_failures`` entry's contribution to its rule's row: its outcome, or
+    ``consequence`` when it is an earlier failure's (one fault, one root; the row never says
+    passed beside a failure the report lists)."""
+    return CONSEQUENCE if f.get("consequence_of") else f["outcome"]
+
+
+def consequences_of(failures: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """Rule -> the roots named by the monitor's consequence entries of ``failures`` (what a
+    ``consequence`` row refers to)."""
+    out: dict[str, list[str]] = {}
+    for f in failures:
+        if f.get("source") == "monitor" and f.get("consequence_of") and f.get("rule"):
+            roots = out.setdefault(f["rule"], [])
+            roots += [r for r in f["consequence_of"] if r not in roots]
+    return out
+
+
 def rule_outcomes(cases: list[CaseRecord], role: str,
                   monitor: list[dict[str, Any]] | None = None) -> dict[str, str]:
     """Every rule of the role (plus any rule a case named) -> its aggregate outcome, the
-    rules the run's trace monitor proved violated (``monitor_failures``) included."""
+    rules the run's trace monitor proved violated (``monitor_failures``) included: a
+    violation it proved as an earlier failure's consequence makes the row ``consequence``
+    (above passed, below any failure of the rule's own)."""
     result: dict[str, str] = dict.fromkeys(_rule_ids_for(role), "skipped")
 
     def contribute(rule: str, outcome: str) -> None:
@@ -251,9 +276,8 @@ def rule_outcomes(cases: list[CaseRecord], role: str,
         else:  # skipped, error: not judged
             for r in c.rules:
                 contribute(r, "skipped")
-    for f in monitor or ():
-        if not f.get("consequence_of"):  # a consequence is its root's, not a rule failed anew
-            contribute(f["rule"], f["outcome"])
+    for f in monitor or ():  # a consequence is its root's, not a rule failed anew: nor passed
+        contribute(f["rule"], monitor_outcome(f))
     return result
 
 
@@ -391,8 +415,8 @@ def merge_json(docs: list[dict[str, Any]]) -> dict[str, Any]:
     monitor = monitor_failures(run_from_json(out))  # over the merged cases, as one run's
     out["failures"] += monitor
     for f in monitor:
-        if not f["consequence_of"] and RULE_RANK[f["outcome"]] > RULE_RANK[rules.get(f["rule"], "skipped")]:
-            rules[f["rule"]] = f["outcome"]
+        if RULE_RANK[monitor_outcome(f)] > RULE_RANK[rules.get(f["rule"], "skipped")]:
+            rules[f["rule"]] = monitor_outcome(f)
     return out
 
 

@@ -15,10 +15,12 @@ from rich.table import Table
 from rich.text import Text
 
 from mcp_conform.conformance.report import (
+    CONSEQUENCE,
     OUTCOMES,
     STYLES,
     CaseRecord,
     RunRecord,
+    consequences_of,
     monitor_failures,
     roots_first,
     rule_outcomes,
@@ -117,11 +119,14 @@ class TerminalReport:
             self._detail(f"baseline: {c.baseline}" + ("  (now passes: take it off the baseline)"
                                                       if c.outcome == "xpassed" else ""))
 
-    def _failures(self, run: RunRecord) -> None:
-        """Root failures first (what to fix), then the failures that are their consequences."""
+    def _failures(self, run: RunRecord, monitor: list[dict[str, Any]]) -> None:
+        """Root failures first (what to fix), then the failures that are their consequences:
+        the cases', and the violations the run's trace monitor proved after a root failed
+        (the rule table's ``consequence`` rows)."""
         bad = [c for c in roots_first(run.cases) if c.failed_rule]
         roots = [c for c in bad if not c.consequence_of]
-        consequences = [c for c in bad if c.consequence_of]
+        consequences: list[Any] = [c for c in bad if c.consequence_of]
+        consequences += [f for f in monitor if f["consequence_of"]]
         for title, group in ((f"root failures ({len(roots)}):", roots),
                              (f"their consequences ({len(consequences)}):", consequences)):
             if not group:
@@ -129,6 +134,14 @@ class TerminalReport:
             self._print(Text(title, style="bold"), soft_wrap=True)
             for c in group:
                 line = Text("  ")
+                if isinstance(c, dict):  # the monitor's
+                    n = c["violations"]
+                    line.append(f"{c['outcome'].upper():<7}", style=STYLES.get(c["outcome"], ""))
+                    line.append(f" {c['rule']}  monitor  ")
+                    line.append(f"consequence of {', '.join(c['consequence_of'])} ({n} violation{'s' if n != 1 else ''} "
+                                f"in the run's traffic; first: {c['actual']})", style="dim")
+                    self._print(line, soft_wrap=True)
+                    continue
                 line.append(f"{c.outcome.upper():<7}", style=STYLES.get(c.outcome, ""))
                 line.append(f" {c.failed_rule}  {c.id}  ")
                 tag = (f"consequence of {', '.join(c.consequence_of)}" if c.consequence_of
@@ -176,22 +189,25 @@ class TerminalReport:
             touched = ({r for c in run.cases for r in c.rules} | {c.failed_rule for c in run.cases}
                        | {f["rule"] for f in monitor})
             untouched = [rid for rid in outcomes if rid not in touched]
+            roots = consequences_of(monitor)
             for rid, outcome in outcomes.items():
                 if rid in untouched:
                     continue
                 rule = RULES.get(rid)
-                table.add_row(rid, rule.level if rule else "?", Text(outcome, style=STYLES.get(outcome, "")))
+                shown = f"see {', '.join(roots.get(rid, ()))}" if outcome == CONSEQUENCE else outcome
+                table.add_row(rid, rule.level if rule else "?", Text(shown, style=STYLES.get(outcome, "")))
             self._print(table)
             if untouched:
                 self._print(Text(f"{len(untouched)} other rule(s) of the {run.role} role: skipped "
                                  f"(no case of this run): {' '.join(untouched)}", style="dim"), soft_wrap=True)
-        self._failures(run)
-        for f in monitor:  # proved by the run's trace monitor, failed by no case
+        self._failures(run, monitor)
+        for f in monitor:  # proved by the run's trace monitor, failed by no case (a root's consequence: above)
+            if f["consequence_of"]:
+                continue
             n = f["violations"]
-            root = f" — consequence of {', '.join(f['consequence_of'])} (failed)" if f["consequence_of"] else ""
             self._print(Text.assemble((f"monitor: {f['rule']} {f['outcome']}", STYLES[f["outcome"]]),
                                       f" ({n} violation{'s' if n != 1 else ''} in the run's traffic; "
-                                      f"first: {f['actual']}){root}"), soft_wrap=True)
+                                      f"first: {f['actual']})"), soft_wrap=True)
         counts = run.counts()
         parts = [Text(f"{counts[k]} {k}", style=STYLES[k] if counts[k] else "dim") for k in OUTCOMES
                  if counts[k] or k not in ("xfailed", "xpassed")]

@@ -44,7 +44,7 @@ table.cases td:last-child { white-space: pre-wrap; font-size: 12.5px; }
 td.num { text-align: right; }
 span.passed { color: #2f855a; } span.failed, span.error { color: #c53030; font-weight: bold; }
 span.warned { color: #b7791f; font-weight: bold; } span.info { color: #2b6cb0; }
-span.skipped, span.not_observed { color: #718096; }
+span.skipped, span.not_observed { color: #718096; } span.consequence { color: #c53030; }
 section.finding h3 { color: #c53030; } section.finding.warned h3 { color: #b7791f; }
 .summary span { display: inline-block; margin-right: 14px; }
 .banner { padding: 8px 12px; border-radius: 4px; margin: 8px 0; }
@@ -121,6 +121,11 @@ def _table(headers: Sequence[str], rows: Iterable[Sequence[Any]], cls: str = "",
 
 def _verdict(v: str | None) -> Markup:
     return fill(_SPAN, cls=v, text=v) if v else Markup("")
+
+
+def _consequence(roots: Sequence[str]) -> Markup:
+    """A rule the trace monitor proved violated as an earlier failure's consequence."""
+    return fill(_SPAN, cls="consequence", text=f"see {', '.join(roots)}" if roots else "consequence")
 
 
 def _finding(rule: str | None, outcome: str, heading: str, fields: Sequence[tuple[str, Any]],
@@ -291,9 +296,13 @@ def render_run(doc: dict[str, Any], datagrams: Sequence[Datagram] | None = None,
     body.append(_all_cases(doc.get("cases", [])))
     rules = doc.get("rules", {})
     order = [r for r in RULES if r in rules] + sorted(set(rules) - set(RULES))
+    #: a ``consequence`` row (schema 1.5) names its root, as the report's failures do
+    roots = {f["rule"]: f["consequence_of"] for f in doc.get("failures", [])
+             if f.get("source") == "monitor" and f.get("consequence_of")}
     body.append(fill(_H2, text="Rules"))
     body.append(_table(["rule", "level", "outcome", "requirement"],
-                       [[r, _level(r), _verdict(rules[r]), _rule_text(r)] for r in order],
+                       [[r, _level(r), _consequence(roots.get(r, ())) if rules[r] == "consequence" else _verdict(rules[r]),
+                         _rule_text(r)] for r in order],
                        "rules", [{"data-rule": r} for r in order]))
     return page(f"mcp-conform {target}", join(body, "\n"))
 

@@ -74,7 +74,7 @@ MUTANTS: dict[str, str] = {
     "mission-ready-wrong-src": "MCP-HDR-4", "send-wp-list": "MCP-HDR-5",
     "ack-first-copy-only": "MCP-ACK-1", "ack-copies-wrong-seq": "MCP-ACK-2", "ack-little-endian": "MCP-ACK-2",
     "ack-own-seq": "MCP-ACK-2", "ack-previous-seq": "MCP-ACK-2", "ack-zero": "MCP-ACK-2",
-    "ack-wrong-dst": "MCP-ACK-3", "ack-broadcast": "MCP-ACK-4", "ack-other-id": "MCP-ACK-5",
+    "ack-wrong-dst": "MCP-ACK-3", "ack-to-manager": "MCP-ACK-3", "ack-broadcast": "MCP-ACK-4", "ack-other-id": "MCP-ACK-5",
     "ack-ack": "MCP-ACK-6", "slow-ack": "MCP-ACK-7", "rtx-new-seq": "MCP-SEQ-2", "rtx-none": "MCP-RTX-1",
     "rtx-stop-on-any-ack": "MCP-RTX-2", "rtx-storm": "MCP-RTX-3", "ready-bad-payload": "MCP-PAY-2",
     "crash-on-short": "MCP-ROB-1", "ack-bad-preamble": "MCP-ROB-2", "ack-unknown-action": "MCP-ROB-3",
@@ -284,6 +284,8 @@ class MutantDrone(DroneModel):
             payload = struct.pack("<H" if f == "ack-little-endian" else "!H", named)
             if f == "ack-wrong-dst":
                 dst = 0x0FFF
+            elif f == "ack-to-manager":  # sample_node's: right only for the manager's messages
+                dst = MANAGER_ID
             if f == "slow-ack":
                 delay = SLOW_ACK_DELAY
         elif action == _READY:

@@ -61,6 +61,9 @@ class RoleProfile:
     #: ``mcp-fuzz`` fuzzes a node in this role (by its fuzz target or the protocol's own
     #: campaign); False: ``--role`` names it in a one-line usage error
     fuzzed: bool = True
+    #: ``mcp-conform --mavlink`` means something in this role (the drone's simulated vehicle, a
+    #: MAVLink link's transport); False: a one-line usage error, not an option ignored
+    mavlink: bool = True
 
 
 @dataclass(frozen=True)
@@ -144,7 +147,7 @@ MCP = Profile(
                     context="mcp_conform.conformance.manager_case:ManagerCaseContext",
                     cases="mcp_conform.conformance.cases_manager", fuzz_target="mcp_conform.fuzz.manager_target:ManagerFuzzTarget",
                     parameters=("drones", "challenge", "waypoints"),
-                    peer="drone", fixed_id=int(SPEC.protocol["manager_id"])),
+                    peer="drone", fixed_id=int(SPEC.protocol["manager_id"]), mavlink=False),
     ),
     loader="mcp_conform.spec._load:load",
 )
@@ -159,7 +162,7 @@ NSQD_PROFILE = Profile(
         RoleProfile("backend", session="mcp_conform.harness.nsqd_session:StreamSession",
                     context="mcp_conform.conformance.nsqd_case:StreamCaseContext", cases="mcp_conform.conformance.cases_nsqd",
                     fuzz_target=None,
-                    peer="client"),
+                    peer="client", mavlink=False),
     ),
     loader="mcp_conform.spec.nsqd:load_stream",
 )

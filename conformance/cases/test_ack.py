@@ -8,6 +8,7 @@ received." — "if the message is destined for itself, ACK, otherwise no ACKing.
 from __future__ import annotations
 
 from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action, MissionItem
 from mcp_conform.spec.mavframe import heartbeat_frame
@@ -45,8 +46,28 @@ def test_ack_payload_is_the_big_endian_seq(node):
 
 @rules("MCP-ACK-3")
 def test_ack_is_addressed_back_to_the_sender(node):
+    """From the manager's ID 0, then from another src: from 0 alone a node whose ACKs always
+    go to ID 0 looks right. The other src's numbers are set as MCP-DUP-3's case sets them
+    (below the manager's, once a run). A node that answers no message from the other src
+    (D-10 lets it ignore them) shows nothing of where its ACKs go: skipped with that reason,
+    never passed."""
     exchanges = [node.command(Action.WP_OFF) for _ in range(2)]
     node.expect_ack_format(exchanges, "MCP-ACK-3")
+    other = node.other_id()
+    drv = node.driver
+    if node.session.other_src_accepted is not False:
+        if not drv.sent_as(other):
+            drv.set_seq(drv.peek_seq() // 2, src=other)
+        first = node.command(Action.WP_OFF, src=other)
+        if first.acked:
+            node.session.other_src_accepted = True
+            node.expect_ack_format([first, node.command(Action.WP_OFF, src=other)], "MCP-ACK-3")
+            return
+        node.prove_live("node lost during this case: it answers no liveness probe either")
+        node.session.other_src_accepted = False
+    raise Inconclusive(f"MCP-ACK-3: the node answers no message from src {other} (D-10: a drone may ignore "
+                       "a command from a src other than the manager's 0), so whether its ACKs go back to "
+                       "their sender, not always to ID 0, is unobservable; from ID 0 they were right")
 
 
 @rules("MCP-ACK-4")

@@ -43,14 +43,22 @@ def test_same_seq_from_another_src_is_not_a_duplicate(node):
     node that discards it is no node that "does not accept commands from" that src."""
     node.require_passthrough("MCP-DUP-3")
     other = node.other_id()
+    if node.session.other_src_accepted is False:  # MCP-ACK-3's case found it so (alive)
+        raise Inconclusive(f"MCP-DUP-3: the node answers no message from src {other} (D-10: a drone may "
+                           "ignore a command from a src other than the manager's 0), so per-source "
+                           "detection is unobservable")
     drv = node.driver
     if not drv.sent_as(other):
         drv.set_seq(drv.peek_seq() // 2, src=other)
     accepted = node.deliver(node.probe(), src=other)
+    if not accepted.exchange.acked:
+        node.prove_live("node lost during this case: it answers no liveness probe either")
+    node.session.other_src_accepted = accepted.exchange.acked
     if not accepted.exchange.acked or accepted.delivered <= 0:
-        node.session.other_src_accepted = False
         raise Inconclusive(f"MCP-DUP-3: the node does not accept commands from src {other} "
-                           "(not ACKed or not delivered), so per-source detection is unobservable")
+                           f"({'not delivered' if accepted.exchange.acked else 'not ACKed'}; D-10: a drone "
+                           "may ignore a command from a src other than the manager's 0), so per-source "
+                           "detection is unobservable")
     from_manager = node.deliver(node.probe())
     same_seq = node.deliver(node.probe(), src=other, seq=from_manager.exchange.seq)
     node.expect_delivered([(from_manager, DELIVERED), (same_seq, DELIVERED)], "MCP-DUP-3")

@@ -191,6 +191,37 @@ def test_mavlink1_is_the_gcs_role_s_alone(tmp_path, protocol, role):
     assert json.loads(path.read_text())["error"] == line
 
 
+MAVLINK_ROLES = "--protocol mcp --role drone or --protocol mavlink --role vehicle or --protocol mavlink --role gcs"
+
+
+@pytest.mark.parametrize(("protocol", "role", "value"), [("mcp", "manager", None), ("mcp", "manager", "udp"),
+                                                         ("nsqd", "backend", None)])
+def test_mavlink_in_a_role_without_a_mavlink_link_is_one_line(tmp_path, protocol, role, value):
+    """--role manager took --mavlink and ignored it (no vehicle, {mavlink} empty, no word said):
+    as --mavlink1, one line naming the roles that take it, exit 2, the error in the JSON report."""
+    path = tmp_path / "r.json"
+    proc = conform("--protocol", protocol, "--role", role, "--mavlink", *([value] if value else []), "--json", str(path))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    line = (f"--mavlink: the runner starts or chooses a MAVLink link only with {MAVLINK_ROLES}, "
+            f"not with --protocol {protocol} --role {role}")
+    assert proc.stderr == f"mcp-conform: error: {line}\n"
+    assert json.loads(path.read_text())["error"] == line
+
+
+def test_mavlink_is_checked_from_the_environment_and_kept_where_a_role_takes_it(tmp_path):
+    """MCP_CONFORM_MAVLINK is --mavlink: the manager role names the variable; the roles with a
+    MAVLink link still take it (their case lists)."""
+    from mcp_conform.conformance.options import make_config
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NO_COLOR="1", MCP_CONFORM_MAVLINK="udp")
+    proc = run_module("conformance", ["--role", "manager", "--list"], cwd=tmp_path, env=env, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.startswith(
+        "mcp-conform: error: MCP_CONFORM_MAVLINK: the runner starts or chooses a MAVLink link only with "), proc.stderr
+    for protocol, role in (("mcp", "drone"), ("mavlink", "vehicle"), ("mavlink", "gcs")):
+        cfg = make_config({"protocol": protocol, "role": role, "mavlink": "udp"})
+        assert cfg.mavlink and cfg.mavlink_transport == "udp", (protocol, role)
+
+
 def test_mavlink1_from_the_environment_is_checked_as_the_option(tmp_path):
     """MCP_CONFORM_MAVLINK1 is --mavlink1: a role without it is the one line naming the variable;
     the gcs role takes it, and the runner's pytest options carry it."""

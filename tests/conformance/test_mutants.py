@@ -10,7 +10,7 @@ Every mutant is caught by the same cases and monitor on virtual time, the vehicl
 included, in tests/sim/test_mutants_sim.py (issue 38 item 4), with the checks of this module's
 runs (the diagnosis, a case's texts, the monitor's violations, the live monitor against
 ``mcp-capture check``) and serial against scheduled. On real processes and sockets stay the
-runs the simulator cannot make (``REAL_MUTANTS``, 9 of the 41):
+runs the simulator cannot make (``REAL_MUTANTS``, 9 of the 42):
 
 - the mutants test_parallel folds here (``_real_checks``): ``--parallel 3`` runs node instances
   in processes of their own, which the simulator does not model; beside the run they each make,
@@ -105,6 +105,7 @@ MUTANTS = [
     ("ack-previous-seq", "MCP-ACK-2"),
     ("ack-zero", "MCP-ACK-2"),
     ("ack-wrong-dst", "MCP-ACK-3"),
+    ("ack-to-manager", "MCP-ACK-3"),
     ("ack-broadcast", "MCP-ACK-4"),
     ("ack-other-id", "MCP-ACK-5"),
     ("ack-ack", "MCP-ACK-6"),
@@ -210,7 +211,7 @@ def _real_checks() -> set[str]:
 
 #: Mutants caught on virtual time only (issue 38 item 4: tests/sim/test_mutants_sim.py runs the
 #: runner's own cases and monitor against each as a model, with the vehicle where it needs one,
-#: serial and scheduled where the schedule's fold had them here): 32 of the 41.
+#: serial and scheduled where the schedule's fold had them here): 33 of the 42.
 SIM_COVERS = frozenset(f for f, _ in MUTANTS if f not in _real_checks())
 REAL_MUTANTS = [(f, r) for f, r in MUTANTS if f not in SIM_COVERS]
 

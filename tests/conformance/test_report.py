@@ -80,7 +80,7 @@ def test_json_follows_the_design_and_the_schema():
     validate_json(doc)
     assert list(doc) == ["schema_version", "tool", "spec", "target", "role", "parameters", "seed",
                          "error", "cases", "failures", "rules", "summary"]
-    assert doc["schema_version"] == "1.4" and doc["tool"]["name"] == "mcp-conform"
+    assert doc["schema_version"] == "1.5" and doc["tool"]["name"] == "mcp-conform"
     assert doc["spec"] == {"protocol": "MCP", "version": SPEC.version, "sha256": SPEC.sha256}
     assert doc["summary"] == {"passed": 1, "failed": 1, "warned": 1, "skipped": 1, "info": 1,
                               "error": 1, "xfailed": 0, "xpassed": 0, "duration_s": 1.25}
@@ -228,3 +228,56 @@ def test_a_failure_relying_on_a_rule_that_failed_first_is_named_its_consequence(
     text = buf.getvalue()
     assert text.index("root failures (3):") < text.index("ACK/test_ack") < text.index(
         "their consequences (1):") < text.index("ROB/test_short  consequence of MCP-ACK-1")
+
+
+def _trn2_then_monitor_ack1() -> RunRecord:
+    """A node that drops datagrams from another source port (the sample node's
+    source-port-filter, a drone on a connect()ed socket): MCP-TRN-2's case fails, and the trace
+    monitor proves MCP-ACK-1 violated after it, on the messages it dropped."""
+    run = RunRecord(role="drone", target="127.0.0.1:7890")
+    run.cases = [
+        case("ACK/test_every_command_type_is_acked", ("MCP-ACK-1",), "passed", start_ns=10, end_ns=20),
+        case("TRN/test_datagram_from_another_source_port_is_accepted", ("MCP-TRN-2",), "failed",
+             failed_rule="MCP-TRN-2", start_ns=30, end_ns=40, actual="no ACK at either of the runner's sockets"),
+    ]
+    run.monitor = {"complete": True, "datagrams": 4, "nodes": [], "rules": {"1": {"MCP-ACK-1": "failed"}},
+                   "violations": [{"rule": "MCP-ACK-1", "level": "MUST", "node": 1, "t_ns": 50,
+                                   "expected": "an ACK within 5 copies", "actual": "no ACK of 5 copies",
+                                   "evidence": [{"index": 3, "t_ns": 45}]}]}
+    run.finished = run.started + 1.0
+    return run
+
+
+def test_a_monitor_violation_that_is_a_failures_consequence_is_never_passed_in_the_rules():
+    """One judge, one verdict: the rules table said MCP-ACK-1 passed while ``failures`` listed
+    the monitor's MCP-ACK-1 failure as MCP-TRN-2's consequence. Its row is ``consequence`` (the
+    terminal and the HTML say "see MCP-TRN-2"), the terminal lists it under the root's
+    consequences, and it still counts as no failure of its own (exit code, summary)."""
+    from mcp_conform.reports.html import render_run
+
+    run = _trn2_then_monitor_ack1()
+    doc = build_json(run)
+    validate_json(doc)
+    assert doc["rules"]["MCP-ACK-1"] == "consequence" and doc["rules"]["MCP-TRN-2"] == "failed"
+    assert [(f["rule"], f["consequence_of"]) for f in doc["failures"]] == [("MCP-TRN-2", []),
+                                                                          ("MCP-ACK-1", ["MCP-TRN-2"])]
+    assert run.exit_code() == 1 and doc["summary"]["failed"] == 1
+    buf = io.StringIO()
+    TerminalReport(Console(file=buf, width=160, color_system=None)).summary(run)
+    text = buf.getvalue()
+    (row,) = [ln for ln in text.splitlines() if ln.startswith("MCP-ACK-1 ")]
+    assert row.split()[2:] == ["see", "MCP-TRN-2"], text
+    assert text.index("root failures (1):") < text.index("their consequences (1):") < text.index(
+        "FAILED  MCP-ACK-1  monitor  consequence of MCP-TRN-2"), text
+    assert "1 failed by the monitor" not in text, text
+    html = render_run(doc)
+    assert "see MCP-TRN-2" in html
+
+
+def test_merged_workers_reports_keep_a_monitor_consequence_out_of_passed():
+    from mcp_conform.conformance.report import merge_json
+
+    doc = build_json(_trn2_then_monitor_ack1())
+    merged = merge_json([doc])
+    validate_json(merged)
+    assert merged["rules"]["MCP-ACK-1"] == "consequence"

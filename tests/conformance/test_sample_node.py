@@ -314,6 +314,25 @@ def test_fault_ack_little_endian(mgr, spawn):
     assert raw[17:] == b"\x02\x01"
 
 
+def test_fault_ack_to_manager(mgr, spawn):
+    """MCP-ACK-3 broken only for a src other than 0: the manager's message is ACKed to 0 (right),
+    another src's to 0 too (wrong). Each ACK awaited by itself, bounded."""
+    started(mgr, spawn, "--fault", "ack-to-manager")
+
+    def ack_of(seq: int) -> Message:
+        deadline = time.monotonic() + 10.0
+        while (left := deadline - time.monotonic()) > 0:
+            got = mgr.recv(left)
+            if got is not None and (msg := decode(got[0])).action == Action.ACK and msg.payload == seq:
+                return msg
+        raise AssertionError(f"no ACK of seq {seq}")
+
+    mgr.send(Action.WP_OFF, seq=501)
+    assert ack_of(501).dst == 0
+    mgr.send(Action.WP_OFF, seq=502, src=5)
+    assert ack_of(502).dst == 0
+
+
 def test_fault_crash_on_short(mgr, spawn):
     node, _ = started(mgr, spawn, "--fault", "crash-on-short")
     mgr.send_raw(b"NCSU")

@@ -66,6 +66,8 @@ FAULTS: dict[str, tuple[str, str]] = {
     "ack-ack": ("MCP-ACK-6", "ACKs ACKs addressed to it"),
     "ack-little-endian": ("MCP-ACK-2", "ACK payload packed little-endian ('<H')"),
     "ack-wrong-dst": ("MCP-ACK-3", "ACK dst is 0x0FFF"),
+    "ack-to-manager": ("MCP-ACK-3", "ACK dst is always 0, the manager's ID, whatever the message's src "
+                                    "(right only for the manager's messages)"),
     "ack-own-seq": ("MCP-ACK-2", "ACK payload is the node's own sequence number (the ACK's own seq, big-endian)"),
     "ack-previous-seq": ("MCP-ACK-2", "ACK payload is the seq of the message it ACKed before (0 at first)"),
     "ack-zero": ("MCP-ACK-2", "ACK payload is always 00 00"),
@@ -393,6 +395,8 @@ class Node:
         payload = struct.pack("<H" if "ack-little-endian" in self.faults else "!H", named)
         if "ack-wrong-dst" in self.faults:
             dst = 0x0FFF
+        elif "ack-to-manager" in self.faults:
+            dst = MANAGER_ID
         data = self.datagram(dst, self.id, seq, Action.ACK, payload)
         target = addr if self.reply_to_source else self.send_to
         log(f"ACK seq {acked_seq} to ID {dst} (own seq {seq})")
