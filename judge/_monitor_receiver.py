@@ -11,8 +11,10 @@ sent with that number (``_by_seq``) and so learns what the ACK answers:
   an ACK that must not exist. A sender's numbers do not repeat within a window, so even a
   lossy trace proves these;
 - nothing: the message may simply be missing from the trace, unless the number is the
-  byte swap of a message the node did get (MCP-ACK-2, little-endian) or, on a complete
-  trace, another node's message to it has that number (MCP-ACK-3).
+  byte swap of a message the node did get (MCP-ACK-2, little-endian; not when another node's
+  message to it has the number as it stands: that explanation breaks MCP-ACK-3 instead, so
+  the ACK proves neither) or, on a complete trace, another node's message to it has that
+  number (MCP-ACK-3).
 
 Missing ACKs (MCP-ACK-1) are judged only on a complete trace, while the node is receiving
 (a drone between its Mission_Ready and the ACK of its End_Mission, D-6), once a command
@@ -155,6 +157,13 @@ class ReceiverRules(MonitorHost):
         swapped = ((named & 0xFF) << 8) | (named >> 8)
         ex = self._ex.get(dst << 32 | src << 16 | swapped) if swapped != named else None
         if ex is not None and t - ex.last_t <= horizon:
+            if any((m := self._ex.get(o << 32 | src << 16 | named)) is not None and t - m.last_t <= horizon
+                   for o in (self._nodes.keys() | self._tester_ids) - {src, dst}):
+                # as well the ACK of another sender's message numbered ``named``, sent to the
+                # wrong ID (MCP-ACK-3): each explanation breaks another rule, so it proves
+                # neither (D-9's principle; the ack-to-manager drone's ACK of the runner's
+                # seq 516 from src 2, sent to ID 0 while the manager's 1026 waited)
+                return
             self._emit("MCP-ACK-2", src, t, f"ACK payload {ex.seq} as 2 bytes big-endian (D-2)",
                        f"ACK names {named}: {ex.seq} byte-swapped", [ex.copies[-1], (i, t)])
             return

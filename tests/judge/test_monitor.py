@@ -557,3 +557,26 @@ def test_an_ack_naming_the_next_message_while_a_copy_sent_before_the_first_ack_w
     s.tick(0.5)
     rules = {v.rule for v in _finish(s, steps=False).judge()}
     assert rules & {"MCP-ACK-2", "MCP-ACK-5"} == want, rules
+
+
+@pytest.mark.parametrize("other_src_message", [True, False], ids=["misaddressed-or-swapped", "swapped"])
+def test_an_ack_whose_number_names_another_senders_message_is_no_byte_swap(other_src_message):
+    """A drone's ACK to the manager naming 516 (0x0204), while the manager's WP_Off 1026
+    (0x0402, 516 byte-swapped) waits for its ACK: alone, a byte swap (MCP-ACK-2). But when the
+    runner sent the drone a message numbered 516 from src 2 (MCP-ACK-3's probe), the ACK is as
+    well that message's ACK sent to the wrong ID (MCP-ACK-3): each explanation breaks another
+    rule, neither breaks both, so the ACK proves neither (D-9's principle). The sample node's
+    ack-to-manager through ``--impair`` drew a false MCP-ACK-2 beside its true MCP-ACK-3 (the
+    case's) this way in 7 of 20 simulated seeds."""
+    from tests.judge.monitor_faults import _finish, _started
+
+    s = _started(challenge=2)
+    if other_src_message:
+        s.send(2, 1, Action.WP_OFF, seq=516, origin=TESTER)
+        s.tick(0.002)
+    s.send(0, 1, Action.WP_OFF, seq=1026)
+    s.tick(0.004)
+    s.ack(1, 0, 516)
+    s.tick(0.5)
+    acks = [v for v in _finish(s, steps=False).judge() if v.rule == "MCP-ACK-2" and "byte-swapped" in v.actual]
+    assert bool(acks) != other_src_message, acks

@@ -96,3 +96,15 @@ def test_a_drone_deaf_to_other_source_ports_gets_mcp_ack_1_as_mcp_trn_2s_consequ
     mon = [f for f in run.report["failures"] if f.get("source") == "monitor"]
     assert [(f["rule"], f["consequence_of"]) for f in mon] == [("MCP-ACK-1", ["MCP-TRN-2"])], run.report["failures"]
     assert run.rules["MCP-ACK-1"] == "consequence", run.explain()
+
+
+@pytest.mark.parametrize("seed", [13, 17])
+def test_acks_always_to_id_0_through_the_impairment_fail_mcp_ack_3_alone(seed):
+    """Through ``--impair`` the drone's ACK of the runner's seq 516 from src 2, sent to ID 0,
+    met the manager's 1026 (516 byte-swapped) within the horizon: the monitor called it a byte
+    swap (MCP-ACK-2) beside the true MCP-ACK-3, in 7 of seeds 1-20 (these two among them). As
+    the ACK of the message it names it breaks MCP-ACK-3 only; neither explanation is proven
+    (``judge._monitor_receiver``; tests/judge/test_monitor.py's unit of it)."""
+    run = run_cases(mutant_factory("ack-to-manager", rto=SHORT["rto"], seed=seed), seed=seed, select=["ACK", "DUP"],
+                    extra=("--impair", f"loss=0.1,dup=0.05,reorder=0.1,seed={seed}"), **SHORT)
+    assert run.rules_with("failed", "warned") == {"MCP-ACK-3": "failed"}, run.explain()
