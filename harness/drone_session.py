@@ -3,15 +3,14 @@
 A ``Session`` owns the target driver, the simulated vehicle (``--mavlink``), the spawned
 process, and the startup phase (docs/design.md "Startup rules"): the vehicle withholds the GPS
 fix, then gives it; the runner withholds the ACK of Mission_Ready for a few copies, sends a
-wrong-sequence and a wrong-source ACK, then the right one. What it saw is kept in
-``Session.startup`` for the startup-phase cases to judge. Then it starts the mission
-(Start_Mission, MCP-BLK-4) so commands are sent only between the node's Mission_Ready and
-its End_Mission (D-6).
+wrong-sequence and a wrong-source ACK, then the right one (where the copies stopped at the wrong
+ACKs, spawn mode sees it again on a restarted node: ``harness.drone_rtx2``). What it saw is kept
+in ``Session.startup`` for the startup-phase cases to judge. Then it starts the mission
+(Start_Mission, MCP-BLK-4): commands go only between Mission_Ready and End_Mission (D-6).
 
-A node whose header reads right only byte-swapped (``judge.monitor.byte_order_fault``,
-MCP-HDR-2) is diagnosed on its first datagrams: no mission is started, and every case but
-the ones judged on the raw bytes (``FRAMING_RULES``) is skipped with the diagnosis
-(``not_judged``): what it would read of the node's datagrams is misread.
+A node whose header reads right only byte-swapped (``judge.monitor.byte_order_fault``, MCP-HDR-2)
+is diagnosed on its first datagrams: no mission is started, and every case but the ones judged
+on the raw bytes (``FRAMING_RULES``) is skipped (``not_judged``): it would misread the rest.
 
 Setup errors (the node never answers, a port is taken, spawn fails) raise ``SetupError``.
 A node that dies or goes silent after an input fails that case; in spawn mode it is
@@ -28,6 +27,7 @@ from typing import Any
 from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.driver import Datagram, Exchange, TargetDriver
+from mcp_conform.harness.drone_rtx2 import needs_second_look, observe_again
 from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
 from mcp_conform.harness.liveness import Liveness
 from mcp_conform.harness.procs import SPAWN_STARTUP_S
@@ -77,8 +77,7 @@ def embedded_command() -> str:
 
 @dataclass
 class Startup(WithheldCopies):
-    """What the startup phase observed (judged by the startup-phase cases): Mission_Ready's
-    copies while its ACK was withheld, and what came around them."""
+    """What the startup phase observed for its cases: Mission_Ready's copies while its ACK was withheld, and around them."""
 
     observed: bool = False  # False: no Mission_Ready was seen (attach mode, node already past it)
     reason: str = ""  # why it was not observed
@@ -87,6 +86,7 @@ class Startup(WithheldCopies):
     fix_given_at: float | None = None
     ready_before_fix: list[Datagram] = field(default_factory=list)
     others_while_waiting: list[Datagram] = field(default_factory=list)  # non-ACK, non-MR datagrams
+    again: Startup | None = None  # MCP-RTX-2 seen again on a restarted node (``harness.drone_rtx2``)
 
 
 class Session(DatagramSessionBase):
@@ -229,8 +229,8 @@ class Session(DatagramSessionBase):
             raise SetupError(f"cannot start the simulated vehicle: {exc.strerror}") from None
 
     def _vehicle_event(self, event: Any) -> None:
-        """The vehicle's events: to the run's monitor, and the ones it judges by (the link,
-        the fix coming and going) to the capture too, so ``check`` judges with them."""
+        """The vehicle's events: to the run's monitor, and those it judges by (the link, the fix
+        coming and going) to the capture too, so ``check`` judges with them."""
         t_ns = self.to_ns(event.t)
         if self.monitor is not None:
             self.monitor.vehicle_event(t_ns, event)
@@ -256,9 +256,8 @@ class Session(DatagramSessionBase):
         self._startup_phase(first=False)
 
     def respawn(self, grace: float = 2.0) -> None:
-        """Spawn mode: the node closed and started again, before its startup phase (which
-        the caller runs: ``restart`` the quick one; the fuzzer its own, then
-        ``send_start_mission``)."""
+        """Spawn mode: the node closed and started again, before its startup phase (which the
+        caller runs: ``restart`` the quick one; the fuzzer its own, then ``send_start_mission``)."""
         self.ended = False
         self.needs_restart = False
         super().respawn(grace)
@@ -273,8 +272,8 @@ class Session(DatagramSessionBase):
 
     # ------------------------------------------------------------------ startup phase
     def _fail_setup(self, why: str) -> SetupError:
-        """A setup error; in spawn mode it quotes the node (its exit, its own words). In the
-        run's first startup it also says what the runner observed meanwhile (``detail``)."""
+        """A setup error; in spawn mode it quotes the node (its exit, its own words); in the run's
+        first startup, what the runner observed meanwhile (``detail``)."""
         node = self.node
         if node is not None and node.alive():  # it may be on its way out: give it a moment to say why
             with contextlib.suppress(Exception):
@@ -290,8 +289,7 @@ class Session(DatagramSessionBase):
         return SpawnFailure(why, details, detail)
 
     def _startup_detail(self) -> list[str]:
-        """What the runner observed in the run's first startup (``harness.startup_report``);
-        [] after it (a restart: the cases' evidence says what happened)."""
+        """What the runner observed in the run's first startup (``harness.startup_report``); [] after it."""
         if self._startup_mark is None or self.driver is None:
             return []
         from mcp_conform.harness.startup_report import explain_session
@@ -332,8 +330,8 @@ class Session(DatagramSessionBase):
 
     def _startup_phase(self, first: bool, measure: bool = False, diagnose: bool = False,
                        initial: bool = False, parts: frozenset[str] = STARTUP_PARTS) -> None:
-        """``initial``: the run's first startup (``start``), bounded by ``startup_limit`` and
-        explained when the node never announces (``startup_unanswered``); ``first``: its ``parts`` observed."""
+        """``initial``: the run's first startup (``start``), bounded by ``startup_limit``, explained
+        when the node never announces (``startup_unanswered``); ``first``: its ``parts`` observed."""
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
@@ -412,6 +410,8 @@ class Session(DatagramSessionBase):
             return
         if withheld:
             self._observe_retransmissions(st, first_ready, parts)
+            if needs_second_look(self, st):  # a retry limit or MCP-RTX-2's fault: a restart tells
+                observe_again(self, st)
         elif measure:
             self._measure_period(first_ready)
         elif (first or diagnose) and first_ready.msg is None and first_ready.header is not None:
@@ -434,8 +434,8 @@ class Session(DatagramSessionBase):
         return byte_order_fault(self.target_id, d.header[1], d.header[3])
 
     def not_judged(self, rules: tuple[str, ...]) -> str | None:
-        """Why a case verifying ``rules`` cannot be judged against this node, or None: its
-        header cannot be read (``unreadable``) and the case reads more than raw bytes."""
+        """Why a case verifying ``rules`` cannot be judged against this node, or None: its header
+        cannot be read (``unreadable``) and the case reads more than raw bytes."""
         if self.unreadable is None or set(rules) <= FRAMING_RULES:
             return None
         rule, why = self.unreadable
@@ -443,8 +443,8 @@ class Session(DatagramSessionBase):
                 "the node's datagrams is misread")
 
     def _measure_period(self, first_ready: Datagram) -> None:
-        """The node's retransmission period from its first two Mission_Ready copies (the
-        ACK withheld until the second, up to the description's timeout), then the ACK."""
+        """The node's retransmission period from its first two Mission_Ready copies (the ACK
+        withheld until the second, up to the description's timeout), then the ACK."""
         drv = self.driver
         assert drv is not None
         wait = max(self.rto, float(SPEC.params["timeout_s"])) * 1.5 + 1.0
@@ -593,8 +593,8 @@ class Session(DatagramSessionBase):
 
     # ------------------------------------------------------------------ case API
     def case_ending(self, ctx: Any, outcome: str) -> None:
-        """Before the case's end mark: a node the case left unfit is restarted before the
-        next one (spawn mode), a silent one lost (attach mode)."""
+        """Before the case's end mark: a node the case left unfit is restarted before the next
+        one (spawn mode), a silent one lost (attach mode)."""
         if ctx.restart_if_failed and outcome in ("failed", "warned", "error") and self.spawned:
             self.needs_restart = True
         self.after_case(ctx.node_silent)

@@ -256,6 +256,15 @@ class WithheldCopies:
         return (f"{len(before)} copies, the last {late:.2f} s before them, more than the "
                 f"{self.wrong_ack_wait:.2f} s watched after them")
 
+    def limit_or_any_ack(self, before: list[float]) -> bool:
+        """Whether the copies stopped right after the wrong ACKs, so that this observation cannot
+        tell why: ``before`` as for :meth:`ended_before_wrong_acks`, at least ``MIN_COPIES`` of
+        them, none since (the right ACK is sent after the wait). A retry limit of
+        ``MIN_COPIES - 1``, the rule's configurable limit (spec/mcp.yaml's ``min_copies``), ends
+        them there as a sender that stops on any ACK does (MCP-RTX-2's fault)."""
+        return (bool(self.wrong_acks) and self.copy_after_wrong_acks is None and len(before) >= MIN_COPIES
+                and self.ended_before_wrong_acks(before) is None)
+
     def gaps(self) -> list[float]:
         ts = [d.t for d in self.copies]
         return [b - a for a, b in zip(ts, ts[1:], strict=False)]

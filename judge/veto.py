@@ -22,7 +22,8 @@ and :func:`judge.explain.decide_message` decides that message -- not the directi
 MCP-RTX-2``) is proven, and the monitor's stop is explained: by a right ACK it did not credit
 (:func:`_answered_in_time`) or, for MCP-RTX-1's "none for N s", by the run delay over the
 silence (:func:`_starved_in_time`: a copy sent late because its sender was off the CPU, D-7, as
-MCP-RTX-3 excuses it; the seed ``monitor-rtx1-late-copy-carries-its-run-delay``). So the veto
+MCP-RTX-3 excuses it; the seed ``monitor-rtx1-late-copy-carries-its-run-delay``), or, for
+MCP-RTX-2's silence after ``min_copies`` copies, by a retry limit (:func:`_limit_reached`). So the veto
 never adds a violation and never drops one explain proves. A dropped violation is kept with
 the explanation that keeps the rule (:class:`Vetoed`), for the report.
 
@@ -269,7 +270,7 @@ def _answered_in_time(v: Any, way: tuple[int, int], records: list[Record], b: Bo
     ``readings``) and ``S`` moved on to another message only once it could have read it
     (``ack_early``: how late ``S`` may read one). Explain keeps
     MCP-RTX-2 by other stops too -- a give-up at a retry limit after a wrong ACK (a faulty
-    sender that stops on any ACK), a stop that broke MCP-BLK-1 instead
+    sender that stops on any ACK; after ``min_copies`` copies: :func:`_limit_reached`), a stop that broke MCP-BLK-1 instead
     (``tests/judge/test_explain_beside_monitor.py``'s ``rtx2-stops-on-wrong-ack``,
     ``rtx2-manager-takes-a-stale-ack``): there the monitor's failure stands, a faulty
     sender's only one. The veto is for a right ACK the monitor did not credit: it is named
@@ -359,6 +360,38 @@ def _resumed_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
                 f"the wrong ACK, {ran / NS:.3f} s in the time ID {s} could run ({off / NS:.3f} s of "
                 f"run delay over the silence, D-7): the retransmission went on")
     return None
+
+
+def _limit_reached(v: Any, way: tuple[int, int], records: list[Record]) -> str | None:
+    """MCP-RTX-2's silence after a wrong ACK (``_wrong_ack_deadline``) where ``S`` had sent
+    ``MIN_COPIES`` copies or more of the message before it, and nothing but ACKs since up to the
+    failure: a retry limit of ``MIN_COPIES - 1`` -- MCP-RTX-1's configurable limit, "no
+    violation" (spec/mcp.yaml's ``min_copies``) -- ends its copies there as taking the wrong ACK
+    does, and one trace cannot tell which (the C drone's ``--retries 2`` failed so). The runner's
+    case tells them on a restarted node, the wrong ACKs after its second copy
+    (``harness.drone_rtx2``): there, fewer copies than any such limit, the failure stands
+    ("MCP-RTX-1 or MCP-RTX-2" proven). A sender that moved on at once after the wrong ACK is
+    not explained (its give-up would come at its timer: ``_check_stop_and_wait``)."""
+    s, r = way
+    first = _first_copy(v, way, records)
+    if first is None or len(v.evidence) < 2:
+        return None
+    i_wrong = v.evidence[1][0]
+    if not first < i_wrong < len(records):
+        return None
+    seq = peek_header(records[first].data, require_preamble=False)[2]  # type: ignore[index]
+    n = 0
+    for k, rec in enumerate(records):
+        h = peek_header(rec.data, require_preamble=False)
+        if h is None or rec.tester or h[1] != s or h[3] == Action.ACK:
+            continue
+        if k > i_wrong and rec.t_ns <= v.t_ns:
+            return None  # a copy, or a move on, after the wrong ACK: not a silence
+        n += k < i_wrong and h[:3] == (r, s, seq)
+    if n < MIN_COPIES:
+        return None
+    return (f"seq {seq} from ID {s}: {n} copies before the wrong ACK, then none: a retry limit of {n - 1} "
+            f"(MCP-RTX-1's configurable limit; at least min_copies - 1 = {MIN_COPIES - 1}) ends them there too")
 
 
 def _starved_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto: float,
@@ -496,6 +529,8 @@ def veto(violations: list[Any], recorder: Recorder, *, rto: float, ack_window: f
                                         readings=mine_rd)
         if answered is None and v.rule == "MCP-RTX-2":
             answered = _resumed_in_time(v, way, records, rto=rto, readings=mine_rd)
+        if answered is None and v.rule == "MCP-RTX-2" and kept.status == CONSISTENT:
+            answered = _limit_reached(v, way, records)
         if answered is None:
             continue
         out.append(Vetoed(v, way[0], way[1], f"{answered}; {kept.evidence}"))

@@ -131,6 +131,8 @@ class DroneModel(NodeModel):
     takeoff_alt = _DRONE.takeoff_alt
     drain_timeout = _DRONE.drain_timeout
     heartbeat_timeout = _DRONE.heartbeat_timeout
+    #: Mission_Ready given up: it exits (``drone.py`` returns 1), or goes on (False)
+    exits_on_give_up = True
 
     def __init__(self, drone_id: int, rto: float, retries: int, rng: random.Random, *, ready_at: float,
                  linger: float | None = None, endpoint: EndpointFactory | None = None) -> None:
@@ -254,7 +256,8 @@ class DroneModel(NodeModel):
 
     def _outcome(self, ev: DeliveryConfirmed | DeliveryFailed, now: float) -> None:
         if isinstance(ev, DeliveryFailed):
-            self.close(now, "mission_ready_failed")
+            if self.exits_on_give_up:  # else it goes on, ACKing and serving (the C drone's way)
+                self.close(now, "mission_ready_failed")
         else:
             self.ready_acked = True
 

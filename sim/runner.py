@@ -52,10 +52,14 @@ ModelFactory = Callable[[float], DroneModel]
 
 
 def drone_factory(fault: str | None = None, *, rto: float = 0.2, seed: int = 0, ready_after: float = 0.05,
-                  linger: float | None = None) -> ModelFactory:
+                  linger: float | None = None, retries: int | None = None, exits_on_give_up: bool = True
+                  ) -> ModelFactory:
     """The reference drone (``fault`` None) or the drone fault ``fault`` of :data:`sim.faults.FAULTS`,
-    its endpoint at ``rto``, its GPS fix ``ready_after`` s after it starts."""
-    retries = int(SPEC.params["retries"])
+    its endpoint at ``rto``, its GPS fix ``ready_after`` s after it starts; ``retries``: its retry
+    limit (None: the spec's, or the fault's own). ``retries=2`` is correct otherwise: the rule's
+    configurable limit (spec/mcp.yaml's ``min_copies``); its Mission_Ready given up, it exits as
+    ``drone.py`` does, or (``exits_on_give_up=False``) goes on as the C drone does."""
+    retries = int(SPEC.params["retries"]) if retries is None else retries
     endpoint = None
     if fault is not None:
         f = FAULTS[fault]
@@ -65,8 +69,10 @@ def drone_factory(fault: str | None = None, *, rto: float = 0.2, seed: int = 0, 
     spawns = random.Random(seed)
 
     def make(now: float) -> DroneModel:
-        return DroneModel(1, rto, retries, random.Random(spawns.getrandbits(64)), ready_at=now + ready_after,
-                          linger=linger, endpoint=endpoint)
+        model = DroneModel(1, rto, retries, random.Random(spawns.getrandbits(64)), ready_at=now + ready_after,
+                           linger=linger, endpoint=endpoint)
+        model.exits_on_give_up = exits_on_give_up
+        return model
 
     return make
 
@@ -107,6 +113,17 @@ class SimSession(Session):
 
     def node_run_delay(self) -> int | None:
         return 0  # a model never waits for a CPU (stalls are the link's and the world's)
+
+    def observe_run(self, target: tuple[str, int], node_id: int | None, **kw: Any) -> Any:
+        """Attach mode (``--target``): the node model starts as the runner's socket opens (one
+        that runs already: its first copies are not seen), and is never replaced."""
+        monitor = super().observe_run(target, node_id, **kw)
+        if not self.spawned and not self.models:
+            model = self.make_model(self.clock.monotonic())
+            model.addr = target
+            self.models.append(model)
+            self.sim_transport.attach(model)
+        return monitor
 
 
 class _SimPlugin:
@@ -173,7 +190,8 @@ class SimRun:
 def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: float = 0.2,
               ack_window: float = 0.25, node_rto: float | None = None, link: str | ImpairSpec | None = None,
               select: Sequence[str] = (), exclude: Sequence[str] = (), extra: Sequence[str] = (),
-              serial: bool = True, stalls: tuple[float, float] | None = None, mavlink: bool | str = False) -> SimRun:
+              serial: bool = True, stalls: tuple[float, float] | None = None, mavlink: bool | str = False,
+              attach: bool = False) -> SimRun:
     """The drone cases (``--serial``; ``serial=False``: the default schedule, its batch's cases
     in threads of their own on the virtual clock) against ``model`` -- None: the reference drone; a name of
     :data:`sim.faults.FAULTS`; or a factory -- at ``--rto rto --ack-window ack_window`` (the node's
@@ -181,7 +199,8 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     (``harness.impair`` spec), ``seed`` the run's and the link's; ``stalls`` ``(p, max_s)``: the
     runner's own threads stalled (:class:`sim.stalls.StallingClock`, by ``seed``); ``mavlink``:
     the run's vehicle (``--mavlink``: True its TCP, or a transport of
-    :data:`sim.vehicle.SIM_TRANSPORTS`; module docstring)."""
+    :data:`sim.vehicle.SIM_TRANSPORTS`; module docstring); ``attach``: ``--target`` (attach mode,
+    no vehicle: the node is never restarted) instead of ``--spawn``."""
     from mcp_conform.conformance import cli
 
     if model is None or isinstance(model, str):
@@ -195,7 +214,8 @@ def run_cases(model: str | None | ModelFactory = None, *, seed: int = 0, rto: fl
     transport = SimTransport(clock, spec, spec, link_seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "report.json"
-        argv = ["--spawn", f"sim:{name}", "--rto", str(rto), "--ack-window", str(ack_window),
+        node = ["--target", f"{DRONE_ADDR[0]}:{DRONE_PORT}"] if attach else ["--spawn", f"sim:{name}"]
+        argv = [*node, "--rto", str(rto), "--ack-window", str(ack_window),
                 *(["--serial"] if serial else []), *(["--mavlink", "tcp" if mavlink is True else str(mavlink)] if mavlink else []), "--seed", str(seed), "--json", str(path), "--timeout", "86400", *extra]
         argv += [f"--select={s}" for s in select] + [f"--exclude={s}" for s in exclude]
         ns = cli.build_parser().parse_args([*argv, "--quiet"])

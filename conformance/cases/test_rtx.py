@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from mcp_conform.conformance.link_copies import credited_copy
 from mcp_conform.conformance.marks import rules
+from mcp_conform.harness.drone_rtx2 import ready_before_wrong_acks
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action
@@ -37,9 +38,71 @@ def _stopped_before_wrong_acks(node, st):
     (two copies, the wrong ACKs 2.06 s after the last at --rto 0.3) failed MCP-RTX-2 before."""
     if not st.wrong_acks or not st.copies:
         return None
-    t_wrong = st.wrong_acks[0].t
-    return st.ended_before_wrong_acks([d.t for d in node.driver.received(st.copies[0].index)
-                                       if d.action == _READY and d.t <= t_wrong])
+    return st.ended_before_wrong_acks(ready_before_wrong_acks(node.driver, st))
+
+
+def _spoiled(node, st, first):
+    """Through --impair: why no copy after ``st``'s wrong ACKs shows the node had them (None:
+    one does, or the link is clean): a copy proves it only if the node had both wrong ACKs when
+    it sent it and the link did not make it (``conformance.link_copies``)."""
+    if first is None or node.driver.link is None:
+        return None
+    end = st.right_ack.t if st.right_ack is not None else float("inf")
+    copies = [d for d in node.driver.received(first.index) if d.action == _READY and d.t <= end]
+    credited, why = credited_copy(node.driver.link, st.wrong_acks, copies)
+    return None if credited is not None else "; ".join(why[:3])
+
+
+def _watched(st):
+    """How long the runner watched for a copy after the wrong ACKs: until the right ACK (the
+    wait ends early when the node exits)."""
+    if st.right_ack is None or not st.wrong_acks:
+        return st.wrong_ack_wait
+    return min(st.wrong_ack_wait, st.right_ack.t - st.wrong_acks[-1].t)
+
+
+def _judged_again(node, st):
+    """The startup's copies stopped right after the wrong ACKs, ``MIN_COPIES`` or more before
+    them (``WithheldCopies.limit_or_any_ack``): a retry limit of ``MIN_COPIES - 1``, the rule's
+    configurable one (spec/mcp.yaml's ``min_copies``), and a node that stops on any ACK look the
+    same (the C drone's ``--retries 2`` failed here). Judged on the second observation
+    (``harness.drone_rtx2``): the node restarted, the wrong ACKs after a copy its first run's
+    copies show its retry limit goes past; its next copy is owed unless a wrong ACK ended them.
+    Attach mode cannot restart it: skipped, naming why."""
+    n = len(ready_before_wrong_acks(node.driver, st))
+    first_look = (f"first observation: {n} copies, then none within {_watched(st):.2f} s after the "
+                  f"wrong ACKs: a retry limit of {n - 1} ends them there too")
+    again = st.again
+    if again is None:
+        raise Inconclusive(f"MCP-RTX-2: {n} copies then none after the wrong ACKs: a retry limit of {n - 1} and "
+                           "stopping on any ACK look the same; run with --spawn to tell")
+    m = len(ready_before_wrong_acks(node.driver, again))
+    if not again.wrong_acks or not 2 <= m < n:
+        raise Inconclusive(f"MCP-RTX-2: {first_look}; the restarted node's wrong ACKs came after {m} of its "
+                           f"copies, not after 2 to {n - 1}: they tell nothing more")
+    stopped = _stopped_before_wrong_acks(node, again)
+    if stopped is not None:
+        raise Inconclusive(f"MCP-RTX-2: {first_look}; the restarted node had stopped retransmitting before "
+                           f"its wrong ACKs were sent ({stopped})")
+    later = again.copy_after_wrong_acks
+    spoiled = _spoiled(node, again, later)
+    if spoiled is not None:
+        raise Inconclusive(f"MCP-RTX-2: spoiled by the impairment: {first_look}; on the restarted node no copy "
+                           f"after the wrong ACKs shows it had them ({spoiled})")
+    end = again.right_ack.t if again.right_ack is not None else None
+    touched = node.session.spoiled_by_impairment(again.wrong_acks[0].t, end, lookback=False) if later is None else []
+    if touched:  # through --impair: the copy owed may have been lost or held
+        raise Inconclusive(f"MCP-RTX-2: spoiled by the impairment: {first_look}; on the restarted node no copy "
+                           f"came after the wrong ACKs while the link dropped or held datagrams ({'; '.join(touched[:3])})")
+    second_look = (f"second observation (the node restarted): the wrong ACKs after its copy {m}, "
+                   + (f"its copy {m + 1} {later.t - again.wrong_acks[-1].t:.2f} s after them" if later is not None
+                      else f"then no copy within {_watched(again):.2f} s, though its first run's {n} copies "
+                      f"show its retry limit reaches a copy {m + 1}"))
+    node.expect_true(later is not None, "MCP-RTX-2",
+                     "retransmission goes on after an ACK with the wrong seq and one from the wrong src",
+                     second_look, [first_look, second_look]
+                     + [f"wrong ACK: {s.data.hex(' ')}" for s in (*st.wrong_acks, *again.wrong_acks)])
+    node.info(f"MCP-RTX-2: {first_look}; {second_look}")
 
 
 @rules("MCP-RTX-2", phase="startup")
@@ -52,16 +115,14 @@ def test_only_the_right_ack_ends_retransmission(node):
         raise Inconclusive(f"MCP-RTX-2: the node had stopped retransmitting before the wrong ACKs were "
                            f"sent ({stopped}): they show nothing of what it does with a wrong ACK "
                            "(see MCP-RTX-1)")
+    if st.limit_or_any_ack(ready_before_wrong_acks(node.driver, st)):
+        _judged_again(node, st)
+        return
     first = st.copy_after_wrong_acks
-    if first is not None and node.driver.link is not None:
-        # through --impair: a copy proves it only if the node had both wrong ACKs when it sent
-        # it and the link did not make it (``conformance.link_copies``)
-        end = st.right_ack.t if st.right_ack is not None else float("inf")
-        copies = [d for d in node.driver.received(first.index) if d.action == _READY and d.t <= end]
-        credited, why = credited_copy(node.driver.link, st.wrong_acks, copies)
-        if credited is None:
-            raise Inconclusive("MCP-RTX-2: spoiled by the impairment: no copy after the wrong ACKs "
-                               "shows the node had them (" + "; ".join(why[:3]) + ")")
+    spoiled = _spoiled(node, st, first)
+    if spoiled is not None:
+        raise Inconclusive(f"MCP-RTX-2: spoiled by the impairment: no copy after the wrong ACKs shows the "
+                           f"node had them ({spoiled})")
     node.expect_true(first is not None, "MCP-RTX-2",
                      "retransmission goes on after an ACK with the wrong seq and one from the wrong src",
                      f"no copy within {st.wrong_ack_wait:.2f} s after them",

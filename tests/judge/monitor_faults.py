@@ -254,10 +254,13 @@ def rtx1() -> Script:
 
 
 def rtx2() -> Script:
-    """The harness plays the manager: a wrong-seq ACK, after which drone 1 stops."""
+    """The harness plays the manager: a wrong-seq ACK after drone 1's second copy, after which
+    it stops. (After ``min_copies`` copies or more, a retry limit -- the rule's configurable
+    one -- explains the stop as well: the monitor proves nothing there, and the runner's case
+    tells the two apart on a restarted node, harness.drone_rtx2.)"""
     s = Script((1,), vehicle=False)
     seq, data = s.send(1, 0, Action.MISSION_READY)
-    for _ in range(3):
+    for _ in range(1):
         s.tick(s.rto)
         s.raw(1, data)
     s.tick(0.01)

@@ -49,10 +49,11 @@ KNOWN: dict[tuple[str, int, str], str] = {
         "(the old judge's b3d2e72 false RTX-2 was that same shape)"),
     ("rtx2-manager-takes-a-stale-ack", 0, EITHER_RTX): "the same",
     ("rtx2-stops-on-wrong-ack", 1, "MCP-RTX-2"): (
-        "explain: four copies, then silence: a retry limit of 4 (at least min_copies = 3, the "
-        "rule's observed reading) explains it; with min_copies the node's stated limit (1000) "
-        "'RTX-1 or RTX-2' is proven, RTX-2 alone never from a silence (a give-up explains it)"),
-    ("rtx2-stops-on-wrong-ack", 1, EITHER_RTX): "the same",
+        "explain: two copies, then silence after the wrong ACK: a give-up after two (MCP-RTX-1's "
+        "fault) explains it too, so 'RTX-1 or RTX-2' is proven (both judges), RTX-2 alone never "
+        "from a silence. The monitor takes a stop after fewer than min_copies copies for the "
+        "wrong ACK's, as the runner's case does on its second look (harness.drone_rtx2), whose "
+        "first showed the limit goes past it; after min_copies neither judge proves anything"),
     ("trn2-source-port-filter", 1, "MCP-ACK-1"): (
         "explain: six copies never answered; the monitor calls it MCP-TRN-2 (they came from "
         "another source port: the model has no addresses)"),
