@@ -9,8 +9,9 @@ drone role's do (``conformance.drone_case``).
 Conventions (one fault, one rule):
 - A message *awaits its ACK* from its first copy until the runner's first ACK of it (the
   right one, or a deliberately wrong one of MCP-RTX-2: taking a wrong ACK for the ACK is
-  RTX-2's fault) — or, when the manager stopped retransmitting it before any ACK (it gave
-  up, MCP-RTX-1's business), until its last copy.
+  RTX-2's fault; not those where RTX-2's second observation proved the manager ignores them)
+  — or, when the manager stopped retransmitting it before any ACK (it gave up, MCP-RTX-1's
+  business), until its last copy.
 - A copy is a datagram to the same drone with the same action and payload as a message
   awaiting its ACK; whether it repeats the seq and bytes is MCP-SEQ-2's business.
 - A drone the manager gave up on (a command whose retransmission stopped unACKed) is
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from mcp_conform.harness.manager_session import ManagerSession
 
 F = TypeVar("F", bound=Callable[..., Any])
+MIN_COPIES = int(SPEC.params["min_copies"])
 _ACK = int(Action.ACK)
 _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
@@ -135,20 +137,76 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1). Not the wrong ACKs of a
     message the manager was seen to retransmit after them (``copy_after_wrong_acks``): they did
     not end it, and its answer is the right ACK (a runner held off the CPU may send that past
-    the manager's retry limit: seed 118's drone, given up, looked answered by them)."""
+    the manager's retry limit: seed 118's drone, given up, looked answered by them). None of
+    them where the second observation (``Mission.withheld_again``) proved the manager ignores a
+    wrong ACK (:func:`wrong_acks_ignored`); its own wrong ACKs are like the first's otherwise."""
     times = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
-    after = m.withheld.copy_after_wrong_acks
-    for a in m.withheld.wrong_acks:
-        if a.src != msg.dst:
-            continue
-        if after is not None and after.header is not None and after.header[0] == msg.dst and any(
-                c.header is not None and c.header[2] == after.header[2] for c in msg.copies):
-            continue  # the manager retransmitted ``msg`` after them: they did not end it (seed 118)
-        if a.t >= msg.first.t:
-            times.append(a.t)
-        elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):
-            times.append(msg.first.t)
+    for w in () if wrong_acks_ignored(m) else (m.withheld, *m.again_spoiled, m.withheld_again):
+        after = w.copy_after_wrong_acks
+        for a in w.wrong_acks:
+            if a.src != msg.dst:
+                continue
+            if after is not None and after.header is not None and after.header[0] == msg.dst and any(
+                    c.header is not None and c.header[2] == after.header[2] for c in msg.copies):
+                continue  # the manager retransmitted ``msg`` after them: they did not end it (seed 118)
+            if a.t >= msg.first.t:
+                times.append(a.t)
+            elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):
+                times.append(msg.first.t)
     return min(times) if times else None
+
+
+def wrong_acks_ignored(m: Mission) -> bool:
+    """MCP-RTX-2's second observation (``Mission.withheld_again``, made where the first
+    Start_Mission's copies stopped right after the wrong ACKs) saw a copy after its own wrong
+    ACKs: the manager does not take a wrong ACK for the answer, so the first's wrong ACKs ended
+    nothing, and its Start_Mission's copies stopped at its retry limit (a limit of 2 retries:
+    spec ``min_copies``, no violation): the drone was given up, not answered. Told by what the
+    manager did with a second message, not by when it moved on (session 32's reverted try)."""
+    return m.withheld_again.copy_after_wrong_acks is not None
+
+
+def first_stopped_at_wrong_acks(m: Mission) -> bool:
+    """The first Start_Mission's copies (at least ``min_copies``) stopped right after the wrong
+    ACKs: taking them and a retry limit reached there look alike (the second observation tells)."""
+    w = m.withheld
+    return bool(w.drone is not None and w.wrong_acks and w.copy_after_wrong_acks is None
+                and len(w.copies) >= MIN_COPIES and w.ended_before_wrong_acks([c.t for c in w.copies]) is None)
+
+
+def again_untold(m: Mission) -> str | None:
+    """Why MCP-RTX-2's second observation (``Mission.withheld_again``) tells nothing (None: it
+    tells). The first proved the manager's limit reaches ``len(withheld.copies)`` copies; the
+    second's wrong ACKs must go out after fewer copies of its message, while the next was due."""
+    why = _again_untold(m)
+    if why is not None and m.again_spoiled:
+        why += (f" (and {len(m.again_spoiled)} message(s) before it: the wrong ACKs went out after as many "
+                "copies as the first Start_Mission had, the runner's receiver behind)")
+    return why
+
+
+def _again_untold(m: Mission) -> str | None:
+    a, limit = m.withheld_again, len(m.withheld.copies)
+    if a.drone is None or not a.copies:
+        return "the manager sent no new unicast after them to withhold"
+    what = f"its {action_name(a.copies[0].action)} to drone {a.drone}"
+    if not a.wrong_acks:
+        return f"{what} came once, no second copy within {a.wrong_ack_wait:.2f} s (see MCP-RTX-1)"
+    t_wrong = a.wrong_acks[0].t
+    before = [c.t for c in a.copies if c.t <= t_wrong]
+    if a.right_ack is not None and a.right_ack.t < t_wrong:
+        return f"{what} was answered before the wrong ACKs went out"
+    if len(before) >= limit:
+        return (f"the wrong ACKs went out after {len(before)} copies of {what} (the runner's receiver "
+                f"behind), where a limit of {limit} copies ends it too")
+    stopped = a.ended_before_wrong_acks(before)
+    if stopped is not None:
+        return f"{what} had stopped before the wrong ACKs ({stopped})"
+    return None
+
+
+def action_name(action: int | None) -> str:
+    return Action(action).name if action is not None and 0 <= action <= 9 else str(action)
 
 
 def _acked_before(m: Mission, msg: Message, t: float) -> bool:
@@ -187,9 +245,19 @@ def awaiting_until(m: Mission, msg: Message, rto: float, msgs: list[Message] | N
 
 
 def abandoned(m: Mission, rto: float) -> set[int]:
-    """Drones with a command whose retransmission stopped before any ACK of it."""
+    """Drones with a command whose retransmission stopped before any ACK of it; and the first
+    Start_Mission's drone where its copies stopped right after the wrong ACKs, the second
+    observation told nothing (``again_untold``), and the manager sent that drone nothing new
+    after them: a retry limit reached there is one explanation, and under it the drone was
+    given up (the flow rules fail only what every explanation breaks)."""
     msgs = messages(m)
-    return {msg.dst for msg in msgs if msg.dst in m.drones and gave_up(m, msg, rto, msgs)}
+    out = {msg.dst for msg in msgs if msg.dst in m.drones and gave_up(m, msg, rto, msgs)}
+    w = m.withheld
+    if w.drone is not None and w.drone not in out and first_stopped_at_wrong_acks(m) and again_untold(m) is not None:
+        start = next((x for x in msgs if x.dst == w.drone and any(c.index == w.copies[0].index for c in x.copies)), None)
+        if not any(x.dst == w.drone and x is not start and x.first.t > w.wrong_acks[0].t for x in msgs):
+            out.add(w.drone)
+    return out
 
 
 def decode_items(d: Datagram) -> tuple[Any, ...] | None:

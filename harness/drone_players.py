@@ -37,7 +37,7 @@ from typing import Any
 from mcp_conform.harness.driver import Datagram, Exchange, Sent, TargetDriver
 from mcp_conform.harness.session_base import WithheldCopies
 from mcp_conform.spec import SPEC
-from mcp_conform.spec.codec import Action
+from mcp_conform.spec.codec import HEADER_SIZE, Action
 
 __all__ = ["MANAGER_ID", "DronePlayers", "Input", "Mission", "Withheld"]
 
@@ -63,7 +63,8 @@ class Input:
 @dataclass
 class Withheld(WithheldCopies):
     """The first Start_Mission, its ACK withheld (RTX-1/2/3, SEQ-2, BLK-1/3); ``copies`` are
-    those to ``drone`` before the wrong ACKs."""
+    those to ``drone`` before the wrong ACKs. Also MCP-RTX-2's second observation
+    (``Mission.withheld_again``: :meth:`DronePlayers.arm_again`)."""
 
     drone: int | None = None
 
@@ -90,6 +91,13 @@ class Mission:
     ready_unacked: str = ""
     inputs: list[Input] = field(default_factory=list)
     withheld: Withheld = field(default_factory=Withheld)
+    #: MCP-RTX-2's second observation (:meth:`DronePlayers.arm_again`): the next new unicast
+    #: to a drone after the first Start_Mission's wrong ACKs, its ACK withheld, the wrong ACKs
+    #: sent after its second copy (``drone`` None: none was withheld)
+    withheld_again: Withheld = field(default_factory=Withheld)
+    #: its earlier tries, spoiled: the wrong ACKs went out after as many copies as the first
+    #: Start_Mission had (a receiver behind), where a retry limit may end them too
+    again_spoiled: list[Withheld] = field(default_factory=list)
     silent_drone: int | None = None
     silent_from: float | None = None
     #: (drone, seq named) -> the earliest ACK the runner sent of a copy with that seq
@@ -141,6 +149,14 @@ class DronePlayers:
         self.silent: set[int] = set()
         self.acked_actions: dict[int, set[int]] = {d: set() for d in drones}
         self._answered: set[int] = set()  # driver indexes of the copies answered (one ACK each)
+        self.hold_again = False  # MCP-RTX-2's second observation armed (:meth:`arm_again`)
+        self._again_key: tuple[int, int, bytes] | None = None
+        self._again_outsider = 0
+        #: drones named by a wrong-source ACK -> their first command since (None: not yet)
+        self._again_stale: dict[int, tuple[int, int, bytes] | None] = {}
+        self._again_limit = 0  # copies the first observation saw: a spoiled try has as many before them
+        self._again_tries = 0
+        self._again_done: set[tuple[int, int, bytes]] = set()  # the spoiled tries' messages
 
     def reset(self, mission: Mission) -> None:
         with self._lock:
@@ -152,6 +168,8 @@ class DronePlayers:
             self.silent = set()
             self.acked_actions = {d: set() for d in self.drones}
             self._answered = set()
+            self.hold_again = False
+            self._again_key = None
 
     def next_seq(self, drone: int) -> int:
         with self._lock:
@@ -233,9 +251,108 @@ class DronePlayers:
                     self.start_drone = dst
                 if self.start_drone == dst:
                     return
-            if not self._claim(d):
+            again = self._again_step(d, dst, action) if self.hold_again and self.mission is not None else None
+            if again == "held":
+                return
+            if again in (None, "spoiled") and not self._claim(d):
                 if self.mission is not None:
                     self.mission.declined += 1
                 return
             go_silent = action == _START and self.silent_after_start == dst
-        self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action, go_silent=go_silent)
+        if again == "wrong":
+            self._send_wrong_acks(dst, seq)
+        elif again == "after":
+            self.release_again(d)
+        elif again == "spoiled":
+            self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action)
+        else:
+            self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action, go_silent=go_silent)
+
+    # ------------------------------------------------------------ MCP-RTX-2's second observation
+    def arm_again(self, wait: float, outsider: int, stale_src: int, limit: int, tries: int = 3) -> None:
+        """MCP-RTX-2's second observation, for a manager whose first Start_Mission's copies
+        stopped right after the wrong ACKs (taking them, or its retry limit: both stop there).
+        The next new unicast to a drone (not a copy of that Start_Mission) is withheld in
+        ``Mission.withheld_again``; after its second copy the same two wrong ACKs go out (its
+        seq plus 0x8000 from its drone; its seq from another drone, ``outsider`` when there is
+        none); the first copy after them, within ``wait`` s, is answered at once (the right
+        ACK) and proves the manager goes on past a wrong ACK: the first observation proved its
+        limit reaches a third copy. No copy after them: the script's :meth:`release_again`.
+        Not the first command to ``stale_src``, the drone of the first observation's
+        wrong-source ACK (it names the Start_Mission's seq), nor to a try's: a manager that
+        takes any ACK from the destination may take that stale one for it and send it once
+        (the simulator's wrong-seq-ack: RTX-2 skipped, "came once"). A try is spoiled where a
+        copy read after the wrong ACKs had reached the socket before them and makes ``limit``
+        copies (the first observation's) before them (a receiver behind): it is answered, kept
+        in ``Mission.again_spoiled``, and the next new unicast is tried, ``tries`` in all."""
+        with self._lock:
+            if self.mission is None:
+                return
+            self.hold_again = True
+            self._again_key = None
+            self._again_outsider = outsider
+            self._again_stale = {stale_src: None}
+            self._again_limit, self._again_tries, self._again_done = limit, tries, set()
+            self.mission.withheld_again = Withheld(wrong_ack_wait=wait)
+            self.mission.again_spoiled = []
+
+    def _again_step(self, d: Datagram, dst: int, action: int) -> str | None:
+        """(lock held) What becomes of ``d`` while the second observation is armed: None, not
+        its business (answered as usual); "held"; "wrong": its second copy, the wrong ACKs to
+        send; "after": the first copy after them, to answer and release; "spoiled": to answer,
+        the try over (:meth:`arm_again`)."""
+        assert self.mission is not None
+        w = self.mission.withheld_again
+        key = (dst, action, bytes(d.data[HEADER_SIZE:]))
+        if key in self._again_done:
+            return None  # a spoiled try's message: answered as usual
+        if w.drone is None:
+            if action == _START and dst == self.start_drone:
+                return None  # a copy of the first observation's Start_Mission
+            if dst in self._again_stale:
+                if self._again_stale[dst] in (None, key):
+                    self._again_stale[dst] = key  # that command and its copies: answered as usual
+                    return None
+                del self._again_stale[dst]
+            w.drone, self._again_key = dst, key
+        elif key != self._again_key:
+            return None
+        if not w.wrong_acks:  # (this, the receiver thread, sends them before it reads on)
+            w.copies.append(d)
+            return "wrong" if len(w.copies) == 2 else "held"
+        if d.t > w.wrong_acks[0].t:
+            if d.t <= w.wrong_acks[0].t + w.wrong_ack_wait:
+                w.copy_after_wrong_acks = d
+            return "after"
+        w.copies.append(d)  # a copy that reached the socket before them, read late
+        if len(w.copies) < self._again_limit:
+            return "held"
+        self._again_tries -= 1
+        self._again_done.add(key)
+        if self._again_tries > 0:
+            self.mission.again_spoiled.append(w)
+            self.mission.withheld_again = Withheld(wrong_ack_wait=w.wrong_ack_wait)
+            self._again_key = None
+        else:
+            self.hold_again = False  # the last try: kept as it is, the case says why it tells nothing
+        return "spoiled"
+
+    def _send_wrong_acks(self, drone: int, seq: int) -> None:
+        others = [x for x in self.drones if x != drone]
+        wrong = [self.ack(drone, (seq + 0x8000) & 0xFFFF), self.ack(others[0] if others else self._again_outsider, seq)]
+        with self._lock:
+            self._again_stale[wrong[1].src] = None  # for a later try (a spoiled one's)
+            if self.mission is not None:
+                self.mission.withheld_again.wrong_acks = wrong
+
+    def release_again(self, latest: Datagram | None = None) -> None:
+        """The second observation over: its held message's ``latest`` copy (default: the last
+        held) answered with the right ACK, and nothing more is withheld."""
+        with self._lock:
+            if not self.hold_again or self.mission is None:
+                return
+            self.hold_again = False
+            w = self.mission.withheld_again
+            latest = latest or (w.copies[-1] if w.copies else None)
+        if latest is not None:
+            w.right_ack = self.answer(latest)

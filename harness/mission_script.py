@@ -7,7 +7,12 @@ manager``), each recorded in a :class:`harness.drone_players.Mission` the cases 
   5/6, ROB-*, TRN-2, each followed by a liveness probe); then the first Start_Mission's ACK
   is withheld for a few copies (RTX-1/3, SEQ-2, BLK-1/3), a wrong-seq and a wrong-source
   ACK are sent (RTX-2), then the right one; the rest of the mission is ACKed at once and
-  watched to its end (payloads, order, End_Mission last, nothing after it).
+  watched to its end (payloads, order, End_Mission last, nothing after it). Where the first
+  Start_Mission's copies stop right after the wrong ACKs (taking them and a retry limit of 2
+  look alike there), the next new unicast is withheld too, the same wrong ACKs after its
+  second copy (RTX-2's second observation: ``DronePlayers.arm_again``). A quiet manager,
+  alive, with drones still owed their End_Mission is waited for up to the record's cap, not
+  cut short at the idle window (:meth:`MissionScript._owed`).
   When the manager ACKs no Mission_Ready within the startup limit, the other drones
   announce readiness all the same (the last one held back) and whatever the manager then
   does is watched as above: a manager that goes on with the mission without ACKing is
@@ -47,6 +52,13 @@ PER_KIND = 2  # seeded malformed inputs per kind
 _READY = int(Action.MISSION_READY)
 _START = int(Action.START_MISSION)
 _END = int(Action.END_MISSION)
+_ACK = int(Action.ACK)
+
+
+def _what(d: Datagram) -> tuple[int, int, bytes]:
+    """A command's destination, action and payload: what its copies share (whatever their seq)."""
+    assert d.header is not None
+    return d.header[0], d.header[3], d.data[HEADER_SIZE:]
 
 
 class MissionScript:
@@ -384,11 +396,20 @@ class MissionScript:
         seq = last.header[2] if last.header else 0
         others = [d for d in m.drones if d != w.drone]
         wrong_src = others[0] if others else self.outsider()
+        w.wrong_ack_wait = max(2.5 * gap, 0.3) + 0.2
+        # MCP-RTX-2's second observation, armed before the wrong ACKs leave (the next new
+        # unicast may follow them at once), kept only where the first cannot tell (_settle_again)
+        again = len(w.copies) >= MIN_COPIES
+        if again:
+            self.players.arm_again(w.wrong_ack_wait, self.outsider(), wrong_src, len(w.copies))
         w.wrong_acks = [self.players.ack(w.drone, (seq + 0x8000) & 0xFFFF),
                         self.players.ack(wrong_src, seq)]
         after = drv.mark()
-        w.wrong_ack_wait = max(2.5 * gap, 0.3) + 0.2
+        if again and w.ended_before_wrong_acks([d.t for d in w.copies]) is not None:
+            self.players.release_again()  # sent past its copies: neither observation tells (the case says so)
         w.copy_after_wrong_acks = self.wait_for(is_copy, w.wrong_ack_wait, after)
+        if w.copy_after_wrong_acks is not None:
+            self.players.release_again()  # the first observation told: it went on
         latest = [d for d in drv.received(m.start) if is_copy(d)][-1]
         # released and answered in one step: the one ACK of the latest copy, whichever thread
         # runs first, and ``acks`` keeps the earliest (``DronePlayers.answer``)
@@ -407,10 +428,44 @@ class MissionScript:
 
         w.watch_after_right_ack(past_right, gap, self.clock.sleep)
 
+    def _owed(self, expect: tuple[int, ...], rx: list[Datagram]) -> list[int]:
+        """The drones of ``expect`` a quiet manager, alive and mid-mission, may still send
+        commands to: it sent some drone a command, and these have no End_Mission ACKed --
+        MCP-FLOW-3 ("End_Mission is the last command the manager sends each drone") and
+        MCP-FLOW-4/5/6 are not broken by a pause, however long (a waypoint held active longer
+        than the idle window: H-cmanager's ``--hold``), so the record waits for them up to its
+        cap, where a manager that never goes on fails them as before. Not owed: a drone whose
+        last command is a message the runner withheld (its first Start_Mission, RTX-2's second
+        observation) -- the manager gave it up, or would be retransmitting."""
+        m = self.m
+        cmds = [d for d in rx if d.header is not None and d.header[3] != _ACK and d.header[0] in m.drones]
+        if not cmds:
+            return []
+        withheld = {_what(w.copies[0]) for w in (m.withheld, m.withheld_again) if w.copies}
+        last = {_what(d)[0]: _what(d) for d in cmds}
+        return [d for d in expect if _END not in self.players.acked_actions.get(d, set())
+                and last.get(d) not in withheld]
+
+    def _settle_again(self) -> None:
+        """MCP-RTX-2's second observation (``DronePlayers.arm_again``) ended where no copy came
+        in time: its held message answered once what the socket held is read, its next copy
+        overdue -- ``wrong_ack_wait`` after the wrong ACKs, or after its first copy when no
+        second came. (A copy after the wrong ACKs is answered by the drone players at once.)"""
+        a = self.m.withheld_again
+        if not self.players.hold_again or a.drone is None or not a.copies:
+            return
+        due = (a.wrong_acks[0].t if a.wrong_acks else a.copies[0].t) + a.wrong_ack_wait
+        if self.clock.monotonic() <= due:
+            return
+        if self.backlog():
+            self.drain()  # a copy the receiver has not read yet is read first
+        self.players.release_again()
+
     # ------------------------------------------------------------------ the end
     def _await_end(self, expect: tuple[int, ...] | None = None, cap: float | None = None) -> None:
         """Until every drone of ``expect`` had its End_Mission ACKed (then a tail watched for
-        commands after it), the manager exits, stays idle, or the cap is reached."""
+        commands after it), the manager exits, stays idle owing no drone a command
+        (:meth:`_owed`), or the cap is reached."""
         m = self.m
         expect = m.drones if expect is None else expect
         idle = max(2.5 * self.rto, 2 * self.ack_window, 1.0)
@@ -432,13 +487,15 @@ class MissionScript:
             if now - max(last, m.t0) > idle and now < t_cap and self.backlog():
                 self.drain()  # idle as far as the receiver has read: it may be behind
                 continue
-            if now - max(last, m.t0) > idle:
+            if now - max(last, m.t0) > idle and not self._owed(expect, rx):
                 m.ended_by = "idle"
                 break
             if now >= t_cap:
                 m.ended_by = "cap"
                 break
+            self._settle_again()
             self.driver.wait_for(lambda d: False, 0.05, self.driver.mark())
+        self.players.release_again()  # nothing more is withheld once the record ends
         m.end = self.driver.mark()
         m.t_end = self.clock.monotonic()
         m.rx = self.driver.received(m.start, m.end)

@@ -35,13 +35,14 @@ endpoint's one in-flight slot cannot hold) and ``dup-seq-only`` (no rule a clean
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import Any
 
 from mcp_conform.reference_impl._transitions import Input
 from mcp_conform.reference_impl.endpoint import _HEAD
-from mcp_conform.sim.faults import FAULTS, FaultMixin
+from mcp_conform.sim.faults import FAULTS, FaultMixin, GiveUpAfterTwo
 from mcp_conform.sim.models import ManagerModel
 from mcp_conform.spec.codec import PREAMBLE, Action, DecodeError, decode, peek_header
 
@@ -232,6 +233,51 @@ class AfterEnd(ManagerModel):
         return [*super().plan(), (self.drones[0], Action.WP_OFF, None)]
 
 
+class PausesMidMission(ManagerModel):
+    """Correct: quiet for ``HOLD`` s mid-mission, longer than the runner's idle window
+    (``max(2.5 --rto, 2 --ack-window, 1 s)``) -- challenge 2, each waypoint held active that
+    long before its WP_Offs (H-cmanager's C manager's ``--hold``); 1 and 3, a pause before the
+    lists. No rule asks a manager to go on at any pace (MCP-FLOW-3/5)."""
+
+    HOLD = 2.5
+    BEFORE = (int(Action.WP_OFF), int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._wake: float | None = None
+        self._last: int | None = None  # the action of the last command sent
+        self._resumed = False
+        self.pauses = 0  # how many pauses it made (a run that made none proved nothing)
+
+    def _next(self, now: float) -> None:
+        nxt = self._plan[0][1] if self._plan else None
+        if nxt in self.BEFORE and nxt != self._last and not self._resumed:
+            self._wake = now + self.HOLD
+            self.pauses += 1
+            return
+        self._resumed = False
+        super()._next(now)
+        self._last = self._current[1] if self._current is not None else None
+
+    def timer(self) -> float | None:
+        t = super().timer()
+        return self._wake if t is None or (self._wake is not None and self._wake < t) else t
+
+    def on_timer(self, now: float) -> None:
+        if self._wake is not None and now >= self._wake:
+            self._wake, self._resumed = None, True
+            self._next(now)
+        super().on_timer(now)
+
+
+class StallsMidMission(PausesMidMission):
+    """Faulty (MCP-FLOW-3, and the challenge's FLOW-4/5/6): quiet for ever where
+    :class:`PausesMidMission` pauses, alive -- a manager stalled mid-mission. Not in
+    :data:`MANAGER_FAULTS` (it breaks more than one rule): ``tests/sim/test_manager_pause_sim.py``."""
+
+    HOLD = math.inf
+
+
 @dataclass(frozen=True)
 class ManagerFault:
     """A manager fault: the rule it breaks (None: none), the challenge its rule is observed at,
@@ -270,4 +316,8 @@ MANAGER_FAULTS: dict[str, ManagerFault] = {**_from_faults(), **{f.name: f for f 
     ManagerFault("ack-ack", "MCP-ACK-6", 1, endpoint=AckAck, what="ACKs the ACKs addressed to it"),
     # correct managers unlike the reference one: no rule broken
     ManagerFault("acks-copies-late", None, 1, AcksCopiesLate, what="a copy is ACKed again 0.3 s late"),
+    ManagerFault("give-up-after-three", None, 1, endpoint=GiveUpAfterTwo, retries=2,
+                 what="each unicast sent 3 times at most (a retry limit of 2: spec min_copies), then the drone dropped"),
+    ManagerFault("pauses-mid-mission", None, 2, PausesMidMission,
+                 what="quiet 2.5 s mid-mission (a waypoint held active), past the runner's idle window"),
 )}}

@@ -90,6 +90,42 @@ def test_a_wrong_source_ack_taken_by_the_next_unicast_is_rtx_2s_not_blk_1():
     assert [runner_ack_time(m2, x) for x in messages(m2)] == [0.5, None]
 
 
+def _limit_or_taken(second: str) -> Mission:
+    """Drone 1's Start_Mission in 3 copies, the wrong ACKs right after the third, no copy after
+    them, then drone 2's mission; MCP-RTX-2's second observation (``withheld_again``, drone 3's
+    Start_Mission) as ``second`` says: "none" made, "kept" (a copy after its wrong ACKs),
+    "taken" (none after them)."""
+    s1, s2, s3 = (cmd(d, 10 + d, Action.START_MISSION) for d in (1, 2, 3))
+    e2 = cmd(2, 20, Action.END_MISSION)
+    m = mission([s1, s1, s1, s2, s3, s3, *([s3] if second == "kept" else []), e2],
+                [0.0, 0.2, 0.4, 0.6, 0.61, 0.81, *([1.01] if second == "kept" else []), 1.2])
+    m.drones = (1, 2, 3)
+    w = m.withheld
+    w.drone, w.copies, w.wrong_ack_wait = 1, m.rx[:3], 0.7
+    w.wrong_acks = [ack(0.401, 1, (11 + 0x8000) & 0xFFFF, 500), ack(0.4011, 2, 11, 600)]
+    m.acks[(2, 12)] = ack(0.601, 2, 12, 601)
+    m.acks[(2, 20)] = ack(1.201, 2, 20, 602)
+    if second != "none":
+        a = m.withheld_again
+        a.drone, a.copies, a.wrong_ack_wait = 3, m.rx[4:6], 0.7
+        a.wrong_acks = [ack(0.811, 3, (13 + 0x8000) & 0xFFFF, 700), ack(0.8111, 1, 13, 501)]
+        a.copy_after_wrong_acks = m.rx[6] if second == "kept" else None
+    return m
+
+
+def test_a_given_up_start_mission_is_told_by_the_second_observation_not_by_when():
+    """A retry limit of 2 and a manager that takes a wrong ACK both stop the first Start_Mission
+    right after the wrong ACKs. The second observation kept: the wrong ACKs answered nothing,
+    drone 1 was given up (excused from the flow rules); taken: they answered it (drone 1 owed
+    its mission: MCP-FLOW-3's); none made: drone 1, sent nothing after them, is excused (one
+    explanation gives it up) though its Start_Mission's answer stays the wrong ACK (BLK-1/3)."""
+    kept, taken, none = (_limit_or_taken(k) for k in ("kept", "taken", "none"))
+    assert runner_ack_time(kept, messages(kept)[0]) is None  # the wrong ACKs ended nothing
+    assert 1 in abandoned(kept, 0.2)
+    assert runner_ack_time(taken, messages(taken)[0]) == 0.401 and 1 not in abandoned(taken, 0.2)
+    assert runner_ack_time(none, messages(none)[0]) == 0.401 and 1 in abandoned(none, 0.2)
+
+
 def test_a_manager_that_stopped_retransmitting_gave_up():
     start = cmd(1, 10, Action.START_MISSION)
     m = mission([start, start], [0.0, 0.2])

@@ -159,7 +159,9 @@ def test_each_manager_fault_fails_no_other_rule(fault):
 @pytest.mark.parametrize("control", CONTROLS)
 def test_a_correct_manager_unlike_ours_gets_no_verdict(control):
     """give-up-never (retries without limit: a configurable limit), acks-copies-late (a copy
-    ACKed again 0.3 s late, past the 0.2 s --rto), serial and side by side."""
+    ACKed again 0.3 s late, past the 0.2 s --rto), give-up-after-three (a retry limit of 2:
+    tests/sim/test_manager_limit_sim.py), pauses-mid-mission (quiet past the idle window),
+    serial and side by side."""
     for serial in (False, True):
         run = run_manager_cases(control, seed=3, serial=serial, **SHORT)
         _clean(run)
