@@ -48,7 +48,7 @@
 #include <unordered_set>
 #include <vector>
 
-#include "ardupilotmega/mavlink.h"
+#include "mavlink_frame.h"
 
 #if defined(MCP_PIPELINE) && defined(MCP_STOP_AND_WAIT)
 #error "choose one of MCP_PIPELINE and MCP_STOP_AND_WAIT"
@@ -399,26 +399,6 @@ private:
             seq = next_seq_;  // an ACK's own number is not judged (D-5); not consumed
         }
         send_raw(make_message(to, seq, Ack, payload));
-    }
-
-    static bool valid_mavlink_frame(const uint8_t* p, size_t n) {
-        if (n == 0) return false;
-        if (p[0] != MAVLINK_STX_MAVLINK1 && p[0] != MAVLINK_STX) return false;  // v1 or v2 frame
-        mavlink_message_t rx, msg;
-        mavlink_status_t rx_status, status;
-        std::memset(&rx, 0, sizeof rx);
-        std::memset(&rx_status, 0, sizeof rx_status);
-        int frames = 0;
-        for (size_t i = 0; i < n; ++i) {
-            uint8_t r = mavlink_frame_char_buffer(&rx, &rx_status, p[i], &msg, &status);
-            if (r == MAVLINK_FRAMING_OK) {
-                if (++frames > 1 || i + 1 != n) return false;  // exactly one frame, nothing after it
-                if (mavlink_get_msg_entry(msg.msgid) == nullptr) return false;  // not in the dialect
-            } else if (r == MAVLINK_FRAMING_BAD_CRC || r == MAVLINK_FRAMING_BAD_SIGNATURE) {
-                return false;
-            }
-        }
-        return frames == 1;
     }
 
     // Does the payload fit the action code (D-4)?
