@@ -7,7 +7,9 @@ MCP-ROB-*, MCP-FLOW-2..6, MCP-TRN-2) and no violation in the trace monitor; each
 build (``make FAULT=...``) must fail the rule its fault breaks (MCP-RTX-1: never retransmits;
 MCP-ACK-2: ACKs name the seq + 1) and no other MUST rule; the pipelined build (``make
 VARIANT=PIPELINE``, the reading of MCP-BLK-1 the node does not take) must fail MCP-BLK-1 alone.
-Verdicts the suite gets wrong are xfails naming why (strict=False)."""
+Verdicts the suite gets wrong are xfails naming why (strict=False): a wrong-seq ACK read as an
+ACK of an ACK, and the correct node failed with a retry limit of 2, with its lists broadcast
+(``--broadcast-lists``) and with a waypoint held active for 2 s (``--hold 2``)."""
 
 from __future__ import annotations
 
@@ -38,15 +40,19 @@ BUILDS: dict[str, tuple[str, ...]] = {
     "pipeline": ("VARIANT=PIPELINE",),
 }
 
+#: the correct build's options beyond the mission's: a Mav_Passthrough (a MAVLink 2 COMMAND_LONG,
+#: DO_CHANGE_SPEED) to each drone after Start_Mission, so that MCP-PAY-6 is judged
+CORRECT_ARGS = "--speed 5"
+
 #: rules every correct manager run passes, whatever the challenge (the others are skipped as
-#: unobservable on a manager: MCP-SEQ-3, MCP-DUP-*, MCP-RTX-4 and MCP-PAY-6 for a manager that
-#: sends no broadcast and no Mav_Passthrough)
+#: unobservable on a manager: MCP-SEQ-3, MCP-DUP-*, and MCP-RTX-4 for a manager that sends no
+#: broadcast)
 ALWAYS_PASSED = {
     "MCP-HDR-1", "MCP-HDR-2", "MCP-HDR-3", "MCP-HDR-4", "MCP-HDR-5",
     "MCP-ACK-1", "MCP-ACK-2", "MCP-ACK-3", "MCP-ACK-4", "MCP-ACK-5", "MCP-ACK-6", "MCP-ACK-7",
     "MCP-SEQ-1", "MCP-SEQ-2", "MCP-RTX-1", "MCP-RTX-2", "MCP-RTX-3",
     "MCP-BLK-1", "MCP-BLK-2", "MCP-BLK-3", "MCP-BLK-6",
-    "MCP-PAY-1", "MCP-PAY-4", "MCP-PAY-7",
+    "MCP-PAY-1", "MCP-PAY-4", "MCP-PAY-6", "MCP-PAY-7",
     "MCP-ROB-1", "MCP-ROB-2", "MCP-ROB-3", "MCP-ROB-4", "MCP-ROB-5", "MCP-ROB-6", "MCP-ROB-7",
     "MCP-FLOW-2", "MCP-FLOW-3", "MCP-TRN-2",
 }
@@ -116,7 +122,7 @@ def failed_must(doc: dict[str, Any]) -> set[str]:
 @pytest.mark.parametrize("challenge", ["1", "2", "3"])
 def test_the_correct_manager_passes_every_rule_it_can_be_judged_on(
         tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], challenge: str) -> None:
-    doc = run_suite(tmp_path_factory, builds, "ok", challenge)
+    doc = run_suite(tmp_path_factory, builds, "ok", challenge, CORRECT_ARGS)
     assert doc["exit_code"] == 0, doc["output"]
     assert doc["error"] is None, doc["output"]
     bad = {r: o for r, o in doc["rules"].items() if o in ("failed", "warned", "error")}
@@ -151,7 +157,7 @@ def test_a_faulty_manager_fails_its_rule_and_no_other(
     assert others == set(), doc["output"]
 
 
-@pytest.mark.xfail(strict=False, reason=(
+@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
     "suite: a manager whose ACKs name the Mission_Ready's seq + 1 (each ACK 0.2 ms after a "
     "Mission_Ready copy, the same number sent before any datagram carried it) is failed on "
     "MCP-ACK-6 ('ACK of the ACK with seq N+1') once the drone's own ACK took seq N+1: D-9 says "
@@ -159,10 +165,10 @@ def test_a_faulty_manager_fails_its_rule_and_no_other(
 def test_a_wrong_seq_ack_is_not_read_as_an_ack_of_an_ack(
         tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
     doc = run_suite(tmp_path_factory, builds, "ack_wrong_seq", "2")
-    assert doc["rules"]["MCP-ACK-6"] != "failed", doc["output"]
+    assert doc["rules"]["MCP-ACK-6"] != "failed", doc["failures"]
 
 
-@pytest.mark.xfail(strict=False, reason=(
+@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
     "suite: ACK/test_ack_payload_is_the_seq_big_endian is SKIPPED with 'the manager ACKed "
     "nothing' on a manager that sent one ACK per Mission_Ready copy, each naming the wrong seq "
     "(the monitor alone fails MCP-ACK-2)"))
@@ -170,7 +176,7 @@ def test_the_ack_payload_case_fails_a_wrong_seq_ack(
         tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
     doc = run_suite(tmp_path_factory, builds, "ack_wrong_seq", "2")
     case = next(c for c in doc["cases"] if c["id"] == "ACK/test_ack_payload_is_the_seq_big_endian")
-    assert case["outcome"] == "failed", case
+    assert case["outcome"] == "failed", (case["outcome"], case.get("reason", "")[-200:])
 
 
 def test_a_retry_limit_of_2_gives_3_copies(tmp_path_factory: pytest.TempPathFactory,
@@ -181,7 +187,7 @@ def test_a_retry_limit_of_2_gives_3_copies(tmp_path_factory: pytest.TempPathFact
     assert doc["rules"]["MCP-RTX-1"] == "passed", doc["output"]
 
 
-@pytest.mark.xfail(strict=False, reason=(
+@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
     "suite: with --retries 2 (3 copies, 'no violation' by min_copies) the runner sends its wrong "
     "ACKs right after the 3rd copy and the right ACK 0.4 s later, after the node's retry limit "
     "ended the retransmission (rto after the 3rd copy): MCP-RTX-2 fails ('no copy within 0.95 s "
@@ -189,4 +195,31 @@ def test_a_retry_limit_of_2_gives_3_copies(tmp_path_factory: pytest.TempPathFact
 def test_a_retry_limit_of_2_is_no_violation(tmp_path_factory: pytest.TempPathFactory,
                                             builds: dict[str, Path]) -> None:
     doc = run_suite(tmp_path_factory, builds, "ok", "1", "--retries 2")
-    assert failed_must(doc) == set(), doc["output"]
+    assert failed_must(doc) == set(), sorted(failed_must(doc))
+
+
+@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
+    "suite: WP_List and Obstacles_List are 'delivery: any' (docs/spec.md's action table) and "
+    "MCP-FLOW-4/6 ask the waypoints (obstacles) 'as one WP_List (Obstacles_List)'; a manager "
+    "that broadcasts that one list (dst 0xFFFF, once, after every Start_Mission is ACKed) is "
+    "failed 'expected: one WP_LIST to drone 1, actual: 0' (MCP-PAY-3/4, MCP-RTX-4, MCP-ACK-4 "
+    "pass on the same run)"))
+@pytest.mark.parametrize("challenge", ["1", "3"])
+def test_a_broadcast_list_is_one_list(tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path],
+                                      challenge: str) -> None:
+    doc = run_suite(tmp_path_factory, builds, "ok", challenge, "--broadcast-lists")
+    assert doc["rules"]["MCP-RTX-4"] == "passed", doc["output"]
+    assert failed_must(doc) == set(), sorted(failed_must(doc))
+
+
+@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
+    "suite: a challenge-2 manager that keeps each waypoint active 2 s (WP_On, 2 s, WP_Off) is "
+    "failed on MCP-FLOW-3 ('no End_Mission to drone(s) [1, 2, 3] (the mission record ended: "
+    "idle)') and MCP-FLOW-5 ('5 of 6 never sent'): harness/mission_script.py's _await_end stops "
+    "watching after max(2.5 rto, 2 ack-window, 1 s) of silence (1 s here, 12.5 s at the "
+    "protocol's 5 s), and the documents bound no pause between a manager's commands; "
+    "--case-timeout does not lengthen it"))
+def test_a_manager_that_holds_a_waypoint_is_watched_to_its_end(
+        tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
+    doc = run_suite(tmp_path_factory, builds, "ok", "2", "--hold 2")
+    assert failed_must(doc) == set(), sorted(failed_must(doc))

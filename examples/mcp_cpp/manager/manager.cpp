@@ -198,6 +198,9 @@ struct Options {
     double rto = 5.0;
     long retries = 1000;
     uint16_t broadcast_id = 0xFFFF;
+    bool broadcast_lists = false;      // WP_List and Obstacles_List once, to the broadcast ID
+    double hold = 0;                   // challenge 2: seconds a waypoint stays active
+    double speed = -1;                 // >= 0: a Mav_Passthrough DO_CHANGE_SPEED after Start_Mission
     bool verbose = false;
 };
 
@@ -206,7 +209,8 @@ struct Options {
     std::cerr << "usage: " << argv0
               << " [--port N | --bind HOST:PORT] [--send-to HOST:PORT] --drones ID,ID,..."
                  " [--challenge 1|2|3] --waypoints FILE [--obstacles FILE]"
-                 " [--rto SECONDS] [--retries N] [--broadcast-id N] [-v]\n";
+                 " [--rto SECONDS] [--retries N] [--broadcast-id N] [--broadcast-obstacles]"
+                 " [--hold SECONDS] [--speed M/S] [-v]\n";
     std::exit(2);
 }
 
@@ -240,6 +244,9 @@ Options parse_options(int argc, char** argv) {
             else if (a == "--rto") o.rto = std::stod(value(i));
             else if (a == "--retries") o.retries = std::stol(value(i));
             else if (a == "--broadcast-id") o.broadcast_id = static_cast<uint16_t>(std::stoul(value(i), nullptr, 0));
+            else if (a == "--broadcast-lists") o.broadcast_lists = true;
+            else if (a == "--hold") o.hold = std::stod(value(i));
+            else if (a == "--speed") o.speed = std::stod(value(i));
             else if (a == "-v" || a == "--verbose") o.verbose = true;
             else if (a == "-h" || a == "--help") usage(argv[0]);
             else usage(argv[0], "unknown option " + a);
@@ -350,6 +357,14 @@ public:
 
     bool send_unicast(uint16_t drone, uint16_t action, const Bytes& payload) {
         return wait(submit(drone, action, payload));
+    }
+
+    // A broadcast: sent once, never ACKed, never retransmitted (MCP-ACK-4, MCP-RTX-4).
+    void send_broadcast(uint16_t action, const Bytes& payload) {
+        std::lock_guard<std::mutex> lock(mu_);
+        uint16_t seq = next_seq_++;
+        send_raw(make_message(opt_.broadcast_id, seq, action, payload));
+        log("-> %s broadcast seq %u", action_name(action), seq);
     }
 
     void log(const char* fmt, ...) __attribute__((format(printf, 2, 3))) {
@@ -560,26 +575,29 @@ private:
 struct Command {
     uint16_t action;
     Bytes payload;
+    bool broadcast = false;  // once to the broadcast ID instead of to each drone
+    double hold = 0;         // seconds to wait once every drone has it
 };
 
 std::vector<Command> mission_commands(const Options& o, const std::vector<MissionItem>& waypoints,
                                       const std::vector<MissionItem>& obstacles) {
     std::vector<Command> cmds;
+    if (o.speed >= 0) cmds.push_back({MavPassthrough, change_speed_frame(0, static_cast<float>(o.speed))});
     switch (o.challenge) {
         case 1:  // the waypoints as one WP_List (MCP-FLOW-4)
-            cmds.push_back({WpList, item_list_payload(waypoints)});
+            cmds.push_back({WpList, item_list_payload(waypoints), o.broadcast_lists});
             break;
         case 2:  // each waypoint active then inactive: WP_On, WP_Off (MCP-FLOW-5)
             for (const auto& wp : waypoints) {
                 Bytes item;
                 append_item(item, wp);
-                cmds.push_back({WpOn, item});
+                cmds.push_back({WpOn, item, false, o.hold});
                 cmds.push_back({WpOff, {}});
             }
             break;
         case 3:  // the obstacles as one Obstacles_List (MCP-FLOW-6), then the waypoints
-            cmds.push_back({ObstaclesList, item_list_payload(obstacles)});
-            cmds.push_back({WpList, item_list_payload(waypoints)});
+            cmds.push_back({ObstaclesList, item_list_payload(obstacles), o.broadcast_lists});
+            cmds.push_back({WpList, item_list_payload(waypoints), o.broadcast_lists});
             break;
     }
     return cmds;
@@ -604,9 +622,13 @@ int run(const Options& o) {
     }
 #ifdef MCP_PIPELINE
     // every drone's mission messages outstanding at once, each with its own timer
+    // (--hold does not apply: nothing waits between a drone's messages)
     std::map<uint16_t, std::vector<std::pair<uint16_t, uint16_t>>> sent;
+    for (const auto& c : commands)
+        if (c.broadcast) m.send_broadcast(c.action, c.payload);
     for (uint16_t d : live)
-        for (const auto& c : commands) sent[d].push_back(m.submit(d, c.action, c.payload));
+        for (const auto& c : commands)
+            if (!c.broadcast) sent[d].push_back(m.submit(d, c.action, c.payload));
     std::vector<uint16_t> finished;
     for (uint16_t d : live) {
         bool ok = true;
@@ -617,10 +639,15 @@ int run(const Options& o) {
 #else
     // stop-and-wait (MCP-BLK-1): one unicast outstanding at a time
     for (const auto& c : commands) {
-        std::vector<uint16_t> still;
-        for (uint16_t d : live)
-            if (m.send_unicast(d, c.action, c.payload)) still.push_back(d);
-        live = still;
+        if (c.broadcast) {
+            m.send_broadcast(c.action, c.payload);
+        } else {
+            std::vector<uint16_t> still;
+            for (uint16_t d : live)
+                if (m.send_unicast(d, c.action, c.payload)) still.push_back(d);
+            live = still;
+        }
+        if (c.hold > 0) std::this_thread::sleep_for(std::chrono::duration<double>(c.hold));
     }
 #endif
     // End_Mission last (MCP-FLOW-3): no command to a drone after it (MCP-BLK-6)

@@ -23,3 +23,14 @@ bool valid_mavlink_frame(const uint8_t* p, size_t n) {
     }
     return frames == 1;
 }
+
+std::vector<uint8_t> change_speed_frame(uint8_t seq, float speed) {
+    mavlink_message_t msg;
+    mavlink_status_t* status = mavlink_get_channel_status(MAVLINK_COMM_0);
+    status->current_tx_seq = seq;
+    mavlink_msg_command_long_pack_chan(255, 190, MAVLINK_COMM_0, &msg, 0, 0, MAV_CMD_DO_CHANGE_SPEED, 0,
+                                       1 /* ground speed */, speed, -1 /* throttle unchanged */, 0, 0, 0, 0);
+    std::vector<uint8_t> out(MAVLINK_MAX_PACKET_LEN);
+    out.resize(mavlink_msg_to_send_buffer(out.data(), &msg));
+    return out;
+}
