@@ -199,6 +199,7 @@ struct Options {
     long retries = 1000;
     uint16_t broadcast_id = 0xFFFF;
     bool broadcast_lists = false;      // WP_List and Obstacles_List once, to the broadcast ID
+    bool reply_to_source = false;      // unicasts to the address a drone's datagrams came from
     double hold = 0;                   // challenge 2: seconds a waypoint stays active
     double speed = -1;                 // >= 0: a Mav_Passthrough DO_CHANGE_SPEED after Start_Mission
     bool verbose = false;
@@ -210,7 +211,7 @@ struct Options {
               << " [--port N | --bind HOST:PORT] [--send-to HOST:PORT] --drones ID,ID,..."
                  " [--challenge 1|2|3] --waypoints FILE [--obstacles FILE]"
                  " [--rto SECONDS] [--retries N] [--broadcast-id N] [--broadcast-obstacles]"
-                 " [--hold SECONDS] [--speed M/S] [-v]\n";
+                 " [--hold SECONDS] [--speed M/S] [--reply-to-source] [-v]\n";
     std::exit(2);
 }
 
@@ -245,6 +246,7 @@ Options parse_options(int argc, char** argv) {
             else if (a == "--retries") o.retries = std::stol(value(i));
             else if (a == "--broadcast-id") o.broadcast_id = static_cast<uint16_t>(std::stoul(value(i), nullptr, 0));
             else if (a == "--broadcast-lists") o.broadcast_lists = true;
+            else if (a == "--reply-to-source") o.reply_to_source = true;
             else if (a == "--hold") o.hold = std::stod(value(i));
             else if (a == "--speed") o.speed = std::stod(value(i));
             else if (a == "-v" || a == "--verbose") o.verbose = true;
@@ -269,6 +271,7 @@ struct Outstanding {
     uint16_t seq;
     uint16_t action;
     Bytes bytes;
+    sockaddr_in to;
     Clock::time_point deadline;
     long retransmissions = 0;
     enum State { Waiting, Acked, GaveUp } state = Waiting;
@@ -333,7 +336,8 @@ public:
         msg->action = action;
         msg->bytes = make_message(drone, seq, action, payload);
         msg->deadline = Clock::now() + rto_;
-        send_raw(msg->bytes);
+        msg->to = address_of(drone);
+        send_raw(msg->bytes, msg->to);
         log("-> %s to %u seq %u (%zu bytes)", action_name(action), drone, seq, msg->bytes.size());
         auto key = std::make_pair(drone, seq);
         outstanding_[key] = std::move(msg);
@@ -363,7 +367,7 @@ public:
     void send_broadcast(uint16_t action, const Bytes& payload) {
         std::lock_guard<std::mutex> lock(mu_);
         uint16_t seq = next_seq_++;
-        send_raw(make_message(opt_.broadcast_id, seq, action, payload));
+        send_raw(make_message(opt_.broadcast_id, seq, action, payload), peer_);
         log("-> %s broadcast seq %u", action_name(action), seq);
     }
 
@@ -396,12 +400,19 @@ private:
         return a;
     }
 
-    void send_raw(const Bytes& b) {
-        if (::sendto(fd_, b.data(), b.size(), 0, reinterpret_cast<const sockaddr*>(&peer_), sizeof peer_) < 0)
+    // Where a unicast to this drone goes: --send-to (the local broadcast address by default), or
+    // with --reply-to-source the address its last Mission_Ready came from. Called under mu_.
+    sockaddr_in address_of(uint16_t drone) const {
+        auto it = drone_addr_.find(drone);
+        return opt_.reply_to_source && it != drone_addr_.end() ? it->second : peer_;
+    }
+
+    void send_raw(const Bytes& b, const sockaddr_in& to) {
+        if (::sendto(fd_, b.data(), b.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof to) < 0)
             std::perror("manager: sendto");
     }
 
-    void send_ack(uint16_t to, uint16_t acked_seq) {
+    void send_ack(uint16_t to, uint16_t acked_seq, const sockaddr_in& from) {
 #ifdef MCP_FAULT_ACK_WRONG_SEQ
         acked_seq = static_cast<uint16_t>(acked_seq + 1);
 #endif
@@ -413,7 +424,7 @@ private:
             std::lock_guard<std::mutex> lock(mu_);
             seq = next_seq_;  // an ACK's own number is not judged (D-5); not consumed
         }
-        send_raw(make_message(to, seq, Ack, payload));
+        send_raw(make_message(to, seq, Ack, payload), opt_.reply_to_source ? from : peer_);
     }
 
     // Does the payload fit the action code (D-4)?
@@ -462,7 +473,7 @@ private:
                 continue;
             }
             if (stopping_hint()) return;
-            handle(buf.data(), static_cast<size_t>(n));
+            handle(buf.data(), static_cast<size_t>(n), from);
         }
     }
 
@@ -471,7 +482,7 @@ private:
         return stopping_;
     }
 
-    void handle(const uint8_t* data, size_t n) {
+    void handle(const uint8_t* data, size_t n, const sockaddr_in& from) {
         if (n < sizeof(Header)) return;                                   // MCP-ROB-1
         Header h;
         std::memcpy(&h, data, sizeof h);
@@ -503,7 +514,7 @@ private:
             }
             return;
         }
-        if (!broadcast) send_ack(src, seq);                               // MCP-ACK-1, MCP-ACK-4
+        if (!broadcast) send_ack(src, seq, from);                         // MCP-ACK-1, MCP-ACK-4
         // duplicate discard: the last (src, seq) delivered per source (MCP-DUP-1..3)
         std::lock_guard<std::mutex> lock(mu_);
         auto last = last_delivered_.find(src);
@@ -513,6 +524,7 @@ private:
         }
         if (!broadcast) last_delivered_[src] = seq;
         log("<- %s from %u seq %u", action_name(action), src, seq);
+        if (action == MissionReady && drones_.count(src)) drone_addr_[src] = from;
         if (action == MissionReady && drones_.count(src) && !ready_.count(src)) {
             ready_.insert(src);
             done_cv_.notify_all();
@@ -546,7 +558,7 @@ private:
                     done_cv_.notify_all();
                     continue;
                 }
-                send_raw(m.bytes);  // the same bytes, the same seq (MCP-SEQ-2)
+                send_raw(m.bytes, m.to);  // the same bytes, the same seq (MCP-SEQ-2)
                 ++m.retransmissions;
                 m.deadline = Clock::now() + rto_;
                 log("-> %s to %u seq %u (retransmission %ld)", action_name(m.action), m.drone, m.seq, m.retransmissions);
@@ -568,6 +580,7 @@ private:
     std::unordered_map<std::pair<uint16_t, uint16_t>, std::unique_ptr<Outstanding>, KeyHash> outstanding_;
     std::unordered_map<uint16_t, uint16_t> last_delivered_;  // src -> last delivered seq
     std::unordered_set<uint16_t> ready_;
+    std::unordered_map<uint16_t, sockaddr_in> drone_addr_;  // drone -> its last Mission_Ready's source
 };
 
 // ---- the mission ----------------------------------------------------------------------------
