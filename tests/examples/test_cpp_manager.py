@@ -86,7 +86,6 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = once(tmp_path_factory, "cpp_manager", make)
     for path in out.values():
         assert path.is_file(), path
-    assert not (SOURCE / "build").exists(), "generated files must not be in the source tree"
     return out
 
 
