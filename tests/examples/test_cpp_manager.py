@@ -41,8 +41,9 @@ BUILDS: dict[str, tuple[str, ...]] = {
 }
 
 #: the correct build's options beyond the mission's: a Mav_Passthrough (a MAVLink 2 COMMAND_LONG,
-#: DO_CHANGE_SPEED) to each drone after Start_Mission, so that MCP-PAY-6 is judged
-CORRECT_ARGS = "--speed 5"
+#: DO_CHANGE_SPEED) to each drone after Start_Mission, so that MCP-PAY-6 is judged; challenge 2
+#: (the most messages) starts at seq 65533, so that its numbers wrap (MCP-SEQ-1, modulo 65536)
+CORRECT_ARGS = {"1": "--speed 5", "2": "--speed 5 --initial-seq 65533", "3": "--speed 5"}
 
 #: rules every correct manager run passes, whatever the challenge (the others are skipped as
 #: unobservable on a manager: MCP-SEQ-3, MCP-DUP-*, and MCP-RTX-4 for a manager that sends no
@@ -121,7 +122,7 @@ def failed_must(doc: dict[str, Any]) -> set[str]:
 @pytest.mark.parametrize("challenge", ["1", "2", "3"])
 def test_the_correct_manager_passes_every_rule_it_can_be_judged_on(
         tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], challenge: str) -> None:
-    doc = run_suite(tmp_path_factory, builds, "ok", challenge, CORRECT_ARGS)
+    doc = run_suite(tmp_path_factory, builds, "ok", challenge, CORRECT_ARGS[challenge])
     assert doc["exit_code"] == 0, doc["output"]
     assert doc["error"] is None, doc["output"]
     bad = {r: o for r, o in doc["rules"].items() if o in ("failed", "warned", "error")}

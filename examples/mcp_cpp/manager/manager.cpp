@@ -200,6 +200,7 @@ struct Options {
     uint16_t broadcast_id = 0xFFFF;
     bool broadcast_lists = false;      // WP_List and Obstacles_List once, to the broadcast ID
     bool reply_to_source = false;      // unicasts to the address a drone's datagrams came from
+    long initial_seq = -1;             // >= 0: the first sequence number (default: random)
     double hold = 0;                   // challenge 2: seconds a waypoint stays active
     double speed = -1;                 // >= 0: a Mav_Passthrough DO_CHANGE_SPEED after Start_Mission
     bool verbose = false;
@@ -211,7 +212,7 @@ struct Options {
               << " [--port N | --bind HOST:PORT] [--send-to HOST:PORT] --drones ID,ID,..."
                  " [--challenge 1|2|3] --waypoints FILE [--obstacles FILE]"
                  " [--rto SECONDS] [--retries N] [--broadcast-id N] [--broadcast-obstacles]"
-                 " [--hold SECONDS] [--speed M/S] [--reply-to-source] [-v]\n";
+                 " [--hold SECONDS] [--speed M/S] [--reply-to-source] [--initial-seq N] [-v]\n";
     std::exit(2);
 }
 
@@ -247,6 +248,7 @@ Options parse_options(int argc, char** argv) {
             else if (a == "--broadcast-id") o.broadcast_id = static_cast<uint16_t>(std::stoul(value(i), nullptr, 0));
             else if (a == "--broadcast-lists") o.broadcast_lists = true;
             else if (a == "--reply-to-source") o.reply_to_source = true;
+            else if (a == "--initial-seq") o.initial_seq = std::stol(value(i), nullptr, 0) & 0xFFFF;
             else if (a == "--hold") o.hold = std::stod(value(i));
             else if (a == "--speed") o.speed = std::stod(value(i));
             else if (a == "-v" || a == "--verbose") o.verbose = true;
@@ -287,7 +289,7 @@ class Manager {
 public:
     explicit Manager(const Options& o) : opt_(o), drones_(o.drones.begin(), o.drones.end()) {
         std::random_device rd;
-        next_seq_ = static_cast<uint16_t>(rd());  // arbitrary initial sequence number (MCP-SEQ-4)
+        next_seq_ = static_cast<uint16_t>(o.initial_seq >= 0 ? o.initial_seq : rd());  // arbitrary (MCP-SEQ-4)
         fd_ = ::socket(AF_INET, SOCK_DGRAM, 0);
         if (fd_ < 0) throw std::runtime_error(std::string("socket: ") + std::strerror(errno));
         int one = 1;
