@@ -8,7 +8,11 @@ run by ``mcp-conform --spawn`` at short timings (``--rto 0.3 --ack-window 0.3``,
 the same ``--rto``):
 
 - the correct build, with and without the simulated vehicle: exit 0, every rule the role can
-  observe passed (MUST and SHOULD), the rest skipped or INFO, as listed;
+  observe passed (MUST and SHOULD), the rest skipped or INFO, as listed; its worker waits for
+  the take-off to reach its altitude before the next command, kept short here (``--takeoff-alt
+  2``, a fraction of a second in the simulated vehicle);
+- the same node busy longer (``--takeoff-alt 150``, some 7 s of climb): what the suite should
+  still see, and does not (an xfail naming why);
 - each deliberately faulty build (``make FAULT=...``) fails the rule it breaks, named by the
   rule's text, and no other MUST rule.
 """
@@ -72,13 +76,13 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return made
 
 
-def run(tmp_path: Path, binary: Path, mavlink: bool, *args: str) -> tuple[int, dict, str]:
+def run(tmp_path: Path, binary: Path, mavlink: bool, *args: str, takeoff_alt: str = "2") -> tuple[int, dict, str]:
     """``mcp-conform --spawn`` the drone at short timings; (exit code, JSON report, output)."""
     out = tmp_path / "r.json"
     node = f"{binary} --id {{id}} --listen {{target_port}} --manager {{listen_host}}:{{listen_port}} --rto {RTO}"
     extra = ["--mavlink"] if mavlink else []
     if mavlink:
-        node += " --mavlink {mavlink}"
+        node += f" --mavlink {{mavlink}} --takeoff-alt {takeoff_alt}"
     proc = run_module("conformance", ["--spawn", node, *extra, "--rto", RTO, "--ack-window", RTO,
                                       "--json", str(out), *args], timeout=400)
     assert out.exists(), proc.stdout + proc.stderr
@@ -101,6 +105,22 @@ def test_the_correct_drone_passes(builds: dict[str, Path], tmp_path: Path, mavli
     assert rc == 0, out
     assert doc["error"] is None and doc["failures"] == [], out
     assert doc["monitor"]["violations"] == [], out
+
+
+BUSY = "the node's worker still climbing (its take-off, a pending action)"
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    "tool (s33-cppdrone report): a drone whose worker is busy with an earlier command (a take-off "
+    "it waits out) forwards the Mav_Passthrough probes seconds later; the suite skips MCP-DUP-1..4, "
+    "MCP-PAY-8 and MCP-SEQ-3 as 'the node forwarded no Mav_Passthrough frame to its autopilot' though "
+    "it did, and at --rto 0.3 warns MCP-BLK-7 ('no RTL within 3 s of End_Mission') while the node "
+    "finishes the pending take-off, as the rule asks, then commands RTL"))
+def test_a_busy_drone_is_still_observed(builds: dict[str, Path], tmp_path: Path) -> None:
+    rc, doc, out = run(tmp_path, builds["correct"], True, takeoff_alt="150")
+    assert rc == 0 and doc["error"] is None, out
+    unseen = {r for r in drone_rules() - NOT_OBSERVABLE if doc["rules"][r] not in ("passed", "info")}
+    assert unseen == set(), (BUSY, out)
 
 
 def rule_text(rule: str) -> str:

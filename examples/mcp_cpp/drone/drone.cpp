@@ -12,7 +12,7 @@
 //   main     waits for SIGINT/SIGTERM (sigwait) or the end of the mission.
 //
 // Usage: drone --id N --listen [HOST:]PORT --manager HOST:PORT [--mavlink URL] [--rto S]
-//              [--retries N] [--broadcast-id N] [--linger S] [-v]
+//              [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M] [-v]
 //   URL: tcp:HOST:PORT | udp:HOST:PORT | udpin:HOST:PORT (listen) | udpout:HOST:PORT (send)
 
 #include <arpa/inet.h>
@@ -245,13 +245,14 @@ struct Options {
     unsigned retries = 1000;
     uint16_t broadcast_id = 0xFFFF;
     double linger = -1;   // after End_Mission; default 2 x rto, at least 1 s
+    float takeoff_alt = 10;  // metres above home
 };
 
 [[noreturn]] void usage(const char* prog, const std::string& why) {
     if (!why.empty()) std::fprintf(stderr, "%s: %s\n", prog, why.c_str());
     std::fprintf(stderr,
                  "usage: %s --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n"
-                 "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [-v]\n",
+                 "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M] [-v]\n",
                  prog);
     std::exit(2);
 }
@@ -300,6 +301,8 @@ Options parse_options(int argc, char** argv) {
                 o.retries = static_cast<unsigned>(std::stoul(value()));
             } else if (a == "--broadcast-id") {
                 o.broadcast_id = static_cast<uint16_t>(std::stoul(value(), nullptr, 0));
+            } else if (a == "--takeoff-alt") {
+                o.takeoff_alt = std::stof(value());
             } else if (a == "--linger") {
                 o.linger = std::stod(value());
             } else if (a == "-v" || a == "--verbose") {
@@ -804,6 +807,9 @@ private:
                 }
                 break;
             }
+            case MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+                relative_alt_mm_ = mavlink_msg_global_position_int_get_relative_alt(&msg);
+                break;
             case MAVLINK_MSG_ID_GPS_RAW_INT:
                 fix_type_ = mavlink_msg_gps_raw_int_get_fix_type(&msg);
                 break;
@@ -849,6 +855,14 @@ public:
         }
     }
 
+    // Waits until the vehicle is at 95 % of the altitude (m) above home, at most `limit`.
+    bool wait_altitude(float alt, std::chrono::seconds limit) {
+        std::unique_lock<std::mutex> lock(m_);
+        bool reached = cv_.wait_for(lock, limit, [&] { return stopping_ || relative_alt_mm_ >= alt * 950; });
+        if (!stopping_) log("altitude %.1f m%s", relative_alt_mm_ / 1000.0, reached ? "" : " (not reached)");
+        return reached && !stopping_;
+    }
+
     // Waits for the autopilot's first HEARTBEAT; false when stopping.
     bool wait_heartbeat() {
         std::unique_lock<std::mutex> lock(m_);
@@ -869,6 +883,7 @@ private:
     bool want_gps_stream_ = false;
     uint8_t target_sys_ = 1, target_comp_ = 1;
     uint8_t fix_type_ = 0;
+    int32_t relative_alt_mm_ = 0;
     std::map<uint16_t, int> acks_;
     std::optional<std::pair<uint16_t, bool>> requested_;
     std::optional<uint8_t> mission_ack_;
@@ -1016,8 +1031,10 @@ private:
                 started_ = true;
                 if (autopilot_) {
                     if (autopilot_->set_mode(Autopilot::kGuided) == MAV_RESULT_ACCEPTED) mode_ = Autopilot::kGuided;
-                    if (autopilot_->command(MAV_CMD_COMPONENT_ARM_DISARM, 1) == MAV_RESULT_ACCEPTED)
-                        autopilot_->command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 10);
+                    // arm, take off, and wait to be up before anything else
+                    if (autopilot_->command(MAV_CMD_COMPONENT_ARM_DISARM, 1) == MAV_RESULT_ACCEPTED &&
+                        autopilot_->command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, opt_.takeoff_alt) == MAV_RESULT_ACCEPTED)
+                        autopilot_->wait_altitude(opt_.takeoff_alt, 60s);
                 }
                 break;
             case Action::WpList: {
