@@ -12,7 +12,9 @@
 //   main     waits for SIGINT/SIGTERM (sigwait) or the end of the mission.
 //
 // Usage: drone --id N --listen [HOST:]PORT --manager HOST:PORT [--mavlink URL] [--rto S]
-//              [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M] [-v]
+//              [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]
+//              [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]
+//              [--first-seq N] [--pending-limit S] [-v]
 //   URL: tcp:HOST:PORT | udp:HOST:PORT | udpin:HOST:PORT (listen) | udpout:HOST:PORT (send)
 
 #include <arpa/inet.h>
@@ -246,13 +248,22 @@ struct Options {
     uint16_t broadcast_id = 0xFFFF;
     double linger = -1;   // after End_Mission; default 2 x rto, at least 1 s
     float takeoff_alt = 10;  // metres above home
+    // readings the documents leave open (README): the ACK's own seq, Mission_Ready's payload,
+    // where an ACK goes
+    enum class AckSeq { Next, Zero, Echo } ack_seq = AckSeq::Next;
+    bool ready_with_id = false;
+    bool reply_to_source = false;
+    int pending_limit = 120;  // s: the longest End_Mission waits for the mission to end
+    std::optional<uint16_t> first_seq;  // default: random ("an arbitrary initial sequence number")
 };
 
 [[noreturn]] void usage(const char* prog, const std::string& why) {
     if (!why.empty()) std::fprintf(stderr, "%s: %s\n", prog, why.c_str());
     std::fprintf(stderr,
                  "usage: %s --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n"
-                 "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M] [-v]\n",
+                 "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]\n"
+                 "          [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]\n"
+                 "          [--first-seq N] [--pending-limit S] [-v]\n",
                  prog);
     std::exit(2);
 }
@@ -301,6 +312,22 @@ Options parse_options(int argc, char** argv) {
                 o.retries = static_cast<unsigned>(std::stoul(value()));
             } else if (a == "--broadcast-id") {
                 o.broadcast_id = static_cast<uint16_t>(std::stoul(value(), nullptr, 0));
+            } else if (a == "--ack-seq") {
+                std::string v = value();
+                if (v == "next") o.ack_seq = Options::AckSeq::Next;
+                else if (v == "zero") o.ack_seq = Options::AckSeq::Zero;
+                else if (v == "echo") o.ack_seq = Options::AckSeq::Echo;
+                else usage(argv[0], "--ack-seq is next, zero or echo");
+            } else if (a == "--ready-payload") {
+                std::string v = value();
+                if (v != "none" && v != "id") usage(argv[0], "--ready-payload is none or id");
+                o.ready_with_id = v == "id";
+            } else if (a == "--pending-limit") {
+                o.pending_limit = std::stoi(value());
+            } else if (a == "--first-seq") {
+                o.first_seq = static_cast<uint16_t>(std::stoul(value(), nullptr, 0));
+            } else if (a == "--reply-to-source") {
+                o.reply_to_source = true;
             } else if (a == "--takeoff-alt") {
                 o.takeoff_alt = std::stof(value());
             } else if (a == "--linger") {
@@ -357,7 +384,7 @@ public:
                                      std::strerror(errno));
         manager_ = resolve(o.manager_host, o.manager_port);
         std::random_device rd;  // "starts with an arbitrary initial sequence number value"
-        next_seq_ = static_cast<uint16_t>(rd());
+        next_seq_ = o.first_seq ? *o.first_seq : static_cast<uint16_t>(rd());
         timer_ = std::thread([this] { timer_loop(); });
     }
 
@@ -382,13 +409,14 @@ public:
     // Every send takes the next number ("increments it for successive messages"); ACKs too.
     uint16_t take_seq() { return next_seq_.fetch_add(1); }
 
-    void send_raw(const std::vector<uint8_t>& bytes) {
-        ssize_t n = ::sendto(fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(&manager_),
-                             sizeof manager_);
+    void send_raw(const std::vector<uint8_t>& bytes, const sockaddr_in* to = nullptr) {
+        if (to == nullptr) to = &manager_;
+        ssize_t n = ::sendto(fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(to), sizeof *to);
         if (n < 0) log("sendto: %s", std::strerror(errno));
     }
 
-    void send_ack(const mcp::Message& m) {
+    // `from`: where the message came from; the ACK goes there with --reply-to-source
+    void send_ack(const mcp::Message& m, const sockaddr_in& from) {
         uint16_t acked = m.seq;
 #ifdef FAULT_ACK_LE
         std::vector<uint8_t> payload{static_cast<uint8_t>(acked & 0xFF), static_cast<uint8_t>(acked >> 8)};
@@ -397,7 +425,9 @@ public:
         std::vector<uint8_t> payload(2);
         std::memcpy(payload.data(), &be, 2);
 #endif
-        send_raw(mcp::encode(m.src, opt_.id, take_seq(), mcp::Action::Ack, payload));
+        uint16_t own = opt_.ack_seq == Options::AckSeq::Next ? take_seq()
+                       : opt_.ack_seq == Options::AckSeq::Echo ? acked : 0;  // D-5: ACKs may take no number
+        send_raw(mcp::encode(m.src, opt_.id, own, mcp::Action::Ack, payload), opt_.reply_to_source ? &from : nullptr);
         if (g_verbose) log("ACK seq %u of %s to %u", acked, mcp::name(m.action), m.src);
     }
 
@@ -825,6 +855,10 @@ private:
             case MAVLINK_MSG_ID_MISSION_ACK:
                 mission_ack_ = mavlink_msg_mission_ack_get_type(&msg);
                 break;
+            case MAVLINK_MSG_ID_MISSION_ITEM_REACHED:
+                reached_ = mavlink_msg_mission_item_reached_get_seq(&msg);
+                log("autopilot: mission item %u reached", *reached_);
+                break;
             case MAVLINK_MSG_ID_STATUSTEXT: {
                 char text[51] = {0};
                 mavlink_msg_statustext_get_text(&msg, text);
@@ -863,6 +897,18 @@ public:
         return reached && !stopping_;
     }
 
+    // Waits until the mission item `last` is reached, at most `limit`; false if not.
+    bool wait_mission_done(uint16_t last, std::chrono::seconds limit) {
+        std::unique_lock<std::mutex> lock(m_);
+        bool done = cv_.wait_for(lock, limit, [&] { return stopping_ || (reached_ && *reached_ >= last); });
+        return done && !stopping_;
+    }
+
+    void forget_progress() {
+        std::lock_guard<std::mutex> lock(m_);
+        reached_.reset();
+    }
+
     // Waits for the autopilot's first HEARTBEAT; false when stopping.
     bool wait_heartbeat() {
         std::unique_lock<std::mutex> lock(m_);
@@ -887,6 +933,7 @@ private:
     std::map<uint16_t, int> acks_;
     std::optional<std::pair<uint16_t, bool>> requested_;
     std::optional<uint8_t> mission_ack_;
+    std::optional<uint16_t> reached_;  // the last MISSION_ITEM_REACHED
     std::thread reader_, heartbeat_;
 };
 
@@ -972,9 +1019,9 @@ private:
             duplicate = false;
 #endif
 #ifdef ACK_AFTER_DELIVERY
-            if (unicast && duplicate) mcp_.send_ack(*m);  // the original's ACK is the worker's
+            if (unicast && duplicate) mcp_.send_ack(*m, from);  // the original's ACK is the worker's
 #else
-            if (unicast) mcp_.send_ack(*m);  // "for every unicast message received"
+            if (unicast) mcp_.send_ack(*m, from);  // "for every unicast message received"
 #endif
             if (duplicate) {
                 if (g_verbose) log("duplicate %s seq %u from %u: ACKed, not delivered", mcp::name(m->action), m->seq,
@@ -984,13 +1031,14 @@ private:
             last_delivered_[m->src] = m->seq;
             log("received %s seq %u from %u (%s, %zu payload bytes)", mcp::name(m->action), m->seq, m->src,
                 unicast ? "unicast" : "broadcast", m->payload.size());
-            commands_.push(Command{std::move(*m), unicast});
+            commands_.push(Command{std::move(*m), unicast, from});
         }
     }
 
     struct Command {
         mcp::Message msg;
         bool unicast;
+        sockaddr_in from;
     };
 
     void work_loop() {
@@ -1000,7 +1048,9 @@ private:
             // "verify GPS lock and other similar ready-to-fly capabilities before sending this message"
             if (!autopilot_->wait_ready()) return;
         }
-        if (!mcp_.send_unicast(mcp::Action::MissionReady, {}, mcp::kManagerId)) {
+        std::vector<uint8_t> ready;  // empty, as the document's drone sends it, or our ID (D-3)
+        if (opt_.ready_with_id) ready = {static_cast<uint8_t>(opt_.id >> 8), static_cast<uint8_t>(opt_.id & 0xFF)};
+        if (!mcp_.send_unicast(mcp::Action::MissionReady, ready, mcp::kManagerId)) {
             if (!stopping_) {
                 log("Mission_Ready was never ACKed");
                 finish(1);
@@ -1011,7 +1061,7 @@ private:
         while (auto cmd = commands_.pop()) {
             carry_out(cmd->msg);
 #ifdef ACK_AFTER_DELIVERY
-            if (cmd->unicast) mcp_.send_ack(cmd->msg);
+            if (cmd->unicast) mcp_.send_ack(cmd->msg, cmd->from);
 #endif
             if (cmd->msg.action == mcp::Action::EndMission) {
                 log("mission ended; ACKing repeats for %.1f s", opt_.linger);
@@ -1040,9 +1090,11 @@ private:
             case Action::WpList: {
                 auto wps = mcp::items(m);
                 log("WP_List: %zu waypoints", wps.size());
-                if (autopilot_ && !wps.empty() && autopilot_->upload_mission(wps) && started_ &&
-                    autopilot_->set_mode(Autopilot::kAuto) == MAV_RESULT_ACCEPTED)
-                    mode_ = Autopilot::kAuto;
+                if (autopilot_ && !wps.empty() && autopilot_->upload_mission(wps)) {
+                    mission_items_ = wps.size();
+                    autopilot_->forget_progress();
+                    if (started_ && autopilot_->set_mode(Autopilot::kAuto) == MAV_RESULT_ACCEPTED) mode_ = Autopilot::kAuto;
+                }
                 break;
             }
             case Action::WpOn: {
@@ -1066,8 +1118,18 @@ private:
                 if (autopilot_) autopilot_->send_raw(m.payload);
                 break;
             case Action::EndMission:
-                // pending actions are the commands queued before this one, already carried out
-                if (autopilot_) autopilot_->command(MAV_CMD_NAV_RETURN_TO_LAUNCH);
+                // "complete carrying out all currently pending actions (from previously received
+                // commands), then execute an RTL": the commands queued before this one are done;
+                // a mission flying in AUTO is flown to its last item first
+                if (autopilot_) {
+                    if (mode_ == Autopilot::kAuto && mission_items_ > 1) {
+                        log("End_Mission: flying the mission to its last item before RTL");
+                        if (!autopilot_->wait_mission_done(static_cast<uint16_t>(mission_items_ - 1),
+                                                           std::chrono::seconds(opt_.pending_limit)))
+                            log("End_Mission: the mission did not end within %d s", opt_.pending_limit);
+                    }
+                    autopilot_->command(MAV_CMD_NAV_RETURN_TO_LAUNCH);
+                }
                 break;
             case Action::MissionReady:
             case Action::Ack:
@@ -1083,6 +1145,7 @@ private:
     std::vector<mcp::MissionItem> obstacles_;
     bool started_ = false;   // the worker's
     uint32_t mode_ = 0;      // the flight mode last set (the worker's)
+    size_t mission_items_ = 0;  // of the mission last uploaded (the worker's)
     std::atomic<bool> stopping_{false};
     std::thread receiver_, worker_;
     std::mutex done_m_;
