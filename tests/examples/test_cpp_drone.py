@@ -124,7 +124,8 @@ BUSY = "the node's worker still climbing (its take-off, a pending action)"
     "tool (s33-cppdrone report): a drone whose worker is busy with an earlier command (a take-off "
     "it waits out) forwards the Mav_Passthrough probes seconds later; the suite skips MCP-DUP-1..4, "
     "MCP-PAY-8 and MCP-SEQ-3 as 'the node forwarded no Mav_Passthrough frame to its autopilot' though "
-    "it did, and at --rto 0.3 warns MCP-BLK-7 ('no RTL within 3 s of End_Mission') while the node "
+    "it did (at the 5 s defaults DUP-1's own probe reached the vehicle 0.11 s before the case ended "
+    "so), and at --rto 0.3 warns MCP-BLK-7 ('no RTL within 3 s of End_Mission') while the node "
     "finishes the pending take-off, as the rule asks, then commands RTL"))
 def test_a_busy_drone_is_still_observed(builds: dict[str, Path], tmp_path: Path) -> None:
     rc, doc, out = run(tmp_path, builds["correct"], True, takeoff_alt="150")

@@ -1046,7 +1046,9 @@ private:
             if (!autopilot_->wait_heartbeat()) return;
             autopilot_->request_gps_stream();
             // "verify GPS lock and other similar ready-to-fly capabilities before sending this message"
+#ifndef FAULT_NO_FIX_WAIT
             if (!autopilot_->wait_ready()) return;
+#endif
         }
         std::vector<uint8_t> ready;  // empty, as the document's drone sends it, or our ID (D-3)
         if (opt_.ready_with_id) ready = {static_cast<uint8_t>(opt_.id >> 8), static_cast<uint8_t>(opt_.id & 0xFF)};
