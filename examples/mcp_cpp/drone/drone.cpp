@@ -14,7 +14,7 @@
 // Usage: drone --id N --listen [HOST:]PORT --manager HOST:PORT [--mavlink URL] [--rto S]
 //              [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]
 //              [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]
-//              [--first-seq N] [--pending-limit S] [-v]
+//              [--first-seq N] [--pending-limit S] [--missions N] [-v]
 //   URL: tcp:HOST:PORT | udp:HOST:PORT | udpin:HOST:PORT (listen) | udpout:HOST:PORT (send)
 
 #include <arpa/inet.h>
@@ -253,6 +253,7 @@ struct Options {
     enum class AckSeq { Next, Zero, Echo } ack_seq = AckSeq::Next;
     bool ready_with_id = false;
     bool reply_to_source = false;
+    unsigned missions = 1;  // missions to fly, each announced by a Mission_Ready; 0: no end
     int pending_limit = 120;  // s: the longest End_Mission waits for the mission to end
     std::optional<uint16_t> first_seq;  // default: random ("an arbitrary initial sequence number")
 };
@@ -263,7 +264,7 @@ struct Options {
                  "usage: %s --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n"
                  "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]\n"
                  "          [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]\n"
-                 "          [--first-seq N] [--pending-limit S] [-v]\n",
+                 "          [--first-seq N] [--pending-limit S] [--missions N] [-v]\n",
                  prog);
     std::exit(2);
 }
@@ -322,6 +323,8 @@ Options parse_options(int argc, char** argv) {
                 std::string v = value();
                 if (v != "none" && v != "id") usage(argv[0], "--ready-payload is none or id");
                 o.ready_with_id = v == "id";
+            } else if (a == "--missions") {
+                o.missions = static_cast<unsigned>(std::stoul(value()));
             } else if (a == "--pending-limit") {
                 o.pending_limit = std::stoi(value());
             } else if (a == "--first-seq") {
@@ -1052,28 +1055,36 @@ private:
         }
         std::vector<uint8_t> ready;  // empty, as the document's drone sends it, or our ID (D-3)
         if (opt_.ready_with_id) ready = {static_cast<uint8_t>(opt_.id >> 8), static_cast<uint8_t>(opt_.id & 0xFF)};
-        if (!mcp_.send_unicast(mcp::Action::MissionReady, ready, mcp::kManagerId)) {
-            if (!stopping_) {
-                log("Mission_Ready was never ACKed");
-                finish(1);
+        for (unsigned mission = 1;; ++mission) {
+            if (!mcp_.send_unicast(mcp::Action::MissionReady, ready, mcp::kManagerId)) {
+                if (!stopping_) {
+                    log("Mission_Ready was never ACKed");
+                    finish(1);
+                }
+                return;
             }
-            return;
+            log("Mission_Ready ACKed: mission %u may start", mission);
+            if (!run_mission()) return;  // stopping
+            if (opt_.missions != 0 && mission >= opt_.missions) break;
+            started_ = false;  // ready for the next one (--missions): announce again
         }
-        log("Mission_Ready ACKed: the mission may start");
+        log("mission ended; ACKing repeats for %.1f s", opt_.linger);
+        std::unique_lock<std::mutex> lock(done_m_);
+        done_cv_.wait_for(lock, std::chrono::duration<double>(opt_.linger), [&] { return done_; });
+        lock.unlock();
+        finish(0);
+    }
+
+    // Carries out the queued commands until End_Mission (true) or the program stops (false).
+    bool run_mission() {
         while (auto cmd = commands_.pop()) {
             carry_out(cmd->msg);
 #ifdef ACK_AFTER_DELIVERY
             if (cmd->unicast) mcp_.send_ack(cmd->msg, cmd->from);
 #endif
-            if (cmd->msg.action == mcp::Action::EndMission) {
-                log("mission ended; ACKing repeats for %.1f s", opt_.linger);
-                std::unique_lock<std::mutex> lock(done_m_);
-                done_cv_.wait_for(lock, std::chrono::duration<double>(opt_.linger), [&] { return done_; });
-                lock.unlock();
-                finish(0);
-                return;
-            }
+            if (cmd->msg.action == mcp::Action::EndMission) return true;
         }
+        return false;
     }
 
     void carry_out(const mcp::Message& m) {
