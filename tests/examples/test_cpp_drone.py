@@ -101,8 +101,9 @@ def drone_rules() -> set[str]:
 
 #: the readings the documents leave open that the node takes by default, the other way (README):
 #: an ACK's own seq the acknowledged one (D-5), Mission_Ready with the drone's ID (D-3), ACKs to
-#: the datagram's source address (MCP-TRN-2), a first seq about to wrap (MCP-SEQ-4)
-OTHER_READINGS = "--ack-seq echo --ready-payload id --reply-to-source --first-seq 65535"
+#: the datagram's source address (MCP-TRN-2), sent from a socket of their own (an ephemeral port),
+#: a first seq about to wrap (MCP-SEQ-4)
+OTHER_READINGS = "--ack-seq echo --ready-payload id --reply-to-source --send-socket --first-seq 65535"
 
 
 @pytest.mark.parametrize(("mavlink", "node_args"), [(False, ""), (True, ""), (True, OTHER_READINGS)],

@@ -13,7 +13,7 @@
 //
 // Usage: drone --id N --listen [HOST:]PORT --manager HOST:PORT [--mavlink URL] [--rto S]
 //              [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]
-//              [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]
+//              [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source] [--send-socket]
 //              [--first-seq N] [--pending-limit S] [--missions N] [-v]
 //   URL: tcp:HOST:PORT | udp:HOST:PORT | udpin:HOST:PORT (listen) | udpout:HOST:PORT (send)
 
@@ -253,6 +253,7 @@ struct Options {
     enum class AckSeq { Next, Zero, Echo } ack_seq = AckSeq::Next;
     bool ready_with_id = false;
     bool reply_to_source = false;
+    bool send_socket = false;  // send from a socket of its own (an ephemeral port)
     unsigned missions = 1;  // missions to fly, each announced by a Mission_Ready; 0: no end
     int pending_limit = 120;  // s: the longest End_Mission waits for the mission to end
     std::optional<uint16_t> first_seq;  // default: random ("an arbitrary initial sequence number")
@@ -263,7 +264,7 @@ struct Options {
     std::fprintf(stderr,
                  "usage: %s --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n"
                  "          [--rto SECONDS] [--retries N] [--broadcast-id N] [--linger S] [--takeoff-alt M]\n"
-                 "          [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source]\n"
+                 "          [--ack-seq next|zero|echo] [--ready-payload none|id] [--reply-to-source] [--send-socket]\n"
                  "          [--first-seq N] [--pending-limit S] [--missions N] [-v]\n",
                  prog);
     std::exit(2);
@@ -329,6 +330,8 @@ Options parse_options(int argc, char** argv) {
                 o.pending_limit = std::stoi(value());
             } else if (a == "--first-seq") {
                 o.first_seq = static_cast<uint16_t>(std::stoul(value(), nullptr, 0));
+            } else if (a == "--send-socket") {
+                o.send_socket = true;
             } else if (a == "--reply-to-source") {
                 o.reply_to_source = true;
             } else if (a == "--takeoff-alt") {
@@ -386,6 +389,12 @@ public:
             throw std::runtime_error("bind " + o.listen_host + ":" + std::to_string(o.listen_port) + ": " +
                                      std::strerror(errno));
         manager_ = resolve(o.manager_host, o.manager_port);
+        send_fd_ = fd_;
+        if (o.send_socket) {  // a socket of its own for sending, on an ephemeral port
+            send_fd_ = ::socket(AF_INET, SOCK_DGRAM, 0);
+            if (send_fd_ < 0) throw std::runtime_error(std::string("socket: ") + std::strerror(errno));
+            ::setsockopt(send_fd_, SOL_SOCKET, SO_BROADCAST, &one, sizeof one);
+        }
         std::random_device rd;  // "starts with an arbitrary initial sequence number value"
         next_seq_ = o.first_seq ? *o.first_seq : static_cast<uint16_t>(rd());
         timer_ = std::thread([this] { timer_loop(); });
@@ -394,6 +403,7 @@ public:
     ~McpEndpoint() {
         stop();
         if (timer_.joinable()) timer_.join();
+        if (send_fd_ != fd_) ::close(send_fd_);
         ::close(fd_);
     }
 
@@ -414,7 +424,7 @@ public:
 
     void send_raw(const std::vector<uint8_t>& bytes, const sockaddr_in* to = nullptr) {
         if (to == nullptr) to = &manager_;
-        ssize_t n = ::sendto(fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(to), sizeof *to);
+        ssize_t n = ::sendto(send_fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(to), sizeof *to);
         if (n < 0) log("sendto: %s", std::strerror(errno));
     }
 
@@ -510,6 +520,7 @@ private:
 
     const Options& opt_;
     int fd_ = -1;
+    int send_fd_ = -1;  // fd_, or with --send-socket a socket of its own
     sockaddr_in manager_{};
     std::atomic<uint16_t> next_seq_{0};
     std::mutex unicast_mutex_;  // stop-and-wait: one unicast message in flight
