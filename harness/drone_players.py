@@ -113,6 +113,7 @@ class Mission:
     monitor: list[Any] = field(default_factory=list)  # the trace monitor's violations of the manager
     monitor_trace: list[str] = field(default_factory=list)  # the trace as fed to it
     notes: list[str] = field(default_factory=list)
+    _memo: Any = field(default=None, repr=False, compare=False)
 
     def from_manager(self) -> list[Datagram]:
         """The manager's datagrams in arrival order: everything the runner received during
@@ -121,10 +122,25 @@ class Mission:
 
     def commands(self) -> list[Datagram]:
         """The manager's non-ACK datagrams with a readable header (copies included)."""
-        return [d for d in self.from_manager() if d.header is not None and d.header[3] != _ACK]
+        return list(self._commands()[0])
 
     def to_drone(self, drone: int) -> list[Datagram]:
-        return [d for d in self.commands() if d.header is not None and d.header[0] == drone]
+        """The manager's commands to ``drone`` (copies included), in arrival order."""
+        return list(self._commands()[1].get(drone, ()))
+
+    def _commands(self) -> tuple[list[Datagram], dict[int, list[Datagram]]]:
+        """``commands`` and ``to_drone``'s lists, made once for what ``rx`` holds (it is only
+        appended to, or replaced whole): the cases ask them for every message of the mission
+        (``conformance.manager_case.runner_ack_time``), and rebuilding them each time made a
+        150-waypoint mission's cases quadratic in its datagrams."""
+        rx, n = self.rx, len(self.rx)
+        if self._memo is None or self._memo[0] is not rx or self._memo[1] != n:
+            cmds = [d for d in rx[:n] if d.header is not None and d.header[3] != _ACK]
+            by: dict[int, list[Datagram]] = {}
+            for d in cmds:
+                by.setdefault(d.header[0], []).append(d)  # type: ignore[index]
+            self._memo = (rx, n, cmds, by)
+        return self._memo[2], self._memo[3]
 
     def ack_latencies(self) -> list[float]:
         out = [ex.latency() for ex in self.ready.values()]
