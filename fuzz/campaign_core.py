@@ -178,7 +178,8 @@ class ProtocolCampaign:
                 error: str | None, *, interrupted: bool = False, node_lost: bool = False) -> dict[str, Any]:
         """``summary.json``: the keys every protocol's has (``fuzz.loop.common_summary``), where
         the time went (fuzzing, restarts; ``--duration`` and triage's share of it), the kinds x
-        messages sent, the findings by class (their oracle), the hits counted and not triaged,
+        messages sent (every case under its kind), the cases of each engine that had its turn
+        (``both``'s stateless turn spent starting a starved backend: 0), the findings by class (their oracle), the hits counted and not triaged,
         each worker's figures under ``--jobs``; then the protocol's own (:meth:`own_summary`)."""
         by_class: dict[str, int] = {}
         for f in store.order:
@@ -187,7 +188,9 @@ class ProtocolCampaign:
              "elapsed_s": round(elapsed, 2), "fuzz_s": round(max((r.fuzz_seconds for r in results), default=0.0), 2),
              "restart_s": round(sum(r.restart_seconds for r in results), 2),
              "by_kind": sum_tables({"": r.by_mutator} for r in results).get("", {}),
-             "tried": sum_tables(r.tried for r in results), "findings_by_rule": store.by_rule(),
+             "tried": sum_tables(r.tried for r in results),
+             "cases_by_engine": sum_tables({"": {n: e["cases"] for n, e in r.engines.items()}} for r in results).get("", {}),
+             "findings_by_rule": store.by_rule(),
              "findings_by_class": by_class,
              "untriaged": sum_tables({"": r.untriaged} for r in results).get("", {}),
              "duration_s": cfg.duration_limit, "triage_share_max": TRIAGE_SHARE, "node_lost": node_lost,

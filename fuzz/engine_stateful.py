@@ -49,7 +49,7 @@ from mcp_conform.fuzz.oracles import (
 )
 from mcp_conform.fuzz.programs import Move, ProgramGenerator, dumps, loads, program_text
 from mcp_conform.fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
-from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED
+from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED, NEW_TURN
 from mcp_conform.fuzz.triage import Triage
 from mcp_conform.spec.codec import Action, Message, encode
 from mcp_conform.spec.generators import random_malformed, random_message
@@ -210,6 +210,13 @@ class StatefulEngine:
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         st = self.stats
         self._over = lambda: st.spent(deadline, max_cases, stop)
+        if self.cfg.engine == "both":
+            # the stateless turn's cases went to this node, and the ledger knows none of them:
+            # a header field at a boundary (seq 0xFFFF from our own src) left a seq-no-wrap
+            # node taking every later message of ours for a duplicate, each program's
+            # under-delivery a flaw no fresh node reproduced (2-9 thousand cases of unconfirmed
+            # flaws before the wrap was found; MCP-DUP-1's premise is what the node was sent)
+            self.target.restart(NEW_TURN)
         saved = self._saved_programs()
         reuse_only = bool(self.cfg.extra.get("reuse_only"))
         last_tick = 0.0

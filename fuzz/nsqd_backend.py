@@ -404,9 +404,10 @@ class Backend(ProcessTarget):
             return self.death_hit(0.3) or Hit(Signature("hang", "UPDATE stream stopped", (), "NSQD-MSG-1"),
                                               f"no UPDATE within {window:g} s of the command")
         seen = sorted({NSQD.state_name(u.values["state"]) for u in ups})  # type: ignore[index]
-        return Hit(Signature("effect", case.msg or case.note, (), "NSQD-MSG-3"),
-                   f"{case.note}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in case.expect)} expected, "
-                   f"saw {', '.join(seen) or 'no UPDATE'}")
+        # a death first (Player._judge too): a backend that read the command late may have sent an UPDATE
+        return self.death_hit(0.03 if conn.closed_at is not None else 0.0) or Hit(Signature("effect", case.msg or case.note, (), "NSQD-MSG-3"),
+            f"{case.note}: UPDATE.state {' or '.join(NSQD.state_name(s) for s in case.expect)} expected, "
+            f"saw {', '.join(seen) or 'no UPDATE'}")
 
     def probe(self) -> Hit | None:
         """A command on the current connection (a new one if the backend closed it, unless it

@@ -31,7 +31,7 @@ from mcp_conform.fuzz.nsqd_mutators import Write, draw_case
 from mcp_conform.fuzz.nsqd_player import CLIENT_MSGS, COMMANDS, Hit, Op, Player, command_bytes
 from mcp_conform.spec import NSQD
 
-__all__ = ["DB_KEY", "StreamProgramGenerator", "StreamStatefulEngine", "dumps", "loads"]
+__all__ = ["DB_KEY", "StreamProgramGenerator", "StreamStatefulEngine", "dumps", "loads", "tried_kind"]
 
 DB_KEY = b"mcp-fuzz/nsqd/stateful-programs"
 STEPS = 20  # ops per program at most (the ops a cut brings along excluded)
@@ -112,6 +112,17 @@ def loads(data: bytes) -> list[Op] | None:
         return None
 
 
+def tried_kind(op: Op) -> str:
+    """An op's row of ``summary.json``'s ``tried`` (and the live table): a mutated case's kind,
+    ``valid`` for a command, ``connect`` or ``close`` for an op that sends no bytes (its one
+    count under ``-``, no message id: ``message_names``). Every op played is a case
+    (``EngineStats.cases``), so every one is in the table: a campaign starved of CPU, its
+    stateless turn spent starting the backend, ran 256 ops of which the table held 198."""
+    if op.what == "cmd":
+        return "valid"
+    return op.kind if op.what == "send" else {"open": "connect"}.get(op.what, op.what)
+
+
 class StreamStatefulEngine:
     """Plays pipelined programs (``fuzz.nsqd_programs``) until the budget is spent: saved
     ones first (``--db``), then drawn ones; each failure goes to ``triage.add_program``
@@ -162,8 +173,7 @@ class StreamStatefulEngine:
                         if out_of_budget():
                             break
                         played.append(op)
-                        clock.case(("valid" if op.what == "cmd" else op.kind) if op.what in ("send", "cmd") else None,
-                                   message_names(b"".join(w.data for w in op.writes)), mutation=False)
+                        clock.case(tried_kind(op), message_names(b"".join(w.data for w in op.writes)), mutation=False)
                         player.play(op)
                     else:
                         spare = player.finish()

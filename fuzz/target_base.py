@@ -73,6 +73,7 @@ REPLAY = "a replay on a fresh node (triage)"
 DIED = "the node died or stopped answering"
 MISSION_ENDED = "its mission ended (End_Mission)"
 WITHHELD_START = "a startup with Mission_Ready's ACK withheld"
+NEW_TURN = "the stateful engine's turn (a node its ledger knows from its start)"
 
 
 class Restarts:

@@ -77,3 +77,25 @@ def test_a_crash_that_replays_once_then_not_is_named_environment_dependent(tmp_p
     assert len(env) == 1 and "crash" in env[0]["shape"] and env[0]["why"].startswith("reproduced 1 of 4"), env
     assert not any(f["oracle"] == "crash" for f in summary["findings"]), summary["findings"]
     assert "environment-dependent (not a finding): NSQD-ROB-1" in run.stdout, run.stdout
+
+
+def test_a_death_on_a_command_read_late_is_a_crash_not_its_effect_missing():
+    """A backend held off the CPU reads a judged command late and dies of it, after it served
+    the new connection the fuzzer's FIN opened (an UPDATE, the state unchanged:
+    misbehaving_backend --mode late-crash): the case's hit is the death (NSQD-ROB-1), as
+    ``_effect``'s other ends and the stateful player judge one first, not NSQD-MSG-3 (the
+    flaky-crash campaign above found an "effect" first at load ~11, its crash then unconfirmed)."""
+    from mcp_conform.fuzz.nsqd_backend import Backend
+    from mcp_conform.fuzz.nsqd_mutators import Case, Write
+    from mcp_conform.spec import NSQD
+    from mcp_conform.spec.nsqd_codec import encode
+
+    b = Backend(None, _spawn("late-crash"))
+    try:
+        msg = NSQD.message("TAKEOFF")
+        case = Case("valid", (Write(encode(NSQD, "TAKEOFF")),), True, "TAKEOFF", expect=msg.effect.to,
+                    or_error=msg.effect.or_error, check=True, msg="TAKEOFF")
+        hit = b.run(case)
+        assert hit is not None and hit.signature.oracle == "crash" and hit.signature.rule == "NSQD-ROB-1", hit
+    finally:
+        b.close()

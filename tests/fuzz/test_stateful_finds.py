@@ -135,3 +135,25 @@ def test_no_finding_on_the_correct_node_at_the_default_settings(tmp_path: Path) 
     summary = run_campaign(cfg, FindingStore(tmp_path, cfg.replay_args()))
     assert summary["findings"] == 0, summary["findings_by_rule"]
     assert summary["workers"][0]["engines"]["stateful"]["cases"] > 0, summary
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(DURATION_S + 180)
+def test_the_stateful_turn_starts_on_a_node_its_ledger_knows(tmp_path: Path) -> None:
+    """``--engine both`` (the default mix): the stateless turn's cases go to the node first, and
+    seed 1's include our own src's seq at a header boundary (0xFFFE, 0xFFFF): a seq-no-wrap node
+    then takes every later message of ours for a duplicate. The stateful turn starts on a fresh
+    node (a restart said why), so its first near-wrap program's wrap is the finding (MCP-SEQ-3)
+    within the 1,500 cases of its turn here. On the node the stateless turn left, that program's
+    frames were under-delivered whatever their seq (MCP-DUP-2 at seq 65535), a flaw no fresh
+    node reproduced, and the finding came 2,400-9,200 cases into the turn (12,393-19,232 of
+    test_a_sequence_fault_is_found_and_confirmed_at_the_default_settings's 20,000)."""
+    from mcp_conform.fuzz.target_base import NEW_TURN
+
+    cfg = FuzzConfig(spawn=spawn_command("seq-no-wrap", True), mavlink=True, seed=1, max_cases=3000,
+                     duration=DURATION_S, rto=RTO, out=str(tmp_path), extra={"stop_on_rule": "MCP-SEQ-3"})
+    assert cfg.engine == "both"
+    store = FindingStore(tmp_path, cfg.replay_args())
+    summary = run_campaign(cfg, store)
+    assert "MCP-SEQ-3" in store.by_rule(), (store.by_rule(), summary["workers"][0]["engines"])
+    assert summary["restarts_by_reason"].get(NEW_TURN) == 1, summary["restarts_by_reason"]

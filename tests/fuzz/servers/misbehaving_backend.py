@@ -21,7 +21,12 @@ update period; the first two times any of its processes is sent bytes (counted i
 FILE``) it exits (status 1), and never again: the campaign sees it, one replay of triage
 reproduces it, the confirming replays do not.
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash
+``--mode late-crash`` (a death read late is a death, not a command without its effect): an
+UPDATE on accept and every update period; bytes a client sends are read ``LATE_READ_S`` after
+they came (a backend held off the CPU), then the process exits (status 1): a fuzzer's FIN and
+new connection after a command are served (an UPDATE, the state unchanged) before it dies.
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash|late-crash
 [--lifetime S] [--state FILE --restart-delay S]``
 """
 
@@ -30,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import select
 import socket
 import struct
 import threading
@@ -44,6 +50,7 @@ STATE = ""  # --state
 FAST_PERIOD = 0.05
 STOPS_AFTER_S = 0.6
 PERIOD = float(NSQD.params["update_period_s"])
+LATE_READ_S = 0.5  # --mode late-crash: how long after bytes came they are read (then the exit)
 
 
 def update() -> bytes:
@@ -73,6 +80,9 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
             return
         if mode == "stops":
             _stop_after(c, end, FAST_PERIOD, STOPS_AFTER_S)
+            return
+        if mode == "late-crash":
+            _read_late(c, end)
             return
         if mode == "slow":
             c.sendall(update())
@@ -113,6 +123,24 @@ def _stop_after(c: socket.socket, end: float, period: float, after: float) -> No
         time.sleep(0.005)
 
 
+def _read_late(c: socket.socket, end: float) -> None:
+    """An UPDATE at once and every period; bytes sent are read :data:`LATE_READ_S` after they
+    came, and the process exits on them."""
+    nxt, came = time.monotonic(), None
+    while time.monotonic() < end:
+        now = time.monotonic()
+        if came is None and select.select([c], [], [], 0)[0]:
+            came = now
+        if came is not None and now >= came + LATE_READ_S:
+            if c.recv(65536):
+                os._exit(1)
+            return  # the client closed, sent nothing
+        if now >= nxt:
+            c.sendall(update())
+            nxt = now + PERIOD
+        time.sleep(0.01)
+
+
 def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | None) -> None:
     """UPDATEs every period from ``ready`` on; the process exits at the first byte received
     (with ``count``, a file: only the first two times, over all processes, that bytes came)."""
@@ -142,7 +170,8 @@ def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | Non
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash"), required=True)
+    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash", "late-crash"),
+                    required=True)
     ap.add_argument("--lifetime", type=float, default=300.0)
     ap.add_argument("--state", help="slow-restart: marks that the first start happened")
     ap.add_argument("--restart-delay", type=float, default=0.0)
