@@ -193,9 +193,9 @@ class Session(DatagramSessionBase):
         self.target_desc = f"{target[0]}:{target[1]}"
         if cfg.mavlink and self.spawned:
             self._start_vehicle()
-        if self.spawned:
-            self._spawn()
         self.startup_window = (self.clock.monotonic(), None)
+        if self.spawned:
+            self.spawn_node()
         parts = (STARTUP_PARTS if observe_startup else frozenset()) if parts is None else parts & STARTUP_PARTS
         self._startup_phase(first=bool(parts), measure=measure, diagnose=diagnose, initial=True, parts=parts)
         self.startup_window = (self.startup_window[0], self.clock.monotonic())
@@ -335,7 +335,7 @@ class Session(DatagramSessionBase):
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
-        mark = drv.mark()
+        mark = self.spawn_mark if self.spawned and self.spawn_mark is not None else drv.mark()  # from its start
         self._startup_mark = mark if initial else None
         self.startup_fix_at = None
         parts = parts if first else frozenset()
