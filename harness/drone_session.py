@@ -208,7 +208,6 @@ class Session(DatagramSessionBase):
             self.node.close()
             self.node = None
         if self.vehicle is not None:
-            self.flush_vehicle_frames()
             with contextlib.suppress(Exception):
                 self.vehicle.close()
             self.vehicle = None
@@ -284,8 +283,7 @@ class Session(DatagramSessionBase):
         details = node.details()
         if details["exit"]:  # "the node exited during startup" -> "the node exited with code 3 ..."
             head, _, rest = why.partition("the node exited")
-            why = (f"{head}the node {details['exit']}{rest}" if _ else
-                   f"{why} (the node {details['exit']})")
+            why = f"{head}the node {details['exit']}{rest}" if _ else f"{why} (the node {details['exit']})"
         return SpawnFailure(why, details, detail)
 
     def _startup_detail(self) -> list[str]:
@@ -524,12 +522,14 @@ class Session(DatagramSessionBase):
     def _start_mission(self, first: bool) -> None:
         drv = self.driver
         assert drv is not None
+        if not self.alive():  # gone before it is sent (its copies given up): not "after Start_Mission"
+            raise self._fail_setup("the node exited before Start_Mission was sent" + drv.last_heard(self.spawn_mark or 0))
         sent = drv.send(Action.START_MISSION, None, self.target_id)
         ex = drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]), tail=self.ack_window)
         if first:
             self.start_mission = ex  # judged by MCP-BLK-4; restarts do not replace it
         if not ex.acked and not self.alive():
-            raise self._fail_setup("the node exited after Start_Mission")
+            raise self._fail_setup("the node exited after Start_Mission was sent")
         if self.liveness is not None:
             self.liveness.enable()  # it receives from now on: watch it
 
@@ -560,7 +560,6 @@ class Session(DatagramSessionBase):
         self._note_loss()
         if self.ended and self.liveness is not None:
             self.liveness.enabled = False  # after End_Mission a node may stop receiving
-        self.flush_vehicle_frames()
 
     def _note_loss(self) -> None:
         """A loss the watcher declared: attach mode ends the run's cases, spawn restarts."""
@@ -589,7 +588,7 @@ class Session(DatagramSessionBase):
             self.monitor.vehicle_frame(self.to_ns(t), direction, raw)
 
     def flush_vehicle_frames(self) -> None:
-        """Kept for callers: the vehicle's frames reach the capture as they pass (its tap)."""
+        """Kept for callers (a no-op): the vehicle's frames reach the capture as they pass (its tap)."""
 
     # ------------------------------------------------------------------ case API
     def case_ending(self, ctx: Any, outcome: str) -> None:
