@@ -251,14 +251,15 @@ class Session(DatagramSessionBase):
 
     def restart(self) -> None:
         """Spawn mode: a fresh node for the next case (quick startup, nothing judged)."""
+        if self.driver is not None:  # its Mission_Ready is the startup's to ACK (as in ``start``)
+            self.driver.auto_ack = lambda d: d.action != _READY
         self.respawn()
         self._startup_phase(first=False)
 
     def respawn(self, grace: float = 2.0) -> None:
         """Spawn mode: the node closed and started again, before its startup phase (which the
         caller runs: ``restart`` the quick one; the fuzzer its own, then ``send_start_mission``)."""
-        self.ended = False
-        self.needs_restart = False
+        self.ended = self.needs_restart = False
         super().respawn(grace)
 
     def send_start_mission(self) -> None:
@@ -340,9 +341,9 @@ class Session(DatagramSessionBase):
         withheld = bool(parts & {"copies", "wrong"})  # the parts that withhold Mission_Ready's ACK
         withhold = withheld or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
+        acking = drv.mark()  # the driver ACKs an unwithheld Mission_Ready from here, none before
         ready_limit = max(SPAWN_STARTUP_S, 4 * self.rto + 5.0)
-        # the run's first startup waits as long as --startup-timeout says, counted from the
-        # node's start (restarts and runs without one: the runner's own limits)
+        # the first startup waits --startup-timeout from the node's start (else the runner's limits)
         limit = self.startup_limit if initial else None
         deadline = None if limit is None else self.startup_window[0] + limit
 
@@ -412,9 +413,9 @@ class Session(DatagramSessionBase):
                 observe_again(self, st)
         elif measure:
             self._measure_period(first_ready)
-        elif (first or diagnose) and first_ready.msg is None and first_ready.header is not None:
-            # the driver ACKs only what it decodes: a Mission_Ready it could not (a bad
-            # preamble) is ACKed as the observed startup ACKs it, by its header
+        elif first_ready.header is not None and (first_ready.index < acking or (first or diagnose) and first_ready.msg is None):
+            # the driver ACKs only what it decodes, from ``acking`` on: one that came before (sent as the node
+            # started) or that it could not decode (a bad preamble) is ACKed as the observed startup ACKs it
             drv.send_ack(first_ready.header[2], dst=self.target_id if self.target_id is not None
                          else first_ready.header[1])
         withhold = False
