@@ -311,6 +311,22 @@ class TargetDriver:
         with self._cond:
             return self._rx[since:until]
 
+    def last_heard(self, since: int = 0) -> str:
+        """For a setup error's one line: what the runner received from index ``since`` on (the
+        node's start), and how long ago the last of it came ("; the last of its 3 datagram(s) to
+        the runner, MISSION_READY, came 0.52 s before"), or that nothing did."""
+        with self._cond:
+            got = self._rx[since:]
+        if not got:
+            return "; it had sent the runner nothing"
+        last = got[-1]
+        try:
+            kind = Action(last.action).name if last.action is not None else "unreadable"
+        except ValueError:
+            kind = f"action {last.action}"
+        return (f"; the last of its {len(got)} datagram(s) to the runner, {kind}, came "
+                f"{self.clock.monotonic() - last.t:.2f} s before")
+
     def attribution(self, d: Datagram) -> Attribution | None:
         """The command ``d`` was attributed to on arrival (judge.attribution)."""
         with self._cond:

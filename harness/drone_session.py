@@ -193,9 +193,9 @@ class Session(DatagramSessionBase):
         self.target_desc = f"{target[0]}:{target[1]}"
         if cfg.mavlink and self.spawned:
             self._start_vehicle()
-        if self.spawned:
-            self._spawn()
         self.startup_window = (self.clock.monotonic(), None)
+        if self.spawned:
+            self.spawn_node()
         parts = (STARTUP_PARTS if observe_startup else frozenset()) if parts is None else parts & STARTUP_PARTS
         self._startup_phase(first=bool(parts), measure=measure, diagnose=diagnose, initial=True, parts=parts)
         self.startup_window = (self.startup_window[0], self.clock.monotonic())
@@ -208,7 +208,6 @@ class Session(DatagramSessionBase):
             self.node.close()
             self.node = None
         if self.vehicle is not None:
-            self.flush_vehicle_frames()
             with contextlib.suppress(Exception):
                 self.vehicle.close()
             self.vehicle = None
@@ -252,14 +251,15 @@ class Session(DatagramSessionBase):
 
     def restart(self) -> None:
         """Spawn mode: a fresh node for the next case (quick startup, nothing judged)."""
+        if self.driver is not None:  # its Mission_Ready is the startup's to ACK (as in ``start``)
+            self.driver.auto_ack = lambda d: d.action != _READY
         self.respawn()
         self._startup_phase(first=False)
 
     def respawn(self, grace: float = 2.0) -> None:
         """Spawn mode: the node closed and started again, before its startup phase (which the
         caller runs: ``restart`` the quick one; the fuzzer its own, then ``send_start_mission``)."""
-        self.ended = False
-        self.needs_restart = False
+        self.ended = self.needs_restart = False
         super().respawn(grace)
 
     def send_start_mission(self) -> None:
@@ -284,8 +284,7 @@ class Session(DatagramSessionBase):
         details = node.details()
         if details["exit"]:  # "the node exited during startup" -> "the node exited with code 3 ..."
             head, _, rest = why.partition("the node exited")
-            why = (f"{head}the node {details['exit']}{rest}" if _ else
-                   f"{why} (the node {details['exit']})")
+            why = f"{head}the node {details['exit']}{rest}" if _ else f"{why} (the node {details['exit']})"
         return SpawnFailure(why, details, detail)
 
     def _startup_detail(self) -> list[str]:
@@ -335,16 +334,16 @@ class Session(DatagramSessionBase):
         drv = self.driver
         assert drv is not None
         st = Startup(vehicle=self.vehicle is not None)
-        mark = drv.mark()
+        mark = self.spawn_mark if self.spawned and self.spawn_mark is not None else drv.mark()  # from its start
         self._startup_mark = mark if initial else None
         self.startup_fix_at = None
         parts = parts if first else frozenset()
         withheld = bool(parts & {"copies", "wrong"})  # the parts that withhold Mission_Ready's ACK
         withhold = withheld or measure
         drv.auto_ack = lambda d: not (withhold and d.action == _READY)
+        acking = drv.mark()  # the driver ACKs an unwithheld Mission_Ready from here, none before
         ready_limit = max(SPAWN_STARTUP_S, 4 * self.rto + 5.0)
-        # the run's first startup waits as long as --startup-timeout says, counted from the
-        # node's start (restarts and runs without one: the runner's own limits)
+        # the first startup waits --startup-timeout from the node's start (else the runner's limits)
         limit = self.startup_limit if initial else None
         deadline = None if limit is None else self.startup_window[0] + limit
 
@@ -414,9 +413,9 @@ class Session(DatagramSessionBase):
                 observe_again(self, st)
         elif measure:
             self._measure_period(first_ready)
-        elif (first or diagnose) and first_ready.msg is None and first_ready.header is not None:
-            # the driver ACKs only what it decodes: a Mission_Ready it could not (a bad
-            # preamble) is ACKed as the observed startup ACKs it, by its header
+        elif first_ready.header is not None and (first_ready.index < acking or (first or diagnose) and first_ready.msg is None):
+            # the driver ACKs only what it decodes, from ``acking`` on: one that came before (sent as the node
+            # started) or that it could not decode (a bad preamble) is ACKed as the observed startup ACKs it
             drv.send_ack(first_ready.header[2], dst=self.target_id if self.target_id is not None
                          else first_ready.header[1])
         withhold = False
@@ -524,12 +523,14 @@ class Session(DatagramSessionBase):
     def _start_mission(self, first: bool) -> None:
         drv = self.driver
         assert drv is not None
+        if not self.alive():  # gone before it is sent (its copies given up): not "after Start_Mission"
+            raise self._fail_setup("the node exited before Start_Mission was sent" + drv.last_heard(self.spawn_mark or 0))
         sent = drv.send(Action.START_MISSION, None, self.target_id)
         ex = drv.exchange(sent, rto=self.rto, copies=int(SPEC.params["max_ack_copies"]), tail=self.ack_window)
         if first:
             self.start_mission = ex  # judged by MCP-BLK-4; restarts do not replace it
         if not ex.acked and not self.alive():
-            raise self._fail_setup("the node exited after Start_Mission")
+            raise self._fail_setup("the node exited after Start_Mission was sent")
         if self.liveness is not None:
             self.liveness.enable()  # it receives from now on: watch it
 
@@ -560,7 +561,6 @@ class Session(DatagramSessionBase):
         self._note_loss()
         if self.ended and self.liveness is not None:
             self.liveness.enabled = False  # after End_Mission a node may stop receiving
-        self.flush_vehicle_frames()
 
     def _note_loss(self) -> None:
         """A loss the watcher declared: attach mode ends the run's cases, spawn restarts."""
@@ -589,7 +589,7 @@ class Session(DatagramSessionBase):
             self.monitor.vehicle_frame(self.to_ns(t), direction, raw)
 
     def flush_vehicle_frames(self) -> None:
-        """Kept for callers: the vehicle's frames reach the capture as they pass (its tap)."""
+        """Kept for callers (a no-op): the vehicle's frames reach the capture as they pass (its tap)."""
 
     # ------------------------------------------------------------------ case API
     def case_ending(self, ctx: Any, outcome: str) -> None:

@@ -375,6 +375,11 @@ class SessionBase(NodeBase):
         if self.node is not None:
             self.node.stop(grace)
             self.restarts += 1
+        self.spawn_node()
+
+    def spawn_node(self) -> None:
+        """:meth:`_spawn`, where a role's start and :meth:`respawn` start the node; a role that
+        must count what the node sends from its first instant marks it here first."""
         self._spawn()
 
     def revive(self) -> bool:
@@ -455,6 +460,8 @@ class DatagramSessionBase(SessionBase):
     #: the node under test's address, as the run's monitor and the capture know it (None:
     #: not observed yet, :meth:`observe_run`)
     node_address: tuple[str, int] | None = None
+    #: the driver's mark as the spawned node last started (:meth:`spawn_node`); None: not spawned
+    spawn_mark: int | None = None
 
     @property
     def rto(self) -> float:
@@ -489,6 +496,14 @@ class DatagramSessionBase(SessionBase):
         driver.add_observer(monitor.observe)
         self.record_node(node_id, complete=complete)
         return monitor
+
+    def spawn_node(self) -> None:
+        """:meth:`_spawn` with the driver's mark taken just before (``spawn_mark``): a node may
+        send its first datagram before the runner's next line runs (a first spawn also starts
+        the reaper, ``harness.procs``, while the node already runs); what it sent from its
+        first instant is the startup's to read, not lost before the startup looks."""
+        self.spawn_mark = self.driver.mark() if self.driver is not None else None
+        self._spawn()
 
     def record_node(self, node_id: int | None, *, complete: bool | None = None) -> None:
         """Tell the capture whose traffic it holds (the node under test's ID and address, as

@@ -70,8 +70,8 @@ def _runner_side(datagrams: Sequence[Any], listen: str) -> str:
             names.append(Action(d.action).name if d.action is not None else "unreadable")
         except ValueError:
             names.append(f"action {d.action}")
-    return (f"to the runner: {len(datagrams)} datagram(s), none a Mission_Ready: "
-            + ", ".join(_counted(names, MAX_FRAME_KINDS)))
+    none = "" if "MISSION_READY" in names else ", none a Mission_Ready"  # (a later failure's: it did)
+    return f"to the runner: {len(datagrams)} datagram(s){none}: " + ", ".join(_counted(names, MAX_FRAME_KINDS))
 
 
 def _vehicle_lines(vehicle: Any, url: str, t0: float, fix_given_at: float | None,
@@ -146,8 +146,10 @@ def explain(*, vehicle: Any, mavlink_url: str, mavlink: bool, spawned: bool,
     elif vehicle is not None and not datagrams:
         hint = ("the node connected to the vehicle but never sent a datagram to the runner: is it "
                 "waiting for a readiness check" + (" (see what it asked above)?" if asked else "?"))
-    elif datagrams:
-        hint = "the node speaks to the runner but never announced Mission_Ready"
+    elif datagrams:  # (one that announced it failed later: the error's line says how)
+        hint = ("the node announced Mission_Ready: the error says what went wrong after it"
+                if any(d.action == int(Action.MISSION_READY) for d in datagrams)
+                else "the node speaks to the runner but never announced Mission_Ready")
     elif spawned and not mavlink:
         hint = ("the node sent the runner nothing: if it waits on an autopilot, run with --mavlink "
                 "and give it {mavlink}")
