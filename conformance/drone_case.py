@@ -13,7 +13,8 @@ import contextlib
 import socket
 import statistics
 import time
-from collections.abc import Iterable, Sequence
+import weakref
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
 MAX_ACK_COPIES = int(SPEC.params["max_ack_copies"])
 DELIVERED = -1  # expect_delivered: reached the autopilot at least once (a node may forward twice: PAY-8's business)
 NOT_AGAIN = 0  # expect_delivered: not delivered (again)
+_UNFORWARDED: weakref.WeakKeyDictionary[Any, str] = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ class Delivery:
     exchange: Exchange
     before: int
     after: int = -1
+    waited: float = 0.0  # how long ``settle`` waited for it (s), and the node's pending action seen
+    pending: str | None = None
 
     @property
     def delivered(self) -> int:
@@ -159,8 +163,8 @@ class CaseContext(DatagramCaseBase):
         if self.session.passthrough_altered:
             raise Inconclusive(f"{rule}: the node's Mav_Passthrough frames reach its autopilot altered "
                                "(MCP-PAY-8), so delivery to its application is unobservable")
-        raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot, "
-                           "so delivery to its application is unobservable")
+        raise Inconclusive(f"{rule}: the node forwarded no Mav_Passthrough frame to its autopilot"
+                           f"{_UNFORWARDED.get(self.session, '')}, so delivery to its application is unobservable")
 
     def learn_passthrough(self, rule: str) -> None:
         """Whether the node forwards Mav_Passthrough frames (``session.passthrough_forwarded``,
@@ -176,6 +180,10 @@ class CaseContext(DatagramCaseBase):
                 raise Inconclusive(f"{rule}: the passthrough capability probe was not ACKed")
             if not self.session.passthrough_forwarded:
                 self.session.passthrough_altered = self.altered_arrival(d) is not None
+                busy = (f"; the vehicle showed an earlier command still in progress meanwhile ({d.pending}): "
+                        "the node may have been busy" if d.pending else "")
+                _UNFORWARDED[self.session] = (f" within {d.waited:.1f} s of the capability probe's ACK "
+                                              f"(probe {d.probe.token}, seq {d.exchange.seq}){busy}")
 
     def _wait_held_reported(self) -> None:
         """Until the vehicle holds no incomplete frame (it reports one as unparsed ``STALE``
@@ -248,14 +256,24 @@ class CaseContext(DatagramCaseBase):
         v = self.vehicle
         if expect_more:  # a count that must not grow: watched over the ACK window (D-6)
             self.driver.pause(self.ack_window)
-        else:  # a count that must grow: returns as soon as it did; patient, since a node may
-            # queue the forward behind slow autopilot work (arming, takeoff) after its ACK
-            deadline = self.session.clock.monotonic() + max(2 * self.ack_window, 1.0, self.rto)
-            while (not all(v.probe_count(d.probe.token) > d.before for d in deliveries)
-                   and self.session.clock.monotonic() < deadline):
-                self.driver.pause(0.02)  # a node lost meanwhile ends the wait at once
+        else:  # a count that must grow: returns as soon as it did; patient, since a node may queue
+            # the forward behind slow autopilot work after its ACK (a take-off it waits out)
+            waited, pending = self.await_past_pending(
+                lambda: all(v.probe_count(d.probe.token) > d.before for d in deliveries),
+                max(2 * self.ack_window, 1.0, self.rto))
+            for d in deliveries:
+                d.waited, d.pending = waited, pending
         for d in deliveries:
             d.after = v.probe_count(d.probe.token)
+
+    def await_past_pending(self, done: Callable[[], bool], window: float,
+                           pause: Callable[[float], object] | None = None) -> tuple[float, str | None]:
+        """Until ``done()``, at most ``window`` s past the node's pending actions as the vehicle
+        shows them (``SimVehicle.wait_past_pending``: a take-off short of its altitude, an AUTO
+        mission flying; a node may be busy, D-6, and acts once they are done, MCP-BLK-7), for
+        that never past half the case's limit. (s waited, first pending action seen)."""
+        bound = self.start_t + float(self.session.cfg.per_case_limit()) / 2
+        return self.vehicle.wait_past_pending(done, window, bound, pause or self.driver.pause)
 
     def quiet_count(self, token: str) -> int:
         """The vehicle's count of ``token`` once it has not changed for half the ACK window

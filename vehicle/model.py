@@ -179,6 +179,18 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
         """The current ArduCopter mode name, e.g. ``"GUIDED"``."""
         return mode_name(self.custom_mode)
 
+    def pending_action(self) -> str | None:
+        """What the vehicle is still carrying out of an earlier command, as a node that waits
+        for it would see it (MCP-BLK-7's "pending actions", a busy node of D-6): a take-off not
+        yet at its altitude, or an AUTO mission still flying its items; None when neither."""
+        if not self.armed:
+            return None
+        if self.taking_off and self._target_alt is not None and self.custom_mode == GUIDED:
+            return f"a take-off to {self._target_alt:g} m, at {self.altitude:.1f} m"
+        if self.custom_mode == AUTO and self._auto.running:
+            return f"an AUTO mission, at item {self._auto.index} of {max(len(self.missions.items) - 1, 0)}"
+        return None
+
     def has_fix(self, now: float) -> bool:
         """Whether the GPS reports a 3D fix at ``now``."""
         return not self._withheld and now >= self._fix_at

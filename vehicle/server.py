@@ -305,6 +305,12 @@ class SimVehicle:
         """Metres above home (as last simulated)."""
         return float(self._read(lambda m: m.altitude))
 
+    def pending_action(self) -> str | None:
+        """What the vehicle is still carrying out of an earlier command (a take-off not at its
+        altitude, an AUTO mission flying), as of its last simulation step; None when nothing
+        (``VehicleModel.pending_action``)."""
+        return self._read(lambda m: m.pending_action())
+
     @property
     def rtl_commanded(self) -> bool:
         """True once RTL was requested (RTL mode or NAV_RETURN_TO_LAUNCH), even if refused."""
@@ -370,6 +376,25 @@ class SimVehicle:
                 if remaining <= 0 or self._stop.is_set():
                     return bool(predicate())
                 self._cond.wait(min(remaining, POLL))
+
+    def wait_past_pending(self, done: Callable[[], bool], window: float, bound: float,
+                          pause: Callable[[float], object]) -> tuple[float, str | None]:
+        """Until ``done()``, at most ``window`` s past the last moment :meth:`pending_action`
+        showed an earlier command in progress (a node that waits for it is busy meanwhile), but
+        for that never past ``bound`` (the clock's ``monotonic()``); ``pause(s)`` waits a moment.
+        Returns how long it waited (s) and the first pending action seen (None: none)."""
+        start = self._clock.monotonic()
+        deadline, pending = start + window, None
+        while not done():
+            now = self._clock.monotonic()
+            busy = self.pending_action()
+            if busy is not None:
+                pending = pending or busy
+                deadline = max(deadline, min(now + window, bound))
+            if now >= deadline:
+                break
+            pause(min(0.02, deadline - now))
+        return self._clock.monotonic() - start, pending
 
     # ------------------------------------------------------------------ threads
     def _accept_loop(self) -> None:

@@ -77,13 +77,21 @@ def test_end_mission_then_rtl(node):
 
     def rtl_requests():
         return [e for e in v.events("request") if e.t >= since and is_rtl_request(e)]
-    # judged on the request, whether or not the vehicle could comply
-    v.wait_for(lambda: bool(rtl_requests()), wait)
+    # judged on the request, whether or not the vehicle could comply; "finishes pending actions,
+    # then commands RTL": the window runs from the end of what the vehicle shows still in
+    # progress of the node's earlier commands (a take-off climbing), bounded by the case's limit
+    waited, pending = node.await_past_pending(lambda: bool(rtl_requests()), wait,
+                                              pause=lambda s: v.wait_for(lambda: bool(rtl_requests()), s))
     got = rtl_requests()
     if got:
-        node.info(f"{got[0].t - since:.3f} s after End_Mission: {describe_request(got[0])}")
+        node.info(f"{got[0].t - since:.3f} s after End_Mission: {describe_request(got[0])}"
+                  + (f" (after the node's pending action: {pending} when End_Mission was ACKed)" if pending else ""))
     asked = [e for e in v.events("request") if e.t >= since]
+    still = v.pending_action()
+    within = (f"within {wait:g} s of End_Mission" if pending is None else
+              f"within {wait:g} s of the end of the node's pending actions ({pending} after End_Mission)")
     node.expect_true(bool(got), "MCP-BLK-7",
-                     f"an RTL request to the autopilot (mode RTL or NAV_RETURN_TO_LAUNCH) within {wait:g} s "
-                     "of End_Mission", f"none (mode {v.mode})",
+                     f"an RTL request to the autopilot (mode RTL or NAV_RETURN_TO_LAUNCH) {within}",
+                     f"none in {waited:.1f} s (mode {v.mode}"
+                     + (f"; {still} still in progress at the case's bound)" if still else ")"),
                      [f"{e.t - since:.3f} s after End_Mission: {describe_request(e)}" for e in asked[:5]])

@@ -12,8 +12,9 @@ the same ``--rto``):
   observe passed (MUST and SHOULD), the rest skipped or INFO, as listed; its worker waits for
   the take-off to reach its altitude before the next command, kept short here (``--takeoff-alt
   2``, a fraction of a second in the simulated vehicle);
-- the same node busy longer (``--takeoff-alt 150``, some 7 s of climb): what the suite should
-  still see, and does not (an xfail naming why);
+- the same node busy longer (``--takeoff-alt 150``, some 7 s of climb): every rule judged all
+  the same, the probes' deliveries and MCP-BLK-7's RTL awaited past the take-off the vehicle
+  shows in progress (``conformance.drone_case.CaseContext.await_past_pending``);
 - a drone whose retry limit is 2, the least the spec allows, exiting when it gives up: judged
   right, not an error;
 - each deliberately faulty build (``make FAULT=...``) fails the rule it breaks, named by the
@@ -123,13 +124,6 @@ def test_the_correct_drone_passes(builds: dict[str, Path], tmp_path: Path, mavli
 BUSY = "the node's worker still climbing (its take-off, a pending action)"
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "tool (s33-cppdrone report): a drone whose worker is busy with an earlier command (a take-off "
-    "it waits out) forwards the Mav_Passthrough probes seconds later; the suite skips MCP-DUP-1..4, "
-    "MCP-PAY-8 and MCP-SEQ-3 as 'the node forwarded no Mav_Passthrough frame to its autopilot' though "
-    "it did (at the 5 s defaults DUP-1's own probe reached the vehicle 0.11 s before the case ended "
-    "so), and at --rto 0.3 warns MCP-BLK-7 ('no RTL within 3 s of End_Mission') while the node "
-    "finishes the pending take-off, as the rule asks, then commands RTL"))
 def test_a_busy_drone_is_still_observed(builds: dict[str, Path], tmp_path: Path) -> None:
     rc, doc, out = run(tmp_path, builds["correct"], True, takeoff_alt="150")
     assert rc == 0 and doc["error"] is None, out
