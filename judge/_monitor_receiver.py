@@ -152,6 +152,8 @@ class ReceiverRules(MonitorHost):
                 self._stray_acks[(src, dst)] = (i, t, named)
                 self._ambiguous.setdefault(id(w), (w, []))[1].append((other, named, i, t))
                 return
+            if isinstance(other, tuple) and other[0] == "ack" and self._may_answer_a_copy(src, dst, other, named, i, t):
+                return
             self._ack_of_what_is_not_acked(src, other, named, i, t)
             return
         swapped = ((named & 0xFF) << 8) | (named >> 8)
@@ -202,6 +204,39 @@ class ReceiverRules(MonitorHost):
         self._emit("MCP-ACK-2", src, now, "the ACK names the acknowledged message's seq (D-2)",
                    f"ACK to ID {dst} names {named}: no datagram in the trace carried that number "
                    f"(it acknowledges no message)", [(i, t)])
+
+    def _may_answer_a_copy(self, src: int, dst: int, other: Any, named: int, i: int, t: int) -> bool:
+        """MCP-ACK-6 on trial: ACK ``i`` from ``src`` names the number an ACK of ``dst``'s took (D-5),
+        yet a copy of a message from ``dst`` to ``src`` came before it (within ``late_ack_wait_ns``,
+        however late an answer) and has drawn no ACK naming its number: the ACK may be that copy's
+        answer with a wrong number (MCP-ACK-2) as well as an ACK of the ACK. Each explanation
+        breaks another rule (D-9's principle), so neither is proven by it: held on the copy
+        (``_ambiguous``, as a stray ACK of it) until the copy's deadline, where an ACK naming the
+        copy's number decides that the copy was answered and this ACK named what it ACKed
+        (``_undecided_deadline``). The C++ manager whose ACKs name the copy's seq + 1: a
+        Mission_Ready copy of 1307 ACKed 0.2 ms later naming 1308, the number the drone's ACK had
+        taken 0.3 s before, was failed MCP-ACK-6 (tests/judge/test_ack6_wrong_seq_copy.py). True when held."""
+        wait = late_ack_wait_ns(self.rto_ns, self.window_ns)
+        pair = dst << 16 | src
+        last = self._last_to.get(pair)
+        if last is None or t - last > wait:  # no message from dst to src lately: nothing else it answers
+            return False
+        best: tuple[Any, tuple[int, int]] | None = None
+        for key, ex in self._ex.items():
+            if key >> 16 != pair or ex.bcast:
+                continue
+            copy = next((c for c in reversed(ex.copies) if c[1] <= t), None)
+            if (copy is None or t - copy[1] > wait or any(a[1] >= copy[1] for a in ex.acks)
+                    or (best is not None and best[1][1] >= copy[1])):
+                continue
+            best = (ex, copy)
+        if best is None:
+            return False
+        ex, copy = best
+        self._stray_acks[(src, dst)] = (i, t, named)
+        self._ambiguous.setdefault(id(ex), (ex, []))[1].append((other, named, i, t))
+        self._timers.at(copy[1] + wait, self._undecided_deadline, ex, copy)
+        return True
 
     def _ack_of_what_is_not_acked(self, node: int, other: Any, named: int, i: int, t: int) -> None:
         if isinstance(other, _Exchange):

@@ -8,11 +8,17 @@ one with a new seq, liveness probes) and on inputs the runner sends on purpose.
 
 from __future__ import annotations
 
+import math
+
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.judge.monitor import late_ack_wait_s
 from mcp_conform.spec import SPEC
-from mcp_conform.spec.codec import MANAGER_ID, Action
+from mcp_conform.spec.codec import MANAGER_ID, Action, DecodeError, decode
+
+_ACK = int(Action.ACK)
+#: how far apart in time the runner's records of two datagrams may be ordered (D-9, MCP-SEQ-1)
+_GRACE_S = float(SPEC.params["seq_reorder_grace_s"])
 
 
 def _exchanges(m):
@@ -37,6 +43,37 @@ def _went_on(m):
             + ", ".join(names) + (", ..." if len(msgs) > 4 else "")]
 
 
+def _runner_sent(node, m):
+    """Every datagram the runner sent the manager during mission ``m``, copies included, in
+    order (the driver's log: the mission keeps each number's first datagram only)."""
+    drv = getattr(node.session, "driver", None)
+    end = m.t_end or math.inf
+    sent = [s for s in (drv.sent() if drv is not None else []) if m.t0 <= s.t <= end]
+    return sent or sorted(m.sent_by_drones.values(), key=lambda s: s.t)
+
+
+def _owed(s) -> bool:
+    """A datagram the manager owes an ACK (MCP-ACK-1): a well-formed unicast to its ID, no ACK."""
+    if s.dst != MANAGER_ID or s.action == _ACK:
+        return False
+    try:
+        decode(s.data)
+    except DecodeError:
+        return False
+    return True
+
+
+def _unanswered_copies(node, m, acks):
+    """The copies of messages the drones sent the manager that drew no ACK naming their number
+    within ``late_ack_wait_s`` (``acks``: the manager's ACKs), as (drone, time, Sent)."""
+    wait = late_ack_wait_s(node.rto, node.ack_window)
+    named = {}
+    for d in acks:
+        named.setdefault((d.header[0], d.acked_seq()), []).append(d.t)
+    return [(s.src, s.t, s) for s in _runner_sent(node, m) if _owed(s)
+            and not any(s.t <= t <= s.t + wait for t in named.get((s.src, s.seq), ()))]
+
+
 @rules("MCP-ACK-1")
 def test_every_mission_ready_is_acked(node):
     """Each drone's Mission_Ready, a second one with a new seq, a copy of one (same seq and
@@ -57,17 +94,61 @@ def test_every_mission_ready_is_acked(node):
                      [f"copy: {i.sent.data.hex(' ')}" for i in bad])
 
 
+def _acks_of_nothing(node, m):
+    """The manager's well-formed ACKs that name a number no datagram carried by the time they
+    came (D-9: "MCP-ACK-2 is observed where an ACK names a number that no datagram to the node
+    carried by the time it was sent"), with the records' reorder grace (``seq_reorder_grace_s``),
+    on a complete trace (the runner's link not ``--impair``ed): each acknowledges no message,
+    whatever copy it answered. A number any datagram carried -- the runner's, before or during
+    the mission, or the manager's own -- is not proven so."""
+    if not node.session.trace_complete:
+        return []
+    drv = getattr(node.session, "driver", None)
+    carried = {}  # seq -> when a datagram first carried it
+    for seq, t in ([(s.seq, s.t) for s in (drv.sent() if drv is not None else [])]
+                   + [(s.seq, s.t) for s in m.sent_by_drones.values()]
+                   + [(d.header[2], d.t) for d in m.from_manager() if d.header is not None]):
+        carried[seq] = min(carried.get(seq, math.inf), t)
+    return [(d, carried.get(d.msg.payload, math.inf)) for d in m.from_manager()
+            if d.msg is not None and d.msg.action == _ACK and carried.get(d.msg.payload, math.inf) > d.t + _GRACE_S]
+
+
 @rules("MCP-ACK-2")
 def test_ack_payload_is_the_seq_big_endian(node):
+    """The ACK attributed to each Mission_Ready and probe names its seq, 2 bytes big-endian; and
+    no ACK names a number no datagram carried by then (D-9: it acknowledges no message). A
+    manager whose every ACK names a wrong number has no ACK attributed to a Mission_Ready: the
+    second part judges it (the C++ manager whose ACKs name the copy's seq + 1 was skipped
+    "the manager ACKed nothing" after 148 ACKs)."""
     m = node.mission()
     acked = [ex for _, ex in _exchanges(m) if ex.ack is not None]
-    if not acked:
-        raise Inconclusive("MCP-ACK-2: the manager ACKed nothing")
     for ex in acked:
         payload = ex.ack.data[17:]
         node.expect_true(len(payload) == 2 and int.from_bytes(payload, "big") == ex.seq, "MCP-ACK-2",
                          f"payload {ex.seq.to_bytes(2, 'big').hex(' ')} (seq {ex.seq}, 2 bytes big-endian)",
                          f"payload {payload.hex(' ') or '(empty)'} ({len(payload)} bytes)", [ex.ack.describe()])
+    nothing = _acks_of_nothing(node, m)
+    if nothing:
+        d, when = nothing[0]
+        before = [s for s in _runner_sent(node, m) if s.t <= d.t and s.src == d.msg.dst and s.action != _ACK]
+        names = sorted({x.msg.payload for x, _ in nothing})
+        raise node.fail("MCP-ACK-2", "each ACK names the acknowledged message's seq, 2 bytes big-endian (D-2)",
+                        f"{len(nothing)} ACK(s) name a number no datagram carried by then: "
+                        + ", ".join(map(str, names[:5])) + (", ..." if len(names) > 5 else ""),
+                        [f"manager: {d.describe()}",
+                         f"no datagram carried seq {d.msg.payload} "
+                         + (f"until {when - d.t:.3f} s after it" if when < math.inf else "in the run")]
+                        + ([f"it came {(d.t - before[-1].t) * 1000:.1f} ms after drone {before[-1].src}'s "
+                            f"{Action(before[-1].action).name if 0 <= before[-1].action <= 9 else before[-1].action} "
+                            f"seq {before[-1].seq}"] if before else []))
+    if not acked:
+        if any(d.is_ack_like for d in m.from_manager()):
+            raise Inconclusive("MCP-ACK-2: no ACK of the manager named a Mission_Ready's or probe's seq in either "
+                               "byte order, and each names a number some datagram carried before it (what it "
+                               "answered is not proven: D-9)" if node.session.trace_complete else
+                               "MCP-ACK-2: no ACK of the manager named a Mission_Ready's or probe's seq, and the "
+                               "runner's link is impaired (--impair): a number no datagram carried proves nothing")
+        raise Inconclusive("MCP-ACK-2: the manager ACKed nothing")
 
 
 @rules("MCP-ACK-3")
@@ -95,19 +176,42 @@ def test_message_to_another_id_is_not_acked(node):
 
 @rules("MCP-ACK-6")
 def test_an_ack_is_never_acked(node):
-    """No ACK of the manager names the seq of an ACK a drone sent (the runner's drones
-    number ACKs and messages from one counter each, so every seq names one datagram)."""
+    """No ACK of the manager names the seq of an ACK a drone sent before it (the runner's drones
+    number ACKs and messages from one counter each, so every seq names one datagram). An ACK
+    that came after a copy of a drone's message that drew no ACK naming its number (within the
+    wait of a late ACK) may be that copy's answer with a wrong number (MCP-ACK-2) as well as an
+    ACK of the ACK: each explanation breaks another rule, so it proves neither (D-9's
+    principle); the node's other ACKs judge it. The C++ manager whose ACKs name the copy's seq
+    + 1 was failed on "80 ACK(s) of an ACK", every one sent before the drone's ACK took the
+    number it named; and a later one, 0.2 ms after a Mission_Ready copy, may answer that copy."""
     m = node.mission()
-    ours = {k: s for k, s in m.sent_by_drones.items() if s.action == int(Action.ACK)}
+    ours = {k: s for k, s in m.sent_by_drones.items() if s.action == _ACK}
     if not ours:
         raise Inconclusive("MCP-ACK-6: the drones sent no ACK")
-    bad = [d for d in m.from_manager() if d.is_ack_like and d.header is not None
-           and (d.header[0], d.acked_seq()) in ours]
-    d = bad[0] if bad else None
-    node.expect_true(d is None, "MCP-ACK-6", f"none of the {len(ours)} ACKs of the drones ACKed",
+    acks = [d for d in m.from_manager() if d.is_ack_like and d.header is not None and d.acked_seq() is not None]
+    named = [(d, ours[k]) for d in acks for k in [(d.header[0], d.acked_seq())] if k in ours and ours[k].t <= d.t]
+    wait = late_ack_wait_s(node.rto, node.ack_window)
+    copies = _unanswered_copies(node, m, acks) if named else []
+    bad, doubt = [], []
+    for d, a in named:
+        c = next((c for src, t, c in reversed(copies) if src == d.header[0] and t <= d.t <= t + wait), None)
+        (bad if c is None else doubt).append((d, a, c))
+    if not bad and doubt:
+        d, a, c = doubt[0]
+        raise Inconclusive(f"MCP-ACK-6: {len(doubt)} ACK(s) of the manager name the seq of an ACK a drone sent "
+                           f"before them, each after a copy of a drone's message that drew no ACK naming its "
+                           f"number: the copy's answer with a wrong number (MCP-ACK-2) or an ACK of the ACK, "
+                           f"neither proven (D-9); first: {d.describe()}, {(d.t - c.t) * 1000:.1f} ms after a "
+                           f"copy of seq {c.seq} from drone {c.src}, {(d.t - a.t) * 1000:.1f} ms after the ACK")
+    first = bad[0] if bad else None
+    node.expect_true(first is None, "MCP-ACK-6", f"none of the {len(ours)} ACKs of the drones ACKed",
                      f"{len(bad)} ACK(s) of an ACK" if bad else "",
-                     [f"drone's ACK: {ours[(d.header[0], d.acked_seq())].data.hex(' ')}", f"manager: {d.describe()}"]
-                     if d is not None else [])
+                     [f"drone's ACK: {first[1].data.hex(' ')}",
+                      f"manager: {first[0].describe()}, {(first[0].t - first[1].t) * 1000:.1f} ms after it"]
+                     + ([f"{len(doubt)} more name an ACK's seq right after a copy of a drone's message that "
+                         "drew no ACK naming its number (each also that copy's wrong ACK: not counted, D-9)"]
+                        if doubt else [])
+                     if first is not None else [])
 
 
 @rules("MCP-ACK-7")
