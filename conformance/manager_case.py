@@ -16,6 +16,9 @@ Conventions (one fault, one rule):
   awaiting its ACK; whether it repeats the seq and bytes is MCP-SEQ-2's business.
 - A drone the manager gave up on (a command whose retransmission stopped unACKed) is
   excused from the rest of the mission's flow rules.
+- A broadcast (dst the broadcast ID) is a command to each drone whose mission is on when it
+  comes -- its Start_Mission answered, no End_Mission sent to it yet -- and to no other (D-11):
+  :func:`to_mission`.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ if TYPE_CHECKING:
 F = TypeVar("F", bound=Callable[..., Any])
 MIN_COPIES = int(SPEC.params["min_copies"])
 _ACK = int(Action.ACK)
+_START = int(Action.START_MISSION)
 _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
 _WP_ON = int(Action.WP_ON)
@@ -258,6 +262,28 @@ def abandoned(m: Mission, rto: float) -> set[int]:
         if not any(x.dst == w.drone and x is not start and x.first.t > w.wrong_acks[0].t for x in msgs):
             out.add(w.drone)
     return out
+
+
+def to_mission(m: Mission, msgs: list[Message], drone: int, broadcast_id: int) -> tuple[list[Message], list[Message]]:
+    """D-11: the messages of ``msgs`` (``messages(m)``) that reach ``drone``'s mission -- those
+    unicast to it, and each broadcast that came while its mission was on: from the runner's
+    first answer to its first Start_Mission (:func:`runner_ack_time`: the manager's "after
+    Start_Mission is ACKed", MCP-FLOW-4; that ACK is stamped before it leaves, so a broadcast
+    that came at its time or before was sent before the ACK could reach the manager) until its
+    first End_Mission came (in arrival order: the two may bear one timestamp) -- and the
+    broadcasts that came outside that time (no command to it: for the evidence)."""
+    start = next((x for x in msgs if x.dst == drone and x.action == _START), None)
+    on = runner_ack_time(m, start) if start is not None else None
+    ended = False
+    mine: list[Message] = []
+    outside: list[Message] = []
+    for x in msgs:
+        if x.dst == drone:
+            mine.append(x)
+            ended = ended or x.action == _END
+        elif x.dst == broadcast_id:
+            (mine if on is not None and on < x.first.t and not ended else outside).append(x)
+    return mine, outside
 
 
 def decode_items(d: Datagram) -> tuple[Any, ...] | None:

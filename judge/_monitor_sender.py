@@ -58,11 +58,6 @@ _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
 _ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
 
 
-def _items(ex: _Exchange) -> tuple[Any, ...]:
-    return ex.payload if ex.action != WP_ON else (ex.payload,)
-
-
-
 #: The bytes of a packed mission item that hold target_system and target_component
 #: ('<fffffffHHBBBBB': 7 floats, seq, command, then the two targets): not in a WPL file.
 _TARGETS = slice(32, 34)
@@ -361,10 +356,31 @@ class SenderRules(RetransmissionRules):
         if not ex.bcast:
             self._judge_for_drone(self._nodes.get(ex.dst) or self._node(ex.dst), ex, i, t)
             return
-        for d in [n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]:
-            self._judge_for_drone(d, ex, i, t)
+        if ex.action == START:
+            for d in [n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]:
+                self._judge_for_drone(d, ex, i, t)
+            return
+        on = self._on_mission(t)  # D-11: a command to each of them; its items judged once
+        for d in on:
+            self._judge_for_drone(d, ex, i, t, items=False)
+        if ex.action == WP_ON and on or ex.action in _LIST_FLOW and any(ex.action not in d.lists for d in on):
+            self._judge_items(ex, i, t)
 
-    def _judge_for_drone(self, d: _Node, ex: _Exchange, i: int, t: int) -> None:
+    def _on_mission(self, t: int) -> list[_Node]:
+        """D-11: the drones whose mission is on at ``t``, a broadcast then a command to each (MCP-
+        FLOW-4/5/6): Start_Mission answered before ``t`` (ACKed, or by an ACK the manager may have
+        taken for it, MCP-RTX-2's business; a broadcast at the ACK's own time was sent before the
+        ACK could reach the manager), no End_Mission sent to it yet."""
+        out = []
+        for d in self._nodes.values():
+            s = d.start
+            answer = None if s is None or d.end is not None else s.acks[0] if s.acks else self._taken_ack(s)
+            if answer is not None and answer[1] < t and d.id != MANAGER:
+                out.append(d)
+        return out
+
+    def _judge_for_drone(self, d: _Node, ex: _Exchange, i: int, t: int, items: bool = True) -> None:
+        """``ex`` as a command to ``d``; ``items``: its items judged here (a broadcast's: once)."""
         action = ex.action
         if action == START:
             self._observe(MANAGER, "MCP-FLOW-2")
@@ -380,10 +396,8 @@ class SenderRules(RetransmissionRules):
                        f"{ex.describe()}", [d.end.first, (i, t)])
             return
         challenge = self.challenge or self.inferred_challenge
-        if action == WP_ON:
-            if challenge == 2 and self.waypoints is not None and not self._carries_waypoints(ex):
-                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
-                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", [(i, t)])
+        if action == WP_ON and items:
+            self._judge_items(ex, i, t)
         elif action == WP_OFF:
             if challenge == 2 and d.wp_active is None and self._complete_for(MANAGER, d.id) and d.start is not None:
                 self._emit("MCP-FLOW-5", MANAGER, t, "WP_Off follows a WP_On",
@@ -397,19 +411,35 @@ class SenderRules(RetransmissionRules):
                     return  # the list again under a new number, unACKed: MCP-SEQ-2's, not a second list
                 if earlier is not None and earlier is not ex:
                     self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(action)}",
-                               f"a second {action_name(action)} to drone {d.id}", [earlier.first, (i, t)])
-                elif not self._carries_waypoints(ex):
-                    self._emit(rule, MANAGER, t, f"{action_name(action)} carries the mission's "
-                               f"{len(self.waypoints or ())} items",
-                               f"{ex.describe()} carries {len(ex.payload)} other item(s)", [(i, t)])
+                               f"a second {action_name(action)} to drone {d.id}"
+                               + (" (a broadcast, D-11)" if ex.bcast or earlier.bcast else ""), [earlier.first, (i, t)])
+                elif items:
+                    self._judge_items(ex, i, t)
         elif action == END and self._complete_for(MANAGER, d.id) and self.challenge in (1, 3):
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
             self._observe(MANAGER, rule)
             if want not in d.lists and d.start is not None and (d.id, want) not in self._malformed_lists:
+                early = max((e for e in self._ex.values() if e.bcast and e.src == MANAGER and e.action == want),
+                            key=lambda e: e.first[1], default=None)  # for the evidence: none of its (D-11)
                 self._emit(rule, MANAGER, t, f"the mission's items as one {action_name(want)}",
-                           f"End_Mission to drone {d.id} without any {action_name(want)}",
-                           [d.start.first, (i, t)])
+                           f"End_Mission to drone {d.id} without any {action_name(want)}"
+                           + (f" after its Start_Mission was ACKed ({early.describe()} came before it: "
+                              "D-11)" if early is not None else ""),
+                           [d.start.first] + ([early.first] if early is not None else []) + [(i, t)])
+
+    def _judge_items(self, ex: _Exchange, i: int, t: int) -> None:
+        """MCP-FLOW-4/6: a list carries the mission's items; MCP-FLOW-5: a WP_On one of them."""
+        challenge = self.challenge or self.inferred_challenge
+        if ex.action == WP_ON:
+            if challenge == 2 and self.waypoints is not None and not self._carries_waypoints(ex):
+                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
+                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", [(i, t)])
+            return
+        rule, number = _LIST_FLOW[ex.action]
+        if challenge == number and not self._carries_waypoints(ex):
+            self._emit(rule, MANAGER, t, f"{action_name(ex.action)} carries the mission's {len(self.waypoints or ())} "
+                       "items", f"{ex.describe()} carries {len(ex.payload)} other item(s)", [(i, t)])
 
     def _carries_waypoints(self, ex: _Exchange) -> bool:
         """Does the command carry the mission's items: every field a QGC WPL 110 line holds,
@@ -448,9 +478,11 @@ class SenderRules(RetransmissionRules):
                 node.ready_ex = ex
             return
         if ex.src != MANAGER or ex.bcast:
-            if ex.bcast and action in (WP_ON, WP_OFF):
-                for d in self._nodes.values():
-                    if d.id != MANAGER and d.ready is not None:
+            if ex.src == MANAGER and action in (WP_ON, WP_OFF, *_LIST_FLOW):
+                for d in self._on_mission(ex.first[1]):  # D-11: to each drone whose mission is on
+                    if action in _LIST_FLOW:
+                        d.lists.setdefault(action, ex)
+                    else:
                         d.wp_active = ex if action == WP_ON else None
             return
         d = self._node(ex.dst)

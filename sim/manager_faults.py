@@ -24,11 +24,16 @@ it is in what the mission sends, a ``ManagerModel`` whose plan or readiness diff
 - ``after-end``, MCP-BLK-6 "no command to a drone after that drone's End_Mission": a WP_Off
   to the first drone after its End_Mission;
 - ``ack-ack``, MCP-ACK-6 "A node never ACKs an ACK": every ACK addressed to it is ACKed;
+- ``broadcast-early``, MCP-FLOW-4 "after Start_Mission is ACKed the manager sends the mission's
+  waypoints as one WP_List": the WP_List broadcast once, as the last drone's Start_Mission goes
+  out, before its ACK (D-11: no list of that drone's mission);
 
 and, breaking no rule (controls: no verdict may fall on them), ``acks-copies-late`` (a copy
-ACKed again 0.3 s late, past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1), and the
-manager faults of :data:`sim.faults.FAULTS` (``manager-rtx-none``, ``no-ready-ack``,
-``wrong-seq-ack``, ``give-up-after-two``, the ``give-up-never`` control). Not modelled:
+ACKed again 0.3 s late, past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1),
+``broadcasts-mission`` (the challenge's messages broadcast once to every drone once each
+Start_Mission is ACKed, D-11: the C manager's ``VARIANT=BROADCAST``), and the manager faults
+of :data:`sim.faults.FAULTS` (``manager-rtx-none``, ``no-ready-ack``, ``wrong-seq-ack``,
+``give-up-after-two``, the ``give-up-never`` control). Not modelled:
 ``no-wait-start-ack`` (MCP-BLK-3: two unicasts in flight at once, which the reference
 endpoint's one in-flight slot cannot hold) and ``dup-seq-only`` (no rule a clean link shows).
 """
@@ -44,7 +49,7 @@ from mcp_conform.reference_impl._transitions import Input
 from mcp_conform.reference_impl.endpoint import _HEAD
 from mcp_conform.sim.faults import FAULTS, FaultMixin, GiveUpAfterTwo
 from mcp_conform.sim.models import ManagerModel
-from mcp_conform.spec.codec import PREAMBLE, Action, DecodeError, decode, peek_header
+from mcp_conform.spec.codec import BROADCAST_ID, PREAMBLE, Action, DecodeError, decode, peek_header
 
 __all__ = ["MANAGER_FAULTS", "ManagerFault"]
 
@@ -233,6 +238,39 @@ class AfterEnd(ManagerModel):
         return [*super().plan(), (self.drones[0], Action.WP_OFF, None)]
 
 
+class BroadcastsMission(ManagerModel):
+    """Correct (D-11): Start_Mission to each drone, then the challenge's messages broadcast once
+    to every drone (never ACKed: MCP-ACK-4; never sent again: MCP-RTX-4) -- one WP_List, each
+    waypoint's WP_On and WP_Off, one Obstacles_List -- then End_Mission to each; the C manager's
+    ``VARIANT=BROADCAST`` (examples/mcp_c/manager), the C++ one's ``--broadcast-lists``."""
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        out = super().plan()
+        n = len(self.drones)
+        return out[:n] + [(BROADCAST_ID, a, p) for d, a, p in out[n:-n] if d == self.drones[0]] + out[-n:]
+
+    def _next(self, now: float) -> None:
+        self._broadcasts(now)
+        super()._next(now)
+
+    def _broadcasts(self, now: float) -> None:
+        """The broadcasts at the head of the plan, each on the wire at once (no outcome event)."""
+        while self._plan and self._plan[0][0] == BROADCAST_ID:
+            _, action, payload = self._plan.pop(0)
+            self.ep.send(action, payload, BROADCAST_ID, now=now)
+            self.sent.append((action, BROADCAST_ID))
+
+
+class BroadcastEarly(BroadcastsMission):
+    """Faulty (MCP-FLOW-4): the challenge's broadcast goes as the last drone's Start_Mission goes
+    out, before its ACK: no command of that drone's mission (D-11)."""
+
+    def _next(self, now: float) -> None:
+        super()._next(now)
+        if self._current is not None and self._current[:2] == (self.drones[-1], Action.START_MISSION):
+            self._broadcasts(now)
+
+
 class PausesMidMission(ManagerModel):
     """Correct: quiet for ``HOLD`` s mid-mission, longer than the runner's idle window
     (``max(2.5 --rto, 2 --ack-window, 1 s)``) -- challenge 2, each waypoint held active that
@@ -314,10 +352,14 @@ MANAGER_FAULTS: dict[str, ManagerFault] = {**_from_faults(), **{f.name: f for f 
     ManagerFault("wp-off-first", "MCP-FLOW-5", 2, WpOffFirst, what="a WP_Off before the first WP_On to each drone"),
     ManagerFault("after-end", "MCP-BLK-6", 2, AfterEnd, what="a WP_Off to the first drone after its End_Mission"),
     ManagerFault("ack-ack", "MCP-ACK-6", 1, endpoint=AckAck, what="ACKs the ACKs addressed to it"),
+    ManagerFault("broadcast-early", "MCP-FLOW-4", 1, BroadcastEarly,
+                 what="the WP_List broadcast before the last drone's Start_Mission is ACKed"),
     # correct managers unlike the reference one: no rule broken
     ManagerFault("acks-copies-late", None, 1, AcksCopiesLate, what="a copy is ACKed again 0.3 s late"),
     ManagerFault("give-up-after-three", None, 1, endpoint=GiveUpAfterTwo, retries=2,
                  what="each unicast sent 3 times at most (a retry limit of 2: spec min_copies), then the drone dropped"),
+    ManagerFault("broadcasts-mission", None, 1, BroadcastsMission,
+                 what="the challenge's messages broadcast once to every drone after every Start_Mission's ACK (D-11)"),
     ManagerFault("pauses-mid-mission", None, 2, PausesMidMission,
                  what="quiet 2.5 s mid-mission (a waypoint held active), past the runner's idle window"),
 )}}

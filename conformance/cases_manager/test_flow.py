@@ -3,7 +3,9 @@
 "1. Waits for 'Mission Ready' messages from all UAVs 2. Sends 'Start Mission' message to
 each UAV 3. Executes the challenge based on the challenge number." Challenge 1: one
 WP_List; challenge 2: WP_On, then WP_Off; challenge 3: one Obstacles_List; then End_Mission.
-A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the rest.
+A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the rest. The
+challenge's messages may be broadcast (delivery "any"): a broadcast is a command to each drone
+whose mission is on when it comes, and to no other (D-11, ``manager_case.to_mission``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from mcp_conform.conformance.manager_case import (
     item_differences,
     messages,
     needs_scenario,
+    to_mission,
 )
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
@@ -54,16 +57,21 @@ def test_end_mission_to_each_drone(node):
 
 
 def _one_list(node, rule, action, want, what):
-    """Exactly one new list of ``action`` per drone, equal to ``want`` (count, order, every field)."""
+    """Exactly one new list of ``action`` per drone (unicast to it, or broadcast while its mission
+    is on: D-11), equal to ``want`` (count, order, every field)."""
     m = node.mission()
     gone = abandoned(m, node.rto)
     msgs = messages(m)
     for d in m.drones:
-        lists = [x for x in msgs if x.dst == d and x.action == action]
+        mine, outside = to_mission(m, msgs, d, node.broadcast_id)
+        lists = [x for x in mine if x.action == action]
         if not lists and d in gone:
             continue
-        node.expect_true(len(lists) == 1, rule, f"one {_name(action)} to drone {d}", f"{len(lists)}",
-                         [x.first.describe() for x in lists[:3]])
+        early = [x for x in outside if x.action == action]
+        node.expect_true(len(lists) == 1, rule, f"one {_name(action)} to drone {d}", f"{len(lists)}"
+                         + (f" ({len(early)} broadcast outside its mission: before its Start_Mission was ACKed "
+                            "or after its End_Mission, D-11)" if early and not lists else ""),
+                         [x.first.describe() for x in (lists or early)[:3]])
         got = lists[0].first
         if got.msg is None:
             raise Inconclusive(f"{rule}: the {_name(action)} to drone {d} cannot be decoded "
@@ -96,9 +104,9 @@ def test_challenge_2_wp_off_follows_wp_on(node):
     want = m.waypoints
     msgs = messages(m)
     for d in m.drones:
-        end = next((x.first.t for x in msgs if x.dst == d and x.action == _END), None)
-        seq = [x for x in msgs if x.dst == d and x.action in (_WP_ON, _WP_OFF)
-               and (end is None or x.first.t < end)]  # after End_Mission: MCP-BLK-6's
+        mine = to_mission(m, msgs, d, node.broadcast_id)[0]
+        end = next((k for k, x in enumerate(mine) if x.action == _END), len(mine))  # in arrival order
+        seq = [x for x in mine[:end] if x.action in (_WP_ON, _WP_OFF)]  # after End_Mission: MCP-BLK-6's
         if not seq and d in gone:
             continue
         on = False

@@ -9,9 +9,10 @@ FAULT=...``) fails the one rule its fault breaks, found by the rule's text, and 
 Short timings: the node's --rto and the runner's are both 0.3 s (--ack-window 0.3).
 
 A retry limit of 2 and a waypoint held active past the runner's idle window, judged wrong until
-session 33, are readings like the others (``READINGS``). One kind of run still draws verdicts the
-node does not earn (a mission broadcast to every drone: the documents are ambiguous): it asserts
-every other rule, and those verdicts are an xfail (``SuiteFault``) until the documents are settled.
+session 33, are readings like the others (``READINGS``); so is a mission broadcast to every drone
+(``VARIANT=BROADCAST``), failed on MCP-FLOW-4/5/6 until decision D-11 settled the documents.
+A verdict the suite still gets wrong would be asserted last and raised as ``SuiteFault`` (an xfail
+naming why).
 """
 
 from __future__ import annotations
@@ -96,7 +97,8 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def run(tmp_path: Path, manager: Path, challenge: int,
-        send_to: str = "{broadcast}:{listen_port}", *options: str) -> tuple[int, dict, str]:
+        send_to: str = "{broadcast}:{listen_port}", *options: str,
+        runner: tuple[str, ...] = ()) -> tuple[int, dict, str]:
     spawn = (f"{shlex.quote(str(manager))} --challenge {{challenge}} --drones {{drones}}"
              " --waypoints {waypoints} --obstacles {obstacles}"
              f" --bind {{target_host}}:{{target_port}} --send-to {send_to} --rto {RTO}"
@@ -104,7 +106,7 @@ def run(tmp_path: Path, manager: Path, challenge: int,
     out = tmp_path / "r.json"
     proc = run_module("conformance", ["--role", "manager", "--challenge", str(challenge),
                                       "--rto", RTO, "--ack-window", RTO, "--json", str(out),
-                                      "--spawn", spawn], timeout=300)
+                                      "--spawn", spawn, *runner], timeout=300)
     assert out.exists(), proc.stdout + proc.stderr
     return proc.returncode, json.loads(out.read_text()), proc.stdout + proc.stderr
 
@@ -184,19 +186,27 @@ def test_other_readings_of_the_documents_earn_every_rule(
         assert any("gave up on drone(s)" in n for n in flow3["notes"]), flow3
 
 
-@pytest.mark.xfail(raises=SuiteFault, strict=False, reason=(
-    "the documents are ambiguous: WP_List, WP_On and Obstacles_List have delivery 'any', yet the "
-    "FLOW cases (and the monitor's MCP-FLOW-4/6, not its FLOW-5) count only those unicast to each "
-    "drone, so a mission broadcast once to every drone fails MCP-FLOW-4/5/6. (MCP-RTX-4, which "
-    "warned 'sent 6 times' of six broadcast WP_Offs each with its own seq, is right since session 32: "
-    "conformance.manager_case.messages groups by payload only a mission drone's unicasts)"))
 @pytest.mark.parametrize("challenge", [1, 2, 3])
 def test_a_mission_broadcast_to_every_drone(tmp_path: Path, builds: dict[str, Path],
                                             challenge: int) -> None:
-    rc, doc, out = run(tmp_path, builds["BROADCAST"], challenge)
-    flow = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}[challenge]
-    judge(doc, out, expected_rules(doc, challenge, broadcast=True), (flow,))
+    """D-11: the challenge's messages broadcast once to every drone after every Start_Mission was
+    ACKed are each drone's (MCP-FLOW-4/5/6 passed, in the cases and the monitor), sent once
+    (MCP-RTX-4 passed). Failed on MCP-FLOW-4/5/6 before D-11 ("one WP_LIST to drone 1: 0").
+    One judge: ``mcp-capture check`` of the run's capture gives the live monitor's verdicts."""
+    from mcp_conform.judge.judging import Params
+    from mcp_conform.judge.judging import judge as check
+    from tests.conformance.runner_helpers import verdict_differences
+
+    cap = tmp_path / "run.mcap"
+    rc, doc, out = run(tmp_path, builds["BROADCAST"], challenge, runner=("--capture", str(cap)))
+    judge(doc, out, expected_rules(doc, challenge, broadcast=True))
     assert rc == 0, out
+    flow = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}[challenge]
+    assert doc["monitor"]["rules"]["0"][flow] == "passed", doc["monitor"]
+    for complete in (False, True):
+        j = check(cap, Params(complete=complete))
+        assert verdict_differences(doc["monitor"]["rules"], j.verdicts) == [], complete
+        assert [v.rule for v in j.violations] == [], complete
 
 
 @pytest.mark.parametrize("fault", FAULTS)

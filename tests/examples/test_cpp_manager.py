@@ -7,10 +7,9 @@ MCP-ROB-*, MCP-FLOW-2..6, MCP-TRN-2) and no violation in the trace monitor; each
 build (``make FAULT=...``) must fail the rule its fault breaks (MCP-RTX-1: never retransmits;
 MCP-ACK-2: ACKs name the seq + 1) and no other MUST rule; the pipelined build (``make
 VARIANT=PIPELINE``, the reading of MCP-BLK-1 the node does not take) must fail MCP-BLK-1 alone.
-The correct node is also judged right with a retry limit of 2 and with a waypoint held active
-for 2 s (``--hold 2``), and the wrong-seq build fails MCP-ACK-2 alone (its ACKs were read as
-ACKs of an ACK, MCP-ACK-6, until session 33). Verdicts the suite gets wrong are xfails naming
-why (strict=False): the correct node failed with its lists broadcast (``--broadcast-lists``)."""
+The correct node is also judged right with a retry limit of 2, with a waypoint held active for
+2 s (``--hold 2``) and with its lists broadcast (``--broadcast-lists``: D-11), and the wrong-seq
+build fails MCP-ACK-2 alone (its ACKs were read as ACKs of an ACK, MCP-ACK-6, until session 33)."""
 
 from __future__ import annotations
 
@@ -197,18 +196,18 @@ def test_a_retry_limit_of_2_is_no_violation(tmp_path_factory: pytest.TempPathFac
     assert doc["rules"]["MCP-RTX-2"] == "passed", doc["output"]
 
 
-@pytest.mark.xfail(strict=False, raises=AssertionError, reason=(
-    "suite: WP_List and Obstacles_List are 'delivery: any' (docs/spec.md's action table) and "
-    "MCP-FLOW-4/6 ask the waypoints (obstacles) 'as one WP_List (Obstacles_List)'; a manager "
-    "that broadcasts that one list (dst 0xFFFF, once, after every Start_Mission is ACKed) is "
-    "failed 'expected: one WP_LIST to drone 1, actual: 0' (MCP-PAY-3/4, MCP-RTX-4, MCP-ACK-4 "
-    "pass on the same run)"))
 @pytest.mark.parametrize("challenge", ["1", "3"])
 def test_a_broadcast_list_is_one_list(tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path],
                                       challenge: str) -> None:
+    """D-11: the one list broadcast (dst 0xFFFF, once, after every Start_Mission is ACKed) is each
+    drone's one list. Failed before D-11: 'expected: one WP_LIST to drone 1, actual: 0'."""
     doc = run_suite(tmp_path_factory, builds, "ok", challenge, "--broadcast-lists")
     assert doc["rules"]["MCP-RTX-4"] == "passed", doc["output"]
     assert failed_must(doc) == set(), sorted(failed_must(doc))
+    assert doc["exit_code"] == 0, doc["output"]
+    assert doc["monitor"]["violations"] == [], doc["output"]  # the monitor's FLOW-4/6 alike
+    flow = {"1": "MCP-FLOW-4", "3": "MCP-FLOW-6"}[challenge]
+    assert doc["rules"][flow] == "passed", doc["output"]
 
 
 def test_a_manager_that_holds_a_waypoint_is_watched_to_its_end(

@@ -320,6 +320,25 @@ def rtx2_moves_on() -> Script:
     return _manager_finishes(s, kw)
 
 
+def rtx2_moves_on_then_broadcasts() -> Script:
+    """:func:`rtx2_moves_on`'s manager broadcasting the WP_List once drone 2's Start_Mission is
+    ACKed, before drone 1's right ACK comes: drone 1's Start_Mission was answered by the wrong ACK
+    it took, so the broadcast is drone 1's list too (D-11): MCP-RTX-2 alone, not MCP-FLOW-4."""
+    s, kw, seq, data = withheld_start_and_wrong_acks(wrong_seq=True)
+    s.tick(0.0005)
+    t_moved = s.t
+    seq2, _ = s.send(0, 2, Action.START_MISSION)  # taken: the next drone's Start_Mission at once
+    s.tick(0.004)
+    s.ack(2, 0, seq2, origin=TESTER)
+    s.broadcast(Action.WP_LIST, tuple(s.items))
+    s.t = t_moved + 0.155
+    s.ack(1, 0, seq, origin=TESTER)  # the right ACK
+    s.tick(0.05)
+    for d in s.drones:
+        s.exchange(0, d, Action.END_MISSION, **kw)
+    return s
+
+
 def rtx2_takes_a_stale_ack() -> Script:
     """A manager that takes any ACK from the destination: the runner's wrong-source ACK
     from drone 2 (sent while drone 1's Start_Mission awaited its ACK: not from drone 1, so
@@ -736,6 +755,78 @@ def flow6() -> Script:
     return _finish(s, steps=False)
 
 
+# D-11: a list broadcast is a command to each drone whose mission is on (its Start_Mission
+# ACKed, no End_Mission yet), and to no other
+def flow4_broadcast_before_start() -> Script:
+    """The WP_List broadcast once drone 1's Start_Mission is ACKed, before drone 2's is sent:
+    drone 2's mission got no list."""
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    s.start(1)
+    s.broadcast(Action.WP_LIST, tuple(s.items))
+    s.start(2)
+    return _finish(s, steps=False)
+
+
+def flow4_broadcast_before_start_acked() -> Script:
+    """The WP_List broadcast while drone 2's Start_Mission awaits its ACK (its first copy
+    unanswered, the next ACKed): drone 2's mission got no list."""
+    s = Script((1, 2))
+    for d in s.drones:
+        s.ready(d)
+    s.start(1)
+
+    def answer(k: int, seq: int, data: bytes) -> bool:
+        if k == 0:
+            s.broadcast(Action.WP_LIST, tuple(s.items))
+            s.tick(-0.01)
+            return False
+        s.ack(2, 0, seq)
+        return True
+    s.exchange(0, 2, Action.START_MISSION, ack_hook=answer)
+    return _finish(s, steps=False)
+
+
+def flow4_broadcast_twice() -> Script:
+    s = _started()
+    s.broadcast(Action.WP_LIST, tuple(s.items))
+    s.broadcast(Action.WP_LIST, tuple(s.items))  # a second list to every drone, a new seq
+    return _finish(s, steps=False)
+
+
+def flow4_broadcast_and_unicast() -> Script:
+    s = _started()
+    s.broadcast(Action.WP_LIST, tuple(s.items))
+    s.exchange(0, 1, Action.WP_LIST, tuple(s.items))  # drone 1's second list
+    return _finish(s, steps=False)
+
+
+def flow6_broadcast_after_end() -> Script:
+    """Drone 1's mission ended before the Obstacles_List broadcast: it never got one."""
+    s = _started(challenge=3)
+    s.end(1)
+    s.broadcast(Action.OBSTACLES_LIST, tuple(s.items))
+    s.end(2)
+    return s
+
+
+def flow5_broadcast_wp_off_before_its_wp_on() -> Script:
+    """A WP_On broadcast while only drone 1's mission is on, then drone 2 started, then the
+    WP_Off broadcast: drone 2 gets a WP_Off with no WP_On before it."""
+    s = Script((1, 2), challenge=2)
+    for d in s.drones:
+        s.ready(d)
+    s.start(1)
+    s.broadcast(Action.WP_ON, s.items[0])
+    s.start(2)
+    s.broadcast(Action.WP_OFF)
+    for wp in s.items[1:]:
+        s.broadcast(Action.WP_ON, wp)
+        s.broadcast(Action.WP_OFF)
+    return _finish(s, steps=False)
+
+
 # ---------------------------------------------------------------- DUP, SEQ-3 (autopilot link)
 def dup1() -> Script:
     s = _started()
@@ -854,6 +945,13 @@ FAULTY: dict[str, Fault] = {
     "flow4-two-wp-lists": Fault("MCP-FLOW-4", flow4, complete=False),
     "flow5-wp-off-without-wp-on": Fault("MCP-FLOW-5", flow5),
     "flow6-wrong-obstacles": Fault("MCP-FLOW-6", flow6, complete=False),
+    "rtx2-moves-on-then-broadcasts": Fault("MCP-RTX-2", rtx2_moves_on_then_broadcasts),
+    "flow4-broadcast-before-start": Fault("MCP-FLOW-4", flow4_broadcast_before_start),
+    "flow4-broadcast-before-start-acked": Fault("MCP-FLOW-4", flow4_broadcast_before_start_acked),
+    "flow4-broadcast-twice": Fault("MCP-FLOW-4", flow4_broadcast_twice, complete=False),
+    "flow4-broadcast-and-unicast": Fault("MCP-FLOW-4", flow4_broadcast_and_unicast, complete=False),
+    "flow5-broadcast-wp-off-before-its-wp-on": Fault("MCP-FLOW-5", flow5_broadcast_wp_off_before_its_wp_on),
+    "flow6-broadcast-after-end": Fault("MCP-FLOW-6", flow6_broadcast_after_end),
     "dup1-duplicate-delivered": Fault("MCP-DUP-1", dup1),
     "dup2-same-bytes-dropped": Fault("MCP-DUP-2", dup2),
     "dup3-other-src-dropped": Fault("MCP-DUP-3", dup3),

@@ -32,7 +32,7 @@ from mcp_conform.spec.codec import Action, Message, build_datagram, encode
 from mcp_conform.spec.mavframe import heartbeat_frame
 from mcp_conform.spec.mission import load_waypoints
 
-__all__ = ["OBSTACLES", "TESTER", "WAYPOINTS", "Record", "Script", "clean_script", "write_pcap"]
+__all__ = ["BROADCAST_ID", "OBSTACLES", "TESTER", "WAYPOINTS", "Record", "Script", "clean_script", "write_pcap"]
 
 NS = 1_000_000_000
 DATA = Path(__file__).resolve().parents[1] / "reference_impl" / "data"
@@ -41,6 +41,7 @@ OBSTACLES = load_waypoints(DATA / "obstacles.waypoints")
 MANAGER_ADDR = ("127.0.0.1", int(SPEC.protocol["ports"]["manager"]))
 BROADCAST_ADDR = (str(SPEC.protocol["broadcast_address"]), int(SPEC.protocol["ports"]["drone"]))
 T0_NS = 1_700_000_000 * NS
+BROADCAST_ID = int(SPEC.protocol["broadcast_id"])
 
 
 class Record(NamedTuple):
@@ -195,6 +196,16 @@ class Script:
             for d in drones:
                 self.exchange(0, d, Action.OBSTACLES_LIST, tuple(self.items), **kw)
                 self.tick(0.01)
+
+    def broadcast(self, action: Action, payload: Any = None) -> int:
+        """A broadcast of the manager (dst the broadcast ID, D-1): sent once, never ACKed
+        (MCP-RTX-4, MCP-ACK-4); D-11: a command to each drone whose mission is on. It goes
+        2 ms after what came before (an ACK the manager reads first: no datagram is answered at
+        the instant it leaves)."""
+        self.tick(0.002)
+        seq, _ = self.send(0, BROADCAST_ID, action, payload)
+        self.tick(0.01)
+        return seq
 
     def passthrough(self, drone: int, frame: bytes | None = None, **kw: Any) -> int:
         """A Mav_Passthrough the drone ACKs and writes to its autopilot once."""
