@@ -9,7 +9,7 @@
    ``check --json`` and ``export --pcap`` (a .pcap and a .pcapng), each a subprocess: wall
    seconds, CPU seconds and peak RSS. Linear time doubles from one size to the next (issue 19
    item 7: 2.8 / 7.3 / 33 s for show before). ``--golden``: the same commands on
-   captures/golden/drone-suite.mcap (10,283 datagrams) first.
+   captures/golden/drone-suite.mcap (10,286 datagrams) first.
 2. ``mcp-capture check FILE --json OUT`` of a capture of ``--million`` datagrams, every one a
    violation (a drone sending WP_On to the manager, MCP-HDR-5): wall, CPU, peak RSS, against
    the issue's target of <= 60 s and <= 1 GB.
@@ -166,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     only = set(args.only.split(","))
     inputs: list[tuple[str, Path, Path | None]] = []
     if args.golden:
-        inputs.append(("golden drone-suite.mcap (10,283 datagrams)", ROOT / "captures" / "golden" / "drone-suite.mcap",
+        inputs.append(("golden drone-suite.mcap (10,286 datagrams)", ROOT / "captures" / "golden" / "drone-suite.mcap",
                        None))
     for n in (int(x) for x in args.sizes.split(",") if x):
         a = cached(tmp / f"bench-noisy-{n}.mcap", lambda p, n=n: write_noisy(p, n))
