@@ -75,13 +75,15 @@ class FuzzTarget(TargetBase):
         one observation runs on a clean link (the link paused): a lost copy is not MCP-RTX-1."""
         s, drv = self.session, self.driver
         self.count_restart(WITHHELD_START)
-        mark = drv.mark()
         drv.auto_ack = lambda d: d.action != _READY
         link = drv.link
         if link is not None:
             link.paused = True
         try:
             s.respawn()
+            # from the new node's start (``spawn_mark``, taken once the old one was stopped):
+            # a late copy of the old one's Mission_Ready is not the new one's
+            mark = s.spawn_mark if s.spawn_mark is not None else drv.mark()
             limit = time.monotonic() + READY_LIMIT + (copies + 1) * max(self.rto, 0.05) * 2
             while time.monotonic() < limit and self.alive():
                 got = [d for d in drv.received(mark) if d.action == _READY]

@@ -52,6 +52,7 @@ BurstObserver = Callable[[str, list[bytes], int, Address, int, int, Address], No
 _ACK = int(Action.ACK)
 PREAMBLE_LEN = len(PREAMBLE)
 MAX_QUEUED_NS = 10 * 10**9  # a kernel time older than this is not believed (a clock step)
+MAX_UNHEARD = 100_000  # notifications kept for the first observers (``add_observers``), at most
 
 
 _U16BE = struct.Struct("!H")
@@ -176,6 +177,7 @@ class TargetDriver:
         self._rx_attr: list[Attribution | None] = []  # parallel to _rx
         self.attributor = Attributor(our_id)
         self._observers: list[tuple[Observer, bool]] = []  # (observer, it takes ``run_delay``)
+        self._unheard: list[tuple[str, bytes, Address, int, int | None]] | None = []  # add_observers
         #: held while the observers hear of a datagram; whoever else feeds them holds it too (one order)
         self.notify_lock = threading.RLock()
         self._burst_observers: list[BurstObserver] = []
@@ -221,13 +223,20 @@ class TargetDriver:
     def remove_observer(self, observer: Observer) -> None:
         self._observers = [o for o in self._observers if o[0] != observer]
 
-    def add_observer(self, observer: Observer) -> None:
-        """Called for every datagram sent ("tx") and received ("rx"), from any thread."""
-        self._observers.append((observer, takes_run_delay(observer)))
+    def add_observers(self, observers: Iterable[Observer] = (), bursts: Iterable[BurstObserver] = ()) -> None:
+        """``observers`` hear every datagram sent ("tx") and received ("rx"), from any thread;
+        ``bursts`` each :meth:`flood` once. The first call (none given too) first hands ``observers``,
+        in order, what the driver sent and received since :meth:`open` (the receiver runs from
+        there: the capture and the run's monitor added after, ``observe_run``, lose nothing)."""
+        with self.notify_lock:
+            added = [(o, takes_run_delay(o)) for o in observers]
+            self._observers, unheard, self._unheard = self._observers + added, self._unheard or [], None
+            self._burst_observers.extend(bursts)
+            for item in unheard:
+                self._notify(*item, to=added)
 
-    def add_burst_observer(self, observer: BurstObserver) -> None:
-        """Called once per :meth:`flood` with its count and distinct datagrams (one record)."""
-        self._burst_observers.append(observer)
+    def add_observer(self, observer: Observer) -> None:
+        self.add_observers([observer])
 
     # ------------------------------------------------------------------ receiving
     def _receive_loop(self) -> None:
@@ -294,9 +303,14 @@ class TargetDriver:
                 and self.auto_ack(d)):
             self.send_ack(msg.seq, dst=msg.src)  # to the node's receive address (MCP-TRN-2)
 
-    def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int, rd: int | None = None) -> None:
+    def _notify(self, direction: str, data: bytes, addr: Address, t_ns: int, rd: int | None = None,
+                to: list[tuple[Observer, bool]] | None = None) -> None:
         with self.notify_lock:
-            for obs, takes in self._observers:  # run_delay only to those that take it, when known
+            if to is None and self._unheard is not None:  # kept for the first observers (add_observers)
+                if len(self._unheard) < MAX_UNHEARD:
+                    self._unheard.append((direction, data, addr, t_ns, rd))
+                return
+            for obs, takes in self._observers if to is None else to:  # run_delay only to those that take it, when known
                 try:
                     obs(direction, data, addr, t_ns, run_delay=rd) if takes and rd is not None else obs(direction, data, addr, t_ns)
                 except Exception:  # a broken recorder must not stop the run

@@ -56,8 +56,10 @@ def observe_again(session: Any, st: Any) -> None:
     drv = session.driver
     assert drv is not None
     period = session.period
-    mark = drv.mark()
     session.respawn()
+    # from the new instance's start (``spawn_mark``, taken once the old one was stopped): a
+    # late copy of the old one's Mission_Ready is not the new one's first
+    mark = session.spawn_mark if session.spawn_mark is not None else drv.mark()
     if session.vehicle is not None:
         session.vehicle.give_fix()
     wait = max(SPAWN_STARTUP_S, 4 * session.rto + 5.0)

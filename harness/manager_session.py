@@ -202,15 +202,16 @@ class ManagerSession(DatagramSessionBase):
         # the capture; the trace monitor judges the manager's traffic (the drones are the
         # runner's), one mission at a time: each scenario starts a fresh manager, and its
         # mission is a session of the capture of its own, complete (the runner plays every
-        # drone: its socket is party to every exchange of the mission), judged so offline too
-        self.observe_run(target, MANAGER_ID, complete=self.trace_complete, judge=False)
+        # drone: its socket is party to every exchange of the mission), judged so offline too;
+        # both hear what came before they were added (an attached manager already speaks)
         self.monitor = SessionMonitors(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
                                        broadcast_id=self.cfg.broadcast_id, node_id=MANAGER_ID,
                                        node_addr=target, complete=self.trace_complete,
                                        challenge=cfg.challenge, waypoints=self._handed_items(),
                                        rto_declared=cfg.rto_declared)
         self.monitor.listen = self.driver.listen
-        self.driver.add_observer(self.monitor.observe)
+        self.observe_run(target, MANAGER_ID, complete=self.trace_complete, judge=False,
+                         also=(self.monitor.observe,))
         self.players = DronePlayers(self.driver, cfg.drones, 1000 + cfg.seed % 5000)
         self.driver.on_datagram = self.players.on_datagram
         self.target_desc = f"{target[0]}:{target[1]}"

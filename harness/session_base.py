@@ -472,29 +472,31 @@ class DatagramSessionBase(SessionBase):
         return self.cfg.ack_window
 
     def observe_run(self, target: tuple[str, int], node_id: int | None, *, complete: bool,
-                    judge: bool = True) -> Any:
+                    judge: bool = True, also: tuple[Any, ...] = ()) -> Any:
         """The run's observers on the driver, built one way for every role: the capture
-        (held against signals, so a record is never cut in half) and the run's trace
-        monitor (``judge.run_monitor``); the capture is told whose traffic it holds and
-        whether the monitor judges it as complete, so ``mcp-capture check`` judges it the same.
-        ``judge=False``: no run monitor (the fuzzer judges with its own oracles); None."""
+        (held against signals, so a record is never cut in half), the run's trace monitor
+        (``judge.run_monitor``) and ``also`` (the role's own), added at once: each hears what
+        the driver got before too (``TargetDriver.add_observers``); the capture is told whose
+        traffic it holds and whether the monitor judges it as complete, so ``mcp-capture check``
+        judges it the same. ``judge=False``: no run monitor (the fuzzer's oracles judge); None."""
         driver = self.driver
         assert driver is not None
         driver.run_delay = self.node_run_delay  # spawn mode: the node's lateness (MCP-RTX-3)
+        observers, bursts, monitor = [], [], None
         if self.recorder is not None:
             self.recorder.local = driver.listen  # the runner's socket: each datagram's other end
-            driver.add_observer(_held(self.recorder.datagram))
-            driver.add_burst_observer(_held(self.recorder.burst))
+            observers, bursts = [_held(self.recorder.datagram)], [_held(self.recorder.burst)]
         self.node_address = target
-        if not judge:
-            return None
-        monitor_class = resolve(self.cfg.profile()[0].monitor)  # the protocol's (MCP: judge.run_monitor)
-        monitor = monitor_class(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
-                                broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
-                                complete=complete, **({"rto_declared": True} if self.cfg.rto_declared else {}))
-        monitor.listen = driver.listen
-        driver.add_observer(monitor.observe)
-        self.record_node(node_id, complete=complete)
+        if judge:
+            monitor_class = resolve(self.cfg.profile()[0].monitor)  # the protocol's (MCP: judge.run_monitor)
+            monitor = monitor_class(rto=self.cfg.rto, ack_window=self.cfg.ack_window,
+                                    broadcast_id=self.cfg.broadcast_id, node_id=node_id, node_addr=target,
+                                    complete=complete, **({"rto_declared": True} if self.cfg.rto_declared else {}))
+            monitor.listen = driver.listen
+            observers.append(monitor.observe)
+        driver.add_observers([*observers, *also], bursts)
+        if judge:
+            self.record_node(node_id, complete=complete)
         return monitor
 
     def spawn_node(self) -> None:
