@@ -27,6 +27,7 @@ from typing import Any
 from mcp_conform.harness.clock import REAL, Clock
 from mcp_conform.harness.config import RunConfig
 from mcp_conform.harness.driver import Datagram, Exchange, TargetDriver
+from mcp_conform.harness.drone_giveup import POLL_S, gave_up, others_while_waiting, restart_quick
 from mcp_conform.harness.drone_rtx2 import needs_second_look, observe_again
 from mcp_conform.harness.errors import SetupError, SpawnFailure, TargetLost
 from mcp_conform.harness.liveness import Liveness
@@ -278,7 +279,8 @@ class Session(DatagramSessionBase):
         if node is not None and node.alive():  # it may be on its way out: give it a moment to say why
             with contextlib.suppress(Exception):
                 node.proc.wait(timeout=0.2)
-        detail = self._startup_detail()
+        from mcp_conform.harness.startup_report import startup_detail
+        detail = startup_detail(self)
         if node is None:  # attach mode: what the runner knows fits the error's one line
             return SetupError(why + (f" ({'; '.join(detail)})" if detail else ""))
         details = node.details()
@@ -286,14 +288,6 @@ class Session(DatagramSessionBase):
             head, _, rest = why.partition("the node exited")
             why = f"{head}the node {details['exit']}{rest}" if _ else f"{why} (the node {details['exit']})"
         return SpawnFailure(why, details, detail)
-
-    def _startup_detail(self) -> list[str]:
-        """What the runner observed in the run's first startup (``harness.startup_report``); [] after it."""
-        if self._startup_mark is None or self.driver is None:
-            return []
-        from mcp_conform.harness.startup_report import explain_session
-
-        return explain_session(self, self.driver.received(self._startup_mark))
 
     @property
     def fix_hold(self) -> float:
@@ -409,7 +403,9 @@ class Session(DatagramSessionBase):
             return
         if withheld:
             self._observe_retransmissions(st, first_ready, parts)
-            if needs_second_look(self, st):  # a retry limit or MCP-RTX-2's fault: a restart tells
+            if st.gave_up is not None:  # MCP-RTX-1 observed broken: cases on a restarted node
+                restart_quick(self, st)
+            elif needs_second_look(self, st):  # a retry limit or MCP-RTX-2's fault: a restart tells
                 observe_again(self, st)
         elif measure:
             self._measure_period(first_ready)
@@ -472,37 +468,38 @@ class Session(DatagramSessionBase):
         slowest = max(self.rto, float(SPEC.params["timeout_s"]))
         i = first_ready.index
         wanted = MIN_COPIES if "copies" in parts else 2
+        seen = None  # when the node was last seen running (a lower bound of its exit)
         while True:
+            now = self.clock.monotonic()
+            seen = now if self.alive() else seen
             copies = [d for d in drv.received(i) if d.action == _READY]
             if len(copies) >= 2:
                 deadline = first_ready.t + MIN_COPIES * max(self.rto, copies[1].t - copies[0].t) * 1.5 + 1.0
             else:
                 deadline = first_ready.t + max(MIN_COPIES * self.rto, slowest) * 1.5 + 1.0
-            if len(copies) >= wanted or self.clock.monotonic() >= deadline or not self.alive():
+            if len(copies) >= wanted or now >= deadline or seen != now:
                 break
-            drv.wait_for(lambda d: d.action == _READY, 0.05, drv.mark())
+            drv.wait_for(lambda d: d.action == _READY, POLL_S, drv.mark())
         st.copies = [d for d in drv.received(i) if d.action == _READY]
         self.period = st.period()
         if "copies" in parts:
             self.timing = timing_note(st.period(), self.rto, len(st.copies),
                                       "the node is judged by its copies' own spacing")
+            st.gave_up = gave_up(self, st, seen, None if seen == now else now)  # gone: no wrong ACKs, no watch
         gaps = st.gaps()
         gap = sorted(gaps)[len(gaps) // 2] if gaps else self.rto
-        if "wrong" in parts:
+        if "wrong" in parts and st.gave_up is None:
             self._send_wrong_acks(st, i, ready_src, gap)
         latest = [d for d in drv.received(i) if d.action == _READY][-1]  # (an MR: its header was read)
         rseq = latest.header[2] if latest.header else 0
         st.right_ack = drv.send_ack(rseq, dst=ready_src)
-        if "copies" in parts:
+        if "copies" in parts and st.gave_up is None:
             st.stop_watch = max(self.ack_window, 1.5 * gap)
             grace = 0.05
             right = st.right_ack
             st.watch_after_right_ack(lambda: [d for d in drv.received(i) if d.action == _READY
                                               and d.t > right.t + grace], gap, self.clock.sleep)
-        # MCP-BLK-1: new unicast messages (not ACKs, not Mission_Ready copies) while it waited
-        st.others_while_waiting = [d for d in drv.received(i, drv.mark_before(st.right_ack))
-                                   if d.header is not None and d.action not in (_READY, int(Action.ACK))
-                                   and d.header[0] != self.cfg.broadcast_id]
+        st.others_while_waiting = others_while_waiting(self, i, drv.mark_before(st.right_ack))  # MCP-BLK-1
 
     def _send_wrong_acks(self, st: Startup, i: int, ready_src: int, gap: float) -> None:
         """MCP-RTX-2: an ACK with the wrong seq and one with the right seq from the wrong

@@ -219,6 +219,7 @@ class WithheldCopies:
     copies_after_right_ack: list[Datagram] = field(default_factory=list)  # proven: more than one
     crossed_copy: Datagram | None = None  # a lone copy after the right ACK: it may have crossed it
     stop_watch: float = 0.0
+    gave_up: str | None = None  # the node exited short of its copies (``harness.drone_giveup``)
 
     def watch_after_right_ack(self, after: Callable[[], list[Datagram]], gap: float,
                               sleep: Callable[[float], None]) -> None:

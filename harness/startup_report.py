@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mcp_conform.spec.codec import Action
 
-__all__ = ["explain", "explain_session"]
+__all__ = ["explain", "explain_session", "startup_detail"]
 
 #: Distinct frame kinds and distinct requests listed before "and N more".
 MAX_FRAME_KINDS = 8
@@ -171,3 +171,16 @@ def explain_session(session: Any, datagrams: Sequence[Any]) -> list[str]:
                        fix_given_at=session.startup_fix_at, fix_hold=session.fix_hold)
     except Exception as exc:  # noqa: BLE001  (an explanation never hides the error it explains)
         return [f"(what the runner observed could not be read: {type(exc).__name__}: {exc})"]
+
+
+def startup_detail(session: Any) -> list[str]:
+    """What the runner observed in a ``harness.drone_session.Session``'s first startup
+    (:func:`explain_session` of what reached it since the startup began; [] after it), and where
+    the node's first instance gave up short of MCP-RTX-1's copies and was restarted
+    (``harness.drone_giveup``), what it did."""
+    if session._startup_mark is None or session.driver is None:
+        return []
+    gave_up = getattr(session.startup, "gave_up", None)
+    return (explain_session(session, session.driver.received(session._startup_mark))
+            + ([f"MCP-RTX-1: its first instance: {gave_up}; restarted with its Mission_Ready ACKed at once"]
+               if gave_up else []))

@@ -41,9 +41,16 @@ from mcp_conform.reference_impl.events import (
     MessageDelivered,
 )
 from mcp_conform.sim.autopilot import AutopilotClient, Flow, Steps
-from mcp_conform.spec.codec import BROADCAST_ID, MANAGER_ID, Action, Message, MissionItem
+from mcp_conform.spec.codec import (
+    BROADCAST_ID,
+    MANAGER_ID,
+    Action,
+    Message,
+    MissionItem,
+    peek_header,
+)
 
-__all__ = ["DroneModel", "ManagerModel", "NodeModel", "mission_items"]
+__all__ = ["DroneModel", "ExitingDrone", "ManagerModel", "NodeModel", "mission_items"]
 
 MANAGER_ADDR = ("127.0.0.1", 7889)
 
@@ -261,6 +268,44 @@ class DroneModel(NodeModel):
         else:
             self.ready_acked = True
 
+
+
+class ExitingDrone(DroneModel):
+    """The reference drone whose process ends by itself ``exit_after`` s after its ``exit_on``-th
+    Mission_Ready copy leaves, with exit code ``exit_code`` (negative: killed by that signal): a
+    give-up on a timer of its own (``exit_after`` its period, as the C++ drone's ``--retries``),
+    or a crash as it sends (``exit_after`` near 0) -- what the runner tells apart
+    (``harness.drone_giveup``). Its retry limit stays its endpoint's (set it past ``exit_on``)."""
+
+    exit_on = 2
+    exit_after = 0.0
+    exit_code = 1
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.ready_copies = 0
+        self.exit_at = math.inf
+
+    def drain(self, now: float) -> list[tuple[bytes, Any, float]]:
+        """What it sends (``sim.transport``'s wire hook), its Mission_Ready copies counted."""
+        items = [(d, a, 0.0) for d, a in self.ep.datagrams_to_send(now)]
+        for data, _, _ in items:
+            header = peek_header(data)
+            if header is not None and header[3] == int(Action.MISSION_READY):
+                self.ready_copies += 1
+                if self.ready_copies == self.exit_on:
+                    self.exit_at = now + self.exit_after
+        return items
+
+    def timer(self) -> float | None:
+        t = super().timer()
+        return self.exit_at if t is None or self.exit_at < t else t
+
+    def on_timer(self, now: float) -> None:
+        if now >= self.exit_at:
+            self.close(now, f"exit:{self.exit_code}")
+            return
+        super().on_timer(now)
 
 class ManagerModel(NodeModel):
     """The Mission Manager (see the module docstring) for ``drones`` and ``challenge`` 1-3."""

@@ -16,7 +16,7 @@ the same ``--rto``):
   the same, the probes' deliveries and MCP-BLK-7's RTL awaited past the take-off the vehicle
   shows in progress (``conformance.drone_case.CaseContext.await_past_pending``);
 - a drone whose retry limit is 2, the least the spec allows, exiting when it gives up: judged
-  right, not an error;
+  right, not an error; one whose limit is 1: MCP-RTX-1 failed (exit 1), no other MUST rule;
 - each deliberately faulty build (``make FAULT=...``) fails the rule it breaks, named by the
   rule's text, and no other MUST rule.
 """
@@ -139,6 +139,20 @@ def test_a_drone_with_the_least_retry_limit_is_judged(builds: dict[str, Path], t
     assert doc["error"] is None, out
     assert doc["rules"]["MCP-RTX-1"] == doc["rules"]["MCP-RTX-2"] == "passed", out
     assert rc == 0, out
+
+
+def test_a_drone_below_the_least_retry_limit_fails_rtx1(builds: dict[str, Path], tmp_path: Path) -> None:
+    """``--retries 1``: two copies of Mission_Ready, then it gives up and exits 1 one --rto later,
+    while the startup still withholds the ACK -- MCP-RTX-1's "at least 3 copies" broken. The runner
+    restarts it, its Mission_Ready ACKed at once, and runs the cases on it (harness.drone_giveup).
+    It was an exit-2 setup error until session 33 ('the node exited with code 1 before
+    Start_Mission was sent')."""
+    rc, doc, out = run(tmp_path, builds["correct"], False, node_args="--retries 1")
+    assert doc["error"] is None, out
+    assert doc["rules"]["MCP-RTX-1"] == "failed", (rule_text("MCP-RTX-1"), out)
+    failed_must = {r for r, outcome in doc["rules"].items() if outcome == "failed" and RULES[r].level == "MUST"}
+    assert failed_must == {"MCP-RTX-1"}, out
+    assert rc == 1, out
 
 
 def rule_text(rule: str) -> str:

@@ -8,6 +8,10 @@ contradicts itself. (The runner now restarts a retry limit of 2 to tell it from 
 tests/sim/test_rtx2_second_look.py; a limit below it still ends the node before Start_Mission.)
 Now the session checks the node is there before it sends Start_Mission, and the explanation
 lists what the node sent without claiming it sent no Mission_Ready.
+
+(Session 33: a node that gives up so, at its timer's time, now gets MCP-RTX-1's verdict on a restart
+instead, tests/sim/test_give_up_short.py; the setup error stays for one that ends as it sends its
+second copy -- a crash, here with code 1 -- which is what this test now runs.)
 """
 
 from __future__ import annotations
@@ -15,8 +19,9 @@ from __future__ import annotations
 import pytest
 
 from mcp_conform.harness.driver import TargetDriver
-from mcp_conform.sim.runner import SimSession, drone_factory, run_cases
+from mcp_conform.sim.runner import SimSession, run_cases
 from mcp_conform.spec.codec import Action
+from tests.sim.test_give_up_short import exiting
 
 
 @pytest.fixture
@@ -38,9 +43,8 @@ def sessions(monkeypatch: pytest.MonkeyPatch) -> list[tuple[SimSession, TargetDr
 @pytest.mark.parametrize("mavlink", [False, True], ids=["no-vehicle", "vehicle"])
 def test_a_node_gone_before_start_mission_is_not_said_to_exit_after_it(
         sessions: list[tuple[SimSession, TargetDriver]], mavlink: bool) -> None:
-    """Retry limit 1 (two copies), then exit 1, while the startup still withholds the ACK."""
-    run = run_cases(drone_factory(rto=0.2, seed=5, retries=1, exits_on_give_up=True), seed=5,
-                    select=["RTX"], mavlink=mavlink)
+    """Two copies, then exit 1 as the second leaves, while the startup still withholds the ACK."""
+    run = run_cases(exiting(1, 0.01), seed=5, select=["RTX"], mavlink=mavlink)
     error, detail = run.report.get("error") or "", run.report.get("error_detail") or []
     assert run.rc == 2, run.explain()
     ((session, drv),) = sessions
