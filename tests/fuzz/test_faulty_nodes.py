@@ -135,11 +135,11 @@ def test_a_stateful_campaign_ends_at_its_duration_while_it_shrinks(tmp_path: Pat
     assert eng["fuzz_seconds"] <= duration + slack, eng
     assert summary["duration_s"] <= duration + eng["triage_seconds"] + slack, summary
     # every restart says why (issue 18 item 9)
-    from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED, REPLAY, WITHHELD_START
+    from mcp_conform.fuzz.target_base import AFTER_FLAW, DIED, MISSION_ENDED, REPLAY, WITHHELD_START
 
     reasons = summary["restarts_by_reason"]
     assert sum(reasons.values()) == summary["restarts"] > 0, summary
-    assert set(reasons) <= {DIED, MISSION_ENDED, REPLAY, WITHHELD_START}, reasons
+    assert set(reasons) <= {AFTER_FLAW, DIED, MISSION_ENDED, REPLAY, WITHHELD_START}, reasons
 
 
 @pytest.mark.slow
