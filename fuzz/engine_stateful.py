@@ -49,7 +49,7 @@ from mcp_conform.fuzz.oracles import (
 )
 from mcp_conform.fuzz.programs import Move, ProgramGenerator, dumps, loads, program_text
 from mcp_conform.fuzz.replay import WITHHOLD, frame_token, settle_vehicle, vehicle_counts
-from mcp_conform.fuzz.target_base import DIED, MISSION_ENDED, NEW_TURN
+from mcp_conform.fuzz.target_base import AFTER_FLAW, DIED, MISSION_ENDED, NEW_TURN, WITHHELD_START
 from mcp_conform.fuzz.triage import Triage
 from mcp_conform.spec.codec import Action, Message, encode
 from mcp_conform.spec.generators import random_malformed, random_message
@@ -198,11 +198,31 @@ class StatefulEngine:
         """A node that has not ended its mission, with oracles that know it."""
         t = self.target
         if t.spawned and (t.ended or not t.alive()):
-            t.restart(MISSION_ENDED if t.ended and t.alive() else DIED)
+            self._restart(MISSION_ENDED if t.ended and t.alive() else DIED)
         if t.restarts != self._restarts_seen:
             self._restarts_seen = t.restarts
             self._new_oracles()
             t.traffic.drain()
+
+    def _restart(self, reason: str, restart: Callable[[], Any] | None = None) -> Any:
+        """A fresh node (``restart``: the target's own way, else ``target.restart(reason)``) and
+        oracles that know it from its start: the ledger (MCP-DUP-1's premise is what the node
+        was sent) learns what the startup sent it (Start_Mission from our src: a seq the
+        node's duplicate check and wrap go by, MCP-DUP-2, MCP-SEQ-3), nothing of what earlier
+        nodes were sent. What ``restart`` returned."""
+        t = self.target
+        t.traffic.drain()  # the node before's
+        got = None
+        if restart is None:
+            t.restart(reason)
+        else:
+            got = restart()
+        self._restarts_seen = t.restarts
+        self._new_oracles()
+        for r in t.traffic.drain():
+            if r.direction == "tx":
+                self.ledger.sent(-1, Input.of(r.data), None)
+        return got
 
     # ------------------------------------------------------------------ the run
     def run(self, deadline: float, max_cases: int | None,
@@ -210,13 +230,13 @@ class StatefulEngine:
             stop: Callable[[], bool] = lambda: False) -> EngineStats:
         st = self.stats
         self._over = lambda: st.spent(deadline, max_cases, stop)
-        if self.cfg.engine == "both":
+        if self.cfg.engine == "both" and self.target.spawned:
             # the stateless turn's cases went to this node, and the ledger knows none of them:
             # a header field at a boundary (seq 0xFFFF from our own src) left a seq-no-wrap
             # node taking every later message of ours for a duplicate, each program's
             # under-delivery a flaw no fresh node reproduced (2-9 thousand cases of unconfirmed
             # flaws before the wrap was found; MCP-DUP-1's premise is what the node was sent)
-            self.target.restart(NEW_TURN)
+            self._restart(NEW_TURN)
         saved = self._saved_programs()
         reuse_only = bool(self.cfg.extra.get("reuse_only"))
         last_tick = 0.0
@@ -268,9 +288,19 @@ class StatefulEngine:
         if self.database is not None:
             self.database.save(DB_KEY, dumps(moves))
         self.triage.consider(flaw, [Input.of(d) for d in sent], "batch", program=program, scenario=scenario)
-        # triage replays on fresh nodes: whatever this node was is not what it is now
-        self._restarts_seen = -1
-        self._fresh_node()
+        if self.target.spawned and not self._over():
+            # the node now is triage's last replay's (replays run on fresh nodes), or the one
+            # that just broke a rule: either way not what the ledger knows. A seq-no-wrap
+            # node left by a replay of its wrap (seq 65535 from our src) took every later
+            # message of ours for a duplicate: each later program drew an under-delivery
+            # (MCP-DUP-2) no fresh node reproduced, each triaged in vain, the next finding
+            # missed. Go on on a fresh node, the ledger knowing it from its start.
+            self._restart(AFTER_FLAW)
+        else:
+            # attach mode: the same node, whatever it was sent meanwhile (the ledger forgets
+            # it, as before); or the turn is over
+            self._restarts_seen = -1
+            self._fresh_node()
 
     # ------------------------------------------------------------------ one program
     def _play(self, moves: list[Move]) -> tuple[Flaw, list[bytes], list[Move], str | None] | None:
@@ -283,9 +313,7 @@ class StatefulEngine:
         if moves and moves[0].name == "withhold":
             self._settle_and_judge()
             copies = moves[0].copies
-            w = t.restart_withholding(copies)
-            self._restarts_seen = t.restarts
-            self._new_oracles()
+            w = self._restart(WITHHELD_START, lambda: t.restart_withholding(copies))
             scenario = f"{WITHHOLD}{copies}"
             flaw = judge_withheld(w.copies, w.after_wrong_ack, copies, t.alive())
             if flaw is not None:

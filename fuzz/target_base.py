@@ -20,7 +20,7 @@ from mcp_conform.harness.driver import Datagram, Sent, TargetDriver
 from mcp_conform.harness.errors import SetupError
 from mcp_conform.spec import SPEC
 
-__all__ = ["DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
+__all__ = ["AFTER_FLAW", "DIED", "MISSION_ENDED", "PROBE_COPIES", "PROBE_MIN_WAIT", "REPLAY", "WITHHELD_START", "Probe",
            "Restarts", "TargetBase", "TargetLost", "Traffic", "TrafficRecord"]
 
 #: The probe and its retransmissions, one --rto apart, before "not live": MCP-ROB-5/6 ("it
@@ -74,6 +74,7 @@ DIED = "the node died or stopped answering"
 MISSION_ENDED = "its mission ended (End_Mission)"
 WITHHELD_START = "a startup with Mission_Ready's ACK withheld"
 NEW_TURN = "the stateful engine's turn (a node its ledger knows from its start)"
+AFTER_FLAW = "the stateful engine goes on after a flaw (a node its ledger knows from its start)"
 
 
 class Restarts:
