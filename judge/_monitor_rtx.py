@@ -150,7 +150,8 @@ class RetransmissionRules(MonitorHost):
         kind the sender was not seen to ignore (it retransmitted well after one, or it moved on
         before with no ACK to take, ``_stop_and_wait``: a sender that never waits is then
         MCP-BLK-1/3's, not taken for one that took a stale ACK)."""
-        ignores = self._nodes[ex.src].ignores
+        node = self._nodes.get(ex.src)  # none for the harness's own sender (the fuzzer as the manager)
+        ignores = node.ignores if node is not None else 0
         taken = [a for k, a in (ex.wrong_at or {}).items() if a[1] >= ex.last_t and k & ~ignores]
         if taken:
             return max(taken, key=lambda a: a[1])
