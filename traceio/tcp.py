@@ -30,10 +30,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from scapy.config import conf
-from scapy.layers.inet import IP, TCP
-from scapy.layers.inet6 import IPv6
-
 from mcp_conform.traceio.reader import Capture, StreamEvent
 
 __all__ = ["MAX_HELD", "MAX_HELD_SEGMENTS", "MAX_OPEN", "WINDOW", "StreamData", "StreamGap", "TcpReassembler",
@@ -84,6 +80,13 @@ def tcp_segments(cap: Capture, packets: int | None = None) -> Iterator[TcpSegmen
 
 
 def _segments(cap: Capture, packets: int | None) -> Iterator[TcpSegment]:
+    # scapy (~0.2 CPU s of imports) only where a pcap's packets are dissected: a tool that
+    # merely imports this module for its record types (mcp-capture asking each protocol whether
+    # a file is its own, an MCP capture's check among them) never loads it
+    from scapy.config import conf
+    from scapy.layers.inet import IP, TCP
+    from scapy.layers.inet6 import IPv6
+
     counts = cap.counts
     layers = conf.l2types.num2layer
     for t_ns, linktype, data, _direction, _ifname in itertools.islice(cap.raw_packets(), packets):
