@@ -174,9 +174,14 @@ def _expected_reply(session: Any, d: Any, sent: list[Any]) -> str | None:
 
 
 def _answerable(session: Any, s: Any) -> bool:
-    """A datagram the runner sent that a correct node ACKs: well-formed, unicast to its ID,
-    not an ACK."""
-    if s.action == _ACK or s.dst != session.target_id:
+    """A datagram the runner sent that a correct node under test ACKs (:func:`owes_ack`)."""
+    return owes_ack(s, session.target_id)
+
+
+def owes_ack(s: Any, node_id: int | None) -> bool:
+    """A datagram the runner sent that node ``node_id`` owes an ACK (MCP-ACK-1): well-formed,
+    unicast to its ID, not an ACK (the drone role's node under test, the manager role's 0)."""
+    if s.action == _ACK or s.dst != node_id:
         return False
     try:
         decode(s.data)

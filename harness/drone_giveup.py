@@ -33,8 +33,8 @@ from __future__ import annotations
 from typing import Any
 
 from mcp_conform.harness.driver import Datagram
+from mcp_conform.harness.drone_rtx2 import respawn_until_ready
 from mcp_conform.harness.liveness import describe_exit
-from mcp_conform.harness.procs import SPAWN_STARTUP_S
 from mcp_conform.harness.session_base import MIN_COPIES, WithheldCopies, death_of
 from mcp_conform.spec.codec import Action
 
@@ -86,13 +86,6 @@ def restart_quick(session: Any, st: WithheldCopies) -> None:
     period = session.period
     session.startup = st
     drv.auto_ack = lambda d: True  # from its first copy on: a quick startup's
-    mark = drv.mark()
-    session.respawn()
-    if session.vehicle is not None:
-        session.vehicle.give_fix()
-    wait = max(SPAWN_STARTUP_S, 4 * session.rto + 5.0)
-    ready = drv.wait_for(lambda d: d.action == _READY, wait, mark)
-    if ready is None:
-        how = "exited before sending Mission_Ready" if not session.alive() else f"sent no Mission_Ready within {wait:g} s"
-        raise session._fail_setup(f"the node {how} on its restart after MCP-RTX-1's observation ({st.gave_up})")
+    respawn_until_ready(session, f"the node {{how}} on its restart after MCP-RTX-1's observation ({st.gave_up})",
+                        exited="exited before sending Mission_Ready")
     session.period = period

@@ -56,18 +56,26 @@ def observe_again(session: Any, st: Any) -> None:
     drv = session.driver
     assert drv is not None
     period = session.period
+    ready = respawn_until_ready(session, "the node, restarted to tell its retry limit from MCP-RTX-2's fault, {how}")
+    again = type(st)(vehicle=session.vehicle is not None)
+    session._observe_retransmissions(again, ready, WRONG)
+    session.period = period
+    st.again = again
+
+
+def respawn_until_ready(session: Any, failure: str, exited: str = "exited") -> Any:
+    """The node restarted (``session.respawn``, the vehicle's fix given) and its first Mission_Ready
+    awaited, counted from the new instance's start (``spawn_mark``, taken once the old one was
+    stopped: a late copy of the old one's is not the new one's); none: the session's setup error,
+    ``failure`` with ``{how}`` filled in (``exited``, or it sent none in time)."""
+    drv = session.driver
     session.respawn()
-    # from the new instance's start (``spawn_mark``, taken once the old one was stopped): a
-    # late copy of the old one's Mission_Ready is not the new one's first
     mark = session.spawn_mark if session.spawn_mark is not None else drv.mark()
     if session.vehicle is not None:
         session.vehicle.give_fix()
     wait = max(SPAWN_STARTUP_S, 4 * session.rto + 5.0)
     ready = drv.wait_for(lambda d: d.action == _READY, wait, mark)
     if ready is None:
-        how = "exited" if not session.alive() else f"sent no Mission_Ready within {wait:g} s"
-        raise session._fail_setup(f"the node, restarted to tell its retry limit from MCP-RTX-2's fault, {how}")
-    again = type(st)(vehicle=session.vehicle is not None)
-    session._observe_retransmissions(again, ready, WRONG)
-    session.period = period
-    st.again = again
+        how = exited if not session.alive() else f"sent no Mission_Ready within {wait:g} s"
+        raise session._fail_setup(failure.format(how=how))
+    return ready

@@ -326,12 +326,10 @@ def _resumed_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
     not explained (the seed monitor-rtx2-stalled-then-retransmitted: the ack-copies-wrong-seq
     drone's "seq + 1" ACK read just before the manager stalled)."""
     s, r = way
-    first = _first_copy(v, way, records)
-    if first is None or len(v.evidence) < 2:
+    span = _copy_then_wrong(v, way, records)
+    if span is None:
         return None
-    i_wrong = v.evidence[1][0]
-    if not first < i_wrong < len(records):
-        return None
+    first, i_wrong = span
     h0 = peek_header(records[first].data, require_preamble=False)
     hw = peek_header(records[i_wrong].data, require_preamble=False)
     if h0 is None or hw is None or hw[3] != Action.ACK or hw[0] != s:
@@ -362,6 +360,16 @@ def _resumed_in_time(v: Any, way: tuple[int, int], records: list[Record], *, rto
     return None
 
 
+def _copy_then_wrong(v: Any, way: tuple[int, int], records: list[Record]) -> tuple[int, int] | None:
+    """An MCP-RTX-2 violation's (first copy, wrong ACK) record indexes, the copy before the ACK
+    (its evidence: the copy, then the wrong ACK); None when the records do not show them so."""
+    first = _first_copy(v, way, records)
+    if first is None or len(v.evidence) < 2:
+        return None
+    i_wrong = v.evidence[1][0]
+    return (first, i_wrong) if first < i_wrong < len(records) else None
+
+
 def _limit_reached(v: Any, way: tuple[int, int], records: list[Record]) -> str | None:
     """MCP-RTX-2's silence after a wrong ACK (``_wrong_ack_deadline``) where ``S`` had sent
     ``MIN_COPIES`` copies or more of the message before it, and nothing but ACKs since up to the
@@ -373,12 +381,10 @@ def _limit_reached(v: Any, way: tuple[int, int], records: list[Record]) -> str |
     ("MCP-RTX-1 or MCP-RTX-2" proven). A sender that moved on at once after the wrong ACK is
     not explained (its give-up would come at its timer: ``_check_stop_and_wait``)."""
     s, r = way
-    first = _first_copy(v, way, records)
-    if first is None or len(v.evidence) < 2:
+    span = _copy_then_wrong(v, way, records)
+    if span is None:
         return None
-    i_wrong = v.evidence[1][0]
-    if not first < i_wrong < len(records):
-        return None
+    first, i_wrong = span
     seq = peek_header(records[first].data, require_preamble=False)[2]  # type: ignore[index]
     n = 0
     for k, rec in enumerate(records):

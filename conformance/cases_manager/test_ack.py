@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import math
 
+from mcp_conform.conformance._batch import owes_ack
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.judge.monitor import late_ack_wait_s
 from mcp_conform.spec import SPEC
-from mcp_conform.spec.codec import MANAGER_ID, Action, DecodeError, decode
+from mcp_conform.spec.codec import MANAGER_ID, Action
 
 _ACK = int(Action.ACK)
 #: how far apart in time the runner's records of two datagrams may be ordered (D-9, MCP-SEQ-1)
@@ -52,17 +53,6 @@ def _runner_sent(node, m):
     return sent or sorted(m.sent_by_drones.values(), key=lambda s: s.t)
 
 
-def _owed(s) -> bool:
-    """A datagram the manager owes an ACK (MCP-ACK-1): a well-formed unicast to its ID, no ACK."""
-    if s.dst != MANAGER_ID or s.action == _ACK:
-        return False
-    try:
-        decode(s.data)
-    except DecodeError:
-        return False
-    return True
-
-
 def _unanswered_copies(node, m, acks):
     """The copies of messages the drones sent the manager that drew no ACK naming their number
     within ``late_ack_wait_s`` (``acks``: the manager's ACKs), as (drone, time, Sent)."""
@@ -70,7 +60,7 @@ def _unanswered_copies(node, m, acks):
     named = {}
     for d in acks:
         named.setdefault((d.header[0], d.acked_seq()), []).append(d.t)
-    return [(s.src, s.t, s) for s in _runner_sent(node, m) if _owed(s)
+    return [(s.src, s.t, s) for s in _runner_sent(node, m) if owes_ack(s, MANAGER_ID)
             and not any(s.t <= t <= s.t + wait for t in named.get((s.src, s.seq), ()))]
 
 
