@@ -17,15 +17,15 @@ Conventions (one fault, one rule):
 - A drone the manager gave up on (a command whose retransmission stopped unACKed) is
   excused from the rest of the mission's flow rules.
 - A broadcast (dst the broadcast ID) is a command to each drone whose mission is on when it
-  comes -- its Start_Mission answered, no End_Mission sent to it yet -- and to no other (D-11):
-  :func:`to_mission`.
+  comes -- its Start_Mission answered, no End_Mission sent to it yet -- (D-11): :func:`to_mission`;
+  and, going to every drone, one to a drone whose Start_Mission awaits its answer (MCP-BLK-3,
+  :func:`awaiting_start`: that drone's too) or after its End_Mission (MCP-BLK-6: not its).
 """
 
 from __future__ import annotations
 
 import math
 import statistics
-import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -34,6 +34,7 @@ from mcp_conform.conformance._case_base import DatagramCaseBase
 from mcp_conform.harness.driver import Datagram, read_header
 from mcp_conform.harness.drone_players import Input, Mission
 from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.judge.waypoints import FILE_FIELDS, f32
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import HEADER_SIZE, ITEM, Action
 
@@ -48,18 +49,11 @@ _END = int(Action.END_MISSION)
 _LISTS = (int(Action.WP_LIST), int(Action.OBSTACLES_LIST))
 _WP_ON = int(Action.WP_ON)
 _WP_OFF = int(Action.WP_OFF)
-#: Fields a QGC WPL 110 line holds (target_system/component are not in the file).
-FILE_FIELDS = ("seq", "current", "frame", "command", "param1", "param2", "param3", "param4",
-               "x", "y", "z", "autocontinue")
 
 
 def _hex(data: bytes, limit: int = 40) -> str:
     h = data[:limit].hex(" ")
     return h + (f" ... ({len(data)} bytes)" if len(data) > limit else f" ({len(data)} bytes)")
-
-
-def f32(x: float) -> float:
-    return float(struct.unpack("<f", struct.pack("<f", x))[0])
 
 
 def item_differences(got: Any, want: Any) -> list[str]:
@@ -264,16 +258,20 @@ def abandoned(m: Mission, rto: float) -> set[int]:
     return out
 
 
-def to_mission(m: Mission, msgs: list[Message], drone: int, broadcast_id: int) -> tuple[list[Message], list[Message]]:
+def to_mission(m: Mission, msgs: list[Message], drone: int, broadcast_id: int,
+               rto: float | None = None) -> tuple[list[Message], list[Message]]:
     """D-11: the messages of ``msgs`` (``messages(m)``) that reach ``drone``'s mission -- those
     unicast to it, and each broadcast that came while its mission was on: from the runner's
     first answer to its first Start_Mission (:func:`runner_ack_time`: the manager's "after
     Start_Mission is ACKed", MCP-FLOW-4; that ACK is stamped before it leaves, so a broadcast
     that came at its time or before was sent before the ACK could reach the manager) until its
     first End_Mission came (in arrival order: the two may bear one timestamp) -- and the
-    broadcasts that came outside that time (no command to it: for the evidence)."""
+    broadcasts that came outside that time (no command to it: for the evidence). With ``rto``,
+    a broadcast that came while that Start_Mission awaited its answer (:func:`awaiting_start`)
+    is a command to it too: MCP-BLK-3's, and its mission's (its list: one fault, one rule)."""
     start = next((x for x in msgs if x.dst == drone and x.action == _START), None)
     on = runner_ack_time(m, start) if start is not None else None
+    waiting = awaiting_start(m, msgs, drone, broadcast_id, rto) if rto is not None else []
     ended = False
     mine: list[Message] = []
     outside: list[Message] = []
@@ -282,8 +280,24 @@ def to_mission(m: Mission, msgs: list[Message], drone: int, broadcast_id: int) -
             mine.append(x)
             ended = ended or x.action == _END
         elif x.dst == broadcast_id:
-            (mine if on is not None and on < x.first.t and not ended else outside).append(x)
+            (mine if (on is not None and on < x.first.t and not ended) or any(x is y for y in waiting)
+             else outside).append(x)
     return mine, outside
+
+
+def awaiting_start(m: Mission, msgs: list[Message], drone: int, broadcast_id: int, rto: float) -> list[Message]:
+    """MCP-BLK-3 and D-11: the broadcasts that came while ``drone``'s first Start_Mission awaited
+    its answer -- after its first copy (in arrival order) and at the runner's first answer's time
+    or before (:func:`runner_ack_time`; the ACK is stamped before it leaves), or, where the
+    manager gave it up unanswered (its retry limit, MCP-RTX-1's), by its last copy
+    (:func:`awaiting_until`). A broadcast goes to every drone: "does not send any subsequent MCP
+    commands until an acknowledgement is received"."""
+    k = next((k for k, x in enumerate(msgs) if x.dst == drone and x.action == _START), None)
+    if k is None:
+        return []
+    start = msgs[k]
+    until = awaiting_until(m, start, rto, msgs)
+    return [x for x in msgs[k + 1:] if x.dst == broadcast_id and x.first.t <= until]
 
 
 def decode_items(d: Datagram) -> tuple[Any, ...] | None:

@@ -259,7 +259,8 @@ class _Node:
     """What the monitor knows of one MCP ID (as a sender and as a receiver)."""
 
     __slots__ = ("id", "sent", "received", "addresses", "real", "last_new", "acks_since",
-                 "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active",
+                 "last_unicast", "ready", "ready_ex", "start", "end", "end_acked", "lists", "wp_active", "wp_items",
+                 "unanswered",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
                  "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed", "taken",
                  "taken_before", "ignores")
@@ -297,6 +298,12 @@ class _Node:
         self.last_command: _Exchange | None = None  # the manager's latest command to it
         self.lists: dict[int, _Exchange] = {}  # WP_List / Obstacles_List sent to it, by action
         self.wp_active: _Exchange | None = None  # challenge 2: the WP_On not yet followed by WP_Off
+        #: challenge 2: the item each WP_On to it carried (None: one that could not be decoded),
+        #: for MCP-FLOW-5's "every waypoint in a WP_On" (``judge.waypoints``)
+        self.wp_items: list[Any] = []
+        #: commands to it the manager moved on from with no answer yet (it may have given it up:
+        #: excused from MCP-FLOW-5's every waypoint as the manager case excuses it)
+        self.unanswered: list[_Exchange] = []
         # as a drone with an observed autopilot link
         self.vehicle = False
         self.fix: bool | None = None

@@ -33,8 +33,8 @@ from mcp_conform.judge._monitor_base import (
     _Node,
     action_name,
     fmt_ms,
-    pack_item,
 )
+from mcp_conform.judge._monitor_mission import _LIST_FLOW, MissionRules
 from mcp_conform.judge._monitor_rtx import (
     F_FAULTY,
     F_INTERLEAVE,
@@ -43,7 +43,6 @@ from mcp_conform.judge._monitor_rtx import (
     F_RTX4,
     F_SILENT,
     F_STORM,
-    RetransmissionRules,
 )
 from mcp_conform.spec import SPEC
 
@@ -53,21 +52,11 @@ from mcp_conform.spec import SPEC
 #: one numbered after a message may be read this long before it (a sender whose receive
 #: thread ACKs between its main thread's taking a number and sending the message)
 SEQ_GAP_GRACE_NS = int(float(SPEC.params["seq_reorder_grace_s"]) * NS)
-_LIST_FLOW = {WP_LIST: ("MCP-FLOW-4", 1), OBSTACLES: ("MCP-FLOW-6", 3)}
 _CHALLENGE_OF = {WP_LIST: 1, WP_ON: 2, WP_OFF: 2, OBSTACLES: 3}
 _ITEM_ACTIONS = (WP_LIST, WP_ON, OBSTACLES)
 
 
-#: The bytes of a packed mission item that hold target_system and target_component
-#: ('<fffffffHHBBBBB': 7 floats, seq, command, then the two targets): not in a WPL file.
-_TARGETS = slice(32, 34)
-
-
-def _file_fields(item: bytes) -> bytes:
-    """A packed item without its target_system / target_component bytes."""
-    return item[:_TARGETS.start] + item[_TARGETS.stop:]
-
-class SenderRules(RetransmissionRules):
+class SenderRules(MissionRules):
     """Mixin of :class:`judge.monitor.Monitor`: sender-side judgement."""
 
     # ------------------------------------------------------------------ bookkeeping
@@ -327,6 +316,8 @@ class SenderRules(RetransmissionRules):
             # so MCP-FLOW-3 leaves dst undecided (a manager giving up on a drone that rightly
             # did not ACK its malformed list is not also blamed for the missing End_Mission)
             self._node(dst).last_command = None
+            if action == WP_ON and (src, dst, seq, action) not in self._malformed_seen:
+                self._node(dst).wp_items.append(None)  # MCP-PAY-5's: every waypoint not judged
         if (src, dst, seq, action) in self._malformed_seen:
             return  # a retransmission of the same malformed message: reported once
         self._malformed_seen.add((src, dst, seq, action))
@@ -360,7 +351,8 @@ class SenderRules(RetransmissionRules):
             for d in [n for n in self._nodes.values() if n.id != MANAGER and n.ready is not None]:
                 self._judge_for_drone(d, ex, i, t)
             return
-        on = self._on_mission(t)  # D-11: a command to each of them; its items judged once
+        waiting = self._broadcast_to_every_drone(ex, i, t)  # MCP-BLK-3/6
+        on = self._on_mission(t) + waiting  # D-11: a command to each of them; its items judged once
         for d in on:
             self._judge_for_drone(d, ex, i, t, items=False)
         if ex.action == WP_ON and on or ex.action in _LIST_FLOW and any(ex.action not in d.lists for d in on):
@@ -415,6 +407,8 @@ class SenderRules(RetransmissionRules):
                                + (" (a broadcast, D-11)" if ex.bcast or earlier.bcast else ""), [earlier.first, (i, t)])
                 elif items:
                     self._judge_items(ex, i, t)
+        elif action == END and challenge == 2:
+            self._judge_every_waypoint(d, ex, i, t)
         elif action == END and self._complete_for(MANAGER, d.id) and self.challenge in (1, 3):
             want = WP_LIST if self.challenge == 1 else OBSTACLES
             rule = _LIST_FLOW[want][0]
@@ -427,35 +421,6 @@ class SenderRules(RetransmissionRules):
                            + (f" after its Start_Mission was ACKed ({early.describe()} came before it: "
                               "D-11)" if early is not None else ""),
                            [d.start.first] + ([early.first] if early is not None else []) + [(i, t)])
-
-    def _judge_items(self, ex: _Exchange, i: int, t: int) -> None:
-        """MCP-FLOW-4/6: a list carries the mission's items; MCP-FLOW-5: a WP_On one of them."""
-        challenge = self.challenge or self.inferred_challenge
-        if ex.action == WP_ON:
-            if challenge == 2 and self.waypoints is not None and not self._carries_waypoints(ex):
-                self._emit("MCP-FLOW-5", MANAGER, t, "WP_On carries one of the mission's waypoints",
-                           f"{ex.describe()} carries item {ex.payload.seq}, not a mission waypoint", [(i, t)])
-            return
-        rule, number = _LIST_FLOW[ex.action]
-        if challenge == number and not self._carries_waypoints(ex):
-            self._emit(rule, MANAGER, t, f"{action_name(ex.action)} carries the mission's {len(self.waypoints or ())} "
-                       "items", f"{ex.describe()} carries {len(ex.payload)} other item(s)", [(i, t)])
-
-    def _carries_waypoints(self, ex: _Exchange) -> bool:
-        """Does the command carry the mission's items: every field a QGC WPL 110 line holds,
-        in the file's order (a WP_On: one of them)? target_system and target_component are
-        not in the file, so a manager fills them as it likes: they are not compared."""
-        if self.waypoints is None:
-            return True
-        if self._packed_waypoints is None:  # as on the wire (float32), in the file's order
-            self._packed_waypoints = [_file_fields(pack_item(*w)) for w in self.waypoints]
-            self._waypoint_set = frozenset(self._packed_waypoints)
-        payload = ex.data[HDR:]
-        if ex.action == WP_ON:
-            return _file_fields(payload) in self._waypoint_set
-        size = len(payload[2:]) // max(1, len(ex.payload)) if ex.payload else 0
-        got = [_file_fields(payload[2 + k * size:2 + (k + 1) * size]) for k in range(len(ex.payload))]
-        return got == self._packed_waypoints
 
     def _track_mission(self, ex: _Exchange) -> None:
         """The mission as the trace shows it (whoever sent the commands)."""
@@ -479,13 +444,19 @@ class SenderRules(RetransmissionRules):
             return
         if ex.src != MANAGER or ex.bcast:
             if ex.src == MANAGER and action in (WP_ON, WP_OFF, *_LIST_FLOW):
-                for d in self._on_mission(ex.first[1]):  # D-11: to each drone whose mission is on
+                t = ex.first[1]  # D-11: to each drone whose mission is on (or, MCP-BLK-3's, starting)
+                for d in self._on_mission(t) + self._awaiting_start(t):
                     if action in _LIST_FLOW:
                         d.lists.setdefault(action, ex)
                     else:
                         d.wp_active = ex if action == WP_ON else None
+                        if action == WP_ON:
+                            d.wp_items.append(ex.payload)
             return
         d = self._node(ex.dst)
+        prev = d.last_command
+        if prev is not None and not prev.acks and self._taken_ack(prev) is None:
+            d.unanswered.append(prev)  # moved on from it unanswered (MCP-FLOW-5's excuse)
         d.last_command = ex
         if action != END:
             d.last_command_t = ex.first[1]
@@ -497,6 +468,7 @@ class SenderRules(RetransmissionRules):
             d.lists.setdefault(action, ex)
         elif action == WP_ON:
             d.wp_active = ex
+            d.wp_items.append(ex.payload)
         elif action == WP_OFF:
             d.wp_active = None
 
@@ -595,5 +567,7 @@ def _new_mission(node: _Node) -> None:
     node.end_acked = None
     node.lists = {}
     node.wp_active = None
+    node.wp_items = []
+    node.unanswered = []
     node.last_new = None
     node.delivered_from = {}

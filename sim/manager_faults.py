@@ -24,9 +24,14 @@ it is in what the mission sends, a ``ManagerModel`` whose plan or readiness diff
 - ``after-end``, MCP-BLK-6 "no command to a drone after that drone's End_Mission": a WP_Off
   to the first drone after its End_Mission;
 - ``ack-ack``, MCP-ACK-6 "A node never ACKs an ACK": every ACK addressed to it is ACKed;
-- ``broadcast-early``, MCP-FLOW-4 "after Start_Mission is ACKed the manager sends the mission's
-  waypoints as one WP_List": the WP_List broadcast once, as the last drone's Start_Mission goes
-  out, before its ACK (D-11: no list of that drone's mission);
+- ``broadcast-early``, MCP-BLK-3 "After Start_Mission the manager sends no further command to
+  that drone until Start_Mission is ACKed": the WP_List broadcast once, as the last drone's
+  Start_Mission goes out, before its ACK (a broadcast goes to every drone, D-11; that drone's
+  list, so not also MCP-FLOW-4: one fault, one rule);
+- ``broadcast-after-end``, MCP-BLK-6: a WP_Off broadcast after every drone's End_Mission;
+- ``skips-a-waypoint`` / ``broadcast-skips-a-waypoint``, MCP-FLOW-5 "WP_On messages carry the
+  mission's waypoints" (every one of them: the case's and the monitor's one judge,
+  ``judge.waypoints``): the third waypoint's WP_On carries the second again, unicast / broadcast;
 
 and, breaking no rule (controls: no verdict may fall on them), ``acks-copies-late`` (a copy
 ACKed again 0.3 s late, past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1),
@@ -271,6 +276,33 @@ class BroadcastEarly(BroadcastsMission):
             self._broadcasts(now)
 
 
+class BroadcastAfterEnd(BroadcastsMission):
+    """Faulty (MCP-BLK-6): challenge 2 broadcast as :class:`BroadcastsMission` does, then one WP_Off
+    more broadcast once every End_Mission is ACKed -- a command to each drone after its
+    End_Mission (a broadcast goes to every drone: "it will send no further commands in the
+    current mission"), and in no drone's mission (D-11: no WP_Off without a WP_On, MCP-FLOW-5)."""
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        return [*super().plan(), (BROADCAST_ID, Action.WP_OFF, None)]
+
+
+class SkipsAWaypoint(ManagerModel):
+    """Faulty (MCP-FLOW-5, "WP_On messages carry the mission's waypoints"): challenge 2 with the
+    third waypoint's WP_Ons carrying the second again -- one waypoint repeated, one skipped, in
+    the middle of the mission; every WP_On still a mission waypoint, every WP_Off after one."""
+
+    def plan(self) -> list[tuple[int, int, Any]]:
+        items = self.items
+        if len(items) < 3:
+            return super().plan()
+        return [(d, a, items[1] if a == Action.WP_ON and p == items[2] else p) for d, a, p in super().plan()]
+
+
+class BroadcastSkipsAWaypoint(BroadcastsMission, SkipsAWaypoint):
+    """Faulty (MCP-FLOW-5): :class:`SkipsAWaypoint`'s WP_Ons broadcast once to every drone after every
+    Start_Mission is ACKed (D-11), as :class:`BroadcastsMission` broadcasts them."""
+
+
 class PausesMidMission(ManagerModel):
     """Correct: quiet for ``HOLD`` s mid-mission, longer than the runner's idle window
     (``max(2.5 --rto, 2 --ack-window, 1 s)``) -- challenge 2, each waypoint held active that
@@ -352,8 +384,14 @@ MANAGER_FAULTS: dict[str, ManagerFault] = {**_from_faults(), **{f.name: f for f 
     ManagerFault("wp-off-first", "MCP-FLOW-5", 2, WpOffFirst, what="a WP_Off before the first WP_On to each drone"),
     ManagerFault("after-end", "MCP-BLK-6", 2, AfterEnd, what="a WP_Off to the first drone after its End_Mission"),
     ManagerFault("ack-ack", "MCP-ACK-6", 1, endpoint=AckAck, what="ACKs the ACKs addressed to it"),
-    ManagerFault("broadcast-early", "MCP-FLOW-4", 1, BroadcastEarly,
+    ManagerFault("broadcast-early", "MCP-BLK-3", 1, BroadcastEarly,
                  what="the WP_List broadcast before the last drone's Start_Mission is ACKed"),
+    ManagerFault("broadcast-after-end", "MCP-BLK-6", 2, BroadcastAfterEnd,
+                 what="a WP_Off broadcast after every drone's End_Mission"),
+    ManagerFault("skips-a-waypoint", "MCP-FLOW-5", 2, SkipsAWaypoint,
+                 what="the third waypoint's WP_Ons carry the second again (one repeated, one skipped)"),
+    ManagerFault("broadcast-skips-a-waypoint", "MCP-FLOW-5", 2, BroadcastSkipsAWaypoint,
+                 what="the WP_Ons broadcast, the third waypoint's carrying the second again"),
     # correct managers unlike the reference one: no rule broken
     ManagerFault("acks-copies-late", None, 1, AcksCopiesLate, what="a copy is ACKed again 0.3 s late"),
     ManagerFault("give-up-after-three", None, 1, endpoint=GiveUpAfterTwo, retries=2,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from mcp_conform.conformance.manager_case import (
     abandoned,
+    awaiting_start,
     awaiting_until,
     messages,
     runner_ack_time,
@@ -69,18 +70,21 @@ def test_stop_and_wait(node):
 @rules("MCP-BLK-3")
 def test_nothing_to_a_drone_until_start_mission_is_acked(node):
     m = node.mission()
-    starts = [x for x in messages(m) if x.action == _START and x.dst in m.drones]
+    msgs = messages(m)
+    starts = [x for x in msgs if x.action == _START and x.dst in m.drones]
     if not starts:
         raise Inconclusive("MCP-BLK-3: the manager sent no Start_Mission (see MCP-FLOW-2)")
-    msgs = messages(m)
     for x in starts:
         acked = runner_ack_time(m, x)
         until = acked if acked is not None else m.t_end
         early = [y for y in msgs if y.dst == x.dst and y is not x and x.first.t < y.first.t < until]
+        if x is next(y for y in msgs if y.dst == x.dst and y.action == _START):  # a broadcast goes to it too (D-11)
+            early = sorted(early + awaiting_start(m, msgs, x.dst, node.broadcast_id, node.rto), key=lambda y: y.first.t)
         if early:
             y = early[0]
             raise node.fail("MCP-BLK-3", f"no command to drone {x.dst} until its Start_Mission (seq {x.seq}) is ACKed",
-                            f"{_name(y.action)} (seq {y.seq}) {y.first.t - x.first.t:.3f} s after it"
+                            f"{_name(y.action)} (seq {y.seq}{', a broadcast: D-11' if y.dst != x.dst else ''}) "
+                            f"{y.first.t - x.first.t:.3f} s after it"
                             + (", before any ACK" if acked is None else f", {acked - y.first.t:.3f} s before the ACK"),
                             [x.first.describe(), y.first.describe()])
 
@@ -96,9 +100,13 @@ def test_nothing_after_end_mission(node):
     if not ends:
         raise Inconclusive("MCP-BLK-6: the manager sent no End_Mission (see MCP-FLOW-3)")
     for d, end in ends.items():
-        after = [y for y in msgs if y.dst == d and y.first.t > end.first.t and y is not end]
+        k = next(n for n, y in enumerate(msgs) if y is end)
+        after = [y for n, y in enumerate(msgs) if (y.dst == d and y.first.t > end.first.t and y is not end)
+                 or (y.dst == node.broadcast_id and n > k)]  # a broadcast after it goes to d too (D-11; in
+        # arrival order: the two may bear one timestamp)
         node.expect_true(not after, "MCP-BLK-6", f"nothing to drone {d} after its End_Mission (seq {end.seq})",
-                         f"{_name(after[0].action)} (seq {after[0].seq}) {after[0].first.t - end.first.t:.3f} s "
+                         f"{_name(after[0].action)} (seq {after[0].seq}{', a broadcast: D-11' if after[0].dst != d else ''}) "
+                         f"{after[0].first.t - end.first.t:.3f} s "
                          "after it" if after else "", [end.first.describe()] + [y.first.describe() for y in after[:2]])
     gone = abandoned(m, node.rto)
     if gone:

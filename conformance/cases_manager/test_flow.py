@@ -5,7 +5,8 @@ each UAV 3. Executes the challenge based on the challenge number." Challenge 1: 
 WP_List; challenge 2: WP_On, then WP_Off; challenge 3: one Obstacles_List; then End_Mission.
 A drone the manager gave up on (its retry limit, MCP-RTX-1) is excused from the rest. The
 challenge's messages may be broadcast (delivery "any"): a broadcast is a command to each drone
-whose mission is on when it comes, and to no other (D-11, ``manager_case.to_mission``).
+whose mission is on when it comes, and to one whose Start_Mission awaits its ACK (MCP-BLK-3's
+fault, that drone's command: one fault, one rule), to no other (D-11, ``manager_case.to_mission``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from mcp_conform.conformance.manager_case import (
 )
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.judge.waypoints import waypoints_missed
 from mcp_conform.spec.codec import Action
 
 _START = int(Action.START_MISSION)
@@ -63,7 +65,7 @@ def _one_list(node, rule, action, want, what):
     gone = abandoned(m, node.rto)
     msgs = messages(m)
     for d in m.drones:
-        mine, outside = to_mission(m, msgs, d, node.broadcast_id)
+        mine, outside = to_mission(m, msgs, d, node.broadcast_id, node.rto)
         lists = [x for x in mine if x.action == action]
         if not lists and d in gone:
             continue
@@ -97,14 +99,15 @@ def test_challenge_1_waypoints_as_one_wp_list(node):
 @rules("MCP-FLOW-5")
 def test_challenge_2_wp_off_follows_wp_on(node):
     """Per drone: WP_On and WP_Off alternate, WP_On first; each WP_On carries one of the
-    file's waypoints, and every waypoint of the file is sent."""
+    file's waypoints, and every waypoint of the file is sent (``judge.waypoints``: the trace
+    monitor's judge too; not judged where a WP_On could not be decoded, MCP-PAY-5's)."""
     node.require_challenge("MCP-FLOW-5", 2)
     m = node.mission()
     gone = abandoned(m, node.rto)
     want = m.waypoints
     msgs = messages(m)
     for d in m.drones:
-        mine = to_mission(m, msgs, d, node.broadcast_id)[0]
+        mine = to_mission(m, msgs, d, node.broadcast_id, node.rto)[0]
         end = next((k for k, x in enumerate(mine) if x.action == _END), len(mine))  # in arrival order
         seq = [x for x in mine[:end] if x.action in (_WP_ON, _WP_OFF)]  # after End_Mission: MCP-BLK-6's
         if not seq and d in gone:
@@ -115,15 +118,15 @@ def test_challenge_2_wp_off_follows_wp_on(node):
                 node.expect_true(on, "MCP-FLOW-5", f"WP_Off to drone {d} only after a WP_On",
                                  f"WP_Off (seq {x.seq}) with no WP_On before it", [x.first.describe()])
             on = x.action == _WP_ON
-        items = [x.first.msg.payload for x in seq if x.action == _WP_ON and x.first.msg is not None]
+        carried = [x.first.msg.payload if x.first.msg is not None else None for x in seq if x.action == _WP_ON]
         if want is None:
             continue
-        for it in items:
-            node.expect_true(any(not item_differences(it, w) for w in want), "MCP-FLOW-5",
-                             "each WP_On carries a waypoint of the file", f"an item not in the file: {tuple(it)}")
-        missed = [w for w in want if not any(not item_differences(it, w) for it in items)]
+        for it in carried:
+            node.expect_true(it is None or any(not item_differences(it, w) for w in want), "MCP-FLOW-5",
+                             "each WP_On carries a waypoint of the file", f"an item not in the file: {tuple(it or ())}")
+        missed = waypoints_missed(carried, want)  # the monitor's judge too (one judge)
         node.expect_true(not missed or d in gone, "MCP-FLOW-5", f"every waypoint of the file in a WP_On to drone {d}",
-                         f"{len(missed)} of {len(want)} never sent", [f"file: {tuple(w)}" for w in missed[:2]])
+                         f"{len(missed or ())} of {len(want)} never sent", [f"file: {tuple(w)}" for w in (missed or ())[:2]])
     if want is None:
         raise Inconclusive("MCP-FLOW-5: the order was judged; the waypoints the manager was handed are unknown "
                            "(attach mode without --waypoints)")

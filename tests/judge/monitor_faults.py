@@ -756,7 +756,8 @@ def flow6() -> Script:
 
 
 # D-11: a list broadcast is a command to each drone whose mission is on (its Start_Mission
-# ACKed, no End_Mission yet), and to no other
+# ACKed, no End_Mission yet); going to every drone, one to a drone whose Start_Mission awaits its
+# ACK (MCP-BLK-3, and that drone's list) or after its End_Mission (MCP-BLK-6, not its list)
 def flow4_broadcast_before_start() -> Script:
     """The WP_List broadcast once drone 1's Start_Mission is ACKed, before drone 2's is sent:
     drone 2's mission got no list."""
@@ -769,9 +770,10 @@ def flow4_broadcast_before_start() -> Script:
     return _finish(s, steps=False)
 
 
-def flow4_broadcast_before_start_acked() -> Script:
+def blk3_broadcast_before_start_acked() -> Script:
     """The WP_List broadcast while drone 2's Start_Mission awaits its ACK (its first copy
-    unanswered, the next ACKed): drone 2's mission got no list."""
+    unanswered, the next ACKed): a further command to drone 2 before that ACK (a broadcast goes
+    to every drone, D-11), MCP-BLK-3's; it is drone 2's list (one fault, one rule: no FLOW-4)."""
     s = Script((1, 2))
     for d in s.drones:
         s.ready(d)
@@ -803,12 +805,67 @@ def flow4_broadcast_and_unicast() -> Script:
 
 
 def flow6_broadcast_after_end() -> Script:
-    """Drone 1's mission ended before the Obstacles_List broadcast: it never got one."""
+    """Drone 1's mission ended before the Obstacles_List broadcast: it never got one (MCP-FLOW-6),
+    and the broadcast went to it after its End_Mission (MCP-BLK-6): two faults, two rules
+    (tests/judge/test_broadcast_lists.py; not in ``FAULTY``, whose scripts break one rule)."""
     s = _started(challenge=3)
     s.end(1)
     s.broadcast(Action.OBSTACLES_LIST, tuple(s.items))
     s.end(2)
     return s
+
+
+def flow6_broadcast_before_start() -> Script:
+    """The Obstacles_List broadcast once drone 1's Start_Mission is ACKed, before drone 2's is
+    sent: drone 2's mission got no list (D-11)."""
+    s = Script((1, 2), challenge=3)
+    for d in s.drones:
+        s.ready(d)
+    s.start(1)
+    s.broadcast(Action.OBSTACLES_LIST, tuple(s.items))
+    s.start(2)
+    return _finish(s, steps=False)
+
+
+def blk6_broadcast_after_end() -> Script:
+    """Drone 1's mission (its Obstacles_List unicast) ended; then the Obstacles_List broadcast for
+    drone 2: drone 2's list, and a command to drone 1 after its End_Mission (a broadcast goes to
+    every drone: "it will send no further commands in the current mission")."""
+    s = _started(challenge=3)
+    s.exchange(0, 1, Action.OBSTACLES_LIST, tuple(s.items))
+    s.tick(0.01)
+    s.end(1)
+    s.broadcast(Action.OBSTACLES_LIST, tuple(s.items))
+    s.end(2)
+    return s
+
+
+def _skipping_steps(s: Script, *, broadcast: bool = False) -> Script:
+    """Challenge 2 with the third waypoint's WP_On carrying the second again: one waypoint
+    repeated, one skipped, in the middle of the mission (every WP_On a mission waypoint, each
+    WP_Off after a WP_On)."""
+    sent = list(s.items)
+    sent[2] = sent[1]
+    for wp in sent:
+        if broadcast:
+            s.broadcast(Action.WP_ON, wp)
+            s.broadcast(Action.WP_OFF)
+            continue
+        for d in s.drones:
+            s.exchange(0, d, Action.WP_ON, wp)
+            s.tick(0.01)
+        for d in s.drones:
+            s.exchange(0, d, Action.WP_OFF)
+            s.tick(0.01)
+    return _finish(s, steps=False)
+
+
+def flow5_skips_a_waypoint() -> Script:
+    return _skipping_steps(_started(challenge=2))
+
+
+def flow5_broadcast_skips_a_waypoint() -> Script:
+    return _skipping_steps(_started(challenge=2), broadcast=True)
 
 
 def flow5_broadcast_wp_off_before_its_wp_on() -> Script:
@@ -947,11 +1004,14 @@ FAULTY: dict[str, Fault] = {
     "flow6-wrong-obstacles": Fault("MCP-FLOW-6", flow6, complete=False),
     "rtx2-moves-on-then-broadcasts": Fault("MCP-RTX-2", rtx2_moves_on_then_broadcasts),
     "flow4-broadcast-before-start": Fault("MCP-FLOW-4", flow4_broadcast_before_start),
-    "flow4-broadcast-before-start-acked": Fault("MCP-FLOW-4", flow4_broadcast_before_start_acked),
+    "blk3-broadcast-before-start-acked": Fault("MCP-BLK-3", blk3_broadcast_before_start_acked),
     "flow4-broadcast-twice": Fault("MCP-FLOW-4", flow4_broadcast_twice, complete=False),
     "flow4-broadcast-and-unicast": Fault("MCP-FLOW-4", flow4_broadcast_and_unicast, complete=False),
     "flow5-broadcast-wp-off-before-its-wp-on": Fault("MCP-FLOW-5", flow5_broadcast_wp_off_before_its_wp_on),
-    "flow6-broadcast-after-end": Fault("MCP-FLOW-6", flow6_broadcast_after_end),
+    "flow6-broadcast-before-start": Fault("MCP-FLOW-6", flow6_broadcast_before_start),
+    "blk6-broadcast-after-end": Fault("MCP-BLK-6", blk6_broadcast_after_end),
+    "flow5-skips-a-waypoint": Fault("MCP-FLOW-5", flow5_skips_a_waypoint),
+    "flow5-broadcast-skips-a-waypoint": Fault("MCP-FLOW-5", flow5_broadcast_skips_a_waypoint),
     "dup1-duplicate-delivered": Fault("MCP-DUP-1", dup1),
     "dup2-same-bytes-dropped": Fault("MCP-DUP-2", dup2),
     "dup3-other-src-dropped": Fault("MCP-DUP-3", dup3),

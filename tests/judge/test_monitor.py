@@ -297,6 +297,7 @@ def test_a_late_copy_of_an_older_message_delivered_again_is_only_reported():
     s.tick(0.01)
     s.vehicle(1, "frame", frame=a)
     s.tick(0.1)
+    s.challenge_steps()  # challenge 2's every waypoint (MCP-FLOW-5)
     s.end(1)
     assert _rules(s.judge()) == []
     assert s.last_monitor.verdicts()[1]["MCP-DUP-4"] == "info"

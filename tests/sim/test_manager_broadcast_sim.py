@@ -9,10 +9,11 @@ by side alike. The suite before D-11 failed it: "one WP_LIST to drone 1: 0" (MCP
 "every waypoint of the file in a WP_On to drone 1: 4 of 4 never sent" (MCP-FLOW-5).
 
 Faulty (``broadcast-early``): the same broadcasts sent as the last drone's Start_Mission goes out,
-before its ACK: that drone's mission got none, and the challenge's rule fails, no other rule
-(challenge 1 also in tests/sim/test_manager_sim.py's list of faults). The monitor judges a
-missing list (MCP-FLOW-4/6) as the case does; it does not judge whether every waypoint went out
-in a WP_On (MCP-FLOW-5, the case's alone, for unicast WP_Ons too).
+before its ACK: a broadcast goes to every drone, so a further command to that drone before the
+ACK, MCP-BLK-3, and no other rule (challenge 1 also in tests/sim/test_manager_sim.py's list of
+faults), in the case and the monitor alike (session 34; before, that drone's mission got none and
+the challenge's rule failed, in the case alone at challenge 2: the monitor did not judge whether
+every waypoint went out in a WP_On, ``judge.waypoints`` now serves both).
 """
 
 from __future__ import annotations
@@ -51,13 +52,17 @@ def test_a_manager_broadcasting_the_challenge_gets_no_verdict(challenge):
 
 
 @pytest.mark.parametrize("challenge", [1, 2, 3])
-def test_a_broadcast_before_the_last_start_is_acked_fails_the_challenge(challenge):
-    rule = FLOW[challenge]
+def test_a_broadcast_before_the_last_start_is_acked_fails_blk3(challenge):
+    """A further command to the last drone before its Start_Mission's ACK (a broadcast goes to every
+    drone), MCP-BLK-3 in the case and the monitor alike; it is that drone's command, so its
+    mission's list or waypoints are there: the challenge's rule passes (one fault, one rule). The
+    judge before session 34 said the challenge's rule (the case: "one WP_LIST to drone 3: 0")."""
     run = run_manager_cases("broadcast-early", seed=20 + challenge, challenge=challenge, **SHORT)
-    assert run.rules.get(rule) == "failed", run.explain()
-    assert set(run.rules_with("failed", "warned")) == {rule}, run.explain()
+    assert run.rules.get("MCP-BLK-3") == "failed", run.explain()
+    assert set(run.rules_with("failed", "warned")) == {"MCP-BLK-3"}, run.explain()
+    assert run.rules.get(FLOW[challenge]) == "passed", run.explain()
     assert "error" not in run.cases().values(), run.explain()
-    case = next(c for c in run.report["cases"] if rule in c["rules"])
-    assert "to drone 3" in case["expected"], case  # the last drone's mission, the others' counted
+    case = next(c for c in run.report["cases"] if "MCP-BLK-3" in c["rules"])
+    assert "to drone 3" in case["expected"] and "a broadcast: D-11" in case["actual"], case
     monitor = {r for r, o in _monitor(run).items() if o in ("failed", "warned")}
-    assert monitor == (set() if challenge == 2 else {rule}), run.report["monitor"]
+    assert monitor == {"MCP-BLK-3"}, run.report["monitor"]
