@@ -165,6 +165,9 @@ class VehicleEvent(NamedTuple):
     - ``rtl``: RTL was commanded (RTL mode or MAV_CMD_NAV_RETURN_TO_LAUNCH);
     - ``frame``: the drone wrote a MAVLink frame to its autopilot (``frame``: its bytes;
       ``token``: the passthrough-probe token when it is one);
+    - ``busy`` / ``idle``: the autopilot started / stopped carrying out an earlier command a
+      node may wait for (a take-off climbing, an AUTO mission flying; ``detail``: what), as the
+      simulated vehicle records it (MCP-BLK-7's "finishes pending actions");
     - ``unparsed``: the drone wrote bytes that are no valid frame (a bad CRC, no start
       marker, an incomplete or unknown-id frame; ``frame``: the bytes, ``detail``: why), as
       a passthrough frame altered on its way arrives (MCP-PAY-8).
@@ -178,7 +181,8 @@ class VehicleEvent(NamedTuple):
     detail: str = ""
 
 
-VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", "rtl", "frame", "unparsed")
+VEHICLE_KINDS = ("link", "fix", "fix_lost", "arm", "disarm", "takeoff", "mode", "rtl", "frame", "unparsed",
+                 "busy", "idle")
 
 
 # ---------------------------------------------------------------- shared state
@@ -263,7 +267,7 @@ class _Node:
                  "unanswered",
                  "vehicle", "fix", "forwards", "first_command", "first_seq", "last_command_t",
                  "actions", "last_command", "seen", "delivered_from", "seq_gap", "unparsed", "taken",
-                 "taken_before", "ignores")
+                 "taken_before", "ignores", "busy", "busy_end")
 
     def __init__(self, node_id: int) -> None:
         self.id = node_id
@@ -298,6 +302,10 @@ class _Node:
         self.last_command: _Exchange | None = None  # the manager's latest command to it
         self.lists: dict[int, _Exchange] = {}  # WP_List / Obstacles_List sent to it, by action
         self.wp_active: _Exchange | None = None  # challenge 2: the WP_On not yet followed by WP_Off
+        #: what its autopilot shows in progress of an earlier command (a ``busy`` event's
+        #: detail; None: nothing, or no such events), and when that last ended (``idle``)
+        self.busy: str | None = None
+        self.busy_end: int | None = None
         #: challenge 2: the item each WP_On to it carried (None: one that could not be decoded),
         #: for MCP-FLOW-5's "every waypoint in a WP_On" (``judge.waypoints``)
         self.wp_items: list[Any] = []

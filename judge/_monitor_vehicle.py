@@ -157,6 +157,8 @@ def events_from_vehicle(event: Any) -> list[VehicleEvent]:
         return [VehicleEvent("rtl", ok=bool(d.get("accepted")), detail=str(d.get("via", "")))]
     if kind == "mode":
         return [VehicleEvent("mode", mode=str(d.get("mode")), detail=str(d.get("via", "")))]
+    if kind in ("busy", "idle"):
+        return [VehicleEvent(kind, detail=str(d.get("action") or ""))]
     return []
 
 
@@ -183,10 +185,16 @@ class VehicleRules(MonitorHost):
             self._judge_arm(node, t, ev)
         elif kind == "rtl" or (kind == "mode" and ev.mode == _RTL_NAME):
             node.forwards.append((t, "RTL"))
+            if node.end is not None and node.end.acks and self._complete_for(node.id):
+                self._observe(node.id, "MCP-BLK-7")  # the RTL after End_Mission: judged, not awaited
         elif kind == "frame" and ev.frame is not None:
             self._judge_forward(node, t, ev.token if ev.token is not None else ev.frame)
         elif kind == "unparsed" and ev.frame is not None:
             node.unparsed.append((t, ev.frame, ev.detail))
+        elif kind == "busy":
+            node.busy = ev.detail or "an earlier command"
+        elif kind == "idle" and node.busy is not None:
+            node.busy, node.busy_end = None, t
 
     def _check_ready_fix(self, node: _Node, i: int, t: int) -> None:
         """MCP-BLK-5: no Mission_Ready while the autopilot reports no GPS fix."""
@@ -335,15 +343,35 @@ class VehicleRules(MonitorHost):
     def _rtl_wait(self) -> int:
         return max(3 * NS, 3 * self.window_ns, 2 * self.rto_ns)
 
+    def _pending_bound(self) -> int:
+        """How long past End_Mission's ACK the RTL may wait for the autopilot's pending
+        actions: half the runner's per-case limit (``harness.config.RunConfig.per_case_limit``,
+        max(60 s, 30 rto + 10 window)), the bound of the case's own wait (one judge)."""
+        return max(30 * NS, 15 * self.rto_ns + 5 * self.window_ns)
+
+    def _rtl_due(self, now: int, ex: _Exchange, node: _Node) -> int:
+        """MCP-BLK-7's deadline: the RTL window after End_Mission's last ACK, or after the
+        end of what the autopilot showed in progress of an earlier command once End_Mission
+        was ACKed ("finishes pending actions, then commands RTL"; a take-off climbing, an
+        AUTO mission flying: ``busy``/``idle``), never past :meth:`_pending_bound`, as the case
+        waits (``conformance.drone_case.await_past_pending``)."""
+        wait, acked = self._rtl_wait(), ex.acks[0][1]
+        due = ex.acks[-1][1] + wait
+        last_busy = now if node.busy is not None else node.busy_end
+        if last_busy is not None and last_busy >= acked:
+            due = max(due, min(last_busy + wait, acked + self._pending_bound()))
+        return due
+
     def _rtl_deadline(self, now: int, ex: _Exchange, node: _Node) -> None:
-        due = ex.acks[-1][1] + self._rtl_wait()
-        if now < due:  # ACKed again since: it may have been received late
+        due = self._rtl_due(now, ex, node)
+        if now < due:  # ACKed again since (it may have been received late), or the autopilot busy
             self._timers.at(due, self._rtl_deadline, ex, node)
             return
         self._observe(node.id, "MCP-BLK-7")
         since = ex.first[1] if self._complete_for(node.id) else node.last_command_t
         if any(k == "RTL" and ft >= since for ft, k in node.forwards):
             return
+        still = f"; {node.busy} still in progress" if node.busy is not None else ""
         self._emit("MCP-BLK-7", node.id, now, "an RTL on the autopilot after End_Mission",
-                   f"no RTL within {fmt_s(now - ex.acks[0][1])} of End_Mission's ACK",
+                   f"no RTL within {fmt_s(now - ex.acks[0][1])} of End_Mission's ACK{still}",
                    [ex.first, ex.acks[0]])

@@ -32,9 +32,10 @@ from mcp_conform.judge.monitor import (
 __all__ = ["LINK_KINDS", "MISSION_METADATA", "REORDER_NS", "RunMonitor", "SessionMonitors", "from_node",
            "link_events", "mission_metadata", "recorded_mission", "violation_json"]
 
-#: The vehicle's events the run's monitor judges by (the link, the fix coming and going); the
-#: frames on the link come through ``events_from_mavlink``. The capture records the same ones.
-LINK_KINDS = ("link", "fix", "fix_lost")
+#: The vehicle's events the run's monitor judges by (the link, the fix coming and going, an
+#: earlier command's action in progress and done: MCP-BLK-7); the frames on the link come
+#: through ``events_from_mavlink``. The capture records the same ones.
+LINK_KINDS = ("link", "fix", "fix_lost", "busy", "idle")
 
 
 def link_events(event: Any) -> list[Any]:

@@ -171,6 +171,7 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
         #: Called with every recorded event (the server uses it for ``on_event``).
         self.listener: Callable[[Event], None] | None = None
         self._why = ""  # the reason of the answer being built (see ``_why_of``)
+        self._busy: str | None = None  # what ``pending_action`` last showed ("busy"/"idle" events)
         self._conn = 0  # the connection of the message being handled
 
     # ------------------------------------------------------------------ observation
@@ -190,6 +191,16 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
         if self.custom_mode == AUTO and self._auto.running:
             return f"an AUTO mission, at item {self._auto.index} of {max(len(self.missions.items) - 1, 0)}"
         return None
+
+    def _note_pending(self, now: float) -> None:
+        """Record when :meth:`pending_action` starts showing something in progress ("busy",
+        detail: what) and when it stops ("idle"): the record from which a monitor, live or from
+        a capture, judges MCP-BLK-7's "finishes pending actions, then commands RTL" as the case
+        does from :meth:`pending_action` itself (one judge)."""
+        busy = self.pending_action()
+        if (busy is None) != (self._busy is None):
+            self.record(now, "busy" if busy is not None else "idle", action=busy or self._busy)
+        self._busy = busy
 
     def has_fix(self, now: float) -> bool:
         """Whether the GPS reports a 3D fix at ``now``."""
@@ -285,6 +296,7 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
     def tick(self, now: float) -> list[MAVLinkMessage]:
         """Advance the simulation to ``now``; return the telemetry that is due."""
         self._advance(now)
+        self._note_pending(now)
         self._update_home(now)
         out = [m for m in (self.message(i, now) for i in self.streams.due(now)) if m is not None]
         conn, due, why = self.missions.update(now)
@@ -500,7 +512,9 @@ class VehicleModel(MissionMessages, CommandMessages, ParamMessages, GuidedMessag
             # processes a message locally only for a matching system and component, or a
             # broadcast (https://mavlink.io/en/guide/routing.html; MAV-CMD-14)
             return []
-        return list(handler(msg, fields, now))
+        replies = list(handler(msg, fields, now))
+        self._note_pending(now)
+        return replies
 
 
 def _wrap_pi(angle: float) -> float:

@@ -47,6 +47,9 @@ EVENT_KINDS: tuple[str, ...] = (
     "rtl",  # RTL was requested, by mode or NAV_RETURN_TO_LAUNCH (detail: via, accepted)
     "takeoff",  # NAV_TAKEOFF was requested (detail: alt, accepted)
     "reached",  # the climb reached the takeoff altitude (detail: alt)
+    "busy",  # the vehicle started carrying out an earlier command a node may wait for: a
+    #          take-off climbing, an AUTO mission flying (detail: action, as pending_action says)
+    "idle",  # ... and stopped (detail: action, the last one shown)
     "landed",  # a descent reached the ground (detail: mode)
     "fix",  # telemetry started reporting a 3D fix
     "fix_lost",  # telemetry stopped reporting a fix

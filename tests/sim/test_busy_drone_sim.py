@@ -51,6 +51,7 @@ def test_a_busy_drone_is_judged_as_a_correct_one(timing, serial):
     run = _run(timing, serial=serial)
     assert run.rc == 0, run.explain()
     assert not run.rules_with("failed", "warned"), run.explain()
+    assert run.report["monitor"]["violations"] == [], run.report["monitor"]  # one judge
     cases = run.cases()
     assert {c: cases.get(c) for c in VEHICLE_CASES} == VEHICLE_CASES, run.explain()
 
@@ -105,6 +106,44 @@ def test_a_busy_node_that_never_commands_rtl_is_still_warned():
     assert "of the end of the node's pending actions (a take-off to 150 m" in case["expected"], case
     waited = float(re.search(r"none in ([0-9.]+) s", case["actual"]).group(1))
     assert 3.0 + 5.0 < waited < 3.0 + 8.0, case["actual"]  # the climb's rest, then the 3 s window
+
+
+def _monitor_blk7(run):
+    mon = run.report["monitor"]
+    return mon["rules"]["1"]["MCP-BLK-7"], [v for v in mon["violations"] if v["rule"] == "MCP-BLK-7"]
+
+
+def test_the_monitor_waits_out_the_pending_take_off_as_the_case_does():
+    """One judge (the JS drone's report, s34-jsdrone): the run's monitor, like the case, runs
+    MCP-BLK-7's window from the end of the take-off the vehicle showed in progress when
+    End_Mission was ACKed (its ``busy``/``idle`` events, recorded to the capture too). The old
+    monitor warned "no RTL within 3.850 s of End_Mission's ACK" beside the case's pass."""
+    run = _run(SHORT, select=(BLK7,))
+    assert _case(run, BLK7)["outcome"] == "passed", run.explain()
+    assert _monitor_blk7(run) == ("passed", []), run.report["monitor"]
+
+
+def test_the_monitor_still_warns_a_busy_node_that_never_commands_rtl():
+    """No RTL behind the same climb: the monitor warns once the climb is over and the window
+    after it has passed (the climb's rest, some 5-7.5 s, seen at the vehicle's next tick, then 3 s), as the case
+    does."""
+    run = _run(SHORT, select=(BLK7,), rtl=False)
+    outcome, violations = _monitor_blk7(run)
+    assert outcome == "warned" and len(violations) == 1, run.report["monitor"]
+    waited = float(re.search(r"no RTL within ([0-9.]+) s", violations[0]["actual"]).group(1))
+    assert 3.0 + 5.0 < waited < 3.0 + 9.0, violations[0]
+
+
+def test_the_vehicle_records_when_a_pending_action_starts_and_ends():
+    """The ``busy``/``idle`` events the monitor judges by: one pair per take-off, from its
+    acceptance to its altitude (``idle`` names the last state shown)."""
+    model, gcs = armed_in_guided()
+    assert ack_of(gcs.command(mav.MAV_CMD_NAV_TAKEOFF, *[0] * 6, 30.0, now=1.0), 22) == ACCEPTED
+    model.tick(2.0)
+    model.tick(2.5)
+    model.tick(3.0)
+    got = [(e.t, e.kind, e.detail["action"]) for e in model.events() if e.kind in ("busy", "idle")]
+    assert got == [(1.0, "busy", "a take-off to 30 m, at 0.0 m"), (2.5, "idle", "a take-off to 30 m, at 20.0 m")]
 
 
 def test_the_vehicle_shows_a_take_off_pending_until_its_altitude():

@@ -147,12 +147,13 @@ def test_the_live_monitor_judges_as_the_capture_check_does(tmp_path):
     """The run's monitor ends at the run's clock (harness.drone_session ``close``): ended at the
     host's instead -- years after a virtual run's epoch -- it let MCP-BLK-7's deadline (3 s after
     End_Mission's ACK, past the run's end) pass, and judged 'passed' what ``mcp-capture check``
-    of the same run's capture, rightly, leaves not observed."""
+    of the same run's capture, rightly, left not observed. (The RTL the node commands after
+    End_Mission is now judged when it comes, live and offline alike: 'passed' in both.)"""
     from tests.conformance.test_mutants import same_verdicts_offline
 
     capture = tmp_path / "run.mcap"
     run = run_cases(None, seed=7, mavlink=True, extra=("--capture", str(capture)), **SHORT)
-    assert run.report["monitor"]["rules"]["1"]["MCP-BLK-7"] == "not_observed"
+    assert run.report["monitor"]["rules"]["1"]["MCP-BLK-7"] == "passed"
     same_verdicts_offline(run, capture)
 
 
