@@ -19,7 +19,10 @@ is counted there, no input blamed.
 State (issue 36 item 3): a frame delivered to the autopilot more often than the duplicate
 rules allow (MCP-DUP-1, seen on the vehicle link) is a copy of a message the node delivered
 before; the copy alone on a fresh node is no duplicate, so it is replayed after its original
-(the datagram twice: the node's state before the input). Likewise a missing ACK (MCP-ACK-1) is
+(the datagram twice: the node's state before the input). Replayed, the copy waits for its
+original's forwards to settle: a copy that added no delivery is not MCP-DUP-1's, and a frame
+already over-delivered before it is the original's (MCP-PAY-8: a node that forwards each
+frame twice), the finding named by that rule (``Triage._shows``). Likewise a missing ACK (MCP-ACK-1) is
 tried after the earlier inputs of its (src, seq) before every input is delta debugged: a node
 that takes a message for a copy by its (src, seq) leaves it unACKed. A flaw that reproduced at least once
 but not every time depends on the environment (timing, load): it is not a finding, but it is
@@ -147,13 +150,25 @@ class Triage(HitTriage):
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink,
                 "role": self.target.cfg.role}
 
+    @staticmethod
+    def _shows(flaw: Flaw, f: Flaw) -> bool:
+        """Whether ``f``, seen in a replay, is ``flaw`` again: its rule; a death of any cause
+        for a death; for a frame over-delivered after a copy (MCP-DUP-1 as the campaign saw
+        it, the copy sent right behind its original), MCP-PAY-8 too: a replay lets the
+        original's forwards settle before the copy (``fuzz.replay.settled_count``) and blames
+        the copy only when the count grew after it (``fuzz.delivery``); a count already over
+        before it is the original forwarded more than once, and the finding names that rule."""
+        if flaw.source in _DEATH:
+            return f.source in _DEATH
+        return f.rule == flaw.rule or (flaw.rule == "MCP-DUP-1" and flaw.source == f.source == "vehicle"
+                                       and f.rule == "MCP-PAY-8")
+
     def _still(self, flaw: Flaw, pace: str, scenario: str | None) -> Callable[[list[bytes]], bool]:
         """The search's predicate (``fuzz.triage_core.HitTriage.shows``): a sequence replayed
-        (``run_sequence``) still shows the flaw: its rule, or a death of any cause for a death."""
+        (``run_sequence``) still shows the flaw (``_shows``)."""
         def replay(seq: list[bytes]) -> Flaw | None:
             out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
-            death = flaw.source in _DEATH
-            return next((f for f in out.flaws if (f.source in _DEATH if death else f.rule == flaw.rule)), None)
+            return next((f for f in out.flaws if self._shows(flaw, f)), None)
         return self.shows(replay, share=False)  # MCP's triage is bounded by the deadline alone
 
     @staticmethod
@@ -217,14 +232,16 @@ class Triage(HitTriage):
         # replay's answers are what the finding records
         missed: dict[str, set[str]] = {}
         seq: list[bytes] = minimal
+        first: list[str] = []  # the first confirming replay's rule: every one shows that one
 
         def once(log: list[object]) -> tuple[Flaw, Outcome] | None:
             out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
-            again = next((f for f in out.flaws if f.rule == flaw.rule
-                          or (flaw.source in _DEATH and f.source in _DEATH)), None)
+            again = next((f for f in out.flaws if self._shows(flaw, f)
+                          and (flaw.source in _DEATH or f.rule == (first or [f.rule])[0])), None)
             if again is None:
                 missed["rules"] = out.rules()
                 return None
+            first[:] = first or [again.rule]
             return again, out
 
         conf = self.confirm_logged(once, until_miss=True, share=False)  # bounded by the deadline alone
