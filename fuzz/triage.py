@@ -22,7 +22,7 @@ before; the copy alone on a fresh node is no duplicate, so it is replayed after 
 (the datagram twice: the node's state before the input). Replayed, the copy waits for its
 original's forwards to settle: a copy that added no delivery is not MCP-DUP-1's, and a frame
 already over-delivered before it is the original's (MCP-PAY-8: a node that forwards each
-frame twice), the finding named by that rule (``Triage._shows``). Likewise a missing ACK (MCP-ACK-1) is
+frame twice), the finding named by that rule (``Triage._copy_or_original``). Likewise a missing ACK (MCP-ACK-1) is
 tried after the earlier inputs of its (src, seq) before every input is delta debugged: a node
 that takes a message for a copy by its (src, seq) leaves it unACKed. A flaw that reproduced at least once
 but not every time depends on the environment (timing, load): it is not a finding, but it is
@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
 from mcp_conform.fuzz.loop import triage_time
@@ -150,26 +151,31 @@ class Triage(HitTriage):
         return {"mode": self.target.cfg.mode, "spawn": self.target.run_cfg.spawn, "mavlink": self.target.cfg.mavlink,
                 "role": self.target.cfg.role}
 
-    @staticmethod
-    def _shows(flaw: Flaw, f: Flaw) -> bool:
-        """Whether ``f``, seen in a replay, is ``flaw`` again: its rule; a death of any cause
-        for a death; for a frame over-delivered after a copy (MCP-DUP-1 as the campaign saw
-        it, the copy sent right behind its original), MCP-PAY-8 too: a replay lets the
-        original's forwards settle before the copy (``fuzz.replay.settled_count``) and blames
-        the copy only when the count grew after it (``fuzz.delivery``); a count already over
-        before it is the original forwarded more than once, and the finding names that rule."""
-        if flaw.source in _DEATH:
-            return f.source in _DEATH
-        return f.rule == flaw.rule or (flaw.rule == "MCP-DUP-1" and flaw.source == f.source == "vehicle"
-                                       and f.rule == "MCP-PAY-8")
-
     def _still(self, flaw: Flaw, pace: str, scenario: str | None) -> Callable[[list[bytes]], bool]:
         """The search's predicate (``fuzz.triage_core.HitTriage.shows``): a sequence replayed
-        (``run_sequence``) still shows the flaw (``_shows``)."""
+        (``run_sequence``) still shows the flaw: its rule, or a death of any cause for a death."""
         def replay(seq: list[bytes]) -> Flaw | None:
             out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
-            return next((f for f in out.flaws if self._shows(flaw, f)), None)
+            death = flaw.source in _DEATH
+            return next((f for f in out.flaws if (f.source in _DEATH if death else f.rule == flaw.rule)), None)
         return self.shows(replay, share=False)  # MCP's triage is bounded by the deadline alone
+
+    def _copy_or_original(self, flaw: Flaw, seqs: list[list[bytes]], pace: str, scenario: str | None) -> Flaw:
+        """A frame over-delivered after a copy of its message (MCP-DUP-1 as the campaign saw
+        it: the copy sent right behind its original) is the copy's only if the copy added a
+        delivery. Replayed, the copy waits for its original's forwards to settle
+        (``fuzz.replay.settled_count``) and the ledger blames it only when the frame's count
+        grew after it; a count already over before it is the original's (MCP-PAY-8: a node
+        that forwards each frame twice, which breaks no duplicate rule). The first of ``seqs``
+        (the original then its copy, then the inputs up to the flaw) whose replay shows the
+        frame over-delivered decides the rule the search and the confirmation look for."""
+        for seq in seqs:
+            out = self._run(seq, pace, scenario)
+            f = next((f for f in out.flaws if f.source == "vehicle" and f.datagram == flaw.datagram
+                      and f.rule in ("MCP-DUP-1", "MCP-PAY-8")), None)
+            if f is not None:
+                return flaw if f.rule == flaw.rule else replace(flaw, rule=f.rule, evidence=f.evidence)
+        return flaw
 
     @staticmethod
     def _suspects(flaw: Flaw, inputs: Sequence[Input]) -> list[bytes]:
@@ -216,6 +222,14 @@ class Triage(HitTriage):
         # missing ACK was left at 4 datagrams after 29 replays, each that showed it paying
         # MCP-ACK-1's observation: 5 copies, the last watched --ack-window)
         s = self._suspects(flaw, inputs)
+        if flaw.rule == "MCP-DUP-1" and flaw.source == "vehicle" and s:
+            blamed = self._copy_or_original(flaw, [[s[0]] * 2, candidate], pace, scenario)
+            if blamed.rule != flaw.rule:  # the original's: later such flaws are counted there
+                self.aliases[(flaw.rule, shape)] = (blamed.rule, shape)
+                if self.store.known(blamed.rule, shape):
+                    self.store.count(blamed.rule, shape)
+                    return None
+                flaw = blamed
         same_seq = self._same_seq(flaw, inputs)
         tries: list[list[bytes]] = ([[]] if scenario is not None else []) + [[d] for d in s[:1]] \
             + ([[s[0]] * 2] if flaw.source == "vehicle" and s else []) + ([same_seq] if same_seq else []) \
@@ -232,16 +246,14 @@ class Triage(HitTriage):
         # replay's answers are what the finding records
         missed: dict[str, set[str]] = {}
         seq: list[bytes] = minimal
-        first: list[str] = []  # the first confirming replay's rule: every one shows that one
 
         def once(log: list[object]) -> tuple[Flaw, Outcome] | None:
             out = run_sequence(self.target, seq, pace=pace, scenario=scenario)
-            again = next((f for f in out.flaws if self._shows(flaw, f)
-                          and (flaw.source in _DEATH or f.rule == (first or [f.rule])[0])), None)
+            again = next((f for f in out.flaws if f.rule == flaw.rule
+                          or (flaw.source in _DEATH and f.source in _DEATH)), None)
             if again is None:
                 missed["rules"] = out.rules()
                 return None
-            first[:] = first or [again.rule]
             return again, out
 
         conf = self.confirm_logged(once, until_miss=True, share=False)  # bounded by the deadline alone

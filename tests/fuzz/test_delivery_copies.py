@@ -83,3 +83,18 @@ def test_a_node_that_forwards_twice_has_no_duplicate_finding(tmp_path: Path) -> 
     assert "MCP-PAY-8" in store.by_rule(), (store.by_rule(), eng)
     assert "MCP-DUP-1" not in store.by_rule() and "MCP-DUP-1" not in eng["unconfirmed_by_rule"], (
         store.by_rule(), eng)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_a_node_that_forwards_twice_and_delivers_copies_has_its_duplicate_finding(tmp_path: Path) -> None:
+    """Both faults (passthrough-twice and no-dup-discard): the copy adds deliveries (2 before
+    it, 4 after), so MCP-DUP-1 is found, not taken for the forwarding's MCP-PAY-8 (a search
+    that took PAY-8 for the flaw shrank the frame and its copy to the frame alone, whose count
+    2 over 1 is PAY-8's, and counted every later DUP-1 flaw there)."""
+    cfg = FuzzConfig(spawn=_spawn("passthrough-twice", "no-dup-discard"), mavlink=True, engine="stateful", seed=6,
+                     max_cases=20_000, duration=60.0, out=str(tmp_path), rto=RTO, ack_window=0.25,
+                     extra={"stop_on_rule": "MCP-DUP-1"})
+    store = FindingStore(tmp_path, cfg.replay_args())
+    summary = run_campaign(cfg, store)
+    assert "MCP-DUP-1" in store.by_rule(), (store.by_rule(), summary["workers"][0]["engines"])
