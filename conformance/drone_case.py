@@ -325,11 +325,15 @@ class CaseContext(DatagramCaseBase):
     def prove_live(self, why: str = NOT_LIVE) -> Exchange:
         """Proof of life: a fresh WP_Off must be ACKed, or the case is an ``error`` (never a
         verdict): right after a "no reply" window (silence from a dead node proves nothing),
-        before a verdict on a missing reply, before an input whose effect is judged."""
+        before a verdict on a missing reply, before an input whose effect is judged. A node
+        whose process ended is named as such (``NodeLost``, its exit status), not as silent."""
         try:
             ex = self.liveness()
         except NodeLost as exc:
-            raise SilenceUnproven(why, self._not_live(None, exc)) from None
+            ev = self._not_live(None, exc)
+            if exc.process_exited:  # dead, not silent: the case ends naming the exit
+                raise
+            raise SilenceUnproven(why, ev) from None
         if not ex.acked:
             raise SilenceUnproven(why, self._not_live(ex, None))
         return ex

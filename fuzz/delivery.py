@@ -19,6 +19,16 @@ judged for under-delivery; copies MCP-ACK-1's observation retransmitted after la
 messages from the same source are late copies (MCP-DUP-4). A finding carries what the
 judgement needed: the vehicle's count of the frame, the node's state before the input as
 the ledger knew it, and the timing.
+
+A copy adds a delivery (MCP-DUP-1) only if the frame's count grows after it: a node that
+forwards each delivered frame twice (MCP-PAY-8) shows the frame twice whether a copy follows
+or not. Sent back to back, the original's forwards and the copy's cannot be told apart, so
+an over-delivery then names the copy's rule as a suspicion; a replay (``fuzz.replay``, the
+path of triage's confirmation) first lets the original's forwards settle and gives the count
+then (``base``), as MCP-DUP-1's conformance case takes its baseline once the first delivery's
+count has stopped moving (``conformance.drone_case.CaseContext.redeliver``): an excess
+already there before the copy is the earlier inputs' (their rule, MCP-PAY-8 for a delivered
+frame), and MCP-DUP-1 is blamed only when the count grew past it.
 """
 
 from __future__ import annotations
@@ -56,6 +66,12 @@ class _Sent:
     #: discarded as its duplicate: the premise of that expectation
     dup_bases: list[tuple[Input, str | None]] = field(default_factory=list)
     last_index: int = 0
+    #: the frame's settled count just before its first copy expected discarded (None: not
+    #: taken, the copy sent right behind), the allowance and rule of the inputs before it
+    base: int | None = None
+    base_max: int = 0
+    base_rule: str = ""
+    base_index: int = 0
 
 
 @dataclass
@@ -72,8 +88,18 @@ class DeliveryLedger:
     last_input: dict[int, tuple[Input, str | None]] = field(default_factory=dict)  # src -> basis
     last_index: dict[int, int] = field(default_factory=dict)  # src -> index of its last input
 
-    def sent(self, index: int, inp: Input, token: str | None) -> None:
-        """Record one input (in sending order), with the probe token it carries, if any."""
+    def repeats_last(self, inp: Input, token: str | None) -> bool:
+        """Whether ``inp`` is a copy of the message last delivered from its src carrying a
+        frame the ledger expects (a copy to be discarded, MCP-DUP-1): the replay takes the
+        frame's settled count before sending it (``sent``'s ``base``)."""
+        m = inp.msg
+        return (token is not None and token in self.expected and m is not None and m.action == _PASSTHROUGH
+                and m.src not in (self.node_id, self.broadcast_id) and m.dst in (self.node_id, self.broadcast_id)
+                and self.last_delivered.get(m.src) == m.seq)
+
+    def sent(self, index: int, inp: Input, token: str | None, *, base: int | None = None) -> None:
+        """Record one input (in sending order), with the probe token it carries, if any;
+        ``base``: the frame's settled count just before it was sent (``repeats_last``)."""
         m = inp.msg
         if m is None or m.action == _ACK:
             if token is not None and m is None:
@@ -93,7 +119,7 @@ class DeliveryLedger:
         if last == m.seq:  # a duplicate of the last delivered: not delivered again
             if token is not None:
                 self._expect(token, index, 0, 0, "MCP-DUP-1", "MCP-DUP-1", inp, add=True, before=before,
-                             basis=self.last_input.get(m.src))
+                             basis=self.last_input.get(m.src), base=base)
             return
         seen = self.delivered_seqs.setdefault(m.src, set())
         older = m.seq in seen
@@ -123,7 +149,7 @@ class DeliveryLedger:
 
     def _expect(self, token: str, index: int, lo: int, hi: int, over: str, under: str,
                 inp: Input, add: bool = False, before: str = "",
-                basis: tuple[Input, str | None] | None = None) -> None:
+                basis: tuple[Input, str | None] | None = None, base: int | None = None) -> None:
         prev = self.expected.get(token)
         now = time.monotonic()
         src = inp.msg.src if inp.msg is not None else None
@@ -134,6 +160,8 @@ class DeliveryLedger:
             # another copy of the same frame: the allowance adds up; the rule of the copy that
             # pushed the count over is the one blamed
             e = prev
+            if base is not None and hi == 0 and e.base is None:  # the first copy, its baseline taken
+                e.base, e.base_max, e.base_rule, e.base_index = base, e.expect_max, e.rule_over, e.index
             e.index, e.expect_min, e.expect_max = index, e.expect_min + lo, e.expect_max + hi
             e.rule_over = over if hi == 0 else e.rule_over
             e.what, e.data, e.last_t = inp.describe(), inp.data, now
@@ -166,12 +194,20 @@ class DeliveryLedger:
         now = time.monotonic()
         for token, e in self.expected.items():
             n = counts.get(token, 0)
-            most = e.expect_max + self._unproven(e, counts)
+            unproven = self._unproven(e, counts)
+            most = e.expect_max + unproven
             if n > most:
-                flaws.append(Flaw(e.rule_over, f"frame {token} reaches the autopilot at most {most} time(s)",
+                rule, culprit, evidence = e.rule_over, e.index, self._evidence(e, n, now, settled)
+                if e.base is not None:
+                    # the copies' share: the count's growth from the settled baseline
+                    added = n - e.base
+                    if added <= e.expect_max - e.base_max + unproven:  # the excess came before the copy
+                        rule, culprit = e.base_rule, e.base_index
+                    evidence += (f"before its copy: {e.base} time(s), settled (the inputs before it allow "
+                                 f"{e.base_max}); after: {added} more",)
+                flaws.append(Flaw(rule, f"frame {token} reaches the autopilot at most {most} time(s)",
                                   f"it reached the autopilot {n} times (last input: {e.what})",
-                                  culprit=e.index, source="vehicle", datagram=e.data,
-                                  evidence=self._evidence(e, n, now, settled)))
+                                  culprit=culprit, source="vehicle", datagram=e.data, evidence=evidence))
             elif (settled and n < e.expect_min and e.rule_under != "MCP-DUP-4"
                   and any(i.received for i in e.inputs)):
                 flaws.append(Flaw(e.rule_under, f"frame {token} reaches the autopilot {e.expect_min} time(s)",

@@ -88,7 +88,11 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     The first careful replay names the finding: a pipelined program's verdict (``hit``) is
     what led to it, read at the program's end, where a close or a lost command may have more
     than one cause in view (a second client, a cut frame before it); played op by op, the
-    replay sees which op it followed. The backend to go on with."""
+    replay sees which op it followed. A lost stream (``desync``: after a frame cut by a closed
+    connection, NSQD-ROB-3, or after mutated frames) is the cut's or the frames' only if the
+    minimal program without its ``send`` ops shows nothing: else the finding is what that
+    program shows (a backend that ignores every command loses the command without any cut:
+    NSQD-MSG-3, the command's own effect). The backend to go on with."""
 
     sig = hit.signature
     known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
@@ -125,6 +129,20 @@ def triage_program(campaign: Any, backend: Any, hit: Hit, ops: list[Op]) -> Any:
     box["stderr"] = first.stderr or box["stderr"]
     if len(ops) > 1:
         ops = ddmin(list(ops), reproduces, budget=16)
+    if sig.oracle == "desync" and any(o.what == "send" for o in ops):
+        # blame: a stream lost to a cut frame (NSQD-ROB-3) or to the frames before it
+        # (``desync_rule``) only if the program without them keeps it: the same failure
+        # without them (a backend that ignores every command: NSQD-MSG-3) is the program's own
+        plain = [o for o in ops if o.what != "send"]
+        own = play(plain) if plain else None
+        if own is not None:
+            sig, hit, ops = own.signature, own, plain
+            box["stderr"] = own.stderr or box["stderr"]
+            known = next((f for f in campaign.findings if f.signature.key == sig.key), None)
+            if campaign.again(known):
+                return box["b"].fresh()
+            if len(ops) > 1:
+                ops = ddmin(list(ops), reproduces, budget=16)
     conf = confirm_n(lambda: reproduces(ops, TrafficLog()) or None, campaign.n_of_n, until_miss=False)
     if not conf.confirmed:
         campaign.count_unconfirmed(sig.rule)

@@ -27,7 +27,7 @@ from mcp_conform.fuzz.target_base import REPLAY, TargetBase
 from mcp_conform.spec.codec import Action
 from mcp_conform.vehicle.probe import make_probe, probe_token
 
-__all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence"]
+__all__ = ["WITHHOLD", "Outcome", "frame_token", "run_sequence", "settled_count"]
 
 _ACK = int(Action.ACK)
 SENTINEL_WAIT = 2.0  # s: how long the sentinel frames may take to reach the vehicle
@@ -92,11 +92,37 @@ def settle_vehicle(target: TargetBase, ledger: DeliveryLedger | None, tag: str) 
     return False
 
 
+def settled_count(target: TargetBase, token: str, before: int = 0) -> int:
+    """The vehicle's count of ``token``'s frame (less ``before``) once the node's forwards of
+    it have settled, as MCP-DUP-1's conformance case takes its baseline before a copy
+    (``CaseContext.settle``, then ``quiet_count``): the frame arrived (within
+    max(2 x ack window, 1 s, rto)), then the count unchanged for half the ACK window (at most
+    one ACK window). Nothing is sent meanwhile: the node sees the copy right after its
+    original, as the case sends it."""
+    v = target.vehicle
+    assert v is not None
+    v.wait_for(lambda: v.probe_count(token) > before, max(2 * target.ack_window, 1.0, target.rto))
+    stable = max(target.ack_window / 2, 0.1)
+    deadline = time.monotonic() + max(target.ack_window, 2 * stable)
+    count, since = v.probe_count(token), time.monotonic()
+    while time.monotonic() < deadline:
+        time.sleep(0.02)
+        now_count = v.probe_count(token)
+        if now_count != count:
+            count, since = now_count, time.monotonic()
+        elif time.monotonic() - since >= stable:
+            break
+    return count - before
+
+
 def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = "batch",
                  fresh: bool = True, monitor: bool = True, scenario: str | None = None) -> Outcome:
     """Send ``datagrams`` to the node (a fresh one when spawned and ``fresh``, started as
     ``scenario`` says; in attach mode the node, once its liveness probe is ACKed, else
-    ``TargetLost``), then judge."""
+    ``TargetLost``), then judge. With the vehicle, a copy of the message last delivered from
+    its src carrying a frame is sent once its original's forwards have settled
+    (``settled_count``): whether the copy added a delivery (MCP-DUP-1) or the original was
+    forwarded twice (MCP-PAY-8) is then told apart (``fuzz.delivery``)."""
     out = Outcome()
     if (scenario is not None and scenario.startswith(WITHHOLD) and target.spawned
             and isinstance(target, FuzzTarget)):  # a drone's startup: the drone role's
@@ -125,8 +151,13 @@ def run_sequence(target: TargetBase, datagrams: Sequence[bytes], *, pace: str = 
     before = vehicle_counts(target)  # the vehicle outlives restarts: count only this replay's
     mark = drv.mark()
     for i, (data, inp) in enumerate(zip(datagrams, inputs, strict=True)):
+        token = frame_token(data) if inp.header and inp.header[3] == Action.MAV_PASSTHROUGH else None
+        base = None
+        if token is not None and target.vehicle is not None and ledger.repeats_last(inp, token):
+            # a copy to be discarded: its original's forwards settled first (MCP-DUP-1 vs PAY-8)
+            base = settled_count(target, token, before.get(token, 0))
         sent = drv.send_raw(data)
-        ledger.sent(i, inp, frame_token(data) if inp.header and inp.header[3] == Action.MAV_PASSTHROUGH else None)
+        ledger.sent(i, inp, token, base=base)
         m = inp.msg
         if pace == "paced" and m is not None and m.action != _ACK and m.dst == target.node_id:
             drv.wait_for(drv.ack_for(sent), max(target.rto, 0.5), mark)

@@ -19,7 +19,10 @@ is counted there, no input blamed.
 State (issue 36 item 3): a frame delivered to the autopilot more often than the duplicate
 rules allow (MCP-DUP-1, seen on the vehicle link) is a copy of a message the node delivered
 before; the copy alone on a fresh node is no duplicate, so it is replayed after its original
-(the datagram twice: the node's state before the input). Likewise a missing ACK (MCP-ACK-1) is
+(the datagram twice: the node's state before the input). Replayed, the copy waits for its
+original's forwards to settle: a copy that added no delivery is not MCP-DUP-1's, and a frame
+already over-delivered before it is the original's (MCP-PAY-8: a node that forwards each
+frame twice), the finding named by that rule (``Triage._copy_or_original``). Likewise a missing ACK (MCP-ACK-1) is
 tried after the earlier inputs of its (src, seq) before every input is delta debugged: a node
 that takes a message for a copy by its (src, seq) leaves it unACKed. A flaw that reproduced at least once
 but not every time depends on the environment (timing, load): it is not a finding, but it is
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 from mcp_conform.fuzz.findings import NO_INPUT, Finding, FindingStore
 from mcp_conform.fuzz.loop import triage_time
@@ -156,6 +160,23 @@ class Triage(HitTriage):
             return next((f for f in out.flaws if (f.source in _DEATH if death else f.rule == flaw.rule)), None)
         return self.shows(replay, share=False)  # MCP's triage is bounded by the deadline alone
 
+    def _copy_or_original(self, flaw: Flaw, seqs: list[list[bytes]], pace: str, scenario: str | None) -> Flaw:
+        """A frame over-delivered after a copy of its message (MCP-DUP-1 as the campaign saw
+        it: the copy sent right behind its original) is the copy's only if the copy added a
+        delivery. Replayed, the copy waits for its original's forwards to settle
+        (``fuzz.replay.settled_count``) and the ledger blames it only when the frame's count
+        grew after it; a count already over before it is the original's (MCP-PAY-8: a node
+        that forwards each frame twice, which breaks no duplicate rule). The first of ``seqs``
+        (the original then its copy, then the inputs up to the flaw) whose replay shows the
+        frame over-delivered decides the rule the search and the confirmation look for."""
+        for seq in seqs:
+            out = self._run(seq, pace, scenario)
+            f = next((f for f in out.flaws if f.source == "vehicle" and f.datagram == flaw.datagram
+                      and f.rule in ("MCP-DUP-1", "MCP-PAY-8")), None)
+            if f is not None:
+                return flaw if f.rule == flaw.rule else replace(flaw, rule=f.rule, evidence=f.evidence)
+        return flaw
+
     @staticmethod
     def _suspects(flaw: Flaw, inputs: Sequence[Input]) -> list[bytes]:
         """Single inputs worth replaying alone first: the culprit, and for a death the short
@@ -201,6 +222,14 @@ class Triage(HitTriage):
         # missing ACK was left at 4 datagrams after 29 replays, each that showed it paying
         # MCP-ACK-1's observation: 5 copies, the last watched --ack-window)
         s = self._suspects(flaw, inputs)
+        if flaw.rule == "MCP-DUP-1" and flaw.source == "vehicle" and s:
+            blamed = self._copy_or_original(flaw, [[s[0]] * 2, candidate], pace, scenario)
+            if blamed.rule != flaw.rule:  # the original's: later such flaws are counted there
+                self.aliases[(flaw.rule, shape)] = (blamed.rule, shape)
+                if self.store.known(blamed.rule, shape):
+                    self.store.count(blamed.rule, shape)
+                    return None
+                flaw = blamed
         same_seq = self._same_seq(flaw, inputs)
         tries: list[list[bytes]] = ([[]] if scenario is not None else []) + [[d] for d in s[:1]] \
             + ([[s[0]] * 2] if flaw.source == "vehicle" and s else []) + ([same_seq] if same_seq else []) \

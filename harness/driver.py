@@ -399,7 +399,7 @@ class TargetDriver:
                         if predicate(self._rx[i]):
                             return self._rx[i]
                         i += 1
-                    return None
+                    return self.check()  # None, or NodeLost: a death not declared yet is named here
 
     def pause(self, seconds: float) -> None:
         """Sleep ``seconds``, but raise at once (``check``) if the node is declared lost."""

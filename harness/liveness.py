@@ -27,7 +27,9 @@ one notion of "the node is live" the runner uses:
   an error, repeated under ``--impair``). An exit before End_Mission was sent, a non-zero
   exit or a signal stays a loss.
 - The case thread finds out at its next wait (``TargetDriver.wait_for`` / ``pause`` call
-  ``check``), which raises ``NodeLost`` with the evidence of the last exchange.
+  ``check``), which raises ``NodeLost`` with the evidence of the last exchange. A process
+  exit is declared by whichever looks first, the watcher or ``check``: a dead node is named
+  dead, with its exit status, never reported as a silent one.
 
 From a death, the loss is declared within ``loss_after`` plus the longest wait the cases
 make without a command in flight (an ACK window, a vehicle settle): within 3 x rto + 2 s
@@ -189,12 +191,10 @@ class Liveness:
         with self._lock:
             if self.lost is not None:
                 return False
-            proc = self.process
-            if proc is not None and not proc.alive():
-                if self.ended_normally():
-                    return False  # the mission's end: the waits see the node gone
-                self._declare(f"the node process {describe_exit(proc.returncode)}", now, exited=True)
+            if self._declare_exit(now):
                 return True
+            if self.process is not None and not self.process.alive():
+                return False  # the mission's end: the waits see the node gone
             if not self.enabled or self.owed is None:
                 return False
             if self.probe is None:
@@ -216,6 +216,15 @@ class Liveness:
                 self._probe_last = s.t
                 self._probe_copies += 1
         return False
+
+    def _declare_exit(self, now: float) -> bool:
+        """Declare the spawned node lost when its process has ended other than at its
+        mission's end (under ``_lock``); True when it just was."""
+        proc = self.process
+        if self.lost is not None or proc is None or proc.alive() or self.ended_normally():
+            return False
+        self._declare(f"the node process {describe_exit(proc.returncode)}", now, exited=True)
+        return True
 
     def ended_normally(self) -> bool:
         """The spawned node exited with code 0 after the runner sent it End_Mission: the end of
@@ -248,7 +257,20 @@ class Liveness:
     # ------------------------------------------------------------------ the case thread
     def check(self) -> None:
         """Raise ``NodeLost`` when the node was declared lost while it was being watched
-        (during a startup phase the session judges the process itself: a setup error)."""
+        (during a startup phase the session judges the process itself: a setup error).
+
+        A process that has ended is declared here too, whichever thread looks first: the
+        case thread's own waits see the process gone (``TargetDriver.alive``) as soon as the
+        watcher does, and the watcher's declaration takes a moment (its evidence waits for
+        the node's last output). A case that found its node dead before the watcher had said
+        so went on to an unanswered liveness probe and ended "it answers no liveness probe
+        either" instead of naming the exit (CI, ``test_spawn_node_killed_mid_run_at_the_
+        descriptions_timings``: a SIGKILL reported as silence)."""
+        if not self.enabled:
+            return
+        if self.lost is None and self.process is not None and not self.process.alive():
+            with self._lock:  # the watcher may be declaring it: its declaration is the one
+                self._declare_exit(self.clock.monotonic())
         lost = self.lost
-        if lost is not None and self.enabled:
+        if lost is not None:
             raise lost

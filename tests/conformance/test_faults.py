@@ -145,6 +145,129 @@ def test_spawn_node_killed_mid_run_at_the_descriptions_timings(tmp_path):
                 ["--select", "MCP-SEQ-4", "MCP-ACK-1", "MCP-ACK-2"], wait=150)
 
 
+class _SlowToSayProcess:
+    """A spawned node whose last words take ``delay`` s to collect once it is dead (its output
+    threads joined, as ``harness.procs.ManagedProcess.evidence`` does after a death): the
+    watcher's declaration of the death takes that long."""
+
+    def __init__(self, delay: float) -> None:
+        self.returncode: int | None = None
+        self.delay = delay
+
+    def alive(self) -> bool:
+        return self.returncode is None
+
+    def evidence(self) -> list[str]:
+        if self.returncode is not None:
+            time.sleep(self.delay)
+        return [f"node exit: {self.returncode}"]
+
+
+def test_a_death_in_a_cases_last_exchange_is_named_with_its_exit_not_as_silence():
+    """CI once reported this module's description-timings kill as "node lost during this case:
+    it answers no liveness probe either": the node died while MCP-ACK-1's case awaited the ACK
+    of its last command; the case's wait saw the process gone (``driver.alive``) and returned
+    the exchange unanswered while the watcher was still declaring the death (its evidence waits
+    for the node's last output), and the case's proof of life then met the declared loss and
+    called it silence. Here a node ACKs the case's commands and is SIGKILLed on the last one;
+    the watcher runs and takes 0.5 s to declare. The case (MCP-ACK-1's, as the runner runs it)
+    must end in ``NodeLost`` naming the signal. Before the fix: SilenceUnproven "it answers no
+    liveness probe either", every run."""
+    import socket
+    import threading
+    from types import SimpleNamespace
+
+    from mcp_conform.conformance.cases.test_ack import _COMMANDS
+    from mcp_conform.conformance.cases.test_ack import test_every_command_type_is_acked as case
+    from mcp_conform.conformance.drone_case import CaseContext
+    from mcp_conform.harness.driver import TargetDriver
+    from mcp_conform.harness.errors import NodeLost
+    from mcp_conform.harness.liveness import Liveness
+    from mcp_conform.spec.codec import Action, Message, encode, peek_header
+
+    rto, node_id = 0.2, 1
+    node_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # held open: nothing else binds it
+    node_sock.bind(("127.0.0.1", 0))
+    node_sock.settimeout(0.1)
+    drv = TargetDriver(node_sock.getsockname(), ("127.0.0.1", 0), our_id=0)
+    drv.open()
+    proc = _SlowToSayProcess(0.5)
+    drv.alive = proc.alive
+    watch = Liveness(drv, rto, lambda: node_id)
+    watch.reset(proc)
+    watch.enable()
+    stop = threading.Event()
+
+    def node() -> None:
+        """ACK each command; SIGKILLed as the case's last one arrives, unanswered."""
+        n = 0
+        while not stop.is_set() and proc.alive():
+            try:
+                data, addr = node_sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            hdr = peek_header(data)
+            if hdr is None or hdr[3] == Action.ACK:
+                continue
+            n += 1
+            if n == len(_COMMANDS):
+                proc.returncode = -9
+                return
+            node_sock.sendto(encode(Message(hdr[1], node_id, 100 + n, Action.ACK, hdr[2])), addr)
+
+    session = SimpleNamespace(driver=drv, rto=rto, ack_window=rto, cfg=SimpleNamespace(broadcast_id=0xFFFF),
+                              target_id=node_id, node=proc, alive=proc.alive, node_evidence=proc.evidence,
+                              declare_not_live=lambda why: None, liveness=watch)
+    runner = threading.Thread(target=node, daemon=True)
+    try:
+        watch.start()
+        runner.start()
+        ctx = CaseContext(session, "ACK/test_every_command_type_is_acked", ("MCP-ACK-1",))
+        with pytest.raises(NodeLost) as info:
+            case(ctx)
+    finally:
+        stop.set()
+        runner.join(timeout=2.0)
+        watch.close()
+        drv.close()
+        node_sock.close()
+    assert "killed by signal SIGKILL" in info.value.reason, info.value.reason
+    assert info.value.process_exited and "node exit: -9" in info.value.evidence
+
+
+def test_a_wait_that_sees_the_process_gone_names_the_death_before_the_watcher_looks():
+    """The harness half: a wait (``TargetDriver.wait_for``, behind every exchange) that finds
+    the process gone raises ``NodeLost`` with its exit, though the watcher has not looked yet
+    (never ticked here). Before the fix it returned None, an unanswered exchange: the case went
+    on with a dead node taken for a silent one."""
+    import socket
+
+    from mcp_conform.harness.driver import TargetDriver
+    from mcp_conform.harness.errors import NodeLost
+    from mcp_conform.harness.liveness import Liveness
+    from mcp_conform.spec.codec import Action
+
+    node_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # held open: nothing else binds it
+    node_sock.bind(("127.0.0.1", 0))
+    drv = TargetDriver(node_sock.getsockname(), ("127.0.0.1", 0), our_id=0)
+    drv.open()
+    proc = _SlowToSayProcess(0.0)
+    drv.alive = proc.alive
+    watch = Liveness(drv, 0.2, lambda: 1)
+    watch.reset(proc)
+    watch.enable()
+    try:
+        sent = drv.send(Action.WP_OFF, None, 1)
+        proc.returncode = -9
+        with pytest.raises(NodeLost) as info:
+            drv.exchange(sent, rto=0.2, copies=3)
+    finally:
+        watch.close()
+        drv.close()
+        node_sock.close()
+    assert "killed by signal SIGKILL" in info.value.reason and info.value.exchange is not None
+
+
 def _spawn_kill(tmp_path, kill_after: str, rto: float, timing: list[str], select: list[str],
                 wait: float = 60) -> None:
     budget = _budget(rto)

@@ -26,7 +26,12 @@ UPDATE on accept and every update period; bytes a client sends are read ``LATE_R
 they came (a backend held off the CPU), then the process exits (status 1): a fuzzer's FIN and
 new connection after a command are served (an UPDATE, the state unchanged) before it dies.
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash|late-crash
+``--mode deaf`` (a lost command is not a lost stream, NSQD-MSG-3 vs NSQD-ROB-3): valid UPDATEs
+every update period, the drone grounded whatever it is sent; it reads and discards every byte
+(no command takes its effect, with or without a frame cut before it: what flaky-crash's
+processes do once its two crashes are spent).
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash|late-crash|deaf
 [--lifetime S] [--state FILE --restart-delay S]``
 """
 
@@ -87,6 +92,9 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
         if mode == "slow":
             c.sendall(update())
             pending, step = b"", 1.0
+        elif mode == "deaf":
+            pending, step = b"", PERIOD
+            c.sendall(update())
         else:
             pending, step = b"", PERIOD
         nxt = time.monotonic() + step
@@ -100,6 +108,8 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
                     pending = pending or update()
                     c.sendall(pending[:1])
                     pending = pending[1:]
+                elif mode == "deaf":
+                    c.sendall(update())
                 else:
                     frame = update()
                     c.sendall(struct.pack("<I", len(frame)) + frame[4:])  # the length not in network order
@@ -170,7 +180,7 @@ def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | Non
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash", "late-crash"),
+    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash", "late-crash", "deaf"),
                     required=True)
     ap.add_argument("--lifetime", type=float, default=300.0)
     ap.add_argument("--state", help="slow-restart: marks that the first start happened")
