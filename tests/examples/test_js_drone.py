@@ -10,8 +10,9 @@ session (nothing generated is kept). It runs under ``mcp-conform --spawn`` at sh
 (``--rto 0.3 --ack-window 0.3``, the node given the same ``--rto``):
 
 - the correct node, with and without the simulated vehicle, with the readings the documents
-  leave open taken the other way (ACK once the command's autopilot work is done, to the
-  datagram's source address), and with the least retry limit the spec allows (2, exiting when
+  leave open taken the other way (:data:`OTHER_READINGS`: ACK once the command's autopilot work
+  is done, to the datagram's source address, from a socket of its own, exit after End_Mission),
+  and with the least retry limit the spec allows (2, exiting when
   it gives up): exit 0, every rule the role can observe passed (MUST and SHOULD), the rest
   skipped or INFO;
 - the same node busy longer (``--takeoff-alt 150``, some 7 s of climb, End_Mission's RTL queued
@@ -95,8 +96,10 @@ def rule_text(rule: str) -> str:
 
 #: the readings the documents leave open that the node takes by default, the other way (README):
 #: the ACK once the command's autopilot work is done (not on receipt), sent to the datagram's
-#: source address (not the manager's configured one)
-OTHER_READINGS = "--ack-when-done --reply-to-source"
+#: source address (not the manager's configured one) from a socket of its own (an ephemeral
+#: port), its own seq the sender's current number not taken (D-5); the node exits 0 once
+#: End_Mission's RTL is done (no linger)
+OTHER_READINGS = "--ack-when-done --reply-to-source --send-socket --ack-seq same --exit-after-end"
 
 
 @pytest.mark.parametrize(("mavlink", "node_args"),

@@ -23,7 +23,7 @@ const MANAGER_ID = 0;
 function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
     rto: 5, retries: 1000, takeoffAlt: 10, broadcastId: 0xffff, ackWhenDone: false, replyToSource: false,
-    fault: null };
+    exitAfterEnd: false, sendSocket: false, ackSeq: 'next', fault: null };
   for (let i = 2; i < argv.length; i++) {
     const a = argv[i];
     const val = () => { if (i + 1 >= argv.length) usage(`${a} needs a value`); return argv[++i]; };
@@ -39,6 +39,9 @@ function parseArgs(argv) {
       case '--broadcast-id': o.broadcastId = Number(val()); break;
       case '--ack-when-done': o.ackWhenDone = true; break;
       case '--reply-to-source': o.replyToSource = true; break;
+      case '--exit-after-end': o.exitAfterEnd = true; break;
+      case '--send-socket': o.sendSocket = true; break;
+      case '--ack-seq': o.ackSeq = val(); break;
       case '--fault': o.fault = val(); break;
       case '-h': case '--help': usage(null); break;
       default: usage(`unknown option ${a}`);
@@ -47,6 +50,7 @@ function parseArgs(argv) {
   if (!Number.isInteger(o.id) || o.id < 1 || o.id > 0xfffe || o.id === o.broadcastId) usage('--id: 1..65534');
   if (!(o.rto > 0)) usage('--rto: seconds > 0');
   if (!Number.isInteger(o.retries) || o.retries < 0) usage('--retries: an integer >= 0');
+  if (!['next', 'same', 'echo'].includes(o.ackSeq)) usage('--ack-seq: next, same or echo');
   if (o.fault && !['no_dedup', 'no_retransmit'].includes(o.fault)) usage(`--fault ${o.fault}`);
   return o;
 }
@@ -54,7 +58,9 @@ function parseArgs(argv) {
 function usage(err) {
   const text = 'usage: drone.js --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n' +
     '       [--dialect FILE.json] [--rto S] [--retries N] [--takeoff-alt M] [--broadcast-id N]\n' +
-    '       [--ack-when-done] [--reply-to-source] [--fault no_dedup|no_retransmit]';
+    '       [--ack-when-done] [--reply-to-source] [--exit-after-end] [--send-socket]\n' +
+    '       [--ack-seq next|same|echo]\n' +
+    '       [--fault no_dedup|no_retransmit]';
   if (err) { process.stderr.write(`drone.js: ${err}\n${text}\n`); process.exit(2); }
   process.stdout.write(`${text}\n`);
   process.exit(0);
@@ -109,7 +115,11 @@ function datagram(dst, seq, action, payload = Buffer.alloc(0)) {
   return buf;
 }
 
-function send(buf, to = manager) { sock.send(buf, to.port, to.host); }
+// one socket for both ways, or (--send-socket) a socket of its own to send from, on an
+// ephemeral port
+const out = opt.sendSocket ? dgram.createSocket('udp4') : sock;
+if (out !== sock) out.bind(0, () => out.setBroadcast(true));
+function send(buf, to = manager) { out.send(buf, to.port, to.host); }
 
 // Send a unicast and retransmit it every --rto until its ACK comes or --retries are spent.
 function sendUnicast(dst, action, payload) {
@@ -145,7 +155,10 @@ function onAck(src, acked) {
 function sendAck(src, seq, rinfo) {
   const payload = Buffer.alloc(2);
   payload.writeUInt16BE(seq, 0);
-  send(datagram(src, takeSeq(), ACTION.ACK, payload), opt.replyToSource ? { host: rinfo.address, port: rinfo.port } : manager);
+  // D-5: an ACK's own number is not specified: the next one (the sample's "during every send"),
+  // the sender's current one without taking it (same), or the acknowledged one (echo)
+  const own = opt.ackSeq === 'next' ? takeSeq() : opt.ackSeq === 'same' ? nextSeq : seq;
+  send(datagram(src, own, ACTION.ACK, payload), opt.replyToSource ? { host: rinfo.address, port: rinfo.port } : manager);
 }
 
 function decodeItem(buf, off) {
@@ -195,7 +208,10 @@ function deliver(src, action, payload) {
       return queue(name, () => autopilot && autopilot.takeoff(opt.takeoffAlt));
     case ACTION.END_MISSION:
       log(`End_Mission from ${src}: RTL once pending actions are done`);
-      return queue(name, () => autopilot && autopilot.rtl());
+      return queue(name, async () => {
+        if (autopilot) await autopilot.rtl();
+        if (opt.exitAfterEnd) setImmediate(() => shutdown('mission over'));
+      });
     case ACTION.WP_LIST: {
       const items = decodeList(payload);
       log(`WP_List from ${src}: ${items.length} waypoints`);
@@ -255,6 +271,7 @@ sock.on('error', (e) => { log(`socket: ${e.message}`); process.exit(2); });
 function shutdown(sig) {
   log(`${sig}: stopping`);
   sock.close();
+  if (out !== sock) out.close();
   if (autopilot) autopilot.close();
   process.exit(0);
 }
