@@ -98,8 +98,11 @@ def rule_text(rule: str) -> str:
 #: the ACK once the command's autopilot work is done (not on receipt), sent to the datagram's
 #: source address (not the manager's configured one) from a socket of its own (an ephemeral
 #: port), its own seq the sender's current number not taken (D-5); the node exits 0 once
-#: End_Mission's RTL is done (no linger)
-OTHER_READINGS = "--ack-when-done --reply-to-source --send-socket --ack-seq same --exit-after-end"
+#: End_Mission's RTL is done (no linger), its RTL NAV_RETURN_TO_LAUNCH by COMMAND_INT (not a
+#: DO_SET_MODE), Mav_Passthrough frames forwarded in the commands' order (behind the autopilot
+#: jobs), Mission_Ready with the drone's ID (D-3), a first seq about to wrap (MCP-SEQ-4)
+OTHER_READINGS = ("--ack-when-done --reply-to-source --send-socket --ack-seq same --exit-after-end"
+                  " --rtl command_int --passthrough-queued --ready-payload id --first-seq 65535")
 
 
 @pytest.mark.parametrize(("mavlink", "node_args"),

@@ -2,7 +2,7 @@
 // The drone's autopilot side (ArduCopter over MAVLink), promise-based: wait for a GPS fix,
 // set a mode, arm, take off and wait to altitude, upload a mission, go to a point, RTL.
 
-const MAV_CMD = { NAV_TAKEOFF: 22, DO_SET_MODE: 176, COMPONENT_ARM_DISARM: 400 };
+const MAV_CMD = { NAV_RETURN_TO_LAUNCH: 20, NAV_TAKEOFF: 22, DO_SET_MODE: 176, COMPONENT_ARM_DISARM: 400 };
 const COPTER_MODE = { AUTO: 3, GUIDED: 4, RTL: 6 };
 const MAV_RESULT_ACCEPTED = 0;
 
@@ -75,6 +75,12 @@ class Autopilot {
     throw new Error(`command ${cmd}: no COMMAND_ACK`);
   }
 
+  // a bare arm request, its answer not awaited (the arm_early fault)
+  armRequest() {
+    this.link.send('COMMAND_LONG', { target_system: this.target.sys, target_component: this.target.comp,
+      command: MAV_CMD.COMPONENT_ARM_DISARM, param1: 1 });
+  }
+
   setMode(mode) { return this.command(MAV_CMD.DO_SET_MODE, [1 /* CUSTOM_MODE_ENABLED */, mode]); }
 
   async takeoff(alt) {
@@ -130,7 +136,26 @@ class Autopilot {
       alt: item.z });
   }
 
-  rtl() { return this.setMode(COPTER_MODE.RTL); }
+  // RTL: a mode change by COMMAND_LONG (default) or the SET_MODE message, or the
+  // NAV_RETURN_TO_LAUNCH command by COMMAND_LONG or COMMAND_INT
+  async rtl(how = 'mode') {
+    await this.connected();
+    const { sys, comp } = this.target;
+    if (how === 'mode') return this.setMode(COPTER_MODE.RTL);
+    if (how === 'command') return this.command(MAV_CMD.NAV_RETURN_TO_LAUNCH, []);
+    if (how === 'set_mode') {
+      this.link.send('SET_MODE', { target_system: sys, base_mode: 1, custom_mode: COPTER_MODE.RTL });
+      const hb = await this.next((m) => m._name === 'HEARTBEAT' && m._sys === sys && m.custom_mode === COPTER_MODE.RTL,
+        3000);
+      if (!hb) throw new Error('SET_MODE RTL: the autopilot did not change mode');
+      return undefined;
+    }
+    this.link.send('COMMAND_INT', { target_system: sys, target_component: comp, frame: 0,
+      command: MAV_CMD.NAV_RETURN_TO_LAUNCH });
+    const ack = await this.next((m) => m._name === 'COMMAND_ACK' && m.command === MAV_CMD.NAV_RETURN_TO_LAUNCH, 1500);
+    if (!ack || ack.result !== MAV_RESULT_ACCEPTED) throw new Error(`COMMAND_INT RTL: ${ack ? ack.result : 'no ACK'}`);
+    return undefined;
+  }
 
   forward(frame) { this.link.writeRaw(frame); }
 

@@ -19,11 +19,14 @@ const ACTION = { MISSION_READY: 0, START_MISSION: 1, END_MISSION: 2, WP_LIST: 3,
   OBSTACLES_LIST: 6, ACK: 7, MAV_PASSTHROUGH: 8 };
 const NAMES = Object.fromEntries(Object.entries(ACTION).map(([k, v]) => [v, k]));
 const MANAGER_ID = 0;
+// deliberate faults (README): each breaks one rule
+const FAULTS = ['no_dedup', 'no_retransmit', 'ack_le', 'ack_broadcast', 'global_dedup', 'any_ack', 'early_ready', 'arm_early'];
 
 function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
     rto: 5, retries: 1000, takeoffAlt: 10, broadcastId: 0xffff, ackWhenDone: false, replyToSource: false,
-    exitAfterEnd: false, sendSocket: false, ackSeq: 'next', fault: null };
+    exitAfterEnd: false, sendSocket: false, ackSeq: 'next', rtl: 'mode', passthroughQueued: false,
+    readyPayload: 'none', firstSeq: null, fault: null };
   for (let i = 2; i < argv.length; i++) {
     const a = argv[i];
     const val = () => { if (i + 1 >= argv.length) usage(`${a} needs a value`); return argv[++i]; };
@@ -42,6 +45,10 @@ function parseArgs(argv) {
       case '--exit-after-end': o.exitAfterEnd = true; break;
       case '--send-socket': o.sendSocket = true; break;
       case '--ack-seq': o.ackSeq = val(); break;
+      case '--rtl': o.rtl = val(); break;
+      case '--passthrough-queued': o.passthroughQueued = true; break;
+      case '--ready-payload': o.readyPayload = val(); break;
+      case '--first-seq': o.firstSeq = Number(val()); break;
       case '--fault': o.fault = val(); break;
       case '-h': case '--help': usage(null); break;
       default: usage(`unknown option ${a}`);
@@ -50,8 +57,13 @@ function parseArgs(argv) {
   if (!Number.isInteger(o.id) || o.id < 1 || o.id > 0xfffe || o.id === o.broadcastId) usage('--id: 1..65534');
   if (!(o.rto > 0)) usage('--rto: seconds > 0');
   if (!Number.isInteger(o.retries) || o.retries < 0) usage('--retries: an integer >= 0');
+  if (!['none', 'id'].includes(o.readyPayload)) usage('--ready-payload: none or id');
+  if (o.firstSeq !== null && !(Number.isInteger(o.firstSeq) && o.firstSeq >= 0 && o.firstSeq <= 0xffff)) {
+    usage('--first-seq: 0..65535');
+  }
+  if (!['mode', 'set_mode', 'command', 'command_int'].includes(o.rtl)) usage('--rtl: mode, set_mode, command or command_int');
   if (!['next', 'same', 'echo'].includes(o.ackSeq)) usage('--ack-seq: next, same or echo');
-  if (o.fault && !['no_dedup', 'no_retransmit'].includes(o.fault)) usage(`--fault ${o.fault}`);
+  if (o.fault && !FAULTS.includes(o.fault)) usage(`--fault ${o.fault}`);
   return o;
 }
 
@@ -59,8 +71,9 @@ function usage(err) {
   const text = 'usage: drone.js --id N [--listen [HOST:]PORT] [--manager HOST:PORT] [--mavlink URL]\n' +
     '       [--dialect FILE.json] [--rto S] [--retries N] [--takeoff-alt M] [--broadcast-id N]\n' +
     '       [--ack-when-done] [--reply-to-source] [--exit-after-end] [--send-socket]\n' +
-    '       [--ack-seq next|same|echo]\n' +
-    '       [--fault no_dedup|no_retransmit]';
+    '       [--ack-seq next|same|echo] [--rtl mode|set_mode|command|command_int] [--passthrough-queued]\n' +
+    '       [--ready-payload none|id] [--first-seq N]\n' +
+    `       [--fault ${FAULTS.join('|')}]`;
   if (err) { process.stderr.write(`drone.js: ${err}\n${text}\n`); process.exit(2); }
   process.stdout.write(`${text}\n`);
   process.exit(0);
@@ -98,7 +111,8 @@ if (opt.mavlink) {
 const manager = hostPort(opt.manager, '127.0.0.1');
 const listen = hostPort(opt.listen, '0.0.0.0');
 const sock = dgram.createSocket('udp4');
-let nextSeq = Math.floor(Math.random() * 0x10000);  // "an arbitrary initial sequence number"
+// "an arbitrary initial sequence number"
+let nextSeq = opt.firstSeq === null ? Math.floor(Math.random() * 0x10000) : opt.firstSeq;
 const lastDelivered = new Map();  // src -> { seq, done }: the duplicate table (per source)
 let outstanding = null;           // our one unicast awaiting its ACK (stop-and-wait)
 
@@ -144,7 +158,7 @@ function sendUnicast(dst, action, payload) {
 
 function onAck(src, acked) {
   // MCP-RTX-2: only the destination's ACK naming our seq ends the retransmission
-  if (outstanding && src === outstanding.dst && acked === outstanding.seq) {
+  if (outstanding && ((src === outstanding.dst && acked === outstanding.seq) || opt.fault === 'any_ack')) {
     clearTimeout(outstanding.timer);
     const o = outstanding;
     outstanding = null;
@@ -154,7 +168,7 @@ function onAck(src, acked) {
 
 function sendAck(src, seq, rinfo) {
   const payload = Buffer.alloc(2);
-  payload.writeUInt16BE(seq, 0);
+  if (opt.fault === 'ack_le') payload.writeUInt16LE(seq, 0); else payload.writeUInt16BE(seq, 0);
   // D-5: an ACK's own number is not specified: the next one (the sample's "during every send"),
   // the sender's current one without taking it (same), or the acknowledged one (echo)
   const own = opt.ackSeq === 'next' ? takeSeq() : opt.ackSeq === 'same' ? nextSeq : seq;
@@ -209,7 +223,7 @@ function deliver(src, action, payload) {
     case ACTION.END_MISSION:
       log(`End_Mission from ${src}: RTL once pending actions are done`);
       return queue(name, async () => {
-        if (autopilot) await autopilot.rtl();
+        if (autopilot) await autopilot.rtl(opt.rtl);
         if (opt.exitAfterEnd) setImmediate(() => shutdown('mission over'));
       });
     case ACTION.WP_LIST: {
@@ -230,7 +244,10 @@ function deliver(src, action, payload) {
       return Promise.resolve();
     case ACTION.MAV_PASSTHROUGH:
       log(`Mav_Passthrough from ${src}: ${payload.length} bytes${autopilot ? ' forwarded' : ''}`);
-      if (autopilot) autopilot.forward(payload);  // exactly once per delivery (MCP-PAY-8)
+      // exactly once per delivery (MCP-PAY-8): at once, or (--passthrough-queued) in the
+      // commands' order, after the autopilot jobs before it
+      if (opt.passthroughQueued) return queue(name, () => autopilot && autopilot.forward(payload));
+      if (autopilot) autopilot.forward(payload);
       return Promise.resolve();
     default:  // Mission_Ready: a drone has no use for one
       log(`${name} from ${src}: ignored`);
@@ -254,15 +271,16 @@ sock.on('message', (buf, rinfo) => {
     return;
   }
   // duplicate discard, per source: the same seq as the last delivered from that src (MCP-DUP-*)
-  const last = lastDelivered.get(src);
+  const key = opt.fault === 'global_dedup' ? 'any' : src;
+  const last = lastDelivered.get(key);
   let done;
   if (last && last.seq === seq && opt.fault !== 'no_dedup') {
     done = last.done;
   } else {
     done = deliver(src, action, payload);
-    lastDelivered.set(src, { seq, done });
+    lastDelivered.set(key, { seq, done });
   }
-  if (!unicast) return;                                                       // MCP-ACK-4
+  if (!unicast && opt.fault !== 'ack_broadcast') return;                      // MCP-ACK-4
   if (opt.ackWhenDone) done.then(() => sendAck(src, seq, rinfo)); else sendAck(src, seq, rinfo);
 });
 
@@ -283,11 +301,21 @@ sock.bind(listen.port, listen.host, async () => {
   log(`listening on ${listen.host}:${listen.port}, manager ${manager.host}:${manager.port}, rto ${opt.rto} s`);
   // Mission_Ready only once ready to fly: the autopilot's GPS lock first (MCP-BLK-5). The
   // autopilot queue holds any command that comes meanwhile behind this.
-  const ready = queue('ready', () => autopilot && autopilot.gpsLock());
+  const ready = queue('ready', async () => {
+    if (!autopilot) return;
+    if (opt.fault === 'arm_early') {
+      await autopilot.connected();
+      autopilot.armRequest();
+    }
+    if (opt.fault !== 'early_ready') await autopilot.gpsLock();
+  });
   await ready;
   log('ready: Mission_Ready');
   try {
-    await sendUnicast(MANAGER_ID, ACTION.MISSION_READY, Buffer.alloc(0));
+    // D-3: the sample sends no payload; the manager's handler reads the drone's ID from it
+    const payload = Buffer.alloc(opt.readyPayload === 'id' ? 2 : 0);
+    if (payload.length) payload.writeUInt16BE(opt.id, 0);
+    await sendUnicast(MANAGER_ID, ACTION.MISSION_READY, payload);
     log('Mission_Ready ACKed');
   } catch (e) {
     log(`${e.message}: giving up`);
