@@ -20,7 +20,8 @@ const ACTION = { MISSION_READY: 0, START_MISSION: 1, END_MISSION: 2, WP_LIST: 3,
 const NAMES = Object.fromEntries(Object.entries(ACTION).map(([k, v]) => [v, k]));
 const MANAGER_ID = 0;
 // deliberate faults (README): each breaks one rule
-const FAULTS = ['no_dedup', 'no_retransmit', 'ack_le', 'ack_broadcast', 'global_dedup', 'any_ack', 'early_ready', 'arm_early'];
+const FAULTS = ['no_dedup', 'no_retransmit', 'ack_le', 'ack_broadcast', 'global_dedup', 'any_ack', 'early_ready', 'arm_early',
+  'connected'];
 
 function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
@@ -133,7 +134,9 @@ function datagram(dst, seq, action, payload = Buffer.alloc(0)) {
 // ephemeral port
 const out = opt.sendSocket ? dgram.createSocket('udp4') : sock;
 if (out !== sock) out.bind(0, () => out.setBroadcast(true));
-function send(buf, to = manager) { out.send(buf, to.port, to.host); }
+function send(buf, to = manager) {
+  if (opt.fault === 'connected') out.send(buf); else out.send(buf, to.port, to.host);
+}
 
 // Send a unicast and retransmit it every --rto until its ACK comes or --retries are spent.
 function sendUnicast(dst, action, payload) {
@@ -298,6 +301,8 @@ process.on('SIGINT', () => shutdown('SIGINT'));
 
 sock.bind(listen.port, listen.host, async () => {
   sock.setBroadcast(true);
+  // the connected fault: a socket connect()ed to the manager takes datagrams from that address only
+  if (opt.fault === 'connected') await new Promise((resolve) => sock.connect(manager.port, manager.host, resolve));
   log(`listening on ${listen.host}:${listen.port}, manager ${manager.host}:${manager.port}, rto ${opt.rto} s`);
   // Mission_Ready only once ready to fly: the autopilot's GPS lock first (MCP-BLK-5). The
   // autopilot queue holds any command that comes meanwhile behind this.
