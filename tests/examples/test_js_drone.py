@@ -18,6 +18,10 @@ session (nothing generated is kept). It runs under ``mcp-conform --spawn`` at sh
 - the same node busy longer (``--takeoff-alt 150``, some 7 s of climb, End_Mission's RTL queued
   behind it as MCP-BLK-7 asks): every rule judged, the BLK-7 case passed; the trace monitor's
   own BLK-7 deadline ignores the pending take-off (an xfail naming it, the tool's fault);
+- a node whose retry limit is 1, below the least the spec allows: exiting when it gives up,
+  MCP-RTX-1 failed and no other MUST; announcing again (a new Mission_Ready, the next seq), one
+  of MCP-RTX-1 and MCP-SEQ-2 failed and no other MUST -- the suite names SEQ-2 and passes RTX-1
+  (an xfail naming it: the description identifies a retransmission by its repeated number);
 - each deliberate fault (``--fault``) fails the rule it breaks, named by the rule's text, and no
   other MUST rule.
 """
@@ -106,8 +110,10 @@ OTHER_READINGS = ("--ack-when-done --reply-to-source --send-socket --ack-seq sam
 
 
 @pytest.mark.parametrize(("mavlink", "node_args"),
-                         [(False, ""), (True, ""), (True, OTHER_READINGS), (False, "--retries 2")],
-                         ids=["no-vehicle", "vehicle", "vehicle-other-readings", "least-retry-limit"])
+                         [(False, ""), (True, ""), (True, OTHER_READINGS), (False, "--retries 2"),
+                          (False, "--retries 2 --reannounce")],
+                         ids=["no-vehicle", "vehicle", "vehicle-other-readings", "least-retry-limit",
+                              "least-retry-limit-reannounce"])
 def test_the_correct_drone_passes(dialect: Path, tmp_path: Path, mavlink: bool, node_args: str) -> None:
     rc, doc, out = run(tmp_path, dialect, mavlink, node_args=node_args)
     skipped = NOT_OBSERVABLE | (set() if mavlink else VEHICLE_ONLY | {"MCP-DUP-4"})
@@ -153,6 +159,51 @@ def test_a_busy_drone_s_late_rtl_is_no_warning(busy: dict[str, Any]) -> None:
     doc, out = busy["doc"], busy["out"]
     assert doc["rules"]["MCP-BLK-7"] == "passed", out
     assert doc["monitor"]["violations"] == [], out
+
+
+@pytest.fixture(scope="module")
+def renumbered(dialect: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One run of a node whose Mission_Ready retry limit is 1, below the least the spec allows
+    (MCP-RTX-1: "at least 3 copies while the ACK is withheld"), and which announces again when
+    it gives up (``--reannounce``): two copies of seq N, then a new Mission_Ready, seq N+1."""
+
+    def make(out: Path) -> dict[str, Any]:
+        rc, doc, text = run(out, dialect, False, node_args="--retries 1 --reannounce")
+        return {"rc": rc, "doc": doc, "out": text}
+
+    made: dict[str, Any] = once(tmp_path_factory, "mcp_js_renumbered", make)
+    return made
+
+
+def test_a_drone_below_the_least_retry_limit_that_announces_again_fails(renumbered: dict[str, Any]) -> None:
+    """Whichever reading of its third datagram (a new message, or a copy renumbered), one of
+    MCP-RTX-1 and MCP-SEQ-2 is broken, and no other MUST rule."""
+    doc, out = renumbered["doc"], renumbered["out"]
+    assert renumbered["rc"] == 1 and doc["error"] is None, out
+    failed_must = {r for r, outcome in doc["rules"].items() if outcome == "failed" and RULES[r].level == "MUST"}
+    assert failed_must and failed_must <= {"MCP-RTX-1", "MCP-SEQ-2"}, out
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    "tool: a new Mission_Ready (seq N+1) after the retry limit (1) is reached is judged a "
+    "retransmission renumbered (MCP-SEQ-2 failed: 'repeats unACKed seq N with a new number', "
+    "SEQ/test_retransmission_repeats_seq_and_bytes '1 of 2 copies differ') and MCP-RTX-1 passed; "
+    "the description identifies retransmissions by their number ('Retransmissions of the same "
+    "message are identified by repeating sequence number'), so seq N had 2 copies while the ACK "
+    "was withheld: MCP-RTX-1's fault, as the same node that exits on give-up is judged"))
+def test_a_drone_below_the_least_retry_limit_that_announces_again_fails_rtx1(renumbered: dict[str, Any]) -> None:
+    doc, out = renumbered["doc"], renumbered["out"]
+    assert doc["rules"]["MCP-RTX-1"] == "failed", (rule_text("MCP-RTX-1"), out)
+    assert doc["rules"]["MCP-SEQ-2"] == "passed", (rule_text("MCP-SEQ-2"), out)
+
+
+def test_a_drone_below_the_least_retry_limit_that_exits_fails_rtx1(dialect: Path, tmp_path: Path) -> None:
+    """The same retry limit, the node exiting 1 when it gives up: MCP-RTX-1 failed (two copies),
+    no other MUST rule."""
+    rc, doc, out = run(tmp_path, dialect, False, node_args="--retries 1")
+    assert rc == 1 and doc["error"] is None, out
+    failed_must = {r for r, outcome in doc["rules"].items() if outcome == "failed" and RULES[r].level == "MUST"}
+    assert failed_must == {"MCP-RTX-1"}, (rule_text("MCP-RTX-1"), out)
 
 
 FAULTS = [

@@ -27,7 +27,7 @@ function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
     rto: 5, retries: 1000, takeoffAlt: 10, broadcastId: 0xffff, ackWhenDone: false, replyToSource: false,
     exitAfterEnd: false, sendSocket: false, ackSeq: 'next', rtl: 'mode', passthroughQueued: false,
-    readyPayload: 'none', firstSeq: null, fault: null };
+    readyPayload: 'none', firstSeq: null, reannounce: false, fault: null };
   for (let i = 2; i < argv.length; i++) {
     const a = argv[i];
     const val = () => { if (i + 1 >= argv.length) usage(`${a} needs a value`); return argv[++i]; };
@@ -50,6 +50,7 @@ function parseArgs(argv) {
       case '--passthrough-queued': o.passthroughQueued = true; break;
       case '--ready-payload': o.readyPayload = val(); break;
       case '--first-seq': o.firstSeq = Number(val()); break;
+      case '--reannounce': o.reannounce = true; break;
       case '--fault': o.fault = val(); break;
       case '-h': case '--help': usage(null); break;
       default: usage(`unknown option ${a}`);
@@ -73,7 +74,7 @@ function usage(err) {
     '       [--dialect FILE.json] [--rto S] [--retries N] [--takeoff-alt M] [--broadcast-id N]\n' +
     '       [--ack-when-done] [--reply-to-source] [--exit-after-end] [--send-socket]\n' +
     '       [--ack-seq next|same|echo] [--rtl mode|set_mode|command|command_int] [--passthrough-queued]\n' +
-    '       [--ready-payload none|id] [--first-seq N]\n' +
+    '       [--ready-payload none|id] [--first-seq N] [--reannounce]\n' +
     `       [--fault ${FAULTS.join('|')}]`;
   if (err) { process.stderr.write(`drone.js: ${err}\n${text}\n`); process.exit(2); }
   process.stdout.write(`${text}\n`);
@@ -316,16 +317,22 @@ sock.bind(listen.port, listen.host, async () => {
   });
   await ready;
   log('ready: Mission_Ready');
-  try {
-    // D-3: the sample sends no payload; the manager's handler reads the drone's ID from it
-    const payload = Buffer.alloc(opt.readyPayload === 'id' ? 2 : 0);
-    if (payload.length) payload.writeUInt16BE(opt.id, 0);
-    await sendUnicast(MANAGER_ID, ACTION.MISSION_READY, payload);
-    log('Mission_Ready ACKed');
-  } catch (e) {
-    log(`${e.message}: giving up`);
-    sock.close();
-    if (autopilot) autopilot.close();
-    process.exit(1);
+  // D-3: the sample sends no payload; the manager's handler reads the drone's ID from it
+  const payload = Buffer.alloc(opt.readyPayload === 'id' ? 2 : 0);
+  if (payload.length) payload.writeUInt16BE(opt.id, 0);
+  for (;;) {
+    try {
+      await sendUnicast(MANAGER_ID, ACTION.MISSION_READY, payload);
+      log('Mission_Ready ACKed');
+      return;
+    } catch (e) {
+      if (!opt.reannounce) {
+        log(`${e.message}: giving up`);
+        sock.close();
+        if (autopilot) autopilot.close();
+        process.exit(1);
+      }
+      log(`${e.message}: announcing again`);  // --reannounce: a new Mission_Ready, a new seq
+    }
   }
 });
