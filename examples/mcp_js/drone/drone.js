@@ -27,7 +27,7 @@ function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
     rto: 5, retries: 1000, takeoffAlt: 10, broadcastId: 0xffff, ackWhenDone: false, replyToSource: false,
     exitAfterEnd: false, sendSocket: false, ackSeq: 'next', rtl: 'mode', passthroughQueued: false,
-    readyPayload: 'none', firstSeq: null, reannounce: false, fault: null };
+    readyPayload: 'none', firstSeq: null, reannounce: false, verbose: false, fault: null };
   for (let i = 2; i < argv.length; i++) {
     const a = argv[i];
     const val = () => { if (i + 1 >= argv.length) usage(`${a} needs a value`); return argv[++i]; };
@@ -51,6 +51,7 @@ function parseArgs(argv) {
       case '--ready-payload': o.readyPayload = val(); break;
       case '--first-seq': o.firstSeq = Number(val()); break;
       case '--reannounce': o.reannounce = true; break;
+      case '-v': case '--verbose': o.verbose = true; break;
       case '--fault': o.fault = val(); break;
       case '-h': case '--help': usage(null); break;
       default: usage(`unknown option ${a}`);
@@ -74,7 +75,7 @@ function usage(err) {
     '       [--dialect FILE.json] [--rto S] [--retries N] [--takeoff-alt M] [--broadcast-id N]\n' +
     '       [--ack-when-done] [--reply-to-source] [--exit-after-end] [--send-socket]\n' +
     '       [--ack-seq next|same|echo] [--rtl mode|set_mode|command|command_int] [--passthrough-queued]\n' +
-    '       [--ready-payload none|id] [--first-seq N] [--reannounce]\n' +
+    '       [--ready-payload none|id] [--first-seq N] [--reannounce] [-v]\n' +
     `       [--fault ${FAULTS.join('|')}]`;
   if (err) { process.stderr.write(`drone.js: ${err}\n${text}\n`); process.exit(2); }
   process.stdout.write(`${text}\n`);
@@ -260,6 +261,7 @@ function deliver(src, action, payload) {
 }
 
 sock.on('message', (buf, rinfo) => {
+  if (opt.verbose) log(`<- ${rinfo.address}:${rinfo.port} ${buf.length} bytes ${buf.subarray(0, 17).toString('hex')}`);
   if (buf.length < HEADER || !buf.subarray(0, 9).equals(PREAMBLE)) return;  // MCP-ROB-1/2
   const dst = buf.readUInt16BE(9);
   const src = buf.readUInt16BE(11);
