@@ -27,7 +27,8 @@ function parseArgs(argv) {
   const o = { id: 1, listen: '0.0.0.0:7890', manager: '127.255.255.255:7889', mavlink: null, dialect: null,
     rto: 5, retries: 1000, takeoffAlt: 10, broadcastId: 0xffff, ackWhenDone: false, replyToSource: false,
     exitAfterEnd: false, sendSocket: false, ackSeq: 'next', rtl: 'mode', passthroughQueued: false,
-    readyPayload: 'none', firstSeq: null, reannounce: false, verbose: false, fault: null };
+    readyPayload: 'none', firstSeq: null, reannounce: false, verbose: false, managerOnly: false,
+    fault: null };
   for (let i = 2; i < argv.length; i++) {
     const a = argv[i];
     const val = () => { if (i + 1 >= argv.length) usage(`${a} needs a value`); return argv[++i]; };
@@ -52,6 +53,7 @@ function parseArgs(argv) {
       case '--first-seq': o.firstSeq = Number(val()); break;
       case '--reannounce': o.reannounce = true; break;
       case '-v': case '--verbose': o.verbose = true; break;
+      case '--manager-only': o.managerOnly = true; break;
       case '--fault': o.fault = val(); break;
       case '-h': case '--help': usage(null); break;
       default: usage(`unknown option ${a}`);
@@ -75,7 +77,7 @@ function usage(err) {
     '       [--dialect FILE.json] [--rto S] [--retries N] [--takeoff-alt M] [--broadcast-id N]\n' +
     '       [--ack-when-done] [--reply-to-source] [--exit-after-end] [--send-socket]\n' +
     '       [--ack-seq next|same|echo] [--rtl mode|set_mode|command|command_int] [--passthrough-queued]\n' +
-    '       [--ready-payload none|id] [--first-seq N] [--reannounce] [-v]\n' +
+    '       [--ready-payload none|id] [--first-seq N] [--reannounce] [-v] [--manager-only]\n' +
     `       [--fault ${FAULTS.join('|')}]`;
   if (err) { process.stderr.write(`drone.js: ${err}\n${text}\n`); process.exit(2); }
   process.stdout.write(`${text}\n`);
@@ -272,6 +274,8 @@ sock.on('message', (buf, rinfo) => {
   if (!fits(action, payload, src)) return;                                    // MCP-ROB-4, D-4
   const unicast = dst === opt.id;
   if (!unicast && dst !== opt.broadcastId) return;                            // MCP-ACK-5
+  // D-10: every command comes from the manager, ID 0: --manager-only ignores any other src
+  if (opt.managerOnly && src !== MANAGER_ID) return;
   if (action === ACTION.ACK) {                                                // MCP-ACK-6
     if (unicast) onAck(src, payload.readUInt16BE(0));
     return;
