@@ -151,11 +151,19 @@ class Link extends EventEmitter {
     const [, kind, host, port] = m;
     this.kind = kind;
     if (kind === 'tcp') {
-      this.sock = net.connect(Number(port), host);
-      this.sock.setNoDelay(true);
-      this.sock.on('data', (d) => this.feed(d));
-      this.sock.on('error', (e) => this.emit('error', e));
-      this.sock.on('close', () => this.emit('close'));
+      // connect, and again a second after the connection fails or ends (an autopilot, or
+      // SITL, not up yet or restarted)
+      const connect = () => {
+        this.rx = Buffer.alloc(0);
+        this.sock = net.connect(Number(port), host);
+        this.sock.setNoDelay(true);
+        this.sock.on('data', (d) => this.feed(d));
+        this.sock.on('error', (e) => this.emit('error', e));
+        this.sock.on('close', () => {
+          if (!this.closing) this.retry = setTimeout(connect, 1000);
+        });
+      };
+      connect();
     } else {
       this.sock = dgram.createSocket('udp4');
       this.sock.on('message', (d, rinfo) => {
@@ -174,7 +182,7 @@ class Link extends EventEmitter {
 
   writeRaw(frame) {
     if (this.kind === 'tcp') {
-      this.sock.write(frame);
+      if (!this.sock.destroyed) this.sock.write(frame);  // (lost while reconnecting, as on a wire)
     } else if (this.peer) {
       this.sock.send(frame, this.peer.port, this.peer.host);
     }
@@ -225,6 +233,8 @@ class Link extends EventEmitter {
   }
 
   close() {
+    this.closing = true;
+    clearTimeout(this.retry);
     try {
       if (this.kind === 'tcp') this.sock.destroy(); else this.sock.close();
     } catch (e) { /* already closed */ }
