@@ -39,10 +39,17 @@ RTO = "0.3"  # the runner's --rto and --ack-window, and the node's own -rto
 #: the builds: name -> go build tags
 BUILDS: dict[str, str] = {"ok": "", "no_retransmit": "fault_noretransmit", "pipeline": "fault_pipeline"}
 
-#: the correct build's options per challenge: a Mav_Passthrough (MAVLink 1 COMMAND_LONG,
+#: the correct build's runs: (challenge, options). A Mav_Passthrough (MAVLink 1 COMMAND_LONG,
 #: DO_CHANGE_SPEED) to each drone after its Start_Mission, so that MCP-PAY-6 is judged;
-#: challenge 2 (the most messages) starts at seq 65533, so that its numbers wrap (MCP-SEQ-1)
-CORRECT_ARGS = {"1": "-speed 5", "2": "-speed 5 -initial-seq 65533", "3": "-speed 5"}
+#: challenge 2 (the most messages) starts at seq 65533, so that its numbers wrap (MCP-SEQ-1);
+#: "shapes": the node's other readings at once -- ACKs that take no number of their own (D-5),
+#: each sent back to the address its message came from, every datagram from a second socket
+CORRECT_RUNS = {
+    "c1": ("1", "-speed 5"),
+    "c2": ("2", "-speed 5 -initial-seq 65533"),
+    "c3": ("3", "-speed 5"),
+    "c1-shapes": ("1", "-speed 5 -ack-seq keep -reply-to-source -separate-send-socket"),
+}
 
 #: rules every correct run passes, whatever the challenge (the others are skipped as not
 #: observable on a manager: MCP-SEQ-3, MCP-DUP-*; MCP-RTX-4 where nothing is broadcast)
@@ -137,10 +144,11 @@ def silent_rtx1(doc: dict[str, Any]) -> list[dict[str, Any]]:
     return [v for v in doc["monitor"]["violations"] if v["rule"] == "MCP-RTX-1"]
 
 
-@pytest.mark.parametrize("challenge", ["1", "2", "3"])
+@pytest.mark.parametrize("run", list(CORRECT_RUNS))
 def test_the_correct_manager_passes_every_rule_it_can_be_judged_on(
-        tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], challenge: str) -> None:
-    doc = run_suite(tmp_path_factory, builds, "ok", challenge, CORRECT_ARGS[challenge])
+        tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], run: str) -> None:
+    challenge, node_args = CORRECT_RUNS[run]
+    doc = run_suite(tmp_path_factory, builds, "ok", challenge, node_args)
     assert doc["exit_code"] == 0, doc["output"]
     assert doc["error"] is None, doc["output"]
     bad = {r: o for r, o in doc["rules"].items() if o in ("failed", "warned", "error")}

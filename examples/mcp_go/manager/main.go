@@ -36,6 +36,9 @@ type config struct {
 	speed                 float64
 	initialSeq            int
 	exitOnGiveUp, verbose bool
+	ackKeepsSeq           bool
+	replyToSource         bool
+	separateSend          bool
 }
 
 func parseDrones(s string) ([]uint16, error) {
@@ -76,6 +79,9 @@ func parseFlags(args []string) (config, error) {
 	linger := seconds(fs, "linger", 0, "after the missions, keep ACKing this long")
 	fs.IntVar(&c.initialSeq, "initial-seq", -1, "first sequence number (default: random, MCP-SEQ-4)")
 	fs.BoolVar(&c.exitOnGiveUp, "exit-on-give-up", false, "end the whole manager (exit 1) when a drone's retry limit is reached, instead of abandoning that drone's mission")
+	ackSeq := fs.String("ack-seq", "next", "an ACK's own number: next (it takes one, as every send does) or keep (the number last taken; D-5)")
+	fs.BoolVar(&c.replyToSource, "reply-to-source", false, "send each ACK to the address its message came from, not to -send-to")
+	fs.BoolVar(&c.separateSend, "separate-send-socket", false, "send from a second socket (an ephemeral port on the -bind address), receive on -bind")
 	fs.BoolVar(&c.verbose, "v", false, "log every datagram")
 	if err := fs.Parse(args); err != nil {
 		return c, err
@@ -83,6 +89,10 @@ func parseFlags(args []string) (config, error) {
 	if fs.NArg() > 0 {
 		return c, fmt.Errorf("unexpected arguments %q", fs.Args())
 	}
+	if *ackSeq != "next" && *ackSeq != "keep" {
+		return c, fmt.Errorf("-ack-seq %q: next or keep", *ackSeq)
+	}
+	c.ackKeepsSeq = *ackSeq == "keep"
 	var err error
 	if c.drones, err = parseDrones(*drones); err != nil {
 		return c, err
@@ -254,6 +264,14 @@ func run(ctx context.Context, cfg config) int {
 	}
 	n := newNode(conn, raddr, cfg.drones, initial)
 	n.broadcastID, n.rto, n.retries, n.verbose = cfg.broadcastID, cfg.rto, cfg.retries, cfg.verbose
+	n.ackKeepsSeq, n.replyToSource = cfg.ackKeepsSeq, cfg.replyToSource
+	if cfg.separateSend {
+		if n.out, err = net.ListenUDP("udp4", &net.UDPAddr{IP: laddr.IP}); err != nil {
+			log.Print(err)
+			return 2
+		}
+		defer n.out.Close()
+	}
 	readerDone := make(chan struct{})
 	go func() { n.read(); close(readerDone) }()
 	defer func() { conn.Close(); <-readerDone }()
@@ -323,6 +341,7 @@ func main() {
 	var once sync.Once
 	go func() {
 		s := <-sigs
+		log.Printf("%v: stopping", s)
 		once.Do(func() { got = s })
 		cancel()
 	}()

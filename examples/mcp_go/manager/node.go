@@ -17,12 +17,18 @@ var errGaveUp = errors.New("retry limit reached without an ACK")
 // node is the manager's MCP endpoint: one UDP socket, a reader goroutine that ACKs and
 // routes what arrives, and the reliable unicast send the drones' goroutines call.
 type node struct {
-	conn        *net.UDPConn
+	conn        *net.UDPConn // receives (and sends, unless out is set)
+	out         *net.UDPConn // -separate-send-socket: sends from a port of its own
 	sendTo      *net.UDPAddr // every datagram goes here: "local subnet IP broadcasts" (MCP-TRN-1)
 	broadcastID uint16
 	rto         time.Duration
 	retries     int
 	verbose     bool
+	// ackKeepsSeq (-ack-seq keep): an ACK carries the number last taken without taking a new
+	// one (D-5: "Whether an ACK takes a sequence number of its own is not specified").
+	ackKeepsSeq bool
+	// replyToSource (-reply-to-source): an ACK goes to the address the message came from.
+	replyToSource bool
 
 	// sendMu makes taking the next number and sending one step, so the numbers leave in order
 	// whichever goroutine sends (MCP-SEQ-1); every new message takes one, ACKs too (D-5).
@@ -51,17 +57,29 @@ func newNode(conn *net.UDPConn, sendTo *net.UDPAddr, drones []uint16, initialSeq
 // send sends a new message under the next sequence number and returns its bytes, for the
 // retransmissions to repeat exactly (MCP-SEQ-2), with the number it took.
 func (n *node) send(h header, payload []byte) (uint16, []byte) {
+	return n.sendVia(h, payload, n.sendTo)
+}
+
+func (n *node) sendVia(h header, payload []byte, to *net.UDPAddr) (uint16, []byte) {
 	n.sendMu.Lock()
 	defer n.sendMu.Unlock()
-	n.seq++
+	if h.act != actACK || !n.ackKeepsSeq {
+		n.seq++
+	}
 	h.seq = n.seq
 	b := encode(h, payload)
-	n.write(h, b)
+	n.writeTo(h, b, to)
 	return h.seq, b
 }
 
-func (n *node) write(h header, b []byte) {
-	if _, err := n.conn.WriteToUDP(b, n.sendTo); err != nil {
+func (n *node) write(h header, b []byte) { n.writeTo(h, b, n.sendTo) }
+
+func (n *node) writeTo(h header, b []byte, to *net.UDPAddr) {
+	conn := n.conn
+	if n.out != nil {
+		conn = n.out
+	}
+	if _, err := conn.WriteToUDP(b, to); err != nil {
 		log.Printf("send %v to %d: %v", h.act, h.dst, err)
 	} else if n.verbose {
 		log.Printf("-> %v dst=%d seq=%d len=%d", h.act, h.dst, h.seq, len(b))
@@ -104,7 +122,11 @@ func (n *node) read() {
 			continue
 		}
 		// every well-formed unicast to ID 0, every copy: ACK to its src (MCP-ACK-1/2/3)
-		n.send(header{dst: h.src, src: managerID, act: actACK}, seqPayload(h.seq))
+		to := n.sendTo
+		if n.replyToSource {
+			to = from
+		}
+		n.sendVia(header{dst: h.src, src: managerID, act: actACK}, seqPayload(h.seq), to)
 		if prev, ok := last[h.src]; ok && prev == h.seq {
 			continue // a duplicate: ACKed again, not delivered again (MCP-DUP-1)
 		}
