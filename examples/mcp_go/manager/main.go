@@ -280,6 +280,9 @@ func run(ctx context.Context, cfg config) int {
 
 	ctx, cancel := context.WithCancel(ctx)
 	defer cancel()
+	if cfg.exitOnGiveUp {
+		n.gaveUp = cancel
+	}
 	m := &manager{cfg: cfg, n: n, cmds: challengeCommands(cfg, wps, obs),
 		allReady: make(chan struct{}), listed: make(chan struct{})}
 	m.started.Add(len(cfg.drones))
@@ -301,9 +304,6 @@ func run(ctx context.Context, cfg config) int {
 				mu.Lock()
 				lost++
 				mu.Unlock()
-				if cfg.exitOnGiveUp {
-					cancel()
-				}
 			}
 		}()
 	}

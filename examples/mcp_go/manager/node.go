@@ -29,6 +29,9 @@ type node struct {
 	ackKeepsSeq bool
 	// replyToSource (-reply-to-source): an ACK goes to the address the message came from.
 	replyToSource bool
+	// gaveUp, if set, is called when a retry limit is reached, before the token is released
+	// (-exit-on-give-up: no other goroutine sends a new message after the give-up).
+	gaveUp func()
 
 	// sendMu makes taking the next number and sending one step, so the numbers leave in order
 	// whichever goroutine sends (MCP-SEQ-1); every new message takes one, ACKs too (D-5).
@@ -203,6 +206,9 @@ func (n *node) unicast(ctx context.Context, drone uint16, act action, payload []
 				break waiting
 			}
 		}
+	}
+	if n.gaveUp != nil {
+		n.gaveUp()
 	}
 	return fmt.Errorf("%v seq %d to drone %d: %w", act, h.seq, drone, errGaveUp)
 }
