@@ -15,7 +15,9 @@ The reading "a give-up ends every mission" (``-exit-on-give-up``) sends nothing 
 give-up and fails only the FLOW rules of the missions it ended. Where the suite is wrong about
 this node, or the documents leave the verdict open, the test says so with an xfail naming it
 (strict=False: the silent-session fault strikes where the silent drone's message is the
-manager's last)."""
+manager's last). Two mcp-soak missions too (a lossy link, reference drones): challenge 1
+complete; challenge 3 (Obstacles_List, then the route as a WP_List) failed by the soak's
+fixed expectation, an xfail."""
 
 from __future__ import annotations
 
@@ -260,3 +262,48 @@ def test_ending_every_mission_at_a_give_up_is_no_violation(
         tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
     doc = run_suite(tmp_path_factory, builds, "ok", *EXIT_ON_GIVE_UP)
     assert failed_must(doc) == set(), sorted(failed_must(doc))
+
+
+#: the suite's fault (b), the documents' gap (c) behind it: what challenge 3 sends besides the
+#: obstacles is not said (glossary "3 obstacles (Obstacles_List)"; MCP-FLOW-6 "the manager sends
+#: the mission's obstacles as one Obstacles_List", not "only"); mcp-conform passes a manager that
+#: sends the route too (Obstacles_List, then WP_List), mcp-soak fails it: its exactly-once check
+#: compares each drone's deliveries with soak.mission.expected_commands (challenge 3: Start_Mission,
+#: Obstacles_List, End_Mission), not with what the manager sent as its guide says
+SOAK_CHALLENGE_3 = ("tool fault: mcp-soak expects challenge 3 to be Obstacles_List alone "
+                    "(soak.mission.expected_commands); mcp-conform passes Obstacles_List then WP_List")
+
+
+def run_soak(tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], challenge: str) -> dict[str, Any]:
+    """One mcp-soak mission of ``challenge`` (its default link and 0.2 s timeouts, seed 2)
+    between the correct build and three reference drones, once a test session."""
+
+    def make(out: Path) -> dict[str, Any]:
+        report = out / "soak.json"
+        manager = (f"{builds['ok']} -bind {{target_host}}:{{target_port}} -send-to {{listen_host}}:{{listen_port}}"
+                   " -drones {drones} -challenge {challenge} -waypoints {waypoints} -obstacles {obstacles} -rto {rto}")
+        proc = run_module("mcp_conform.soak", ["--missions", "1", "--seed", "2", "--challenges", challenge, "-q",
+                                               "--out", str(out / "soak-out"), "--json", str(report),
+                                               "--manager", manager], timeout=300)
+        assert report.exists(), proc.stdout + proc.stderr
+        doc: dict[str, Any] = json.loads(report.read_text())
+        doc["exit_code"] = proc.returncode
+        return doc
+
+    result: dict[str, Any] = once(tmp_path_factory, f"go_manager_soak_c{challenge}", make)
+    return result
+
+
+def test_a_soaked_mission_is_complete(tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
+    """Challenge 1 through mcp-soak's lossy link: every command delivered exactly once, no
+    monitor violation."""
+    doc = run_soak(tmp_path_factory, builds, "1")
+    assert doc["exit_code"] == 0 and doc["complete"] == 1, doc["results"]
+    assert doc["results"][0]["violations"] == [], doc["results"]
+
+
+@pytest.mark.xfail(reason=SOAK_CHALLENGE_3, strict=False)
+def test_a_soaked_challenge_3_with_its_route_is_complete(
+        tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path]) -> None:
+    doc = run_soak(tmp_path_factory, builds, "3")
+    assert doc["exit_code"] == 0 and doc["complete"] == 1, doc["results"][0]["reasons"]
