@@ -1,0 +1,3 @@
+module mcpconform.example/mcp_go/manager
+
+go 1.22
