@@ -131,7 +131,6 @@ def pytest_configure(config: pytest.Config) -> None:
         state.set_shard(config.getoption("mcp_shard"), config.getoption("mcp_shard_events"))
     except ValueError as exc:
         raise pytest.UsageError(f"--mcp-shard: {exc}") from None
-    INTERRUPTS.release()  # mcp-conform held signals through pytest's start-up: from here they stop the run
 
 
 
@@ -583,6 +582,13 @@ def pytest_unconfigure(config: pytest.Config) -> None:
         _PLUGIN_CONFIG.pop("config", None)
 
 
+@pytest.hookimpl(trylast=True)
 def pytest_sessionstart(session: pytest.Session) -> None:
+    """The xdist controller's config kept; and mcp-conform held signals through pytest's
+    start-up (``conformance.cli``): from here they stop the run. Not at this plugin's own
+    configure: other plugins configure after it (``_pytest.debugging`` imports pdb there), and
+    a SIGTERM landing in that import became a RuntimeError in a class's ``__set_name__`` and an
+    INTERNALERROR traceback (test_faults' seeded signals, 2 x SIGTERM at 0.91 s)."""
     if _xdist_controller(session.config):
         _CONTROLLER["config"] = session.config
+    INTERRUPTS.release()
