@@ -76,8 +76,9 @@ def test_at_the_least_retry_limit_announcing_again_is_correct() -> None:
 
 
 def test_a_drone_whose_retransmissions_take_new_numbers_keeps_seq2() -> None:
-    """The ``rtx-new-seq`` fault (one copy of each number): MCP-SEQ-2 failed, and MCP-RTX-1 not
-    passed on its renumbered copies."""
+    """The ``rtx-new-seq`` fault (one copy of each number): MCP-SEQ-2 failed, and neither MCP-RTX-1
+    nor MCP-RTX-3 (copies of one message) passed on its renumbered copies."""
     run = run_cases(mutant_factory("rtx-new-seq", rto=RTO, seed=5), seed=5)
     assert run.rules_with("failed", "warned") == {"MCP-SEQ-2": "failed"}, run.explain()
     assert run.rules["MCP-RTX-1"] != "passed", run.explain()
+    assert run.rules["MCP-RTX-3"] != "passed", run.explain()
