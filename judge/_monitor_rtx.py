@@ -124,12 +124,16 @@ class RetransmissionRules(MonitorHost):
     @staticmethod
     def _renumbered(prev: _Exchange, ex: _Exchange) -> bool:
         """``ex`` repeats the sender's unACKed ``prev`` -- same destination, action and payload
-        -- under a new number, before a sender that retries could have given it up (fewer than
-        MIN_COPIES copies, or a chain of such): one message retransmitted, MCP-SEQ-2's fault,
-        not a new one (no second list, MCP-FLOW-4/6)."""
+        -- under a new number, ``prev`` sent once (or a chain of such): one message
+        retransmitted, MCP-SEQ-2's fault, not a new one (no second list, MCP-FLOW-4/6). A
+        ``prev`` with copies that repeat its number was retransmitted as the description
+        identifies retransmissions ("by repeating sequence number"): the same message under a
+        new number after them, at its timer's time, is a new message after a give-up, and its
+        copies are counted by number (MCP-RTX-1, ``_gave_up``; the Node.js drone's ``--retries
+        1 --reannounce``, two copies of seq N then seq N+1, was MCP-SEQ-2 here)."""
         return (not prev.acks and prev.dst == ex.dst and prev.action == ex.action
                 and prev.data[HDR:] == ex.data[HDR:]
-                and (len(prev.copies) < MIN_COPIES or bool(prev.flags & F_SEQ2)))
+                and (len(prev.copies) == 1 or bool(prev.flags & F_SEQ2)))
 
     def _gave_up(self, ex: _Exchange, newer: _Exchange, i: int, t: int) -> None:
         """MCP-RTX-1 (complete trace): the sender moved on to a new unicast when the next copy
@@ -200,9 +204,11 @@ class RetransmissionRules(MonitorHost):
         and the trace going on to then; it is ``now`` that time, so every ACK fed is before it."""
         if ex.flags & F_RTX1:
             return  # reported when it gave up (``_gave_up``)
-        if ex.acks or len(ex.copies) >= MIN_COPIES or ex.flags & F_SEQ2:
+        if ex.flags & F_SEQ2:
+            return  # retransmitted under new numbers: MCP-SEQ-2's, no copies of one message to count
+        if ex.acks or len(ex.copies) >= MIN_COPIES:
             self._nodes[ex.src].seen.add("MCP-RTX-1")
-            return  # (retransmitted under new numbers: MCP-SEQ-2's)
+            return
         g = gaps(ex.copies)
         if g or not self.rto_declared:
             est = median(g) if g else self.lone_rto_ns

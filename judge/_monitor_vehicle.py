@@ -170,6 +170,12 @@ class VehicleRules(MonitorHost):
         behind slow work such as a takeoff)."""
         return late_ack_wait_ns(self.rto_ns, self.window_ns)
 
+    def _quiet_ns(self) -> int:
+        """How long a frame's count on the link must stand still before a copy sent after it is
+        a copy of a delivery whose writes are done: the case's (``conformance.drone_case``'s
+        ``quiet_count``, half the ACK window, at least 0.1 s)."""
+        return max(self.window_ns // 2, NS // 10)
+
     def _vehicle_event(self, t: int, drone: int, ev: VehicleEvent) -> None:
         node = self._node(drone)
         node.vehicle = True
@@ -248,7 +254,14 @@ class VehicleRules(MonitorHost):
         node.delivered_from[ex.src] = ex
         if len(ex.deliveries) < 2:
             return
-        prev_seen = ex.deliveries[-2][1]
+        prev_t, prev_seen = ex.deliveries[-2]
+        if seen > prev_seen and ex.copies[prev_seen][1] - prev_t < self._quiet_ns():
+            # the copy left while the earlier delivery's writes were still coming: this write
+            # may be the earlier delivery's second (MCP-PAY-8) or the copy's delivery (MCP-DUP-1)
+            # -- every explanation breaks one, neither rule in all, so neither is reported (as
+            # D-9 for ACKs); the case sends its copy only once the count has stopped moving
+            # (``conformance.drone_case``'s ``redeliver``)
+            return
         if seen > prev_seen and last is not ex:
             # a late copy of an older message, not the last delivered: not specified (MCP-DUP-4)
             self._observe(node.id, "MCP-DUP-4")

@@ -7,6 +7,12 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
+from mcp_conform.conformance.cases.ready_copies import (
+    by_number,
+    describe_new,
+    new_numbers,
+    renumbered,
+)
 from mcp_conform.conformance.link_copies import credited_copy
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.drone_rtx2 import ready_before_wrong_acks
@@ -21,18 +27,27 @@ _READY = int(Action.MISSION_READY)
 @rules("MCP-RTX-1", "MCP-FLOW-1", phase="startup")
 def test_mission_ready_is_retransmitted_until_acked(node):
     """A node that gave up short of the copies and exited (``harness.drone_giveup``, spawn mode)
-    is judged on them, its exit in the evidence; the cases after it ran on it restarted."""
+    is judged on them, its exit in the evidence; the cases after it ran on it restarted. Copies
+    are counted by number (``cases.ready_copies``): a new Mission_Ready after a give-up is a new
+    message; copies renumbered are MCP-SEQ-2's, and count for nothing here."""
     st = node.require_startup("MCP-RTX-1")
-    n = len(st.copies)
+    if renumbered(st):
+        raise Inconclusive(f"MCP-RTX-1: the node's Mission_Ready was sent once under its number, then again "
+                           f"under new ones ({describe_new(st)}): not copies of one message (see MCP-SEQ-2)")
+    copies = by_number(st)
+    n = len(copies)
     gone = [f"then {st.gave_up.partition(', then ')[2]}; the cases after this one ran on it restarted, "
             "its Mission_Ready ACKed at once"] if st.gave_up else []
+    if not gone and new_numbers(st):
+        gone = [f"then a new Mission_Ready ({describe_new(st)}): a new message, not a copy "
+                "(retransmissions repeat the number)"]
     node.expect_true(n >= MIN_COPIES and not st.copies_after_right_ack, "MCP-RTX-1",
                      f"at least {MIN_COPIES} copies while the ACK is withheld, none after the right ACK",
                      f"{n} cop{'y' if n == 1 else 'ies'} while withheld" + (f", {gone[0]}" if gone else "")
                      if n < MIN_COPIES else
                      f"{len(st.copies_after_right_ack)} copies after the right ACK "
                      f"(watched {st.stop_watch:.2f} s)",
-                     [d.describe() for d in (st.copies_after_right_ack or st.copies)[:3]] + gone)
+                     [d.describe() for d in (st.copies_after_right_ack or copies)[:3]] + gone)
 
 
 def _stopped_before_wrong_acks(node, st):
@@ -139,8 +154,15 @@ def test_only_the_right_ack_ends_retransmission(node):
 
 @rules("MCP-RTX-3", phase="startup")
 def test_copies_are_evenly_spaced(node):
+    """The gaps between copies that repeat the first's number (``cases.ready_copies``)."""
     st = node.require_startup("MCP-RTX-3")
-    node.expect_even_spacing(st.gaps(), run_delays=st.run_delays())
+    if renumbered(st):
+        raise Inconclusive(f"MCP-RTX-3: the node's Mission_Ready was sent once under its number, then again "
+                           f"under new ones ({describe_new(st)}): not copies of one message (see MCP-SEQ-2)")
+    copies = by_number(st)
+    ts = [d.t for d in copies]
+    node.expect_even_spacing([b - a for a, b in zip(ts, ts[1:], strict=False)],
+                             run_delays=[d.run_delay for d in copies])
 
 
 @rules("MCP-RTX-4")

@@ -7,6 +7,7 @@ identified by repeating sequence number."
 
 from __future__ import annotations
 
+from mcp_conform.conformance.cases.ready_copies import by_number, renumbered
 from mcp_conform.conformance.drone_case import DELIVERED
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
@@ -25,16 +26,21 @@ def test_successive_messages_take_successive_numbers(node):
 
 @rules("MCP-SEQ-2", phase="startup")
 def test_retransmission_repeats_seq_and_bytes(node):
-    """Mission_Ready copies sent while the runner withholds the ACK."""
+    """Mission_Ready copies sent while the runner withholds the ACK. Those that repeat its
+    number are its copies ("Retransmissions of the same message are identified by repeating
+    sequence number"): a new Mission_Ready after them, once the node gave them up, is a new
+    message (MCP-RTX-1 counts the copies). Sent once, then again under new numbers while the
+    ACK is withheld: a retransmission renumbered (``cases.ready_copies``)."""
     st = node.require_startup("MCP-SEQ-2")
-    if len(st.copies) < 2:
+    copies = st.copies if renumbered(st) else by_number(st)
+    if len(copies) < 2:
         raise Inconclusive("MCP-SEQ-2: the node did not retransmit Mission_Ready (see MCP-RTX-1)")
-    first = st.copies[0]
-    bad = [d for d in st.copies[1:] if d.data != first.data]
+    first = copies[0]
+    bad = [d for d in copies[1:] if d.data != first.data]
     node.expect_true(not bad, "MCP-SEQ-2",
                      f"every copy of Mission_Ready repeats seq {first.header[2] if first.header else '?'} "
                      "and its bytes exactly",
-                     f"{len(bad)} of {len(st.copies) - 1} copies differ",
+                     f"{len(bad)} of {len(copies) - 1} copies differ",
                      [f"first: {first.data.hex(' ')}"] + [f"copy:  {d.data.hex(' ')}" for d in bad[:3]])
 
 

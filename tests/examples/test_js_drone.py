@@ -20,9 +20,9 @@ session (nothing generated is kept). It runs under ``mcp-conform --spawn`` at sh
   monitor's BLK-7 window runs from the end of the take-off too (the vehicle's busy/idle events:
   it warned "no RTL within 3.2 s" before session 34's fix);
 - a node whose retry limit is 1, below the least the spec allows: exiting when it gives up,
-  MCP-RTX-1 failed and no other MUST; announcing again (a new Mission_Ready, the next seq), one
-  of MCP-RTX-1 and MCP-SEQ-2 failed and no other MUST -- the suite names SEQ-2 and passes RTX-1
-  (an xfail naming it: the description identifies a retransmission by its repeated number);
+  MCP-RTX-1 failed and no other MUST; announcing again (a new Mission_Ready, the next seq),
+  MCP-RTX-1 failed and MCP-SEQ-2 passed (the description identifies a retransmission by its
+  repeated number: seq N had two copies);
 - each deliberate fault (``--fault``) fails the rule it breaks, named by the rule's text, and no
   other MUST rule.
 """
@@ -185,14 +185,13 @@ def test_a_drone_below_the_least_retry_limit_that_announces_again_fails(renumber
     assert failed_must and failed_must <= {"MCP-RTX-1", "MCP-SEQ-2"}, out
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "tool: a new Mission_Ready (seq N+1) after the retry limit (1) is reached is judged a "
-    "retransmission renumbered (MCP-SEQ-2 failed: 'repeats unACKed seq N with a new number', "
-    "SEQ/test_retransmission_repeats_seq_and_bytes '1 of 2 copies differ') and MCP-RTX-1 passed; "
-    "the description identifies retransmissions by their number ('Retransmissions of the same "
-    "message are identified by repeating sequence number'), so seq N had 2 copies while the ACK "
-    "was withheld: MCP-RTX-1's fault, as the same node that exits on give-up is judged"))
 def test_a_drone_below_the_least_retry_limit_that_announces_again_fails_rtx1(renumbered: dict[str, Any]) -> None:
+    """The description identifies retransmissions by their number ("Retransmissions of the same
+    message are identified by repeating sequence number"): seq N had 2 copies while its ACK was
+    withheld, MCP-RTX-1's fault as the same node that exits on give-up is judged, and seq N+1 is
+    a new message, no renumbered copy (MCP-SEQ-2 kept). Before session 34 the suite said
+    MCP-SEQ-2 failed ("repeats unACKed seq N with a new number", "1 of 2 copies differ") and
+    MCP-RTX-1 passed (tests/sim/test_reannounce.py on virtual time)."""
     doc, out = renumbered["doc"], renumbered["out"]
     assert doc["rules"]["MCP-RTX-1"] == "failed", (rule_text("MCP-RTX-1"), out)
     assert doc["rules"]["MCP-SEQ-2"] == "passed", (rule_text("MCP-SEQ-2"), out)
