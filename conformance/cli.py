@@ -67,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the protocol the node speaks: mcp (default; UDP), nsqd (the Nsqd TCP drone protocol: the node is a backend)")
     p.add_argument("--role", metavar="|".join(ROLE_NAMES), default=None,
                    help="the role of the node under test (default: the protocol's first: drone; backend under --protocol nsqd)")
-    p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}")
+    p.add_argument("--spawn", metavar="CMD", help="start the node under test: CMD with {target_host} {target_port} {listen_host} {listen_port} {broadcast} {id} {mavlink}; "
+                   "--role manager: {drones} {challenge} {waypoints} {obstacles} too")
     p.add_argument("--mavlink", nargs="?", const="tcp", default=None, metavar="tcp|udp|udpin|udpout",
                    help="start the simulated vehicle and pass {mavlink}: tcp:HOST:PORT (default), udp:/udpin:HOST:PORT "
                         "(the node listens; the vehicle sends there, as SITL's --out) or udpout:HOST:PORT (the vehicle listens); "
@@ -105,12 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "(default: one the runner writes, {waypoints})")
     p.add_argument("--impair", metavar="SPEC", help="test through a bad link, reproducible by seed: "
                    "loss=0.1,dup=0.05,reorder=0.1,delay=0-50ms,corrupt=0.01,seed=7 (the runner's own socket "
-                   "drops, duplicates, delays and reorders; a case the impairment spoiled is repeated, never failed)")
+                   "drops, duplicates, delays and reorders; a case the impairment spoiled is repeated, never failed); "
+                   "the drone role")
     p.add_argument("--serial", action="store_true", help="run every case alone, one after another, as "
                    "listed (the default schedule overlaps what only waits; -v prints it)")
     p.add_argument("--parallel", metavar="N", default="1", help="spawn mode: share the cases out across up to N "
                    "node instances, each spawned on its own ports with its own startup phase (default 1; -v "
-                   "prints which case runs on which)")
+                   "prints which case runs on which); the drone role")
     p.add_argument("--shard", metavar="K/N", help=argparse.SUPPRESS)  # one instance of --parallel
     p.add_argument("--shard-events", metavar="FILE", help=argparse.SUPPRESS)
     add_verbosity(p, "print every datagram sent and received, live, to stderr",
