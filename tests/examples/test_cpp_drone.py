@@ -35,7 +35,10 @@ from mcp_conform.spec import RULES
 from tests.forkserver import run_module
 from tests.xdist_once import once
 
-pytestmark = pytest.mark.slow
+#: slow; and the builds a test may wait for (tests/xdist_once.py: one worker builds, the others
+#: wait) are some 13 CPU s that a loaded 2-core host stretches: 228 s at load 23 (s34-ci's -n 12
+#: profile), past pytest-timeout's 300 s at load 27 (every test of the module errored)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 ROOT = Path(__file__).resolve().parents[2]
 SOURCE = ROOT / "examples" / "mcp_cpp" / "drone"
