@@ -68,7 +68,8 @@ class StreamCaseContext(ConnCaseBase):
         backend was seen not to take within the effect window is tried after the others for
         the rest of the run (never dropped: it goes back in line once seen to land), so a
         backend whose CAPTURE_IMAGES lands elsewhere (NSQD-MSG-3's failure, judged by its own
-        case) costs one window per run, not one per case."""
+        case) costs one window per run, not one per case. A case judging NSQD-MSG-3 starts
+        with :meth:`start_outside` instead (judged even when none lands)."""
         missed = self.session.settle_missed
         order = [n for n in SETTLE_COMMANDS if n not in missed] + [n for n in missed]
         for name in order:
@@ -84,7 +85,38 @@ class StreamCaseContext(ConnCaseBase):
                 missed.append(name)
             self.check_stream(conn)
         raise Inconclusive("the backend did not reach a known flight state (CAPTURE_IMAGES, STOP_TEST or "
-                           "TAKEOFF) to start this case from: its effect is judged by NSQD-MSG-3's cases")
+                           "TAKEOFF) to start this case from: NSQD-MSG-3's cases of those commands judge them")
+
+    def start_outside(self, conn: Conn, avoid: tuple[int, ...]) -> tuple[int, str]:
+        """Where a case judging a command's effect (NSQD-MSG-3) starts from: a state outside
+        ``avoid`` (the command's ``to``), settled (:meth:`settle`) or else the one the backend
+        shows now, and how it got there (for the failure's wording). Any state outside ``to``
+        shows the effect (NSQD-MSG-3 is unconditional: the handler sets the state, or the
+        autopilot refuses with ERROR; ``to`` names where the backend's own loop may move it
+        after), so the unsettled start cannot fail a correct backend (it may pass a fault
+        only where the loop itself moves the state into ``to``). A backend that ignores the
+        settling commands is judged this way by each command's own case (at most one of
+        CAPTURE_IMAGES, STOP_TEST and HOVER is the state it sits in: the others' cases
+        judge); Inconclusive only when its state is unknown (no UPDATE: NSQD-CON-1 and
+        NSQD-MSG-1 judge that) or already inside ``to`` (the effect could not be told from no
+        effect). Once every settling command was seen
+        not to land this run, the state it shows now is taken without trying them again (one
+        window per case, not four, on a backend that ignores them all)."""
+        now = self.state(conn) if set(SETTLE_COMMANDS) <= set(self.session.settle_missed) else None
+        if now is not None and now not in avoid:
+            return now, self._unsettled(now)
+        try:
+            return self.settle(conn, avoid=avoid), "settled"
+        except Inconclusive as unsettled:
+            now = self.state(conn)
+            if now is None or now in avoid:
+                where = "no UPDATE" if now is None else f"it shows {self.spec.state_name(now)}"
+                raise Inconclusive(f"{unsettled} ({where}, where this command's effect cannot be seen)") from None
+            return now, self._unsettled(now)
+
+    def _unsettled(self, now: int) -> str:
+        return (f"from {self.spec.state_name(now)}, unsettled: none of {', '.join(SETTLE_COMMANDS)} was seen "
+                "to take its effect")
 
     def probe(self, conn: Conn) -> tuple[str, int]:
         """A command whose effect this backend was seen to take, sent whole (a control for

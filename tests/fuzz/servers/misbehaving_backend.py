@@ -31,8 +31,14 @@ every update period, the drone grounded whatever it is sent; it reads and discar
 (no command takes its effect, with or without a frame cut before it: what flaky-crash's
 processes do once its two crashes are spent).
 
-``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash|late-crash|deaf
-[--lifetime S] [--state FILE --restart-delay S]``
+``--mode deaf-to --ignore NAME,NAME`` (a backend that ignores only some commands, NSQD-MSG-3):
+valid UPDATEs every update period showing a flight state shared by its connections (GROUNDED
+at start), which every whole frame of a command with an effect sets to the first state of its
+``to`` (spec/nsqd.yaml's messages table), except the commands named: those it reads and
+discards. It checks no body and answers nothing (a test selects NSQD-MSG-3's cases).
+
+``python -m tests.fuzz.servers.misbehaving_backend --bind HOST:PORT --mode slow|stops|bad-frames|slow-restart|flaky-crash|late-crash|deaf|deaf-to
+[--lifetime S] [--state FILE --restart-delay S] [--ignore NAME,NAME]``
 """
 
 from __future__ import annotations
@@ -47,7 +53,7 @@ import threading
 import time
 
 from mcp_conform.spec import NSQD
-from mcp_conform.spec.nsqd_codec import encode
+from mcp_conform.spec.nsqd_codec import Deframer, Frame, encode
 
 MAX_CLIENTS = 64
 STATE = ""  # --state
@@ -56,12 +62,36 @@ FAST_PERIOD = 0.05
 STOPS_AFTER_S = 0.6
 PERIOD = float(NSQD.params["update_period_s"])
 LATE_READ_S = 0.5  # --mode late-crash: how long after bytes came they are read (then the exit)
+IGNORE: frozenset[str] = frozenset()  # --mode deaf-to: the commands it ignores (--ignore)
+FLIGHT = [NSQD.states["GROUNDED"]]  # --mode deaf-to: the flight state, shared by its connections
 
 
-def update() -> bytes:
-    """A valid UPDATE (NSQD-MSG-2's layout), the drone grounded."""
+def update(state: int = NSQD.states["GROUNDED"]) -> bytes:
+    """A valid UPDATE (NSQD-MSG-2's layout), the drone grounded (or in ``state``)."""
     return encode(NSQD, "UPDATE", roll=0.0, pitch=0.0, yaw=0.0, thrust=0.0, lat=55.0, lon=10.0, alt=0.0,
-                  state=NSQD.states["GROUNDED"])
+                  state=state)
+
+
+def _deaf_to(c: socket.socket, end: float) -> None:
+    """``--mode deaf-to``: each whole command frame not in :data:`IGNORE` sets :data:`FLIGHT`
+    to its effect's first state; an UPDATE with it at once and every period."""
+    deframer, nxt = Deframer(NSQD), time.monotonic()
+    while time.monotonic() < end:
+        try:
+            data = c.recv(65536)
+            if not data:
+                return  # the client closed
+            for item in deframer.feed(data):
+                if isinstance(item, Frame) and NSQD.has_message(item.msg_id):
+                    msg = NSQD.message(item.msg_id)
+                    if msg.effect.to and msg.name not in IGNORE:
+                        FLIGHT[0] = msg.effect.to[0]
+        except BlockingIOError:
+            pass
+        if time.monotonic() >= nxt:
+            c.sendall(update(FLIGHT[0]))
+            nxt = time.monotonic() + PERIOD
+        time.sleep(0.01)
 
 
 def _drain(c: socket.socket) -> bool:
@@ -88,6 +118,9 @@ def serve_client(c: socket.socket, mode: str, end: float, ready: float = 0.0) ->
             return
         if mode == "late-crash":
             _read_late(c, end)
+            return
+        if mode == "deaf-to":
+            _deaf_to(c, end)
             return
         if mode == "slow":
             c.sendall(update())
@@ -180,14 +213,16 @@ def _crash_on_input(c: socket.socket, end: float, ready: float, count: str | Non
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bind", required=True)
-    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash", "late-crash", "deaf"),
-                    required=True)
+    ap.add_argument("--mode", choices=("slow", "stops", "bad-frames", "slow-restart", "flaky-crash", "late-crash", "deaf",
+                                       "deaf-to"), required=True)
+    ap.add_argument("--ignore", default="", help="deaf-to: the commands it ignores, comma-separated")
     ap.add_argument("--lifetime", type=float, default=300.0)
     ap.add_argument("--state", help="slow-restart: marks that the first start happened")
     ap.add_argument("--restart-delay", type=float, default=0.0)
     ns = ap.parse_args()
-    global STATE
+    global STATE, IGNORE
     STATE = ns.state or ""
+    IGNORE = frozenset(filter(None, ns.ignore.split(",")))
     ready = time.monotonic()
     if ns.state and ns.mode == "slow-restart":
         if os.path.exists(ns.state):
