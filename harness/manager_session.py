@@ -65,7 +65,7 @@ from mcp_conform.judge.run_monitor import MISSION_METADATA, SessionMonitors, mis
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import MissionItem
 from mcp_conform.spec.profiles import pick
-from mcp_conform.traceio.recorder import NODE_METADATA
+from mcp_conform.traceio.recorder import NODE_METADATA, RUN_DELAY_METADATA, run_delay_metadata
 
 DRONE_PORT = int(SPEC.protocol["ports"]["drone"])
 MANAGER_PORT = int(SPEC.protocol["ports"]["manager"])
@@ -404,13 +404,27 @@ class ManagerSession(DatagramSessionBase):
                     with INTERRUPTS.held():
                         rec.datagram(direction, data, addr, t_ns, run_delay=run_delay, local=side.listen)
                 observers.insert(0, record)
+            monitor = self.monitor
+
+            def stopped(t_ns: int, run_delay_ns: int) -> None:
+                """The instance's stop, told to its session as the main instance's is
+                (``record_run_delay``): the run delay read at that stop, to the capture
+                (``RUN_DELAY_METADATA``) and the run's monitor; the session ends there, not at
+                the run's later case marks (a false MCP-RTX-1 "none for 2.5 s" of the copies
+                the stop cut short)."""
+                if rec is not None:
+                    with INTERRUPTS.held(), contextlib.suppress(Exception):
+                        rec.add_metadata(RUN_DELAY_METADATA, run_delay_metadata(MANAGER_ID, run_delay_ns, t_ns))
+                if monitor is not None:
+                    monitor.run_delay(t_ns, MANAGER_ID, run_delay_ns)
             # the main driver's datagrams (its manager may still send) wait until the held
-            # traffic is told: the capture and the monitor get one order (one judge)
+            # traffic is told: the capture and the monitor get one order (one judge); and the
+            # instance's stop, where its session ends (judge.run_monitor.session_end)
             if self.driver is not None:
                 with self.driver.notify_lock:
-                    side.replay(observers)
+                    side.replay(observers, stopped)
             else:
-                side.replay(observers)
+                side.replay(observers, stopped)
             side.close()
         return self._settle(m, side.ok, side.elapsed)
 

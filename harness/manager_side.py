@@ -11,12 +11,15 @@ reaches its own scenario's socket and no other: which instance a datagram belong
 given by the socket it arrived on, exactly, whatever the manager's source ports or its
 destination host (the broadcast address included).
 
-The scenario's traffic is held as observed (kernel receive times, the node's run delay)
-and, when its case asks for the scenario (``ManagerSession.mission``), written to the
-capture and fed to the run's trace monitor as the scenario's own session, with that
-instance's address: the same session, the same records and the same verdicts as when it
-ran after the main mission (``--serial``, or a spawn command without ``{target_port}`` and
-``{listen_port}``, where two instances would share ports).
+The scenario's traffic is held as observed (kernel receive times, the node's run delay),
+and so is the instance's stop (its run delay read as it is stopped, as the main instance's is:
+``DatagramSessionBase.record_run_delay``); when its case asks for the scenario
+(``ManagerSession.mission``), they are written to the capture and fed to the run's trace
+monitor as the scenario's own session, with that instance's address, the session ending at
+that stop (``judge.run_monitor.session_end``: not at the run's later case marks): the same
+session, the same records and the same verdicts as when it ran after the main mission
+(``--serial``, or a spawn command without ``{target_port}`` and ``{listen_port}``, where two
+instances would share ports).
 
 The scenario runs on the session's clock (``harness.clock``: a thread it starts, its waits);
 ``transport``, ``target``, ``spawn_node`` and ``backlog`` put its drones' socket, its manager's
@@ -92,6 +95,8 @@ class SideScenario:
         self.ok = False
         self.error: BaseException | None = None
         self.elapsed = 0.0  # from the scenario's start to the end of its watch
+        #: (direction, data, peer, t_ns, run delay) as observed; ("stop", b"", None, t_ns, run
+        #: delay): the instance stopped (:meth:`_hold_stop`)
         self._held: list[tuple[str, bytes, Any, int, int | None]] = []
         self._lock = threading.Lock()
         self._stop = clock.event()
@@ -116,6 +121,13 @@ class SideScenario:
         with self._lock:
             self._held.append((direction, bytes(data), addr, t_ns, run_delay))
 
+    def _hold_stop(self) -> None:
+        """The instance is being stopped (its ``before_stop``): its run delay read a last time
+        and held with the time of the stop (none readable: nothing, as for the main instance)."""
+        ns = self._run_delay()
+        if ns is not None:
+            self._hold("stop", b"", None, self.clock.time_ns(), ns)
+
     # ------------------------------------------------------------------ running
     def start(self) -> None:
         """Open the scenario's socket, spawn its manager, run the scenario in a thread
@@ -132,6 +144,7 @@ class SideScenario:
                   "listen_host": "127.0.0.1" if host == "0.0.0.0" else host, "listen_port": str(drv.listen[1])}
         self.players.reset(self.mission)
         self.node = self._spawn_node(fill_placeholders(self._spawn, values))
+        self.node.before_stop = self._hold_stop
         self._thread = self.clock.start_thread(self._run, f"mcp-conform-{self.kind}")
 
     def _run(self) -> None:
@@ -162,12 +175,21 @@ class SideScenario:
             raise self.error
         return self.mission
 
-    def replay(self, observers: list[Callable[..., None]]) -> None:
+    def replay(self, observers: list[Callable[..., None]],
+               stopped: Callable[[int, int], None] | None = None) -> None:
         """Hand the held traffic, in the order observed, to ``observers`` (each called as
-        the driver calls its observers: direction, data, peer, t_ns[, run_delay=])."""
+        the driver calls its observers: direction, data, peer, t_ns[, run_delay=]), and the
+        instance's stop to ``stopped`` (t_ns, run delay ns)."""
         with self._lock:
             held, self._held = self._held, []
         for direction, data, addr, t_ns, rd in held:
+            if direction == "stop":
+                if stopped is not None and rd is not None:
+                    try:
+                        stopped(t_ns, rd)
+                    except Exception:  # noqa: BLE001 - a broken recorder must not stop the run
+                        pass
+                continue
             for obs in observers:
                 try:
                     if rd is None:

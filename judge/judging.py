@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from mcp_conform.judge.params import Params, add_monitor_options, params_from_args, selected
-from mcp_conform.judge.run_monitor import MISSION_METADATA, from_node, recorded_mission
+from mcp_conform.judge.run_monitor import MISSION_METADATA, from_node, recorded_mission, session_end
 from mcp_conform.spec.codec import PREAMBLE, Action, peek_header
 from mcp_conform.traceio.files import UsageError
 from mcp_conform.traceio.merge import SEGMENT
@@ -306,7 +306,8 @@ class _Session:
         self.run_delays: list[tuple[int, int, int]] = []
         self.marks = False  # the run recorded the link and fix events its monitor judged by
         self.first: int | None = None
-        self.last: int | None = None
+        self.last: int | None = None  # the last datagram or autopilot-link record
+        self.last_mark: int | None = None  # the last case mark
         self.n = self.unattributed = 0
 
     def metadata(self, rec: Metadata) -> None:
@@ -363,7 +364,7 @@ class _Session:
                 self._found(_vehicle(self.mon, rec, self.drone, self.marks))
         elif isinstance(rec, CaseMark):
             self.cases.append(rec)
-            self.last = max(self.last or rec.t_ns, rec.t_ns)
+            self.last_mark = max(self.last_mark or rec.t_ns, rec.t_ns)
 
     def datagram(self, rec: Datagram) -> None:
         index, t, src_addr, dst_addr, data, direction, _, burst, _, rd = rec
@@ -433,19 +434,28 @@ class _Session:
         mon = self.mon
         if mon is None:  # no datagram at all
             mon = self.mon = _make_monitor(params)
-        if self.last is not None:
+        marks, data = self.last_mark, self.last
+        last = data if marks is None else max(data or marks, marks)  # the session's last record
+        if last is not None:
             # a node's run delay as the runner stopped it (D-7): a stall after its last
             # datagram, which the veto weighs as the run monitor's own finish would
             sample = getattr(mon, "run_delay", None)
-            end = self.last
+            end = last
             if sample is not None:
+                stop = None
                 for t_ns, node, ns in self.run_delays:
                     sample(t_ns, node, ns)
                     end = max(end, t_ns)
-            # the view ends where the runner stopped the node (its reading's time), as the run
-            # monitor's own finish comes after that stop: a view ended at the last datagram
-            # left that reading outside it (judge.veto weighs none after the view's end), and
-            # check failed MCP-RTX-2 where the live monitor, weighing it, had vetoed it
+                    stop = max(stop or t_ns, t_ns)
+                # the view ends where the runner stopped the node (its reading's time), as the
+                # run monitor's own finish comes after that stop: a view ended at the last
+                # datagram left that reading outside it (judge.veto weighs none after the view's
+                # end), and check failed MCP-RTX-2 where the live monitor, weighing it, had
+                # vetoed it; and no later, where that stop came after the node's last datagram
+                # (run_monitor.session_end: the runner's case marks after it are no time of the
+                # node's, a false MCP-RTX-1 of the silent drone's stopped manager instance)
+                cut = session_end(end, data, stop)
+                end = end if cut is None else cut
             self._found(mon.finish(end))
         if params.challenge is None:
             inferred = getattr(mon, "inferred_challenge", None)
@@ -465,7 +475,7 @@ class _Session:
         notes = [*cap.notes, *(x.note() for x in vetoed)] if vetoed else cap.notes
         nodes = {f.id: Node(f.id, f.role, set(f.addresses), f.datagrams, f.received) for f in _nodes(mon)}
         return Judgement(path, cap.format, params, nodes, violations, mon.verdicts(), self.n, self.first,
-                         self.last, cap.truncated, notes, self.unattributed, self.kept, self.cases, [],
+                         last, cap.truncated, notes, self.unattributed, self.kept, self.cases, [],
                          self.drone, self.evidence)
 
 

@@ -30,7 +30,7 @@ from mcp_conform.judge.monitor import (
 )
 
 __all__ = ["LINK_KINDS", "MISSION_METADATA", "REORDER_NS", "RunMonitor", "SessionMonitors", "from_node",
-           "link_events", "mission_metadata", "recorded_mission", "violation_json"]
+           "link_events", "mission_metadata", "recorded_mission", "session_end", "violation_json"]
 
 #: The vehicle's events the run's monitor judges by (the link, the fix coming and going, an
 #: earlier command's action in progress and done: MCP-BLK-7); the frames on the link come
@@ -228,6 +228,19 @@ def recorded_mission(values: dict[str, str]) -> tuple[int | None, tuple[Any, ...
     return challenge, items
 
 
+def session_end(last: int | None, data: int | None, stop: int | None) -> int | None:
+    """Where a session's view ends, live (:class:`SessionMonitors`) and in ``mcp-capture
+    check`` (``judge.judging``) alike: at its last record ``last``, unless its node's last stop
+    ``stop`` (a run delay read as the runner stopped it) came after its last datagram or
+    autopilot-link record ``data``: then at that stop. What the runner records later (its case
+    marks) is no time of that node's: a message whose copies the stop cut short is not proven
+    unretransmitted (MCP-RTX-1), nor is any absence after it evidence. A datagram after the
+    stop (a node started again and not stopped since) leaves the end at ``last``."""
+    if stop is not None and (data is None or stop >= data):
+        return stop
+    return last
+
+
 #: How a node's verdicts of several sessions merge: the worst wins (``judge.judging``'s).
 _RANK = {"not_observed": 0, "info": 1, "passed": 2, "warned": 3, "failed": 4}
 
@@ -240,16 +253,22 @@ class SessionMonitors:
     (``McapRecorder.begin_segment``); the report's section is theirs merged per node, worst
     verdict first, as the judgement of the file is (``judge.judging.merge_segments``).
 
-    A session's monitor is finished where the capture's session ends: at its last record (a
-    datagram, a case mark -- :meth:`mark` -- or the node's run delay read as it was stopped:
-    :meth:`run_delay`)."""
+    A session's monitor is finished where the capture's session ends (:func:`session_end`,
+    ``mcp-capture check``'s too): at its last record (a datagram, a case mark -- :meth:`mark`
+    -- or the node's run delay read as it was stopped: :meth:`run_delay`); but where its
+    manager instance was stopped after its last datagram, at that stop: a case mark after it
+    (the silent drone's scenario, told to its session as its case asks, then the run's later
+    cases) is the runner's time, not the instance's, and an absence there proves nothing (a
+    false MCP-RTX-1 "none for 2.5 s" of copies the stop cut short)."""
 
     def __init__(self, **kw: Any) -> None:
         self._kw = kw
         self.parts: dict[str, RunMonitor] = {}
         self.current: RunMonitor | None = None
         self.listen: tuple[str, int] | None = None
-        self._last: dict[str, int] = {}
+        self._last: dict[str, int] = {}  # a session's last record
+        self._data: dict[str, int] = {}  # its last datagram
+        self._stop: dict[str, int] = {}  # its node's last stop (a run delay read as it was stopped)
         self._name: str | None = None
         self._lock = threading.Lock()
 
@@ -268,7 +287,8 @@ class SessionMonitors:
 
     def _finish_current(self) -> None:
         if self.current is not None and self._name is not None:
-            self.current.finish(self._last.get(self._name))
+            name = self._name
+            self.current.finish(session_end(self._last.get(name), self._data.get(name), self._stop.get(name)))
 
     def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
                 run_delay: int | None = None) -> None:
@@ -276,20 +296,24 @@ class SessionMonitors:
             name = self._name
             if name is not None and self.current is not None:
                 self._last[name] = max(self._last.get(name, t_ns), t_ns)
+                self._data[name] = max(self._data.get(name, t_ns), t_ns)
                 self.current.observe(direction, data, addr, t_ns, run_delay)
 
     def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
         """To the session current when the node was stopped (:meth:`RunMonitor.run_delay`):
         a record of that session, as the capture's reading is (``RUN_DELAY_METADATA``), so the
-        session ends no earlier (``mcp-capture check`` ends a run's view at its readings)."""
+        session ends no earlier (``mcp-capture check`` ends a run's view at its readings), and,
+        after its last datagram, no later (:func:`session_end`)."""
         with self._lock:
             if self.current is not None:
                 self.current.run_delay(t_ns, node, run_delay_ns)
                 if self._name is not None:
                     self._last[self._name] = max(self._last.get(self._name, t_ns), t_ns)
+                    self._stop[self._name] = max(self._stop.get(self._name, t_ns), t_ns)
 
     def mark(self, t_ns: int) -> None:
-        """A record of the current session that is not a datagram (a case mark)."""
+        """A record of the current session that is not a datagram (a case mark); after the stop
+        of the session's node, it does not make the session longer (:func:`session_end`)."""
         with self._lock:
             if self._name is not None:
                 self._last[self._name] = max(self._last.get(self._name, t_ns), t_ns)
