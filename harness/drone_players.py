@@ -62,8 +62,9 @@ class Input:
 
 @dataclass
 class Withheld(WithheldCopies):
-    """The first Start_Mission, its ACK withheld (RTX-1/2/3, SEQ-2, BLK-1/3); ``copies`` are
-    those to ``drone`` before the wrong ACKs. Also MCP-RTX-2's second observation
+    """The first Start_Mission, its ACK withheld (RTX-1/3, SEQ-2, BLK-1/3); ``copies`` are
+    those to ``drone`` before its right ACK (the main mission sends it no wrong ACKs: they
+    are the next new unicast's). Also MCP-RTX-2's observation
     (``Mission.withheld_again``: :meth:`DronePlayers.arm_again`)."""
 
     drone: int | None = None
@@ -285,17 +286,20 @@ class DronePlayers:
             self._answered_with(self.ack(dst, seq, dst=src), dst, seq, action, go_silent=go_silent)
 
     # ------------------------------------------------------------ MCP-RTX-2's second observation
-    def arm_again(self, wait: float, outsider: int, stale_src: int, limit: int, tries: int = 3) -> None:
-        """MCP-RTX-2's second observation, for a manager whose first Start_Mission's copies
-        stopped right after the wrong ACKs (taking them, or its retry limit: both stop there).
+    def arm_again(self, wait: float, outsider: int, stale_src: int | None, limit: int, tries: int = 3) -> None:
+        """MCP-RTX-2's observation (the manager's main mission arms it once the first
+        Start_Mission's third copy came: that one is answered as it arrives, no wrong ACKs
+        before it, so that a retry limit of 2 is not made to give up; ``stale_src`` None).
+        Armed after a first observation with wrong ACKs, it is the second (that one's copies
+        stopped right after them: taking them, or its retry limit, both stop there).
         The next new unicast to a drone (not a copy of that Start_Mission) is withheld in
         ``Mission.withheld_again``; after its second copy the same two wrong ACKs go out (its
         seq plus 0x8000 from its drone; its seq from another drone, ``outsider`` when there is
         none); the first copy after them, within ``wait`` s, is answered at once (the right
         ACK) and proves the manager goes on past a wrong ACK: the first observation proved its
         limit reaches a third copy. No copy after them: the script's :meth:`release_again`.
-        Not the first command to ``stale_src``, the drone of the first observation's
-        wrong-source ACK (it names the Start_Mission's seq), nor to a try's: a manager that
+        Not the first command to ``stale_src`` (where one is given), the drone of the first
+        observation's wrong-source ACK (it names the Start_Mission's seq), nor to a try's: a manager that
         takes any ACK from the destination may take that stale one for it and send it once
         (the simulator's wrong-seq-ack: RTX-2 skipped, "came once"). A try is spoiled where a
         copy read after the wrong ACKs had reached the socket before them and makes ``limit``
@@ -307,7 +311,7 @@ class DronePlayers:
             self.hold_again = True
             self._again_key = None
             self._again_outsider = outsider
-            self._again_stale = {stale_src: None}
+            self._again_stale = {} if stale_src is None else {stale_src: None}
             self._again_limit, self._again_tries, self._again_done = limit, tries, set()
             self.mission.withheld_again = Withheld(wrong_ack_wait=wait)
             self.mission.again_spoiled = []

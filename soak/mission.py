@@ -5,9 +5,14 @@ then judged twice (issue 22 item 4).
   what it took part in; one MCAP per mission, one segment per node): no violation.
 - Exactly-once on what the applications delivered (MCP-DUP-1, MCP-RTX-1): every drone's
   delivery log (``{record}``, the reference node's ``--record`` JSON: ``deliveries`` as
-  ``[action, src, seq]``) holds the challenge's commands once each, in order (MCP-FLOW-4/5/6),
-  never one (src, seq) twice, and what the manager's record says it sent to that drone; the
-  manager exits 0 within the mission's deadline (the mission completed: every command ACKed).
+  ``[action, src, seq]``) holds what the manager sent that drone, once each, in order, never
+  one (src, seq) twice -- what its record says it sent, or, for a manager without one, what
+  its own view shows it sent (each command once, a broadcast to every drone); the manager
+  exits 0 within the mission's deadline (the mission completed: every command ACKed).
+- What a mission must hold is the suite's one judge's, not a list of the soak's own: the
+  monitor's MCP-FLOW-2/3 and the challenge's MCP-FLOW-4/5/6 verdicts on the manager, passed
+  (MCP-FLOW-6 asks for "the mission's obstacles as one Obstacles_List", not for it alone:
+  ``mcp-conform`` passes a challenge 3 that sends the route as a WP_List too, so does the soak).
 
 Nodes are commands with placeholders (``--manager`` / ``--drone``), run as subprocesses; the
 reference ones by default (``python -m mcp_conform.reference_impl``), never imported. Each runs in a
@@ -38,11 +43,11 @@ from typing import Any
 from mcp_conform.harness.impair import Impairment, ImpairSpec
 from mcp_conform.harness.run_delay import run_delay_ns
 from mcp_conform.soak.medium import MANAGER, Medium, view_name
+from mcp_conform.spec.codec import BROADCAST_ID, PREAMBLE, Action, peek_header
 from mcp_conform.spec.profiles import MCP
 from mcp_conform.vehicle.ports import free_port
 
-__all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "NodeEnd",
-           "expected_commands", "run_mission"]
+__all__ = ["DEFAULT_DRONE", "DEFAULT_MANAGER", "MissionResult", "MissionSetup", "NodeEnd", "run_mission"]
 
 DEFAULT_MANAGER = ("{python} -m mcp_conform.reference_impl manager --challenge {challenge} --drones {drones} "
                    "--waypoints {waypoints} --obstacles {obstacles} --listen {target_host}:{target_port} "
@@ -65,6 +70,10 @@ OBSTACLES = """QGC WPL 110
 2\t0\t3\t16\t3.000000\t0.000000\t0.000000\t0.000000\t35.770980\t-78.674550\t5.000000\t1
 """
 FLOW = {1: "MCP-FLOW-4", 2: "MCP-FLOW-5", 3: "MCP-FLOW-6"}
+#: the judge's rules of what each drone's mission holds: Start_Mission first (MCP-FLOW-2),
+#: End_Mission last (MCP-FLOW-3), and the challenge's commands (:data:`FLOW`)
+MISSION_RULES = ("MCP-FLOW-2", "MCP-FLOW-3")
+_ACK = int(Action.ACK)
 
 
 @dataclass
@@ -179,12 +188,6 @@ def _command(template: str, values: dict[str, Any]) -> list[str]:
 def placeholders() -> list[str]:
     return ["python", "id", "target_host", "target_port", "listen_host", "listen_port", "challenge",
             "drones", "waypoints", "obstacles", "rto", "record"]
-
-
-def expected_commands(challenge: int, n_waypoints: int) -> list[str]:
-    """What one drone's application must get, once each, in this order (MCP-FLOW-4/5/6)."""
-    middle = {1: ["WP_List"], 2: ["WP_On", "WP_Off"] * n_waypoints, 3: ["Obstacles_List"]}[challenge]
-    return ["Start_Mission", *middle, "End_Mission"]
 
 
 def _run_delay(procs: dict[str, subprocess.Popen[bytes]], view: str) -> Callable[[], int | None]:
@@ -382,10 +385,9 @@ def run_mission(setup: MissionSetup, index: int, seed: int, challenge: int,
     if end is not None and end.how == "exited" and end.code != 0:
         res.reasons.append(f"the manager exited with {end.code}")
 
-    waypoints = load_waypoints(wp_file)
-    _check_deliveries(res, out, setup, challenge, len(waypoints))
-    capture = out / "mission.mcap"
-    _judge(res, parts, capture, setup, challenge, tuple(load_waypoints(ob_file) if challenge == 3 else waypoints))
+    items = tuple(load_waypoints(ob_file if challenge == 3 else wp_file))
+    _judge(res, parts, out / "mission.mcap", setup, challenge, items)
+    _check_deliveries(res, out, setup, Path(res.capture) if res.capture else None)
     res.ok = not res.reasons
     res.outcome = "complete" if res.ok else ("timeout" if res.mission_time is None else "failed")
     return res
@@ -418,10 +420,12 @@ def _await_manager(res: MissionResult, procs: dict[str, subprocess.Popen[bytes]]
         time.sleep(min(0.02, max(0.0, deadline - now)))
 
 
-def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challenge: int,
-                      n_wp: int) -> None:
-    """Exactly-once on the applications' delivery logs (MCP-DUP-1, MCP-FLOW-4/5/6)."""
-    want = expected_commands(challenge, n_wp)
+def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, capture: Path | None) -> None:
+    """Exactly-once on the applications' delivery logs (MCP-DUP-1, MCP-RTX-1): each drone got
+    what the manager sent it (its record's ``sent``, else its own view in the mission's
+    ``capture``: :func:`_sent_on_wire`),
+    once each, in order. Whether that was the mission the challenge asks for is the judge's
+    (MCP-FLOW-2..6, :func:`_judge`)."""
     manager = _record(out / f"{MANAGER}.json")
     sent: dict[int, list[str]] | None = None
     if manager is not None and isinstance(manager.get("sent"), list):
@@ -430,6 +434,8 @@ def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challe
             sent.setdefault(int(drone), []).append(_name(action))
         if manager.get("outcome") not in (None, "end_mission"):
             res.reasons.append(f"manager: outcome {manager.get('outcome')}")
+    if sent is None:
+        sent = _sent_on_wire(capture, setup.drones) if capture is not None else {}
     for i in setup.drones:
         rec = _record(out / f"{view_name(i)}.json")
         if rec is None or not isinstance(rec.get("deliveries"), list):
@@ -445,12 +451,31 @@ def _check_deliveries(res: MissionResult, out: Path, setup: MissionSetup, challe
         if twice:
             res.reasons.append(f"drone{i}: delivered (src, seq) {twice[0]} {keys.count(twice[0])} times "
                                f"(MCP-DUP-1)")
-        if got != want:
-            res.reasons.append(f"drone{i}: delivered {_short(got)}, expected {_short(want)} (exactly once, in order)")
-        elif sent is not None and sent.get(i, []) != got:
-            res.reasons.append(f"drone{i}: delivered {_short(got)}, the manager sent {_short(sent.get(i, []))}")
+        if sent.get(i, []) != got:
+            res.reasons.append(f"drone{i}: delivered {_short(got)}, expected {_short(sent.get(i, []))} "
+                               "(what the manager sent it, exactly once, in order)")
         if rec.get("rtl") is False and got and got[-1] == "End_Mission":  # the vehicle's record
             res.reasons.append(f"drone{i}: End_Mission delivered but no RTL asked of the autopilot (MCP-BLK-7)")
+
+
+def _sent_on_wire(capture: Path, drones: tuple[int, ...]) -> dict[int, list[str]]:
+    """What the manager sent each drone by its own view (the merged ``capture``'s manager
+    segment: what it sent as it entered the link, ``soak.medium``): each command once, in the order of its first copy (a retransmission
+    repeats its seq, MCP-SEQ-2), a broadcast to every drone (D-11). An unreadable capture: {}."""
+    from mcp_conform.traceio.reader import CaptureError, open_capture
+
+    out: dict[int, list[str]] = {}
+    seen: set[tuple[int, int]] = set()
+    with contextlib.suppress(CaptureError, OSError):
+        for d in open_capture(capture, segment=MANAGER).datagrams():
+            h = peek_header(d.data) if d.direction == "tx" and d.data[:len(PREAMBLE)] == PREAMBLE else None
+            if h is None or h[3] == _ACK or (h[0], h[2]) in seen:
+                continue
+            seen.add((h[0], h[2]))
+            name = _name(Action(h[3]).name if 0 <= h[3] <= 8 else h[3])
+            for i in drones if h[0] == BROADCAST_ID else (h[0],):
+                out.setdefault(i, []).append(name)
+    return out
 
 
 def _name(action: Any) -> str:
@@ -497,8 +522,11 @@ def _judge(res: MissionResult, parts: dict[str, Path], capture: Path, setup: Mis
     if bad:
         v = bad[0]
         res.reasons.append(f"monitor: {len(bad)} violation(s), first {v.rule} by node {v.node}: {v.actual}")
-    if res.mission_time is not None and j.verdicts.get(0, {}).get(FLOW[challenge]) not in ("passed", None):
-        res.reasons.append(f"monitor: {FLOW[challenge]} {j.verdicts[0][FLOW[challenge]]}")
+    if res.mission_time is not None:  # the manager ended: the mission the judge holds it to
+        verdicts = j.verdicts.get(0, {})
+        for rule in (*MISSION_RULES, FLOW[challenge]):
+            if verdicts.get(rule) != "passed":
+                res.reasons.append(f"monitor: {rule} {verdicts.get(rule) or 'not judged'}")
 
 
 def environment_note() -> str:

@@ -1,8 +1,12 @@
 """RTX — the manager's retransmission, observed on the first Start_Mission while the
-drone withholds its ACK; then a wrong-seq ACK and a right-seq ACK from another drone; then
-the right one. Where its copies stop right after those (a wrong ACK taken, or a retry limit
-of 2 reached: alike there), MCP-RTX-2 is judged on a second message withheld the same way,
-the wrong ACKs after its second copy.
+drone withholds its ACK, its third copy answered as it arrives (MCP-RTX-1's "at least 3
+copies while the ACK is withheld": a retry limit of 2, spec ``min_copies``, is not made to
+give up); then MCP-RTX-2 on the next new unicast, withheld too: a wrong-seq ACK and a
+right-seq ACK from another drone after its second copy, its third copy (the first proved the
+limit reaches one) answered as it arrives. A mission record made with the wrong ACKs on the
+first Start_Mission (after its third copy) is judged as before: where its copies stopped
+right after them (a wrong ACK taken, or a retry limit of 2 reached: alike there), on the
+second message.
 
 "This allows a sender to guarantee delivery of a unicast messages by retransmitting the
 message until an acknowledgement is received."
@@ -76,8 +80,12 @@ def _judge_again(node, w):
     reaches one: the first observation) proves RTX-2 kept, none proves it broken."""
     m = node.mission()
     a = m.withheld_again
-    first = (f"the Start_Mission to drone {w.drone} came in {len(w.copies)} copies, none within "
-             f"{w.wrong_ack_wait:.2f} s after the wrong ACKs (a retry limit of {len(w.copies)} copies ends there too)")
+    if w.wrong_acks:
+        first = (f"the Start_Mission to drone {w.drone} came in {len(w.copies)} copies, none within "
+                 f"{w.wrong_ack_wait:.2f} s after the wrong ACKs (a retry limit of {len(w.copies)} copies ends there too)")
+    else:
+        first = (f"the Start_Mission to drone {w.drone} came in {len(w.copies)} copies while its ACK was withheld "
+                 "(its retry limit reaches a third copy)")
     why = again_untold(m)
     if why is not None:
         raise Inconclusive(f"MCP-RTX-2: {first}; the second observation tells nothing: {why}")
@@ -88,9 +96,10 @@ def _judge_again(node, w):
                      f"same wrong ACKs, no copy within {a.wrong_ack_wait:.2f} s after them",
                      [f"wrong ACK: {s.data.hex(' ')}" for s in (*w.wrong_acks, *a.wrong_acks)]
                      + [c.describe() for c in a.copies[:3]])
-    node.info(f"{first}; then {what} to drone {a.drone}, its ACK withheld: a copy after the same wrong "
-              f"ACKs sent after its second copy ({a.copy_after_wrong_acks.t - a.wrong_acks[0].t:.2f} s after "
-              "them): the wrong ACKs end nothing, the Start_Mission was given up at its retry limit")
+    node.info(f"{first}; then {what} to drone {a.drone}, its ACK withheld: a copy after the "
+              f"{'same ' if w.wrong_acks else ''}wrong ACKs sent after its second copy "
+              f"({a.copy_after_wrong_acks.t - a.wrong_acks[0].t:.2f} s after them): the wrong ACKs end nothing"
+              + (", the Start_Mission was given up at its retry limit" if w.wrong_acks else ""))
 
 
 @rules("MCP-RTX-3")

@@ -62,7 +62,9 @@ def test_a_start_mission_copy_is_answered_once_and_judged_by_that_ack(seed):
     # case thread answered after it released the drone (it ACKed it again before) ...
     m = run.missions["main"]
     w = m.withheld
-    assert w.right_ack is not None and w.copy_after_wrong_acks is not None, run.explain()
+    # (the copy the case thread answers: the third, as it arrives, since session 34; the copy after
+    # the wrong ACKs before, the fourth; seeds 9 and 13 keep the race: 0 false verdicts of 40 seeds)
+    assert w.right_ack is not None and len(w.copies) == 3, run.explain()
     assert m.declined >= 1, "the receiver thread did not reach an answered copy: not the race this seed is kept for"
     # ... and the copy is ACKed once, that ACK recorded, the manager's next unicast after it
     seq = _U16.unpack_from(w.right_ack.data, HEADER_SIZE)[0]
