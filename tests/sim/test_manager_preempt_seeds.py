@@ -1,43 +1,75 @@
 """Regression seeds: the correct manager under the runner's threads preempted mid-step
 (``sim.manager_runner.Preemption``) gets no failed or warned verdict (issue 38's property).
+Every seed here gave the reference manager a false verdict on the judge and cases before
+(1d84803); each test first checks that its seed still makes the schedule it is kept for (a
+probe on interfaces the old code has too), or it would pass for nothing.
 
-Each seed below gave the reference manager a false verdict from the run's monitor before its
-fix, all from one cause: a runner thread taken off the CPU between a datagram's stamp and
-telling the observers tells it late, and the manager role's run monitor
-(``judge.run_monitor.SessionMonitors``) judged the datagrams in the order they were told:
+A runner thread taken off the CPU between a datagram's stamp and telling the observers tells
+it late, and the manager role's run monitor (``judge.run_monitor.SessionMonitors``) judged
+the datagrams in the order they were told:
 
-- seed 110 of ``preempt=(0.3, 0.3)``: the receiver thread, behind by 0.28 s, read the main
-  manager's last End_Mission (to drone 3), then its copy, and ACKed both after the manager
-  had exited and the silent drone's scenario's session had begun; the copy was judged there,
-  a command to drone 3 after its End_Mission in that session (MCP-BLK-6) numbered out of that
-  manager's turn (MCP-SEQ-1). The datagrams now go to the session their stamps fall in.
 - seed 118 of ``preempt=(0.3, 0.3)``: the case thread's ACK of the withheld Start_Mission's
   copy was told 195 ms after it left, and the monitor, holding datagrams 100 ms to put them
   in order, had fed the manager's next Start_Mission (0.1 ms after the ACK) before it: a
   second unicast before the first's ACK (MCP-BLK-1). A session's monitor now holds them until
   it is read.
+- seeds 110 and 249 of ``(0.3, 0.3)``: the main manager's last End_Mission copy, and the
+  runner's ACKs of it, told after the silent drone's scenario's session had begun, were
+  judged there: a command to a drone after its End_Mission in that session (MCP-BLK-6)
+  numbered out of that manager's turn (MCP-SEQ-1). The datagrams now go to the session their
+  stamps fall in. In seed 110 the copy sat unread in the socket as the manager exited: the
+  main record now ends once the receiver has read it (below), so the session's boundary is
+  no longer crossed there; seed 249 crosses it still (an ACK told late, nothing unread).
 
-Each test also checks that its seed still makes the schedule it is kept for (a probe on the
-monitor's interface, the same on the judge before the fix), or it would pass for nothing.
-tests/judge/test_session_stamps.py holds the same two tellings on scripted missions.
+Where the runner's receiver thread fell seconds behind (stalls of up to 3 times --rto at each
+of its steps, ``preempt=(0.3, 0.6)`` and ``(0.5, 0.5)``; the arrival stamps stay the kernel's):
+
+- seeds 18 and 7 of ``(0.5, 0.5)``: the manager ended its mission and exited while its last
+  commands sat unread in the runner's socket; the mission record ended at once without them:
+  "no End_Mission to drone(s) [..]" (MCP-FLOW-3; FLOW-5: its WP_Ons). The record now ends
+  once the receiver has read what the socket holds (``MissionScript._await_end``).
+- seed 26 of ``(0.3, 0.6)``, seed 2 of ``(0.5, 0.5)``: the manager gave up a drone's command
+  at its retry limit (13 copies, then a new unicast to another drone) and the runner's ACK
+  came seconds after; the monitor took the drone for one whose last command was ACKed and
+  failed MCP-FLOW-3 for its missing End_Mission (the case excused it: ``gave_up``). The
+  monitor now excuses a drone its manager gave up at the retry limit before the ACK came
+  (``F_GAVE_UP``), as it did one given up short of MCP-RTX-1's copies.
+- seed 73 of ``(0.5, 0.5)``: the same give-up of a drone's last WP_Off, ACKed 0.28 s after its
+  13th copy (at --rto 0.2), the manager then done and exited: the case took the ACK for one
+  the manager may have had (it allowed 1.5 gaps) and failed MCP-FLOW-3 and FLOW-5 for that
+  drone. An ACK after the next copy was due, none following, now leaves the give-up as one
+  explanation (``conformance.manager_case.gave_up``).
+
+tests/judge/test_session_stamps.py and test_flow3_given_up.py hold the monitor's two on
+scripted missions.
 """
 
 from __future__ import annotations
 
 import pytest
 
+from mcp_conform.conformance.manager_case import messages, runner_ack_time
 from mcp_conform.judge.run_monitor import REORDER_NS, SessionMonitors
-from mcp_conform.sim.manager_runner import MANAGER_ADDR, run_manager_cases
+from mcp_conform.sim.manager_runner import MANAGER_ADDR, SimManagerSession, run_manager_cases
 
 SHORT = {"rto": 0.2, "ack_window": 0.25}
 
 #: (seed, preempt, challenge, the schedule it is kept for)
 SEEDS = [
-    (110, (0.3, 0.3), 1, "told after the next session began"),
-    (110, (0.3, 0.3), 3, "told after the next session began"),
+    (110, (0.3, 0.3), 1, "unread as the manager exited"),
+    (110, (0.3, 0.3), 3, "unread as the manager exited"),
+    (249, (0.3, 0.3), 2, "told after the next session began"),
     (118, (0.3, 0.3), 1, "told past the hold"),
     (118, (0.3, 0.3), 2, "told past the hold"),
+    (18, (0.5, 0.5), 1, "unread as the manager exited"),
+    (7, (0.5, 0.5), 2, "unread as the manager exited"),
+    (26, (0.3, 0.6), 2, "ACKed after the manager gave up"),
+    (2, (0.5, 0.5), 1, "ACKed after the manager gave up"),
+    (73, (0.5, 0.5), 2, "ACKed after the manager gave up"),
 ]
+#: copies a command had when the manager gave it up in the seeds above (the reference
+#: manager's retry limit, ``EMBEDDED_RETRIES`` + 1)
+GIVE_UP_COPIES = 13
 
 
 @pytest.fixture
@@ -57,6 +89,15 @@ def told(monkeypatch):
 
     monkeypatch.setattr(SessionMonitors, "begin", begin_probe)
     monkeypatch.setattr(SessionMonitors, "observe", observe_probe)
+    alive = SimManagerSession.alive
+
+    def alive_probe(self):
+        up = alive(self)
+        if not up:
+            events.append(("exited", self.backlog()()))
+        return up
+
+    monkeypatch.setattr(SimManagerSession, "alive", alive_probe)
     return events
 
 
@@ -80,12 +121,30 @@ def _told_past_the_hold(events: list[tuple]) -> int:
     return n
 
 
+def _unread_as_exited(events: list[tuple]) -> bool:
+    """Whether the runner's socket held unread datagrams when the main scenario's manager
+    was first seen to have exited."""
+    return next((e[1] for e in events if e[0] == "exited"), False)
+
+
+def _acked_after_give_up(m) -> int:
+    """How many commands of the mission the manager gave up at its retry limit (that many
+    copies, the last one's timer run out) before the runner's first ACK of it."""
+    n = 0
+    for x in messages(m):
+        acked = runner_ack_time(m, x)
+        n += len(x.copies) >= GIVE_UP_COPIES and acked is not None and acked > x.last.t + SHORT["rto"]
+    return n
+
+
 @pytest.mark.parametrize(("seed", "preempt", "challenge", "schedule"), SEEDS,
                          ids=[f"seed{s}-p{p[0]}-{p[1]}-c{c}" for s, p, c, _ in SEEDS])
 def test_the_correct_manager_preempted_gets_no_verdict(told, seed, preempt, challenge, schedule):
     run = run_manager_cases(None, seed=seed, challenge=challenge, preempt=preempt, **SHORT)
-    late = (_main_told_after_next_session(told) if schedule == "told after the next session began"
-            else _told_past_the_hold(told))
+    late = {"told after the next session began": lambda: _main_told_after_next_session(told),
+            "told past the hold": lambda: _told_past_the_hold(told),
+            "unread as the manager exited": lambda: _unread_as_exited(told),
+            "ACKed after the manager gave up": lambda: _acked_after_give_up(run.missions["main"])}[schedule]()
     assert late > 0 and run.preemptions > 0, f"seed {seed}: no datagram {schedule} (not the race it is kept for)"
     assert not run.rules_with("failed", "warned"), run.explain()
     assert not [c for c in run.report["cases"] if c["outcome"] in ("failed", "warned", "error")], run.explain()
