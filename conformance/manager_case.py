@@ -141,7 +141,8 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1). Not the wrong ACKs of a
     message the manager was seen to retransmit after them (``copy_after_wrong_acks``): they did
     not end it, and its answer is the right ACK (a runner held off the CPU may send that past
-    the manager's retry limit: seed 118's drone, given up, looked answered by them). None of
+    the manager's retry limit: seed 118's drone, given up, looked answered by them); nor any
+    wrong ACK before a copy of ``msg`` itself (the same: it did not end ``msg``). None of
     them where the second observation (``Mission.withheld_again``) proved the manager ignores a
     wrong ACK (:func:`wrong_acks_ignored`); its own wrong ACKs are like the first's otherwise."""
     times = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
@@ -153,6 +154,8 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
             if after is not None and after.header is not None and after.header[0] == msg.dst and any(
                     c.header is not None and c.header[2] == after.header[2] for c in msg.copies):
                 continue  # the manager retransmitted ``msg`` after them: they did not end it (seed 118)
+            if any(c.t > max(a.t, msg.first.t) for c in msg.copies):
+                continue  # ``msg`` retransmitted after it: it did not end it (seed 90 of (0.3, 1.0))
             if a.t >= msg.first.t:
                 times.append(a.t)
             elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):

@@ -39,6 +39,13 @@ of its steps, ``preempt=(0.3, 0.6)`` and ``(0.5, 0.5)``; the arrival stamps stay
   the manager may have had (it allowed 1.5 gaps) and failed MCP-FLOW-3 and FLOW-5 for that
   drone. An ACK after the next copy was due, none following, now leaves the give-up as one
   explanation (``conformance.manager_case.gave_up``).
+- seed 90 of ``(0.3, 1.0)`` (the receiver 7 s behind): MCP-RTX-2's wrong-source ACK from drone
+  2, sent while drone 1's Start_Mission was withheld, was dated drone 2's answer to its
+  Start_Mission (a manager taking any ACK from the destination takes it when it next sends
+  there), though the manager sent that Start_Mission 13 times after it and gave it up: drone
+  2 looked answered and its missing WP_List and End_Mission failed MCP-FLOW-4 and FLOW-3. A
+  wrong ACK is no answer of a command retransmitted after it
+  (``conformance.manager_case.runner_ack_time``).
 
 tests/judge/test_session_stamps.py and test_flow3_given_up.py hold the monitor's two on
 scripted missions.
@@ -66,6 +73,7 @@ SEEDS = [
     (26, (0.3, 0.6), 2, "ACKed after the manager gave up"),
     (2, (0.5, 0.5), 1, "ACKed after the manager gave up"),
     (73, (0.5, 0.5), 2, "ACKed after the manager gave up"),
+    (90, (0.3, 1.0), 1, "a wrong ACK before a command retransmitted"),
 ]
 #: copies a command had when the manager gave it up in the seeds above (the reference
 #: manager's retry limit, ``EMBEDDED_RETRIES`` + 1)
@@ -137,6 +145,18 @@ def _acked_after_give_up(m) -> int:
     return n
 
 
+def _wrong_ack_then_copies(m) -> int:
+    """How many commands to a drone were retransmitted after one of MCP-RTX-2's deliberate
+    wrong ACKs from that drone (sent before the command or while it awaited its ACK), and
+    given up at the retry limit."""
+    n = 0
+    for x in messages(m):
+        wrong = [a for a in m.withheld.wrong_acks if a.src == x.dst]
+        n += bool(wrong) and len(x.copies) >= GIVE_UP_COPIES and any(
+            c.t > max(a.t, x.first.t) for a in wrong for c in x.copies)
+    return n
+
+
 @pytest.mark.parametrize(("seed", "preempt", "challenge", "schedule"), SEEDS,
                          ids=[f"seed{s}-p{p[0]}-{p[1]}-c{c}" for s, p, c, _ in SEEDS])
 def test_the_correct_manager_preempted_gets_no_verdict(told, seed, preempt, challenge, schedule):
@@ -144,7 +164,9 @@ def test_the_correct_manager_preempted_gets_no_verdict(told, seed, preempt, chal
     late = {"told after the next session began": lambda: _main_told_after_next_session(told),
             "told past the hold": lambda: _told_past_the_hold(told),
             "unread as the manager exited": lambda: _unread_as_exited(told),
-            "ACKed after the manager gave up": lambda: _acked_after_give_up(run.missions["main"])}[schedule]()
+            "ACKed after the manager gave up": lambda: _acked_after_give_up(run.missions["main"]),
+            "a wrong ACK before a command retransmitted": lambda: _wrong_ack_then_copies(run.missions["main"]),
+            }[schedule]()
     assert late > 0 and run.preemptions > 0, f"seed {seed}: no datagram {schedule} (not the race it is kept for)"
     assert not run.rules_with("failed", "warned"), run.explain()
     assert not [c for c in run.report["cases"] if c["outcome"] in ("failed", "warned", "error")], run.explain()
