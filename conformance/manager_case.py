@@ -135,7 +135,8 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
     it is RTX-2's fault, not a new unicast before B's ACK, MCP-BLK-1). Not the wrong ACKs of a
     message the manager was seen to retransmit after them (``copy_after_wrong_acks``): they did
     not end it, and its answer is the right ACK (a runner held off the CPU may send that past
-    the manager's retry limit: seed 118's drone, given up, looked answered by them). None of
+    the manager's retry limit: seed 118's drone, given up, looked answered by them); nor any
+    wrong ACK before a copy of ``msg`` itself (the same: it did not end ``msg``). None of
     them where the second observation (``Mission.withheld_again``) proved the manager ignores a
     wrong ACK (:func:`wrong_acks_ignored`); its own wrong ACKs are like the first's otherwise."""
     times = [m.acks[k].t for c in msg.copies if c.header is not None and (k := (msg.dst, c.header[2])) in m.acks]
@@ -147,6 +148,8 @@ def runner_ack_time(m: Mission, msg: Message) -> float | None:
             if after is not None and after.header is not None and after.header[0] == msg.dst and any(
                     c.header is not None and c.header[2] == after.header[2] for c in msg.copies):
                 continue  # the manager retransmitted ``msg`` after them: they did not end it (seed 118)
+            if any(c.t > max(a.t, msg.first.t) for c in msg.copies):
+                continue  # ``msg`` retransmitted after it: it did not end it (seed 90 of (0.3, 1.0))
             if a.t >= msg.first.t:
                 times.append(a.t)
             elif not any(a.t <= d.t < msg.first.t for d in m.to_drone(msg.dst)):
@@ -213,7 +216,7 @@ def _acked_before(m: Mission, msg: Message, t: float) -> bool:
 
 
 def gave_up(m: Mission, msg: Message, rto: float, msgs: list[Message] | None = None) -> bool:
-    """The manager stopped retransmitting ``msg`` well before any ACK of it (a retry limit,
+    """The manager stopped retransmitting ``msg`` before any ACK of it (a retry limit,
     MCP-RTX-1's business) — not merely because the mission record ends. ``msgs``: ``messages(m)``
     when the caller has it (a caller asking of every message made it again for each: a
     150-waypoint mission's cases outlasted their time limit)."""
@@ -230,7 +233,12 @@ def gave_up(m: Mission, msg: Message, rto: float, msgs: list[Message] | None = N
             return True
     if acked is None:
         return m.t_end - msg.last.t > slack
-    return acked > msg.last.t + slack
+    # no copy after the ACK, which came after the next copy was due: a retry limit reached at
+    # that timer, before the ACK, is one explanation (a runner seconds behind ACKed the
+    # manager's 13th and last WP_Off copy 0.28 s after it, at --rto 0.2, and the manager, done
+    # with the others, exited: a false MCP-FLOW-3 and FLOW-5, simulator seed 73 of
+    # ``preempt=(0.5, 0.5)``)
+    return acked > msg.last.t + gap + 0.015
 
 
 def awaiting_until(m: Mission, msg: Message, rto: float, msgs: list[Message] | None = None) -> float:

@@ -393,11 +393,11 @@ class ManagerSession(DatagramSessionBase):
         try:
             m = side.join()
         finally:
-            self._begin_session(side.kind, address=side.target)
+            self._begin_session(side.kind, address=side.target, held=True)
             if self.monitor is not None and self.monitor.current is not None:
                 self.monitor.current.listen = side.listen  # this instance's drones' socket
                 self.monitor.current.node_addr = side.target
-            observers: list[Any] = [self.monitor.observe] if self.monitor is not None else []
+            observers: list[Any] = [self.monitor.observe_held] if self.monitor is not None else []
             rec = self.recorder
             if rec is not None:
                 def record(direction: str, data: bytes, addr: Any, t_ns: int, run_delay: int | None = None) -> None:
@@ -428,13 +428,16 @@ class ManagerSession(DatagramSessionBase):
             side.close()
         return self._settle(m, side.ok, side.elapsed)
 
-    def _begin_session(self, kind: str, address: tuple[str, int] | None = None) -> None:
+    def _begin_session(self, kind: str, address: tuple[str, int] | None = None, held: bool = False) -> None:
         """Scenario ``kind``'s mission is a session of the capture and of the run's monitor
         of its own (``McapRecorder.begin_segment``, :class:`SessionMonitors`), named by the
         scenario, with the node under test's record (complete: the runner plays every drone);
-        ``address``: where that scenario's manager received (default: the main one's)."""
+        ``address``: where that scenario's manager received (default: the main one's);
+        ``held``: it ran beside on sockets of its own, its traffic told now (the driver's
+        datagrams stamped from now on stay the main scenario's, as those stamped before now
+        and told late do: ``SessionMonitors``)."""
         if self.monitor is not None:
-            self.monitor.begin(kind)
+            self.monitor.begin(kind, self.clock.time_ns(), held=held)
         address = address or self.node_address
         if self.recorder is not None and address is not None:  # the capture (McapRecorder, or the runner's tee)
             with contextlib.suppress(Exception):

@@ -460,7 +460,10 @@ class MissionScript:
     def _await_end(self, expect: tuple[int, ...] | None = None, cap: float | None = None) -> None:
         """Until every drone of ``expect`` had its End_Mission ACKed (then a tail watched for
         commands after it), the manager exits, stays idle owing no drone a command
-        (:meth:`_owed`), or the cap is reached."""
+        (:meth:`_owed`), or the cap is reached; then once the receiver has read what the socket
+        holds (a manager that exited with its last commands unread by a receiver seconds behind
+        had them left out of the record: a false MCP-FLOW-3, simulator seed 18 of
+        ``preempt=(0.5, 0.5)``)."""
         m = self.m
         expect = m.drones if expect is None else expect
         idle = max(2.5 * self.rto, 2 * self.ack_window, 1.0)
@@ -491,6 +494,8 @@ class MissionScript:
             self._settle_again()
             self.driver.wait_for(lambda d: False, 0.05, self.driver.mark())
         self.players.release_again()  # nothing more is withheld once the record ends
+        if self.backlog():
+            self.drain()
         m.end = self.driver.mark()
         m.t_end = self.clock.monotonic()
         m.rx = self.driver.received(m.start, m.end)

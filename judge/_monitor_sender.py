@@ -37,6 +37,7 @@ from mcp_conform.judge._monitor_base import (
 from mcp_conform.judge._monitor_mission import _LIST_FLOW, MissionRules
 from mcp_conform.judge._monitor_rtx import (
     F_FAULTY,
+    F_GAVE_UP,
     F_INTERLEAVE,
     F_RTX1,
     F_RTX3,
@@ -494,8 +495,8 @@ class SenderRules(MissionRules):
     def _finish_flow3(self, end: int) -> None:
         """MCP-FLOW-3 (complete trace): once the manager has ended the mission of some drones,
         every drone it started gets End_Mission (unless its last command was never ACKed or was
-        malformed (``_malformed``), or the manager gave up on it before its ACK came: MCP-RTX-1 is then proven on it, and a
-        drone dropped after that is the give-up's consequence, not a second violation)."""
+        malformed (``_malformed``), or the manager gave up on it before its ACK came: short of MCP-RTX-1's copies, that
+        rule fails and a drone dropped after is its consequence; at its retry limit, F_GAVE_UP, none)."""
         mgr = self._nodes.get(MANAGER)
         if mgr is None or not mgr.real:
             return
@@ -525,7 +526,7 @@ class SenderRules(MissionRules):
 
     def _last_command_acked(self, d: _Node) -> bool:
         last = d.last_command
-        return last is not None and bool(last.acks) and not last.flags & F_RTX1
+        return last is not None and bool(last.acks) and not last.flags & (F_RTX1 | F_GAVE_UP)
 
     def _prune(self, now: int) -> None:
         """Forget messages older than the horizon (their copies can no longer come, their

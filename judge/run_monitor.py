@@ -80,7 +80,7 @@ class RunMonitor:
     def __init__(self, *, rto: float, ack_window: float, broadcast_id: int, node_id: int | None,
                  node_addr: tuple[str, int] | None, complete: bool = True,
                  drones: Any = None, challenge: int | None = None, waypoints: Any = None,
-                 rto_declared: bool = False) -> None:
+                 rto_declared: bool = False, reorder_ns: int | None = REORDER_NS) -> None:
         self.monitor = Monitor(rto=rto, ack_window=ack_window, broadcast_id=broadcast_id,
                                drones=drones, challenge=challenge, waypoints=waypoints, complete=complete,
                                rto_declared=rto_declared)
@@ -92,17 +92,22 @@ class RunMonitor:
         self._pending: list[tuple[int, int, Any, tuple[Any, ...]]] = []  # heap: (t_ns, n, fn, args)
         self._n = 0
         self.errors = 0  # feeding problems (a monitor bug must not stop the run)
+        #: how long a datagram is held before it is fed (None: until read, everything in order)
+        self.reorder_ns = reorder_ns
 
     # ------------------------------------------------------------------ feeding
     def _push(self, t_ns: int, fn: Any, *args: Any) -> None:
         """Feed in time order: the sending thread reports a datagram after it left, so the
-        node's answer can reach the receiving thread first; hold everything ``REORDER_NS``."""
+        node's answer can reach the receiving thread first; hold everything ``reorder_ns``
+        (None: until the monitor is read -- a runner thread taken off the CPU between a
+        datagram's stamp and its report can report it any time later)."""
         with self._lock:
             if self._finished:
                 return
             self._n += 1
             heapq.heappush(self._pending, (t_ns, self._n, fn, args))
-            self._drain(t_ns - REORDER_NS)
+            if self.reorder_ns is not None:
+                self._drain(t_ns - self.reorder_ns)
 
     def _drain(self, until: int | None = None) -> None:
         pending = self._pending
@@ -253,13 +258,26 @@ class SessionMonitors:
     (``McapRecorder.begin_segment``); the report's section is theirs merged per node, worst
     verdict first, as the judgement of the file is (``judge.judging.merge_segments``).
 
-    A session's monitor is finished where the capture's session ends (:func:`session_end`,
-    ``mcp-capture check``'s too): at its last record (a datagram, a case mark -- :meth:`mark`
+    When the run's monitor is finished (:meth:`finish`), a session's monitor is finished where
+    the capture's session ends (:func:`session_end`, ``mcp-capture check``'s too): at its last
+    record (a datagram, a case mark -- :meth:`mark`
     -- or the node's run delay read as it was stopped: :meth:`run_delay`); but where its
     manager instance was stopped after its last datagram, at that stop: a case mark after it
     (the silent drone's scenario, told to its session as its case asks, then the run's later
     cases) is the runner's time, not the instance's, and an absence there proves nothing (a
-    false MCP-RTX-1 "none for 2.5 s" of copies the stop cut short)."""
+    false MCP-RTX-1 "none for 2.5 s" of copies the stop cut short).
+
+    The runner's datagrams go to a session by their stamps, not by when a thread told them: a
+    runner thread taken off the CPU between a datagram's stamp (its send; the kernel's receive
+    time) and its report tells it late, after the next session began -- the previous
+    manager's last End_Mission copy, and the runner's ACK of it, judged in the silent drone's
+    session as a command after that drone's End_Mission (MCP-BLK-6, MCP-SEQ-1: simulator
+    seed 110 of ``preempt=(0.3, 0.3)``). A session begun ``at_ns`` holds the driver's datagrams
+    stamped from then until the next such session begins; one begun ``held`` (a scenario that
+    ran beside on sockets of its own, told after by :meth:`observe_held`) takes none of them.
+    Each session's monitor is fed in stamp order however late a datagram was told
+    (``RunMonitor(reorder_ns=None)``): the case thread's ACK of a Start_Mission copy told
+    195 ms after it left, behind the next Start_Mission, was a false MCP-BLK-1 (seed 118)."""
 
     def __init__(self, **kw: Any) -> None:
         self._kw = kw
@@ -271,33 +289,53 @@ class SessionMonitors:
         self._stop: dict[str, int] = {}  # its node's last stop (a run delay read as it was stopped)
         self._name: str | None = None
         self._lock = threading.Lock()
+        #: (begin stamp, name) of the sessions the driver's own datagrams go to, in order
+        self._live: list[tuple[int, str]] = []
 
     @property
     def node_id(self) -> int | None:
         return self._kw.get("node_id")
 
-    def begin(self, name: str) -> None:
-        """Session ``name`` starts (the one before it is finished at its last record)."""
+    def begin(self, name: str, at_ns: int | None = None, *, held: bool = False) -> None:
+        """Session ``name`` starts, at ``at_ns`` (None: it takes every datagram of the driver
+        told from now on, whatever its stamp); ``held``: its traffic comes by
+        :meth:`observe_held` alone (see the class)."""
         with self._lock:
-            self._finish_current()
-            mon = RunMonitor(**self._kw)
+            mon = RunMonitor(**self._kw, reorder_ns=None)
             mon.listen = self.listen
             self.parts[name] = self.current = mon
             self._name = name
+            if not held:
+                self._live.append((at_ns if at_ns is not None else -1, name))
 
-    def _finish_current(self) -> None:
-        if self.current is not None and self._name is not None:
-            name = self._name
-            self.current.finish(session_end(self._last.get(name), self._data.get(name), self._stop.get(name)))
+    def _session_of(self, t_ns: int) -> str | None:
+        """The session a datagram of the driver stamped ``t_ns`` belongs to: the last begun by
+        then (the first, for one stamped before any began)."""
+        live = self._live
+        for begun, name in reversed(live):
+            if begun <= t_ns:
+                return name
+        return live[0][1] if live else None
 
     def observe(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
                 run_delay: int | None = None) -> None:
-        with self._lock:  # (held: a datagram goes to the session current when it was observed)
-            name = self._name
-            if name is not None and self.current is not None:
-                self._last[name] = max(self._last.get(name, t_ns), t_ns)
-                self._data[name] = max(self._data.get(name, t_ns), t_ns)
-                self.current.observe(direction, data, addr, t_ns, run_delay)
+        """The driver's observer: to the session of the datagram's stamp."""
+        with self._lock:
+            self._feed(self._session_of(t_ns), direction, data, addr, t_ns, run_delay)
+
+    def observe_held(self, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
+                     run_delay: int | None = None) -> None:
+        """A held session's traffic, told after it ran: to the session current."""
+        with self._lock:
+            self._feed(self._name, direction, data, addr, t_ns, run_delay)
+
+    def _feed(self, name: str | None, direction: str, data: bytes, addr: tuple[str, int], t_ns: int,
+              run_delay: int | None) -> None:
+        mon = self.parts.get(name) if name is not None else None
+        if name is not None and mon is not None:
+            self._last[name] = max(self._last.get(name, t_ns), t_ns)
+            self._data[name] = max(self._data.get(name, t_ns), t_ns)
+            mon.observe(direction, data, addr, t_ns, run_delay)
 
     def run_delay(self, t_ns: int, node: int, run_delay_ns: int) -> None:
         """To the session current when the node was stopped (:meth:`RunMonitor.run_delay`):
@@ -319,8 +357,10 @@ class SessionMonitors:
                 self._last[self._name] = max(self._last.get(self._name, t_ns), t_ns)
 
     def finish(self, t_ns: int | None = None) -> None:
+        """Each session's monitor finished where its session ends (:func:`session_end`)."""
         with self._lock:
-            self._finish_current()
+            for name, mon in self.parts.items():
+                mon.finish(session_end(self._last.get(name), self._data.get(name), self._stop.get(name)))
 
     def verdicts(self) -> dict[int, dict[str, str]]:
         out: dict[int, dict[str, str]] = {}

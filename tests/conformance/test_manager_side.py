@@ -125,7 +125,7 @@ def test_the_held_traffic_and_the_main_managers_reach_capture_and_monitor_in_one
                         drones=(1, 2), challenge=1, waypoints=None, obstacles=None, seq_base=1000, rto=0.2,
                         ack_window=0.25, broadcast_id=0xFFFF, seed=1, ready_limit=5.0)
     side._held = [("rx", b"held%d" % k, ("127.0.0.1", 1), k, None) for k in range(3000)]
-    fake = SimpleNamespace(driver=main, monitor=SimpleNamespace(observe=monitor, current=None),
+    fake = SimpleNamespace(driver=main, monitor=SimpleNamespace(observe=monitor, observe_held=monitor, current=None),
                            recorder=SimpleNamespace(datagram=recorder), _begin_session=lambda *a, **k: None,
                            _settle=lambda m, ok, elapsed: m)
     stop = threading.Event()
