@@ -32,8 +32,9 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from mcp_conform.conformance._case_base import DatagramCaseBase
 from mcp_conform.harness.driver import Datagram, read_header
-from mcp_conform.harness.drone_players import Input, Mission
+from mcp_conform.harness.drone_players import Input, Mission, Withheld
 from mcp_conform.harness.errors import CaseFailure, Inconclusive
+from mcp_conform.judge import copies_by_number
 from mcp_conform.judge.waypoints import FILE_FIELDS, f32
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import HEADER_SIZE, ITEM, Action
@@ -101,10 +102,15 @@ class Message:
 def messages(m: Mission) -> list[Message]:
     """The manager's non-ACK messages in order of first arrival, copies grouped with the
     message they repeat: same (dst, seq), or, to a mission drone (whose ACK it awaits), same
-    (dst, action, payload) while the earlier one has not been ACKed (a retransmission with a
-    new seq, MCP-SEQ-2's business). A broadcast is never ACKed: one with a new seq is a new
-    message (MCP-DUP-2), however like the last it is (a mission of broadcast WP_Offs, each its
-    own seq, was six "copies" of the first, MCP-RTX-4 warned: H-cmanager's C manager)."""
+    (dst, action, payload) while the earlier one has not been ACKed and was sent once under its
+    number (or is such a chain already): a retransmission with a new seq, MCP-SEQ-2's business,
+    as the trace monitor's ``_renumbered`` has it. An earlier one with copies that repeat its
+    number was retransmitted as "Retransmissions of the same message are identified by
+    repeating sequence number" says: the same command under a new number after them is a new
+    message after a give-up (MCP-RTX-1's, ``judge.copies_by_number``), not a third copy. A
+    broadcast is never ACKed: one with a new seq is a new message (MCP-DUP-2), however like the
+    last it is (a mission of broadcast WP_Offs, each its own seq, was six "copies" of the first,
+    MCP-RTX-4 warned: H-cmanager's C manager)."""
     out: list[Message] = []
     by_key: dict[tuple[int, int], Message] = {}
     for d in m.commands():
@@ -115,7 +121,8 @@ def messages(m: Mission) -> list[Message]:
             for cand in reversed(out):
                 if (cand.dst == h[0] and cand.action == h[3] and cand.first.data[HEADER_SIZE:] == d.data[HEADER_SIZE:]
                         and not _acked_before(m, cand, d.t)):
-                    msg = cand
+                    if _renumbering(cand):
+                        msg = cand
                     break
         if msg is None:
             msg = Message(d)
@@ -123,6 +130,28 @@ def messages(m: Mission) -> list[Message]:
         msg.copies.append(d)
         by_key[(h[0], h[2])] = msg
     return out
+
+
+def _renumbering(msg: Message) -> bool:
+    """``msg`` sent once under its number, or already again under new ones: a copy of it under a
+    new number is a retransmission renumbered (``judge._monitor_rtx``'s ``_renumbered``)."""
+    return len(msg.copies) == 1 or len({c.header[2] for c in msg.copies if c.header is not None}) > 1
+
+
+def _sent_again(msg: Message, msgs: list[Message]) -> bool:
+    """After its last copy, the same command to the same drone as a new message (a new number
+    after copies that repeat ``msg``'s, :func:`messages`): the manager gave up the message, not
+    the drone (the new one, given up too, tells so itself)."""
+    body = msg.first.data[HEADER_SIZE:]
+    return any(y is not msg and y.dst == msg.dst and y.action == msg.action and y.first.t > msg.last.t
+               and y.first.data[HEADER_SIZE:] == body for y in msgs)
+
+
+def withheld_copies(w: Withheld) -> list[Datagram]:
+    """The withheld Start_Mission's copies (MCP-RTX-1/3, MCP-SEQ-2) counted by number
+    (``judge.copies_by_number``): those that repeat its first's, or all of them where it was
+    sent once and then renumbered."""
+    return list(w.copies) if copies_by_number.renumbered(w.copies) else copies_by_number.by_number(w.copies)
 
 
 def runner_ack_time(m: Mission, msg: Message) -> float | None:
@@ -257,7 +286,7 @@ def abandoned(m: Mission, rto: float) -> set[int]:
     after them: a retry limit reached there is one explanation, and under it the drone was
     given up (the flow rules fail only what every explanation breaks)."""
     msgs = messages(m)
-    out = {msg.dst for msg in msgs if msg.dst in m.drones and gave_up(m, msg, rto, msgs)}
+    out = {msg.dst for msg in msgs if msg.dst in m.drones and gave_up(m, msg, rto, msgs) and not _sent_again(msg, msgs)}
     w = m.withheld
     if w.drone is not None and w.drone not in out and first_stopped_at_wrong_acks(m) and again_untold(m) is not None:
         start = next((x for x in msgs if x.dst == w.drone and any(c.index == w.copies[0].index for c in x.copies)), None)

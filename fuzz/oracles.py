@@ -47,6 +47,7 @@ from mcp_conform.harness.driver import Datagram
 from mcp_conform.harness.session_base import (
     MIN_COPIES,  # MCP-RTX-1: at least 3 copies while the ACK is withheld
 )
+from mcp_conform.judge import copies_by_number
 from mcp_conform.spec.codec import HEADER_SIZE, Action
 
 __all__ = [
@@ -347,16 +348,26 @@ def judge_withheld(copies: Sequence[Datagram], after_wrong_ack: Datagram | None,
     another seq: it retransmits (MCP-RTX-1), each copy the same bytes (MCP-SEQ-2), and the
     wrong ACK does not end it (MCP-RTX-2). Observed as MCP-RTX-1 says, "at least 3 copies
     while the ACK is withheld" (``wanted`` up to ``MIN_COPIES``), and MCP-RTX-2 over 2.5
-    periods after the wrong ACK (``fuzz.drone_target.FuzzTarget.restart_withholding``)."""
+    periods after the wrong ACK (``fuzz.drone_target.FuzzTarget.restart_withholding``).
+
+    Copies are counted by number, as the drone suite's cases and the trace monitor count them
+    (``judge.copies_by_number``): "Retransmissions of the same message are identified by
+    repeating sequence number". Seq N twice, then (given up) seq N+1 is 2 copies of N, MCP-RTX-1
+    -- not MCP-SEQ-2, which took N+1 for N's third copy; N once, then the same message under new
+    numbers (the ``rtx-new-seq`` fault) is a retransmission renumbered, MCP-SEQ-2."""
     if not alive:
         return None  # a death is judge_liveness's
-    if len(copies) < min(wanted, MIN_COPIES):
+    renumbered = copies_by_number.renumbered(copies)
+    same = list(copies) if renumbered else copies_by_number.by_number(copies)
+    if not renumbered and len(same) < min(wanted, MIN_COPIES):
+        then = (f", then a new Mission_Ready ({copies_by_number.describe_new(copies)}): a new message, "
+                "not a copy (retransmissions repeat the number)") if len(same) < len(copies) else ""
         return Flaw("MCP-RTX-1", f"Mission_Ready retransmitted while unACKed ({wanted} copies awaited)",
-                    f"{len(copies)} cop{'y' if len(copies) == 1 else 'ies'} seen", source="startup")
-    if len({d.data for d in copies}) > 1:
+                    f"{len(same)} cop{'y' if len(same) == 1 else 'ies'} seen{then}", source="startup")
+    if len({d.data for d in same}) > 1:
         return Flaw("MCP-SEQ-2", "every copy of Mission_Ready repeats the original's bytes",
-                    "copies differ: " + ", ".join(f"seq {d.header[2]}" for d in copies if d.header),
-                    source="startup", evidence=tuple(d.data.hex() for d in copies))
+                    "copies differ: " + ", ".join(f"seq {d.header[2]}" for d in same if d.header),
+                    source="startup", evidence=tuple(d.data.hex() for d in same))
     if after_wrong_ack is None:
         return Flaw("MCP-RTX-2", "retransmission goes on after an ACK naming another seq",
                     "no copy of Mission_Ready after the ACK of another seq", source="startup")

@@ -32,6 +32,9 @@ it is in what the mission sends, a ``ManagerModel`` whose plan or readiness diff
 - ``skips-a-waypoint`` / ``broadcast-skips-a-waypoint``, MCP-FLOW-5 "WP_On messages carry the
   mission's waypoints" (every one of them: the case's and the monitor's one judge,
   ``judge.waypoints``): the third waypoint's WP_On carries the second again, unicast / broadcast;
+- ``reissues-after-two``, MCP-RTX-1 (not in the sample manager's list): each unicast sent twice
+  at most, a Start_Mission given up sent once more under a new number (a new message:
+  retransmissions are identified by repeating sequence number), then the drone dropped;
 
 and, breaking no rule (controls: no verdict may fall on them), ``acks-copies-late`` (a copy
 ACKed again 0.3 s late, past a 0.2 s --rto: "ACKed again, however late", MCP-ACK-1),
@@ -52,6 +55,7 @@ from typing import Any
 
 from mcp_conform.reference_impl._transitions import Input
 from mcp_conform.reference_impl.endpoint import _HEAD
+from mcp_conform.reference_impl.events import DeliveryConfirmed, DeliveryFailed
 from mcp_conform.sim.faults import FAULTS, FaultMixin, GiveUpAfterTwo
 from mcp_conform.sim.models import ManagerModel
 from mcp_conform.spec.codec import BROADCAST_ID, PREAMBLE, Action, DecodeError, decode, peek_header
@@ -303,6 +307,34 @@ class BroadcastSkipsAWaypoint(BroadcastsMission, SkipsAWaypoint):
     Start_Mission is ACKed (D-11), as :class:`BroadcastsMission` broadcasts them."""
 
 
+class ReissuesAfterGiveUp(ManagerModel):
+    """Faulty (MCP-RTX-1): each unicast sent twice at most (with :class:`sim.faults.GiveUpAfterTwo`'s
+    endpoint at a retry limit of 1), and a Start_Mission given up sent once more as a new message
+    -- the endpoint's next number, its own two copies -- before the drone is dropped.
+    "Retransmissions of the same message are identified by repeating sequence number": seq N's
+    two copies, then seq N+1, are two messages of two copies each, not three copies of one
+    renumbered (MCP-SEQ-2); the drone role's re-announcing drone (tests/sim/test_reannounce.py).
+    Only Start_Mission: a list sent again so (the silent drone's WP_List) is a second list,
+    MCP-FLOW-4's too (one fault, one rule)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.reissued = 0  # how many commands it sent again after a give-up (none: nothing shown)
+        self._again = False  # the current command is the one sent again
+
+    def _outcome(self, ev: DeliveryConfirmed | DeliveryFailed, now: float) -> None:
+        if (isinstance(ev, DeliveryFailed) and ev.handle == self._handle and self._current is not None
+                and self._current[1] == Action.START_MISSION and not self._again):
+            dst, action, payload = self._current
+            self._again = True
+            self.reissued += 1
+            self._handle = self.ep.send(action, payload, dst, now=now)
+            return
+        if ev.handle == self._handle:
+            self._again = False
+        super()._outcome(ev, now)
+
+
 class PausesMidMission(ManagerModel):
     """Correct: quiet for ``HOLD`` s mid-mission, longer than the runner's idle window
     (``max(2.5 --rto, 2 --ack-window, 1 s)``) -- challenge 2, each waypoint held active that
@@ -392,6 +424,9 @@ MANAGER_FAULTS: dict[str, ManagerFault] = {**_from_faults(), **{f.name: f for f 
                  what="the third waypoint's WP_Ons carry the second again (one repeated, one skipped)"),
     ManagerFault("broadcast-skips-a-waypoint", "MCP-FLOW-5", 2, BroadcastSkipsAWaypoint,
                  what="the WP_Ons broadcast, the third waypoint's carrying the second again"),
+    ManagerFault("reissues-after-two", "MCP-RTX-1", 1, ReissuesAfterGiveUp, endpoint=GiveUpAfterTwo, retries=1,
+                 what="each unicast sent twice at most, a Start_Mission given up sent again under a new "
+                      "number (two copies), then the drone dropped"),
     # correct managers unlike the reference one: no rule broken
     ManagerFault("acks-copies-late", None, 1, AcksCopiesLate, what="a copy is ACKed again 0.3 s late"),
     ManagerFault("give-up-after-three", None, 1, endpoint=GiveUpAfterTwo, retries=2,

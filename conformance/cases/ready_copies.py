@@ -1,4 +1,6 @@
-"""The startup's Mission_Ready copies counted by number, for the RTX and SEQ cases.
+"""The startup's Mission_Ready copies counted by number, for the RTX and SEQ cases: the startup's
+view of ``judge.copies_by_number`` (one judge with the manager role's cases, the fuzzer's
+withheld-ACK oracle and the trace monitor).
 
 "Retransmissions of the same message are identified by repeating sequence number": the copies of
 the node's first Mission_Ready are the datagrams that repeat its number. A node that gave its
@@ -19,39 +21,27 @@ from __future__ import annotations
 
 from typing import Any
 
-from mcp_conform.spec.codec import HEADER_SIZE
-
-
-def _seq(d: Any) -> int | None:
-    return d.header[2] if d.header is not None else None
+from mcp_conform.judge import copies_by_number as _by
 
 
 def by_number(st: Any) -> list[Any]:
     """The startup's copies of its first Mission_Ready: those that repeat its number (all of
     them when headers cannot be read)."""
-    if not st.copies:
-        return []
-    seq = _seq(st.copies[0])
-    return [d for d in st.copies if _seq(d) == seq]
+    return _by.by_number(st.copies)
 
 
 def new_numbers(st: Any) -> list[Any]:
     """The Mission_Ready datagrams the startup read under another number than its first's."""
-    seq = _seq(st.copies[0]) if st.copies else None
-    return [d for d in st.copies if _seq(d) != seq]
+    return _by.new_numbers(st.copies)
 
 
 def renumbered(st: Any) -> bool:
     """The first Mission_Ready sent once under its number, then again -- the same bytes past the
     header -- under a new number while its ACK was withheld: a retransmission renumbered
     (MCP-SEQ-2), not a new message after a give-up (which follows copies that repeat it)."""
-    same, other = by_number(st), new_numbers(st)
-    return (len(same) == 1 and bool(other)
-            and all(d.data[HEADER_SIZE:] == same[0].data[HEADER_SIZE:] for d in other))
+    return _by.renumbered(st.copies)
 
 
 def describe_new(st: Any, limit: int = 3) -> str:
     """The numbers the startup's other Mission_Ready datagrams took, for a case's verdict."""
-    seqs = [_seq(d) for d in new_numbers(st)]
-    more = f", ... ({len(seqs)} in all)" if len(seqs) > limit else ""
-    return ", ".join(f"seq {s}" for s in seqs[:limit]) + more
+    return _by.describe_new(st.copies, limit)

@@ -11,6 +11,7 @@ from mcp_conform.conformance.manager_case import (
     abandoned,
     awaiting_start,
     awaiting_until,
+    gave_up,
     messages,
     runner_ack_time,
 )
@@ -76,7 +77,9 @@ def test_nothing_to_a_drone_until_start_mission_is_acked(node):
         raise Inconclusive("MCP-BLK-3: the manager sent no Start_Mission (see MCP-FLOW-2)")
     for x in starts:
         acked = runner_ack_time(m, x)
-        until = acked if acked is not None else m.t_end
+        # given up before any answer (MCP-RTX-1's), it awaited until its last copy: a Start_Mission
+        # sent again after it under a new number is a new message, not a command before its ACK
+        until = x.last.t if gave_up(m, x, node.rto, msgs) else acked if acked is not None else m.t_end
         early = [y for y in msgs if y.dst == x.dst and y is not x and x.first.t < y.first.t < until]
         if x is next(y for y in msgs if y.dst == x.dst and y.action == _START):  # a broadcast goes to it too (D-11)
             early = sorted(early + awaiting_start(m, msgs, x.dst, node.broadcast_id, node.rto), key=lambda y: y.first.t)

@@ -14,9 +14,15 @@ message until an acknowledgement is received."
 
 from __future__ import annotations
 
-from mcp_conform.conformance.manager_case import action_name, again_untold, messages
+from mcp_conform.conformance.manager_case import (
+    action_name,
+    again_untold,
+    messages,
+    withheld_copies,
+)
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
+from mcp_conform.judge.copies_by_number import describe_new, renumbered
 from mcp_conform.spec import SPEC
 from mcp_conform.spec.codec import Action
 
@@ -46,13 +52,22 @@ def _stopped_before_wrong_acks(m, w):
 
 @rules("MCP-RTX-1")
 def test_start_mission_is_retransmitted_until_acked(node):
+    """Copies counted by number (``judge.copies_by_number``, as the trace monitor counts them): a
+    Start_Mission sent again under a new number after copies that repeat its number is a new
+    message after a give-up; copies renumbered are MCP-SEQ-2's, and count for nothing here."""
     w = _withheld(node, "MCP-RTX-1")
-    n = len(w.copies)
+    if renumbered(w.copies):
+        raise Inconclusive(f"MCP-RTX-1: the manager's Start_Mission was sent once under its number, then again "
+                           f"under new ones ({describe_new(w.copies)}): not copies of one message (see MCP-SEQ-2)")
+    copies = withheld_copies(w)
+    n = len(copies)
+    new = (f", then a new Start_Mission ({describe_new(w.copies)}): a new message, not a copy "
+           "(retransmissions repeat the number)") if len(copies) < len(w.copies) else ""
     node.expect_true(n >= MIN_COPIES and not w.copies_after_right_ack, "MCP-RTX-1",
                      f"at least {MIN_COPIES} copies of Start_Mission while its ACK is withheld, none after the right ACK",
-                     f"{n} cop{'y' if n == 1 else 'ies'} while withheld" if n < MIN_COPIES else
+                     f"{n} cop{'y' if n == 1 else 'ies'} while withheld{new}" if n < MIN_COPIES else
                      f"{len(w.copies_after_right_ack)} copies after the right ACK (watched {w.stop_watch:.2f} s)",
-                     [d.describe() for d in (w.copies_after_right_ack or w.copies)[:3]])
+                     [d.describe() for d in (w.copies_after_right_ack or copies)[:3]])
 
 
 @rules("MCP-RTX-2")
@@ -104,8 +119,15 @@ def _judge_again(node, w):
 
 @rules("MCP-RTX-3")
 def test_copies_are_evenly_spaced(node):
+    """The gaps between copies that repeat the first's number (``judge.copies_by_number``)."""
     w = _withheld(node, "MCP-RTX-3")
-    node.expect_even_spacing(w.gaps(), run_delays=w.run_delays())
+    if renumbered(w.copies):
+        raise Inconclusive(f"MCP-RTX-3: the manager's Start_Mission was sent once under its number, then again "
+                           f"under new ones ({describe_new(w.copies)}): not copies of one message (see MCP-SEQ-2)")
+    copies = withheld_copies(w)
+    ts = [d.t for d in copies]
+    node.expect_even_spacing([b - a for a, b in zip(ts, ts[1:], strict=False)],
+                             run_delays=[d.run_delay for d in copies])
 
 
 @rules("MCP-RTX-4")

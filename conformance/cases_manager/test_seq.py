@@ -6,7 +6,7 @@ the same sequence number as the original."
 
 from __future__ import annotations
 
-from mcp_conform.conformance.manager_case import messages
+from mcp_conform.conformance.manager_case import messages, withheld_copies
 from mcp_conform.conformance.marks import rules
 from mcp_conform.harness.errors import Inconclusive
 from mcp_conform.spec import SPEC
@@ -53,12 +53,13 @@ _NEAR_S = float(SPEC.params["seq_reorder_grace_s"])
 def test_retransmission_repeats_seq_and_bytes(node):
     m = node.mission()
     w = m.withheld
-    if len(w.copies) < 2:
+    copies = withheld_copies(w)  # by number; all of them where it was sent once, then renumbered
+    if len(copies) < 2:
         raise Inconclusive("MCP-SEQ-2: the manager did not retransmit Start_Mission (see MCP-RTX-1)")
-    first = w.copies[0]
-    bad = [d for d in w.copies[1:] if d.data != first.data]
+    first = copies[0]
+    bad = [d for d in copies[1:] if d.data != first.data]
     node.expect_true(not bad, "MCP-SEQ-2", f"every copy of Start_Mission to drone {w.drone} repeats seq "
-                     f"{first.header[2]} and its bytes", f"{len(bad)} of {len(w.copies) - 1} copies differ"
+                     f"{first.header[2]} and its bytes", f"{len(bad)} of {len(copies) - 1} copies differ"
                      + (f" (seq {bad[0].header[2]})" if bad and bad[0].header else ""),
                      [first.describe()] + [d.describe() for d in bad[:2]])
 
