@@ -15,8 +15,8 @@ the datagrams in the order they were told:
 
 - told past the hold, seed 2 c2 of ``preempt=(0.3, 0.3)``: an ACK told after the manager's
   next unicast, stamped before it; a monitor holding datagrams 100 ms (``REORDER_NS``) fed
-  them out of order: MCP-BLK-1 (so with the hold put back). A session's monitor now holds
-  them until it is read.
+  them out of order: MCP-BLK-1 (seed 118 before; this one too with the hold put back). A
+  session's monitor now holds them until it is read.
 - told after the next session began, seed 21 c3 of ``(0.3, 0.3)``: the main manager's
   datagrams told after the silent drone's scenario's session had begun now go to the session
   their stamps fall in (they were judged there: MCP-BLK-6 + SEQ-1, seeds 110 and 249 before).
@@ -34,7 +34,8 @@ of its steps, ``preempt=(0.5, 0.5)`` and ``(0.3, 1.0)``; the arrival stamps stay
   record ended at once without them: "no End_Mission to drone(s) [..]" (MCP-FLOW-3; FLOW-5
   or FLOW-4). The record now ends once the receiver has read what the socket holds
   (``MissionScript._await_end``).
-- ACKed after the manager gave up, seeds 30 c1 and 34 c3 of ``(0.5, 0.5)``: the manager gave
+- ACKed after the manager gave up, seeds 30 c1 and 34 c3 of ``(0.5, 0.5)`` and 26 c2 of
+  ``(0.3, 0.6)``: the manager gave
   up a drone's command at its retry limit (13 copies, then a new unicast to another drone)
   and the runner's ACK came after; the monitor took the drone for one whose last command was
   ACKed and failed MCP-FLOW-3 for its missing End_Mission. The monitor now excuses a drone
@@ -76,6 +77,7 @@ SEEDS = [
     (34, (0.5, 0.5), 3, "ACKed after the manager gave up"),
     (46, (0.5, 0.5), 2, "ACKed after the manager gave up"),
     (73, (0.5, 0.5), 2, "ACKed after the manager gave up"),
+    (26, (0.3, 0.6), 2, "ACKed after the manager gave up"),
     (10, (0.3, 1.0), 1, "a wrong ACK before a command retransmitted"),
     (3, (0.3, 1.0), 2, "a wrong ACK before a command retransmitted"),
 ]
