@@ -174,6 +174,9 @@ class DronePlayers:
         self._again_limit = 0  # copies the first observation saw: a spoiled try has as many before them
         self._again_tries = 0
         self._again_done: set[tuple[int, int, bytes]] = set()  # the spoiled tries' messages
+        #: the receiver thread is sending the wrong ACKs (:meth:`_send_wrong_acks`; recorded once
+        #: both left): the observation is not over, whatever the record says yet
+        self._again_sending = False
 
     def reset(self, mission: Mission) -> None:
         with self._lock:
@@ -187,6 +190,7 @@ class DronePlayers:
             self._answered = set()
             self.hold_again = False
             self._again_key = None
+            self._again_sending = False
 
     def next_seq(self, drone: int) -> int:
         with self._lock:
@@ -339,7 +343,10 @@ class DronePlayers:
             return None
         if not w.wrong_acks:  # (this, the receiver thread, sends them before it reads on)
             w.copies.append(d)
-            return "wrong" if len(w.copies) == 2 else "held"
+            if len(w.copies) != 2:
+                return "held"
+            self._again_sending = True
+            return "wrong"
         if d.t > w.wrong_acks[0].t:
             if d.t <= w.wrong_acks[0].t + w.wrong_ack_wait:
                 w.copy_after_wrong_acks = d
@@ -358,21 +365,63 @@ class DronePlayers:
         return "spoiled"
 
     def _send_wrong_acks(self, drone: int, seq: int) -> None:
+        """(the receiver thread, ``_again_sending`` set) The two wrong ACKs, recorded once both
+        left; until then no :meth:`release_again` of the script's ends the observation."""
         others = [x for x in self.drones if x != drone]
-        wrong = [self.ack(drone, (seq + 0x8000) & 0xFFFF), self.ack(others[0] if others else self._again_outsider, seq)]
-        with self._lock:
-            self._again_stale[wrong[1].src] = None  # for a later try (a spoiled one's)
-            if self.mission is not None:
-                self.mission.withheld_again.wrong_acks = wrong
+        try:
+            wrong = [self.ack(drone, (seq + 0x8000) & 0xFFFF),
+                     self.ack(others[0] if others else self._again_outsider, seq)]
+            with self._lock:
+                self._again_stale[wrong[1].src] = None  # for a later try (a spoiled one's)
+                if self.mission is not None:
+                    self.mission.withheld_again.wrong_acks = wrong
+        finally:
+            with self._lock:
+                self._again_sending = False
 
-    def release_again(self, latest: Datagram | None = None) -> None:
+    def _again_due(self) -> float | None:
+        """(lock held) When the held message's next copy is overdue -- ``wrong_ack_wait`` after
+        the wrong ACKs, or after its first copy when no second came -- or None: nothing held,
+        or its wrong ACKs on their way (a thread taken off the CPU between the two: recorded
+        only after both, the record alone reads "no second copy" then)."""
+        if not self.hold_again or self.mission is None or self._again_sending:
+            return None
+        w = self.mission.withheld_again
+        if w.drone is None or not w.copies:
+            return None
+        return (w.wrong_acks[0].t if w.wrong_acks else w.copies[0].t) + w.wrong_ack_wait
+
+    def again_held(self) -> bool:
+        """A message is held for the observation now (its copies came, no right ACK yet)."""
+        with self._lock:
+            return bool(self.hold_again and self.mission is not None and self.mission.withheld_again.copies)
+
+    def again_overdue(self) -> Withheld | None:
+        """The observation held now (``Mission.withheld_again``) where its next copy is overdue
+        (:meth:`_again_due`), else None: what the script ends with ``release_again(held=...)``."""
+        with self._lock:
+            due = self._again_due()
+            if due is None or self.driver.clock.monotonic() <= due or self.mission is None:
+                return None
+            return self.mission.withheld_again
+
+    def release_again(self, latest: Datagram | None = None, *, held: Withheld | None = None) -> None:
         """The second observation over: its held message's ``latest`` copy (default: the last
-        held) answered with the right ACK, and nothing more is withheld."""
+        held) answered with the right ACK, and nothing more is withheld. ``held``: the
+        observation the caller found overdue (:meth:`again_overdue`), ended only where it is
+        still the one held and still overdue -- not a later try begun since (a spoiled one's
+        successor) nor one whose wrong ACKs are on their way: its right ACK sent between them,
+        before the copy they wait for was due, made a correct manager look as if it took one
+        (a false MCP-RTX-2, simulator seed 176 of ``preempt=(0.3, 0.3)``)."""
         with self._lock:
             if not self.hold_again or self.mission is None:
                 return
-            self.hold_again = False
             w = self.mission.withheld_again
+            if held is not None:
+                due = self._again_due()
+                if w is not held or due is None or self.driver.clock.monotonic() <= due:
+                    return
+            self.hold_again = False
             latest = latest or (w.copies[-1] if w.copies else None)
         if latest is not None:
             w.right_ack = self.answer(latest)

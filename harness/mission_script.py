@@ -445,16 +445,29 @@ class MissionScript:
         """MCP-RTX-2's second observation (``DronePlayers.arm_again``) ended where no copy came
         in time: its held message answered once what the socket held is read, its next copy
         overdue -- ``wrong_ack_wait`` after the wrong ACKs, or after its first copy when no
-        second came. (A copy after the wrong ACKs is answered by the drone players at once.)"""
-        a = self.m.withheld_again
-        if not self.players.hold_again or a.drone is None or not a.copies:
-            return
-        due = (a.wrong_acks[0].t if a.wrong_acks else a.copies[0].t) + a.wrong_ack_wait
-        if self.clock.monotonic() <= due:
+        second came (``DronePlayers.again_overdue``: never while the receiver thread is sending
+        the wrong ACKs). (A copy after the wrong ACKs is answered by the drone players at once.)
+        Released only if that observation is still the one held and still overdue after the
+        drain: the receiver, reading on, may have spoiled it and begun the next try, or be
+        sending that one's wrong ACKs (seed 176 of ``preempt=(0.3, 0.3)``: its right ACK went
+        out between them, a false MCP-RTX-2)."""
+        a = self.players.again_overdue()
+        if a is None:
             return
         if self.backlog():
             self.drain()  # a copy the receiver has not read yet is read first
-        self.players.release_again()
+        self.players.release_again(held=a)
+
+    def _end_again(self) -> None:
+        """The record does not end in the middle of MCP-RTX-2's observation: a message still held
+        is answered where :meth:`_settle_again` would, once its next copy is overdue (waited for
+        at most twice ``wrong_ack_wait`` and 1 s; then it is answered all the same). Answered as the mission ended, before the
+        window after the wrong ACKs did, it left "no copy after them" void (the case says so):
+        the simulator's wrong-seq-ack, its mission over 0.40 s after them, seed 2."""
+        end = self.clock.monotonic() + 2 * self.m.withheld_again.wrong_ack_wait + 1.0
+        while self.players.again_held() and self.clock.monotonic() < end:
+            self._settle_again()
+            self.driver.wait_for(lambda d: False, 0.05, self.driver.mark())
 
     # ------------------------------------------------------------------ the end
     def _await_end(self, expect: tuple[int, ...] | None = None, cap: float | None = None) -> None:
@@ -493,6 +506,7 @@ class MissionScript:
                 break
             self._settle_again()
             self.driver.wait_for(lambda d: False, 0.05, self.driver.mark())
+        self._end_again()
         self.players.release_again()  # nothing more is withheld once the record ends
         if self.backlog():
             self.drain()

@@ -105,6 +105,11 @@ def _judge_again(node, w):
     if why is not None:
         raise Inconclusive(f"MCP-RTX-2: {first}; the second observation tells nothing: {why}")
     what = action_name(a.copies[0].action)
+    early = _answered_in_the_window(m, a)
+    if early is not None:
+        raise Inconclusive(f"MCP-RTX-2: {first}; the second observation tells nothing: its {what} to drone "
+                           f"{a.drone} was answered {early:.2f} s after the first wrong ACK, before the "
+                           f"{a.wrong_ack_wait:.2f} s watched after them ended (no copy due after the right ACK)")
     node.expect_true(a.copy_after_wrong_acks is not None, "MCP-RTX-2",
                      "retransmission goes on after an ACK with the wrong seq and one from another drone",
                      f"{first}; then {what} to drone {a.drone}, its ACK withheld: {len(a.copies)} copies, the "
@@ -115,6 +120,23 @@ def _judge_again(node, w):
               f"{'same ' if w.wrong_acks else ''}wrong ACKs sent after its second copy "
               f"({a.copy_after_wrong_acks.t - a.wrong_acks[0].t:.2f} s after them): the wrong ACKs end nothing"
               + (", the Start_Mission was given up at its retry limit" if w.wrong_acks else ""))
+
+
+def _answered_in_the_window(m, a):
+    """How long after the first wrong ACK the held message's right ACK went out, where that was
+    before the window watched after them ended and no copy came in it (None: it was not): a
+    correct manager stops at the right ACK, so "no copy after the wrong ACKs" then shows nothing
+    of a taken wrong ACK (the runner's own doing: ``DronePlayers.release_again``, seed 176 of
+    ``preempt=(0.3, 0.3)``, sent it between the two wrong ACKs). The earliest ACK of it that
+    the runner sent of it after its first copy, whichever thread sent it (``Mission.acks``)."""
+    if a.copy_after_wrong_acks is not None or not a.wrong_acks or a.copies[0].header is None:
+        return None
+    acks = [s.t for s in (a.right_ack, m.acks.get((a.drone, a.copies[0].header[2])))
+            if s is not None and s.t >= a.copies[0].t]
+    t_wrong = a.wrong_acks[0].t
+    if not acks or min(acks) > t_wrong + a.wrong_ack_wait:
+        return None
+    return min(acks) - t_wrong
 
 
 @rules("MCP-RTX-3")
