@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import os
 import sys
@@ -175,7 +176,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _main(argv)
     except MemoryError:
-        return _error("out of memory (the host's, or an address-space limit such as ulimit -v)")
+        return _error(_OOM)
+    except OSError as exc:  # ENOMEM from the system (importlib listing a package's directory)
+        if exc.errno != errno.ENOMEM:
+            raise
+        return _error(_OOM)
+
+
+_OOM = "out of memory (the host's, or an address-space limit such as ulimit -v)"
 
 
 def _main(argv: Sequence[str] | None) -> int:
