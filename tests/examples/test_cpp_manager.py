@@ -13,7 +13,6 @@ build fails MCP-ACK-2 alone (its ACKs were read as ACKs of an ACK, MCP-ACK-6, un
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -22,8 +21,7 @@ from typing import Any
 
 import pytest
 
-from spec import load
-from tests.forkserver import run_module
+from tests.examples.manager_suite import failed_must, run_manager_suite
 from tests.xdist_once import once
 
 #: slow; and the builds a test may wait for (tests/xdist_once.py: one worker builds, the others
@@ -33,7 +31,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 ROOT = Path(__file__).resolve().parents[2]
 SOURCE = ROOT / "examples" / "mcp_cpp" / "manager"
-RTO = "0.3"  # the runner's --rto and --ack-window, and the node's own --rto
 
 #: the builds: name -> make's variables
 BUILDS: dict[str, tuple[str, ...]] = {
@@ -95,31 +92,8 @@ def builds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def run_suite(tmp_path_factory: pytest.TempPathFactory, builds: dict[str, Path], build: str,
               challenge: str, node_args: str = "") -> dict[str, Any]:
-    """The suite's JSON report on one build at --rto/--ack-window 0.3 (``node_args``: more of
-    the node's options), once a test session."""
-
-    def make(out: Path) -> dict[str, Any]:
-        report = out / "r.json"
-        spawn = (f"{builds[build]} --bind {{target_host}}:{{target_port}} --send-to {{broadcast}}:{{listen_port}}"
-                 f" --drones {{drones}} --challenge {{challenge}} --waypoints {{waypoints}}"
-                 f" --obstacles {{obstacles}} --rto {RTO} {node_args}")
-        proc = run_module("conformance", ["--role", "manager", "--challenge", challenge, "--rto", RTO,
-                                          "--ack-window", RTO, "--json", str(report), "--spawn", spawn],
-                          timeout=300)
-        assert report.exists(), proc.stdout + proc.stderr
-        doc: dict[str, Any] = json.loads(report.read_text())
-        doc["exit_code"] = proc.returncode
-        doc["output"] = proc.stdout + proc.stderr
-        return doc
-
-    name = f"cpp_manager_{build}_c{challenge}_{node_args.replace(' ', '').replace('-', '')}"
-    result: dict[str, Any] = once(tmp_path_factory, name, make)
-    return result
-
-
-def failed_must(doc: dict[str, Any]) -> set[str]:
-    must = {r.id for r in load().rules if r.level == "MUST"}
-    return {rule for rule, outcome in doc["rules"].items() if outcome == "failed" and rule in must}
+    """The suite's JSON report on one build (``tests.examples.manager_suite``)."""
+    return run_manager_suite(tmp_path_factory, "cpp_manager", builds[build], build, challenge, node_args, dash="--")
 
 
 @pytest.mark.parametrize("challenge", ["1", "2", "3"])
